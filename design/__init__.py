@@ -1,0 +1,1 @@
+"""Ball-screw preload design with CasADi (not implemented yet: see the open design issue)."""

@@ -1,0 +1,1 @@
+"""Data shipped with piezopreload (see README.md in this folder)."""

@@ -1,0 +1,1 @@
+"""Figures and PDF reports (not implemented yet: see the open report issue)."""

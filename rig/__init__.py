@@ -1,0 +1,1 @@
+"""The rig executor, backends, interlocks and gain export (not implemented yet: see the open rig issue)."""

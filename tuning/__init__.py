@@ -1,0 +1,1 @@
+"""Identification of hysteresis models (cvxpy + Clarabel); PID tuning and validation."""

@@ -1,0 +1,462 @@
+"""Identification of P-I hysteresis models as a constrained least-squares QP (cvxpy + Clarabel).
+
+Every model of :mod:`piezopreload.models.hysteresis` is linear in its weights once the
+thresholds are fixed, so identification is ``min ||Phi x - y||^2`` subject to linear
+inequalities: nonnegative weights (classical and the paper's asymmetric model), and for
+Kuhnen's modified model the invertibility constraints of its dead-zone superposition.
+
+The QP never sees the samples: the least-squares term is compressed to the Cholesky factor
+of the (column-scaled) Gram matrix, ``p x p`` with ``p`` the number of parameters, so its
+size and solve time do not grow with the record length. After the interior-point solve the
+active set is *polished* (the equality-constrained least-squares problem on the active
+constraints is solved directly, and kept only if it is feasible with nonnegative multipliers),
+which recovers exact weights to machine precision on noise-free data.
+
+The paper's own method, cubic polynomials fitted to the ascending and descending branches
+and weights read from their slopes (eq. (17)), is :func:`paper_branch_weights`: a baseline.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import cvxpy as cp
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from piezopreload.models.hysteresis import (
+    AsymmetricPI,
+    ClassicalPI,
+    DeadZone,
+    HysteresisModel,
+    ModifiedPI,
+    deadzone,
+    play,
+    uniform_thresholds,
+)
+
+__all__ = [
+    "MODELS",
+    "paper_baseline",
+    "NotFittedError",
+    "IdentificationError",
+    "PIIdentifier",
+    "fit_error",
+    "paper_branch_weights",
+    "straight_line",
+]
+
+MODELS = ("classical", "paper-asymmetric", "modified")
+ModelName = Literal["classical", "paper-asymmetric", "modified"]
+
+
+class NotFittedError(RuntimeError):
+    """The estimator was used before :meth:`PIIdentifier.fit`."""
+
+
+class IdentificationError(ValueError):
+    """The data cannot identify the requested model (too short, constant, solver failure)."""
+
+
+# --------------------------------------------------------------------------------------
+# error metrics
+# --------------------------------------------------------------------------------------
+def fit_error(predicted: ArrayLike, measured: ArrayLike, span: float) -> dict[str, float]:
+    """RMS and maximum absolute error as a percentage of ``span`` (the output span)."""
+    e = np.asarray(predicted, float) - np.asarray(measured, float)
+    return {
+        "rms_pct": float(100.0 * np.sqrt(np.mean(e**2)) / span),
+        "max_pct": float(100.0 * np.max(np.abs(e)) / span),
+    }
+
+
+def straight_line(v: ArrayLike, y: ArrayLike) -> tuple[float, float]:
+    """Least-squares line ``y = slope * v + intercept``: what a model without hysteresis buys."""
+    slope, intercept = np.polyfit(np.asarray(v, float), np.asarray(y, float), 1)
+    return float(slope), float(intercept)
+
+
+# --------------------------------------------------------------------------------------
+# the compressed, polished QP
+# --------------------------------------------------------------------------------------
+@dataclass
+class _QPResult:
+    x: NDArray[np.float64]
+    status: str
+    solve_time_s: float
+    iterations: int
+    polished: bool
+
+
+def _solve_constrained_lsq(
+    phi: NDArray[np.float64],
+    y: NDArray[np.float64],
+    a_ineq: NDArray[np.float64],
+    b_ineq: NDArray[np.float64],
+    *,
+    ridge: float,
+    penalised: NDArray[np.bool_],
+    solver_options: dict[str, Any],
+) -> _QPResult:
+    """``min ||phi x - y||^2 / N + ridge ||s * x||^2  s.t.  a_ineq x >= b_ineq``.
+
+    Columns are scaled to unit RMS first (``s`` the scales), so ``ridge`` is dimensionless
+    and the Gram matrix is as well conditioned as the data allow.
+    """
+    n_samples, p = phi.shape
+    scale = np.sqrt(np.mean(phi**2, axis=0))
+    scale[scale == 0] = 1.0
+    y_scale = max(float(np.sqrt(np.mean(y**2))), 1e-300)
+    a = phi / scale
+    gram = a.T @ a / n_samples
+    rhs = a.T @ (y / y_scale) / n_samples
+    gram[np.diag_indices(p)] += ridge * penalised
+    try:
+        chol = np.linalg.cholesky(gram)
+    except np.linalg.LinAlgError:
+        jitter = 1e-12 * np.trace(gram) / p
+        try:
+            chol = np.linalg.cholesky(gram + jitter * np.eye(p))
+        except np.linalg.LinAlgError:
+            raise IdentificationError(
+                "the regressors are linearly dependent (is an operator never moved by the input?); "
+                "use fewer operators or a ridge term (--ridge)"
+            ) from None
+    target = np.linalg.solve(chol, rhs)
+    a_scaled = a_ineq * (y_scale / scale)  # constraints on the scaled variable z = x * scale / y_scale
+
+    z = cp.Variable(p)
+    constraints = [a_scaled @ z >= b_ineq] if a_ineq.shape[0] else []
+    problem = cp.Problem(cp.Minimize(cp.sum_squares(chol.T @ z - target)), constraints)
+    t0 = time.perf_counter()
+    try:
+        problem.solve(solver=cp.CLARABEL, **solver_options)
+    except cp.error.SolverError as exc:
+        raise IdentificationError(f"the QP solver failed: {exc}") from None
+    seconds = time.perf_counter() - t0
+    status = str(problem.status)
+    if status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or z.value is None:
+        why = {
+            cp.INFEASIBLE: "the constraints cannot all hold",
+            cp.UNBOUNDED: "the objective is unbounded",
+        }.get(status, "the solver stopped without a solution")
+        raise IdentificationError(f"the QP ended with status '{status}': {why}")
+    zq = np.asarray(z.value, float)
+    stats = problem.solver_stats
+    iterations = int(stats.num_iters or 0) if stats is not None else 0
+
+    # ---- polish: the equality-constrained problem on the active set, solved exactly --------
+    polished = False
+    if a_ineq.shape[0]:
+        zp = _polish(gram, rhs, a_scaled, b_ineq, zq)
+        if zp is not None:
+            zq, polished = zp, True
+    else:
+        zq, polished = np.linalg.solve(gram, rhs), True
+    return _QPResult(
+        x=zq * y_scale / scale, status=status, solve_time_s=seconds, iterations=iterations, polished=polished
+    )
+
+
+def _polish(
+    gram: NDArray, rhs: NDArray, a: NDArray, b: NDArray, z0: NDArray, max_rounds: int = 50
+) -> NDArray | None:
+    """Refine an interior-point solution of ``min z'Gz - 2 rhs'z s.t. a z >= b`` on its active set.
+
+    Interior-point iterates stop short of the boundary. Starting from the constraints that are
+    nearly active at ``z0``, solve the KKT system with those as equalities, add constraints the
+    result violates, drop those whose multiplier is negative, and repeat: a primal-dual active-set
+    refinement that usually ends in one or two rounds. Returns None when it does not settle on
+    a feasible point with nonnegative multipliers that is at least as good as ``z0``.
+    """
+    p = gram.shape[0]
+    row_norm = np.linalg.norm(a, axis=1)
+    slack = a @ z0 - b
+    active = slack <= 1e-4 * row_norm * max(float(np.max(np.abs(z0))), 1.0)
+    objective = lambda z: z @ gram @ z - 2 * rhs @ z  # noqa: E731
+    feas_tol = 1e-10 * np.maximum(row_norm, 1.0)
+    dual_tol = 1e-10 * max(1.0, float(np.max(np.abs(rhs))))
+    for _ in range(max_rounds):
+        aa = a[active]
+        k = aa.shape[0]
+        kkt = np.block([[gram, aa.T], [aa, np.zeros((k, k))]])
+        try:
+            sol = np.linalg.solve(kkt, np.concatenate([rhs, b[active]]))
+        except np.linalg.LinAlgError:
+            return None
+        z, mult = sol[:p], -sol[p:]  # stationarity: gram z - rhs = aa' mult, mult >= 0
+        violated = a @ z - b < -feas_tol
+        negative = mult < -dual_tol
+        if not violated.any() and not negative.any():
+            return z if objective(z) <= objective(z0) + 1e-12 * max(1.0, abs(objective(z0))) else None
+        idx = np.flatnonzero(active)
+        if negative.any():  # release the most negative multiplier first
+            active[idx[np.argmin(mult)]] = False
+        active |= violated
+    return None
+
+
+# --------------------------------------------------------------------------------------
+# the estimator
+# --------------------------------------------------------------------------------------
+@dataclass
+class PIIdentifier:
+    """Identify a P-I model from a measured input/output record.
+
+    Parameters
+    ----------
+    model : {"classical", "paper-asymmetric", "modified"}
+        Eq. (15), eq. (18), or Kuhnen's modified P-I model.
+    n_operators : int
+        Number of play operators ``n`` (the paper uses 40).
+    thresholds : {"range", "paper"} or array_like
+        ``"range"``: ``r_k = (k-1)/n * max|v|`` over the whole record (operators start at rest,
+        so every one of them moves); ``"paper"``: eq. (16), ``r_k = (k-1)/n * v_max``;
+        or explicit thresholds starting at 0.
+    ridge : float
+        Dimensionless ridge weight on the column-scaled weights (0: none).
+    n_deadzone : int
+        Dead-zone operators on each side of the linear one (modified model only).
+    min_slope : float
+        Smallest slope allowed to the output dead-zone superposition relative to its central
+        slope of 1 (modified model): the invertibility margin.
+    solver_options : dict
+        Passed to ``cvxpy.Problem.solve`` with ``solver=CLARABEL``.
+
+    Attributes (after :meth:`fit`)
+    -----------------------------
+    model_ : the identified model; ``thresholds_``; ``status_`` (solver status);
+    ``solve_time_s_`` (QP only); ``fit_time_s_`` (operators + compression + QP);
+    ``polished_`` (active-set polish accepted); ``n_train_`` (samples used).
+    """
+
+    model: ModelName = "classical"
+    n_operators: int = 40
+    thresholds: str | ArrayLike = "range"
+    ridge: float = 0.0
+    n_deadzone: int = 3
+    min_slope: float = 0.05
+    solver_options: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.model not in MODELS:
+            raise ValueError(f"model must be one of {', '.join(MODELS)}, got {self.model!r}.")
+        if int(self.n_operators) != self.n_operators or self.n_operators < 1:
+            raise ValueError(f"n_operators must be a positive integer, got {self.n_operators!r}.")
+        if not np.isfinite(self.ridge) or self.ridge < 0:
+            raise ValueError(f"ridge must be >= 0, got {self.ridge!r}.")
+        if int(self.n_deadzone) != self.n_deadzone or self.n_deadzone < 0:
+            raise ValueError(f"n_deadzone must be a nonnegative integer, got {self.n_deadzone!r}.")
+        if not 0 < self.min_slope <= 1:
+            raise ValueError(f"min_slope must be in (0, 1], got {self.min_slope!r}.")
+        if isinstance(self.thresholds, str) and self.thresholds not in ("range", "paper"):
+            raise ValueError(f"thresholds must be 'range', 'paper' or an array, got {self.thresholds!r}.")
+
+    # ---- helpers ---------------------------------------------------------------------
+    def _thresholds(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
+        if isinstance(self.thresholds, str):
+            reach = float(np.max(v)) if self.thresholds == "paper" else float(np.max(np.abs(v)))
+            if reach <= 0:
+                raise IdentificationError(
+                    "the input never leaves 0 (or, with thresholds='paper', never goes positive): "
+                    "the play operators cannot be excited"
+                )
+            return uniform_thresholds(self.n_operators, reach)
+        r = np.asarray(self.thresholds, float)
+        return ClassicalPI(r, np.ones_like(r)).thresholds
+
+    # ---- fit ----------------------------------------------------------------------------
+    def fit(
+        self,
+        v: ArrayLike,
+        y: ArrayLike,
+        train: ArrayLike | slice | None = None,
+        state: ArrayLike | None = None,
+    ) -> PIIdentifier:
+        """Identify the weights from input ``v`` and measured output ``y``.
+
+        The operators run over the whole record from ``state`` (at rest by default), so a
+        training window that starts late still sees the right operator states; only the
+        samples selected by ``train`` (boolean mask or slice; all by default) enter the fit.
+        """
+        t0 = time.perf_counter()
+        v = np.asarray(v, float)
+        y = np.asarray(y, float)
+        if v.ndim != 1 or v.shape != y.shape:
+            raise ValueError(f"v and y must be 1-D of equal length, got shapes {v.shape} and {y.shape}.")
+        if not (np.all(np.isfinite(v)) and np.all(np.isfinite(y))):
+            raise ValueError("v and y must be finite.")
+        rows = np.zeros(v.size, bool)
+        rows[slice(None) if train is None else train] = True
+        r = self._thresholds(v)
+        n = r.size
+        ops = play(v, r, state)[rows]
+        y_t = y[rows]
+        v_t = v[rows]
+        if np.ptp(v_t) == 0:
+            raise IdentificationError("the input is constant over the training window: nothing to identify")
+
+        if self.model == "classical":
+            phi = np.column_stack([ops, np.ones(len(y_t))])
+            a_ineq = np.hstack([np.eye(n), np.zeros((n, 1))])
+            b_ineq = np.zeros(n)
+            penalised = np.r_[np.ones(n, bool), False]
+            target = y_t
+        elif self.model == "paper-asymmetric":
+            p = AsymmetricPI(r, np.ones(n), np.ones(n)).rising_mask(v)[rows][:, None]
+            phi = np.column_stack([ops * p, ops * ~p, np.ones(len(y_t))])
+            a_ineq = np.hstack([np.eye(2 * n), np.zeros((2 * n, 1))])
+            b_ineq = np.zeros(2 * n)
+            penalised = np.r_[np.ones(2 * n, bool), False]
+            target = y_t
+        else:
+            # Kuhnen: Gamma[v] + bias = g(y - y_ref), g a dead-zone superposition with central
+            # weight 1; linear in (w, bias, g) and so a QP. Its inverse gives the forward model.
+            y_ref = 0.5 * (np.max(y_t) + np.min(y_t))
+            m = int(self.n_deadzone)
+            up = (np.max(y_t) - y_ref) * np.arange(1, m + 1) / (m + 1)
+            down = (np.min(y_t) - y_ref) * np.arange(m, 0, -1) / (m + 1)
+            e = np.concatenate([down, [0.0], up])
+            dz = DeadZone(e, np.ones_like(e)).thresholds
+            d_all = deadzone(y_t - y_ref, dz)
+            center = m
+            d_rest = np.delete(d_all, center, axis=1)
+            phi = np.column_stack([ops, np.ones(len(y_t)), -d_rest])
+            target = d_all[:, center]
+            n_g = 2 * m
+            # slopes outward from the centre: 1 + partial sums of g >= min_slope
+            a_g = np.zeros((n_g, n_g))
+            for j in range(m):  # positive side, g indices m..2m-1 in d_rest order
+                a_g[j, m : m + j + 1] = 1.0
+            for j in range(m):  # negative side, g indices m-1 down to 0
+                a_g[m + j, m - 1 - j : m] = 1.0
+            a_ineq = np.block(
+                [
+                    [np.eye(n), np.zeros((n, 1)), np.zeros((n, n_g))],
+                    [np.zeros((n_g, n + 1)), a_g],
+                ]
+            )
+            b_ineq = np.r_[np.zeros(n), np.full(n_g, self.min_slope - 1.0)]
+            penalised = np.r_[np.ones(n, bool), False, np.ones(n_g, bool)]
+
+        n_params = phi.shape[1]
+        if len(y_t) < 2 * n_params:
+            raise IdentificationError(
+                f"the training window has {len(y_t)} samples for {n_params} parameters; "
+                f"give at least {2 * n_params} (a longer window or fewer operators)"
+            )
+        qp = _solve_constrained_lsq(
+            phi, target, a_ineq, b_ineq, ridge=self.ridge, penalised=penalised,
+            solver_options=dict(self.solver_options),
+        )
+        x = qp.x
+        if self.model == "classical":
+            model: HysteresisModel = ClassicalPI(r, np.maximum(x[:n], 0.0), x[n])
+        elif self.model == "paper-asymmetric":
+            model = AsymmetricPI(r, np.maximum(x[:n], 0.0), np.maximum(x[n : 2 * n], 0.0), x[2 * n])
+        else:
+            g = np.insert(x[n + 1 :], m, 1.0)
+            shaper = DeadZone(dz, g).inverse()
+            model = ModifiedPI(
+                r, np.maximum(x[:n], 0.0), shaper.thresholds, shaper.weights, bias=x[n], offset=y_ref
+            )
+        self.model_ = model
+        self.thresholds_ = r
+        self.status_ = qp.status
+        self.solve_time_s_ = qp.solve_time_s
+        self.iterations_ = qp.iterations
+        self.polished_ = qp.polished
+        self.n_train_ = int(len(y_t))
+        self.fit_time_s_ = time.perf_counter() - t0
+        return self
+
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "model_"):
+            raise NotFittedError("this PIIdentifier is not fitted yet; call fit(v, y) first.")
+
+    def predict(self, v: ArrayLike, state: ArrayLike | None = None) -> NDArray[np.float64]:
+        """Model output for input ``v`` from ``state`` (at rest by default)."""
+        self._check_fitted()
+        return self.model_(v, state)
+
+
+# --------------------------------------------------------------------------------------
+# the paper's method, eq. (17): weights from slopes of cubic fits to the branches
+# --------------------------------------------------------------------------------------
+def _turning_points(v: NDArray, fraction: float = 0.1) -> list[int]:
+    """Indices of the input's reversals, ignoring wiggles smaller than ``fraction`` of its range."""
+    tol = fraction * float(np.ptp(v))
+    turns = [0]
+    extreme, direction = 0, 0
+    for i in range(1, v.size):
+        if direction >= 0 and v[i] >= v[extreme] or direction <= 0 and v[i] <= v[extreme]:
+            if direction == 0 and abs(v[i] - v[0]) > tol:
+                direction = 1 if v[i] > v[0] else -1
+            extreme = i if direction else extreme
+        elif abs(v[i] - v[extreme]) > tol:
+            turns.append(extreme)
+            direction, extreme = -direction, i
+    turns.append(extreme)
+    return turns
+
+
+def _last_branch(v: NDArray, rising: bool) -> slice:
+    """The last complete monotone branch, reversal to reversal, of ``v``."""
+    turns = _turning_points(v)
+    branches = [
+        slice(a, b + 1) for a, b in zip(turns[1:-2], turns[2:-1]) if (v[b] > v[a]) == rising
+    ]
+    if not branches:
+        raise IdentificationError(
+            f"no complete {'ascending' if rising else 'descending'} branch (reversal to reversal) "
+            "in the training window for the paper's branch-slope method"
+        )
+    return branches[-1]
+
+
+def paper_branch_weights(
+    v: ArrayLike, y: ArrayLike, thresholds: ArrayLike, rising: bool
+) -> NDArray[np.float64]:
+    """Weights from the slopes of a cubic fitted to one branch: eq. (17) of the paper.
+
+    On a branch that starts at a reversal, operator ``k`` starts to move when the input has
+    travelled ``2 r_k``, so the branch's slope between ``2 r_k`` and ``2 r_{k+1}`` is
+    ``w_1 + ... + w_k``. The paper fits cubic polynomials to the (normalised) ascending and
+    descending branches and reads the slopes off them; operators whose ``2 r_k`` lies beyond
+    the branch never move on it and get weight 0.
+    """
+    v = np.asarray(v, float)
+    y = np.asarray(y, float)
+    r = np.asarray(thresholds, float)
+    br = _last_branch(v, rising)
+    sign = 1.0 if rising else -1.0
+    s = sign * (v[br] - v[br][0])
+    o = sign * (y[br] - y[br][0])
+    poly = np.polynomial.Polynomial.fit(s, o, 3)  # normalises the domain itself
+    length = float(np.max(s))
+    edges = np.minimum(np.append(2 * r, np.inf), length)
+    lo, hi = edges[:-1], edges[1:]
+    slopes = np.where(hi > lo, (poly(hi) - poly(lo)) / np.where(hi > lo, hi - lo, 1.0), np.nan)
+    # operators that never move on this branch: the partial sum stays where it was
+    for k in range(1, slopes.size):
+        if np.isnan(slopes[k]):
+            slopes[k] = slopes[k - 1]
+    return np.diff(slopes, prepend=0.0)
+
+
+def paper_baseline(
+    v: ArrayLike, y: ArrayLike, thresholds: ArrayLike, train: ArrayLike | slice | None = None
+) -> AsymmetricPI:
+    """The paper's identification (eqs. (17)-(18)): branch-slope weights, offset by least squares."""
+    v = np.asarray(v, float)
+    y = np.asarray(y, float)
+    rows = np.zeros(v.size, bool)
+    rows[slice(None) if train is None else train] = True
+    r = np.asarray(thresholds, float)
+    w_rise = paper_branch_weights(v[rows], y[rows], r, rising=True)
+    w_fall = paper_branch_weights(v[rows], y[rows], r, rising=False)
+    model = AsymmetricPI(r, w_rise, w_fall, 0.0)
+    offset = float(np.mean(y[rows] - model(v)[rows]))
+    return AsymmetricPI(r, w_rise, w_fall, offset)
