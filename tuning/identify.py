@@ -220,8 +220,9 @@ class PIIdentifier:
     n_deadzone : int
         Dead-zone operators on each side of the linear one (modified model only).
     min_slope : float
-        Smallest slope allowed to the output dead-zone superposition relative to its central
-        slope of 1 (modified model): the invertibility margin.
+        Invertibility margin of the modified model: the smallest slope of its dead-zone
+        superposition relative to the central slope of 1, and the smallest linear weight ``w_1``
+        relative to the record's average slope ``ptp(y) / ptp(v)``.
     solver_options : dict
         Passed to ``cvxpy.Problem.solve`` with ``solver=CLARABEL``.
 
@@ -338,7 +339,10 @@ class PIIdentifier:
                     [np.zeros((n_g, n + 1)), a_g],
                 ]
             )
-            b_ineq = np.r_[np.zeros(n), np.full(n_g, self.min_slope - 1.0)]
+            # the play part must be invertible too: its first slope w_1 bounded away from 0,
+            # relative to the record's average slope (y is in the output units of Gamma here)
+            mean_slope = float(np.ptp(y_t) / np.ptp(v_t))
+            b_ineq = np.r_[self.min_slope * mean_slope, np.zeros(n - 1), np.full(n_g, self.min_slope - 1.0)]
             penalised = np.r_[np.ones(n, bool), False, np.ones(n_g, bool)]
 
         n_params = phi.shape[1]

@@ -1,0 +1,117 @@
+"""Versioned JSON artifacts: written atomically, read back with every field checked.
+
+Every artifact is ``{"schema": "piezopreload/<kind>/1", "package_version": ..., "created_utc":
+..., "inputs": {...hashes...}, "units": {...}, ...}``. Readers reject an unknown schema, the wrong
+kind, missing fields and non-finite numbers, naming the field.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from piezopreload import __version__
+from piezopreload.io import InputError
+
+__all__ = ["ArtifactError", "schema_name", "write_artifact", "read_artifact", "atomic_write_text"]
+
+VERSION = 1
+KINDS = {"hysteresis-model": ("model", "units", "inputs")}
+
+
+class ArtifactError(InputError):
+    """An artifact file that cannot be used: exit code 2, the message names the field."""
+
+
+def schema_name(kind: str) -> str:
+    return f"piezopreload/{kind}/{VERSION}"
+
+
+def atomic_write_text(path: str | Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _first_non_finite(value: Any, where: str) -> str | None:
+    """Path of the first non-finite number in a JSON-like value, or None."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return where
+    items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
+    for key, item in items:
+        found = _first_non_finite(item, f"{where}.{key}" if isinstance(key, str) else f"{where}[{key}]")
+        if found is not None:
+            return found
+    return None
+
+
+def write_artifact(path: str | Path, kind: str, body: dict[str, Any]) -> dict[str, Any]:
+    """Write a ``kind`` artifact holding ``body`` atomically; returns the whole document."""
+    if kind not in KINDS:
+        raise ValueError(f"unknown artifact kind {kind!r}")
+    doc = {
+        "schema": schema_name(kind),
+        "package_version": __version__,
+        "created_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        **body,
+    }
+    missing = [f for f in KINDS[kind] if f not in doc]
+    if missing:
+        raise ValueError(f"a {kind} artifact needs the field '{missing[0]}'")
+    bad = _first_non_finite(doc, "")
+    if bad is not None:
+        raise ValueError(f"{kind} artifact field '{bad.lstrip('.')}' is not finite")
+    atomic_write_text(path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
+    return doc
+
+
+class _NonFinite(float):
+    """Marks a NaN/Infinity literal met while parsing, so the reader can name its field."""
+
+
+def read_artifact(path: str | Path, kind: str) -> dict[str, Any]:
+    """Read and check a ``kind`` artifact; :class:`ArtifactError` names what is wrong and where."""
+    shown = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ArtifactError(f"{shown}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ArtifactError(f"{shown}: cannot read ({exc})") from None
+    try:
+        doc = json.loads(text, parse_constant=lambda c: _NonFinite(c.replace("Infinity", "inf")))
+    except json.JSONDecodeError as exc:
+        raise ArtifactError(f"{shown}:{exc.lineno}: not valid JSON ({exc.msg})") from None
+    if not isinstance(doc, dict):
+        raise ArtifactError(f"{shown}: expected a JSON object at the top level")
+    schema = doc.get("schema")
+    expected = schema_name(kind)
+    if not isinstance(schema, str) or not schema.startswith("piezopreload/"):
+        raise ArtifactError(f"{shown}: field 'schema' is {schema!r}; expected '{expected}'")
+    if schema != expected:
+        got_kind = schema.split("/")[1] if schema.count("/") == 2 else schema
+        if got_kind != kind:
+            raise ArtifactError(f"{shown}: this is a '{got_kind}' artifact; expected a '{kind}' ({expected})")
+        raise ArtifactError(f"{shown}: schema '{schema}' is not supported by this version; expected '{expected}'")
+    for name in KINDS[kind]:
+        if name not in doc:
+            raise ArtifactError(f"{shown}: field '{name}' is missing")
+    bad = _first_non_finite(doc, "")
+    if bad is not None:
+        raise ArtifactError(f"{shown}: field '{bad.lstrip('.')}' is not a finite number; artifacts hold finite numbers only")
+    return doc

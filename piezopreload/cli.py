@@ -1,0 +1,172 @@
+"""The ``piezopreload`` command line.
+
+Every subcommand has ``--help`` and ``--json`` (one JSON object on stdout) and exits 0 on
+success, 2 on bad input with one ``error: ...`` line on stderr, 1 on an internal failure.
+Set ``PIEZOPRELOAD_DEBUG=1`` to see the traceback of an internal failure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import traceback
+from typing import Any, Sequence
+
+from piezopreload import __version__
+from piezopreload.io import SHIPPED_COLUMNS, InputError, parse_columns, read_record, shipped_data
+from piezopreload.pipeline import identify, parse_window
+from piezopreload.tuning.identify import MODELS
+
+EXIT_OK, EXIT_INTERNAL, EXIT_INPUT = 0, 1, 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports bad arguments as one ``error: ...`` line with exit code 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise InputError(f"{self.prog}: {message} (see --help)")
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {value}")
+    return value
+
+
+def _nonnegative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+    if not value >= 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
+    return value
+
+
+# --------------------------------------------------------------------------------------
+# identify
+# --------------------------------------------------------------------------------------
+def _cmd_identify(args: argparse.Namespace) -> dict[str, Any]:
+    if args.data is None:
+        path, columns, header = shipped_data(), parse_columns(SHIPPED_COLUMNS), False
+    else:
+        path = args.data
+        columns = parse_columns(args.columns) if args.columns else None
+        header = not args.no_header
+    record = read_record(path, columns=columns, header=header)
+    return identify(
+        record,
+        model=args.model,
+        operators=args.operators,
+        train=parse_window(args.train, "--train") if args.train else None,
+        test=parse_window(args.test, "--test") if args.test else None,
+        ridge=args.ridge,
+        out=args.out,
+    )
+
+
+def _print_identify(s: dict[str, Any]) -> None:
+    d = s["data"]
+    unit = s["output_unit"] or "output units"
+    print(f"data      {d['path']} ({d['samples']} samples; input {d['input']}, output {d['output']})")
+    print(f"model     {s['model']}, {s['operators']} play operators, "
+          f"{'invertible' if s['invertible'] else 'not invertible'}")
+    sv = s["solver"]
+    print(f"solver    {sv['name']}: {sv['status']}{', active set polished' if sv['polished'] else ''}; "
+          f"QP {1e3 * sv['qp_seconds']:.1f} ms, whole fit {1e3 * sv['fit_seconds']:.0f} ms")
+    print(f"errors in % of the output span ({s['output_span']:.4g} {unit}):")
+    print(f"  {'':34s}{'RMS':>8s}{'max':>8s}")
+    rows = [
+        (f"train {s['train']['window_s'][0]:g}-{s['train']['window_s'][1]:g} s", s["train"]),
+        (f"test  {s['test']['window_s'][0]:g}-{s['test']['window_s'][1]:g} s", s["test"]),
+        ("test, best straight line", s["line_test"]),
+    ]
+    if s["paper_method_test"] is not None:
+        rows.append(("test, the paper's method (eq. 17)", s["paper_method_test"]))
+    for label, e in rows:
+        print(f"  {label:34s}{e['rms_pct']:8.3f}{e['max_pct']:8.3f}")
+    if s.get("paper_method_note"):
+        print(f"  the paper's method (eq. 17) could not run: {s['paper_method_note']}")
+    if s["out"]:
+        print(f"wrote     {s['out']}")
+
+
+# --------------------------------------------------------------------------------------
+# the parser
+# --------------------------------------------------------------------------------------
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="piezopreload",
+        description="Design and tuning studies for feed drives whose ball-screw preload is set by piezo stacks.",
+    )
+    parser.add_argument("--version", action="version", version=f"piezopreload {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    p = sub.add_parser(
+        "identify",
+        help="identify a P-I hysteresis model from a measured record",
+        description=(
+            "Identify the weights of a Prandtl-Ishlinskii hysteresis model from a measured "
+            "input/output record as a constrained QP (cvxpy + Clarabel), and report train and test "
+            "errors in % of the output span beside a straight line and the paper's own method. "
+            "Without DATA, the measured piezo record shipped with the package is used."
+        ),
+        epilog=(
+            "CSV: comma separated; lines starting with # are comments. With a header the columns are "
+            "found by name (time_s, voltage_V and one output such as force_N or displacement_um); "
+            "otherwise give --no-header --columns time=1,input=3:voltage_V,output=2:displacement_um "
+            "(0-based indices, optional name with unit after ':')."
+        ),
+    )
+    p.add_argument("data", nargs="?", metavar="DATA.csv", help="measured record (default: the shipped one)")
+    p.add_argument("--columns", help="where time, input and output are: time=I,input=J,output=K")
+    p.add_argument("--no-header", action="store_true", help="the file has no header line")
+    p.add_argument("--model", choices=MODELS, default="classical",
+                   help="classical: eq. (15); paper-asymmetric: eq. (18); modified: Kuhnen's model "
+                        "with dead-zone output operators and an exact inverse (default: classical)")
+    p.add_argument("--operators", type=_positive_int, default=40, help="number of play operators (default 40)")
+    p.add_argument("--train", metavar="T0:T1", help="training window in s (default: first 70 %% of the record)")
+    p.add_argument("--test", metavar="T0:T1", help="test window in s (default: after the training window)")
+    p.add_argument("--ridge", type=_nonnegative_float, default=0.0,
+                   help="ridge weight on the scaled weights (default 0)")
+    p.add_argument("--out", metavar="model.json", help="write the identified model as an artifact")
+    p.add_argument("--json", action="store_true", help="print the results as one JSON object")
+    p.set_defaults(run=_cmd_identify, show=_print_identify)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+        if args.command is None:
+            parser.print_help()
+            return EXIT_INPUT
+        result = args.run(args)
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    except KeyboardInterrupt:
+        print("error: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # an internal failure: one line, the traceback on request
+        if os.environ.get("PIEZOPRELOAD_DEBUG"):
+            traceback.print_exc()
+        print(f"error: internal failure: {type(exc).__name__}: {exc} "
+              "(set PIEZOPRELOAD_DEBUG=1 for the traceback)", file=sys.stderr)
+        return EXIT_INTERNAL
+    if args.json:
+        print(json.dumps(result, allow_nan=False))
+    else:
+        args.show(result)
+    return EXIT_OK
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,230 @@
+"""Reading measured records (CSV) with errors that name the file, the line and the column."""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import re
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["InputError", "Record", "ColumnSpec", "parse_columns", "read_record", "shipped_data", "SHIPPED_COLUMNS"]
+
+
+class InputError(ValueError):
+    """Bad input from the user: the CLI prints it as one ``error: ...`` line and exits 2."""
+
+
+ROLES = ("time", "input", "output")
+_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9]*(_[A-Za-z0-9]+)*$")
+
+
+@dataclass(frozen=True)
+class ColumnSpec:
+    """Where one role (time, input, output) is found: a 0-based index or a header name, and its name."""
+
+    role: str
+    index: int | None
+    header: str | None
+    name: str | None
+
+
+def parse_columns(text: str) -> dict[str, ColumnSpec]:
+    """Parse ``time=1,input=3:voltage_V,output=2:displacement_um`` (indices 0-based, or header names).
+
+    After ``:`` an optional name with its unit (``voltage_V``) labels a headerless column.
+    """
+    specs: dict[str, ColumnSpec] = {}
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        role, sep, where = part.partition("=")
+        role = role.strip()
+        if not sep or role not in ROLES:
+            raise InputError(
+                f"--columns: '{part}' is not ROLE=COLUMN with ROLE one of time, input, output "
+                "(example: time=1,input=3:voltage_V,output=2:displacement_um)"
+            )
+        col, _, name = where.partition(":")
+        col, name = col.strip(), name.strip() or None
+        if name is not None and not _NAME.match(name):
+            raise InputError(f"--columns: name '{name}' for {role} must look like quantity_unit, e.g. force_N")
+        if col.isdigit():
+            specs[role] = ColumnSpec(role, int(col), None, name)
+        elif col:
+            specs[role] = ColumnSpec(role, None, col, name or col)
+        else:
+            raise InputError(f"--columns: {role}= needs a column index or header name")
+    missing = [r for r in ROLES if r not in specs]
+    if missing:
+        raise InputError(f"--columns: no column given for {', '.join(missing)} (need time, input and output)")
+    return specs
+
+
+def unit_of(name: str) -> str:
+    """The unit in a column name: ``force_N`` -> ``N``; ``''`` when there is none."""
+    return name.rsplit("_", 1)[1] if "_" in name else ""
+
+
+@dataclass(frozen=True, eq=False)
+class Record:
+    """A measured record: strictly increasing time, one input and one output, all finite."""
+
+    path: str
+    sha256: str
+    time_s: NDArray[np.float64]
+    input: NDArray[np.float64]
+    output: NDArray[np.float64]
+    input_name: str
+    output_name: str
+
+    @property
+    def input_unit(self) -> str:
+        return unit_of(self.input_name)
+
+    @property
+    def output_unit(self) -> str:
+        return unit_of(self.output_name)
+
+    def window(self, t0: float, t1: float) -> NDArray[np.bool_]:
+        """Samples with ``t0 <= t <= t1``."""
+        return (self.time_s >= t0) & (self.time_s <= t1)
+
+
+SHIPPED_COLUMNS = "time=1,input=3:voltage_V,output=2:displacement_um"
+
+
+def shipped_data() -> Path:
+    """The measured piezo hysteresis record shipped with the package (MIT licence)."""
+    return Path(str(resources.files("piezopreload.data") / "hysteresis_v_150_1hz.csv"))
+
+
+def _default_specs(header: list[str], path: str) -> dict[str, ColumnSpec]:
+    names = [h.strip() for h in header]
+    time = [i for i, h in enumerate(names) if h.lower().startswith("time")]
+    inp = [i for i, h in enumerate(names) if h.lower().startswith(("voltage", "input"))]
+    if len(time) != 1 or len(inp) != 1:
+        raise InputError(
+            f"{path}:1: cannot tell the time and input columns from the header {names}; expected one "
+            "column named time_* and one named voltage_* (or give --columns time=...,input=...,output=...)"
+        )
+    rest = [i for i, h in enumerate(names) if i not in (time[0], inp[0]) and h]
+    if len(rest) != 1:
+        raise InputError(
+            f"{path}:1: the header {names} has {len(rest)} candidate output columns; name the output "
+            "with --columns time=time_s,input=voltage_V,output=force_N"
+        )
+    return {
+        "time": ColumnSpec("time", time[0], None, names[time[0]]),
+        "input": ColumnSpec("input", inp[0], None, names[inp[0]]),
+        "output": ColumnSpec("output", rest[0], None, names[rest[0]]),
+    }
+
+
+def read_record(
+    path: str | Path,
+    columns: dict[str, ColumnSpec] | None = None,
+    header: bool = True,
+    min_samples: int = 2,
+) -> Record:
+    """Read a CSV record; every problem raises :class:`InputError` naming the file and line.
+
+    Lines that are blank or start with ``#`` are skipped. With ``header=True`` the first other
+    line names the columns (``time_s,voltage_V,force_N``); without one, ``columns`` must say
+    where time, input and output are.
+    """
+    path = Path(path)
+    shown = str(path)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise InputError(f"{shown}: no such file") from None
+    except OSError as exc:
+        raise InputError(f"{shown}: cannot read ({exc.strerror})") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{shown}: not a UTF-8 text file (byte {exc.start}); expected a CSV") from None
+
+    lines = [(no, line) for no, line in enumerate(text.splitlines(), start=1)
+             if line.strip() and not line.lstrip().startswith("#")]
+    if not lines:
+        raise InputError(f"{shown}: the file is empty (no data rows); expected a CSV of time, input and output")
+    if header:
+        header_no, header_line = lines[0]
+        names = [h.strip() for h in header_line.split(",")]
+        lines = lines[1:]
+        if columns is None:
+            columns = _default_specs(names, shown)
+        resolved = {}
+        for role, spec in columns.items():
+            if spec.header is not None:
+                if spec.header not in names:
+                    raise InputError(
+                        f"{shown}:{header_no}: no column named '{spec.header}' for {role}; the header has {names}"
+                    )
+                resolved[role] = ColumnSpec(role, names.index(spec.header), None, spec.name)
+            else:
+                if spec.index >= len(names):
+                    raise InputError(
+                        f"{shown}:{header_no}: column {spec.index} for {role} does not exist; the header has "
+                        f"{len(names)} columns (indices are 0-based)"
+                    )
+                resolved[role] = ColumnSpec(role, spec.index, None, spec.name or names[spec.index])
+        columns = resolved
+    else:
+        if columns is None:
+            raise InputError(f"{shown}: a file without a header needs --columns time=I,input=J,output=K")
+        for role, spec in columns.items():
+            if spec.index is None:
+                raise InputError(f"--columns: {role}={spec.header} names a header column, but --no-header was given")
+    if not lines:
+        raise InputError(f"{shown}: the file has a header but no data rows")
+
+    order = [columns[r] for r in ROLES]
+    width = max(s.index for s in order) + 1
+    data = np.empty((len(lines), 3))
+    for row, (no, line) in enumerate(lines):
+        cells = line.split(",")
+        if len(cells) < width:
+            raise InputError(
+                f"{shown}:{no}: {len(cells)} columns, expected at least {width} "
+                f"(time, input, output in columns {[s.index for s in order]})"
+            )
+        for j, spec in enumerate(order):
+            cell = cells[spec.index].strip()
+            label = spec.name or f"column {spec.index}"
+            try:
+                value = float(cell)
+            except ValueError:
+                raise InputError(
+                    f"{shown}:{no}: {spec.role} column '{label}' holds '{cell}', which is not a number"
+                ) from None
+            if not math.isfinite(value):
+                raise InputError(
+                    f"{shown}:{no}: {spec.role} column '{label}' is {cell}; every value must be finite "
+                    "(remove or interpolate the sample)"
+                )
+            data[row, j] = value
+    t = data[:, 0]
+    step = np.diff(t)
+    if np.any(step <= 0):
+        k = int(np.flatnonzero(step <= 0)[0]) + 1
+        raise InputError(
+            f"{shown}:{lines[k][0]}: time {t[k]!r} is not after the previous sample's {t[k - 1]!r}; "
+            "time must be strictly increasing"
+        )
+    if len(t) < min_samples:
+        raise InputError(f"{shown}: {len(t)} data rows, need at least {min_samples}")
+    names = {r: (columns[r].name or f"column{columns[r].index}") for r in ROLES}
+    return Record(
+        path=shown,
+        sha256=hashlib.sha256(raw).hexdigest(),
+        time_s=t.copy(),
+        input=data[:, 1].copy(),
+        output=data[:, 2].copy(),
+        input_name=names["input"],
+        output_name=names["output"],
+    )
