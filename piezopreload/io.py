@@ -213,7 +213,7 @@ def read_record(
     if np.any(step <= 0):
         k = int(np.flatnonzero(step <= 0)[0]) + 1
         raise InputError(
-            f"{shown}:{lines[k][0]}: time {t[k]!r} is not after the previous sample's {t[k - 1]!r}; "
+            f"{shown}:{lines[k][0]}: time {float(t[k])!r} is not after the previous sample's {float(t[k - 1])!r}; "
             "time must be strictly increasing"
         )
     if len(t) < min_samples:

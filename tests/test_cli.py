@@ -1,0 +1,206 @@
+"""The command line: JSON output, exit codes, one-line errors naming file and line; artifacts."""
+
+import json
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from piezopreload.artifacts import ArtifactError, read_artifact, write_artifact
+from piezopreload.cli import main
+from piezopreload.models.hysteresis import ClassicalPI, uniform_thresholds
+from piezopreload.pipeline import load_hysteresis_model
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture
+def force_csv(tmp_path):
+    """A record with a header and comments: 25 + P-I force response to a 0-100 V input."""
+    t = np.linspace(0, 4, 4001)
+    v = 50 + 50 * np.sin(2 * np.pi * t - np.pi / 2) * np.minimum(1, 0.3 + t / 2)
+    model = ClassicalPI(uniform_thresholds(10, 100.0), np.r_[0.5, np.full(9, 0.02)], offset=25.0)
+    f = model(v) + np.random.default_rng(0).normal(0, 0.01, t.size)
+    path = tmp_path / "loop.csv"
+    with path.open("w") as fh:
+        fh.write("# a measured loop\ntime_s,voltage_V,force_N\n")
+        for row in zip(t, v, f):
+            fh.write(",".join(f"{x:.9g}" for x in row) + "\n")
+    return path
+
+
+def test_identify_shipped_data_json(capsys, tmp_path):
+    out_file = tmp_path / "model.json"
+    code, out, err = run(capsys, "identify", "--train", "4:7", "--test", "7:10", "--out", str(out_file), "--json")
+    assert code == 0, err
+    doc = json.loads(out)
+    for key in ("model", "operators", "train", "test", "line_test", "solver", "seconds"):
+        assert key in doc, f"--json output lacks {key}"
+    assert doc["model"] == "classical" and doc["operators"] == 40
+    assert doc["test"]["rms_pct"] <= 0.17 and doc["test"]["max_pct"] <= 0.90
+    assert doc["line_test"]["rms_pct"] > 4 and doc["solver"]["status"] == "optimal"
+    model, artifact = load_hysteresis_model(out_file)
+    assert artifact["schema"] == "piezopreload/hysteresis-model/1"
+    assert artifact["inputs"]["data"]["sha256"] == "480af23e3cdae958eef05601a43e55cec79a93f6d49d05d61cfbe3e4d6281b4c"
+    assert artifact["units"] == {"input": "V", "output": "um", "input_name": "voltage_V",
+                                 "output_name": "displacement_um"}
+    assert model.n_operators == 40 and model.invertible
+
+
+def test_identify_headered_csv_human_output(capsys, force_csv):
+    code, out, err = run(capsys, "identify", str(force_csv), "--operators", "10", "--model", "modified")
+    assert code == 0, err
+    assert "modified, 10 play operators, invertible" in out
+    assert re.search(r"test .*\d\.\d{3}\s+\d\.\d{3}", out)
+    assert "(N)" in out or " N)" in out
+
+
+def test_headerless_file_with_column_mapping(capsys, tmp_path):
+    src = (ROOT / "piezopreload" / "data" / "hysteresis_v_150_1hz.csv").read_text().splitlines()[:30000]
+    path = tmp_path / "cut.csv"
+    path.write_text("\n".join(src) + "\n")
+    code, out, err = run(capsys, "identify", str(path), "--no-header", "--columns",
+                         "time=1,input=3:voltage_V,output=2:displacement_um", "--operators", "20", "--json")
+    assert code == 0, err
+    assert json.loads(out)["data"]["output"] == "displacement_um"
+
+
+def _bad(tmp_path, text):
+    p = tmp_path / "bad.csv"
+    p.write_text(text)
+    return str(p)
+
+
+GOOD_ROWS = "".join(f"{i * 0.01:.2f},{(i % 20) * 5.0},{(i % 20) * 0.4}\n" for i in range(200))
+
+
+@pytest.mark.parametrize(
+    "text, extra, expected",
+    [
+        ("", (), r"bad\.csv: the file is empty"),
+        ("# only a comment\n", (), r"bad\.csv: the file is empty"),
+        ("time_s,voltage_V\n0,1\n", (), r"bad\.csv:1: the header .* 0 candidate output columns"),
+        ("time_s,voltage_V,force_N\n" + GOOD_ROWS + "2.5,abc,3\n", (), r"bad\.csv:202: input column 'voltage_V' holds 'abc'"),
+        ("time_s,voltage_V,force_N\n" + GOOD_ROWS + "2.5,1,nan\n", (), r"bad\.csv:202: output column 'force_N' is nan"),
+        ("time_s,voltage_V,force_N\n" + GOOD_ROWS + "2.5,inf,1\n", (), r"bad\.csv:202: .* is inf"),
+        ("time_s,voltage_V,force_N\n" + GOOD_ROWS + "1.0,1,1\n", (), r"bad\.csv:202: time 1\.0 is not after"),
+        ("time_s,voltage_V,force_N\n" + GOOD_ROWS + "2.5,1\n", (), r"bad\.csv:202: 2 columns, expected at least 3"),
+        ("time_s,voltage_V,force_N\n" + GOOD_ROWS, ("--columns", "time=time_s,input=volts,output=force_N"),
+         r"bad\.csv:1: no column named 'volts' for input"),
+        ("time_s,voltage_V,force_N\n" + "".join(f"{i},{5.0},{i}\n" for i in range(200)), (),
+         r"input 'voltage_V' is constant"),
+        ("time_s,voltage_V,force_N\n" + GOOD_ROWS, ("--train", "0:0.5"), r"at least 82"),
+        ("time_s,voltage_V,force_N\n" + GOOD_ROWS, ("--train", "7:9"), r"--train 7:9 holds no samples"),
+        ("time_s,voltage_V,force_N\n" + GOOD_ROWS, ("--train", "abc"), r"--train: 'abc' is not T0:T1"),
+        ("time_s,voltage_V,force_N\n" + GOOD_ROWS, ("--operators", "0"), r"--operators: must be a positive"),
+        ("time_s,voltage_V,force_N\n" + GOOD_ROWS, ("--model", "preisach"), r"invalid choice: 'preisach'"),
+        ("0,1,2\n", ("--no-header",), r"needs --columns"),
+    ],
+)
+def test_bad_input_exit_2_one_line(capsys, tmp_path, text, extra, expected):
+    code, out, err = run(capsys, "identify", _bad(tmp_path, text), *extra)
+    assert code == 2, err
+    assert out == ""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), err
+    assert re.search(expected, lines[0]), lines[0]
+
+
+def test_missing_file(capsys, tmp_path):
+    code, _, err = run(capsys, "identify", str(tmp_path / "nope.csv"))
+    assert code == 2 and "nope.csv: no such file" in err
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["identify", "--help"]])
+def test_help(capsys, argv):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 0
+    assert "usage:" in capsys.readouterr().out
+
+
+def test_internal_failure_exit_1(capsys, monkeypatch):
+    import piezopreload.cli as cli
+
+    def boom(*a, **k):
+        raise RuntimeError("simulated bug")
+
+    monkeypatch.setattr(cli, "identify", boom)
+    code, _, err = run(capsys, "identify")
+    assert code == 1
+    assert err.strip().startswith("error: internal failure: RuntimeError: simulated bug")
+    assert "Traceback" not in err
+
+
+def _write_model(path):
+    model = ClassicalPI(uniform_thresholds(4, 10.0), [1.0, 0.1, 0.2, 0.3], 0.5)
+    return write_artifact(path, "hysteresis-model", {"inputs": {}, "units": {"input": "V", "output": "N"},
+                                                     "model": model.to_dict()})
+
+
+@pytest.mark.parametrize(
+    "tamper, expected",
+    [
+        (lambda d: d.update(schema="piezopreload/hysteresis-model/9"), "not supported by this version"),
+        (lambda d: d.update(schema="piezopreload/gain-set/1"), "this is a 'gain-set' artifact"),
+        (lambda d: d.update(schema="something"), "field 'schema'"),
+        (lambda d: d.pop("units"), "field 'units' is missing"),
+        (lambda d: d["model"].pop("weights"), r"model.weights is missing"),
+        (lambda d: d["model"]["weights"].__setitem__(2, "NaN"), r"field 'model.weights\[2\]' is not a finite"),
+        (lambda d: d["model"]["thresholds"].__setitem__(1, -1.0), "strictly increasing"),
+    ],
+)
+def test_tampered_artifact_is_rejected(tmp_path, tamper, expected):
+    path = tmp_path / "m.json"
+    doc = _write_model(path)
+    tamper(doc)
+    path.write_text(json.dumps(doc).replace('"NaN"', "NaN"))
+    with pytest.raises(ArtifactError, match=expected):
+        load_hysteresis_model(path)
+
+
+def test_artifact_write_is_atomic_and_refuses_non_finite(tmp_path):
+    path = tmp_path / "m.json"
+    _write_model(path)
+    before = path.read_text()
+    with pytest.raises(ValueError, match="not finite"):
+        write_artifact(path, "hysteresis-model", {"inputs": {}, "units": {}, "model": {"offset": float("nan")}})
+    assert path.read_text() == before, "a failed write must leave the old artifact intact"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.json"], "no temporary files left behind"
+    assert read_artifact(path, "hysteresis-model")["package_version"]
+
+
+def _readme_block(title):
+    text = (ROOT / "README.md").read_text()
+    match = re.search(rf"{re.escape(title)}.*?```(?:sh|bash)?\n(.*?)```", text, re.S)
+    assert match, f"README has no command block after '{title}'"
+    return match.group(1).strip()
+
+
+def test_readme_main_job_runs_as_written(tmp_path):
+    """The README's main command, after its set-up part, runs with the installed console script."""
+    command = _readme_block("Set up and run")
+    main_job = command.split("&&")[-1].strip()
+    argv = shlex.split(main_job)
+    assert Path(argv[0]).name == "piezopreload", main_job
+    exe = Path(sys.executable).with_name("piezopreload")
+    proc = subprocess.run([str(exe), *argv[1:], "--json"], capture_output=True, text=True, cwd=tmp_path,
+                          env={**os.environ, "MPLBACKEND": "Agg"}, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout.strip().splitlines()[-1])["test"]["rms_pct"] <= 0.17
+
+
+def test_ci_runs_the_readme_test_command():
+    command = _readme_block("Run the tests")
+    assert command in (ROOT / ".ci" / "run").read_text(), "the CI must run exactly the README's test command"
