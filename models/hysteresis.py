@@ -28,6 +28,7 @@ __all__ = [
     "NotInvertibleError",
     "play",
     "play_step",
+    "rising",
     "deadzone",
     "ClassicalPI",
     "InverseClassicalPI",
@@ -318,6 +319,13 @@ class InverseClassicalPI:
 # --------------------------------------------------------------------------------------
 # the paper's direction-switched asymmetric model, eq. (18)
 # --------------------------------------------------------------------------------------
+def rising(v: ArrayLike, v_prev: ArrayLike = 0.0) -> NDArray[np.bool_]:
+    """``p`` of eq. (18): True where the input does not fall, ``v_i >= v_{i-1}`` (``v_{-1} = v_prev``)."""
+    v = np.asarray(v, dtype=float)
+    first = np.broadcast_to(np.asarray(v_prev, float), v.shape[:-1])[..., None]
+    return v >= np.concatenate([first, v[..., :-1]], axis=-1)
+
+
 @dataclass(frozen=True, eq=False)
 class AsymmetricPI:
     """The paper's asymmetric P-I model, eq. (18).
@@ -355,15 +363,9 @@ class AsymmetricPI:
 
     invertible = False
 
-    def rising_mask(self, v: ArrayLike, v_prev: ArrayLike = 0.0) -> NDArray[np.bool_]:
-        """``p`` of eq. (18): True where ``v_i >= v_{i-1}``."""
-        v = np.asarray(v, dtype=float)
-        prev = np.concatenate([np.broadcast_to(np.asarray(v_prev, float), v.shape[:-1])[..., None], v[..., :-1]], axis=-1)
-        return v >= prev
-
     def __call__(self, v: ArrayLike, state: ArrayLike | None = None, v_prev: float = 0.0) -> NDArray[np.float64]:
         y = play(v, self.thresholds, state)
-        p = self.rising_mask(v, v_prev)
+        p = rising(v, v_prev)
         return np.where(p, y @ self.weights_rising, y @ self.weights_falling) + self.offset
 
     def inverse(self) -> None:

@@ -80,10 +80,6 @@ def write_artifact(path: str | Path, kind: str, body: dict[str, Any]) -> dict[st
     return doc
 
 
-class _NonFinite(float):
-    """Marks a NaN/Infinity literal met while parsing, so the reader can name its field."""
-
-
 def read_artifact(path: str | Path, kind: str) -> dict[str, Any]:
     """Read and check a ``kind`` artifact; :class:`ArtifactError` names what is wrong and where."""
     shown = str(path)
@@ -94,7 +90,7 @@ def read_artifact(path: str | Path, kind: str) -> dict[str, Any]:
     except (OSError, UnicodeDecodeError) as exc:
         raise ArtifactError(f"{shown}: cannot read ({exc})") from None
     try:
-        doc = json.loads(text, parse_constant=lambda c: _NonFinite(c.replace("Infinity", "inf")))
+        doc = json.loads(text)  # NaN and Infinity parse to floats; _first_non_finite names them
     except json.JSONDecodeError as exc:
         raise ArtifactError(f"{shown}:{exc.lineno}: not valid JSON ({exc.msg})") from None
     if not isinstance(doc, dict):

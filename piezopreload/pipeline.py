@@ -67,13 +67,14 @@ def identify(
     t = record.time_s
     if train is None:
         train = Window(float(t[0]), float(t[0] + 0.7 * (t[-1] - t[0])))
-    if test is None:
+    default_test = test is None
+    if default_test:
         test = Window(train.t1_s, float(t[-1]))
     rows = {}
     for name, win in (("train", train), ("test", test)):
         mask = record.window(win.t0_s, win.t1_s)
-        if name == "test" and win.t0_s == train.t1_s:
-            mask &= t > train.t1_s  # the default test window starts after the training samples
+        if name == "test" and default_test:
+            mask &= t > train.t1_s  # the default test window holds only samples after training
         if not mask.any():
             raise InputError(
                 f"--{name} {win.t0_s:g}:{win.t1_s:g} holds no samples; the record spans "

@@ -34,6 +34,7 @@ from piezopreload.models.hysteresis import (
     ModifiedPI,
     deadzone,
     play,
+    rising,
     uniform_thresholds,
 )
 
@@ -306,7 +307,7 @@ class PIIdentifier:
             penalised = np.r_[np.ones(n, bool), False]
             target = y_t
         elif self.model == "paper-asymmetric":
-            p = AsymmetricPI(r, np.ones(n), np.ones(n)).rising_mask(v)[rows][:, None]
+            p = rising(v)[rows][:, None]
             phi = np.column_stack([ops * p, ops * ~p, np.ones(len(y_t))])
             a_ineq = np.hstack([np.eye(2 * n), np.zeros((2 * n, 1))])
             b_ineq = np.zeros(2 * n)
