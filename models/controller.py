@@ -125,16 +125,14 @@ class Controller:
 
         Without ``u0`` the integral starts at 0.
         """
-        sp = np.asarray(setpoint, float)
-        pv = np.asarray(pv, float) + 0 * sp
-        sp = sp + 0 * pv
+        sp, pv = (np.array(x) for x in np.broadcast_arrays(np.asarray(setpoint, float), np.asarray(pv, float)))
         ff_state = None if self.feedforward is None else self.feedforward.initial_state(sp.shape)
         integral = np.zeros_like(sp)
         state = ControllerState(integral, sp - pv, pv, sp, np.zeros_like(sp), ff_state)
         if u0 is not None:
             ff = 0.0 if self.feedforward is None else self.feedforward.step(ff_state, sp)[0]
             p = self.gains.Kc * (self.gains.b * sp - pv)
-            state = replace(state, integral=np.asarray(u0, float) - p - ff + 0 * sp)
+            state = replace(state, integral=np.broadcast_to(np.asarray(u0, float) - p - ff, sp.shape).copy())
         return state
 
     def step(
