@@ -24,7 +24,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["PIDGains", "ControllerState", "Controller", "Feedforward"]
+__all__ = ["PIDGains", "ControllerState", "Controller", "Feedforward", "Terms"]
 
 
 class Feedforward(Protocol):
@@ -109,6 +109,17 @@ class ControllerState:
 
 
 @dataclass(frozen=True, eq=False)
+class Terms:
+    """One sample's output ``u`` (after the clamp) and its parts before it: ``p + i + d + ff``."""
+
+    u: NDArray[np.float64]
+    p: NDArray[np.float64]
+    i: NDArray[np.float64]
+    d: NDArray[np.float64]
+    ff: NDArray[np.float64]
+
+
+@dataclass(frozen=True, eq=False)
 class Controller:
     """PID with optional inverse-P-I feedforward of the setpoint, sampled every ``dt_s``."""
 
@@ -139,6 +150,11 @@ class Controller:
         self, state: ControllerState, setpoint: ArrayLike, pv: ArrayLike
     ) -> tuple[NDArray[np.float64], ControllerState]:
         """One sample: the command for measurement ``pv`` and ``setpoint``, and the next state."""
+        terms, state = self.step_terms(state, setpoint, pv)
+        return terms.u, state
+
+    def step_terms(self, state: ControllerState, setpoint: ArrayLike, pv: ArrayLike) -> tuple[Terms, ControllerState]:
+        """:meth:`step` with the output's parts, for run logs and figures."""
         g, dt = self.gains, self.dt_s
         sp = np.asarray(setpoint, float)
         pv = np.asarray(pv, float)
@@ -158,7 +174,8 @@ class Controller:
         winding = ((trial > g.u_max) & (increment > 0)) | ((trial < g.u_min) & (increment < 0))
         integral = state.integral + np.where(winding, 0.0, increment)
         u = np.clip(proportional + integral + derivative + ff, g.u_min, g.u_max)
-        return u, ControllerState(integral, e, pv, sp, dpv, ff_state)
+        terms = Terms(u=u, p=proportional, i=integral, d=derivative, ff=np.broadcast_to(ff, u.shape))
+        return terms, ControllerState(integral, e, pv, sp, dpv, ff_state)
 
     def retune(self, state: ControllerState, gains: PIDGains) -> tuple[Controller, ControllerState]:
         """Switch to new gains without a jump in the output (bumpless gain change).

@@ -21,7 +21,10 @@ from piezopreload.io import InputError
 __all__ = ["ArtifactError", "schema_name", "write_artifact", "read_artifact", "atomic_write_text"]
 
 VERSION = 1
-KINDS = {"hysteresis-model": ("model", "units", "inputs")}
+KINDS = {
+    "hysteresis-model": ("model", "units", "inputs"),
+    "gain-set": ("gains", "status", "inputs"),
+}
 
 
 class ArtifactError(InputError):

@@ -16,7 +16,15 @@ from typing import Any, Sequence
 
 from piezopreload import __version__
 from piezopreload.io import SHIPPED_COLUMNS, InputError, parse_columns, read_record, shipped_data
-from piezopreload.pipeline import identify, parse_window
+from piezopreload.pipeline import (
+    CONTROLLER_CHOICES,
+    REFERENCE_CHOICES,
+    identify,
+    parse_window,
+    reproduce_study,
+    simulate_study,
+)
+from piezopreload.study import default_study, load_study
 from piezopreload.tuning.identify import MODELS
 
 EXIT_OK, EXIT_INTERNAL, EXIT_INPUT = 0, 1, 2
@@ -98,6 +106,75 @@ def _print_identify(s: dict[str, Any]) -> None:
 
 
 # --------------------------------------------------------------------------------------
+# simulate and reproduce
+# --------------------------------------------------------------------------------------
+def _nonnegative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {value}")
+    return value
+
+
+def _study(args: argparse.Namespace):
+    return load_study(args.study if args.study else default_study())
+
+
+def _cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
+    return simulate_study(
+        _study(args), controller=args.controller, reference=args.reference, gains_path=args.gains,
+        feedforward_path=args.feedforward, seed=args.seed, out=args.out,
+    )
+
+
+def _fmt(x: float | None, unit: str = "") -> str:
+    return "-" if x is None else f"{x:.3f}{unit}"
+
+
+def _print_simulate(s: dict[str, Any]) -> None:
+    g = s["gains"]
+    print(f"study       {s['study']['name']} ({s['study']['path']})")
+    print(f"controller  {s['controller']}: Kc {g['Kc_V_per_N']:g} V/N, Ti {g['Ti_s']:g} s, Td {g['Td_s']:g} s "
+          f"(LabVIEW: Ti {g['labview']['Ti_min']:.4g} min, Td {g['labview']['Td_min']:.4g} min); "
+          f"output {g['u_min_V']:g}..{g['u_max_V']:g} V")
+    if s["feedforward"]:
+        print(f"feedforward {s['feedforward']['model']} P-I, {s['feedforward']['operators']} operators, "
+              f"{s['feedforward']['source']}")
+    levels = " -> ".join(f"{x:g}" for x in s["reference_levels_N"])
+    print(f"reference   {s['reference']}: {levels} N; band {s['band_N']:g} N on the {s['signal']} signal, "
+          f"seed {s['seed']}")
+    print(f"  {'':22s}{'simulated':>11s}{'paper':>9s}")
+    keys = [("rise_s", "rise time (s)"), ("peak_s", "peak time (s)"), ("settling_s", "settling time (s)"),
+            ("overshoot_N", "overshoot (N)")]
+    if "tracking_rms_N" in s:
+        keys += [("tracking_rms_N", "tracking RMS (N)"), ("tracking_max_N", "tracking max (N)")]
+    for key, label in keys:
+        print(f"  {label:22s}{_fmt(s[key]):>11s}{_fmt(s['paper'][key]):>9s}")
+    print(f"peak command {s['peak_command_V']:.1f} V; {s['samples']} samples at {1e3 * s['sample_period_s']:g} ms")
+    if s["out"]:
+        print(f"wrote       {s['out']}")
+
+
+def _cmd_reproduce(args: argparse.Namespace) -> dict[str, Any]:
+    return reproduce_study(_study(args), seed=args.seed)
+
+
+def _print_reproduce(s: dict[str, Any]) -> None:
+    g = s["gains"]
+    print(f"study {s['study']['name']} ({s['study']['path']}): step 25 -> 60 N, band {s['band_N']:g} N, "
+          f"gains Kc {g['Kc_V_per_N']:g}, Ti {g['Ti_s']:g} s, Td {g['Td_s']:g} s (paper's values read as {g['read_as']})")
+    print(f"feedforward fit to the simulated loop: RMS {s['feedforward_fit']['rms_pct']:.2f} %, "
+          f"max {s['feedforward_fit']['max_pct']:.2f} % of span")
+    print(f"  {'controller':10s}{'metric':14s}{'paper':>8s}{'simulated':>11s}{'ratio':>8s}  within 25 %")
+    for r in s["rows"]:
+        ratio = "-" if r["ratio"] is None else f"{r['ratio']:.2f}"
+        print(f"  {r['controller']:10s}{r['metric']:14s}{r['paper']:8.2f}{_fmt(r['simulated']):>11s}{ratio:>8s}"
+              f"  {'yes' if r['within_25pct'] else 'NO'}")
+
+
+# --------------------------------------------------------------------------------------
 # the parser
 # --------------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
@@ -138,6 +215,42 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="model.json", help="write the identified model as an artifact")
     p.add_argument("--json", action="store_true", help="print the results as one JSON object")
     p.set_defaults(run=_cmd_identify, show=_print_identify)
+
+    p = sub.add_parser(
+        "simulate",
+        help="simulate a controller on the reference rig",
+        description=(
+            "Simulate the PID alone or the inverse-P-I feedforward plus PID on the study's simulated rig "
+            "(truth hysteresis, creep, amplifier, sensor noise and quantisation, one-sample delay) over the "
+            "paper's step or trajectory, and print rise, peak and settling time, overshoot and tracking "
+            "errors beside the paper's values."
+        ),
+    )
+    p.add_argument("--study", metavar="STUDY.toml", help="study file (default: the paper's, paper2021.toml)")
+    p.add_argument("--controller", choices=CONTROLLER_CHOICES, default="ff+pid", help="default: ff+pid")
+    p.add_argument("--reference", choices=REFERENCE_CHOICES, default="step",
+                   help="step: 25 -> 60 N; trajectory: 60-80-100-80-60 N (default: step)")
+    p.add_argument("--gains", metavar="gains.json", help="a gain-set artifact (default: the study's gains)")
+    p.add_argument("--feedforward", metavar="model.json",
+                   help="an identified hysteresis-model artifact to invert (default: identify one from a "
+                        "simulated loop measurement of the rig, as the paper did)")
+    p.add_argument("--seed", type=_nonnegative_int, help="noise seed (default: the study's)")
+    p.add_argument("--out", metavar="run.csv", help="write the simulated samples as CSV")
+    p.add_argument("--json", action="store_true", help="print the results as one JSON object")
+    p.set_defaults(run=_cmd_simulate, show=_print_simulate)
+
+    p = sub.add_parser(
+        "reproduce",
+        help="the paper's six step numbers beside the simulation's",
+        description=(
+            "Run the paper's 25 -> 60 N step on the study's rig with the PID alone and with the P-I "
+            "feedforward, and print rise, peak and settling time beside the paper's (Sections 4.2-4.3)."
+        ),
+    )
+    p.add_argument("--study", metavar="STUDY.toml", help="study file (default: the paper's, paper2021.toml)")
+    p.add_argument("--seed", type=_nonnegative_int, help="noise seed (default: the study's)")
+    p.add_argument("--json", action="store_true", help="print the results as one JSON object")
+    p.set_defaults(run=_cmd_reproduce, show=_print_reproduce)
     return parser
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -9,9 +10,15 @@ from typing import Any
 
 import numpy as np
 
-from piezopreload.artifacts import ArtifactError, read_artifact, write_artifact
+from piezopreload import __version__
+from piezopreload.artifacts import ArtifactError, atomic_write_text, read_artifact, write_artifact
 from piezopreload.io import InputError, Record
-from piezopreload.models.hysteresis import HysteresisModel, model_from_dict
+from piezopreload.models.actuator import Rig
+from piezopreload.models.closedloop import ClosedLoopRun, simulate
+from piezopreload.models.controller import Controller, PIDGains
+from piezopreload.models.hysteresis import HysteresisModel, NotInvertibleError, model_from_dict
+from piezopreload.study import Study
+from piezopreload.tuning.calibrate import PAPER_RESULTS, identify_feedforward, reproduce
 from piezopreload.tuning.identify import (
     IdentificationError,
     PIIdentifier,
@@ -20,7 +27,17 @@ from piezopreload.tuning.identify import (
     straight_line,
 )
 
-__all__ = ["Window", "parse_window", "identify", "load_hysteresis_model"]
+__all__ = [
+    "Window",
+    "parse_window",
+    "identify",
+    "load_hysteresis_model",
+    "load_gains",
+    "gains_to_dict",
+    "simulate_study",
+    "reproduce_study",
+    "write_run_csv",
+]
 
 
 @dataclass(frozen=True)
@@ -150,3 +167,161 @@ def load_hysteresis_model(path: str | Path) -> tuple[HysteresisModel, dict[str, 
         return model_from_dict(doc["model"]), doc
     except ValueError as exc:
         raise ArtifactError(f"{path}: {exc}") from None
+
+
+# --------------------------------------------------------------------------------------
+# simulate and reproduce (the reference rig)
+# --------------------------------------------------------------------------------------
+CONTROLLER_CHOICES = ("pid", "ff+pid")
+REFERENCE_CHOICES = ("step", "trajectory")
+_STEP_KEYS = ("rise_s", "peak_s", "settling_s", "overshoot_N")
+_TRACK_KEYS = ("tracking_rms_N", "tracking_max_N")
+
+
+def gains_to_dict(gains: PIDGains) -> dict[str, Any]:
+    """The gains in SI with the controller form stated, plus LabVIEW's minutes."""
+    return {
+        "Kc_V_per_N": gains.Kc, "Ti_s": gains.Ti_s, "Td_s": gains.Td_s, "Tf_s": gains.Tf_s, "b": gains.b,
+        "u_min_V": gains.u_min, "u_max_V": gains.u_max,
+        "form": "ideal/ISA, trapezoidal integral, derivative on measurement, conditional-integration anti-windup",
+        "labview": gains.labview(),
+    }
+
+
+def load_gains(path: str | Path) -> tuple[PIDGains, dict[str, Any]]:
+    """Read the gains of a gain-set artifact (SI units); errors name the file and field."""
+    doc = read_artifact(path, "gain-set")
+    g = doc["gains"]
+    if not isinstance(g, dict):
+        raise ArtifactError(f"{path}: field 'gains' must be an object")
+    try:
+        missing = next((k for k in ("Kc_V_per_N", "Ti_s", "Td_s") if k not in g), None)
+        if missing:
+            raise ArtifactError(f"{path}: field 'gains.{missing}' is missing")
+        gains = PIDGains(
+            Kc=float(g["Kc_V_per_N"]), Ti_s=float(g["Ti_s"]), Td_s=float(g["Td_s"]),
+            Tf_s=float(g.get("Tf_s", 0.0)), b=float(g.get("b", 1.0)),
+            u_min=float(g.get("u_min_V", 0.0)), u_max=float(g.get("u_max_V", 110.0)),
+        )
+    except (TypeError, ValueError) as exc:
+        raise ArtifactError(f"{path}: field 'gains' is not valid: {exc}") from None
+    return gains, doc
+
+
+def _feedforward(study: Study, path: str | Path | None) -> tuple[Any, dict[str, Any]]:
+    if path is not None:
+        model, doc = load_hysteresis_model(path)
+        try:
+            inverse = model.inverse()
+        except NotInvertibleError as exc:
+            raise InputError(f"{path}: the model cannot serve as a feedforward: {exc}") from None
+        return inverse, {"source": str(path), "model": model.kind, "operators": model.n_operators}
+    model, info = identify_feedforward(Rig(study.rig), study.excitation)
+    return model.inverse(), {
+        "source": (f"identified from a simulated {study.excitation.v_max_V:g} V, "
+                   f"{study.excitation.frequency_Hz:g} Hz loop measurement of the rig"),
+        "model": model.kind, "operators": model.n_operators, "fit_rms_pct": info["fit"]["rms_pct"],
+        "fit_max_pct": info["fit"]["max_pct"],
+    }
+
+
+def _step_numbers(run: ClosedLoopRun, study: Study) -> dict[str, float | None]:
+    m = run.step_metrics(study.band_N, signal=study.signal)
+    values = {"rise_s": m.rise_s, "peak_s": m.peak_s, "settling_s": m.settling_s, "overshoot_N": m.overshoot}
+    return {k: (float(v) if np.isfinite(v) else None) for k, v in values.items()}
+
+
+def write_run_csv(path: str | Path, run: ClosedLoopRun, comment: str) -> None:
+    """A single-plant run as CSV (one header line, ``#`` comments first), written atomically."""
+    cols = run.columns()
+    buf = io.StringIO()
+    for line in comment.splitlines():
+        buf.write(f"# {line}\n")
+    np.savetxt(buf, np.column_stack(list(cols.values())), delimiter=",", header=",".join(cols), comments="", fmt="%.9g")
+    atomic_write_text(path, buf.getvalue())
+
+
+def simulate_study(
+    study: Study,
+    *,
+    controller: str = "ff+pid",
+    reference: str = "step",
+    gains_path: str | Path | None = None,
+    feedforward_path: str | Path | None = None,
+    seed: int | None = None,
+    out: str | Path | None = None,
+) -> dict[str, Any]:
+    """Simulate one controller on the study's rig over one of its references."""
+    t0 = time.perf_counter()
+    if controller not in CONTROLLER_CHOICES:
+        raise InputError(f"controller must be one of {', '.join(CONTROLLER_CHOICES)}, got {controller!r}")
+    if reference not in REFERENCE_CHOICES:
+        raise InputError(f"reference must be one of {', '.join(REFERENCE_CHOICES)}, got {reference!r}")
+    gains, gains_source = study.gains, {"source": f"{study.path} [controller], read as {study.gains_units}"}
+    if gains_path is not None:
+        gains, doc = load_gains(gains_path)
+        gains_source = {"source": str(gains_path), "status": doc.get("status")}
+    rig = Rig(study.rig)
+    ff, ff_info = (None, None)
+    if controller == "ff+pid":
+        ff, ff_info = _feedforward(study, feedforward_path)
+    seed = study.seed if seed is None else seed
+    ref = study.references[reference]
+    run = simulate(rig, Controller(gains, rig.dt_s, ff), ref, seed=seed)
+    summary: dict[str, Any] = {
+        "study": {"path": study.path, "sha256": study.sha256, "name": study.name},
+        "controller": controller,
+        "reference": reference,
+        "reference_levels_N": ref.levels_N.tolist(),
+        "gains": {**gains_to_dict(gains), **gains_source},
+        "feedforward": ff_info,
+        "band_N": study.band_N,
+        "signal": study.signal,
+        "seed": seed,
+        "samples": int(run.t_s.size),
+        "sample_period_s": rig.dt_s,
+        **_step_numbers(run, study),
+        "peak_command_V": float(np.max(run.command_V)),
+    }
+    paper = dict.fromkeys(_STEP_KEYS)
+    if reference == "step":
+        paper.update(PAPER_RESULTS[controller])
+    if reference == "trajectory":
+        te = run.tracking_error()
+        summary["tracking_rms_N"] = float(te["rms"])
+        summary["tracking_max_N"] = float(te["max"])
+        paper.update(dict.fromkeys(_TRACK_KEYS))
+    summary["paper"] = paper
+    summary["paper_note"] = (
+        "the paper publishes rise, peak and settling time for the 25 -> 60 N step only (Sections 4.2, 4.3); "
+        "null: not published"
+    )
+    summary["seconds"] = time.perf_counter() - t0
+    summary["out"] = None
+    if out is not None:
+        write_run_csv(out, run, f"piezopreload {__version__} simulate: study {study.name} ({study.sha256[:12]}), "
+                                f"controller {controller}, reference {reference}, seed {seed}")
+        summary["out"] = str(out)
+    return summary
+
+
+def reproduce_study(study: Study, *, seed: int | None = None) -> dict[str, Any]:
+    """The paper's six step numbers beside the simulation's, both controllers, one command."""
+    t0 = time.perf_counter()
+    rep = reproduce(study.rig, study.gains, step=study.references["step"], excitation=study.excitation,
+                    seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal)
+    rows = [{**r, "within_25pct": bool(abs(r["ratio"] - 1.0) <= 0.25)} for r in rep.table()]
+    for r in rows:
+        if not np.isfinite(r["simulated"]):
+            r.update(simulated=None, ratio=None, within_25pct=False)
+    return {
+        "study": {"path": study.path, "sha256": study.sha256, "name": study.name},
+        "gains": {**gains_to_dict(study.gains), "read_as": study.gains_units},
+        "band_N": study.band_N,
+        "signal": study.signal,
+        "feedforward_fit": rep.feedforward_fit,
+        "rows": rows,
+        "overshoot_N": {c: rep.metrics[c]["overshoot_N"] for c in rep.metrics},
+        "all_within_25pct": all(r["within_25pct"] for r in rows),
+        "seconds": time.perf_counter() - t0,
+    }

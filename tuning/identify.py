@@ -223,7 +223,11 @@ class PIIdentifier:
     min_slope : float
         Invertibility margin of the modified model: the smallest slope of its dead-zone
         superposition relative to the central slope of 1, and the smallest linear weight ``w_1``
-        relative to the record's average slope ``ptp(y) / ptp(v)``.
+        relative to the record's average slope ``ptp(y) / ptp(v)``; with ``invertible``, the
+        same bound on ``w_1`` of the classical model.
+    invertible : bool
+        Classical model only: bound ``w_1`` away from 0 so the model has an inverse (eq. (20)
+        divides by ``w_1``). A feedforward needs it; plain NNLS weights may put ``w_1 = 0``.
     solver_options : dict
         Passed to ``cvxpy.Problem.solve`` with ``solver=CLARABEL``.
 
@@ -240,6 +244,7 @@ class PIIdentifier:
     ridge: float = 0.0
     n_deadzone: int = 3
     min_slope: float = 0.05
+    invertible: bool = False
     solver_options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -304,6 +309,8 @@ class PIIdentifier:
             phi = np.column_stack([ops, np.ones(len(y_t))])
             a_ineq = np.hstack([np.eye(n), np.zeros((n, 1))])
             b_ineq = np.zeros(n)
+            if self.invertible:  # w_1 bounded away from 0, relative to the average slope
+                b_ineq[0] = self.min_slope * float(np.ptp(y_t) / np.ptp(v_t))
             penalised = np.r_[np.ones(n, bool), False]
             target = y_t
         elif self.model == "paper-asymmetric":

@@ -1,0 +1,240 @@
+"""The closed loop: the one controller step against the simulated rig, one sample at a time.
+
+Timing of one sample ``k`` (``t_k = k dt``), as a LabVIEW loop with an A/D and a D/A card runs:
+the A/D reads the force (noise, quantisation), the controller computes the command from the
+reading and the reference at ``t_k``, the command is written to the D/A and reaches the
+amplifier after the rig's ``delay_samples``, and the rig advances to ``t_{k+1}``.
+
+The same function simulates one plant or a batch (a :class:`~piezopreload.models.actuator.RigParams`
+with array fields): every array carries the batch in its leading axes and time last.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from piezopreload.models.actuator import Rig
+from piezopreload.models.controller import Controller
+from piezopreload.models.metrics import StepMetrics, step_metrics, tracking_error
+
+__all__ = ["Reference", "ClosedLoopRun", "simulate", "simulate_open_loop", "triangle", "PAPER_BAND_N"]
+
+Array = NDArray[np.float64]
+
+#: The paper's error band for rise, peak and settling time (Section 4.2).
+PAPER_BAND_N = 1.5
+
+
+@dataclass(frozen=True, eq=False)
+class Reference:
+    """A piecewise-constant force reference: ``levels_N[i]`` from ``times_s[i]`` on.
+
+    ``times_s[0]`` must be 0 (the level the rig rests at before the first change).
+    """
+
+    times_s: Array
+    levels_N: Array
+    duration_s: float
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.times_s, float)
+        lv = np.asarray(self.levels_N, float)
+        if t.ndim != 1 or t.shape != lv.shape or t.size < 1:
+            raise ValueError(f"times_s and levels_N must be 1-D of equal length >= 1, got {t.shape} and {lv.shape}.")
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(lv))):
+            raise ValueError("times_s and levels_N must be finite.")
+        if t[0] != 0 or np.any(np.diff(t) <= 0):
+            raise ValueError(f"times_s must start at 0 and increase, got {t.tolist()}.")
+        if not (np.isfinite(self.duration_s) and self.duration_s > t[-1]):
+            raise ValueError(f"duration_s must be after the last change ({t[-1]} s), got {self.duration_s!r}.")
+        object.__setattr__(self, "times_s", t)
+        object.__setattr__(self, "levels_N", lv)
+
+    @classmethod
+    def step(cls, initial_N: float, final_N: float, t_step_s: float = 0.5, duration_s: float = 10.0) -> Reference:
+        return cls(np.array([0.0, t_step_s]), np.array([initial_N, final_N]), duration_s)
+
+    @classmethod
+    def staircase(
+        cls, initial_N: float, levels_N: ArrayLike, hold_s: float, t_start_s: float = 0.5
+    ) -> Reference:
+        """Rest at ``initial_N``, then each of ``levels_N`` for ``hold_s``."""
+        levels = np.asarray(levels_N, float)
+        times = np.concatenate([[0.0], t_start_s + hold_s * np.arange(levels.size)])
+        return cls(times, np.concatenate([[initial_N], levels]), t_start_s + hold_s * levels.size)
+
+    def at(self, t: ArrayLike) -> Array:
+        idx = np.searchsorted(self.times_s, np.asarray(t, float), side="right") - 1
+        return self.levels_N[np.clip(idx, 0, None)]
+
+    @property
+    def is_step(self) -> bool:
+        return self.times_s.size == 2
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"times_s": self.times_s.tolist(), "levels_N": self.levels_N.tolist(), "duration_s": self.duration_s}
+
+
+@dataclass(frozen=True, eq=False)
+class ClosedLoopRun:
+    """A simulated run: samples with time last, batch (if any) in the leading axes.
+
+    ``force_N`` is the true force at each sample, ``measured_N`` what the A/D read,
+    ``command_V`` the controller output (after its clamp) and ``p_V, i_V, d_V, ff_V`` its
+    parts, ``voltage_V`` the amplifier output.
+    """
+
+    t_s: Array
+    reference_N: Array
+    force_N: Array
+    measured_N: Array
+    command_V: Array
+    voltage_V: Array
+    p_V: Array
+    i_V: Array
+    d_V: Array
+    ff_V: Array
+    reference: Reference
+    seed: int
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return self.force_N.shape[:-1]
+
+    def step_metrics(self, band_N: float | None = PAPER_BAND_N, *, which: int = 1, signal: str = "force_N") -> StepMetrics | list:
+        """Metrics of the reference's ``which``-th change (1: the first step), per plant.
+
+        The window runs from that change to the next (or to the end); ``band_N=None`` gives the
+        conventional 10-90 % / 2 % definitions. ``signal`` picks the true force (default) or
+        what the sensor read (``"measured_N"``).
+        """
+        ref = self.reference
+        if not 1 <= which < ref.times_s.size:
+            raise ValueError(f"which must be 1..{ref.times_s.size - 1}, got {which}.")
+        t0 = ref.times_s[which]
+        t1 = ref.times_s[which + 1] if which + 1 < ref.times_s.size else np.inf
+        k0 = int(np.searchsorted(self.t_s, t0 - 1e-12))
+        mask = (self.t_s >= self.t_s[k0]) & (self.t_s < t1)
+        y = getattr(self, signal)
+        kw = dict(initial=float(ref.levels_N[which - 1]), t_step=float(self.t_s[k0]), band=band_N)
+        final = float(ref.levels_N[which])
+        if y.ndim == 1:
+            return step_metrics(self.t_s[mask], y[mask], final, **kw)
+        flat = y.reshape(-1, y.shape[-1])
+        return [step_metrics(self.t_s[mask], row[mask], final, **kw) for row in flat]
+
+    def tracking_error(self, t_from_s: float | None = None) -> dict[str, Any]:
+        """RMS and maximum of reference minus true force from ``t_from_s`` (default the first change)."""
+        t_from = self.reference.times_s[1] if t_from_s is None and self.reference.times_s.size > 1 else (t_from_s or 0.0)
+        if self.force_N.ndim == 1:
+            return tracking_error(self.t_s, self.force_N, self.reference_N, t_from=t_from)
+        mask = self.t_s >= t_from
+        e = self.reference_N[mask] - self.force_N[..., mask]
+        return {"rms": np.sqrt(np.mean(e**2, axis=-1)), "max": np.max(np.abs(e), axis=-1)}
+
+    def columns(self) -> dict[str, Array]:
+        """The run as named columns (one plant), for CSV export."""
+        if self.force_N.ndim != 1:
+            raise ValueError("columns() needs a single-plant run; index the batch first.")
+        return {
+            "time_s": self.t_s,
+            "reference_N": self.reference_N,
+            "force_N": self.force_N,
+            "measured_N": self.measured_N,
+            "command_V": self.command_V,
+            "voltage_V": self.voltage_V,
+            "p_V": self.p_V,
+            "i_V": self.i_V,
+            "d_V": self.d_V,
+            "ff_V": self.ff_V,
+        }
+
+
+def simulate(
+    rig: Rig,
+    controller: Controller,
+    reference: Reference,
+    *,
+    seed: int = 0,
+    batch: tuple[int, ...] = (),
+) -> ClosedLoopRun:
+    """Run ``controller`` against ``rig`` over ``reference``; deterministic for ``seed``.
+
+    The rig starts at rest at 0 V (the bolt preload alone) and the controller bumplessly at
+    0 V with its setpoint at the reference's first level. ``batch`` adds leading axes beyond
+    those of the rig's parameters (identical plants with independent noise).
+    """
+    dt = rig.dt_s
+    if not np.isclose(controller.dt_s, dt, rtol=1e-9, atol=0.0):
+        raise ValueError(f"the controller samples every {controller.dt_s} s but the rig every {dt} s.")
+    n = int(round(reference.duration_s / dt)) + 1
+    t = np.arange(n) * dt
+    r = reference.at(t)
+    rng = np.random.default_rng(seed)
+    state = rig.initial_state(batch)
+    shape = state.v_amp.shape
+    pv0 = rig.force(state)
+    cstate = controller.initial_state(np.full(shape, r[0]), pv0, u0=0.0)
+    out = {k: np.empty(shape + (n,)) for k in ("force", "meas", "u", "v", "p", "i", "d", "ff")}
+    for k in range(n):
+        out["force"][..., k] = rig.force(state)
+        out["v"][..., k] = state.v_amp
+        y = rig.measure(state, rng)
+        terms, cstate = controller.step_terms(cstate, r[k], y)
+        state = rig.step(state, terms.u)
+        out["meas"][..., k] = y
+        out["u"][..., k] = terms.u
+        out["p"][..., k] = terms.p
+        out["i"][..., k] = terms.i
+        out["d"][..., k] = terms.d
+        out["ff"][..., k] = terms.ff
+    return ClosedLoopRun(
+        t_s=t,
+        reference_N=r,
+        force_N=out["force"],
+        measured_N=out["meas"],
+        command_V=out["u"],
+        voltage_V=out["v"],
+        p_V=out["p"],
+        i_V=out["i"],
+        d_V=out["d"],
+        ff_V=out["ff"],
+        reference=reference,
+        seed=int(seed),
+    )
+
+
+def triangle(v_max_V: float, frequency_Hz: float, cycles: int, dt_s: float, v_min_V: float = 0.0) -> tuple[Array, Array]:
+    """A triangle wave ``v_min -> v_max -> v_min``, ``cycles`` times: the usual loop measurement."""
+    if not (frequency_Hz > 0 and cycles >= 1 and dt_s > 0 and v_max_V > v_min_V):
+        raise ValueError("need frequency_Hz > 0, cycles >= 1, dt_s > 0 and v_max_V > v_min_V.")
+    t = np.arange(int(round(cycles / frequency_Hz / dt_s)) + 1) * dt_s
+    phase = (t * frequency_Hz) % 1.0
+    tri = np.where(phase < 0.5, 2.0 * phase, 2.0 - 2.0 * phase)
+    return t, v_min_V + (v_max_V - v_min_V) * tri
+
+
+def simulate_open_loop(rig: Rig, command_V: ArrayLike, *, seed: int = 0) -> dict[str, Array]:
+    """Drive the rig with a command sequence (one per sample) and record what a rig would.
+
+    Returns ``time_s``, ``command_V``, ``voltage_V`` (amplifier output), ``force_N`` (true)
+    and ``measured_N`` (A/D): a simulated hysteresis measurement.
+    """
+    u = np.asarray(command_V, float)
+    if u.ndim != 1 or not np.all(np.isfinite(u)):
+        raise ValueError("command_V must be a finite 1-D sequence.")
+    rng = np.random.default_rng(seed)
+    state = rig.initial_state()
+    shape = state.v_amp.shape + (u.size,)
+    out = {k: np.empty(shape) for k in ("voltage_V", "force_N", "measured_N")}
+    for k in range(u.size):
+        out["voltage_V"][..., k] = state.v_amp
+        out["force_N"][..., k] = rig.force(state)
+        out["measured_N"][..., k] = rig.measure(state, rng)
+        state = rig.step(state, u[k])
+    return {"time_s": np.arange(u.size) * rig.dt_s, "command_V": u, **out}

@@ -1,0 +1,235 @@
+"""Study files (TOML): what a study runs on, validated on load.
+
+A study names the rig (the simulated plant's parameters), the controller's gains, the
+feedforward's identification experiment, the references and the simulation settings. Every
+key is checked: an unknown key, a wrong type or an out-of-range value is an
+:class:`~piezopreload.io.InputError` naming the file, the line and the key's path.
+
+The paper's study, ``paper2021.toml``, ships with the package (:func:`default_study`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import re
+import tomllib
+from dataclasses import dataclass, fields
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from piezopreload.io import InputError
+from piezopreload.models.actuator import RigParams, StackData
+from piezopreload.models.closedloop import Reference
+from piezopreload.models.controller import PIDGains
+from piezopreload.tuning.calibrate import LoopExcitation
+
+__all__ = ["Study", "load_study", "default_study", "DEFAULT_STUDY"]
+
+DEFAULT_STUDY = "paper2021.toml"
+
+_NUM = (int, float)
+_RIG_SCALARS = {f.name for f in fields(RigParams)} - {"stack", "creep_tau_s", "n_stacks", "adc_bits", "delay_samples"}
+_SCHEMA: dict[str, Any] = {
+    "study": {"name": str, "title": str, "description": str},
+    "rig": {
+        **{name: _NUM for name in _RIG_SCALARS},
+        "n_stacks": int, "adc_bits": int, "delay_samples": int, "creep_tau_s": list,
+        "stack": {f.name: (str if f.name == "name" else _NUM) for f in fields(StackData)},
+    },
+    "controller": {
+        "Kc": _NUM, "Ti": _NUM, "Td": _NUM, "Tf_s": _NUM, "b": _NUM, "units": str, "u_min_V": _NUM, "u_max_V": _NUM,
+    },
+    "feedforward": {"v_max_V": _NUM, "frequency_Hz": _NUM, "cycles": int, "n_operators": int, "seed": int},
+    "reference": {
+        "step": {"initial_N": _NUM, "final_N": _NUM, "t_step_s": _NUM, "duration_s": _NUM},
+        "trajectory": {"initial_N": _NUM, "levels_N": list, "hold_s": _NUM, "t_start_s": _NUM},
+    },
+    "simulation": {"seed": int, "band_N": _NUM, "signal": str},
+}
+_REQUIRED = {"rig", "controller"}
+_UNITS = ("seconds", "minutes")
+_SIGNALS = ("measured_N", "force_N")
+
+
+@dataclass(frozen=True, eq=False)
+class Study:
+    """A loaded, validated study."""
+
+    path: str
+    sha256: str
+    name: str
+    title: str
+    rig: RigParams
+    gains: PIDGains
+    gains_units: str
+    excitation: LoopExcitation
+    references: dict[str, Reference]
+    seed: int
+    band_N: float
+    signal: str
+    raw: dict[str, Any]
+
+
+class _Lines:
+    """Line numbers of the tables and keys of a TOML text, for messages (``a.b.key -> line``)."""
+
+    _table = re.compile(r"^\s*\[\s*([A-Za-z0-9_.\- ]+?)\s*\]\s*(#.*)?$")
+    _key = re.compile(r"^\s*([A-Za-z0-9_\-]+)\s*=")
+
+    def __init__(self, text: str) -> None:
+        self.lines: dict[str, int] = {}
+        table = ""
+        for no, line in enumerate(text.splitlines(), start=1):
+            m = self._table.match(line)
+            if m:
+                table = m.group(1).replace(" ", "")
+                self.lines.setdefault(table, no)
+                continue
+            m = self._key.match(line)
+            if m:
+                self.lines.setdefault(f"{table}.{m.group(1)}" if table else m.group(1), no)
+
+    def of(self, key_path: str) -> int | None:
+        while key_path:
+            if key_path in self.lines:
+                return self.lines[key_path]
+            key_path = key_path.rpartition(".")[0]
+        return None
+
+
+def _check_tree(data: dict[str, Any], schema: dict[str, Any], prefix: str, where: _Lines, shown: str) -> None:
+    for key, value in data.items():
+        path = f"{prefix}{key}"
+        line = where.of(path)
+        at = f"{shown}:{line}" if line else shown
+        if key not in schema:
+            known = ", ".join(sorted(schema))
+            raise InputError(f"{at}: unknown key '{path}'; expected one of: {known}")
+        expected = schema[key]
+        if isinstance(expected, dict):
+            if not isinstance(value, dict):
+                raise InputError(f"{at}: '{path}' must be a table ([{path}])")
+            _check_tree(value, expected, f"{path}.", where, shown)
+            continue
+        ok = isinstance(value, expected) and not isinstance(value, bool)
+        if not ok:
+            want = {str: "a string", list: "a list", int: "an integer", _NUM: "a number"}.get(expected, str(expected))
+            raise InputError(f"{at}: '{path}' must be {want}, got {type(value).__name__} {value!r}")
+        if isinstance(value, float) and not math.isfinite(value):
+            raise InputError(f"{at}: '{path}' must be finite, got {value!r}")
+        if isinstance(value, list) and not all(isinstance(x, _NUM) and not isinstance(x, bool) and math.isfinite(x) for x in value):
+            raise InputError(f"{at}: '{path}' must be a list of finite numbers, got {value!r}")
+
+
+def load_study(path: str | Path) -> Study:
+    """Read and validate a study file."""
+    shown = str(path)
+    try:
+        raw_bytes = Path(path).read_bytes()
+    except FileNotFoundError:
+        raise InputError(f"{shown}: no such study file") from None
+    except OSError as exc:
+        raise InputError(f"{shown}: cannot read ({exc})") from None
+    try:
+        text = raw_bytes.decode("utf-8")
+        data = tomllib.loads(text)
+    except UnicodeDecodeError:
+        raise InputError(f"{shown}: not UTF-8 text") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{shown}: not valid TOML ({exc})") from None
+    where = _Lines(text)
+    _check_tree(data, _SCHEMA, "", where, shown)
+    for section in sorted(_REQUIRED - set(data)):
+        raise InputError(f"{shown}: the table [{section}] is missing")
+
+    def fail(key_path: str, message: str) -> InputError:
+        line = where.of(key_path)
+        return InputError(f"{shown}:{line}: '{key_path}' {message}" if line else f"{shown}: '{key_path}' {message}")
+
+    # ---- rig ------------------------------------------------------------------------------
+    rig_data = dict(data["rig"])
+    if "stack" in rig_data:
+        try:
+            rig_data["stack"] = StackData(**{f.name: rig_data["stack"].get(f.name, getattr(_default_stack(), f.name))
+                                             for f in fields(StackData)})
+        except ValueError as exc:
+            raise fail("rig.stack", f"is not valid: {exc}") from None
+    if "creep_tau_s" in rig_data:
+        rig_data["creep_tau_s"] = tuple(float(x) for x in rig_data["creep_tau_s"])
+    try:
+        rig = RigParams(**rig_data)
+    except ValueError as exc:
+        name = next((k for k in rig_data if f"RigParams.{k} " in str(exc)), "")
+        raise fail(f"rig.{name}" if name else "rig", f"is not valid: {exc}") from None
+
+    # ---- controller -------------------------------------------------------------------------
+    c = data["controller"]
+    for key in ("Kc", "Ti", "Td"):
+        if key not in c:
+            raise fail("controller", f"needs '{key}'")
+    units = c.get("units", "seconds")
+    if units not in _UNITS:
+        raise fail("controller.units", f"must be one of {', '.join(_UNITS)}, got {units!r}")
+    scale = 60.0 if units == "minutes" else 1.0
+    try:
+        gains = PIDGains(
+            Kc=float(c["Kc"]), Ti_s=scale * float(c["Ti"]), Td_s=scale * float(c["Td"]),
+            Tf_s=float(c.get("Tf_s", 0.0)), b=float(c.get("b", 1.0)),
+            u_min=float(c.get("u_min_V", 0.0)), u_max=float(c.get("u_max_V", 110.0)),
+        )
+    except ValueError as exc:
+        raise fail("controller", f"is not valid: {exc}") from None
+
+    # ---- feedforward, references, simulation -----------------------------------------------------
+    try:
+        excitation = LoopExcitation(**data.get("feedforward", {}))
+    except ValueError as exc:
+        raise fail("feedforward", f"is not valid: {exc}") from None
+    refs = data.get("reference", {})
+    references: dict[str, Reference] = {}
+    try:
+        s = refs.get("step", {})
+        references["step"] = Reference.step(
+            float(s.get("initial_N", 25.0)), float(s.get("final_N", 60.0)),
+            float(s.get("t_step_s", 0.5)), float(s.get("duration_s", 10.0)),
+        )
+    except ValueError as exc:
+        raise fail("reference.step", f"is not valid: {exc}") from None
+    try:
+        tr = refs.get("trajectory", {})
+        hold = float(tr.get("hold_s", 5.0))
+        if not hold > 0:
+            raise ValueError(f"hold_s must be > 0, got {hold}")
+        references["trajectory"] = Reference.staircase(
+            float(tr.get("initial_N", 25.0)), tr.get("levels_N", [60.0, 80.0, 100.0, 80.0, 60.0]),
+            hold, float(tr.get("t_start_s", 0.5)),
+        )
+    except ValueError as exc:
+        raise fail("reference.trajectory", f"is not valid: {exc}") from None
+    sim = data.get("simulation", {})
+    band = float(sim.get("band_N", 1.5))
+    if not band > 0:
+        raise fail("simulation.band_N", f"must be > 0, got {band}")
+    signal = sim.get("signal", "measured_N")
+    if signal not in _SIGNALS:
+        raise fail("simulation.signal", f"must be one of {', '.join(_SIGNALS)}, got {signal!r}")
+    seed = int(sim.get("seed", 0))
+    if seed < 0:
+        raise fail("simulation.seed", f"must be >= 0, got {seed}")
+    meta = data.get("study", {})
+    return Study(
+        path=shown, sha256=hashlib.sha256(raw_bytes).hexdigest(), name=meta.get("name", Path(shown).stem),
+        title=meta.get("title", ""), rig=rig, gains=gains, gains_units=units, excitation=excitation,
+        references=references, seed=seed, band_N=band, signal=signal, raw=data,
+    )
+
+
+def _default_stack() -> StackData:
+    return RigParams().stack
+
+
+def default_study() -> Path:
+    """The paper's study file as shipped with the package."""
+    return Path(str(resources.files("piezopreload.studies") / DEFAULT_STUDY))
