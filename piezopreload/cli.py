@@ -167,10 +167,10 @@ def _print_reproduce(s: dict[str, Any]) -> None:
           f"gains Kc {g['Kc_V_per_N']:g}, Ti {g['Ti_s']:g} s, Td {g['Td_s']:g} s (paper's values read as {g['read_as']})")
     print(f"feedforward fit to the simulated loop: RMS {s['feedforward_fit']['rms_pct']:.2f} %, "
           f"max {s['feedforward_fit']['max_pct']:.2f} % of span")
-    print(f"  {'controller':10s}{'metric':14s}{'paper':>8s}{'simulated':>11s}{'ratio':>8s}  within 25 %")
+    print(f"  {'controller':12s}{'metric':14s}{'paper':>8s}{'simulated':>11s}{'ratio':>8s}  within 25 %")
     for r in s["rows"]:
         ratio = "-" if r["ratio"] is None else f"{r['ratio']:.2f}"
-        print(f"  {r['controller']:10s}{r['metric']:14s}{r['paper']:8.2f}{_fmt(r['simulated']):>11s}{ratio:>8s}"
+        print(f"  {r['controller']:12s}{r['metric']:14s}{r['paper']:8.2f}{_fmt(r['simulated']):>11s}{ratio:>8s}"
               f"  {'yes' if r['within_25pct'] else 'NO'}")
 
 

@@ -1,0 +1,54 @@
+"""The calibrated rig against the paper's Section 4, and the calibration itself."""
+
+from dataclasses import replace
+
+import pytest
+
+from piezopreload.models.actuator import Rig, loop_width, reach_N
+from piezopreload.pipeline import reproduce_study
+from piezopreload.study import default_study, load_study
+from piezopreload.tuning.calibrate import PAPER_RESULTS, _mismatch, calibrate, reproduce
+
+# studies/paper2021.md: four of the six within +/-25 %; PID rise and FF settling outside, with
+# the account of why. These tests hold the preset to what that document says.
+WITHIN = {("pid", "peak_s"), ("pid", "settling_s"), ("ff+pid", "rise_s"), ("ff+pid", "peak_s")}
+
+
+def test_the_preset_reproduces_the_paper_as_documented():
+    s = reproduce_study(load_study(default_study()))
+    rows = {(r["controller"], r["metric"]): r for r in s["rows"]}
+    for key in WITHIN:
+        assert rows[key]["within_25pct"], f"{key}: {rows[key]}"
+    assert 0.70 <= rows[("pid", "rise_s")]["ratio"] < 1.0  # documented: 0.74, limited by the 100 N reach
+    assert 1.0 < rows[("ff+pid", "settling_s")]["ratio"] <= 1.40  # documented: 1.32, open work
+    assert s["feedforward_fit"]["rms_pct"] < 2.0
+
+
+def test_the_preset_is_physical():
+    rig = Rig(load_study(default_study()).rig)
+    assert float(reach_N(rig, 110.0)) >= 100.0, "the trajectory's 100 N must be reachable within 0-110 V"
+    assert 0.10 <= float(loop_width(rig)) <= 0.15
+
+
+def test_mismatch_is_zero_at_the_papers_numbers_and_penalises_never():
+    assert _mismatch(PAPER_RESULTS) == 0.0
+    never = {c: dict(m) for c, m in PAPER_RESULTS.items()}
+    never["pid"]["settling_s"] = float("nan")
+    assert _mismatch(never) == 9.0
+
+
+def test_calibrate_improves_on_its_start():
+    study = load_study(default_study())
+    start = replace(study.rig, amp_current_limit_A=0.05)  # the feedforward step would rise far too fast
+    res = calibrate(start, {"amp_current_limit_A": (0.005, 0.1)}, max_evaluations=6)
+    assert res.evaluations >= 6 and len(res.history) == res.evaluations
+    first = res.history[0]["objective"]
+    assert min(h["objective"] for h in res.history) < first
+    assert res.params.amp_current_limit_A < 0.05
+    rep = reproduce(res.params)
+    assert rep.metrics["ff+pid"]["rise_s"] > reproduce(start).metrics["ff+pid"]["rise_s"]
+
+
+def test_calibrate_rejects_unknown_parameters():
+    with pytest.raises(ValueError, match="cannot calibrate"):
+        calibrate(load_study(default_study()).rig, {"wheel_count": (1.0, 2.0)})

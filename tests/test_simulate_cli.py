@@ -1,0 +1,158 @@
+"""The study file, ``piezopreload simulate`` and ``piezopreload reproduce``."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from piezopreload.cli import main
+from piezopreload.io import InputError
+from piezopreload.study import default_study, load_study
+from piezopreload.tuning.calibrate import PAPER_RESULTS
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def run_cli(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_the_shipped_study_is_the_repository_one():
+    assert default_study().read_bytes() == (REPO / "studies" / "paper2021.toml").read_bytes()
+    study = load_study(default_study())
+    assert study.gains.Kc == 0.3 and study.gains.Ti_s == 0.08 and study.gains.Td_s == 0.001
+    assert study.gains.u_min == 0.0 and study.gains.u_max == 110.0
+    assert study.rig.bolt_preload_N == 25.0
+    assert study.references["step"].levels_N.tolist() == [25.0, 60.0]
+    assert study.references["trajectory"].levels_N.tolist() == [25.0, 60.0, 80.0, 100.0, 80.0, 60.0]
+    assert study.excitation.n_operators == 40 and study.excitation.v_max_V == 100.0
+
+
+def test_minutes_are_converted_at_the_edge(tmp_path):
+    text = default_study().read_text().replace('units = "seconds"', 'units = "minutes"')
+    path = tmp_path / "s.toml"
+    path.write_text(text)
+    study = load_study(path)
+    assert study.gains.Ti_s == pytest.approx(4.8) and study.gains.Td_s == pytest.approx(0.06)
+
+
+@pytest.mark.parametrize(
+    "edit,message",
+    [
+        (("n_stacks = 3", "n_stacks = 3\nstiffnes = 2.0"), r":\d+: unknown key 'rig.stiffnes'"),
+        (("Kc = 0.3", 'Kc = "high"'), r":\d+: 'controller.Kc' must be a number"),
+        (('units = "seconds"', 'units = "hours"'), r":\d+: 'controller.units' must be one of seconds, minutes"),
+        (("noise_N = ", "noise_N = -"), r":\d+: 'rig.noise_N' is not valid: RigParams.noise_N must be finite and >= 0"),
+        (("band_N = 1.5", "band_N = 0.0"), r":\d+: 'simulation.band_N' must be > 0"),
+        (("hold_s = 5.0", "hold_s = nan"), r":\d+: 'reference.trajectory.hold_s' must be finite"),
+        (("[controller]", "[controler]"), r":\d+: unknown key 'controler'"),
+    ],
+)
+def test_bad_study_files_name_the_line_and_key(tmp_path, edit, message):
+    text = default_study().read_text()
+    assert edit[0] in text
+    path = tmp_path / "bad.toml"
+    path.write_text(text.replace(edit[0], edit[1], 1))
+    with pytest.raises(InputError, match=message):
+        load_study(path)
+
+
+def test_study_line_numbers_point_at_the_key(tmp_path):
+    text = default_study().read_text().replace("Kc = 0.3", 'Kc = "x"')
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    line = next(i for i, s in enumerate(text.splitlines(), 1) if s.startswith("Kc ="))
+    with pytest.raises(InputError, match=f"bad.toml:{line}: 'controller.Kc'"):
+        load_study(path)
+
+
+def test_simulate_step_json_holds_the_metrics_and_the_papers(capsys, tmp_path):
+    out = tmp_path / "run.csv"
+    code, stdout, err = run_cli(capsys, "simulate", "--controller", "pid", "--out", str(out), "--json")
+    assert code == 0, err
+    s = json.loads(stdout)
+    for key in ("rise_s", "peak_s", "settling_s", "overshoot_N"):
+        assert key in s and key in s["paper"]
+    assert {k: s["paper"][k] for k in ("rise_s", "peak_s", "settling_s")} == PAPER_RESULTS["pid"]
+    assert s["paper"]["overshoot_N"] is None  # not published
+    assert 0 < s["rise_s"] <= s["settling_s"]
+    data = np.loadtxt(out, delimiter=",", comments="#", skiprows=2)
+    header = [line for line in out.read_text().splitlines() if not line.startswith("#")][0].split(",")
+    assert header[:4] == ["time_s", "reference_N", "force_N", "measured_N"]
+    assert data.shape == (s["samples"], len(header))
+    # the CSV is the run the metrics came from: same command peak
+    assert data[:, header.index("command_V")].max() == pytest.approx(s["peak_command_V"], rel=1e-8)
+
+
+def test_simulate_trajectory_reports_tracking(capsys):
+    code, stdout, err = run_cli(capsys, "simulate", "--reference", "trajectory", "--json")
+    assert code == 0, err
+    s = json.loads(stdout)
+    assert s["controller"] == "ff+pid" and s["feedforward"]["operators"] == 40
+    assert 0 < s["tracking_rms_N"] < s["tracking_max_N"] <= 36.0
+    assert s["paper"]["tracking_rms_N"] is None
+
+
+def test_simulate_text_output_and_seed(capsys):
+    code, stdout, _ = run_cli(capsys, "simulate", "--controller", "pid", "--seed", "3")
+    assert code == 0
+    assert "rise time (s)" in stdout and "1.690" in stdout and "seed 3" in stdout
+
+
+def _gain_file(path, gains):
+    doc = {"schema": "piezopreload/gain-set/1", "status": "candidate", "inputs": {}, "gains": gains}
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def test_simulate_with_a_gain_file(capsys, tmp_path):
+    g = _gain_file(tmp_path / "g.json", {"Kc_V_per_N": 0.5, "Ti_s": 0.1, "Td_s": 0.0})
+    code, stdout, err = run_cli(capsys, "simulate", "--controller", "pid", "--gains", str(g), "--json")
+    assert code == 0, err
+    s = json.loads(stdout)
+    assert s["gains"]["Kc_V_per_N"] == 0.5 and s["gains"]["source"] == str(g)
+
+
+@pytest.mark.parametrize(
+    "argv_tail,needle",
+    [
+        (["--study", "missing.toml"], "missing.toml: no such study file"),
+        (["--controller", "mpc"], "invalid choice: 'mpc'"),
+        (["--seed", "-1"], "must be an integer >= 0"),
+    ],
+)
+def test_simulate_bad_input_exits_2(capsys, argv_tail, needle):
+    code, out, err = run_cli(capsys, "simulate", *argv_tail)
+    assert code == 2 and out == ""
+    assert err.startswith("error: ") and needle in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(
+    "gains,needle",
+    [
+        ({"Kc_V_per_N": 0.5, "Td_s": 0.0}, "field 'gains.Ti_s' is missing"),
+        ({"Kc_V_per_N": 0.5, "Ti_s": -1.0, "Td_s": 0.0}, "Ti_s must be > 0"),
+        ({"Kc_V_per_N": float("nan"), "Ti_s": 1.0, "Td_s": 0.0}, "'gains.Kc_V_per_N' is not a finite number"),
+    ],
+)
+def test_simulate_rejects_bad_gain_files(capsys, tmp_path, gains, needle):
+    g = _gain_file(tmp_path / "g.json", gains)
+    code, _, err = run_cli(capsys, "simulate", "--gains", str(g))
+    assert code == 2 and needle in err, err
+
+
+def test_reproduce_prints_the_six_numbers(capsys):
+    code, stdout, err = run_cli(capsys, "reproduce", "--json")
+    assert code == 0, err
+    s = json.loads(stdout)
+    rows = {(r["controller"], r["metric"]): r for r in s["rows"]}
+    assert len(rows) == 6
+    for c, metrics in PAPER_RESULTS.items():
+        for k, v in metrics.items():
+            assert rows[(c, k)]["paper"] == v
+            assert rows[(c, k)]["simulated"] > 0
+    # the feedforward makes the step faster, as in the paper
+    assert rows[("ff+pid", "rise_s")]["simulated"] < 0.2 * rows[("pid", "rise_s")]["simulated"]
