@@ -11,7 +11,7 @@ with array fields): every array carries the batch in its leading axes and time l
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -100,7 +100,6 @@ class ClosedLoopRun:
     ff_V: Array
     reference: Reference
     seed: int
-    extra: dict[str, Any] = field(default_factory=dict)
 
     @property
     def batch_shape(self) -> tuple[int, ...]:

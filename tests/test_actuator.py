@@ -158,3 +158,12 @@ def test_bad_parameters_are_named(field, value):
         kwargs["bw_gamma_per_V"] = 0.01
     with pytest.raises(ValueError, match=field):
         RigParams(**kwargs)
+
+
+def test_parameters_round_trip_through_a_dict():
+    p = RigParams(bw_kappa=0.1).vary(3, {"noise_N": 0.2}, seed=1)
+    q = RigParams.from_dict(p.to_dict())
+    np.testing.assert_array_equal(q.noise_N, p.noise_N)
+    assert q.stack == p.stack and q.creep_tau_s == p.creep_tau_s and q.bw_kappa == 0.1
+    with pytest.raises(ValueError, match="unknown rig parameter"):
+        RigParams.from_dict({"noise": 0.1})

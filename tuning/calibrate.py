@@ -189,8 +189,10 @@ def calibrate(
         rig = Rig(p)
         reach = float(reach_N(rig, gains.u_max))
         width = float(loop_width(rig, excitation.v_max_V))
-        penalty = 10.0 * (max(0.0, require_force_N - reach) / require_force_N) ** 2 * 100
-        penalty += 100.0 * (max(0.0, width_range[0] - width) + max(0.0, width - width_range[1])) ** 2 * 100
+        # quadratic penalties that outweigh the mismatch (order 0.1-1) once a requirement is
+        # missed by a few per cent: 1e3 x (relative force shortfall)^2, 1e4 x (width excess)^2
+        penalty = 1e3 * (max(0.0, require_force_N - reach) / require_force_N) ** 2
+        penalty += 1e4 * (max(0.0, width_range[0] - width) + max(0.0, width - width_range[1])) ** 2
         rep = reproduce(p, gains, excitation=excitation, seed=seed)
         f = _mismatch(rep.metrics) + penalty
         history.append({"objective": f, "reach_N": reach, "width": width, **{n: float(getattr(p, n)) for n in names}})
