@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from piezopreload import __version__
-from piezopreload.io import InputError
+from piezopreload.io import InputError, read_input
 
 __all__ = ["ArtifactError", "schema_name", "write_artifact", "read_artifact", "atomic_write_text"]
 
@@ -86,11 +86,10 @@ def write_artifact(path: str | Path, kind: str, body: dict[str, Any]) -> dict[st
 def read_artifact(path: str | Path, kind: str) -> dict[str, Any]:
     """Read and check a ``kind`` artifact; :class:`ArtifactError` names what is wrong and where."""
     shown = str(path)
+    raw = read_input(path, error=ArtifactError)
     try:
-        text = Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ArtifactError(f"{shown}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
         raise ArtifactError(f"{shown}: cannot read ({exc})") from None
     try:
         doc = json.loads(text)  # NaN and Infinity parse to floats; _first_non_finite names them

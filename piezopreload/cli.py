@@ -118,6 +118,11 @@ def _nonnegative_int(text: str) -> int:
     return value
 
 
+def _add_study_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--study", metavar="STUDY.toml", help="study file (default: the paper's, paper2021.toml)")
+    p.add_argument("--seed", type=_nonnegative_int, help="noise seed (default: the study's)")
+
+
 def _study(args: argparse.Namespace):
     return load_study(args.study if args.study else default_study())
 
@@ -226,7 +231,7 @@ def build_parser() -> argparse.ArgumentParser:
             "errors beside the paper's values."
         ),
     )
-    p.add_argument("--study", metavar="STUDY.toml", help="study file (default: the paper's, paper2021.toml)")
+    _add_study_arguments(p)
     p.add_argument("--controller", choices=CONTROLLER_CHOICES, default="ff+pid", help="default: ff+pid")
     p.add_argument("--reference", choices=REFERENCE_CHOICES, default="step",
                    help="step: 25 -> 60 N; trajectory: 60-80-100-80-60 N (default: step)")
@@ -234,7 +239,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--feedforward", metavar="model.json",
                    help="an identified hysteresis-model artifact to invert (default: identify one from a "
                         "simulated loop measurement of the rig, as the paper did)")
-    p.add_argument("--seed", type=_nonnegative_int, help="noise seed (default: the study's)")
     p.add_argument("--out", metavar="run.csv", help="write the simulated samples as CSV")
     p.add_argument("--json", action="store_true", help="print the results as one JSON object")
     p.set_defaults(run=_cmd_simulate, show=_print_simulate)
@@ -247,8 +251,7 @@ def build_parser() -> argparse.ArgumentParser:
             "feedforward, and print rise, peak and settling time beside the paper's (Sections 4.2-4.3)."
         ),
     )
-    p.add_argument("--study", metavar="STUDY.toml", help="study file (default: the paper's, paper2021.toml)")
-    p.add_argument("--seed", type=_nonnegative_int, help="noise seed (default: the study's)")
+    _add_study_arguments(p)
     p.add_argument("--json", action="store_true", help="print the results as one JSON object")
     p.set_defaults(run=_cmd_reproduce, show=_print_reproduce)
     return parser

@@ -12,7 +12,16 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["InputError", "Record", "ColumnSpec", "parse_columns", "read_record", "shipped_data", "SHIPPED_COLUMNS"]
+__all__ = [
+    "InputError",
+    "Record",
+    "ColumnSpec",
+    "parse_columns",
+    "read_input",
+    "read_record",
+    "shipped_data",
+    "SHIPPED_COLUMNS",
+]
 
 
 class InputError(ValueError):
@@ -123,6 +132,17 @@ def _default_specs(header: list[str], path: str) -> dict[str, ColumnSpec]:
     }
 
 
+def read_input(path: str | Path, what: str = "file", error: type[InputError] = InputError) -> bytes:
+    """The bytes of an input file; a missing or unreadable file is ``error`` naming the path."""
+    shown = str(path)
+    try:
+        return Path(path).read_bytes()
+    except FileNotFoundError:
+        raise error(f"{shown}: no such {what}") from None
+    except OSError as exc:
+        raise error(f"{shown}: cannot read ({exc.strerror or exc})") from None
+
+
 def read_record(
     path: str | Path,
     columns: dict[str, ColumnSpec] | None = None,
@@ -137,12 +157,7 @@ def read_record(
     """
     path = Path(path)
     shown = str(path)
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise InputError(f"{shown}: no such file") from None
-    except OSError as exc:
-        raise InputError(f"{shown}: cannot read ({exc.strerror})") from None
+    raw = read_input(path)
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:

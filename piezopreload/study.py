@@ -19,8 +19,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from piezopreload.io import InputError
-from piezopreload.models.actuator import RigParams, StackData
+from piezopreload.io import InputError, read_input
+from piezopreload.models.actuator import P888_91, RigParams, StackData
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import PIDGains
 from piezopreload.tuning.calibrate import LoopExcitation
@@ -126,12 +126,7 @@ def _check_tree(data: dict[str, Any], schema: dict[str, Any], prefix: str, where
 def load_study(path: str | Path) -> Study:
     """Read and validate a study file."""
     shown = str(path)
-    try:
-        raw_bytes = Path(path).read_bytes()
-    except FileNotFoundError:
-        raise InputError(f"{shown}: no such study file") from None
-    except OSError as exc:
-        raise InputError(f"{shown}: cannot read ({exc})") from None
+    raw_bytes = read_input(path, "study file")
     try:
         text = raw_bytes.decode("utf-8")
         data = tomllib.loads(text)
@@ -152,7 +147,7 @@ def load_study(path: str | Path) -> Study:
     rig_data = dict(data["rig"])
     if "stack" in rig_data:
         try:
-            rig_data["stack"] = StackData(**{f.name: rig_data["stack"].get(f.name, getattr(_default_stack(), f.name))
+            rig_data["stack"] = StackData(**{f.name: rig_data["stack"].get(f.name, getattr(P888_91, f.name))
                                              for f in fields(StackData)})
         except ValueError as exc:
             raise fail("rig.stack", f"is not valid: {exc}") from None
@@ -224,10 +219,6 @@ def load_study(path: str | Path) -> Study:
         title=meta.get("title", ""), rig=rig, gains=gains, gains_units=units, excitation=excitation,
         references=references, seed=seed, band_N=band, signal=signal, raw=data,
     )
-
-
-def _default_stack() -> StackData:
-    return RigParams().stack
 
 
 def default_study() -> Path:
