@@ -229,7 +229,8 @@ class RigParams:
         changes = {}
         for name in self.batch_fields():
             x = np.asarray(getattr(self, name), float)
-            changes[name] = np.broadcast_to(x, shape)[index] if shape else x
+            if x.ndim:  # a field that varies across the batch; the others stay as they are
+                changes[name] = np.broadcast_to(x, shape)[index]
         return replace(self, **{k: (float(v) if np.ndim(v) == 0 else np.array(v)) for k, v in changes.items()})
 
     # ---- derived quantities ------------------------------------------------------------

@@ -163,7 +163,9 @@ def _print_simulate(s: dict[str, Any]) -> None:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> dict[str, Any]:
-    return reproduce_study(_study(args), seed=args.seed)
+    if args.repeats < 1:
+        raise InputError(f"--repeats: must be >= 1, got {args.repeats}")
+    return reproduce_study(_study(args), seed=args.seed, repeats=args.repeats)
 
 
 def _print_reproduce(s: dict[str, Any]) -> None:
@@ -172,11 +174,14 @@ def _print_reproduce(s: dict[str, Any]) -> None:
           f"gains Kc {g['Kc_V_per_N']:g}, Ti {g['Ti_s']:g} s, Td {g['Td_s']:g} s (paper's values read as {g['read_as']})")
     print(f"feedforward fit to the simulated loop: RMS {s['feedforward_fit']['rms_pct']:.2f} %, "
           f"max {s['feedforward_fit']['max_pct']:.2f} % of span")
-    print(f"  {'controller':12s}{'metric':14s}{'paper':>8s}{'simulated':>11s}{'ratio':>8s}  within 25 %")
+    what = "simulated" if s["repeats"] == 1 else f"median of {s['repeats']}"
+    print(f"  {'controller':12s}{'metric':14s}{'paper':>8s}{what:>14s}{'ratio':>8s}  within 25 %"
+          + ("" if s["repeats"] == 1 else "  range"))
     for r in s["rows"]:
         ratio = "-" if r["ratio"] is None else f"{r['ratio']:.2f}"
-        print(f"  {r['controller']:12s}{r['metric']:14s}{r['paper']:8.2f}{_fmt(r['simulated']):>11s}{ratio:>8s}"
-              f"  {'yes' if r['within_25pct'] else 'NO'}")
+        spread = "" if s["repeats"] == 1 else f"  {_fmt(r['range'][0])}-{_fmt(r['range'][1])}"
+        print(f"  {r['controller']:12s}{r['metric']:14s}{r['paper']:8.2f}{_fmt(r['simulated']):>14s}{ratio:>8s}"
+              f"  {'yes' if r['within_25pct'] else 'NO ':11s}{spread}")
 
 
 # --------------------------------------------------------------------------------------
@@ -252,6 +257,9 @@ def build_parser() -> argparse.ArgumentParser:
         ),
     )
     _add_study_arguments(p)
+    p.add_argument("--repeats", type=int, default=1, metavar="N",
+                   help="run the step N times with independent sensor noise and report the median "
+                        "and range of each number (default 1: the study's seed alone)")
     p.add_argument("--json", action="store_true", help="print the results as one JSON object")
     p.set_defaults(run=_cmd_reproduce, show=_print_reproduce)
     return parser

@@ -231,6 +231,10 @@ def _step_numbers(run: ClosedLoopRun, study: Study) -> dict[str, float | None]:
     return {k: (float(v) if np.isfinite(v) else None) for k, v in values.items()}
 
 
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
 def write_run_csv(path: str | Path, run: ClosedLoopRun, comment: str) -> None:
     """A single-plant run as CSV (one header line, ``#`` comments first), written atomically."""
     cols = run.columns()
@@ -305,12 +309,18 @@ def simulate_study(
     return summary
 
 
-def reproduce_study(study: Study, *, seed: int | None = None) -> dict[str, Any]:
-    """The paper's six step numbers beside the simulation's, both controllers, one command."""
+def reproduce_study(study: Study, *, seed: int | None = None, repeats: int = 1) -> dict[str, Any]:
+    """The paper's six step numbers beside the simulation's, both controllers, one command.
+
+    With ``repeats`` > 1, each number is the median over that many noise realisations, with
+    its range.
+    """
     t0 = time.perf_counter()
     rep = reproduce(study.rig, study.gains, step=study.references["step"], excitation=study.excitation,
-                    seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal)
-    rows = [{**r, "within_25pct": bool(abs(r["ratio"] - 1.0) <= 0.25)} for r in rep.table()]
+                    seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
+                    repeats=repeats)
+    rows = [{**r, "within_25pct": bool(abs(r["ratio"] - 1.0) <= 0.25),
+             "range": [_finite_or_none(x) for x in rep.spread[r["controller"]][r["metric"]]]} for r in rep.table()]
     for r in rows:
         if not np.isfinite(r["simulated"]):
             r.update(simulated=None, ratio=None, within_25pct=False)
@@ -323,5 +333,6 @@ def reproduce_study(study: Study, *, seed: int | None = None) -> dict[str, Any]:
         "rows": rows,
         "overshoot_N": {c: rep.metrics[c]["overshoot_N"] for c in rep.metrics},
         "all_within_25pct": all(r["within_25pct"] for r in rows),
+        "repeats": repeats,
         "seconds": time.perf_counter() - t0,
     }

@@ -148,6 +148,10 @@ def test_batches_vary_deterministically_and_simulate_like_single_plants():
     for uk in u:
         sb, ss = batch.step(sb, uk), single.step(ss, uk)
     assert float(batch.force(sb)[5]) == pytest.approx(float(single.force(ss)), rel=1e-13)
+    # a slice stays a batch of the varied fields only; the fixed ones stay scalars
+    part = a.take(slice(2, 5))
+    assert part.batch_shape == (3,) and np.ndim(part.sample_period_s) == 0 and np.ndim(part.noise_N) == 0
+    np.testing.assert_array_equal(part.amp_bandwidth_Hz, a.amp_bandwidth_Hz[2:5])
 
 
 @pytest.mark.parametrize("field,value", [("amp_bandwidth_Hz", 0.0), ("noise_N", -1.0), ("bw_beta_per_V", 0.001),
