@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from piezopreload.models.actuator import Rig
 from piezopreload.models.controller import Controller
-from piezopreload.models.metrics import StepMetrics, step_metrics, tracking_error
+from piezopreload.models.metrics import StepMetrics, step_metrics
 
 __all__ = ["Reference", "ClosedLoopRun", "simulate", "simulate_open_loop", "triangle", "PAPER_BAND_N"]
 
@@ -127,13 +127,24 @@ class ClosedLoopRun:
         flat = y.reshape(-1, y.shape[-1])
         return [step_metrics(self.t_s[mask], row[mask], final, **kw) for row in flat]
 
-    def tracking_error(self, t_from_s: float | None = None) -> dict[str, Any]:
-        """RMS and maximum of reference minus true force from ``t_from_s`` (default the first change)."""
+    def tracking_error(self, t_from_s: float | None = None, *, after_change_s: float = 0.0) -> dict[str, Any]:
+        """RMS and maximum of reference minus true force from ``t_from_s`` (default the first change).
+
+        ``after_change_s`` leaves out that long after every change of the reference: the
+        transport no controller can avoid when the reference jumps (see
+        ``tuning.pid.minimum_time``), so what remains is the error a controller can act on.
+        """
         t_from = self.reference.times_s[1] if t_from_s is None and self.reference.times_s.size > 1 else (t_from_s or 0.0)
-        if self.force_N.ndim == 1:
-            return tracking_error(self.t_s, self.force_N, self.reference_N, t_from=t_from)
         mask = self.t_s >= t_from
+        if after_change_s > 0:
+            changes = self.reference.times_s[1:]
+            last = changes[np.maximum(np.searchsorted(changes, self.t_s, side="right") - 1, 0)]
+            mask &= ~((self.t_s >= last) & (self.t_s < last + after_change_s))
+        if not mask.any():
+            raise ValueError("no samples left to score the tracking error on.")
         e = self.reference_N[mask] - self.force_N[..., mask]
+        if self.force_N.ndim == 1:
+            return {"rms": float(np.sqrt(np.mean(e**2))), "max": float(np.max(np.abs(e)))}
         return {"rms": np.sqrt(np.mean(e**2, axis=-1)), "max": np.max(np.abs(e), axis=-1)}
 
     def columns(self) -> dict[str, Array]:

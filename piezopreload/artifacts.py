@@ -8,6 +8,7 @@ kind, missing fields and non-finite numbers, naming the field.
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import json
 import math
 import os
@@ -18,13 +19,16 @@ from typing import Any
 from piezopreload import __version__
 from piezopreload.io import InputError, read_input
 
-__all__ = ["ArtifactError", "schema_name", "write_artifact", "read_artifact", "atomic_write_text"]
+__all__ = ["ArtifactError", "schema_name", "write_artifact", "read_artifact", "atomic_write_text", "content_hash"]
 
 VERSION = 1
 KINDS = {
     "hysteresis-model": ("model", "units", "inputs"),
     "gain-set": ("gains", "status", "inputs"),
 }
+#: kinds whose documents carry ``content_sha256``, checked on every read
+HASHED = {"gain-set"}
+HASH_FIELD = "content_sha256"
 
 
 class ArtifactError(InputError):
@@ -49,6 +53,12 @@ def atomic_write_text(path: str | Path, text: str) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def content_hash(doc: dict[str, Any]) -> str:
+    """SHA-256 of the document without its hash field, as canonical JSON (sorted keys, no spaces)."""
+    body = {k: v for k, v in doc.items() if k != HASH_FIELD}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False).encode()).hexdigest()
 
 
 def _first_non_finite(value: Any, where: str) -> str | None:
@@ -79,6 +89,9 @@ def write_artifact(path: str | Path, kind: str, body: dict[str, Any]) -> dict[st
     bad = _first_non_finite(doc, "")
     if bad is not None:
         raise ValueError(f"{kind} artifact field '{bad.lstrip('.')}' is not finite")
+    if kind in HASHED:
+        doc.pop(HASH_FIELD, None)
+        doc[HASH_FIELD] = content_hash(doc)
     atomic_write_text(path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
     return doc
 
@@ -112,4 +125,11 @@ def read_artifact(path: str | Path, kind: str) -> dict[str, Any]:
     bad = _first_non_finite(doc, "")
     if bad is not None:
         raise ArtifactError(f"{shown}: field '{bad.lstrip('.')}' is not a finite number; artifacts hold finite numbers only")
+    if kind in HASHED:
+        stored = doc.get(HASH_FIELD)
+        if not isinstance(stored, str):
+            raise ArtifactError(f"{shown}: field '{HASH_FIELD}' is missing; a {kind} must carry the hash it was written with")
+        if stored != content_hash(doc):
+            raise ArtifactError(f"{shown}: the content does not match its '{HASH_FIELD}': the file was changed after it "
+                                f"was written; regenerate it with 'piezopreload tune'")
     return doc

@@ -184,6 +184,63 @@ def _print_reproduce(s: dict[str, Any]) -> None:
               f"  {'yes' if r['within_25pct'] else 'NO ':11s}{spread}")
 
 
+def _cmd_tune(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.tuning_pipeline import tune_study
+
+    if args.workers is not None and args.workers < 1:
+        raise InputError(f"--workers: must be >= 1, got {args.workers}")
+    if args.scheduler is not None and not args.scheduler.startswith("tcp://"):
+        raise InputError(f"--scheduler: '{args.scheduler}' is not a Dask scheduler address tcp://HOST:PORT")
+    return tune_study(_study(args), out=args.out, n_plants=args.plants, workers=args.workers,
+                      scheduler=args.scheduler, seed=args.seed)
+
+
+def _print_tune(s: dict[str, Any]) -> None:
+    g, b = s["gains"], s["simc"]
+    print(f"tuned gains: Kc {g['Kc_V_per_N']:.4g} V/N, Ti {g['Ti_s']:.4g} s, Td {g['Td_s']:.4g} s, "
+          f"Tf {g['Tf_s']:.4g} s, b {g['b']:.3g} (LabVIEW: Ti {g['labview']['Ti_min']:.4g} min, "
+          f"Td {g['labview']['Td_min']:.4g} min); Ms {s['tuning']['ms']:.2f}")
+    print(f"SIMC baseline: Kc {b['Kc_V_per_N']:.4g} V/N, Ti {b['Ti_s']:.4g} s")
+    print("step 25 -> 60 N and trajectory 60-80-100-80-60 N on the nominal rig:")
+    print(f"  {'gains':8s}{'FF':>4s}{'settling':>10s}{'overshoot':>11s}{'track RMS':>11s}{'RMS >0.1 s':>12s}{'peak V':>8s}")
+    for r in s["table"]:
+        print(f"  {r['gains']:8s}{'yes' if r['feedforward'] else 'no':>4s}{_fmt(r['settling_s'], ' s'):>10s}"
+              f"{r['overshoot_N']:9.2f} N{r['tracking_rms_N']:9.2f} N{r['tracking_rms_after_change_N']:10.2f} N"
+              f"{r['peak_command_V']:8.1f}")
+    print(f"paper (FF + PID): settling {s['paper']['ff+pid']['settling_s']} s")
+    mt = s["minimum_time"]
+    ratio = "-" if mt["tuned_over_bound_ratio"] is None else f"{mt['tuned_over_bound_ratio']:.2f}"
+    print(f"minimum-time bound: {mt['settling_s']:.3f} s; tuned settling / bound = {ratio}")
+    v = s["validation"]
+    print(f"validation on {v['n_plants']} plants ({v['workers']}, {v['seconds']:.0f} s): "
+          f"{'PASSED' if v['passed'] else 'FAILED'} ({v['n_failures']} failures)")
+    for key, row in v["summary"].items():
+        print(f"  {key:22s} worst {_fmt(row['worst'])}  p95 {_fmt(row['p95'])}  median {_fmt(row['p50'])}")
+    print(f"wrote {s['out']} ({s['status']}, sha256 {s['content_sha256'][:12]}...)")
+
+
+def _cmd_export(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.artifacts import atomic_write_text, read_artifact
+    from piezopreload.rig.export import ExportError, export_text
+
+    doc = read_artifact(args.gains, "gain-set")
+    try:
+        text = export_text(doc, args.format)
+    except ExportError as exc:
+        raise InputError(f"{args.gains}: {exc}") from None
+    if args.out:
+        atomic_write_text(args.out, text)
+    return {"gains": args.gains, "format": args.format, "out": args.out, "content_sha256": doc["content_sha256"],
+            "text": None if args.out else text}
+
+
+def _print_export(s: dict[str, Any]) -> None:
+    if s["out"]:
+        print(f"wrote {s['out']} ({s['format']}) from {s['gains']}")
+    else:
+        print(s["text"], end="")
+
+
 # --------------------------------------------------------------------------------------
 # the parser
 # --------------------------------------------------------------------------------------
@@ -262,6 +319,40 @@ def build_parser() -> argparse.ArgumentParser:
                         "and range of each number (default 1: the study's seed alone)")
     p.add_argument("--json", action="store_true", help="print the results as one JSON object")
     p.set_defaults(run=_cmd_reproduce, show=_print_reproduce)
+
+    p = sub.add_parser(
+        "tune",
+        help="tune the PID (CasADi), validate it by Monte Carlo, write the gain set",
+        description=(
+            "Tune Kc, Ti, Td, the derivative filter and the setpoint weight around the study's "
+            "P-I-compensated rig (CasADi + IPOPT, several plant variants, Ms and noise bounds), compare "
+            "with the paper's and SIMC's gains, compute the minimum-time bound, validate the tuned gains "
+            "on a Monte Carlo set of nonlinear rigs, and write a gain-set artifact: 'validated' if every "
+            "plant met every criterion, else 'candidate'."
+        ),
+    )
+    _add_study_arguments(p)
+    p.add_argument("--out", default="gains.json", metavar="gains.json", help="the gain-set artifact (default gains.json)")
+    p.add_argument("--plants", type=int, default=200, metavar="N", help="Monte Carlo plants (default 200)")
+    p.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: the CPU count)")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the Monte Carlo on this Dask cluster")
+    p.add_argument("--json", action="store_true", help="print the results as one JSON object")
+    p.set_defaults(run=_cmd_tune, show=_print_tune)
+
+    p = sub.add_parser(
+        "export",
+        help="export a validated gain set for a controller",
+        description=(
+            "Write a validated gain set in a controller's units: json (SI, controller form stated), "
+            "labview (Kc, Ti and Td in minutes), plc (Kp, Tn, Tv in seconds), c-header (constants). "
+            "A candidate or a gain set whose content hash does not match is refused."
+        ),
+    )
+    p.add_argument("gains", metavar="gains.json", help="a gain-set artifact written by 'piezopreload tune'")
+    p.add_argument("--format", required=True, choices=["json", "labview", "plc", "c-header"])
+    p.add_argument("--out", metavar="PATH", help="file to write (default: standard output)")
+    p.add_argument("--json", action="store_true", help="print the results as one JSON object")
+    p.set_defaults(run=_cmd_export, show=_print_export)
     return parser
 
 

@@ -6,6 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from piezopreload.artifacts import write_artifact
+
 from piezopreload.cli import main
 from piezopreload.io import InputError
 from piezopreload.study import default_study, load_study
@@ -103,9 +105,17 @@ def test_simulate_text_output_and_seed(capsys):
 
 
 def _gain_file(path, gains):
-    doc = {"schema": "piezopreload/gain-set/1", "status": "candidate", "inputs": {}, "gains": gains}
-    path.write_text(json.dumps(doc))
+    write_artifact(path, "gain-set", {"status": "candidate", "inputs": {}, "gains": gains})
     return path
+
+
+def test_a_tampered_gain_file_is_refused(capsys, tmp_path):
+    g = _gain_file(tmp_path / "g.json", {"Kc_V_per_N": 0.5, "Ti_s": 0.1, "Td_s": 0.0})
+    doc = json.loads(g.read_text())
+    doc["gains"]["Kc_V_per_N"] = 5.0
+    g.write_text(json.dumps(doc))
+    code, _, err = run_cli(capsys, "simulate", "--controller", "pid", "--gains", str(g))
+    assert code == 2 and "does not match its 'content_sha256'" in err and err.count("\n") == 1
 
 
 def test_simulate_with_a_gain_file(capsys, tmp_path):
@@ -139,7 +149,13 @@ def test_simulate_bad_input_exits_2(capsys, argv_tail, needle):
     ],
 )
 def test_simulate_rejects_bad_gain_files(capsys, tmp_path, gains, needle):
-    g = _gain_file(tmp_path / "g.json", gains)
+    if any(isinstance(v, float) and v != v for v in gains.values()):
+        # a NaN cannot be written (or hashed) by write_artifact: as a hand-edited file would hold it
+        g = tmp_path / "g.json"
+        g.write_text(json.dumps({"schema": "piezopreload/gain-set/1", "status": "candidate", "inputs": {},
+                                 "gains": gains, "content_sha256": "0" * 64}))
+    else:
+        g = _gain_file(tmp_path / "g.json", gains)
     code, _, err = run_cli(capsys, "simulate", "--gains", str(g))
     assert code == 2 and needle in err, err
 
