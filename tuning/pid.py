@@ -534,7 +534,10 @@ def tune_pid(
         iterations += int(stats.get("iter_count", 0))
         gv = np.asarray(sol["g"], float).ravel()
         worst = float(np.max(gv, initial=-np.inf))
-        candidate = (worst > 1e-4, float(sol["f"]), sol, str(stats.get("return_status", "unknown")))
+        # feasible beats infeasible; among feasible the lower objective, among infeasible the
+        # smaller violation (what the error message then reports)
+        infeasible = worst > 1e-4
+        candidate = (infeasible, worst if infeasible else float(sol["f"]), sol, str(stats.get("return_status", "unknown")))
         if best is None or candidate[:2] < best[:2]:
             best = candidate
         if worst <= 1e-4:
