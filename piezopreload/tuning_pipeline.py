@@ -13,14 +13,13 @@ import numpy as np
 from piezopreload.artifacts import write_artifact
 from piezopreload.io import InputError
 from piezopreload.models.actuator import Rig
-from piezopreload.models.closedloop import simulate
-from piezopreload.models.controller import Controller, PIDGains
+from piezopreload.models.controller import PIDGains
 from piezopreload.models.hysteresis import ClassicalPI
 from piezopreload.pipeline import gains_to_dict
 from piezopreload.study import Study
 from piezopreload.tuning.calibrate import PAPER_RESULTS, identify_feedforward
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, minimum_time, tune_pid
-from piezopreload.tuning.validate import Criteria, SchedulerError, executor, validate
+from piezopreload.tuning.validate import Criteria, SchedulerError, evaluate, executor, validate
 
 __all__ = ["tune_study", "compare_gains"]
 
@@ -28,23 +27,17 @@ __all__ = ["tune_study", "compare_gains"]
 def compare_gains(study: Study, candidates: dict[str, PIDGains], feedforward: ClassicalPI,
                   criteria: Criteria, seed: int) -> list[dict[str, Any]]:
     """Each gain set without and with the feedforward on the study's nominal rig: one row each."""
-    rig = Rig(study.rig)
-    inverse = feedforward.inverse()
     rows = []
     for name, gains in candidates.items():
         for ff in (False, True):
-            controller = Controller(gains, rig.dt_s, inverse if ff else None)
-            step = simulate(rig, controller, study.references["step"], seed=seed)
-            ms = step.step_metrics(criteria.band_N, signal=criteria.signal)
-            mt = step.step_metrics(criteria.band_N, signal="force_N")
-            traj = simulate(rig, controller, study.references["trajectory"], seed=seed + 1)
-            te = traj.tracking_error()
-            te_after = traj.tracking_error(after_change_s=criteria.tracking_after_change_s)
+            m = evaluate(gains, feedforward if ff else None, study.rig, study.references["step"],
+                         study.references["trajectory"], criteria, seed)
             rows.append({
                 "gains": name, "feedforward": ff,
-                "rise_s": _num(ms.rise_s), "settling_s": _num(ms.settling_s), "overshoot_N": max(float(mt.overshoot), 0.0),
-                "tracking_rms_N": float(te["rms"]), "tracking_rms_after_change_N": float(te_after["rms"]),
-                "peak_command_V": float(max(np.max(step.command_V), np.max(traj.command_V))),
+                "rise_s": _num(m["rise_s"][0]), "settling_s": _num(m["settling_s"][0]),
+                "overshoot_N": float(m["overshoot_N"][0]), "tracking_rms_N": float(m["tracking_rms_all_N"][0]),
+                "tracking_rms_after_change_N": float(m["tracking_rms_N"][0]),
+                "peak_command_V": float(m["peak_voltage_V"][0]),
             })
     return rows
 

@@ -43,8 +43,7 @@ def test_the_tuning_model_follows_the_rig_in_closed_loop():
     n = run.t_s.size
     step = pid.tuning_step(len(params.creep_tau_s), rig.dt_s, params.delay_samples).mapaccum(n)
     theta, decay = pid._plant_vector(params)
-    x0 = pid._initial_loop_state(params, 25.0)
-    x0[-4] = -gains.Kc * (gains.b * 25.0 - x0[-2])  # the bumpless start at 0 V, as simulate's
+    x0 = pid._initial_loop_state(params, 25.0, gains.Kc, gains.b, 0.0)  # bumpless at 0 V, as simulate's
     r = ref.at(run.t_s)
     _, y, u = step(x0, np.tile([[gains.Kc], [gains.Ti_s], [gains.Td_s], [gains.Tf_s], [gains.b]], n),
                    np.tile(theta[:, None], n), np.tile(decay[:, None], n), r[None, :], np.zeros((1, n)))

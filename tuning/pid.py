@@ -38,7 +38,7 @@ from scipy.optimize import least_squares
 
 from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import PAPER_BAND_N, Reference
-from piezopreload.models.controller import Controller, PIDGains
+from piezopreload.models.controller import PIDGains
 from piezopreload.models.hysteresis import InverseClassicalPI
 
 __all__ = [
@@ -293,11 +293,20 @@ def tuning_step(n_creep: int, dt: float, delay: int) -> ca.Function:
                        ["x", "gains", "theta", "decay", "r", "ff"], ["x_next", "y", "u"])
 
 
-def _initial_loop_state(params: RigParams, r0: float) -> np.ndarray:
-    """At rest at 0 V and the bolt preload; the controller bumplessly at 0 V."""
-    n_creep = len(params.creep_tau_s)
+def _rest_rig_state(params: RigParams) -> np.ndarray:
+    """The rig part of the loop state at rest at 0 V: ``[v, h, creep..., pending...]``."""
+    return np.zeros(2 + len(params.creep_tau_s) + params.delay_samples)
+
+
+def _initial_loop_state(params: RigParams, r0: float, Kc: Any, b: Any, ff0: float) -> Any:
+    """The rig at rest at 0 V and the bolt preload; the controller bumplessly at 0 V.
+
+    As :meth:`Controller.initial_state` with ``u0 = 0``: the integral cancels the proportional
+    action and the feedforward at the start. ``Kc`` and ``b`` may be CasADi symbols.
+    """
     pv0 = float(params.bolt_preload_N)
-    return np.concatenate([[0.0, 0.0], np.zeros(n_creep), np.zeros(params.delay_samples), [0.0, r0 - pv0, pv0, 0.0]])
+    integral = -Kc * (b * r0 - pv0) - ff0
+    return ca.vertcat(_rest_rig_state(params), integral, r0 - pv0, pv0, 0.0)
 
 
 def _feedforward_sequence(feedforward: InverseClassicalPI | None, r: np.ndarray) -> np.ndarray:
@@ -479,9 +488,7 @@ def tune_pid(
         over = np.flatnonzero(direction != 0)
         for j, variant in enumerate(variants):
             theta, decay = _plant_vector(variant)
-            x0 = _initial_loop_state(variant, float(r[0]))
-            # the controller starts bumplessly at 0 V, as the simulation's does
-            x0 = ca.vertcat(x0[:-4], -vals["Kc"] * (b * r[0] - x0[-2]) - ff[0], x0[-3:])
+            x0 = _initial_loop_state(variant, float(r[0]), vals["Kc"], b, float(ff[0]))
             _, ys, us = roll(x0, ca.repmat(gains, 1, n), ca.repmat(theta, 1, n), ca.repmat(decay, 1, n), r[None, :], ff[None, :])
             e = r[None, :] - ys
             objective = objective + ca.sum2(weights[None, :] * ca.sqrt(e * e + 1e-4)) / len(variants)
@@ -606,7 +613,7 @@ def minimum_time(
     dt = params.sample_period_s
     n_creep = len(params.creep_tau_s)
     theta, decay = _plant_vector(params)
-    x_rig0 = np.concatenate([[0.0, 0.0], np.zeros(n_creep), np.zeros(params.delay_samples)])
+    x_rig0 = _rest_rig_state(params)
     n_hold = int(round(hold_s / dt))
 
     x = ca.SX.sym("x", x_rig0.size)

@@ -29,7 +29,7 @@ from piezopreload.models.closedloop import PAPER_BAND_N, Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.hysteresis import ClassicalPI
 
-__all__ = ["Criteria", "DEFAULT_SPREAD", "ValidationResult", "validate", "executor", "SchedulerError"]
+__all__ = ["Criteria", "DEFAULT_SPREAD", "ValidationResult", "evaluate", "validate", "executor", "SchedulerError"]
 
 #: Relative standard deviations of the Monte Carlo plants (normal, truncated at 2 sigma): the
 #: 2-sigma extremes sit inside the corners the tuning is robust to (tuning.pid.TuningSpec).
@@ -152,22 +152,27 @@ class _Chunk:
     seed: int
 
 
-def run_chunk(chunk: _Chunk) -> dict[str, np.ndarray]:
-    """Simulate one chunk of plants (a batch) on the step and the trajectory."""
-    rig = Rig(chunk.plants)
-    inverse = chunk.feedforward.inverse() if chunk.feedforward is not None else None
-    controller = Controller(chunk.gains, rig.dt_s, inverse)
-    step = simulate(rig, controller, chunk.step, seed=chunk.seed)
-    band, signal = chunk.criteria.band_N, chunk.criteria.signal
+def evaluate(gains: PIDGains, feedforward: ClassicalPI | None, plants: RigParams, step_ref: Reference,
+             trajectory: Reference, criteria: Criteria, seed: int) -> dict[str, np.ndarray]:
+    """The metrics the criteria judge, per plant: the step (noise ``seed``) and the trajectory (``seed + 1``).
+
+    ``plants`` is one plant or a batch; every value is an array over the plants.
+    """
+    rig = Rig(plants)
+    inverse = feedforward.inverse() if feedforward is not None else None
+    controller = Controller(gains, rig.dt_s, inverse)
+    step = simulate(rig, controller, step_ref, seed=seed)
+    band, signal = criteria.band_N, criteria.signal
     ms = step.step_metrics(band, signal=signal)
     ms = ms if isinstance(ms, list) else [ms]
     mt = step.step_metrics(band, signal="force_N")
     mt = mt if isinstance(mt, list) else [mt]
-    traj = simulate(rig, controller, chunk.trajectory, seed=chunk.seed + 1)
+    traj = simulate(rig, controller, trajectory, seed=seed + 1)
     te = traj.tracking_error()
-    te_after = traj.tracking_error(after_change_s=chunk.criteria.tracking_after_change_s)
+    te_after = traj.tracking_error(after_change_s=criteria.tracking_after_change_s)
     peak = np.maximum(np.max(step.command_V, axis=-1), np.max(traj.command_V, axis=-1))
     return {
+        "rise_s": np.array([m.rise_s for m in ms], float),
         "settling_s": np.array([m.settling_s for m in ms], float),
         "overshoot_N": np.array([max(m.overshoot, 0.0) for m in mt], float),
         "tracking_rms_N": np.atleast_1d(np.asarray(te_after["rms"], float)),
@@ -175,6 +180,12 @@ def run_chunk(chunk: _Chunk) -> dict[str, np.ndarray]:
         "tracking_max_N": np.atleast_1d(np.asarray(te["max"], float)),
         "peak_voltage_V": np.atleast_1d(peak),
     }
+
+
+def run_chunk(chunk: _Chunk) -> dict[str, np.ndarray]:
+    """Simulate one chunk of plants (a batch): :func:`evaluate` on the chunk's data."""
+    return evaluate(chunk.gains, chunk.feedforward, chunk.plants, chunk.step, chunk.trajectory, chunk.criteria,
+                    chunk.seed)
 
 
 class _Inline(cf.Executor):
