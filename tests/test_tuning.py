@@ -112,6 +112,12 @@ def test_validation_is_the_same_on_any_executor_and_names_failures():
     strict = _small_validation(settling_max_s=1e-3)
     assert not strict.passed and {f["metric"] for f in strict.failures} >= {"settling_s"}
     assert len([f for f in strict.failures if f["metric"] == "settling_s"]) == 4
+    # a limit inside the spread: exactly the plants above it fail, each named with its value
+    settle = a.metrics["settling_s"]
+    limit = float(np.sort(settle)[1])
+    mid = _small_validation(settling_max_s=limit)
+    failed = {f["plant"]: f["value"] for f in mid.failures if f["metric"] == "settling_s"}
+    assert failed == {int(i): float(settle[i]) for i in np.flatnonzero(settle > limit)} and 0 < len(failed) < 4
 
 
 def test_validation_on_a_dask_local_cluster():
