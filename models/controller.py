@@ -19,12 +19,46 @@ the state may hold a batch of independent loops.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from types import SimpleNamespace
 from typing import Any, Protocol
 
+import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["PIDGains", "ControllerState", "Controller", "Feedforward", "Terms"]
+__all__ = ["PIDGains", "ControllerState", "Controller", "Feedforward", "Terms", "pid_update", "NUMPY_OPS", "CASADI_OPS"]
+
+#: The few operations :func:`pid_update` needs that differ between numpy arrays and CasADi
+#: expressions, so the one PID update serves the simulation (numpy) and the tuning NLP and the
+#: generated C code (CasADi).
+NUMPY_OPS = SimpleNamespace(where=np.where, minimum=np.minimum, maximum=np.maximum,
+                            logical_and=np.logical_and, logical_or=np.logical_or)
+CASADI_OPS = SimpleNamespace(where=ca.if_else, minimum=ca.fmin, maximum=ca.fmax,
+                             logical_and=ca.logic_and, logical_or=ca.logic_or)
+
+
+def pid_update(ops: Any, gains: Any, u_range: tuple[Any, Any], dt: float, integral: Any, e_prev: Any,
+               pv_prev: Any, dpv: Any, sp: Any, pv: Any, ff: Any) -> tuple[Any, ...]:
+    """One sample of the PID, on numpy arrays or CasADi expressions (``ops``).
+
+    ``gains = (Kc, Ti, Td, Tf, b)``. Returns ``(u, p, i, d, e, dpv)``: the clamped output, its
+    proportional, integral (the new integral action) and derivative parts, this sample's error
+    and filtered derivative of the measurement. See the module docstring for the algorithm.
+    """
+    Kc, Ti, Td, Tf, b = gains
+    u_min, u_max = u_range
+    e = sp - pv
+    proportional = Kc * (b * sp - pv)
+    alpha = Tf / (Tf + dt)  # backward-Euler first-order filter; 0 when Tf = 0
+    dpv = alpha * dpv + (1.0 - alpha) * (pv - pv_prev) / dt
+    derivative = -Kc * Td * dpv
+    increment = Kc / Ti * 0.5 * (e + e_prev) * dt  # 0 for Ti = inf
+    trial = proportional + integral + increment + derivative + ff
+    # conditional integration: no integrating further into a limit
+    winding = ops.logical_or(ops.logical_and(trial > u_max, increment > 0), ops.logical_and(trial < u_min, increment < 0))
+    integral = integral + ops.where(winding, 0.0 * increment, increment)
+    u = ops.minimum(ops.maximum(proportional + integral + derivative + ff, u_min), u_max)
+    return u, proportional, integral, derivative, e, dpv
 
 
 class Feedforward(Protocol):
@@ -155,27 +189,62 @@ class Controller:
 
     def step_terms(self, state: ControllerState, setpoint: ArrayLike, pv: ArrayLike) -> tuple[Terms, ControllerState]:
         """:meth:`step` with the output's parts, for run logs and figures."""
-        g, dt = self.gains, self.dt_s
+        g = self.gains
         sp = np.asarray(setpoint, float)
         pv = np.asarray(pv, float)
-        e = sp - pv
-        proportional = g.Kc * (g.b * sp - pv)
-        raw = (pv - state.pv_prev) / dt
-        alpha = g.Tf_s / (g.Tf_s + dt)  # backward-Euler first-order filter; 0 when Tf = 0
-        dpv = alpha * state.dpv + (1.0 - alpha) * raw
-        derivative = -g.Kc * g.Td_s * dpv
         if self.feedforward is None:
             ff, ff_state = 0.0, None
         else:
             ff, ff_state = self.feedforward.step(state.ff, sp)
-        increment = g.Kc / g.Ti_s * 0.5 * (e + state.e_prev) * dt if np.isfinite(g.Ti_s) else 0.0 * e
-        trial = proportional + state.integral + increment + derivative + ff
-        # conditional integration: no integrating further into a limit
-        winding = ((trial > g.u_max) & (increment > 0)) | ((trial < g.u_min) & (increment < 0))
-        integral = state.integral + np.where(winding, 0.0, increment)
-        u = np.clip(proportional + integral + derivative + ff, g.u_min, g.u_max)
-        terms = Terms(u=u, p=proportional, i=integral, d=derivative, ff=np.broadcast_to(ff, u.shape))
-        return terms, ControllerState(integral, e, pv, sp, dpv, ff_state)
+        u, p, integral, d, e, dpv = pid_update(
+            NUMPY_OPS, (g.Kc, g.Ti_s, g.Td_s, g.Tf_s, g.b), (g.u_min, g.u_max), self.dt_s,
+            state.integral, state.e_prev, state.pv_prev, state.dpv, sp, pv, ff)
+        u = np.asarray(u, float)
+        terms = Terms(u=u, p=p, i=np.asarray(integral, float), d=d, ff=np.broadcast_to(ff, u.shape))
+        return terms, ControllerState(np.asarray(integral, float), e, pv, sp, dpv, ff_state)
+
+    def casadi_functions(self) -> tuple[ca.Function, ca.Function]:
+        """The controller as CasADi functions, for code generation: ``(initial_state, step)``.
+
+        ``initial_state(setpoint, pv, u0) -> state`` is :meth:`initial_state` with ``u0``
+        (a bumpless start); ``step(state, setpoint, pv) -> (u, state_next)`` is :meth:`step`.
+        The gains and the feedforward model are constants; ``state = [integral, e_prev,
+        pv_prev, sp_prev, dpv, ff operator states...]`` (:meth:`state_vector` packs a
+        :class:`ControllerState`). The same :func:`pid_update` as :meth:`step`, so the
+        generated code computes what the simulation does.
+        """
+        ff_model = self.feedforward
+        n_ff = 0
+        if ff_model is not None:
+            if not hasattr(ff_model, "casadi_step"):
+                raise TypeError(f"{type(ff_model).__name__} has no CasADi step; use the classical P-I inverse.")
+            n_ff = int(ff_model.initial_state().size)
+        g = self.gains
+        x = ca.SX.sym("state", 5 + n_ff)
+        sp, pv, u0 = ca.SX.sym("setpoint"), ca.SX.sym("pv"), ca.SX.sym("u0")
+
+        def feedforward(ff_state: Any, target: Any) -> tuple[Any, Any]:
+            return (0.0, ca.SX(0, 1)) if ff_model is None else ff_model.casadi_step(ff_state, target)
+
+        ff, ff_next = feedforward(x[5:], sp)
+        u, _, integral, _, e, dpv = pid_update(
+            CASADI_OPS, (g.Kc, g.Ti_s, g.Td_s, g.Tf_s, g.b), (g.u_min, g.u_max), self.dt_s,
+            x[0], x[1], x[2], x[4], sp, pv, ff)
+        step = ca.Function("piezopreload_controller_step", [x, sp, pv], [u, ca.vertcat(integral, e, pv, sp, dpv, ff_next)],
+                           ["state", "setpoint", "pv"], ["u", "state_next"])
+        ff_rest = ca.DM.zeros(n_ff)
+        ff0, _ = feedforward(ff_rest, sp)
+        start = ca.vertcat(u0 - g.Kc * (g.b * sp - pv) - ff0, sp - pv, pv, sp, 0.0, ff_rest)
+        init = ca.Function("piezopreload_controller_initial_state", [sp, pv, u0], [start],
+                           ["setpoint", "pv", "u0"], ["state"])
+        return init, step
+
+    @staticmethod
+    def state_vector(state: ControllerState) -> NDArray[np.float64]:
+        """One loop's state as the flat vector of :meth:`casadi_function`."""
+        head = [float(state.integral), float(state.e_prev), float(state.pv_prev), float(state.sp_prev), float(state.dpv)]
+        tail = [] if state.ff is None else list(np.asarray(state.ff, float).ravel())
+        return np.array(head + tail)
 
     def retune(self, state: ControllerState, gains: PIDGains) -> tuple[Controller, ControllerState]:
         """Switch to new gains without a jump in the output (bumpless gain change).

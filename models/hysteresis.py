@@ -21,6 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -314,6 +315,12 @@ class InverseClassicalPI:
     def step(self, state: NDArray, target: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         z = play_step(state, np.asarray(target, dtype=float) - self.forward.offset, self.thresholds)
         return z @ self.weights, z
+
+    def casadi_step(self, state: Any, target: Any) -> tuple[Any, Any]:
+        """:meth:`step` on CasADi expressions (one loop): ``(voltage, next operator states)``."""
+        v, r = target - self.forward.offset, ca.DM(self.thresholds)
+        z = ca.fmax(v - r, ca.fmin(v + r, state))
+        return ca.dot(ca.DM(self.weights), z), z
 
 
 # --------------------------------------------------------------------------------------
