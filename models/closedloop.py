@@ -127,12 +127,16 @@ class ClosedLoopRun:
         flat = y.reshape(-1, y.shape[-1])
         return [step_metrics(self.t_s[mask], row[mask], final, **kw) for row in flat]
 
-    def tracking_error(self, t_from_s: float | None = None, *, after_change_s: float = 0.0) -> dict[str, Any]:
+    def tracking_error(self, t_from_s: float | None = None, *, after_change_s: float = 0.0,
+                       u_range: tuple[float, float] | None = None) -> dict[str, Any]:
         """RMS and maximum of reference minus true force from ``t_from_s`` (default the first change).
 
         ``after_change_s`` leaves out that long after every change of the reference: the
         transport no controller can avoid when the reference jumps (see
         ``tuning.pid.minimum_time``), so what remains is the error a controller can act on.
+        ``u_range`` leaves out, per plant, the samples whose command sits at a limit of that
+        range: there the plant is out of the controller's authority (a reference it cannot
+        reach within the voltage range); ``saturated_fraction`` says how much that removed.
         """
         t_from = self.reference.times_s[1] if t_from_s is None and self.reference.times_s.size > 1 else (t_from_s or 0.0)
         mask = self.t_s >= t_from
@@ -142,10 +146,21 @@ class ClosedLoopRun:
             mask &= ~((self.t_s >= last) & (self.t_s < last + after_change_s))
         if not mask.any():
             raise ValueError("no samples left to score the tracking error on.")
-        e = self.reference_N[mask] - self.force_N[..., mask]
+        e = self.reference_N - self.force_N
+        keep = np.broadcast_to(mask, e.shape)
+        if u_range is not None:
+            lo, hi = u_range
+            saturated = keep & ((self.command_V <= lo + 1e-9) | (self.command_V >= hi - 1e-9))
+            fraction = saturated.sum(axis=-1) / mask.sum()
+            keep = keep & ~saturated
+        else:
+            fraction = np.zeros(e.shape[:-1])
+        n = np.maximum(keep.sum(axis=-1), 1)
+        rms = np.sqrt(np.where(keep, e**2, 0.0).sum(axis=-1) / n)
+        peak = np.where(keep, np.abs(e), 0.0).max(axis=-1)
         if self.force_N.ndim == 1:
-            return {"rms": float(np.sqrt(np.mean(e**2))), "max": float(np.max(np.abs(e)))}
-        return {"rms": np.sqrt(np.mean(e**2, axis=-1)), "max": np.max(np.abs(e), axis=-1)}
+            return {"rms": float(rms), "max": float(peak), "saturated_fraction": float(fraction)}
+        return {"rms": rms, "max": peak, "saturated_fraction": fraction}
 
     def columns(self) -> dict[str, Array]:
         """The run as named columns (one plant), for CSV export."""

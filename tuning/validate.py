@@ -44,7 +44,8 @@ DEFAULT_SPREAD: dict[str, float] = {
     "noise_N": 0.1,
 }
 
-_METRICS = ("settling_s", "overshoot_N", "tracking_rms_N", "tracking_rms_all_N", "tracking_max_N", "peak_voltage_V")
+_METRICS = ("settling_s", "settling_measured_s", "overshoot_N", "tracking_rms_N", "saturated_fraction",
+            "tracking_rms_all_N", "tracking_max_N", "peak_voltage_V")
 
 
 class SchedulerError(RuntimeError):
@@ -55,14 +56,21 @@ class SchedulerError(RuntimeError):
 class Criteria:
     """What every plant of the validation set must meet.
 
-    ``settling_max_s`` applies to the step read on ``signal`` (the measured force, as the paper
-    read its settling time; band ``band_N``), ``overshoot_max_N`` to the step's true force
-    (the sensor's noise, about 3.5 sigma at the peak of a few thousand samples, is not
-    overshoot: read on the measured force even a perfect response would show ~0.9 N),
-    ``tracking_rms_max_N`` to the trajectory's RMS error outside the ``tracking_after_change_s``
-    after each of its jumps (the transport no controller avoids: the minimum-time bound of
-    ``tuning.pid.minimum_time`` is about 0.07 s on the paper's rig), ``peak_voltage_max_V`` to
-    the command over both. The RMS over the whole trajectory is reported beside it.
+    * ``settling_max_s``: the step's settling time into ``band_N``, read on ``signal``: the
+      true force by default. The sensor's noise peaks near 0.9-1.1 N over a few thousand
+      samples, so on the measured force a single spike decides whether a response that sits
+      0.5 N inside the band "settles"; that settling time is reported beside it
+      (``settling_measured_s``), as the paper read it.
+    * ``overshoot_max_N``: the step's overshoot of the true force, for the same reason.
+    * ``tracking_rms_max_N``: the trajectory's RMS error outside ``tracking_after_change_s``
+      after each of its jumps (the transport no controller avoids: the minimum-time bound of
+      ``tuning.pid.minimum_time`` is about 0.07 s on the paper's rig) and outside the samples
+      where the command sits at a limit of its range: there the plant cannot reach the
+      reference at all (on the paper's rig 100 N needs ~109 of the 110 V, so about a third
+      of the Monte Carlo plants cannot reach the trajectory's top), which no gains can change.
+      ``saturated_fraction`` reports how much of each trajectory that left out, and the RMS
+      over the whole trajectory is reported beside it (``tracking_rms_all_N``).
+    * ``peak_voltage_max_V``: the command over both.
     """
 
     settling_max_s: float = 0.60
@@ -70,7 +78,7 @@ class Criteria:
     tracking_rms_max_N: float = 1.0
     peak_voltage_max_V: float = 110.0
     band_N: float = PAPER_BAND_N
-    signal: str = "measured_N"
+    signal: str = "force_N"
     tracking_after_change_s: float = 0.1
 
     def __post_init__(self) -> None:
@@ -163,19 +171,22 @@ def evaluate(gains: PIDGains, feedforward: ClassicalPI | None, plants: RigParams
     controller = Controller(gains, rig.dt_s, inverse)
     step = simulate(rig, controller, step_ref, seed=seed)
     band, signal = criteria.band_N, criteria.signal
-    ms = step.step_metrics(band, signal=signal)
-    ms = ms if isinstance(ms, list) else [ms]
-    mt = step.step_metrics(band, signal="force_N")
-    mt = mt if isinstance(mt, list) else [mt]
+    def metrics(name: str) -> list:
+        m = step.step_metrics(band, signal=name)
+        return m if isinstance(m, list) else [m]
+
+    ms, mt, mm = metrics(signal), metrics("force_N"), metrics("measured_N")
     traj = simulate(rig, controller, trajectory, seed=seed + 1)
     te = traj.tracking_error()
-    te_after = traj.tracking_error(after_change_s=criteria.tracking_after_change_s)
+    te_after = traj.tracking_error(after_change_s=criteria.tracking_after_change_s, u_range=(gains.u_min, gains.u_max))
     peak = np.maximum(np.max(step.command_V, axis=-1), np.max(traj.command_V, axis=-1))
     return {
         "rise_s": np.array([m.rise_s for m in ms], float),
         "settling_s": np.array([m.settling_s for m in ms], float),
+        "settling_measured_s": np.array([m.settling_s for m in mm], float),
         "overshoot_N": np.array([max(m.overshoot, 0.0) for m in mt], float),
         "tracking_rms_N": np.atleast_1d(np.asarray(te_after["rms"], float)),
+        "saturated_fraction": np.atleast_1d(np.asarray(te_after["saturated_fraction"], float)),
         "tracking_rms_all_N": np.atleast_1d(np.asarray(te["rms"], float)),
         "tracking_max_N": np.atleast_1d(np.asarray(te["max"], float)),
         "peak_voltage_V": np.atleast_1d(peak),
