@@ -12,16 +12,17 @@ import numpy as np
 
 from piezopreload.artifacts import write_artifact
 from piezopreload.io import InputError
-from piezopreload.models.actuator import Rig
+from piezopreload.models.actuator import Rig, RigParams
+from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import PIDGains
-from piezopreload.models.hysteresis import ClassicalPI
-from piezopreload.pipeline import gains_to_dict
+from piezopreload.models.hysteresis import ClassicalPI, model_from_dict
+from piezopreload.pipeline import gains_to_dict, load_gains
 from piezopreload.study import Study
 from piezopreload.tuning.calibrate import PAPER_RESULTS, identify_feedforward
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, minimum_time, tune_pid
 from piezopreload.tuning.validate import Criteria, SchedulerError, evaluate, executor, validate
 
-__all__ = ["tune_study", "compare_gains"]
+__all__ = ["tune_study", "compare_gains", "validate_gain_set"]
 
 
 def compare_gains(study: Study, candidates: dict[str, PIDGains], feedforward: ClassicalPI,
@@ -35,6 +36,7 @@ def compare_gains(study: Study, candidates: dict[str, PIDGains], feedforward: Cl
             rows.append({
                 "gains": name, "feedforward": ff,
                 "rise_s": _num(m["rise_s"][0]), "settling_s": _num(m["settling_s"][0]),
+                "settling_measured_s": _num(m["settling_measured_s"][0]),
                 "overshoot_N": float(m["overshoot_N"][0]), "tracking_rms_N": float(m["tracking_rms_all_N"][0]),
                 "tracking_rms_after_change_N": float(m["tracking_rms_N"][0]),
                 "peak_command_V": float(m["peak_voltage_V"][0]),
@@ -66,7 +68,7 @@ def tune_study(
     say = progress or (lambda msg: print(msg, file=sys.stderr, flush=True))
     t0 = time.perf_counter()
     seed = study.seed if seed is None else seed
-    criteria = criteria or Criteria(band_N=study.band_N, signal=study.signal)
+    criteria = criteria or Criteria(band_N=study.band_N)
     spec = spec or TuningSpec(band_N=study.band_N, u_min_V=study.gains.u_min, u_max_V=study.gains.u_max)
     if n_plants < 1:
         raise InputError(f"--plants: must be >= 1, got {n_plants}")
@@ -107,6 +109,7 @@ def tune_study(
                         "fit_to_simulated_loop": info["fit"]},
         "plant": {"preset": study.name, "rig": study.rig.to_dict()},
         "criteria": criteria.to_dict(),
+        "references": {name: _reference_dict(study.references[name]) for name in ("step", "trajectory")},
         "validation": result.to_dict(),
         "tuning": {**tuning.to_dict(), "spec": _spec_dict(spec),
                    "simc_baseline": gains_to_dict(tuning.baseline)},
@@ -114,7 +117,15 @@ def tune_study(
     }
     doc = write_artifact(out, "gain-set", body)
     settle = tuned_row["settling_s"]
+    paper_row = next(r for r in table if r["gains"] == "paper" and r["feedforward"])
     return {
+        # the headline: the tuned gains with the feedforward on the nominal rig
+        "settling_s": settle, "settling_measured_s": tuned_row["settling_measured_s"],
+        "overshoot_N": tuned_row["overshoot_N"], "tracking_rms_N": tuned_row["tracking_rms_N"],
+        "tracking_rms_after_change_N": tuned_row["tracking_rms_after_change_N"],
+        "paper_tracking_rms_N": paper_row["tracking_rms_N"],
+        "paper_tracking_rms_after_change_N": paper_row["tracking_rms_after_change_N"],
+        "lower_bound_settling_s": bound["settling_s"],
         "out": str(out), "status": status, "content_sha256": doc["content_sha256"],
         "gains": gains_to_dict(tuning.gains), "simc": gains_to_dict(tuning.baseline),
         "tuning": tuning.to_dict(), "table": table,
@@ -123,6 +134,76 @@ def tune_study(
                          "tuned_over_bound_ratio": None if settle is None else settle / bound["settling_s"]},
         "tracking_improvement": _improvement(table),
         "validation": result.to_dict(), "seconds": time.perf_counter() - t0,
+    }
+
+
+def _reference_dict(ref: Reference) -> dict[str, Any]:
+    return {"times_s": ref.times_s.tolist(), "levels_N": ref.levels_N.tolist(), "duration_s": ref.duration_s}
+
+
+def _reference_from(path: str | Path, doc: dict[str, Any], name: str) -> Reference:
+    try:
+        r = doc["references"][name]
+        return Reference(np.asarray(r["times_s"], float), np.asarray(r["levels_N"], float), float(r["duration_s"]))
+    except (KeyError, TypeError, ValueError) as exc:
+        detail = f"missing {exc}" if isinstance(exc, KeyError) else str(exc)
+        raise InputError(f"{path}: field 'references.{name}' is not a reference ({detail}); "
+                         "write the gain set again with 'piezopreload tune'") from None
+
+
+def validate_gain_set(
+    path: str | Path,
+    *,
+    n_plants: int = 200,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    seed: int | None = None,
+    out: str | Path | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Validate a gain set again, on its own plant, feedforward, criteria and references.
+
+    A new Monte Carlo set (``n_plants``, ``seed``: by default the ones stored); with ``out``,
+    the gain set is written there with this validation and the status it earns.
+    """
+    say = progress or (lambda msg: print(msg, file=sys.stderr, flush=True))
+    if n_plants < 1:
+        raise InputError(f"--plants: must be >= 1, got {n_plants}")
+    gains, doc = load_gains(path)
+    try:
+        ff_doc = doc["feedforward"]["model"]
+        feedforward = model_from_dict(ff_doc, where="feedforward.model") if ff_doc is not None else None
+        plant = RigParams.from_dict(doc["plant"]["rig"])
+        criteria = Criteria(**doc["criteria"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{path}: field {exc} is missing or invalid; write the gain set again with 'piezopreload tune'") from None
+    if feedforward is not None and not isinstance(feedforward, ClassicalPI):
+        raise InputError(f"{path}: field 'feedforward.model.kind': validation runs the classical P-I inverse")
+    step, trajectory = _reference_from(path, doc, "step"), _reference_from(path, doc, "trajectory")
+    seed = int(doc.get("inputs", {}).get("seed", 0)) if seed is None else seed
+    say(f"validating {path} on {n_plants} plants ...")
+    try:
+        with executor(workers, scheduler) as (pool, pool_name):
+            result = validate(gains, feedforward, plant, criteria, n_plants=n_plants, seed=seed, step=step,
+                              trajectory=trajectory, pool=pool, pool_name=pool_name,
+                              progress=lambda i, n: say(f"  chunk {i}/{n}"))
+    except SchedulerError as exc:
+        raise InputError(f"--scheduler: {exc}") from None
+    summary = result.summary()
+    status = "validated" if result.passed else "candidate"
+    written = None
+    if out is not None:
+        body = {k: v for k, v in doc.items() if k not in ("schema", "package_version", "created_utc", "content_sha256")}
+        body.update(status=status, validation=result.to_dict(),
+                    inputs={**doc.get("inputs", {}), "revalidated_from_sha256": doc["content_sha256"], "seed": seed})
+        written = write_artifact(out, "gain-set", body)["content_sha256"]
+    return {
+        "gains": str(path), "validated": result.passed, "status": status, "plants": n_plants, "seed": seed,
+        "worst_settling_s": summary["settling_s"]["worst"], "p95_settling_s": summary["settling_s"]["p95"],
+        "worst_overshoot_N": summary["overshoot_N"]["worst"],
+        "worst_tracking_rms_N": summary["tracking_rms_N"]["worst"],
+        "worst_peak_voltage_V": summary["peak_voltage_V"]["worst"],
+        "validation": result.to_dict(), "out": None if out is None else str(out), "content_sha256": written,
     }
 
 

@@ -4,6 +4,7 @@ import json
 import shutil
 from dataclasses import replace
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -33,24 +34,36 @@ def test_controller_frequency_response_equals_python_control():
     np.testing.assert_allclose(np.asarray(re) + 1j * np.asarray(im), ref, rtol=1e-10)
 
 
-def test_the_tuning_model_follows_the_rig_in_closed_loop():
-    """The smooth CasADi loop against Rig.step + Controller.step (noise off, clamp never reached)."""
+@pytest.mark.parametrize("gains", [
+    PIDGains(Kc=0.8, Ti_s=0.05, Td_s=0.002, Tf_s=0.001, b=0.5),  # inside the output range
+    PIDGains(Kc=4.0, Ti_s=0.05, b=1.0),  # kicks into the 110 V clamp
+])
+def test_the_tuning_model_follows_the_rig_in_closed_loop(gains):
+    """The CasADi loop against Rig.step + Controller.step (noise off), clamp and anti-windup included."""
     params = RigParams(**QUIET)
     rig = Rig(params)
-    gains = PIDGains(Kc=0.8, Ti_s=0.05, Td_s=0.002, Tf_s=0.001, b=0.5)
     ref = Reference.step(25.0, 55.0, 0.02, 0.6)
     run = simulate(rig, Controller(gains, rig.dt_s), ref)
     n = run.t_s.size
-    step = pid.tuning_step(len(params.creep_tau_s), rig.dt_s, params.delay_samples).mapaccum(n)
+    step = pid.tuning_step(len(params.creep_tau_s), rig.dt_s, params.delay_samples, (0.0, 110.0)).mapaccum(n)
     theta, decay = pid._plant_vector(params)
     x0 = pid._initial_loop_state(params, 25.0, gains.Kc, gains.b, 0.0)  # bumpless at 0 V, as simulate's
     r = ref.at(run.t_s)
     _, y, u = step(x0, np.tile([[gains.Kc], [gains.Ti_s], [gains.Td_s], [gains.Tf_s], [gains.b]], n),
                    np.tile(theta[:, None], n), np.tile(decay[:, None], n), r[None, :], np.zeros((1, n)))
-    assert np.max(run.command_V) < 110.0 and np.min(run.command_V) > 0.0  # the clamp is not part of the model
-    # smoothing (tanh slew, |x| ~ sqrt(x^2 + 1e-6)) and the explicit Bouc-Wen step against the exact one
+    if gains.Kc > 1:
+        assert np.max(run.command_V) == 110.0  # this case does exercise the clamp
+    # smoothing (rounded slew clip, |x| ~ sqrt(x^2 + 1e-6)) and the explicit Bouc-Wen step against the exact one
     np.testing.assert_allclose(np.asarray(y).ravel(), run.force_N, atol=0.05)
-    np.testing.assert_allclose(np.asarray(u).ravel(), run.command_V, atol=0.1)
+    np.testing.assert_allclose(np.asarray(u).ravel(), run.command_V, atol=0.3)
+
+
+def test_smooth_clip_is_the_clip_away_from_its_corners():
+    x = np.linspace(-3.0, 3.0, 601)
+    got = np.asarray(ca.Function("c", [X := ca.SX.sym("x")], [pid._smooth_clip(X, 1.0)])(x)).ravel()
+    np.testing.assert_allclose(got, np.clip(x, -1, 1), atol=np.log(2) / pid._CLIP_SHARPNESS + 1e-12)
+    far = np.abs(np.abs(x) - 1.0) > 0.2
+    np.testing.assert_allclose(got[far], np.clip(x, -1, 1)[far], atol=1e-4)
 
 
 def test_simc_rule():
@@ -186,3 +199,87 @@ def test_export_refuses_candidates_and_tampered_files(tmp_path, capsys):
     assert main(["export", str(ok), "--format", "labview", "--out", str(out), "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
     assert s["out"] == str(out) and out.read_text().startswith("; gain set sha256")
+
+
+_C_MAIN = """#include <stdio.h>
+int pp_controller_initial_state(double setpoint0, double pv0, double u0, double* state);
+int pp_controller_step(double setpoint, double pv, double* state, double* u);
+int main(void) {
+  double state[256], sp, pv, u;
+  if (scanf("%lf %lf", &sp, &pv) != 2 || pp_controller_initial_state(sp, pv, 0.0, state)) return 1;
+  while (scanf("%lf %lf", &sp, &pv) == 2) {
+    if (pp_controller_step(sp, pv, state, &u)) return 1;
+    printf("%.17g\\n", u);
+  }
+  return 0;
+}
+"""
+
+
+def test_casadi_c_controller_equals_the_python_step(tmp_path):
+    """The generated C step (feedforward + PID with its state) against Controller.step over 10,000 samples."""
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        pytest.skip("no C compiler on this machine")
+    import subprocess
+
+    from piezopreload.models.hysteresis import ClassicalPI
+    from piezopreload.rig.export import controller_from_gain_set
+
+    ff = ClassicalPI(np.array([0.0, 8.0, 20.0, 40.0]), np.array([0.45, 0.12, 0.08, 0.05]), 25.0)
+    gains = {"Kc_V_per_N": 1.4, "Ti_s": 0.05, "Td_s": 0.004, "Tf_s": 0.02, "b": 0.3, "u_min_V": 0.0, "u_max_V": 110.0}
+    path = tmp_path / "gains.json"
+    write_artifact(path, "gain-set", {"status": "validated", "gains": gains, "inputs": {},
+                                      "feedforward": {"model": ff.to_dict()},
+                                      "plant": {"rig": RigParams(noise_N=0.2).to_dict()}})
+    doc = json.loads(path.read_text())
+    controller = controller_from_gain_set(doc)
+    assert controller.feedforward is not None
+    # the closed loop on the noisy rig gives the inputs: a trajectory that reverses, saturates
+    # (the 110 V clamp and the conditional integration) and comes back
+    rig = Rig(RigParams(noise_N=0.2))
+    ref = Reference.staircase(25.0, [60.0, 120.0, 80.0, 40.0, 70.0], 1.6, t_start_s=2.0)
+    run = simulate(rig, controller, ref, seed=4)
+    sp, pv = run.reference_N, run.measured_N
+    assert sp.size >= 10_000 and np.max(run.command_V) == 110.0
+    state = controller.initial_state(sp[0], 25.0, u0=0.0)
+    u_py = np.empty(sp.size)
+    for k in range(sp.size):
+        u_py[k], state = controller.step(state, sp[k], pv[k])
+    out = tmp_path / "pp_controller.c"
+    assert main(["export", str(path), "--format", "casadi-c", "--out", str(out)]) == 0
+    (tmp_path / "main.c").write_text(_C_MAIN)
+    exe = tmp_path / "step"
+    subprocess.run([cc, "-std=c99", "-O2", "-Wall", "-o", str(exe), str(out), str(tmp_path / "main.c"), "-lm"],
+                   check=True)
+    lines = [f"{float(sp[0])!r} 25.0"] + [f"{float(a)!r} {float(b)!r}" for a, b in zip(sp, pv)]
+    res = subprocess.run([str(exe)], input="\n".join(lines) + "\n", capture_output=True, text=True, check=True)
+    u_c = np.array(res.stdout.split(), float)
+    assert u_c.size == sp.size
+    np.testing.assert_allclose(u_c, u_py, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(u_py, run.command_V, rtol=0, atol=1e-9)  # and the Python step is the simulation's
+
+
+def test_tune_validate_export_from_the_command_line(tmp_path, capsys):
+    """The paper's study: tune (few plants), validate again, export; the JSON keys the tools promise."""
+    out = tmp_path / "gains.json"
+    assert main(["tune", "--out", str(out), "--plants", "3", "--workers", "1", "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    for key in ("settling_s", "overshoot_N", "tracking_rms_N", "paper_tracking_rms_N", "lower_bound_settling_s", "status"):
+        assert key in s
+    assert s["status"] == "validated" and s["settling_s"] <= 0.30 and s["overshoot_N"] <= 1.5
+    assert s["lower_bound_settling_s"] < s["settling_s"]
+    rows = {(r["gains"], r["feedforward"]) for r in s["table"]}
+    assert rows == {(g, ff) for g in ("paper", "simc", "tuned") for ff in (False, True)}
+    assert main(["validate", str(out), "--plants", "3", "--workers", "1", "--json"]) == 0
+    v = json.loads(capsys.readouterr().out)
+    assert v["validated"] is True and v["plants"] == 3 and v["worst_settling_s"] >= v["p95_settling_s"]
+    assert v["worst_overshoot_N"] <= 1.5
+    # a stricter seed set written out as a new gain set keeps its hash valid and exports
+    again = tmp_path / "again.json"
+    assert main(["validate", str(out), "--plants", "2", "--seed", "5", "--workers", "1", "--out", str(again), "--json"]) == 0
+    capsys.readouterr()
+    assert main(["export", str(again), "--format", "plc", "--json"]) == 0
+    assert "Tn = " in json.loads(capsys.readouterr().out)["text"]
+    assert main(["validate", str(tmp_path / "missing.json")]) == 2
+    assert capsys.readouterr().err.startswith("error: ")

@@ -4,23 +4,30 @@ The plant the PID sees is the rig with the identified inverse-P-I feedforward in
 feedforward turns the reference into a voltage, the PID adds its correction, and what is left
 for the feedback to do is the model error (hysteresis residual, creep, the amplifier's lag and
 slew, the delay). :func:`tune_pid` finds ``Kc, Ti, Td, Tf`` (and optionally the setpoint weight)
-that minimise the time-weighted absolute error over the paper's step and trajectory on several
-plant variants at once, subject to
+that minimise a time-weighted absolute error (the weight ramps up over ``TuningSpec.ramp_s``
+after each change of the reference) over the paper's step and trajectory on several plant
+variants at once, subject to
 
-* no overshoot beyond the error band (kept a margin inside it, for the sensor noise),
-* the command inside the controller's output range on every sample,
+* no overshoot of the step beyond the error band (kept a margin inside it, for the sensor
+  noise), on every variant;
 * a maximum sensitivity ``Ms`` of the linearised loop on a frequency grid (Astrom-Hagglund
-  MIGO; Garpinger-Hagglund), per variant,
-* a bound on the controller's high-frequency gain (noise amplification).
+  MIGO; Garpinger-Hagglund), per variant and at both ends of the hysteresis' local slope;
+* a bound on the controller's gain at the Nyquist frequency (noise amplification).
 
-The closed loop is the discretised loop unrolled over the references (single shooting with
-``mapaccum``), so IPOPT gets exact derivatives of every sample with respect to the gains.
+The command stays inside its range because the tuning model clamps it as the controller
+does (with its conditional integration): the loop in the NLP is
+:func:`~piezopreload.models.controller.pid_update`, the same function the simulation and the
+generated C code run. The closed loop is unrolled over the references (single shooting with
+``mapaccum``), so IPOPT gets exact first and second derivatives with respect to the gains;
+every constraint family enters as one smooth maximum (Kreisselmeier-Steinhauser) per
+variant, so the NLP has five variables and some twenty constraints.
 
 The tuning model (:func:`tuning_step`) is the rig of :mod:`piezopreload.models.actuator` with
 the Bouc-Wen ``|.|`` smoothed through ``sqrt(x^2 + eps^2)`` and integrated explicitly per
-sample (the rig integrates it exactly); the slew limit stays a clip. No noise, no quantisation, no output clamp (the command bound is a
-constraint instead). The validation (:mod:`piezopreload.tuning.validate`) then runs the gains
-on the rig itself.
+sample (the rig integrates it exactly) and the slew clip's corners rounded; the output clamp
+stays the controller's (a kink, active only when the command reaches its limits). No noise,
+no quantisation. The validation
+(:mod:`piezopreload.tuning.validate`) then runs the gains on the rig itself.
 
 The starting point and the baseline is SIMC (Skogestad 2003) on a first-order-plus-dead-time
 fit of the compensated plant's response to a voltage step.
@@ -38,7 +45,7 @@ from scipy.optimize import least_squares
 
 from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import PAPER_BAND_N, Reference
-from piezopreload.models.controller import PIDGains
+from piezopreload.models.controller import CASADI_OPS, PIDGains, pid_update
 from piezopreload.models.hysteresis import InverseClassicalPI
 
 __all__ = [
@@ -87,6 +94,10 @@ class TuningSpec:
         kicking the command into its limit at a step.
     Tf_ratio_min : float
         Lower bound on ``Tf / Td`` (a derivative filter no faster than ``Td / 20`` by default).
+    ramp_s : float
+        The error's weight in the objective ramps from 0 at each change of the reference to 1
+        after ``ramp_s``: the transport right after a jump (which no gains remove, see
+        :func:`minimum_time`) counts little, the error the loop leaves after it counts fully.
     variants : dict
         Relative spread of the plant variants (see :func:`plant_variants`).
     """
@@ -97,12 +108,13 @@ class TuningSpec:
     noise_gain_max_V_per_N: float = 8.0
     u_min_V: float = 0.0
     u_max_V: float = 110.0
-    step: Reference = field(default_factory=lambda: Reference.step(25.0, 60.0, 0.02, 1.0))
+    step: Reference = field(default_factory=lambda: Reference.step(25.0, 60.0, 0.02, 0.6))
     trajectory: Reference = field(
-        default_factory=lambda: Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 0.6, t_start_s=0.02)
+        default_factory=lambda: Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 0.4, t_start_s=0.02)
     )
     tune_setpoint_weight: bool = True
     Tf_ratio_min: float = 0.05
+    ramp_s: float = 0.1
     variants: dict[str, float] = field(
         default_factory=lambda: {"gain": 0.15, "amp_bandwidth_Hz": 0.2, "slew": 0.2, "hysteresis": 0.2, "creep": 0.3}
     )
@@ -116,6 +128,8 @@ class TuningSpec:
             raise ValueError("TuningSpec.noise_gain_max_V_per_N must be > 0.")
         if not self.u_min_V < self.u_max_V:
             raise ValueError("TuningSpec needs u_min_V < u_max_V.")
+        if not self.ramp_s > 0:
+            raise ValueError("TuningSpec.ramp_s must be > 0.")
 
 
 # --------------------------------------------------------------------------------------
@@ -252,6 +266,21 @@ def _smooth_abs(x: Any) -> Any:
     return ca.sqrt(x * x + _EPS_ABS**2)
 
 
+_CLIP_SHARPNESS = 50.0  # the smooth clip's corner is 1/50 of the limit wide
+
+
+def _softplus(y: Any, k: Any) -> Any:
+    """``log(1 + exp(k y)) / k`` without overflow."""
+    return ca.fmax(y, 0) + ca.log1p(ca.exp(-k * ca.fabs(y))) / k
+
+
+def _smooth_clip(x: Any, limit: Any) -> Any:
+    """``clip(x, -limit, limit)`` with corners rounded by softplus: exact away from the corners,
+    at most ``log(2) / 50`` of the limit off at them (a tanh would be a quarter off at ``x = limit``)."""
+    k = _CLIP_SHARPNESS / limit
+    return x - _softplus(x - limit, k) + _softplus(-x - limit, k)
+
+
 def _rig_force(theta: Any, v: Any, h: Any, creep: Any, n_creep: int) -> tuple[Any, Any]:
     x = theta[4] * (v + theta[8] * v * v / 100.0 - h)
     lag = 0
@@ -260,13 +289,15 @@ def _rig_force(theta: Any, v: Any, h: Any, creep: Any, n_creep: int) -> tuple[An
     return theta[0] + theta[1] * (x + lag), x
 
 
-def tuning_step(n_creep: int, dt: float, delay: int) -> ca.Function:
-    """One sample of the compensated closed loop, smooth, as a CasADi function.
+def tuning_step(n_creep: int, dt: float, delay: int, u_range: tuple[float, float] = (0.0, 110.0)) -> ca.Function:
+    """One sample of the compensated closed loop as a CasADi function.
 
     ``(x, gains, theta, decay, r, ff) -> (x_next, y, u)``: ``x`` the loop state (rig:
     amplifier voltage, Bouc-Wen state, creep chain, pending commands; controller: integral,
     previous error, previous measurement, filtered derivative); ``gains = [Kc, Ti, Td, Tf, b]``;
-    ``theta`` the plant vector; ``r`` and ``ff`` this sample's reference and feedforward.
+    ``theta`` the plant vector; ``r`` and ``ff`` this sample's reference and feedforward. The
+    controller is :func:`~piezopreload.models.controller.pid_update`, the one the rig runs
+    (output clamp to ``u_range`` and conditional integration included).
     """
     nx = 2 + n_creep + delay + 4
     x = ca.SX.sym("x", nx)
@@ -278,15 +309,10 @@ def tuning_step(n_creep: int, dt: float, delay: int) -> ca.Function:
     v, h = x[0], x[1]
     creep = x[2 : 2 + n_creep]
     integral, e_prev, pv_prev, dpv = (x[2 + n_creep + delay + i] for i in range(4))
-    Kc, Ti, Td, Tf, b = (gains[i] for i in range(5))
     y, _ = _rig_force(theta, v, h, creep, n_creep)
-    # the controller: Controller.step_terms without the clamp (a constraint of the NLP instead)
-    e = r - y
-    alpha = Tf / (Tf + dt)
-    dpv_next = alpha * dpv + (1 - alpha) * (y - pv_prev) / dt
-    integral_next = integral + Kc / Ti * 0.5 * (e + e_prev) * dt
-    u = Kc * (b * r - y) + integral_next - Kc * Td * dpv_next + ff
-    # the rig: delay, amplifier (first order, smooth slew limit), Bouc-Wen, creep
+    u, _, integral_next, _, e, dpv_next = pid_update(
+        CASADI_OPS, tuple(gains[i] for i in range(5)), u_range, dt, integral, e_prev, pv_prev, dpv, r, y, ff)
+    # the rig: delay, amplifier (first order, slew clip), Bouc-Wen, creep
     rig_next = rig_step(x[: 2 + n_creep + delay], u, theta, decay, n_creep, delay)
     x_next = ca.vertcat(rig_next, integral_next, e, y, dpv_next)
     return ca.Function("loop_step", [x, gains, theta, decay, r, ff], [x_next, y, u],
@@ -437,31 +463,36 @@ def _seeds(names: list[str], scaling: _Scaling, baseline: PIDGains) -> np.ndarra
     return np.array(pts)
 
 
-def tune_pid(
-    params: RigParams,
-    feedforward: InverseClassicalPI | None,
-    spec: TuningSpec = TuningSpec(),
-    *,
-    max_iterations: int = 250,
-    starts: int = 3,
-    verbose: bool = False,
-) -> TuningResult:
-    """Tune ``Kc, Ti, Td, Tf`` (and ``b``) on the compensated plant; see the module docstring.
+def _smooth_max(g: Any, rho: float) -> Any:
+    """Kreisselmeier-Steinhauser smooth maximum of the entries of ``g``: an upper bound.
 
-    The NLP starts from the best of a few seeds (the SIMC baseline and a coarse grid), judged
-    by constraint violation and then objective, evaluated with the same CasADi functions.
-    Raises :class:`TuningInfeasible` naming the binding constraints when IPOPT finds no
-    feasible gains.
+    ``max(g) <= KS(g) <= max(g) + log(n) / rho``; in practice only the entries within a few
+    ``1/rho`` of the maximum add anything, so the bound is tight where it matters.
     """
-    t0 = time.perf_counter()
-    rig = Rig(params)
-    dt = rig.dt_s
-    fopdt = fit_fopdt(rig, feedforward if feedforward is not None else _ZeroFF())
-    baseline = simc(fopdt, u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
-    variants = plant_variants(params, spec.variants)
-    n_creep = len(params.creep_tau_s)
-    step_fn = tuning_step(n_creep, dt, params.delay_samples)
+    m = ca.mmax(g)
+    return m + ca.log(ca.sum1(ca.vec(ca.exp(rho * (g - m))))) / rho
 
+
+_RHO_OVERSHOOT = 40.0  # 1/N: at most log(n)/40 ~ 0.16 N conservative, ~0.02 N in practice
+_RHO_MS = 400.0  # on |1 + L|^2
+
+
+@dataclass(frozen=True, eq=False)
+class _Problem:
+    """The tuning NLP: decision variables ``z`` in the unit box, objective and labelled constraints ``<= 0``."""
+
+    z: Any
+    names: list[str]
+    scaling: _Scaling
+    objective: Any
+    labels: list[str]
+    g: Any
+
+
+def _build_problem(params: RigParams, feedforward: InverseClassicalPI | None, spec: TuningSpec) -> _Problem:
+    dt = params.sample_period_s
+    variants = plant_variants(params, spec.variants)
+    step_fn = tuning_step(len(params.creep_tau_s), dt, params.delay_samples, (spec.u_min_V, spec.u_max_V))
     names = ["Kc", "Ti", "Td", "Tf"] + (["b"] if spec.tune_setpoint_weight else [])
     scaling = _Scaling(names)
     z = ca.MX.sym("z", len(names))
@@ -470,8 +501,8 @@ def tune_pid(
     gains = ca.vertcat(vals["Kc"], vals["Ti"], vals["Td"], vals["Tf"], b)
 
     objective = 0
-    blocks: list[tuple[str, Any]] = []  # (label, g) with every g <= 0 required
-    blocks.append(("derivative filter Tf >= %g Td" % spec.Tf_ratio_min, spec.Tf_ratio_min * vals["Td"] - vals["Tf"]))
+    blocks: list[tuple[str, Any]] = [  # (label, g): g <= 0 required
+        (f"derivative filter Tf >= {spec.Tf_ratio_min:g} Td", spec.Tf_ratio_min * vals["Td"] - vals["Tf"])]
     band_lim = spec.band_N - spec.overshoot_margin_N
     for ref_name, ref in (("step", spec.step), ("trajectory", spec.trajectory)):
         n = int(round(ref.duration_s / dt)) + 1
@@ -483,21 +514,20 @@ def tune_pid(
         t_since = t - ref.times_s[k_change]
         prev_level = np.where(k_change > 0, ref.levels_N[np.maximum(k_change - 1, 0)], ref.levels_N[0])
         direction = np.sign(r - prev_level)
-        weights = t_since * dt / (ref.duration_s * len(ref.times_s))
+        weights = np.minimum(t_since / spec.ramp_s, 1.0) * dt / ref.duration_s
         roll = step_fn.mapaccum(n)
         over = np.flatnonzero(direction != 0)
         for j, variant in enumerate(variants):
             theta, decay = _plant_vector(variant)
             x0 = _initial_loop_state(variant, float(r[0]), vals["Kc"], b, float(ff[0]))
-            _, ys, us = roll(x0, ca.repmat(gains, 1, n), ca.repmat(theta, 1, n), ca.repmat(decay, 1, n), r[None, :], ff[None, :])
+            _, ys, _ = roll(x0, ca.repmat(gains, 1, n), ca.repmat(theta, 1, n), ca.repmat(decay, 1, n),
+                            r[None, :], ff[None, :])
             e = r[None, :] - ys
             objective = objective + ca.sum2(weights[None, :] * ca.sqrt(e * e + 1e-4)) / len(variants)
-            blocks.append((f"overshoot inside {band_lim:g} N, {ref_name}, variant {j}",
-                           (direction[over][None, :] * (ys[:, over] - r[None, over]) - band_lim).T))
-            blocks.append((f"command <= {spec.u_max_V:g} V, {ref_name}, variant {j}", (us - spec.u_max_V).T))
-            # (before the first change the loop rests at exactly u_min: no constraint there)
-            moving = np.flatnonzero(t >= ref.times_s[1]) if ref.times_s.size > 1 else np.arange(n)
-            blocks.append((f"command >= {spec.u_min_V:g} V, {ref_name}, variant {j}", (spec.u_min_V - us[:, moving]).T))
+            if ref_name == "step":  # (the trajectory's top is out of reach of the weakest variants)
+                overshoot = direction[over][None, :] * (ys[:, over] - r[None, over])
+                blocks.append((f"overshoot inside {band_lim:g} N, step, variant {j}",
+                               _smooth_max(overshoot, _RHO_OVERSHOOT) - band_lim))
 
     # robustness of the linearised loop, per variant and at both ends of the local slope
     omega = _omega_grid(dt)
@@ -507,66 +537,97 @@ def tune_pid(
             G = _plant_frequency_response(variant, omega, slope)
             l_re = c_re * G.real - c_im * G.imag
             l_im = c_re * G.imag + c_im * G.real
+            distance2 = (1 + l_re) ** 2 + l_im**2  # |1 + L|^2 >= 1 / Ms^2
             blocks.append((f"Ms <= {spec.ms_max:g}, variant {j}, slope {slope:.3f} N/V",
-                           1.0 / spec.ms_max**2 - ((1 + l_re) ** 2 + l_im**2)))
+                           spec.ms_max**2 * _smooth_max(-distance2, _RHO_MS) + 1.0))
     re_ny, im_ny = _controller_frequency_response(gains, np.array([np.pi / dt]), dt)
     blocks.append((f"controller gain at Nyquist <= {spec.noise_gain_max_V_per_N:g} V/N",
-                   ca.sqrt(re_ny**2 + im_ny**2 + 1e-12) - spec.noise_gain_max_V_per_N))
+                   ca.sqrt(re_ny**2 + im_ny**2 + 1e-12) / spec.noise_gain_max_V_per_N - 1.0))
+    return _Problem(z=z, names=names, scaling=scaling, objective=objective,
+                    labels=[label for label, _ in blocks], g=ca.vertcat(*[blk for _, blk in blocks]))
 
-    g = ca.vertcat(*[blk for _, blk in blocks])
-    sizes = [blk.numel() for _, blk in blocks]
-    evaluate = ca.Function("evaluate", [z], [objective, g])
 
-    def violation(zv: np.ndarray) -> tuple[float, float]:
-        f, gv = evaluate(zv)
-        gv = np.asarray(gv, float).ravel()
-        return float(np.max(np.maximum(gv, 0.0), initial=0.0)), float(f)
+def tune_pid(
+    params: RigParams,
+    feedforward: InverseClassicalPI | None,
+    spec: TuningSpec = TuningSpec(),
+    *,
+    max_iterations: int = 150,
+    starts: int = 3,
+    verbose: bool = False,
+) -> TuningResult:
+    """Tune ``Kc, Ti, Td, Tf`` (and ``b``) on the compensated plant; see the module docstring.
 
-    seeds = _seeds(names, scaling, baseline)
-    scores = [violation(sd) for sd in seeds]
+    Every constraint family is one smooth maximum (per reference and variant for the
+    overshoot, per variant and slope for Ms), so the NLP has a few dozen constraints and
+    IPOPT runs with the exact Hessian. The NLP starts from the best of a few seeds (the SIMC
+    baseline and a coarse grid) by constraint violation and then objective; a start that
+    violates a constraint first minimises the violation (a phase-one problem), then the
+    objective. Raises :class:`TuningInfeasible` naming the violated constraints when no start
+    ends feasible.
+    """
+    t0 = time.perf_counter()
+    rig = Rig(params)
+    fopdt = fit_fopdt(rig, feedforward if feedforward is not None else _ZeroFF())
+    baseline = simc(fopdt, u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
+    prob = _build_problem(params, feedforward, spec)
+    z, g = prob.z, prob.g
+    evaluate = ca.Function("evaluate", [z], [prob.objective, g])
+    options = {
+        # the slew clip and the output clamp are kinks: the dual infeasibility stalls near 1e-3
+        # while the objective no longer moves, so stop on that
+        "ipopt.max_iter": max_iterations, "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-2,
+        "ipopt.acceptable_iter": 5, "ipopt.acceptable_obj_change_tol": 1e-4,
+        "ipopt.print_level": 5 if verbose else 0, "print_time": False, "ipopt.sb": "yes",
+    }
+    solver = ca.nlpsol("tune", "ipopt", {"x": z, "f": prob.objective, "g": g}, options)
+    # phase one: the least violation, with a slack s >= max(g)
+    slack = ca.MX.sym("s")
+    phase_one = ca.nlpsol("tune_phase_one", "ipopt", {"x": ca.vertcat(z, slack), "f": slack, "g": g - slack},
+                          {**options, "ipopt.tol": 1e-8})
+
+    def violation(zv: np.ndarray) -> float:
+        return float(np.max(np.asarray(evaluate(zv)[1], float), initial=0.0))
+
+    seeds = _seeds(prob.names, prob.scaling, baseline)
+    scores = [(max(violation(sd), 0.0), float(evaluate(sd)[0])) for sd in seeds]
     order = sorted(range(len(seeds)), key=lambda i: (round(scores[i][0], 3), scores[i][1]))
-
-    solver = ca.nlpsol("tune", "ipopt", {"x": z, "f": objective, "g": g}, {
-        "ipopt.max_iter": max_iterations, "ipopt.hessian_approximation": "limited-memory",
-        "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4, "ipopt.print_level": 5 if verbose else 0,
-        "ipopt.mu_strategy": "adaptive", "print_time": False, "ipopt.sb": "yes",
-    })
-    # IPOPT from the best seed; if it ends infeasible (the unrolled loop is strongly nonlinear
-    # far from the optimum), from the next ones, up to ``starts`` in all
-    best = None
+    best: tuple[bool, float, np.ndarray, float, str] | None = None
     iterations = 0
     for i in order[:starts]:
-        sol = solver(x0=seeds[i], lbx=0.0, ubx=1.0, lbg=-np.inf, ubg=0.0)
+        x0 = seeds[i]
+        if scores[i][0] > 0:
+            sol = phase_one(x0=np.append(x0, scores[i][0]), lbx=np.append(np.zeros(len(x0)), -np.inf),
+                            ubx=np.append(np.ones(len(x0)), np.inf), lbg=-np.inf, ubg=0.0)
+            iterations += int(phase_one.stats().get("iter_count", 0))
+            x0 = np.clip(np.asarray(sol["x"], float).ravel()[:-1], 0.0, 1.0)
+        sol = solver(x0=x0, lbx=0.0, ubx=1.0, lbg=-np.inf, ubg=0.0)
         stats = solver.stats()
         iterations += int(stats.get("iter_count", 0))
-        gv = np.asarray(sol["g"], float).ravel()
-        worst = float(np.max(gv, initial=-np.inf))
+        zv = np.clip(np.asarray(sol["x"], float).ravel(), 0.0, 1.0)
+        worst = violation(zv)
         # feasible beats infeasible; among feasible the lower objective, among infeasible the
         # smaller violation (what the error message then reports)
         infeasible = worst > 1e-4
-        candidate = (infeasible, worst if infeasible else float(sol["f"]), sol, str(stats.get("return_status", "unknown")))
+        candidate = (infeasible, worst if infeasible else float(sol["f"]), zv, float(sol["f"]),
+                     str(stats.get("return_status", "unknown")))
         if best is None or candidate[:2] < best[:2]:
             best = candidate
-        if worst <= 1e-4:
+        if not infeasible:
             break
-    _, _, sol, status = best
-    zv = np.asarray(sol["x"], float).ravel()
-    gv = np.asarray(sol["g"], float).ravel()
-    margins, i = {}, 0
-    for (label, _), size in zip(blocks, sizes):
-        margins[label] = float(np.max(gv[i : i + size])) if size else float("-inf")
-        i += size
+    assert best is not None
+    _, _, zv, objective, status = best
+    margins = dict(zip(prob.labels, (float(x) for x in np.asarray(evaluate(zv)[1], float).ravel())))
     binding = sorted(label for label, m in margins.items() if m > -1e-3)
-    worst = max(margins.values())
-    if worst > 1e-4:
-        violated = sorted(((m, label) for label, m in margins.items() if m > 1e-4), reverse=True)
+    violated = sorted(((m, label) for label, m in margins.items() if m > 1e-4), reverse=True)
+    if violated:
         detail = "; ".join(f"{label} (by {m:.3g})" for m, label in violated[:5])
         raise TuningInfeasible(f"PID tuning found no gains that meet the specification ({status}, {starts} starts); "
                                f"not met: {detail}. Relax those limits or the plant variants' spread.")
-    tuned = scaling.gains(zv, spec)
-    ms = max(_max_sensitivity(tuned, v) for v in variants)
+    tuned = prob.scaling.gains(zv, spec)
+    ms = max(_max_sensitivity(tuned, v) for v in plant_variants(params, spec.variants))
     return TuningResult(
-        gains=tuned, baseline=baseline, fopdt=fopdt, objective=float(sol["f"]), status=status,
+        gains=tuned, baseline=baseline, fopdt=fopdt, objective=objective, status=status,
         iterations=iterations, seconds=time.perf_counter() - t0, ms=ms, binding=binding,
         constraint_margins=margins,
     )
@@ -660,9 +721,9 @@ def rig_step(x: Any, u: Any, theta: Any, decay: Any, n_creep: int, delay: int) -
     """One sample of the smooth rig model; state ``[v, h, creep..., pending...]``, command ``u``.
 
     The rig of :meth:`piezopreload.models.actuator.Rig.step` with ``sqrt(x^2 + eps^2)`` for
-    ``|x|`` and an explicit Bouc-Wen step (the rig's is exact); the slew clip stays a clip
-    (``fmin``/``fmax``: a kink where IPOPT takes a one-sided derivative; a ``tanh`` would slow
-    the slewing amplifier by a quarter).
+    ``|x|``, an explicit Bouc-Wen step (the rig's is exact) and the slew clip's corners
+    rounded (:func:`_smooth_clip`; a hard clip leaves the objective full of small kinks that
+    stall IPOPT near the optimum).
     """
     v, h = x[0], x[1]
     creep = x[2 : 2 + n_creep]
@@ -672,8 +733,7 @@ def rig_step(x: Any, u: Any, theta: Any, decay: Any, n_creep: int, delay: int) -
         pending_next = ca.vertcat(pending[1:delay], u) if delay > 1 else u  # (a 1x1 [1:] is not empty)
     else:
         applied, pending_next = u, pending
-    dv = (applied - v) * (1 - theta[2])
-    dv = ca.fmin(ca.fmax(dv, -theta[3]), theta[3])  # the slew clip: piecewise linear, a kink at the limit
+    dv = _smooth_clip((applied - v) * (1 - theta[2]), theta[3])
     v_next = v + dv
     h_next = h + theta[5] * dv - theta[6] * _smooth_abs(dv) * h - theta[7] * dv * _smooth_abs(h)
     xs = theta[4] * (v_next + theta[8] * v_next * v_next / 100.0 - h_next)
