@@ -212,6 +212,9 @@ def _print_tune(s: dict[str, Any]) -> None:
     mt = s["minimum_time"]
     ratio = "-" if mt["tuned_over_bound_ratio"] is None else f"{mt['tuned_over_bound_ratio']:.2f}"
     print(f"minimum-time bound: {mt['settling_s']:.3f} s; tuned settling / bound = {ratio}")
+    tf = s["tracking_floor"]
+    print(f"tracking RMS floor of any causal controller (slew {tf['rate_N_per_s']:.0f} N/s at best): "
+          f"{tf['rms_N']:.2f} N; tuned / floor = {tf['tuned_over_floor_ratio']:.2f}")
     v = s["validation"]
     print(f"validation on {v['n_plants']} plants ({v['workers']}, {v['seconds']:.0f} s): "
           f"{'PASSED' if v['passed'] else 'FAILED'} ({v['n_failures']} failures)")

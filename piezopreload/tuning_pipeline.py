@@ -19,7 +19,7 @@ from piezopreload.models.hysteresis import ClassicalPI, model_from_dict
 from piezopreload.pipeline import gains_to_dict, load_gains
 from piezopreload.study import Study
 from piezopreload.tuning.calibrate import PAPER_RESULTS, identify_feedforward
-from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, minimum_time, tune_pid
+from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, minimum_time, tracking_floor, tune_pid
 from piezopreload.tuning.validate import Criteria, SchedulerError, evaluate, executor, validate
 
 __all__ = ["tune_study", "compare_gains", "validate_gain_set"]
@@ -87,6 +87,7 @@ def tune_study(
     bound = minimum_time(study.rig, initial_N=float(study.references["step"].levels_N[0]),
                          final_N=float(study.references["step"].levels_N[1]), band_N=study.band_N,
                          u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
+    floor = tracking_floor(study.rig, study.references["trajectory"])
     say("comparing the paper's, the SIMC and the tuned gains on the nominal rig ...")
     table = compare_gains(study, {"paper": study.gains, "simc": tuning.baseline, "tuned": tuning.gains},
                           feedforward, criteria, seed)
@@ -126,6 +127,7 @@ def tune_study(
         "paper_tracking_rms_N": paper_row["tracking_rms_N"],
         "paper_tracking_rms_after_change_N": paper_row["tracking_rms_after_change_N"],
         "lower_bound_settling_s": bound["settling_s"],
+        "lower_bound_tracking_rms_N": floor["rms_N"],
         "out": str(out), "status": status, "content_sha256": doc["content_sha256"],
         "gains": gains_to_dict(tuning.gains), "simc": gains_to_dict(tuning.baseline),
         "tuning": tuning.to_dict(), "table": table,
@@ -133,6 +135,7 @@ def tune_study(
         "minimum_time": {"settling_s": bound["settling_s"],
                          "tuned_over_bound_ratio": None if settle is None else settle / bound["settling_s"]},
         "tracking_improvement": _improvement(table),
+        "tracking_floor": {**floor, "tuned_over_floor_ratio": tuned_row["tracking_rms_N"] / floor["rms_N"]},
         "validation": result.to_dict(), "seconds": time.perf_counter() - t0,
     }
 

@@ -283,3 +283,21 @@ def test_tune_validate_export_from_the_command_line(tmp_path, capsys):
     assert "Tn = " in json.loads(capsys.readouterr().out)["text"]
     assert main(["validate", str(tmp_path / "missing.json")]) == 2
     assert capsys.readouterr().err.startswith("error: ")
+
+
+def test_tracking_floor_bounds_the_force_rate_and_every_controller():
+    """The floor's rate is not beaten by a full-range bang on the rig, and no controller beats the floor."""
+    params = RigParams(noise_N=0.0, adc_bits=32)
+    rig = Rig(params)
+    floor = pid.tracking_floor(params, Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 0.5, t_start_s=0.1))
+    # bang up and down over the whole range, from rest and after reversals
+    state, forces = rig.initial_state(), []
+    for u in [110.0] * 200 + [0.0] * 200 + [110.0] * 200 + [40.0] * 100 + [110.0] * 200:
+        forces.append(float(rig.force(state)))
+        state = rig.step(state, u)
+    rate = np.max(np.abs(np.diff(forces))) / rig.dt_s
+    assert 0.5 * floor["rate_N_per_s"] < rate <= floor["rate_N_per_s"]
+    ref = Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 0.5, t_start_s=0.1)
+    for gains in (PIDGains(Kc=0.3, Ti_s=0.08), PIDGains(Kc=4.0, Ti_s=0.01), PIDGains(Kc=2.0, Ti_s=0.07, b=0.25)):
+        rms = simulate(rig, Controller(gains, rig.dt_s), ref).tracking_error()["rms"]
+        assert rms >= floor["rms_N"]

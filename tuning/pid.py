@@ -60,6 +60,7 @@ __all__ = [
     "tune_pid",
     "loop_frequency_response",
     "minimum_time",
+    "tracking_floor",
 ]
 
 _EPS_ABS = 1e-3  # smoothing of |x| (V) in the Bouc-Wen rate
@@ -424,7 +425,7 @@ class TuningResult:
 
 
 # the search box: log scale for the times and the gain, linear for the setpoint weight
-_LOG_BOUNDS = {"Kc": (1e-3, 50.0), "Ti": (2e-3, 5.0), "Td": (1e-5, 0.05), "Tf": (1e-5, 0.05)}
+_LOG_BOUNDS = {"Kc": (1e-3, 50.0), "Ti": (2e-3, 5.0), "Td": (1e-5, 0.05), "Tf": (1e-5, 0.5)}
 _B_BOUNDS = (0.0, 1.0)
 
 
@@ -619,6 +620,8 @@ def tune_pid(
     _, _, zv, objective, status = best
     margins = dict(zip(prob.labels, (float(x) for x in np.asarray(evaluate(zv)[1], float).ravel())))
     binding = sorted(label for label, m in margins.items() if m > -1e-3)
+    binding += [f"{name} at the {'lower' if zv[i] < 0.5 else 'upper'} end of its search range"
+                for i, name in enumerate(prob.names) if min(zv[i], 1.0 - zv[i]) < 1e-4 and name != "b"]
     violated = sorted(((m, label) for label, m in margins.items() if m > 1e-4), reverse=True)
     if violated:
         detail = "; ".join(f"{label} (by {m:.3g})" for m, label in violated[:5])
@@ -715,6 +718,33 @@ def minimum_time(
         else:
             lo = mid
     return {"settling_s": hi * dt, "samples": hi, "command_V": u_best, "hold_s": hold_s}
+
+
+def tracking_floor(params: RigParams, reference: Reference) -> dict[str, Any]:
+    """A lower bound on the RMS tracking error of any causal controller without preview.
+
+    After a jump of ``dF`` the force cannot move for ``delay + 1`` samples (the commands that
+    decide them were sent before the jump), and then at most ``rate * dt`` per sample, where
+    ``rate`` is the amplifier's slew times the steepest local slope of force over voltage
+    (:func:`_small_signal_gains`; the amplifier's bandwidth, the creep lag and the hysteresis
+    only slow it further). So sample ``m`` after the jump errs by at least
+    ``max(dF - (m - delay) rate dt, 0)``. Summed over the reference's jumps and divided by the
+    samples :meth:`ClosedLoopRun.tracking_error` scores (from the first change to the end),
+    that is a floor for its RMS. Returns ``{"rms_N", "rate_N_per_s"}``.
+    """
+    dt, delay = params.sample_period_s, params.delay_samples
+    rate = _small_signal_gains(params)[1] * float(params.slew_V_per_s)
+    n = int(round(reference.duration_s / dt)) + 1
+    t = np.arange(n) * dt
+    k_jumps = np.searchsorted(t, reference.times_s[1:] - 1e-12)
+    ends = np.append(k_jumps[1:], n)
+    total = 0.0
+    for j, (k, end) in enumerate(zip(k_jumps, ends)):
+        jump = abs(float(reference.levels_N[j + 1] - reference.levels_N[j]))
+        m = np.arange(int(end - k))
+        total += float(np.sum(np.maximum(jump - np.maximum(m - delay, 0) * rate * dt, 0.0) ** 2))
+    scored = int(np.sum(t >= reference.times_s[1]))
+    return {"rms_N": float(np.sqrt(total / scored)), "rate_N_per_s": rate}
 
 
 def rig_step(x: Any, u: Any, theta: Any, decay: Any, n_creep: int, delay: int) -> Any:
