@@ -2,7 +2,6 @@
 
 import json
 import shutil
-from dataclasses import replace
 
 import casadi as ca
 import numpy as np
