@@ -185,13 +185,28 @@ def _print_reproduce(s: dict[str, Any]) -> None:
               f"  {'yes' if r['within_25pct'] else 'NO ':11s}{spread}")
 
 
-def _cmd_tune(args: argparse.Namespace) -> dict[str, Any]:
-    from piezopreload.tuning_pipeline import tune_study
+def _add_monte_carlo_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--plants", type=int, default=200, metavar="N", help="Monte Carlo plants (default 200)")
+    p.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: the CPU count)")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the Monte Carlo on this Dask cluster")
 
+
+def _check_monte_carlo_arguments(args: argparse.Namespace) -> None:
     if args.workers is not None and args.workers < 1:
         raise InputError(f"--workers: must be >= 1, got {args.workers}")
     if args.scheduler is not None and not args.scheduler.startswith("tcp://"):
         raise InputError(f"--scheduler: '{args.scheduler}' is not a Dask scheduler address tcp://HOST:PORT")
+
+
+def _print_validation_summary(v: dict[str, Any]) -> None:
+    for key, row in v["summary"].items():
+        print(f"  {key:22s} worst {_fmt(row['worst'])}  p95 {_fmt(row['p95'])}  median {_fmt(row['p50'])}")
+
+
+def _cmd_tune(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.tuning_pipeline import tune_study
+
+    _check_monte_carlo_arguments(args)
     return tune_study(_study(args), out=args.out, n_plants=args.plants, workers=args.workers,
                       scheduler=args.scheduler, seed=args.seed)
 
@@ -218,18 +233,14 @@ def _print_tune(s: dict[str, Any]) -> None:
     v = s["validation"]
     print(f"validation on {v['n_plants']} plants ({v['workers']}, {v['seconds']:.0f} s): "
           f"{'PASSED' if v['passed'] else 'FAILED'} ({v['n_failures']} failures)")
-    for key, row in v["summary"].items():
-        print(f"  {key:22s} worst {_fmt(row['worst'])}  p95 {_fmt(row['p95'])}  median {_fmt(row['p50'])}")
+    _print_validation_summary(v)
     print(f"wrote {s['out']} ({s['status']}, sha256 {s['content_sha256'][:12]}...)")
 
 
 def _cmd_validate(args: argparse.Namespace) -> dict[str, Any]:
     from piezopreload.tuning_pipeline import validate_gain_set
 
-    if args.workers is not None and args.workers < 1:
-        raise InputError(f"--workers: must be >= 1, got {args.workers}")
-    if args.scheduler is not None and not args.scheduler.startswith("tcp://"):
-        raise InputError(f"--scheduler: '{args.scheduler}' is not a Dask scheduler address tcp://HOST:PORT")
+    _check_monte_carlo_arguments(args)
     return validate_gain_set(args.gains, n_plants=args.plants, workers=args.workers, scheduler=args.scheduler,
                              seed=args.seed, out=args.out)
 
@@ -238,8 +249,7 @@ def _print_validate(s: dict[str, Any]) -> None:
     v = s["validation"]
     print(f"validation of {s['gains']} on {s['plants']} plants (seed {s['seed']}, {v['workers']}, {v['seconds']:.0f} s): "
           f"{'PASSED' if s['validated'] else 'FAILED'} ({v['n_failures']} failures)")
-    for key, row in v["summary"].items():
-        print(f"  {key:22s} worst {_fmt(row['worst'])}  p95 {_fmt(row['p95'])}  median {_fmt(row['p50'])}")
+    _print_validation_summary(v)
     for f in v["failures"][:10]:
         print(f"  plant {f['plant']}: {f['metric']} {_fmt(f['value'])} > {f['limit']:g}")
     if s["out"]:
@@ -360,9 +370,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_study_arguments(p)
     p.add_argument("--out", default="gains.json", metavar="gains.json", help="the gain-set artifact (default gains.json)")
-    p.add_argument("--plants", type=int, default=200, metavar="N", help="Monte Carlo plants (default 200)")
-    p.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: the CPU count)")
-    p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the Monte Carlo on this Dask cluster")
+    _add_monte_carlo_arguments(p)
     p.add_argument("--json", action="store_true", help="print the results as one JSON object")
     p.set_defaults(run=_cmd_tune, show=_print_tune)
 
@@ -377,10 +385,8 @@ def build_parser() -> argparse.ArgumentParser:
         ),
     )
     p.add_argument("gains", metavar="gains.json", help="a gain-set artifact written by 'piezopreload tune'")
-    p.add_argument("--plants", type=int, default=200, metavar="N", help="Monte Carlo plants (default 200)")
+    _add_monte_carlo_arguments(p)
     p.add_argument("--seed", type=int, help="seed of the Monte Carlo set (default: the gain set's)")
-    p.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: the CPU count)")
-    p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the Monte Carlo on this Dask cluster")
     p.add_argument("--out", metavar="gains.json", help="write the gain set with this validation here")
     p.add_argument("--json", action="store_true", help="print the results as one JSON object")
     p.set_defaults(run=_cmd_validate, show=_print_validate)

@@ -20,7 +20,7 @@ from piezopreload.pipeline import gains_to_dict, load_gains
 from piezopreload.study import Study
 from piezopreload.tuning.calibrate import PAPER_RESULTS, identify_feedforward
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, minimum_time, tracking_floor, tune_pid
-from piezopreload.tuning.validate import Criteria, SchedulerError, evaluate, executor, validate
+from piezopreload.tuning.validate import Criteria, SchedulerError, ValidationResult, evaluate, executor, validate
 
 __all__ = ["tune_study", "compare_gains", "validate_gain_set"]
 
@@ -92,15 +92,8 @@ def tune_study(
     table = compare_gains(study, {"paper": study.gains, "simc": tuning.baseline, "tuned": tuning.gains},
                           feedforward, criteria, seed)
     say(f"validating on {n_plants} plants ...")
-    try:
-        with executor(workers, scheduler) as (pool, pool_name):
-            result = validate(
-                tuning.gains, feedforward, study.rig, criteria, n_plants=n_plants, seed=seed,
-                step=study.references["step"], trajectory=study.references["trajectory"], pool=pool,
-                pool_name=pool_name, progress=lambda i, n: say(f"  chunk {i}/{n}"),
-            )
-    except SchedulerError as exc:
-        raise InputError(f"--scheduler: {exc}") from None
+    result = _monte_carlo(tuning.gains, feedforward, study.rig, criteria, n_plants, seed, study.references["step"],
+                          study.references["trajectory"], workers, scheduler, say)
     status = "validated" if result.passed else "candidate"
     tuned_row = next(r for r in table if r["gains"] == "tuned" and r["feedforward"])
     body = {
@@ -138,6 +131,19 @@ def tune_study(
         "tracking_floor": {**floor, "tuned_over_floor_ratio": tuned_row["tracking_rms_N"] / floor["rms_N"]},
         "validation": result.to_dict(), "seconds": time.perf_counter() - t0,
     }
+
+
+def _monte_carlo(gains: PIDGains, feedforward: ClassicalPI | None, plant: RigParams, criteria: Criteria,
+                 n_plants: int, seed: int, step: Reference, trajectory: Reference, workers: int | None,
+                 scheduler: str | None, say: Callable[[str], None]) -> ValidationResult:
+    """:func:`validate` on the executor the user asked for, its progress shown per chunk."""
+    try:
+        with executor(workers, scheduler) as (pool, pool_name):
+            return validate(gains, feedforward, plant, criteria, n_plants=n_plants, seed=seed, step=step,
+                            trajectory=trajectory, pool=pool, pool_name=pool_name,
+                            progress=lambda i, n: say(f"  chunk {i}/{n}"))
+    except SchedulerError as exc:
+        raise InputError(f"--scheduler: {exc}") from None
 
 
 def _reference_dict(ref: Reference) -> dict[str, Any]:
@@ -185,13 +191,7 @@ def validate_gain_set(
     step, trajectory = _reference_from(path, doc, "step"), _reference_from(path, doc, "trajectory")
     seed = int(doc.get("inputs", {}).get("seed", 0)) if seed is None else seed
     say(f"validating {path} on {n_plants} plants ...")
-    try:
-        with executor(workers, scheduler) as (pool, pool_name):
-            result = validate(gains, feedforward, plant, criteria, n_plants=n_plants, seed=seed, step=step,
-                              trajectory=trajectory, pool=pool, pool_name=pool_name,
-                              progress=lambda i, n: say(f"  chunk {i}/{n}"))
-    except SchedulerError as exc:
-        raise InputError(f"--scheduler: {exc}") from None
+    result = _monte_carlo(gains, feedforward, plant, criteria, n_plants, seed, step, trajectory, workers, scheduler, say)
     summary = result.summary()
     status = "validated" if result.passed else "candidate"
     written = None

@@ -485,6 +485,7 @@ class _Problem:
     z: Any
     names: list[str]
     scaling: _Scaling
+    variants: list[RigParams]
     objective: Any
     labels: list[str]
     g: Any
@@ -544,7 +545,7 @@ def _build_problem(params: RigParams, feedforward: InverseClassicalPI | None, sp
     re_ny, im_ny = _controller_frequency_response(gains, np.array([np.pi / dt]), dt)
     blocks.append((f"controller gain at Nyquist <= {spec.noise_gain_max_V_per_N:g} V/N",
                    ca.sqrt(re_ny**2 + im_ny**2 + 1e-12) / spec.noise_gain_max_V_per_N - 1.0))
-    return _Problem(z=z, names=names, scaling=scaling, objective=objective,
+    return _Problem(z=z, names=names, scaling=scaling, variants=variants, objective=objective,
                     labels=[label for label, _ in blocks], g=ca.vertcat(*[blk for _, blk in blocks]))
 
 
@@ -587,11 +588,13 @@ def tune_pid(
     phase_one = ca.nlpsol("tune_phase_one", "ipopt", {"x": ca.vertcat(z, slack), "f": slack, "g": g - slack},
                           {**options, "ipopt.tol": 1e-8})
 
-    def violation(zv: np.ndarray) -> float:
-        return float(np.max(np.asarray(evaluate(zv)[1], float), initial=0.0))
+    def score(zv: np.ndarray) -> tuple[float, float]:
+        """The worst constraint violation (0 if feasible) and the objective."""
+        f, gv = evaluate(zv)
+        return float(np.max(np.asarray(gv, float), initial=0.0)), float(f)
 
     seeds = _seeds(prob.names, prob.scaling, baseline)
-    scores = [(max(violation(sd), 0.0), float(evaluate(sd)[0])) for sd in seeds]
+    scores = [score(sd) for sd in seeds]
     order = sorted(range(len(seeds)), key=lambda i: (round(scores[i][0], 3), scores[i][1]))
     best: tuple[bool, float, np.ndarray, float, str] | None = None
     iterations = 0
@@ -606,12 +609,11 @@ def tune_pid(
         stats = solver.stats()
         iterations += int(stats.get("iter_count", 0))
         zv = np.clip(np.asarray(sol["x"], float).ravel(), 0.0, 1.0)
-        worst = violation(zv)
+        worst, f = score(zv)
         # feasible beats infeasible; among feasible the lower objective, among infeasible the
         # smaller violation (what the error message then reports)
         infeasible = worst > 1e-4
-        candidate = (infeasible, worst if infeasible else float(sol["f"]), zv, float(sol["f"]),
-                     str(stats.get("return_status", "unknown")))
+        candidate = (infeasible, worst if infeasible else f, zv, f, str(stats.get("return_status", "unknown")))
         if best is None or candidate[:2] < best[:2]:
             best = candidate
         if not infeasible:
@@ -628,7 +630,7 @@ def tune_pid(
         raise TuningInfeasible(f"PID tuning found no gains that meet the specification ({status}, {starts} starts); "
                                f"not met: {detail}. Relax those limits or the plant variants' spread.")
     tuned = prob.scaling.gains(zv, spec)
-    ms = max(_max_sensitivity(tuned, v) for v in plant_variants(params, spec.variants))
+    ms = max(_max_sensitivity(tuned, v) for v in prob.variants)
     return TuningResult(
         gains=tuned, baseline=baseline, fopdt=fopdt, objective=objective, status=status,
         iterations=iterations, seconds=time.perf_counter() - t0, ms=ms, binding=binding,

@@ -171,11 +171,11 @@ def evaluate(gains: PIDGains, feedforward: ClassicalPI | None, plants: RigParams
     controller = Controller(gains, rig.dt_s, inverse)
     step = simulate(rig, controller, step_ref, seed=seed)
     band, signal = criteria.band_N, criteria.signal
-    def metrics(name: str) -> list:
+    by_signal = {}
+    for name in ("force_N", "measured_N"):
         m = step.step_metrics(band, signal=name)
-        return m if isinstance(m, list) else [m]
-
-    ms, mt, mm = metrics(signal), metrics("force_N"), metrics("measured_N")
+        by_signal[name] = m if isinstance(m, list) else [m]
+    ms, mt, mm = by_signal[signal], by_signal["force_N"], by_signal["measured_N"]
     traj = simulate(rig, controller, trajectory, seed=seed + 1)
     te = traj.tracking_error()
     te_after = traj.tracking_error(after_change_s=criteria.tracking_after_change_s, u_range=(gains.u_min, gains.u_max))
