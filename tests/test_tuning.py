@@ -2,6 +2,7 @@
 
 import json
 import shutil
+from dataclasses import replace
 
 import casadi as ca
 import numpy as np
@@ -300,3 +301,24 @@ def test_tracking_floor_bounds_the_force_rate_and_every_controller():
     for gains in (PIDGains(Kc=0.3, Ti_s=0.08), PIDGains(Kc=4.0, Ti_s=0.01), PIDGains(Kc=2.0, Ti_s=0.07, b=0.25)):
         rms = simulate(rig, Controller(gains, rig.dt_s), ref).tracking_error()["rms"]
         assert rms >= floor["rms_N"]
+
+
+def test_tracking_error_leaves_out_the_samples_out_of_authority():
+    """A plant that cannot reach the top level: its saturated samples are left out and counted."""
+    params = RigParams(**QUIET)
+    weak = replace(params, coupling_stiffness_N_per_um=np.array([params.coupling_stiffness_N_per_um, 0.5]))
+    ref = Reference.staircase(25.0, [60.0, 100.0, 60.0], 0.5, t_start_s=0.05)
+    run = simulate(Rig(weak), Controller(PIDGains(Kc=0.5, Ti_s=0.05), 1e-3), ref)
+    plain = run.tracking_error(after_change_s=0.1)
+    te = run.tracking_error(after_change_s=0.1, u_range=(0.0, 110.0))
+    saturated = (run.command_V >= 110.0) | (run.command_V <= 0.0)
+    assert not saturated[0].any() and saturated[1].any()  # the stiff plant stays in range, the weak one does not
+    scored = run.t_s >= 0.05
+    for c in ref.times_s[1:]:
+        scored &= ~((run.t_s >= c) & (run.t_s < c + 0.1))
+    for i in range(2):
+        keep = scored & ~saturated[i]
+        e = ref.at(run.t_s)[keep] - run.force_N[i, keep]
+        assert te["rms"][i] == pytest.approx(np.sqrt(np.mean(e**2)), rel=1e-12)
+        assert te["saturated_fraction"][i] == pytest.approx((scored & saturated[i]).sum() / scored.sum(), rel=1e-12)
+    assert te["rms"][0] == plain["rms"][0] and te["rms"][1] < plain["rms"][1]
