@@ -1,0 +1,623 @@
+"""Ball-screw preload design with CasADi: the optimum and its Pareto fronts.
+
+The machine fixes the screw's nominal diameter and lead, the axis (:class:`FeedDrive`), the
+duty cycle and the piezo stacks; the design chooses
+
+* the contact angle beta, the ball diameter D_w and the groove conformity f (continuous);
+* the loaded turns per nut and the balls per turn (integers, see below);
+* the bolts' preload F_i (what holds the nuts when the stacks are off), the highest preload
+  F_hi the stacks must reach, and the preload F_p,j of each duty case between them (the
+  piezo preload range, used case by case: low on rapid traverses, high when cutting).
+
+Objectives (one, picked by the user): ``stiffness`` maximises the least rigidity over the
+duty cases (an epigraph variable t <= K_j); ``drag`` minimises the time-mean preload drag
+torque; ``life`` maximises the rating life (its logarithm). Ties are broken towards less
+drag, mean and at F_hi, and towards a wider piezo range, a lower F_i (a 1e-3 weight), so
+no preload is left undetermined.
+
+Constraints, each a row of :data:`CONSTRAINTS` with its units:
+preload <= a fraction of C_dyn; no lift-off at each case's load, at the maximum axial load
+(with F_hi) and at the fail-safe load (with the bolts alone); peak contact pressure at the
+maximum load; life >= target; drag torque at F_hi <= limit; the first axial mode at the
+weakest table position >= a frequency in every case; the stacks' stroke and blocked force
+from F_i to F_hi; balls fit on a turn and between the threads; nut length; t >= a stiffness
+target (for the drag and life objectives and the epsilon-constraint fronts).
+
+The integers: the NLP is solved with turns and balls per turn relaxed to reals, then again
+with each combination of their floor and ceiling fixed (at most four NLPs, warm-started
+from the relaxation; a relaxation already at an integer is not branched on); the best
+feasible one is the design. This is a rounding heuristic, not a global branch-and-bound:
+the report says which integer combinations were tried. (CasADi ships Bonmin, but on this
+nonconvex problem its B-BB is also heuristic and far slower; the explicit neighbours keep
+the choice visible.)
+
+Variables are scaled to O(1) (angles in rad, mm over 5, N over 1,000); IPOPT runs with the
+exact Hessian from CasADi's AD. An infeasible request is solved again in elastic form
+(every constraint gets a slack, their scaled sum is minimised) and the message names the
+constraints that cannot be met and by how much, in their units.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any, Callable, Iterable
+
+import casadi as ca
+import numpy as np
+
+from piezopreload.models.ballscrew import (
+    CASADI_OPS, LIFT_OFF_RATIO, NUMPY_OPS, NUT_OUTER_RATIO, STEEL, BallScrew, DutyCase,
+    Material, _axial_constant, _body_stiffness, _c_dyn, _drag_coefficient, _nut_constants, _rigidity, load_share,
+)
+from piezopreload.models.feed_drive import FeedDrive, PiezoPreload, stack_loop_um
+
+__all__ = ["DesignSpec", "DesignPoint", "DesignResult", "DesignInfeasible", "ParetoFront", "OBJECTIVES",
+           "PARETO_PAIRS", "CONSTRAINTS", "WEIGHTS", "optimise", "pareto_front", "DesignNLP"]
+
+OBJECTIVES = ("stiffness", "drag", "life")
+#: fronts a user can ask for: x:y, x swept as an epsilon constraint, y optimised
+PARETO_PAIRS = ("stiffness:preload", "stiffness:drag", "stiffness:life")
+_TIE_WEIGHT = 1e-3
+_WARM_START = {"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-9,
+               "ipopt.warm_start_slack_bound_push": 1e-9, "ipopt.warm_start_mult_bound_push": 1e-9,
+               "ipopt.mu_init": 1e-6}
+
+
+class DesignInfeasible(ValueError):
+    """No design meets the constraints; ``violations`` says which and by how much."""
+
+    def __init__(self, message: str, violations: list[dict[str, Any]]) -> None:
+        super().__init__(message)
+        self.violations = violations
+
+
+@dataclass(frozen=True)
+class DesignSpec:
+    """What the machine fixes, the design's bounds, and the constraints' limits."""
+
+    nominal_diameter_mm: float = 32.0
+    lead_mm: float = 10.0
+    feed_drive: FeedDrive = field(default_factory=lambda: FeedDrive(
+        table_mass_kg=350.0, screw_length_mm=1200.0, bearing_stiffness_N_per_um=1000.0, travel_mm=(150.0, 1050.0)))
+    duty: tuple[DutyCase, ...] = (
+        DutyCase(axial_load_N=4000.0, speed_rpm=300.0, time_share=0.3),   # roughing, +x
+        DutyCase(axial_load_N=-1500.0, speed_rpm=600.0, time_share=0.3),  # finishing, -x
+        DutyCase(axial_load_N=600.0, speed_rpm=3000.0, time_share=0.4),   # rapid traverse
+    )
+    actuator: PiezoPreload = field(default_factory=PiezoPreload)
+    material: Material = STEEL
+    # bounds of the design variables
+    contact_angle_deg: tuple[float, float] = (35.0, 55.0)
+    ball_mm: tuple[float, float] = (3.0, 7.5)
+    conformity: tuple[float, float] = (0.52, 0.56)
+    turns: tuple[int, int] = (2, 6)
+    # constraints
+    axial_load_max_N: float = 6000.0
+    failsafe_load_N: float = 600.0
+    lift_off_margin: float = 1.2
+    preload_fraction_max: float = 0.10
+    contact_pressure_max_MPa: float = 3500.0
+    life_min_h: float = 20000.0
+    drag_torque_max_Nm: float = 1.5
+    frequency_min_Hz: float = 100.0
+    stiffness_min_N_per_um: float = 0.0
+    nut_length_max_mm: float = 60.0
+    ball_lead_ratio_max: float = 0.7
+    load_sharing: float = 0.7
+    load_factor: float = 1.2
+
+    def __post_init__(self) -> None:
+        for name in ("nominal_diameter_mm", "lead_mm", "axial_load_max_N", "lift_off_margin", "preload_fraction_max",
+                     "contact_pressure_max_MPa", "life_min_h", "drag_torque_max_Nm", "frequency_min_Hz",
+                     "nut_length_max_mm", "ball_lead_ratio_max", "load_sharing", "load_factor"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"DesignSpec.{name} must be a finite number > 0, got {value!r}.")
+        for name in ("failsafe_load_N", "stiffness_min_N_per_um"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise ValueError(f"DesignSpec.{name} must be a finite number >= 0, got {getattr(self, name)!r}.")
+        for name in ("contact_angle_deg", "ball_mm", "conformity", "turns"):
+            lo, hi = getattr(self, name)
+            if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
+                raise ValueError(f"DesignSpec.{name} must be a range (low, high) with 0 < low <= high, got "
+                                 f"{getattr(self, name)!r}.")
+        if not (20 <= self.contact_angle_deg[0] and self.contact_angle_deg[1] <= 70):
+            raise ValueError(f"DesignSpec.contact_angle_deg must lie in [20, 70], got {self.contact_angle_deg!r}.")
+        if not (0.505 <= self.conformity[0] and self.conformity[1] <= 0.6):
+            raise ValueError(f"DesignSpec.conformity must lie in [0.505, 0.6], got {self.conformity!r}.")
+        if not (isinstance(self.turns[0], int) and isinstance(self.turns[1], int) and self.turns[0] >= 1):
+            raise ValueError(f"DesignSpec.turns must be two integers >= 1, got {self.turns!r}.")
+        if not self.duty:
+            raise ValueError("DesignSpec.duty needs at least one duty case.")
+        if not self.load_sharing <= 1:
+            raise ValueError(f"DesignSpec.load_sharing must be in (0, 1], got {self.load_sharing!r}.")
+        if max(abs(c.axial_load_N) for c in self.duty) > self.axial_load_max_N:
+            raise ValueError(f"DesignSpec.axial_load_max_N ({self.axial_load_max_N}) is below a duty case's load; "
+                             f"it must be the largest axial load the nut sees.")
+
+    @property
+    def helix_rad(self) -> float:
+        return math.atan(self.lead_mm / (math.pi * self.nominal_diameter_mm))
+
+    def screw(self, point: "DesignPoint") -> BallScrew:
+        """The ball screw of a design point, for the numpy model (evaluation, plots)."""
+        return BallScrew(
+            nominal_diameter_mm=self.nominal_diameter_mm, lead_mm=self.lead_mm, ball_mm=point.ball_mm,
+            turns=point.turns, contact_angle_deg=point.contact_angle_deg, conformity_screw=point.conformity,
+            conformity_nut=point.conformity, balls_per_turn=int(point.balls_per_turn), load_sharing=self.load_sharing,
+            material=self.material,
+        )
+
+
+#: (name, what it bounds, units) of every constraint row, in the NLP's order after the
+#: per-case rows; per-case rows are named "<name>[case j]".
+CONSTRAINTS = {
+    "preload_limit": ("F_hi <= preload_fraction_max * C_dyn", "N"),
+    "lift_off_max_load": ("lift_off_margin * axial_load_max_N <= 2^1.5 F_hi", "N"),
+    "lift_off_failsafe": ("lift_off_margin * failsafe_load_N <= 2^1.5 F_i (bolts alone)", "N"),
+    "contact_pressure_screw": ("peak pressure, screw side, at axial_load_max_N", "MPa"),
+    "contact_pressure_nut": ("peak pressure, nut side, at axial_load_max_N", "MPa"),
+    "life": ("rating life >= life_min_h", "log(h)"),
+    "drag_torque": ("drag torque at F_hi <= drag_torque_max_Nm", "N m"),
+    "stack_stroke": ("stacks' stroke from F_i to F_hi", "um"),
+    "stack_force": ("F_hi - F_i <= the stacks' blocked force", "N"),
+    "ball_fit": ("balls per turn fit on the helix", "mm"),
+    "ball_lead": ("D_w <= ball_lead_ratio_max * lead", "mm"),
+    "nut_length": ("turns * lead <= nut_length_max_mm", "mm"),
+    "lift_off_case": ("lift_off_margin * |F_a,j| <= 2^1.5 F_p,j", "N"),
+    "stiffness_case": ("t <= rigidity in case j", "N/um"),
+    "frequency_case": ("first axial mode in case j >= frequency_min_Hz", "Hz"),
+    "preload_order_low": ("F_i <= F_p,j", "N"),
+    "preload_order_high": ("F_p,j <= F_hi", "N"),
+}
+_PER_CASE = ("lift_off_case", "stiffness_case", "frequency_case", "preload_order_low", "preload_order_high")
+
+
+@dataclass(frozen=True)
+class DesignPoint:
+    """A design and everything it achieves."""
+
+    contact_angle_deg: float
+    ball_mm: float
+    conformity: float
+    turns: float
+    balls_per_turn: float
+    bolt_preload_N: float
+    max_preload_N: float
+    case_preload_N: tuple[float, ...]
+    stiffness_N_per_um: float  # least rigidity over the duty cases
+    rigidity_at_max_preload_N_per_um: float
+    mean_drag_torque_Nm: float
+    drag_torque_at_max_preload_Nm: float
+    life_h: float
+    c_dyn_N: float
+    c0_N: float
+    frequency_min_Hz: float
+    peak_pressure_MPa: float
+    stack_stroke_used_um: float
+    objective: str
+    integer: bool
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class DesignResult:
+    """The optimum: its spec, objective, the design point, what binds, how it was solved."""
+
+    spec: DesignSpec
+    objective: str
+    point: DesignPoint
+    binding: list[str]
+    tried: list[dict[str, Any]]
+    solve_s: float
+    nlp_solves: int
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"objective": self.objective, "point": self.point.as_dict(), "binding": self.binding,
+                "integer_candidates": self.tried, "solve_s": self.solve_s, "nlp_solves": self.nlp_solves}
+
+    def plot(self, ax: Any = None) -> Any:
+        """Rigidity against preload for the optimum's screw, the design's preloads marked."""
+        import matplotlib.pyplot as plt
+
+        if ax is None:
+            _, ax = plt.subplots(figsize=(5.5, 3.5))
+        screw = self.spec.screw(self.point)
+        fp = np.linspace(0.25 * self.point.bolt_preload_N, 1.5 * self.point.max_preload_N, 200)
+        ax.plot(fp, screw.rigidity_N_per_um(fp), label="rigidity, no load")
+        for j, (case, f_case) in enumerate(zip(self.spec.duty, self.point.case_preload_N)):
+            ax.plot(f_case, screw.rigidity_N_per_um(f_case, case.axial_load_N), "o",
+                    label=f"case {j + 1}: F_a = {case.axial_load_N:g} N")
+        ax.axvline(self.point.bolt_preload_N, color="0.5", ls=":", label="bolt preload F_i")
+        ax.axvline(self.point.max_preload_N, color="0.3", ls="--", label="max preload F_hi")
+        ax.set_xlabel("preload F_p (N)")
+        ax.set_ylabel("axial rigidity (N/um)")
+        ax.legend(fontsize="small")
+        return ax
+
+
+@dataclass(frozen=True)
+class ParetoFront:
+    """An epsilon-constraint front: the swept quantity, the optimised one, each point's design."""
+
+    pair: str
+    x_name: str
+    y_name: str
+    x: np.ndarray
+    y: np.ndarray
+    points: list[DesignPoint]
+    solve_s: float
+    nlp_solves: int
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"pair": self.pair, "x_name": self.x_name, "y_name": self.y_name, "x": self.x.tolist(),
+                "y": self.y.tolist(), "points": [p.as_dict() for p in self.points], "solve_s": self.solve_s,
+                "nlp_solves": self.nlp_solves}
+
+    def plot(self, ax: Any = None) -> Any:
+        import matplotlib.pyplot as plt
+
+        if ax is None:
+            _, ax = plt.subplots(figsize=(5.5, 3.5))
+        ax.plot(self.x, self.y, "o-", ms=3)
+        ax.set_xlabel(_LABELS[self.x_name])
+        ax.set_ylabel(_LABELS[self.y_name])
+        ax.set_title(f"Pareto front, {self.pair}")
+        return ax
+
+
+_LABELS = {"stiffness": "least rigidity over the duty cycle (N/um)", "preload": "max preload F_hi (N)",
+           "drag": "time-mean drag torque (N m)", "life": "rating life (h)"}
+
+
+# ---- the NLP ------------------------------------------------------------------------------------
+
+_SCALE = {"beta": 1.0, "ball": 5.0, "conf": 0.05, "turns": 4.0, "z1": 20.0, "force": 1000.0, "t": 1000.0}
+_VARIABLES = ("contact_angle_deg", "ball_mm", "conformity", "turns", "balls_per_turn", "bolt_preload_N",
+              "max_preload_N", "stiffness_min_N_per_um")
+
+
+def _expressions(spec: DesignSpec, ops: Any, x: Any) -> dict[str, Any]:
+    """Every quantity of the design as expressions of the physical variables ``x`` (numbers or
+    CasADi): the one implementation the NLP, the scipy peer and the evaluation share."""
+    beta, D_w, f, turns, z1, F_i, F_hi, t = (x[k] for k in range(8))
+    F_case = [x[8 + j] for j in range(len(spec.duty))]
+    D_pw, helix, E_prime = spec.nominal_diameter_mm, spec.helix_rad, spec.material.contact_modulus_MPa
+    sb, ch = ops.sin(beta), math.cos(helix)
+    c_delta, cp_s, cp_n = _nut_constants(ops, E_prime, D_pw, D_w, beta, f, f)
+    z = z1 * turns
+    c_h = 1e3 * _axial_constant(ops, c_delta, spec.load_sharing * z, beta, helix)
+    k_body = _body_stiffness(ops, spec.material.E_MPa, D_pw, D_w, beta, NUT_OUTER_RATIO * spec.nominal_diameter_mm,
+                             turns * spec.lead_mm)
+    c_dyn = _c_dyn(ops, D_pw, D_w, beta, helix, f, f, z1, turns)
+    k_p = _drag_coefficient(ops, helix)
+    drag = [k_p * F * spec.lead_mm / (2000.0 * math.pi) for F in F_case]
+    share = [c.time_share for c in spec.duty]
+    mean_drag = sum(s * d for s, d in zip(share, drag)) / sum(share)
+    k_side = spec.feed_drive.screw_side_stiffness_N_per_um(D_pw - D_w * ops.cos(beta),
+                                                           spec.feed_drive.weakest_position_mm())
+    rig, freq, F_A, F_B = [], [], [], []
+    for case, F in zip(spec.duty, F_case):
+        u = load_share(abs(case.axial_load_N) / F, ops)
+        rig.append(_rigidity(ops, c_h, k_body, F, u))
+        k_chain = 1.0 / (1.0 / _rigidity(ops, c_h, k_body, F, 0.0) + 1.0 / k_side)
+        freq.append(ops.sqrt(k_chain * 1e6 / spec.feed_drive.table_mass_kg) / (2.0 * math.pi))
+        loaded, unloaded = F * (1.0 + u) ** 1.5, F * ops.fmax(1.0 - u, 0.0) ** 1.5
+        F_B.append(loaded if case.axial_load_N >= 0 else unloaded)
+        F_A.append(unloaded if case.axial_load_N >= 0 else loaded)
+    revs = [c.speed_rpm * c.time_share for c in spec.duty]
+    n_m = sum(revs) / sum(share)
+
+    def log_life(forces: list[Any]) -> Any:  # log of (C / (f_p F_m))^3 1e6 / (60 n_m), hours
+        cube_mean = sum(r * F ** 3 for r, F in zip(revs, forces)) / sum(revs)
+        return 3.0 * ops.log(c_dyn / spec.load_factor) - ops.log(cube_mean) + math.log(1e6 / (60.0 * n_m))
+
+    log_LA, log_LB = log_life(F_A), log_life(F_B)
+    # L = (L_A^(-10/9) + L_B^(-10/9))^(-9/10), in logs
+    log_L = -0.9 * ops.log(ops.exp(-10.0 / 9.0 * log_LA) + ops.exp(-10.0 / 9.0 * log_LB))
+    u_max = load_share(spec.axial_load_max_N / F_hi, ops)
+    Q_max = F_hi * (1.0 + u_max) ** 1.5 / (z * sb * ch)
+    stroke = stack_loop_um(c_h, F_i, F_hi, spec.actuator.stiffness_N_per_um)
+    return dict(beta=beta, D_w=D_w, f=f, turns=turns, z1=z1, F_i=F_i, F_hi=F_hi, t=t, F_case=F_case, c_h=c_h,
+                k_body=k_body, c_dyn=c_dyn, drag=drag, mean_drag=mean_drag, rigidity=rig, freq=freq, log_L=log_L,
+                p_screw=cp_s * Q_max ** (1.0 / 3.0), p_nut=cp_n * Q_max ** (1.0 / 3.0), stroke=stroke,
+                drag_hi=k_p * F_hi * spec.lead_mm / (2000.0 * math.pi), cp_s=cp_s, cp_n=cp_n, z=z, helix=helix)
+
+
+def _constraint_rows(spec: DesignSpec, e: dict[str, Any], ops: Any) -> list[tuple[str, Any, float]]:
+    """Rows ``(name, g, scale)`` meaning g <= 0, g in the constraint's units."""
+    L = LIFT_OFF_RATIO
+    rows = [
+        ("preload_limit", e["F_hi"] - spec.preload_fraction_max * e["c_dyn"], 1000.0),
+        ("lift_off_max_load", spec.lift_off_margin * spec.axial_load_max_N - L * e["F_hi"], 1000.0),
+        ("lift_off_failsafe", spec.lift_off_margin * spec.failsafe_load_N - L * e["F_i"], 1000.0),
+        ("contact_pressure_screw", e["p_screw"] - spec.contact_pressure_max_MPa, 1000.0),
+        ("contact_pressure_nut", e["p_nut"] - spec.contact_pressure_max_MPa, 1000.0),
+        ("life", math.log(spec.life_min_h) - e["log_L"], 1.0),
+        ("drag_torque", e["drag_hi"] - spec.drag_torque_max_Nm, 1.0),
+        ("stack_stroke", e["stroke"] - spec.actuator.stroke_um, 10.0),
+        ("stack_force", e["F_hi"] - e["F_i"] - spec.actuator.blocked_force_N, 1000.0),
+        ("ball_fit", e["z1"] * e["D_w"] - math.pi * spec.nominal_diameter_mm / math.cos(e["helix"]), 10.0),
+        ("ball_lead", e["D_w"] - spec.ball_lead_ratio_max * spec.lead_mm, 1.0),
+        ("nut_length", e["turns"] * spec.lead_mm - spec.nut_length_max_mm, 10.0),
+    ]
+    for j, case in enumerate(spec.duty):
+        F = e["F_case"][j]
+        rows += [
+            (f"lift_off_case[{j + 1}]", spec.lift_off_margin * abs(case.axial_load_N) - L * F, 1000.0),
+            (f"stiffness_case[{j + 1}]", e["t"] - e["rigidity"][j], 100.0),
+            (f"frequency_case[{j + 1}]", spec.frequency_min_Hz - e["freq"][j], 10.0),
+            (f"preload_order_low[{j + 1}]", e["F_i"] - F, 1000.0),
+            (f"preload_order_high[{j + 1}]", F - e["F_hi"], 1000.0),
+        ]
+    return rows
+
+
+class DesignNLP:
+    """The design NLP built once for a spec, solved many times (objective weights as
+    parameters, epsilon bounds and fixed integers as variable bounds, warm starts)."""
+
+    def __init__(self, spec: DesignSpec, ipopt_options: dict[str, Any] | None = None) -> None:
+        self.spec = spec
+        n = 8 + len(spec.duty)
+        self.n = n
+        s = _SCALE
+        self.scale = np.array([s["beta"], s["ball"], s["conf"], s["turns"], s["z1"], s["force"], s["force"], s["t"]]
+                              + [s["force"]] * len(spec.duty))
+        self.offset = np.zeros(n)
+        self.offset[2] = 0.5  # conformity as (f - 0.5) / 0.05
+        y = ca.SX.sym("y", n)
+        x = self.offset + self.scale * y
+        e = _expressions(spec, CASADI_OPS, ca.vertsplit(x))
+        rows = _constraint_rows(spec, e, CASADI_OPS)
+        self.row_names = [r[0] for r in rows]
+        self.row_scale = np.array([r[2] for r in rows])
+        g = ca.vertcat(*[r[1] / r[2] for r in rows])
+        w = ca.SX.sym("w", 4)  # weights: -stiffness, drag, -log life, preload
+        objective = (-w[0] * e["t"] / 1000.0 + w[1] * e["mean_drag"] + _TIE_WEIGHT * (e["mean_drag"] + e["drag_hi"] + e["F_i"] / 1000.0)
+                     - w[2] * e["log_L"] + w[3] * e["F_hi"] / 1000.0)
+        opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.tol": 1e-8,
+                "ipopt.max_iter": 500}
+        opts.update(ipopt_options or {})
+        problem = {"x": y, "f": objective, "g": g, "p": w}
+        self.solver = ca.nlpsol("design", "ipopt", problem, opts)
+        # from a nearby solution and its multipliers (fronts, integer neighbours): start at a
+        # small barrier parameter instead of pushing the point back into the interior
+        self.warm_solver = ca.nlpsol("design_warm", "ipopt", problem, {**opts, **_WARM_START})
+        self.evaluate = ca.Function("design_eval", [y], [g, e["t"], e["mean_drag"], e["log_L"], e["F_hi"]])
+        self._exprs = ca.Function("design_exprs", [y], [
+            e["c_dyn"], ca.vertcat(*e["rigidity"]), ca.vertcat(*e["freq"]), e["p_screw"], e["p_nut"], e["stroke"],
+            e["drag_hi"], e["t"], e["mean_drag"], e["log_L"]])
+        self.solves = 0
+
+    # ---- bounds ------------------------------------------------------------------------
+    def bounds(self, integers: tuple[int, int] | None = None, stiffness_min: float | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
+        spec = self.spec
+        lo = np.full(self.n, 1e-3)
+        hi = np.full(self.n, np.inf)
+        lo[0], hi[0] = np.radians(spec.contact_angle_deg)
+        lo[1], hi[1] = spec.ball_mm
+        lo[2], hi[2] = spec.conformity
+        lo[3], hi[3] = spec.turns
+        lo[4], hi[4] = 4.0, 200.0
+        if integers is not None:
+            lo[3] = hi[3] = integers[0]
+            lo[4] = hi[4] = integers[1]
+        lo[5:7] = 1.0
+        lo[7] = max(spec.stiffness_min_N_per_um, 0.0) if stiffness_min is None else stiffness_min
+        lo[8:] = 1.0
+        return (lo - self.offset) / self.scale, (hi - self.offset) / self.scale
+
+    def initial_guess(self) -> np.ndarray:
+        spec = self.spec
+        beta = np.radians(np.mean(spec.contact_angle_deg))
+        ball = min(np.mean(spec.ball_mm), 0.5 * spec.ball_lead_ratio_max * spec.lead_mm + 0.5 * spec.ball_mm[0])
+        z1 = math.floor(math.pi * spec.nominal_diameter_mm / (ball * math.cos(spec.helix_rad)))
+        turns = min(spec.turns[1], max(spec.turns[0], math.floor(spec.nut_length_max_mm / spec.lead_mm)))
+        F_hi = max(spec.lift_off_margin * spec.axial_load_max_N / LIFT_OFF_RATIO, 100.0) * 1.05
+        F_i = max(spec.lift_off_margin * spec.failsafe_load_N / LIFT_OFF_RATIO, 0.3 * F_hi) * 1.05
+        F_i = min(F_i, 0.9 * F_hi)
+        x = np.array([beta, ball, np.mean(spec.conformity), turns, z1, F_i, F_hi, 1.0]
+                     + [0.5 * (F_i + F_hi)] * len(spec.duty))
+        return (x - self.offset) / self.scale
+
+    def numpy_functions(self, weights: Iterable[float]) -> tuple[Callable[[np.ndarray], float],
+                                                                  Callable[[np.ndarray], np.ndarray]]:
+        """The same objective and constraints (g <= 0, scaled) evaluated with numpy, for a peer
+        solver (scipy) and for checks independent of CasADi's evaluation."""
+        w = np.asarray(list(weights), float)
+        spec = self.spec
+
+        def parts(y: np.ndarray) -> tuple[dict[str, Any], list[tuple[str, Any, float]]]:
+            x = self.to_physical(y)
+            e = _expressions(spec, NUMPY_OPS, list(x))
+            return e, _constraint_rows(spec, e, NUMPY_OPS)
+
+        def f(y: np.ndarray) -> float:
+            e, _ = parts(y)
+            return float(-w[0] * e["t"] / 1000.0 + w[1] * e["mean_drag"]
+                         + _TIE_WEIGHT * (e["mean_drag"] + e["drag_hi"] + e["F_i"] / 1000.0)
+                         - w[2] * e["log_L"] + w[3] * e["F_hi"] / 1000.0)
+
+        def g(y: np.ndarray) -> np.ndarray:
+            _, rows = parts(y)
+            return np.array([float(r[1]) / r[2] for r in rows])
+
+        return f, g
+
+    def to_physical(self, y: np.ndarray) -> np.ndarray:
+        return self.offset + self.scale * np.asarray(y, float).ravel()
+
+    # ---- one solve ---------------------------------------------------------------------
+    def solve(self, weights: Iterable[float], y0: np.ndarray, lam_g0: np.ndarray | None = None,
+              integers: tuple[int, int] | None = None, stiffness_min: float | None = None) -> dict[str, Any]:
+        lbx, ubx = self.bounds(integers, stiffness_min)
+        y0 = np.clip(np.asarray(y0, float).ravel(), lbx, ubx)
+        args: dict[str, Any] = dict(x0=y0, p=np.asarray(list(weights), float), lbx=lbx, ubx=ubx,
+                                    lbg=-np.inf, ubg=0.0)
+        solver = self.solver
+        if lam_g0 is not None:
+            args["lam_g0"] = lam_g0
+            solver = self.warm_solver
+        out = solver(**args)
+        self.solves += 1
+        stats = solver.stats()
+        y = np.asarray(out["x"]).ravel()
+        g = np.asarray(self.evaluate(y)[0]).ravel()
+        return {"y": y, "f": float(out["f"]), "g": g, "lam_g": np.asarray(out["lam_g"]).ravel(),
+                "lam_x": np.asarray(out["lam_x"]).ravel(), "integers": integers,
+                "success": bool(stats["success"]), "status": stats["return_status"],
+                "feasible": bool(np.all(g <= 1e-6))}
+
+    # ---- reporting -------------------------------------------------------------------------
+    def point(self, y: np.ndarray, objective: str, integer: bool) -> DesignPoint:
+        x = self.to_physical(y)
+        c_dyn, rig, freq, p_s, p_n, stroke, drag_hi, t, mean_drag, log_L = (np.asarray(v).ravel() for v in self._exprs(y))
+        spec = self.spec
+        pt = DesignPoint(
+            contact_angle_deg=float(np.degrees(x[0])), ball_mm=float(x[1]), conformity=float(x[2]), turns=float(x[3]),
+            balls_per_turn=float(x[4]), bolt_preload_N=float(x[5]), max_preload_N=float(x[6]),
+            case_preload_N=tuple(float(v) for v in x[8:]), stiffness_N_per_um=float(rig.min()),
+            rigidity_at_max_preload_N_per_um=0.0, mean_drag_torque_Nm=float(mean_drag[0]),
+            drag_torque_at_max_preload_Nm=float(drag_hi[0]), life_h=float(np.exp(log_L[0])), c_dyn_N=float(c_dyn[0]),
+            c0_N=0.0, frequency_min_Hz=float(freq.min()), peak_pressure_MPa=float(max(p_s[0], p_n[0])),
+            stack_stroke_used_um=float(stroke[0]), objective=objective, integer=integer,
+        )
+        if integer:  # the numpy model of the same screw: rigidity at F_hi and C_0
+            screw = spec.screw(pt)
+            pt = replace(pt, rigidity_at_max_preload_N_per_um=float(screw.rigidity_N_per_um(pt.max_preload_N)),
+                         c0_N=screw.static_rating_N)
+        return pt
+
+    def binding(self, solution: dict[str, Any], tol: float = 1e-4) -> list[str]:
+        """Constraints active at the solution (a multiplier above ``tol``) and variables at a bound."""
+        names = [n for n, lam in zip(self.row_names, solution["lam_g"]) if lam > tol]
+        fixed = {3, 4} if solution.get("integers") else set()
+        for k, lam in enumerate(solution["lam_x"][:8]):
+            if k not in fixed and abs(lam) > tol:
+                names.append(f"{_VARIABLES[k]} at its {'upper' if lam > 0 else 'lower'} bound")
+        return names
+
+    def violations(self, y: np.ndarray) -> list[dict[str, Any]]:
+        g = np.asarray(self.evaluate(y)[0]).ravel() * self.row_scale
+        out = []
+        for name, value in zip(self.row_names, g):
+            if value > 1e-6 * max(1.0, abs(value)):
+                base = name.split("[")[0]
+                meaning, unit = CONSTRAINTS[base]
+                out.append({"constraint": name, "meaning": meaning, "short_by": float(value), "units": unit})
+        return out
+
+
+WEIGHTS = {"stiffness": (1.0, 0.0, 0.0, 0.0), "drag": (0.0, 1.0, 0.0, 0.0), "life": (0.0, 0.0, 1.0, 0.0),
+            "preload": (0.0, 0.0, 0.0, 1.0)}
+
+
+def _elastic(nlp: DesignNLP, y0: np.ndarray, integers: tuple[int, int] | None) -> list[dict[str, Any]]:
+    """Least total scaled violation (every row gets a slack): what cannot be met, by how much."""
+    y = ca.SX.sym("y", nlp.n)
+    s = ca.SX.sym("s", len(nlp.row_names))
+    g = nlp.evaluate(y)[0]
+    solver = ca.nlpsol("design_elastic", "ipopt", {"x": ca.vertcat(y, s), "f": ca.sum1(s), "g": g - s},
+                       {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 1000})
+    lbx, ubx = nlp.bounds(integers, stiffness_min=0.0)
+    ns = len(nlp.row_names)
+    y0c = np.clip(y0, lbx, ubx)
+    s0 = np.maximum(np.asarray(nlp.evaluate(y0c)[0]).ravel(), 0.0)
+    out = solver(x0=np.concatenate([y0c, s0]), lbx=np.concatenate([lbx, np.zeros(ns)]),
+                 ubx=np.concatenate([ubx, np.full(ns, np.inf)]), lbg=-np.inf, ubg=0.0)
+    return nlp.violations(np.asarray(out["x"]).ravel()[: nlp.n])
+
+
+def _integer_candidates(turns: float, z1: float, spec: DesignSpec) -> list[tuple[int, int]]:
+    def around(v: float, lo: float, hi: float) -> list[int]:
+        if abs(v - round(v)) < 1e-6:
+            return [int(round(v))]
+        return [int(k) for k in (math.floor(v), math.ceil(v)) if lo <= k <= hi]
+
+    return list(itertools.product(around(turns, *spec.turns), around(z1, 4, 200)))
+
+
+def _solve_mixed(nlp: DesignNLP, weights: tuple[float, ...], y0: np.ndarray, stiffness_min: float | None,
+                 lam_g0: np.ndarray | None = None) -> tuple[dict[str, Any] | None, dict[str, Any], list[dict[str, Any]]]:
+    """Relaxation, then its integer neighbours; returns (best integer solution, relaxation, tried)."""
+    relaxed = nlp.solve(weights, y0, lam_g0=lam_g0, stiffness_min=stiffness_min)
+    x = nlp.to_physical(relaxed["y"])
+    best, tried = None, []
+    for ints in _integer_candidates(x[3], x[4], nlp.spec):
+        sol = nlp.solve(weights, relaxed["y"], lam_g0=relaxed["lam_g"], integers=ints, stiffness_min=stiffness_min)
+        ok = sol["success"] and sol["feasible"]
+        tried.append({"turns": ints[0], "balls_per_turn": ints[1], "feasible": ok, "objective": sol["f"]})
+        if ok and (best is None or sol["f"] < best["f"]):
+            best = sol
+    return best, relaxed, tried
+
+
+def optimise(spec: DesignSpec, objective: str = "stiffness", nlp: DesignNLP | None = None) -> DesignResult:
+    """The design optimum for one objective (see the module docstring)."""
+    if objective not in OBJECTIVES:
+        raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}.")
+    nlp = nlp or DesignNLP(spec)
+    start_solves, t0 = nlp.solves, time.perf_counter()
+    y0 = nlp.initial_guess()
+    best, relaxed, tried = _solve_mixed(nlp, WEIGHTS[objective], y0, None)
+    if best is None:
+        violations = _elastic(nlp, relaxed["y"], None)
+        if not violations:  # the relaxation may be feasible while no integer neighbour is
+            violations = [{"constraint": "integers", "meaning": "no integer turns/balls-per-turn neighbour of the "
+                           "relaxed optimum is feasible", "short_by": float("nan"), "units": ""}]
+        raise DesignInfeasible(_infeasible_message(violations), violations)
+    return DesignResult(spec=spec, objective=objective, point=nlp.point(best["y"], objective, True),
+                        binding=nlp.binding(best), tried=tried, solve_s=time.perf_counter() - t0,
+                        nlp_solves=nlp.solves - start_solves)
+
+
+def _infeasible_message(violations: list[dict[str, Any]]) -> str:
+    parts = [f"{v['constraint']} ({v['meaning']}) short by {v['short_by']:.4g} {v['units']}".rstrip()
+             for v in violations]
+    return ("no design meets the constraints; the closest design still misses: " + "; ".join(parts)
+            + ". Relax these limits in the study's [design] table or widen the design's bounds.")
+
+
+def pareto_front(spec: DesignSpec, pair: str, n_points: int = 50, nlp: DesignNLP | None = None,
+                 progress: Callable[[int, int], None] | None = None) -> ParetoFront:
+    """The epsilon-constraint front of ``pair`` ("stiffness:drag" and so on).
+
+    The least rigidity over the duty cycle is swept from the drag-optimal design's to 99 %
+    of the stiffness optimum's; at each epsilon the other quantity is optimised with the
+    integers handled as in :func:`optimise`, warm-started from the previous point.
+    """
+    if pair not in PARETO_PAIRS:
+        raise ValueError(f"pareto must be one of {', '.join(PARETO_PAIRS)}, got {pair!r}.")
+    if not (isinstance(n_points, int) and n_points >= 2):
+        raise ValueError(f"n_points must be an integer >= 2, got {n_points!r}.")
+    nlp = nlp or DesignNLP(spec)
+    start_solves, t0 = nlp.solves, time.perf_counter()
+    y_name = pair.split(":")[1]
+    stiff = optimise(spec, "stiffness", nlp)
+    other = optimise(spec, y_name if y_name != "preload" else "drag", nlp)
+    k_lo = other.point.stiffness_N_per_um
+    k_hi = stiff.point.stiffness_N_per_um * 0.99
+    eps = np.linspace(min(k_lo, k_hi), k_hi, n_points)
+    weights = WEIGHTS[y_name]
+    y_prev, lam_prev = nlp.initial_guess(), None
+    xs, ys, points = [], [], []
+    for i, k in enumerate(eps):
+        best, relaxed, _ = _solve_mixed(nlp, weights, y_prev, float(k), lam_prev)
+        if relaxed["success"]:
+            y_prev, lam_prev = relaxed["y"], relaxed["lam_g"]
+        if best is not None:
+            pt = nlp.point(best["y"], y_name, True)
+            xs.append(pt.stiffness_N_per_um)
+            ys.append({"preload": pt.max_preload_N, "drag": pt.mean_drag_torque_Nm, "life": pt.life_h}[y_name])
+            points.append(pt)
+        if progress:
+            progress(i + 1, n_points)
+    return ParetoFront(pair=pair, x_name="stiffness", y_name=y_name, x=np.array(xs), y=np.array(ys), points=points,
+                       solve_s=time.perf_counter() - t0, nlp_solves=nlp.solves - start_solves)

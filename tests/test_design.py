@@ -1,0 +1,228 @@
+"""The design NLP, its fronts and the preload schedule, checked against scipy and the numpy model."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+
+from piezopreload.cli import main
+from piezopreload.design.preload import (
+    WEIGHTS, DesignInfeasible, DesignNLP, DesignSpec, optimise, pareto_front,
+)
+from piezopreload.design.schedule import LoadProfile, ScheduleSpec, example_profile, schedule_preload
+from piezopreload.models.ballscrew import LIFT_OFF_RATIO, BallScrew
+
+
+@pytest.fixture(scope="module")
+def spec():
+    return DesignSpec()
+
+
+@pytest.fixture(scope="module")
+def nlp(spec):
+    return DesignNLP(spec)
+
+
+@pytest.mark.parametrize("objective", ["stiffness", "drag", "life"])
+def test_optimum_meets_every_constraint_in_the_numpy_model(spec, nlp, objective):
+    result = optimise(spec, objective, nlp)
+    p = result.point
+    assert p.integer and p.turns == int(p.turns) and p.balls_per_turn == int(p.balls_per_turn)
+    screw = spec.screw(p)  # the numpy model, evaluated apart from the NLP's CasADi graph
+    assert p.max_preload_N <= spec.preload_fraction_max * p.c_dyn_N * (1 + 1e-6)
+    np.testing.assert_allclose(p.c_dyn_N, screw.dynamic_rating_N, rtol=1e-9)
+    for case, fp in zip(spec.duty, p.case_preload_N):
+        loads = screw.nut_loads(fp, case.axial_load_N)
+        assert not loads.lifted_off
+        assert spec.lift_off_margin * abs(case.axial_load_N) <= LIFT_OFF_RATIO * fp * (1 + 1e-6)
+        assert loads.rigidity_N_per_um >= p.stiffness_N_per_um * (1 - 1e-6)
+        f = spec.feed_drive.natural_frequency_Hz(screw, fp, spec.feed_drive.weakest_position_mm())
+        assert f >= spec.frequency_min_Hz * (1 - 1e-6)
+        assert p.bolt_preload_N * (1 - 1e-6) <= fp <= p.max_preload_N * (1 + 1e-6)
+    # the least rigidity over the cases is what the NLP reports
+    least = min(float(screw.rigidity_N_per_um(fp, c.axial_load_N)) for c, fp in zip(spec.duty, p.case_preload_N))
+    np.testing.assert_allclose(p.stiffness_N_per_um, least, rtol=1e-6)
+    assert p.life_h >= spec.life_min_h * (1 - 1e-6)
+    assert p.drag_torque_at_max_preload_Nm <= spec.drag_torque_max_Nm * (1 + 1e-6)
+    assert p.peak_pressure_MPa <= spec.contact_pressure_max_MPa * (1 + 1e-6)
+    assert p.ball_mm * p.balls_per_turn <= math.pi * spec.nominal_diameter_mm / math.cos(spec.helix_rad) * (1 + 1e-9)
+    assert spec.lift_off_margin * spec.failsafe_load_N <= LIFT_OFF_RATIO * p.bolt_preload_N * (1 + 1e-6)
+    reach = spec.actuator.max_preload_N(screw, p.bolt_preload_N)
+    assert p.max_preload_N <= reach * (1 + 1e-6), "the stacks must reach the highest preload"
+
+
+def test_life_of_a_constant_preload_design_matches_the_numpy_life(spec, nlp):
+    # with every case at one preload, the NLP's life expression must equal BallScrew.life
+    p = optimise(spec, "stiffness", nlp).point
+    y = nlp.initial_guess()
+    x = nlp.to_physical(y)
+    x[:5] = [math.radians(p.contact_angle_deg), p.ball_mm, p.conformity, p.turns, p.balls_per_turn]
+    x[8:] = p.max_preload_N
+    life_h = nlp.point((x - nlp.offset) / nlp.scale, "life", integer=False).life_h
+    expected = spec.screw(p).life(p.max_preload_N, list(spec.duty), load_factor=spec.load_factor).hours
+    np.testing.assert_allclose(life_h, expected, rtol=1e-6)
+
+
+def test_casadi_and_scipy_slsqp_reach_the_same_optimum(spec, nlp):
+    # the same continuous problem (integers fixed at the optimum's), the same start
+    r = optimise(spec, "stiffness", nlp)
+    ints = (int(r.point.turns), int(r.point.balls_per_turn))
+    lbx, ubx = nlp.bounds(ints)
+    y0 = np.clip(nlp.initial_guess(), lbx, ubx)
+    ours = nlp.solve(WEIGHTS["stiffness"], y0, integers=ints)
+    f, g = nlp.numpy_functions(WEIGHTS["stiffness"])
+    np.testing.assert_allclose(f(ours["y"]), ours["f"], rtol=1e-10, err_msg="numpy and CasADi objectives differ")
+    peer = minimize(f, y0, method="SLSQP", bounds=list(zip(lbx, np.where(np.isinf(ubx), None, ubx))),
+                    constraints=[{"type": "ineq", "fun": lambda y: -g(y)}], options={"maxiter": 500, "ftol": 1e-10})
+    assert ours["success"] and peer.success, peer.message
+    assert np.max(g(peer.x)) < 1e-6
+    # neither finds a better point than the other (to the solvers' tolerances)
+    assert abs(ours["f"] - peer.fun) < 1e-6 * abs(ours["f"]), (ours["f"], peer.fun)
+
+
+def test_infeasible_request_names_the_constraint_and_the_shortfall(spec):
+    bad = replace(spec, life_min_h=1e12)
+    with pytest.raises(DesignInfeasible) as info:
+        optimise(bad, "stiffness")
+    names = [v["constraint"] for v in info.value.violations]
+    assert "life" in names, names
+    assert "life" in str(info.value) and "short by" in str(info.value)
+    # a request that is fine except for an impossible frequency
+    with pytest.raises(DesignInfeasible, match="frequency_case"):
+        optimise(replace(spec, frequency_min_Hz=2000.0), "drag")
+
+
+def test_pareto_fronts_are_monotone(spec, nlp):
+    drag = pareto_front(spec, "stiffness:drag", 12, nlp)
+    assert len(drag.points) == 12
+    assert np.all(np.diff(drag.x) > 0)
+    assert np.all(np.diff(drag.y) >= -1e-6 * drag.y.max()), "more stiffness cannot cost less drag"
+    life = pareto_front(spec, "stiffness:life", 8, nlp)
+    assert np.all(np.diff(life.y) <= 1e-6 * life.y.max()), "more stiffness cannot give more life"
+    # each point's drag is no more than that of the stiffness optimum, which meets every epsilon
+    stiff = optimise(spec, "stiffness", nlp).point
+    assert drag.y.max() <= stiff.mean_drag_torque_Nm * (1 + 1e-6)
+
+
+def test_schedule_meets_its_constraints_and_beats_the_best_constant(spec):
+    p = optimise(spec, "drag").point
+    screw = spec.screw(p)
+    f_max = spec.actuator.max_preload_N(screw, p.bolt_preload_N)
+    sspec = ScheduleSpec(p.bolt_preload_N, f_max, slew_N_per_s=20000.0, stiffness_min_N_per_um=300.0,
+                         deflection_max_um=5.0)
+    profile = example_profile(0.02)
+    s = schedule_preload(screw, profile, sspec)
+    assert s.status == "Solve_Succeeded"
+    tol = 1e-6 * f_max  # IPOPT relaxes bounds by 1e-8 of the scaled variable and stops at 1e-9
+    assert np.all(s.rigidity_N_per_um >= s.required_N_per_um - tol)
+    assert np.all(np.abs(np.diff(s.preload_N)) <= sspec.slew_N_per_s * np.diff(profile.time_s) * (1 + 1e-6) + tol)
+    assert np.all(s.preload_N >= p.bolt_preload_N - tol) and np.all(s.preload_N <= f_max + tol)
+    assert np.all(LIFT_OFF_RATIO * s.preload_N >= sspec.lift_off_margin * np.abs(profile.axial_load_N) - tol)
+    # the best constant meets the same requirement and no lower constant does
+    assert np.all(s.constant_rigidity_N_per_um >= s.required_N_per_um - tol)
+    lower = screw.rigidity_N_per_um(s.constant_preload_N * (1 - 1e-4), profile.axial_load_N)
+    lifts = sspec.lift_off_margin * np.abs(profile.axial_load_N) > LIFT_OFF_RATIO * s.constant_preload_N * (1 - 1e-4)
+    assert np.any(lower < s.required_N_per_um) or np.any(lifts)
+    assert s.friction_energy_J < s.constant_friction_energy_J and 0 < s.saving_fraction < 1
+    # at standstill (the last second) the friction energy does not see the preload: the
+    # schedule still takes the least one there
+    rest = (profile.speed_rpm == 0) & (profile.axial_load_N == 0)
+    assert rest.sum() >= 40
+    np.testing.assert_allclose(s.preload_N[rest], p.bolt_preload_N, rtol=1e-6)
+    # the schedule ramps up before the roughing pass (t = 1.5 s), as fast as the slew allows
+    k = np.searchsorted(profile.time_s, 1.5)
+    assert s.preload_N[k] > p.bolt_preload_N + 100
+
+
+def test_a_constant_load_gives_a_constant_schedule(spec):
+    screw = BallScrew(32.0, 10.0, 6.35, 4)
+    t = np.linspace(0, 1, 51)
+    profile = LoadProfile(t, np.full_like(t, 3000.0), np.full_like(t, 500.0))
+    s = schedule_preload(screw, profile, ScheduleSpec(300.0, 5000.0, 1e4, stiffness_min_N_per_um=500.0))
+    np.testing.assert_allclose(s.preload_N, s.constant_preload_N, rtol=1e-6)
+    np.testing.assert_allclose(s.saving_fraction, 0.0, atol=1e-6)
+
+
+def test_schedule_refuses_a_load_beyond_the_stacks_reach():
+    screw = BallScrew(32.0, 10.0, 6.35, 4)
+    t = np.linspace(0, 1, 11)
+    with pytest.raises(ValueError, match="stacks' reach"):
+        schedule_preload(screw, LoadProfile(t, np.full_like(t, 20000.0)), ScheduleSpec(300.0, 2000.0, 1e4))
+
+
+# ---- CLI -----------------------------------------------------------------------------------
+
+
+def test_ballscrew_cli_json(capsys):
+    code = main(["ballscrew", "--nominal-diameter-mm", "40", "--lead-mm", "10", "--ball-mm", "6.35", "--turns", "4",
+                 "--c-dyn-N", "37890", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0
+    assert abs(out["rigidity_N_per_um"] / 1010.0 - 1) < 0.2
+    assert out["preload_N"] == pytest.approx(3789.0)
+    assert out["lift_off_load_N"] == pytest.approx(2 ** 1.5 * 3789.0)
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["--preload-N", "3000", "--preload-fraction", "0.1"], "not both"),
+    (["--conformity", "0.49"], "conformity"),
+    (["--preload-N", "-5"], "--preload-N"),
+])
+def test_ballscrew_cli_bad_input(capsys, argv, fragment):
+    code = main(["ballscrew", "--nominal-diameter-mm", "32", "--lead-mm", "10", "--ball-mm", "6.35", "--turns", "4"]
+                + argv)
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("error:") and fragment in err and err.count("\n") == 1
+
+
+def test_design_cli_writes_the_artifact_and_fronts(tmp_path, capsys):
+    out = tmp_path / "design.json"
+    code = main(["design", "--pareto", "stiffness:drag", "--points", "6", "--out", str(out), "--json"])
+    result = json.loads(capsys.readouterr().out)
+    assert code == 0
+    doc = json.loads(out.read_text())
+    assert doc["schema"] == "piezopreload/design/1"
+    assert len(doc["fronts"]) == 1 and len(doc["fronts"][0]["points"]) == 6
+    csv = tmp_path / "design.pareto-stiffness-drag.csv"
+    assert csv.exists() and len(csv.read_text().splitlines()) == 2 + 6
+    assert result["schedule"]["saving_fraction"] > 0
+    assert result["written"] == [str(out), str(csv)]
+
+
+def test_design_cli_infeasible_study_exits_2_naming_the_constraint(tmp_path, capsys):
+    from piezopreload.study import default_study
+
+    text = default_study().read_text().replace("life_min_h = 20000.0", "life_min_h = 1.0e12")
+    study = tmp_path / "study.toml"
+    study.write_text(text)
+    code = main(["design", "--study", str(study), "--pareto", "stiffness:drag", "--points", "3",
+                 "--out", str(tmp_path / "d.json")])
+    err = capsys.readouterr().err
+    assert code == 2 and "life" in err and "short by" in err
+    assert not (tmp_path / "d.json").exists()
+
+
+def test_design_study_errors_name_the_line(tmp_path, capsys):
+    from piezopreload.study import default_study
+
+    text = default_study().read_text().replace("turns = [2, 6]", "turns = [2.5, 6]")
+    study = tmp_path / "study.toml"
+    study.write_text(text)
+    code = main(["design", "--study", str(study)])
+    err = capsys.readouterr().err
+    line = next(i for i, l in enumerate(text.splitlines(), 1) if l.startswith("turns = [2.5"))
+    assert code == 2 and f"study.toml:{line}: 'ballscrew.turns'" in err
+
+
+def test_load_profile_csv_errors_name_the_line(tmp_path, capsys):
+    csv = tmp_path / "loads.csv"
+    csv.write_text("time_s,axial_load_N,speed_rpm\n0,100,300\n0.1,nan,300\n")
+    code = main(["design", "--schedule", str(csv), "--pareto", "stiffness:drag", "--points", "2",
+                 "--out", str(tmp_path / "d.json")])
+    err = capsys.readouterr().err
+    assert code == 2 and "loads.csv:3" in err and "axial_load_N" in err
