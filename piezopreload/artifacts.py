@@ -25,6 +25,7 @@ VERSION = 1
 KINDS = {
     "hysteresis-model": ("model", "units", "inputs"),
     "gain-set": ("gains", "status", "inputs"),
+    "design": ("optimum", "fronts", "schedule", "inputs", "units"),
 }
 #: kinds whose documents carry ``content_sha256``, checked on every read
 HASHED = {"gain-set"}

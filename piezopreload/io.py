@@ -143,6 +143,17 @@ def read_input(path: str | Path, what: str = "file", error: type[InputError] = I
         raise error(f"{shown}: cannot read ({exc.strerror or exc})") from None
 
 
+def _csv_lines(path: str | Path) -> tuple[bytes, list[tuple[int, str]]]:
+    """The raw bytes and the numbered lines of a CSV that are neither blank nor ``#`` comments."""
+    raw = read_input(path)
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a UTF-8 text file (byte {exc.start}); expected a CSV") from None
+    return raw, [(no, line) for no, line in enumerate(text.splitlines(), start=1)
+                 if line.strip() and not line.lstrip().startswith("#")]
+
+
 def read_record(
     path: str | Path,
     columns: dict[str, ColumnSpec] | None = None,
@@ -157,14 +168,7 @@ def read_record(
     """
     path = Path(path)
     shown = str(path)
-    raw = read_input(path)
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise InputError(f"{shown}: not a UTF-8 text file (byte {exc.start}); expected a CSV") from None
-
-    lines = [(no, line) for no, line in enumerate(text.splitlines(), start=1)
-             if line.strip() and not line.lstrip().startswith("#")]
+    raw, lines = _csv_lines(path)
     if not lines:
         raise InputError(f"{shown}: the file is empty (no data rows); expected a CSV of time, input and output")
     if header:
@@ -243,3 +247,47 @@ def read_record(
         input_name=names["input"],
         output_name=names["output"],
     )
+
+
+def read_table(path: str | Path, required: tuple[str, ...], optional: tuple[str, ...] = (),
+               increasing: str | None = None) -> dict[str, NDArray[np.float64]]:
+    """Read a CSV with a header by column names; every problem names the file and line.
+
+    Returns the ``required`` columns and those of ``optional`` that are present. Lines that
+    are blank or start with ``#`` are skipped; every value must be a finite number; the
+    column ``increasing`` (time, usually) must be strictly increasing.
+    """
+    shown = str(path)
+    _, lines = _csv_lines(path)
+    if not lines:
+        raise InputError(f"{shown}: the file is empty; expected a CSV with the header {','.join(required)}")
+    header_no, header = lines[0]
+    names = [h.strip() for h in header.split(",")]
+    for name in required:
+        if name not in names:
+            raise InputError(f"{shown}:{header_no}: no column named '{name}'; the header has {names}, "
+                             f"expected {list(required) + [f'[{o}]' for o in optional]}")
+    wanted = [n for n in required + optional if n in names]
+    if len(lines) < 3:
+        raise InputError(f"{shown}: {len(lines) - 1} data rows, need at least 2")
+    out = {n: np.empty(len(lines) - 1) for n in wanted}
+    for row, (no, line) in enumerate(lines[1:]):
+        cells = line.split(",")
+        if len(cells) != len(names):
+            raise InputError(f"{shown}:{no}: {len(cells)} columns, expected {len(names)} as in the header")
+        for n in wanted:
+            cell = cells[names.index(n)].strip()
+            try:
+                value = float(cell)
+            except ValueError:
+                raise InputError(f"{shown}:{no}: column '{n}' holds '{cell}', which is not a number") from None
+            if not math.isfinite(value):
+                raise InputError(f"{shown}:{no}: column '{n}' is {cell}; every value must be finite")
+            out[n][row] = value
+    if increasing is not None:
+        bad = np.flatnonzero(np.diff(out[increasing]) <= 0)
+        if bad.size:
+            k = int(bad[0]) + 1
+            raise InputError(f"{shown}:{lines[k + 1][0]}: {increasing} {out[increasing][k]!r} is not after the previous "
+                             f"row's {out[increasing][k - 1]!r}; it must be strictly increasing")
+    return out

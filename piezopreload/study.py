@@ -25,7 +25,7 @@ from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import PIDGains
 from piezopreload.tuning.calibrate import LoopExcitation
 
-__all__ = ["Study", "load_study", "default_study", "DEFAULT_STUDY"]
+__all__ = ["Study", "StudyText", "load_study", "read_study_text", "default_study", "DEFAULT_STUDY"]
 
 DEFAULT_STUDY = "paper2021.toml"
 
@@ -47,8 +47,23 @@ _SCHEMA: dict[str, Any] = {
         "trajectory": {"initial_N": _NUM, "levels_N": list, "hold_s": _NUM, "t_start_s": _NUM},
     },
     "simulation": {"seed": int, "band_N": _NUM, "signal": str},
+    # the ball-screw design (piezopreload design): what the machine fixes and the design's bounds
+    "ballscrew": {"nominal_diameter_mm": _NUM, "lead_mm": _NUM, "contact_angle_deg": list, "ball_mm": list,
+                  "conformity": list, "turns": list, "load_sharing": _NUM},
+    "feed_drive": {"table_mass_kg": _NUM, "screw_length_mm": _NUM, "bearing_stiffness_N_per_um": _NUM,
+                   "travel_mm": list, "mounting": str},
+    "duty": {"axial_load_N": list, "speed_rpm": list, "time_share": list},
+    "design": {"objective": str, "pareto": list, "pareto_points": int, "axial_load_max_N": _NUM,
+               "failsafe_load_N": _NUM, "lift_off_margin": _NUM, "preload_fraction_max": _NUM,
+               "contact_pressure_max_MPa": _NUM, "life_min_h": _NUM, "drag_torque_max_Nm": _NUM,
+               "frequency_min_Hz": _NUM, "stiffness_min_N_per_um": _NUM, "nut_length_max_mm": _NUM,
+               "ball_lead_ratio_max": _NUM, "load_factor": _NUM, "stack_drive_V": _NUM,
+               "amp_current_limit_A": _NUM},
+    "schedule": {"profile": str, "stiffness_min_N_per_um": _NUM, "deflection_max_um": _NUM,
+                 "lift_off_margin": _NUM},
 }
 _REQUIRED = {"rig", "controller"}
+_STRING_LISTS = {"design.pareto"}
 _UNITS = ("seconds", "minutes")
 _SIGNALS = ("measured_N", "force_N")
 
@@ -119,12 +134,30 @@ def _check_tree(data: dict[str, Any], schema: dict[str, Any], prefix: str, where
             raise InputError(f"{at}: '{path}' must be {want}, got {type(value).__name__} {value!r}")
         if isinstance(value, float) and not math.isfinite(value):
             raise InputError(f"{at}: '{path}' must be finite, got {value!r}")
-        if isinstance(value, list) and not all(isinstance(x, _NUM) and not isinstance(x, bool) and math.isfinite(x) for x in value):
+        if isinstance(value, list) and path in _STRING_LISTS:
+            if not all(isinstance(x, str) for x in value):
+                raise InputError(f"{at}: '{path}' must be a list of strings, got {value!r}")
+        elif isinstance(value, list) and not all(isinstance(x, _NUM) and not isinstance(x, bool) and math.isfinite(x) for x in value):
             raise InputError(f"{at}: '{path}' must be a list of finite numbers, got {value!r}")
 
 
-def load_study(path: str | Path) -> Study:
-    """Read and validate a study file."""
+@dataclass(frozen=True)
+class StudyText:
+    """A study file read and checked against the schema (every key, every type)."""
+
+    path: str
+    sha256: str
+    data: dict[str, Any]
+    lines: _Lines
+
+    def fail(self, key_path: str, message: str) -> InputError:
+        """An error naming the file, the line of ``key_path`` and the key."""
+        line = self.lines.of(key_path)
+        return InputError(f"{self.path}:{line}: '{key_path}' {message}" if line else f"{self.path}: '{key_path}' {message}")
+
+
+def read_study_text(path: str | Path, required: set[str] | frozenset[str] = frozenset()) -> StudyText:
+    """Read a study file and check its keys and types; ``required`` tables must be there."""
     shown = str(path)
     raw_bytes = read_input(path, "study file")
     try:
@@ -136,12 +169,15 @@ def load_study(path: str | Path) -> Study:
         raise InputError(f"{shown}: not valid TOML ({exc})") from None
     where = _Lines(text)
     _check_tree(data, _SCHEMA, "", where, shown)
-    for section in sorted(_REQUIRED - set(data)):
+    for section in sorted(set(required) - set(data)):
         raise InputError(f"{shown}: the table [{section}] is missing")
+    return StudyText(shown, hashlib.sha256(raw_bytes).hexdigest(), data, where)
 
-    def fail(key_path: str, message: str) -> InputError:
-        line = where.of(key_path)
-        return InputError(f"{shown}:{line}: '{key_path}' {message}" if line else f"{shown}: '{key_path}' {message}")
+
+def load_study(path: str | Path) -> Study:
+    """Read and validate a study file."""
+    st = read_study_text(path, _REQUIRED)
+    shown, data, fail = st.path, st.data, st.fail
 
     # ---- rig ------------------------------------------------------------------------------
     rig_data = dict(data["rig"])
@@ -215,7 +251,7 @@ def load_study(path: str | Path) -> Study:
         raise fail("simulation.seed", f"must be >= 0, got {seed}")
     meta = data.get("study", {})
     return Study(
-        path=shown, sha256=hashlib.sha256(raw_bytes).hexdigest(), name=meta.get("name", Path(shown).stem),
+        path=shown, sha256=st.sha256, name=meta.get("name", Path(shown).stem),
         title=meta.get("title", ""), rig=rig, gains=gains, gains_units=units, excitation=excitation,
         references=references, seed=seed, band_N=band, signal=signal, raw=data,
     )
