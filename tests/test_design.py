@@ -226,3 +226,23 @@ def test_load_profile_csv_errors_name_the_line(tmp_path, capsys):
                  "--out", str(tmp_path / "d.json")])
     err = capsys.readouterr().err
     assert code == 2 and "loads.csv:3" in err and "axial_load_N" in err
+
+
+def test_results_draw_themselves(spec, nlp):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    result = optimise(spec, "drag", nlp)
+    ax = result.plot()
+    assert len(ax.lines) == 1 + len(spec.duty) + 2 and ax.get_xlabel() == "preload F_p (N)"
+    front = pareto_front(spec, "stiffness:life", 4, nlp)
+    ax = front.plot()
+    np.testing.assert_allclose(ax.lines[0].get_ydata(), front.y)
+    screw = spec.screw(result.point)
+    s = schedule_preload(screw, example_profile(0.05),
+                         ScheduleSpec(result.point.bolt_preload_N, 4000.0, 2e4, stiffness_min_N_per_um=300.0))
+    axes = s.plot()
+    np.testing.assert_allclose(axes[1].lines[0].get_ydata(), s.preload_N)
+    plt.close("all")
