@@ -61,6 +61,7 @@ OBJECTIVES = ("stiffness", "drag", "life")
 #: fronts a user can ask for: x:y, x swept as an epsilon constraint, y optimised
 PARETO_PAIRS = ("stiffness:preload", "stiffness:drag", "stiffness:life")
 _TIE_WEIGHT = 1e-3
+_BALLS_PER_TURN = (4, 200)  # search range of the relaxed balls per turn
 _WARM_START = {"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-9,
                "ipopt.warm_start_slack_bound_push": 1e-9, "ipopt.warm_start_mult_bound_push": 1e-9,
                "ipopt.mu_init": 1e-6}
@@ -329,6 +330,13 @@ def _expressions(spec: DesignSpec, ops: Any, x: Any) -> dict[str, Any]:
                 drag_hi=k_p * F_hi * spec.lead_mm / (2000.0 * math.pi), cp_s=cp_s, cp_n=cp_n, z=z, helix=helix)
 
 
+def _objective(e: dict[str, Any], w: Any) -> Any:
+    """The weighted objective (weights: -stiffness, drag, -log life, preload) plus the
+    tie-break towards less drag and a lower bolt preload; numbers or CasADi expressions."""
+    return (-w[0] * e["t"] / 1000.0 + w[1] * e["mean_drag"] - w[2] * e["log_L"] + w[3] * e["F_hi"] / 1000.0
+            + _TIE_WEIGHT * (e["mean_drag"] + e["drag_hi"] + e["F_i"] / 1000.0))
+
+
 def _constraint_rows(spec: DesignSpec, e: dict[str, Any], ops: Any) -> list[tuple[str, Any, float]]:
     """Rows ``(name, g, scale)`` meaning g <= 0, g in the constraint's units."""
     L = LIFT_OFF_RATIO
@@ -379,8 +387,7 @@ class DesignNLP:
         self.row_scale = np.array([r[2] for r in rows])
         g = ca.vertcat(*[r[1] / r[2] for r in rows])
         w = ca.SX.sym("w", 4)  # weights: -stiffness, drag, -log life, preload
-        objective = (-w[0] * e["t"] / 1000.0 + w[1] * e["mean_drag"] + _TIE_WEIGHT * (e["mean_drag"] + e["drag_hi"] + e["F_i"] / 1000.0)
-                     - w[2] * e["log_L"] + w[3] * e["F_hi"] / 1000.0)
+        objective = _objective(e, w)
         opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.tol": 1e-8,
                 "ipopt.max_iter": 500}
         opts.update(ipopt_options or {})
@@ -389,7 +396,7 @@ class DesignNLP:
         # from a nearby solution and its multipliers (fronts, integer neighbours): start at a
         # small barrier parameter instead of pushing the point back into the interior
         self.warm_solver = ca.nlpsol("design_warm", "ipopt", problem, {**opts, **_WARM_START})
-        self.evaluate = ca.Function("design_eval", [y], [g, e["t"], e["mean_drag"], e["log_L"], e["F_hi"]])
+        self.constraints = ca.Function("design_constraints", [y], [g])
         self._exprs = ca.Function("design_exprs", [y], [
             e["c_dyn"], ca.vertcat(*e["rigidity"]), ca.vertcat(*e["freq"]), e["p_screw"], e["p_nut"], e["stroke"],
             e["drag_hi"], e["t"], e["mean_drag"], e["log_L"]])
@@ -405,7 +412,7 @@ class DesignNLP:
         lo[1], hi[1] = spec.ball_mm
         lo[2], hi[2] = spec.conformity
         lo[3], hi[3] = spec.turns
-        lo[4], hi[4] = 4.0, 200.0
+        lo[4], hi[4] = _BALLS_PER_TURN
         if integers is not None:
             lo[3] = hi[3] = integers[0]
             lo[4] = hi[4] = integers[1]
@@ -441,9 +448,7 @@ class DesignNLP:
 
         def f(y: np.ndarray) -> float:
             e, _ = parts(y)
-            return float(-w[0] * e["t"] / 1000.0 + w[1] * e["mean_drag"]
-                         + _TIE_WEIGHT * (e["mean_drag"] + e["drag_hi"] + e["F_i"] / 1000.0)
-                         - w[2] * e["log_L"] + w[3] * e["F_hi"] / 1000.0)
+            return float(_objective(e, w))
 
         def g(y: np.ndarray) -> np.ndarray:
             _, rows = parts(y)
@@ -469,7 +474,7 @@ class DesignNLP:
         self.solves += 1
         stats = solver.stats()
         y = np.asarray(out["x"]).ravel()
-        g = np.asarray(self.evaluate(y)[0]).ravel()
+        g = np.asarray(self.constraints(y)).ravel()
         return {"y": y, "f": float(out["f"]), "g": g, "lam_g": np.asarray(out["lam_g"]).ravel(),
                 "lam_x": np.asarray(out["lam_x"]).ravel(), "integers": integers,
                 "success": bool(stats["success"]), "status": stats["return_status"],
@@ -505,7 +510,7 @@ class DesignNLP:
         return names
 
     def violations(self, y: np.ndarray) -> list[dict[str, Any]]:
-        g = np.asarray(self.evaluate(y)[0]).ravel() * self.row_scale
+        g = np.asarray(self.constraints(y)).ravel() * self.row_scale
         out = []
         for name, value in zip(self.row_names, g):
             if value > 1e-6 * max(1.0, abs(value)):
@@ -523,13 +528,13 @@ def _elastic(nlp: DesignNLP, y0: np.ndarray, integers: tuple[int, int] | None) -
     """Least total scaled violation (every row gets a slack): what cannot be met, by how much."""
     y = ca.SX.sym("y", nlp.n)
     s = ca.SX.sym("s", len(nlp.row_names))
-    g = nlp.evaluate(y)[0]
+    g = nlp.constraints(y)
     solver = ca.nlpsol("design_elastic", "ipopt", {"x": ca.vertcat(y, s), "f": ca.sum1(s), "g": g - s},
                        {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 1000})
     lbx, ubx = nlp.bounds(integers, stiffness_min=0.0)
     ns = len(nlp.row_names)
     y0c = np.clip(y0, lbx, ubx)
-    s0 = np.maximum(np.asarray(nlp.evaluate(y0c)[0]).ravel(), 0.0)
+    s0 = np.maximum(np.asarray(nlp.constraints(y0c)).ravel(), 0.0)
     out = solver(x0=np.concatenate([y0c, s0]), lbx=np.concatenate([lbx, np.zeros(ns)]),
                  ubx=np.concatenate([ubx, np.full(ns, np.inf)]), lbg=-np.inf, ubg=0.0)
     return nlp.violations(np.asarray(out["x"]).ravel()[: nlp.n])
@@ -541,7 +546,7 @@ def _integer_candidates(turns: float, z1: float, spec: DesignSpec) -> list[tuple
             return [int(round(v))]
         return [int(k) for k in (math.floor(v), math.ceil(v)) if lo <= k <= hi]
 
-    return list(itertools.product(around(turns, *spec.turns), around(z1, 4, 200)))
+    return list(itertools.product(around(turns, *spec.turns), around(z1, *_BALLS_PER_TURN)))
 
 
 def _solve_mixed(nlp: DesignNLP, weights: tuple[float, ...], y0: np.ndarray, stiffness_min: float | None,

@@ -195,7 +195,8 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec)
                          f"to keep both nuts loaded, above the stacks' reach of {spec.max_preload_N:.0f} N; "
                          f"raise the bolt preload or the stacks' drive, or lower the load.")
     k_fun = _rigidity_function(screw)
-    k_max = np.asarray(k_fun.map(n)(spec.max_preload_N, Fa)).ravel()
+    k_map = k_fun.map(n)
+    k_max = np.asarray(k_map(spec.max_preload_N, Fa)).ravel()
     short = required - k_max
     if np.any(short > 0):
         k = int(np.argmax(short))
@@ -207,7 +208,7 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec)
     # ---- the schedule: decision variables, objective, constraints, initial guess, solve ----
     y = ca.MX.sym("y", n)
     F = scale * y
-    g_stiff = (k_fun.map(n)(F.T, Fa.reshape(1, -1)).T - required) / 100.0
+    g_stiff = (k_map(F.T, Fa.reshape(1, -1)).T - required) / 100.0
     slew_step = spec.slew_N_per_s * np.diff(profile.time_s)
     g_slew = (F[1:] - F[:-1]) / scale
     # where the screw stands still the energy does not see the preload: a small time-weighted
@@ -220,14 +221,14 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec)
     ubg = np.concatenate([np.full(n, np.inf), slew_step / scale])
     lbx, ubx = F_lo / scale, np.full(n, spec.max_preload_N / scale)
     # start from the constant preload, which is feasible
-    constant = _best_constant(k_fun, Fa, required, F_lo, spec.max_preload_N)
+    constant = _best_constant(k_map, Fa, required, F_lo, spec.max_preload_N)
     out = solver(x0=np.full(n, constant / scale), lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
     stats = solver.stats()
     F_opt = np.asarray(out["x"]).ravel() * scale
     if not stats["success"]:
         raise RuntimeError(f"the preload schedule NLP did not converge: {stats['return_status']}")
-    rig = np.asarray(k_fun.map(n)(F_opt, Fa)).ravel()
-    rig_c = np.asarray(k_fun.map(n)(constant, Fa)).ravel()
+    rig = np.asarray(k_map(F_opt, Fa)).ravel()
+    rig_c = np.asarray(k_map(constant, Fa)).ravel()
     return PreloadSchedule(
         profile=profile, spec=spec, preload_N=F_opt, constant_preload_N=constant, rigidity_N_per_um=rig,
         required_N_per_um=required, constant_rigidity_N_per_um=rig_c,
@@ -236,12 +237,11 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec)
     )
 
 
-def _best_constant(k_fun: ca.Function, Fa: Array, required: Array, F_lo: Array, F_max: float) -> float:
+def _best_constant(k_map: ca.Function, Fa: Array, required: Array, F_lo: Array, F_max: float) -> float:
     """The least constant preload meeting every sample: each sample's least preload (rigidity
     is increasing in F_p), found by bisection on all samples at once, then their maximum."""
     lo = F_lo.copy()
     hi = np.full_like(lo, F_max)
-    k_map = k_fun.map(lo.size)
     ok_lo = np.asarray(k_map(lo, Fa)).ravel() >= required
     for _ in range(60):
         mid = 0.5 * (lo + hi)

@@ -52,7 +52,7 @@ checked on R32-5T4 (-5 %). A catalogue C_dyn, where known, should be passed inst
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from types import SimpleNamespace
 from typing import Any
 
@@ -182,11 +182,15 @@ def _body_stiffness(ops: Any, E: float, D_pw: Any, D_w: Any, beta: Any, d_out: A
     return 1e-3 / (1.0 / k_screw + 1.0 / k_nut)
 
 
+def _contact_stiffness(ops: Any, c_h_um: Any, preload_N: Any, u: Any) -> Any:
+    """dF_a/dx of the double nut's contacts (N/um) at preload F_p and load share u:
+    (3 F_p / (2 delta_p)) (sqrt(1 + u) + sqrt(1 - u)), delta_p = c_h F_p^(2/3)."""
+    return 1.5 * preload_N ** (1.0 / 3.0) / c_h_um * (ops.sqrt(1.0 + u) + ops.sqrt(ops.fmax(1.0 - u, 0.0)))
+
+
 def _rigidity(ops: Any, c_h_um: Any, k_body: Any, preload_N: Any, u: Any) -> Any:
-    """Rigidity (N/um) of the double nut at preload F_p and load share u: the contacts'
-    (3 F_p / (2 delta_p)) (sqrt(1 + u) + sqrt(1 - u)) in series with the body."""
-    k_contact = 1.5 * preload_N ** (1.0 / 3.0) / c_h_um * (ops.sqrt(1.0 + u) + ops.sqrt(ops.fmax(1.0 - u, 0.0)))
-    return 1.0 / (1.0 / k_contact + 1.0 / k_body)
+    """Rigidity (N/um) of the double nut: the contacts' stiffness in series with the body."""
+    return 1.0 / (1.0 / _contact_stiffness(ops, c_h_um, preload_N, u) + 1.0 / k_body)
 
 
 def _drag_coefficient(ops: Any, helix: Any) -> Any:
@@ -453,8 +457,8 @@ class BallScrew:
         unloaded = Fp * np.maximum(1.0 - u, 0.0) ** 1.5
         c_h = self.axial_constant_um
         delta_p = c_h * Fp ** (2.0 / 3.0)
-        k_contact = 1.5 * Fp / delta_p * (np.sqrt(1.0 + u) + np.sqrt(np.maximum(1.0 - u, 0.0)))
-        k_total = _rigidity(NUMPY_OPS, c_h, self.body_stiffness_N_per_um, Fp, u)
+        k_contact = _contact_stiffness(NUMPY_OPS, c_h, Fp, u)
+        k_total = 1.0 / (1.0 / k_contact + 1.0 / self.body_stiffness_N_per_um)
         return NutLoads(preload_N=Fp, axial_load_N=Fa, loaded_nut_N=loaded, unloaded_nut_N=unloaded,
                         deflection_um=np.sign(Fa) * u * delta_p, contact_stiffness_N_per_um=k_contact,
                         rigidity_N_per_um=k_total, lifted_off=lifted)
@@ -499,7 +503,3 @@ class BallScrew:
         return Life(revolutions=float(L), hours=float(L / (60.0 * n_m)), mean_speed_rpm=n_m,
                     nut_A_revolutions=float(L_A), nut_B_revolutions=float(L_B),
                     equivalent_load_A_N=Fm_A, equivalent_load_B_N=Fm_B)
-
-    def with_(self, **changes: Any) -> "BallScrew":
-        """A copy with some fields changed (validated again)."""
-        return replace(self, **changes)
