@@ -26,7 +26,9 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["PIDGains", "ControllerState", "Controller", "Feedforward", "Terms", "pid_update", "NUMPY_OPS", "CASADI_OPS"]
+from piezopreload.models.hysteresis import casadi_inverse_step
+
+__all__ = ["PIDGains", "ControllerState", "Controller", "Feedforward", "Terms", "pid_update", "parametric_step", "NUMPY_OPS", "CASADI_OPS"]
 
 #: The few operations :func:`pid_update` needs that differ between numpy arrays and CasADi
 #: expressions, so the one PID update serves the simulation (numpy) and the tuning NLP and the
@@ -246,13 +248,83 @@ class Controller:
         tail = [] if state.ff is None else list(np.asarray(state.ff, float).ravel())
         return np.array(head + tail)
 
+    def state_from_vector(self, x: ArrayLike) -> ControllerState:
+        """The inverse of :meth:`state_vector`, for this controller's feedforward."""
+        x = np.asarray(x, float)
+        if x.shape != (5 + self.n_feedforward_states,):
+            raise ValueError(f"expected a state of {5 + self.n_feedforward_states} numbers, got shape {x.shape}.")
+        ff = None if self.feedforward is None else x[5:].copy()
+        return ControllerState(*(np.array(v) for v in x[:5]), ff)
+
     def retune(self, state: ControllerState, gains: PIDGains) -> tuple[Controller, ControllerState]:
         """Switch to new gains without a jump in the output (bumpless gain change).
 
         The integral absorbs the change of the proportional and derivative actions at the last
         sample, so the next output with unchanged inputs equals the last one.
         """
-        old = self.gains
-        before = old.Kc * (old.b * state.sp_prev - state.pv_prev) - old.Kc * old.Td_s * state.dpv
-        after = gains.Kc * (gains.b * state.sp_prev - state.pv_prev) - gains.Kc * gains.Td_s * state.dpv
-        return replace(self, gains=gains), replace(state, integral=state.integral + before - after)
+        new = replace(self, gains=gains)
+        return new, self.switch(state, new)
+
+    def switch(self, state: ControllerState, new: Controller) -> ControllerState:
+        """The state under which ``new`` (other gains, another feedforward) takes over bumplessly.
+
+        At the last sample's setpoint and measurement, ``new`` gives the output this controller
+        gave: its integral absorbs the difference of the proportional, derivative and
+        feedforward actions. A new feedforward model starts from rest and is brought to the last
+        setpoint (its operators' history before the switch is not known to it).
+        """
+        if not np.isclose(new.dt_s, self.dt_s, rtol=1e-12, atol=0.0):
+            raise ValueError(f"cannot switch from a {self.dt_s} s controller to a {new.dt_s} s one.")
+
+        def actions(c: Controller, ff_state: NDArray | None) -> tuple[NDArray, NDArray | None]:
+            g = c.gains
+            pd = g.Kc * (g.b * state.sp_prev - state.pv_prev) - g.Kc * g.Td_s * state.dpv
+            if c.feedforward is None:
+                return pd, None
+            ff, ff_state = c.feedforward.step(ff_state, state.sp_prev)  # play operators: idempotent at equal input
+            return pd + ff, ff_state
+
+        before, _ = actions(self, state.ff)
+        same_ff = new.feedforward is self.feedforward
+        after, ff_state = actions(new, state.ff if same_ff else
+                                  None if new.feedforward is None else new.feedforward.initial_state(state.sp_prev.shape))
+        return replace(state, integral=state.integral + before - after, ff=ff_state)
+
+    def parameter_vector(self) -> NDArray[np.float64]:
+        """The numbers :func:`parametric_step` takes: gains, range, sample period, feedforward model."""
+        g = self.gains
+        head = [g.Kc, g.Ti_s, g.Td_s, g.Tf_s, g.b, g.u_min, g.u_max, self.dt_s]
+        ff = self.feedforward
+        if ff is None:
+            return np.array(head + [0.0])
+        if not hasattr(ff, "casadi_step"):
+            raise TypeError(f"{type(ff).__name__} has no CasADi step; use the classical P-I inverse.")
+        return np.concatenate([head, [ff.forward.offset], ff.thresholds, ff.weights])
+
+    @property
+    def n_feedforward_states(self) -> int:
+        return 0 if self.feedforward is None else int(self.feedforward.initial_state().size)
+
+
+def parametric_step(n_ff: int) -> ca.Function:
+    """The controller step with every number an input: one function for all gains and models of ``n_ff`` operators.
+
+    ``step(state, setpoint, pv, params) -> (u, p, i, d, ff, state_next)``, ``params`` as
+    :meth:`Controller.parameter_vector` gives them and ``state`` as
+    :meth:`Controller.state_vector` packs it. The same :func:`pid_update` and inverse P-I as
+    :meth:`Controller.step`, so code generated from it computes what the simulation does, and
+    a gain change needs no new code.
+    """
+    x = ca.SX.sym("state", 5 + n_ff)
+    sp, pv = ca.SX.sym("setpoint"), ca.SX.sym("pv")
+    prm = ca.SX.sym("params", 9 + 2 * n_ff)
+    Kc, Ti, Td, Tf, b, u_min, u_max, dt, offset = (prm[k] for k in range(9))
+    if n_ff:
+        ff, ff_next = casadi_inverse_step(x[5:], sp, offset, prm[9:9 + n_ff], prm[9 + n_ff:])
+    else:
+        ff, ff_next = ca.SX(0.0), ca.SX(0, 1)
+    u, p, integral, d, e, dpv = pid_update(CASADI_OPS, (Kc, Ti, Td, Tf, b), (u_min, u_max), dt,
+                                           x[0], x[1], x[2], x[4], sp, pv, ff)
+    return ca.Function("pp_parametric_step", [x, sp, pv, prm],
+                       [u, p, integral, d, ff, ca.vertcat(integral, e, pv, sp, dpv, ff_next)],
+                       ["state", "setpoint", "pv", "params"], ["u", "p", "i", "d", "ff", "state_next"])

@@ -33,6 +33,7 @@ __all__ = [
     "deadzone",
     "ClassicalPI",
     "InverseClassicalPI",
+    "casadi_inverse_step",
     "AsymmetricPI",
     "DeadZone",
     "ModifiedPI",
@@ -318,9 +319,18 @@ class InverseClassicalPI:
 
     def casadi_step(self, state: Any, target: Any) -> tuple[Any, Any]:
         """:meth:`step` on CasADi expressions (one loop): ``(voltage, next operator states)``."""
-        v, r = target - self.forward.offset, ca.DM(self.thresholds)
-        z = ca.fmax(v - r, ca.fmin(v + r, state))
-        return ca.dot(ca.DM(self.weights), z), z
+        return casadi_inverse_step(state, target, self.forward.offset, ca.DM(self.thresholds), ca.DM(self.weights))
+
+
+def casadi_inverse_step(state: Any, target: Any, offset: Any, thresholds: Any, weights: Any) -> tuple[Any, Any]:
+    """One sample of an inverse classical P-I model on CasADi expressions: ``(voltage, next states)``.
+
+    The model's numbers may be constants (:meth:`InverseClassicalPI.casadi_step`) or symbols,
+    so one compiled function serves every model with as many operators.
+    """
+    v = target - offset
+    z = ca.fmax(v - thresholds, ca.fmin(v + thresholds, state))
+    return ca.dot(weights, z), z
 
 
 # --------------------------------------------------------------------------------------
