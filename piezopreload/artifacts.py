@@ -19,13 +19,14 @@ from typing import Any
 from piezopreload import __version__
 from piezopreload.io import InputError, read_input
 
-__all__ = ["ArtifactError", "schema_name", "write_artifact", "read_artifact", "atomic_write_text", "content_hash"]
+__all__ = ["ArtifactError", "schema_name", "write_artifact", "read_artifact", "atomic_write_text", "content_hash", "parse_artifact"]
 
 VERSION = 1
 KINDS = {
     "hysteresis-model": ("model", "units", "inputs"),
     "gain-set": ("gains", "status", "inputs"),
     "design": ("optimum", "fronts", "schedule", "inputs", "units"),
+    "rig-run": ("status", "events", "gain_set_sha256", "backend", "csv", "summary"),
 }
 #: kinds whose documents carry ``content_sha256``, checked on every read
 HASHED = {"gain-set"}
@@ -105,6 +106,11 @@ def read_artifact(path: str | Path, kind: str) -> dict[str, Any]:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ArtifactError(f"{shown}: cannot read ({exc})") from None
+    return parse_artifact(text, kind, shown)
+
+
+def parse_artifact(text: str, kind: str, shown: str = "the document") -> dict[str, Any]:
+    """:func:`read_artifact` on a document's text (pushed over a network, say); ``shown`` names it in errors."""
     try:
         doc = json.loads(text)  # NaN and Infinity parse to floats; _first_non_finite names them
     except json.JSONDecodeError as exc:

@@ -1,0 +1,260 @@
+"""Rig backends: what the executor's loop talks to, one small interface for every rig.
+
+A backend arms, reads the force, writes the voltage and disarms::
+
+    class Backend(Protocol):
+        name: str
+        def arm(self) -> None: ...                      # ready to write; the stacks at 0 V
+        def read_force(self, t_s: float) -> Reading: ...  # the latest force sample
+        def write_voltage(self, volts: float) -> None: ...  # the command for this sample
+        def disarm(self) -> None: ...                   # outputs off, safe to leave
+
+``t_s`` is the cycle's time on the run's timeline (seconds since the start, the nominal tick);
+a :class:`Reading` says when its sample was taken on the same timeline, so the executor can
+tell a fresh sample from a stale one. The executor never writes a voltage the interlocks have
+not passed, and calls ``disarm`` on every way out, so a backend need not police either.
+
+The simulated reference rig (:class:`SimBackend`, name ``sim``) is built in. Hardware backends
+are plug-ins: a package declares an entry point in the group ``piezopreload.rig_backends``
+whose object, called with the user's ``--backend-option KEY=VALUE`` pairs as a dict of
+strings, returns a backend. A minimal plug-in for a DAQ card::
+
+    # mydaq/backend.py
+    from piezopreload.rig.backends import Reading
+
+    class DaqBackend:
+        name = "mydaq"
+        def __init__(self, options):
+            self.device = options.get("device", "Dev1")
+        def arm(self): ...          # open the card, write 0 V, enable the amplifier
+        def read_force(self, t_s):  # one A/D conversion of the load cell
+            return Reading(force_N=..., t_s=t_s)
+        def write_voltage(self, volts): ...
+        def disarm(self): ...       # write 0 V, disable the amplifier, close the card
+
+    # pyproject.toml of the plug-in
+    [project.entry-points."piezopreload.rig_backends"]
+    mydaq = "mydaq.backend:DaqBackend"
+
+after which ``piezopreload rig run gains.json --backend mydaq --backend-option device=Dev2``
+runs on it. :class:`FaultInjector` wraps any backend to test the interlocks (fire drills).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from importlib.metadata import entry_points
+from typing import Any, Protocol
+
+import numpy as np
+
+from piezopreload.models.actuator import Rig, RigParams
+
+__all__ = ["Reading", "Backend", "SimBackend", "Fault", "FaultInjector", "FAULT_KINDS", "ENTRY_POINT_GROUP",
+           "BackendError", "available_backends", "open_backend", "parse_fault"]
+
+ENTRY_POINT_GROUP = "piezopreload.rig_backends"
+
+
+class BackendError(ValueError):
+    """A backend that cannot be opened (not installed, bad options): exit code 2."""
+
+
+@dataclass(frozen=True)
+class Reading:
+    """A force sample and the time (s, on the run's timeline) it was taken."""
+
+    force_N: float
+    t_s: float
+
+
+class Backend(Protocol):
+    name: str
+
+    def arm(self) -> None: ...
+
+    def read_force(self, t_s: float) -> Reading: ...
+
+    def write_voltage(self, volts: float) -> None: ...
+
+    def disarm(self) -> None: ...
+
+
+class SimBackend:
+    """The simulated reference rig of ``models/actuator``, one sample per write.
+
+    Each :meth:`write_voltage` advances the plant by one sample period, whatever the wall
+    clock did, so a run is the same whether the executor paces it in real time or runs it as
+    fast as it can; for the same plant, gains and seed it is :func:`models.closedloop.simulate`.
+    """
+
+    name = "sim"
+
+    def __init__(self, plant: RigParams, seed: int = 0) -> None:
+        if plant.batch_shape:
+            raise ValueError("the simulated backend runs one plant, not a batch")
+        self.rig = Rig(plant)
+        self.seed = int(seed)
+        self._state = None
+        self._rng = np.random.default_rng(self.seed)
+
+    @property
+    def sample_period_s(self) -> float:
+        return self.rig.dt_s
+
+    def arm(self) -> None:
+        self._rng = np.random.default_rng(self.seed)
+        self._state = self.rig.initial_state()
+
+    def read_force(self, t_s: float) -> Reading:
+        return Reading(float(self.rig.measure(self._state, self._rng)), t_s)
+
+    def write_voltage(self, volts: float) -> None:
+        self._state = self.rig.step(self._state, volts)
+
+    @property
+    def amplifier_V(self) -> float:
+        """The amplifier's output now (the stacks' voltage), for checks a real rig makes with a probe."""
+        return float(self._state.v_amp)
+
+    @property
+    def force_N(self) -> float:
+        """The true force now (what the sensor reads before noise and quantisation)."""
+        return float(self.rig.force(self._state))
+
+    def disarm(self) -> None:
+        pass
+
+
+FAULT_KINDS = {
+    "nan": "the sensor reads NaN",
+    "stale": "the sensor repeats its last sample (a frozen A/D)",
+    "offset": "the force reads VALUE N more (a load the rig should not see)",
+    "reading": "the sensor reads VALUE N (for example beyond its range)",
+    "delay": "each cycle takes VALUE s longer (a stalled bus; missed deadlines)",
+    "raise": "the backend raises an exception",
+    "signal": "the process receives signal VALUE (2 SIGINT, 15 SIGTERM)",
+}
+
+
+@dataclass(frozen=True)
+class Fault:
+    """A fault of ``kind`` (see :data:`FAULT_KINDS`) from ``at_s`` on the run's timeline, for ``duration_s``."""
+
+    kind: str
+    at_s: float
+    value: float = 0.0
+    duration_s: float = math.inf
+
+    def __post_init__(self) -> None:
+        if self.kind not in FAULT_KINDS:
+            raise ValueError(f"unknown fault '{self.kind}'; expected one of {', '.join(FAULT_KINDS)}")
+        if not (math.isfinite(self.at_s) and self.at_s >= 0 and self.duration_s > 0):
+            raise ValueError(f"a fault needs a finite at_s >= 0 and duration_s > 0, got {self.at_s} and {self.duration_s}")
+
+    def active(self, t_s: float) -> bool:
+        return self.at_s <= t_s < self.at_s + self.duration_s
+
+
+def parse_fault(text: str) -> Fault:
+    """``KIND@T_S[=VALUE][/DURATION_S]``, e.g. ``nan@1.5``, ``offset@2=80``, ``delay@1=0.003/0.05``."""
+    try:
+        kind, rest = text.split("@", 1)
+        rest, _, duration = rest.partition("/")
+        at, _, value = rest.partition("=")
+        return Fault(kind.strip(), float(at), float(value) if value else 0.0,
+                     float(duration) if duration else math.inf)
+    except ValueError as exc:
+        raise BackendError(f"--inject '{text}': {exc}; expected KIND@T_S[=VALUE][/DURATION_S] with KIND one of "
+                           f"{', '.join(FAULT_KINDS)}") from None
+
+
+class FaultInjector:
+    """Any backend with faults injected at set times: how the interlocks are tested."""
+
+    def __init__(self, inner: Backend, faults: list[Fault]) -> None:
+        self.inner = inner
+        self.faults = list(faults)
+        self.name = f"{inner.name}+faults"
+        self._last: Reading | None = None
+        self._signalled: set[int] = set()
+
+    def __getattr__(self, name: str) -> Any:  # sample_period_s, force_N, ... of the wrapped backend
+        return getattr(self.inner, name)
+
+    def arm(self) -> None:
+        self.inner.arm()
+
+    def read_force(self, t_s: float) -> Reading:
+        active = [f for f in self.faults if f.active(t_s)]
+        for f in active:
+            if f.kind == "raise":
+                raise RuntimeError(f"injected fault at t = {t_s:.3f} s: the backend failed")
+            if f.kind == "delay":
+                time.sleep(f.value)
+            if f.kind == "signal" and id(f) not in self._signalled:
+                self._signalled.add(id(f))
+                os.kill(os.getpid(), int(f.value or signal.SIGTERM))
+        if any(f.kind == "stale" for f in active) and self._last is not None:
+            return self._last
+        reading = self.inner.read_force(t_s)
+        self._last = reading
+        force = reading.force_N
+        for f in active:
+            if f.kind == "nan":
+                force = math.nan
+            elif f.kind == "offset":
+                force += f.value
+            elif f.kind == "reading":
+                force = f.value
+        return Reading(force, reading.t_s)
+
+    def write_voltage(self, volts: float) -> None:
+        self.inner.write_voltage(volts)
+
+    def disarm(self) -> None:
+        self.inner.disarm()
+
+
+def _plugins() -> dict[str, Any]:
+    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def available_backends() -> list[str]:
+    """``sim`` and every installed plug-in's name."""
+    return ["sim", *sorted(n for n in _plugins() if n != "sim")]
+
+
+def open_backend(name: str, options: Mapping[str, str] | None = None, *, plant: RigParams | None = None,
+                 seed: int = 0) -> Backend:
+    """The backend ``name``: ``sim`` on ``plant``, or the installed plug-in of that name with ``options``."""
+    options = dict(options or {})
+    if name == "sim":
+        if plant is None:
+            raise BackendError("the simulated backend needs a plant: the gain set's 'plant.rig' or a study's [rig]")
+        unknown = sorted(set(options) - {"seed"})
+        if unknown:
+            raise BackendError(f"--backend-option {unknown[0]}: the simulated backend takes only 'seed'")
+        try:
+            return SimBackend(plant, int(options.get("seed", seed)))
+        except ValueError as exc:
+            raise BackendError(f"--backend-option seed: {exc}") from None
+    plugins = _plugins()
+    if name not in plugins:
+        raise BackendError(f"backend '{name}' is not installed; installed: {', '.join(available_backends())}. "
+                           f"A hardware backend is a package with an entry point in the group '{ENTRY_POINT_GROUP}' "
+                           "(see piezopreload.rig.backends)")
+    try:
+        factory: Callable[[dict[str, str]], Backend] = plugins[name].load()
+    except Exception as exc:  # a broken plug-in is named, not a traceback
+        raise BackendError(f"backend '{name}' is installed but cannot be loaded: {type(exc).__name__}: {exc}") from None
+    backend = factory(options)
+    missing = [m for m in ("arm", "read_force", "write_voltage", "disarm") if not callable(getattr(backend, m, None))]
+    if missing:
+        raise BackendError(f"backend '{name}' lacks the method '{missing[0]}' of the backend interface")
+    return backend

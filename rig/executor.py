@@ -1,0 +1,363 @@
+"""The rig executor: the one controller step at a fixed rate against a backend, behind interlocks.
+
+Each cycle ``k`` has the absolute deadline ``t0 + k / rate`` on the monotonic clock: the loop
+sleeps to just before it and spins the rest, reads the force, checks it, computes the command
+with the controller step of ``models/controller`` (compiled, :mod:`piezopreload.rig.compiled`),
+passes it through the voltage clamp and slew limit, and writes it. A cycle that ends after the
+next deadline is *missed*; the next one starts at once (no catching up by skipping samples:
+the controller's discrete time stays the rig's).
+
+Interlocks (:class:`Safety`). The clamp and the slew limit shape every command. These stop
+the run:
+
+* ``force_high`` / ``force_low``: the force above ``force_max_N``, or below the bolt preload
+  minus ``force_low_margin_N`` (a loose nut, a broken stack, a lost sensor);
+* ``sensor_nan``, ``sensor_stale`` (the sample older than ``stale_after_s``),
+  ``sensor_range`` (a reading at or beyond the sensor's range);
+* ``deadline``: ``missed_streak`` missed deadlines in a row (50 by default: a 50 ms hold of
+  the voltage at 1 kHz; a desktop OS without real-time scheduling stalls a process for a few
+  ms now and then, which a shorter streak would turn into stops);
+* ``signal``: SIGINT or SIGTERM (or :meth:`Executor.stop`);
+* ``command``: a non-finite command; ``exception``: anything raised in the loop.
+
+A stop ramps the voltage linearly from where it is to ``safe_V`` over ``ramp_s`` (still at the
+loop's rate), disarms the backend, records the event and its cause, and ends the run with status
+``tripped``. A run that reaches the end of its reference ramps down the same way and ends
+``completed``.
+"""
+
+from __future__ import annotations
+
+import gc
+import math
+import signal
+import threading
+import time
+import traceback
+from array import array
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from piezopreload.models.closedloop import Reference
+from piezopreload.models.controller import Controller
+from piezopreload.rig.backends import Backend
+from piezopreload.rig.compiled import controller_step
+from piezopreload.rig.runlog import RunLog
+
+__all__ = ["Safety", "Executor", "RunResult", "Trip", "TRIP_CAUSES"]
+
+TRIP_CAUSES = ("force_high", "force_low", "sensor_nan", "sensor_stale", "sensor_range", "deadline", "signal",
+               "command", "exception")
+
+_SPIN_S = 2e-4  # sleep to this much before a deadline, then spin: time.sleep alone overshoots ~60 us
+
+
+@dataclass(frozen=True)
+class Safety:
+    """Interlock settings; the defaults suit the paper's rig (forces 25-110 N, three P-888.91 stacks)."""
+
+    v_min_V: float = 0.0
+    v_max_V: float = 110.0
+    slew_V_per_s: float = 20_000.0
+    force_max_N: float = 150.0
+    bolt_preload_N: float = 25.0
+    force_low_margin_N: float = 10.0
+    sensor_min_N: float = -1000.0
+    sensor_max_N: float = 1000.0
+    stale_after_s: float = 0.01
+    missed_streak: int = 50
+    ramp_s: float = 0.5
+    safe_V: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name, value in asdict(self).items():
+            if not (isinstance(value, int | float) and math.isfinite(value)):
+                raise ValueError(f"safety.{name} must be a finite number, got {value!r}")
+        if not self.v_min_V < self.v_max_V:
+            raise ValueError(f"safety needs v_min_V < v_max_V, got {self.v_min_V} and {self.v_max_V}")
+        if not self.v_min_V <= self.safe_V <= self.v_max_V:
+            raise ValueError(f"safety.safe_V must lie in {self.v_min_V}..{self.v_max_V} V, got {self.safe_V}")
+        for name in ("slew_V_per_s", "stale_after_s", "ramp_s", "force_low_margin_N"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"safety.{name} must be > 0, got {getattr(self, name)}")
+        if self.missed_streak < 1:
+            raise ValueError(f"safety.missed_streak must be >= 1, got {self.missed_streak}")
+        if not self.sensor_min_N < self.bolt_preload_N - self.force_low_margin_N < self.force_max_N <= self.sensor_max_N:
+            raise ValueError("safety needs sensor_min_N < bolt_preload_N - force_low_margin_N < force_max_N <= "
+                             "sensor_max_N")
+
+    def to_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class Trip:
+    cause: str
+    detail: str
+    t_s: float
+
+
+@dataclass
+class RunResult:
+    """How a run ended: ``status`` ``completed`` or ``tripped`` (with its :class:`Trip`), the timing, the log."""
+
+    status: str
+    trip: Trip | None
+    cycles: int
+    timing: dict[str, Any]
+    clamped_cycles: int
+    controller_step: str
+    csv_path: str | None
+    json_path: str | None
+    events: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "completed"
+
+
+class Executor:
+    """Runs ``controller`` on ``backend`` over ``reference``; see the module docstring.
+
+    ``realtime=False`` runs the cycles back to back (a simulated backend gives the same run,
+    faster; deadlines are not checked). ``hold=True`` keeps the reference's last level after
+    its end until :meth:`stop` (a served rig). ``log`` receives every sample and event.
+    """
+
+    def __init__(self, controller: Controller, backend: Backend, reference: Reference, safety: Safety, *,
+                 realtime: bool = True, hold: bool = False, log: RunLog | None = None, step: str = "c") -> None:
+        self.controller = controller
+        self.backend = backend
+        self.reference = reference
+        self.safety = safety
+        self.realtime = bool(realtime)
+        self.hold = bool(hold)
+        self.log = log
+        self.dt = float(controller.dt_s)
+        self.step = controller_step(controller, prefer=step)
+        n = int(round(reference.duration_s / self.dt)) + 1
+        self._ref = reference.at(np.arange(n) * self.dt).tolist()
+        self._pending: tuple[Controller, dict[str, Any]] | None = None
+        self._stop: str | None = None
+        self._stop_trips = True
+        self.events: list[dict[str, Any]] = []
+        #: the latest cycle: (t_s, setpoint_N, force_N, voltage_V, state) for a server to show
+        self.latest: tuple[float, float, float, float, str] = (0.0, reference.levels_N[0], math.nan, 0.0, "idle")
+
+    # ---- called from other threads ------------------------------------------------------------
+    def request_switch(self, controller: Controller, info: dict[str, Any]) -> None:
+        """Switch to ``controller`` between two cycles, bumplessly; ``info`` goes into the event."""
+        if not math.isclose(controller.dt_s, self.dt, rel_tol=1e-12):
+            raise ValueError(f"the new controller samples every {controller.dt_s} s, the loop every {self.dt} s")
+        self._pending = (controller, info)
+
+    def stop(self, reason: str, *, trip: bool = True) -> None:
+        """Ask the loop to ramp down and end; safe from any thread.
+
+        ``trip=True`` (a signal, an operator's stop) ends the run ``tripped`` with cause
+        ``signal``; ``trip=False`` (a served run's set duration) ends it ``completed``.
+        """
+        self._stop_trips = trip
+        self._stop = reason
+
+    def record(self, kind: str, **detail: Any) -> None:
+        """An event from outside the loop (a refused push, an operator's note), at the loop's last time."""
+        self._event(kind, self.latest[0], **detail)
+
+    # ---- the loop -------------------------------------------------------------------------------
+    def _event(self, kind: str, t_s: float, **detail: Any) -> None:
+        ev = {"event": kind, "t_s": round(t_s, 9), **detail}
+        self.events.append(ev)
+        if self.log is not None:
+            self.log.event(ev)
+
+    def _check(self, force: float, sample_t: float, t: float) -> Trip | None:
+        s = self.safety
+        if math.isnan(force):
+            return Trip("sensor_nan", "the force sensor reads NaN", t)
+        if t - sample_t > s.stale_after_s:
+            return Trip("sensor_stale", f"the force sample is {t - sample_t:.4f} s old (limit {s.stale_after_s} s)", t)
+        if not s.sensor_min_N < force < s.sensor_max_N:
+            return Trip("sensor_range", f"the force reads {force:.6g} N, at or beyond the sensor's range "
+                                        f"{s.sensor_min_N:g}..{s.sensor_max_N:g} N", t)
+        if force > s.force_max_N:
+            return Trip("force_high", f"the force reads {force:.6g} N, above the limit {s.force_max_N:g} N", t)
+        low = s.bolt_preload_N - s.force_low_margin_N
+        if force < low:
+            return Trip("force_low", f"the force reads {force:.6g} N, below the bolt preload less the margin "
+                                     f"({low:g} N)", t)
+        return None
+
+    def _wait(self, deadline: float) -> float:
+        now = time.perf_counter()
+        if deadline - now > _SPIN_S:
+            time.sleep(deadline - now - _SPIN_S)
+        while (now := time.perf_counter()) < deadline:
+            pass
+        return now
+
+    def run(self) -> RunResult:
+        """The run, start to end; never raises for what happens on the rig (that is a trip)."""
+        handlers = self._install_signal_handlers()
+        gc_was_enabled = gc.isenabled()
+        gc.collect()
+        gc.disable()  # the loop makes no reference cycles; a full collection would stall it for ms
+        s, dt, ref = self.safety, self.dt, self._ref
+        n_ref = len(ref)
+        lateness, periods = array("d"), array("d")
+        missed = streak = clamped = 0
+        v_last = s.safe_V
+        trip: Trip | None = None
+        k = 0
+        t = 0.0
+        t0 = wake_prev = time.perf_counter()
+        try:
+            self.backend.arm()
+            self._event("armed", 0.0, backend=self.backend.name, controller_step=self.step.kind)
+            t0 = wake_prev = time.perf_counter()
+            while True:
+                if k >= n_ref and not self.hold:
+                    break
+                t = k * dt
+                deadline = t0 + t
+                wake = self._wait(deadline) if self.realtime else time.perf_counter()
+                if self._pending is not None:
+                    new, info = self._pending
+                    self._pending = None
+                    self.step.switch(new)
+                    self.controller = new
+                    self._event("gains_switched", t, **info)
+                if self._stop is not None:  # this cycle is the stop's: logged, no reading, no command
+                    self._log_row(t, ref[min(k, n_ref - 1)], math.nan, math.nan, v_last, (math.nan,) * 4,
+                                  wake - wake_prev, wake - deadline if self.realtime else 0.0, 0.0, 0, 2)
+                    if self._stop_trips:
+                        trip = Trip("signal", self._stop, t)
+                    else:
+                        self._event("stopped", t, reason=self._stop)
+                    break
+                reading = self.backend.read_force(t)
+                y = float(reading.force_N)
+                trip = self._check(y, reading.t_s, t)
+                if trip is not None:
+                    self._log_row(t, ref[min(k, n_ref - 1)], y, math.nan, v_last, (math.nan,) * 4, wake - wake_prev,
+                                  wake - deadline if self.realtime else 0.0, 0.0, 0, 2)
+                    break
+                sp = ref[k] if k < n_ref else ref[-1]
+                if k == 0:  # bumpless start on the first reading: the first command is the safe level
+                    self.step.start(sp, y, v_last)
+                u, p, i, d, ff = self.step.step(sp, y)
+                if not math.isfinite(u):
+                    trip = Trip("command", f"the controller's command is {u}", t)
+                    break
+                v = min(max(u, s.v_min_V), s.v_max_V)
+                slew = s.slew_V_per_s * dt
+                v = min(max(v, v_last - slew), v_last + slew)
+                if v != u:
+                    clamped += 1
+                self.backend.write_voltage(v)
+                v_last = v
+                done = time.perf_counter()
+                late = wake - deadline if self.realtime else 0.0
+                miss = int(self.realtime and done > deadline + dt)
+                missed += miss
+                streak = streak + 1 if miss else 0
+                lateness.append(late)
+                periods.append(wake - wake_prev)
+                self._log_row(t, sp, y, u, v, (ff, p, i, d), wake - wake_prev, late, done - wake, miss, 0)
+                wake_prev = wake
+                self.latest = (t, sp, y, v, "running")
+                k += 1
+                if streak >= s.missed_streak:
+                    trip = Trip("deadline", f"{streak} deadlines missed in a row (limit {s.missed_streak})", t)
+                    break
+        except Exception as exc:  # anything in the loop: stop the rig first, explain after
+            trip = Trip("exception", f"{type(exc).__name__}: {exc}", t)
+            self._log_row(t, math.nan, math.nan, math.nan, v_last, (math.nan,) * 4, 0.0, 0.0, 0.0, 0, 2)
+            self._event("traceback", t, text="".join(traceback.format_exception(exc))[-4000:])
+        finally:
+            try:
+                if trip is not None:
+                    self._event("interlock", trip.t_s, cause=trip.cause, detail=trip.detail, voltage_V=v_last)
+                v_end = self._ramp_down(v_last, k, t0)
+                self._event("ramped_down", (k + self._ramp_cycles(v_last)) * dt, voltage_V=v_end)
+            finally:
+                try:
+                    self.backend.disarm()
+                finally:
+                    self._restore_signal_handlers(handlers)
+                    if gc_was_enabled:
+                        gc.enable()
+        self.latest = (t, self.latest[1], self.latest[2], s.safe_V, "tripped" if trip else "completed")
+        self._event("disarmed", (k + self._ramp_cycles(v_last)) * dt)
+        timing = _timing(lateness, periods, missed, dt, self.realtime)
+        result = RunResult("tripped" if trip else "completed", trip, k, timing, clamped, self.step.kind,
+                           None if self.log is None else str(self.log.csv_path),
+                           None if self.log is None else str(self.log.json_path), list(self.events))
+        if self.log is not None:
+            self.log.close(result.status, {"cycles": k, "timing": timing, "clamped_cycles": clamped,
+                                           "trip": None if trip is None else asdict(trip)})
+        return result
+
+    def _ramp_cycles(self, v_from: float) -> int:
+        return 0 if v_from == self.safety.safe_V else max(1, int(math.ceil(self.safety.ramp_s / self.dt)))
+
+    def _ramp_down(self, v_from: float, k0: int, t0: float) -> float:
+        """From ``v_from`` to the safe level in a straight line over ``ramp_s``, at the loop's rate."""
+        s, dt = self.safety, self.dt
+        n = self._ramp_cycles(v_from)
+        v = v_from
+        for j in range(1, n + 1):
+            k = k0 + j
+            t = k * dt
+            if self.realtime:
+                self._wait(t0 + t)
+            v = s.safe_V if j == n else v_from + (s.safe_V - v_from) * j / n
+            try:
+                y = float(self.backend.read_force(t).force_N)
+            except Exception:
+                y = math.nan
+            try:
+                self.backend.write_voltage(v)
+            except Exception as exc:  # the backend is gone: one last try at the safe level, then disarm
+                self._event("ramp_failed", t, detail=f"{type(exc).__name__}: {exc}")
+                try:
+                    self.backend.write_voltage(s.safe_V)
+                    v = s.safe_V
+                except Exception:
+                    pass
+                return v
+            self._log_row(t, math.nan, y, math.nan, v, (math.nan,) * 4, dt, 0.0, 0.0, 0, 1)
+            self.latest = (t, math.nan, y, v, "ramping down")
+        return v
+
+    def _log_row(self, t: float, sp: float, y: float, u: float, v: float, terms: tuple, period: float,
+                 late: float, compute: float, miss: int, mode: int) -> None:
+        if self.log is not None:
+            self.log.sample((t, sp, y, u, v, *terms, period, late, compute, miss, mode), time.monotonic())
+
+    def _install_signal_handlers(self) -> dict[int, Any]:
+        if threading.current_thread() is not threading.main_thread():
+            return {}
+        previous = {}
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, lambda signum, frame: self.stop(signal.Signals(signum).name))
+        return previous
+
+    @staticmethod
+    def _restore_signal_handlers(previous: dict[int, Any]) -> None:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _timing(lateness: array, periods: array, missed: int, dt: float, realtime: bool) -> dict[str, Any]:
+    late = np.frombuffer(lateness, dtype=float) if len(lateness) else np.zeros(1)
+    per = np.frombuffer(periods, dtype=float)[1:] if len(periods) > 1 else np.full(1, dt)
+    return {
+        "realtime": realtime, "rate_Hz": 1.0 / dt, "cycles": len(lateness), "missed_deadlines": int(missed),
+        "lateness_p50_s": float(np.percentile(late, 50)), "lateness_p99_s": float(np.percentile(late, 99)),
+        "lateness_max_s": float(late.max()), "period_mean_s": float(per.mean()), "period_std_s": float(per.std()),
+        "period_max_s": float(per.max()),
+    }
+

@@ -1,0 +1,111 @@
+"""The rig's run log: samples as CSV, a JSON sidecar with what ran and what happened.
+
+Both files of a run share a name that no earlier run has (``run-<UTC time>-<gain set hash>``,
+with ``-2``, ``-3`` ... on a clash); the CSV is created exclusively, so a run never
+overwrites another. Samples are buffered and written at least every ``flush_s`` (50 ms by
+default) and the sidecar is rewritten atomically at the start, at every event and at the end,
+so a process killed outright leaves a CSV readable up to its last flush and a sidecar that
+says the run was still ``running`` with every event until then.
+
+The files are flushed to the operating system, not fsynced per flush: they survive the
+process, not the power going down mid-run.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from piezopreload import __version__
+from piezopreload.artifacts import atomic_write_text, schema_name
+
+__all__ = ["RunLog", "COLUMNS"]
+
+#: the CSV's columns, in order
+COLUMNS = ("time_s", "reference_N", "force_N", "command_V", "voltage_V", "feedforward_V", "p_V", "i_V", "d_V",
+           "period_s", "lateness_s", "compute_s", "missed", "mode")
+_ROW = ",".join(["%.6f"] + ["%.9g"] * (len(COLUMNS) - 3) + ["%d", "%d"]) + "\n"
+
+
+def utc_now() -> str:
+    return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
+class RunLog:
+    """One run's CSV and JSON sidecar in ``folder``; ``info`` goes into the sidecar as it is."""
+
+    def __init__(self, folder: str | Path, tag: str, info: dict[str, Any], *, flush_s: float = 0.05) -> None:
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        stamp = _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+        base = f"run-{stamp}-{tag}" if tag else f"run-{stamp}"
+        for n in range(1, 10_000):
+            stem = base if n == 1 else f"{base}-{n}"
+            csv, sidecar = folder / f"{stem}.csv", folder / f"{stem}.json"
+            if sidecar.exists():
+                continue
+            try:
+                self._fh = open(csv, "x", encoding="utf-8", newline="")  # noqa: SIM115 - closed in close()
+            except FileExistsError:
+                continue
+            break
+        else:  # pragma: no cover - ten thousand runs in one second
+            raise FileExistsError(f"no free run name for {base} in {folder}")
+        self.csv_path, self.json_path = csv, sidecar
+        self.flush_s = float(flush_s)
+        self._rows: list[tuple] = []
+        self._lock = threading.Lock()
+        self._last_flush = time.monotonic()
+        self._fh.write(",".join(COLUMNS) + "\n")
+        self._fh.flush()
+        self.doc: dict[str, Any] = {
+            "schema": schema_name("rig-run"), "package_version": __version__, "created_utc": utc_now(),
+            "status": "running", "csv": csv.name, "columns": list(COLUMNS),
+            "units": {"time_s": "s on the run's timeline (sample k at k / rate)", "mode": "0 control, 1 ramp-down, 2 the sample that stopped the run"},
+            **info, "events": [], "summary": None,
+        }
+        self._write_sidecar()
+
+    def sample(self, row: tuple, now: float) -> None:
+        """Add one sample (in :data:`COLUMNS` order); written out when ``flush_s`` has passed."""
+        self._rows.append(row)
+        if now - self._last_flush >= self.flush_s:
+            self.flush(now)
+
+    def flush(self, now: float | None = None) -> None:
+        if self._rows:
+            self._fh.write("".join(_ROW % r for r in self._rows))
+            self._rows.clear()
+        self._fh.flush()
+        self._last_flush = time.monotonic() if now is None else now
+
+    def event(self, event: dict[str, Any]) -> None:
+        """Record an event (interlock, gain switch, ...) with its UTC time; the sidecar is rewritten.
+
+        Safe from another thread than the loop's: only the loop writes the CSV, which it
+        flushes within ``flush_s``.
+        """
+        with self._lock:
+            self.doc["events"].append({"utc": utc_now(), **event})
+            self._write_sidecar()
+
+    def close(self, status: str, summary: dict[str, Any]) -> None:
+        self.flush()
+        self._fh.close()
+        with self._lock:
+            self.doc.update(status=status, summary=summary, finished_utc=utc_now())
+            self._write_sidecar()
+
+    def _write_sidecar(self) -> None:
+        atomic_write_text(self.json_path, json.dumps(self.doc, indent=2, allow_nan=False, default=_jsonable) + "\n")
+
+
+def _jsonable(x: Any) -> Any:
+    try:
+        return float(x)
+    except (TypeError, ValueError):
+        return str(x)
