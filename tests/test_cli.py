@@ -122,7 +122,8 @@ def test_missing_file(capsys, tmp_path):
     assert code == 2 and "nope.csv: no such file" in err
 
 
-@pytest.mark.parametrize("argv", [["--help"], ["identify", "--help"]])
+@pytest.mark.parametrize("argv", [["--help"], ["identify", "--help"], ["rig", "--help"], ["rig", "run", "--help"],
+                                  ["rig", "serve", "--help"], ["rig", "push", "--help"]])
 def test_help(capsys, argv):
     with pytest.raises(SystemExit) as exc:
         main(argv)

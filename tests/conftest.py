@@ -1,0 +1,19 @@
+"""Fixtures shared by the rig's tests: the paper's study and its identified feedforward."""
+
+import pytest
+
+from piezopreload.models.actuator import Rig
+from piezopreload.study import default_study, load_study
+from piezopreload.tuning.calibrate import identify_feedforward
+
+
+@pytest.fixture(scope="session")
+def study():
+    return load_study(default_study())
+
+
+@pytest.fixture(scope="session")
+def feedforward(study):
+    model, _ = identify_feedforward(Rig(study.rig), study.excitation)
+    return model
+

@@ -1,0 +1,134 @@
+"""End to end on loopback: serve the rig over OPC UA, push gain sets with a real asyncua client."""
+
+import asyncio
+import json
+import socket
+import threading
+import time
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from asyncua import Client, ua
+
+from piezopreload.artifacts import read_artifact
+from piezopreload.cli import main
+from piezopreload.models.controller import PIDGains
+from piezopreload.rig.opcua import NAMESPACE, ROOT, PushRefused, push_gain_set
+from piezopreload.rig_pipeline import read_run_log, serve_rig
+from rigkit import write_gain_set
+
+USER, PASSWORD = "operator", "correct horse"
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+async def _on_root(endpoint, action):
+    """``action(root, idx)`` on the rig's root object in an authenticated session."""
+    client = Client(endpoint)
+    client.set_user(USER)
+    client.set_password(PASSWORD)
+    async with client:
+        idx = await client.get_namespace_index(NAMESPACE)
+        return await action(await client.nodes.objects.get_child([f"{idx}:{ROOT}"]), idx)
+
+
+async def _call_raw(endpoint, *args):
+    """PushGainSet called with whatever arguments, as a malformed client would."""
+    async def call(root, idx):
+        return await root.call_method(await root.get_child([f"{idx}:PushGainSet"]), *args)
+    return await _on_root(endpoint, call)
+
+
+async def _read(endpoint, name):
+    async def read(root, idx):
+        return await (await root.get_child([f"{idx}:{name}"])).read_value()
+    return await _on_root(endpoint, read)
+
+
+def test_serve_push_and_refusals(tmp_path, study, feedforward):
+    # a quieter sensor (0.05 N) than the paper's (0.25 N): the command's sample-to-sample noise then stays
+    # well below the 0.5 V the switch is held to, so what the test sees at the switch is the switch
+    quiet = replace(study.rig, noise_N=0.05)
+    first = write_gain_set(tmp_path / "paper.json", study, feedforward, plant=quiet)
+    # b = 0: a proportional action on the measurement alone, -0.5 V/N x 60 N = -30 V away from the paper's
+    # (b = 1, e ~ 0): a switch that is not bumpless jumps by that much
+    tuned = PIDGains(Kc=0.5, Ti_s=0.05, Td_s=0.001, Tf_s=0.01, b=0.0, u_min=0.0, u_max=110.0)
+    second = write_gain_set(tmp_path / "tuned.json", study, feedforward, gains=tuned, plant=quiet)
+    candidate = write_gain_set(tmp_path / "candidate.json", study, feedforward, gains=tuned, status="candidate",
+                               plant=quiet)
+    doc = json.loads(second.read_text())
+    doc["gains"]["Kc_V_per_N"] = 5.0
+    tampered = json.dumps(doc)
+    sha1 = read_artifact(first, "gain-set")["content_sha256"]
+    sha2 = read_artifact(second, "gain-set")["content_sha256"]
+    endpoint = f"opc.tcp://127.0.0.1:{_free_port()}/piezopreload/"
+    ready, stop, out = threading.Event(), threading.Event(), {}
+
+    def serve():
+        out["summary"] = serve_rig(first, endpoint=endpoint, users={USER: PASSWORD}, log_dir=tmp_path / "runs",
+                                   ready=ready, stop=stop)
+
+    server = threading.Thread(target=serve, daemon=True)
+    server.start()
+    try:
+        assert ready.wait(30)
+        time.sleep(1.5)  # past the step (at 0.5 s), holding 60 N
+        assert asyncio.run(_read(endpoint, "GainSetSha256")) == sha1
+        reply = asyncio.run(push_gain_set(second.read_text(), endpoint, username=USER, password=PASSWORD,
+                                          expect_sha256=sha2))
+        assert reply["server_parameters"] == {"CtrlP": 0.5, "CtrlTi": 0.05, "CtrlTd": 0.001}
+        assert reply["server_gain_set_sha256"] == sha2
+
+        with pytest.raises(PushRefused, match="candidate"):
+            asyncio.run(push_gain_set(candidate.read_text(), endpoint, username=USER, password=PASSWORD))
+        with pytest.raises(PushRefused, match="content_sha256"):
+            asyncio.run(push_gain_set(tampered, endpoint, username=USER, password=PASSWORD))
+        with pytest.raises(PushRefused, match="refused the session"):
+            asyncio.run(push_gain_set(first.read_text(), endpoint, username=USER, password="wrong"))
+        with pytest.raises(PushRefused, match="refused the session"):  # anonymous
+            asyncio.run(push_gain_set(first.read_text(), endpoint))
+        accepted, message = asyncio.run(_call_raw(endpoint, ua.Variant(7, ua.VariantType.Int32)))
+        assert accepted is False and "one String argument" in message
+        # the command line: a candidate is refused before anything is sent, a wrong password by the server
+        assert main(["rig", "push", str(candidate), "--endpoint", endpoint, "--user", USER]) == 2
+        time.sleep(0.2)
+        assert asyncio.run(_read(endpoint, "GainSetSha256")) == sha2  # nothing the refusals sent changed it
+    finally:
+        stop.set()
+        server.join(60)
+    s = out["summary"]
+    assert s["status"] == "completed"
+    pushes = s["pushes"]
+    assert [p["accepted"] for p in pushes] == [True, False, False, False]
+    assert pushes[0]["user"] == USER and pushes[0]["gain_set_sha256"] == sha2
+    assert all(p["user"] == USER for p in pushes)
+    side = json.loads(open(s["log_json"]).read())
+    switch = next(e for e in side["events"] if e["event"] == "gains_switched")
+    assert switch["pushed_by"] == USER and switch["gain_set_sha256"] == sha2 and "utc" in switch
+    assert sum(e["event"] == "push_refused" for e in side["events"]) == 3
+    log = read_run_log(s["log_csv"])
+    k = int(np.searchsorted(log["time_s"], switch["t_s"]))
+    u = log["command_V"]
+    assert abs(u[k] - u[k - 1]) <= 0.5  # bumpless
+    assert np.percentile(np.abs(np.diff(u[k - 500:k])), 99) < 0.25  # the noise's share stays below that
+    # and the gains did change there: the proportional action is Kc (b r - y)
+    before, after = slice(k - 200, k), slice(k + 1, k + 200)
+    e = log["reference_N"][before] - log["force_N"][before]
+    assert np.median(log["p_V"][before][np.abs(e) > 0.2] / e[np.abs(e) > 0.2]) == pytest.approx(0.3)
+    np.testing.assert_allclose(log["p_V"][after], -0.5 * log["force_N"][after], rtol=1e-6)
+
+
+def test_push_needs_a_password_from_the_environment(tmp_path, study, feedforward, capsys, monkeypatch):
+    gains = write_gain_set(tmp_path / "g.json", study, feedforward)
+    monkeypatch.delenv("PIEZOPRELOAD_RIG_PASSWORD", raising=False)
+    monkeypatch.setattr("sys.stdin.isatty", lambda: False)
+    assert main(["rig", "push", str(gains), "--user", USER]) == 2
+    assert "PIEZOPRELOAD_RIG_PASSWORD" in capsys.readouterr().err
+    monkeypatch.setenv("PIEZOPRELOAD_RIG_PASSWORD", PASSWORD)
+    assert main(["rig", "push", str(gains), "--user", USER, "--endpoint", f"opc.tcp://127.0.0.1:{_free_port()}/x/"]) == 2
+    assert "cannot reach" in capsys.readouterr().err
