@@ -407,17 +407,15 @@ def _cmd_rig_serve(args: argparse.Namespace) -> dict[str, Any]:
     from piezopreload.rig_pipeline import serve_rig
 
     _quiet_asyncua()
-    if args.user is None and not args.trust_cert:
-        raise InputError("rig serve: give --user NAME (password in $" + PASSWORD_ENV + ") or --trust-cert NAME=CERT; "
-                         "anonymous sessions are refused")
-    users = {args.user: _password(args, True)} if args.user else {}
+    if args.user is None:
+        raise InputError("rig serve: give --user NAME (password in $" + PASSWORD_ENV + "); anonymous sessions are refused")
+    users = {args.user: _password(args, True)}
     if args.certificate is None:
         print("warning: no --certificate: passwords cross the network unencrypted; keep the endpoint on loopback",
               file=sys.stderr)
     common = _rig_common(args)
     return serve_rig(args.gains, endpoint=args.endpoint, users=users, certificate=args.certificate,
-                     private_key=args.private_key, trusted_certificates=_key_values(args.trust_cert, "--trust-cert"),
-                     duration_s=args.duration, say=lambda m: print(m, file=sys.stderr, flush=True),
+                     private_key=args.private_key, duration_s=args.duration, say=lambda m: print(m, file=sys.stderr, flush=True),
                      **{k: v for k, v in common.items()})
 
 
@@ -687,8 +685,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--user", metavar="NAME", help=f"the user allowed to push; password in ${PASSWORD_ENV}")
     p.add_argument("--certificate", metavar="CERT", help="the server's certificate: enables Basic256Sha256 SignAndEncrypt only")
     p.add_argument("--private-key", metavar="KEY", help="the server certificate's private key")
-    p.add_argument("--trust-cert", action="append", metavar="NAME=CERT",
-                   help="a client certificate that authenticates as NAME (with --certificate; repeatable)")
     p.add_argument("--duration", type=float, metavar="S", help="serve this long, then ramp down and exit 0")
     p.set_defaults(run=_cmd_rig_serve, show=_print_rig_run)
 

@@ -227,7 +227,6 @@ def serve_rig(
     users: dict[str, str],
     certificate: str | None = None,
     private_key: str | None = None,
-    trusted_certificates: dict[str, str] | None = None,
     backend: str = "sim",
     backend_options: dict[str, str] | None = None,
     reference: str = "step",
@@ -251,8 +250,7 @@ def serve_rig(
     executor = Executor(su.controller, su.backend, su.reference, su.safety, realtime=True, hold=True, log=log)
     try:
         server = RigServer(executor, check_pushed_gain_set, identity=gain_set_identity(su.doc), endpoint=endpoint,
-                           users=users, certificate=certificate, private_key=private_key,
-                           trusted_certificates=trusted_certificates)
+                           users=users, certificate=certificate, private_key=private_key)
     except (ValueError, OSError) as exc:
         log.close("not started", {"reason": str(exc)})
         raise InputError(f"rig serve: {exc}") from None

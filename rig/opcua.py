@@ -14,8 +14,8 @@ Every variable is read-only to clients; the one way to change the controller is 
 which checks the document again (its hash, its status, its sample period), hands it to the
 executor to switch bumplessly between two cycles, and records who pushed what and when.
 
-Security: sessions authenticate with a user name and password (``users``) or, when the
-server has a certificate, with a trusted client certificate; anonymous sessions are refused.
+Security: sessions authenticate with a user name and password (``users``); anonymous
+sessions are refused.
 With ``certificate`` and ``private_key`` the server offers only the Basic256Sha256
 SignAndEncrypt policy; without, it offers no encryption, which is for loopback use only (the
 default endpoint binds 127.0.0.1).
@@ -38,7 +38,6 @@ from pathlib import Path
 from typing import Any
 
 from asyncua import Client, Server, ua
-from asyncua.crypto import uacrypto
 from asyncua.crypto.permission_rules import SimpleRoleRuleset, User, UserRole
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
@@ -65,12 +64,11 @@ def _hash_password(password: str, salt: bytes) -> bytes:
 
 
 class _Users:
-    """User names with salted password hashes and trusted client certificates (DER)."""
+    """User names with salted password hashes."""
 
-    def __init__(self, passwords: dict[str, str], certificates: dict[str, bytes]) -> None:
+    def __init__(self, passwords: dict[str, str]) -> None:
         self._salt = os.urandom(16)
         self._hashes = {name: _hash_password(pw, self._salt) for name, pw in passwords.items()}
-        self._certs = dict(certificates)
 
     def get_user(self, iserver: Any, username: str | None = None, password: str | None = None,
                  certificate: Any = None) -> User | None:
@@ -78,11 +76,6 @@ class _Users:
             known = self._hashes.get(username)
             if known is not None and password is not None and hmac.compare_digest(known, _hash_password(password, self._salt)):
                 return User(role=UserRole.User, name=username)
-            return None
-        if certificate is not None:
-            for name, der in self._certs.items():
-                if hmac.compare_digest(der, certificate):
-                    return User(role=UserRole.User, name=f"certificate:{name}")
         return None
 
 
@@ -126,10 +119,9 @@ class RigServer:
     def __init__(self, executor: Executor, check_gain_set: GainSetCheck, *, identity: dict[str, Any],
                  endpoint: str = DEFAULT_ENDPOINT, users: dict[str, str] | None = None,
                  certificate: str | Path | None = None, private_key: str | Path | None = None,
-                 trusted_certificates: dict[str, str | Path] | None = None, update_s: float = 0.05) -> None:
-        if not users and not trusted_certificates:
-            raise ValueError("the server needs at least one user (name and password) or a trusted client certificate; "
-                             "anonymous sessions are refused")
+                 update_s: float = 0.05) -> None:
+        if not users:
+            raise ValueError("the server needs at least one user (name and password); anonymous sessions are refused")
         if (certificate is None) != (private_key is None):
             raise ValueError("give both the server certificate and its private key, or neither")
         self.executor = executor
@@ -137,8 +129,7 @@ class RigServer:
         self.identity = dict(identity)
         self.endpoint = endpoint
         self.certificate, self.private_key = certificate, private_key
-        self._users = _Users(users or {}, {})  # trusted certificates are loaded (DER) when the server starts
-        self._trusted_paths = dict(trusted_certificates or {})
+        self._users = _Users(users)
         self.update_s = float(update_s)
         self.pushes: list[dict[str, Any]] = []
         self._ruleset = _Ruleset()
@@ -154,14 +145,9 @@ class RigServer:
             await server.load_private_key(str(self.private_key))
             server.set_security_policy([ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt],
                                        permission_ruleset=self._ruleset)
-            ders = {}
-            for name, path in self._trusted_paths.items():
-                ders[name] = uacrypto.der_from_x509(await uacrypto.load_certificate(str(path)))
-            self._users._certs = ders
-            server.set_identity_tokens([ua.UserNameIdentityToken, ua.X509IdentityToken])
         else:
             server.set_security_policy([ua.SecurityPolicyType.NoSecurity], permission_ruleset=self._ruleset)
-            server.set_identity_tokens([ua.UserNameIdentityToken])
+        server.set_identity_tokens([ua.UserNameIdentityToken])
         idx = await server.register_namespace(NAMESPACE)
         root = await server.nodes.objects.add_object(idx, ROOT)
         params = await root.add_object(idx, "ControllerParameters")
@@ -274,6 +260,9 @@ async def push_gain_set(document: str, endpoint: str, *, username: str | None = 
     except ua.UaStatusCodeError as exc:
         raise PushRefused(f"the server refused the session: {type(exc).__name__} "
                           "(a wrong user name or password, or an untrusted certificate)") from None
+    except ua.UaError as exc:
+        raise PushRefused(f"the server refused the session: {exc} (it may require encryption: give the client's "
+                          "certificate and key)") from None
     except (OSError, asyncio.TimeoutError) as exc:
         raise PushRefused(f"cannot reach {endpoint}: {exc or type(exc).__name__}") from None
     try:

@@ -132,3 +132,47 @@ def test_push_needs_a_password_from_the_environment(tmp_path, study, feedforward
     monkeypatch.setenv("PIEZOPRELOAD_RIG_PASSWORD", PASSWORD)
     assert main(["rig", "push", str(gains), "--user", USER, "--endpoint", f"opc.tcp://127.0.0.1:{_free_port()}/x/"]) == 2
     assert "cannot reach" in capsys.readouterr().err
+
+
+def test_basic256sha256_with_password_and_client_certificate(tmp_path, study, feedforward):
+    """With a server certificate: only SignAndEncrypt; an unencrypted session is refused, an encrypted one pushes."""
+    from asyncua.crypto.cert_gen import setup_self_signed_certificate
+    from cryptography.x509.oid import ExtendedKeyUsageOID
+
+    async def make():
+        await setup_self_signed_certificate(tmp_path / "server.pem", tmp_path / "server.der",
+                                            "urn:freeopcua:python:server", "localhost",
+                                            [ExtendedKeyUsageOID.SERVER_AUTH], {"commonName": "rig"})
+        await setup_self_signed_certificate(tmp_path / "client.pem", tmp_path / "client.der", "urn:freeopcua:client",
+                                            "localhost", [ExtendedKeyUsageOID.CLIENT_AUTH], {"commonName": "bench"})
+
+    asyncio.run(make())
+    first = write_gain_set(tmp_path / "paper.json", study, feedforward)
+    second = write_gain_set(tmp_path / "tuned.json", study, feedforward,
+                            gains=PIDGains(Kc=0.4, Ti_s=0.06, Td_s=0.001, u_min=0.0, u_max=110.0))
+    sha2 = read_artifact(second, "gain-set")["content_sha256"]
+    endpoint = f"opc.tcp://127.0.0.1:{_free_port()}/piezopreload/"
+    ready, stop, out = threading.Event(), threading.Event(), {}
+
+    def serve():
+        out["summary"] = serve_rig(first, endpoint=endpoint, users={USER: PASSWORD}, log_dir=tmp_path / "runs",
+                                   certificate=str(tmp_path / "server.der"), private_key=str(tmp_path / "server.pem"),
+                                   ready=ready, stop=stop)
+
+    server = threading.Thread(target=serve, daemon=True)
+    server.start()
+    secure = dict(certificate=tmp_path / "client.der", private_key=tmp_path / "client.pem",
+                  server_certificate=tmp_path / "server.der")
+    try:
+        assert ready.wait(30)
+        with pytest.raises(PushRefused):  # no encryption offered: an unencrypted session is refused
+            asyncio.run(push_gain_set(second.read_text(), endpoint, username=USER, password=PASSWORD))
+        reply = asyncio.run(push_gain_set(second.read_text(), endpoint, username=USER, password=PASSWORD,
+                                          expect_sha256=sha2, **secure))
+        assert reply["server_parameters"]["CtrlP"] == 0.4
+        with pytest.raises(PushRefused, match="refused the session"):
+            asyncio.run(push_gain_set(first.read_text(), endpoint, username=USER, password="wrong", **secure))
+    finally:
+        stop.set()
+        server.join(60)
+    assert [p["user"] for p in out["summary"]["pushes"] if p["accepted"]] == [USER]
