@@ -124,7 +124,7 @@ class CompiledStep:
         fn = lib.pp_rig_step
         fn.argtypes = [ctypes.c_double, ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
         fn.restype = ctypes.c_int
-        self._lib, self._fn, self._n_ff = lib, fn, n_ff
+        self._lib, self._fn, self._n_ff, self._compiler = lib, fn, n_ff, compiler
         self._x = np.zeros(5 + n_ff)
         self._out = np.zeros(5)
         self._set(controller)
@@ -153,7 +153,7 @@ class CompiledStep:
     def switch(self, new: Controller) -> None:
         state = self.controller.switch(self.state, new)
         if new.n_feedforward_states != self._n_ff:  # another operator count: another library
-            self.__dict__.update(CompiledStep(new, _compiler() or "cc").__dict__)
+            self.__dict__.update(CompiledStep(new, self._compiler).__dict__)
         else:
             self._set(new)
         self._x[:] = Controller.state_vector(state)

@@ -142,6 +142,7 @@ class Executor:
         self._pending: tuple[Controller, dict[str, Any]] | None = None
         self._stop: str | None = None
         self._stop_trips = True
+        self._rows = 0  # samples logged in this run: the ramp down follows the last
         self.events: list[dict[str, Any]] = []
         #: the latest cycle: (t_s, setpoint_N, force_N, voltage_V, state) for a server to show
         self.latest: tuple[float, float, float, float, str] = (0.0, reference.levels_N[0], math.nan, 0.0, "idle")
@@ -152,6 +153,11 @@ class Executor:
         if not math.isclose(controller.dt_s, self.dt, rel_tol=1e-12):
             raise ValueError(f"the new controller samples every {controller.dt_s} s, the loop every {self.dt} s")
         self._pending = (controller, info)
+
+    @property
+    def switch_pending(self) -> bool:
+        """A requested switch the loop has not made yet."""
+        return self._pending is not None
 
     def stop(self, reason: str, *, trip: bool = True) -> None:
         """Ask the loop to ramp down and end; safe from any thread.
@@ -221,6 +227,7 @@ class Executor:
                 if k >= n_ref and not self.hold:
                     break
                 t = k * dt
+                sp = ref[k] if k < n_ref else ref[-1]
                 deadline = t0 + t
                 wake = self._wait(deadline) if self.realtime else time.perf_counter()
                 if self._pending is not None:
@@ -230,7 +237,7 @@ class Executor:
                     self.controller = new
                     self._event("gains_switched", t, **info)
                 if self._stop is not None:  # this cycle is the stop's: logged, no reading, no command
-                    self._log_row(t, ref[min(k, n_ref - 1)], math.nan, math.nan, v_last, (math.nan,) * 4,
+                    self._log_row(t, sp, math.nan, math.nan, v_last, (math.nan,) * 4,
                                   wake - wake_prev, wake - deadline if self.realtime else 0.0, 0.0, 0, 2)
                     if self._stop_trips:
                         trip = Trip("signal", self._stop, t)
@@ -241,15 +248,16 @@ class Executor:
                 y = float(reading.force_N)
                 trip = self._check(y, reading.t_s, t)
                 if trip is not None:
-                    self._log_row(t, ref[min(k, n_ref - 1)], y, math.nan, v_last, (math.nan,) * 4, wake - wake_prev,
+                    self._log_row(t, sp, y, math.nan, v_last, (math.nan,) * 4, wake - wake_prev,
                                   wake - deadline if self.realtime else 0.0, 0.0, 0, 2)
                     break
-                sp = ref[k] if k < n_ref else ref[-1]
                 if k == 0:  # bumpless start on the first reading: the first command is the safe level
                     self.step.start(sp, y, v_last)
                 u, p, i, d, ff = self.step.step(sp, y)
                 if not math.isfinite(u):
                     trip = Trip("command", f"the controller's command is {u}", t)
+                    self._log_row(t, sp, y, u, v_last, (ff, p, i, d), wake - wake_prev,
+                                  wake - deadline if self.realtime else 0.0, 0.0, 0, 2)
                     break
                 v = min(max(u, s.v_min_V), s.v_max_V)
                 slew = s.slew_V_per_s * dt
@@ -280,8 +288,8 @@ class Executor:
             try:
                 if trip is not None:
                     self._event("interlock", trip.t_s, cause=trip.cause, detail=trip.detail, voltage_V=v_last)
-                v_end = self._ramp_down(v_last, k, t0)
-                self._event("ramped_down", (k + self._ramp_cycles(v_last)) * dt, voltage_V=v_end)
+                v_end, t_end = self._ramp_down(v_last, t0)
+                self._event("ramped_down", t_end, voltage_V=v_end)
             finally:
                 try:
                     self.backend.disarm()
@@ -290,7 +298,7 @@ class Executor:
                     if gc_was_enabled:
                         gc.enable()
         self.latest = (t, self.latest[1], self.latest[2], s.safe_V, "tripped" if trip else "completed")
-        self._event("disarmed", (k + self._ramp_cycles(v_last)) * dt)
+        self._event("disarmed", t_end)
         timing = _timing(lateness, periods, missed, dt, self.realtime)
         result = RunResult("tripped" if trip else "completed", trip, k, timing, clamped, self.step.kind,
                            None if self.log is None else str(self.log.csv_path),
@@ -300,17 +308,18 @@ class Executor:
                                            "trip": None if trip is None else asdict(trip)})
         return result
 
-    def _ramp_cycles(self, v_from: float) -> int:
-        return 0 if v_from == self.safety.safe_V else max(1, int(math.ceil(self.safety.ramp_s / self.dt)))
+    def _ramp_down(self, v_from: float, t0: float) -> tuple[float, float]:
+        """From ``v_from`` to the safe level in a straight line over ``ramp_s``, at the loop's rate.
 
-    def _ramp_down(self, v_from: float, k0: int, t0: float) -> float:
-        """From ``v_from`` to the safe level in a straight line over ``ramp_s``, at the loop's rate."""
+        The ramp's samples follow the last one logged, whichever way the loop ended. Returns the
+        voltage reached and the time of the ramp's last sample.
+        """
         s, dt = self.safety, self.dt
-        n = self._ramp_cycles(v_from)
-        v = v_from
+        n = 0 if v_from == s.safe_V else max(1, int(math.ceil(s.ramp_s / dt)))
+        k0 = self._rows - 1  # the last sample logged
+        v, t = v_from, max(k0, 0) * dt
         for j in range(1, n + 1):
-            k = k0 + j
-            t = k * dt
+            t = (k0 + j) * dt
             if self.realtime:
                 self._wait(t0 + t)
             v = s.safe_V if j == n else v_from + (s.safe_V - v_from) * j / n
@@ -327,13 +336,14 @@ class Executor:
                     v = s.safe_V
                 except Exception:
                     pass
-                return v
+                return v, t
             self._log_row(t, math.nan, y, math.nan, v, (math.nan,) * 4, dt, 0.0, 0.0, 0, 1)
             self.latest = (t, math.nan, y, v, "ramping down")
-        return v
+        return v, t
 
     def _log_row(self, t: float, sp: float, y: float, u: float, v: float, terms: tuple, period: float,
                  late: float, compute: float, miss: int, mode: int) -> None:
+        self._rows += 1
         if self.log is not None:
             self.log.sample((t, sp, y, u, v, *terms, period, late, compute, miss, mode), time.monotonic())
 

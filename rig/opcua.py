@@ -134,6 +134,8 @@ class RigServer:
         self.pushes: list[dict[str, Any]] = []
         self._ruleset = _Ruleset()
         self._lock = threading.Lock()
+        self._shown: dict[Any, Any] = {}  # node -> the value last written to it
+        self._events_shown = 0
 
     async def _build(self) -> tuple[Server, _Nodes]:
         server = Server(user_manager=self._users)
@@ -205,19 +207,23 @@ class RigServer:
         return True, f"accepted gain set {identity.get('gain_set_sha256', '')[:12]}; it runs from the next cycle"
 
     async def _update(self, nodes: _Nodes) -> None:
+        """Write the nodes whose values changed since the last update (the loop shares the interpreter)."""
         t, sp, y, v, state = self.executor.latest
         g = self.executor.controller.gains
         values = [(nodes.p, float(g.Kc)), (nodes.ti, float(g.Ti_s)), (nodes.td, float(g.Td_s)),
                   (nodes.tf, float(g.Tf_s)), (nodes.b, float(g.b)),
                   (nodes.setpoint, float(sp)), (nodes.force, float(y)), (nodes.voltage, float(v)), (nodes.state, state)]
         events = self.executor.events
-        if events:
+        if events and len(events) != self._events_shown:
+            self._events_shown = len(events)
             values.append((nodes.last_event, json.dumps(events[-1], default=str)))
-        if not self.executor._pending:
+        if not self.executor.switch_pending:
             values += [(nodes.gain_sha, self.identity.get("gain_set_sha256", "")),
                        (nodes.ff_sha, self.identity.get("feedforward_sha256", ""))]
         for node, value in values:
-            await node.write_value(value)
+            if self._shown.get(node) != value:
+                self._shown[node] = value
+                await node.write_value(value)
 
     async def run(self, ready: threading.Event | None = None, stop: threading.Event | None = None) -> RunResult:
         """Serve until the executor ends (its reference, a trip, :meth:`Executor.stop`); returns its result."""
@@ -256,7 +262,13 @@ async def push_gain_set(document: str, endpoint: str, *, username: str | None = 
                                   server_certificate=None if server_certificate is None else str(server_certificate),
                                   mode=ua.MessageSecurityMode.SignAndEncrypt)
     try:
-        await client.connect()
+        try:
+            await client.connect()
+        except BaseException:
+            # a failed connect leaves the socket and secure channel open; close them now, not when the
+            # event loop is torn down (the server then met the half-open channel under the next client)
+            client.disconnect_socket()
+            raise
     except ua.UaStatusCodeError as exc:
         raise PushRefused(f"the server refused the session: {type(exc).__name__} "
                           "(a wrong user name or password, or an untrusted certificate)") from None

@@ -141,6 +141,7 @@ def test_missed_deadline_streak_stops_a_realtime_run(gains_path, tmp_path):
     assert r["trip"]["cause"] == "deadline" and r["timing"]["missed_deadlines"] >= 5
     log = read_run_log(r["log_csv"])
     assert log["missed"][log["mode"] == 0][-5:].tolist() == [1] * 5
+    np.testing.assert_allclose(np.diff(log["time_s"]), DT, atol=1e-6)
     assert log["voltage_V"][-1] == 0.0
 
 
@@ -148,6 +149,9 @@ def test_clamp_and_slew_limit_shape_every_command(gains_path, tmp_path):
     r = _run(gains_path, tmp_path, [], v_max_V=40.0, slew_V_per_s=2000.0, force_max_N=150.0)
     assert r["status"] == "completed" and r["clamped_cycles"] > 0
     log = read_run_log(r["log_csv"])
+    # a run that reaches its end ramps down right after its last sample: nothing skipped
+    np.testing.assert_allclose(np.diff(log["time_s"]), DT, atol=1e-6)
+    assert log["voltage_V"][-1] == 0.0
     v = log["voltage_V"]
     assert v.max() == pytest.approx(40.0) and np.max(np.abs(np.diff(v))) <= 2.0 + 1e-9
     assert np.nanmax(log["command_V"]) > 40.0  # the controller asked for more
