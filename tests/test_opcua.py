@@ -134,7 +134,7 @@ def test_push_needs_a_password_from_the_environment(tmp_path, study, feedforward
     assert "cannot reach" in capsys.readouterr().err
 
 
-def test_basic256sha256_with_password_and_client_certificate(tmp_path, study, feedforward):
+def test_basic256sha256_channel_with_a_password(tmp_path, study, feedforward):
     """With a server certificate: only SignAndEncrypt; an unencrypted session is refused, an encrypted one pushes."""
     from asyncua.crypto.cert_gen import setup_self_signed_certificate
     from cryptography.x509.oid import ExtendedKeyUsageOID
