@@ -19,7 +19,7 @@ from typing import Any
 from piezopreload import __version__
 from piezopreload.io import InputError, read_input
 
-__all__ = ["ArtifactError", "schema_name", "write_artifact", "read_artifact", "atomic_write_text", "content_hash", "parse_artifact"]
+__all__ = ["ArtifactError", "schema_name", "write_artifact", "read_artifact", "atomic_write_text", "atomic_write_bytes", "content_hash", "parse_artifact"]
 
 VERSION = 1
 KINDS = {
@@ -27,6 +27,11 @@ KINDS = {
     "gain-set": ("gains", "status", "inputs"),
     "design": ("optimum", "fronts", "schedule", "inputs", "units"),
     "rig-run": ("status", "events", "gain_set_sha256", "backend", "csv", "summary"),
+    "tuning": ("gains", "table", "criteria", "inputs"),
+    "validation": ("gain_set_sha256", "passed", "metrics", "inputs"),
+    "responses": ("runs", "reproduction", "inputs"),
+    "study-run": ("study", "stages"),
+    "report": ("title", "figures", "provenance"),
 }
 #: kinds whose documents carry ``content_sha256``, checked on every read
 HASHED = {"gain-set"}
@@ -41,14 +46,29 @@ def schema_name(kind: str) -> str:
     return f"piezopreload/{kind}/{VERSION}"
 
 
+#: the process's umask, read once at import (reading it means setting it; imports run in one thread)
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
+
+
 def atomic_write_text(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename."""
+    """Write ``text`` (UTF-8) to ``path`` atomically: see :func:`atomic_write_bytes`."""
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file in the same folder, fsync and a rename.
+
+    A reader sees the old file or the new one, never a part. The file gets the permissions a
+    plain ``open(path, "w")`` would give it (mkstemp's own are 0600).
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
+        os.fchmod(fd, 0o666 & ~_UMASK)
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)

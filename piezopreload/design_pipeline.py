@@ -165,8 +165,12 @@ def _front_csv(front: Any) -> str:
 
 def design_study(path: str | Path, objective: str | None = None, pareto: list[str] | None = None,
                  points: int | None = None, schedule_csv: str | None = None, out: str | Path | None = None,
-                 progress: Callable[[str], None] | None = None) -> dict[str, Any]:
-    """Optimum, fronts and schedule of a study's design; writes ``out`` and the fronts' CSVs."""
+                 progress: Callable[[str], None] | None = None,
+                 bar: Callable[[int, int], None] | None = None) -> dict[str, Any]:
+    """Optimum, fronts and schedule of a study's design; writes ``out`` and the fronts' CSVs.
+
+    ``progress`` gets messages; ``bar``, if given, gets (points done, points in all) over the fronts.
+    """
     st = read_study_text(path)
     spec, options = design_spec_from_study(st)
     objective = objective or options["objective"]
@@ -182,10 +186,12 @@ def design_study(path: str | Path, objective: str | None = None, pareto: list[st
     say(f"optimum ({objective}): {p.turns:.0f} turns x {p.balls_per_turn:.0f} balls of {p.ball_mm:.3f} mm, "
         f"contact angle {p.contact_angle_deg:.1f} deg, preload {p.bolt_preload_N:.0f}-{p.max_preload_N:.0f} N")
     fronts = []
-    for pair in pairs:
-        front = pareto_front(spec, pair, n_points, nlp,
-                             progress=lambda i, n, pair=pair: say(f"front {pair}: {i}/{n}") if i in (n // 2, n) else None)
-        fronts.append(front)
+    for j, pair in enumerate(pairs):
+        if bar is not None:
+            report = lambda i, n, j=j: bar(j * n + i, len(pairs) * n)  # noqa: E731
+        else:
+            report = lambda i, n, pair=pair: say(f"front {pair}: {i}/{n}") if i in (n // 2, n) else None  # noqa: E731
+        fronts.append(pareto_front(spec, pair, n_points, nlp, progress=report))
 
     # ---- the schedule on the optimum's screw -------------------------------------------------
     sched_opts = options["schedule"]
@@ -212,7 +218,18 @@ def design_study(path: str | Path, objective: str | None = None, pareto: list[st
         "bolt_preload_Hz": spec.feed_drive.natural_frequency_Hz(screw, p.bolt_preload_N, positions).tolist(),
         "max_preload_Hz": spec.feed_drive.natural_frequency_Hz(screw, p.max_preload_N, positions).tolist(),
     }
+    preloads = np.linspace(0.25 * p.bolt_preload_N, 1.5 * p.max_preload_N, 121)
+    curve = {
+        "preload_N": preloads.tolist(),
+        "rigidity_N_per_um": np.asarray(screw.rigidity_N_per_um(preloads), float).tolist(),
+        "drag_torque_Nm": np.asarray(screw.drag_torque_Nm(preloads), float).tolist(),
+        "cases": [{"axial_load_N": case.axial_load_N, "preload_N": float(f_case),
+                   "rigidity_N_per_um": float(screw.rigidity_N_per_um(f_case, case.axial_load_N))}
+                  for case, f_case in zip(spec.duty, p.case_preload_N)],
+        "bolt_preload_N": p.bolt_preload_N, "max_preload_N": p.max_preload_N,
+    }
     body = {
+        "preload_curve": curve,
         "inputs": {"study": st.path, "study_sha256": st.sha256, "profile": str(profile_path) if profile_path else "example"},
         "units": {"force": "N", "length": "mm", "stiffness": "N/um", "torque": "N m", "life": "h", "energy": schedule.energy_units},
         "optimum": result.as_dict(),

@@ -33,6 +33,7 @@ __all__ = [
     "identify",
     "load_hysteresis_model",
     "load_gains",
+    "gains_from_dict",
     "gains_to_dict",
     "simulate_study",
     "reproduce_study",
@@ -191,21 +192,24 @@ def gains_to_dict(gains: PIDGains) -> dict[str, Any]:
 def load_gains(path: str | Path) -> tuple[PIDGains, dict[str, Any]]:
     """Read the gains of a gain-set artifact (SI units); errors name the file and field."""
     doc = read_artifact(path, "gain-set")
-    g = doc["gains"]
+    return gains_from_dict(doc["gains"], path), doc
+
+
+def gains_from_dict(g: Any, path: str | Path, field: str = "gains") -> PIDGains:
+    """The inverse of :func:`gains_to_dict`; errors name the file and the field."""
     if not isinstance(g, dict):
-        raise ArtifactError(f"{path}: field 'gains' must be an object")
+        raise ArtifactError(f"{path}: field '{field}' must be an object")
     try:
         missing = next((k for k in ("Kc_V_per_N", "Ti_s", "Td_s") if k not in g), None)
         if missing:
-            raise ArtifactError(f"{path}: field 'gains.{missing}' is missing")
-        gains = PIDGains(
+            raise ArtifactError(f"{path}: field '{field}.{missing}' is missing")
+        return PIDGains(
             Kc=float(g["Kc_V_per_N"]), Ti_s=float(g["Ti_s"]), Td_s=float(g["Td_s"]),
             Tf_s=float(g.get("Tf_s", 0.0)), b=float(g.get("b", 1.0)),
             u_min=float(g.get("u_min_V", 0.0)), u_max=float(g.get("u_max_V", 110.0)),
         )
     except (TypeError, ValueError) as exc:
-        raise ArtifactError(f"{path}: field 'gains' is not valid: {exc}") from None
-    return gains, doc
+        raise ArtifactError(f"{path}: field '{field}' is not valid: {exc}") from None
 
 
 def _feedforward(study: Study, path: str | Path | None) -> tuple[Any, dict[str, Any]]:

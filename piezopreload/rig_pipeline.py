@@ -184,6 +184,9 @@ def _setup(gains_path: str | Path, backend: str, backend_options: dict[str, str]
         rig = open_backend(backend, backend_options, plant=plant, seed=seed)
     except BackendError as exc:
         raise InputError(str(exc)) from None
+    if not realtime and not getattr(rig, "simulated", False):
+        raise InputError(f"--fast: the backend '{backend}' does not declare itself a simulation (simulated = True); "
+                         "hardware runs in real time")
     if faults:
         rig = FaultInjector(rig, faults)
     info = {

@@ -24,8 +24,11 @@ from piezopreload.models.actuator import P888_91, RigParams, StackData
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import PIDGains
 from piezopreload.tuning.calibrate import LoopExcitation
+from piezopreload.tuning.pid import TuningSpec
+from piezopreload.tuning.validate import Criteria
 
-__all__ = ["Study", "StudyText", "load_study", "read_study_text", "default_study", "DEFAULT_STUDY"]
+__all__ = ["Study", "StudyText", "RigRunPlan", "load_study", "read_study_text", "default_study", "DEFAULT_STUDY",
+           "EXPORT_FORMATS"]
 
 DEFAULT_STUDY = "paper2021.toml"
 
@@ -41,7 +44,8 @@ _SCHEMA: dict[str, Any] = {
     "controller": {
         "Kc": _NUM, "Ti": _NUM, "Td": _NUM, "Tf_s": _NUM, "b": _NUM, "units": str, "u_min_V": _NUM, "u_max_V": _NUM,
     },
-    "feedforward": {"v_max_V": _NUM, "frequency_Hz": _NUM, "cycles": int, "n_operators": int, "seed": int},
+    "feedforward": {"v_max_V": _NUM, "frequency_Hz": _NUM, "cycles": int, "n_operators": int, "seed": int,
+                    "data": str},
     "reference": {
         "step": {"initial_N": _NUM, "final_N": _NUM, "t_step_s": _NUM, "duration_s": _NUM},
         "trajectory": {"initial_N": _NUM, "levels_N": list, "hold_s": _NUM, "t_start_s": _NUM},
@@ -61,11 +65,38 @@ _SCHEMA: dict[str, Any] = {
                "amp_current_limit_A": _NUM},
     "schedule": {"profile": str, "stiffness_min_N_per_um": _NUM, "deflection_max_um": _NUM,
                  "lift_off_margin": _NUM},
+    # the one-command study (piezopreload run): tuning, validation, export and the rig run
+    "tuning": {"overshoot_margin_N": _NUM, "ms_max": _NUM, "noise_gain_max_V_per_N": _NUM,
+               "tune_setpoint_weight": bool},
+    "validation": {"plants": int, "seed": int, "workers": int, "settling_max_s": _NUM, "overshoot_max_N": _NUM,
+                   "tracking_rms_max_N": _NUM, "peak_voltage_max_V": _NUM},
+    "export": {"formats": list},
+    "rig_run": {"backend": str, "reference": str, "realtime": bool, "seed": int, "force_max_N": _NUM,
+                "ramp_s": _NUM, "missed_streak": int},
 }
 _REQUIRED = {"rig", "controller"}
-_STRING_LISTS = {"design.pareto"}
+_STRING_LISTS = {"design.pareto", "export.formats"}
 _UNITS = ("seconds", "minutes")
 _SIGNALS = ("measured_N", "force_N")
+#: what [export] formats may name (rig/export.py writes each)
+EXPORT_FORMATS = ("json", "labview", "plc", "c-header", "casadi-c")
+_RIG_REFERENCES = ("step", "trajectory")
+
+
+@dataclass(frozen=True)
+class RigRunPlan:
+    """The study's [rig_run]: how ``piezopreload run`` runs the validated gains on the rig."""
+
+    backend: str = "sim"
+    reference: str = "step"          # step, trajectory, or a time_s,force_N CSV (path resolved)
+    realtime: bool = False           # the simulated rig runs back to back unless asked
+    seed: int = 0
+    force_max_N: float | None = None
+    ramp_s: float | None = None
+    missed_streak: int | None = None
+
+    def safety(self) -> dict[str, float | None]:
+        return {"force_max_N": self.force_max_N, "ramp_s": self.ramp_s, "missed_streak": self.missed_streak}
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,6 +116,15 @@ class Study:
     band_N: float
     signal: str
     raw: dict[str, Any]
+    #: a measured voltage -> force loop to identify the feedforward from (None: simulate it)
+    feedforward_data: str | None = None
+    tuning_spec: TuningSpec = TuningSpec()
+    criteria: Criteria = Criteria()
+    validation_plants: int = 200
+    validation_seed: int = 0
+    validation_workers: int | None = None
+    export_formats: tuple[str, ...] = EXPORT_FORMATS
+    rig_run: RigRunPlan = RigRunPlan()
 
 
 class _Lines:
@@ -128,9 +168,10 @@ def _check_tree(data: dict[str, Any], schema: dict[str, Any], prefix: str, where
                 raise InputError(f"{at}: '{path}' must be a table ([{path}])")
             _check_tree(value, expected, f"{path}.", where, shown)
             continue
-        ok = isinstance(value, expected) and not isinstance(value, bool)
+        ok = isinstance(value, bool) if expected is bool else isinstance(value, expected) and not isinstance(value, bool)
         if not ok:
-            want = {str: "a string", list: "a list", int: "an integer", _NUM: "a number"}.get(expected, str(expected))
+            want = {str: "a string", list: "a list", int: "an integer", _NUM: "a number",
+                    bool: "true or false"}.get(expected, str(expected))
             raise InputError(f"{at}: '{path}' must be {want}, got {type(value).__name__} {value!r}")
         if isinstance(value, float) and not math.isfinite(value):
             raise InputError(f"{at}: '{path}' must be finite, got {value!r}")
@@ -215,7 +256,7 @@ def load_study(path: str | Path) -> Study:
 
     # ---- feedforward, references, simulation -----------------------------------------------------
     try:
-        excitation = LoopExcitation(**data.get("feedforward", {}))
+        excitation = LoopExcitation(**{k: v for k, v in data.get("feedforward", {}).items() if k != "data"})
     except ValueError as exc:
         raise fail("feedforward", f"is not valid: {exc}") from None
     refs = data.get("reference", {})
@@ -250,11 +291,66 @@ def load_study(path: str | Path) -> Study:
     if seed < 0:
         raise fail("simulation.seed", f"must be >= 0, got {seed}")
     meta = data.get("study", {})
+    here = Path(shown).parent
+    ff_data = data.get("feedforward", {}).get("data")
+    spec, criteria = _tuning_tables(data, gains, band, fail)
+    v = data.get("validation", {})
+    plants, workers = int(v.get("plants", 200)), v.get("workers")
+    if not 1 <= plants <= 100_000:
+        raise fail("validation.plants", f"must be in 1..100000, got {plants}")
+    if workers is not None and workers < 1:
+        raise fail("validation.workers", f"must be >= 1, got {workers}")
+    formats = tuple(data.get("export", {}).get("formats", EXPORT_FORMATS))
+    for f in formats:
+        if f not in EXPORT_FORMATS:
+            raise fail("export.formats", f"has {f!r}; expected some of {', '.join(EXPORT_FORMATS)}")
     return Study(
         path=shown, sha256=st.sha256, name=meta.get("name", Path(shown).stem),
         title=meta.get("title", ""), rig=rig, gains=gains, gains_units=units, excitation=excitation,
         references=references, seed=seed, band_N=band, signal=signal, raw=data,
+        feedforward_data=None if ff_data is None else str(here / ff_data),
+        tuning_spec=spec, criteria=criteria, validation_plants=plants,
+        validation_seed=int(v.get("seed", seed)), validation_workers=workers,
+        export_formats=formats, rig_run=_rig_run(data.get("rig_run", {}), here, fail),
     )
+
+
+def _tuning_tables(data: dict[str, Any], gains: PIDGains, band_N: float, fail: Any) -> tuple[TuningSpec, Criteria]:
+    """[tuning] as a :class:`TuningSpec` and [validation]'s limits as :class:`Criteria`."""
+    t = data.get("tuning", {})
+    try:
+        spec = TuningSpec(band_N=band_N, u_min_V=gains.u_min, u_max_V=gains.u_max,
+                          **{k: (bool(x) if k == "tune_setpoint_weight" else float(x)) for k, x in t.items()})
+    except ValueError as exc:
+        key = next((k for k in t if k in str(exc)), "")
+        raise fail(f"tuning.{key}" if key else "tuning", f"is not valid: {exc}") from None
+    limits = {k: float(x) for k, x in data.get("validation", {}).items()
+              if k in ("settling_max_s", "overshoot_max_N", "tracking_rms_max_N", "peak_voltage_max_V")}
+    try:
+        criteria = Criteria(band_N=band_N, **limits)
+    except ValueError as exc:
+        key = next((k for k in limits if k in str(exc)), "")
+        raise fail(f"validation.{key}" if key else "validation", f"is not valid: {exc}") from None
+    return spec, criteria
+
+
+def _rig_run(r: dict[str, Any], here: Path, fail: Any) -> RigRunPlan:
+    reference = r.get("reference", "step")
+    if reference not in _RIG_REFERENCES:
+        if not reference.lower().endswith(".csv"):
+            raise fail("rig_run.reference", f"must be step, trajectory or a time_s,force_N .csv file, got {reference!r}")
+        reference = str(here / reference)
+    for key, low in (("force_max_N", 0.0), ("ramp_s", 0.0)):
+        if key in r and not r[key] > low:
+            raise fail(f"rig_run.{key}", f"must be > {low:g}, got {r[key]!r}")
+    if "missed_streak" in r and r["missed_streak"] < 1:
+        raise fail("rig_run.missed_streak", f"must be >= 1, got {r['missed_streak']!r}")
+    if r.get("seed", 0) < 0:
+        raise fail("rig_run.seed", f"must be >= 0, got {r['seed']!r}")
+    backend = r.get("backend", "sim")
+    realtime = bool(r.get("realtime", backend != "sim"))  # a simulated plug-in may set false
+    return RigRunPlan(backend=backend, reference=reference, realtime=realtime, seed=int(r.get("seed", 0)),
+                      force_max_N=r.get("force_max_N"), ramp_s=r.get("ramp_s"), missed_streak=r.get("missed_streak"))
 
 
 def default_study() -> Path:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import asdict
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -16,13 +17,13 @@ from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import PIDGains
 from piezopreload.models.hysteresis import ClassicalPI, model_from_dict
-from piezopreload.pipeline import gains_to_dict, load_gains
+from piezopreload.pipeline import gains_from_dict, gains_to_dict, load_gains
 from piezopreload.study import Study
 from piezopreload.tuning.calibrate import PAPER_RESULTS, identify_feedforward
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, minimum_time, tracking_floor, tune_pid
 from piezopreload.tuning.validate import Criteria, SchedulerError, ValidationResult, evaluate, executor, validate
 
-__all__ = ["tune_study", "compare_gains", "validate_gain_set"]
+__all__ = ["tune_study", "tune_gains", "validate_tuned", "tune_summary", "compare_gains", "validate_gain_set"]
 
 
 def compare_gains(study: Study, candidates: dict[str, PIDGains], feedforward: ClassicalPI,
@@ -48,34 +49,26 @@ def _num(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
 
 
-def tune_study(
+def tune_gains(
     study: Study,
+    feedforward: ClassicalPI,
     *,
-    out: str | Path,
-    n_plants: int = 200,
-    workers: int | None = None,
-    scheduler: str | None = None,
     seed: int | None = None,
     spec: TuningSpec | None = None,
     criteria: Criteria | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """Tune the PID on the study's rig, validate it by Monte Carlo and write the gain set to ``out``.
+    """Tune the PID around the study's rig compensated by ``feedforward``; compare and bound it.
 
-    The gain set is "validated" only if every plant met every criterion; otherwise it is
-    written as a "candidate" (which export and push refuse) and the failures are listed.
+    Returns the body of a ``tuning`` artifact: the tuned gains and the SIMC baseline, the
+    table of the paper's, SIMC's and the tuned gains on the nominal rig with and without the
+    feedforward, the minimum-time bound and the tracking floor. No Monte Carlo: that is
+    :func:`validate_tuned`.
     """
     say = progress or (lambda msg: print(msg, file=sys.stderr, flush=True))
-    t0 = time.perf_counter()
     seed = study.seed if seed is None else seed
-    criteria = criteria or Criteria(band_N=study.band_N)
-    spec = spec or TuningSpec(band_N=study.band_N, u_min_V=study.gains.u_min, u_max_V=study.gains.u_max)
-    if n_plants < 1:
-        raise InputError(f"--plants: must be >= 1, got {n_plants}")
-
-    say("identifying the feedforward on a simulated loop measurement ...")
-    rig = Rig(study.rig)
-    feedforward, info = identify_feedforward(rig, study.excitation)
+    criteria = criteria or study.criteria
+    spec = spec or study.tuning_spec
     say("tuning the PID around the compensated plant (CasADi + IPOPT) ...")
     try:
         tuning = tune_pid(study.rig, feedforward.inverse(), spec)
@@ -91,57 +84,130 @@ def tune_study(
     say("comparing the paper's, the SIMC and the tuned gains on the nominal rig ...")
     table = compare_gains(study, {"paper": study.gains, "simc": tuning.baseline, "tuned": tuning.gains},
                           feedforward, criteria, seed)
-    say(f"validating on {n_plants} plants ...")
-    result = _monte_carlo(tuning.gains, feedforward, study.rig, criteria, n_plants, seed, study.references["step"],
-                          study.references["trajectory"], workers, scheduler, say)
-    status = "validated" if result.passed else "candidate"
     tuned_row = next(r for r in table if r["gains"] == "tuned" and r["feedforward"])
-    body = {
-        "status": status,
+    settle = tuned_row["settling_s"]
+    return {
         "gains": gains_to_dict(tuning.gains),
+        "simc_baseline": gains_to_dict(tuning.baseline),
+        "tuning": {**tuning.to_dict(), "spec": _spec_dict(spec)},
+        # how the table was scored (the validation's limits are the validate step's)
+        "criteria": {k: v for k, v in criteria.to_dict().items() if k in ("band_N", "signal", "tracking_after_change_s")},
+        "table": table,
+        "paper": {"ff+pid": PAPER_RESULTS["ff+pid"]},
+        "minimum_time": {"settling_s": bound["settling_s"],
+                         "tuned_over_bound_ratio": None if settle is None else settle / bound["settling_s"]},
+        "tracking_floor": {**floor, "tuned_over_floor_ratio": tuned_row["tracking_rms_N"] / floor["rms_N"]},
+        "tracking_improvement": _improvement(table),
+        "inputs": {"study": study.path, "study_sha256": study.sha256, "seed": seed},
+    }
+
+
+def validate_tuned(
+    study: Study,
+    tuned: dict[str, Any],
+    feedforward: ClassicalPI,
+    feedforward_info: dict[str, Any],
+    *,
+    out: str | Path,
+    n_plants: int | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    seed: int | None = None,
+    criteria: Criteria | None = None,
+    inputs: dict[str, Any] | None = None,
+    progress: Callable[[str], None] | None = None,
+    bar: Callable[[int, int], None] | None = None,
+) -> tuple[dict[str, Any], ValidationResult]:
+    """Validate tuned gains (a :func:`tune_gains` body) by Monte Carlo; write the gain set to ``out``.
+
+    The gain set is "validated" only if every plant met every criterion; otherwise it is
+    written as a "candidate" (which export and push refuse). Returns the document written
+    and the per-plant result.
+    """
+    say = progress or (lambda msg: print(msg, file=sys.stderr, flush=True))
+    n_plants = study.validation_plants if n_plants is None else n_plants
+    if n_plants < 1:
+        raise InputError(f"--plants: must be >= 1, got {n_plants}")
+    seed = study.validation_seed if seed is None else seed
+    gains = gains_from_dict(tuned["gains"], "the tuning")
+    criteria = criteria or study.criteria
+    say(f"validating on {n_plants} plants ...")
+    result = _monte_carlo(gains, feedforward, study.rig, criteria, n_plants, seed, study.references["step"],
+                          study.references["trajectory"], workers, scheduler, say, bar)
+    body = {
+        "status": "validated" if result.passed else "candidate",
+        "gains": tuned["gains"],
         "feedforward": {"model": feedforward.to_dict(), "units": {"input": "V", "output": "N"},
-                        "fit_to_simulated_loop": info["fit"]},
+                        "identification": feedforward_info},
         "plant": {"preset": study.name, "rig": study.rig.to_dict()},
         "criteria": criteria.to_dict(),
         "references": {name: _reference_dict(study.references[name]) for name in ("step", "trajectory")},
         "validation": result.to_dict(),
-        "tuning": {**tuning.to_dict(), "spec": _spec_dict(spec),
-                   "simc_baseline": gains_to_dict(tuning.baseline)},
-        "inputs": {"study": study.path, "study_sha256": study.sha256, "seed": seed},
+        "tuning": {**tuned["tuning"], "simc_baseline": tuned["simc_baseline"]},
+        "inputs": {"study": study.path, "study_sha256": study.sha256, "seed": seed, **(inputs or {})},
     }
-    doc = write_artifact(out, "gain-set", body)
-    settle = tuned_row["settling_s"]
+    return write_artifact(out, "gain-set", body), result
+
+
+def tune_study(
+    study: Study,
+    *,
+    out: str | Path,
+    n_plants: int | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    seed: int | None = None,
+    spec: TuningSpec | None = None,
+    criteria: Criteria | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Identify the feedforward, tune, validate by Monte Carlo and write the gain set to ``out``."""
+    say = progress or (lambda msg: print(msg, file=sys.stderr, flush=True))
+    t0 = time.perf_counter()
+    if n_plants is not None and n_plants < 1:
+        raise InputError(f"--plants: must be >= 1, got {n_plants}")
+    say("identifying the feedforward on a simulated loop measurement ...")
+    feedforward, info = identify_feedforward(Rig(study.rig), study.excitation)
+    tuned = tune_gains(study, feedforward, seed=seed, spec=spec, criteria=criteria, progress=say)
+    ff_info = {"source": "simulated loop measurement", "excitation": asdict(study.excitation), "fit": info["fit"]}
+    doc, result = validate_tuned(study, tuned, feedforward, ff_info, out=out, n_plants=n_plants, criteria=criteria,
+                                 workers=workers or study.validation_workers, scheduler=scheduler,
+                                 seed=study.validation_seed if seed is None else seed, progress=say)
+    return tune_summary(tuned, doc, str(out), time.perf_counter() - t0)
+
+
+def tune_summary(tuned: dict[str, Any], doc: dict[str, Any], out: str, seconds: float) -> dict[str, Any]:
+    """What ``piezopreload tune`` prints: the tuned row with the feedforward as the headline."""
+    table = tuned["table"]
+    tuned_row = next(r for r in table if r["gains"] == "tuned" and r["feedforward"])
     paper_row = next(r for r in table if r["gains"] == "paper" and r["feedforward"])
     return {
-        # the headline: the tuned gains with the feedforward on the nominal rig
-        "settling_s": settle, "settling_measured_s": tuned_row["settling_measured_s"],
+        "settling_s": tuned_row["settling_s"], "settling_measured_s": tuned_row["settling_measured_s"],
         "overshoot_N": tuned_row["overshoot_N"], "tracking_rms_N": tuned_row["tracking_rms_N"],
         "tracking_rms_after_change_N": tuned_row["tracking_rms_after_change_N"],
         "paper_tracking_rms_N": paper_row["tracking_rms_N"],
         "paper_tracking_rms_after_change_N": paper_row["tracking_rms_after_change_N"],
-        "lower_bound_settling_s": bound["settling_s"],
-        "lower_bound_tracking_rms_N": floor["rms_N"],
-        "out": str(out), "status": status, "content_sha256": doc["content_sha256"],
-        "gains": gains_to_dict(tuning.gains), "simc": gains_to_dict(tuning.baseline),
-        "tuning": tuning.to_dict(), "table": table,
-        "paper": {"ff+pid": PAPER_RESULTS["ff+pid"]},
-        "minimum_time": {"settling_s": bound["settling_s"],
-                         "tuned_over_bound_ratio": None if settle is None else settle / bound["settling_s"]},
-        "tracking_improvement": _improvement(table),
-        "tracking_floor": {**floor, "tuned_over_floor_ratio": tuned_row["tracking_rms_N"] / floor["rms_N"]},
-        "validation": result.to_dict(), "seconds": time.perf_counter() - t0,
+        "lower_bound_settling_s": tuned["minimum_time"]["settling_s"],
+        "lower_bound_tracking_rms_N": tuned["tracking_floor"]["rms_N"],
+        "out": out, "status": doc["status"], "content_sha256": doc["content_sha256"],
+        "gains": tuned["gains"], "simc": tuned["simc_baseline"],
+        "tuning": {k: v for k, v in tuned["tuning"].items() if k != "spec"}, "table": table,
+        "paper": tuned["paper"], "minimum_time": tuned["minimum_time"],
+        "tracking_improvement": tuned["tracking_improvement"], "tracking_floor": tuned["tracking_floor"],
+        "validation": doc["validation"], "seconds": seconds,
     }
 
 
 def _monte_carlo(gains: PIDGains, feedforward: ClassicalPI | None, plant: RigParams, criteria: Criteria,
                  n_plants: int, seed: int, step: Reference, trajectory: Reference, workers: int | None,
-                 scheduler: str | None, say: Callable[[str], None]) -> ValidationResult:
-    """:func:`validate` on the executor the user asked for, its progress shown per chunk."""
+                 scheduler: str | None, say: Callable[[str], None],
+                 bar: Callable[[int, int], None] | None = None) -> ValidationResult:
+    """:func:`validate` on the executor the user asked for, its progress shown per chunk (or on ``bar``)."""
     try:
         with executor(workers, scheduler) as (pool, pool_name):
             return validate(gains, feedforward, plant, criteria, n_plants=n_plants, seed=seed, step=step,
                             trajectory=trajectory, pool=pool, pool_name=pool_name,
-                            progress=lambda i, n: say(f"  chunk {i}/{n}"))
+                            progress=bar or (lambda i, n: say(f"  chunk {i}/{n}")))
     except SchedulerError as exc:
         raise InputError(f"--scheduler: {exc}") from None
 
@@ -163,7 +229,7 @@ def _reference_from(path: str | Path, doc: dict[str, Any], name: str) -> Referen
 def validate_gain_set(
     path: str | Path,
     *,
-    n_plants: int = 200,
+    n_plants: int | None = None,
     workers: int | None = None,
     scheduler: str | None = None,
     seed: int | None = None,
@@ -176,9 +242,12 @@ def validate_gain_set(
     the gain set is written there with this validation and the status it earns.
     """
     say = progress or (lambda msg: print(msg, file=sys.stderr, flush=True))
-    if n_plants < 1:
+    if n_plants is not None and n_plants < 1:
         raise InputError(f"--plants: must be >= 1, got {n_plants}")
     gains, doc = load_gains(path)
+    if n_plants is None:
+        stored = (doc.get("validation") or {}).get("n_plants")
+        n_plants = stored if isinstance(stored, int) and stored >= 1 else 200
     try:
         ff_doc = doc["feedforward"]["model"]
         feedforward = model_from_dict(ff_doc, where="feedforward.model") if ff_doc is not None else None

@@ -9,6 +9,9 @@ A backend arms, reads the force, writes the voltage and disarms::
         def write_voltage(self, volts: float) -> None: ...  # the command for this sample
         def disarm(self) -> None: ...                   # outputs off, safe to leave
 
+A backend that simulates its plant may say so with a class attribute ``simulated = True``;
+only such a backend may run back to back (``rig run --fast``), any other runs in real time.
+
 ``t_s`` is the cycle's time on the run's timeline (seconds since the start, the nominal tick);
 a :class:`Reading` says when its sample was taken on the same timeline, so the executor can
 tell a fresh sample from a stale one. The executor never writes a voltage the interlocks have
@@ -94,6 +97,8 @@ class SimBackend:
     """
 
     name = "sim"
+    #: a simulation may run back to back (``rig run --fast``); a backend without this runs in real time
+    simulated = True
 
     def __init__(self, plant: RigParams, seed: int = 0) -> None:
         if plant.batch_shape:

@@ -226,6 +226,20 @@ def make(options):
 
 def broken(options):
     raise RuntimeError("no card")
+
+class CardRig:  # hardware: no 'simulated' attribute
+    name = "cardrig"
+    def arm(self):
+        raise AssertionError("a hardware backend was armed for a run back to back")
+    def read_force(self, t_s):
+        raise AssertionError("read")
+    def write_voltage(self, volts):
+        raise AssertionError("written")
+    def disarm(self):
+        pass
+
+def card(options):
+    return CardRig()
 '''
 
 
@@ -236,7 +250,7 @@ def test_hardware_backends_are_entry_point_plugins(gains_path, tmp_path, monkeyp
     dist.mkdir()
     (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: quietrig-plugin\nVersion: 1.0\n")
     (dist / "entry_points.txt").write_text("[piezopreload.rig_backends]\nquietrig = quietrig_plugin:make\n"
-                                           "brokenrig = quietrig_plugin:nosuchname\n")
+                                           "brokenrig = quietrig_plugin:nosuchname\ncardrig = quietrig_plugin:card\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     backend = open_backend("quietrig", {"seed": "3"})
     assert backend.name == "quietrig" and backend.seed == 3
@@ -245,6 +259,9 @@ def test_hardware_backends_are_entry_point_plugins(gains_path, tmp_path, monkeyp
     assert r["backend"] == "quietrig" and r["status"] == "completed"
     assert main(["rig", "run", str(gains_path), "--backend", "brokenrig", "--fast"]) == 2
     assert "cannot be loaded" in capsys.readouterr().err
+    # hardware never runs back to back
+    assert main(["rig", "run", str(gains_path), "--backend", "cardrig", "--fast", "--log-dir", str(tmp_path)]) == 2
+    assert "'cardrig' does not declare itself a simulation" in capsys.readouterr().err
 
 
 def _spawn(args, tmp_path):

@@ -36,6 +36,7 @@ __all__ = [
     "PAPER_RESULTS",
     "LoopExcitation",
     "identify_feedforward",
+    "fit_feedforward",
     "reproduce",
     "Reproduction",
     "calibrate",
@@ -73,12 +74,18 @@ def identify_feedforward(rig: Rig, excitation: LoopExcitation = LoopExcitation()
     """Simulate the 0..v_max loop measurement on ``rig`` and identify the P-I model from it."""
     _, command = triangle(excitation.v_max_V, excitation.frequency_Hz, excitation.cycles, rig.dt_s)
     rec = simulate_open_loop(rig, command, seed=excitation.seed)
-    est = PIIdentifier(model="classical", n_operators=excitation.n_operators, thresholds="paper", invertible=True)
+    model, info = fit_feedforward(rec["command_V"], rec["measured_N"], excitation.n_operators)
+    return model, {"record": rec, **info}
+
+
+def fit_feedforward(command_V: np.ndarray, measured_N: np.ndarray, n_operators: int) -> tuple[ClassicalPI, dict[str, Any]]:
+    """The invertible classical P-I model (the paper's thresholds) of a measured voltage -> force loop."""
+    est = PIIdentifier(model="classical", n_operators=n_operators, thresholds="paper", invertible=True)
     # the P-I model maps the commanded voltage to the measured force, as a rig sees them
-    est.fit(rec["command_V"], rec["measured_N"])
+    est.fit(command_V, measured_N)
     model = est.model_
-    err = fit_error(model(rec["command_V"]), rec["measured_N"], float(np.ptp(rec["measured_N"])))
-    return model, {"record": rec, "fit": err, "status": est.status_}
+    err = fit_error(model(command_V), measured_N, float(np.ptp(measured_N)))
+    return model, {"fit": err, "status": est.status_}
 
 
 @dataclass(frozen=True, eq=False)
