@@ -260,7 +260,8 @@ def _print_design(r: dict[str, Any]) -> None:
 
 
 def _add_monte_carlo_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--plants", type=int, default=200, metavar="N", help="Monte Carlo plants (default 200)")
+    p.add_argument("--plants", type=int, metavar="N",
+                   help="Monte Carlo plants (default: the study's [validation] plants, or the gain set's; 200)")
     p.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: the CPU count)")
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the Monte Carlo on this Dask cluster")
 
@@ -350,6 +351,40 @@ def _print_export(s: dict[str, Any]) -> None:
         print(f"wrote {s['out']} ({s['format']}) from {s['gains']}")
     else:
         print(s["text"], end="")
+
+
+# --------------------------------------------------------------------------------------
+# run (the one-command study) and report
+# --------------------------------------------------------------------------------------
+def _cmd_run(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.progress import Progress
+    from piezopreload.run_pipeline import run_study
+
+    return run_study(args.study, args.out, force=args.force, progress=Progress(quiet=args.quiet))
+
+
+def _cmd_report(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.progress import Progress
+    from piezopreload.run_pipeline import rerender_report
+
+    return rerender_report(args.dir, progress=Progress(quiet=args.quiet))
+
+
+def _print_report(s: dict[str, Any]) -> None:
+    print(f"report: {s['report']}")
+
+
+def _print_run(s: dict[str, Any]) -> None:
+    for st in s["stages"]:
+        state = f"ran in {st['seconds']:.1f} s" if st["ran"] else st["status"]
+        print(f"  {st['stage']:9s} {state}")
+    if s["gain_set"]:
+        print(f"gain set: {s['gain_set']} (sha256 {(s['gain_set_sha256'] or '')[:12]}...)")
+    if s["rig_log"]:
+        print(f"rig run log: {s['rig_log']}")
+    if s["report"]:
+        print(f"report: {s['report']}")
+    print(f"outputs: {s['out']}")
 
 
 # --------------------------------------------------------------------------------------
@@ -485,6 +520,37 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"piezopreload {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    p = sub.add_parser(
+        "run",
+        help="run a whole study: identify, design, tune, validate, compare, export, rig, report (PDF)",
+        description=(
+            "Take a study file through its stages: the feedforward's P-I identification, the ball-screw preload "
+            "design, PID tuning, Monte Carlo validation, the closed-loop comparison with the paper, gain export, a "
+            "run on the rig executor (the simulated rig by default) and the PDF report. Each stage writes its "
+            "artifacts into the output folder and records its inputs' hashes in pipeline.json; a stage whose inputs "
+            "have not changed is not run again. Without STUDY, the paper's study (studies/paper2021.toml)."
+        ),
+        epilog=("exit codes: 0 done, 1 internal failure, 2 bad input or a stage that failed (named), 3 the rig run "
+                "stopped by an interlock"),
+    )
+    p.add_argument("study", nargs="?", metavar="STUDY.toml", help="study file (default: the paper's, paper2021.toml)")
+    p.add_argument("--out", default="piezopreload-out", metavar="DIR", help="output folder (default ./piezopreload-out)")
+    p.add_argument("--force", action="store_true", help="run every stage again, changed or not")
+    p.add_argument("--quiet", action="store_true", help="no progress on standard error")
+    p.add_argument("--json", action="store_true", help="print the results as one JSON object")
+    p.set_defaults(run=_cmd_run, show=_print_run)
+
+    p = sub.add_parser(
+        "report",
+        help="render a study's PDF report again from its artifacts",
+        description=("Draw the figures and typeset report.pdf again from the artifacts in a study's output folder "
+                     "(written by 'piezopreload run'); nothing else is computed."),
+    )
+    p.add_argument("dir", metavar="DIR", help="a study's output folder")
+    p.add_argument("--quiet", action="store_true", help="no progress on standard error")
+    p.add_argument("--json", action="store_true", help="print the results as one JSON object")
+    p.set_defaults(run=_cmd_report, show=_print_report)
 
     p = sub.add_parser(
         "identify",
@@ -716,7 +782,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         result = args.run(args)
     except InputError as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return EXIT_INPUT
+        return int(getattr(exc, "exit_code", EXIT_INPUT))
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130

@@ -123,7 +123,8 @@ def test_missing_file(capsys, tmp_path):
 
 
 @pytest.mark.parametrize("argv", [["--help"], ["identify", "--help"], ["rig", "--help"], ["rig", "run", "--help"],
-                                  ["rig", "serve", "--help"], ["rig", "push", "--help"]])
+                                  ["rig", "serve", "--help"], ["rig", "push", "--help"],
+                                  ["run", "--help"], ["report", "--help"]])
 def test_help(capsys, argv):
     with pytest.raises(SystemExit) as exc:
         main(argv)
@@ -190,17 +191,27 @@ def _readme_block(title):
 
 
 def test_readme_main_job_runs_as_written(tmp_path):
-    """The README's main command, after its set-up part, runs with the installed console script."""
+    """The README's main command, after its set-up part, runs with the installed console script.
+
+    It is the paper's whole study (about 80 s): the report, the validated gain set and its
+    exports, and the rig run log must be there.
+    """
     command = _readme_block("Set up and run")
     main_job = command.split("&&")[-1].strip()
     argv = shlex.split(main_job)
     assert Path(argv[0]).name == "piezopreload", main_job
     exe = Path(sys.executable).with_name("piezopreload")
     proc = subprocess.run([str(exe), *argv[1:], "--json"], capture_output=True, text=True, cwd=tmp_path,
-                          env={**os.environ, "MPLBACKEND": "Agg"}, timeout=300)
+                          env={**os.environ, "MPLBACKEND": "Agg"}, timeout=900)
     assert proc.returncode == 0, proc.stderr
     result = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert len(result["rows"]) == 6 and result["study"]["name"] == "paper2021"
+    assert result["study"]["name"] == "paper2021" and len(result["ran"]) == 8
+    out = tmp_path / "piezopreload-out"
+    assert Path(result["out"]) == out.resolve() and "the study's outputs are in" in proc.stderr
+    assert (out / "report.pdf").read_bytes().startswith(b"%PDF")
+    assert read_artifact(out / "gains.json", "gain-set")["status"] == "validated"
+    assert len(list((out / "exports").iterdir())) == 5
+    assert Path(result["rig_log"]).is_file()
 
 
 def test_ci_runs_the_readme_test_command():

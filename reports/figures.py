@@ -1,0 +1,270 @@
+"""The study report's figures (matplotlib), from plain arrays.
+
+Every function takes the numbers it plots (read from the study's artifacts by the caller) and
+returns a :class:`matplotlib.figure.Figure` built without pyplot, so no global figure state is
+touched and any backend works. One style (:data:`STYLE`) for all: vector output, units on
+every axis, the same colour for the same controller in every figure.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import matplotlib as mpl
+import numpy as np
+from matplotlib.figure import Figure
+
+__all__ = [
+    "STYLE", "COLOURS", "save", "hysteresis_loops", "inverse_model", "step_responses", "tracking",
+    "stiffness_vs_preload", "pareto_fronts", "preload_schedule", "natural_frequency", "monte_carlo",
+    "rig_run",
+]
+
+STYLE: dict[str, Any] = {
+    "font.size": 8.5, "axes.titlesize": 9, "axes.labelsize": 8.5, "legend.fontsize": 7.5,
+    "xtick.labelsize": 7.5, "ytick.labelsize": 7.5, "axes.grid": True, "grid.alpha": 0.3,
+    "grid.linewidth": 0.5, "lines.linewidth": 1.1, "axes.spines.top": False, "axes.spines.right": False,
+    "legend.frameon": False, "pdf.fonttype": 42, "savefig.bbox": "tight", "savefig.pad_inches": 0.03,
+}
+#: one colour per controller, the same in every figure
+COLOURS = {"reference": "0.35", "paper pid": "#d95f02", "paper ff+pid": "#7570b3", "tuned pid": "#e7298a",
+           "tuned ff+pid": "#1b9e77", "measured": "0.55", "model": "#1b9e77", "limit": "#b2182b"}
+_WIDTH = 6.3  # inches: the text width of an A4 page with 2 cm margins
+
+
+def _figure(height: float, ncols: int = 1, nrows: int = 1, **kw: Any) -> tuple[Figure, Any]:
+    with mpl.rc_context(STYLE):
+        fig = Figure(figsize=(_WIDTH, height), layout="constrained")
+        axes = fig.subplots(nrows, ncols, squeeze=False, **kw)
+    return fig, axes
+
+
+def save(fig: Figure, path: str | Path) -> Path:
+    """Write ``fig`` as PDF (vector; fonts embedded as TrueType so the text stays text)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with mpl.rc_context(STYLE):
+        fig.savefig(path, format="pdf", metadata={"CreationDate": None, "ModDate": None})
+    return path
+
+
+def _styled(fn: Any) -> Any:
+    """Run a figure function under :data:`STYLE` (artists take rcParams when created)."""
+    def wrapper(*args: Any, **kwargs: Any) -> Figure:
+        with mpl.rc_context(STYLE):
+            return fn(*args, **kwargs)
+    wrapper.__name__, wrapper.__doc__ = fn.__name__, fn.__doc__
+    return wrapper
+
+
+@_styled
+def hysteresis_loops(time_s: np.ndarray, voltage_V: np.ndarray, measured_N: np.ndarray,
+                     model_N: np.ndarray, source: str) -> Figure:
+    """Measured and modelled voltage -> force loops, and the model's error over the record."""
+    fig, ax = _figure(2.6, ncols=2)
+    a, b = ax[0]
+    a.plot(voltage_V, measured_N, color=COLOURS["measured"], lw=0.8, label=f"measured ({source})")
+    a.plot(voltage_V, model_N, color=COLOURS["model"], lw=1.0, ls="--", label="P-I model")
+    a.set_xlabel("command voltage (V)")
+    a.set_ylabel("force (N)")
+    a.legend(loc="lower right")
+    a.set_title("hysteresis loops")
+    err = model_N - measured_N
+    b.plot(time_s, err, color=COLOURS["model"], lw=0.6)
+    b.set_xlabel("time (s)")
+    b.set_ylabel("model - measured (N)")
+    b.set_title(f"model error: RMS {np.sqrt(np.mean(err ** 2)):.2f} N, max {np.max(np.abs(err)):.2f} N")
+    return fig
+
+
+@_styled
+def inverse_model(desired_N: np.ndarray, command_V: np.ndarray, force_N: np.ndarray, time_s: np.ndarray) -> Figure:
+    """The inverse P-I model (desired force -> voltage) and the compensated rig in open loop."""
+    fig, ax = _figure(2.6, ncols=2)
+    a, b = ax[0]
+    a.plot(desired_N, command_V, color=COLOURS["model"])
+    a.set_xlabel("desired force (N)")
+    a.set_ylabel("inverse model's voltage (V)")
+    a.set_title("inverse P-I model")
+    settled = time_s >= 0.5 * time_s[-1]
+    b.plot(desired_N[settled], force_N[settled], color=COLOURS["tuned ff+pid"], lw=0.9, label="rig through the inverse")
+    lim = [float(np.min(desired_N)), float(np.max(desired_N))]
+    b.plot(lim, lim, color=COLOURS["reference"], ls=":", lw=0.8, label="ideal")
+    b.set_xlabel("desired force (N)")
+    b.set_ylabel("rig's force (N)")
+    b.set_title("compensated, open loop (second cycle)")
+    b.legend(loc="upper left")
+    return fig
+
+
+def _runs_axes(ax: Any, runs: Mapping[str, Mapping[str, np.ndarray]], keys: Sequence[str], signal: str,
+               t_max: float | None) -> None:
+    first = runs[keys[0]]
+    ax.plot(first["time_s"], first["reference_N"], color=COLOURS["reference"], ls=":", lw=0.9, label="reference")
+    for key in keys:
+        r = runs[key]
+        ax.plot(r["time_s"], r[signal], color=COLOURS[key], lw=0.8, label=key.replace("ff+pid", "FF + PID").replace("pid", "PID"))
+    if t_max is not None:
+        ax.set_xlim(0, t_max)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("force (N)")
+
+
+@_styled
+def step_responses(runs: Mapping[str, Mapping[str, np.ndarray]], band_N: float, signal: str,
+                   t_max_s: float = 4.0) -> Figure:
+    """The step with the paper's gains (left) and the tuned gains (right), PID alone and with FF."""
+    fig, ax = _figure(2.7, ncols=2, sharey=True)
+    for a, who in zip(ax[0], ("paper", "tuned")):
+        keys = [f"{who} pid", f"{who} ff+pid"]
+        _runs_axes(a, runs, keys, signal, t_max_s)
+        final = float(runs[keys[0]]["reference_N"][-1])
+        for s in (-1, 1):
+            a.axhline(final + s * band_N, color=COLOURS["limit"], lw=0.5, ls="--")
+        a.set_title(f"{who}'s gains" if who == "paper" else "tuned gains")
+        a.legend(loc="lower right")
+    ax[0][1].set_ylabel("")
+    return fig
+
+
+@_styled
+def tracking(runs: Mapping[str, Mapping[str, np.ndarray]], signal: str) -> Figure:
+    """The staircase trajectory: the four controllers, and the tracking error of each."""
+    fig, ax = _figure(4.4, ncols=2, nrows=2, sharex=True)
+    for j, who in enumerate(("paper", "tuned")):
+        keys = [f"{who} pid", f"{who} ff+pid"]
+        _runs_axes(ax[0][j], runs, keys, signal, None)
+        ax[0][j].set_title(f"{who}'s gains" if who == "paper" else "tuned gains")
+        ax[0][j].legend(loc="lower right")
+        ax[0][j].set_xlabel("")
+        for key in keys:
+            r = runs[key]
+            ax[1][j].plot(r["time_s"], r["reference_N"] - r["force_N"], color=COLOURS[key], lw=0.6,
+                          label=key.replace("ff+pid", "FF + PID").replace("pid", "PID"))
+        ax[1][j].set_ylim(-6, 6)
+        ax[1][j].set_xlabel("time (s)")
+        ax[1][j].set_ylabel("reference - force (N)")
+    return fig
+
+
+@_styled
+def stiffness_vs_preload(curve: Mapping[str, Any]) -> Figure:
+    """Rigidity (and drag torque) of the optimum's screw against preload; the duty cases marked."""
+    fig, ax = _figure(2.6, ncols=2)
+    a, b = ax[0]
+    fp = np.asarray(curve["preload_N"])
+    a.plot(fp, curve["rigidity_N_per_um"], color=COLOURS["model"], label="no axial load")
+    for j, case in enumerate(curve["cases"]):
+        a.plot(case["preload_N"], case["rigidity_N_per_um"], "o", ms=4, label=f"case {j + 1}: {case['axial_load_N']:g} N")
+    for a_ in (a, b):
+        a_.axvline(curve["bolt_preload_N"], color="0.5", ls=":", lw=0.8)
+        a_.axvline(curve["max_preload_N"], color="0.3", ls="--", lw=0.8)
+        a_.set_xlabel("preload (N)")
+    a.set_ylabel("axial rigidity (N/um)")
+    a.set_title("rigidity (dotted: bolts only; dashed: stacks at full drive)")
+    a.legend(loc="lower right")
+    b.plot(fp, curve["drag_torque_Nm"], color=COLOURS["paper pid"])
+    b.set_ylabel("drag torque (N m)")
+    b.set_title("preload drag torque")
+    return fig
+
+
+_FRONT_LABELS = {"stiffness": "least rigidity (N/um)", "preload": "max preload (N)",
+                 "drag": "mean drag torque (N m)", "life": "rating life (h)"}
+
+
+@_styled
+def pareto_fronts(fronts: Sequence[Mapping[str, Any]], optimum: Mapping[str, float] | None = None) -> Figure:
+    """The epsilon-constraint Pareto fronts, one panel each, the design optimum marked."""
+    n = max(len(fronts), 1)
+    fig, ax = _figure(2.4, ncols=n)
+    keys = {"stiffness": "stiffness_N_per_um", "preload": "max_preload_N", "drag": "mean_drag_torque_Nm", "life": "life_h"}
+    for a, f in zip(ax[0], fronts):
+        a.plot(f["x"], f["y"], "o-", ms=2.5, color=COLOURS["model"], label="front")
+        if optimum is not None:
+            a.plot(optimum[keys[f["x_name"]]], optimum[keys[f["y_name"]]], "*", ms=8, color=COLOURS["limit"],
+                   label="the design optimum")
+        a.set_xlabel(_FRONT_LABELS[f["x_name"]])
+        a.set_ylabel(_FRONT_LABELS[f["y_name"]])
+        a.set_title(f["pair"])
+        if f["y_name"] == "life":
+            a.set_yscale("log")
+    ax[0][0].legend(loc="best")
+    return fig
+
+
+@_styled
+def preload_schedule(time_s: np.ndarray, load_N: np.ndarray, preload_N: np.ndarray, constant_N: float,
+                     lift_off_factor: float = 2.0 ** 1.5) -> Figure:
+    """The load profile and the least-friction preload schedule against the best constant preload."""
+    fig, ax = _figure(3.6, nrows=2, sharex=True)
+    a, b = ax[0][0], ax[1][0]
+    a.plot(time_s, load_N, color=COLOURS["reference"], drawstyle="steps-post")
+    a.set_ylabel("axial load (N)")
+    a.set_title("load profile")
+    b.plot(time_s, preload_N, color=COLOURS["model"], drawstyle="steps-post", label="schedule")
+    b.axhline(constant_N, color=COLOURS["paper pid"], ls="--", label="best constant preload")
+    b.plot(time_s, np.abs(load_N) / lift_off_factor, color=COLOURS["limit"], lw=0.6, ls=":",
+           label="lift-off limit |F_a| / 2^1.5")
+    b.set_xlabel("time (s)")
+    b.set_ylabel("preload (N)")
+    b.legend(loc="upper right")
+    return fig
+
+
+@_styled
+def natural_frequency(position_mm: np.ndarray, low_Hz: np.ndarray, high_Hz: np.ndarray,
+                      frequency_min_Hz: float | None) -> Figure:
+    """The axial natural frequency against table position at the bolts' and the full preload."""
+    fig, ax = _figure(2.4)
+    a = ax[0][0]
+    a.plot(position_mm, low_Hz, color=COLOURS["paper pid"], label="bolt preload (stacks off)")
+    a.plot(position_mm, high_Hz, color=COLOURS["model"], label="maximum preload (stacks at full drive)")
+    if frequency_min_Hz:
+        a.axhline(frequency_min_Hz, color=COLOURS["limit"], ls="--", lw=0.8, label="required minimum")
+    a.set_xlabel("nut position from bearing A (mm)")
+    a.set_ylabel("axial natural frequency (Hz)")
+    a.legend(loc="best")
+    return fig
+
+
+@_styled
+def monte_carlo(metrics: Mapping[str, Sequence[float | None]], limits: Mapping[str, float]) -> Figure:
+    """Distributions of settling time and overshoot over the Monte Carlo plants, limits marked."""
+    panels = (("settling_s", "settling time (s)"), ("overshoot_N", "overshoot (N)"),
+              ("tracking_rms_N", "tracking RMS after changes (N)"))
+    fig, ax = _figure(2.4, ncols=len(panels))
+    for a, (key, label) in zip(ax[0], panels):
+        raw = [x for x in metrics[key]]
+        values = np.array([x for x in raw if x is not None], float)
+        never = len(raw) - values.size
+        a.hist(values, bins=min(30, max(5, values.size // 5)), color=COLOURS["model"], alpha=0.8)
+        if key in limits:
+            a.axvline(limits[key], color=COLOURS["limit"], ls="--", lw=0.9, label="limit")
+            a.legend(loc="upper right")
+        a.set_xlabel(label)
+        a.set_ylabel("plants")
+        a.set_title(f"{values.size} plants" + (f", {never} never settled" if never else ""))
+    return fig
+
+
+@_styled
+def rig_run(time_s: np.ndarray, reference_N: np.ndarray, force_N: np.ndarray, voltage_V: np.ndarray,
+            mode: np.ndarray) -> Figure:
+    """The rig executor's run from its log: force against the reference, and the stack voltage."""
+    fig, ax = _figure(3.4, nrows=2, sharex=True)
+    a, b = ax[0][0], ax[1][0]
+    control = mode == 0
+    a.plot(time_s, reference_N, color=COLOURS["reference"], ls=":", label="reference")
+    a.plot(time_s[control], force_N[control], color=COLOURS["tuned ff+pid"], lw=0.7, label="force read")
+    a.set_ylabel("force (N)")
+    a.legend(loc="lower right")
+    b.plot(time_s, voltage_V, color=COLOURS["paper ff+pid"], lw=0.7)
+    if (~control).any():
+        b.axvspan(float(time_s[~control][0]), float(time_s[-1]), color="0.9", label="ramp down, disarm")
+        b.legend(loc="upper right")
+    b.set_xlabel("time (s)")
+    b.set_ylabel("stack voltage (V)")
+    return fig

@@ -1,0 +1,272 @@
+"""The one-command study (piezopreload run) and its PDF report, end to end on a small study.
+
+One session fixture runs ``tests/data/small_study.toml`` (the paper's rig and gains, short
+references, 8 Monte Carlo plants, 5-point fronts: about a minute, most of it the PID tuning);
+the other tests copy its output folder and change one thing each.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from piezopreload.artifacts import read_artifact
+from piezopreload.cli import main
+from piezopreload.pipeline import reproduce_study
+from piezopreload.progress import Progress
+from piezopreload.run_pipeline import STAGES, read_manifest, run_study
+from piezopreload.study import load_study
+
+pypdf = pytest.importorskip("pypdf", reason="pypdf (the test extra) reads the report back")
+
+SMALL = Path(__file__).parent / "data" / "small_study.toml"
+TEMPLATE = Path(__file__).parents[1] / "reports" / "report.typ"
+
+
+@pytest.fixture(scope="session")
+def small_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("study") / "out"
+    log = io.StringIO()
+    result = run_study(SMALL, out, progress=Progress(stream=log))
+    return out, result, log.getvalue()
+
+
+def _copy(small_run, tmp_path) -> Path:
+    out = tmp_path / "out"
+    shutil.copytree(small_run[0], out)
+    (out / ".lock").unlink(missing_ok=True)
+    return out
+
+
+def _pdf_text(path: Path) -> tuple[list[str], str]:
+    reader = pypdf.PdfReader(path)
+    pages = [p.extract_text() or "" for p in reader.pages]
+    return pages, " ".join(" ".join(pages).split())
+
+
+def test_the_small_study_runs_every_stage_and_leaves_its_artifacts(small_run):
+    out, result, log = small_run
+    assert result["ran"] == [s.name for s in STAGES]
+    for i, stage in enumerate(STAGES, start=1):
+        assert f"[{i}/{len(STAGES)}] {stage.name}:" in log
+    assert f"the study's outputs are in {out.resolve()}/" in log
+    manifest = read_manifest(out)
+    assert {name: r["status"] for name, r in manifest["stages"].items()} == {s.name: "done" for s in STAGES}
+    gains = read_artifact(out / "gains.json", "gain-set")
+    assert gains["status"] == "validated" and result["gain_set_sha256"] == gains["content_sha256"]
+    for name in ("gains.si.json", "gains.labview.txt", "pp_gains.h"):
+        assert gains["content_sha256"] in (out / "exports" / name).read_text()
+    run_log = Path(result["rig_log"])
+    assert run_log.parent == (out / "runs") and run_log.stat().st_size > 0
+    sidecar = read_artifact(run_log.with_suffix(".json"), "rig-run")
+    assert sidecar["status"] == "completed" and sidecar["gain_set_sha256"] == gains["content_sha256"]
+    assert (out / "report.pdf").read_bytes().startswith(b"%PDF")
+
+
+def test_the_compare_stage_reproduces_what_reproduce_prints(small_run):
+    """The paper's gains in the report's table == ``piezopreload reproduce`` (its own feedforward identification)."""
+    out = small_run[0]
+    rows = read_artifact(out / "responses" / "responses.json", "responses")["reproduction"]
+    ref = {(r["controller"], r["metric"]): r["simulated"] for r in reproduce_study(load_study(SMALL))["rows"]}
+    for r in rows:
+        assert r["reproduction"] == pytest.approx(ref[(r["controller"], r["metric"])], abs=1e-12)
+
+
+def test_the_pdf_holds_its_pages_tables_and_figures(small_run):
+    out = small_run[0]
+    pdf = out / "report.pdf"
+    pages, text = _pdf_text(pdf)
+    n = len(pages)
+    assert 5 <= n <= 10
+    for i, page in enumerate(pages, start=1):  # every page carries "i / n"
+        assert f"{i} / {n}" in page
+    squeezed = text.replace(" ", "")
+
+    # the tables' numbers, formatted here from the artifacts (3 significant digits, 4 for gains)
+    responses = read_artifact(out / "responses" / "responses.json", "responses")
+    for r in responses["reproduction"]:
+        for col in ("paper", "reproduction", "tuned"):
+            assert f"{r[col]:.3g}" in text, (r, col)
+    gains = read_artifact(out / "gains.json", "gain-set")
+    g = gains["gains"]
+    for value in (g["Kc_V_per_N"], g["Ti_s"], g["Td_s"], g["labview"]["Ti_min"], g["labview"]["Td_min"]):
+        assert f"{value:.4g}" in text
+    assert gains["content_sha256"] in squeezed
+    validation = read_artifact(out / "validation.json", "validation")
+    assert f"{validation['summary']['settling_s']['worst']:.3g}" in text
+    optimum = read_artifact(out / "design" / "design.json", "design")["optimum"]["point"]
+    assert f"{optimum['ball_mm']:.4g}" in text and f"{optimum['contact_angle_deg']:.3g}" in text
+    study = load_study(SMALL)
+    assert study.sha256 in squeezed and study.title.split(":")[0] in text
+
+    # every figure the template names is in the PDF: its file, its caption, and its own text
+    names = re.findall(r'#fig\("([a-z-]+)"\)', TEMPLATE.read_text())
+    assert len(names) == 10
+    report = read_artifact(out / "report" / "report.json", "report")
+    forms = 0
+    for page in pypdf.PdfReader(pdf).pages:
+        xobjects = page.get("/Resources", {}).get("/XObject", {})
+        forms += sum(1 for x in xobjects.values() if x.get_object().get("/Subtype") == "/Form")
+    assert forms == len(names)
+    for name in names:
+        figure = out / "report" / report["figures"][name]["file"]
+        caption = " ".join(report["figures"][name]["caption"].split())
+        assert caption[:60].replace(" ", "") in squeezed, name
+        own = [line.strip() for line in (pypdf.PdfReader(figure).pages[0].extract_text() or "").splitlines()]
+        label = max((s for s in own if not re.fullmatch(r"[-−\d.,e+ ]*", s)), key=len)
+        assert label.replace(" ", "") in squeezed, (name, label)
+
+
+@pytest.mark.skipif(shutil.which("pdftoppm") is None, reason="pdftoppm (poppler-utils) is not installed")
+def test_the_first_page_renders_to_an_image(small_run, tmp_path):
+    import matplotlib.image as mpimg
+
+    subprocess.run(["pdftoppm", "-png", "-r", "40", "-f", "1", "-l", "1", str(small_run[0] / "report.pdf"),
+                    str(tmp_path / "page")], check=True, timeout=60)
+    png = next(tmp_path.glob("page*.png"))
+    img = mpimg.imread(png)
+    h, w = img.shape[:2]
+    assert h / w == pytest.approx(297 / 210, rel=0.02)  # A4
+    ink = img[..., :3].mean(axis=2) < 0.5
+    assert 0.005 < ink.mean() < 0.5  # text on a white page, not blank, not black
+
+
+def test_a_second_run_reruns_nothing_and_says_so(small_run, tmp_path, capsys):
+    out = _copy(small_run, tmp_path)
+    before = {p: (p.stat().st_mtime_ns, p.read_bytes()) for p in out.rglob("*") if p.is_file() and p.name != ".lock"}
+    code = main(["run", str(SMALL), "--out", str(out), "--json"])
+    captured = capsys.readouterr()
+    assert code == 0
+    result = json.loads(captured.out)
+    assert result["ran"] == [] and all(s["status"] == "up to date" for s in result["stages"])
+    assert "nothing to run: every stage is up to date" in captured.err
+    after = {p: (p.stat().st_mtime_ns, p.read_bytes()) for p in out.rglob("*") if p.is_file() and p.name != ".lock"}
+    assert after == before
+
+
+def test_a_changed_table_reruns_only_the_stages_that_read_it(small_run, tmp_path):
+    out = _copy(small_run, tmp_path)
+    study = tmp_path / "study.toml"
+    study.write_text(SMALL.read_text().replace("pareto_points = 5", "pareto_points = 4"))
+    result = run_study(study, out, progress=Progress(quiet=True))
+    assert result["ran"] == ["design", "report"]
+    fronts = read_artifact(out / "design" / "design.json", "design")["fronts"]
+    assert {len(f["points"]) for f in fronts} <= {4}
+    # a changed or missing output is made again, and only what depends on it follows
+    (out / "exports" / "gains.labview.txt").write_text("edited by hand\n")
+    assert run_study(study, out, progress=Progress(quiet=True))["ran"] == ["export"]
+
+
+def test_a_failing_stage_is_named_keeps_what_came_before_and_exits_2(small_run, tmp_path, capsys):
+    out = _copy(small_run, tmp_path)
+    before = read_manifest(out)["stages"]
+    study = tmp_path / "study.toml"
+    study.write_text(SMALL.read_text().replace("plants = 8", "plants = 8\nsettling_max_s = 0.02"))
+    code = main(["run", str(study), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "error: stage 'validate' failed: the tuned gains failed on" in err and "settling_s" in err
+    after = read_manifest(out)["stages"]
+    for name in ("identify", "design", "tune"):
+        assert after[name] == before[name]
+        for o in after[name]["outputs"].values():
+            assert (out / o["path"]).is_file()
+    assert after["validate"]["status"] == "failed" and "validate" in after["validate"]["message"]
+    assert read_artifact(out / "gains.json", "gain-set")["status"] == "candidate"
+    assert main(["export", str(out / "gains.json"), "--format", "labview"]) == 2
+
+
+def test_an_internal_failure_names_its_stage_and_exits_1(small_run, tmp_path, capsys, monkeypatch):
+    import piezopreload.run_pipeline as rp
+
+    out = _copy(small_run, tmp_path)
+    (out / "responses" / "responses.json").unlink()  # the compare stage runs again ...
+
+    def broken(*args, **kwargs):
+        raise ZeroDivisionError("simulated bug")
+
+    monkeypatch.setattr(rp, "simulate", broken)  # ... and meets a bug
+    code = main(["run", str(SMALL), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 1 and "stage 'compare' failed: ZeroDivisionError: simulated bug" in err
+    assert read_manifest(out)["stages"]["compare"]["status"] == "failed"
+
+
+def test_report_renders_again_from_the_artifacts_alone(small_run, tmp_path, capsys, monkeypatch):
+    import piezopreload.run_pipeline as rp
+
+    out = _copy(small_run, tmp_path)
+    before = read_manifest(out)["stages"]
+    (out / "report.pdf").unlink()
+    for name in ("simulate", "identify_feedforward", "fit_feedforward", "simulate_open_loop"):
+        monkeypatch.setattr(rp, name, lambda *a, **k: pytest.fail("report recomputed a stage"))
+    assert main(["report", str(out), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["ran"] == ["report"] and Path(result["report"]).is_file()
+    after = read_manifest(out)["stages"]
+    assert {k: v for k, v in after.items() if k != "report"} == {k: v for k, v in before.items() if k != "report"}
+    assert main(["report", str(tmp_path)]) == 2
+    assert "not a study's output folder" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("edit, expected", [
+    (("[rig_run]", "[rig_run]\nspeed = 3"), r"small_study.toml:\d+: unknown key 'rig_run.speed'"),
+    (("plants = 8", 'plants = "8"'), r":\d+: 'validation.plants' must be an integer, got str '8'"),
+    (("plants = 8", "plants = 0"), r":\d+: 'validation.plants' must be in 1..100000, got 0"),
+    (('formats = ["json", "labview", "c-header"]', 'formats = ["pdf"]'), r":\d+: 'export.formats' has 'pdf'"),
+    (('reference = "step"', 'reference = "ramp"'), r":\d+: 'rig_run.reference' must be step, trajectory or"),
+    (("[rig_run]", "[tuning]\nms_max = 0.9\n\n[rig_run]"), r":\d+: 'tuning.ms_max' is not valid"),
+    (("n_operators = 20", 'n_operators = 20\ndata = "nowhere.csv"'),
+     r":\d+: 'feedforward.data' names .*nowhere.csv, which is not a file"),
+])
+def test_a_bad_study_is_refused_on_load_with_its_key_and_line(tmp_path, capsys, edit, expected):
+    study = tmp_path / "small_study.toml"
+    text = SMALL.read_text()
+    assert edit[0] in text
+    study.write_text(text.replace(edit[0], edit[1], 1))
+    code = main(["run", str(study), "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("error: ") and err.count("\n") == 1
+    assert re.search(expected, err), err
+    assert not (tmp_path / "out" / "pipeline.json").exists()
+    line = int(re.search(r"small_study.toml:(\d+):", err).group(1))
+    key = re.search(r"'([a-z_]+)\.([a-z_]+)'", err).group(2)
+    assert key in study.read_text().splitlines()[line - 1]
+
+
+def test_one_run_at_a_time_per_folder(tmp_path, capsys):
+    fcntl = pytest.importorskip("fcntl", reason="the lock is POSIX flock")
+    out = tmp_path / "out"
+    out.mkdir()
+    with open(out / ".lock", "w") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        assert main(["run", str(SMALL), "--out", str(out)]) == 2
+    assert "another 'piezopreload run' or 'report' is writing this folder" in capsys.readouterr().err
+
+
+def test_measured_feedforward_data_is_identified_and_hashed(small_run, tmp_path):
+    """``[feedforward] data``: the identify stage reads a measured V -> N loop (here the small run's own)."""
+    loop = tmp_path / "loop.csv"
+    cols = np.loadtxt(small_run[0] / "feedforward" / "loop.csv", delimiter=",", skiprows=2)
+    np.savetxt(loop, cols[:, :3], delimiter=",", header="time_s,voltage_V,force_N", comments="", fmt="%.9g")
+    study = tmp_path / "study.toml"
+    study.write_text(SMALL.read_text().replace("n_operators = 20", 'n_operators = 20\ndata = "loop.csv"'))
+    out = _copy(small_run, tmp_path)
+    import piezopreload.run_pipeline as rp
+
+    rp_stages = {s.name: s for s in rp.STAGES}
+    ctx = rp._Ctx(load_study(study), rp.read_study_text(study), out, Progress(quiet=True), {})
+    outputs, summary = rp_stages["identify"].run(ctx)
+    doc = read_artifact(outputs["model"], "hysteresis-model")
+    assert doc["inputs"]["data"]["kind"] == "measured"
+    assert doc["inputs"]["data"]["sha256"] == __import__("hashlib").sha256(loop.read_bytes()).hexdigest()
+    simulated = read_artifact(small_run[0] / "feedforward" / "model.json", "hysteresis-model")
+    # the same loop gives the same QP and so the same weights
+    assert np.allclose(doc["model"]["weights"], simulated["model"]["weights"], atol=1e-6)
