@@ -367,7 +367,7 @@ def _cmd_report(args: argparse.Namespace) -> dict[str, Any]:
     from piezopreload.progress import Progress
     from piezopreload.run_pipeline import rerender_report
 
-    return rerender_report(args.dir, progress=Progress(quiet=args.quiet))
+    return rerender_report(args.dir, progress=Progress(quiet=args.quiet), template=args.template)
 
 
 def _print_report(s: dict[str, Any]) -> None:
@@ -548,6 +548,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "(written by 'piezopreload run'); nothing else is computed."),
     )
     p.add_argument("dir", metavar="DIR", help="a study's output folder")
+    p.add_argument("--template", metavar="REPORT.typ",
+                   help="typeset this Typst template instead of the shipped one (start from a copy of DIR/report/report.typ)")
     p.add_argument("--quiet", action="store_true", help="no progress on standard error")
     p.add_argument("--json", action="store_true", help="print the results as one JSON object")
     p.set_defaults(run=_cmd_report, show=_print_report)

@@ -22,11 +22,18 @@ class Progress:
         self.quiet = quiet
         self.width = width
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self._open = False  # a bar or counter line redrawn in place, not yet ended
 
     def write(self, text: str) -> None:
-        if not self.quiet:
-            self.stream.write(text)
-            self.stream.flush()
+        """Write ``text``; a line starting with a carriage return redraws the open line in place,
+        any other first ends the open line."""
+        if self.quiet:
+            return
+        if self._open and not text.startswith("\r"):
+            text = "\n" + text
+        self._open = text.startswith("\r") and not text.endswith("\n")
+        self.stream.write(text)
+        self.stream.flush()
 
     def stage(self, index: int, total: int, name: str, what: str) -> None:
         self.write(f"[{index}/{total}] {name}: {what}\n")
@@ -52,5 +59,20 @@ class Progress:
             if quarter > shown["quarter"]:
                 shown["quarter"] = quarter
                 self.write(f"      {label}: {done}/{total} ({elapsed:.1f} s)\n")
+
+        return update
+
+    def counter(self, label: str, every: int = 25) -> Callable[[int], None]:
+        """A callback ``(count)`` for work of unknown length (solver iterations): on a terminal the
+        count and the time so far redraw in place, elsewhere a line every ``every`` counts.
+        The next message ends its line."""
+        t0 = time.perf_counter()
+
+        def update(count: int) -> None:
+            elapsed = time.perf_counter() - t0
+            if self.tty:
+                self.write(f"\r      {label}: {count} ({elapsed:.1f} s)")
+            elif count % every == 0:
+                self.write(f"      {label}: {count} ({elapsed:.1f} s)\n")
 
         return update

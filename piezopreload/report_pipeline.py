@@ -72,10 +72,11 @@ _METRIC_NAMES = {"rise_s": "rise time (s)", "peak_s": "peak time (s)", "settling
 
 
 def render_report(out: Path, records: dict[str, dict[str, Any]], study: Study, progress: Progress,
-                  study_source: str | None = None) -> tuple[dict[str, Path], dict[str, Any]]:
+                  study_source: str | None = None, template: str | None = None) -> tuple[dict[str, Path], dict[str, Any]]:
     """Figures, ``report/report.json``, ``report/report.typ`` and ``report.pdf`` in ``out``.
 
-    ``study_source`` is the study file as the user named it (default: ``study.path``).
+    ``study_source`` is the study file as the user named it (default: ``study.path``);
+    ``template`` a Typst template's text (default: the shipped one).
     """
     study_source = study_source or study.path
     r = _Reader(out, records)
@@ -168,7 +169,7 @@ def render_report(out: Path, records: dict[str, dict[str, Any]], study: Study, p
                         design, now, study_source)
     data["figures"] = {name: {"file": f"figures/{name}.pdf", "caption": captions[name]} for name in captions}
     write_artifact(folder / "report.json", "report", data)
-    atomic_write_text(folder / "report.typ", template_text())
+    atomic_write_text(folder / "report.typ", template if template is not None else template_text())
     try:
         pdf = compile_pdf(folder / "report.typ", date=now)
     except ReportError as exc:

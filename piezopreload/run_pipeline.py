@@ -115,6 +115,7 @@ class _Ctx:
     progress: Progress
     records: dict[str, dict[str, Any]]
     source: str = ""                         # the study file as the user named it
+    template: str | None = None              # a Typst template's text to use instead of the shipped one
 
     def output(self, stage: str, label: str) -> Path:
         return self.out / self.records[stage]["outputs"][label]["path"]
@@ -242,7 +243,8 @@ def _stage_tune(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     from piezopreload.tuning_pipeline import tune_gains
 
     feedforward, _ = _feedforward(ctx)
-    tuned = tune_gains(ctx.study, feedforward, progress=ctx.progress.say)
+    tuned = tune_gains(ctx.study, feedforward, progress=lambda m: ctx.progress.say(m.strip()),
+                       iterations=ctx.progress.counter("IPOPT iterations", every=10))
     tuned["inputs"]["feedforward_sha256"] = ctx.records["identify"]["outputs"]["model"]["sha256"]
     path = ctx.out / "tuning.json"
     write_artifact(path, "tuning", tuned)
@@ -399,12 +401,12 @@ def _stage_rig(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
 def _stage_report(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     from piezopreload.report_pipeline import render_report
 
-    return render_report(ctx.out, ctx.records, ctx.study, ctx.progress, ctx.source)
+    return render_report(ctx.out, ctx.records, ctx.study, ctx.progress, ctx.source, ctx.template)
 
 
 _STUDY_TABLES = ("study",)
 STAGES: tuple[Stage, ...] = (
-    Stage("identify", "the feedforward's P-I model", ("rig", "feedforward"), (), ("models", "tuning"),
+    Stage("identify", "the feedforward's P-I model", ("rig", "feedforward", "reference"), (), ("models", "tuning"),
           _stage_identify, files=_ff_files),
     Stage("design", "ball-screw preload design, Pareto fronts, schedule",
           ("ballscrew", "feed_drive", "duty", "design", "schedule"), (), ("models", "design"), _stage_design,
@@ -514,10 +516,11 @@ def _load(path: str | Path | None) -> tuple[Study, StudyText]:
 
 
 def _execute(stages: list[Stage], study: Study, text: StudyText, out: Path, force: bool,
-             progress: Progress, previous: dict[str, dict[str, Any]], started: str, source: str) -> list[dict[str, Any]]:
+             progress: Progress, previous: dict[str, dict[str, Any]], started: str, source: str,
+             template: str | None = None) -> list[dict[str, Any]]:
     records = dict(previous)
     done: list[dict[str, Any]] = []
-    ctx = _Ctx(study, text, out, progress, records, source)
+    ctx = _Ctx(study, text, out, progress, records, source, template)
     for i, stage in enumerate(stages, start=1):
         reason = stage.applies(study)
         key = _stage_key(stage, study, records)
@@ -595,11 +598,21 @@ def run_study(path: str | Path | None = None, out: str | Path = DEFAULT_OUT, *, 
     return _result(out, study, stages, seconds)
 
 
-def rerender_report(out: str | Path, progress: Progress | None = None) -> dict[str, Any]:
-    """Render the report again from the artifacts in ``out`` (``piezopreload report DIR``); nothing else runs."""
+def rerender_report(out: str | Path, progress: Progress | None = None, template: str | Path | None = None) -> dict[str, Any]:
+    """Render the report again from the artifacts in ``out`` (``piezopreload report DIR``); nothing else runs.
+
+    ``template``: a Typst file to typeset instead of the shipped template (a copy of
+    ``DIR/report/report.typ``, edited); it reads ``report.json`` and ``figures/`` as the shipped one does.
+    """
     progress = progress or Progress()
     t0 = time.perf_counter()
     out = Path(out)
+    template_text = None
+    if template is not None:
+        try:
+            template_text = Path(template).read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise InputError(f"--template {template}: cannot read it ({exc})") from None
     if not (out / MANIFEST).is_file():
         raise InputError(f"{out}: no {MANIFEST}; this is not a study's output folder (run 'piezopreload run' first)")
     manifest = read_manifest(out)
@@ -616,7 +629,8 @@ def rerender_report(out: str | Path, progress: Progress | None = None) -> dict[s
     study = load_study(out / STUDY_COPY)
     with _locked(out):
         stages = _execute([_BY_NAME["report"]], study, read_study_text(out / STUDY_COPY), out, True, progress,
-                          records, manifest.get("started_utc", _utc()), manifest["study"].get("path", study.path))
+                          records, manifest.get("started_utc", _utc()), manifest["study"].get("path", study.path),
+                          template_text)
     seconds = time.perf_counter() - t0
     progress.write(f"the report is {out / 'report.pdf'} ({seconds:.1f} s)\n")
     return _result(out, study, stages, seconds)

@@ -57,13 +57,14 @@ def tune_gains(
     spec: TuningSpec | None = None,
     criteria: Criteria | None = None,
     progress: Callable[[str], None] | None = None,
+    iterations: Callable[[int], None] | None = None,
 ) -> dict[str, Any]:
     """Tune the PID around the study's rig compensated by ``feedforward``; compare and bound it.
 
     Returns the body of a ``tuning`` artifact: the tuned gains and the SIMC baseline, the
     table of the paper's, SIMC's and the tuned gains on the nominal rig with and without the
     feedforward, the minimum-time bound and the tracking floor. No Monte Carlo: that is
-    :func:`validate_tuned`.
+    :func:`validate_tuned`. ``iterations`` gets the IPOPT iteration count as the tuning goes.
     """
     say = progress or (lambda msg: print(msg, file=sys.stderr, flush=True))
     seed = study.seed if seed is None else seed
@@ -71,7 +72,7 @@ def tune_gains(
     spec = spec or study.tuning_spec
     say("tuning the PID around the compensated plant (CasADi + IPOPT) ...")
     try:
-        tuning = tune_pid(study.rig, feedforward.inverse(), spec)
+        tuning = tune_pid(study.rig, feedforward.inverse(), spec, progress=iterations)
     except TuningInfeasible as exc:
         raise InputError(f"{study.path}: {exc}") from None
     say(f"  tuned in {tuning.seconds:.0f} s: Kc {tuning.gains.Kc:.4g} V/N, Ti {tuning.gains.Ti_s:.4g} s, "

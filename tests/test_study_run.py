@@ -270,3 +270,17 @@ def test_measured_feedforward_data_is_identified_and_hashed(small_run, tmp_path)
     simulated = read_artifact(small_run[0] / "feedforward" / "model.json", "hysteresis-model")
     # the same loop gives the same QP and so the same weights
     assert np.allclose(doc["model"]["weights"], simulated["model"]["weights"], atol=1e-6)
+
+
+def test_report_typesets_an_edited_template_and_names_a_broken_one(small_run, tmp_path, capsys):
+    out = _copy(small_run, tmp_path)
+    edited = tmp_path / "mine.typ"
+    edited.write_text((out / "report" / "report.typ").read_text().replace("= Summary", "= Summary for the shop floor"))
+    assert main(["report", str(out), "--template", str(edited), "--quiet"]) == 0
+    assert "Summary for the shop floor" in _pdf_text(out / "report.pdf")[1]
+    before = (out / "report.pdf").read_bytes()
+    edited.write_text("#let d = json(\"report.json\")\n#d.no_such_field\n")
+    assert main(["report", str(out), "--template", str(edited), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "error: stage 'report' failed:" in err and "Typst could not compile" in err and "no_such_field" in err
+    assert (out / "report.pdf").read_bytes() == before  # the last good report stays

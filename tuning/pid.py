@@ -36,6 +36,7 @@ fit of the compensated plant's response to a voltage step.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -557,6 +558,7 @@ def tune_pid(
     max_iterations: int = 150,
     starts: int = 3,
     verbose: bool = False,
+    progress: Callable[[int], None] | None = None,
 ) -> TuningResult:
     """Tune ``Kc, Ti, Td, Tf`` (and ``b``) on the compensated plant; see the module docstring.
 
@@ -566,7 +568,8 @@ def tune_pid(
     baseline and a coarse grid) by constraint violation and then objective; a start that
     violates a constraint first minimises the violation (a phase-one problem), then the
     objective. Raises :class:`TuningInfeasible` naming the violated constraints when no start
-    ends feasible.
+    ends feasible. ``progress``, if given, is called with the count of IPOPT iterations so far
+    (all starts and phases) at every iteration.
     """
     t0 = time.perf_counter()
     rig = Rig(params)
@@ -582,11 +585,21 @@ def tune_pid(
         "ipopt.acceptable_iter": 5, "ipopt.acceptable_obj_change_tol": 1e-4,
         "ipopt.print_level": 5 if verbose else 0, "print_time": False, "ipopt.sb": "yes",
     }
-    solver = ca.nlpsol("tune", "ipopt", {"x": z, "f": prob.objective, "g": g}, options)
+    counters = []
+    if progress is not None:
+        done = [0]
+
+        def tick() -> None:
+            done[0] += 1
+            progress(done[0])
+
+        counters = [_IterationCounter(z.numel(), g.numel(), tick), _IterationCounter(z.numel() + 1, g.numel(), tick)]
+    solver = ca.nlpsol("tune", "ipopt", {"x": z, "f": prob.objective, "g": g},
+                       {**options, **({"iteration_callback": counters[0]} if counters else {})})
     # phase one: the least violation, with a slack s >= max(g)
     slack = ca.MX.sym("s")
     phase_one = ca.nlpsol("tune_phase_one", "ipopt", {"x": ca.vertcat(z, slack), "f": slack, "g": g - slack},
-                          {**options, "ipopt.tol": 1e-8})
+                          {**options, "ipopt.tol": 1e-8, **({"iteration_callback": counters[1]} if counters else {})})
 
     def score(zv: np.ndarray) -> tuple[float, float]:
         """The worst constraint violation (0 if feasible) and the objective."""
@@ -636,6 +649,41 @@ def tune_pid(
         iterations=iterations, seconds=time.perf_counter() - t0, ms=ms, binding=binding,
         constraint_margins=margins,
     )
+
+
+class _IterationCounter(ca.Callback):
+    """CasADi's ``iteration_callback`` for an NLP with ``nx`` variables and ``ng`` constraints: calls ``tick()``."""
+
+    def __init__(self, nx: int, ng: int, tick: Callable[[], None]) -> None:
+        ca.Callback.__init__(self)
+        self.nx, self.ng, self.tick = nx, ng, tick
+        self.construct("iteration_counter", {})
+
+    def get_n_in(self) -> int:
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_name_in(self, i: int) -> str:
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i: int) -> str:
+        return "ret"
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        name = ca.nlpsol_out(i)
+        if name == "f":
+            return ca.Sparsity.scalar()
+        if name in ("x", "lam_x"):
+            return ca.Sparsity.dense(self.nx)
+        if name in ("g", "lam_g"):
+            return ca.Sparsity.dense(self.ng)
+        return ca.Sparsity(0, 0)
+
+    def eval(self, arg: list[Any]) -> list[Any]:
+        self.tick()
+        return [0]
 
 
 def _max_sensitivity(gains: PIDGains, params: RigParams) -> float:
