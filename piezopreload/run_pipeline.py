@@ -227,6 +227,8 @@ def _stage_design(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     from piezopreload.design_pipeline import design_study
 
     d = ctx.out / "design"
+    for stale in d.glob("design.pareto-*.csv"):  # a front the study no longer asks for
+        stale.unlink()
     result = design_study(ctx.study.path, out=d / "design.json", progress=ctx.progress.say,
                           bar=ctx.progress.bar("Pareto fronts"))
     outputs = {"design": d / "design.json"}
