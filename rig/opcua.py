@@ -230,6 +230,9 @@ class RigServer:
         server, nodes = await self._build()
         result: list[RunResult] = []
         async with server:
+            # every node written once before the loop starts: the first update writes them all, and
+            # that interpreter time must not fall into the loop's first cycles
+            await self._update(nodes)
             thread = threading.Thread(target=lambda: result.append(self.executor.run()), name="rig-loop", daemon=True)
             thread.start()
             if ready is not None:
