@@ -236,8 +236,10 @@ def _report_data(study: Study, records: dict[str, dict[str, Any]], out: Path, re
                 ["missed deadlines", str(rig_sum.get("missed_deadlines", timing.get("missed_deadlines", "–")))]]
     exports = [o["path"] for o in records.get("export", {}).get("outputs", {}).values()]
     tuned_ff, paper_ff = by[("tuned", "ff+pid", "step")], by[("paper", "ff+pid", "step")]
+    paper_settling = next(r["paper"] for r in responses["reproduction"]
+                          if r["controller"] == "ff+pid" and r["metric"] == "settling_s")
     summary = [
-        f"The paper's FF + PID step settles in {fmt(responses['reproduction'][5]['paper'])} s; on the calibrated rig "
+        f"The paper's FF + PID step settles in {fmt(paper_settling)} s; on the calibrated rig "
         f"its gains settle in {fmt(paper_ff['settling_s'])} s and the tuned gains in {fmt(tuned_ff['settling_s'])} s "
         f"({signal_name(responses['signal'])}, ±{fmt(responses['band_N'])} N band).",
         f"On the staircase trajectory the tracking RMS is {fmt(by[('paper', 'ff+pid', 'trajectory')]['tracking_rms_N'])} N "
