@@ -38,6 +38,9 @@ __all__ = [
     "simulate_study",
     "reproduce_study",
     "write_run_csv",
+    "write_csv",
+    "finite_or_none",
+    "step_numbers",
 ]
 
 
@@ -229,24 +232,31 @@ def _feedforward(study: Study, path: str | Path | None) -> tuple[Any, dict[str, 
     }
 
 
-def _step_numbers(run: ClosedLoopRun, study: Study) -> dict[str, float | None]:
+def step_numbers(run: ClosedLoopRun, study: Study) -> dict[str, float | None]:
+    """Rise, peak and settling time and overshoot of a run, scored as the study says (band, signal)."""
     m = run.step_metrics(study.band_N, signal=study.signal)
     values = {"rise_s": m.rise_s, "peak_s": m.peak_s, "settling_s": m.settling_s, "overshoot_N": m.overshoot}
     return {k: (float(v) if np.isfinite(v) else None) for k, v in values.items()}
 
 
-def _finite_or_none(x: float) -> float | None:
+def finite_or_none(x: float) -> float | None:
+    """``x`` as a float, or None where it is not finite (JSON holds no NaN)."""
     return float(x) if np.isfinite(x) else None
+
+
+def write_csv(path: str | Path, columns: dict[str, Any], comment: str) -> None:
+    """Named columns as CSV (``#`` comment lines, one header line, 9 significant digits), written atomically."""
+    buf = io.StringIO()
+    for line in comment.splitlines():
+        buf.write(f"# {line}\n")
+    np.savetxt(buf, np.column_stack([np.asarray(c, float) for c in columns.values()]), delimiter=",",
+               header=",".join(columns), comments="", fmt="%.9g")
+    atomic_write_text(path, buf.getvalue())
 
 
 def write_run_csv(path: str | Path, run: ClosedLoopRun, comment: str) -> None:
     """A single-plant run as CSV (one header line, ``#`` comments first), written atomically."""
-    cols = run.columns()
-    buf = io.StringIO()
-    for line in comment.splitlines():
-        buf.write(f"# {line}\n")
-    np.savetxt(buf, np.column_stack(list(cols.values())), delimiter=",", header=",".join(cols), comments="", fmt="%.9g")
-    atomic_write_text(path, buf.getvalue())
+    write_csv(path, run.columns(), comment)
 
 
 def simulate_study(
@@ -288,7 +298,7 @@ def simulate_study(
         "seed": seed,
         "samples": int(run.t_s.size),
         "sample_period_s": rig.dt_s,
-        **_step_numbers(run, study),
+        **step_numbers(run, study),
         "peak_command_V": float(np.max(run.command_V)),
     }
     paper = dict.fromkeys(_STEP_KEYS)
@@ -324,7 +334,7 @@ def reproduce_study(study: Study, *, seed: int | None = None, repeats: int = 1) 
                     seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
                     repeats=repeats)
     rows = [{**r, "within_25pct": bool(abs(r["ratio"] - 1.0) <= 0.25),
-             "range": [_finite_or_none(x) for x in rep.spread[r["controller"]][r["metric"]]]} for r in rep.table()]
+             "range": [finite_or_none(x) for x in rep.spread[r["controller"]][r["metric"]]]} for r in rep.table()]
     for r in rows:
         if not np.isfinite(r["simulated"]):
             r.update(simulated=None, ratio=None, within_25pct=False)

@@ -227,13 +227,12 @@ def _report_data(study: Study, records: dict[str, dict[str, Any]], out: Path, re
     val_rows = [[names[k], fmt(s[k]["worst"]), fmt(s[k]["p95"]), fmt(s[k]["p50"]), fmt(limits.get(k))]
                 for k in names if k in s]
     rig_sum = records["rig"]["summary"]
-    timing = sidecar.get("summary", {}).get("timing", {}) if isinstance(sidecar.get("summary"), dict) else {}
     rig_rows = [["status", sidecar["status"]], ["cycles", str(rig_sum["cycles"])],
                 ["controller step", {"c": "compiled C (CasADi codegen)", "numpy": "numpy"}.get(
                     rig_sum["controller_step"], rig_sum["controller_step"])],
                 ["settling time (s)", fmt(rig_sum.get("settling_s"))], ["overshoot (N)", fmt(rig_sum.get("overshoot_N"))],
                 ["tracking RMS over the reference (N)", fmt(rig_sum.get("tracking_rms_N"))],
-                ["missed deadlines", str(rig_sum.get("missed_deadlines", timing.get("missed_deadlines", "–")))]]
+                ["missed deadlines", str(rig_sum["missed_deadlines"])]]
     exports = [o["path"] for o in records.get("export", {}).get("outputs", {}).values()]
     tuned_ff, paper_ff = by[("tuned", "ff+pid", "step")], by[("paper", "ff+pid", "step")]
     paper_settling = next(r["paper"] for r in responses["reproduction"]

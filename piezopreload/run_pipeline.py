@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import hashlib
 import importlib
-import io
 import json
 import time
 from collections.abc import Callable, Iterator
@@ -39,13 +38,15 @@ from typing import Any
 import numpy as np
 
 from piezopreload import __version__
-from piezopreload.artifacts import ArtifactError, atomic_write_text, read_artifact, write_artifact
+from piezopreload.artifacts import ArtifactError, atomic_write_bytes, atomic_write_text, read_artifact, write_artifact
 from piezopreload.io import InputError, read_record
 from piezopreload.models.actuator import Rig
 from piezopreload.models.closedloop import ClosedLoopRun, simulate, simulate_open_loop, triangle
 from piezopreload.models.controller import Controller
-from piezopreload.models.hysteresis import ClassicalPI, model_from_dict
-from piezopreload.pipeline import gains_from_dict, write_run_csv
+from piezopreload.models.hysteresis import ClassicalPI
+from piezopreload.pipeline import (
+    finite_or_none, gains_from_dict, load_hysteresis_model, step_numbers, write_csv, write_run_csv,
+)
 from piezopreload.progress import Progress
 from piezopreload.study import Study, StudyText, default_study, load_study, read_study_text
 from piezopreload.tuning.calibrate import PAPER_RESULTS, fit_feedforward, identify_feedforward
@@ -170,43 +171,31 @@ def _stage_identify(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     check = simulate_open_loop(rig, command, seed=study.excitation.seed + 1)
     d = ctx.out / "feedforward"
     loop_csv, check_csv = d / "loop.csv", d / "compensation.csv"
-    _write_csv(loop_csv, {"time_s": t, "voltage_V": v, "force_N": y, "model_N": model(v)},
-               f"the feedforward's loop measurement ({source['kind']}) and the P-I model's output")
-    _write_csv(check_csv, {"time_s": check["time_s"], "desired_N": desired, "command_V": command,
-                           "force_N": check["force_N"], "measured_N": check["measured_N"]},
-               "open loop through the inverse P-I model: desired force, command, the rig's force")
-    comp_err = check["force_N"] - desired
+    write_csv(loop_csv, {"time_s": t, "voltage_V": v, "force_N": y, "model_N": model(v)},
+              f"piezopreload {__version__}: the feedforward's loop measurement ({source['kind']}) and the P-I model's output")
+    write_csv(check_csv, {"time_s": check["time_s"], "desired_N": desired, "command_V": command,
+                          "force_N": check["force_N"], "measured_N": check["measured_N"]},
+              f"piezopreload {__version__}: open loop through the inverse P-I model: desired force, command, the rig's force")
     settle = check["time_s"] >= 1.0 / study.excitation.frequency_Hz  # the first cycle carries the creep's start
+    comp_err = (check["force_N"] - desired)[settle]
+    comp_rms, comp_max = float(np.sqrt(np.mean(comp_err ** 2))), float(np.max(np.abs(comp_err)))
     data_sha = source.get("sha256") or _sha256_file(loop_csv)
     write_artifact(d / "model.json", "hysteresis-model", {
         "inputs": {"data": {**source, "sha256": data_sha}, "study_sha256": study.sha256},
         "units": {"input": "V", "output": "N", "input_name": "voltage_V", "output_name": "force_N"},
         "model": model.to_dict(),
         "identification": {"fit": info["fit"], "solver_status": info["status"],
-                           "compensation_rms_N": float(np.sqrt(np.mean(comp_err[settle] ** 2))),
-                           "compensation_max_N": float(np.max(np.abs(comp_err[settle])))},
+                           "compensation_rms_N": comp_rms, "compensation_max_N": comp_max},
     })
     summary = {"source": source["kind"], "data_sha256": data_sha, "operators": model.n_operators,
                "fit_rms_pct": info["fit"]["rms_pct"], "fit_max_pct": info["fit"]["max_pct"],
-               "compensation_rms_N": float(np.sqrt(np.mean(comp_err[settle] ** 2)))}
+               "compensation_rms_N": comp_rms}
     return {"model": d / "model.json", "loop": loop_csv, "compensation": check_csv}, summary
-
-
-def _write_csv(path: Path, columns: dict[str, np.ndarray], comment: str) -> None:
-    buf = io.StringIO()
-    buf.write(f"# piezopreload {__version__}: {comment}\n")
-    np.savetxt(buf, np.column_stack([np.asarray(c, float) for c in columns.values()]), delimiter=",",
-               header=",".join(columns), comments="", fmt="%.9g")
-    atomic_write_text(path, buf.getvalue())
 
 
 def _feedforward(ctx: _Ctx) -> tuple[ClassicalPI, dict[str, Any]]:
     path = ctx.output("identify", "model")
-    doc = read_artifact(path, "hysteresis-model")
-    try:
-        model = model_from_dict(doc["model"], where="model")
-    except ValueError as exc:
-        raise ArtifactError(f"{path}: {exc}") from None
+    model, doc = load_hysteresis_model(path)
     if not isinstance(model, ClassicalPI):
         raise ArtifactError(f"{path}: field 'model.kind': the feedforward is a classical P-I model")
     info = {"source": doc["inputs"]["data"], "fit": doc["identification"]["fit"],
@@ -269,7 +258,7 @@ def _stage_validate(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     write_artifact(validation_path, "validation", {
         "gain_set_sha256": doc["content_sha256"], "passed": result.passed, "n_plants": result.n_plants,
         "seed": result.seed, "criteria": result.criteria.to_dict(), "spread": result.spread,
-        "metrics": {k: [float(x) if np.isfinite(x) else None for x in v] for k, v in result.metrics.items()},
+        "metrics": {k: [finite_or_none(x) for x in v] for k, v in result.metrics.items()},
         "summary": result.summary(), "failures": result.failures, "seconds": result.seconds,
         "inputs": {"gain_set": "gains.json", "study_sha256": study.sha256},
     })
@@ -320,7 +309,7 @@ def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
                                          f"{controller}, {ref_name}, seed {study.seed}")
                 outputs[label] = path
                 runs.append({"gains": name, "controller": controller, "reference": ref_name, "csv": ctx.rel(path),
-                             **_run_metrics(run, study, ref_name)})
+                             **_run_metrics(run, study)})
                 bar(len(runs), total)
     rows = []
     for controller in _RESPONSE_CONTROLLERS:
@@ -337,13 +326,8 @@ def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     return outputs, {"reproduction": rows}
 
 
-def _run_metrics(run: ClosedLoopRun, study: Study, reference: str) -> dict[str, Any]:
-    def num(x: float) -> float | None:
-        return float(x) if np.isfinite(x) else None
-
-    m = run.step_metrics(study.band_N, signal=study.signal)
-    out = {"rise_s": num(m.rise_s), "peak_s": num(m.peak_s), "settling_s": num(m.settling_s),
-           "overshoot_N": num(m.overshoot), "peak_command_V": float(np.max(run.command_V))}
+def _run_metrics(run: ClosedLoopRun, study: Study) -> dict[str, Any]:
+    out: dict[str, Any] = {**step_numbers(run, study), "peak_command_V": float(np.max(run.command_V))}
     te = run.tracking_error()
     after = run.tracking_error(after_change_s=study.criteria.tracking_after_change_s)
     out.update(tracking_rms_N=float(te["rms"]), tracking_max_N=float(te["max"]),
@@ -590,7 +574,7 @@ def run_study(path: str | Path | None = None, out: str | Path = DEFAULT_OUT, *, 
         raw = Path(study.path).read_bytes()
         copy = out / STUDY_COPY
         if not copy.is_file() or copy.read_bytes() != raw:
-            atomic_write_text(copy, raw.decode("utf-8"))
+            atomic_write_bytes(copy, raw)
         previous = _previous(out, progress)
         stages = _execute(list(STAGES), study, text, out, force, progress, previous, _utc(), study.path)
     ran = [s["stage"] for s in stages if s["ran"]]

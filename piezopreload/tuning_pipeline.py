@@ -17,7 +17,7 @@ from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import PIDGains
 from piezopreload.models.hysteresis import ClassicalPI, model_from_dict
-from piezopreload.pipeline import gains_from_dict, gains_to_dict, load_gains
+from piezopreload.pipeline import finite_or_none, gains_from_dict, gains_to_dict, load_gains
 from piezopreload.study import Study
 from piezopreload.tuning.calibrate import PAPER_RESULTS, identify_feedforward
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, minimum_time, tracking_floor, tune_pid
@@ -36,17 +36,13 @@ def compare_gains(study: Study, candidates: dict[str, PIDGains], feedforward: Cl
                          study.references["trajectory"], criteria, seed)
             rows.append({
                 "gains": name, "feedforward": ff,
-                "rise_s": _num(m["rise_s"][0]), "settling_s": _num(m["settling_s"][0]),
-                "settling_measured_s": _num(m["settling_measured_s"][0]),
+                "rise_s": finite_or_none(m["rise_s"][0]), "settling_s": finite_or_none(m["settling_s"][0]),
+                "settling_measured_s": finite_or_none(m["settling_measured_s"][0]),
                 "overshoot_N": float(m["overshoot_N"][0]), "tracking_rms_N": float(m["tracking_rms_all_N"][0]),
                 "tracking_rms_after_change_N": float(m["tracking_rms_N"][0]),
                 "peak_command_V": float(m["peak_voltage_V"][0]),
             })
     return rows
-
-
-def _num(x: float) -> float | None:
-    return float(x) if np.isfinite(x) else None
 
 
 def tune_gains(

@@ -8,6 +8,7 @@ every axis, the same colour for the same controller in every figure.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -35,10 +36,9 @@ _WIDTH = 6.3  # inches: the text width of an A4 page with 2 cm margins
 
 
 def _figure(height: float, ncols: int = 1, nrows: int = 1, **kw: Any) -> tuple[Figure, Any]:
-    with mpl.rc_context(STYLE):
-        fig = Figure(figsize=(_WIDTH, height), layout="constrained")
-        axes = fig.subplots(nrows, ncols, squeeze=False, **kw)
-    return fig, axes
+    """A page-wide figure and its axes (called inside :func:`_styled`, under :data:`STYLE`)."""
+    fig = Figure(figsize=(_WIDTH, height), layout="constrained")
+    return fig, fig.subplots(nrows, ncols, squeeze=False, **kw)
 
 
 def save(fig: Figure, path: str | Path) -> Path:
@@ -52,10 +52,10 @@ def save(fig: Figure, path: str | Path) -> Path:
 
 def _styled(fn: Any) -> Any:
     """Run a figure function under :data:`STYLE` (artists take rcParams when created)."""
+    @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Figure:
         with mpl.rc_context(STYLE):
             return fn(*args, **kwargs)
-    wrapper.__name__, wrapper.__doc__ = fn.__name__, fn.__doc__
     return wrapper
 
 
