@@ -11,9 +11,12 @@ duty cycle and the piezo stacks; the design chooses
 
 Objectives (one, picked by the user): ``stiffness`` maximises the least rigidity over the
 duty cases (an epigraph variable t <= K_j); ``drag`` minimises the time-mean preload drag
-torque; ``life`` maximises the rating life (its logarithm). Ties are broken towards less
-drag, mean and at F_hi, and towards a wider piezo range, a lower F_i (a 1e-3 weight), so
-no preload is left undetermined.
+torque; ``life`` maximises the rating life (its logarithm). Ties are broken (a 1e-3 weight)
+towards more stiffness, less drag, mean and at F_hi, and a wider piezo range, a lower F_i,
+so no preload and no geometry is left undetermined: the drag a design pays depends on its
+preloads and helix alone, and without the stiffness term the least-drag design's contact
+angle, balls and conformity would be whatever the solver's path left them at (a weakly
+dominated end for the fronts).
 
 Constraints, each a row of :data:`CONSTRAINTS` with its units:
 preload <= a fraction of C_dyn; no lift-off at each case's load, at the maximum axial load
@@ -332,9 +335,10 @@ def _expressions(spec: DesignSpec, ops: Any, x: Any) -> dict[str, Any]:
 
 def _objective(e: dict[str, Any], w: Any) -> Any:
     """The weighted objective (weights: -stiffness, drag, -log life, preload) plus the
-    tie-break towards less drag and a lower bolt preload; numbers or CasADi expressions."""
+    tie-break towards more stiffness, less drag and a lower bolt preload; numbers or CasADi
+    expressions."""
     return (-w[0] * e["t"] / 1000.0 + w[1] * e["mean_drag"] - w[2] * e["log_L"] + w[3] * e["F_hi"] / 1000.0
-            + _TIE_WEIGHT * (e["mean_drag"] + e["drag_hi"] + e["F_i"] / 1000.0))
+            + _TIE_WEIGHT * (e["mean_drag"] + e["drag_hi"] + e["F_i"] / 1000.0 - e["t"] / 1000.0))
 
 
 def _constraint_rows(spec: DesignSpec, e: dict[str, Any], ops: Any) -> list[tuple[str, Any, float]]:
