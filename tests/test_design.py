@@ -12,7 +12,8 @@ from scipy.optimize import minimize
 
 from piezopreload.cli import main
 from piezopreload.design.preload import (
-    WEIGHTS, DesignInfeasible, DesignNLP, DesignSpec, optimise, pareto_front,
+    OBJECTIVES, PARETO_PAIRS, WEIGHTS, DesignInfeasible, DesignNLP, DesignSpec, _integer_candidates, optimise,
+    pareto_front,
 )
 from piezopreload.design.schedule import LoadProfile, ScheduleSpec, example_profile, schedule_preload
 from piezopreload.models.ballscrew import LIFT_OFF_RATIO, BallScrew
@@ -107,6 +108,76 @@ def test_pareto_fronts_are_monotone(spec, nlp):
     # each point's drag is no more than that of the stiffness optimum, which meets every epsilon
     stiff = optimise(spec, "stiffness", nlp).point
     assert drag.y.max() <= stiff.mean_drag_torque_Nm * (1 + 1e-6)
+
+
+@pytest.fixture(scope="module")
+def reference_nlp(spec):
+    """Every warm solve left to IPOPT: the reference for the SQP warm starts."""
+    return DesignNLP(spec, warm="ipopt")
+
+
+@pytest.mark.parametrize("objective", OBJECTIVES)
+def test_sqp_warm_starts_reach_the_ipopt_optimum(spec, nlp, reference_nlp, objective):
+    ours, ref = optimise(spec, objective, nlp).point, optimise(spec, objective, reference_nlp).point
+    assert (ours.turns, ours.balls_per_turn) == (ref.turns, ref.balls_per_turn)
+    # both stop at a KKT tolerance of 1e-8 on the O(1)-scaled problem; what the objective
+    # weighs only through the 1e-3 tie-break (the drag optimum's stiffness and life) is
+    # known to about 1e-5
+    np.testing.assert_allclose(ours.stiffness_N_per_um, ref.stiffness_N_per_um, rtol=1e-4)
+    np.testing.assert_allclose(ours.mean_drag_torque_Nm, ref.mean_drag_torque_Nm, rtol=1e-6)
+    np.testing.assert_allclose(ours.life_h, ref.life_h, rtol=1e-4)
+
+
+@pytest.mark.parametrize("pair", PARETO_PAIRS)
+def test_fronts_with_sqp_warm_starts_match_the_ipopt_fronts(spec, nlp, reference_nlp, pair):
+    ours, ref = pareto_front(spec, pair, 20, nlp), pareto_front(spec, pair, 20, reference_nlp)
+    assert len(ours.points) == len(ref.points) == 20
+    assert [(p.turns, p.balls_per_turn) for p in ours.points] == [(p.turns, p.balls_per_turn) for p in ref.points]
+    np.testing.assert_allclose(ours.x, ref.x, rtol=1e-4)  # where the epsilon is slack, set by the tie-break
+    np.testing.assert_allclose(ours.y, ref.y, rtol=1e-5)
+
+
+def test_sqp_infeasibility_verdicts_agree_with_ipopt(spec, reference_nlp):
+    nlp = DesignNLP(spec)
+    calls = []
+    solve = nlp.solve
+
+    def recording(*args, **kwargs):
+        out = solve(*args, **kwargs)
+        calls.append((args, kwargs, out))
+        return out
+
+    nlp.solve = recording
+    pareto_front(spec, "stiffness:drag", 20, nlp)
+    verdicts = [(a, k) for a, k, out in calls if out["status"].startswith("Infeasible: least")]
+    assert verdicts, "the front should meet integer neighbours that cannot be made feasible"
+    for args, kwargs in verdicts:
+        check = reference_nlp.solve(*args, **kwargs)
+        assert check["status"] == "Infeasible_Problem_Detected", (kwargs["integers"], check["status"])
+
+
+def test_integer_neighbours_the_bounds_rule_out_are_not_tried(spec, reference_nlp):
+    # balls per turn beyond what fits with the smallest ball allowed cannot be feasible
+    fit = math.pi * spec.nominal_diameter_mm / (math.cos(spec.helix_rad) * spec.ball_mm[0])
+    z = math.floor(fit)
+    kept = _integer_candidates(6.0, z + 0.5, spec)
+    assert kept == [(6, z)]
+    y0 = reference_nlp.initial_guess()
+    assert reference_nlp.solve(WEIGHTS["drag"], y0, integers=(6, z))["feasible"]
+    assert reference_nlp.solve(WEIGHTS["drag"], y0, integers=(6, z + 1))["status"] == "Infeasible_Problem_Detected"
+    # and turns beyond the nut length (45 mm holds 4.5 turns of a 10 mm lead)
+    short = replace(spec, nut_length_max_mm=45.0)
+    assert _integer_candidates(4.5, 20.0, short) == [(4, 20)]
+    short_nlp = DesignNLP(short, warm="ipopt")
+    y0 = short_nlp.initial_guess()
+    assert short_nlp.solve(WEIGHTS["drag"], y0, integers=(4, 20))["feasible"]
+    assert short_nlp.solve(WEIGHTS["drag"], y0, integers=(5, 20))["status"] == "Infeasible_Problem_Detected"
+
+
+def test_building_the_design_nlp_prints_nothing(spec, capsys):
+    DesignNLP(spec)  # qpOASES prints a licence banner on every solver built
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err == ""
 
 
 def test_schedule_meets_its_constraints_and_beats_the_best_constant(spec):
