@@ -22,6 +22,12 @@ default endpoint binds 127.0.0.1).
 
 The pushing user's name comes from the permission check that asyncua runs on each request,
 right before it dispatches the call (no other request can run between the two).
+
+The server shares the interpreter with the 1 kHz loop; a session with a pushing client in
+another process stalls the loop by 6 ms at most here. A client in the *same* process (a
+notebook, a test) is another matter: loading its 2048-bit RSA key for Basic256Sha256 holds
+the interpreter for about 30 ms (cryptography checks the key), close to the missed-deadline
+interlock's 50 cycles. Push from another process, as ``piezopreload rig push`` does.
 """
 
 from __future__ import annotations
