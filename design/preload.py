@@ -558,34 +558,43 @@ class DesignNLP:
                 return verdict
         return self._run(self.warm_solver, args, integers)
 
+    def elastic_args(self, y0: np.ndarray, lbx: np.ndarray, ubx: np.ndarray) -> dict[str, Any]:
+        """Arguments of :attr:`elastic_problem` from ``y0`` (clipped to the bounds), each slack
+        starting at its row's violation there; the bounds stay hard, the slacks are >= 0."""
+        y0 = np.clip(y0, lbx, ubx)
+        ns = len(self.row_names)
+        s0 = np.maximum(np.asarray(self.constraints(y0)).ravel(), 0.0)
+        return dict(x0=np.concatenate([y0, s0]), lbx=np.concatenate([lbx, np.zeros(ns)]),
+                    ubx=np.concatenate([ubx, np.full(ns, np.inf)]), lbg=-np.inf, ubg=0.0)
+
     def _infeasible(self, args: dict[str, Any], integers: tuple[int, int] | None) -> dict[str, Any] | None:
         """The least-violation point from ``args``' start if the SQP converges there with a
         violation above the tolerance (a solution dict marked infeasible), else None."""
-        y0, lbx, ubx = args["x0"], args["lbx"], args["ubx"]
-        ns = len(self.row_names)
-        s0 = np.maximum(np.asarray(self.constraints(y0)).ravel(), 0.0)
-        out = self.elastic_sqp(x0=np.concatenate([y0, s0]), lbx=np.concatenate([lbx, np.zeros(ns)]),
-                               ubx=np.concatenate([ubx, np.full(ns, np.inf)]), lbg=-np.inf, ubg=0.0)
+        out = self.elastic_sqp(**self.elastic_args(args["x0"], args["lbx"], args["ubx"]))
         self.solves += 1
         violation = float(out["f"])
         if not (self.elastic_sqp.stats()["success"] and violation > _INFEASIBLE_VIOLATION):
             return None
         y = np.asarray(out["x"]).ravel()[: self.n]
-        return {"y": y, "f": float(self.objective(y, args["p"])), "g": np.asarray(self.constraints(y)).ravel(),
-                "lam_g": np.asarray(out["lam_g"]).ravel(), "lam_x": np.asarray(out["lam_x"]).ravel()[: self.n],
-                "integers": integers, "success": False, "feasible": False, "method": "sqp",
-                "status": f"Infeasible: least total scaled violation {violation:.3g}"}
+        return self._solution(y, float(self.objective(y, args["p"])), out["lam_g"],
+                              np.asarray(out["lam_x"]).ravel()[: self.n], integers, False,
+                              f"Infeasible: least total scaled violation {violation:.3g}", "sqp")
 
     def _run(self, solver: Any, args: dict[str, Any], integers: tuple[int, int] | None) -> dict[str, Any]:
         out = solver(**args)
         self.solves += 1
         stats = solver.stats()
-        y = np.asarray(out["x"]).ravel()
+        return self._solution(np.asarray(out["x"]).ravel(), float(out["f"]), out["lam_g"], out["lam_x"], integers,
+                              bool(stats["success"]), stats["return_status"],
+                              "sqp" if solver is self.sqp_solver else "ipopt")
+
+    def _solution(self, y: np.ndarray, f: float, lam_g: Any, lam_x: Any, integers: tuple[int, int] | None,
+                  success: bool, status: str, method: str) -> dict[str, Any]:
+        """A solve's result: the point, its objective, constraints and multipliers, and whether
+        the solver succeeded and the point is feasible (every row within 1e-6)."""
         g = np.asarray(self.constraints(y)).ravel()
-        return {"y": y, "f": float(out["f"]), "g": g, "lam_g": np.asarray(out["lam_g"]).ravel(),
-                "lam_x": np.asarray(out["lam_x"]).ravel(), "integers": integers,
-                "success": bool(stats["success"]), "status": stats["return_status"],
-                "method": "sqp" if solver is self.sqp_solver else "ipopt",
+        return {"y": y, "f": f, "g": g, "lam_g": np.asarray(lam_g).ravel(), "lam_x": np.asarray(lam_x).ravel(),
+                "integers": integers, "success": success, "status": status, "method": method,
                 "feasible": bool(np.all(g <= 1e-6))}
 
     # ---- reporting -------------------------------------------------------------------------
@@ -636,12 +645,7 @@ def _elastic(nlp: DesignNLP, y0: np.ndarray, integers: tuple[int, int] | None) -
     """Least total scaled violation (every row gets a slack): what cannot be met, by how much."""
     solver = ca.nlpsol("design_elastic", "ipopt", nlp.elastic_problem,
                        {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 1000})
-    lbx, ubx = nlp.bounds(integers, stiffness_min=0.0)
-    ns = len(nlp.row_names)
-    y0c = np.clip(y0, lbx, ubx)
-    s0 = np.maximum(np.asarray(nlp.constraints(y0c)).ravel(), 0.0)
-    out = solver(x0=np.concatenate([y0c, s0]), lbx=np.concatenate([lbx, np.zeros(ns)]),
-                 ubx=np.concatenate([ubx, np.full(ns, np.inf)]), lbg=-np.inf, ubg=0.0)
+    out = solver(**nlp.elastic_args(y0, *nlp.bounds(integers, stiffness_min=0.0)))
     return nlp.violations(np.asarray(out["x"]).ravel()[: nlp.n])
 
 
