@@ -54,15 +54,30 @@ import itertools
 import math
 import sys
 import time
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any
 
 import casadi as ca
 import numpy as np
 
+from piezopreload.core.errors import InfeasibleError
 from piezopreload.models.ballscrew import (
-    CASADI_OPS, LIFT_OFF_RATIO, NUMPY_OPS, NUT_OUTER_RATIO, STEEL, BallScrew, DutyCase,
-    Material, _axial_constant, _body_stiffness, _c_dyn, _drag_coefficient, _nut_constants, _rigidity, load_share,
+    CASADI_OPS,
+    LIFT_OFF_RATIO,
+    NUMPY_OPS,
+    NUT_OUTER_RATIO,
+    STEEL,
+    BallScrew,
+    DutyCase,
+    Material,
+    _axial_constant,
+    _body_stiffness,
+    _c_dyn,
+    _drag_coefficient,
+    _nut_constants,
+    _rigidity,
+    load_share,
 )
 from piezopreload.models.feed_drive import FeedDrive, PiezoPreload, stack_loop_um
 
@@ -116,7 +131,7 @@ def _is_banner(line: str) -> bool:
     return any(line.strip().startswith(b) for b in _BANNER_LINES)
 
 
-class DesignInfeasible(ValueError):
+class DesignInfeasible(InfeasibleError):
     """No design meets the constraints; ``violations`` says which and by how much."""
 
     def __init__(self, message: str, violations: list[dict[str, Any]]) -> None:
@@ -174,9 +189,9 @@ class DesignSpec:
             if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
                 raise ValueError(f"DesignSpec.{name} must be a range (low, high) with 0 < low <= high, got "
                                  f"{getattr(self, name)!r}.")
-        if not (20 <= self.contact_angle_deg[0] and self.contact_angle_deg[1] <= 70):
+        if not (self.contact_angle_deg[0] >= 20 and self.contact_angle_deg[1] <= 70):
             raise ValueError(f"DesignSpec.contact_angle_deg must lie in [20, 70], got {self.contact_angle_deg!r}.")
-        if not (0.505 <= self.conformity[0] and self.conformity[1] <= 0.6):
+        if not (self.conformity[0] >= 0.505 and self.conformity[1] <= 0.6):
             raise ValueError(f"DesignSpec.conformity must lie in [0.505, 0.6], got {self.conformity!r}.")
         if not (isinstance(self.turns[0], int) and isinstance(self.turns[1], int) and self.turns[0] >= 1):
             raise ValueError(f"DesignSpec.turns must be two integers >= 1, got {self.turns!r}.")
@@ -192,7 +207,7 @@ class DesignSpec:
     def helix_rad(self) -> float:
         return math.atan(self.lead_mm / (math.pi * self.nominal_diameter_mm))
 
-    def screw(self, point: "DesignPoint") -> BallScrew:
+    def screw(self, point: DesignPoint) -> BallScrew:
         """The ball screw of a design point, for the numpy model (evaluation, plots)."""
         return BallScrew(
             nominal_diameter_mm=self.nominal_diameter_mm, lead_mm=self.lead_mm, ball_mm=point.ball_mm,

@@ -213,7 +213,7 @@ class RigParams:
         unknown = sorted(set(spread) - set(self.batch_fields()))
         if unknown:
             raise ValueError(f"cannot vary {unknown}: fields that may vary are {sorted(self.batch_fields())}.")
-        changes: dict[str, Array] = {}
+        changes: dict[str, Any] = {}
         for name in sorted(spread):
             rel = float(spread[name])
             if not (np.isfinite(rel) and rel >= 0):
@@ -226,12 +226,13 @@ class RigParams:
     def take(self, index: int | slice) -> RigParams:
         """One plant (or a sub-batch) of a batch."""
         shape = self.batch_shape
-        changes = {}
+        changes: dict[str, Any] = {}
         for name in self.batch_fields():
             x = np.asarray(getattr(self, name), float)
             if x.ndim:  # a field that varies across the batch; the others stay as they are
                 changes[name] = np.broadcast_to(x, shape)[index]
-        return replace(self, **{k: (float(v) if np.ndim(v) == 0 else np.array(v)) for k, v in changes.items()})
+        values: dict[str, Any] = {k: (float(v) if np.ndim(v) == 0 else np.array(v)) for k, v in changes.items()}
+        return replace(self, **values)
 
     # ---- derived quantities ------------------------------------------------------------
     @property

@@ -238,10 +238,10 @@ def triangle(v_max_V: float, frequency_Hz: float, cycles: int, dt_s: float, v_mi
     """A triangle wave ``v_min -> v_max -> v_min``, ``cycles`` times: the usual loop measurement."""
     if not (frequency_Hz > 0 and cycles >= 1 and dt_s > 0 and v_max_V > v_min_V):
         raise ValueError("need frequency_Hz > 0, cycles >= 1, dt_s > 0 and v_max_V > v_min_V.")
-    t = np.arange(int(round(cycles / frequency_Hz / dt_s)) + 1) * dt_s
+    t = np.arange(int(round(cycles / frequency_Hz / dt_s)) + 1, dtype=np.float64) * float(dt_s)
     phase = (t * frequency_Hz) % 1.0
     tri = np.where(phase < 0.5, 2.0 * phase, 2.0 - 2.0 * phase)
-    return t, v_min_V + (v_max_V - v_min_V) * tri
+    return t, np.asarray(v_min_V + (v_max_V - v_min_V) * tri, dtype=np.float64)
 
 
 def simulate_open_loop(rig: Rig, command_V: ArrayLike, *, seed: int = 0) -> dict[str, Array]:

@@ -39,7 +39,7 @@ CASADI_OPS = SimpleNamespace(where=ca.if_else, minimum=ca.fmin, maximum=ca.fmax,
                              logical_and=ca.logic_and, logical_or=ca.logic_or)
 
 
-def pid_update(ops: Any, gains: Any, u_range: tuple[Any, Any], dt: float, integral: Any, e_prev: Any,
+def pid_update(ops: Any, gains: Any, u_range: tuple[Any, Any], dt: Any, integral: Any, e_prev: Any,
                pv_prev: Any, dpv: Any, sp: Any, pv: Any, ff: Any) -> tuple[Any, ...]:
     """One sample of the PID, on numpy arrays or CasADi expressions (``ops``).
 
@@ -66,7 +66,7 @@ def pid_update(ops: Any, gains: Any, u_range: tuple[Any, Any], dt: float, integr
 class Feedforward(Protocol):
     """An inverse hysteresis model: ``step(state, target) -> (input, state)``."""
 
-    def step(self, state: NDArray, target: ArrayLike) -> tuple[NDArray, NDArray]: ...
+    def step(self, state: Any, target: ArrayLike) -> tuple[NDArray, NDArray]: ...
 
     def initial_state(self, batch: tuple[int, ...] = ()) -> NDArray: ...
 
@@ -161,7 +161,7 @@ class Controller:
 
     gains: PIDGains
     dt_s: float
-    feedforward: Feedforward | None = None
+    feedforward: Any = None  # a Feedforward: an inverse hysteresis model
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.dt_s) and self.dt_s > 0):
@@ -195,7 +195,7 @@ class Controller:
         sp = np.asarray(setpoint, float)
         pv = np.asarray(pv, float)
         if self.feedforward is None:
-            ff, ff_state = 0.0, None
+            ff, ff_state = np.zeros(()), None
         else:
             ff, ff_state = self.feedforward.step(state.ff, sp)
         u, p, integral, d, e, dpv = pid_update(
@@ -254,7 +254,8 @@ class Controller:
         if x.shape != (5 + self.n_feedforward_states,):
             raise ValueError(f"expected a state of {5 + self.n_feedforward_states} numbers, got shape {x.shape}.")
         ff = None if self.feedforward is None else x[5:].copy()
-        return ControllerState(*(np.array(v) for v in x[:5]), ff)
+        integral, e_prev, pv_prev, sp_prev, dpv = (np.array(v) for v in x[:5])
+        return ControllerState(integral, e_prev, pv_prev, sp_prev, dpv, ff)
 
     def retune(self, state: ControllerState, gains: PIDGains) -> tuple[Controller, ControllerState]:
         """Switch to new gains without a jump in the output (bumpless gain change).

@@ -69,7 +69,9 @@ class FeedDrive:
     def screw_side_stiffness_N_per_um(self, root_diameter_mm: Any, position_mm: ArrayLike) -> Any:
         """Screw segments and bearings as seen from the nut at ``position_mm`` (the root
         diameter may be a number or a CasADi expression, the position a number or array)."""
-        x = float(position_mm) if np.ndim(position_mm) == 0 else np.asarray(position_mm, float)
+        x: Any = np.asarray(position_mm, float)
+        if x.ndim == 0:
+            x = float(x)
         EA = self.E_MPa * math.pi * root_diameter_mm ** 2 / 4.0 * 1e-3  # N/um * mm
         kb = self.bearing_stiffness_N_per_um
         left = 1.0 / (1.0 / kb + x / EA)

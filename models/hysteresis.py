@@ -25,6 +25,8 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from piezopreload.core.errors import InputError
+
 __all__ = [
     "NotInvertibleError",
     "play",
@@ -43,7 +45,7 @@ __all__ = [
 ]
 
 
-class NotInvertibleError(ValueError):
+class NotInvertibleError(InputError):
     """The model has no exact inverse (a partial sum of its weights is not positive)."""
 
 

@@ -13,10 +13,15 @@ import json
 import os
 import sys
 import traceback
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 from piezopreload import __version__
+from piezopreload.core.errors import InternalError, PiezopreloadError
+from piezopreload.design.preload import OBJECTIVES, PARETO_PAIRS
+from piezopreload.design_pipeline import design_study, evaluate_ballscrew
 from piezopreload.io import SHIPPED_COLUMNS, InputError, parse_columns, read_record, shipped_data
+from piezopreload.models.ballscrew import BallScrew
 from piezopreload.pipeline import (
     CONTROLLER_CHOICES,
     REFERENCE_CHOICES,
@@ -25,9 +30,6 @@ from piezopreload.pipeline import (
     reproduce_study,
     simulate_study,
 )
-from piezopreload.design.preload import OBJECTIVES, PARETO_PAIRS
-from piezopreload.design_pipeline import design_study, evaluate_ballscrew
-from piezopreload.models.ballscrew import BallScrew
 from piezopreload.rig import DEFAULT_ENDPOINT as DEFAULT_RIG_ENDPOINT
 from piezopreload.rig.export import FORMATS as EXPORT_FORMATS
 from piezopreload.study import default_study, load_study
@@ -332,7 +334,7 @@ def _print_validate(s: dict[str, Any]) -> None:
 
 
 def _cmd_export(args: argparse.Namespace) -> dict[str, Any]:
-    from piezopreload.artifacts import atomic_write_text, read_artifact
+    from piezopreload.core.artifacts import atomic_write_text, read_artifact
     from piezopreload.rig.export import ExportError, export_text
 
     doc = read_artifact(args.gains, "gain-set")
@@ -782,9 +784,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.print_help()
             return EXIT_INPUT
         result = args.run(args)
-    except InputError as exc:
+    except PiezopreloadError as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return int(getattr(exc, "exit_code", EXIT_INPUT))
+        return int(getattr(exc, "exit_code", EXIT_INTERNAL if isinstance(exc, InternalError) else EXIT_INPUT))
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130

@@ -10,15 +10,22 @@ from __future__ import annotations
 
 import io
 import math
+from collections.abc import Callable
 from dataclasses import fields
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
-from piezopreload.artifacts import atomic_write_text, write_artifact
+from piezopreload.core.artifacts import atomic_write_text, write_artifact
 from piezopreload.design.preload import (
-    OBJECTIVES, PARETO_PAIRS, DesignInfeasible, DesignNLP, DesignSpec, optimise, pareto_front,
+    OBJECTIVES,
+    PARETO_PAIRS,
+    DesignInfeasible,
+    DesignNLP,
+    DesignSpec,
+    optimise,
+    pareto_front,
 )
 from piezopreload.design.schedule import LoadProfile, ScheduleSpec, example_profile, schedule_preload
 from piezopreload.io import InputError, read_table

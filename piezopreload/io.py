@@ -12,6 +12,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from piezopreload.core.artifacts import read_bytes
+from piezopreload.core.errors import InputError
+
 __all__ = [
     "InputError",
     "Record",
@@ -22,10 +25,6 @@ __all__ = [
     "shipped_data",
     "SHIPPED_COLUMNS",
 ]
-
-
-class InputError(ValueError):
-    """Bad input from the user: the CLI prints it as one ``error: ...`` line and exits 2."""
 
 
 ROLES = ("time", "input", "output")
@@ -134,13 +133,7 @@ def _default_specs(header: list[str], path: str) -> dict[str, ColumnSpec]:
 
 def read_input(path: str | Path, what: str = "file", error: type[InputError] = InputError) -> bytes:
     """The bytes of an input file; a missing or unreadable file is ``error`` naming the path."""
-    shown = str(path)
-    try:
-        return Path(path).read_bytes()
-    except FileNotFoundError:
-        raise error(f"{shown}: no such {what}") from None
-    except OSError as exc:
-        raise error(f"{shown}: cannot read ({exc.strerror or exc})") from None
+    return read_bytes(path, what, error)
 
 
 def _csv_lines(path: str | Path) -> tuple[bytes, list[tuple[int, str]]]:

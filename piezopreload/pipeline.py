@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from piezopreload import __version__
-from piezopreload.artifacts import ArtifactError, atomic_write_text, read_artifact, write_artifact
+from piezopreload.core.artifacts import ArtifactError, atomic_write_text, read_artifact, write_artifact
 from piezopreload.io import InputError, Record
 from piezopreload.models.actuator import Rig
 from piezopreload.models.closedloop import ClosedLoopRun, simulate

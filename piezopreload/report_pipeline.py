@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from piezopreload import __version__
-from piezopreload.artifacts import atomic_write_bytes, atomic_write_text, read_artifact, write_artifact
+from piezopreload.core.artifacts import atomic_write_bytes, atomic_write_text, read_artifact, write_artifact
 from piezopreload.io import InputError
 from piezopreload.progress import Progress
 from piezopreload.reports import figures as F

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from piezopreload.artifacts import parse_artifact, read_artifact
+from piezopreload.core.artifacts import parse_artifact, read_artifact
 from piezopreload.io import InputError, read_table
 from piezopreload.models.actuator import RigParams
 from piezopreload.models.closedloop import PAPER_BAND_N, ClosedLoopRun, Reference

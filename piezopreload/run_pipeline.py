@@ -38,14 +38,25 @@ from typing import Any
 import numpy as np
 
 from piezopreload import __version__
-from piezopreload.artifacts import ArtifactError, atomic_write_bytes, atomic_write_text, read_artifact, write_artifact
+from piezopreload.core.artifacts import (
+    ArtifactError,
+    atomic_write_bytes,
+    atomic_write_text,
+    read_artifact,
+    write_artifact,
+)
 from piezopreload.io import InputError, read_record
 from piezopreload.models.actuator import Rig
 from piezopreload.models.closedloop import ClosedLoopRun, simulate, simulate_open_loop, triangle
 from piezopreload.models.controller import Controller
 from piezopreload.models.hysteresis import ClassicalPI
 from piezopreload.pipeline import (
-    finite_or_none, gains_from_dict, load_hysteresis_model, step_numbers, write_csv, write_run_csv,
+    finite_or_none,
+    gains_from_dict,
+    load_hysteresis_model,
+    step_numbers,
+    write_csv,
+    write_run_csv,
 )
 from piezopreload.progress import Progress
 from piezopreload.study import Study, StudyText, default_study, load_study, read_study_text

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import asdict
 from collections.abc import Callable
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from piezopreload.artifacts import write_artifact
+from piezopreload.core.artifacts import write_artifact
 from piezopreload.io import InputError
 from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import Reference

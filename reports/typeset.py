@@ -12,12 +12,14 @@ import datetime as _dt
 from importlib import resources
 from pathlib import Path
 
+from piezopreload.core.errors import PiezopreloadError
+
 __all__ = ["TEMPLATE", "ReportError", "template_text", "compile_pdf"]
 
 TEMPLATE = "report.typ"
 
 
-class ReportError(RuntimeError):
+class ReportError(PiezopreloadError, RuntimeError):
     """Typst could not compile the report; the message carries its diagnostics."""
 
 

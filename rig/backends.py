@@ -56,6 +56,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Rig, RigParams
 
 __all__ = ["Reading", "Backend", "SimBackend", "Fault", "FaultInjector", "FAULT_KINDS", "ENTRY_POINT_GROUP",
@@ -64,7 +65,7 @@ __all__ = ["Reading", "Backend", "SimBackend", "Fault", "FaultInjector", "FAULT_
 ENTRY_POINT_GROUP = "piezopreload.rig_backends"
 
 
-class BackendError(ValueError):
+class BackendError(InputError):
     """A backend that cannot be opened (not installed, bad options): exit code 2."""
 
 

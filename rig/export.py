@@ -1,6 +1,6 @@
 """Export of a validated gain set to the formats controllers read.
 
-The functions take the gain set as the plain document ``piezopreload.artifacts`` read and
+The functions take the gain set as the plain document ``piezopreload.core.artifacts`` read and
 checked (hash included); this module does not read files itself and never sees a candidate:
 the caller refuses those. Every format states its units and the controller form:
 
@@ -26,6 +26,7 @@ from typing import Any
 
 import casadi as ca
 
+from piezopreload.core.errors import InputError
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.hysteresis import ClassicalPI, model_from_dict
 
@@ -43,7 +44,7 @@ _FORM = {
 }
 
 
-class ExportError(ValueError):
+class ExportError(InputError):
     """The gain set cannot be exported (for example: not validated)."""
 
 

@@ -47,6 +47,7 @@ from asyncua import Client, Server, ua
 from asyncua.crypto.permission_rules import SimpleRoleRuleset, User, UserRole
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
+from piezopreload.core.errors import PiezopreloadError
 from piezopreload.models.controller import Controller
 from piezopreload.rig import DEFAULT_ENDPOINT
 from piezopreload.rig.executor import Executor, RunResult
@@ -61,7 +62,7 @@ ROOT = "PreloadRig"
 GainSetCheck = Callable[[str], tuple[Controller, dict[str, Any]]]
 
 
-class PushRefused(RuntimeError):
+class PushRefused(PiezopreloadError, RuntimeError):
     """The server refused the push (or the session); the message says why."""
 
 
@@ -284,7 +285,7 @@ async def push_gain_set(document: str, endpoint: str, *, username: str | None = 
     except ua.UaError as exc:
         raise PushRefused(f"the server refused the session: {exc} (it may require encryption: give the client's "
                           "certificate and key)") from None
-    except (OSError, asyncio.TimeoutError) as exc:
+    except (TimeoutError, OSError) as exc:
         raise PushRefused(f"cannot reach {endpoint}: {exc or type(exc).__name__}") from None
     try:
         idx = await client.get_namespace_index(NAMESPACE)

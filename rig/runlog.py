@@ -20,8 +20,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from piezopreload import __version__
-from piezopreload.artifacts import atomic_write_text, schema_name
+from piezopreload.core.artifacts import atomic_write_text, package_version, schema_name
 
 __all__ = ["RunLog", "COLUMNS"]
 
@@ -63,7 +62,7 @@ class RunLog:
         self._fh.write(",".join(COLUMNS) + "\n")
         self._fh.flush()
         self.doc: dict[str, Any] = {
-            "schema": schema_name("rig-run"), "package_version": __version__, "created_utc": utc_now(),
+            "schema": schema_name("rig-run"), "package_version": package_version(), "created_utc": utc_now(),
             "status": "running", "csv": csv.name, "columns": list(COLUMNS),
             "units": {"time_s": "s on the run's timeline (sample k at k / rate)", "mode": "0 control, 1 ramp-down, 2 the sample that stopped the run"},
             **info, "events": [], "summary": None,

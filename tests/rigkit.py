@@ -1,6 +1,6 @@
 """Helpers for the rig's tests."""
 
-from piezopreload.artifacts import write_artifact
+from piezopreload.core.artifacts import write_artifact
 from piezopreload.pipeline import gains_to_dict
 from piezopreload.tuning_pipeline import _reference_dict
 

@@ -12,8 +12,16 @@ import numpy as np
 import pytest
 
 from piezopreload.models.ballscrew import (
-    CASADI_OPS, LIFT_OFF_RATIO, NUMPY_OPS, STEEL, BallScrew, DutyCase, _contact_constants, hiwin_loaded_nut_force,
-    lift_off_load_N, load_share,
+    CASADI_OPS,
+    LIFT_OFF_RATIO,
+    NUMPY_OPS,
+    STEEL,
+    BallScrew,
+    DutyCase,
+    _contact_constants,
+    hiwin_loaded_nut_force,
+    lift_off_load_N,
+    load_share,
 )
 from piezopreload.models.feed_drive import FeedDrive, PiezoPreload, stack_loop_um
 

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from piezopreload.artifacts import ArtifactError, read_artifact, write_artifact
 from piezopreload.cli import main
+from piezopreload.core.artifacts import ArtifactError, read_artifact, write_artifact
 from piezopreload.models.hysteresis import ClassicalPI, uniform_thresholds
 from piezopreload.pipeline import load_hysteresis_model
 

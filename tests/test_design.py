@@ -12,7 +12,14 @@ from scipy.optimize import minimize
 
 from piezopreload.cli import main
 from piezopreload.design.preload import (
-    OBJECTIVES, PARETO_PAIRS, WEIGHTS, DesignInfeasible, DesignNLP, DesignSpec, _integer_candidates, optimise,
+    OBJECTIVES,
+    PARETO_PAIRS,
+    WEIGHTS,
+    DesignInfeasible,
+    DesignNLP,
+    DesignSpec,
+    _integer_candidates,
+    optimise,
     pareto_front,
 )
 from piezopreload.design.schedule import LoadProfile, ScheduleSpec, example_profile, schedule_preload

@@ -9,17 +9,18 @@ import sys
 import threading
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 from asyncua import Client, ua
+from rigkit import write_gain_set
 
-from piezopreload.artifacts import read_artifact
 from piezopreload.cli import main
+from piezopreload.core.artifacts import read_artifact
 from piezopreload.models.controller import PIDGains
 from piezopreload.rig.opcua import NAMESPACE, ROOT, PushRefused, push_gain_set
 from piezopreload.rig_pipeline import read_run_log, serve_rig
-from rigkit import write_gain_set
 
 USER, PASSWORD = "operator", "correct horse"
 
@@ -110,7 +111,7 @@ def test_serve_push_and_refusals(tmp_path, study, feedforward):
     assert [p["accepted"] for p in pushes] == [True, False, False, False]
     assert pushes[0]["user"] == USER and pushes[0]["gain_set_sha256"] == sha2
     assert all(p["user"] == USER for p in pushes)
-    side = json.loads(open(s["log_json"]).read())
+    side = json.loads(Path(s["log_json"]).read_text())
     switch = next(e for e in side["events"] if e["event"] == "gains_switched")
     assert switch["pushed_by"] == USER and switch["gain_set_sha256"] == sha2 and "utc" in switch
     assert sum(e["event"] == "push_refused" for e in side["events"]) == 3

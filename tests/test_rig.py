@@ -8,12 +8,14 @@ import subprocess
 import sys
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
+from rigkit import write_gain_set
 
-from piezopreload.artifacts import read_artifact
 from piezopreload.cli import main
+from piezopreload.core.artifacts import read_artifact
 from piezopreload.models.actuator import Rig
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.hysteresis import ClassicalPI
@@ -23,7 +25,6 @@ from piezopreload.rig.compiled import PythonStep, controller_step
 from piezopreload.rig.executor import Executor, Safety
 from piezopreload.rig.runlog import RunLog
 from piezopreload.rig_pipeline import read_run_log, run_rig
-from rigkit import write_gain_set
 
 DT = 1e-3
 
@@ -130,7 +131,7 @@ def test_each_interlock_ramps_down_disarms_and_logs(gains_path, tmp_path, fault,
     assert v[ramp][-1] == 0.0 and log["time_s"][ramp][-1] - t_trip <= 0.25 + DT
     assert np.all(np.diff(v[ramp]) <= 1e-9)  # monotone down from where it was
     assert v[~ramp][-1] > 5.0  # it had somewhere to ramp from
-    side = json.loads(open(r["log_json"]).read())
+    side = json.loads(Path(r["log_json"]).read_text())
     events = {e["event"]: e for e in side["events"]}
     assert events["interlock"]["cause"] == cause and "ramped_down" in events and "disarmed" in events
     assert side["status"] == "tripped" and side["summary"]["trip"]["cause"] == cause
@@ -274,7 +275,7 @@ def _wait_for_rows(log_dir, rows, timeout=30.0):
     t0 = time.monotonic()
     while time.monotonic() - t0 < timeout:
         csvs = list(log_dir.glob("run-*.csv"))
-        if csvs and sum(1 for _ in open(csvs[0])) > rows:
+        if csvs and csvs[0].read_text().count("\n") > rows:
             return csvs[0]
         time.sleep(0.05)
     raise AssertionError("the run log did not grow")

@@ -6,9 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from piezopreload.artifacts import write_artifact
-
 from piezopreload.cli import main
+from piezopreload.core.artifacts import write_artifact
 from piezopreload.io import InputError
 from piezopreload.study import default_study, load_study
 from piezopreload.tuning.calibrate import PAPER_RESULTS

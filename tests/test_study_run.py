@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from piezopreload.artifacts import read_artifact
 from piezopreload.cli import main
+from piezopreload.core.artifacts import read_artifact
 from piezopreload.pipeline import reproduce_study
 from piezopreload.progress import Progress
 from piezopreload.run_pipeline import STAGES, read_manifest, run_study

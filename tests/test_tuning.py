@@ -8,8 +8,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from piezopreload.artifacts import write_artifact
 from piezopreload.cli import main
+from piezopreload.core.artifacts import write_artifact
 from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
@@ -136,10 +136,10 @@ def test_validation_is_the_same_on_any_executor_and_names_failures():
 def test_validation_on_a_dask_local_cluster():
     distributed = pytest.importorskip("distributed", reason="Dask distributed is the optional 'dask' extra")
     a = _small_validation()
-    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, host="127.0.0.1", processes=True,
-                                  dashboard_address=None) as cluster:
-        with executor(scheduler=cluster.scheduler_address) as (pool, name):
-            b = _small_validation(pool, name)
+    with (distributed.LocalCluster(n_workers=1, threads_per_worker=1, host="127.0.0.1", processes=True,
+                                   dashboard_address=None) as cluster,
+          executor(scheduler=cluster.scheduler_address) as (pool, name)):
+        b = _small_validation(pool, name)
     assert name.startswith("dask tcp://127.0.0.1")
     for k in a.metrics:
         np.testing.assert_array_equal(a.metrics[k], b.metrics[k])

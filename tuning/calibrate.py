@@ -26,7 +26,14 @@ import numpy as np
 from scipy.optimize import minimize
 
 from piezopreload.models.actuator import Rig, RigParams, loop_width, reach_N
-from piezopreload.models.closedloop import PAPER_BAND_N, ClosedLoopRun, Reference, simulate, simulate_open_loop, triangle
+from piezopreload.models.closedloop import (
+    PAPER_BAND_N,
+    ClosedLoopRun,
+    Reference,
+    simulate,
+    simulate_open_loop,
+    triangle,
+)
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.hysteresis import ClassicalPI
 from piezopreload.tuning.identify import PIIdentifier, fit_error

@@ -26,6 +26,7 @@ import cvxpy as cp
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from piezopreload.core.errors import InputError, PiezopreloadError
 from piezopreload.models.hysteresis import (
     AsymmetricPI,
     ClassicalPI,
@@ -53,11 +54,11 @@ MODELS = ("classical", "paper-asymmetric", "modified")
 ModelName = Literal["classical", "paper-asymmetric", "modified"]
 
 
-class NotFittedError(RuntimeError):
+class NotFittedError(PiezopreloadError, RuntimeError):
     """The estimator was used before :meth:`PIIdentifier.fit`."""
 
 
-class IdentificationError(ValueError):
+class IdentificationError(InputError):
     """The data cannot identify the requested model (too short, constant, solver failure)."""
 
 

@@ -44,6 +44,7 @@ import casadi as ca
 import numpy as np
 from scipy.optimize import least_squares
 
+from piezopreload.core.errors import InfeasibleError
 from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import PAPER_BAND_N, Reference
 from piezopreload.models.controller import CASADI_OPS, PIDGains, pid_update
@@ -67,7 +68,7 @@ __all__ = [
 _EPS_ABS = 1e-3  # smoothing of |x| (V) in the Bouc-Wen rate
 
 
-class TuningInfeasible(ValueError):
+class TuningInfeasible(InfeasibleError):
     """The specification cannot be met; the message names the binding constraints."""
 
 

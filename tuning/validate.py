@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from piezopreload.core.errors import PiezopreloadError
 from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import PAPER_BAND_N, Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
@@ -48,7 +49,7 @@ _METRICS = ("settling_s", "settling_measured_s", "overshoot_N", "tracking_rms_N"
             "tracking_rms_all_N", "tracking_max_N", "peak_voltage_V")
 
 
-class SchedulerError(RuntimeError):
+class SchedulerError(PiezopreloadError, RuntimeError):
     """The Dask scheduler cannot be used (not installed, or not reachable)."""
 
 

@@ -13,13 +13,14 @@ import json
 import math
 import os
 import tempfile
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-from piezopreload import __version__
-from piezopreload.io import InputError, read_input
+from piezopreload.core.errors import ArtifactError
 
-__all__ = ["ArtifactError", "schema_name", "write_artifact", "read_artifact", "atomic_write_text", "atomic_write_bytes", "content_hash", "parse_artifact"]
+__all__ = ["ArtifactError", "schema_name", "write_artifact", "read_artifact", "atomic_write_text", "atomic_write_bytes",
+           "content_hash", "parse_artifact", "package_version", "read_bytes"]
 
 VERSION = 1
 KINDS = {
@@ -38,8 +39,25 @@ HASHED = {"gain-set"}
 HASH_FIELD = "content_sha256"
 
 
-class ArtifactError(InputError):
-    """An artifact file that cannot be used: exit code 2, the message names the field."""
+def package_version() -> str:
+    """The installed package's version (``0+unknown`` from a source tree that is not installed)."""
+    try:
+        return version("piezopreload")
+    except PackageNotFoundError:
+        return "0+unknown"
+
+
+def read_bytes(path: str | Path, what: str = "file", error: type[Exception] = ArtifactError) -> bytes:
+    """The bytes of an input file; a missing or unreadable file is ``error`` naming the path."""
+    shown = str(path)
+    try:
+        return Path(path).read_bytes()
+    except FileNotFoundError:
+        raise error(f"{shown}: no such {what}") from None
+    except IsADirectoryError:
+        raise error(f"{shown}: is a folder; expected a {what}") from None
+    except OSError as exc:
+        raise error(f"{shown}: cannot read ({exc.strerror or exc})") from None
 
 
 def schema_name(kind: str) -> str:
@@ -101,7 +119,7 @@ def write_artifact(path: str | Path, kind: str, body: dict[str, Any]) -> dict[st
         raise ValueError(f"unknown artifact kind {kind!r}")
     doc = {
         "schema": schema_name(kind),
-        "package_version": __version__,
+        "package_version": package_version(),
         "created_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
         **body,
     }
@@ -121,7 +139,7 @@ def write_artifact(path: str | Path, kind: str, body: dict[str, Any]) -> dict[st
 def read_artifact(path: str | Path, kind: str) -> dict[str, Any]:
     """Read and check a ``kind`` artifact; :class:`ArtifactError` names what is wrong and where."""
     shown = str(path)
-    raw = read_input(path, error=ArtifactError)
+    raw = read_bytes(path)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:

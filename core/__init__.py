@@ -1,0 +1,1 @@
+"""The ground floor: the error hierarchy, the artifact envelope, units. Imports nothing of ours."""
