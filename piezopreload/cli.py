@@ -17,10 +17,11 @@ from collections.abc import Sequence
 from typing import Any
 
 from piezopreload import __version__
-from piezopreload.core.errors import InternalError, PiezopreloadError
+from piezopreload.core.errors import InputError, InternalError, PiezopreloadError
+from piezopreload.core.tables import parse_columns, read_record
+from piezopreload.data import SHIPPED_COLUMNS, shipped_data
 from piezopreload.design.preload import OBJECTIVES, PARETO_PAIRS
 from piezopreload.design_pipeline import design_study, evaluate_ballscrew
-from piezopreload.io import SHIPPED_COLUMNS, InputError, parse_columns, read_record, shipped_data
 from piezopreload.models.ballscrew import BallScrew
 from piezopreload.pipeline import (
     CONTROLLER_CHOICES,

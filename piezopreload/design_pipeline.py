@@ -18,6 +18,8 @@ from typing import Any
 import numpy as np
 
 from piezopreload.core.artifacts import atomic_write_text, write_artifact
+from piezopreload.core.errors import InputError
+from piezopreload.core.tables import read_table
 from piezopreload.design.preload import (
     OBJECTIVES,
     PARETO_PAIRS,
@@ -28,7 +30,6 @@ from piezopreload.design.preload import (
     pareto_front,
 )
 from piezopreload.design.schedule import LoadProfile, ScheduleSpec, example_profile, schedule_preload
-from piezopreload.io import InputError, read_table
 from piezopreload.models.ballscrew import BallScrew, DutyCase, hiwin_loaded_nut_force, lift_off_load_N
 from piezopreload.models.feed_drive import FeedDrive, PiezoPreload
 from piezopreload.study import StudyText, read_study_text

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import io
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -11,8 +10,9 @@ from typing import Any
 import numpy as np
 
 from piezopreload import __version__
-from piezopreload.core.artifacts import ArtifactError, atomic_write_text, read_artifact, write_artifact
-from piezopreload.io import InputError, Record
+from piezopreload.core.artifacts import ArtifactError, read_artifact, write_artifact
+from piezopreload.core.errors import InputError
+from piezopreload.core.tables import Record, write_csv
 from piezopreload.models.actuator import Rig
 from piezopreload.models.closedloop import ClosedLoopRun, simulate
 from piezopreload.models.controller import Controller, PIDGains
@@ -242,16 +242,6 @@ def step_numbers(run: ClosedLoopRun, study: Study) -> dict[str, float | None]:
 def finite_or_none(x: float) -> float | None:
     """``x`` as a float, or None where it is not finite (JSON holds no NaN)."""
     return float(x) if np.isfinite(x) else None
-
-
-def write_csv(path: str | Path, columns: dict[str, Any], comment: str) -> None:
-    """Named columns as CSV (``#`` comment lines, one header line, 9 significant digits), written atomically."""
-    buf = io.StringIO()
-    for line in comment.splitlines():
-        buf.write(f"# {line}\n")
-    np.savetxt(buf, np.column_stack([np.asarray(c, float) for c in columns.values()]), delimiter=",",
-               header=",".join(columns), comments="", fmt="%.9g")
-    atomic_write_text(path, buf.getvalue())
 
 
 def write_run_csv(path: str | Path, run: ClosedLoopRun, comment: str) -> None:

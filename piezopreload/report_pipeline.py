@@ -16,7 +16,7 @@ import numpy as np
 
 from piezopreload import __version__
 from piezopreload.core.artifacts import atomic_write_bytes, atomic_write_text, read_artifact, write_artifact
-from piezopreload.io import InputError
+from piezopreload.core.errors import InputError
 from piezopreload.progress import Progress
 from piezopreload.reports import figures as F
 from piezopreload.reports.typeset import ReportError, compile_pdf, template_text

@@ -20,7 +20,8 @@ from typing import Any
 import numpy as np
 
 from piezopreload.core.artifacts import parse_artifact, read_artifact
-from piezopreload.io import InputError, read_table
+from piezopreload.core.errors import InputError
+from piezopreload.core.tables import read_table
 from piezopreload.models.actuator import RigParams
 from piezopreload.models.closedloop import PAPER_BAND_N, ClosedLoopRun, Reference
 from piezopreload.models.controller import Controller

@@ -45,7 +45,8 @@ from piezopreload.core.artifacts import (
     read_artifact,
     write_artifact,
 )
-from piezopreload.io import InputError, read_record
+from piezopreload.core.errors import InputError
+from piezopreload.core.tables import read_record
 from piezopreload.models.actuator import Rig
 from piezopreload.models.closedloop import ClosedLoopRun, simulate, simulate_open_loop, triangle
 from piezopreload.models.controller import Controller

@@ -19,7 +19,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from piezopreload.io import InputError, read_input
+from piezopreload.core.errors import InputError
+from piezopreload.core.tables import read_input
 from piezopreload.models.actuator import P888_91, RigParams, StackData
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import PIDGains

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from piezopreload.core.artifacts import write_artifact
-from piezopreload.io import InputError
+from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import PIDGains
