@@ -81,7 +81,7 @@ from piezopreload.models.ballscrew import (
 )
 from piezopreload.models.feed_drive import FeedDrive, PiezoPreload, stack_loop_um
 
-__all__ = ["DesignSpec", "DesignPoint", "DesignResult", "DesignInfeasible", "ParetoFront", "OBJECTIVES",
+__all__ = ["DesignSpec", "DesignPoint", "DesignOptimum", "DesignInfeasible", "ParetoFront", "OBJECTIVES",
            "PARETO_PAIRS", "CONSTRAINTS", "WEIGHTS", "optimise", "pareto_front", "DesignNLP"]
 
 OBJECTIVES = ("stiffness", "drag", "life")
@@ -271,7 +271,7 @@ class DesignPoint:
 
 
 @dataclass(frozen=True)
-class DesignResult:
+class DesignOptimum:
     """The optimum: its spec, objective, the design point, what binds, how it was solved."""
 
     spec: DesignSpec
@@ -708,12 +708,12 @@ def _solve_mixed(nlp: DesignNLP, weights: tuple[float, ...], y0: np.ndarray, sti
     return best, relaxed, tried
 
 
-def optimise(spec: DesignSpec, objective: str = "stiffness", nlp: DesignNLP | None = None) -> DesignResult:
+def optimise(spec: DesignSpec, objective: str = "stiffness", nlp: DesignNLP | None = None) -> DesignOptimum:
     """The design optimum for one objective (see the module docstring)."""
     return _optimise(spec, objective, nlp)[0]
 
 
-def _optimise(spec: DesignSpec, objective: str, nlp: DesignNLP | None) -> tuple[DesignResult, dict[str, Any]]:
+def _optimise(spec: DesignSpec, objective: str, nlp: DesignNLP | None) -> tuple[DesignOptimum, dict[str, Any]]:
     """:func:`optimise`, also returning the relaxed solution (a warm start for fronts)."""
     if objective not in OBJECTIVES:
         raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}.")
@@ -727,7 +727,7 @@ def _optimise(spec: DesignSpec, objective: str, nlp: DesignNLP | None) -> tuple[
             violations = [{"constraint": "integers", "meaning": "no integer turns/balls-per-turn neighbour of the "
                            "relaxed optimum is feasible", "short_by": float("nan"), "units": ""}]
         raise DesignInfeasible(_infeasible_message(violations), violations)
-    result = DesignResult(spec=spec, objective=objective, point=nlp.point(best["y"], objective, True),
+    result = DesignOptimum(spec=spec, objective=objective, point=nlp.point(best["y"], objective, True),
                           binding=nlp.binding(best), tried=tried, solve_s=time.perf_counter() - t0,
                           nlp_solves=nlp.solves - start_solves)
     return result, relaxed

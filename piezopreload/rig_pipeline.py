@@ -142,10 +142,10 @@ def run_metrics(log: dict[str, np.ndarray], reference: Reference, band_N: float)
     n = int(keep.sum())
     if n < 2:
         return {"samples": n}
-    cols = {k: log[k][keep] for k in ("time_s", "reference_N", "force_N", "command_V", "voltage_V",
+    cols = {k: log[k][keep] for k in ("time_s", "reference_N", "measured_N", "command_V", "voltage_V",
                                        "p_V", "i_V", "d_V", "feedforward_V")}
-    run = ClosedLoopRun(t_s=cols["time_s"], reference_N=cols["reference_N"], force_N=cols["force_N"],
-                        measured_N=cols["force_N"], command_V=cols["command_V"], voltage_V=cols["voltage_V"],
+    run = ClosedLoopRun(t_s=cols["time_s"], reference_N=cols["reference_N"], force_N=cols["measured_N"],
+                        measured_N=cols["measured_N"], command_V=cols["command_V"], voltage_V=cols["voltage_V"],
                         p_V=cols["p_V"], i_V=cols["i_V"], d_V=cols["d_V"], ff_V=cols["feedforward_V"],
                         reference=reference, seed=0)
     out: dict[str, Any] = {"samples": n, "peak_voltage_V": float(np.max(cols["voltage_V"]))}

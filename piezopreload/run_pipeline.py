@@ -397,9 +397,15 @@ def _stage_rig(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
 
 
 def _stage_report(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
-    from piezopreload.report_pipeline import render_report
+    from piezopreload.reports.study_report import ReportStudy, render_report
 
-    return render_report(ctx.out, ctx.records, ctx.study, ctx.progress, ctx.source, ctx.template)
+    study, raw = ctx.study, ctx.study.raw
+    b = raw.get("ballscrew")
+    facts = ReportStudy(study.name, study.title, study.path, study.sha256, ctx.source or study.path,
+                        None if b is None else (b.get("nominal_diameter_mm"), b.get("lead_mm")),
+                        raw.get("design", {}).get("frequency_min_Hz"))
+    return render_report(ctx.out, ctx.records, facts, say=ctx.progress.say, bar=ctx.progress.bar("figures"),
+                         template=ctx.template)
 
 
 _STUDY_TABLES = ("study",)
