@@ -26,8 +26,9 @@ from typing import Any
 import numpy as np
 
 from piezopreload.core.artifacts import atomic_write_text, package_version, schema_name
+from piezopreload.core.errors import InputError
 
-__all__ = ["RunLog", "COLUMNS"]
+__all__ = ["RunLog", "COLUMNS", "read_run_log"]
 
 #: the CSV's columns, in order
 COLUMNS = ("time_s", "reference_N", "measured_N", "command_V", "voltage_V", "feedforward_V", "p_V", "i_V", "d_V",
@@ -123,3 +124,14 @@ def _jsonable(x: Any) -> Any:
         return float(x)
     except (TypeError, ValueError):
         return str(x)
+
+
+def read_run_log(csv_path: str | Path) -> dict[str, np.ndarray]:
+    """A run log's CSV as named columns: whatever was flushed, also after a kill (a line cut short is left out)."""
+    with open(csv_path, encoding="utf-8") as fh:
+        header = fh.readline().strip().split(",")
+        if tuple(header) != COLUMNS:
+            raise InputError(f"{csv_path}:1: not a run log; expected the header {','.join(COLUMNS)}")
+        rows = [line for line in fh if line.endswith("\n")]
+    data = np.loadtxt(rows, delimiter=",", ndmin=2) if rows else np.empty((0, len(COLUMNS)))
+    return {name: data[:, j] for j, name in enumerate(COLUMNS)}
