@@ -19,16 +19,15 @@ from __future__ import annotations
 
 import hashlib
 import math
-import re
-import tomllib
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from piezopreload.core.config import NUMBER, Lines, check_tree, read_config, toml_text
 from piezopreload.core.errors import InfeasibleError, InputError
-from piezopreload.core.tables import read_input, read_record
+from piezopreload.core.tables import read_record
 from piezopreload.design.preload import OBJECTIVES, PARETO_PAIRS, DesignInfeasible, DesignSpec
 from piezopreload.design.study import DesignResult, design_study, read_profile
 from piezopreload.models.actuator import P888_91, RigParams, StackData
@@ -49,7 +48,7 @@ __all__ = ["Study", "load_study", "default_study", "shipped_studies", "DEFAULT_S
 
 DEFAULT_STUDY = "paper2021"
 
-_NUM = (int, float)
+_NUM = NUMBER
 _RIG_SCALARS = {f.name for f in fields(RigParams)} - {"stack", "creep_tau_s", "n_stacks", "adc_bits", "delay_samples"}
 _SCHEMA: dict[str, Any] = {
     "study": {"name": str, "title": str, "description": str},
@@ -298,70 +297,12 @@ def _table(cls: type[_Table], data: dict[str, Any]) -> Any:
     return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
 
 
-# --------------------------------------------------------------------------------------
-# checking the file: keys, types, lines
-# --------------------------------------------------------------------------------------
-class _Lines:
-    """Line numbers of the tables and keys of a TOML text, for messages (``a.b.key -> line``)."""
-
-    _table = re.compile(r"^\s*\[\s*([A-Za-z0-9_.\- ]+?)\s*\]\s*(#.*)?$")
-    _key = re.compile(r"^\s*([A-Za-z0-9_\-]+)\s*=")
-
-    def __init__(self, text: str) -> None:
-        self.lines: dict[str, int] = {}
-        table = ""
-        for no, line in enumerate(text.splitlines(), start=1):
-            m = self._table.match(line)
-            if m:
-                table = m.group(1).replace(" ", "")
-                self.lines.setdefault(table, no)
-                continue
-            m = self._key.match(line)
-            if m:
-                self.lines.setdefault(f"{table}.{m.group(1)}" if table else m.group(1), no)
-
-    def of(self, key_path: str) -> int | None:
-        while key_path:
-            if key_path in self.lines:
-                return self.lines[key_path]
-            key_path = key_path.rpartition(".")[0]
-        return None
-
-
-def _check_tree(data: dict[str, Any], schema: dict[str, Any], prefix: str, where: _Lines, shown: str) -> None:
-    for key, value in data.items():
-        path = f"{prefix}{key}"
-        line = where.of(path)
-        at = f"{shown}:{line}" if line else shown
-        if key not in schema:
-            raise InputError(f"{at}: unknown key '{path}'; expected one of: {', '.join(sorted(schema))}")
-        expected = schema[key]
-        if isinstance(expected, dict):
-            if not isinstance(value, dict):
-                raise InputError(f"{at}: '{path}' must be a table ([{path}])")
-            _check_tree(value, expected, f"{path}.", where, shown)
-            continue
-        ok = isinstance(value, bool) if expected is bool else isinstance(value, expected) and not isinstance(value, bool)
-        if not ok:
-            want = {str: "a string", list: "a list", int: "an integer", _NUM: "a number",
-                    bool: "true or false"}.get(expected, str(expected))
-            raise InputError(f"{at}: '{path}' must be {want}, got {type(value).__name__} {value!r}")
-        if isinstance(value, float) and not math.isfinite(value):
-            raise InputError(f"{at}: '{path}' must be finite, got {value!r}")
-        if isinstance(value, list) and path in _STRING_LISTS:
-            if not all(isinstance(x, str) for x in value):
-                raise InputError(f"{at}: '{path}' must be a list of strings, got {value!r}")
-        elif isinstance(value, list) and not all(isinstance(x, _NUM) and not isinstance(x, bool) and math.isfinite(x)
-                                                 for x in value):
-            raise InputError(f"{at}: '{path}' must be a list of finite numbers, got {value!r}")
-
-
 @dataclass(frozen=True)
 class _Source:
     """Where a study came from, for messages: ``fail`` names the file, the line of a key and the key."""
 
     shown: str
-    lines: _Lines
+    lines: Lines
     folder: Path
 
     def fail(self, key_path: str, message: str) -> InputError:
@@ -471,9 +412,9 @@ class Study:
                 data[table][rel] = str(self.folder / data[table][rel])
         if data["rig_run"]["reference"].lower().endswith(".csv"):
             data["rig_run"]["reference"] = str(self.folder / data["rig_run"]["reference"])
-        where = _Source(f"{self.path} (replaced)", _Lines(""), self.folder)
-        _check_tree(data, _SCHEMA, "", where.lines, where.shown)
-        return _build(data, where, self.path, _toml(data).encode("utf-8"))
+        where = _Source(f"{self.path} (replaced)", Lines(""), self.folder)
+        check_tree(data, _SCHEMA, where.lines, where.shown, string_lists=_STRING_LISTS)
+        return _build(data, where, self.path, toml_text(data).encode("utf-8"))
 
     def to_toml(self) -> str:
         """The study as a TOML file (the file itself when it was not changed)."""
@@ -561,30 +502,6 @@ def _merge(into: dict[str, Any], changes: dict[str, Any]) -> None:
             into[key] = list(value) if isinstance(value, tuple) else value
 
 
-def _toml(data: dict[str, Any]) -> str:
-    """The study's tables as TOML (scalars, lists, nested tables: what the schema allows)."""
-    def value(x: Any) -> str:
-        if isinstance(x, bool):
-            return "true" if x else "false"
-        if isinstance(x, str):
-            return '"' + x.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
-        if isinstance(x, list | tuple):
-            return "[" + ", ".join(value(v) for v in x) + "]"
-        return repr(float(x)) if isinstance(x, float) else str(x)
-
-    def table(name: str, body: dict[str, Any]) -> list[str]:
-        lines = [f"[{name}]"] + [f"{k} = {value(v)}" for k, v in body.items() if not isinstance(v, dict) and v is not None]
-        for k, v in body.items():
-            if isinstance(v, dict):
-                lines += ["", *table(f"{name}.{k}", v)]
-        return lines
-
-    out: list[str] = []
-    for name, body in data.items():
-        out += [*table(name, body), ""]
-    return "\n".join(out)
-
-
 # --------------------------------------------------------------------------------------
 # loading
 # --------------------------------------------------------------------------------------
@@ -607,17 +524,9 @@ def load_study(study: str | Path | None = None) -> Study:
         path = shipped_studies()[study]
     else:
         path = Path(study)
+    data, lines, raw = read_config(path, _SCHEMA, "study file", _STRING_LISTS)
     shown = str(path)
-    raw = read_input(path, "study file")
-    try:
-        text = raw.decode("utf-8")
-        data = tomllib.loads(text)
-    except UnicodeDecodeError:
-        raise InputError(f"{shown}: not UTF-8 text") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{shown}: not valid TOML ({exc})") from exc
-    where = _Source(shown, _Lines(text), Path(shown).parent)
-    _check_tree(data, _SCHEMA, "", where.lines, shown)
+    where = _Source(shown, lines, Path(shown).parent)
     for table in _REQUIRED:
         if table not in data:
             raise InputError(f"{shown}: the table [{table}] is missing")
