@@ -1,7 +1,7 @@
 """The preloaded double-nut ball screw: geometry, Hertz contact, load sharing, rigidity, ratings.
 
 Section 2.2 of the paper, derived from Hertz theory rather than read off its garbled
-eqs. (9)-(13) (see ``EQUATIONS.md``), plus what a selection procedure checks: load ratings,
+eqs. (9)-(13) (see ``docs/models.md``, section 5), plus what a selection procedure checks: load ratings,
 life, drag torque and static safety. Units are those of ball-screw catalogues, named in
 every field: mm, N, MPa, N/um, N m.
 
@@ -28,7 +28,7 @@ The model, in the order the functions below build it:
   as F_p^(1/3) and, through c_h, as z^(2/3) and sin(beta)^(5/3), as eq. (13) says.
 
 Where this departs from a Hertz-only model (and from the paper): catalogue rigidity is
-lower than the Hertz-only value (BALLSCREW_REFERENCES.md, Steinmeyer's hierarchy). Two
+lower than the Hertz-only value (``docs/references.md``, Steinmeyer's hierarchy). Two
 corrections, the same for every screw, not fitted per catalogue row:
 
 1. **Unequal ball loads** (pitch and ball-size errors of the accuracy class, elastic load
@@ -207,7 +207,7 @@ def lift_off_load_N(preload_N: ArrayLike) -> Array:
 
 
 def hiwin_loaded_nut_force(preload_N: ArrayLike, axial_load_N: ArrayLike) -> Array:
-    """HIWIN's catalogue formula for the loaded nut's force (BALLSCREW_REFERENCES.md).
+    """HIWIN's catalogue formula for the loaded nut's force (``docs/references.md``, [HIWIN]).
 
     (1 + F_a / (2^(3/2) F_p))^(3/2) F_p below lift-off, F_a above; within 2.5 % of
     :meth:`BallScrew.nut_loads`, which solves the two-nut Hertz problem exactly.
@@ -375,7 +375,7 @@ class BallScrew:
 
     @property
     def root_diameter_mm(self) -> float:
-        """d_c = D_pw - D_w cos(beta), the screw's core (BALLSCREW_REFERENCES.md)."""
+        """d_c = D_pw - D_w cos(beta), the screw's core (``docs/models.md``, section 6)."""
         return self.pitch_diameter - self.ball_mm * math.cos(self.contact_rad)
 
     @property

@@ -14,7 +14,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
-from piezopreload.core.artifacts import finite_or_none, read_artifact, write_artifact
+from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.models.actuator import Rig
 from piezopreload.models.closedloop import ClosedLoopRun
@@ -27,7 +27,7 @@ from piezopreload.reports import figures
 from piezopreload.study import Study
 from piezopreload.tuning.calibrate import CONTROLLERS, PAPER_RESULTS
 from piezopreload.tuning.calibrate import reproduce as reproduce_paper
-from piezopreload.tuning.compare import compare_gains, tracking_improvement
+from piezopreload.tuning.compare import compare_gains, reproduction_summary, tracking_improvement
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, minimum_time, tracking_floor, tune_pid
 from piezopreload.tuning.validate import ValidationResult
@@ -285,16 +285,6 @@ def reproduce(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | N
     rep = reproduce_paper(study.rig, study.gains, step=study.references["step"], excitation=study.excitation,
                           seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
                           repeats=repeats, feedforward=feedforward.model, feedforward_fit=feedforward.fit)
-    rows = [{**r, "within_25pct": bool(abs(r["ratio"] - 1.0) <= 0.25),
-             "range": [finite_or_none(x) for x in rep.spread[r["controller"]][r["metric"]]]} for r in rep.table()]
-    for r in rows:
-        if r["simulated"] != r["simulated"]:  # nan: never reached
-            r.update(simulated=None, ratio=None, within_25pct=False)
-    return {
-        "study": {"path": study.path, "sha256": study.sha256, "name": study.name},
-        "gains": {**gains_to_dict(study.gains), "read_as": study.controller.units},
-        "band_N": study.band_N, "signal": study.signal, "feedforward_fit": rep.feedforward_fit, "rows": rows,
-        "overshoot_N": {c: rep.metrics[c]["overshoot_N"] for c in rep.metrics},
-        "all_within_25pct": all(r["within_25pct"] for r in rows), "repeats": repeats,
-        "seconds": time.perf_counter() - t0,
-    }
+    return {"study": {"path": study.path, "sha256": study.sha256, "name": study.name},
+            "gains": {**gains_to_dict(study.gains), "read_as": study.controller.units}, "band_N": study.band_N,
+            "signal": study.signal, **reproduction_summary(rep), "seconds": time.perf_counter() - t0}

@@ -25,6 +25,7 @@ from piezopreload.core.artifacts import (
     write_artifact,
 )
 from piezopreload.core.errors import InputError
+from piezopreload.models.gainset import GainSet, gains_to_dict
 from piezopreload.reports import figures as F
 from piezopreload.reports.typeset import ReportError, compile_pdf, template_text
 
@@ -182,10 +183,10 @@ def render_report(out: Path, records: dict[str, dict[str, Any]], study: ReportSt
             "with the stacks at full drive.")
 
     # ---- report.json -----------------------------------------------------------------------------
-    gains_doc = read_artifact(r.path("validate", "gains"), "gain-set")
+    gain_set = GainSet.load(r.path("validate", "gains"))
     tuning = read_artifact(r.path("tune", "tuning"), "tuning")
     now = _dt.datetime.now(_dt.UTC).replace(microsecond=0)
-    data = _report_data(study, records, responses, ff_doc, n_ops, src_text, gains_doc, tuning, val, sidecar, design, now)
+    data = _report_data(study, records, responses, ff_doc, n_ops, src_text, gain_set, tuning, val, sidecar, design, now)
     data["figures"] = {name: {"file": f"figures/{name}.pdf", "caption": captions[name]} for name in captions}
     write_artifact(folder / "report.json", "report", data)
     atomic_write_text(folder / "report.typ", template if template is not None else template_text())
@@ -207,12 +208,12 @@ def _levels(runs: dict[str, dict[str, np.ndarray]]) -> str:
 
 
 def _report_data(study: ReportStudy, records: dict[str, dict[str, Any]], responses: dict[str, Any],
-                 ff_doc: dict[str, Any], n_ops: int, src_text: str, gains_doc: dict[str, Any],
+                 ff_doc: dict[str, Any], n_ops: int, src_text: str, gain_set: GainSet,
                  tuning: dict[str, Any], val: dict[str, Any], sidecar: dict[str, Any],
                  design: dict[str, Any] | None, now: _dt.datetime) -> dict[str, Any]:
     """Every number the report shows, formatted: one builder per section of the template."""
     rig_sum = records["rig"]["summary"]
-    summary = _summary_lines(responses, gains_doc, val, sidecar, rig_sum)
+    summary = _summary_lines(responses, gain_set, val, sidecar, rig_sum)
     design_data = None
     if design is not None:
         design_data = _design_section(study, design)
@@ -231,19 +232,19 @@ def _report_data(study: ReportStudy, records: dict[str, dict[str, Any]], respons
                          "signal": signal_name(responses["signal"]), "band": f"{fmt(responses['band_N'])} N"},
         "responses": {"rows": _response_rows(responses)},
         "feedforward": {"text": _feedforward_text(ff_doc, n_ops, src_text)},
-        "gains": _gains_section(gains_doc, tuning),
+        "gains": _gains_section(gain_set, tuning),
         "validation": _validation_section(val),
         "rig": _rig_section(records, sidecar, rig_sum),
         "design": design_data,
-        "provenance": _provenance(study, records, ff_doc, src_text, gains_doc, now),
-        "inputs": {"gain_set_sha256": gains_doc["content_sha256"], "study_sha256": study.sha256},
+        "provenance": _provenance(study, records, ff_doc, src_text, gain_set, now),
+        "inputs": {"gain_set_sha256": gain_set.content_sha256, "study_sha256": study.sha256},
     }
 
 
-def _summary_lines(responses: dict[str, Any], gains_doc: dict[str, Any], val: dict[str, Any], sidecar: dict[str, Any],
+def _summary_lines(responses: dict[str, Any], gain_set: GainSet, val: dict[str, Any], sidecar: dict[str, Any],
                    rig_sum: dict[str, Any]) -> list[str]:
     by = {(r["gains"], r["controller"], r["reference"]): r for r in responses["runs"]}
-    g, s = gains_doc["gains"], val["summary"]
+    g, s = gains_to_dict(gain_set.gains), val["summary"]
     tuned_ff, paper_ff = by[("tuned", "ff+pid", "step")], by[("paper", "ff+pid", "step")]
     paper_settling = next(r["paper"] for r in responses["reproduction"]
                           if r["controller"] == "ff+pid" and r["metric"] == "settling_s")
@@ -286,8 +287,8 @@ def _feedforward_text(ff_doc: dict[str, Any], n_ops: int, src_text: str) -> str:
             f"({fmt(ident['compensation_max_N'])} N at worst).")
 
 
-def _gains_section(gains_doc: dict[str, Any], tuning: dict[str, Any]) -> dict[str, Any]:
-    g = gains_doc["gains"]
+def _gains_section(gain_set: GainSet, tuning: dict[str, Any]) -> dict[str, Any]:
+    g = gains_to_dict(gain_set.gains)
     lv = g["labview"]
     rows = [
         ["proportional gain Kc", f"{fmt(g['Kc_V_per_N'], 4)} V/N", fmt(lv["Kc"], 4)],
@@ -297,7 +298,7 @@ def _gains_section(gains_doc: dict[str, Any], tuning: dict[str, Any]) -> dict[st
         ["setpoint weight b", fmt(g["b"], 4), "–"],
         ["output range", f"{fmt(g['u_min_V'])} to {fmt(g['u_max_V'])} V", f"{fmt(g['u_min_V'])} to {fmt(g['u_max_V'])}"],
     ]
-    return {"rows": rows, "status": gains_doc["status"], "sha256": gains_doc["content_sha256"],
+    return {"rows": rows, "status": gain_set.status, "sha256": gain_set.content_sha256,
             "text": (f"PID gains tuned with CasADi and IPOPT around the P-I-compensated rig (maximum sensitivity "
                      f"{fmt(tuning['tuning']['ms'])}, {tuning['tuning']['status']}); controller form: {g['form']}. "
                      f"The minimum-time bound on the step's settling is {fmt(tuning['minimum_time']['settling_s'])} s; "
@@ -363,7 +364,7 @@ def _design_section(study: ReportStudy, design: dict[str, Any]) -> dict[str, Any
 
 
 def _provenance(study: ReportStudy, records: dict[str, dict[str, Any]], ff_doc: dict[str, Any], src_text: str,
-                gains_doc: dict[str, Any], now: _dt.datetime) -> dict[str, Any]:
+                gain_set: GainSet, now: _dt.datetime) -> dict[str, Any]:
     artifacts = [[o["path"], o["sha256"][:24]] for name in STAGES_READ
                  for o in records.get(name, {}).get("outputs", {}).values()]
     version = package_version()
@@ -373,7 +374,7 @@ def _provenance(study: ReportStudy, records: dict[str, dict[str, Any]], ff_doc: 
         ["study SHA-256", study.sha256],
         ["feedforward data", src_text],
         ["feedforward data SHA-256", ff_doc["inputs"]["data"]["sha256"]],
-        ["gain set SHA-256", gains_doc["content_sha256"]],
+        ["gain set SHA-256", gain_set.content_sha256],
         ["report date (UTC)", now.strftime("%Y-%m-%d %H:%M:%S")],
         ["stage times", ", ".join(f"{n} {records[n]['seconds']:.1f} s" for n in records
                                   if records[n].get("status") == "done" and "seconds" in records[n])],

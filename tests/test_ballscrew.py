@@ -1,7 +1,8 @@
 """The ball-screw and feed-drive models against closed forms and catalogue rows.
 
-Catalogue rows and formulas: ../shared/design/BALLSCREW_REFERENCES.md (HIWIN "Ballscrews &
-Accessories" BS-08-2-EN-1704, ground double nut RDI, rigidity stated at 0.1 C_dyn preload).
+Catalogue rows and formulas: ``docs/references.md`` ([HIWIN]: HIWIN "Ballscrews &
+Accessories" BS-08-2-EN-1704, ground double nut RDI, rigidity stated at 0.1 C_dyn preload) and
+``docs/models.md``, section 5.
 """
 
 from __future__ import annotations

@@ -19,10 +19,10 @@ from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.hysteresis import ClassicalPI
 from piezopreload.models.metrics import run_numbers
-from piezopreload.tuning.calibrate import CONTROLLERS, PAPER_RESULTS
+from piezopreload.tuning.calibrate import CONTROLLERS, PAPER_RESULTS, Reproduction
 from piezopreload.tuning.validate import Criteria, evaluate
 
-__all__ = ["compare_gains", "tracking_improvement", "Response", "responses", "reproduction"]
+__all__ = ["compare_gains", "tracking_improvement", "Response", "responses", "reproduction", "reproduction_summary"]
 
 
 def compare_gains(rig: RigParams, step: Reference, trajectory: Reference, candidates: dict[str, PIDGains],
@@ -98,3 +98,16 @@ def reproduction(runs: list[Response], reference: str = "step") -> list[dict[str
             rows.append({"controller": controller, "metric": metric, "paper": PAPER_RESULTS[controller][metric],
                          "reproduction": got["paper"], "tuned": got["tuned"]})
     return rows
+
+
+def reproduction_summary(rep: Reproduction) -> dict[str, Any]:
+    """The paper's six step numbers beside a :class:`Reproduction`'s, each judged within 25 % of the paper's,
+    with its range over the noise realisations (a time never reached is None and not within)."""
+    rows = [{**r, "within_25pct": bool(abs(r["ratio"] - 1.0) <= 0.25),
+             "range": [finite_or_none(x) for x in rep.spread[r["controller"]][r["metric"]]]} for r in rep.table()]
+    for r in rows:
+        if r["simulated"] != r["simulated"]:  # nan: never reached
+            r.update(simulated=None, ratio=None, within_25pct=False)
+    return {"feedforward_fit": rep.feedforward_fit, "rows": rows,
+            "overshoot_N": {c: rep.metrics[c]["overshoot_N"] for c in rep.metrics},
+            "all_within_25pct": all(r["within_25pct"] for r in rows), "repeats": rep.repeats}
