@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Rig
 from piezopreload.models.controller import Controller
 from piezopreload.models.metrics import StepMetrics, step_metrics
@@ -80,16 +81,16 @@ class Reference:
 
     @classmethod
     def from_dict(cls, data: Any) -> Reference:
-        """The inverse of :meth:`to_dict`; a ValueError names what is missing or wrong."""
+        """The inverse of :meth:`to_dict`; an :class:`InputError` (a ValueError) names what is missing or wrong."""
         if not isinstance(data, dict):
-            raise ValueError(f"a reference is an object with times_s, levels_N and duration_s, got {type(data).__name__}")
+            raise InputError(f"a reference is an object with times_s, levels_N and duration_s, got {type(data).__name__}")
         missing = [k for k in ("times_s", "levels_N", "duration_s") if k not in data]
         if missing:
-            raise ValueError(f"{missing[0]} is missing (a reference has times_s, levels_N and duration_s)")
+            raise InputError(f"{missing[0]} is missing (a reference has times_s, levels_N and duration_s)")
         try:
             return cls(np.asarray(data["times_s"], float), np.asarray(data["levels_N"], float), float(data["duration_s"]))
         except (TypeError, ValueError) as exc:
-            raise ValueError(str(exc)) from None
+            raise InputError(str(exc)) from exc
 
 
 @dataclass(frozen=True, eq=False)

@@ -68,18 +68,18 @@ def gains_to_dict(gains: PIDGains) -> dict[str, Any]:
 
 
 def gains_from_dict(g: Any, where: str = "gains") -> PIDGains:
-    """The inverse of :func:`gains_to_dict`; a ValueError names the field (``where``) that is wrong."""
+    """The inverse of :func:`gains_to_dict`; an :class:`InputError` names the field (``where``) that is wrong."""
     if not isinstance(g, dict):
-        raise ValueError(f"field '{where}' must be an object")
+        raise InputError(f"field '{where}' must be an object")
     missing = next((k for k in ("Kc_V_per_N", "Ti_s", "Td_s") if k not in g), None)
     if missing:
-        raise ValueError(f"field '{where}.{missing}' is missing")
+        raise InputError(f"field '{where}.{missing}' is missing")
     try:
         return PIDGains(Kc=float(g["Kc_V_per_N"]), Ti_s=float(g["Ti_s"]), Td_s=float(g["Td_s"]),
                         Tf_s=float(g.get("Tf_s", 0.0)), b=float(g.get("b", 1.0)),
                         u_min=float(g.get("u_min_V", 0.0)), u_max=float(g.get("u_max_V", 110.0)))
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"field '{where}' is not valid: {exc}") from None
+        raise InputError(f"field '{where}' is not valid: {exc}") from exc
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,10 +123,12 @@ class GainSet:
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
-            raise ValueError(f"GainSet.status must be one of {', '.join(STATUSES)}, got {self.status!r}.")
+            raise InputError(f"GainSet.status must be one of {', '.join(STATUSES)}, got {self.status!r}.")
         bad = [k for k, r in self.references.items() if not isinstance(r, Reference)]
         if bad:
-            raise ValueError(f"GainSet.references['{bad[0]}'] must be a Reference.")
+            raise InputError(f"GainSet.references['{bad[0]}'] must be a Reference, got {type(self.references[bad[0]]).__name__}.")
+        if not isinstance(self.gains, PIDGains):
+            raise InputError(f"GainSet.gains must be PIDGains, got {type(self.gains).__name__}.")
 
     @property
     def validated(self) -> bool:

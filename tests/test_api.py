@@ -132,11 +132,41 @@ def test_the_gain_set_round_trips_and_its_exports_are_the_cli_s(gain_set, tmp_pa
                 loaded.export(fmt)
         else:
             assert out.read_text() == loaded.export(fmt), f"{fmt}: the API's text is not the CLI's"
+    # the units each format states: LabVIEW's minutes, a PLC's Kp/Tn/Tv in seconds, the C header in SI
+    g = gs.gains
+    lv = dict(line.split(" = ") for line in loaded.export("labview").splitlines() if " = " in line)
+    assert [float(lv[k]) for k in ("Kc", "Ti (min)", "Td (min)")] == pytest.approx([g.Kc, g.Ti_s / 60, g.Td_s / 60], rel=1e-11)
+    plc = dict(line.split(" = ") for line in loaded.export("plc").splitlines() if " = " in line)
+    assert [float(plc[k]) for k in ("Kp", "Tn", "Tv", "Ymax")] == pytest.approx([g.Kc, g.Ti_s, g.Td_s, g.u_max], rel=1e-11)
+    assert f"#define PP_TI_S {g.Ti_s!r}" in loaded.export("c-header")
+    assert json.loads(loaded.export("json"))["gains"]["Ti_s"] == g.Ti_s
     doc = json.loads(path.read_text())
     doc["gains"]["Ti_s"] = 0.5
     path.write_text(json.dumps(doc))
     with pytest.raises(pp.ArtifactError, match="content_sha256"):
         pp.GainSet.load(path)
+
+
+def test_gain_set_and_reference_documents_are_checked_naming_the_field():
+    ref = pp.Reference.staircase(25.0, [60.0, 80.0], 0.5, t_start_s=0.1)
+    back = pp.Reference.from_dict(json.loads(json.dumps(ref.to_dict())))
+    np.testing.assert_array_equal(back.times_s, ref.times_s)
+    np.testing.assert_array_equal(back.levels_N, ref.levels_N)
+    assert back.duration_s == ref.duration_s
+    with pytest.raises(pp.InputError, match="levels_N is missing"):
+        pp.Reference.from_dict({"times_s": [0.0], "duration_s": 1.0})
+    with pytest.raises(pp.InputError, match="times_s must start at 0"):
+        pp.Reference.from_dict({"times_s": [0.5], "levels_N": [25.0], "duration_s": 1.0})
+    doc = {"status": "candidate", "gains": {"Kc_V_per_N": 0.5, "Ti_s": 0.1, "Td_s": 0.0}, "inputs": {}}
+    assert pp.GainSet.from_dict(doc).gains.Kc == 0.5
+    for field, value, match in (("status", "approved", "field 'status' is 'approved'"),
+                                ("gains", {"Kc_V_per_N": 0.5}, r"field 'gains.Ti_s' is missing"),
+                                ("references", {"step": {"times_s": [0.0]}}, r"field 'references.step' is not a reference"),
+                                ("plant", {"rig": {"noise_N": -1.0}}, r"field 'plant.rig' is not a rig")):
+        with pytest.raises(pp.ArtifactError, match=match):
+            pp.GainSet.from_dict({**doc, field: value}, "g.json")
+    with pytest.raises(pp.InputError, match="GainSet.status"):
+        pp.GainSet(gains=pp.PIDGains(Kc=0.5, Ti_s=0.1), status="ok")
 
 
 # ---- [feedforward] data, honoured by every step ---------------------------------------------------------

@@ -34,7 +34,7 @@ class Window:
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.t0_s) and np.isfinite(self.t1_s) and self.t0_s < self.t1_s):
-            raise ValueError(f"a window needs finite t0_s < t1_s, got {self.t0_s!r} and {self.t1_s!r}")
+            raise InputError(f"a window needs finite t0_s < t1_s, got {self.t0_s!r} and {self.t1_s!r}")
 
     def as_list(self) -> list[float]:
         return [self.t0_s, self.t1_s]
