@@ -266,7 +266,7 @@ class DesignPoint:
     objective: str
     integer: bool
 
-    def as_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
 
@@ -282,8 +282,8 @@ class DesignOptimum:
     solve_s: float
     nlp_solves: int
 
-    def as_dict(self) -> dict[str, Any]:
-        return {"objective": self.objective, "point": self.point.as_dict(), "binding": self.binding,
+    def to_dict(self) -> dict[str, Any]:
+        return {"objective": self.objective, "point": self.point.to_dict(), "binding": self.binding,
                 "integer_candidates": self.tried, "solve_s": self.solve_s, "nlp_solves": self.nlp_solves}
 
     def plot(self, ax: Any = None) -> Any:
@@ -319,9 +319,9 @@ class ParetoFront:
     solve_s: float
     nlp_solves: int
 
-    def as_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, Any]:
         return {"pair": self.pair, "x_name": self.x_name, "y_name": self.y_name, "x": self.x.tolist(),
-                "y": self.y.tolist(), "points": [p.as_dict() for p in self.points], "solve_s": self.solve_s,
+                "y": self.y.tolist(), "points": [p.to_dict() for p in self.points], "solve_s": self.solve_s,
                 "nlp_solves": self.nlp_solves}
 
     def plot(self, ax: Any = None) -> Any:

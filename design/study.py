@@ -68,9 +68,9 @@ class DesignResult:
             "preload_curve": self.preload_curve,
             "units": {"force": "N", "length": "mm", "stiffness": "N/um", "torque": "N m", "life": "h",
                       "energy": s.energy_units},
-            "optimum": self.optimum.as_dict(),
-            "fronts": [f.as_dict() for f in self.fronts],
-            "schedule": {**s.as_dict(), "time_s": s.profile.time_s.tolist(), "axial_load_N": s.profile.axial_load_N.tolist(),
+            "optimum": self.optimum.to_dict(),
+            "fronts": [f.to_dict() for f in self.fronts],
+            "schedule": {**s.to_dict(), "time_s": s.profile.time_s.tolist(), "axial_load_N": s.profile.axial_load_N.tolist(),
                          "preload_N": s.preload_N.tolist(), "max_preload_N": self.max_preload_N,
                          "slew_N_per_s": self.slew_N_per_s},
             "natural_frequency": self.natural_frequency,
@@ -80,12 +80,12 @@ class DesignResult:
         """What ``piezopreload design --json`` prints: the optimum, each front's span, the schedule's numbers."""
         o = self.optimum
         return {
-            "objective": o.objective, "optimum": o.point.as_dict(), "binding": o.binding, "integer_candidates": o.tried,
+            "objective": o.objective, "optimum": o.point.to_dict(), "binding": o.binding, "integer_candidates": o.tried,
             "solve_s": o.solve_s,
             "fronts": [{"pair": f.pair, "points": len(f.points), "solve_s": f.solve_s, "nlp_solves": f.nlp_solves,
                         "stiffness_N_per_um": [float(f.x.min()), float(f.x.max())],
                         f.y_name: [float(f.y.min()), float(f.y.max())]} for f in self.fronts],
-            "schedule": {**self.schedule.as_dict(), "max_preload_N": self.max_preload_N,
+            "schedule": {**self.schedule.to_dict(), "max_preload_N": self.max_preload_N,
                          "slew_N_per_s": self.slew_N_per_s},
         }
 
@@ -100,7 +100,7 @@ class DesignResult:
             buf.write(f"# Pareto front {front.pair}: {front.x_name} swept, {front.y_name} optimised\n")
             buf.write(",".join(FRONT_COLUMNS) + "\n")
             for p in front.points:
-                d = p.as_dict()
+                d = p.to_dict()
                 buf.write(",".join(f"{d[c]:.6g}" for c in FRONT_COLUMNS) + "\n")
             atomic_write_text(csv, buf.getvalue())
             written.append(csv)

@@ -23,7 +23,6 @@ from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.gainset import REFERENCES, GainSet, gains_from_dict, gains_to_dict
 from piezopreload.models.hysteresis import ClassicalPI
 from piezopreload.models.metrics import StepMetrics, run_numbers
-from piezopreload.reports import figures
 from piezopreload.study import Study
 from piezopreload.tuning.calibrate import CONTROLLERS, PAPER_RESULTS
 from piezopreload.tuning.calibrate import reproduce as reproduce_paper
@@ -138,6 +137,8 @@ class TuningResult:
 
     def plot(self) -> Any:
         """The comparison table as bars (settling time, tracking RMS): a Figure."""
+        from piezopreload.reports import figures  # matplotlib only when drawing
+
         return figures.gains_comparison(self.table)
 
 
@@ -222,6 +223,8 @@ class StudyRun(ClosedLoopRun):
 
     def plot(self) -> Any:
         """Reference and force (top), command and amplifier voltage (bottom): a Figure."""
+        from piezopreload.reports import figures  # matplotlib only when drawing
+
         title = f"{self.info['controller'].replace('ff+pid', 'FF + PID').replace('pid', 'PID')}, {self.info['reference']}"
         return figures.closed_loop(self.columns(), self.band_N, self.signal, title)
 
