@@ -8,7 +8,11 @@ Section 3.2 of Zhang, Jin, Lin (2021), restated in ``EQUATIONS.md``:
 * Kuhnen's modified P-I model (play operators followed by a superposition of one-sided
   dead-zone operators, K. Kuhnen, Eur. J. Control 9(4), 2003), which describes asymmetric
   loops and keeps an exact analytic inverse;
-* the analytic inverses, eqs. (19)-(20).
+* the analytic inverses, eqs. (19)-(20);
+* creep: a bank of first-order lags on the input (Kuhnen's linear creep operators) added to
+  any of the three models (:class:`CreepPI`), and the exact inverse of the classical and the
+  modified model with creep, whose one-sample step (:func:`inverse_step`) is written once for
+  numpy and CasADi.
 
 Everything here is pure: parameters are frozen dataclasses that validate themselves, the
 functions take explicit initial states and return final states, nothing is printed or read.

@@ -415,3 +415,44 @@ def test_creep_weights_stay_nonnegative_where_the_data_ask_for_negative_ones(rng
     lags = est.model_.creep.lags(v)
     residual = est.predict(v) - y
     assert residual @ lags[:, 0] > 0, "the bound on c_1 is not active"
+
+
+def test_kkt_conditions_of_the_joint_qp_on_the_shipped_record():
+    """Classical + creep on the real record: the weights satisfy the QP's optimality conditions."""
+    from piezopreload.io import SHIPPED_COLUMNS, parse_columns, read_record, shipped_data
+
+    rec = read_record(shipped_data(), parse_columns(SHIPPED_COLUMNS), header=False)
+    train = rec.window(4, 7)
+    dt = (rec.time_s[-1] - rec.time_s[0]) / (rec.time_s.size - 1)
+    est = PIIdentifier(model="classical", n_operators=40, creep=True).fit(rec.input, rec.output, train=train,
+                                                                         sample_period_s=dt)
+    model = est.model_
+    phi = np.column_stack([play(rec.input, model.thresholds), model.creep.lags(rec.input),
+                           np.ones(rec.input.size)])[train]
+    x = np.r_[model.hysteresis.weights, model.creep.weights, model.offset]
+    grad = phi.T @ (phi @ x - rec.output[train])  # half the gradient of ||phi x - y||^2
+    scale = np.abs(phi).sum(axis=0) * np.abs(rec.output[train]).max()
+    bounded, g = x[:-1], grad[:-1] / scale[:-1]
+    assert np.all(bounded >= 0), "primal feasibility"
+    assert abs(grad[-1] / scale[-1]) < 1e-9, "stationarity in the free offset"
+    assert np.all(g >= -1e-9), "dual feasibility: the gradient may only push into the bounds"
+    assert np.all(np.minimum(bounded / bounded.max(), g) < 1e-7), "complementary slackness"
+    assert np.any(model.creep.weights == 0) and np.any(model.creep.weights > 0), "a creep bound active, one not"
+
+
+def test_nonnegative_creep_weights_keep_the_compensator_stable():
+    """Why the QP keeps c >= 0: each sampled lag is positive real (Re H(e^jw) > 0, closed form below),
+    so w_1 + sum c_j H_j with w_1 > 0 has no zero outside the unit circle and the inverse settles;
+    a negative creep weight larger than w_1 puts a zero outside and the exact inverse runs away."""
+    h = np.geomspace(1e-6, 1e3, 400)
+    k = lag_coefficients(1.0 / h, 1.0)
+    omega = np.linspace(0, np.pi, 301)[:, None]
+    # Re[(b0 + b1 e^-jw)(1 - a e^jw)] / |1 - a e^-jw|^2
+    real = (k.b0 - k.a * k.b1 + (k.b1 - k.a * k.b0) * np.cos(omega)) / np.abs(1 - k.a * np.exp(-1j * omega)) ** 2
+    assert real.min() > 0, f"a sampled lag is not positive real: min Re = {real.min()}"
+    dt, target = 1e-3, np.ones(3000)
+    good = CreepPI(ClassicalPI([0.0], [0.3]), Creep([0.05], [0.5], dt)).inverse()(target)
+    assert good[-1] == pytest.approx(1 / 0.8, rel=1e-9), "settles at the static gain's inverse"
+    assert np.all(np.abs(good) <= 1 / 0.3 + 1e-9), "never beyond the instantaneous gain's inverse"
+    bad = CreepPI(ClassicalPI([0.0], [0.3]), Creep([0.05], [-0.5], dt)).inverse()(target)
+    assert abs(bad[-1]) > 1e6 * abs(bad[0]), "a non-minimum-phase creep's inverse should run away"

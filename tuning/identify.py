@@ -3,7 +3,9 @@
 Every model of :mod:`piezopreload.models.hysteresis` is linear in its weights once the
 thresholds are fixed, so identification is ``min ||Phi x - y||^2`` subject to linear
 inequalities: nonnegative weights (classical and the paper's asymmetric model), and for
-Kuhnen's modified model the invertibility constraints of its dead-zone superposition.
+Kuhnen's modified model the invertibility constraints of its dead-zone superposition. With
+``creep=True`` the lags of a creep operator bank join the regressors and their weights the
+decision variables, constrained nonnegative (see :class:`PIIdentifier`).
 
 The QP never sees the samples: the least-squares term is compressed to the Cholesky factor
 of the (column-scaled) Gram matrix, ``p x p`` with ``p`` the number of parameters, so its
