@@ -1144,21 +1144,14 @@ class InverseCreepPI:
     :func:`inverse_step` on numpy and on CasADi, with :attr:`parameters` laid out as
     :attr:`layout` says. Its state is ``[inverse play operator states (n), creep carries (m)]``;
     :meth:`state_from_forward` converts a forward state, so the inverse can take over from
-    any history.
+    any history. Code generated for any model of a layout comes from
+    :func:`parametric_inverse_step`, fed :attr:`parameters`.
     """
 
     forward: CreepPI
     layout: InverseStepLayout
     parameters: NDArray[np.float64]
     play_inverse: InverseClassicalPI
-
-    @property
-    def thresholds(self) -> NDArray[np.float64]:
-        return self.play_inverse.thresholds
-
-    @property
-    def weights(self) -> NDArray[np.float64]:
-        return self.play_inverse.weights
 
     def initial_state(self, batch: tuple[int, ...] = ()) -> NDArray[np.float64]:
         """At rest at 0 V, as the forward model's :meth:`CreepPI.initial_state`."""
