@@ -50,9 +50,10 @@ The model, in the order the functions below build it:
 
 Load ratings follow ISO 3408-5's convention of equal ball loads: the static rating C_0 is
 the axial load at which the most pressed contact reaches 4,200 MPa (ISO 76), from the same
-Hertz model (catalogue rows: within 6 % at f = 0.55); :meth:`BallScrew.from_catalogue` sets
-the groove conformity from a catalogue's C_0 that way. The dynamic rating C_dyn, where no
-catalogue value is given, is the Lundberg-Palmgren form for angular-contact thrust rows,
+Hertz model (HIWIN's rows: +5 % at f = 0.55; the vendors' conformities differ, 0.53-0.565),
+and :meth:`BallScrew.from_catalogue` sets the groove conformity from a catalogue's C_0 that
+way. The dynamic rating C_dyn, where no catalogue value is given, is the Lundberg-Palmgren
+form for angular-contact thrust rows,
 ``K f_c(gamma) cos(beta)^0.7 tan(beta) cos(alpha)^1.3 Z_1^(2/3) D_w^1.8 i^0.86``, with
 gamma = D_w cos(beta) / D_pw, whose one constant K is calibrated on HIWIN's R40-10T4 row and
 checked on R32-5T4 (-5 %). A catalogue C_dyn, where known, should be passed instead.
