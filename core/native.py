@@ -42,14 +42,18 @@ import numpy as np
 
 from piezopreload.core.errors import InternalError
 
-__all__ = ["ENGINE_ENV", "FLAGS", "NativeBuildError", "cache_dir", "compiler", "engine", "enabled", "generate",
-           "build", "load", "library", "StepRunner", "step_runner", "build_stats", "reset_failures"]
+__all__ = ["ENGINE_ENV", "FLAGS", "FLAGS_LARGE", "prelude", "NativeBuildError", "cache_dir", "compiler", "engine", "enabled", "generate",
+           "build", "build_from", "load", "library", "StepRunner", "step_runner", "build_stats", "reset_failures"]
 
 #: ``numpy`` forces the numpy path; ``c`` makes a failed build an error; anything else: C where it works
 ENGINE_ENV = "PIEZOPRELOAD_ENGINE"
 #: the compiler flags (part of every library's hash): no fused multiply-add, so the C code rounds
 #: as numpy does; calls inside the library bound locally, so the compiler inlines CasADi's helpers
 FLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off", "-fno-semantic-interposition", "-fno-math-errno")
+
+#: for a large unit (a step with its second derivatives): -O1 compiles in about half -O2's time
+#: and runs as fast on it
+FLAGS_LARGE = ("-O1",) + FLAGS[1:]
 
 #: put before CasADi's code: max and min of two numbers as comparisons (libm's fmax and fmin are
 #: calls the compiler does not inline, and they are most of a step's operations; the values are
@@ -123,6 +127,11 @@ def build_stats() -> dict[str, float]:
         return dict(_STATS)
 
 
+def prelude() -> str:
+    """What :func:`generate` puts before CasADi's code (the max and min as comparisons)."""
+    return _PRELUDE
+
+
 def generate(functions: Sequence[ca.Function], name: str, *, inline_minmax: bool = True) -> str:
     """C source of CasADi ``functions`` (plain C99, ``double``), as text.
 
@@ -147,11 +156,18 @@ def _log_build(folder: Path, record: dict[str, Any]) -> None:
 
 def build(name: str, source: str, flags: Sequence[str] = FLAGS) -> Path:
     """The shared library of ``source``, compiled once and cached by the hash of source, compiler and flags."""
+    return build_from(name, source, lambda: source, flags)
+
+
+def build_from(name: str, key: str, make_source: Callable[[], str], flags: Sequence[str] = FLAGS) -> Path:
+    """:func:`build` for a source that is costly to generate: cached by the hash of ``key`` (a text
+    that determines the source, such as a serialised CasADi function and the CasADi version),
+    compiler and flags; ``make_source()`` runs only when the library is not in the cache."""
     found = compiler()
     if found is None:
         raise NativeBuildError("no C compiler found (set CC, or install cc, gcc or clang)")
     cc, ident = found
-    digest = hashlib.sha256("\0".join([source, ident, *flags]).encode()).hexdigest()[:20]
+    digest = hashlib.sha256("\0".join([key, ident, *flags]).encode()).hexdigest()[:20]
     folder = cache_dir()
     lib = folder / f"{name}-{digest}.so"
     with _LOCK:
@@ -163,6 +179,8 @@ def build(name: str, source: str, flags: Sequence[str] = FLAGS) -> Path:
         return lib
     t0 = time.perf_counter()
     try:
+        source = make_source()
+        t_generated = time.perf_counter()
         folder.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryDirectory(dir=folder, prefix=f".build-{name}-") as tmp:
             src, out = Path(tmp, f"{name}.c"), Path(tmp, f"{name}.so")
@@ -173,7 +191,7 @@ def build(name: str, source: str, flags: Sequence[str] = FLAGS) -> Path:
                 raise NativeBuildError(f"{cc} failed on {name} ({done.returncode}): {done.stderr.strip()[-2000:]}")
             os.replace(src, folder / f"{name}-{digest}.c")  # beside the library, for reading
             os.replace(out, lib)  # atomic: a concurrent build of the same source writes the same file
-    except (OSError, subprocess.SubprocessError, NativeBuildError) as exc:
+    except (OSError, subprocess.SubprocessError, RuntimeError, NativeBuildError) as exc:
         message = str(exc) if isinstance(exc, NativeBuildError) else f"building {name} failed: {exc}"
         with _LOCK:
             _FAILED[digest] = message
@@ -182,8 +200,9 @@ def build(name: str, source: str, flags: Sequence[str] = FLAGS) -> Path:
     with _LOCK:
         _STATS["builds"] += 1
         _STATS["compile_s"] += seconds
-    _log_build(folder, {"name": name, "digest": digest, "seconds": round(seconds, 4), "pid": os.getpid(),
-                        "time_unix": round(time.time(), 3), "bytes": len(source)})
+    _log_build(folder, {"name": name, "digest": digest, "seconds": round(seconds, 4),
+                        "generate_s": round(t_generated - t0, 4), "pid": os.getpid(),
+                        "time_unix": round(time.time(), 3), "bytes": len(source), "flags": list(flags)})
     return lib
 
 
@@ -245,7 +264,7 @@ class StepRunner:
     outputs, ``x_next`` (``nx``) and ``y`` (``ny``). Building may raise :class:`NativeBuildError`.
     """
 
-    def __init__(self, step: ca.Function, name: str) -> None:
+    def __init__(self, step: ca.Function, name: str, flags: Sequence[str] = FLAGS) -> None:
         n_in = step.n_in()
         if step.n_out() != 2 or n_in < 2:
             raise ValueError(f"a step takes (x, p, inputs...) and returns (x_next, y); {step.name()} has "
@@ -260,7 +279,7 @@ class StepRunner:
                                 nx=max(self.nx, 1), ny=max(self.ny, 1), nin=max(self.n_series, 1))
         self.source = generate([step], name) + driver
         self.name = name
-        self._lib = library(name, self.source)
+        self._lib = load(build(name, self.source, flags))
         fn = getattr(self._lib, entry)
         fn.restype = ctypes.c_int
         fn.argtypes = [ctypes.c_longlong, ctypes.c_longlong, ctypes.c_void_p, ctypes.c_longlong, ctypes.c_void_p,
@@ -308,13 +327,14 @@ class StepRunner:
         return out, x_end
 
 
-def step_runner(key: Any, make_step: Callable[[], ca.Function], name: str) -> StepRunner:
+def step_runner(key: Any, make_step: Callable[[], ca.Function], name: str,
+                flags: Sequence[str] = FLAGS) -> StepRunner:
     """The :class:`StepRunner` of ``make_step()``, built once per process for each hashable ``key``
     (a model's structure); the library itself comes from the cache on disk when it is there."""
     with _LOCK:
         runner = _RUNNERS.get(key)
     if runner is None:
-        runner = StepRunner(make_step(), name)
+        runner = StepRunner(make_step(), name, flags)
         with _LOCK:
             _RUNNERS[key] = runner
     return runner

@@ -87,7 +87,7 @@ NUMPY = Ops("numpy", False, np.where, np.minimum, np.maximum, np.logical_and, np
             lambda line: line[..., 0], _np_shift_in)
 CASADI = Ops("casadi", True, ca.if_else, ca.fmin, ca.fmax, ca.logic_and, ca.logic_or, ca.exp, ca.expm1, ca.log1p,
              ca.sqrt, ca.fabs, ca.floor, _ca_dot, ca.sum1, lambda s: s,
-             lambda s, n: ca.repmat(s, n, 1) if n else ca.SX(0, 1), lambda line: line[0], _ca_shift_in)
+             lambda s, n: ca.repmat(s, n, 1) if n else ca.DM(0, 1), lambda line: line[0], _ca_shift_in)
 
 
 def softplus(ops: Ops, y: Any, k: Any) -> Any:
@@ -188,11 +188,7 @@ class Layout:
         if missing or extra:
             raise ValueError(f"{self.name}: missing fields {missing}, unknown {extra}.")
         if ops.symbolic:
-            items = []
-            for n, (_, size) in self._fields.items():
-                part = parts[n]
-                items.append(ca.SX(0, 1) if size == 0 else part)
-            return ca.vertcat(*items)
+            return ca.vertcat(*[parts[n] for n, (_, size) in self._fields.items() if size != 0])
         arrays = [(np.asarray(parts[n], float), key) for n, key in self._numpy_keys]
         batch = np.broadcast_shapes(*(a.shape if isinstance(key[1], int) else a.shape[:-1] for a, key in arrays))
         out = np.empty(batch + (self.size,))
