@@ -25,12 +25,15 @@ from __future__ import annotations
 
 import ctypes
 
+import casadi as ca
 import numpy as np
 
 from piezopreload.core import native
+from piezopreload.models.actuator import PlantModel, Rig, RigParams
 from piezopreload.models.controller import Controller, ControllerModel, ControllerState, controller_functions
+from piezopreload.models.ops import CASADI, NUMPY
 
-__all__ = ["CompiledStep", "PythonStep", "controller_step", "cache_dir", "step_library"]
+__all__ = ["CompiledStep", "PythonStep", "controller_step", "cache_dir", "step_library", "PlantStep", "plant_library"]
 
 cache_dir = native.cache_dir
 
@@ -154,3 +157,114 @@ def controller_step(controller: Controller, prefer: str = "c") -> PythonStep | C
             if native.engine() == "c":
                 raise
     return PythonStep(controller)
+
+
+_PLANT_WRAPPER = """
+/* piezopreload: the rig's plant, one sample per call. pp_plant_read: the true force and the A/D
+   reading for the standard normal draw z, out = (force, reading); pp_plant_write: the state one
+   sample after the command u is written (updated in place). 0 on success. */
+int pp_plant_read(const double* state, const double* params, double z, double* out) {{
+  const casadi_real* arg[{r_arg}];
+  casadi_real* res[{r_res}];
+  casadi_int iw[{r_iw}];
+  casadi_real w[{r_w}];
+  arg[0] = state; arg[1] = params; arg[2] = &z;
+  res[0] = out; res[1] = out + 1;
+  return {read}(arg, res, iw, w, 0);
+}}
+
+int pp_plant_write(double* state, const double* params, double u) {{
+  const casadi_real* arg[{w_arg}];
+  casadi_real* res[{w_res}];
+  casadi_int iw[{w_iw}];
+  casadi_real w[{w_w}];
+  casadi_real next[{n}];
+  int i, flag;
+  arg[0] = state; arg[1] = params; arg[2] = &u;
+  res[0] = next;
+  flag = {write}(arg, res, iw, w, 0);
+  if (flag) return flag;
+  for (i = 0; i < {n}; ++i) state[i] = next[i];
+  return 0;
+}}
+"""
+
+
+def plant_library(model: PlantModel) -> ctypes.CDLL:
+    """The shared library with ``pp_plant_read`` and ``pp_plant_write`` for plants of ``model``'s structure."""
+    x, p = ca.SX.sym("x", model.state.size), ca.SX.sym("p", model.params.size)
+    z, u = ca.SX.sym("z"), ca.SX.sym("u")
+    force = model.force(CASADI, p, x)
+    read = ca.Function("pp_plant_read_fn", [x, p, z], [force, model.measure(CASADI, p, force, z)])
+    write = ca.Function("pp_plant_write_fn", [x, p, u], [model.step(CASADI, p, x, u)])
+
+    def sizes(fn: ca.Function, prefix: str, n_arg: int, n_res: int) -> dict[str, int]:
+        return {f"{prefix}_arg": max(int(fn.sz_arg()), n_arg), f"{prefix}_res": max(int(fn.sz_res()), n_res),
+                f"{prefix}_iw": max(int(fn.sz_iw()), 1), f"{prefix}_w": max(int(fn.sz_w()), 1)}
+
+    source = native.generate([read, write], "pp_plant") + _PLANT_WRAPPER.format(
+        read=read.name(), write=write.name(), n=model.state.size, **sizes(read, "r", 3, 2), **sizes(write, "w", 3, 1))
+    return native.library("pp_plant", source)
+
+
+class PlantStep:
+    """One simulated plant stepped a sample at a time, for the rig executor's simulated backend.
+
+    The plant step of :class:`~piezopreload.models.actuator.PlantModel` (the one the simulation
+    runs), compiled to C and called through ctypes where a compiler works (``kind == "c"``),
+    else on numpy (``"numpy"``): the same numbers. :meth:`read` is the A/D reading for a
+    standard normal draw, :meth:`write` advances the plant by one sample under a command.
+    """
+
+    def __init__(self, params: RigParams, prefer: str = "c") -> None:
+        if params.batch_shape:
+            raise ValueError("a plant step runs one plant, not a batch")
+        self.rig = Rig(params)
+        self.model = self.rig.model
+        self._p = np.ascontiguousarray(self.rig.parameter_vector, dtype=float)
+        self._x = np.zeros(self.model.state.size)
+        self._out = np.zeros(2)
+        self.kind = "numpy"
+        if prefer == "c" and native.enabled():
+            try:
+                lib = plant_library(self.model)
+                self._read, self._write = lib.pp_plant_read, lib.pp_plant_write
+                self._read.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double, ctypes.c_void_p]
+                self._write.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_double]
+                self._read.restype = self._write.restype = ctypes.c_int
+                self._lib, self.kind = lib, "c"
+            except native.NativeBuildError:
+                if native.engine() == "c":
+                    raise
+        self.reset()
+
+    def reset(self, v0_V: float = 0.0) -> None:
+        """At rest at ``v0_V``, creep settled (:meth:`PlantModel.rest_state`)."""
+        self._x[:] = self.model.rest_state(NUMPY, self._p, float(v0_V))
+
+    def read(self, z: float) -> tuple[float, float]:
+        """``(true force, A/D reading)`` now, for the standard normal draw ``z``."""
+        if self.kind == "c":
+            if self._read(self._x.ctypes.data, self._p.ctypes.data, z, self._out.ctypes.data):
+                raise RuntimeError("the compiled plant read failed")
+            force, reading = self._out.tolist()
+            return force, reading
+        force = self.model.force(NUMPY, self._p, self._x)
+        return float(force), float(self.model.measure(NUMPY, self._p, force, z))
+
+    def write(self, command_V: float) -> None:
+        """Advance one sample; ``command_V`` is written to the D/A at this tick."""
+        if self.kind == "c":
+            if self._write(self._x.ctypes.data, self._p.ctypes.data, command_V):
+                raise RuntimeError("the compiled plant step failed")
+        else:
+            self._x[:] = self.model.step(NUMPY, self._p, self._x, float(command_V))
+
+    @property
+    def state(self) -> np.ndarray:
+        """The state vector (:attr:`PlantModel.state`), a copy."""
+        return self._x.copy()
+
+    @property
+    def amplifier_V(self) -> float:
+        return float(self._x[self.model.state.index("v_amp")])

@@ -273,3 +273,27 @@ def test_controller_model_layouts_name_every_number():
         PlantModel(n_creep=2).parameters(RigParams())
     with pytest.raises(ValueError, match="smoothing"):
         replace(PlantModel(4), smoothing=1.5)
+
+
+@needs_cc
+def test_the_simulated_backends_plant_step_is_the_rigs():
+    """The compiled plant step the simulated rig backend runs (read, then write) against Rig.measure/Rig.step."""
+    from piezopreload.rig.compiled import PlantStep
+
+    params = RigParams(noise_N=0.3, bw_gamma_per_V=0.004)
+    fast, slow = PlantStep(params), PlantStep(params, prefer="numpy")
+    assert (fast.kind, slow.kind) == ("c", "numpy")
+    rig = Rig(params)
+    state = rig.initial_state()
+    rng = np.random.default_rng(8)
+    for k, u in enumerate(np.concatenate([np.linspace(0.0, 140.0, 300), np.full(200, -40.0), np.full(100, 55.0)])):
+        z = float(rng.standard_normal())
+        reading = float(np.asarray(rig.model.measure(NUMPY, rig.parameter_vector, rig.force(state), z)))
+        for plant in (fast, slow):
+            force, measured = plant.read(z)
+            assert force == pytest.approx(float(rig.force(state)), abs=1e-9), (plant.kind, k)
+            assert measured == pytest.approx(reading, abs=1e-9), (plant.kind, k)
+            plant.write(u)
+        state = rig.step(state, u)
+        assert fast.amplifier_V == pytest.approx(float(state.v_amp), abs=1e-9)
+    np.testing.assert_allclose(fast.state, rig.vector(state), rtol=0, atol=1e-9)
