@@ -923,6 +923,9 @@ def minimum_time(
     to the constant command whose settled force is ``final_N``. The bisection starts above a
     bound no command beats: the force does not move for ``delay + 1`` samples and then at most
     at the steepest slope times the slew (as :func:`tracking_floor` argues), with a 20 % margin.
+    It runs first with a third of the hold, a relaxation whose minimum bounds the true one from
+    below on problems a third the size; the full hold is then checked there and, where it needs
+    longer, searched above it.
     """
     dt = params.sample_period_s
     plant = tuning_loop(params).plant
@@ -934,7 +937,7 @@ def minimum_time(
     u_sym = ca.SX.sym("u")
     step = ca.Function("rig", [x, u_sym], [plant.step(CASADI, theta, x, u_sym), plant.force(CASADI, theta, x)])
 
-    def feasible(n_settle: int) -> tuple[bool, np.ndarray | None]:
+    def feasible(n_settle: int, n_hold: int) -> tuple[bool, np.ndarray | None]:
         # multiple shooting: states and commands are variables, the dynamics equality constraints
         n = n_settle + n_hold
         opti = ca.Opti()
@@ -966,21 +969,39 @@ def minimum_time(
         lo_V, hi_V = (mid_V, hi_V) if settled < final_N else (lo_V, mid_V)
     u_steady = 0.5 * (lo_V + hi_V)
 
-    hi = int(round(horizon_s / dt))
-    ok, u_best = feasible(hi)
-    if not ok:
-        raise TuningInfeasible(f"no command reaches {final_N:g} +/- {band_N:g} N within {horizon_s:g} s on this plant")
+    def search(lo: int, hi: int, n_hold: int) -> int:
+        """The smallest feasible N in ``(lo, hi]`` (``lo`` infeasible, ``hi`` feasible) by bisection."""
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            lo, hi = (lo, mid) if feasible(mid, n_hold)[0] else (mid, hi)
+        return hi
+
+    horizon = int(round(horizon_s / dt))
     rate = _small_signal_gains(params)[1] * float(params.slew_V_per_s) * dt  # N per sample, at most
     bound = params.delay_samples + (abs(final_N - initial_N) - band_N) / rate
-    lo = max(0, min(int(0.8 * bound) - 1, hi - 1))  # no command settles this early
-    while hi - lo > 1:
-        mid = (lo + hi) // 2
-        ok, u_mid = feasible(mid)
-        if ok:
-            hi, u_best = mid, u_mid
-        else:
-            lo = mid
-    return {"settling_s": hi * dt, "samples": hi, "command_V": u_best, "hold_s": hold_s}
+    lo = max(0, min(int(0.8 * bound) - 1, horizon - 1))  # no command settles this early
+    # first with a shorter hold, a relaxation (fewer constraints): what it cannot settle, the full
+    # hold cannot either, so its minimum is a lower bound found on problems a third the size
+    short = min(n_hold, max(1, n_hold // 3))
+    if not feasible(horizon, short)[0]:
+        raise TuningInfeasible(f"no command reaches {final_N:g} +/- {band_N:g} N within {horizon_s:g} s on this plant")
+    n_min = search(lo, horizon, short)
+    ok, u_best = feasible(n_min, n_hold)
+    if not ok:  # the full hold needs longer: search above the relaxation's minimum
+        step_up, below = 1, n_min
+        while True:
+            candidate = min(below + step_up, horizon)
+            ok, u_best = feasible(candidate, n_hold)
+            if ok:
+                break
+            if candidate == horizon:
+                raise TuningInfeasible(f"no command reaches {final_N:g} +/- {band_N:g} N and holds it for "
+                                       f"{hold_s:g} s within {horizon_s:g} s on this plant")
+            below, step_up = candidate, 2 * step_up
+        n_min = search(below, candidate, n_hold)
+        if n_min != candidate:
+            ok, u_best = feasible(n_min, n_hold)
+    return {"settling_s": n_min * dt, "samples": n_min, "command_V": u_best, "hold_s": hold_s}
 
 
 def tracking_floor(params: RigParams, reference: Reference) -> dict[str, Any]:
