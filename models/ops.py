@@ -190,7 +190,10 @@ class Layout:
         if ops.symbolic:
             return ca.vertcat(*[parts[n] for n, (_, size) in self._fields.items() if size != 0])
         arrays = [(np.asarray(parts[n], float), key) for n, key in self._numpy_keys]
-        batch = np.broadcast_shapes(*(a.shape if isinstance(key[1], int) else a.shape[:-1] for a, key in arrays))
+        shapes = [a.shape if isinstance(key[1], int) else a.shape[:-1] for a, key in arrays]
+        if not any(shapes):  # one loop: no batch to broadcast over
+            return np.concatenate([a.reshape(-1) for a, _ in arrays])
+        batch = np.broadcast_shapes(*shapes)
         out = np.empty(batch + (self.size,))
         for a, key in arrays:
             out[key] = a

@@ -66,34 +66,43 @@ def step_library(model: ControllerModel) -> ctypes.CDLL:
 
 
 class PythonStep:
-    """The numpy step of :class:`Controller` behind the interface the rig loop calls."""
+    """The numpy step of :class:`Controller` behind the interface the rig loop calls.
+
+    It runs :meth:`ControllerModel.step` on numpy with the state kept as the model's vector, as
+    the compiled step does.
+    """
 
     kind = "numpy"
 
     def __init__(self, controller: Controller) -> None:
+        self._set(controller)
+        self._x: np.ndarray | None = None
+
+    def _set(self, controller: Controller) -> None:
         self.controller = controller
-        self._state: ControllerState | None = None
+        self._model, self._p = controller.model, controller.parameter_vector()
 
     def start(self, setpoint: float, pv: float, u0: float) -> None:
         """A bumpless start: the first output at ``(setpoint, pv)`` is ``u0``."""
-        self._state = self.controller.initial_state(setpoint, pv, u0=u0)
+        self._x = self.controller.state_vector(self.controller.initial_state(setpoint, pv, u0=u0))
 
     def step(self, setpoint: float, pv: float) -> tuple[float, float, float, float, float]:
         """One sample: ``(u, p, i, d, ff)`` in volts."""
-        if self._state is None:
+        if self._x is None:
             raise RuntimeError("start() the step before stepping it")
-        terms, self._state = self.controller.step_terms(self._state, setpoint, pv)
-        return float(terms.u), float(terms.p), float(terms.i), float(terms.d), float(terms.ff)
+        self._x, t = self._model.step(NUMPY, self._p, self._x, np.float64(setpoint), np.float64(pv))
+        return float(t.u), float(t.p), float(t.i), float(t.d), float(t.ff)
 
     @property
     def state(self) -> ControllerState | None:
-        return self._state
+        return None if self._x is None else self.controller.state_from_vector(self._x)
 
     def switch(self, new: Controller) -> None:
         """Take ``new`` over between two samples without a jump of the output."""
-        if self._state is not None:
-            self._state = self.controller.switch(self._state, new)
-        self.controller = new
+        state = self.state
+        if state is not None:
+            self._x = new.state_vector(self.controller.switch(state, new))
+        self._set(new)
 
 
 class CompiledStep:
