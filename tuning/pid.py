@@ -17,23 +17,26 @@ variants at once, subject to
 The command stays inside its range because the tuning model clamps it as the controller
 does (with its conditional integration): the loop in the NLP is the one closed loop of
 :mod:`piezopreload.models.loop` (:func:`tuning_loop`: the rig's and the controller's one step,
-the same the simulation, the rig executor and the generated C code run), unrolled over the
-references by ``mapaccum`` (single shooting), so IPOPT gets exact first and second derivatives
-with respect to the gains; every constraint family enters as one smooth maximum
-(Kreisselmeier-Steinhauser) per variant, so the NLP has five variables and some twenty
-constraints.
+the same the simulation, the rig executor and the generated C code run), run over the step and
+then the trajectory on one horizon (single shooting) on every plant variant; every constraint
+family enters as one smooth maximum (Kreisselmeier-Steinhauser) per variant, so the NLP has
+five variables and some twenty constraints, and IPOPT runs with exact first and second
+derivatives.
 
 The tuning model is that loop with its corners rounded (``smoothing``
-:data:`TUNING_SMOOTHING`): the slew clip's corners and the Bouc-Wen direction switch; the
-Bouc-Wen state is integrated exactly per sample as on the rig; the output clamp stays the
-controller's (a kink, active only when the command reaches its limits). No noise, no
-quantisation. The validation (:mod:`piezopreload.tuning.validate`) then runs the gains on the
-exact rig.
+:data:`TUNING_SMOOTHING`): the slew clip's corners, and the Bouc-Wen rate's ``|.|`` in one
+explicit step per sample (see :func:`~piezopreload.models.actuator.bouc_wen_step`); the output
+clamp stays the controller's (a kink, active only when the command reaches its limits). No
+noise, no quantisation. The validation (:mod:`piezopreload.tuning.validate`) then runs the
+gains on the exact rig.
 
-Where a C compiler works, the NLP's functions (objective, constraints, their derivatives and
-the Lagrangian's Hessian) are generated as C and compiled once, cached on disk by the NLP's
-definition (the study's numbers are the NLP's parameters, so another rig of the same sizes
-reuses the library), and IPOPT evaluates those.
+The derivatives by the gains are carried along the simulation (forward sensitivities of the
+one loop step, first and second order: :func:`_sensitivity_step`), so one pass over the horizon
+gives the objective, the overshoots and their gradients and Hessians (:class:`_Horizon`,
+handed to CasADi as a callback with its Jacobians). Where a C compiler works that step runs as
+C, compiled once and cached (:mod:`piezopreload.core.native`); elsewhere (``engine="plain"``)
+CasADi's virtual machine evaluates it: the same numbers, so the same iterates. The frequency
+constraints are a small CasADi expression of the gains.
 
 The starting point and the baseline is SIMC (Skogestad 2003) on a first-order-plus-dead-time
 fit of the compensated plant's response to a voltage step.
