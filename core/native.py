@@ -40,7 +40,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from piezopreload.core.errors import InternalError
+from piezopreload.core.errors import InputError, InternalError
 
 __all__ = ["ENGINE_ENV", "FLAGS", "FLAGS_LARGE", "prelude", "NativeBuildError", "cache_dir", "compiler", "engine", "enabled", "generate",
            "build", "build_from", "load", "library", "StepRunner", "step_runner", "build_stats", "reset_failures"]
@@ -267,12 +267,12 @@ class StepRunner:
     def __init__(self, step: ca.Function, name: str, flags: Sequence[str] = FLAGS) -> None:
         n_in = step.n_in()
         if step.n_out() != 2 or n_in < 2:
-            raise ValueError(f"a step takes (x, p, inputs...) and returns (x_next, y); {step.name()} has "
+            raise InputError(f"a step takes (x, p, inputs...) and returns (x_next, y); {step.name()} has "
                              f"{n_in} inputs and {step.n_out()} outputs.")
         self.nx, self.np, self.ny = step.numel_in(0), step.numel_in(1), step.numel_out(1)
         self.n_series = n_in - 2
         if step.numel_out(0) != self.nx or any(step.numel_in(i) != 1 for i in range(2, n_in)):
-            raise ValueError(f"{step.name()}: x_next must match x, and each input after p must be a scalar.")
+            raise InputError(f"{step.name()}: x_next must match x, and each input after p must be a scalar.")
         entry = f"{name}_run"
         driver = _DRIVER.format(entry=entry, fn=step.name(), sz_arg=max(step.sz_arg(), n_in),
                                 sz_res=max(step.sz_res(), 2), sz_iw=max(step.sz_iw(), 1), sz_w=max(step.sz_w(), 1),
@@ -295,7 +295,7 @@ class StepRunner:
         ``(n_steps, n_plants)`` or ``(n_steps,)`` (shared), any strides (a broadcast view is fine).
         """
         if len(series) != self.n_series:
-            raise ValueError(f"{self.name} takes {self.n_series} input series, got {len(series)}.")
+            raise InputError(f"{self.name} takes {self.n_series} input series, got {len(series)}.")
         params = np.ascontiguousarray(params, dtype=float)
         x0 = np.ascontiguousarray(x0, dtype=float)
         n_steps = int(np.shape(series[0])[0]) if series else 0
@@ -305,7 +305,7 @@ class StepRunner:
             if a.ndim == 1:
                 a = a[:, None]
             if a.ndim != 2 or a.shape[0] != n_steps or a.shape[1] not in (1, n_plants):
-                raise ValueError(f"each input series must be (n_steps,) or (n_steps, {n_plants}), got {np.shape(s)}.")
+                raise InputError(f"each input series must be (n_steps,) or (n_steps, {n_plants}), got {np.shape(s)}.")
             if a.strides[0] % 8 or a.strides[1] % 8:
                 a = a.copy()
             arrays.append(a)
@@ -313,7 +313,7 @@ class StepRunner:
             sp.append(a.strides[1] // 8 if a.shape[1] > 1 else 0)
         for arr, n, what in ((params, self.np, "params"), (x0, self.nx, "x0")):
             if arr.shape[-1:] != (n,) or arr.ndim > 2 or (arr.ndim == 2 and arr.shape[0] != n_plants):
-                raise ValueError(f"{what} must be ({n},) or ({n_plants}, {n}), got {arr.shape}.")
+                raise InputError(f"{what} must be ({n},) or ({n_plants}, {n}), got {arr.shape}.")
         out = np.empty((n_plants, self.ny, n_steps))
         x_end = np.empty((n_plants, self.nx))
         ptrs = (ctypes.c_void_p * max(len(arrays), 1))(*[a.ctypes.data for a in arrays])

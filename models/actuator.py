@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from piezopreload.core.errors import InputError
 from piezopreload.models.ops import NUMPY, Layout, Ops, absolute, clip
 
 __all__ = ["StackData", "P888_91", "RigParams", "RigState", "Rig", "PlantModel", "bouc_wen_step", "bouc_wen_increment",
@@ -376,11 +377,11 @@ class PlantModel:
 
     def __post_init__(self) -> None:
         if not (isinstance(self.n_creep, int | np.integer) and self.n_creep >= 0):
-            raise ValueError(f"PlantModel.n_creep must be an integer >= 0, got {self.n_creep!r}.")
+            raise InputError(f"PlantModel.n_creep must be an integer >= 0, got {self.n_creep!r}.")
         if not (isinstance(self.delay_samples, int | np.integer) and self.delay_samples >= 0):
-            raise ValueError(f"PlantModel.delay_samples must be an integer >= 0, got {self.delay_samples!r}.")
+            raise InputError(f"PlantModel.delay_samples must be an integer >= 0, got {self.delay_samples!r}.")
         if not (np.isfinite(self.smoothing) and 0.0 <= self.smoothing < 1.0):
-            raise ValueError(f"PlantModel.smoothing must be in [0, 1), got {self.smoothing!r}.")
+            raise InputError(f"PlantModel.smoothing must be in [0, 1), got {self.smoothing!r}.")
 
     @classmethod
     def of(cls, params: RigParams, smoothing: float = 0.0) -> PlantModel:
@@ -410,7 +411,7 @@ class PlantModel:
     def parameters(self, params: RigParams) -> Array:
         """The parameter vector of ``params`` (shape ``batch + (n,)`` for a batch of plants)."""
         if len(params.creep_tau_s) != self.n_creep or params.delay_samples != self.delay_samples:
-            raise ValueError(f"the rig has {len(params.creep_tau_s)} creep lags and {params.delay_samples} samples of "
+            raise InputError(f"the rig has {len(params.creep_tau_s)} creep lags and {params.delay_samples} samples of "
                              f"delay; this model {self.n_creep} and {self.delay_samples}.")
         p, dt = params, params.sample_period_s
         tau = 1.0 / (2.0 * np.pi * np.asarray(p.amp_bandwidth_Hz, float))

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Rig
 from piezopreload.models.controller import Controller
 from piezopreload.models.loop import LOOP_OUTPUTS, OPEN_LOOP_OUTPUTS, LoopModel, OpenLoopModel, run
@@ -218,7 +219,7 @@ def simulate(
     params = model.parameters(rig.parameter_vector, controller.parameter_vector())
     extra = np.zeros(n) if ff_extra_V is None else np.asarray(ff_extra_V, float)
     if extra.shape[:1] != (n,):
-        raise ValueError(f"ff_extra_V needs one value per sample ({n}), got shape {extra.shape}.")
+        raise InputError(f"ff_extra_V needs one value per sample ({n}), got shape {extra.shape}.")
     x0 = model.start(NUMPY, params, r[0], extra[0])
     x0 = np.broadcast_to(x0, shape + x0.shape[-1:])
     noise = np.random.default_rng(seed).standard_normal((n,) + shape)

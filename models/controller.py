@@ -34,6 +34,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from piezopreload.core.errors import InputError
 from piezopreload.models.ops import CASADI, NUMPY, Layout, Ops
 
 __all__ = ["PIDGains", "Controller", "ControllerState", "ControllerModel", "Terms", "Feedforward", "FeedforwardStep",
@@ -306,7 +307,7 @@ class Controller:
         """The inverse of :meth:`vector` (a batch, or one loop's flat vector)."""
         x = np.asarray(x, float)
         if x.shape[-1:] != (self.model.state.size,):
-            raise ValueError(f"expected a state of {self.model.state.size} numbers, got shape {x.shape}.")
+            raise InputError(f"expected a state of {self.model.state.size} numbers, got shape {x.shape}.")
         s = self.model.state.unpack(x)
         ff = None if self.feedforward is None else np.array(s.ff)
         return ControllerState(np.array(s.integral_V), np.array(s.e_prev_N), np.array(s.pv_prev_N),
@@ -398,7 +399,7 @@ def controller_functions(model: ControllerModel, params: ArrayLike | None = None
     else:
         values = np.asarray(params, float)
         if values.shape != (model.params.size,):
-            raise ValueError(f"params must be {model.params.size} numbers, got shape {values.shape}.")
+            raise InputError(f"params must be {model.params.size} numbers, got shape {values.shape}.")
         p, extra_in, extra_names = ca.DM(values), [], []
     nxt, t = model.step(CASADI, p, x, sp, pv)
     step = ca.Function(f"{prefix}_step_fn", [x, sp, pv, *extra_in], [t.u, t.p, t.i, t.d, t.ff, nxt],

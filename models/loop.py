@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezopreload.core import native
+from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import PlantModel
 from piezopreload.models.controller import ControllerModel
 from piezopreload.models.ops import CASADI, NUMPY, Layout, Ops
@@ -160,19 +161,19 @@ def run(model: LoopModel | OpenLoopModel, params: Array, x0: Array, series: dict
     fails; ``"c"`` insists; ``"numpy"`` forces the reference path.
     """
     if engine not in ENGINES:
-        raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}.")
+        raise InputError(f"engine must be one of {ENGINES}, got {engine!r}.")
     params, x0 = np.asarray(params, float), np.asarray(x0, float)
     batch = np.broadcast_shapes(params.shape[:-1], x0.shape[:-1])
     unknown = sorted(set(series) - set(model.inputs))
     if unknown:
-        raise ValueError(f"unknown input series {unknown}; {model.name} takes {list(model.inputs)}.")
+        raise InputError(f"unknown input series {unknown}; {model.name} takes {list(model.inputs)}.")
     columns = []
     for name in model.inputs:
         s = np.asarray(series.get(name, 0.0), float)
         if s.ndim == 0:
             s = np.broadcast_to(s, (n_steps,))
         if s.shape[0] != n_steps:
-            raise ValueError(f"series {name!r} has {s.shape[0]} samples, expected {n_steps}.")
+            raise InputError(f"series {name!r} has {s.shape[0]} samples, expected {n_steps}.")
         columns.append(s)
     use_c = engine == "c" or (engine == "auto" and native.enabled() and native.engine() != "numpy")
     if use_c:

@@ -27,6 +27,8 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from piezopreload.core.errors import InputError
+
 __all__ = ["Ops", "NUMPY", "CASADI", "Layout", "clip", "absolute", "softplus"]
 
 
@@ -129,9 +131,9 @@ class Layout:
         start = 0
         for field_name, size in fields:
             if field_name in self._fields:
-                raise ValueError(f"layout {name!r} names {field_name!r} twice.")
+                raise InputError(f"layout {name!r} names {field_name!r} twice.")
             if size is not None and (int(size) != size or size < 0):
-                raise ValueError(f"layout {name!r}: field {field_name!r} needs a size >= 0 or None, got {size!r}.")
+                raise InputError(f"layout {name!r}: field {field_name!r} needs a size >= 0 or None, got {size!r}.")
             self._fields[field_name] = (start, None if size is None else int(size))
             start += 1 if size is None else int(size)
         self.size = start
@@ -164,7 +166,7 @@ class Layout:
         """Where scalar field ``name`` sits."""
         start, size = self._fields[name]
         if size is not None:
-            raise ValueError(f"{self.name}.{name} is a vector of {size}; take its slice().")
+            raise InputError(f"{self.name}.{name} is a vector of {size}; take its slice().")
         return start
 
     def get(self, x: Any, name: str) -> Any:
@@ -178,7 +180,7 @@ class Layout:
         if isinstance(x, ca.SX | ca.MX | ca.DM):
             return SimpleNamespace(**{n: self.get(x, n) for n in self._fields})
         if np.shape(x)[-1:] != (self.size,):
-            raise ValueError(f"{self.name} vector must end in an axis of {self.size}, got shape {np.shape(x)}.")
+            raise InputError(f"{self.name} vector must end in an axis of {self.size}, got shape {np.shape(x)}.")
         return SimpleNamespace(**{n: x[key] for n, key in self._numpy_keys})
 
     def pack(self, ops: Ops, **parts: Any) -> Any:
@@ -186,7 +188,7 @@ class Layout:
         missing = [n for n in self._fields if n not in parts]
         extra = sorted(set(parts) - set(self._fields))
         if missing or extra:
-            raise ValueError(f"{self.name}: missing fields {missing}, unknown {extra}.")
+            raise InputError(f"{self.name}: missing fields {missing}, unknown {extra}.")
         if ops.symbolic:
             return ca.vertcat(*[parts[n] for n, (_, size) in self._fields.items() if size != 0])
         arrays = [(np.asarray(parts[n], float), key) for n, key in self._numpy_keys]

@@ -29,6 +29,7 @@ import casadi as ca
 import numpy as np
 
 from piezopreload.core import native
+from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import PlantModel, Rig, RigParams
 from piezopreload.models.controller import Controller, ControllerModel, ControllerState, controller_functions
 from piezopreload.models.ops import CASADI, NUMPY
@@ -123,7 +124,7 @@ class CompiledStep:
 
     def _set(self, controller: Controller) -> None:
         if controller.model != self._model:
-            raise ValueError(f"this compiled step is for {self._model}, the controller is {controller.model}")
+            raise InputError(f"this compiled step is for {self._model}, the controller is {controller.model}")
         self.controller = controller
         self._p = np.ascontiguousarray(controller.parameter_vector())
         self._ptr = (self._x.ctypes.data, self._p.ctypes.data, self._out.ctypes.data)
@@ -227,7 +228,7 @@ class PlantStep:
 
     def __init__(self, params: RigParams, prefer: str = "c") -> None:
         if params.batch_shape:
-            raise ValueError("a plant step runs one plant, not a batch")
+            raise InputError("a plant step runs one plant, not a batch")
         self.rig = Rig(params)
         self.model = self.rig.model
         self._p = np.ascontiguousarray(self.rig.parameter_vector, dtype=float)

@@ -54,7 +54,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from piezopreload.core import native
-from piezopreload.core.errors import InfeasibleError
+from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.models.actuator import PlantModel, Rig, RigParams
 from piezopreload.models.closedloop import PAPER_BAND_N, Reference
 from piezopreload.models.controller import ControllerModel, PIDGains
@@ -749,9 +749,9 @@ def tune_pid(
     the same iterates and optimum; the result says which ran and how long the build took.
     """
     if engine not in ENGINES:
-        raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}.")
+        raise InputError(f"engine must be one of {ENGINES}, got {engine!r}.")
     if starts < 1:
-        raise ValueError(f"starts must be >= 1, got {starts}.")
+        raise InputError(f"starts must be >= 1, got {starts}.")
     t0 = time.perf_counter()
     rig = Rig(params)
     fopdt = fit_fopdt(rig, feedforward if feedforward is not None else _ZeroFF())
