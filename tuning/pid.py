@@ -573,8 +573,9 @@ class _Horizon:
         phi = np.sqrt(e * e + 1e-4)
         d1, dd = e / phi, 1e-4 / phi**3  # phi' and phi''
         obj = np.sum(weight * phi, axis=-1)
-        obj_g = -np.einsum("k,vk,vik->vi", weight, d1, dy)
-        obj_h = (np.einsum("k,vk,vik,vjk->vij", weight, dd, dy, dy) - np.einsum("k,vk,vijk->vij", weight, d1, d2))
+        w1, w2 = weight * d1, weight * dd  # (variants, samples)
+        obj_g = -np.matmul(dy, w1[:, :, None])[..., 0]
+        obj_h = np.matmul(dy * w2[:, None, :], dy.transpose(0, 2, 1)) - np.matmul(d2, w1[:, None, :, None])[..., 0]
         # the step's overshoot: a Kreisselmeier-Steinhauser maximum of sign (y - r); samples before
         # the first change (sign 0) drop out
         o = sign * (y - r) + (np.abs(sign) - 1.0) * 1e3
@@ -584,9 +585,10 @@ class _Horizon:
         ks = m[:, 0] + np.log(total[:, 0]) / _RHO_OVERSHOOT
         pi = ex / total
         s_dy = sign[None, None, :] * dy
-        ks_g = np.einsum("vk,vik->vi", pi, s_dy)
-        ks_h = (np.einsum("vk,vijk->vij", pi * sign, d2)
-                + _RHO_OVERSHOOT * (np.einsum("vk,vik,vjk->vij", pi, s_dy, s_dy) - np.einsum("vi,vj->vij", ks_g, ks_g)))
+        ks_g = np.matmul(s_dy, pi[:, :, None])[..., 0]
+        ks_h = (np.matmul(d2, (pi * sign)[:, None, :, None])[..., 0]
+                + _RHO_OVERSHOOT * (np.matmul(s_dy * pi[:, None, :], s_dy.transpose(0, 2, 1))
+                                    - ks_g[:, :, None] * ks_g[:, None, :]))
         self._key = key
         self._value = {"objective": obj, "objective_g": obj_g, "objective_h": obj_h,
                        "overshoot": ks, "overshoot_g": ks_g, "overshoot_h": ks_h}
