@@ -105,6 +105,18 @@ def test_the_compiled_loop_runs_the_numpy_loop(batch):
 
 
 @needs_cc
+@pytest.mark.parametrize("delay", [0, 2])
+def test_other_structures_compile_to_the_same_numbers(delay):
+    """No delay, a two-sample delay line, two creep lags and no feedforward: other layouts, other code."""
+    rig = Rig(RigParams(noise_N=0.2, delay_samples=delay, creep_tau_s=(0.05, 0.5)))
+    c = Controller(PIDGains(Kc=0.5, Ti_s=0.05, Td_s=0.002, Tf_s=0.01), rig.dt_s)
+    ref = Reference.step(25.0, 70.0, 0.05, 0.5)
+    fast, slow = simulate(rig, c, ref, seed=1, engine="c"), simulate(rig, c, ref, seed=1, engine="numpy")
+    for name in LOOP_OUTPUTS.names:
+        np.testing.assert_allclose(getattr(fast, name), getattr(slow, name), rtol=0, atol=1e-9, err_msg=name)
+
+
+@needs_cc
 def test_the_compiled_open_loop_runs_the_numpy_open_loop():
     rig = Rig(RigParams(noise_N=0.2))
     command = np.concatenate([np.linspace(0.0, 160.0, 900), np.full(400, 160.0), np.full(600, -45.0),
