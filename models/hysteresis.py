@@ -23,6 +23,7 @@ outputs of shape ``(..., N, n)``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from types import SimpleNamespace
 from typing import Any, NamedTuple
 
@@ -31,6 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from piezopreload.core.errors import InputError, InternalError
+from piezopreload.models.ops import CASADI, NUMPY, Layout, Ops
 
 __all__ = [
     "NotInvertibleError",
@@ -40,6 +42,8 @@ __all__ = [
     "deadzone",
     "ClassicalPI",
     "InverseClassicalPI",
+    "InversePIStep",
+    "InverseModifiedPIStep",
     "casadi_inverse_step",
     "AsymmetricPI",
     "DeadZone",
@@ -335,23 +339,62 @@ class InverseClassicalPI:
         return play(z, self.thresholds, state) @ self.weights
 
     def step(self, state: NDArray, target: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        z = play_step(state, np.asarray(target, dtype=float) - self.forward.offset, self.thresholds)
-        return z @ self.weights, z
+        """One sample (numpy, batched): ``(voltage, next operator states)``; :meth:`realtime`'s step."""
+        structure, params = self.realtime()
+        u, z = structure.step(NUMPY, params, np.asarray(state, dtype=float), np.asarray(target, dtype=float))
+        return np.asarray(u, dtype=float), np.asarray(z, dtype=float)
 
     def casadi_step(self, state: Any, target: Any) -> tuple[Any, Any]:
         """:meth:`step` on CasADi expressions (one loop): ``(voltage, next operator states)``."""
-        return casadi_inverse_step(state, target, self.forward.offset, ca.DM(self.thresholds), ca.DM(self.weights))
+        structure, params = self.realtime()
+        return structure.step(CASADI, ca.DM(params), state, target)
+
+    def realtime(self) -> tuple[InversePIStep, NDArray[np.float64]]:
+        """The controller's feedforward component: its step's structure and its parameter vector."""
+        structure = InversePIStep(self.thresholds.size)
+        return structure, structure.params.numbers(offset_N=self.forward.offset, thresholds=self.thresholds,
+                                                   weights=self.weights)
+
+
+@dataclass(frozen=True)
+class InversePIStep:
+    """One sample of an inverse classical P-I model of ``n_operators``, over an ops table.
+
+    ``v = sum_k w'_k z_k`` with ``z_k = max(O - offset - r'_k, min(O - offset + r'_k, z_k^-))``
+    (eqs. (14), (19)-(20)); the model's numbers are a parameter vector (:attr:`params`), so one
+    compiled step serves every model with as many operators. This is the feedforward component
+    of :class:`~piezopreload.models.controller.ControllerModel`: ``kind``, ``params``,
+    ``n_states``, ``rest_state`` and ``step`` are what a feedforward component supplies.
+    """
+
+    n_operators: int
+    kind: str = field(default="inverse-classical-pi", init=False)
+
+    @cached_property
+    def params(self) -> Layout:
+        return Layout("inverse P-I parameters", [("offset_N", None), ("thresholds", self.n_operators),
+                                                 ("weights", self.n_operators)])
+
+    @property
+    def n_states(self) -> int:
+        return self.n_operators
+
+    def rest_state(self, ops: Ops, params: Any) -> Any:
+        """Every operator at rest (0)."""
+        return ops.repeat(0.0, self.n_operators)
+
+    def step(self, ops: Ops, params: Any, state: Any, target: Any) -> tuple[Any, Any]:
+        """``(voltage, next operator states)`` for the force ``target``."""
+        p = self.params.unpack(params)
+        v = ops.expand(target - p.offset_N)
+        z = ops.maximum(v - p.thresholds, ops.minimum(v + p.thresholds, state))
+        return ops.dot(z, p.weights), z
 
 
 def casadi_inverse_step(state: Any, target: Any, offset: Any, thresholds: Any, weights: Any) -> tuple[Any, Any]:
-    """One sample of an inverse classical P-I model on CasADi expressions: ``(voltage, next states)``.
-
-    The model's numbers may be constants (:meth:`InverseClassicalPI.casadi_step`) or symbols,
-    so one compiled function serves every model with as many operators.
-    """
-    v = target - offset
-    z = ca.fmax(v - thresholds, ca.fmin(v + thresholds, state))
-    return ca.dot(weights, z), z
+    """:class:`InversePIStep` on CasADi expressions with the model's numbers given one by one."""
+    n = int(thresholds.numel()) if hasattr(thresholds, "numel") else len(thresholds)
+    return InversePIStep(n).step(CASADI, ca.vertcat(offset, thresholds, weights), state, target)
 
 
 # --------------------------------------------------------------------------------------
@@ -581,8 +624,51 @@ class InverseModifiedPI:
         return self.play_inverse(z, state)
 
     def step(self, state: NDArray, target: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        z = self.shaper_inverse(np.asarray(target, dtype=float) - self.forward.offset)
-        return self.play_inverse.step(state, z)
+        """One sample (numpy, batched): ``(voltage, next operator states)``; :meth:`realtime`'s step."""
+        structure, params = self.realtime()
+        u, z = structure.step(NUMPY, params, np.asarray(state, dtype=float), np.asarray(target, dtype=float))
+        return np.asarray(u, dtype=float), np.asarray(z, dtype=float)
+
+    def realtime(self) -> tuple[InverseModifiedPIStep, NDArray[np.float64]]:
+        """The controller's feedforward component: its step's structure and its parameter vector."""
+        structure = InverseModifiedPIStep(self.play_inverse.thresholds.size, self.shaper_inverse.thresholds.size)
+        return structure, structure.params.numbers(
+            offset_N=self.forward.offset, deadzone_thresholds=self.shaper_inverse.thresholds,
+            deadzone_weights=self.shaper_inverse.weights, bias=self.play_inverse.forward.offset,
+            thresholds=self.play_inverse.thresholds, weights=self.play_inverse.weights)
+
+
+@dataclass(frozen=True)
+class InverseModifiedPIStep:
+    """One sample of an inverse modified P-I model, over an ops table: the inverse dead-zone
+    superposition of ``O - offset``, less the bias, through the inverse P-I operators (as
+    :class:`InversePIStep`)."""
+
+    n_operators: int
+    n_deadzone: int
+    kind: str = field(default="inverse-modified-pi", init=False)
+
+    @cached_property
+    def params(self) -> Layout:
+        return Layout("inverse modified P-I parameters", [
+            ("offset_N", None), ("deadzone_thresholds", self.n_deadzone), ("deadzone_weights", self.n_deadzone),
+            ("bias", None), ("thresholds", self.n_operators), ("weights", self.n_operators)])
+
+    @property
+    def n_states(self) -> int:
+        return self.n_operators
+
+    def rest_state(self, ops: Ops, params: Any) -> Any:
+        return ops.repeat(0.0, self.n_operators)
+
+    def step(self, ops: Ops, params: Any, state: Any, target: Any) -> tuple[Any, Any]:
+        p = self.params.unpack(params)
+        x = ops.expand(target - p.offset_N) - p.deadzone_thresholds
+        d = p.deadzone_thresholds
+        shaped = ops.where(d > 0, ops.maximum(x, 0.0), ops.where(d < 0, ops.minimum(x, 0.0), x + d))
+        v = ops.expand(ops.dot(shaped, p.deadzone_weights) - p.bias)
+        z = ops.maximum(v - p.thresholds, ops.minimum(v + p.thresholds, state))
+        return ops.dot(z, p.weights), z
 
 
 # --------------------------------------------------------------------------------------
