@@ -12,7 +12,8 @@ F_a(t) (with the screw speed n(t)), the schedule F_p(t) solves, on the profile's
                 |F_p,k+1 - F_p,k| <= slew dt_k          (the stacks' force slew)
 
 with K the double nut's exact rigidity under load (:meth:`BallScrew.nut_loads`, the same
-formulas on CasADi expressions). Where the speed is zero the friction energy is zero; a
+formulas on CasADi expressions) and the lift-off row the catalogues' rule, as in the design
+(design/preload.py). Where the speed is zero the friction energy is zero; a
 profile without speeds weighs the drag torque by time instead (N m s). The schedule is
 non-causal (it ramps up before a cut begins, as a CNC program knows its next pass); the
 slew limit decides how early.
@@ -32,7 +33,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from piezopreload.models.ballscrew import CASADI_OPS, LIFT_OFF_RATIO, BallScrew, _rigidity, load_share
+from piezopreload.models.ballscrew import CASADI_OPS, LIFT_OFF_RATIO, BallScrew, _rigidity, nut_forces
 
 __all__ = ["LoadProfile", "ScheduleSpec", "PreloadSchedule", "schedule_preload", "example_profile"]
 
@@ -170,8 +171,9 @@ class PreloadSchedule:
 
 def _rigidity_function(screw: BallScrew) -> ca.Function:
     F, Fa = ca.SX.sym("F"), ca.SX.sym("Fa")
-    k = _rigidity(CASADI_OPS, screw.axial_constant_um, screw.body_stiffness_N_per_um, F,
-                  load_share(ca.fabs(Fa) / F, CASADI_OPS))
+    c_h, s = screw.axial_constant_um, screw.structural_compliance_um_per_N
+    f_loaded, f_unloaded = nut_forces(ca.fabs(Fa) / F, s * F ** (1.0 / 3.0) / c_h, CASADI_OPS)
+    k = _rigidity(CASADI_OPS, c_h, s, screw.accuracy_factor, F * f_loaded, F * f_unloaded)
     return ca.Function("rigidity", [F, Fa], [k])
 
 

@@ -33,12 +33,17 @@ its state on each side of zero, so it is integrated *exactly* over each sample.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["StackData", "P888_91", "RigParams", "RigState", "Rig", "bouc_wen_increment", "loop_width", "reach_N"]
+from piezopreload.core.errors import InputError
+from piezopreload.models.ops import NUMPY, Layout, Ops, absolute, clip
+
+__all__ = ["StackData", "P888_91", "RigParams", "RigState", "Rig", "PlantModel", "bouc_wen_step", "bouc_wen_increment",
+           "loop_width", "reach_N", "ABS_SCALE_V"]
 
 Array = NDArray[np.float64]
 
@@ -289,34 +294,183 @@ class RigParams:
         return cls(**kwargs)
 
 
-def bouc_wen_increment(h: ArrayLike, dv: ArrayLike, alpha: ArrayLike, beta: ArrayLike, gamma: ArrayLike) -> Array:
-    """Exact solution of ``dh/dv = alpha - beta sgn(dv) h - gamma |h|`` over a monotone ``dv``.
+#: the voltage scale of the Bouc-Wen rate's rounded ``|dv|`` per unit of smoothing: the tuning's
+#: smoothing 0.02 rounds it over 1 mV (see :func:`bouc_wen_step`)
+ABS_SCALE_V = 0.05
 
-    Along the direction of travel ``s = sgn(dv)``, ``g = s h`` obeys
-    ``dg/du = alpha - (beta + gamma sgn(g)) g`` with ``u = |dv|``: linear on each side of
-    ``g = 0``, so ``g`` relaxes exponentially toward ``alpha / (beta + gamma sgn g)``. A
-    negative ``g`` first crosses zero (at ``u*``) and then follows the positive-side solution.
+
+def bouc_wen_step(ops: Ops, h: Any, dv: Any, alpha: Any, beta: Any, gamma: Any, smoothing: float = 0.0) -> Any:
+    """The Bouc-Wen state after a monotone voltage increment ``dv``, on numpy or CasADi (``ops``).
+
+    ``dh/dv = alpha - beta sgn(dv) h - gamma |h|``. Exactly (``smoothing = 0``, the rig): along
+    the direction of travel ``s = sgn(dv)``, ``g = s h`` obeys ``dg/du = alpha - (beta + gamma
+    sgn(g)) g`` with ``u = |dv|``, linear on each side of ``g = 0``, so ``g`` relaxes exponentially
+    toward ``alpha / (beta + gamma sgn g)``. A negative ``g`` first crosses zero (at ``u*``) and
+    then follows the positive-side solution. The new state is ``h + s (g - g0)``.
+
+    Smoothed (``smoothing > 0``, for an optimiser): one explicit step of the rate,
+    ``h + alpha dv - beta |dv| h - gamma dv |h|``, with both ``|.|`` rounded as
+    ``sqrt(x^2 + eps^2)``, ``eps = smoothing * ABS_SCALE_V`` (1 mV at the tuning's 0.02). Its
+    increment agrees with the exact one to first order in ``dv`` (within 1 % of it at the paper's
+    slew limit). The exact flow with its switches rounded was tried as the tuning model: from
+    the same start IPOPT took another path and ended, after 150 iterations, among small jumps of
+    the gradient without converging.
     """
-    h, dv = np.broadcast_arrays(np.asarray(h, float), np.asarray(dv, float))
-    alpha, beta, gamma = (np.asarray(x, float) for x in (alpha, beta, gamma))
-    s = np.where(dv < 0, -1.0, 1.0)
-    u = np.abs(dv)
+    if smoothing:
+        eps = smoothing * ABS_SCALE_V
+        return h + alpha * dv - beta * absolute(ops, dv, eps) * h - gamma * dv * absolute(ops, h, eps)
+    s = ops.where(dv < 0, -1.0, 1.0)
+    u = ops.fabs(dv)
     g0 = s * h
     c_pos = beta + gamma
     c_neg = beta - gamma  # > 0 by the parameter check
 
-    def relax(g: Array, c: Array, du: Array) -> Array:
+    def relax(g: Any, c: Any, du: Any) -> Any:
         # g(u) = alpha/c + (g - alpha/c) exp(-c u), written stably for small c u
-        return g * np.exp(-c * du) - alpha * np.expm1(-c * du) / c
+        em1 = ops.expm1(-c * du)
+        return g * (em1 + 1.0) - alpha * em1 / c
 
     # distance to the zero crossing for g0 < 0: g(u*) = 0  =>  u* = log1p(-g0 c / alpha) / c
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u_star = np.where(g0 < 0, np.log1p(-g0 * c_neg / alpha) / c_neg, 0.0)
-    crosses = (g0 < 0) & (u > u_star)
+    # (g0 <= 0 inside the logarithm, so the branch not taken stays finite, its derivative too)
+    u_star = ops.log1p(-ops.minimum(g0, 0.0) * c_neg / alpha) / c_neg
+    negative = g0 < 0
+    crosses = ops.logical_and(negative, u > u_star)
     g_neg = relax(g0, c_neg, u)  # stays negative (valid when not crossing)
-    g_pos = relax(np.where(crosses, 0.0, g0), c_pos, np.where(crosses, u - u_star, u))
-    g = np.where(g0 < 0, np.where(crosses, g_pos, g_neg), g_pos)
-    return s * g
+    g_pos = relax(ops.where(crosses, 0.0, g0), c_pos, ops.where(crosses, u - u_star, u))
+    g = ops.where(negative, ops.where(crosses, g_pos, g_neg), g_pos)
+    return h + s * (g - g0)
+
+
+def bouc_wen_increment(h: ArrayLike, dv: ArrayLike, alpha: ArrayLike, beta: ArrayLike, gamma: ArrayLike) -> Array:
+    """:func:`bouc_wen_step` on numpy arrays, exact: the Bouc-Wen state after the increment ``dv``."""
+    h, dv = np.broadcast_arrays(np.asarray(h, float), np.asarray(dv, float))
+    alpha, beta, gamma = (np.asarray(x, float) for x in (alpha, beta, gamma))
+    return np.asarray(bouc_wen_step(NUMPY, h, dv, alpha, beta, gamma), float)
+
+
+@dataclass(frozen=True)
+class PlantModel:
+    """The rig's one step, written once over an ops table, with named parameters and state.
+
+    The structure (how many creep lags, how many samples of delay, how smooth the corners)
+    fixes the layouts; the numbers are a parameter vector (:meth:`parameters`), so one compiled
+    step serves every plant of that structure. Every function takes ``ops`` and runs on numpy
+    (a batch in the leading axes) or on CasADi expressions:
+
+    * :meth:`force`: the true preload force of a state;
+    * :meth:`step`: one sample, from the command written at this tick: delay line, amplifier
+      (range, first-order bandwidth, slew limit), truth Bouc-Wen hysteresis, creep;
+    * :meth:`measure`: the A/D reading of a force for a standard normal draw ``z`` (noise,
+      16-bit quantisation, range clip); the smooth model reads the force unquantised (a
+      staircase has no derivative to offer an optimiser);
+    * :meth:`rest_state`: at rest at a voltage, creep settled.
+
+    ``smoothing`` (0: the exact rig) rounds the slew limit's corners over that fraction of the
+    limit and the Bouc-Wen direction switch over ``smoothing * ABS_SCALE_V`` volts, for the
+    tuning NLP; the amplifier's range clip stays exact (the controller's clamp keeps the command
+    inside it).
+    """
+
+    n_creep: int
+    delay_samples: int = 1
+    smoothing: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.n_creep, int | np.integer) and self.n_creep >= 0):
+            raise InputError(f"PlantModel.n_creep must be an integer >= 0, got {self.n_creep!r}.")
+        if not (isinstance(self.delay_samples, int | np.integer) and self.delay_samples >= 0):
+            raise InputError(f"PlantModel.delay_samples must be an integer >= 0, got {self.delay_samples!r}.")
+        if not (np.isfinite(self.smoothing) and 0.0 <= self.smoothing < 1.0):
+            raise InputError(f"PlantModel.smoothing must be in [0, 1), got {self.smoothing!r}.")
+
+    @classmethod
+    def of(cls, params: RigParams, smoothing: float = 0.0) -> PlantModel:
+        """The structure of the rig ``params``."""
+        return cls(len(params.creep_tau_s), int(params.delay_samples), float(smoothing))
+
+    @cached_property
+    def state(self) -> Layout:
+        """``v_amp`` amplifier output (V), ``h`` Bouc-Wen state (V), ``creep`` the creep chain's
+        lagged strokes (um), ``pending`` the commands on their way to the amplifier (V, oldest first)."""
+        return Layout("plant state", [("v_amp", None), ("h", None), ("creep", self.n_creep),
+                                      ("pending", self.delay_samples)])
+
+    @cached_property
+    def params(self) -> Layout:
+        """The step's numbers, derived once from :class:`RigParams` (per sample where it says so)."""
+        return Layout("plant parameters", [
+            ("bolt_preload_N", None), ("keff_N_per_um", None), ("stroke_um_per_V", None), ("bw_kappa", None),
+            ("amp_v_min_V", None), ("amp_v_max_V", None),
+            ("amp_fraction", None),  # of the gap to the target the amplifier closes per sample
+            ("slew_V_per_sample", None),
+            ("bw_alpha", None), ("bw_beta_per_V", None), ("bw_gamma_per_V", None),
+            ("creep_per_decade", None), ("creep_decay", self.n_creep),  # per sample
+            ("noise_N", None), ("adc_lsb_N", None), ("adc_full_scale_N", None),
+        ])
+
+    def parameters(self, params: RigParams) -> Array:
+        """The parameter vector of ``params`` (shape ``batch + (n,)`` for a batch of plants)."""
+        if len(params.creep_tau_s) != self.n_creep or params.delay_samples != self.delay_samples:
+            raise InputError(f"the rig has {len(params.creep_tau_s)} creep lags and {params.delay_samples} samples of "
+                             f"delay; this model {self.n_creep} and {self.delay_samples}.")
+        p, dt = params, params.sample_period_s
+        tau = 1.0 / (2.0 * np.pi * np.asarray(p.amp_bandwidth_Hz, float))
+        decay = np.exp(-dt / np.asarray(p.creep_tau_s, float))
+        return self.params.numbers(
+            bolt_preload_N=p.bolt_preload_N, keff_N_per_um=p.effective_stiffness_N_per_um,
+            stroke_um_per_V=p.stroke_um_per_V, bw_kappa=p.bw_kappa, amp_v_min_V=p.amp_v_min_V,
+            amp_v_max_V=p.amp_v_max_V, amp_fraction=-np.expm1(-dt / tau), slew_V_per_sample=p.slew_V_per_s * dt,
+            bw_alpha=p.bw_alpha, bw_beta_per_V=p.bw_beta_per_V, bw_gamma_per_V=p.bw_gamma_per_V,
+            creep_per_decade=p.creep_per_decade, creep_decay=np.broadcast_to(decay, p.batch_shape + decay.shape),
+            noise_N=p.noise_N, adc_lsb_N=p.adc_lsb_N, adc_full_scale_N=p.adc_full_scale_N)
+
+    # ---- the chain ---------------------------------------------------------------------------
+    def stroke(self, ops: Ops, p: Any, v: Any, h: Any) -> Any:
+        """Hysteretic free stroke (um) of the stacks at amplifier voltage ``v`` (``p`` unpacked)."""
+        return p.stroke_um_per_V * (v + p.bw_kappa * v**2 / 100.0 - h)
+
+    def rest_state(self, ops: Ops, params: Any, v0_V: Any = 0.0) -> Any:
+        """At rest at ``v0_V`` long enough for creep to have settled, the loop's branch reset."""
+        p = self.params.unpack(params)
+        x = self.stroke(ops, p, v0_V, 0.0)
+        return self.state.pack(ops, v_amp=v0_V, h=0.0, creep=ops.repeat(x, self.n_creep),
+                               pending=ops.repeat(v0_V, self.delay_samples))
+
+    def force(self, ops: Ops, params: Any, state: Any) -> Any:
+        """The true preload force (N) in ``state``: ``F_bolt + k_eff (x + sum c (creep - x))``."""
+        p, s = self.params.unpack(params), self.state.unpack(state)
+        x = self.stroke(ops, p, s.v_amp, s.h)
+        x_total = x + ops.sum(ops.expand(p.creep_per_decade) * (s.creep - ops.expand(x)))
+        return p.bolt_preload_N + p.keff_N_per_um * x_total
+
+    def step(self, ops: Ops, params: Any, state: Any, command_V: Any) -> Any:
+        """The state one sample later; ``command_V`` is written to the D/A at this tick."""
+        p, s = self.params.unpack(params), self.state.unpack(state)
+        if self.delay_samples:
+            u = ops.first(s.pending)
+            pending = ops.shift_in(s.pending, command_V)
+        else:
+            u, pending = command_V, s.pending
+        target = clip(ops, u, p.amp_v_min_V, p.amp_v_max_V)
+        dv = (target - s.v_amp) * p.amp_fraction
+        dv = clip(ops, dv, -p.slew_V_per_sample, p.slew_V_per_sample, self.smoothing)
+        v = s.v_amp + dv
+        h = bouc_wen_step(ops, s.h, dv, p.bw_alpha, p.bw_beta_per_V, p.bw_gamma_per_V, self.smoothing)
+        x = ops.expand(self.stroke(ops, p, v, h))
+        creep = x + (s.creep - x) * p.creep_decay
+        return self.state.pack(ops, v_amp=v, h=h, creep=creep, pending=pending)
+
+    def measure(self, ops: Ops, params: Any, force_N: Any, z: Any) -> Any:
+        """The A/D reading of ``force_N`` for the standard normal draw ``z``: noise, quantisation, range.
+
+        Quantisation rounds half up (``floor(x + 1/2)``) on both tables alike.
+        """
+        p = self.params.unpack(params)
+        noisy = force_N + p.noise_N * z
+        if self.smoothing:
+            return noisy
+        lsb = p.adc_lsb_N
+        return clip(ops, ops.floor(noisy / lsb + 0.5) * lsb, -p.adc_full_scale_N, p.adc_full_scale_N - lsb)
 
 
 @dataclass(frozen=True, eq=False)
@@ -325,7 +479,8 @@ class RigState:
 
     ``v_amp`` amplifier output (V); ``h`` Bouc-Wen state (V); ``creep`` the lagged strokes of
     the creep chain (um, last axis one per time constant); ``pending`` the commands on their
-    way to the amplifier (V, last axis ``delay_samples`` long, oldest first).
+    way to the amplifier (V, last axis ``delay_samples`` long, oldest first). The fields of
+    :attr:`PlantModel.state`.
     """
 
     v_amp: Array
@@ -336,7 +491,10 @@ class RigState:
 
 @dataclass(frozen=True, eq=False)
 class Rig:
-    """The simulated reference rig: ``step`` advances one sample, ``measure`` reads the A/D."""
+    """The simulated reference rig: ``step`` advances one sample, ``measure`` reads the A/D.
+
+    The numpy face of :class:`PlantModel` (exact, no smoothing) for one plant or a batch.
+    """
 
     params: RigParams = field(default_factory=RigParams)
 
@@ -344,65 +502,49 @@ class Rig:
     def dt_s(self) -> float:
         return self.params.sample_period_s
 
+    @cached_property
+    def model(self) -> PlantModel:
+        return PlantModel.of(self.params)
+
+    @cached_property
+    def parameter_vector(self) -> Array:
+        """:meth:`PlantModel.parameters` of this rig (batch leading)."""
+        return self.model.parameters(self.params)
+
+    def vector(self, state: RigState) -> Array:
+        """``state`` as the flat vector of :attr:`PlantModel.state`."""
+        return self.model.state.numbers(v_amp=state.v_amp, h=state.h, creep=state.creep, pending=state.pending)
+
+    def state_from_vector(self, x: Array) -> RigState:
+        s = self.model.state.unpack(np.asarray(x, float))
+        return RigState(np.array(s.v_amp), np.array(s.h), np.array(s.creep), np.array(s.pending))
+
     def initial_state(self, batch: tuple[int, ...] = (), v0_V: float = 0.0) -> RigState:
         """At rest at ``v0_V`` long enough for creep to have settled, the loop's branch reset.
 
         A rest state at 0 V with ``h = 0`` is the virgin state a P-I model also starts from.
         """
-        p = self.params
-        shape = np.broadcast_shapes(batch, p.batch_shape)
-        v = np.full(shape, float(v0_V))
-        h = np.zeros(shape)
-        x = self._stroke(v, h)
-        creep = np.repeat(x[..., None], len(p.creep_tau_s), axis=-1)
-        pending = np.full(shape + (p.delay_samples,), float(v0_V))
-        return RigState(v, h, creep, pending)
+        x = self.model.rest_state(NUMPY, self.parameter_vector, float(v0_V))
+        shape = np.broadcast_shapes(batch, self.params.batch_shape)
+        return self.state_from_vector(np.broadcast_to(x, shape + x.shape[-1:]))
 
-    # ---- the chain -----------------------------------------------------------------------
     def _stroke(self, v: Array, h: Array) -> Array:
         """Hysteretic free stroke (um) of the stacks at amplifier voltage ``v``."""
-        p = self.params
-        return np.asarray(p.stroke_um_per_V) * (v + np.asarray(p.bw_kappa) * v**2 / 100.0 - h)
-
-    def _creep_gains(self) -> Array:
-        return np.asarray(self.params.creep_per_decade, float)[..., None] * np.ones(len(self.params.creep_tau_s))
+        return np.asarray(self.model.stroke(NUMPY, self.model.params.unpack(self.parameter_vector), v, h))
 
     def force(self, state: RigState) -> Array:
         """The true preload force (N) in state ``state``."""
-        p = self.params
-        x = self._stroke(state.v_amp, state.h)
-        x_total = x + np.sum(self._creep_gains() * (state.creep - x[..., None]), axis=-1)
-        return np.asarray(p.bolt_preload_N) + p.effective_stiffness_N_per_um * x_total
+        return np.asarray(self.model.force(NUMPY, self.parameter_vector, self.vector(state)))
 
     def step(self, state: RigState, command_V: ArrayLike) -> RigState:
         """Advance one sample period; ``command_V`` is written to the D/A at this tick."""
-        p = self.params
-        dt = p.sample_period_s
-        command = np.broadcast_to(np.asarray(command_V, float), state.v_amp.shape)
-        if p.delay_samples:
-            u = state.pending[..., 0]
-            pending = np.concatenate([state.pending[..., 1:], command[..., None]], axis=-1)
-        else:
-            u, pending = command, state.pending
-        target = np.clip(u, p.amp_v_min_V, p.amp_v_max_V)
-        tau = 1.0 / (2.0 * np.pi * np.asarray(p.amp_bandwidth_Hz))
-        dv = (target - state.v_amp) * -np.expm1(-dt / tau)
-        slew = p.slew_V_per_s * dt
-        dv = np.clip(dv, -slew, slew)
-        v = state.v_amp + dv
-        h = bouc_wen_increment(state.h, dv, p.bw_alpha, p.bw_beta_per_V, p.bw_gamma_per_V)
-        x = self._stroke(v, h)
-        decay = np.exp(-dt / np.asarray(p.creep_tau_s))
-        creep = x[..., None] + (state.creep - x[..., None]) * decay
-        return RigState(v, h, creep, pending)
+        command = np.broadcast_to(np.asarray(command_V, float), np.shape(state.v_amp))
+        return self.state_from_vector(self.model.step(NUMPY, self.parameter_vector, self.vector(state), command))
 
     def measure(self, state: RigState, rng: np.random.Generator) -> Array:
         """The A/D reading of the force: noise, then 16-bit quantisation and range clipping."""
-        p = self.params
         f = self.force(state)
-        noisy = f + np.asarray(p.noise_N) * rng.standard_normal(f.shape)
-        lsb = p.adc_lsb_N
-        return np.clip(np.round(noisy / lsb) * lsb, -p.adc_full_scale_N, p.adc_full_scale_N - lsb)
+        return np.asarray(self.model.measure(NUMPY, self.parameter_vector, f, rng.standard_normal(f.shape)))
 
     def quasi_static_loop(self, v: ArrayLike, state: RigState | None = None) -> tuple[Array, RigState]:
         """Force along a voltage path followed slowly enough for the amplifier (no creep, no noise).

@@ -1,9 +1,10 @@
 """The preloaded double-nut ball screw: geometry, Hertz contact, load sharing, rigidity, ratings.
 
 Section 2.2 of the paper, derived from Hertz theory rather than read off its garbled
-eqs. (9)-(13) (see ``docs/models.md``, section 5), plus what a selection procedure checks: load ratings,
-life, drag torque and static safety. Units are those of ball-screw catalogues, named in
-every field: mm, N, MPa, N/um, N m.
+eqs. (9)-(13), plus what a selection procedure checks: load ratings, life, drag torque and
+static safety. Units are those of ball-screw catalogues, named in every field: mm, N, MPa,
+N/um, N m. ``docs/ballscrew.md`` derives the rigidity model and checks it against catalogue
+rows (``tests/data/ballscrew_rigidity.csv``).
 
 The model, in the order the functions below build it:
 
@@ -16,36 +17,45 @@ The model, in the order the functions below build it:
   CasADi design NLP differentiates the same formulas). Rolling-direction curvature
   2/D_w +/- 2 cos(beta) / (D_pw -/+ D_w cos(beta)) (screw +, nut -), transverse
   2/D_w - 1/(f D_w). The normal approach of one contact is ``c Q^(2/3)``.
-* **One nut.** A ball load Q = F / (z sin(beta) cos(alpha)) (eq. (3) of the paper) moves the
-  nut axially by the summed normal approaches over sin(beta) cos(alpha): delta = c_h F^(2/3)
-  (our form of eq. (12); the paper's extracted exponents are unreliable).
-* **Double nut.** Both nuts start at delta_p = c_h F_p^(2/3); an axial load F_a shifts the
-  assembly by x, so the loaded nut carries F_p (1 + u)^(3/2) and the other F_p (1 - u)^(3/2),
-  u = x / delta_p, with F_a = F_p [(1 + u)^(3/2) - (1 - u)^(3/2)]: eq. (10) solved exactly
-  (Newton, unrolled, :func:`load_share`), not its linearisation eq. (11). The unloaded nut
-  lifts off at u = 1, F_a = 2^(3/2) F_p. The contact stiffness dF_a/dx =
-  (3 F_p / (2 delta_p)) (sqrt(1 + u) + sqrt(1 - u)) is 3 F_p^(1/3) / c_h at no load: it grows
-  as F_p^(1/3) and, through c_h, as z^(2/3) and sin(beta)^(5/3), as eq. (13) says.
+* **One nut** carrying F (N) shifts axially on the screw by
 
-Where this departs from a Hertz-only model (and from the paper): catalogue rigidity is
-lower than the Hertz-only value (``docs/references.md``, Steinmeyer's hierarchy). Two
-corrections, the same for every screw, not fitted per catalogue row:
+      delta(F) = [c_h F^(2/3) + s F] / f_ar                                   (um)
 
-1. **Unequal ball loads** (pitch and ball-size errors of the accuracy class, elastic load
-   distribution along the nut): only an effective share ``load_sharing`` = 0.7 of the balls
-   is counted in the rigidity (stiffness scales as its 2/3 power, 0.79). The value is a
-   round engineering figure chosen once; the two HIWIN rows then land at +4 % and +9 %
-   (``tests/test_ballscrew.py``), and a per-row fit would have needed 0.63 and 0.57.
-2. **Nut body and screw shaft** within the nut, each loaded over half the loaded length,
-   in series with the contacts (``nut_outer_diameter_mm`` defaults to 1.7 times the
-   nominal diameter, typical of flanged double nuts).
+  - ``c_h F^(2/3)``: the ball contacts (our form of eq. (12)). A ball load
+    Q = F / (z sin(beta) cos(alpha)) (eq. (3)) over the normal approaches' sum, divided by
+    sin(beta) cos(alpha). z = eta Z_1 i counts an effective share eta of the balls
+    (``load_sharing``, :data:`EFFECTIVE_BALL_SHARE`): catalogue rigidity of every size, ball
+    and number of turns is the same fraction of the all-balls Hertz value, which a share of
+    the balls expresses; eta is calibrated on catalogue rows (docs/ballscrew.md).
+  - ``s F``: the nut body and the screw under the nut, from the geometry. The radial
+    components of the ball loads widen the nut (a thick ring, Lame, outer diameter D) and
+    squeeze the screw core (a solid cylinder), which the contact angle turns into an axial
+    shift: (cot(beta)/cos(alpha))^2 (1 + (r_o^2 + r_n^2) / (r_o^2 - r_n^2)) / (2 pi E L) per N.
+    Axially the load passes from the nut body to the screw core over the loaded length L
+    through the balls; the elastic load distribution along the nut (the shear-lag
+    solution, :meth:`BallScrew.turn_loads`, not all turns equally loaded) adds, to first order
+    in (lambda L)^2, L/3 (1/(E A_nut) + 1/(E A_core)) per N (within 0.4 % of the exact one for
+    the catalogue rows, where lambda L < 0.66).
+  - ``f_ar``: ISO 3408-4's correction for accuracy (``accuracy_factor``). 1 for the
+    theoretical rigidity HIWIN and THK tabulate; :data:`ACCURACY_FACTOR_P5` for rigidity
+    corrected for tolerance class P5 as Rexroth states it.
+* **Double nut.** Both nuts start at delta(F_p); an axial load F_a shifts the assembly by x,
+  loading one nut to F_A and unloading the other to F_B: delta(F_A) + delta(F_B) = 2 delta(F_p),
+  F_A - F_B = F_a (eqs. (4)-(10), solved exactly by Newton's method, :func:`nut_forces`). The
+  unloaded nut lifts off at F_a = rho F_p, rho^(2/3) + sigma rho = 2 + 2 sigma with
+  sigma = s F_p^(1/3) / c_h (rho = 2^(3/2), the paper's and the catalogues' figure, for a
+  Hertz-only nut). The rigidity dF_a/dx is the two nuts' tangent stiffnesses in parallel,
+  f_ar [F^(1/3) / (2/3 c_h + s F^(1/3))] summed over F_A and F_B. With s = 0 and eta = 1 it is
+  eq. (13) of the paper, 3 F_p^(1/3) / c_h at no load (:meth:`BallScrew.hertz_rigidity_N_per_um`).
 
 Load ratings follow ISO 3408-5's convention of equal ball loads: the static rating C_0 is
 the axial load at which the most pressed contact reaches 4,200 MPa (ISO 76), from the same
-Hertz model (HIWIN rows: +5 %); the dynamic rating C_dyn, where no catalogue value is given,
-is the Lundberg-Palmgren form for angular-contact thrust rows,
+Hertz model (HIWIN's rows: +5 % at f = 0.55; the vendors' conformities differ, 0.53-0.565),
+and :meth:`BallScrew.from_catalogue` sets the groove conformity from a catalogue's C_0 that
+way. The dynamic rating C_dyn, where no catalogue value is given, is the Lundberg-Palmgren
+form for angular-contact thrust rows,
 ``K f_c(gamma) cos(beta)^0.7 tan(beta) cos(alpha)^1.3 Z_1^(2/3) D_w^1.8 i^0.86``, with
-gamma = D_w cos(beta) / D_pw, whose one constant K is calibrated on the R40-10T4 row and
+gamma = D_w cos(beta) / D_pw, whose one constant K is calibrated on HIWIN's R40-10T4 row and
 checked on R32-5T4 (-5 %). A catalogue C_dyn, where known, should be passed instead.
 """
 
@@ -59,11 +69,15 @@ from typing import Any
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import brentq
+
+from piezopreload.core.errors import InputError
 
 __all__ = [
     "Material", "STEEL", "BallScrew", "DutyCase", "ContactState", "NutLoads", "Life",
-    "load_share", "hiwin_loaded_nut_force", "lift_off_load_N", "NUMPY_OPS", "CASADI_OPS",
-    "CONTACT_LIMIT_MPA", "RELIABILITY_FACTORS",
+    "nut_forces", "lift_off_ratio", "hiwin_loaded_nut_force", "lift_off_load_N", "nut_outer_diameter_mm",
+    "NUMPY_OPS", "CASADI_OPS", "CONTACT_LIMIT_MPA", "RELIABILITY_FACTORS", "LIFT_OFF_RATIO",
+    "EFFECTIVE_BALL_SHARE", "ACCURACY_FACTOR_P5",
 ]
 
 Array = NDArray[np.float64]
@@ -72,34 +86,42 @@ Array = NDArray[np.float64]
 CONTACT_LIMIT_MPA = 4200.0
 #: Life reliability factors of ISO 3408-5 (90 % is the rating life L10).
 RELIABILITY_FACTORS = {0.90: 1.00, 0.95: 0.63, 0.99: 0.21}
+#: Lift-off load over preload of a double nut whose nuts are Hertz contacts alone (eq. (10)).
 LIFT_OFF_RATIO = 2.0 ** 1.5
+#: The effective share eta of the balls in the contact compliance (module docstring): the
+#: least-squares fit over the theoretical rigidity of HIWIN's and THK's ground double nuts,
+#: 0.626 (on THK's rows alone 0.637, on HIWIN's alone 0.623; ``benchmarks/ballscrew_rigidity.py``).
+EFFECTIVE_BALL_SHARE = 0.63
+#: ISO 3408-4's correction for accuracy f_ar for tolerance class P5, as Rexroth's catalogue
+#: applies it: the least-squares fit over Rexroth's double nuts, 0.740 (on their 7 % preload
+#: rows alone 0.740, checked on the 10 % rows; ``benchmarks/ballscrew_rigidity.py``).
+ACCURACY_FACTOR_P5 = 0.74
 #: The one constant of the C_dyn estimate (N, mm), calibrated on HIWIN R40-10T4-RDI
 #: (C_dyn 37,890 N); see the module docstring.
 _CDYN_CONSTANT = 70.98
-#: Nut outer diameter over nominal diameter when not given (flanged double nuts).
-NUT_OUTER_RATIO = 1.7
-_NEWTON_STEPS = 8  # load_share: 7 steps reach 1e-15 over 0..2^(3/2) (Newton from below)
+#: Newton steps of :func:`nut_forces` and :func:`lift_off_ratio` (8 reach 3e-12 up to lift-off)
+_NEWTON_STEPS = 8
 
 #: The operations the formulas below need, on numpy arrays or CasADi expressions: one
 #: implementation serves the numpy model and the CasADi design NLPs.
 NUMPY_OPS = SimpleNamespace(sin=np.sin, cos=np.cos, tan=np.tan, log=np.log, exp=np.exp,
-                            sqrt=np.sqrt, fmin=np.minimum, fmax=np.maximum)
+                            sqrt=np.sqrt, cbrt=np.cbrt, fmin=np.minimum, fmax=np.maximum)
 CASADI_OPS = SimpleNamespace(sin=ca.sin, cos=ca.cos, tan=ca.tan, log=ca.log, exp=ca.exp,
-                             sqrt=ca.sqrt, fmin=ca.fmin, fmax=ca.fmax)
+                             sqrt=ca.sqrt, cbrt=lambda x: x ** (1.0 / 3.0), fmin=ca.fmin, fmax=ca.fmax)
 
 
 @dataclass(frozen=True)
 class Material:
-    """Elastic constants of balls and raceways (both the same steel)."""
+    """Elastic constants of balls, raceways, screw and nut (all the same steel)."""
 
     E_MPa: float = 206e3
     poisson: float = 0.3
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.E_MPa) and self.E_MPa > 0):
-            raise ValueError(f"Material.E_MPa must be a finite number > 0, got {self.E_MPa!r}.")
+            raise InputError(f"Material.E_MPa must be a finite number > 0, got {self.E_MPa!r}.")
         if not 0 <= self.poisson < 0.5:
-            raise ValueError(f"Material.poisson must be in [0, 0.5), got {self.poisson!r}.")
+            raise InputError(f"Material.poisson must be in [0, 0.5), got {self.poisson!r}.")
 
     @property
     def contact_modulus_MPa(self) -> float:
@@ -142,24 +164,84 @@ def _nut_constants(ops: Any, E_prime: float, D_pw: Any, D_w: Any, beta: Any, f_s
 
 
 def _axial_constant(ops: Any, c_delta: Any, z: Any, beta: Any, helix: Any) -> Any:
-    """c_h (mm per N^(2/3)): one nut's axial approach delta = c_h F^(2/3) under F (N)."""
+    """c_h (mm per N^(2/3)): one nut's contact approach c_h F^(2/3) under F (N), z balls."""
     s = ops.sin(beta) * ops.cos(helix)
     return c_delta / ((z * s) ** (2.0 / 3.0) * s)
 
 
-def load_share(ratio: Any, ops: Any = NUMPY_OPS) -> Any:
-    """u = x / delta_p of the double nut under F_a = ratio F_p, for 0 <= ratio < 2^(3/2).
+def nut_outer_diameter_mm(pitch_diameter_mm: Any, ball_mm: Any) -> Any:
+    """A double nut's body diameter (mm) where no catalogue value is given:
+    1.1 D_pw + 2.5 D_w + 5 mm, the least-squares proportion of HIWIN's ground double nuts
+    (S99TE20-1610, double nuts with return tubes, 16-100 mm: 1.9 mm RMS)."""
+    return 1.1 * pitch_diameter_mm + 2.5 * ball_mm + 5.0
 
-    Solves eq. (10) of the paper exactly, (1 + u)^(3/2) - (1 - u)^(3/2) = ratio, by Newton's
-    method from u = 0 unrolled a fixed number of steps, so the same expression serves numpy
-    and CasADi (where it is differentiable). The left side is increasing and concave in u,
-    so the iterates rise monotonically to the root and never pass u = 1.
+
+def _structural_parts(ops: Any, E: float, D_pw: Any, D_w: Any, beta: Any, helix: Any, d_out: Any,
+                      length: Any) -> tuple[Any, Any]:
+    """The nut body and the screw under one nut of loaded length ``length`` (module docstring),
+    ``(radial, bars)`` in mm/N: the ring's widening and the core's squeeze under the balls'
+    radial load (Lame, plane stress, the screw a solid cylinder), turned axial by the contact
+    angle; and the two bars along the nut to first order of the elastic load distribution."""
+    cb = ops.cos(beta)
+    r_n = 0.5 * (D_pw + D_w * cb)   # the nut's raceway radius at the contact
+    r_s = 0.5 * (D_pw - D_w * cb)   # the screw's core (the root diameter's half)
+    r_o = 0.5 * d_out
+    turn = cb / (ops.sin(beta) * ops.cos(helix))   # radial per axial, and axial per radial
+    ring = (r_o ** 2 + r_n ** 2) / (r_o ** 2 - r_n ** 2)
+    radial = turn ** 2 * (1.0 + ring) / (2.0 * math.pi * E * length)
+    bars = length / 3.0 * (1.0 / (E * math.pi * r_s ** 2) + 1.0 / (E * math.pi * (r_o ** 2 - r_n ** 2)))
+    return radial, bars
+
+
+def _structural_compliance(ops: Any, E: float, D_pw: Any, D_w: Any, beta: Any, helix: Any, d_out: Any,
+                           length: Any) -> Any:
+    """s (mm/N): :func:`_structural_parts` summed."""
+    radial, bars = _structural_parts(ops, E, D_pw, D_w, beta, helix, d_out, length)
+    return radial + bars
+
+
+def lift_off_ratio(sigma: Any, ops: Any = NUMPY_OPS) -> Any:
+    """rho: the unloaded nut lifts off at F_a = rho F_p, where rho^(2/3) + sigma rho = 2 + 2 sigma
+    (sigma = s F_p^(1/3) / c_h, module docstring); 2^(3/2) at sigma = 0, 2 as sigma grows.
+
+    Newton's method from rho = 2 (below the root; the left side is concave and increasing, so
+    the iterates rise monotonically), unrolled a fixed number of steps: numpy or CasADi.
     """
-    u = 0.0 * ratio
+    rho = 2.0 + 0.0 * sigma
     for _ in range(_NEWTON_STEPS):
-        up, um = ops.sqrt(1.0 + u), ops.sqrt(ops.fmax(1.0 - u, 0.0))
-        u = ops.fmin(u - ((1.0 + u) * up - ops.fmax(1.0 - u, 0.0) * um - ratio) / (1.5 * (up + um)), 1.0)
-    return u
+        rho = rho - (ops.cbrt(rho) ** 2 + sigma * rho - 2.0 - 2.0 * sigma) / (2.0 / 3.0 / ops.cbrt(rho) + sigma)
+    return rho
+
+
+def nut_forces(ratio: Any, sigma: Any = 0.0, ops: Any = NUMPY_OPS) -> tuple[Any, Any]:
+    """The double nut's forces over F_p, ``(f_loaded, f_unloaded)``, under F_a = ratio F_p,
+    0 <= ratio < rho (:func:`lift_off_ratio`).
+
+    Solves eq. (10) generalised to the nut law (module docstring), phi(f_A) + phi(f_A - ratio)
+    = 2 phi(1) with phi(f) = f^(2/3) + sigma f, by Newton's method in f_A from
+    max(1 + ratio/2, ratio + 1e-15), which lies below the root (phi is concave), unrolled a
+    fixed number of steps so the same expression serves numpy and CasADi (where it is
+    differentiable). sigma = 0 is the Hertz-only nut: f = (1 +/- u)^(3/2) with
+    (1 + u)^(3/2) - (1 - u)^(3/2) = ratio.
+    """
+    f_a = ops.fmax(1.0 + 0.5 * ratio, ratio + 1e-15)
+    for _ in range(_NEWTON_STEPS):
+        t_a, t_b = ops.cbrt(f_a), ops.cbrt(ops.fmax(f_a - ratio, 0.0))
+        g = t_a ** 2 + t_b ** 2 + sigma * (2.0 * f_a - ratio) - 2.0 - 2.0 * sigma
+        f_a = f_a - g / (2.0 / 3.0 * (1.0 / t_a + 1.0 / ops.fmax(t_b, 1e-100)) + 2.0 * sigma)
+    return f_a, ops.fmax(f_a - ratio, 0.0)
+
+
+def _nut_stiffness(ops: Any, c_h_um: Any, s_um: Any, force_N: Any) -> Any:
+    """One nut's tangent stiffness dF/d(delta) (N/um, f_ar = 1) at force F >= 0:
+    F^(1/3) / (2/3 c_h + s F^(1/3)), zero for an unloaded nut."""
+    t = ops.cbrt(force_N)
+    return t / (2.0 / 3.0 * c_h_um + s_um * t)
+
+
+def _rigidity(ops: Any, c_h_um: Any, s_um: Any, accuracy: Any, loaded_N: Any, unloaded_N: Any) -> Any:
+    """Rigidity (N/um) of the double nut: both nuts' tangent stiffnesses in parallel, times f_ar."""
+    return accuracy * (_nut_stiffness(ops, c_h_um, s_um, loaded_N) + _nut_stiffness(ops, c_h_um, s_um, unloaded_N))
 
 
 def _c_dyn(ops: Any, D_pw: Any, D_w: Any, beta: Any, helix: Any, f_screw: Any, f_nut: Any,
@@ -173,26 +255,6 @@ def _c_dyn(ops: Any, D_pw: Any, D_w: Any, beta: Any, helix: Any, f_screw: Any, f
             * balls_per_turn ** (2.0 / 3.0) * D_w ** 1.8 * turns ** 0.86)
 
 
-def _body_stiffness(ops: Any, E: float, D_pw: Any, D_w: Any, beta: Any, d_out: Any, nut_length: Any) -> Any:
-    """Nut body and screw under the nut (N/um), each over half the loaded length, in series."""
-    cb = ops.cos(beta)
-    half = 0.5 * nut_length
-    k_screw = E * math.pi * (D_pw - D_w * cb) ** 2 / 4.0 / half
-    k_nut = E * math.pi * (d_out ** 2 - (D_pw + D_w * cb) ** 2) / 4.0 / half
-    return 1e-3 / (1.0 / k_screw + 1.0 / k_nut)
-
-
-def _contact_stiffness(ops: Any, c_h_um: Any, preload_N: Any, u: Any) -> Any:
-    """dF_a/dx of the double nut's contacts (N/um) at preload F_p and load share u:
-    (3 F_p / (2 delta_p)) (sqrt(1 + u) + sqrt(1 - u)), delta_p = c_h F_p^(2/3)."""
-    return 1.5 * preload_N ** (1.0 / 3.0) / c_h_um * (ops.sqrt(1.0 + u) + ops.sqrt(ops.fmax(1.0 - u, 0.0)))
-
-
-def _rigidity(ops: Any, c_h_um: Any, k_body: Any, preload_N: Any, u: Any) -> Any:
-    """Rigidity (N/um) of the double nut: the contacts' stiffness in series with the body."""
-    return 1.0 / (1.0 / _contact_stiffness(ops, c_h_um, preload_N, u) + 1.0 / k_body)
-
-
 def _drag_coefficient(ops: Any, helix: Any) -> Any:
     """K_p of the preload drag torque, HIWIN's 0.05 / sqrt(tan(helix)) (0.1-0.3 in use)."""
     return 0.05 / ops.sqrt(ops.tan(helix))
@@ -202,15 +264,16 @@ def _drag_coefficient(ops: Any, helix: Any) -> Any:
 
 
 def lift_off_load_N(preload_N: ArrayLike) -> Array:
-    """The axial load at which the unloaded nut of a double nut lifts off: 2^(3/2) F_p."""
+    """The catalogue rule for a double nut's lift-off load, 2^(3/2) F_p: exact for nuts that
+    are Hertz contacts alone (:meth:`BallScrew.lift_off_load_N` includes the nut body)."""
     return LIFT_OFF_RATIO * np.asarray(preload_N, float)
 
 
 def hiwin_loaded_nut_force(preload_N: ArrayLike, axial_load_N: ArrayLike) -> Array:
-    """HIWIN's catalogue formula for the loaded nut's force (``docs/references.md``, [HIWIN]).
+    """HIWIN's catalogue formula for the loaded nut's force.
 
-    (1 + F_a / (2^(3/2) F_p))^(3/2) F_p below lift-off, F_a above; within 2.5 % of
-    :meth:`BallScrew.nut_loads`, which solves the two-nut Hertz problem exactly.
+    (1 + F_a / (2^(3/2) F_p))^(3/2) F_p below lift-off, F_a above; within 2.5 % of the exact
+    two-nut solution of Hertz-only nuts (:func:`nut_forces` with sigma = 0).
     """
     fp, fa = np.asarray(preload_N, float), np.abs(np.asarray(axial_load_N, float))
     return np.where(fa < LIFT_OFF_RATIO * fp, (1.0 + fa / (LIFT_OFF_RATIO * fp)) ** 1.5 * fp, fa)
@@ -235,15 +298,15 @@ class ContactState:
 
 @dataclass(frozen=True)
 class NutLoads:
-    """The double nut under preload F_p and axial load F_a (exact two-nut Hertz solution)."""
+    """The double nut under preload F_p and axial load F_a (the exact two-nut solution)."""
 
     preload_N: Array
     axial_load_N: Array
     loaded_nut_N: Array
     unloaded_nut_N: Array
     deflection_um: Array  # axial shift of the nut assembly on the screw from the preloaded state
-    contact_stiffness_N_per_um: Array
-    rigidity_N_per_um: Array  # contacts in series with the nut body and the screw under the nut
+    contact_stiffness_N_per_um: Array  # the ball contacts alone (c_h; no body, f_ar = 1)
+    rigidity_N_per_um: Array  # dF_a/dx: contacts, nut body and screw under the nut, times f_ar
     lifted_off: Array
 
 
@@ -258,9 +321,9 @@ class DutyCase:
     def __post_init__(self) -> None:
         for name in ("axial_load_N", "speed_rpm", "time_share"):
             if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"DutyCase.{name} must be finite, got {getattr(self, name)!r}.")
+                raise InputError(f"DutyCase.{name} must be finite, got {getattr(self, name)!r}.")
         if self.speed_rpm < 0 or self.time_share <= 0:
-            raise ValueError(f"DutyCase needs speed_rpm >= 0 and time_share > 0, got {self.speed_rpm!r} and "
+            raise InputError(f"DutyCase needs speed_rpm >= 0 and time_share > 0, got {self.speed_rpm!r} and "
                              f"{self.time_share!r}.")
 
 
@@ -298,8 +361,14 @@ class BallScrew:
         D_pw; the nominal diameter when not given.
     balls_per_turn
         Z_1; as many as fit on a turn of the helix when not given.
-    load_sharing, nut_outer_diameter_mm
-        The rigidity corrections (module docstring).
+    load_sharing
+        eta, the effective share of the balls in the contact compliance
+        (:data:`EFFECTIVE_BALL_SHARE`; 1 for the paper's all-balls eq. (13)).
+    nut_outer_diameter_mm
+        D, the nut body's outer diameter; :func:`nut_outer_diameter_mm` when not given.
+    accuracy_factor
+        f_ar of ISO 3408-4: 1 for the theoretical rigidity (HIWIN, THK tables),
+        :data:`ACCURACY_FACTOR_P5` for rigidity corrected for tolerance class P5 (Rexroth).
     c_dyn_N, c0_N
         Catalogue ratings; estimated from the geometry when not given.
     drag_coefficient
@@ -315,8 +384,9 @@ class BallScrew:
     conformity_nut: float = 0.55
     pitch_diameter_mm: float | None = None
     balls_per_turn: int | None = None
-    load_sharing: float = 0.7
+    load_sharing: float = EFFECTIVE_BALL_SHARE
     nut_outer_diameter_mm: float | None = None
+    accuracy_factor: float = 1.0
     c_dyn_N: float | None = None
     c0_N: float | None = None
     drag_coefficient: float | None = None
@@ -326,28 +396,57 @@ class BallScrew:
         def positive(name: str) -> None:
             value = getattr(self, name)
             if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"BallScrew.{name} must be a finite number > 0, got {value!r}.")
+                raise InputError(f"BallScrew.{name} must be a finite number > 0, got {value!r}.")
 
         for name in ("nominal_diameter_mm", "lead_mm", "ball_mm", "turns", "pitch_diameter_mm",
                      "nut_outer_diameter_mm", "c_dyn_N", "c0_N", "drag_coefficient", "balls_per_turn"):
             positive(name)
         if not 20.0 <= self.contact_angle_deg <= 70.0:
-            raise ValueError(f"BallScrew.contact_angle_deg must be in [20, 70], got {self.contact_angle_deg!r}.")
+            raise InputError(f"BallScrew.contact_angle_deg must be in [20, 70], got {self.contact_angle_deg!r}.")
         for name in ("conformity_screw", "conformity_nut"):
             if not 0.505 <= getattr(self, name) <= 0.6:
-                raise ValueError(f"BallScrew.{name} must be in [0.505, 0.6] (ISO 3408-5 needs > 0.5; "
+                raise InputError(f"BallScrew.{name} must be in [0.505, 0.6] (ISO 3408-5 needs > 0.5; "
                                  f"0.52-0.56 is usual), got {getattr(self, name)!r}.")
-        if not 0 < self.load_sharing <= 1:
-            raise ValueError(f"BallScrew.load_sharing must be in (0, 1], got {self.load_sharing!r}.")
+        for name in ("load_sharing", "accuracy_factor"):
+            if not 0 < getattr(self, name) <= 1:
+                raise InputError(f"BallScrew.{name} must be in (0, 1], got {getattr(self, name)!r}.")
         if not self.ball_mm < 0.25 * self.pitch_diameter:
-            raise ValueError(f"BallScrew.ball_mm = {self.ball_mm} is too large for a pitch diameter of "
+            raise InputError(f"BallScrew.ball_mm = {self.ball_mm} is too large for a pitch diameter of "
                              f"{self.pitch_diameter} mm (needs < 0.25 D_pw).")
         if self.ball_mm >= self.lead_mm:
-            raise ValueError(f"BallScrew.ball_mm = {self.ball_mm} does not fit a lead of {self.lead_mm} mm "
+            raise InputError(f"BallScrew.ball_mm = {self.ball_mm} does not fit a lead of {self.lead_mm} mm "
                              f"(a ball must be smaller than the lead of a single-start screw).")
         if self.nut_outer_diameter <= self.pitch_diameter + self.ball_mm:
-            raise ValueError(f"BallScrew.nut_outer_diameter_mm must exceed D_pw + D_w = "
+            raise InputError(f"BallScrew.nut_outer_diameter_mm must exceed D_pw + D_w = "
                              f"{self.pitch_diameter + self.ball_mm} mm, got {self.nut_outer_diameter_mm!r}.")
+
+    @classmethod
+    def from_catalogue(cls, nominal_diameter_mm: float, lead_mm: float, ball_mm: float, turns: float, *,
+                       c_dyn_N: float, c0_N: float, **kwargs: Any) -> BallScrew:
+        """A catalogue screw whose groove conformity (screw and nut alike) is the one at which
+        the Hertz static rating (4,200 MPa, ISO 76) equals the catalogue's C_0.
+
+        The catalogue states its ratings; with the contact angle (45 deg unless given) they
+        fix the conformity the vendor computed with, which the rigidity then uses. Other
+        keywords are :class:`BallScrew`'s.
+        """
+        if "conformity_screw" in kwargs or "conformity_nut" in kwargs:
+            raise InputError("BallScrew.from_catalogue sets the conformity from c0_N; pass no conformity, or "
+                             "build BallScrew(...) directly with yours.")
+
+        def screw(f: float) -> BallScrew:
+            return cls(nominal_diameter_mm, lead_mm, ball_mm, turns, conformity_screw=f, conformity_nut=f,
+                       c_dyn_N=c_dyn_N, **kwargs)
+
+        lo, hi = 0.505, 0.6
+        c0_lo, c0_hi = screw(lo).static_rating_N, screw(hi).static_rating_N
+        if not c0_hi <= c0_N <= c0_lo:
+            raise InputError(f"BallScrew.from_catalogue: c0_N = {c0_N!r} N is outside the static ratings this "
+                             f"geometry has for conformities 0.505-0.6 ({c0_hi:.0f}-{c0_lo:.0f} N); check the "
+                             f"ball diameter, turns and pitch diameter.")
+        f = brentq(lambda x: screw(x).static_rating_N - c0_N, lo, hi, xtol=1e-12)
+        return cls(nominal_diameter_mm, lead_mm, ball_mm, turns, conformity_screw=f, conformity_nut=f,
+                   c_dyn_N=c_dyn_N, c0_N=c0_N, **kwargs)
 
     # ---- geometry -------------------------------------------------------------------------
     @property
@@ -375,7 +474,7 @@ class BallScrew:
 
     @property
     def root_diameter_mm(self) -> float:
-        """d_c = D_pw - D_w cos(beta), the screw's core (``docs/models.md``, section 6)."""
+        """d_c = D_pw - D_w cos(beta), the screw's core (HIWIN's and ISO 3408-4's formula)."""
         return self.pitch_diameter - self.ball_mm * math.cos(self.contact_rad)
 
     @property
@@ -383,27 +482,84 @@ class BallScrew:
         """Axial length of one nut's loaded turns."""
         return self.turns * self.lead_mm
 
-    # ---- Hertz ----------------------------------------------------------------------------
+    @property
+    def nut_outer_diameter(self) -> float:
+        return float(self.nut_outer_diameter_mm or nut_outer_diameter_mm(self.pitch_diameter, self.ball_mm))
+
+    # ---- Hertz and the nut law -------------------------------------------------------------
     def _constants(self) -> tuple[float, float, float]:
         return _nut_constants(NUMPY_OPS, self.material.contact_modulus_MPa, self.pitch_diameter, self.ball_mm,
                               self.contact_rad, self.conformity_screw, self.conformity_nut)
 
     @property
     def axial_constant_um(self) -> float:
-        """c_h (um per N^(2/3)) of one nut with the effective share of loaded balls."""
+        """c_h (um per N^(2/3)): one nut's contact approach c_h F^(2/3), eta of the balls counted."""
         c_delta = self._constants()[0]
         return 1e3 * float(_axial_constant(NUMPY_OPS, c_delta, self.load_sharing * self.balls_per_nut,
                                            self.contact_rad, self.helix_rad))
 
     @property
-    def body_stiffness_N_per_um(self) -> float:
-        """Nut body and screw under the nut, each over half the loaded length, in series."""
-        return float(_body_stiffness(NUMPY_OPS, self.material.E_MPa, self.pitch_diameter, self.ball_mm,
-                                     self.contact_rad, self.nut_outer_diameter, self.nut_length_mm))
+    def structural_compliance_um_per_N(self) -> float:
+        """s (um/N): one nut's body and the screw under it (module docstring)."""
+        return 1e3 * float(_structural_compliance(NUMPY_OPS, self.material.E_MPa, self.pitch_diameter, self.ball_mm,
+                                                  self.contact_rad, self.helix_rad, self.nut_outer_diameter,
+                                                  self.nut_length_mm))
 
-    @property
-    def nut_outer_diameter(self) -> float:
-        return float(self.nut_outer_diameter_mm or NUT_OUTER_RATIO * self.nominal_diameter_mm)
+    def nut_approach_um(self, nut_force_N: ArrayLike) -> Array:
+        """delta(F) = (c_h F^(2/3) + s F) / f_ar (um): one nut's axial shift on the screw under F."""
+        F = np.asarray(nut_force_N, float)
+        return (self.axial_constant_um * np.cbrt(F) ** 2 + self.structural_compliance_um_per_N * F) / self.accuracy_factor
+
+    def sigma(self, preload_N: ArrayLike) -> Array:
+        """sigma = s F_p^(1/3) / c_h: the body's share of the nut law at the preload."""
+        return self.structural_compliance_um_per_N * np.cbrt(np.asarray(preload_N, float)) / self.axial_constant_um
+
+    def lift_off_load_N(self, preload_N: ArrayLike) -> Array:
+        """The axial load at which the unloaded nut lifts off: rho(sigma) F_p (:func:`lift_off_ratio`)."""
+        Fp = np.asarray(preload_N, float)
+        return lift_off_ratio(self.sigma(Fp)) * Fp
+
+    def preload_for_lift_off_N(self, axial_load_N: ArrayLike) -> Array:
+        """The least preload that keeps both nuts loaded up to |F_a|: the F_p with
+        delta(F_p) = delta(|F_a|) / 2 (the inverse of :meth:`lift_off_load_N`)."""
+        Fa = np.abs(np.asarray(axial_load_N, float))
+        c_h, s = self.axial_constant_um, self.structural_compliance_um_per_N
+        target = 0.5 * (c_h * np.cbrt(Fa) ** 2 + s * Fa)
+        # delta(F) = target in t = F^(1/3): c_h t^2 + s t^3 = target, convex in t; Newton from
+        # the Hertz-only root (above the root) descends monotonically
+        t = np.sqrt(target / c_h)
+        for _ in range(3 * _NEWTON_STEPS):
+            t = t - (c_h * t ** 2 + s * t ** 3 - target) / np.maximum(2.0 * c_h * t + 3.0 * s * t ** 2, 1e-300)
+        return t ** 3
+
+    def turn_loads(self, nut_force_N: float) -> Array:
+        """Each loaded turn's share of one nut's load F (sums to 1), the exact elastic load
+        distribution along the nut.
+
+        The shear-lag solution for a nut whose load enters its body and leaves the screw at
+        the same end (the first turn): with the contacts and the ring linearised at F into a
+        foundation k' (N/mm per mm) between the nut body (E A_nut) and the screw core
+        (E A_core), the transfer per length is proportional to cosh(lambda (L - x)),
+        lambda^2 = k' (1/(E A_nut) + 1/(E A_core)); equal shares when the bodies are rigid.
+        """
+        F = float(nut_force_N)
+        if not (math.isfinite(F) and F > 0):
+            raise InputError(f"nut_force_N must be a finite number > 0, got {nut_force_N!r}.")
+        L, lam = self.nut_length_mm, self.load_distribution_lambda_per_mm(F)
+        x = np.minimum(np.arange(math.ceil(self.turns) + 1) * self.lead_mm, L)
+        if lam * L < 1e-8:
+            return np.diff(x) / L
+        return -np.diff(np.sinh(lam * (L - x))) / math.sinh(lam * L)
+
+    def load_distribution_lambda_per_mm(self, nut_force_N: float) -> float:
+        """lambda (1/mm) of :meth:`turn_loads` at one nut's force F; lambda L small means nearly
+        equal turns and the first-order body term of the nut law exact."""
+        E, L = self.material.E_MPa, self.nut_length_mm
+        radial, bars = _structural_parts(NUMPY_OPS, E, self.pitch_diameter, self.ball_mm, self.contact_rad,
+                                         self.helix_rad, self.nut_outer_diameter, L)
+        contact = 1e-3 * 2.0 / 3.0 * self.axial_constant_um * float(nut_force_N) ** (-1.0 / 3.0)  # mm/N, whole nut
+        # the foundation k' = 1 / ((contact + radial) L); the bars' 1/(E A) sum = 3 bars / L
+        return math.sqrt(3.0 * float(bars) / ((contact + float(radial)) * L ** 2))
 
     def contact(self, nut_force_N: ArrayLike) -> ContactState:
         """The ball contact under one nut's axial force, all balls sharing equally (ISO 3408-5)."""
@@ -441,31 +597,39 @@ class BallScrew:
     def nut_loads(self, preload_N: ArrayLike, axial_load_N: ArrayLike = 0.0) -> NutLoads:
         """Load sharing, deflection and rigidity under preload and axial load (eqs. (2)-(13)).
 
-        Exact two-nut Hertz solution below lift-off; above it, the loaded nut alone
-        carries F_a. The sign of F_a says which nut is loaded; forces are magnitudes.
+        The exact two-nut solution of the nut law below lift-off; above it, the loaded nut
+        alone carries F_a. The sign of F_a says which nut is loaded; forces are magnitudes.
         """
         Fp, Fa = np.broadcast_arrays(np.asarray(preload_N, float), np.asarray(axial_load_N, float))
         if not np.all(np.isfinite(Fp)) or np.any(Fp <= 0):
-            raise ValueError(f"preload_N must be finite and > 0, got {preload_N!r}.")
+            raise InputError(f"preload_N must be finite and > 0, got {preload_N!r}.")
         if not np.all(np.isfinite(Fa)):
-            raise ValueError(f"axial_load_N must be finite, got {axial_load_N!r}.")
+            raise InputError(f"axial_load_N must be finite, got {axial_load_N!r}.")
+        c_h, s = self.axial_constant_um, self.structural_compliance_um_per_N
+        sigma = s * np.cbrt(Fp) / c_h
+        rho = lift_off_ratio(sigma)
         ratio = np.abs(Fa) / Fp
-        lifted = ratio >= LIFT_OFF_RATIO
-        u = np.where(lifted, np.maximum(ratio, LIFT_OFF_RATIO) ** (2.0 / 3.0) - 1.0,
-                     load_share(np.minimum(ratio, LIFT_OFF_RATIO)))
-        loaded = Fp * (1.0 + u) ** 1.5
-        unloaded = Fp * np.maximum(1.0 - u, 0.0) ** 1.5
-        c_h = self.axial_constant_um
-        delta_p = c_h * Fp ** (2.0 / 3.0)
-        k_contact = _contact_stiffness(NUMPY_OPS, c_h, Fp, u)
-        k_total = 1.0 / (1.0 / k_contact + 1.0 / self.body_stiffness_N_per_um)
+        lifted = ratio >= rho
+        f_loaded, f_unloaded = nut_forces(np.minimum(ratio, rho), sigma)
+        loaded = Fp * np.where(lifted, ratio, f_loaded)
+        unloaded = Fp * np.where(lifted, 0.0, f_unloaded)
+        k_contact = 1.5 * (np.cbrt(loaded) + np.cbrt(unloaded)) / c_h
+        k = _rigidity(NUMPY_OPS, c_h, s, self.accuracy_factor, loaded, unloaded)
+        shift = self.nut_approach_um(loaded) - self.nut_approach_um(Fp)
         return NutLoads(preload_N=Fp, axial_load_N=Fa, loaded_nut_N=loaded, unloaded_nut_N=unloaded,
-                        deflection_um=np.sign(Fa) * u * delta_p, contact_stiffness_N_per_um=k_contact,
-                        rigidity_N_per_um=k_total, lifted_off=lifted)
+                        deflection_um=np.sign(Fa) * shift, contact_stiffness_N_per_um=k_contact,
+                        rigidity_N_per_um=k, lifted_off=lifted)
 
     def rigidity_N_per_um(self, preload_N: ArrayLike, axial_load_N: ArrayLike = 0.0) -> Array:
         """Axial rigidity of the preloaded double nut (N/um), what catalogues tabulate."""
         return self.nut_loads(preload_N, axial_load_N).rigidity_N_per_um
+
+    def hertz_rigidity_N_per_um(self, preload_N: ArrayLike) -> Array:
+        """Eq. (13) of the paper: the double nut's Hertz contact stiffness at no load, all
+        balls equally loaded, rigid nut and screw: 3 F_p^(1/3) / c_h with eta = 1."""
+        c_delta = self._constants()[0]
+        c_h = 1e3 * float(_axial_constant(NUMPY_OPS, c_delta, self.balls_per_nut, self.contact_rad, self.helix_rad))
+        return 3.0 * np.cbrt(np.asarray(preload_N, float)) / c_h
 
     def drag_torque_Nm(self, preload_N: ArrayLike) -> Array:
         """Preload drag torque T_d = K_p F_p P / (2000 pi) (N m)."""
@@ -480,15 +644,15 @@ class BallScrew:
         L = (L_A^(-10/9) + L_B^(-10/9))^(-9/10), times the reliability factor.
         """
         if not cases:
-            raise ValueError("life needs at least one duty case.")
+            raise InputError("life needs at least one duty case.")
         if reliability not in RELIABILITY_FACTORS:
-            raise ValueError(f"reliability must be one of {sorted(RELIABILITY_FACTORS)}, got {reliability!r}.")
+            raise InputError(f"reliability must be one of {sorted(RELIABILITY_FACTORS)}, got {reliability!r}.")
         if not load_factor >= 1.0:
-            raise ValueError(f"load_factor must be >= 1, got {load_factor!r}.")
+            raise InputError(f"load_factor must be >= 1, got {load_factor!r}.")
         Fa = np.array([c.axial_load_N for c in cases])
         revs = np.array([c.speed_rpm * c.time_share for c in cases])
         if not revs.sum() > 0:
-            raise ValueError("life needs a duty cycle with some revolutions (all speeds are 0).")
+            raise InputError("life needs a duty cycle with some revolutions (all speeds are 0).")
         loads = self.nut_loads(preload_N, Fa)
         # nut B carries positive loads, nut A negative ones
         F_B = np.where(Fa >= 0, loads.loaded_nut_N, loads.unloaded_nut_N)

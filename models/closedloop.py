@@ -1,9 +1,10 @@
-"""The closed loop: the one controller step against the simulated rig, one sample at a time.
+"""The closed-loop simulation: the loop of :mod:`piezopreload.models.loop` over a reference.
 
 Timing of one sample ``k`` (``t_k = k dt``), as a LabVIEW loop with an A/D and a D/A card runs:
 the A/D reads the force (noise, quantisation), the controller computes the command from the
 reading and the reference at ``t_k``, the command is written to the D/A and reaches the
-amplifier after the rig's ``delay_samples``, and the rig advances to ``t_{k+1}``.
+amplifier after the rig's ``delay_samples``, and the rig advances to ``t_{k+1}``. The loop runs
+compiled where a C compiler works and in numpy elsewhere, with the same numbers.
 
 The same function simulates one plant or a batch (a :class:`~piezopreload.models.actuator.RigParams`
 with array fields): every array carries the batch in its leading axes and time last.
@@ -20,7 +21,9 @@ from numpy.typing import ArrayLike, NDArray
 from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Rig
 from piezopreload.models.controller import Controller
+from piezopreload.models.loop import LOOP_OUTPUTS, OPEN_LOOP_OUTPUTS, LoopModel, OpenLoopModel, run
 from piezopreload.models.metrics import StepMetrics, step_metrics
+from piezopreload.models.ops import NUMPY
 
 __all__ = ["Reference", "ClosedLoopRun", "simulate", "simulate_open_loop", "triangle", "PAPER_BAND_N"]
 
@@ -99,7 +102,8 @@ class ClosedLoopRun:
 
     ``force_N`` is the true force at each sample, ``measured_N`` what the A/D read,
     ``command_V`` the controller output (after its clamp) and ``p_V, i_V, d_V, ff_V`` its
-    parts, ``voltage_V`` the amplifier output.
+    parts, ``voltage_V`` the amplifier output; ``engine`` which simulation ran (``"c"`` or
+    ``"numpy"``: the same numbers).
     """
 
     t_s: Array
@@ -114,6 +118,7 @@ class ClosedLoopRun:
     ff_V: Array
     reference: Reference
     seed: int
+    engine: str = "numpy"
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -201,12 +206,20 @@ def simulate(
     *,
     seed: int = 0,
     batch: tuple[int, ...] = (),
+    engine: str = "auto",
+    ff_extra_V: ArrayLike | None = None,
 ) -> ClosedLoopRun:
     """Run ``controller`` against ``rig`` over ``reference``; deterministic for ``seed``.
 
     The rig starts at rest at 0 V (the bolt preload alone) and the controller bumplessly at
     0 V with its setpoint at the reference's first level. ``batch`` adds leading axes beyond
-    those of the rig's parameters (identical plants with independent noise).
+    those of the rig's parameters (identical plants with independent noise). The sensor noise
+    is drawn here, sample by sample in time order (each sample one draw per plant), and passed
+    to the loop, so the run does not depend on the engine: ``"auto"`` runs the compiled loop
+    where a C compiler works and numpy elsewhere, ``"c"`` insists on the compiled loop,
+    ``"numpy"`` runs the reference (:func:`piezopreload.models.loop.run`). ``ff_extra_V``
+    (one value per sample, or per sample and plant) is added to the feedforward: a learned or
+    previewed correction.
     """
     dt = rig.dt_s
     if not np.isclose(controller.dt_s, dt, rtol=1e-9, atol=0.0):
@@ -214,37 +227,31 @@ def simulate(
     n = int(round(reference.duration_s / dt)) + 1
     t = np.arange(n) * dt
     r = reference.at(t)
-    rng = np.random.default_rng(seed)
-    state = rig.initial_state(batch)
-    shape = state.v_amp.shape
-    pv0 = rig.force(state)
-    cstate = controller.initial_state(np.full(shape, r[0]), pv0, u0=0.0)
-    out = {k: np.empty(shape + (n,)) for k in ("force", "meas", "u", "v", "p", "i", "d", "ff")}
-    for k in range(n):
-        out["force"][..., k] = rig.force(state)
-        out["v"][..., k] = state.v_amp
-        y = rig.measure(state, rng)
-        terms, cstate = controller.step_terms(cstate, r[k], y)
-        state = rig.step(state, terms.u)
-        out["meas"][..., k] = y
-        out["u"][..., k] = terms.u
-        out["p"][..., k] = terms.p
-        out["i"][..., k] = terms.i
-        out["d"][..., k] = terms.d
-        out["ff"][..., k] = terms.ff
+    shape = np.broadcast_shapes(tuple(batch), rig.params.batch_shape)
+    model = LoopModel(rig.model, controller.model)
+    params = model.parameters(rig.parameter_vector, controller.parameter_vector())
+    extra = np.zeros(n) if ff_extra_V is None else np.asarray(ff_extra_V, float)
+    if extra.shape[:1] != (n,):
+        raise InputError(f"ff_extra_V needs one value per sample ({n}), got shape {extra.shape}.")
+    x0 = model.start(NUMPY, params, r[0], extra[0])
+    x0 = np.broadcast_to(x0, shape + x0.shape[-1:])
+    noise = np.random.default_rng(seed).standard_normal((n,) + shape)
+    y, _, used = run(model, params, x0, {"reference_N": r, "noise": noise, "ff_extra_V": extra}, n, engine=engine)
+    out = LOOP_OUTPUTS.unpack(np.moveaxis(y, -2, -1))
     return ClosedLoopRun(
         t_s=t,
         reference_N=r,
-        force_N=out["force"],
-        measured_N=out["meas"],
-        command_V=out["u"],
-        voltage_V=out["v"],
-        p_V=out["p"],
-        i_V=out["i"],
-        d_V=out["d"],
-        ff_V=out["ff"],
+        force_N=out.force_N,
+        measured_N=out.measured_N,
+        command_V=out.command_V,
+        voltage_V=out.voltage_V,
+        p_V=out.p_V,
+        i_V=out.i_V,
+        d_V=out.d_V,
+        ff_V=out.ff_V,
         reference=reference,
         seed=int(seed),
+        engine=used,
     )
 
 
@@ -258,22 +265,22 @@ def triangle(v_max_V: float, frequency_Hz: float, cycles: int, dt_s: float, v_mi
     return t, np.asarray(v_min_V + (v_max_V - v_min_V) * tri, dtype=np.float64)
 
 
-def simulate_open_loop(rig: Rig, command_V: ArrayLike, *, seed: int = 0) -> dict[str, Array]:
+def simulate_open_loop(rig: Rig, command_V: ArrayLike, *, seed: int = 0, engine: str = "auto") -> dict[str, Array]:
     """Drive the rig with a command sequence (one per sample) and record what a rig would.
 
     Returns ``time_s``, ``command_V``, ``voltage_V`` (amplifier output), ``force_N`` (true)
-    and ``measured_N`` (A/D): a simulated hysteresis measurement.
+    and ``measured_N`` (A/D): a simulated hysteresis measurement. ``engine`` as :func:`simulate`.
     """
     u = np.asarray(command_V, float)
     if u.ndim != 1 or not np.all(np.isfinite(u)):
         raise ValueError("command_V must be a finite 1-D sequence.")
-    rng = np.random.default_rng(seed)
-    state = rig.initial_state()
-    shape = state.v_amp.shape + (u.size,)
-    out = {k: np.empty(shape) for k in ("voltage_V", "force_N", "measured_N")}
-    for k in range(u.size):
-        out["voltage_V"][..., k] = state.v_amp
-        out["force_N"][..., k] = rig.force(state)
-        out["measured_N"][..., k] = rig.measure(state, rng)
-        state = rig.step(state, u[k])
-    return {"time_s": np.arange(u.size) * rig.dt_s, "command_V": u, **out}
+    model = OpenLoopModel(rig.model)
+    params = rig.parameter_vector
+    shape = rig.params.batch_shape
+    x0 = model.start(NUMPY, params)
+    x0 = np.broadcast_to(x0, shape + x0.shape[-1:])
+    noise = np.random.default_rng(seed).standard_normal((u.size,) + shape)
+    y, _, _ = run(model, params, x0, {"command_V": u, "noise": noise}, u.size, engine=engine)
+    out = OPEN_LOOP_OUTPUTS.unpack(np.moveaxis(y, -2, -1))
+    return {"time_s": np.arange(u.size) * rig.dt_s, "command_V": u, "voltage_V": out.voltage_V,
+            "force_N": out.force_N, "measured_N": out.measured_N}

@@ -1,8 +1,10 @@
-"""The controller step: PID in the form of LabVIEW's PID VIs, plus inverse-P-I feedforward.
+"""The controller step: PID in the form of LabVIEW's PID VIs, plus a pluggable feedforward.
 
-One implementation, used by the closed-loop simulation, the tuning validation and the rig
-executor. The PID follows NI's documented algorithm (PID Control Toolkit, 371685C, "PID
-Algorithms"), ideal/ISA form ``u = Kc (e + 1/Ti int e dt + Td de/dt)``:
+One definition (:class:`ControllerModel`, over the ops table of :mod:`piezopreload.models.ops`)
+runs in the numpy simulation, in the compiled simulation, in the tuning NLP, in the rig
+executor's compiled step and in the exported C code. The PID follows NI's documented algorithm
+(PID Control Toolkit, 371685C, "PID Algorithms"), ideal/ISA form
+``u = Kc (e + 1/Ti int e dt + Td de/dt)``:
 
 * proportional action ``Kc (b SP - PV)`` (setpoint weight ``b``, 1 in LabVIEW);
 * trapezoidal integration ``Kc / Ti * sum (e_k + e_{k-1}) / 2 * dt``;
@@ -10,6 +12,12 @@ Algorithms"), ideal/ISA form ``u = Kc (e + 1/Ti int e dt + Td de/dt)``:
   through a first-order filter of time constant ``Tf``;
 * output clamped to ``[u_min, u_max]`` with conditional integration as anti-windup (the
   integral does not move in the direction that drives the output further into its limit).
+
+The feedforward adds, before the clamp, the output of an inverse hysteresis model of the
+setpoint (a *feedforward component*: :class:`FeedforwardStep`, today the inverse classical P-I
+model's :class:`~piezopreload.models.hysteresis.InversePIStep`) and an external feedforward
+signal ``ff_extra`` given per sample (0 unless a caller supplies one: a learned or previewed
+correction, or the tuning's precomputed inverse).
 
 Times are in seconds inside; LabVIEW enters ``Ti`` and ``Td`` in minutes, converted only by
 :meth:`PIDGains.from_labview` and :meth:`PIDGains.labview`. Every operation broadcasts, so
@@ -19,24 +27,23 @@ the state may hold a batch of independent loops.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from types import SimpleNamespace
+from functools import cached_property
 from typing import Any, Protocol
 
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from piezopreload.models.hysteresis import casadi_inverse_step
+from piezopreload.core.errors import InputError
+from piezopreload.models.ops import CASADI, NUMPY, Layout, Ops
 
-__all__ = ["PIDGains", "ControllerState", "Controller", "Feedforward", "Terms", "pid_update", "parametric_step", "NUMPY_OPS", "CASADI_OPS"]
+__all__ = ["PIDGains", "Controller", "ControllerState", "ControllerModel", "Terms", "Feedforward", "FeedforwardStep",
+           "pid_update", "controller_functions", "NUMPY_OPS", "CASADI_OPS"]
 
-#: The few operations :func:`pid_update` needs that differ between numpy arrays and CasADi
-#: expressions, so the one PID update serves the simulation (numpy) and the tuning NLP and the
-#: generated C code (CasADi).
-NUMPY_OPS = SimpleNamespace(where=np.where, minimum=np.minimum, maximum=np.maximum,
-                            logical_and=np.logical_and, logical_or=np.logical_or)
-CASADI_OPS = SimpleNamespace(where=ca.if_else, minimum=ca.fmin, maximum=ca.fmax,
-                             logical_and=ca.logic_and, logical_or=ca.logic_or)
+#: The ops tables of :mod:`piezopreload.models.ops` under the names :func:`pid_update` was written with.
+NUMPY_OPS = NUMPY
+CASADI_OPS = CASADI
+
 
 
 def pid_update(ops: Any, gains: Any, u_range: tuple[Any, Any], dt: Any, integral: Any, e_prev: Any,
@@ -63,12 +70,38 @@ def pid_update(ops: Any, gains: Any, u_range: tuple[Any, Any], dt: Any, integral
     return u, proportional, integral, derivative, e, dpv
 
 
+class FeedforwardStep(Protocol):
+    """A feedforward component's real-time step, over an ops table (the controller's plug-in).
+
+    ``kind`` names it; ``params`` is the layout of its parameter vector; ``n_states`` the size of
+    its state; ``rest_state(ops, params)`` its state before the first sample;
+    ``step(ops, params, state, target) -> (output, next_state)`` one sample for the setpoint
+    ``target``. Equal structures (frozen dataclasses) compile to the same code.
+    """
+
+    kind: str
+
+    @property
+    def params(self) -> Layout: ...
+
+    @property
+    def n_states(self) -> int: ...
+
+    def rest_state(self, ops: Ops, params: Any) -> Any: ...
+
+    def step(self, ops: Ops, params: Any, state: Any, target: Any) -> tuple[Any, Any]: ...
+
+
 class Feedforward(Protocol):
-    """An inverse hysteresis model: ``step(state, target) -> (input, state)``."""
+    """An inverse hysteresis model: ``step(state, target) -> (input, state)`` on numpy, and
+    ``realtime() -> (FeedforwardStep, parameter vector)`` for the controller step."""
 
     def step(self, state: Any, target: ArrayLike) -> tuple[NDArray, NDArray]: ...
 
     def initial_state(self, batch: tuple[int, ...] = ()) -> NDArray: ...
+
+    def realtime(self) -> tuple[Any, NDArray]: ...
+
 
 
 def _finite(name: str, value: float) -> float:
@@ -148,16 +181,85 @@ class ControllerState:
 class Terms:
     """One sample's output ``u`` (after the clamp) and its parts before it: ``p + i + d + ff``."""
 
-    u: NDArray[np.float64]
-    p: NDArray[np.float64]
-    i: NDArray[np.float64]
-    d: NDArray[np.float64]
-    ff: NDArray[np.float64]
+    u: Any
+    p: Any
+    i: Any
+    d: Any
+    ff: Any
+
+
+@dataclass(frozen=True)
+class ControllerModel:
+    """The controller step's structure: the PID and an optional feedforward component.
+
+    The numbers (gains, range, sample period, the feedforward model's) are a parameter vector
+    (:attr:`params`, :meth:`Controller.parameter_vector`), so one compiled step serves every
+    gain set and every model of the same structure. The state layout (:attr:`state`) is
+    ``[integral action (V), previous error (N), previous measurement (N), previous setpoint
+    (N), filtered d(measurement)/dt (N/s), feedforward state...]``.
+    """
+
+    feedforward: Any = None  # a FeedforwardStep, or None for the PID alone
+
+    @property
+    def n_ff_states(self) -> int:
+        return 0 if self.feedforward is None else int(self.feedforward.n_states)
+
+    @cached_property
+    def state(self) -> Layout:
+        return Layout("controller state", [("integral_V", None), ("e_prev_N", None), ("pv_prev_N", None),
+                                           ("sp_prev_N", None), ("dpv_N_per_s", None), ("ff", self.n_ff_states)])
+
+    @cached_property
+    def params(self) -> Layout:
+        n_ff = 0 if self.feedforward is None else self.feedforward.params.size
+        return Layout("controller parameters", [("Kc", None), ("Ti_s", None), ("Td_s", None), ("Tf_s", None),
+                                                ("b", None), ("u_min_V", None), ("u_max_V", None), ("dt_s", None),
+                                                ("ff", n_ff)])
+
+    def gains_at(self, ops: Ops, p: Any, setpoint: Any) -> tuple[Any, Any, Any, Any, Any]:
+        """``(Kc, Ti, Td, Tf, b)`` at ``setpoint``: the one place a gain schedule would enter."""
+        return p.Kc, p.Ti_s, p.Td_s, p.Tf_s, p.b
+
+    def _feedforward(self, ops: Ops, p: Any, ff_state: Any, setpoint: Any, ff_extra: Any) -> tuple[Any, Any]:
+        if self.feedforward is None:
+            return 0.0 * setpoint + ff_extra, ff_state
+        out, ff_next = self.feedforward.step(ops, p.ff, ff_state, setpoint)
+        return out + ff_extra, ff_next
+
+    def step(self, ops: Ops, params: Any, state: Any, setpoint: Any, pv: Any,
+             ff_extra: Any = 0.0) -> tuple[Any, Terms]:
+        """One sample: the next state and the output's :class:`Terms` (``u`` clamped)."""
+        p, s = self.params.unpack(params), self.state.unpack(state)
+        ff, ff_next = self._feedforward(ops, p, s.ff, setpoint, ff_extra)
+        u, prop, integral, deriv, e, dpv = pid_update(
+            ops, self.gains_at(ops, p, setpoint), (p.u_min_V, p.u_max_V), p.dt_s,
+            s.integral_V, s.e_prev_N, s.pv_prev_N, s.dpv_N_per_s, setpoint, pv, ff)
+        nxt = self.state.pack(ops, integral_V=integral, e_prev_N=e, pv_prev_N=pv, sp_prev_N=setpoint, dpv_N_per_s=dpv,
+                              ff=ff_next)
+        return nxt, Terms(u=u, p=prop, i=integral, d=deriv, ff=ff)
+
+    def start(self, ops: Ops, params: Any, setpoint: Any, pv: Any, u0: Any, ff_extra: Any = 0.0) -> Any:
+        """A state at rest at ``(setpoint, pv)`` whose first output is ``u0`` (a bumpless start).
+
+        The integral takes up ``u0`` less the proportional action and the feedforward at the
+        setpoint (the feedforward's operators start at rest and are not advanced).
+        """
+        p = self.params.unpack(params)
+        ff_rest = None if self.feedforward is None else self.feedforward.rest_state(ops, p.ff)
+        ff0, _ = self._feedforward(ops, p, ff_rest, setpoint, ff_extra)
+        Kc, _, _, _, b = self.gains_at(ops, p, setpoint)
+        integral = u0 - Kc * (b * setpoint - pv) - ff0
+        return self.state.pack(ops, integral_V=integral, e_prev_N=setpoint - pv, pv_prev_N=pv, sp_prev_N=setpoint,
+                               dpv_N_per_s=0.0 * pv, ff=ops.repeat(0.0, 0) if ff_rest is None else ff_rest)
 
 
 @dataclass(frozen=True, eq=False)
 class Controller:
-    """PID with optional inverse-P-I feedforward of the setpoint, sampled every ``dt_s``."""
+    """PID with optional inverse-P-I feedforward of the setpoint, sampled every ``dt_s``.
+
+    The numpy face of :class:`ControllerModel`: the same step, on :class:`ControllerState`.
+    """
 
     gains: PIDGains
     dt_s: float
@@ -166,6 +268,54 @@ class Controller:
     def __post_init__(self) -> None:
         if not (np.isfinite(self.dt_s) and self.dt_s > 0):
             raise ValueError(f"dt_s must be a positive sample period, got {self.dt_s!r}.")
+        if self.feedforward is not None and not hasattr(self.feedforward, "realtime"):
+            raise TypeError(f"{type(self.feedforward).__name__} has no real-time step (realtime()); the controller's "
+                            "feedforward is an inverse model such as ClassicalPI.inverse().")
+
+    @cached_property
+    def _realtime(self) -> tuple[ControllerModel, NDArray[np.float64]]:
+        g = self.gains
+        if self.feedforward is None:
+            structure, ff = None, np.zeros(0)
+        else:
+            structure, ff = self.feedforward.realtime()
+        model = ControllerModel(structure)
+        params = model.params.numbers(Kc=g.Kc, Ti_s=g.Ti_s, Td_s=g.Td_s, Tf_s=g.Tf_s, b=g.b, u_min_V=g.u_min,
+                                      u_max_V=g.u_max, dt_s=self.dt_s, ff=ff)
+        return model, params
+
+    @property
+    def model(self) -> ControllerModel:
+        """The step's structure."""
+        return self._realtime[0]
+
+    def parameter_vector(self) -> NDArray[np.float64]:
+        """The numbers the step takes (:attr:`ControllerModel.params`): gains, range, period, feedforward model."""
+        return self._realtime[1].copy()
+
+    @property
+    def n_feedforward_states(self) -> int:
+        return self.model.n_ff_states
+
+    def vector(self, state: ControllerState) -> NDArray[np.float64]:
+        """``state`` as the (batched) vector of :attr:`ControllerModel.state`."""
+        ff = np.zeros(np.shape(state.integral) + (0,)) if state.ff is None else state.ff
+        return self.model.state.numbers(integral_V=state.integral, e_prev_N=state.e_prev, pv_prev_N=state.pv_prev,
+                                        sp_prev_N=state.sp_prev, dpv_N_per_s=state.dpv, ff=ff)
+
+    def state_from_vector(self, x: ArrayLike) -> ControllerState:
+        """The inverse of :meth:`vector` (a batch, or one loop's flat vector)."""
+        x = np.asarray(x, float)
+        if x.shape[-1:] != (self.model.state.size,):
+            raise InputError(f"expected a state of {self.model.state.size} numbers, got shape {x.shape}.")
+        s = self.model.state.unpack(x)
+        ff = None if self.feedforward is None else np.array(s.ff)
+        return ControllerState(np.array(s.integral_V), np.array(s.e_prev_N), np.array(s.pv_prev_N),
+                               np.array(s.sp_prev_N), np.array(s.dpv_N_per_s), ff)
+
+    def state_vector(self, state: ControllerState) -> NDArray[np.float64]:
+        """One loop's state as a flat vector (:meth:`vector` of one loop)."""
+        return self.vector(state).reshape(-1)
 
     def initial_state(self, setpoint: ArrayLike, pv: ArrayLike, u0: ArrayLike | None = None) -> ControllerState:
         """A state at rest at ``(setpoint, pv)`` whose first output is ``u0`` (bumpless start).
@@ -173,13 +323,10 @@ class Controller:
         Without ``u0`` the integral starts at 0.
         """
         sp, pv = (np.array(x) for x in np.broadcast_arrays(np.asarray(setpoint, float), np.asarray(pv, float)))
-        ff_state = None if self.feedforward is None else self.feedforward.initial_state(sp.shape)
-        integral = np.zeros_like(sp)
-        state = ControllerState(integral, sp - pv, pv, sp, np.zeros_like(sp), ff_state)
-        if u0 is not None:
-            ff = 0.0 if self.feedforward is None else self.feedforward.step(ff_state, sp)[0]
-            p = self.gains.Kc * (self.gains.b * sp - pv)
-            state = replace(state, integral=np.broadcast_to(np.asarray(u0, float) - p - ff, sp.shape).copy())
+        model, params = self._realtime
+        state = self.state_from_vector(model.start(NUMPY, params, sp, pv, 0.0 if u0 is None else u0))
+        if u0 is None:
+            state = replace(state, integral=np.zeros_like(sp))
         return state
 
     def step(
@@ -191,71 +338,13 @@ class Controller:
 
     def step_terms(self, state: ControllerState, setpoint: ArrayLike, pv: ArrayLike) -> tuple[Terms, ControllerState]:
         """:meth:`step` with the output's parts, for run logs and figures."""
-        g = self.gains
-        sp = np.asarray(setpoint, float)
-        pv = np.asarray(pv, float)
-        if self.feedforward is None:
-            ff, ff_state = np.zeros(()), None
-        else:
-            ff, ff_state = self.feedforward.step(state.ff, sp)
-        u, p, integral, d, e, dpv = pid_update(
-            NUMPY_OPS, (g.Kc, g.Ti_s, g.Td_s, g.Tf_s, g.b), (g.u_min, g.u_max), self.dt_s,
-            state.integral, state.e_prev, state.pv_prev, state.dpv, sp, pv, ff)
-        u = np.asarray(u, float)
-        terms = Terms(u=u, p=p, i=np.asarray(integral, float), d=d, ff=np.broadcast_to(ff, u.shape))
-        return terms, ControllerState(np.asarray(integral, float), e, pv, sp, dpv, ff_state)
-
-    def casadi_functions(self) -> tuple[ca.Function, ca.Function]:
-        """The controller as CasADi functions, for code generation: ``(initial_state, step)``.
-
-        ``initial_state(setpoint, pv, u0) -> state`` is :meth:`initial_state` with ``u0``
-        (a bumpless start); ``step(state, setpoint, pv) -> (u, state_next)`` is :meth:`step`.
-        The gains and the feedforward model are constants; ``state = [integral, e_prev,
-        pv_prev, sp_prev, dpv, ff operator states...]`` (:meth:`state_vector` packs a
-        :class:`ControllerState`). The same :func:`pid_update` as :meth:`step`, so the
-        generated code computes what the simulation does.
-        """
-        ff_model = self.feedforward
-        n_ff = 0
-        if ff_model is not None:
-            if not hasattr(ff_model, "casadi_step"):
-                raise TypeError(f"{type(ff_model).__name__} has no CasADi step; use the classical P-I inverse.")
-            n_ff = int(ff_model.initial_state().size)
-        g = self.gains
-        x = ca.SX.sym("state", 5 + n_ff)
-        sp, pv, u0 = ca.SX.sym("setpoint"), ca.SX.sym("pv"), ca.SX.sym("u0")
-
-        def feedforward(ff_state: Any, target: Any) -> tuple[Any, Any]:
-            return (0.0, ca.SX(0, 1)) if ff_model is None else ff_model.casadi_step(ff_state, target)
-
-        ff, ff_next = feedforward(x[5:], sp)
-        u, _, integral, _, e, dpv = pid_update(
-            CASADI_OPS, (g.Kc, g.Ti_s, g.Td_s, g.Tf_s, g.b), (g.u_min, g.u_max), self.dt_s,
-            x[0], x[1], x[2], x[4], sp, pv, ff)
-        step = ca.Function("piezopreload_controller_step", [x, sp, pv], [u, ca.vertcat(integral, e, pv, sp, dpv, ff_next)],
-                           ["state", "setpoint", "pv"], ["u", "state_next"])
-        ff_rest = ca.DM.zeros(n_ff)
-        ff0, _ = feedforward(ff_rest, sp)
-        start = ca.vertcat(u0 - g.Kc * (g.b * sp - pv) - ff0, sp - pv, pv, sp, 0.0, ff_rest)
-        init = ca.Function("piezopreload_controller_initial_state", [sp, pv, u0], [start],
-                           ["setpoint", "pv", "u0"], ["state"])
-        return init, step
-
-    @staticmethod
-    def state_vector(state: ControllerState) -> NDArray[np.float64]:
-        """One loop's state as the flat vector of :meth:`casadi_function`."""
-        head = [float(state.integral), float(state.e_prev), float(state.pv_prev), float(state.sp_prev), float(state.dpv)]
-        tail = [] if state.ff is None else list(np.asarray(state.ff, float).ravel())
-        return np.array(head + tail)
-
-    def state_from_vector(self, x: ArrayLike) -> ControllerState:
-        """The inverse of :meth:`state_vector`, for this controller's feedforward."""
-        x = np.asarray(x, float)
-        if x.shape != (5 + self.n_feedforward_states,):
-            raise ValueError(f"expected a state of {5 + self.n_feedforward_states} numbers, got shape {x.shape}.")
-        ff = None if self.feedforward is None else x[5:].copy()
-        integral, e_prev, pv_prev, sp_prev, dpv = (np.array(v) for v in x[:5])
-        return ControllerState(integral, e_prev, pv_prev, sp_prev, dpv, ff)
+        model, params = self._realtime
+        sp, pv = np.asarray(setpoint, float), np.asarray(pv, float)
+        nxt, t = model.step(NUMPY, params, self.vector(state), sp, pv)
+        u = np.asarray(t.u, float)
+        terms = Terms(u=u, p=np.asarray(t.p, float), i=np.asarray(t.i, float), d=np.asarray(t.d, float),
+                      ff=np.broadcast_to(np.asarray(t.ff, float), u.shape))
+        return terms, self.state_from_vector(nxt)
 
     def retune(self, state: ControllerState, gains: PIDGains) -> tuple[Controller, ControllerState]:
         """Switch to new gains without a jump in the output (bumpless gain change).
@@ -291,41 +380,31 @@ class Controller:
                                   None if new.feedforward is None else new.feedforward.initial_state(state.sp_prev.shape))
         return replace(state, integral=state.integral + before - after, ff=ff_state)
 
-    def parameter_vector(self) -> NDArray[np.float64]:
-        """The numbers :func:`parametric_step` takes: gains, range, sample period, feedforward model."""
-        g = self.gains
-        head = [g.Kc, g.Ti_s, g.Td_s, g.Tf_s, g.b, g.u_min, g.u_max, self.dt_s]
-        ff = self.feedforward
-        if ff is None:
-            return np.array(head + [0.0])
-        if not hasattr(ff, "casadi_step"):
-            raise TypeError(f"{type(ff).__name__} has no CasADi step; use the classical P-I inverse.")
-        return np.concatenate([head, [ff.forward.offset], ff.thresholds, ff.weights])
 
-    @property
-    def n_feedforward_states(self) -> int:
-        return 0 if self.feedforward is None else int(self.feedforward.initial_state().size)
+def controller_functions(model: ControllerModel, params: ArrayLike | None = None,
+                         prefix: str = "pp_controller") -> tuple[ca.Function, ca.Function]:
+    """The controller as CasADi functions ``(initial_state, step)``, for code generation.
 
-
-def parametric_step(n_ff: int) -> ca.Function:
-    """The controller step with every number an input: one function for all gains and models of ``n_ff`` operators.
-
-    ``step(state, setpoint, pv, params) -> (u, p, i, d, ff, state_next)``, ``params`` as
-    :meth:`Controller.parameter_vector` gives them and ``state`` as
-    :meth:`Controller.state_vector` packs it. The same :func:`pid_update` and inverse P-I as
-    :meth:`Controller.step`, so code generated from it computes what the simulation does, and
-    a gain change needs no new code.
+    ``initial_state(setpoint, pv, u0[, params]) -> state`` is :meth:`ControllerModel.start`;
+    ``step(state, setpoint, pv[, params]) -> (u, p, i, d, ff, state_next)`` is
+    :meth:`ControllerModel.step`. With ``params`` (numbers) they are constants of the code (an
+    export for one gain set); without, an input (one compiled step for every gain set).
     """
-    x = ca.SX.sym("state", 5 + n_ff)
-    sp, pv = ca.SX.sym("setpoint"), ca.SX.sym("pv")
-    prm = ca.SX.sym("params", 9 + 2 * n_ff)
-    Kc, Ti, Td, Tf, b, u_min, u_max, dt, offset = (prm[k] for k in range(9))
-    if n_ff:
-        ff, ff_next = casadi_inverse_step(x[5:], sp, offset, prm[9:9 + n_ff], prm[9 + n_ff:])
+    x = ca.SX.sym("state", model.state.size)
+    sp, pv, u0 = ca.SX.sym("setpoint"), ca.SX.sym("pv"), ca.SX.sym("u0")
+    p: Any
+    if params is None:
+        p = ca.SX.sym("params", model.params.size)
+        extra_in, extra_names = [p], ["params"]
     else:
-        ff, ff_next = ca.SX(0.0), ca.SX(0, 1)
-    u, p, integral, d, e, dpv = pid_update(CASADI_OPS, (Kc, Ti, Td, Tf, b), (u_min, u_max), dt,
-                                           x[0], x[1], x[2], x[4], sp, pv, ff)
-    return ca.Function("pp_parametric_step", [x, sp, pv, prm],
-                       [u, p, integral, d, ff, ca.vertcat(integral, e, pv, sp, dpv, ff_next)],
-                       ["state", "setpoint", "pv", "params"], ["u", "p", "i", "d", "ff", "state_next"])
+        values = np.asarray(params, float)
+        if values.shape != (model.params.size,):
+            raise InputError(f"params must be {model.params.size} numbers, got shape {values.shape}.")
+        p, extra_in, extra_names = ca.DM(values), [], []
+    nxt, t = model.step(CASADI, p, x, sp, pv)
+    step = ca.Function(f"{prefix}_step_fn", [x, sp, pv, *extra_in], [t.u, t.p, t.i, t.d, t.ff, nxt],
+                       ["state", "setpoint", "pv", *extra_names], ["u", "p", "i", "d", "ff", "state_next"])
+    start = model.start(CASADI, p, sp, pv, u0)
+    init = ca.Function(f"{prefix}_initial_state_fn", [sp, pv, u0, *extra_in], [start],
+                       ["setpoint", "pv", "u0", *extra_names], ["state"])
+    return init, step

@@ -16,9 +16,11 @@ with the preload (through k_nut, as F_p^(1/3)) and with the table's position x (
 screw segments).
 
 The stacks between the nuts (the paper's three P-888.91) push the nuts apart: raising the
-preload from the bolts' F_i to F_p compresses the loop of both nuts' contacts by
-2 c_h (F_p^(2/3) - F_i^(2/3)) and the stacks themselves by (F_p - F_i) / (n k_stack), and the
-two together cannot exceed the stacks' free stroke at the drive voltage.
+preload from the bolts' F_i to F_p shifts both nuts on the screw by their nut law,
+2 (delta(F_p) - delta(F_i)) with delta(F) = (c_h F^(2/3) + s F) / f_ar (contacts and nut body,
+:meth:`BallScrew.nut_approach_um`), and compresses the stacks themselves by
+(F_p - F_i) / (n k_stack); the two together cannot exceed the stacks' free stroke at the drive
+voltage.
 """
 
 from __future__ import annotations
@@ -101,14 +103,16 @@ class FeedDrive:
         return float(min(max(mid, lo), hi))
 
 
-def stack_loop_um(c_h_um: Any, bolt_preload_N: Any, preload_N: Any, stack_stiffness_N_per_um: Any) -> Any:
+def stack_loop_um(c_h_um: Any, bolt_preload_N: Any, preload_N: Any, stack_stiffness_N_per_um: Any,
+                  structural_um_per_N: Any = 0.0, accuracy_factor: Any = 1.0) -> Any:
     """Stroke (um) the stacks need to raise the preload from the bolts' F_i to F_p.
 
-    Both nuts' contacts compress, 2 c_h (F_p^(2/3) - F_i^(2/3)), and the stacks themselves
-    (n in parallel, stiffness ``stack_stiffness_N_per_um`` together) by (F_p - F_i) / k.
-    Works on numbers and on CasADi expressions.
+    Both nuts shift by their nut law, 2 [c_h (F_p^(2/3) - F_i^(2/3)) + s (F_p - F_i)] / f_ar,
+    and the stacks themselves (n in parallel, stiffness ``stack_stiffness_N_per_um`` together)
+    compress by (F_p - F_i) / k. Works on numbers and on CasADi expressions.
     """
-    return (2.0 * c_h_um * (preload_N ** (2.0 / 3.0) - bolt_preload_N ** (2.0 / 3.0))
+    return (2.0 * (c_h_um * (preload_N ** (2.0 / 3.0) - bolt_preload_N ** (2.0 / 3.0))
+                   + structural_um_per_N * (preload_N - bolt_preload_N)) / accuracy_factor
             + (preload_N - bolt_preload_N) / stack_stiffness_N_per_um)
 
 
@@ -152,17 +156,17 @@ class PiezoPreload:
         """The highest preload the stacks reach at the drive voltage from the bolts' preload."""
         if not bolt_preload_N > 0:
             raise ValueError(f"bolt_preload_N must be > 0, got {bolt_preload_N!r}.")
-        c_h, k = screw.axial_constant_um, self.stiffness_N_per_um
+        c_h, s, k = screw.axial_constant_um, screw.structural_compliance_um_per_N, self.stiffness_N_per_um
 
         def gap(fp: float) -> float:
-            return stack_loop_um(c_h, bolt_preload_N, fp, k) - self.stroke_um
+            return stack_loop_um(c_h, bolt_preload_N, fp, k, s, screw.accuracy_factor) - self.stroke_um
 
         hi = bolt_preload_N + self.blocked_force_N * 1.01
         return float(brentq(gap, bolt_preload_N, hi, xtol=1e-9, rtol=1e-12))
 
     def preload_slew_N_per_s(self, screw: BallScrew, preload_N: float, bolt_preload_N: float) -> float:
         """How fast the preload can change at ``preload_N``: voltage slew times dF_p/dV."""
-        c_h, k = screw.axial_constant_um, self.stiffness_N_per_um
-        dloop_dF = 2.0 * c_h * (2.0 / 3.0) * preload_N ** (-1.0 / 3.0) + 1.0 / k
+        c_h, s, k = screw.axial_constant_um, screw.structural_compliance_um_per_N, self.stiffness_N_per_um
+        dloop_dF = 2.0 * (c_h * (2.0 / 3.0) * preload_N ** (-1.0 / 3.0) + s) / screw.accuracy_factor + 1.0 / k
         dstroke_dV = self.stack.nominal_travel_um / 100.0
         return float(self.voltage_slew_V_per_s * dstroke_dV / dloop_dF)

@@ -8,7 +8,11 @@ Section 3.2 of Zhang, Jin, Lin (2021), restated in ``docs/models.md`` (section 2
 * Kuhnen's modified P-I model (play operators followed by a superposition of one-sided
   dead-zone operators, K. Kuhnen, Eur. J. Control 9(4), 2003), which describes asymmetric
   loops and keeps an exact analytic inverse;
-* the analytic inverses, eqs. (19)-(20).
+* the analytic inverses, eqs. (19)-(20);
+* creep: a bank of first-order lags on the input (Kuhnen's linear creep operators) added to
+  any of the three models (:class:`CreepPI`), and the exact inverse of the classical and the
+  modified model with creep, whose one-sample step (:func:`inverse_step`) is written once for
+  numpy and CasADi.
 
 Everything here is pure: parameters are frozen dataclasses that validate themselves, the
 functions take explicit initial states and return final states, nothing is printed or read.
@@ -19,13 +23,16 @@ outputs of shape ``(..., N, n)``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from functools import cached_property
+from types import SimpleNamespace
+from typing import Any, NamedTuple
 
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from piezopreload.core.errors import InputError
+from piezopreload.core.errors import InputError, InternalError
+from piezopreload.models.ops import CASADI, NUMPY, Layout, Ops
 
 __all__ = [
     "NotInvertibleError",
@@ -35,6 +42,8 @@ __all__ = [
     "deadzone",
     "ClassicalPI",
     "InverseClassicalPI",
+    "InversePIStep",
+    "InverseModifiedPIStep",
     "casadi_inverse_step",
     "AsymmetricPI",
     "DeadZone",
@@ -42,6 +51,20 @@ __all__ = [
     "InverseModifiedPI",
     "uniform_thresholds",
     "model_from_dict",
+    "log_spaced_time_constants",
+    "LagCoefficients",
+    "lag_coefficients",
+    "creep_lags",
+    "Creep",
+    "CreepPI",
+    "InverseCreepPI",
+    "NUMPY_OPS",
+    "CASADI_OPS",
+    "InverseStepLayout",
+    "InverseStepParameters",
+    "inverse_step",
+    "inverse_step_parameters",
+    "parametric_inverse_step",
 ]
 
 
@@ -316,23 +339,62 @@ class InverseClassicalPI:
         return play(z, self.thresholds, state) @ self.weights
 
     def step(self, state: NDArray, target: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        z = play_step(state, np.asarray(target, dtype=float) - self.forward.offset, self.thresholds)
-        return z @ self.weights, z
+        """One sample (numpy, batched): ``(voltage, next operator states)``; :meth:`realtime`'s step."""
+        structure, params = self.realtime()
+        u, z = structure.step(NUMPY, params, np.asarray(state, dtype=float), np.asarray(target, dtype=float))
+        return np.asarray(u, dtype=float), np.asarray(z, dtype=float)
 
     def casadi_step(self, state: Any, target: Any) -> tuple[Any, Any]:
         """:meth:`step` on CasADi expressions (one loop): ``(voltage, next operator states)``."""
-        return casadi_inverse_step(state, target, self.forward.offset, ca.DM(self.thresholds), ca.DM(self.weights))
+        structure, params = self.realtime()
+        return structure.step(CASADI, ca.DM(params), state, target)
+
+    def realtime(self) -> tuple[InversePIStep, NDArray[np.float64]]:
+        """The controller's feedforward component: its step's structure and its parameter vector."""
+        structure = InversePIStep(self.thresholds.size)
+        return structure, structure.params.numbers(offset_N=self.forward.offset, thresholds=self.thresholds,
+                                                   weights=self.weights)
+
+
+@dataclass(frozen=True)
+class InversePIStep:
+    """One sample of an inverse classical P-I model of ``n_operators``, over an ops table.
+
+    ``v = sum_k w'_k z_k`` with ``z_k = max(O - offset - r'_k, min(O - offset + r'_k, z_k^-))``
+    (eqs. (14), (19)-(20)); the model's numbers are a parameter vector (:attr:`params`), so one
+    compiled step serves every model with as many operators. This is the feedforward component
+    of :class:`~piezopreload.models.controller.ControllerModel`: ``kind``, ``params``,
+    ``n_states``, ``rest_state`` and ``step`` are what a feedforward component supplies.
+    """
+
+    n_operators: int
+    kind: str = field(default="inverse-classical-pi", init=False)
+
+    @cached_property
+    def params(self) -> Layout:
+        return Layout("inverse P-I parameters", [("offset_N", None), ("thresholds", self.n_operators),
+                                                 ("weights", self.n_operators)])
+
+    @property
+    def n_states(self) -> int:
+        return self.n_operators
+
+    def rest_state(self, ops: Ops, params: Any) -> Any:
+        """Every operator at rest (0)."""
+        return ops.repeat(0.0, self.n_operators)
+
+    def step(self, ops: Ops, params: Any, state: Any, target: Any) -> tuple[Any, Any]:
+        """``(voltage, next operator states)`` for the force ``target``."""
+        p = self.params.unpack(params)
+        v = ops.expand(target - p.offset_N)
+        z = ops.maximum(v - p.thresholds, ops.minimum(v + p.thresholds, state))
+        return ops.dot(z, p.weights), z
 
 
 def casadi_inverse_step(state: Any, target: Any, offset: Any, thresholds: Any, weights: Any) -> tuple[Any, Any]:
-    """One sample of an inverse classical P-I model on CasADi expressions: ``(voltage, next states)``.
-
-    The model's numbers may be constants (:meth:`InverseClassicalPI.casadi_step`) or symbols,
-    so one compiled function serves every model with as many operators.
-    """
-    v = target - offset
-    z = ca.fmax(v - thresholds, ca.fmin(v + thresholds, state))
-    return ca.dot(weights, z), z
+    """:class:`InversePIStep` on CasADi expressions with the model's numbers given one by one."""
+    n = int(thresholds.numel()) if hasattr(thresholds, "numel") else len(thresholds)
+    return InversePIStep(n).step(CASADI, ca.vertcat(offset, thresholds, weights), state, target)
 
 
 # --------------------------------------------------------------------------------------
@@ -562,8 +624,51 @@ class InverseModifiedPI:
         return self.play_inverse(z, state)
 
     def step(self, state: NDArray, target: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        z = self.shaper_inverse(np.asarray(target, dtype=float) - self.forward.offset)
-        return self.play_inverse.step(state, z)
+        """One sample (numpy, batched): ``(voltage, next operator states)``; :meth:`realtime`'s step."""
+        structure, params = self.realtime()
+        u, z = structure.step(NUMPY, params, np.asarray(state, dtype=float), np.asarray(target, dtype=float))
+        return np.asarray(u, dtype=float), np.asarray(z, dtype=float)
+
+    def realtime(self) -> tuple[InverseModifiedPIStep, NDArray[np.float64]]:
+        """The controller's feedforward component: its step's structure and its parameter vector."""
+        structure = InverseModifiedPIStep(self.play_inverse.thresholds.size, self.shaper_inverse.thresholds.size)
+        return structure, structure.params.numbers(
+            offset_N=self.forward.offset, deadzone_thresholds=self.shaper_inverse.thresholds,
+            deadzone_weights=self.shaper_inverse.weights, bias=self.play_inverse.forward.offset,
+            thresholds=self.play_inverse.thresholds, weights=self.play_inverse.weights)
+
+
+@dataclass(frozen=True)
+class InverseModifiedPIStep:
+    """One sample of an inverse modified P-I model, over an ops table: the inverse dead-zone
+    superposition of ``O - offset``, less the bias, through the inverse P-I operators (as
+    :class:`InversePIStep`)."""
+
+    n_operators: int
+    n_deadzone: int
+    kind: str = field(default="inverse-modified-pi", init=False)
+
+    @cached_property
+    def params(self) -> Layout:
+        return Layout("inverse modified P-I parameters", [
+            ("offset_N", None), ("deadzone_thresholds", self.n_deadzone), ("deadzone_weights", self.n_deadzone),
+            ("bias", None), ("thresholds", self.n_operators), ("weights", self.n_operators)])
+
+    @property
+    def n_states(self) -> int:
+        return self.n_operators
+
+    def rest_state(self, ops: Ops, params: Any) -> Any:
+        return ops.repeat(0.0, self.n_operators)
+
+    def step(self, ops: Ops, params: Any, state: Any, target: Any) -> tuple[Any, Any]:
+        p = self.params.unpack(params)
+        x = ops.expand(target - p.offset_N) - p.deadzone_thresholds
+        d = p.deadzone_thresholds
+        shaped = ops.where(d > 0, ops.maximum(x, 0.0), ops.where(d < 0, ops.minimum(x, 0.0), x + d))
+        v = ops.expand(ops.dot(shaped, p.deadzone_weights) - p.bias)
+        z = ops.maximum(v - p.thresholds, ops.minimum(v + p.thresholds, state))
+        return ops.dot(z, p.weights), z
 
 
 # --------------------------------------------------------------------------------------
@@ -581,13 +686,21 @@ _FIELDS = {
 HysteresisModel = ClassicalPI | AsymmetricPI | ModifiedPI
 
 
-def model_from_dict(data: dict[str, Any], where: str = "model") -> HysteresisModel:
-    """Rebuild a model from :meth:`to_dict` output; errors name the offending field."""
+def model_from_dict(data: dict[str, Any], where: str = "model") -> HysteresisModel | CreepPI:
+    """Rebuild a model from :meth:`to_dict` output; errors name the offending field.
+
+    A kind ending in ``+creep`` (``"classical+creep"``, ...) is a :class:`CreepPI`: the
+    hysteresis model's fields plus a ``creep`` object. Documents written before creep existed
+    read as they did.
+    """
     if not isinstance(data, dict):
         raise ValueError(f"{where} must be an object, got {type(data).__name__}.")
     kind = data.get("kind")
+    if isinstance(kind, str) and kind.endswith(_CREEP_SUFFIX) and kind[: -len(_CREEP_SUFFIX)] in _FIELDS:
+        return _creep_model_from_dict(data, kind, where)
     if kind not in _FIELDS:
-        raise ValueError(f"{where}.kind must be one of {sorted(_FIELDS)}, got {kind!r}.")
+        kinds = sorted(_FIELDS) + sorted(k + _CREEP_SUFFIX for k in _FIELDS)
+        raise ValueError(f"{where}.kind must be one of {kinds}, got {kind!r}.")
     cls, names = _FIELDS[kind]
     missing = [n for n in names if n not in data]
     if missing:
@@ -596,3 +709,581 @@ def model_from_dict(data: dict[str, Any], where: str = "model") -> HysteresisMod
         return cls(**{n: data[n] for n in names})
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{where}: {exc}") from None
+
+
+# --------------------------------------------------------------------------------------
+# creep: linear creep operators (first-order lags) on the input, and the compound model
+# --------------------------------------------------------------------------------------
+# Kuhnen's modified P-I model with creep (Eur. J. Control 9(4), 2003) and Krejci & Kuhnen
+# (IEE Proc. Control Theory Appl. 148(3), 2001) add to the hysteresis operator a superposition
+# of linear creep operators: first-order lags of the input with time constants spread over the
+# decades the creep covers, ``C[v] = sum_j c_j L_j[v]``, ``tau_j dL_j/dt = v - L_j``. The
+# model stays linear in all its weights, so it is identified by the same QP, and its one-sample
+# map stays a P-I model: see :class:`CreepPI`.
+
+
+def log_spaced_time_constants(shortest_s: float, longest_s: float, n: int | None = None) -> NDArray[np.float64]:
+    """``n`` time constants spaced evenly in log between ``shortest_s`` and ``longest_s``.
+
+    Without ``n``, one per decade (rounded up) and both ends included: 0.01 s to 10 s gives
+    0.01, 0.1, 1 and 10 s. The usual spread of a creep operator bank (Kuhnen 2003).
+    """
+    lo, hi = float(shortest_s), float(longest_s)
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo <= hi):
+        raise InputError(
+            f"log-spaced time constants need 0 < shortest_s <= longest_s, got {shortest_s!r} and {longest_s!r}."
+        )
+    if n is None:
+        n = int(np.ceil(np.log10(hi / lo) - 1e-9)) + 1 if hi > lo else 1
+    if int(n) != n or n < 1:
+        raise InputError(f"n must be a positive integer, got {n!r}.")
+    if n > 1 and hi == lo:
+        raise InputError(f"{n} distinct time constants need shortest_s < longest_s, got both {lo}.")
+    return np.geomspace(lo, hi, int(n))
+
+
+def _b0_series(h: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(h - 1 + exp(-h)) / h``, without the cancellation of the direct formula at small ``h``."""
+    direct = (h + np.expm1(-h)) / np.where(h > 0, h, 1.0)
+    series = h / 2 - h**2 / 6 + h**3 / 24 - h**4 / 120 + h**5 / 720
+    return np.where(h < 1e-3, series, direct)
+
+
+@dataclass(frozen=True, eq=False)
+class LagCoefficients:
+    """Exact one-sample coefficients of first-order lags ``tau dz/dt = v - z``.
+
+    Exact for an input that is linear between samples (a first-order hold, the discretisation
+    a sampled smooth signal calls for): ``z_k = a z_{k-1} + b1 v_{k-1} + b0 v_k`` with
+    ``a = exp(-h)``, ``b0 = 1 - (1 - a)/h``, ``b1 = (1 - a) - b0``, ``h = dt / tau``
+    (``b0 + b1 = 1 - a``: unit static gain). The state kept between samples is the *carry*
+    ``s_k = a z_k + b1 v_k``, so that ``z_k = s_{k-1} + b0 v_k`` and ``s_k = a s_{k-1} + e v_k``
+    with ``e = a b0 + b1``; at rest at ``v0``, ``s = (1 - b0) v0``.
+    """
+
+    a: NDArray[np.float64]
+    b0: NDArray[np.float64]
+    b1: NDArray[np.float64]
+
+    @property
+    def e(self) -> NDArray[np.float64]:
+        return self.a * self.b0 + self.b1
+
+
+def lag_coefficients(time_constants_s: ArrayLike, sample_period_s: float) -> LagCoefficients:
+    """:class:`LagCoefficients` of lags with ``time_constants_s`` sampled every ``sample_period_s``."""
+    tau = np.asarray(time_constants_s, dtype=float)
+    dt = float(sample_period_s)
+    if not (np.isfinite(dt) and dt > 0):
+        raise InputError(f"sample_period_s must be a positive number of seconds, got {sample_period_s!r}.")
+    if not np.all(np.isfinite(tau) & (tau > 0)):
+        raise InputError(f"time constants must be positive and finite, got {tau.tolist()}.")
+    h = dt / tau
+    one_minus_a = -np.expm1(-h)
+    b0 = _b0_series(h)
+    return LagCoefficients(a=np.exp(-h), b0=b0, b1=one_minus_a - b0)
+
+
+def creep_lags(
+    v: ArrayLike, coefficients: LagCoefficients, state: ArrayLike | None = None
+) -> NDArray[np.float64]:
+    """Outputs of a bank of lags, shape ``(..., N, m)``, for inputs ``v`` of shape ``(..., N)``.
+
+    ``state`` holds the carries before the first sample (shape ``(..., m)``; 0, at rest at
+    0 V, by default). The carry remembers the last input too: from rest at 0 V the first
+    sample's input is taken as reached linearly from 0 over one sample period. The recursion ``z_k = s_{k-1} + b0 v_k``, ``s_k = a z_k + b1 v_k`` is an
+    IIR filter with numerator ``(b0, b1)`` and denominator ``(1, -a)`` whose transposed
+    direct-form state is the carry, so :func:`scipy.signal.lfilter` runs it.
+    """
+    from scipy.signal import lfilter
+
+    v = np.asarray(v, dtype=float)
+    if v.ndim == 0 or v.shape[-1] == 0:
+        raise InputError(f"v must have at least one sample on its last axis, got shape {v.shape}.")
+    m = coefficients.a.size
+    batch = v.shape[:-1]
+    s0 = np.zeros(batch + (m,)) if state is None else np.broadcast_to(np.asarray(state, float), batch + (m,))
+    out = np.empty(batch + (v.shape[-1], m))
+    for j in range(m):
+        b = [coefficients.b0[j], coefficients.b1[j]]
+        out[..., j], _ = lfilter(b, [1.0, -coefficients.a[j]], v, axis=-1, zi=s0[..., j : j + 1])
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Creep:
+    """A bank of linear creep operators on the input: ``C[v] = sum_j c_j L_j[v]``.
+
+    ``L_j`` is the first-order lag ``tau_j dL_j/dt = v - L_j`` (unit static gain), sampled
+    exactly every ``sample_period_s`` for an input linear between samples
+    (:class:`LagCoefficients`). After a step of the input, ``C`` grows by ``c_j`` times the
+    step over about ``tau_j``: with nonnegative weights on log-spaced time constants it is the
+    usual fit of logarithmic creep. The hysteresis part carries the instantaneous response;
+    ``sum_j c_j`` is what creep adds once it has settled.
+
+    Parameters
+    ----------
+    time_constants_s : array_like, shape (m,)
+        Strictly increasing positive time constants ``tau_j`` in s.
+    weights : array_like, shape (m,)
+        ``c_j`` in output units per input unit.
+    sample_period_s : float
+        The sample period the model runs at; :meth:`with_sample_period` resamples it exactly.
+    """
+
+    time_constants_s: NDArray[np.float64]
+    weights: NDArray[np.float64]
+    sample_period_s: float
+
+    def __post_init__(self) -> None:
+        try:
+            tau = _vector("creep time_constants_s", self.time_constants_s)
+            c = _vector("creep weights", self.weights)
+        except ValueError as exc:
+            raise InputError(str(exc)) from exc
+        if np.any(tau <= 0):
+            raise InputError(f"creep time_constants_s must be > 0 s, got {tau.tolist()}.")
+        if np.any(np.diff(tau) <= 0):
+            raise InputError(f"creep time_constants_s must be strictly increasing, got {tau.tolist()}.")
+        if c.shape != tau.shape:
+            raise InputError(f"creep weights must have {tau.size} entries like time_constants_s, got {c.size}.")
+        dt = float(self.sample_period_s)
+        if not (np.isfinite(dt) and dt > 0):
+            raise InputError(f"creep sample_period_s must be a positive number of seconds, got {self.sample_period_s!r}.")
+        object.__setattr__(self, "time_constants_s", tau)
+        object.__setattr__(self, "weights", c)
+        object.__setattr__(self, "sample_period_s", dt)
+
+    @property
+    def n_lags(self) -> int:
+        return int(self.time_constants_s.size)
+
+    @property
+    def coefficients(self) -> LagCoefficients:
+        return lag_coefficients(self.time_constants_s, self.sample_period_s)
+
+    @property
+    def instantaneous_gain(self) -> float:
+        """``sum_j c_j b0_j``: what this sample's input adds to this sample's creep output."""
+        return float(self.weights @ self.coefficients.b0)
+
+    def initial_state(self, batch: tuple[int, ...] = (), v0: ArrayLike = 0.0) -> NDArray[np.float64]:
+        """Carries of lags at rest at input ``v0``, shape ``batch + (m,)``."""
+        v0 = np.broadcast_to(np.asarray(v0, float), batch)
+        return (1.0 - self.coefficients.b0) * v0[..., None]
+
+    def lags(self, v: ArrayLike, state: ArrayLike | None = None) -> NDArray[np.float64]:
+        """The lag outputs ``L_j[v]``, shape ``(..., N, m)`` (see :func:`creep_lags`)."""
+        return creep_lags(v, self.coefficients, state)
+
+    def carry(self, lags: ArrayLike, v: ArrayLike) -> NDArray[np.float64]:
+        """The state after a sample whose lag outputs are ``lags`` (..., m) and input ``v`` (...)."""
+        k = self.coefficients
+        return k.a * np.asarray(lags, float) + k.b1 * np.asarray(v, float)[..., None]
+
+    def __call__(self, v: ArrayLike, state: ArrayLike | None = None) -> NDArray[np.float64]:
+        """``C[v]``, shape (..., N)."""
+        return self.lags(v, state) @ self.weights
+
+    def with_sample_period(self, sample_period_s: float) -> Creep:
+        """The same continuous-time creep sampled every ``sample_period_s`` (exact)."""
+        return Creep(self.time_constants_s, self.weights, sample_period_s)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "time_constants_s": self.time_constants_s.tolist(),
+            "weights": self.weights.tolist(),
+            "sample_period_s": self.sample_period_s,
+        }
+
+
+_CREEP_SUFFIX = "+creep"
+
+
+@dataclass(frozen=True, eq=False)
+class CreepPI:
+    """A P-I model with creep: the classical, the paper's asymmetric or the modified model plus :class:`Creep`.
+
+    * classical: ``O = sum_k w_k F_{r_k}[v] + C[v] + offset``;
+    * paper-asymmetric: ``O = sum_k (p w_rise_k + q w_fall_k) F_{r_k}[v] + C[v] + offset``;
+    * modified: ``O = S(sum_k w_k F_{r_k}[v] + C[v] + bias) + offset``: the creep joins the
+      play operators inside the dead-zone superposition ``S``, as in Kuhnen's modified model
+      with creep, so the model stays linear in its weights in the QP's inverse form.
+
+    One sample at a time the creep is ``C_k = sum_j c_j s_{j,k-1} + beta v_k`` with the carries
+    ``s`` of the last sample and ``beta = sum_j c_j b0_j`` (:attr:`Creep.instantaneous_gain`):
+    this sample's input enters linearly, alongside the linear operator ``F_0[v] = v``. So the
+    one-sample map from ``v_k`` to the output is the P-I model with the weights
+    ``(w_1 + beta, w_2, ..., w_n)`` and an offset known from the state, and its analytic
+    inverse, eqs. (19)-(20), applies sample by sample (:class:`InverseCreepPI`).
+
+    The state is ``[play operator outputs (n), creep carries (m)]``, zero at rest at 0 V.
+    """
+
+    hysteresis: ClassicalPI | AsymmetricPI | ModifiedPI
+    creep: Creep
+    kind: str = field(default="", init=False)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.hysteresis, ClassicalPI | AsymmetricPI | ModifiedPI):
+            raise InputError(
+                "hysteresis must be a ClassicalPI, AsymmetricPI or ModifiedPI, "
+                f"got {type(self.hysteresis).__name__}."
+            )
+        if not isinstance(self.creep, Creep):
+            raise InputError(f"creep must be a Creep, got {type(self.creep).__name__}.")
+        object.__setattr__(self, "kind", self.hysteresis.kind + _CREEP_SUFFIX)
+
+    @property
+    def n_operators(self) -> int:
+        return self.hysteresis.n_operators
+
+    @property
+    def n_lags(self) -> int:
+        return self.creep.n_lags
+
+    @property
+    def thresholds(self) -> NDArray[np.float64]:
+        return self.hysteresis.thresholds
+
+    @property
+    def offset(self) -> float:
+        return self.hysteresis.offset
+
+    @property
+    def sample_period_s(self) -> float:
+        return self.creep.sample_period_s
+
+    @property
+    def one_sample_weights(self) -> NDArray[np.float64]:
+        """Weights of the one-sample P-I map: ``w`` with ``w_1 + beta`` (classical and modified)."""
+        if isinstance(self.hysteresis, AsymmetricPI):
+            raise NotInvertibleError("the paper's direction-switched model has no one-sample P-I map to invert.")
+        w = self.hysteresis.weights.copy()
+        w[0] += self.creep.instantaneous_gain
+        return w
+
+    @property
+    def invertible(self) -> bool:
+        h = self.hysteresis
+        if isinstance(h, AsymmetricPI):
+            return False
+        ok = bool(np.all(np.cumsum(self.one_sample_weights) > 0))
+        return ok and (h.shaper.invertible if isinstance(h, ModifiedPI) else True)
+
+    def without_creep(self) -> ClassicalPI | AsymmetricPI | ModifiedPI:
+        """The hysteresis part alone (the creep's contribution dropped, static gain included)."""
+        return self.hysteresis
+
+    def with_sample_period(self, sample_period_s: float) -> CreepPI:
+        """The same model at another sample period: the hysteresis is rate-independent, the lags resampled exactly."""
+        return CreepPI(self.hysteresis, self.creep.with_sample_period(sample_period_s))
+
+    def initial_state(self, batch: tuple[int, ...] = ()) -> NDArray[np.float64]:
+        """At rest at 0 V: zeros of shape ``batch + (n + m,)``."""
+        return np.zeros(batch + (self.n_operators + self.n_lags,))
+
+    def _split(self, state: ArrayLike | None, batch: tuple[int, ...]) -> tuple[NDArray, NDArray]:
+        n, m = self.n_operators, self.n_lags
+        if state is None:
+            return np.zeros(batch + (n,)), np.zeros(batch + (m,))
+        x = np.asarray(state, float)
+        if x.shape[-1:] != (n + m,):
+            raise InputError(
+                f"a {self.kind} state has {n + m} entries (n={n} play operators, then m={m} creep carries) "
+                f"on its last axis, got shape {x.shape}."
+            )
+        return x[..., :n], x[..., n:]
+
+    def _pre(self, ops: NDArray, creep: NDArray, v: NDArray, v_prev: ArrayLike) -> NDArray:
+        h = self.hysteresis
+        if isinstance(h, AsymmetricPI):
+            p = rising(v, v_prev)
+            return np.where(p, ops @ h.weights_rising, ops @ h.weights_falling) + creep
+        bias = h.bias if isinstance(h, ModifiedPI) else 0.0
+        return ops @ h.weights + creep + bias
+
+    def _out(self, pre: NDArray) -> NDArray:
+        h = self.hysteresis
+        return (h.shaper(pre) if isinstance(h, ModifiedPI) else pre) + h.offset
+
+    def run(
+        self, v: ArrayLike, state: ArrayLike | None = None, v_prev: ArrayLike = 0.0
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Output for input ``v`` of shape (..., N) from ``state``, and the state after the last sample.
+
+        ``v_prev`` is the input before the first sample (the asymmetric model's direction).
+        """
+        v = np.asarray(v, dtype=float)
+        y0, s0 = self._split(state, v.shape[:-1])
+        ops = play(v, self.thresholds, y0)
+        lags = self.creep.lags(v, s0)
+        out = self._out(self._pre(ops, lags @ self.creep.weights, v, v_prev))
+        final = np.concatenate([ops[..., -1, :], self.creep.carry(lags[..., -1, :], v[..., -1])], axis=-1)
+        return out, final
+
+    def __call__(self, v: ArrayLike, state: ArrayLike | None = None, v_prev: ArrayLike = 0.0) -> NDArray[np.float64]:
+        """Output for input ``v`` of shape (..., N), from ``state`` (at rest at 0 V by default)."""
+        return self.run(v, state, v_prev)[0]
+
+    def step(self, state: ArrayLike, v: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """One sample of the classical or modified model: ``(output, new_state)``."""
+        if isinstance(self.hysteresis, AsymmetricPI):
+            raise InputError("step needs the classical or the modified model; run the asymmetric one with run(v, state, v_prev).")
+        v = np.asarray(v, dtype=float)
+        y_prev, s_prev = self._split(state, v.shape)
+        k = self.creep.coefficients
+        y = play_step(y_prev, v, self.thresholds)
+        lags = s_prev + k.b0 * v[..., None]
+        out = self._out(self._pre(y, lags @ self.creep.weights, v, 0.0))
+        return out, np.concatenate([y, self.creep.carry(lags, v)], axis=-1)
+
+    def inverse(self) -> InverseCreepPI:
+        """The exact inverse, one sample at a time (classical and modified models)."""
+        layout, params, play_inverse = _inverse_step_model(self)
+        return InverseCreepPI(forward=self, layout=layout, parameters=params, play_inverse=play_inverse)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**self.hysteresis.to_dict(), "kind": self.kind, "creep": self.creep.to_dict()}
+
+
+# --------------------------------------------------------------------------------------
+# the inverse's one-sample step, written once over a table of operations
+# --------------------------------------------------------------------------------------
+#: Operations the one-sample steps need that differ between numpy arrays (a batch of loops in
+#: the leading axes, operators on the last axis) and CasADi expressions (column vectors). A
+#: superset of the controller's table, so one table can serve both steps.
+NUMPY_OPS = SimpleNamespace(
+    where=np.where, minimum=np.minimum, maximum=np.maximum,
+    logical_and=np.logical_and, logical_or=np.logical_or,
+    dot=lambda w, x: np.asarray(x) @ np.asarray(w),  # sum over the operators' axis
+    lift=lambda x: np.asarray(x, dtype=float)[..., None],  # a per-loop number against a per-operator vector
+    split=lambda x, n: (x[..., :n], x[..., n:]),
+    join=lambda a, b: np.concatenate([a, b], axis=-1),
+)
+CASADI_OPS = SimpleNamespace(
+    where=ca.if_else, minimum=ca.fmin, maximum=ca.fmax,
+    logical_and=ca.logic_and, logical_or=ca.logic_or,
+    dot=ca.dot,
+    lift=lambda x: x,
+    split=lambda x, n: (x[:n], x[n:]),
+    join=ca.vertcat,
+)
+
+
+class InverseStepParameters(NamedTuple):
+    """The parameter vector of :func:`inverse_step`, split into its parts (in this order)."""
+
+    offset: Any
+    bias: Any
+    shaper_center: Any
+    shaper_up_thresholds: Any
+    shaper_up_weights: Any
+    shaper_down_thresholds: Any
+    shaper_down_weights: Any
+    thresholds: Any
+    weights: Any
+    creep_weights: Any
+    creep_decay: Any
+    creep_input: Any
+
+
+@dataclass(frozen=True)
+class InverseStepLayout:
+    """Sizes of an inverse model's state and parameter vectors (:func:`inverse_step`).
+
+    State (``n + m``): ``[inverse play operator states z' (n), creep carries s (m)]``.
+    Parameters (``3 + 2 (n_up + n_down) + 2 n + 3 m``), in this order:
+    ``offset``, ``bias``, the inverse dead-zone superposition's central weight ``u'_0``, its
+    positive thresholds and weights ``d'_up, u'_up`` (``n_up`` each), its negative ones
+    ``d'_down, u'_down`` (``n_down`` each), the inverse thresholds ``r'`` and weights ``w'``
+    of eqs. (19)-(20) (``n`` each), the creep weights ``c``, decays ``a`` and carry inputs
+    ``e = a b0 + b1`` (``m`` each). A classical model has no shaper (``u'_0 = 1``,
+    ``n_up = n_down = 0``, ``bias = 0``); a model without creep has ``m = 0``.
+    """
+
+    n_operators: int
+    n_lags: int = 0
+    n_shaper_up: int = 0
+    n_shaper_down: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("n_operators", "n_lags", "n_shaper_up", "n_shaper_down"):
+            x = getattr(self, name)
+            if not isinstance(x, int | np.integer) or x < (1 if name == "n_operators" else 0):
+                raise InputError(f"InverseStepLayout.{name} must be an integer >= {1 if name == 'n_operators' else 0}, got {x!r}.")
+
+    @property
+    def n_states(self) -> int:
+        return int(self.n_operators + self.n_lags)
+
+    @property
+    def n_parameters(self) -> int:
+        return int(3 + 2 * (self.n_shaper_up + self.n_shaper_down) + 2 * self.n_operators + 3 * self.n_lags)
+
+    def split(self, params: Any) -> InverseStepParameters:
+        """The parts of a parameter vector (numpy 1-D or CasADi column)."""
+        sizes = [1, 1, 1, self.n_shaper_up, self.n_shaper_up, self.n_shaper_down, self.n_shaper_down,
+                 self.n_operators, self.n_operators, self.n_lags, self.n_lags, self.n_lags]
+        edges = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+        parts = [params[int(a)] if k < 3 else params[int(a):int(b)] for k, (a, b) in enumerate(zip(edges[:-1], edges[1:]))]
+        return InverseStepParameters(*parts)
+
+    def to_dict(self) -> dict[str, int]:
+        return {"n_operators": int(self.n_operators), "n_lags": int(self.n_lags),
+                "n_shaper_up": int(self.n_shaper_up), "n_shaper_down": int(self.n_shaper_down)}
+
+
+def inverse_step(ops: Any, layout: InverseStepLayout, params: Any, state: Any, target: Any) -> tuple[Any, Any]:
+    """One sample of the exact inverse of a (modified) P-I model with creep: ``(input, next state)``.
+
+    On numpy arrays (:data:`NUMPY_OPS`; a batch in the leading axes of ``state`` and
+    ``target``) or CasADi expressions (:data:`CASADI_OPS`); ``params`` and ``state`` as
+    :class:`InverseStepLayout` lays them out. With ``x = target - offset``:
+
+    1. ``P = S^-1(x) = u'_0 x + sum u'_up max(x - d'_up, 0) + sum u'_down min(x - d'_down, 0)``,
+       the inverse dead-zone superposition (identity for the classical model);
+    2. ``g = P - bias - sum_j c_j s_j``: what the one-sample P-I map must give, once the
+       creep's part known from the last sample is taken off;
+    3. ``z' = max(g - r', min(g + r', z'_prev))``, ``v = sum w' z'``: the inverse P-I model of
+       eqs. (19)-(20) for the one-sample weights ``(w_1 + beta, w_2, ..., w_n)``;
+    4. ``s = a s_prev + e v``: the creep carries take this sample's input.
+    """
+    p = layout.split(params)
+    play_state, creep_state = ops.split(state, layout.n_operators)
+    x = target - p.offset
+    xs = ops.lift(x)
+    pre = (p.shaper_center * x
+           + ops.dot(p.shaper_up_weights, ops.maximum(xs - p.shaper_up_thresholds, 0.0))
+           + ops.dot(p.shaper_down_weights, ops.minimum(xs - p.shaper_down_thresholds, 0.0)))
+    g = ops.lift(pre - p.bias - ops.dot(p.creep_weights, creep_state))
+    z = ops.maximum(g - p.thresholds, ops.minimum(g + p.thresholds, play_state))
+    v = ops.dot(p.weights, z)
+    carry = p.creep_decay * creep_state + p.creep_input * ops.lift(v)
+    return v, ops.join(z, carry)
+
+
+def _inverse_step_model(
+    model: ClassicalPI | ModifiedPI | CreepPI,
+) -> tuple[InverseStepLayout, NDArray[np.float64], InverseClassicalPI]:
+    """Layout, parameter vector and the one-sample inverse P-I model of an invertible model."""
+    h = model.hysteresis if isinstance(model, CreepPI) else model
+    if isinstance(h, AsymmetricPI):
+        h.inverse()  # raises NotInvertibleError with the reason
+    if not isinstance(h, ClassicalPI | ModifiedPI):
+        raise InputError(f"expected a ClassicalPI, ModifiedPI or CreepPI, got {type(model).__name__}.")
+    w = h.weights.copy()
+    if isinstance(model, CreepPI):
+        k = model.creep.coefficients
+        w[0] += model.creep.instantaneous_gain
+        c, a, e = model.creep.weights, k.a, k.e
+        what = "this P-I model with creep (its linear weight plus the creep's one-sample gain)"
+    else:
+        c = a = e = np.zeros(0)
+        what = "this P-I model"
+    play_inverse = ClassicalPI(h.thresholds, w, 0.0)
+    r_inv, w_inv = _inverse_weights(h.thresholds, w, what)
+    play_inv = InverseClassicalPI(forward=play_inverse, thresholds=r_inv, weights=w_inv)
+    if isinstance(h, ModifiedPI):
+        s_inv = h.shaper.inverse()
+        ctr = s_inv.center
+        up_d, up_u = s_inv.thresholds[ctr + 1 :], s_inv.weights[ctr + 1 :]
+        dn_d, dn_u = s_inv.thresholds[:ctr], s_inv.weights[:ctr]
+        center, bias = float(s_inv.weights[ctr]), h.bias
+    else:
+        up_d = up_u = dn_d = dn_u = np.zeros(0)
+        center, bias = 1.0, 0.0
+    layout = InverseStepLayout(h.n_operators, int(c.size), int(up_d.size), int(dn_d.size))
+    params = np.concatenate([[h.offset, bias, center], up_d, up_u, dn_d, dn_u, r_inv, w_inv, c, a, e])
+    return layout, params, play_inv
+
+
+def inverse_step_parameters(model: ClassicalPI | ModifiedPI | CreepPI) -> tuple[InverseStepLayout, NDArray[np.float64]]:
+    """The layout and parameter vector of :func:`inverse_step` for an invertible model.
+
+    A :class:`ClassicalPI` or :class:`ModifiedPI` without creep gives ``n_lags = 0``, so one
+    compiled step serves models with and without creep. Raises :class:`NotInvertibleError`
+    for the paper's asymmetric model and for weights with a nonpositive partial sum.
+    """
+    layout, params, _ = _inverse_step_model(model)
+    return layout, params
+
+
+def parametric_inverse_step(layout: InverseStepLayout) -> ca.Function:
+    """:func:`inverse_step` as a CasADi function with every number an input, for code generation.
+
+    ``pp_inverse_step(state, target, params) -> (v, state_next)``; one function serves every
+    model of this layout.
+    """
+    x = ca.SX.sym("state", layout.n_states)
+    target = ca.SX.sym("target")
+    prm = ca.SX.sym("params", layout.n_parameters)
+    v, nxt = inverse_step(CASADI_OPS, layout, prm, x, target)
+    return ca.Function("pp_inverse_step", [x, target, prm], [v, nxt], ["state", "target", "params"], ["v", "state_next"])
+
+
+@dataclass(frozen=True, eq=False)
+class InverseCreepPI:
+    """Exact inverse of a :class:`CreepPI` (classical or modified), one sample at a time.
+
+    Built by :meth:`CreepPI.inverse`; :meth:`step` and :meth:`casadi_step` are
+    :func:`inverse_step` on numpy and on CasADi, with :attr:`parameters` laid out as
+    :attr:`layout` says. Its state is ``[inverse play operator states (n), creep carries (m)]``;
+    :meth:`state_from_forward` converts a forward state, so the inverse can take over from
+    any history. Code generated for any model of a layout comes from
+    :func:`parametric_inverse_step`, fed :attr:`parameters`.
+    """
+
+    forward: CreepPI
+    layout: InverseStepLayout
+    parameters: NDArray[np.float64]
+    play_inverse: InverseClassicalPI
+
+    def initial_state(self, batch: tuple[int, ...] = ()) -> NDArray[np.float64]:
+        """At rest at 0 V, as the forward model's :meth:`CreepPI.initial_state`."""
+        return np.zeros(batch + (self.layout.n_states,))
+
+    def state_from_forward(self, state: ArrayLike) -> NDArray[np.float64]:
+        """The inverse's state equivalent to a forward state ``[play outputs, carries]``."""
+        y, s = self.forward._split(state, np.shape(state)[:-1])
+        return np.concatenate([self.play_inverse.state_from_forward(y), s], axis=-1)
+
+    def step(self, state: ArrayLike, target: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """One sample: the input that makes the forward model output ``target``, and the next state."""
+        v, nxt = inverse_step(NUMPY_OPS, self.layout, self.parameters, np.asarray(state, float), np.asarray(target, float))
+        return np.asarray(v, float), np.asarray(nxt, float)
+
+    def casadi_step(self, state: Any, target: Any) -> tuple[Any, Any]:
+        """:meth:`step` on CasADi expressions, the model's numbers as constants."""
+        return inverse_step(CASADI_OPS, self.layout, ca.DM(self.parameters), state, target)
+
+    def run(self, target: ArrayLike, state: ArrayLike | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Inputs for the targets of shape (..., N) from ``state`` (at rest by default), and the final state."""
+        target = np.asarray(target, dtype=float)
+        x = self.initial_state(target.shape[:-1]) if state is None else np.asarray(state, float)
+        out = np.empty(target.shape)
+        for k in range(target.shape[-1]):
+            out[..., k], x = self.step(x, target[..., k])
+        return out, x
+
+    def __call__(self, target: ArrayLike, state: ArrayLike | None = None) -> NDArray[np.float64]:
+        return self.run(target, state)[0]
+
+
+def _creep_model_from_dict(data: dict[str, Any], kind: str, where: str) -> CreepPI:
+    base = kind[: -len(_CREEP_SUFFIX)]
+    creep = data.get("creep")
+    if not isinstance(creep, dict):
+        raise InputError(f"{where}.creep must be an object with time_constants_s, weights and sample_period_s "
+                         f"(a {kind} model), got {type(creep).__name__}.")
+    missing = [n for n in ("time_constants_s", "weights", "sample_period_s") if n not in creep]
+    if missing:
+        raise InputError(f"{where}.creep.{missing[0]} is missing (a creep bank needs time_constants_s, weights, sample_period_s).")
+    hysteresis = model_from_dict({k: v for k, v in data.items() if k != "creep"} | {"kind": base}, where)
+    if isinstance(hysteresis, CreepPI):  # not reached: the caller checked that base is a plain kind
+        raise InternalError(f"{where}.kind {kind!r}: a creep model inside a creep model.")
+    try:
+        bank = Creep(creep["time_constants_s"], creep["weights"], creep["sample_period_s"])
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{where}.creep: {exc}") from None
+    return CreepPI(hysteresis, bank)

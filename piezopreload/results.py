@@ -106,7 +106,7 @@ class TuningResult:
         plants = v.plants if plants is None else plants
         say = progress or (lambda _m: None)
         say(f"validating on {plants} plants ...")
-        return validate_gain_set(self.candidate(inputs), n_plants=plants, seed=v.seed if seed is None else seed,
+        return validate_gain_set(self.candidate(inputs), n_plants=plants, seed=(self.study.seed if v.seed is None else v.seed) if seed is None else seed,
                                  workers=v.workers if workers is None else workers, scheduler=scheduler,
                                  progress=bar or (lambda i, n: say(f"  chunk {i}/{n}")))
 
@@ -187,7 +187,7 @@ def _spec_dict(spec: TuningSpec) -> dict[str, Any]:
 _STUDY = object()  # step_metrics' default: the study's band and signal
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class StudyRun(ClosedLoopRun):
     """A closed-loop run of one plant, scored as its study says (``band_N``, ``signal``); ``info`` says what ran."""
 

@@ -58,6 +58,7 @@ import numpy as np
 
 from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Rig, RigParams
+from piezopreload.rig.compiled import PlantStep
 
 __all__ = ["Reading", "Backend", "SimBackend", "Fault", "FaultInjector", "FAULT_KINDS", "ENTRY_POINT_GROUP",
            "BackendError", "available_backends", "open_backend", "parse_fault"]
@@ -106,7 +107,7 @@ class SimBackend:
             raise ValueError("the simulated backend runs one plant, not a batch")
         self.rig = Rig(plant)
         self.seed = int(seed)
-        self._state = None
+        self.plant = PlantStep(plant)  # the plant step of models/actuator, compiled where a compiler works
         self._rng = np.random.default_rng(self.seed)
 
     @property
@@ -115,23 +116,23 @@ class SimBackend:
 
     def arm(self) -> None:
         self._rng = np.random.default_rng(self.seed)
-        self._state = self.rig.initial_state()
+        self.plant.reset()
 
     def read_force(self, t_s: float) -> Reading:
-        return Reading(float(self.rig.measure(self._state, self._rng)), t_s)
+        return Reading(self.plant.read(float(self._rng.standard_normal()))[1], t_s)
 
     def write_voltage(self, volts: float) -> None:
-        self._state = self.rig.step(self._state, volts)
+        self.plant.write(volts)
 
     @property
     def amplifier_V(self) -> float:
         """The amplifier's output now (the stacks' voltage), for checks a real rig makes with a probe."""
-        return float(self._state.v_amp)
+        return self.plant.amplifier_V
 
     @property
     def force_N(self) -> float:
         """The true force now (what the sensor reads before noise and quantisation)."""
-        return float(self.rig.force(self._state))
+        return self.plant.read(0.0)[0]
 
     def disarm(self) -> None:
         pass

@@ -9,6 +9,8 @@ _SKIP = {".git", ".venv", "build", "dist", "__pycache__", ".pytest_cache", ".ruf
          "piezopreload-out"}
 _SUFFIXES = (".py", ".md", ".toml", ".typ", ".txt", ".cfg")
 #: a file name with one of these extensions, possibly with folders before it
+#: a web address: the files it names are another site's
+_URL = re.compile(r"https?://\S+")
 _REFERENCE = re.compile(r"(?<![\w.@/-])((?:\.\./)*(?:[\w.-]+/)*[\w.-]+\.(?:md|py|toml|typ|csv))\b")
 
 
@@ -32,13 +34,14 @@ def missing_references(texts: list[tuple[Path, str]]) -> list[str]:
 
     A reference with folders is checked when its first folder is one of the repository's
     (``models/ballscrew.py``, ``docs/models.md``); a bare Markdown name (``paper2021.md``) must
-    name a file somewhere in the repository. Anything starting with ``../`` is outside it.
+    name a file somewhere in the repository. Anything starting with ``../`` is outside it; a web
+    address is skipped whole.
     """
     folders, names = _folders(), {p.name for p, _ in texts}
     bad = []
     for rel, text in texts:
         for no, line in enumerate(text.splitlines(), start=1):
-            for ref in _REFERENCE.findall(line):
+            for ref in _REFERENCE.findall(_URL.sub("", line)):
                 parts = ref.split("/")
                 if parts[0] == "..":
                     ok = False

@@ -9,10 +9,14 @@ import numpy as np
 import pytest
 
 from piezopreload.cli import main
+from piezopreload.core import native
 from piezopreload.core.artifacts import write_artifact
 from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
+from piezopreload.models.loop import LOOP_OUTPUTS, step_function
+from piezopreload.models.loop import run as run_loop
+from piezopreload.models.ops import CASADI, NUMPY, clip
 from piezopreload.rig.export import ExportError, export_text
 from piezopreload.tuning import pid
 from piezopreload.tuning.validate import Criteria, executor, validate
@@ -39,31 +43,64 @@ def test_controller_frequency_response_equals_python_control():
     PIDGains(Kc=4.0, Ti_s=0.05, b=1.0),  # kicks into the 110 V clamp
 ])
 def test_the_tuning_model_follows_the_rig_in_closed_loop(gains):
-    """The CasADi loop against Rig.step + Controller.step (noise off), clamp and anti-windup included."""
+    """The smooth tuning loop (its CasADi step, as the NLP differentiates it) against the exact rig's simulation
+    (noise off): clamp and anti-windup included; and the same smooth step on numpy gives the CasADi numbers."""
     params = RigParams(**QUIET)
     rig = Rig(params)
     ref = Reference.step(25.0, 55.0, 0.02, 0.6)
     run = simulate(rig, Controller(gains, rig.dt_s), ref)
     n = run.t_s.size
-    step = pid.tuning_step(len(params.creep_tau_s), rig.dt_s, params.delay_samples, (0.0, 110.0)).mapaccum(n)
-    theta, decay = pid._plant_vector(params)
-    x0 = pid._initial_loop_state(params, 25.0, gains.Kc, gains.b, 0.0)  # bumpless at 0 V, as simulate's
+    loop = pid.tuning_loop(params)
+    p = loop.parameters(loop.plant.parameters(params), Controller(gains, rig.dt_s).parameter_vector())
     r = ref.at(run.t_s)
-    _, y, u = step(x0, np.tile([[gains.Kc], [gains.Ti_s], [gains.Td_s], [gains.Tf_s], [gains.b]], n),
-                   np.tile(theta[:, None], n), np.tile(decay[:, None], n), r[None, :], np.zeros((1, n)))
+    x0 = loop.start(NUMPY, p, r[0])  # at rest, bumpless at 0 V, as simulate's
+    X, Y = step_function(loop).mapaccum(n)(x0, p, r[None, :], np.zeros((1, n)), np.zeros((1, n)))
+    y, u = (np.asarray(Y, float)[LOOP_OUTPUTS.index(k)] for k in ("force_N", "command_V"))
     if gains.Kc > 1:
         assert np.max(run.command_V) == 110.0  # this case does exercise the clamp
-    # smoothing (rounded slew clip, |x| ~ sqrt(x^2 + 1e-6)) and the explicit Bouc-Wen step against the exact one
-    np.testing.assert_allclose(np.asarray(y).ravel(), run.force_N, atol=0.05)
-    np.testing.assert_allclose(np.asarray(u).ravel(), run.command_V, atol=0.3)
+    # smoothing (rounded slew clip, |x| ~ sqrt(x^2 + 1e-6), the explicit Bouc-Wen step) against the exact rig
+    np.testing.assert_allclose(y, run.force_N, atol=0.05, err_msg="smooth force against the rig's")
+    np.testing.assert_allclose(u, run.command_V, atol=0.3, err_msg="smooth command against the rig's")
+    y_np, _, _ = run_loop(loop, p, x0, {"reference_N": r}, n, engine="numpy")
+    np.testing.assert_allclose(y_np[LOOP_OUTPUTS.index("force_N")], y, rtol=0, atol=1e-9,
+                               err_msg="the smooth step on numpy against CasADi's")
+
+
+def test_the_tuning_horizon_derivatives_are_the_loops(study, feedforward):
+    """The forward sensitivities the NLP runs on (compiled) against central differences of the force, and the
+    objective and overshoot reductions against their own differences."""
+    spec = pid.TuningSpec(step=Reference.step(25.0, 50.0, 0.02, 0.2),
+                          trajectory=Reference.staircase(25.0, [50.0, 40.0], 0.1, t_start_s=0.02),
+                          variants={"gain": 0.1})
+    prob = pid._build_problem(study.rig, feedforward.inverse(), spec, "compiled" if native.enabled() else "plain")
+    h = prob.horizon
+    g = np.array([1.6, 0.06, 0.004, 0.02, 0.4])
+    out = h.forces(g)
+    value = h.evaluate(g)
+    for i in range(5):
+        step = 1e-6 * g[i]
+        up, down = g.copy(), g.copy()
+        up[i] += step
+        down[i] -= step
+        dy = (h.forces(up)[:, 0] - h.forces(down)[:, 0]) / (2 * step)
+        np.testing.assert_allclose(out[:, 1 + i], dy, rtol=1e-4, atol=1e-6 * np.abs(dy).max(), err_msg=f"dy/dg{i}")
+        vu, vd = h.evaluate(up), h.evaluate(down)
+        for key in ("objective", "overshoot"):
+            fd = (vu[key] - vd[key]) / (2 * step)
+            np.testing.assert_allclose(value[f"{key}_g"][:, i], fd, rtol=1e-4, atol=1e-7, err_msg=f"d {key}/dg{i}")
+            fd2 = (vu[f"{key}_g"] - vd[f"{key}_g"]) / (2 * step)
+            np.testing.assert_allclose(value[f"{key}_h"][:, :, i], fd2, rtol=1e-3, atol=1e-5 * np.abs(fd2).max() + 1e-9,
+                                       err_msg=f"d2 {key}/dg dg{i}")
 
 
 def test_smooth_clip_is_the_clip_away_from_its_corners():
     x = np.linspace(-3.0, 3.0, 601)
-    got = np.asarray(ca.Function("c", [X := ca.SX.sym("x")], [pid._smooth_clip(X, 1.0)])(x)).ravel()
-    np.testing.assert_allclose(got, np.clip(x, -1, 1), atol=np.log(2) / pid._CLIP_SHARPNESS + 1e-12)
+    X = ca.SX.sym("x")
+    got = np.asarray(ca.Function("c", [X], [clip(CASADI, X, -1.0, 1.0, 0.02)])(x)).ravel()
+    np.testing.assert_allclose(got, np.clip(x, -1, 1), atol=np.log(2) * 0.02 + 1e-12)
     far = np.abs(np.abs(x) - 1.0) > 0.2
     np.testing.assert_allclose(got[far], np.clip(x, -1, 1)[far], atol=1e-4)
+    np.testing.assert_allclose(clip(NUMPY, x, -1.0, 1.0, 0.02), got, rtol=0, atol=1e-15)
 
 
 def test_simc_rule():

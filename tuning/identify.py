@@ -3,7 +3,9 @@
 Every model of :mod:`piezopreload.models.hysteresis` is linear in its weights once the
 thresholds are fixed, so identification is ``min ||Phi x - y||^2`` subject to linear
 inequalities: nonnegative weights (classical and the paper's asymmetric model), and for
-Kuhnen's modified model the invertibility constraints of its dead-zone superposition.
+Kuhnen's modified model the invertibility constraints of its dead-zone superposition. With
+``creep=True`` the lags of a creep operator bank join the regressors and their weights the
+decision variables, constrained nonnegative (see :class:`PIIdentifier`).
 
 The QP never sees the samples: the least-squares term is compressed to the Cholesky factor
 of the (column-scaled) Gram matrix, ``p x p`` with ``p`` the number of parameters, so its
@@ -30,10 +32,15 @@ from piezopreload.core.errors import InputError, PiezopreloadError
 from piezopreload.models.hysteresis import (
     AsymmetricPI,
     ClassicalPI,
+    Creep,
+    CreepPI,
     DeadZone,
     HysteresisModel,
     ModifiedPI,
+    creep_lags,
     deadzone,
+    lag_coefficients,
+    log_spaced_time_constants,
     play,
     rising,
     uniform_thresholds,
@@ -231,12 +238,27 @@ class PIIdentifier:
         divides by ``w_1``). A feedforward needs it; plain NNLS weights may put ``w_1 = 0``.
     solver_options : dict
         Passed to ``cvxpy.Problem.solve`` with ``solver=CLARABEL``.
+    creep : bool
+        Add a bank of linear creep operators on the input (:class:`~piezopreload.models.hysteresis.Creep`),
+        identified with the hysteresis weights in the same QP; the model is then a
+        :class:`~piezopreload.models.hysteresis.CreepPI`. :meth:`fit` needs ``sample_period_s``.
+        The creep weights are constrained nonnegative: creep then only ever follows the input
+        (a step up creeps up), the one-sample map's linear weight ``w_1 + beta`` stays at least
+        ``w_1``, so the invertibility bound on ``w_1`` keeps the model invertible at every
+        sample period, and the inverse's linear part (``w_1`` plus positive-real lags) has no
+        zero outside the unit circle: the compensator is stable.
+    creep_time_constants_s : "log" or array_like
+        The lags' time constants. ``"log"``: one per decade from ``creep_shortest_s`` to the
+        record's duration (:func:`~piezopreload.models.hysteresis.log_spaced_time_constants`);
+        or explicit, strictly increasing values in s.
+    creep_shortest_s : float
+        The shortest time constant of the ``"log"`` bank.
 
     Attributes (after :meth:`fit`)
     -----------------------------
-    model_ : the identified model; ``thresholds_``; ``status_`` (solver status);
-    ``solve_time_s_`` (QP only); ``fit_time_s_`` (operators + compression + QP);
-    ``polished_`` (active-set polish accepted); ``n_train_`` (samples used).
+    model_ : the identified model; ``thresholds_``; ``time_constants_s_`` (creep only);
+    ``status_`` (solver status); ``solve_time_s_`` (QP only); ``fit_time_s_`` (operators +
+    compression + QP); ``polished_`` (active-set polish accepted); ``n_train_`` (samples used).
     """
 
     model: ModelName = "classical"
@@ -247,6 +269,9 @@ class PIIdentifier:
     min_slope: float = 0.05
     invertible: bool = False
     solver_options: dict[str, Any] = field(default_factory=dict)
+    creep: bool = False
+    creep_time_constants_s: str | ArrayLike = "log"
+    creep_shortest_s: float = 0.01
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
@@ -261,6 +286,15 @@ class PIIdentifier:
             raise ValueError(f"min_slope must be in (0, 1], got {self.min_slope!r}.")
         if isinstance(self.thresholds, str) and self.thresholds not in ("range", "paper"):
             raise ValueError(f"thresholds must be 'range', 'paper' or an array, got {self.thresholds!r}.")
+        if isinstance(self.creep_time_constants_s, str):
+            if self.creep_time_constants_s != "log":
+                raise InputError(
+                    f"creep_time_constants_s must be 'log' or an array of time constants in s, got {self.creep_time_constants_s!r}."
+                )
+        else:
+            Creep(self.creep_time_constants_s, np.zeros(np.size(self.creep_time_constants_s)), 1.0)  # validates
+        if not (np.isfinite(self.creep_shortest_s) and self.creep_shortest_s > 0):
+            raise InputError(f"creep_shortest_s must be a positive time in s, got {self.creep_shortest_s!r}.")
 
     # ---- helpers ---------------------------------------------------------------------
     def _thresholds(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -275,6 +309,17 @@ class PIIdentifier:
         r = np.asarray(self.thresholds, float)
         return ClassicalPI(r, np.ones_like(r)).thresholds
 
+    def _time_constants(self, n_samples: int, dt: float) -> NDArray[np.float64]:
+        if isinstance(self.creep_time_constants_s, str):
+            duration = (n_samples - 1) * dt
+            if duration <= self.creep_shortest_s:
+                raise IdentificationError(
+                    f"the record lasts {duration:.3g} s, no longer than the shortest creep time constant "
+                    f"creep_shortest_s={self.creep_shortest_s} s; give a longer record or explicit time constants"
+                )
+            return log_spaced_time_constants(self.creep_shortest_s, duration)
+        return np.asarray(self.creep_time_constants_s, float)
+
     # ---- fit ----------------------------------------------------------------------------
     def fit(
         self,
@@ -282,12 +327,17 @@ class PIIdentifier:
         y: ArrayLike,
         train: ArrayLike | slice | None = None,
         state: ArrayLike | None = None,
+        *,
+        sample_period_s: float | None = None,
     ) -> PIIdentifier:
         """Identify the weights from input ``v`` and measured output ``y``.
 
         The operators run over the whole record from ``state`` (at rest by default), so a
         training window that starts late still sees the right operator states; only the
         samples selected by ``train`` (boolean mask or slice; all by default) enter the fit.
+        With ``creep``, ``sample_period_s`` is the record's sample period and ``state`` may
+        hold the play operators' states (the lags then start at rest at 0) or a whole
+        :class:`~piezopreload.models.hysteresis.CreepPI` state.
         """
         t0 = time.perf_counter()
         v = np.asarray(v, float)
@@ -300,7 +350,25 @@ class PIIdentifier:
         rows[slice(None) if train is None else train] = True
         r = self._thresholds(v)
         n = r.size
-        ops = play(v, r, state)[rows]
+        play_state, lags, dt_s = state, None, 0.0
+        if self.creep:
+            if sample_period_s is None or not (np.isfinite(sample_period_s) and sample_period_s > 0):
+                raise IdentificationError(
+                    f"creep needs the record's sample period: pass sample_period_s (s), got {sample_period_s!r}"
+                )
+            dt_s = float(sample_period_s)
+            taus = self._time_constants(v.size, dt_s)
+            creep_state = None
+            if state is not None:
+                st = np.asarray(state, float)
+                if st.shape not in ((n,), (n + taus.size,)):
+                    raise InputError(
+                        f"state must have {n} (play operators) or {n + taus.size} (play operators and creep "
+                        f"carries) entries, got shape {st.shape}"
+                    )
+                play_state, creep_state = st[:n], (st[n:] if st.size > n else None)
+            lags = creep_lags(v, lag_coefficients(taus, dt_s), creep_state)[rows]
+        ops = play(v, r, play_state)[rows]
         y_t = y[rows]
         v_t = v[rows]
         if np.ptp(v_t) == 0:
@@ -354,6 +422,15 @@ class PIIdentifier:
             b_ineq = np.r_[self.min_slope * mean_slope, np.zeros(n - 1), np.full(n_g, self.min_slope - 1.0)]
             penalised = np.r_[np.ones(n, bool), False, np.ones(n_g, bool)]
 
+        if lags is not None:
+            # creep columns last, with nonnegative weights (see the class docstring)
+            m_c = lags.shape[1]
+            phi = np.column_stack([phi, lags])
+            a_ineq = np.block([[a_ineq, np.zeros((a_ineq.shape[0], m_c))],
+                               [np.zeros((m_c, a_ineq.shape[1])), np.eye(m_c)]])
+            b_ineq = np.r_[b_ineq, np.zeros(m_c)]
+            penalised = np.r_[penalised, np.ones(m_c, bool)]
+
         n_params = phi.shape[1]
         if len(y_t) < 2 * n_params:
             raise IdentificationError(
@@ -365,6 +442,8 @@ class PIIdentifier:
             solver_options=dict(self.solver_options),
         )
         x = qp.x
+        if lags is not None:
+            x, c = x[: -lags.shape[1]], np.maximum(x[-lags.shape[1] :], 0.0)
         if self.model == "classical":
             model: HysteresisModel = ClassicalPI(r, np.maximum(x[:n], 0.0), x[n])
         elif self.model == "paper-asymmetric":
@@ -375,7 +454,10 @@ class PIIdentifier:
             model = ModifiedPI(
                 r, np.maximum(x[:n], 0.0), shaper.thresholds, shaper.weights, bias=x[n], offset=y_ref
             )
-        self.model_ = model
+        self.model_: HysteresisModel | CreepPI = model
+        if lags is not None:
+            self.model_ = CreepPI(model, Creep(taus, c, dt_s))
+            self.time_constants_s_ = taus
         self.thresholds_ = r
         self.status_ = qp.status
         self.solve_time_s_ = qp.solve_time_s
@@ -390,8 +472,14 @@ class PIIdentifier:
             raise NotFittedError("this PIIdentifier is not fitted yet; call fit(v, y) first.")
 
     def predict(self, v: ArrayLike, state: ArrayLike | None = None) -> NDArray[np.float64]:
-        """Model output for input ``v`` from ``state`` (at rest by default)."""
+        """Model output for input ``v`` from ``state`` (at rest by default).
+
+        With creep, ``state`` is the play operators' states (lags at rest at 0) or a whole
+        :class:`~piezopreload.models.hysteresis.CreepPI` state, as in :meth:`fit`.
+        """
         self._check_fitted()
+        if isinstance(self.model_, CreepPI) and state is not None and np.shape(state)[-1] == self.model_.n_operators:
+            state = np.concatenate([np.asarray(state, float), np.zeros(self.model_.n_lags)])
         return self.model_(v, state)
 
 

@@ -15,19 +15,28 @@ variants at once, subject to
 * a bound on the controller's gain at the Nyquist frequency (noise amplification).
 
 The command stays inside its range because the tuning model clamps it as the controller
-does (with its conditional integration): the loop in the NLP is
-:func:`~piezopreload.models.controller.pid_update`, the same function the simulation and the
-generated C code run. The closed loop is unrolled over the references (single shooting with
-``mapaccum``), so IPOPT gets exact first and second derivatives with respect to the gains;
-every constraint family enters as one smooth maximum (Kreisselmeier-Steinhauser) per
-variant, so the NLP has five variables and some twenty constraints.
+does (with its conditional integration): the loop in the NLP is the one closed loop of
+:mod:`piezopreload.models.loop` (:func:`tuning_loop`: the rig's and the controller's one step,
+the same the simulation, the rig executor and the generated C code run), run over the step and
+then the trajectory on one horizon (single shooting) on every plant variant; every constraint
+family enters as one smooth maximum (Kreisselmeier-Steinhauser) per variant, so the NLP has
+five variables and some twenty constraints, and IPOPT runs with exact first and second
+derivatives.
 
-The tuning model (:func:`tuning_step`) is the rig of :mod:`piezopreload.models.actuator` with
-the Bouc-Wen ``|.|`` smoothed through ``sqrt(x^2 + eps^2)`` and integrated explicitly per
-sample (the rig integrates it exactly) and the slew clip's corners rounded; the output clamp
-stays the controller's (a kink, active only when the command reaches its limits). No noise,
-no quantisation. The validation
-(:mod:`piezopreload.tuning.validate`) then runs the gains on the rig itself.
+The tuning model is that loop with its corners rounded (``smoothing``
+:data:`TUNING_SMOOTHING`): the slew clip's corners, and the Bouc-Wen rate's ``|.|`` in one
+explicit step per sample (see :func:`~piezopreload.models.actuator.bouc_wen_step`); the output
+clamp stays the controller's (a kink, active only when the command reaches its limits). No
+noise, no quantisation. The validation (:mod:`piezopreload.tuning.validate`) then runs the
+gains on the exact rig.
+
+The derivatives by the gains are carried along the simulation (forward sensitivities of the
+one loop step, first and second order: :func:`_sensitivity_step`), so one pass over the horizon
+gives the objective, the overshoots and their gradients and Hessians (:class:`_Horizon`,
+handed to CasADi as a callback with its Jacobians). Where a C compiler works that step runs as
+C, compiled once and cached (:mod:`piezopreload.core.native`); elsewhere (``engine="plain"``)
+CasADi's virtual machine evaluates it: the same numbers, so the same iterates. The frequency
+constraints are a small CasADi expression of the gains.
 
 The starting point and the baseline is SIMC (Skogestad 2003) on a first-order-plus-dead-time
 fit of the compensated plant's response to a voltage step.
@@ -42,20 +51,24 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import minimize_scalar
 
-from piezopreload.core.errors import InfeasibleError
-from piezopreload.models.actuator import Rig, RigParams
-from piezopreload.models.closedloop import PAPER_BAND_N, Reference
-from piezopreload.models.controller import CASADI_OPS, PIDGains, pid_update
+from piezopreload.core import native
+from piezopreload.core.errors import InfeasibleError, InputError
+from piezopreload.models.actuator import PlantModel, Rig, RigParams
+from piezopreload.models.closedloop import PAPER_BAND_N, Reference, simulate_open_loop
+from piezopreload.models.controller import ControllerModel, PIDGains
 from piezopreload.models.hysteresis import InverseClassicalPI
+from piezopreload.models.loop import LOOP_OUTPUTS, LoopModel
+from piezopreload.models.ops import CASADI, NUMPY, Layout
 
 __all__ = [
     "TuningSpec",
     "FOPDT",
     "fit_fopdt",
     "simc",
-    "tuning_step",
+    "tuning_loop",
+    "TUNING_SMOOTHING",
     "plant_variants",
     "TuningResult",
     "TuningInfeasible",
@@ -64,9 +77,6 @@ __all__ = [
     "minimum_time",
     "tracking_floor",
 ]
-
-_EPS_ABS = 1e-3  # smoothing of |x| (V) in the Bouc-Wen rate
-
 
 class TuningInfeasible(InfeasibleError):
     """The specification cannot be met; the message names the binding constraints."""
@@ -194,25 +204,29 @@ def fit_fopdt(rig: Rig, feedforward: InverseClassicalPI, *, level_N: float = 60.
     dt = rig.dt_s
     settle = int(round(1.0 / dt))
     n = int(round(window_s / dt))
-    ff_state = feedforward.initial_state()
-    v_ff, ff_state = feedforward.step(ff_state, np.array(level_N))
-    state = rig.initial_state()
-    for _ in range(settle):
-        state = rig.step(state, v_ff)
-    f0 = float(rig.force(state))
-    y = np.empty(n)
-    for k in range(n):
-        y[k] = float(rig.force(state)) - f0
-        state = rig.step(state, v_ff + step_V)
+    v_ff = float(feedforward.step(feedforward.initial_state(), np.array(level_N))[0])
+    command = np.concatenate([np.full(settle, v_ff), np.full(n, v_ff + step_V)])
+    force = simulate_open_loop(rig, command)["force_N"]  # the true force (the noise only reaches the reading)
+    y = force[settle:] - force[settle]
     t = np.arange(n) * dt
     # the creep still drifting from the approach is part of the response here; it is slow
     # against the window, so the fit's rms says how well a FOPDT describes the fast part
 
-    def fit(theta: float) -> Any:
-        def residual(x: np.ndarray) -> np.ndarray:
-            K, T = x
-            return step_V * K * np.where(t > theta, -np.expm1(-(t - theta) / T), 0.0) - y
-        return least_squares(residual, [max(y[-1] / step_V, 1e-3), 0.01], bounds=([1e-6, 1e-4], [np.inf, 10.0]))
+    def fit(theta: float) -> tuple[float, float, float, np.ndarray]:
+        """``(cost, K, T, residual)`` at dead time ``theta``: K enters linearly, so for each T it is
+        the least-squares one in closed form and only T is searched (variable projection)."""
+        after = t > theta
+
+        def parts(log_T: float) -> tuple[float, float, np.ndarray]:
+            phi = step_V * np.where(after, -np.expm1(-(t - theta) / np.exp(log_T)), 0.0)
+            K = max(float(phi @ y) / max(float(phi @ phi), 1e-300), 1e-6)
+            r = K * phi - y
+            return 0.5 * float(r @ r), K, r
+
+        res = minimize_scalar(lambda log_T: parts(log_T)[0], bounds=(np.log(1e-4), np.log(10.0)), method="bounded",
+                              options={"xatol": 1e-10})
+        cost, K, r = parts(float(res.x))
+        return cost, K, float(np.exp(res.x)), r
 
     # the dead time by a fine grid (the residual is not smooth in it), K and T by least squares;
     # no shorter than the loop's known transport delay (the delay samples plus half a sample
@@ -220,9 +234,9 @@ def fit_fopdt(rig: Rig, feedforward: InverseClassicalPI, *, level_N: float = 60.
     theta_min = (rig.params.delay_samples + 0.5) * dt
     thetas = np.arange(theta_min, theta_min + 20.0 * dt, 0.1 * dt)
     fits = [fit(th) for th in thetas]
-    best = int(np.argmin([f.cost for f in fits]))
-    K, T = (float(v) for v in fits[best].x)
-    return FOPDT(K=K, T_s=T, theta_s=float(thetas[best]), rms_N=float(np.sqrt(np.mean(fits[best].fun**2))))
+    best = int(np.argmin([f[0] for f in fits]))
+    _, K, T, residual = fits[best]
+    return FOPDT(K=K, T_s=T, theta_s=float(thetas[best]), rms_N=float(np.sqrt(np.mean(residual**2))))
 
 
 def simc(model: FOPDT, *, tau_c_s: float | None = None, u_min_V: float = 0.0, u_max_V: float = 110.0) -> PIDGains:
@@ -240,102 +254,16 @@ def simc(model: FOPDT, *, tau_c_s: float | None = None, u_min_V: float = 0.0, u_
 # --------------------------------------------------------------------------------------
 # the smooth tuning model of the compensated loop
 # --------------------------------------------------------------------------------------
-_PLANT_FIELDS = (
-    "bolt_preload_N", "keff", "amp_a", "slew", "stroke_um_per_V", "bw_alpha", "bw_beta_per_V",
-    "bw_gamma_per_V", "bw_kappa", "creep_per_decade",
-)
+#: how round the tuning model's corners are (see :class:`~piezopreload.models.actuator.PlantModel`):
+#: the slew limit's over 1/50 of the limit, the Bouc-Wen direction switch over 1 mV
+TUNING_SMOOTHING = 0.02
 
 
-def _plant_vector(params: RigParams) -> tuple[np.ndarray, np.ndarray]:
-    """Numeric plant parameters for :func:`tuning_step` and the creep decays."""
-    p, dt = params, params.sample_period_s
-    tau = 1.0 / (2.0 * np.pi * float(p.amp_bandwidth_Hz))
-    values = {
-        "bolt_preload_N": float(p.bolt_preload_N),
-        "keff": float(p.effective_stiffness_N_per_um),
-        "amp_a": float(np.exp(-dt / tau)),
-        "slew": float(p.slew_V_per_s) * dt,
-        "stroke_um_per_V": float(p.stroke_um_per_V),
-        "bw_alpha": float(p.bw_alpha),
-        "bw_beta_per_V": float(p.bw_beta_per_V),
-        "bw_gamma_per_V": float(p.bw_gamma_per_V),
-        "bw_kappa": float(p.bw_kappa),
-        "creep_per_decade": float(p.creep_per_decade),
-    }
-    return np.array([values[k] for k in _PLANT_FIELDS]), np.exp(-dt / np.asarray(p.creep_tau_s, float))
-
-
-def _smooth_abs(x: Any) -> Any:
-    return ca.sqrt(x * x + _EPS_ABS**2)
-
-
-_CLIP_SHARPNESS = 50.0  # the smooth clip's corner is 1/50 of the limit wide
-
-
-def _softplus(y: Any, k: Any) -> Any:
-    """``log(1 + exp(k y)) / k`` without overflow."""
-    return ca.fmax(y, 0) + ca.log1p(ca.exp(-k * ca.fabs(y))) / k
-
-
-def _smooth_clip(x: Any, limit: Any) -> Any:
-    """``clip(x, -limit, limit)`` with corners rounded by softplus: exact away from the corners,
-    at most ``log(2) / 50`` of the limit off at them (a tanh would be a quarter off at ``x = limit``)."""
-    k = _CLIP_SHARPNESS / limit
-    return x - _softplus(x - limit, k) + _softplus(-x - limit, k)
-
-
-def _rig_force(theta: Any, v: Any, h: Any, creep: Any, n_creep: int) -> tuple[Any, Any]:
-    x = theta[4] * (v + theta[8] * v * v / 100.0 - h)
-    lag = 0
-    for i in range(n_creep):
-        lag = lag + theta[9] * (creep[i] - x)
-    return theta[0] + theta[1] * (x + lag), x
-
-
-def tuning_step(n_creep: int, dt: float, delay: int, u_range: tuple[float, float] = (0.0, 110.0)) -> ca.Function:
-    """One sample of the compensated closed loop as a CasADi function.
-
-    ``(x, gains, theta, decay, r, ff) -> (x_next, y, u)``: ``x`` the loop state (rig:
-    amplifier voltage, Bouc-Wen state, creep chain, pending commands; controller: integral,
-    previous error, previous measurement, filtered derivative); ``gains = [Kc, Ti, Td, Tf, b]``;
-    ``theta`` the plant vector; ``r`` and ``ff`` this sample's reference and feedforward. The
-    controller is :func:`~piezopreload.models.controller.pid_update`, the one the rig runs
-    (output clamp to ``u_range`` and conditional integration included).
-    """
-    nx = 2 + n_creep + delay + 4
-    x = ca.SX.sym("x", nx)
-    gains = ca.SX.sym("gains", 5)
-    theta = ca.SX.sym("theta", len(_PLANT_FIELDS))
-    decay = ca.SX.sym("decay", n_creep)
-    r = ca.SX.sym("r")
-    ff = ca.SX.sym("ff")
-    v, h = x[0], x[1]
-    creep = x[2 : 2 + n_creep]
-    integral, e_prev, pv_prev, dpv = (x[2 + n_creep + delay + i] for i in range(4))
-    y, _ = _rig_force(theta, v, h, creep, n_creep)
-    u, _, integral_next, _, e, dpv_next = pid_update(
-        CASADI_OPS, tuple(gains[i] for i in range(5)), u_range, dt, integral, e_prev, pv_prev, dpv, r, y, ff)
-    # the rig: delay, amplifier (first order, slew clip), Bouc-Wen, creep
-    rig_next = rig_step(x[: 2 + n_creep + delay], u, theta, decay, n_creep, delay)
-    x_next = ca.vertcat(rig_next, integral_next, e, y, dpv_next)
-    return ca.Function("loop_step", [x, gains, theta, decay, r, ff], [x_next, y, u],
-                       ["x", "gains", "theta", "decay", "r", "ff"], ["x_next", "y", "u"])
-
-
-def _rest_rig_state(params: RigParams) -> np.ndarray:
-    """The rig part of the loop state at rest at 0 V: ``[v, h, creep..., pending...]``."""
-    return np.zeros(2 + len(params.creep_tau_s) + params.delay_samples)
-
-
-def _initial_loop_state(params: RigParams, r0: float, Kc: Any, b: Any, ff0: float) -> Any:
-    """The rig at rest at 0 V and the bolt preload; the controller bumplessly at 0 V.
-
-    As :meth:`Controller.initial_state` with ``u0 = 0``: the integral cancels the proportional
-    action and the feedforward at the start. ``Kc`` and ``b`` may be CasADi symbols.
-    """
-    pv0 = float(params.bolt_preload_N)
-    integral = -Kc * (b * r0 - pv0) - ff0
-    return ca.vertcat(_rest_rig_state(params), integral, r0 - pv0, pv0, 0.0)
+def tuning_loop(params: RigParams, smoothing: float = TUNING_SMOOTHING) -> LoopModel:
+    """The loop the tuning differentiates: the rig's one step with its corners rounded
+    (``smoothing``; 0 is the exact rig), the PID alone (the feedforward enters as ``ff_extra``,
+    computed once from the reference), the sensor without quantisation (and no noise given)."""
+    return LoopModel(PlantModel.of(params, smoothing), ControllerModel(None))
 
 
 def _feedforward_sequence(feedforward: InverseClassicalPI | None, r: np.ndarray) -> np.ndarray:
@@ -370,23 +298,38 @@ def _small_signal_gains(params: RigParams) -> tuple[float, float]:
     return lo, hi
 
 
-def _controller_frequency_response(gains: Any, omega: np.ndarray, dt: float) -> tuple[Any, Any]:
-    """Real and imaginary parts of the PID's feedback path ``C(e^{j w dt})`` (symbolic gains)."""
-    Kc, Ti, Td, Tf = gains[0], gains[1], gains[2], gains[3]
-    zi = np.exp(-1j * omega * dt)
-    q = (1 + zi) / (1 - zi)  # trapezoidal integrator shape
+def _omega_terms(omega: np.ndarray, dt: float) -> np.ndarray:
+    """Per frequency, the numbers the controller's response is built from: ``(q_re, q_im, d_re,
+    d_im, z_re, z_im)`` with ``z = e^{-j w dt}`` (``z^-1``), ``q = (1 + z) / (1 - z)`` the
+    trapezoidal integrator's shape and ``d = 1 - z`` the backward difference; shape ``(6, n)``."""
+    zi = np.exp(-1j * np.asarray(omega, float) * dt)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        q = (1 + zi) / (1 - zi)
     d = 1 - zi
+    return np.array([q.real, q.imag, d.real, d.imag, zi.real, zi.imag])
+
+
+def _controller_response(gains: Any, dt: Any, w: Any) -> tuple[Any, Any]:
+    """Real and imaginary parts of the PID's feedback path ``C(e^{j w dt})`` from :func:`_omega_terms`'
+    numbers ``w`` (numeric or symbolic gains ``(Kc, Ti, Td, Tf)``)."""
+    Kc, Ti, Td, Tf = gains[0], gains[1], gains[2], gains[3]
+    q_re, q_im, d_re, d_im, z_re, z_im = (w[i] for i in range(6))
     alpha = Tf / (Tf + dt)
-    # D = Td (1 - alpha) / dt * d / (1 - alpha zi)
-    den_re = 1 - alpha * zi.real
-    den_im = -alpha * zi.imag
+    # D = Td (1 - alpha) / dt * d / (1 - alpha z)
+    den_re = 1 - alpha * z_re
+    den_im = -alpha * z_im
     den2 = den_re**2 + den_im**2
-    ratio_re = (d.real * den_re + d.imag * den_im) / den2
-    ratio_im = (d.imag * den_re - d.real * den_im) / den2
+    ratio_re = (d_re * den_re + d_im * den_im) / den2
+    ratio_im = (d_im * den_re - d_re * den_im) / den2
     kd = Td * (1 - alpha) / dt
-    re = Kc * (1 + dt / (2 * Ti) * q.real + kd * ratio_re)
-    im = Kc * (dt / (2 * Ti) * q.imag + kd * ratio_im)
+    re = Kc * (1 + dt / (2 * Ti) * q_re + kd * ratio_re)
+    im = Kc * (dt / (2 * Ti) * q_im + kd * ratio_im)
     return re, im
+
+
+def _controller_frequency_response(gains: Any, omega: np.ndarray, dt: float) -> tuple[Any, Any]:
+    """Real and imaginary parts of the PID's feedback path ``C(e^{j w dt})`` at ``omega`` (rad/s)."""
+    return _controller_response(gains, dt, _omega_terms(omega, dt))
 
 
 def loop_frequency_response(gains: PIDGains, params: RigParams, omega: np.ndarray, gain_N_per_V: float) -> np.ndarray:
@@ -415,10 +358,13 @@ class TuningResult:
     ms: float
     binding: list[str]
     constraint_margins: dict[str, float]
+    engine: str = "plain"
+    compile_s: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "status": self.status, "iterations": self.iterations, "seconds": self.seconds,
+            "engine": self.engine, "compile_s": self.compile_s,
             "objective": self.objective, "ms": self.ms, "binding": self.binding,
             "constraint_margins": self.constraint_margins,
             "fopdt": {"K_N_per_V": self.fopdt.K, "T_s": self.fopdt.T_s, "theta_s": self.fopdt.theta_s,
@@ -482,73 +428,293 @@ _RHO_MS = 400.0  # on |1 + L|^2
 
 @dataclass(frozen=True, eq=False)
 class _Problem:
-    """The tuning NLP: decision variables ``z`` in the unit box, objective and labelled constraints ``<= 0``."""
+    """The tuning NLP in the unit box: decision variables ``z`` and the slack ``s`` of the
+    least-violation phase, its numbers ``p`` (:attr:`data` laid out by :attr:`layout`), the
+    objective and the labelled constraints ``g <= 0``.
+
+    One NLP serves both phases: ``f = (1 - a) objective + a s`` and ``g - s <= 0`` with ``a``
+    (``phase_one`` in the data) 0 and ``s`` fixed at 0 for the tuning, 1 and ``s`` free for the
+    least violation.
+    """
 
     z: Any
+    s: Any
+    p: Any
+    layout: Layout
+    data: np.ndarray
     names: list[str]
     scaling: _Scaling
     variants: list[RigParams]
     objective: Any
     labels: list[str]
     g: Any
+    horizon: _Horizon
+    callbacks: list[Any]
+
+    @property
+    def x(self) -> Any:
+        return ca.vertcat(self.z, self.s)
+
+    def nlp(self) -> dict[str, Any]:
+        a = self.layout.get(self.p, "phase_one")
+        return {"x": self.x, "p": self.p, "f": (1 - a) * self.objective + a * self.s, "g": self.g - self.s}
+
+    def with_phase(self, phase_one: bool) -> np.ndarray:
+        data = self.data.copy()
+        data[self.layout.index("phase_one")] = 1.0 if phase_one else 0.0
+        return data
 
 
-def _build_problem(params: RigParams, feedforward: InverseClassicalPI | None, spec: TuningSpec) -> _Problem:
+def _loop_rows(ref: Reference, dt: float, ramp_s: float) -> dict[str, np.ndarray]:
+    """Per sample of ``ref``: the reference, the objective's weight (ramping up after each change)
+    and the sign of the last change (0 before the first), which the overshoot is measured along."""
+    n = int(round(ref.duration_s / dt)) + 1
+    t = np.arange(n) * dt
+    r = ref.at(t)
+    k_change = np.searchsorted(ref.times_s, t, side="right") - 1
+    t_since = t - ref.times_s[k_change]
+    prev_level = np.where(k_change > 0, ref.levels_N[np.maximum(k_change - 1, 0)], ref.levels_N[0])
+    return {"r": r, "weight": np.minimum(t_since / ramp_s, 1.0) * dt / ref.duration_s, "sign": np.sign(r - prev_level)}
+
+
+#: the gains the time-domain part is differentiated by, in the controller's parameter order
+_N_GAINS = 5
+_PAIRS = [(i, j) for i in range(_N_GAINS) for j in range(i, _N_GAINS)]
+#: the per-sample rows of the horizon, in order
+_ROWS = ("r", "ff", "weight", "sign", "restart")
+
+
+def _sensitivity_step(loop: LoopModel) -> ca.Function:
+    """One sample of the tuning loop with its derivatives by the gains carried along.
+
+    ``(xa, p, r, ff, restart) -> (xa_next, out)``: ``xa`` holds the loop's state ``x``, its
+    first derivatives ``S = dx/dg`` (by the gains ``g = (Kc, Ti, Td, Tf, b)``, the first five
+    controller parameters) and its second derivatives ``T`` (one column per pair ``i <= j``);
+    ``p`` the loop's parameters; ``out`` the force, its gradient and its second derivatives.
+    Where ``restart`` is 1 the loop first starts afresh (the rig at rest at 0 V, the controller
+    bumpless at 0 V with the reference and feedforward of this sample: :meth:`LoopModel.start`),
+    so the references run one after another on one horizon.
+
+    Forward sensitivities, by CasADi's directional derivatives of the one loop step: with
+    ``w = (x, g)`` and directions ``d_i = (S_i, e_i)``, ``S_i+ = F' d_i`` and
+    ``T_ij+ = d_j' F'' d_i + F_x T_ij``. Five gains make this one small function that a C loop
+    runs over the horizon: the whole NLP's derivatives in one pass, exact.
+    """
+    nx, n_plant = loop.state.size, loop.plant.params.size
+    x, p = ca.SX.sym("x", nx), ca.SX.sym("p", loop.params.size)
+    r, ff, restart = ca.SX.sym("r"), ca.SX.sym("ff"), ca.SX.sym("restart")
+    gains = p[n_plant:n_plant + _N_GAINS]
+    x_from = ca.if_else(restart > 0.5, loop.start(CASADI, p, r, ff), x)
+    x_next, y = loop.step(CASADI, p, x_from, r, 0.0, ff)
+    out = ca.vertcat(x_next, y[LOOP_OUTPUTS.index("force_N")])
+    S, T = ca.SX.sym("S", nx, _N_GAINS), ca.SX.sym("T", nx, len(_PAIRS))
+    w = ca.vertcat(x, gains)
+    directions = ca.vertcat(S, ca.DM.eye(_N_GAINS))
+    first = ca.jtimes(out, w, directions)
+    along = [ca.jtimes(out, w, directions[:, i]) for i in range(_N_GAINS)]
+    second = ca.horzcat(*[ca.jtimes(along[i], w, directions[:, j]) + ca.jtimes(out, x, T[:, k])
+                          for k, (i, j) in enumerate(_PAIRS)])
+    xa = ca.vertcat(x, ca.vec(S), ca.vec(T))
+    xa_next = ca.vertcat(out[:nx], ca.vec(first[:nx, :]), ca.vec(second[:nx, :]))
+    result = ca.vertcat(out[nx], first[nx, :].T, second[nx, :].T)
+    return ca.Function("pp_tuning_sensitivity_step", [xa, p, r, ff, restart], [xa_next, result],
+                       ["xa", "p", "r", "ff", "restart"], ["xa_next", "out"])
+
+
+class _Horizon:
+    """The tuning references on one horizon, run on every plant variant with the force's first and
+    second derivatives by the gains, and what the NLP takes from them: the objective and the
+    step's overshoot (a smooth maximum) per variant, with their gradients and Hessians.
+
+    ``engine`` ``"compiled"`` runs :func:`_sensitivity_step` as C (a :class:`~piezopreload.core.native.StepRunner`,
+    built once and cached); ``"plain"`` evaluates the same function in CasADi's virtual machine.
+    The last evaluation is kept: IPOPT asks for values, Jacobians and Hessians at one point.
+    """
+
+    def __init__(self, loop: LoopModel, variants: list[RigParams], rows: np.ndarray, tail: np.ndarray,
+                 engine: str) -> None:
+        self.loop, self.rows, self.tail = loop, rows, tail  # tail: the controller's parameters after the gains
+        self.plants = np.array([loop.plant.parameters(v) for v in variants])
+        self.n_variants, self.n = len(variants), rows.shape[1]
+        self.fn = _sensitivity_step(loop)
+        self.size_x = int(self.fn.numel_in(0))
+        self.engine = engine
+        self.runner: native.StepRunner | None = None
+        if engine == "compiled":
+            self.runner = native.step_runner(("tuning", loop), lambda: self.fn, "pp_tuning_sensitivity",
+                                             native.FLAGS_LARGE)
+        self._key: bytes | None = None
+        self._value: dict[str, np.ndarray] = {}
+
+    def forces(self, gains: np.ndarray) -> np.ndarray:
+        """``(variants, 1 + 5 + 15, samples)``: the force, its gradient and its second derivatives."""
+        params = np.hstack([self.plants, np.tile(np.concatenate([gains, self.tail]), (self.n_variants, 1))])
+        r, ff, restart = (self.rows[_ROWS.index(k)] for k in ("r", "ff", "restart"))
+        if self.runner is not None:
+            out, _ = self.runner(params, np.zeros(self.size_x), [r, ff, restart], self.n_variants)
+            return out
+        roll = self.fn.mapaccum(self.n)
+        return np.array([np.asarray(roll(np.zeros(self.size_x), params[v], r[None, :], ff[None, :],
+                                         restart[None, :])[1], float) for v in range(self.n_variants)])
+
+    def evaluate(self, gains: Any) -> dict[str, np.ndarray]:
+        gains = np.asarray(gains, float).ravel()
+        key = gains.tobytes()
+        if key == self._key:
+            return self._value
+        y_all = self.forces(gains)
+        y, dy = y_all[:, 0, :], y_all[:, 1:1 + _N_GAINS, :]
+        d2 = np.zeros((self.n_variants, _N_GAINS, _N_GAINS, self.n))
+        for k, (i, j) in enumerate(_PAIRS):
+            d2[:, i, j] = d2[:, j, i] = y_all[:, 1 + _N_GAINS + k, :]
+        r, weight, sign = (self.rows[_ROWS.index(k)] for k in ("r", "weight", "sign"))
+        # the objective: sum_k w_k phi(r_k - y_k), phi(e) = sqrt(e^2 + 1e-4)
+        e = r - y
+        phi = np.sqrt(e * e + 1e-4)
+        d1, dd = e / phi, 1e-4 / phi**3  # phi' and phi''
+        obj = np.sum(weight * phi, axis=-1)
+        w1, w2 = weight * d1, weight * dd  # (variants, samples)
+        obj_g = -np.matmul(dy, w1[:, :, None])[..., 0]
+        obj_h = np.matmul(dy * w2[:, None, :], dy.transpose(0, 2, 1)) - np.matmul(d2, w1[:, None, :, None])[..., 0]
+        # the step's overshoot: a Kreisselmeier-Steinhauser maximum of sign (y - r); samples before
+        # the first change (sign 0) drop out
+        o = sign * (y - r) + (np.abs(sign) - 1.0) * 1e3
+        m = np.max(o, axis=-1, keepdims=True)
+        ex = np.exp(_RHO_OVERSHOOT * (o - m))
+        total = np.sum(ex, axis=-1, keepdims=True)
+        ks = m[:, 0] + np.log(total[:, 0]) / _RHO_OVERSHOOT
+        pi = ex / total
+        s_dy = sign[None, None, :] * dy
+        ks_g = np.matmul(s_dy, pi[:, :, None])[..., 0]
+        ks_h = (np.matmul(d2, (pi * sign)[:, None, :, None])[..., 0]
+                + _RHO_OVERSHOOT * (np.matmul(s_dy * pi[:, None, :], s_dy.transpose(0, 2, 1))
+                                    - ks_g[:, :, None] * ks_g[:, None, :]))
+        self._key = key
+        self._value = {"objective": obj, "objective_g": obj_g, "objective_h": obj_h,
+                       "overshoot": ks, "overshoot_g": ks_g, "overshoot_h": ks_h}
+        return self._value
+
+
+class _TimeDomain(ca.Callback):
+    """The time-domain part of the NLP for CasADi: ``gains -> (objective summed over the
+    variants, overshoot per variant)``, with its Jacobian (``order=1``) and the Jacobian of
+    that (``order=2``), all from one :class:`_Horizon` evaluation."""
+
+    def __init__(self, horizon: _Horizon, order: int = 0) -> None:
+        ca.Callback.__init__(self)
+        self.h, self.order, self.nv = horizon, order, horizon.n_variants
+        self._shapes_in = [(_N_GAINS, 1), (1, 1), (self.nv, 1), (1, _N_GAINS), (self.nv, _N_GAINS)][:[1, 3, 5][order]]
+        self._children: list[_TimeDomain] = []
+        self.construct(f"pp_tuning_time_domain_{order}", {})
+
+    def get_n_in(self) -> int:
+        return len(self._shapes_in)
+
+    def get_n_out(self) -> int:
+        return [2, 2, 6][self.order]
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.dense(*self._shapes_in[i])
+
+    def get_sparsity_out(self, i: int) -> ca.Sparsity:
+        if self.order == 0:
+            return ca.Sparsity.dense(1 if i == 0 else self.nv, 1)
+        if self.order == 1:
+            return ca.Sparsity.dense(1 if i == 0 else self.nv, _N_GAINS)
+        # the Jacobian of output i // 3 of order 1 (vectorised, column-major) by its input i % 3:
+        # only the gains enter; the nominal outputs it also takes do not
+        rows = _N_GAINS if i < 3 else self.nv * _N_GAINS
+        shape = self._shapes_in[i % 3]
+        return ca.Sparsity.dense(rows, _N_GAINS) if i % 3 == 0 else ca.Sparsity(rows, shape[0] * shape[1])
+
+    def eval(self, arg: list[Any]) -> list[Any]:
+        v = self.h.evaluate(arg[0])
+        if self.order == 0:
+            return [np.sum(v["objective"]), v["overshoot"]]
+        if self.order == 1:
+            return [np.sum(v["objective_g"], axis=0)[None, :], v["overshoot_g"]]
+        # d vec(jac)/d gains: row i the objective's; row v + nv i the overshoot of variant v's
+        hess_os = np.transpose(v["overshoot_h"], (1, 0, 2)).reshape(self.nv * _N_GAINS, _N_GAINS)
+        empty = [ca.DM(self.get_sparsity_out(i).size1(), self.get_sparsity_out(i).size2()) for i in range(6)]
+        return [np.sum(v["objective_h"], axis=0), empty[1], empty[2], hess_os, empty[4], empty[5]]
+
+    def has_jacobian(self) -> bool:
+        return self.order < 2
+
+    def get_jacobian(self, name: str, inames: list[str], onames: list[str], opts: dict[str, Any]) -> ca.Function:
+        child = _TimeDomain(self.h, self.order + 1)
+        self._children.append(child)  # CasADi keeps a reference to the Function, not to the Python object
+        return child
+
+
+def _build_problem(params: RigParams, feedforward: InverseClassicalPI | None, spec: TuningSpec,
+                   engine: str = "plain") -> _Problem:
     dt = params.sample_period_s
     variants = plant_variants(params, spec.variants)
-    step_fn = tuning_step(len(params.creep_tau_s), dt, params.delay_samples, (spec.u_min_V, spec.u_max_V))
+    loop = tuning_loop(params)
     names = ["Kc", "Ti", "Td", "Tf"] + (["b"] if spec.tune_setpoint_weight else [])
     scaling = _Scaling(names)
-    z = ca.MX.sym("z", len(names))
-    vals = {n: scaling.value(n, z[i]) for i, n in enumerate(names)}
-    b = vals.get("b", 1.0)
-    gains = ca.vertcat(vals["Kc"], vals["Ti"], vals["Td"], vals["Tf"], b)
-
-    objective = 0
-    blocks: list[tuple[str, Any]] = [  # (label, g): g <= 0 required
-        (f"derivative filter Tf >= {spec.Tf_ratio_min:g} Td", spec.Tf_ratio_min * vals["Td"] - vals["Tf"])]
-    band_lim = spec.band_N - spec.overshoot_margin_N
-    for ref_name, ref in (("step", spec.step), ("trajectory", spec.trajectory)):
-        n = int(round(ref.duration_s / dt)) + 1
-        t = np.arange(n) * dt
-        r = ref.at(t)
-        ff = _feedforward_sequence(feedforward, r)
-        # time since the last change of the reference, and the direction of that change
-        k_change = np.searchsorted(ref.times_s, t, side="right") - 1
-        t_since = t - ref.times_s[k_change]
-        prev_level = np.where(k_change > 0, ref.levels_N[np.maximum(k_change - 1, 0)], ref.levels_N[0])
-        direction = np.sign(r - prev_level)
-        weights = np.minimum(t_since / spec.ramp_s, 1.0) * dt / ref.duration_s
-        roll = step_fn.mapaccum(n)
-        over = np.flatnonzero(direction != 0)
-        for j, variant in enumerate(variants):
-            theta, decay = _plant_vector(variant)
-            x0 = _initial_loop_state(variant, float(r[0]), vals["Kc"], b, float(ff[0]))
-            _, ys, _ = roll(x0, ca.repmat(gains, 1, n), ca.repmat(theta, 1, n), ca.repmat(decay, 1, n),
-                            r[None, :], ff[None, :])
-            e = r[None, :] - ys
-            objective = objective + ca.sum2(weights[None, :] * ca.sqrt(e * e + 1e-4)) / len(variants)
-            if ref_name == "step":  # (the trajectory's top is out of reach of the weakest variants)
-                overshoot = direction[over][None, :] * (ys[:, over] - r[None, over])
-                blocks.append((f"overshoot inside {band_lim:g} N, step, variant {j}",
-                               _smooth_max(overshoot, _RHO_OVERSHOOT) - band_lim))
-
-    # robustness of the linearised loop, per variant and at both ends of the local slope
+    # the step, then the trajectory, on one horizon: the loop restarts at each one's first sample
+    # (the trajectory's top is out of reach of the weakest variants: only the step's overshoot counts)
+    parts = []
+    for name, ref in (("step", spec.step), ("trajectory", spec.trajectory)):
+        rows = _loop_rows(ref, dt, spec.ramp_s)
+        rows["ff"] = _feedforward_sequence(feedforward, rows["r"])
+        rows["restart"] = (np.arange(rows["r"].size) == 0).astype(float)
+        if name != "step":
+            rows["sign"] = np.zeros_like(rows["r"])
+        parts.append(np.vstack([rows[k] for k in _ROWS]))
+    horizon = _Horizon(loop, variants, np.hstack(parts), np.array([spec.u_min_V, spec.u_max_V, dt]), engine)
     omega = _omega_grid(dt)
-    c_re, c_im = _controller_frequency_response(gains, omega, dt)
-    for j, variant in enumerate(variants):
-        for slope in _small_signal_gains(variant):
-            G = _plant_frequency_response(variant, omega, slope)
-            l_re = c_re * G.real - c_im * G.imag
-            l_im = c_re * G.imag + c_im * G.real
-            distance2 = (1 + l_re) ** 2 + l_im**2  # |1 + L|^2 >= 1 / Ms^2
+    slopes = [_small_signal_gains(v) for v in variants]
+    G = np.vstack([_plant_frequency_response(v, omega, slope) for v, pair in zip(variants, slopes) for slope in pair])
+    n_freq = G.size
+    layout = Layout("tuning data", [
+        ("dt_s", None), ("omega_terms", 6 * n_freq), ("G_re", n_freq), ("G_im", n_freq), ("nyquist", 6),
+        ("band_limit_N", None), ("ms_max", None), ("noise_gain_max_V_per_N", None), ("tf_ratio_min", None),
+        ("phase_one", None)])
+    data = layout.numbers(
+        dt_s=dt, omega_terms=np.tile(_omega_terms(omega, dt), G.shape[0]).ravel(), G_re=G.real.ravel(),
+        G_im=G.imag.ravel(), nyquist=_omega_terms(np.array([np.pi / dt]), dt).ravel(),
+        band_limit_N=spec.band_N - spec.overshoot_margin_N, ms_max=spec.ms_max,
+        noise_gain_max_V_per_N=spec.noise_gain_max_V_per_N, tf_ratio_min=spec.Tf_ratio_min, phase_one=0.0)
+
+    z, s, p = ca.MX.sym("z", len(names)), ca.MX.sym("s"), ca.MX.sym("p", layout.size)
+    d = layout.unpack(p)
+    vals = {k: scaling.value(k, z[i]) for i, k in enumerate(names)}
+    gains = ca.vertcat(vals["Kc"], vals["Ti"], vals["Td"], vals["Tf"], vals.get("b", 1.0))
+    time_domain = _TimeDomain(horizon)  # (the problem keeps the Python object alive for CasADi)
+    total, overshoot = time_domain(gains)
+    objective = total / len(variants)
+    band_lim = spec.band_N - spec.overshoot_margin_N
+    blocks: list[tuple[str, Any]] = [  # (label, g): g <= 0 required
+        (f"derivative filter Tf >= {spec.Tf_ratio_min:g} Td", d.tf_ratio_min * vals["Td"] - vals["Tf"])]
+    blocks += [(f"overshoot inside {band_lim:g} N, step, variant {j}", overshoot[j] - d.band_limit_N)
+               for j in range(len(variants))]
+
+    # robustness of the linearised loop, per variant and at both ends of the local slope:
+    # |1 + C G|^2 >= 1 / Ms^2 on the frequency grid, vectorised over every (variant, slope, frequency)
+    gains4 = [vals["Kc"], vals["Ti"], vals["Td"], vals["Tf"]]
+    terms = ca.reshape(d.omega_terms, n_freq, 6).T
+    re, im = _controller_response(gains4, d.dt_s, [terms[i, :] for i in range(6)])
+    g_re, g_im = d.G_re.T, d.G_im.T
+    distance2 = (1 + re * g_re - im * g_im) ** 2 + (re * g_im + im * g_re) ** 2
+    k = 0
+    for j, pair in enumerate(slopes):
+        for slope in pair:
+            block = distance2[:, k * omega.size:(k + 1) * omega.size]
             blocks.append((f"Ms <= {spec.ms_max:g}, variant {j}, slope {slope:.3f} N/V",
-                           spec.ms_max**2 * _smooth_max(-distance2, _RHO_MS) + 1.0))
-    re_ny, im_ny = _controller_frequency_response(gains, np.array([np.pi / dt]), dt)
+                           d.ms_max**2 * _smooth_max(-block, _RHO_MS) + 1.0))
+            k += 1
+    re_ny, im_ny = _controller_response(gains4, d.dt_s, d.nyquist)
     blocks.append((f"controller gain at Nyquist <= {spec.noise_gain_max_V_per_N:g} V/N",
-                   ca.sqrt(re_ny**2 + im_ny**2 + 1e-12) / spec.noise_gain_max_V_per_N - 1.0))
-    return _Problem(z=z, names=names, scaling=scaling, variants=variants, objective=objective,
-                    labels=[label for label, _ in blocks], g=ca.vertcat(*[blk for _, blk in blocks]))
+                   ca.sqrt(re_ny**2 + im_ny**2 + 1e-12) / d.noise_gain_max_V_per_N - 1.0))
+    return _Problem(z=z, s=s, p=p, layout=layout, data=data, names=names, scaling=scaling, variants=variants,
+                    objective=objective, labels=[label for label, _ in blocks],
+                    g=ca.vertcat(*[blk for _, blk in blocks]), horizon=horizon, callbacks=[time_domain])
+
+
+ENGINES = ("auto", "compiled", "plain")
 
 
 def tune_pid(
@@ -560,6 +726,7 @@ def tune_pid(
     starts: int = 3,
     verbose: bool = False,
     progress: Callable[[int], None] | None = None,
+    engine: str = "auto",
 ) -> TuningResult:
     """Tune ``Kc, Ti, Td, Tf`` (and ``b``) on the compensated plant; see the module docstring.
 
@@ -571,14 +738,33 @@ def tune_pid(
     objective. Raises :class:`TuningInfeasible` naming the violated constraints when no start
     ends feasible. ``progress``, if given, is called with the count of IPOPT iterations so far
     (all starts and phases) at every iteration.
+
+    ``engine``: ``"compiled"`` runs the loop with its derivatives as C (built once and cached,
+    :mod:`piezopreload.core.native`), ``"plain"`` in CasADi's virtual machine, ``"auto"``
+    compiles where a C compiler works. The same NLP and the same derivatives either way, so
+    the same iterates and optimum; the result says which ran and how long the build took.
     """
+    if engine not in ENGINES:
+        raise InputError(f"engine must be one of {ENGINES}, got {engine!r}.")
+    if starts < 1:
+        raise InputError(f"starts must be >= 1, got {starts}.")
     t0 = time.perf_counter()
     rig = Rig(params)
     fopdt = fit_fopdt(rig, feedforward if feedforward is not None else _ZeroFF())
     baseline = simc(fopdt, u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
-    prob = _build_problem(params, feedforward, spec)
-    z, g = prob.z, prob.g
-    evaluate = ca.Function("evaluate", [z], [prob.objective, g])
+    used, compile_s = "plain", 0.0
+    if engine != "plain" and native.enabled():
+        before = native.build_stats()["compile_s"]
+        try:
+            prob = _build_problem(params, feedforward, spec, "compiled")
+            used = "compiled"
+        except native.NativeBuildError:
+            if engine == "compiled" or native.engine() == "c":
+                raise
+        compile_s = native.build_stats()["compile_s"] - before
+    if used == "plain":
+        prob = _build_problem(params, feedforward, spec, "plain")
+    nlp = prob.nlp()
     options = {
         # the slew clip and the output clamp are kinks: the dual infeasibility stalls near 1e-3
         # while the objective no longer moves, so stop on that
@@ -594,17 +780,18 @@ def tune_pid(
             done[0] += 1
             progress(done[0])
 
-        counters = [_IterationCounter(z.numel(), g.numel(), tick), _IterationCounter(z.numel() + 1, g.numel(), tick)]
-    solver = ca.nlpsol("tune", "ipopt", {"x": z, "f": prob.objective, "g": g},
-                       {**options, **({"iteration_callback": counters[0]} if counters else {})})
+        counters = [_IterationCounter(prob.x.numel(), prob.g.numel(), tick) for _ in range(2)]
+    solver = ca.nlpsol("tune", "ipopt", nlp, {**options, **({"iteration_callback": counters[0]} if counters else {})})
     # phase one: the least violation, with a slack s >= max(g)
-    slack = ca.MX.sym("s")
-    phase_one = ca.nlpsol("tune_phase_one", "ipopt", {"x": ca.vertcat(z, slack), "f": slack, "g": g - slack},
+    phase_one = ca.nlpsol("tune_phase_one", "ipopt", nlp,
                           {**options, "ipopt.tol": 1e-8, **({"iteration_callback": counters[1]} if counters else {})})
+    evaluate = ca.Function("evaluate", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]])
+    data, data_one = prob.with_phase(False), prob.with_phase(True)
+    n_z = len(prob.names)
 
     def score(zv: np.ndarray) -> tuple[float, float]:
         """The worst constraint violation (0 if feasible) and the objective."""
-        f, gv = evaluate(zv)
+        f, gv = evaluate(np.append(zv, 0.0), data)
         return float(np.max(np.asarray(gv, float), initial=0.0)), float(f)
 
     seeds = _seeds(prob.names, prob.scaling, baseline)
@@ -615,14 +802,15 @@ def tune_pid(
     for i in order[:starts]:
         x0 = seeds[i]
         if scores[i][0] > 0:
-            sol = phase_one(x0=np.append(x0, scores[i][0]), lbx=np.append(np.zeros(len(x0)), -np.inf),
-                            ubx=np.append(np.ones(len(x0)), np.inf), lbg=-np.inf, ubg=0.0)
+            sol = phase_one(x0=np.append(x0, scores[i][0]), p=data_one, lbx=np.append(np.zeros(n_z), -np.inf),
+                            ubx=np.append(np.ones(n_z), np.inf), lbg=-np.inf, ubg=0.0)
             iterations += int(phase_one.stats().get("iter_count", 0))
             x0 = np.clip(np.asarray(sol["x"], float).ravel()[:-1], 0.0, 1.0)
-        sol = solver(x0=x0, lbx=0.0, ubx=1.0, lbg=-np.inf, ubg=0.0)
+        sol = solver(x0=np.append(x0, 0.0), p=data, lbx=np.append(np.zeros(n_z), 0.0),
+                     ubx=np.append(np.ones(n_z), 0.0), lbg=-np.inf, ubg=0.0)
         stats = solver.stats()
         iterations += int(stats.get("iter_count", 0))
-        zv = np.clip(np.asarray(sol["x"], float).ravel(), 0.0, 1.0)
+        zv = np.clip(np.asarray(sol["x"], float).ravel()[:-1], 0.0, 1.0)
         worst, f = score(zv)
         # feasible beats infeasible; among feasible the lower objective, among infeasible the
         # smaller violation (what the error message then reports)
@@ -632,9 +820,10 @@ def tune_pid(
             best = candidate
         if not infeasible:
             break
-    assert best is not None
+    assert best is not None  # starts >= 1
     _, _, zv, objective, status = best
-    margins = dict(zip(prob.labels, (float(x) for x in np.asarray(evaluate(zv)[1], float).ravel())))
+    g_best = np.asarray(evaluate(np.append(zv, 0.0), data)[1], float).ravel()
+    margins = dict(zip(prob.labels, (float(x) for x in g_best)))
     binding = sorted(label for label, m in margins.items() if m > -1e-3)
     binding += [f"{name} at the {'lower' if zv[i] < 0.5 else 'upper'} end of its search range"
                 for i, name in enumerate(prob.names) if min(zv[i], 1.0 - zv[i]) < 1e-4 and name != "b"]
@@ -648,7 +837,7 @@ def tune_pid(
     return TuningResult(
         gains=tuned, baseline=baseline, fopdt=fopdt, objective=objective, status=status,
         iterations=iterations, seconds=time.perf_counter() - t0, ms=ms, binding=binding,
-        constraint_margins=margins,
+        constraint_margins=margins, engine=used, compile_s=compile_s,
     )
 
 
@@ -706,6 +895,15 @@ class _ZeroFF:
 # --------------------------------------------------------------------------------------
 # the lower bound: minimum-time step
 # --------------------------------------------------------------------------------------
+#: a minimum-time candidate IPOPT has not solved in this many iterations counts as infeasible
+#: (from the settled-command start the feasible ones converge in under 60; refuting the
+#: infeasible ones far below the minimum can take it hundreds)
+_MIN_TIME_ITERATIONS = 150
+#: samples of hold in the relaxed search of :func:`minimum_time` (on the paper's rig its minimum is
+#: the full 300 samples' minimum already; where it is not, the full hold is searched above it)
+_MIN_TIME_RELAXED_HOLD = 10
+
+
 def minimum_time(
     params: RigParams,
     *,
@@ -723,20 +921,25 @@ def minimum_time(
     tuning model) within ``[u_min, u_max]``, through the same delay, amplifier bandwidth and
     slew limit; the force must enter the band at sample ``N`` and stay in it for ``hold_s``.
     The smallest feasible ``N`` is found by bisection, each candidate a feasibility NLP
-    (CasADi Opti, IPOPT).
+    (CasADi Opti, IPOPT) started from a trajectory that meets the dynamics: the rig's response
+    to the constant command whose settled force is ``final_N``. The bisection starts above a
+    bound no command beats: the force does not move for ``delay + 1`` samples and then at most
+    at the steepest slope times the slew (as :func:`tracking_floor` argues), with a 20 % margin.
+    It runs first with a hold of ten samples, a relaxation whose minimum bounds the true one from
+    below on small problems; the full hold is then checked there and, where it needs longer,
+    searched above it.
     """
     dt = params.sample_period_s
-    n_creep = len(params.creep_tau_s)
-    theta, decay = _plant_vector(params)
-    x_rig0 = _rest_rig_state(params)
+    plant = tuning_loop(params).plant
+    theta = ca.DM(plant.parameters(params))
+    x_rig0 = np.asarray(plant.rest_state(NUMPY, plant.parameters(params)), float)
     n_hold = int(round(hold_s / dt))
 
     x = ca.SX.sym("x", x_rig0.size)
     u_sym = ca.SX.sym("u")
-    f_sym, _ = _rig_force(theta, x[0], x[1], x[2 : 2 + n_creep], n_creep)
-    step = ca.Function("rig", [x, u_sym], [rig_step(x, u_sym, ca.DM(theta), ca.DM(decay), n_creep, params.delay_samples), f_sym])
+    step = ca.Function("rig", [x, u_sym], [plant.step(CASADI, theta, x, u_sym), plant.force(CASADI, theta, x)])
 
-    def feasible(n_settle: int) -> tuple[bool, np.ndarray | None]:
+    def feasible(n_settle: int, n_hold: int) -> tuple[bool, np.ndarray | None]:
         # multiple shooting: states and commands are variables, the dynamics equality constraints
         n = n_settle + n_hold
         opti = ca.Opti()
@@ -748,27 +951,59 @@ def minimum_time(
         opti.subject_to(opti.bounded(u_min_V, U, u_max_V))
         opti.subject_to(opti.bounded(final_N - band_N, force[n_settle:], final_N + band_N))
         opti.minimize(1e-4 * ca.sumsqr(ca.diff(U, 1, 1)))
-        opti.set_initial(U, 0.5 * (u_min_V + u_max_V))
-        opti.solver("ipopt", {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 500})
+        u0 = np.full((1, n), u_steady)
+        opti.set_initial(U, u0)
+        opti.set_initial(X, np.hstack([x_rig0[:, None], np.asarray(step.mapaccum(n)(x_rig0, u0)[0])]))
+        opti.solver("ipopt", {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
+                              "ipopt.max_iter": _MIN_TIME_ITERATIONS})
         try:
             sol = opti.solve()
             return True, np.atleast_1d(np.asarray(sol.value(U), float)).ravel()
         except RuntimeError:
             return False, None
 
-    hi = int(round(horizon_s / dt))
-    ok, u_best = feasible(hi)
-    if not ok:
+    # the start: the constant command whose settled force is final_N, and the rig's response to it
+    n_settle_s = int(round(2.0 / dt))
+    lo_V, hi_V = u_min_V, u_max_V
+    for _ in range(25):  # to a few microvolts: a starting point
+        mid_V = 0.5 * (lo_V + hi_V)
+        settled = float(np.asarray(step.mapaccum(n_settle_s)(x_rig0, np.full((1, n_settle_s), mid_V))[1])[0, -1])
+        lo_V, hi_V = (mid_V, hi_V) if settled < final_N else (lo_V, mid_V)
+    u_steady = 0.5 * (lo_V + hi_V)
+
+    def search(lo: int, hi: int, n_hold: int) -> int:
+        """The smallest feasible N in ``(lo, hi]`` (``lo`` infeasible, ``hi`` feasible) by bisection."""
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            lo, hi = (lo, mid) if feasible(mid, n_hold)[0] else (mid, hi)
+        return hi
+
+    horizon = int(round(horizon_s / dt))
+    rate = _small_signal_gains(params)[1] * float(params.slew_V_per_s) * dt  # N per sample, at most
+    bound = params.delay_samples + (abs(final_N - initial_N) - band_N) / rate
+    lo = max(0, min(int(0.8 * bound) - 1, horizon - 1))  # no command settles this early
+    # first with a short hold, a relaxation (fewer constraints): what it cannot settle, the full
+    # hold cannot either, so its minimum is a lower bound, found on small problems
+    short = min(n_hold, _MIN_TIME_RELAXED_HOLD)
+    if not feasible(horizon, short)[0]:
         raise TuningInfeasible(f"no command reaches {final_N:g} +/- {band_N:g} N within {horizon_s:g} s on this plant")
-    lo = 0
-    while hi - lo > 1:
-        mid = (lo + hi) // 2
-        ok, u_mid = feasible(mid)
-        if ok:
-            hi, u_best = mid, u_mid
-        else:
-            lo = mid
-    return {"settling_s": hi * dt, "samples": hi, "command_V": u_best, "hold_s": hold_s}
+    n_min = search(lo, horizon, short)
+    ok, u_best = feasible(n_min, n_hold)
+    if not ok:  # the full hold needs longer: search above the relaxation's minimum
+        step_up, below = 1, n_min
+        while True:
+            candidate = min(below + step_up, horizon)
+            ok, u_best = feasible(candidate, n_hold)
+            if ok:
+                break
+            if candidate == horizon:
+                raise TuningInfeasible(f"no command reaches {final_N:g} +/- {band_N:g} N and holds it for "
+                                       f"{hold_s:g} s within {horizon_s:g} s on this plant")
+            below, step_up = candidate, 2 * step_up
+        n_min = search(below, candidate, n_hold)
+        if n_min != candidate:
+            ok, u_best = feasible(n_min, n_hold)
+    return {"settling_s": n_min * dt, "samples": n_min, "command_V": u_best, "hold_s": hold_s}
 
 
 def tracking_floor(params: RigParams, reference: Reference) -> dict[str, Any]:
@@ -796,27 +1031,3 @@ def tracking_floor(params: RigParams, reference: Reference) -> dict[str, Any]:
         total += float(np.sum(np.maximum(jump - np.maximum(m - delay, 0) * rate * dt, 0.0) ** 2))
     scored = int(np.sum(t >= reference.times_s[1]))
     return {"rms_N": float(np.sqrt(total / scored)), "rate_N_per_s": rate}
-
-
-def rig_step(x: Any, u: Any, theta: Any, decay: Any, n_creep: int, delay: int) -> Any:
-    """One sample of the smooth rig model; state ``[v, h, creep..., pending...]``, command ``u``.
-
-    The rig of :meth:`piezopreload.models.actuator.Rig.step` with ``sqrt(x^2 + eps^2)`` for
-    ``|x|``, an explicit Bouc-Wen step (the rig's is exact) and the slew clip's corners
-    rounded (:func:`_smooth_clip`; a hard clip leaves the objective full of small kinks that
-    stall IPOPT near the optimum).
-    """
-    v, h = x[0], x[1]
-    creep = x[2 : 2 + n_creep]
-    pending = x[2 + n_creep : 2 + n_creep + delay]
-    if delay:
-        applied = pending[0]
-        pending_next = ca.vertcat(pending[1:delay], u) if delay > 1 else u  # (a 1x1 [1:] is not empty)
-    else:
-        applied, pending_next = u, pending
-    dv = _smooth_clip((applied - v) * (1 - theta[2]), theta[3])
-    v_next = v + dv
-    h_next = h + theta[5] * dv - theta[6] * _smooth_abs(dv) * h - theta[7] * dv * _smooth_abs(h)
-    xs = theta[4] * (v_next + theta[8] * v_next * v_next / 100.0 - h_next)
-    creep_next = ca.vertcat(*[xs + (creep[i] - xs) * decay[i] for i in range(n_creep)])
-    return ca.vertcat(v_next, h_next, creep_next, pending_next)
