@@ -27,8 +27,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from piezopreload.design.preload import WEIGHTS, DesignNLP, optimise, pareto_front
-from piezopreload.design_pipeline import design_spec_from_study
-from piezopreload.study import default_study, read_study_text
+from piezopreload.study import load_study
 
 REPEATS = 7
 POINTS = 50
@@ -44,7 +43,7 @@ def _median_time(fn, repeats: int = REPEATS):
 
 
 def main() -> None:
-    spec, _ = design_spec_from_study(read_study_text(default_study()))
+    spec = load_study().design_spec
     nlp = DesignNLP(spec)
     best = optimise(spec, "stiffness", nlp)
     ints = (int(best.point.turns), int(best.point.balls_per_turn))

@@ -37,7 +37,8 @@ import numpy as np
 from scipy.optimize import nnls
 from scipy.signal import savgol_filter
 
-from piezopreload.io import SHIPPED_COLUMNS, parse_columns, read_record, shipped_data
+from piezopreload.core.tables import parse_columns, read_record
+from piezopreload.data import SHIPPED_COLUMNS, shipped_data
 from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import simulate_open_loop
 from piezopreload.models.hysteresis import ClassicalPI, play, uniform_thresholds

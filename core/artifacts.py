@@ -20,7 +20,7 @@ from typing import Any
 from piezopreload.core.errors import ArtifactError
 
 __all__ = ["ArtifactError", "schema_name", "write_artifact", "read_artifact", "atomic_write_text", "atomic_write_bytes",
-           "content_hash", "parse_artifact", "package_version", "read_bytes"]
+           "content_hash", "parse_artifact", "package_version", "read_bytes", "finite_or_none"]
 
 VERSION = 1
 KINDS = {
@@ -178,3 +178,8 @@ def parse_artifact(text: str, kind: str, shown: str = "the document") -> dict[st
             raise ArtifactError(f"{shown}: the content does not match its '{HASH_FIELD}': the file was changed after it "
                                 f"was written; regenerate it with 'piezopreload tune'")
     return doc
+
+
+def finite_or_none(x: float) -> float | None:
+    """``x`` as a float, or None where it is not finite (an artifact holds finite numbers only)."""
+    return float(x) if math.isfinite(x) else None

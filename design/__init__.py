@@ -1,1 +1,2 @@
-"""Ball-screw preload design with CasADi (not implemented yet: see the open design issue)."""
+"""Ball-screw preload design with CasADi: the design NLP, its optimum and Pareto fronts (``preload``), the
+least-friction preload schedule (``schedule``) and the design study that puts them together (``study``)."""

@@ -90,7 +90,7 @@ from piezopreload.models.ballscrew import (
 )
 from piezopreload.models.feed_drive import FeedDrive, PiezoPreload, stack_loop_um
 
-__all__ = ["DesignSpec", "DesignPoint", "DesignResult", "DesignInfeasible", "ParetoFront", "OBJECTIVES",
+__all__ = ["DesignSpec", "DesignPoint", "DesignOptimum", "DesignInfeasible", "ParetoFront", "OBJECTIVES",
            "PARETO_PAIRS", "CONSTRAINTS", "WEIGHTS", "optimise", "pareto_front", "DesignNLP"]
 
 OBJECTIVES = ("stiffness", "drag", "life")
@@ -277,12 +277,12 @@ class DesignPoint:
     objective: str
     integer: bool
 
-    def as_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
 
 @dataclass(frozen=True)
-class DesignResult:
+class DesignOptimum:
     """The optimum: its spec, objective, the design point, what binds, how it was solved."""
 
     spec: DesignSpec
@@ -293,8 +293,8 @@ class DesignResult:
     solve_s: float
     nlp_solves: int
 
-    def as_dict(self) -> dict[str, Any]:
-        return {"objective": self.objective, "point": self.point.as_dict(), "binding": self.binding,
+    def to_dict(self) -> dict[str, Any]:
+        return {"objective": self.objective, "point": self.point.to_dict(), "binding": self.binding,
                 "integer_candidates": self.tried, "solve_s": self.solve_s, "nlp_solves": self.nlp_solves}
 
     def plot(self, ax: Any = None) -> Any:
@@ -330,9 +330,9 @@ class ParetoFront:
     solve_s: float
     nlp_solves: int
 
-    def as_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, Any]:
         return {"pair": self.pair, "x_name": self.x_name, "y_name": self.y_name, "x": self.x.tolist(),
-                "y": self.y.tolist(), "points": [p.as_dict() for p in self.points], "solve_s": self.solve_s,
+                "y": self.y.tolist(), "points": [p.to_dict() for p in self.points], "solve_s": self.solve_s,
                 "nlp_solves": self.nlp_solves}
 
     def plot(self, ax: Any = None) -> Any:
@@ -726,12 +726,12 @@ def _solve_mixed(nlp: DesignNLP, weights: tuple[float, ...], y0: np.ndarray, sti
     return best, relaxed, tried
 
 
-def optimise(spec: DesignSpec, objective: str = "stiffness", nlp: DesignNLP | None = None) -> DesignResult:
+def optimise(spec: DesignSpec, objective: str = "stiffness", nlp: DesignNLP | None = None) -> DesignOptimum:
     """The design optimum for one objective (see the module docstring)."""
     return _optimise(spec, objective, nlp)[0]
 
 
-def _optimise(spec: DesignSpec, objective: str, nlp: DesignNLP | None) -> tuple[DesignResult, dict[str, Any]]:
+def _optimise(spec: DesignSpec, objective: str, nlp: DesignNLP | None) -> tuple[DesignOptimum, dict[str, Any]]:
     """:func:`optimise`, also returning the relaxed solution (a warm start for fronts)."""
     if objective not in OBJECTIVES:
         raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}.")
@@ -745,7 +745,7 @@ def _optimise(spec: DesignSpec, objective: str, nlp: DesignNLP | None) -> tuple[
             violations = [{"constraint": "integers", "meaning": "no integer turns/balls-per-turn neighbour of the "
                            "relaxed optimum is feasible", "short_by": float("nan"), "units": ""}]
         raise DesignInfeasible(_infeasible_message(violations), violations)
-    result = DesignResult(spec=spec, objective=objective, point=nlp.point(best["y"], objective, True),
+    result = DesignOptimum(spec=spec, objective=objective, point=nlp.point(best["y"], objective, True),
                           binding=nlp.binding(best), tried=tried, solve_s=time.perf_counter() - t0,
                           nlp_solves=nlp.solves - start_solves)
     return result, relaxed

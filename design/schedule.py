@@ -137,7 +137,7 @@ class PreloadSchedule:
     def saving_fraction(self) -> float:
         return 1.0 - self.friction_energy_J / self.constant_friction_energy_J
 
-    def as_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, Any]:
         return {
             "status": self.status, "friction_energy": self.friction_energy_J,
             "constant_friction_energy": self.constant_friction_energy_J, "energy_units": self.energy_units,

@@ -82,6 +82,19 @@ class Reference:
     def to_dict(self) -> dict[str, Any]:
         return {"times_s": self.times_s.tolist(), "levels_N": self.levels_N.tolist(), "duration_s": self.duration_s}
 
+    @classmethod
+    def from_dict(cls, data: Any) -> Reference:
+        """The inverse of :meth:`to_dict`; an :class:`InputError` (a ValueError) names what is missing or wrong."""
+        if not isinstance(data, dict):
+            raise InputError(f"a reference is an object with times_s, levels_N and duration_s, got {type(data).__name__}")
+        missing = [k for k in ("times_s", "levels_N", "duration_s") if k not in data]
+        if missing:
+            raise InputError(f"{missing[0]} is missing (a reference has times_s, levels_N and duration_s)")
+        try:
+            return cls(np.asarray(data["times_s"], float), np.asarray(data["levels_N"], float), float(data["duration_s"]))
+        except (TypeError, ValueError) as exc:
+            raise InputError(str(exc)) from exc
+
 
 @dataclass(frozen=True, eq=False)
 class ClosedLoopRun:

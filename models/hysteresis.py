@@ -1,6 +1,6 @@
 """Prandtl-Ishlinskii hysteresis: play operators, P-I models and their analytic inverses.
 
-Section 3.2 of Zhang, Jin, Lin (2021), restated in ``EQUATIONS.md``:
+Section 3.2 of Zhang, Jin, Lin (2021), restated in ``docs/models.md`` (section 2):
 
 * the play operator, eq. (14);
 * the classical P-I model, eq. (15), with a linear term (threshold 0) and an output offset;

@@ -15,11 +15,12 @@ to one sample period.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["StepMetrics", "step_metrics", "tracking_error"]
+__all__ = ["StepMetrics", "step_metrics", "step_numbers", "run_numbers", "tracking_error"]
 
 
 @dataclass(frozen=True)
@@ -142,3 +143,25 @@ def tracking_error(
     if not keep.any():
         raise ValueError(f"no samples at or after t_from = {t_from}.")
     return {"rms": float(np.sqrt(np.mean(e[keep] ** 2))), "max": float(np.max(np.abs(e[keep])))}
+
+
+def step_numbers(m: StepMetrics) -> dict[str, float | None]:
+    """Rise, peak and settling time (s) and overshoot (N) of a step as JSON holds them: None where never reached."""
+    values = {"rise_s": m.rise_s, "peak_s": m.peak_s, "settling_s": m.settling_s, "overshoot_N": m.overshoot}
+    return {k: (float(v) if np.isfinite(v) else None) for k, v in values.items()}
+
+
+def run_numbers(run: Any, band_N: float, signal: str, after_change_s: float | None = None) -> dict[str, float | None]:
+    """The numbers a single-plant :class:`~piezopreload.models.closedloop.ClosedLoopRun` is scored by.
+
+    The step numbers of the reference's first change (band ``band_N`` on ``signal``), the peak
+    command, and the tracking error of the true force from that change on (RMS and maximum; with
+    ``after_change_s``, also the RMS outside that long after every change).
+    """
+    out: dict[str, float | None] = {**step_numbers(run.step_metrics(band_N, signal=signal)),
+                                    "peak_command_V": float(np.max(run.command_V))}
+    te = run.tracking_error()
+    out.update(tracking_rms_N=float(te["rms"]), tracking_max_N=float(te["max"]))
+    if after_change_s is not None:
+        out["tracking_rms_after_change_N"] = float(run.tracking_error(after_change_s=after_change_s)["rms"])
+    return out

@@ -1,352 +1,492 @@
-"""The study pipeline: the steps the CLI runs, each returning a JSON-ready summary."""
+"""The one-command study: ``piezopreload run [STUDY.toml] [--out DIR] [--force]``, ``study.run(out=...)``.
+
+A study goes through its stages (:data:`STAGES`), each a call of the study's API writing
+versioned artifacts into the output folder:
+
+==========  ==================================================================  ==========================
+stage       what it does                                                        writes
+==========  ==================================================================  ==========================
+identify    the feedforward's P-I model from the loop measurement (simulated    feedforward/model.json,
+            on the rig's truth model, or the study's ``[feedforward] data``)     feedforward/loop.csv
+design      ball-screw preload optimum, Pareto fronts, preload schedule          design/design.json + CSVs
+tune        PID gains around the compensated plant (CasADi), compared, bounded  tuning.json
+validate    the tuned gains on a Monte Carlo set of nonlinear rigs              gains.json, validation.json
+compare     step and trajectory, paper's and tuned gains, with/without FF       responses/
+export      the validated gain set in the study's controller formats            exports/
+rig         the validated gains on the rig executor (simulated by default)      runs/run-*.csv + .json
+report      figures and the PDF (Typst)                                          report/, report.pdf
+==========  ==================================================================  ==========================
+
+Every stage has a key: the SHA-256 of its study tables, of the artifacts it reads, of the
+files the study names for it and of the code it runs. ``pipeline.json`` records each stage's
+key and the hashes of what it wrote; a stage whose key and outputs are unchanged is not run
+again. ``force`` reruns everything. A failing stage stops the study with its name; what the
+stages before it wrote stays, and the manifest records the failure. A new stage is a
+:class:`Stage` in :data:`STAGES`: its tables, the stages it reads, its code and its body.
+"""
 
 from __future__ import annotations
 
-import io
+import hashlib
+import importlib
+import json
 import time
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from piezopreload import __version__
-from piezopreload.core.artifacts import ArtifactError, atomic_write_text, read_artifact, write_artifact
-from piezopreload.io import InputError, Record
-from piezopreload.models.actuator import Rig
-from piezopreload.models.closedloop import ClosedLoopRun, simulate
-from piezopreload.models.controller import Controller, PIDGains
-from piezopreload.models.hysteresis import HysteresisModel, NotInvertibleError, model_from_dict
-from piezopreload.study import Study
-from piezopreload.tuning.calibrate import PAPER_RESULTS, identify_feedforward, reproduce
-from piezopreload.tuning.identify import (
-    IdentificationError,
-    PIIdentifier,
-    fit_error,
-    paper_baseline,
-    straight_line,
-)
+from piezopreload.core.artifacts import atomic_write_bytes, finite_or_none, read_artifact, write_artifact
+from piezopreload.core.errors import InputError, InternalError
+from piezopreload.core.tables import write_csv
+from piezopreload.models.gainset import GainSet
+from piezopreload.progress import Progress
+from piezopreload.reports.study_report import STAGES_READ, ReportStudy, render_report
+from piezopreload.results import TuningResult
+from piezopreload.rig import session
+from piezopreload.rig.export import write_exports
+from piezopreload.study import Study, load_study
+from piezopreload.tuning.compare import reproduction, responses
+from piezopreload.tuning.feedforward import IdentifiedFeedforward
 
-__all__ = [
-    "Window",
-    "parse_window",
-    "identify",
-    "load_hysteresis_model",
-    "load_gains",
-    "gains_from_dict",
-    "gains_to_dict",
-    "simulate_study",
-    "reproduce_study",
-    "write_run_csv",
-    "write_csv",
-    "finite_or_none",
-    "step_numbers",
-]
+__all__ = ["Stage", "STAGES", "StageFailed", "run_study", "rerender_report", "read_manifest", "DEFAULT_OUT"]
+
+DEFAULT_OUT = "piezopreload-out"
+MANIFEST = "pipeline.json"
+STUDY_COPY = "study.toml"
+
+
+class StageFailed(InputError):
+    """A stage that could not complete: the message names it; ``exit_code`` is what the CLI returns."""
+
+    def __init__(self, stage: str, message: str, exit_code: int = 2) -> None:
+        super().__init__(f"stage '{stage}' failed: {message}")
+        self.stage = stage
+        self.exit_code = exit_code
+
+
+class StageCrashed(InternalError):
+    """An internal failure inside a stage (exit code 1); the cause is chained."""
+
+
+class _Partial(Exception):
+    """Carries what a failing stage wrote, so the manifest can list it."""
+
+    def __init__(self, outputs: dict[str, Path]) -> None:
+        super().__init__("partial outputs")
+        self.outputs = outputs
+
+
+def _sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+_CODE_HASHES: dict[str, str] = {}
+
+
+def _code_hash(packages: tuple[str, ...]) -> str:
+    """SHA-256 of the source (``.py``, ``.typ``) of ``piezopreload`` and the named subpackages."""
+    key = ",".join(packages)
+    if key not in _CODE_HASHES:
+        h = hashlib.sha256()
+        for name in ("piezopreload",) + tuple(f"piezopreload.{p}" for p in packages):
+            root = Path(importlib.import_module(name).__file__ or "").parent
+            for path in sorted(p for p in root.rglob("*") if p.suffix in (".py", ".typ") and "__pycache__" not in p.parts):
+                h.update(f"{name}/{path.relative_to(root).as_posix()}\n".encode())
+                h.update(path.read_bytes())
+        _CODE_HASHES[key] = h.hexdigest()
+    return _CODE_HASHES[key]
+
+
+# --------------------------------------------------------------------------------------
+# the stages
+# --------------------------------------------------------------------------------------
+@dataclass
+class _Ctx:
+    study: Study
+    out: Path
+    progress: Progress
+    records: dict[str, dict[str, Any]]
+    source: str = ""                         # the study file as the user named it
+    template: str | None = None              # a Typst template's text to use instead of the shipped one
+
+    def output(self, stage: str, label: str) -> Path:
+        return self.out / self.records[stage]["outputs"][label]["path"]
+
+    def sha256(self, stage: str, label: str) -> str:
+        return self.records[stage]["outputs"][label]["sha256"]
+
+    def rel(self, path: Path) -> str:
+        return Path(path).resolve().relative_to(self.out.resolve()).as_posix()
+
+    def feedforward(self) -> IdentifiedFeedforward:
+        return IdentifiedFeedforward.load(self.output("identify", "model"), classical=True)
 
 
 @dataclass(frozen=True)
-class Window:
-    """A time window ``[t0_s, t1_s]``."""
+class Stage:
+    """One stage: its study tables, the stages whose outputs it reads, the code its key covers, its body."""
 
-    t0_s: float
-    t1_s: float
-
-    def as_list(self) -> list[float]:
-        return [self.t0_s, self.t1_s]
-
-
-def parse_window(text: str, option: str) -> Window:
-    """``'4:7'`` -> ``Window(4, 7)``; bad text raises :class:`InputError` naming ``option``."""
-    a, sep, b = text.partition(":")
-    try:
-        if not sep:
-            raise ValueError
-        t0, t1 = float(a), float(b)
-    except ValueError:
-        raise InputError(f"{option}: '{text}' is not T0:T1 in seconds (example: {option} 4:7)") from None
-    if not (np.isfinite(t0) and np.isfinite(t1)) or t1 <= t0:
-        raise InputError(f"{option}: '{text}' must have finite T0 < T1")
-    return Window(t0, t1)
+    name: str
+    what: str
+    tables: tuple[str, ...]
+    needs: tuple[str, ...]
+    code: tuple[str, ...]
+    run: Callable[[_Ctx], tuple[dict[str, Path], dict[str, Any]]]
+    files: tuple[str, ...] = ()  # the study's file keys it reads (hashed into its key)
+    applies: Callable[[Study], str | None] = field(default=lambda study: None)  # a reason it does not apply, or None
 
 
-def identify(
-    record: Record,
-    *,
-    model: str = "classical",
-    operators: int = 40,
-    train: Window | None = None,
-    test: Window | None = None,
-    ridge: float = 0.0,
-    out: str | Path | None = None,
-) -> dict[str, Any]:
-    """Identify a hysteresis model on ``train``, score it on ``test``; optionally write the artifact.
-
-    Without windows the first 70 % of the record's duration trains and the rest tests. Errors
-    are percentages of the output span of the whole record.
-    """
-    t0 = time.perf_counter()
-    t = record.time_s
-    if train is None:
-        train = Window(float(t[0]), float(t[0] + 0.7 * (t[-1] - t[0])))
-    default_test = test is None
-    if default_test:
-        test = Window(train.t1_s, float(t[-1]))
-    rows = {}
-    for name, win in (("train", train), ("test", test)):
-        mask = record.window(win.t0_s, win.t1_s)
-        if name == "test" and default_test:
-            mask &= t > train.t1_s  # the default test window holds only samples after training
-        if not mask.any():
-            raise InputError(
-                f"--{name} {win.t0_s:g}:{win.t1_s:g} holds no samples; the record spans "
-                f"{t[0]:g} to {t[-1]:g} s"
-            )
-        rows[name] = mask
-    if np.ptp(record.input[rows["train"]]) == 0:
-        raise InputError(
-            f"{record.path}: the input '{record.input_name}' is constant over the training window "
-            f"{train.t0_s:g}:{train.t1_s:g} s; a hysteresis model needs a varying input"
-        )
-    span = float(np.ptp(record.output))
-    if span == 0:
-        raise InputError(f"{record.path}: the output '{record.output_name}' is constant; nothing to model")
-    try:
-        est = PIIdentifier(model=model, n_operators=operators, ridge=ridge)
-        est.fit(record.input, record.output, train=rows["train"])
-    except (IdentificationError, ValueError) as exc:
-        raise InputError(f"{record.path}: cannot identify a {model} model: {exc}") from None
-    predicted = est.predict(record.input)
-    v, y = record.input, record.output
-    slope, intercept = straight_line(v[rows["train"]], y[rows["train"]])
-    try:
-        paper = paper_baseline(v, y, est.thresholds_, rows["train"])
-        paper_test: dict[str, Any] | None = fit_error(paper(v)[rows["test"]], y[rows["test"]], span)
-        paper_note = None
-    except IdentificationError as exc:
-        paper_test, paper_note = None, str(exc)
-    summary: dict[str, Any] = {
-        "data": {"path": record.path, "sha256": record.sha256, "samples": int(t.size),
-                 "input": record.input_name, "output": record.output_name},
-        "model": model,
-        "operators": int(est.thresholds_.size),
-        "invertible": bool(getattr(est.model_, "invertible", False)),
-        "output_span": span,
-        "output_unit": record.output_unit,
-        "train": {**fit_error(predicted[rows["train"]], y[rows["train"]], span),
-                  "window_s": train.as_list(), "samples": int(rows["train"].sum())},
-        "test": {**fit_error(predicted[rows["test"]], y[rows["test"]], span),
-                 "window_s": test.as_list(), "samples": int(rows["test"].sum())},
-        "line_test": {**fit_error(slope * v[rows["test"]] + intercept, y[rows["test"]], span),
-                      "slope": slope, "intercept": intercept},
-        "paper_method_test": paper_test,
-        "solver": {"name": "CLARABEL", "status": est.status_, "polished": est.polished_,
-                   "iterations": est.iterations_, "qp_seconds": est.solve_time_s_,
-                   "fit_seconds": est.fit_time_s_},
-    }
-    if paper_note:
-        summary["paper_method_note"] = paper_note
-    summary["seconds"] = time.perf_counter() - t0
-    summary["out"] = None
-    if out is not None:
-        write_artifact(
-            out,
-            "hysteresis-model",
-            {
-                "inputs": {"data": {"path": record.path, "sha256": record.sha256},
-                           "train_s": train.as_list(), "test_s": test.as_list()},
-                "units": {"input": record.input_unit, "output": record.output_unit,
-                          "input_name": record.input_name, "output_name": record.output_name},
-                "model": est.model_.to_dict(),
-                "identification": {k: summary[k] for k in ("train", "test", "line_test", "solver", "output_span")},
-            },
-        )
-        summary["out"] = str(out)
-    return summary
+def _stage_identify(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+    ff = ctx.study.identify_feedforward(progress=ctx.progress.say)
+    paths = ff.save(ctx.out / "feedforward", inputs={"study_sha256": ctx.study.sha256})
+    data = read_artifact(paths["model"], "hysteresis-model")["inputs"]["data"]
+    return paths, {"source": ff.source["kind"], "data_sha256": data["sha256"], "operators": ff.model.n_operators,
+                   "fit_rms_pct": ff.fit["rms_pct"], "fit_max_pct": ff.fit["max_pct"],
+                   "compensation_rms_N": None if ff.check is None else ff.check.rms_N}
 
 
-def load_hysteresis_model(path: str | Path) -> tuple[HysteresisModel, dict[str, Any]]:
-    """Read a hysteresis-model artifact; errors name the file and field."""
-    doc = read_artifact(path, "hysteresis-model")
-    try:
-        return model_from_dict(doc["model"]), doc
-    except ValueError as exc:
-        raise ArtifactError(f"{path}: {exc}") from None
+def _stage_design(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+    d = ctx.out / "design"
+    for stale in d.glob("design.pareto-*.csv"):  # a front the study no longer asks for
+        stale.unlink()
+    result = ctx.study.design(progress=ctx.progress.say, bar=ctx.progress.bar("Pareto fronts"))
+    written = result.save(d / "design.json", {"study": ctx.study.path, "study_sha256": ctx.study.sha256})
+    outputs = {"design": written[0], **{p.stem.rpartition(".")[2]: p for p in written[1:]}}
+    return outputs, {"objective": result.optimum.objective, "stiffness_N_per_um": result.point.stiffness_N_per_um,
+                     "binding": result.optimum.binding, "fronts": [f.pair for f in result.fronts],
+                     "schedule_saving_fraction": result.schedule.saving_fraction}
+
+
+def _stage_tune(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+    tuned = ctx.study.tune(ctx.feedforward(), progress=ctx.progress.say,
+                           iterations=ctx.progress.counter("IPOPT iterations", every=10))
+    g = tuned.gains
+    return {"tuning": tuned.save(ctx.out / "tuning.json")}, {"Kc_V_per_N": g.Kc, "Ti_s": g.Ti_s, "Td_s": g.Td_s,
+                                                             "Tf_s": g.Tf_s, "b": g.b, "ms": tuned.tuning["ms"]}
+
+
+def _stage_validate(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+    study = ctx.study
+    tuned = TuningResult.load(ctx.output("tune", "tuning"), study, ctx.feedforward())
+    gain_set, result = tuned.validation(inputs={"tuning_sha256": ctx.sha256("tune", "tuning")},
+                                        progress=ctx.progress.say,
+                                        bar=ctx.progress.bar(f"Monte Carlo, {study.validation.plants} plants"))
+    gains_path, validation_path = ctx.out / "gains.json", ctx.out / "validation.json"
+    gain_set = gain_set.save(gains_path)
+    write_artifact(validation_path, "validation", {
+        "gain_set_sha256": gain_set.content_sha256, "passed": result.passed, "n_plants": result.n_plants,
+        "seed": result.seed, "criteria": result.criteria.to_dict(), "spread": result.spread,
+        "metrics": {k: [finite_or_none(x) for x in v] for k, v in result.metrics.items()},
+        "summary": result.summary(), "failures": result.failures, "seconds": result.seconds,
+        "inputs": {"gain_set": "gains.json", "study_sha256": study.sha256},
+    })
+    outputs = {"gains": gains_path, "validation": validation_path}
+    if not result.passed:
+        worst = "; ".join(f"plant {f['plant']}: {f['metric']} {f['value']} > {f['limit']:g}" for f in result.failures[:3])
+        raise StageFailed("validate", f"the tuned gains failed on {len({f['plant'] for f in result.failures})} of "
+                                      f"{result.n_plants} plants ({worst}); {gains_path} is a candidate, which export "
+                                      "and the rig refuse. Loosen the [validation] limits or tighten [tuning] "
+                                      "(ms_max, overshoot_margin_N) and run again", exit_code=2) from _Partial(outputs)
+    s = result.summary()
+    return outputs, {"status": gain_set.status, "content_sha256": gain_set.content_sha256, "plants": result.n_plants,
+                     "worst_settling_s": s["settling_s"]["worst"], "worst_overshoot_N": s["overshoot_N"]["worst"]}
+
+
+def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+    study, ff = ctx.study, ctx.feedforward()
+    gain_set = GainSet.load(ctx.output("validate", "gains"))
+    runs = responses(study.rig, study.references, {"paper": study.gains, "tuned": gain_set.gains}, ff.model,
+                     seed=study.seed, band_N=study.band_N, signal=study.signal,
+                     after_change_s=study.criteria.tracking_after_change_s, progress=ctx.progress.bar("closed-loop runs"))
+    d = ctx.out / "responses"
+    outputs: dict[str, Path] = {}
+    rows = []
+    for r in runs:
+        path = outputs[r.label] = d / f"{r.label}.csv"
+        write_csv(path, r.run.columns(), f"piezopreload {__version__} run: study {study.name}, {r.gains} gains, "
+                                         f"{r.controller}, {r.reference}, seed {study.seed}")
+        rows.append({"gains": r.gains, "controller": r.controller, "reference": r.reference, "csv": ctx.rel(path),
+                     **r.numbers})
+    table = reproduction(runs)
+    outputs["responses"] = d / "responses.json"
+    write_artifact(outputs["responses"], "responses", {
+        "runs": rows, "reproduction": table, "band_N": study.band_N, "signal": study.signal, "seed": study.seed,
+        "inputs": {"gain_set_sha256": gain_set.content_sha256, "study_sha256": study.sha256,
+                   "feedforward_sha256": ctx.sha256("identify", "model")},
+    })
+    return outputs, {"reproduction": table}
+
+
+def _stage_export(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+    formats = list(ctx.study.export.formats)
+    outputs = write_exports(GainSet.load(ctx.output("validate", "gains")), ctx.out / "exports", formats)
+    for fmt, path in outputs.items():
+        ctx.progress.say(f"{fmt}: {ctx.rel(path)}")
+    return {fmt: Path(p) for fmt, p in outputs.items()}, {"formats": formats}
+
+
+def _stage_rig(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+    plan = ctx.study.rig_run
+    reference = str(ctx.study.files().get("rig_run.reference", plan.reference))
+    ctx.progress.say(f"backend '{plan.backend}', reference {Path(reference).name}, "
+                     f"{'real time' if plan.realtime else 'back to back'}")
+    s = session.run(ctx.output("validate", "gains"), backend=plan.backend, reference=reference,
+                    realtime=bool(plan.realtime), log_dir=ctx.out / "runs", safety=plan.safety(), seed=plan.seed).summary
+    outputs = {"log_csv": Path(s["log_csv"]), "log_json": Path(s["log_json"])}
+    m = s["metrics"]
+    summary = {"status": s["status"], "cycles": s["cycles"], "controller_step": s["controller_step"],
+               "settling_s": m.get("settling_s"), "overshoot_N": m.get("overshoot_N"),
+               "tracking_rms_N": m.get("tracking_rms_N"), "missed_deadlines": s["timing"].get("missed_deadlines")}
+    if s["exit_code"] != 0:
+        trip = s["trip"] or {}
+        raise StageFailed("rig", f"the run was stopped by the interlock '{trip.get('cause')}' at "
+                                 f"t = {trip.get('t_s', float('nan')):.3f} s: {trip.get('detail')}; "
+                                 f"the log is {s['log_csv']}", exit_code=session.EXIT_TRIPPED) from _Partial(outputs)
+    ctx.progress.say(f"{s['status']}: {s['cycles']} cycles; log {ctx.rel(Path(s['log_csv']))}")
+    return outputs, summary
+
+
+def _stage_report(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+    study = ctx.study
+    b, d = study.ballscrew, study.design_spec
+    facts = ReportStudy(study.name, study.title, study.path, study.sha256, ctx.source or study.path,
+                        None if b is None or d is None else (d.nominal_diameter_mm, d.lead_mm),
+                        None if d is None else d.frequency_min_Hz)
+    return render_report(ctx.out, ctx.records, facts, say=ctx.progress.say, bar=ctx.progress.bar("figures"),
+                         template=ctx.template)
+
+
+def _design_applies(study: Study) -> str | None:
+    return None if study.design_spec is not None else "the study has no [ballscrew] table"
+
+
+STAGES: tuple[Stage, ...] = (
+    Stage("identify", "the feedforward's P-I model", ("rig", "feedforward", "reference"), (), ("models", "tuning"),
+          _stage_identify, files=("feedforward.data",)),
+    Stage("design", "ball-screw preload design, Pareto fronts, schedule",
+          ("ballscrew", "feed_drive", "duty", "design", "schedule"), (), ("models", "design"), _stage_design,
+          files=("schedule.profile",), applies=_design_applies),
+    Stage("tune", "PID gains around the compensated plant (CasADi + IPOPT)",
+          ("rig", "controller", "reference", "simulation", "tuning"), ("identify",), ("models", "tuning"),
+          _stage_tune),
+    Stage("validate", "Monte Carlo on nonlinear rigs", ("study", "rig", "reference", "simulation", "validation"),
+          ("identify", "tune"), ("models", "tuning"), _stage_validate),
+    Stage("compare", "step and trajectory: paper's and tuned gains, with and without feedforward",
+          ("study", "rig", "controller", "reference", "simulation"), ("identify", "validate"), ("models", "tuning"),
+          _stage_compare),
+    Stage("export", "the gain set in the controllers' formats", ("export",), ("validate",), ("models", "rig"),
+          _stage_export),
+    Stage("rig", "the validated gains on the rig executor", ("rig_run",), ("validate",), ("models", "rig"),
+          _stage_rig, files=("rig_run.reference",)),
+    Stage("report", "figures and the PDF", ("study", "ballscrew", "design"), STAGES_READ, ("models", "reports"),
+          _stage_report),
+)
+_BY_NAME = {s.name: s for s in STAGES}
+
+
+def _stage_key(stage: Stage, study: Study, records: dict[str, dict[str, Any]]) -> str:
+    upstream = {}
+    for name in stage.needs:
+        rec = records.get(name, {})
+        upstream[name] = {label: o["sha256"] for label, o in rec.get("outputs", {}).items()} if rec.get("status") == "done" \
+            else rec.get("status")
+    files = {}
+    for key, path in study.files().items():
+        if key in stage.files:
+            try:
+                files[str(path)] = _sha256_file(path)
+            except OSError as exc:
+                raise InputError(f"{study.path}: cannot read {path} ({exc.strerror or exc})") from None
+    tables = study.tables()
+    body = {"stage": stage.name, "version": __version__, "code": _code_hash(stage.code),
+            "tables": {t: tables.get(t) for t in stage.tables}, "upstream": upstream, "files": files}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":"), default=str).encode()).hexdigest()
+
+
+def _outputs_intact(out: Path, record: dict[str, Any]) -> bool:
+    for o in record.get("outputs", {}).values():
+        path = out / o["path"]
+        if not path.is_file() or _sha256_file(path) != o["sha256"]:
+            return False
+    return True
 
 
 # --------------------------------------------------------------------------------------
-# simulate and reproduce (the reference rig)
+# the manifest and the lock
 # --------------------------------------------------------------------------------------
-CONTROLLER_CHOICES = ("pid", "ff+pid")
-REFERENCE_CHOICES = ("step", "trajectory")
-_STEP_KEYS = ("rise_s", "peak_s", "settling_s", "overshoot_N")
-_TRACK_KEYS = ("tracking_rms_N", "tracking_max_N")
+def read_manifest(out: str | Path) -> dict[str, Any]:
+    """The output folder's ``pipeline.json`` (an artifact of kind ``study-run``)."""
+    return read_artifact(Path(out) / MANIFEST, "study-run")
 
 
-def gains_to_dict(gains: PIDGains) -> dict[str, Any]:
-    """The gains in SI with the controller form stated, plus LabVIEW's minutes."""
-    return {
-        "Kc_V_per_N": gains.Kc, "Ti_s": gains.Ti_s, "Td_s": gains.Td_s, "Tf_s": gains.Tf_s, "b": gains.b,
-        "u_min_V": gains.u_min, "u_max_V": gains.u_max,
-        "form": "ideal/ISA, trapezoidal integral, derivative on measurement, conditional-integration anti-windup",
-        "labview": gains.labview(),
-    }
+def _write_manifest(out: Path, study: Study, records: dict[str, dict[str, Any]], started: str, source: str) -> None:
+    write_artifact(out / MANIFEST, "study-run", {
+        "study": {"path": source, "sha256": study.sha256, "name": study.name, "copy": STUDY_COPY},
+        "started_utc": started,
+        "stages": {name: records[name] for name in _BY_NAME if name in records},
+    })
 
 
-def load_gains(path: str | Path) -> tuple[PIDGains, dict[str, Any]]:
-    """Read the gains of a gain-set artifact (SI units); errors name the file and field."""
-    doc = read_artifact(path, "gain-set")
-    return gains_from_dict(doc["gains"], path), doc
-
-
-def gains_from_dict(g: Any, path: str | Path, field: str = "gains") -> PIDGains:
-    """The inverse of :func:`gains_to_dict`; errors name the file and the field."""
-    if not isinstance(g, dict):
-        raise ArtifactError(f"{path}: field '{field}' must be an object")
+@contextmanager
+def _locked(out: Path) -> Iterator[None]:
+    """One run at a time per output folder (advisory lock; where flock exists)."""
+    out.mkdir(parents=True, exist_ok=True)
     try:
-        missing = next((k for k in ("Kc_V_per_N", "Ti_s", "Td_s") if k not in g), None)
-        if missing:
-            raise ArtifactError(f"{path}: field '{field}.{missing}' is missing")
-        return PIDGains(
-            Kc=float(g["Kc_V_per_N"]), Ti_s=float(g["Ti_s"]), Td_s=float(g["Td_s"]),
-            Tf_s=float(g.get("Tf_s", 0.0)), b=float(g.get("b", 1.0)),
-            u_min=float(g.get("u_min_V", 0.0)), u_max=float(g.get("u_max_V", 110.0)),
-        )
-    except (TypeError, ValueError) as exc:
-        raise ArtifactError(f"{path}: field '{field}' is not valid: {exc}") from None
-
-
-def _feedforward(study: Study, path: str | Path | None) -> tuple[Any, dict[str, Any]]:
-    if path is not None:
-        model, doc = load_hysteresis_model(path)
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        yield
+        return
+    with open(out / ".lock", "w") as fh:
         try:
-            inverse = model.inverse()
-        except NotInvertibleError as exc:
-            raise InputError(f"{path}: the model cannot serve as a feedforward: {exc}") from None
-        return inverse, {"source": str(path), "model": model.kind, "operators": model.n_operators}
-    model, info = identify_feedforward(Rig(study.rig), study.excitation)
-    return model.inverse(), {
-        "source": (f"identified from a simulated {study.excitation.v_max_V:g} V, "
-                   f"{study.excitation.frequency_Hz:g} Hz loop measurement of the rig"),
-        "model": model.kind, "operators": model.n_operators, "fit_rms_pct": info["fit"]["rms_pct"],
-        "fit_max_pct": info["fit"]["max_pct"],
-    }
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise InputError(f"{out}: another 'piezopreload run' or 'report' is writing this folder; "
+                             "wait for it or give another --out") from None
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
 
 
-def step_numbers(run: ClosedLoopRun, study: Study) -> dict[str, float | None]:
-    """Rise, peak and settling time and overshoot of a run, scored as the study says (band, signal)."""
-    m = run.step_metrics(study.band_N, signal=study.signal)
-    values = {"rise_s": m.rise_s, "peak_s": m.peak_s, "settling_s": m.settling_s, "overshoot_N": m.overshoot}
-    return {k: (float(v) if np.isfinite(v) else None) for k, v in values.items()}
+def _utc() -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
 
 
-def finite_or_none(x: float) -> float | None:
-    """``x`` as a float, or None where it is not finite (JSON holds no NaN)."""
-    return float(x) if np.isfinite(x) else None
+# --------------------------------------------------------------------------------------
+# running
+# --------------------------------------------------------------------------------------
+def _record_outputs(ctx: _Ctx, outputs: dict[str, Path]) -> dict[str, dict[str, str]]:
+    return {label: {"path": ctx.rel(p), "sha256": _sha256_file(p)} for label, p in outputs.items() if p.is_file()}
 
 
-def write_csv(path: str | Path, columns: dict[str, Any], comment: str) -> None:
-    """Named columns as CSV (``#`` comment lines, one header line, 9 significant digits), written atomically."""
-    buf = io.StringIO()
-    for line in comment.splitlines():
-        buf.write(f"# {line}\n")
-    np.savetxt(buf, np.column_stack([np.asarray(c, float) for c in columns.values()]), delimiter=",",
-               header=",".join(columns), comments="", fmt="%.9g")
-    atomic_write_text(path, buf.getvalue())
+def _execute(stages: list[Stage], ctx: _Ctx, force: bool, started: str) -> list[dict[str, Any]]:
+    study, records, progress = ctx.study, ctx.records, ctx.progress
+    done: list[dict[str, Any]] = []
+    for i, stage in enumerate(stages, start=1):
+        reason = stage.applies(study)
+        key = _stage_key(stage, study, records)
+        old = records.get(stage.name)
+        if reason is not None:
+            progress.stage(i, len(stages), stage.name, f"not applicable ({reason})")
+            records[stage.name] = {"status": "not applicable", "reason": reason, "key": key, "outputs": {}}
+            done.append({"stage": stage.name, "ran": False, "status": "not applicable", "seconds": 0.0})
+            continue
+        if not force and old is not None and old.get("status") == "done" and old.get("key") == key \
+                and _outputs_intact(ctx.out, old):
+            progress.stage(i, len(stages), stage.name, "up to date, not run again")
+            done.append({"stage": stage.name, "ran": False, "status": "up to date", "seconds": 0.0,
+                         "outputs": {k: o["path"] for k, o in old["outputs"].items()}})
+            continue
+        progress.stage(i, len(stages), stage.name, stage.what)
+        t0 = time.perf_counter()
+        try:
+            outputs, summary = stage.run(ctx)
+        except Exception as exc:
+            partial = exc.__cause__.outputs if isinstance(exc.__cause__, _Partial) else {}
+            message = str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
+            records[stage.name] = {"status": "failed", "key": key, "message": message,
+                                   "seconds": time.perf_counter() - t0, "finished_utc": _utc(),
+                                   "outputs": _record_outputs(ctx, partial)}
+            _write_manifest(ctx.out, study, records, started, ctx.source)
+            if isinstance(exc, StageFailed):
+                raise
+            if isinstance(exc, InputError):
+                raise StageFailed(stage.name, str(exc)) from exc
+            raise StageCrashed(f"stage '{stage.name}' failed: {type(exc).__name__}: {exc}") from exc
+        seconds = time.perf_counter() - t0
+        records[stage.name] = {"status": "done", "key": key, "seconds": seconds, "finished_utc": _utc(),
+                               "summary": summary, "outputs": _record_outputs(ctx, outputs)}
+        _write_manifest(ctx.out, study, records, started, ctx.source)
+        progress.say(f"done in {seconds:.1f} s")
+        done.append({"stage": stage.name, "ran": True, "status": "done", "seconds": seconds,
+                     "outputs": {k: o["path"] for k, o in records[stage.name]["outputs"].items()}})
+    return done
 
 
-def write_run_csv(path: str | Path, run: ClosedLoopRun, comment: str) -> None:
-    """A single-plant run as CSV (one header line, ``#`` comments first), written atomically."""
-    write_csv(path, run.columns(), comment)
+def _previous(out: Path, progress: Progress) -> dict[str, dict[str, Any]]:
+    if not (out / MANIFEST).exists():
+        return {}
+    try:
+        return dict(read_manifest(out)["stages"])
+    except InputError as exc:
+        progress.say(f"warning: {exc}; every stage runs again")
+        return {}
 
 
-def simulate_study(
-    study: Study,
-    *,
-    controller: str = "ff+pid",
-    reference: str = "step",
-    gains_path: str | Path | None = None,
-    feedforward_path: str | Path | None = None,
-    seed: int | None = None,
-    out: str | Path | None = None,
-) -> dict[str, Any]:
-    """Simulate one controller on the study's rig over one of its references."""
+def run_study(study: Study | str | Path | None = None, out: str | Path = DEFAULT_OUT, *, force: bool = False,
+              progress: Progress | None = None) -> dict[str, Any]:
+    """Run a study's stages into ``out``; a stage whose key and outputs are unchanged is not run again."""
+    progress = progress or Progress()
     t0 = time.perf_counter()
-    if controller not in CONTROLLER_CHOICES:
-        raise InputError(f"controller must be one of {', '.join(CONTROLLER_CHOICES)}, got {controller!r}")
-    if reference not in REFERENCE_CHOICES:
-        raise InputError(f"reference must be one of {', '.join(REFERENCE_CHOICES)}, got {reference!r}")
-    gains, gains_source = study.gains, {"source": f"{study.path} [controller], read as {study.gains_units}"}
-    if gains_path is not None:
-        gains, doc = load_gains(gains_path)
-        gains_source = {"source": str(gains_path), "status": doc.get("status")}
-    rig = Rig(study.rig)
-    ff, ff_info = (None, None)
-    if controller == "ff+pid":
-        ff, ff_info = _feedforward(study, feedforward_path)
-    seed = study.seed if seed is None else seed
-    ref = study.references[reference]
-    run = simulate(rig, Controller(gains, rig.dt_s, ff), ref, seed=seed)
-    summary: dict[str, Any] = {
-        "study": {"path": study.path, "sha256": study.sha256, "name": study.name},
-        "controller": controller,
-        "reference": reference,
-        "reference_levels_N": ref.levels_N.tolist(),
-        "gains": {**gains_to_dict(gains), **gains_source},
-        "feedforward": ff_info,
-        "band_N": study.band_N,
-        "signal": study.signal,
-        "seed": seed,
-        "samples": int(run.t_s.size),
-        "sample_period_s": rig.dt_s,
-        **step_numbers(run, study),
-        "peak_command_V": float(np.max(run.command_V)),
-    }
-    paper = dict.fromkeys(_STEP_KEYS)
-    if reference == "step":
-        paper.update(PAPER_RESULTS[controller])
-    if reference == "trajectory":
-        te = run.tracking_error()
-        summary["tracking_rms_N"] = float(te["rms"])
-        summary["tracking_max_N"] = float(te["max"])
-        paper.update(dict.fromkeys(_TRACK_KEYS))
-    summary["paper"] = paper
-    summary["paper_note"] = (
-        "the paper publishes rise, peak and settling time for the 25 -> 60 N step only (Sections 4.2, 4.3); "
-        "null: not published"
-    )
-    summary["seconds"] = time.perf_counter() - t0
-    summary["out"] = None
-    if out is not None:
-        write_run_csv(out, run, f"piezopreload {__version__} simulate: study {study.name} ({study.sha256[:12]}), "
-                                f"controller {controller}, reference {reference}, seed {seed}")
-        summary["out"] = str(out)
-    return summary
+    study = study if isinstance(study, Study) else load_study(study)
+    study.check_files()
+    out = Path(out)
+    with _locked(out):
+        copy = out / STUDY_COPY
+        if not copy.is_file() or copy.read_bytes() != study.source_text:
+            atomic_write_bytes(copy, study.source_text)
+        ctx = _Ctx(study, out, progress, _previous(out, progress), study.path)
+        stages = _execute(list(STAGES), ctx, force, _utc())
+    ran = [s["stage"] for s in stages if s["ran"]]
+    seconds = time.perf_counter() - t0
+    progress.write(f"{'ran ' + ', '.join(ran) if ran else 'nothing to run: every stage is up to date'} "
+                   f"({seconds:.1f} s)\nthe study's outputs are in {out.resolve()}/ (report: {out / 'report.pdf'})\n")
+    return _result(out, study, stages, seconds)
 
 
-def reproduce_study(study: Study, *, seed: int | None = None, repeats: int = 1) -> dict[str, Any]:
-    """The paper's six step numbers beside the simulation's, both controllers, one command.
+def rerender_report(out: str | Path, progress: Progress | None = None, template: str | Path | None = None) -> dict[str, Any]:
+    """Render the report again from the artifacts in ``out`` (``piezopreload report DIR``); nothing else runs.
 
-    With ``repeats`` > 1, each number is the median over that many noise realisations, with
-    its range.
+    ``template``: a Typst file to typeset instead of the shipped template (a copy of
+    ``DIR/report/report.typ``, edited); it reads ``report.json`` and ``figures/`` as the shipped one does.
     """
+    progress = progress or Progress()
     t0 = time.perf_counter()
-    rep = reproduce(study.rig, study.gains, step=study.references["step"], excitation=study.excitation,
-                    seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
-                    repeats=repeats)
-    rows = [{**r, "within_25pct": bool(abs(r["ratio"] - 1.0) <= 0.25),
-             "range": [finite_or_none(x) for x in rep.spread[r["controller"]][r["metric"]]]} for r in rep.table()]
-    for r in rows:
-        if not np.isfinite(r["simulated"]):
-            r.update(simulated=None, ratio=None, within_25pct=False)
+    out = Path(out)
+    template_text = None
+    if template is not None:
+        try:
+            template_text = Path(template).read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise InputError(f"--template {template}: cannot read it ({exc})") from None
+    if not (out / MANIFEST).is_file():
+        raise InputError(f"{out}: no {MANIFEST}; this is not a study's output folder (run 'piezopreload run' first)")
+    manifest = read_manifest(out)
+    records = dict(manifest["stages"])
+    report = _BY_NAME["report"]
+    missing = [name for name in report.needs if records.get(name, {}).get("status") not in ("done", "not applicable")]
+    if missing:
+        raise InputError(f"{out}: the stage(s) {', '.join(missing)} have not completed; "
+                         f"run 'piezopreload run {out / STUDY_COPY} --out {out}' first")
+    broken = [name for name in report.needs if not _outputs_intact(out, records[name])]
+    if broken:
+        raise InputError(f"{out}: the outputs of {', '.join(broken)} changed or went missing since they were written; "
+                         f"run 'piezopreload run {out / STUDY_COPY} --out {out}' to make them again")
+    study = load_study(out / STUDY_COPY)
+    with _locked(out):
+        ctx = _Ctx(study, out, progress, records, manifest["study"].get("path", study.path), template_text)
+        stages = _execute([report], ctx, True, manifest.get("started_utc", _utc()))
+    seconds = time.perf_counter() - t0
+    progress.write(f"the report is {out / 'report.pdf'} ({seconds:.1f} s)\n")
+    return _result(out, study, stages, seconds)
+
+
+def _result(out: Path, study: Study, stages: list[dict[str, Any]], seconds: float) -> dict[str, Any]:
+    records = read_manifest(out)["stages"]
+    out = out.resolve()
     return {
-        "study": {"path": study.path, "sha256": study.sha256, "name": study.name},
-        "gains": {**gains_to_dict(study.gains), "read_as": study.gains_units},
-        "band_N": study.band_N,
-        "signal": study.signal,
-        "feedforward_fit": rep.feedforward_fit,
-        "rows": rows,
-        "overshoot_N": {c: rep.metrics[c]["overshoot_N"] for c in rep.metrics},
-        "all_within_25pct": all(r["within_25pct"] for r in rows),
-        "repeats": repeats,
-        "seconds": time.perf_counter() - t0,
+        "out": str(out), "study": {"path": study.path, "sha256": study.sha256, "name": study.name},
+        "stages": stages, "ran": [s["stage"] for s in stages if s["ran"]], "seconds": seconds,
+        "report": str(out / "report.pdf") if (out / "report.pdf").is_file() else None,
+        "gain_set": str(out / "gains.json") if (out / "gains.json").is_file() else None,
+        "gain_set_sha256": records.get("validate", {}).get("summary", {}).get("content_sha256"),
+        "rig_log": (str(out / records["rig"]["outputs"]["log_csv"]["path"])
+                    if records.get("rig", {}).get("status") == "done" else None),
     }

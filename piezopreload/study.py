@@ -1,38 +1,54 @@
-"""Study files (TOML): what a study runs on, validated on load.
+"""The study: a TOML file parsed once into typed tables, and the steps a design-study script calls on it.
 
-A study names the rig (the simulated plant's parameters), the controller's gains, the
-feedforward's identification experiment, the references and the simulation settings. Every
-key is checked: an unknown key, a wrong type or an out-of-range value is an
-:class:`~piezopreload.io.InputError` naming the file, the line and the key's path.
+A study names the rig (the simulated plant), the controller's gains, the feedforward's
+identification experiment, the references, the simulation settings, the ball-screw design
+(``[ballscrew]``, ``[feed_drive]``, ``[duty]``, ``[design]``, ``[schedule]``) and the
+one-command study's ``[tuning]``, ``[validation]``, ``[export]`` and ``[rig_run]``. Every key
+is checked on load: an unknown key, a wrong type or an out-of-range value is an
+:class:`~piezopreload.core.errors.InputError` naming the file, the line and the key's path.
 
-The paper's study, ``paper2021.toml``, ships with the package (:func:`default_study`).
+>>> import piezopreload as pp
+>>> study = pp.load_study()                            # the paper's study, shipped
+>>> study.rig.bolt_preload_N
+25.0
+>>> study.replace(rig={"bolt_preload_N": 30.0}).rig.bolt_preload_N
+30.0
 """
 
 from __future__ import annotations
 
 import hashlib
 import math
-import re
-import tomllib
-from dataclasses import dataclass, fields
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, fields
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from piezopreload.io import InputError, read_input
+from piezopreload.core.config import NUMBER, Lines, check_tree, read_config, toml_text
+from piezopreload.core.errors import InfeasibleError, InputError
+from piezopreload.core.tables import read_record
+from piezopreload.design.preload import OBJECTIVES, PARETO_PAIRS, DesignInfeasible, DesignSpec
+from piezopreload.design.study import DesignResult, design_study, read_profile
 from piezopreload.models.actuator import P888_91, RigParams, StackData
+from piezopreload.models.ballscrew import DutyCase
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import PIDGains
+from piezopreload.models.feed_drive import FeedDrive, PiezoPreload
+from piezopreload.models.gainset import EXPORT_FORMATS, REFERENCES, GainSet
 from piezopreload.tuning.calibrate import LoopExcitation
+from piezopreload.tuning.feedforward import IdentifiedFeedforward, identify
 from piezopreload.tuning.pid import TuningSpec
 from piezopreload.tuning.validate import Criteria
 
-__all__ = ["Study", "StudyText", "RigRunPlan", "load_study", "read_study_text", "default_study", "DEFAULT_STUDY",
-           "EXPORT_FORMATS"]
+if TYPE_CHECKING:  # the results module imports this one
+    from piezopreload.results import StudyRun, TuningResult
 
-DEFAULT_STUDY = "paper2021.toml"
+__all__ = ["Study", "load_study", "default_study", "shipped_studies", "DEFAULT_STUDY", "RigRunPlan"]
 
-_NUM = (int, float)
+DEFAULT_STUDY = "paper2021"
+
+_NUM = NUMBER
 _RIG_SCALARS = {f.name for f in fields(RigParams)} - {"stack", "creep_tau_s", "n_stacks", "adc_bits", "delay_samples"}
 _SCHEMA: dict[str, Any] = {
     "study": {"name": str, "title": str, "description": str},
@@ -74,22 +90,190 @@ _SCHEMA: dict[str, Any] = {
     "rig_run": {"backend": str, "reference": str, "realtime": bool, "seed": int, "force_max_N": _NUM,
                 "ramp_s": _NUM, "missed_streak": int},
 }
-_REQUIRED = {"rig", "controller"}
+_REQUIRED = ("rig", "controller")
 _STRING_LISTS = {"design.pareto", "export.formats"}
 _UNITS = ("seconds", "minutes")
 _SIGNALS = ("measured_N", "force_N")
-#: what [export] formats may name (rig/export.py writes each)
-EXPORT_FORMATS = ("json", "labview", "plc", "c-header", "casadi-c")
-_RIG_REFERENCES = ("step", "trajectory")
+_CRITERIA_LIMITS = ("settling_max_s", "overshoot_max_N", "tracking_rms_max_N", "peak_voltage_max_V")
+
+
+# --------------------------------------------------------------------------------------
+# the tables: one frozen record per table of the file, its keys as fields
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Table:
+    """A table of the study file; None stands for a key not given (the domain's default applies)."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return {f.name: _plain(getattr(self, f.name)) for f in fields(self) if getattr(self, f.name) is not None}
+
+
+def _plain(x: Any) -> Any:
+    if isinstance(x, tuple | list):
+        return [_plain(v) for v in x]
+    return x.to_dict() if isinstance(x, _Table) else x
 
 
 @dataclass(frozen=True)
-class RigRunPlan:
-    """The study's [rig_run]: how ``piezopreload run`` runs the validated gains on the rig."""
+class ControllerTable(_Table):
+    """[controller]: the gains as entered (``Ti`` and ``Td`` in ``units``), the output range."""
+
+    Kc: float
+    Ti: float
+    Td: float
+    Tf_s: float = 0.0
+    b: float = 1.0
+    units: str = "seconds"
+    u_min_V: float = 0.0
+    u_max_V: float = 110.0
+
+
+@dataclass(frozen=True)
+class FeedforwardTable(_Table):
+    """[feedforward]: the loop measurement the feedforward is identified from; ``data``: a measured one."""
+
+    v_max_V: float = LoopExcitation.v_max_V
+    frequency_Hz: float = LoopExcitation.frequency_Hz
+    cycles: int = LoopExcitation.cycles
+    n_operators: int = LoopExcitation.n_operators
+    seed: int = LoopExcitation.seed
+    data: str | None = None
+
+
+@dataclass(frozen=True)
+class StepTable(_Table):
+    initial_N: float = 25.0
+    final_N: float = 60.0
+    t_step_s: float = 0.5
+    duration_s: float = 10.0
+
+
+@dataclass(frozen=True)
+class TrajectoryTable(_Table):
+    initial_N: float = 25.0
+    levels_N: tuple[float, ...] = (60.0, 80.0, 100.0, 80.0, 60.0)
+    hold_s: float = 5.0
+    t_start_s: float = 0.5
+
+
+@dataclass(frozen=True)
+class ReferenceTables(_Table):
+    """[reference.step] and [reference.trajectory]: the paper's step and staircase."""
+
+    step: StepTable = StepTable()
+    trajectory: TrajectoryTable = TrajectoryTable()
+
+
+@dataclass(frozen=True)
+class SimulationTable(_Table):
+    """[simulation]: the noise seed, the error band and the signal the step numbers are read on."""
+
+    seed: int = 0
+    band_N: float = 1.5
+    signal: str = "measured_N"
+
+
+@dataclass(frozen=True)
+class BallscrewTable(_Table):
+    """[ballscrew]: what the machine fixes and the design variables' bounds (low, high)."""
+
+    nominal_diameter_mm: float | None = None
+    lead_mm: float | None = None
+    contact_angle_deg: tuple[float, float] | None = None
+    ball_mm: tuple[float, float] | None = None
+    conformity: tuple[float, float] | None = None
+    turns: tuple[int, int] | None = None
+    load_sharing: float | None = None
+
+
+@dataclass(frozen=True)
+class FeedDriveTable(_Table):
+    table_mass_kg: float | None = None
+    screw_length_mm: float | None = None
+    bearing_stiffness_N_per_um: float | None = None
+    travel_mm: tuple[float, float] | None = None
+    mounting: str | None = None
+
+
+@dataclass(frozen=True)
+class DutyTable(_Table):
+    """[duty]: the duty cycle's cases, one entry per case in each list."""
+
+    axial_load_N: tuple[float, ...] | None = None
+    speed_rpm: tuple[float, ...] | None = None
+    time_share: tuple[float, ...] | None = None
+
+
+@dataclass(frozen=True)
+class DesignTable(_Table):
+    """[design]: the objective, the fronts, and the constraints' limits (None: DesignSpec's default)."""
+
+    objective: str = "stiffness"
+    pareto: tuple[str, ...] = PARETO_PAIRS
+    pareto_points: int = 50
+    axial_load_max_N: float | None = None
+    failsafe_load_N: float | None = None
+    lift_off_margin: float | None = None
+    preload_fraction_max: float | None = None
+    contact_pressure_max_MPa: float | None = None
+    life_min_h: float | None = None
+    drag_torque_max_Nm: float | None = None
+    frequency_min_Hz: float | None = None
+    stiffness_min_N_per_um: float | None = None
+    nut_length_max_mm: float | None = None
+    ball_lead_ratio_max: float | None = None
+    load_factor: float | None = None
+    stack_drive_V: float | None = None
+    amp_current_limit_A: float | None = None
+
+
+@dataclass(frozen=True)
+class ScheduleTable(_Table):
+    """[schedule]: the load profile (a CSV; None: a machining cycle) and what the schedule must keep."""
+
+    profile: str | None = None
+    stiffness_min_N_per_um: float = 0.0
+    deflection_max_um: float | None = None  # None: no limit
+    lift_off_margin: float | None = None  # None: the design's
+
+
+@dataclass(frozen=True)
+class TuningTable(_Table):
+    """[tuning]: the PID tuning's specification (tuning.pid.TuningSpec)."""
+
+    overshoot_margin_N: float = TuningSpec.overshoot_margin_N
+    ms_max: float = TuningSpec.ms_max
+    noise_gain_max_V_per_N: float = TuningSpec.noise_gain_max_V_per_N
+    tune_setpoint_weight: bool = TuningSpec.tune_setpoint_weight
+
+
+@dataclass(frozen=True)
+class ValidationTable(_Table):
+    """[validation]: the Monte Carlo set (``seed`` None: the simulation's) and the limits every plant must meet."""
+
+    plants: int = 200
+    seed: int | None = None
+    workers: int | None = None
+    settling_max_s: float = Criteria.settling_max_s
+    overshoot_max_N: float = Criteria.overshoot_max_N
+    tracking_rms_max_N: float = Criteria.tracking_rms_max_N
+    peak_voltage_max_V: float = Criteria.peak_voltage_max_V
+
+
+@dataclass(frozen=True)
+class ExportTable(_Table):
+    """[export]: the formats the validated gain set is written in."""
+
+    formats: tuple[str, ...] = EXPORT_FORMATS
+
+
+@dataclass(frozen=True)
+class RigRunPlan(_Table):
+    """[rig_run]: how ``piezopreload run`` runs the validated gains on the rig."""
 
     backend: str = "sim"
-    reference: str = "step"          # step, trajectory, or a time_s,force_N CSV (path resolved)
-    realtime: bool = False           # the simulated rig runs back to back unless asked
+    reference: str = "step"          # step, trajectory, or a time_s,force_N CSV (relative to the study file)
+    realtime: bool | None = None     # None: real time unless the backend is the simulated rig
     seed: int = 0
     force_max_N: float | None = None
     ramp_s: float | None = None
@@ -99,129 +283,319 @@ class RigRunPlan:
         return {"force_max_N": self.force_max_N, "ramp_s": self.ramp_s, "missed_streak": self.missed_streak}
 
 
+_TABLES: dict[str, type[_Table]] = {
+    "controller": ControllerTable, "feedforward": FeedforwardTable, "simulation": SimulationTable,
+    "ballscrew": BallscrewTable, "feed_drive": FeedDriveTable, "duty": DutyTable, "design": DesignTable,
+    "schedule": ScheduleTable, "tuning": TuningTable, "validation": ValidationTable, "export": ExportTable,
+    "rig_run": RigRunPlan,
+}
+#: the attribute of each table whose name is taken by a method (``study.design()``)
+_ATTRIBUTE = {"design": "design_table"}
+
+
+def _table(cls: type[_Table], data: dict[str, Any]) -> Any:
+    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+
+
+@dataclass(frozen=True)
+class _Source:
+    """Where a study came from, for messages: ``fail`` names the file, the line of a key and the key."""
+
+    shown: str
+    lines: Lines
+    folder: Path
+
+    def fail(self, key_path: str, message: str) -> InputError:
+        line = self.lines.of(key_path)
+        return InputError(f"{self.shown}:{line}: '{key_path}' {message}" if line else f"{self.shown}: '{key_path}' {message}")
+
+
+# --------------------------------------------------------------------------------------
+# the study
+# --------------------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class Study:
-    """A loaded, validated study."""
+    """A loaded, validated study: its tables (typed, as in the file) and what they make (gains, references, specs).
+
+    Make one with :func:`load_study`, a changed copy with :meth:`replace`. The ``[design]``
+    table is ``design_table`` (``design()`` runs it).
+    """
 
     path: str
     sha256: str
     name: str
     title: str
     rig: RigParams
-    gains: PIDGains
-    gains_units: str
-    excitation: LoopExcitation
-    references: dict[str, Reference]
-    seed: int
-    band_N: float
-    signal: str
-    raw: dict[str, Any]
-    #: a measured voltage -> force loop to identify the feedforward from (None: simulate it)
-    feedforward_data: str | None = None
-    tuning_spec: TuningSpec = TuningSpec()
-    criteria: Criteria = Criteria()
-    validation_plants: int = 200
-    validation_seed: int = 0
-    validation_workers: int | None = None
-    export_formats: tuple[str, ...] = EXPORT_FORMATS
-    rig_run: RigRunPlan = RigRunPlan()
+    controller: ControllerTable
+    feedforward: FeedforwardTable
+    reference: ReferenceTables
+    simulation: SimulationTable
+    tuning: TuningTable
+    validation: ValidationTable
+    export: ExportTable
+    rig_run: RigRunPlan
+    ballscrew: BallscrewTable | None
+    feed_drive: FeedDriveTable | None
+    duty: DutyTable | None
+    design_table: DesignTable | None
+    schedule: ScheduleTable | None
+    # what the tables make, built and checked on load
+    gains: PIDGains = field(repr=False)
+    references: dict[str, Reference] = field(repr=False)
+    excitation: LoopExcitation = field(repr=False)
+    tuning_spec: TuningSpec = field(repr=False)
+    criteria: Criteria = field(repr=False)
+    design_spec: DesignSpec | None = field(repr=False)
+    where: _Source = field(repr=False)
+    source_text: bytes = field(repr=False)  # the file as read, or as :meth:`replace` wrote it
+    description: str = ""
+
+    # ---- the tables --------------------------------------------------------------------------
+    @property
+    def folder(self) -> Path:
+        """The study file's folder: the files it names are relative to it."""
+        return self.where.folder
+
+    @property
+    def seed(self) -> int:
+        return self.simulation.seed
+
+    @property
+    def band_N(self) -> float:
+        return self.simulation.band_N
+
+    @property
+    def signal(self) -> str:
+        return self.simulation.signal
+
+    def resolve(self, relative: str | None) -> Path | None:
+        """A file the study names (``feedforward.data``, ``schedule.profile``, ``rig_run.reference``), from its folder."""
+        return None if relative is None else self.folder / relative
+
+    def files(self) -> dict[str, Path]:
+        """The input files the study names, by key (``feedforward.data``, ``schedule.profile``, ``rig_run.reference``)."""
+        named = {"feedforward.data": self.feedforward.data,
+                 "schedule.profile": None if self.ballscrew is None or self.schedule is None else self.schedule.profile,
+                 "rig_run.reference": self.rig_run.reference if self.rig_run.reference.lower().endswith(".csv") else None}
+        return {key: self.folder / rel for key, rel in named.items() if rel is not None}
+
+    def check_files(self) -> None:
+        """Refuse a study whose named files are missing, naming the key and its line."""
+        for key, path in self.files().items():
+            if not path.is_file():
+                raise self.where.fail(key, f"names {path}, which is not a file; give a path relative to the study file")
+
+    def tables(self) -> dict[str, Any]:
+        """The study's tables as the file holds them (every key, defaults filled), e.g. for a stage's key."""
+        out: dict[str, Any] = {"study": {"name": self.name, "title": self.title, "description": self.description},
+                               "rig": self.rig.to_dict(), "reference": self.reference.to_dict()}
+        for table in _TABLES:
+            value = getattr(self, _ATTRIBUTE.get(table, table))
+            if value is not None:
+                out[table] = value.to_dict()
+        return out
+
+    def replace(self, **changes: dict[str, Any]) -> Study:
+        """A validated copy with some keys changed: ``study.replace(rig={"bolt_preload_N": 30.0})``.
+
+        Each argument names a table (``reference={"step": {"final_N": 80.0}}`` for a nested
+        one) and holds the keys to change; a bad key or value raises :class:`InputError`.
+        """
+        data = self.tables()
+        for table, keys in changes.items():
+            if table not in _SCHEMA or not isinstance(keys, dict):
+                raise InputError(f"Study.replace: '{table}' must be a table of the study given as a dict of keys, got "
+                                 f"{keys!r}; tables: {', '.join(_SCHEMA)}")
+            _merge(data.setdefault(table, {}), keys)
+        for table, rel in (("feedforward", "data"), ("schedule", "profile")):  # files stay where they were
+            if data.get(table, {}).get(rel) is not None:
+                data[table][rel] = str(self.folder / data[table][rel])
+        if data["rig_run"]["reference"].lower().endswith(".csv"):
+            data["rig_run"]["reference"] = str(self.folder / data["rig_run"]["reference"])
+        where = _Source(f"{self.path} (replaced)", Lines(""), self.folder)
+        check_tree(data, _SCHEMA, where.lines, where.shown, string_lists=_STRING_LISTS)
+        return _build(data, where, self.path, toml_text(data).encode("utf-8"))
+
+    def to_toml(self) -> str:
+        """The study as a TOML file (the file itself when it was not changed)."""
+        return self.source_text.decode("utf-8")
+
+    # ---- the steps -----------------------------------------------------------------------------
+    def identify_feedforward(self, progress: Callable[[str], None] | None = None) -> IdentifiedFeedforward:
+        """The feedforward's P-I model: from ``[feedforward] data`` (a measured V -> N loop) when the study names
+        one, else from the loop measurement simulated on the rig; with its open-loop compensation check."""
+        say = progress or (lambda _m: None)
+        ex, data = self.excitation, self.resolve(self.feedforward.data)
+        if data is None:
+            say(f"simulating the {ex.v_max_V:g} V, {ex.frequency_Hz:g} Hz loop measurement on the rig's truth model")
+        else:
+            say(f"reading the measured loop {data}")
+        levels = self.references["trajectory"].levels_N
+        low = float(min(self.references["step"].levels_N.min(), levels.min()))
+        ff = identify(self.rig, ex, None if data is None else read_record(data), check_range_N=(low, float(levels.max())))
+        say(f"P-I model: {ff.model.n_operators} operators, fit RMS {ff.fit['rms_pct']:.2f} % "
+            f"(max {ff.fit['max_pct']:.2f} %) of the force span")
+        return ff
+
+    def tune(self, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,
+             progress: Callable[[str], None] | None = None,
+             iterations: Callable[[int], None] | None = None) -> TuningResult:
+        """Tune the PID around the rig compensated by ``feedforward`` (default: :meth:`identify_feedforward`);
+        compare it with the paper's and SIMC's gains and bound it. Returns a :class:`~piezopreload.results.TuningResult`."""
+        from piezopreload.results import tune
+
+        return tune(self, feedforward or self.identify_feedforward(progress), seed=seed, progress=progress,
+                    iterations=iterations)
+
+    def simulate(self, gains: GainSet | PIDGains | None = None, *, controller: str = "ff+pid", reference: str = "step",
+                 feedforward: IdentifiedFeedforward | None = None, seed: int | None = None) -> StudyRun:
+        """One controller on the study's rig over one of its references: a
+        :class:`~piezopreload.results.StudyRun` (``.step_metrics()``, ``.plot()``, ``.to_dict()``).
+
+        ``gains``: a gain set (its feedforward too, unless ``feedforward`` is given), PID gains, or
+        None for the study's ``[controller]``; ``controller``: ``pid`` or ``ff+pid``.
+        """
+        from piezopreload.results import simulate
+
+        return simulate(self, gains, controller=controller, reference=reference, feedforward=feedforward, seed=seed)
+
+    def reproduce(self, *, seed: int | None = None, repeats: int = 1,
+                  feedforward: IdentifiedFeedforward | None = None) -> dict[str, Any]:
+        """The paper's six step numbers beside the simulation's (medians over ``repeats`` noise draws)."""
+        from piezopreload.results import reproduce
+
+        return reproduce(self, feedforward or self.identify_feedforward(), seed=seed, repeats=repeats)
+
+    def design(self, *, objective: str | None = None, pareto: list[str] | None = None, points: int | None = None,
+               schedule: str | Path | None = None, progress: Callable[[str], None] | None = None,
+               bar: Callable[[int, int], None] | None = None) -> DesignResult:
+        """The ball-screw preload design: the optimum for ``objective``, the Pareto fronts and the preload schedule
+        for a load profile (``schedule``, a CSV; default: the study's, or a machining cycle)."""
+        if self.design_spec is None:
+            raise InputError(f"{self.path}: the study has no [ballscrew] table; the design needs the screw's nominal "
+                             "diameter and lead (see studies/paper2021.toml)")
+        d, s = self.design_table or DesignTable(), self.schedule or ScheduleTable()
+        profile_path = Path(schedule) if schedule is not None else self.resolve(s.profile)
+        try:
+            return design_study(
+                self.design_spec, objective or d.objective, list(d.pareto if pareto is None else pareto),
+                d.pareto_points if points is None else points,
+                profile=None if profile_path is None else read_profile(profile_path), profile_name=str(profile_path),
+                stiffness_min_N_per_um=s.stiffness_min_N_per_um,
+                deflection_max_um=math.inf if s.deflection_max_um is None else s.deflection_max_um,
+                lift_off_margin=s.lift_off_margin, progress=progress, bar=bar)
+        except DesignInfeasible as exc:
+            raise InfeasibleError(f"{self.path}: {exc}") from exc
+
+    def run(self, out: str | Path = "piezopreload-out", *, force: bool = False, progress: Any = None) -> dict[str, Any]:
+        """The whole study, as ``piezopreload run``: its stages into ``out``, unchanged ones not run again."""
+        from piezopreload.pipeline import run_study
+
+        return run_study(self, out, force=force, progress=progress)
 
 
-class _Lines:
-    """Line numbers of the tables and keys of a TOML text, for messages (``a.b.key -> line``)."""
-
-    _table = re.compile(r"^\s*\[\s*([A-Za-z0-9_.\- ]+?)\s*\]\s*(#.*)?$")
-    _key = re.compile(r"^\s*([A-Za-z0-9_\-]+)\s*=")
-
-    def __init__(self, text: str) -> None:
-        self.lines: dict[str, int] = {}
-        table = ""
-        for no, line in enumerate(text.splitlines(), start=1):
-            m = self._table.match(line)
-            if m:
-                table = m.group(1).replace(" ", "")
-                self.lines.setdefault(table, no)
-                continue
-            m = self._key.match(line)
-            if m:
-                self.lines.setdefault(f"{table}.{m.group(1)}" if table else m.group(1), no)
-
-    def of(self, key_path: str) -> int | None:
-        while key_path:
-            if key_path in self.lines:
-                return self.lines[key_path]
-            key_path = key_path.rpartition(".")[0]
-        return None
+def _merge(into: dict[str, Any], changes: dict[str, Any]) -> None:
+    for key, value in changes.items():
+        if isinstance(value, dict) and isinstance(into.get(key), dict):
+            _merge(into[key], value)
+        else:
+            into[key] = list(value) if isinstance(value, tuple) else value
 
 
-def _check_tree(data: dict[str, Any], schema: dict[str, Any], prefix: str, where: _Lines, shown: str) -> None:
-    for key, value in data.items():
-        path = f"{prefix}{key}"
-        line = where.of(path)
-        at = f"{shown}:{line}" if line else shown
-        if key not in schema:
-            known = ", ".join(sorted(schema))
-            raise InputError(f"{at}: unknown key '{path}'; expected one of: {known}")
-        expected = schema[key]
-        if isinstance(expected, dict):
-            if not isinstance(value, dict):
-                raise InputError(f"{at}: '{path}' must be a table ([{path}])")
-            _check_tree(value, expected, f"{path}.", where, shown)
-            continue
-        ok = isinstance(value, bool) if expected is bool else isinstance(value, expected) and not isinstance(value, bool)
-        if not ok:
-            want = {str: "a string", list: "a list", int: "an integer", _NUM: "a number",
-                    bool: "true or false"}.get(expected, str(expected))
-            raise InputError(f"{at}: '{path}' must be {want}, got {type(value).__name__} {value!r}")
-        if isinstance(value, float) and not math.isfinite(value):
-            raise InputError(f"{at}: '{path}' must be finite, got {value!r}")
-        if isinstance(value, list) and path in _STRING_LISTS:
-            if not all(isinstance(x, str) for x in value):
-                raise InputError(f"{at}: '{path}' must be a list of strings, got {value!r}")
-        elif isinstance(value, list) and not all(isinstance(x, _NUM) and not isinstance(x, bool) and math.isfinite(x) for x in value):
-            raise InputError(f"{at}: '{path}' must be a list of finite numbers, got {value!r}")
+# --------------------------------------------------------------------------------------
+# loading
+# --------------------------------------------------------------------------------------
+def shipped_studies() -> dict[str, Path]:
+    """The studies that ship with the package, by name."""
+    root = resources.files("piezopreload.studies")
+    return {p.name[:-5]: Path(str(p)) for p in root.iterdir() if p.name.endswith(".toml")}
 
 
-@dataclass(frozen=True)
-class StudyText:
-    """A study file read and checked against the schema (every key, every type)."""
-
-    path: str
-    sha256: str
-    data: dict[str, Any]
-    lines: _Lines
-
-    def fail(self, key_path: str, message: str) -> InputError:
-        """An error naming the file, the line of ``key_path`` and the key."""
-        line = self.lines.of(key_path)
-        return InputError(f"{self.path}:{line}: '{key_path}' {message}" if line else f"{self.path}: '{key_path}' {message}")
+def default_study() -> Path:
+    """The default study's file as shipped with the package (the paper's)."""
+    return shipped_studies()[DEFAULT_STUDY]
 
 
-def read_study_text(path: str | Path, required: set[str] | frozenset[str] = frozenset()) -> StudyText:
-    """Read a study file and check its keys and types; ``required`` tables must be there."""
+def load_study(study: str | Path | None = None) -> Study:
+    """Read and validate a study: None for the default, a shipped study's name (``"paper2021"``), or a file."""
+    if study is None:
+        path = default_study()
+    elif isinstance(study, str) and not study.endswith(".toml") and study in shipped_studies():
+        path = shipped_studies()[study]
+    else:
+        path = Path(study)
+    data, lines, raw = read_config(path, _SCHEMA, "study file", _STRING_LISTS)
     shown = str(path)
-    raw_bytes = read_input(path, "study file")
+    where = _Source(shown, lines, Path(shown).parent)
+    for table in _REQUIRED:
+        if table not in data:
+            raise InputError(f"{shown}: the table [{table}] is missing")
+    return _build(data, where, shown, raw)
+
+
+def _build(data: dict[str, Any], where: _Source, path: str, text: bytes) -> Study:
+    """The typed study from its checked tables; every value checked, errors naming the key and its line."""
+    fail = where.fail
+    rig = _rig(dict(data["rig"]), fail)
+    c = data["controller"]
+    for key in ("Kc", "Ti", "Td"):
+        if key not in c:
+            raise fail("controller", f"needs '{key}'")
+    controller = _table(ControllerTable, c)
+    if controller.units not in _UNITS:
+        raise fail("controller.units", f"must be one of {', '.join(_UNITS)}, got {controller.units!r}")
+    scale = 60.0 if controller.units == "minutes" else 1.0
     try:
-        text = raw_bytes.decode("utf-8")
-        data = tomllib.loads(text)
-    except UnicodeDecodeError:
-        raise InputError(f"{shown}: not UTF-8 text") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{shown}: not valid TOML ({exc})") from None
-    where = _Lines(text)
-    _check_tree(data, _SCHEMA, "", where, shown)
-    for section in sorted(set(required) - set(data)):
-        raise InputError(f"{shown}: the table [{section}] is missing")
-    return StudyText(shown, hashlib.sha256(raw_bytes).hexdigest(), data, where)
+        gains = PIDGains(Kc=float(c["Kc"]), Ti_s=scale * float(c["Ti"]), Td_s=scale * float(c["Td"]),
+                         Tf_s=float(controller.Tf_s), b=float(controller.b), u_min=float(controller.u_min_V),
+                         u_max=float(controller.u_max_V))
+    except ValueError as exc:
+        raise fail("controller", f"is not valid: {exc}") from None
+    feedforward = _table(FeedforwardTable, data.get("feedforward", {}))
+    try:
+        excitation = LoopExcitation(**{k: v for k, v in asdict(feedforward).items() if k != "data"})
+    except ValueError as exc:
+        raise fail("feedforward", f"is not valid: {exc}") from None
+    reference, references = _references(data.get("reference", {}), fail)
+    simulation = _table(SimulationTable, data.get("simulation", {}))
+    if not simulation.band_N > 0:
+        raise fail("simulation.band_N", f"must be > 0, got {simulation.band_N}")
+    if simulation.signal not in _SIGNALS:
+        raise fail("simulation.signal", f"must be one of {', '.join(_SIGNALS)}, got {simulation.signal!r}")
+    if simulation.seed < 0:
+        raise fail("simulation.seed", f"must be >= 0, got {simulation.seed}")
+    tuning = _table(TuningTable, data.get("tuning", {}))
+    try:
+        spec = TuningSpec(band_N=simulation.band_N, u_min_V=gains.u_min, u_max_V=gains.u_max,
+                          **{k: (bool(x) if k == "tune_setpoint_weight" else float(x)) for k, x in asdict(tuning).items()})
+    except ValueError as exc:
+        key = next((k for k in data.get("tuning", {}) if k in str(exc)), "")
+        raise fail(f"tuning.{key}" if key else "tuning", f"is not valid: {exc}") from None
+    validation = _validation(data.get("validation", {}), simulation, fail)
+    try:
+        criteria = Criteria(band_N=simulation.band_N, **{k: float(getattr(validation, k)) for k in _CRITERIA_LIMITS})
+    except ValueError as exc:
+        key = next((k for k in data.get("validation", {}) if k in str(exc)), "")
+        raise fail(f"validation.{key}" if key else "validation", f"is not valid: {exc}") from None
+    export = _table(ExportTable, data.get("export", {}))
+    for f in export.formats:
+        if f not in EXPORT_FORMATS:
+            raise fail("export.formats", f"has {f!r}; expected some of {', '.join(EXPORT_FORMATS)}")
+    design_tables = {t: _table(_TABLES[t], data[t]) if t in data else None
+                     for t in ("ballscrew", "feed_drive", "duty", "design", "schedule")}
+    design_spec = _design_spec(design_tables, where) if design_tables["ballscrew"] is not None else None
+    meta = data.get("study", {})
+    return Study(
+        path=path, sha256=hashlib.sha256(text).hexdigest(), name=meta.get("name", Path(path).stem),
+        title=meta.get("title", ""), description=meta.get("description", ""), rig=rig, controller=controller,
+        feedforward=feedforward, reference=reference, simulation=simulation, tuning=tuning, validation=validation,
+        export=export, rig_run=_rig_run(data.get("rig_run", {}), where), ballscrew=design_tables["ballscrew"],
+        feed_drive=design_tables["feed_drive"], duty=design_tables["duty"], design_table=design_tables["design"],
+        schedule=design_tables["schedule"], gains=gains, references=references, excitation=excitation,
+        tuning_spec=spec, criteria=criteria, design_spec=design_spec, where=where, source_text=text)
 
 
-def load_study(path: str | Path) -> Study:
-    """Read and validate a study file."""
-    st = read_study_text(path, _REQUIRED)
-    shown, data, fail = st.path, st.data, st.fail
-
-    # ---- rig ------------------------------------------------------------------------------
-    rig_data = dict(data["rig"])
+def _rig(rig_data: dict[str, Any], fail: Callable[[str, str], InputError]) -> RigParams:
     if "stack" in rig_data:
         try:
             rig_data["stack"] = StackData(**{f.name: rig_data["stack"].get(f.name, getattr(P888_91, f.name))
@@ -231,128 +605,108 @@ def load_study(path: str | Path) -> Study:
     if "creep_tau_s" in rig_data:
         rig_data["creep_tau_s"] = tuple(float(x) for x in rig_data["creep_tau_s"])
     try:
-        rig = RigParams(**rig_data)
+        return RigParams(**rig_data)
     except ValueError as exc:
         name = next((k for k in rig_data if f"RigParams.{k} " in str(exc)), "")
         raise fail(f"rig.{name}" if name else "rig", f"is not valid: {exc}") from None
 
-    # ---- controller -------------------------------------------------------------------------
-    c = data["controller"]
-    for key in ("Kc", "Ti", "Td"):
-        if key not in c:
-            raise fail("controller", f"needs '{key}'")
-    units = c.get("units", "seconds")
-    if units not in _UNITS:
-        raise fail("controller.units", f"must be one of {', '.join(_UNITS)}, got {units!r}")
-    scale = 60.0 if units == "minutes" else 1.0
-    try:
-        gains = PIDGains(
-            Kc=float(c["Kc"]), Ti_s=scale * float(c["Ti"]), Td_s=scale * float(c["Td"]),
-            Tf_s=float(c.get("Tf_s", 0.0)), b=float(c.get("b", 1.0)),
-            u_min=float(c.get("u_min_V", 0.0)), u_max=float(c.get("u_max_V", 110.0)),
-        )
-    except ValueError as exc:
-        raise fail("controller", f"is not valid: {exc}") from None
 
-    # ---- feedforward, references, simulation -----------------------------------------------------
-    try:
-        excitation = LoopExcitation(**{k: v for k, v in data.get("feedforward", {}).items() if k != "data"})
-    except ValueError as exc:
-        raise fail("feedforward", f"is not valid: {exc}") from None
-    refs = data.get("reference", {})
+def _references(refs: dict[str, Any], fail: Callable[[str, str], InputError]) -> tuple[ReferenceTables, dict[str, Reference]]:
+    tables = ReferenceTables(_table(StepTable, refs.get("step", {})), _table(TrajectoryTable, refs.get("trajectory", {})))
     references: dict[str, Reference] = {}
     try:
-        s = refs.get("step", {})
-        references["step"] = Reference.step(
-            float(s.get("initial_N", 25.0)), float(s.get("final_N", 60.0)),
-            float(s.get("t_step_s", 0.5)), float(s.get("duration_s", 10.0)),
-        )
+        s = tables.step
+        references["step"] = Reference.step(float(s.initial_N), float(s.final_N), float(s.t_step_s), float(s.duration_s))
     except ValueError as exc:
         raise fail("reference.step", f"is not valid: {exc}") from None
     try:
-        tr = refs.get("trajectory", {})
-        hold = float(tr.get("hold_s", 5.0))
-        if not hold > 0:
-            raise ValueError(f"hold_s must be > 0, got {hold}")
-        references["trajectory"] = Reference.staircase(
-            float(tr.get("initial_N", 25.0)), tr.get("levels_N", [60.0, 80.0, 100.0, 80.0, 60.0]),
-            hold, float(tr.get("t_start_s", 0.5)),
-        )
+        tr = tables.trajectory
+        if not tr.hold_s > 0:
+            raise ValueError(f"hold_s must be > 0, got {tr.hold_s}")
+        references["trajectory"] = Reference.staircase(float(tr.initial_N), list(tr.levels_N), float(tr.hold_s),
+                                                       float(tr.t_start_s))
     except ValueError as exc:
         raise fail("reference.trajectory", f"is not valid: {exc}") from None
-    sim = data.get("simulation", {})
-    band = float(sim.get("band_N", 1.5))
-    if not band > 0:
-        raise fail("simulation.band_N", f"must be > 0, got {band}")
-    signal = sim.get("signal", "measured_N")
-    if signal not in _SIGNALS:
-        raise fail("simulation.signal", f"must be one of {', '.join(_SIGNALS)}, got {signal!r}")
-    seed = int(sim.get("seed", 0))
-    if seed < 0:
-        raise fail("simulation.seed", f"must be >= 0, got {seed}")
-    meta = data.get("study", {})
-    here = Path(shown).parent
-    ff_data = data.get("feedforward", {}).get("data")
-    spec, criteria = _tuning_tables(data, gains, band, fail)
-    v = data.get("validation", {})
-    plants, workers = int(v.get("plants", 200)), v.get("workers")
-    if not 1 <= plants <= 100_000:
-        raise fail("validation.plants", f"must be in 1..100000, got {plants}")
-    if workers is not None and workers < 1:
-        raise fail("validation.workers", f"must be >= 1, got {workers}")
-    formats = tuple(data.get("export", {}).get("formats", EXPORT_FORMATS))
-    for f in formats:
-        if f not in EXPORT_FORMATS:
-            raise fail("export.formats", f"has {f!r}; expected some of {', '.join(EXPORT_FORMATS)}")
-    return Study(
-        path=shown, sha256=st.sha256, name=meta.get("name", Path(shown).stem),
-        title=meta.get("title", ""), rig=rig, gains=gains, gains_units=units, excitation=excitation,
-        references=references, seed=seed, band_N=band, signal=signal, raw=data,
-        feedforward_data=None if ff_data is None else str(here / ff_data),
-        tuning_spec=spec, criteria=criteria, validation_plants=plants,
-        validation_seed=int(v.get("seed", seed)), validation_workers=workers,
-        export_formats=formats, rig_run=_rig_run(data.get("rig_run", {}), here, fail),
-    )
+    return tables, references
 
 
-def _tuning_tables(data: dict[str, Any], gains: PIDGains, band_N: float, fail: Any) -> tuple[TuningSpec, Criteria]:
-    """[tuning] as a :class:`TuningSpec` and [validation]'s limits as :class:`Criteria`."""
-    t = data.get("tuning", {})
-    try:
-        spec = TuningSpec(band_N=band_N, u_min_V=gains.u_min, u_max_V=gains.u_max,
-                          **{k: (bool(x) if k == "tune_setpoint_weight" else float(x)) for k, x in t.items()})
-    except ValueError as exc:
-        key = next((k for k in t if k in str(exc)), "")
-        raise fail(f"tuning.{key}" if key else "tuning", f"is not valid: {exc}") from None
-    limits = {k: float(x) for k, x in data.get("validation", {}).items()
-              if k in ("settling_max_s", "overshoot_max_N", "tracking_rms_max_N", "peak_voltage_max_V")}
-    try:
-        criteria = Criteria(band_N=band_N, **limits)
-    except ValueError as exc:
-        key = next((k for k in limits if k in str(exc)), "")
-        raise fail(f"validation.{key}" if key else "validation", f"is not valid: {exc}") from None
-    return spec, criteria
+def _validation(v: dict[str, Any], simulation: SimulationTable, fail: Callable[[str, str], InputError]) -> ValidationTable:
+    table = _table(ValidationTable, v)
+    if not 1 <= table.plants <= 100_000:
+        raise fail("validation.plants", f"must be in 1..100000, got {table.plants}")
+    if table.workers is not None and table.workers < 1:
+        raise fail("validation.workers", f"must be >= 1, got {table.workers}")
+    return table if table.seed is not None else ValidationTable(**{**asdict(table), "seed": simulation.seed})
 
 
-def _rig_run(r: dict[str, Any], here: Path, fail: Any) -> RigRunPlan:
-    reference = r.get("reference", "step")
-    if reference not in _RIG_REFERENCES:
-        if not reference.lower().endswith(".csv"):
-            raise fail("rig_run.reference", f"must be step, trajectory or a time_s,force_N .csv file, got {reference!r}")
-        reference = str(here / reference)
+def _rig_run(r: dict[str, Any], where: _Source) -> RigRunPlan:
+    fail = where.fail
+    plan = _table(RigRunPlan, r)
+    if plan.reference not in REFERENCES and not plan.reference.lower().endswith(".csv"):
+        raise fail("rig_run.reference", f"must be step, trajectory or a time_s,force_N .csv file, "
+                                        f"got {plan.reference!r}")
     for key, low in (("force_max_N", 0.0), ("ramp_s", 0.0)):
         if key in r and not r[key] > low:
             raise fail(f"rig_run.{key}", f"must be > {low:g}, got {r[key]!r}")
     if "missed_streak" in r and r["missed_streak"] < 1:
         raise fail("rig_run.missed_streak", f"must be >= 1, got {r['missed_streak']!r}")
-    if r.get("seed", 0) < 0:
-        raise fail("rig_run.seed", f"must be >= 0, got {r['seed']!r}")
-    backend = r.get("backend", "sim")
-    realtime = bool(r.get("realtime", backend != "sim"))  # a simulated plug-in may set false
-    return RigRunPlan(backend=backend, reference=reference, realtime=realtime, seed=int(r.get("seed", 0)),
-                      force_max_N=r.get("force_max_N"), ramp_s=r.get("ramp_s"), missed_streak=r.get("missed_streak"))
+    if plan.seed < 0:
+        raise fail("rig_run.seed", f"must be >= 0, got {plan.seed!r}")
+    # the simulated rig may run back to back when the study says so; anything else runs in real time
+    return plan if plan.realtime is not None else RigRunPlan(**{**asdict(plan), "realtime": plan.backend != "sim"})
 
 
-def default_study() -> Path:
-    """The paper's study file as shipped with the package."""
-    return Path(str(resources.files("piezopreload.studies") / DEFAULT_STUDY))
+def _design_spec(t: dict[str, Any], where: _Source) -> DesignSpec:
+    """The design tables as a :class:`DesignSpec` (keys not given keep its defaults)."""
+    fail = where.fail
+    b: BallscrewTable = t["ballscrew"]
+    d: DesignTable = t["design"] or DesignTable()
+    kwargs: dict[str, Any] = {k: float(v) for k, v in b.to_dict().items()
+                              if k in ("nominal_diameter_mm", "lead_mm", "load_sharing")}
+    for key in ("contact_angle_deg", "ball_mm", "conformity", "turns"):
+        value = getattr(b, key)
+        if value is None:
+            continue
+        if len(value) != 2:
+            raise fail(f"ballscrew.{key}", f"must have 2 values (low, high), got {list(value)!r}")
+        if key == "turns" and any(x != int(x) for x in value):
+            raise fail("ballscrew.turns", f"must be two integers, got {list(value)!r}")
+        kwargs[key] = tuple(int(x) for x in value) if key == "turns" else tuple(float(x) for x in value)
+    fd: FeedDriveTable | None = t["feed_drive"]
+    if fd is not None:
+        default = DesignSpec().feed_drive
+        given = fd.to_dict()
+        if "travel_mm" in given and len(given["travel_mm"]) != 2:
+            raise fail("feed_drive.travel_mm", f"must have 2 values (low, high), got {given['travel_mm']!r}")
+        try:
+            kwargs["feed_drive"] = FeedDrive(**{**{f.name: getattr(default, f.name) for f in fields(FeedDrive)},
+                                                **{k: tuple(v) if isinstance(v, list) else v for k, v in given.items()}})
+        except ValueError as exc:
+            raise fail("feed_drive", f"is not valid: {exc}") from None
+    duty: DutyTable | None = t["duty"]
+    if duty is not None:
+        lists = [duty.axial_load_N, duty.speed_rpm, duty.time_share]
+        if any(v is None for v in lists) or len({len(v) for v in lists if v is not None}) != 1 or not lists[0]:
+            raise fail("duty", "needs axial_load_N, speed_rpm and time_share as lists of equal, non-zero length")
+        try:
+            kwargs["duty"] = tuple(DutyCase(float(a), float(n), float(s)) for a, n, s in zip(*lists))  # type: ignore[arg-type]
+        except ValueError as exc:
+            raise fail("duty", f"is not valid: {exc}") from None
+    names = {f.name for f in fields(DesignSpec)}
+    kwargs.update({k: float(v) for k, v in d.to_dict().items() if k in names})
+    try:
+        kwargs["actuator"] = PiezoPreload(**{k: float(v) for k, v in (("drive_V", d.stack_drive_V),
+                                                                      ("amp_current_limit_A", d.amp_current_limit_A))
+                                             if v is not None})
+        spec = DesignSpec(**kwargs)
+    except ValueError as exc:
+        table = "design" if "DesignSpec" in str(exc) or "PiezoPreload" in str(exc) else "ballscrew"
+        raise fail(table, f"is not valid: {exc}") from None
+    if d.objective not in OBJECTIVES:
+        raise fail("design.objective", f"must be one of {', '.join(OBJECTIVES)}, got {d.objective!r}")
+    for pair in d.pareto:
+        if pair not in PARETO_PAIRS:
+            raise fail("design.pareto", f"has {pair!r}; expected some of {', '.join(PARETO_PAIRS)}")
+    if not 2 <= d.pareto_points <= 500:
+        raise fail("design.pareto_points", f"must be in 2..500, got {d.pareto_points}")
+    return spec

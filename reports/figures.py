@@ -20,7 +20,7 @@ from matplotlib.figure import Figure
 __all__ = [
     "STYLE", "COLOURS", "save", "hysteresis_loops", "inverse_model", "step_responses", "tracking",
     "stiffness_vs_preload", "pareto_fronts", "preload_schedule", "natural_frequency", "monte_carlo",
-    "rig_run",
+    "rig_run", "closed_loop", "gains_comparison",
 ]
 
 STYLE: dict[str, Any] = {
@@ -267,4 +267,47 @@ def rig_run(time_s: np.ndarray, reference_N: np.ndarray, force_N: np.ndarray, vo
         b.legend(loc="upper right")
     b.set_xlabel("time (s)")
     b.set_ylabel("stack voltage (V)")
+    return fig
+
+
+@_styled
+def closed_loop(run: Mapping[str, np.ndarray], band_N: float | None, signal: str, title: str = "") -> Figure:
+    """One closed-loop run: reference, true and measured force (top; the band about the last level dashed),
+    the controller's command and the amplifier's voltage (bottom)."""
+    fig, ax = _figure(3.6, nrows=2, sharex=True)
+    a, b = ax[0][0], ax[1][0]
+    t = run["time_s"]
+    a.plot(t, run["reference_N"], color=COLOURS["reference"], ls=":", lw=0.9, label="reference")
+    if signal == "measured_N":
+        a.plot(t, run["measured_N"], color=COLOURS["measured"], lw=0.5, label="measured force")
+    a.plot(t, run["force_N"], color=COLOURS["tuned ff+pid"], lw=0.9, label="true force")
+    if band_N is not None:
+        for s in (-1, 1):
+            a.axhline(float(run["reference_N"][-1]) + s * band_N, color=COLOURS["limit"], lw=0.5, ls="--")
+    a.set_ylabel("force (N)")
+    a.set_title(title)
+    a.legend(loc="lower right")
+    b.plot(t, run["command_V"], color=COLOURS["paper ff+pid"], lw=0.7, label="command")
+    b.plot(t, run["voltage_V"], color=COLOURS["paper pid"], lw=0.7, label="amplifier")
+    b.set_xlabel("time (s)")
+    b.set_ylabel("voltage (V)")
+    b.legend(loc="lower right")
+    return fig
+
+
+@_styled
+def gains_comparison(table: Sequence[Mapping[str, Any]]) -> Figure:
+    """The tuning's comparison table as bars: settling time and tracking RMS of each gain set, PID alone and
+    with the feedforward."""
+    fig, ax = _figure(2.6, ncols=2)
+    labels = [f"{r['gains']}{' + FF' if r['feedforward'] else ''}" for r in table]
+    x = np.arange(len(labels))
+    settling = [np.nan if r["settling_s"] is None else r["settling_s"] for r in table]
+    colours = [COLOURS["tuned ff+pid"] if r["feedforward"] else COLOURS["paper pid"] for r in table]
+    for a, values, label in ((ax[0][0], settling, "settling time (s)"),
+                             (ax[0][1], [r["tracking_rms_N"] for r in table], "tracking RMS (N)")):
+        a.bar(x, values, color=colours)
+        a.set_xticks(x, labels, rotation=30, ha="right")
+        a.set_ylabel(label)
+        a.set_yscale("log")
     return fig

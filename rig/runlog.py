@@ -8,7 +8,9 @@ so a process killed outright leaves a CSV readable up to its last flush and a si
 says the run was still ``running`` with every event until then.
 
 The files are flushed to the operating system, not fsynced per flush: they survive the
-process, not the power going down mid-run.
+process, not the power going down mid-run. The log also keeps its samples in memory (the first
+``keep_rows``, all by default): a run is scored from :meth:`RunLog.columns`, not by reading
+its CSV back. ``measured_N`` is the force the sensor read (what the controller saw).
 """
 
 from __future__ import annotations
@@ -17,15 +19,19 @@ import datetime as _dt
 import json
 import threading
 import time
+from array import array
 from pathlib import Path
 from typing import Any
 
-from piezopreload.core.artifacts import atomic_write_text, package_version, schema_name
+import numpy as np
 
-__all__ = ["RunLog", "COLUMNS"]
+from piezopreload.core.artifacts import atomic_write_text, package_version, schema_name
+from piezopreload.core.errors import InputError
+
+__all__ = ["RunLog", "COLUMNS", "read_run_log"]
 
 #: the CSV's columns, in order
-COLUMNS = ("time_s", "reference_N", "force_N", "command_V", "voltage_V", "feedforward_V", "p_V", "i_V", "d_V",
+COLUMNS = ("time_s", "reference_N", "measured_N", "command_V", "voltage_V", "feedforward_V", "p_V", "i_V", "d_V",
            "period_s", "lateness_s", "compute_s", "missed", "mode")
 _ROW = ",".join(["%.6f"] + ["%.9g"] * (len(COLUMNS) - 3) + ["%d", "%d"]) + "\n"
 
@@ -37,7 +43,8 @@ def utc_now() -> str:
 class RunLog:
     """One run's CSV and JSON sidecar in ``folder``; ``info`` goes into the sidecar as it is."""
 
-    def __init__(self, folder: str | Path, tag: str, info: dict[str, Any], *, flush_s: float = 0.05) -> None:
+    def __init__(self, folder: str | Path, tag: str, info: dict[str, Any], *, flush_s: float = 0.05,
+                 keep_rows: int | None = None) -> None:
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         stamp = _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%SZ")
@@ -57,6 +64,8 @@ class RunLog:
         self.csv_path, self.json_path = csv, sidecar
         self.flush_s = float(flush_s)
         self._rows: list[tuple] = []
+        self._kept = [array("d") for _ in COLUMNS]
+        self._keep = keep_rows
         self._lock = threading.Lock()
         self._last_flush = time.monotonic()
         self._fh.write(",".join(COLUMNS) + "\n")
@@ -72,6 +81,9 @@ class RunLog:
     def sample(self, row: tuple, now: float) -> None:
         """Add one sample (in :data:`COLUMNS` order); written out when ``flush_s`` has passed."""
         self._rows.append(row)
+        if self._keep is None or len(self._kept[0]) < self._keep:
+            for column, x in zip(self._kept, row):
+                column.append(x)
         if now - self._last_flush >= self.flush_s:
             self.flush(now)
 
@@ -81,6 +93,10 @@ class RunLog:
             self._rows.clear()
         self._fh.flush()
         self._last_flush = time.monotonic() if now is None else now
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The samples kept in memory, as named columns (:data:`COLUMNS`)."""
+        return {name: np.frombuffer(column, dtype=float).copy() for name, column in zip(COLUMNS, self._kept)}
 
     def event(self, event: dict[str, Any]) -> None:
         """Record an event (interlock, gain switch, ...) with its UTC time; the sidecar is rewritten.
@@ -108,3 +124,14 @@ def _jsonable(x: Any) -> Any:
         return float(x)
     except (TypeError, ValueError):
         return str(x)
+
+
+def read_run_log(csv_path: str | Path) -> dict[str, np.ndarray]:
+    """A run log's CSV as named columns: whatever was flushed, also after a kill (a line cut short is left out)."""
+    with open(csv_path, encoding="utf-8") as fh:
+        header = fh.readline().strip().split(",")
+        if tuple(header) != COLUMNS:
+            raise InputError(f"{csv_path}:1: not a run log; expected the header {','.join(COLUMNS)}")
+        rows = [line for line in fh if line.endswith("\n")]
+    data = np.loadtxt(rows, delimiter=",", ndmin=2) if rows else np.empty((0, len(COLUMNS)))
+    return {name: data[:, j] for j, name in enumerate(COLUMNS)}

@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from piezopreload.models.actuator import Rig, loop_width, reach_N
-from piezopreload.pipeline import reproduce_study
 from piezopreload.study import default_study, load_study
 from piezopreload.tuning.calibrate import PAPER_RESULTS, _mismatch, _worst_mismatch, calibrate, reproduce
 
@@ -16,7 +15,7 @@ WITHIN = {("pid", "peak_s"), ("pid", "settling_s"), ("ff+pid", "rise_s"), ("ff+p
 
 
 def test_the_preset_reproduces_the_paper_as_documented():
-    s = reproduce_study(load_study(default_study()))
+    s = load_study(default_study()).reproduce()
     rows = {(r["controller"], r["metric"]): r for r in s["rows"]}
     for key in WITHIN:
         assert rows[key]["within_25pct"], f"{key}: {rows[key]}"

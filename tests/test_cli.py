@@ -14,7 +14,7 @@ import pytest
 from piezopreload.cli import main
 from piezopreload.core.artifacts import ArtifactError, read_artifact, write_artifact
 from piezopreload.models.hysteresis import ClassicalPI, uniform_thresholds
-from piezopreload.pipeline import load_hysteresis_model
+from piezopreload.tuning.feedforward import read_hysteresis_model as load_hysteresis_model
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -138,7 +138,7 @@ def test_internal_failure_exit_1(capsys, monkeypatch):
     def boom(*a, **k):
         raise RuntimeError("simulated bug")
 
-    monkeypatch.setattr(cli, "identify", boom)
+    monkeypatch.setattr(cli, "identify_record", boom)
     code, _, err = run(capsys, "identify")
     assert code == 1
     assert err.strip().startswith("error: internal failure: RuntimeError: simulated bug")

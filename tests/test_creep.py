@@ -358,7 +358,8 @@ def test_a_drift_the_hysteresis_alone_cannot_fit_is_fitted_with_creep():
 
 def test_shipped_record_with_creep(request):
     """The issue's target on the real record: asymmetric + creep, 40 operators, train 4-7 s, test 7-10 s."""
-    from piezopreload.io import SHIPPED_COLUMNS, parse_columns, read_record, shipped_data
+    from piezopreload.core.tables import parse_columns, read_record
+    from piezopreload.data import SHIPPED_COLUMNS, shipped_data
 
     rec = read_record(shipped_data(), parse_columns(SHIPPED_COLUMNS), header=False)
     train, test = rec.window(4, 7), rec.window(7, 10)
@@ -419,7 +420,8 @@ def test_creep_weights_stay_nonnegative_where_the_data_ask_for_negative_ones(rng
 
 def test_kkt_conditions_of_the_joint_qp_on_the_shipped_record():
     """Classical + creep on the real record: the weights satisfy the QP's optimality conditions."""
-    from piezopreload.io import SHIPPED_COLUMNS, parse_columns, read_record, shipped_data
+    from piezopreload.core.tables import parse_columns, read_record
+    from piezopreload.data import SHIPPED_COLUMNS, shipped_data
 
     rec = read_record(shipped_data(), parse_columns(SHIPPED_COLUMNS), header=False)
     train = rec.window(4, 7)

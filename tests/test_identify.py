@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy.optimize import nnls
 
-from piezopreload.io import SHIPPED_COLUMNS, parse_columns, read_record, shipped_data
+from piezopreload.core.tables import parse_columns, read_record
+from piezopreload.data import SHIPPED_COLUMNS, shipped_data
 from piezopreload.models.hysteresis import AsymmetricPI, ClassicalPI, play, uniform_thresholds
 from piezopreload.tuning.identify import (
     IdentificationError,

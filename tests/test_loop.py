@@ -249,8 +249,8 @@ def test_the_tuned_gains_and_the_validation_verdict_as_before(study, feedforward
     for key, value in BEFORE["gains"].items():
         assert getattr(res.gains, key) == pytest.approx(value, rel=1e-6), key
     assert res.engine == ("compiled" if native.enabled() else "plain")
-    v = validate(res.gains, feedforward, study.rig, study.criteria, n_plants=study.validation_plants,
-                 seed=study.validation_seed, step=study.references["step"], trajectory=study.references["trajectory"])
+    v = validate(res.gains, feedforward, study.rig, study.criteria, n_plants=study.validation.plants,
+                 seed=study.validation.seed, step=study.references["step"], trajectory=study.references["trajectory"])
     assert v.passed
     summary = v.summary()
     for key, value in BEFORE["validation_worst"].items():

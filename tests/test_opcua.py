@@ -20,7 +20,8 @@ from piezopreload.cli import main
 from piezopreload.core.artifacts import read_artifact
 from piezopreload.models.controller import PIDGains
 from piezopreload.rig.opcua import NAMESPACE, ROOT, PushRefused, push_gain_set
-from piezopreload.rig_pipeline import read_run_log, serve_rig
+from piezopreload.rig.runlog import read_run_log
+from piezopreload.rig.session import serve as serve_rig
 
 USER, PASSWORD = "operator", "correct horse"
 
@@ -75,7 +76,7 @@ def test_serve_push_and_refusals(tmp_path, study, feedforward):
 
     def serve():
         out["summary"] = serve_rig(first, endpoint=endpoint, users={USER: PASSWORD}, log_dir=tmp_path / "runs",
-                                   ready=ready, stop=stop)
+                                   ready=ready, stop=stop).to_dict()
 
     server = threading.Thread(target=serve, daemon=True)
     server.start()
@@ -106,7 +107,7 @@ def test_serve_push_and_refusals(tmp_path, study, feedforward):
         stop.set()
         server.join(60)
     s = out["summary"]
-    assert s["status"] == "completed"
+    assert s["status"] == "completed", s["trip"]
     pushes = s["pushes"]
     assert [p["accepted"] for p in pushes] == [True, False, False, False]
     assert pushes[0]["user"] == USER and pushes[0]["gain_set_sha256"] == sha2
@@ -122,9 +123,9 @@ def test_serve_push_and_refusals(tmp_path, study, feedforward):
     assert np.percentile(np.abs(np.diff(u[k - 500:k])), 99) < 0.25  # the noise's share stays below that
     # and the gains did change there: the proportional action is Kc (b r - y)
     before, after = slice(k - 200, k), slice(k + 1, k + 200)
-    e = log["reference_N"][before] - log["force_N"][before]
+    e = log["reference_N"][before] - log["measured_N"][before]
     assert np.median(log["p_V"][before][np.abs(e) > 0.2] / e[np.abs(e) > 0.2]) == pytest.approx(0.3)
-    np.testing.assert_allclose(log["p_V"][after], -0.5 * log["force_N"][after], rtol=1e-6)
+    np.testing.assert_allclose(log["p_V"][after], -0.5 * log["measured_N"][after], rtol=1e-6)
 
 
 def test_push_needs_a_password_from_the_environment(tmp_path, study, feedforward, capsys, monkeypatch):
@@ -168,7 +169,7 @@ def test_basic256sha256_channel_with_a_password(tmp_path, study, feedforward):
     def serve():
         out["summary"] = serve_rig(first, endpoint=endpoint, users={USER: PASSWORD}, log_dir=tmp_path / "runs",
                                    certificate=str(tmp_path / "server.der"), private_key=str(tmp_path / "server.pem"),
-                                   ready=ready, stop=stop)
+                                   ready=ready, stop=stop).to_dict()
 
     server = threading.Thread(target=serve, daemon=True)
     server.start()

@@ -18,13 +18,13 @@ from piezopreload.cli import main
 from piezopreload.core.artifacts import read_artifact
 from piezopreload.models.actuator import Rig
 from piezopreload.models.controller import Controller, PIDGains
+from piezopreload.models.gainset import GainSet
 from piezopreload.models.hysteresis import ClassicalPI
-from piezopreload.pipeline import simulate_study
 from piezopreload.rig.backends import Fault, FaultInjector, SimBackend, open_backend
 from piezopreload.rig.compiled import PythonStep, controller_step
 from piezopreload.rig.executor import Executor, Safety
-from piezopreload.rig.runlog import RunLog
-from piezopreload.rig_pipeline import read_run_log, run_rig
+from piezopreload.rig.runlog import RunLog, read_run_log
+from piezopreload.rig.session import run as run_rig
 
 DT = 1e-3
 
@@ -91,7 +91,7 @@ def test_rig_run_reproduces_the_simulation(gains_path, study, tmp_path, capsys):
     """'rig run --fast' on the simulated backend gives simulate's step metrics within one sample."""
     assert main(["rig", "run", str(gains_path), "--fast", "--log-dir", str(tmp_path), "--json"]) == 0
     r = json.loads(capsys.readouterr().out)
-    sim = simulate_study(study, gains_path=gains_path, reference="step")
+    sim = study.simulate(GainSet.load(gains_path), reference="step").to_dict()
     for key in ("rise_s", "peak_s", "settling_s"):
         assert r["metrics"][key] == pytest.approx(sim[key], abs=DT), key
     assert r["metrics"]["overshoot_N"] == pytest.approx(sim["overshoot_N"], abs=study.rig.adc_lsb_N)
@@ -103,7 +103,7 @@ def test_rig_run_reproduces_the_simulation(gains_path, study, tmp_path, capsys):
 
 def _run(gains_path, tmp_path, faults, realtime=False, reference="step", **safety):
     return run_rig(gains_path, realtime=realtime, log_dir=tmp_path, faults=faults, reference=reference,
-                   safety=safety)
+                   safety=safety).to_dict()
 
 
 @pytest.mark.parametrize("fault, cause", [

@@ -8,7 +8,7 @@ import pytest
 
 from piezopreload.cli import main
 from piezopreload.core.artifacts import write_artifact
-from piezopreload.io import InputError
+from piezopreload.core.errors import InputError
 from piezopreload.study import default_study, load_study
 from piezopreload.tuning.calibrate import PAPER_RESULTS
 

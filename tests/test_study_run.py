@@ -19,9 +19,8 @@ import pytest
 
 from piezopreload.cli import main
 from piezopreload.core.artifacts import read_artifact
-from piezopreload.pipeline import reproduce_study
+from piezopreload.pipeline import STAGES, read_manifest, run_study
 from piezopreload.progress import Progress
-from piezopreload.run_pipeline import STAGES, read_manifest, run_study
 from piezopreload.study import load_study
 
 pypdf = pytest.importorskip("pypdf", reason="pypdf (the test extra) reads the report back")
@@ -74,7 +73,7 @@ def test_the_compare_stage_reproduces_what_reproduce_prints(small_run):
     """The paper's gains in the report's table == ``piezopreload reproduce`` (its own feedforward identification)."""
     out = small_run[0]
     rows = read_artifact(out / "responses" / "responses.json", "responses")["reproduction"]
-    ref = {(r["controller"], r["metric"]): r["simulated"] for r in reproduce_study(load_study(SMALL))["rows"]}
+    ref = {(r["controller"], r["metric"]): r["simulated"] for r in load_study(SMALL).reproduce()["rows"]}
     for r in rows:
         assert r["reproduction"] == pytest.approx(ref[(r["controller"], r["metric"])], abs=1e-12)
 
@@ -184,7 +183,7 @@ def test_a_failing_stage_is_named_keeps_what_came_before_and_exits_2(small_run, 
 
 
 def test_an_internal_failure_names_its_stage_and_exits_1(small_run, tmp_path, capsys, monkeypatch):
-    import piezopreload.run_pipeline as rp
+    import piezopreload.tuning.compare as compare
 
     out = _copy(small_run, tmp_path)
     (out / "responses" / "responses.json").unlink()  # the compare stage runs again ...
@@ -192,7 +191,7 @@ def test_an_internal_failure_names_its_stage_and_exits_1(small_run, tmp_path, ca
     def broken(*args, **kwargs):
         raise ZeroDivisionError("simulated bug")
 
-    monkeypatch.setattr(rp, "simulate", broken)  # ... and meets a bug
+    monkeypatch.setattr(compare, "simulate", broken)  # ... and meets a bug
     code = main(["run", str(SMALL), "--out", str(out)])
     err = capsys.readouterr().err
     assert code == 1 and "stage 'compare' failed: ZeroDivisionError: simulated bug" in err
@@ -200,13 +199,16 @@ def test_an_internal_failure_names_its_stage_and_exits_1(small_run, tmp_path, ca
 
 
 def test_report_renders_again_from_the_artifacts_alone(small_run, tmp_path, capsys, monkeypatch):
-    import piezopreload.run_pipeline as rp
+    import piezopreload.results as results
+    import piezopreload.tuning.compare as compare
+    import piezopreload.tuning.feedforward as feedforward
 
     out = _copy(small_run, tmp_path)
     before = read_manifest(out)["stages"]
     (out / "report.pdf").unlink()
-    for name in ("simulate", "identify_feedforward", "fit_feedforward", "simulate_open_loop"):
-        monkeypatch.setattr(rp, name, lambda *a, **k: pytest.fail("report recomputed a stage"))
+    for module, name in ((compare, "simulate"), (results, "simulate_loop"), (feedforward, "identify_feedforward"),
+                         (feedforward, "fit_feedforward"), (feedforward, "simulate_open_loop")):
+        monkeypatch.setattr(module, name, lambda *a, **k: pytest.fail("report recomputed a stage"))
     assert main(["report", str(out), "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["ran"] == ["report"] and Path(result["report"]).is_file()
@@ -259,11 +261,7 @@ def test_measured_feedforward_data_is_identified_and_hashed(small_run, tmp_path)
     study = tmp_path / "study.toml"
     study.write_text(SMALL.read_text().replace("n_operators = 20", 'n_operators = 20\ndata = "loop.csv"'))
     out = _copy(small_run, tmp_path)
-    import piezopreload.run_pipeline as rp
-
-    rp_stages = {s.name: s for s in rp.STAGES}
-    ctx = rp._Ctx(load_study(study), rp.read_study_text(study), out, Progress(quiet=True), {})
-    outputs, summary = rp_stages["identify"].run(ctx)
+    outputs = load_study(study).identify_feedforward().save(out / "feedforward")
     doc = read_artifact(outputs["model"], "hysteresis-model")
     assert doc["inputs"]["data"]["kind"] == "measured"
     assert doc["inputs"]["data"]["sha256"] == __import__("hashlib").sha256(loop.read_bytes()).hexdigest()

@@ -126,19 +126,26 @@ def reproduce(
     band_N: float = PAPER_BAND_N,
     signal: str = "measured_N",
     repeats: int = 1,
+    feedforward: ClassicalPI | None = None,
+    feedforward_fit: dict[str, float] | None = None,
 ) -> Reproduction:
     """Run the paper's step with the PID alone and with the P-I feedforward on the rig ``params``.
 
     With ``repeats`` > 1 the step runs that many times at once with independent sensor noise
     (one batch) and each metric is the median over them, with its range in ``spread``: the
     settling time against a 1.5 N band moves by a second when the overshoot sits at the band's
-    edge, so a single noise realisation is a poor summary.
+    edge, so a single noise realisation is a poor summary. ``feedforward`` (with its
+    ``feedforward_fit``) is the P-I model to invert; by default it is identified from the loop
+    measurement simulated on the rig with ``excitation``.
     """
     if repeats < 1:
         raise ValueError(f"repeats must be >= 1, got {repeats}.")
     rig = Rig(params)
     step = step or Reference.step(25.0, 60.0, 0.5, 10.0)
-    ff, info = identify_feedforward(rig, excitation)
+    if feedforward is None:  # identified from the loop measurement simulated on the rig
+        ff, info = identify_feedforward(rig, excitation)
+    else:  # a study's own (from measured data, say), with its fit
+        ff, info = feedforward, {"fit": dict(feedforward_fit or {})}
     metrics, runs, spread = {}, {}, {}
     for name in CONTROLLERS:
         controller = Controller(gains, rig.dt_s, ff.inverse() if name == "ff+pid" else None)

@@ -1,30 +1,27 @@
-"""Reading measured records (CSV) with errors that name the file, the line and the column."""
+"""Measured records and tables as CSV: read with errors that name the file, the line and the column; written atomically.
+
+A CSV with a header names its columns with units (``time_s,voltage_V,force_N``); lines that
+are blank or start with ``#`` are skipped. Every value must be a finite number.
+"""
 
 from __future__ import annotations
 
 import hashlib
+import io
 import math
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from piezopreload.core.artifacts import read_bytes
+from piezopreload.core.artifacts import atomic_write_text, read_bytes
 from piezopreload.core.errors import InputError
 
-__all__ = [
-    "InputError",
-    "Record",
-    "ColumnSpec",
-    "parse_columns",
-    "read_input",
-    "read_record",
-    "shipped_data",
-    "SHIPPED_COLUMNS",
-]
+__all__ = ["Record", "ColumnSpec", "parse_columns", "read_input", "read_record", "read_table", "write_csv"]
 
 
 ROLES = ("time", "input", "output")
@@ -55,8 +52,8 @@ def parse_columns(text: str) -> dict[str, ColumnSpec]:
                 f"--columns: '{part}' is not ROLE=COLUMN with ROLE one of time, input, output "
                 "(example: time=1,input=3:voltage_V,output=2:displacement_um)"
             )
-        col, _, name = where.partition(":")
-        col, name = col.strip(), name.strip() or None
+        col, _, label = where.partition(":")
+        col, name = col.strip(), label.strip() or None
         if name is not None and not _NAME.match(name):
             raise InputError(f"--columns: name '{name}' for {role} must look like quantity_unit, e.g. force_N")
         if col.isdigit():
@@ -99,14 +96,6 @@ class Record:
     def window(self, t0: float, t1: float) -> NDArray[np.bool_]:
         """Samples with ``t0 <= t <= t1``."""
         return (self.time_s >= t0) & (self.time_s <= t1)
-
-
-SHIPPED_COLUMNS = "time=1,input=3:voltage_V,output=2:displacement_um"
-
-
-def shipped_data() -> Path:
-    """The measured piezo hysteresis record shipped with the package (MIT licence)."""
-    return Path(str(resources.files("piezopreload.data") / "hysteresis_v_150_1hz.csv"))
 
 
 def _default_specs(header: list[str], path: str) -> dict[str, ColumnSpec]:
@@ -178,7 +167,7 @@ def read_record(
                         f"{shown}:{header_no}: no column named '{spec.header}' for {role}; the header has {names}"
                     )
                 resolved[role] = ColumnSpec(role, names.index(spec.header), None, spec.name)
-            else:
+            elif spec.index is not None:
                 if spec.index >= len(names):
                     raise InputError(
                         f"{shown}:{header_no}: column {spec.index} for {role} does not exist; the header has "
@@ -196,17 +185,18 @@ def read_record(
         raise InputError(f"{shown}: the file has a header but no data rows")
 
     order = [columns[r] for r in ROLES]
-    width = max(s.index for s in order) + 1
+    index = [int(s.index) for s in order if s.index is not None]  # resolved above: every role has its index
+    width = max(index) + 1
     data = np.empty((len(lines), 3))
     for row, (no, line) in enumerate(lines):
         cells = line.split(",")
         if len(cells) < width:
             raise InputError(
                 f"{shown}:{no}: {len(cells)} columns, expected at least {width} "
-                f"(time, input, output in columns {[s.index for s in order]})"
+                f"(time, input, output in columns {index})"
             )
         for j, spec in enumerate(order):
-            cell = cells[spec.index].strip()
+            cell = cells[index[j]].strip()
             label = spec.name or f"column {spec.index}"
             try:
                 value = float(cell)
@@ -230,15 +220,15 @@ def read_record(
         )
     if len(t) < min_samples:
         raise InputError(f"{shown}: {len(t)} data rows, need at least {min_samples}")
-    names = {r: (columns[r].name or f"column{columns[r].index}") for r in ROLES}
+    labels = {r: (columns[r].name or f"column{columns[r].index}") for r in ROLES}
     return Record(
         path=shown,
         sha256=hashlib.sha256(raw).hexdigest(),
         time_s=t.copy(),
         input=data[:, 1].copy(),
         output=data[:, 2].copy(),
-        input_name=names["input"],
-        output_name=names["output"],
+        input_name=labels["input"],
+        output_name=labels["output"],
     )
 
 
@@ -284,3 +274,13 @@ def read_table(path: str | Path, required: tuple[str, ...], optional: tuple[str,
             raise InputError(f"{shown}:{lines[k + 1][0]}: {increasing} {out[increasing][k]!r} is not after the previous "
                              f"row's {out[increasing][k - 1]!r}; it must be strictly increasing")
     return out
+
+
+def write_csv(path: str | Path, columns: Mapping[str, Any], comment: str) -> None:
+    """Named columns as CSV (``#`` comment lines, one header line, 9 significant digits), written atomically."""
+    buf = io.StringIO()
+    for line in comment.splitlines():
+        buf.write(f"# {line}\n")
+    np.savetxt(buf, np.column_stack([np.asarray(c, float) for c in columns.values()]), delimiter=",",
+               header=",".join(columns), comments="", fmt="%.9g")
+    atomic_write_text(path, buf.getvalue())

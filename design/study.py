@@ -1,0 +1,248 @@
+"""The design study of a feed drive: the preload design's optimum, its Pareto fronts, the preload schedule and curves.
+
+:func:`design_study` solves the design NLP (:mod:`piezopreload.design.preload`) for one
+objective, traces the requested epsilon-constraint fronts, plans the least-friction preload
+schedule (:mod:`piezopreload.design.schedule`) for a load profile on the optimum's screw, and
+evaluates the curves a designer reads: rigidity and drag torque against preload, and the
+first axial natural frequency along the travel at the bolts' preload and at full stack drive
+(``docs/models.md``, the ball screw and the feed drive). :func:`check_screw` evaluates one
+given (catalogue) screw. Results are objects with ``to_dict()`` (and ``plot()``).
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from piezopreload.core.artifacts import atomic_write_text, write_artifact
+from piezopreload.core.errors import InputError
+from piezopreload.core.tables import read_table
+from piezopreload.design.preload import DesignNLP, DesignOptimum, DesignSpec, ParetoFront, optimise, pareto_front
+from piezopreload.design.schedule import LoadProfile, PreloadSchedule, ScheduleSpec, example_profile, schedule_preload
+from piezopreload.models.ballscrew import BallScrew, DutyCase, hiwin_loaded_nut_force, lift_off_load_N
+
+__all__ = ["DesignResult", "design_study", "read_profile", "check_screw", "FRONT_COLUMNS"]
+
+#: the columns of a front's CSV
+FRONT_COLUMNS = ("stiffness_N_per_um", "max_preload_N", "mean_drag_torque_Nm", "life_h", "contact_angle_deg", "ball_mm",
+                 "conformity", "turns", "balls_per_turn", "bolt_preload_N")
+
+
+def read_profile(path: str | Path) -> LoadProfile:
+    """A load profile from a CSV of ``time_s,axial_load_N[,speed_rpm]``; errors name the file and line."""
+    cols = read_table(path, ("time_s", "axial_load_N"), ("speed_rpm",), increasing="time_s")
+    try:
+        return LoadProfile(cols["time_s"], cols["axial_load_N"], cols.get("speed_rpm"))
+    except ValueError as exc:
+        raise InputError(f"{path}: {exc}") from None
+
+
+@dataclass(frozen=True, eq=False)
+class DesignResult:
+    """A design study: ``optimum`` (a :class:`DesignOptimum`), ``fronts``, ``schedule`` and the curves."""
+
+    spec: DesignSpec
+    optimum: DesignOptimum
+    fronts: list[ParetoFront]
+    schedule: PreloadSchedule
+    profile: str  # the load profile's file, or "example"
+    max_preload_N: float  # the stacks' reach on the optimum's screw
+    slew_N_per_s: float
+    preload_curve: dict[str, Any]
+    natural_frequency: dict[str, Any]
+
+    @property
+    def point(self) -> Any:
+        return self.optimum.point
+
+    def to_dict(self) -> dict[str, Any]:
+        """The design artifact's body: the optimum, every front's points, the schedule's samples, the curves."""
+        s = self.schedule
+        return {
+            "preload_curve": self.preload_curve,
+            "units": {"force": "N", "length": "mm", "stiffness": "N/um", "torque": "N m", "life": "h",
+                      "energy": s.energy_units},
+            "optimum": self.optimum.to_dict(),
+            "fronts": [f.to_dict() for f in self.fronts],
+            "schedule": {**s.to_dict(), "time_s": s.profile.time_s.tolist(), "axial_load_N": s.profile.axial_load_N.tolist(),
+                         "preload_N": s.preload_N.tolist(), "max_preload_N": self.max_preload_N,
+                         "slew_N_per_s": self.slew_N_per_s},
+            "natural_frequency": self.natural_frequency,
+        }
+
+    def summary(self) -> dict[str, Any]:
+        """What ``piezopreload design --json`` prints: the optimum, each front's span, the schedule's numbers."""
+        o = self.optimum
+        return {
+            "objective": o.objective, "optimum": o.point.to_dict(), "binding": o.binding, "integer_candidates": o.tried,
+            "solve_s": o.solve_s,
+            "fronts": [{"pair": f.pair, "points": len(f.points), "solve_s": f.solve_s, "nlp_solves": f.nlp_solves,
+                        "stiffness_N_per_um": [float(f.x.min()), float(f.x.max())],
+                        f.y_name: [float(f.y.min()), float(f.y.max())]} for f in self.fronts],
+            "schedule": {**self.schedule.to_dict(), "max_preload_N": self.max_preload_N,
+                         "slew_N_per_s": self.slew_N_per_s},
+        }
+
+    def save(self, path: str | Path, inputs: dict[str, Any]) -> list[Path]:
+        """Write the design artifact to ``path`` and each front's CSV beside it; returns the paths written."""
+        path = Path(path)
+        write_artifact(path, "design", {**self.to_dict(), "inputs": {**inputs, "profile": self.profile}})
+        written = [path]
+        for front in self.fronts:
+            csv = path.with_name(f"{path.stem}.pareto-{front.pair.replace(':', '-')}.csv")
+            buf = io.StringIO()
+            buf.write(f"# Pareto front {front.pair}: {front.x_name} swept, {front.y_name} optimised\n")
+            buf.write(",".join(FRONT_COLUMNS) + "\n")
+            for p in front.points:
+                d = p.to_dict()
+                buf.write(",".join(f"{d[c]:.6g}" for c in FRONT_COLUMNS) + "\n")
+            atomic_write_text(csv, buf.getvalue())
+            written.append(csv)
+        return written
+
+    def plot(self) -> Any:
+        """The Pareto fronts (optimum marked), rigidity against preload, and the schedule: a Figure."""
+        from matplotlib.figure import Figure
+
+        n = len(self.fronts)
+        fig = Figure(figsize=(4.0 * max(n, 2), 7.5), layout="constrained")
+        grid = fig.add_gridspec(3, max(n, 2))
+        p = self.optimum.point
+        for j, front in enumerate(self.fronts):
+            ax = fig.add_subplot(grid[0, j])
+            front.plot(ax)
+            y = {"preload": p.max_preload_N, "drag": p.mean_drag_torque_Nm, "life": p.life_h}[front.y_name]
+            ax.plot([p.stiffness_N_per_um], [y], "*", ms=10, color="k", label="optimum")
+            ax.legend(fontsize="small")
+        self.optimum.plot(fig.add_subplot(grid[1, :]))
+        load, preload = fig.add_subplot(grid[2, :]), None
+        preload = load.twinx()
+        t = self.schedule.profile.time_s
+        load.plot(t, self.schedule.profile.axial_load_N, color="0.5", lw=0.8)
+        load.set(xlabel="time (s)", ylabel="axial load (N)")
+        preload.plot(t, self.schedule.preload_N, color="C0", label="schedule")
+        preload.axhline(self.schedule.constant_preload_N, color="C1", ls="--", label="best constant")
+        preload.set_ylabel("preload (N)")
+        preload.legend(fontsize="small")
+        return fig
+
+
+def design_study(spec: DesignSpec, objective: str, pairs: list[str] | tuple[str, ...], points: int, *,
+                 profile: LoadProfile | None = None, profile_name: str = "example", stiffness_min_N_per_um: float = 0.0,
+                 deflection_max_um: float = math.inf, lift_off_margin: float | None = None,
+                 progress: Callable[[str], None] | None = None,
+                 bar: Callable[[int, int], None] | None = None) -> DesignResult:
+    """Optimum for ``objective``, the fronts of ``pairs`` (``points`` each) and the schedule for ``profile``.
+
+    The schedule keeps the rigidity above ``stiffness_min_N_per_um`` and the deflection
+    ``|F_a| / rigidity`` below ``deflection_max_um`` (the machining cycle of
+    :func:`~piezopreload.design.schedule.example_profile` when ``profile`` is None).
+    ``progress`` gets messages, ``bar`` (points done, points in all) over the fronts.
+    """
+    say = progress or (lambda _msg: None)
+    nlp = DesignNLP(spec)
+    result = optimise(spec, objective, nlp)
+    p = result.point
+    say(f"optimum ({objective}): {p.turns:.0f} turns x {p.balls_per_turn:.0f} balls of {p.ball_mm:.3f} mm, "
+        f"contact angle {p.contact_angle_deg:.1f} deg, preload {p.bolt_preload_N:.0f}-{p.max_preload_N:.0f} N")
+    fronts = []
+    for j, pair in enumerate(pairs):
+        if bar is not None:
+            report = lambda i, n, j=j: bar(j * n + i, len(pairs) * n)  # noqa: E731
+        else:
+            report = lambda i, n, pair=pair: say(f"front {pair}: {i}/{n}") if i in (n // 2, n) else None  # noqa: E731
+        fronts.append(pareto_front(spec, pair, points, nlp, progress=report))
+
+    # ---- the schedule on the optimum's screw -------------------------------------------------
+    screw = spec.screw(p)
+    max_preload = spec.actuator.max_preload_N(screw, p.bolt_preload_N)
+    slew = spec.actuator.preload_slew_N_per_s(screw, p.bolt_preload_N, p.bolt_preload_N)
+    try:
+        sspec = ScheduleSpec(bolt_preload_N=p.bolt_preload_N, max_preload_N=max_preload, slew_N_per_s=slew,
+                             stiffness_min_N_per_um=stiffness_min_N_per_um, deflection_max_um=deflection_max_um,
+                             lift_off_margin=spec.lift_off_margin if lift_off_margin is None else lift_off_margin)
+        schedule = schedule_preload(screw, profile if profile is not None else example_profile(), sspec)
+    except ValueError as exc:
+        raise InputError(f"{profile_name if profile is not None else 'the example load profile'}: {exc}") from None
+    say(f"schedule: {schedule.saving_fraction:.0%} less friction energy than the best constant preload "
+        f"({schedule.constant_preload_N:.0f} N)")
+    return DesignResult(spec, result, fronts, schedule, profile_name if profile is not None else "example", max_preload,
+                        slew, preload_curve(spec, result), natural_frequency(spec, result))
+
+
+def preload_curve(spec: DesignSpec, optimum: DesignOptimum, n: int = 121) -> dict[str, Any]:
+    """Rigidity and drag torque of the optimum's double nut from a quarter of the bolts' preload to 1.5 F_hi,
+    with each duty case at its preload."""
+    p, screw = optimum.point, spec.screw(optimum.point)
+    preloads = np.linspace(0.25 * p.bolt_preload_N, 1.5 * p.max_preload_N, n)
+    return {
+        "preload_N": preloads.tolist(),
+        "rigidity_N_per_um": np.asarray(screw.rigidity_N_per_um(preloads), float).tolist(),
+        "drag_torque_Nm": np.asarray(screw.drag_torque_Nm(preloads), float).tolist(),
+        "cases": [{"axial_load_N": case.axial_load_N, "preload_N": float(f_case),
+                   "rigidity_N_per_um": float(screw.rigidity_N_per_um(f_case, case.axial_load_N))}
+                  for case, f_case in zip(spec.duty, p.case_preload_N)],
+        "bolt_preload_N": p.bolt_preload_N, "max_preload_N": p.max_preload_N,
+    }
+
+
+def natural_frequency(spec: DesignSpec, optimum: DesignOptimum, n: int = 41) -> dict[str, Any]:
+    """The first axial natural frequency along the travel, at the bolts' preload and at full stack drive."""
+    p, screw = optimum.point, spec.screw(optimum.point)
+    positions = np.linspace(*spec.feed_drive.travel_mm, n)
+    return {
+        "position_mm": positions.tolist(),
+        "bolt_preload_Hz": spec.feed_drive.natural_frequency_Hz(screw, p.bolt_preload_N, positions).tolist(),
+        "max_preload_Hz": spec.feed_drive.natural_frequency_Hz(screw, p.max_preload_N, positions).tolist(),
+    }
+
+
+def check_screw(screw: BallScrew, preload_N: float | None = None, preload_fraction: float = 0.1,
+                axial_load_N: float = 0.0, speed_rpm: float = 1000.0) -> dict[str, Any]:
+    """Everything a user checks of one screw at one preload and one axial load, as JSON holds it.
+
+    The preload is ``preload_N``, or ``preload_fraction`` of the dynamic rating C_dyn.
+    """
+    c_dyn = screw.dynamic_rating_N
+    if preload_N is None:
+        if not 0 < preload_fraction <= 0.2:
+            raise InputError(f"preload_fraction: must be in (0, 0.2] of C_dyn, got {preload_fraction}")
+        preload_N = preload_fraction * c_dyn
+    if not (math.isfinite(preload_N) and preload_N > 0):
+        raise InputError(f"preload_N: must be a finite number > 0, got {preload_N}")
+    if not math.isfinite(axial_load_N):
+        raise InputError(f"axial_load_N: must be finite, got {axial_load_N}")
+    loads = screw.nut_loads(preload_N, axial_load_N)
+    contact = screw.contact(loads.loaded_nut_N)
+    life = screw.life(preload_N, [DutyCase(axial_load_N, speed_rpm, 1.0)]) if speed_rpm > 0 else None
+    return {
+        "screw": {"nominal_diameter_mm": screw.nominal_diameter_mm, "lead_mm": screw.lead_mm, "ball_mm": screw.ball_mm,
+                  "turns": screw.turns, "contact_angle_deg": screw.contact_angle_deg,
+                  "conformity_screw": screw.conformity_screw, "conformity_nut": screw.conformity_nut,
+                  "balls_per_turn": screw.balls_on_turn, "balls_per_nut": screw.balls_per_nut,
+                  "helix_angle_deg": math.degrees(screw.helix_rad), "root_diameter_mm": screw.root_diameter_mm},
+        "c_dyn_N": c_dyn, "c_dyn_source": "catalogue" if screw.c_dyn_N is not None else "estimate",
+        "c0_N": screw.static_rating_N, "c0_source": "catalogue" if screw.c0_N is not None else "Hertz at 4200 MPa",
+        "preload_N": float(preload_N), "preload_fraction_of_c_dyn": float(preload_N / c_dyn),
+        "axial_load_N": float(axial_load_N),
+        "rigidity_N_per_um": float(loads.rigidity_N_per_um),
+        "rigidity_no_load_N_per_um": float(screw.rigidity_N_per_um(preload_N)),
+        "contact_rigidity_N_per_um": float(loads.contact_stiffness_N_per_um),
+        "deflection_um": float(loads.deflection_um),
+        "loaded_nut_N": float(loads.loaded_nut_N), "unloaded_nut_N": float(loads.unloaded_nut_N),
+        "loaded_nut_hiwin_N": float(hiwin_loaded_nut_force(preload_N, axial_load_N)),
+        "lift_off_load_N": float(lift_off_load_N(preload_N)), "lifted_off": bool(loads.lifted_off),
+        "peak_pressure_MPa": float(contact.peak_pressure_MPa), "ball_load_N": float(contact.ball_load_N),
+        "static_safety": float(screw.static_rating_N / max(float(loads.loaded_nut_N), 1e-12)),
+        "drag_torque_Nm": float(screw.drag_torque_Nm(preload_N)), "drag_coefficient": screw.drag_K,
+        "drag_heat_W": float(screw.drag_torque_Nm(preload_N) * speed_rpm * 2 * math.pi / 60),
+        "speed_rpm": float(speed_rpm),
+        "life_revolutions": None if life is None else life.revolutions,
+        "life_h": None if life is None else life.hours,
+    }

@@ -1,0 +1,267 @@
+"""The Python API as a script uses it: the README's snippet, the study's typed tables and copies, the
+gain set's one reader and its exports, [feedforward] data honoured by every step, and the examples.
+
+The snippet and the examples run on the small study (tests/data/small_study.toml: short references,
+few Monte Carlo plants, 5-point fronts); each tunes the PID once or twice, which is most of their time.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from matplotlib.figure import Figure
+
+import piezopreload as pp
+from piezopreload.cli import main
+from piezopreload.core.tables import write_csv
+
+ROOT = Path(__file__).resolve().parents[1]
+SMALL = ROOT / "tests" / "data" / "small_study.toml"
+
+
+def _readme_snippet() -> str:
+    text = (ROOT / "README.md").read_text()
+    match = re.search(r"## Python API.*?```python\n(.*?)```", text, re.S)
+    assert match, "README has no python block in its 'Python API' section"
+    return match.group(1)
+
+
+def _small(snippet: str) -> str:
+    """The snippet with small settings: the small study, 8 Monte Carlo plants. Nothing else changes."""
+    assert "pp.load_study()" in snippet and "plants=200" in snippet
+    return snippet.replace("pp.load_study()", f"pp.load_study({str(SMALL)!r})", 1).replace("plants=200", "plants=8")
+
+
+def test_the_readme_snippet_runs_end_to_end(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    ns: dict = {}
+    exec(compile(_small(_readme_snippet()), "README.md (Python API)", "exec"), ns)
+    study, s2, gain_set, run, design, result = (ns[k] for k in ("study", "s2", "gain_set", "run", "design", "result"))
+    assert study.rig.bolt_preload_N == 25.0 and s2.rig.bolt_preload_N == 30.0
+    assert isinstance(gain_set, pp.GainSet) and gain_set.validated, gain_set.validation
+    assert gain_set.validation["n_plants"] == 8
+    assert isinstance(run, pp.ClosedLoopRun)
+    m = run.step_metrics()
+    assert isinstance(m, pp.StepMetrics) and 0 < m.settling_s < study.references["step"].duration_s
+    # the run is the tuned gains' with the gain set's feedforward: the comparison table's tuned row
+    assert m.settling_s == pytest.approx(ns["tuned"].row("tuned")["settling_measured_s"], abs=study.rig.sample_period_s)
+    assert pp.GainSet.load(tmp_path / "gains.json").gains == gain_set.gains
+    assert ns["gain_set"].export("labview").startswith("; gain set sha256")
+    assert len(design.fronts) == 2 and design.optimum.point.stiffness_N_per_um > 0
+    assert result["ran"] == [s.name for s in __import__("piezopreload.pipeline").pipeline.STAGES]
+    assert (tmp_path / "piezopreload-out" / "report.pdf").read_bytes().startswith(b"%PDF")
+    for fig in (ns["tuned"].plot(), run.plot(), design.plot(), ns["ff"].plot()):
+        assert isinstance(fig, Figure) and fig.axes, f"{fig!r} draws nothing"
+    for r in (ns["tuned"], run, design, ns["ff"], gain_set):
+        json.dumps(r.to_dict(), allow_nan=False)  # what --json prints: plain, finite JSON
+
+
+# ---- the study ---------------------------------------------------------------------------------------
+def test_the_study_docstring_examples_run():
+    import doctest
+
+    import piezopreload.study
+
+    failed, tried = doctest.testmod(piezopreload.study)
+    assert tried >= 3 and failed == 0
+
+
+def test_studies_by_default_name_and_path():
+    assert "paper2021" in pp.shipped_studies()
+    a, b, c = pp.load_study(), pp.load_study("paper2021"), pp.load_study(ROOT / "studies" / "paper2021.toml")
+    assert a.sha256 == b.sha256 == c.sha256
+    with pytest.raises(pp.InputError, match="no such study file"):
+        pp.load_study("no-such-study")
+
+
+def test_typed_tables_mirror_the_file_and_a_copy_is_checked_as_a_file_is():
+    study = pp.load_study(SMALL)
+    assert study.reference.step.duration_s == 3.0 and study.design_table.pareto_points == 5
+    assert study.validation.plants == 8 and study.export.formats == ("json", "labview", "c-header")
+    changed = study.replace(rig={"bolt_preload_N": 30.0}, reference={"step": {"final_N": 70.0}},
+                            design={"pareto_points": 7})
+    assert changed.rig.bolt_preload_N == 30.0 and changed.references["step"].levels_N.tolist() == [25.0, 70.0]
+    assert changed.design_table.pareto_points == 7 and changed.sha256 != study.sha256
+    assert study.rig.bolt_preload_N == 25.0  # the original stays
+    # what replace wrote is a study file that reads back to the same tables
+    path = Path(__import__("tempfile").mkdtemp()) / "copy.toml"
+    path.write_text(changed.to_toml())
+    assert pp.load_study(path).tables() == changed.tables()
+    for bad, match in (({"rig": {"bolt_preload_N": -1.0}}, r"'rig.bolt_preload_N' is not valid: .*>= 0"),
+                       ({"rig": {"stiffnes": 2.0}}, "unknown key 'rig.stiffnes'"),
+                       ({"validation": {"plants": 0}}, r"'validation.plants' must be in 1..100000, got 0"),
+                       ({"simulation": {"band_N": "wide"}}, "'simulation.band_N' must be a number"),
+                       ({"rigs": {}}, "'rigs' must be a table of the study")):
+        with pytest.raises(pp.InputError, match=match):
+            study.replace(**bad)
+
+
+# ---- the gain set --------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def gain_set(tmp_path_factory):
+    """A validated gain set with the small study's own feedforward (the paper's gains: no tuning needed)."""
+    study = pp.load_study(SMALL)
+    ff = study.identify_feedforward()
+    gs = pp.GainSet(gains=study.gains, status="validated", feedforward=ff.model, feedforward_info=ff.info(),
+                    plant=study.rig, preset=study.name, references=dict(study.references),
+                    criteria=study.criteria.to_dict(), inputs={"study_sha256": study.sha256})
+    return gs.save(tmp_path_factory.mktemp("gs") / "gains.json"), tmp_path_factory.getbasetemp()
+
+
+def test_the_gain_set_round_trips_and_its_exports_are_the_cli_s(gain_set, tmp_path, capsys):
+    gs, _ = gain_set
+    path = tmp_path / "gains.json"
+    again = gs.save(path)
+    loaded = pp.GainSet.load(path)
+    assert loaded.content_sha256 == again.content_sha256 and loaded.to_dict() == gs.to_dict()
+    assert pp.GainSet.from_dict(json.loads(path.read_text())).to_dict() == gs.to_dict()
+    for fmt in ("json", "labview", "plc", "c-header", "casadi-c"):
+        out = tmp_path / f"export.{fmt}"
+        assert main(["export", str(path), "--format", fmt, "--out", str(out)]) == 0
+        capsys.readouterr()
+        if fmt == "casadi-c":
+            from piezopreload.rig.export import export_text
+
+            assert out.read_text() == export_text(loaded, fmt)
+            with pytest.raises(pp.InputError, match="casadi-c"):
+                loaded.export(fmt)
+        else:
+            assert out.read_text() == loaded.export(fmt), f"{fmt}: the API's text is not the CLI's"
+    # the units each format states: LabVIEW's minutes, a PLC's Kp/Tn/Tv in seconds, the C header in SI
+    g = gs.gains
+    lv = dict(line.split(" = ") for line in loaded.export("labview").splitlines() if " = " in line)
+    assert [float(lv[k]) for k in ("Kc", "Ti (min)", "Td (min)")] == pytest.approx([g.Kc, g.Ti_s / 60, g.Td_s / 60], rel=1e-11)
+    plc = dict(line.split(" = ") for line in loaded.export("plc").splitlines() if " = " in line)
+    assert [float(plc[k]) for k in ("Kp", "Tn", "Tv", "Ymax")] == pytest.approx([g.Kc, g.Ti_s, g.Td_s, g.u_max], rel=1e-11)
+    assert f"#define PP_TI_S {g.Ti_s!r}" in loaded.export("c-header")
+    assert json.loads(loaded.export("json"))["gains"]["Ti_s"] == g.Ti_s
+    doc = json.loads(path.read_text())
+    doc["gains"]["Ti_s"] = 0.5
+    path.write_text(json.dumps(doc))
+    with pytest.raises(pp.ArtifactError, match="content_sha256"):
+        pp.GainSet.load(path)
+
+
+def test_gain_set_and_reference_documents_are_checked_naming_the_field():
+    ref = pp.Reference.staircase(25.0, [60.0, 80.0], 0.5, t_start_s=0.1)
+    back = pp.Reference.from_dict(json.loads(json.dumps(ref.to_dict())))
+    np.testing.assert_array_equal(back.times_s, ref.times_s)
+    np.testing.assert_array_equal(back.levels_N, ref.levels_N)
+    assert back.duration_s == ref.duration_s
+    with pytest.raises(pp.InputError, match="levels_N is missing"):
+        pp.Reference.from_dict({"times_s": [0.0], "duration_s": 1.0})
+    with pytest.raises(pp.InputError, match="times_s must start at 0"):
+        pp.Reference.from_dict({"times_s": [0.5], "levels_N": [25.0], "duration_s": 1.0})
+    doc = {"status": "candidate", "gains": {"Kc_V_per_N": 0.5, "Ti_s": 0.1, "Td_s": 0.0}, "inputs": {}}
+    assert pp.GainSet.from_dict(doc).gains.Kc == 0.5
+    for field, value, match in (("status", "approved", "field 'status' is 'approved'"),
+                                ("gains", {"Kc_V_per_N": 0.5}, r"field 'gains.Ti_s' is missing"),
+                                ("references", {"step": {"times_s": [0.0]}}, r"field 'references.step' is not a reference"),
+                                ("plant", {"rig": {"noise_N": -1.0}}, r"field 'plant.rig' is not a rig")):
+        with pytest.raises(pp.ArtifactError, match=match):
+            pp.GainSet.from_dict({**doc, field: value}, "g.json")
+    with pytest.raises(pp.InputError, match="GainSet.status"):
+        pp.GainSet(gains=pp.PIDGains(Kc=0.5, Ti_s=0.1), status="ok")
+
+
+# ---- [feedforward] data, honoured by every step ---------------------------------------------------------
+@pytest.fixture(scope="module")
+def measured_study(tmp_path_factory):
+    """The small study with a 'measured' loop: the simulated one, its force scaled by 1.1 (another rig)."""
+    folder = tmp_path_factory.mktemp("measured")
+    loop = pp.load_study(SMALL).identify_feedforward().loop
+    write_csv(folder / "loop.csv", {"time_s": loop["time_s"], "voltage_V": loop["voltage_V"],
+                                    "force_N": 1.1 * loop["force_N"]}, "a measured loop")
+    path = folder / "study.toml"
+    path.write_text(SMALL.read_text().replace("n_operators = 20", 'n_operators = 20\ndata = "loop.csv"'))
+    return pp.load_study(path), folder / "loop.csv"
+
+
+def test_feedforward_data_is_honoured_by_simulate_and_reproduce(measured_study):
+    study, loop = measured_study
+    ff = study.identify_feedforward()
+    plain = pp.load_study(SMALL).identify_feedforward()
+    assert ff.source == {"kind": "measured", "path": str(loop), "sha256": ff.source["sha256"]}
+    assert not np.allclose(ff.model.weights, plain.model.weights, rtol=0.05)  # a different rig, a different model
+    run = study.simulate(controller="ff+pid")
+    assert f"the measured loop {loop}" in run.to_dict()["feedforward"]["source"]
+    ref = study.simulate(controller="ff+pid", feedforward=ff)
+    np.testing.assert_array_equal(run.command_V, ref.command_V)
+    assert study.reproduce()["feedforward_fit"] == ff.fit
+
+
+def test_feedforward_data_is_honoured_by_tune(measured_study, monkeypatch, capsys):
+    """``piezopreload tune`` hands the tuner the inverse of the model identified from the study's data."""
+    import piezopreload.results as results
+
+    study, _ = measured_study
+    expected = study.identify_feedforward().model
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def tuner(params, feedforward, spec, **kwargs):
+        seen["feedforward"] = feedforward
+        raise Stop
+
+    monkeypatch.setattr(results, "tune_pid", tuner)
+    assert main(["tune", "--study", study.path, "--plants", "2"]) == 1  # the stand-in stops it there
+    assert "Stop" in capsys.readouterr().err
+    np.testing.assert_allclose(seen["feedforward"].forward.weights, expected.weights, rtol=1e-12)
+
+
+# ---- the examples ---------------------------------------------------------------------------------------
+def _example(name: str):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "examples" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_example_sweep_of_the_bolt_preload(tmp_path):
+    rows = _example("sweep_bolt_preload").main(["--study", str(SMALL), "--preloads", "22", "28", "--plants", "4",
+                                                "--out", str(tmp_path)])
+    assert [r["bolt_preload_N"] for r in rows] == [22.0, 28.0]
+    for r in rows:  # settled inside the 3 s step, on the nominal rig and on every Monte Carlo plant
+        assert 0 < r["settling_s"] < 3.0 and 0 < r["worst_settling_s"] < 3.0, r
+    assert (tmp_path / "settling_vs_bolt_preload.png").stat().st_size > 0
+
+
+def test_example_identify_from_a_csv_and_export(measured_study, tmp_path):
+    _, loop = measured_study
+    out = _example("identify_and_export").main([str(loop), "--study", str(SMALL), "--operators", "20",
+                                                "--plants", "4", "--out", str(tmp_path)])
+    s = out["fit"]
+    # the held-out error as written, recomputed here from the saved model and the record
+    from piezopreload.tuning.feedforward import read_hysteresis_model
+
+    model, _ = read_hysteresis_model(tmp_path / "model.json")
+    record = pp.read_record(loop)
+    window = record.window(*s["test"]["window_s"])
+    err = model(record.input)[window] - record.output[window]
+    assert 100 * np.sqrt(np.mean(err ** 2)) / np.ptp(record.output) == pytest.approx(s["test"]["rms_pct"], rel=1e-9)
+    assert s["test"]["rms_pct"] < s["line_test"]["rms_pct"] / 3  # the P-I model explains the loop a line cannot
+    gs = out["gain_set"]
+    assert pp.GainSet.load(tmp_path / "gains.json").content_sha256 == gs.content_sha256
+    assert gs.feedforward_info["source"]["kind"] == "measured"
+    if gs.validated:
+        assert (tmp_path / "gains.labview.txt").read_text() == gs.export("labview")
+        assert "Tn = " in (tmp_path / "gains.plc.txt").read_text()
+    else:  # a candidate is never exported
+        assert not (tmp_path / "gains.labview.txt").exists()
+
+
+def test_example_pareto_front_of_a_catalogue_screw(tmp_path):
+    design = _example("pareto_catalogue_screw").main(["--study", str(SMALL), "--points", "5", "--out", str(tmp_path)])
+    front, p = design.fronts[0], design.optimum.point
+    assert front.pair == "stiffness:drag" and len(front.points) >= 4
+    assert all(q.ball_mm == pytest.approx(6.35) and q.turns == 4 for q in front.points + [p])  # the catalogue's screw
+    assert np.all(np.diff(front.y) >= -1e-9)  # more rigidity costs drag along the front
+    assert p.stiffness_N_per_um == pytest.approx(front.x.max() / 0.99, rel=0.02)  # the stiffest design is chosen
+    assert (tmp_path / "pareto.png").stat().st_size > 0 and (tmp_path / "design.json").is_file()

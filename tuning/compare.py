@@ -1,0 +1,113 @@
+"""Gains side by side on a study's rig: the tuning's comparison table and the closed-loop responses.
+
+:func:`compare_gains` scores each candidate (the paper's, SIMC's, the tuned gains) without and
+with the feedforward on the nominal rig, as the validation scores a plant
+(:func:`~piezopreload.tuning.validate.evaluate`); :func:`responses` simulates the paper's step
+and trajectory for the paper's and the tuned gains, PID alone and with the feedforward, and
+:func:`reproduction` lays the paper's six step numbers (Sections 4.2-4.3) beside them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from piezopreload.core.artifacts import finite_or_none
+from piezopreload.models.actuator import Rig, RigParams
+from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
+from piezopreload.models.controller import Controller, PIDGains
+from piezopreload.models.hysteresis import ClassicalPI
+from piezopreload.models.metrics import run_numbers
+from piezopreload.tuning.calibrate import CONTROLLERS, PAPER_RESULTS, Reproduction
+from piezopreload.tuning.validate import Criteria, evaluate
+
+__all__ = ["compare_gains", "tracking_improvement", "Response", "responses", "reproduction", "reproduction_summary"]
+
+
+def compare_gains(rig: RigParams, step: Reference, trajectory: Reference, candidates: dict[str, PIDGains],
+                  feedforward: ClassicalPI, criteria: Criteria, seed: int) -> list[dict[str, Any]]:
+    """Each gain set without and with the feedforward on the nominal rig: one row each."""
+    rows = []
+    for name, gains in candidates.items():
+        for ff in (False, True):
+            m = evaluate(gains, feedforward if ff else None, rig, step, trajectory, criteria, seed)
+            rows.append({
+                "gains": name, "feedforward": ff,
+                "rise_s": finite_or_none(m["rise_s"][0]), "settling_s": finite_or_none(m["settling_s"][0]),
+                "settling_measured_s": finite_or_none(m["settling_measured_s"][0]),
+                "overshoot_N": float(m["overshoot_N"][0]), "tracking_rms_N": float(m["tracking_rms_all_N"][0]),
+                "tracking_rms_after_change_N": float(m["tracking_rms_N"][0]),
+                "peak_command_V": float(m["peak_voltage_V"][0]),
+            })
+    return rows
+
+
+def tracking_improvement(table: list[dict[str, Any]]) -> dict[str, float]:
+    """The paper's tracking RMS over the tuned one (with feedforward), both ways of scoring it."""
+    row = {(r["gains"], r["feedforward"]): r for r in table}
+    tuned = row[("tuned", True)]
+    out = {}
+    for ff in (False, True):
+        key = "paper_ff_pid" if ff else "paper_pid"
+        out[f"{key}_over_tuned"] = row[("paper", ff)]["tracking_rms_N"] / tuned["tracking_rms_N"]
+        out[f"{key}_over_tuned_after_change"] = (row[("paper", ff)]["tracking_rms_after_change_N"]
+                                                 / tuned["tracking_rms_after_change_N"])
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Response:
+    """One closed-loop run of :func:`responses` and its numbers (:func:`~piezopreload.models.metrics.run_numbers`)."""
+
+    gains: str
+    controller: str
+    reference: str
+    run: ClosedLoopRun
+    numbers: dict[str, float | None]
+
+    @property
+    def label(self) -> str:
+        return f"{self.gains}-{self.controller.replace('+', '-')}-{self.reference}"
+
+
+def responses(rig: RigParams, references: dict[str, Reference], candidates: dict[str, PIDGains],
+              feedforward: ClassicalPI, *, seed: int, band_N: float, signal: str, after_change_s: float,
+              progress: Callable[[int, int], None] | None = None) -> list[Response]:
+    """Every candidate, PID alone and with the feedforward, over every reference (noise ``seed``)."""
+    plant = Rig(rig)
+    out: list[Response] = []
+    total = len(candidates) * len(CONTROLLERS) * len(references)
+    for name, gains in candidates.items():
+        for controller in CONTROLLERS:
+            ff = feedforward.inverse() if controller == "ff+pid" else None
+            for ref_name, ref in references.items():
+                run = simulate(plant, Controller(gains, plant.dt_s, ff), ref, seed=seed)
+                out.append(Response(name, controller, ref_name, run, run_numbers(run, band_N, signal, after_change_s)))
+                if progress is not None:
+                    progress(len(out), total)
+    return out
+
+
+def reproduction(runs: list[Response], reference: str = "step") -> list[dict[str, Any]]:
+    """The paper's six step numbers beside the paper's and the tuned gains' on the rig, per controller and metric."""
+    rows = []
+    for controller in CONTROLLERS:
+        for metric in ("rise_s", "peak_s", "settling_s"):
+            got = {r.gains: r.numbers[metric] for r in runs if r.controller == controller and r.reference == reference}
+            rows.append({"controller": controller, "metric": metric, "paper": PAPER_RESULTS[controller][metric],
+                         "reproduction": got["paper"], "tuned": got["tuned"]})
+    return rows
+
+
+def reproduction_summary(rep: Reproduction) -> dict[str, Any]:
+    """The paper's six step numbers beside a :class:`Reproduction`'s, each judged within 25 % of the paper's,
+    with its range over the noise realisations (a time never reached is None and not within)."""
+    rows = [{**r, "within_25pct": bool(abs(r["ratio"] - 1.0) <= 0.25),
+             "range": [finite_or_none(x) for x in rep.spread[r["controller"]][r["metric"]]]} for r in rep.table()]
+    for r in rows:
+        if r["simulated"] != r["simulated"]:  # nan: never reached
+            r.update(simulated=None, ratio=None, within_25pct=False)
+    return {"feedforward_fit": rep.feedforward_fit, "rows": rows,
+            "overshoot_N": {c: rep.metrics[c]["overshoot_N"] for c in rep.metrics},
+            "all_within_25pct": all(r["within_25pct"] for r in rows), "repeats": rep.repeats}

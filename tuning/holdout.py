@@ -1,0 +1,150 @@
+"""A hysteresis model identified from a measured record and checked on a held-out window.
+
+:func:`identify_record` fits a P-I model (:class:`~piezopreload.tuning.identify.PIIdentifier`:
+the classical model of eq. (15), the paper's asymmetric one of eq. (18) or Kuhnen's modified
+model) on a training window of a record and scores it on a test window, beside the best
+straight line and the paper's own method of eq. (17). Errors are percentages of the output
+span of the whole record. The result saves itself as a ``hysteresis-model`` artifact.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from piezopreload.core.artifacts import write_artifact
+from piezopreload.core.errors import InputError
+from piezopreload.core.tables import Record
+from piezopreload.models.hysteresis import HysteresisModel
+from piezopreload.tuning.identify import IdentificationError, PIIdentifier, fit_error, paper_baseline, straight_line
+
+__all__ = ["Window", "HoldoutFit", "identify_record"]
+
+
+@dataclass(frozen=True)
+class Window:
+    """A time window ``[t0_s, t1_s]``."""
+
+    t0_s: float
+    t1_s: float
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.t0_s) and np.isfinite(self.t1_s) and self.t0_s < self.t1_s):
+            raise InputError(f"a window needs finite t0_s < t1_s, got {self.t0_s!r} and {self.t1_s!r}")
+
+    def as_list(self) -> list[float]:
+        return [self.t0_s, self.t1_s]
+
+
+@dataclass(frozen=True, eq=False)
+class HoldoutFit:
+    """The identified ``model``, the record it came from and the errors (``summary``: what ``--json`` prints)."""
+
+    model: HysteresisModel
+    record: Record
+    train: Window
+    test: Window
+    summary: dict[str, Any]
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(self.summary)
+
+    def save(self, path: str | Path) -> Path:
+        """Write the model as a ``hysteresis-model`` artifact with the record's hash, windows, units and errors."""
+        r, s = self.record, self.summary
+        write_artifact(path, "hysteresis-model", {
+            "inputs": {"data": {"path": r.path, "sha256": r.sha256}, "train_s": self.train.as_list(),
+                       "test_s": self.test.as_list()},
+            "units": {"input": r.input_unit, "output": r.output_unit, "input_name": r.input_name,
+                      "output_name": r.output_name},
+            "model": self.model.to_dict(),
+            "identification": {k: s[k] for k in ("train", "test", "line_test", "solver", "output_span")},
+        })
+        return Path(path)
+
+    def plot(self) -> Any:
+        """The record and the model's output against the input, train and test windows apart: a Figure."""
+        from matplotlib.figure import Figure
+
+        r = self.record
+        y = self.model(r.input)
+        fig = Figure(figsize=(8.0, 3.2), layout="constrained")
+        a, b = fig.subplots(1, 2)
+        for ax, win, name in ((a, self.train, "train"), (b, self.test, "test")):
+            m = r.window(win.t0_s, win.t1_s)
+            ax.plot(r.input[m], r.output[m], color="0.55", lw=0.8, label="measured")
+            ax.plot(r.input[m], y[m], "--", lw=1.0, label="model")
+            ax.set(xlabel=r.input_name, ylabel=r.output_name, title=f"{name} {win.t0_s:g}-{win.t1_s:g} s")
+            ax.legend(fontsize="small")
+        return fig
+
+
+def identify_record(record: Record, *, model: str = "classical", operators: int = 40, train: Window | None = None,
+                    test: Window | None = None, ridge: float = 0.0) -> HoldoutFit:
+    """Identify a hysteresis model on ``train`` and score it on ``test``.
+
+    Without windows the first 70 % of the record's duration trains and the rest tests.
+    """
+    t0 = time.perf_counter()
+    t = record.time_s
+    if train is None:
+        train = Window(float(t[0]), float(t[0] + 0.7 * (t[-1] - t[0])))
+    rows = {}
+    for name in ("train", "test"):
+        if name == "train":
+            win, mask = train, record.window(train.t0_s, train.t1_s)
+        elif test is None:  # after the training window, up to the end
+            win, mask = Window(train.t1_s, max(float(t[-1]), train.t1_s + 1.0)), t > train.t1_s
+        else:
+            win, mask = test, record.window(test.t0_s, test.t1_s)
+        if not mask.any():
+            raise InputError(f"--{name} {win.t0_s:g}:{win.t1_s:g} holds no samples; the record spans "
+                             f"{t[0]:g} to {t[-1]:g} s")
+        rows[name] = mask
+        test = win if name == "test" else test
+    if np.ptp(record.input[rows["train"]]) == 0:
+        raise InputError(f"{record.path}: the input '{record.input_name}' is constant over the training window "
+                         f"{train.t0_s:g}:{train.t1_s:g} s; a hysteresis model needs a varying input")
+    span = float(np.ptp(record.output))
+    if span == 0:
+        raise InputError(f"{record.path}: the output '{record.output_name}' is constant; nothing to model")
+    try:
+        est = PIIdentifier(model=model, n_operators=operators, ridge=ridge)
+        est.fit(record.input, record.output, train=rows["train"])
+    except (IdentificationError, ValueError) as exc:
+        raise InputError(f"{record.path}: cannot identify a {model} model: {exc}") from exc
+    predicted = est.predict(record.input)
+    v, y = record.input, record.output
+    slope, intercept = straight_line(v[rows["train"]], y[rows["train"]])
+    try:
+        paper = paper_baseline(v, y, est.thresholds_, rows["train"])
+        paper_test: dict[str, Any] | None = fit_error(paper(v)[rows["test"]], y[rows["test"]], span)
+        paper_note = None
+    except IdentificationError as exc:
+        paper_test, paper_note = None, str(exc)
+    summary: dict[str, Any] = {
+        "data": {"path": record.path, "sha256": record.sha256, "samples": int(t.size),
+                 "input": record.input_name, "output": record.output_name},
+        "model": model,
+        "operators": int(est.thresholds_.size),
+        "invertible": bool(getattr(est.model_, "invertible", False)),
+        "output_span": span,
+        "output_unit": record.output_unit,
+        "train": {**fit_error(predicted[rows["train"]], y[rows["train"]], span),
+                  "window_s": train.as_list(), "samples": int(rows["train"].sum())},
+        "test": {**fit_error(predicted[rows["test"]], y[rows["test"]], span),
+                 "window_s": test.as_list(), "samples": int(rows["test"].sum())},
+        "line_test": {**fit_error(slope * v[rows["test"]] + intercept, y[rows["test"]], span),
+                      "slope": slope, "intercept": intercept},
+        "paper_method_test": paper_test,
+        "solver": {"name": "CLARABEL", "status": est.status_, "polished": est.polished_,
+                   "iterations": est.iterations_, "qp_seconds": est.solve_time_s_, "fit_seconds": est.fit_time_s_},
+    }
+    if paper_note:
+        summary["paper_method_note"] = paper_note
+    summary["seconds"] = time.perf_counter() - t0
+    return HoldoutFit(est.model_, record, train, test, summary)

@@ -1,0 +1,52 @@
+"""The Monte Carlo verdict on a gain set: its gains, feedforward, plant, criteria and references, validated.
+
+One body for both ways a gain set is judged: the tuned gains written as a candidate and
+validated for the first time (``piezopreload tune``, the study's validate stage), and a gain
+set validated again on a new Monte Carlo set (``piezopreload validate``). The gain set that
+comes back is ``validated`` only if every plant met every criterion, else ``candidate``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+from typing import Any
+
+from piezopreload.core.errors import InputError
+from piezopreload.models.gainset import GainSet
+from piezopreload.models.hysteresis import ClassicalPI
+from piezopreload.tuning.validate import Criteria, SchedulerError, ValidationResult, executor, validate
+
+__all__ = ["validate_gain_set"]
+
+
+def validate_gain_set(gain_set: GainSet, *, n_plants: int, seed: int, workers: int | None = None,
+                      scheduler: str | None = None, progress: Callable[[int, int], None] | None = None,
+                      inputs: dict[str, Any] | None = None) -> tuple[GainSet, ValidationResult]:
+    """Validate ``gain_set`` on ``n_plants`` plants drawn around its plant (noise and draw ``seed``).
+
+    Returns the gain set with this validation, its status and ``inputs`` added (not yet
+    saved: its ``content_sha256`` is None), and the per-plant result.
+    """
+    if n_plants < 1:
+        raise InputError(f"n_plants: must be >= 1, got {n_plants}")
+    if gain_set.plant is None:
+        raise InputError("the gain set names no plant (field 'plant.rig'); write it again with 'piezopreload tune'")
+    if gain_set.feedforward is not None and not isinstance(gain_set.feedforward, ClassicalPI):
+        raise InputError("field 'feedforward.model.kind': validation runs the classical P-I inverse")
+    try:
+        criteria = Criteria(**gain_set.criteria)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"field 'criteria' is not valid: {exc}; write the gain set again with 'piezopreload tune'") from None
+    step, trajectory = gain_set.reference("step"), gain_set.reference("trajectory")
+    try:
+        with executor(workers, scheduler) as (pool, pool_name):
+            result = validate(gain_set.gains, gain_set.feedforward, gain_set.plant, criteria, n_plants=n_plants,
+                              seed=seed, step=step, trajectory=trajectory, pool=pool, pool_name=pool_name,
+                              progress=progress)
+    except SchedulerError as exc:
+        raise InputError(f"--scheduler: {exc}") from None
+    judged = replace(gain_set, status="validated" if result.passed else "candidate", validation=result.to_dict(),
+                     criteria=criteria.to_dict(), inputs={**gain_set.inputs, **(inputs or {}), "seed": seed},
+                     content_sha256=None)
+    return judged, result
