@@ -106,12 +106,12 @@ def render_report(out: Path, records: dict[str, dict[str, Any]], study: ReportSt
     figdir = folder / "figures"
     written: dict[str, Path] = {}
     captions: dict[str, str] = {}
-    names = [n for n in FIGURES if r.has("design") or n not in _DESIGN_FIGURES]
+    pending: list[tuple[Any, Path]] = []  # drawn together at the end (F.save_all)
 
     def put(name: str, fig: Any, caption: str) -> None:
-        written[f"figure-{name}"] = F.save(fig, figdir / f"{name}.pdf")
+        written[f"figure-{name}"] = figdir / f"{name}.pdf"
+        pending.append((fig, written[f"figure-{name}"]))
         captions[name] = caption
-        bar(len(captions), len(names))
 
     # ---- responses -------------------------------------------------------------------------
     responses = read_artifact(r.path("compare", "responses"), "responses")
@@ -181,6 +181,8 @@ def render_report(out: Path, records: dict[str, dict[str, Any]], study: ReportSt
                                                      study.frequency_min_Hz),
             "The first axial natural frequency of the table against its position, with the bolts' preload and "
             "with the stacks at full drive.")
+
+    F.save_all(pending, progress=bar)
 
     # ---- report.json -----------------------------------------------------------------------------
     gain_set = GainSet.load(r.path("validate", "gains"))
