@@ -8,6 +8,7 @@ floors': the tuning (:mod:`piezopreload.tuning.pid`), the comparison
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
@@ -16,6 +17,7 @@ from typing import Any
 
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import InfeasibleError, InputError
+from piezopreload.core.parallel import beside
 from piezopreload.models.actuator import Rig
 from piezopreload.models.closedloop import ClosedLoopRun
 from piezopreload.models.closedloop import simulate as simulate_loop
@@ -150,17 +152,20 @@ def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None =
         raise InputError(f"the feedforward is a '{feedforward.model.kind}' model; tuning runs the classical P-I inverse")
     seed = study.seed if seed is None else seed
     spec, criteria, step, trajectory = study.tuning_spec, study.criteria, study.references["step"], study.references["trajectory"]
-    say("tuning the PID around the compensated plant (CasADi + IPOPT) ...")
+    say("tuning the PID around the compensated plant (CasADi + IPOPT), the minimum-time bound beside it ...")
+    bounding = beside(minimum_time, study.rig, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]),
+                      band_N=study.band_N, u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
     try:
         tuned = tune_pid(study.rig, feedforward.inverse(), spec, progress=iterations)
     except TuningInfeasible as exc:
+        with contextlib.suppress(Exception):  # the bound is not wanted now; only wait for its worker
+            bounding.result()
         raise InfeasibleError(f"{study.path}: {exc}") from exc
     g = tuned.gains
     say(f"tuned in {tuned.seconds:.0f} s: Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s, Td {g.Td_s:.4g} s, Tf {g.Tf_s:.4g} s, "
         f"b {g.b:.3g}")
     say("the lower bound: minimum-time step (optimal control) ...")
-    bound = minimum_time(study.rig, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]),
-                         band_N=study.band_N, u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
+    bound = bounding.result()
     floor = tracking_floor(study.rig, trajectory)
     say("comparing the paper's, the SIMC and the tuned gains on the nominal rig ...")
     table = compare_gains(study.rig, step, trajectory, {"paper": study.gains, "simc": tuned.baseline, "tuned": g},

@@ -22,6 +22,8 @@ import matplotlib as mpl
 import numpy as np
 from matplotlib.figure import Figure
 
+from piezopreload.core.parallel import spare_cpus
+
 __all__ = [
     "STYLE", "COLOURS", "save", "save_all", "hysteresis_loops", "inverse_model", "step_responses", "tracking",
     "stiffness_vs_preload", "pareto_fronts", "preload_schedule", "natural_frequency", "monte_carlo",
@@ -72,11 +74,11 @@ def save_all(figures: Sequence[tuple[Figure, str | Path]], *, workers: int | Non
     """Write each ``(figure, path)`` as :func:`save` does, drawn by ``workers`` processes at once.
 
     Drawing is most of a report's time and the figures are independent: by default one worker
-    per CPU (at most four); ``workers=1``, or a platform without ``fork``, draws them here, one
+    per CPU (at most four, ``PIEZOPRELOAD_WORKERS`` if set); ``workers=1``, or a platform without ``fork``, draws them here, one
     after the other. ``progress(done, total)`` is called as each file is written.
     """
     total = len(figures)
-    n = min(total, os.cpu_count() or 1, 4) if workers is None else max(1, min(workers, total))
+    n = min(total, spare_cpus(), 4) if workers is None else max(1, min(workers, total))
     say = progress or (lambda _i, _n: None)
     if n <= 1 or "fork" not in multiprocessing.get_all_start_methods():
         written = []
