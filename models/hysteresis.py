@@ -58,6 +58,7 @@ __all__ = [
     "InverseCreepPI",
     "InverseStep",
     "inverse_realtime",
+    "inverse_at",
 ]
 
 
@@ -232,6 +233,16 @@ def _inverse_weights(
     w_inv[0] = 1.0 / w[0]
     w_inv[1:] = -w[1:] / (partial[1:] * partial[:-1])
     return r_inv, w_inv
+
+
+def inverse_at(model: Any, sample_period_s: float) -> Any:
+    """``model.inverse()`` for a loop sampled every ``sample_period_s``: a creep bank is resampled exactly first.
+
+    The hysteresis is rate-independent; only the lags' coefficients depend on the period.
+    """
+    if isinstance(model, CreepPI) and model.sample_period_s != float(sample_period_s):
+        model = model.with_sample_period(sample_period_s)
+    return model.inverse()
 
 
 class _RealTimeInverse:
