@@ -75,9 +75,9 @@ def _time_constants(text: str) -> list[float]:
     try:
         values = [float(x) for x in text.split(",")]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a comma-separated list of seconds (example: 0.01,0.1,1,10)") from None
-    if not all(0 < x < float("inf") for x in values) or any(b <= a for a, b in zip(values, values[1:])):
-        raise argparse.ArgumentTypeError(f"'{text}': time constants must be positive, finite and increasing")
+        values = []
+    if not values or not all(0 < x < float("inf") for x in values) or any(b <= a for a, b in zip(values, values[1:])):
+        raise argparse.ArgumentTypeError(f"'{text}' is not a list of positive, increasing times in s (example: 0.01,0.1,1)")
     return values
 
 
@@ -249,8 +249,7 @@ def _print_identify(s: dict[str, Any]) -> None:
         print(f"  {label:40s}{e['rms_pct']:8.3f}{e['max_pct']:8.3f}")
     if s.get("paper_method_note"):
         print(f"  the paper's method (eq. 17) could not run: {s['paper_method_note']}")
-    if s.get("creep"):
-        c = s["creep"]
+    for c in [s["creep"]] if s.get("creep") else []:
         print("creep     " + ", ".join(f"{w:.4g} at {tau:g} s" for tau, w in zip(c["time_constants_s"], c["weights"]))
               + f" ({unit} per input unit); without creep: refitted, not zeroed")
     if s["out"]:

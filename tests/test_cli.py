@@ -84,8 +84,9 @@ def test_identify_with_creep_reports_the_refit_without_it(capsys, tmp_path):
 
 
 @pytest.mark.parametrize("argv, expected", [
-    (("--creep", "--creep-time-constants", "1,0.1"), "must be positive, finite and increasing"),
-    (("--creep", "--creep-time-constants", "a,b"), "not a comma-separated list"),
+    (("--creep", "--creep-time-constants", "1,0.1"), "'1,0.1' is not a list of positive, increasing times in s"),
+    (("--creep", "--creep-time-constants", "a,b"), "'a,b' is not a list of positive, increasing times in s"),
+    (("--creep", "--creep-time-constants", "0,1"), "'0,1' is not a list"),
     (("--creep-time-constants", "0.1,1"), "without creep"),
 ])
 def test_identify_creep_options_are_checked(capsys, argv, expected):
