@@ -359,9 +359,12 @@ class ClassicalPI:
 class InverseClassicalPI(_RealTimeInverse):
     """Inverse of a :class:`ClassicalPI`: ``v = sum_k w'_k F_{r'_k}[O - offset]``, eqs. (19)-(20).
 
-    Built by :meth:`ClassicalPI.inverse`. Its operator states relate to the forward ones by
-    ``z_k = W_k y_k + sum_{i>k} w_i y_i`` (``W_k`` the partial sums of the forward weights),
-    so the inverse can start from any forward state, for example one left by an earlier run.
+    Built by :meth:`ClassicalPI.inverse`. Called on a whole signal it runs the inverse
+    operators, whose states relate to the forward ones by ``z_k = W_k y_k + sum_{i>k} w_i y_i``
+    (``W_k`` the partial sums of the forward weights; :meth:`state_from_forward`), so it can
+    start from any forward state. One sample at a time (:meth:`step`, :meth:`realtime`: the
+    controller's feedforward) it is :class:`InverseStep`, whose state is the forward
+    operators' own.
     """
 
     forward: ClassicalPI
