@@ -70,6 +70,17 @@ def _nonnegative_float(text: str) -> float:
     return value
 
 
+def _time_constants(text: str) -> list[float]:
+    """``'0.01,0.1,1'`` -> positive, increasing time constants in s."""
+    try:
+        values = [float(x) for x in text.split(",")]
+    except ValueError:
+        values = []
+    if not values or not all(0 < x < float("inf") for x in values) or any(b <= a for a, b in zip(values, values[1:])):
+        raise argparse.ArgumentTypeError(f"'{text}' is not a list of positive, increasing times in s (example: 0.01,0.1,1)")
+    return values
+
+
 def _window(text: str | None, option: str) -> Window | None:
     """``'4:7'`` -> ``Window(4, 7)``; bad text raises :class:`InputError` naming ``option``."""
     if text is None:
@@ -185,9 +196,16 @@ def register_identify(sub: Any) -> None:
     p.add_argument("data", nargs="?", metavar="DATA.csv", help="measured record (default: the shipped one)")
     p.add_argument("--columns", help="where time, input and output are: time=I,input=J,output=K")
     p.add_argument("--no-header", action="store_true", help="the file has no header line")
-    p.add_argument("--model", choices=MODELS, default="classical",
+    p.add_argument("--model", choices=[*MODELS, *(m + "+creep" for m in MODELS)], default="classical",
                    help="classical: eq. (15); paper-asymmetric: eq. (18); modified: Kuhnen's model "
-                        "with dead-zone output operators and an exact inverse (default: classical)")
+                        "with dead-zone output operators and an exact inverse (default: classical); "
+                        "'+creep' as --creep")
+    p.add_argument("--creep", action="store_true",
+                   help="add creep (first-order lags on the input) identified in the same QP; the output also "
+                        "gives the test error of the model refitted without creep")
+    p.add_argument("--creep-time-constants", metavar="TAU,...", type=_time_constants,
+                   help="the creep lags' time constants in s, increasing (default: one per decade from 0.01 s "
+                        "to the record's length)")
     p.add_argument("--operators", type=_positive_int, default=40, help="number of play operators (default 40)")
     p.add_argument("--train", metavar="T0:T1", help="training window in s (default: first 70 %% of the record)")
     p.add_argument("--test", metavar="T0:T1", help="test window in s (default: after the training window)")
@@ -205,7 +223,8 @@ def _cmd_identify(args: argparse.Namespace) -> dict[str, Any]:
         columns = parse_columns(args.columns) if args.columns else None
     fit = identify_record(read_record(path, columns=columns, header=header), model=args.model,
                           operators=args.operators, train=_window(args.train, "--train"),
-                          test=_window(args.test, "--test"), ridge=args.ridge)
+                          test=_window(args.test, "--test"), ridge=args.ridge, creep=args.creep,
+                          creep_time_constants_s=args.creep_time_constants)
     return {**fit.to_dict(), "out": None if args.out is None else str(fit.save(args.out))}
 
 
@@ -218,16 +237,21 @@ def _print_identify(s: dict[str, Any]) -> None:
     print(f"solver    {sv['name']}: {sv['status']}{', active set polished' if sv['polished'] else ''}; "
           f"QP {1e3 * sv['qp_seconds']:.1f} ms, whole fit {1e3 * sv['fit_seconds']:.0f} ms")
     print(f"errors in % of the output span ({s['output_span']:.4g} {unit}):")
-    print(f"  {'':34s}{'RMS':>8s}{'max':>8s}")
+    print(f"  {'':40s}{'RMS':>8s}{'max':>8s}")
     rows = [(f"train {s['train']['window_s'][0]:g}-{s['train']['window_s'][1]:g} s", s["train"]),
             (f"test  {s['test']['window_s'][0]:g}-{s['test']['window_s'][1]:g} s", s["test"]),
             ("test, best straight line", s["line_test"])]
     if s["paper_method_test"] is not None:
         rows.append(("test, the paper's method (eq. 17)", s["paper_method_test"]))
+    if s.get("without_creep"):
+        rows.append((f"test, {s['without_creep']['model']} without creep", s["without_creep"]["test"]))
     for label, e in rows:
-        print(f"  {label:34s}{e['rms_pct']:8.3f}{e['max_pct']:8.3f}")
+        print(f"  {label:40s}{e['rms_pct']:8.3f}{e['max_pct']:8.3f}")
     if s.get("paper_method_note"):
         print(f"  the paper's method (eq. 17) could not run: {s['paper_method_note']}")
+    for c in [s["creep"]] if s.get("creep") else []:
+        print("creep     " + ", ".join(f"{w:.4g} at {tau:g} s" for tau, w in zip(c["time_constants_s"], c["weights"]))
+              + f" ({unit} per input unit); without creep: refitted, not zeroed")
     if s["out"]:
         print(f"wrote     {s['out']}")
 

@@ -23,7 +23,6 @@ from piezopreload.models.closedloop import ClosedLoopRun
 from piezopreload.models.closedloop import simulate as simulate_loop
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.gainset import REFERENCES, GainSet, gains_from_dict, gains_to_dict
-from piezopreload.models.hysteresis import ClassicalPI
 from piezopreload.models.metrics import StepMetrics, run_numbers
 from piezopreload.study import Study
 from piezopreload.tuning.calibrate import CONTROLLERS, PAPER_RESULTS
@@ -148,8 +147,6 @@ def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None =
          progress: Callable[[str], None] | None = None, iterations: Callable[[int], None] | None = None) -> TuningResult:
     """The body of :meth:`Study.tune`: tune, bound, compare (``progress`` gets messages, ``iterations`` IPOPT's count)."""
     say = progress or (lambda _m: None)
-    if not isinstance(feedforward.model, ClassicalPI):
-        raise InputError(f"the feedforward is a '{feedforward.model.kind}' model; tuning runs the classical P-I inverse")
     seed = study.seed if seed is None else seed
     spec, criteria, step, trajectory = study.tuning_spec, study.criteria, study.references["step"], study.references["trajectory"]
     say("tuning the PID around the compensated plant (CasADi + IPOPT), the minimum-time bound beside it ...")
@@ -288,8 +285,6 @@ def reproduce(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | N
     t0 = time.perf_counter()
     if repeats < 1:
         raise InputError(f"repeats: must be >= 1, got {repeats}")
-    if not isinstance(feedforward.model, ClassicalPI):
-        raise InputError(f"the feedforward is a '{feedforward.model.kind}' model; the paper's is the classical P-I")
     rep = reproduce_paper(study.rig, study.gains, step=study.references["step"], excitation=study.excitation,
                           seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
                           repeats=repeats, feedforward=feedforward.model, feedforward_fit=feedforward.fit)

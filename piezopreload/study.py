@@ -61,7 +61,7 @@ _SCHEMA: dict[str, Any] = {
         "Kc": _NUM, "Ti": _NUM, "Td": _NUM, "Tf_s": _NUM, "b": _NUM, "units": str, "u_min_V": _NUM, "u_max_V": _NUM,
     },
     "feedforward": {"v_max_V": _NUM, "frequency_Hz": _NUM, "cycles": int, "n_operators": int, "seed": int,
-                    "data": str},
+                    "data": str, "kind": str, "creep": bool},
     "reference": {
         "step": {"initial_N": _NUM, "final_N": _NUM, "t_step_s": _NUM, "duration_s": _NUM},
         "trajectory": {"initial_N": _NUM, "levels_N": list, "hold_s": _NUM, "t_start_s": _NUM},
@@ -130,7 +130,8 @@ class ControllerTable(_Table):
 
 @dataclass(frozen=True)
 class FeedforwardTable(_Table):
-    """[feedforward]: the loop measurement the feedforward is identified from; ``data``: a measured one."""
+    """[feedforward]: the loop measurement the feedforward is identified from (``data``: a measured one), the P-I
+    model's ``kind`` and whether it compensates ``creep`` too."""
 
     v_max_V: float = LoopExcitation.v_max_V
     frequency_Hz: float = LoopExcitation.frequency_Hz
@@ -138,6 +139,8 @@ class FeedforwardTable(_Table):
     n_operators: int = LoopExcitation.n_operators
     seed: int = LoopExcitation.seed
     data: str | None = None
+    kind: str = LoopExcitation.kind
+    creep: bool = LoopExcitation.creep
 
 
 @dataclass(frozen=True)
@@ -433,7 +436,7 @@ class Study:
         levels = self.references["trajectory"].levels_N
         low = float(min(self.references["step"].levels_N.min(), levels.min()))
         ff = identify(self.rig, ex, None if data is None else read_record(data), check_range_N=(low, float(levels.max())))
-        say(f"P-I model: {ff.model.n_operators} operators, fit RMS {ff.fit['rms_pct']:.2f} % "
+        say(f"P-I model ({ff.model.kind}): {ff.model.n_operators} operators, fit RMS {ff.fit['rms_pct']:.2f} % "
             f"(max {ff.fit['max_pct']:.2f} %) of the force span")
         return ff
 
