@@ -42,6 +42,13 @@ class Beside(Generic[T]):
     def in_worker(self) -> bool:
         return self._future is not None
 
+    def discard(self) -> None:
+        """The result is not wanted: return at once (a running worker finishes on its own, unread)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+        self._future = self._pool = None
+        self._value = self._error = None
+
     def result(self) -> T:
         if self._future is not None:
             try:

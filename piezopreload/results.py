@@ -8,7 +8,6 @@ floors': the tuning (:mod:`piezopreload.tuning.pid`), the comparison
 
 from __future__ import annotations
 
-import contextlib
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
@@ -155,13 +154,11 @@ def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None =
     try:
         tuned = tune_pid(study.rig, feedforward.inverse(), spec, progress=iterations)
     except TuningInfeasible as exc:
-        with contextlib.suppress(Exception):  # the bound is not wanted now; only wait for its worker
-            bounding.result()
+        bounding.discard()
         raise InfeasibleError(f"{study.path}: {exc}") from exc
     g = tuned.gains
     say(f"tuned in {tuned.seconds:.0f} s: Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s, Td {g.Td_s:.4g} s, Tf {g.Tf_s:.4g} s, "
         f"b {g.b:.3g}")
-    say("the lower bound: minimum-time step (optimal control) ...")
     bound = bounding.result()
     floor = tracking_floor(study.rig, trajectory)
     say("comparing the paper's, the SIMC and the tuned gains on the nominal rig ...")

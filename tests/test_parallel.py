@@ -32,3 +32,21 @@ def test_an_error_comes_back_with_its_type_and_message(monkeypatch, workers):
     job = beside(_refuse, -1)
     with pytest.raises(InputError, match="x = -1: expected a positive number"):
         job.result()
+
+
+def _slow(x):
+    import time
+
+    time.sleep(1.0)
+    return x
+
+
+def test_a_discarded_job_does_not_hold_its_caller(monkeypatch):
+    import time
+
+    monkeypatch.setenv("PIEZOPRELOAD_WORKERS", "2")
+    job = beside(_slow, 1)
+    t0 = time.perf_counter()
+    job.discard()
+    assert time.perf_counter() - t0 < 0.5, "discard waited for the worker"
+    assert job.result() is None
