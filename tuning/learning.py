@@ -49,7 +49,6 @@ from typing import Any
 import casadi as ca
 import cvxpy as cp
 import numpy as np
-import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.signal import butter, filtfilt
 
@@ -64,7 +63,7 @@ from piezopreload.tuning.pid import tracking_floor, tuning_loop
 from piezopreload.tuning.validate import DEFAULT_SPREAD
 
 __all__ = ["METHODS", "LearningModel", "learning_model", "advance", "zero_phase_lowpass", "PreviewPlan",
-           "preview_plan", "default_preview_s", "preview_feedforward", "p_type_update", "norm_optimal_update",
+           "preview_plan", "default_preview_s", "feedforward_lead", "tune_laws", "preview_feedforward", "p_type_update", "norm_optimal_update",
            "Iteration", "LearningResult", "learn", "learn_from_run", "AFTER_CHANGE_S"]
 
 Array = NDArray[np.float64]
@@ -108,72 +107,96 @@ def zero_phase_lowpass(x: Array, cutoff_Hz: float, dt_s: float, order: int = 2) 
 class LearningModel:
     """The closed loop from ``ff_extra`` to the force, linear, and the learning laws' settings.
 
-    ``g[j]`` is the force ``j`` samples after a 1 V pulse of ``ff_extra`` (N/V; ``g[0] = 0``: the
-    force is read before the command is written). ``delta`` and ``gamma`` set the P-type law's
-    lead and gain, ``q_cutoff_Hz`` its filter; ``u_range_V`` and ``slew_V_per_sample`` bound
-    the norm-optimal law's command; ``weight`` its penalty on the change of the signal.
+    ``A, B, C`` are its state space (``x+ = A x + B u``, force ``C x``: read before the command
+    is written, so the first response is a sample late); ``g`` its impulse response (N/V).
+    The P-type law learns through a PI-shaped filter ``F`` (``sp_gain`` and the trapezoidal
+    integral ``sp_integral_per_s``, the PID's ``Kc / Ti``: at low frequency the loop passes ``F u``
+    to the force as it passes a setpoint, where ``ff_extra`` alone is rejected by the integral);
+    ``delta`` and ``gamma`` set its lead and gain, ``q_cutoff_Hz`` its filter. ``u_range_V`` and
+    ``slew_V_per_sample`` bound the norm-optimal law's command, ``weight`` its penalty on the
+    change of the signal.
     """
 
-    g: Array
+    A: Array
+    B: Array
+    C: Array
     dt_s: float
-    delta: int
-    gamma: float
-    q_cutoff_Hz: float
-    u_range_V: tuple[float, float]
-    slew_V_per_sample: float
-    weight: float
+    delta: int = 1
+    gamma: float = 1.0
+    q_cutoff_Hz: float = np.inf
+    u_range_V: tuple[float, float] = (-np.inf, np.inf)
+    slew_V_per_sample: float = np.inf
+    weight: float = 0.0
+    sp_gain: float = 1.0
+    sp_integral_per_s: float = 0.0
+    length: int = 3000
 
-    def lifted(self, n: int) -> Array:
-        """The lifted matrix ``G`` (``n x n``, lower triangular Toeplitz), dense: for small ``n``."""
-        col = np.zeros(n)
-        m = min(n, self.g.size)
-        col[:m] = self.g[:m]
-        idx = np.arange(n)[:, None] - np.arange(n)[None, :]
-        return np.where(idx >= 0, col[np.clip(idx, 0, n - 1)], 0.0)
+    @property
+    def g(self) -> Array:
+        """Impulse response of ``ff_extra`` to the force, ``length`` samples."""
+        g = np.zeros(self.length)
+        s = self.B[:, 0].astype(float)
+        for j in range(1, self.length):
+            g[j] = float((self.C @ s).ravel()[0])
+            s = self.A @ s
+        return g
 
-    def banded(self, n: int, tol: float = 1e-3) -> sp.csr_matrix:
-        """``G`` as a sparse band: the impulse response cut where it stays below ``tol`` of its peak."""
+    def setpoint_path(self, x: Array) -> Array:
+        """``F x`` along the last axis: ``sp_gain x + sp_integral`` times the trapezoidal integral of ``x``."""
+        x = np.asarray(x, float)
+        if not self.sp_integral_per_s:
+            return self.sp_gain * x
+        area = np.cumsum(x, axis=-1) - 0.5 * x - 0.5 * x[..., :1]  # trapezoids from the first sample
+        return self.sp_gain * x + self.sp_integral_per_s * self.dt_s * area
+
+    def lifted(self, n: int, learning: bool = False) -> Array:
+        """The lifted matrix ``G`` (``n x n``, lower triangular Toeplitz), dense, for small ``n``;
+        ``learning=True`` gives ``L G``'s factor ``G F`` (the loop through the setpoint path)."""
         g = self.g
-        big = np.flatnonzero(np.abs(g) > tol * np.max(np.abs(g)))
-        m = min(int(big[-1]) + 1 if big.size else 1, n)
-        return sp.diags([np.full(n - j, g[j]) for j in range(1, m)], [-j for j in range(1, m)], shape=(n, n),
-                        format="csr")
+        col = np.zeros(n)
+        m = min(n, g.size)
+        col[:m] = g[:m]
+        idx = np.arange(n)[:, None] - np.arange(n)[None, :]
+        G = np.where(idx >= 0, col[np.clip(idx, 0, n - 1)], 0.0)
+        return G @ self.setpoint_path(np.eye(n).T).T if learning else G
 
-    def frequency_response(self, omega: Array) -> Array:
-        """``G(e^{j w dt})`` from the impulse response (rad/s)."""
-        k = np.arange(self.g.size)
-        return np.exp(-1j * np.outer(omega, k) * self.dt_s) @ self.g
+    def frequency_response(self, omega: Array, learning: bool = False) -> Array:
+        """``G(e^{j w dt})`` (rad/s) from the state space; ``learning=True``: ``G F``."""
+        z = np.exp(1j * np.asarray(omega, float) * self.dt_s)
+        n = self.A.shape[0]
+        out = np.array([(self.C @ np.linalg.solve(zk * np.eye(n) - self.A, self.B)).ravel()[0] for zk in z])
+        if learning:
+            zi = 1.0 / z
+            with np.errstate(divide="ignore", invalid="ignore"):
+                out = out * (self.sp_gain + self.sp_integral_per_s * self.dt_s * 0.5 * (1 + zi) / (1 - zi))
+        return out
 
     def q_response(self, omega: Array, order: int = 2) -> Array:
-        """``|Q|`` at ``omega``: the Butterworth magnitude squared (forward and back)."""
-        f = np.asarray(omega) / (2 * np.pi)
+        """``|Q|`` at ``omega``: the digital Butterworth's magnitude squared (it runs forward and back)."""
+        f = np.asarray(omega, float) / (2 * np.pi)
         if self.q_cutoff_Hz >= 0.5 / self.dt_s:
             return np.ones_like(f)
-        # the digital Butterworth's magnitude (bilinear): 1 / (1 + (tan(pi f dt) / tan(pi fc dt))^(2 order))
         ratio = np.tan(np.pi * f * self.dt_s) / np.tan(np.pi * self.q_cutoff_Hz * self.dt_s)
         return 1.0 / (1.0 + ratio ** (2 * order))
 
-    def contraction(self, n_freq: int = 4000) -> float:
-        """``sup_w |Q(w)| |1 - gamma e^{j w delta} G(w)|``: below 1, the P-type law converges monotonically
-        (the lifted operator's 2-norm for long trials)."""
-        omega = np.linspace(0.0, np.pi / self.dt_s, n_freq)
+    def contraction(self, n_freq: int = 2000) -> float:
+        """``sup_w |Q(w)| |1 - gamma e^{j w delta} G(w) F(w)|`` over ``0 < w <= pi/dt``: below 1 the P-type
+        law converges monotonically (the lifted operator's 2-norm for long trials); 1 at DC, where the
+        PID's integral holds the error at 0 by itself."""
+        omega = np.linspace(0.0, np.pi / self.dt_s, n_freq + 1)[1:]
         lead = np.exp(1j * omega * self.delta * self.dt_s)
-        return float(np.max(self.q_response(omega) * np.abs(1.0 - self.gamma * lead * self.frequency_response(omega))))
+        return float(np.max(self.q_response(omega) * np.abs(1.0 - self.gamma * lead *
+                                                             self.frequency_response(omega, learning=True))))
 
 
-def learning_model(params: RigParams, controller: Controller, *, v0_V: float = 50.0, length: int = 3000,
+def learning_model(params: RigParams, controller: Controller, *, v0_V: float = 50.0,
                    q_cutoff_Hz: float | None = None, weight: float | None = None) -> LearningModel:
     """The learning model of a controller on a rig: the one loop step linearised at a hold at ``v0_V``.
 
     The loop is :func:`~piezopreload.tuning.pid.tuning_loop` (the rig's step with its corners
     rounded, the PID; the inverse-P-I feedforward depends on the setpoint alone and drops out of
     the response to ``ff_extra``) with the controller's gains; CasADi gives the Jacobians of its
-    step at rest, and the impulse response follows from them. The P-type lead ``delta`` is the
-    response's peak; ``gamma`` half the largest gain with ``|1 - gamma e^{j w delta} G(w)| <= 1``
-    at every frequency (a gain margin of 2 for the plants' spread and the hysteresis' slope);
-    the Q-filter's cutoff (when not given) the highest frequency at which ``|G|`` is half its
-    peak, so the law learns where the loop passes ``ff_extra`` through. ``weight`` (the
-    norm-optimal law's penalty on ``||du||^2``) defaults to 5 % of ``||g||^2``.
+    step at rest: the state space. The laws' settings follow from it (:func:`tune_laws`).
     """
     if params.batch_shape:
         raise InputError("learning_model: give one plant (the nominal), not a batch")
@@ -188,66 +211,103 @@ def learning_model(params: RigParams, controller: Controller, *, v0_V: float = 5
     step = step_function(loop)
     x, u = ca.SX.sym("x", loop.state.size), ca.SX.sym("u")
     x_next, y = step(x, p, f0, 0.0, u)
-    jac = ca.Function("pp_learning_jacobians", [x, u], [ca.jacobian(x_next, x), ca.jacobian(x_next, u), ca.jacobian(y[0], x)])
+    jac = ca.Function("pp_learning_jacobians", [x, u], [ca.jacobian(x_next, x), ca.jacobian(x_next, u),
+                                                         ca.jacobian(y[0], x)])
     A, B, C = (np.asarray(m, float) for m in jac(x0, 0.0))
-    g = np.zeros(length)
-    s = B[:, 0]
-    for j in range(1, length):
-        g[j] = float((C @ s).ravel()[0])
-        s = A @ s
     dt = params.sample_period_s
-    delta = int(np.argmax(g))
-    model = LearningModel(g, dt, delta, 1.0 / g[delta], 0.5 / dt, (gains.u_min, gains.u_max),
-                          float(params.slew_V_per_s) * dt, 0.0)
-    omega = np.linspace(0.0, np.pi / dt, 4000)[1:]
-    G = model.frequency_response(omega) * np.exp(1j * omega * delta * dt)
-    # the largest gain with |1 - gamma e^{j w delta} G| <= 1 at every frequency, by bisection; half of it
-    # leaves a gain margin of 2 (the hysteresis' slope varies by less than that over the range)
-    lo_g, hi_g = 0.0, 100.0 / float(np.max(np.abs(G)))
-    for _ in range(60):
-        mid = 0.5 * (lo_g + hi_g)
-        lo_g, hi_g = (mid, hi_g) if np.max(np.abs(1.0 - mid * G)) <= 1.0 + 1e-9 else (lo_g, mid)
-    if lo_g <= 0.0:
-        raise InternalError("no learning gain makes the P-type law contract on this loop (the closed loop's "
-                            "phase turns beyond 90 degrees at the impulse response's peak)")
-    gamma = 0.5 * lo_g
-    if q_cutoff_Hz is None:  # learn where the loop passes ff_extra to the force with at least half its peak gain
-        above = np.abs(G) >= 0.5 * np.max(np.abs(G))
-        q_cutoff_Hz = float(omega[np.flatnonzero(above)[-1]] / (2 * np.pi))
+    ki = 0.0 if not np.isfinite(gains.Ti_s) else gains.Kc / gains.Ti_s
+    base = LearningModel(A, B, C, dt, u_range_V=(gains.u_min, gains.u_max),
+                         slew_V_per_sample=float(params.slew_V_per_s) * dt, sp_gain=gains.Kc * gains.b,
+                         sp_integral_per_s=ki)
+    return tune_laws(base, q_cutoff_Hz=q_cutoff_Hz, weight=weight)
+
+
+def tune_laws(model: LearningModel, *, q_cutoff_Hz: float | None = None, weight: float | None = None) -> LearningModel:
+    """The P-type law's filter, lead, gain and Q, and the norm-optimal weight, from ``model``'s response.
+
+    The learning filter is PI-shaped, ``F = k_p + k_i`` (trapezoidal integral), ``k_i`` the PID's
+    ``Kc / Ti`` (so the law's low frequencies pass as a setpoint does) and ``k_p`` searched from the
+    PID's ``Kc b`` up; for each, ``delta`` is the peak of the response through ``F`` and ``gamma``
+    half the largest gain with ``|1 - gamma e^{j w delta} G F| <= 1`` at every frequency (a gain
+    margin of 2, for the plants' spread and the hysteresis' slope). The ``k_p`` kept makes
+    ``|1 - L G|`` smallest on average over 0.1-50 Hz. ``q_cutoff_Hz`` (when not given) is the
+    highest frequency where ``|1 - L G| <= 0.95``: above it the law learns next to nothing and Q
+    keeps the noise out. ``weight`` defaults to 5 % of ``||g||^2``.
+    """
+    dt = model.dt_s
+    omega = np.linspace(0.0, np.pi / dt, 2001)[1:]
+    G0 = model.frequency_response(omega)
+    zi = np.exp(-1j * omega * dt)
+    integ = model.sp_integral_per_s * dt * 0.5 * (1 + zi) / (1 - zi)
+    band = (omega >= 2 * np.pi * 0.1) & (omega <= 2 * np.pi * 50.0)
+    impulse = np.zeros(model.length)
+    impulse[0] = 1.0
+    g = model.g
+    best: tuple[float, LearningModel] | None = None
+    for factor in (1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0):
+        kp = max(model.sp_gain, 1e-6) * factor
+        trial = replace(model, sp_gain=kp)
+        delta = int(np.argmax(np.convolve(g, trial.setpoint_path(impulse))[: model.length]))
+        G = G0 * (kp + integ) * np.exp(1j * omega * delta * dt)
+        re = G.real
+        if np.any(re <= 0):  # no gain contracts at every frequency with this filter
+            continue
+        gamma = 0.5 * float(np.min(2.0 * re / np.abs(G) ** 2))
+        score = float(np.mean(np.abs(1.0 - gamma * G[band])))
+        if best is None or score < best[0]:
+            best = (score, replace(trial, delta=delta, gamma=gamma))
+    if best is None:
+        raise InternalError("no learning gain makes the P-type law contract on this loop: its phase turns beyond "
+                            "90 degrees whatever the lead")
+    tuned = best[1]
+    if q_cutoff_Hz is None:
+        G = tuned.frequency_response(omega, learning=True) * np.exp(1j * omega * tuned.delta * dt)
+        learns = np.abs(1.0 - tuned.gamma * G) <= 0.95
+        q_cutoff_Hz = float(omega[np.flatnonzero(learns)[-1]] / (2 * np.pi)) if learns.any() else 0.5 / dt
     w = 0.05 * float(np.sum(g**2)) if weight is None else float(weight)
-    return replace(model, gamma=gamma, q_cutoff_Hz=float(q_cutoff_Hz), weight=w)
+    return replace(tuned, q_cutoff_Hz=float(q_cutoff_Hz), weight=w)
 
 
 # --------------------------------------------------------------------------------------
 # the laws
 # --------------------------------------------------------------------------------------
 def p_type_update(model: LearningModel, u: Array, e: Array) -> Array:
-    """``Q (u + gamma e(t + delta))`` along the last axis (a batch of plants in the leading ones)."""
-    return zero_phase_lowpass(np.asarray(u, float) + model.gamma * advance(e, model.delta), model.q_cutoff_Hz, model.dt_s)
+    """``Q (u + gamma F e(t + delta))`` along the last axis (a batch of plants in the leading ones)."""
+    step = model.gamma * model.setpoint_path(advance(e, model.delta))
+    return zero_phase_lowpass(np.asarray(u, float) + step, model.q_cutoff_Hz, model.dt_s)
 
 
-def norm_optimal_update(model: LearningModel, u: Array, e: Array, command_V: Array, *,
-                        G: sp.spmatrix | None = None) -> Array:
+def norm_optimal_update(model: LearningModel, u: Array, e: Array, command_V: Array) -> Array:
     """``u + du``, ``du`` minimising ``||e - G du||^2 + weight ||du||^2`` with the command ``command_V + du``
-    inside the range and its change per sample inside the slew (one plant; cvxpy + Clarabel)."""
+    inside the range and its change per sample inside the slew (one plant; cvxpy + Clarabel).
+
+    ``G du`` is the state space's response, written as its equations (``x`` a decision variable
+    per sample), so the QP stays sparse over a long trial. A command the last trial already had
+    outside a limit is held where it was, not made worse.
+    """
     u, e, c = (np.asarray(a, float) for a in (u, e, command_V))
     n = u.size
-    G = model.banded(n) if G is None else G
+    A, B, C = model.A, model.B, model.C
     du = cp.Variable(n)
-    cmd = c + du
+    X = cp.Variable((A.shape[0], n))
+    y = (C @ X).flatten(order="C") if hasattr(cp.Expression, "flatten") else cp.vec(C @ X)
     lo, hi = model.u_range_V
     slew = model.slew_V_per_sample
-    objective = cp.Minimize(cp.sum_squares(e - G @ du) + model.weight * cp.sum_squares(du))
-    # a command the last trial already had outside the limits is held where it was, not made worse
-    constraints = [cmd >= np.minimum(lo, c), cmd <= np.maximum(hi, c),
-                   cp.abs(cp.diff(cmd)) <= np.maximum(slew, np.abs(np.diff(c)))]
-    problem = cp.Problem(objective, constraints)
+    cmd = c + du
+    constraints = [X[:, 0] == 0, X[:, 1:] == A @ X[:, :-1] + B @ cp.reshape(du[:-1], (1, n - 1), order="C")]
+    if np.isfinite(lo):
+        constraints.append(cmd >= np.minimum(lo, c))
+    if np.isfinite(hi):
+        constraints.append(cmd <= np.maximum(hi, c))
+    if np.isfinite(slew):
+        constraints.append(cp.abs(cp.diff(cmd)) <= np.maximum(slew, np.abs(np.diff(c))))
+    problem = cp.Problem(cp.Minimize(cp.sum_squares(e - y) + model.weight * cp.sum_squares(du)), constraints)
     try:
         problem.solve(solver=cp.CLARABEL)
     except cp.error.SolverError as exc:
         raise InternalError(f"the norm-optimal ILC step failed in Clarabel: {exc}") from exc
     if problem.status not in ("optimal", "optimal_inaccurate") or du.value is None:
-        raise InternalError(f"the norm-optimal ILC step ended '{problem.status}'")
+        raise InternalError(f"the norm-optimal ILC step ended '{problem.status}' (Clarabel)")
     return u + np.asarray(du.value, float)
 
 
@@ -526,7 +586,6 @@ def learn(controller: Controller, rig: Rig, reference: Reference, *, iterations:
     batch = sim_rig.params.batch_shape
     n = plan.t_s.size
     u = np.broadcast_to(base, batch + (n,)).copy()  # the learned signal starts as the previewed feedforward
-    G = model.banded(n) if method == "norm-optimal" else None
     history: list[Iteration] = []
     best_err = np.full(batch, np.inf)
     best_u = u.copy()
@@ -567,7 +626,7 @@ def learn(controller: Controller, rig: Rig, reference: Reference, *, iterations:
             u_next = u.copy()
             cmd = run.command_V
             for i in np.ndindex(batch):
-                u_next[i] = norm_optimal_update(model, u[i], e[i], cmd[i], G=G)
+                u_next[i] = norm_optimal_update(model, u[i], e[i], cmd[i])
         u = np.where(active[..., None], u_next, u)
     converged = ~diverged & (change <= settle_tol)
     if best_run is None:  # pragma: no cover - the loop runs at least once
