@@ -28,11 +28,13 @@ from piezopreload.tuning.calibrate import CONTROLLERS, PAPER_RESULTS
 from piezopreload.tuning.calibrate import reproduce as reproduce_paper
 from piezopreload.tuning.compare import compare_gains, reproduction_summary, tracking_improvement
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
+from piezopreload.tuning.learning import LearningResult
+from piezopreload.tuning.learning import learn as learn_loop
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, minimum_time, tracking_floor, tune_pid
 from piezopreload.tuning.validate import ValidationResult
 from piezopreload.tuning.verdict import validate_gain_set
 
-__all__ = ["TuningResult", "StudyRun", "tune", "simulate", "reproduce"]
+__all__ = ["TuningResult", "StudyRun", "tune", "simulate", "reproduce", "learn"]
 
 _STEP_KEYS = ("rise_s", "peak_s", "settling_s", "overshoot_N")
 _TRACK_KEYS = ("tracking_rms_N", "tracking_max_N")
@@ -291,3 +293,23 @@ def reproduce(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | N
     return {"study": {"path": study.path, "sha256": study.sha256, "name": study.name},
             "gains": {**gains_to_dict(study.gains), "read_as": study.controller.units}, "band_N": study.band_N,
             "signal": study.signal, **reproduction_summary(rep), "seconds": time.perf_counter() - t0}
+
+
+def learn(study: Study, gains: GainSet | None, *, reference: Any = "trajectory", iterations: int = 10,
+          preview_s: float | None = None, method: str = "p-type", plants: int | None = None, seed: int | None = None,
+          progress: Callable[[str], None] | None = None) -> LearningResult:
+    """The body of :meth:`Study.learn`: the gain set's controller (or the study's gains with its identified
+    feedforward) on the study's rig; ``reference`` a name of ``study.references`` or a Reference."""
+    if isinstance(reference, str):
+        if reference == "schedule":
+            raise InputError("--reference schedule: the design's preload schedule does not reach the study's references "
+                             "yet; give step, trajectory or a time_s,force_N CSV")
+        if reference not in study.references:
+            raise InputError(f"reference must be one of {', '.join(study.references)} or a CSV, got {reference!r}")
+        reference = study.references[reference]
+    if gains is not None:
+        controller = gains.controller()
+    else:
+        controller = Controller(study.gains, study.rig.sample_period_s, study.identify_feedforward().inverse())
+    return learn_loop(controller, Rig(study.rig), reference, iterations=iterations, preview_s=preview_s, method=method,
+                      plants=plants, seed=study.seed if seed is None else seed, progress=progress)

@@ -43,6 +43,7 @@ from piezopreload.tuning.validate import Criteria
 
 if TYPE_CHECKING:  # the results module imports this one
     from piezopreload.results import StudyRun, TuningResult
+    from piezopreload.tuning.learning import LearningResult
 
 __all__ = ["Study", "load_study", "default_study", "shipped_studies", "DEFAULT_STUDY", "RigRunPlan"]
 
@@ -458,6 +459,23 @@ class Study:
         from piezopreload.results import simulate
 
         return simulate(self, gains, controller=controller, reference=reference, feedforward=feedforward, seed=seed)
+
+    def learn(self, gains: GainSet | None = None, *, reference: Any = "trajectory", iterations: int = 10,
+              preview_s: float | None = None, method: str = "p-type", plants: int | None = None,
+              seed: int | None = None, progress: Callable[[str], None] | None = None) -> LearningResult:
+        """Preview and iterative learning control over a repeated reference: a
+        :class:`~piezopreload.tuning.learning.LearningResult` (``.ff_extra_V``, ``.history``,
+        ``.signal(gain_set_sha256)``, ``.to_dict()``, ``.plot()``); see :func:`piezopreload.tuning.learning.learn`.
+
+        ``gains`` a gain set (its controller) or None (the study's ``[controller]`` with the identified
+        feedforward); ``reference`` a name of :attr:`references` or a ``Reference``; ``preview_s`` None
+        for the default horizon, 0 for none; ``method`` ``p-type`` or ``norm-optimal``; ``plants`` N to
+        learn on N Monte Carlo plants (each its own learning; the result reports the worst).
+        """
+        from piezopreload.results import learn
+
+        return learn(self, gains, reference=reference, iterations=iterations, preview_s=preview_s, method=method,
+                     plants=plants, seed=seed, progress=progress)
 
     def reproduce(self, *, seed: int | None = None, repeats: int = 1,
                   feedforward: IdentifiedFeedforward | None = None) -> dict[str, Any]:
