@@ -25,7 +25,7 @@ response :attr:`LearningModel.g`, taken from the one loop step linearised at a h
 learning control", IEEE Control Systems 26(3), for both):
 
 * Q-filtered P-type with phase lead: ``u_{k+1} = Q (u_k + gamma e_k(t + delta))``; ``Q`` a
-  zero-phase low-pass (a Butterworth filter run forward and backward), ``delta`` the impulse
+  zero-phase low-pass (a Butterworth filter run forward and backward from rest), ``delta`` the impulse
   response's peak and ``gamma`` the gain that makes ``|1 - gamma e^{j w delta} G(w)|``
   smallest over the learning band. In the lifted domain ``u_{k+1} - u_inf = Q (I - L G)(u_k -
   u_inf)``, so ``||Q (I - L G)|| < 1`` gives monotone convergence
@@ -50,7 +50,7 @@ import casadi as ca
 import cvxpy as cp
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import butter, filtfilt
+from scipy.signal import butter, lfilter
 
 from piezopreload.core.errors import InputError, InternalError
 from piezopreload.models.actuator import Rig, RigParams, reach_N
@@ -76,28 +76,32 @@ AFTER_CHANGE_S = 0.1
 # --------------------------------------------------------------------------------------
 # signals
 # --------------------------------------------------------------------------------------
-def advance(x: Array, samples: int) -> Array:
-    """``x`` read ``samples`` ahead along its last axis (``y[k] = x[k + samples]``), the last value held."""
+def advance(x: Array, samples: int, fill: str = "hold") -> Array:
+    """``x`` read ``samples`` ahead along its last axis (``y[k] = x[k + samples]``); past the end the last
+    value is held (``fill="hold"``, a plan's last level) or 0 (``"zero"``, the lifted shift of the laws)."""
     x = np.asarray(x, float)
     if samples < 0:
         raise InputError(f"advance: samples must be >= 0, got {samples}")
     if samples == 0:
         return x.copy()
-    tail = np.repeat(x[..., -1:], min(samples, x.shape[-1]), axis=-1)
+    m = min(samples, x.shape[-1])
+    tail = np.repeat(x[..., -1:], m, axis=-1) if fill == "hold" else np.zeros(x.shape[:-1] + (m,))
     return np.concatenate([x[..., samples:], tail], axis=-1)[..., : x.shape[-1]]
 
 
 def zero_phase_lowpass(x: Array, cutoff_Hz: float, dt_s: float, order: int = 2) -> Array:
-    """The zero-phase low-pass ``Q`` of the P-type law: a Butterworth filter run forward and back.
+    """The zero-phase low-pass ``Q`` of the P-type law: a Butterworth filter run forward, then backward.
 
-    Its magnitude is the filter's squared, its phase zero; ``cutoff_Hz`` at or above Nyquist
-    leaves ``x`` as it is. Edges are padded by reflection (``scipy.signal.filtfilt``).
+    Both passes start at rest, so in the lifted domain ``Q = H^T H`` (``H`` the filter's lower
+    triangular Toeplitz matrix): symmetric, with ``||Q|| <= max |H|^2 = 1``, which the
+    convergence argument needs. ``cutoff_Hz`` at or above Nyquist leaves ``x`` as it is.
     """
     nyquist = 0.5 / dt_s
     if cutoff_Hz >= nyquist:
         return np.asarray(x, float).copy()
     b, a = butter(order, cutoff_Hz / nyquist)
-    return np.asarray(filtfilt(b, a, np.asarray(x, float), axis=-1), float)
+    forward = lfilter(b, a, np.asarray(x, float), axis=-1)
+    return np.asarray(lfilter(b, a, forward[..., ::-1], axis=-1)[..., ::-1], float)
 
 
 # --------------------------------------------------------------------------------------
@@ -273,7 +277,7 @@ def tune_laws(model: LearningModel, *, q_cutoff_Hz: float | None = None, weight:
 # --------------------------------------------------------------------------------------
 def p_type_update(model: LearningModel, u: Array, e: Array) -> Array:
     """``Q (u + gamma F e(t + delta))`` along the last axis (a batch of plants in the leading ones)."""
-    step = model.gamma * model.setpoint_path(advance(e, model.delta))
+    step = model.gamma * model.setpoint_path(advance(e, model.delta, fill="zero"))
     return zero_phase_lowpass(np.asarray(u, float) + step, model.q_cutoff_Hz, model.dt_s)
 
 
