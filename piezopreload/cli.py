@@ -444,21 +444,14 @@ def _cmd_learn(args: argparse.Namespace) -> dict[str, Any]:
     from piezopreload.models.learned import LearnedSignal
     from piezopreload.rig.runlog import read_run_log
     from piezopreload.rig.session import reference_for
-    from piezopreload.tuning.learning import learn_from_run, learning_model
+    from piezopreload.tuning.learning import learn_from_log
 
     gain_set = None if args.gains is None else GainSet.load(args.gains)
     out = Path(args.out) if args.out else None
     if args.from_run or args.learned:
         if not (args.from_run and args.learned and gain_set is not None):
             raise InputError("learn --from-run LOG needs --learned FILE (the signal the run played) and --gains FILE")
-        signal = LearnedSignal.load(args.learned)
-        signal.check(gain_set.content_sha256, None, args.learned)
-        log = read_run_log(args.from_run)
-        keep = log["mode"] == 0
-        model = learning_model(gain_set.plant, gain_set.controller()) if gain_set.plant else None
-        if model is None:
-            raise InputError(f"{args.gains}: the gain set names no plant to build the learning model on")
-        new = learn_from_run(signal, log["measured_N"][keep], log["command_V"][keep], model)
+        new = learn_from_log(LearnedSignal.load(args.learned), read_run_log(args.from_run), gain_set, args.learned)
         path = (out or Path(args.learned).parent) / "learned.json"
         saved = new.save(path)
         return {"from_run": args.from_run, "iteration": saved.iteration, "history": saved.history,
@@ -471,11 +464,8 @@ def _cmd_learn(args: argparse.Namespace) -> dict[str, Any]:
                          method=args.method, plants=args.plants, seed=args.seed, progress=_say)
     summary = result.to_dict()
     if out is not None:
-        signal = result.signal(None if gain_set is None else gain_set.content_sha256,
-                               {"study": study.path, "study_sha256": study.sha256, "gains": args.gains})
-        summary["content_sha256"] = signal.save(out / "learned.json").content_sha256
-        summary["out"] = str(out / "learned.json")
-        result.plot().savefig(out / "learning.png", dpi=120)
+        summary.update(result.save(out, None if gain_set is None else gain_set.content_sha256,
+                                   {"study": study.path, "study_sha256": study.sha256, "gains": args.gains}))
     return summary
 
 

@@ -44,6 +44,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import casadi as ca
@@ -56,6 +57,7 @@ from piezopreload.core.errors import InputError, InternalError
 from piezopreload.models.actuator import Rig, RigParams, reach_N
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller
+from piezopreload.models.gainset import GainSet
 from piezopreload.models.learned import LearnedSignal
 from piezopreload.models.loop import step_function
 from piezopreload.models.ops import NUMPY
@@ -64,7 +66,7 @@ from piezopreload.tuning.validate import DEFAULT_SPREAD
 
 __all__ = ["METHODS", "LearningModel", "learning_model", "advance", "zero_phase_lowpass", "PreviewPlan",
            "preview_plan", "default_preview_s", "feedforward_lead", "tune_laws", "preview_feedforward", "p_type_update", "norm_optimal_update",
-           "Iteration", "LearningResult", "learn", "learn_from_run", "AFTER_CHANGE_S"]
+           "Iteration", "LearningResult", "learn", "learn_from_run", "learn_from_log", "named_reference", "AFTER_CHANGE_S"]
 
 Array = NDArray[np.float64]
 
@@ -496,11 +498,21 @@ class LearningResult:
         return LearnedSignal(u, self.setpoint_N, float(self.model.dt_s), self.reference, gain_set_sha256, best,
                              self.preview_s, self.method, [h.to_dict() for h in self.history], dict(inputs or {}))
 
+    def save(self, folder: str | Path, gain_set_sha256: str | None, inputs: dict[str, Any] | None = None) -> dict[str, Any]:
+        """Write the learned signal (``learned.json``, :meth:`signal`) and the figure (``learning.png``) to ``folder``."""
+        folder = Path(folder)
+        saved = self.signal(gain_set_sha256, inputs).save(folder / "learned.json")
+        self.plot().savefig(folder / "learning.png", dpi=120)
+        return {"out": str(folder / "learned.json"), "content_sha256": saved.content_sha256}
+
     def to_dict(self) -> dict[str, Any]:
         span = float(np.ptp(self.reference.levels_N)) or 1.0
         return {
             "tracking_rms_N": self.tracking_rms_N, "tracking_rms_after_change_N": self.tracking_rms_after_change_N,
             "tracking_rms_pct_of_range": 100.0 * self.tracking_rms_N / span,
+            # the whole trajectory scored from t = 0 (the score above starts at the first change, as the
+            # causal floor's; a previewed ramp that starts before it is not counted there)
+            "tracking_rms_from_start_N": float(np.max(self.run.tracking_error(0.0)["rms"])),
             "causal_floor_N": self.causal_floor_N, "preview_floor_N": self.preview_floor_N,
             "over_preview_floor_ratio": self.tracking_rms_N / self.preview_floor_N if self.preview_floor_N > 0 else None,
             "iterations": len(self.history) - 1, "converged": bool(np.all(self.converged)),
@@ -538,6 +550,19 @@ class LearningResult:
 
 def _scored(run: ClosedLoopRun, reference: Reference) -> ClosedLoopRun:
     return replace(run, reference=reference, reference_N=reference.at(run.t_s))
+
+
+def named_reference(reference: Reference | str, references: dict[str, Reference]) -> Reference:
+    """``reference`` itself, or the one of ``references`` it names (``schedule`` is refused until a design's
+    preload schedule reaches a study's references)."""
+    if isinstance(reference, Reference):
+        return reference
+    if reference == "schedule":
+        raise InputError("--reference schedule: the design's preload schedule does not reach the study's references "
+                         "yet; give step, trajectory or a time_s,force_N CSV")
+    if reference not in references:
+        raise InputError(f"reference must be one of {', '.join(references)} or a CSV, got {reference!r}")
+    return references[reference]
 
 
 def learn(controller: Controller, rig: Rig, reference: Reference, *, iterations: int = 10, preview_s: float | None = None,
@@ -605,6 +630,10 @@ def learn(controller: Controller, rig: Rig, reference: Reference, *, iterations:
         whole = scored.tracking_error()["rms"]
         after = scored.tracking_error(after_change_s=AFTER_CHANGE_S)["rms"]
         e = target - run.measured_N
+        # where the command sat at a limit the plant was out of the loop's authority: nothing to learn there
+        # (learning on would wind the signal up against the limit, as an integral without anti-windup)
+        lo, hi = controller.gains.u_min, controller.gains.u_max
+        e_learn = np.where((run.command_V <= lo + 1e-9) | (run.command_V >= hi - 1e-9), 0.0, e)
         measured = np.sqrt(np.mean(e[..., plan.t_s >= reference.times_s[min(1, reference.times_s.size - 1)]] ** 2, axis=-1))
         history.append(Iteration(k, whole, after, measured))
         say(f"iteration {k}: {float(np.max(whole)):.4g} N RMS (true force), "
@@ -625,12 +654,12 @@ def learn(controller: Controller, rig: Rig, reference: Reference, *, iterations:
         if k == iterations or not active.any():
             break
         if method == "p-type":
-            u_next = p_type_update(model, u, e)
+            u_next = p_type_update(model, u, e_learn)
         else:
             u_next = u.copy()
             cmd = run.command_V
             for i in np.ndindex(batch):
-                u_next[i] = norm_optimal_update(model, u[i], e[i], cmd[i])
+                u_next[i] = norm_optimal_update(model, u[i], e_learn[i], cmd[i])
         u = np.where(active[..., None], u_next, u)
     converged = ~diverged & (change <= settle_tol)
     if best_run is None:  # pragma: no cover - the loop runs at least once
@@ -654,6 +683,17 @@ def _merge_runs(old: ClosedLoopRun, new: ClosedLoopRun, take: Array) -> ClosedLo
     return replace(old, **changes)
 
 
+def learn_from_log(signal: LearnedSignal, log: dict[str, Array], gain_set: GainSet, shown: str = "the learned signal") -> LearnedSignal:
+    """:func:`learn_from_run` from a rig run log's columns (the controlled samples) of ``signal`` played with
+    ``gain_set`` (whose plant and controller give the learning model); a signal of another gain set is refused."""
+    signal.check(gain_set.content_sha256, None, shown)
+    if gain_set.plant is None:
+        raise InputError("the gain set names no plant to build the learning model on; write it again with 'tune'")
+    keep = log["mode"] == 0
+    model = learning_model(gain_set.plant, gain_set.controller())
+    return learn_from_run(signal, log["measured_N"][keep], log["command_V"][keep], model)
+
+
 def learn_from_run(signal: LearnedSignal, measured_N: Array, command_V: Array, model: LearningModel) -> LearnedSignal:
     """One learning update from a rig run of ``signal``: its measured force (and command) per sample
     give the next iteration's signal."""
@@ -664,6 +704,8 @@ def learn_from_run(signal: LearnedSignal, measured_N: Array, command_V: Array, m
     if not (np.all(np.isfinite(y)) and np.all(np.isfinite(c))):
         raise InputError("the run's measured force or command is not finite everywhere (a tripped run?)")
     e = signal.setpoint_N - y
+    lo, hi = model.u_range_V
+    e = np.where((c <= lo + 1e-9) | (c >= hi - 1e-9), 0.0, e)  # no learning where the command sat at a limit
     if signal.method == "norm-optimal":
         u = norm_optimal_update(model, signal.ff_extra_V, e, c)
     else:
