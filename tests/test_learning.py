@@ -157,3 +157,36 @@ def test_the_learned_signal_artifact_is_tied_to_its_gain_set_and_reference(tmp_p
     (tmp_path / "changed.json").write_text(text)
     with pytest.raises(ArtifactError, match="changed after it was written"):
         LearnedSignal.load(tmp_path / "changed.json")
+
+
+def test_learn_rig_playback_and_one_update_per_rig_run(tmp_path, capsys):
+    """'learn --out' writes a signal the rig plays back as learned (its error as in the simulation); a run's log
+    gives the next iteration; another reference is refused (exit 2)."""
+    import json
+    import sys
+
+    sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
+    from rigkit import write_gain_set
+
+    from piezopreload.cli import main
+    from piezopreload.study import load_study
+
+    study = load_study("paper2021")
+    gains = write_gain_set(tmp_path / "gains.json", study, study.identify_feedforward().model)
+    assert main(["learn", "--gains", str(gains), "--iterations", "2", "--out", str(tmp_path / "L"), "--json"]) == 0
+    learned = json.loads(capsys.readouterr().out)
+    assert learned["iterations"] == 2 and learned["preview_floor_N"] < learned["causal_floor_N"]
+    assert main(["rig", "run", str(gains), "--learned", learned["out"], "--fast", "--log-dir", str(tmp_path / "runs"),
+                 "--json"]) == 0
+    run = json.loads(capsys.readouterr().out)
+    best = learned["history"][learned["best_iteration"][0]]
+    assert run["status"] == "completed" and run["learned"]["iteration"] == learned["best_iteration"][0]
+    assert run["learned"]["plan_rms_measured_N"] == pytest.approx(best["measured_rms_N"], rel=0.1), \
+        "the rig's playback does not track the plan as the simulation of the same signal did"
+    assert main(["learn", "--gains", str(gains), "--from-run", run["log_csv"], "--learned", learned["out"],
+                 "--out", str(tmp_path / "L2"), "--json"]) == 0
+    update = json.loads(capsys.readouterr().out)
+    assert update["iteration"] == learned["best_iteration"][0] + 1
+    assert main(["rig", "run", str(gains), "--learned", learned["out"], "--reference", "step", "--fast",
+                 "--log-dir", str(tmp_path / "runs")]) == 2
+    assert "learned on reference" in capsys.readouterr().err
