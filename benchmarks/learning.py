@@ -10,6 +10,12 @@ The paper's study (studies/paper2021.toml): its rig, its gains (Kc 0.3 V/N, Ti 0
   trajectory from the first change, as the floors are scored; targets <= 0.75 N and <= 1.2 x
   ``preview_floor_N``), ``tracking_rms_after_change_N`` (target <= 0.15 N),
   ``tracking_rms_from_start_N`` (scored from t = 0), ``learned_over_paper_ratio``;
+* the floors: ``preview_floor_N`` (the steepest slope anywhere, tracking_floor's argument) and
+  ``preview_floor_branch_N`` (each change along the rig's own hysteresis branch at full slew,
+  tighter); ``plan_rms_after_change_N`` is what the planned force itself scores outside 0.1 s
+  after each jump (a previewed change starts before its jump, and those samples count there);
+  ``tracking_rms_outside_transitions_N`` leaves out the whole transition, from the preview
+  before each jump to 0.1 s after it;
 * the same learning on 50 Monte Carlo plants (each its own learning, the nominal learning
   model): ``mc_converged_plants`` of ``mc_plants`` (target: all), the worst plant's errors.
 
@@ -49,9 +55,11 @@ def main() -> None:
     res = learn(controller, rig, ref, iterations=args.iterations, seed=study.seed)
     d = res.to_dict()
     out.update({k: d[k] for k in ("tracking_rms_N", "tracking_rms_after_change_N", "tracking_rms_from_start_N",
-                                  "tracking_rms_pct_of_range", "causal_floor_N", "preview_floor_N",
+                                  "tracking_rms_outside_transitions_N", "tracking_rms_pct_of_range", "causal_floor_N",
+                                  "preview_floor_N", "preview_floor_branch_N", "plan_rms_after_change_N",
                                   "over_preview_floor_ratio", "iterations", "converged", "best_iteration",
                                   "preview_s")})
+    out["over_branch_floor_ratio"] = d["tracking_rms_N"] / d["preview_floor_branch_N"]
     out["learned_over_paper_ratio"] = d["tracking_rms_N"] / out["paper_tracking_rms_N"]
     out["history_rms_N"] = [h["tracking_rms_N"] for h in d["history"]]
     out["history_after_change_N"] = [h["tracking_rms_after_change_N"] for h in d["history"]]
@@ -66,6 +74,12 @@ def main() -> None:
         out.update({"mc_plants": args.plants, "mc_converged_plants": int(np.sum(mc.converged)),
                     "mc_diverged_plants": int(np.sum(mc.diverged)), "mc_worst_tracking_rms_N": m["tracking_rms_N"],
                     "mc_worst_tracking_rms_after_change_N": m["tracking_rms_after_change_N"],
+                    # as the validation scores: leaving out the samples where the command sat at its limit (plants
+                    # whose stacks cannot reach 100 N within the 110 V the controller may give)
+                    "mc_worst_tracking_rms_unsaturated_N": float(np.max(mc.run.tracking_error(
+                        u_range=(controller.gains.u_min, controller.gains.u_max))["rms"])),
+                    "mc_saturated_plants": int(np.sum(mc.run.tracking_error(
+                        u_range=(controller.gains.u_min, controller.gains.u_max))["saturated_fraction"] > 0)),
                     "mc_median_tracking_rms_N": float(np.median(rows[np.asarray(mc.best), np.arange(rows.shape[1])])),
                     "mc_seconds": time.perf_counter() - t0})
     if args.norm_optimal:

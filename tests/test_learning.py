@@ -190,3 +190,20 @@ def test_learn_rig_playback_and_one_update_per_rig_run(tmp_path, capsys):
     assert main(["rig", "run", str(gains), "--learned", learned["out"], "--reference", "step", "--fast",
                  "--log-dir", str(tmp_path / "runs")]) == 2
     assert "learned on reference" in capsys.readouterr().err
+
+
+def test_the_rigs_own_branch_is_never_faster_than_the_steepest_slope_and_ends_at_each_level():
+    params = RigParams(amp_current_limit_A=0.0142)
+    rate = tracking_floor(params, TRAJECTORY)["rate_N_per_s"] * params.sample_period_s
+    ramps = L.branch_ramps(params, TRAJECTORY.levels_N)
+    assert len(ramps) == TRAJECTORY.levels_N.size - 1
+    for level, start, ramp in zip(TRAJECTORY.levels_N[1:], TRAJECTORY.levels_N[:-1], ramps):
+        steps = np.abs(np.diff(ramp))  # (the first sample may carry the last one's overshoot of its level: < 2 steps)
+        assert np.all(steps <= rate * (1 + 1e-9)), f"a branch step of {steps.max()} N beats the steepest {rate} N"
+        assert abs(ramp[0] - start) <= 2 * rate, "the ramp does not start at its level"
+        assert ramp[-1] == pytest.approx(level), f"the ramp to {level} N ends at {ramp[-1]} N"
+    falling = ramps[3]  # 100 -> 80 N: right after a reversal the branch is flat (1 - alpha of the slope)
+    assert np.abs(falling[1] - falling[0]) < 0.8 * rate, "no slow start after the reversal"
+    plain = L.preview_plan(params, TRAJECTORY, 0.2).rms_N
+    branch = L.preview_plan(params, TRAJECTORY, 0.2, ramps=ramps).rms_N
+    assert branch > plain, "the rig's own branch cannot track better than the steepest-slope bound"

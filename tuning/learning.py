@@ -65,7 +65,7 @@ from piezopreload.tuning.pid import tracking_floor, tuning_loop
 from piezopreload.tuning.validate import DEFAULT_SPREAD
 
 __all__ = ["METHODS", "LearningModel", "learning_model", "advance", "zero_phase_lowpass", "PreviewPlan",
-           "preview_plan", "default_preview_s", "feedforward_lead", "tune_laws", "preview_feedforward", "p_type_update", "norm_optimal_update",
+           "preview_plan", "branch_ramps", "default_preview_s", "feedforward_lead", "tune_laws", "preview_feedforward", "p_type_update", "norm_optimal_update",
            "Iteration", "LearningResult", "learn", "learn_from_run", "learn_from_log", "named_reference", "AFTER_CHANGE_S"]
 
 Array = NDArray[np.float64]
@@ -362,8 +362,41 @@ def feedforward_lead(params: RigParams) -> int:
     return int(params.delay_samples) + 1 + int(round(tau / params.sample_period_s))
 
 
+def branch_ramps(params: RigParams, levels_N: Array, u_max_V: float = 110.0) -> list[Array]:
+    """Per change of ``levels_N``, the fastest force path along the rig's own hysteresis branch.
+
+    The quasi-static rig (:meth:`~piezopreload.models.actuator.Rig.quasi_static_loop`: the truth
+    hysteresis, no creep, no amplifier lag) is driven from rest at 0 V through the levels with the
+    voltage moving at the amplifier's slew, one sample at a time, until the force reaches each
+    level (or the voltage its limit). Along a monotone branch the force is monotone in the
+    voltage, so no command moves it faster: the path is the least-error ramp's shape for that
+    change (just after a reversal the branch is flat, ``1 - alpha`` of the stroke's slope, so the
+    ramp starts slowly). Returns one array per change: the force at each sample of its ramp,
+    ending at the level (or where the voltage limit stops it).
+    """
+    rig = Rig(params)
+    step = float(params.slew_V_per_s) * params.sample_period_s
+    state, v = None, 0.0
+    f_now = float(np.min(params.bolt_preload_N))
+    ramps = []
+    for target in np.asarray(levels_N, float)[1:]:
+        direction = 1.0 if target > f_now else -1.0
+        n_max = int(np.ceil(u_max_V / step)) + 1
+        path = np.clip(v + direction * step * np.arange(1, n_max + 1), 0.0, u_max_V)
+        f, _ = rig.quasi_static_loop(path, state)
+        reached = np.flatnonzero((f - target) * direction >= 0)
+        k = int(reached[0]) + 1 if reached.size else int(np.argmax(path == path[-1])) + 1
+        f, state = rig.quasi_static_loop(path[:k], state)
+        v = float(path[k - 1])
+        ramp = np.concatenate([[f_now], f])
+        ramp = np.clip(ramp, min(f_now, target), max(f_now, target))
+        ramps.append(ramp[1:] if ramp.size > 1 else ramp)
+        f_now = float(f[-1]) if not reached.size else float(target)
+    return ramps
+
+
 def preview_plan(params: RigParams, reference: Reference, preview_s: float, *, u_max_V: float = 110.0,
-                 lead_samples: int | None = None) -> PreviewPlan:
+                 lead_samples: int | None = None, ramps: list[Array] | None = None) -> PreviewPlan:
     """The preview floor and the planned force (see the module docstring).
 
     Per jump the force ramps at ``rate`` (:func:`~piezopreload.tuning.pid.tracking_floor`'s)
@@ -371,7 +404,8 @@ def preview_plan(params: RigParams, reference: Reference, preview_s: float, *, u
     ``[lead - p, lead]`` (``p`` the preview in samples; ``lead`` the delay, the default, for the
     floor, or :func:`feedforward_lead` for the plan a controller can follow); the levels are held
     inside what the voltage range reaches. The jumps' ramps must not overlap (holds longer than a
-    ramp and the preview).
+    ramp and the preview). ``ramps`` (one force path per change, :func:`branch_ramps`) replaces
+    the straight ramps at the one steepest rate by the rig's own branch at full slew.
     """
     if not (np.isfinite(preview_s) and preview_s >= 0):
         raise InputError(f"preview_s must be a finite number >= 0, got {preview_s!r}")
@@ -379,7 +413,6 @@ def preview_plan(params: RigParams, reference: Reference, preview_s: float, *, u
     lead = int(params.delay_samples) if lead_samples is None else int(lead_samples)
     p = int(round(preview_s / dt))
     floor = tracking_floor(params, reference)
-    rho = floor["rate_N_per_s"] * dt
     n = int(round(reference.duration_s / dt)) + 1
     t = np.arange(n) * dt
     r = reference.at(t)
@@ -392,15 +425,22 @@ def preview_plan(params: RigParams, reference: Reference, preview_s: float, *, u
     for j, k in enumerate(k_jumps):
         old, new = levels[j], levels[j + 1]
         size = abs(new - old)
-        n_ramp = int(np.ceil(size / rho - 1e-12)) if size > 0 else 0
+        rho = floor["rate_N_per_s"] * dt
+        if ramps is None:
+            n_ramp = int(np.ceil(size / rho - 1e-12)) if size > 0 else 0
+        else:  # the rig's own path: its samples, then the level (held where the voltage limit stopped it)
+            path = ramps[j]
+            n_ramp = path.size
+            new = float(path[-1])
+            size = abs(new - old)
+        path = None if ramps is None else ramps[j]
         best: tuple[float, int] | None = None
         for s in range(lead - p, lead + 1):
             s0 = int(k) + s
             if s0 < prev_end:
                 continue
             m = np.arange(max(s0, 0), min(s0 + n_ramp + 1, n))
-            ramp = old + np.sign(new - old) * np.minimum((m - s0) * rho, size)
-            err = float(np.sum((r[m] - ramp) ** 2))
+            err = float(np.sum((r[m] - _ramp(m, s0, old, new, rho, path)) ** 2))
             if best is None or err < best[0]:
                 best = (err, s)
         if best is None:
@@ -408,12 +448,20 @@ def preview_plan(params: RigParams, reference: Reference, preview_s: float, *, u
                              "ramp can end; hold each level longer than the slew time and the preview")
         s0 = int(k) + best[1]
         m = np.arange(max(s0, 0), n)  # to the end: the next jump's ramp overwrites from its start
-        force[m] = old + np.sign(new - old) * np.minimum((m - s0) * rho, size)
+        force[m] = _ramp(m, s0, old, new, rho, path)
         starts.append(best[1])
         prev_end = min(s0 + n_ramp + 1, n)
     scored = t >= reference.times_s[1] if reference.times_s.size > 1 else np.ones(n, bool)
     rms = float(np.sqrt(np.mean((r[scored] - force[scored]) ** 2)))
     return PreviewPlan(t, force, rms, floor["rate_N_per_s"], float(preview_s), lead, starts, (lo, hi))
+
+
+def _ramp(m: Array, s0: int, old: float, new: float, rho: float, path: Array | None) -> Array:
+    """The force at samples ``m`` of a change from ``old`` to ``new`` whose last sample at ``old`` is ``s0``:
+    a straight ramp of ``rho`` per sample, or ``path`` (the rig's own, sample by sample) then held."""
+    if path is None:
+        return old + np.sign(new - old) * np.minimum((m - s0) * rho, abs(new - old))
+    return np.where(m <= s0, old, path[np.clip(m - s0 - 1, 0, path.size - 1)])
 
 
 def preview_feedforward(controller: Controller, plan: Array, lead: int) -> Array:
@@ -605,7 +653,10 @@ def learn(controller: Controller, rig: Rig, reference: Reference, *, iterations:
     preview = default_preview_s(params, reference) if preview_s is None else float(preview_s)
     floor_plan = preview_plan(params, reference, preview, u_max_V=controller.gains.u_max)
     lead = feedforward_lead(params) if preview > 0 else 0
-    plan = preview_plan(params, reference, preview, u_max_V=controller.gains.u_max, lead_samples=max(lead, params.delay_samples))
+    ramps = branch_ramps(params, reference.levels_N, controller.gains.u_max)
+    branch_floor = preview_plan(params, reference, preview, u_max_V=controller.gains.u_max, ramps=ramps)
+    plan = preview_plan(params, reference, preview, u_max_V=controller.gains.u_max,
+                        lead_samples=max(lead, params.delay_samples), ramps=ramps)
     causal = tracking_floor(params, reference)["rms_N"]
     setpoint = plan.setpoint if preview > 0 else reference
     target = plan.force_N if preview > 0 else reference.at(plan.t_s)
@@ -662,13 +713,22 @@ def learn(controller: Controller, rig: Rig, reference: Reference, *, iterations:
                 u_next[i] = norm_optimal_update(model, u[i], e_learn[i], cmd[i])
         u = np.where(active[..., None], u_next, u)
     converged = ~diverged & (change <= settle_tol)
+    # with preview a change starts before its jump: what the after-change score counts of the plan itself, and
+    # the score outside whole transitions (from the preview before each jump to 0.1 s after it)
+    plan_run = replace(best_run, force_N=plan.force_N, reference=reference, reference_N=reference.at(plan.t_s))
+    plan_after = float(plan_run.tracking_error(after_change_s=AFTER_CHANGE_S)["rms"])
+    shifted = Reference(np.concatenate([[0.0], np.maximum(reference.times_s[1:] - preview, 1e-9)]), reference.levels_N,
+                        reference.duration_s) if preview > 0 else reference
+    outside = replace(best_run, reference=shifted).tracking_error(after_change_s=AFTER_CHANGE_S + preview)["rms"]
     if best_run is None:  # pragma: no cover - the loop runs at least once
         raise InternalError("learn: no trial ran")
     return LearningResult(ff_extra_V=best_u, setpoint_N=target, history=history, best=best_it,
                           converged=converged, diverged=diverged, run=best_run, reference=reference,
                           causal_floor_N=causal, preview_floor_N=floor_plan.rms_N, preview_s=preview, method=method,
                           model=model, plants=plants, seconds=time.perf_counter() - t0,
-                          info={"plan_rms_N": plan.rms_N, "feedforward_lead_samples": lead})
+                          info={"plan_rms_N": plan.rms_N, "feedforward_lead_samples": lead,
+                                "preview_floor_branch_N": branch_floor.rms_N, "plan_rms_after_change_N": plan_after,
+                                "tracking_rms_outside_transitions_N": float(np.max(outside))})
 
 
 def _merge_runs(old: ClosedLoopRun, new: ClosedLoopRun, take: Array) -> ClosedLoopRun:
