@@ -12,9 +12,13 @@ inside the force the voltage range reaches (:func:`~piezopreload.models.actuator
 at the upper limit, the bolt preload at 0 V). :func:`preview_plan` computes that ramp per jump
 by searching the start (the same argument as the causal floor, computed exactly on the sample
 grid, not a convex program); its RMS error is the **preview floor** (with ``p = 0`` it is the
-causal floor, to rounding), and its force trajectory is the **plan** the controller follows:
+causal floor, to rounding). The steepest slope holds only far along a branch; the rig's own
+branch at full slew (:func:`branch_ramps`: just after a reversal it is flat) gives each change's
+fastest path, a tighter floor for the nominal plant and the **plan** the controller follows:
 the setpoint becomes the plan, and the feedforward reads the plan ahead by the delay and the
-amplifier's lag (:func:`preview_feedforward`), as a previewed ``ff_extra``.
+amplifier's lag (:func:`preview_feedforward`), as a previewed ``ff_extra``. With preview a
+change starts before its jump, so the plan itself scores where a score "outside 0.1 s after
+each jump" counts (``plan_rms_after_change_N`` in :meth:`LearningResult.to_dict`).
 
 **Learning.** A machining cycle repeats, so the error of one cycle can correct the next.
 The learned signal ``u`` enters the loop as ``ff_extra`` (added to the feedforward, before
@@ -24,18 +28,19 @@ response :attr:`LearningModel.g`, taken from the one loop step linearised at a h
 (:func:`learning_model`). Two laws (Bristow, Tharayil, Alleyne 2006, "A survey of iterative
 learning control", IEEE Control Systems 26(3), for both):
 
-* Q-filtered P-type with phase lead: ``u_{k+1} = Q (u_k + gamma e_k(t + delta))``; ``Q`` a
-  zero-phase low-pass (a Butterworth filter run forward and backward from rest), ``delta`` the impulse
-  response's peak and ``gamma`` the gain that makes ``|1 - gamma e^{j w delta} G(w)|``
-  smallest over the learning band. In the lifted domain ``u_{k+1} - u_inf = Q (I - L G)(u_k -
-  u_inf)``, so ``||Q (I - L G)|| < 1`` gives monotone convergence
-  (:meth:`LearningModel.contraction`).
+* Q-filtered P-type with phase lead: ``u_{k+1} = Q (u_k + gamma F e_k(t + delta))``; ``Q`` a
+  zero-phase low-pass (a Butterworth filter run forward and backward from rest), ``F`` a
+  PI-shaped learning filter (the PID's integral rejects ``ff_extra`` at low frequency, where a
+  setpoint passes), ``delta`` the peak of the response through ``F`` and ``gamma`` half the
+  largest gain that keeps ``|1 - gamma e^{j w delta} G F|`` at most 1 (:func:`tune_laws`).
+  In the lifted domain ``u_{k+1} - u_inf = Q (I - L G)(u_k - u_inf)``, so
+  ``||Q (I - L G)|| < 1`` gives monotone convergence (:meth:`LearningModel.contraction`).
 * Norm-optimal (Amann, Owens, Rogers 1996): ``du = argmin ||e_k - G du||^2 + w ||du||^2``
   subject to the command's range and the amplifier's slew, a QP (cvxpy + Clarabel); the
   command after the update is predicted as the last trial's plus ``du``.
 
-The error is read on the *measured* force, as a rig would; the reported errors are of the
-true force. A divergence guard stops a plant's learning when its error grows past the best by
+The error is read on the *measured* force, as a rig would (and not learned where the command
+sat at a limit); the reported errors are of the true force. A divergence guard stops a plant's learning when its error grows past the best by
 ``grow_tol`` and keeps the best iterate.
 """
 
