@@ -28,7 +28,7 @@ from piezopreload.tuning.calibrate import CONTROLLERS, PAPER_RESULTS
 from piezopreload.tuning.calibrate import reproduce as reproduce_paper
 from piezopreload.tuning.compare import compare_gains, reproduction_summary, tracking_improvement
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
-from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, minimum_time, tracking_floor, tune_pid
+from piezopreload.tuning.pid import TuningInfeasible, minimum_time, tracking_floor, tune_pid
 from piezopreload.tuning.validate import ValidationResult
 from piezopreload.tuning.verdict import validate_gain_set
 
@@ -170,17 +170,11 @@ def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None =
     if feedforward.model_sha256:
         inputs["feedforward_sha256"] = feedforward.model_sha256
     return TuningResult(
-        study, feedforward, g, tuned.baseline, {**tuned.to_dict(), "spec": _spec_dict(spec)}, table,
+        study, feedforward, g, tuned.baseline, {**tuned.to_dict(), "spec": spec.to_dict()}, table,
         {"settling_s": bound["settling_s"],
          "tuned_over_bound_ratio": None if settle is None else settle / bound["settling_s"]},
         {**floor, "tuned_over_floor_ratio": row["tracking_rms_N"] / floor["rms_N"]}, tracking_improvement(table),
         inputs)
-
-
-def _spec_dict(spec: TuningSpec) -> dict[str, Any]:
-    return {"band_N": spec.band_N, "overshoot_margin_N": spec.overshoot_margin_N, "ms_max": spec.ms_max,
-            "noise_gain_max_V_per_N": spec.noise_gain_max_V_per_N, "u_min_V": spec.u_min_V, "u_max_V": spec.u_max_V,
-            "tune_setpoint_weight": spec.tune_setpoint_weight, "variants": dict(spec.variants)}
 
 
 _STUDY = object()  # step_metrics' default: the study's band and signal
@@ -250,7 +244,7 @@ def simulate(study: Study, gains: GainSet | PIDGains | None, *, controller: str 
                        "operators": gains.feedforward.n_operators}
         else:
             ff = feedforward or study.identify_feedforward()
-            inverse, ff_info = ff.inverse(), _feedforward_info(ff)
+            inverse, ff_info = ff.inverse(), ff.describe()
     seed = study.seed if seed is None else seed
     run = simulate_loop(rig, Controller(pid, rig.dt_s, inverse), study.references[reference], seed=seed)
     info = {"study": {"path": study.path, "sha256": study.sha256, "name": study.name}, "controller": controller,
@@ -258,19 +252,6 @@ def simulate(study: Study, gains: GainSet | PIDGains | None, *, controller: str 
             "sample_period_s": rig.dt_s}
     return StudyRun(**{f.name: getattr(run, f.name) for f in fields(run)}, band_N=study.band_N, signal=study.signal,
                     info=info)
-
-
-def _feedforward_info(ff: IdentifiedFeedforward) -> dict[str, Any]:
-    src = ff.source
-    if src.get("kind") == "simulated":
-        ex = src["excitation"]
-        where = f"identified from a simulated {ex['v_max_V']:g} V, {ex['frequency_Hz']:g} Hz loop measurement of the rig"
-    else:
-        where = f"identified from the measured loop {src.get('path')}"
-    out = {"source": where, "model": ff.model.kind, "operators": ff.model.n_operators}
-    if ff.fit:
-        out.update(fit_rms_pct=ff.fit["rms_pct"], fit_max_pct=ff.fit["max_pct"])
-    return out
 
 
 def reproduce(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None = None,

@@ -101,6 +101,19 @@ class IdentifiedFeedforward:
         """The feedforward itself: desired force -> command voltage, eqs. (19)-(20) (with creep: :class:`InverseStep`)."""
         return self.model.inverse()
 
+    def describe(self) -> dict[str, Any]:
+        """Where the feedforward came from and how well it fits, in words and numbers (a simulation's record)."""
+        src = self.source
+        if src.get("kind") == "simulated":
+            ex = src["excitation"]
+            where = f"identified from a simulated {ex['v_max_V']:g} V, {ex['frequency_Hz']:g} Hz loop measurement of the rig"
+        else:
+            where = f"identified from the measured loop {src.get('path')}"
+        out = {"source": where, "model": self.model.kind, "operators": self.model.n_operators}
+        if self.fit:
+            out.update(fit_rms_pct=self.fit["rms_pct"], fit_max_pct=self.fit["max_pct"])
+        return out
+
     def info(self) -> dict[str, Any]:
         """How the feedforward was identified, as a gain set records it."""
         out = {"source": self.source, "fit": self.fit}
