@@ -52,7 +52,7 @@ def main() -> None:
     rel = max(abs(getattr(compiled.gains, k) - getattr(plain.gains, k)) / abs(getattr(plain.gains, k))
               for k in ("Kc", "Ti_s", "Td_s", "Tf_s", "b"))
 
-    kw = dict(n_plants=N_PLANTS, seed=study.validation_seed, step=study.references["step"],
+    kw = dict(n_plants=N_PLANTS, seed=study.seed if study.validation.seed is None else study.validation.seed, step=study.references["step"],
               trajectory=study.references["trajectory"])
     seconds, results = {}, {}
     for workers in (1, 2):
