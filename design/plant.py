@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from piezopreload.core.errors import InputError
-from piezopreload.design.preload import DesignOptimum, DesignSpec
+from piezopreload.design.preload import DesignOptimum, DesignPoint, DesignSpec
 from piezopreload.models.actuator import RigParams, bouc_wen_increment
 from piezopreload.models.ballscrew import BallScrew
 
@@ -89,7 +89,8 @@ class DesignedPlant:
         return {"rig": self.rig.to_dict(), "design_sha256": self.design_sha256,
                 "bolt_preload_N": self.bolt_preload_N, "max_preload_N": self.max_preload_N,
                 "stack_force_max_N": self.max_preload_N - self.bolt_preload_N,
-                "sleeve_stiffness_N_per_um": self.sleeve_stiffness_N_per_um,
+                "sleeve_stiffness_N_per_um": (None if math.isinf(self.sleeve_stiffness_N_per_um)
+                                              else self.sleeve_stiffness_N_per_um),
                 "nut_hertz_um_per_N23": float(self.rig.hertz_um_per_N23),
                 "nut_structural_um_per_N": self.nut_structural_um_per_N,
                 "screw": {"nominal_diameter_mm": s.nominal_diameter_mm, "lead_mm": s.lead_mm, "ball_mm": s.ball_mm,
@@ -101,9 +102,9 @@ class DesignedPlant:
                     "at_max": float(self.rig.local_stiffness_N_per_um(self.max_preload_N - self.bolt_preload_N))}}
 
 
-def plant_from_design(spec: DesignSpec, optimum: DesignOptimum, hardware: RigParams, *, design_sha256: str,
-                      sleeve_stiffness_N_per_um: float = math.inf) -> DesignedPlant:
-    """The plant of the design ``optimum`` (module docstring).
+def plant_from_design(spec: DesignSpec, design: DesignOptimum | DesignPoint, hardware: RigParams, *,
+                      design_sha256: str, sleeve_stiffness_N_per_um: float = math.inf) -> DesignedPlant:
+    """The plant of ``design``, an optimum or its point (module docstring).
 
     ``hardware`` gives what the design does not set: the amplifier's bandwidth and range, the
     force sensors (range, bits, noise), the stacks' hysteresis and creep, the sample period and
@@ -115,7 +116,7 @@ def plant_from_design(spec: DesignSpec, optimum: DesignOptimum, hardware: RigPar
     if not (sleeve_stiffness_N_per_um > 0):
         raise InputError(f"sleeve_stiffness_N_per_um: must be > 0 (inf for a rigid sleeve), got "
                          f"{sleeve_stiffness_N_per_um!r}")
-    p = optimum.point
+    p = design.point if isinstance(design, DesignOptimum) else design
     screw = spec.screw(p)
     act = spec.actuator
     # the data sheet's nominal travel is the rising branch's at 100 V, hysteresis included: the

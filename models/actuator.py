@@ -336,8 +336,9 @@ class RigParams:
 
 _HERTZ = ("hertz_um_per_N23", "hertz_preload_N")
 
-#: Newton steps of :func:`hertz_force`, from an upper bound of the root: enough for 1e-9 relative
-HERTZ_NEWTON_STEPS = 8
+#: Newton steps of :func:`hertz_force` from an upper bound of the root: 5 leave under 1e-11 N on a designed
+#: system (4 leave 1e-8 N, 3 leave 2e-3 N; quadratic convergence)
+HERTZ_NEWTON_STEPS = 5
 
 
 def hertz_force(ops: Ops, x_um: Any, keff_N_per_um: Any, hertz_um_per_N23: Any, preload_N: Any) -> Any:
