@@ -555,4 +555,22 @@ def _result(out: Path, study: Study, stages: list[dict[str, Any]], seconds: floa
         "gain_set_sha256": records.get("validate", {}).get("summary", {}).get("content_sha256"),
         "rig_log": (str(out / records["rig"]["outputs"]["log_csv"]["path"])
                     if records.get("rig", {}).get("status") == "done" else None),
+        "summary": _summary(records),
     }
+
+
+#: what ``run --json``'s summary takes from the system stage (None where the study has none)
+SUMMARY_KEYS = ("tracking_rms_pct_of_range", "tracking_rms_N", "tracking_max_N", "rigidity_min_cutting_N_per_um",
+                "rigidity_required_N_per_um", "rigidity_ratio_min", "deflection_max_um", "friction_energy_per_cycle",
+                "constant_friction_energy_per_cycle", "preload_margin_N")
+
+
+def _summary(records: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """The study's headline numbers: the whole system's (the system stage), the gain set's status, the rig run's."""
+    system = records.get("system", {})
+    numbers = system.get("summary", {}) if system.get("status") == "done" else {}
+    out: dict[str, Any] = {k: numbers.get(k) for k in SUMMARY_KEYS}
+    out["system"] = system.get("status", "not run")
+    out["gain_set_status"] = records.get("validate", {}).get("summary", {}).get("status")
+    out["rig_tracking_rms_N"] = records.get("rig", {}).get("summary", {}).get("tracking_rms_N")
+    return out

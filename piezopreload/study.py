@@ -8,7 +8,7 @@ is checked on load: an unknown key, a wrong type or an out-of-range value is an
 :class:`~piezopreload.core.errors.InputError` naming the file, the line and the key's path.
 
 >>> import piezopreload as pp
->>> study = pp.load_study()                            # the paper's study, shipped
+>>> study = pp.load_study("paper2021")                 # the paper's study, shipped
 >>> study.rig.bolt_preload_N
 25.0
 >>> study.replace(rig={"bolt_preload_N": 30.0}).rig.bolt_preload_N
@@ -47,9 +47,11 @@ from piezopreload.tuning.validate import Criteria
 if TYPE_CHECKING:  # the results module imports this one
     from piezopreload.results import StudyRun, TuningResult
 
-__all__ = ["Study", "load_study", "default_study", "shipped_studies", "DEFAULT_STUDY", "RigRunPlan", "PlantTable"]
+__all__ = ["Study", "load_study", "default_study", "paper_study", "shipped_studies", "DEFAULT_STUDY", "PAPER_STUDY",
+           "RigRunPlan", "PlantTable"]
 
-DEFAULT_STUDY = "paper2021"
+DEFAULT_STUDY = "machine_axis"  # the whole system: the designed preload system is the plant
+PAPER_STUDY = "paper2021"       # the paper's rig and gains
 
 _NUM = NUMBER
 _RIG_SCALARS = {f.name for f in fields(RigParams)} - {"stack", "creep_tau_s", "n_stacks", "adc_bits", "delay_samples"}
@@ -580,12 +582,18 @@ def shipped_studies() -> dict[str, Path]:
 
 
 def default_study() -> Path:
-    """The default study's file as shipped with the package (the paper's)."""
+    """The default study's file as shipped with the package (the machine axis, the whole system)."""
     return shipped_studies()[DEFAULT_STUDY]
 
 
+def paper_study() -> Path:
+    """The paper's study as shipped with the package (the rig and gains of Zhang, Jin, Lin 2021)."""
+    return shipped_studies()[PAPER_STUDY]
+
+
 def load_study(study: str | Path | None = None) -> Study:
-    """Read and validate a study: None for the default, a shipped study's name (``"paper2021"``), or a file."""
+    """Read and validate a study: None for the default (``machine_axis``), a shipped study's name
+    (``"paper2021"``), or a file."""
     if study is None:
         path = default_study()
     elif isinstance(study, str) and not study.endswith(".toml") and study in shipped_studies():
