@@ -218,7 +218,7 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec)
     # ---- the schedule: decision variables, objective, constraints, initial guess, solve ----
     y = ca.MX.sym("y", n)
     F = scale * y
-    g_stiff = (k_map(F.T - margin, Fa.reshape(1, -1)).T - required) / 100.0
+    g_stiff = (k_map(ca.fmax(F.T - margin, 1.0), Fa.reshape(1, -1)).T - required) / 100.0
     slew_step = spec.slew_N_per_s * np.diff(profile.time_s)
     g_slew = (F[1:] - F[:-1]) / scale
     # where the screw stands still the energy does not see the preload: a small time-weighted

@@ -10,12 +10,14 @@ the machine runs); the loop (the tuned gains with the inverse-P-I feedforward, a
 * the tracking error, RMS and worst, also in % of the schedule's range;
 * the axial rigidity the double nut has at the achieved preload under each sample's cutting
   load (:meth:`BallScrew.nut_loads`), against the requirement the schedule was planned for,
-  and the axial deflection under the cutting load;
+  the achieved preload against the lift-off bound with the schedule's margin
+  (``lift_off_margin |F_a| / 2^(3/2)``, the other requirement the schedule keeps), and the axial
+  deflection under the cutting load;
 * the friction energy of the achieved preload against the plan's and the best constant
   preload's.
 
 **The control's room.** The schedule keeps its requirements at the planned preload; the loop
-lags it. When the achieved rigidity falls below the requirement somewhere, the schedule is
+lags it. When the achieved preload misses a requirement somewhere (rigidity or lift-off), the schedule is
 planned again with a preload margin ``m``: every requirement must hold at ``F_p - m``
 (:class:`ScheduleSpec.preload_margin_N`), with ``m`` the largest shortfall of the achieved
 preload below the plan while the requirement binds (times ``margin_factor``), and the loop runs
@@ -35,6 +37,7 @@ from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.design.plant import DesignedPlant
 from piezopreload.design.schedule import PreloadSchedule, schedule_preload
 from piezopreload.models.actuator import Rig
+from piezopreload.models.ballscrew import LIFT_OFF_RATIO
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller
 
@@ -156,7 +159,10 @@ def evaluate_tracking(plant: DesignedPlant, schedule: PreloadSchedule, run: Clos
         omega = np.ones_like(t_cycle)
     dt = float(run.t_s[1] - run.t_s[0])
     weight = float(screw.drag_torque_Nm(1.0)) * omega * dt
-    binding = cutting & (planned_rigidity <= (1.0 + _BINDING) * required)
+    # the schedule's other requirement: no lift-off, with its margin (the catalogues' rule, as the schedule plans)
+    lift_bound = schedule.spec.lift_off_margin * np.abs(load) / LIFT_OFF_RATIO
+    lift_ratio = np.where(cutting, achieved / np.maximum(lift_bound, 1e-9), np.inf)
+    binding = cutting & ((planned_rigidity <= (1.0 + _BINDING) * required) | (planned <= (1.0 + _BINDING) * lift_bound))
     shortfall = np.where(binding, planned - achieved, 0.0)
     return {
         "tracking_rms_N": float(np.sqrt(np.mean(error**2))), "tracking_max_N": float(np.max(np.abs(error))),
@@ -167,6 +173,9 @@ def evaluate_tracking(plant: DesignedPlant, schedule: PreloadSchedule, run: Clos
         "rigidity_below_requirement_s": float(np.sum(cutting & (rigidity < required)) * dt),
         "deflection_max_um": float(np.max(np.abs(np.where(cutting, deflection, 0.0)))),
         "deflection_limit_um": float(schedule.spec.deflection_max_um),
+        "lift_off_ratio_min": float(np.min(lift_ratio)),
+        "lift_off_margin": float(schedule.spec.lift_off_margin),
+        "requirements_met": bool(ratio[worst] >= 1.0 and np.min(lift_ratio) >= 1.0),
         "preload_shortfall_max_N": float(np.max(shortfall, initial=0.0)),
         "friction_energy_per_cycle": float(np.dot(weight, achieved) / cycles),
         "planned_friction_energy_per_cycle": float(np.dot(weight, planned) / cycles),
@@ -206,17 +215,19 @@ def track_schedule(plant: DesignedPlant, controller: Controller, schedule: Prelo
         series = numbers.pop("_series")
         record.append({"pass": k + 1, "preload_margin_N": current.spec.preload_margin_N,
                        **{key: numbers[key] for key in ("tracking_rms_N", "tracking_rms_pct_of_range",
-                                                        "rigidity_ratio_min", "preload_shortfall_max_N",
+                                                        "rigidity_ratio_min", "lift_off_ratio_min",
+                                                        "requirements_met", "preload_shortfall_max_N",
                                                         "friction_energy_per_cycle")}})
         say(f"pass {k + 1}: margin {current.spec.preload_margin_N:.1f} N, tracking RMS "
             f"{numbers['tracking_rms_N']:.2f} N ({numbers['tracking_rms_pct_of_range']:.2f} % of the range), "
-            f"least rigidity / requirement {numbers['rigidity_ratio_min']:.3f}")
-        if numbers["rigidity_ratio_min"] >= 1.0 or k + 1 == passes:
+            f"least rigidity / requirement {numbers['rigidity_ratio_min']:.3f}, least preload / lift-off bound "
+            f"{numbers['lift_off_ratio_min']:.3f}")
+        if numbers["requirements_met"] or k + 1 == passes:
             break
         margin = current.spec.preload_margin_N + margin_factor * max(numbers["preload_shortfall_max_N"], 1.0)
         try:
             current = schedule_preload(plant.screw, current.profile, replace(current.spec, preload_margin_N=margin))
-        except ValueError as exc:
+        except (ValueError, RuntimeError) as exc:
             raise InfeasibleError(f"the schedule cannot leave the force loop a margin of {margin:.1f} N: {exc}") from exc
     planned, achieved, load, rigidity, required, planned_rigidity, deflection, cutting = series
     return SystemRun(schedule=current, plant=plant, cycles=cycles, run=run, t_s=run.t_s, planned_N=planned,
