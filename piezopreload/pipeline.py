@@ -6,16 +6,26 @@ versioned artifacts into the output folder:
 ==========  ==================================================================  ==========================
 stage       what it does                                                        writes
 ==========  ==================================================================  ==========================
-identify    the feedforward's P-I model from the loop measurement (simulated    feedforward/model.json,
-            on the rig's truth model, or the study's ``[feedforward] data``)     feedforward/loop.csv
 design      ball-screw preload optimum, Pareto fronts, preload schedule          design/design.json + CSVs
+plant       the designed preload system as the plant (``[plant] from_design``)   plant.json
+identify    the feedforward's P-I model from the loop measurement (simulated    feedforward/model.json,
+            on the plant's truth model, or the study's ``[feedforward] data``)   feedforward/loop.csv
 tune        PID gains around the compensated plant (CasADi), compared, bounded  tuning.json
 validate    the tuned gains on a Monte Carlo set of nonlinear rigs              gains.json, validation.json
 compare     step and trajectory, paper's and tuned gains, with/without FF       responses/
+system      the controlled preload along the design's schedule: rigidity and    system/system.json,
+            deflection while cutting, friction energy, the margin it needs      system/reference.csv
 export      the validated gain set in the study's controller formats            exports/
 rig         the validated gains on the rig executor (simulated by default)      runs/run-*.csv + .json
 report      figures and the PDF (Typst)                                          report/, report.pdf
 ==========  ==================================================================  ==========================
+
+A study without ``[plant] from_design`` (the paper's) runs on its ``[rig]``: plant and system do
+not apply. With it, identify, tune, validate and compare run on the designed plant (the
+study with ``plant.json``'s rig as its ``[rig]``), and their keys include the plant's hash: a
+changed design makes another plant and everything after it runs again. Learning control
+enters as one more stage between validate and system, its correction passed to
+:meth:`Study.track_schedule` (``ff_extra_V``).
 
 Every stage has a key: the SHA-256 of its study tables, of the artifacts it reads, of the
 files the study names for it and of the code it runs. ``pipeline.json`` records each stage's
