@@ -25,11 +25,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from piezopreload.core.artifacts import write_artifact
 from piezopreload.core.errors import InputError
 from piezopreload.design.preload import DesignOptimum, DesignPoint, DesignSpec
 from piezopreload.models.actuator import RigParams, bouc_wen_increment
@@ -82,6 +84,11 @@ class DesignedPlant:
         dx = (self.rig.stroke_for_force_um(f + step_N) - self.rig.stroke_for_force_um(f - step_N)) / (2.0 * step_N)
         nuts = dx - 1.0 / self.rig.stack_stiffness_N_per_um - 1.0 / self.sleeve_stiffness_N_per_um
         return 4.0 / nuts
+
+    def save(self, path: str | Path, inputs: dict[str, Any]) -> Path:
+        """Write the plant artifact (kind ``plant``): :meth:`to_dict` and ``inputs``."""
+        write_artifact(path, "plant", {**self.to_dict(), "inputs": inputs})
+        return Path(path)
 
     def to_dict(self) -> dict[str, Any]:
         """The plant artifact's body: the rig and its origin."""

@@ -28,12 +28,15 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from piezopreload.core.artifacts import write_artifact
 from piezopreload.core.errors import InfeasibleError, InputError
+from piezopreload.core.tables import write_csv
 from piezopreload.design.plant import DesignedPlant
 from piezopreload.design.schedule import PreloadSchedule, schedule_preload
 from piezopreload.models.actuator import Rig
@@ -112,6 +115,17 @@ class SystemRun:
             "planned_rigidity_N_per_um": self.planned_rigidity_N_per_um[sl].tolist(),
             "deflection_um": self.deflection_um[sl].tolist(), "voltage_V": self.run.voltage_V[sl].tolist(),
             "cutting": self.cutting[sl].astype(int).tolist()}}
+
+    def save(self, folder: str | Path, inputs: dict[str, Any]) -> dict[str, Path]:
+        """Write ``system.json`` (kind ``system``: :meth:`to_dict` and ``inputs``) and ``reference.csv`` (the
+        loop's reference at its rate, ``time_s,force_N``: what the rig executor plays) into ``folder``."""
+        folder = Path(folder)
+        paths = {"system": folder / "system.json", "reference": folder / "reference.csv"}
+        write_artifact(paths["system"], "system", {**self.to_dict(), "inputs": inputs})
+        write_csv(paths["reference"], {"time_s": self.run.t_s, "force_N": self.run.reference_N},
+                  f"the stacks' share of the preload schedule (less the bolts' {self.plant.bolt_preload_N:.1f} N), "
+                  f"{self.cycles} cycles, margin {self.margin_N:.1f} N")
+        return paths
 
     def plot(self) -> Any:
         """Planned against achieved preload, rigidity against the requirement, deflection: a Figure."""

@@ -255,35 +255,23 @@ def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
 
 def _stage_plant(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     plant = ctx.designed_plant()
-    path = ctx.out / "plant.json"
+    path = plant.save(ctx.out / "plant.json", {"design": ctx.rel(ctx.output("design", "design")),
+                                               "design_sha256": plant.design_sha256, "study_sha256": ctx.study.sha256})
     body = plant.to_dict()
-    write_artifact(path, "plant", {**body, "inputs": {"design": ctx.rel(ctx.output("design", "design")),
-                                                      "design_sha256": plant.design_sha256,
-                                                      "study_sha256": ctx.study.sha256}})
     k = body["local_stiffness_N_per_um"]
     ctx.progress.say(f"{plant.rig.n_stacks} x {plant.rig.stack.name}, stacks' share 0-{body['stack_force_max_N']:.0f} N, "
-                     f"force per um {k['at_bolts']:.0f}-{k['at_max']:.0f} N/um over the range, slew "
-                     f"{body['slew_V_per_s']:.0f} V/s")
-    return {"plant": path}, {"design_sha256": plant.design_sha256, "stack_force_max_N": body["stack_force_max_N"],
-                             "local_stiffness_N_per_um": k, "bolt_preload_N": plant.bolt_preload_N}
+                     f"{k['at_bolts']:.0f}-{k['at_max']:.0f} N/um of stroke over the range, slew {body['slew_V_per_s']:.0f} V/s")
+    return {"plant": path}, {key: body[key] for key in ("design_sha256", "stack_force_max_N", "local_stiffness_N_per_um",
+                                                      "bolt_preload_N")}
 
 
 def _stage_system(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
-    study = ctx.study
-    plant, point = ctx.designed_plant(), ctx.design_point()
-    gain_set = GainSet.load(ctx.output("validate", "gains"))
-    result = study.track_schedule(plant, study.schedule_for(point), gain_set, progress=ctx.progress.say)
-    d = ctx.out / "system"
-    path, csv = d / "system.json", d / "reference.csv"
-    write_artifact(path, "system", {**result.to_dict(), "inputs": {
+    study, gain_set = ctx.study, GainSet.load(ctx.output("validate", "gains"))
+    plant = ctx.designed_plant()
+    result = study.track_schedule(plant, study.schedule_for(ctx.design_point()), gain_set, progress=ctx.progress.say)
+    return result.save(ctx.out / "system", {
         "gain_set_sha256": gain_set.content_sha256, "design_sha256": ctx.sha256("design", "design"),
-        "plant_sha256": ctx.sha256("plant", "plant"), "study_sha256": study.sha256}})
-    run = result.run
-    write_csv(csv, {"time_s": run.t_s, "force_N": run.reference_N},
-              f"piezopreload {__version__}: the stacks' share of the preload schedule (the schedule less the bolts' "
-              f"{plant.bolt_preload_N:.1f} N), {result.cycles} cycles, margin {result.margin_N:.1f} N")
-    summary = result.summary()
-    return {"system": path, "reference": csv}, summary
+        "plant_sha256": ctx.sha256("plant", "plant"), "study_sha256": study.sha256}), result.summary()
 
 
 def _stage_export(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:

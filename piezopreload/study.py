@@ -41,7 +41,7 @@ from piezopreload.models.feed_drive import FeedDrive, PiezoPreload
 from piezopreload.models.gainset import EXPORT_FORMATS, REFERENCES, GainSet
 from piezopreload.tuning.calibrate import LoopExcitation
 from piezopreload.tuning.feedforward import IdentifiedFeedforward, identify
-from piezopreload.tuning.pid import TuningSpec
+from piezopreload.tuning.pid import TuningSpec, scaled_references
 from piezopreload.tuning.validate import Criteria
 
 if TYPE_CHECKING:  # the results module imports this one
@@ -643,7 +643,7 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes) -> Stud
     tuning = _table(TuningTable, data.get("tuning", {}))
     try:
         spec = TuningSpec(band_N=simulation.band_N, u_min_V=gains.u_min, u_max_V=gains.u_max,
-                          **_tuning_references(tuning),
+                          **scaled_references(tuning.step_N, tuning.trajectory_N),
                           **{k: (bool(x) if k == "tune_setpoint_weight" else float(x)) for k, x in asdict(tuning).items()
                              if k not in ("step_N", "trajectory_N")})
     except ValueError as exc:
@@ -719,22 +719,6 @@ def _references(refs: dict[str, Any], fail: Callable[[str, str], InputError]) ->
     except ValueError as exc:
         raise fail("reference.trajectory", f"is not valid: {exc}") from None
     return tables, references
-
-
-def _tuning_references(t: TuningTable) -> dict[str, Reference]:
-    """The tuning's short step and staircase at the study's scale, where ``[tuning]`` gives them (the
-    time scale is TuningSpec's: 0.6 s for the step, 0.4 s per level)."""
-    out: dict[str, Reference] = {}
-    if t.step_N is not None:
-        if len(t.step_N) != 2:
-            raise ValueError(f"tuning.step_N must be (from, to), got {list(t.step_N)!r}")
-        out["step"] = Reference.step(float(t.step_N[0]), float(t.step_N[1]), 0.02, 0.6)
-    if t.trajectory_N is not None:
-        if len(t.trajectory_N) < 2:
-            raise ValueError(f"tuning.trajectory_N must be the rest level and at least one level, got {list(t.trajectory_N)!r}")
-        out["trajectory"] = Reference.staircase(float(t.trajectory_N[0]), [float(x) for x in t.trajectory_N[1:]], 0.4,
-                                                t_start_s=0.02)
-    return out
 
 
 def _validation(v: dict[str, Any], simulation: SimulationTable, fail: Callable[[str, str], InputError]) -> ValidationTable:

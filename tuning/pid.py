@@ -64,6 +64,7 @@ from piezopreload.models.ops import CASADI, NUMPY, Layout
 
 __all__ = [
     "TuningSpec",
+    "scaled_references",
     "FOPDT",
     "fit_fopdt",
     "simc",
@@ -143,6 +144,23 @@ class TuningSpec:
             raise ValueError("TuningSpec needs u_min_V < u_max_V.")
         if not self.ramp_s > 0:
             raise ValueError("TuningSpec.ramp_s must be > 0.")
+
+
+def scaled_references(step_N: Any = None, trajectory_N: Any = None) -> dict[str, Reference]:
+    """The tuning's short step and staircase at a study's force scale (``TuningSpec``'s time scale:
+    0.6 s for the step, 0.4 s per level): ``step_N = (from, to)``, ``trajectory_N = (rest, levels...)``;
+    None keeps the paper's."""
+    out: dict[str, Reference] = {}
+    if step_N is not None:
+        if len(step_N) != 2:
+            raise ValueError(f"tuning.step_N must be (from, to), got {list(step_N)!r}")
+        out["step"] = Reference.step(float(step_N[0]), float(step_N[1]), 0.02, 0.6)
+    if trajectory_N is not None:
+        if len(trajectory_N) < 2:
+            raise ValueError(f"tuning.trajectory_N must be the rest level and at least one level, got {list(trajectory_N)!r}")
+        out["trajectory"] = Reference.staircase(float(trajectory_N[0]), [float(x) for x in trajectory_N[1:]], 0.4,
+                                                t_start_s=0.02)
+    return out
 
 
 # --------------------------------------------------------------------------------------
