@@ -734,8 +734,8 @@ def _rig_run(r: dict[str, Any], where: _Source) -> RigRunPlan:
     fail = where.fail
     plan = _table(RigRunPlan, r)
     if plan.reference not in _RIG_RUN_REFERENCES and not plan.reference.lower().endswith(".csv"):
-        raise fail("rig_run.reference", f"must be step, trajectory, schedule (a study whose plant is its design's) "
-                                        f"or a time_s,force_N .csv file, got {plan.reference!r}")
+        raise fail("rig_run.reference", f"must be step, trajectory or a time_s,force_N .csv file (or schedule, where "
+                                        f"the plant is the study's design), got {plan.reference!r}")
     for key, low in (("force_max_N", 0.0), ("ramp_s", 0.0)):
         if key in r and not r[key] > low:
             raise fail(f"rig_run.{key}", f"must be > {low:g}, got {r[key]!r}")

@@ -109,9 +109,11 @@ def test_the_pdf_holds_its_pages_tables_and_figures(small_run):
     assert study.sha256 in squeezed and study.title.split(":")[0] in text
 
     # every figure the template names is in the PDF: its file, its caption, and its own text
-    names = re.findall(r'#fig\("([a-z-]+)"\)', TEMPLATE.read_text())
-    assert len(names) == 10
+    named = re.findall(r'#fig\("([a-z-]+)"\)', TEMPLATE.read_text())
+    assert len(named) == 11
     report = read_artifact(out / "report" / "report.json", "report")
+    names = [n for n in named if n in report["figures"]]
+    assert set(named) - set(names) == {"system"}, "the paper's study has no whole-system figure; every other one"
     forms = 0
     for page in pypdf.PdfReader(pdf).pages:
         xobjects = page.get("/Resources", {}).get("/XObject", {})
@@ -147,7 +149,7 @@ def test_a_second_run_reruns_nothing_and_says_so(small_run, tmp_path, capsys):
     captured = capsys.readouterr()
     assert code == 0
     result = json.loads(captured.out)
-    assert result["ran"] == [] and all(s["status"] == "up to date" for s in result["stages"])
+    assert result["ran"] == [] and all(s["status"] in ("up to date", "not applicable") for s in result["stages"])
     assert "nothing to run: every stage is up to date" in captured.err
     after = {p: (p.stat().st_mtime_ns, p.read_bytes()) for p in out.rglob("*") if p.is_file() and p.name != ".lock"}
     assert after == before
