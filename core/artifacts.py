@@ -36,10 +36,14 @@ KINDS = {
     "plant": ("rig", "design_sha256", "inputs"),
     "system": ("tracking_rms_pct_of_range", "rigidity_min_cutting_N_per_um", "rigidity_required_N_per_um", "series",
                "inputs"),
+    "learned-signal": ("ff_extra_V", "setpoint_N", "sample_period_s", "reference", "reference_sha256",
+                       "gain_set_sha256", "inputs"),
 }
 #: kinds whose documents carry ``content_sha256``, checked on every read
-HASHED = {"gain-set"}
+HASHED = {"gain-set", "learned-signal"}
 HASH_FIELD = "content_sha256"
+#: the command that writes a hashed kind again
+_WRITER = {"learned-signal": "learn"}
 
 
 def package_version() -> str:
@@ -179,7 +183,7 @@ def parse_artifact(text: str, kind: str, shown: str = "the document") -> dict[st
             raise ArtifactError(f"{shown}: field '{HASH_FIELD}' is missing; a {kind} must carry the hash it was written with")
         if stored != content_hash(doc):
             raise ArtifactError(f"{shown}: the content does not match its '{HASH_FIELD}': the file was changed after it "
-                                f"was written; regenerate it with 'piezopreload tune'")
+                                f"was written; regenerate it with 'piezopreload {_WRITER.get(kind, 'tune')}'")
     return doc
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import io
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +24,8 @@ from piezopreload.core.artifacts import atomic_write_text, write_artifact
 from piezopreload.core.errors import InputError
 from piezopreload.core.tables import read_table
 from piezopreload.design.preload import (
+    OBJECTIVES,
+    PARETO_PAIRS,
     DesignNLP,
     DesignOptimum,
     DesignPoint,
@@ -34,8 +36,10 @@ from piezopreload.design.preload import (
 )
 from piezopreload.design.schedule import LoadProfile, PreloadSchedule, ScheduleSpec, example_profile, schedule_preload
 from piezopreload.models.ballscrew import BallScrew, DutyCase, hiwin_loaded_nut_force, lift_off_load_N
+from piezopreload.models.feed_drive import FeedDrive, PiezoPreload
 
-__all__ = ["DesignResult", "design_study", "plan_schedule", "read_profile", "check_screw", "FRONT_COLUMNS"]
+__all__ = ["DesignResult", "design_study", "plan_schedule", "read_profile", "check_screw", "FRONT_COLUMNS",
+           "design_spec_from_tables"]
 
 #: the columns of a front's CSV
 FRONT_COLUMNS = ("stiffness_N_per_um", "max_preload_N", "mean_drag_torque_Nm", "life_h", "contact_angle_deg", "ball_mm",
@@ -267,3 +271,60 @@ def check_screw(screw: BallScrew, preload_N: float | None = None, preload_fracti
         "life_revolutions": None if life is None else life.revolutions,
         "life_h": None if life is None else life.hours,
     }
+
+
+def design_spec_from_tables(t: dict[str, Any], fail: Callable[[str, str], InputError]) -> DesignSpec:
+    """A study's design tables (``ballscrew``, ``design``, ``feed_drive``, ``duty``: records with their keys as
+    attributes and ``to_dict()``) as a :class:`DesignSpec`; keys not given keep its defaults. ``fail(key, message)``
+    makes the error naming the file and line."""
+    b = t["ballscrew"]
+    d = t["design"]
+    kwargs: dict[str, Any] = {k: float(v) for k, v in b.to_dict().items()
+                              if k in ("nominal_diameter_mm", "lead_mm", "load_sharing")}
+    for key in ("contact_angle_deg", "ball_mm", "conformity", "turns"):
+        value = getattr(b, key)
+        if value is None:
+            continue
+        if len(value) != 2:
+            raise fail(f"ballscrew.{key}", f"must have 2 values (low, high), got {list(value)!r}")
+        if key == "turns" and any(x != int(x) for x in value):
+            raise fail("ballscrew.turns", f"must be two integers, got {list(value)!r}")
+        kwargs[key] = tuple(int(x) for x in value) if key == "turns" else tuple(float(x) for x in value)
+    fd = t["feed_drive"]
+    if fd is not None:
+        default = DesignSpec().feed_drive
+        given = fd.to_dict()
+        if "travel_mm" in given and len(given["travel_mm"]) != 2:
+            raise fail("feed_drive.travel_mm", f"must have 2 values (low, high), got {given['travel_mm']!r}")
+        try:
+            kwargs["feed_drive"] = FeedDrive(**{**{f.name: getattr(default, f.name) for f in fields(FeedDrive)},
+                                                **{k: tuple(v) if isinstance(v, list) else v for k, v in given.items()}})
+        except ValueError as exc:
+            raise fail("feed_drive", f"is not valid: {exc}") from None
+    duty = t["duty"]
+    if duty is not None:
+        lists = [duty.axial_load_N, duty.speed_rpm, duty.time_share]
+        if any(v is None for v in lists) or len({len(v) for v in lists if v is not None}) != 1 or not lists[0]:
+            raise fail("duty", "needs axial_load_N, speed_rpm and time_share as lists of equal, non-zero length")
+        try:
+            kwargs["duty"] = tuple(DutyCase(float(a), float(n), float(s)) for a, n, s in zip(*lists))  # type: ignore[arg-type]
+        except ValueError as exc:
+            raise fail("duty", f"is not valid: {exc}") from None
+    names = {f.name for f in fields(DesignSpec)}
+    kwargs.update({k: float(v) for k, v in d.to_dict().items() if k in names})
+    try:
+        kwargs["actuator"] = PiezoPreload(**{k: float(v) for k, v in (("drive_V", d.stack_drive_V),
+                                                                      ("amp_current_limit_A", d.amp_current_limit_A))
+                                             if v is not None})
+        spec = DesignSpec(**kwargs)
+    except ValueError as exc:
+        table = "design" if "DesignSpec" in str(exc) or "PiezoPreload" in str(exc) else "ballscrew"
+        raise fail(table, f"is not valid: {exc}") from None
+    if d.objective not in OBJECTIVES:
+        raise fail("design.objective", f"must be one of {', '.join(OBJECTIVES)}, got {d.objective!r}")
+    for pair in d.pareto:
+        if pair not in PARETO_PAIRS:
+            raise fail("design.pareto", f"has {pair!r}; expected some of {', '.join(PARETO_PAIRS)}")
+    if not 2 <= d.pareto_points <= 500:
+        raise fail("design.pareto_points", f"must be in 2..500, got {d.pareto_points}")
+    return spec

@@ -14,8 +14,9 @@ executor's compiled step and in the exported C code. The PID follows NI's docume
   integral does not move in the direction that drives the output further into its limit).
 
 The feedforward adds, before the clamp, the output of an inverse hysteresis model of the
-setpoint (a *feedforward component*: :class:`FeedforwardStep`, today the inverse classical P-I
-model's :class:`~piezopreload.models.hysteresis.InversePIStep`) and an external feedforward
+setpoint (a *feedforward component*: :class:`FeedforwardStep`, the one inverse step
+:class:`~piezopreload.models.hysteresis.InverseStep` of the classical, modified or asymmetric
+P-I model, with or without creep) and an external feedforward
 signal ``ff_extra`` given per sample (0 unless a caller supplies one: a learned or previewed
 correction, or the tuning's precomputed inverse).
 

@@ -28,7 +28,7 @@ from piezopreload.core.errors import ArtifactError, InputError
 from piezopreload.models.actuator import RigParams
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import Controller, PIDGains
-from piezopreload.models.hysteresis import HysteresisModel, model_from_dict
+from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at, model_from_dict
 
 __all__ = ["GainSet", "ExportError", "EXPORT_FORMATS", "TEXT_FORMATS", "EXPORT_FILES", "REFERENCES", "STATUSES",
            "CONTROLLER_FORM", "gains_to_dict", "gains_from_dict"]
@@ -50,7 +50,8 @@ CONTROLLER_FORM = {
     "derivative": "on the measurement, first-order filter of time constant Tf (0: unfiltered)",
     "anti_windup": "conditional integration at the output limits",
     "output_range_V": "u_min_V..u_max_V (clamped)",
-    "feedforward": "inverse classical P-I model of the setpoint, added before the clamp",
+    "feedforward": "inverse P-I model of the setpoint (classical, modified or the paper's asymmetric, with or without "
+                   "creep), added before the clamp",
 }
 _FORM_SHORT = "ideal/ISA, trapezoidal integral, derivative on measurement, conditional-integration anti-windup"
 _GAIN_KEYS = ("Kc_V_per_N", "Ti_s", "Td_s", "Tf_s", "b", "u_min_V", "u_max_V")
@@ -92,8 +93,9 @@ class GainSet:
         The PID gains and output range.
     status : str
         ``validated`` (export and the rig accept it) or ``candidate``.
-    feedforward : HysteresisModel or None
-        The forward P-I model whose inverse is the feedforward (None: PID alone).
+    feedforward : HysteresisModel, CreepPI or None
+        The forward P-I model whose inverse is the feedforward (None: PID alone): classical,
+        modified or the paper's asymmetric, with or without creep.
     feedforward_info : dict
         How the feedforward was identified (source, fit).
     plant : RigParams or None
@@ -110,7 +112,7 @@ class GainSet:
 
     gains: PIDGains
     status: str = "candidate"
-    feedforward: HysteresisModel | None = None
+    feedforward: HysteresisModel | CreepPI | None = None
     feedforward_info: dict[str, Any] = field(default_factory=dict)
     plant: RigParams | None = None
     preset: str | None = None
@@ -228,8 +230,10 @@ class GainSet:
         if self.plant is None:
             raise InputError("field 'plant.rig' is missing: the gain set does not name its plant (the loop's sample "
                              f"period); {_REWRITE}")
-        inverse = None if self.feedforward is None else self.feedforward.inverse()  # NotInvertibleError says why not
-        return Controller(self.gains, float(self.plant.sample_period_s), inverse)
+        dt = float(self.plant.sample_period_s)
+        # creep's lags resampled at the loop's period; NotInvertibleError says why a model has no inverse
+        inverse = None if self.feedforward is None else inverse_at(self.feedforward, dt)
+        return Controller(self.gains, dt, inverse)
 
     # ---- export ---------------------------------------------------------------------------------
     def export(self, fmt: str) -> str:
@@ -290,6 +294,42 @@ def _json_text(digest: str, g: dict[str, float], ff: dict[str, Any] | None) -> s
     return json.dumps(body, indent=2, allow_nan=False) + "\n"
 
 
+def _c_array(name: str, size: str, values: Any) -> str:
+    return f"static const double {name}[{size}] = {{" + ", ".join(repr(float(x)) for x in values) + "};"
+
+
+def _c_model(ff: dict[str, Any]) -> list[str]:
+    """The forward P-I model's numbers as C constants: its kind, operators, dead zones and creep bank."""
+    kind = str(ff.get("kind", "classical"))
+    r = ff.get("thresholds", [])
+    lines = [f"/* forward P-I model of the feedforward, kind '{kind}' (its inverse is taken at run time; see",
+             "   docs/models.md): thresholds in V, weights in N/V */",
+             f'#define PP_PI_KIND "{kind}"', f"#define PP_PI_N {len(r)}",
+             f"#define PP_PI_OFFSET_N {float(ff.get('offset', 0.0))!r}",
+             _c_array("PP_PI_THRESHOLDS_V", "PP_PI_N", r)]
+    if "weights" in ff:
+        lines.append(_c_array("PP_PI_WEIGHTS_N_PER_V", "PP_PI_N", ff["weights"]))
+    else:  # the paper's asymmetric model, eq. (18): weights while the input rises and while it falls
+        lines += [_c_array("PP_PI_WEIGHTS_RISING_N_PER_V", "PP_PI_N", ff.get("weights_rising", [])),
+                  _c_array("PP_PI_WEIGHTS_FALLING_N_PER_V", "PP_PI_N", ff.get("weights_falling", []))]
+    if "deadzone_thresholds" in ff:  # the modified model: O = S(sum w F[v] + C[v] + bias) + offset
+        d = ff["deadzone_thresholds"]
+        lines += ["/* the modified model's dead-zone output superposition S (thresholds in N, weights 1) */",
+                  f"#define PP_DZ_N {len(d)}", f"#define PP_PI_BIAS_N {float(ff.get('bias', 0.0))!r}",
+                  _c_array("PP_DZ_THRESHOLDS_N", "PP_DZ_N", d),
+                  _c_array("PP_DZ_WEIGHTS", "PP_DZ_N", ff.get("deadzone_weights", []))]
+    creep = ff.get("creep")
+    if isinstance(creep, dict):
+        tau = creep.get("time_constants_s", [])
+        lines += ["/* creep: first-order lags on the input, C[v] = sum c_j L_j[v], tau_j dL_j/dt = v - L_j, added to",
+                  "   the operators' sum; sampled exactly for an input linear between samples */",
+                  f"#define PP_CREEP_N {len(tau)}",
+                  f"#define PP_CREEP_SAMPLE_PERIOD_S {float(creep.get('sample_period_s', 0.0))!r}",
+                  _c_array("PP_CREEP_TIME_CONSTANTS_S", "PP_CREEP_N", tau),
+                  _c_array("PP_CREEP_WEIGHTS_N_PER_V", "PP_CREEP_N", creep.get("weights", []))]
+    return lines
+
+
 def _c_header(digest: str, head: list[str], g: dict[str, float], ff: dict[str, Any] | None) -> str:
     lines = ["/* Generated by piezopreload from a validated gain set. */"]
     lines += [f"/* {h} */" for h in head]
@@ -299,11 +339,6 @@ def _c_header(digest: str, head: list[str], g: dict[str, float], ff: dict[str, A
               f"#define PP_SETPOINT_WEIGHT {g['b']!r}", f"#define PP_U_MIN_V {g['u_min_V']!r}",
               f"#define PP_U_MAX_V {g['u_max_V']!r}"]
     if ff is not None:
-        r, w = ff.get("thresholds", []), ff.get("weights", [])
-        lines += ["", "/* forward classical P-I model of the feedforward (its inverse is taken at run time) */",
-                  f"#define PP_PI_N {len(r)}",
-                  f"#define PP_PI_OFFSET_N {float(ff.get('offset', 0.0))!r}",
-                  "static const double PP_PI_THRESHOLDS_V[PP_PI_N] = {" + ", ".join(repr(float(x)) for x in r) + "};",
-                  "static const double PP_PI_WEIGHTS_N_PER_V[PP_PI_N] = {" + ", ".join(repr(float(x)) for x in w) + "};"]
+        lines += [""] + _c_model(ff)
     lines += ["", "#endif"]
     return "\n".join(lines) + "\n"

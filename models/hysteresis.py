@@ -10,9 +10,10 @@ Section 3.2 of Zhang, Jin, Lin (2021), restated in ``docs/models.md`` (section 2
   loops and keeps an exact analytic inverse;
 * the analytic inverses, eqs. (19)-(20);
 * creep: a bank of first-order lags on the input (Kuhnen's linear creep operators) added to
-  any of the three models (:class:`CreepPI`), and the exact inverse of the classical and the
-  modified model with creep, whose one-sample step (:func:`inverse_step`) is written once for
-  numpy and CasADi.
+  any of the three models (:class:`CreepPI`);
+* the real-time inverse of every one of them, with or without creep: one one-sample step
+  (:class:`InverseStep`, over the ops table of :mod:`piezopreload.models.ops`) that the
+  numpy simulation, the compiled rig step and the exported C code all run.
 
 Everything here is pure: parameters are frozen dataclasses that validate themselves, the
 functions take explicit initial states and return final states, nothing is printed or read.
@@ -24,8 +25,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from types import SimpleNamespace
-from typing import Any, NamedTuple
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -42,10 +42,8 @@ __all__ = [
     "deadzone",
     "ClassicalPI",
     "InverseClassicalPI",
-    "InversePIStep",
-    "InverseModifiedPIStep",
-    "casadi_inverse_step",
     "AsymmetricPI",
+    "InverseAsymmetricPI",
     "DeadZone",
     "ModifiedPI",
     "InverseModifiedPI",
@@ -58,13 +56,9 @@ __all__ = [
     "Creep",
     "CreepPI",
     "InverseCreepPI",
-    "NUMPY_OPS",
-    "CASADI_OPS",
-    "InverseStepLayout",
-    "InverseStepParameters",
-    "inverse_step",
-    "inverse_step_parameters",
-    "parametric_inverse_step",
+    "InverseStep",
+    "inverse_realtime",
+    "inverse_at",
 ]
 
 
@@ -241,6 +235,59 @@ def _inverse_weights(
     return r_inv, w_inv
 
 
+def inverse_at(model: Any, sample_period_s: float) -> Any:
+    """``model.inverse()`` for a loop sampled every ``sample_period_s``: a creep bank is resampled exactly first.
+
+    The hysteresis is rate-independent; only the lags' coefficients depend on the period.
+    """
+    if isinstance(model, CreepPI) and model.sample_period_s != float(sample_period_s):
+        model = model.with_sample_period(sample_period_s)
+    return model.inverse()
+
+
+class _RealTimeInverse:
+    """What every inverse model shares: :class:`InverseStep` with the forward model's numbers.
+
+    Its state is the forward model's (play operator outputs, creep carries, the last input of
+    the asymmetric model): zeros at rest at 0 V, and any state the forward model left.
+    """
+
+    forward: Any
+
+    @cached_property
+    def _realtime(self) -> tuple[InverseStep, NDArray[np.float64]]:
+        return inverse_realtime(self.forward)
+
+    def realtime(self) -> tuple[InverseStep, NDArray[np.float64]]:
+        """The controller's feedforward component: the step's structure and its parameter vector."""
+        structure, params = self._realtime
+        return structure, params.copy()
+
+    def initial_state(self, batch: tuple[int, ...] = ()) -> NDArray[np.float64]:
+        """At rest at 0 V: zeros of shape ``batch + (n_states,)``."""
+        return np.zeros(batch + (self._realtime[0].n_states,))
+
+    def step(self, state: ArrayLike, target: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """One sample (numpy, batched): the input that makes the forward model output ``target``, and the next state."""
+        structure, params = self._realtime
+        v, nxt = structure.step(NUMPY, params, np.asarray(state, float), np.asarray(target, float))
+        return np.asarray(v, float), np.asarray(nxt, float)
+
+    def casadi_step(self, state: Any, target: Any) -> tuple[Any, Any]:
+        """:meth:`step` on CasADi expressions (one loop), the model's numbers as constants."""
+        structure, params = self._realtime
+        return structure.step(CASADI, ca.DM(params), state, target)
+
+    def run(self, target: ArrayLike, state: ArrayLike | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Inputs for the targets of shape (..., N), sample by sample from ``state`` (at rest by default), and the final state."""
+        target = np.asarray(target, dtype=float)
+        x = self.initial_state(target.shape[:-1]) if state is None else np.asarray(state, float)
+        out = np.empty(target.shape)
+        for k in range(target.shape[-1]):
+            out[..., k], x = self.step(x, target[..., k])
+        return out, x
+
+
 # --------------------------------------------------------------------------------------
 # the classical P-I model, eq. (15)
 # --------------------------------------------------------------------------------------
@@ -309,12 +356,15 @@ class ClassicalPI:
 
 
 @dataclass(frozen=True, eq=False)
-class InverseClassicalPI:
+class InverseClassicalPI(_RealTimeInverse):
     """Inverse of a :class:`ClassicalPI`: ``v = sum_k w'_k F_{r'_k}[O - offset]``, eqs. (19)-(20).
 
-    Built by :meth:`ClassicalPI.inverse`. Its operator states relate to the forward ones by
-    ``z_k = W_k y_k + sum_{i>k} w_i y_i`` (``W_k`` the partial sums of the forward weights),
-    so the inverse can start from any forward state, for example one left by an earlier run.
+    Built by :meth:`ClassicalPI.inverse`. Called on a whole signal it runs the inverse
+    operators, whose states relate to the forward ones by ``z_k = W_k y_k + sum_{i>k} w_i y_i``
+    (``W_k`` the partial sums of the forward weights; :meth:`state_from_forward`), so it can
+    start from any forward state. One sample at a time (:meth:`step`, :meth:`realtime`: the
+    controller's feedforward) it is :class:`InverseStep`, whose state is the forward
+    operators' own.
     """
 
     forward: ClassicalPI
@@ -338,64 +388,6 @@ class InverseClassicalPI:
         z = np.asarray(target, dtype=float) - self.forward.offset
         return play(z, self.thresholds, state) @ self.weights
 
-    def step(self, state: NDArray, target: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """One sample (numpy, batched): ``(voltage, next operator states)``; :meth:`realtime`'s step."""
-        structure, params = self.realtime()
-        u, z = structure.step(NUMPY, params, np.asarray(state, dtype=float), np.asarray(target, dtype=float))
-        return np.asarray(u, dtype=float), np.asarray(z, dtype=float)
-
-    def casadi_step(self, state: Any, target: Any) -> tuple[Any, Any]:
-        """:meth:`step` on CasADi expressions (one loop): ``(voltage, next operator states)``."""
-        structure, params = self.realtime()
-        return structure.step(CASADI, ca.DM(params), state, target)
-
-    def realtime(self) -> tuple[InversePIStep, NDArray[np.float64]]:
-        """The controller's feedforward component: its step's structure and its parameter vector."""
-        structure = InversePIStep(self.thresholds.size)
-        return structure, structure.params.numbers(offset_N=self.forward.offset, thresholds=self.thresholds,
-                                                   weights=self.weights)
-
-
-@dataclass(frozen=True)
-class InversePIStep:
-    """One sample of an inverse classical P-I model of ``n_operators``, over an ops table.
-
-    ``v = sum_k w'_k z_k`` with ``z_k = max(O - offset - r'_k, min(O - offset + r'_k, z_k^-))``
-    (eqs. (14), (19)-(20)); the model's numbers are a parameter vector (:attr:`params`), so one
-    compiled step serves every model with as many operators. This is the feedforward component
-    of :class:`~piezopreload.models.controller.ControllerModel`: ``kind``, ``params``,
-    ``n_states``, ``rest_state`` and ``step`` are what a feedforward component supplies.
-    """
-
-    n_operators: int
-    kind: str = field(default="inverse-classical-pi", init=False)
-
-    @cached_property
-    def params(self) -> Layout:
-        return Layout("inverse P-I parameters", [("offset_N", None), ("thresholds", self.n_operators),
-                                                 ("weights", self.n_operators)])
-
-    @property
-    def n_states(self) -> int:
-        return self.n_operators
-
-    def rest_state(self, ops: Ops, params: Any) -> Any:
-        """Every operator at rest (0)."""
-        return ops.repeat(0.0, self.n_operators)
-
-    def step(self, ops: Ops, params: Any, state: Any, target: Any) -> tuple[Any, Any]:
-        """``(voltage, next operator states)`` for the force ``target``."""
-        p = self.params.unpack(params)
-        v = ops.expand(target - p.offset_N)
-        z = ops.maximum(v - p.thresholds, ops.minimum(v + p.thresholds, state))
-        return ops.dot(z, p.weights), z
-
-
-def casadi_inverse_step(state: Any, target: Any, offset: Any, thresholds: Any, weights: Any) -> tuple[Any, Any]:
-    """:class:`InversePIStep` on CasADi expressions with the model's numbers given one by one."""
-    n = int(thresholds.numel()) if hasattr(thresholds, "numel") else len(thresholds)
-    return InversePIStep(n).step(CASADI, ca.vertcat(offset, thresholds, weights), state, target)
-
 
 # --------------------------------------------------------------------------------------
 # the paper's direction-switched asymmetric model, eq. (18)
@@ -416,8 +408,9 @@ class AsymmetricPI:
 
     The output jumps by ``sum_k (w_rise_k - w_fall_k) F_{r_k}`` at every reversal of the input,
     so some outputs next to a reversal cannot be reached by any input: the model has no exact
-    inverse, and :meth:`inverse` says so. For asymmetric loops that must be inverted use
-    :class:`ModifiedPI`. The state holds the operator outputs and the previous input
+    inverse everywhere (:attr:`invertible` is False); :meth:`inverse` is exact where the output is
+    reachable and holds the input in the gaps. :class:`ModifiedPI` is the asymmetric model with
+    an exact inverse. The state holds the operator outputs and the previous input
     (``v_{-1} = 0`` at rest).
     """
 
@@ -449,12 +442,17 @@ class AsymmetricPI:
         p = rising(v, v_prev)
         return np.where(p, y @ self.weights_rising, y @ self.weights_falling) + self.offset
 
-    def inverse(self) -> None:
-        raise NotInvertibleError(
-            "the paper's direction-switched model (eq. 18) has no exact inverse: its output jumps "
-            "at every input reversal, leaving outputs no input reaches. Identify the 'modified' "
-            "model for an asymmetric loop with an exact inverse, or the 'classical' one."
-        )
+    def inverse(self) -> InverseAsymmetricPI:
+        """The direction-switched inverse (:class:`InverseStep`): exact where the output is reachable.
+
+        The output jumps by ``sum_k (w_rise_k - w_fall_k) F_{r_k}`` at every reversal of the
+        input, so next to a reversal some outputs no input reaches; there the inverse holds the
+        last input. Raises :class:`NotInvertibleError` if a partial sum of either weight set is
+        not positive.
+        """
+        inverse = InverseAsymmetricPI(forward=self)
+        inverse.realtime()  # checks both weight sets
+        return inverse
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -606,7 +604,7 @@ class ModifiedPI:
 
 
 @dataclass(frozen=True, eq=False)
-class InverseModifiedPI:
+class InverseModifiedPI(_RealTimeInverse):
     """Inverse of a :class:`ModifiedPI`: ``v = Gamma^-1[S^-1(O - offset)]``."""
 
     forward: ModifiedPI
@@ -622,53 +620,6 @@ class InverseModifiedPI:
     def __call__(self, target: ArrayLike, state: ArrayLike | None = None) -> NDArray[np.float64]:
         z = self.shaper_inverse(np.asarray(target, dtype=float) - self.forward.offset)
         return self.play_inverse(z, state)
-
-    def step(self, state: NDArray, target: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """One sample (numpy, batched): ``(voltage, next operator states)``; :meth:`realtime`'s step."""
-        structure, params = self.realtime()
-        u, z = structure.step(NUMPY, params, np.asarray(state, dtype=float), np.asarray(target, dtype=float))
-        return np.asarray(u, dtype=float), np.asarray(z, dtype=float)
-
-    def realtime(self) -> tuple[InverseModifiedPIStep, NDArray[np.float64]]:
-        """The controller's feedforward component: its step's structure and its parameter vector."""
-        structure = InverseModifiedPIStep(self.play_inverse.thresholds.size, self.shaper_inverse.thresholds.size)
-        return structure, structure.params.numbers(
-            offset_N=self.forward.offset, deadzone_thresholds=self.shaper_inverse.thresholds,
-            deadzone_weights=self.shaper_inverse.weights, bias=self.play_inverse.forward.offset,
-            thresholds=self.play_inverse.thresholds, weights=self.play_inverse.weights)
-
-
-@dataclass(frozen=True)
-class InverseModifiedPIStep:
-    """One sample of an inverse modified P-I model, over an ops table: the inverse dead-zone
-    superposition of ``O - offset``, less the bias, through the inverse P-I operators (as
-    :class:`InversePIStep`)."""
-
-    n_operators: int
-    n_deadzone: int
-    kind: str = field(default="inverse-modified-pi", init=False)
-
-    @cached_property
-    def params(self) -> Layout:
-        return Layout("inverse modified P-I parameters", [
-            ("offset_N", None), ("deadzone_thresholds", self.n_deadzone), ("deadzone_weights", self.n_deadzone),
-            ("bias", None), ("thresholds", self.n_operators), ("weights", self.n_operators)])
-
-    @property
-    def n_states(self) -> int:
-        return self.n_operators
-
-    def rest_state(self, ops: Ops, params: Any) -> Any:
-        return ops.repeat(0.0, self.n_operators)
-
-    def step(self, ops: Ops, params: Any, state: Any, target: Any) -> tuple[Any, Any]:
-        p = self.params.unpack(params)
-        x = ops.expand(target - p.offset_N) - p.deadzone_thresholds
-        d = p.deadzone_thresholds
-        shaped = ops.where(d > 0, ops.maximum(x, 0.0), ops.where(d < 0, ops.minimum(x, 0.0), x + d))
-        v = ops.expand(ops.dot(shaped, p.deadzone_weights) - p.bias)
-        z = ops.maximum(v - p.thresholds, ops.minimum(v + p.thresholds, state))
-        return ops.dot(z, p.weights), z
 
 
 # --------------------------------------------------------------------------------------
@@ -1039,236 +990,197 @@ class CreepPI:
         return out, np.concatenate([y, self.creep.carry(lags, v)], axis=-1)
 
     def inverse(self) -> InverseCreepPI:
-        """The exact inverse, one sample at a time (classical and modified models)."""
-        layout, params, play_inverse = _inverse_step_model(self)
-        return InverseCreepPI(forward=self, layout=layout, parameters=params, play_inverse=play_inverse)
+        """The inverse, one sample at a time (:class:`InverseStep`); exact for the classical and the modified
+        model, direction-switched for the paper's asymmetric one (exact where its output is reachable)."""
+        inverse = InverseCreepPI(forward=self)
+        inverse.realtime()  # raises NotInvertibleError with the reason
+        return inverse
 
     def to_dict(self) -> dict[str, Any]:
         return {**self.hysteresis.to_dict(), "kind": self.kind, "creep": self.creep.to_dict()}
 
 
 # --------------------------------------------------------------------------------------
-# the inverse's one-sample step, written once over a table of operations
+# the inverse's one-sample step: one definition for every model, over the ops table
 # --------------------------------------------------------------------------------------
-#: Operations the one-sample steps need that differ between numpy arrays (a batch of loops in
-#: the leading axes, operators on the last axis) and CasADi expressions (column vectors). A
-#: superset of the controller's table, so one table can serve both steps.
-NUMPY_OPS = SimpleNamespace(
-    where=np.where, minimum=np.minimum, maximum=np.maximum,
-    logical_and=np.logical_and, logical_or=np.logical_or,
-    dot=lambda w, x: np.asarray(x) @ np.asarray(w),  # sum over the operators' axis
-    lift=lambda x: np.asarray(x, dtype=float)[..., None],  # a per-loop number against a per-operator vector
-    split=lambda x, n: (x[..., :n], x[..., n:]),
-    join=lambda a, b: np.concatenate([a, b], axis=-1),
-)
-CASADI_OPS = SimpleNamespace(
-    where=ca.if_else, minimum=ca.fmin, maximum=ca.fmax,
-    logical_and=ca.logic_and, logical_or=ca.logic_or,
-    dot=ca.dot,
-    lift=lambda x: x,
-    split=lambda x, n: (x[:n], x[n:]),
-    join=ca.vertcat,
-)
-
-
-class InverseStepParameters(NamedTuple):
-    """The parameter vector of :func:`inverse_step`, split into its parts (in this order)."""
-
-    offset: Any
-    bias: Any
-    shaper_center: Any
-    shaper_up_thresholds: Any
-    shaper_up_weights: Any
-    shaper_down_thresholds: Any
-    shaper_down_weights: Any
-    thresholds: Any
-    weights: Any
-    creep_weights: Any
-    creep_decay: Any
-    creep_input: Any
-
-
 @dataclass(frozen=True)
-class InverseStepLayout:
-    """Sizes of an inverse model's state and parameter vectors (:func:`inverse_step`).
+class InverseStep:
+    """One sample of the inverse of any P-I model here, over an ops table (:mod:`~piezopreload.models.ops`).
 
-    State (``n + m``): ``[inverse play operator states z' (n), creep carries s (m)]``.
-    Parameters (``3 + 2 (n_up + n_down) + 2 n + 3 m``), in this order:
-    ``offset``, ``bias``, the inverse dead-zone superposition's central weight ``u'_0``, its
-    positive thresholds and weights ``d'_up, u'_up`` (``n_up`` each), its negative ones
-    ``d'_down, u'_down`` (``n_down`` each), the inverse thresholds ``r'`` and weights ``w'``
-    of eqs. (19)-(20) (``n`` each), the creep weights ``c``, decays ``a`` and carry inputs
-    ``e = a b0 + b1`` (``m`` each). A classical model has no shaper (``u'_0 = 1``,
-    ``n_up = n_down = 0``, ``bias = 0``); a model without creep has ``m = 0``.
+    The structure (sizes and whether the weights switch with the direction) is this object; the
+    numbers are a parameter vector (:attr:`params`, built by :func:`inverse_realtime`), so one
+    compiled step serves every model of one structure. It is the feedforward component of
+    :class:`~piezopreload.models.controller.ControllerModel`, and the same code runs on numpy
+    (the simulation, the rig's fall-back), on CasADi (the tuning graph, the compiled rig step,
+    the exported C code).
+
+    The state is the *forward* model's state (:attr:`state`): the play operator outputs ``y``
+    (n), the creep carries ``s`` (m) and, for the paper's asymmetric model, the last input
+    ``v_prev``. With ``x = target - offset``, one sample is:
+
+    1. ``P = S^-1(x)``, the inverse dead-zone superposition of the modified model (``x`` for the
+       others);
+    2. ``g = P - bias - sum_j c_j s_j``: what the one-sample P-I map must give once the creep's
+       part known from the last sample is taken off;
+    3. for the one-sample weights ``w`` (``w_1`` plus the creep's gain ``beta`` of this sample's
+       input, :class:`CreepPI`): the inverse operators' states ``z'_k = W_k y_k + sum_{i>k} w_i
+       y_i`` (``W`` the partial sums), ``z' = max(g - r', min(g + r', z'))`` and
+       ``v = sum w' z'``: eqs. (19)-(20);
+    4. the asymmetric model does 3. with the rising and the falling weights and keeps an
+       answer whose direction agrees with the weights used (``v_rise >= v_prev`` or
+       ``v_fall < v_prev``), the one nearer ``v_prev`` where both do (the output of eq. (18)
+       can jump up at a reversal, so a target may have two inputs); where neither does (the
+       outputs next to a reversal that eq. (18) cannot reach) it holds ``v_prev``. Within
+       ``1e-9 (1 + |v_prev|)`` of ``v_prev`` a candidate is moved to its own side of it, so a
+       held target does not flip the direction by rounding;
+    5. ``y = max(v - r, min(v + r, y))``, ``s = a s + e v``.
+
+    Exact (to rounding) for the classical and the modified model with or without creep, and for
+    the asymmetric model wherever its output is reachable.
     """
 
     n_operators: int
     n_lags: int = 0
-    n_shaper_up: int = 0
-    n_shaper_down: int = 0
+    n_shaper: int = 0
+    asymmetric: bool = False
+    kind: str = field(default="inverse-pi", init=False)
 
     def __post_init__(self) -> None:
-        for name in ("n_operators", "n_lags", "n_shaper_up", "n_shaper_down"):
+        for name, low in (("n_operators", 1), ("n_lags", 0), ("n_shaper", 0)):
             x = getattr(self, name)
-            if not isinstance(x, int | np.integer) or x < (1 if name == "n_operators" else 0):
-                raise InputError(f"InverseStepLayout.{name} must be an integer >= {1 if name == 'n_operators' else 0}, got {x!r}.")
+            if not isinstance(x, int | np.integer) or isinstance(x, bool) or x < low:
+                raise InputError(f"InverseStep.{name} must be an integer >= {low}, got {x!r}.")
+        if not isinstance(self.asymmetric, bool):
+            raise InputError(f"InverseStep.asymmetric must be True or False, got {self.asymmetric!r}.")
+
+    @cached_property
+    def params(self) -> Layout:
+        n, m, d = self.n_operators, self.n_lags, self.n_shaper
+        directions = ("rising", "falling") if self.asymmetric else ("rising",)
+        fields: list[tuple[str, int | None]] = [("offset_N", None), ("shaper_thresholds", d), ("shaper_weights", d),
+                                                ("bias", None), ("thresholds", n)]
+        for name in directions:
+            fields += [(f"weights_{name}", n), (f"partial_{name}", n), (f"inverse_thresholds_{name}", n),
+                       (f"inverse_weights_{name}", n)]
+        fields += [("creep_weights", m), ("creep_decay", m), ("creep_input", m)]
+        return Layout("inverse P-I parameters", fields)
+
+    @cached_property
+    def state(self) -> Layout:
+        return Layout("inverse P-I state", [("operators", self.n_operators), ("carries", self.n_lags),
+                                            ("v_prev_V", 1 if self.asymmetric else 0)])
 
     @property
     def n_states(self) -> int:
-        return int(self.n_operators + self.n_lags)
+        return int(self.state.size)
 
-    @property
-    def n_parameters(self) -> int:
-        return int(3 + 2 * (self.n_shaper_up + self.n_shaper_down) + 2 * self.n_operators + 3 * self.n_lags)
+    def rest_state(self, ops: Ops, params: Any) -> Any:
+        """At rest at 0 V: every operator, carry and the last input 0."""
+        return ops.repeat(0.0, self.n_states)
 
-    def split(self, params: Any) -> InverseStepParameters:
-        """The parts of a parameter vector (numpy 1-D or CasADi column)."""
-        sizes = [1, 1, 1, self.n_shaper_up, self.n_shaper_up, self.n_shaper_down, self.n_shaper_down,
-                 self.n_operators, self.n_operators, self.n_lags, self.n_lags, self.n_lags]
-        edges = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
-        parts = [params[int(a)] if k < 3 else params[int(a):int(b)] for k, (a, b) in enumerate(zip(edges[:-1], edges[1:]))]
-        return InverseStepParameters(*parts)
+    def _direction(self, ops: Ops, p: Any, name: str, g: Any, y: Any) -> Any:
+        w, partial = getattr(p, f"weights_{name}"), getattr(p, f"partial_{name}")
+        r_inv, w_inv = getattr(p, f"inverse_thresholds_{name}"), getattr(p, f"inverse_weights_{name}")
+        wy = w * y
+        z_prev = partial * y + ops.expand(ops.sum(wy)) - ops.cumsum(wy)
+        ge = ops.expand(g)
+        z = ops.maximum(ge - r_inv, ops.minimum(ge + r_inv, z_prev))
+        return ops.dot(z, w_inv)
 
-    def to_dict(self) -> dict[str, int]:
-        return {"n_operators": int(self.n_operators), "n_lags": int(self.n_lags),
-                "n_shaper_up": int(self.n_shaper_up), "n_shaper_down": int(self.n_shaper_down)}
+    def step(self, ops: Ops, params: Any, state: Any, target: Any) -> tuple[Any, Any]:
+        """``(input, next state)`` that makes the forward model output ``target`` this sample."""
+        p, s = self.params.unpack(params), self.state.unpack(state)
+        x = target - p.offset_N
+        if self.n_shaper:
+            d = p.shaper_thresholds
+            xd = ops.expand(x) - d
+            shaped = ops.where(d > 0, ops.maximum(xd, 0.0), ops.where(d < 0, ops.minimum(xd, 0.0), xd + d))
+            x = ops.dot(shaped, p.shaper_weights)
+        g = x - p.bias
+        if self.n_lags:
+            g = g - ops.dot(s.carries, p.creep_weights)
+        v = self._direction(ops, p, "rising", g, s.operators)
+        last = ops.repeat(0.0, 0)
+        if self.asymmetric:
+            v_prev = ops.sum(s.v_prev_V)
+            v_fall = self._direction(ops, p, "falling", g, s.operators)
+            tol = 1e-9 * (1.0 + ops.fabs(v_prev))  # a held target: rounding must not flip the direction
+            rise_ok, fall_ok = v >= v_prev - tol, v_fall < v_prev + tol
+            v, v_fall = ops.maximum(v, v_prev), ops.minimum(v_fall, v_prev - tol)
+            nearer = ops.where(v - v_prev <= v_prev - v_fall, v, v_fall)
+            v = ops.where(ops.logical_and(rise_ok, fall_ok), nearer,
+                          ops.where(rise_ok, v, ops.where(fall_ok, v_fall, v_prev)))
+            last = ops.expand(v)
+        ve = ops.expand(v)
+        y = ops.maximum(ve - p.thresholds, ops.minimum(ve + p.thresholds, s.operators))
+        carries = p.creep_decay * s.carries + p.creep_input * ve if self.n_lags else s.carries
+        return v, self.state.pack(ops, operators=y, carries=carries, v_prev_V=last)
 
 
-def inverse_step(ops: Any, layout: InverseStepLayout, params: Any, state: Any, target: Any) -> tuple[Any, Any]:
-    """One sample of the exact inverse of a (modified) P-I model with creep: ``(input, next state)``.
+def inverse_realtime(model: HysteresisModel | CreepPI) -> tuple[InverseStep, NDArray[np.float64]]:
+    """The :class:`InverseStep` of ``model`` and its parameter vector.
 
-    On numpy arrays (:data:`NUMPY_OPS`; a batch in the leading axes of ``state`` and
-    ``target``) or CasADi expressions (:data:`CASADI_OPS`); ``params`` and ``state`` as
-    :class:`InverseStepLayout` lays them out. With ``x = target - offset``:
-
-    1. ``P = S^-1(x) = u'_0 x + sum u'_up max(x - d'_up, 0) + sum u'_down min(x - d'_down, 0)``,
-       the inverse dead-zone superposition (identity for the classical model);
-    2. ``g = P - bias - sum_j c_j s_j``: what the one-sample P-I map must give, once the
-       creep's part known from the last sample is taken off;
-    3. ``z' = max(g - r', min(g + r', z'_prev))``, ``v = sum w' z'``: the inverse P-I model of
-       eqs. (19)-(20) for the one-sample weights ``(w_1 + beta, w_2, ..., w_n)``;
-    4. ``s = a s_prev + e v``: the creep carries take this sample's input.
+    Any model of this module: classical, modified, the paper's asymmetric, each with or without
+    creep. Raises :class:`NotInvertibleError` where a partial sum of the one-sample weights (or of
+    the dead-zone weights) is not positive.
     """
-    p = layout.split(params)
-    play_state, creep_state = ops.split(state, layout.n_operators)
-    x = target - p.offset
-    xs = ops.lift(x)
-    pre = (p.shaper_center * x
-           + ops.dot(p.shaper_up_weights, ops.maximum(xs - p.shaper_up_thresholds, 0.0))
-           + ops.dot(p.shaper_down_weights, ops.minimum(xs - p.shaper_down_thresholds, 0.0)))
-    g = ops.lift(pre - p.bias - ops.dot(p.creep_weights, creep_state))
-    z = ops.maximum(g - p.thresholds, ops.minimum(g + p.thresholds, play_state))
-    v = ops.dot(p.weights, z)
-    carry = p.creep_decay * creep_state + p.creep_input * ops.lift(v)
-    return v, ops.join(z, carry)
-
-
-def _inverse_step_model(
-    model: ClassicalPI | ModifiedPI | CreepPI,
-) -> tuple[InverseStepLayout, NDArray[np.float64], InverseClassicalPI]:
-    """Layout, parameter vector and the one-sample inverse P-I model of an invertible model."""
-    h = model.hysteresis if isinstance(model, CreepPI) else model
-    if isinstance(h, AsymmetricPI):
-        h.inverse()  # raises NotInvertibleError with the reason
-    if not isinstance(h, ClassicalPI | ModifiedPI):
-        raise InputError(f"expected a ClassicalPI, ModifiedPI or CreepPI, got {type(model).__name__}.")
-    w = h.weights.copy()
-    if isinstance(model, CreepPI):
-        k = model.creep.coefficients
-        w[0] += model.creep.instantaneous_gain
-        c, a, e = model.creep.weights, k.a, k.e
-        what = "this P-I model with creep (its linear weight plus the creep's one-sample gain)"
-    else:
-        c = a = e = np.zeros(0)
-        what = "this P-I model"
-    play_inverse = ClassicalPI(h.thresholds, w, 0.0)
-    r_inv, w_inv = _inverse_weights(h.thresholds, w, what)
-    play_inv = InverseClassicalPI(forward=play_inverse, thresholds=r_inv, weights=w_inv)
+    h, creep = (model.hysteresis, model.creep) if isinstance(model, CreepPI) else (model, None)
+    if not isinstance(h, ClassicalPI | ModifiedPI | AsymmetricPI):
+        raise InputError(f"expected a P-I model of piezopreload.models.hysteresis, got {type(model).__name__}.")
+    beta = 0.0 if creep is None else creep.instantaneous_gain
+    what = "this P-I model" + (" with creep (its linear weight plus the creep's one-sample gain)" if creep else "")
+    asymmetric = isinstance(h, AsymmetricPI)
+    weights = {"rising": h.weights_rising, "falling": h.weights_falling} if isinstance(h, AsymmetricPI) \
+        else {"rising": h.weights}
+    parts: dict[str, Any] = {"offset_N": h.offset, "thresholds": h.thresholds, "bias": 0.0}
+    for name, w in weights.items():
+        w = w.copy()
+        w[0] += beta
+        r_inv, w_inv = _inverse_weights(h.thresholds, w, what + (f" ({name} weights)" if asymmetric else ""))
+        parts.update({f"weights_{name}": w, f"partial_{name}": np.cumsum(w), f"inverse_thresholds_{name}": r_inv,
+                      f"inverse_weights_{name}": w_inv})
     if isinstance(h, ModifiedPI):
         s_inv = h.shaper.inverse()
-        ctr = s_inv.center
-        up_d, up_u = s_inv.thresholds[ctr + 1 :], s_inv.weights[ctr + 1 :]
-        dn_d, dn_u = s_inv.thresholds[:ctr], s_inv.weights[:ctr]
-        center, bias = float(s_inv.weights[ctr]), h.bias
+        parts.update(shaper_thresholds=s_inv.thresholds, shaper_weights=s_inv.weights, bias=h.bias)
     else:
-        up_d = up_u = dn_d = dn_u = np.zeros(0)
-        center, bias = 1.0, 0.0
-    layout = InverseStepLayout(h.n_operators, int(c.size), int(up_d.size), int(dn_d.size))
-    params = np.concatenate([[h.offset, bias, center], up_d, up_u, dn_d, dn_u, r_inv, w_inv, c, a, e])
-    return layout, params, play_inv
-
-
-def inverse_step_parameters(model: ClassicalPI | ModifiedPI | CreepPI) -> tuple[InverseStepLayout, NDArray[np.float64]]:
-    """The layout and parameter vector of :func:`inverse_step` for an invertible model.
-
-    A :class:`ClassicalPI` or :class:`ModifiedPI` without creep gives ``n_lags = 0``, so one
-    compiled step serves models with and without creep. Raises :class:`NotInvertibleError`
-    for the paper's asymmetric model and for weights with a nonpositive partial sum.
-    """
-    layout, params, _ = _inverse_step_model(model)
-    return layout, params
-
-
-def parametric_inverse_step(layout: InverseStepLayout) -> ca.Function:
-    """:func:`inverse_step` as a CasADi function with every number an input, for code generation.
-
-    ``pp_inverse_step(state, target, params) -> (v, state_next)``; one function serves every
-    model of this layout.
-    """
-    x = ca.SX.sym("state", layout.n_states)
-    target = ca.SX.sym("target")
-    prm = ca.SX.sym("params", layout.n_parameters)
-    v, nxt = inverse_step(CASADI_OPS, layout, prm, x, target)
-    return ca.Function("pp_inverse_step", [x, target, prm], [v, nxt], ["state", "target", "params"], ["v", "state_next"])
+        parts.update(shaper_thresholds=np.zeros(0), shaper_weights=np.zeros(0))
+    if creep is None:
+        parts.update(creep_weights=np.zeros(0), creep_decay=np.zeros(0), creep_input=np.zeros(0))
+    else:
+        k = creep.coefficients
+        parts.update(creep_weights=creep.weights, creep_decay=k.a, creep_input=k.e)
+    structure = InverseStep(h.n_operators, 0 if creep is None else creep.n_lags,
+                            int(parts["shaper_thresholds"].size), asymmetric)
+    return structure, structure.params.numbers(**parts)
 
 
 @dataclass(frozen=True, eq=False)
-class InverseCreepPI:
-    """Exact inverse of a :class:`CreepPI` (classical or modified), one sample at a time.
+class InverseAsymmetricPI(_RealTimeInverse):
+    """The direction-switched inverse of the paper's asymmetric model, eq. (18) (:class:`InverseStep`, point 4).
 
-    Built by :meth:`CreepPI.inverse`; :meth:`step` and :meth:`casadi_step` are
-    :func:`inverse_step` on numpy and on CasADi, with :attr:`parameters` laid out as
-    :attr:`layout` says. Its state is ``[inverse play operator states (n), creep carries (m)]``;
-    :meth:`state_from_forward` converts a forward state, so the inverse can take over from
-    any history. Code generated for any model of a layout comes from
-    :func:`parametric_inverse_step`, fed :attr:`parameters`.
+    Exact wherever the target is an output the model reaches; in the gaps eq. (18) leaves at a
+    reversal of the input it holds the last input. Built by :meth:`AsymmetricPI.inverse`.
     """
 
-    forward: CreepPI
-    layout: InverseStepLayout
-    parameters: NDArray[np.float64]
-    play_inverse: InverseClassicalPI
-
-    def initial_state(self, batch: tuple[int, ...] = ()) -> NDArray[np.float64]:
-        """At rest at 0 V, as the forward model's :meth:`CreepPI.initial_state`."""
-        return np.zeros(batch + (self.layout.n_states,))
-
-    def state_from_forward(self, state: ArrayLike) -> NDArray[np.float64]:
-        """The inverse's state equivalent to a forward state ``[play outputs, carries]``."""
-        y, s = self.forward._split(state, np.shape(state)[:-1])
-        return np.concatenate([self.play_inverse.state_from_forward(y), s], axis=-1)
-
-    def step(self, state: ArrayLike, target: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """One sample: the input that makes the forward model output ``target``, and the next state."""
-        v, nxt = inverse_step(NUMPY_OPS, self.layout, self.parameters, np.asarray(state, float), np.asarray(target, float))
-        return np.asarray(v, float), np.asarray(nxt, float)
-
-    def casadi_step(self, state: Any, target: Any) -> tuple[Any, Any]:
-        """:meth:`step` on CasADi expressions, the model's numbers as constants."""
-        return inverse_step(CASADI_OPS, self.layout, ca.DM(self.parameters), state, target)
-
-    def run(self, target: ArrayLike, state: ArrayLike | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Inputs for the targets of shape (..., N) from ``state`` (at rest by default), and the final state."""
-        target = np.asarray(target, dtype=float)
-        x = self.initial_state(target.shape[:-1]) if state is None else np.asarray(state, float)
-        out = np.empty(target.shape)
-        for k in range(target.shape[-1]):
-            out[..., k], x = self.step(x, target[..., k])
-        return out, x
+    forward: AsymmetricPI
 
     def __call__(self, target: ArrayLike, state: ArrayLike | None = None) -> NDArray[np.float64]:
         return self.run(target, state)[0]
 
+
+@dataclass(frozen=True, eq=False)
+class InverseCreepPI(_RealTimeInverse):
+    """The inverse of a :class:`CreepPI` (classical, modified, asymmetric), one sample at a time.
+
+    Built by :meth:`CreepPI.inverse`: :class:`InverseStep` with the model's numbers; its state is
+    the forward model's (``[play operator outputs (n), creep carries (m)]``, and the last input
+    for the asymmetric model), so it takes over from any history the forward model left.
+    """
+
+    forward: CreepPI
+
+    def __call__(self, target: ArrayLike, state: ArrayLike | None = None) -> NDArray[np.float64]:
+        return self.run(target, state)[0]
 
 def _creep_model_from_dict(data: dict[str, Any], kind: str, where: str) -> CreepPI:
     base = kind[: -len(_CREEP_SUFFIX)]

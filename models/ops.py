@@ -57,7 +57,7 @@ class Ops:
     """What differs between numpy arrays and CasADi expressions, by name.
 
     ``expand(s)`` lets a scalar field meet a vector field (numpy: a trailing axis; CasADi: as
-    is); ``dot(z, w)`` and ``sum(z)`` reduce a vector field; ``repeat(s, n)`` makes one of ``n``
+    is); ``dot(z, w)`` and ``sum(z)`` reduce a vector field, ``cumsum(z)`` its partial sums; ``repeat(s, n)`` makes one of ``n``
     copies of a scalar; ``first(line)`` and ``shift_in(line, s)`` read and advance a delay line
     (drop the oldest entry, append ``s``).
     """
@@ -81,15 +81,16 @@ class Ops:
     repeat: Callable[..., Any]
     first: Callable[..., Any]
     shift_in: Callable[..., Any]
+    cumsum: Callable[..., Any]
 
 
 NUMPY = Ops("numpy", False, np.where, np.minimum, np.maximum, np.logical_and, np.logical_or, np.exp, np.expm1,
             np.log1p, np.sqrt, np.abs, np.floor, _np_dot, lambda z: np.sum(z, axis=-1),
             lambda s: np.asarray(s)[..., None], lambda s, n: np.repeat(np.asarray(s, float)[..., None], n, axis=-1),
-            lambda line: line[..., 0], _np_shift_in)
+            lambda line: line[..., 0], _np_shift_in, lambda z: np.cumsum(z, axis=-1))
 CASADI = Ops("casadi", True, ca.if_else, ca.fmin, ca.fmax, ca.logic_and, ca.logic_or, ca.exp, ca.expm1, ca.log1p,
              ca.sqrt, ca.fabs, ca.floor, _ca_dot, ca.sum1, lambda s: s,
-             lambda s, n: ca.repmat(s, n, 1) if n else ca.DM(0, 1), lambda line: line[0], _ca_shift_in)
+             lambda s, n: ca.repmat(s, n, 1) if n else ca.DM(0, 1), lambda line: line[0], _ca_shift_in, ca.cumsum)
 
 
 def softplus(ops: Ops, y: Any, k: Any) -> Any:

@@ -33,6 +33,7 @@ from piezopreload.tuning.calibrate import CONTROLLERS
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.holdout import Window, identify_record
 from piezopreload.tuning.identify import MODELS
+from piezopreload.tuning.learning import METHODS
 
 EXIT_OK, EXIT_INTERNAL, EXIT_INPUT = 0, 1, 2
 PASSWORD_ENV = "PIEZOPRELOAD_RIG_PASSWORD"
@@ -68,6 +69,17 @@ def _nonnegative_float(text: str) -> float:
     if not value >= 0 or value == float("inf"):
         raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
     return value
+
+
+def _time_constants(text: str) -> list[float]:
+    """``'0.01,0.1,1'`` -> positive, increasing time constants in s."""
+    try:
+        values = [float(x) for x in text.split(",")]
+    except ValueError:
+        values = []
+    if not values or not all(0 < x < float("inf") for x in values) or any(b <= a for a, b in zip(values, values[1:])):
+        raise argparse.ArgumentTypeError(f"'{text}' is not a list of positive, increasing times in s (example: 0.01,0.1,1)")
+    return values
 
 
 def _window(text: str | None, option: str) -> Window | None:
@@ -188,9 +200,16 @@ def register_identify(sub: Any) -> None:
     p.add_argument("data", nargs="?", metavar="DATA.csv", help="measured record (default: the shipped one)")
     p.add_argument("--columns", help="where time, input and output are: time=I,input=J,output=K")
     p.add_argument("--no-header", action="store_true", help="the file has no header line")
-    p.add_argument("--model", choices=MODELS, default="classical",
+    p.add_argument("--model", choices=[*MODELS, *(m + "+creep" for m in MODELS)], default="classical",
                    help="classical: eq. (15); paper-asymmetric: eq. (18); modified: Kuhnen's model "
-                        "with dead-zone output operators and an exact inverse (default: classical)")
+                        "with dead-zone output operators and an exact inverse (default: classical); "
+                        "'+creep' as --creep")
+    p.add_argument("--creep", action="store_true",
+                   help="add creep (first-order lags on the input) identified in the same QP; the output also "
+                        "gives the test error of the model refitted without creep")
+    p.add_argument("--creep-time-constants", metavar="TAU,...", type=_time_constants,
+                   help="the creep lags' time constants in s, increasing (default: one per decade from 0.01 s "
+                        "to the record's length)")
     p.add_argument("--operators", type=_positive_int, default=40, help="number of play operators (default 40)")
     p.add_argument("--train", metavar="T0:T1", help="training window in s (default: first 70 %% of the record)")
     p.add_argument("--test", metavar="T0:T1", help="test window in s (default: after the training window)")
@@ -208,7 +227,8 @@ def _cmd_identify(args: argparse.Namespace) -> dict[str, Any]:
         columns = parse_columns(args.columns) if args.columns else None
     fit = identify_record(read_record(path, columns=columns, header=header), model=args.model,
                           operators=args.operators, train=_window(args.train, "--train"),
-                          test=_window(args.test, "--test"), ridge=args.ridge)
+                          test=_window(args.test, "--test"), ridge=args.ridge, creep=args.creep,
+                          creep_time_constants_s=args.creep_time_constants)
     return {**fit.to_dict(), "out": None if args.out is None else str(fit.save(args.out))}
 
 
@@ -221,16 +241,21 @@ def _print_identify(s: dict[str, Any]) -> None:
     print(f"solver    {sv['name']}: {sv['status']}{', active set polished' if sv['polished'] else ''}; "
           f"QP {1e3 * sv['qp_seconds']:.1f} ms, whole fit {1e3 * sv['fit_seconds']:.0f} ms")
     print(f"errors in % of the output span ({s['output_span']:.4g} {unit}):")
-    print(f"  {'':34s}{'RMS':>8s}{'max':>8s}")
+    print(f"  {'':40s}{'RMS':>8s}{'max':>8s}")
     rows = [(f"train {s['train']['window_s'][0]:g}-{s['train']['window_s'][1]:g} s", s["train"]),
             (f"test  {s['test']['window_s'][0]:g}-{s['test']['window_s'][1]:g} s", s["test"]),
             ("test, best straight line", s["line_test"])]
     if s["paper_method_test"] is not None:
         rows.append(("test, the paper's method (eq. 17)", s["paper_method_test"]))
+    if s.get("without_creep"):
+        rows.append((f"test, {s['without_creep']['model']} without creep", s["without_creep"]["test"]))
     for label, e in rows:
-        print(f"  {label:34s}{e['rms_pct']:8.3f}{e['max_pct']:8.3f}")
+        print(f"  {label:40s}{e['rms_pct']:8.3f}{e['max_pct']:8.3f}")
     if s.get("paper_method_note"):
         print(f"  the paper's method (eq. 17) could not run: {s['paper_method_note']}")
+    for c in [s["creep"]] if s.get("creep") else []:
+        print("creep     " + ", ".join(f"{w:.4g} at {tau:g} s" for tau, w in zip(c["time_constants_s"], c["weights"]))
+              + f" ({unit} per input unit); without creep: refitted, not zeroed")
     if s["out"]:
         print(f"wrote     {s['out']}")
 
@@ -414,6 +439,79 @@ def _print_tune(s: dict[str, Any]) -> None:
           f"{'PASSED' if v['passed'] else 'FAILED'} ({v['n_failures']} failures)")
     _print_validation_summary(v)
     print(f"wrote {s['out']} ({s['status']}, sha256 {s['content_sha256'][:12]}...)")
+
+
+def register_learn(sub: Any) -> None:
+    p = sub.add_parser(
+        "learn", help="preview and iterative learning control over a repeated reference",
+        description=(
+            "Learn a feedforward correction cycle by cycle (Q-filtered P-type ILC, or norm-optimal ILC as a QP with "
+            "the voltage and slew limits) on the study's rig, with the reference read ahead by --preview-s. Prints "
+            "the error per iteration, the causal and the preview floor; writes the learned signal (a content-hashed "
+            "artifact tied to the gain set and the reference) that 'rig run --learned' plays back. With --from-run "
+            "LOG --learned FILE it makes one learning update from a rig run of FILE instead."))
+    _study_arguments(p)
+    p.add_argument("--gains", metavar="gains.json", help="a gain set (default: the study's [controller] gains)")
+    p.add_argument("--reference", default="trajectory", metavar="step|trajectory|schedule|FILE.csv",
+                   help="the repeated reference (default trajectory)")
+    p.add_argument("--iterations", type=_nonnegative_int, default=10, help="learning updates (default 10)")
+    p.add_argument("--preview-s", type=_nonnegative_float, help="preview horizon (default: delay + lag + slew time)")
+    p.add_argument("--method", choices=METHODS, default="p-type", help="the learning law (default p-type)")
+    p.add_argument("--plants", type=_positive_int, help="learn on N Monte Carlo plants and report the worst")
+    p.add_argument("--out", metavar="DIR", help="write learned.json (and learning.png) here")
+    p.add_argument("--from-run", metavar="LOG.csv", help="a rig run log of --learned FILE: one learning update")
+    p.add_argument("--learned", metavar="FILE", help="the learned signal the run played (with --from-run)")
+    _json_flag(p)
+    p.set_defaults(run=_cmd_learn, show=_print_learn)
+
+
+def _cmd_learn(args: argparse.Namespace) -> dict[str, Any]:
+    from pathlib import Path
+
+    from piezopreload.models.learned import LearnedSignal
+    from piezopreload.rig.runlog import read_run_log
+    from piezopreload.rig.session import reference_for
+    from piezopreload.tuning.learning import learn_from_log
+
+    gain_set = None if args.gains is None else GainSet.load(args.gains)
+    out = Path(args.out) if args.out else None
+    if args.from_run or args.learned:
+        if not (args.from_run and args.learned and gain_set is not None):
+            raise InputError("learn --from-run LOG needs --learned FILE (the signal the run played) and --gains FILE")
+        new = learn_from_log(LearnedSignal.load(args.learned), read_run_log(args.from_run), gain_set, args.learned)
+        path = (out or Path(args.learned).parent) / "learned.json"
+        saved = new.save(path)
+        return {"from_run": args.from_run, "iteration": saved.iteration, "history": saved.history,
+                "out": str(path), "content_sha256": saved.content_sha256}
+    study = _study(args)
+    reference: Any = args.reference
+    if reference not in (*study.references, "schedule"):
+        reference = reference_for(reference, gain_set or GainSet(gains=study.gains), "--reference")[0]
+    result = study.learn(gain_set, reference=reference, iterations=args.iterations, preview_s=args.preview_s,
+                         method=args.method, plants=args.plants, seed=args.seed, progress=_say)
+    summary = result.to_dict()
+    if out is not None:
+        summary.update(result.save(out, None if gain_set is None else gain_set.content_sha256,
+                                   {"study": study.path, "study_sha256": study.sha256, "gains": args.gains}))
+    return summary
+
+
+def _print_learn(s: dict[str, Any]) -> None:
+    if "from_run" in s:
+        print(f"one learning update from {s['from_run']}: iteration {s['iteration']}; wrote {s['out']}")
+        return
+    print(f"{s['method']} learning, preview {s['preview_s'] * 1e3:.0f} ms"
+          + (f", worst of {s['plants']} plants" if s["plants"] else "") + ":")
+    for h in s["history"]:
+        worst = {k: max(v) if isinstance(v, list) else v for k, v in h.items()}
+        print(f"  iteration {h['iteration']:2d}: RMS {worst['tracking_rms_N']:.3f} N, outside 0.1 s after jumps "
+              f"{worst['tracking_rms_after_change_N']:.3f} N")
+    print(f"best: {s['tracking_rms_N']:.3f} N ({s['tracking_rms_pct_of_range']:.2f} % of the range), "
+          f"{s['tracking_rms_after_change_N']:.3f} N outside 0.1 s after jumps; "
+          f"{'converged' if s['converged'] else 'NOT converged'}")
+    print(f"floors: causal {s['causal_floor_N']:.3f} N, with this preview {s['preview_floor_N']:.3f} N")
+    if s.get("out"):
+        print(f"wrote {s['out']}")
 
 
 def register_validate(sub: Any) -> None:
@@ -647,7 +745,7 @@ def _rig_common(args: argparse.Namespace) -> dict[str, Any]:
     from piezopreload.rig.backends import parse_fault
 
     return {"backend": args.backend, "backend_options": _key_values(args.backend_option, "--backend-option"),
-            "reference": args.reference, "log_dir": args.log_dir, "seed": args.seed,
+            "reference": args.reference or "step", "log_dir": args.log_dir, "seed": args.seed,
             "faults": [parse_fault(f) for f in args.inject or []],
             "safety": {"force_max_N": args.force_max_N, "ramp_s": args.ramp_s, "missed_streak": args.missed_streak}}
 
@@ -676,9 +774,9 @@ def _rig_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("gains", metavar="gains.json", help="a validated gain set (candidates and tampered files are refused)")
     p.add_argument("--backend", default="sim", help="sim (the simulated rig, default) or an installed hardware plug-in")
     p.add_argument("--backend-option", action="append", metavar="KEY=VALUE", help="passed to the backend (repeatable)")
-    p.add_argument("--reference", default="step", metavar="|".join(REFERENCES) + "|FILE.csv",
+    p.add_argument("--reference", metavar="|".join(REFERENCES) + "|FILE.csv",
                    help="the paper's step or trajectory as the gain set stores them, or a CSV of time_s,force_N "
-                        "(default step)")
+                        "(default step; with --learned the signal's own)")
     p.add_argument("--log-dir", default="runs", metavar="DIR", help="where the run log goes (default runs/)")
     p.add_argument("--seed", type=int, default=0, help="noise seed of the simulated rig (default 0)")
     p.add_argument("--force-max-N", type=float, help="interlock: highest force (default 150 N)")
@@ -706,6 +804,8 @@ def register_rig(sub: Any) -> None:
         epilog="exit codes: 0 completed, 1 internal failure, 2 bad input, 3 stopped by an interlock or a signal")
     _rig_arguments(p)
     p.add_argument("--rate", type=float, metavar="HZ", help="the loop's rate; must be the gain set's (default: it)")
+    p.add_argument("--learned", metavar="FILE", help="play back a learned signal ('piezopreload learn --out'): its "
+                   "plan as the setpoint, its ff_extra_V added to the feedforward; its reference unless --reference")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--realtime", action="store_true", help="pace the loop in real time (default)")
     mode.add_argument("--fast", action="store_true", help="run the cycles back to back (simulated backend)")
@@ -746,7 +846,10 @@ def register_rig(sub: Any) -> None:
 def _cmd_rig_run(args: argparse.Namespace) -> dict[str, Any]:
     from piezopreload.rig import session
 
-    return session.run(args.gains, rate_Hz=args.rate, realtime=not args.fast, **_rig_common(args)).to_dict()
+    common = _rig_common(args)
+    if args.learned and args.reference is None:
+        common["reference"] = None  # the learned signal's own
+    return session.run(args.gains, rate_Hz=args.rate, realtime=not args.fast, learned=args.learned, **common).to_dict()
 
 
 def _cmd_rig_serve(args: argparse.Namespace) -> dict[str, Any]:
@@ -803,7 +906,7 @@ def _print_rig_push(s: dict[str, Any]) -> None:
 #: one register function per subcommand, in the order ``--help`` lists them
 COMMANDS: tuple[Callable[[Any], None], ...] = (
     register_run, register_report, register_identify, register_simulate, register_reproduce, register_tune,
-    register_validate, register_ballscrew, register_design, register_export, register_rig,
+    register_learn, register_validate, register_ballscrew, register_design, register_export, register_rig,
 )
 
 

@@ -60,7 +60,7 @@ from piezopreload.results import TuningResult
 from piezopreload.rig import session
 from piezopreload.rig.export import write_exports
 from piezopreload.study import Study, load_study
-from piezopreload.tuning.compare import reproduction, responses
+from piezopreload.tuning.compare import creep_effect, reproduction, responses
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 
 __all__ = ["Stage", "STAGES", "StageFailed", "run_study", "rerender_report", "read_manifest", "DEFAULT_OUT"]
@@ -139,7 +139,7 @@ class _Ctx:
         return Path(path).resolve().relative_to(self.out.resolve()).as_posix()
 
     def feedforward(self) -> IdentifiedFeedforward:
-        return IdentifiedFeedforward.load(self.output("identify", "model"), classical=True)
+        return IdentifiedFeedforward.load(self.output("identify", "model"))
 
     def design_point(self) -> DesignPoint:
         return DesignPoint.from_dict(read_artifact(self.output("design", "design"), "design")["optimum"]["point"])
@@ -244,9 +244,13 @@ def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
         rows.append({"gains": r.gains, "controller": r.controller, "reference": r.reference, "csv": ctx.rel(path),
                      **r.numbers})
     table = reproduction(runs)
+    creep = None if ff.without_creep is None else creep_effect(  # FF + PID with and without creep compensation
+        study.rig, study.references, {"paper": study.gains, "tuned": gain_set.gains}, ff.model, ff.without_creep["model"],
+        seed=study.seed, band_N=study.band_N, signal=study.signal, after_change_s=study.criteria.tracking_after_change_s)
     outputs["responses"] = d / "responses.json"
     write_artifact(outputs["responses"], "responses", {
-        "runs": rows, "reproduction": table, "band_N": study.band_N, "signal": study.signal, "seed": study.seed,
+        "runs": rows, "reproduction": table, "creep_effect": creep, "band_N": study.band_N, "signal": study.signal,
+        "seed": study.seed,
         "inputs": {"gain_set_sha256": gain_set.content_sha256, "study_sha256": study.sha256,
                    "feedforward_sha256": ctx.sha256("identify", "model")},
     })

@@ -16,19 +16,19 @@ from typing import Any
 
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import InfeasibleError, InputError
+from piezopreload.core.parallel import beside
 from piezopreload.models.actuator import Rig
 from piezopreload.models.closedloop import ClosedLoopRun
 from piezopreload.models.closedloop import simulate as simulate_loop
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.gainset import REFERENCES, GainSet, gains_from_dict, gains_to_dict
-from piezopreload.models.hysteresis import ClassicalPI
 from piezopreload.models.metrics import StepMetrics, run_numbers
 from piezopreload.study import Study
 from piezopreload.tuning.calibrate import CONTROLLERS, PAPER_RESULTS
 from piezopreload.tuning.calibrate import reproduce as reproduce_paper
 from piezopreload.tuning.compare import compare_gains, reproduction_summary, tracking_improvement
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
-from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, minimum_time, tracking_floor, tune_pid
+from piezopreload.tuning.pid import TuningInfeasible, minimum_time, tracking_floor, tune_pid
 from piezopreload.tuning.validate import ValidationResult
 from piezopreload.tuning.verdict import validate_gain_set
 
@@ -146,22 +146,21 @@ def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None =
          progress: Callable[[str], None] | None = None, iterations: Callable[[int], None] | None = None) -> TuningResult:
     """The body of :meth:`Study.tune`: tune, bound, compare (``progress`` gets messages, ``iterations`` IPOPT's count)."""
     say = progress or (lambda _m: None)
-    if not isinstance(feedforward.model, ClassicalPI):
-        raise InputError(f"the feedforward is a '{feedforward.model.kind}' model; tuning runs the classical P-I inverse")
     seed = study.seed if seed is None else seed
     spec, criteria, step, trajectory = study.tuning_spec, study.criteria, study.references["step"], study.references["trajectory"]
-    say("tuning the PID around the compensated plant (CasADi + IPOPT) ...")
+    say("tuning the PID around the compensated plant (CasADi + IPOPT), the minimum-time bound beside it ...")
+    bounding = beside(minimum_time, study.rig, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]),
+                      band_N=study.band_N, u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
     try:
         tuned = tune_pid(study.rig, feedforward.inverse(), spec, progress=iterations)
     except TuningInfeasible as exc:
+        bounding.discard()
         raise InfeasibleError(f"{study.path}: {exc}") from exc
     g = tuned.gains
     say(f"tuned in {tuned.seconds:.0f} s: Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s, Td {g.Td_s:.4g} s, Tf {g.Tf_s:.4g} s, "
         f"b {g.b:.3g}")
-    say("the lower bound: minimum-time step (optimal control) ...")
     try:
-        bound = minimum_time(study.rig, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]),
-                             band_N=study.band_N, u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
+        bound = bounding.result()
     except TuningInfeasible as exc:  # the bound is a comparison, not a requirement: say why it is missing
         say(f"no minimum-time bound: {exc}")
         bound = {"settling_s": None, "reason": str(exc)}
@@ -175,17 +174,11 @@ def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None =
     if feedforward.model_sha256:
         inputs["feedforward_sha256"] = feedforward.model_sha256
     return TuningResult(
-        study, feedforward, g, tuned.baseline, {**tuned.to_dict(), "spec": _spec_dict(spec)}, table,
+        study, feedforward, g, tuned.baseline, {**tuned.to_dict(), "spec": spec.to_dict()}, table,
         {"settling_s": bound["settling_s"], **({"reason": bound["reason"]} if "reason" in bound else {}),
          "tuned_over_bound_ratio": None if settle is None or bound["settling_s"] is None else settle / bound["settling_s"]},
         {**floor, "tuned_over_floor_ratio": row["tracking_rms_N"] / floor["rms_N"]}, tracking_improvement(table),
         inputs)
-
-
-def _spec_dict(spec: TuningSpec) -> dict[str, Any]:
-    return {"band_N": spec.band_N, "overshoot_margin_N": spec.overshoot_margin_N, "ms_max": spec.ms_max,
-            "noise_gain_max_V_per_N": spec.noise_gain_max_V_per_N, "u_min_V": spec.u_min_V, "u_max_V": spec.u_max_V,
-            "tune_setpoint_weight": spec.tune_setpoint_weight, "variants": dict(spec.variants)}
 
 
 _STUDY = object()  # step_metrics' default: the study's band and signal
@@ -255,7 +248,7 @@ def simulate(study: Study, gains: GainSet | PIDGains | None, *, controller: str 
                        "operators": gains.feedforward.n_operators}
         else:
             ff = feedforward or study.identify_feedforward()
-            inverse, ff_info = ff.inverse(), _feedforward_info(ff)
+            inverse, ff_info = ff.inverse(), ff.describe()
     seed = study.seed if seed is None else seed
     run = simulate_loop(rig, Controller(pid, rig.dt_s, inverse), study.references[reference], seed=seed)
     info = {"study": {"path": study.path, "sha256": study.sha256, "name": study.name}, "controller": controller,
@@ -263,19 +256,6 @@ def simulate(study: Study, gains: GainSet | PIDGains | None, *, controller: str 
             "sample_period_s": rig.dt_s}
     return StudyRun(**{f.name: getattr(run, f.name) for f in fields(run)}, band_N=study.band_N, signal=study.signal,
                     info=info)
-
-
-def _feedforward_info(ff: IdentifiedFeedforward) -> dict[str, Any]:
-    src = ff.source
-    if src.get("kind") == "simulated":
-        ex = src["excitation"]
-        where = f"identified from a simulated {ex['v_max_V']:g} V, {ex['frequency_Hz']:g} Hz loop measurement of the rig"
-    else:
-        where = f"identified from the measured loop {src.get('path')}"
-    out = {"source": where, "model": ff.model.kind, "operators": ff.model.n_operators}
-    if ff.fit:
-        out.update(fit_rms_pct=ff.fit["rms_pct"], fit_max_pct=ff.fit["max_pct"])
-    return out
 
 
 def reproduce(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None = None,
@@ -287,8 +267,6 @@ def reproduce(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | N
     t0 = time.perf_counter()
     if repeats < 1:
         raise InputError(f"repeats: must be >= 1, got {repeats}")
-    if not isinstance(feedforward.model, ClassicalPI):
-        raise InputError(f"the feedforward is a '{feedforward.model.kind}' model; the paper's is the classical P-I")
     rep = reproduce_paper(study.rig, study.gains, step=study.references["step"], excitation=study.excitation,
                           seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
                           repeats=repeats, feedforward=feedforward.model, feedforward_fit=feedforward.fit)

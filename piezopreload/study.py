@@ -29,15 +29,13 @@ from piezopreload.core.config import NUMBER, Lines, check_tree, read_config, tom
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.tables import read_record
 from piezopreload.design.plant import DesignedPlant, plant_from_design
-from piezopreload.design.preload import OBJECTIVES, PARETO_PAIRS, DesignInfeasible, DesignPoint, DesignSpec
+from piezopreload.design.preload import PARETO_PAIRS, DesignInfeasible, DesignPoint, DesignSpec
 from piezopreload.design.schedule import PreloadSchedule
-from piezopreload.design.study import DesignResult, design_study, plan_schedule, read_profile
+from piezopreload.design.study import DesignResult, design_spec_from_tables, design_study, plan_schedule, read_profile
 from piezopreload.design.system import SystemRun, track_schedule
 from piezopreload.models.actuator import P888_91, RigParams, StackData
-from piezopreload.models.ballscrew import DutyCase
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import PIDGains
-from piezopreload.models.feed_drive import FeedDrive, PiezoPreload
 from piezopreload.models.gainset import EXPORT_FORMATS, REFERENCES, GainSet
 from piezopreload.tuning.calibrate import LoopExcitation
 from piezopreload.tuning.feedforward import IdentifiedFeedforward, identify
@@ -46,6 +44,7 @@ from piezopreload.tuning.validate import Criteria
 
 if TYPE_CHECKING:  # the results module imports this one
     from piezopreload.results import StudyRun, TuningResult
+    from piezopreload.tuning.learning import LearningResult
 
 __all__ = ["Study", "load_study", "default_study", "paper_study", "shipped_studies", "DEFAULT_STUDY", "PAPER_STUDY",
            "RigRunPlan", "PlantTable"]
@@ -66,7 +65,7 @@ _SCHEMA: dict[str, Any] = {
         "Kc": _NUM, "Ti": _NUM, "Td": _NUM, "Tf_s": _NUM, "b": _NUM, "units": str, "u_min_V": _NUM, "u_max_V": _NUM,
     },
     "feedforward": {"v_max_V": _NUM, "frequency_Hz": _NUM, "cycles": int, "n_operators": int, "seed": int,
-                    "data": str},
+                    "data": str, "kind": str, "creep": bool},
     "reference": {
         "step": {"initial_N": _NUM, "final_N": _NUM, "t_step_s": _NUM, "duration_s": _NUM},
         "trajectory": {"initial_N": _NUM, "levels_N": list, "hold_s": _NUM, "t_start_s": _NUM},
@@ -140,7 +139,8 @@ class ControllerTable(_Table):
 
 @dataclass(frozen=True)
 class FeedforwardTable(_Table):
-    """[feedforward]: the loop measurement the feedforward is identified from; ``data``: a measured one."""
+    """[feedforward]: the loop measurement the feedforward is identified from (``data``: a measured one), the P-I
+    model's ``kind`` and whether it compensates ``creep`` too."""
 
     v_max_V: float = LoopExcitation.v_max_V
     frequency_Hz: float = LoopExcitation.frequency_Hz
@@ -148,6 +148,8 @@ class FeedforwardTable(_Table):
     n_operators: int = LoopExcitation.n_operators
     seed: int = LoopExcitation.seed
     data: str | None = None
+    kind: str = LoopExcitation.kind
+    creep: bool = LoopExcitation.creep
 
 
 @dataclass(frozen=True)
@@ -460,7 +462,7 @@ class Study:
         levels = self.references["trajectory"].levels_N
         low = float(min(self.references["step"].levels_N.min(), levels.min()))
         ff = identify(self.rig, ex, None if data is None else read_record(data), check_range_N=(low, float(levels.max())))
-        say(f"P-I model: {ff.model.n_operators} operators, fit RMS {ff.fit['rms_pct']:.2f} % "
+        say(f"P-I model ({ff.model.kind}): {ff.model.n_operators} operators, fit RMS {ff.fit['rms_pct']:.2f} % "
             f"(max {ff.fit['max_pct']:.2f} %) of the force span")
         return ff
 
@@ -485,6 +487,28 @@ class Study:
         from piezopreload.results import simulate
 
         return simulate(self, gains, controller=controller, reference=reference, feedforward=feedforward, seed=seed)
+
+    def learn(self, gains: GainSet | None = None, *, reference: Any = "trajectory", iterations: int = 10,
+              preview_s: float | None = None, method: str = "p-type", plants: int | None = None,
+              seed: int | None = None, progress: Callable[[str], None] | None = None) -> LearningResult:
+        """Preview and iterative learning control over a repeated reference: a
+        :class:`~piezopreload.tuning.learning.LearningResult` (``.ff_extra_V``, ``.history``,
+        ``.signal(gain_set_sha256)``, ``.to_dict()``, ``.plot()``); see :func:`piezopreload.tuning.learning.learn`.
+
+        ``gains`` a gain set (its controller) or None (the study's ``[controller]`` with the identified
+        feedforward); ``reference`` a name of :attr:`references` or a ``Reference``; ``preview_s`` None
+        for the default horizon, 0 for none; ``method`` ``p-type`` or ``norm-optimal``; ``plants`` N to
+        learn on N Monte Carlo plants (each its own learning; the result reports the worst).
+        """
+        from piezopreload.models.actuator import Rig
+        from piezopreload.models.controller import Controller
+        from piezopreload.tuning.learning import learn, named_reference
+
+        reference = named_reference(reference, self.references)
+        controller = gains.controller() if gains is not None else Controller(
+            self.gains, self.rig.sample_period_s, self.identify_feedforward().inverse())
+        return learn(controller, Rig(self.rig), reference, iterations=iterations, preview_s=preview_s, method=method,
+                     plants=plants, seed=self.seed if seed is None else seed, progress=progress)
 
     def reproduce(self, *, seed: int | None = None, repeats: int = 1,
                   feedforward: IdentifiedFeedforward | None = None) -> dict[str, Any]:
@@ -674,7 +698,7 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes) -> Stud
             raise fail("plant.margin_factor", f"must be >= 1, got {plant.margin_factor!r}")
         if plant.sleeve_stiffness_N_per_um is not None and not plant.sleeve_stiffness_N_per_um > 0:
             raise fail("plant.sleeve_stiffness_N_per_um", f"must be > 0, got {plant.sleeve_stiffness_N_per_um!r}")
-    design_spec = _design_spec(design_tables, where) if design_tables["ballscrew"] is not None else None
+    design_spec = design_spec_from_tables({**design_tables, "design": design_tables["design"] or DesignTable()}, where.fail) if design_tables["ballscrew"] is not None else None
     meta = data.get("study", {})
     return Study(
         path=path, sha256=hashlib.sha256(text).hexdigest(), name=meta.get("name", Path(path).stem),
@@ -745,59 +769,3 @@ def _rig_run(r: dict[str, Any], where: _Source) -> RigRunPlan:
         raise fail("rig_run.seed", f"must be >= 0, got {plan.seed!r}")
     # the simulated rig may run back to back when the study says so; anything else runs in real time
     return plan if plan.realtime is not None else RigRunPlan(**{**asdict(plan), "realtime": plan.backend != "sim"})
-
-
-def _design_spec(t: dict[str, Any], where: _Source) -> DesignSpec:
-    """The design tables as a :class:`DesignSpec` (keys not given keep its defaults)."""
-    fail = where.fail
-    b: BallscrewTable = t["ballscrew"]
-    d: DesignTable = t["design"] or DesignTable()
-    kwargs: dict[str, Any] = {k: float(v) for k, v in b.to_dict().items()
-                              if k in ("nominal_diameter_mm", "lead_mm", "load_sharing")}
-    for key in ("contact_angle_deg", "ball_mm", "conformity", "turns"):
-        value = getattr(b, key)
-        if value is None:
-            continue
-        if len(value) != 2:
-            raise fail(f"ballscrew.{key}", f"must have 2 values (low, high), got {list(value)!r}")
-        if key == "turns" and any(x != int(x) for x in value):
-            raise fail("ballscrew.turns", f"must be two integers, got {list(value)!r}")
-        kwargs[key] = tuple(int(x) for x in value) if key == "turns" else tuple(float(x) for x in value)
-    fd: FeedDriveTable | None = t["feed_drive"]
-    if fd is not None:
-        default = DesignSpec().feed_drive
-        given = fd.to_dict()
-        if "travel_mm" in given and len(given["travel_mm"]) != 2:
-            raise fail("feed_drive.travel_mm", f"must have 2 values (low, high), got {given['travel_mm']!r}")
-        try:
-            kwargs["feed_drive"] = FeedDrive(**{**{f.name: getattr(default, f.name) for f in fields(FeedDrive)},
-                                                **{k: tuple(v) if isinstance(v, list) else v for k, v in given.items()}})
-        except ValueError as exc:
-            raise fail("feed_drive", f"is not valid: {exc}") from None
-    duty: DutyTable | None = t["duty"]
-    if duty is not None:
-        lists = [duty.axial_load_N, duty.speed_rpm, duty.time_share]
-        if any(v is None for v in lists) or len({len(v) for v in lists if v is not None}) != 1 or not lists[0]:
-            raise fail("duty", "needs axial_load_N, speed_rpm and time_share as lists of equal, non-zero length")
-        try:
-            kwargs["duty"] = tuple(DutyCase(float(a), float(n), float(s)) for a, n, s in zip(*lists))  # type: ignore[arg-type]
-        except ValueError as exc:
-            raise fail("duty", f"is not valid: {exc}") from None
-    names = {f.name for f in fields(DesignSpec)}
-    kwargs.update({k: float(v) for k, v in d.to_dict().items() if k in names})
-    try:
-        kwargs["actuator"] = PiezoPreload(**{k: float(v) for k, v in (("drive_V", d.stack_drive_V),
-                                                                      ("amp_current_limit_A", d.amp_current_limit_A))
-                                             if v is not None})
-        spec = DesignSpec(**kwargs)
-    except ValueError as exc:
-        table = "design" if "DesignSpec" in str(exc) or "PiezoPreload" in str(exc) else "ballscrew"
-        raise fail(table, f"is not valid: {exc}") from None
-    if d.objective not in OBJECTIVES:
-        raise fail("design.objective", f"must be one of {', '.join(OBJECTIVES)}, got {d.objective!r}")
-    for pair in d.pareto:
-        if pair not in PARETO_PAIRS:
-            raise fail("design.pareto", f"has {pair!r}; expected some of {', '.join(PARETO_PAIRS)}")
-    if not 2 <= d.pareto_points <= 500:
-        raise fail("design.pareto_points", f"must be in 2..500, got {d.pareto_points}")
-    return spec

@@ -106,12 +106,12 @@ def render_report(out: Path, records: dict[str, dict[str, Any]], study: ReportSt
     figdir = folder / "figures"
     written: dict[str, Path] = {}
     captions: dict[str, str] = {}
-    names = [n for n in FIGURES if (r.has("design") or n not in _DESIGN_FIGURES) and (r.has("system") or n != "system")]
+    pending: list[tuple[Any, Path]] = []  # drawn together at the end (F.save_all)
 
     def put(name: str, fig: Any, caption: str) -> None:
-        written[f"figure-{name}"] = F.save(fig, figdir / f"{name}.pdf")
+        written[f"figure-{name}"] = figdir / f"{name}.pdf"
+        pending.append((fig, written[f"figure-{name}"]))
         captions[name] = caption
-        bar(len(captions), len(names))
 
     # ---- responses -------------------------------------------------------------------------
     responses = read_artifact(r.path("compare", "responses"), "responses")
@@ -134,9 +134,10 @@ def render_report(out: Path, records: dict[str, dict[str, Any]], study: ReportSt
     source = ff_doc["inputs"]["data"]
     src_text = ("simulated on the rig's truth model" if source["kind"] == "simulated"
                 else f"measured, {Path(source['path']).name}")
-    n_ops = len(ff_doc["model"].get("weights", [])) or ff_doc["model"].get("n_operators")
+    n_ops = len(ff_doc["model"].get("thresholds", []))
     put("hysteresis", F.hysteresis_loops(loop["time_s"], loop["voltage_V"], loop["force_N"], loop["model_N"], src_text),
-        f"The feedforward's voltage-to-force loop measurement ({src_text}) and the classical P-I model identified from "
+        f"The feedforward's voltage-to-force loop measurement ({src_text}) and the {ff_doc['model']['kind']} P-I model "
+        "identified from "
         f"it (the paper's Figures 4 and 5); right, the model's error.")
     put("inverse", F.inverse_model(comp["desired_N"], comp["command_V"], comp["force_N"], comp["time_s"]),
         "The inverse P-I model (left; the paper's Figure 6) and the rig driven through it in open loop (right): "
@@ -195,6 +196,8 @@ def render_report(out: Path, records: dict[str, dict[str, Any]], study: ReportSt
             "axial rigidity at the achieved preload under the cutting load against the requirement; the axial "
             "deflection under the load.")
 
+    F.save_all(pending, progress=bar)
+
     # ---- report.json -----------------------------------------------------------------------------
     gain_set = GainSet.load(r.path("validate", "gains"))
     tuning = read_artifact(r.path("tune", "tuning"), "tuning")
@@ -245,6 +248,7 @@ def _report_data(study: ReportStudy, records: dict[str, dict[str, Any]], respons
                                    fmt(r["reproduction"]), fmt(r["tuned"])] for r in responses["reproduction"]],
                          "signal": signal_name(responses["signal"]), "band": f"{fmt(responses['band_N'])} N"},
         "responses": {"rows": _response_rows(responses)},
+        "creep": _creep_section(responses),
         "feedforward": {"text": _feedforward_text(ff_doc, n_ops, src_text)},
         "gains": _gains_section(gain_set, tuning),
         "validation": _validation_section(val),
@@ -290,11 +294,37 @@ def _response_rows(responses: dict[str, Any]) -> list[list[str]]:
     return rows
 
 
+def _creep_section(responses: dict[str, Any]) -> dict[str, Any] | None:
+    """FF + PID with and without the feedforward's creep compensation (None when the study's feedforward has no creep)."""
+    rows_in = responses.get("creep_effect")
+    if not rows_in:
+        return None
+    by = {(r["gains"], r["creep"], r["reference"]): r for r in rows_in}
+    rows = []
+    for gains in dict.fromkeys(r["gains"] for r in rows_in):
+        for creep in (False, True):
+            step, traj = by[(gains, creep, "step")], by[(gains, creep, "trajectory")]
+            rows.append([gains, step["feedforward"], fmt(step["settling_s"]), fmt(step["overshoot_N"]),
+                         fmt(traj["tracking_rms_N"]), fmt(traj["tracking_rms_after_change_N"])])
+    return {"rows": rows}
+
+
+_KIND_NAMES = {"classical": "a classical Prandtl-Ishlinskii model (eq. 15)",
+               "paper-asymmetric": "the paper's asymmetric Prandtl-Ishlinskii model (eq. 18)",
+               "modified": "Kuhnen's modified Prandtl-Ishlinskii model"}
+
+
 def _feedforward_text(ff_doc: dict[str, Any], n_ops: int, src_text: str) -> str:
     ident = ff_doc["identification"]
     fit = ident["fit"]
-    return (f"The feedforward inverts a classical Prandtl-Ishlinskii model of {n_ops} play operators with the paper's "
-            f"thresholds (its eq. 16), its weights identified by a QP with nonnegative weights (cvxpy + Clarabel) from "
+    kind = str(ff_doc["model"].get("kind", "classical"))
+    creep = ff_doc["model"].get("creep")
+    with_creep = "" if not creep else (
+        f", with creep (first-order lags of {', '.join(f'{t:g}' for t in creep['time_constants_s'])} s on the input, "
+        "identified in the same QP; the same model refitted without creep is compared in the first section)")
+    return (f"The feedforward inverts {_KIND_NAMES.get(kind.removesuffix('+creep'), kind)} of {n_ops} play operators "
+            f"with the paper's thresholds (its eq. 16){with_creep}, its weights identified by a QP with nonnegative "
+            f"weights (cvxpy + Clarabel) from "
             f"the loop measurement ({src_text}). The model reproduces the loop within {fmt(fit['rms_pct'])} % RMS "
             f"({fmt(fit['max_pct'])} % at worst) of the force span; the rig driven through its inverse in open loop "
             f"follows the desired force within {fmt(ident['compensation_rms_N'])} N RMS "

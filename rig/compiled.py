@@ -83,15 +83,19 @@ class PythonStep:
         self.controller = controller
         self._model, self._p = controller.model, controller.parameter_vector()
 
-    def start(self, setpoint: float, pv: float, u0: float) -> None:
-        """A bumpless start: the first output at ``(setpoint, pv)`` is ``u0``."""
-        self._x = self.controller.state_vector(self.controller.initial_state(setpoint, pv, u0=u0))
+    def start(self, setpoint: float, pv: float, u0: float, ff_extra: float = 0.0) -> None:
+        """A bumpless start: the first output at ``(setpoint, pv)`` (with ``ff_extra``) is ``u0``."""
+        if ff_extra:
+            self._x = np.asarray(self._model.start(NUMPY, self._p, np.float64(setpoint), np.float64(pv), u0,
+                                                   np.float64(ff_extra)), float)
+        else:
+            self._x = self.controller.state_vector(self.controller.initial_state(setpoint, pv, u0=u0))
 
-    def step(self, setpoint: float, pv: float) -> tuple[float, float, float, float, float]:
-        """One sample: ``(u, p, i, d, ff)`` in volts."""
+    def step(self, setpoint: float, pv: float, ff_extra: float = 0.0) -> tuple[float, float, float, float, float]:
+        """One sample: ``(u, p, i, d, ff)`` in volts; ``ff_extra`` is added to the feedforward."""
         if self._x is None:
             raise RuntimeError("start() the step before stepping it")
-        self._x, t = self._model.step(NUMPY, self._p, self._x, np.float64(setpoint), np.float64(pv))
+        self._x, t = self._model.step(NUMPY, self._p, self._x, np.float64(setpoint), np.float64(pv), np.float64(ff_extra))
         return float(t.u), float(t.p), float(t.i), float(t.d), float(t.ff)
 
     @property

@@ -124,10 +124,15 @@ class Executor:
     ``realtime=False`` runs the cycles back to back (a simulated backend gives the same run,
     faster; deadlines are not checked). ``hold=True`` keeps the reference's last level after
     its end until :meth:`stop` (a served rig). ``log`` receives every sample and event.
+    ``ff_extra_V`` (one value per sample of the reference, as in
+    :func:`~piezopreload.models.closedloop.simulate`) is added to the feedforward before the
+    clamp: a learned signal played back. The controller step that takes it is the numpy one
+    (tens of microseconds a sample); the compiled step's C entry point has no such input.
     """
 
     def __init__(self, controller: Controller, backend: Backend, reference: Reference, safety: Safety, *,
-                 realtime: bool = True, hold: bool = False, log: RunLog | None = None, step: str = "c") -> None:
+                 realtime: bool = True, hold: bool = False, log: RunLog | None = None, step: str = "c",
+                 ff_extra_V: Any = None) -> None:
         self.controller = controller
         self.backend = backend
         self.reference = reference
@@ -136,9 +141,17 @@ class Executor:
         self.hold = bool(hold)
         self.log = log
         self.dt = float(controller.dt_s)
-        self.step = controller_step(controller, prefer=step)
         n = int(round(reference.duration_s / self.dt)) + 1
         self._ref = reference.at(np.arange(n) * self.dt).tolist()
+        self._extra: list[float] | None = None
+        if ff_extra_V is not None:  # a learned or previewed feedforward: the step that takes it (numpy)
+            extra = np.asarray(ff_extra_V, float)
+            if extra.shape != (n,) or not np.all(np.isfinite(extra)):
+                raise ValueError(f"ff_extra_V needs one finite value per sample of the reference ({n}), got shape "
+                                 f"{extra.shape}")
+            self._extra = extra.tolist()
+            step = "numpy"
+        self.step = controller_step(controller, prefer=step)
         self._pending: tuple[Controller, dict[str, Any]] | None = None
         self._stop: str | None = None
         self._stop_trips = True
@@ -252,8 +265,14 @@ class Executor:
                                   wake - deadline if self.realtime else 0.0, 0.0, 0, 2)
                     break
                 if k == 0:  # bumpless start on the first reading: the first command is the safe level
-                    self.step.start(sp, y, v_last)
-                u, p, i, d, ff = self.step.step(sp, y)
+                    if self._extra is None:
+                        self.step.start(sp, y, v_last)
+                    else:
+                        self.step.start(sp, y, v_last, self._extra[0])
+                if self._extra is None:
+                    u, p, i, d, ff = self.step.step(sp, y)
+                else:
+                    u, p, i, d, ff = self.step.step(sp, y, self._extra[min(k, n_ref - 1)])
                 if not math.isfinite(u):
                     trip = Trip("command", f"the controller's command is {u}", t)
                     self._log_row(t, sp, y, u, v_last, (ff, p, i, d), wake - wake_prev,

@@ -29,6 +29,7 @@ from piezopreload.models.actuator import RigParams
 from piezopreload.models.closedloop import PAPER_BAND_N, ClosedLoopRun, Reference
 from piezopreload.models.controller import Controller
 from piezopreload.models.gainset import REFERENCES, GainSet
+from piezopreload.models.learned import LearnedSignal
 from piezopreload.models.metrics import run_numbers
 from piezopreload.rig.backends import BackendError, Fault, FaultInjector, open_backend
 from piezopreload.rig.executor import Executor, RunResult, Safety
@@ -184,17 +185,28 @@ class _Setup:
     safety: Safety
     info: dict[str, Any]
     band_N: float
+    learned: LearnedSignal | None = None
 
 
-def _setup(gains_path: str | Path, backend: str, backend_options: dict[str, str] | None, reference: str,
+def _setup(gains_path: str | Path, backend: str, backend_options: dict[str, str] | None, reference: str | None,
            rate_Hz: float | None, realtime: bool, faults: list[Fault] | None, safety: dict[str, float | None] | None,
-           seed: int) -> _Setup:
+           seed: int, learned: str | Path | None = None) -> _Setup:
     gain_set = load_validated(gains_path)
     controller = _controller(gains_path, gain_set)
     if rate_Hz is not None and not math.isclose(rate_Hz * controller.dt_s, 1.0, rel_tol=1e-9):
         raise InputError(f"--rate {rate_Hz:g}: the gain set was tuned and validated at {1.0 / controller.dt_s:g} Hz; "
                          "run it at that rate or tune for the other one")
-    ref, ref_name = reference_for(reference, gain_set, gains_path)
+    signal = None
+    if learned is not None:  # the signal's own reference unless one is named; either way its hashes must match
+        signal = LearnedSignal.load(learned)
+        ref, ref_name = (signal.reference, f"learned {Path(learned).name}") if reference is None else \
+            reference_for(reference, gain_set, gains_path)
+        signal.check(gain_set.content_sha256, ref, str(learned))
+        if not math.isclose(signal.sample_period_s, controller.dt_s, rel_tol=1e-9):
+            raise InputError(f"{learned}: learned at {signal.sample_period_s} s a sample, the gain set runs at "
+                             f"{controller.dt_s} s")
+    else:
+        ref, ref_name = reference_for(reference or "step", gain_set, gains_path)
     limits = interlocks(controller, gain_set.plant if backend == "sim" else None, safety)
     try:
         rig = open_backend(backend, backend_options, plant=gain_set.plant, seed=seed)
@@ -212,8 +224,12 @@ def _setup(gains_path: str | Path, backend: str, backend_options: dict[str, str]
         "faults_injected": [{**f.__dict__, "duration_s": f.duration_s if math.isfinite(f.duration_s) else None}
                             for f in faults or []],
     }
+    if signal is not None:
+        info["learned"] = {"path": str(learned), "sha256": signal.content_sha256, "iteration": signal.iteration,
+                           "method": signal.method, "preview_s": signal.preview_s,
+                           "reference_sha256": signal.reference_sha256}
     band = float(gain_set.criteria.get("band_N", PAPER_BAND_N))
-    return _Setup(gain_set, controller, rig, ref, limits, info, band)
+    return _Setup(gain_set, controller, rig, ref, limits, info, band, signal)
 
 
 def _summary(result: RunResult, log: RunLog, su: _Setup, info: dict[str, Any]) -> RigRun:
@@ -228,17 +244,44 @@ def _summary(result: RunResult, log: RunLog, su: _Setup, info: dict[str, Any]) -
                                 "rate_Hz", "realtime")},
         "events": [e["event"] for e in result.events],
     }
+    if su.learned is not None:
+        summary["learned"] = {**info["learned"], **_learned_metrics(columns, su.learned)}
     return RigRun(summary, columns)
 
 
+def _learned_metrics(columns: dict[str, np.ndarray], signal: LearnedSignal) -> dict[str, Any]:
+    """A learned run's error against the reference it was learned on (the log's reference_N is the plan)."""
+    keep = columns["mode"] == 0
+    t, y = columns["time_s"][keep], columns["measured_N"][keep]
+    scored = t >= (signal.reference.times_s[1] if signal.reference.times_s.size > 1 else 0.0)
+    if not scored.any():
+        return {}
+    e = signal.reference.at(t[scored]) - y[scored]
+    return {"tracking_rms_measured_N": float(np.sqrt(np.mean(e**2))),
+            "plan_rms_measured_N": float(np.sqrt(np.mean((np.interp(t[scored], np.arange(signal.setpoint_N.size) *
+                                                                     signal.sample_period_s, signal.setpoint_N)
+                                                           - y[scored]) ** 2)))}
+
+
 def run(gains_path: str | Path, *, backend: str = "sim", backend_options: dict[str, str] | None = None,
-        reference: str = "step", rate_Hz: float | None = None, realtime: bool = True, log_dir: str | Path = "runs",
+        reference: str | None = "step", rate_Hz: float | None = None, realtime: bool = True, log_dir: str | Path = "runs",
         faults: list[Fault] | None = None, safety: dict[str, float | None] | None = None, seed: int = 0,
-        step: str = "c") -> RigRun:
-    """Run a validated gain set on a backend (see ``piezopreload rig run``); the log goes to ``log_dir``."""
-    su = _setup(gains_path, backend, backend_options, reference, rate_Hz, realtime, faults, safety, seed)
+        step: str = "c", learned: str | Path | None = None) -> RigRun:
+    """Run a validated gain set on a backend (see ``piezopreload rig run``); the log goes to ``log_dir``.
+
+    ``learned`` (a learned-signal artifact, :class:`~piezopreload.models.learned.LearnedSignal`)
+    plays back a learned signal: its setpoint (the plan) is the run's reference and its
+    ``ff_extra_V`` is added to the feedforward. It must have been learned with this gain set and
+    on this reference (``reference=None``: its own); the run's log gives the next learning
+    iteration (``piezopreload learn --from-run LOG``).
+    """
+    su = _setup(gains_path, backend, backend_options, reference, rate_Hz, realtime, faults, safety, seed, learned)
     log = RunLog(log_dir, (su.gain_set.content_sha256 or "")[:12], su.info)
-    executor = Executor(su.controller, su.backend, su.reference, su.safety, realtime=realtime, log=log, step=step)
+    if su.learned is not None:
+        executor = Executor(su.controller, su.backend, su.learned.setpoint, su.safety, realtime=realtime, log=log,
+                            step=step, ff_extra_V=su.learned.ff_extra_V)
+    else:
+        executor = Executor(su.controller, su.backend, su.reference, su.safety, realtime=realtime, log=log, step=step)
     return _summary(executor.run(), log, su, su.info)
 
 

@@ -15,25 +15,22 @@ from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import simulate_open_loop
 from piezopreload.models.hysteresis import (
-    CASADI_OPS,
-    NUMPY_OPS,
     AsymmetricPI,
     ClassicalPI,
     Creep,
     CreepPI,
-    InverseStepLayout,
+    InverseStep,
     ModifiedPI,
     NotInvertibleError,
     creep_lags,
-    inverse_step,
-    inverse_step_parameters,
+    inverse_realtime,
     lag_coefficients,
     log_spaced_time_constants,
     model_from_dict,
-    parametric_inverse_step,
     play,
     uniform_thresholds,
 )
+from piezopreload.models.ops import CASADI, NUMPY
 from piezopreload.tuning.identify import IdentificationError, PIIdentifier, fit_error
 
 
@@ -60,6 +57,9 @@ def creep_model(rng, kind="classical", dt=1e-3, n=12):
     creep = Creep(log_spaced_time_constants(0.01, 10.0), [0.02, 0.0, 0.03, 0.01], dt)
     if kind == "classical":
         h = ClassicalPI(r, w, offset=1.0)
+    elif kind == "paper-asymmetric":
+        w_fall = w * rng.uniform(0.8, 1.3, n)
+        h = AsymmetricPI(r, w, w_fall, offset=1.0)
     else:
         h = ModifiedPI(r, w, deadzone_thresholds=[-8.0, -3.0, 0.0, 4.0, 9.0],
                        deadzone_weights=[0.3, -0.2, 1.1, 0.5, -0.6], bias=-1.0, offset=2.0)
@@ -157,7 +157,7 @@ def test_inverse_compensates_a_creeping_model(rng, kind):
     # and inverse(model(u)) == u from a state an earlier history left (play operators and lags)
     _, after = model.run(60 * np.sin(np.linspace(0, 9, 500)) + 40)
     u = 50 + 30 * np.sin(np.linspace(0, 12, 900))
-    back = inverse(model(u, after), inverse.state_from_forward(after))
+    back = inverse(model(u, after), after)  # the inverse's state is the forward model's
     np.testing.assert_allclose(back, u, rtol=1e-9, atol=1e-9, err_msg=f"{kind}: inverse(model(u)) != u")
 
 
@@ -176,17 +176,48 @@ def test_the_one_sample_map_is_the_pi_model_with_the_creep_in_its_linear_weight(
             for c, tau in zip(model.creep.weights, model.creep.time_constants_s)), rel=1e-9)
 
 
-def test_inverse_step_is_one_definition_for_numpy_casadi_and_batches(rng):
-    model = creep_model(rng, "modified")
+def test_asymmetric_inverse_recovers_the_input_and_holds_in_the_gaps(rng):
+    """The paper's model (eq. 18) with creep: on outputs it reaches, the inverse gives back the
+    input to 1e-9; next to a reversal, where its output jumps, the inverse holds the last input."""
+    model = creep_model(rng, "paper-asymmetric")
     inverse = model.inverse()
-    fn = parametric_inverse_step(inverse.layout)
-    x_sym, t_sym = ca.SX.sym("x", inverse.layout.n_states), ca.SX.sym("t")
+    t = np.arange(0, 6, model.sample_period_s)
+    u = 45 + 30 * np.sin(2 * np.pi * 0.7 * t) * np.exp(-0.1 * t)  # smooth: each target has one input near the last
+    target = model(u)
+    np.testing.assert_allclose(inverse(target), u, rtol=0, atol=1e-9, err_msg="asymmetric+creep: inverse(model(u)) != u")
+    # a jump of the input: the target may have two inputs (the output jumps up at a reversal); either serves
+    jump = u + 8 * (t > 3)
+    v = inverse(model(jump))
+    np.testing.assert_allclose(model(v), model(jump), rtol=0, atol=1e-9, err_msg="model(inverse(y)) != y after a jump")
+    # from a history: the forward state plus the last input
+    before = 40 + 20 * np.sin(np.linspace(0, 7, 300))
+    _, after = model.run(before)
+    u2 = before[-1] + 15 * np.sin(np.linspace(0, 9, 700))
+    back = inverse(model(u2, after, before[-1]), np.r_[after, before[-1]])
+    np.testing.assert_allclose(back, u2, atol=1e-9, err_msg="from a history")
+    # a gap: rising weights well above the falling ones; just below the output at the top of a rise
+    h = AsymmetricPI(uniform_thresholds(3, 50.0), [1.0, 0.4, 0.4], [1.0, 0.1, 0.1])
+    rise = np.linspace(0, 40, 41)
+    top = h(rise)[-1]
+    v = h.inverse()(np.r_[h(rise), top - 0.5])
+    assert v[-1] == pytest.approx(40.0, abs=1e-12), "an unreachable output holds the last input"
+    below = h(np.r_[rise, 39.0])[-1]
+    assert below < top - 0.5, "the falling branch starts below the target: the target is in the gap"
+
+
+@pytest.mark.parametrize("kind", ["classical", "modified", "paper-asymmetric"])
+def test_inverse_step_is_one_definition_for_numpy_casadi_and_batches(rng, kind):
+    model = creep_model(rng, kind)
+    inverse = model.inverse()
+    structure, params = inverse.realtime()
+    x_sym, t_sym, p_sym = ca.SX.sym("x", structure.n_states), ca.SX.sym("t"), ca.SX.sym("p", structure.params.size)
+    fn = ca.Function("p", [x_sym, t_sym, p_sym], list(structure.step(CASADI, p_sym, x_sym, t_sym)))
     const = ca.Function("c", [x_sym, t_sym], list(inverse.casadi_step(x_sym, t_sym)))
     targets = 20 + 10 * np.sin(np.linspace(0, 6, 300))
-    x_np, x_par, x_const = inverse.initial_state(), ca.DM.zeros(inverse.layout.n_states), ca.DM.zeros(inverse.layout.n_states)
+    x_np, x_par, x_const = inverse.initial_state(), ca.DM.zeros(structure.n_states), ca.DM.zeros(structure.n_states)
     for target in targets:
         v_np, x_np = inverse.step(x_np, target)
-        v_par, x_par = fn(x_par, target, inverse.parameters)
+        v_par, x_par = fn(x_par, target, params)
         v_const, x_const = const(x_const, target)
         assert float(v_par) == pytest.approx(float(v_np), abs=1e-12), "parametric CasADi step"
         assert float(v_const) == pytest.approx(float(v_np), abs=1e-12), "CasADi step with constants"
@@ -197,9 +228,11 @@ def test_inverse_step_is_one_definition_for_numpy_casadi_and_batches(rng):
 
 @pytest.mark.skipif(shutil.which(os.environ.get("CC", "cc")) is None, reason="no C compiler to build the generated code")
 def test_generated_c_computes_the_numpy_step(rng, tmp_path):
-    model = creep_model(rng)
+    model = creep_model(rng, "paper-asymmetric")
     inverse = model.inverse()
-    fn = parametric_inverse_step(inverse.layout)
+    structure, params = inverse.realtime()
+    x_sym, t_sym, p_sym = ca.SX.sym("x", structure.n_states), ca.SX.sym("t"), ca.SX.sym("p", structure.params.size)
+    fn = ca.Function("pp_inverse_step", [x_sym, t_sym, p_sym], list(structure.step(CASADI, p_sym, x_sym, t_sym)))
     cwd = os.getcwd()
     try:
         os.chdir(tmp_path)
@@ -207,31 +240,29 @@ def test_generated_c_computes_the_numpy_step(rng, tmp_path):
     finally:
         os.chdir(cwd)
     compiled = ca.external("pp_inverse_step", ca.Importer(str(tmp_path / "pp_inverse_step.c"), "shell"))
-    x_np, x_c = inverse.initial_state(), ca.DM.zeros(inverse.layout.n_states)
+    x_np, x_c = inverse.initial_state(), ca.DM.zeros(structure.n_states)
     for target in 30 + 15 * np.sin(np.linspace(0, 5, 200)):
         v_np, x_np = inverse.step(x_np, target)
-        v_c, x_c = compiled(x_c, target, inverse.parameters)
+        v_c, x_c = compiled(x_c, target, params)
         assert float(v_c) == pytest.approx(float(v_np), abs=1e-12), "compiled C step"
 
 
 def test_models_without_creep_run_through_the_same_step(rng):
-    """n_lags = 0: the one step is the old inverses of the classical and the modified model."""
+    """n_lags = 0: the one step is the offline inverse (eqs. 19-20 on the whole signal, by segments)."""
     pi = creep_model(rng).hysteresis
     mod = creep_model(rng, "modified").hysteresis
     targets = 25 + 12 * np.sin(np.linspace(0, 9, 400))
     for model in (pi, mod):
-        layout, params = inverse_step_parameters(model)
-        assert layout.n_lags == 0 and layout.n_parameters == params.size
-        old = model.inverse()
-        x_old, x_new = old.initial_state(), np.zeros(layout.n_states)
-        for target in targets:
-            v_old, x_old = old.step(x_old, target)
-            v_new, x_new = inverse_step(NUMPY_OPS, layout, params, x_new, target)
+        structure, params = inverse_realtime(model)
+        assert structure.n_lags == 0 and structure.params.size == params.size
+        offline = model.inverse()
+        x = np.zeros(structure.n_states)
+        for target, v_old in zip(targets, offline(targets)):
+            v_new, x = structure.step(NUMPY, params, x, target)
             assert v_new == pytest.approx(float(v_old), abs=1e-12), model.kind
     # zero creep weights: the creep model's inverse is the plain one's
     zero = CreepPI(pi, Creep([0.1, 1.0], [0.0, 0.0], 1e-3))
     np.testing.assert_allclose(zero.inverse()(targets), pi.inverse()(targets), atol=1e-12)
-    assert CASADI_OPS.dot is ca.dot
 
 
 def test_resampling_is_exact_for_an_input_linear_between_samples(rng):
@@ -244,15 +275,15 @@ def test_resampling_is_exact_for_an_input_linear_between_samples(rng):
     np.testing.assert_allclose(fine[::4], model(v), rtol=0, atol=1e-11, err_msg="resampled model")
 
 
-def test_asymmetric_creep_model_has_no_inverse(rng):
+def test_asymmetric_creep_model_is_not_exactly_invertible_and_bad_weights_are_refused(rng):
     model = creep_model(rng)
     asym = CreepPI(AsymmetricPI(model.thresholds, model.hysteresis.weights, model.hysteresis.weights, 0.0), model.creep)
     assert asym.kind == "paper-asymmetric+creep" and not asym.invertible
-    with pytest.raises(NotInvertibleError, match="no exact inverse"):
-        asym.inverse()
     bad = CreepPI(ClassicalPI([0.0, 1.0], [0.01, -0.5]), Creep([1.0], [0.0], 0.1))
     with pytest.raises(NotInvertibleError, match="with creep"):
         bad.inverse()
+    with pytest.raises(NotInvertibleError, match="falling weights"):
+        AsymmetricPI([0.0, 1.0], [1.0, 0.1], [0.01, -0.5]).inverse()
 
 
 def test_creep_models_round_trip_and_old_documents_read_as_before(rng):
@@ -294,8 +325,10 @@ def test_log_spaced_time_constants():
     np.testing.assert_allclose(log_spaced_time_constants(0.01, 60.0), np.geomspace(0.01, 60.0, 5), rtol=1e-12)
     with pytest.raises(InputError, match="shortest_s <= longest_s"):
         log_spaced_time_constants(1.0, 0.1)
-    layout = InverseStepLayout(40, 4, 3, 3)
-    assert layout.n_states == 44 and layout.n_parameters == 3 + 12 + 80 + 12
+    step = InverseStep(40, 4, 5, asymmetric=True)
+    assert step.n_states == 40 + 4 + 1 and step.params.size == 2 + 10 + 40 + 2 * 4 * 40 + 3 * 4
+    with pytest.raises(InputError, match="n_lags must be an integer"):
+        InverseStep(40, -1)
 
 
 # --------------------------------------------------------------------------------------

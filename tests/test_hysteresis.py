@@ -141,8 +141,9 @@ def test_not_invertible_is_reported():
     assert not model.invertible
     with pytest.raises(NotInvertibleError, match=r"w_1 \+ ... \+ w_2 = -0.2"):
         model.inverse()
-    with pytest.raises(NotInvertibleError, match="no exact inverse"):
-        AsymmetricPI([0.0, 1.0], [1.0, 0.1], [1.0, 0.2]).inverse()
+    assert not AsymmetricPI([0.0, 1.0], [1.0, 0.1], [1.0, 0.2]).invertible, "eq. (18) has gaps at reversals"
+    with pytest.raises(NotInvertibleError, match="rising weights"):
+        AsymmetricPI([0.0, 1.0], [1.0, -1.5], [1.0, 0.2]).inverse()
     with pytest.raises(NotInvertibleError, match="negative side"):
         DeadZone([-1.0, 0.0], [-2.0, 1.0]).inverse()
 

@@ -19,7 +19,7 @@ from piezopreload.core.artifacts import read_artifact
 from piezopreload.models.actuator import Rig
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.gainset import GainSet
-from piezopreload.models.hysteresis import ClassicalPI
+from piezopreload.models.hysteresis import AsymmetricPI, ClassicalPI, Creep, CreepPI, ModifiedPI
 from piezopreload.rig.backends import Fault, FaultInjector, SimBackend, open_backend
 from piezopreload.rig.compiled import PythonStep, controller_step
 from piezopreload.rig.executor import Executor, Safety
@@ -40,10 +40,18 @@ def _controller(ff=None, **kw):
     return Controller(PIDGains(**g), DT, ff)
 
 
-def test_compiled_step_equals_the_numpy_step_through_a_switch():
-    """The C step (CasADi codegen, ctypes) against Controller.step_terms, before and after a gain/model switch."""
-    ff1 = ClassicalPI(np.array([0.0, 8.0, 20.0, 40.0]), np.array([0.45, 0.12, 0.08, 0.05]), 25.0).inverse()
-    ff2 = ClassicalPI(np.array([0.0, 5.0, 15.0, 30.0]), np.array([0.5, 0.1, 0.1, 0.02]), 24.0).inverse()
+@pytest.mark.parametrize("creep", [False, True])
+def test_compiled_step_equals_the_numpy_step_through_a_switch(creep):
+    """The C step (CasADi codegen, ctypes) against Controller.step_terms, before and after a gain/model switch;
+    classical feedforwards, then the paper's asymmetric model with creep switching to the modified one with creep."""
+    if creep:
+        bank = Creep([0.01, 0.1, 1.0], [0.03, 0.02, 0.04], DT)
+        r, w = np.array([0.0, 8.0, 20.0, 40.0]), np.array([0.45, 0.12, 0.08, 0.05])
+        ff1 = CreepPI(AsymmetricPI(r, w, w * np.array([1.1, 0.8, 1.2, 0.9]), 25.0), bank).inverse()
+        ff2 = CreepPI(ModifiedPI(r, w, [-6.0, 0.0, 5.0], [0.2, 1.0, -0.3], bias=-1.0, offset=24.0), bank).inverse()
+    else:
+        ff1 = ClassicalPI(np.array([0.0, 8.0, 20.0, 40.0]), np.array([0.45, 0.12, 0.08, 0.05]), 25.0).inverse()
+        ff2 = ClassicalPI(np.array([0.0, 5.0, 15.0, 30.0]), np.array([0.5, 0.1, 0.1, 0.02]), 24.0).inverse()
     c1, c2 = _controller(ff1), _controller(ff2, Kc=0.8, Ti_s=0.08, b=1.0)
     fast = controller_step(c1)
     if fast.kind != "c":
@@ -326,3 +334,20 @@ def test_safety_settings_are_checked():
         Safety(force_max_N=math.nan)
     with pytest.raises(ValueError, match="sensor_min_N"):
         replace(Safety(), force_max_N=2000.0)
+
+
+@pytest.mark.parametrize("kind", ["classical", "modified"])
+def test_compiled_feedforward_compensates_a_creeping_model(kind):
+    """The compiled step's feedforward term through the forward model with creep gives the setpoint back to 1e-9."""
+    r, w = np.array([0.0, 8.0, 20.0, 40.0]), np.array([0.45, 0.12, 0.08, 0.05])
+    h = ClassicalPI(r, w, 25.0) if kind == "classical" else ModifiedPI(r, w, [-6.0, 0.0, 5.0], [0.2, 1.0, -0.3],
+                                                                         bias=-1.0, offset=24.0)
+    model = CreepPI(h, Creep([0.01, 0.1, 1.0], [0.03, 0.02, 0.04], DT))
+    fast = controller_step(_controller(model.inverse()))
+    if fast.kind != "c":
+        pytest.skip("no working C compiler on this machine: the executor runs the numpy step")
+    t = np.arange(0, 4, DT)
+    sp = 45 + 15 * np.sin(2 * np.pi * 1.3 * t) * np.exp(-0.4 * t) + 10 * (t > 2)
+    fast.start(sp[0], sp[0], 0.0)
+    ff = np.array([fast.step(s, s)[4] for s in sp])
+    np.testing.assert_allclose(model(ff), sp, rtol=1e-9, atol=0, err_msg=f"{kind}+creep: model(compiled feedforward) != setpoint")

@@ -19,6 +19,8 @@ import pytest
 
 from piezopreload.cli import main
 from piezopreload.core.artifacts import read_artifact
+from piezopreload.core.errors import InputError
+from piezopreload.models.gainset import GainSet
 from piezopreload.pipeline import STAGES, read_manifest, run_study
 from piezopreload.progress import Progress
 from piezopreload.study import load_study
@@ -287,3 +289,48 @@ def test_report_typesets_an_edited_template_and_names_a_broken_one(small_run, tm
     err = capsys.readouterr().err
     assert "error: stage 'report' failed:" in err and "Typst could not compile" in err and "no_such_field" in err
     assert (out / "report.pdf").read_bytes() == before  # the last good report stays
+
+
+@pytest.fixture(scope="module")
+def creep_run(tmp_path_factory):
+    """The small study with ``[feedforward] kind = "modified"`` and ``creep = true``, run through every stage."""
+    folder = tmp_path_factory.mktemp("creep")
+    study = folder / "study.toml"
+    study.write_text(SMALL.read_text().replace("n_operators = 20", 'n_operators = 20\nkind = "modified"\ncreep = true'))
+    out = folder / "out"
+    run_study(study, out, progress=Progress(stream=io.StringIO()))
+    return study, out
+
+
+def test_a_study_asking_for_creep_compensates_it_and_reports_what_it_buys(creep_run):
+    study, out = creep_run
+    model_doc = read_artifact(out / "feedforward" / "model.json", "hysteresis-model")
+    assert model_doc["model"]["kind"] == "modified+creep"
+    plain = model_doc["identification"]["without_creep"]
+    assert plain["model"]["kind"] == "modified" and plain["fit"]["rms_pct"] > model_doc["identification"]["fit"]["rms_pct"]
+    gains = GainSet.load(out / "gains.json")
+    assert gains.feedforward is not None and gains.feedforward.kind == "modified+creep"
+    assert "PP_CREEP_TIME_CONSTANTS_S" in (out / "exports" / "pp_gains.h").read_text()
+    responses = read_artifact(out / "responses" / "responses.json", "responses")
+    rows = {(r["gains"], r["creep"], r["reference"]): r for r in responses["creep_effect"]}
+    assert set(rows) == {(g, c, ref) for g in ("paper", "tuned") for c in (False, True) for ref in ("step", "trajectory")}
+    runs = {(r["gains"], r["reference"]): r for r in responses["runs"] if r["controller"] == "ff+pid"}
+    for (g, ref), r in runs.items():  # with creep, the comparison is the compare stage's own FF + PID run
+        for key in ("settling_s", "overshoot_N", "tracking_rms_N"):
+            assert rows[(g, True, ref)][key] == pytest.approx(r[key], abs=1e-12), (g, ref, key)
+    # the rig's truth creeps: compensating it settles the paper's FF + PID step sooner
+    assert rows[("paper", True, "step")]["settling_s"] < rows[("paper", False, "step")]["settling_s"]
+    _, text = _pdf_text(out / "report.pdf")
+    assert "modified+creep" in text and "refitted without creep" in text
+    for g in ("paper", "tuned"):
+        assert f"{rows[(g, False, 'step')]['settling_s']:.3g}" in text, g
+
+
+def test_the_feedforward_kind_and_creep_keys_are_checked(tmp_path, capsys):
+    study = tmp_path / "study.toml"
+    study.write_text(SMALL.read_text().replace("n_operators = 20", 'n_operators = 20\nkind = "bouc-wen"'))
+    with pytest.raises(InputError, match=r"feedforward.*kind must be one of classical, paper-asymmetric, modified"):
+        load_study(study)
+    study.write_text(SMALL.read_text().replace("n_operators = 20", 'n_operators = 20\ncreep = "yes"'))
+    with pytest.raises(InputError, match=r"study.toml:\d+: 'feedforward.creep'"):
+        load_study(study)

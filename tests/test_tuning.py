@@ -202,6 +202,33 @@ def test_export_formats_carry_the_units_each_controller_expects(tmp_path):
     assert "#define PP_TI_S 0.06" in header and "PP_PI_N 2" in header
 
 
+def test_the_c_header_states_every_model_with_its_creep(tmp_path):
+    for kind in ("paper-asymmetric+creep", "modified+creep"):
+        model = _feedforward_model(kind)
+        gains = {"Kc_V_per_N": 1.5, "Ti_s": 0.06, "Td_s": 0.006}
+        path = tmp_path / f"{kind}.json"
+        write_artifact(path, "gain-set", {"status": "validated", "gains": gains, "inputs": {},
+                                          "feedforward": {"model": model.to_dict()}})
+        header = export_text(json.loads(path.read_text()), "c-header")
+        assert f'#define PP_PI_KIND "{kind}"' in header, kind
+        assert "PP_CREEP_TIME_CONSTANTS_S[PP_CREEP_N] = {0.01, 0.1, 1.0, 10.0};" in header, kind
+        assert "PP_CREEP_WEIGHTS_N_PER_V[PP_CREEP_N] = {0.03, 0.0, 0.02, 0.04};" in header, kind
+        assert "#define PP_CREEP_SAMPLE_PERIOD_S 0.002" in header, kind
+        assert ("PP_PI_WEIGHTS_FALLING_N_PER_V" in header) == kind.startswith("paper"), kind
+        assert ("PP_DZ_THRESHOLDS_N[PP_DZ_N] = {-6.0, 0.0, 5.0};" in header) == kind.startswith("modified"), kind
+        cc = shutil.which("cc") or shutil.which("gcc")
+        if cc is not None:
+            import subprocess
+
+            (tmp_path / "gains.h").write_text(header)
+            (tmp_path / "main.c").write_text('#include <stdio.h>\n#include "gains.h"\nint main(void){printf("%.17g\\n", '
+                                             "PP_CREEP_WEIGHTS_N_PER_V[3]); return 0;}\n")
+            subprocess.run([cc, "-Wall", "-Werror", "-Wno-unused-const-variable", "-o", str(tmp_path / "m"),
+                            str(tmp_path / "main.c")], check=True)
+            out = subprocess.run([str(tmp_path / "m")], capture_output=True, text=True, check=True).stdout
+            assert float(out) == 0.04, kind
+
+
 def test_the_c_header_compiles(tmp_path):
     cc = shutil.which("cc") or shutil.which("gcc")
     if cc is None:
@@ -253,17 +280,29 @@ int main(void) {
 """
 
 
-def test_casadi_c_controller_equals_the_python_step(tmp_path):
+def _feedforward_model(kind):
+    """A small forward P-I model in V -> N of each kind the controller step covers."""
+    from piezopreload.models.hysteresis import AsymmetricPI, ClassicalPI, Creep, CreepPI, ModifiedPI
+
+    r, w = np.array([0.0, 8.0, 20.0, 40.0]), np.array([0.45, 0.12, 0.08, 0.05])
+    creep = Creep([0.01, 0.1, 1.0, 10.0], [0.03, 0.0, 0.02, 0.04], 2e-3)  # resampled at the plant's period
+    h = {"classical": ClassicalPI(r, w, 25.0),
+         "modified": ModifiedPI(r, w, [-6.0, 0.0, 5.0], [0.2, 1.0, -0.3], bias=-1.0, offset=25.0),
+         "paper-asymmetric": AsymmetricPI(r, w, w * np.array([1.1, 0.8, 1.2, 0.9]), 25.0)}[kind.removesuffix("+creep")]
+    return CreepPI(h, creep) if kind.endswith("+creep") else h
+
+
+@pytest.mark.parametrize("kind", ["classical", "paper-asymmetric+creep", "modified+creep"])
+def test_casadi_c_controller_equals_the_python_step(tmp_path, kind):
     """The generated C step (feedforward + PID with its state) against Controller.step over 10,000 samples."""
     cc = shutil.which("cc") or shutil.which("gcc")
     if cc is None:
         pytest.skip("no C compiler on this machine")
     import subprocess
 
-    from piezopreload.models.hysteresis import ClassicalPI
     from piezopreload.rig.export import controller_from_gain_set
 
-    ff = ClassicalPI(np.array([0.0, 8.0, 20.0, 40.0]), np.array([0.45, 0.12, 0.08, 0.05]), 25.0)
+    ff = _feedforward_model(kind)
     gains = {"Kc_V_per_N": 1.4, "Ti_s": 0.05, "Td_s": 0.004, "Tf_s": 0.02, "b": 0.3, "u_min_V": 0.0, "u_max_V": 110.0}
     path = tmp_path / "gains.json"
     write_artifact(path, "gain-set", {"status": "validated", "gains": gains, "inputs": {},
@@ -271,7 +310,9 @@ def test_casadi_c_controller_equals_the_python_step(tmp_path):
                                       "plant": {"rig": RigParams(noise_N=0.2).to_dict()}})
     doc = json.loads(path.read_text())
     controller = controller_from_gain_set(doc)
-    assert controller.feedforward is not None
+    assert controller.feedforward is not None and controller.feedforward.forward.kind == kind
+    if kind.endswith("+creep"):
+        assert controller.feedforward.forward.sample_period_s == RigParams().sample_period_s, "creep at the loop's period"
     # the closed loop on the noisy rig gives the inputs: a trajectory that reverses, saturates
     # (the 110 V clamp and the conditional integration) and comes back
     rig = Rig(RigParams(noise_N=0.2))

@@ -35,8 +35,11 @@ from piezopreload.models.closedloop import (
     triangle,
 )
 from piezopreload.models.controller import Controller, PIDGains
-from piezopreload.models.hysteresis import ClassicalPI
-from piezopreload.tuning.identify import PIIdentifier, fit_error
+from piezopreload.models.hysteresis import AsymmetricPI, ClassicalPI, CreepPI, ModifiedPI, inverse_at
+from piezopreload.tuning.identify import MODELS, PIIdentifier, fit_error
+
+#: what a study's feedforward may be: a P-I model, with or without creep
+FeedforwardModel = ClassicalPI | ModifiedPI | AsymmetricPI | CreepPI
 
 __all__ = [
     "PAPER_GAINS",
@@ -64,35 +67,58 @@ _KEYS = ("rise_s", "peak_s", "settling_s")
 
 @dataclass(frozen=True)
 class LoopExcitation:
-    """The open-loop hysteresis measurement the feedforward is identified from."""
+    """The open-loop hysteresis measurement the feedforward is identified from, and the model identified.
+
+    ``kind`` is the P-I model (``classical``, ``modified``, ``paper-asymmetric``); ``creep`` adds
+    a bank of creep lags (one per decade from 10 ms to the record's length) identified with it.
+    """
 
     v_max_V: float = 100.0
     frequency_Hz: float = 0.5
     cycles: int = 3
     n_operators: int = 40
     seed: int = 1
+    kind: str = "classical"
+    creep: bool = False
 
     def __post_init__(self) -> None:
         if not (self.v_max_V > 0 and self.frequency_Hz > 0 and self.cycles >= 1 and self.n_operators >= 1):
             raise ValueError("LoopExcitation needs v_max_V > 0, frequency_Hz > 0, cycles >= 1, n_operators >= 1.")
+        if self.kind not in MODELS:
+            raise ValueError(f"kind must be one of {', '.join(MODELS)}, got {self.kind!r}.")
+        if not isinstance(self.creep, bool):
+            raise ValueError(f"creep must be true or false, got {self.creep!r}.")
 
 
-def identify_feedforward(rig: Rig, excitation: LoopExcitation = LoopExcitation()) -> tuple[ClassicalPI, dict[str, Any]]:
+def identify_feedforward(rig: Rig, excitation: LoopExcitation = LoopExcitation()) -> tuple[FeedforwardModel, dict[str, Any]]:
     """Simulate the 0..v_max loop measurement on ``rig`` and identify the P-I model from it."""
     _, command = triangle(excitation.v_max_V, excitation.frequency_Hz, excitation.cycles, rig.dt_s)
     rec = simulate_open_loop(rig, command, seed=excitation.seed)
-    model, info = fit_feedforward(rec["command_V"], rec["measured_N"], excitation.n_operators)
+    model, info = fit_feedforward(rec["command_V"], rec["measured_N"], excitation.n_operators, kind=excitation.kind,
+                                  creep=excitation.creep, sample_period_s=rig.dt_s)
     return model, {"record": rec, **info}
 
 
-def fit_feedforward(command_V: np.ndarray, measured_N: np.ndarray, n_operators: int) -> tuple[ClassicalPI, dict[str, Any]]:
-    """The invertible classical P-I model (the paper's thresholds) of a measured voltage -> force loop."""
-    est = PIIdentifier(model="classical", n_operators=n_operators, thresholds="paper", invertible=True)
-    # the P-I model maps the commanded voltage to the measured force, as a rig sees them
-    est.fit(command_V, measured_N)
-    model = est.model_
-    err = fit_error(model(command_V), measured_N, float(np.ptp(measured_N)))
-    return model, {"fit": err, "status": est.status_}
+def fit_feedforward(command_V: np.ndarray, measured_N: np.ndarray, n_operators: int, *, kind: str = "classical",
+                    creep: bool = False, sample_period_s: float | None = None) -> tuple[FeedforwardModel, dict[str, Any]]:
+    """The invertible P-I model (the paper's thresholds) of a measured voltage -> force loop.
+
+    ``kind`` and ``creep`` as :class:`LoopExcitation`; with creep (which needs the record's
+    ``sample_period_s``) ``info["without_creep"]`` is the same model refitted without it, with
+    its fit, so a study can show what the creep compensation buys.
+    """
+    def fit(with_creep: bool) -> tuple[FeedforwardModel, dict[str, Any]]:
+        est = PIIdentifier(model=kind, n_operators=n_operators, thresholds="paper", invertible=True, creep=with_creep)
+        # the P-I model maps the commanded voltage to the measured force, as a rig sees them
+        est.fit(command_V, measured_N, sample_period_s=sample_period_s if with_creep else None)
+        model = est.model_
+        return model, {"fit": fit_error(model(command_V), measured_N, float(np.ptp(measured_N))), "status": est.status_}
+
+    model, info = fit(creep)
+    if creep:
+        plain, plain_info = fit(False)
+        info["without_creep"] = {"model": plain, "fit": plain_info["fit"]}
+    return model, info
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,7 +127,7 @@ class Reproduction:
 
     metrics: dict[str, dict[str, float]]
     runs: dict[str, ClosedLoopRun]
-    feedforward: ClassicalPI
+    feedforward: FeedforwardModel
     feedforward_fit: dict[str, float]
     #: per controller and metric, the (min, max) over the noise realisations (equal for one)
     spread: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
@@ -126,7 +152,7 @@ def reproduce(
     band_N: float = PAPER_BAND_N,
     signal: str = "measured_N",
     repeats: int = 1,
-    feedforward: ClassicalPI | None = None,
+    feedforward: FeedforwardModel | None = None,
     feedforward_fit: dict[str, float] | None = None,
 ) -> Reproduction:
     """Run the paper's step with the PID alone and with the P-I feedforward on the rig ``params``.
@@ -148,7 +174,7 @@ def reproduce(
         ff, info = feedforward, {"fit": dict(feedforward_fit or {})}
     metrics, runs, spread = {}, {}, {}
     for name in CONTROLLERS:
-        controller = Controller(gains, rig.dt_s, ff.inverse() if name == "ff+pid" else None)
+        controller = Controller(gains, rig.dt_s, inverse_at(ff, rig.dt_s) if name == "ff+pid" else None)
         run = simulate(rig, controller, step, seed=seed, batch=(repeats,) if repeats > 1 else ())
         ms = run.step_metrics(band_N, signal=signal)
         ms = ms if isinstance(ms, list) else [ms]

@@ -17,16 +17,17 @@ from piezopreload.core.artifacts import finite_or_none
 from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
-from piezopreload.models.hysteresis import ClassicalPI
+from piezopreload.models.hysteresis import inverse_at
 from piezopreload.models.metrics import run_numbers
-from piezopreload.tuning.calibrate import CONTROLLERS, PAPER_RESULTS, Reproduction
+from piezopreload.tuning.calibrate import CONTROLLERS, PAPER_RESULTS, FeedforwardModel, Reproduction
 from piezopreload.tuning.validate import Criteria, evaluate
 
-__all__ = ["compare_gains", "tracking_improvement", "Response", "responses", "reproduction", "reproduction_summary"]
+__all__ = ["compare_gains", "tracking_improvement", "Response", "responses", "creep_effect", "reproduction",
+           "reproduction_summary"]
 
 
 def compare_gains(rig: RigParams, step: Reference, trajectory: Reference, candidates: dict[str, PIDGains],
-                  feedforward: ClassicalPI, criteria: Criteria, seed: int) -> list[dict[str, Any]]:
+                  feedforward: FeedforwardModel, criteria: Criteria, seed: int) -> list[dict[str, Any]]:
     """Each gain set without and with the feedforward on the nominal rig: one row each."""
     rows = []
     for name, gains in candidates.items():
@@ -72,21 +73,39 @@ class Response:
 
 
 def responses(rig: RigParams, references: dict[str, Reference], candidates: dict[str, PIDGains],
-              feedforward: ClassicalPI, *, seed: int, band_N: float, signal: str, after_change_s: float,
-              progress: Callable[[int, int], None] | None = None) -> list[Response]:
-    """Every candidate, PID alone and with the feedforward, over every reference (noise ``seed``)."""
+              feedforward: FeedforwardModel, *, seed: int, band_N: float, signal: str, after_change_s: float,
+              progress: Callable[[int, int], None] | None = None,
+              controllers: tuple[str, ...] = CONTROLLERS) -> list[Response]:
+    """Every candidate, PID alone and with the feedforward (``controllers``), over every reference (noise ``seed``)."""
     plant = Rig(rig)
     out: list[Response] = []
-    total = len(candidates) * len(CONTROLLERS) * len(references)
+    total = len(candidates) * len(controllers) * len(references)
     for name, gains in candidates.items():
-        for controller in CONTROLLERS:
-            ff = feedforward.inverse() if controller == "ff+pid" else None
+        for controller in controllers:
+            ff = inverse_at(feedforward, plant.dt_s) if controller == "ff+pid" else None
             for ref_name, ref in references.items():
                 run = simulate(plant, Controller(gains, plant.dt_s, ff), ref, seed=seed)
                 out.append(Response(name, controller, ref_name, run, run_numbers(run, band_N, signal, after_change_s)))
                 if progress is not None:
                     progress(len(out), total)
     return out
+
+
+def creep_effect(rig: RigParams, references: dict[str, Reference], candidates: dict[str, PIDGains],
+                 with_creep: FeedforwardModel, without_creep: FeedforwardModel, *, seed: int, band_N: float,
+                 signal: str, after_change_s: float) -> list[dict[str, Any]]:
+    """FF + PID with the feedforward's creep compensation and with the same model refitted without creep.
+
+    One row per gains, feedforward and reference, on one noise draw (``seed``, the same for both):
+    the step numbers (rise, peak, settling, overshoot) and the tracking errors.
+    """
+    rows = []
+    for creep, model in ((False, without_creep), (True, with_creep)):
+        for r in responses(rig, references, candidates, model, seed=seed, band_N=band_N, signal=signal,
+                           after_change_s=after_change_s, controllers=("ff+pid",)):
+            rows.append({"gains": r.gains, "creep": creep, "feedforward": model.kind, "reference": r.reference,
+                         **r.numbers})
+    return rows
 
 
 def reproduction(runs: list[Response], reference: str = "step") -> list[dict[str, Any]]:

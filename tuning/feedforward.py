@@ -24,15 +24,15 @@ from piezopreload.core.errors import InputError
 from piezopreload.core.tables import Record, write_csv
 from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import simulate_open_loop, triangle
-from piezopreload.models.hysteresis import ClassicalPI, HysteresisModel, NotInvertibleError, model_from_dict
-from piezopreload.tuning.calibrate import LoopExcitation, fit_feedforward, identify_feedforward
+from piezopreload.models.hysteresis import ClassicalPI, CreepPI, NotInvertibleError, inverse_at, model_from_dict
+from piezopreload.tuning.calibrate import FeedforwardModel, LoopExcitation, fit_feedforward, identify_feedforward
 
 __all__ = ["IdentifiedFeedforward", "CompensationCheck", "identify", "compensation_check", "read_hysteresis_model"]
 
 Array = NDArray[np.float64]
 
 
-def read_hysteresis_model(path: str | Path) -> tuple[HysteresisModel, dict[str, Any]]:
+def read_hysteresis_model(path: str | Path) -> tuple[FeedforwardModel, dict[str, Any]]:
     """Read a hysteresis-model artifact: the model and the whole document; errors name the file and field."""
     doc = read_artifact(path, "hysteresis-model")
     try:
@@ -65,13 +65,13 @@ class CompensationCheck:
         return float(np.max(np.abs(self.error_N)))
 
 
-def compensation_check(rig: RigParams, model: ClassicalPI, low_N: float, high_N: float, frequency_Hz: float,
+def compensation_check(rig: RigParams, model: FeedforwardModel, low_N: float, high_N: float, frequency_Hz: float,
                        seed: int) -> CompensationCheck:
     """Two cycles of a ``low_N -> high_N`` force triangle through the inverse of ``model``, in open loop on ``rig``."""
     plant = Rig(rig)
     _, desired = triangle(high_N - low_N, frequency_Hz, 2, plant.dt_s)
     desired = desired + low_N
-    command = model.inverse()(desired)
+    command = inverse_at(model, plant.dt_s)(desired)
     run = simulate_open_loop(plant, command, seed=seed)
     return CompensationCheck(run["time_s"], desired, command, run["force_N"], run["measured_N"], 1.0 / frequency_Hz)
 
@@ -86,7 +86,7 @@ class IdentifiedFeedforward:
     open-loop compensation check, both None for a model read back from its artifact.
     """
 
-    model: HysteresisModel
+    model: FeedforwardModel
     source: dict[str, Any]
     fit: dict[str, float]
     solver_status: str = ""
@@ -94,10 +94,25 @@ class IdentifiedFeedforward:
     check: CompensationCheck | None = None
     model_sha256: str | None = None  # of the artifact it was read from
     identification: dict[str, Any] = field(default_factory=dict)
+    #: with creep: the same model refitted without it ({"model": ..., "fit": ...}), to show what creep buys
+    without_creep: dict[str, Any] | None = None
 
     def inverse(self) -> Any:
-        """The feedforward itself: desired force -> command voltage, eqs. (19)-(20)."""
+        """The feedforward itself: desired force -> command voltage, eqs. (19)-(20) (with creep: :class:`InverseStep`)."""
         return self.model.inverse()
+
+    def describe(self) -> dict[str, Any]:
+        """Where the feedforward came from and how well it fits, in words and numbers (a simulation's record)."""
+        src = self.source
+        if src.get("kind") == "simulated":
+            ex = src["excitation"]
+            where = f"identified from a simulated {ex['v_max_V']:g} V, {ex['frequency_Hz']:g} Hz loop measurement of the rig"
+        else:
+            where = f"identified from the measured loop {src.get('path')}"
+        out = {"source": where, "model": self.model.kind, "operators": self.model.n_operators}
+        if self.fit:
+            out.update(fit_rms_pct=self.fit["rms_pct"], fit_max_pct=self.fit["max_pct"])
+        return out
 
     def info(self) -> dict[str, Any]:
         """How the feedforward was identified, as a gain set records it."""
@@ -130,7 +145,9 @@ class IdentifiedFeedforward:
             "units": {"input": "V", "output": "N", "input_name": "voltage_V", "output_name": "force_N"},
             "model": self.model.to_dict(),
             "identification": {"fit": self.fit, "solver_status": self.solver_status,
-                               "compensation_rms_N": c.rms_N, "compensation_max_N": c.max_N},
+                               "compensation_rms_N": c.rms_N, "compensation_max_N": c.max_N,
+                               **({} if self.without_creep is None else {"without_creep": {
+                                   "model": self.without_creep["model"].to_dict(), "fit": self.without_creep["fit"]}})},
         })
         return paths
 
@@ -148,8 +165,15 @@ class IdentifiedFeedforward:
         ident = doc.get("identification") or {}
         source = (doc.get("inputs") or {}).get("data") or {"kind": "file", "path": str(path)}
         fit = ident.get("fit") or {k: v for k, v in ident.get("test", {}).items() if k in ("rms_pct", "max_pct")}
+        plain = ident.get("without_creep")
+        try:
+            without = None if not isinstance(plain, dict) else {
+                "model": model_from_dict(plain.get("model"), "identification.without_creep.model"), "fit": plain.get("fit")}
+        except ValueError as exc:
+            raise ArtifactError(f"{path}: {exc}") from None
         return cls(model, source, fit, ident.get("solver_status", ""),
-                   model_sha256=hashlib.sha256(Path(path).read_bytes()).hexdigest(), identification=ident)
+                   model_sha256=hashlib.sha256(Path(path).read_bytes()).hexdigest(), identification=ident,
+                   without_creep=without)
 
     def plot(self) -> Any:
         """The loop measurement and the model (left), the rig through the inverse in open loop (right)."""
@@ -192,7 +216,13 @@ def identify(rig: RigParams, excitation: LoopExcitation, record: Record | None =
             raise InputError(f"{record.path}: the feedforward needs a voltage (V) -> force (N) loop; "
                              f"the record has {record.input_name} -> {record.output_name}")
         loop = {"time_s": record.time_s, "voltage_V": record.input, "force_N": record.output}
-        model, info = fit_feedforward(record.input, record.output, excitation.n_operators)
+        t = record.time_s
+        dt = float((t[-1] - t[0]) / max(t.size - 1, 1))
+        model, info = fit_feedforward(record.input, record.output, excitation.n_operators, kind=excitation.kind,
+                                      creep=excitation.creep, sample_period_s=dt)
+        if isinstance(model, CreepPI):  # the lags resampled exactly at the loop's period
+            model = model.with_sample_period(rig.sample_period_s)
         source = {"kind": "measured", "path": record.path, "sha256": record.sha256}
     check = compensation_check(rig, model, *check_range_N, excitation.frequency_Hz, excitation.seed + 1)
-    return IdentifiedFeedforward(model, source, info["fit"], info["status"], loop, check)
+    return IdentifiedFeedforward(model, source, info["fit"], info["status"], loop, check,
+                                 without_creep=info.get("without_creep"))

@@ -2,8 +2,9 @@
 
 :func:`identify_record` fits a P-I model (:class:`~piezopreload.tuning.identify.PIIdentifier`:
 the classical model of eq. (15), the paper's asymmetric one of eq. (18) or Kuhnen's modified
-model) on a training window of a record and scores it on a test window, beside the best
-straight line and the paper's own method of eq. (17). Errors are percentages of the output
+model, each with or without creep) on a training window of a record and scores it on a test
+window, beside the best straight line, the paper's own method of eq. (17) and, with creep, the
+same model refitted without it. Errors are percentages of the output
 span of the whole record. The result saves itself as a ``hysteresis-model`` artifact.
 """
 
@@ -19,10 +20,10 @@ import numpy as np
 from piezopreload.core.artifacts import write_artifact
 from piezopreload.core.errors import InputError
 from piezopreload.core.tables import Record
-from piezopreload.models.hysteresis import HysteresisModel
+from piezopreload.models.hysteresis import CreepPI, HysteresisModel
 from piezopreload.tuning.identify import IdentificationError, PIIdentifier, fit_error, paper_baseline, straight_line
 
-__all__ = ["Window", "HoldoutFit", "identify_record"]
+__all__ = ["Window", "HoldoutFit", "identify_record", "WITHOUT_CREEP_HOW"]
 
 
 @dataclass(frozen=True)
@@ -44,7 +45,7 @@ class Window:
 class HoldoutFit:
     """The identified ``model``, the record it came from and the errors (``summary``: what ``--json`` prints)."""
 
-    model: HysteresisModel
+    model: HysteresisModel | CreepPI
     record: Record
     train: Window
     test: Window
@@ -83,13 +84,41 @@ class HoldoutFit:
         return fig
 
 
+#: why the comparison without creep is a refit, not the creep model with its creep weights zeroed
+WITHOUT_CREEP_HOW = ("refit: the same model, operators and windows identified without creep. Zeroing the creep "
+                     "weights of the joint fit would also drop the share of the static gain the creep carries, "
+                     "scoring a model nobody would use.")
+
+
+def _sample_period(record: Record) -> float:
+    """The record's sample period; creep's lags need a uniformly sampled record."""
+    t = record.time_s
+    if t.size < 3:
+        raise InputError(f"{record.path}: creep needs a record of at least 3 samples, got {t.size}")
+    dt = float((t[-1] - t[0]) / (t.size - 1))
+    steps = np.diff(t)
+    if not dt > 0 or np.max(np.abs(steps - dt)) > 0.01 * dt:
+        raise InputError(f"{record.path}: creep needs a uniformly sampled record; its time steps range from "
+                         f"{steps.min():.6g} to {steps.max():.6g} s (resample it first)")
+    return dt
+
+
 def identify_record(record: Record, *, model: str = "classical", operators: int = 40, train: Window | None = None,
-                    test: Window | None = None, ridge: float = 0.0) -> HoldoutFit:
+                    test: Window | None = None, ridge: float = 0.0, creep: bool = False,
+                    creep_time_constants_s: Any = None) -> HoldoutFit:
     """Identify a hysteresis model on ``train`` and score it on ``test``.
 
-    Without windows the first 70 % of the record's duration trains and the rest tests.
+    Without windows the first 70 % of the record's duration trains and the rest tests. A model
+    name ending in ``+creep`` (or ``creep=True``) adds a bank of creep lags identified in the
+    same QP (time constants ``creep_time_constants_s``, one per decade from 10 ms to the
+    record's length by default); the summary then also holds the errors of the model refitted
+    without creep (``without_creep``, see :data:`WITHOUT_CREEP_HOW`), so the two sit side by side.
     """
     t0 = time.perf_counter()
+    if model.endswith("+creep"):
+        model, creep = model.removesuffix("+creep"), True
+    if creep_time_constants_s is not None and not creep:
+        raise InputError("creep time constants were given without creep: add --creep (or a model name ending in +creep)")
     t = record.time_s
     if train is None:
         train = Window(float(t[0]), float(t[0] + 0.7 * (t[-1] - t[0])))
@@ -112,11 +141,18 @@ def identify_record(record: Record, *, model: str = "classical", operators: int 
     span = float(np.ptp(record.output))
     if span == 0:
         raise InputError(f"{record.path}: the output '{record.output_name}' is constant; nothing to model")
+    dt = _sample_period(record) if creep else None
+    taus = "log" if creep_time_constants_s is None else creep_time_constants_s
+    name = model + ("+creep" if creep else "")
     try:
-        est = PIIdentifier(model=model, n_operators=operators, ridge=ridge)
-        est.fit(record.input, record.output, train=rows["train"])
+        est = PIIdentifier(model=model, n_operators=operators, ridge=ridge, creep=creep, creep_time_constants_s=taus)
+        est.fit(record.input, record.output, train=rows["train"], sample_period_s=dt)
+        plain = None
+        if creep:
+            plain = PIIdentifier(model=model, n_operators=operators, ridge=ridge)
+            plain.fit(record.input, record.output, train=rows["train"])
     except (IdentificationError, ValueError) as exc:
-        raise InputError(f"{record.path}: cannot identify a {model} model: {exc}") from exc
+        raise InputError(f"{record.path}: cannot identify a {name} model: {exc}") from exc
     predicted = est.predict(record.input)
     v, y = record.input, record.output
     slope, intercept = straight_line(v[rows["train"]], y[rows["train"]])
@@ -129,7 +165,7 @@ def identify_record(record: Record, *, model: str = "classical", operators: int 
     summary: dict[str, Any] = {
         "data": {"path": record.path, "sha256": record.sha256, "samples": int(t.size),
                  "input": record.input_name, "output": record.output_name},
-        "model": model,
+        "model": name,
         "operators": int(est.thresholds_.size),
         "invertible": bool(getattr(est.model_, "invertible", False)),
         "output_span": span,
@@ -144,6 +180,14 @@ def identify_record(record: Record, *, model: str = "classical", operators: int 
         "solver": {"name": "CLARABEL", "status": est.status_, "polished": est.polished_,
                    "iterations": est.iterations_, "qp_seconds": est.solve_time_s_, "fit_seconds": est.fit_time_s_},
     }
+    if plain is not None:
+        c = est.model_.creep
+        off = plain.predict(record.input)
+        summary["creep"] = {"time_constants_s": c.time_constants_s.tolist(), "weights": c.weights.tolist(),
+                            "sample_period_s": c.sample_period_s}
+        summary["without_creep"] = {"how": WITHOUT_CREEP_HOW, "model": model,
+                                    "train": fit_error(off[rows["train"]], y[rows["train"]], span),
+                                    "test": fit_error(off[rows["test"]], y[rows["test"]], span)}
     if paper_note:
         summary["paper_method_note"] = paper_note
     summary["seconds"] = time.perf_counter() - t0

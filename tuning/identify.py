@@ -24,7 +24,6 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-import cvxpy as cp
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -135,6 +134,8 @@ def _solve_constrained_lsq(
             ) from None
     target = np.linalg.solve(chol, rhs)
     a_scaled = a_ineq * (y_scale / scale)  # constraints on the scaled variable z = x * scale / y_scale
+
+    import cvxpy as cp  # here, not at import: cvxpy (and the scipy.stats it loads) costs a second and a half
 
     z = cp.Variable(p)
     constraints = [a_scaled @ z >= b_ineq] if a_ineq.shape[0] else []

@@ -133,6 +133,11 @@ class TuningSpec:
         default_factory=lambda: {"gain": 0.15, "amp_bandwidth_Hz": 0.2, "slew": 0.2, "hysteresis": 0.2, "creep": 0.3}
     )
 
+    def to_dict(self) -> dict[str, Any]:
+        return {"band_N": self.band_N, "overshoot_margin_N": self.overshoot_margin_N, "ms_max": self.ms_max,
+                "noise_gain_max_V_per_N": self.noise_gain_max_V_per_N, "u_min_V": self.u_min_V, "u_max_V": self.u_max_V,
+                "tune_setpoint_weight": self.tune_setpoint_weight, "variants": dict(self.variants)}
+
     def __post_init__(self) -> None:
         if not (0 < self.overshoot_margin_N < self.band_N):
             raise ValueError("TuningSpec needs 0 < overshoot_margin_N < band_N.")

@@ -28,7 +28,7 @@ from piezopreload.core.errors import PiezopreloadError
 from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import PAPER_BAND_N, Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
-from piezopreload.models.hysteresis import ClassicalPI
+from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at
 
 __all__ = ["Criteria", "DEFAULT_SPREAD", "ValidationResult", "evaluate", "validate", "executor", "SchedulerError"]
 
@@ -153,7 +153,7 @@ class ValidationResult:
 @dataclass(frozen=True)
 class _Chunk:
     gains: PIDGains
-    feedforward: ClassicalPI | None
+    feedforward: HysteresisModel | CreepPI | None
     plants: RigParams
     step: Reference
     trajectory: Reference
@@ -161,14 +161,14 @@ class _Chunk:
     seed: int
 
 
-def evaluate(gains: PIDGains, feedforward: ClassicalPI | None, plants: RigParams, step_ref: Reference,
+def evaluate(gains: PIDGains, feedforward: HysteresisModel | CreepPI | None, plants: RigParams, step_ref: Reference,
              trajectory: Reference, criteria: Criteria, seed: int) -> dict[str, np.ndarray]:
     """The metrics the criteria judge, per plant: the step (noise ``seed``) and the trajectory (``seed + 1``).
 
     ``plants`` is one plant or a batch; every value is an array over the plants.
     """
     rig = Rig(plants)
-    inverse = feedforward.inverse() if feedforward is not None else None
+    inverse = inverse_at(feedforward, rig.dt_s) if feedforward is not None else None
     controller = Controller(gains, rig.dt_s, inverse)
     step = simulate(rig, controller, step_ref, seed=seed)
     band, signal = criteria.band_N, criteria.signal
@@ -245,7 +245,7 @@ def executor(workers: int | None = None, scheduler: str | None = None) -> Iterat
 
 def validate(
     gains: PIDGains,
-    feedforward: ClassicalPI | None,
+    feedforward: HysteresisModel | CreepPI | None,
     plant: RigParams,
     criteria: Criteria = Criteria(),
     *,

@@ -14,7 +14,6 @@ from typing import Any
 
 from piezopreload.core.errors import InputError
 from piezopreload.models.gainset import GainSet
-from piezopreload.models.hysteresis import ClassicalPI
 from piezopreload.tuning.validate import Criteria, SchedulerError, ValidationResult, executor, validate
 
 __all__ = ["validate_gain_set"]
@@ -32,8 +31,6 @@ def validate_gain_set(gain_set: GainSet, *, n_plants: int, seed: int, workers: i
         raise InputError(f"n_plants: must be >= 1, got {n_plants}")
     if gain_set.plant is None:
         raise InputError("the gain set names no plant (field 'plant.rig'); write it again with 'piezopreload tune'")
-    if gain_set.feedforward is not None and not isinstance(gain_set.feedforward, ClassicalPI):
-        raise InputError("field 'feedforward.model.kind': validation runs the classical P-I inverse")
     try:
         criteria = Criteria(**gain_set.criteria)
     except (TypeError, ValueError) as exc:

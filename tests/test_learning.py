@@ -1,0 +1,209 @@
+"""Preview and iterative learning control: the floors, the laws' theory on linear plants, the artifact."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from piezopreload.core.errors import ArtifactError, InputError
+from piezopreload.models.actuator import Rig, RigParams
+from piezopreload.models.closedloop import Reference, simulate
+from piezopreload.models.controller import Controller, PIDGains
+from piezopreload.models.learned import LearnedSignal
+from piezopreload.tuning import learning as L
+from piezopreload.tuning.pid import tracking_floor
+
+TRAJECTORY = Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 1.0, t_start_s=0.5)
+
+
+def _linear_model(**kw) -> L.LearningModel:
+    """A first-order lag read a sample late (y_k = C x_k, x+ = A x + B u): G(z) = 0.2 z^-1 / (1 - 0.8 z^-1)."""
+    return L.LearningModel(np.array([[0.8]]), np.array([[1.0]]), np.array([[0.2]]), 1e-3, **kw)
+
+
+def _simulate_linear(model: L.LearningModel, u: np.ndarray) -> np.ndarray:
+    return model.lifted(u.size) @ u
+
+
+def test_preview_floor_without_preview_is_the_causal_floor_and_falls_with_preview():
+    params = RigParams(amp_current_limit_A=0.0142)  # the paper's slow amplifier: ramps of tens of samples
+    causal = tracking_floor(params, TRAJECTORY)["rms_N"]
+    plan0 = L.preview_plan(params, TRAJECTORY, 0.0)
+    assert plan0.rms_N == pytest.approx(causal, rel=1e-12), "with no preview the plan's floor is not tracking_floor's"
+    floors = [L.preview_plan(params, TRAJECTORY, p).rms_N for p in (0.0, 0.005, 0.01, 0.2)]
+    assert all(a > b for a, b in zip(floors, floors[1:-1])), f"the floor does not fall with the preview: {floors}"
+    # a ramp centred on each jump: the continuous bound sum dF^3 / (12 rate), to the sample grid's rounding
+    rate = plan0.rate_N_per_s
+    jumps = np.abs(np.diff(TRAJECTORY.levels_N))
+    scored = TRAJECTORY.duration_s - TRAJECTORY.times_s[1]
+    # (the score starts at the first change, so the first ramp's half before it costs nothing)
+    centred = np.sqrt((np.sum(jumps**3) - 0.5 * jumps[0] ** 3) / (12 * rate) / scored)
+    assert floors[-1] == pytest.approx(centred, rel=0.02), "the long-preview floor is not the centred ramps' error"
+
+
+def test_preview_on_a_pure_delay_removes_it_exactly():
+    # a rig that is a pure delay: amplifier and slew far faster than a sample, no creep, hysteresis negligible
+    params = RigParams(amp_bandwidth_Hz=1e6, amp_current_limit_A=1e3, creep_per_decade=0.0, bw_alpha=1e-12,
+                       bw_kappa=0.0, noise_N=0.0, adc_bits=32, delay_samples=2)
+    rig = Rig(params)
+    gain = float(params.effective_stiffness_N_per_um * params.stroke_um_per_V)  # N/V
+    ref = Reference.staircase(25.0, [40.0, 55.0, 30.0], 0.05, t_start_s=0.02)
+    c = Controller(PIDGains(Kc=0.0, Ti_s=np.inf, u_min=-1e3, u_max=1e3), rig.dt_s)  # the feedforward alone
+    n = int(round(ref.duration_s / rig.dt_s)) + 1
+    r = ref.at(np.arange(n) * rig.dt_s)
+    ff = (r - params.bolt_preload_N) / gain
+    lag = params.delay_samples + 1  # the delay line and the D/A's sample
+    late = simulate(rig, c, ref, ff_extra_V=ff, engine="numpy")
+    early = simulate(rig, c, ref, ff_extra_V=L.advance(ff, lag), engine="numpy")
+    assert np.max(np.abs(late.force_N - r)) > 10.0, "without preview the delay should show"
+    np.testing.assert_allclose(early.force_N[lag:], r[lag:], atol=1e-6,
+                               err_msg="previewed by the delay, the pure delay's output is not the reference")
+
+
+def test_p_type_ilc_converges_monotonically_as_its_contraction_says():
+    model = L.tune_laws(_linear_model(sp_gain=1.0))
+    model = replace(model, q_cutoff_Hz=100.0)
+    n = 300
+    G = model.lifted(n)
+    Q = np.array([L.zero_phase_lowpass(col, model.q_cutoff_Hz, model.dt_s) for col in np.eye(n)]).T
+    Lm = model.gamma * np.array([L.advance(col, model.delta, fill="zero") for col in np.eye(n)]).T
+    M = Q @ (np.eye(n) - Lm @ G)
+    rho = np.linalg.norm(M, 2)
+    assert rho < 1.0, f"the lifted contraction ||Q(I - LG)|| is {rho}"
+    t = np.arange(n) * model.dt_s
+    r = np.where(t > 0.05, 1.0, 0.0) + 0.5 * np.sin(2 * np.pi * 8 * t)
+    u_inf = np.linalg.solve(np.eye(n) - M, Q @ Lm @ r)
+    u = np.zeros(n)
+    dist = [np.linalg.norm(u - u_inf)]
+    for _ in range(15):
+        u = L.p_type_update(model, u, r - _simulate_linear(model, u))
+        dist.append(np.linalg.norm(u - u_inf))
+    ratios = np.array(dist[1:]) / np.array(dist[:-1])
+    assert np.all(ratios <= rho + 1e-9), f"a step shrank the distance by less than the contraction {rho}: {ratios}"
+    # without Q the error itself decays monotonically, by at most ||I - G L|| per trial
+    model1 = replace(model, q_cutoff_Hz=np.inf)
+    Lm1 = model1.gamma * np.array([L.advance(col, model1.delta, fill="zero") for col in np.eye(n)]).T
+    bound = np.linalg.norm(np.eye(n) - G @ Lm1, 2)
+    u, errs = np.zeros(n), []
+    for _ in range(10):
+        e = r - _simulate_linear(model1, u)
+        errs.append(np.linalg.norm(e))
+        u = L.p_type_update(model1, u, e)
+    steps = np.array(errs[1:]) / np.array(errs[:-1])
+    assert bound <= 1.0 + 1e-9 and np.all(steps <= bound + 1e-9), f"error ratios {steps} beyond ||I - GL|| = {bound}"
+
+
+def test_the_model_contraction_bound_matches_the_lifted_norm_for_long_trials():
+    model = replace(L.tune_laws(_linear_model(sp_gain=1.0)), q_cutoff_Hz=100.0)
+    n = 600
+    Q = np.array([L.zero_phase_lowpass(col, model.q_cutoff_Hz, model.dt_s) for col in np.eye(n)]).T
+    Lm = model.gamma * np.array([L.advance(col, model.delta, fill="zero") for col in np.eye(n)]).T
+    lifted = np.linalg.norm(Q @ (np.eye(n) - Lm @ model.lifted(n)), 2)
+    assert lifted <= model.contraction() + 1e-6, "the lifted norm exceeds the frequency-domain contraction"
+    assert lifted > model.contraction() - 0.02, "the frequency-domain contraction is far above the lifted norm"
+
+
+def test_norm_optimal_ilc_respects_its_limits_and_reduces_the_error():
+    model = _linear_model(u_range_V=(-2.0, 3.0), slew_V_per_sample=0.05, weight=1e-4)
+    n = 200
+    t = np.arange(n) * model.dt_s
+    r = np.where((t > 0.05) & (t < 0.15), 4.0, 0.0)  # needs more than the range and the slew allow
+    u = np.zeros(n)
+    errs = []
+    for _ in range(4):
+        e = r - _simulate_linear(model, u)
+        errs.append(np.linalg.norm(e))
+        u = L.norm_optimal_update(model, u, e, command_V=u)
+        assert u.min() >= -2.0 - 1e-6 and u.max() <= 3.0 + 1e-6, f"the command left its range: {u.min()}..{u.max()}"
+        assert np.max(np.abs(np.diff(u))) <= 0.05 + 1e-6, f"the command slews {np.max(np.abs(np.diff(u)))} V/sample"
+    errs.append(np.linalg.norm(r - _simulate_linear(model, u)))
+    assert errs[-1] < 0.6 * errs[0] and all(b <= a + 1e-6 for a, b in zip(errs, errs[1:])), errs
+    assert np.max(np.abs(np.diff(u))) > 0.05 - 1e-4, "the slew limit never bound: the test does not test it"
+
+
+def test_learning_on_the_rig_converges_and_the_guard_keeps_the_best():
+    params = RigParams(noise_N=0.05)
+    rig = Rig(params)
+    c = Controller(PIDGains(Kc=0.3, Ti_s=0.08, Td_s=0.001), rig.dt_s)
+    ref = Reference.staircase(25.0, [60.0, 80.0], 0.6, t_start_s=0.2)
+    res = L.learn(c, rig, ref, iterations=6, seed=1, settle_tol=0.2)
+    rms = [h.tracking_rms_after_change_N for h in res.history]
+    assert rms[-1] < 0.5 * rms[0], f"learning did not reduce the error: {rms}"
+    assert bool(res.converged.all()) and not res.diverged.any()
+    assert res.tracking_rms_N >= res.preview_floor_N - 1e-9, "a run beat the preview floor"
+    # a gain far too high diverges: the guard stops and keeps the best iterate
+    wild = replace(L.learning_model(params, c), gamma=40.0)
+    bad = L.learn(c, rig, ref, iterations=6, seed=1, model=wild)
+    assert bad.diverged.all() and len(bad.history) < 7, "the divergence guard did not stop"
+    measured = [float(h.measured_rms_N) for h in bad.history]
+    assert int(bad.best[()]) == int(np.argmin(measured)), "the kept iterate is not the best"
+
+
+def test_the_learned_signal_artifact_is_tied_to_its_gain_set_and_reference(tmp_path):
+    n = int(round(TRAJECTORY.duration_s / 1e-3)) + 1
+    sig = LearnedSignal(np.zeros(n), TRAJECTORY.at(np.arange(n) * 1e-3), 1e-3, TRAJECTORY, "a" * 64, iteration=2)
+    saved = sig.save(tmp_path / "learned.json")
+    back = LearnedSignal.load(tmp_path / "learned.json")
+    assert back.content_sha256 == saved.content_sha256 and back.iteration == 2
+    back.check("a" * 64, TRAJECTORY)
+    with pytest.raises(InputError, match="a{64}.*b{64}"):
+        back.check("b" * 64, TRAJECTORY)
+    other = Reference.step(25.0, 60.0)
+    with pytest.raises(InputError, match="reference"):
+        back.check("a" * 64, other)
+    text = (tmp_path / "learned.json").read_text().replace('"iteration": 2', '"iteration": 3')
+    (tmp_path / "changed.json").write_text(text)
+    with pytest.raises(ArtifactError, match="changed after it was written"):
+        LearnedSignal.load(tmp_path / "changed.json")
+
+
+def test_learn_rig_playback_and_one_update_per_rig_run(tmp_path, capsys):
+    """'learn --out' writes a signal the rig plays back as learned (its error as in the simulation); a run's log
+    gives the next iteration; another reference is refused (exit 2)."""
+    import json
+    import sys
+
+    sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
+    from rigkit import write_gain_set
+
+    from piezopreload.cli import main
+    from piezopreload.study import load_study
+
+    study = load_study("paper2021")
+    gains = write_gain_set(tmp_path / "gains.json", study, study.identify_feedforward().model)
+    assert main(["learn", "--gains", str(gains), "--iterations", "2", "--out", str(tmp_path / "L"), "--json"]) == 0
+    learned = json.loads(capsys.readouterr().out)
+    assert learned["iterations"] == 2 and learned["preview_floor_N"] < learned["causal_floor_N"]
+    assert main(["rig", "run", str(gains), "--learned", learned["out"], "--fast", "--log-dir", str(tmp_path / "runs"),
+                 "--json"]) == 0
+    run = json.loads(capsys.readouterr().out)
+    best = learned["history"][learned["best_iteration"][0]]
+    assert run["status"] == "completed" and run["learned"]["iteration"] == learned["best_iteration"][0]
+    assert run["learned"]["plan_rms_measured_N"] == pytest.approx(best["measured_rms_N"], rel=0.1), \
+        "the rig's playback does not track the plan as the simulation of the same signal did"
+    assert main(["learn", "--gains", str(gains), "--from-run", run["log_csv"], "--learned", learned["out"],
+                 "--out", str(tmp_path / "L2"), "--json"]) == 0
+    update = json.loads(capsys.readouterr().out)
+    assert update["iteration"] == learned["best_iteration"][0] + 1
+    assert main(["rig", "run", str(gains), "--learned", learned["out"], "--reference", "step", "--fast",
+                 "--log-dir", str(tmp_path / "runs")]) == 2
+    assert "learned on reference" in capsys.readouterr().err
+
+
+def test_the_rigs_own_branch_is_never_faster_than_the_steepest_slope_and_ends_at_each_level():
+    params = RigParams(amp_current_limit_A=0.0142)
+    rate = tracking_floor(params, TRAJECTORY)["rate_N_per_s"] * params.sample_period_s
+    ramps = L.branch_ramps(params, TRAJECTORY.levels_N)
+    assert len(ramps) == TRAJECTORY.levels_N.size - 1
+    for level, start, ramp in zip(TRAJECTORY.levels_N[1:], TRAJECTORY.levels_N[:-1], ramps):
+        steps = np.abs(np.diff(ramp))  # (the first sample may carry the last one's overshoot of its level: < 2 steps)
+        assert np.all(steps <= rate * (1 + 1e-9)), f"a branch step of {steps.max()} N beats the steepest {rate} N"
+        assert abs(ramp[0] - start) <= 2 * rate, "the ramp does not start at its level"
+        assert ramp[-1] == pytest.approx(level), f"the ramp to {level} N ends at {ramp[-1]} N"
+    falling = ramps[3]  # 100 -> 80 N: right after a reversal the branch is flat (1 - alpha of the slope)
+    assert np.abs(falling[1] - falling[0]) < 0.8 * rate, "no slow start after the reversal"
+    plain = L.preview_plan(params, TRAJECTORY, 0.2).rms_N
+    branch = L.preview_plan(params, TRAJECTORY, 0.2, ramps=ramps).rms_N
+    assert branch > plain, "the rig's own branch cannot track better than the steepest-slope bound"
