@@ -195,7 +195,7 @@ class ClosedLoopRun:
         """
         t_from = self.reference.times_s[1] if t_from_s is None and self.reference.times_s.size > 1 else (t_from_s or 0.0)
         mask = self.t_s >= t_from
-        if after_change_s > 0:
+        if after_change_s > 0 and self.reference.interpolation == "hold":  # a ramped reference has no jumps
             changes = self.reference.times_s[1:]
             last = changes[np.maximum(np.searchsorted(changes, self.t_s, side="right") - 1, 0)]
             mask &= ~((self.t_s >= last) & (self.t_s < last + after_change_s))
