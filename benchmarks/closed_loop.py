@@ -30,7 +30,7 @@ from piezopreload.models.actuator import Rig
 from piezopreload.models.closedloop import Reference, simulate
 from piezopreload.models.controller import Controller
 from piezopreload.rig.compiled import controller_step
-from piezopreload.study import default_study, load_study
+from piezopreload.study import load_study, paper_study
 from piezopreload.tuning.calibrate import identify_feedforward
 
 BATCH, SIM_S = 200, 10.0
@@ -80,7 +80,7 @@ def controller_alone(controller: Controller, n: int) -> tuple[float, float]:
 def main() -> None:
     if not native.enabled():
         raise SystemExit("no working C compiler here (or PIEZOPRELOAD_ENGINE=numpy): nothing compiled to time")
-    study = load_study(default_study())
+    study = load_study(paper_study())
     rig = Rig(study.rig)
     ff, _ = identify_feedforward(rig, study.excitation)
     controller = Controller(study.gains, rig.dt_s, ff.inverse())

@@ -25,7 +25,7 @@ from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.rig.backends import SimBackend
 from piezopreload.rig.compiled import PythonStep, controller_step
 from piezopreload.rig.executor import Executor, Safety
-from piezopreload.study import default_study, load_study
+from piezopreload.study import load_study, paper_study
 from piezopreload.tuning.calibrate import identify_feedforward
 
 
@@ -34,7 +34,7 @@ def per_call(fn, repeat: int = 5) -> float:
 
 
 def main() -> dict:
-    study = load_study(default_study())
+    study = load_study(paper_study())
     model, _ = identify_feedforward(Rig(study.rig), study.excitation)
     assert model.n_operators == 40
     gains = PIDGains(Kc=0.5, Ti_s=0.05, Td_s=0.001, Tf_s=0.01, b=0.3)

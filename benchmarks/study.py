@@ -14,7 +14,8 @@ Beside each wall time, the CPU seconds it took (``first_run_cpu_s``: the process
 processes and the compiler), which other work on a shared machine does not inflate, and the
 load average the run saw.
 
-``--study`` picks the study (default: the paper's). The last line printed is one JSON object.
+``--study`` picks the study (default: the default study of ``piezopreload run``, the machine axis).
+The last line printed is one JSON object.
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ def _run(argv: list[str], cache: str) -> tuple[float, float, dict]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--study", help="study file (default: the paper's)")
+    parser.add_argument("--study", help="study file (default: the default study, studies/machine_axis.toml)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         out, other, cache = str(Path(tmp) / "out"), str(Path(tmp) / "out-warm"), str(Path(tmp) / "cache")

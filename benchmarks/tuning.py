@@ -22,7 +22,7 @@ import time
 
 from piezopreload.core import native
 from piezopreload.models.actuator import Rig
-from piezopreload.study import default_study, load_study
+from piezopreload.study import load_study, paper_study
 from piezopreload.tuning.calibrate import identify_feedforward
 from piezopreload.tuning.pid import tune_pid
 from piezopreload.tuning.validate import executor, validate
@@ -33,7 +33,7 @@ N_PLANTS = 200
 def main() -> None:
     cache = tempfile.TemporaryDirectory()
     os.environ["XDG_CACHE_HOME"] = cache.name  # an empty build cache: the first compiled tuning builds
-    study = load_study(default_study())
+    study = load_study(paper_study())
     ff, _ = identify_feedforward(Rig(study.rig), study.excitation)
     spec = study.tuning_spec
 

@@ -33,6 +33,9 @@ KINDS = {
     "responses": ("runs", "reproduction", "inputs"),
     "study-run": ("study", "stages"),
     "report": ("title", "figures", "provenance"),
+    "plant": ("rig", "design_sha256", "inputs"),
+    "system": ("tracking_rms_pct_of_range", "rigidity_min_cutting_N_per_um", "rigidity_required_N_per_um", "series",
+               "inputs"),
     "learned-signal": ("ff_extra_V", "setpoint_N", "sample_period_s", "reference", "reference_sha256",
                        "gain_set_sha256", "inputs"),
 }

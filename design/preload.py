@@ -69,7 +69,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from piezopreload.core.errors import InfeasibleError
+from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.models.ballscrew import (
     CASADI_OPS,
     EFFECTIVE_BALL_SHARE,
@@ -279,6 +279,14 @@ class DesignPoint:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> DesignPoint:
+        """The inverse of :meth:`to_dict` (a design artifact's ``optimum.point``)."""
+        try:
+            return cls(**{**data, "case_preload_N": tuple(float(x) for x in data["case_preload_N"])})
+        except (KeyError, TypeError) as exc:
+            raise InputError(f"a design point needs the fields of DesignPoint: {exc}") from exc
 
 
 @dataclass(frozen=True)

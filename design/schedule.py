@@ -18,6 +18,10 @@ profile without speeds weighs the drag torque by time instead (N m s). The sched
 non-causal (it ramps up before a cut begins, as a CNC program knows its next pass); the
 slew limit decides how early.
 
+With ``preload_margin_N = m`` the stiffness and lift-off rows hold at ``F_p,k - m``: the room
+the force loop's tracking error needs (:mod:`piezopreload.design.system` derives ``m`` from the
+error the tuned loop has while it follows the schedule).
+
 The comparison is the best constant preload: the least constant F_p meeting the same
 constraints at every sample (so at equal minimum stiffness requirement). Its friction
 energy against the schedule's is the saving.
@@ -102,6 +106,7 @@ class ScheduleSpec:
     stiffness_min_N_per_um: float = 0.0
     deflection_max_um: float = math.inf
     lift_off_margin: float = 1.2
+    preload_margin_N: float = 0.0  # the control's room: every requirement holds at the preload less this
 
     def __post_init__(self) -> None:
         if not 0 < self.bolt_preload_N < self.max_preload_N < math.inf:
@@ -112,6 +117,8 @@ class ScheduleSpec:
         if not (self.stiffness_min_N_per_um >= 0 and self.deflection_max_um > 0 and self.lift_off_margin >= 1):
             raise ValueError("ScheduleSpec needs stiffness_min_N_per_um >= 0, deflection_max_um > 0 and "
                              "lift_off_margin >= 1.")
+        if not (math.isfinite(self.preload_margin_N) and self.preload_margin_N >= 0):
+            raise ValueError(f"ScheduleSpec.preload_margin_N must be finite and >= 0, got {self.preload_margin_N!r}.")
 
     def required_stiffness(self, axial_load_N: ArrayLike) -> Array:
         return np.maximum(self.stiffness_min_N_per_um, np.abs(np.asarray(axial_load_N, float)) / self.deflection_max_um)
@@ -144,7 +151,7 @@ class PreloadSchedule:
             "saving_fraction": self.saving_fraction, "constant_preload_N": self.constant_preload_N,
             "preload_min_N": float(self.preload_N.min()), "preload_max_N": float(self.preload_N.max()),
             "stiffness_margin_min_N_per_um": float(np.min(self.rigidity_N_per_um - self.required_N_per_um)),
-            "samples": int(self.preload_N.size),
+            "samples": int(self.preload_N.size), "preload_margin_N": self.spec.preload_margin_N,
         }
 
     def plot(self, axes: Any = None) -> Any:
@@ -189,8 +196,9 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec)
         weight = screw.drag_torque_Nm(1.0) * dt
         units = "N m s"
     required = spec.required_stiffness(Fa)
+    margin = spec.preload_margin_N
     lift = spec.lift_off_margin * np.abs(Fa) / LIFT_OFF_RATIO
-    F_lo = np.maximum(spec.bolt_preload_N, lift)
+    F_lo = np.maximum(spec.bolt_preload_N, np.where(np.abs(Fa) > 0, lift + margin, lift))
     if np.any(F_lo > spec.max_preload_N):
         k = int(np.argmax(F_lo > spec.max_preload_N))
         raise ValueError(f"at t = {profile.time_s[k]:g} s the load {Fa[k]:g} N needs a preload of {F_lo[k]:.0f} N "
@@ -198,7 +206,7 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec)
                          f"raise the bolt preload or the stacks' drive, or lower the load.")
     k_fun = _rigidity_function(screw)
     k_map = k_fun.map(n)
-    k_max = np.asarray(k_map(spec.max_preload_N, Fa)).ravel()
+    k_max = np.asarray(k_map(spec.max_preload_N - margin, Fa)).ravel()
     short = required - k_max
     if np.any(short > 0):
         k = int(np.argmax(short))
@@ -210,7 +218,7 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec)
     # ---- the schedule: decision variables, objective, constraints, initial guess, solve ----
     y = ca.MX.sym("y", n)
     F = scale * y
-    g_stiff = (k_map(F.T, Fa.reshape(1, -1)).T - required) / 100.0
+    g_stiff = (k_map(ca.fmax(F.T - margin, 1.0), Fa.reshape(1, -1)).T - required) / 100.0
     slew_step = spec.slew_N_per_s * np.diff(profile.time_s)
     g_slew = (F[1:] - F[:-1]) / scale
     # where the screw stands still the energy does not see the preload: a small time-weighted
@@ -223,7 +231,7 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec)
     ubg = np.concatenate([np.full(n, np.inf), slew_step / scale])
     lbx, ubx = F_lo / scale, np.full(n, spec.max_preload_N / scale)
     # start from the constant preload, which is feasible
-    constant = _best_constant(k_map, Fa, required, F_lo, spec.max_preload_N)
+    constant = _best_constant(k_map, Fa, required, F_lo, spec.max_preload_N, margin)
     out = solver(x0=np.full(n, constant / scale), lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
     stats = solver.stats()
     F_opt = np.asarray(out["x"]).ravel() * scale
@@ -239,15 +247,16 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec)
     )
 
 
-def _best_constant(k_map: ca.Function, Fa: Array, required: Array, F_lo: Array, F_max: float) -> float:
+def _best_constant(k_map: ca.Function, Fa: Array, required: Array, F_lo: Array, F_max: float,
+                   margin: float = 0.0) -> float:
     """The least constant preload meeting every sample: each sample's least preload (rigidity
     is increasing in F_p), found by bisection on all samples at once, then their maximum."""
     lo = F_lo.copy()
     hi = np.full_like(lo, F_max)
-    ok_lo = np.asarray(k_map(lo, Fa)).ravel() >= required
+    ok_lo = np.asarray(k_map(lo - margin, Fa)).ravel() >= required
     for _ in range(60):
         mid = 0.5 * (lo + hi)
-        ok = np.asarray(k_map(mid, Fa)).ravel() >= required
+        ok = np.asarray(k_map(mid - margin, Fa)).ravel() >= required
         hi = np.where(ok, mid, hi)
         lo = np.where(ok, lo, mid)
     need = np.where(ok_lo, F_lo, hi)

@@ -28,6 +28,7 @@ from piezopreload.design.preload import (
     PARETO_PAIRS,
     DesignNLP,
     DesignOptimum,
+    DesignPoint,
     DesignSpec,
     ParetoFront,
     optimise,
@@ -37,7 +38,8 @@ from piezopreload.design.schedule import LoadProfile, PreloadSchedule, ScheduleS
 from piezopreload.models.ballscrew import BallScrew, DutyCase, hiwin_loaded_nut_force, lift_off_load_N
 from piezopreload.models.feed_drive import FeedDrive, PiezoPreload
 
-__all__ = ["DesignResult", "design_study", "read_profile", "check_screw", "FRONT_COLUMNS", "design_spec_from_tables"]
+__all__ = ["DesignResult", "design_study", "plan_schedule", "read_profile", "check_screw", "FRONT_COLUMNS",
+           "design_spec_from_tables"]
 
 #: the columns of a front's CSV
 FRONT_COLUMNS = ("stiffness_N_per_um", "max_preload_N", "mean_drag_torque_Nm", "life_h", "contact_angle_deg", "ball_mm",
@@ -170,20 +172,33 @@ def design_study(spec: DesignSpec, objective: str, pairs: list[str] | tuple[str,
         fronts.append(pareto_front(spec, pair, points, nlp, progress=report))
 
     # ---- the schedule on the optimum's screw -------------------------------------------------
-    screw = spec.screw(p)
-    max_preload = spec.actuator.max_preload_N(screw, p.bolt_preload_N)
-    slew = spec.actuator.preload_slew_N_per_s(screw, p.bolt_preload_N, p.bolt_preload_N)
-    try:
-        sspec = ScheduleSpec(bolt_preload_N=p.bolt_preload_N, max_preload_N=max_preload, slew_N_per_s=slew,
-                             stiffness_min_N_per_um=stiffness_min_N_per_um, deflection_max_um=deflection_max_um,
-                             lift_off_margin=spec.lift_off_margin if lift_off_margin is None else lift_off_margin)
-        schedule = schedule_preload(screw, profile if profile is not None else example_profile(), sspec)
-    except ValueError as exc:
-        raise InputError(f"{profile_name if profile is not None else 'the example load profile'}: {exc}") from None
+    schedule, max_preload, slew = plan_schedule(spec, p, profile, profile_name=profile_name,
+                                                stiffness_min_N_per_um=stiffness_min_N_per_um,
+                                                deflection_max_um=deflection_max_um, lift_off_margin=lift_off_margin)
     say(f"schedule: {schedule.saving_fraction:.0%} less friction energy than the best constant preload "
         f"({schedule.constant_preload_N:.0f} N)")
     return DesignResult(spec, result, fronts, schedule, profile_name if profile is not None else "example", max_preload,
                         slew, preload_curve(spec, result), natural_frequency(spec, result))
+
+
+def plan_schedule(spec: DesignSpec, point: DesignPoint, profile: LoadProfile | None = None, *,
+                  profile_name: str = "example", stiffness_min_N_per_um: float = 0.0,
+                  deflection_max_um: float = math.inf, lift_off_margin: float | None = None,
+                  preload_margin_N: float = 0.0) -> tuple[PreloadSchedule, float, float]:
+    """The least-friction schedule on the screw of ``point`` (the machining cycle when ``profile`` is None),
+    with the stacks' reach and preload slew it was planned for: ``(schedule, max_preload_N, slew_N_per_s)``."""
+    screw = spec.screw(point)
+    max_preload = spec.actuator.max_preload_N(screw, point.bolt_preload_N)
+    slew = spec.actuator.preload_slew_N_per_s(screw, point.bolt_preload_N, point.bolt_preload_N)
+    try:
+        sspec = ScheduleSpec(bolt_preload_N=point.bolt_preload_N, max_preload_N=max_preload, slew_N_per_s=slew,
+                             stiffness_min_N_per_um=stiffness_min_N_per_um, deflection_max_um=deflection_max_um,
+                             lift_off_margin=spec.lift_off_margin if lift_off_margin is None else lift_off_margin,
+                             preload_margin_N=preload_margin_N)
+        schedule = schedule_preload(screw, profile if profile is not None else example_profile(), sspec)
+    except ValueError as exc:
+        raise InputError(f"{profile_name if profile is not None else 'the example load profile'}: {exc}") from None
+    return schedule, max_preload, slew
 
 
 def preload_curve(spec: DesignSpec, optimum: DesignOptimum, n: int = 121) -> dict[str, Any]:

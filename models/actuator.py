@@ -43,7 +43,7 @@ from piezopreload.core.errors import InputError
 from piezopreload.models.ops import NUMPY, Layout, Ops, absolute, clip
 
 __all__ = ["StackData", "P888_91", "RigParams", "RigState", "Rig", "PlantModel", "bouc_wen_step", "bouc_wen_increment",
-           "loop_width", "reach_N", "ABS_SCALE_V"]
+           "loop_width", "reach_N", "ABS_SCALE_V", "hertz_force"]
 
 Array = NDArray[np.float64]
 
@@ -94,7 +94,7 @@ _POSITIVE = (
     "bw_alpha",
     "sample_period_s",
 )
-_NONNEGATIVE = ("bolt_preload_N", "noise_N", "creep_per_decade", "bw_beta_per_V")
+_NONNEGATIVE = ("bolt_preload_N", "noise_N", "creep_per_decade", "bw_beta_per_V", "hertz_um_per_N23", "hertz_preload_N")
 
 
 @dataclass(frozen=True, eq=False)
@@ -140,6 +140,18 @@ class RigParams:
     delay_samples : int
         Samples between reading the force and the amplifier receiving the command computed
         from it (1: the D/A is written at the next tick).
+    hertz_um_per_N23 : float
+        The two nuts' Hertz contacts between the stacks, ``2 c_h / f_ar`` of the nut law
+        ``delta(F) = (c_h F^(2/3) + s F) / f_ar`` (:meth:`BallScrew.nut_approach_um`): 0 (the
+        default, the paper's rig) keeps the coupling linear; above 0 the stacks' free stroke
+        ``x`` and their force ``F_E`` obey ``x = F_E / k_eff + hertz ((F_0 + F_E)^(2/3) -
+        F_0^(2/3))`` (:func:`hertz_force`), so the force per volt grows with the preload.
+        ``coupling_stiffness_N_per_um`` is then the linear rest: the nut bodies, the screw
+        under them, the sleeve and the bolts.
+    hertz_preload_N : float
+        ``F_0``: the preload the nuts carry when the stacks push nothing (the bolts'). The
+        force read is ``bolt_preload_N + F_E``: a designed system whose sensors sit in series
+        with the stacks reads the stacks' share alone, with ``bolt_preload_N = 0``.
     """
 
     stack: StackData = P888_91
@@ -162,6 +174,8 @@ class RigParams:
     adc_full_scale_N: float = 1000.0
     sample_period_s: float = 1e-3
     delay_samples: int = 1
+    hertz_um_per_N23: Any = 0.0
+    hertz_preload_N: Any = 0.0
 
     def __post_init__(self) -> None:
         for name in _POSITIVE:
@@ -192,6 +206,9 @@ class RigParams:
             raise ValueError(f"RigParams.delay_samples must be an integer >= 0, got {self.delay_samples!r}.")
         if not (np.isfinite(self.adc_full_scale_N) and self.adc_full_scale_N > 0):
             raise ValueError(f"RigParams.adc_full_scale_N must be > 0, got {self.adc_full_scale_N!r}.")
+        if np.any(np.asarray(self.hertz_um_per_N23, float) > 0) and not np.all(np.asarray(self.hertz_preload_N) > 0):
+            raise ValueError("RigParams.hertz_preload_N must be > 0 (the bolts' preload on the nuts) when "
+                             f"hertz_um_per_N23 > 0, got {self.hertz_preload_N!r}.")
         taus = np.asarray(self.creep_tau_s, float)
         if taus.ndim != 1 or not np.all(np.isfinite(taus) & (taus > 0)):
             raise ValueError(f"RigParams.creep_tau_s must be positive time constants, got {self.creep_tau_s!r}.")
@@ -251,6 +268,27 @@ class RigParams:
         return ks * ke / (ks + ke)
 
     @property
+    def hertz(self) -> bool:
+        """Whether the coupling follows the nuts' Hertz law (``hertz_um_per_N23 > 0``)."""
+        return bool(np.any(np.asarray(self.hertz_um_per_N23, float) > 0))
+
+    def stroke_for_force_um(self, stack_force_N: ArrayLike) -> Array:
+        """The free stroke (um) that makes the stacks push ``stack_force_N`` (the inverse of :func:`hertz_force`)."""
+        f = np.asarray(stack_force_N, float)
+        k = np.asarray(self.effective_stiffness_N_per_um, float)
+        c, f0 = np.asarray(self.hertz_um_per_N23, float), np.asarray(self.hertz_preload_N, float)
+        return f / k + c * (np.cbrt(np.maximum(f0 + f, 0.0)) ** 2 - np.cbrt(f0) ** 2)
+
+    def local_stiffness_N_per_um(self, stack_force_N: ArrayLike) -> Array:
+        """dF_E/dx (N/um) at the stacks' force ``stack_force_N``: ``k_eff`` for a linear coupling,
+        less where the nuts' Hertz contacts are soft (low preload)."""
+        f = np.asarray(stack_force_N, float)
+        k = np.asarray(self.effective_stiffness_N_per_um, float)
+        c, f0 = np.asarray(self.hertz_um_per_N23, float), np.asarray(self.hertz_preload_N, float)
+        total = np.maximum(f0 + f, 1e-9)
+        return 1.0 / (1.0 / k + np.where(c > 0, c * (2.0 / 3.0) / np.cbrt(total), 0.0))
+
+    @property
     def capacitance_F(self) -> float:
         return self.n_stacks * self.stack.capacitance_uF * 1e-6
 
@@ -267,6 +305,8 @@ class RigParams:
         out: dict[str, Any] = {}
         for f in fields(self):
             x = getattr(self, f.name)
+            if f.name in _HERTZ and not self.hertz:
+                continue  # a linear coupling's document is as it was before the Hertz law
             if f.name == "stack":
                 out["stack"] = {g.name: getattr(x, g.name) for g in fields(x)}
             elif isinstance(x, tuple):
@@ -292,6 +332,34 @@ class RigParams:
             if isinstance(kwargs.get(name), list):
                 kwargs[name] = np.asarray(kwargs[name], float)
         return cls(**kwargs)
+
+
+_HERTZ = ("hertz_um_per_N23", "hertz_preload_N")
+
+#: Newton steps of :func:`hertz_force` from an upper bound of the root: 5 leave under 1e-11 N on a designed
+#: system (4 leave 1e-8 N, 3 leave 2e-3 N; quadratic convergence)
+HERTZ_NEWTON_STEPS = 5
+
+
+def hertz_force(ops: Ops, x_um: Any, keff_N_per_um: Any, hertz_um_per_N23: Any, preload_N: Any) -> Any:
+    """The stacks' force ``F_E`` (N) for their free stroke ``x_um`` against the nuts' Hertz contacts.
+
+    Solves ``x = F_E / k + c ((F_0 + F_E)^(2/3) - F_0^(2/3))`` (``c = hertz_um_per_N23``, ``F_0 =
+    preload_N``; :func:`piezopreload.models.feed_drive.stack_loop_um` with the linear parts
+    gathered in ``k``) on numpy or CasADi (``ops``). In ``u = (F_0 + F_E)^(1/3)`` it is the cubic
+    ``phi(u) = u^3 / k + c u^2 - (x + F_0 / k + c F_0^(2/3)) = 0``, increasing and convex for
+    ``u > 0``: Newton from an upper bound of the root (the smaller of the roots of each term
+    alone) descends monotonically onto it, so a fixed number of steps serves the compiled step
+    and the tuning's derivatives. A stroke that would unload the nuts entirely gives ``F_E = -F_0``.
+    """
+    a = 1.0 / keff_N_per_um
+    c = hertz_um_per_N23
+    u0 = preload_N ** (1.0 / 3.0)
+    rhs = ops.maximum(x_um + a * preload_N + c * u0 * u0, 1e-12)
+    u = ops.minimum((rhs / a) ** (1.0 / 3.0), ops.sqrt(rhs / c))
+    for _ in range(HERTZ_NEWTON_STEPS):
+        u = u - (a * u * u * u + c * u * u - rhs) / (3.0 * a * u * u + 2.0 * c * u)
+    return u * u * u - preload_N
 
 
 #: the voltage scale of the Bouc-Wen rate's rounded ``|dv|`` per unit of smoothing: the tuning's
@@ -374,6 +442,7 @@ class PlantModel:
     n_creep: int
     delay_samples: int = 1
     smoothing: float = 0.0
+    hertz: bool = False  # the nuts' Hertz law in the coupling (RigParams.hertz_um_per_N23 > 0)
 
     def __post_init__(self) -> None:
         if not (isinstance(self.n_creep, int | np.integer) and self.n_creep >= 0):
@@ -386,7 +455,7 @@ class PlantModel:
     @classmethod
     def of(cls, params: RigParams, smoothing: float = 0.0) -> PlantModel:
         """The structure of the rig ``params``."""
-        return cls(len(params.creep_tau_s), int(params.delay_samples), float(smoothing))
+        return cls(len(params.creep_tau_s), int(params.delay_samples), float(smoothing), params.hertz)
 
     @cached_property
     def state(self) -> Layout:
@@ -406,13 +475,18 @@ class PlantModel:
             ("bw_alpha", None), ("bw_beta_per_V", None), ("bw_gamma_per_V", None),
             ("creep_per_decade", None), ("creep_decay", self.n_creep),  # per sample
             ("noise_N", None), ("adc_lsb_N", None), ("adc_full_scale_N", None),
-        ])
+        ] + ([("hertz_um_per_N23", None), ("hertz_preload_N", None)] if self.hertz else []))
 
     def parameters(self, params: RigParams) -> Array:
         """The parameter vector of ``params`` (shape ``batch + (n,)`` for a batch of plants)."""
         if len(params.creep_tau_s) != self.n_creep or params.delay_samples != self.delay_samples:
             raise InputError(f"the rig has {len(params.creep_tau_s)} creep lags and {params.delay_samples} samples of "
                              f"delay; this model {self.n_creep} and {self.delay_samples}.")
+        if params.hertz != self.hertz:
+            raise InputError(f"the rig's coupling is {'Hertzian' if params.hertz else 'linear'}; this model's "
+                             f"{'Hertzian' if self.hertz else 'linear'} (PlantModel.of(params) matches them).")
+        hertz = {"hertz_um_per_N23": params.hertz_um_per_N23, "hertz_preload_N": params.hertz_preload_N} \
+            if self.hertz else {}
         p, dt = params, params.sample_period_s
         tau = 1.0 / (2.0 * np.pi * np.asarray(p.amp_bandwidth_Hz, float))
         decay = np.exp(-dt / np.asarray(p.creep_tau_s, float))
@@ -422,7 +496,7 @@ class PlantModel:
             amp_v_max_V=p.amp_v_max_V, amp_fraction=-np.expm1(-dt / tau), slew_V_per_sample=p.slew_V_per_s * dt,
             bw_alpha=p.bw_alpha, bw_beta_per_V=p.bw_beta_per_V, bw_gamma_per_V=p.bw_gamma_per_V,
             creep_per_decade=p.creep_per_decade, creep_decay=np.broadcast_to(decay, p.batch_shape + decay.shape),
-            noise_N=p.noise_N, adc_lsb_N=p.adc_lsb_N, adc_full_scale_N=p.adc_full_scale_N)
+            noise_N=p.noise_N, adc_lsb_N=p.adc_lsb_N, adc_full_scale_N=p.adc_full_scale_N, **hertz)
 
     # ---- the chain ---------------------------------------------------------------------------
     def stroke(self, ops: Ops, p: Any, v: Any, h: Any) -> Any:
@@ -437,11 +511,18 @@ class PlantModel:
                                pending=ops.repeat(v0_V, self.delay_samples))
 
     def force(self, ops: Ops, params: Any, state: Any) -> Any:
-        """The true preload force (N) in ``state``: ``F_bolt + k_eff (x + sum c (creep - x))``."""
+        """The true preload force (N) in ``state``: ``F_bolt + k_eff (x + sum c (creep - x))``, or with
+        the nuts' Hertz law ``F_bolt + F_E(x + sum c (creep - x))`` (:func:`hertz_force`)."""
         p, s = self.params.unpack(params), self.state.unpack(state)
         x = self.stroke(ops, p, s.v_amp, s.h)
         x_total = x + ops.sum(ops.expand(p.creep_per_decade) * (s.creep - ops.expand(x)))
-        return p.bolt_preload_N + p.keff_N_per_um * x_total
+        return p.bolt_preload_N + self.coupling(ops, p, x_total)
+
+    def coupling(self, ops: Ops, p: Any, x_um: Any) -> Any:
+        """The stacks' force (N) for the free stroke ``x_um`` (``p`` unpacked): linear, or Hertzian."""
+        if self.hertz:
+            return hertz_force(ops, x_um, p.keff_N_per_um, p.hertz_um_per_N23, p.hertz_preload_N)
+        return p.keff_N_per_um * x_um
 
     def step(self, ops: Ops, params: Any, state: Any, command_V: Any) -> Any:
         """The state one sample later; ``command_V`` is written to the D/A at this tick."""
@@ -559,7 +640,8 @@ class Rig:
         for i in range(v.shape[-1]):
             h = bouc_wen_increment(h, v[..., i] - v_prev, p.bw_alpha, p.bw_beta_per_V, p.bw_gamma_per_V)
             v_prev = v[..., i]
-            out[..., i] = np.asarray(p.bolt_preload_N) + p.effective_stiffness_N_per_um * self._stroke(v_prev, h)
+            out[..., i] = np.asarray(p.bolt_preload_N) + self.model.coupling(
+                NUMPY, self.model.params.unpack(self.parameter_vector), self._stroke(v_prev, h))
         creep = np.repeat(self._stroke(v_prev, h)[..., None], len(p.creep_tau_s), axis=-1)
         return out, RigState(np.asarray(v_prev, float), h, creep, st.pending)
 

@@ -29,13 +29,18 @@ __all__ = ["Reference", "ClosedLoopRun", "simulate", "simulate_open_loop", "tria
 
 Array = NDArray[np.float64]
 
+#: how a reference goes between its points: held (steps) or ramped
+INTERPOLATIONS = ("hold", "linear")
+
 #: The paper's error band for rise, peak and settling time (Section 4.2).
 PAPER_BAND_N = 1.5
 
 
 @dataclass(frozen=True, eq=False)
 class Reference:
-    """A piecewise-constant force reference: ``levels_N[i]`` from ``times_s[i]`` on.
+    """A force reference: ``levels_N[i]`` from ``times_s[i]`` on, held (``interpolation="hold"``,
+    piecewise constant) or ramped linearly to the next point (``"linear"``, piecewise linear;
+    the last level held to the end).
 
     ``times_s[0]`` must be 0 (the level the rig rests at before the first change).
     """
@@ -43,6 +48,7 @@ class Reference:
     times_s: Array
     levels_N: Array
     duration_s: float
+    interpolation: str = "hold"
 
     def __post_init__(self) -> None:
         t = np.asarray(self.times_s, float)
@@ -55,6 +61,8 @@ class Reference:
             raise ValueError(f"times_s must start at 0 and increase, got {t.tolist()}.")
         if not (np.isfinite(self.duration_s) and self.duration_s > t[-1]):
             raise ValueError(f"duration_s must be after the last change ({t[-1]} s), got {self.duration_s!r}.")
+        if self.interpolation not in INTERPOLATIONS:
+            raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, got {self.interpolation!r}.")
         object.__setattr__(self, "times_s", t)
         object.__setattr__(self, "levels_N", lv)
 
@@ -71,16 +79,41 @@ class Reference:
         times = np.concatenate([[0.0], t_start_s + hold_s * np.arange(levels.size)])
         return cls(times, np.concatenate([[initial_N], levels]), t_start_s + hold_s * levels.size)
 
+    @classmethod
+    def ramps(cls, times_s: ArrayLike, levels_N: ArrayLike, duration_s: float | None = None) -> Reference:
+        """Piecewise linear through the points ``(times_s[i], levels_N[i])``; the last level held until
+        ``duration_s`` (default: one more interval of the last)."""
+        t = np.asarray(times_s, float)
+        if duration_s is None:
+            duration_s = float(t[-1] + (t[-1] - t[-2])) if t.size > 1 else float(t[-1] + 1.0)
+        return cls(t, np.asarray(levels_N, float), float(duration_s), "linear")
+
+    def repeat(self, cycles: int) -> Reference:
+        """The reference ``cycles`` times in a row (a machining cycle run again and again)."""
+        if not (isinstance(cycles, int | np.integer) and cycles >= 1):
+            raise InputError(f"cycles must be an integer >= 1, got {cycles!r}")
+        t = np.concatenate([self.times_s + k * self.duration_s for k in range(cycles)])
+        return Reference(t, np.tile(self.levels_N, cycles), self.duration_s * cycles, self.interpolation)
+
     def at(self, t: ArrayLike) -> Array:
-        idx = np.searchsorted(self.times_s, np.asarray(t, float), side="right") - 1
+        t = np.asarray(t, float)
+        if self.interpolation == "linear":
+            return np.interp(t, self.times_s, self.levels_N)
+        idx = np.searchsorted(self.times_s, t, side="right") - 1
         return self.levels_N[np.clip(idx, 0, None)]
 
     @property
     def is_step(self) -> bool:
-        return self.times_s.size == 2
+        return self.times_s.size == 2 and self.interpolation == "hold"
+
+    @property
+    def range_N(self) -> float:
+        """The span of the reference's levels (what a tracking error is read against, in %)."""
+        return float(self.levels_N.max() - self.levels_N.min())
 
     def to_dict(self) -> dict[str, Any]:
-        return {"times_s": self.times_s.tolist(), "levels_N": self.levels_N.tolist(), "duration_s": self.duration_s}
+        out = {"times_s": self.times_s.tolist(), "levels_N": self.levels_N.tolist(), "duration_s": self.duration_s}
+        return out if self.interpolation == "hold" else {**out, "interpolation": self.interpolation}
 
     @classmethod
     def from_dict(cls, data: Any) -> Reference:
@@ -91,7 +124,8 @@ class Reference:
         if missing:
             raise InputError(f"{missing[0]} is missing (a reference has times_s, levels_N and duration_s)")
         try:
-            return cls(np.asarray(data["times_s"], float), np.asarray(data["levels_N"], float), float(data["duration_s"]))
+            return cls(np.asarray(data["times_s"], float), np.asarray(data["levels_N"], float), float(data["duration_s"]),
+                       str(data.get("interpolation", "hold")))
         except (TypeError, ValueError) as exc:
             raise InputError(str(exc)) from exc
 
@@ -138,6 +172,8 @@ class ClosedLoopRun:
         t1 = ref.times_s[which + 1] if which + 1 < ref.times_s.size else np.inf
         k0 = int(np.searchsorted(self.t_s, t0 - 1e-12))
         mask = (self.t_s >= self.t_s[k0]) & (self.t_s < t1)
+        if np.count_nonzero(mask) < 2:  # the next change within a sample (a ramp, sampled): to the end
+            mask = self.t_s >= self.t_s[k0]
         y = getattr(self, signal)
         kw = dict(initial=float(ref.levels_N[which - 1]), t_step=float(self.t_s[k0]), band=band_N)
         final = float(ref.levels_N[which])
@@ -159,7 +195,7 @@ class ClosedLoopRun:
         """
         t_from = self.reference.times_s[1] if t_from_s is None and self.reference.times_s.size > 1 else (t_from_s or 0.0)
         mask = self.t_s >= t_from
-        if after_change_s > 0:
+        if after_change_s > 0 and self.reference.interpolation == "hold":  # a ramped reference has no jumps
             changes = self.reference.times_s[1:]
             last = changes[np.maximum(np.searchsorted(changes, self.t_s, side="right") - 1, 0)]
             mask &= ~((self.t_s >= last) & (self.t_s < last + after_change_s))

@@ -3,7 +3,7 @@
 The front door for design-study scripts::
 
     import piezopreload as pp
-    study = pp.load_study()                            # the default study (the paper's); a name or a file
+    study = pp.load_study()                            # the default study (the machine axis); a name or a file
     s2 = study.replace(rig={"bolt_preload_N": 30.0})   # a validated, changed copy
     ff = study.identify_feedforward()                  # honours [feedforward] data
     tuned = study.tune(feedforward=ff)                 # TuningResult: .gains, .table, .to_dict(), .plot()

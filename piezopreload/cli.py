@@ -28,7 +28,7 @@ from piezopreload.design.study import check_screw
 from piezopreload.models.ballscrew import BallScrew
 from piezopreload.models.gainset import EXPORT_FORMATS, REFERENCES, GainSet
 from piezopreload.rig import DEFAULT_ENDPOINT as DEFAULT_RIG_ENDPOINT
-from piezopreload.study import load_study
+from piezopreload.study import PAPER_STUDY, load_study
 from piezopreload.tuning.calibrate import CONTROLLERS
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.holdout import Window, identify_record
@@ -114,7 +114,8 @@ def _study_arguments(p: argparse.ArgumentParser, seed: bool = True) -> None:
 
 
 def _study(args: argparse.Namespace) -> Any:
-    return load_study(args.study)
+    # the single-step commands work on a study's [rig] as the plant: the paper's unless named
+    return load_study(args.study or PAPER_STUDY)
 
 
 # --------------------------------------------------------------------------------------
@@ -122,16 +123,18 @@ def _study(args: argparse.Namespace) -> Any:
 # --------------------------------------------------------------------------------------
 def register_run(sub: Any) -> None:
     p = sub.add_parser(
-        "run", help="run a whole study: identify, design, tune, validate, compare, export, rig, report (PDF)",
+        "run", help="run a whole study: design, plant, identify, tune, validate, compare, system, export, rig, report",
         description=(
-            "Take a study file through its stages: the feedforward's P-I identification, the ball-screw preload "
-            "design, PID tuning, Monte Carlo validation, the closed-loop comparison with the paper, gain export, a "
-            "run on the rig executor (the simulated rig by default) and the PDF report. Each stage writes its "
-            "artifacts into the output folder and records its inputs' hashes in pipeline.json; a stage whose inputs "
-            "have not changed is not run again. Without STUDY, the paper's study (studies/paper2021.toml)."),
+            "Take a study file through its stages: the ball-screw preload design, the designed system as the plant "
+            "(where the study's [plant] says so), the feedforward's P-I identification, PID tuning, Monte Carlo "
+            "validation, the closed-loop comparison, the controlled preload along the design's schedule, gain "
+            "export, a run on the rig executor (the simulated rig by default) and the PDF report. Each stage writes "
+            "its artifacts into the output folder and records its inputs' hashes in pipeline.json; a stage whose "
+            "inputs have not changed is not run again. Without STUDY, the machine axis (studies/machine_axis.toml); "
+            "the paper's study is studies/paper2021.toml."),
         epilog=("exit codes: 0 done, 1 internal failure, 2 bad input or a stage that failed (named), 3 the rig run "
                 "stopped by an interlock"))
-    p.add_argument("study", nargs="?", metavar="STUDY.toml", help="study file (default: the paper's, paper2021.toml)")
+    p.add_argument("study", nargs="?", metavar="STUDY.toml", help="study file (default: the machine axis, machine_axis.toml)")
     p.add_argument("--out", default="piezopreload-out", metavar="DIR", help="output folder (default ./piezopreload-out)")
     p.add_argument("--force", action="store_true", help="run every stage again, changed or not")
     p.add_argument("--quiet", action="store_true", help="no progress on standard error")

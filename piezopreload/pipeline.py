@@ -6,16 +6,26 @@ versioned artifacts into the output folder:
 ==========  ==================================================================  ==========================
 stage       what it does                                                        writes
 ==========  ==================================================================  ==========================
-identify    the feedforward's P-I model from the loop measurement (simulated    feedforward/model.json,
-            on the rig's truth model, or the study's ``[feedforward] data``)     feedforward/loop.csv
 design      ball-screw preload optimum, Pareto fronts, preload schedule          design/design.json + CSVs
+plant       the designed preload system as the plant (``[plant] from_design``)   plant.json
+identify    the feedforward's P-I model from the loop measurement (simulated    feedforward/model.json,
+            on the plant's truth model, or the study's ``[feedforward] data``)   feedforward/loop.csv
 tune        PID gains around the compensated plant (CasADi), compared, bounded  tuning.json
 validate    the tuned gains on a Monte Carlo set of nonlinear rigs              gains.json, validation.json
 compare     step and trajectory, paper's and tuned gains, with/without FF       responses/
+system      the controlled preload along the design's schedule: rigidity and    system/system.json,
+            deflection while cutting, friction energy, the margin it needs      system/reference.csv
 export      the validated gain set in the study's controller formats            exports/
 rig         the validated gains on the rig executor (simulated by default)      runs/run-*.csv + .json
 report      figures and the PDF (Typst)                                          report/, report.pdf
 ==========  ==================================================================  ==========================
+
+A study without ``[plant] from_design`` (the paper's) runs on its ``[rig]``: plant and system do
+not apply. With it, identify, tune, validate and compare run on the designed plant (the
+study with ``plant.json``'s rig as its ``[rig]``), and their keys include the plant's hash: a
+changed design makes another plant and everything after it runs again. Learning control
+enters as one more stage between validate and system, its correction passed to
+:meth:`Study.track_schedule` (``ff_extra_V``).
 
 Every stage has a key: the SHA-256 of its study tables, of the artifacts it reads, of the
 files the study names for it and of the code it runs. ``pipeline.json`` records each stage's
@@ -41,6 +51,8 @@ from piezopreload import __version__
 from piezopreload.core.artifacts import atomic_write_bytes, finite_or_none, read_artifact, write_artifact
 from piezopreload.core.errors import InputError, InternalError
 from piezopreload.core.tables import write_csv
+from piezopreload.design.plant import DesignedPlant
+from piezopreload.design.preload import DesignPoint
 from piezopreload.models.gainset import GainSet
 from piezopreload.progress import Progress
 from piezopreload.reports.study_report import STAGES_READ, ReportStudy, render_report
@@ -115,6 +127,7 @@ class _Ctx:
     records: dict[str, dict[str, Any]]
     source: str = ""                         # the study file as the user named it
     template: str | None = None              # a Typst template's text to use instead of the shipped one
+    _subject: Study | None = None
 
     def output(self, stage: str, label: str) -> Path:
         return self.out / self.records[stage]["outputs"][label]["path"]
@@ -127,6 +140,22 @@ class _Ctx:
 
     def feedforward(self) -> IdentifiedFeedforward:
         return IdentifiedFeedforward.load(self.output("identify", "model"))
+
+    def design_point(self) -> DesignPoint:
+        return DesignPoint.from_dict(read_artifact(self.output("design", "design"), "design")["optimum"]["point"])
+
+    def designed_plant(self) -> DesignedPlant:
+        """The plant of the design stage's optimum (what the plant stage wrote, made again from the design)."""
+        return self.study.designed_plant(self.design_point(), self.sha256("design", "design"))
+
+    def subject(self) -> Study:
+        """The study the control stages run on: with the designed plant as its rig where the plant stage ran."""
+        if self.records.get("plant", {}).get("status") != "done":
+            return self.study
+        if self._subject is None:
+            rig = read_artifact(self.output("plant", "plant"), "plant")["rig"]
+            self._subject = self.study.replace(rig=rig)
+        return self._subject
 
 
 @dataclass(frozen=True)
@@ -144,7 +173,7 @@ class Stage:
 
 
 def _stage_identify(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
-    ff = ctx.study.identify_feedforward(progress=ctx.progress.say)
+    ff = ctx.subject().identify_feedforward(progress=ctx.progress.say)
     paths = ff.save(ctx.out / "feedforward", inputs={"study_sha256": ctx.study.sha256})
     data = read_artifact(paths["model"], "hysteresis-model")["inputs"]["data"]
     return paths, {"source": ff.source["kind"], "data_sha256": data["sha256"], "operators": ff.model.n_operators,
@@ -165,7 +194,7 @@ def _stage_design(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
 
 
 def _stage_tune(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
-    tuned = ctx.study.tune(ctx.feedforward(), progress=ctx.progress.say,
+    tuned = ctx.subject().tune(ctx.feedforward(), progress=ctx.progress.say,
                            iterations=ctx.progress.counter("IPOPT iterations", every=10))
     g = tuned.gains
     return {"tuning": tuned.save(ctx.out / "tuning.json")}, {"Kc_V_per_N": g.Kc, "Ti_s": g.Ti_s, "Td_s": g.Td_s,
@@ -173,7 +202,7 @@ def _stage_tune(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
 
 
 def _stage_validate(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
-    study = ctx.study
+    study = ctx.subject()
     tuned = TuningResult.load(ctx.output("tune", "tuning"), study, ctx.feedforward())
     gain_set, result = tuned.validation(inputs={"tuning_sha256": ctx.sha256("tune", "tuning")},
                                         progress=ctx.progress.say,
@@ -200,7 +229,7 @@ def _stage_validate(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
 
 
 def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
-    study, ff = ctx.study, ctx.feedforward()
+    study, ff = ctx.subject(), ctx.feedforward()
     gain_set = GainSet.load(ctx.output("validate", "gains"))
     runs = responses(study.rig, study.references, {"paper": study.gains, "tuned": gain_set.gains}, ff.model,
                      seed=study.seed, band_N=study.band_N, signal=study.signal,
@@ -228,6 +257,27 @@ def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     return outputs, {"reproduction": table}
 
 
+def _stage_plant(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+    plant = ctx.designed_plant()
+    path = plant.save(ctx.out / "plant.json", {"design": ctx.rel(ctx.output("design", "design")),
+                                               "design_sha256": plant.design_sha256, "study_sha256": ctx.study.sha256})
+    body = plant.to_dict()
+    k = body["local_stiffness_N_per_um"]
+    ctx.progress.say(f"{plant.rig.n_stacks} x {plant.rig.stack.name}, stacks' share 0-{body['stack_force_max_N']:.0f} N, "
+                     f"{k['at_bolts']:.0f}-{k['at_max']:.0f} N/um of stroke over the range, slew {body['slew_V_per_s']:.0f} V/s")
+    return {"plant": path}, {key: body[key] for key in ("design_sha256", "stack_force_max_N", "local_stiffness_N_per_um",
+                                                      "bolt_preload_N")}
+
+
+def _stage_system(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+    study, gain_set = ctx.study, GainSet.load(ctx.output("validate", "gains"))
+    plant = ctx.designed_plant()
+    result = study.track_schedule(plant, study.schedule_for(ctx.design_point()), gain_set, progress=ctx.progress.say)
+    return result.save(ctx.out / "system", {
+        "gain_set_sha256": gain_set.content_sha256, "design_sha256": ctx.sha256("design", "design"),
+        "plant_sha256": ctx.sha256("plant", "plant"), "study_sha256": study.sha256}), result.summary()
+
+
 def _stage_export(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     formats = list(ctx.study.export.formats)
     outputs = write_exports(GainSet.load(ctx.output("validate", "gains")), ctx.out / "exports", formats)
@@ -239,6 +289,11 @@ def _stage_export(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
 def _stage_rig(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     plan = ctx.study.rig_run
     reference = str(ctx.study.files().get("rig_run.reference", plan.reference))
+    if reference == "schedule":
+        if ctx.records.get("system", {}).get("status") != "done":
+            raise StageFailed("rig", "[rig_run] reference = 'schedule' needs the system stage (a study whose "
+                                     "[plant] is its design's)")
+        reference = str(ctx.output("system", "reference"))
     ctx.progress.say(f"backend '{plan.backend}', reference {Path(reference).name}, "
                      f"{'real time' if plan.realtime else 'back to back'}")
     s = session.run(ctx.output("validate", "gains"), backend=plan.backend, reference=reference,
@@ -271,23 +326,32 @@ def _design_applies(study: Study) -> str | None:
     return None if study.design_spec is not None else "the study has no [ballscrew] table"
 
 
+def _plant_applies(study: Study) -> str | None:
+    return None if study.plant_from_design else "the study's [rig] is the plant ([plant] from_design is not set)"
+
+
 STAGES: tuple[Stage, ...] = (
-    Stage("identify", "the feedforward's P-I model", ("rig", "feedforward", "reference"), (), ("models", "tuning"),
-          _stage_identify, files=("feedforward.data",)),
     Stage("design", "ball-screw preload design, Pareto fronts, schedule",
           ("ballscrew", "feed_drive", "duty", "design", "schedule"), (), ("models", "design"), _stage_design,
           files=("schedule.profile",), applies=_design_applies),
+    Stage("plant", "the designed preload system as the plant", ("rig", "plant"), ("design",), ("models", "design"),
+          _stage_plant, applies=_plant_applies),
+    Stage("identify", "the feedforward's P-I model", ("rig", "feedforward", "reference"), ("plant",),
+          ("models", "tuning"), _stage_identify, files=("feedforward.data",)),
     Stage("tune", "PID gains around the compensated plant (CasADi + IPOPT)",
-          ("rig", "controller", "reference", "simulation", "tuning"), ("identify",), ("models", "tuning"),
+          ("rig", "controller", "reference", "simulation", "tuning"), ("plant", "identify"), ("models", "tuning"),
           _stage_tune),
     Stage("validate", "Monte Carlo on nonlinear rigs", ("study", "rig", "reference", "simulation", "validation"),
-          ("identify", "tune"), ("models", "tuning"), _stage_validate),
+          ("plant", "identify", "tune"), ("models", "tuning"), _stage_validate),
     Stage("compare", "step and trajectory: paper's and tuned gains, with and without feedforward",
-          ("study", "rig", "controller", "reference", "simulation"), ("identify", "validate"), ("models", "tuning"),
-          _stage_compare),
+          ("study", "rig", "controller", "reference", "simulation"), ("plant", "identify", "validate"),
+          ("models", "tuning"), _stage_compare),
+    Stage("system", "the controlled preload along the schedule: rigidity and deflection while cutting, energy",
+          ("rig", "plant", "schedule", "simulation"), ("design", "plant", "validate"), ("models", "design"),
+          _stage_system, files=("schedule.profile",), applies=_plant_applies),
     Stage("export", "the gain set in the controllers' formats", ("export",), ("validate",), ("models", "rig"),
           _stage_export),
-    Stage("rig", "the validated gains on the rig executor", ("rig_run",), ("validate",), ("models", "rig"),
+    Stage("rig", "the validated gains on the rig executor", ("rig_run",), ("validate", "system"), ("models", "rig"),
           _stage_rig, files=("rig_run.reference",)),
     Stage("report", "figures and the PDF", ("study", "ballscrew", "design"), STAGES_READ, ("models", "reports"),
           _stage_report),
@@ -493,4 +557,22 @@ def _result(out: Path, study: Study, stages: list[dict[str, Any]], seconds: floa
         "gain_set_sha256": records.get("validate", {}).get("summary", {}).get("content_sha256"),
         "rig_log": (str(out / records["rig"]["outputs"]["log_csv"]["path"])
                     if records.get("rig", {}).get("status") == "done" else None),
+        "summary": _summary(records),
     }
+
+
+#: what ``run --json``'s summary takes from the system stage (None where the study has none)
+SUMMARY_KEYS = ("tracking_rms_pct_of_range", "tracking_rms_N", "tracking_max_N", "rigidity_min_cutting_N_per_um",
+                "rigidity_required_N_per_um", "rigidity_ratio_min", "deflection_max_um", "friction_energy_per_cycle",
+                "constant_friction_energy_per_cycle", "preload_margin_N")
+
+
+def _summary(records: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """The study's headline numbers: the whole system's (the system stage), the gain set's status, the rig run's."""
+    system = records.get("system", {})
+    numbers = system.get("summary", {}) if system.get("status") == "done" else {}
+    out: dict[str, Any] = {k: numbers.get(k) for k in SUMMARY_KEYS}
+    out["system"] = system.get("status", "not run")
+    out["gain_set_status"] = records.get("validate", {}).get("summary", {}).get("status")
+    out["rig_tracking_rms_N"] = records.get("rig", {}).get("summary", {}).get("tracking_rms_N")
+    return out

@@ -8,7 +8,7 @@ is checked on load: an unknown key, a wrong type or an out-of-range value is an
 :class:`~piezopreload.core.errors.InputError` naming the file, the line and the key's path.
 
 >>> import piezopreload as pp
->>> study = pp.load_study()                            # the paper's study, shipped
+>>> study = pp.load_study("paper2021")                 # the paper's study, shipped
 >>> study.rig.bolt_preload_N
 25.0
 >>> study.replace(rig={"bolt_preload_N": 30.0}).rig.bolt_preload_N
@@ -28,24 +28,29 @@ from typing import TYPE_CHECKING, Any
 from piezopreload.core.config import NUMBER, Lines, check_tree, read_config, toml_text
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.tables import read_record
-from piezopreload.design.preload import PARETO_PAIRS, DesignInfeasible, DesignSpec
-from piezopreload.design.study import DesignResult, design_spec_from_tables, design_study, read_profile
+from piezopreload.design.plant import DesignedPlant, plant_from_design
+from piezopreload.design.preload import PARETO_PAIRS, DesignInfeasible, DesignPoint, DesignSpec
+from piezopreload.design.schedule import PreloadSchedule
+from piezopreload.design.study import DesignResult, design_spec_from_tables, design_study, plan_schedule, read_profile
+from piezopreload.design.system import SystemRun, track_schedule
 from piezopreload.models.actuator import P888_91, RigParams, StackData
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import PIDGains
 from piezopreload.models.gainset import EXPORT_FORMATS, REFERENCES, GainSet
 from piezopreload.tuning.calibrate import LoopExcitation
 from piezopreload.tuning.feedforward import IdentifiedFeedforward, identify
-from piezopreload.tuning.pid import TuningSpec
+from piezopreload.tuning.pid import TuningSpec, scaled_references
 from piezopreload.tuning.validate import Criteria
 
 if TYPE_CHECKING:  # the results module imports this one
     from piezopreload.results import StudyRun, TuningResult
     from piezopreload.tuning.learning import LearningResult
 
-__all__ = ["Study", "load_study", "default_study", "shipped_studies", "DEFAULT_STUDY", "RigRunPlan"]
+__all__ = ["Study", "load_study", "default_study", "paper_study", "shipped_studies", "DEFAULT_STUDY", "PAPER_STUDY",
+           "RigRunPlan", "PlantTable"]
 
-DEFAULT_STUDY = "paper2021"
+DEFAULT_STUDY = "machine_axis"  # the whole system: the designed preload system is the plant
+PAPER_STUDY = "paper2021"       # the paper's rig and gains
 
 _NUM = NUMBER
 _RIG_SCALARS = {f.name for f in fields(RigParams)} - {"stack", "creep_tau_s", "n_stacks", "adc_bits", "delay_samples"}
@@ -82,7 +87,10 @@ _SCHEMA: dict[str, Any] = {
                  "lift_off_margin": _NUM},
     # the one-command study (piezopreload run): tuning, validation, export and the rig run
     "tuning": {"overshoot_margin_N": _NUM, "ms_max": _NUM, "noise_gain_max_V_per_N": _NUM,
-               "tune_setpoint_weight": bool},
+               "tune_setpoint_weight": bool, "step_N": list, "trajectory_N": list},
+    # the designed preload system as the plant (design/plant.py, design/system.py)
+    "plant": {"from_design": bool, "sleeve_stiffness_N_per_um": _NUM, "cycles": int, "passes": int,
+              "margin_factor": _NUM, "stack_contact_N": _NUM},
     "validation": {"plants": int, "seed": int, "workers": int, "settling_max_s": _NUM, "overshoot_max_N": _NUM,
                    "tracking_rms_max_N": _NUM, "peak_voltage_max_V": _NUM},
     "export": {"formats": list},
@@ -91,6 +99,8 @@ _SCHEMA: dict[str, Any] = {
 }
 _REQUIRED = ("rig", "controller")
 _STRING_LISTS = {"design.pareto", "export.formats"}
+#: what ``[rig_run] reference`` may name besides a CSV: the gain set's references, or the design's schedule
+_RIG_RUN_REFERENCES = (*REFERENCES, "schedule")
 _UNITS = ("seconds", "minutes")
 _SIGNALS = ("measured_N", "force_N")
 _CRITERIA_LIMITS = ("settling_max_s", "overshoot_max_N", "tracking_rms_max_N", "peak_voltage_max_V")
@@ -247,6 +257,22 @@ class TuningTable(_Table):
     ms_max: float = TuningSpec.ms_max
     noise_gain_max_V_per_N: float = TuningSpec.noise_gain_max_V_per_N
     tune_setpoint_weight: bool = TuningSpec.tune_setpoint_weight
+    step_N: tuple[float, float] | None = None            # (from, to); None: TuningSpec's (the paper's scale)
+    trajectory_N: tuple[float, ...] | None = None        # rest level, then the levels; None: TuningSpec's
+
+
+@dataclass(frozen=True)
+class PlantTable(_Table):
+    """[plant]: the designed preload system as the plant: the design sets the stacks, the amplifier's current limit
+    and the coupling, ``[rig]`` the rest of the hardware (design/plant.py); the schedule is tracked for ``cycles``,
+    planned again with a margin at most ``passes`` times (design/system.py)."""
+
+    from_design: bool = True
+    sleeve_stiffness_N_per_um: float | None = None  # None: a rigid sleeve
+    cycles: int = 2
+    passes: int = 3
+    margin_factor: float = 1.25
+    stack_contact_N: float = 0.0  # the least force the stacks keep on the nuts (not bonded to them)
 
 
 @dataclass(frozen=True)
@@ -289,7 +315,7 @@ _TABLES: dict[str, type[_Table]] = {
     "controller": ControllerTable, "feedforward": FeedforwardTable, "simulation": SimulationTable,
     "ballscrew": BallscrewTable, "feed_drive": FeedDriveTable, "duty": DutyTable, "design": DesignTable,
     "schedule": ScheduleTable, "tuning": TuningTable, "validation": ValidationTable, "export": ExportTable,
-    "rig_run": RigRunPlan,
+    "rig_run": RigRunPlan, "plant": PlantTable,
 }
 #: the attribute of each table whose name is taken by a method (``study.design()``)
 _ATTRIBUTE = {"design": "design_table"}
@@ -341,6 +367,7 @@ class Study:
     duty: DutyTable | None
     design_table: DesignTable | None
     schedule: ScheduleTable | None
+    plant: PlantTable | None
     # what the tables make, built and checked on load
     gains: PIDGains = field(repr=False)
     references: dict[str, Reference] = field(repr=False)
@@ -511,6 +538,49 @@ class Study:
         except DesignInfeasible as exc:
             raise InfeasibleError(f"{self.path}: {exc}") from exc
 
+    @property
+    def plant_from_design(self) -> bool:
+        """Whether the plant is the designed preload system (``[plant] from_design``) rather than ``[rig]`` itself."""
+        return self.plant is not None and bool(self.plant.from_design) and self.design_spec is not None
+
+    def designed_plant(self, design: DesignResult | DesignPoint, design_sha256: str = "") -> DesignedPlant:
+        """The plant of ``design`` (a design result or its optimum's point): its stacks, amplifier current limit
+        and coupling, the rest of the hardware from ``[rig]`` (:func:`piezopreload.design.plant.plant_from_design`)."""
+        if self.design_spec is None:
+            raise InputError(f"{self.path}: the plant from a design needs the [ballscrew] table")
+        table = self.plant or PlantTable()
+        sleeve = math.inf if table.sleeve_stiffness_N_per_um is None else float(table.sleeve_stiffness_N_per_um)
+        point = design.point if isinstance(design, DesignResult) else design
+        return plant_from_design(self.design_spec, point, self.rig, design_sha256=design_sha256,
+                                 sleeve_stiffness_N_per_um=sleeve)
+
+    def schedule_for(self, point: DesignPoint) -> PreloadSchedule:
+        """The study's preload schedule on the screw of ``point``, as :meth:`design` plans it."""
+        if self.design_spec is None:
+            raise InputError(f"{self.path}: the schedule needs the [ballscrew] table")
+        s = self.schedule or ScheduleTable()
+        path = self.resolve(s.profile)
+        schedule, _, _ = plan_schedule(
+            self.design_spec, point, None if path is None else read_profile(path), profile_name=str(path),
+            stiffness_min_N_per_um=s.stiffness_min_N_per_um,
+            deflection_max_um=math.inf if s.deflection_max_um is None else s.deflection_max_um,
+            lift_off_margin=s.lift_off_margin)
+        return schedule
+
+    def with_plant(self, plant: DesignedPlant) -> Study:
+        """This study with the designed plant as its ``[rig]``: what identification, tuning and validation run on."""
+        return self.replace(rig=plant.rig.to_dict())
+
+    def track_schedule(self, plant: DesignedPlant, schedule: PreloadSchedule, gain_set: GainSet, *,
+                       ff_extra_V: Any = None, progress: Callable[[str], None] | None = None) -> SystemRun:
+        """The validated gains with their feedforward following ``schedule`` on ``plant`` for ``[plant] cycles``,
+        the schedule planned again with a margin while the rigidity falls short (:func:`design.system.track_schedule`)."""
+        table = self.plant or PlantTable()
+        return track_schedule(plant, gain_set.controller(), schedule, cycles=table.cycles, seed=self.seed,
+                              passes=table.passes, margin_factor=table.margin_factor,
+                              contact_N=table.stack_contact_N, ff_extra_V=ff_extra_V,
+                              progress=progress)
+
     def run(self, out: str | Path = "piezopreload-out", *, force: bool = False, progress: Any = None) -> dict[str, Any]:
         """The whole study, as ``piezopreload run``: its stages into ``out``, unchanged ones not run again."""
         from piezopreload.pipeline import run_study
@@ -536,12 +606,18 @@ def shipped_studies() -> dict[str, Path]:
 
 
 def default_study() -> Path:
-    """The default study's file as shipped with the package (the paper's)."""
+    """The default study's file as shipped with the package (the machine axis, the whole system)."""
     return shipped_studies()[DEFAULT_STUDY]
 
 
+def paper_study() -> Path:
+    """The paper's study as shipped with the package (the rig and gains of Zhang, Jin, Lin 2021)."""
+    return shipped_studies()[PAPER_STUDY]
+
+
 def load_study(study: str | Path | None = None) -> Study:
-    """Read and validate a study: None for the default, a shipped study's name (``"paper2021"``), or a file."""
+    """Read and validate a study: None for the default (``machine_axis``), a shipped study's name
+    (``"paper2021"``), or a file."""
     if study is None:
         path = default_study()
     elif isinstance(study, str) and not study.endswith(".toml") and study in shipped_studies():
@@ -591,7 +667,9 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes) -> Stud
     tuning = _table(TuningTable, data.get("tuning", {}))
     try:
         spec = TuningSpec(band_N=simulation.band_N, u_min_V=gains.u_min, u_max_V=gains.u_max,
-                          **{k: (bool(x) if k == "tune_setpoint_weight" else float(x)) for k, x in asdict(tuning).items()})
+                          **scaled_references(tuning.step_N, tuning.trajectory_N),
+                          **{k: (bool(x) if k == "tune_setpoint_weight" else float(x)) for k, x in asdict(tuning).items()
+                             if k not in ("step_N", "trajectory_N")})
     except ValueError as exc:
         key = next((k for k in data.get("tuning", {}) if k in str(exc)), "")
         raise fail(f"tuning.{key}" if key else "tuning", f"is not valid: {exc}") from None
@@ -606,7 +684,20 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes) -> Stud
         if f not in EXPORT_FORMATS:
             raise fail("export.formats", f"has {f!r}; expected some of {', '.join(EXPORT_FORMATS)}")
     design_tables = {t: _table(_TABLES[t], data[t]) if t in data else None
-                     for t in ("ballscrew", "feed_drive", "duty", "design", "schedule")}
+                     for t in ("ballscrew", "feed_drive", "duty", "design", "schedule", "plant")}
+    plant = design_tables["plant"]
+    if plant is not None:
+        if plant.from_design and "ballscrew" not in data:
+            raise fail("plant.from_design", "needs the design's tables ([ballscrew], ...) to make the plant from")
+        for key, low in (("cycles", 1), ("passes", 1)):
+            if getattr(plant, key) < low:
+                raise fail(f"plant.{key}", f"must be >= {low}, got {getattr(plant, key)!r}")
+        if not plant.stack_contact_N >= 0.0:
+            raise fail("plant.stack_contact_N", f"must be >= 0, got {plant.stack_contact_N!r}")
+        if not plant.margin_factor >= 1.0:
+            raise fail("plant.margin_factor", f"must be >= 1, got {plant.margin_factor!r}")
+        if plant.sleeve_stiffness_N_per_um is not None and not plant.sleeve_stiffness_N_per_um > 0:
+            raise fail("plant.sleeve_stiffness_N_per_um", f"must be > 0, got {plant.sleeve_stiffness_N_per_um!r}")
     design_spec = design_spec_from_tables({**design_tables, "design": design_tables["design"] or DesignTable()}, where.fail) if design_tables["ballscrew"] is not None else None
     meta = data.get("study", {})
     return Study(
@@ -615,7 +706,7 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes) -> Stud
         feedforward=feedforward, reference=reference, simulation=simulation, tuning=tuning, validation=validation,
         export=export, rig_run=_rig_run(data.get("rig_run", {}), where), ballscrew=design_tables["ballscrew"],
         feed_drive=design_tables["feed_drive"], duty=design_tables["duty"], design_table=design_tables["design"],
-        schedule=design_tables["schedule"], gains=gains, references=references, excitation=excitation,
+        schedule=design_tables["schedule"], plant=design_tables["plant"], gains=gains, references=references, excitation=excitation,
         tuning_spec=spec, criteria=criteria, design_spec=design_spec, where=where, source_text=text)
 
 
@@ -666,9 +757,9 @@ def _validation(v: dict[str, Any], simulation: SimulationTable, fail: Callable[[
 def _rig_run(r: dict[str, Any], where: _Source) -> RigRunPlan:
     fail = where.fail
     plan = _table(RigRunPlan, r)
-    if plan.reference not in REFERENCES and not plan.reference.lower().endswith(".csv"):
-        raise fail("rig_run.reference", f"must be step, trajectory or a time_s,force_N .csv file, "
-                                        f"got {plan.reference!r}")
+    if plan.reference not in _RIG_RUN_REFERENCES and not plan.reference.lower().endswith(".csv"):
+        raise fail("rig_run.reference", f"must be step, trajectory or a time_s,force_N .csv file (or schedule, where "
+                                        f"the plant is the study's design), got {plan.reference!r}")
     for key, low in (("force_max_N", 0.0), ("ramp_s", 0.0)):
         if key in r and not r[key] > low:
             raise fail(f"rig_run.{key}", f"must be > {low:g}, got {r[key]!r}")

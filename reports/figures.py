@@ -354,3 +354,30 @@ def gains_comparison(table: Sequence[Mapping[str, Any]]) -> Figure:
         a.set_ylabel(label)
         a.set_yscale("log")
     return fig
+
+
+@_styled
+def system_tracking(time_s: np.ndarray, planned_N: np.ndarray, achieved_N: np.ndarray, rigidity_N_per_um: np.ndarray,
+                    required_N_per_um: np.ndarray, cutting: np.ndarray, deflection_um: np.ndarray,
+                    deflection_limit_um: float | None) -> Figure:
+    """The whole system over the cycles: planned and achieved preload, rigidity against the requirement
+    while cutting, and the axial deflection under the cutting load."""
+    fig, ax = _figure(6.0, nrows=3, sharex=True)
+    a, b, c = ax[0][0], ax[1][0], ax[2][0]
+    a.plot(time_s, planned_N, color=COLOURS["reference"], lw=0.9, label="planned (schedule)")
+    a.plot(time_s, achieved_N, color=COLOURS["model"], lw=0.7, label="achieved (true force)")
+    a.set_ylabel("preload (N)")
+    a.legend(loc="upper right")
+    cut = np.asarray(cutting, bool)
+    b.plot(time_s, np.where(cut, rigidity_N_per_um, np.nan), color=COLOURS["model"], lw=0.8, label="achieved")
+    b.plot(time_s, np.where(cut, required_N_per_um, np.nan), color=COLOURS["limit"], ls="--", lw=0.8,
+           label="required")
+    b.set_ylabel("rigidity under load (N/um)")
+    b.legend(loc="upper right")
+    c.plot(time_s, np.where(cut, np.abs(deflection_um), np.nan), color=COLOURS["model"], lw=0.8, label="|deflection|")
+    if deflection_limit_um is not None and np.isfinite(deflection_limit_um):
+        c.axhline(deflection_limit_um, color=COLOURS["limit"], ls="--", lw=0.8, label="limit")
+    c.set_xlabel("time (s)")
+    c.set_ylabel("axial deflection (um)")
+    c.legend(loc="upper right")
+    return fig

@@ -132,7 +132,12 @@ def run_metrics(columns: dict[str, np.ndarray], reference: Reference, band_N: fl
         run = ClosedLoopRun(t_s=c["time_s"], reference_N=c["reference_N"], force_N=c["measured_N"],
                             measured_N=c["measured_N"], command_V=c["command_V"], voltage_V=c["voltage_V"],
                             p_V=c["p_V"], i_V=c["i_V"], d_V=c["d_V"], ff_V=c["feedforward_V"], reference=reference, seed=0)
-        numbers = run_numbers(run, band_N, "measured_N")
+        try:
+            numbers = run_numbers(run, band_N, "measured_N")
+        except ValueError:  # no step to read (a schedule: ramps, or a first row that repeats the level)
+            te = run.tracking_error(t_from_s=0.0)
+            numbers = {"rise_s": None, "peak_s": None, "settling_s": None, "overshoot_N": None,
+                       "tracking_rms_N": float(te["rms"]), "tracking_max_N": float(te["max"])}
         out.update({k: numbers[k] for k in ("rise_s", "peak_s", "settling_s", "overshoot_N", "tracking_rms_N",
                                              "tracking_max_N")})
     return out

@@ -3,13 +3,13 @@
 import pytest
 
 from piezopreload.models.actuator import Rig
-from piezopreload.study import default_study, load_study
+from piezopreload.study import load_study, paper_study
 from piezopreload.tuning.calibrate import identify_feedforward
 
 
 @pytest.fixture(scope="session")
 def study():
-    return load_study(default_study())
+    return load_study(paper_study())
 
 
 @pytest.fixture(scope="session")

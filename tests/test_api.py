@@ -53,7 +53,8 @@ def test_the_readme_snippet_runs_end_to_end(tmp_path, monkeypatch):
     assert pp.GainSet.load(tmp_path / "gains.json").gains == gain_set.gains
     assert ns["gain_set"].export("labview").startswith("; gain set sha256")
     assert len(design.fronts) == 2 and design.optimum.point.stiffness_N_per_um > 0
-    assert result["ran"] == [s.name for s in __import__("piezopreload.pipeline").pipeline.STAGES]
+    assert result["ran"] == [s.name for s in __import__("piezopreload.pipeline").pipeline.STAGES
+                             if s.applies(study) is None]
     assert (tmp_path / "piezopreload-out" / "report.pdf").read_bytes().startswith(b"%PDF")
     for fig in (ns["tuned"].plot(), run.plot(), design.plot(), ns["ff"].plot()):
         assert isinstance(fig, Figure) and fig.axes, f"{fig!r} draws nothing"
@@ -72,9 +73,11 @@ def test_the_study_docstring_examples_run():
 
 
 def test_studies_by_default_name_and_path():
-    assert "paper2021" in pp.shipped_studies()
-    a, b, c = pp.load_study(), pp.load_study("paper2021"), pp.load_study(ROOT / "studies" / "paper2021.toml")
-    assert a.sha256 == b.sha256 == c.sha256
+    assert {"paper2021", "machine_axis"} <= set(pp.shipped_studies())
+    a, b, c = pp.load_study(), pp.load_study("machine_axis"), pp.load_study(ROOT / "studies" / "machine_axis.toml")
+    assert a.sha256 == b.sha256 == c.sha256 and a.plant_from_design, "the default study is the machine axis"
+    p, q = pp.load_study("paper2021"), pp.load_study(ROOT / "studies" / "paper2021.toml")
+    assert p.sha256 == q.sha256 and not p.plant_from_design
     with pytest.raises(pp.InputError, match="no such study file"):
         pp.load_study("no-such-study")
 

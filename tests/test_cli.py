@@ -229,8 +229,8 @@ def _readme_block(title):
 def test_readme_main_job_runs_as_written(tmp_path):
     """The README's main command, after its set-up part, runs with the installed console script.
 
-    It is the paper's whole study (about 80 s): the report, the validated gain set and its
-    exports, and the rig run log must be there.
+    It is the default study, the machine axis's whole system: the report, the validated gain set and
+    its exports, the rig run log and the whole system's summary must be there.
     """
     command = _readme_block("Set up and run")
     main_job = command.split("&&")[-1].strip()
@@ -241,7 +241,10 @@ def test_readme_main_job_runs_as_written(tmp_path):
                           env={**os.environ, "MPLBACKEND": "Agg"}, timeout=900)
     assert proc.returncode == 0, proc.stderr
     result = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert result["study"]["name"] == "paper2021" and len(result["ran"]) == 8
+    assert result["study"]["name"] == "machine_axis" and len(result["ran"]) == 10, result["ran"]
+    summary = result["summary"]
+    for key in ("tracking_rms_pct_of_range", "rigidity_min_cutting_N_per_um", "rigidity_required_N_per_um"):
+        assert isinstance(summary[key], float) and summary[key] > 0, f"summary.{key}: {summary[key]!r}"
     out = tmp_path / "piezopreload-out"
     assert Path(result["out"]) == out.resolve() and "the study's outputs are in" in proc.stderr
     assert (out / "report.pdf").read_bytes().startswith(b"%PDF")

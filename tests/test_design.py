@@ -273,9 +273,9 @@ def test_design_cli_writes_the_artifact_and_fronts(tmp_path, capsys):
 
 
 def test_design_cli_infeasible_study_exits_2_naming_the_constraint(tmp_path, capsys):
-    from piezopreload.study import default_study
+    from piezopreload.study import paper_study
 
-    text = default_study().read_text().replace("life_min_h = 20000.0", "life_min_h = 1.0e12")
+    text = paper_study().read_text().replace("life_min_h = 20000.0", "life_min_h = 1.0e12")
     study = tmp_path / "study.toml"
     study.write_text(text)
     code = main(["design", "--study", str(study), "--pareto", "stiffness:drag", "--points", "3",
@@ -286,9 +286,9 @@ def test_design_cli_infeasible_study_exits_2_naming_the_constraint(tmp_path, cap
 
 
 def test_design_study_errors_name_the_line(tmp_path, capsys):
-    from piezopreload.study import default_study
+    from piezopreload.study import paper_study
 
-    text = default_study().read_text().replace("turns = [2, 6]", "turns = [2.5, 6]")
+    text = paper_study().read_text().replace("turns = [2, 6]", "turns = [2.5, 6]")
     study = tmp_path / "study.toml"
     study.write_text(text)
     code = main(["design", "--study", str(study)])

@@ -9,7 +9,7 @@ import pytest
 from piezopreload.cli import main
 from piezopreload.core.artifacts import write_artifact
 from piezopreload.core.errors import InputError
-from piezopreload.study import default_study, load_study
+from piezopreload.study import load_study, paper_study
 from piezopreload.tuning.calibrate import PAPER_RESULTS
 
 REPO = Path(__file__).resolve().parents[1]
@@ -22,8 +22,8 @@ def run_cli(capsys, *argv):
 
 
 def test_the_shipped_study_is_the_repository_one():
-    assert default_study().read_bytes() == (REPO / "studies" / "paper2021.toml").read_bytes()
-    study = load_study(default_study())
+    assert paper_study().read_bytes() == (REPO / "studies" / "paper2021.toml").read_bytes()
+    study = load_study(paper_study())
     assert study.gains.Kc == 0.3 and study.gains.Ti_s == 0.08 and study.gains.Td_s == 0.001
     assert study.gains.u_min == 0.0 and study.gains.u_max == 110.0
     assert study.rig.bolt_preload_N == 25.0
@@ -33,7 +33,7 @@ def test_the_shipped_study_is_the_repository_one():
 
 
 def test_minutes_are_converted_at_the_edge(tmp_path):
-    text = default_study().read_text().replace('units = "seconds"', 'units = "minutes"')
+    text = paper_study().read_text().replace('units = "seconds"', 'units = "minutes"')
     path = tmp_path / "s.toml"
     path.write_text(text)
     study = load_study(path)
@@ -53,7 +53,7 @@ def test_minutes_are_converted_at_the_edge(tmp_path):
     ],
 )
 def test_bad_study_files_name_the_line_and_key(tmp_path, edit, message):
-    text = default_study().read_text()
+    text = paper_study().read_text()
     assert edit[0] in text
     path = tmp_path / "bad.toml"
     path.write_text(text.replace(edit[0], edit[1], 1))
@@ -62,7 +62,7 @@ def test_bad_study_files_name_the_line_and_key(tmp_path, edit, message):
 
 
 def test_study_line_numbers_point_at_the_key(tmp_path):
-    text = default_study().read_text().replace("Kc = 0.3", 'Kc = "x"')
+    text = paper_study().read_text().replace("Kc = 0.3", 'Kc = "x"')
     path = tmp_path / "bad.toml"
     path.write_text(text)
     line = next(i for i, s in enumerate(text.splitlines(), 1) if s.startswith("Kc ="))

@@ -54,12 +54,15 @@ def _pdf_text(path: Path) -> tuple[list[str], str]:
 
 def test_the_small_study_runs_every_stage_and_leaves_its_artifacts(small_run):
     out, result, log = small_run
-    assert result["ran"] == [s.name for s in STAGES]
+    study = load_study(SMALL)
+    applicable = [s.name for s in STAGES if s.applies(study) is None]
+    assert result["ran"] == applicable and "plant" not in applicable and "system" not in applicable
     for i, stage in enumerate(STAGES, start=1):
         assert f"[{i}/{len(STAGES)}] {stage.name}:" in log
     assert f"the study's outputs are in {out.resolve()}/" in log
     manifest = read_manifest(out)
-    assert {name: r["status"] for name, r in manifest["stages"].items()} == {s.name: "done" for s in STAGES}
+    assert {name: r["status"] for name, r in manifest["stages"].items()} == {
+        s.name: "done" if s.name in applicable else "not applicable" for s in STAGES}
     gains = read_artifact(out / "gains.json", "gain-set")
     assert gains["status"] == "validated" and result["gain_set_sha256"] == gains["content_sha256"]
     for name in ("gains.si.json", "gains.labview.txt", "pp_gains.h"):
@@ -108,9 +111,11 @@ def test_the_pdf_holds_its_pages_tables_and_figures(small_run):
     assert study.sha256 in squeezed and study.title.split(":")[0] in text
 
     # every figure the template names is in the PDF: its file, its caption, and its own text
-    names = re.findall(r'#fig\("([a-z-]+)"\)', TEMPLATE.read_text())
-    assert len(names) == 10
+    named = re.findall(r'#fig\("([a-z-]+)"\)', TEMPLATE.read_text())
+    assert len(named) == 11
     report = read_artifact(out / "report" / "report.json", "report")
+    names = [n for n in named if n in report["figures"]]
+    assert set(named) - set(names) == {"system"}, "the paper's study has no whole-system figure; every other one"
     forms = 0
     for page in pypdf.PdfReader(pdf).pages:
         xobjects = page.get("/Resources", {}).get("/XObject", {})
@@ -146,7 +151,7 @@ def test_a_second_run_reruns_nothing_and_says_so(small_run, tmp_path, capsys):
     captured = capsys.readouterr()
     assert code == 0
     result = json.loads(captured.out)
-    assert result["ran"] == [] and all(s["status"] == "up to date" for s in result["stages"])
+    assert result["ran"] == [] and all(s["status"] in ("up to date", "not applicable") for s in result["stages"])
     assert "nothing to run: every stage is up to date" in captured.err
     after = {p: (p.stat().st_mtime_ns, p.read_bytes()) for p in out.rglob("*") if p.is_file() and p.name != ".lock"}
     assert after == before

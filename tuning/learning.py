@@ -723,7 +723,7 @@ def learn(controller: Controller, rig: Rig, reference: Reference, *, iterations:
     plan_run = replace(best_run, force_N=plan.force_N, reference=reference, reference_N=reference.at(plan.t_s))
     plan_after = float(plan_run.tracking_error(after_change_s=AFTER_CHANGE_S)["rms"])
     shifted = Reference(np.concatenate([[0.0], np.maximum(reference.times_s[1:] - preview, 1e-9)]), reference.levels_N,
-                        reference.duration_s) if preview > 0 else reference
+                        reference.duration_s) if preview > 0 and reference.interpolation == "hold" else reference
     outside = replace(best_run, reference=shifted).tracking_error(after_change_s=AFTER_CHANGE_S + preview)["rms"]
     if best_run is None:  # pragma: no cover - the loop runs at least once
         raise InternalError("learn: no trial ran")

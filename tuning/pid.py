@@ -55,7 +55,7 @@ from scipy.optimize import minimize_scalar
 
 from piezopreload.core import native
 from piezopreload.core.errors import InfeasibleError, InputError
-from piezopreload.models.actuator import PlantModel, Rig, RigParams
+from piezopreload.models.actuator import PlantModel, Rig, RigParams, hertz_force
 from piezopreload.models.closedloop import PAPER_BAND_N, Reference, simulate_open_loop
 from piezopreload.models.controller import ControllerModel, PIDGains
 from piezopreload.models.hysteresis import InverseClassicalPI
@@ -64,6 +64,7 @@ from piezopreload.models.ops import CASADI, NUMPY, Layout
 
 __all__ = [
     "TuningSpec",
+    "scaled_references",
     "FOPDT",
     "fit_fopdt",
     "simc",
@@ -148,6 +149,23 @@ class TuningSpec:
             raise ValueError("TuningSpec needs u_min_V < u_max_V.")
         if not self.ramp_s > 0:
             raise ValueError("TuningSpec.ramp_s must be > 0.")
+
+
+def scaled_references(step_N: Any = None, trajectory_N: Any = None) -> dict[str, Reference]:
+    """The tuning's short step and staircase at a study's force scale (``TuningSpec``'s time scale:
+    0.6 s for the step, 0.4 s per level): ``step_N = (from, to)``, ``trajectory_N = (rest, levels...)``;
+    None keeps the paper's."""
+    out: dict[str, Reference] = {}
+    if step_N is not None:
+        if len(step_N) != 2:
+            raise ValueError(f"tuning.step_N must be (from, to), got {list(step_N)!r}")
+        out["step"] = Reference.step(float(step_N[0]), float(step_N[1]), 0.02, 0.6)
+    if trajectory_N is not None:
+        if len(trajectory_N) < 2:
+            raise ValueError(f"tuning.trajectory_N must be the rest level and at least one level, got {list(trajectory_N)!r}")
+        out["trajectory"] = Reference.staircase(float(trajectory_N[0]), [float(x) for x in trajectory_N[1:]], 0.4,
+                                                t_start_s=0.02)
+    return out
 
 
 # --------------------------------------------------------------------------------------
@@ -298,7 +316,14 @@ def _small_signal_gains(params: RigParams) -> tuple[float, float]:
     ``1 - alpha`` (plus the asymmetry); far along a branch it approaches ``1 + 2 kappa v / 100``.
     """
     k = float(params.effective_stiffness_N_per_um) * float(params.stroke_um_per_V)
-    lo = k * (1.0 - float(params.bw_alpha))
+    k_lo = k
+    if params.hertz:  # the nuts' Hertz contacts: softest at the bolts' preload, stiffest at full stroke
+        x_top = float(params.stroke_um_per_V) * 110.0
+        f_top = float(hertz_force(NUMPY, x_top, float(params.effective_stiffness_N_per_um),
+                                  float(params.hertz_um_per_N23), float(params.hertz_preload_N)))
+        k_lo = float(params.local_stiffness_N_per_um(0.0)) * float(params.stroke_um_per_V)
+        k = float(params.local_stiffness_N_per_um(f_top)) * float(params.stroke_um_per_V)
+    lo = k_lo * (1.0 - float(params.bw_alpha))
     hi = k * (1.0 + 2.0 * max(float(params.bw_kappa), 0.0) * 110.0 / 100.0)
     return lo, hi
 
@@ -383,23 +408,29 @@ _B_BOUNDS = (0.0, 1.0)
 
 
 class _Scaling:
-    """Decision variables ``z`` in the unit box <-> gains."""
+    """Decision variables ``z`` in the unit box <-> gains.
 
-    def __init__(self, names: list[str]) -> None:
+    The box of ``Kc`` (:data:`_LOG_BOUNDS`) suits a plant of up to 1 N/V (the paper's rig, about
+    0.7 N/V); a stiffer plant's ``Kc`` box is divided by its force per volt (``kc_scale``), so
+    the box stays where the gains are (a designed preload system has some 50-200 N/V).
+    """
+
+    def __init__(self, names: list[str], kc_scale: float = 1.0) -> None:
         self.names = names
+        self.bounds = {**_LOG_BOUNDS, "Kc": (_LOG_BOUNDS["Kc"][0] * kc_scale, _LOG_BOUNDS["Kc"][1] * kc_scale)}
 
     def value(self, name: str, zi: Any) -> Any:
         if name == "b":
             if isinstance(zi, float | np.floating):
                 zi = min(max(zi, 0.0), 1.0)  # IPOPT may end a hair outside its bounds
             return _B_BOUNDS[0] + zi * (_B_BOUNDS[1] - _B_BOUNDS[0])
-        lo, hi = np.log(_LOG_BOUNDS[name])
+        lo, hi = np.log(self.bounds[name])
         return np.exp(lo + zi * (hi - lo)) if isinstance(zi, float | np.floating) else ca.exp(lo + zi * (hi - lo))
 
     def z(self, name: str, x: float) -> float:
         if name == "b":
             return float(np.clip((x - _B_BOUNDS[0]) / (_B_BOUNDS[1] - _B_BOUNDS[0]), 0, 1))
-        lo, hi = np.log(_LOG_BOUNDS[name])
+        lo, hi = np.log(self.bounds[name])
         return float(np.clip((np.log(max(x, 1e-12)) - lo) / (hi - lo), 0, 1))
 
     def gains(self, z: np.ndarray, spec: TuningSpec) -> PIDGains:
@@ -411,7 +442,8 @@ class _Scaling:
 def _seeds(names: list[str], scaling: _Scaling, baseline: PIDGains) -> np.ndarray:
     """Starting points: the SIMC baseline and a coarse grid around the box's middle."""
     pts = [[scaling.z(n, {"Kc": baseline.Kc, "Ti": baseline.Ti_s, "Td": 1e-4, "Tf": 1e-4, "b": 1.0}[n]) for n in names]]
-    grid = {"Kc": [0.3, 1.0, 3.0], "Ti": [0.02, 0.05, 0.15], "Td": [1e-4], "Tf": [1e-4], "b": [0.0, 0.5]}
+    k = scaling.bounds["Kc"][0] / _LOG_BOUNDS["Kc"][0]
+    grid = {"Kc": [0.3 * k, 1.0 * k, 3.0 * k], "Ti": [0.02, 0.05, 0.15], "Td": [1e-4], "Tf": [1e-4], "b": [0.0, 0.5]}
     axes = [[scaling.z(n, v) for v in grid[n]] for n in names]
     pts += [list(p) for p in np.array(np.meshgrid(*axes, indexing="ij")).reshape(len(names), -1).T]
     return np.array(pts)
@@ -658,7 +690,7 @@ def _build_problem(params: RigParams, feedforward: InverseClassicalPI | None, sp
     variants = plant_variants(params, spec.variants)
     loop = tuning_loop(params)
     names = ["Kc", "Ti", "Td", "Tf"] + (["b"] if spec.tune_setpoint_weight else [])
-    scaling = _Scaling(names)
+    scaling = _Scaling(names, 1.0 / max(1.0, float(np.mean(_small_signal_gains(params)))))
     # the step, then the trajectory, on one horizon: the loop restarts at each one's first sample
     # (the trajectory's top is out of reach of the weakest variants: only the step's overshoot counts)
     parts = []

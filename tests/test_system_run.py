@@ -1,0 +1,71 @@
+"""The whole-system study end to end (a small copy of studies/machine_axis.toml): the plant from the design, the
+schedule tracked, the summary of ``run --json``, and a changed design rebuilding the plant and all after it."""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import pytest
+
+from piezopreload.cli import main
+from piezopreload.core.artifacts import read_artifact
+from piezopreload.pipeline import STAGES, read_manifest, run_study
+from piezopreload.progress import Progress
+from piezopreload.study import load_study
+
+SMALL_AXIS = Path(__file__).parent / "data" / "small_axis.toml"
+
+
+@pytest.fixture(scope="module")
+def axis_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("axis") / "out"
+    code = main(["run", str(SMALL_AXIS), "--out", str(out), "--json", "--quiet"])
+    assert code == 0, "the small whole-system study failed"
+    return out
+
+
+def test_every_stage_runs_and_the_plant_is_the_designs(axis_run, capsys):
+    out = axis_run
+    manifest = read_manifest(out)
+    assert {n: r["status"] for n, r in manifest["stages"].items()} == {s.name: "done" for s in STAGES}
+    plant = read_artifact(out / "plant.json", "plant")
+    assert plant["design_sha256"] == manifest["stages"]["design"]["outputs"]["design"]["sha256"]
+    assert plant["rig"]["hertz_um_per_N23"] > 0 and plant["rig"]["bolt_preload_N"] == 0.0
+    gains = read_artifact(out / "gains.json", "gain-set")
+    assert gains["plant"]["rig"]["hertz_um_per_N23"] == plant["rig"]["hertz_um_per_N23"], \
+        "the gain set was not tuned and validated on the designed plant"
+    system = read_artifact(out / "system" / "system.json", "system")
+    assert system["inputs"]["gain_set_sha256"] == gains["content_sha256"]
+    assert 0 < system["tracking_rms_pct_of_range"] < 100 and system["rigidity_required_N_per_um"] > 0
+
+
+def test_run_json_summary_names_the_whole_systems_numbers(axis_run, capsys):
+    code = main(["run", str(SMALL_AXIS), "--out", str(axis_run), "--json", "--quiet"])
+    assert code == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["ran"] == [], "an unchanged study ran a stage again"
+    assert [s["stage"] for s in result["stages"]] == [s.name for s in STAGES]
+    summary = result["summary"]
+    system = read_artifact(axis_run / "system" / "system.json", "system")
+    for key in ("tracking_rms_pct_of_range", "rigidity_min_cutting_N_per_um", "rigidity_required_N_per_um"):
+        assert summary[key] == system[key], f"summary.{key} is not the system stage's"
+
+
+def test_a_changed_design_rebuilds_the_plant_and_everything_after_it(axis_run, tmp_path):
+    import shutil
+
+    out = tmp_path / "out"
+    shutil.copytree(axis_run, out)
+    (out / ".lock").unlink(missing_ok=True)
+    before = read_manifest(out)["stages"]
+    study = load_study(SMALL_AXIS).replace(design={"amp_current_limit_A": 0.08})
+    result = run_study(study, out, progress=Progress(stream=io.StringIO()))
+    assert set(result["ran"]) >= {"design", "plant", "identify", "tune", "validate", "compare", "system", "rig",
+                                  "report"}, f"a stage after the changed design was not run again: {result['ran']}"
+    after = read_manifest(out)["stages"]
+    assert after["plant"]["outputs"]["plant"]["sha256"] != before["plant"]["outputs"]["plant"]["sha256"]
+    plant = read_artifact(out / "plant.json", "plant")
+    assert plant["design_sha256"] == after["design"]["outputs"]["design"]["sha256"]
+    assert plant["rig"]["amp_current_limit_A"] == pytest.approx(0.08), "the plant does not carry the new amplifier"
