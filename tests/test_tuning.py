@@ -400,3 +400,15 @@ def test_tracking_error_leaves_out_the_samples_out_of_authority():
         assert te["rms"][i] == pytest.approx(np.sqrt(np.mean(e**2)), rel=1e-12)
         assert te["saturated_fraction"][i] == pytest.approx((scored & saturated[i]).sum() / scored.sum(), rel=1e-12)
     assert te["rms"][0] == plain["rms"][0] and te["rms"][1] < plain["rms"][1]
+
+
+def test_tracking_improvement_has_no_ratio_where_the_tuned_loop_has_nothing_to_score():
+    """A reference with nothing after its changes (a ramped schedule) scores 0 N there: no ratio, not a crash."""
+    from piezopreload.tuning.compare import tracking_improvement
+
+    rows = [{"gains": g, "feedforward": ff, "tracking_rms_N": rms, "tracking_rms_after_change_N": after}
+            for g, ff, rms, after in (("paper", False, 4.0, 2.0), ("paper", True, 3.0, 1.0),
+                                      ("tuned", True, 2.0, 0.0))]
+    out = tracking_improvement(rows)
+    assert out["paper_pid_over_tuned"] == 2.0 and out["paper_ff_pid_over_tuned"] == 1.5
+    assert out["paper_pid_over_tuned_after_change"] is None and out["paper_ff_pid_over_tuned_after_change"] is None

@@ -44,16 +44,21 @@ def compare_gains(rig: RigParams, step: Reference, trajectory: Reference, candid
     return rows
 
 
-def tracking_improvement(table: list[dict[str, Any]]) -> dict[str, float]:
-    """The paper's tracking RMS over the tuned one (with feedforward), both ways of scoring it."""
+def tracking_improvement(table: list[dict[str, Any]]) -> dict[str, float | None]:
+    """The paper's tracking RMS over the tuned one (with feedforward), both ways of scoring it (None where the
+    tuned loop's is 0 or not a number: a reference with nothing to score after its changes)."""
     row = {(r["gains"], r["feedforward"]): r for r in table}
     tuned = row[("tuned", True)]
+
+    def ratio(num: Any, den: Any) -> float | None:
+        return float(num) / float(den) if num is not None and den is not None and float(den) > 0.0 else None
+
     out = {}
     for ff in (False, True):
         key = "paper_ff_pid" if ff else "paper_pid"
-        out[f"{key}_over_tuned"] = row[("paper", ff)]["tracking_rms_N"] / tuned["tracking_rms_N"]
-        out[f"{key}_over_tuned_after_change"] = (row[("paper", ff)]["tracking_rms_after_change_N"]
-                                                 / tuned["tracking_rms_after_change_N"])
+        out[f"{key}_over_tuned"] = ratio(row[("paper", ff)]["tracking_rms_N"], tuned["tracking_rms_N"])
+        out[f"{key}_over_tuned_after_change"] = ratio(row[("paper", ff)]["tracking_rms_after_change_N"],
+                                                      tuned["tracking_rms_after_change_N"])
     return out
 
 
