@@ -645,7 +645,7 @@ def _rig_common(args: argparse.Namespace) -> dict[str, Any]:
 
     return {"backend": args.backend, "backend_options": _key_values(args.backend_option, "--backend-option"),
             "reference": args.reference, "log_dir": args.log_dir, "seed": args.seed,
-            "faults": [parse_fault(f) for f in args.inject or []],
+            "faults": [parse_fault(f) for f in args.inject or []], "loop": args.loop,
             "safety": {"force_max_N": args.force_max_N, "ramp_s": args.ramp_s, "missed_streak": args.missed_streak}}
 
 
@@ -680,7 +680,12 @@ def _rig_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="noise seed of the simulated rig (default 0)")
     p.add_argument("--force-max-N", type=float, help="interlock: highest force (default 150 N)")
     p.add_argument("--ramp-s", type=float, help="interlock: time to ramp the voltage down on a stop (default 0.5 s)")
-    p.add_argument("--missed-streak", type=int, help="interlock: missed deadlines in a row that stop the run (default 50)")
+    p.add_argument("--missed-streak", type=_positive_int,
+                   help="interlock: missed deadlines in a row that stop the run (default 5 on the native loop, 50 on "
+                        "the Python loop)")
+    p.add_argument("--loop", choices=("auto", "native", "python"), default="auto",
+                   help="the fixed-rate loop: native (a C thread; the simulated rig or a C-ABI library backend), "
+                        "python (the interpreter; any backend), auto (native where it can run, default)")
     p.add_argument("--inject", action="append", metavar="KIND@T_S[=VALUE][/DURATION_S]",
                    help="fire drill: inject a fault into the backend at T_S (repeatable); KIND: "
                         + "; ".join(f"{k}: {v}" for k, v in FAULT_KINDS.items()))

@@ -83,6 +83,27 @@ class HoldoutFit:
         return fig
 
 
+#: the operators' matrix (samples x operators, float64) an identification may build
+MAX_MATRIX_BYTES = 2 * 1024**3
+
+
+def check_operators(operators: int, n_train: int, n_samples: int, shown: str) -> None:
+    """Refuse, before anything is allocated, more operators than the training window or the memory allow.
+
+    The QP needs at least two training samples per weight (the operators' and the linear
+    term's), and the operators' outputs over the record are a ``n_samples x operators`` matrix
+    of doubles, held to :data:`MAX_MATRIX_BYTES`.
+    """
+    by_samples = n_train // 2 - 2
+    by_memory = MAX_MATRIX_BYTES // (8 * max(n_samples, 1))
+    allowed = min(by_samples, by_memory)
+    if operators > allowed:
+        why = (f"the training window has {n_train} samples (two per weight)" if allowed == by_samples else
+               f"the {n_samples} samples' operator matrix would pass {MAX_MATRIX_BYTES / 1024**3:g} GiB")
+        raise InputError(f"--operators {operators}: at most {max(allowed, 0)} for {shown} ({why}); use fewer "
+                         "operators or a longer training window")
+
+
 def identify_record(record: Record, *, model: str = "classical", operators: int = 40, train: Window | None = None,
                     test: Window | None = None, ridge: float = 0.0) -> HoldoutFit:
     """Identify a hysteresis model on ``train`` and score it on ``test``.
@@ -112,6 +133,7 @@ def identify_record(record: Record, *, model: str = "classical", operators: int 
     span = float(np.ptp(record.output))
     if span == 0:
         raise InputError(f"{record.path}: the output '{record.output_name}' is constant; nothing to model")
+    check_operators(operators, int(rows["train"].sum()), record.input.size, f"{record.path}")
     try:
         est = PIIdentifier(model=model, n_operators=operators, ridge=ridge)
         est.fit(record.input, record.output, train=rows["train"])
