@@ -224,7 +224,11 @@ class Executor:
             elif isinstance(self.backend, FaultInjector) and len(self.backend.faults) > native_loop.MAX_FAULTS:
                 why = f"more than {native_loop.MAX_FAULTS} injected faults"
         if not why:
-            return "native", ""
+            try:  # built now, not when the run starts (a served rig answers clients meanwhile)
+                native_loop.start_library(self.controller.model)
+                return "native", ""
+            except native_loop.native.NativeBuildError as exc:
+                why = f"the controller's start could not be built: {exc}"
         if want == "native":
             raise ValueError(f"the native loop cannot run: {why}")
         return "python", why
@@ -429,7 +433,7 @@ class Executor:
         # noise draws for the whole finite run (control, stop, ramp); a held run reuses them cyclically
         n_noise = len(self._ref) + int(math.ceil(s.ramp_s / dt)) + 16
         if self.hold:
-            n_noise = max(n_noise, 1 << 20)
+            n_noise = max(n_noise, 1 << 18)
         backend = inner.native_backend(n_noise)  # type: ignore[attr-defined]
         return NativeLoop(self.controller, np.asarray(self._ref), limits, backend, realtime=self.realtime,
                           hold=self.hold, faults=faults)
@@ -447,6 +451,7 @@ class Executor:
         t_last = 0.0
         try:
             loop = self._native_setup()
+            loop.lock_memory()
             if loop.backend_kind == 0:  # the simulated rig is armed here; a C library's arm runs in the loop's thread
                 self.backend.arm()
                 armed_here = True

@@ -140,7 +140,10 @@ static int read_force(pp_loop* L, double t, double* f, double* ts) {
     if (!active_fault(F, t)) continue;
     if (F->kind == F_RAISE) return -1000;
     if (F->kind == F_DELAY) sleep_until(now_ns() + (int64_t)(F->value * 1e9));
-    if (F->kind == F_SIGNAL && !F->fired) { F->fired = 1; kill(getpid(), F->value ? (int)F->value : SIGTERM); }
+    if (F->kind == F_SIGNAL && !F->fired) { /* to this thread: handled before the call returns */
+      F->fired = 1;
+      pthread_kill(pthread_self(), F->value ? (int)F->value : SIGTERM);
+    }
     if (F->kind == F_STALE) stale = 1;
   }
   if (stale && !isnan(L->last_sample_t)) { *f = L->last_force; *ts = L->last_sample_t; return 0; }
@@ -330,13 +333,18 @@ int pp_loop_release_signals(void) {
   return 0;
 }
 
+/* lock the process's pages in memory (before arming: locking a large process takes a while) */
+int pp_loop_lock_memory(pp_loop* L) {
+  L->mlock_errno = L->want_mlock ? (mlockall(MCL_CURRENT) ? errno : 0) : -1;
+  return L->mlock_errno;
+}
+
 /* start the loop's thread: SCHED_FIFO and locked memory where permitted (errno kept, not fatal) */
 int pp_loop_start(pp_loop* L) {
   pthread_attr_t attr;
   struct sched_param sp;
   int rc;
-  L->fifo_errno = L->mlock_errno = -1; /* -1: not asked */
-  if (L->want_mlock) L->mlock_errno = mlockall(MCL_CURRENT) ? errno : 0;
+  L->fifo_errno = -1; /* -1: not asked */
   if (L->want_fifo) {
     pthread_attr_init(&attr);
     pthread_attr_setinheritsched(&attr, PTHREAD_EXPLICIT_SCHED);

@@ -111,7 +111,7 @@ def loop_library() -> ctypes.CDLL:
                             ("pp_loop_drain", ctypes.c_int64, [_P, _P, ctypes.c_int64]),
                             ("pp_loop_switch", None, [_P, ctypes.c_int32]), ("pp_loop_stop", None, [_P, ctypes.c_int32]),
                             ("pp_loop_sizeof", ctypes.c_int64, []), ("pp_loop_catch_signals", ctypes.c_int, [_P]),
-                            ("pp_loop_release_signals", ctypes.c_int, [])):
+                            ("pp_loop_release_signals", ctypes.c_int, []), ("pp_loop_lock_memory", ctypes.c_int, [_P])):
         fn = getattr(lib, name)
         fn.restype, fn.argtypes = res, args
     if lib.pp_loop_sizeof() < ctypes.sizeof(_Loop):
@@ -238,10 +238,15 @@ class NativeLoop:
         self._out = np.zeros((rows, COLS))
         L.ring, L.ring_rows = self._ring.ctypes.data, rows
         self._addr = ctypes.addressof(L)
+        L.mlock_errno = L.fifo_errno = -1
         self._started = False
         self._signals = False
 
     # ---- the supervisor's side ----------------------------------------------------------------
+    def lock_memory(self) -> None:
+        """``mlockall(MCL_CURRENT)`` where permitted (a run in real time); call before arming, it takes a while."""
+        self._lib.pp_loop_lock_memory(self._addr)
+
     def start(self, catch_signals: bool = False) -> None:
         """Start the thread; ``catch_signals`` (main thread only) lets SIGINT/SIGTERM stop it in C."""
         if catch_signals:

@@ -106,7 +106,7 @@ def check_reference(reference: Reference, shown: str, limits: Safety, plant: Rig
 
     A level must lie strictly inside the force interlocks (above the bolt preload less the
     margin, below ``force_max_N``: at either limit the run would trip at once), and, with the
-    gain set's plant, within what the stacks reach between the command's limits (creep
+    gain set's plant, within what its stacks reach over their voltage range (creep
     settled, :func:`~piezopreload.models.actuator.reach_N`). A CSV's level is named by its line
     (the header is line 1).
     """
@@ -115,7 +115,8 @@ def check_reference(reference: Reference, shown: str, limits: Safety, plant: Rig
     if plant is not None:
         rig = Rig(plant)
         tol = 3.0 * plant.adc_lsb_N
-        reach = (float(reach_N(rig, limits.v_min_V)) - tol, float(reach_N(rig, limits.v_max_V)) + tol)
+        v_lo, v_hi = plant.stack.v_min_V, plant.stack.v_max_V
+        reach = (float(reach_N(rig, v_lo)) - tol, float(reach_N(rig, v_hi)) + tol)
     csv = shown.lower().endswith(".csv")
     for j, level in enumerate(reference.levels_N.tolist()):
         where = f"{shown}:{j + 2}: field 'force_N'" if csv else f"the reference '{shown}', level {j + 1}"
@@ -124,7 +125,7 @@ def check_reference(reference: Reference, shown: str, limits: Safety, plant: Rig
                              "(the bolt preload less the margin, force_max_N); refused before arming")
         if reach is not None and not reach[0] <= level <= reach[1]:
             raise InputError(f"{where}: {level:g} N is beyond what the gain set's plant reaches between "
-                             f"{limits.v_min_V:g} V and {limits.v_max_V:g} V ({reach[0]:.4g}..{reach[1]:.4g} N); "
+                             f"its stacks' {v_lo:g} V and {v_hi:g} V ({reach[0]:.4g}..{reach[1]:.4g} N); "
                              "refused before arming")
 
 
