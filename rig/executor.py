@@ -436,7 +436,7 @@ class Executor:
             n_noise = max(n_noise, 1 << 18)
         backend = inner.native_backend(n_noise)  # type: ignore[attr-defined]
         return NativeLoop(self.controller, np.asarray(self._ref), limits, backend, realtime=self.realtime,
-                          hold=self.hold, faults=faults)
+                          hold=self.hold, faults=faults, step_fn=getattr(self.step, "_fn", None))
 
     def _run_native(self) -> RunResult:
         s, dt = self.safety, self.dt

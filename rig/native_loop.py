@@ -40,6 +40,7 @@ lock and with it the interpreter's pauses (see ``docs/rig.md``).
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import errno
 import os
@@ -133,8 +134,23 @@ int pp_rig_start(double setpoint, double pv, double u0, const double* params, do
 """
 
 
+_STARTS: dict[Any, ctypes.CDLL] = {}
+
+
 def start_library(model: ControllerModel) -> ctypes.CDLL:
-    """``pp_rig_start``: :meth:`ControllerModel.start` compiled, for controllers of ``model``'s structure."""
+    """``pp_rig_start``: :meth:`ControllerModel.start` compiled, for controllers of ``model``'s structure
+    (generated once per structure in a process, from the disk cache after the first build)."""
+    try:
+        return _STARTS[model]
+    except (KeyError, TypeError):
+        pass
+    lib = _start_library(model)
+    with contextlib.suppress(TypeError):
+        _STARTS[model] = lib
+    return lib
+
+
+def _start_library(model: ControllerModel) -> ctypes.CDLL:
     init, _ = controller_functions(model, prefix="pp_rig_start")
     source = native.generate([init], "pp_rig_start") + _START.format(
         sz_arg=max(int(init.sz_arg()), 4), sz_res=max(int(init.sz_res()), 1), iw=max(int(init.sz_iw()), 1),
@@ -192,15 +208,17 @@ class NativeLoop:
     setpoint per sample; ``limits`` a dict of the interlock numbers (see
     :meth:`Executor._native_limits <piezopreload.rig.executor.Executor>`); ``backend`` a dict
     made by the backend's ``native_backend()``. ``ring_s`` seconds of samples fit the ring.
+    ``step_fn``: the loaded ``pp_rig_step`` of ``controller``'s structure (a
+    :class:`~piezopreload.rig.compiled.CompiledStep`'s), else it is loaded here.
     """
 
     def __init__(self, controller: Controller, reference: np.ndarray, limits: dict[str, float], backend: dict[str, Any],
                  *, realtime: bool, hold: bool, faults: list[tuple[int, float, float, float]] = (),  # type: ignore[assignment]
-                 ring_s: float = 30.0, fifo_priority: int = 80, spin_us: float = 0.0) -> None:
+                 ring_s: float = 30.0, fifo_priority: int = 80, spin_us: float = 0.0, step_fn: Any = None) -> None:
         self._lib = loop_library()
         self.controller = controller
         self._model = controller.model
-        step = step_library(self._model).pp_rig_step
+        step = step_library(self._model).pp_rig_step if step_fn is None else step_fn
         start = start_library(self._model).pp_rig_start
         self._keep: list[Any] = []  # every buffer the thread points into lives as long as this object
         self._mem = ctypes.create_string_buffer(int(self._lib.pp_loop_sizeof()))
