@@ -777,7 +777,8 @@ def _cmd_rig_push(args: argparse.Namespace) -> dict[str, Any]:
 def _print_rig_run(s: dict[str, Any]) -> None:
     m, t = s["metrics"], s["timing"]
     print(f"{s['status']}: {s['cycles']} cycles at {s['rate_Hz']:g} Hz on '{s['backend']}' "
-          f"({'real time' if s['realtime'] else 'as fast as possible'}), controller step in {s['controller_step']}")
+          f"({'real time' if s['realtime'] else 'as fast as possible'}), controller step in {s['controller_step']}, "
+          f"{s.get('loop') or 'python'} loop")
     if s["trip"]:
         print(f"stopped by interlock '{s['trip']['cause']}' at t = {s['trip']['t_s']:.3f} s: {s['trip']['detail']}")
     if "settling_s" in m:
@@ -785,7 +786,8 @@ def _print_rig_run(s: dict[str, Any]) -> None:
               f"overshoot {_fmt(m['overshoot_N'], ' N')}; tracking RMS {m['tracking_rms_N']:.3g} N")
     if t["realtime"]:
         print(f"timing: {t['missed_deadlines']} missed deadlines, lateness p99 {t['lateness_p99_s'] * 1e6:.0f} us, "
-              f"max {t['lateness_max_s'] * 1e3:.2f} ms")
+              f"max {t['lateness_max_s'] * 1e3:.2f} ms, {t.get('lost_samples', 0)} samples lost"
+              + (f"; {t['sched_fifo']}; {t['memory_locked']}" if "sched_fifo" in t else ""))
     for p in s.get("pushes", []):
         print(f"push by {p['user']}: {'accepted' if p['accepted'] else 'refused'} "
               f"{p.get('gain_set_sha256', '')[:12]} {p.get('reason', '')}")
