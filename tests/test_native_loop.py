@@ -3,7 +3,6 @@ the C-ABI backend, the watchdog when the supervisor is killed, references refuse
 
 import ctypes
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -256,12 +255,13 @@ def test_reference_beyond_the_safe_range_is_refused_before_arming(gains_path, tm
     (["rig", "run", "G", "--inject", "bogus@1"], "unknown fault 'bogus'"),
     (["rig", "run", "G", "--missed-streak", "0"], "--missed-streak"),
     (["rig", "run", "G", "--loop", "fortran"], "--loop"),
-    (["identify", "--operators", "100000"], "--operators 100000: at most"),
+    (["identify", "--operators", "100000"], "or at most 5368 operators"),  # the memory bound is the tighter
 ])
 def test_bad_arguments_exit_2_with_what_is_allowed(gains_path, tmp_path, capsys, argv, words):
     argv = [str(gains_path) if a == "G" else a for a in argv]
     assert main([*argv, *(["--log-dir", str(tmp_path)] if argv[0] == "rig" else [])]) == 2
-    assert words in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert words in err and err.startswith("error: "), err
 
 
 def test_interlock_limits_come_from_safety_once(study):
@@ -273,5 +273,12 @@ def test_interlock_limits_come_from_safety_once(study):
     assert s.streak_limit("python") == 50
 
 
-if os.environ.get("PIEZOPRELOAD_ENGINE") == "numpy":  # pragma: no cover
-    pytestmark = pytest.mark.skip(reason="PIEZOPRELOAD_ENGINE=numpy: no compiled code, so no native loop")
+
+def test_operators_beyond_the_memory_bound_are_refused_before_allocating(monkeypatch, capsys):
+    """With the bound at ten operators' matrix for the shipped record, 40 operators are refused by it."""
+    from piezopreload.tuning import holdout
+
+    monkeypatch.setattr(holdout, "MAX_MATRIX_BYTES", 8 * 50_001 * 10)
+    assert main(["identify", "--operators", "40"]) == 2
+    err = capsys.readouterr().err
+    assert "--operators 40: at most 10" in err and "GiB" in err, err

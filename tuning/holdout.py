@@ -94,14 +94,15 @@ def check_operators(operators: int, n_train: int, n_samples: int, shown: str) ->
     term's), and the operators' outputs over the record are a ``n_samples x operators`` matrix
     of doubles, held to :data:`MAX_MATRIX_BYTES`.
     """
-    by_samples = n_train // 2 - 2
+    by_samples = n_train // 2 - 1
     by_memory = MAX_MATRIX_BYTES // (8 * max(n_samples, 1))
-    allowed = min(by_samples, by_memory)
-    if operators > allowed:
-        why = (f"the training window has {n_train} samples (two per weight)" if allowed == by_samples else
-               f"the {n_samples} samples' operator matrix would pass {MAX_MATRIX_BYTES / 1024**3:g} GiB")
-        raise InputError(f"--operators {operators}: at most {max(allowed, 0)} for {shown} ({why}); use fewer "
-                         "operators or a longer training window")
+    if operators > by_samples:
+        raise InputError(f"--operators {operators}: the training window of {shown} has {n_train} samples for "
+                         f"{operators + 1} weights; give at least {2 * (operators + 1)} (two per weight): a longer "
+                         f"training window, or at most {max(min(by_samples, by_memory), 0)} operators")
+    if operators > by_memory:
+        raise InputError(f"--operators {operators}: at most {by_memory} for {shown}: the {n_samples} samples' operator "
+                         f"matrix would pass {MAX_MATRIX_BYTES / 1024**3:g} GiB; use fewer operators")
 
 
 def identify_record(record: Record, *, model: str = "classical", operators: int = 40, train: Window | None = None,
