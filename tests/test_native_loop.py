@@ -88,13 +88,22 @@ def test_each_interlock_acts_inside_the_native_loop_as_in_the_python_loop(gains_
 def test_streak_of_five_missed_deadlines_stops_the_native_loop(gains_path, tmp_path):
     """A stalled backend (3 ms per read from 0.05 s): five misses in a row trip, the native loop's default limit.
 
-    The stall starts early: a loaded shared host stalls the whole process for 5-30 ms now and
-    then (a genuine trip of the same interlock, but not the one this test injects)."""
-    r, log = _run(gains_path, tmp_path, "native", [Fault("delay", 0.05, 0.003)], realtime=True, ramp_s=0.05)
-    assert r["trip"]["cause"] == "deadline" and r["timing"]["missed_streak_limit"] == 5
-    assert log["missed"][log["mode"] == 0][-5:].tolist() == [1] * 5
+    A loaded shared host stalls the whole process for 5-30 ms now and then, which trips the same
+    interlock before the injected stall (twice in 34 runs here): such a run must show the
+    host's stall (five cycles late by a period or more, none of them slow to compute) and is
+    run again, up to three times."""
+    for attempt in range(3):
+        r, log = _run(gains_path, tmp_path / str(attempt), "native", [Fault("delay", 0.05, 0.003)], realtime=True,
+                      ramp_s=0.05)
+        assert r["trip"]["cause"] == "deadline" and r["timing"]["missed_streak_limit"] == 5
+        control = log["mode"] == 0
+        assert log["missed"][control][-5:].tolist() == [1] * 5
+        if r["trip"]["t_s"] >= 0.05:
+            break
+        assert np.all(log["compute_s"][control][-5:] < 0.003), "an early trip by the injected stall"
     assert r["timing"]["missed_deadlines"] >= 5 and log["voltage_V"][-1] == 0.0
     assert 0.05 <= r["trip"]["t_s"] <= 0.05 + 6 * DT + 0.05, r["trip"]  # five late cycles after the stall began
+    assert np.all(log["compute_s"][control][-5:] >= 0.003), "the trip is not the injected stall's"
 
 
 def _controller(Kc=0.5, Ti_s=0.05):
