@@ -638,28 +638,28 @@ HysteresisModel = ClassicalPI | AsymmetricPI | ModifiedPI
 
 
 def model_from_dict(data: dict[str, Any], where: str = "model") -> HysteresisModel | CreepPI:
-    """Rebuild a model from :meth:`to_dict` output; errors name the offending field.
+    """Rebuild a model from :meth:`to_dict` output; errors (:class:`InputError`, a ValueError) name the field.
 
     A kind ending in ``+creep`` (``"classical+creep"``, ...) is a :class:`CreepPI`: the
     hysteresis model's fields plus a ``creep`` object. Documents written before creep existed
     read as they did.
     """
     if not isinstance(data, dict):
-        raise ValueError(f"{where} must be an object, got {type(data).__name__}.")
+        raise InputError(f"{where} must be an object, got {type(data).__name__}.")
     kind = data.get("kind")
     if isinstance(kind, str) and kind.endswith(_CREEP_SUFFIX) and kind[: -len(_CREEP_SUFFIX)] in _FIELDS:
         return _creep_model_from_dict(data, kind, where)
-    if kind not in _FIELDS:
+    if not isinstance(kind, str) or kind not in _FIELDS:
         kinds = sorted(_FIELDS) + sorted(k + _CREEP_SUFFIX for k in _FIELDS)
-        raise ValueError(f"{where}.kind must be one of {kinds}, got {kind!r}.")
+        raise InputError(f"{where}.kind must be one of {kinds}, got {kind!r}.")
     cls, names = _FIELDS[kind]
     missing = [n for n in names if n not in data]
     if missing:
-        raise ValueError(f"{where}.{missing[0]} is missing (a {kind} model needs {', '.join(names)}).")
+        raise InputError(f"{where}.{missing[0]} is missing (a {kind} model needs {', '.join(names)}).")
     try:
         return cls(**{n: data[n] for n in names})
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{where}: {exc}") from None
+        raise InputError(f"{where}: {exc}") from None
 
 
 # --------------------------------------------------------------------------------------

@@ -746,7 +746,7 @@ def _rig_common(args: argparse.Namespace) -> dict[str, Any]:
 
     return {"backend": args.backend, "backend_options": _key_values(args.backend_option, "--backend-option"),
             "reference": args.reference or "step", "log_dir": args.log_dir, "seed": args.seed,
-            "faults": [parse_fault(f) for f in args.inject or []],
+            "faults": [parse_fault(f) for f in args.inject or []], "loop": args.loop,
             "safety": {"force_max_N": args.force_max_N, "ramp_s": args.ramp_s, "missed_streak": args.missed_streak}}
 
 
@@ -781,7 +781,12 @@ def _rig_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="noise seed of the simulated rig (default 0)")
     p.add_argument("--force-max-N", type=float, help="interlock: highest force (default 150 N)")
     p.add_argument("--ramp-s", type=float, help="interlock: time to ramp the voltage down on a stop (default 0.5 s)")
-    p.add_argument("--missed-streak", type=int, help="interlock: missed deadlines in a row that stop the run (default 50)")
+    p.add_argument("--missed-streak", type=_positive_int,
+                   help="interlock: missed deadlines in a row that stop the run (default 5 on the native loop, 50 on "
+                        "the Python loop)")
+    p.add_argument("--loop", choices=("auto", "native", "python"), default="auto",
+                   help="the fixed-rate loop: native (a C thread; the simulated rig or a C-ABI library backend), "
+                        "python (the interpreter; any backend), auto (native where it can run, default)")
     p.add_argument("--inject", action="append", metavar="KIND@T_S[=VALUE][/DURATION_S]",
                    help="fire drill: inject a fault into the backend at T_S (repeatable); KIND: "
                         + "; ".join(f"{k}: {v}" for k, v in FAULT_KINDS.items()))
@@ -878,7 +883,8 @@ def _cmd_rig_push(args: argparse.Namespace) -> dict[str, Any]:
 def _print_rig_run(s: dict[str, Any]) -> None:
     m, t = s["metrics"], s["timing"]
     print(f"{s['status']}: {s['cycles']} cycles at {s['rate_Hz']:g} Hz on '{s['backend']}' "
-          f"({'real time' if s['realtime'] else 'as fast as possible'}), controller step in {s['controller_step']}")
+          f"({'real time' if s['realtime'] else 'as fast as possible'}), controller step in {s['controller_step']}, "
+          f"{s.get('loop') or 'python'} loop")
     if s["trip"]:
         print(f"stopped by interlock '{s['trip']['cause']}' at t = {s['trip']['t_s']:.3f} s: {s['trip']['detail']}")
     if "settling_s" in m:
@@ -886,7 +892,8 @@ def _print_rig_run(s: dict[str, Any]) -> None:
               f"overshoot {_fmt(m['overshoot_N'], ' N')}; tracking RMS {m['tracking_rms_N']:.3g} N")
     if t["realtime"]:
         print(f"timing: {t['missed_deadlines']} missed deadlines, lateness p99 {t['lateness_p99_s'] * 1e6:.0f} us, "
-              f"max {t['lateness_max_s'] * 1e3:.2f} ms")
+              f"max {t['lateness_max_s'] * 1e3:.2f} ms, {t.get('lost_samples', 0)} samples lost"
+              + (f"; {t['sched_fifo']}; {t['memory_locked']}" if "sched_fifo" in t else ""))
     for p in s.get("pushes", []):
         print(f"push by {p['user']}: {'accepted' if p['accepted'] else 'refused'} "
               f"{p.get('gain_set_sha256', '')[:12]} {p.get('reason', '')}")

@@ -45,22 +45,30 @@ runs on it. :class:`FaultInjector` wraps any backend to test the interlocks (fir
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import math
 import os
 import signal
+import subprocess
+import sys
+import tempfile
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from importlib.metadata import entry_points
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
 from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Rig, RigParams
+from piezopreload.rig import watchdog
 from piezopreload.rig.compiled import PlantStep
+from piezopreload.rig.watchdog import SharedDAQ
 
-__all__ = ["Reading", "Backend", "SimBackend", "Fault", "FaultInjector", "FAULT_KINDS", "ENTRY_POINT_GROUP",
+__all__ = ["Reading", "Backend", "SimBackend", "CLibraryBackend", "Fault", "FaultInjector", "FAULT_KINDS", "ENTRY_POINT_GROUP",
            "BackendError", "available_backends", "open_backend", "parse_fault"]
 
 ENTRY_POINT_GROUP = "piezopreload.rig_backends"
@@ -96,33 +104,79 @@ class SimBackend:
     Each :meth:`write_voltage` advances the plant by one sample period, whatever the wall
     clock did, so a run is the same whether the executor paces it in real time or runs it as
     fast as it can; for the same plant, gains and seed it is :func:`models.closedloop.simulate`.
+
+    With ``watchdog_s`` the backend also models the rig's DAQ and watchdog relay
+    (:mod:`piezopreload.rig.watchdog`): every write is held in a shared mapping at ``daq_path``
+    (a temporary file by default), the loop's :meth:`heartbeat` counts there, and a watchdog
+    process opens the relay (0 V at the stacks) when the heartbeat stops for ``watchdog_s``,
+    also when the supervising process has been killed.
     """
 
     name = "sim"
     #: a simulation may run back to back (``rig run --fast``); a backend without this runs in real time
     simulated = True
 
-    def __init__(self, plant: RigParams, seed: int = 0) -> None:
+    def __init__(self, plant: RigParams, seed: int = 0, *, watchdog_s: float | None = None,
+                 daq_path: str | None = None) -> None:
         if plant.batch_shape:
             raise ValueError("the simulated backend runs one plant, not a batch")
+        if watchdog_s is not None and not (math.isfinite(watchdog_s) and 0.002 <= watchdog_s <= 60.0):
+            raise ValueError(f"watchdog_s must be 0.002..60 s, got {watchdog_s!r}")
         self.rig = Rig(plant)
         self.seed = int(seed)
         self.plant = PlantStep(plant)  # the plant step of models/actuator, compiled where a compiler works
         self._rng = np.random.default_rng(self.seed)
+        self.watchdog_s = watchdog_s
+        self.daq: SharedDAQ | None = None
+        self._watchdog: subprocess.Popen | None = None
+        self._own_path = False
+        if watchdog_s is not None:
+            if daq_path is None:
+                fd, daq_path = tempfile.mkstemp(prefix="piezopreload-daq-", dir="/dev/shm" if os.path.isdir("/dev/shm") else None)
+                os.close(fd)
+                self._own_path = True
+            self.daq = SharedDAQ(daq_path, create=True)
 
     @property
     def sample_period_s(self) -> float:
         return self.rig.dt_s
 
+    def _start_watchdog(self) -> None:
+        if self.daq is None or self.watchdog_s is None:
+            return
+        if self._watchdog is not None and self._watchdog.poll() is None:
+            return
+        self.daq.set("ready", 0)
+        self._watchdog = subprocess.Popen([sys.executable, str(Path(watchdog.__file__)), self.daq.path,
+                                           repr(float(self.watchdog_s))], start_new_session=True,
+                                          stdin=subprocess.DEVNULL)
+        t_end = time.monotonic() + 10.0
+        while not self.daq.get("ready"):
+            if time.monotonic() > t_end or self._watchdog.poll() is not None:
+                raise BackendError(f"the simulated watchdog did not start (exit {self._watchdog.poll()})")
+            time.sleep(0.005)
+
     def arm(self) -> None:
         self._rng = np.random.default_rng(self.seed)
         self.plant.reset()
+        if self.daq is not None:
+            self.daq.set("output_V", 0.0)
+            self.daq.set("relay_open", 0)  # the relay closes on arming (a watchdog relay's reset)
+            self._start_watchdog()
+            self.daq.set("armed", 1)
 
     def read_force(self, t_s: float) -> Reading:
         return Reading(self.plant.read(float(self._rng.standard_normal()))[1], t_s)
 
     def write_voltage(self, volts: float) -> None:
         self.plant.write(volts)
+        if self.daq is not None:
+            self.daq.set("output_V", volts)
+
+    def heartbeat(self) -> None:
+        """The loop is alive (called once per cycle): the watchdog's heartbeat counts up."""
+        if self.daq is not None:
+            self.daq.set("heartbeat", self.daq.get("heartbeat") + 1)
 
     @property
     def amplifier_V(self) -> float:
@@ -135,7 +189,112 @@ class SimBackend:
         return self.plant.read(0.0)[0]
 
     def disarm(self) -> None:
-        pass
+        if self.daq is not None:
+            self.daq.set("output_V", 0.0)
+            self.daq.set("armed", 0)
+
+    def native_backend(self, n_noise: int) -> dict[str, Any] | None:
+        """What the native loop needs to run this plant itself: the compiled plant step's entry points,
+        its state and parameters, ``n_noise`` draws of the backend's noise (the Python loop's draws) and
+        the DAQ's shared words; None where the plant step is not compiled."""
+        if self.plant.kind != "c":
+            return None
+        noise = np.random.default_rng(self.seed).standard_normal(int(n_noise))
+        out: dict[str, Any] = {
+            "kind": 0, "plant_read": ctypes.cast(self.plant._read, ctypes.c_void_p).value,
+            "plant_write": ctypes.cast(self.plant._write, ctypes.c_void_p).value,
+            "plant_state": self.plant._x.ctypes.data, "plant_params": self.plant._p.ctypes.data,
+            "noise": noise.ctypes.data, "n_noise": noise.size, "_keep": noise,
+        }
+        if self.daq is not None:
+            base = ctypes.addressof(ctypes.c_char.from_buffer(self.daq.mm))
+            out["heartbeat"] = base + watchdog.FIELDS["heartbeat"][0]
+            out["daq_V"] = base + watchdog.FIELDS["output_V"][0]
+        return out
+
+    def close(self) -> None:
+        """Stop the watchdog (the relay stays as it is) and remove a DAQ file this backend made."""
+        if self._watchdog is not None and self.daq is not None:
+            self.daq.set("quit", 1)
+            try:
+                self._watchdog.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:
+                self._watchdog.kill()
+            self._watchdog = None
+        if self._own_path and self.daq is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(self.daq.path)
+
+
+class CLibraryBackend:
+    """A hardware backend as a shared library with a small C ABI, which the native loop calls directly.
+
+    The library exports (0 on success, anything else stops the run with cause ``exception``)::
+
+        int arm(void);                                  /* ready to write; the stacks at 0 V */
+        int read_force(double t_s, double* force_N, double* sample_t_s);
+        int write_voltage(double volts);
+        int disarm(void);                               /* outputs off, safe to leave */
+        int heartbeat(int level);                       /* optional: the watchdog's digital output */
+
+    ``t_s`` and ``sample_t_s`` are on the run's timeline, as :class:`Reading`'s. The functions
+    are called from the loop's thread only, one at a time, inside the cycle: they must not
+    block longer than the cycle allows. ``heartbeat`` is called once per cycle with 0 and 1 in
+    turn (a square wave at half the loop's rate for a watchdog relay; see ``docs/rig.md``).
+    The Python loop calls the same functions through ctypes.
+    """
+
+    def __init__(self, path: str, name: str | None = None) -> None:
+        try:
+            self.lib = ctypes.CDLL(str(path))
+        except OSError as exc:
+            raise BackendError(f"--backend-option library={path}: cannot load it: {exc}") from None
+        missing = [f for f in ("arm", "read_force", "write_voltage", "disarm") if not hasattr(self.lib, f)]
+        if missing:
+            raise BackendError(f"--backend-option library={path}: the library lacks '{missing[0]}' of the C ABI "
+                               "(arm, read_force, write_voltage, disarm; see piezopreload.rig.backends.CLibraryBackend)")
+        self.path = str(path)
+        self.name = name or f"clib:{Path(path).name}"
+        lib = self.lib
+        lib.arm.restype = lib.disarm.restype = lib.read_force.restype = lib.write_voltage.restype = ctypes.c_int
+        lib.arm.argtypes = lib.disarm.argtypes = []
+        lib.read_force.argtypes = [ctypes.c_double, ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_double)]
+        lib.write_voltage.argtypes = [ctypes.c_double]
+        self._heartbeat = getattr(lib, "heartbeat", None) if hasattr(lib, "heartbeat") else None
+        if self._heartbeat is not None:
+            self._heartbeat.restype, self._heartbeat.argtypes = ctypes.c_int, [ctypes.c_int]
+        self._level = 0
+        self._f, self._t = ctypes.c_double(), ctypes.c_double()
+
+    def _check(self, rc: int, what: str) -> None:
+        if rc:
+            raise RuntimeError(f"the backend's {what} returned {rc}")
+
+    def arm(self) -> None:
+        self._check(self.lib.arm(), "arm")
+
+    def read_force(self, t_s: float) -> Reading:
+        self._check(self.lib.read_force(t_s, ctypes.byref(self._f), ctypes.byref(self._t)), "read_force")
+        return Reading(self._f.value, self._t.value)
+
+    def write_voltage(self, volts: float) -> None:
+        self._check(self.lib.write_voltage(volts), "write_voltage")
+
+    def heartbeat(self) -> None:
+        if self._heartbeat is not None:
+            self._heartbeat(self._level)
+            self._level ^= 1
+
+    def disarm(self) -> None:
+        self._check(self.lib.disarm(), "disarm")
+
+    def native_backend(self, n_noise: int) -> dict[str, Any]:
+        """The library's entry points for the native loop (which calls arm and disarm itself)."""
+        def address(fn: Any) -> int | None:
+            return None if fn is None else ctypes.cast(fn, ctypes.c_void_p).value
+        return {"kind": 1, "hw_arm": address(self.lib.arm), "hw_read": address(self.lib.read_force),
+                "hw_write": address(self.lib.write_voltage), "hw_disarm": address(self.lib.disarm),
+                "hw_heartbeat": address(self._heartbeat)}
 
 
 FAULT_KINDS = {
@@ -233,8 +392,8 @@ def _plugins() -> dict[str, Any]:
 
 
 def available_backends() -> list[str]:
-    """``sim`` and every installed plug-in's name."""
-    return ["sim", *sorted(n for n in _plugins() if n != "sim")]
+    """``sim``, ``clib`` (a library with the C ABI) and every installed plug-in's name."""
+    return ["sim", "clib", *sorted(n for n in _plugins() if n not in ("sim", "clib"))]
 
 
 def open_backend(name: str, options: Mapping[str, str] | None = None, *, plant: RigParams | None = None,
@@ -244,13 +403,24 @@ def open_backend(name: str, options: Mapping[str, str] | None = None, *, plant: 
     if name == "sim":
         if plant is None:
             raise BackendError("the simulated backend needs a plant: the gain set's 'plant.rig' or a study's [rig]")
-        unknown = sorted(set(options) - {"seed"})
+        unknown = sorted(set(options) - {"seed", "watchdog_s", "daq"})
         if unknown:
-            raise BackendError(f"--backend-option {unknown[0]}: the simulated backend takes only 'seed'")
+            raise BackendError(f"--backend-option {unknown[0]}: the simulated backend takes only 'seed', 'watchdog_s' "
+                               "and 'daq'")
+        key = "seed"
         try:
-            return SimBackend(plant, int(options.get("seed", seed)))
-        except ValueError as exc:
-            raise BackendError(f"--backend-option seed: {exc}") from None
+            seed = int(options.get("seed", seed))
+            key = "watchdog_s"
+            wd = float(options["watchdog_s"]) if "watchdog_s" in options else None
+            key = "daq"
+            return SimBackend(plant, seed, watchdog_s=wd, daq_path=options.get("daq"))
+        except (ValueError, OSError) as exc:
+            raise BackendError(f"--backend-option {key}={options.get(key)!r}: {exc}") from None
+    if name == "clib":
+        if set(options) != {"library"}:
+            raise BackendError("the backend 'clib' takes one option, library=PATH (a shared library with the C ABI "
+                               "of piezopreload.rig.backends.CLibraryBackend)")
+        return CLibraryBackend(options["library"])
     plugins = _plugins()
     if name not in plugins:
         raise BackendError(f"backend '{name}' is not installed; installed: {', '.join(available_backends())}. "

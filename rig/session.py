@@ -25,7 +25,7 @@ import numpy as np
 
 from piezopreload.core.errors import InputError
 from piezopreload.core.tables import read_table
-from piezopreload.models.actuator import RigParams
+from piezopreload.models.actuator import Rig, RigParams, reach_N
 from piezopreload.models.closedloop import PAPER_BAND_N, ClosedLoopRun, Reference
 from piezopreload.models.controller import Controller
 from piezopreload.models.gainset import REFERENCES, GainSet
@@ -37,7 +37,7 @@ from piezopreload.rig.export import ExportError, controller_from_gain_set
 from piezopreload.rig.opcua import PushRefused, RigServer, feedforward_hash, push_gain_set
 from piezopreload.rig.runlog import RunLog
 
-__all__ = ["EXIT_TRIPPED", "RigRun", "load_validated", "reference_for", "interlocks", "run_metrics", "run", "serve",
+__all__ = ["EXIT_TRIPPED", "RigRun", "load_validated", "reference_for", "check_reference", "interlocks", "run_metrics", "run", "serve",
            "push", "check_pushed"]
 
 #: the exit code of a run that an interlock (or a signal) stopped
@@ -100,6 +100,34 @@ def reference_for(spec: str, gain_set: GainSet, shown: str | Path = "the gain se
     if t[0] != 0.0:
         raise InputError(f"{spec}: the first row's time_s is {t[0]!r}; the reference must start at 0")
     return Reference(t, f, float(t[-1] + (t[-1] - t[-2]))), str(path)
+
+
+def check_reference(reference: Reference, shown: str, limits: Safety, plant: RigParams | None) -> None:
+    """Refuse, before arming, a reference outside the interlocks' force range or the plant's reach.
+
+    A level must lie strictly inside the force interlocks (above the bolt preload less the
+    margin, below ``force_max_N``: at either limit the run would trip at once), and, with the
+    gain set's plant, within what its stacks reach over their voltage range (creep
+    settled, :func:`~piezopreload.models.actuator.reach_N`). A CSV's level is named by its line
+    (the header is line 1).
+    """
+    lo, hi = limits.force_low_N, limits.force_max_N
+    reach: tuple[float, float] | None = None
+    if plant is not None:
+        rig = Rig(plant)
+        tol = 3.0 * plant.adc_lsb_N
+        v_lo, v_hi = plant.stack.v_min_V, plant.stack.v_max_V
+        reach = (float(reach_N(rig, v_lo)) - tol, float(reach_N(rig, v_hi)) + tol)
+    csv = shown.lower().endswith(".csv")
+    for j, level in enumerate(reference.levels_N.tolist()):
+        where = f"{shown}:{j + 2}: field 'force_N'" if csv else f"the reference '{shown}', level {j + 1}"
+        if not math.isfinite(level) or not lo < level < hi:
+            raise InputError(f"{where}: {level:g} N is outside the rig's safe force range ({lo:g} N, {hi:g} N) "
+                             "(the bolt preload less the margin, force_max_N); refused before arming")
+        if reach is not None and not reach[0] <= level <= reach[1]:
+            raise InputError(f"{where}: {level:g} N is beyond what the gain set's plant reaches between "
+                             f"its stacks' {v_lo:g} V and {v_hi:g} V ({reach[0]:.4g}..{reach[1]:.4g} N); "
+                             "refused before arming")
 
 
 def interlocks(controller: Controller, plant: RigParams | None, overrides: dict[str, float | None] | None = None) -> Safety:
@@ -208,6 +236,7 @@ def _setup(gains_path: str | Path, backend: str, backend_options: dict[str, str]
     else:
         ref, ref_name = reference_for(reference or "step", gain_set, gains_path)
     limits = interlocks(controller, gain_set.plant if backend == "sim" else None, safety)
+    check_reference(ref, ref_name, limits, gain_set.plant)
     try:
         rig = open_backend(backend, backend_options, plant=gain_set.plant, seed=seed)
     except BackendError as exc:
@@ -237,7 +266,8 @@ def _summary(result: RunResult, log: RunLog, su: _Setup, info: dict[str, Any]) -
     summary = {
         "status": result.status, "exit_code": 0 if result.ok else EXIT_TRIPPED,
         "trip": None if result.trip is None else result.trip.__dict__,
-        "cycles": result.cycles, "controller_step": result.controller_step, "timing": result.timing,
+        "cycles": result.cycles, "controller_step": result.controller_step, "loop": result.timing.get("loop"),
+        "timing": result.timing,
         "clamped_cycles": result.clamped_cycles, "metrics": run_metrics(columns, su.reference, su.band_N),
         "log_csv": result.csv_path, "log_json": result.json_path,
         **{k: info[k] for k in ("gain_set", "gain_set_sha256", "feedforward_sha256", "backend", "reference",
@@ -266,23 +296,37 @@ def _learned_metrics(columns: dict[str, np.ndarray], signal: LearnedSignal) -> d
 def run(gains_path: str | Path, *, backend: str = "sim", backend_options: dict[str, str] | None = None,
         reference: str | None = "step", rate_Hz: float | None = None, realtime: bool = True, log_dir: str | Path = "runs",
         faults: list[Fault] | None = None, safety: dict[str, float | None] | None = None, seed: int = 0,
-        step: str = "c", learned: str | Path | None = None) -> RigRun:
+        step: str = "c", learned: str | Path | None = None, loop: str = "auto") -> RigRun:
     """Run a validated gain set on a backend (see ``piezopreload rig run``); the log goes to ``log_dir``.
 
     ``learned`` (a learned-signal artifact, :class:`~piezopreload.models.learned.LearnedSignal`)
     plays back a learned signal: its setpoint (the plan) is the run's reference and its
-    ``ff_extra_V`` is added to the feedforward. It must have been learned with this gain set and
-    on this reference (``reference=None``: its own); the run's log gives the next learning
-    iteration (``piezopreload learn --from-run LOG``).
+    ``ff_extra_V`` is added to the feedforward (on the Python loop: the native one has no such
+    input yet). It must have been learned with this gain set and on this reference
+    (``reference=None``: its own); the run's log gives the next learning iteration
+    (``piezopreload learn --from-run LOG``). ``loop``: ``auto``, ``native`` or ``python``.
     """
     su = _setup(gains_path, backend, backend_options, reference, rate_Hz, realtime, faults, safety, seed, learned)
     log = RunLog(log_dir, (su.gain_set.content_sha256 or "")[:12], su.info)
-    if su.learned is not None:
-        executor = Executor(su.controller, su.backend, su.learned.setpoint, su.safety, realtime=realtime, log=log,
-                            step=step, ff_extra_V=su.learned.ff_extra_V)
-    else:
-        executor = Executor(su.controller, su.backend, su.reference, su.safety, realtime=realtime, log=log, step=step)
-    return _summary(executor.run(), log, su, su.info)
+    try:
+        if su.learned is not None:
+            executor = Executor(su.controller, su.backend, su.learned.setpoint, su.safety, realtime=realtime, log=log,
+                                step=step, ff_extra_V=su.learned.ff_extra_V, loop=loop)
+        else:
+            executor = Executor(su.controller, su.backend, su.reference, su.safety, realtime=realtime, log=log,
+                                step=step, loop=loop)
+        return _summary(executor.run(), log, su, su.info)
+    except ValueError as exc:
+        log.close("not started", {"reason": str(exc)})
+        raise InputError(f"--loop {loop}: {exc}") from None
+    finally:
+        _close(su.backend)
+
+
+def _close(backend: Any) -> None:
+    close = getattr(backend.inner if isinstance(backend, FaultInjector) else backend, "close", None)
+    if callable(close):
+        close()
 
 
 #: a served run keeps this long of its samples in memory for its metrics (the log has them all)
@@ -293,7 +337,7 @@ def serve(gains_path: str | Path, *, endpoint: str, users: dict[str, str], certi
           private_key: str | None = None, backend: str = "sim", backend_options: dict[str, str] | None = None,
           reference: str = "step", log_dir: str | Path = "runs", faults: list[Fault] | None = None,
           safety: dict[str, float | None] | None = None, seed: int = 0, duration_s: float | None = None,
-          ready: Any = None, stop: Any = None, say: Any = None) -> RigRun:
+          ready: Any = None, stop: Any = None, say: Any = None, loop: str = "auto") -> RigRun:
     """Run a validated gain set in real time and serve it over OPC UA until SIGINT/SIGTERM or ``duration_s``.
 
     The reference's last level is held after its end. A push of another validated gain set
@@ -304,16 +348,21 @@ def serve(gains_path: str | Path, *, endpoint: str, users: dict[str, str], certi
     info = {**su.info, "endpoint": endpoint, "users": sorted(users), "served": True}
     log = RunLog(log_dir, (su.gain_set.content_sha256 or "")[:12], info,
                  keep_rows=int(SERVE_KEEP_S / su.controller.dt_s))
-    executor = Executor(su.controller, su.backend, su.reference, su.safety, realtime=True, hold=True, log=log)
     try:
+        executor = Executor(su.controller, su.backend, su.reference, su.safety, realtime=True, hold=True, log=log,
+                            loop=loop)
         server = RigServer(executor, check_pushed, identity=_identity(su.gain_set), endpoint=endpoint,
                            users=users, certificate=certificate, private_key=private_key)
     except (ValueError, OSError) as exc:
         log.close("not started", {"reason": str(exc)})
+        _close(su.backend)
         raise InputError(f"rig serve: {exc}") from None
     if say is not None:
         say(f"serving {endpoint} (log {log.csv_path}); stop with Ctrl-C")
-    out = _summary(asyncio.run(_serve(server, executor, duration_s, ready, stop)), log, su, info)
+    try:
+        out = _summary(asyncio.run(_serve(server, executor, duration_s, ready, stop)), log, su, info)
+    finally:
+        _close(su.backend)
     out.summary["pushes"] = server.pushes
     return out
 

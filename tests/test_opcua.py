@@ -24,6 +24,10 @@ from piezopreload.rig.runlog import read_run_log
 from piezopreload.rig.session import serve as serve_rig
 
 USER, PASSWORD = "operator", "correct horse"
+#: the host these tests run on (a shared 2-core VM) stalls even a SCHED_FIFO thread for 10-30 ms
+#: under load, which the native loop's default streak of 5 would stop; these tests are about the
+#: server, the deadline interlock has its own (tests/test_native_loop.py, tests/test_rig.py)
+STALLS_OK = {"missed_streak": 1000}
 
 
 def _free_port() -> int:
@@ -75,7 +79,7 @@ def test_serve_push_and_refusals(tmp_path, study, feedforward):
     ready, stop, out = threading.Event(), threading.Event(), {}
 
     def serve():
-        out["summary"] = serve_rig(first, endpoint=endpoint, users={USER: PASSWORD}, log_dir=tmp_path / "runs",
+        out["summary"] = serve_rig(first, endpoint=endpoint, users={USER: PASSWORD}, log_dir=tmp_path / "runs", safety=STALLS_OK,
                                    ready=ready, stop=stop).to_dict()
 
     server = threading.Thread(target=serve, daemon=True)
@@ -167,7 +171,7 @@ def test_basic256sha256_channel_with_a_password(tmp_path, study, feedforward):
     ready, stop, out = threading.Event(), threading.Event(), {}
 
     def serve():
-        out["summary"] = serve_rig(first, endpoint=endpoint, users={USER: PASSWORD}, log_dir=tmp_path / "runs",
+        out["summary"] = serve_rig(first, endpoint=endpoint, users={USER: PASSWORD}, log_dir=tmp_path / "runs", safety=STALLS_OK,
                                    certificate=str(tmp_path / "server.der"), private_key=str(tmp_path / "server.pem"),
                                    ready=ready, stop=stop).to_dict()
 

@@ -103,6 +103,28 @@ def _sample_period(record: Record) -> float:
     return dt
 
 
+#: the operators' matrix (samples x operators, float64) an identification may build
+MAX_MATRIX_BYTES = 2 * 1024**3
+
+
+def check_operators(operators: int, n_train: int, n_samples: int, shown: str) -> None:
+    """Refuse, before anything is allocated, more operators than the training window or the memory allow.
+
+    The QP needs at least two training samples per weight (the operators' and the linear
+    term's), and the operators' outputs over the record are a ``n_samples x operators`` matrix
+    of doubles, held to :data:`MAX_MATRIX_BYTES`.
+    """
+    by_samples = n_train // 2 - 1
+    by_memory = MAX_MATRIX_BYTES // (8 * max(n_samples, 1))
+    if operators > by_samples:
+        raise InputError(f"--operators {operators}: the training window of {shown} has {n_train} samples for "
+                         f"{operators + 1} weights; give at least {2 * (operators + 1)} (two per weight): a longer "
+                         f"training window, or at most {max(min(by_samples, by_memory), 0)} operators")
+    if operators > by_memory:
+        raise InputError(f"--operators {operators}: at most {by_memory} for {shown}: the {n_samples} samples' operator "
+                         f"matrix would pass {MAX_MATRIX_BYTES / 1024**3:g} GiB; use fewer operators")
+
+
 def identify_record(record: Record, *, model: str = "classical", operators: int = 40, train: Window | None = None,
                     test: Window | None = None, ridge: float = 0.0, creep: bool = False,
                     creep_time_constants_s: Any = None) -> HoldoutFit:
@@ -144,6 +166,7 @@ def identify_record(record: Record, *, model: str = "classical", operators: int 
     dt = _sample_period(record) if creep else None
     taus = "log" if creep_time_constants_s is None else creep_time_constants_s
     name = model + ("+creep" if creep else "")
+    check_operators(operators, int(rows["train"].sum()), record.input.size, f"{record.path}")
     try:
         est = PIIdentifier(model=model, n_operators=operators, ridge=ridge, creep=creep, creep_time_constants_s=taus)
         est.fit(record.input, record.output, train=rows["train"], sample_period_s=dt)

@@ -1,0 +1,383 @@
+/* piezopreload: the rig's fixed-rate loop in a native thread (see rig/native_loop.py).
+
+   One cycle k has the absolute deadline t0 + k dt on CLOCK_MONOTONIC; the thread sleeps to it
+   with clock_nanosleep(TIMER_ABSTIME), reads the force, checks it against the interlocks, runs
+   the compiled controller step, clamps and slew-limits the command, writes it, toggles the
+   heartbeat and puts the sample into a single-producer/single-consumer ring buffer that the
+   Python supervisor drains. Nothing in a cycle takes a lock, allocates or calls Python.
+
+   The interlocks are the executor's (rig/executor.py, class Safety): the same causes, in the
+   same order, with the same numbers. A stop ramps the voltage to the safe level at the loop's
+   rate and disarms. The numbers of the Python loop and of this one agree to the last bit for
+   a simulated run (tests/test_native_loop.py). */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <math.h>
+#include <pthread.h>
+#include <sched.h>
+#include <signal.h>
+#include <stdint.h>
+#include <string.h>
+#include <sys/mman.h>
+#include <sys/prctl.h>
+#include <time.h>
+#include <unistd.h>
+
+#define PP_COLS 14
+#define PP_MAX_FAULTS 16
+
+typedef int (*pp_step_fn)(double, double, double*, const double*, double*);
+typedef int (*pp_start_fn)(double, double, double, const double*, double*);
+typedef int (*pp_plant_read_fn)(const double*, const double*, double, double*);
+typedef int (*pp_plant_write_fn)(double*, const double*, double);
+typedef int (*hw_arm_fn)(void);
+typedef int (*hw_read_fn)(double, double*, double*);
+typedef int (*hw_write_fn)(double);
+typedef int (*hw_disarm_fn)(void);
+typedef int (*hw_heartbeat_fn)(int);
+
+/* fault kinds, as rig/backends.py FAULT_KINDS */
+enum { F_NAN = 1, F_STALE, F_OFFSET, F_READING, F_DELAY, F_RAISE, F_SIGNAL };
+/* trip causes: 1 + the index in rig/executor.py TRIP_CAUSES */
+enum { T_NONE = 0, T_FORCE_HIGH, T_FORCE_LOW, T_NAN, T_STALE, T_RANGE, T_DEADLINE, T_SIGNAL, T_COMMAND, T_EXCEPTION };
+/* where an exception came from */
+enum { X_ARM = 1, X_READ, X_WRITE, X_STEP, X_START, X_FAULT };
+
+typedef struct { int32_t kind, fired; double at_s, value, duration_s; } pp_fault;
+
+typedef struct {
+  /* ---- set before the start ---- */
+  double dt_s; int64_t n_ref; const double* ref; int32_t hold, realtime;
+  double v_min, v_max, slew_V_per_s, force_max, force_low, sensor_min, sensor_max, stale_after_s, ramp_s, safe_V;
+  int64_t missed_streak;
+  pp_step_fn step; pp_start_fn start; double* state; double* params[2];
+  int32_t backend; /* 0: the simulated plant, 1: a C-ABI library */
+  pp_plant_read_fn plant_read; pp_plant_write_fn plant_write; double* plant_state; const double* plant_params;
+  const double* noise; int64_t n_noise;
+  hw_arm_fn hw_arm; hw_read_fn hw_read; hw_write_fn hw_write; hw_disarm_fn hw_disarm; hw_heartbeat_fn hw_heartbeat;
+  uint64_t* heartbeat; double* daq_V; /* the simulated DAQ's shared memory, or NULL */
+  pp_fault faults[PP_MAX_FAULTS]; int32_t n_faults;
+  int32_t want_fifo, fifo_priority, want_mlock, spin_ns;
+  double* ring; int64_t ring_rows;
+  /* ---- shared: ring indices, requests ---- */
+  int64_t head, tail, lost;
+  int32_t active, taken;   /* the parameter buffer Python asks for; the one the loop runs */
+  int32_t stop, stop_signal; /* 1 trip (signal), 2 end completed */
+  /* ---- status, written by the loop ---- */
+  int32_t started, finished, fifo_errno, mlock_errno;
+  int64_t cycles, missed, clamped, switches;
+  double switch_t;
+  int32_t trip_cause, trip_where; double trip_t, trip_value;
+  double v_end, t_end; int32_t ramp_failed; double ramp_failed_t;
+  double latest_t, latest_sp, latest_y, latest_v; int32_t latest_mode; /* 0 running, 1 ramp, 2 done */
+  pthread_t thread;
+  /* ---- the loop's own ---- */
+  double last_force, last_sample_t; int64_t noise_k;
+} pp_loop;
+
+static int64_t now_ns(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return (int64_t)ts.tv_sec * 1000000000LL + ts.tv_nsec;
+}
+
+static void sleep_until(int64_t t_ns) {
+  struct timespec ts;
+  ts.tv_sec = t_ns / 1000000000LL;
+  ts.tv_nsec = t_ns % 1000000000LL;
+  while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR) {}
+}
+
+static int64_t wait_for(const pp_loop* L, int64_t deadline) {
+  int64_t t;
+  if (L->spin_ns > 0) {
+    if (deadline - now_ns() > L->spin_ns) sleep_until(deadline - L->spin_ns);
+    while ((t = now_ns()) < deadline) {}
+    return t;
+  }
+  sleep_until(deadline);
+  return now_ns();
+}
+
+static void push_row(pp_loop* L, const double* row) {
+  int64_t h = L->head, t;
+  for (;;) {
+    t = __atomic_load_n(&L->tail, __ATOMIC_ACQUIRE);
+    if (h - t < L->ring_rows) break;
+    if (L->realtime) { __atomic_add_fetch(&L->lost, 1, __ATOMIC_RELAXED); return; }
+    sleep_until(now_ns() + 200000); /* back to back: wait for the supervisor to drain */
+  }
+  memcpy(L->ring + (h % L->ring_rows) * PP_COLS, row, PP_COLS * sizeof(double));
+  __atomic_store_n(&L->head, h + 1, __ATOMIC_RELEASE);
+}
+
+static void log_row(pp_loop* L, int64_t* rows, double t, double sp, double y, double u, double v, double ff, double p,
+                    double i, double d, double period, double late, double compute, int miss, int mode) {
+  double r[PP_COLS] = {t, sp, y, u, v, ff, p, i, d, period, late, compute, (double)miss, (double)mode};
+  push_row(L, r);
+  ++*rows;
+}
+
+/* ---- the backend: the simulated plant or a C-ABI library, with injected faults ---- */
+
+static int raw_read(pp_loop* L, double t, double* f, double* ts) {
+  if (L->backend == 1) return L->hw_read(t, f, ts);
+  double out[2], z = L->n_noise ? L->noise[L->noise_k % L->n_noise] : 0.0;
+  int rc;
+  ++L->noise_k;
+  rc = L->plant_read(L->plant_state, L->plant_params, z, out);
+  *f = out[1];
+  *ts = t;
+  return rc;
+}
+
+static int active_fault(const pp_fault* f, double t) { return f->at_s <= t && t < f->at_s + f->duration_s; }
+
+static int read_force(pp_loop* L, double t, double* f, double* ts) {
+  int j, stale = 0, rc;
+  for (j = 0; j < L->n_faults; ++j) {
+    pp_fault* F = &L->faults[j];
+    if (!active_fault(F, t)) continue;
+    if (F->kind == F_RAISE) return -1000;
+    if (F->kind == F_DELAY) sleep_until(now_ns() + (int64_t)(F->value * 1e9));
+    if (F->kind == F_SIGNAL && !F->fired) { /* to this thread: handled before the call returns */
+      F->fired = 1;
+      pthread_kill(pthread_self(), F->value ? (int)F->value : SIGTERM);
+    }
+    if (F->kind == F_STALE) stale = 1;
+  }
+  if (stale && !isnan(L->last_sample_t)) { *f = L->last_force; *ts = L->last_sample_t; return 0; }
+  rc = raw_read(L, t, f, ts);
+  if (rc) return rc;
+  L->last_force = *f;
+  L->last_sample_t = *ts;
+  for (j = 0; j < L->n_faults; ++j) {
+    const pp_fault* F = &L->faults[j];
+    if (!active_fault(F, t)) continue;
+    if (F->kind == F_NAN) *f = NAN;
+    else if (F->kind == F_OFFSET) *f += F->value;
+    else if (F->kind == F_READING) *f = F->value;
+  }
+  return 0;
+}
+
+static int write_voltage(pp_loop* L, double v) {
+  int rc = L->backend == 1 ? L->hw_write(v) : L->plant_write(L->plant_state, L->plant_params, v);
+  if (rc == 0 && L->daq_V) __atomic_store(L->daq_V, &v, __ATOMIC_RELEASE);
+  return rc;
+}
+
+static void heartbeat(pp_loop* L, int64_t k) {
+  if (L->heartbeat) __atomic_add_fetch(L->heartbeat, 1, __ATOMIC_RELEASE);
+  if (L->backend == 1 && L->hw_heartbeat) L->hw_heartbeat((int)(k & 1));
+}
+
+/* the interlock checks of Safety, in the executor's order; the cause (0: none) and its number */
+static int check(const pp_loop* L, double y, double sample_t, double t, double* value) {
+  if (isnan(y)) { *value = y; return T_NAN; }
+  if (t - sample_t > L->stale_after_s) { *value = t - sample_t; return T_STALE; }
+  if (!(L->sensor_min < y && y < L->sensor_max)) { *value = y; return T_RANGE; }
+  if (y > L->force_max) { *value = y; return T_FORCE_HIGH; }
+  if (y < L->force_low) { *value = y; return T_FORCE_LOW; }
+  return T_NONE;
+}
+
+static void trip(pp_loop* L, int cause, int where, double t, double value) {
+  L->trip_cause = cause; L->trip_where = where; L->trip_t = t; L->trip_value = value;
+}
+
+static void ramp_down(pp_loop* L, int64_t* rows, double v_from, int64_t t0, int64_t dt_ns) {
+  double dt = L->dt_s, v = v_from, t, y, ts;
+  int64_t n = v_from == L->safe_V ? 0 : (int64_t)ceil(L->ramp_s / dt), j, k0 = *rows - 1;
+  if (n < 1 && v_from != L->safe_V) n = 1;
+  t = (k0 > 0 ? k0 : 0) * dt;
+  L->latest_mode = 1;
+  for (j = 1; j <= n; ++j) {
+    t = (k0 + j) * dt;
+    if (L->realtime) wait_for(L, t0 + (k0 + j) * dt_ns);
+    v = j == n ? L->safe_V : v_from + (L->safe_V - v_from) * (double)j / (double)n;
+    if (read_force(L, t, &y, &ts)) y = NAN;
+    if (write_voltage(L, v)) {
+      L->ramp_failed = 1; L->ramp_failed_t = t;
+      if (write_voltage(L, L->safe_V) == 0) v = L->safe_V;
+      break;
+    }
+    heartbeat(L, k0 + j);
+    log_row(L, rows, t, NAN, y, NAN, v, NAN, NAN, NAN, NAN, dt, 0.0, 0.0, 0, 1);
+    L->latest_t = t; L->latest_sp = NAN; L->latest_y = y; L->latest_v = v;
+  }
+  L->v_end = v;
+  L->t_end = t;
+}
+
+static void* run(void* arg) {
+  pp_loop* L = (pp_loop*)arg;
+  double dt = L->dt_s, t = 0.0, sp, y, ts, u, v, v_last = L->safe_V, value, slew = L->slew_V_per_s * L->dt_s;
+  double out[5];
+  int64_t dt_ns = (int64_t)llround(dt * 1e9), k = 0, rows = 0, streak = 0, t0, wake = 0, wake_prev, deadline, done;
+  int cause = T_NONE, rc, need_start = 1, p_idx = __atomic_load_n(&L->active, __ATOMIC_ACQUIRE);
+  const double* params = L->params[p_idx];
+
+  prctl(PR_SET_TIMERSLACK, 1UL, 0, 0, 0); /* wake at the deadline, not up to 50 us after it */
+  L->last_force = NAN; L->last_sample_t = NAN; L->noise_k = 0;
+  L->taken = p_idx;
+  __atomic_store_n(&L->started, 1, __ATOMIC_RELEASE);
+  if (L->backend == 1 && L->hw_arm && (rc = L->hw_arm()) != 0) {
+    trip(L, T_EXCEPTION, X_ARM, 0.0, rc);
+    log_row(L, &rows, 0.0, NAN, NAN, NAN, v_last, NAN, NAN, NAN, NAN, 0.0, 0.0, 0.0, 0, 2);
+    goto stop;
+  }
+  t0 = wake_prev = now_ns();
+  for (;;) {
+    if (k >= L->n_ref && !L->hold) break;
+    t = k * dt;
+    sp = L->ref[k < L->n_ref ? k : L->n_ref - 1];
+    deadline = t0 + k * dt_ns;
+    wake = L->realtime ? wait_for(L, deadline) : now_ns();
+    int want = __atomic_load_n(&L->active, __ATOMIC_ACQUIRE);
+    if (want != p_idx) { /* a new gain set: taken at this cycle boundary, started bumplessly below */
+      p_idx = want; params = L->params[p_idx]; need_start = 1;
+      L->switch_t = t;
+      __atomic_store_n(&L->taken, p_idx, __ATOMIC_RELEASE);
+      __atomic_add_fetch(&L->switches, 1, __ATOMIC_RELEASE);
+    }
+    int stop = __atomic_load_n(&L->stop, __ATOMIC_ACQUIRE);
+    double late = L->realtime ? (wake - deadline) * 1e-9 : 0.0, period = (wake - wake_prev) * 1e-9;
+    if (stop) { /* this cycle is the stop's: logged, no reading, no command */
+      log_row(L, &rows, t, sp, NAN, NAN, v_last, NAN, NAN, NAN, NAN, period, late, 0.0, 0, 2);
+      if (stop == 1) trip(L, T_SIGNAL, 0, t, L->stop_signal);
+      else L->trip_t = t;
+      break;
+    }
+    rc = read_force(L, t, &y, &ts);
+    if (rc) { trip(L, T_EXCEPTION, X_READ, t, rc); goto exception; }
+    cause = check(L, y, ts, t, &value);
+    if (cause) {
+      trip(L, cause, 0, t, value);
+      log_row(L, &rows, t, sp, y, NAN, v_last, NAN, NAN, NAN, NAN, period, late, 0.0, 0, 2);
+      break;
+    }
+    if (need_start) { /* bumpless: the first command of a start or a new gain set is the last one written */
+      if ((rc = L->start(sp, y, v_last, params, L->state)) != 0) { trip(L, T_EXCEPTION, X_START, t, rc); goto exception; }
+      need_start = 0;
+    }
+    if ((rc = L->step(sp, y, L->state, params, out)) != 0) { trip(L, T_EXCEPTION, X_STEP, t, rc); goto exception; }
+    u = out[0];
+    if (!isfinite(u)) {
+      trip(L, T_COMMAND, 0, t, u);
+      log_row(L, &rows, t, sp, y, u, v_last, out[4], out[1], out[2], out[3], period, late, 0.0, 0, 2);
+      break;
+    }
+    v = fmin(fmax(u, L->v_min), L->v_max);
+    v = fmin(fmax(v, v_last - slew), v_last + slew);
+    if (v != u) ++L->clamped;
+    if ((rc = write_voltage(L, v)) != 0) { trip(L, T_EXCEPTION, X_WRITE, t, rc); goto exception; }
+    heartbeat(L, k);
+    v_last = v;
+    done = now_ns();
+    int miss = L->realtime && done > deadline + dt_ns;
+    L->missed += miss;
+    streak = miss ? streak + 1 : 0;
+    log_row(L, &rows, t, sp, y, u, v, out[4], out[1], out[2], out[3], period, late, (done - wake) * 1e-9, miss, 0);
+    wake_prev = wake;
+    L->latest_t = t; L->latest_sp = sp; L->latest_y = y; L->latest_v = v;
+    ++k;
+    L->cycles = k;
+    if (streak >= L->missed_streak) { trip(L, T_DEADLINE, 0, t, (double)streak); break; }
+  }
+  goto stop;
+exception:
+  log_row(L, &rows, t, NAN, NAN, NAN, v_last, NAN, NAN, NAN, NAN, 0.0, 0.0, 0.0, 0, 2);
+stop:
+  L->cycles = k;
+  if (rows == 0) t0 = now_ns();
+  ramp_down(L, &rows, v_last, t0, dt_ns);
+  if (L->backend == 1 && L->hw_disarm) L->hw_disarm();
+  L->latest_mode = 2;
+  __atomic_store_n(&L->finished, 1, __ATOMIC_RELEASE);
+  return NULL;
+}
+
+/* ---- signals: SIGINT and SIGTERM stop the loop here, then go on to the handler they had ---- */
+static pp_loop* volatile signalled_loop = NULL;
+static struct sigaction previous[2];
+
+static void on_signal(int signo, siginfo_t* info, void* ctx) {
+  pp_loop* L = signalled_loop;
+  struct sigaction* old = &previous[signo == SIGINT ? 0 : 1];
+  if (L) {
+    L->stop_signal = signo;
+    __atomic_store_n(&L->stop, 1, __ATOMIC_RELEASE);
+  }
+  if (old->sa_flags & SA_SIGINFO) {
+    if (old->sa_sigaction) old->sa_sigaction(signo, info, ctx);
+  } else if (old->sa_handler != SIG_DFL && old->sa_handler != SIG_IGN) {
+    old->sa_handler(signo);
+  }
+}
+
+int pp_loop_catch_signals(pp_loop* L) {
+  struct sigaction sa;
+  memset(&sa, 0, sizeof sa);
+  sa.sa_sigaction = on_signal;
+  sa.sa_flags = SA_SIGINFO | SA_RESTART;
+  sigemptyset(&sa.sa_mask);
+  signalled_loop = L;
+  if (sigaction(SIGINT, &sa, &previous[0]) || sigaction(SIGTERM, &sa, &previous[1])) return errno;
+  return 0;
+}
+
+int pp_loop_release_signals(void) {
+  signalled_loop = NULL;
+  if (sigaction(SIGINT, &previous[0], NULL) || sigaction(SIGTERM, &previous[1], NULL)) return errno;
+  return 0;
+}
+
+/* lock the process's pages in memory (before arming: locking a large process takes a while) */
+int pp_loop_lock_memory(pp_loop* L) {
+  L->mlock_errno = L->want_mlock ? (mlockall(MCL_CURRENT) ? errno : 0) : -1;
+  return L->mlock_errno;
+}
+
+/* start the loop's thread: SCHED_FIFO and locked memory where permitted (errno kept, not fatal) */
+int pp_loop_start(pp_loop* L) {
+  pthread_attr_t attr;
+  struct sched_param sp;
+  int rc;
+  L->fifo_errno = -1; /* -1: not asked */
+  if (L->want_fifo) {
+    pthread_attr_init(&attr);
+    pthread_attr_setinheritsched(&attr, PTHREAD_EXPLICIT_SCHED);
+    pthread_attr_setschedpolicy(&attr, SCHED_FIFO);
+    memset(&sp, 0, sizeof sp);
+    sp.sched_priority = L->fifo_priority;
+    pthread_attr_setschedparam(&attr, &sp);
+    rc = pthread_create(&L->thread, &attr, run, L);
+    pthread_attr_destroy(&attr);
+    L->fifo_errno = rc;
+    if (rc == 0) return 0;
+  }
+  return pthread_create(&L->thread, NULL, run, L);
+}
+
+int pp_loop_join(pp_loop* L) {
+  int rc = pthread_join(L->thread, NULL);
+  if (L->mlock_errno == 0) munlockall();
+  return rc;
+}
+
+/* the supervisor's side of the ring: up to max_rows samples into out; returns how many */
+int64_t pp_loop_drain(pp_loop* L, double* out, int64_t max_rows) {
+  int64_t h = __atomic_load_n(&L->head, __ATOMIC_ACQUIRE), t = L->tail, n = h - t, j;
+  if (n > max_rows) n = max_rows;
+  for (j = 0; j < n; ++j) memcpy(out + j * PP_COLS, L->ring + ((t + j) % L->ring_rows) * PP_COLS, PP_COLS * sizeof(double));
+  __atomic_store_n(&L->tail, t + n, __ATOMIC_RELEASE);
+  return n;
+}
+
+/* a new parameter vector is in the buffer that does not run; the loop takes it at its next cycle */
+void pp_loop_switch(pp_loop* L, int32_t index) { __atomic_store_n(&L->active, index, __ATOMIC_RELEASE); }
+
+void pp_loop_stop(pp_loop* L, int32_t how) { __atomic_store_n(&L->stop, how, __ATOMIC_RELEASE); }
+
+int64_t pp_loop_sizeof(void) { return (int64_t)sizeof(pp_loop); }
