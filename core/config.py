@@ -3,7 +3,7 @@
 A schema is a nested dict: a key maps to a type (``str``, ``int``, ``bool``, ``list``,
 :data:`NUMBER`) or to a nested schema (a table). :func:`read_config` reads a file and checks
 every key and type; :class:`Lines` finds the line of a key for later messages;
-:func:`toml_text` writes such a tree back as TOML.
+:func:`toml_text` writes such a tree back as TOML; :class:`Table` is the base of a file's typed tables.
 """
 
 from __future__ import annotations
@@ -11,13 +11,14 @@ from __future__ import annotations
 import math
 import re
 import tomllib
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
 from piezopreload.core.artifacts import read_bytes
 from piezopreload.core.errors import InputError
 
-__all__ = ["NUMBER", "Lines", "check_tree", "read_config", "toml_text"]
+__all__ = ["NUMBER", "Lines", "Table", "check_tree", "read_config", "toml_text"]
 
 #: the type of a key that takes any number (an integer or a float, not a bool)
 NUMBER = (int, float)
@@ -123,3 +124,18 @@ def toml_text(data: dict[str, Any]) -> str:
     for name, body in data.items():
         out += [*table(name, body), ""]
     return "\n".join(out)
+
+
+@dataclass(frozen=True)
+class Table:
+    """A table of a configuration file as a frozen record, its keys as fields; None stands for a key not given
+    (the domain's default applies)."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return {f.name: _plain(getattr(self, f.name)) for f in fields(self) if getattr(self, f.name) is not None}
+
+
+def _plain(x: Any) -> Any:
+    if isinstance(x, tuple | list):
+        return [_plain(v) for v in x]
+    return x.to_dict() if isinstance(x, Table) else x

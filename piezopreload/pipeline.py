@@ -32,24 +32,36 @@ files the study names for it and of the code it runs. ``pipeline.json`` records 
 key and the hashes of what it wrote; a stage whose key and outputs are unchanged is not run
 again. ``force`` reruns everything. A failing stage stops the study with its name; what the
 stages before it wrote stays, and the manifest records the failure. A new stage is a
-:class:`Stage` in :data:`STAGES`: its tables, the stages it reads, its code and its body.
+:class:`Stage` in :data:`STAGES`: its tables, the stages it reads, its code and its body. The
+keying, the records and the loop that runs stages are :mod:`piezopreload.core.stages`; what is
+here is what makes them a study's.
 """
 
 from __future__ import annotations
 
-import hashlib
-import importlib
-import json
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from piezopreload import __version__
 from piezopreload.core.artifacts import atomic_write_bytes, finite_or_none, read_artifact, write_artifact
-from piezopreload.core.errors import InputError, InternalError
+from piezopreload.core.errors import InputError
+from piezopreload.core.stages import (
+    Partial,
+    StageCrashed,
+    StageFailed,
+    code_hash,
+    content_key,
+    locked,
+    outputs_intact,
+    run_stages,
+    sha256_file,
+    upstream_hashes,
+    utc,
+)
 from piezopreload.core.tables import write_csv
 from piezopreload.design.plant import DesignedPlant
 from piezopreload.design.preload import DesignPoint
@@ -63,57 +75,11 @@ from piezopreload.study import Study, load_study
 from piezopreload.tuning.compare import creep_effect, reproduction, responses
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 
-__all__ = ["Stage", "STAGES", "StageFailed", "run_study", "rerender_report", "read_manifest", "DEFAULT_OUT"]
+__all__ = ["Stage", "STAGES", "StageFailed", "StageCrashed", "run_study", "rerender_report", "read_manifest", "DEFAULT_OUT"]
 
 DEFAULT_OUT = "piezopreload-out"
 MANIFEST = "pipeline.json"
 STUDY_COPY = "study.toml"
-
-
-class StageFailed(InputError):
-    """A stage that could not complete: the message names it; ``exit_code`` is what the CLI returns."""
-
-    def __init__(self, stage: str, message: str, exit_code: int = 2) -> None:
-        super().__init__(f"stage '{stage}' failed: {message}")
-        self.stage = stage
-        self.exit_code = exit_code
-
-
-class StageCrashed(InternalError):
-    """An internal failure inside a stage (exit code 1); the cause is chained."""
-
-
-class _Partial(Exception):
-    """Carries what a failing stage wrote, so the manifest can list it."""
-
-    def __init__(self, outputs: dict[str, Path]) -> None:
-        super().__init__("partial outputs")
-        self.outputs = outputs
-
-
-def _sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-_CODE_HASHES: dict[str, str] = {}
-
-
-def _code_hash(packages: tuple[str, ...]) -> str:
-    """SHA-256 of the source (``.py``, ``.typ``) of ``piezopreload`` and the named subpackages."""
-    key = ",".join(packages)
-    if key not in _CODE_HASHES:
-        h = hashlib.sha256()
-        for name in ("piezopreload",) + tuple(f"piezopreload.{p}" for p in packages):
-            root = Path(importlib.import_module(name).__file__ or "").parent
-            for path in sorted(p for p in root.rglob("*") if p.suffix in (".py", ".typ") and "__pycache__" not in p.parts):
-                h.update(f"{name}/{path.relative_to(root).as_posix()}\n".encode())
-                h.update(path.read_bytes())
-        _CODE_HASHES[key] = h.hexdigest()
-    return _CODE_HASHES[key]
 
 
 # --------------------------------------------------------------------------------------
@@ -222,7 +188,7 @@ def _stage_validate(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
         raise StageFailed("validate", f"the tuned gains failed on {len({f['plant'] for f in result.failures})} of "
                                       f"{result.n_plants} plants ({worst}); {gains_path} is a candidate, which export "
                                       "and the rig refuse. Loosen the [validation] limits or tighten [tuning] "
-                                      "(ms_max, overshoot_margin_N) and run again", exit_code=2) from _Partial(outputs)
+                                      "(ms_max, overshoot_margin_N) and run again", exit_code=2) from Partial(outputs)
     s = result.summary()
     return outputs, {"status": gain_set.status, "content_sha256": gain_set.content_sha256, "plants": result.n_plants,
                      "worst_settling_s": s["settling_s"]["worst"], "worst_overshoot_N": s["overshoot_N"]["worst"]}
@@ -307,7 +273,7 @@ def _stage_rig(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
         trip = s["trip"] or {}
         raise StageFailed("rig", f"the run was stopped by the interlock '{trip.get('cause')}' at "
                                  f"t = {trip.get('t_s', float('nan')):.3f} s: {trip.get('detail')}; "
-                                 f"the log is {s['log_csv']}", exit_code=session.EXIT_TRIPPED) from _Partial(outputs)
+                                 f"the log is {s['log_csv']}", exit_code=session.EXIT_TRIPPED) from Partial(outputs)
     ctx.progress.say(f"{s['status']}: {s['cycles']} cycles; log {ctx.rel(Path(s['log_csv']))}")
     return outputs, summary
 
@@ -360,30 +326,18 @@ _BY_NAME = {s.name: s for s in STAGES}
 
 
 def _stage_key(stage: Stage, study: Study, records: dict[str, dict[str, Any]]) -> str:
-    upstream = {}
-    for name in stage.needs:
-        rec = records.get(name, {})
-        upstream[name] = {label: o["sha256"] for label, o in rec.get("outputs", {}).items()} if rec.get("status") == "done" \
-            else rec.get("status")
     files = {}
     for key, path in study.files().items():
         if key in stage.files:
             try:
-                files[str(path)] = _sha256_file(path)
+                files[str(path)] = sha256_file(path)
             except OSError as exc:
                 raise InputError(f"{study.path}: cannot read {path} ({exc.strerror or exc})") from None
     tables = study.tables()
-    body = {"stage": stage.name, "version": __version__, "code": _code_hash(stage.code),
-            "tables": {t: tables.get(t) for t in stage.tables}, "upstream": upstream, "files": files}
-    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":"), default=str).encode()).hexdigest()
-
-
-def _outputs_intact(out: Path, record: dict[str, Any]) -> bool:
-    for o in record.get("outputs", {}).values():
-        path = out / o["path"]
-        if not path.is_file() or _sha256_file(path) != o["sha256"]:
-            return False
-    return True
+    code = code_hash(("piezopreload",) + tuple(f"piezopreload.{p}" for p in stage.code))
+    return content_key({"stage": stage.name, "version": __version__, "code": code,
+                        "tables": {t: tables.get(t) for t in stage.tables},
+                        "upstream": upstream_hashes(stage.needs, records), "files": files})
 
 
 # --------------------------------------------------------------------------------------
@@ -402,80 +356,20 @@ def _write_manifest(out: Path, study: Study, records: dict[str, dict[str, Any]],
     })
 
 
-@contextmanager
-def _locked(out: Path) -> Iterator[None]:
+def _locked(out: Path) -> AbstractContextManager[None]:
     """One run at a time per output folder (advisory lock; where flock exists)."""
-    out.mkdir(parents=True, exist_ok=True)
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - not POSIX
-        yield
-        return
-    with open(out / ".lock", "w") as fh:
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            raise InputError(f"{out}: another 'piezopreload run' or 'report' is writing this folder; "
-                             "wait for it or give another --out") from None
-        try:
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
-
-
-def _utc() -> str:
-    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+    return locked(out, f"{out}: another 'piezopreload run' or 'report' is writing this folder; "
+                       "wait for it or give another --out")
 
 
 # --------------------------------------------------------------------------------------
 # running
 # --------------------------------------------------------------------------------------
-def _record_outputs(ctx: _Ctx, outputs: dict[str, Path]) -> dict[str, dict[str, str]]:
-    return {label: {"path": ctx.rel(p), "sha256": _sha256_file(p)} for label, p in outputs.items() if p.is_file()}
-
-
 def _execute(stages: list[Stage], ctx: _Ctx, force: bool, started: str) -> list[dict[str, Any]]:
-    study, records, progress = ctx.study, ctx.records, ctx.progress
-    done: list[dict[str, Any]] = []
-    for i, stage in enumerate(stages, start=1):
-        reason = stage.applies(study)
-        key = _stage_key(stage, study, records)
-        old = records.get(stage.name)
-        if reason is not None:
-            progress.stage(i, len(stages), stage.name, f"not applicable ({reason})")
-            records[stage.name] = {"status": "not applicable", "reason": reason, "key": key, "outputs": {}}
-            done.append({"stage": stage.name, "ran": False, "status": "not applicable", "seconds": 0.0})
-            continue
-        if not force and old is not None and old.get("status") == "done" and old.get("key") == key \
-                and _outputs_intact(ctx.out, old):
-            progress.stage(i, len(stages), stage.name, "up to date, not run again")
-            done.append({"stage": stage.name, "ran": False, "status": "up to date", "seconds": 0.0,
-                         "outputs": {k: o["path"] for k, o in old["outputs"].items()}})
-            continue
-        progress.stage(i, len(stages), stage.name, stage.what)
-        t0 = time.perf_counter()
-        try:
-            outputs, summary = stage.run(ctx)
-        except Exception as exc:
-            partial = exc.__cause__.outputs if isinstance(exc.__cause__, _Partial) else {}
-            message = str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
-            records[stage.name] = {"status": "failed", "key": key, "message": message,
-                                   "seconds": time.perf_counter() - t0, "finished_utc": _utc(),
-                                   "outputs": _record_outputs(ctx, partial)}
-            _write_manifest(ctx.out, study, records, started, ctx.source)
-            if isinstance(exc, StageFailed):
-                raise
-            if isinstance(exc, InputError):
-                raise StageFailed(stage.name, str(exc)) from exc
-            raise StageCrashed(f"stage '{stage.name}' failed: {type(exc).__name__}: {exc}") from exc
-        seconds = time.perf_counter() - t0
-        records[stage.name] = {"status": "done", "key": key, "seconds": seconds, "finished_utc": _utc(),
-                               "summary": summary, "outputs": _record_outputs(ctx, outputs)}
-        _write_manifest(ctx.out, study, records, started, ctx.source)
-        progress.say(f"done in {seconds:.1f} s")
-        done.append({"stage": stage.name, "ran": True, "status": "done", "seconds": seconds,
-                     "outputs": {k: o["path"] for k, o in records[stage.name]["outputs"].items()}})
-    return done
+    return run_stages(stages, ctx.records, ctx.out, ctx.progress, force=force,
+                      key=lambda stage: _stage_key(stage, ctx.study, ctx.records),
+                      applies=lambda stage: stage.applies(ctx.study), run=lambda stage: stage.run(ctx),
+                      save=lambda: _write_manifest(ctx.out, ctx.study, ctx.records, started, ctx.source))
 
 
 def _previous(out: Path, progress: Progress) -> dict[str, dict[str, Any]]:
@@ -501,7 +395,7 @@ def run_study(study: Study | str | Path | None = None, out: str | Path = DEFAULT
         if not copy.is_file() or copy.read_bytes() != study.source_text:
             atomic_write_bytes(copy, study.source_text)
         ctx = _Ctx(study, out, progress, _previous(out, progress), study.path)
-        stages = _execute(list(STAGES), ctx, force, _utc())
+        stages = _execute(list(STAGES), ctx, force, utc())
     ran = [s["stage"] for s in stages if s["ran"]]
     seconds = time.perf_counter() - t0
     progress.write(f"{'ran ' + ', '.join(ran) if ran else 'nothing to run: every stage is up to date'} "
@@ -533,14 +427,14 @@ def rerender_report(out: str | Path, progress: Progress | None = None, template:
     if missing:
         raise InputError(f"{out}: the stage(s) {', '.join(missing)} have not completed; "
                          f"run 'piezopreload run {out / STUDY_COPY} --out {out}' first")
-    broken = [name for name in report.needs if not _outputs_intact(out, records[name])]
+    broken = [name for name in report.needs if not outputs_intact(out, records[name])]
     if broken:
         raise InputError(f"{out}: the outputs of {', '.join(broken)} changed or went missing since they were written; "
                          f"run 'piezopreload run {out / STUDY_COPY} --out {out}' to make them again")
     study = load_study(out / STUDY_COPY)
     with _locked(out):
         ctx = _Ctx(study, out, progress, records, manifest["study"].get("path", study.path), template_text)
-        stages = _execute([report], ctx, True, manifest.get("started_utc", _utc()))
+        stages = _execute([report], ctx, True, manifest.get("started_utc", utc()))
     seconds = time.perf_counter() - t0
     progress.write(f"the report is {out / 'report.pdf'} ({seconds:.1f} s)\n")
     return _result(out, study, stages, seconds)

@@ -18,28 +18,30 @@ is checked on load: an unknown key, a wrong type or an out-of-range value is an
 from __future__ import annotations
 
 import hashlib
-import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from piezopreload.core.config import NUMBER, Lines, check_tree, read_config, toml_text
+from piezopreload.core.config import NUMBER, Lines, Table, check_tree, read_config, toml_text
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.tables import read_record
-from piezopreload.design.plant import DesignedPlant, plant_from_design
-from piezopreload.design.preload import PARETO_PAIRS, DesignInfeasible, DesignPoint, DesignSpec
+from piezopreload.design.plant import DesignedPlant
+from piezopreload.design.preload import DesignInfeasible, DesignPoint, DesignSpec
 from piezopreload.design.schedule import PreloadSchedule
 from piezopreload.design.study import DesignResult, design_spec_from_tables, design_study, plan_schedule, read_profile
-from piezopreload.design.system import SystemRun, track_schedule
+from piezopreload.design.system import SystemRun
+from piezopreload.design.tables import BallscrewTable, DesignTable, DutyTable, FeedDriveTable, PlantTable, ScheduleTable
 from piezopreload.models.actuator import P888_91, RigParams, StackData
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import PIDGains
-from piezopreload.models.gainset import EXPORT_FORMATS, REFERENCES, GainSet
+from piezopreload.models.gainset import GainSet
+from piezopreload.rig.tables import ExportTable, RigRunPlan
 from piezopreload.tuning.calibrate import LoopExcitation
 from piezopreload.tuning.feedforward import IdentifiedFeedforward, identify
-from piezopreload.tuning.pid import TuningSpec, scaled_references
+from piezopreload.tuning.pid import TuningSpec
+from piezopreload.tuning.tables import TuningTable, ValidationTable
 from piezopreload.tuning.validate import Criteria
 
 if TYPE_CHECKING:  # the results module imports this one
@@ -99,32 +101,15 @@ _SCHEMA: dict[str, Any] = {
 }
 _REQUIRED = ("rig", "controller")
 _STRING_LISTS = {"design.pareto", "export.formats"}
-#: what ``[rig_run] reference`` may name besides a CSV: the gain set's references, or the design's schedule
-_RIG_RUN_REFERENCES = (*REFERENCES, "schedule")
 _UNITS = ("seconds", "minutes")
 _SIGNALS = ("measured_N", "force_N")
-_CRITERIA_LIMITS = ("settling_max_s", "overshoot_max_N", "tracking_rms_max_N", "peak_voltage_max_V")
 
 
 # --------------------------------------------------------------------------------------
 # the tables: one frozen record per table of the file, its keys as fields
 # --------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class _Table:
-    """A table of the study file; None stands for a key not given (the domain's default applies)."""
-
-    def to_dict(self) -> dict[str, Any]:
-        return {f.name: _plain(getattr(self, f.name)) for f in fields(self) if getattr(self, f.name) is not None}
-
-
-def _plain(x: Any) -> Any:
-    if isinstance(x, tuple | list):
-        return [_plain(v) for v in x]
-    return x.to_dict() if isinstance(x, _Table) else x
-
-
-@dataclass(frozen=True)
-class ControllerTable(_Table):
+class ControllerTable(Table):
     """[controller]: the gains as entered (``Ti`` and ``Td`` in ``units``), the output range."""
 
     Kc: float
@@ -138,7 +123,7 @@ class ControllerTable(_Table):
 
 
 @dataclass(frozen=True)
-class FeedforwardTable(_Table):
+class FeedforwardTable(Table):
     """[feedforward]: the loop measurement the feedforward is identified from (``data``: a measured one), the P-I
     model's ``kind`` and whether it compensates ``creep`` too."""
 
@@ -153,7 +138,7 @@ class FeedforwardTable(_Table):
 
 
 @dataclass(frozen=True)
-class StepTable(_Table):
+class StepTable(Table):
     initial_N: float = 25.0
     final_N: float = 60.0
     t_step_s: float = 0.5
@@ -161,7 +146,7 @@ class StepTable(_Table):
 
 
 @dataclass(frozen=True)
-class TrajectoryTable(_Table):
+class TrajectoryTable(Table):
     initial_N: float = 25.0
     levels_N: tuple[float, ...] = (60.0, 80.0, 100.0, 80.0, 60.0)
     hold_s: float = 5.0
@@ -169,7 +154,7 @@ class TrajectoryTable(_Table):
 
 
 @dataclass(frozen=True)
-class ReferenceTables(_Table):
+class ReferenceTables(Table):
     """[reference.step] and [reference.trajectory]: the paper's step and staircase."""
 
     step: StepTable = StepTable()
@@ -177,7 +162,7 @@ class ReferenceTables(_Table):
 
 
 @dataclass(frozen=True)
-class SimulationTable(_Table):
+class SimulationTable(Table):
     """[simulation]: the noise seed, the error band and the signal the step numbers are read on."""
 
     seed: int = 0
@@ -185,133 +170,7 @@ class SimulationTable(_Table):
     signal: str = "measured_N"
 
 
-@dataclass(frozen=True)
-class BallscrewTable(_Table):
-    """[ballscrew]: what the machine fixes and the design variables' bounds (low, high)."""
-
-    nominal_diameter_mm: float | None = None
-    lead_mm: float | None = None
-    contact_angle_deg: tuple[float, float] | None = None
-    ball_mm: tuple[float, float] | None = None
-    conformity: tuple[float, float] | None = None
-    turns: tuple[int, int] | None = None
-    load_sharing: float | None = None
-
-
-@dataclass(frozen=True)
-class FeedDriveTable(_Table):
-    table_mass_kg: float | None = None
-    screw_length_mm: float | None = None
-    bearing_stiffness_N_per_um: float | None = None
-    travel_mm: tuple[float, float] | None = None
-    mounting: str | None = None
-
-
-@dataclass(frozen=True)
-class DutyTable(_Table):
-    """[duty]: the duty cycle's cases, one entry per case in each list."""
-
-    axial_load_N: tuple[float, ...] | None = None
-    speed_rpm: tuple[float, ...] | None = None
-    time_share: tuple[float, ...] | None = None
-
-
-@dataclass(frozen=True)
-class DesignTable(_Table):
-    """[design]: the objective, the fronts, and the constraints' limits (None: DesignSpec's default)."""
-
-    objective: str = "stiffness"
-    pareto: tuple[str, ...] = PARETO_PAIRS
-    pareto_points: int = 50
-    axial_load_max_N: float | None = None
-    failsafe_load_N: float | None = None
-    lift_off_margin: float | None = None
-    preload_fraction_max: float | None = None
-    contact_pressure_max_MPa: float | None = None
-    life_min_h: float | None = None
-    drag_torque_max_Nm: float | None = None
-    frequency_min_Hz: float | None = None
-    stiffness_min_N_per_um: float | None = None
-    nut_length_max_mm: float | None = None
-    ball_lead_ratio_max: float | None = None
-    load_factor: float | None = None
-    stack_drive_V: float | None = None
-    amp_current_limit_A: float | None = None
-
-
-@dataclass(frozen=True)
-class ScheduleTable(_Table):
-    """[schedule]: the load profile (a CSV; None: a machining cycle) and what the schedule must keep."""
-
-    profile: str | None = None
-    stiffness_min_N_per_um: float = 0.0
-    deflection_max_um: float | None = None  # None: no limit
-    lift_off_margin: float | None = None  # None: the design's
-
-
-@dataclass(frozen=True)
-class TuningTable(_Table):
-    """[tuning]: the PID tuning's specification (tuning.pid.TuningSpec)."""
-
-    overshoot_margin_N: float = TuningSpec.overshoot_margin_N
-    ms_max: float = TuningSpec.ms_max
-    noise_gain_max_V_per_N: float = TuningSpec.noise_gain_max_V_per_N
-    tune_setpoint_weight: bool = TuningSpec.tune_setpoint_weight
-    step_N: tuple[float, float] | None = None            # (from, to); None: TuningSpec's (the paper's scale)
-    trajectory_N: tuple[float, ...] | None = None        # rest level, then the levels; None: TuningSpec's
-
-
-@dataclass(frozen=True)
-class PlantTable(_Table):
-    """[plant]: the designed preload system as the plant: the design sets the stacks, the amplifier's current limit
-    and the coupling, ``[rig]`` the rest of the hardware (design/plant.py); the schedule is tracked for ``cycles``,
-    planned again with a margin at most ``passes`` times (design/system.py)."""
-
-    from_design: bool = True
-    sleeve_stiffness_N_per_um: float | None = None  # None: a rigid sleeve
-    cycles: int = 2
-    passes: int = 3
-    margin_factor: float = 1.25
-    stack_contact_N: float = 0.0  # the least force the stacks keep on the nuts (not bonded to them)
-
-
-@dataclass(frozen=True)
-class ValidationTable(_Table):
-    """[validation]: the Monte Carlo set (``seed`` None: the simulation's) and the limits every plant must meet."""
-
-    plants: int = 200
-    seed: int | None = None
-    workers: int | None = None
-    settling_max_s: float = Criteria.settling_max_s
-    overshoot_max_N: float = Criteria.overshoot_max_N
-    tracking_rms_max_N: float = Criteria.tracking_rms_max_N
-    peak_voltage_max_V: float = Criteria.peak_voltage_max_V
-
-
-@dataclass(frozen=True)
-class ExportTable(_Table):
-    """[export]: the formats the validated gain set is written in."""
-
-    formats: tuple[str, ...] = EXPORT_FORMATS
-
-
-@dataclass(frozen=True)
-class RigRunPlan(_Table):
-    """[rig_run]: how ``piezopreload run`` runs the validated gains on the rig."""
-
-    backend: str = "sim"
-    reference: str = "step"          # step, trajectory, or a time_s,force_N CSV (relative to the study file)
-    realtime: bool | None = None     # None: real time unless the backend is the simulated rig
-    seed: int = 0
-    force_max_N: float | None = None
-    ramp_s: float | None = None
-    missed_streak: int | None = None
-
-    def safety(self) -> dict[str, float | None]:
-        return {"force_max_N": self.force_max_N, "ramp_s": self.ramp_s, "missed_streak": self.missed_streak}
-
-
-_TABLES: dict[str, type[_Table]] = {
+_TABLES: dict[str, type[Table]] = {
     "controller": ControllerTable, "feedforward": FeedforwardTable, "simulation": SimulationTable,
     "ballscrew": BallscrewTable, "feed_drive": FeedDriveTable, "duty": DutyTable, "design": DesignTable,
     "schedule": ScheduleTable, "tuning": TuningTable, "validation": ValidationTable, "export": ExportTable,
@@ -321,7 +180,7 @@ _TABLES: dict[str, type[_Table]] = {
 _ATTRIBUTE = {"design": "design_table"}
 
 
-def _table(cls: type[_Table], data: dict[str, Any]) -> Any:
+def _table(cls: type[Table], data: dict[str, Any]) -> Any:
     return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
 
 
@@ -532,9 +391,7 @@ class Study:
                 self.design_spec, objective or d.objective, list(d.pareto if pareto is None else pareto),
                 d.pareto_points if points is None else points,
                 profile=None if profile_path is None else read_profile(profile_path), profile_name=str(profile_path),
-                stiffness_min_N_per_um=s.stiffness_min_N_per_um,
-                deflection_max_um=math.inf if s.deflection_max_um is None else s.deflection_max_um,
-                lift_off_margin=s.lift_off_margin, progress=progress, bar=bar)
+                **s.limits(), progress=progress, bar=bar)
         except DesignInfeasible as exc:
             raise InfeasibleError(f"{self.path}: {exc}") from exc
 
@@ -548,11 +405,8 @@ class Study:
         and coupling, the rest of the hardware from ``[rig]`` (:func:`piezopreload.design.plant.plant_from_design`)."""
         if self.design_spec is None:
             raise InputError(f"{self.path}: the plant from a design needs the [ballscrew] table")
-        table = self.plant or PlantTable()
-        sleeve = math.inf if table.sleeve_stiffness_N_per_um is None else float(table.sleeve_stiffness_N_per_um)
         point = design.point if isinstance(design, DesignResult) else design
-        return plant_from_design(self.design_spec, point, self.rig, design_sha256=design_sha256,
-                                 sleeve_stiffness_N_per_um=sleeve)
+        return (self.plant or PlantTable()).plant(self.design_spec, point, self.rig, design_sha256)
 
     def schedule_for(self, point: DesignPoint) -> PreloadSchedule:
         """The study's preload schedule on the screw of ``point``, as :meth:`design` plans it."""
@@ -560,11 +414,8 @@ class Study:
             raise InputError(f"{self.path}: the schedule needs the [ballscrew] table")
         s = self.schedule or ScheduleTable()
         path = self.resolve(s.profile)
-        schedule, _, _ = plan_schedule(
-            self.design_spec, point, None if path is None else read_profile(path), profile_name=str(path),
-            stiffness_min_N_per_um=s.stiffness_min_N_per_um,
-            deflection_max_um=math.inf if s.deflection_max_um is None else s.deflection_max_um,
-            lift_off_margin=s.lift_off_margin)
+        schedule, _, _ = plan_schedule(self.design_spec, point, None if path is None else read_profile(path),
+                                       profile_name=str(path), **s.limits())
         return schedule
 
     def with_plant(self, plant: DesignedPlant) -> Study:
@@ -575,11 +426,8 @@ class Study:
                        ff_extra_V: Any = None, progress: Callable[[str], None] | None = None) -> SystemRun:
         """The validated gains with their feedforward following ``schedule`` on ``plant`` for ``[plant] cycles``,
         the schedule planned again with a margin while the rigidity falls short (:func:`design.system.track_schedule`)."""
-        table = self.plant or PlantTable()
-        return track_schedule(plant, gain_set.controller(), schedule, cycles=table.cycles, seed=self.seed,
-                              passes=table.passes, margin_factor=table.margin_factor,
-                              contact_N=table.stack_contact_N, ff_extra_V=ff_extra_V,
-                              progress=progress)
+        return (self.plant or PlantTable()).track(plant, gain_set.controller(), schedule, seed=self.seed,
+                                                  ff_extra_V=ff_extra_V, progress=progress)
 
     def run(self, out: str | Path = "piezopreload-out", *, force: bool = False, progress: Any = None) -> dict[str, Any]:
         """The whole study, as ``piezopreload run``: its stages into ``out``, unchanged ones not run again."""
@@ -666,45 +514,29 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes) -> Stud
         raise fail("simulation.seed", f"must be >= 0, got {simulation.seed}")
     tuning = _table(TuningTable, data.get("tuning", {}))
     try:
-        spec = TuningSpec(band_N=simulation.band_N, u_min_V=gains.u_min, u_max_V=gains.u_max,
-                          **scaled_references(tuning.step_N, tuning.trajectory_N),
-                          **{k: (bool(x) if k == "tune_setpoint_weight" else float(x)) for k, x in asdict(tuning).items()
-                             if k not in ("step_N", "trajectory_N")})
+        spec = tuning.spec(band_N=simulation.band_N, u_min_V=gains.u_min, u_max_V=gains.u_max)
     except ValueError as exc:
         key = next((k for k in data.get("tuning", {}) if k in str(exc)), "")
         raise fail(f"tuning.{key}" if key else "tuning", f"is not valid: {exc}") from None
-    validation = _validation(data.get("validation", {}), simulation, fail)
+    validation = _table(ValidationTable, data.get("validation", {})).checked(simulation.seed, fail)
     try:
-        criteria = Criteria(band_N=simulation.band_N, **{k: float(getattr(validation, k)) for k in _CRITERIA_LIMITS})
+        criteria = validation.criteria(simulation.band_N)
     except ValueError as exc:
         key = next((k for k in data.get("validation", {}) if k in str(exc)), "")
         raise fail(f"validation.{key}" if key else "validation", f"is not valid: {exc}") from None
     export = _table(ExportTable, data.get("export", {}))
-    for f in export.formats:
-        if f not in EXPORT_FORMATS:
-            raise fail("export.formats", f"has {f!r}; expected some of {', '.join(EXPORT_FORMATS)}")
+    export.check(fail)
     design_tables = {t: _table(_TABLES[t], data[t]) if t in data else None
                      for t in ("ballscrew", "feed_drive", "duty", "design", "schedule", "plant")}
-    plant = design_tables["plant"]
-    if plant is not None:
-        if plant.from_design and "ballscrew" not in data:
-            raise fail("plant.from_design", "needs the design's tables ([ballscrew], ...) to make the plant from")
-        for key, low in (("cycles", 1), ("passes", 1)):
-            if getattr(plant, key) < low:
-                raise fail(f"plant.{key}", f"must be >= {low}, got {getattr(plant, key)!r}")
-        if not plant.stack_contact_N >= 0.0:
-            raise fail("plant.stack_contact_N", f"must be >= 0, got {plant.stack_contact_N!r}")
-        if not plant.margin_factor >= 1.0:
-            raise fail("plant.margin_factor", f"must be >= 1, got {plant.margin_factor!r}")
-        if plant.sleeve_stiffness_N_per_um is not None and not plant.sleeve_stiffness_N_per_um > 0:
-            raise fail("plant.sleeve_stiffness_N_per_um", f"must be > 0, got {plant.sleeve_stiffness_N_per_um!r}")
+    if design_tables["plant"] is not None:
+        design_tables["plant"].check("ballscrew" in data, fail)
     design_spec = design_spec_from_tables({**design_tables, "design": design_tables["design"] or DesignTable()}, where.fail) if design_tables["ballscrew"] is not None else None
     meta = data.get("study", {})
     return Study(
         path=path, sha256=hashlib.sha256(text).hexdigest(), name=meta.get("name", Path(path).stem),
         title=meta.get("title", ""), description=meta.get("description", ""), rig=rig, controller=controller,
         feedforward=feedforward, reference=reference, simulation=simulation, tuning=tuning, validation=validation,
-        export=export, rig_run=_rig_run(data.get("rig_run", {}), where), ballscrew=design_tables["ballscrew"],
+        export=export, rig_run=_table(RigRunPlan, data.get("rig_run", {})).checked(fail), ballscrew=design_tables["ballscrew"],
         feed_drive=design_tables["feed_drive"], duty=design_tables["duty"], design_table=design_tables["design"],
         schedule=design_tables["schedule"], plant=design_tables["plant"], gains=gains, references=references, excitation=excitation,
         tuning_spec=spec, criteria=criteria, design_spec=design_spec, where=where, source_text=text)
@@ -743,29 +575,3 @@ def _references(refs: dict[str, Any], fail: Callable[[str, str], InputError]) ->
     except ValueError as exc:
         raise fail("reference.trajectory", f"is not valid: {exc}") from None
     return tables, references
-
-
-def _validation(v: dict[str, Any], simulation: SimulationTable, fail: Callable[[str, str], InputError]) -> ValidationTable:
-    table = _table(ValidationTable, v)
-    if not 1 <= table.plants <= 100_000:
-        raise fail("validation.plants", f"must be in 1..100000, got {table.plants}")
-    if table.workers is not None and table.workers < 1:
-        raise fail("validation.workers", f"must be >= 1, got {table.workers}")
-    return table if table.seed is not None else ValidationTable(**{**asdict(table), "seed": simulation.seed})
-
-
-def _rig_run(r: dict[str, Any], where: _Source) -> RigRunPlan:
-    fail = where.fail
-    plan = _table(RigRunPlan, r)
-    if plan.reference not in _RIG_RUN_REFERENCES and not plan.reference.lower().endswith(".csv"):
-        raise fail("rig_run.reference", f"must be step, trajectory or a time_s,force_N .csv file (or schedule, where "
-                                        f"the plant is the study's design), got {plan.reference!r}")
-    for key, low in (("force_max_N", 0.0), ("ramp_s", 0.0)):
-        if key in r and not r[key] > low:
-            raise fail(f"rig_run.{key}", f"must be > {low:g}, got {r[key]!r}")
-    if "missed_streak" in r and r["missed_streak"] < 1:
-        raise fail("rig_run.missed_streak", f"must be >= 1, got {r['missed_streak']!r}")
-    if plan.seed < 0:
-        raise fail("rig_run.seed", f"must be >= 0, got {plan.seed!r}")
-    # the simulated rig may run back to back when the study says so; anything else runs in real time
-    return plan if plan.realtime is not None else RigRunPlan(**{**asdict(plan), "realtime": plan.backend != "sim"})

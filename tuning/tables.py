@@ -1,0 +1,63 @@
+"""The tuning's tables of a study file: ``[tuning]`` (the PID tuning's specification) and ``[validation]``
+(the Monte Carlo set and its limits), as frozen records with their keys as fields and their defaults
+from :class:`~piezopreload.tuning.pid.TuningSpec` and :class:`~piezopreload.tuning.validate.Criteria`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+
+from piezopreload.core.config import Table
+from piezopreload.core.errors import InputError
+from piezopreload.tuning.pid import TuningSpec, scaled_references
+from piezopreload.tuning.validate import Criteria
+
+__all__ = ["TuningTable", "ValidationTable", "CRITERIA_LIMITS"]
+
+#: the [validation] keys that are :class:`Criteria`'s limits
+CRITERIA_LIMITS = ("settling_max_s", "overshoot_max_N", "tracking_rms_max_N", "peak_voltage_max_V")
+
+
+@dataclass(frozen=True)
+class TuningTable(Table):
+    """[tuning]: the PID tuning's specification (tuning.pid.TuningSpec)."""
+
+    overshoot_margin_N: float = TuningSpec.overshoot_margin_N
+    ms_max: float = TuningSpec.ms_max
+    noise_gain_max_V_per_N: float = TuningSpec.noise_gain_max_V_per_N
+    tune_setpoint_weight: bool = TuningSpec.tune_setpoint_weight
+    step_N: tuple[float, float] | None = None            # (from, to); None: TuningSpec's (the paper's scale)
+    trajectory_N: tuple[float, ...] | None = None        # rest level, then the levels; None: TuningSpec's
+
+    def spec(self, band_N: float, u_min_V: float, u_max_V: float) -> TuningSpec:
+        """The tuning's specification for the study's error band and output range; a ValueError where it is not valid."""
+        return TuningSpec(band_N=band_N, u_min_V=u_min_V, u_max_V=u_max_V, **scaled_references(self.step_N, self.trajectory_N),
+                          **{k: (bool(x) if k == "tune_setpoint_weight" else float(x)) for k, x in asdict(self).items()
+                             if k not in ("step_N", "trajectory_N")})
+
+
+@dataclass(frozen=True)
+class ValidationTable(Table):
+    """[validation]: the Monte Carlo set (``seed`` None: the simulation's) and the limits every plant must meet."""
+
+    plants: int = 200
+    seed: int | None = None
+    workers: int | None = None
+    settling_max_s: float = Criteria.settling_max_s
+    overshoot_max_N: float = Criteria.overshoot_max_N
+    tracking_rms_max_N: float = Criteria.tracking_rms_max_N
+    peak_voltage_max_V: float = Criteria.peak_voltage_max_V
+
+    def checked(self, default_seed: int, fail: Callable[[str, str], InputError]) -> ValidationTable:
+        """The table checked, its seed ``default_seed`` (the simulation's) where it gives none; ``fail(key, message)``
+        makes the error naming the file and line."""
+        if not 1 <= self.plants <= 100_000:
+            raise fail("validation.plants", f"must be in 1..100000, got {self.plants}")
+        if self.workers is not None and self.workers < 1:
+            raise fail("validation.workers", f"must be >= 1, got {self.workers}")
+        return self if self.seed is not None else ValidationTable(**{**asdict(self), "seed": default_seed})
+
+    def criteria(self, band_N: float) -> Criteria:
+        """The limits every plant must meet; a ValueError where they are not valid."""
+        return Criteria(band_N=band_N, **{k: float(getattr(self, k)) for k in CRITERIA_LIMITS})
