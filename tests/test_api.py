@@ -33,8 +33,8 @@ def _readme_snippet() -> str:
 
 def _small(snippet: str) -> str:
     """The snippet with small settings: the small study, 8 Monte Carlo plants. Nothing else changes."""
-    assert "pp.load_study()" in snippet and "plants=200" in snippet
-    return snippet.replace("pp.load_study()", f"pp.load_study({str(SMALL)!r})", 1).replace("plants=200", "plants=8")
+    assert 'pp.load_study("paper2021")' in snippet and "plants=200" in snippet
+    return snippet.replace('pp.load_study("paper2021")', f"pp.load_study({str(SMALL)!r})", 1).replace("plants=200", "plants=8")
 
 
 def test_the_readme_snippet_runs_end_to_end(tmp_path, monkeypatch):
