@@ -1,6 +1,20 @@
 """Helpers for the rig's tests."""
 
+import signal
+
 from piezopreload.models.gainset import GainSet
+from piezopreload.rig.backends import Fault
+
+#: one injected fault per interlock and the cause it must trip (both loops are tested on these)
+INTERLOCK_FAULTS = [
+    (Fault("nan", 1.0), "sensor_nan"),
+    (Fault("stale", 1.0), "sensor_stale"),
+    (Fault("offset", 1.0, 200.0), "force_high"),
+    (Fault("offset", 1.0, -50.0), "force_low"),
+    (Fault("reading", 1.0, 999.99), "sensor_range"),
+    (Fault("raise", 1.0), "exception"),
+    (Fault("signal", 1.0, float(signal.SIGTERM)), "signal"),
+]
 
 
 def write_gain_set(path, study, feedforward, gains=None, status="validated", plant=None):

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from rigkit import write_gain_set
+from rigkit import INTERLOCK_FAULTS, write_gain_set
 
 from piezopreload.cli import main
 from piezopreload.core import native
@@ -58,15 +58,7 @@ def test_native_loop_gives_the_python_loops_samples(gains_path, tmp_path):
     assert rn["timing"]["lost_samples"] == 0
 
 
-@pytest.mark.parametrize("fault, cause", [
-    (Fault("nan", 1.0), "sensor_nan"),
-    (Fault("stale", 1.0), "sensor_stale"),
-    (Fault("offset", 1.0, 200.0), "force_high"),
-    (Fault("offset", 1.0, -50.0), "force_low"),
-    (Fault("reading", 1.0, 999.99), "sensor_range"),
-    (Fault("raise", 1.0), "exception"),
-    (Fault("signal", 1.0, float(signal.SIGTERM)), "signal"),
-])
+@pytest.mark.parametrize("fault, cause", INTERLOCK_FAULTS)
 def test_each_interlock_acts_inside_the_native_loop_as_in_the_python_loop(gains_path, tmp_path, fault, cause):
     """The same trip (cause, time, words) and the same samples up to the end of the ramp on both loops."""
     rn, ln = _run(gains_path, tmp_path, "native", [fault], ramp_s=0.25)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from rigkit import write_gain_set
+from rigkit import INTERLOCK_FAULTS, write_gain_set
 
 from piezopreload.cli import main
 from piezopreload.core.artifacts import read_artifact
@@ -114,15 +114,7 @@ def _run(gains_path, tmp_path, faults, realtime=False, reference="step", **safet
                    safety=safety).to_dict()
 
 
-@pytest.mark.parametrize("fault, cause", [
-    (Fault("nan", 1.0), "sensor_nan"),
-    (Fault("stale", 1.0), "sensor_stale"),
-    (Fault("offset", 1.0, 200.0), "force_high"),
-    (Fault("offset", 1.0, -50.0), "force_low"),
-    (Fault("reading", 1.0, 999.99), "sensor_range"),
-    (Fault("raise", 1.0), "exception"),
-    (Fault("signal", 1.0, float(signal.SIGTERM)), "signal"),
-])
+@pytest.mark.parametrize("fault, cause", INTERLOCK_FAULTS)
 def test_each_interlock_ramps_down_disarms_and_logs(gains_path, tmp_path, fault, cause):
     r = _run(gains_path, tmp_path, [fault], ramp_s=0.25)
     assert r["status"] == "tripped" and r["exit_code"] == 3 and r["trip"]["cause"] == cause
