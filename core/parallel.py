@@ -15,6 +15,8 @@ from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor
 from typing import Any, Generic, TypeVar
 
+from piezopreload.core.errors import InputError
+
 __all__ = ["beside", "Beside", "spare_cpus"]
 
 T = TypeVar("T")
@@ -23,12 +25,15 @@ T = TypeVar("T")
 def spare_cpus() -> int:
     """CPUs a second process could use: ``PIEZOPRELOAD_WORKERS`` if set, else the machine's count."""
     env = os.environ.get("PIEZOPRELOAD_WORKERS", "").strip()
-    if env:
-        try:
-            return max(1, int(env))
-        except ValueError:
-            pass
-    return os.cpu_count() or 1
+    if not env:
+        return os.cpu_count() or 1
+    try:
+        workers = int(env)
+    except ValueError:
+        workers = 0
+    if workers < 1:
+        raise InputError(f"PIEZOPRELOAD_WORKERS={env!r}: expected a whole number of processes >= 1 (1: no workers)")
+    return workers
 
 
 class Beside(Generic[T]):

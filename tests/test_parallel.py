@@ -50,3 +50,10 @@ def test_a_discarded_job_does_not_hold_its_caller(monkeypatch):
     job.discard()
     assert time.perf_counter() - t0 < 0.5, "discard waited for the worker"
     assert job.result() is None
+
+
+@pytest.mark.parametrize("bad", ["two", "0", "-3"])
+def test_a_bad_worker_count_is_refused_by_name(monkeypatch, bad):
+    monkeypatch.setenv("PIEZOPRELOAD_WORKERS", bad)
+    with pytest.raises(InputError, match=f"PIEZOPRELOAD_WORKERS='{bad}': expected a whole number"):
+        spare_cpus()
