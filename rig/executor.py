@@ -430,11 +430,15 @@ class Executor:
         self._event("disarmed", t_end)
         timing = _timing(lateness, periods, missed, dt, self.realtime)
         timing.update(loop="python", missed_streak_limit=streak_limit, lost_samples=0)
-        result = RunResult("tripped" if trip else "completed", trip, k, timing, clamped, self.step.kind,
+        return self._finish(trip, k, timing, clamped)
+
+    def _finish(self, trip: Trip | None, cycles: int, timing: dict[str, Any], clamped: int) -> RunResult:
+        """The run's result, also closing its log with the same numbers (both loops end here)."""
+        result = RunResult("tripped" if trip else "completed", trip, cycles, timing, clamped, self.step.kind,
                            None if self.log is None else str(self.log.csv_path),
                            None if self.log is None else str(self.log.json_path), list(self.events))
         if self.log is not None:
-            self.log.close(result.status, {"cycles": k, "timing": timing, "clamped_cycles": clamped,
+            self.log.close(result.status, {"cycles": cycles, "timing": timing, "clamped_cycles": clamped,
                                            "trip": None if trip is None else asdict(trip)})
         return result
 
@@ -556,13 +560,7 @@ class Executor:
         timing.update(loop="native", missed_streak_limit=streak_limit, lost_samples=status.lost if status else 0,
                       **(loop.realtime_report if loop is not None else {}))
         clamped = status.clamped if status is not None else 0
-        result = RunResult("tripped" if trip else "completed", trip, cycles, timing, clamped, self.step.kind,
-                           None if self.log is None else str(self.log.csv_path),
-                           None if self.log is None else str(self.log.json_path), list(self.events))
-        if self.log is not None:
-            self.log.close(result.status, {"cycles": cycles, "timing": timing, "clamped_cycles": clamped,
-                                           "trip": None if trip is None else asdict(trip)})
-        return result
+        return self._finish(trip, cycles, timing, clamped)
 
     def _take_rows(self, rows: np.ndarray, lateness: array, periods: array) -> None:
         control = rows[:, 13] == 0
