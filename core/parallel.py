@@ -17,7 +17,7 @@ from typing import Any, Generic, TypeVar
 
 from piezopreload.core.errors import InputError
 
-__all__ = ["beside", "Beside", "spare_cpus"]
+__all__ = ["beside", "Beside", "spare_cpus", "fork_pool"]
 
 T = TypeVar("T")
 
@@ -67,10 +67,17 @@ class Beside(Generic[T]):
         return self._value
 
 
+def fork_pool(workers: int) -> ProcessPoolExecutor | None:
+    """A pool of ``workers`` forked processes (they start with this process's imports), or None without ``fork``."""
+    if "fork" not in multiprocessing.get_all_start_methods():
+        return None
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork"))
+
+
 def beside(fn: Callable[..., T], /, *args: Any, **kwargs: Any) -> Beside[T]:
     """Start ``fn(*args, **kwargs)`` in a forked worker if a CPU is spare, else run it now."""
-    if spare_cpus() > 1 and "fork" in multiprocessing.get_all_start_methods():
-        pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"))
+    pool = fork_pool(1) if spare_cpus() > 1 else None
+    if pool is not None:
         return Beside(pool.submit(fn, *args, **kwargs), pool=pool)
     try:
         return Beside(None, value=fn(*args, **kwargs))

@@ -9,12 +9,11 @@ every axis, the same colour for the same controller in every figure.
 from __future__ import annotations
 
 import functools
-import multiprocessing
 import os
 import pickle
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +21,7 @@ import matplotlib as mpl
 import numpy as np
 from matplotlib.figure import Figure
 
-from piezopreload.core.parallel import spare_cpus
+from piezopreload.core.parallel import fork_pool, spare_cpus
 
 __all__ = [
     "STYLE", "COLOURS", "save", "save_all", "hysteresis_loops", "inverse_model", "step_responses", "tracking",
@@ -80,13 +79,14 @@ def save_all(figures: Sequence[tuple[Figure, str | Path]], *, workers: int | Non
     total = len(figures)
     n = min(total, spare_cpus(), 4) if workers is None else max(1, min(workers, total))
     say = progress or (lambda _i, _n: None)
-    if n <= 1 or "fork" not in multiprocessing.get_all_start_methods():
+    pool = fork_pool(n) if n > 1 else None
+    if pool is None:
         written = []
         for i, (fig, path) in enumerate(figures, start=1):
             written.append(save(fig, path))
             say(i, total)
         return written
-    with ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("fork")) as pool:
+    with pool:
         futures = [pool.submit(_save_pickled, pickle.dumps(fig), str(path)) for fig, path in figures]
         for i, _ in enumerate(as_completed(futures), start=1):
             say(i, total)
