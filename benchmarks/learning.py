@@ -19,6 +19,12 @@ The paper's study (studies/paper2021.toml): its rig, its gains (Kc 0.3 V/N, Ti 0
 * the same learning on 50 Monte Carlo plants (each its own learning, the nominal learning
   model): ``mc_converged_plants`` of ``mc_plants`` (target: all), the worst plant's errors.
 
+* the trade between the two scores: ``trade_off`` learns again with the plan's ramps placed to
+  weigh the error outside 0.1 s after the jumps ``w`` times more (``after_change_weight``), and
+  ``plan_front`` is what the plans alone score over a sweep of ``w`` with every placement a long
+  preview allows (the fastest ramps at full slew, so no controller does better), scored from the
+  first change as above and, ``..._from_start``, from t = 0 (the first change's preview counted).
+
 ``--norm-optimal`` adds the norm-optimal law (a QP per iteration: minutes) on the nominal rig.
 The last line printed is one JSON object.
 """
@@ -35,7 +41,27 @@ from piezopreload.models.actuator import Rig
 from piezopreload.models.closedloop import simulate
 from piezopreload.models.controller import Controller
 from piezopreload.study import load_study
-from piezopreload.tuning.learning import AFTER_CHANGE_S, learn
+from piezopreload.tuning.learning import AFTER_CHANGE_S, branch_ramps, feedforward_lead, learn, preview_plan
+
+
+def plan_front(params, ref, weights, preview_s: float = 0.3) -> list[dict]:
+    """The plans' two scores over ``weights``: the least either can be for any placement of the fastest ramps."""
+    ramps = branch_ramps(params, ref.levels_N)
+    rows = []
+    for w in weights:
+        plan = preview_plan(params, ref, preview_s, lead_samples=feedforward_lead(params), ramps=ramps,
+                            after_change_weight=w)
+        t, e = plan.t_s, ref.at(plan.t_s) - plan.force_N
+        row = {"after_change_weight": w}
+        for name, t_from in (("", ref.times_s[1]), ("_from_start", 0.0)):
+            scored = t >= t_from
+            outside = scored.copy()
+            for tj in ref.times_s[1:]:
+                outside &= ~((t >= tj - 1e-12) & (t < tj + AFTER_CHANGE_S - 1e-12))
+            row[f"rms_N{name}"] = float(np.sqrt(np.mean(e[scored] ** 2)))
+            row[f"rms_after_change_N{name}"] = float(np.sqrt(np.mean(e[outside] ** 2)))
+        rows.append(row)
+    return rows
 
 
 def main() -> None:
@@ -66,6 +92,19 @@ def main() -> None:
     out["nominal_seconds"] = time.perf_counter() - t0
     print(f"nominal: {d['tracking_rms_N']:.3f} N (floor {d['preview_floor_N']:.3f} N), "
           f"{d['tracking_rms_after_change_N']:.3f} N after jumps", flush=True)
+    out["plan_slew_fraction"] = d["plan_slew_fraction"]
+    out["trade_off"] = []
+    for w in (3.0, 10.0, 30.0):
+        r = learn(controller, rig, ref, iterations=args.iterations, seed=study.seed, after_change_weight=w)
+        out["trade_off"].append({"after_change_weight": w, "tracking_rms_N": r.tracking_rms_N,
+                                 "tracking_rms_after_change_N": r.tracking_rms_after_change_N})
+        print(f"after-change weight {w:g}: {r.tracking_rms_N:.3f} N whole, {r.tracking_rms_after_change_N:.3f} N "
+              "after jumps", flush=True)
+    front = plan_front(study.rig, ref, [0.0, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 1e3, 1e4])
+    out["plan_front"] = front
+    for key in ("", "_from_start"):
+        meets = [f[f"rms_N{key}"] for f in front if f[f"rms_after_change_N{key}"] <= 0.15]
+        out[f"plan_least_rms_with_after_change_le_0.15_N{key}"] = min(meets) if meets else None
     if args.plants:
         t0 = time.perf_counter()
         mc = learn(controller, rig, ref, iterations=args.iterations, plants=args.plants, seed=study.seed)
