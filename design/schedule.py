@@ -22,6 +22,11 @@ With ``preload_margin_N = m`` the stiffness and lift-off rows hold at ``F_p,k - 
 the force loop's tracking error needs (:mod:`piezopreload.design.system` derives ``m`` from the
 error the tuned loop has while it follows the schedule).
 
+The rigidity grows with the preload, so each sample's rows are one lower bound on F_p,k, and
+with the slew rows the optimum is the upper envelope of the slew cones on those bounds: exact,
+in two passes (:func:`schedule_preload`; ``method="nlp"`` solves the NLP above with IPOPT, to
+the same optimum).
+
 The comparison is the best constant preload: the least constant F_p meeting the same
 constraints at every sample (so at equal minimum stiffness requirement). Its friction
 energy against the schedule's is the saving.
@@ -184,8 +189,23 @@ def _rigidity_function(screw: BallScrew) -> ca.Function:
     return ca.Function("rigidity", [F, Fa], [k])
 
 
-def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec) -> PreloadSchedule:
-    """The least-friction preload schedule and the best constant preload (module docstring)."""
+def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec, method: str = "envelope") -> PreloadSchedule:
+    """The least-friction preload schedule and the best constant preload (module docstring).
+
+    ``method="envelope"`` (the default) solves the problem exactly without iterating. The
+    rigidity grows with the preload at every load, so each sample's stiffness and lift-off rows
+    are one lower bound ``low_k`` on ``F_p,k`` (found by bisection, as for the best constant);
+    with the slew rows every feasible schedule lies above every cone ``low_j - slew |t - t_j|``,
+    and their upper envelope ``L_k = max_j (low_j - slew |t_k - t_j|)`` is itself feasible (a
+    maximum of functions of slope at most ``slew`` has slope at most ``slew``, and it is at most
+    ``max_j low_j <= F_max``). So ``L`` lies below every feasible schedule, sample by sample,
+    and least ``sum_k w_k F_p,k`` for any weights ``w_k >= 0``: it is the optimum. Two passes
+    over the samples (forward, then backward) compute it. ``method="nlp"`` solves the NLP with
+    CasADi/IPOPT instead (the statement in the module docstring; the same optimum, and the
+    way to go for an objective that is not monotone in the preload).
+    """
+    if method not in ("envelope", "nlp"):
+        raise ValueError(f"method must be 'envelope' or 'nlp', got {method!r}")
     Fa = np.asarray(profile.axial_load_N, float)
     n = Fa.size
     dt = profile.dt_s
@@ -213,13 +233,36 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec)
         raise ValueError(f"at t = {profile.time_s[k]:g} s the rigidity required ({required[k]:.0f} N/um) exceeds "
                          f"what the highest preload gives ({k_max[k]:.0f} N/um) by {short[k]:.0f} N/um; lower the "
                          f"stiffness requirement or choose a stiffer screw.")
-    scale = 1000.0
+    low = _least_preloads(k_map, Fa, required, F_lo, spec.max_preload_N, margin)
+    constant = float(low.max())
+    slew_step = spec.slew_N_per_s * np.diff(profile.time_s)
+    if method == "envelope":
+        F_opt = low.copy()
+        for k in range(1, n):  # forward: the cones of the samples before
+            F_opt[k] = max(F_opt[k], F_opt[k - 1] - slew_step[k - 1])
+        for k in range(n - 2, -1, -1):  # backward: and of those after
+            F_opt[k] = max(F_opt[k], F_opt[k + 1] - slew_step[k])
+        status = "Solve_Succeeded (exact: the envelope of the slew cones)"
+    else:
+        F_opt, status = _schedule_nlp(k_map, Fa, required, weight, dt, F_lo, slew_step, spec, constant)
+    rig = np.asarray(k_map(F_opt, Fa)).ravel()
+    rig_c = np.asarray(k_map(constant, Fa)).ravel()
+    return PreloadSchedule(
+        profile=profile, spec=spec, preload_N=F_opt, constant_preload_N=constant, rigidity_N_per_um=rig,
+        required_N_per_um=required, constant_rigidity_N_per_um=rig_c,
+        friction_energy_J=float(np.dot(weight, F_opt)), constant_friction_energy_J=float(np.sum(weight) * constant),
+        energy_units=units, status=status,
+    )
 
-    # ---- the schedule: decision variables, objective, constraints, initial guess, solve ----
+
+def _schedule_nlp(k_map: ca.Function, Fa: Array, required: Array, weight: Array, dt: Array, F_lo: Array,
+                  slew_step: Array, spec: ScheduleSpec, constant: float) -> tuple[Array, str]:
+    """The schedule as the NLP of the module docstring, solved by CasADi/IPOPT from the best constant."""
+    n, scale, margin = Fa.size, 1000.0, spec.preload_margin_N
+    # ---- decision variables, objective, constraints, initial guess, solve ----
     y = ca.MX.sym("y", n)
     F = scale * y
     g_stiff = (k_map(ca.fmax(F.T - margin, 1.0), Fa.reshape(1, -1)).T - required) / 100.0
-    slew_step = spec.slew_N_per_s * np.diff(profile.time_s)
     g_slew = (F[1:] - F[:-1]) / scale
     # where the screw stands still the energy does not see the preload: a small time-weighted
     # drag term (1e-3 of the mean weight per second) takes it to its least value there
@@ -230,27 +273,17 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec)
     lbg = np.concatenate([np.zeros(n), -slew_step / scale])
     ubg = np.concatenate([np.full(n, np.inf), slew_step / scale])
     lbx, ubx = F_lo / scale, np.full(n, spec.max_preload_N / scale)
-    # start from the constant preload, which is feasible
-    constant = _best_constant(k_map, Fa, required, F_lo, spec.max_preload_N, margin)
-    out = solver(x0=np.full(n, constant / scale), lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+    out = solver(x0=np.full(n, constant / scale), lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)  # the constant is feasible
     stats = solver.stats()
-    F_opt = np.asarray(out["x"]).ravel() * scale
     if not stats["success"]:
         raise RuntimeError(f"the preload schedule NLP did not converge: {stats['return_status']}")
-    rig = np.asarray(k_map(F_opt, Fa)).ravel()
-    rig_c = np.asarray(k_map(constant, Fa)).ravel()
-    return PreloadSchedule(
-        profile=profile, spec=spec, preload_N=F_opt, constant_preload_N=constant, rigidity_N_per_um=rig,
-        required_N_per_um=required, constant_rigidity_N_per_um=rig_c,
-        friction_energy_J=float(np.dot(weight, F_opt)), constant_friction_energy_J=float(np.sum(weight) * constant),
-        energy_units=units, status=stats["return_status"],
-    )
+    return np.asarray(out["x"]).ravel() * scale, str(stats["return_status"])
 
 
-def _best_constant(k_map: ca.Function, Fa: Array, required: Array, F_lo: Array, F_max: float,
-                   margin: float = 0.0) -> float:
-    """The least constant preload meeting every sample: each sample's least preload (rigidity
-    is increasing in F_p), found by bisection on all samples at once, then their maximum."""
+def _least_preloads(k_map: ca.Function, Fa: Array, required: Array, F_lo: Array, F_max: float,
+                    margin: float = 0.0) -> Array:
+    """Each sample's least preload meeting its rows (the rigidity grows with the preload), by bisection
+    on all samples at once to 2^-60 of the range. Their maximum is the best constant preload."""
     lo = F_lo.copy()
     hi = np.full_like(lo, F_max)
     ok_lo = np.asarray(k_map(lo - margin, Fa)).ravel() >= required
@@ -259,5 +292,4 @@ def _best_constant(k_map: ca.Function, Fa: Array, required: Array, F_lo: Array, 
         ok = np.asarray(k_map(mid - margin, Fa)).ravel() >= required
         hi = np.where(ok, mid, hi)
         lo = np.where(ok, lo, mid)
-    need = np.where(ok_lo, F_lo, hi)
-    return float(need.max())
+    return np.where(ok_lo, F_lo, hi)
