@@ -120,7 +120,7 @@ class _Ctx:
             return self.study
         if self._subject is None:
             rig = read_artifact(self.output("plant", "plant"), "plant")["rig"]
-            self._subject = self.study.replace(rig=rig)
+            self._subject = self.study.with_plant(rig)
         return self._subject
 
 

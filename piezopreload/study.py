@@ -20,6 +20,7 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
+from dataclasses import replace as _replace
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -237,6 +238,7 @@ class Study:
     where: _Source = field(repr=False)
     source_text: bytes = field(repr=False)  # the file as read, or as :meth:`replace` wrote it
     description: str = ""
+    on_designed_plant: bool = field(default=False, repr=False, compare=False)  # set by with_plant
 
     # ---- the tables --------------------------------------------------------------------------
     @property
@@ -287,7 +289,8 @@ class Study:
         """A validated copy with some keys changed: ``study.replace(rig={"bolt_preload_N": 30.0})``.
 
         Each argument names a table (``reference={"step": {"final_N": 80.0}}`` for a nested
-        one) and holds the keys to change; a bad key or value raises :class:`InputError`.
+        one) and holds the keys to change; a bad key or value raises :class:`InputError`. A study
+        given its plant (:meth:`with_plant`) keeps it.
         """
         data = self.tables()
         for table, keys in changes.items():
@@ -302,7 +305,9 @@ class Study:
             data["rig_run"]["reference"] = str(self.folder / data["rig_run"]["reference"])
         where = _Source(f"{self.path} (replaced)", Lines(""), self.folder)
         check_tree(data, _SCHEMA, where.lines, where.shown, string_lists=_STRING_LISTS)
-        return _build(data, where, self.path, toml_text(data).encode("utf-8"))
+        # a study given its plant (with_plant) keeps it: its [rig] is that plant's, changed as asked
+        return _replace(_build(data, where, self.path, toml_text(data).encode("utf-8")),
+                        on_designed_plant=self.on_designed_plant)
 
     def to_toml(self) -> str:
         """The study as a TOML file (the file itself when it was not changed)."""
@@ -313,6 +318,8 @@ class Study:
         """The feedforward's P-I model: from ``[feedforward] data`` (a measured V -> N loop) when the study names
         one, else from the loop measurement simulated on the rig; with its open-loop compensation check."""
         say = progress or (lambda _m: None)
+        if not self._on_plant:
+            return self.plant_study(progress).identify_feedforward(progress)
         ex, data = self.excitation, self.resolve(self.feedforward.data)
         if data is None:
             say(f"simulating the {ex.v_max_V:g} V, {ex.frequency_Hz:g} Hz loop measurement on the rig's truth model")
@@ -332,7 +339,8 @@ class Study:
         compare it with the paper's and SIMC's gains and bound it. Returns a :class:`~piezopreload.results.TuningResult`."""
         from piezopreload.results import tune
 
-        return tune(self, feedforward or self.identify_feedforward(progress), seed=seed, progress=progress,
+        study = self.plant_study(progress)
+        return tune(study, feedforward or study.identify_feedforward(progress), seed=seed, progress=progress,
                     iterations=iterations)
 
     def simulate(self, gains: GainSet | PIDGains | None = None, *, controller: str = "ff+pid", reference: str = "step",
@@ -345,7 +353,7 @@ class Study:
         """
         from piezopreload.results import simulate
 
-        return simulate(self, gains, controller=controller, reference=reference, feedforward=feedforward, seed=seed)
+        return simulate(self.plant_study(), gains, controller=controller, reference=reference, feedforward=feedforward, seed=seed)
 
     def learn(self, gains: GainSet | None = None, *, reference: Any = "trajectory", iterations: int = 10,
               preview_s: float | None = None, method: str = "p-type", plants: int | None = None,
@@ -363,10 +371,11 @@ class Study:
         from piezopreload.models.controller import Controller
         from piezopreload.tuning.learning import learn, named_reference
 
-        reference = named_reference(reference, self.references)
+        study = self.plant_study(progress)
+        reference = named_reference(reference, study.references)
         controller = gains.controller() if gains is not None else Controller(
-            self.gains, self.rig.sample_period_s, self.identify_feedforward().inverse())
-        return learn(controller, Rig(self.rig), reference, iterations=iterations, preview_s=preview_s, method=method,
+            study.gains, study.rig.sample_period_s, study.identify_feedforward().inverse())
+        return learn(controller, Rig(study.rig), reference, iterations=iterations, preview_s=preview_s, method=method,
                      plants=plants, seed=self.seed if seed is None else seed, progress=progress)
 
     def reproduce(self, *, seed: int | None = None, repeats: int = 1,
@@ -374,7 +383,8 @@ class Study:
         """The paper's six step numbers beside the simulation's (medians over ``repeats`` noise draws)."""
         from piezopreload.results import reproduce
 
-        return reproduce(self, feedforward or self.identify_feedforward(), seed=seed, repeats=repeats)
+        study = self.plant_study()
+        return reproduce(study, feedforward or study.identify_feedforward(), seed=seed, repeats=repeats)
 
     def design(self, *, objective: str | None = None, pareto: list[str] | None = None, points: int | None = None,
                schedule: str | Path | None = None, progress: Callable[[str], None] | None = None,
@@ -418,9 +428,30 @@ class Study:
                                        profile_name=str(path), **s.limits())
         return schedule
 
-    def with_plant(self, plant: DesignedPlant) -> Study:
-        """This study with the designed plant as its ``[rig]``: what identification, tuning and validation run on."""
-        return self.replace(rig=plant.rig.to_dict())
+    def with_plant(self, plant: DesignedPlant | dict[str, Any]) -> Study:
+        """This study with the designed plant as its ``[rig]``: what identification, tuning and validation run on.
+
+        ``plant``: a :class:`DesignedPlant`, or the ``[rig]`` table of one (as the plant stage writes it).
+        """
+        rig = plant.rig.to_dict() if isinstance(plant, DesignedPlant) else plant
+        return _replace(self.replace(rig=rig), on_designed_plant=True)
+
+    @property
+    def _on_plant(self) -> bool:
+        return self.on_designed_plant or not self.plant_from_design
+
+    def plant_study(self, progress: Callable[[str], None] | None = None) -> Study:
+        """The study the control steps (identify, tune, simulate, learn) run on: this one, or, where the plant is
+        the design (``[plant] from_design``) and :meth:`with_plant` has not given it, this study on the plant of
+        :meth:`design`'s optimum (designed once, then kept)."""
+        if self._on_plant:
+            return self
+        cached = self.__dict__.get("_plant_study")
+        if cached is None:
+            (progress or (lambda _m: None))("the plant is the designed preload system: designing it first")
+            cached = self.with_plant(self.designed_plant(self.design(progress=progress)))
+            object.__setattr__(self, "_plant_study", cached)  # a frozen study keeps what it derived, as a cache
+        return cached
 
     def track_schedule(self, plant: DesignedPlant, schedule: PreloadSchedule, gain_set: GainSet, *,
                        ff_extra_V: Any = None, progress: Callable[[str], None] | None = None) -> SystemRun:

@@ -82,6 +82,26 @@ def test_studies_by_default_name_and_path():
         pp.load_study("no-such-study")
 
 
+def test_a_study_whose_plant_is_its_design_runs_its_control_steps_on_that_plant():
+    axis = pp.load_study()
+    said: list[str] = []
+    on_plant = axis.plant_study(said.append)
+    assert any("designing it first" in m for m in said), said
+    designed = axis.designed_plant(axis.design()).rig
+    assert on_plant.rig.to_dict() == designed.to_dict() != axis.rig.to_dict(), "the steps' rig is not the designed plant's"
+    assert axis.plant_study() is on_plant and on_plant.plant_study() is on_plant, "the design ran again"
+    # a step on the study itself runs on that plant: the simulated run's rig is the designed one
+    run = axis.simulate(axis.gains, controller="pid", reference="step")
+    on_designed = on_plant.simulate(axis.gains, controller="pid", reference="step")
+    on_table = axis.replace(plant={"from_design": False}).simulate(axis.gains, controller="pid", reference="step")
+    np.testing.assert_array_equal(run.force_N, on_designed.force_N, err_msg="Study.simulate did not run on the plant")
+    assert not np.allclose(run.force_N, on_table.force_N), "the designed plant and [rig] give the same run: no test"
+    # what with_plant gave is kept through a change of keys; a study on its own rig is its own plant study
+    assert on_plant.replace(simulation={"seed": 3}).plant_study().rig.to_dict() == designed.to_dict()
+    paper = pp.load_study("paper2021")
+    assert paper.plant_study() is paper
+
+
 def test_typed_tables_mirror_the_file_and_a_copy_is_checked_as_a_file_is():
     study = pp.load_study(SMALL)
     assert study.reference.step.duration_s == 3.0 and study.design_table.pareto_points == 5
