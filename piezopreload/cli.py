@@ -114,7 +114,7 @@ def _study_arguments(p: argparse.ArgumentParser, seed: bool = True) -> None:
 
 
 def _study(args: argparse.Namespace) -> Any:
-    # the single-step commands work on a study's [rig] as the plant: the paper's unless named
+    # the single-step commands work on a study's plant (its [rig], or its design's: Study.plant_study): the paper's unless named
     return load_study(args.study or PAPER_STUDY)
 
 
