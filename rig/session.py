@@ -301,8 +301,7 @@ def run(gains_path: str | Path, *, backend: str = "sim", backend_options: dict[s
 
     ``learned`` (a learned-signal artifact, :class:`~piezopreload.models.learned.LearnedSignal`)
     plays back a learned signal: its setpoint (the plan) is the run's reference and its
-    ``ff_extra_V`` is added to the feedforward (on the Python loop: the native one has no such
-    input yet). It must have been learned with this gain set and on this reference
+    ``ff_extra_V`` is added to the feedforward (on either loop). It must have been learned with this gain set and on this reference
     (``reference=None``: its own); the run's log gives the next learning iteration
     (``piezopreload learn --from-run LOG``). ``loop``: ``auto``, ``native`` or ``python``.
     """
