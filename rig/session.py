@@ -360,6 +360,9 @@ def serve(gains_path: str | Path, *, endpoint: str, users: dict[str, str], certi
         say(f"serving {endpoint} (log {log.csv_path}); stop with Ctrl-C")
     try:
         out = _summary(asyncio.run(_serve(server, executor, duration_s, ready, stop)), log, su, info)
+    except OSError as exc:  # the server could not start (the address in use, a certificate): nothing ran
+        log.close("not started", {"reason": str(exc)})
+        raise InputError(f"rig serve: {exc}") from None
     finally:
         _close(su.backend)
     out.summary["pushes"] = server.pushes
@@ -374,7 +377,7 @@ async def _serve(server: RigServer, executor: Executor, duration_s: float | None
     if duration_s is not None:
         loop.call_later(duration_s, lambda: executor.stop(f"the --duration of {duration_s:g} s ended", trip=False))
     switch = sys.getswitchinterval()
-    sys.setswitchinterval(1e-4)  # the server's thread hands the interpreter back to the loop's within 0.1 ms
+    sys.setswitchinterval(1e-4)  # the supervisor's thread hands the interpreter back to a Python loop within 0.1 ms
     try:
         return await server.run(ready=ready, stop=stop)
     finally:
