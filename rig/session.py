@@ -237,6 +237,8 @@ def _setup(gains_path: str | Path, backend: str, backend_options: dict[str, str]
         ref, ref_name = reference_for(reference or "step", gain_set, gains_path)
     limits = interlocks(controller, gain_set.plant if backend == "sim" else None, safety)
     check_reference(ref, ref_name, limits, gain_set.plant)
+    if signal is not None:  # the plan is what the loop runs: its levels are held to the same range
+        check_reference(signal.setpoint, f"setpoint_N of {learned}", limits, gain_set.plant)
     try:
         rig = open_backend(backend, backend_options, plant=gain_set.plant, seed=seed)
     except BackendError as exc:
