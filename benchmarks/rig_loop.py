@@ -168,6 +168,7 @@ def main() -> dict:
         "pushes": [n["pushes"], p["pushes"]], "switches": [n["switches"], p["switches"]],
         "reads_20Hz": [n["reads_20Hz"], p["reads_20Hz"]], "native_sched_fifo": n["sched_fifo"],
         "native_memory_locked": n["memory_locked"],
+        "native_load_avg_1min_after": n["load_avg_1min_after"], "python_load_avg_1min_after": p["load_avg_1min_after"],
         "load_avg_before": list(load_before), "load_avg_after": list(os.getloadavg()),
     }
 
