@@ -383,16 +383,20 @@ class Controller:
 
 
 def controller_functions(model: ControllerModel, params: ArrayLike | None = None,
-                         prefix: str = "pp_controller") -> tuple[ca.Function, ca.Function]:
+                         prefix: str = "pp_controller", *, ff_extra: bool = False) -> tuple[ca.Function, ca.Function]:
     """The controller as CasADi functions ``(initial_state, step)``, for code generation.
 
-    ``initial_state(setpoint, pv, u0[, params]) -> state`` is :meth:`ControllerModel.start`;
-    ``step(state, setpoint, pv[, params]) -> (u, p, i, d, ff, state_next)`` is
-    :meth:`ControllerModel.step`. With ``params`` (numbers) they are constants of the code (an
-    export for one gain set); without, an input (one compiled step for every gain set).
+    ``initial_state(setpoint, pv, u0[, ff_extra][, params]) -> state`` is
+    :meth:`ControllerModel.start`; ``step(state, setpoint, pv[, ff_extra][, params]) -> (u, p, i,
+    d, ff, state_next)`` is :meth:`ControllerModel.step`. With ``params`` (numbers) they are
+    constants of the code (an export for one gain set); without, an input (one compiled step for
+    every gain set). ``ff_extra=True`` makes the external feedforward sample an input (a learned
+    signal played back); without it the functions have none (it is 0).
     """
     x = ca.SX.sym("state", model.state.size)
     sp, pv, u0 = ca.SX.sym("setpoint"), ca.SX.sym("pv"), ca.SX.sym("u0")
+    extra: Any = ca.SX.sym("ff_extra") if ff_extra else 0.0
+    extra_in_ff, extra_names_ff = ([extra], ["ff_extra"]) if ff_extra else ([], [])
     p: Any
     if params is None:
         p = ca.SX.sym("params", model.params.size)
@@ -402,10 +406,10 @@ def controller_functions(model: ControllerModel, params: ArrayLike | None = None
         if values.shape != (model.params.size,):
             raise InputError(f"params must be {model.params.size} numbers, got shape {values.shape}.")
         p, extra_in, extra_names = ca.DM(values), [], []
-    nxt, t = model.step(CASADI, p, x, sp, pv)
-    step = ca.Function(f"{prefix}_step_fn", [x, sp, pv, *extra_in], [t.u, t.p, t.i, t.d, t.ff, nxt],
-                       ["state", "setpoint", "pv", *extra_names], ["u", "p", "i", "d", "ff", "state_next"])
-    start = model.start(CASADI, p, sp, pv, u0)
-    init = ca.Function(f"{prefix}_initial_state_fn", [sp, pv, u0, *extra_in], [start],
-                       ["setpoint", "pv", "u0", *extra_names], ["state"])
+    nxt, t = model.step(CASADI, p, x, sp, pv, extra)
+    step = ca.Function(f"{prefix}_step_fn", [x, sp, pv, *extra_in_ff, *extra_in], [t.u, t.p, t.i, t.d, t.ff, nxt],
+                       ["state", "setpoint", "pv", *extra_names_ff, *extra_names], ["u", "p", "i", "d", "ff", "state_next"])
+    start = model.start(CASADI, p, sp, pv, u0, extra)
+    init = ca.Function(f"{prefix}_initial_state_fn", [sp, pv, u0, *extra_in_ff, *extra_in], [start],
+                       ["setpoint", "pv", "u0", *extra_names_ff, *extra_names], ["state"])
     return init, step

@@ -36,6 +36,51 @@ def reference_sha256(reference: Reference) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+_REQUIRED = object()
+
+
+def _floats(x: Any) -> NDArray[np.float64]:
+    if isinstance(x, str | dict):
+        raise TypeError(f"expected a list of numbers, got {type(x).__name__}")
+    return np.asarray(x, float)
+
+
+def _number(x: Any) -> float:
+    if isinstance(x, bool) or not isinstance(x, int | float):
+        raise TypeError(f"expected a number, got {x!r}")
+    return float(x)
+
+
+def _count(x: Any) -> int:
+    if isinstance(x, bool) or not isinstance(x, int | float) or not float(x).is_integer():
+        raise ValueError(f"expected a whole number, got {x!r}")
+    return int(x)
+
+
+def _text(x: Any) -> str:
+    if not isinstance(x, str):
+        raise TypeError(f"expected text, got {x!r}")
+    return x
+
+
+def _optional_text(x: Any) -> str | None:
+    return None if x is None else _text(x)
+
+
+def _list(x: Any) -> list[Any]:
+    if not isinstance(x, list):
+        raise TypeError(f"expected a list, got {type(x).__name__}")
+    return list(x)
+
+
+def _mapping(x: Any) -> dict[str, Any]:
+    if x is None:
+        return {}
+    if not isinstance(x, dict):
+        raise TypeError(f"expected an object, got {type(x).__name__}")
+    return dict(x)
+
+
 @dataclass(frozen=True, eq=False)
 class LearnedSignal:
     """A learned feedforward correction for one gain set and one reference.
@@ -80,6 +125,21 @@ class LearnedSignal:
         u, s = np.asarray(self.ff_extra_V, float), np.asarray(self.setpoint_N, float)
         if not (np.isfinite(self.sample_period_s) and self.sample_period_s > 0):
             raise InputError(f"LearnedSignal.sample_period_s must be > 0, got {self.sample_period_s!r}.")
+        if not isinstance(self.reference, Reference):
+            raise InputError(f"LearnedSignal.reference must be a Reference, got {type(self.reference).__name__}.")
+        for name in ("gain_set_sha256", "content_sha256"):
+            if not (getattr(self, name) is None or isinstance(getattr(self, name), str)):
+                raise InputError(f"LearnedSignal.{name} must be a hash (text) or None, got {getattr(self, name)!r}.")
+        if isinstance(self.iteration, bool) or not isinstance(self.iteration, int | np.integer) or self.iteration < 0:
+            raise InputError(f"LearnedSignal.iteration must be a whole number >= 0, got {self.iteration!r}.")
+        if not (np.isfinite(self.preview_s) and self.preview_s >= 0):
+            raise InputError(f"LearnedSignal.preview_s must be finite and >= 0, got {self.preview_s!r}.")
+        if not isinstance(self.method, str):
+            raise InputError(f"LearnedSignal.method must be text, got {self.method!r}.")
+        ratio = self.reference.duration_s / self.sample_period_s
+        if not ratio < 1e8:  # before anything is sized by it
+            raise InputError(f"LearnedSignal.sample_period_s {self.sample_period_s!r} gives {ratio:.3g} samples over "
+                             f"the reference's {self.reference.duration_s} s; at most 1e8.")
         n = int(round(self.reference.duration_s / self.sample_period_s)) + 1
         for name, x in (("ff_extra_V", u), ("setpoint_N", s)):
             if x.shape != (n,):
@@ -119,18 +179,33 @@ class LearnedSignal:
 
     @classmethod
     def from_dict(cls, doc: dict[str, Any], shown: str = "the learned signal") -> LearnedSignal:
+        """The inverse of :meth:`to_dict`; an :class:`ArtifactError` names the field that is missing or wrong."""
+        if not isinstance(doc, dict):
+            raise ArtifactError(f"{shown}: a learned signal is a JSON object, got {type(doc).__name__}")
+
+        def field(name: str, convert: Any, default: Any = _REQUIRED) -> Any:
+            if name not in doc:
+                if default is _REQUIRED:
+                    raise ArtifactError(f"{shown}: field '{name}' is missing; learn the signal again")
+                return default
+            try:
+                return convert(doc[name])
+            except (TypeError, ValueError, OverflowError) as exc:
+                raise ArtifactError(f"{shown}: field '{name}' is invalid ({exc}); learn the signal again") from exc
+
+        reference = field("reference", Reference.from_dict)
+        if field("reference_sha256", str) != reference_sha256(reference):
+            raise ArtifactError(f"{shown}: field 'reference_sha256' does not match its reference")
         try:
-            reference = Reference.from_dict(doc["reference"])
-            if reference_sha256(reference) != doc["reference_sha256"]:
-                raise ArtifactError(f"{shown}: field 'reference_sha256' does not match its reference")
-            return cls(np.asarray(doc["ff_extra_V"], float), np.asarray(doc["setpoint_N"], float),
-                       float(doc["sample_period_s"]), reference, doc["gain_set_sha256"], int(doc.get("iteration", 0)),
-                       float(doc.get("preview_s", 0.0)), str(doc.get("method", "p-type")), list(doc.get("history", [])),
-                       dict(doc.get("inputs") or {}), doc.get("content_sha256"))
+            return cls(field("ff_extra_V", _floats), field("setpoint_N", _floats), field("sample_period_s", _number),
+                       reference, field("gain_set_sha256", _optional_text), field("iteration", _count, 0),
+                       field("preview_s", _number, 0.0), field("method", _text, "p-type"),
+                       field("history", _list, []), field("inputs", _mapping, {}),
+                       field("content_sha256", _optional_text, None))
         except ArtifactError:
             raise
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ArtifactError(f"{shown}: field {exc} is missing or invalid; learn the signal again") from exc
+        except InputError as exc:  # the signal's own checks (sizes, ranges)
+            raise ArtifactError(f"{shown}: {exc} Learn the signal again.") from exc
 
     @classmethod
     def load(cls, path: str | Path) -> LearnedSignal:

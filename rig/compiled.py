@@ -15,10 +15,14 @@ which they are in ``kind``.
 
 The C entry point, for a native loop to call::
 
-    int pp_rig_step(double setpoint, double pv, double* state, const double* params, double* out);
+    int pp_rig_step(double setpoint, double pv, double ff_extra, double* state, const double* params,
+                    double* out);
 
-``state`` (:attr:`ControllerModel.state`) is updated in place, ``params`` is
-:meth:`Controller.parameter_vector`, ``out = (u, p, i, d, ff)``; 0 on success.
+``ff_extra`` is the external feedforward sample (a learned signal played back, 0 without one),
+added before the clamp as in :meth:`ControllerModel.step`; ``state``
+(:attr:`ControllerModel.state`) is updated in place, ``params`` is
+:meth:`Controller.parameter_vector` (its length is the model's layout's), ``out = (u, p, i,
+d, ff)``; 0 on success.
 """
 
 from __future__ import annotations
@@ -40,14 +44,14 @@ cache_dir = native.cache_dir
 
 _WRAPPER = """
 /* piezopreload: one controller sample; the state is updated in place, out = (u, p, i, d, ff) */
-int pp_rig_step(double setpoint, double pv, double* state, const double* params, double* out) {{
+int pp_rig_step(double setpoint, double pv, double ff_extra, double* state, const double* params, double* out) {{
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
   casadi_int iw[{iw}];
   casadi_real w[{w}];
   casadi_real next[{n}];
   int i, flag;
-  arg[0] = state; arg[1] = &setpoint; arg[2] = &pv; arg[3] = params;
+  arg[0] = state; arg[1] = &setpoint; arg[2] = &pv; arg[3] = &ff_extra; arg[4] = params;
   res[0] = out; res[1] = out + 1; res[2] = out + 2; res[3] = out + 3; res[4] = out + 4; res[5] = next;
   flag = {name}(arg, res, iw, w, 0);
   if (flag) return flag;
@@ -59,9 +63,9 @@ int pp_rig_step(double setpoint, double pv, double* state, const double* params,
 
 def step_library(model: ControllerModel) -> ctypes.CDLL:
     """The shared library with ``pp_rig_step`` for controllers of ``model``'s structure (built once, cached)."""
-    _, fn = controller_functions(model, prefix="pp_rig")
+    _, fn = controller_functions(model, prefix="pp_rig", ff_extra=True)
     source = native.generate([fn], "pp_rig_step") + _WRAPPER.format(
-        sz_arg=max(int(fn.sz_arg()), 4), sz_res=max(int(fn.sz_res()), 6), iw=max(int(fn.sz_iw()), 1),
+        sz_arg=max(int(fn.sz_arg()), 5), sz_res=max(int(fn.sz_res()), 6), iw=max(int(fn.sz_iw()), 1),
         w=max(int(fn.sz_w()), 1), n=model.state.size, name=fn.name())
     return native.library("pp_rig_step", source)
 
@@ -119,7 +123,8 @@ class CompiledStep:
         self._model = controller.model
         lib = step_library(self._model)
         fn = lib.pp_rig_step
-        fn.argtypes = [ctypes.c_double, ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
+        fn.argtypes = [ctypes.c_double, ctypes.c_double, ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p,
+                       ctypes.c_void_p]
         fn.restype = ctypes.c_int
         self._lib, self._fn = lib, fn
         self._x = np.zeros(self._model.state.size)
@@ -133,12 +138,15 @@ class CompiledStep:
         self._p = np.ascontiguousarray(controller.parameter_vector())
         self._ptr = (self._x.ctypes.data, self._p.ctypes.data, self._out.ctypes.data)
 
-    def start(self, setpoint: float, pv: float, u0: float) -> None:
-        self._x[:] = self.controller.state_vector(self.controller.initial_state(setpoint, pv, u0=u0))
+    def start(self, setpoint: float, pv: float, u0: float, ff_extra: float = 0.0) -> None:
+        """A bumpless start: the first output at ``(setpoint, pv)`` (with ``ff_extra``) is ``u0``."""
+        self._x[:] = np.asarray(self._model.start(NUMPY, self._p, np.float64(setpoint), np.float64(pv), u0,
+                                                  np.float64(ff_extra)), float).reshape(-1)
 
-    def step(self, setpoint: float, pv: float) -> tuple[float, float, float, float, float]:
+    def step(self, setpoint: float, pv: float, ff_extra: float = 0.0) -> tuple[float, float, float, float, float]:
+        """One sample: ``(u, p, i, d, ff)`` in volts; ``ff_extra`` is added to the feedforward."""
         x, p, out = self._ptr
-        if self._fn(setpoint, pv, x, p, out):
+        if self._fn(setpoint, pv, ff_extra, x, p, out):
             raise RuntimeError("the compiled controller step failed")
         u, prop, i, d, ff = self._out.tolist()
         return u, prop, i, d, ff

@@ -179,8 +179,8 @@ class Executor:
     its end until :meth:`stop` (a served rig). ``log`` receives every sample and event.
     ``ff_extra_V`` (one value per sample of the reference, as in
     :func:`~piezopreload.models.closedloop.simulate`) is added to the feedforward before the
-    clamp: a learned signal played back. The controller step that takes it is the numpy one
-    (tens of microseconds a sample); the compiled step's C entry point has no such input.
+    clamp: a learned signal played back, on either loop (the compiled step takes it as an input;
+    the native loop reads it at its sample counter, as it reads the reference).
     ``loop``: ``native``, ``python`` or ``auto`` (native where it can run, see the module
     docstring; :attr:`loop` says which one will, :attr:`loop_reason` why not native).
     """
@@ -201,13 +201,12 @@ class Executor:
         n = int(round(reference.duration_s / self.dt)) + 1
         self._ref = reference.at(np.arange(n) * self.dt).tolist()
         self._extra: list[float] | None = None
-        if ff_extra_V is not None:  # a learned or previewed feedforward: the step that takes it (numpy)
+        if ff_extra_V is not None:  # a learned or previewed feedforward, added by the step itself
             extra = np.asarray(ff_extra_V, float)
             if extra.shape != (n,) or not np.all(np.isfinite(extra)):
                 raise ValueError(f"ff_extra_V needs one finite value per sample of the reference ({n}), got shape "
                                  f"{extra.shape}")
             self._extra = extra.tolist()
-            step = "numpy"
         self.step = controller_step(controller, prefer=step)
         self._pending: tuple[Controller, dict[str, Any]] | None = None
         self._stop: str | None = None
@@ -225,9 +224,7 @@ class Executor:
         if want == "python":
             return "python", "asked for"
         why = ""
-        if self._extra is not None:
-            why = "a learned signal plays back through the numpy step (the compiled step has no ff_extra input)"
-        elif self.step.kind != "c":
+        if self.step.kind != "c":
             why = "the controller step is not compiled (no C compiler, or numpy asked for)"
         elif not native_loop.available():
             why = "the native loop could not be built (no working C compiler)"
@@ -460,7 +457,8 @@ class Executor:
             n_noise = max(n_noise, 1 << 18)
         backend = inner.native_backend(n_noise)  # type: ignore[attr-defined]
         return NativeLoop(self.controller, np.asarray(self._ref), limits, backend, realtime=self.realtime,
-                          hold=self.hold, faults=faults, step_fn=getattr(self.step, "_fn", None))
+                          hold=self.hold, faults=faults, step_fn=getattr(self.step, "_fn", None),
+                          ff_extra=None if self._extra is None else np.asarray(self._extra))
 
     def _run_native(self) -> RunResult:
         s, dt = self.safety, self.dt

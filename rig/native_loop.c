@@ -26,8 +26,8 @@
 #define PP_COLS 14
 #define PP_MAX_FAULTS 16
 
-typedef int (*pp_step_fn)(double, double, double*, const double*, double*);
-typedef int (*pp_start_fn)(double, double, double, const double*, double*);
+typedef int (*pp_step_fn)(double, double, double, double*, const double*, double*);
+typedef int (*pp_start_fn)(double, double, double, double, const double*, double*);
 typedef int (*pp_plant_read_fn)(const double*, const double*, double, double*);
 typedef int (*pp_plant_write_fn)(double*, const double*, double);
 typedef int (*hw_arm_fn)(void);
@@ -47,7 +47,8 @@ typedef struct { int32_t kind, fired; double at_s, value, duration_s; } pp_fault
 
 typedef struct {
   /* ---- set before the start ---- */
-  double dt_s; int64_t n_ref; const double* ref; int32_t hold, realtime;
+  double dt_s; int64_t n_ref; const double* ref; const double* extra; /* ff_extra per sample, or NULL */
+  int32_t hold, realtime;
   double v_min, v_max, slew_V_per_s, force_max, force_low, sensor_min, sensor_max, stale_after_s, ramp_s, safe_V;
   int64_t missed_streak;
   pp_step_fn step; pp_start_fn start; double* state; double* params[2];
@@ -212,7 +213,7 @@ static void ramp_down(pp_loop* L, int64_t* rows, double v_from, int64_t t0, int6
 
 static void* run(void* arg) {
   pp_loop* L = (pp_loop*)arg;
-  double dt = L->dt_s, t = 0.0, sp, y, ts, u, v, v_last = L->safe_V, value, slew = L->slew_V_per_s * L->dt_s;
+  double dt = L->dt_s, t = 0.0, sp, fx, y, ts, u, v, v_last = L->safe_V, value, slew = L->slew_V_per_s * L->dt_s;
   double out[5];
   int64_t dt_ns = (int64_t)llround(dt * 1e9), k = 0, rows = 0, streak = 0, t0, wake = 0, wake_prev, deadline, done;
   int cause = T_NONE, rc, need_start = 1, p_idx = __atomic_load_n(&L->active, __ATOMIC_ACQUIRE);
@@ -232,6 +233,7 @@ static void* run(void* arg) {
     if (k >= L->n_ref && !L->hold) break;
     t = k * dt;
     sp = L->ref[k < L->n_ref ? k : L->n_ref - 1];
+    fx = L->extra ? L->extra[k < L->n_ref ? k : L->n_ref - 1] : 0.0;
     deadline = t0 + k * dt_ns;
     wake = L->realtime ? wait_for(L, deadline) : now_ns();
     int want = __atomic_load_n(&L->active, __ATOMIC_ACQUIRE);
@@ -258,10 +260,10 @@ static void* run(void* arg) {
       break;
     }
     if (need_start) { /* bumpless: the first command of a start or a new gain set is the last one written */
-      if ((rc = L->start(sp, y, v_last, params, L->state)) != 0) { trip(L, T_EXCEPTION, X_START, t, rc); goto exception; }
+      if ((rc = L->start(sp, y, v_last, fx, params, L->state)) != 0) { trip(L, T_EXCEPTION, X_START, t, rc); goto exception; }
       need_start = 0;
     }
-    if ((rc = L->step(sp, y, L->state, params, out)) != 0) { trip(L, T_EXCEPTION, X_STEP, t, rc); goto exception; }
+    if ((rc = L->step(sp, y, fx, L->state, params, out)) != 0) { trip(L, T_EXCEPTION, X_STEP, t, rc); goto exception; }
     u = out[0];
     if (!isfinite(u)) {
       trip(L, T_COMMAND, 0, t, u);

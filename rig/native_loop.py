@@ -80,7 +80,7 @@ class _Loop(ctypes.Structure):
     """The prefix of ``pp_loop`` in native_loop.c, field for field (the rest is the thread's)."""
 
     _fields_ = [
-        ("dt_s", _D), ("n_ref", _I64), ("ref", _P), ("hold", _I32), ("realtime", _I32),
+        ("dt_s", _D), ("n_ref", _I64), ("ref", _P), ("extra", _P), ("hold", _I32), ("realtime", _I32),
         ("v_min", _D), ("v_max", _D), ("slew_V_per_s", _D), ("force_max", _D), ("force_low", _D),
         ("sensor_min", _D), ("sensor_max", _D), ("stale_after_s", _D), ("ramp_s", _D), ("safe_V", _D),
         ("missed_streak", _I64),
@@ -122,12 +122,12 @@ def loop_library() -> ctypes.CDLL:
 
 _START = """
 /* piezopreload: the controller's bumpless start, a state whose first output at (setpoint, pv) is u0 */
-int pp_rig_start(double setpoint, double pv, double u0, const double* params, double* state) {{
+int pp_rig_start(double setpoint, double pv, double u0, double ff_extra, const double* params, double* state) {{
   const casadi_real* arg[{sz_arg}];
   casadi_real* res[{sz_res}];
   casadi_int iw[{iw}];
   casadi_real w[{w}];
-  arg[0] = &setpoint; arg[1] = &pv; arg[2] = &u0; arg[3] = params;
+  arg[0] = &setpoint; arg[1] = &pv; arg[2] = &u0; arg[3] = &ff_extra; arg[4] = params;
   res[0] = state;
   return {name}(arg, res, iw, w, 0);
 }}
@@ -151,9 +151,9 @@ def start_library(model: ControllerModel) -> ctypes.CDLL:
 
 
 def _start_library(model: ControllerModel) -> ctypes.CDLL:
-    init, _ = controller_functions(model, prefix="pp_rig_start")
+    init, _ = controller_functions(model, prefix="pp_rig_start", ff_extra=True)
     source = native.generate([init], "pp_rig_start") + _START.format(
-        sz_arg=max(int(init.sz_arg()), 4), sz_res=max(int(init.sz_res()), 1), iw=max(int(init.sz_iw()), 1),
+        sz_arg=max(int(init.sz_arg()), 5), sz_res=max(int(init.sz_res()), 1), iw=max(int(init.sz_iw()), 1),
         w=max(int(init.sz_w()), 1), name=init.name())
     return native.library("pp_rig_start", source)
 
@@ -209,12 +209,15 @@ class NativeLoop:
     :meth:`Executor._native_limits <piezopreload.rig.executor.Executor>`); ``backend`` a dict
     made by the backend's ``native_backend()``. ``ring_s`` seconds of samples fit the ring.
     ``step_fn``: the loaded ``pp_rig_step`` of ``controller``'s structure (a
-    :class:`~piezopreload.rig.compiled.CompiledStep`'s), else it is loaded here.
+    :class:`~piezopreload.rig.compiled.CompiledStep`'s), else it is loaded here. ``ff_extra``:
+    the external feedforward per sample of ``reference`` (a learned signal), read by the loop
+    at the sample counter as the setpoint is (held at its last value past the end); None: 0.
     """
 
     def __init__(self, controller: Controller, reference: np.ndarray, limits: dict[str, float], backend: dict[str, Any],
                  *, realtime: bool, hold: bool, faults: list[tuple[int, float, float, float]] = (),  # type: ignore[assignment]
-                 ring_s: float = 30.0, fifo_priority: int = 80, spin_us: float = 0.0, step_fn: Any = None) -> None:
+                 ring_s: float = 30.0, fifo_priority: int = 80, spin_us: float = 0.0, step_fn: Any = None,
+                 ff_extra: np.ndarray | None = None) -> None:
         self._lib = loop_library()
         self.controller = controller
         self._model = controller.model
@@ -228,6 +231,13 @@ class NativeLoop:
         if self._ref.size < 1:
             raise ValueError("the reference has no samples")
         L.dt_s, L.n_ref, L.ref = controller.dt_s, self._ref.size, self._ref.ctypes.data
+        self._extra = None
+        if ff_extra is not None:
+            self._extra = np.ascontiguousarray(ff_extra, dtype=float)
+            if self._extra.shape != self._ref.shape or not np.all(np.isfinite(self._extra)):
+                raise ValueError(f"ff_extra needs one finite value per sample of the reference ({self._ref.size}), "
+                                 f"got shape {self._extra.shape}")
+            L.extra = self._extra.ctypes.data
         L.hold, L.realtime = int(hold), int(realtime)
         for key in ("v_min", "v_max", "slew_V_per_s", "force_max", "force_low", "sensor_min", "sensor_max",
                     "stale_after_s", "ramp_s", "safe_V"):

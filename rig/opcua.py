@@ -23,21 +23,46 @@ default endpoint binds 127.0.0.1).
 The pushing user's name comes from the permission check that asyncua runs on each request,
 right before it dispatches the call (no other request can run between the two).
 
-The server shares the interpreter with the 1 kHz loop; a session with a pushing client in
-another process stalls the loop by 6 ms at most here. A client in the *same* process (a
-notebook, a test) is another matter: loading its 2048-bit RSA key for Basic256Sha256 holds
-the interpreter for about 30 ms (cryptography checks the key), close to the missed-deadline
-interlock's 50 cycles. Push from another process, as ``piezopreload rig push`` does.
+The server runs in a process of its own (:class:`RigServer`), out of the loop's way: the
+sessions, the password hashing (PBKDF2), the secure channel's cryptography and the pushed
+document's JSON, hash and status checks all run there, at a lower priority (``nice``
++:data:`SERVER_NICE`), and cost the loop's process nothing. The two talk over a pipe:
+
+* the server process sends a gain set it has checked (the :class:`Controller` built from it
+  and its identity), or tells the supervisor of a refusal it has already answered;
+* the supervisor switches (the loop's buffer flip, :meth:`Executor.request_switch`), answers
+  the server process (accepted, or refused with the reason) and publishes the nodes' values
+  (what changed, every ``update_s``, and every millisecond after a push until the loop runs
+  it, so the new hash shows within a few ms of the switch).
+
+The process is a fresh interpreter (``sys.executable``, the pipe's other end passed as a file
+descriptor), started before the loop starts: it inherits no thread, lock or locked memory of
+the supervisor. A ``fork`` would copy a process that may hold other threads' locks (an
+asyncio or logging lock held at that instant stays held in the child for good), and forking
+while the loop runs would make the supervisor's pages copy-on-write, so the loop's next writes
+to its ring and state would fault in the real-time thread. ``multiprocessing``'s ``spawn``
+gives the same fresh interpreter but imports the caller's main script again in it, which would
+run a study script without a ``__main__`` guard a second time; the server's own entry point
+imports this module alone. The server process ends when the supervisor asks, when
+its pipe closes, or within :data:`PARENT_CHECK_S` of the supervisor's death (its parent
+changes), so a killed supervisor leaves no server behind.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hashlib
 import hmac
 import json
+import logging
+import multiprocessing
+import multiprocessing.connection
 import os
+import subprocess
+import sys
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -120,8 +145,40 @@ class _Nodes:
     last_event: Any
 
 
+#: the variable nodes by the keys the supervisor publishes them under
+_NODE_KEYS = {"CtrlP": "p", "CtrlTi": "ti", "CtrlTd": "td", "CtrlTf": "tf", "CtrlB": "b", "GainSetSha256": "gain_sha",
+              "FeedforwardSha256": "ff_sha", "SetPoint": "setpoint", "MeasuredForce": "force",
+              "CommandVoltage": "voltage", "State": "state", "LastEvent": "last_event"}
+
+#: how long the server process waits for the supervisor's answer to a push before refusing it
+ANSWER_TIMEOUT_S = 10.0
+#: how often the server process checks that its supervisor is alive
+PARENT_CHECK_S = 0.2
+#: the server process's niceness increment: it yields the CPU to the loop's process
+SERVER_NICE = 10
+
+
+@dataclass(frozen=True)
+class _Config:
+    """What the server process is started with (pickled to it)."""
+
+    check: GainSetCheck
+    passwords: dict[str, str]
+    endpoint: str
+    certificate: str | None
+    private_key: str | None
+    values: dict[str, Any]  # every node's first value
+    parent_pid: int
+    nice: int
+    log_level: int  # the supervisor's level for asyncua's logger (the CLI quiets it)
+
+
 class RigServer:
-    """Serve ``executor`` over OPC UA while it runs; see the module docstring."""
+    """Serve ``executor`` over OPC UA from a process of its own while it runs; see the module docstring.
+
+    ``check_gain_set`` runs in the server's process (a module-level function: it is pickled to
+    it). :attr:`pushes` records every push, accepted or refused, in the supervisor.
+    """
 
     def __init__(self, executor: Executor, check_gain_set: GainSetCheck, *, identity: dict[str, Any],
                  endpoint: str = DEFAULT_ENDPOINT, users: dict[str, str] | None = None,
@@ -136,22 +193,194 @@ class RigServer:
         self.identity = dict(identity)
         self.endpoint = endpoint
         self.certificate, self.private_key = certificate, private_key
-        self._users = _Users(users)
+        self._passwords = dict(users)
         self.update_s = float(update_s)
         self.pushes: list[dict[str, Any]] = []
-        self._ruleset = _Ruleset()
-        self._lock = threading.Lock()
-        self._shown: dict[Any, Any] = {}  # node -> the value last written to it
+        self.server_pid: int | None = None
+        self._shown: dict[str, Any] = {}  # node key -> the value last published
         self._events_shown = 0
+        self._conn: Any = None
+        self._wake: asyncio.Event | None = None
+        self._ready: asyncio.Future[int] | None = None
+        self._showing: tuple[dict[str, Any], float] | None = None  # an accepted push until its hash is shown
+
+    # ---- the supervisor's side -------------------------------------------------------------------
+    def _values(self) -> dict[str, Any]:
+        """Every node's value now (the executor's latest cycle, the running gains and identity)."""
+        t, sp, y, v, state = self.executor.latest
+        g = self.executor.controller.gains
+        values: dict[str, Any] = {"CtrlP": float(g.Kc), "CtrlTi": float(g.Ti_s), "CtrlTd": float(g.Td_s),
+                                  "CtrlTf": float(g.Tf_s), "CtrlB": float(g.b), "SetPoint": float(sp),
+                                  "MeasuredForce": float(y), "CommandVoltage": float(v), "State": state}
+        events = self.executor.events
+        if events and len(events) != self._events_shown:
+            self._events_shown = len(events)
+            values["LastEvent"] = json.dumps(events[-1], default=str)
+        if not self.executor.switch_pending:  # the pushed hash is shown once the loop runs it
+            values["GainSetSha256"] = self.identity.get("gain_set_sha256", "")
+            values["FeedforwardSha256"] = self.identity.get("feedforward_sha256", "")
+        return values
+
+    def _publish(self) -> None:
+        """Send the server process the values that changed since the last time (a few hundred bytes)."""
+        changed = {k: v for k, v in self._values().items() if self._shown.get(k) != v}
+        if changed and self._conn is not None:
+            self._shown.update(changed)
+            with contextlib.suppress(OSError, ValueError):  # the server process is gone: the rig runs on without it
+                self._conn.send(("state", changed))
+
+    def _on_message(self) -> None:
+        """The server process's messages (the event loop calls this when the pipe is readable)."""
+        conn = self._conn
+        try:
+            while conn.poll():
+                self._handle(conn.recv())
+        except (EOFError, OSError):  # the server process ended: stop listening, the loop goes on
+            asyncio.get_running_loop().remove_reader(conn.fileno())
+            self._conn = None
+            if self._ready is not None and not self._ready.done():
+                self._ready.set_exception(OSError("the OPC UA server process ended before it served"))
+            else:
+                self.executor.record("server_exited", detail="the OPC UA server process ended; the run goes on")
+
+    def _handle(self, msg: tuple) -> None:
+        kind = msg[0]
+        if kind == "ready":
+            if self._ready is not None and not self._ready.done():
+                self._ready.set_result(int(msg[1]))
+        elif kind == "failed":
+            if self._ready is not None and not self._ready.done():
+                self._ready.set_exception(OSError(msg[1]))
+        elif kind == "refused":  # the server process refused it (document, hash, status) and answered the client
+            _, user, reason = msg
+            self.pushes.append({"user": user, "accepted": False, "reason": reason})
+            self.executor.record("push_refused", user=user, reason=reason)
+        elif kind == "push":  # a checked gain set: switch (a buffer flip), answer, show it once it runs
+            _, request, user, controller, identity = msg
+            t0 = time.monotonic()
+            accepted, message = self.push(controller, identity, user)
+            if accepted:
+                self._showing = (self.pushes[-1], t0)
+            self._conn.send(("answer", request, accepted, message))
+            if self._wake is not None:
+                self._wake.set()
+
+    def push(self, controller: Controller, identity: dict[str, Any], user: str) -> tuple[bool, str]:
+        """Hand a checked gain set to the executor; ``(accepted, message)``. Changes nothing if refused."""
+        record: dict[str, Any] = {"user": user, **identity}
+        try:
+            self.executor.request_switch(controller, {"pushed_by": user, **identity})
+        except ValueError as exc:
+            record.update(accepted=False, reason=str(exc))
+            self.pushes.append(record)
+            self.executor.record("push_refused", user=user, reason=str(exc))
+            return False, f"refused: {exc}"
+        self.identity = {**self.identity, **identity}
+        record.update(accepted=True)
+        self.pushes.append(record)
+        return True, f"accepted gain set {identity.get('gain_set_sha256', '')[:12]}; it runs from the next cycle"
+
+    def _config(self) -> _Config:
+        self._shown = self._values()
+        return _Config(self.check, self._passwords, self.endpoint,
+                       None if self.certificate is None else str(self.certificate),
+                       None if self.private_key is None else str(self.private_key), dict(self._shown), os.getpid(),
+                       SERVER_NICE, logging.getLogger("asyncua").getEffectiveLevel())
+
+    async def run(self, ready: threading.Event | None = None, stop: threading.Event | None = None) -> RunResult:
+        """Serve until the executor ends (its reference, a trip, :meth:`Executor.stop`); returns its result.
+
+        The server process is started and serving before the loop starts (no process is
+        created while the loop runs) and is stopped after the loop has ended.
+        """
+        loop = asyncio.get_running_loop()
+        conn, child_conn = multiprocessing.Pipe(duplex=True)
+        fd = child_conn.fileno()
+        proc = subprocess.Popen([sys.executable, "-c", _ENTRY, str(fd)], pass_fds=(fd,), stdin=subprocess.DEVNULL,
+                                close_fds=True)
+        child_conn.close()
+        self._conn, self._ready, self._wake = conn, loop.create_future(), asyncio.Event()
+        result: list[RunResult] = []
+        try:
+            conn.send(self._config())
+            loop.add_reader(conn.fileno(), self._on_message)
+            self.server_pid = await asyncio.wait_for(self._ready, 120.0)
+            self.executor.record("server_started", endpoint=self.endpoint, pid=self.server_pid)
+            thread = threading.Thread(target=lambda: result.append(self.executor.run()), name="rig-loop", daemon=True)
+            thread.start()
+            if ready is not None:
+                ready.set()
+            while thread.is_alive():
+                if stop is not None and stop.is_set():
+                    self.executor.stop("stopped by the server", trip=False)
+                self._publish()
+                if self._showing is not None and not self.executor.switch_pending:
+                    record, t0 = self._showing  # the supervisor's share of push-to-switch: taken and shown
+                    record["switch_shown_ms"] = round((time.monotonic() - t0) * 1e3, 3)
+                    self._showing = None
+                if self.executor.switch_pending:  # a push: shown once the loop takes it (at its next cycle)
+                    await asyncio.sleep(0.001)
+                    continue
+                with contextlib.suppress(TimeoutError):  # the next update after update_s, or at once after a push
+                    await asyncio.wait_for(self._wake.wait(), self.update_s)
+                self._wake.clear()
+            thread.join()
+            self._publish()
+        finally:
+            if self._conn is not None:
+                loop.remove_reader(conn.fileno())
+                with contextlib.suppress(OSError, ValueError):
+                    conn.send(("stop",))
+            self._conn = None
+            try:
+                await loop.run_in_executor(None, proc.wait, 10.0)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+            conn.close()
+        return result[0]
+
+
+# ---- the server's process ------------------------------------------------------------------------
+#: the server process's program: a fresh interpreter given the supervisor's end of a pipe
+_ENTRY = "import sys; from piezopreload.rig.opcua import _serve_process; _serve_process(int(sys.argv[1]))"
+
+
+def _serve_process(fd: int) -> None:
+    """The OPC UA server's process: sessions, password hashing, the pushed documents' checks."""
+    conn = multiprocessing.connection.Connection(fd)
+    try:
+        cfg = conn.recv()
+    except EOFError:  # the supervisor is gone already
+        return
+    with contextlib.suppress(OSError):
+        os.nice(cfg.nice)
+    logging.getLogger("asyncua").setLevel(cfg.log_level)
+    try:
+        asyncio.run(_ServerProcess(conn, cfg).run())
+    except Exception as exc:  # a server that cannot start (address in use, a bad certificate): say why
+        with contextlib.suppress(OSError, ValueError):
+            conn.send(("failed", f"the OPC UA server could not start: {type(exc).__name__}: {exc}"))
+
+
+class _ServerProcess:
+    def __init__(self, conn: Any, cfg: _Config) -> None:
+        self.conn, self.cfg = conn, cfg
+        self._users = _Users(cfg.passwords)
+        self._ruleset = _Ruleset()
+        self._answers: dict[int, asyncio.Future[tuple[bool, str]]] = {}
+        self._requests = 0
+        self._incoming: asyncio.Queue[tuple] = asyncio.Queue()
 
     async def _build(self) -> tuple[Server, _Nodes]:
+        cfg = self.cfg
         server = Server(user_manager=self._users)
         await server.init()
-        server.set_endpoint(self.endpoint)
+        server.set_endpoint(cfg.endpoint)
         server.set_server_name("piezopreload rig executor")
-        if self.certificate is not None:
-            await server.load_certificate(str(self.certificate))
-            await server.load_private_key(str(self.private_key))
+        if cfg.certificate is not None:
+            await server.load_certificate(cfg.certificate)
+            await server.load_private_key(str(cfg.private_key))
             server.set_security_policy([ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt],
                                        permission_ruleset=self._ruleset)
         else:
@@ -160,27 +389,26 @@ class RigServer:
         idx = await server.register_namespace(NAMESPACE)
         root = await server.nodes.objects.add_object(idx, ROOT)
         params = await root.add_object(idx, "ControllerParameters")
-        g = self.executor.controller.gains
+        v = cfg.values
 
-        async def var(parent: Any, name: str, value: Any, desc: str) -> Any:
-            node = await parent.add_variable(idx, name, value)
+        async def var(parent: Any, name: str, desc: str) -> Any:
+            node = await parent.add_variable(idx, name, v.get(name, ""))
             await node.write_attribute(ua.AttributeIds.Description, ua.DataValue(ua.Variant(ua.LocalizedText(desc))))
             return node
 
         nodes = _Nodes(
-            p=await var(params, "CtrlP", float(g.Kc), "proportional gain Kc, V/N (LADS PidControllerParameterType)"),
-            ti=await var(params, "CtrlTi", float(g.Ti_s), "integral time Ti, s (LADS PidControllerParameterType)"),
-            td=await var(params, "CtrlTd", float(g.Td_s), "derivative time Td, s (LADS PidControllerParameterType)"),
-            tf=await var(params, "CtrlTf", float(g.Tf_s), "derivative filter time constant, s"),
-            b=await var(params, "CtrlB", float(g.b), "setpoint weight of the proportional action"),
-            gain_sha=await var(root, "GainSetSha256", self.identity.get("gain_set_sha256", ""), "the running gain set"),
-            ff_sha=await var(root, "FeedforwardSha256", self.identity.get("feedforward_sha256", ""),
-                             "SHA-256 of the feedforward's hysteresis model (canonical JSON)"),
-            setpoint=await var(root, "SetPoint", 0.0, "force setpoint, N"),
-            force=await var(root, "MeasuredForce", 0.0, "measured preload force, N"),
-            voltage=await var(root, "CommandVoltage", 0.0, "voltage written to the amplifier, V"),
-            state=await var(root, "State", "idle", "idle, running, ramping down, completed or tripped"),
-            last_event=await var(root, "LastEvent", "", "the executor's last event as JSON"),
+            p=await var(params, "CtrlP", "proportional gain Kc, V/N (LADS PidControllerParameterType)"),
+            ti=await var(params, "CtrlTi", "integral time Ti, s (LADS PidControllerParameterType)"),
+            td=await var(params, "CtrlTd", "derivative time Td, s (LADS PidControllerParameterType)"),
+            tf=await var(params, "CtrlTf", "derivative filter time constant, s"),
+            b=await var(params, "CtrlB", "setpoint weight of the proportional action"),
+            gain_sha=await var(root, "GainSetSha256", "the running gain set"),
+            ff_sha=await var(root, "FeedforwardSha256", "SHA-256 of the feedforward's hysteresis model (canonical JSON)"),
+            setpoint=await var(root, "SetPoint", "force setpoint, N"),
+            force=await var(root, "MeasuredForce", "measured preload force, N"),
+            voltage=await var(root, "CommandVoltage", "voltage written to the amplifier, V"),
+            state=await var(root, "State", "idle, running, ramping down, completed or tripped"),
+            last_event=await var(root, "LastEvent", "the executor's last event as JSON"),
         )
         method = await root.add_method(idx, "PushGainSet", self._push_callback, [ua.VariantType.String],
                                        [ua.VariantType.Boolean, ua.VariantType.String])
@@ -188,70 +416,67 @@ class RigServer:
             "push a validated gain set (the JSON document); it runs from the next cycle on, switched bumplessly"))))
         return server, nodes
 
-    def _push_callback(self, parent: Any, *args: Any) -> list[ua.Variant]:
-        user = self._ruleset.caller or "unknown"
-        accepted, message = self.push(args, user)
+    async def _push_callback(self, parent: Any, *args: Any) -> list[ua.Variant]:
+        user = self._ruleset.caller or "unknown"  # read before the first await (see the module docstring)
+        accepted, message = await self._push(args, user)
         return [ua.Variant(accepted, ua.VariantType.Boolean), ua.Variant(message, ua.VariantType.String)]
 
-    def push(self, args: tuple, user: str) -> tuple[bool, str]:
-        """Check a pushed gain set and hand it to the executor; ``(accepted, message)``. Changes nothing if refused."""
-        record: dict[str, Any] = {"user": user}
+    async def _push(self, args: tuple, user: str) -> tuple[bool, str]:
         try:
             if len(args) != 1 or not isinstance(args[0].Value, str):
                 raise ValueError("PushGainSet takes one String argument: the gain set's JSON document")
-            controller, identity = self.check(args[0].Value)
-            record.update(identity)
-            with self._lock:
-                self.executor.request_switch(controller, {"pushed_by": user, **identity})
-                self.identity = {**self.identity, **identity}
-        except ValueError as exc:
-            record.update(accepted=False, reason=str(exc))
-            self.pushes.append(record)
-            self.executor.record("push_refused", user=user, reason=str(exc))
+            controller, identity = self.cfg.check(args[0].Value)
+        except ValueError as exc:  # refused here: the supervisor records it, the client has the reason
+            self.conn.send(("refused", user, str(exc)))
             return False, f"refused: {exc}"
-        record.update(accepted=True)
-        self.pushes.append(record)
-        return True, f"accepted gain set {identity.get('gain_set_sha256', '')[:12]}; it runs from the next cycle"
+        self._requests += 1
+        request = self._requests
+        answer = asyncio.get_running_loop().create_future()
+        self._answers[request] = answer
+        self.conn.send(("push", request, user, controller, identity))
+        try:
+            return await asyncio.wait_for(answer, ANSWER_TIMEOUT_S)
+        except TimeoutError:
+            return False, f"refused: the rig did not answer within {ANSWER_TIMEOUT_S:g} s"
+        finally:
+            self._answers.pop(request, None)
 
-    async def _update(self, nodes: _Nodes) -> None:
-        """Write the nodes whose values changed since the last update (the loop shares the interpreter)."""
-        t, sp, y, v, state = self.executor.latest
-        g = self.executor.controller.gains
-        values = [(nodes.p, float(g.Kc)), (nodes.ti, float(g.Ti_s)), (nodes.td, float(g.Td_s)),
-                  (nodes.tf, float(g.Tf_s)), (nodes.b, float(g.b)),
-                  (nodes.setpoint, float(sp)), (nodes.force, float(y)), (nodes.voltage, float(v)), (nodes.state, state)]
-        events = self.executor.events
-        if events and len(events) != self._events_shown:
-            self._events_shown = len(events)
-            values.append((nodes.last_event, json.dumps(events[-1], default=str)))
-        if not self.executor.switch_pending:
-            values += [(nodes.gain_sha, self.identity.get("gain_set_sha256", "")),
-                       (nodes.ff_sha, self.identity.get("feedforward_sha256", ""))]
-        for node, value in values:
-            if self._shown.get(node) != value:
-                self._shown[node] = value
-                await node.write_value(value)
+    def _readable(self) -> None:
+        try:
+            while self.conn.poll():
+                self._incoming.put_nowait(self.conn.recv())
+        except (EOFError, OSError):  # the supervisor is gone
+            self._incoming.put_nowait(("stop",))
 
-    async def run(self, ready: threading.Event | None = None, stop: threading.Event | None = None) -> RunResult:
-        """Serve until the executor ends (its reference, a trip, :meth:`Executor.stop`); returns its result."""
+    async def run(self) -> None:
+        loop = asyncio.get_running_loop()
         server, nodes = await self._build()
-        result: list[RunResult] = []
         async with server:
-            # every node written once before the loop starts: the first update writes them all, and
-            # that interpreter time must not fall into the loop's first cycles
-            await self._update(nodes)
-            thread = threading.Thread(target=lambda: result.append(self.executor.run()), name="rig-loop", daemon=True)
-            thread.start()
-            if ready is not None:
-                ready.set()
-            while thread.is_alive():
-                if stop is not None and stop.is_set():
-                    self.executor.stop("stopped by the server", trip=False)
-                await self._update(nodes)
-                await asyncio.sleep(self.update_s)
-            thread.join()
-            await self._update(nodes)
-        return result[0]
+            loop.add_reader(self.conn.fileno(), self._readable)
+            self.conn.send(("ready", os.getpid()))
+            watch = asyncio.create_task(self._watch_parent())
+            try:
+                while True:
+                    msg = await self._incoming.get()
+                    if msg[0] == "stop":
+                        break
+                    if msg[0] == "state":
+                        for key, value in msg[1].items():
+                            await getattr(nodes, _NODE_KEYS[key]).write_value(value)
+                    elif msg[0] == "answer":
+                        answer = self._answers.get(msg[1])
+                        if answer is not None and not answer.done():
+                            answer.set_result((bool(msg[2]), str(msg[3])))
+            finally:
+                watch.cancel()
+                loop.remove_reader(self.conn.fileno())
+
+    async def _watch_parent(self) -> None:
+        """End this process when the supervisor has died (SIGKILL leaves the pipe open to no one for a moment)."""
+        while True:
+            await asyncio.sleep(PARENT_CHECK_S)
+            if os.getppid() != self.cfg.parent_pid:
+                os._exit(0)
 
 
 async def push_gain_set(document: str, endpoint: str, *, username: str | None = None, password: str | None = None,

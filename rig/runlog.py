@@ -133,5 +133,10 @@ def read_run_log(csv_path: str | Path) -> dict[str, np.ndarray]:
         if tuple(header) != COLUMNS:
             raise InputError(f"{csv_path}:1: not a run log; expected the header {','.join(COLUMNS)}")
         rows = [line for line in fh if line.endswith("\n")]
-    data = np.loadtxt(rows, delimiter=",", ndmin=2) if rows else np.empty((0, len(COLUMNS)))
+    try:
+        data = np.loadtxt(rows, delimiter=",", ndmin=2) if rows else np.empty((0, len(COLUMNS)))
+    except ValueError as exc:  # a row that is not numbers, or the wrong count of them (the header is line 1)
+        raise InputError(f"{csv_path}: not a run log's samples ({exc}; row 0 is line 2)") from None
+    if data.shape[1] != len(COLUMNS):
+        raise InputError(f"{csv_path}: {data.shape[1]} columns in the samples, the header names {len(COLUMNS)}")
     return {name: data[:, j] for j, name in enumerate(COLUMNS)}

@@ -237,6 +237,8 @@ def _setup(gains_path: str | Path, backend: str, backend_options: dict[str, str]
         ref, ref_name = reference_for(reference or "step", gain_set, gains_path)
     limits = interlocks(controller, gain_set.plant if backend == "sim" else None, safety)
     check_reference(ref, ref_name, limits, gain_set.plant)
+    if signal is not None:  # the plan is what the loop runs: its levels are held to the same range
+        check_reference(signal.setpoint, f"setpoint_N of {learned}", limits, gain_set.plant)
     try:
         rig = open_backend(backend, backend_options, plant=gain_set.plant, seed=seed)
     except BackendError as exc:
@@ -301,8 +303,7 @@ def run(gains_path: str | Path, *, backend: str = "sim", backend_options: dict[s
 
     ``learned`` (a learned-signal artifact, :class:`~piezopreload.models.learned.LearnedSignal`)
     plays back a learned signal: its setpoint (the plan) is the run's reference and its
-    ``ff_extra_V`` is added to the feedforward (on the Python loop: the native one has no such
-    input yet). It must have been learned with this gain set and on this reference
+    ``ff_extra_V`` is added to the feedforward (on either loop). It must have been learned with this gain set and on this reference
     (``reference=None``: its own); the run's log gives the next learning iteration
     (``piezopreload learn --from-run LOG``). ``loop``: ``auto``, ``native`` or ``python``.
     """
@@ -361,6 +362,9 @@ def serve(gains_path: str | Path, *, endpoint: str, users: dict[str, str], certi
         say(f"serving {endpoint} (log {log.csv_path}); stop with Ctrl-C")
     try:
         out = _summary(asyncio.run(_serve(server, executor, duration_s, ready, stop)), log, su, info)
+    except OSError as exc:  # the server could not start (the address in use, a certificate): nothing ran
+        log.close("not started", {"reason": str(exc)})
+        raise InputError(f"rig serve: {exc}") from None
     finally:
         _close(su.backend)
     out.summary["pushes"] = server.pushes
@@ -375,7 +379,7 @@ async def _serve(server: RigServer, executor: Executor, duration_s: float | None
     if duration_s is not None:
         loop.call_later(duration_s, lambda: executor.stop(f"the --duration of {duration_s:g} s ended", trip=False))
     switch = sys.getswitchinterval()
-    sys.setswitchinterval(1e-4)  # the server's thread hands the interpreter back to the loop's within 0.1 ms
+    sys.setswitchinterval(1e-4)  # the supervisor's thread hands the interpreter back to a Python loop within 0.1 ms
     try:
         return await server.run(ready=ready, stop=stop)
     finally:

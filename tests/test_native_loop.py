@@ -18,6 +18,8 @@ from piezopreload.cli import main
 from piezopreload.core import native
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import Controller, PIDGains
+from piezopreload.models.gainset import GainSet
+from piezopreload.models.learned import LearnedSignal
 from piezopreload.rig import native_loop
 from piezopreload.rig.backends import CLibraryBackend, Fault, FaultInjector, SimBackend
 from piezopreload.rig.executor import Executor, Safety
@@ -56,6 +58,39 @@ def test_native_loop_gives_the_python_loops_samples(gains_path, tmp_path):
     _same_samples(lp, ln)
     assert rn["metrics"] == rp["metrics"]
     assert rn["timing"]["lost_samples"] == 0
+
+
+def test_learned_signal_plays_back_on_the_native_loop_as_on_the_python_loop(gains_path, tmp_path):
+    """'rig run --learned': the signal's ff_extra reaches the native loop's compiled step at each sample; the log is
+    the Python loop's (compiled step: to the bit; numpy step: to float64 rounding), and the executor says native."""
+    gain_set = GainSet.load(gains_path)
+    ref = gain_set.references["step"]
+    n = int(round(ref.duration_s / DT)) + 1
+    k = np.arange(n)
+    ff = 3.0 * np.sin(2 * np.pi * k / 700.0) * (k > 50)  # volts, 0 over the first samples (the start)
+    LearnedSignal(ff, ref.at(k * DT), DT, ref, gain_set.content_sha256, iteration=1).save(tmp_path / "learned.json")
+    runs = {}
+    for loop, step in (("native", "c"), ("python", "c"), ("python", "numpy")):
+        r = run_rig(gains_path, realtime=False, log_dir=tmp_path / f"{loop}-{step}", learned=tmp_path / "learned.json",
+                    loop=loop, step=step)
+        runs[loop, step] = r.to_dict(), read_run_log(r.summary["log_csv"])
+    rn, ln = runs["native", "c"]
+    assert rn["loop"] == "native" and rn["status"] == "completed", (rn["loop"], rn.get("trip"))
+    assert rn["learned"]["iteration"] == 1 and rn["timing"]["lost_samples"] == 0
+    _same_samples(runs["python", "c"][1], ln)
+    # the learned signal is in the feedforward term: the model's own feedforward plus ff_extra
+    control = np.flatnonzero(ln["mode"] == 0)
+    plain = run_rig(gains_path, realtime=False, log_dir=tmp_path / "plain", loop="native").to_dict()
+    lplain = read_run_log(plain["log_csv"])
+    np.testing.assert_allclose(ln["feedforward_V"][control[:51]], lplain["feedforward_V"][control[:51]], atol=0,
+                               err_msg="before the signal starts the feedforward is the model's")
+    assert np.max(np.abs(ln["voltage_V"][control] - lplain["voltage_V"][control])) > 0.5, "the signal does nothing"
+    # the numpy step on the Python loop: the same run to the CSV's nine digits and float64 rounding
+    lp = runs["python", "numpy"][1]
+    assert len(lp["time_s"]) == len(ln["time_s"])
+    for key in SAMPLE_COLUMNS:
+        np.testing.assert_allclose(lp[key], ln[key], rtol=1e-8, atol=1e-8, equal_nan=True,
+                                   err_msg=f"column {key}: the numpy step's run differs from the native loop's")
 
 
 @pytest.mark.parametrize("fault, cause", INTERLOCK_FAULTS)

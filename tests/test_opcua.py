@@ -197,3 +197,64 @@ def test_basic256sha256_channel_with_a_password(tmp_path, study, feedforward):
         server.join(60)
     assert out["summary"]["status"] == "completed", out["summary"]["trip"]
     assert [p["user"] for p in out["summary"]["pushes"] if p["accepted"]] == [USER]
+
+
+def _running(pid: int) -> bool:
+    """The process exists and is not a zombie (a dead child its new parent has not reaped yet)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except FileNotFoundError:
+        return False
+    return stat[stat.rindex(")") + 2] != "Z"
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states from /proc (Linux)")
+def test_the_server_runs_in_its_own_process_and_dies_with_the_supervisor(tmp_path, study, feedforward):
+    """'rig serve' killed with SIGKILL: its OPC UA server process (niced, another pid) ends within its parent check."""
+    from piezopreload.rig.opcua import PARENT_CHECK_S, SERVER_NICE
+
+    gains = write_gain_set(tmp_path / "g.json", study, feedforward)
+    endpoint = f"opc.tcp://127.0.0.1:{_free_port()}/piezopreload/"
+    env = {**os.environ, "PIEZOPRELOAD_RIG_PASSWORD": PASSWORD}
+    proc = subprocess.Popen([sys.executable, "-m", "piezopreload.cli", "rig", "serve", str(gains), "--endpoint",
+                             endpoint, "--user", USER, "--log-dir", str(tmp_path / "runs"), "--missed-streak", "1000"],
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    pid = None
+    try:
+        t_end = time.monotonic() + 120
+        while pid is None:
+            assert proc.poll() is None and time.monotonic() < t_end, "the server did not start"
+            time.sleep(0.1)
+            for side in (tmp_path / "runs").glob("*.json"):
+                events = json.loads(side.read_text()).get("events", [])
+                pid = next((e["pid"] for e in events if e["event"] == "server_started"), None)
+        assert pid != proc.pid and _running(pid)
+        assert os.getpriority(os.PRIO_PROCESS, pid) - os.getpriority(os.PRIO_PROCESS, proc.pid) == SERVER_NICE
+        assert asyncio.run(_read(endpoint, "State")) in ("running", "idle")  # it serves the rig
+        proc.send_signal(9)
+        proc.wait(10)
+        t_kill = time.monotonic()
+        while _running(pid):
+            assert time.monotonic() - t_kill < PARENT_CHECK_S + 2.0, "the server outlived its supervisor"
+            time.sleep(0.02)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        if pid is not None and _running(pid):
+            os.kill(pid, 9)
+
+
+def test_a_server_that_cannot_start_is_refused_before_the_loop_runs(tmp_path, study, feedforward, capsys, monkeypatch):
+    """The endpoint's port taken: the server's process says why, 'rig serve' exits 2 and the rig was never armed."""
+    gains = write_gain_set(tmp_path / "g.json", study, feedforward)
+    monkeypatch.setenv("PIEZOPRELOAD_RIG_PASSWORD", PASSWORD)
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        assert main(["rig", "serve", str(gains), "--endpoint", f"opc.tcp://127.0.0.1:{port}/x/", "--user", USER,
+                     "--log-dir", str(tmp_path / "runs")]) == 2
+    err = capsys.readouterr().err
+    assert "error: rig serve: the OPC UA server could not start" in err and "address already in use" in err, err
+    side = json.loads(next((tmp_path / "runs").glob("*.json")).read_text())
+    assert side["status"] == "not started" and not any(e["event"] == "armed" for e in side["events"])

@@ -2,7 +2,7 @@
 
 Never a traceback of another kind, and nothing written by a refused run. The mutations start
 from a valid document (a gain set, a hysteresis model, a reference, a study file, a CSV record,
-a reference CSV, a load profile) and delete a field, replace one with any JSON value, or cut,
+a reference CSV, a load profile, a learned signal, a hysteresis-model file, a run log) and delete a field, replace one with any JSON value, or cut,
 duplicate or overwrite a stretch of the text.
 """
 
@@ -10,21 +10,27 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from rigkit import write_gain_set
 
 from piezopreload.cli import main
-from piezopreload.core.errors import PiezopreloadError
+from piezopreload.core.artifacts import write_artifact
+from piezopreload.core.errors import ArtifactError, PiezopreloadError
 from piezopreload.core.tables import read_record
 from piezopreload.data import __file__ as data_init
 from piezopreload.design.study import read_profile
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.gainset import GainSet
 from piezopreload.models.hysteresis import model_from_dict
+from piezopreload.models.learned import KIND as LEARNED
+from piezopreload.models.learned import LearnedSignal
+from piezopreload.rig.runlog import read_run_log
 from piezopreload.rig.session import reference_for
 from piezopreload.study import default_study, load_study
+from piezopreload.tuning.feedforward import read_hysteresis_model
 
 FAST = settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
 SLOW = settings(max_examples=12, deadline=None, suppress_health_check=list(HealthCheck))
@@ -168,6 +174,113 @@ def test_rig_run_with_a_mutated_reference_exits_0_2_or_3_and_a_refusal_writes_no
     assert "Traceback" not in err and "internal failure" not in err, err
     if code == 2:
         assert err.startswith("error: ") and not (logs.exists() and any(logs.iterdir())), "a refused run wrote a log"
+
+
+@pytest.fixture(scope="module")
+def learned_doc(tmp_path_factory, gain_doc):
+    """A learned signal for the gain set on a short step of its own (200 samples), as 'learn --out' writes one."""
+    ref = Reference.step(25.0, 40.0, 0.05, 0.2)
+    n = int(round(ref.duration_s / 1e-3)) + 1
+    k = np.arange(n)
+    path = tmp_path_factory.mktemp("l") / "learned.json"
+    LearnedSignal(np.sin(k / 20.0), ref.at(k * 1e-3), 1e-3, ref, GainSet.load(gain_doc[0]).content_sha256,
+                  iteration=1).save(path)
+    return path, LearnedSignal.load(path).to_dict()
+
+
+def _rehashed(path, body):
+    """``body`` in a valid artifact envelope (its hash right), so the reader's field checks are what it meets."""
+    try:
+        write_artifact(path, LEARNED, body)
+    except (ValueError, TypeError):  # the writer refuses it (a required field gone, a value JSON cannot hold)
+        path.write_text(json.dumps(body, default=str))
+
+
+@FAST
+@given(data=st.data())
+def test_learned_signal_reader(tmp_path_factory, learned_doc, data):
+    path, doc = learned_doc
+    folder = tmp_path_factory.mktemp("m")
+    _refused_cleanly(LearnedSignal.from_dict, data.draw(mutated(doc)))
+    _refused_cleanly(LearnedSignal.from_dict, data.draw(json_values))
+    (folder / "cut.json").write_text(data.draw(mutated_text(path.read_text())))
+    _refused_cleanly(LearnedSignal.load, folder / "cut.json")
+    _rehashed(folder / "body.json", data.draw(mutated(doc)))
+    _refused_cleanly(LearnedSignal.load, folder / "body.json")
+
+
+@SLOW
+@given(data=st.data())
+def test_rig_run_with_a_mutated_learned_signal_exits_0_2_or_3_and_a_refusal_writes_nothing(tmp_path_factory, gain_doc,
+                                                                                          learned_doc, data, capsys):
+    folder = tmp_path_factory.mktemp("runl")
+    bad = folder / "learned.json"
+    if data.draw(st.booleans()):
+        _rehashed(bad, data.draw(mutated(learned_doc[1])))
+    else:
+        bad.write_text(data.draw(mutated_text(learned_doc[0].read_text())))
+    logs = folder / "runs"
+    code = main(["rig", "run", str(gain_doc[0]), "--fast", "--learned", str(bad), "--log-dir", str(logs)])
+    err = capsys.readouterr().err
+    assert code in (0, 2, 3), err
+    assert "Traceback" not in err and "internal failure" not in err, err
+    if code == 2:
+        assert err.startswith("error: ") and not (logs.exists() and any(logs.iterdir())), "a refused run wrote a log"
+
+
+@pytest.mark.parametrize("key, value", [("iteration", math.inf), ("iteration", -3), ("sample_period_s", 1e-300),
+                                        ("preview_s", math.nan), ("method", None), ("ff_extra_V", "abc"),
+                                        ("inputs", 5), ("gain_set_sha256", 5)])
+def test_the_learned_signal_reader_names_the_field(learned_doc, key, value):
+    """Mutations hypothesis reaches only now and then, each refused by an ArtifactError naming its field."""
+    doc = {**learned_doc[1], key: value}
+    with pytest.raises(ArtifactError, match=key):
+        LearnedSignal.from_dict(doc, "learned.json")
+
+
+def test_a_learned_setpoint_beyond_the_safe_range_is_refused_before_arming(tmp_path, gain_doc, learned_doc, capsys):
+    """The learned plan is what the loop runs: a level of 1e9 N in it is refused as a reference's would be."""
+    body = json.loads(json.dumps(learned_doc[1]))
+    body["setpoint_N"][100] = 1e9
+    _rehashed(tmp_path / "learned.json", body)
+    logs = tmp_path / "runs"
+    assert main(["rig", "run", str(gain_doc[0]), "--fast", "--learned", str(tmp_path / "learned.json"),
+                 "--log-dir", str(logs)]) == 2
+    err = capsys.readouterr().err
+    assert "setpoint_N" in err and "level 101" in err and "refused before arming" in err, err
+    assert not logs.exists() or not any(logs.iterdir()), "a refused run wrote a log"
+
+
+@FAST
+@given(data=st.data())
+def test_hysteresis_model_file_reader(tmp_path_factory, feedforward, data):
+    folder = tmp_path_factory.mktemp("h")
+    path = folder / "model.json"
+    write_artifact(path, "hysteresis-model", {"model": feedforward.to_dict(), "units": {}, "inputs": {}})
+    (folder / "cut.json").write_text(data.draw(mutated_text(path.read_text())))
+    _refused_cleanly(read_hysteresis_model, folder / "cut.json")
+    try:
+        write_artifact(folder / "body.json", "hysteresis-model",
+                       {"model": data.draw(mutated(feedforward.to_dict())), "units": {}, "inputs": {}})
+    except (ValueError, TypeError):  # the writer refuses it: nothing to read
+        return
+    _refused_cleanly(read_hysteresis_model, folder / "body.json")
+
+
+@pytest.fixture(scope="module")
+def run_log_text(tmp_path_factory, gain_doc):
+    """A short run's log as 'rig run' writes it (its first 60 lines), the input of 'learn --from-run'."""
+    folder = tmp_path_factory.mktemp("log")
+    assert main(["rig", "run", str(gain_doc[0]), "--fast", "--log-dir", str(folder)]) == 0
+    return "".join(next(folder.glob("*.csv")).read_text().splitlines(True)[:60])
+
+
+@FAST
+@given(data=st.data())
+def test_run_log_reader(tmp_path_factory, run_log_text, data):
+    path = tmp_path_factory.mktemp("rl") / "run.csv"
+    path.write_text(data.draw(mutated_text(run_log_text)))
+    _refused_cleanly(read_run_log, path)
 
 
 def test_the_mutations_reach_the_readers_checks(study):

@@ -40,10 +40,11 @@ def _controller(ff=None, **kw):
     return Controller(PIDGains(**g), DT, ff)
 
 
-@pytest.mark.parametrize("creep", [False, True])
-def test_compiled_step_equals_the_numpy_step_through_a_switch(creep):
-    """The C step (CasADi codegen, ctypes) against Controller.step_terms, before and after a gain/model switch;
-    classical feedforwards, then the paper's asymmetric model with creep switching to the modified one with creep."""
+@pytest.mark.parametrize("creep, extra", [(False, False), (True, False), (False, True), (True, True)])
+def test_compiled_step_equals_the_numpy_step_through_a_switch(creep, extra):
+    """The C step (CasADi codegen, ctypes) against the numpy step, before and after a gain/model switch;
+    classical feedforwards, then the paper's asymmetric model with creep switching to the modified one with creep;
+    with ``extra`` a learned signal's ff_extra per sample (the C entry point's input) from the start on."""
     if creep:
         bank = Creep([0.01, 0.1, 1.0], [0.03, 0.02, 0.04], DT)
         r, w = np.array([0.0, 8.0, 20.0, 40.0]), np.array([0.45, 0.12, 0.08, 0.05])
@@ -60,17 +61,23 @@ def test_compiled_step_equals_the_numpy_step_through_a_switch(creep):
     rng = np.random.default_rng(3)
     sp = np.repeat([25.0, 60.0, 120.0, 40.0], 500)
     pv = np.convolve(sp, np.ones(40) / 40, mode="same") + 0.3 * rng.standard_normal(sp.size)
-    fast.start(sp[0], pv[0], 0.0)
-    slow.start(sp[0], pv[0], 0.0)
+    fx = 4.0 * np.sin(np.arange(sp.size) * 0.013) + rng.standard_normal(sp.size) if extra else np.zeros(sp.size)
+    fast.start(sp[0], pv[0], 0.0, fx[0])
+    slow.start(sp[0], pv[0], 0.0, fx[0])
     out = []
     for k in range(sp.size):
         if k == 1000:
             fast.switch(c2)
             slow.switch(c2)
-        out.append((fast.step(sp[k], pv[k]), slow.step(sp[k], pv[k])))
+        out.append((fast.step(sp[k], pv[k], fx[k]), slow.step(sp[k], pv[k], fx[k])))
     a, b = (np.array(x) for x in zip(*out))
     assert np.max(a[:, 0]) == 110.0  # the clamp and the anti-windup are exercised
-    np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
+    if extra:  # the signal reaches the output: the feedforward term differs from the run without it by fx
+        plain = PythonStep(c1)
+        plain.start(sp[0], pv[0], 0.0, fx[0])
+        assert plain.step(sp[0], pv[0])[4] == pytest.approx(b[0, 4] - fx[0], abs=1e-12), "ff_extra is not in ff"
+    # the C code and numpy evaluate the same float64 expressions, in another order: agreement to rounding
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-9, err_msg="the compiled step and the numpy step differ")
 
 
 @pytest.mark.parametrize("new_ff", [False, True])
