@@ -283,3 +283,30 @@ def test_the_casadi_c_step_is_the_scheduled_step(tmp_path):
     res = subprocess.run([str(exe)], input="\n".join(lines) + "\n", capture_output=True, text=True, check=True)
     u_c = np.array(res.stdout.split(), float)
     np.testing.assert_allclose(u_c, u_py, rtol=0, atol=1e-9, err_msg="the C step differs from the Python step")
+
+
+@pytest.mark.parametrize("prefer", ["numpy", "c"])
+def test_the_rig_step_switches_to_a_schedule_as_the_controller_does(prefer):
+    """The rig executor's step (numpy, or the compiled C step: another structure, another library) switching from the
+    robust set to a schedule mid-run gives the numpy controller's outputs, switch included."""
+    from piezopreload.rig.compiled import controller_step
+
+    if prefer == "c":
+        _cc()
+    dt = 1e-3
+    robust = Controller(PIDGains(**BASE), dt)
+    scheduled = Controller(PIDGains(**BASE, schedule=SCHEDULE), dt)
+    step = controller_step(robust, prefer=prefer)
+    assert step.kind == prefer
+    step.start(30.0, 30.0, 5.0)
+    state = robust.initial_state(30.0, 30.0, u0=5.0)
+    ref = np.concatenate([np.linspace(30.0, 90.0, 300), np.full(200, 90.0)])
+    pv = ref - 2.0 + 0.5 * np.sin(np.arange(ref.size) / 7.0)
+    now = robust
+    for k, (r, y) in enumerate(zip(ref, pv)):
+        if k == 250:
+            step.switch(scheduled)
+            state, now = robust.switch(state, scheduled), scheduled
+        u, *_ = step.step(float(r), float(y))
+        u_ref, state = now.step(state, r, y)
+        assert abs(u - float(u_ref)) < 1e-9, f"sample {k}: the rig step gives {u}, the controller {float(u_ref)}"

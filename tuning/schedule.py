@@ -36,13 +36,13 @@ from typing import Any
 
 import numpy as np
 
-from piezopreload.core.parallel import fork_pool, spare_cpus
+from piezopreload.core.parallel import spare_cpus
 from piezopreload.models.actuator import RigParams
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import GainSchedule, PIDGains
 from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, tune_pid
-from piezopreload.tuning.validate import Criteria, ValidationResult, validate
+from piezopreload.tuning.validate import Criteria, ValidationResult, executor, validate
 
 __all__ = ["ScheduleResult", "tune_schedule", "schedule_levels", "level_windows", "choose", "CHOICES"]
 
@@ -147,10 +147,17 @@ def _worst(result: ValidationResult) -> dict[str, Any]:
 _REST_S = 0.25  # the rest at a window's bottom before the tuning's step and staircase
 
 
+def _judge(args: tuple[Any, ...]) -> dict[str, Any]:
+    """One Monte Carlo validation (:func:`~piezopreload.tuning.validate.validate`, inline), its worst cases."""
+    gains, feedforward, params, criteria, n_plants, seed, step, trajectory = args
+    return _worst(validate(gains, feedforward, params, criteria, n_plants=n_plants, seed=seed, step=step,
+                           trajectory=trajectory))
+
+
 def _tune_entry(args: tuple[RigParams, Any, TuningSpec, PIDGains]) -> tuple[PIDGains, dict[str, Any]]:
     params, inverse, spec, start = args
     try:
-        tuned = tune_pid(params, inverse, spec, start=start, starts=1, max_iterations=60)
+        tuned = tune_pid(params, inverse, spec, start=start, starts=1, max_iterations=40)
     except TuningInfeasible as exc:  # no gains meet the window's specification: the entry keeps the robust set's
         return start, {"infeasible": str(exc), "kept": "the robust set"}
     return tuned.gains, {"iterations": tuned.iterations, "seconds": tuned.seconds, "ms": tuned.ms,
@@ -181,7 +188,7 @@ def tune_schedule(
     the whole range. ``step`` and ``trajectory`` are the study's references (the whole range);
     each window is validated on a step and a staircase with their timing. ``n_plants`` Monte
     Carlo plants per validation (noise and draws from ``seed``); ``workers`` processes for the
-    entries' tunings (default: the spare CPUs). See the module docstring.
+    entries' tunings and the validations (default: the spare CPUs). See the module docstring.
     """
     say = progress or (lambda _m: None)
     t0 = time.perf_counter()
@@ -197,36 +204,37 @@ def tune_schedule(
         jobs.append((params, inverse, replace(spec, **refs, force_range_N=(lo, hi), tune_setpoint_weight=False,
                                               setpoint_weight=robust.b, filter_s=robust.Tf_s),
                      robust))
-    n_workers = min(len(jobs), spare_cpus() if workers is None else workers)
-    pool = fork_pool(n_workers) if n_workers > 1 else None
-    say(f"tuning {lv.size} entries of the gain schedule at {', '.join(f'{x:g}' for x in lv)} N"
-        + (f" ({n_workers} processes)" if pool is not None else "") + " ...")
-    if pool is not None:
-        with pool:
-            tuned = list(pool.map(_tune_entry, jobs))
-    else:
-        tuned = [_tune_entry(j) for j in jobs]
-    entries = [g for g, _ in tuned]
-    schedule = GainSchedule(tuple(lv), tuple(g.Kc for g in entries), tuple(g.Ti_s for g in entries),
-                            tuple(g.Td_s for g in entries))
-    scheduled = replace(robust, schedule=schedule)
-
-    def judge(gains: PIDGains, step_ref: Reference, trajectory_ref: Reference) -> dict[str, Any]:
-        return _worst(validate(gains, feedforward, params, criteria, n_plants=n_plants, seed=seed, step=step_ref,
-                               trajectory=trajectory_ref))
-
     t_step = float(step.times_s[1]) if step.times_s.size > 1 else 0.5
     hold = float(np.min(np.diff(trajectory.times_s[1:]))) if trajectory.times_s.size > 2 else 1.0  # its levels' hold
-    say(f"validating the schedule and the robust set at each level and over the whole range ({n_plants} plants each) ...")
+    # each window validated on a step across it and a staircase inside it, with the study's timing; then the whole range
+    checks = [(Reference.step(lo, hi, t_step, float(step.duration_s)),
+               Reference.staircase(lo, _path(lo, float(level), hi), hold, t_start_s=float(trajectory.times_s[1])))
+              for level, (lo, hi) in zip(lv, windows)] + [(step, trajectory)]
+
+    def judging(gains: PIDGains) -> list[tuple[Any, ...]]:
+        return [(gains, feedforward, params, criteria, n_plants, seed, s, t) for s, t in checks]
+
+    n_workers = max(1, min(len(jobs) + len(checks), spare_cpus() if workers is None else workers))
+    with executor(n_workers) as (pool, pool_name):
+        say(f"tuning {lv.size} entries of the gain schedule at {', '.join(f'{x:g}' for x in lv)} N, validating the "
+            f"robust set at each level and over the whole range beside them ({n_plants} plants each; {pool_name}) ...")
+        tuning_futures = [pool.submit(_tune_entry, j) for j in jobs]
+        robust_futures = [pool.submit(_judge, j) for j in judging(robust)]  # needs nothing the tuning gives
+        tuned = [f.result() for f in tuning_futures]
+        entries = [g for g, _ in tuned]
+        schedule = GainSchedule(tuple(lv), tuple(g.Kc for g in entries), tuple(g.Ti_s for g in entries),
+                                tuple(g.Td_s for g in entries))
+        scheduled = replace(robust, schedule=schedule)
+        say("validating the schedule at each level and over the whole range ...")
+        scheduled_futures = [pool.submit(_judge, j) for j in judging(scheduled)]
+        robust_figures = [f.result() for f in robust_futures]
+        scheduled_figures = [f.result() for f in scheduled_futures]
     levels = []
-    for level, (lo, hi), g, (_, record) in zip(lv, windows, entries, tuned):
-        step_ref = Reference.step(lo, hi, t_step, float(step.duration_s))
-        traj_ref = Reference.staircase(lo, _path(lo, float(level), hi), hold, t_start_s=float(trajectory.times_s[1]))
+    for level, (lo, hi), g, (_, record), rb, sc in zip(lv, windows, entries, tuned, robust_figures, scheduled_figures):
         levels.append({"level_N": float(level), "window_N": [lo, hi],
                        "entry": {"Kc_V_per_N": g.Kc, "Ti_s": g.Ti_s, "Td_s": g.Td_s, "Tf_s": g.Tf_s, "b": g.b},
-                       "tuning": record, "robust": judge(robust, step_ref, traj_ref),
-                       "scheduled": judge(scheduled, step_ref, traj_ref)})
-    whole = {"robust": judge(robust, step, trajectory), "scheduled": judge(scheduled, step, trajectory)}
+                       "tuning": record, "robust": rb, "scheduled": sc})
+    whole = {"robust": robust_figures[-1], "scheduled": scheduled_figures[-1]}
 
     choice, reason = choose(levels, whole)
     say(f"gain schedule: {choice}: {reason}")
