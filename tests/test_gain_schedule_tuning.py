@@ -85,6 +85,7 @@ def test_tune_schedule_records_both_sets_per_level_and_chooses_by_them():
     # an entry whose tuning was infeasible keeps the robust set's gains, and says so
     for r, kc in zip(d["levels"], res.schedule.Kc):
         assert r["entry"]["Kc_V_per_N"] == kc
+        assert (r["entry"]["b"], r["entry"]["Tf_s"]) == (robust.b, robust.Tf_s), "an entry was tuned with its own b or Tf"
         if "infeasible" in r["tuning"]:
             assert kc == robust.Kc
 
