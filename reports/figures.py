@@ -317,7 +317,7 @@ def gain_schedule(schedule: Mapping[str, Any]) -> Figure:
         if key in schedule.get("limits", {}):
             a.axhline(schedule["limits"][key], color=COLOURS["limit"], ls=ls, lw=0.8)
     a.set_xlabel("preload level (N)")
-    a.set_ylabel("worst case over the plants (N)\n(grey: the limits)")
+    a.set_ylabel("worst case over the plants (N)\n(red: the limits)")
     a.legend(loc="best", fontsize=6)
     fig.suptitle(f"chosen: {schedule['choice']}", fontsize=8)
     return fig
