@@ -20,6 +20,11 @@ P-I model, with or without creep) and an external feedforward
 signal ``ff_extra`` given per sample (0 unless a caller supplies one: a learned or previewed
 correction, or the tuning's precomputed inverse).
 
+A gain schedule (:class:`GainSchedule`) makes ``Kc``, ``Ti`` and ``Td`` functions of the
+setpoint: linear interpolation between a table's entries, constant beyond its ends
+(:meth:`ControllerModel.gains_at`). The integral state is the integral *action* in volts, so a
+change of gains, scheduled or switched, moves no state: the output stays continuous.
+
 Times are in seconds inside; LabVIEW enters ``Ti`` and ``Td`` in minutes, converted only by
 :meth:`PIDGains.from_labview` and :meth:`PIDGains.labview`. Every operation broadcasts, so
 the state may hold a batch of independent loops.
@@ -38,7 +43,7 @@ from numpy.typing import ArrayLike, NDArray
 from piezopreload.core.errors import InputError
 from piezopreload.models.ops import CASADI, NUMPY, Layout, Ops
 
-__all__ = ["PIDGains", "Controller", "ControllerState", "ControllerModel", "Terms", "Feedforward", "FeedforwardStep",
+__all__ = ["PIDGains", "GainSchedule", "SCHEDULE_MAX", "Controller", "ControllerState", "ControllerModel", "Terms", "Feedforward", "FeedforwardStep",
            "pid_update", "controller_functions", "NUMPY_OPS", "CASADI_OPS"]
 
 #: The ops tables of :mod:`piezopreload.models.ops` under the names :func:`pid_update` was written with.
@@ -112,6 +117,92 @@ def _finite(name: str, value: float) -> float:
     return x
 
 
+#: the most entries a gain schedule may have (each entry is four numbers of the compiled step's parameters)
+SCHEDULE_MAX = 32
+
+
+def _interpolate(ops: Ops, levels: Any, values: Any, n: int, x: Any) -> Any:
+    """``values`` linear in ``x`` between ``levels``, constant beyond the ends, over ``ops``.
+
+    Written as ``v_0 + sum_i s_i (clip(x, L_i, L_{i+1}) - L_i)`` with ``s_i`` the slope of
+    segment ``i``: min/max only, so it is one expression on numpy and in CasADi (and C).
+    """
+    def at(v: Any, i: int) -> Any:
+        return v[i] if ops.symbolic else v[..., i]
+
+    out = at(values, 0) + 0.0 * x
+    for i in range(n - 1):
+        lo, hi = at(levels, i), at(levels, i + 1)
+        slope = (at(values, i + 1) - at(values, i)) / (hi - lo)
+        out = out + slope * (ops.minimum(ops.maximum(x, lo), hi) - lo)
+    return out
+
+
+@dataclass(frozen=True)
+class GainSchedule:
+    """``Kc``, ``Ti`` and ``Td`` scheduled on the setpoint (the preload level).
+
+    Between two entries each gain is linear in the setpoint; below the first level and above the
+    last it keeps the end entry's value. ``Tf``, ``b`` and the output range are the
+    :class:`PIDGains`' own (single).
+
+    Parameters
+    ----------
+    levels_N : tuple of float
+        The setpoints of the entries (N), finite and strictly increasing; 2 to :data:`SCHEDULE_MAX`.
+    Kc : tuple of float
+        Controller gain per entry (V/N), finite.
+    Ti_s : tuple of float
+        Integral time per entry (s), finite and > 0 (interpolated as a time).
+    Td_s : tuple of float
+        Derivative time per entry (s), finite and >= 0.
+    """
+
+    levels_N: tuple[float, ...]
+    Kc: tuple[float, ...]
+    Ti_s: tuple[float, ...]
+    Td_s: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        n = len(self.levels_N)
+        if not 2 <= n <= SCHEDULE_MAX:
+            raise ValueError(f"schedule.levels_N must have 2 to {SCHEDULE_MAX} entries, got {n}.")
+        for name in ("levels_N", "Kc", "Ti_s", "Td_s"):
+            values = tuple(float(x) for x in getattr(self, name))
+            object.__setattr__(self, name, values)
+            if len(values) != n:
+                raise ValueError(f"schedule.{name} must have one entry per level ({n}), got {len(values)}.")
+            if not all(np.isfinite(values)):
+                raise ValueError(f"schedule.{name} must be finite, got {list(values)!r}.")
+        if not all(b > a for a, b in zip(self.levels_N, self.levels_N[1:])):
+            raise ValueError(f"schedule.levels_N must be strictly increasing, got {list(self.levels_N)!r}.")
+        if not all(t > 0 for t in self.Ti_s):
+            raise ValueError(f"schedule.Ti_s must be > 0 (finite: it is interpolated), got {list(self.Ti_s)!r}.")
+        if not all(t >= 0 for t in self.Td_s):
+            raise ValueError(f"schedule.Td_s must be >= 0, got {list(self.Td_s)!r}.")
+
+    @property
+    def size(self) -> int:
+        return len(self.levels_N)
+
+    def at(self, setpoint_N: ArrayLike) -> tuple[NDArray, NDArray, NDArray]:
+        """``(Kc, Ti_s, Td_s)`` at ``setpoint_N`` (numpy), the step's interpolation."""
+        x = np.asarray(setpoint_N, float)
+        lv = np.asarray(self.levels_N)
+        return tuple(np.asarray(_interpolate(NUMPY, lv, np.asarray(v), self.size, x))  # type: ignore[return-value]
+                     for v in (self.Kc, self.Ti_s, self.Td_s))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"levels_N": list(self.levels_N), "Kc_V_per_N": list(self.Kc), "Ti_s": list(self.Ti_s),
+                "Td_s": list(self.Td_s), "interpolation": SCHEDULE_INTERPOLATION}
+
+
+#: how every format states the schedule's interpolation
+SCHEDULE_INTERPOLATION = ("Kc, Ti and Td linear in the setpoint between entries, the end entries' values beyond "
+                          "them; Tf, b and the output range single; the integral state is the integral action (V), so "
+                          "a change of gains does not jump the output")
+
+
 @dataclass(frozen=True)
 class PIDGains:
     """PID gains and output range, SI units.
@@ -130,6 +221,10 @@ class PIDGains:
         Setpoint weight of the proportional action (1: error feedback, as LabVIEW).
     u_min, u_max : float
         Output range (V); the paper's closed loop uses 0-110 V.
+    schedule : GainSchedule or None
+        ``Kc``, ``Ti`` and ``Td`` scheduled on the setpoint; the step then uses the table, and
+        the single ``Kc``, ``Ti_s``, ``Td_s`` are the set it was chosen against (the robust set),
+        kept for the record. None: one set.
     """
 
     Kc: float
@@ -139,6 +234,7 @@ class PIDGains:
     b: float = 1.0
     u_min: float = 0.0
     u_max: float = 110.0
+    schedule: GainSchedule | None = None
 
     def __post_init__(self) -> None:
         _finite("Kc", self.Kc)
@@ -150,6 +246,14 @@ class PIDGains:
         _finite("b", self.b)
         if not (np.isfinite(self.u_min) and np.isfinite(self.u_max) and self.u_min < self.u_max):
             raise ValueError(f"need finite u_min < u_max, got {self.u_min!r} and {self.u_max!r}.")
+        if self.schedule is not None and not isinstance(self.schedule, GainSchedule):
+            raise ValueError(f"schedule must be a GainSchedule or None, got {type(self.schedule).__name__}.")
+
+    def at(self, setpoint_N: ArrayLike) -> tuple[Any, Any, Any]:
+        """``(Kc, Ti_s, Td_s)`` the step uses at ``setpoint_N``: the schedule's, or the single set."""
+        if self.schedule is None:
+            return self.Kc, self.Ti_s, self.Td_s
+        return self.schedule.at(setpoint_N)
 
     @classmethod
     def from_labview(cls, Kc: float, Ti_min: float, Td_min: float, **kwargs: Any) -> PIDGains:
@@ -201,6 +305,15 @@ class ControllerModel:
     """
 
     feedforward: Any = None  # a FeedforwardStep, or None for the PID alone
+    schedule_size: int = 0  # entries of the gain schedule; 0 or 1: none (the single Kc, Ti_s, Td_s)
+
+    def __post_init__(self) -> None:
+        if int(self.schedule_size) != self.schedule_size or not 0 <= self.schedule_size <= SCHEDULE_MAX:
+            raise InputError(f"schedule_size must be a whole number in 0..{SCHEDULE_MAX}, got {self.schedule_size!r}.")
+
+    @property
+    def scheduled(self) -> bool:
+        return self.schedule_size > 1
 
     @property
     def n_ff_states(self) -> int:
@@ -214,13 +327,22 @@ class ControllerModel:
     @cached_property
     def params(self) -> Layout:
         n_ff = 0 if self.feedforward is None else self.feedforward.params.size
-        return Layout("controller parameters", [("Kc", None), ("Ti_s", None), ("Td_s", None), ("Tf_s", None),
-                                                ("b", None), ("u_min_V", None), ("u_max_V", None), ("dt_s", None),
-                                                ("ff", n_ff)])
+        fields: list[tuple[str, int | None]] = [
+            ("Kc", None), ("Ti_s", None), ("Td_s", None), ("Tf_s", None), ("b", None), ("u_min_V", None),
+            ("u_max_V", None), ("dt_s", None), ("ff", n_ff)]
+        if self.scheduled:  # the table after everything else: an unscheduled layout is as it was
+            n = int(self.schedule_size)
+            fields += [("schedule_levels_N", n), ("schedule_Kc", n), ("schedule_Ti_s", n), ("schedule_Td_s", n)]
+        return Layout("controller parameters", fields)
 
     def gains_at(self, ops: Ops, p: Any, setpoint: Any) -> tuple[Any, Any, Any, Any, Any]:
-        """``(Kc, Ti, Td, Tf, b)`` at ``setpoint``: the one place a gain schedule would enter."""
-        return p.Kc, p.Ti_s, p.Td_s, p.Tf_s, p.b
+        """``(Kc, Ti, Td, Tf, b)`` at ``setpoint``: the single set, or the schedule's entries interpolated
+        linearly in the setpoint (the ends' values beyond them; :class:`GainSchedule`)."""
+        if not self.scheduled:
+            return p.Kc, p.Ti_s, p.Td_s, p.Tf_s, p.b
+        n, lv = int(self.schedule_size), p.schedule_levels_N
+        return (_interpolate(ops, lv, p.schedule_Kc, n, setpoint), _interpolate(ops, lv, p.schedule_Ti_s, n, setpoint),
+                _interpolate(ops, lv, p.schedule_Td_s, n, setpoint), p.Tf_s, p.b)
 
     def _feedforward(self, ops: Ops, p: Any, ff_state: Any, setpoint: Any, ff_extra: Any) -> tuple[Any, Any]:
         if self.feedforward is None:
@@ -280,9 +402,12 @@ class Controller:
             structure, ff = None, np.zeros(0)
         else:
             structure, ff = self.feedforward.realtime()
-        model = ControllerModel(structure)
+        sch = g.schedule
+        model = ControllerModel(structure, 0 if sch is None else sch.size)
+        table = {} if sch is None else {"schedule_levels_N": np.array(sch.levels_N), "schedule_Kc": np.array(sch.Kc),
+                                        "schedule_Ti_s": np.array(sch.Ti_s), "schedule_Td_s": np.array(sch.Td_s)}
         params = model.params.numbers(Kc=g.Kc, Ti_s=g.Ti_s, Td_s=g.Td_s, Tf_s=g.Tf_s, b=g.b, u_min_V=g.u_min,
-                                      u_max_V=g.u_max, dt_s=self.dt_s, ff=ff)
+                                      u_max_V=g.u_max, dt_s=self.dt_s, ff=ff, **table)
         return model, params
 
     @property
@@ -369,7 +494,8 @@ class Controller:
 
         def actions(c: Controller, ff_state: NDArray | None) -> tuple[NDArray, NDArray | None]:
             g = c.gains
-            pd = g.Kc * (g.b * state.sp_prev - state.pv_prev) - g.Kc * g.Td_s * state.dpv
+            Kc, _, Td = g.at(state.sp_prev)  # a schedule's gains at the last setpoint
+            pd = Kc * (g.b * state.sp_prev - state.pv_prev) - Kc * Td * state.dpv
             if c.feedforward is None:
                 return pd, None
             ff, ff_state = c.feedforward.step(ff_state, state.sp_prev)  # play operators: idempotent at equal input

@@ -27,11 +27,12 @@ from piezopreload.core.artifacts import parse_artifact, read_artifact, write_art
 from piezopreload.core.errors import ArtifactError, InputError
 from piezopreload.models.actuator import RigParams
 from piezopreload.models.closedloop import Reference
-from piezopreload.models.controller import Controller, PIDGains
+from piezopreload.models.controller import SCHEDULE_INTERPOLATION, SCHEDULE_MAX, Controller, GainSchedule, PIDGains
 from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at, model_from_dict
 
 __all__ = ["GainSet", "ExportError", "EXPORT_FORMATS", "TEXT_FORMATS", "EXPORT_FILES", "REFERENCES", "STATUSES",
-           "CONTROLLER_FORM", "gains_to_dict", "gains_from_dict"]
+           "CONTROLLER_FORM", "gains_to_dict", "gains_from_dict",
+           "schedule_from_dict"]
 
 #: the formats a gain set is exported to; the first four are rendered here, casadi-c by rig.export
 TEXT_FORMATS = ("json", "labview", "plc", "c-header")
@@ -63,9 +64,41 @@ class ExportError(InputError):
 
 
 def gains_to_dict(gains: PIDGains) -> dict[str, Any]:
-    """The gains in SI with the controller form stated, plus LabVIEW's minutes."""
-    return {"Kc_V_per_N": gains.Kc, "Ti_s": gains.Ti_s, "Td_s": gains.Td_s, "Tf_s": gains.Tf_s, "b": gains.b,
-            "u_min_V": gains.u_min, "u_max_V": gains.u_max, "form": _FORM_SHORT, "labview": gains.labview()}
+    """The gains in SI with the controller form stated, plus LabVIEW's minutes; a schedule as its table."""
+    out = {"Kc_V_per_N": gains.Kc, "Ti_s": gains.Ti_s, "Td_s": gains.Td_s, "Tf_s": gains.Tf_s, "b": gains.b,
+           "u_min_V": gains.u_min, "u_max_V": gains.u_max, "form": _FORM_SHORT, "labview": gains.labview()}
+    if gains.schedule is not None:
+        out["schedule"] = gains.schedule.to_dict()
+    return out
+
+
+_SCHEDULE_KEYS = (("levels_N", "levels_N"), ("Kc_V_per_N", "Kc"), ("Ti_s", "Ti_s"), ("Td_s", "Td_s"))
+
+
+def schedule_from_dict(doc: Any, where: str = "gains.schedule") -> GainSchedule:
+    """A gain schedule from its table; an :class:`InputError` names the field that is wrong."""
+    if not isinstance(doc, dict):
+        raise InputError(f"field '{where}' must be an object with {', '.join(k for k, _ in _SCHEDULE_KEYS)}")
+    columns: dict[str, tuple[float, ...]] = {}
+    for key, name in _SCHEDULE_KEYS:
+        column = doc.get(key)
+        if not isinstance(column, list):
+            raise InputError(f"field '{where}.{key}' must be a list of numbers, got {type(column).__name__}")
+        if not 2 <= len(column) <= SCHEDULE_MAX:
+            raise InputError(f"field '{where}.{key}' must have 2 to {SCHEDULE_MAX} entries, got {len(column)}")
+        try:
+            values = tuple(float(x) for x in column)
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"field '{where}.{key}' must hold numbers: {exc}") from exc
+        if not all(np.isfinite(values)):
+            raise InputError(f"field '{where}.{key}' must be finite, got {list(column)!r}")
+        columns[name] = values
+    try:
+        return GainSchedule(**columns)
+    except ValueError as exc:
+        field_name = str(exc).split(" ", 1)[0].removeprefix("schedule.")
+        key = {"Kc": "Kc_V_per_N"}.get(field_name, field_name)
+        raise InputError(f"field '{where}.{key}' is not valid: {exc}") from exc
 
 
 def gains_from_dict(g: Any, where: str = "gains") -> PIDGains:
@@ -75,10 +108,11 @@ def gains_from_dict(g: Any, where: str = "gains") -> PIDGains:
     missing = next((k for k in ("Kc_V_per_N", "Ti_s", "Td_s") if k not in g), None)
     if missing:
         raise InputError(f"field '{where}.{missing}' is missing")
+    schedule = None if g.get("schedule") is None else schedule_from_dict(g["schedule"], f"{where}.schedule")
     try:
         return PIDGains(Kc=float(g["Kc_V_per_N"]), Ti_s=float(g["Ti_s"]), Td_s=float(g["Td_s"]),
                         Tf_s=float(g.get("Tf_s", 0.0)), b=float(g.get("b", 1.0)),
-                        u_min=float(g.get("u_min_V", 0.0)), u_max=float(g.get("u_max_V", 110.0)))
+                        u_min=float(g.get("u_min_V", 0.0)), u_max=float(g.get("u_max_V", 110.0)), schedule=schedule)
     except (TypeError, ValueError) as exc:
         raise InputError(f"field '{where}' is not valid: {exc}") from exc
 
@@ -253,22 +287,27 @@ class GainSet:
         g = self.export_gains()
         digest = self.content_sha256 or ""
         head = export_header(digest)
+        sch = self.gains.schedule
         if fmt == "json":
-            return _json_text(digest, g, None if self.feedforward is None else self.feedforward.to_dict())
+            return _json_text(digest, g, None if self.feedforward is None else self.feedforward.to_dict(), sch)
         if fmt == "labview":
             lines = ["; " + h for h in head] + [
                 "; LabVIEW PID VIs take Ti and Td in minutes", "[PID gains]",
                 f"Kc = {g['Kc_V_per_N']:.12g}", f"Ti (min) = {g['Ti_s'] / 60.0:.12g}", f"Td (min) = {g['Td_s'] / 60.0:.12g}",
                 "[output range]", f"low (V) = {g['u_min_V']:.12g}", f"high (V) = {g['u_max_V']:.12g}",
                 "[advanced]", f"setpoint weight beta = {g['b']:.12g}", f"derivative filter time constant (s) = {g['Tf_s']:.12g}"]
+            if sch is not None:  # LabVIEW's PID Gain Schedule VI takes a table of setpoint breakpoints and gains
+                lines += _table_lines(sch, "; ", (("Kc", 1.0), ("Ti (min)", 60.0), ("Td (min)", 60.0)))
             return "\n".join(lines) + "\n"
         if fmt == "plc":
             lines = ["; " + h for h in head] + [
                 "; Kp in V/N; Tn (reset time) and Tv (rate time) in seconds", "[PID]",
                 f"Kp = {g['Kc_V_per_N']:.12g}", f"Tn = {g['Ti_s']:.12g}", f"Tv = {g['Td_s']:.12g}",
                 f"Tf = {g['Tf_s']:.12g}", f"b = {g['b']:.12g}", f"Ymin = {g['u_min_V']:.12g}", f"Ymax = {g['u_max_V']:.12g}"]
+            if sch is not None:
+                lines += _table_lines(sch, "; ", (("Kp", 1.0), ("Tn", 1.0), ("Tv", 1.0)))
             return "\n".join(lines) + "\n"
-        return _c_header(digest, head, g, None if self.feedforward is None else self.feedforward.to_dict())
+        return _c_header(digest, head, g, None if self.feedforward is None else self.feedforward.to_dict(), sch)
 
     def export_gains(self) -> dict[str, float]:
         """The gains every format writes (SI, by name); refuses a gain set that is not validated."""
@@ -288,10 +327,24 @@ def export_header(digest: str) -> list[str]:
             "derivative " + CONTROLLER_FORM["derivative"] + "; anti-windup: " + CONTROLLER_FORM["anti_windup"]]
 
 
-def _json_text(digest: str, g: dict[str, float], ff: dict[str, Any] | None) -> str:
-    body = {"gain_set_sha256": digest, "controller": {**CONTROLLER_FORM}, "gains": {k: g[k] for k in _GAIN_KEYS},
-            "feedforward_model": ff}
+def _json_text(digest: str, g: dict[str, float], ff: dict[str, Any] | None, schedule: GainSchedule | None) -> str:
+    body: dict[str, Any] = {"gain_set_sha256": digest, "controller": {**CONTROLLER_FORM},
+                            "gains": {k: g[k] for k in _GAIN_KEYS}, "feedforward_model": ff}
+    if schedule is not None:
+        body["gain_schedule"] = schedule.to_dict()
     return json.dumps(body, indent=2, allow_nan=False) + "\n"
+
+
+def _table_lines(schedule: GainSchedule, comment: str, names: tuple[tuple[str, float], ...]) -> list[str]:
+    """The schedule as an INI section: the setpoints and each gain as comma-separated lists (entry by entry)."""
+    def row(values: tuple[float, ...], divide: float) -> str:
+        return ", ".join(f"{x / divide:.12g}" for x in values)
+
+    (kc, kc_d), (ti, ti_d), (td, td_d) = names
+    return [f"{comment}gain schedule: {SCHEDULE_INTERPOLATION}; the single gains above are the robust set, "
+            "not used while the schedule is", "[gain schedule]", f"entries = {schedule.size}",
+            f"setpoint (N) = {row(schedule.levels_N, 1.0)}", f"{kc} = {row(schedule.Kc, kc_d)}",
+            f"{ti} = {row(schedule.Ti_s, ti_d)}", f"{td} = {row(schedule.Td_s, td_d)}"]
 
 
 def _c_array(name: str, size: str, values: Any) -> str:
@@ -330,7 +383,22 @@ def _c_model(ff: dict[str, Any]) -> list[str]:
     return lines
 
 
-def _c_header(digest: str, head: list[str], g: dict[str, float], ff: dict[str, Any] | None) -> str:
+def _c_schedule(schedule: GainSchedule) -> list[str]:
+    """The gain schedule as C arrays, with the interpolation the controller step does spelled out."""
+    return ["/* gain schedule: Kc, Ti and Td linear in the setpoint r between entries, the end entries' values",
+            "   beyond them: for PP_SCHEDULE_LEVELS_N[i] <= r <= PP_SCHEDULE_LEVELS_N[i+1],",
+            "   K(r) = K[i] + (K[i+1] - K[i]) (r - L[i]) / (L[i+1] - L[i]). Tf, b and the output range are single;",
+            "   the integral state is the integral action (V), so a change of gains does not jump the output.",
+            "   PP_KC_V_PER_N, PP_TI_S and PP_TD_S above are the robust set, not used while the schedule is. */",
+            f"#define PP_SCHEDULE_N {schedule.size}",
+            _c_array("PP_SCHEDULE_LEVELS_N", "PP_SCHEDULE_N", schedule.levels_N),
+            _c_array("PP_SCHEDULE_KC_V_PER_N", "PP_SCHEDULE_N", schedule.Kc),
+            _c_array("PP_SCHEDULE_TI_S", "PP_SCHEDULE_N", schedule.Ti_s),
+            _c_array("PP_SCHEDULE_TD_S", "PP_SCHEDULE_N", schedule.Td_s)]
+
+
+def _c_header(digest: str, head: list[str], g: dict[str, float], ff: dict[str, Any] | None,
+              schedule: GainSchedule | None = None) -> str:
     lines = ["/* Generated by piezopreload from a validated gain set. */"]
     lines += [f"/* {h} */" for h in head]
     lines += ["#ifndef PIEZOPRELOAD_GAINS_H", "#define PIEZOPRELOAD_GAINS_H", ""]
@@ -338,6 +406,8 @@ def _c_header(digest: str, head: list[str], g: dict[str, float], ff: dict[str, A
               f"#define PP_TI_S {g['Ti_s']!r}", f"#define PP_TD_S {g['Td_s']!r}", f"#define PP_TF_S {g['Tf_s']!r}",
               f"#define PP_SETPOINT_WEIGHT {g['b']!r}", f"#define PP_U_MIN_V {g['u_min_V']!r}",
               f"#define PP_U_MAX_V {g['u_max_V']!r}"]
+    if schedule is not None:
+        lines += [""] + _c_schedule(schedule)
     if ff is not None:
         lines += [""] + _c_model(ff)
     lines += ["", "#endif"]

@@ -10,7 +10,8 @@ design      ball-screw preload optimum, Pareto fronts, preload schedule         
 plant       the designed preload system as the plant (``[plant] from_design``)   plant.json
 identify    the feedforward's P-I model from the loop measurement (simulated    feedforward/model.json,
             on the plant's truth model, or the study's ``[feedforward] data``)   feedforward/loop.csv
-tune        PID gains around the compensated plant (CasADi), compared, bounded  tuning.json
+tune        PID gains around the compensated plant (CasADi), compared, bounded; tuning.json
+            a gain schedule on the preload level or the robust set (``[tuning]``)
 validate    the tuned gains on a Monte Carlo set of nonlinear rigs              gains.json, validation.json
 compare     step and trajectory, paper's and tuned gains, with/without FF       responses/
 system      the controlled preload along the design's schedule: rigidity and    system/system.json,
@@ -162,9 +163,10 @@ def _stage_design(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
 def _stage_tune(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     tuned = ctx.subject().tune(ctx.feedforward(), progress=ctx.progress.say,
                            iterations=ctx.progress.counter("IPOPT iterations", every=10))
-    g = tuned.gains
+    g, sched = tuned.gains, tuned.tuning.get("schedule")
     return {"tuning": tuned.save(ctx.out / "tuning.json")}, {"Kc_V_per_N": g.Kc, "Ti_s": g.Ti_s, "Td_s": g.Td_s,
-                                                             "Tf_s": g.Tf_s, "b": g.b, "ms": tuned.tuning["ms"]}
+                                                             "Tf_s": g.Tf_s, "b": g.b, "ms": tuned.tuning["ms"],
+                                                             **({} if sched is None else {"gain_schedule": sched["choice"]})}
 
 
 def _stage_validate(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
@@ -305,7 +307,8 @@ STAGES: tuple[Stage, ...] = (
     Stage("identify", "the feedforward's P-I model", ("rig", "feedforward", "reference"), ("plant",),
           ("models", "tuning"), _stage_identify, files=("feedforward.data",)),
     Stage("tune", "PID gains around the compensated plant (CasADi + IPOPT)",
-          ("rig", "controller", "reference", "simulation", "tuning"), ("plant", "identify"), ("models", "tuning"),
+          ("rig", "controller", "reference", "simulation", "tuning", "validation"), ("plant", "identify"),
+          ("models", "tuning"),
           _stage_tune),
     Stage("validate", "Monte Carlo on nonlinear rigs", ("study", "rig", "reference", "simulation", "validation"),
           ("plant", "identify", "tune"), ("models", "tuning"), _stage_validate),

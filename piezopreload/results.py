@@ -14,6 +14,8 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.parallel import beside
@@ -29,6 +31,7 @@ from piezopreload.tuning.calibrate import reproduce as reproduce_paper
 from piezopreload.tuning.compare import compare_gains, reproduction_summary, tracking_improvement
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.pid import TuningInfeasible, minimum_time, tracking_floor, tune_pid
+from piezopreload.tuning.schedule import schedule_levels, tune_schedule
 from piezopreload.tuning.validate import ValidationResult
 from piezopreload.tuning.verdict import validate_gain_set
 
@@ -133,6 +136,7 @@ class TuningResult:
             "paper": {"ff+pid": PAPER_RESULTS["ff+pid"]}, "minimum_time": self.minimum_time,
             "tracking_improvement": self.improvement, "tracking_floor": self.tracking_floor,
             "validation": gain_set.validation, "seconds": seconds,
+            "gain_schedule": self.tuning.get("schedule"),  # the schedule's entries, figures and choice, or None
         }
 
     def plot(self) -> Any:
@@ -159,6 +163,13 @@ def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None =
     g = tuned.gains
     say(f"tuned in {tuned.seconds:.0f} s: Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s, Td {g.Td_s:.4g} s, Tf {g.Tf_s:.4g} s, "
         f"b {g.b:.3g}")
+    record: dict[str, Any] = {**tuned.to_dict(), "spec": spec.to_dict()}
+    if study.tuning.schedule_levels >= 2:  # a gain schedule on the preload level, or the robust set if it does as well
+        span = np.concatenate([study.references[k].levels_N for k in ("step", "trajectory")])
+        sched = tune_schedule(study.rig, feedforward.model, spec, criteria, g, step=step, trajectory=trajectory,
+                              levels_N=schedule_levels(span.min(), span.max(), study.tuning.schedule_levels),
+                              n_plants=study.tuning.schedule_plants, seed=seed, progress=say)
+        g, record["schedule"] = sched.gains, sched.to_dict()
     try:
         bound = bounding.result()
     except TuningInfeasible as exc:  # the bound is a comparison, not a requirement: say why it is missing
@@ -174,7 +185,7 @@ def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None =
     if feedforward.model_sha256:
         inputs["feedforward_sha256"] = feedforward.model_sha256
     return TuningResult(
-        study, feedforward, g, tuned.baseline, {**tuned.to_dict(), "spec": spec.to_dict()}, table,
+        study, feedforward, g, tuned.baseline, record, table,
         {"settling_s": bound["settling_s"], **({"reason": bound["reason"]} if "reason" in bound else {}),
          "tuned_over_bound_ratio": None if settle is None or bound["settling_s"] is None else settle / bound["settling_s"]},
         {**floor, "tuned_over_floor_ratio": row["tracking_rms_N"] / floor["rms_N"]}, tracking_improvement(table),

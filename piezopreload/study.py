@@ -90,7 +90,8 @@ _SCHEMA: dict[str, Any] = {
                  "lift_off_margin": _NUM},
     # the one-command study (piezopreload run): tuning, validation, export and the rig run
     "tuning": {"overshoot_margin_N": _NUM, "ms_max": _NUM, "noise_gain_max_V_per_N": _NUM,
-               "tune_setpoint_weight": bool, "step_N": list, "trajectory_N": list},
+               "tune_setpoint_weight": bool, "step_N": list, "trajectory_N": list, "schedule_levels": int,
+               "schedule_plants": int},
     # the designed preload system as the plant (design/plant.py, design/system.py)
     "plant": {"from_design": bool, "sleeve_stiffness_N_per_um": _NUM, "cycles": int, "passes": int,
               "margin_factor": _NUM, "stack_contact_N": _NUM},

@@ -294,6 +294,36 @@ def monte_carlo(metrics: Mapping[str, Sequence[float | None]], limits: Mapping[s
 
 
 @_styled
+def gain_schedule(schedule: Mapping[str, Any]) -> Figure:
+    """The gain schedule against the preload (Kc and Ti, the entries marked, the robust set dashed) and each
+    set's worst-case settling time and tracking RMS over the Monte Carlo plants at each level."""
+    table, robust, levels = schedule["table"], schedule["robust"], schedule["levels"]
+    lv = np.asarray(table["levels_N"], float)
+    x = np.linspace(lv[0], lv[-1], 200)
+    fig, ax = _figure(2.6, ncols=3)
+    for a, key, label, scale in ((ax[0][0], "Kc_V_per_N", "Kc (mV/N)", 1e3), (ax[0][1], "Ti_s", "Ti (ms)", 1e3)):
+        a.plot(x, scale * np.interp(x, lv, table[key]), color=COLOURS["model"], label="schedule")
+        a.plot(lv, scale * np.asarray(table[key], float), "o", color=COLOURS["model"], ms=4)
+        a.axhline(scale * robust[key], color=COLOURS["limit"], ls="--", lw=0.9, label="robust set")
+        a.set_xlabel("preload setpoint (N)")
+        a.set_ylabel(label)
+    ax[0][0].legend(loc="best")
+    a = ax[0][2]
+    at = np.array([r["level_N"] for r in levels])
+    for which, marker, name in (("robust", "s", "robust set"), ("scheduled", "o", "schedule")):
+        a.plot(at, [r[which]["tracking_rms_N"] for r in levels], marker=marker, ls="-", label=f"{name}: tracking RMS")
+        a.plot(at, [r[which]["overshoot_N"] for r in levels], marker=marker, ls=":", label=f"{name}: overshoot")
+    for key, ls in (("tracking_rms_N", "--"), ("overshoot_N", ":")):
+        if key in schedule.get("limits", {}):
+            a.axhline(schedule["limits"][key], color=COLOURS["limit"], ls=ls, lw=0.8)
+    a.set_xlabel("preload level (N)")
+    a.set_ylabel("worst case over the plants (N)\n(red: the limits)")
+    a.legend(loc="best", fontsize=6)
+    fig.suptitle(f"chosen: {schedule['choice']}", fontsize=8)
+    return fig
+
+
+@_styled
 def rig_run(time_s: np.ndarray, reference_N: np.ndarray, force_N: np.ndarray, voltage_V: np.ndarray,
             mode: np.ndarray) -> Figure:
     """The rig executor's run from its log: force against the reference, and the stack voltage."""

@@ -152,6 +152,13 @@ def render_report(out: Path, records: dict[str, dict[str, Any]], study: ReportSt
         f"The tuned gains with the feedforward over {val['n_plants']} Monte Carlo rigs (seed {val['seed']}): settling "
         f"time into ±{crit['band_N']:g} N and overshoot of the true force, and the trajectory's tracking RMS; dashed, "
         "the validation limits.")
+    tuning_doc = read_artifact(r.path("tune", "tuning"), "tuning")
+    schedule = tuning_doc["tuning"].get("schedule")
+    if schedule is not None:
+        put("gain-schedule", F.gain_schedule(schedule),
+            f"The gain schedule on the preload level ({len(schedule['levels'])} entries, each tuned on its window) "
+            "against the one robust set (dashed), and each set's worst case over "
+            f"{schedule['plants']} Monte Carlo rigs per level; chosen: {schedule['choice']}.")
     log = read_csv_columns(r.path("rig", "log_csv"))
     sidecar = read_artifact(r.path("rig", "log_json"), "rig-run")
     put("rig-run", F.rig_run(log["time_s"], log["reference_N"], log["measured_N"], log["voltage_V"], log["mode"]),
@@ -251,6 +258,7 @@ def _report_data(study: ReportStudy, records: dict[str, dict[str, Any]], respons
         "creep": _creep_section(responses),
         "feedforward": {"text": _feedforward_text(ff_doc, n_ops, src_text)},
         "gains": _gains_section(gain_set, tuning),
+        "schedule": _schedule_section(tuning["tuning"].get("schedule")),
         "validation": _validation_section(val),
         "rig": _rig_section(records, sidecar, rig_sum),
         "design": design_data,
@@ -347,6 +355,30 @@ def _gains_section(gain_set: GainSet, tuning: dict[str, Any]) -> dict[str, Any]:
                      f"{fmt(tuning['tuning']['ms'])}, {tuning['tuning']['status']}); controller form: {g['form']}. "
                      f"The minimum-time bound on the step's settling is {fmt(tuning['minimum_time']['settling_s'])} s; "
                      f"the tuned settling is {fmt(tuning['minimum_time']['tuned_over_bound_ratio'])} times it.")}
+
+
+def _schedule_section(schedule: dict[str, Any] | None) -> dict[str, Any] | None:
+    """The gain schedule table: per level the entry's gains and both sets' worst cases; the choice and why."""
+    if schedule is None:
+        return None
+    rows = []
+    for r in schedule["levels"]:
+        e, rb, sc = r["entry"], r["robust"], r["scheduled"]
+        rows.append([fmt(r["level_N"], 4), f"{fmt(r['window_N'][0], 4)}–{fmt(r['window_N'][1], 4)}",
+                     fmt(1e3 * e["Kc_V_per_N"], 4), fmt(1e3 * e["Ti_s"], 3), fmt(1e3 * e["Td_s"], 3),
+                     *(f"{fmt(x[k])}" for x in (rb, sc) for k in ("settling_s", "overshoot_N", "tracking_rms_N")),
+                     " / ".join("yes" if x["passed"] else "no" for x in (rb, sc))])
+    w, rb = schedule["whole_range"], schedule["robust"]
+    rows.append(["whole range", "study's", fmt(1e3 * rb["Kc_V_per_N"], 4), fmt(1e3 * rb["Ti_s"], 3),
+                 fmt(1e3 * rb["Td_s"], 3),
+                 *(f"{fmt(w[x][k])}" for x in ("robust", "scheduled") for k in ("settling_s", "overshoot_N", "tracking_rms_N")),
+                 " / ".join("yes" if w[x]["passed"] else "no" for x in ("robust", "scheduled"))])
+    return {"rows": rows, "choice": schedule["choice"], "text": (
+        f"Gains scheduled on the preload level: {len(schedule['levels'])} entries, each tuned with CasADi on a step "
+        "across its window and a staircase inside it (the robust set's Tf and b held), Kc, Ti and Td linear in the "
+        "setpoint between them; the schedule and the one robust set each validated by Monte Carlo "
+        f"({schedule['plants']} rigs per level, the study's limits) at every level and over the whole range. "
+        f"Chosen: {schedule['choice']}: {schedule['reason']}.")}
 
 
 _VALIDATION_NAMES = {"settling_s": "settling time (s)", "settling_measured_s": "settling time, measured force (s)",

@@ -62,6 +62,19 @@ def controller_from_gain_set(doc: GainSet | dict[str, Any]) -> Controller:
         raise ExportError(f"field 'feedforward.model': {exc}") from exc
 
 
+def _schedule_comment(doc: GainSet) -> list[str]:
+    """The gain schedule the generated step interpolates (its numbers are constants of the code)."""
+    sch = doc.gains.schedule
+    if sch is None:
+        return []
+    def row(values: tuple[float, ...]) -> str:
+        return ", ".join(f"{x:.6g}" for x in values)
+    return [f"/* gain schedule ({sch.size} entries), compiled into the step: Kc, Ti and Td linear in the setpoint",
+            "   between entries, the end entries' values beyond them; the integral state is the integral action (V),",
+            f"   so a change of gains does not jump the output. setpoint (N): {row(sch.levels_N)};",
+            f"   Kc (V/N): {row(sch.Kc)}; Ti (s): {row(sch.Ti_s)}; Td (s): {row(sch.Td_s)} */"]
+
+
 def _casadi_c(doc: GainSet, g: dict[str, float], digest: str, head: list[str]) -> str:
     controller = controller_from_gain_set(doc)
     model = controller.model
@@ -82,6 +95,7 @@ def _casadi_c(doc: GainSet, g: dict[str, float], digest: str, head: list[str]) -
         "   measurement (N) and setpoint (N), the filtered d(measurement)/dt (N/s), the feedforward's",
         f"   state: its forward model's ({ff_state}); start it with pp_controller_initial_state,",
         "   then call pp_controller_step once per sample. */",
+        *_schedule_comment(doc),
         "/* int pp_controller_initial_state(double setpoint0, double pv0, double u0, double* state);",
         "   int pp_controller_step(double setpoint, double pv, double* state, double* u); */",
         "",

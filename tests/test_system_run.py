@@ -69,3 +69,30 @@ def test_a_changed_design_rebuilds_the_plant_and_everything_after_it(axis_run, t
     plant = read_artifact(out / "plant.json", "plant")
     assert plant["design_sha256"] == after["design"]["outputs"]["design"]["sha256"]
     assert plant["rig"]["amp_current_limit_A"] == pytest.approx(0.08), "the plant does not carry the new amplifier"
+
+
+def test_the_tune_stage_chooses_between_the_schedule_and_the_robust_set_and_the_report_shows_it(axis_run):
+    """[tuning] schedule_levels: the tuning records both sets' worst cases per level, the gain set is the chosen
+    one (a schedule's table in its gains and exports), and the report carries the gain schedule's table and figure."""
+    from piezopreload.tuning.schedule import choose
+
+    tuning = read_artifact(axis_run / "tuning.json", "tuning")
+    sched = tuning["tuning"]["schedule"]
+    refs = load_study(SMALL_AXIS).references
+    span = [min(float(refs[k].levels_N.min()) for k in ("step", "trajectory")),
+            max(float(refs[k].levels_N.max()) for k in ("step", "trajectory"))]
+    assert sched["levels_N"] == span, "the schedule's entries do not span the study's references"
+    assert (sched["choice"], sched["reason"]) == choose(sched["levels"], sched["whole_range"])
+    for r in sched["levels"]:
+        for which in ("robust", "scheduled"):
+            assert set(r[which]) >= {"settling_s", "overshoot_N", "tracking_rms_N", "passed"}, r
+    gains = read_artifact(axis_run / "gains.json", "gain-set")["gains"]
+    assert ("schedule" in gains) == (sched["choice"] == "schedule"), "the gain set is not the chosen set"
+    if sched["choice"] == "schedule":
+        assert gains["schedule"]["levels_N"] == sched["levels_N"]
+        assert "PP_SCHEDULE_LEVELS_N" in (axis_run / "exports" / "pp_gains.h").read_text()
+    else:
+        assert gains["Kc_V_per_N"] == sched["robust"]["Kc_V_per_N"]
+    report = read_artifact(axis_run / "report" / "report.json", "report")
+    assert report["schedule"]["choice"] == sched["choice"] and len(report["schedule"]["rows"]) == 3
+    assert (axis_run / "report" / "figures" / "gain-schedule.pdf").stat().st_size > 1000

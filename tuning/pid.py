@@ -103,7 +103,7 @@ class TuningSpec:
     step, trajectory : Reference
         The references the loop is tuned over (short holds: the settling happens early).
     tune_setpoint_weight : bool
-        Whether ``b`` is a decision variable in ``[0, 1]`` (else 1, as LabVIEW). With the
+        Whether ``b`` is a decision variable in ``[0, 1]`` (else ``setpoint_weight``, 1 as LabVIEW). With the
         feedforward following the setpoint, a small ``b`` keeps the proportional action from
         kicking the command into its limit at a step.
     Tf_ratio_min : float
@@ -114,6 +114,15 @@ class TuningSpec:
         :func:`minimum_time`) counts little, the error the loop leaves after it counts fully.
     variants : dict
         Relative spread of the plant variants (see :func:`plant_variants`).
+    setpoint_weight : float
+        ``b`` where it is not tuned (a gain schedule's entries share the robust set's).
+    filter_s : float or None
+        ``Tf`` held, not tuned (a gain schedule's entries share the robust set's derivative
+        filter); None tunes it.
+    force_range_N : (float, float) or None
+        The measured force range the loop works in, for the linearised loop's slopes (the Ms
+        constraints): a gain schedule's entry is tuned for the range around its level, where a
+        Hertz coupling's force per volt is what it is there. None: the whole stroke (0-110 V).
     """
 
     band_N: float = PAPER_BAND_N
@@ -132,11 +141,17 @@ class TuningSpec:
     variants: dict[str, float] = field(
         default_factory=lambda: {"gain": 0.15, "amp_bandwidth_Hz": 0.2, "slew": 0.2, "hysteresis": 0.2, "creep": 0.3}
     )
+    setpoint_weight: float = 1.0
+    filter_s: float | None = None
+    force_range_N: tuple[float, float] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {"band_N": self.band_N, "overshoot_margin_N": self.overshoot_margin_N, "ms_max": self.ms_max,
                 "noise_gain_max_V_per_N": self.noise_gain_max_V_per_N, "u_min_V": self.u_min_V, "u_max_V": self.u_max_V,
-                "tune_setpoint_weight": self.tune_setpoint_weight, "variants": dict(self.variants)}
+                "tune_setpoint_weight": self.tune_setpoint_weight, "variants": dict(self.variants),
+                **({} if self.tune_setpoint_weight or self.setpoint_weight == 1.0 else {"b": self.setpoint_weight}),
+                **({} if self.filter_s is None else {"filter_s": self.filter_s}),
+                **({} if self.force_range_N is None else {"force_range_N": list(self.force_range_N)})}
 
     def __post_init__(self) -> None:
         if not (0 < self.overshoot_margin_N < self.band_N):
@@ -149,6 +164,13 @@ class TuningSpec:
             raise ValueError("TuningSpec needs u_min_V < u_max_V.")
         if not self.ramp_s > 0:
             raise ValueError("TuningSpec.ramp_s must be > 0.")
+        if self.filter_s is not None and not (np.isfinite(self.filter_s) and self.filter_s >= 0):
+            raise ValueError(f"TuningSpec.filter_s must be finite and >= 0, got {self.filter_s!r}.")
+        if not 0.0 <= self.setpoint_weight <= 1.0:
+            raise ValueError(f"TuningSpec.setpoint_weight must be in [0, 1], got {self.setpoint_weight!r}.")
+        if self.force_range_N is not None and not (len(self.force_range_N) == 2 and np.all(np.isfinite(self.force_range_N))
+                                                   and self.force_range_N[0] <= self.force_range_N[1]):
+            raise ValueError(f"TuningSpec.force_range_N must be (low, high) with low <= high, got {self.force_range_N!r}.")
 
 
 def scaled_references(step_N: Any = None, trajectory_N: Any = None) -> dict[str, Reference]:
@@ -309,8 +331,9 @@ def _plant_frequency_response(params: RigParams, omega: np.ndarray, gain_N_per_V
     return gain_N_per_V * amp * creep
 
 
-def _small_signal_gains(params: RigParams) -> tuple[float, float]:
-    """The lowest and highest local slope dF/dV of the quasi-static loop over 0..110 V (N/V).
+def _small_signal_gains(params: RigParams, force_range_N: tuple[float, float] | None = None) -> tuple[float, float]:
+    """The lowest and highest local slope dF/dV of the quasi-static loop over 0..110 V (N/V), or with a Hertz
+    coupling over the measured forces ``force_range_N`` (within the stroke).
 
     Right after a reversal the Bouc-Wen state has slope ``alpha``, so the stroke's slope is
     ``1 - alpha`` (plus the asymmetry); far along a branch it approaches ``1 + 2 kappa v / 100``.
@@ -321,8 +344,13 @@ def _small_signal_gains(params: RigParams) -> tuple[float, float]:
         x_top = float(params.stroke_um_per_V) * 110.0
         f_top = float(hertz_force(NUMPY, x_top, float(params.effective_stiffness_N_per_um),
                                   float(params.hertz_um_per_N23), float(params.hertz_preload_N)))
-        k_lo = float(params.local_stiffness_N_per_um(0.0)) * float(params.stroke_um_per_V)
-        k = float(params.local_stiffness_N_per_um(f_top)) * float(params.stroke_um_per_V)
+        f_lo, f_hi = 0.0, f_top
+        if force_range_N is not None:  # the stacks' share of the measured force, inside the stroke
+            bolts = float(params.bolt_preload_N)
+            f_lo = min(max(force_range_N[0] - bolts, 0.0), f_top)
+            f_hi = min(max(force_range_N[1] - bolts, f_lo), f_top)
+        k_lo = float(params.local_stiffness_N_per_um(f_lo)) * float(params.stroke_um_per_V)
+        k = float(params.local_stiffness_N_per_um(f_hi)) * float(params.stroke_um_per_V)
     lo = k_lo * (1.0 - float(params.bw_alpha))
     hi = k * (1.0 + 2.0 * max(float(params.bw_kappa), 0.0) * 110.0 / 100.0)
     return lo, hi
@@ -435,13 +463,17 @@ class _Scaling:
 
     def gains(self, z: np.ndarray, spec: TuningSpec) -> PIDGains:
         x = {n: float(self.value(n, float(z[i]))) for i, n in enumerate(self.names)}
-        return PIDGains(Kc=x["Kc"], Ti_s=x["Ti"], Td_s=x["Td"], Tf_s=x["Tf"], b=x.get("b", 1.0),
+        return PIDGains(Kc=x["Kc"], Ti_s=x["Ti"], Td_s=x["Td"], Tf_s=x.get("Tf", spec.filter_s or 0.0),
+                        b=x.get("b", spec.setpoint_weight),
                         u_min=spec.u_min_V, u_max=spec.u_max_V)
 
 
-def _seeds(names: list[str], scaling: _Scaling, baseline: PIDGains) -> np.ndarray:
-    """Starting points: the SIMC baseline and a coarse grid around the box's middle."""
+def _seeds(names: list[str], scaling: _Scaling, baseline: PIDGains, start: PIDGains | None = None) -> np.ndarray:
+    """Starting points: the SIMC baseline (``start`` before it, if given) and a coarse grid around the box's middle."""
     pts = [[scaling.z(n, {"Kc": baseline.Kc, "Ti": baseline.Ti_s, "Td": 1e-4, "Tf": 1e-4, "b": 1.0}[n]) for n in names]]
+    if start is not None:  # a warm start: gains tuned for a neighbouring problem
+        pts.insert(0, [scaling.z(n, {"Kc": start.Kc, "Ti": start.Ti_s, "Td": start.Td_s, "Tf": start.Tf_s,
+                                     "b": start.b}[n]) for n in names])
     k = scaling.bounds["Kc"][0] / _LOG_BOUNDS["Kc"][0]
     grid = {"Kc": [0.3 * k, 1.0 * k, 3.0 * k], "Ti": [0.02, 0.05, 0.15], "Td": [1e-4], "Tf": [1e-4], "b": [0.0, 0.5]}
     axes = [[scaling.z(n, v) for v in grid[n]] for n in names]
@@ -689,8 +721,8 @@ def _build_problem(params: RigParams, feedforward: InverseClassicalPI | None, sp
     dt = params.sample_period_s
     variants = plant_variants(params, spec.variants)
     loop = tuning_loop(params)
-    names = ["Kc", "Ti", "Td", "Tf"] + (["b"] if spec.tune_setpoint_weight else [])
-    scaling = _Scaling(names, 1.0 / max(1.0, float(np.mean(_small_signal_gains(params)))))
+    names = ["Kc", "Ti", "Td"] + (["Tf"] if spec.filter_s is None else []) + (["b"] if spec.tune_setpoint_weight else [])
+    scaling = _Scaling(names, 1.0 / max(1.0, float(np.mean(_small_signal_gains(params)))))  # the whole stroke's box
     # the step, then the trajectory, on one horizon: the loop restarts at each one's first sample
     # (the trajectory's top is out of reach of the weakest variants: only the step's overshoot counts)
     parts = []
@@ -703,7 +735,7 @@ def _build_problem(params: RigParams, feedforward: InverseClassicalPI | None, sp
         parts.append(np.vstack([rows[k] for k in _ROWS]))
     horizon = _Horizon(loop, variants, np.hstack(parts), np.array([spec.u_min_V, spec.u_max_V, dt]), engine)
     omega = _omega_grid(dt)
-    slopes = [_small_signal_gains(v) for v in variants]
+    slopes = [_small_signal_gains(v, spec.force_range_N) for v in variants]
     G = np.vstack([_plant_frequency_response(v, omega, slope) for v, pair in zip(variants, slopes) for slope in pair])
     n_freq = G.size
     layout = Layout("tuning data", [
@@ -719,7 +751,9 @@ def _build_problem(params: RigParams, feedforward: InverseClassicalPI | None, sp
     z, s, p = ca.MX.sym("z", len(names)), ca.MX.sym("s"), ca.MX.sym("p", layout.size)
     d = layout.unpack(p)
     vals = {k: scaling.value(k, z[i]) for i, k in enumerate(names)}
-    gains = ca.vertcat(vals["Kc"], vals["Ti"], vals["Td"], vals["Tf"], vals.get("b", 1.0))
+    if spec.filter_s is not None:
+        vals["Tf"] = float(spec.filter_s)
+    gains = ca.vertcat(vals["Kc"], vals["Ti"], vals["Td"], vals["Tf"], vals.get("b", spec.setpoint_weight))
     time_domain = _TimeDomain(horizon)  # (the problem keeps the Python object alive for CasADi)
     total, overshoot = time_domain(gains)
     objective = total / len(variants)
@@ -764,6 +798,7 @@ def tune_pid(
     verbose: bool = False,
     progress: Callable[[int], None] | None = None,
     engine: str = "auto",
+    start: PIDGains | None = None,
 ) -> TuningResult:
     """Tune ``Kc, Ti, Td, Tf`` (and ``b``) on the compensated plant; see the module docstring.
 
@@ -780,6 +815,9 @@ def tune_pid(
     :mod:`piezopreload.core.native`), ``"plain"`` in CasADi's virtual machine, ``"auto"``
     compiles where a C compiler works. The same NLP and the same derivatives either way, so
     the same iterates and optimum; the result says which ran and how long the build took.
+
+    ``start``: gains to try first (a warm start, say the robust set for one entry of a gain
+    schedule); the seeds are still ranked by violation and objective.
     """
     if engine not in ENGINES:
         raise InputError(f"engine must be one of {ENGINES}, got {engine!r}.")
@@ -831,7 +869,7 @@ def tune_pid(
         f, gv = evaluate(np.append(zv, 0.0), data)
         return float(np.max(np.asarray(gv, float), initial=0.0)), float(f)
 
-    seeds = _seeds(prob.names, prob.scaling, baseline)
+    seeds = _seeds(prob.names, prob.scaling, baseline, start)
     scores = [score(sd) for sd in seeds]
     order = sorted(range(len(seeds)), key=lambda i: (round(scores[i][0], 3), scores[i][1]))
     best: tuple[bool, float, np.ndarray, float, str] | None = None

@@ -10,6 +10,7 @@ from dataclasses import asdict, dataclass
 
 from piezopreload.core.config import Table
 from piezopreload.core.errors import InputError
+from piezopreload.models.controller import SCHEDULE_MAX
 from piezopreload.tuning.pid import TuningSpec, scaled_references
 from piezopreload.tuning.validate import Criteria
 
@@ -29,12 +30,18 @@ class TuningTable(Table):
     tune_setpoint_weight: bool = TuningSpec.tune_setpoint_weight
     step_N: tuple[float, float] | None = None            # (from, to); None: TuningSpec's (the paper's scale)
     trajectory_N: tuple[float, ...] | None = None        # rest level, then the levels; None: TuningSpec's
+    schedule_levels: int = 0     # entries of a gain schedule on the preload level (tuning.schedule); 0: one set
+    schedule_plants: int = 50    # Monte Carlo plants per level and set when choosing between schedule and robust set
 
     def spec(self, band_N: float, u_min_V: float, u_max_V: float) -> TuningSpec:
         """The tuning's specification for the study's error band and output range; a ValueError where it is not valid."""
+        if self.schedule_levels != 0 and not 2 <= self.schedule_levels <= SCHEDULE_MAX:
+            raise ValueError(f"schedule_levels must be 0 (one set) or 2..{SCHEDULE_MAX}, got {self.schedule_levels}")
+        if not 1 <= self.schedule_plants <= 100_000:
+            raise ValueError(f"schedule_plants must be in 1..100000, got {self.schedule_plants}")
         return TuningSpec(band_N=band_N, u_min_V=u_min_V, u_max_V=u_max_V, **scaled_references(self.step_N, self.trajectory_N),
                           **{k: (bool(x) if k == "tune_setpoint_weight" else float(x)) for k, x in asdict(self).items()
-                             if k not in ("step_N", "trajectory_N")})
+                             if k not in ("step_N", "trajectory_N", "schedule_levels", "schedule_plants")})
 
 
 @dataclass(frozen=True)

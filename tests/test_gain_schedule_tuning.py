@@ -1,0 +1,104 @@
+"""tuning.schedule: the entries tuned per level on a Hertz-coupled plant, both sets validated per level, the choice."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from piezopreload.models.actuator import RigParams
+from piezopreload.models.closedloop import Reference
+from piezopreload.models.controller import PIDGains
+from piezopreload.tuning.pid import TuningSpec, _small_signal_gains
+from piezopreload.tuning.schedule import choose, level_windows, schedule_levels, tune_schedule
+from piezopreload.tuning.validate import Criteria, validate
+
+
+def test_levels_and_windows_tile_the_range():
+    lv = schedule_levels(0.0, 4000.0, 3)
+    np.testing.assert_array_equal(lv, [0.0, 2000.0, 4000.0])
+    assert level_windows(lv) == [(0.0, 1000.0), (1000.0, 3000.0), (3000.0, 4000.0)]
+    with pytest.raises(ValueError, match="at least 2"):
+        schedule_levels(0.0, 1.0, 1)
+
+
+def _figures(passed, failures=()):
+    return {"passed": passed, "failures": list(failures)}
+
+
+@pytest.mark.parametrize(("robust", "scheduled", "whole", "expected"), [
+    ((True, True), (True, True), (True, True), "robust"),      # both meet it: one set is simpler
+    ((True, False), (True, True), (True, True), "schedule"),   # the robust set misses a level
+    ((True, False), (False, True), (True, True), "robust"),    # neither everywhere: the whole range decides
+    ((False, False), (False, False), (False, True), "schedule"),
+    ((True, True), (True, True), (False, True), "schedule"),   # the robust set misses the whole range
+])
+def test_the_choice_follows_the_figures(robust, scheduled, whole, expected):
+    levels = [{"level_N": float(i), "robust": _figures(r, () if r else ("overshoot_N",)),
+               "scheduled": _figures(s, () if s else ("settling_s",))} for i, (r, s) in enumerate(zip(robust, scheduled))]
+    w = {"robust": _figures(whole[0], () if whole[0] else ("tracking_rms_N",)), "scheduled": _figures(whole[1])}
+    choice, reason = choose(levels, w)
+    assert choice == expected, reason
+    if not all(robust) or not whole[0]:
+        assert "overshoot_N" in reason or "tracking_rms_N" in reason, "the reason does not say where the robust set failed"
+
+
+def _hertz_rig(**kw):
+    """The paper's rig with a Hertz coupling whose force per volt grows with the preload."""
+    return RigParams(noise_N=0.2, hertz_um_per_N23=0.5, hertz_preload_N=25.0, **kw)
+
+
+def test_a_window_s_slopes_are_the_hertz_coupling_s_there():
+    """TuningSpec.force_range_N: the linearised loop's slopes at the window's ends, from the coupling's own
+    local stiffness (stroke per volt times it; Bouc-Wen's alpha and kappa as over the whole stroke)."""
+    rig = _hertz_rig()
+    whole = _small_signal_gains(rig)
+    lo, hi = _small_signal_gains(rig, (40.0, 60.0))
+    k = np.asarray(rig.local_stiffness_N_per_um(np.array([40.0, 60.0]) - rig.bolt_preload_N)) * rig.stroke_um_per_V
+    assert lo == pytest.approx(k[0] * (1 - rig.bw_alpha), rel=1e-12)
+    assert hi == pytest.approx(k[1] * (1 + 2 * rig.bw_kappa * 1.1), rel=1e-12)
+    assert whole[0] < lo < hi < whole[1], "a window's slopes are not inside the whole stroke's"
+
+
+def test_tune_schedule_records_both_sets_per_level_and_chooses_by_them():
+    rig = _hertz_rig()
+    spec = TuningSpec(band_N=1.5)
+    criteria = Criteria(band_N=1.5)
+    robust = PIDGains(Kc=0.6, Ti_s=0.05, Td_s=0.0, Tf_s=0.001, b=0.5)
+    step = Reference.step(25.0, 60.0, 0.3, 1.2)
+    trajectory = Reference.staircase(25.0, [45.0, 65.0, 45.0], 0.6, t_start_s=0.3)
+    res = tune_schedule(rig, None, spec, criteria, robust, levels_N=[30.0, 60.0], step=step, trajectory=trajectory,
+                        n_plants=3, seed=1, workers=1)
+    assert res.schedule.levels_N == (30.0, 60.0)
+    assert res.scheduled.schedule is res.schedule and res.scheduled.b == robust.b and res.scheduled.Tf_s == robust.Tf_s
+    d = res.to_dict()
+    assert d["choice"] in ("robust", "schedule") and res.gains is (res.robust if d["choice"] == "robust" else res.scheduled)
+    assert (d["choice"], d["reason"]) == choose(d["levels"], d["whole_range"])
+    # the figures are the validation's own: the first level's robust worst case again, independently
+    r0 = d["levels"][0]
+    lo, hi = r0["window_N"]
+    again = validate(robust, None, rig, criteria, n_plants=3, seed=1, step=Reference.step(lo, hi, 0.3, 1.2),
+                     trajectory=Reference.staircase(lo, [hi, lo], 0.6, t_start_s=0.3))
+    for k in ("settling_s", "overshoot_N", "tracking_rms_N"):
+        assert r0["robust"][k] == again.summary()[k]["worst"], f"level 30 N, robust, {k} is not the validation's"
+    # an entry whose tuning was infeasible keeps the robust set's gains, and says so
+    for r, kc in zip(d["levels"], res.schedule.Kc):
+        assert r["entry"]["Kc_V_per_N"] == kc
+        assert (r["entry"]["b"], r["entry"]["Tf_s"]) == (robust.b, robust.Tf_s), "an entry was tuned with its own b or Tf"
+        if "infeasible" in r["tuning"]:
+            assert kc == robust.Kc
+
+
+def test_a_flat_schedule_validates_as_the_robust_set():
+    """The scheduled controller with every entry the robust set's gains: the same Monte Carlo figures."""
+    from piezopreload.models.controller import GainSchedule
+
+    rig = _hertz_rig()
+    robust = PIDGains(Kc=0.6, Ti_s=0.05, Td_s=0.0, Tf_s=0.001, b=0.5)
+    flat = replace(robust, schedule=GainSchedule((30.0, 60.0), (0.6, 0.6), (0.05, 0.05), (0.0, 0.0)))
+    ref = Reference.step(25.0, 60.0, 0.3, 1.0), Reference.staircase(25.0, [45.0, 65.0], 0.5, t_start_s=0.3)
+    a = validate(robust, None, rig, Criteria(band_N=1.5), n_plants=3, seed=2, step=ref[0], trajectory=ref[1])
+    b = validate(flat, None, rig, Criteria(band_N=1.5), n_plants=3, seed=2, step=ref[0], trajectory=ref[1])
+    for k in a.metrics:
+        np.testing.assert_allclose(b.metrics[k], a.metrics[k], rtol=0, atol=1e-9, err_msg=k)

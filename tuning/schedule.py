@@ -1,0 +1,245 @@
+"""A gain schedule on the preload level, or the one robust set where it meets the same specification.
+
+A designed preload system's force per volt changes with the preload (the nuts' Hertz contacts
+stiffen as they are loaded: about 38 N/V at the bolts' preload, 57 N/V at the stacks' full
+force for the machine axis). One robust set (:func:`~piezopreload.tuning.pid.tune_pid` on plant
+variants over the whole range) has to be cautious where the plant is stiff and is slow where it
+is soft. :func:`tune_schedule`:
+
+1. places ``n`` entries evenly over the force range the study's references span and gives each
+   the window half-way to its neighbours;
+2. tunes each entry with CasADi (:func:`~piezopreload.tuning.pid.tune_pid`, warm-started from the
+   robust set) on a step across its window and a staircase inside it, the Ms constraints on the
+   force per volt of that window (``TuningSpec.force_range_N``) and the usual plant variants
+   around it; an entry whose window's specification no gains meet keeps the robust set's gains
+   (its record says so);
+3. validates the schedule and the robust set alike by Monte Carlo
+   (:func:`~piezopreload.tuning.validate.validate`, the study's criteria) at every entry's window
+   and over the whole range (the study's own step and trajectory);
+4. chooses: the robust set if it meets the specification at every level and over the whole
+   range (one set is simpler to commission and to certify), else the schedule if it does; where
+   neither does, the one that meets it over the whole range (the robust set first), and the
+   reason says which failed where.
+
+The schedule's ``Tf`` and ``b`` are single (:class:`~piezopreload.models.controller.GainSchedule`):
+every entry is tuned with the robust set's ``b`` and ``Tf`` held (``Kc``, ``Ti`` and ``Td`` are
+its decision variables). The per-level figures (gains, worst-case settling, overshoot and tracking
+error over the plants, both sets) are the report's "gain schedule" table.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from piezopreload.core.parallel import spare_cpus
+from piezopreload.models.actuator import RigParams
+from piezopreload.models.closedloop import Reference
+from piezopreload.models.controller import GainSchedule, PIDGains
+from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at
+from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, tune_pid
+from piezopreload.tuning.validate import Criteria, ValidationResult, executor, validate
+
+__all__ = ["ScheduleResult", "tune_schedule", "schedule_levels", "level_windows", "choose", "CHOICES"]
+
+#: what :func:`tune_schedule` may choose
+CHOICES = ("robust", "schedule")
+#: the worst-case figures the table shows per level (the validation's metric names)
+FIGURES = ("settling_s", "overshoot_N", "tracking_rms_N", "peak_voltage_V")
+
+
+def schedule_levels(low_N: float, high_N: float, n: int) -> np.ndarray:
+    """``n`` entries evenly over ``[low_N, high_N]`` (the ends included)."""
+    if n < 2:
+        raise ValueError(f"a gain schedule needs at least 2 levels, got {n}.")
+    if not (np.isfinite(low_N) and np.isfinite(high_N) and high_N > low_N):
+        raise ValueError(f"the schedule's range must be finite with high > low, got {low_N!r}..{high_N!r}.")
+    return np.linspace(float(low_N), float(high_N), int(n))
+
+
+def level_windows(levels_N: Any) -> list[tuple[float, float]]:
+    """Each entry's window: from half-way to the entry below to half-way to the entry above (the ends: the entry)."""
+    lv = np.asarray(levels_N, float)
+    mids = 0.5 * (lv[1:] + lv[:-1])
+    lows, highs = np.concatenate([[lv[0]], mids]), np.concatenate([mids, [lv[-1]]])
+    return [(float(a), float(b)) for a, b in zip(lows, highs)]
+
+
+def _path(a: float, level: float, b: float) -> list[float]:
+    """The staircase inside a window from rest at ``a``: the level, the top, the level, the bottom (no repeats)."""
+    out: list[float] = []
+    for x in (level, b, level, a):
+        if x != (out[-1] if out else a):
+            out.append(x)
+    return out or [b]
+
+
+@dataclass(frozen=True, eq=False)
+class ScheduleResult:
+    """The schedule's entries, the robust set and the Monte Carlo figures of both at every level; the choice.
+
+    ``levels`` holds one record per entry: its level and window, the entry's gains, the tuning's
+    record, and per set (``robust``, ``scheduled``) the worst case over the plants of each figure
+    of :data:`FIGURES` and whether it met the criteria; ``whole_range`` the same over the study's
+    own references. ``choice`` is one of :data:`CHOICES`, ``reason`` says why.
+    """
+
+    schedule: GainSchedule
+    robust: PIDGains
+    scheduled: PIDGains
+    levels: list[dict[str, Any]]
+    whole_range: dict[str, Any]
+    choice: str
+    reason: str
+    n_plants: int
+    seconds: float
+    limits: dict[str, float]
+
+    @property
+    def gains(self) -> PIDGains:
+        """The chosen set: the robust one, or the scheduled one (with its table)."""
+        return self.robust if self.choice == "robust" else self.scheduled
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"choice": self.choice, "reason": self.reason, "levels_N": list(self.schedule.levels_N),
+                "table": self.schedule.to_dict(), "Tf_s": self.scheduled.Tf_s, "b": self.scheduled.b,
+                "robust": {"Kc_V_per_N": self.robust.Kc, "Ti_s": self.robust.Ti_s, "Td_s": self.robust.Td_s,
+                           "Tf_s": self.robust.Tf_s, "b": self.robust.b},
+                "levels": self.levels, "whole_range": self.whole_range, "plants": self.n_plants,
+                "figures": list(FIGURES), "limits": dict(self.limits), "seconds": self.seconds}
+
+
+def choose(levels: list[dict[str, Any]], whole: dict[str, Any]) -> tuple[str, str]:
+    """The robust set if it meets the specification at every level and over the whole range, else the schedule if it
+    does; where neither does, the one that meets it over the whole range (the robust set first). With the reason."""
+    def passes(which: str) -> bool:
+        return whole[which]["passed"] and all(r[which]["passed"] for r in levels)
+
+    def where(which: str) -> str:
+        bad = [f"{r['level_N']:g} N ({', '.join(r[which]['failures'])})" for r in levels if not r[which]["passed"]]
+        if not whole[which]["passed"]:
+            bad.append(f"the whole range ({', '.join(whole[which]['failures'])})")
+        return "; ".join(bad)
+
+    if passes("robust"):
+        return "robust", ("the one robust set meets the specification at every level and over the whole range: it is "
+                          "used (one set, nothing to switch)")
+    if passes("scheduled"):
+        return "schedule", f"the robust set misses the specification at {where('robust')}; the schedule meets it"
+    # the validation stage judges the whole range as always: keep the set that meets it there
+    choice = "schedule" if whole["scheduled"]["passed"] and not whole["robust"]["passed"] else "robust"
+    kept = whole["robust" if choice == "robust" else "scheduled"]["passed"]
+    return choice, (f"neither meets the specification at every level (the robust set misses it at {where('robust')}, "
+                    f"the schedule at {where('scheduled')}); the {choice} set is kept"
+                    + (", as it meets it over the whole range" if kept else ""))
+
+
+def _worst(result: ValidationResult) -> dict[str, Any]:
+    s = result.summary()
+    return {**{k: s[k]["worst"] for k in FIGURES}, "passed": result.passed,
+            "failures": sorted({f["metric"] for f in result.failures})}
+
+
+_REST_S = 0.25  # the rest at a window's bottom before the tuning's step and staircase
+
+
+def _judge(args: tuple[Any, ...]) -> dict[str, Any]:
+    """One Monte Carlo validation (:func:`~piezopreload.tuning.validate.validate`, inline), its worst cases."""
+    gains, feedforward, params, criteria, n_plants, seed, step, trajectory = args
+    return _worst(validate(gains, feedforward, params, criteria, n_plants=n_plants, seed=seed, step=step,
+                           trajectory=trajectory))
+
+
+def _tune_entry(args: tuple[RigParams, Any, TuningSpec, PIDGains]) -> tuple[PIDGains, dict[str, Any]]:
+    params, inverse, spec, start = args
+    try:
+        tuned = tune_pid(params, inverse, spec, start=start, starts=1, max_iterations=40)
+    except TuningInfeasible as exc:  # no gains meet the window's specification: the entry keeps the robust set's
+        return start, {"infeasible": str(exc), "kept": "the robust set"}
+    return tuned.gains, {"iterations": tuned.iterations, "seconds": tuned.seconds, "ms": tuned.ms,
+                         "objective": tuned.objective, "binding": tuned.binding, "engine": tuned.engine}
+
+
+def tune_schedule(
+    params: RigParams,
+    feedforward: HysteresisModel | CreepPI | None,
+    spec: TuningSpec,
+    criteria: Criteria,
+    robust: PIDGains,
+    *,
+    levels_N: Any,
+    step: Reference,
+    trajectory: Reference,
+    n_plants: int = 50,
+    seed: int = 0,
+    workers: int | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> ScheduleResult:
+    """Tune a gain schedule at ``levels_N`` (measured force, N) around the robust set; validate both; choose.
+
+    ``params`` is the nominal plant, ``feedforward`` the forward P-I model the controller inverts,
+    ``spec`` the tuning's specification (its references are replaced per entry by a step across
+    the entry's window and a staircase inside it, its Ms range by the window's force per volt),
+    ``criteria`` the limits every Monte Carlo plant must meet, ``robust`` the one set tuned over
+    the whole range. ``step`` and ``trajectory`` are the study's references (the whole range);
+    each window is validated on a step and a staircase with their timing. ``n_plants`` Monte
+    Carlo plants per validation (noise and draws from ``seed``); ``workers`` processes for the
+    entries' tunings and the validations (default: the spare CPUs). See the module docstring.
+    """
+    say = progress or (lambda _m: None)
+    t0 = time.perf_counter()
+    lv = np.asarray(levels_N, float)
+    windows = level_windows(lv)
+    inverse = None if feedforward is None else inverse_at(feedforward, params.sample_period_s)
+    jobs = []
+    for level, (lo, hi) in zip(lv, windows):
+        # the tuning's step across the window after a rest at its bottom (the loop starts at 0 V: the rest lets the
+        # step start from the window, as the validation's does), and a short staircase inside it
+        refs = {"step": Reference.step(lo, hi, _REST_S, _REST_S + 0.6),
+                "trajectory": Reference.staircase(lo, _path(lo, float(level), hi), 0.4, t_start_s=_REST_S)}
+        jobs.append((params, inverse, replace(spec, **refs, force_range_N=(lo, hi), tune_setpoint_weight=False,
+                                              setpoint_weight=robust.b, filter_s=robust.Tf_s),
+                     robust))
+    t_step = float(step.times_s[1]) if step.times_s.size > 1 else 0.5
+    hold = float(np.min(np.diff(trajectory.times_s[1:]))) if trajectory.times_s.size > 2 else 1.0  # its levels' hold
+    # each window validated on a step across it and a staircase inside it, with the study's timing; then the whole range
+    checks = [(Reference.step(lo, hi, t_step, float(step.duration_s)),
+               Reference.staircase(lo, _path(lo, float(level), hi), hold, t_start_s=float(trajectory.times_s[1])))
+              for level, (lo, hi) in zip(lv, windows)] + [(step, trajectory)]
+
+    def judging(gains: PIDGains) -> list[tuple[Any, ...]]:
+        return [(gains, feedforward, params, criteria, n_plants, seed, s, t) for s, t in checks]
+
+    n_workers = max(1, min(len(jobs) + len(checks), spare_cpus() if workers is None else workers))
+    with executor(n_workers) as (pool, pool_name):
+        say(f"tuning {lv.size} entries of the gain schedule at {', '.join(f'{x:g}' for x in lv)} N, validating the "
+            f"robust set at each level and over the whole range beside them ({n_plants} plants each; {pool_name}) ...")
+        tuning_futures = [pool.submit(_tune_entry, j) for j in jobs]
+        robust_futures = [pool.submit(_judge, j) for j in judging(robust)]  # needs nothing the tuning gives
+        tuned = [f.result() for f in tuning_futures]
+        entries = [g for g, _ in tuned]
+        schedule = GainSchedule(tuple(lv), tuple(g.Kc for g in entries), tuple(g.Ti_s for g in entries),
+                                tuple(g.Td_s for g in entries))
+        scheduled = replace(robust, schedule=schedule)
+        say("validating the schedule at each level and over the whole range ...")
+        scheduled_futures = [pool.submit(_judge, j) for j in judging(scheduled)]
+        robust_figures = [f.result() for f in robust_futures]
+        scheduled_figures = [f.result() for f in scheduled_futures]
+    levels = []
+    for level, (lo, hi), g, (_, record), rb, sc in zip(lv, windows, entries, tuned, robust_figures, scheduled_figures):
+        levels.append({"level_N": float(level), "window_N": [lo, hi],
+                       "entry": {"Kc_V_per_N": g.Kc, "Ti_s": g.Ti_s, "Td_s": g.Td_s, "Tf_s": g.Tf_s, "b": g.b},
+                       "tuning": record, "robust": rb, "scheduled": sc})
+    whole = {"robust": robust_figures[-1], "scheduled": scheduled_figures[-1]}
+
+    choice, reason = choose(levels, whole)
+    say(f"gain schedule: {choice}: {reason}")
+    return ScheduleResult(schedule=schedule, robust=robust, scheduled=scheduled, levels=levels, whole_range=whole,
+                          choice=choice, reason=reason, n_plants=n_plants, seconds=time.perf_counter() - t0,
+                          limits={"settling_s": criteria.settling_max_s, "overshoot_N": criteria.overshoot_max_N,
+                                  "tracking_rms_N": criteria.tracking_rms_max_N,
+                                  "peak_voltage_V": criteria.peak_voltage_max_V})
