@@ -207,3 +207,102 @@ def test_the_rigs_own_branch_is_never_faster_than_the_steepest_slope_and_ends_at
     plain = L.preview_plan(params, TRAJECTORY, 0.2).rms_N
     branch = L.preview_plan(params, TRAJECTORY, 0.2, ramps=ramps).rms_N
     assert branch > plain, "the rig's own branch cannot track better than the steepest-slope bound"
+
+
+# ---- ramped references and the designed plant ----------------------------------------------------
+def _pure_delay() -> RigParams:
+    """A rig that is a pure delay (amplifier and slew far faster than a sample, no creep, hysteresis negligible)."""
+    return RigParams(amp_bandwidth_Hz=1e6, amp_current_limit_A=1e3, creep_per_decade=0.0, bw_alpha=1e-12,
+                     bw_kappa=0.0, noise_N=0.0, adc_bits=32, delay_samples=2)
+
+
+def test_preview_on_a_ramp_with_a_pure_delay_removes_it_and_without_it_the_floor_is_the_kinks_lag():
+    params = _pure_delay()
+    rig = Rig(params)
+    dt = rig.dt_s
+    gain = float(params.effective_stiffness_N_per_um * params.stroke_um_per_V)  # N/V
+    # from the bolts' preload (where the rig rests at 0 V) up 25 N and back, twice
+    ref = Reference.ramps([0.0, 0.02, 0.07, 0.12, 0.17], [25.0, 25.0, 50.0, 50.0, 25.0], 0.2).repeat(2)
+    n = int(round(ref.duration_s / dt)) + 1
+    r = ref.at(np.arange(n) * dt)
+    lag = params.delay_samples + 1  # the delay line and the D/A's sample
+    plan = L.ramp_plan(params, ref, lag * dt, lead_samples=lag)
+    np.testing.assert_allclose(plan.force_N, r, atol=1e-12, err_msg="with preview over the lead the plan is not the ramp")
+    c = Controller(PIDGains(Kc=0.0, Ti_s=np.inf, u_min=-1e3, u_max=1e3), dt)  # the feedforward alone
+    ff = (plan.force_N - params.bolt_preload_N) / gain
+    late = simulate(rig, c, ref, ff_extra_V=ff, engine="numpy")
+    early = simulate(rig, c, ref, ff_extra_V=L.advance(ff, lag), engine="numpy")
+    slope = 25.0 / 0.05 * dt  # N per sample on the ramps
+    assert np.max(np.abs(late.force_N - r)[lag:]) == pytest.approx(lag * slope, rel=1e-6), \
+        "without preview the lag is not lag x slope"
+    np.testing.assert_allclose(early.force_N[lag:], r[lag:], atol=1e-6,
+                               err_msg="previewed by the lead, the pure delay's output is not the ramp")
+    # without preview the floor is the slope's extrapolation over the delay: at each of the 4 kinks
+    # (4 per cycle, scored from the first at t = 0.02 s on) the error grows by a slope per sample for d samples; but
+    # where a ramp ends at the bolts' level the extrapolation below it is held at the level the rig reaches at 0 V
+    d = params.delay_samples
+    kinks = 6
+    scored = int(np.sum(np.arange(n) * dt >= ref.times_s[1] - 1e-12))
+    closed = np.sqrt(kinks * slope**2 * d * (d + 1) * (2 * d + 1) / 6 / scored)
+    assert L.causal_floor(params, ref) == pytest.approx(closed, rel=1e-9), "the ramp's causal floor is not the kinks' lag"
+    assert L.preview_plan(params, ref, d * dt).rms_N == pytest.approx(0.0, abs=1e-12), "a preview of the delay leaves a floor"
+
+
+@pytest.fixture(scope="module")
+def designed_loop():
+    """The designed plant of the machine axis' kind (the design optimum of the default spec, its hardware as
+    studies/machine_axis.toml's [rig]) under a PID of the tuned gains' size, no feedforward."""
+    from piezopreload.design.plant import plant_from_design
+    from piezopreload.design.preload import DesignNLP, DesignSpec, optimise
+
+    spec = DesignSpec()
+    opt = optimise(spec, "stiffness", DesignNLP(spec))
+    hardware = RigParams(amp_bandwidth_Hz=100.0, bw_alpha=0.3238, bw_kappa=0.0931, creep_per_decade=0.0385,
+                         noise_N=1.0, adc_full_scale_N=10000.0, amp_v_min_V=-20.0, amp_v_max_V=120.0)
+    plant = plant_from_design(spec, opt, hardware, design_sha256="0" * 64, sleeve_stiffness_N_per_um=4000.0)
+    c = Controller(PIDGains(Kc=0.0108, Ti_s=0.0486, b=0.91, u_min=-20.0, u_max=115.0), plant.rig.sample_period_s)
+    return plant, c
+
+
+def test_the_learning_law_contracts_over_the_designed_plants_range(designed_loop):
+    plant, c = designed_loop
+    levels = np.linspace(0.0, 115.0, 5)
+    model = L.learning_model_over(plant.rig, c, levels)
+    loops = [L.learning_model(plant.rig, c, v0_V=v) for v in levels]
+    gains = [float(np.max(lp.g)) for lp in loops]
+    assert max(gains) > 1.3 * min(gains), f"the plant's force per volt should change with the level: peak responses {gains}"
+    worst = max(model.contraction(loop=lp) for lp in loops)
+    assert model.range_contraction == pytest.approx(worst) and worst < 1.0, \
+        f"the law does not contract at every level: {[model.contraction(loop=lp) for lp in loops]}"
+    # on each linearised loop the lifted error map of the law (Q is the identity: its cut-off is Nyquist) keeps the
+    # error from growing, and it shrinks trial by trial on a ramped repeated reference as far as the theory allows
+    assert model.q_cutoff_Hz >= 0.5 / model.dt_s - 1e-9
+    n = 400
+    t = np.arange(n) * model.dt_s
+    r = np.interp(t, [0.0, 0.05, 0.15, 0.25, 0.35], [0.0, 0.0, 800.0, 800.0, 100.0])
+    Lm = model.gamma * np.array([model.setpoint_path(L.advance(col, model.delta, fill="zero")) for col in np.eye(n)]).T
+    for v, lp in zip(levels, loops):
+        G = lp.lifted(n)
+        errs = [np.linalg.norm(r)]
+        u = np.zeros(n)
+        for _ in range(8):
+            u = L.p_type_update(model, u, r - G @ u)
+            errs.append(np.linalg.norm(r - G @ u))
+        ratios = np.array(errs[1:]) / np.array(errs[:-1])
+        bound = np.linalg.norm(np.eye(n) - G @ Lm, 2)
+        assert np.all(ratios <= bound + 1e-9), f"at {v} V the error ratios {ratios} exceed ||I - G L|| = {bound}"
+        assert errs[-1] < 0.2 * errs[0], f"at {v} V eight trials left {errs[-1] / errs[0]:.2f} of the error"
+
+
+def test_learning_on_a_ramped_repeated_reference_on_the_designed_plant_reduces_the_error(designed_loop):
+    plant, c = designed_loop
+    rig = Rig(plant.rig)
+    ref = Reference.ramps([0.0, 0.1, 0.3, 0.5, 0.6, 0.8], [50.0, 50.0, 1500.0, 1500.0, 600.0, 50.0], 1.0).repeat(2)
+    res = L.learn(c, rig, ref, iterations=6, seed=2)
+    assert res.model.range_contraction is not None and res.model.range_contraction < 1.0
+    measured = [float(h.measured_rms_N) for h in res.history]
+    assert res.tracking_rms_N < 0.35 * float(res.history[0].tracking_rms_N), f"learning did not reduce the error: {measured}"
+    assert bool(res.converged.all()) and not res.diverged.any(), f"the learning stopped: {measured}"
+    # each trial's measured error no more than the previous one's (with the sensor noise's share: 1 N per sample)
+    assert all(b <= a + 0.1 for a, b in zip(measured[:4], measured[1:5])), f"the error grew between trials: {measured}"
+    assert res.preview_floor_N <= res.causal_floor_N, "preview raised the floor"
