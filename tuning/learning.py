@@ -58,12 +58,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.signal import butter, lfilter
 
+from piezopreload.core.artifacts import write_artifact
 from piezopreload.core.errors import InputError, InternalError
 from piezopreload.models.actuator import Rig, RigParams, reach_N
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller
 from piezopreload.models.gainset import GainSet
-from piezopreload.models.learned import LearnedSignal
+from piezopreload.models.learned import LearnedSignal, reference_sha256
 from piezopreload.models.loop import step_function
 from piezopreload.models.ops import NUMPY
 from piezopreload.tuning.pid import tracking_floor, tuning_loop
@@ -71,7 +72,8 @@ from piezopreload.tuning.validate import DEFAULT_SPREAD
 
 __all__ = ["METHODS", "LearningModel", "learning_model", "learning_model_over", "causal_floor", "ramp_plan", "advance", "zero_phase_lowpass", "PreviewPlan",
            "preview_plan", "branch_ramps", "default_preview_s", "feedforward_lead", "tune_laws", "preview_feedforward", "p_type_update", "norm_optimal_update",
-           "Iteration", "LearningResult", "learn", "learn_from_run", "learn_from_log", "named_reference", "AFTER_CHANGE_S"]
+           "Iteration", "LearningResult", "learn", "learn_from_run", "learn_from_log",
+           "save_passes", "learned_by_reference", "named_reference", "AFTER_CHANGE_S"]
 
 Array = NDArray[np.float64]
 
@@ -867,3 +869,69 @@ def learn_from_run(signal: LearnedSignal, measured_N: Array, command_V: Array, m
     rms = float(np.sqrt(np.mean(e**2)))
     history = [*signal.history, {"iteration": signal.iteration, "measured_rms_N": rms, "source": "rig run"}]
     return replace(signal, ff_extra_V=u, iteration=signal.iteration + 1, history=history, content_sha256=None)
+
+
+# --------------------------------------------------------------------------------------
+# learning over a schedule's passes (the whole system's learn stage)
+# --------------------------------------------------------------------------------------
+def save_passes(passes: list[LearningResult], folder: str | Path, gain_set_sha256: str | None,
+                inputs: dict[str, Any]) -> dict[str, Path]:
+    """Write the learning of each pass of a schedule (one per margin the schedule was planned with) into ``folder``.
+
+    ``learned-pass<k>.json`` holds pass ``k``'s learned signal (tied to ``gain_set_sha256`` and that
+    pass's reference); ``learning.json`` (kind ``learning``) the error per iteration of every pass
+    and, at its top level, the last pass's: its best error (``tracking_rms_N``, and in % of the
+    reference's range), the error before learning (trial 0: the tuned loop with its feedforward and
+    the preview, no learned correction), the contraction over the range, the floors. Returns the
+    paths by label: ``learning``, ``learned`` (the last pass's signal, what the rig plays), ``pass<k>``.
+    """
+    if not passes:
+        raise InputError("save_passes: no pass was learned (the schedule's tracking ran without learning)")
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    for stale in folder.glob("learned-pass*.json"):  # a pass the schedule no longer needs
+        stale.unlink()
+    paths: dict[str, Path] = {}
+    records = []
+    for k, result in enumerate(passes, start=1):
+        path = folder / f"learned-pass{k}.json"
+        result.signal(gain_set_sha256, {**inputs, "pass": k}).save(path)
+        paths[f"pass{k}"] = path
+        d = result.to_dict()
+        span = float(np.ptp(result.reference.levels_N)) or 1.0
+        records.append({"pass": k, "signal": path.name, "reference_sha256": reference_sha256(result.reference),
+                        "before_learning_rms_N": float(np.max(result.history[0].tracking_rms_N)),
+                        "before_learning_pct_of_range": 100.0 * float(np.max(result.history[0].tracking_rms_N)) / span,
+                        **{key: d[key] for key in ("tracking_rms_N", "tracking_rms_pct_of_range", "iterations",
+                                                   "converged", "best_iteration", "causal_floor_N", "preview_floor_N",
+                                                   "preview_s", "method", "learning", "history")}})
+    last = records[-1]
+    paths["learned"] = paths[f"pass{len(passes)}"]
+    paths["learning"] = folder / "learning.json"
+    write_artifact(paths["learning"], "learning", {
+        "pass_records": records, "passes": len(records),
+        **{key: last[key] for key in ("tracking_rms_N", "tracking_rms_pct_of_range", "before_learning_rms_N",
+                                      "before_learning_pct_of_range", "iterations", "converged", "causal_floor_N",
+                                      "preview_floor_N", "preview_s", "method", "history")},
+        "contraction_over_range": last["learning"]["contraction_over_range"], "learned": paths["learned"].name,
+        "inputs": inputs})
+    return paths
+
+
+def learned_by_reference(paths: list[Path], gain_set_sha256: str | None) -> Callable[[Reference], Array]:
+    """``ff_extra_V`` for a reference from the learned signals at ``paths`` (:func:`save_passes`'): the one learned on
+    that very reference, for that gain set. A reference none was learned on is refused (the learning is stale)."""
+    signals = {}
+    for path in paths:
+        signal = LearnedSignal.load(path)
+        signal.check(gain_set_sha256, None, str(path))
+        signals[signal.reference_sha256] = signal
+
+    def ff_extra(reference: Reference) -> Array:
+        key = reference_sha256(reference)
+        if key not in signals:
+            raise InputError(f"no learned signal was learned on reference {key} (learned on: {', '.join(signals)}); "
+                             "run the learn stage again ('piezopreload run --force')")
+        return signals[key].ff_extra_V
+
+    return ff_extra
