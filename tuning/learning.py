@@ -239,15 +239,16 @@ def learning_model(params: RigParams, controller: Controller, *, v0_V: float = 5
     return tune_laws(base, q_cutoff_Hz=q_cutoff_Hz, weight=weight)
 
 
-def learning_model_over(params: RigParams, controller: Controller, voltages_V: Any = None, *,
+def learning_model_over(params: RigParams, controller: Controller, voltages_V: Any = None, *, v0_V: float = 50.0,
                         q_cutoff_Hz: float | None = None, weight: float | None = None) -> LearningModel:
     """The learning model whose P-type law contracts on the loop linearised at every one of ``voltages_V``.
 
     On a plant whose force per volt changes with the level (the designed plant's Hertzian nuts
-    stiffen with the preload) one linearisation does not hold everywhere. The law is tuned
-    (:func:`tune_laws`) on the loop at the middle of ``voltages_V`` and at each of them; the one
-    whose largest contraction over all of them (:meth:`LearningModel.contraction` with ``loop=``)
-    is least is kept, and its :attr:`LearningModel.range_contraction` records that largest value
+    stiffen with the preload) one linearisation does not hold everywhere. The law tuned
+    (:func:`tune_laws`) on the loop at ``v0_V`` (:func:`learning_model`'s) is checked on the loop at
+    each of ``voltages_V`` (:meth:`LearningModel.contraction` with ``loop=``); where its largest
+    contraction reaches 1, the law tuned at each of them is tried too and the one whose largest
+    contraction is least is kept. :attr:`LearningModel.range_contraction` records that largest value
     (below 1: the law converges monotonically wherever along the range the loop sits).
     ``voltages_V`` defaults to five levels over the command's range from 0 V.
     """
@@ -257,13 +258,14 @@ def learning_model_over(params: RigParams, controller: Controller, voltages_V: A
     v = np.unique(np.asarray(voltages_V, float).ravel())
     if v.size == 0 or not np.all(np.isfinite(v)):
         raise InputError(f"voltages_V: give finite voltages to linearise the loop at, got {voltages_V!r}")
-    mid = 0.5 * (float(v[0]) + float(v[-1]))
     loops = [learning_model(params, controller, v0_V=float(x), q_cutoff_Hz=q_cutoff_Hz, weight=weight) for x in v]
-    candidates = [learning_model(params, controller, v0_V=mid, q_cutoff_Hz=q_cutoff_Hz, weight=weight), *loops]
-    worst = [max(c.contraction(loop=lp) for lp in loops) for c in candidates]
+    candidates = [learning_model(params, controller, v0_V=v0_V, q_cutoff_Hz=q_cutoff_Hz, weight=weight)]
+    worst = [max(candidates[0].contraction(loop=lp) for lp in loops)]
+    if worst[0] >= 1.0:  # the nominal law does not hold over the range: the law of each level, its worst case least
+        candidates += loops
+        worst += [max(c.contraction(loop=lp) for lp in loops) for c in loops]
     k = int(np.argmin(worst))
-    return replace(candidates[k], range_contraction=float(worst[k]),
-                   range_V=(float(v[0]), float(v[-1])))
+    return replace(candidates[k], range_contraction=float(worst[k]), range_V=(float(v[0]), float(v[-1])))
 
 
 def tune_laws(model: LearningModel, *, q_cutoff_Hz: float | None = None, weight: float | None = None) -> LearningModel:
