@@ -303,6 +303,9 @@ def test_learning_on_a_ramped_repeated_reference_on_the_designed_plant_reduces_t
     measured = [float(h.measured_rms_N) for h in res.history]
     assert res.tracking_rms_N < 0.35 * float(res.history[0].tracking_rms_N), f"learning did not reduce the error: {measured}"
     assert bool(res.converged.all()) and not res.diverged.any(), f"the learning stopped: {measured}"
-    # each trial's measured error no more than the previous one's (with the sensor noise's share: 1 N per sample)
-    assert all(b <= a + 0.1 for a, b in zip(measured[:4], measured[1:5])), f"the error grew between trials: {measured}"
+    # the measured error falls trial by trial down to what the sensor's noise (1 N per sample) and the hysteresis leave,
+    # and stays there: no later trial more than the divergence guard's 5 % above the best
+    near = next(k for k, m in enumerate(measured) if m <= 2.0 * min(measured))  # the first trial near the floor
+    assert all(b < a for a, b in zip(measured[:near], measured[1:near + 1])), f"the error grew while falling: {measured}"
+    assert max(measured[near + 1:]) <= 1.05 * min(measured), f"the error grew past the best: {measured}"
     assert res.preview_floor_N <= res.causal_floor_N, "preview raised the floor"
