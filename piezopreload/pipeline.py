@@ -297,7 +297,7 @@ def _stage_rig(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     summary = {"status": s["status"], "cycles": s["cycles"], "controller_step": s["controller_step"],
                "settling_s": m.get("settling_s"), "overshoot_N": m.get("overshoot_N"),
                "tracking_rms_N": m.get("tracking_rms_N"), "missed_deadlines": s["timing"].get("missed_deadlines"),
-               "learned_tracking_rms_N": (s.get("learned") or {}).get("tracking_rms_N")}
+               "learned_tracking_rms_measured_N": (s.get("learned") or {}).get("tracking_rms_measured_N")}
     if s["exit_code"] != 0:
         trip = s["trip"] or {}
         raise StageFailed("rig", f"the run was stopped by the interlock '{trip.get('cause')}' at "
