@@ -13,8 +13,10 @@ identify    the feedforward's P-I model from the loop measurement (simulated    
 tune        PID gains around the compensated plant (CasADi), compared, bounded  tuning.json
 validate    the tuned gains on a Monte Carlo set of nonlinear rigs              gains.json, validation.json
 compare     step and trajectory, paper's and tuned gains, with/without FF       responses/
-system      the controlled preload along the design's schedule: rigidity and    system/system.json,
-            deflection while cutting, friction energy, the margin it needs      system/reference.csv
+learn       learning control on the repeated schedule, each margin pass on its  learn/learning.json,
+            own reference (``[learning]``; the margin from the learned error)   learn/learned-pass*.json
+system      the controlled preload along the design's schedule (learned where   system/system.json,
+            learn ran): rigidity and deflection while cutting, friction energy  system/reference.csv
 export      the validated gain set in the study's controller formats            exports/
 rig         the validated gains on the rig executor (simulated by default)      runs/run-*.csv + .json
 report      figures and the PDF (Typst)                                          report/, report.pdf
@@ -23,9 +25,10 @@ report      figures and the PDF (Typst)                                         
 A study without ``[plant] from_design`` (the paper's) runs on its ``[rig]``: plant and system do
 not apply. With it, identify, tune, validate and compare run on the designed plant (the
 study with ``plant.json``'s rig as its ``[rig]``), and their keys include the plant's hash: a
-changed design makes another plant and everything after it runs again. Learning control
-enters as one more stage between validate and system, its correction passed to
-:meth:`Study.track_schedule` (``ff_extra_V``).
+changed design makes another plant and everything after it runs again. With a ``[learning]``
+table too, the learn stage learns on each margin pass of the schedule and the system stage
+plays each pass's signal (:meth:`Study.track_schedule`'s ``ff_extra_V``): its summary is after
+learning, with the error before learning beside it; the rig stage plays the last pass's signal.
 
 Every stage has a key: the SHA-256 of its study tables, of the artifacts it reads, of the
 files the study names for it and of the code it runs. ``pipeline.json`` records each stage's
