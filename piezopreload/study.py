@@ -438,12 +438,13 @@ class Study:
         schedule's margin is planned from the tuned and learned loop's error. Returns the last pass's run and
         each pass's learning."""
         from piezopreload.models.actuator import Rig
-        from piezopreload.tuning.learning import learn
+        from piezopreload.tuning.learning import learn, learning_model_over
 
         table, controller, results = self.learning or LearningTable(), gain_set.controller(), []
+        model = learning_model_over(plant.rig, controller)  # one plant, one law for every pass
 
         def learned(reference: Reference) -> Any:
-            results.append(learn(controller, Rig(plant.rig), reference, iterations=table.iterations,
+            results.append(learn(controller, Rig(plant.rig), reference, iterations=table.iterations, model=model,
                                  preview_s=table.preview_s, method=table.method, seed=self.seed, progress=progress))
             return results[-1].ff_extra_V
 

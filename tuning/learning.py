@@ -526,6 +526,7 @@ def ramp_plan(params: RigParams, reference: Reference, preview_s: float, *, u_ma
     n = int(round(reference.duration_s / dt)) + 1
     t = np.arange(n) * dt
     r = reference.at(t)
+    # the steepest rate the force can move (tracking_floor's, which depends on the rig alone; one 1 N step asks it)
     rate = float(tracking_floor(params, Reference(np.array([0.0, dt]), np.array([0.0, 1.0]), 2 * dt))["rate_N_per_s"])
     known = np.concatenate([np.full(d, r[0]), r[: n - d]]) if d else r.copy()
     before = np.concatenate([np.full(d + 1, r[0]), r[: n - d - 1]])
@@ -702,8 +703,9 @@ def named_reference(reference: Reference | str, references: dict[str, Reference]
     if isinstance(reference, Reference):
         return reference
     if reference == "schedule":
-        raise InputError("--reference schedule: the design's preload schedule does not reach the study's references "
-                         "yet; give step, trajectory or a time_s,force_N CSV")
+        raise InputError("--reference schedule: the design's schedule is learned by the learn stage of 'piezopreload "
+                         "run' (a study with [plant] from_design and a [learning] table); here give step, trajectory "
+                         "or a time_s,force_N CSV (the system stage's system/reference.csv, say)")
     if reference not in references:
         raise InputError(f"reference must be one of {', '.join(references)} or a CSV, got {reference!r}")
     return references[reference]
