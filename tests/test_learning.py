@@ -309,3 +309,24 @@ def test_learning_on_a_ramped_repeated_reference_on_the_designed_plant_reduces_t
     assert all(b < a for a, b in zip(measured[:near], measured[1:near + 1])), f"the error grew while falling: {measured}"
     assert max(measured[near + 1:]) <= 1.05 * min(measured), f"the error grew past the best: {measured}"
     assert res.preview_floor_N <= res.causal_floor_N, "preview raised the floor"
+
+
+def test_a_schedules_passes_are_saved_and_each_signal_is_found_by_its_reference(tmp_path):
+    from piezopreload.core.artifacts import read_artifact
+
+    rig = Rig(RigParams(noise_N=0.05))
+    c = Controller(PIDGains(Kc=0.3, Ti_s=0.08, Td_s=0.001), rig.dt_s)
+    refs = [Reference.ramps([0.0, 0.1, 0.3, 0.5], [25.0, 25.0, 60.0 + m, 60.0 + m], 0.6).repeat(2) for m in (0.0, 5.0)]
+    passes = [L.learn(c, rig, ref, iterations=2, seed=1) for ref in refs]
+    paths = L.save_passes(passes, tmp_path / "learn", "a" * 64, {"study": "test"})
+    record = read_artifact(paths["learning"], "learning")
+    assert record["passes"] == 2 and paths["learned"] == paths["pass2"]
+    assert record["tracking_rms_N"] == pytest.approx(passes[-1].tracking_rms_N)
+    assert record["before_learning_rms_N"] == pytest.approx(float(passes[-1].history[0].tracking_rms_N))
+    signal_for = L.learned_by_reference([paths["pass1"], paths["pass2"]], "a" * 64)
+    for ref, result in zip(refs, passes):
+        np.testing.assert_array_equal(signal_for(ref), result.ff_extra_V, err_msg="not the signal learned on this reference")
+    with pytest.raises(InputError, match="no learned signal was learned on reference"):
+        signal_for(TRAJECTORY)
+    with pytest.raises(InputError, match="a{64}"):
+        L.learned_by_reference([paths["pass1"]], "b" * 64)
