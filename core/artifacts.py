@@ -36,6 +36,7 @@ KINDS = {
     "plant": ("rig", "design_sha256", "inputs"),
     "system": ("tracking_rms_pct_of_range", "rigidity_min_cutting_N_per_um", "rigidity_required_N_per_um", "series",
                "inputs"),
+    "learning": ("pass_records", "tracking_rms_N", "before_learning_rms_N", "history", "inputs"),
     "learned-signal": ("ff_extra_V", "setpoint_N", "sample_period_s", "reference", "reference_sha256",
                        "gain_set_sha256", "inputs"),
 }

@@ -14,8 +14,10 @@ tune        PID gains around the compensated plant (CasADi), compared, bounded; 
             a gain schedule on the preload level or the robust set (``[tuning]``)
 validate    the tuned gains on a Monte Carlo set of nonlinear rigs              gains.json, validation.json
 compare     step and trajectory, paper's and tuned gains, with/without FF       responses/
-system      the controlled preload along the design's schedule: rigidity and    system/system.json,
-            deflection while cutting, friction energy, the margin it needs      system/reference.csv
+learn       learning control on the repeated schedule, each margin pass on its  learn/learning.json,
+            own reference (``[learning]``; the margin from the learned error)   learn/learned-pass*.json
+system      the controlled preload along the design's schedule (learned where   system/system.json,
+            learn ran): rigidity and deflection while cutting, friction energy  system/reference.csv
 export      the validated gain set in the study's controller formats            exports/
 rig         the validated gains on the rig executor (simulated by default)      runs/run-*.csv + .json
 report      figures and the PDF (Typst)                                          report/, report.pdf
@@ -24,9 +26,10 @@ report      figures and the PDF (Typst)                                         
 A study without ``[plant] from_design`` (the paper's) runs on its ``[rig]``: plant and system do
 not apply. With it, identify, tune, validate and compare run on the designed plant (the
 study with ``plant.json``'s rig as its ``[rig]``), and their keys include the plant's hash: a
-changed design makes another plant and everything after it runs again. Learning control
-enters as one more stage between validate and system, its correction passed to
-:meth:`Study.track_schedule` (``ff_extra_V``).
+changed design makes another plant and everything after it runs again. With a ``[learning]``
+table too, the learn stage learns on each margin pass of the schedule and the system stage
+plays each pass's signal (:meth:`Study.track_schedule`'s ``ff_extra_V``): its summary is after
+learning, with the error before learning beside it; the rig stage plays the last pass's signal.
 
 Every stage has a key: the SHA-256 of its study tables, of the artifacts it reads, of the
 files the study names for it and of the code it runs. ``pipeline.json`` records each stage's
@@ -75,6 +78,7 @@ from piezopreload.rig.export import write_exports
 from piezopreload.study import Study, load_study
 from piezopreload.tuning.compare import creep_effect, reproduction, responses
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
+from piezopreload.tuning.learning import learned_by_reference, save_passes
 
 __all__ = ["Stage", "STAGES", "StageFailed", "StageCrashed", "run_study", "rerender_report", "read_manifest", "DEFAULT_OUT"]
 
@@ -237,13 +241,36 @@ def _stage_plant(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
                                                       "bolt_preload_N")}
 
 
+def _stage_learn(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+    study, gain_set = ctx.study, GainSet.load(ctx.output("validate", "gains"))
+    system, passes = study.learn_schedule(ctx.designed_plant(), study.schedule_for(ctx.design_point()), gain_set,
+                                          progress=ctx.progress.say)
+    inputs = {"gain_set_sha256": gain_set.content_sha256, "plant_sha256": ctx.sha256("plant", "plant"),
+              "study_sha256": study.sha256}
+    outputs = save_passes(passes, ctx.out / "learn", gain_set.content_sha256, inputs)
+    record = read_artifact(outputs["learning"], "learning")
+    return outputs, {k: record[k] for k in ("tracking_rms_N", "tracking_rms_pct_of_range", "before_learning_rms_N",
+                                            "before_learning_pct_of_range", "iterations", "converged", "passes",
+                                            "contraction_over_range")} | {"preload_margin_N": system.margin_N}
+
+
 def _stage_system(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     study, gain_set = ctx.study, GainSet.load(ctx.output("validate", "gains"))
     plant = ctx.designed_plant()
-    result = study.track_schedule(plant, study.schedule_for(ctx.design_point()), gain_set, progress=ctx.progress.say)
+    extra, before = None, {}
+    if ctx.records.get("learn", {}).get("status") == "done":  # each pass plays the signal learned on its reference
+        learned = read_artifact(ctx.output("learn", "learning"), "learning")
+        extra = learned_by_reference([ctx.out / "learn" / p["signal"] for p in learned["pass_records"]],
+                                     gain_set.content_sha256)
+        before = {"tracking_rms_N_before_learning": learned["before_learning_rms_N"],
+                  "tracking_rms_pct_of_range_before_learning": learned["before_learning_pct_of_range"],
+                  "learning_iterations": learned["iterations"]}
+    result = study.track_schedule(plant, study.schedule_for(ctx.design_point()), gain_set, ff_extra_V=extra,
+                                  progress=ctx.progress.say)
     return result.save(ctx.out / "system", {
         "gain_set_sha256": gain_set.content_sha256, "design_sha256": ctx.sha256("design", "design"),
-        "plant_sha256": ctx.sha256("plant", "plant"), "study_sha256": study.sha256}), result.summary()
+        "plant_sha256": ctx.sha256("plant", "plant"), "study_sha256": study.sha256,
+        **({"learned": ctx.rel(ctx.output("learn", "learning"))} if extra is not None else {})}), {**result.summary(), **before}
 
 
 def _stage_export(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
@@ -256,21 +283,26 @@ def _stage_export(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
 
 def _stage_rig(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     plan = ctx.study.rig_run
-    reference = str(ctx.study.files().get("rig_run.reference", plan.reference))
+    reference: str | None = str(ctx.study.files().get("rig_run.reference", plan.reference))
+    learned = None
     if reference == "schedule":
         if ctx.records.get("system", {}).get("status") != "done":
             raise StageFailed("rig", "[rig_run] reference = 'schedule' needs the system stage (a study whose "
                                      "[plant] is its design's)")
         reference = str(ctx.output("system", "reference"))
-    ctx.progress.say(f"backend '{plan.backend}', reference {Path(reference).name}, "
-                     f"{'real time' if plan.realtime else 'back to back'}")
+        if ctx.records.get("learn", {}).get("status") == "done":  # the schedule, learned: the signal's own reference
+            learned, reference = ctx.output("learn", "learned"), None
+    ctx.progress.say(f"backend '{plan.backend}', reference {Path(reference or learned or '').name}"
+                     f"{' (learned)' if learned else ''}, {'real time' if plan.realtime else 'back to back'}")
     s = session.run(ctx.output("validate", "gains"), backend=plan.backend, reference=reference,
-                    realtime=bool(plan.realtime), log_dir=ctx.out / "runs", safety=plan.safety(), seed=plan.seed).summary
+                    realtime=bool(plan.realtime), log_dir=ctx.out / "runs", safety=plan.safety(), seed=plan.seed,
+                    learned=learned).summary
     outputs = {"log_csv": Path(s["log_csv"]), "log_json": Path(s["log_json"])}
     m = s["metrics"]
     summary = {"status": s["status"], "cycles": s["cycles"], "controller_step": s["controller_step"],
                "settling_s": m.get("settling_s"), "overshoot_N": m.get("overshoot_N"),
-               "tracking_rms_N": m.get("tracking_rms_N"), "missed_deadlines": s["timing"].get("missed_deadlines")}
+               "tracking_rms_N": m.get("tracking_rms_N"), "missed_deadlines": s["timing"].get("missed_deadlines"),
+               "learned_tracking_rms_measured_N": (s.get("learned") or {}).get("tracking_rms_measured_N")}
     if s["exit_code"] != 0:
         trip = s["trip"] or {}
         raise StageFailed("rig", f"the run was stopped by the interlock '{trip.get('cause')}' at "
@@ -298,6 +330,10 @@ def _plant_applies(study: Study) -> str | None:
     return None if study.plant_from_design else "the study's [rig] is the plant ([plant] from_design is not set)"
 
 
+def _learn_applies(study: Study) -> str | None:
+    return _plant_applies(study) or (None if study.learning is not None else "the study has no [learning] table")
+
+
 STAGES: tuple[Stage, ...] = (
     Stage("design", "ball-screw preload design, Pareto fronts, schedule",
           ("ballscrew", "feed_drive", "duty", "design", "schedule"), (), ("models", "design"), _stage_design,
@@ -315,12 +351,15 @@ STAGES: tuple[Stage, ...] = (
     Stage("compare", "step and trajectory: paper's and tuned gains, with and without feedforward",
           ("study", "rig", "controller", "reference", "simulation"), ("plant", "identify", "validate"),
           ("models", "tuning"), _stage_compare),
+    Stage("learn", "learning control on the repeated schedule (each margin pass learned)",
+          ("rig", "plant", "schedule", "simulation", "learning"), ("design", "plant", "validate"),
+          ("models", "design", "tuning"), _stage_learn, files=("schedule.profile",), applies=_learn_applies),
     Stage("system", "the controlled preload along the schedule: rigidity and deflection while cutting, energy",
-          ("rig", "plant", "schedule", "simulation"), ("design", "plant", "validate"), ("models", "design"),
-          _stage_system, files=("schedule.profile",), applies=_plant_applies),
+          ("rig", "plant", "schedule", "simulation", "learning"), ("design", "plant", "validate", "learn"),
+          ("models", "design", "tuning"), _stage_system, files=("schedule.profile",), applies=_plant_applies),
     Stage("export", "the gain set in the controllers' formats", ("export",), ("validate",), ("models", "rig"),
           _stage_export),
-    Stage("rig", "the validated gains on the rig executor", ("rig_run",), ("validate", "system"), ("models", "rig"),
+    Stage("rig", "the validated gains on the rig executor", ("rig_run",), ("validate", "system", "learn"), ("models", "rig"),
           _stage_rig, files=("rig_run.reference",)),
     Stage("report", "figures and the PDF", ("study", "ballscrew", "design"), STAGES_READ, ("models", "reports"),
           _stage_report),
@@ -459,7 +498,8 @@ def _result(out: Path, study: Study, stages: list[dict[str, Any]], seconds: floa
 
 
 #: what ``run --json``'s summary takes from the system stage (None where the study has none)
-SUMMARY_KEYS = ("tracking_rms_pct_of_range", "tracking_rms_N", "tracking_max_N", "rigidity_min_cutting_N_per_um",
+SUMMARY_KEYS = ("tracking_rms_pct_of_range", "tracking_rms_pct_of_range_before_learning", "tracking_rms_N",
+                "tracking_rms_N_before_learning", "learning_iterations", "tracking_max_N", "rigidity_min_cutting_N_per_um",
                 "rigidity_required_N_per_um", "rigidity_ratio_min", "deflection_max_um", "friction_energy_per_cycle",
                 "constant_friction_energy_per_cycle", "preload_margin_N")
 

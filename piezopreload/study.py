@@ -42,7 +42,7 @@ from piezopreload.rig.tables import ExportTable, RigRunPlan
 from piezopreload.tuning.calibrate import LoopExcitation
 from piezopreload.tuning.feedforward import IdentifiedFeedforward, identify
 from piezopreload.tuning.pid import TuningSpec
-from piezopreload.tuning.tables import TuningTable, ValidationTable
+from piezopreload.tuning.tables import LearningTable, TuningTable, ValidationTable
 from piezopreload.tuning.validate import Criteria
 
 if TYPE_CHECKING:  # the results module imports this one
@@ -95,6 +95,7 @@ _SCHEMA: dict[str, Any] = {
     # the designed preload system as the plant (design/plant.py, design/system.py)
     "plant": {"from_design": bool, "sleeve_stiffness_N_per_um": _NUM, "cycles": int, "passes": int,
               "margin_factor": _NUM, "stack_contact_N": _NUM},
+    "learning": {"iterations": int, "preview_s": _NUM, "method": str},
     "validation": {"plants": int, "seed": int, "workers": int, "settling_max_s": _NUM, "overshoot_max_N": _NUM,
                    "tracking_rms_max_N": _NUM, "peak_voltage_max_V": _NUM},
     "export": {"formats": list},
@@ -176,7 +177,7 @@ _TABLES: dict[str, type[Table]] = {
     "controller": ControllerTable, "feedforward": FeedforwardTable, "simulation": SimulationTable,
     "ballscrew": BallscrewTable, "feed_drive": FeedDriveTable, "duty": DutyTable, "design": DesignTable,
     "schedule": ScheduleTable, "tuning": TuningTable, "validation": ValidationTable, "export": ExportTable,
-    "rig_run": RigRunPlan, "plant": PlantTable,
+    "rig_run": RigRunPlan, "plant": PlantTable, "learning": LearningTable,
 }
 #: the attribute of each table whose name is taken by a method (``study.design()``)
 _ATTRIBUTE = {"design": "design_table"}
@@ -229,6 +230,7 @@ class Study:
     design_table: DesignTable | None
     schedule: ScheduleTable | None
     plant: PlantTable | None
+    learning: LearningTable | None
     # what the tables make, built and checked on load
     gains: PIDGains = field(repr=False)
     references: dict[str, Reference] = field(repr=False)
@@ -461,6 +463,25 @@ class Study:
         return (self.plant or PlantTable()).track(plant, gain_set.controller(), schedule, seed=self.seed,
                                                   ff_extra_V=ff_extra_V, progress=progress)
 
+    def learn_schedule(self, plant: DesignedPlant, schedule: PreloadSchedule, gain_set: GainSet, *,
+                       progress: Callable[[str], None] | None = None) -> tuple[SystemRun, list[LearningResult]]:
+        """:meth:`track_schedule` with the loop learning on each pass's repeated reference first (``[learning]``:
+        :func:`piezopreload.tuning.learning.learn` on the plant, its best signal played in the pass), so the
+        schedule's margin is planned from the tuned and learned loop's error. Returns the last pass's run and
+        each pass's learning."""
+        from piezopreload.models.actuator import Rig
+        from piezopreload.tuning.learning import learn, learning_model_over
+
+        table, controller, results = self.learning or LearningTable(), gain_set.controller(), []
+        model = learning_model_over(plant.rig, controller)  # one plant, one law for every pass
+
+        def learned(reference: Reference) -> Any:
+            results.append(learn(controller, Rig(plant.rig), reference, iterations=table.iterations, model=model,
+                                 preview_s=table.preview_s, method=table.method, seed=self.seed, progress=progress))
+            return results[-1].ff_extra_V
+
+        return self.track_schedule(plant, schedule, gain_set, ff_extra_V=learned, progress=progress), results
+
     def run(self, out: str | Path = "piezopreload-out", *, force: bool = False, progress: Any = None) -> dict[str, Any]:
         """The whole study, as ``piezopreload run``: its stages into ``out``, unchanged ones not run again."""
         from piezopreload.pipeline import run_study
@@ -570,7 +591,8 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes) -> Stud
         feedforward=feedforward, reference=reference, simulation=simulation, tuning=tuning, validation=validation,
         export=export, rig_run=_table(RigRunPlan, data.get("rig_run", {})).checked(fail), ballscrew=design_tables["ballscrew"],
         feed_drive=design_tables["feed_drive"], duty=design_tables["duty"], design_table=design_tables["design"],
-        schedule=design_tables["schedule"], plant=design_tables["plant"], gains=gains, references=references, excitation=excitation,
+        schedule=design_tables["schedule"], plant=design_tables["plant"],
+        learning=_table(LearningTable, data["learning"]).checked(fail) if "learning" in data else None, gains=gains, references=references, excitation=excitation,
         tuning_spec=spec, criteria=criteria, design_spec=design_spec, where=where, source_text=text)
 
 

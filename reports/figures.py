@@ -411,3 +411,23 @@ def system_tracking(time_s: np.ndarray, planned_N: np.ndarray, achieved_N: np.nd
     c.set_ylabel("axial deflection (um)")
     c.legend(loc="upper right")
     return fig
+
+
+@_styled
+def learning_iterations(passes: list[dict[str, Any]]) -> Figure:
+    """The error per learning iteration on the repeated schedule, one line per margin pass (the whole trajectory's RMS
+    of the true force in % of the schedule's range), the causal floor beside it."""
+    fig, ax = _figure(2.8)
+    a = ax[0][0]
+    for k, p in enumerate(passes):
+        span = p["tracking_rms_N"] / p["tracking_rms_pct_of_range"] * 100.0 if p["tracking_rms_pct_of_range"] else 1.0
+        it = [h["iteration"] for h in p["history"]]
+        pct = [100.0 * float(np.max(h["tracking_rms_N"])) / span for h in p["history"]]
+        a.semilogy(it, pct, "o-", ms=3, lw=0.9, color=f"C{k}",
+                   label=f"pass {p['pass']} (best: iteration {int(np.max(p['best_iteration']))})")
+        a.axhline(100.0 * p["causal_floor_N"] / span, color=f"C{k}", ls=":", lw=0.7)
+    a.axhline(1.0, color=COLOURS["limit"], ls="--", lw=0.8, label="target: 1 % of the range")
+    a.set_xlabel("learning iteration (0: the tuned loop with its feedforward)")
+    a.set_ylabel("tracking RMS (% of range)")
+    a.legend(loc="upper right")
+    return fig

@@ -33,10 +33,10 @@ __all__ = ["ReportStudy", "render_report", "fmt", "read_csv_columns", "FIGURES",
 
 #: the figures the template names, in its order
 FIGURES = ("step", "tracking", "hysteresis", "inverse", "monte-carlo", "rig-run", "stiffness", "pareto",
-           "schedule", "natural-frequency", "system")
+           "schedule", "natural-frequency", "system", "learning")
 _DESIGN_FIGURES = ("stiffness", "pareto", "schedule", "natural-frequency")
 #: the stages whose artifacts the report reads
-STAGES_READ = ("design", "plant", "identify", "tune", "validate", "compare", "system", "export", "rig")
+STAGES_READ = ("design", "plant", "identify", "tune", "validate", "compare", "learn", "system", "export", "rig")
 
 
 @dataclass(frozen=True)
@@ -203,6 +203,13 @@ def render_report(out: Path, records: dict[str, dict[str, Any]], study: ReportSt
             "axial rigidity at the achieved preload under the cutting load against the requirement; the axial "
             "deflection under the load.")
 
+    learning = read_artifact(r.path("learn", "learning"), "learning") if r.has("learn") else None
+    if learning is not None:
+        put("learning", F.learning_iterations(learning["pass_records"]),
+            "The error per learning iteration on the repeated schedule, each margin pass of the schedule on its own "
+            "reference (whole cycles, true force, in % of the schedule's range); dotted: the causal floor of the "
+            "ramped reference (the delay's lag at each change of slope).")
+
     F.save_all(pending, progress=bar)
 
     # ---- report.json -----------------------------------------------------------------------------
@@ -210,7 +217,8 @@ def render_report(out: Path, records: dict[str, dict[str, Any]], study: ReportSt
     tuning = read_artifact(r.path("tune", "tuning"), "tuning")
     now = _dt.datetime.now(_dt.UTC).replace(microsecond=0)
     data = _report_data(study, records, responses, ff_doc, n_ops, src_text, gain_set, tuning, val, sidecar, design, now)
-    data["system"] = None if system is None else _system_section(system, plant, tuning)
+    data["system"] = None if system is None else _system_section(system, plant, tuning, learning)
+    data["learning"] = None if learning is None else _learning_section(learning)
     data["figures"] = {name: {"file": f"figures/{name}.pdf", "caption": captions[name]} for name in captions}
     write_artifact(folder / "report.json", "report", data)
     atomic_write_text(folder / "report.typ", template if template is not None else template_text())
@@ -439,12 +447,16 @@ def _design_section(study: ReportStudy, design: dict[str, Any]) -> dict[str, Any
     }
 
 
-def _system_section(system: dict[str, Any], plant: dict[str, Any] | None, tuning: dict[str, Any]) -> dict[str, Any]:
+def _system_section(system: dict[str, Any], plant: dict[str, Any] | None, tuning: dict[str, Any],
+                    learning: dict[str, Any] | None = None) -> dict[str, Any]:
     """The whole system: tracking of the schedule, rigidity and deflection while cutting, friction energy, the gains."""
     e = system["energy_units"]
+    before = [] if learning is None else [
+        ["tracking RMS before learning", f"{fmt(learning['before_learning_rms_N'])} N",
+         f"{fmt(learning['before_learning_pct_of_range'])} % of the range (the last pass's reference)"]]
     rows = [
-        ["tracking RMS (true force)", f"{fmt(system['tracking_rms_N'])} N", f"{fmt(system['tracking_rms_pct_of_range'])} % "
-                                                                             f"of {fmt(system['schedule_range_N'])} N"],
+        ["tracking RMS (true force)" + ("" if learning is None else ", learned"), f"{fmt(system['tracking_rms_N'])} N",
+         f"{fmt(system['tracking_rms_pct_of_range'])} % of {fmt(system['schedule_range_N'])} N"], *before,
         ["largest tracking error", f"{fmt(system['tracking_max_N'])} N", ""],
         ["least rigidity / requirement while cutting", f"{fmt(system['rigidity_min_cutting_N_per_um'])} N/um",
          f"required {fmt(system['rigidity_required_N_per_um'])} N/um (ratio {fmt(system['rigidity_ratio_min'])})"],
@@ -461,7 +473,10 @@ def _system_section(system: dict[str, Any], plant: dict[str, Any] | None, tuning
     saving = 1.0 - system["friction_energy_per_cycle"] / system["constant_friction_energy_per_cycle"]
     text = (f"The design's preload schedule is the reference of the force loop on the designed plant: the stacks' share "
             f"(the schedule less the bolts' preload), over {system['cycles']} machining cycles. The tuned gains with the "
-            f"inverse-P-I feedforward (no preview, no learning) follow it within {fmt(system['tracking_rms_N'])} N RMS, "
+            + ("inverse-P-I feedforward (no preview, no learning) follow it" if learning is None else
+               f"inverse-P-I feedforward and the correction learned over {learning['iterations']} iterations per pass "
+               f"(from {fmt(learning['before_learning_pct_of_range'])} % of the range before learning) follow it") +
+            f" within {fmt(system['tracking_rms_N'])} N RMS, "
             f"{fmt(system['tracking_rms_pct_of_range'])} % of its range; the axis keeps at least "
             f"{fmt(system['rigidity_ratio_min'])} times the rigidity it needs while cutting, and the achieved preload "
             f"needs {100 * saving:.0f} % less friction energy than the best constant preload.")
@@ -476,6 +491,27 @@ def _system_section(system: dict[str, Any], plant: dict[str, Any] | None, tuning
                  f"on every plant variant (Ms {fmt(ms)}) and the Monte Carlo validation runs the whole range, so one "
                  "robust gain set meets the specification: no gain schedule is needed, and the exports hold that set.")
     return {"text": text, "gains": gains, "rows": rows}
+
+
+def _learning_section(learning: dict[str, Any]) -> dict[str, Any]:
+    """Learning control on the repeated schedule: the error per iteration of each margin pass."""
+    rows = []
+    for p in learning["pass_records"]:
+        span = p["tracking_rms_N"] / p["tracking_rms_pct_of_range"] * 100.0 if p["tracking_rms_pct_of_range"] else 1.0
+        best = int(np.max(p["best_iteration"]))
+        for h in p["history"]:
+            rms = float(np.max(h["tracking_rms_N"]))
+            rows.append([str(p["pass"]), str(h["iteration"]) + (" (best)" if h["iteration"] == best else ""),
+                         fmt(rms), fmt(100.0 * rms / span), fmt(float(np.max(h["measured_rms_N"])))])
+    text = (f"The machining cycle repeats, so the loop learns a feedforward correction from each cycle's error "
+            f"({learning['method']} law; preview {fmt(1e3 * learning['preview_s'])} ms). The law is checked to contract "
+            f"on the loop linearised over the command's range (worst {fmt(learning['contraction_over_range'])}, below 1: "
+            "monotone convergence of the linearised loop). Each margin pass of the schedule learns on its own reference, "
+            f"so the margin is planned from the learned loop's error. On the last pass the error falls from "
+            f"{fmt(learning['before_learning_rms_N'])} N to {fmt(learning['tracking_rms_N'])} N RMS "
+            f"({fmt(learning['tracking_rms_pct_of_range'])} % of the range; the causal floor of the ramped reference "
+            f"{fmt(learning['causal_floor_N'])} N).")
+    return {"text": text, "rows": rows}
 
 
 def _provenance(study: ReportStudy, records: dict[str, dict[str, Any]], ff_doc: dict[str, Any], src_text: str,

@@ -249,3 +249,126 @@ def test_weighting_the_after_change_error_starts_the_ramps_later_and_trades_the_
                                                  f"after the jumps {after0:.3f} -> {after1:.3f} N")
     with pytest.raises(InputError, match="after_change_weight"):
         L.preview_plan(params, TRAJECTORY, 0.2, after_change_weight=-1.0)
+
+
+# ---- ramped references and the designed plant ----------------------------------------------------
+def _pure_delay() -> RigParams:
+    """A rig that is a pure delay (amplifier and slew far faster than a sample, no creep, hysteresis negligible)."""
+    return RigParams(amp_bandwidth_Hz=1e6, amp_current_limit_A=1e3, creep_per_decade=0.0, bw_alpha=1e-12,
+                     bw_kappa=0.0, noise_N=0.0, adc_bits=32, delay_samples=2)
+
+
+def test_preview_on_a_ramp_with_a_pure_delay_removes_it_and_without_it_the_floor_is_the_kinks_lag():
+    params = _pure_delay()
+    rig = Rig(params)
+    dt = rig.dt_s
+    gain = float(params.effective_stiffness_N_per_um * params.stroke_um_per_V)  # N/V
+    # from the bolts' preload (where the rig rests at 0 V) up 25 N and back, twice
+    ref = Reference.ramps([0.0, 0.02, 0.07, 0.12, 0.17], [25.0, 25.0, 50.0, 50.0, 25.0], 0.2).repeat(2)
+    n = int(round(ref.duration_s / dt)) + 1
+    r = ref.at(np.arange(n) * dt)
+    lag = params.delay_samples + 1  # the delay line and the D/A's sample
+    plan = L.ramp_plan(params, ref, lag * dt, lead_samples=lag)
+    np.testing.assert_allclose(plan.force_N, r, atol=1e-12, err_msg="with preview over the lead the plan is not the ramp")
+    c = Controller(PIDGains(Kc=0.0, Ti_s=np.inf, u_min=-1e3, u_max=1e3), dt)  # the feedforward alone
+    ff = (plan.force_N - params.bolt_preload_N) / gain
+    late = simulate(rig, c, ref, ff_extra_V=ff, engine="numpy")
+    early = simulate(rig, c, ref, ff_extra_V=L.advance(ff, lag), engine="numpy")
+    slope = 25.0 / 0.05 * dt  # N per sample on the ramps
+    assert np.max(np.abs(late.force_N - r)[lag:]) == pytest.approx(lag * slope, rel=1e-6), \
+        "without preview the lag is not lag x slope"
+    np.testing.assert_allclose(early.force_N[lag:], r[lag:], atol=1e-6,
+                               err_msg="previewed by the lead, the pure delay's output is not the ramp")
+    # without preview the floor is the slope's extrapolation over the delay: at each of the 4 kinks
+    # (4 per cycle, scored from the first at t = 0.02 s on) the error grows by a slope per sample for d samples; but
+    # where a ramp ends at the bolts' level the extrapolation below it is held at the level the rig reaches at 0 V
+    d = params.delay_samples
+    kinks = 6
+    scored = int(np.sum(np.arange(n) * dt >= ref.times_s[1] - 1e-12))
+    closed = np.sqrt(kinks * slope**2 * d * (d + 1) * (2 * d + 1) / 6 / scored)
+    assert L.causal_floor(params, ref) == pytest.approx(closed, rel=1e-9), "the ramp's causal floor is not the kinks' lag"
+    assert L.preview_plan(params, ref, d * dt).rms_N == pytest.approx(0.0, abs=1e-12), "a preview of the delay leaves a floor"
+
+
+@pytest.fixture(scope="module")
+def designed_loop():
+    """The designed plant of the machine axis' kind (the design optimum of the default spec, its hardware as
+    studies/machine_axis.toml's [rig]) under a PID of the tuned gains' size, no feedforward."""
+    from piezopreload.design.plant import plant_from_design
+    from piezopreload.design.preload import DesignNLP, DesignSpec, optimise
+
+    spec = DesignSpec()
+    opt = optimise(spec, "stiffness", DesignNLP(spec))
+    hardware = RigParams(amp_bandwidth_Hz=100.0, bw_alpha=0.3238, bw_kappa=0.0931, creep_per_decade=0.0385,
+                         noise_N=1.0, adc_full_scale_N=10000.0, amp_v_min_V=-20.0, amp_v_max_V=120.0)
+    plant = plant_from_design(spec, opt, hardware, design_sha256="0" * 64, sleeve_stiffness_N_per_um=4000.0)
+    c = Controller(PIDGains(Kc=0.0108, Ti_s=0.0486, b=0.91, u_min=-20.0, u_max=115.0), plant.rig.sample_period_s)
+    return plant, c
+
+
+def test_the_learning_law_contracts_over_the_designed_plants_range(designed_loop):
+    plant, c = designed_loop
+    levels = np.linspace(0.0, 115.0, 5)
+    model = L.learning_model_over(plant.rig, c, levels)
+    loops = [L.learning_model(plant.rig, c, v0_V=v) for v in levels]
+    gains = [float(np.max(lp.g)) for lp in loops]
+    assert max(gains) > 1.3 * min(gains), f"the plant's force per volt should change with the level: peak responses {gains}"
+    worst = max(model.contraction(loop=lp) for lp in loops)
+    assert model.range_contraction == pytest.approx(worst) and worst < 1.0, \
+        f"the law does not contract at every level: {[model.contraction(loop=lp) for lp in loops]}"
+    # on each linearised loop the lifted error map of the law (Q is the identity: its cut-off is Nyquist) keeps the
+    # error from growing, and it shrinks trial by trial on a ramped repeated reference as far as the theory allows
+    assert model.q_cutoff_Hz >= 0.5 / model.dt_s - 1e-9
+    n = 400
+    t = np.arange(n) * model.dt_s
+    r = np.interp(t, [0.0, 0.05, 0.15, 0.25, 0.35], [0.0, 0.0, 800.0, 800.0, 100.0])
+    Lm = model.gamma * np.array([model.setpoint_path(L.advance(col, model.delta, fill="zero")) for col in np.eye(n)]).T
+    for v, lp in zip(levels, loops):
+        G = lp.lifted(n)
+        errs = [np.linalg.norm(r)]
+        u = np.zeros(n)
+        for _ in range(8):
+            u = L.p_type_update(model, u, r - G @ u)
+            errs.append(np.linalg.norm(r - G @ u))
+        ratios = np.array(errs[1:]) / np.array(errs[:-1])
+        bound = np.linalg.norm(np.eye(n) - G @ Lm, 2)
+        assert np.all(ratios <= bound + 1e-9), f"at {v} V the error ratios {ratios} exceed ||I - G L|| = {bound}"
+        assert errs[-1] < 0.2 * errs[0], f"at {v} V eight trials left {errs[-1] / errs[0]:.2f} of the error"
+
+
+def test_learning_on_a_ramped_repeated_reference_on_the_designed_plant_reduces_the_error(designed_loop):
+    plant, c = designed_loop
+    rig = Rig(plant.rig)
+    ref = Reference.ramps([0.0, 0.1, 0.3, 0.5, 0.6, 0.8], [50.0, 50.0, 1500.0, 1500.0, 600.0, 50.0], 1.0).repeat(2)
+    res = L.learn(c, rig, ref, iterations=6, seed=2)
+    assert res.model.range_contraction is not None and res.model.range_contraction < 1.0
+    measured = [float(h.measured_rms_N) for h in res.history]
+    assert res.tracking_rms_N < 0.35 * float(res.history[0].tracking_rms_N), f"learning did not reduce the error: {measured}"
+    assert bool(res.converged.all()) and not res.diverged.any(), f"the learning stopped: {measured}"
+    # the measured error falls trial by trial down to what the sensor's noise (1 N per sample) and the hysteresis leave,
+    # and stays there: no later trial more than the divergence guard's 5 % above the best
+    near = next(k for k, m in enumerate(measured) if m <= 2.0 * min(measured))  # the first trial near the floor
+    assert all(b < a for a, b in zip(measured[:near], measured[1:near + 1])), f"the error grew while falling: {measured}"
+    assert max(measured[near + 1:]) <= 1.05 * min(measured), f"the error grew past the best: {measured}"
+    assert res.preview_floor_N <= res.causal_floor_N, "preview raised the floor"
+
+
+def test_a_schedules_passes_are_saved_and_each_signal_is_found_by_its_reference(tmp_path):
+    from piezopreload.core.artifacts import read_artifact
+
+    rig = Rig(RigParams(noise_N=0.05))
+    c = Controller(PIDGains(Kc=0.3, Ti_s=0.08, Td_s=0.001), rig.dt_s)
+    refs = [Reference.ramps([0.0, 0.1, 0.3, 0.5], [25.0, 25.0, 60.0 + m, 60.0 + m], 0.6).repeat(2) for m in (0.0, 5.0)]
+    passes = [L.learn(c, rig, ref, iterations=2, seed=1) for ref in refs]
+    paths = L.save_passes(passes, tmp_path / "learn", "a" * 64, {"study": "test"})
+    record = read_artifact(paths["learning"], "learning")
+    assert record["passes"] == 2 and paths["learned"] == paths["pass2"]
+    assert record["tracking_rms_N"] == pytest.approx(passes[-1].tracking_rms_N)
+    assert record["before_learning_rms_N"] == pytest.approx(float(passes[-1].history[0].tracking_rms_N))
+    signal_for = L.learned_by_reference([paths["pass1"], paths["pass2"]], "a" * 64)
+    for ref, result in zip(refs, passes):
+        np.testing.assert_array_equal(signal_for(ref), result.ff_extra_V, err_msg="not the signal learned on this reference")
+    with pytest.raises(InputError, match="no learned signal was learned on reference"):
+        signal_for(TRAJECTORY)
+    with pytest.raises(InputError, match="a{64}"):
+        L.learned_by_reference([paths["pass1"]], "b" * 64)

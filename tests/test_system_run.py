@@ -53,6 +53,30 @@ def test_run_json_summary_names_the_whole_systems_numbers(axis_run, capsys):
         assert summary[key] == system[key], f"summary.{key} is not the system stage's"
 
 
+def test_the_learn_stage_learns_on_each_pass_and_the_system_and_the_rig_play_it(axis_run):
+    from piezopreload.models.learned import LearnedSignal
+
+    out = axis_run
+    learning = read_artifact(out / "learn" / "learning.json", "learning")
+    gains = read_artifact(out / "gains.json", "gain-set")
+    system = read_artifact(out / "system" / "system.json", "system")
+    assert learning["passes"] == len(system["passes"]), "a margin pass of the schedule was not learned"
+    for record in learning["pass_records"]:
+        signal = LearnedSignal.load(out / "learn" / record["signal"])
+        assert signal.gain_set_sha256 == gains["content_sha256"], "a learned signal is not tied to the exported gain set"
+        history = [h["tracking_rms_N"] for h in record["history"]]
+        assert len(history) == 4 and record["tracking_rms_N"] < 0.5 * history[0], f"pass {record['pass']}: {history}"
+    # the system stage's last pass plays the last pass's signal on its reference: the learning's best iterate, but with
+    # the run's own noise draw (the trials draw seed + k) and scored from t = 0 (the learning from the first point on)
+    summary = read_manifest(out)["stages"]["system"]["summary"]
+    assert system["tracking_rms_N"] < 0.5 * summary["tracking_rms_N_before_learning"]
+    assert summary["tracking_rms_N_before_learning"] == pytest.approx(learning["before_learning_rms_N"])
+    assert system["tracking_rms_N"] == pytest.approx(learning["tracking_rms_N"], rel=0.15), \
+        "the system stage's learned run is not the learning's best iterate"
+    rig = read_manifest(out)["stages"]["rig"]
+    assert rig["summary"]["learned_tracking_rms_measured_N"] is not None, "the rig stage did not play the learned signal back"
+
+
 def test_a_changed_design_rebuilds_the_plant_and_everything_after_it(axis_run, tmp_path):
     import shutil
 
@@ -62,8 +86,8 @@ def test_a_changed_design_rebuilds_the_plant_and_everything_after_it(axis_run, t
     before = read_manifest(out)["stages"]
     study = load_study(SMALL_AXIS).replace(design={"amp_current_limit_A": 0.08})
     result = run_study(study, out, progress=Progress(stream=io.StringIO()))
-    assert set(result["ran"]) >= {"design", "plant", "identify", "tune", "validate", "compare", "system", "rig",
-                                  "report"}, f"a stage after the changed design was not run again: {result['ran']}"
+    assert set(result["ran"]) >= {"design", "plant", "identify", "tune", "validate", "compare", "learn", "system",
+                                  "rig", "report"}, f"a stage after the changed design was not run again: {result['ran']}"
     after = read_manifest(out)["stages"]
     assert after["plant"]["outputs"]["plant"]["sha256"] != before["plant"]["outputs"]["plant"]["sha256"]
     plant = read_artifact(out / "plant.json", "plant")

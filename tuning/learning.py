@@ -58,20 +58,22 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.signal import butter, lfilter
 
+from piezopreload.core.artifacts import write_artifact
 from piezopreload.core.errors import InputError, InternalError
 from piezopreload.models.actuator import Rig, RigParams, reach_N
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller
 from piezopreload.models.gainset import GainSet
-from piezopreload.models.learned import LearnedSignal
+from piezopreload.models.learned import LearnedSignal, reference_sha256
 from piezopreload.models.loop import step_function
 from piezopreload.models.ops import NUMPY
 from piezopreload.tuning.pid import tracking_floor, tuning_loop
 from piezopreload.tuning.validate import DEFAULT_SPREAD
 
-__all__ = ["METHODS", "LearningModel", "learning_model", "advance", "zero_phase_lowpass", "PreviewPlan",
+__all__ = ["METHODS", "LearningModel", "learning_model", "learning_model_over", "causal_floor", "ramp_plan", "advance", "zero_phase_lowpass", "PreviewPlan",
            "preview_plan", "branch_ramps", "default_preview_s", "feedforward_lead", "tune_laws", "preview_feedforward", "p_type_update", "norm_optimal_update",
-           "Iteration", "LearningResult", "learn", "learn_from_run", "learn_from_log", "named_reference", "AFTER_CHANGE_S"]
+           "Iteration", "LearningResult", "learn", "learn_from_run", "learn_from_log",
+           "save_passes", "learned_by_reference", "named_reference", "AFTER_CHANGE_S"]
 
 Array = NDArray[np.float64]
 
@@ -144,6 +146,8 @@ class LearningModel:
     sp_gain: float = 1.0
     sp_integral_per_s: float = 0.0
     length: int = 3000
+    range_contraction: float | None = None
+    range_V: tuple[float, float] | None = None
 
     @property
     def g(self) -> Array:
@@ -178,7 +182,8 @@ class LearningModel:
         """``G(e^{j w dt})`` (rad/s) from the state space; ``learning=True``: ``G F``."""
         z = np.exp(1j * np.asarray(omega, float) * self.dt_s)
         n = self.A.shape[0]
-        out = np.array([(self.C @ np.linalg.solve(zk * np.eye(n) - self.A, self.B)).ravel()[0] for zk in z])
+        resolvent = np.linalg.solve(z[:, None, None] * np.eye(n) - self.A, np.broadcast_to(self.B, (z.size,) + self.B.shape))
+        out = (self.C @ resolvent)[:, 0, 0]
         if learning:
             zi = 1.0 / z
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -193,14 +198,15 @@ class LearningModel:
         ratio = np.tan(np.pi * f * self.dt_s) / np.tan(np.pi * self.q_cutoff_Hz * self.dt_s)
         return 1.0 / (1.0 + ratio ** (2 * order))
 
-    def contraction(self, n_freq: int = 2000) -> float:
+    def contraction(self, n_freq: int = 2000, loop: LearningModel | None = None) -> float:
         """``sup_w |Q(w)| |1 - gamma e^{j w delta} G(w) F(w)|`` over ``0 < w <= pi/dt``: below 1 the P-type
         law converges monotonically (the lifted operator's 2-norm for long trials); 1 at DC, where the
-        PID's integral holds the error at 0 by itself."""
+        PID's integral holds the error at 0 by itself. ``loop``: this law (``Q``, ``gamma``, ``delta``,
+        ``F``) on another loop's ``G`` (the same loop linearised elsewhere, say)."""
         omega = np.linspace(0.0, np.pi / self.dt_s, n_freq + 1)[1:]
         lead = np.exp(1j * omega * self.delta * self.dt_s)
-        return float(np.max(self.q_response(omega) * np.abs(1.0 - self.gamma * lead *
-                                                             self.frequency_response(omega, learning=True))))
+        G = (self if loop is None else replace(self, A=loop.A, B=loop.B, C=loop.C)).frequency_response(omega, learning=True)
+        return float(np.max(self.q_response(omega) * np.abs(1.0 - self.gamma * lead * G)))
 
 
 def learning_model(params: RigParams, controller: Controller, *, v0_V: float = 50.0,
@@ -234,6 +240,35 @@ def learning_model(params: RigParams, controller: Controller, *, v0_V: float = 5
                          slew_V_per_sample=float(params.slew_V_per_s) * dt, sp_gain=gains.Kc * gains.b,
                          sp_integral_per_s=ki)
     return tune_laws(base, q_cutoff_Hz=q_cutoff_Hz, weight=weight)
+
+
+def learning_model_over(params: RigParams, controller: Controller, voltages_V: Any = None, *, v0_V: float = 50.0,
+                        q_cutoff_Hz: float | None = None, weight: float | None = None) -> LearningModel:
+    """The learning model whose P-type law contracts on the loop linearised at every one of ``voltages_V``.
+
+    On a plant whose force per volt changes with the level (the designed plant's Hertzian nuts
+    stiffen with the preload) one linearisation does not hold everywhere. The law tuned
+    (:func:`tune_laws`) on the loop at ``v0_V`` (:func:`learning_model`'s) is checked on the loop at
+    each of ``voltages_V`` (:meth:`LearningModel.contraction` with ``loop=``); where its largest
+    contraction reaches 1, the law tuned at each of them is tried too and the one whose largest
+    contraction is least is kept. :attr:`LearningModel.range_contraction` records that largest value
+    (below 1: the law converges monotonically wherever along the range the loop sits).
+    ``voltages_V`` defaults to five levels over the command's range from 0 V.
+    """
+    gains = controller.gains
+    if voltages_V is None:
+        voltages_V = np.linspace(max(gains.u_min, 0.0), gains.u_max, 5)
+    v = np.unique(np.asarray(voltages_V, float).ravel())
+    if v.size == 0 or not np.all(np.isfinite(v)):
+        raise InputError(f"voltages_V: give finite voltages to linearise the loop at, got {voltages_V!r}")
+    loops = [learning_model(params, controller, v0_V=float(x), q_cutoff_Hz=q_cutoff_Hz, weight=weight) for x in v]
+    candidates = [learning_model(params, controller, v0_V=v0_V, q_cutoff_Hz=q_cutoff_Hz, weight=weight)]
+    worst = [max(candidates[0].contraction(loop=lp) for lp in loops)]
+    if worst[0] >= 1.0:  # the nominal law does not hold over the range: the law of each level, its worst case least
+        candidates += loops
+        worst += [max(c.contraction(loop=lp) for lp in loops) for c in loops]
+    k = int(np.argmin(worst))
+    return replace(candidates[k], range_contraction=float(worst[k]), range_V=(float(v[0]), float(v[-1])))
 
 
 def tune_laws(model: LearningModel, *, q_cutoff_Hz: float | None = None, weight: float | None = None) -> LearningModel:
@@ -345,11 +380,13 @@ class PreviewPlan:
     lead_samples: int
     starts: list[int]
     reach_N: tuple[float, float]
+    interpolation: str = "hold"
 
     @property
     def setpoint(self) -> Reference:
-        """The plan as a reference the loop can follow (one level per sample)."""
-        return Reference(self.t_s[:-1], self.force_N[:-1], float(self.t_s[-1]))
+        """The plan as a reference the loop can follow (one level per sample; ramped between them for a
+        ramped reference's plan)."""
+        return Reference(self.t_s[:-1], self.force_N[:-1], float(self.t_s[-1]), self.interpolation)
 
     def to_dict(self) -> dict[str, Any]:
         return {"rms_N": self.rms_N, "rate_N_per_s": self.rate_N_per_s, "preview_s": self.preview_s,
@@ -358,7 +395,10 @@ class PreviewPlan:
 
 def default_preview_s(params: RigParams, reference: Reference) -> float:
     """The preview that plans every jump as well as any preview could: the delay and the amplifier's lag
-    (the feedforward's lead, :func:`feedforward_lead`) plus the slew time of the largest jump."""
+    (the feedforward's lead, :func:`feedforward_lead`) plus the slew time of the largest jump; for a ramped
+    reference the lead alone."""
+    if reference.interpolation != "hold":  # a ramp: the lead alone (ramp_plan follows it exactly then)
+        return feedforward_lead(params) * params.sample_period_s
     rate = tracking_floor(params, reference)["rate_N_per_s"]
     jump = float(np.max(np.abs(np.diff(reference.levels_N)))) if reference.levels_N.size > 1 else 0.0
     return feedforward_lead(params) * params.sample_period_s + jump / rate
@@ -427,6 +467,8 @@ def preview_plan(params: RigParams, reference: Reference, preview_s: float, *, u
         raise InputError(f"preview_s must be a finite number >= 0, got {preview_s!r}")
     if not (np.isfinite(after_change_weight) and after_change_weight >= 0):
         raise InputError(f"after_change_weight must be a finite number >= 0, got {after_change_weight!r}")
+    if reference.interpolation != "hold":
+        return ramp_plan(params, reference, preview_s, u_max_V=u_max_V, lead_samples=lead_samples)
     dt = params.sample_period_s
     lead = int(params.delay_samples) if lead_samples is None else int(lead_samples)
     p = int(round(preview_s / dt))
@@ -474,6 +516,54 @@ def preview_plan(params: RigParams, reference: Reference, preview_s: float, *, u
     scored = t >= reference.times_s[1] if reference.times_s.size > 1 else np.ones(n, bool)
     rms = float(np.sqrt(np.mean((r[scored] - force[scored]) ** 2)))
     return PreviewPlan(t, force, rms, floor["rate_N_per_s"], float(preview_s), lead, starts, (lo, hi))
+
+
+def ramp_plan(params: RigParams, reference: Reference, preview_s: float, *, u_max_V: float = 110.0,
+              lead_samples: int | None = None) -> PreviewPlan:
+    """The plan and the preview floor of a ramped (piecewise linear) reference.
+
+    A ramp has no jump to slew across: what the loop's delay costs is the lag at each change of
+    slope. The force at sample ``k`` is decided by a command sent ``lead`` samples before it (the
+    delay, the default, for the floor; :func:`feedforward_lead` for the plan a controller
+    follows); with ``p`` samples of preview that command knows the reference up to ``k - lead + p``.
+    Where the preview covers the lead (``p >= lead``) the plan is the reference itself; short of
+    it, the best the loop can do is extrapolate the reference's last known slope over the
+    ``d = lead - p`` samples it does not know, ``r[k - d] + d (r[k - d] - r[k - d - 1])``. The plan
+    is held inside the force the voltage range reaches and, where the reference is steeper than
+    :func:`~piezopreload.tuning.pid.tracking_floor`'s rate, moves toward it at that rate. Its RMS
+    error against the reference (from the first point on, as ``tracking_error`` scores) is the
+    floor; with ``p = 0`` the causal floor of a ramped reference (:func:`causal_floor`).
+    """
+    dt = params.sample_period_s
+    lead = int(params.delay_samples) if lead_samples is None else int(lead_samples)
+    p = int(round(preview_s / dt))
+    d = max(lead - p, 0)
+    n = int(round(reference.duration_s / dt)) + 1
+    t = np.arange(n) * dt
+    r = reference.at(t)
+    # the steepest rate the force can move (tracking_floor's, which depends on the rig alone; one 1 N step asks it)
+    rate = float(tracking_floor(params, Reference(np.array([0.0, dt]), np.array([0.0, 1.0]), 2 * dt))["rate_N_per_s"])
+    known = np.concatenate([np.full(d, r[0]), r[: n - d]]) if d else r.copy()
+    before = np.concatenate([np.full(d + 1, r[0]), r[: n - d - 1]])
+    target = known + d * (known - before)
+    lo, hi = float(np.min(params.bolt_preload_N)), float(np.min(reach_N(Rig(params), u_max_V)))
+    target = np.clip(target, lo, hi)
+    step = rate * dt
+    force = target.copy()
+    if np.any(np.abs(np.diff(target)) > step):  # steeper than the force can move: follow at the rate
+        for k in range(1, n):
+            force[k] = force[k - 1] + np.clip(target[k] - force[k - 1], -step, step)
+    scored = t >= reference.times_s[1] if reference.times_s.size > 1 else np.ones(n, bool)
+    rms = float(np.sqrt(np.mean((r[scored] - force[scored]) ** 2)))
+    return PreviewPlan(t, force, rms, rate, float(preview_s), lead, [], (lo, hi), interpolation="linear")
+
+
+def causal_floor(params: RigParams, reference: Reference) -> float:
+    """The causal floor (RMS, N) of ``reference``: :func:`~piezopreload.tuning.pid.tracking_floor` over a
+    held reference's jumps, the extrapolated slope's lag (:func:`ramp_plan` without preview) on a ramped one."""
+    if reference.interpolation == "hold":
+        return float(tracking_floor(params, reference)["rms_N"])
+    return ramp_plan(params, reference, 0.0).rms_N
 
 
 def _ramp(m: Array, s0: int, old: float, new: float, rho: float, path: Array | None) -> Array:
@@ -589,6 +679,8 @@ class LearningResult:
             "preview_s": self.preview_s, "method": self.method,
             "learning": {"delta_samples": self.model.delta, "gamma": self.model.gamma,
                          "q_cutoff_Hz": self.model.q_cutoff_Hz, "contraction": self.model.contraction(),
+                         "contraction_over_range": self.model.range_contraction,
+                         "range_V": None if self.model.range_V is None else list(self.model.range_V),
                          "weight": self.model.weight},
             "history": [h.to_dict() for h in self.history], "seconds": self.seconds, **self.info,
         }
@@ -626,8 +718,9 @@ def named_reference(reference: Reference | str, references: dict[str, Reference]
     if isinstance(reference, Reference):
         return reference
     if reference == "schedule":
-        raise InputError("--reference schedule: the design's preload schedule does not reach the study's references "
-                         "yet; give step, trajectory or a time_s,force_N CSV")
+        raise InputError("--reference schedule: the design's schedule is learned by the learn stage of 'piezopreload "
+                         "run' (a study with [plant] from_design and a [learning] table); here give step, trajectory "
+                         "or a time_s,force_N CSV (the system stage's system/reference.csv, say)")
     if reference not in references:
         raise InputError(f"reference must be one of {', '.join(references)} or a CSV, got {reference!r}")
     return references[reference]
@@ -680,17 +773,20 @@ def learn(controller: Controller, rig: Rig, reference: Reference, *, iterations:
     preview = default_preview_s(params, reference) if preview_s is None else float(preview_s)
     floor_plan = preview_plan(params, reference, preview, u_max_V=controller.gains.u_max)
     lead = feedforward_lead(params) if preview > 0 else 0
-    ramps = branch_ramps(params, reference.levels_N, controller.gains.u_max)
-    branch_floor = preview_plan(params, reference, preview, u_max_V=controller.gains.u_max, ramps=ramps)
+    # the rig's own branch per jump (a ramped reference has no jumps to slew across)
+    ramps = branch_ramps(params, reference.levels_N, controller.gains.u_max) if reference.interpolation == "hold" else None
+    branch_floor = floor_plan if ramps is None else preview_plan(params, reference, preview,
+                                                                  u_max_V=controller.gains.u_max, ramps=ramps)
     plan = preview_plan(params, reference, preview, u_max_V=controller.gains.u_max,
                         lead_samples=max(lead, params.delay_samples),
-                        ramps=branch_ramps(params, reference.levels_N, controller.gains.u_max, slew_fraction),
+                        ramps=None if ramps is None else branch_ramps(params, reference.levels_N,
+                                                                      controller.gains.u_max, slew_fraction),
                         after_change_weight=after_change_weight)
-    causal = tracking_floor(params, reference)["rms_N"]
+    causal = causal_floor(params, reference)
     setpoint = plan.setpoint if preview > 0 else reference
     target = plan.force_N if preview > 0 else reference.at(plan.t_s)
     base = preview_feedforward(controller, target, lead)
-    model = learning_model(params, controller) if model is None else model
+    model = learning_model_over(params, controller) if model is None else model
     sim_rig = Rig(params.vary(plants, spread or DEFAULT_SPREAD, seed)) if plants else rig
     batch = sim_rig.params.batch_shape
     n = plan.t_s.size
@@ -780,7 +876,7 @@ def learn_from_log(signal: LearnedSignal, log: dict[str, Array], gain_set: GainS
     if gain_set.plant is None:
         raise InputError("the gain set names no plant to build the learning model on; write it again with 'tune'")
     keep = log["mode"] == 0
-    model = learning_model(gain_set.plant, gain_set.controller())
+    model = learning_model_over(gain_set.plant, gain_set.controller())  # the law learn() uses
     return learn_from_run(signal, log["measured_N"][keep], log["command_V"][keep], model)
 
 
@@ -803,3 +899,69 @@ def learn_from_run(signal: LearnedSignal, measured_N: Array, command_V: Array, m
     rms = float(np.sqrt(np.mean(e**2)))
     history = [*signal.history, {"iteration": signal.iteration, "measured_rms_N": rms, "source": "rig run"}]
     return replace(signal, ff_extra_V=u, iteration=signal.iteration + 1, history=history, content_sha256=None)
+
+
+# --------------------------------------------------------------------------------------
+# learning over a schedule's passes (the whole system's learn stage)
+# --------------------------------------------------------------------------------------
+def save_passes(passes: list[LearningResult], folder: str | Path, gain_set_sha256: str | None,
+                inputs: dict[str, Any]) -> dict[str, Path]:
+    """Write the learning of each pass of a schedule (one per margin the schedule was planned with) into ``folder``.
+
+    ``learned-pass<k>.json`` holds pass ``k``'s learned signal (tied to ``gain_set_sha256`` and that
+    pass's reference); ``learning.json`` (kind ``learning``) the error per iteration of every pass
+    and, at its top level, the last pass's: its best error (``tracking_rms_N``, and in % of the
+    reference's range), the error before learning (trial 0: the tuned loop with its feedforward and
+    the preview, no learned correction), the contraction over the range, the floors. Returns the
+    paths by label: ``learning``, ``learned`` (the last pass's signal, what the rig plays), ``pass<k>``.
+    """
+    if not passes:
+        raise InputError("save_passes: no pass was learned (the schedule's tracking ran without learning)")
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    for stale in folder.glob("learned-pass*.json"):  # a pass the schedule no longer needs
+        stale.unlink()
+    paths: dict[str, Path] = {}
+    records = []
+    for k, result in enumerate(passes, start=1):
+        path = folder / f"learned-pass{k}.json"
+        result.signal(gain_set_sha256, {**inputs, "pass": k}).save(path)
+        paths[f"pass{k}"] = path
+        d = result.to_dict()
+        span = float(np.ptp(result.reference.levels_N)) or 1.0
+        records.append({"pass": k, "signal": path.name, "reference_sha256": reference_sha256(result.reference),
+                        "before_learning_rms_N": float(np.max(result.history[0].tracking_rms_N)),
+                        "before_learning_pct_of_range": 100.0 * float(np.max(result.history[0].tracking_rms_N)) / span,
+                        **{key: d[key] for key in ("tracking_rms_N", "tracking_rms_pct_of_range", "iterations",
+                                                   "converged", "best_iteration", "causal_floor_N", "preview_floor_N",
+                                                   "preview_s", "method", "learning", "history")}})
+    last = records[-1]
+    paths["learned"] = paths[f"pass{len(passes)}"]
+    paths["learning"] = folder / "learning.json"
+    write_artifact(paths["learning"], "learning", {
+        "pass_records": records, "passes": len(records),
+        **{key: last[key] for key in ("tracking_rms_N", "tracking_rms_pct_of_range", "before_learning_rms_N",
+                                      "before_learning_pct_of_range", "iterations", "converged", "causal_floor_N",
+                                      "preview_floor_N", "preview_s", "method", "history")},
+        "contraction_over_range": last["learning"]["contraction_over_range"], "learned": paths["learned"].name,
+        "inputs": inputs})
+    return paths
+
+
+def learned_by_reference(paths: list[Path], gain_set_sha256: str | None) -> Callable[[Reference], Array]:
+    """``ff_extra_V`` for a reference from the learned signals at ``paths`` (:func:`save_passes`'): the one learned on
+    that very reference, for that gain set. A reference none was learned on is refused (the learning is stale)."""
+    signals = {}
+    for path in paths:
+        signal = LearnedSignal.load(path)
+        signal.check(gain_set_sha256, None, str(path))
+        signals[signal.reference_sha256] = signal
+
+    def ff_extra(reference: Reference) -> Array:
+        key = reference_sha256(reference)
+        if key not in signals:
+            raise InputError(f"no learned signal was learned on reference {key} (learned on: {', '.join(signals)}); "
+                             "run the learn stage again ('piezopreload run --force')")
+        return signals[key].ff_extra_V
+
+    return ff_extra

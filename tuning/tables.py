@@ -11,10 +11,11 @@ from dataclasses import asdict, dataclass
 from piezopreload.core.config import Table
 from piezopreload.core.errors import InputError
 from piezopreload.models.controller import SCHEDULE_MAX
+from piezopreload.tuning.learning import METHODS
 from piezopreload.tuning.pid import TuningSpec, scaled_references
 from piezopreload.tuning.validate import Criteria
 
-__all__ = ["TuningTable", "ValidationTable", "CRITERIA_LIMITS"]
+__all__ = ["TuningTable", "ValidationTable", "LearningTable", "CRITERIA_LIMITS"]
 
 #: the [validation] keys that are :class:`Criteria`'s limits
 CRITERIA_LIMITS = ("settling_max_s", "overshoot_max_N", "tracking_rms_max_N", "peak_voltage_max_V")
@@ -68,3 +69,25 @@ class ValidationTable(Table):
     def criteria(self, band_N: float) -> Criteria:
         """The limits every plant must meet; a ValueError where they are not valid."""
         return Criteria(band_N=band_N, **{k: float(getattr(self, k)) for k in CRITERIA_LIMITS})
+
+
+@dataclass(frozen=True)
+class LearningTable(Table):
+    """[learning]: learning control on the whole system's repeated schedule (the pipeline's learn stage, which runs
+    where the study has this table and its plant is its design): ``iterations`` learning updates per pass of the
+    schedule, ``preview_s`` the preview (None: :func:`~piezopreload.tuning.learning.default_preview_s`, 0: none),
+    ``method`` the law (:data:`~piezopreload.tuning.learning.METHODS`)."""
+
+    iterations: int = 6
+    preview_s: float | None = None
+    method: str = "p-type"
+
+    def checked(self, fail: Callable[[str, str], InputError]) -> LearningTable:
+        """The table checked; ``fail(key, message)`` makes the error naming the file and line."""
+        if not 0 <= self.iterations <= 100:
+            raise fail("learning.iterations", f"must be in 0..100, got {self.iterations}")
+        if self.preview_s is not None and not (0.0 <= self.preview_s < float("inf")):
+            raise fail("learning.preview_s", f"must be a finite number >= 0 (0: no preview), got {self.preview_s}")
+        if self.method not in METHODS:
+            raise fail("learning.method", f"must be one of {', '.join(METHODS)}, got {self.method!r}")
+        return self
