@@ -135,7 +135,7 @@ class Stage:
 
     name: str
     what: str
-    tables: tuple[str, ...]
+    tables: tuple[str, ...] | Callable[[Study], tuple[str, ...]]  # or the study's tables it reads, by the study
     needs: tuple[str, ...]
     code: tuple[str, ...]
     run: Callable[[_Ctx], tuple[dict[str, Path], dict[str, Any]]]
@@ -343,9 +343,9 @@ STAGES: tuple[Stage, ...] = (
     Stage("identify", "the feedforward's P-I model", ("rig", "feedforward", "reference"), ("plant",),
           ("models", "tuning"), _stage_identify, files=("feedforward.data",)),
     Stage("tune", "PID gains around the compensated plant (CasADi + IPOPT)",
-          ("rig", "controller", "reference", "simulation", "tuning", "validation"), ("plant", "identify"),
-          ("models", "tuning"),
-          _stage_tune),
+          lambda study: ("rig", "controller", "reference", "simulation", "tuning")  # a gain schedule's choice: its
+          + (("validation",) if study.tuning.schedule_levels >= 2 else ()),  # Monte Carlo limits
+          ("plant", "identify"), ("models", "tuning"), _stage_tune),
     Stage("validate", "Monte Carlo on nonlinear rigs", ("study", "rig", "reference", "simulation", "validation"),
           ("plant", "identify", "tune"), ("models", "tuning"), _stage_validate),
     Stage("compare", "step and trajectory: paper's and tuned gains, with and without feedforward",
@@ -378,7 +378,8 @@ def _stage_key(stage: Stage, study: Study, records: dict[str, dict[str, Any]]) -
     tables = study.tables()
     code = code_hash(("piezopreload",) + tuple(f"piezopreload.{p}" for p in stage.code))
     return content_key({"stage": stage.name, "version": __version__, "code": code,
-                        "tables": {t: tables.get(t) for t in stage.tables},
+                        "tables": {t: tables.get(t) for t in (stage.tables(study) if callable(stage.tables)
+                                                               else stage.tables)},
                         "upstream": upstream_hashes(stage.needs, records), "files": files})
 
 

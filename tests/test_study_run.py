@@ -112,11 +112,11 @@ def test_the_pdf_holds_its_pages_tables_and_figures(small_run):
 
     # every figure the template names is in the PDF: its file, its caption, and its own text
     named = re.findall(r'#fig\("([a-z-]+)"\)', TEMPLATE.read_text())
-    assert len(named) == 12
+    assert len(named) == 13
     report = read_artifact(out / "report" / "report.json", "report")
     names = [n for n in named if n in report["figures"]]
-    assert set(named) - set(names) == {"system", "learning"}, \
-        "the paper's study has no whole-system or learning figure; every other one"
+    assert set(named) - set(names) == {"system", "learning", "gain-schedule"}, \
+        "the paper's study has no whole-system, learning or gain-schedule figure; every other one"
     forms = 0
     for page in pypdf.PdfReader(pdf).pages:
         xobjects = page.get("/Resources", {}).get("/XObject", {})

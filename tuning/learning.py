@@ -220,9 +220,9 @@ def learning_model(params: RigParams, controller: Controller, *, v0_V: float = 5
     """
     if params.batch_shape:
         raise InputError("learning_model: give one plant (the nominal), not a batch")
-    loop = tuning_loop(params)
     gains = controller.gains
     c = Controller(gains, controller.dt_s, None)
+    loop = tuning_loop(params, schedule_size=c.model.schedule_size)  # the PID with its gain schedule, if any
     plant_p = loop.plant.parameters(params)
     p = loop.parameters(plant_p, c.parameter_vector())
     x_rest = loop.start(NUMPY, p, 0.0, 0.0, v0_V)

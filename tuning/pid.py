@@ -304,11 +304,12 @@ def simc(model: FOPDT, *, tau_c_s: float | None = None, u_min_V: float = 0.0, u_
 TUNING_SMOOTHING = 0.02
 
 
-def tuning_loop(params: RigParams, smoothing: float = TUNING_SMOOTHING) -> LoopModel:
+def tuning_loop(params: RigParams, smoothing: float = TUNING_SMOOTHING, schedule_size: int = 0) -> LoopModel:
     """The loop the tuning differentiates: the rig's one step with its corners rounded
     (``smoothing``; 0 is the exact rig), the PID alone (the feedforward enters as ``ff_extra``,
-    computed once from the reference), the sensor without quantisation (and no noise given)."""
-    return LoopModel(PlantModel.of(params, smoothing), ControllerModel(None))
+    computed once from the reference; ``schedule_size`` entries of a gain schedule), the sensor
+    without quantisation (and no noise given)."""
+    return LoopModel(PlantModel.of(params, smoothing), ControllerModel(None, schedule_size=schedule_size))
 
 
 def _feedforward_sequence(feedforward: InverseClassicalPI | None, r: np.ndarray) -> np.ndarray:
