@@ -78,7 +78,7 @@ from piezopreload.rig.export import write_exports
 from piezopreload.study import Study, load_study
 from piezopreload.tuning.compare import creep_effect, reproduction, responses
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
-from piezopreload.tuning.learning import learned_by_reference, save_passes
+from piezopreload.tuning.learning import played_passes, save_passes
 
 __all__ = ["Stage", "STAGES", "StageFailed", "StageCrashed", "run_study", "rerender_report", "read_manifest", "DEFAULT_OUT"]
 
@@ -259,12 +259,7 @@ def _stage_system(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     plant = ctx.designed_plant()
     extra, before = None, {}
     if ctx.records.get("learn", {}).get("status") == "done":  # each pass plays the signal learned on its reference
-        learned = read_artifact(ctx.output("learn", "learning"), "learning")
-        extra = learned_by_reference([ctx.out / "learn" / p["signal"] for p in learned["pass_records"]],
-                                     gain_set.content_sha256)
-        before = {"tracking_rms_N_before_learning": learned["before_learning_rms_N"],
-                  "tracking_rms_pct_of_range_before_learning": learned["before_learning_pct_of_range"],
-                  "learning_iterations": learned["iterations"]}
+        extra, before = played_passes(ctx.output("learn", "learning"), gain_set.content_sha256)
     result = study.track_schedule(plant, study.schedule_for(ctx.design_point()), gain_set, ff_extra_V=extra,
                                   progress=ctx.progress.say)
     return result.save(ctx.out / "system", {

@@ -469,17 +469,12 @@ class Study:
         :func:`piezopreload.tuning.learning.learn` on the plant, its best signal played in the pass), so the
         schedule's margin is planned from the tuned and learned loop's error. Returns the last pass's run and
         each pass's learning."""
-        from piezopreload.models.actuator import Rig
-        from piezopreload.tuning.learning import learn, learning_model_over
+        from piezopreload.tuning.learning import schedule_learner
 
-        table, controller, results = self.learning or LearningTable(), gain_set.controller(), []
-        model = learning_model_over(plant.rig, controller)  # one plant, one law for every pass
-
-        def learned(reference: Reference) -> Any:
-            results.append(learn(controller, Rig(plant.rig), reference, iterations=table.iterations, model=model,
-                                 preview_s=table.preview_s, method=table.method, seed=self.seed, progress=progress))
-            return results[-1].ff_extra_V
-
+        table = self.learning or LearningTable()
+        learned, results = schedule_learner(plant.rig, gain_set.controller(), iterations=table.iterations,
+                                            preview_s=table.preview_s, method=table.method, seed=self.seed,
+                                            progress=progress)
         return self.track_schedule(plant, schedule, gain_set, ff_extra_V=learned, progress=progress), results
 
     def run(self, out: str | Path = "piezopreload-out", *, force: bool = False, progress: Any = None) -> dict[str, Any]:

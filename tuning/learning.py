@@ -53,12 +53,11 @@ from pathlib import Path
 from typing import Any
 
 import casadi as ca
-import cvxpy as cp
 import numpy as np
 from numpy.typing import NDArray
 from scipy.signal import butter, lfilter
 
-from piezopreload.core.artifacts import write_artifact
+from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import InputError, InternalError
 from piezopreload.models.actuator import Rig, RigParams, reach_N
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
@@ -72,7 +71,7 @@ from piezopreload.tuning.validate import DEFAULT_SPREAD
 
 __all__ = ["METHODS", "LearningModel", "learning_model", "learning_model_over", "causal_floor", "ramp_plan", "advance", "zero_phase_lowpass", "PreviewPlan",
            "preview_plan", "branch_ramps", "default_preview_s", "feedforward_lead", "tune_laws", "preview_feedforward", "p_type_update", "norm_optimal_update",
-           "Iteration", "LearningResult", "learn", "learn_from_run", "learn_from_log",
+           "Iteration", "LearningResult", "learn", "played_passes", "schedule_learner", "learn_from_run", "learn_from_log",
            "save_passes", "learned_by_reference", "named_reference", "AFTER_CHANGE_S"]
 
 Array = NDArray[np.float64]
@@ -334,6 +333,8 @@ def norm_optimal_update(model: LearningModel, u: Array, e: Array, command_V: Arr
     per sample), so the QP stays sparse over a long trial. A command the last trial already had
     outside a limit is held where it was, not made worse.
     """
+    import cvxpy as cp  # here, not at import: a second of start-up for every command that never solves this QP
+
     u, e, c = (np.asarray(a, float) for a in (u, e, command_V))
     n = u.size
     A, B, C = model.A, model.B, model.C
@@ -946,6 +947,35 @@ def save_passes(passes: list[LearningResult], folder: str | Path, gain_set_sha25
         "contraction_over_range": last["learning"]["contraction_over_range"], "learned": paths["learned"].name,
         "inputs": inputs})
     return paths
+
+
+def played_passes(learning_path: str | Path, gain_set_sha256: str | None) -> tuple[Callable[[Reference], Array],
+                                                                                  dict[str, Any]]:
+    """From a schedule's ``learning.json`` (:func:`save_passes`): the learned signal for each pass's
+    reference (:func:`learned_by_reference`) and the figures before learning, for the tracking's summary."""
+    record = read_artifact(learning_path, "learning")
+    folder = Path(learning_path).parent
+    return (learned_by_reference([folder / p["signal"] for p in record["pass_records"]], gain_set_sha256),
+            {"tracking_rms_N_before_learning": record["before_learning_rms_N"],
+             "tracking_rms_pct_of_range_before_learning": record["before_learning_pct_of_range"],
+             "learning_iterations": record["iterations"]})
+
+
+def schedule_learner(params: RigParams, controller: Controller, *, iterations: int, preview_s: float | None,
+                     method: str, seed: int, progress: Callable[[str], None] | None = None
+                     ) -> tuple[Callable[[Reference], Array], list[LearningResult]]:
+    """A learner for each pass of a schedule on one plant (``params``): called with a pass's repeated
+    reference it learns on it (:func:`learn`, one law for every pass: :func:`learning_model_over`) and
+    returns the best signal; the list collects each pass's :class:`LearningResult`."""
+    model = learning_model_over(params, controller)
+    results: list[LearningResult] = []
+
+    def learned(reference: Reference) -> Array:
+        results.append(learn(controller, Rig(params), reference, iterations=iterations, model=model,
+                             preview_s=preview_s, method=method, seed=seed, progress=progress))
+        return results[-1].ff_extra_V
+
+    return learned, results
 
 
 def learned_by_reference(paths: list[Path], gain_set_sha256: str | None) -> Callable[[Reference], Array]:
