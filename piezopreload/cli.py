@@ -547,14 +547,8 @@ def _cmd_validate(args: argparse.Namespace) -> dict[str, Any]:
         raise InputError(f"{args.gains}: {exc}") from exc
     if args.out is not None:
         after = after.save(args.out)
-    summary = result.summary()
-    return {
-        "gains": args.gains, "validated": result.passed, "status": after.status, "plants": plants, "seed": seed,
-        "worst_settling_s": summary["settling_s"]["worst"], "p95_settling_s": summary["settling_s"]["p95"],
-        "worst_overshoot_N": summary["overshoot_N"]["worst"], "worst_tracking_rms_N": summary["tracking_rms_N"]["worst"],
-        "worst_peak_voltage_V": summary["peak_voltage_V"]["worst"], "validation": result.to_dict(),
-        "out": args.out, "content_sha256": after.content_sha256,
-    }
+    return {"gains": args.gains, "validated": result.passed, "status": after.status, "plants": plants, "seed": seed,
+            **result.headline(), "validation": result.to_dict(), "out": args.out, "content_sha256": after.content_sha256}
 
 
 def _print_validate(s: dict[str, Any]) -> None:

@@ -51,7 +51,7 @@ from pathlib import Path
 from typing import Any
 
 from piezopreload import __version__
-from piezopreload.core.artifacts import atomic_write_bytes, finite_or_none, read_artifact, write_artifact
+from piezopreload.core.artifacts import atomic_write_bytes, read_artifact, write_artifact
 from piezopreload.core.errors import InputError
 from piezopreload.core.stages import (
     Partial,
@@ -181,23 +181,16 @@ def _stage_validate(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
                                         bar=ctx.progress.bar(f"Monte Carlo, {study.validation.plants} plants"))
     gains_path, validation_path = ctx.out / "gains.json", ctx.out / "validation.json"
     gain_set = gain_set.save(gains_path)
-    write_artifact(validation_path, "validation", {
-        "gain_set_sha256": gain_set.content_sha256, "passed": result.passed, "n_plants": result.n_plants,
-        "seed": result.seed, "criteria": result.criteria.to_dict(), "spread": result.spread,
-        "metrics": {k: [finite_or_none(x) for x in v] for k, v in result.metrics.items()},
-        "summary": result.summary(), "failures": result.failures, "seconds": result.seconds,
-        "inputs": {"gain_set": "gains.json", "study_sha256": study.sha256},
-    })
+    write_artifact(validation_path, "validation", result.record(gain_set.content_sha256, {
+        "gain_set": "gains.json", "study_sha256": study.sha256}))
     outputs = {"gains": gains_path, "validation": validation_path}
     if not result.passed:
-        worst = "; ".join(f"plant {f['plant']}: {f['metric']} {f['value']} > {f['limit']:g}" for f in result.failures[:3])
-        raise StageFailed("validate", f"the tuned gains failed on {len({f['plant'] for f in result.failures})} of "
-                                      f"{result.n_plants} plants ({worst}); {gains_path} is a candidate, which export "
-                                      "and the rig refuse. Loosen the [validation] limits or tighten [tuning] "
+        raise StageFailed("validate", f"the tuned gains {result.failed_plants()}; {gains_path} is a candidate, which "
+                                      "export and the rig refuse. Loosen the [validation] limits or tighten [tuning] "
                                       "(ms_max, overshoot_margin_N) and run again", exit_code=2) from Partial(outputs)
-    s = result.summary()
+    h = result.headline()
     return outputs, {"status": gain_set.status, "content_sha256": gain_set.content_sha256, "plants": result.n_plants,
-                     "worst_settling_s": s["settling_s"]["worst"], "worst_overshoot_N": s["overshoot_N"]["worst"]}
+                     "worst_settling_s": h["worst_settling_s"], "worst_overshoot_N": h["worst_overshoot_N"]}
 
 
 def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:

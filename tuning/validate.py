@@ -141,6 +141,25 @@ class ValidationResult:
             }
         return out
 
+    def headline(self) -> dict[str, float | None]:
+        """The worst plant's settling time (and the 95th percentile's), overshoot, tracking error and voltage."""
+        s = self.summary()
+        return {"worst_settling_s": s["settling_s"]["worst"], "p95_settling_s": s["settling_s"]["p95"],
+                "worst_overshoot_N": s["overshoot_N"]["worst"], "worst_tracking_rms_N": s["tracking_rms_N"]["worst"],
+                "worst_peak_voltage_V": s["peak_voltage_V"]["worst"]}
+
+    def failed_plants(self, shown: int = 3) -> str:
+        """``failed on N of M plants (the first failures)``: what a refusal says."""
+        first = "; ".join(f"plant {f['plant']}: {f['metric']} {f['value']} > {f['limit']:g}" for f in self.failures[:shown])
+        return f"failed on {len({f['plant'] for f in self.failures})} of {self.n_plants} plants ({first})"
+
+    def record(self, gain_set_sha256: str, inputs: dict[str, Any]) -> dict[str, Any]:
+        """The ``validation`` artifact's body: every plant's metrics with the summary, for the gain set validated."""
+        return {"gain_set_sha256": gain_set_sha256, "passed": self.passed, "n_plants": self.n_plants, "seed": self.seed,
+                "criteria": self.criteria.to_dict(), "spread": self.spread,
+                "metrics": {k: [_json_float(x) for x in v] for k, v in self.metrics.items()},
+                "summary": self.summary(), "failures": self.failures, "seconds": self.seconds, "inputs": inputs}
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "passed": self.passed, "n_plants": self.n_plants, "seed": self.seed, "spread": self.spread,
