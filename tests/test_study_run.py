@@ -112,10 +112,11 @@ def test_the_pdf_holds_its_pages_tables_and_figures(small_run):
 
     # every figure the template names is in the PDF: its file, its caption, and its own text
     named = re.findall(r'#fig\("([a-z-]+)"\)', TEMPLATE.read_text())
-    assert len(named) == 11
+    assert len(named) == 12
     report = read_artifact(out / "report" / "report.json", "report")
     names = [n for n in named if n in report["figures"]]
-    assert set(named) - set(names) == {"system"}, "the paper's study has no whole-system figure; every other one"
+    assert set(named) - set(names) == {"system", "gain-schedule"}, \
+        "the paper's study has no whole-system figure and no gain schedule; every other one"
     forms = 0
     for page in pypdf.PdfReader(pdf).pages:
         xobjects = page.get("/Resources", {}).get("/XObject", {})
