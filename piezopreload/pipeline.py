@@ -135,12 +135,13 @@ class Stage:
 
     name: str
     what: str
-    tables: tuple[str, ...] | Callable[[Study], tuple[str, ...]]  # or the study's tables it reads, by the study
+    tables: tuple[str, ...]
     needs: tuple[str, ...]
     code: tuple[str, ...]
     run: Callable[[_Ctx], tuple[dict[str, Path], dict[str, Any]]]
     files: tuple[str, ...] = ()  # the study's file keys it reads (hashed into its key)
     applies: Callable[[Study], str | None] = field(default=lambda study: None)  # a reason it does not apply, or None
+    reads: Callable[[Study], tuple[str, ...]] = field(default=lambda study: ())  # more tables, as the study asks
 
 
 def _stage_identify(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
@@ -331,9 +332,8 @@ STAGES: tuple[Stage, ...] = (
     Stage("identify", "the feedforward's P-I model", ("rig", "feedforward", "reference"), ("plant",),
           ("models", "tuning"), _stage_identify, files=("feedforward.data",)),
     Stage("tune", "PID gains around the compensated plant (CasADi + IPOPT)",
-          lambda study: ("rig", "controller", "reference", "simulation", "tuning")  # a gain schedule's choice: its
-          + (("validation",) if study.tuning.schedule_levels >= 2 else ()),  # Monte Carlo limits
-          ("plant", "identify"), ("models", "tuning"), _stage_tune),
+          ("rig", "controller", "reference", "simulation", "tuning"), ("plant", "identify"), ("models", "tuning"),
+          _stage_tune, reads=lambda study: ("validation",) if study.tuning.schedule_levels >= 2 else ()),
     Stage("validate", "Monte Carlo on nonlinear rigs", ("study", "rig", "reference", "simulation", "validation"),
           ("plant", "identify", "tune"), ("models", "tuning"), _stage_validate),
     Stage("compare", "step and trajectory: paper's and tuned gains, with and without feedforward",
@@ -366,8 +366,7 @@ def _stage_key(stage: Stage, study: Study, records: dict[str, dict[str, Any]]) -
     tables = study.tables()
     code = code_hash(("piezopreload",) + tuple(f"piezopreload.{p}" for p in stage.code))
     return content_key({"stage": stage.name, "version": __version__, "code": code,
-                        "tables": {t: tables.get(t) for t in (stage.tables(study) if callable(stage.tables)
-                                                               else stage.tables)},
+                        "tables": {t: tables.get(t) for t in stage.tables + stage.reads(study)},
                         "upstream": upstream_hashes(stage.needs, records), "files": files})
 
 

@@ -120,3 +120,18 @@ def test_the_tune_stage_chooses_between_the_schedule_and_the_robust_set_and_the_
     report = read_artifact(axis_run / "report" / "report.json", "report")
     assert report["schedule"]["choice"] == sched["choice"] and len(report["schedule"]["rows"]) == 3
     assert (axis_run / "report" / "figures" / "gain-schedule.pdf").stat().st_size > 1000
+
+
+def test_the_tune_stage_s_key_covers_the_validation_limits_only_where_it_chooses_by_them():
+    """With a gain schedule the tune stage judges by the [validation] limits, so they are in its key; without, a
+    changed limit reruns validate alone, as it always did."""
+    from piezopreload.pipeline import _stage_key
+
+    tune = next(s for s in STAGES if s.name == "tune")
+    small = Path(__file__).parent / "data" / "small_study.toml"
+    for path, scheduled in ((SMALL_AXIS, True), (small, False)):
+        study = load_study(path)
+        stricter = study.replace(validation={"overshoot_max_N": 1.0})
+        changed = _stage_key(tune, study, {}) != _stage_key(tune, stricter, {})
+        assert changed == scheduled, f"{path.name}: the tune stage's key {'ignores' if scheduled else 'follows'} " \
+                                     "the validation limits"
