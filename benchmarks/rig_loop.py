@@ -13,6 +13,11 @@ it and the server shows it) and the reads done; then ``native_vs_python_missed_r
 load average beside them (the machine is shared: figures under load are pessimistic).
 Every missed-deadline streak is let run (the interlock set out of the way) so that the two
 loops are counted over the same time.
+
+The machine's own floor, measured first in the same run: ``bare_timer_...`` is a C thread that
+does nothing but wake every 1 ms on an absolute deadline (``clock_nanosleep``, SCHED_FIFO at the
+loop's priority, locked memory), for the same seconds with nothing else running: no loop can be
+later than the host lets this one wake (``native_over_bare_p99_ratio``).
 """
 
 from __future__ import annotations
@@ -38,6 +43,53 @@ from piezopreload.study import load_study, paper_study
 from piezopreload.tuning.calibrate import identify_feedforward
 
 USER, PASSWORD = "bench", "bench-password"
+
+_BARE = r"""
+#define _GNU_SOURCE
+#include <pthread.h>
+#include <sched.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <sys/mman.h>
+#include <time.h>
+static long n, *late;
+static long long now(void) { struct timespec t; clock_gettime(CLOCK_MONOTONIC, &t); return t.tv_sec * 1000000000LL + t.tv_nsec; }
+static void* run(void* arg) {
+  long long d = now() + 1000000LL;
+  for (long k = 0; k < n; k++, d += 1000000LL) {
+    struct timespec ts = {d / 1000000000LL, d % 1000000000LL};
+    clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL);
+    late[k] = (long)(now() - d);
+  }
+  return arg;
+}
+int main(int argc, char** argv) {
+  n = atol(argv[1]); late = calloc(n, sizeof(long));
+  int locked = mlockall(MCL_CURRENT | MCL_FUTURE) == 0;
+  pthread_attr_t a; pthread_attr_init(&a);
+  struct sched_param sp = {.sched_priority = atoi(argv[2])};
+  pthread_attr_setinheritsched(&a, PTHREAD_EXPLICIT_SCHED);
+  pthread_attr_setschedpolicy(&a, SCHED_FIFO); pthread_attr_setschedparam(&a, &sp);
+  pthread_t t; int fifo = pthread_create(&t, &a, run, NULL) == 0;
+  if (!fifo) pthread_create(&t, NULL, run, NULL);
+  pthread_join(t, NULL);
+  fprintf(stderr, "fifo %d locked %d\n", fifo, locked);
+  for (long k = 0; k < n; k++) printf("%ld\n", late[k]);
+  return 0;
+}
+"""
+
+
+def bare_timer(seconds: float, tmp: Path, priority: int = 80) -> dict:
+    """The host's wake-up lateness for a C thread doing nothing else at 1 kHz (module docstring)."""
+    src, exe = tmp / "bare.c", tmp / "bare"
+    src.write_text(_BARE)
+    subprocess.run(["cc", "-O2", "-o", str(exe), str(src), "-lpthread"], check=True)
+    done = subprocess.run([str(exe), str(int(seconds * 1000)), str(priority)], capture_output=True, text=True,
+                          check=True)
+    late = np.array(done.stdout.split(), float) * 1e-9
+    return {"lateness_p99_us": float(np.percentile(late, 99)) * 1e6, "lateness_max_ms": float(late.max()) * 1e3,
+            "missed_per_100k": float(np.mean(late > 1e-3)) * 1e5, "how": done.stderr.strip()}
 
 _CLIENT = r"""
 import asyncio, json, sys, time
@@ -144,6 +196,9 @@ def main() -> dict:
             g.save(tmp / f"gains{j}.json")
             paths.append(tmp / f"gains{j}.json")
             shas.append(GainSet.load(paths[-1]).content_sha256 or "")
+        bare = bare_timer(args.seconds, tmp)
+        print(f"  bare timer: p99 {bare['lateness_p99_us']:.1f} us, max {bare['lateness_max_ms']:.2f} ms "
+              f"({bare['how']})", file=sys.stderr)
         res = {loop: one_loop(loop, paths, shas, args.seconds, tmp) for loop in ("native", "python")}
     n, p = res["native"], res["python"]
     for r in (n, p):
@@ -159,6 +214,9 @@ def main() -> dict:
         "native_vs_python_missed_ratio": ratio,
         "native_lateness_p99_us": n["lateness_p99_us"], "python_lateness_p99_us": p["lateness_p99_us"],
         "native_lateness_max_ms": n["lateness_max_ms"], "python_lateness_max_ms": p["lateness_max_ms"],
+        "bare_timer_lateness_p99_us": bare["lateness_p99_us"], "bare_timer_lateness_max_ms": bare["lateness_max_ms"],
+        "bare_timer_missed_per_100k": bare["missed_per_100k"],
+        "native_over_bare_p99_ratio": n["lateness_p99_us"] / max(bare["lateness_p99_us"], 1e-9),
         "native_push_to_switch_median_ms": n["push_to_switch_median_ms"],
         "python_push_to_switch_median_ms": p["push_to_switch_median_ms"],
         "native_supervisor_switch_median_ms": n["supervisor_switch_median_ms"],
