@@ -507,11 +507,7 @@ class Executor:
                 if finished:
                     break
                 time.sleep(poll)
-            loop.join()
-            rows = loop.drain()
-            if rows.shape[0]:
-                self._take_rows(rows, lateness, periods)
-            status = loop.status()
+            status = self._collect(loop, lateness, periods)
             if status.trip_cause:
                 cause = TRIP_CAUSES[status.trip_cause - 1]
                 if cause == "signal":
@@ -528,11 +524,7 @@ class Executor:
         except Exception as exc:  # the loop never started (or the supervisor failed): the rig is safe, say why
             if loop is not None:
                 loop.stop(True)
-                loop.join()
-                rows = loop.drain()
-                if rows.shape[0]:
-                    self._take_rows(rows, lateness, periods)
-                status = loop.status()
+                status = self._collect(loop, lateness, periods)
             trip = Trip("exception", f"{type(exc).__name__}: {exc}", t_last)
             self._event("traceback", t_last, text="".join(traceback.format_exception(exc))[-4000:])
         finally:
@@ -559,6 +551,14 @@ class Executor:
                       **(loop.realtime_report if loop is not None else {}))
         clamped = status.clamped if status is not None else 0
         return self._finish(trip, cycles, timing, clamped)
+
+    def _collect(self, loop: Any, lateness: array, periods: array) -> Any:
+        """Join the native loop, take the samples still in its ring into the log, and return its status."""
+        loop.join()
+        rows = loop.drain()
+        if rows.shape[0]:
+            self._take_rows(rows, lateness, periods)
+        return loop.status()
 
     def _take_rows(self, rows: np.ndarray, lateness: array, periods: array) -> None:
         control = rows[:, 13] == 0
