@@ -169,7 +169,7 @@ def test_help(capsys, argv):
 
 
 def test_internal_failure_exit_1(capsys, monkeypatch):
-    import piezopreload.cli as cli
+    import piezopreload.cli.identify as cli
 
     def boom(*a, **k):
         raise RuntimeError("simulated bug")

@@ -1,0 +1,7 @@
+"""``python -m piezopreload.cli``."""
+
+import sys
+
+from piezopreload.cli import main
+
+sys.exit(main())

@@ -1,0 +1,124 @@
+"""What the subcommands share: the parser that reports bad arguments in one line, argument types, the
+study a single-step command works on, the Monte Carlo options and progress on standard error."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+from typing import Any
+
+from piezopreload.core.errors import InputError
+from piezopreload.study import PAPER_STUDY, load_study
+from piezopreload.tuning.holdout import Window
+
+EXIT_OK, EXIT_INTERNAL, EXIT_INPUT = 0, 1, 2
+PASSWORD_ENV = "PIEZOPRELOAD_RIG_PASSWORD"
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse that reports bad arguments as one ``error: ...`` line with exit code 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise InputError(f"{self.prog}: {message} (see --help)")
+
+
+def integer(low: int, what: str) -> Callable[[str], int]:
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
+        if value < low:
+            raise argparse.ArgumentTypeError(f"must be {what}, got {value}")
+        return value
+    return parse
+
+
+positive_int, nonnegative_int = integer(1, "a positive integer"), integer(0, "an integer >= 0")
+
+
+def nonnegative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+    if not value >= 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
+    return value
+
+
+def time_constants(text: str) -> list[float]:
+    """``'0.01,0.1,1'`` -> positive, increasing time constants in s."""
+    try:
+        values = [float(x) for x in text.split(",")]
+    except ValueError:
+        values = []
+    if not values or not all(0 < x < float("inf") for x in values) or any(b <= a for a, b in zip(values, values[1:])):
+        raise argparse.ArgumentTypeError(f"'{text}' is not a list of positive, increasing times in s (example: 0.01,0.1,1)")
+    return values
+
+
+def time_window(text: str | None, option: str) -> Window | None:
+    """``'4:7'`` -> ``Window(4, 7)``; bad text raises :class:`InputError` naming ``option``."""
+    if text is None:
+        return None
+    a, sep, b = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        t0, t1 = float(a), float(b)
+    except ValueError:
+        raise InputError(f"{option}: '{text}' is not T0:T1 in seconds (example: {option} 4:7)") from None
+    try:
+        return Window(t0, t1)
+    except ValueError:
+        raise InputError(f"{option}: '{text}' must have finite T0 < T1") from None
+
+
+def fmt(x: float | None, unit: str = "") -> str:
+    return "-" if x is None else f"{x:.3f}{unit}"
+
+
+def json_flag(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--json", action="store_true", help="print the results as one JSON object")
+
+
+def study_arguments(p: argparse.ArgumentParser, seed: bool = True) -> None:
+    p.add_argument("--study", metavar="STUDY.toml", help="study file (default: the paper's, paper2021.toml)")
+    if seed:
+        p.add_argument("--seed", type=nonnegative_int, help="noise seed (default: the study's)")
+
+
+def study_of(args: argparse.Namespace) -> Any:
+    # the single-step commands work on a study's plant (its [rig], or its design's: Study.plant_study): the paper's unless named
+    return load_study(args.study or PAPER_STUDY)
+
+
+
+
+def monte_carlo_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--plants", type=int, metavar="N",
+                   help="Monte Carlo plants (default: the study's [validation] plants, or the gain set's; 200)")
+    p.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: the CPU count)")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="run the Monte Carlo on this Dask cluster")
+
+
+def check_monte_carlo(args: argparse.Namespace) -> None:
+    if args.plants is not None and args.plants < 1:
+        raise InputError(f"--plants: must be >= 1, got {args.plants}")
+    if args.workers is not None and args.workers < 1:
+        raise InputError(f"--workers: must be >= 1, got {args.workers}")
+    if args.scheduler is not None and not args.scheduler.startswith("tcp://"):
+        raise InputError(f"--scheduler: '{args.scheduler}' is not a Dask scheduler address tcp://HOST:PORT")
+
+
+def say(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def print_validation_summary(v: dict[str, Any]) -> None:
+    for key, row in v["summary"].items():
+        print(f"  {key:22s} worst {fmt(row['worst'])}  p95 {fmt(row['p95'])}  median {fmt(row['p50'])}")
+
+

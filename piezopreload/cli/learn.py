@@ -1,0 +1,94 @@
+"""``learn``: preview and iterative learning control over a repeated reference."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from piezopreload.cli._common import (
+    json_flag,
+    nonnegative_float,
+    nonnegative_int,
+    positive_int,
+    say,
+    study_arguments,
+    study_of,
+)
+from piezopreload.core.errors import InputError
+from piezopreload.models.gainset import GainSet
+from piezopreload.tuning.learning import METHODS
+
+
+def register_learn(sub: Any) -> None:
+    p = sub.add_parser(
+        "learn", help="preview and iterative learning control over a repeated reference",
+        description=(
+            "Learn a feedforward correction cycle by cycle (Q-filtered P-type ILC, or norm-optimal ILC as a QP with "
+            "the voltage and slew limits) on the study's rig, with the reference read ahead by --preview-s. Prints "
+            "the error per iteration, the causal and the preview floor; writes the learned signal (a content-hashed "
+            "artifact tied to the gain set and the reference) that 'rig run --learned' plays back. With --from-run "
+            "LOG --learned FILE it makes one learning update from a rig run of FILE instead."))
+    study_arguments(p)
+    p.add_argument("--gains", metavar="gains.json", help="a gain set (default: the study's [controller] gains)")
+    p.add_argument("--reference", default="trajectory", metavar="step|trajectory|schedule|FILE.csv",
+                   help="the repeated reference (default trajectory)")
+    p.add_argument("--iterations", type=nonnegative_int, default=10, help="learning updates (default 10)")
+    p.add_argument("--preview-s", type=nonnegative_float, help="preview horizon (default: delay + lag + slew time)")
+    p.add_argument("--method", choices=METHODS, default="p-type", help="the learning law (default p-type)")
+    p.add_argument("--plants", type=positive_int, help="learn on N Monte Carlo plants and report the worst")
+    p.add_argument("--out", metavar="DIR", help="write learned.json (and learning.png) here")
+    p.add_argument("--from-run", metavar="LOG.csv", help="a rig run log of --learned FILE: one learning update")
+    p.add_argument("--learned", metavar="FILE", help="the learned signal the run played (with --from-run)")
+    json_flag(p)
+    p.set_defaults(run=_cmd_learn, show=_print_learn)
+
+
+def _cmd_learn(args: argparse.Namespace) -> dict[str, Any]:
+    from pathlib import Path
+
+    from piezopreload.models.learned import LearnedSignal
+    from piezopreload.rig.runlog import read_run_log
+    from piezopreload.rig.session import reference_for
+    from piezopreload.tuning.learning import learn_from_log
+
+    gain_set = None if args.gains is None else GainSet.load(args.gains)
+    out = Path(args.out) if args.out else None
+    if args.from_run or args.learned:
+        if not (args.from_run and args.learned and gain_set is not None):
+            raise InputError("learn --from-run LOG needs --learned FILE (the signal the run played) and --gains FILE")
+        new = learn_from_log(LearnedSignal.load(args.learned), read_run_log(args.from_run), gain_set, args.learned)
+        path = (out or Path(args.learned).parent) / "learned.json"
+        saved = new.save(path)
+        return {"from_run": args.from_run, "iteration": saved.iteration, "history": saved.history,
+                "out": str(path), "content_sha256": saved.content_sha256}
+    study = study_of(args)
+    reference: Any = args.reference
+    if reference not in (*study.references, "schedule"):
+        reference = reference_for(reference, gain_set or GainSet(gains=study.gains), "--reference")[0]
+    result = study.learn(gain_set, reference=reference, iterations=args.iterations, preview_s=args.preview_s,
+                         method=args.method, plants=args.plants, seed=args.seed, progress=say)
+    summary = result.to_dict()
+    if out is not None:
+        summary.update(result.save(out, None if gain_set is None else gain_set.content_sha256,
+                                   {"study": study.path, "study_sha256": study.sha256, "gains": args.gains}))
+    return summary
+
+
+def _print_learn(s: dict[str, Any]) -> None:
+    if "from_run" in s:
+        print(f"one learning update from {s['from_run']}: iteration {s['iteration']}; wrote {s['out']}")
+        return
+    print(f"{s['method']} learning, preview {s['preview_s'] * 1e3:.0f} ms"
+          + (f", worst of {s['plants']} plants" if s["plants"] else "") + ":")
+    for h in s["history"]:
+        worst = {k: max(v) if isinstance(v, list) else v for k, v in h.items()}
+        print(f"  iteration {h['iteration']:2d}: RMS {worst['tracking_rms_N']:.3f} N, outside 0.1 s after jumps "
+              f"{worst['tracking_rms_after_change_N']:.3f} N")
+    print(f"best: {s['tracking_rms_N']:.3f} N ({s['tracking_rms_pct_of_range']:.2f} % of the range), "
+          f"{s['tracking_rms_after_change_N']:.3f} N outside 0.1 s after jumps; "
+          f"{'converged' if s['converged'] else 'NOT converged'}")
+    print(f"floors: causal {s['causal_floor_N']:.3f} N, with this preview {s['preview_floor_N']:.3f} N")
+    if s.get("out"):
+        print(f"wrote {s['out']}")
+
+

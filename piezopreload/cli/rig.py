@@ -1,0 +1,201 @@
+"""``rig run``, ``rig serve`` and ``rig push``: the rig executor from the command line."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from typing import Any
+
+from piezopreload.cli._common import (
+    PASSWORD_ENV,
+    Parser,
+    fmt,
+    json_flag,
+    positive_int,
+    say,
+)
+from piezopreload.core.errors import InputError
+from piezopreload.models.gainset import REFERENCES
+from piezopreload.rig import DEFAULT_ENDPOINT as DEFAULT_RIG_ENDPOINT
+
+
+# --------------------------------------------------------------------------------------
+# rig run / serve / push
+# --------------------------------------------------------------------------------------
+def _key_values(pairs: list[str] | None, option: str) -> dict[str, str]:
+    out = {}
+    for pair in pairs or []:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.strip():
+            raise InputError(f"{option} '{pair}': expected KEY=VALUE")
+        out[key.strip()] = value.strip()
+    return out
+
+
+def _rig_common(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.rig.backends import parse_fault
+
+    return {"backend": args.backend, "backend_options": _key_values(args.backend_option, "--backend-option"),
+            "reference": args.reference or "step", "log_dir": args.log_dir, "seed": args.seed,
+            "faults": [parse_fault(f) for f in args.inject or []], "loop": args.loop,
+            "safety": {"force_max_N": args.force_max_N, "ramp_s": args.ramp_s, "missed_streak": args.missed_streak}}
+
+
+def _quiet_asyncua() -> None:
+    import logging
+
+    logging.getLogger("asyncua").setLevel(logging.CRITICAL)
+
+
+def _password(args: argparse.Namespace, required: bool) -> str | None:
+    password = os.environ.get(PASSWORD_ENV)
+    if password is None and required:
+        if sys.stdin.isatty():
+            import getpass
+
+            return getpass.getpass(f"password for {args.user}: ")
+        raise InputError(f"--user {args.user}: set the password in the environment variable {PASSWORD_ENV} "
+                         "(it is never taken on the command line, where other users could read it)")
+    return password
+
+
+def _rig_arguments(p: argparse.ArgumentParser) -> None:
+    from piezopreload.rig.backends import FAULT_KINDS
+
+    p.add_argument("gains", metavar="gains.json", help="a validated gain set (candidates and tampered files are refused)")
+    p.add_argument("--backend", default="sim", help="sim (the simulated rig, default) or an installed hardware plug-in")
+    p.add_argument("--backend-option", action="append", metavar="KEY=VALUE", help="passed to the backend (repeatable)")
+    p.add_argument("--reference", metavar="|".join(REFERENCES) + "|FILE.csv",
+                   help="the paper's step or trajectory as the gain set stores them, or a CSV of time_s,force_N "
+                        "(default step; with --learned the signal's own)")
+    p.add_argument("--log-dir", default="runs", metavar="DIR", help="where the run log goes (default runs/)")
+    p.add_argument("--seed", type=int, default=0, help="noise seed of the simulated rig (default 0)")
+    p.add_argument("--force-max-N", type=float, help="interlock: highest force (default 150 N)")
+    p.add_argument("--ramp-s", type=float, help="interlock: time to ramp the voltage down on a stop (default 0.5 s)")
+    p.add_argument("--missed-streak", type=positive_int,
+                   help="interlock: missed deadlines in a row that stop the run (default 5 on the native loop, 50 on "
+                        "the Python loop)")
+    p.add_argument("--loop", choices=("auto", "native", "python"), default="auto",
+                   help="the fixed-rate loop: native (a C thread; the simulated rig or a C-ABI library backend), "
+                        "python (the interpreter; any backend), auto (native where it can run, default)")
+    p.add_argument("--inject", action="append", metavar="KIND@T_S[=VALUE][/DURATION_S]",
+                   help="fire drill: inject a fault into the backend at T_S (repeatable); KIND: "
+                        + "; ".join(f"{k}: {v}" for k, v in FAULT_KINDS.items()))
+    json_flag(p)
+
+
+def register_rig(sub: Any) -> None:
+    rig = sub.add_parser("rig", help="run, serve and push gains on the rig executor",
+                         description="The rig executor: a validated gain set at a fixed rate against a backend, "
+                                     "behind interlocks, with a run log; served over OPC UA; gains pushed to it.")
+    rig_sub = rig.add_subparsers(dest="rig_command", metavar="run|serve|push", parser_class=Parser, required=True)
+    p = rig_sub.add_parser(
+        "run", help="run a validated gain set on a backend",
+        description=(
+            "Run the controller step (inverse-P-I feedforward + PID) of a validated gain set at its fixed rate with "
+            "absolute deadlines, against the simulated rig (default) or a hardware backend, behind the interlocks "
+            "(voltage clamp and slew limit; force, sensor NaN/stale/range, missed deadlines, SIGINT/SIGTERM, "
+            "exceptions: each ramps the voltage down, disarms and exits 3). Writes the run log (CSV + JSON sidecar) "
+            "and prints the step metrics and the loop's timing."),
+        epilog="exit codes: 0 completed, 1 internal failure, 2 bad input, 3 stopped by an interlock or a signal")
+    _rig_arguments(p)
+    p.add_argument("--rate", type=float, metavar="HZ", help="the loop's rate; must be the gain set's (default: it)")
+    p.add_argument("--learned", metavar="FILE", help="play back a learned signal ('piezopreload learn --out'): its "
+                   "plan as the setpoint, its ff_extra_V added to the feedforward; its reference unless --reference")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--realtime", action="store_true", help="pace the loop in real time (default)")
+    mode.add_argument("--fast", action="store_true", help="run the cycles back to back (simulated backend)")
+    p.set_defaults(run=_cmd_rig_run, show=_print_rig_run)
+
+    p = rig_sub.add_parser(
+        "serve", help="run in real time and serve the rig over OPC UA",
+        description=(
+            "Run a validated gain set in real time like 'rig run' (the reference's last level held after its end) and "
+            "serve it over OPC UA: CtrlP, CtrlTi, CtrlTd (LADS names), the gain set's and the feedforward's hashes, "
+            "setpoint, force, voltage, state, last event, and the method PushGainSet. Ends on SIGINT/SIGTERM (exit 3) "
+            "or after --duration (exit 0)."),
+        epilog=f"The password of --user is read from ${PASSWORD_ENV}.")
+    _rig_arguments(p)
+    p.add_argument("--endpoint", default=DEFAULT_RIG_ENDPOINT, help=f"default {DEFAULT_RIG_ENDPOINT} (loopback)")
+    p.add_argument("--user", metavar="NAME", help=f"the user allowed to push; password in ${PASSWORD_ENV}")
+    p.add_argument("--certificate", metavar="CERT", help="the server's certificate: enables Basic256Sha256 SignAndEncrypt only")
+    p.add_argument("--private-key", metavar="KEY", help="the server certificate's private key")
+    p.add_argument("--duration", type=float, metavar="S", help="serve this long, then ramp down and exit 0")
+    p.set_defaults(run=_cmd_rig_serve, show=_print_rig_run)
+
+    p = rig_sub.add_parser(
+        "push", help="push a validated gain set to a serving rig",
+        description=("Push a validated gain set to 'rig serve' through the OPC UA method PushGainSet; the executor "
+                     "checks it again and switches bumplessly between two cycles. Candidates, tampered files, wrong "
+                     "passwords and refused calls exit 2 with the reason."),
+        epilog=f"The password of --user is read from ${PASSWORD_ENV} (or asked for on a terminal).")
+    p.add_argument("gains", metavar="gains.json", help="a validated gain set")
+    p.add_argument("--endpoint", default=DEFAULT_RIG_ENDPOINT, help=f"default {DEFAULT_RIG_ENDPOINT}")
+    p.add_argument("--user", metavar="NAME", help=f"user name; password in ${PASSWORD_ENV}")
+    p.add_argument("--certificate", metavar="CERT", help="the client's certificate (Basic256Sha256 SignAndEncrypt)")
+    p.add_argument("--private-key", metavar="KEY", help="the client certificate's private key")
+    p.add_argument("--server-certificate", metavar="CERT", help="the server's certificate, to trust it")
+    json_flag(p)
+    p.set_defaults(run=_cmd_rig_push, show=_print_rig_push)
+
+
+def _cmd_rig_run(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.rig import session
+
+    common = _rig_common(args)
+    if args.learned and args.reference is None:
+        common["reference"] = None  # the learned signal's own
+    return session.run(args.gains, rate_Hz=args.rate, realtime=not args.fast, learned=args.learned, **common).to_dict()
+
+
+def _cmd_rig_serve(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.rig import session
+
+    _quiet_asyncua()
+    if args.user is None:
+        raise InputError("rig serve: give --user NAME (password in $" + PASSWORD_ENV + "); anonymous sessions are refused")
+    users = {args.user: _password(args, True)}
+    if args.certificate is None:
+        say("warning: no --certificate: passwords cross the network unencrypted; keep the endpoint on loopback")
+    return session.serve(args.gains, endpoint=args.endpoint, users=users, certificate=args.certificate,
+                         private_key=args.private_key, duration_s=args.duration, say=say, **_rig_common(args)).to_dict()
+
+
+def _cmd_rig_push(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.rig import session
+
+    _quiet_asyncua()
+    password = _password(args, args.user is not None) if args.user else None
+    return session.push(args.gains, endpoint=args.endpoint, username=args.user, password=password,
+                        certificate=args.certificate, private_key=args.private_key,
+                        server_certificate=args.server_certificate)
+
+
+def _print_rig_run(s: dict[str, Any]) -> None:
+    m, t = s["metrics"], s["timing"]
+    print(f"{s['status']}: {s['cycles']} cycles at {s['rate_Hz']:g} Hz on '{s['backend']}' "
+          f"({'real time' if s['realtime'] else 'as fast as possible'}), controller step in {s['controller_step']}, "
+          f"{s.get('loop') or 'python'} loop")
+    if s["trip"]:
+        print(f"stopped by interlock '{s['trip']['cause']}' at t = {s['trip']['t_s']:.3f} s: {s['trip']['detail']}")
+    if "settling_s" in m:
+        print(f"step: rise {fmt(m['rise_s'], ' s')}, peak {fmt(m['peak_s'], ' s')}, settling {fmt(m['settling_s'], ' s')}, "
+              f"overshoot {fmt(m['overshoot_N'], ' N')}; tracking RMS {m['tracking_rms_N']:.3g} N")
+    if t["realtime"]:
+        print(f"timing: {t['missed_deadlines']} missed deadlines, lateness p99 {t['lateness_p99_s'] * 1e6:.0f} us, "
+              f"max {t['lateness_max_s'] * 1e3:.2f} ms, {t.get('lost_samples', 0)} samples lost"
+              + (f"; {t['sched_fifo']}; {t['memory_locked']}" if "sched_fifo" in t else ""))
+    for p in s.get("pushes", []):
+        print(f"push by {p['user']}: {'accepted' if p['accepted'] else 'refused'} "
+              f"{p.get('gain_set_sha256', '')[:12]} {p.get('reason', '')}")
+    print(f"run log: {s['log_csv']} and {s['log_json']}")
+
+
+def _print_rig_push(s: dict[str, Any]) -> None:
+    p = s["server_parameters"]
+    print(f"{s['endpoint']}: {s['message']}")
+    print(f"the server now runs {s['server_gain_set_sha256'][:12]}: CtrlP {p['CtrlP']:.6g} V/N, "
+          f"CtrlTi {p['CtrlTi']:.6g} s, CtrlTd {p['CtrlTd']:.6g} s")
+
+

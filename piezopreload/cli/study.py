@@ -1,0 +1,188 @@
+"""``run`` (the one-command study), ``report``, ``simulate`` and ``reproduce``."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from typing import Any
+
+from piezopreload import __version__
+from piezopreload.cli._common import (
+    fmt,
+    json_flag,
+    study_arguments,
+    study_of,
+)
+from piezopreload.core.errors import InputError
+from piezopreload.core.tables import write_csv
+from piezopreload.models.gainset import REFERENCES, GainSet
+from piezopreload.study import load_study
+from piezopreload.tuning.calibrate import CONTROLLERS
+from piezopreload.tuning.feedforward import IdentifiedFeedforward
+
+
+# --------------------------------------------------------------------------------------
+# run (the one-command study) and report
+# --------------------------------------------------------------------------------------
+def register_run(sub: Any) -> None:
+    p = sub.add_parser(
+        "run", help="run a whole study: design, plant, identify, tune, validate, compare, system, export, rig, report",
+        description=(
+            "Take a study file through its stages: the ball-screw preload design, the designed system as the plant "
+            "(where the study's [plant] says so), the feedforward's P-I identification, PID tuning, Monte Carlo "
+            "validation, the closed-loop comparison, the controlled preload along the design's schedule, gain "
+            "export, a run on the rig executor (the simulated rig by default) and the PDF report. Each stage writes "
+            "its artifacts into the output folder and records its inputs' hashes in pipeline.json; a stage whose "
+            "inputs have not changed is not run again. Without STUDY, the machine axis (studies/machine_axis.toml); "
+            "the paper's study is studies/paper2021.toml."),
+        epilog=("exit codes: 0 done, 1 internal failure, 2 bad input or a stage that failed (named), 3 the rig run "
+                "stopped by an interlock"))
+    p.add_argument("study", nargs="?", metavar="STUDY.toml", help="study file (default: the machine axis, machine_axis.toml)")
+    p.add_argument("--out", default="piezopreload-out", metavar="DIR", help="output folder (default ./piezopreload-out)")
+    p.add_argument("--force", action="store_true", help="run every stage again, changed or not")
+    p.add_argument("--quiet", action="store_true", help="no progress on standard error")
+    json_flag(p)
+    p.set_defaults(run=_cmd_run, show=_print_run)
+
+
+def _cmd_run(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.progress import Progress
+
+    return load_study(args.study).run(args.out, force=args.force, progress=Progress(quiet=args.quiet))
+
+
+def _print_run(s: dict[str, Any]) -> None:
+    for st in s["stages"]:
+        state = f"ran in {st['seconds']:.1f} s" if st["ran"] else st["status"]
+        print(f"  {st['stage']:9s} {state}")
+    if s["gain_set"]:
+        print(f"gain set: {s['gain_set']} (sha256 {(s['gain_set_sha256'] or '')[:12]}...)")
+    if s["rig_log"]:
+        print(f"rig run log: {s['rig_log']}")
+    if s["report"]:
+        print(f"report: {s['report']}")
+    print(f"outputs: {s['out']}")
+
+
+def register_report(sub: Any) -> None:
+    p = sub.add_parser(
+        "report", help="render a study's PDF report again from its artifacts",
+        description=("Draw the figures and typeset report.pdf again from the artifacts in a study's output folder "
+                     "(written by 'piezopreload run'); nothing else is computed."))
+    p.add_argument("dir", metavar="DIR", help="a study's output folder")
+    p.add_argument("--template", metavar="REPORT.typ",
+                   help="typeset this Typst template instead of the shipped one (start from a copy of DIR/report/report.typ)")
+    p.add_argument("--quiet", action="store_true", help="no progress on standard error")
+    json_flag(p)
+    p.set_defaults(run=_cmd_report, show=lambda s: print(f"report: {s['report']}"))
+
+
+def _cmd_report(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.pipeline import rerender_report
+    from piezopreload.progress import Progress
+
+    return rerender_report(args.dir, progress=Progress(quiet=args.quiet), template=args.template)
+
+
+# --------------------------------------------------------------------------------------
+# simulate and reproduce
+# --------------------------------------------------------------------------------------
+def register_simulate(sub: Any) -> None:
+    p = sub.add_parser(
+        "simulate", help="simulate a controller on the reference rig",
+        description=(
+            "Simulate the PID alone or the inverse-P-I feedforward plus PID on the study's simulated rig "
+            "(truth hysteresis, creep, amplifier, sensor noise and quantisation, one-sample delay) over the "
+            "paper's step or trajectory, and print rise, peak and settling time, overshoot and tracking "
+            "errors beside the paper's values."))
+    study_arguments(p)
+    p.add_argument("--controller", choices=CONTROLLERS, default="ff+pid", help="default: ff+pid")
+    p.add_argument("--reference", choices=REFERENCES, default="step",
+                   help="step: 25 -> 60 N; trajectory: 60-80-100-80-60 N (default: step)")
+    p.add_argument("--gains", metavar="gains.json", help="a gain-set artifact (default: the study's gains)")
+    p.add_argument("--feedforward", metavar="model.json",
+                   help="an identified hysteresis-model artifact to invert (default: identify one from a "
+                        "simulated loop measurement of the rig, as the paper did)")
+    p.add_argument("--out", metavar="run.csv", help="write the simulated samples as CSV")
+    json_flag(p)
+    p.set_defaults(run=_cmd_simulate, show=_print_simulate)
+
+
+def _cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
+    t0 = time.perf_counter()
+    study = study_of(args)
+    gains = None if args.gains is None else GainSet.load(args.gains)
+    ff = None
+    if args.controller == "ff+pid":  # the study's feedforward (or the file's), as the paper identified its own
+        ff = IdentifiedFeedforward.load(args.feedforward) if args.feedforward else study.identify_feedforward()
+    run = study.simulate(gains, controller=args.controller, reference=args.reference, feedforward=ff, seed=args.seed)
+    s = run.to_dict()
+    if gains is not None:
+        s["gains"]["source"] = args.gains
+    if args.feedforward and ff is not None:
+        s["feedforward"] = {"source": args.feedforward, "model": ff.model.kind, "operators": ff.model.n_operators}
+    if args.out is not None:
+        write_csv(args.out, run.columns(), f"piezopreload {__version__} simulate: study {study.name} "
+                                           f"({study.sha256[:12]}), controller {args.controller}, reference "
+                                           f"{args.reference}, seed {run.seed}")
+    return {**s, "seconds": time.perf_counter() - t0, "out": args.out}
+
+
+def _print_simulate(s: dict[str, Any]) -> None:
+    g, ff = s["gains"], s["feedforward"]
+    print(f"study       {s['study']['name']} ({s['study']['path']})")
+    print(f"controller  {s['controller']}: Kc {g['Kc_V_per_N']:g} V/N, Ti {g['Ti_s']:g} s, Td {g['Td_s']:g} s "
+          f"(LabVIEW: Ti {g['labview']['Ti_min']:.4g} min, Td {g['labview']['Td_min']:.4g} min); "
+          f"output {g['u_min_V']:g}..{g['u_max_V']:g} V")
+    if ff:
+        print(f"feedforward {ff['model']} P-I, {ff['operators']} operators, {ff['source']}")
+    levels = " -> ".join(f"{x:g}" for x in s["reference_levels_N"])
+    print(f"reference   {s['reference']}: {levels} N; band {s['band_N']:g} N on the {s['signal']} signal, "
+          f"seed {s['seed']}")
+    print(f"  {'':22s}{'simulated':>11s}{'paper':>9s}")
+    keys = [("rise_s", "rise time (s)"), ("peak_s", "peak time (s)"), ("settling_s", "settling time (s)"),
+            ("overshoot_N", "overshoot (N)")]
+    if "tracking_rms_N" in s:
+        keys += [("tracking_rms_N", "tracking RMS (N)"), ("tracking_max_N", "tracking max (N)")]
+    for key, label in keys:
+        print(f"  {label:22s}{fmt(s[key]):>11s}{fmt(s['paper'][key]):>9s}")
+    print(f"peak command {s['peak_command_V']:.1f} V; {s['samples']} samples at {1e3 * s['sample_period_s']:g} ms")
+    if s["out"]:
+        print(f"wrote       {s['out']}")
+
+
+def register_reproduce(sub: Any) -> None:
+    p = sub.add_parser(
+        "reproduce", help="the paper's six step numbers beside the simulation's",
+        description=("Run the paper's 25 -> 60 N step on the study's rig with the PID alone and with the P-I "
+                     "feedforward, and print rise, peak and settling time beside the paper's (Sections 4.2-4.3)."))
+    study_arguments(p)
+    p.add_argument("--repeats", type=int, default=1, metavar="N",
+                   help="run the step N times with independent sensor noise and report the median "
+                        "and range of each number (default 1: the study's seed alone)")
+    json_flag(p)
+    p.set_defaults(run=_cmd_reproduce, show=_print_reproduce)
+
+
+def _cmd_reproduce(args: argparse.Namespace) -> dict[str, Any]:
+    if args.repeats < 1:
+        raise InputError(f"--repeats: must be >= 1, got {args.repeats}")
+    return study_of(args).reproduce(seed=args.seed, repeats=args.repeats)
+
+
+def _print_reproduce(s: dict[str, Any]) -> None:
+    g = s["gains"]
+    print(f"study {s['study']['name']} ({s['study']['path']}): step 25 -> 60 N, band {s['band_N']:g} N, "
+          f"gains Kc {g['Kc_V_per_N']:g}, Ti {g['Ti_s']:g} s, Td {g['Td_s']:g} s (paper's values read as {g['read_as']})")
+    print(f"feedforward fit to the simulated loop: RMS {s['feedforward_fit']['rms_pct']:.2f} %, "
+          f"max {s['feedforward_fit']['max_pct']:.2f} % of span")
+    what = "simulated" if s["repeats"] == 1 else f"median of {s['repeats']}"
+    print(f"  {'controller':12s}{'metric':14s}{'paper':>8s}{what:>14s}{'ratio':>8s}  within 25 %"
+          + ("" if s["repeats"] == 1 else "  range"))
+    for r in s["rows"]:
+        ratio = "-" if r["ratio"] is None else f"{r['ratio']:.2f}"
+        spread = "" if s["repeats"] == 1 else f"  {fmt(r['range'][0])}-{fmt(r['range'][1])}"
+        print(f"  {r['controller']:12s}{r['metric']:14s}{r['paper']:8.2f}{fmt(r['simulated']):>14s}{ratio:>8s}"
+              f"  {'yes' if r['within_25pct'] else 'NO ':11s}{spread}")
+
+

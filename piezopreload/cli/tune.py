@@ -1,0 +1,121 @@
+"""``tune`` and ``validate``: PID gains around the compensated plant, and their Monte Carlo verdict."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from typing import Any
+
+from piezopreload.cli._common import (
+    check_monte_carlo,
+    fmt,
+    json_flag,
+    monte_carlo_arguments,
+    print_validation_summary,
+    say,
+    study_arguments,
+    study_of,
+)
+from piezopreload.core.errors import InputError
+from piezopreload.models.gainset import GainSet
+
+
+def register_tune(sub: Any) -> None:
+    p = sub.add_parser(
+        "tune", help="tune the PID (CasADi), validate it by Monte Carlo, write the gain set",
+        description=(
+            "Tune Kc, Ti, Td, the derivative filter and the setpoint weight around the study's "
+            "P-I-compensated rig (CasADi + IPOPT, several plant variants, Ms and noise bounds), compare "
+            "with the paper's and SIMC's gains, compute the minimum-time bound, validate the tuned gains "
+            "on a Monte Carlo set of nonlinear rigs, and write a gain-set artifact: 'validated' if every "
+            "plant met every criterion, else 'candidate'."))
+    study_arguments(p)
+    p.add_argument("--out", default="gains.json", metavar="gains.json", help="the gain-set artifact (default gains.json)")
+    monte_carlo_arguments(p)
+    json_flag(p)
+    p.set_defaults(run=_cmd_tune, show=_print_tune)
+
+
+def _cmd_tune(args: argparse.Namespace) -> dict[str, Any]:
+    t0 = time.perf_counter()
+    check_monte_carlo(args)
+    study = study_of(args)
+    tuned = study.tune(study.identify_feedforward(say), seed=args.seed, progress=say)
+    gain_set = tuned.validate(args.plants, args.seed, workers=args.workers, scheduler=args.scheduler,
+                              progress=say).save(args.out)
+    return tuned.summary(gain_set, str(args.out), time.perf_counter() - t0)
+
+
+def _print_tune(s: dict[str, Any]) -> None:
+    g, b = s["gains"], s["simc"]
+    print(f"tuned gains: Kc {g['Kc_V_per_N']:.4g} V/N, Ti {g['Ti_s']:.4g} s, Td {g['Td_s']:.4g} s, "
+          f"Tf {g['Tf_s']:.4g} s, b {g['b']:.3g} (LabVIEW: Ti {g['labview']['Ti_min']:.4g} min, "
+          f"Td {g['labview']['Td_min']:.4g} min); Ms {s['tuning']['ms']:.2f}")
+    print(f"SIMC baseline: Kc {b['Kc_V_per_N']:.4g} V/N, Ti {b['Ti_s']:.4g} s")
+    print("step 25 -> 60 N and trajectory 60-80-100-80-60 N on the nominal rig:")
+    print(f"  {'gains':8s}{'FF':>4s}{'settling':>10s}{'overshoot':>11s}{'track RMS':>11s}{'RMS >0.1 s':>12s}{'peak V':>8s}")
+    for r in s["table"]:
+        print(f"  {r['gains']:8s}{'yes' if r['feedforward'] else 'no':>4s}{fmt(r['settling_s'], ' s'):>10s}"
+              f"{r['overshoot_N']:9.2f} N{r['tracking_rms_N']:9.2f} N{r['tracking_rms_after_change_N']:10.2f} N"
+              f"{r['peak_command_V']:8.1f}")
+    print(f"paper (FF + PID): settling {s['paper']['ff+pid']['settling_s']} s")
+    mt, tf = s["minimum_time"], s["tracking_floor"]
+    ratio = "-" if mt["tuned_over_bound_ratio"] is None else f"{mt['tuned_over_bound_ratio']:.2f}"
+    print(f"minimum-time bound: {mt['settling_s']:.3f} s; tuned settling / bound = {ratio}")
+    print(f"tracking RMS floor of any causal controller (slew {tf['rate_N_per_s']:.0f} N/s at best): "
+          f"{tf['rms_N']:.2f} N; tuned / floor = {tf['tuned_over_floor_ratio']:.2f}")
+    v = s["validation"]
+    print(f"validation on {v['n_plants']} plants ({v['workers']}, {v['seconds']:.0f} s): "
+          f"{'PASSED' if v['passed'] else 'FAILED'} ({v['n_failures']} failures)")
+    print_validation_summary(v)
+    print(f"wrote {s['out']} ({s['status']}, sha256 {s['content_sha256'][:12]}...)")
+
+
+def register_validate(sub: Any) -> None:
+    p = sub.add_parser(
+        "validate", help="validate a gain set again by Monte Carlo on the nonlinear rig",
+        description=(
+            "Run a gain set's gains and feedforward on a new Monte Carlo set of nonlinear rigs drawn around "
+            "the plant it names, against the criteria it names, and report worst case and percentiles. "
+            "With --out, write the gain set with this validation: 'validated' only if every plant met "
+            "every criterion."))
+    p.add_argument("gains", metavar="gains.json", help="a gain-set artifact written by 'piezopreload tune'")
+    monte_carlo_arguments(p)
+    p.add_argument("--seed", type=int, help="seed of the Monte Carlo set (default: the gain set's)")
+    p.add_argument("--out", metavar="gains.json", help="write the gain set with this validation here")
+    json_flag(p)
+    p.set_defaults(run=_cmd_validate, show=_print_validate)
+
+
+def _cmd_validate(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.tuning.verdict import validate_gain_set
+
+    check_monte_carlo(args)
+    before = GainSet.load(args.gains)
+    stored = (before.validation or {}).get("n_plants")
+    plants = args.plants or (stored if isinstance(stored, int) and stored >= 1 else 200)
+    seed = int(before.inputs.get("seed", 0)) if args.seed is None else args.seed
+    say(f"validating {args.gains} on {plants} plants ...")
+    try:
+        after, result = validate_gain_set(before, n_plants=plants, seed=seed, workers=args.workers,
+                                          scheduler=args.scheduler, progress=lambda i, n: say(f"  chunk {i}/{n}"),
+                                          inputs={"revalidated_from_sha256": before.content_sha256})
+    except InputError as exc:
+        raise InputError(f"{args.gains}: {exc}") from exc
+    if args.out is not None:
+        after = after.save(args.out)
+    return {"gains": args.gains, "validated": result.passed, "status": after.status, "plants": plants, "seed": seed,
+            **result.headline(), "validation": result.to_dict(), "out": args.out, "content_sha256": after.content_sha256}
+
+
+def _print_validate(s: dict[str, Any]) -> None:
+    v = s["validation"]
+    print(f"validation of {s['gains']} on {s['plants']} plants (seed {s['seed']}, {v['workers']}, {v['seconds']:.0f} s): "
+          f"{'PASSED' if s['validated'] else 'FAILED'} ({v['n_failures']} failures)")
+    print_validation_summary(v)
+    for f in v["failures"][:10]:
+        print(f"  plant {f['plant']}: {f['metric']} {fmt(f['value'])} > {f['limit']:g}")
+    if s["out"]:
+        print(f"wrote {s['out']} ({s['status']}, sha256 {s['content_sha256'][:12]}...)")
+
+
