@@ -34,9 +34,9 @@ from pathlib import Path
 
 import numpy as np
 
+from piezopreload.artifacts.gainset import GainSet
 from piezopreload.models.actuator import Rig
 from piezopreload.models.controller import PIDGains
-from piezopreload.models.gainset import GainSet
 from piezopreload.rig.runlog import read_run_log
 from piezopreload.rig.session import serve
 from piezopreload.study import load_study, paper_study

@@ -26,6 +26,7 @@ try:
 except PackageNotFoundError:  # running from a source tree that is not installed
     __version__ = "0+unknown"
 
+from piezopreload.artifacts.gainset import GainSet
 from piezopreload.core.errors import (
     ArtifactError,
     InfeasibleError,
@@ -37,7 +38,6 @@ from piezopreload.core.tables import Record, read_record
 from piezopreload.design.study import DesignResult
 from piezopreload.models.closedloop import ClosedLoopRun, Reference
 from piezopreload.models.controller import PIDGains
-from piezopreload.models.gainset import GainSet
 from piezopreload.models.metrics import StepMetrics
 from piezopreload.results import StudyRun, TuningResult
 from piezopreload.study import Study, load_study, shipped_studies

@@ -51,6 +51,7 @@ from pathlib import Path
 from typing import Any
 
 from piezopreload import __version__
+from piezopreload.artifacts.gainset import GainSet
 from piezopreload.core.artifacts import atomic_write_bytes, read_artifact, write_artifact
 from piezopreload.core.errors import InputError
 from piezopreload.core.stages import (
@@ -69,7 +70,6 @@ from piezopreload.core.stages import (
 from piezopreload.core.tables import write_csv
 from piezopreload.design.plant import DesignedPlant
 from piezopreload.design.preload import DesignPoint
-from piezopreload.models.gainset import GainSet
 from piezopreload.progress import Progress
 from piezopreload.reports.study_report import STAGES_READ, ReportStudy, render_report
 from piezopreload.results import TuningResult

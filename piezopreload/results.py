@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from piezopreload.artifacts.gainset import REFERENCES, GainSet, gains_from_dict, gains_to_dict
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.parallel import beside
@@ -23,7 +24,6 @@ from piezopreload.models.actuator import Rig
 from piezopreload.models.closedloop import ClosedLoopRun
 from piezopreload.models.closedloop import simulate as simulate_loop
 from piezopreload.models.controller import Controller, PIDGains
-from piezopreload.models.gainset import REFERENCES, GainSet, gains_from_dict, gains_to_dict
 from piezopreload.models.metrics import StepMetrics, run_numbers
 from piezopreload.study import Study
 from piezopreload.tuning.calibrate import CONTROLLERS, PAPER_RESULTS

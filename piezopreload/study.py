@@ -25,6 +25,7 @@ from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from piezopreload.artifacts.gainset import GainSet
 from piezopreload.core.config import NUMBER, Lines, Table, check_tree, read_config, toml_text
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.tables import read_record
@@ -37,7 +38,6 @@ from piezopreload.design.tables import BallscrewTable, DesignTable, DutyTable, F
 from piezopreload.models.actuator import P888_91, RigParams, StackData
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import PIDGains
-from piezopreload.models.gainset import GainSet
 from piezopreload.rig.tables import ExportTable, RigRunPlan
 from piezopreload.tuning.calibrate import LoopExcitation
 from piezopreload.tuning.feedforward import IdentifiedFeedforward, identify

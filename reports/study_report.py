@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from piezopreload.artifacts.gainset import GainSet, gains_to_dict
 from piezopreload.core.artifacts import (
     atomic_write_bytes,
     atomic_write_text,
@@ -25,7 +26,6 @@ from piezopreload.core.artifacts import (
     write_artifact,
 )
 from piezopreload.core.errors import InputError
-from piezopreload.models.gainset import GainSet, gains_to_dict
 from piezopreload.reports import figures as F
 from piezopreload.reports.typeset import ReportError, compile_pdf, template_text
 

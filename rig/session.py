@@ -1,7 +1,7 @@
 """A validated gain set on the rig: run it, serve it over OPC UA, push it; the interlocks and the scoring.
 
 This module puts the rig floor's parts together for one session: it reads the gain set (the
-one reader, :meth:`~piezopreload.models.gainset.GainSet.load`; candidates and changed files
+one reader, :meth:`~piezopreload.artifacts.gainset.GainSet.load`; candidates and changed files
 are refused), builds its controller, the reference (one the gain set stores by name, or a
 ``time_s,force_N`` CSV), the backend and the interlocks (:func:`interlocks`: the command
 range within the gains' and the stacks', the sensor's range and the bolt preload from the
@@ -23,13 +23,13 @@ from typing import Any
 
 import numpy as np
 
+from piezopreload.artifacts.gainset import REFERENCES, GainSet
+from piezopreload.artifacts.learned import LearnedSignal
 from piezopreload.core.errors import InputError
 from piezopreload.core.tables import read_table
 from piezopreload.models.actuator import Rig, RigParams, reach_N
 from piezopreload.models.closedloop import PAPER_BAND_N, ClosedLoopRun, Reference
 from piezopreload.models.controller import Controller
-from piezopreload.models.gainset import REFERENCES, GainSet
-from piezopreload.models.learned import LearnedSignal
 from piezopreload.models.metrics import run_numbers
 from piezopreload.rig.backends import BackendError, Fault, FaultInjector, open_backend
 from piezopreload.rig.executor import Executor, RunResult, Safety
@@ -301,7 +301,7 @@ def run(gains_path: str | Path, *, backend: str = "sim", backend_options: dict[s
         step: str = "c", learned: str | Path | None = None, loop: str = "auto") -> RigRun:
     """Run a validated gain set on a backend (see ``piezopreload rig run``); the log goes to ``log_dir``.
 
-    ``learned`` (a learned-signal artifact, :class:`~piezopreload.models.learned.LearnedSignal`)
+    ``learned`` (a learned-signal artifact, :class:`~piezopreload.artifacts.learned.LearnedSignal`)
     plays back a learned signal: its setpoint (the plan) is the run's reference and its
     ``ff_extra_V`` is added to the feedforward (on either loop). It must have been learned with this gain set and on this reference
     (``reference=None``: its own); the run's log gives the next learning iteration

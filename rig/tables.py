@@ -8,9 +8,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
+from piezopreload.artifacts.gainset import EXPORT_FORMATS, REFERENCES
 from piezopreload.core.config import Table
 from piezopreload.core.errors import InputError
-from piezopreload.models.gainset import EXPORT_FORMATS, REFERENCES
 
 __all__ = ["ExportTable", "RigRunPlan", "RIG_RUN_REFERENCES"]
 

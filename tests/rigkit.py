@@ -2,7 +2,7 @@
 
 import signal
 
-from piezopreload.models.gainset import GainSet
+from piezopreload.artifacts.gainset import GainSet
 from piezopreload.rig.backends import Fault
 
 #: one injected fault per interlock and the cause it must trip (both loops are tested on these)

@@ -7,11 +7,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from piezopreload.artifacts.learned import LearnedSignal
 from piezopreload.core.errors import ArtifactError, InputError
 from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
-from piezopreload.models.learned import LearnedSignal
 from piezopreload.tuning import learning as L
 from piezopreload.tuning.pid import tracking_floor
 

@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 from rigkit import INTERLOCK_FAULTS, write_gain_set
 
+from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.learned import LearnedSignal
 from piezopreload.cli import main
 from piezopreload.core import native
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import Controller, PIDGains
-from piezopreload.models.gainset import GainSet
-from piezopreload.models.learned import LearnedSignal
 from piezopreload.rig import native_loop
 from piezopreload.rig.backends import CLibraryBackend, Fault, FaultInjector, SimBackend
 from piezopreload.rig.executor import Executor, Safety

@@ -16,6 +16,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from rigkit import write_gain_set
 
+from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.learned import KIND as LEARNED
+from piezopreload.artifacts.learned import LearnedSignal
 from piezopreload.cli import main
 from piezopreload.core.artifacts import write_artifact
 from piezopreload.core.errors import ArtifactError, PiezopreloadError
@@ -23,10 +26,7 @@ from piezopreload.core.tables import read_record
 from piezopreload.data import __file__ as data_init
 from piezopreload.design.study import read_profile
 from piezopreload.models.closedloop import Reference
-from piezopreload.models.gainset import GainSet
 from piezopreload.models.hysteresis import model_from_dict
-from piezopreload.models.learned import KIND as LEARNED
-from piezopreload.models.learned import LearnedSignal
 from piezopreload.rig.runlog import read_run_log
 from piezopreload.rig.session import reference_for
 from piezopreload.study import default_study, load_study

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 from rigkit import INTERLOCK_FAULTS, write_gain_set
 
+from piezopreload.artifacts.gainset import GainSet
 from piezopreload.cli import main
 from piezopreload.core.artifacts import read_artifact
 from piezopreload.models.actuator import Rig
 from piezopreload.models.controller import Controller, PIDGains
-from piezopreload.models.gainset import GainSet
 from piezopreload.models.hysteresis import AsymmetricPI, ClassicalPI, Creep, CreepPI, ModifiedPI
 from piezopreload.rig.backends import Fault, FaultInjector, SimBackend, open_backend
 from piezopreload.rig.compiled import PythonStep, controller_step

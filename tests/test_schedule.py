@@ -9,12 +9,12 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from piezopreload.artifacts.gainset import GainSet, gains_from_dict, gains_to_dict
 from piezopreload.core.artifacts import write_artifact
 from piezopreload.core.errors import ArtifactError, InputError
 from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import Reference, simulate
 from piezopreload.models.controller import Controller, GainSchedule, PIDGains, controller_functions
-from piezopreload.models.gainset import GainSet, gains_from_dict, gains_to_dict
 from piezopreload.models.ops import NUMPY
 from piezopreload.rig.export import export_text
 

@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from piezopreload.artifacts.gainset import GainSet
 from piezopreload.cli import main
 from piezopreload.core.artifacts import read_artifact
 from piezopreload.core.errors import InputError
-from piezopreload.models.gainset import GainSet
 from piezopreload.pipeline import STAGES, read_manifest, run_study
 from piezopreload.progress import Progress
 from piezopreload.study import load_study

@@ -54,7 +54,7 @@ def test_run_json_summary_names_the_whole_systems_numbers(axis_run, capsys):
 
 
 def test_the_learn_stage_learns_on_each_pass_and_the_system_and_the_rig_play_it(axis_run):
-    from piezopreload.models.learned import LearnedSignal
+    from piezopreload.artifacts.learned import LearnedSignal
 
     out = axis_run
     learning = read_artifact(out / "learn" / "learning.json", "learning")

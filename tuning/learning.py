@@ -57,13 +57,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.signal import butter, lfilter
 
+from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.learned import LearnedSignal, reference_sha256
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import InputError, InternalError
 from piezopreload.models.actuator import Rig, RigParams, reach_N
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller
-from piezopreload.models.gainset import GainSet
-from piezopreload.models.learned import LearnedSignal, reference_sha256
 from piezopreload.models.loop import step_function
 from piezopreload.models.ops import NUMPY
 from piezopreload.tuning.pid import tracking_floor, tuning_loop

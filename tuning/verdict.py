@@ -12,8 +12,8 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
+from piezopreload.artifacts.gainset import GainSet
 from piezopreload.core.errors import InputError
-from piezopreload.models.gainset import GainSet
 from piezopreload.tuning.validate import Criteria, SchedulerError, ValidationResult, executor, validate
 
 __all__ = ["validate_gain_set"]

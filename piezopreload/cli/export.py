@@ -5,11 +5,11 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from piezopreload.artifacts.gainset import EXPORT_FORMATS, GainSet
 from piezopreload.cli._common import (
     json_flag,
 )
 from piezopreload.core.errors import InputError
-from piezopreload.models.gainset import EXPORT_FORMATS, GainSet
 
 
 def register_export(sub: Any) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from piezopreload.artifacts.gainset import GainSet
 from piezopreload.cli._common import (
     json_flag,
     nonnegative_float,
@@ -15,7 +16,6 @@ from piezopreload.cli._common import (
     study_of,
 )
 from piezopreload.core.errors import InputError
-from piezopreload.models.gainset import GainSet
 from piezopreload.tuning.learning import METHODS
 
 
@@ -46,7 +46,7 @@ def register_learn(sub: Any) -> None:
 def _cmd_learn(args: argparse.Namespace) -> dict[str, Any]:
     from pathlib import Path
 
-    from piezopreload.models.learned import LearnedSignal
+    from piezopreload.artifacts.learned import LearnedSignal
     from piezopreload.rig.runlog import read_run_log
     from piezopreload.rig.session import reference_for
     from piezopreload.tuning.learning import learn_from_log

@@ -7,6 +7,7 @@ import os
 import sys
 from typing import Any
 
+from piezopreload.artifacts.gainset import REFERENCES
 from piezopreload.cli._common import (
     PASSWORD_ENV,
     Parser,
@@ -16,7 +17,6 @@ from piezopreload.cli._common import (
     say,
 )
 from piezopreload.core.errors import InputError
-from piezopreload.models.gainset import REFERENCES
 from piezopreload.rig import DEFAULT_ENDPOINT as DEFAULT_RIG_ENDPOINT
 
 

@@ -7,6 +7,7 @@ import time
 from typing import Any
 
 from piezopreload import __version__
+from piezopreload.artifacts.gainset import REFERENCES, GainSet
 from piezopreload.cli._common import (
     fmt,
     json_flag,
@@ -15,7 +16,6 @@ from piezopreload.cli._common import (
 )
 from piezopreload.core.errors import InputError
 from piezopreload.core.tables import write_csv
-from piezopreload.models.gainset import REFERENCES, GainSet
 from piezopreload.study import load_study
 from piezopreload.tuning.calibrate import CONTROLLERS
 from piezopreload.tuning.feedforward import IdentifiedFeedforward

@@ -6,6 +6,7 @@ import argparse
 import time
 from typing import Any
 
+from piezopreload.artifacts.gainset import GainSet
 from piezopreload.cli._common import (
     check_monte_carlo,
     fmt,
@@ -17,7 +18,6 @@ from piezopreload.cli._common import (
     study_of,
 )
 from piezopreload.core.errors import InputError
-from piezopreload.models.gainset import GainSet
 
 
 def register_tune(sub: Any) -> None:
