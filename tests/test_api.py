@@ -288,3 +288,18 @@ def test_example_pareto_front_of_a_catalogue_screw(tmp_path):
     assert np.all(np.diff(front.y) >= -1e-9)  # more rigidity costs drag along the front
     assert p.stiffness_N_per_um == pytest.approx(front.x.max() / 0.99, rel=0.02)  # the stiffest design is chosen
     assert (tmp_path / "pareto.png").stat().st_size > 0 and (tmp_path / "design.json").is_file()
+
+
+def test_requirement_verdicts_and_their_doctest():
+    import doctest
+
+    import piezopreload.artifacts.requirements as module
+    from piezopreload.artifacts.requirements import Requirement, missed
+
+    assert doctest.testmod(module).failed == 0
+    low = Requirement("deflection", 5.2, 5.0, "um", "max")
+    ok = Requirement("rigidity", 1200.0, 800.0, "N/um", "min")
+    assert (low.met, ok.met) == (False, True), "the sense of a limit decides the verdict"
+    assert abs(low.margin + 0.2) < 1e-12 and ok.margin == 400.0
+    assert missed([ok, low]) == (low,)
+    assert Requirement.from_dict(low.to_dict()) == low

@@ -1,0 +1,115 @@
+"""A study's requirements as verdicts: what was required, what was achieved, and by how much it is met or missed.
+
+A :class:`Requirement` is one limit a study sets (the least rigidity while cutting, the largest
+deflection, the validation's limits, ...) beside the value its run achieved. The floor that
+checks a requirement builds it; the artifacts that record it hold a tuple of them; ``run``
+prints the missed ones and exits with :data:`EXIT_REQUIREMENT_MISSED` when any is.
+
+>>> r = Requirement("rigidity while cutting", 761.0, 1000.0, "N/um", "min", "[schedule] stiffness_min_N_per_um")
+>>> r.met, round(r.margin, 1)
+(False, -239.0)
+>>> r.sentence()
+'rigidity while cutting: 761 N/um against at least 1,000 N/um ([schedule] stiffness_min_N_per_um), missed by 239 N/um (23.9 %)'
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any
+
+from piezopreload.core.errors import ArtifactError
+
+__all__ = ["Requirement", "EXIT_REQUIREMENT_MISSED", "requirements_from_dict", "missed"]
+
+#: the exit code of a study that ran but missed a requirement (0 done, 1 internal, 2 bad input, 3 rig stopped)
+EXIT_REQUIREMENT_MISSED = 4
+
+_SENSES = ("min", "max")
+
+
+def _number(x: float) -> str:
+    return f"{x:,.0f}" if abs(x) >= 1000 else f"{x:.3g}"
+
+
+@dataclass(frozen=True)
+class Requirement:
+    """One requirement and what was achieved.
+
+    Parameters
+    ----------
+    name : str
+        What is required, in words ("rigidity while cutting").
+    value : float
+        What the run achieved (the worst case over the run).
+    limit : float
+        The required bound.
+    unit : str
+        The unit of ``value`` and ``limit`` ("N/um").
+    sense : {"min", "max"}
+        ``min``: the value must be at least the limit; ``max``: at most.
+    source : str
+        Where the limit is set ("[schedule] stiffness_min_N_per_um").
+    """
+
+    name: str
+    value: float
+    limit: float
+    unit: str
+    sense: str
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        if self.sense not in _SENSES:
+            raise ValueError(f"Requirement.sense must be one of {', '.join(_SENSES)}, got {self.sense!r}")
+        for label in ("value", "limit"):
+            if not math.isfinite(getattr(self, label)):
+                raise ValueError(f"Requirement '{self.name}': {label} must be finite, got {getattr(self, label)!r}")
+
+    @property
+    def margin(self) -> float:
+        """How far the value is inside the limit, in its unit: >= 0 met, < 0 missed by that much."""
+        return self.value - self.limit if self.sense == "min" else self.limit - self.value
+
+    @property
+    def met(self) -> bool:
+        return self.margin >= 0.0
+
+    def sentence(self) -> str:
+        """The verdict in words: achieved against required, and the margin."""
+        bound = "at least" if self.sense == "min" else "at most"
+        where = f" ({self.source})" if self.source else ""
+        head = f"{self.name}: {_number(self.value)} {self.unit} against {bound} {_number(self.limit)} {self.unit}{where}"
+        if self.met:
+            return f"{head}, met with {_number(self.margin)} {self.unit} to spare"
+        pct = f" ({100 * abs(self.margin) / abs(self.limit):.1f} %)" if self.limit else ""
+        return f"{head}, missed by {_number(-self.margin)} {self.unit}{pct}"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "value": self.value, "limit": self.limit, "unit": self.unit, "sense": self.sense,
+                "source": self.source, "met": self.met, "margin": self.margin}
+
+    @classmethod
+    def from_dict(cls, doc: Any, where: str = "requirement") -> Requirement:
+        if not isinstance(doc, dict):
+            raise ArtifactError(f"{where}: expected an object, got {type(doc).__name__}")
+        try:
+            return cls(str(doc["name"]), float(doc["value"]), float(doc["limit"]), str(doc["unit"]), str(doc["sense"]),
+                       str(doc.get("source", "")))
+        except KeyError as exc:
+            raise ArtifactError(f"{where}: missing field {exc.args[0]!r}") from None
+        except (TypeError, ValueError) as exc:
+            raise ArtifactError(f"{where}: {exc}") from None
+
+
+def requirements_from_dict(docs: Any, where: str = "requirements") -> tuple[Requirement, ...]:
+    """The requirements of an artifact's list field."""
+    if not isinstance(docs, list):
+        raise ArtifactError(f"{where}: expected a list, got {type(docs).__name__}")
+    return tuple(Requirement.from_dict(d, f"{where}[{i}]") for i, d in enumerate(docs))
+
+
+def missed(requirements: Iterable[Requirement]) -> tuple[Requirement, ...]:
+    """The requirements not met, in their order."""
+    return tuple(r for r in requirements if not r.met)
