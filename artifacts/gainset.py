@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from piezopreload.artifacts.validation import Criteria, ValidationResult
 from piezopreload.core.artifacts import parse_artifact, read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError, InputError
 from piezopreload.models.actuator import RigParams
@@ -138,8 +139,12 @@ class GainSet:
         The plant's name (the study's).
     references : dict of Reference
         The references of the validation (``step``, ``trajectory``).
-    criteria, validation, tuning, inputs : dict
-        The validation's criteria and result, the tuning's record, the inputs' hashes.
+    criteria : Criteria or None
+        What the validation requires of every plant.
+    validation : ValidationResult or None
+        The Monte Carlo validation's result (every plant's metrics, the verdict).
+    tuning, inputs : dict
+        The tuning's record, the inputs' hashes.
     content_sha256 : str or None
         The artifact's hash, set by :meth:`load` and :meth:`save`.
     """
@@ -151,8 +156,8 @@ class GainSet:
     plant: RigParams | None = None
     preset: str | None = None
     references: dict[str, Reference] = field(default_factory=dict)
-    criteria: dict[str, Any] = field(default_factory=dict)
-    validation: dict[str, Any] | None = None
+    criteria: Criteria | None = None
+    validation: ValidationResult | None = None
     tuning: dict[str, Any] | None = None
     inputs: dict[str, Any] = field(default_factory=dict)
     content_sha256: str | None = None
@@ -180,12 +185,12 @@ class GainSet:
                                   "units": {"input": "V", "output": "N"}, "identification": self.feedforward_info}
         if self.plant is not None:
             out["plant"] = {"preset": self.preset, "rig": self.plant.to_dict()}
-        if self.criteria:
-            out["criteria"] = dict(self.criteria)
+        if self.criteria is not None:
+            out["criteria"] = self.criteria.to_dict()
         if self.references:
             out["references"] = {name: ref.to_dict() for name, ref in self.references.items()}
         if self.validation is not None:
-            out["validation"] = self.validation
+            out["validation"] = self.validation.to_dict()
         if self.tuning is not None:
             out["tuning"] = self.tuning
         out["inputs"] = dict(self.inputs)
@@ -227,12 +232,18 @@ class GainSet:
                 references[name] = Reference.from_dict(r)
             except ValueError as exc:
                 raise fail(f"field 'references.{name}' is not a reference ({exc}); {_REWRITE}") from None
-        for key in ("criteria", "inputs"):
-            if not isinstance(doc.get(key, {}), dict):
+        for key, value in (("inputs", doc.get("inputs")), ("feedforward.identification", ff_doc.get("identification")),
+                           ("tuning", doc.get("tuning"))):
+            if value is not None and not isinstance(value, dict):
                 raise fail(f"field '{key}' must be an object")
+        try:
+            criteria = None if doc.get("criteria") is None else Criteria.from_dict(doc["criteria"])
+            validation = None if doc.get("validation") is None else ValidationResult.from_dict(doc["validation"])
+        except ArtifactError as exc:
+            raise fail(f"{exc}; {_REWRITE}") from None
         return cls(gains=gains, status=status, feedforward=model, feedforward_info=dict(ff_doc.get("identification") or {}),
                    plant=plant, preset=plant_doc.get("preset"), references=references,
-                   criteria=dict(doc.get("criteria") or {}), validation=doc.get("validation"), tuning=doc.get("tuning"),
+                   criteria=criteria, validation=validation, tuning=doc.get("tuning"),
                    inputs=dict(doc.get("inputs") or {}), content_sha256=doc.get("content_sha256"))
 
     # ---- the artifact: one reader, one writer ---------------------------------------------------

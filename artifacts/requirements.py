@@ -21,7 +21,7 @@ from typing import Any
 
 from piezopreload.core.errors import ArtifactError
 
-__all__ = ["Requirement", "EXIT_REQUIREMENT_MISSED", "requirements_from_dict", "missed"]
+__all__ = ["Requirement", "EXIT_REQUIREMENT_MISSED", "requirements_from_dict", "missed", "checked_by_stages"]
 
 #: the exit code of a study that ran but missed a requirement (0 done, 1 internal, 2 bad input, 3 rig stopped)
 EXIT_REQUIREMENT_MISSED = 4
@@ -113,3 +113,13 @@ def requirements_from_dict(docs: Any, where: str = "requirements") -> tuple[Requ
 def missed(requirements: Iterable[Requirement]) -> tuple[Requirement, ...]:
     """The requirements not met, in their order."""
     return tuple(r for r in requirements if not r.met)
+
+
+def checked_by_stages(records: dict[str, dict[str, Any]]) -> tuple[Requirement, ...]:
+    """Every requirement a study's stages checked, in the records' order: each stage that ran lists its own under
+    ``summary.requirements`` in the run's manifest (``pipeline.json``)."""
+    found: list[Requirement] = []
+    for name, record in records.items():
+        if record.get("status") == "done":
+            found += requirements_from_dict(record.get("summary", {}).get("requirements", []), f"{name}.requirements")
+    return tuple(found)

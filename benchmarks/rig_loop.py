@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.validation import Criteria
 from piezopreload.models.actuator import Rig
 from piezopreload.models.controller import PIDGains
 from piezopreload.rig.runlog import read_run_log
@@ -192,7 +193,7 @@ def main() -> dict:
                                                          u_max=study.gains.u_max))):
             g = GainSet(gains=gains, status="validated", feedforward=ff, plant=study.rig, preset=study.name,
                         references={k: study.references[k] for k in ("step", "trajectory")},
-                        criteria={"band_N": study.band_N})
+                        criteria=Criteria(band_N=study.band_N))
             g.save(tmp / f"gains{j}.json")
             paths.append(tmp / f"gains{j}.json")
             shas.append(GainSet.load(paths[-1]).content_sha256 or "")

@@ -32,7 +32,7 @@ KINDS = {
     "validation": ("gain_set_sha256", "passed", "metrics", "inputs"),
     "responses": ("runs", "reproduction", "inputs"),
     "study-run": ("study", "stages"),
-    "report": ("title", "figures", "provenance"),
+    "report": ("title", "verdicts", "summary", "sections", "appendix", "figures"),
     "plant": ("rig", "design_sha256", "inputs"),
     "system": ("tracking_rms_pct_of_range", "rigidity_min_cutting_N_per_um", "rigidity_required_N_per_um", "series",
                "inputs"),

@@ -23,7 +23,7 @@ def sweep(study: pp.Study, preloads_N: list[float], plants: int) -> list[dict]:
         s = study.replace(rig={"bolt_preload_N": preload})
         tuned = s.tune(feedforward=s.identify_feedforward())
         gain_set = tuned.validate(plants=plants, seed=0)
-        worst = gain_set.validation["summary"]["settling_s"]["worst"]
+        worst = gain_set.validation.worst.settling_s
         rows.append({"bolt_preload_N": preload, "settling_s": tuned.row("tuned")["settling_s"],
                      "worst_settling_s": worst, "validated": gain_set.validated,
                      "Kc_V_per_N": tuned.gains.Kc, "Ti_s": tuned.gains.Ti_s})

@@ -13,7 +13,8 @@ identify    the feedforward's P-I model from the loop measurement (simulated    
 tune        PID gains around the compensated plant (CasADi), compared, bounded; tuning.json
             a gain schedule on the preload level or the robust set (``[tuning]``)
 validate    the tuned gains on a Monte Carlo set of nonlinear rigs              gains.json, validation.json
-compare     step and trajectory, paper's and tuned gains, with/without FF       responses/
+compare     step and trajectory, the study's and the tuned gains, with/without  responses/
+            FF (and the published step numbers where the study declares them)
 learn       learning control on the repeated schedule, each margin pass on its  learn/learning.json,
             own reference (``[learning]``; the margin from the learned error)   learn/learned-pass*.json
 system      the controlled preload along the design's schedule (learned where   system/system.json,
@@ -46,12 +47,13 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from contextlib import AbstractContextManager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from piezopreload import __version__
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.requirements import EXIT_REQUIREMENT_MISSED, checked_by_stages, missed
 from piezopreload.core.artifacts import atomic_write_bytes, read_artifact, write_artifact
 from piezopreload.core.errors import InputError
 from piezopreload.core.stages import (
@@ -71,7 +73,7 @@ from piezopreload.core.tables import write_csv
 from piezopreload.design.plant import DesignedPlant
 from piezopreload.design.preload import DesignPoint
 from piezopreload.progress import Progress
-from piezopreload.reports.study_report import STAGES_READ, ReportStudy, render_report
+from piezopreload.reports.study_report import STAGES_READ, Published, ReportStudy, render_report
 from piezopreload.results import TuningResult
 from piezopreload.rig import session
 from piezopreload.rig.export import write_exports
@@ -141,6 +143,7 @@ class Stage:
     run: Callable[[_Ctx], tuple[dict[str, Path], dict[str, Any]]]
     files: tuple[str, ...] = ()  # the study's file keys it reads (hashed into its key)
     applies: Callable[[Study], str | None] = field(default=lambda study: None)  # a reason it does not apply, or None
+    validated_only: bool = False  # runs only on a validated gain set (export, the rig)
     reads: Callable[[Study], tuple[str, ...]] = field(default=lambda study: ())  # more tables, as the study asks
 
 
@@ -182,22 +185,21 @@ def _stage_validate(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
                                         bar=ctx.progress.bar(f"Monte Carlo, {study.validation.plants} plants"))
     gains_path, validation_path = ctx.out / "gains.json", ctx.out / "validation.json"
     gain_set = gain_set.save(gains_path)
-    write_artifact(validation_path, "validation", result.record(gain_set.content_sha256, {
-        "gain_set": "gains.json", "study_sha256": study.sha256}))
-    outputs = {"gains": gains_path, "validation": validation_path}
-    if not result.passed:
-        raise StageFailed("validate", f"the tuned gains {result.failed_plants()}; {gains_path} is a candidate, which "
-                                      "export and the rig refuse. Loosen the [validation] limits or tighten [tuning] "
-                                      "(ms_max, overshoot_margin_N) and run again", exit_code=2) from Partial(outputs)
+    replace(result, gain_set_sha256=gain_set.content_sha256,
+            inputs={"gain_set": "gains.json", "study_sha256": study.sha256}).save(validation_path)
+    if not result.passed:  # a verdict, not a failure: the study goes on, export and the rig take validated sets only
+        ctx.progress.say(f"the tuned gains {result.failed_plants()}: {gains_path.name} is a candidate")
     h = result.headline()
-    return outputs, {"status": gain_set.status, "content_sha256": gain_set.content_sha256, "plants": result.n_plants,
-                     "worst_settling_s": h["worst_settling_s"], "worst_overshoot_N": h["worst_overshoot_N"]}
+    return {"gains": gains_path, "validation": validation_path}, {
+        "status": gain_set.status, "content_sha256": gain_set.content_sha256, "plants": result.n_plants,
+        "worst_settling_s": h["worst_settling_s"], "worst_overshoot_N": h["worst_overshoot_N"],
+        "requirements": [r.to_dict() for r in result.requirements]}
 
 
 def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     study, ff = ctx.subject(), ctx.feedforward()
     gain_set = GainSet.load(ctx.output("validate", "gains"))
-    runs = responses(study.rig, study.references, {"paper": study.gains, "tuned": gain_set.gains}, ff.model,
+    runs = responses(study.rig, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model,
                      seed=study.seed, band_N=study.band_N, signal=study.signal,
                      after_change_s=study.criteria.tracking_after_change_s, progress=ctx.progress.bar("closed-loop runs"))
     d = ctx.out / "responses"
@@ -209,9 +211,9 @@ def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
                                          f"{r.controller}, {r.reference}, seed {study.seed}")
         rows.append({"gains": r.gains, "controller": r.controller, "reference": r.reference, "csv": ctx.rel(path),
                      **r.numbers})
-    table = reproduction(runs)
+    table = None if study.published is None else reproduction(runs, study.published.step())
     creep = None if ff.without_creep is None else creep_effect(  # FF + PID with and without creep compensation
-        study.rig, study.references, {"paper": study.gains, "tuned": gain_set.gains}, ff.model, ff.without_creep["model"],
+        study.rig, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model, ff.without_creep["model"],
         seed=study.seed, band_N=study.band_N, signal=study.signal, after_change_s=study.criteria.tracking_after_change_s)
     outputs["responses"] = d / "responses.json"
     write_artifact(outputs["responses"], "responses", {
@@ -304,9 +306,12 @@ def _stage_rig(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
 def _stage_report(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     study = ctx.study
     b, d = study.ballscrew, study.design_spec
-    facts = ReportStudy(study.name, study.title, study.path, study.sha256, ctx.source or study.path,
+    pub = study.published
+    facts = ReportStudy(study.name, study.title, study.path, study.sha256, ctx.source or study.path, study.description,
                         None if b is None or d is None else (d.nominal_diameter_mm, d.lead_mm),
-                        None if d is None else d.frequency_min_Hz)
+                        None if d is None else d.frequency_min_Hz,
+                        None if pub is None else Published(pub.source, pub.gains_label, pub.step()),
+                        "the study's gains" if pub is None else pub.gains_label)
     return render_report(ctx.out, ctx.records, facts, say=ctx.progress.say, bar=ctx.progress.bar("figures"),
                          template=ctx.template)
 
@@ -325,31 +330,32 @@ def _learn_applies(study: Study) -> str | None:
 
 STAGES: tuple[Stage, ...] = (
     Stage("design", "ball-screw preload design, Pareto fronts, schedule",
-          ("ballscrew", "feed_drive", "duty", "design", "schedule"), (), ("models", "design"), _stage_design,
+          ("ballscrew", "feed_drive", "duty", "design", "schedule"), (), ("models", "artifacts", "design"), _stage_design,
           files=("schedule.profile",), applies=_design_applies),
-    Stage("plant", "the designed preload system as the plant", ("rig", "plant"), ("design",), ("models", "design"),
+    Stage("plant", "the designed preload system as the plant", ("rig", "plant"), ("design",), ("models", "artifacts", "design"),
           _stage_plant, applies=_plant_applies),
     Stage("identify", "the feedforward's P-I model", ("rig", "feedforward", "reference"), ("plant",),
-          ("models", "tuning"), _stage_identify, files=("feedforward.data",)),
+          ("models", "artifacts", "tuning"), _stage_identify, files=("feedforward.data",)),
     Stage("tune", "PID gains around the compensated plant (CasADi + IPOPT)",
-          ("rig", "controller", "reference", "simulation", "tuning"), ("plant", "identify"), ("models", "tuning"),
+          ("rig", "controller", "reference", "simulation", "tuning"), ("plant", "identify"), ("models", "artifacts", "tuning"),
           _stage_tune, reads=lambda study: ("validation",) if study.tuning.schedule_levels >= 2 else ()),
     Stage("validate", "Monte Carlo on nonlinear rigs", ("study", "rig", "reference", "simulation", "validation"),
-          ("plant", "identify", "tune"), ("models", "tuning"), _stage_validate),
-    Stage("compare", "step and trajectory: paper's and tuned gains, with and without feedforward",
-          ("study", "rig", "controller", "reference", "simulation"), ("plant", "identify", "validate"),
-          ("models", "tuning"), _stage_compare),
+          ("plant", "identify", "tune"), ("models", "artifacts", "tuning"), _stage_validate),
+    Stage("compare", "step and trajectory: the study's and the tuned gains, with and without feedforward",
+          ("study", "rig", "controller", "reference", "simulation", "published"), ("plant", "identify", "validate"),
+          ("models", "artifacts", "tuning"), _stage_compare),
     Stage("learn", "learning control on the repeated schedule (each margin pass learned)",
           ("rig", "plant", "schedule", "simulation", "learning"), ("design", "plant", "validate"),
-          ("models", "design", "tuning"), _stage_learn, files=("schedule.profile",), applies=_learn_applies),
+          ("models", "artifacts", "design", "tuning"), _stage_learn, files=("schedule.profile",), applies=_learn_applies),
     Stage("system", "the controlled preload along the schedule: rigidity and deflection while cutting, energy",
           ("rig", "plant", "schedule", "simulation", "learning"), ("design", "plant", "validate", "learn"),
-          ("models", "design", "tuning"), _stage_system, files=("schedule.profile",), applies=_plant_applies),
-    Stage("export", "the gain set in the controllers' formats", ("export",), ("validate",), ("models", "rig"),
-          _stage_export),
-    Stage("rig", "the validated gains on the rig executor", ("rig_run",), ("validate", "system", "learn"), ("models", "rig"),
-          _stage_rig, files=("rig_run.reference",)),
-    Stage("report", "figures and the PDF", ("study", "ballscrew", "design"), STAGES_READ, ("models", "reports"),
+          ("models", "artifacts", "design", "tuning"), _stage_system, files=("schedule.profile",), applies=_plant_applies),
+    Stage("export", "the gain set in the controllers' formats", ("export",), ("validate",), ("models", "artifacts", "rig"),
+          _stage_export, validated_only=True),
+    Stage("rig", "the validated gains on the rig executor", ("rig_run",), ("validate", "system", "learn"), ("models", "artifacts", "rig"),
+          _stage_rig, files=("rig_run.reference",), validated_only=True),
+    Stage("report", "figures and the PDF", ("study", "ballscrew", "design", "published"), STAGES_READ,
+          ("models", "artifacts", "reports"),
           _stage_report),
 )
 _BY_NAME = {s.name: s for s in STAGES}
@@ -395,10 +401,21 @@ def _locked(out: Path) -> AbstractContextManager[None]:
 # --------------------------------------------------------------------------------------
 # running
 # --------------------------------------------------------------------------------------
+def _applies(stage: Stage, ctx: _Ctx) -> str | None:
+    """Why ``stage`` does not apply to the study (or to its gain set's verdict), or None."""
+    reason = stage.applies(ctx.study)
+    if reason is None and stage.validated_only:
+        validate = ctx.records.get("validate", {})
+        if validate.get("status") == "done" and validate.get("summary", {}).get("status") != "validated":
+            names = [r.name for r in missed(checked_by_stages({"validate": validate}))]
+            reason = f"the gain set is a candidate: it missed the validation's {', '.join(names) or 'limits'}"
+    return reason
+
+
 def _execute(stages: list[Stage], ctx: _Ctx, force: bool, started: str) -> list[dict[str, Any]]:
     return run_stages(stages, ctx.records, ctx.out, ctx.progress, force=force,
                       key=lambda stage: _stage_key(stage, ctx.study, ctx.records),
-                      applies=lambda stage: stage.applies(ctx.study), run=lambda stage: stage.run(ctx),
+                      applies=lambda stage: _applies(stage, ctx), run=lambda stage: stage.run(ctx),
                       save=lambda: _write_manifest(ctx.out, ctx.study, ctx.records, started, ctx.source))
 
 
@@ -473,6 +490,7 @@ def rerender_report(out: str | Path, progress: Progress | None = None, template:
 def _result(out: Path, study: Study, stages: list[dict[str, Any]], seconds: float) -> dict[str, Any]:
     records = read_manifest(out)["stages"]
     out = out.resolve()
+    summary = _summary(records)
     return {
         "out": str(out), "study": {"path": study.path, "sha256": study.sha256, "name": study.name},
         "stages": stages, "ran": [s["stage"] for s in stages if s["ran"]], "seconds": seconds,
@@ -481,7 +499,7 @@ def _result(out: Path, study: Study, stages: list[dict[str, Any]], seconds: floa
         "gain_set_sha256": records.get("validate", {}).get("summary", {}).get("content_sha256"),
         "rig_log": (str(out / records["rig"]["outputs"]["log_csv"]["path"])
                     if records.get("rig", {}).get("status") == "done" else None),
-        "summary": _summary(records),
+        "summary": summary, "exit_code": 0 if summary["requirements_met"] is not False else EXIT_REQUIREMENT_MISSED,
     }
 
 
@@ -500,4 +518,7 @@ def _summary(records: dict[str, dict[str, Any]]) -> dict[str, Any]:
     out["system"] = system.get("status", "not run")
     out["gain_set_status"] = records.get("validate", {}).get("summary", {}).get("status")
     out["rig_tracking_rms_N"] = records.get("rig", {}).get("summary", {}).get("tracking_rms_N")
+    checked = checked_by_stages({name: records[name] for name in _BY_NAME if name in records})
+    out["requirements_met"] = None if not checked else not missed(checked)
+    out["requirements_missed"] = [r.to_dict() for r in missed(checked)]
     return out

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from piezopreload.artifacts.gainset import REFERENCES, GainSet, gains_from_dict, gains_to_dict
+from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.parallel import beside
@@ -32,7 +33,6 @@ from piezopreload.tuning.compare import compare_gains, reproduction_summary, tra
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.pid import TuningInfeasible, minimum_time, tracking_floor, tune_pid
 from piezopreload.tuning.schedule import schedule_levels, tune_schedule
-from piezopreload.tuning.validate import ValidationResult
 from piezopreload.tuning.verdict import validate_gain_set
 
 __all__ = ["TuningResult", "StudyRun", "tune", "simulate", "reproduce"]
@@ -97,7 +97,7 @@ class TuningResult:
         s, ff = self.study, self.feedforward
         return GainSet(gains=self.gains, status="candidate", feedforward=ff.model, feedforward_info=ff.info(),
                        plant=s.rig, preset=s.name, references={k: s.references[k] for k in REFERENCES},
-                       criteria=s.criteria.to_dict(), tuning={**self.tuning, "simc_baseline": gains_to_dict(self.simc)},
+                       criteria=s.criteria, tuning={**self.tuning, "simc_baseline": gains_to_dict(self.simc)},
                        inputs={"study": s.path, "study_sha256": s.sha256, **(inputs or {})})
 
     def validation(self, *, plants: int | None = None, seed: int | None = None, workers: int | None = None,
@@ -135,7 +135,7 @@ class TuningResult:
             "tuning": {k: v for k, v in self.tuning.items() if k != "spec"}, "table": self.table,
             "paper": {"ff+pid": PAPER_RESULTS["ff+pid"]}, "minimum_time": self.minimum_time,
             "tracking_improvement": self.improvement, "tracking_floor": self.tracking_floor,
-            "validation": gain_set.validation, "seconds": seconds,
+            "validation": None if gain_set.validation is None else gain_set.validation.to_dict(), "seconds": seconds,
             "gain_schedule": self.tuning.get("schedule"),  # the schedule's entries, figures and choice, or None
         }
 
@@ -278,9 +278,13 @@ def reproduce(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | N
     t0 = time.perf_counter()
     if repeats < 1:
         raise InputError(f"repeats: must be >= 1, got {repeats}")
+    if study.published is None:
+        raise InputError(f"{study.path}: the study declares no published step numbers (a [published] table, as "
+                         "studies/paper2021.toml has); reproduce sets a study's simulation beside published numbers")
     rep = reproduce_paper(study.rig, study.gains, step=study.references["step"], excitation=study.excitation,
                           seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
                           repeats=repeats, feedforward=feedforward.model, feedforward_fit=feedforward.fit)
     return {"study": {"path": study.path, "sha256": study.sha256, "name": study.name},
             "gains": {**gains_to_dict(study.gains), "read_as": study.controller.units}, "band_N": study.band_N,
-            "signal": study.signal, **reproduction_summary(rep), "seconds": time.perf_counter() - t0}
+            "signal": study.signal, "published": study.published.source,
+            **reproduction_summary(rep, study.published.step()), "seconds": time.perf_counter() - t0}

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.validation import Criteria
 from piezopreload.core.config import NUMBER, Lines, Table, check_tree, read_config, toml_text
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.tables import read_record
@@ -43,7 +44,6 @@ from piezopreload.tuning.calibrate import LoopExcitation
 from piezopreload.tuning.feedforward import IdentifiedFeedforward, identify
 from piezopreload.tuning.pid import TuningSpec
 from piezopreload.tuning.tables import LearningTable, TuningTable, ValidationTable
-from piezopreload.tuning.validate import Criteria
 
 if TYPE_CHECKING:  # the results module imports this one
     from piezopreload.results import StudyRun, TuningResult
@@ -101,6 +101,10 @@ _SCHEMA: dict[str, Any] = {
     "export": {"formats": list},
     "rig_run": {"backend": str, "reference": str, "realtime": bool, "seed": int, "force_max_N": _NUM,
                 "ramp_s": _NUM, "missed_streak": int},
+    # published step numbers the study compares itself with (the paper's study has them; a new study does not)
+    "published": {"source": str, "gains_label": str,
+                  "pid": {"rise_s": _NUM, "peak_s": _NUM, "settling_s": _NUM},
+                  "ff_pid": {"rise_s": _NUM, "peak_s": _NUM, "settling_s": _NUM}},
 }
 _REQUIRED = ("rig", "controller")
 _STRING_LISTS = {"design.pareto", "export.formats"}
@@ -162,6 +166,28 @@ class ReferenceTables(Table):
 
     step: StepTable = StepTable()
     trajectory: TrajectoryTable = TrajectoryTable()
+
+
+@dataclass(frozen=True)
+class StepNumbers(Table):
+    rise_s: float
+    peak_s: float
+    settling_s: float
+
+
+@dataclass(frozen=True)
+class PublishedTable(Table):
+    """[published]: step numbers a publication reports for this study's rig and gains, which the report and
+    ``reproduce`` set beside the simulation's (a study without the table compares with nothing published)."""
+
+    source: str
+    gains_label: str
+    pid: StepNumbers
+    ff_pid: StepNumbers
+
+    def step(self) -> dict[str, dict[str, float]]:
+        """The numbers by controller (``pid``, ``ff+pid``) and metric."""
+        return {"pid": self.pid.to_dict(), "ff+pid": self.ff_pid.to_dict()}
 
 
 @dataclass(frozen=True)
@@ -231,6 +257,7 @@ class Study:
     schedule: ScheduleTable | None
     plant: PlantTable | None
     learning: LearningTable | None
+    published: PublishedTable | None
     # what the tables make, built and checked on load
     gains: PIDGains = field(repr=False)
     references: dict[str, Reference] = field(repr=False)
@@ -286,6 +313,8 @@ class Study:
             value = getattr(self, _ATTRIBUTE.get(table, table))
             if value is not None:
                 out[table] = value.to_dict()
+        if self.published is not None:
+            out["published"] = self.published.to_dict()
         return out
 
     def replace(self, **changes: dict[str, Any]) -> Study:
@@ -587,8 +616,27 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes) -> Stud
         export=export, rig_run=_table(RigRunPlan, data.get("rig_run", {})).checked(fail), ballscrew=design_tables["ballscrew"],
         feed_drive=design_tables["feed_drive"], duty=design_tables["duty"], design_table=design_tables["design"],
         schedule=design_tables["schedule"], plant=design_tables["plant"],
-        learning=_table(LearningTable, data["learning"]).checked(fail) if "learning" in data else None, gains=gains, references=references, excitation=excitation,
+        learning=_table(LearningTable, data["learning"]).checked(fail) if "learning" in data else None,
+        published=_published(data.get("published"), fail), gains=gains, references=references, excitation=excitation,
         tuning_spec=spec, criteria=criteria, design_spec=design_spec, where=where, source_text=text)
+
+
+def _published(doc: dict[str, Any] | None, fail: Callable[[str, str], InputError]) -> PublishedTable | None:
+    if doc is None:
+        return None
+    for key in ("source", "gains_label", "pid", "ff_pid"):
+        if key not in doc:
+            raise fail(f"published.{key}", "is missing: [published] needs source, gains_label, pid and ff_pid")
+    steps = {}
+    for key in ("pid", "ff_pid"):
+        missing = [m for m in ("rise_s", "peak_s", "settling_s") if m not in doc[key]]
+        if missing:
+            raise fail(f"published.{key}.{missing[0]}", "is missing")
+        bad = [m for m, v in doc[key].items() if not v > 0]
+        if bad:
+            raise fail(f"published.{key}.{bad[0]}", f"must be > 0 s, got {doc[key][bad[0]]}")
+        steps[key] = StepNumbers(**doc[key])
+    return PublishedTable(doc["source"], doc["gains_label"], steps["pid"], steps["ff_pid"])
 
 
 def _rig(rig_data: dict[str, Any], fail: Callable[[str, str], InputError]) -> RigParams:

@@ -36,7 +36,7 @@ STYLE: dict[str, Any] = {
     "legend.frameon": False, "pdf.fonttype": 3, "savefig.bbox": "tight", "savefig.pad_inches": 0.03,
 }
 #: one colour per controller, the same in every figure
-COLOURS = {"reference": "0.35", "paper pid": "#d95f02", "paper ff+pid": "#7570b3", "tuned pid": "#e7298a",
+COLOURS = {"reference": "0.35", "study pid": "#d95f02", "study ff+pid": "#7570b3", "tuned pid": "#e7298a",
            "tuned ff+pid": "#1b9e77", "measured": "0.55", "model": "#1b9e77", "limit": "#b2182b"}
 _WIDTH = 6.3  # inches: the text width of an A4 page with 2 cm margins
 
@@ -148,7 +148,8 @@ def _runs_axes(ax: Any, runs: Mapping[str, Mapping[str, np.ndarray]], keys: Sequ
     ax.plot(first["time_s"], first["reference_N"], color=COLOURS["reference"], ls=":", lw=0.9, label="reference")
     for key in keys:
         r = runs[key]
-        ax.plot(r["time_s"], r[signal], color=COLOURS[key], lw=0.8, label=key.replace("ff+pid", "FF + PID").replace("pid", "PID"))
+        name = key.split(" ", 1)[1].replace("ff+pid", "FF + PID").replace("pid", "PID")
+        ax.plot(r["time_s"], r[signal], color=COLOURS[key], lw=0.8, label=name)
     if t_max is not None:
         ax.set_xlim(0, t_max)
     ax.set_xlabel("time (s)")
@@ -157,36 +158,40 @@ def _runs_axes(ax: Any, runs: Mapping[str, Mapping[str, np.ndarray]], keys: Sequ
 
 @_styled
 def step_responses(runs: Mapping[str, Mapping[str, np.ndarray]], band_N: float, signal: str,
-                   t_max_s: float = 4.0) -> Figure:
-    """The step with the paper's gains (left) and the tuned gains (right), PID alone and with FF."""
+                   labels: Mapping[str, str], t_max_s: float | None = None) -> Figure:
+    """The step with the study's gains (left) and the tuned gains (right), PID alone and with FF; ``labels`` names
+    the two gain sets (``{"study": ..., "tuned": ...}``) as the study does."""
     fig, ax = _figure(2.7, ncols=2, sharey=True)
-    for a, who in zip(ax[0], ("paper", "tuned")):
+    for a, who in zip(ax[0], ("study", "tuned")):
         keys = [f"{who} pid", f"{who} ff+pid"]
         _runs_axes(a, runs, keys, signal, t_max_s)
         final = float(runs[keys[0]]["reference_N"][-1])
         for s in (-1, 1):
             a.axhline(final + s * band_N, color=COLOURS["limit"], lw=0.5, ls="--")
-        a.set_title(f"{who}'s gains" if who == "paper" else "tuned gains")
+        a.set_title(labels[who])
         a.legend(loc="lower right")
     ax[0][1].set_ylabel("")
     return fig
 
 
 @_styled
-def tracking(runs: Mapping[str, Mapping[str, np.ndarray]], signal: str) -> Figure:
-    """The staircase trajectory: the four controllers, and the tracking error of each."""
+def tracking(runs: Mapping[str, Mapping[str, np.ndarray]], signal: str, labels: Mapping[str, str]) -> Figure:
+    """The trajectory: the four controllers, and the tracking error of each (its scale from the errors after the
+    first moments of each change, so the transients do not hide them)."""
     fig, ax = _figure(4.4, ncols=2, nrows=2, sharex=True)
-    for j, who in enumerate(("paper", "tuned")):
+    errors = np.concatenate([r["reference_N"] - r["force_N"] for r in runs.values()])
+    scale = float(np.percentile(np.abs(errors), 98)) * 1.5 or 1.0
+    for j, who in enumerate(("study", "tuned")):
         keys = [f"{who} pid", f"{who} ff+pid"]
         _runs_axes(ax[0][j], runs, keys, signal, None)
-        ax[0][j].set_title(f"{who}'s gains" if who == "paper" else "tuned gains")
+        ax[0][j].set_title(labels[who])
         ax[0][j].legend(loc="lower right")
         ax[0][j].set_xlabel("")
         for key in keys:
             r = runs[key]
             ax[1][j].plot(r["time_s"], r["reference_N"] - r["force_N"], color=COLOURS[key], lw=0.6,
                           label=key.replace("ff+pid", "FF + PID").replace("pid", "PID"))
-        ax[1][j].set_ylim(-6, 6)
+        ax[1][j].set_ylim(-scale, scale)
         ax[1][j].set_xlabel("time (s)")
         ax[1][j].set_ylabel("reference - force (N)")
     return fig
@@ -208,7 +213,7 @@ def stiffness_vs_preload(curve: Mapping[str, Any]) -> Figure:
     a.set_ylabel("axial rigidity (N/um)")
     a.set_title("rigidity (dotted: bolts only; dashed: stacks at full drive)")
     a.legend(loc="lower right")
-    b.plot(fp, curve["drag_torque_Nm"], color=COLOURS["paper pid"])
+    b.plot(fp, curve["drag_torque_Nm"], color=COLOURS["study pid"])
     b.set_ylabel("drag torque (N m)")
     b.set_title("preload drag torque")
     return fig
@@ -248,7 +253,7 @@ def preload_schedule(time_s: np.ndarray, load_N: np.ndarray, preload_N: np.ndarr
     a.set_ylabel("axial load (N)")
     a.set_title("load profile")
     b.plot(time_s, preload_N, color=COLOURS["model"], drawstyle="steps-post", label="schedule")
-    b.axhline(constant_N, color=COLOURS["paper pid"], ls="--", label="best constant preload")
+    b.axhline(constant_N, color=COLOURS["study pid"], ls="--", label="best constant preload")
     b.plot(time_s, np.abs(load_N) / lift_off_factor, color=COLOURS["limit"], lw=0.6, ls=":",
            label="lift-off limit |F_a| / 2^1.5")
     b.set_xlabel("time (s)")
@@ -263,7 +268,7 @@ def natural_frequency(position_mm: np.ndarray, low_Hz: np.ndarray, high_Hz: np.n
     """The axial natural frequency against table position at the bolts' and the full preload."""
     fig, ax = _figure(2.4)
     a = ax[0][0]
-    a.plot(position_mm, low_Hz, color=COLOURS["paper pid"], label="bolt preload (stacks off)")
+    a.plot(position_mm, low_Hz, color=COLOURS["study pid"], label="bolt preload (stacks off)")
     a.plot(position_mm, high_Hz, color=COLOURS["model"], label="maximum preload (stacks at full drive)")
     if frequency_min_Hz:
         a.axhline(frequency_min_Hz, color=COLOURS["limit"], ls="--", lw=0.8, label="required minimum")
@@ -334,7 +339,7 @@ def rig_run(time_s: np.ndarray, reference_N: np.ndarray, force_N: np.ndarray, vo
     a.plot(time_s[control], force_N[control], color=COLOURS["tuned ff+pid"], lw=0.7, label="force read")
     a.set_ylabel("force (N)")
     a.legend(loc="lower right")
-    b.plot(time_s, voltage_V, color=COLOURS["paper ff+pid"], lw=0.7)
+    b.plot(time_s, voltage_V, color=COLOURS["study ff+pid"], lw=0.7)
     if (~control).any():
         b.axvspan(float(time_s[~control][0]), float(time_s[-1]), color="0.9", label="ramp down, disarm")
         b.legend(loc="upper right")
@@ -360,8 +365,8 @@ def closed_loop(run: Mapping[str, np.ndarray], band_N: float | None, signal: str
     a.set_ylabel("force (N)")
     a.set_title(title)
     a.legend(loc="lower right")
-    b.plot(t, run["command_V"], color=COLOURS["paper ff+pid"], lw=0.7, label="command")
-    b.plot(t, run["voltage_V"], color=COLOURS["paper pid"], lw=0.7, label="amplifier")
+    b.plot(t, run["command_V"], color=COLOURS["study ff+pid"], lw=0.7, label="command")
+    b.plot(t, run["voltage_V"], color=COLOURS["study pid"], lw=0.7, label="amplifier")
     b.set_xlabel("time (s)")
     b.set_ylabel("voltage (V)")
     b.legend(loc="lower right")
@@ -376,7 +381,7 @@ def gains_comparison(table: Sequence[Mapping[str, Any]]) -> Figure:
     labels = [f"{r['gains']}{' + FF' if r['feedforward'] else ''}" for r in table]
     x = np.arange(len(labels))
     settling = [np.nan if r["settling_s"] is None else r["settling_s"] for r in table]
-    colours = [COLOURS["tuned ff+pid"] if r["feedforward"] else COLOURS["paper pid"] for r in table]
+    colours = [COLOURS["tuned ff+pid"] if r["feedforward"] else COLOURS["study pid"] for r in table]
     for a, values, label in ((ax[0][0], settling, "settling time (s)"),
                              (ax[0][1], [r["tracking_rms_N"] for r in table], "tracking RMS (N)")):
         a.bar(x, values, color=colours)
@@ -426,8 +431,7 @@ def learning_iterations(passes: list[dict[str, Any]]) -> Figure:
         a.semilogy(it, pct, "o-", ms=3, lw=0.9, color=f"C{k}",
                    label=f"pass {p['pass']} (best: iteration {int(np.max(p['best_iteration']))})")
         a.axhline(100.0 * p["causal_floor_N"] / span, color=f"C{k}", ls=":", lw=0.7)
-    a.axhline(1.0, color=COLOURS["limit"], ls="--", lw=0.8, label="target: 1 % of the range")
-    a.set_xlabel("learning iteration (0: the tuned loop with its feedforward)")
+    a.set_xlabel("learning trial (0: the tuned loop with its feedforward alone)")
     a.set_ylabel("tracking RMS (% of range)")
     a.legend(loc="upper right")
     return fig

@@ -259,7 +259,7 @@ def _setup(gains_path: str | Path, backend: str, backend_options: dict[str, str]
         info["learned"] = {"path": str(learned), "sha256": signal.content_sha256, "iteration": signal.iteration,
                            "method": signal.method, "preview_s": signal.preview_s,
                            "reference_sha256": signal.reference_sha256}
-    band = float(gain_set.criteria.get("band_N", PAPER_BAND_N))
+    band = gain_set.criteria.band_N if gain_set.criteria is not None else PAPER_BAND_N
     return _Setup(gain_set, controller, rig, ref, limits, info, band, signal)
 
 

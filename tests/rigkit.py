@@ -3,6 +3,7 @@
 import signal
 
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.validation import Criteria
 from piezopreload.rig.backends import Fault
 
 #: one injected fault per interlock and the cause it must trip (both loops are tested on these)
@@ -21,5 +22,5 @@ def write_gain_set(path, study, feedforward, gains=None, status="validated", pla
     """A gain set as 'tune' writes it (the paper's gains unless given), on the study's plant unless given."""
     GainSet(gains=gains or study.gains, status=status, feedforward=feedforward, plant=plant or study.rig,
             preset=study.name, references={k: study.references[k] for k in ("step", "trajectory")},
-            criteria={"band_N": study.band_N}).save(path)
+            criteria=Criteria(band_N=study.band_N)).save(path)
     return path

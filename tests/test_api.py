@@ -44,7 +44,7 @@ def test_the_readme_snippet_runs_end_to_end(tmp_path, monkeypatch):
     study, s2, gain_set, run, design, result = (ns[k] for k in ("study", "s2", "gain_set", "run", "design", "result"))
     assert study.rig.bolt_preload_N == 25.0 and s2.rig.bolt_preload_N == 30.0
     assert isinstance(gain_set, pp.GainSet) and gain_set.validated, gain_set.validation
-    assert gain_set.validation["n_plants"] == 8
+    assert gain_set.validation.n_plants == 8
     assert isinstance(run, pp.ClosedLoopRun)
     m = run.step_metrics()
     assert isinstance(m, pp.StepMetrics) and 0 < m.settling_s < study.references["step"].duration_s
@@ -132,7 +132,7 @@ def gain_set(tmp_path_factory):
     ff = study.identify_feedforward()
     gs = pp.GainSet(gains=study.gains, status="validated", feedforward=ff.model, feedforward_info=ff.info(),
                     plant=study.rig, preset=study.name, references=dict(study.references),
-                    criteria=study.criteria.to_dict(), inputs={"study_sha256": study.sha256})
+                    criteria=study.criteria, inputs={"study_sha256": study.sha256})
     return gs.save(tmp_path_factory.mktemp("gs") / "gains.json"), tmp_path_factory.getbasetemp()
 
 

@@ -7,12 +7,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from piezopreload.artifacts.validation import Criteria
 from piezopreload.models.actuator import RigParams
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import PIDGains
 from piezopreload.tuning.pid import TuningSpec, _small_signal_gains
 from piezopreload.tuning.schedule import choose, level_windows, schedule_levels, tune_schedule
-from piezopreload.tuning.validate import Criteria, validate
+from piezopreload.tuning.validate import validate
 
 
 def test_levels_and_windows_tile_the_range():

@@ -118,7 +118,10 @@ def test_the_tune_stage_chooses_between_the_schedule_and_the_robust_set_and_the_
     else:
         assert gains["Kc_V_per_N"] == sched["robust"]["Kc_V_per_N"]
     report = read_artifact(axis_run / "report" / "report.json", "report")
-    assert report["schedule"]["choice"] == sched["choice"] and len(report["schedule"]["rows"]) == 3
+    controller = next(s for s in report["sections"] if s["title"] == "The tuned controller")
+    schedule = next(s for s in controller["subsections"] if s["title"] == "The gain schedule")
+    assert f"Chosen: {sched['choice']}" in schedule["paragraphs"][0]
+    assert len(schedule["tables"][0]["rows"]) == len(sched["levels"]) + 1, "one row per level and the whole range"
     assert (axis_run / "report" / "figures" / "gain-schedule.pdf").stat().st_size > 1000
 
 
@@ -135,3 +138,36 @@ def test_the_tune_stage_s_key_covers_the_validation_limits_only_where_it_chooses
         changed = _stage_key(tune, study, {}) != _stage_key(tune, stricter, {})
         assert changed == scheduled, f"{path.name}: the tune stage's key {'ignores' if scheduled else 'follows'} " \
                                      "the validation limits"
+
+
+def _report_words(report: dict) -> str:
+    def walk(section: dict) -> list[str]:
+        words = [section["title"], *section["paragraphs"], *section["omitted"]]
+        for table in section["tables"]:
+            words += [table["caption"], *table["header"], *(c for row in table["rows"] for c in row)]
+        return words + [w for sub in section["subsections"] for w in walk(sub)]
+
+    return " ".join([report["title"], *report["verdicts"], *report["summary"],
+                     *(w for s in report["sections"] for w in walk(s)),
+                     *(f["caption"] for f in report["figures"].values())])
+
+
+def test_the_report_speaks_of_its_own_study_and_leads_with_its_figures(axis_run):
+    """A whole-system study without published numbers: no sentence of the report is the paper's (its equations are
+    cited by number), no dash stands for a number, the summary opens with the schedule's tracking, and each of the
+    summary's figures is the system artifact's own."""
+    import re
+
+    report = read_artifact(axis_run / "report" / "report.json", "report")
+    words = _report_words(report)
+    paper = [m.group(0) for m in re.finditer(r".{40}paper.{40}", words) if "paper's eq." not in m.group(0)]
+    assert not paper, f"the report speaks of the paper on a study that declares no published numbers: {paper}"
+    assert " – " not in words and " - " not in words.replace(" - force", ""), "a dash stands where a number should"
+    system = read_artifact(axis_run / "system" / "system.json", "system")
+    first = report["summary"][0]
+    assert first.startswith("The designed axis follows its preload schedule") and \
+        f"{system['tracking_rms_N']:.3g} N RMS" in first
+    saving = 1.0 - system["friction_energy_per_cycle"] / system["constant_friction_energy_per_cycle"]
+    friction = [s for s in report["summary"] if "friction energy" in s][0]
+    assert f"{100 * saving:.2g} %" in friction and f"{system['constant_preload_N']:,.0f} N" in friction
+    assert report["verdicts"], "the verdicts on the requirements come first"

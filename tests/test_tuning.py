@@ -8,6 +8,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from piezopreload.artifacts.validation import Criteria
 from piezopreload.cli import main
 from piezopreload.core import native
 from piezopreload.core.artifacts import write_artifact
@@ -19,7 +20,7 @@ from piezopreload.models.loop import run as run_loop
 from piezopreload.models.ops import CASADI, NUMPY, clip
 from piezopreload.rig.export import ExportError, export_text
 from piezopreload.tuning import pid
-from piezopreload.tuning.validate import Criteria, executor, validate
+from piezopreload.tuning.validate import executor, validate
 
 QUIET = dict(noise_N=0.0, adc_bits=32, amp_current_limit_A=0.02, creep_per_decade=0.02, bw_kappa=0.05)
 
@@ -160,13 +161,13 @@ def test_validation_is_the_same_on_any_executor_and_names_failures():
         np.testing.assert_array_equal(a.metrics[k], b.metrics[k])
     assert b.workers == "2 local processes"
     strict = _small_validation(settling_max_s=1e-3)
-    assert not strict.passed and {f["metric"] for f in strict.failures} >= {"settling_s"}
-    assert len([f for f in strict.failures if f["metric"] == "settling_s"]) == 4
+    assert not strict.passed and {f.metric for f in strict.failures} >= {"settling_s"}
+    assert len([f for f in strict.failures if f.metric == "settling_s"]) == 4
     # a limit inside the spread: exactly the plants above it fail, each named with its value
     settle = a.metrics["settling_s"]
     limit = float(np.sort(settle)[1])
     mid = _small_validation(settling_max_s=limit)
-    failed = {f["plant"]: f["value"] for f in mid.failures if f["metric"] == "settling_s"}
+    failed = {f.plant: f.value for f in mid.failures if f.metric == "settling_s"}
     assert failed == {int(i): float(settle[i]) for i in np.flatnonzero(settle > limit)} and 0 < len(failed) < 4
 
 

@@ -133,11 +133,12 @@ class Reproduction:
     spread: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
     repeats: int = 1
 
-    def table(self) -> list[dict[str, Any]]:
+    def table(self, published: dict[str, dict[str, float]] = PAPER_RESULTS) -> list[dict[str, Any]]:
+        """The simulated step numbers beside ``published`` ones (by controller and metric; the paper's by default)."""
         rows = []
         for c in CONTROLLERS:
             for k in _KEYS:
-                sim, paper = self.metrics[c][k], PAPER_RESULTS[c][k]
+                sim, paper = self.metrics[c][k], published[c][k]
                 rows.append({"controller": c, "metric": k, "paper": paper, "simulated": sim, "ratio": sim / paper})
         return rows
 

@@ -13,14 +13,15 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from piezopreload.artifacts.validation import Criteria
 from piezopreload.core.artifacts import finite_or_none
 from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.hysteresis import inverse_at
 from piezopreload.models.metrics import run_numbers
-from piezopreload.tuning.calibrate import CONTROLLERS, PAPER_RESULTS, FeedforwardModel, Reproduction
-from piezopreload.tuning.validate import Criteria, evaluate
+from piezopreload.tuning.calibrate import CONTROLLERS, FeedforwardModel, Reproduction
+from piezopreload.tuning.validate import evaluate
 
 __all__ = ["compare_gains", "tracking_improvement", "Response", "responses", "creep_effect", "reproduction",
            "reproduction_summary"]
@@ -113,22 +114,24 @@ def creep_effect(rig: RigParams, references: dict[str, Reference], candidates: d
     return rows
 
 
-def reproduction(runs: list[Response], reference: str = "step") -> list[dict[str, Any]]:
-    """The paper's six step numbers beside the paper's and the tuned gains' on the rig, per controller and metric."""
+def reproduction(runs: list[Response], published: dict[str, dict[str, float]],
+                 reference: str = "step") -> list[dict[str, Any]]:
+    """Published step numbers (by controller and metric: a study's ``[published]``) beside the study's and the tuned
+    gains' on its plant, per controller and metric."""
     rows = []
     for controller in CONTROLLERS:
         for metric in ("rise_s", "peak_s", "settling_s"):
             got = {r.gains: r.numbers[metric] for r in runs if r.controller == controller and r.reference == reference}
-            rows.append({"controller": controller, "metric": metric, "paper": PAPER_RESULTS[controller][metric],
-                         "reproduction": got["paper"], "tuned": got["tuned"]})
+            rows.append({"controller": controller, "metric": metric, "paper": published[controller][metric],
+                         "reproduction": got["study"], "tuned": got["tuned"]})
     return rows
 
 
-def reproduction_summary(rep: Reproduction) -> dict[str, Any]:
+def reproduction_summary(rep: Reproduction, published: dict[str, dict[str, float]]) -> dict[str, Any]:
     """The paper's six step numbers beside a :class:`Reproduction`'s, each judged within 25 % of the paper's,
     with its range over the noise realisations (a time never reached is None and not within)."""
     rows = [{**r, "within_25pct": bool(abs(r["ratio"] - 1.0) <= 0.25),
-             "range": [finite_or_none(x) for x in rep.spread[r["controller"]][r["metric"]]]} for r in rep.table()]
+             "range": [finite_or_none(x) for x in rep.spread[r["controller"]][r["metric"]]]} for r in rep.table(published)]
     for r in rows:
         if r["simulated"] != r["simulated"]:  # nan: never reached
             r.update(simulated=None, ratio=None, within_25pct=False)

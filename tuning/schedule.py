@@ -36,13 +36,14 @@ from typing import Any
 
 import numpy as np
 
+from piezopreload.artifacts.validation import Criteria, ValidationResult
 from piezopreload.core.parallel import spare_cpus
 from piezopreload.models.actuator import RigParams
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import GainSchedule, PIDGains
 from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, tune_pid
-from piezopreload.tuning.validate import Criteria, ValidationResult, executor, validate
+from piezopreload.tuning.validate import executor, validate
 
 __all__ = ["ScheduleResult", "tune_schedule", "schedule_levels", "level_windows", "choose", "CHOICES"]
 
@@ -141,7 +142,7 @@ def choose(levels: list[dict[str, Any]], whole: dict[str, Any]) -> tuple[str, st
 def _worst(result: ValidationResult) -> dict[str, Any]:
     s = result.summary()
     return {**{k: s[k]["worst"] for k in FIGURES}, "passed": result.passed,
-            "failures": sorted({f["metric"] for f in result.failures})}
+            "failures": sorted({f.metric for f in result.failures})}
 
 
 _REST_S = 0.25  # the rest at a window's bottom before the tuning's step and staircase

@@ -8,12 +8,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
+from piezopreload.artifacts.validation import Criteria
 from piezopreload.core.config import Table
 from piezopreload.core.errors import InputError
 from piezopreload.models.controller import SCHEDULE_MAX
 from piezopreload.tuning.learning import METHODS
 from piezopreload.tuning.pid import TuningSpec, scaled_references
-from piezopreload.tuning.validate import Criteria
 
 __all__ = ["TuningTable", "ValidationTable", "LearningTable", "CRITERIA_LIMITS"]
 

@@ -5,6 +5,11 @@ rig (:meth:`RigParams.vary`), each with the truth hysteresis, creep, sensor nois
 quantisation, the amplifier's limits and the controller's clamp, over the step and the
 trajectory. A gain set passes only if every plant meets every criterion.
 
+The criteria and the result are one type each, on the artifacts floor
+(:class:`~piezopreload.artifacts.validation.Criteria`,
+:class:`~piezopreload.artifacts.validation.ValidationResult`): the gain set carries the result
+and ``validation.json`` holds it.
+
 The batch is cut into chunks run on a ``concurrent.futures``-style executor: inline for one
 worker, local processes (:class:`~concurrent.futures.ProcessPoolExecutor`) by default, or a
 Dask cluster's executor when a scheduler address is given. Each chunk has its own noise seed
@@ -19,18 +24,19 @@ import contextlib
 import os
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
+from piezopreload.artifacts.validation import METRICS, Criteria, ValidationResult
 from piezopreload.core.errors import PiezopreloadError
 from piezopreload.models.actuator import Rig, RigParams
-from piezopreload.models.closedloop import PAPER_BAND_N, Reference, simulate
+from piezopreload.models.closedloop import Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at
 
-__all__ = ["Criteria", "DEFAULT_SPREAD", "ValidationResult", "evaluate", "validate", "executor", "SchedulerError"]
+__all__ = ["DEFAULT_SPREAD", "evaluate", "validate", "executor", "SchedulerError"]
 
 #: Relative standard deviations of the Monte Carlo plants (normal, truncated at 2 sigma): the
 #: 2-sigma extremes sit inside the corners the tuning is robust to (tuning.pid.TuningSpec).
@@ -45,128 +51,8 @@ DEFAULT_SPREAD: dict[str, float] = {
     "noise_N": 0.1,
 }
 
-_METRICS = ("settling_s", "settling_measured_s", "overshoot_N", "tracking_rms_N", "saturated_fraction",
-            "tracking_rms_all_N", "tracking_max_N", "peak_voltage_V")
-
-
 class SchedulerError(PiezopreloadError, RuntimeError):
     """The Dask scheduler cannot be used (not installed, or not reachable)."""
-
-
-@dataclass(frozen=True)
-class Criteria:
-    """What every plant of the validation set must meet.
-
-    * ``settling_max_s``: the step's settling time into ``band_N``, read on ``signal``: the
-      true force by default. The sensor's noise peaks near 0.9-1.1 N over a few thousand
-      samples, so on the measured force a single spike decides whether a response that sits
-      0.5 N inside the band "settles"; that settling time is reported beside it
-      (``settling_measured_s``), as the paper read it.
-    * ``overshoot_max_N``: the step's overshoot of the true force, for the same reason.
-    * ``tracking_rms_max_N``: the trajectory's RMS error outside ``tracking_after_change_s``
-      after each of its jumps (the transport no controller avoids: the minimum-time bound of
-      ``tuning.pid.minimum_time`` is about 0.07 s on the paper's rig) and outside the samples
-      where the command sits at a limit of its range: there the plant cannot reach the
-      reference at all (on the paper's rig 100 N needs ~109 of the 110 V, so about a third
-      of the Monte Carlo plants cannot reach the trajectory's top), which no gains can change.
-      ``saturated_fraction`` reports how much of each trajectory that left out, and the RMS
-      over the whole trajectory is reported beside it (``tracking_rms_all_N``).
-    * ``peak_voltage_max_V``: the command over both.
-    """
-
-    settling_max_s: float = 0.60
-    overshoot_max_N: float = PAPER_BAND_N
-    tracking_rms_max_N: float = 1.0
-    peak_voltage_max_V: float = 110.0
-    band_N: float = PAPER_BAND_N
-    signal: str = "force_N"
-    tracking_after_change_s: float = 0.1
-
-    def __post_init__(self) -> None:
-        if not (np.isfinite(self.tracking_after_change_s) and self.tracking_after_change_s >= 0):
-            raise ValueError(f"Criteria.tracking_after_change_s must be >= 0, got {self.tracking_after_change_s!r}.")
-        for name in ("settling_max_s", "overshoot_max_N", "tracking_rms_max_N", "peak_voltage_max_V", "band_N"):
-            x = getattr(self, name)
-            if not (np.isfinite(x) and x > 0):
-                raise ValueError(f"Criteria.{name} must be finite and > 0, got {x!r}.")
-        if self.signal not in ("measured_N", "force_N"):
-            raise ValueError(f"Criteria.signal must be 'measured_N' or 'force_N', got {self.signal!r}.")
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    def failures(self, m: dict[str, np.ndarray]) -> list[dict[str, Any]]:
-        """One entry per plant and criterion it misses."""
-        limits = {
-            "settling_s": self.settling_max_s, "overshoot_N": self.overshoot_max_N,
-            "tracking_rms_N": self.tracking_rms_max_N, "peak_voltage_V": self.peak_voltage_max_V,
-        }
-        out = []
-        for key, limit in limits.items():
-            values = m[key]
-            bad = np.flatnonzero(~(values <= limit))  # nan (never settled) fails
-            out += [{"plant": int(i), "metric": key, "value": _json_float(values[i]), "limit": limit} for i in bad]
-        return out
-
-
-def _json_float(x: float) -> float | None:
-    return float(x) if np.isfinite(x) else None
-
-
-@dataclass(frozen=True, eq=False)
-class ValidationResult:
-    """Per-plant metrics (arrays over the plants), their summary and the verdict."""
-
-    metrics: dict[str, np.ndarray]
-    criteria: Criteria
-    n_plants: int
-    seed: int
-    spread: dict[str, float]
-    failures: list[dict[str, Any]]
-    seconds: float
-    workers: str
-
-    @property
-    def passed(self) -> bool:
-        return not self.failures
-
-    def summary(self) -> dict[str, dict[str, float | None]]:
-        """Worst case, median and 95th percentile of every metric (nan ranks worst)."""
-        out = {}
-        for key, v in self.metrics.items():
-            w = np.where(np.isnan(v), np.inf, v)
-            out[key] = {
-                "worst": _json_float(float(np.max(w))), "p50": _json_float(float(np.percentile(w, 50))),
-                "p95": _json_float(float(np.percentile(w, 95))), "best": _json_float(float(np.min(w))),
-            }
-        return out
-
-    def headline(self) -> dict[str, float | None]:
-        """The worst plant's settling time (and the 95th percentile's), overshoot, tracking error and voltage."""
-        s = self.summary()
-        return {"worst_settling_s": s["settling_s"]["worst"], "p95_settling_s": s["settling_s"]["p95"],
-                "worst_overshoot_N": s["overshoot_N"]["worst"], "worst_tracking_rms_N": s["tracking_rms_N"]["worst"],
-                "worst_peak_voltage_V": s["peak_voltage_V"]["worst"]}
-
-    def failed_plants(self, shown: int = 3) -> str:
-        """``failed on N of M plants (the first failures)``: what a refusal says."""
-        first = "; ".join(f"plant {f['plant']}: {f['metric']} {f['value']} > {f['limit']:g}" for f in self.failures[:shown])
-        return f"failed on {len({f['plant'] for f in self.failures})} of {self.n_plants} plants ({first})"
-
-    def record(self, gain_set_sha256: str, inputs: dict[str, Any]) -> dict[str, Any]:
-        """The ``validation`` artifact's body: every plant's metrics with the summary, for the gain set validated."""
-        return {"gain_set_sha256": gain_set_sha256, "passed": self.passed, "n_plants": self.n_plants, "seed": self.seed,
-                "criteria": self.criteria.to_dict(), "spread": self.spread,
-                "metrics": {k: [_json_float(x) for x in v] for k, v in self.metrics.items()},
-                "summary": self.summary(), "failures": self.failures, "seconds": self.seconds, "inputs": inputs}
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "passed": self.passed, "n_plants": self.n_plants, "seed": self.seed, "spread": self.spread,
-            "criteria": self.criteria.to_dict(), "summary": self.summary(),
-            "failures": self.failures[:50], "n_failures": len(self.failures),
-            "seconds": self.seconds, "workers": self.workers,
-        }
 
 
 @dataclass(frozen=True)
@@ -266,7 +152,7 @@ def validate(
     gains: PIDGains,
     feedforward: HysteresisModel | CreepPI | None,
     plant: RigParams,
-    criteria: Criteria = Criteria(),
+    criteria: Criteria | None = None,
     *,
     n_plants: int = 200,
     spread: dict[str, float] | None = None,
@@ -289,6 +175,7 @@ def validate(
     if plant.batch_shape:
         raise ValueError("validate takes one nominal plant; the batch is drawn from it.")
     spread = dict(DEFAULT_SPREAD if spread is None else spread)
+    criteria = criteria or Criteria()
     step = step or Reference.step(25.0, 60.0, 0.5, 3.0)
     trajectory = trajectory or Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 2.0, t_start_s=0.5)
     t0 = time.perf_counter()
@@ -309,8 +196,6 @@ def validate(
         results.append(fut.result())
         if progress is not None:
             progress(i + 1, len(futures))
-    metrics = {k: np.concatenate([r[k] for r in results]) for k in _METRICS}
-    return ValidationResult(
-        metrics=metrics, criteria=criteria, n_plants=n_plants, seed=seed, spread=spread,
-        failures=criteria.failures(metrics), seconds=time.perf_counter() - t0, workers=pool_name,
-    )
+    metrics = {k: np.concatenate([r[k] for r in results]) for k in METRICS}
+    return ValidationResult(metrics=metrics, criteria=criteria, n_plants=n_plants, seed=seed, spread=spread,
+                            seconds=time.perf_counter() - t0, workers=pool_name)

@@ -13,8 +13,9 @@ from dataclasses import replace
 from typing import Any
 
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core.errors import InputError
-from piezopreload.tuning.validate import Criteria, SchedulerError, ValidationResult, executor, validate
+from piezopreload.tuning.validate import SchedulerError, executor, validate
 
 __all__ = ["validate_gain_set"]
 
@@ -31,10 +32,9 @@ def validate_gain_set(gain_set: GainSet, *, n_plants: int, seed: int, workers: i
         raise InputError(f"n_plants: must be >= 1, got {n_plants}")
     if gain_set.plant is None:
         raise InputError("the gain set names no plant (field 'plant.rig'); write it again with 'piezopreload tune'")
-    try:
-        criteria = Criteria(**gain_set.criteria)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"field 'criteria' is not valid: {exc}; write the gain set again with 'piezopreload tune'") from None
+    if gain_set.criteria is None:
+        raise InputError("the gain set names no criteria (field 'criteria'); write it again with 'piezopreload tune'")
+    criteria = gain_set.criteria
     step, trajectory = gain_set.reference("step"), gain_set.reference("trajectory")
     try:
         with executor(workers, scheduler) as (pool, pool_name):
@@ -43,7 +43,7 @@ def validate_gain_set(gain_set: GainSet, *, n_plants: int, seed: int, workers: i
                               progress=progress)
     except SchedulerError as exc:
         raise InputError(f"--scheduler: {exc}") from None
-    judged = replace(gain_set, status="validated" if result.passed else "candidate", validation=result.to_dict(),
-                     criteria=criteria.to_dict(), inputs={**gain_set.inputs, **(inputs or {}), "seed": seed},
+    judged = replace(gain_set, status="validated" if result.passed else "candidate", validation=result,
+                     inputs={**gain_set.inputs, **(inputs or {}), "seed": seed},
                      content_sha256=None)
     return judged, result

@@ -8,6 +8,7 @@ from typing import Any
 
 from piezopreload import __version__
 from piezopreload.artifacts.gainset import REFERENCES, GainSet
+from piezopreload.artifacts.requirements import Requirement
 from piezopreload.cli._common import (
     fmt,
     json_flag,
@@ -35,8 +36,9 @@ def register_run(sub: Any) -> None:
             "its artifacts into the output folder and records its inputs' hashes in pipeline.json; a stage whose "
             "inputs have not changed is not run again. Without STUDY, the machine axis (studies/machine_axis.toml); "
             "the paper's study is studies/paper2021.toml."),
-        epilog=("exit codes: 0 done, 1 internal failure, 2 bad input or a stage that failed (named), 3 the rig run "
-                "stopped by an interlock"))
+        epilog=("exit codes: 0 done, every requirement met; 1 internal failure; 2 bad input or a stage that failed "
+                "(named); 3 the rig run stopped by an interlock; 4 the study ran but missed a requirement (each one "
+                "is printed, and listed under summary.requirements_missed with --json)"))
     p.add_argument("study", nargs="?", metavar="STUDY.toml", help="study file (default: the machine axis, machine_axis.toml)")
     p.add_argument("--out", default="piezopreload-out", metavar="DIR", help="output folder (default ./piezopreload-out)")
     p.add_argument("--force", action="store_true", help="run every stage again, changed or not")
@@ -62,6 +64,12 @@ def _print_run(s: dict[str, Any]) -> None:
     if s["report"]:
         print(f"report: {s['report']}")
     print(f"outputs: {s['out']}")
+    met = s["summary"]["requirements_met"]
+    if met is not None:
+        missed = s["summary"]["requirements_missed"]
+        print("every requirement met" if met else f"{len(missed)} requirement(s) missed:")
+        for r in missed:
+            print(f"  missed: {Requirement.from_dict(r).sentence()}")
 
 
 def register_report(sub: Any) -> None:

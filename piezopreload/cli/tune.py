@@ -92,8 +92,7 @@ def _cmd_validate(args: argparse.Namespace) -> dict[str, Any]:
 
     check_monte_carlo(args)
     before = GainSet.load(args.gains)
-    stored = (before.validation or {}).get("n_plants")
-    plants = args.plants or (stored if isinstance(stored, int) and stored >= 1 else 200)
+    plants = args.plants or (before.validation.n_plants if before.validation is not None else 200)
     seed = int(before.inputs.get("seed", 0)) if args.seed is None else args.seed
     say(f"validating {args.gains} on {plants} plants ...")
     try:

@@ -1,0 +1,335 @@
+"""The Monte Carlo validation: its criteria, every plant's metrics, their statistics and the verdict.
+
+One type, :class:`ValidationResult`, is what :func:`piezopreload.tuning.validate.validate`
+returns, what a gain set carries (``gain_set.validation``), what ``validation.json`` holds (with
+the gain set's hash and the inputs: :meth:`ValidationResult.save`, :meth:`ValidationResult.load`)
+and what the report reads. Its statistics are attributes: ``result.worst.settling_s``,
+``result.p95.overshoot_N``; its limits are :class:`~piezopreload.artifacts.requirements.Requirement`
+values (``result.requirements``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from piezopreload.artifacts.requirements import Requirement
+from piezopreload.core.artifacts import read_artifact, write_artifact
+from piezopreload.core.errors import ArtifactError
+from piezopreload.models.closedloop import PAPER_BAND_N
+
+__all__ = ["Criteria", "Metrics", "Failure", "ValidationResult", "METRICS"]
+
+#: the metrics evaluated on every plant, in their order
+METRICS = ("rise_s", "settling_s", "settling_measured_s", "overshoot_N", "tracking_rms_N", "saturated_fraction",
+           "tracking_rms_all_N", "tracking_max_N", "peak_voltage_V")
+
+#: each limit of the criteria: the metric it bounds and its name in words
+_LIMITS = {"settling_max_s": ("settling_s", "worst settling time", "s"),
+           "overshoot_max_N": ("overshoot_N", "worst overshoot", "N"),
+           "tracking_rms_max_N": ("tracking_rms_N", "worst tracking RMS after the changes", "N"),
+           "peak_voltage_max_V": ("peak_voltage_V", "highest command", "V")}
+
+
+@dataclass(frozen=True)
+class Criteria:
+    """What every plant of the validation set must meet.
+
+    * ``settling_max_s``: the step's settling time into ``band_N``, read on ``signal``: the
+      true force by default. The sensor's noise peaks near 0.9-1.1 N over a few thousand
+      samples, so on the measured force a single spike decides whether a response that sits
+      0.5 N inside the band "settles"; that settling time is reported beside it
+      (``settling_measured_s``), as the paper read it.
+    * ``overshoot_max_N``: the step's overshoot of the true force, for the same reason.
+    * ``tracking_rms_max_N``: the trajectory's RMS error outside ``tracking_after_change_s``
+      after each of its jumps (the transport no controller avoids) and outside the samples where
+      the command sits at a limit of its range, where the plant cannot reach the reference at
+      all, which no gains can change. ``saturated_fraction`` reports how much of each trajectory
+      that left out, and the RMS over the whole trajectory is reported beside it
+      (``tracking_rms_all_N``).
+    * ``peak_voltage_max_V``: the command over both.
+    """
+
+    settling_max_s: float = 0.60
+    overshoot_max_N: float = PAPER_BAND_N
+    tracking_rms_max_N: float = 1.0
+    peak_voltage_max_V: float = 110.0
+    band_N: float = PAPER_BAND_N
+    signal: str = "force_N"
+    tracking_after_change_s: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.tracking_after_change_s) and self.tracking_after_change_s >= 0):
+            raise ValueError(f"Criteria.tracking_after_change_s must be >= 0, got {self.tracking_after_change_s!r}.")
+        for name in ("settling_max_s", "overshoot_max_N", "tracking_rms_max_N", "peak_voltage_max_V", "band_N"):
+            x = getattr(self, name)
+            if not (math.isfinite(x) and x > 0):
+                raise ValueError(f"Criteria.{name} must be finite and > 0, got {x!r}.")
+        if self.signal not in ("measured_N", "force_N"):
+            raise ValueError(f"Criteria.signal must be 'measured_N' or 'force_N', got {self.signal!r}.")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, doc: Any, where: str = "criteria") -> Criteria:
+        if not isinstance(doc, dict):
+            raise ArtifactError(f"field '{where}' must be an object")
+        unknown = sorted(set(doc) - {f.name for f in fields(cls)})
+        if unknown:
+            raise ArtifactError(f"field '{where}.{unknown[0]}' is not a criterion")
+        try:
+            return cls(**doc)
+        except (TypeError, ValueError) as exc:
+            raise ArtifactError(f"field '{where}' is not valid: {exc}") from None
+
+    def limits(self) -> dict[str, float]:
+        """Each bounded metric's limit (``{"settling_s": 0.6, ...}``)."""
+        return {metric: float(getattr(self, key)) for key, (metric, _, _) in _LIMITS.items()}
+
+    def failures(self, metrics: dict[str, NDArray[np.float64]]) -> tuple[Failure, ...]:
+        """One entry per plant and criterion it misses (a NaN, a step that never settled, misses)."""
+        out: list[Failure] = []
+        for metric, limit in self.limits().items():
+            values = metrics[metric]
+            bad = np.flatnonzero(~(values <= limit))
+            out += [Failure(int(i), metric, _finite_or_none(values[i]), limit) for i in bad]
+        return tuple(out)
+
+
+@dataclass(frozen=True)
+class Metrics:
+    """One statistic (the worst, a percentile, the best) of every metric over the plants; None where none is finite."""
+
+    rise_s: float | None
+    settling_s: float | None
+    settling_measured_s: float | None
+    overshoot_N: float | None
+    tracking_rms_N: float | None
+    saturated_fraction: float | None
+    tracking_rms_all_N: float | None
+    tracking_max_N: float | None
+    peak_voltage_V: float | None
+
+
+@dataclass(frozen=True)
+class Failure:
+    """A plant that missed a criterion: its index, the metric, its value (None: never settled) and the limit."""
+
+    plant: int
+    metric: str
+    value: float | None
+    limit: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def _of(values: NDArray[np.float64], how: str) -> float:
+    w = np.where(np.isnan(values), np.inf, values)  # a NaN (a step that never settled) ranks worst
+    if how == "worst":
+        return float(np.max(w))
+    if how == "best":
+        return float(np.min(w))
+    return float(np.percentile(w, 95.0 if how == "p95" else 50.0))
+
+
+def _statistic(metrics: dict[str, NDArray[np.float64]], how: str) -> Metrics:
+    return Metrics(**{key: _finite_or_none(_of(metrics[key], how)) for key in METRICS})
+
+
+@dataclass(frozen=True, eq=False)
+class ValidationResult:
+    """The gains run on a Monte Carlo set of nonlinear plants: every plant's metrics and the verdict.
+
+    Parameters
+    ----------
+    metrics : dict of str to ndarray
+        Every metric of :data:`METRICS`, one value per plant (the nominal plant first).
+    criteria : Criteria
+        What every plant had to meet.
+    n_plants, seed : int
+        The set's size and its draw's (and noise's) seed.
+    spread : dict of str to float
+        The relative standard deviations the plants were drawn with.
+    seconds : float
+        How long it took.
+    workers : str
+        Where it ran ("inline", "2 local processes", "dask tcp://...").
+    gain_set_sha256 : str or None
+        The gain set validated (set when it is saved as ``validation.json``).
+    inputs : dict
+        The inputs' hashes (``validation.json``).
+    """
+
+    metrics: dict[str, NDArray[np.float64]]
+    criteria: Criteria
+    n_plants: int
+    seed: int
+    spread: dict[str, float]
+    seconds: float = 0.0
+    workers: str = "inline"
+    gain_set_sha256: str | None = None
+    inputs: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        missing = [k for k in METRICS if k not in self.metrics]
+        if missing:
+            raise ValueError(f"ValidationResult.metrics lacks {', '.join(missing)}")
+        bad = [k for k in METRICS if np.shape(self.metrics[k]) != (self.n_plants,)]
+        if bad:
+            raise ValueError(f"ValidationResult.metrics['{bad[0]}'] must hold one value per plant ({self.n_plants}), "
+                             f"got shape {np.shape(self.metrics[bad[0]])}")
+
+    # ---- the verdict ---------------------------------------------------------------------------
+    @property
+    def failures(self) -> tuple[Failure, ...]:
+        """Every (plant, criterion) missed."""
+        return self.criteria.failures(self.metrics)
+
+    @property
+    def passed(self) -> bool:
+        """Whether every plant met every criterion."""
+        return not self.failures
+
+    @property
+    def failed_plant_count(self) -> int:
+        return len({f.plant for f in self.failures})
+
+    @property
+    def worst(self) -> Metrics:
+        return _statistic(self.metrics, "worst")
+
+    @property
+    def p95(self) -> Metrics:
+        return _statistic(self.metrics, "p95")
+
+    @property
+    def median(self) -> Metrics:
+        return _statistic(self.metrics, "p50")
+
+    @property
+    def best(self) -> Metrics:
+        return _statistic(self.metrics, "best")
+
+    @property
+    def requirements(self) -> tuple[Requirement, ...]:
+        """Each limit beside the worst plant's value (a step that never settled counts as infinitely late)."""
+        worst = self.worst
+        out = []
+        for key, (metric, name, unit) in _LIMITS.items():
+            value = getattr(worst, metric)
+            limit = float(getattr(self.criteria, key))
+            if value is None:  # never settled, or no finite value: a miss by more than any number
+                value = 1e9 * max(abs(limit), 1.0)
+            out.append(Requirement(f"{name} over {self.n_plants} Monte Carlo plants", float(value), limit, unit, "max",
+                                   f"[validation] {key}"))
+        return tuple(out)
+
+    def failed_plants(self, shown: int = 3) -> str:
+        """``failed on N of M plants (the first failures)``: what a refusal says."""
+        first = "; ".join(f"plant {f.plant}: {f.metric} {f.value} > {f.limit:g}" for f in self.failures[:shown])
+        return f"failed on {self.failed_plant_count} of {self.n_plants} plants ({first})"
+
+    def headline(self) -> dict[str, float | None]:
+        """The worst plant's settling time (and the 95th percentile's), overshoot, tracking error and voltage."""
+        w = self.worst
+        return {"worst_settling_s": w.settling_s, "p95_settling_s": self.p95.settling_s,
+                "worst_overshoot_N": w.overshoot_N, "worst_tracking_rms_N": w.tracking_rms_N,
+                "worst_peak_voltage_V": w.peak_voltage_V}
+
+    def summary(self) -> dict[str, dict[str, float | None]]:
+        """Every metric's worst, median, 95th percentile and best, by metric (as ``to_dict`` writes them)."""
+        stats = {"worst": self.worst, "p50": self.median, "p95": self.p95, "best": self.best}
+        return {k: {s: getattr(m, k) for s, m in stats.items()} for k in METRICS}
+
+    # ---- the document ----------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """The body of ``validation.json`` and of a gain set's ``validation`` field."""
+        failures = self.failures
+        return {"gain_set_sha256": self.gain_set_sha256, "passed": self.passed, "n_plants": self.n_plants,
+                "seed": self.seed, "criteria": self.criteria.to_dict(), "spread": dict(self.spread),
+                "metrics": {k: [_finite_or_none(x) for x in self.metrics[k]] for k in METRICS},
+                "summary": self.summary(), "failures": [f.to_dict() for f in failures[:50]],
+                "n_failures": len(failures), "seconds": self.seconds, "workers": self.workers,
+                "inputs": dict(self.inputs)}
+
+    @classmethod
+    def from_dict(cls, doc: Any, where: str = "validation") -> ValidationResult:
+        """The result from its document; an :class:`ArtifactError` names the field that is wrong."""
+        if not isinstance(doc, dict):
+            raise ArtifactError(f"field '{where}' must be an object")
+        for key in ("n_plants", "seed", "criteria", "spread", "metrics"):
+            if key not in doc:
+                raise ArtifactError(f"field '{where}.{key}' is missing; validate the gain set again")
+        raw = doc["metrics"]
+        if not isinstance(raw, dict):
+            raise ArtifactError(f"field '{where}.metrics' must be an object")
+        metrics = {}
+        for key in METRICS:
+            values = raw.get(key)
+            if not isinstance(values, list):
+                raise ArtifactError(f"field '{where}.metrics.{key}' must be a list of numbers")
+            metrics[key] = np.array([np.nan if x is None else x for x in values], float)
+        try:
+            return cls(metrics, Criteria.from_dict(doc["criteria"], f"{where}.criteria"), int(doc["n_plants"]),
+                       int(doc["seed"]), {str(k): float(v) for k, v in dict(doc["spread"]).items()},
+                       float(doc.get("seconds", 0.0)), str(doc.get("workers", "inline")), doc.get("gain_set_sha256"),
+                       dict(doc.get("inputs") or {}))
+        except (TypeError, ValueError) as exc:
+            raise ArtifactError(f"field '{where}' is not valid: {exc}") from None
+
+    def save(self, path: str | Path) -> Path:
+        """Write ``validation.json`` atomically (kind ``validation``)."""
+        write_artifact(path, "validation", self.to_dict())
+        return Path(path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> ValidationResult:
+        """Read ``validation.json``: schema and every field checked."""
+        return cls.from_dict(read_artifact(path, "validation"), str(path))
+
+    def __repr__(self) -> str:
+        verdict = "passed" if self.passed else f"failed on {self.failed_plant_count} plants"
+        w = self.worst
+        return (f"ValidationResult({verdict}, {self.n_plants} plants, seed {self.seed}; worst settling "
+                f"{_show(w.settling_s, 's')}, overshoot {_show(w.overshoot_N, 'N')}, tracking RMS "
+                f"{_show(w.tracking_rms_N, 'N')})")
+
+    def _repr_html_(self) -> str:
+        rows = "".join(
+            f"<tr><td>{r.name}</td><td>{_show(r.value if r.value < 1e8 else None, r.unit)}</td>"
+            f"<td>{r.limit:g} {r.unit}</td><td>{'met' if r.met else '<b>missed</b>'}</td></tr>"
+            for r in self.requirements)
+        return (f"<p><b>Monte Carlo validation</b>: {'passed' if self.passed else 'failed'} on {self.n_plants} plants "
+                f"(seed {self.seed})</p><table><tr><th>limit</th><th>worst plant</th><th>limit</th><th>verdict</th></tr>"
+                f"{rows}</table>")
+
+    def plot(self) -> Any:
+        """A Figure: each bounded metric's distribution over the plants, with its limit dashed."""
+        from matplotlib.figure import Figure
+
+        limits = self.criteria.limits()
+        fig = Figure(figsize=(10, 3))
+        axes = fig.subplots(1, len(limits))
+        for ax, (metric, limit) in zip(axes, limits.items()):
+            values = self.metrics[metric][np.isfinite(self.metrics[metric])]
+            ax.hist(values, bins=20, color="tab:blue", alpha=0.8)
+            ax.axvline(limit, color="tab:red", linestyle="--")
+            ax.set_xlabel(metric)
+        axes[0].set_ylabel("plants")
+        fig.tight_layout()
+        return fig
+
+
+def _show(x: float | None, unit: str) -> str:
+    return "never" if x is None else f"{x:.3g} {unit}"

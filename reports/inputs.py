@@ -1,0 +1,157 @@
+"""What the report reads: the study's facts and its stages' artifacts, each read once.
+
+:class:`ReportStudy` is what the report needs of the study itself (its names, its plant, the
+published numbers it declares); :class:`Artifacts` reads the artifacts the stages wrote,
+named by the stage records of ``pipeline.json``: a stage that did not run has none, and the
+report leaves its sections out with the stage's reason.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.requirements import Requirement, checked_by_stages
+from piezopreload.artifacts.validation import ValidationResult
+from piezopreload.core.artifacts import read_artifact
+from piezopreload.core.errors import InputError
+
+__all__ = ["ReportStudy", "Published", "Artifacts", "read_csv_columns"]
+
+
+@dataclass(frozen=True)
+class Published:
+    """Published step numbers a study compares itself with (its ``[published]`` table).
+
+    ``step`` maps a controller (``pid``, ``ff+pid``) to its rise, peak and settling times in s;
+    ``gains_label`` names the study's starting gains in the report ("the paper's gains").
+    """
+
+    source: str
+    gains_label: str
+    step: dict[str, dict[str, float]]
+
+
+@dataclass(frozen=True)
+class ReportStudy:
+    """What the report prints of the study itself (the rest comes from the artifacts)."""
+
+    name: str
+    title: str
+    path: str
+    sha256: str
+    source: str  # the study file as the user named it
+    description: str = ""
+    screw_mm: tuple[float, float] | None = None  # the design's nominal diameter and lead
+    frequency_min_Hz: float | None = None  # the design's limit on the first axial mode
+    published: Published | None = None
+    gains_label: str = "the study's gains"  # its [controller] gains, as the report names them
+
+    def label(self, gains: str) -> str:
+        """A gain set's name in a sentence: ``study`` (the ``[controller]`` gains) or ``tuned``."""
+        return {"study": self.gains_label, "tuned": "the tuned gains", "simc": "SIMC's gains"}.get(gains, gains)
+
+
+def read_csv_columns(path: str | Path) -> dict[str, np.ndarray]:
+    """A CSV written by the pipeline (``#`` comments, one header line) as named columns."""
+    with open(path, encoding="utf-8") as fh:
+        lines = [line for line in fh if line.strip() and not line.startswith("#")]
+    if not lines:
+        raise InputError(f"{path}: no header line")
+    names = lines[0].strip().split(",")
+    data = np.loadtxt(lines[1:], delimiter=",", ndmin=2) if len(lines) > 1 else np.empty((0, len(names)))
+    if data.shape[1] != len(names):
+        raise InputError(f"{path}: {data.shape[1]} columns but the header names {len(names)}")
+    return {name: data[:, j] for j, name in enumerate(names)}
+
+
+@dataclass
+class Artifacts:
+    """The artifacts of a study's output folder, read on first use; ``has(stage)`` says whether a stage ran."""
+
+    out: Path
+    records: dict[str, dict[str, Any]]
+    _cache: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    def has(self, stage: str) -> bool:
+        return self.records.get(stage, {}).get("status") == "done"
+
+    def reason(self, stage: str) -> str:
+        """Why a stage has no artifacts: its recorded reason, or its status."""
+        rec = self.records.get(stage, {})
+        return str(rec.get("reason") or rec.get("message") or rec.get("status", "it did not run"))
+
+    def path(self, stage: str, label: str) -> Path:
+        rec = self.records.get(stage, {})
+        if rec.get("status") != "done" or label not in rec.get("outputs", {}):
+            raise InputError(f"{self.out}: the stage '{stage}' has no output '{label}'; run the study again")
+        return self.out / rec["outputs"][label]["path"]
+
+    def summary(self, stage: str) -> dict[str, Any]:
+        return dict(self.records.get(stage, {}).get("summary", {}))
+
+    def _read(self, key: str, stage: str, label: str, kind: str) -> dict[str, Any]:
+        if key not in self._cache:
+            self._cache[key] = read_artifact(self.path(stage, label), kind)
+        return self._cache[key]
+
+    # ---- the artifacts -----------------------------------------------------------------------------
+    @functools.cached_property
+    def gain_set(self) -> GainSet:
+        return GainSet.load(self.path("validate", "gains"))
+
+    @functools.cached_property
+    def validation(self) -> ValidationResult:
+        return ValidationResult.load(self.path("validate", "validation"))
+
+    @property
+    def responses(self) -> dict[str, Any]:
+        return self._read("responses", "compare", "responses", "responses")
+
+    @property
+    def feedforward(self) -> dict[str, Any]:
+        return self._read("feedforward", "identify", "model", "hysteresis-model")
+
+    @property
+    def tuning(self) -> dict[str, Any]:
+        return self._read("tuning", "tune", "tuning", "tuning")
+
+    @property
+    def design(self) -> dict[str, Any] | None:
+        return self._read("design", "design", "design", "design") if self.has("design") else None
+
+    @property
+    def plant(self) -> dict[str, Any] | None:
+        return self._read("plant", "plant", "plant", "plant") if self.has("plant") else None
+
+    @property
+    def system(self) -> dict[str, Any] | None:
+        return self._read("system", "system", "system", "system") if self.has("system") else None
+
+    @property
+    def learning(self) -> dict[str, Any] | None:
+        return self._read("learning", "learn", "learning", "learning") if self.has("learn") else None
+
+    @property
+    def rig_run(self) -> dict[str, Any] | None:
+        return self._read("rig_run", "rig", "log_json", "rig-run") if self.has("rig") else None
+
+    def csv(self, stage: str, label: str) -> dict[str, np.ndarray]:
+        return read_csv_columns(self.path(stage, label))
+
+    def response_runs(self) -> dict[str, dict[str, dict[str, np.ndarray]]]:
+        """Each reference's closed-loop runs, by ``"<gains> <controller>"`` (``study pid``, ``tuned ff+pid``)."""
+        runs: dict[str, dict[str, dict[str, np.ndarray]]] = {}
+        for run in self.responses["runs"]:
+            runs.setdefault(run["reference"], {})[f"{run['gains']} {run['controller']}"] = read_csv_columns(
+                self.out / run["csv"])
+        return runs
+
+    def requirements(self) -> tuple[Requirement, ...]:
+        """Every requirement the stages checked, in stage order (what ``run`` judges its exit code by)."""
+        return checked_by_stages(self.records)

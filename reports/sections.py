@@ -1,0 +1,520 @@
+"""The report's sections, each built from the study's own artifacts: its references, limits and names.
+
+One builder per section returns a :class:`Part`: the section (paragraphs, tables, figures by
+name, what it leaves out and why) and the figures to draw. A section whose stage did not run
+is not built; :func:`study_section` says which stages did not apply and why. Nothing here
+speaks of the paper unless the study declares the paper's numbers (``[published]``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from piezopreload.artifacts.gainset import gains_to_dict
+from piezopreload.reports import figures as F
+from piezopreload.reports.document import Section, Table, fmt, pct
+from piezopreload.reports.inputs import Artifacts, ReportStudy
+
+__all__ = ["Part", "study_section", "requirements_section", "design_section", "system_section", "learning_section", "feedforward_section",
+           "controller_section", "responses_section", "rig_section", "provenance_section", "levels_text",
+           "signal_name", "CONTROLLER_NAMES"]
+
+CONTROLLER_NAMES = {"pid": "PID", "ff+pid": "FF + PID"}
+_METRIC_NAMES = {"rise_s": "rise time (s)", "peak_s": "peak time (s)", "settling_s": "settling time (s)"}
+_KIND_NAMES = {"classical": "a classical Prandtl-Ishlinskii model (the paper's eq. 15)",
+               "paper-asymmetric": "the asymmetric Prandtl-Ishlinskii model of the paper's eq. 18",
+               "modified": "Kuhnen's modified Prandtl-Ishlinskii model"}
+
+
+@dataclass(frozen=True)
+class Part:
+    """A section and the figures it names: ``(name, figure, caption)``."""
+
+    section: Section
+    figures: tuple[tuple[str, Figure, str], ...] = field(default=())
+
+
+def signal_name(signal: str) -> str:
+    return {"measured_N": "measured force", "force_N": "true force"}.get(signal, signal)
+
+
+def levels_text(reference_N: np.ndarray) -> str:
+    """A reference's levels as the report names it: ``0 → 2,500 N`` for a step, ``60-80-100-80-60 N`` for a staircase."""
+    levels = [float(reference_N[0])] + [float(b) for a, b in zip(reference_N[:-1], reference_N[1:]) if b != a]
+    if len(levels) > 12:  # a ramped reference: its range
+        return f"{fmt(min(levels))} to {fmt(max(levels))} N"
+    sep = " → " if len(levels) == 2 else "-"
+    return sep.join(fmt(x) for x in levels) + " N"
+
+
+def _when(x: float | None, unit: str, never: str) -> str:
+    return never if x is None else f"{fmt(x)} {unit}"
+
+
+# --------------------------------------------------------------------------------------
+# 1. the study
+# --------------------------------------------------------------------------------------
+def study_section(study: ReportStudy, a: Artifacts, stage_names: tuple[str, ...]) -> Part:
+    """What the study is, what its plant is, and which stages did not apply to it and why."""
+    plant = a.plant
+    paragraphs = [study.description] if study.description else []
+    if plant is not None:
+        paragraphs.append(
+            f"The plant is the designed preload system ([plant] from_design): {plant['rig']['n_stacks']} x "
+            f"{plant['rig']['stack']['name']} stacks between the two nuts, the stacks' share of the preload "
+            f"0-{fmt(plant['stack_force_max_N'])} N on top of {fmt(plant['bolt_preload_N'])} N from the bolts; every "
+            "control step (identification, tuning, validation, learning) ran on it.")
+    else:
+        paragraphs.append("The plant is the study's [rig] table; every control step (identification, tuning, "
+                          "validation) ran on it.")
+    skipped = [f"{name}: {a.reason(name)}" for name in stage_names
+               if a.records.get(name, {}).get("status") == "not applicable"]
+    if skipped:
+        paragraphs.append("Stages that did not apply to this study: " + "; ".join(skipped) + ".")
+    return Part(Section("The study", tuple(paragraphs)))
+
+
+def requirements_section(a: Artifacts) -> Part | None:
+    """Every requirement the stages checked: what was achieved against what was required, and the margin."""
+    checked = a.requirements()
+    if not checked:
+        return None
+    rows = tuple((r.name, f"{fmt(r.value)} {r.unit}", f"{'at least' if r.sense == 'min' else 'at most'} "
+                  f"{fmt(r.limit)} {r.unit}", f"{fmt(r.margin)} {r.unit}", "met" if r.met else "missed", r.source)
+                 for r in checked)
+    table = Table(("requirement", "achieved", "required", "margin", "verdict", "set by"), rows,
+                  "The study's requirements, each against the worst case its run reached.", "lrrrcl", small=True)
+    return Part(Section("The requirements", (), (table,)))
+
+
+# --------------------------------------------------------------------------------------
+# the design
+# --------------------------------------------------------------------------------------
+def design_section(study: ReportStudy, design: dict[str, Any]) -> Part:
+    """The design optimum, its fronts, the planned schedule and the axis' natural frequency."""
+    p, sch = design["optimum"]["point"], design["schedule"]
+    rows = (
+        ("contact angle", fmt(p["contact_angle_deg"]), "°"), ("ball diameter", fmt(p["ball_mm"], 4), "mm"),
+        ("conformity", fmt(p["conformity"]), ""), ("loaded turns per nut", f"{p['turns']:.0f}", ""),
+        ("balls per turn", f"{p['balls_per_turn']:.0f}", ""), ("bolt preload", fmt(p["bolt_preload_N"], 4), "N"),
+        ("maximum (piezo) preload", fmt(p["max_preload_N"], 4), "N"),
+        ("least rigidity over the duty cycle", fmt(p["stiffness_N_per_um"], 4), "N/um"),
+        ("mean drag torque", fmt(p["mean_drag_torque_Nm"]), "N m"), ("rating life", fmt(p["life_h"], 4), "h"),
+        ("C_dyn (estimate)", fmt(p["c_dyn_N"], 4), "N"), ("peak contact pressure", fmt(p["peak_pressure_MPa"], 4), "MPa"),
+        ("lowest axial natural frequency", fmt(p["frequency_min_Hz"], 4), "Hz"),
+        ("stack stroke used", fmt(p["stack_stroke_used_um"]), "um"),
+    )
+    diameter, lead = study.screw_mm or (None, None)
+    screw = "" if diameter is None else f" ({fmt(diameter)} mm nominal diameter, {fmt(lead)} mm lead)"
+    binding = design["optimum"]["binding"]
+    paragraphs = [
+        f"The preload design for the study's screw{screw}, solved with CasADi and IPOPT over the integer turns and "
+        f"balls per turn, objective {design['optimum']['objective']}. Constraints that bind at the optimum: "
+        f"{', '.join(binding) if binding else 'none'}.",
+        f"The least-friction preload schedule over the study's load profile ({sch['samples']} samples) keeps the "
+        f"rigidity above its requirement with {fmt(sch['friction_energy'], 4)} {sch['energy_units']} of friction "
+        f"energy, against {fmt(sch['constant_friction_energy'], 4)} {sch['energy_units']} at the best constant preload "
+        f"({fmt(sch['constant_preload_N'], 4)} N): {pct(sch['saving_fraction'])} less. These are the schedule as "
+        "planned; the controlled system's figures are those of the section on the designed system."]
+    figures: list[tuple[str, Figure, str]] = []
+    fronts = design["fronts"]
+    curve = design.get("preload_curve")
+    if curve is not None:
+        figures.append(("stiffness", F.stiffness_vs_preload(curve),
+                        "Axial rigidity and preload drag torque of the optimum's double nut against preload; the duty "
+                        "cases at their preloads."))
+    omitted = []
+    if fronts:
+        figures.append(("pareto", F.pareto_fronts(fronts, p),
+                        "Pareto fronts by the epsilon-constraint method (each point an optimal design); star: the "
+                        f"optimum. Fronts: {', '.join(f['pair'] for f in fronts)}."))
+    else:
+        omitted.append("Pareto fronts: the study's [design] pareto list is empty.")
+    figures.append(("schedule", F.preload_schedule(np.asarray(sch["time_s"]), np.asarray(sch["axial_load_N"]),
+                                                    np.asarray(sch["preload_N"]), float(sch["constant_preload_N"])),
+                    f"The load profile and the planned least-friction preload schedule against the best constant "
+                    f"preload ({fmt(sch['constant_preload_N'], 4)} N)."))
+    nf = design["natural_frequency"]
+    figures.append(("natural-frequency", F.natural_frequency(np.asarray(nf["position_mm"]),
+                                                             np.asarray(nf["bolt_preload_Hz"]),
+                                                             np.asarray(nf["max_preload_Hz"]), study.frequency_min_Hz),
+                    "The first axial natural frequency of the table against its position, with the bolts' preload "
+                    "and with the stacks at full drive" + ("" if study.frequency_min_Hz is None else
+                                                           f"; dashed, the study's limit {fmt(study.frequency_min_Hz)} Hz")
+                    + "."))
+    table = Table(("design variable or result", "optimum", "unit"), rows,
+                  f"The design optimum (objective: {design['optimum']['objective']}).", "lrl")
+    return Part(Section("Ball-screw preload design", tuple(paragraphs), (table,), tuple(n for n, _, _ in figures),
+                        tuple(omitted)), tuple(figures))
+
+
+# --------------------------------------------------------------------------------------
+# the whole system and learning
+# --------------------------------------------------------------------------------------
+def _saving(system: dict[str, Any]) -> float:
+    return 1.0 - system["friction_energy_per_cycle"] / system["constant_friction_energy_per_cycle"]
+
+
+def system_section(system: dict[str, Any], learning: dict[str, Any] | None) -> Part:
+    """The designed system along its schedule: tracking, rigidity and deflection while cutting, friction."""
+    e = system["energy_units"]
+    rows: list[tuple[str, str, str]] = [
+        ("tracking RMS of the true force" + ("" if learning is None else ", learned"),
+         f"{fmt(system['tracking_rms_N'])} N", f"{fmt(system['tracking_rms_pct_of_range'])} % of the schedule's "
+                                                f"{fmt(system['schedule_range_N'])} N range")]
+    if learning is not None:
+        rows.append(("tracking RMS before learning", f"{fmt(learning['before_learning_rms_N'])} N",
+                     f"{fmt(learning['before_learning_pct_of_range'])} % of the range (the last pass)"))
+    rows += [
+        ("largest tracking error", f"{fmt(system['tracking_max_N'])} N", ""),
+        ("least rigidity while cutting", f"{fmt(system['rigidity_min_cutting_N_per_um'])} N/um",
+         f"required {fmt(system['rigidity_required_N_per_um'])} N/um"),
+        ("time below the required rigidity", f"{fmt(system['rigidity_below_requirement_s'])} s", ""),
+        ("largest axial deflection while cutting", f"{fmt(system['deflection_max_um'])} um",
+         f"limit {fmt(system['deflection_limit_um'])} um"),
+        ("least preload over the lift-off bound", fmt(system["lift_off_ratio_min"]),
+         f"the bound with its {fmt(system['lift_off_margin'])} margin"),
+        ("friction energy per cycle, achieved", f"{fmt(system['friction_energy_per_cycle'])} {e}",
+         f"planned {fmt(system['planned_friction_energy_per_cycle'])} {e}"),
+        ("friction energy per cycle, best constant preload", f"{fmt(system['constant_friction_energy_per_cycle'])} {e}",
+         f"at {fmt(system['constant_preload_N'])} N"),
+        ("preload margin planned for the loop's error", f"{fmt(system['preload_margin_N'])} N",
+         f"{len(system['passes'])} planning pass(es)"),
+    ]
+    follow = ("the tuned gains with the inverse-P-I feedforward follow it" if learning is None else
+              f"the tuned gains with the inverse-P-I feedforward and the correction learned on each pass follow it "
+              f"(from {fmt(learning['before_learning_pct_of_range'])} % of the range before learning)")
+    text = (f"The design's preload schedule is the reference of the force loop on the designed plant: the stacks' "
+            f"share of it, over {system['cycles']} machining cycles. {follow[0].upper() + follow[1:]} within "
+            f"{fmt(system['tracking_rms_N'])} N RMS, {fmt(system['tracking_rms_pct_of_range'])} % of its range. "
+            f"While cutting, the least rigidity is {fmt(system['rigidity_min_cutting_N_per_um'])} N/um against the "
+            f"{fmt(system['rigidity_required_N_per_um'])} N/um required, and the largest deflection "
+            f"{fmt(system['deflection_max_um'])} um against {fmt(system['deflection_limit_um'])} um. The achieved "
+            f"preload needs {pct(_saving(system))} less friction energy than the best constant preload "
+            f"({fmt(system['friction_energy_per_cycle'])} against {fmt(system['constant_friction_energy_per_cycle'])} "
+            f"{e} per cycle).")
+    ser = {k: np.asarray(v, float) for k, v in system["series"].items()}
+    fig = F.system_tracking(ser["time_s"], ser["planned_N"], ser["achieved_N"], ser["rigidity_N_per_um"],
+                            ser["required_N_per_um"], ser["cutting"], ser["deflection_um"],
+                            system.get("deflection_limit_um"))
+    caption = (f"The designed system over {system['cycles']} machining cycles: the planned preload (the schedule, "
+               f"margin {fmt(system['preload_margin_N'])} N) and the preload the loop achieves (true force); the axial "
+               "rigidity at the achieved preload under the cutting load against the requirement (dashed); the axial "
+               "deflection under the load against its limit (dashed).")
+    table = Table(("quantity", "value", "against"), tuple(rows),
+                  "The controlled preload of the designed system over the machining cycles.", "lrl")
+    return Part(Section("The designed system along its preload schedule", (text,), (table,), ("system",)),
+                (("system", fig, caption),))
+
+
+def learning_section(learning: dict[str, Any]) -> Part:
+    """Learning control on the repeated schedule: the error per trial of each margin pass."""
+    rows = []
+    for p in learning["pass_records"]:
+        span = p["tracking_rms_N"] / p["tracking_rms_pct_of_range"] * 100.0 if p["tracking_rms_pct_of_range"] else 1.0
+        best = int(np.max(p["best_iteration"]))
+        for h in p["history"]:
+            rms = float(np.max(h["tracking_rms_N"]))
+            rows.append((str(p["pass"]), str(h["iteration"]) + (" (best)" if h["iteration"] == best else ""),
+                         fmt(rms), fmt(100.0 * rms / span), fmt(float(np.max(h["measured_rms_N"])))))
+    text = (f"The machining cycle repeats, so the loop learns a feedforward correction from each cycle's error "
+            f"({learning['method']} law; preview {fmt(1e3 * learning['preview_s'])} ms). The law is checked to contract "
+            f"on the loop linearised over the command's range (worst {fmt(learning['contraction_over_range'])}; below "
+            "1, the linearised loop converges monotonically). Each margin pass of the schedule learns on its own "
+            f"reference. On the last pass the error falls from {fmt(learning['before_learning_rms_N'])} N to "
+            f"{fmt(learning['tracking_rms_N'])} N RMS ({fmt(learning['tracking_rms_pct_of_range'])} % of the range; "
+            f"the causal floor of the ramped reference is {fmt(learning['causal_floor_N'])} N).")
+    table = Table(("pass", "trial", "RMS (N)", "% of range", "measured (N)"), tuple(rows),
+                  "The error per learning trial (trial 0: the tuned loop with its feedforward alone): whole cycles, "
+                  "true force; measured: the sensor's force against the plan, what the law learns from.", "rlrrr")
+    fig = F.learning_iterations(learning["pass_records"])
+    caption = ("The error per learning trial on the repeated schedule, each margin pass on its own reference (whole "
+               "cycles, true force, in % of the schedule's range); dotted: the causal floor of each pass's reference.")
+    return Part(Section("Learning control on the repeated schedule", (text,), (table,), ("learning",)),
+                (("learning", fig, caption),))
+
+
+# --------------------------------------------------------------------------------------
+# the feedforward
+# --------------------------------------------------------------------------------------
+def feedforward_section(study: ReportStudy, a: Artifacts) -> Part:
+    ff = a.feedforward
+    ident, source = ff["identification"], ff["inputs"]["data"]
+    src = ("simulated on the plant's truth model" if source["kind"] == "simulated"
+           else f"measured, {Path(source['path']).name}")
+    kind = str(ff["model"].get("kind", "classical"))
+    n_ops = len(ff["model"].get("thresholds", []))
+    creep = ff["model"].get("creep")
+    with_creep = "" if not creep else (
+        f", with creep (first-order lags of {', '.join(f'{t:g}' for t in creep['time_constants_s'])} s on the input, "
+        "identified in the same QP)")
+    text = (f"The feedforward inverts {_KIND_NAMES.get(kind.removesuffix('+creep'), kind)} of {n_ops} play operators"
+            f"{with_creep}, its weights identified by a QP with nonnegative weights (cvxpy + Clarabel) from the loop "
+            f"measurement ({src}). The model reproduces the loop within {fmt(ident['fit']['rms_pct'])} % RMS "
+            f"({fmt(ident['fit']['max_pct'])} % at worst) of the force span; the plant driven through its inverse in "
+            f"open loop follows the desired force within {fmt(ident['compensation_rms_N'])} N RMS "
+            f"({fmt(ident['compensation_max_N'])} N at worst).")
+    loop, comp = a.csv("identify", "loop"), a.csv("identify", "compensation")
+    figures = (
+        ("hysteresis", F.hysteresis_loops(loop["time_s"], loop["voltage_V"], loop["force_N"], loop["model_N"], src),
+         f"The feedforward's voltage-to-force loop measurement ({src}) and the {kind} P-I model identified from it; "
+         "right, the model's error."),
+        ("inverse", F.inverse_model(comp["desired_N"], comp["command_V"], comp["force_N"], comp["time_s"]),
+         "The inverse P-I model (left) and the plant driven through it in open loop (right): what the feedforward "
+         "alone delivers."))
+    return Part(Section("Hysteresis and the feedforward", (text,), (), ("hysteresis", "inverse")), figures)
+
+
+# --------------------------------------------------------------------------------------
+# the controller: tuning, gain schedule, validation
+# --------------------------------------------------------------------------------------
+def _gains_rows(g: dict[str, Any]) -> tuple[tuple[str, str, str], ...]:
+    lv = g["labview"]
+    rows = [("proportional gain Kc", f"{fmt(g['Kc_V_per_N'], 4)} V/N", fmt(lv["Kc"], 4)),
+            ("integral time Ti", f"{fmt(g['Ti_s'], 4)} s", f"{fmt(lv['Ti_min'], 4)} min")]
+    if g["Td_s"] > 0.0:
+        rows += [("derivative time Td", f"{fmt(g['Td_s'], 4)} s", f"{fmt(lv['Td_min'], 4)} min"),
+                 ("derivative filter Tf", f"{fmt(g['Tf_s'], 4)} s", "not in the PID VI: filter the measurement")]
+    rows += [("setpoint weight b", fmt(g["b"], 4), "not in the PID VI: weight the setpoint"),
+             ("output range", f"{fmt(g['u_min_V'])} to {fmt(g['u_max_V'])} V", f"{fmt(g['u_min_V'])} to {fmt(g['u_max_V'])}")]
+    return tuple(rows)
+
+
+def _bound_text(tuning: dict[str, Any]) -> tuple[str, tuple[str, ...]]:
+    """The tuning's active bounds in words, and what is left out (the minimum-time bound, when it has none)."""
+    t = tuning["tuning"]
+    binding = [b for b in t.get("binding", []) if "search range" in b]
+    words = ("" if not binding else
+             " Gains on a bound of their search range: " + "; ".join(binding) + " (the optimum is not interior there).")
+    mt = tuning["minimum_time"]
+    if mt.get("settling_s") is None:
+        return words, (f"The minimum-time bound on the step's settling: {mt.get('reason', 'it was not computed')}.",)
+    return (words + f" The minimum-time bound on the step's settling is {fmt(mt['settling_s'])} s; the tuned "
+                    f"settling is {fmt(mt['tuned_over_bound_ratio'])} times it."), ()
+
+
+def controller_section(study: ReportStudy, a: Artifacts) -> Part:
+    """The tuned gains, the gain schedule (where tuned), and their Monte Carlo validation."""
+    gain_set, tuning, val = a.gain_set, a.tuning, a.validation
+    g = gains_to_dict(gain_set.gains)
+    form = "PI" if g["Td_s"] == 0.0 else "PID"
+    words, omitted = _bound_text(tuning)
+    text = (f"{form} gains tuned with CasADi and IPOPT around the P-I-compensated plant (maximum sensitivity "
+            f"{fmt(tuning['tuning']['ms'])} at worst over the plant variants; solver: {tuning['tuning']['status']}); "
+            f"controller form: {g['form']}.{words}")
+    table = Table(("parameter", "SI", "LabVIEW PID VI"), _gains_rows(g),
+                  f"The gain set ({gain_set.status}), SHA-256 {gain_set.content_sha256}.", "lrr")
+    parts = [s for s in (_schedule_part(tuning), _validation_part(val)) if s is not None]
+    return Part(Section("The tuned controller", (text,), (table,), (), omitted, tuple(p.section for p in parts)),
+                tuple(f for p in parts for f in p.figures))
+
+
+def _schedule_part(tuning: dict[str, Any]) -> Part | None:
+    schedule = tuning["tuning"].get("schedule")
+    if schedule is None:
+        return None
+    rows = []
+    for r in schedule["levels"]:
+        e, rb, sc = r["entry"], r["robust"], r["scheduled"]
+        rows.append((fmt(r["level_N"], 4), f"{fmt(r['window_N'][0], 4)}–{fmt(r['window_N'][1], 4)}",
+                     fmt(1e3 * e["Kc_V_per_N"], 4), fmt(1e3 * e["Ti_s"], 3),
+                     *(_when(x[k], "", "never").strip() for x in (rb, sc)
+                       for k in ("settling_s", "overshoot_N", "tracking_rms_N")),
+                     " / ".join("yes" if x["passed"] else "no" for x in (rb, sc))))
+    w = schedule["whole_range"]
+    rows.append(("whole range", "", fmt(1e3 * schedule["robust"]["Kc_V_per_N"], 4),
+                 fmt(1e3 * schedule["robust"]["Ti_s"], 3),
+                 *(_when(w[x][k], "", "never").strip() for x in ("robust", "scheduled")
+                   for k in ("settling_s", "overshoot_N", "tracking_rms_N")),
+                 " / ".join("yes" if w[x]["passed"] else "no" for x in ("robust", "scheduled"))))
+    missed_by_both = [f"{fmt(r['level_N'], 4)} N" for r in schedule["levels"]
+                      if not r["robust"]["passed"] and not r["scheduled"]["passed"]]
+    text = (f"A gain schedule on the preload level: {len(schedule['levels'])} entries, each tuned with CasADi on its "
+            "window; Kc, Ti and Td linear in the setpoint between them; the schedule and the one robust set each "
+            f"validated by Monte Carlo ({schedule['plants']} plants per level, the study's limits) at every level and "
+            f"over the whole range. Chosen: {schedule['choice']} ({schedule['reason']}).")
+    if missed_by_both:
+        text += (f" Neither set meets the study's limits at {', '.join(missed_by_both)}: the exported gains carry that "
+                 "miss, listed in the verdicts above.")
+    table = Table(("level (N)", "window (N)", "Kc (mV/N)", "Ti (ms)", "robust: settling (s)", "overshoot (N)",
+                   "tracking (N)", "schedule: settling (s)", "overshoot (N)", "tracking (N)", "meets (robust / schedule)"),
+                  tuple(rows), "Each schedule entry's gains and the worst case over the Monte Carlo plants at its "
+                               "level for the robust set and the schedule (tracking: RMS after the changes).",
+                  "ll" + "r" * 8 + "c", small=True)
+    fig = F.gain_schedule(schedule)
+    caption = (f"The gain schedule on the preload level ({len(schedule['levels'])} entries) against the robust set "
+               f"(dashed), and each set's worst case over the Monte Carlo plants per level; chosen: {schedule['choice']}.")
+    return Part(Section("The gain schedule", (text,), (table,), ("gain-schedule",)), (("gain-schedule", fig, caption),))
+
+
+_VALIDATION_NAMES = {"settling_s": "settling time (s)", "settling_measured_s": "settling time, measured force (s)",
+                     "overshoot_N": "overshoot (N)", "tracking_rms_N": "tracking RMS after changes (N)",
+                     "tracking_rms_all_N": "tracking RMS, whole trajectory (N)", "peak_voltage_V": "peak command (V)"}
+
+
+def _validation_part(val: Any) -> Part:
+    limits = val.criteria.limits()
+    rows = []
+    for key, name in _VALIDATION_NAMES.items():
+        stats = [getattr(s, key) for s in (val.worst, val.p95, val.median)]
+        rows.append((name, *(_when(x, "", "never settled").strip() for x in stats),
+                     fmt(limits[key]) if key in limits else "not a criterion"))
+    verdict = ("every plant met every limit" if val.passed else
+               f"{val.failed_plant_count} of {val.n_plants} plants missed a limit")
+    spread = ", ".join(f"{k} {fmt(v)}" for k, v in val.spread.items())
+    text = (f"{val.n_plants} plants drawn around the nominal one (seed {val.seed}; relative spread {spread}), each run "
+            f"through the study's step and trajectory with the tuned gains and the feedforward: {verdict}.")
+    table = Table(("metric", "worst", "95th percentile", "median", "limit"), tuple(rows),
+                  "The tuned gains over the Monte Carlo set of nonlinear plants.", "lrrrr")
+    fig = F.monte_carlo({k: list(v) for k, v in val.metrics.items()}, limits)
+    caption = (f"The tuned gains with the feedforward over {val.n_plants} Monte Carlo plants (seed {val.seed}): "
+               f"settling time into ±{fmt(val.criteria.band_N)} N and overshoot of the true force, and the trajectory's "
+               "tracking RMS; dashed, the study's limits.")
+    return Part(Section("Validation", (text,), (table,), ("monte-carlo",)), (("monte-carlo", fig, caption),))
+
+
+# --------------------------------------------------------------------------------------
+# the responses: the study's step and trajectory, and the published numbers where declared
+# --------------------------------------------------------------------------------------
+def responses_section(study: ReportStudy, a: Artifacts) -> Part:
+    responses = a.responses
+    runs = a.response_runs()
+    signal, band = responses["signal"], float(responses["band_N"])
+    step, traj = levels_text(runs["step"]["tuned pid"]["reference_N"]), levels_text(
+        runs["trajectory"]["tuned pid"]["reference_N"])
+    labels = {"study": study.gains_label, "tuned": "the tuned gains"}
+    text = (f"The study's {step} step and its {traj} trajectory, each with {study.gains_label} and with the tuned "
+            "gains, PID alone and with the inverse-P-I feedforward. Step times are read on the "
+            f"{signal_name(signal)} against a ±{fmt(band)} N band; tracking errors are those of the true force.")
+    tables = [_responses_table(responses, labels)]
+    paragraphs = [text]
+    if study.published is not None and responses.get("reproduction"):
+        paragraphs.append(f"The study declares published step numbers ({study.published.source}); they stand beside "
+                          f"the same controllers on this plant.")
+        tables.insert(0, Table(("controller", "metric", "published", study.gains_label, "tuned gains"),
+                               tuple((CONTROLLER_NAMES[r["controller"]], _METRIC_NAMES[r["metric"]], fmt(r["paper"]),
+                                      _when(r["reproduction"], "", "never").strip(), _when(r["tuned"], "", "never").strip())
+                                     for r in responses["reproduction"]),
+                               f"Published step numbers ({study.published.source}) against this plant's.", "llrrr"))
+    creep = _creep_table(responses, labels)
+    if creep is not None:
+        tables.append(creep)
+    step_t = float(runs["step"]["tuned pid"]["time_s"][-1])
+    figures = (
+        ("step", F.step_responses(runs["step"], band, signal, labels, t_max_s=step_t),
+         f"The {step} step with {study.gains_label} (left) and the tuned gains (right), PID alone and with the "
+         f"feedforward, {signal_name(signal)}; dashed: the ±{fmt(band)} N band."),
+        ("tracking", F.tracking(runs["trajectory"], signal, labels),
+         f"The {traj} trajectory with {study.gains_label} (left) and the tuned gains (right); below, the error of the "
+         "true force."))
+    return Part(Section("The study's step and trajectory", tuple(paragraphs), tuple(tables), ("step", "tracking")),
+                figures)
+
+
+def _responses_table(responses: dict[str, Any], labels: dict[str, str]) -> Table:
+    rows = []
+    for run in responses["runs"]:
+        if run["reference"] != "step":
+            continue
+        traj = next(t for t in responses["runs"] if t["reference"] == "trajectory" and t["gains"] == run["gains"]
+                    and t["controller"] == run["controller"])
+        rows.append((labels.get(run["gains"], run["gains"]), CONTROLLER_NAMES[run["controller"]],
+                     _when(run["settling_s"], "", "never").strip(), fmt(run["overshoot_N"]), fmt(traj["tracking_rms_N"]),
+                     fmt(traj["tracking_rms_after_change_N"]), fmt(run["peak_command_V"])))
+    return Table(("gains", "controller", "settling (s)", "overshoot (N)", "RMS (N)", "RMS after changes (N)",
+                  "peak (V)"), tuple(rows),
+                 "Each controller on the study's step (settling time, overshoot) and trajectory (RMS error of the true "
+                 "force over the whole trajectory and outside the first moments after each change), and the peak "
+                 "command.", "llrrrrr")
+
+
+def _creep_table(responses: dict[str, Any], labels: dict[str, str]) -> Table | None:
+    rows_in = responses.get("creep_effect")
+    if not rows_in:
+        return None
+    by = {(r["gains"], r["creep"], r["reference"]): r for r in rows_in}
+    rows = []
+    for gains in dict.fromkeys(r["gains"] for r in rows_in):
+        for creep in (False, True):
+            s, t = by[(gains, creep, "step")], by[(gains, creep, "trajectory")]
+            rows.append((labels.get(gains, gains), s["feedforward"] + (" with creep" if creep else " without creep"),
+                         _when(s["settling_s"], "", "never").strip(), fmt(s["overshoot_N"]), fmt(t["tracking_rms_N"]),
+                         fmt(t["tracking_rms_after_change_N"])))
+    return Table(("gains", "feedforward", "settling (s)", "overshoot (N)", "RMS (N)", "RMS after changes (N)"),
+                 tuple(rows), "FF + PID with the feedforward's creep compensation and with the same P-I model refitted "
+                              "without creep, on the same noise.", "llrrrr")
+
+
+# --------------------------------------------------------------------------------------
+# exports and the rig run
+# --------------------------------------------------------------------------------------
+def rig_section(study: ReportStudy, a: Artifacts) -> Part:
+    paragraphs, omitted = [], []
+    if a.has("export"):
+        exports = [Path(o["path"]).name for o in a.records["export"]["outputs"].values()]
+        paragraphs.append("The validated gain set was exported as " + ", ".join(exports) + ".")
+    else:
+        omitted.append(f"The exports: {a.reason('export')}.")
+    sidecar = a.rig_run
+    if sidecar is None:
+        omitted.append(f"The rig run: {a.reason('rig')}.")
+        return Part(Section("Exports and the rig run", tuple(paragraphs), (), (), tuple(omitted)))
+    s = a.summary("rig")
+    trip = sidecar["summary"].get("trip")
+    mode = "real time" if sidecar["realtime"] else "back to back"
+    head = (f"The validated gains ran on the rig executor at {sidecar['rate_Hz']:g} Hz ({mode}) against the "
+            f"'{sidecar['backend']}' backend behind its interlocks, reference {sidecar['reference']}: ")
+    rows = [("status", sidecar["status"]), ("cycles", str(s["cycles"])),
+            ("controller step", {"c": "compiled C (CasADi codegen)", "numpy": "numpy"}.get(s["controller_step"],
+                                                                                         s["controller_step"]))]
+    if trip:
+        paragraphs.append(head + f"it was stopped by the interlock '{trip['cause']}' at t = {fmt(trip['t_s'])} s "
+                                 f"({trip['detail']}); the figures of a completed run do not apply.")
+    else:
+        paragraphs.append(head + f"it completed; the force read tracked the reference within "
+                                 f"{fmt(s['tracking_rms_N'])} N RMS.")
+        rows.append(("tracking RMS over the reference (N)", fmt(s["tracking_rms_N"])))
+        if s.get("settling_s") is not None:
+            rows += [("settling time (s)", fmt(s["settling_s"])), ("overshoot (N)", fmt(s["overshoot_N"]))]
+    if sidecar["realtime"]:
+        rows.append(("missed deadlines", str(s["missed_deadlines"])))
+    log = a.csv("rig", "log_csv")
+    fig = F.rig_run(log["time_s"], log["reference_N"], log["measured_N"], log["voltage_V"], log["mode"])
+    caption = (f"The validated gains on the rig executor (backend '{sidecar['backend']}', {sidecar['rate_Hz']:g} Hz, "
+               f"{mode}), from its run log; grey, the ramp down to the safe voltage and disarm.")
+    table = Table(("quantity", "value"), tuple(rows), f"The rig run (log {Path(a.path('rig', 'log_csv')).name}).", "lr")
+    return Part(Section("Exports and the rig run", tuple(paragraphs), (table,), ("rig-run",), tuple(omitted)),
+                (("rig-run", fig, caption),))
+
+
+# --------------------------------------------------------------------------------------
+# the appendix
+# --------------------------------------------------------------------------------------
+def provenance_section(study: ReportStudy, a: Artifacts, stage_names: tuple[str, ...], version: str,
+                       date: str) -> Part:
+    """Where every number came from: the package, the study, the data, the gain set and every artifact's hash."""
+    ff = a.feedforward
+    source = ff["inputs"]["data"]
+    rows = [("package", f"piezopreload {version}"), ("study file", study.source), ("study SHA-256", study.sha256),
+            ("feedforward data", "simulated" if source["kind"] == "simulated" else str(source.get("path"))),
+            ("feedforward data SHA-256", source["sha256"]), ("gain set SHA-256", a.gain_set.content_sha256 or ""),
+            ("report date (UTC)", date),
+            ("stage times", ", ".join(f"{n} {a.records[n]['seconds']:.1f} s" for n in stage_names
+                                      if a.records.get(n, {}).get("status") == "done" and "seconds" in a.records[n]))]
+    seen: set[str] = set()
+    artifacts = []
+    for name in stage_names:
+        for o in a.records.get(name, {}).get("outputs", {}).values():
+            if o["path"] not in seen:  # one row per file
+                seen.add(o["path"])
+                artifacts.append((o["path"], o["sha256"][:24]))
+    return Part(Section("Provenance", (), (
+        Table(("item", "value"), tuple(rows), "The study's inputs.", "ll"),
+        Table(("artifact", "SHA-256 (first 24 hex digits; all 64 in pipeline.json)"), tuple(artifacts),
+              "Every artifact the report read.", "ll", small=True))))
+

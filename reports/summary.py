@@ -1,0 +1,112 @@
+"""The report's first page: the verdicts on the study's requirements, then its headline figures, in words.
+
+The verdicts come first: each requirement missed in a sentence (achieved, required, by how
+much), or that every requirement checked is met. The summary then leads with what the study
+exists for: on a whole-system study the schedule's tracking, the rigidity and deflection while
+cutting, and the friction saved; then the controller and its validation, the study's own step,
+the rig run, and the published numbers only where the study declares them. Each figure is read
+from the same artifact field the section that details it reads.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from piezopreload.artifacts.gainset import gains_to_dict
+from piezopreload.artifacts.requirements import missed
+from piezopreload.reports.document import fmt, pct
+from piezopreload.reports.inputs import Artifacts, Published, ReportStudy
+from piezopreload.reports.sections import levels_text, signal_name
+
+__all__ = ["verdicts", "summary"]
+
+
+def verdicts(a: Artifacts) -> tuple[str, ...]:
+    """The requirements missed, one sentence each, first; or that every one checked is met."""
+    checked = a.requirements()
+    if not checked:
+        return ()
+    miss = missed(checked)
+    if not miss:
+        return (f"Every requirement the study sets is met: {len(checked)} checked, each with its margin in the "
+                "section on the requirements.",)
+    return tuple(f"Requirement missed: {r.sentence()}." for r in miss)
+
+
+def summary(study: ReportStudy, a: Artifacts) -> tuple[str, ...]:
+    """The study's headline figures, in the order a reader of this study asks for them."""
+    lines: list[str] = []
+    if a.system is not None:
+        lines += _system_lines(a.system, a.learning)
+    lines.append(_controller_line(a))
+    lines.append(_step_line(study, a))
+    lines.append(_rig_line(a))
+    if study.published is not None and a.responses.get("reproduction"):
+        lines.append(_published_line(study.published, study.gains_label, a))
+    return tuple(lines)
+
+
+def _system_lines(system: dict[str, Any], learning: dict[str, Any] | None) -> list[str]:
+    e = system["energy_units"]
+    before = ("" if learning is None else
+              f", from {fmt(learning['before_learning_rms_N'])} N ({fmt(learning['before_learning_pct_of_range'])} %) "
+              "before learning")
+    saving = 1.0 - system["friction_energy_per_cycle"] / system["constant_friction_energy_per_cycle"]
+    return [
+        f"The designed axis follows its preload schedule within {fmt(system['tracking_rms_N'])} N RMS "
+        f"({fmt(system['tracking_rms_pct_of_range'])} % of its {fmt(system['schedule_range_N'])} N range){before}.",
+        f"While cutting, its least rigidity is {fmt(system['rigidity_min_cutting_N_per_um'])} N/um against the "
+        f"{fmt(system['rigidity_required_N_per_um'])} N/um required, and its largest deflection "
+        f"{fmt(system['deflection_max_um'])} um against {fmt(system['deflection_limit_um'])} um.",
+        f"The achieved preload needs {pct(saving)} less friction energy than the best constant preload "
+        f"({fmt(system['friction_energy_per_cycle'])} against {fmt(system['constant_friction_energy_per_cycle'])} {e} "
+        f"per cycle at {fmt(system['constant_preload_N'])} N).",
+    ]
+
+
+def _controller_line(a: Artifacts) -> str:
+    g, val = gains_to_dict(a.gain_set.gains), a.validation
+    form = (f"PI (Kc {fmt(g['Kc_V_per_N'], 4)} V/N, Ti {fmt(g['Ti_s'], 4)} s)" if g["Td_s"] == 0.0 else
+            f"PID (Kc {fmt(g['Kc_V_per_N'], 4)} V/N, Ti {fmt(g['Ti_s'], 4)} s, Td {fmt(g['Td_s'], 4)} s)")
+    w = val.worst
+    settling = "never settled on one plant at least" if w.settling_s is None else f"worst settling {fmt(w.settling_s)} s"
+    verdict = "passed" if val.passed else f"failed on {val.failed_plant_count} of {val.n_plants} plants"
+    schedule = a.tuning["tuning"].get("schedule")
+    chosen = "" if schedule is None else f" The gain schedule's choice: {schedule['choice']}."
+    return (f"The tuned {form} {verdict} the Monte Carlo validation on {val.n_plants} nonlinear plants: {settling}, "
+            f"worst overshoot {fmt(w.overshoot_N)} N, worst tracking RMS {fmt(w.tracking_rms_N)} N.{chosen}")
+
+
+def _step_line(study: ReportStudy, a: Artifacts) -> str:
+    responses = a.responses
+    by = {(r["gains"], r["controller"], r["reference"]): r for r in responses["runs"]}
+    runs = a.response_runs()
+    step = levels_text(runs["step"]["tuned ff+pid"]["reference_N"])
+    tuned, start = by[("tuned", "ff+pid", "step")], by[("study", "ff+pid", "step")]
+
+    def settle(r: dict[str, Any]) -> str:  # the subject is a gain set, named in the plural ("the tuned gains")
+        return "do not settle" if r["settling_s"] is None else f"settle in {fmt(r['settling_s'])} s"
+
+    return (f"On the study's {step} step with the feedforward, the tuned gains {settle(tuned)} (overshoot "
+            f"{fmt(tuned['overshoot_N'])} N) and {study.gains_label} {settle(start)} ({signal_name(responses['signal'])}, "
+            f"±{fmt(responses['band_N'])} N band).")
+
+
+def _rig_line(a: Artifacts) -> str:
+    sidecar = a.rig_run
+    if sidecar is None:
+        return f"The rig run did not take place: {a.reason('rig')}."
+    trip = sidecar["summary"].get("trip")
+    head = f"On the rig executor ('{sidecar['backend']}' backend, {'real time' if sidecar['realtime'] else 'back to back'})"
+    if trip:
+        return f"{head} the run was stopped by the interlock '{trip['cause']}' at t = {fmt(trip['t_s'])} s."
+    return f"{head} the validated gains completed the run, tracking within {fmt(a.summary('rig')['tracking_rms_N'])} N RMS."
+
+
+def _published_line(published: Published, gains_label: str, a: Artifacts) -> str:
+    rows = {(r["controller"], r["metric"]): r for r in a.responses["reproduction"]}
+    r = rows[("ff+pid", "settling_s")]
+    got = "never settle" if r["reproduction"] is None else f"settle in {fmt(r['reproduction'])} s"
+    tuned = "never settles" if r["tuned"] is None else f"{fmt(r['tuned'])} s"
+    return (f"Published ({published.source}): the FF + PID step settles in {fmt(r['paper'])} s; on this plant "
+            f"{gains_label} {got}, the tuned gains {tuned}.")
