@@ -212,21 +212,14 @@ class StudyRun(ClosedLoopRun):
         return m
 
     def to_dict(self) -> dict[str, Any]:
-        """What ``piezopreload simulate --json`` prints: what ran, the step numbers, tracking, the paper's values."""
+        """What ``piezopreload simulate --json`` prints: what ran, the step numbers, tracking, and the study's published
+        numbers for this run where it declares them (``published``: None otherwise)."""
         numbers = run_numbers(self, self.band_N, self.signal)
         tracking = self.info["reference"] == "trajectory"
-        paper: dict[str, Any] = dict.fromkeys(_STEP_KEYS)
-        if self.info["reference"] == "step":
-            paper.update(PAPER_RESULTS[self.info["controller"]])
-        if tracking:
-            paper.update(dict.fromkeys(_TRACK_KEYS))
         return {
             **self.info, "reference_levels_N": self.reference.levels_N.tolist(), "band_N": self.band_N,
             "signal": self.signal, "seed": self.seed, "samples": int(self.t_s.size),
             **{k: numbers[k] for k in (*_STEP_KEYS, "peak_command_V", *(_TRACK_KEYS if tracking else ()))},
-            "paper": paper,
-            "paper_note": ("the paper publishes rise, peak and settling time for the 25 -> 60 N step only "
-                           "(Sections 4.2, 4.3); null: not published"),
         }
 
     def plot(self) -> Any:
@@ -262,9 +255,12 @@ def simulate(study: Study, gains: GainSet | PIDGains | None, *, controller: str 
             inverse, ff_info = ff.inverse(), ff.describe()
     seed = study.seed if seed is None else seed
     run = simulate_loop(rig, Controller(pid, rig.dt_s, inverse), study.references[reference], seed=seed)
+    published = None  # the study's published numbers for this run, where it declares them (the step alone)
+    if study.published is not None and reference == "step":
+        published = {"source": study.published.source, **study.published.step()[controller]}
     info = {"study": {"path": study.path, "sha256": study.sha256, "name": study.name}, "controller": controller,
             "reference": reference, "gains": {**gains_to_dict(pid), **source}, "feedforward": ff_info,
-            "sample_period_s": rig.dt_s}
+            "sample_period_s": rig.dt_s, "published": published}
     return StudyRun(**{f.name: getattr(run, f.name) for f in fields(run)}, band_N=study.band_N, signal=study.signal,
                     info=info)
 

@@ -70,15 +70,15 @@ def test_study_line_numbers_point_at_the_key(tmp_path):
         load_study(path)
 
 
-def test_simulate_step_json_holds_the_metrics_and_the_papers(capsys, tmp_path):
+def test_simulate_step_json_holds_the_metrics_and_the_published_ones(capsys, tmp_path):
     out = tmp_path / "run.csv"
     code, stdout, err = run_cli(capsys, "simulate", "--controller", "pid", "--out", str(out), "--json")
     assert code == 0, err
     s = json.loads(stdout)
     for key in ("rise_s", "peak_s", "settling_s", "overshoot_N"):
-        assert key in s and key in s["paper"]
-    assert {k: s["paper"][k] for k in ("rise_s", "peak_s", "settling_s")} == PAPER_RESULTS["pid"]
-    assert s["paper"]["overshoot_N"] is None  # not published
+        assert key in s
+    assert {k: s["published"][k] for k in ("rise_s", "peak_s", "settling_s")} == PAPER_RESULTS["pid"]
+    assert "overshoot_N" not in s["published"]  # not published
     assert 0 < s["rise_s"] <= s["settling_s"]
     data = np.loadtxt(out, delimiter=",", comments="#", skiprows=2)
     header = [line for line in out.read_text().splitlines() if not line.startswith("#")][0].split(",")
@@ -94,7 +94,24 @@ def test_simulate_trajectory_reports_tracking(capsys):
     s = json.loads(stdout)
     assert s["controller"] == "ff+pid" and s["feedforward"]["operators"] == 40
     assert 0 < s["tracking_rms_N"] < s["tracking_max_N"] <= 36.0
-    assert s["paper"]["tracking_rms_N"] is None
+    assert s["published"] is None, "the paper publishes no trajectory numbers"
+
+
+def test_a_study_without_published_numbers_compares_with_none(capsys, tmp_path):
+    """The paper's numbers appear only where a study declares them: without [published], simulate shows none and
+    reproduce is refused, naming the table."""
+    text = paper_study().read_text()
+    start, end = text.index("[published]"), text.index("[rig]")
+    study = tmp_path / "mine.toml"
+    study.write_text(text[:start] + text[end:])
+    code, stdout, err = run_cli(capsys, "simulate", "--study", str(study), "--controller", "pid", "--json")
+    assert code == 0, err
+    assert json.loads(stdout)["published"] is None
+    code, stdout, err = run_cli(capsys, "simulate", "--study", str(study), "--controller", "pid")
+    table = stdout.split("simulated", 1)[1]  # the lines after the header name the file, which names this test
+    assert code == 0 and "published" not in table and "paper" not in table
+    code, stdout, err = run_cli(capsys, "reproduce", "--study", str(study))
+    assert code == 2 and "declares no published step numbers" in err and "[published]" in err
 
 
 def test_simulate_text_output_and_seed(capsys):

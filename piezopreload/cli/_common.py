@@ -77,7 +77,7 @@ def time_window(text: str | None, option: str) -> Window | None:
 
 
 def fmt(x: float | None, unit: str = "") -> str:
-    return "-" if x is None else f"{x:.3f}{unit}"
+    return "never" if x is None else f"{x:.3f}{unit}"  # a time never reached (the step did not settle)
 
 
 def json_flag(p: argparse.ArgumentParser) -> None:

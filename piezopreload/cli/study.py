@@ -147,13 +147,17 @@ def _print_simulate(s: dict[str, Any]) -> None:
     levels = " -> ".join(f"{x:g}" for x in s["reference_levels_N"])
     print(f"reference   {s['reference']}: {levels} N; band {s['band_N']:g} N on the {s['signal']} signal, "
           f"seed {s['seed']}")
-    print(f"  {'':22s}{'simulated':>11s}{'paper':>9s}")
+    published = s["published"]
+    print(f"  {'':22s}{'simulated':>11s}" + ("" if published is None else f"{'published':>11s}"))
     keys = [("rise_s", "rise time (s)"), ("peak_s", "peak time (s)"), ("settling_s", "settling time (s)"),
             ("overshoot_N", "overshoot (N)")]
     if "tracking_rms_N" in s:
         keys += [("tracking_rms_N", "tracking RMS (N)"), ("tracking_max_N", "tracking max (N)")]
     for key, label in keys:
-        print(f"  {label:22s}{fmt(s[key]):>11s}{fmt(s['paper'][key]):>9s}")
+        beside = "" if published is None or key not in published else f"{fmt(published[key]):>11s}"
+        print(f"  {label:22s}{fmt(s[key]):>11s}{beside}")
+    if published is not None:
+        print(f"published: {published['source']}")
     print(f"peak command {s['peak_command_V']:.1f} V; {s['samples']} samples at {1e3 * s['sample_period_s']:g} ms")
     if s["out"]:
         print(f"wrote       {s['out']}")
@@ -161,9 +165,10 @@ def _print_simulate(s: dict[str, Any]) -> None:
 
 def register_reproduce(sub: Any) -> None:
     p = sub.add_parser(
-        "reproduce", help="the paper's six step numbers beside the simulation's",
-        description=("Run the paper's 25 -> 60 N step on the study's rig with the PID alone and with the P-I "
-                     "feedforward, and print rise, peak and settling time beside the paper's (Sections 4.2-4.3)."))
+        "reproduce", help="a study's published step numbers beside the simulation's",
+        description=("Run the study's step on its plant with the PID alone and with the P-I feedforward, and print "
+                     "rise, peak and settling time beside the published ones the study declares ([published]; the "
+                     "paper's study has the paper's, Sections 4.2-4.3). A study without published numbers is refused."))
     study_arguments(p)
     p.add_argument("--repeats", type=int, default=1, metavar="N",
                    help="run the step N times with independent sensor noise and report the median "
@@ -180,17 +185,18 @@ def _cmd_reproduce(args: argparse.Namespace) -> dict[str, Any]:
 
 def _print_reproduce(s: dict[str, Any]) -> None:
     g = s["gains"]
-    print(f"study {s['study']['name']} ({s['study']['path']}): step 25 -> 60 N, band {s['band_N']:g} N, "
-          f"gains Kc {g['Kc_V_per_N']:g}, Ti {g['Ti_s']:g} s, Td {g['Td_s']:g} s (paper's values read as {g['read_as']})")
+    print(f"study {s['study']['name']} ({s['study']['path']}): step {s['step']}, band {s['band_N']:g} N, "
+          f"gains Kc {g['Kc_V_per_N']:g}, Ti {g['Ti_s']:g} s, Td {g['Td_s']:g} s ([controller] read as {g['read_as']})")
+    print(f"published: {s['published']}")
     print(f"feedforward fit to the simulated loop: RMS {s['feedforward_fit']['rms_pct']:.2f} %, "
           f"max {s['feedforward_fit']['max_pct']:.2f} % of span")
     what = "simulated" if s["repeats"] == 1 else f"median of {s['repeats']}"
-    print(f"  {'controller':12s}{'metric':14s}{'paper':>8s}{what:>14s}{'ratio':>8s}  within 25 %"
+    print(f"  {'controller':12s}{'metric':14s}{'published':>10s}{what:>14s}{'ratio':>8s}  within 25 %"
           + ("" if s["repeats"] == 1 else "  range"))
     for r in s["rows"]:
-        ratio = "-" if r["ratio"] is None else f"{r['ratio']:.2f}"
+        ratio = "n/a" if r["ratio"] is None else f"{r['ratio']:.2f}"
         spread = "" if s["repeats"] == 1 else f"  {fmt(r['range'][0])}-{fmt(r['range'][1])}"
-        print(f"  {r['controller']:12s}{r['metric']:14s}{r['paper']:8.2f}{fmt(r['simulated']):>14s}{ratio:>8s}"
+        print(f"  {r['controller']:12s}{r['metric']:14s}{r['paper']:10.2f}{fmt(r['simulated']):>14s}{ratio:>8s}"
               f"  {'yes' if r['within_25pct'] else 'NO ':11s}{spread}")
 
 
