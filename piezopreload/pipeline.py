@@ -53,7 +53,7 @@ from typing import Any
 
 from piezopreload import __version__
 from piezopreload.artifacts.gainset import GainSet
-from piezopreload.artifacts.requirements import EXIT_REQUIREMENT_MISSED, checked_by_stages, missed
+from piezopreload.artifacts.requirements import checked_by_stages, missed
 from piezopreload.core.artifacts import atomic_write_bytes, read_artifact, write_artifact
 from piezopreload.core.errors import InputError
 from piezopreload.core.stages import (
@@ -72,6 +72,7 @@ from piezopreload.core.stages import (
 from piezopreload.core.tables import write_csv
 from piezopreload.design.plant import DesignedPlant
 from piezopreload.design.preload import DesignPoint
+from piezopreload.outcome import Headline, StageOutcome, StudyResult
 from piezopreload.progress import Progress
 from piezopreload.reports.study_report import STAGES_READ, Published, ReportStudy, render_report
 from piezopreload.results import TuningResult
@@ -430,7 +431,7 @@ def _previous(out: Path, progress: Progress) -> dict[str, dict[str, Any]]:
 
 
 def run_study(study: Study | str | Path | None = None, out: str | Path = DEFAULT_OUT, *, force: bool = False,
-              progress: Progress | None = None) -> dict[str, Any]:
+              progress: Progress | None = None) -> StudyResult:
     """Run a study's stages into ``out``; a stage whose key and outputs are unchanged is not run again."""
     progress = progress or Progress()
     t0 = time.perf_counter()
@@ -450,7 +451,8 @@ def run_study(study: Study | str | Path | None = None, out: str | Path = DEFAULT
     return _result(out, study, stages, seconds)
 
 
-def rerender_report(out: str | Path, progress: Progress | None = None, template: str | Path | None = None) -> dict[str, Any]:
+def rerender_report(out: str | Path, progress: Progress | None = None,
+                    template: str | Path | None = None) -> StudyResult:
     """Render the report again from the artifacts in ``out`` (``piezopreload report DIR``); nothing else runs.
 
     ``template``: a Typst file to typeset instead of the shipped template (a copy of
@@ -487,38 +489,19 @@ def rerender_report(out: str | Path, progress: Progress | None = None, template:
     return _result(out, study, stages, seconds)
 
 
-def _result(out: Path, study: Study, stages: list[dict[str, Any]], seconds: float) -> dict[str, Any]:
+def _result(out: Path, study: Study, stages: list[dict[str, Any]], seconds: float) -> StudyResult:
     records = read_manifest(out)["stages"]
     out = out.resolve()
-    summary = _summary(records)
-    return {
-        "out": str(out), "study": {"path": study.path, "sha256": study.sha256, "name": study.name},
-        "stages": stages, "ran": [s["stage"] for s in stages if s["ran"]], "seconds": seconds,
-        "report": str(out / "report.pdf") if (out / "report.pdf").is_file() else None,
-        "gain_set": str(out / "gains.json") if (out / "gains.json").is_file() else None,
-        "gain_set_sha256": records.get("validate", {}).get("summary", {}).get("content_sha256"),
-        "rig_log": (str(out / records["rig"]["outputs"]["log_csv"]["path"])
-                    if records.get("rig", {}).get("status") == "done" else None),
-        "summary": summary, "exit_code": 0 if summary["requirements_met"] is not False else EXIT_REQUIREMENT_MISSED,
-    }
 
+    def existing(path: Path) -> Path | None:
+        return path if path.is_file() else None
 
-#: what ``run --json``'s summary takes from the system stage (None where the study has none)
-SUMMARY_KEYS = ("tracking_rms_pct_of_range", "tracking_rms_pct_of_range_before_learning", "tracking_rms_N",
-                "tracking_rms_N_before_learning", "learning_iterations", "tracking_max_N", "rigidity_min_cutting_N_per_um",
-                "rigidity_required_N_per_um", "rigidity_ratio_min", "deflection_max_um", "friction_energy_per_cycle",
-                "constant_friction_energy_per_cycle", "preload_margin_N")
-
-
-def _summary(records: dict[str, dict[str, Any]]) -> dict[str, Any]:
-    """The study's headline numbers: the whole system's (the system stage), the gain set's status, the rig run's."""
-    system = records.get("system", {})
-    numbers = system.get("summary", {}) if system.get("status") == "done" else {}
-    out: dict[str, Any] = {k: numbers.get(k) for k in SUMMARY_KEYS}
-    out["system"] = system.get("status", "not run")
-    out["gain_set_status"] = records.get("validate", {}).get("summary", {}).get("status")
-    out["rig_tracking_rms_N"] = records.get("rig", {}).get("summary", {}).get("tracking_rms_N")
-    checked = checked_by_stages({name: records[name] for name in _BY_NAME if name in records})
-    out["requirements_met"] = None if not checked else not missed(checked)
-    out["requirements_missed"] = [r.to_dict() for r in missed(checked)]
-    return out
+    return StudyResult(
+        out=out, study={"path": study.path, "sha256": study.sha256, "name": study.name},
+        stages=tuple(StageOutcome(s["stage"], s["ran"], s["status"], s["seconds"]) for s in stages), seconds=seconds,
+        headline=Headline.from_records(records),
+        requirements=checked_by_stages({name: records[name] for name in _BY_NAME if name in records}),
+        report=existing(out / "report.pdf"), gain_set=existing(out / "gains.json"),
+        gain_set_sha256=records.get("validate", {}).get("summary", {}).get("content_sha256"),
+        rig_log=(out / records["rig"]["outputs"]["log_csv"]["path"]) if records.get("rig", {}).get("status") == "done"
+        else None)

@@ -46,6 +46,7 @@ from piezopreload.tuning.pid import TuningSpec
 from piezopreload.tuning.tables import LearningTable, TuningTable, ValidationTable
 
 if TYPE_CHECKING:  # the results module imports this one
+    from piezopreload.outcome import StudyResult
     from piezopreload.results import StudyRun, TuningResult
     from piezopreload.tuning.learning import LearningResult
 
@@ -506,7 +507,7 @@ class Study:
                                             progress=progress)
         return self.track_schedule(plant, schedule, gain_set, ff_extra_V=learned, progress=progress), results
 
-    def run(self, out: str | Path = "piezopreload-out", *, force: bool = False, progress: Any = None) -> dict[str, Any]:
+    def run(self, out: str | Path = "piezopreload-out", *, force: bool = False, progress: Any = None) -> StudyResult:
         """The whole study, as ``piezopreload run``: its stages into ``out``, unchanged ones not run again."""
         from piezopreload.pipeline import run_study
 

@@ -53,7 +53,7 @@ def test_the_readme_snippet_runs_end_to_end(tmp_path, monkeypatch):
     assert pp.GainSet.load(tmp_path / "gains.json").gains == gain_set.gains
     assert ns["gain_set"].export("labview").startswith("; gain set sha256")
     assert len(design.fronts) == 2 and design.optimum.point.stiffness_N_per_um > 0
-    assert result["ran"] == [s.name for s in __import__("piezopreload.pipeline").pipeline.STAGES
+    assert list(result.ran) == [s.name for s in __import__("piezopreload.pipeline").pipeline.STAGES
                              if s.applies(study) is None]
     assert (tmp_path / "piezopreload-out" / "report.pdf").read_bytes().startswith(b"%PDF")
     for fig in (ns["tuned"].plot(), run.plot(), design.plot(), ns["ff"].plot()):

@@ -56,7 +56,7 @@ def test_the_small_study_runs_every_stage_and_leaves_its_artifacts(small_run):
     out, result, log = small_run
     study = load_study(SMALL)
     applicable = [s.name for s in STAGES if s.applies(study) is None]
-    assert result["ran"] == applicable and not {"plant", "learn", "system"} & set(applicable)
+    assert list(result.ran) == applicable and not {"plant", "learn", "system"} & set(applicable)
     for i, stage in enumerate(STAGES, start=1):
         assert f"[{i}/{len(STAGES)}] {stage.name}:" in log
     assert f"the study's outputs are in {out.resolve()}/" in log
@@ -64,10 +64,10 @@ def test_the_small_study_runs_every_stage_and_leaves_its_artifacts(small_run):
     assert {name: r["status"] for name, r in manifest["stages"].items()} == {
         s.name: "done" if s.name in applicable else "not applicable" for s in STAGES}
     gains = read_artifact(out / "gains.json", "gain-set")
-    assert gains["status"] == "validated" and result["gain_set_sha256"] == gains["content_sha256"]
+    assert gains["status"] == "validated" and result.gain_set_sha256 == gains["content_sha256"]
     for name in ("gains.si.json", "gains.labview.txt", "pp_gains.h"):
         assert gains["content_sha256"] in (out / "exports" / name).read_text()
-    run_log = Path(result["rig_log"])
+    run_log = result.rig_log
     assert run_log.parent == (out / "runs") and run_log.stat().st_size > 0
     sidecar = read_artifact(run_log.with_suffix(".json"), "rig-run")
     assert sidecar["status"] == "completed" and sidecar["gain_set_sha256"] == gains["content_sha256"]
@@ -162,12 +162,12 @@ def test_a_changed_table_reruns_only_the_stages_that_read_it(small_run, tmp_path
     study = tmp_path / "study.toml"
     study.write_text(SMALL.read_text().replace("pareto_points = 5", "pareto_points = 4"))
     result = run_study(study, out, progress=Progress(quiet=True))
-    assert result["ran"] == ["design", "report"]
+    assert list(result.ran) == ["design", "report"]
     fronts = read_artifact(out / "design" / "design.json", "design")["fronts"]
     assert {len(f["points"]) for f in fronts} <= {4}
     # a changed or missing output is made again, and only what depends on it follows
     (out / "exports" / "gains.labview.txt").write_text("edited by hand\n")
-    assert run_study(study, out, progress=Progress(quiet=True))["ran"] == ["export"]
+    assert run_study(study, out, progress=Progress(quiet=True)).ran == ("export",)
 
 
 def test_a_missed_validation_is_a_verdict_the_study_reports_and_exits_4(small_run, tmp_path, capsys):

@@ -86,8 +86,8 @@ def test_a_changed_design_rebuilds_the_plant_and_everything_after_it(axis_run, t
     before = read_manifest(out)["stages"]
     study = load_study(SMALL_AXIS).replace(design={"amp_current_limit_A": 0.08})
     result = run_study(study, out, progress=Progress(stream=io.StringIO()))
-    assert set(result["ran"]) >= {"design", "plant", "identify", "tune", "validate", "compare", "learn", "system",
-                                  "rig", "report"}, f"a stage after the changed design was not run again: {result['ran']}"
+    assert set(result.ran) >= {"design", "plant", "identify", "tune", "validate", "compare", "learn", "system",
+                                  "rig", "report"}, f"a stage after the changed design was not run again: {result.ran}"
     after = read_manifest(out)["stages"]
     assert after["plant"]["outputs"]["plant"]["sha256"] != before["plant"]["outputs"]["plant"]["sha256"]
     plant = read_artifact(out / "plant.json", "plant")

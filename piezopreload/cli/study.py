@@ -50,7 +50,7 @@ def register_run(sub: Any) -> None:
 def _cmd_run(args: argparse.Namespace) -> dict[str, Any]:
     from piezopreload.progress import Progress
 
-    return load_study(args.study).run(args.out, force=args.force, progress=Progress(quiet=args.quiet))
+    return load_study(args.study).run(args.out, force=args.force, progress=Progress(quiet=args.quiet)).to_dict()
 
 
 def _print_run(s: dict[str, Any]) -> None:
@@ -89,7 +89,7 @@ def _cmd_report(args: argparse.Namespace) -> dict[str, Any]:
     from piezopreload.pipeline import rerender_report
     from piezopreload.progress import Progress
 
-    return rerender_report(args.dir, progress=Progress(quiet=args.quiet), template=args.template)
+    return rerender_report(args.dir, progress=Progress(quiet=args.quiet), template=args.template).to_dict()
 
 
 # --------------------------------------------------------------------------------------

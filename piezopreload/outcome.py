@@ -1,0 +1,151 @@
+"""What a whole study returns: :class:`StudyResult` (``study.run()``, ``piezopreload run``, ``report``).
+
+It holds where the outputs went, what each stage did, the study's headline figures
+(:class:`Headline`, what ``run --json`` prints under ``summary``) and every requirement the
+stages checked with its verdict; ``exit_code`` is 0 when every requirement is met and
+:data:`~piezopreload.artifacts.requirements.EXIT_REQUIREMENT_MISSED` when one is missed.
+"""
+
+from __future__ import annotations
+
+import html
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+from piezopreload.artifacts.requirements import EXIT_REQUIREMENT_MISSED, Requirement, missed
+
+__all__ = ["StageOutcome", "Headline", "StudyResult"]
+
+
+@dataclass(frozen=True)
+class StageOutcome:
+    """One stage of a run: whether it ran, its status (``done``, ``up to date``, ``not applicable``), its time."""
+
+    stage: str
+    ran: bool
+    status: str
+    seconds: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"stage": self.stage, "ran": self.ran, "status": self.status, "seconds": self.seconds}
+
+
+@dataclass(frozen=True)
+class Headline:
+    """The study's headline figures: the whole system's (None where the study has no system stage), the gain
+    set's status and the rig run's tracking."""
+
+    tracking_rms_pct_of_range: float | None = None
+    tracking_rms_pct_of_range_before_learning: float | None = None
+    tracking_rms_N: float | None = None
+    tracking_rms_N_before_learning: float | None = None
+    learning_iterations: int | None = None
+    tracking_max_N: float | None = None
+    rigidity_min_cutting_N_per_um: float | None = None
+    rigidity_required_N_per_um: float | None = None
+    rigidity_ratio_min: float | None = None
+    deflection_max_um: float | None = None
+    friction_energy_per_cycle: float | None = None
+    constant_friction_energy_per_cycle: float | None = None
+    preload_margin_N: float | None = None
+    system: str = "not run"
+    gain_set_status: str | None = None
+    rig_tracking_rms_N: float | None = None
+
+    @classmethod
+    def from_records(cls, records: dict[str, dict[str, Any]]) -> Headline:
+        """The headline from the stages' records of ``pipeline.json``."""
+        system = records.get("system", {})
+        numbers = system.get("summary", {}) if system.get("status") == "done" else {}
+        keys = {f.name for f in fields(cls)} - {"system", "gain_set_status", "rig_tracking_rms_N"}
+        return cls(**{k: numbers.get(k) for k in keys}, system=system.get("status", "not run"),
+                   gain_set_status=records.get("validate", {}).get("summary", {}).get("status"),
+                   rig_tracking_rms_N=records.get("rig", {}).get("summary", {}).get("tracking_rms_N"))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@dataclass(frozen=True)
+class StudyResult:
+    """A study's run: its outputs, its stages, its headline figures and its requirements' verdicts.
+
+    ``to_dict()`` is what ``piezopreload run --json`` prints; ``exit_code`` what it exits with.
+    """
+
+    out: Path
+    study: dict[str, str]
+    stages: tuple[StageOutcome, ...]
+    seconds: float
+    headline: Headline
+    requirements: tuple[Requirement, ...]
+    report: Path | None = None
+    gain_set: Path | None = None
+    gain_set_sha256: str | None = None
+    rig_log: Path | None = None
+
+    @property
+    def ran(self) -> tuple[str, ...]:
+        """The stages that ran (the others were up to date or did not apply)."""
+        return tuple(s.stage for s in self.stages if s.ran)
+
+    @property
+    def missed(self) -> tuple[Requirement, ...]:
+        """The requirements missed, in stage order."""
+        return missed(self.requirements)
+
+    @property
+    def requirements_met(self) -> bool | None:
+        """Whether every requirement the stages checked is met (None: the study checked none)."""
+        return None if not self.requirements else not self.missed
+
+    @property
+    def exit_code(self) -> int:
+        return EXIT_REQUIREMENT_MISSED if self.requirements_met is False else 0
+
+    def to_dict(self) -> dict[str, Any]:
+        """What ``run --json`` prints: the outputs, the stages, ``summary`` (the headline and the verdicts)."""
+        def path(p: Path | None) -> str | None:
+            return None if p is None else str(p)
+
+        summary = {**self.headline.to_dict(), "requirements_met": self.requirements_met,
+                   "requirements_missed": [r.to_dict() for r in self.missed],
+                   "requirements": [r.to_dict() for r in self.requirements]}
+        return {"out": str(self.out), "study": dict(self.study), "stages": [s.to_dict() for s in self.stages],
+                "ran": list(self.ran), "seconds": self.seconds, "report": path(self.report),
+                "gain_set": path(self.gain_set), "gain_set_sha256": self.gain_set_sha256, "rig_log": path(self.rig_log),
+                "summary": summary, "exit_code": self.exit_code}
+
+    def __repr__(self) -> str:
+        verdict = {None: "no requirement checked", True: "every requirement met"}.get(
+            self.requirements_met, f"{len(self.missed)} requirement(s) missed")
+        return (f"StudyResult({self.study.get('name')!r}: ran {', '.join(self.ran) or 'nothing'} in "
+                f"{self.seconds:.1f} s; {verdict}; outputs in {self.out})")
+
+    def _repr_html_(self) -> str:
+        stages = "".join(f"<tr><td>{s.stage}</td><td>{f'ran in {s.seconds:.1f} s' if s.ran else s.status}</td></tr>"
+                         for s in self.stages)
+        reqs = "".join(f"<tr><td>{html.escape(r.name)}</td><td>{r.value:.4g} {r.unit}</td>"
+                       f"<td>{'&ge;' if r.sense == 'min' else '&le;'} {r.limit:.4g} {r.unit}</td>"
+                       f"<td>{'met' if r.met else '<b>missed</b>'}</td></tr>" for r in self.requirements)
+        return (f"<p><b>Study {html.escape(str(self.study.get('name')))}</b>: outputs in <code>{self.out}</code>"
+                f"{'' if self.report is None else f', report <code>{self.report}</code>'}</p>"
+                f"<table><tr><th>stage</th><th></th></tr>{stages}</table>"
+                + ("" if not reqs else
+                   f"<table><tr><th>requirement</th><th>achieved</th><th>required</th><th></th></tr>{reqs}</table>"))
+
+    def plot(self) -> Any:
+        """A Figure: each requirement's margin as a share of its limit (right of zero: met; left: missed)."""
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(7, 0.5 + 0.35 * max(len(self.requirements), 1)))
+        ax = fig.subplots()
+        names = [r.name for r in self.requirements]
+        shares = [r.margin / abs(r.limit) if r.limit else r.margin for r in self.requirements]
+        ax.barh(names, shares, color=["tab:green" if s >= 0 else "tab:red" for s in shares])
+        ax.axvline(0.0, color="0.3", lw=0.8)
+        ax.set_xlabel("margin / limit (right of 0: met)")
+        ax.invert_yaxis()
+        fig.tight_layout()
+        return fig
