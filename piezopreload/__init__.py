@@ -27,6 +27,7 @@ except PackageNotFoundError:  # running from a source tree that is not installed
     __version__ = "0+unknown"
 
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.hysteresis import IdentifiedModel
 from piezopreload.core.errors import (
     ArtifactError,
     InfeasibleError,
@@ -42,12 +43,12 @@ from piezopreload.models.metrics import StepMetrics
 from piezopreload.results import StudyRun, TuningResult
 from piezopreload.study import Study, load_study, shipped_studies
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
-from piezopreload.tuning.holdout import HoldoutFit, Window
-from piezopreload.tuning.holdout import identify_record as identify
+from piezopreload.tuning.identification import Identification, Window, identify
+from piezopreload.tuning.identify import NotFittedError, PIIdentifier
 
 __all__ = [
     "__version__", "load_study", "shipped_studies", "Study", "GainSet", "TuningResult", "StudyRun", "ClosedLoopRun",
     "DesignResult", "IdentifiedFeedforward", "PIDGains", "Reference", "StepMetrics", "Record", "read_record",
-    "identify", "HoldoutFit", "Window", "PiezopreloadError", "InputError", "ArtifactError", "InfeasibleError",
+    "identify", "Identification", "PIIdentifier", "NotFittedError", "IdentifiedModel", "Window", "PiezopreloadError", "InputError", "ArtifactError", "InfeasibleError",
     "InternalError",
 ]

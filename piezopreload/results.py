@@ -280,7 +280,8 @@ def reproduce(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | N
         raise InputError(f"repeats: must be >= 1, got {repeats}")
     rep = reproduce_paper(study.rig, study.gains, step=study.references["step"], excitation=study.excitation,
                           seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
-                          repeats=repeats, feedforward=feedforward.model, feedforward_fit=feedforward.fit)
+                          repeats=repeats, feedforward=feedforward.model,
+                          feedforward_fit=feedforward.fit.to_dict())
     return {"study": {"path": study.path, "sha256": study.sha256, "name": study.name},
             "gains": {**gains_to_dict(study.gains), "read_as": study.controller.units}, "band_N": study.band_N,
             "signal": study.signal, **reproduction_summary(rep), "seconds": time.perf_counter() - t0}

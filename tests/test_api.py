@@ -198,8 +198,8 @@ def measured_study(tmp_path_factory):
     """The small study with a 'measured' loop: the simulated one, its force scaled by 1.1 (another rig)."""
     folder = tmp_path_factory.mktemp("measured")
     loop = pp.load_study(SMALL).identify_feedforward().loop
-    write_csv(folder / "loop.csv", {"time_s": loop["time_s"], "voltage_V": loop["voltage_V"],
-                                    "force_N": 1.1 * loop["force_N"]}, "a measured loop")
+    write_csv(folder / "loop.csv", {"time_s": loop.time_s, "voltage_V": loop.input, "force_N": 1.1 * loop.output},
+              "a measured loop")
     path = folder / "study.toml"
     path.write_text(SMALL.read_text().replace("n_operators = 20", 'n_operators = 20\ndata = "loop.csv"'))
     return pp.load_study(path), folder / "loop.csv"
@@ -215,7 +215,7 @@ def test_feedforward_data_is_honoured_by_simulate_and_reproduce(measured_study):
     assert f"the measured loop {loop}" in run.to_dict()["feedforward"]["source"]
     ref = study.simulate(controller="ff+pid", feedforward=ff)
     np.testing.assert_array_equal(run.command_V, ref.command_V)
-    assert study.reproduce()["feedforward_fit"] == ff.fit
+    assert study.reproduce()["feedforward_fit"] == ff.fit.to_dict()
 
 
 def test_feedforward_data_is_honoured_by_tune(measured_study, monkeypatch, capsys):

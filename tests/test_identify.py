@@ -97,22 +97,22 @@ def test_measured_record_classical_40(measured):
     rec, train, test = measured
     span = np.ptp(rec.output)
     est, err = fit_measured(measured, model="classical", n_operators=40)
-    assert err["rms_pct"] <= 0.17 and err["max_pct"] <= 0.90, err
+    assert err.rms_pct <= 0.17 and err.max_pct <= 0.90, err
     # the same model by plain NNLS (offset split into two nonnegative columns) scores the same
     ops = play(rec.input, est.thresholds_)
     phi = np.column_stack([ops, np.ones(rec.input.size), -np.ones(rec.input.size)])
     x, _ = nnls(phi[train], rec.output[train])
     ref = fit_error(phi[test] @ x, rec.output[test], span)
-    assert err["rms_pct"] == pytest.approx(ref["rms_pct"], rel=1e-6)
+    assert err.rms_pct == pytest.approx(ref.rms_pct, rel=1e-6)
     slope, intercept = straight_line(rec.input[train], rec.output[train])
     line = fit_error(slope * rec.input[test] + intercept, rec.output[test], span)
-    assert line["rms_pct"] == pytest.approx(4.8, abs=0.1) and line["max_pct"] == pytest.approx(7.8, abs=0.1)
+    assert line.rms_pct == pytest.approx(4.8, abs=0.1) and line.max_pct == pytest.approx(7.8, abs=0.1)
 
 
 def test_measured_record_modified_model_is_better_and_invertible(measured):
     rec, _, test = measured
     est, err = fit_measured(measured, model="modified", n_operators=160)
-    assert err["rms_pct"] <= 0.15 and err["max_pct"] <= 0.75, err
+    assert err.rms_pct <= 0.15 and err.max_pct <= 0.75, err
     assert est.model_.invertible
     # the inverse, started from the operator states at the start of the test window
     inverse = est.model_.inverse()
@@ -129,7 +129,7 @@ def test_paper_method_is_a_fair_baseline(measured):
     baseline = fit_error(paper_baseline(rec.input, rec.output, r, train)(rec.input)[test], rec.output[test], span)
     qp = PIIdentifier(model="paper-asymmetric", thresholds=r).fit(rec.input, rec.output, train=train)
     ours = fit_error(qp.predict(rec.input)[test], rec.output[test], span)
-    assert ours["rms_pct"] < baseline["rms_pct"] < 1.5
+    assert ours.rms_pct < baseline.rms_pct < 1.5
 
 
 def test_estimator_contract():
