@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.core.config import NUMBER, Lines, Table, check_tree, read_config, toml_text
 from piezopreload.core.errors import InfeasibleError, InputError
-from piezopreload.core.tables import read_record
+from piezopreload.core.tables import Record, read_record
 from piezopreload.design.plant import DesignedPlant
 from piezopreload.design.preload import DesignInfeasible, DesignPoint, DesignSpec
 from piezopreload.design.schedule import PreloadSchedule
@@ -320,14 +320,11 @@ class Study:
         """The feedforward's P-I model: from ``[feedforward] data`` (a measured V -> N loop) when the study names
         one, else from the loop measurement simulated on the rig; with its open-loop compensation check."""
         say = progress or (lambda _m: None)
-        ex, data = self.excitation, self.resolve(self.feedforward.data)
-        record = None if data is None else read_record(data)
-        low, high = self.reference_range_N
-        if record is not None:  # a measured loop's range is known before any design: refuse it early
-            say(f"reading the measured loop {data}")
-            loop_covers(record, low, high, f"the study's references ({self.path})")
         if not self._on_plant:
+            self._measured_loop(say)  # refused before the design if it does not cover the references
             return self.plant_study(progress).identify_feedforward(progress)
+        ex, record = self.excitation, self._measured_loop(say)
+        low, high = self.reference_range_N
         if record is None:
             say(f"simulating the {ex.v_max_V:g} V, {ex.frequency_Hz:g} Hz loop measurement on the rig's truth model")
         ff = identify_feedforward(self.rig, ex, record, check_range_N=(low, high))
@@ -336,6 +333,17 @@ class Study:
             f"{ff.record.output_range[1]:,.4g} N")
         ff.covers(low, high, f"the study's references ({self.path})")
         return ff
+
+    def _measured_loop(self, say: Callable[[str], None]) -> Record | None:
+        """``[feedforward] data`` read, and refused if its forces do not cover the references (before any design
+        or tuning: a measured loop's range is known from the file); None when the loop is simulated."""
+        data = self.resolve(self.feedforward.data)
+        if data is None:
+            return None
+        say(f"reading the measured loop {data}")
+        record = read_record(data)
+        loop_covers(record, *self.reference_range_N, f"the study's references ({self.path})")
+        return record
 
     @property
     def reference_range_N(self) -> tuple[float, float]:
@@ -353,6 +361,8 @@ class Study:
 
         if feedforward is not None:  # refused before the design and the tuning, with both ranges
             feedforward.covers(*self.reference_range_N, f"the study's references ({self.path})")
+        else:
+            self._measured_loop(progress or (lambda _m: None))
         study = self.plant_study(progress)
         return tune(study, feedforward or study.identify_feedforward(progress), seed=seed, progress=progress,
                     iterations=iterations)
