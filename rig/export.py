@@ -163,10 +163,12 @@ def _header(digest: str) -> list[str]:
 def _gain_set_table(gain_set: GainSet) -> FeedforwardTable | None:
     if gain_set.feedforward is None:
         return None
-    if gain_set.plant is None:
-        raise ExportError("field 'plant.rig' is missing: the gain set does not name its plant (the loop's sample "
-                          "period the feedforward's creep lags are discretised at)")
-    return feedforward_table(gain_set.feedforward, float(gain_set.plant.sample_period_s))
+    if gain_set.plant is not None:
+        return feedforward_table(gain_set.feedforward, float(gain_set.plant.sample_period_s))
+    if isinstance(gain_set.feedforward, CreepPI):
+        raise ExportError("field 'plant.rig' is missing: the gain set does not name its plant, whose sample period "
+                          "the feedforward's creep lags are discretised at")
+    return feedforward_table(gain_set.feedforward, None)  # without creep the step does not depend on the period
 
 
 # ---- json ------------------------------------------------------------------------------------
@@ -200,10 +202,11 @@ def _row(values: np.ndarray) -> str:
 def _labview_feedforward(t: FeedforwardTable) -> list[str]:
     """The feedforward as INI sections: scalars, then one comma-separated row per parameter, the algorithm above."""
     s = t.structure
-    lines = ["; feedforward: the inverse P-I step, run once per sample period (the desired force in, the command",
-             "; out); each row below is a table of comma-separated numbers (Spreadsheet String To Array, ',')",
+    lines = ["[feedforward]",
+             "; the inverse P-I step, run once per sample period (the desired force in, the command out); each",
+             "; row of the sections below is a table of comma-separated numbers (Spreadsheet String To Array, ',')",
              *("; " + a for a in INVERSE_STEP_ALGORITHM),
-             "[feedforward]", f"model = {t.kind}",
+             f"model = {t.kind}",
              *([] if t.sample_period_s is None else [f"sample period (s) = {t.sample_period_s!r}"]),
              f"operators n = {s.n_operators}", f"creep lags m = {s.n_lags}", f"dead zones d = {s.n_shaper}",
              f"direction switched = {'TRUE' if s.asymmetric else 'FALSE'}",
@@ -232,7 +235,7 @@ def _labview_text(head: list[str], g: dict[str, float], schedule: GainSchedule |
         "[advanced]", f"setpoint weight beta = {g['b']:.12g}", f"derivative filter time constant (s) = {g['Tf_s']:.12g}"]
     if schedule is not None:  # LabVIEW's PID Gain Schedule VI takes a table of setpoint breakpoints and gains
         lines += _table_lines(schedule, "; ", (("Kc", 1.0), ("Ti (min)", 60.0), ("Td (min)", 60.0)))
-    lines += ["; feedforward: none (PID alone)"] if table is None else _labview_feedforward(table)
+    lines += ["[feedforward]", "model = none (the PID alone)"] if table is None else _labview_feedforward(table)
     return "\n".join(lines) + "\n"
 
 
@@ -484,18 +487,17 @@ def _export_gain_set(gain_set: GainSet, fmt: str) -> str:
     g = validated_gains(gain_set)
     digest = gain_set.content_sha256 or ""
     head, schedule = _header(digest), gain_set.gains.schedule
+    ff = None if gain_set.feedforward is None else gain_set.feedforward.to_dict()
     if fmt == "casadi-c":
         return _casadi_c(gain_set, g, digest, head)
+    if fmt == "c-header":  # the forward model's constants, its creep with the period it was identified at
+        return _c_header(digest, head, g, ff, schedule)
     table = _gain_set_table(gain_set)
     if fmt == "json":
-        ff = None if gain_set.feedforward is None else gain_set.feedforward.to_dict()
         return _json_text(digest, g, ff, schedule, table)
     if fmt == "labview":
         return _labview_text(head, g, schedule, table)
-    if fmt == "plc":
-        return _plc_text(head, g, schedule, table)
-    ff = None if gain_set.feedforward is None else gain_set.feedforward.to_dict()
-    return _c_header(digest, head, g, ff, schedule)
+    return _plc_text(head, g, schedule, table)
 
 
 def _gain_set(doc: GainSet | dict[str, Any]) -> GainSet:
