@@ -31,7 +31,7 @@ from piezopreload.models.closedloop import Reference, simulate
 from piezopreload.models.controller import Controller
 from piezopreload.rig.compiled import controller_step
 from piezopreload.study import load_study, paper_study
-from piezopreload.tuning.calibrate import identify_feedforward
+from piezopreload.tuning.feedforward import identify_feedforward
 
 BATCH, SIM_S = 200, 10.0
 SPREAD = {"amp_bandwidth_Hz": 0.2, "amp_current_limit_A": 0.2, "coupling_stiffness_N_per_um": 0.1,
@@ -82,7 +82,7 @@ def main() -> None:
         raise SystemExit("no working C compiler here (or PIEZOPRELOAD_ENGINE=numpy): nothing compiled to time")
     study = load_study(paper_study())
     rig = Rig(study.rig)
-    ff, _ = identify_feedforward(rig, study.excitation)
+    ff = identify_feedforward(study.rig, study.excitation, check_range_N=None).model
     controller = Controller(study.gains, rig.dt_s, ff.inverse())
     ref = Reference.step(25.0, 60.0, 0.5, SIM_S)
     batch = Rig(study.rig.vary(BATCH, SPREAD, seed=0))

@@ -20,14 +20,13 @@ from pathlib import Path
 import numpy as np
 from simple_pid import PID
 
-from piezopreload.models.actuator import Rig
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.rig.backends import SimBackend
 from piezopreload.rig.compiled import PythonStep, controller_step
 from piezopreload.rig.executor import Executor, Safety
 from piezopreload.study import load_study, paper_study
-from piezopreload.tuning.calibrate import identify_feedforward
+from piezopreload.tuning.feedforward import identify_feedforward
 
 
 def per_call(fn, repeat: int = 5) -> float:
@@ -36,7 +35,7 @@ def per_call(fn, repeat: int = 5) -> float:
 
 def main() -> dict:
     study = load_study(paper_study())
-    model, _ = identify_feedforward(Rig(study.rig), study.excitation)
+    model = identify_feedforward(study.rig, study.excitation, check_range_N=None).model
     assert model.n_operators == 40
     gains = PIDGains(Kc=0.5, Ti_s=0.05, Td_s=0.001, Tf_s=0.01, b=0.3)
     controller = Controller(gains, 1e-3, model.inverse())

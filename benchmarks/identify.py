@@ -97,9 +97,10 @@ def _shipped_fit(rec: Any, smooth: np.ndarray, near: np.ndarray, train: np.ndarr
     pred = est.predict(rec.input)
     span = float(np.ptp(rec.output))
     bias = 100.0 * (pred - smooth) / span  # the model's own error: prediction minus the smoothed record
-    out = fit_error(pred[test], rec.output[test], span)
+    e = fit_error(pred[test], rec.output[test], span)
+    out: dict[str, Any] = {"rms_pct": e.rms_pct, "max_pct": e.max_pct}
     out.update({
-        "train_rms_pct": fit_error(pred[train], rec.output[train], span)["rms_pct"],
+        "train_rms_pct": fit_error(pred[train], rec.output[train], span).rms_pct,
         "model_error_rms_pct": float(np.sqrt(np.mean(bias[test] ** 2))),
         "model_error_max_pct": float(np.max(np.abs(bias[test]))),
         "model_error_rms_near_reversals_pct": float(np.sqrt(np.mean(bias[test & near] ** 2))),

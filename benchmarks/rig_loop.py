@@ -36,12 +36,11 @@ import numpy as np
 
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.validation import Criteria
-from piezopreload.models.actuator import Rig
 from piezopreload.models.controller import PIDGains
 from piezopreload.rig.runlog import read_run_log
 from piezopreload.rig.session import serve
 from piezopreload.study import load_study, paper_study
-from piezopreload.tuning.calibrate import identify_feedforward
+from piezopreload.tuning.feedforward import identify_feedforward
 
 USER, PASSWORD = "bench", "bench-password"
 
@@ -182,7 +181,7 @@ def main() -> dict:
     ap.add_argument("--seconds", type=float, default=60.0, help="seconds per loop (default 60)")
     args = ap.parse_args()
     study = load_study(paper_study())  # the paper's rig: the default study is now the machine axis
-    ff, _ = identify_feedforward(Rig(study.rig), study.excitation)
+    ff = identify_feedforward(study.rig, study.excitation, check_range_N=None).model
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)

@@ -21,9 +21,8 @@ import tempfile
 import time
 
 from piezopreload.core import native
-from piezopreload.models.actuator import Rig
 from piezopreload.study import load_study, paper_study
-from piezopreload.tuning.calibrate import identify_feedforward
+from piezopreload.tuning.feedforward import identify_feedforward
 from piezopreload.tuning.pid import tune_pid
 from piezopreload.tuning.validate import executor, validate
 
@@ -34,7 +33,7 @@ def main() -> None:
     cache = tempfile.TemporaryDirectory()
     os.environ["XDG_CACHE_HOME"] = cache.name  # an empty build cache: the first compiled tuning builds
     study = load_study(paper_study())
-    ff, _ = identify_feedforward(Rig(study.rig), study.excitation)
+    ff = identify_feedforward(study.rig, study.excitation, check_range_N=None).model
     spec = study.tuning_spec
 
     t0 = time.perf_counter()

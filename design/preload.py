@@ -71,10 +71,8 @@ import numpy as np
 
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.models.ballscrew import (
-    CASADI_OPS,
     EFFECTIVE_BALL_SHARE,
     LIFT_OFF_RATIO,
-    NUMPY_OPS,
     STEEL,
     BallScrew,
     DutyCase,
@@ -89,6 +87,7 @@ from piezopreload.models.ballscrew import (
     nut_outer_diameter_mm,
 )
 from piezopreload.models.feed_drive import FeedDrive, PiezoPreload, stack_loop_um
+from piezopreload.models.ops import CASADI, NUMPY
 
 __all__ = ["DesignSpec", "DesignPoint", "DesignOptimum", "DesignInfeasible", "ParetoFront", "OBJECTIVES",
            "PARETO_PAIRS", "CONSTRAINTS", "WEIGHTS", "optimise", "pareto_front", "DesignNLP"]
@@ -487,8 +486,8 @@ class DesignNLP:
         self.offset[2] = 0.5  # conformity as (f - 0.5) / 0.05
         y = ca.SX.sym("y", n)
         x = self.offset + self.scale * y
-        e = _expressions(spec, CASADI_OPS, ca.vertsplit(x))
-        rows = _constraint_rows(spec, e, CASADI_OPS)
+        e = _expressions(spec, CASADI, ca.vertsplit(x))
+        rows = _constraint_rows(spec, e, CASADI)
         self.row_names = [r[0] for r in rows]
         self.row_scale = np.array([r[2] for r in rows])
         g = ca.vertcat(*[r[1] / r[2] for r in rows])
@@ -556,8 +555,8 @@ class DesignNLP:
 
         def parts(y: np.ndarray) -> tuple[dict[str, Any], list[tuple[str, Any, float]]]:
             x = self.to_physical(y)
-            e = _expressions(spec, NUMPY_OPS, list(x))
-            return e, _constraint_rows(spec, e, NUMPY_OPS)
+            e = _expressions(spec, NUMPY, list(x))
+            return e, _constraint_rows(spec, e, NUMPY)
 
         def f(y: np.ndarray) -> float:
             e, _ = parts(y)

@@ -42,7 +42,8 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from piezopreload.models.ballscrew import CASADI_OPS, LIFT_OFF_RATIO, BallScrew, _rigidity, nut_forces
+from piezopreload.models.ballscrew import LIFT_OFF_RATIO, BallScrew, _rigidity, nut_forces
+from piezopreload.models.ops import CASADI
 
 __all__ = ["LoadProfile", "ScheduleSpec", "PreloadSchedule", "schedule_preload", "example_profile"]
 
@@ -184,8 +185,8 @@ class PreloadSchedule:
 def _rigidity_function(screw: BallScrew) -> ca.Function:
     F, Fa = ca.SX.sym("F"), ca.SX.sym("Fa")
     c_h, s = screw.axial_constant_um, screw.structural_compliance_um_per_N
-    f_loaded, f_unloaded = nut_forces(ca.fabs(Fa) / F, s * F ** (1.0 / 3.0) / c_h, CASADI_OPS)
-    k = _rigidity(CASADI_OPS, c_h, s, screw.accuracy_factor, F * f_loaded, F * f_unloaded)
+    f_loaded, f_unloaded = nut_forces(ca.fabs(Fa) / F, s * F ** (1.0 / 3.0) / c_h, CASADI)
+    k = _rigidity(CASADI, c_h, s, screw.accuracy_factor, F * f_loaded, F * f_unloaded)
     return ca.Function("rigidity", [F, Fa], [k])
 
 

@@ -63,20 +63,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from types import SimpleNamespace
 from typing import Any
 
-import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import brentq
 
 from piezopreload.core.errors import InputError
+from piezopreload.models.ops import NUMPY
 
 __all__ = [
     "Material", "STEEL", "BallScrew", "DutyCase", "ContactState", "NutLoads", "Life",
     "nut_forces", "lift_off_ratio", "hiwin_loaded_nut_force", "lift_off_load_N", "nut_outer_diameter_mm",
-    "NUMPY_OPS", "CASADI_OPS", "CONTACT_LIMIT_MPA", "RELIABILITY_FACTORS", "LIFT_OFF_RATIO",
+    "CONTACT_LIMIT_MPA", "RELIABILITY_FACTORS", "LIFT_OFF_RATIO",
     "EFFECTIVE_BALL_SHARE", "ACCURACY_FACTOR_P5",
 ]
 
@@ -101,14 +100,6 @@ ACCURACY_FACTOR_P5 = 0.74
 _CDYN_CONSTANT = 70.98
 #: Newton steps of :func:`nut_forces` and :func:`lift_off_ratio` (8 reach 3e-12 up to lift-off)
 _NEWTON_STEPS = 8
-
-#: The operations the formulas below need, on numpy arrays or CasADi expressions: one
-#: implementation serves the numpy model and the CasADi design NLPs.
-NUMPY_OPS = SimpleNamespace(sin=np.sin, cos=np.cos, tan=np.tan, log=np.log, exp=np.exp,
-                            sqrt=np.sqrt, cbrt=np.cbrt, fmin=np.minimum, fmax=np.maximum)
-CASADI_OPS = SimpleNamespace(sin=ca.sin, cos=ca.cos, tan=ca.tan, log=ca.log, exp=ca.exp,
-                             sqrt=ca.sqrt, cbrt=lambda x: x ** (1.0 / 3.0), fmin=ca.fmin, fmax=ca.fmax)
-
 
 @dataclass(frozen=True)
 class Material:
@@ -200,7 +191,7 @@ def _structural_compliance(ops: Any, E: float, D_pw: Any, D_w: Any, beta: Any, h
     return radial + bars
 
 
-def lift_off_ratio(sigma: Any, ops: Any = NUMPY_OPS) -> Any:
+def lift_off_ratio(sigma: Any, ops: Any = NUMPY) -> Any:
     """rho: the unloaded nut lifts off at F_a = rho F_p, where rho^(2/3) + sigma rho = 2 + 2 sigma
     (sigma = s F_p^(1/3) / c_h, module docstring); 2^(3/2) at sigma = 0, 2 as sigma grows.
 
@@ -213,7 +204,7 @@ def lift_off_ratio(sigma: Any, ops: Any = NUMPY_OPS) -> Any:
     return rho
 
 
-def nut_forces(ratio: Any, sigma: Any = 0.0, ops: Any = NUMPY_OPS) -> tuple[Any, Any]:
+def nut_forces(ratio: Any, sigma: Any = 0.0, ops: Any = NUMPY) -> tuple[Any, Any]:
     """The double nut's forces over F_p, ``(f_loaded, f_unloaded)``, under F_a = ratio F_p,
     0 <= ratio < rho (:func:`lift_off_ratio`).
 
@@ -224,12 +215,12 @@ def nut_forces(ratio: Any, sigma: Any = 0.0, ops: Any = NUMPY_OPS) -> tuple[Any,
     differentiable). sigma = 0 is the Hertz-only nut: f = (1 +/- u)^(3/2) with
     (1 + u)^(3/2) - (1 - u)^(3/2) = ratio.
     """
-    f_a = ops.fmax(1.0 + 0.5 * ratio, ratio + 1e-15)
+    f_a = ops.maximum(1.0 + 0.5 * ratio, ratio + 1e-15)
     for _ in range(_NEWTON_STEPS):
-        t_a, t_b = ops.cbrt(f_a), ops.cbrt(ops.fmax(f_a - ratio, 0.0))
+        t_a, t_b = ops.cbrt(f_a), ops.cbrt(ops.maximum(f_a - ratio, 0.0))
         g = t_a ** 2 + t_b ** 2 + sigma * (2.0 * f_a - ratio) - 2.0 - 2.0 * sigma
-        f_a = f_a - g / (2.0 / 3.0 * (1.0 / t_a + 1.0 / ops.fmax(t_b, 1e-100)) + 2.0 * sigma)
-    return f_a, ops.fmax(f_a - ratio, 0.0)
+        f_a = f_a - g / (2.0 / 3.0 * (1.0 / t_a + 1.0 / ops.maximum(t_b, 1e-100)) + 2.0 * sigma)
+    return f_a, ops.maximum(f_a - ratio, 0.0)
 
 
 def _nut_stiffness(ops: Any, c_h_um: Any, s_um: Any, force_N: Any) -> Any:
@@ -488,20 +479,20 @@ class BallScrew:
 
     # ---- Hertz and the nut law -------------------------------------------------------------
     def _constants(self) -> tuple[float, float, float]:
-        return _nut_constants(NUMPY_OPS, self.material.contact_modulus_MPa, self.pitch_diameter, self.ball_mm,
+        return _nut_constants(NUMPY, self.material.contact_modulus_MPa, self.pitch_diameter, self.ball_mm,
                               self.contact_rad, self.conformity_screw, self.conformity_nut)
 
     @property
     def axial_constant_um(self) -> float:
         """c_h (um per N^(2/3)): one nut's contact approach c_h F^(2/3), eta of the balls counted."""
         c_delta = self._constants()[0]
-        return 1e3 * float(_axial_constant(NUMPY_OPS, c_delta, self.load_sharing * self.balls_per_nut,
+        return 1e3 * float(_axial_constant(NUMPY, c_delta, self.load_sharing * self.balls_per_nut,
                                            self.contact_rad, self.helix_rad))
 
     @property
     def structural_compliance_um_per_N(self) -> float:
         """s (um/N): one nut's body and the screw under it (module docstring)."""
-        return 1e3 * float(_structural_compliance(NUMPY_OPS, self.material.E_MPa, self.pitch_diameter, self.ball_mm,
+        return 1e3 * float(_structural_compliance(NUMPY, self.material.E_MPa, self.pitch_diameter, self.ball_mm,
                                                   self.contact_rad, self.helix_rad, self.nut_outer_diameter,
                                                   self.nut_length_mm))
 
@@ -555,7 +546,7 @@ class BallScrew:
         """lambda (1/mm) of :meth:`turn_loads` at one nut's force F; lambda L small means nearly
         equal turns and the first-order body term of the nut law exact."""
         E, L = self.material.E_MPa, self.nut_length_mm
-        radial, bars = _structural_parts(NUMPY_OPS, E, self.pitch_diameter, self.ball_mm, self.contact_rad,
+        radial, bars = _structural_parts(NUMPY, E, self.pitch_diameter, self.ball_mm, self.contact_rad,
                                          self.helix_rad, self.nut_outer_diameter, L)
         contact = 1e-3 * 2.0 / 3.0 * self.axial_constant_um * float(nut_force_N) ** (-1.0 / 3.0)  # mm/N, whole nut
         # the foundation k' = 1 / ((contact + radial) L); the bars' 1/(E A) sum = 3 bars / L
@@ -585,13 +576,13 @@ class BallScrew:
         """C_dyn: catalogue value, or the Lundberg-Palmgren estimate of the module docstring."""
         if self.c_dyn_N is not None:
             return float(self.c_dyn_N)
-        return float(_c_dyn(NUMPY_OPS, self.pitch_diameter, self.ball_mm, self.contact_rad, self.helix_rad,
+        return float(_c_dyn(NUMPY, self.pitch_diameter, self.ball_mm, self.contact_rad, self.helix_rad,
                             self.conformity_screw, self.conformity_nut, self.balls_on_turn, self.turns))
 
     @property
     def drag_K(self) -> float:
         return float(self.drag_coefficient if self.drag_coefficient is not None
-                     else _drag_coefficient(NUMPY_OPS, self.helix_rad))
+                     else _drag_coefficient(NUMPY, self.helix_rad))
 
     # ---- the double nut -------------------------------------------------------------------
     def nut_loads(self, preload_N: ArrayLike, axial_load_N: ArrayLike = 0.0) -> NutLoads:
@@ -614,7 +605,7 @@ class BallScrew:
         loaded = Fp * np.where(lifted, ratio, f_loaded)
         unloaded = Fp * np.where(lifted, 0.0, f_unloaded)
         k_contact = 1.5 * (np.cbrt(loaded) + np.cbrt(unloaded)) / c_h
-        k = _rigidity(NUMPY_OPS, c_h, s, self.accuracy_factor, loaded, unloaded)
+        k = _rigidity(NUMPY, c_h, s, self.accuracy_factor, loaded, unloaded)
         shift = self.nut_approach_um(loaded) - self.nut_approach_um(Fp)
         return NutLoads(preload_N=Fp, axial_load_N=Fa, loaded_nut_N=loaded, unloaded_nut_N=unloaded,
                         deflection_um=np.sign(Fa) * shift, contact_stiffness_N_per_um=k_contact,
@@ -628,7 +619,7 @@ class BallScrew:
         """Eq. (13) of the paper: the double nut's Hertz contact stiffness at no load, all
         balls equally loaded, rigid nut and screw: 3 F_p^(1/3) / c_h with eta = 1."""
         c_delta = self._constants()[0]
-        c_h = 1e3 * float(_axial_constant(NUMPY_OPS, c_delta, self.balls_per_nut, self.contact_rad, self.helix_rad))
+        c_h = 1e3 * float(_axial_constant(NUMPY, c_delta, self.balls_per_nut, self.contact_rad, self.helix_rad))
         return 3.0 * np.cbrt(np.asarray(preload_N, float)) / c_h
 
     def drag_torque_Nm(self, preload_N: ArrayLike) -> Array:

@@ -44,11 +44,8 @@ from piezopreload.core.errors import InputError
 from piezopreload.models.ops import CASADI, NUMPY, Layout, Ops
 
 __all__ = ["PIDGains", "GainSchedule", "SCHEDULE_MAX", "Controller", "ControllerState", "ControllerModel", "Terms", "Feedforward", "FeedforwardStep",
-           "pid_update", "controller_functions", "NUMPY_OPS", "CASADI_OPS"]
+           "pid_update", "controller_functions"]
 
-#: The ops tables of :mod:`piezopreload.models.ops` under the names :func:`pid_update` was written with.
-NUMPY_OPS = NUMPY
-CASADI_OPS = CASADI
 
 
 

@@ -1,6 +1,6 @@
 """The operations the model steps are written over, and the named layouts of their vectors.
 
-A model step (the plant's, the controller's, the closed loop's) is written once as a function of
+A model step (the plant's, the controller's, the closed loop's, the ball screw's formulas) is written once as a function of
 an *ops table* and runs on numpy arrays or on CasADi expressions:
 
 * :data:`NUMPY`: arrays whose last axis is the vector's and whose leading axes are a batch (one
@@ -59,7 +59,8 @@ class Ops:
     ``expand(s)`` lets a scalar field meet a vector field (numpy: a trailing axis; CasADi: as
     is); ``dot(z, w)`` and ``sum(z)`` reduce a vector field, ``cumsum(z)`` its partial sums; ``repeat(s, n)`` makes one of ``n``
     copies of a scalar; ``first(line)`` and ``shift_in(line, s)`` read and advance a delay line
-    (drop the oldest entry, append ``s``).
+    (drop the oldest entry, append ``s``). ``cbrt`` on CasADi is ``x ** (1/3)``: positive
+    arguments only (the ball-screw formulas' forces), where numpy's also takes negative ones.
     """
 
     name: str
@@ -75,6 +76,11 @@ class Ops:
     sqrt: Callable[..., Any]
     fabs: Callable[..., Any]
     floor: Callable[..., Any]
+    sin: Callable[..., Any]
+    cos: Callable[..., Any]
+    tan: Callable[..., Any]
+    log: Callable[..., Any]
+    cbrt: Callable[..., Any]
     dot: Callable[..., Any]
     sum: Callable[..., Any]
     expand: Callable[..., Any]
@@ -84,13 +90,18 @@ class Ops:
     cumsum: Callable[..., Any]
 
 
-NUMPY = Ops("numpy", False, np.where, np.minimum, np.maximum, np.logical_and, np.logical_or, np.exp, np.expm1,
-            np.log1p, np.sqrt, np.abs, np.floor, _np_dot, lambda z: np.sum(z, axis=-1),
-            lambda s: np.asarray(s)[..., None], lambda s, n: np.repeat(np.asarray(s, float)[..., None], n, axis=-1),
-            lambda line: line[..., 0], _np_shift_in, lambda z: np.cumsum(z, axis=-1))
-CASADI = Ops("casadi", True, ca.if_else, ca.fmin, ca.fmax, ca.logic_and, ca.logic_or, ca.exp, ca.expm1, ca.log1p,
-             ca.sqrt, ca.fabs, ca.floor, _ca_dot, ca.sum1, lambda s: s,
-             lambda s, n: ca.repmat(s, n, 1) if n else ca.DM(0, 1), lambda line: line[0], _ca_shift_in, ca.cumsum)
+NUMPY = Ops(name="numpy", symbolic=False, where=np.where, minimum=np.minimum, maximum=np.maximum,
+            logical_and=np.logical_and, logical_or=np.logical_or, exp=np.exp, expm1=np.expm1, log1p=np.log1p,
+            sqrt=np.sqrt, fabs=np.abs, floor=np.floor, sin=np.sin, cos=np.cos, tan=np.tan, log=np.log, cbrt=np.cbrt,
+            dot=_np_dot, sum=lambda z: np.sum(z, axis=-1), expand=lambda s: np.asarray(s)[..., None],
+            repeat=lambda s, n: np.repeat(np.asarray(s, float)[..., None], n, axis=-1),
+            first=lambda line: line[..., 0], shift_in=_np_shift_in, cumsum=lambda z: np.cumsum(z, axis=-1))
+CASADI = Ops(name="casadi", symbolic=True, where=ca.if_else, minimum=ca.fmin, maximum=ca.fmax,
+             logical_and=ca.logic_and, logical_or=ca.logic_or, exp=ca.exp, expm1=ca.expm1, log1p=ca.log1p,
+             sqrt=ca.sqrt, fabs=ca.fabs, floor=ca.floor, sin=ca.sin, cos=ca.cos, tan=ca.tan, log=ca.log,
+             cbrt=lambda x: x ** (1.0 / 3.0), dot=_ca_dot, sum=ca.sum1, expand=lambda s: s,
+             repeat=lambda s, n: ca.repmat(s, n, 1) if n else ca.DM(0, 1), first=lambda line: line[0],
+             shift_in=_ca_shift_in, cumsum=ca.cumsum)
 
 
 def softplus(ops: Ops, y: Any, k: Any) -> Any:

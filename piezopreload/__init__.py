@@ -11,7 +11,7 @@ The front door for design-study scripts::
     run = study.simulate(gain_set, reference="step")   # StudyRun: .step_metrics(), .plot()
     design = study.design()                            # DesignResult: .optimum, .fronts, .schedule, .plot()
     gain_set.save("gains.json"); pp.GainSet.load("gains.json")
-    gain_set.export("labview")                         # the text the CLI writes
+    pp.export(gain_set, "labview")                     # the text the CLI writes; a model alone: pp.export(ff.record, "plc")
     result = study.run(out="piezopreload-out")         # the whole pipeline, as ``piezopreload run``
 
 The physics lives in :mod:`piezopreload.models`, identification and tuning in
@@ -27,6 +27,7 @@ except PackageNotFoundError:  # running from a source tree that is not installed
     __version__ = "0+unknown"
 
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.hysteresis import IdentifiedModel
 from piezopreload.core.errors import (
     ArtifactError,
     InfeasibleError,
@@ -40,14 +41,15 @@ from piezopreload.models.closedloop import ClosedLoopRun, Reference
 from piezopreload.models.controller import PIDGains
 from piezopreload.models.metrics import StepMetrics
 from piezopreload.results import StudyRun, TuningResult
+from piezopreload.rig.export import export
 from piezopreload.study import Study, load_study, shipped_studies
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
-from piezopreload.tuning.holdout import HoldoutFit, Window
-from piezopreload.tuning.holdout import identify_record as identify
+from piezopreload.tuning.identification import Identification, Window, identify
+from piezopreload.tuning.identify import NotFittedError, PIIdentifier
 
 __all__ = [
     "__version__", "load_study", "shipped_studies", "Study", "GainSet", "TuningResult", "StudyRun", "ClosedLoopRun",
     "DesignResult", "IdentifiedFeedforward", "PIDGains", "Reference", "StepMetrics", "Record", "read_record",
-    "identify", "HoldoutFit", "Window", "PiezopreloadError", "InputError", "ArtifactError", "InfeasibleError",
+    "export", "identify", "Identification", "PIIdentifier", "NotFittedError", "IdentifiedModel", "Window", "PiezopreloadError", "InputError", "ArtifactError", "InfeasibleError",
     "InternalError",
 ]

@@ -151,9 +151,8 @@ class Stage:
 def _stage_identify(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     ff = ctx.subject().identify_feedforward(progress=ctx.progress.say)
     paths = ff.save(ctx.out / "feedforward", inputs={"study_sha256": ctx.study.sha256})
-    data = read_artifact(paths["model"], "hysteresis-model")["inputs"]["data"]
-    return paths, {"source": ff.source["kind"], "data_sha256": data["sha256"], "operators": ff.model.n_operators,
-                   "fit_rms_pct": ff.fit["rms_pct"], "fit_max_pct": ff.fit["max_pct"],
+    return paths, {"source": ff.record.data.kind, "data_sha256": ff.record.data.sha256,
+                   "operators": ff.model.n_operators, "fit_rms_pct": ff.fit.rms_pct, "fit_max_pct": ff.fit.max_pct,
                    "compensation_rms_N": None if ff.check is None else ff.check.rms_N}
 
 
@@ -214,7 +213,7 @@ def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
                      **r.numbers})
     table = None if study.published is None else reproduction(runs, study.published.step())
     creep = None if ff.without_creep is None else creep_effect(  # FF + PID with and without creep compensation
-        study.rig, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model, ff.without_creep["model"],
+        study.rig, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model, ff.without_creep,
         seed=study.seed, band_N=study.band_N, signal=study.signal, after_change_s=study.criteria.tracking_after_change_s)
     outputs["responses"] = d / "responses.json"
     write_artifact(outputs["responses"], "responses", {

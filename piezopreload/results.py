@@ -279,7 +279,8 @@ def reproduce(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | N
                          "studies/paper2021.toml has); reproduce sets a study's simulation beside published numbers")
     rep = reproduce_paper(study.rig, study.gains, step=study.references["step"], excitation=study.excitation,
                           seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
-                          repeats=repeats, feedforward=feedforward.model, feedforward_fit=feedforward.fit)
+                          repeats=repeats, feedforward=feedforward.model,
+                          feedforward_fit=feedforward.fit.to_dict())
     return {"study": {"path": study.path, "sha256": study.sha256, "name": study.name},
             "gains": {**gains_to_dict(study.gains), "read_as": study.controller.units}, "band_N": study.band_N,
             "signal": study.signal, "published": study.published.source,

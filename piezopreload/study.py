@@ -29,7 +29,7 @@ from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.validation import Criteria
 from piezopreload.core.config import NUMBER, Lines, Table, check_tree, read_config, toml_text
 from piezopreload.core.errors import InfeasibleError, InputError
-from piezopreload.core.tables import read_record
+from piezopreload.core.tables import Record, read_record
 from piezopreload.design.plant import DesignedPlant
 from piezopreload.design.preload import DesignInfeasible, DesignPoint, DesignSpec
 from piezopreload.design.schedule import PreloadSchedule
@@ -40,8 +40,7 @@ from piezopreload.models.actuator import P888_91, RigParams, StackData
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import PIDGains
 from piezopreload.rig.tables import ExportTable, RigRunPlan
-from piezopreload.tuning.calibrate import LoopExcitation
-from piezopreload.tuning.feedforward import IdentifiedFeedforward, identify
+from piezopreload.tuning.feedforward import IdentifiedFeedforward, LoopExcitation, identify_feedforward, loop_covers
 from piezopreload.tuning.pid import TuningSpec
 from piezopreload.tuning.tables import LearningTable, TuningTable, ValidationTable
 
@@ -352,18 +351,36 @@ class Study:
         one, else from the loop measurement simulated on the rig; with its open-loop compensation check."""
         say = progress or (lambda _m: None)
         if not self._on_plant:
+            self._measured_loop(say)  # refused before the design if it does not cover the references
             return self.plant_study(progress).identify_feedforward(progress)
-        ex, data = self.excitation, self.resolve(self.feedforward.data)
-        if data is None:
+        ex, record = self.excitation, self._measured_loop(say)
+        low, high = self.reference_range_N
+        if record is None:
             say(f"simulating the {ex.v_max_V:g} V, {ex.frequency_Hz:g} Hz loop measurement on the rig's truth model")
-        else:
-            say(f"reading the measured loop {data}")
-        levels = self.references["trajectory"].levels_N
-        low = float(min(self.references["step"].levels_N.min(), levels.min()))
-        ff = identify(self.rig, ex, None if data is None else read_record(data), check_range_N=(low, float(levels.max())))
-        say(f"P-I model ({ff.model.kind}): {ff.model.n_operators} operators, fit RMS {ff.fit['rms_pct']:.2f} % "
-            f"(max {ff.fit['max_pct']:.2f} %) of the force span")
+        ff = identify_feedforward(self.rig, ex, record, check_range_N=(low, high))
+        say(f"P-I model ({ff.model.kind}): {ff.model.n_operators} operators, fit RMS {ff.fit.rms_pct:.2f} % "
+            f"(max {ff.fit.max_pct:.2f} %) of the force span, identified over {ff.record.output_range[0]:,.4g} to "
+            f"{ff.record.output_range[1]:,.4g} N")
+        ff.covers(low, high, f"the study's references ({self.path})")
         return ff
+
+    def _measured_loop(self, say: Callable[[str], None]) -> Record | None:
+        """``[feedforward] data`` read, and refused if its forces do not cover the references (before any design
+        or tuning: a measured loop's range is known from the file); None when the loop is simulated."""
+        data = self.resolve(self.feedforward.data)
+        if data is None:
+            return None
+        say(f"reading the measured loop {data}")
+        record = read_record(data)
+        loop_covers(record, *self.reference_range_N, f"the study's references ({self.path})")
+        return record
+
+    @property
+    def reference_range_N(self) -> tuple[float, float]:
+        """The least and the largest force of the study's references (step and trajectory): what the feedforward
+        must have been identified over."""
+        levels = [self.references[k].levels_N for k in ("step", "trajectory")]
+        return float(min(x.min() for x in levels)), float(max(x.max() for x in levels))
 
     def tune(self, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,
              progress: Callable[[str], None] | None = None,
@@ -372,6 +389,10 @@ class Study:
         compare it with the paper's and SIMC's gains and bound it. Returns a :class:`~piezopreload.results.TuningResult`."""
         from piezopreload.results import tune
 
+        if feedforward is not None:  # refused before the design and the tuning, with both ranges
+            feedforward.covers(*self.reference_range_N, f"the study's references ({self.path})")
+        else:
+            self._measured_loop(progress or (lambda _m: None))
         study = self.plant_study(progress)
         return tune(study, feedforward or study.identify_feedforward(progress), seed=seed, progress=progress,
                     iterations=iterations)

@@ -8,9 +8,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
-from piezopreload.artifacts.gainset import EXPORT_FORMATS, REFERENCES
+from piezopreload.artifacts.gainset import REFERENCES
 from piezopreload.core.config import Table
 from piezopreload.core.errors import InputError
+from piezopreload.rig.export import FORMATS
 
 __all__ = ["ExportTable", "RigRunPlan", "RIG_RUN_REFERENCES"]
 
@@ -22,13 +23,13 @@ RIG_RUN_REFERENCES = (*REFERENCES, "schedule")
 class ExportTable(Table):
     """[export]: the formats the validated gain set is written in."""
 
-    formats: tuple[str, ...] = EXPORT_FORMATS
+    formats: tuple[str, ...] = FORMATS
 
     def check(self, fail: Callable[[str, str], InputError]) -> None:
-        """Every format is one :data:`EXPORT_FORMATS` names; ``fail(key, message)`` makes the error."""
+        """Every format is one :data:`FORMATS` names; ``fail(key, message)`` makes the error."""
         for f in self.formats:
-            if f not in EXPORT_FORMATS:
-                raise fail("export.formats", f"has {f!r}; expected some of {', '.join(EXPORT_FORMATS)}")
+            if f not in FORMATS:
+                raise fail("export.formats", f"has {f!r}; expected some of {', '.join(FORMATS)}")
 
 
 @dataclass(frozen=True)

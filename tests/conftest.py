@@ -2,9 +2,8 @@
 
 import pytest
 
-from piezopreload.models.actuator import Rig
 from piezopreload.study import load_study, paper_study
-from piezopreload.tuning.calibrate import identify_feedforward
+from piezopreload.tuning.feedforward import identify_feedforward
 
 
 @pytest.fixture(scope="session")
@@ -14,6 +13,5 @@ def study():
 
 @pytest.fixture(scope="session")
 def feedforward(study):
-    model, _ = identify_feedforward(Rig(study.rig), study.excitation)
-    return model
+    return identify_feedforward(study.rig, study.excitation, check_range_N=None).model
 

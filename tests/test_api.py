@@ -51,7 +51,7 @@ def test_the_readme_snippet_runs_end_to_end(tmp_path, monkeypatch):
     # the run is the tuned gains' with the gain set's feedforward: the comparison table's tuned row
     assert m.settling_s == pytest.approx(ns["tuned"].row("tuned")["settling_measured_s"], abs=study.rig.sample_period_s)
     assert pp.GainSet.load(tmp_path / "gains.json").gains == gain_set.gains
-    assert ns["gain_set"].export("labview").startswith("; gain set sha256")
+    assert pp.export(ns["gain_set"], "labview").startswith("; gain set sha256")
     assert len(design.fronts) == 2 and design.optimum.point.stiffness_N_per_um > 0
     assert list(result.ran) == [s.name for s in __import__("piezopreload.pipeline").pipeline.STAGES
                              if s.applies(study) is None]
@@ -147,22 +147,17 @@ def test_the_gain_set_round_trips_and_its_exports_are_the_cli_s(gain_set, tmp_pa
         out = tmp_path / f"export.{fmt}"
         assert main(["export", str(path), "--format", fmt, "--out", str(out)]) == 0
         capsys.readouterr()
-        if fmt == "casadi-c":
-            from piezopreload.rig.export import export_text
-
-            assert out.read_text() == export_text(loaded, fmt)
-            with pytest.raises(pp.InputError, match="casadi-c"):
-                loaded.export(fmt)
-        else:
-            assert out.read_text() == loaded.export(fmt), f"{fmt}: the API's text is not the CLI's"
+        assert out.read_text() == pp.export(loaded, fmt), f"{fmt}: the API's text is not the CLI's"
     # the units each format states: LabVIEW's minutes, a PLC's Kp/Tn/Tv in seconds, the C header in SI
     g = gs.gains
-    lv = dict(line.split(" = ") for line in loaded.export("labview").splitlines() if " = " in line)
+    lv = dict(line.split(" = ") for line in pp.export(loaded, "labview").splitlines()
+              if " = " in line and not line.startswith(";"))
     assert [float(lv[k]) for k in ("Kc", "Ti (min)", "Td (min)")] == pytest.approx([g.Kc, g.Ti_s / 60, g.Td_s / 60], rel=1e-11)
-    plc = dict(line.split(" = ") for line in loaded.export("plc").splitlines() if " = " in line)
+    plc = dict(line.split(" = ") for line in pp.export(loaded, "plc").splitlines()
+               if " = " in line and not line.startswith(";"))
     assert [float(plc[k]) for k in ("Kp", "Tn", "Tv", "Ymax")] == pytest.approx([g.Kc, g.Ti_s, g.Td_s, g.u_max], rel=1e-11)
-    assert f"#define PP_TI_S {g.Ti_s!r}" in loaded.export("c-header")
-    assert json.loads(loaded.export("json"))["gains"]["Ti_s"] == g.Ti_s
+    assert f"#define PP_TI_S {g.Ti_s!r}" in pp.export(loaded, "c-header")
+    assert json.loads(pp.export(loaded, "json"))["gains"]["Ti_s"] == g.Ti_s
     doc = json.loads(path.read_text())
     doc["gains"]["Ti_s"] = 0.5
     path.write_text(json.dumps(doc))
@@ -198,8 +193,8 @@ def measured_study(tmp_path_factory):
     """The small study with a 'measured' loop: the simulated one, its force scaled by 1.1 (another rig)."""
     folder = tmp_path_factory.mktemp("measured")
     loop = pp.load_study(SMALL).identify_feedforward().loop
-    write_csv(folder / "loop.csv", {"time_s": loop["time_s"], "voltage_V": loop["voltage_V"],
-                                    "force_N": 1.1 * loop["force_N"]}, "a measured loop")
+    write_csv(folder / "loop.csv", {"time_s": loop.time_s, "voltage_V": loop.input, "force_N": 1.1 * loop.output},
+              "a measured loop")
     path = folder / "study.toml"
     path.write_text(SMALL.read_text().replace("n_operators = 20", 'n_operators = 20\ndata = "loop.csv"'))
     return pp.load_study(path), folder / "loop.csv"
@@ -215,7 +210,7 @@ def test_feedforward_data_is_honoured_by_simulate_and_reproduce(measured_study):
     assert f"the measured loop {loop}" in run.to_dict()["feedforward"]["source"]
     ref = study.simulate(controller="ff+pid", feedforward=ff)
     np.testing.assert_array_equal(run.command_V, ref.command_V)
-    assert study.reproduce()["feedforward_fit"] == ff.fit
+    assert study.reproduce()["feedforward_fit"] == ff.fit.to_dict()
 
 
 def test_feedforward_data_is_honoured_by_tune(measured_study, monkeypatch, capsys):
@@ -256,28 +251,60 @@ def test_example_sweep_of_the_bolt_preload(tmp_path):
     assert (tmp_path / "settling_vs_bolt_preload.png").stat().st_size > 0
 
 
+def _check_example_output(out, tmp_path, loop):
+    """The example's held-out error as written, recomputed from the saved model and the record; its exports."""
+    result = out["identification"]
+    model = pp.IdentifiedModel.load(tmp_path / "model.json").model
+    record = pp.read_record(loop)
+    window = record.window(*result.record.test.window_s)
+    err = model(record.input)[window] - record.output[window]
+    assert 100 * np.sqrt(np.mean(err ** 2)) / np.ptp(record.output) == pytest.approx(result.record.test.rms_pct, rel=1e-9)
+    assert result.record.test.rms_pct < result.record.line.test.rms_pct / 3  # the P-I model explains what a line cannot
+    gs = out["gain_set"]
+    assert pp.GainSet.load(tmp_path / "gains.json").content_sha256 == gs.content_sha256
+    assert gs.feedforward_info["source"]["kind"] == "measured"
+    assert "FUNCTION_BLOCK PP_FEEDFORWARD" in (tmp_path / "feedforward.plc.st").read_text()
+    if gs.validated:
+        assert (tmp_path / "gains.labview.txt").read_text() == pp.export(gs, "labview")
+        assert "Tn = " in (tmp_path / "gains.plc.st").read_text()
+        assert "[feedforward operators]" in (tmp_path / "gains.labview.txt").read_text()
+    else:  # a candidate is never exported
+        assert not (tmp_path / "gains.labview.txt").exists()
+    return gs
+
+
 def test_example_identify_from_a_csv_and_export(measured_study, tmp_path):
     _, loop = measured_study
     out = _example("identify_and_export").main([str(loop), "--study", str(SMALL), "--operators", "20",
                                                 "--plants", "4", "--out", str(tmp_path)])
-    s = out["fit"]
-    # the held-out error as written, recomputed here from the saved model and the record
-    from piezopreload.tuning.feedforward import read_hysteresis_model
+    assert out["study"] == "small"
+    _check_example_output(out, tmp_path, loop)
 
-    model, _ = read_hysteresis_model(tmp_path / "model.json")
-    record = pp.read_record(loop)
-    window = record.window(*s["test"]["window_s"])
-    err = model(record.input)[window] - record.output[window]
-    assert 100 * np.sqrt(np.mean(err ** 2)) / np.ptp(record.output) == pytest.approx(s["test"]["rms_pct"], rel=1e-9)
-    assert s["test"]["rms_pct"] < s["line_test"]["rms_pct"] / 3  # the P-I model explains the loop a line cannot
-    gs = out["gain_set"]
-    assert pp.GainSet.load(tmp_path / "gains.json").content_sha256 == gs.content_sha256
-    assert gs.feedforward_info["source"]["kind"] == "measured"
-    if gs.validated:
-        assert (tmp_path / "gains.labview.txt").read_text() == gs.export("labview")
-        assert "Tn = " in (tmp_path / "gains.plc.txt").read_text()
-    else:  # a candidate is never exported
-        assert not (tmp_path / "gains.labview.txt").exists()
+
+@pytest.mark.slow
+def test_example_identify_and_export_on_its_default_path(tmp_path, capsys):
+    """As its docstring says: the paper's study, its loop simulated on the paper's rig, the study's Monte Carlo."""
+    out = _example("identify_and_export").main(["--out", str(tmp_path)])
+    printed = capsys.readouterr().out
+    assert out["study"] == "paper2021" and "study paper2021" in printed and "25 to 100 N" in printed
+    gs = _check_example_output(out, tmp_path, tmp_path / "loop.csv")
+    assert gs.validated and gs.validation["n_plants"] == pp.load_study("paper2021").validation.plants
+    assert gs.feedforward_info["source"]["path"] == str((tmp_path / "loop.csv").resolve())
+
+
+def test_example_refuses_a_loop_that_does_not_cover_the_studys_references(measured_study, tmp_path, monkeypatch):
+    """The paper rig's loop (25-110 N) for the machine axis (references 0-4,000 N): refused before the design and
+    the tuning run, with both ranges in the message."""
+    import piezopreload.study as study_module
+
+    monkeypatch.setattr(study_module.Study, "plant_study", lambda *a, **k: pytest.fail("the design ran first"))
+    _, loop = measured_study
+    with pytest.raises(pp.InputError) as exc:
+        _example("identify_and_export").main([str(loop), "--study", "machine_axis", "--operators", "20",
+                                              "--out", str(tmp_path)])
+    message = str(exc.value)
+    assert re.search(r"identified over [\d.]+ to [\d.]+ N", message) and "span 0 to 4,000 N" in message, message
+    assert not (tmp_path / "gains.json").exists()
 
 
 def test_example_pareto_front_of_a_catalogue_screw(tmp_path):

@@ -26,10 +26,8 @@ from ballscrew_catalogue import (
 from piezopreload.core.errors import InputError
 from piezopreload.models.ballscrew import (
     ACCURACY_FACTOR_P5,
-    CASADI_OPS,
     EFFECTIVE_BALL_SHARE,
     LIFT_OFF_RATIO,
-    NUMPY_OPS,
     STEEL,
     BallScrew,
     DutyCase,
@@ -40,6 +38,7 @@ from piezopreload.models.ballscrew import (
     nut_forces,
 )
 from piezopreload.models.feed_drive import FeedDrive, PiezoPreload, stack_loop_um
+from piezopreload.models.ops import CASADI, NUMPY
 
 ROWS = load_rows()
 CHECKED = checked(ROWS)
@@ -179,7 +178,7 @@ def test_hamrock_brewe_contact_matches_exact_hertz_with_elliptic_integrals(side)
     inv_Ry = (2 - 1 / f) / D_w
     inv_Rx = 2 / D_w + 2 * cb / (D_pw - D_w * cb) if side == "screw" else 2 / D_w - 2 * cb / (D_pw + D_w * cb)
     E_prime = STEEL.contact_modulus_MPa
-    c_delta, c_p = _contact_constants(NUMPY_OPS, E_prime, inv_Rx, inv_Ry)
+    c_delta, c_p = _contact_constants(NUMPY, E_prime, inv_Rx, inv_Ry)
     Q = 150.0
     delta, p0 = _exact_hertz(E_prime, inv_Rx, inv_Ry, Q)
     # Hamrock and Brewe give their fits as within about 3 % over 1 <= R_y/R_x <= 100
@@ -297,7 +296,7 @@ def test_nut_forces_solve_the_two_nut_law_on_numpy_and_casadi(sigma):
     phi = np.cbrt(fa) ** 2 + sigma * fa + np.cbrt(fb) ** 2 + sigma * fb
     np.testing.assert_allclose(phi, 2 + 2 * sigma, atol=1e-12, err_msg="compatibility, eq. (8)")
     r = ca.SX.sym("r")
-    fa_c, _ = nut_forces(r, sigma, CASADI_OPS)
+    fa_c, _ = nut_forces(r, sigma, CASADI)
     fun = ca.Function("fa", [r], [fa_c])
     np.testing.assert_allclose(np.asarray(fun(ratio[1::50])).ravel(), fa[1::50], rtol=1e-13)
     # the derivative the design NLP sees is the implicit one: dfa/dr = phi'(fb) / (phi'(fa) + phi'(fb))

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from piezopreload.artifacts.hysteresis import DataSource, FitError, IdentifiedModel, SolverReport, Units
 from piezopreload.cli import main
 from piezopreload.core.artifacts import ArtifactError, read_artifact, write_artifact
 from piezopreload.models.hysteresis import ClassicalPI, uniform_thresholds
-from piezopreload.tuning.feedforward import read_hysteresis_model as load_hysteresis_model
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -50,7 +50,7 @@ def test_identify_shipped_data_json(capsys, tmp_path):
     assert doc["model"] == "classical" and doc["operators"] == 40
     assert doc["test"]["rms_pct"] <= 0.17 and doc["test"]["max_pct"] <= 0.90
     assert doc["line_test"]["rms_pct"] > 4 and doc["solver"]["status"] == "optimal"
-    model, artifact = load_hysteresis_model(out_file)
+    model, artifact = IdentifiedModel.load(out_file).model, read_artifact(out_file, "hysteresis-model")
     assert artifact["schema"] == "piezopreload/hysteresis-model/1"
     assert artifact["inputs"]["data"]["sha256"] == "480af23e3cdae958eef05601a43e55cec79a93f6d49d05d61cfbe3e4d6281b4c"
     assert artifact["units"] == {"input": "V", "output": "um", "input_name": "voltage_V",
@@ -72,14 +72,16 @@ def test_identify_with_creep_reports_the_refit_without_it(capsys, tmp_path):
     assert doc["test"]["rms_pct"] < doc["without_creep"]["test"]["rms_pct"], "creep should help on data it was not fitted to"
     code, out, err = run(capsys, "identify", "--model", "paper-asymmetric", "--train", "4:7", "--test", "7:10", "--json")
     plain = json.loads(out)
-    assert {k: plain["test"][k] for k in ("rms_pct", "max_pct")} == pytest.approx(doc["without_creep"]["test"], rel=1e-9), \
+    keys = ("rms_pct", "max_pct")
+    assert {k: plain["test"][k] for k in keys} == pytest.approx({k: doc["without_creep"]["test"][k] for k in keys},
+                                                                rel=1e-9), \
         "without creep is the plain fit"
     out_file = tmp_path / "creep.json"
     code, out, err = run(capsys, "identify", "--model", "classical+creep", "--creep-time-constants", "0.05,0.5,5",
                          "--train", "4:7", "--test", "7:10", "--out", str(out_file))
     assert code == 0, err
     assert "classical without creep" in out and "at 0.05 s" in out
-    model, _ = load_hysteresis_model(out_file)
+    model = IdentifiedModel.load(out_file).model
     assert model.kind == "classical+creep" and model.creep.time_constants_s.tolist() == [0.05, 0.5, 5.0]
 
 
@@ -174,7 +176,7 @@ def test_internal_failure_exit_1(capsys, monkeypatch):
     def boom(*a, **k):
         raise RuntimeError("simulated bug")
 
-    monkeypatch.setattr(cli, "identify_record", boom)
+    monkeypatch.setattr(cli, "identify", boom)
     code, _, err = run(capsys, "identify")
     assert code == 1
     assert err.strip().startswith("error: internal failure: RuntimeError: simulated bug")
@@ -183,8 +185,9 @@ def test_internal_failure_exit_1(capsys, monkeypatch):
 
 def _write_model(path):
     model = ClassicalPI(uniform_thresholds(4, 10.0), [1.0, 0.1, 0.2, 0.3], 0.5)
-    return write_artifact(path, "hysteresis-model", {"inputs": {}, "units": {"input": "V", "output": "N"},
-                                                     "model": model.to_dict()})
+    IdentifiedModel(model, DataSource("measured", "0" * 64, "loop.csv"), Units(), 10.0, (0.0, 10.0),
+                    FitError(0.1, 0.2), SolverReport("optimal", True, 8, 0.01, 0.1)).save(path)
+    return json.loads(path.read_text())
 
 
 @pytest.mark.parametrize(
@@ -205,7 +208,7 @@ def test_tampered_artifact_is_rejected(tmp_path, tamper, expected):
     tamper(doc)
     path.write_text(json.dumps(doc).replace('"NaN"', "NaN"))
     with pytest.raises(ArtifactError, match=expected):
-        load_hysteresis_model(path)
+        IdentifiedModel.load(path)
 
 
 def test_artifact_write_is_atomic_and_refuses_non_finite(tmp_path):

@@ -383,7 +383,7 @@ def test_a_drift_the_hysteresis_alone_cannot_fit_is_fitted_with_creep():
         with_creep = PIIdentifier(model=model, creep=True).fit(v, y, train=train, sample_period_s=dt)
         e0 = fit_error(without.predict(v)[test], y[test], span)
         e1 = fit_error(with_creep.predict(v)[test], y[test], span)
-        assert e1["rms_pct"] < 0.3 and e0["rms_pct"] > 1.0, f"{model}: with creep {e1}, without {e0}"
+        assert e1.rms_pct < 0.3 and e0.rms_pct > 1.0, f"{model}: with creep {e1}, without {e0}"
         assert np.all(with_creep.model_.creep.weights >= 0), "creep weights are constrained nonnegative"
         # the drift itself: the later window's mean error
         assert abs(np.mean((with_creep.predict(v) - y)[test])) < 0.2 * abs(np.mean((without.predict(v) - y)[test]))
@@ -403,8 +403,8 @@ def test_shipped_record_with_creep(request):
         est = PIIdentifier(model="paper-asymmetric", n_operators=40, creep=creep).fit(
             rec.input, rec.output, train=train, sample_period_s=dt)
         errors[creep] = fit_error(est.predict(rec.input)[test], rec.output[test], span)
-    assert errors[True]["rms_pct"] <= 0.15 and errors[True]["max_pct"] <= 0.75, errors
-    assert errors[True]["rms_pct"] <= errors[False]["rms_pct"], errors
+    assert errors[True].rms_pct <= 0.15 and errors[True].max_pct <= 0.75, errors
+    assert errors[True].rms_pct <= errors[False].rms_pct, errors
 
 
 def test_modified_model_with_creep_is_invertible_on_the_rig_record():

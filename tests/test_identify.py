@@ -97,22 +97,22 @@ def test_measured_record_classical_40(measured):
     rec, train, test = measured
     span = np.ptp(rec.output)
     est, err = fit_measured(measured, model="classical", n_operators=40)
-    assert err["rms_pct"] <= 0.17 and err["max_pct"] <= 0.90, err
+    assert err.rms_pct <= 0.17 and err.max_pct <= 0.90, err
     # the same model by plain NNLS (offset split into two nonnegative columns) scores the same
     ops = play(rec.input, est.thresholds_)
     phi = np.column_stack([ops, np.ones(rec.input.size), -np.ones(rec.input.size)])
     x, _ = nnls(phi[train], rec.output[train])
     ref = fit_error(phi[test] @ x, rec.output[test], span)
-    assert err["rms_pct"] == pytest.approx(ref["rms_pct"], rel=1e-6)
+    assert err.rms_pct == pytest.approx(ref.rms_pct, rel=1e-6)
     slope, intercept = straight_line(rec.input[train], rec.output[train])
     line = fit_error(slope * rec.input[test] + intercept, rec.output[test], span)
-    assert line["rms_pct"] == pytest.approx(4.8, abs=0.1) and line["max_pct"] == pytest.approx(7.8, abs=0.1)
+    assert line.rms_pct == pytest.approx(4.8, abs=0.1) and line.max_pct == pytest.approx(7.8, abs=0.1)
 
 
 def test_measured_record_modified_model_is_better_and_invertible(measured):
     rec, _, test = measured
     est, err = fit_measured(measured, model="modified", n_operators=160)
-    assert err["rms_pct"] <= 0.15 and err["max_pct"] <= 0.75, err
+    assert err.rms_pct <= 0.15 and err.max_pct <= 0.75, err
     assert est.model_.invertible
     # the inverse, started from the operator states at the start of the test window
     inverse = est.model_.inverse()
@@ -129,7 +129,7 @@ def test_paper_method_is_a_fair_baseline(measured):
     baseline = fit_error(paper_baseline(rec.input, rec.output, r, train)(rec.input)[test], rec.output[test], span)
     qp = PIIdentifier(model="paper-asymmetric", thresholds=r).fit(rec.input, rec.output, train=train)
     ours = fit_error(qp.predict(rec.input)[test], rec.output[test], span)
-    assert ours["rms_pct"] < baseline["rms_pct"] < 1.5
+    assert ours.rms_pct < baseline.rms_pct < 1.5
 
 
 def test_estimator_contract():
@@ -145,3 +145,98 @@ def test_estimator_contract():
         PIIdentifier(n_operators=40).fit(v, v)
     with pytest.raises(IdentificationError, match="constant"):
         PIIdentifier(n_operators=2).fit(np.r_[np.zeros(20), np.ones(20)], np.zeros(40), train=slice(0, 20))
+
+
+def test_the_fitted_estimator_scores_and_inverts():
+    """score is R^2 (1 on noise-free data, against its definition on noisy data); inverse is the model's inverse;
+    NotFittedError is a PiezopreloadError, so the API's callers catch one base class."""
+    from piezopreload.core.errors import PiezopreloadError
+
+    assert issubclass(NotFittedError, PiezopreloadError)
+    for method in ("predict", "inverse"):
+        with pytest.raises(NotFittedError):
+            getattr(PIIdentifier(), method)(*(() if method == "inverse" else (np.zeros(3),)))
+    with pytest.raises(NotFittedError):
+        PIIdentifier().score(np.zeros(3), np.zeros(3))
+    r = uniform_thresholds(8, 100.0)
+    truth = ClassicalPI(r, [0.4, 0.05, 0.1, 0.0, 0.08, 0.02, 0.0, 0.05], 3.0)
+    v = exciting_input(4000)
+    est = PIIdentifier(thresholds=r, invertible=True).fit(v, truth(v))
+    assert est.score(v, truth(v)) == pytest.approx(1.0, abs=1e-12)
+    noisy = truth(v) + np.random.default_rng(5).normal(0, 0.5, v.size)
+    est = PIIdentifier(thresholds=r).fit(v, noisy)
+    e = est.predict(v) - noisy
+    r2 = 1 - np.sum(e**2) / np.sum((noisy - noisy.mean()) ** 2)
+    assert est.score(v, noisy) == pytest.approx(r2, rel=1e-12) and 0.9 < r2 < 1
+    assert est.score(v, noisy, rows=slice(0, 2000)) != pytest.approx(r2, rel=1e-6), "rows select the scored samples"
+    target = truth(v[:500])
+    np.testing.assert_allclose(PIIdentifier(thresholds=r, invertible=True).fit(v, truth(v)).inverse()(target), v[:500],
+                               atol=1e-6, err_msg="the inverse of the fitted model gives the input back")
+
+
+def test_identify_is_the_one_entry_point_and_its_result_shows_itself(measured, tmp_path):
+    """pp.identify: the estimator's model, the held-out errors beside the baselines, a repr, HTML and a figure;
+    what it saves is the one model.json type and reads back field for field."""
+    from matplotlib.figure import Figure
+
+    import piezopreload as pp
+
+    rec, _, _ = measured
+    result = pp.identify(rec, model="paper-asymmetric+creep", train=pp.Window(4, 7), test=pp.Window(7, 10))
+    r = result.record
+    assert isinstance(result.estimator, pp.PIIdentifier) and result.model is result.estimator.model_
+    assert r.test.rms_pct <= 0.15 and r.test.max_pct <= 0.75, "the measured record's target with creep"
+    assert r.without_creep is not None and r.test.rms_pct < r.without_creep.test.rms_pct
+    assert r.line.test.rms_pct > 4 and r.paper_method_test is not None
+    assert r.output_range == (float(rec.output[rec.window(4, 7)].min()), float(rec.output[rec.window(4, 7)].max()))
+    text = repr(result)
+    assert text.startswith("Identification(paper-asymmetric+creep P-I model, 40 play operators")
+    assert f"{r.test.rms_pct:8.3f}" in text and "best straight line" in text and len(text.splitlines()) <= 10
+    html = result._repr_html_()
+    assert html.count("<tr>") == 6 and "<table>" in html  # header, train, test, line, paper's method, without creep
+    fig = result.plot()
+    assert isinstance(fig, Figure) and len(fig.axes) == 2 and all(ax.lines for ax in fig.axes)
+    saved = result.save(tmp_path / "model.json")
+    back = pp.IdentifiedModel.load(tmp_path / "model.json")
+    assert back.to_dict() == r.to_dict() and back.file_sha256 == saved.file_sha256
+    np.testing.assert_array_equal(back.model(rec.input[:2000]), result.model(rec.input[:2000]))
+
+
+def test_the_studys_feedforward_writes_the_same_model_json(tmp_path):
+    """The study's feedforward (a loop simulated on the rig, all of it trained on) and a held-out identification
+    write one layout, read by one reader; the feedforward's record holds its open-loop check."""
+    import piezopreload as pp
+    from piezopreload.tuning.feedforward import LoopExcitation, identify_feedforward
+
+    study = pp.load_study("paper2021")
+    ff = identify_feedforward(study.rig, LoopExcitation(n_operators=10, cycles=2), check_range_N=(25.0, 90.0))
+    paths = ff.save(tmp_path / "ff", inputs={"study_sha256": study.sha256})
+    back = pp.IdentifiedModel.load(paths["model"])
+    assert back.data.kind == "simulated" and back.test is None and back.compensation.rms_N == ff.check.rms_N
+    assert back.inputs == {"study_sha256": study.sha256} and back.fit.samples == ff.loop.time_s.size
+    loaded = pp.IdentifiedFeedforward.load(paths["model"])
+    assert loaded.model_sha256 == back.file_sha256 and loaded.fit == ff.fit
+    held_out = pp.identify(ff.loop, operators=10, thresholds="paper", invertible=True)
+    assert set(held_out.record.to_dict()) == set(back.to_dict())
+    assert set(held_out.record.to_dict()["identification"]) == set(back.to_dict()["identification"])
+
+
+def test_a_feedforward_that_does_not_cover_the_references_is_refused_before_tuning(monkeypatch):
+    """Both ranges in the message; refused before the design and the tuning run."""
+    import piezopreload as pp
+    import piezopreload.results as results
+    from piezopreload.tuning.feedforward import LoopExcitation, identify_feedforward
+
+    study = pp.load_study("paper2021")
+    small = identify_feedforward(study.rig, LoopExcitation(v_max_V=40.0, n_operators=8, cycles=2), check_range_N=None)
+    lo, hi = small.record.output_range
+    assert hi < 60.0, "a 40 V loop on the paper's rig stays well below the 100 N the references reach"
+    monkeypatch.setattr(results, "tune", lambda *a, **k: pytest.fail("tuned with a feedforward that does not cover"))
+    with pytest.raises(pp.InputError) as exc:
+        study.tune(feedforward=small)
+    message = str(exc.value)
+    assert f"identified over {lo:,.4g} to {hi:,.4g} N" in message and "span 25 to 100 N" in message, message
+    wide = identify_feedforward(study.rig, LoopExcitation(n_operators=8, cycles=2), check_range_N=None)
+    wide.covers(25.0, 100.0)  # the paper's own loop: 0-100 V reaches 91 N; 100 N is within its margin
+    with pytest.raises(pp.InputError, match="span 0 to 4,000 N"):
+        wide.covers(0.0, 4000.0)

@@ -315,9 +315,9 @@ def test_interlock_limits_come_from_safety_once(study):
 
 def test_operators_beyond_the_memory_bound_are_refused_before_allocating(monkeypatch, capsys):
     """With the bound at ten operators' matrix for the shipped record, 40 operators are refused by it."""
-    from piezopreload.tuning import holdout
+    from piezopreload.tuning import identification
 
-    monkeypatch.setattr(holdout, "MAX_MATRIX_BYTES", 8 * 50_001 * 10)
+    monkeypatch.setattr(identification, "MAX_MATRIX_BYTES", 8 * 50_001 * 10)
     assert main(["identify", "--operators", "40"]) == 2
     err = capsys.readouterr().err
     assert "--operators 40: at most 10" in err and "GiB" in err, err

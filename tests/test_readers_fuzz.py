@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 from rigkit import write_gain_set
 
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.hysteresis import DataSource, FitError, IdentifiedModel, SolverReport, Units
 from piezopreload.artifacts.learned import KIND as LEARNED
 from piezopreload.artifacts.learned import LearnedSignal
 from piezopreload.cli import main
@@ -30,7 +31,6 @@ from piezopreload.models.hysteresis import model_from_dict
 from piezopreload.rig.runlog import read_run_log
 from piezopreload.rig.session import reference_for
 from piezopreload.study import default_study, load_study
-from piezopreload.tuning.feedforward import read_hysteresis_model
 
 FAST = settings(max_examples=40, deadline=None, suppress_health_check=list(HealthCheck))
 SLOW = settings(max_examples=12, deadline=None, suppress_health_check=list(HealthCheck))
@@ -256,15 +256,18 @@ def test_a_learned_setpoint_beyond_the_safe_range_is_refused_before_arming(tmp_p
 def test_hysteresis_model_file_reader(tmp_path_factory, feedforward, data):
     folder = tmp_path_factory.mktemp("h")
     path = folder / "model.json"
-    write_artifact(path, "hysteresis-model", {"model": feedforward.to_dict(), "units": {}, "inputs": {}})
+    body = IdentifiedModel(feedforward, DataSource("simulated", "0" * 64, excitation={"v_max_V": 100.0}), Units(),
+                           100.0, (0.0, 100.0), FitError(0.5, 1.5, (0.0, 6.0), 6001),
+                           SolverReport("optimal", True, 9, 0.01, 0.2)).to_dict()
+    write_artifact(path, "hysteresis-model", body)
+    IdentifiedModel.load(path)  # the unmutated document reads
     (folder / "cut.json").write_text(data.draw(mutated_text(path.read_text())))
-    _refused_cleanly(read_hysteresis_model, folder / "cut.json")
+    _refused_cleanly(IdentifiedModel.load, folder / "cut.json")
     try:
-        write_artifact(folder / "body.json", "hysteresis-model",
-                       {"model": data.draw(mutated(feedforward.to_dict())), "units": {}, "inputs": {}})
+        write_artifact(folder / "body.json", "hysteresis-model", data.draw(mutated(body)))
     except (ValueError, TypeError):  # the writer refuses it: nothing to read
         return
-    _refused_cleanly(read_hysteresis_model, folder / "body.json")
+    _refused_cleanly(IdentifiedModel.load, folder / "body.json")
 
 
 @pytest.fixture(scope="module")

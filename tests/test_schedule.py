@@ -16,7 +16,7 @@ from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import Reference, simulate
 from piezopreload.models.controller import Controller, GainSchedule, PIDGains, controller_functions
 from piezopreload.models.ops import NUMPY
-from piezopreload.rig.export import export_text
+from piezopreload.rig.export import export
 
 SCHEDULE = GainSchedule(levels_N=(30.0, 60.0, 100.0), Kc=(0.9, 1.6, 0.7), Ti_s=(0.08, 0.04, 0.06),
                         Td_s=(0.0, 0.004, 0.002))
@@ -184,20 +184,20 @@ def _ini_table(text, section="[gain schedule]"):
 
 def test_every_text_format_writes_the_table(tmp_path):
     gs = GainSet.load(_gain_set(tmp_path))
-    js = json.loads(gs.export("json"))["gain_schedule"]
+    js = json.loads(export(gs, "json"))["gain_schedule"]
     assert GainSchedule(js["levels_N"], js["Kc_V_per_N"], js["Ti_s"], js["Td_s"]) == SCHEDULE
     assert "linear in the setpoint" in js["interpolation"]
-    lv = _ini_table(gs.export("labview"))
+    lv = _ini_table(export(gs, "labview"))
     np.testing.assert_allclose(lv["setpoint (N)"], SCHEDULE.levels_N, rtol=1e-12)
     np.testing.assert_allclose(lv["Kc"], SCHEDULE.Kc, rtol=1e-12)
     np.testing.assert_allclose(np.array(lv["Ti (min)"]) * 60.0, SCHEDULE.Ti_s, rtol=1e-11)
     np.testing.assert_allclose(np.array(lv["Td (min)"]) * 60.0, SCHEDULE.Td_s, rtol=1e-11)
-    plc = _ini_table(gs.export("plc"))
+    plc = _ini_table(export(gs, "plc"))
     np.testing.assert_allclose(plc["Kp"], SCHEDULE.Kc, rtol=1e-12)
     np.testing.assert_allclose(plc["Tn"], SCHEDULE.Ti_s, rtol=1e-12)
     np.testing.assert_allclose(plc["Tv"], SCHEDULE.Td_s, rtol=1e-12)
     for fmt in ("json", "labview", "plc", "c-header"):
-        plain = GainSet.load(_gain_set(tmp_path, None, "plain.json")).export(fmt)
+        plain = export(GainSet.load(_gain_set(tmp_path, None, "plain.json")), fmt)
         assert "schedule" not in plain.lower(), f"{fmt}: a table where there is no schedule"
 
 
@@ -231,7 +231,7 @@ int main(void) {
 def test_the_c_header_table_interpolates_as_the_step(tmp_path):
     cc = _cc()
     gs = GainSet.load(_gain_set(tmp_path))
-    (tmp_path / "gains.h").write_text(gs.export("c-header"))
+    (tmp_path / "gains.h").write_text(export(gs, "c-header"))
     (tmp_path / "main.c").write_text(_HEADER_MAIN)
     subprocess.run([cc, "-std=c99", "-Wall", "-Werror", "-Wno-unused-const-variable", "-o", str(tmp_path / "m"),
                     str(tmp_path / "main.c")], check=True)
@@ -272,7 +272,7 @@ def test_the_casadi_c_step_is_the_scheduled_step(tmp_path):
     for k in range(sp.size):
         u_py[k], state = controller.step(state, sp[k], pv[k])
     np.testing.assert_allclose(u_py, run.command_V, rtol=0, atol=1e-9, err_msg="the step is not the simulation's")
-    text = export_text(gs, "casadi-c")
+    text = export(gs, "casadi-c")
     assert "gain schedule (3 entries)" in text
     (tmp_path / "pp_controller.c").write_text(text)
     (tmp_path / "main.c").write_text(_STEP_MAIN)

@@ -221,7 +221,7 @@ def test_report_renders_again_from_the_artifacts_alone(small_run, tmp_path, caps
     before = read_manifest(out)["stages"]
     (out / "report.pdf").unlink()
     for module, name in ((compare, "simulate"), (results, "simulate_loop"), (feedforward, "identify_feedforward"),
-                         (feedforward, "fit_feedforward"), (feedforward, "simulate_open_loop")):
+                         (feedforward, "identify"), (feedforward, "simulate_open_loop")):
         monkeypatch.setattr(module, name, lambda *a, **k: pytest.fail("report recomputed a stage"))
     assert main(["report", str(out), "--json"]) == 0
     result = json.loads(capsys.readouterr().out)

@@ -18,7 +18,7 @@ from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.loop import LOOP_OUTPUTS, step_function
 from piezopreload.models.loop import run as run_loop
 from piezopreload.models.ops import CASADI, NUMPY, clip
-from piezopreload.rig.export import ExportError, export_text
+from piezopreload.rig.export import ExportError, export
 from piezopreload.tuning import pid
 from piezopreload.tuning.validate import executor, validate
 
@@ -193,13 +193,13 @@ def _gain_set(tmp_path, status="validated"):
 
 def test_export_formats_carry_the_units_each_controller_expects(tmp_path):
     doc = json.loads(_gain_set(tmp_path).read_text())
-    lv = export_text(doc, "labview")
+    lv = export(doc, "labview")
     assert "Ti (min) = 0.001\n" in lv and "Td (min) = 0.0001\n" in lv and "Kc = 1.5\n" in lv
-    plc = export_text(doc, "plc")
+    plc = export(doc, "plc")
     assert "Tn = 0.06\n" in plc and "Tv = 0.006\n" in plc
-    js = json.loads(export_text(doc, "json"))
+    js = json.loads(export(doc, "json"))
     assert js["gains"]["Ti_s"] == 0.06 and js["gain_set_sha256"] == doc["content_sha256"]
-    header = export_text(doc, "c-header")
+    header = export(doc, "c-header")
     assert "#define PP_TI_S 0.06" in header and "PP_PI_N 2" in header
 
 
@@ -210,7 +210,7 @@ def test_the_c_header_states_every_model_with_its_creep(tmp_path):
         path = tmp_path / f"{kind}.json"
         write_artifact(path, "gain-set", {"status": "validated", "gains": gains, "inputs": {},
                                           "feedforward": {"model": model.to_dict()}})
-        header = export_text(json.loads(path.read_text()), "c-header")
+        header = export(json.loads(path.read_text()), "c-header")
         assert f'#define PP_PI_KIND "{kind}"' in header, kind
         assert "PP_CREEP_TIME_CONSTANTS_S[PP_CREEP_N] = {0.01, 0.1, 1.0, 10.0};" in header, kind
         assert "PP_CREEP_WEIGHTS_N_PER_V[PP_CREEP_N] = {0.03, 0.0, 0.02, 0.04};" in header, kind
@@ -237,7 +237,7 @@ def test_the_c_header_compiles(tmp_path):
     import subprocess
 
     doc = json.loads(_gain_set(tmp_path).read_text())
-    (tmp_path / "gains.h").write_text(export_text(doc, "c-header"))
+    (tmp_path / "gains.h").write_text(export(doc, "c-header"))
     (tmp_path / "main.c").write_text('#include <stdio.h>\n#include "gains.h"\nint main(void){printf("%.17g %.17g\\n", '
                                      "PP_TI_S, PP_PI_WEIGHTS_N_PER_V[1]); return 0;}\n")
     subprocess.run([cc, "-Wall", "-Werror", "-o", str(tmp_path / "m"), str(tmp_path / "main.c")], check=True)
@@ -251,7 +251,7 @@ def test_export_refuses_candidates_and_tampered_files(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "not 'validated'" in err and err.count("\n") == 1
     with pytest.raises(ExportError):
-        export_text(json.loads(cand.read_text()), "plc")
+        export(json.loads(cand.read_text()), "plc")
     good = _gain_set(tmp_path)
     doc = json.loads(good.read_text())
     doc["status"] = "validated"

@@ -31,22 +31,14 @@ from piezopreload.models.closedloop import (
     ClosedLoopRun,
     Reference,
     simulate,
-    simulate_open_loop,
-    triangle,
 )
 from piezopreload.models.controller import Controller, PIDGains
-from piezopreload.models.hysteresis import AsymmetricPI, ClassicalPI, CreepPI, ModifiedPI, inverse_at
-from piezopreload.tuning.identify import MODELS, PIIdentifier, fit_error
-
-#: what a study's feedforward may be: a P-I model, with or without creep
-FeedforwardModel = ClassicalPI | ModifiedPI | AsymmetricPI | CreepPI
+from piezopreload.models.hysteresis import inverse_at
+from piezopreload.tuning.feedforward import FeedforwardModel, LoopExcitation, identify_feedforward
 
 __all__ = [
     "PAPER_GAINS",
     "PAPER_RESULTS",
-    "LoopExcitation",
-    "identify_feedforward",
-    "fit_feedforward",
     "reproduce",
     "Reproduction",
     "calibrate",
@@ -61,64 +53,10 @@ PAPER_RESULTS: dict[str, dict[str, float]] = {
     "pid": {"rise_s": 1.69, "peak_s": 3.38, "settling_s": 3.38},
     "ff+pid": {"rise_s": 0.08, "peak_s": 0.13, "settling_s": 1.43},
 }
+#: the paper's 0-100 V loop measurement (Section 3.2) and its 40-operator classical model
+PAPER_EXCITATION = LoopExcitation()
 CONTROLLERS = ("pid", "ff+pid")
 _KEYS = ("rise_s", "peak_s", "settling_s")
-
-
-@dataclass(frozen=True)
-class LoopExcitation:
-    """The open-loop hysteresis measurement the feedforward is identified from, and the model identified.
-
-    ``kind`` is the P-I model (``classical``, ``modified``, ``paper-asymmetric``); ``creep`` adds
-    a bank of creep lags (one per decade from 10 ms to the record's length) identified with it.
-    """
-
-    v_max_V: float = 100.0
-    frequency_Hz: float = 0.5
-    cycles: int = 3
-    n_operators: int = 40
-    seed: int = 1
-    kind: str = "classical"
-    creep: bool = False
-
-    def __post_init__(self) -> None:
-        if not (self.v_max_V > 0 and self.frequency_Hz > 0 and self.cycles >= 1 and self.n_operators >= 1):
-            raise ValueError("LoopExcitation needs v_max_V > 0, frequency_Hz > 0, cycles >= 1, n_operators >= 1.")
-        if self.kind not in MODELS:
-            raise ValueError(f"kind must be one of {', '.join(MODELS)}, got {self.kind!r}.")
-        if not isinstance(self.creep, bool):
-            raise ValueError(f"creep must be true or false, got {self.creep!r}.")
-
-
-def identify_feedforward(rig: Rig, excitation: LoopExcitation = LoopExcitation()) -> tuple[FeedforwardModel, dict[str, Any]]:
-    """Simulate the 0..v_max loop measurement on ``rig`` and identify the P-I model from it."""
-    _, command = triangle(excitation.v_max_V, excitation.frequency_Hz, excitation.cycles, rig.dt_s)
-    rec = simulate_open_loop(rig, command, seed=excitation.seed)
-    model, info = fit_feedforward(rec["command_V"], rec["measured_N"], excitation.n_operators, kind=excitation.kind,
-                                  creep=excitation.creep, sample_period_s=rig.dt_s)
-    return model, {"record": rec, **info}
-
-
-def fit_feedforward(command_V: np.ndarray, measured_N: np.ndarray, n_operators: int, *, kind: str = "classical",
-                    creep: bool = False, sample_period_s: float | None = None) -> tuple[FeedforwardModel, dict[str, Any]]:
-    """The invertible P-I model (the paper's thresholds) of a measured voltage -> force loop.
-
-    ``kind`` and ``creep`` as :class:`LoopExcitation`; with creep (which needs the record's
-    ``sample_period_s``) ``info["without_creep"]`` is the same model refitted without it, with
-    its fit, so a study can show what the creep compensation buys.
-    """
-    def fit(with_creep: bool) -> tuple[FeedforwardModel, dict[str, Any]]:
-        est = PIIdentifier(model=kind, n_operators=n_operators, thresholds="paper", invertible=True, creep=with_creep)
-        # the P-I model maps the commanded voltage to the measured force, as a rig sees them
-        est.fit(command_V, measured_N, sample_period_s=sample_period_s if with_creep else None)
-        model = est.model_
-        return model, {"fit": fit_error(model(command_V), measured_N, float(np.ptp(measured_N))), "status": est.status_}
-
-    model, info = fit(creep)
-    if creep:
-        plain, plain_info = fit(False)
-        info["without_creep"] = {"model": plain, "fit": plain_info["fit"]}
-    return model, info
 
 
 @dataclass(frozen=True, eq=False)
@@ -148,7 +86,7 @@ def reproduce(
     gains: PIDGains = PAPER_GAINS,
     *,
     step: Reference | None = None,
-    excitation: LoopExcitation = LoopExcitation(),
+    excitation: LoopExcitation = PAPER_EXCITATION,
     seed: int = 0,
     band_N: float = PAPER_BAND_N,
     signal: str = "measured_N",
@@ -170,7 +108,8 @@ def reproduce(
     rig = Rig(params)
     step = step or Reference.step(25.0, 60.0, 0.5, 10.0)
     if feedforward is None:  # identified from the loop measurement simulated on the rig
-        ff, info = identify_feedforward(rig, excitation)
+        identified = identify_feedforward(params, excitation, check_range_N=None)
+        ff, info = identified.model, {"fit": identified.fit.to_dict()}
     else:  # a study's own (from measured data, say), with its fit
         ff, info = feedforward, {"fit": dict(feedforward_fit or {})}
     metrics, runs, spread = {}, {}, {}
@@ -235,7 +174,7 @@ def calibrate(
     gains: PIDGains = PAPER_GAINS,
     *,
     seed: int = 0,
-    excitation: LoopExcitation = LoopExcitation(),
+    excitation: LoopExcitation = PAPER_EXCITATION,
     max_evaluations: int = 150,
     repeats: int = 1,
     worst_case: bool = False,

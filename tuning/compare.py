@@ -20,7 +20,8 @@ from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.hysteresis import inverse_at
 from piezopreload.models.metrics import run_numbers
-from piezopreload.tuning.calibrate import CONTROLLERS, FeedforwardModel, Reproduction
+from piezopreload.tuning.calibrate import CONTROLLERS, Reproduction
+from piezopreload.tuning.feedforward import FeedforwardModel
 from piezopreload.tuning.validate import evaluate
 
 __all__ = ["compare_gains", "tracking_improvement", "Response", "responses", "creep_effect", "reproduction",

@@ -2,43 +2,87 @@
 
 The paper identified a classical P-I model (40 operators, eq. 16's thresholds) from a 0-100 V
 loop measurement of its rig and fed the setpoint through the model's inverse, eqs. (19)-(20)
-(``docs/models.md``). :func:`identify` does that from the loop simulated on the rig's truth
-model, or from a measured ``time_s,voltage_V,force_N`` record, and then drives the rig through
-the inverse in open loop over a force triangle (the paper's Figure 6): what the feedforward
-alone delivers. :class:`IdentifiedFeedforward` is the result; its artifact (kind
-``hysteresis-model``) is read by :func:`read_hysteresis_model`, the one reader of that kind.
+(``docs/models.md``). :func:`identify_feedforward` does that from the loop simulated on the
+rig's truth model (:func:`simulate_loop`), or from a measured ``time_s,voltage_V,force_N``
+record, through the one identification entry point
+(:func:`~piezopreload.tuning.identification.identify`), and then drives the rig through the
+inverse in open loop over a force triangle (the paper's Figure 6): what the feedforward alone
+delivers. :class:`IdentifiedFeedforward` is the result; its ``model.json`` is the
+:class:`~piezopreload.artifacts.hysteresis.IdentifiedModel` artifact.
 """
 
 from __future__ import annotations
 
 import hashlib
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from piezopreload.core.artifacts import ArtifactError, package_version, read_artifact, write_artifact
+from piezopreload.artifacts.hysteresis import Compensation, DataSource, FitError, IdentifiedModel, require_coverage
+from piezopreload.core.artifacts import ArtifactError, package_version
 from piezopreload.core.errors import InputError
 from piezopreload.core.tables import Record, write_csv
 from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import simulate_open_loop, triangle
-from piezopreload.models.hysteresis import ClassicalPI, CreepPI, NotInvertibleError, inverse_at, model_from_dict
-from piezopreload.tuning.calibrate import FeedforwardModel, LoopExcitation, fit_feedforward, identify_feedforward
+from piezopreload.models.hysteresis import ClassicalPI, CreepPI, HysteresisModel, NotInvertibleError, inverse_at
+from piezopreload.tuning.identification import Window, identify
+from piezopreload.tuning.identify import MODELS
 
-__all__ = ["IdentifiedFeedforward", "CompensationCheck", "identify", "compensation_check", "read_hysteresis_model"]
+__all__ = ["LoopExcitation", "FeedforwardModel", "IdentifiedFeedforward", "CompensationCheck", "identify_feedforward",
+           "simulate_loop", "compensation_check", "loop_covers"]
 
 Array = NDArray[np.float64]
 
+#: what a study's feedforward may be: a P-I model, with or without creep
+FeedforwardModel = HysteresisModel | CreepPI
 
-def read_hysteresis_model(path: str | Path) -> tuple[FeedforwardModel, dict[str, Any]]:
-    """Read a hysteresis-model artifact: the model and the whole document; errors name the file and field."""
-    doc = read_artifact(path, "hysteresis-model")
-    try:
-        return model_from_dict(doc["model"]), doc
-    except ValueError as exc:
-        raise ArtifactError(f"{path}: {exc}") from None
+
+@dataclass(frozen=True)
+class LoopExcitation:
+    """The open-loop hysteresis measurement the feedforward is identified from, and the model identified.
+
+    ``kind`` is the P-I model (``classical``, ``modified``, ``paper-asymmetric``); ``creep`` adds
+    a bank of creep lags (one per decade from 10 ms to the record's length) identified with it.
+    """
+
+    v_max_V: float = 100.0
+    frequency_Hz: float = 0.5
+    cycles: int = 3
+    n_operators: int = 40
+    seed: int = 1
+    kind: str = "classical"
+    creep: bool = False
+
+    def __post_init__(self) -> None:
+        if not (self.v_max_V > 0 and self.frequency_Hz > 0 and self.cycles >= 1 and self.n_operators >= 1):
+            raise ValueError("LoopExcitation needs v_max_V > 0, frequency_Hz > 0, cycles >= 1, n_operators >= 1.")
+        if self.kind not in MODELS:
+            raise ValueError(f"kind must be one of {', '.join(MODELS)}, got {self.kind!r}.")
+        if not isinstance(self.creep, bool):
+            raise ValueError(f"creep must be true or false, got {self.creep!r}.")
+
+
+def simulate_loop(rig: RigParams, excitation: LoopExcitation) -> Record:
+    """The 0..v_max V triangle loop measured on the rig's truth model (sensor noise included): a :class:`Record`.
+
+    Its ``sha256`` is that of its samples (float64: time, voltage, force one after the other).
+    """
+    plant = Rig(rig)
+    _, command = triangle(excitation.v_max_V, excitation.frequency_Hz, excitation.cycles, plant.dt_s)
+    rec = simulate_open_loop(plant, command, seed=excitation.seed)
+    t, v, y = (np.asarray(rec[k], float) for k in ("time_s", "command_V", "measured_N"))
+    digest = hashlib.sha256(np.concatenate([t, v, y]).tobytes()).hexdigest()
+    return Record("", digest, t, v, y, "voltage_V", "force_N")
+
+
+def loop_covers(loop: Record, low_N: float, high_N: float, what: str) -> None:
+    """Refuse, before identifying anything, a loop whose forces do not cover ``[low_N, high_N]``: the range a
+    model identified on the whole loop would have (:func:`~piezopreload.artifacts.hysteresis.require_coverage`)."""
+    require_coverage((float(np.min(loop.output)), float(np.max(loop.output))), (low_N, high_N), what,
+                     unit=loop.output_unit or "N", source=f"the measured {loop.output_name} of {loop.path}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,102 +122,99 @@ def compensation_check(rig: RigParams, model: FeedforwardModel, low_N: float, hi
 
 @dataclass(frozen=True, eq=False)
 class IdentifiedFeedforward:
-    """A feedforward's P-I model with where it came from, its fit and (when identified here) its checks.
+    """A study's feedforward: its identified P-I model (``record``, as ``model.json`` holds it), and when it was
+    identified here rather than read back, the loop it was fitted to and the open-loop compensation check."""
 
-    ``source`` says how the loop was measured (``kind`` ``simulated`` with the excitation, or
-    ``measured`` with the file and its SHA-256); ``fit`` the model's error in % of the force
-    span; ``loop`` the record it was fitted to (time_s, voltage_V, force_N) and ``check`` the
-    open-loop compensation check, both None for a model read back from its artifact.
-    """
-
-    model: FeedforwardModel
-    source: dict[str, Any]
-    fit: dict[str, float]
-    solver_status: str = ""
-    loop: dict[str, Array] | None = None
+    record: IdentifiedModel
+    loop: Record | None = None
     check: CompensationCheck | None = None
-    model_sha256: str | None = None  # of the artifact it was read from
-    identification: dict[str, Any] = field(default_factory=dict)
-    #: with creep: the same model refitted without it ({"model": ..., "fit": ...}), to show what creep buys
-    without_creep: dict[str, Any] | None = None
+
+    @property
+    def model(self) -> FeedforwardModel:
+        return self.record.model
+
+    @property
+    def source(self) -> dict[str, Any]:
+        """Where the loop came from (``kind`` ``simulated`` with the excitation, or ``measured`` with the file)."""
+        return self.record.data.to_dict()
+
+    @property
+    def fit(self) -> FitError:
+        """The model's error on the loop, in % of its force span."""
+        return self.record.fit
+
+    @property
+    def without_creep(self) -> HysteresisModel | None:
+        """With creep: the same model refitted without it, to show what creep buys (None without creep)."""
+        return None if self.record.without_creep is None else self.record.without_creep.model
+
+    @property
+    def model_sha256(self) -> str | None:
+        """SHA-256 of the ``model.json`` it was read from or written to."""
+        return self.record.file_sha256
 
     def inverse(self) -> Any:
         """The feedforward itself: desired force -> command voltage, eqs. (19)-(20) (with creep: :class:`InverseStep`)."""
         return self.model.inverse()
 
+    def covers(self, low_N: float, high_N: float, what: str = "the references") -> None:
+        """Refuse (an :class:`InputError` naming both ranges) forces outside the range the model was identified over."""
+        self.record.covers(low_N, high_N, what)
+
     def describe(self) -> dict[str, Any]:
         """Where the feedforward came from and how well it fits, in words and numbers (a simulation's record)."""
-        src = self.source
-        if src.get("kind") == "simulated":
-            ex = src["excitation"]
+        src = self.record.data
+        if src.kind == "simulated" and src.excitation:
+            ex = src.excitation
             where = f"identified from a simulated {ex['v_max_V']:g} V, {ex['frequency_Hz']:g} Hz loop measurement of the rig"
         else:
-            where = f"identified from the measured loop {src.get('path')}"
-        out = {"source": where, "model": self.model.kind, "operators": self.model.n_operators}
-        if self.fit:
-            out.update(fit_rms_pct=self.fit["rms_pct"], fit_max_pct=self.fit["max_pct"])
-        return out
+            where = f"identified from the measured loop {src.path}"
+        return {"source": where, "model": self.model.kind, "operators": self.model.n_operators,
+                "fit_rms_pct": self.fit.rms_pct, "fit_max_pct": self.fit.max_pct}
 
     def info(self) -> dict[str, Any]:
         """How the feedforward was identified, as a gain set records it."""
-        out = {"source": self.source, "fit": self.fit}
+        out = {"source": self.source, "fit": self.fit.to_dict(), "output_range_N": list(self.record.output_range)}
         return {**out, "model_sha256": self.model_sha256} if self.model_sha256 else out
 
     def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"source": self.source, "operators": self.model.n_operators, "fit": self.fit,
-                               "model": self.model.to_dict()}
+        out: dict[str, Any] = {"source": self.source, "operators": self.model.n_operators, "fit": self.fit.to_dict(),
+                               "model": self.model.to_dict(), "output_range_N": list(self.record.output_range)}
         if self.check is not None:
             out.update(compensation_rms_N=self.check.rms_N, compensation_max_N=self.check.max_N)
         return out
 
     def save(self, folder: str | Path, inputs: dict[str, Any] | None = None) -> dict[str, Path]:
-        """Write ``model.json`` (a hysteresis-model artifact), ``loop.csv`` and ``compensation.csv`` into ``folder``."""
+        """Write ``model.json`` (the hysteresis-model artifact), ``loop.csv`` and ``compensation.csv`` into ``folder``."""
         if self.loop is None or self.check is None:
             raise InputError("this feedforward was read from its artifact: there is no loop record to write again")
         d = Path(folder)
         paths = {"model": d / "model.json", "loop": d / "loop.csv", "compensation": d / "compensation.csv"}
         loop, c = self.loop, self.check
-        write_csv(paths["loop"], {**loop, "model_N": self.model(loop["voltage_V"])},
-                  f"piezopreload {package_version()}: the feedforward's loop measurement ({self.source['kind']}) and the P-I model's output")
+        write_csv(paths["loop"], {"time_s": loop.time_s, "voltage_V": loop.input, "force_N": loop.output,
+                                  "model_N": self.model(loop.input)},
+                  f"piezopreload {package_version()}: the feedforward's loop measurement ({self.record.data.kind}) "
+                  "and the P-I model's output")
         write_csv(paths["compensation"], {"time_s": c.time_s, "desired_N": c.desired_N, "command_V": c.command_V,
                                           "force_N": c.force_N, "measured_N": c.measured_N},
                   f"piezopreload {package_version()}: open loop through the inverse P-I model: desired force, command, "
                   "the rig's force")
-        data_sha = self.source.get("sha256") or hashlib.sha256(paths["loop"].read_bytes()).hexdigest()
-        write_artifact(paths["model"], "hysteresis-model", {
-            "inputs": {"data": {**self.source, "sha256": data_sha}, **(inputs or {})},
-            "units": {"input": "V", "output": "N", "input_name": "voltage_V", "output_name": "force_N"},
-            "model": self.model.to_dict(),
-            "identification": {"fit": self.fit, "solver_status": self.solver_status,
-                               "compensation_rms_N": c.rms_N, "compensation_max_N": c.max_N,
-                               **({} if self.without_creep is None else {"without_creep": {
-                                   "model": self.without_creep["model"].to_dict(), "fit": self.without_creep["fit"]}})},
-        })
+        replace(self.record, inputs={**self.record.inputs, **(inputs or {})}).save(paths["model"])
         return paths
 
     @classmethod
     def load(cls, path: str | Path, *, classical: bool = False) -> IdentifiedFeedforward:
         """A feedforward from a hysteresis-model artifact; refuses a model without an inverse (or, with
         ``classical``, one that is not the classical P-I model that tuning and validation run)."""
-        model, doc = read_hysteresis_model(path)
-        if classical and not isinstance(model, ClassicalPI):
-            raise ArtifactError(f"{path}: field 'model.kind': the feedforward is a classical P-I model, not '{model.kind}'")
+        record = IdentifiedModel.load(path)
+        if classical and not isinstance(record.model, ClassicalPI):
+            raise ArtifactError(f"{path}: field 'model.kind': the feedforward is a classical P-I model, not "
+                                f"'{record.model.kind}'")
         try:
-            model.inverse()
+            record.model.inverse()
         except NotInvertibleError as exc:
             raise InputError(f"{path}: the model cannot serve as a feedforward: {exc}") from None
-        ident = doc.get("identification") or {}
-        source = (doc.get("inputs") or {}).get("data") or {"kind": "file", "path": str(path)}
-        fit = ident.get("fit") or {k: v for k, v in ident.get("test", {}).items() if k in ("rms_pct", "max_pct")}
-        plain = ident.get("without_creep")
-        try:
-            without = None if not isinstance(plain, dict) else {
-                "model": model_from_dict(plain.get("model"), "identification.without_creep.model"), "fit": plain.get("fit")}
-        except ValueError as exc:
-            raise ArtifactError(f"{path}: {exc}") from None
-        return cls(model, source, fit, ident.get("solver_status", ""),
-                   model_sha256=hashlib.sha256(Path(path).read_bytes()).hexdigest(), identification=ident,
-                   without_creep=without)
+        return cls(record)
 
     def plot(self) -> Any:
         """The loop measurement and the model (left), the rig through the inverse in open loop (right)."""
@@ -182,8 +223,8 @@ class IdentifiedFeedforward:
         fig = Figure(figsize=(8.0, 3.2), layout="constrained")
         a, b = fig.subplots(1, 2)
         if self.loop is not None:
-            a.plot(self.loop["voltage_V"], self.loop["force_N"], color="0.55", lw=0.8, label="loop measurement")
-            a.plot(self.loop["voltage_V"], self.model(self.loop["voltage_V"]), "--", lw=1.0, label="P-I model")
+            a.plot(self.loop.input, self.loop.output, color="0.55", lw=0.8, label="loop measurement")
+            a.plot(self.loop.input, self.model(self.loop.input), "--", lw=1.0, label="P-I model")
         else:
             v = np.linspace(0.0, float(self.model.thresholds[-1]) * 1.05 or 100.0, 400)
             a.plot(np.r_[v, v[::-1]], self.model(np.r_[v, v[::-1]]), lw=1.0, label="P-I model")
@@ -199,30 +240,32 @@ class IdentifiedFeedforward:
         return fig
 
 
-def identify(rig: RigParams, excitation: LoopExcitation, record: Record | None = None, *,
-             check_range_N: tuple[float, float] = (25.0, 100.0)) -> IdentifiedFeedforward:
+def identify_feedforward(rig: RigParams, excitation: LoopExcitation, record: Record | None = None, *,
+                         check_range_N: tuple[float, float] | None = (25.0, 100.0)) -> IdentifiedFeedforward:
     """The feedforward's model from the loop simulated on ``rig`` (``record`` None) or a measured V -> N record.
 
-    The open-loop check runs two cycles of a force triangle over ``check_range_N`` at the
-    excitation's frequency (noise seed: the excitation's + 1).
+    The invertible P-I model of ``excitation.kind`` (the paper's thresholds, eq. (16)) identified
+    on the whole loop by :func:`~piezopreload.tuning.identification.identify`; with creep, the
+    lags resampled exactly at the rig's period. The open-loop check runs two cycles of a force
+    triangle over ``check_range_N`` at the excitation's frequency (noise seed: the excitation's +
+    1); None skips it.
     """
     if record is None:
-        model, info = identify_feedforward(Rig(rig), excitation)
-        rec = info["record"]
-        loop = {"time_s": rec["time_s"], "voltage_V": rec["command_V"], "force_N": rec["measured_N"]}
-        source: dict[str, Any] = {"kind": "simulated", "excitation": asdict(excitation)}
+        loop = simulate_loop(rig, excitation)
+        source = DataSource("simulated", loop.sha256, None, asdict(excitation))
     else:
         if record.output_unit != "N" or record.input_unit != "V":
             raise InputError(f"{record.path}: the feedforward needs a voltage (V) -> force (N) loop; "
                              f"the record has {record.input_name} -> {record.output_name}")
-        loop = {"time_s": record.time_s, "voltage_V": record.input, "force_N": record.output}
-        t = record.time_s
-        dt = float((t[-1] - t[0]) / max(t.size - 1, 1))
-        model, info = fit_feedforward(record.input, record.output, excitation.n_operators, kind=excitation.kind,
-                                      creep=excitation.creep, sample_period_s=dt)
-        if isinstance(model, CreepPI):  # the lags resampled exactly at the loop's period
-            model = model.with_sample_period(rig.sample_period_s)
-        source = {"kind": "measured", "path": record.path, "sha256": record.sha256}
-    check = compensation_check(rig, model, *check_range_N, excitation.frequency_Hz, excitation.seed + 1)
-    return IdentifiedFeedforward(model, source, info["fit"], info["status"], loop, check,
-                                 without_creep=info.get("without_creep"))
+        loop, source = record, DataSource("measured", record.sha256, record.path)
+    whole = Window(float(loop.time_s[0]), float(loop.time_s[-1]))
+    result = identify(loop, model=excitation.kind, operators=excitation.n_operators, thresholds="paper", train=whole,
+                      creep=excitation.creep, invertible=True, baselines=False, source=source)
+    ident = result.record
+    if isinstance(ident.model, CreepPI):  # the lags resampled exactly at the loop's period
+        ident = replace(ident, model=ident.model.with_sample_period(rig.sample_period_s))
+    check = None
+    if check_range_N is not None:
+        check = compensation_check(rig, ident.model, *check_range_N, excitation.frequency_Hz, excitation.seed + 1)
+        ident = replace(ident, compensation=Compensation(check.rms_N, check.max_N))
+    return IdentifiedFeedforward(ident, loop, check)

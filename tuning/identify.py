@@ -21,12 +21,14 @@ and weights read from their slopes (eq. (17)), is :func:`paper_branch_weights`: 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from piezopreload.artifacts.hysteresis import FitError
 from piezopreload.core.errors import InputError, PiezopreloadError
 from piezopreload.models.hysteresis import (
     AsymmetricPI,
@@ -71,13 +73,12 @@ class IdentificationError(InputError):
 # --------------------------------------------------------------------------------------
 # error metrics
 # --------------------------------------------------------------------------------------
-def fit_error(predicted: ArrayLike, measured: ArrayLike, span: float) -> dict[str, float]:
-    """RMS and maximum absolute error as a percentage of ``span`` (the output span)."""
+def fit_error(predicted: ArrayLike, measured: ArrayLike, span: float, window_s: tuple[float, float] | None = None
+              ) -> FitError:
+    """RMS and largest absolute error as a percentage of ``span`` (the record's output span)."""
     e = np.asarray(predicted, float) - np.asarray(measured, float)
-    return {
-        "rms_pct": float(100.0 * np.sqrt(np.mean(e**2)) / span),
-        "max_pct": float(100.0 * np.max(np.abs(e)) / span),
-    }
+    return FitError(float(100.0 * np.sqrt(np.mean(e**2)) / span), float(100.0 * np.max(np.abs(e)) / span),
+                    window_s, int(e.size))
 
 
 def straight_line(v: ArrayLike, y: ArrayLike) -> tuple[float, float]:
@@ -331,7 +332,7 @@ class PIIdentifier:
         *,
         sample_period_s: float | None = None,
     ) -> PIIdentifier:
-        """Identify the weights from input ``v`` and measured output ``y``.
+        """Identify the weights from input ``v`` and measured output ``y``; returns the estimator.
 
         The operators run over the whole record from ``state`` (at rest by default), so a
         training window that starts late still sees the right operator states; only the
@@ -341,136 +342,66 @@ class PIIdentifier:
         :class:`~piezopreload.models.hysteresis.CreepPI` state.
         """
         t0 = time.perf_counter()
-        v = np.asarray(v, float)
-        y = np.asarray(y, float)
-        if v.ndim != 1 or v.shape != y.shape:
-            raise ValueError(f"v and y must be 1-D of equal length, got shapes {v.shape} and {y.shape}.")
-        if not (np.all(np.isfinite(v)) and np.all(np.isfinite(y))):
-            raise ValueError("v and y must be finite.")
-        rows = np.zeros(v.size, bool)
-        rows[slice(None) if train is None else train] = True
+        v, y, rows = _record(v, y, train)
         r = self._thresholds(v)
-        n = r.size
-        play_state, lags, dt_s = state, None, 0.0
-        if self.creep:
-            if sample_period_s is None or not (np.isfinite(sample_period_s) and sample_period_s > 0):
-                raise IdentificationError(
-                    f"creep needs the record's sample period: pass sample_period_s (s), got {sample_period_s!r}"
-                )
-            dt_s = float(sample_period_s)
-            taus = self._time_constants(v.size, dt_s)
-            creep_state = None
-            if state is not None:
-                st = np.asarray(state, float)
-                if st.shape not in ((n,), (n + taus.size,)):
-                    raise InputError(
-                        f"state must have {n} (play operators) or {n + taus.size} (play operators and creep "
-                        f"carries) entries, got shape {st.shape}"
-                    )
-                play_state, creep_state = st[:n], (st[n:] if st.size > n else None)
-            lags = creep_lags(v, lag_coefficients(taus, dt_s), creep_state)[rows]
+        play_state, creep = self._creep_columns(v, rows, r.size, state, sample_period_s)
         ops = play(v, r, play_state)[rows]
-        y_t = y[rows]
-        v_t = v[rows]
-        if np.ptp(v_t) == 0:
+        if np.ptp(v[rows]) == 0:
             raise IdentificationError("the input is constant over the training window: nothing to identify")
-
-        if self.model == "classical":
-            phi = np.column_stack([ops, np.ones(len(y_t))])
-            a_ineq = np.hstack([np.eye(n), np.zeros((n, 1))])
-            b_ineq = np.zeros(n)
-            if self.invertible:  # w_1 bounded away from 0, relative to the average slope
-                b_ineq[0] = self.min_slope * float(np.ptp(y_t) / np.ptp(v_t))
-            penalised = np.r_[np.ones(n, bool), False]
-            target = y_t
-        elif self.model == "paper-asymmetric":
-            p = rising(v)[rows][:, None]
-            phi = np.column_stack([ops * p, ops * ~p, np.ones(len(y_t))])
-            a_ineq = np.hstack([np.eye(2 * n), np.zeros((2 * n, 1))])
-            b_ineq = np.zeros(2 * n)
-            penalised = np.r_[np.ones(2 * n, bool), False]
-            target = y_t
-        else:
-            # Kuhnen: Gamma[v] + bias = g(y - y_ref), g a dead-zone superposition with central
-            # weight 1; linear in (w, bias, g) and so a QP. Its inverse gives the forward model.
-            y_ref = 0.5 * (np.max(y_t) + np.min(y_t))
-            m = int(self.n_deadzone)
-            up = (np.max(y_t) - y_ref) * np.arange(1, m + 1) / (m + 1)
-            down = (np.min(y_t) - y_ref) * np.arange(m, 0, -1) / (m + 1)
-            e = np.concatenate([down, [0.0], up])
-            dz = DeadZone(e, np.ones_like(e)).thresholds
-            d_all = deadzone(y_t - y_ref, dz)
-            center = m
-            d_rest = np.delete(d_all, center, axis=1)
-            phi = np.column_stack([ops, np.ones(len(y_t)), -d_rest])
-            target = d_all[:, center]
-            n_g = 2 * m
-            # slopes outward from the centre: 1 + partial sums of g >= min_slope
-            a_g = np.zeros((n_g, n_g))
-            for j in range(m):  # positive side, g indices m..2m-1 in d_rest order
-                a_g[j, m : m + j + 1] = 1.0
-            for j in range(m):  # negative side, g indices m-1 down to 0
-                a_g[m + j, m - 1 - j : m] = 1.0
-            a_ineq = np.block(
-                [
-                    [np.eye(n), np.zeros((n, 1)), np.zeros((n, n_g))],
-                    [np.zeros((n_g, n + 1)), a_g],
-                ]
-            )
-            # the play part must be invertible too: its first slope w_1 bounded away from 0,
-            # relative to the record's average slope (y is in the output units of Gamma here)
-            mean_slope = float(np.ptp(y_t) / np.ptp(v_t))
-            b_ineq = np.r_[self.min_slope * mean_slope, np.zeros(n - 1), np.full(n_g, self.min_slope - 1.0)]
-            penalised = np.r_[np.ones(n, bool), False, np.ones(n_g, bool)]
-
-        if lags is not None:
-            # creep columns last, with nonnegative weights (see the class docstring)
-            m_c = lags.shape[1]
-            phi = np.column_stack([phi, lags])
-            a_ineq = np.block([[a_ineq, np.zeros((a_ineq.shape[0], m_c))],
-                               [np.zeros((m_c, a_ineq.shape[1])), np.eye(m_c)]])
-            b_ineq = np.r_[b_ineq, np.zeros(m_c)]
-            penalised = np.r_[penalised, np.ones(m_c, bool)]
-
-        n_params = phi.shape[1]
-        if len(y_t) < 2 * n_params:
+        problem = _PROBLEMS[self.model](self, r, ops, rising(v)[rows], y[rows], v[rows])
+        if creep is not None:
+            problem = problem.with_creep(*creep)
+        n_params = problem.phi.shape[1]
+        if problem.target.size < 2 * n_params:
             raise IdentificationError(
-                f"the training window has {len(y_t)} samples for {n_params} parameters; "
+                f"the training window has {problem.target.size} samples for {n_params} parameters; "
                 f"give at least {2 * n_params} (a longer window or fewer operators)"
             )
         qp = _solve_constrained_lsq(
-            phi, target, a_ineq, b_ineq, ridge=self.ridge, penalised=penalised,
-            solver_options=dict(self.solver_options),
+            problem.phi, problem.target, problem.a_ineq, problem.b_ineq, ridge=self.ridge,
+            penalised=problem.penalised, solver_options=dict(self.solver_options),
         )
-        x = qp.x
-        if lags is not None:
-            x, c = x[: -lags.shape[1]], np.maximum(x[-lags.shape[1] :], 0.0)
-        if self.model == "classical":
-            model: HysteresisModel = ClassicalPI(r, np.maximum(x[:n], 0.0), x[n])
-        elif self.model == "paper-asymmetric":
-            model = AsymmetricPI(r, np.maximum(x[:n], 0.0), np.maximum(x[n : 2 * n], 0.0), x[2 * n])
-        else:
-            g = np.insert(x[n + 1 :], m, 1.0)
-            shaper = DeadZone(dz, g).inverse()
-            model = ModifiedPI(
-                r, np.maximum(x[:n], 0.0), shaper.thresholds, shaper.weights, bias=x[n], offset=y_ref
-            )
-        self.model_: HysteresisModel | CreepPI = model
-        if lags is not None:
-            self.model_ = CreepPI(model, Creep(taus, c, dt_s))
-            self.time_constants_s_ = taus
+        self.model_: HysteresisModel | CreepPI = problem.build(qp.x)
+        if creep is not None:
+            self.time_constants_s_ = creep[1]
         self.thresholds_ = r
         self.status_ = qp.status
         self.solve_time_s_ = qp.solve_time_s
         self.iterations_ = qp.iterations
         self.polished_ = qp.polished
-        self.n_train_ = int(len(y_t))
+        self.n_train_ = int(problem.target.size)
         self.fit_time_s_ = time.perf_counter() - t0
         return self
 
-    def _check_fitted(self) -> None:
+    def _creep_columns(self, v: NDArray, rows: NDArray, n: int, state: ArrayLike | None,
+                       sample_period_s: float | None) -> tuple[ArrayLike | None, tuple[NDArray, NDArray, float] | None]:
+        """The play operators' initial state, and with creep the lags' columns, time constants and sample period."""
+        if not self.creep:
+            return state, None
+        if sample_period_s is None or not (np.isfinite(sample_period_s) and sample_period_s > 0):
+            raise IdentificationError(
+                f"creep needs the record's sample period: pass sample_period_s (s), got {sample_period_s!r}"
+            )
+        dt_s = float(sample_period_s)
+        taus = self._time_constants(v.size, dt_s)
+        play_state, creep_state = state, None
+        if state is not None:
+            st = np.asarray(state, float)
+            if st.shape not in ((n,), (n + taus.size,)):
+                raise InputError(
+                    f"state must have {n} (play operators) or {n + taus.size} (play operators and creep "
+                    f"carries) entries, got shape {st.shape}"
+                )
+            play_state, creep_state = st[:n], (st[n:] if st.size > n else None)
+        return play_state, (creep_lags(v, lag_coefficients(taus, dt_s), creep_state)[rows], taus, dt_s)
+
+    # ---- the fitted estimator -------------------------------------------------------------
+    def _check_fitted(self) -> HysteresisModel | CreepPI:
         if not hasattr(self, "model_"):
-            raise NotFittedError("this PIIdentifier is not fitted yet; call fit(v, y) first.")
+            raise NotFittedError(
+                "this PIIdentifier is not fitted yet; call fit(v, y) before predict, score or inverse."
+            )
+        return self.model_
 
     def predict(self, v: ArrayLike, state: ArrayLike | None = None) -> NDArray[np.float64]:
         """Model output for input ``v`` from ``state`` (at rest by default).
@@ -478,10 +409,125 @@ class PIIdentifier:
         With creep, ``state`` is the play operators' states (lags at rest at 0) or a whole
         :class:`~piezopreload.models.hysteresis.CreepPI` state, as in :meth:`fit`.
         """
-        self._check_fitted()
-        if isinstance(self.model_, CreepPI) and state is not None and np.shape(state)[-1] == self.model_.n_operators:
-            state = np.concatenate([np.asarray(state, float), np.zeros(self.model_.n_lags)])
-        return self.model_(v, state)
+        model = self._check_fitted()
+        if isinstance(model, CreepPI) and state is not None and np.shape(state)[-1] == model.n_operators:
+            state = np.concatenate([np.asarray(state, float), np.zeros(model.n_lags)])
+        return np.asarray(model(v, state), float)
+
+    def score(self, v: ArrayLike, y: ArrayLike, rows: ArrayLike | slice | None = None) -> float:
+        """The coefficient of determination ``R^2 = 1 - SS_res / SS_tot`` of :meth:`predict` on ``y``.
+
+        The model runs over the whole record (its operators need the history); ``rows`` (a
+        boolean mask or slice, all by default) selects the samples scored, as ``train`` does in
+        :meth:`fit`. 1 is a perfect fit; a model no better than the mean scores 0.
+        """
+        v, y, keep = _record(v, y, rows)
+        e = (self.predict(v) - y)[keep]
+        total = float(np.sum((y[keep] - np.mean(y[keep])) ** 2))
+        if total == 0:
+            raise InputError("the output is constant over the scored samples: R^2 is not defined there")
+        return 1.0 - float(np.sum(e**2)) / total
+
+    def inverse(self) -> Any:
+        """The fitted model's inverse: the feedforward (output -> input, eqs. (19)-(20); with creep, one sample at a time)."""
+        return self._check_fitted().inverse()
+
+
+def _record(v: ArrayLike, y: ArrayLike, rows: ArrayLike | slice | None) -> tuple[NDArray, NDArray, NDArray]:
+    """A record's input and output (1-D, finite, of equal length) and the mask of ``rows``."""
+    v = np.asarray(v, float)
+    y = np.asarray(y, float)
+    if v.ndim != 1 or v.shape != y.shape:
+        raise ValueError(f"v and y must be 1-D of equal length, got shapes {v.shape} and {y.shape}.")
+    if not (np.all(np.isfinite(v)) and np.all(np.isfinite(y))):
+        raise ValueError("v and y must be finite.")
+    mask = np.zeros(v.size, bool)
+    mask[slice(None) if rows is None else rows] = True
+    return v, y, mask
+
+
+# --------------------------------------------------------------------------------------
+# the QP of each model: regressors, constraints and how the solution becomes the model
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class _Problem:
+    """``min ||phi x - target||^2 s.t. a_ineq x >= b_ineq`` and how ``x`` becomes the model."""
+
+    phi: NDArray[np.float64]
+    target: NDArray[np.float64]
+    a_ineq: NDArray[np.float64]
+    b_ineq: NDArray[np.float64]
+    penalised: NDArray[np.bool_]
+    build: Callable[[NDArray[np.float64]], HysteresisModel | CreepPI]
+
+    def with_creep(self, lags: NDArray[np.float64], taus: NDArray[np.float64], dt_s: float) -> _Problem:
+        """The creep lags' columns last, with nonnegative weights (see :class:`PIIdentifier`)."""
+        m_c = lags.shape[1]
+        a = self.a_ineq
+        build = self.build
+
+        def with_bank(x: NDArray[np.float64]) -> CreepPI:
+            model = build(x[:-m_c])
+            if isinstance(model, CreepPI):  # not reached: each model's build makes a plain model
+                raise IdentificationError("a creep model inside a creep model")
+            return CreepPI(model, Creep(taus, np.maximum(x[-m_c:], 0.0), dt_s))
+
+        return _Problem(np.column_stack([self.phi, lags]), self.target,
+                        np.block([[a, np.zeros((a.shape[0], m_c))], [np.zeros((m_c, a.shape[1])), np.eye(m_c)]]),
+                        np.r_[self.b_ineq, np.zeros(m_c)], np.r_[self.penalised, np.ones(m_c, bool)], with_bank)
+
+
+def _classical(est: PIIdentifier, r: NDArray, ops: NDArray, p: NDArray, y: NDArray, v: NDArray) -> _Problem:
+    """Eq. (15): nonnegative weights, an offset; with ``invertible`` ``w_1`` bounded away from 0."""
+    n = r.size
+    b_ineq = np.zeros(n)
+    if est.invertible:  # w_1 bounded away from 0, relative to the average slope
+        b_ineq[0] = est.min_slope * float(np.ptp(y) / np.ptp(v))
+    return _Problem(np.column_stack([ops, np.ones(y.size)]), y, np.hstack([np.eye(n), np.zeros((n, 1))]), b_ineq,
+                    np.r_[np.ones(n, bool), False], lambda x: ClassicalPI(r, np.maximum(x[:n], 0.0), x[n]))
+
+
+def _asymmetric(est: PIIdentifier, r: NDArray, ops: NDArray, p: NDArray, y: NDArray, v: NDArray) -> _Problem:
+    """Eq. (18): the rising and the falling weights, each nonnegative, and an offset."""
+    n = r.size
+    q = p[:, None]
+    return _Problem(np.column_stack([ops * q, ops * ~q, np.ones(y.size)]), y,
+                    np.hstack([np.eye(2 * n), np.zeros((2 * n, 1))]), np.zeros(2 * n),
+                    np.r_[np.ones(2 * n, bool), False],
+                    lambda x: AsymmetricPI(r, np.maximum(x[:n], 0.0), np.maximum(x[n:2 * n], 0.0), x[2 * n]))
+
+
+def _modified(est: PIIdentifier, r: NDArray, ops: NDArray, p: NDArray, y: NDArray, v: NDArray) -> _Problem:
+    """Kuhnen's model in its inverse form: ``Gamma[v] + bias = g(y - y_ref)``, ``g`` a dead-zone superposition
+    with central weight 1; linear in ``(w, bias, g)`` and so a QP. Its inverse gives the forward model."""
+    n, m = r.size, int(est.n_deadzone)
+    y_ref = 0.5 * (np.max(y) + np.min(y))
+    up = (np.max(y) - y_ref) * np.arange(1, m + 1) / (m + 1)
+    down = (np.min(y) - y_ref) * np.arange(m, 0, -1) / (m + 1)
+    dz = DeadZone(np.concatenate([down, [0.0], up]), np.ones(2 * m + 1)).thresholds
+    d_all = deadzone(y - y_ref, dz)
+    n_g = 2 * m
+    # slopes outward from the centre: 1 + partial sums of g >= min_slope
+    a_g = np.zeros((n_g, n_g))
+    for j in range(m):  # positive side, g indices m..2m-1 in the order of the columns left
+        a_g[j, m : m + j + 1] = 1.0
+        a_g[m + j, m - 1 - j : m] = 1.0  # negative side, g indices m-1 down to 0
+    a_ineq = np.block([[np.eye(n), np.zeros((n, 1)), np.zeros((n, n_g))], [np.zeros((n_g, n + 1)), a_g]])
+    # the play part must be invertible too: its first slope w_1 bounded away from 0, relative to
+    # the record's average slope (y is in the output units of Gamma here)
+    mean_slope = float(np.ptp(y) / np.ptp(v))
+    b_ineq = np.r_[est.min_slope * mean_slope, np.zeros(n - 1), np.full(n_g, est.min_slope - 1.0)]
+
+    def build(x: NDArray[np.float64]) -> ModifiedPI:
+        shaper = DeadZone(dz, np.insert(x[n + 1 :], m, 1.0)).inverse()
+        return ModifiedPI(r, np.maximum(x[:n], 0.0), shaper.thresholds, shaper.weights, bias=x[n], offset=y_ref)
+
+    return _Problem(np.column_stack([ops, np.ones(y.size), -np.delete(d_all, m, axis=1)]), d_all[:, m], a_ineq,
+                    b_ineq, np.r_[np.ones(n, bool), False, np.ones(n_g, bool)], build)
+
+
+_PROBLEMS: dict[str, Callable[..., _Problem]] = {
+    "classical": _classical, "paper-asymmetric": _asymmetric, "modified": _modified}
 
 
 # --------------------------------------------------------------------------------------

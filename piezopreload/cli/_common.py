@@ -10,7 +10,7 @@ from typing import Any
 
 from piezopreload.core.errors import InputError
 from piezopreload.study import PAPER_STUDY, load_study
-from piezopreload.tuning.holdout import Window
+from piezopreload.tuning.identification import Window
 
 EXIT_OK, EXIT_INTERNAL, EXIT_INPUT = 0, 1, 2
 PASSWORD_ENV = "PIEZOPRELOAD_RIG_PASSWORD"

@@ -14,7 +14,7 @@ from piezopreload.cli._common import (
 )
 from piezopreload.core.tables import parse_columns, read_record
 from piezopreload.data import SHIPPED_COLUMNS, shipped_data
-from piezopreload.tuning.holdout import identify_record
+from piezopreload.tuning.identification import identify
 from piezopreload.tuning.identify import MODELS
 
 
@@ -62,11 +62,13 @@ def _cmd_identify(args: argparse.Namespace) -> dict[str, Any]:
     else:
         path, header = args.data, not args.no_header
         columns = parse_columns(args.columns) if args.columns else None
-    fit = identify_record(read_record(path, columns=columns, header=header), model=args.model,
-                          operators=args.operators, train=time_window(args.train, "--train"),
-                          test=time_window(args.test, "--test"), ridge=args.ridge, creep=args.creep,
-                          creep_time_constants_s=args.creep_time_constants)
-    return {**fit.to_dict(), "out": None if args.out is None else str(fit.save(args.out))}
+    result = identify(read_record(path, columns=columns, header=header), model=args.model,
+                      operators=args.operators, train=time_window(args.train, "--train"),
+                      test=time_window(args.test, "--test"), ridge=args.ridge, creep=args.creep,
+                      creep_time_constants_s=args.creep_time_constants)
+    if args.out is not None:
+        result.save(args.out)
+    return {**result.to_dict(), "out": args.out}
 
 
 def _print_identify(s: dict[str, Any]) -> None:
@@ -79,12 +81,13 @@ def _print_identify(s: dict[str, Any]) -> None:
           f"QP {1e3 * sv['qp_seconds']:.1f} ms, whole fit {1e3 * sv['fit_seconds']:.0f} ms")
     print(f"errors in % of the output span ({s['output_span']:.4g} {unit}):")
     print(f"  {'':40s}{'RMS':>8s}{'max':>8s}")
-    rows = [(f"train {s['train']['window_s'][0]:g}-{s['train']['window_s'][1]:g} s", s["train"]),
-            (f"test  {s['test']['window_s'][0]:g}-{s['test']['window_s'][1]:g} s", s["test"]),
-            ("test, best straight line", s["line_test"])]
+    rows = [(f"train {s['train']['window_s'][0]:g}-{s['train']['window_s'][1]:g} s", s["train"])]
+    if s["test"] is not None:
+        rows += [(f"test  {s['test']['window_s'][0]:g}-{s['test']['window_s'][1]:g} s", s["test"]),
+                 ("test, best straight line", s["line_test"])]
     if s["paper_method_test"] is not None:
         rows.append(("test, the paper's method (eq. 17)", s["paper_method_test"]))
-    if s.get("without_creep"):
+    if s.get("without_creep") and s["without_creep"]["test"] is not None:
         rows.append((f"test, {s['without_creep']['model']} without creep", s["without_creep"]["test"]))
     for label, e in rows:
         print(f"  {label:40s}{e['rms_pct']:8.3f}{e['max_pct']:8.3f}")

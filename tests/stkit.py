@@ -1,0 +1,346 @@
+"""A translator of the Structured Text subset the PLC export writes, into Python the tests execute.
+
+Why a translation and why it is faithful. No IEC 61131-3 runtime installs from the package
+registries this project uses, so the test parses the exported source with a grammar of the
+subset (IEC 61131-3, 3rd edition: function blocks, ``VAR_INPUT``/``VAR_OUTPUT``/``VAR``/``VAR
+CONSTANT`` declarations of ``LREAL``, ``BOOL``, ``DINT`` and ``ARRAY[a..b] OF LREAL`` with their
+initial values, ``:=``, ``IF``/``ELSIF``/``ELSE``/``END_IF``, ``FOR ... TO ... DO``/``END_FOR``,
+``MAX``, ``MIN``, ``ABS``, comments) and refuses anything outside it. Each construct maps to the
+Python one with the same meaning:
+
+* the operator precedence is the standard's (table 71: unary ``-`` and ``NOT``; ``*`` ``/``;
+  ``+`` ``-``; ``< > <= >=``; ``= <>``; ``AND``; ``XOR``; ``OR``), applied by this parser, and the
+  Python is fully parenthesised, so Python's own precedence never decides;
+* ``LREAL`` is an IEC 60559 double, as Python's float; real literals are read by ``float``;
+* types are checked as a strict compiler does: arithmetic and comparisons on operands of one
+  type (``LREAL`` with ``LREAL``, ``DINT`` with ``DINT``), ``AND``/``OR``/``NOT`` and conditions
+  on ``BOOL``, array indices ``DINT``, assignments to a variable of the expression's type, none
+  to a ``CONSTANT`` or an input;
+* arrays keep their declared bounds: an index outside them raises (a Python list would wrap a
+  negative index silently);
+* identifiers are case-insensitive, as in ST, and a name declared twice is refused;
+* ``FOR i := a TO b`` runs ``i = a, a+1, ..., b`` (none when ``a > b``);
+* the instance's variables keep their values between calls (a function block's memory), and
+  start at their initial values (0.0, FALSE, 0 where none is given).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["STError", "FunctionBlock", "translate"]
+
+
+class STError(Exception):
+    """Source outside the subset, or a type error a compiler would report."""
+
+
+_TOKEN = re.compile(r"""
+    (?P<comment>\(\*.*?\*\))
+  | (?P<real>\d+\.\d+(?:[eE][+-]?\d+)?)
+  | (?P<int>\d+)
+  | (?P<name>[A-Za-z_][A-Za-z0-9_]*)
+  | (?P<op>:=|<=|>=|<>|\.\.|[-+*/<>=()\[\],;:])
+  | (?P<space>\s+)
+""", re.VERBOSE | re.DOTALL)
+_KEYWORDS = {"FUNCTION_BLOCK", "END_FUNCTION_BLOCK", "VAR_INPUT", "VAR_OUTPUT", "VAR", "CONSTANT", "END_VAR",
+             "ARRAY", "OF", "LREAL", "BOOL", "DINT", "IF", "THEN", "ELSIF", "ELSE", "END_IF", "FOR", "TO", "DO",
+             "END_FOR", "AND", "OR", "XOR", "NOT", "TRUE", "FALSE", "MAX", "MIN", "ABS"}
+_SCALARS = {"LREAL": 0.0, "BOOL": False, "DINT": 0}
+
+
+def _tokens(text: str) -> list[tuple[str, str]]:
+    out, pos = [], 0
+    while pos < len(text):
+        m = _TOKEN.match(text, pos)
+        if m is None:
+            raise STError(f"unexpected character {text[pos]!r} at offset {pos}")
+        pos = m.end()
+        kind = m.lastgroup or ""
+        if kind in ("comment", "space"):
+            continue
+        value = m.group()
+        if kind == "name" and value.upper() in _KEYWORDS:
+            kind, value = "kw", value.upper()
+        out.append((kind, value))
+    return out + [("end", "")]
+
+
+@dataclass
+class _Var:
+    type: str  # LREAL, BOOL, DINT or ARRAY
+    section: str  # VAR_INPUT, VAR_OUTPUT, VAR, CONSTANT
+    bounds: tuple[int, int] | None = None
+    init: Any = None
+
+
+class _Parser:
+    def __init__(self, text: str) -> None:
+        self.toks, self.i = _tokens(text), 0
+        self.vars: dict[str, _Var] = {}
+        self.lines: list[str] = []
+
+    # ---- tokens ----------------------------------------------------------------------------------
+    def peek(self) -> tuple[str, str]:
+        return self.toks[self.i]
+
+    def take(self, value: str | None = None, kind: str | None = None) -> str:
+        k, v = self.toks[self.i]
+        if (value is not None and v != value) or (kind is not None and k != kind):
+            raise STError(f"expected {value or kind}, got {v!r} (token {self.i})")
+        self.i += 1
+        return v
+
+    def accept(self, value: str) -> bool:
+        if self.toks[self.i][1] == value:
+            self.i += 1
+            return True
+        return False
+
+    # ---- declarations ----------------------------------------------------------------------------
+    def declarations(self) -> None:
+        while self.peek()[1] in ("VAR_INPUT", "VAR_OUTPUT", "VAR"):
+            section = self.take()
+            if section == "VAR" and self.accept("CONSTANT"):
+                section = "CONSTANT"
+            while not self.accept("END_VAR"):
+                self.declaration(section)
+
+    def declaration(self, section: str) -> None:
+        name = self.take(kind="name").lower()
+        if name in self.vars:
+            raise STError(f"'{name}' is declared twice (identifiers are case-insensitive)")
+        self.take(":")
+        if self.accept("ARRAY"):
+            self.take("[")
+            lo, _, hi = int(self.take(kind="int")), self.take(".."), int(self.take(kind="int"))
+            self.take("]")
+            self.take("OF")
+            self.take("LREAL")
+            var = _Var("ARRAY", section, (lo, hi), [0.0] * (hi - lo + 1))
+        else:
+            t = self.take(kind="kw")
+            if t not in _SCALARS:
+                raise STError(f"type {t} is outside the subset")
+            var = _Var(t, section, None, _SCALARS[t])
+        if self.accept(":="):
+            var.init = self.initial(var)
+        elif section == "CONSTANT":
+            raise STError(f"constant '{name}' has no value")
+        self.take(";")
+        self.vars[name] = var
+
+    def literal(self, type_: str) -> Any:
+        sign = -1.0 if self.accept("-") else 1.0
+        k, v = self.peek()
+        if type_ == "LREAL" and k == "real":
+            return sign * float(self.take())
+        if type_ == "DINT" and k == "int":
+            return int(sign) * int(self.take())
+        if type_ == "BOOL" and v in ("TRUE", "FALSE"):
+            return self.take() == "TRUE"
+        raise STError(f"an initial value of type {type_} expected, got {v!r}")
+
+    def initial(self, var: _Var) -> Any:
+        if var.type != "ARRAY":
+            return self.literal(var.type)
+        self.take("[")
+        values = [self.literal("LREAL")]
+        while self.accept(","):
+            values.append(self.literal("LREAL"))
+        self.take("]")
+        lo, hi = var.bounds or (0, -1)
+        if len(values) != hi - lo + 1:
+            raise STError(f"an ARRAY[{lo}..{hi}] initialised with {len(values)} values")
+        return values
+
+    # ---- expressions: (python code, type), by the standard's precedence ----------------------------
+    _LEVELS = (("OR",), ("XOR",), ("AND",), ("=", "<>"), ("<", ">", "<=", ">="), ("+", "-"), ("*", "/"))
+    _PY = {"OR": "or", "XOR": "!=", "AND": "and", "=": "==", "<>": "!="}
+
+    def expr(self, level: int = 0) -> tuple[str, str]:
+        if level == len(self._LEVELS):
+            return self.unary()
+        left, lt = self.expr(level + 1)
+        while self.peek()[1] in self._LEVELS[level]:
+            op = self.take()
+            right, rt = self.expr(level + 1)
+            left, lt = self.binary(op, left, lt, right, rt)
+        return left, lt
+
+    def binary(self, op: str, left: str, lt: str, right: str, rt: str) -> tuple[str, str]:
+        if op in ("OR", "XOR", "AND"):
+            if lt != "BOOL" or rt != "BOOL":
+                raise STError(f"{op} needs BOOL operands, got {lt} and {rt}")
+            return f"({left} {self._PY[op]} {right})", "BOOL"
+        if lt != rt or lt == "BOOL" and op not in ("=", "<>"):
+            raise STError(f"'{op}' on {lt} and {rt}: the operands must be numbers of one type")
+        if op in ("=", "<>", "<", ">", "<=", ">="):
+            return f"({left} {self._PY.get(op, op)} {right})", "BOOL"
+        if op == "/" and lt == "DINT":
+            return f"_idiv({left}, {right})", "DINT"
+        return f"({left} {op} {right})", lt
+
+    def unary(self) -> tuple[str, str]:
+        if self.accept("-"):
+            code, t = self.unary()
+            if t == "BOOL":
+                raise STError("unary minus on a BOOL")
+            return f"(-{code})", t
+        if self.accept("NOT"):
+            code, t = self.unary()
+            if t != "BOOL":
+                raise STError(f"NOT on a {t}")
+            return f"(not {code})", "BOOL"
+        return self.primary()
+
+    def primary(self) -> tuple[str, str]:
+        k, v = self.peek()
+        if v == "(":
+            self.take()
+            code, t = self.expr()
+            self.take(")")
+            return code, t
+        if k in ("real", "int"):
+            self.take()
+            return (repr(float(v)), "LREAL") if k == "real" else (str(int(v)), "DINT")
+        if v in ("TRUE", "FALSE"):
+            self.take()
+            return str(v == "TRUE"), "BOOL"
+        if v in ("MAX", "MIN", "ABS"):
+            return self.call(self.take())
+        return self.reference()
+
+    def call(self, fn: str) -> tuple[str, str]:
+        self.take("(")
+        args = [self.expr()]
+        while self.accept(","):
+            args.append(self.expr())
+        self.take(")")
+        types = {t for _, t in args}
+        if len(args) != (1 if fn == "ABS" else 2) or len(types) != 1 or types == {"BOOL"}:
+            raise STError(f"{fn} takes {'one' if fn == 'ABS' else 'two'} numbers of one type, got {[t for _, t in args]}")
+        return f"{fn.lower()}({', '.join(c for c, _ in args)})", types.pop()
+
+    def reference(self) -> tuple[str, str]:
+        name = self.take(kind="name").lower()
+        var = self.vars.get(name)
+        if var is None:
+            raise STError(f"'{name}' is not declared")
+        if var.type != "ARRAY":
+            return f"m[{name!r}]", var.type
+        self.take("[")
+        index, t = self.expr()
+        self.take("]")
+        if t != "DINT":
+            raise STError(f"index of '{name}' must be DINT, got {t}")
+        lo, hi = var.bounds or (0, -1)
+        return f"m[{name!r}][_ix({index}, {lo}, {hi}, {name!r})]", "LREAL"
+
+    # ---- statements ------------------------------------------------------------------------------
+    def statements(self, depth: int, until: tuple[str, ...]) -> None:
+        start = len(self.lines)
+        while self.peek()[1] not in until:
+            self.statement(depth)
+        if len(self.lines) == start:
+            self.lines.append("    " * depth + "pass")
+
+    def statement(self, depth: int) -> None:
+        pad = "    " * depth
+        v = self.peek()[1]
+        if v == "IF":
+            self.take()
+            self.branch(depth, "if")
+            while self.accept("ELSIF"):
+                self.branch(depth, "elif")
+            if self.accept("ELSE"):
+                self.lines.append(pad + "else:")
+                self.statements(depth + 1, ("END_IF",))
+            self.take("END_IF")
+        elif v == "FOR":
+            self.take()
+            name = self.take(kind="name").lower()
+            if self.vars.get(name, _Var("", "")).type != "DINT" or self.vars[name].section != "VAR":
+                raise STError(f"the FOR variable '{name}' must be a DINT of VAR")
+            self.take(":=")
+            lo, lt = self.expr()
+            self.take("TO")
+            hi, ht = self.expr()
+            if lt != "DINT" or ht != "DINT":
+                raise STError("FOR bounds must be DINT")
+            self.take("DO")
+            self.lines.append(pad + f"for m[{name!r}] in range({lo}, ({hi}) + 1):")
+            self.statements(depth + 1, ("END_FOR",))
+            self.take("END_FOR")
+        else:
+            self.assignment(pad)
+        self.take(";")
+
+    def branch(self, depth: int, word: str) -> None:
+        cond, t = self.expr()
+        if t != "BOOL":
+            raise STError(f"an IF condition must be BOOL, got {t}")
+        self.take("THEN")
+        self.lines.append("    " * depth + f"{word} {cond}:")
+        self.statements(depth + 1, ("ELSIF", "ELSE", "END_IF"))
+
+    def assignment(self, pad: str) -> None:
+        name = self.peek()[1].lower()
+        var = self.vars.get(name)
+        if var is not None and var.section in ("CONSTANT", "VAR_INPUT"):
+            raise STError(f"assignment to {var.section} '{name}'")
+        target, t = self.reference()
+        self.take(":=")
+        code, et = self.expr()
+        if et != t:
+            raise STError(f"assigning a {et} to '{name}' ({t})")
+        self.lines.append(pad + f"{target} = {code}")
+
+    def block(self) -> tuple[str, dict[str, _Var]]:
+        self.take("FUNCTION_BLOCK")
+        name = self.take(kind="name")
+        self.declarations()
+        self.statements(1, ("END_FUNCTION_BLOCK",))
+        self.take("END_FUNCTION_BLOCK")
+        self.take(kind="end")
+        return name, self.vars
+
+
+def _ix(i: int, lo: int, hi: int, name: str) -> int:
+    if not lo <= i <= hi:
+        raise IndexError(f"{name}[{i}] is outside [{lo}..{hi}]")
+    return i - lo
+
+
+def _idiv(a: int, b: int) -> int:
+    q = abs(a) // abs(b)
+    return q if (a >= 0) == (b > 0) else -q  # ST integer division truncates towards zero
+
+
+class FunctionBlock:
+    """An instance of the translated function block: call it with its inputs by name, read its outputs."""
+
+    def __init__(self, name: str, variables: dict[str, _Var], body: str) -> None:
+        self.name, self.variables = name, variables
+        self.memory: dict[str, Any] = {n: (list(v.init) if v.type == "ARRAY" else v.init) for n, v in variables.items()}
+        scope = {"_ix": _ix, "_idiv": _idiv, "max": max, "min": min, "abs": abs}
+        exec(compile(body, f"<{name}>", "exec"), scope)
+        self._run = scope["_step"]
+
+    def __call__(self, **inputs: Any) -> dict[str, Any]:
+        for key, value in inputs.items():
+            var = self.variables.get(key.lower())
+            if var is None or var.section != "VAR_INPUT":
+                raise STError(f"{self.name} has no input '{key}'")
+            self.memory[key.lower()] = float(value) if var.type == "LREAL" else bool(value)
+        self._run(self.memory)
+        return {n: self.memory[n] for n, v in self.variables.items() if v.section == "VAR_OUTPUT"}
+
+
+def translate(source: str) -> FunctionBlock:
+    """The first function block in ``source`` (anything before it must be comments), as a callable instance."""
+    parser = _Parser(source)
+    name, variables = parser.block()
+    return FunctionBlock(name, variables, "def _step(m):\n" + "\n".join(parser.lines) + "\n")
