@@ -288,7 +288,7 @@ def test_example_identify_and_export_on_its_default_path(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert out["study"] == "paper2021" and "study paper2021" in printed and "25 to 100 N" in printed
     gs = _check_example_output(out, tmp_path, tmp_path / "loop.csv")
-    assert gs.validated and gs.validation["n_plants"] == pp.load_study("paper2021").validation.plants
+    assert gs.validated and gs.validation.n_plants == pp.load_study("paper2021").validation.plants
     assert gs.feedforward_info["source"]["path"] == str((tmp_path / "loop.csv").resolve())
 
 
