@@ -73,14 +73,17 @@ def gains_to_dict(gains: PIDGains) -> dict[str, Any]:
 
 
 _SCHEDULE_KEYS = (("levels_N", "levels_N"), ("Kc_V_per_N", "Kc"), ("Ti_s", "Ti_s"), ("Td_s", "Td_s"))
+#: the columns a table may leave out (the single value then holds for every entry)
+_SCHEDULE_OPTIONAL = (("b", "b"),)
 
 
 def schedule_from_dict(doc: Any, where: str = "gains.schedule") -> GainSchedule:
-    """A gain schedule from its table; an :class:`InputError` names the field that is wrong."""
+    """A gain schedule from its table (``b``, the setpoint weight per entry, optional); an :class:`InputError` names
+    the field that is wrong."""
     if not isinstance(doc, dict):
         raise InputError(f"field '{where}' must be an object with {', '.join(k for k, _ in _SCHEDULE_KEYS)}")
     columns: dict[str, tuple[float, ...]] = {}
-    for key, name in _SCHEDULE_KEYS:
+    for key, name in _SCHEDULE_KEYS + tuple(kn for kn in _SCHEDULE_OPTIONAL if doc.get(kn[0]) is not None):
         column = doc.get(key)
         if not isinstance(column, list):
             raise InputError(f"field '{where}.{key}' must be a list of numbers, got {type(column).__name__}")
@@ -297,7 +300,8 @@ class GainSet:
                 "[output range]", f"low (V) = {g['u_min_V']:.12g}", f"high (V) = {g['u_max_V']:.12g}",
                 "[advanced]", f"setpoint weight beta = {g['b']:.12g}", f"derivative filter time constant (s) = {g['Tf_s']:.12g}"]
             if sch is not None:  # LabVIEW's PID Gain Schedule VI takes a table of setpoint breakpoints and gains
-                lines += _table_lines(sch, "; ", (("Kc", 1.0), ("Ti (min)", 60.0), ("Td (min)", 60.0)))
+                lines += _table_lines(sch, "; ", (("Kc", 1.0), ("Ti (min)", 60.0), ("Td (min)", 60.0),
+                                                  ("setpoint weight beta", 1.0)))
             return "\n".join(lines) + "\n"
         if fmt == "plc":
             lines = ["; " + h for h in head] + [
@@ -305,7 +309,7 @@ class GainSet:
                 f"Kp = {g['Kc_V_per_N']:.12g}", f"Tn = {g['Ti_s']:.12g}", f"Tv = {g['Td_s']:.12g}",
                 f"Tf = {g['Tf_s']:.12g}", f"b = {g['b']:.12g}", f"Ymin = {g['u_min_V']:.12g}", f"Ymax = {g['u_max_V']:.12g}"]
             if sch is not None:
-                lines += _table_lines(sch, "; ", (("Kp", 1.0), ("Tn", 1.0), ("Tv", 1.0)))
+                lines += _table_lines(sch, "; ", (("Kp", 1.0), ("Tn", 1.0), ("Tv", 1.0), ("b", 1.0)))
             return "\n".join(lines) + "\n"
         return _c_header(digest, head, g, None if self.feedforward is None else self.feedforward.to_dict(), sch)
 
@@ -340,11 +344,12 @@ def _table_lines(schedule: GainSchedule, comment: str, names: tuple[tuple[str, f
     def row(values: tuple[float, ...], divide: float) -> str:
         return ", ".join(f"{x / divide:.12g}" for x in values)
 
-    (kc, kc_d), (ti, ti_d), (td, td_d) = names
+    (kc, kc_d), (ti, ti_d), (td, td_d), (b, _) = names
     return [f"{comment}gain schedule: {SCHEDULE_INTERPOLATION}; the single gains above are the robust set, "
             "not used while the schedule is", "[gain schedule]", f"entries = {schedule.size}",
             f"setpoint (N) = {row(schedule.levels_N, 1.0)}", f"{kc} = {row(schedule.Kc, kc_d)}",
-            f"{ti} = {row(schedule.Ti_s, ti_d)}", f"{td} = {row(schedule.Td_s, td_d)}"]
+            f"{ti} = {row(schedule.Ti_s, ti_d)}", f"{td} = {row(schedule.Td_s, td_d)}",
+            *([] if schedule.b is None else [f"{b} = {row(schedule.b, 1.0)}"])]
 
 
 def _c_array(name: str, size: str, values: Any) -> str:
@@ -385,16 +390,21 @@ def _c_model(ff: dict[str, Any]) -> list[str]:
 
 def _c_schedule(schedule: GainSchedule) -> list[str]:
     """The gain schedule as C arrays, with the interpolation the controller step does spelled out."""
-    return ["/* gain schedule: Kc, Ti and Td linear in the setpoint r between entries, the end entries' values",
+    b = "Kc, Ti, Td and b" if schedule.b is not None else "Kc, Ti and Td"
+    single = ("Tf and the output range are single;" if schedule.b is not None else
+              "Tf, b (PP_SETPOINT_WEIGHT) and the output range are single;")
+    robust = "PP_KC_V_PER_N, PP_TI_S, PP_TD_S" + (" and PP_SETPOINT_WEIGHT" if schedule.b is not None else "")
+    return [f"/* gain schedule: {b} linear in the setpoint r between entries, the end entries' values",
             "   beyond them: for PP_SCHEDULE_LEVELS_N[i] <= r <= PP_SCHEDULE_LEVELS_N[i+1],",
-            "   K(r) = K[i] + (K[i+1] - K[i]) (r - L[i]) / (L[i+1] - L[i]). Tf, b and the output range are single;",
+            f"   K(r) = K[i] + (K[i+1] - K[i]) (r - L[i]) / (L[i+1] - L[i]). {single}",
             "   the integral state is the integral action (V), so a change of gains does not jump the output.",
-            "   PP_KC_V_PER_N, PP_TI_S and PP_TD_S above are the robust set, not used while the schedule is. */",
+            f"   {robust} above are the robust set, not used while the schedule is. */",
             f"#define PP_SCHEDULE_N {schedule.size}",
             _c_array("PP_SCHEDULE_LEVELS_N", "PP_SCHEDULE_N", schedule.levels_N),
             _c_array("PP_SCHEDULE_KC_V_PER_N", "PP_SCHEDULE_N", schedule.Kc),
             _c_array("PP_SCHEDULE_TI_S", "PP_SCHEDULE_N", schedule.Ti_s),
-            _c_array("PP_SCHEDULE_TD_S", "PP_SCHEDULE_N", schedule.Td_s)]
+            _c_array("PP_SCHEDULE_TD_S", "PP_SCHEDULE_N", schedule.Td_s),
+            *([] if schedule.b is None else [_c_array("PP_SCHEDULE_B", "PP_SCHEDULE_N", schedule.b)])]
 
 
 def _c_header(digest: str, head: list[str], g: dict[str, float], ff: dict[str, Any] | None,

@@ -217,7 +217,7 @@ def render_report(out: Path, records: dict[str, dict[str, Any]], study: ReportSt
     tuning = read_artifact(r.path("tune", "tuning"), "tuning")
     now = _dt.datetime.now(_dt.UTC).replace(microsecond=0)
     data = _report_data(study, records, responses, ff_doc, n_ops, src_text, gain_set, tuning, val, sidecar, design, now)
-    data["system"] = None if system is None else _system_section(system, plant, tuning, learning)
+    data["system"] = None if system is None else _system_section(system, plant, tuning, learning, design)
     data["learning"] = None if learning is None else _learning_section(learning)
     data["figures"] = {name: {"file": f"figures/{name}.pdf", "caption": captions[name]} for name in captions}
     write_artifact(folder / "report.json", "report", data)
@@ -448,7 +448,7 @@ def _design_section(study: ReportStudy, design: dict[str, Any]) -> dict[str, Any
 
 
 def _system_section(system: dict[str, Any], plant: dict[str, Any] | None, tuning: dict[str, Any],
-                    learning: dict[str, Any] | None = None) -> dict[str, Any]:
+                    learning: dict[str, Any] | None = None, design: dict[str, Any] | None = None) -> dict[str, Any]:
     """The whole system: tracking of the schedule, rigidity and deflection while cutting, friction energy, the gains."""
     e = system["energy_units"]
     before = [] if learning is None else [
@@ -465,12 +465,14 @@ def _system_section(system: dict[str, Any], plant: dict[str, Any] | None, tuning
          f"limit {fmt(system['deflection_limit_um'])} um"],
         ["friction energy per cycle, achieved", f"{fmt(system['friction_energy_per_cycle'])} {e}",
          f"planned {fmt(system['planned_friction_energy_per_cycle'])} {e}"],
-        ["friction energy per cycle, best constant preload", f"{fmt(system['constant_friction_energy_per_cycle'])} {e}",
-         f"{fmt(system['constant_preload_N'])} N"],
+        *([] if design is None else [  # the best constant preload is the design's (recorded there only)
+            ["friction energy per cycle, best constant preload",
+             f"{fmt(design['schedule']['constant_friction_energy'])} {e}",
+             f"{fmt(design['schedule']['constant_preload_N'])} N"]]),
         ["preload margin left for the loop", f"{fmt(system['preload_margin_N'])} N",
          f"{len(system['passes'])} pass(es)"],
     ]
-    saving = 1.0 - system["friction_energy_per_cycle"] / system["constant_friction_energy_per_cycle"]
+    saving = system["friction_saved_fraction"]
     text = (f"The design's preload schedule is the reference of the force loop on the designed plant: the stacks' share "
             f"(the schedule less the bolts' preload), over {system['cycles']} machining cycles. The tuned gains with the "
             + ("inverse-P-I feedforward (no preview, no learning) follow it" if learning is None else

@@ -69,10 +69,11 @@ def _schedule_comment(doc: GainSet) -> list[str]:
         return []
     def row(values: tuple[float, ...]) -> str:
         return ", ".join(f"{x:.6g}" for x in values)
-    return [f"/* gain schedule ({sch.size} entries), compiled into the step: Kc, Ti and Td linear in the setpoint",
+    b = "" if sch.b is None else f"; b: {row(sch.b)}"
+    return [f"/* gain schedule ({sch.size} entries), compiled into the step: Kc, Ti, Td and b linear in the setpoint",
             "   between entries, the end entries' values beyond them; the integral state is the integral action (V),",
             f"   so a change of gains does not jump the output. setpoint (N): {row(sch.levels_N)};",
-            f"   Kc (V/N): {row(sch.Kc)}; Ti (s): {row(sch.Ti_s)}; Td (s): {row(sch.Td_s)} */"]
+            f"   Kc (V/N): {row(sch.Kc)}; Ti (s): {row(sch.Ti_s)}; Td (s): {row(sch.Td_s)}{b} */"]
 
 
 def _casadi_c(doc: GainSet, g: dict[str, float], digest: str, head: list[str]) -> str:
