@@ -95,7 +95,7 @@ class Fields:
     def array(self, key: str, size: int | None = None) -> NDArray[np.float64]:
         """A list of finite numbers (``size`` of them, where given) as a float array."""
         x = self.raw(key)
-        if not isinstance(x, list) or any(isinstance(v, bool) or not isinstance(v, int | float) for v in x):
+        if not isinstance(x, list | tuple) or any(isinstance(v, bool) or not isinstance(v, int | float) for v in x):
             raise self.fail(key, "must be a list of numbers")
         a = np.asarray(x, float)
         if not np.all(np.isfinite(a)):
@@ -116,7 +116,7 @@ class Fields:
     def items(self, key: str, read: Callable[[Fields], T]) -> tuple[T, ...]:
         """Each object of the list at ``key`` read by ``read`` (its errors name the entry's index)."""
         x = self.raw(key)
-        if not isinstance(x, list):
+        if not isinstance(x, list | tuple):
             raise self.fail(key, f"must be a list, got {type(x).__name__}")
         return tuple(read(Fields(d, self.shown, f"{self.path(key)}[{i}]")) for i, d in enumerate(x))
 
