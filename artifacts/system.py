@@ -41,9 +41,10 @@ class TrackingNumbers:
     the time below it; the largest axial deflection while cutting and its limit (None: no
     limit); the least ratio of the achieved preload to the lift-off bound; the largest
     shortfall of the achieved preload below the least preload each sample's requirements
-    need; the friction energy per cycle achieved and planned, and the fraction the achieved
-    one saves against the design's best constant preload; the peak voltage; the error when
-    the first cut begins (after the pre-cycle).
+    need; the friction energy per cycle achieved and planned (the loop's reference: the
+    schedule with its margins and the stacks' least contact force, on the loop's samples),
+    and the fraction the achieved one saves against the design's best constant preload; the
+    peak voltage; the error when the first cut begins (after the pre-cycle).
     """
 
     tracking_rms_N: float

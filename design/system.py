@@ -278,7 +278,8 @@ def _numbers(frame: _Frame, schedule: PreloadSchedule, run: ClosedLoopRun, cycle
         deflection_limit_um=None if math.isinf(spec.deflection_max_um) else float(spec.deflection_max_um),
         lift_off_ratio_min=float(np.min(frame.achieved[cut] / np.maximum(frame.lift_bound[cut], 1e-9))),
         lift_off_margin=float(spec.lift_off_margin), preload_shortfall_max_N=float(np.max(shortfall)),
-        friction_energy_per_cycle=achieved_energy, planned_friction_energy_per_cycle=float(schedule.friction_energy_J),
+        friction_energy_per_cycle=achieved_energy,
+        planned_friction_energy_per_cycle=float(np.dot(frame.weight, frame.planned)) / cycles,
         friction_saved_fraction=1.0 - achieved_energy / constant_energy, energy_units=schedule.energy_units,
         peak_voltage_V=float(np.max(run.voltage_V)), cycle_start_error_N=float(abs(error[0])))
 
