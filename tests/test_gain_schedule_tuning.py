@@ -68,6 +68,7 @@ def test_a_window_s_slopes_are_the_hertz_coupling_s_there():
     assert whole[0] < lo < hi < whole[1], "a window's slopes are not inside the whole stroke's"
 
 
+@pytest.mark.slow  # four tunings and eight Monte Carlo validations (about 8 s under load)
 def test_tune_schedule_records_both_sets_per_level_and_chooses_by_them():
     rig = _hertz_rig()
     spec = TuningSpec(band_N=1.5)
