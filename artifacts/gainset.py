@@ -48,14 +48,17 @@ def gains_to_dict(gains: PIDGains) -> dict[str, Any]:
 
 
 _SCHEDULE_KEYS = (("levels_N", "levels_N"), ("Kc_V_per_N", "Kc"), ("Ti_s", "Ti_s"), ("Td_s", "Td_s"))
+#: the columns a table may leave out (the single value then holds for every entry)
+_SCHEDULE_OPTIONAL = (("b", "b"),)
 
 
 def schedule_from_dict(doc: Any, where: str = "gains.schedule") -> GainSchedule:
-    """A gain schedule from its table; an :class:`InputError` names the field that is wrong."""
+    """A gain schedule from its table (``b``, the setpoint weight per entry, optional); an :class:`InputError` names
+    the field that is wrong."""
     if not isinstance(doc, dict):
         raise InputError(f"field '{where}' must be an object with {', '.join(k for k, _ in _SCHEDULE_KEYS)}")
     columns: dict[str, tuple[float, ...]] = {}
-    for key, name in _SCHEDULE_KEYS:
+    for key, name in _SCHEDULE_KEYS + tuple(kn for kn in _SCHEDULE_OPTIONAL if doc.get(kn[0]) is not None):
         column = doc.get(key)
         if not isinstance(column, list):
             raise InputError(f"field '{where}.{key}' must be a list of numbers, got {type(column).__name__}")

@@ -18,95 +18,22 @@ is then (``docs/models.md``, section 3 and the ball screw):
   reference is the scheduled preload less the bolts'.
 
 The plant records the design artifact's hash: a changed design makes another plant, and the
-pipeline runs everything after it again.
+pipeline runs everything after it again. Its type, :class:`DesignedPlant`, is the plant artifact's
+(:mod:`piezopreload.artifacts.plant`): what this module makes is what the plant stage writes and
+every later stage loads.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
-from pathlib import Path
-from typing import Any
+from dataclasses import replace
 
-import numpy as np
-from numpy.typing import ArrayLike, NDArray
-
-from piezopreload.core.artifacts import write_artifact
+from piezopreload.artifacts.plant import DesignedPlant
 from piezopreload.core.errors import InputError
 from piezopreload.design.preload import DesignOptimum, DesignPoint, DesignSpec
 from piezopreload.models.actuator import RigParams, bouc_wen_increment
-from piezopreload.models.ballscrew import BallScrew
 
 __all__ = ["DesignedPlant", "plant_from_design"]
-
-Array = NDArray[np.float64]
-
-
-@dataclass(frozen=True, eq=False)
-class DesignedPlant:
-    """The rig of a designed preload system and where its numbers come from.
-
-    ``rig`` is the plant (:class:`RigParams`, Hertzian coupling); ``screw`` the optimum's
-    double nut; ``bolt_preload_N`` and ``max_preload_N`` the design's preload range;
-    ``sleeve_stiffness_N_per_um`` the sleeve and bolts; ``design_sha256`` the design artifact
-    the plant was made from.
-    """
-
-    rig: RigParams
-    screw: BallScrew
-    bolt_preload_N: float
-    max_preload_N: float
-    sleeve_stiffness_N_per_um: float
-    design_sha256: str
-
-    @property
-    def nut_structural_um_per_N(self) -> float:
-        """Both nuts' bodies and the screw under them, in series: ``2 s / f_ar`` (um/N)."""
-        return 2.0 * self.screw.structural_compliance_um_per_N / self.screw.accuracy_factor
-
-    def stack_force_N(self, preload_N: ArrayLike) -> Array:
-        """The stacks' share of a preload: the preload less the bolts'."""
-        return np.asarray(preload_N, float) - self.bolt_preload_N
-
-    def preload_N(self, stack_force_N: ArrayLike) -> Array:
-        """The preload for the stacks' force ``stack_force_N``."""
-        return np.asarray(stack_force_N, float) + self.bolt_preload_N
-
-    def nut_rigidity_N_per_um(self, preload_N: ArrayLike, step_N: float = 1e-3) -> Array:
-        """The double nut's axial rigidity at ``preload_N`` as the plant has it.
-
-        The plant's local stroke compliance ``dx/dF_E`` (a central difference of
-        :meth:`RigParams.stroke_for_force_um`) less the stacks' and the sleeve's compliance is the
-        two nuts in series, ``2 delta'(F)``; an external load meets them in parallel, so the
-        rigidity is ``2 / delta'(F) = 4 / (2 delta'(F))``.
-        """
-        f = self.stack_force_N(preload_N)
-        dx = (self.rig.stroke_for_force_um(f + step_N) - self.rig.stroke_for_force_um(f - step_N)) / (2.0 * step_N)
-        nuts = dx - 1.0 / self.rig.stack_stiffness_N_per_um - 1.0 / self.sleeve_stiffness_N_per_um
-        return 4.0 / nuts
-
-    def save(self, path: str | Path, inputs: dict[str, Any]) -> Path:
-        """Write the plant artifact (kind ``plant``): :meth:`to_dict` and ``inputs``."""
-        write_artifact(path, "plant", {**self.to_dict(), "inputs": inputs})
-        return Path(path)
-
-    def to_dict(self) -> dict[str, Any]:
-        """The plant artifact's body: the rig and its origin."""
-        s = self.screw
-        return {"rig": self.rig.to_dict(), "design_sha256": self.design_sha256,
-                "bolt_preload_N": self.bolt_preload_N, "max_preload_N": self.max_preload_N,
-                "stack_force_max_N": self.max_preload_N - self.bolt_preload_N,
-                "sleeve_stiffness_N_per_um": (None if math.isinf(self.sleeve_stiffness_N_per_um)
-                                              else self.sleeve_stiffness_N_per_um),
-                "nut_hertz_um_per_N23": float(self.rig.hertz_um_per_N23),
-                "nut_structural_um_per_N": self.nut_structural_um_per_N,
-                "screw": {"nominal_diameter_mm": s.nominal_diameter_mm, "lead_mm": s.lead_mm, "ball_mm": s.ball_mm,
-                          "turns": s.turns, "contact_angle_deg": s.contact_angle_deg,
-                          "balls_per_nut": s.balls_per_nut},
-                "slew_V_per_s": float(self.rig.slew_V_per_s),
-                "local_stiffness_N_per_um": {
-                    "at_bolts": float(self.rig.local_stiffness_N_per_um(0.0)),
-                    "at_max": float(self.rig.local_stiffness_N_per_um(self.max_preload_N - self.bolt_preload_N))}}
 
 
 def plant_from_design(spec: DesignSpec, design: DesignOptimum | DesignPoint, hardware: RigParams, *,

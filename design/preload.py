@@ -63,13 +63,14 @@ import math
 import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import casadi as ca
 import numpy as np
 
-from piezopreload.core.errors import InfeasibleError, InputError
+from piezopreload.artifacts.design import DesignPoint  # the design artifact's record of a design
+from piezopreload.core.errors import InfeasibleError
 from piezopreload.models.ballscrew import (
     EFFECTIVE_BALL_SHARE,
     LIFT_OFF_RATIO,
@@ -249,43 +250,6 @@ CONSTRAINTS = {
     "preload_order_high": ("F_p,j <= F_hi", "N"),
 }
 _PER_CASE = ("lift_off_case", "stiffness_case", "frequency_case", "preload_order_low", "preload_order_high")
-
-
-@dataclass(frozen=True)
-class DesignPoint:
-    """A design and everything it achieves."""
-
-    contact_angle_deg: float
-    ball_mm: float
-    conformity: float
-    turns: float
-    balls_per_turn: float
-    bolt_preload_N: float
-    max_preload_N: float
-    case_preload_N: tuple[float, ...]
-    stiffness_N_per_um: float  # least rigidity over the duty cases
-    rigidity_at_max_preload_N_per_um: float
-    mean_drag_torque_Nm: float
-    drag_torque_at_max_preload_Nm: float
-    life_h: float
-    c_dyn_N: float
-    c0_N: float
-    frequency_min_Hz: float
-    peak_pressure_MPa: float
-    stack_stroke_used_um: float
-    objective: str
-    integer: bool
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> DesignPoint:
-        """The inverse of :meth:`to_dict` (a design artifact's ``optimum.point``)."""
-        try:
-            return cls(**{**data, "case_preload_N": tuple(float(x) for x in data["case_preload_N"])})
-        except (KeyError, TypeError) as exc:
-            raise InputError(f"a design point needs the fields of DesignPoint: {exc}") from exc
 
 
 @dataclass(frozen=True)

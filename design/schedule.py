@@ -18,9 +18,13 @@ profile without speeds weighs the drag torque by time instead (N m s). The sched
 non-causal (it ramps up before a cut begins, as a CNC program knows its next pass); the
 slew limit decides how early.
 
-With ``preload_margin_N = m`` the stiffness and lift-off rows hold at ``F_p,k - m``: the room
-the force loop's tracking error needs (:mod:`piezopreload.design.system` derives ``m`` from the
-error the tuned loop has while it follows the schedule).
+With a margin ``m_k`` the stiffness and lift-off rows of sample ``k`` hold at ``F_p,k - m_k``: the
+room the force loop's tracking error needs there. ``ScheduleSpec.preload_margin_N`` is a margin
+everywhere; ``local_margin_N`` (one per sample) adds one only where the loop needs it
+(:mod:`piezopreload.design.system` derives it from the loop's shortfall below each sample's
+requirement, sample by sample). A local margin the stacks' reach cannot give is capped there and
+recorded (``PreloadSchedule.margin_short_N``): the requirement no schedule within the stacks' force
+can meet with the loop's error, and by how much.
 
 The rigidity grows with the preload, so each sample's rows are one lower bound on F_p,k, and
 with the slew rows the optimum is the upper envelope of the slew cones on those bounds: exact,
@@ -28,58 +32,27 @@ in two passes (:func:`schedule_preload`; ``method="nlp"`` solves the NLP above w
 the same optimum).
 
 The comparison is the best constant preload: the least constant F_p meeting the same
-constraints at every sample (so at equal minimum stiffness requirement). Its friction
-energy against the schedule's is the saving.
+requirements at every sample, with no margin (a constant reference is held within the sensor
+noise; the margins are the room a changing reference needs). Its friction energy against the
+schedule's is the saving. The types (:class:`LoadProfile`, :class:`ScheduleSpec`,
+:class:`PreloadSchedule`) are the design artifact's, :mod:`piezopreload.artifacts.schedule`.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Any
 
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from piezopreload.artifacts.schedule import LoadProfile, PreloadSchedule, ScheduleSpec
 from piezopreload.models.ballscrew import LIFT_OFF_RATIO, BallScrew, _rigidity, nut_forces
 from piezopreload.models.ops import CASADI
 
-__all__ = ["LoadProfile", "ScheduleSpec", "PreloadSchedule", "schedule_preload", "example_profile"]
+__all__ = ["LoadProfile", "ScheduleSpec", "PreloadSchedule", "schedule_preload", "least_preload", "example_profile"]
 
 Array = NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class LoadProfile:
-    """Axial load (N) and screw speed (rpm) against time (s), one row per sample."""
-
-    time_s: Array
-    axial_load_N: Array
-    speed_rpm: Array | None = None
-
-    def __post_init__(self) -> None:
-        t = np.asarray(self.time_s, float)
-        if t.ndim != 1 or t.size < 2:
-            raise ValueError(f"LoadProfile.time_s must be 1-D with at least 2 samples, got shape {t.shape}.")
-        if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
-            raise ValueError("LoadProfile.time_s must be finite and strictly increasing.")
-        for name in ("axial_load_N", "speed_rpm"):
-            v = getattr(self, name)
-            if v is None:
-                continue
-            v = np.asarray(v, float)
-            if v.shape != t.shape or not np.all(np.isfinite(v)):
-                raise ValueError(f"LoadProfile.{name} must be finite with the shape of time_s {t.shape}.")
-        if self.speed_rpm is not None and np.any(np.asarray(self.speed_rpm) < 0):
-            raise ValueError("LoadProfile.speed_rpm must be >= 0 (the load's sign carries the direction).")
-
-    @property
-    def dt_s(self) -> Array:
-        """Each sample's share of time (half the gaps to its neighbours)."""
-        t = np.asarray(self.time_s, float)
-        gaps = np.diff(t)
-        return 0.5 * (np.concatenate([[0.0], gaps]) + np.concatenate([gaps, [0.0]]))
 
 
 def example_profile(dt_s: float = 0.01) -> LoadProfile:
@@ -102,86 +75,6 @@ def example_profile(dt_s: float = 0.01) -> LoadProfile:
     return LoadProfile(t, load, speed)
 
 
-@dataclass(frozen=True)
-class ScheduleSpec:
-    """The schedule's requirements and limits."""
-
-    bolt_preload_N: float
-    max_preload_N: float
-    slew_N_per_s: float
-    stiffness_min_N_per_um: float = 0.0
-    deflection_max_um: float = math.inf
-    lift_off_margin: float = 1.2
-    preload_margin_N: float = 0.0  # the control's room: every requirement holds at the preload less this
-
-    def __post_init__(self) -> None:
-        if not 0 < self.bolt_preload_N < self.max_preload_N < math.inf:
-            raise ValueError(f"ScheduleSpec needs 0 < bolt_preload_N < max_preload_N, got {self.bolt_preload_N!r} "
-                             f"and {self.max_preload_N!r}.")
-        if not (self.slew_N_per_s > 0 and math.isfinite(self.slew_N_per_s)):
-            raise ValueError(f"ScheduleSpec.slew_N_per_s must be a finite number > 0, got {self.slew_N_per_s!r}.")
-        if not (self.stiffness_min_N_per_um >= 0 and self.deflection_max_um > 0 and self.lift_off_margin >= 1):
-            raise ValueError("ScheduleSpec needs stiffness_min_N_per_um >= 0, deflection_max_um > 0 and "
-                             "lift_off_margin >= 1.")
-        if not (math.isfinite(self.preload_margin_N) and self.preload_margin_N >= 0):
-            raise ValueError(f"ScheduleSpec.preload_margin_N must be finite and >= 0, got {self.preload_margin_N!r}.")
-
-    def required_stiffness(self, axial_load_N: ArrayLike) -> Array:
-        return np.maximum(self.stiffness_min_N_per_um, np.abs(np.asarray(axial_load_N, float)) / self.deflection_max_um)
-
-
-@dataclass(frozen=True)
-class PreloadSchedule:
-    """The optimal schedule, the best constant preload, and what the schedule saves."""
-
-    profile: LoadProfile
-    spec: ScheduleSpec
-    preload_N: Array
-    constant_preload_N: float
-    rigidity_N_per_um: Array
-    required_N_per_um: Array
-    constant_rigidity_N_per_um: Array
-    friction_energy_J: float
-    constant_friction_energy_J: float
-    energy_units: str
-    status: str
-
-    @property
-    def saving_fraction(self) -> float:
-        return 1.0 - self.friction_energy_J / self.constant_friction_energy_J
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "status": self.status, "friction_energy": self.friction_energy_J,
-            "constant_friction_energy": self.constant_friction_energy_J, "energy_units": self.energy_units,
-            "saving_fraction": self.saving_fraction, "constant_preload_N": self.constant_preload_N,
-            "preload_min_N": float(self.preload_N.min()), "preload_max_N": float(self.preload_N.max()),
-            "stiffness_margin_min_N_per_um": float(np.min(self.rigidity_N_per_um - self.required_N_per_um)),
-            "samples": int(self.preload_N.size), "preload_margin_N": self.spec.preload_margin_N,
-        }
-
-    def plot(self, axes: Any = None) -> Any:
-        """Load profile, the two preloads, and rigidity against the requirement."""
-        import matplotlib.pyplot as plt
-
-        if axes is None:
-            _, axes = plt.subplots(3, 1, figsize=(6.0, 6.0), sharex=True)
-        t = self.profile.time_s
-        axes[0].plot(t, self.profile.axial_load_N, color="0.3")
-        axes[0].set_ylabel("axial load (N)")
-        axes[1].plot(t, self.preload_N, label="schedule")
-        axes[1].axhline(self.constant_preload_N, color="C1", ls="--", label="best constant")
-        axes[1].set_ylabel("preload (N)")
-        axes[1].legend(fontsize="small")
-        axes[2].plot(t, self.rigidity_N_per_um, label="schedule")
-        axes[2].plot(t, self.constant_rigidity_N_per_um, "--", label="best constant")
-        axes[2].plot(t, self.required_N_per_um, ":", color="k", label="required")
-        axes[2].set_ylabel("rigidity (N/um)")
-        axes[2].set_xlabel("time (s)")
-        axes[2].legend(fontsize="small")
-        return axes
-
-
 def _rigidity_function(screw: BallScrew) -> ca.Function:
     F, Fa = ca.SX.sym("F"), ca.SX.sym("Fa")
     c_h, s = screw.axial_constant_um, screw.structural_compliance_um_per_N
@@ -190,7 +83,59 @@ def _rigidity_function(screw: BallScrew) -> ca.Function:
     return ca.Function("rigidity", [F, Fa], [k])
 
 
-def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec, method: str = "envelope") -> PreloadSchedule:
+def _weights(screw: BallScrew, profile: LoadProfile) -> tuple[Array, str]:
+    """Each sample's friction energy per newton of preload: the drag torque per newton times the screw's angle
+    over the sample's time (J/N); a profile without speeds weighs the time alone (N m s per N)."""
+    dt = profile.dt_s
+    if profile.speed_rpm is not None:
+        return screw.drag_torque_Nm(1.0) * np.asarray(profile.speed_rpm) * 2.0 * math.pi / 60.0 * dt, "J"
+    return screw.drag_torque_Nm(1.0) * dt, "N m s"
+
+
+def _check_reach(k_map: ca.Function, profile: LoadProfile, spec: ScheduleSpec, required: Array, lift: Array) -> None:
+    """Refuse a profile whose requirements (with the spec's margin) no preload within the stacks' reach meets."""
+    Fa, margin = np.asarray(profile.axial_load_N, float), spec.preload_margin_N
+    F_lo = np.maximum(spec.bolt_preload_N, np.where(profile.cutting, lift + margin, lift))
+    if np.any(F_lo > spec.max_preload_N):
+        k = int(np.argmax(F_lo > spec.max_preload_N))
+        raise ValueError(f"at t = {profile.time_s[k]:g} s the load {Fa[k]:g} N needs a preload of {F_lo[k]:.0f} N "
+                         f"to keep both nuts loaded, above the stacks' reach of {spec.max_preload_N:.0f} N; "
+                         f"raise the bolt preload or the stacks' drive, or lower the load.")
+    short = required - np.asarray(k_map(spec.max_preload_N - margin, Fa)).ravel()
+    if np.any(short > 0):
+        k = int(np.argmax(short))
+        raise ValueError(f"at t = {profile.time_s[k]:g} s the rigidity required ({required[k]:.0f} N/um) exceeds "
+                         f"what the highest preload gives ({required[k] - short[k]:.0f} N/um) by {short[k]:.0f} N/um; "
+                         "lower the stiffness requirement or choose a stiffer screw.")
+
+
+def _margins(spec: ScheduleSpec, needed: Array, local_margin_N: ArrayLike | None) -> tuple[Array, Array]:
+    """Each sample's margin (the spec's everywhere plus the local one, capped where the stacks' reach cannot give
+    it: at most ``F_max - needed``) and the local margin the reach could not give."""
+    n = needed.size
+    if local_margin_N is None:
+        return np.full(n, spec.preload_margin_N), np.zeros(n)
+    local = np.asarray(local_margin_N, float)
+    if local.shape != (n,) or not np.all(np.isfinite(local)) or np.any(local < 0):
+        raise ValueError(f"local_margin_N must hold one finite number >= 0 per sample ({n}), got shape {local.shape}.")
+    given = np.minimum(local, np.maximum(spec.max_preload_N - needed - spec.preload_margin_N, 0.0))
+    return spec.preload_margin_N + given, local - given
+
+
+def least_preload(screw: BallScrew, spec: ScheduleSpec, axial_load_N: ArrayLike) -> Array:
+    """The least preload meeting the schedule's requirements (rigidity, deflection, lift-off; no margin) under each
+    load of ``axial_load_N``, within ``[bolt_preload_N, max_preload_N]`` (the top where even it does not)."""
+    Fa = np.atleast_1d(np.asarray(axial_load_N, float))
+    if Fa.size == 0:
+        return np.zeros(0)
+    lift = spec.lift_off_margin * np.abs(Fa) / LIFT_OFF_RATIO
+    k_map = _rigidity_function(screw).map(Fa.size)
+    floor = np.minimum(np.maximum(spec.bolt_preload_N, lift), spec.max_preload_N)
+    return _least_preloads(k_map, Fa, spec.required_stiffness(Fa), floor, spec.max_preload_N)
+
+
+def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec, method: str = "envelope",
+                     local_margin_N: ArrayLike | None = None) -> PreloadSchedule:
     """The least-friction preload schedule and the best constant preload (module docstring).
 
     ``method="envelope"`` (the default) solves the problem exactly without iterating. The
@@ -204,38 +149,25 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec,
     over the samples (forward, then backward) compute it. ``method="nlp"`` solves the NLP with
     CasADi/IPOPT instead (the statement in the module docstring; the same optimum, and the
     way to go for an objective that is not monotone in the preload).
+
+    ``local_margin_N``: a margin per sample on top of the spec's (capped where the stacks' reach
+    cannot give it, the rest recorded in ``margin_short_N``). The best constant preload is the
+    margin-free one.
     """
     if method not in ("envelope", "nlp"):
         raise ValueError(f"method must be 'envelope' or 'nlp', got {method!r}")
     Fa = np.asarray(profile.axial_load_N, float)
     n = Fa.size
-    dt = profile.dt_s
-    if profile.speed_rpm is not None:
-        weight = screw.drag_torque_Nm(1.0) * np.asarray(profile.speed_rpm) * 2.0 * math.pi / 60.0 * dt
-        units = "J"
-    else:
-        weight = screw.drag_torque_Nm(1.0) * dt
-        units = "N m s"
+    weight, units = _weights(screw, profile)
     required = spec.required_stiffness(Fa)
-    margin = spec.preload_margin_N
     lift = spec.lift_off_margin * np.abs(Fa) / LIFT_OFF_RATIO
-    F_lo = np.maximum(spec.bolt_preload_N, np.where(np.abs(Fa) > 0, lift + margin, lift))
-    if np.any(F_lo > spec.max_preload_N):
-        k = int(np.argmax(F_lo > spec.max_preload_N))
-        raise ValueError(f"at t = {profile.time_s[k]:g} s the load {Fa[k]:g} N needs a preload of {F_lo[k]:.0f} N "
-                         f"to keep both nuts loaded, above the stacks' reach of {spec.max_preload_N:.0f} N; "
-                         f"raise the bolt preload or the stacks' drive, or lower the load.")
-    k_fun = _rigidity_function(screw)
-    k_map = k_fun.map(n)
-    k_max = np.asarray(k_map(spec.max_preload_N - margin, Fa)).ravel()
-    short = required - k_max
-    if np.any(short > 0):
-        k = int(np.argmax(short))
-        raise ValueError(f"at t = {profile.time_s[k]:g} s the rigidity required ({required[k]:.0f} N/um) exceeds "
-                         f"what the highest preload gives ({k_max[k]:.0f} N/um) by {short[k]:.0f} N/um; lower the "
-                         f"stiffness requirement or choose a stiffer screw.")
+    k_map = _rigidity_function(screw).map(n)
+    _check_reach(k_map, profile, spec, required, lift)
+    needed = _least_preloads(k_map, Fa, required, np.maximum(spec.bolt_preload_N, lift), spec.max_preload_N)
+    constant = float(needed.max())
+    margin, short = _margins(spec, needed, local_margin_N)
+    F_lo = np.maximum(spec.bolt_preload_N, np.where(profile.cutting, lift + margin, lift))
     low = _least_preloads(k_map, Fa, required, F_lo, spec.max_preload_N, margin)
-    constant = float(low.max())
     slew_step = spec.slew_N_per_s * np.diff(profile.time_s)
     if method == "envelope":
         F_opt = low.copy()
@@ -245,25 +177,27 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec,
             F_opt[k] = max(F_opt[k], F_opt[k + 1] - slew_step[k])
         status = "Solve_Succeeded (exact: the envelope of the slew cones)"
     else:
-        F_opt, status = _schedule_nlp(k_map, Fa, required, weight, dt, F_lo, slew_step, spec, constant)
-    rig = np.asarray(k_map(F_opt, Fa)).ravel()
-    rig_c = np.asarray(k_map(constant, Fa)).ravel()
+        F_opt, status = _schedule_nlp(k_map, Fa, required, weight, profile.dt_s, F_lo, slew_step, spec, margin,
+                                      float(low.max()))
     return PreloadSchedule(
-        profile=profile, spec=spec, preload_N=F_opt, constant_preload_N=constant, rigidity_N_per_um=rig,
-        required_N_per_um=required, constant_rigidity_N_per_um=rig_c,
+        profile=profile, spec=spec, preload_N=F_opt, constant_preload_N=constant,
+        rigidity_N_per_um=np.asarray(k_map(F_opt, Fa)).ravel(), required_N_per_um=required,
+        constant_rigidity_N_per_um=np.asarray(k_map(constant, Fa)).ravel(),
         friction_energy_J=float(np.dot(weight, F_opt)), constant_friction_energy_J=float(np.sum(weight) * constant),
-        energy_units=units, status=status,
+        energy_units=units, status=status, needed_N=needed, margin_N=margin, margin_short_N=short,
     )
 
 
+
 def _schedule_nlp(k_map: ca.Function, Fa: Array, required: Array, weight: Array, dt: Array, F_lo: Array,
-                  slew_step: Array, spec: ScheduleSpec, constant: float) -> tuple[Array, str]:
-    """The schedule as the NLP of the module docstring, solved by CasADi/IPOPT from the best constant."""
-    n, scale, margin = Fa.size, 1000.0, spec.preload_margin_N
+                  slew_step: Array, spec: ScheduleSpec, margin: Array, start: float) -> tuple[Array, str]:
+    """The schedule as the NLP of the module docstring, solved by CasADi/IPOPT from the constant ``start``
+    (the largest of the samples' least preloads with their margins: feasible)."""
+    n, scale = Fa.size, 1000.0
     # ---- decision variables, objective, constraints, initial guess, solve ----
     y = ca.MX.sym("y", n)
     F = scale * y
-    g_stiff = (k_map(ca.fmax(F.T - margin, 1.0), Fa.reshape(1, -1)).T - required) / 100.0
+    g_stiff = (k_map(ca.fmax(F.T - ca.DM(margin).T, 1.0), Fa.reshape(1, -1)).T - required) / 100.0
     g_slew = (F[1:] - F[:-1]) / scale
     # where the screw stands still the energy does not see the preload: a small time-weighted
     # drag term (1e-3 of the mean weight per second) takes it to its least value there
@@ -274,7 +208,7 @@ def _schedule_nlp(k_map: ca.Function, Fa: Array, required: Array, weight: Array,
     lbg = np.concatenate([np.zeros(n), -slew_step / scale])
     ubg = np.concatenate([np.full(n, np.inf), slew_step / scale])
     lbx, ubx = F_lo / scale, np.full(n, spec.max_preload_N / scale)
-    out = solver(x0=np.full(n, constant / scale), lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)  # the constant is feasible
+    out = solver(x0=np.full(n, start / scale), lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
     stats = solver.stats()
     if not stats["success"]:
         raise RuntimeError(f"the preload schedule NLP did not converge: {stats['return_status']}")
@@ -282,7 +216,7 @@ def _schedule_nlp(k_map: ca.Function, Fa: Array, required: Array, weight: Array,
 
 
 def _least_preloads(k_map: ca.Function, Fa: Array, required: Array, F_lo: Array, F_max: float,
-                    margin: float = 0.0) -> Array:
+                    margin: ArrayLike = 0.0) -> Array:
     """Each sample's least preload meeting its rows (the rigidity grows with the preload), by bisection
     on all samples at once to 2^-60 of the range. Their maximum is the best constant preload."""
     lo = F_lo.copy()

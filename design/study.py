@@ -20,7 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from piezopreload.core.artifacts import atomic_write_text, write_artifact
+from piezopreload.artifacts.design import DesignRecord, DutyCasePoint, FrequencyCurve, Front, Optimum, PreloadCurve
+from piezopreload.core.artifacts import atomic_write_text
 from piezopreload.core.errors import InputError
 from piezopreload.core.tables import read_table
 from piezopreload.design.preload import (
@@ -66,27 +67,30 @@ class DesignResult:
     profile: str  # the load profile's file, or "example"
     max_preload_N: float  # the stacks' reach on the optimum's screw
     slew_N_per_s: float
-    preload_curve: dict[str, Any]
-    natural_frequency: dict[str, Any]
+    preload_curve: PreloadCurve
+    natural_frequency: FrequencyCurve
 
     @property
     def point(self) -> Any:
         return self.optimum.point
 
+    def record(self, inputs: dict[str, Any] | None = None) -> DesignRecord:
+        """The design artifact's record (:class:`~piezopreload.artifacts.design.DesignRecord`): the optimum, every
+        front's points, the schedule with its samples, the curves; ``inputs`` the hashes it came from."""
+        o = self.optimum
+        return DesignRecord(
+            optimum=Optimum(o.objective, o.point, tuple(o.binding), tuple(dict(t) for t in o.tried), o.solve_s,
+                            o.nlp_solves),
+            fronts=tuple(Front(f.pair, f.x_name, f.y_name, np.asarray(f.x, float), np.asarray(f.y, float),
+                               tuple(f.points), f.solve_s, f.nlp_solves) for f in self.fronts),
+            schedule=self.schedule, preload_curve=self.preload_curve, natural_frequency=self.natural_frequency,
+            profile=self.profile, units={"force": "N", "length": "mm", "stiffness": "N/um", "torque": "N m",
+                                         "life": "h", "energy": self.schedule.energy_units},
+            inputs=dict(inputs or {}))
+
     def to_dict(self) -> dict[str, Any]:
-        """The design artifact's body: the optimum, every front's points, the schedule's samples, the curves."""
-        s = self.schedule
-        return {
-            "preload_curve": self.preload_curve,
-            "units": {"force": "N", "length": "mm", "stiffness": "N/um", "torque": "N m", "life": "h",
-                      "energy": s.energy_units},
-            "optimum": self.optimum.to_dict(),
-            "fronts": [f.to_dict() for f in self.fronts],
-            "schedule": {**s.to_dict(), "time_s": s.profile.time_s.tolist(), "axial_load_N": s.profile.axial_load_N.tolist(),
-                         "preload_N": s.preload_N.tolist(), "max_preload_N": self.max_preload_N,
-                         "slew_N_per_s": self.slew_N_per_s},
-            "natural_frequency": self.natural_frequency,
-        }
+        """The design artifact's body (:meth:`record`'s)."""
+        return self.record().to_dict()
 
     def summary(self) -> dict[str, Any]:
         """What ``piezopreload design --json`` prints: the optimum, each front's span, the schedule's numbers."""
@@ -97,14 +101,12 @@ class DesignResult:
             "fronts": [{"pair": f.pair, "points": len(f.points), "solve_s": f.solve_s, "nlp_solves": f.nlp_solves,
                         "stiffness_N_per_um": [float(f.x.min()), float(f.x.max())],
                         f.y_name: [float(f.y.min()), float(f.y.max())]} for f in self.fronts],
-            "schedule": {**self.schedule.to_dict(), "max_preload_N": self.max_preload_N,
-                         "slew_N_per_s": self.slew_N_per_s},
+            "schedule": self.schedule.summary(),
         }
 
     def save(self, path: str | Path, inputs: dict[str, Any]) -> list[Path]:
         """Write the design artifact to ``path`` and each front's CSV beside it; returns the paths written."""
-        path = Path(path)
-        write_artifact(path, "design", {**self.to_dict(), "inputs": {**inputs, "profile": self.profile}})
+        path = self.record(inputs).save(path)
         written = [path]
         for front in self.fronts:
             csv = path.with_name(f"{path.stem}.pareto-{front.pair.replace(':', '-')}.csv")
@@ -201,31 +203,28 @@ def plan_schedule(spec: DesignSpec, point: DesignPoint, profile: LoadProfile | N
     return schedule, max_preload, slew
 
 
-def preload_curve(spec: DesignSpec, optimum: DesignOptimum, n: int = 121) -> dict[str, Any]:
+def preload_curve(spec: DesignSpec, optimum: DesignOptimum, n: int = 121) -> PreloadCurve:
     """Rigidity and drag torque of the optimum's double nut from a quarter of the bolts' preload to 1.5 F_hi,
     with each duty case at its preload."""
     p, screw = optimum.point, spec.screw(optimum.point)
     preloads = np.linspace(0.25 * p.bolt_preload_N, 1.5 * p.max_preload_N, n)
-    return {
-        "preload_N": preloads.tolist(),
-        "rigidity_N_per_um": np.asarray(screw.rigidity_N_per_um(preloads), float).tolist(),
-        "drag_torque_Nm": np.asarray(screw.drag_torque_Nm(preloads), float).tolist(),
-        "cases": [{"axial_load_N": case.axial_load_N, "preload_N": float(f_case),
-                   "rigidity_N_per_um": float(screw.rigidity_N_per_um(f_case, case.axial_load_N))}
-                  for case, f_case in zip(spec.duty, p.case_preload_N)],
-        "bolt_preload_N": p.bolt_preload_N, "max_preload_N": p.max_preload_N,
-    }
+    return PreloadCurve(
+        preload_N=preloads, rigidity_N_per_um=np.asarray(screw.rigidity_N_per_um(preloads), float),
+        drag_torque_Nm=np.asarray(screw.drag_torque_Nm(preloads), float),
+        cases=tuple(DutyCasePoint(float(case.axial_load_N), float(f_case),
+                                  float(screw.rigidity_N_per_um(f_case, case.axial_load_N)))
+                    for case, f_case in zip(spec.duty, p.case_preload_N)),
+        bolt_preload_N=float(p.bolt_preload_N), max_preload_N=float(p.max_preload_N))
 
 
-def natural_frequency(spec: DesignSpec, optimum: DesignOptimum, n: int = 41) -> dict[str, Any]:
+def natural_frequency(spec: DesignSpec, optimum: DesignOptimum, n: int = 41) -> FrequencyCurve:
     """The first axial natural frequency along the travel, at the bolts' preload and at full stack drive."""
     p, screw = optimum.point, spec.screw(optimum.point)
     positions = np.linspace(*spec.feed_drive.travel_mm, n)
-    return {
-        "position_mm": positions.tolist(),
-        "bolt_preload_Hz": spec.feed_drive.natural_frequency_Hz(screw, p.bolt_preload_N, positions).tolist(),
-        "max_preload_Hz": spec.feed_drive.natural_frequency_Hz(screw, p.max_preload_N, positions).tolist(),
-    }
+    return FrequencyCurve(
+        position_mm=positions,
+        bolt_preload_Hz=np.asarray(spec.feed_drive.natural_frequency_Hz(screw, p.bolt_preload_N, positions), float),
+        max_preload_Hz=np.asarray(spec.feed_drive.natural_frequency_Hz(screw, p.max_preload_N, positions), float))
 
 
 def check_screw(screw: BallScrew, preload_N: float | None = None, preload_fraction: float = 0.1,

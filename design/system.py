@@ -5,57 +5,106 @@ preload ``F_p(t)`` of a machining cycle. The stacks' share of it, ``F_p(t) - F_i
 loop's reference (piecewise linear through the schedule's samples, repeated for the cycles
 the machine runs); the loop (the tuned gains with the inverse-P-I feedforward, a
 :class:`~piezopreload.models.controller.Controller`) runs it on the designed plant
-(:mod:`piezopreload.design.plant`). From the true force the run gives:
+(:mod:`piezopreload.design.plant`).
+
+**The start of the cycle is part of the plan.** The stacks rest at 0 V when the machine is
+switched on; the schedule's first level is not 0. Before the first cut a pre-cycle
+(:class:`~piezopreload.artifacts.system.PreCycle`) brings them to it: a ramp at the slew
+limit, then a hold for the loop to settle (the validated settling time by default). The cycles
+begin after it, so no requirement is judged on a start-up transient and no margin answers one.
+
+From the true force over the cycles the run gives (:class:`~piezopreload.artifacts.system.TrackingNumbers`):
 
 * the tracking error, RMS and worst, also in % of the schedule's range;
 * the axial rigidity the double nut has at the achieved preload under each sample's cutting
-  load (:meth:`BallScrew.nut_loads`), against the requirement the schedule was planned for,
+  load (:meth:`BallScrew.nut_loads`) against the requirement the schedule was planned for,
   the achieved preload against the lift-off bound with the schedule's margin
-  (``lift_off_margin |F_a| / 2^(3/2)``, the other requirement the schedule keeps), and the axial
-  deflection under the cutting load;
-* the friction energy of the achieved preload against the plan's and the best constant
-  preload's.
+  (``lift_off_margin |F_a| / 2^(3/2)``), and the axial deflection under the cutting load;
+  these are the requirements, as verdicts (:func:`requirements_of`);
+* the friction energy of the achieved preload, and the fraction it saves against the design's
+  best constant preload (the design's number, not computed again).
 
-**The control's room.** The schedule keeps its requirements at the planned preload; the loop
-lags it. When the achieved preload misses a requirement somewhere (rigidity or lift-off), the schedule is
-planned again with a preload margin ``m``: every requirement must hold at ``F_p - m``
-(:class:`ScheduleSpec.preload_margin_N`), with ``m`` the largest shortfall of the achieved
-preload below the plan while the requirement binds (times ``margin_factor``), and the loop runs
-it again: at most ``passes`` times. Each pass is recorded.
+**Local margins.** The schedule keeps its requirements at the planned preload; the loop lags it.
+Where the achieved preload misses a requirement, the shortfall below the least preload that
+sample's requirements need (``PreloadSchedule.needed_N``) is the margin the loop needs there:
+the schedule is planned again with that margin (times ``margin_factor``, and over the fraction of
+the previous pass's added margin the loop turned into preload there) at those samples, over the
+loop's lag before them and a short plateau around them (:func:`folded_shortfall`,
+:func:`local_margins`), every other sample keeping its least-friction preload, and the loop runs
+it again: at most ``passes`` times. Where the stacks'
+reach cannot give the margin, or the passes end first, :class:`~piezopreload.artifacts.system.ScheduleBound`
+says which requirement is stopped, where, and by how much.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from piezopreload.core.artifacts import write_artifact
-from piezopreload.core.errors import InfeasibleError, InputError
+from piezopreload.artifacts.plant import DesignedPlant
+from piezopreload.artifacts.requirements import Requirement
+from piezopreload.artifacts.schedule import PreloadSchedule
+from piezopreload.artifacts.system import (
+    PassRecord,
+    PlannedSchedule,
+    PreCycle,
+    ScheduleBound,
+    SystemRecord,
+    SystemSeries,
+    TrackingNumbers,
+)
+from piezopreload.core.errors import InputError
 from piezopreload.core.tables import write_csv
-from piezopreload.design.plant import DesignedPlant
-from piezopreload.design.schedule import PreloadSchedule, schedule_preload
+from piezopreload.design.schedule import least_preload, schedule_preload
 from piezopreload.models.actuator import Rig
 from piezopreload.models.ballscrew import LIFT_OFF_RATIO
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller
 
-__all__ = ["SystemRun", "schedule_reference", "track_schedule", "evaluate_tracking"]
+__all__ = ["PRE_CYCLE_REST_S", "ROUND_OFF", "SystemRun", "Evaluation", "pre_cycle_for", "schedule_reference", "track_schedule", "evaluate_tracking",
+           "requirements_of", "folded_shortfall", "local_margins"]
 
 Array = NDArray[np.float64]
 
-#: the requirement counts as binding where the planned rigidity is within this fraction of it
-_BINDING = 0.02
+#: the pre-cycle's rest before its ramp (s): the loop starts bumplessly on its first sample's feedforward, so a
+#: learned feedforward that leads the ramp needs samples before it
+PRE_CYCLE_REST_S = 0.05
+#: a requirement counts as met within this fraction of its limit: the floating-point round-off of the preload's way
+#: through the stacks' share and the load's interpolation (1e-13 of it in practice), far below any sensor's resolution
+ROUND_OFF = 1e-9
+#: the longest lag of the loop behind its reference the margins look back over (s)
+_LAG_MAX_S = 0.25
+#: a local margin holds this long either side of the shortfall it answers (s): one load ramp of the machining cycle
+_HOLD_S = 0.05
 
 
-def schedule_reference(plant: DesignedPlant, schedule: PreloadSchedule, cycles: int = 1,
-                       contact_N: float = 0.0) -> Reference:
+def pre_cycle_for(plant: DesignedPlant, schedule: PreloadSchedule, contact_N: float = 0.0,
+                  settle_s: float = 0.5) -> PreCycle:
+    """The pre-cycle of ``schedule`` on ``plant``: :data:`PRE_CYCLE_REST_S` at rest, a ramp to the stacks' share of
+    the first level at the schedule's slew limit, then ``settle_s`` held (rounded up to a whole sample of the loop, so
+    the cycles start on one)."""
+    if not (math.isfinite(settle_s) and settle_s >= 0):
+        raise InputError(f"settle_s: must be finite and >= 0, got {settle_s!r}")
+    level = max(float(plant.stack_force_N(schedule.preload_N[0])), contact_N)
+    slew = float(schedule.spec.slew_N_per_s)
+    ramp = max(level, 0.0) / slew
+    dt = float(plant.rig.sample_period_s)
+    total = math.ceil((PRE_CYCLE_REST_S + ramp + settle_s) / dt - 1e-9) * dt
+    return PreCycle(level_N=level, slew_N_per_s=slew, ramp_s=ramp, settle_s=max(total - ramp - PRE_CYCLE_REST_S, 0.0),
+                    rest_s=PRE_CYCLE_REST_S)
+
+
+def schedule_reference(plant: DesignedPlant, schedule: PreloadSchedule, cycles: int = 1, contact_N: float = 0.0,
+                       pre_cycle: PreCycle | None = None) -> Reference:
     """The force loop's reference: the stacks' share of the scheduled preload (less the bolts'), piecewise
-    linear through the schedule's samples, ``cycles`` times in a row.
+    linear through the schedule's samples, ``cycles`` times in a row, after the ``pre_cycle`` (none: the
+    cycles start at once, from rest).
 
     ``contact_N``: the least force the stacks keep on the nuts (they are not bonded to them: where the
     schedule asks for the bolts' preload alone, the stacks still push this much).
@@ -66,185 +115,362 @@ def schedule_reference(plant: DesignedPlant, schedule: PreloadSchedule, cycles: 
     t = t - t[0]
     dt = float(t[-1] - t[-2])
     share = np.maximum(plant.stack_force_N(schedule.preload_N), contact_N)
-    return Reference.ramps(t, share, float(t[-1] + dt)).repeat(cycles)
+    cycle = Reference.ramps(t, share, float(t[-1] + dt)).repeat(cycles)
+    if pre_cycle is None or pre_cycle.duration_s <= 0:
+        return cycle
+    rest, ramp = pre_cycle.rest_s, pre_cycle.ramp_s
+    head_t = [0.0] + ([rest] if rest > 0 else []) + ([rest + ramp] if ramp > 0 else [])
+    head_f = [0.0] * (len(head_t) - (ramp > 0)) + ([share[0]] if ramp > 0 else [])
+    return Reference(np.concatenate([head_t, cycle.times_s + pre_cycle.duration_s]),
+                     np.concatenate([head_f, cycle.levels_N]), cycle.duration_s + pre_cycle.duration_s, "linear")
+
+
+@dataclass(frozen=True, eq=False)
+class _Frame:
+    """One run's samples as the requirements see them: the time into the cycle, the load, the preloads planned and
+    achieved, the rigidity and its requirement, the lift-off bound, the deflection; ``cycle``: after the pre-cycle,
+    ``cutting``: in a cycle and under load."""
+
+    t_cycle: Array
+    cycle: NDArray[np.bool_]
+    cutting: NDArray[np.bool_]
+    load: Array
+    planned: Array
+    achieved: Array
+    required: Array
+    rigidity: Array
+    planned_rigidity: Array
+    deflection: Array
+    lift_bound: Array
+    weight: Array
+
+
+def _frame(plant: DesignedPlant, schedule: PreloadSchedule, run: ClosedLoopRun, cycles: int, pre_s: float) -> _Frame:
+    prof, screw = schedule.profile, plant.screw
+    dt = float(run.t_s[1] - run.t_s[0])
+    cycle = run.t_s >= pre_s - 0.5 * dt
+    period = (run.reference.duration_s - pre_s) / cycles
+    t_cycle = np.where(cycle, np.mod(run.t_s - pre_s + 0.5 * dt, period) - 0.5 * dt, 0.0) + float(prof.time_s[0])
+    load = np.where(cycle, np.interp(t_cycle, prof.time_s, prof.axial_load_N), 0.0)
+    planned, achieved = plant.preload_N(run.reference_N), plant.preload_N(run.force_N)
+    loads = screw.nut_loads(np.maximum(achieved, 1e-3), load)
+    speed = np.ones_like(t_cycle) if prof.speed_rpm is None else np.interp(t_cycle, prof.time_s, prof.speed_rpm) * (
+        2.0 * np.pi / 60.0)
+    return _Frame(
+        t_cycle=t_cycle, cycle=cycle, cutting=cycle & (np.abs(load) > 0), load=load, planned=planned,
+        achieved=achieved, required=schedule.spec.required_stiffness(load),
+        rigidity=np.asarray(loads.rigidity_N_per_um, float),
+        planned_rigidity=np.asarray(screw.rigidity_N_per_um(np.maximum(planned, 1e-3), load), float),
+        deflection=np.asarray(loads.deflection_um, float),
+        lift_bound=schedule.spec.lift_off_margin * np.abs(load) / LIFT_OFF_RATIO,
+        weight=np.where(cycle, float(screw.drag_torque_Nm(1.0)) * speed * dt, 0.0))
+
+
+def _verdict(name: str, value: float, limit: float, unit: str, sense: str, source: str) -> Requirement:
+    """A requirement, its value within :data:`ROUND_OFF` of the limit taken as the limit (met with nothing to spare)."""
+    value = limit if abs(value - limit) <= ROUND_OFF * abs(limit) else value
+    return Requirement(name, float(value), float(limit), unit, sense, source)
+
+
+def requirements_of(frame: _Frame, schedule: PreloadSchedule) -> tuple[Requirement, ...]:
+    """The schedule's requirements as verdicts on the achieved preload while cutting: the rigidity (at the sample
+    where it is least against its requirement), the deflection (where the study limits it) and the lift-off bound
+    (at the sample where the preload is least against it)."""
+    spec, c = schedule.spec, frame.cutting
+    ratio = np.where(c, frame.rigidity / frame.required, np.inf)
+    k = int(np.argmin(ratio))
+    by_deflection = frame.required[k] > spec.stiffness_min_N_per_um
+    out = [_verdict("rigidity while cutting", frame.rigidity[k], frame.required[k], "N/um", "min",
+                    "[schedule] deflection_max_um (|F_a| / deflection_max_um)" if by_deflection
+                    else "[schedule] stiffness_min_N_per_um")]
+    if math.isfinite(spec.deflection_max_um):
+        out.append(_verdict("axial deflection while cutting", float(np.max(np.abs(frame.deflection[c]))),
+                            spec.deflection_max_um, "um", "max", "[schedule] deflection_max_um"))
+    lift = np.where(c, frame.achieved / np.maximum(frame.lift_bound, 1e-9), np.inf)
+    j = int(np.argmin(lift))
+    out.append(_verdict("preload against the lift-off bound while cutting", frame.achieved[j], frame.lift_bound[j], "N",
+                        "min", "[schedule] lift_off_margin (lift_off_margin |F_a| / 2^(3/2))"))
+    return tuple(out)
+
+
+def _needed_at(schedule: PreloadSchedule, t_cycle: Array) -> tuple[Array, NDArray[np.intp]]:
+    """The least preload the requirements need between the profile's samples (the larger of the two around each
+    time: the load is linear between them) and the index of the sample before."""
+    prof_t = schedule.profile.time_s
+    j = np.clip(np.searchsorted(prof_t, t_cycle, side="right") - 1, 0, prof_t.size - 2)
+    return np.maximum(schedule.needed_N[j], schedule.needed_N[j + 1]), j
+
+
+def _shortfall(frame: _Frame, schedule: PreloadSchedule, screw: Any) -> Array:
+    """Where the achieved preload misses a requirement: how far it lies below the least preload that sample's load
+    needs (:func:`~piezopreload.design.schedule.least_preload`, at least 1 N); 0 elsewhere."""
+    missed = frame.cutting & ((frame.rigidity < frame.required * (1.0 - ROUND_OFF))
+                              | (frame.achieved < frame.lift_bound * (1.0 - ROUND_OFF)))
+    out = np.zeros_like(frame.achieved)
+    need = least_preload(screw, schedule.spec, frame.load[missed])
+    out[missed] = np.maximum(need - frame.achieved[missed], 1.0)
+    return out
+
+
+def _lag_samples(run: ClosedLoopRun, cycle: NDArray[np.bool_], most: int) -> int:
+    """The loop's lag behind its reference over the cycles, in samples: the shift that best aligns them."""
+    r, y = run.reference_N[cycle], run.force_N[cycle]
+    errors = [float(np.mean((r[: r.size - d] - y[d:]) ** 2)) for d in range(min(most, r.size // 2) + 1)]
+    return int(np.argmin(errors))
+
+
+def _window_max(x: Array, before: int, after: int) -> Array:
+    """Each sample's largest value of ``x`` from ``before`` samples before it to ``after`` samples after it."""
+    out = x.copy()
+    for d in range(1, after + 1):
+        out[:-d] = np.maximum(out[:-d], x[d:])
+    for d in range(1, before + 1):
+        out[d:] = np.maximum(out[d:], x[:-d])
+    return out
+
+
+def folded_shortfall(schedule: PreloadSchedule, frame: _Frame, shortfall: Array, lag: int, hold: int) -> Array:
+    """The shortfall on the profile's samples: at each sample the largest of the loop's samples around it, over the
+    loop's ``lag`` before the shortfall (the plan must be higher that early for the lagging loop to arrive in time)
+    and ``hold`` samples either side (a plateau the loop can follow rather than one pass's noise, sample by sample);
+    over every cycle. Zero where the loop met every requirement, with that window around."""
+    wanted = _window_max(shortfall, hold, lag + hold)
+    _, j = _needed_at(schedule, frame.t_cycle)
+    out = np.zeros(schedule.profile.time_s.size)
+    on = wanted > 0
+    np.maximum.at(out, j[on], wanted[on])
+    np.maximum.at(out, j[on] + 1, wanted[on])
+    return out
+
+
+def local_margins(schedule: PreloadSchedule, folded: Array, factor: float, response: Array | None = None) -> Array:
+    """The local margins of the next pass on the profile's samples: this pass's (less the spec's uniform one) plus
+    ``factor`` times the folded shortfall (:func:`folded_shortfall`) over ``response``, how much of a margin added the
+    pass before the loop turned into preload there (between 1/4 and 1; 1 where no margin was added yet): a loop that
+    delivers half of a raise gets twice the raise."""
+    gain = factor / (1.0 if response is None else np.clip(response, 0.25, 1.0))
+    return schedule.margin_N - schedule.spec.preload_margin_N + gain * folded
+
+
+def _response(before: Array, after: Array, added: Array) -> Array:
+    """Per profile sample, the fraction of the margin ``added`` the loop turned into preload: the shortfall's fall
+    ``before - after`` over it (1 where nothing was added)."""
+    return np.where(added > 0, (before - after) / np.where(added > 0, added, 1.0), 1.0)
+
+
+def _numbers(frame: _Frame, schedule: PreloadSchedule, run: ClosedLoopRun, cycles: int, constant_energy: float,
+             shortfall: Array) -> TrackingNumbers:
+    c, cut = frame.cycle, frame.cutting
+    error = (run.reference_N - run.force_N)[c]
+    span = float(np.ptp(frame.planned[c])) or 1.0
+    ratio = np.where(cut, frame.rigidity / frame.required, np.inf)
+    k = int(np.argmin(ratio))
+    dt = float(run.t_s[1] - run.t_s[0])
+    achieved_energy = float(np.dot(frame.weight, frame.achieved)) / cycles
+    spec = schedule.spec
+    return TrackingNumbers(
+        tracking_rms_N=float(np.sqrt(np.mean(error**2))), tracking_max_N=float(np.max(np.abs(error))),
+        tracking_rms_pct_of_range=float(100.0 * np.sqrt(np.mean(error**2)) / span), schedule_range_N=span,
+        rigidity_min_cutting_N_per_um=float(frame.rigidity[k]), rigidity_required_N_per_um=float(frame.required[k]),
+        rigidity_ratio_min=float(ratio[k]), rigidity_worst_t_s=float(run.t_s[k]),
+        rigidity_below_requirement_s=float(np.sum(cut & (frame.rigidity < frame.required * (1.0 - ROUND_OFF))) * dt),
+        deflection_max_um=float(np.max(np.abs(frame.deflection[cut]))),
+        deflection_limit_um=None if math.isinf(spec.deflection_max_um) else float(spec.deflection_max_um),
+        lift_off_ratio_min=float(np.min(frame.achieved[cut] / np.maximum(frame.lift_bound[cut], 1e-9))),
+        lift_off_margin=float(spec.lift_off_margin), preload_shortfall_max_N=float(np.max(shortfall)),
+        friction_energy_per_cycle=achieved_energy,
+        planned_friction_energy_per_cycle=float(np.dot(frame.weight, frame.planned)) / cycles,
+        friction_saved_fraction=1.0 - achieved_energy / constant_energy, energy_units=schedule.energy_units,
+        peak_voltage_V=float(np.max(run.voltage_V)), cycle_start_error_N=float(abs(error[0])))
+
+
+@dataclass(frozen=True, eq=False)
+class Evaluation:
+    """One run over a schedule judged: its numbers, its requirements as verdicts, the shortfall per sample."""
+
+    frame: _Frame
+    numbers: TrackingNumbers
+    requirements: tuple[Requirement, ...]
+    shortfall: Array
+
+    @property
+    def met(self) -> bool:
+        return all(r.met for r in self.requirements)
+
+
+def evaluate_tracking(plant: DesignedPlant, schedule: PreloadSchedule, run: ClosedLoopRun, cycles: int, *,
+                      pre_cycle_s: float = 0.0, constant_energy: float | None = None) -> Evaluation:
+    """Judge one run over the schedule (module docstring): tracking, rigidity, deflection, lift-off, energy.
+
+    ``pre_cycle_s``: the pre-cycle before the first cut (left out). ``constant_energy``: the best
+    constant preload's friction energy per cycle the saving is read against (default: the
+    schedule's own record of it, the design's).
+    """
+    frame = _frame(plant, schedule, run, cycles, pre_cycle_s)
+    if not frame.cutting.any():
+        raise InputError("the load profile has no sample under load: the schedule's requirements have nothing to judge")
+    energy = schedule.constant_friction_energy_J if constant_energy is None else constant_energy
+    shortfall = _shortfall(frame, schedule, plant.screw)
+    return Evaluation(frame, _numbers(frame, schedule, run, cycles, energy, shortfall),
+                      requirements_of(frame, schedule), shortfall)
 
 
 @dataclass(frozen=True, eq=False)
 class SystemRun:
-    """One pass of the controlled preload over the schedule's cycles (module docstring).
-
-    Time series on the run's samples (``t_s``): ``planned_N`` and ``achieved_N`` (total preload,
-    true force), ``axial_load_N``, ``rigidity_N_per_um`` (at the achieved preload under the load),
-    ``required_N_per_um``, ``deflection_um``, ``voltage_V``. ``passes`` records every pass (its
-    margin and numbers); ``schedule`` is the schedule of the last.
-    """
+    """The controlled preload over the schedule's cycles (module docstring): the last pass's run and schedule, its
+    evaluation, every pass's record, the pre-cycle and the bounds; ``design_schedule`` the schedule it started from
+    (the design's: its best constant preload is the one the saving is read against)."""
 
     schedule: PreloadSchedule
+    design_schedule: PreloadSchedule
     plant: DesignedPlant
     cycles: int
     run: ClosedLoopRun
-    t_s: Array
-    planned_N: Array
-    achieved_N: Array
-    axial_load_N: Array
-    rigidity_N_per_um: Array
-    required_N_per_um: Array
-    planned_rigidity_N_per_um: Array
-    deflection_um: Array
-    cutting: Array
-    numbers: dict[str, Any]
-    passes: tuple[dict[str, Any], ...] = ()
+    pre_cycle: PreCycle
+    evaluation: Evaluation
+    passes: tuple[PassRecord, ...]
+    bounds: tuple[ScheduleBound, ...] = ()
+
+    @property
+    def numbers(self) -> TrackingNumbers:
+        return self.evaluation.numbers
+
+    @property
+    def requirements(self) -> tuple[Requirement, ...]:
+        return self.evaluation.requirements
+
+    @property
+    def requirements_met(self) -> bool:
+        return self.evaluation.met
 
     @property
     def margin_N(self) -> float:
-        return float(self.schedule.spec.preload_margin_N)
+        """The largest margin the last pass's schedule leaves the loop (local: ``schedule.margin_N`` per sample)."""
+        return float(np.max(self.schedule.margin_N))
+
+    def record(self, inputs: dict[str, Any] | None = None, every: int = 10) -> SystemRecord:
+        """The system artifact's record (:class:`~piezopreload.artifacts.system.SystemRecord`), the series every
+        ``every``-th sample."""
+        f, s, sl = self.evaluation.frame, self.schedule, slice(None, None, every)
+        series = SystemSeries(self.run.t_s[sl], f.planned[sl], f.achieved[sl], f.load[sl], f.rigidity[sl],
+                              f.required[sl], f.planned_rigidity[sl], f.deflection[sl], self.run.voltage_V[sl],
+                              f.cutting[sl])
+        plan = PlannedSchedule(s.profile.time_s, s.preload_N, s.margin_N, s.margin_short_N, s.friction_energy_J,
+                               s.energy_units, s.status)
+        return SystemRecord(self.numbers, self.requirements, self.bounds, self.pre_cycle, self.passes, plan, series,
+                            self.cycles, dict(inputs or {}))
 
     def summary(self) -> dict[str, Any]:
-        """The run's numbers and its passes."""
-        return {**self.numbers, "preload_margin_N": self.margin_N, "cycles": self.cycles,
-                "passes": [dict(p) for p in self.passes]}
-
-    def to_dict(self, every: int = 10) -> dict[str, Any]:
-        """:meth:`summary` and the time series (every ``every``-th sample), as the system artifact holds them."""
-        sl = slice(None, None, every)
-        return {**self.summary(), "schedule": self.schedule.to_dict(), "series": {
-            "time_s": self.t_s[sl].tolist(), "planned_N": self.planned_N[sl].tolist(),
-            "achieved_N": self.achieved_N[sl].tolist(), "axial_load_N": self.axial_load_N[sl].tolist(),
-            "rigidity_N_per_um": self.rigidity_N_per_um[sl].tolist(),
-            "required_N_per_um": self.required_N_per_um[sl].tolist(),
-            "planned_rigidity_N_per_um": self.planned_rigidity_N_per_um[sl].tolist(),
-            "deflection_um": self.deflection_um[sl].tolist(), "voltage_V": self.run.voltage_V[sl].tolist(),
-            "cutting": self.cutting[sl].astype(int).tolist()}}
+        """The run's numbers, verdicts, pre-cycle and passes (the record's summary)."""
+        return self.record().summary()
 
     def save(self, folder: str | Path, inputs: dict[str, Any]) -> dict[str, Path]:
-        """Write ``system.json`` (kind ``system``: :meth:`to_dict` and ``inputs``) and ``reference.csv`` (the
-        loop's reference at its rate, ``time_s,force_N``: what the rig executor plays) into ``folder``."""
+        """Write ``system.json`` (kind ``system``, :meth:`record`) and ``reference.csv`` (the loop's reference at its
+        rate, ``time_s,force_N``, the pre-cycle first: what the rig executor plays) into ``folder``."""
         folder = Path(folder)
-        paths = {"system": folder / "system.json", "reference": folder / "reference.csv"}
-        write_artifact(paths["system"], "system", {**self.to_dict(), "inputs": inputs})
+        paths = {"system": self.record(inputs).save(folder / "system.json"), "reference": folder / "reference.csv"}
         write_csv(paths["reference"], {"time_s": self.run.t_s, "force_N": self.run.reference_N},
-                  f"the stacks' share of the preload schedule (less the bolts' {self.plant.bolt_preload_N:.1f} N), "
-                  f"{self.cycles} cycles, margin {self.margin_N:.1f} N")
+                  f"the stacks' share of the preload schedule (less the bolts' {self.plant.bolt_preload_N:.1f} N): a "
+                  f"{self.pre_cycle.duration_s:.3f} s pre-cycle to the first level, then {self.cycles} cycles; "
+                  f"local margins up to {self.margin_N:.1f} N")
         return paths
 
     def plot(self) -> Any:
         """Planned against achieved preload, rigidity against the requirement, deflection: a Figure."""
         from matplotlib.figure import Figure
 
+        f, t = self.evaluation.frame, self.run.t_s
         fig = Figure(figsize=(7.0, 7.0), layout="constrained")
         ax = fig.subplots(3, 1, sharex=True)
-        ax[0].plot(self.t_s, self.planned_N, color="k", lw=1.0, label="planned")
-        ax[0].plot(self.t_s, self.achieved_N, color="C0", lw=0.8, label="achieved (true force)")
+        ax[0].plot(t, f.planned, color="k", lw=1.0, label="planned")
+        ax[0].plot(t, f.achieved, color="C0", lw=0.8, label="achieved (true force)")
+        ax[0].axvline(self.pre_cycle.duration_s, color="0.6", ls=":", lw=0.8)
         ax[0].set_ylabel("preload (N)")
         ax[0].legend(fontsize="small")
-        ax[1].plot(self.t_s, self.rigidity_N_per_um, color="C0", lw=0.8, label="achieved")
-        ax[1].plot(self.t_s, self.required_N_per_um, ":", color="k", label="required")
+        ax[1].plot(t, np.where(f.cutting, f.rigidity, np.nan), color="C0", lw=0.8, label="achieved")
+        ax[1].plot(t, np.where(f.cutting, f.required, np.nan), ":", color="k", label="required")
         ax[1].set_ylabel("rigidity (N/um)")
         ax[1].legend(fontsize="small")
-        ax[2].plot(self.t_s, self.deflection_um, color="C2", lw=0.8)
+        ax[2].plot(t, f.deflection, color="C2", lw=0.8)
         ax[2].set(xlabel="time (s)", ylabel="axial deflection (um)")
         return fig
 
 
-def evaluate_tracking(plant: DesignedPlant, schedule: PreloadSchedule, run: ClosedLoopRun, cycles: int) -> dict[str, Any]:
-    """The numbers of one run over the schedule (module docstring): tracking, rigidity, deflection, energy."""
-    prof = schedule.profile
-    t0 = float(prof.time_s[0])
-    period = run.reference.duration_s / cycles
-    t_cycle = np.mod(run.t_s, period) + t0
-    load = np.interp(t_cycle, prof.time_s, prof.axial_load_N)
-    planned = plant.preload_N(run.reference_N)
-    achieved = plant.preload_N(run.force_N)
-    required = schedule.spec.required_stiffness(load)
-    screw = plant.screw
-    loads = screw.nut_loads(np.maximum(achieved, 1e-3), load)
-    rigidity = np.asarray(loads.rigidity_N_per_um, float)
-    planned_rigidity = np.asarray(screw.rigidity_N_per_um(np.maximum(planned, 1e-3), load), float)
-    deflection = np.asarray(loads.deflection_um, float)
-    cutting = np.abs(load) > 0
-    error = run.reference_N - run.force_N
-    span = float(np.max(planned) - np.min(planned))
-    ratio = np.where(cutting, rigidity / required, np.inf)
-    worst = int(np.argmin(ratio))
-    # friction energy per cycle: the schedule's weights (drag torque per newton times the screw's angle per sample)
-    if prof.speed_rpm is not None:
-        omega = np.interp(t_cycle, prof.time_s, prof.speed_rpm) * 2.0 * np.pi / 60.0
-    else:
-        omega = np.ones_like(t_cycle)
-    dt = float(run.t_s[1] - run.t_s[0])
-    weight = float(screw.drag_torque_Nm(1.0)) * omega * dt
-    # the schedule's other requirement: no lift-off, with its margin (the catalogues' rule, as the schedule plans)
-    lift_bound = schedule.spec.lift_off_margin * np.abs(load) / LIFT_OFF_RATIO
-    lift_ratio = np.where(cutting, achieved / np.maximum(lift_bound, 1e-9), np.inf)
-    binding = cutting & ((planned_rigidity <= (1.0 + _BINDING) * required) | (planned <= (1.0 + _BINDING) * lift_bound))
-    shortfall = np.where(binding, planned - achieved, 0.0)
-    return {
-        "tracking_rms_N": float(np.sqrt(np.mean(error**2))), "tracking_max_N": float(np.max(np.abs(error))),
-        "tracking_rms_pct_of_range": float(100.0 * np.sqrt(np.mean(error**2)) / span),
-        "schedule_range_N": span,
-        "rigidity_min_cutting_N_per_um": float(rigidity[worst]), "rigidity_required_N_per_um": float(required[worst]),
-        "rigidity_ratio_min": float(ratio[worst]), "rigidity_worst_t_s": float(run.t_s[worst]),
-        "rigidity_below_requirement_s": float(np.sum(cutting & (rigidity < required)) * dt),
-        "deflection_max_um": float(np.max(np.abs(np.where(cutting, deflection, 0.0)))),
-        "deflection_limit_um": float(schedule.spec.deflection_max_um),
-        "lift_off_ratio_min": float(np.min(lift_ratio)),
-        "lift_off_margin": float(schedule.spec.lift_off_margin),
-        "requirements_met": bool(ratio[worst] >= 1.0 and np.min(lift_ratio) >= 1.0),
-        "preload_shortfall_max_N": float(np.max(shortfall, initial=0.0)),
-        "friction_energy_per_cycle": float(np.dot(weight, achieved) / cycles),
-        "planned_friction_energy_per_cycle": float(np.dot(weight, planned) / cycles),
-        "constant_friction_energy_per_cycle": float(np.sum(weight) * schedule.constant_preload_N / cycles),
-        "constant_preload_N": float(schedule.constant_preload_N), "energy_units": schedule.energy_units,
-        "peak_voltage_V": float(np.max(run.voltage_V)),
-        "_series": (planned, achieved, load, rigidity, required, planned_rigidity, deflection, cutting),
-    }
+def _bounds(schedule: PreloadSchedule, ev: Evaluation, wanted: Array) -> tuple[ScheduleBound, ...]:
+    """Why the last pass still misses a requirement: at the worst sample, the margin the next pass would want
+    beyond the stacks' reach (``reach``), or within it (the passes ran out)."""
+    if ev.met:
+        return ()
+    f = ev.frame
+    reach = schedule.spec.max_preload_N
+    margin = schedule.spec.preload_margin_N + wanted
+    short = schedule.needed_N + margin - reach
+    k = int(np.argmax(ev.shortfall))
+    rigidity_missed = f.rigidity[k] < f.required[k]
+    name = "rigidity while cutting" if rigidity_missed else "preload against the lift-off bound"
+    j = int(np.argmax(short)) if np.max(short) > 0 else int(np.argmin(np.abs(schedule.profile.time_s - f.t_cycle[k])))
+    t0 = float(schedule.profile.time_s[0])
+    return (ScheduleBound(name, float(schedule.profile.time_s[j] - t0), float(schedule.needed_N[j]), float(margin[j]),
+                          float(reach), "reach" if np.max(short) > 0 else "passes"),)
 
 
-def track_schedule(plant: DesignedPlant, controller: Controller, schedule: PreloadSchedule, *, cycles: int = 2,
-                   seed: int = 0, passes: int = 3, margin_factor: float = 1.25, contact_N: float = 0.0,
-                   ff_extra_V: Any = None,
-                   progress: Callable[[str], None] | None = None) -> SystemRun:
-    """Run the loop over the schedule on the designed plant; plan again with a margin while the rigidity falls short.
+def _pass_record(k: int, schedule: PreloadSchedule, ev: Evaluation) -> PassRecord:
+    n = ev.numbers
+    return PassRecord(k, float(np.max(schedule.margin_N)), n.tracking_rms_N, n.tracking_rms_pct_of_range,
+                      n.rigidity_ratio_min, n.lift_off_ratio_min, ev.met, n.preload_shortfall_max_N,
+                      n.friction_energy_per_cycle)
 
-    ``contact_N``: the least force the stacks keep (:func:`schedule_reference`).
-    ``ff_extra_V``: a correction added to the feedforward, one value per sample of the cycles (a
-    learned one, say); a callable ``f(reference) -> array`` makes it for each pass's reference.
-    Returns the last pass's :class:`SystemRun`; its ``passes`` hold every pass's numbers.
-    """
+
+def _check(cycles: int, passes: int, margin_factor: float) -> None:
     if not (isinstance(cycles, int) and cycles >= 1):
         raise InputError(f"cycles: must be an integer >= 1, got {cycles!r}")
     if not (isinstance(passes, int) and passes >= 1):
         raise InputError(f"passes: must be an integer >= 1, got {passes!r}")
     if not margin_factor >= 1.0:
         raise InputError(f"margin_factor: must be >= 1, got {margin_factor!r}")
+
+
+def track_schedule(plant: DesignedPlant, controller: Controller, schedule: PreloadSchedule, *, cycles: int = 2,
+                   seed: int = 0, passes: int = 3, margin_factor: float = 1.25, contact_N: float = 0.0,
+                   settle_s: float = 0.5, ff_extra_V: Any = None,
+                   progress: Callable[[str], None] | None = None) -> SystemRun:
+    """Run the loop over the schedule on the designed plant after its pre-cycle; plan again with local margins while
+    a requirement is missed (module docstring).
+
+    ``contact_N``: the least force the stacks keep (:func:`schedule_reference`). ``settle_s``: the
+    pre-cycle's hold at the first level (:func:`pre_cycle_for`). ``ff_extra_V``: a correction added
+    to the feedforward, one value per sample of the run (a learned one, say); a callable
+    ``f(reference) -> array`` makes it for each pass's reference. Returns the last pass's
+    :class:`SystemRun`; its ``passes`` hold every pass's numbers.
+    """
+    _check(cycles, passes, margin_factor)
     say = progress or (lambda _m: None)
-    rig = Rig(plant.rig)
-    record: list[dict[str, Any]] = []
-    current = schedule
-    for k in range(passes):
-        reference = schedule_reference(plant, current, cycles, contact_N)
+    rig, pre = Rig(plant.rig), pre_cycle_for(plant, schedule, contact_N, settle_s)
+    say(f"pre-cycle: the stacks from rest to {pre.level_N:.0f} N at {pre.slew_N_per_s:,.0f} N/s in "
+        f"{1e3 * pre.ramp_s:.1f} ms, held {pre.settle_s:.3f} s: the first cut {pre.duration_s:.3f} s after the start")
+    record: list[PassRecord] = []
+    dt = float(plant.rig.sample_period_s)
+    current, lag, hold = schedule, int(round(_LAG_MAX_S / dt)), int(round(_HOLD_S / dt))
+    before = added = response = None
+    for k in range(1, passes + 1):
+        pre = pre_cycle_for(plant, current, contact_N, settle_s)  # the first level may carry a margin
+        reference = schedule_reference(plant, current, cycles, contact_N, pre)
         extra = ff_extra_V(reference) if callable(ff_extra_V) else ff_extra_V
         run = simulate(rig, controller, reference, seed=seed, ff_extra_V=extra)
-        numbers = evaluate_tracking(plant, current, run, cycles)
-        series = numbers.pop("_series")
-        record.append({"pass": k + 1, "preload_margin_N": current.spec.preload_margin_N,
-                       **{key: numbers[key] for key in ("tracking_rms_N", "tracking_rms_pct_of_range",
-                                                        "rigidity_ratio_min", "lift_off_ratio_min",
-                                                        "requirements_met", "preload_shortfall_max_N",
-                                                        "friction_energy_per_cycle")}})
-        say(f"pass {k + 1}: margin {current.spec.preload_margin_N:.1f} N, tracking RMS "
-            f"{numbers['tracking_rms_N']:.2f} N ({numbers['tracking_rms_pct_of_range']:.2f} % of the range), "
-            f"least rigidity / requirement {numbers['rigidity_ratio_min']:.3f}, least preload / lift-off bound "
-            f"{numbers['lift_off_ratio_min']:.3f}")
-        if numbers["requirements_met"] or k + 1 == passes:
+        ev = evaluate_tracking(plant, current, run, cycles, pre_cycle_s=pre.duration_s,
+                               constant_energy=schedule.constant_friction_energy_J)
+        record.append(_pass_record(k, current, ev))
+        n = ev.numbers
+        say(f"pass {k}: local margins up to {record[-1].preload_margin_N:.1f} N, tracking RMS {n.tracking_rms_N:.2f} N "
+            f"({n.tracking_rms_pct_of_range:.2f} % of the range), least rigidity / requirement "
+            f"{n.rigidity_ratio_min:.3f}, least preload / lift-off bound {n.lift_off_ratio_min:.3f}")
+        folded = folded_shortfall(current, ev.frame, ev.shortfall, _lag_samples(run, ev.frame.cycle, lag), hold)
+        if before is not None:
+            response = _response(before, folded, added)
+        wanted = local_margins(current, folded, margin_factor, response)
+        if ev.met or k == passes:
             break
-        margin = current.spec.preload_margin_N + margin_factor * max(numbers["preload_shortfall_max_N"], 1.0)
-        try:
-            current = schedule_preload(plant.screw, current.profile, replace(current.spec, preload_margin_N=margin))
-        except (ValueError, RuntimeError) as exc:
-            raise InfeasibleError(f"the schedule cannot leave the force loop a margin of {margin:.1f} N: {exc}") from exc
-    planned, achieved, load, rigidity, required, planned_rigidity, deflection, cutting = series
-    return SystemRun(schedule=current, plant=plant, cycles=cycles, run=run, t_s=run.t_s, planned_N=planned,
-                     achieved_N=achieved, axial_load_N=load, rigidity_N_per_um=rigidity, required_N_per_um=required,
-                     planned_rigidity_N_per_um=planned_rigidity, deflection_um=deflection, cutting=cutting,
-                     numbers=numbers, passes=tuple(record))
+        before, added = folded, wanted - (current.margin_N - current.spec.preload_margin_N)
+        current = schedule_preload(plant.screw, current.profile, current.spec, local_margin_N=wanted)
+    return SystemRun(schedule=current, design_schedule=schedule, plant=plant, cycles=cycles, run=run, pre_cycle=pre,
+                     evaluation=ev, passes=tuple(record), bounds=_bounds(current, ev, wanted))

@@ -20,9 +20,9 @@ P-I model, with or without creep) and an external feedforward
 signal ``ff_extra`` given per sample (0 unless a caller supplies one: a learned or previewed
 correction, or the tuning's precomputed inverse).
 
-A gain schedule (:class:`GainSchedule`) makes ``Kc``, ``Ti`` and ``Td`` functions of the
-setpoint: linear interpolation between a table's entries, constant beyond its ends
-(:meth:`ControllerModel.gains_at`). The integral state is the integral *action* in volts, so a
+A gain schedule (:class:`GainSchedule`) makes ``Kc``, ``Ti``, ``Td`` and the setpoint weight
+``b`` functions of the setpoint: linear interpolation between a table's entries, constant beyond
+its ends (:meth:`ControllerModel.gains_at`). The integral state is the integral *action* in volts, so a
 change of gains, scheduled or switched, moves no state: the output stays continuous.
 
 Times are in seconds inside; LabVIEW enters ``Ti`` and ``Td`` in minutes, converted only by
@@ -114,7 +114,7 @@ def _finite(name: str, value: float) -> float:
     return x
 
 
-#: the most entries a gain schedule may have (each entry is four numbers of the compiled step's parameters)
+#: the most entries a gain schedule may have (each entry is five numbers of the compiled step's parameters)
 SCHEDULE_MAX = 32
 
 
@@ -137,11 +137,11 @@ def _interpolate(ops: Ops, levels: Any, values: Any, n: int, x: Any) -> Any:
 
 @dataclass(frozen=True)
 class GainSchedule:
-    """``Kc``, ``Ti`` and ``Td`` scheduled on the setpoint (the preload level).
+    """``Kc``, ``Ti``, ``Td`` and the setpoint weight ``b`` scheduled on the setpoint (the preload level).
 
     Between two entries each gain is linear in the setpoint; below the first level and above the
-    last it keeps the end entry's value. ``Tf``, ``b`` and the output range are the
-    :class:`PIDGains`' own (single).
+    last it keeps the end entry's value. ``Tf`` and the output range are the :class:`PIDGains`'
+    own (single), and so is ``b`` where the table has no column of its own (``b=None``).
 
     Parameters
     ----------
@@ -153,18 +153,21 @@ class GainSchedule:
         Integral time per entry (s), finite and > 0 (interpolated as a time).
     Td_s : tuple of float
         Derivative time per entry (s), finite and >= 0.
+    b : tuple of float or None
+        Setpoint weight per entry, finite (each entry's is tuned with it); None: the single ``b``.
     """
 
     levels_N: tuple[float, ...]
     Kc: tuple[float, ...]
     Ti_s: tuple[float, ...]
     Td_s: tuple[float, ...]
+    b: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         n = len(self.levels_N)
         if not 2 <= n <= SCHEDULE_MAX:
             raise ValueError(f"schedule.levels_N must have 2 to {SCHEDULE_MAX} entries, got {n}.")
-        for name in ("levels_N", "Kc", "Ti_s", "Td_s"):
+        for name in ("levels_N", "Kc", "Ti_s", "Td_s") + (() if self.b is None else ("b",)):
             values = tuple(float(x) for x in getattr(self, name))
             object.__setattr__(self, name, values)
             if len(values) != n:
@@ -189,15 +192,23 @@ class GainSchedule:
         return tuple(np.asarray(_interpolate(NUMPY, lv, np.asarray(v), self.size, x))  # type: ignore[return-value]
                      for v in (self.Kc, self.Ti_s, self.Td_s))
 
+    def b_at(self, setpoint_N: ArrayLike, single: float) -> NDArray:
+        """The setpoint weight at ``setpoint_N`` (numpy): the table's column interpolated, or ``single`` without one."""
+        x = np.asarray(setpoint_N, float)
+        column = np.full(self.size, float(single)) if self.b is None else np.asarray(self.b)
+        return np.asarray(_interpolate(NUMPY, np.asarray(self.levels_N), column, self.size, x))
+
     def to_dict(self) -> dict[str, Any]:
         return {"levels_N": list(self.levels_N), "Kc_V_per_N": list(self.Kc), "Ti_s": list(self.Ti_s),
-                "Td_s": list(self.Td_s), "interpolation": SCHEDULE_INTERPOLATION}
+                "Td_s": list(self.Td_s), **({} if self.b is None else {"b": list(self.b)}),
+                "interpolation": SCHEDULE_INTERPOLATION}
 
 
 #: how every format states the schedule's interpolation
-SCHEDULE_INTERPOLATION = ("Kc, Ti and Td linear in the setpoint between entries, the end entries' values beyond "
-                          "them; Tf, b and the output range single; the integral state is the integral action (V), so "
-                          "a change of gains does not jump the output")
+SCHEDULE_INTERPOLATION = ("Kc, Ti, Td and the setpoint weight b linear in the setpoint between entries, the end "
+                          "entries' values beyond them (b single where the table has no b column); Tf and the output "
+                          "range single; the integral state is the integral action (V), so a change of gains does not "
+                          "jump the output")
 
 
 @dataclass(frozen=True)
@@ -251,6 +262,10 @@ class PIDGains:
         if self.schedule is None:
             return self.Kc, self.Ti_s, self.Td_s
         return self.schedule.at(setpoint_N)
+
+    def b_at(self, setpoint_N: ArrayLike) -> Any:
+        """The setpoint weight the step uses at ``setpoint_N``: the schedule's column, or the single ``b``."""
+        return self.b if self.schedule is None else self.schedule.b_at(setpoint_N, self.b)
 
     @classmethod
     def from_labview(cls, Kc: float, Ti_min: float, Td_min: float, **kwargs: Any) -> PIDGains:
@@ -329,17 +344,19 @@ class ControllerModel:
             ("u_max_V", None), ("dt_s", None), ("ff", n_ff)]
         if self.scheduled:  # the table after everything else: an unscheduled layout is as it was
             n = int(self.schedule_size)
-            fields += [("schedule_levels_N", n), ("schedule_Kc", n), ("schedule_Ti_s", n), ("schedule_Td_s", n)]
+            fields += [("schedule_levels_N", n), ("schedule_Kc", n), ("schedule_Ti_s", n), ("schedule_Td_s", n),
+                       ("schedule_b", n)]
         return Layout("controller parameters", fields)
 
     def gains_at(self, ops: Ops, p: Any, setpoint: Any) -> tuple[Any, Any, Any, Any, Any]:
         """``(Kc, Ti, Td, Tf, b)`` at ``setpoint``: the single set, or the schedule's entries interpolated
-        linearly in the setpoint (the ends' values beyond them; :class:`GainSchedule`)."""
+        linearly in the setpoint (the ends' values beyond them; :class:`GainSchedule`); ``Tf`` single."""
         if not self.scheduled:
             return p.Kc, p.Ti_s, p.Td_s, p.Tf_s, p.b
         n, lv = int(self.schedule_size), p.schedule_levels_N
         return (_interpolate(ops, lv, p.schedule_Kc, n, setpoint), _interpolate(ops, lv, p.schedule_Ti_s, n, setpoint),
-                _interpolate(ops, lv, p.schedule_Td_s, n, setpoint), p.Tf_s, p.b)
+                _interpolate(ops, lv, p.schedule_Td_s, n, setpoint), p.Tf_s,
+                _interpolate(ops, lv, p.schedule_b, n, setpoint))
 
     def _feedforward(self, ops: Ops, p: Any, ff_state: Any, setpoint: Any, ff_extra: Any) -> tuple[Any, Any]:
         if self.feedforward is None:
@@ -402,7 +419,8 @@ class Controller:
         sch = g.schedule
         model = ControllerModel(structure, 0 if sch is None else sch.size)
         table = {} if sch is None else {"schedule_levels_N": np.array(sch.levels_N), "schedule_Kc": np.array(sch.Kc),
-                                        "schedule_Ti_s": np.array(sch.Ti_s), "schedule_Td_s": np.array(sch.Td_s)}
+                                        "schedule_Ti_s": np.array(sch.Ti_s), "schedule_Td_s": np.array(sch.Td_s),
+                                        "schedule_b": np.full(sch.size, g.b) if sch.b is None else np.array(sch.b)}
         params = model.params.numbers(Kc=g.Kc, Ti_s=g.Ti_s, Td_s=g.Td_s, Tf_s=g.Tf_s, b=g.b, u_min_V=g.u_min,
                                       u_max_V=g.u_max, dt_s=self.dt_s, ff=ff, **table)
         return model, params
@@ -492,7 +510,7 @@ class Controller:
         def actions(c: Controller, ff_state: NDArray | None) -> tuple[NDArray, NDArray | None]:
             g = c.gains
             Kc, _, Td = g.at(state.sp_prev)  # a schedule's gains at the last setpoint
-            pd = Kc * (g.b * state.sp_prev - state.pv_prev) - Kc * Td * state.dpv
+            pd = Kc * (g.b_at(state.sp_prev) * state.sp_prev - state.pv_prev) - Kc * Td * state.dpv
             if c.feedforward is None:
                 return pd, None
             ff, ff_state = c.feedforward.step(ff_state, state.sp_prev)  # play operators: idempotent at equal input

@@ -47,7 +47,7 @@ class Headline:
     rigidity_ratio_min: float | None = None
     deflection_max_um: float | None = None
     friction_energy_per_cycle: float | None = None
-    constant_friction_energy_per_cycle: float | None = None
+    friction_saved_fraction: float | None = None
     preload_margin_N: float | None = None
     system: str = "not run"
     gain_set_status: str | None = None

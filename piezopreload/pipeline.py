@@ -52,8 +52,12 @@ from pathlib import Path
 from typing import Any
 
 from piezopreload import __version__
+from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.plant import DesignedPlant
 from piezopreload.artifacts.requirements import checked_by_stages, missed
+from piezopreload.artifacts.schedule import PreloadSchedule
+from piezopreload.artifacts.system import SystemRecord
 from piezopreload.core.artifacts import atomic_write_bytes, read_artifact, write_artifact
 from piezopreload.core.errors import InputError
 from piezopreload.core.stages import (
@@ -70,8 +74,6 @@ from piezopreload.core.stages import (
     utc,
 )
 from piezopreload.core.tables import write_csv
-from piezopreload.design.plant import DesignedPlant
-from piezopreload.design.preload import DesignPoint
 from piezopreload.outcome import Headline, StageOutcome, StudyResult
 from piezopreload.progress import Progress
 from piezopreload.reports.study_report import STAGES_READ, Published, ReportStudy, render_report
@@ -115,20 +117,24 @@ class _Ctx:
     def feedforward(self) -> IdentifiedFeedforward:
         return IdentifiedFeedforward.load(self.output("identify", "model"))
 
-    def design_point(self) -> DesignPoint:
-        return DesignPoint.from_dict(read_artifact(self.output("design", "design"), "design")["optimum"]["point"])
+    def design(self) -> DesignRecord:
+        """The design stage's record (the optimum, the fronts, the schedule: the one source of the best constant)."""
+        return DesignRecord.load(self.output("design", "design"))
+
+    def schedule(self) -> PreloadSchedule:
+        """The design's preload schedule, as the design stage recorded it."""
+        return self.design().schedule
 
     def designed_plant(self) -> DesignedPlant:
-        """The plant of the design stage's optimum (what the plant stage wrote, made again from the design)."""
-        return self.study.designed_plant(self.design_point(), self.sha256("design", "design"))
+        """The plant the plant stage wrote."""
+        return DesignedPlant.load(self.output("plant", "plant"))
 
     def subject(self) -> Study:
         """The study the control stages run on: with the designed plant as its rig where the plant stage ran."""
         if self.records.get("plant", {}).get("status") != "done":
             return self.study
         if self._subject is None:
-            rig = read_artifact(self.output("plant", "plant"), "plant")["rig"]
-            self._subject = self.study.with_plant(rig)
+            self._subject = self.study.with_plant(self.designed_plant())
         return self._subject
 
 
@@ -163,9 +169,11 @@ def _stage_design(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     result = ctx.study.design(progress=ctx.progress.say, bar=ctx.progress.bar("Pareto fronts"))
     written = result.save(d / "design.json", {"study": ctx.study.path, "study_sha256": ctx.study.sha256})
     outputs = {"design": written[0], **{p.stem.rpartition(".")[2]: p for p in written[1:]}}
+    s = result.schedule
     return outputs, {"objective": result.optimum.objective, "stiffness_N_per_um": result.point.stiffness_N_per_um,
                      "binding": result.optimum.binding, "fronts": [f.pair for f in result.fronts],
-                     "schedule_saving_fraction": result.schedule.saving_fraction}
+                     "schedule_saving_fraction": s.saving_fraction, "constant_preload_N": s.constant_preload_N,
+                     "constant_friction_energy": s.constant_friction_energy_J, "energy_units": s.energy_units}
 
 
 def _stage_tune(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
@@ -226,21 +234,20 @@ def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
 
 
 def _stage_plant(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
-    plant = ctx.designed_plant()
+    plant = ctx.study.designed_plant(ctx.design().point, ctx.sha256("design", "design"))
     path = plant.save(ctx.out / "plant.json", {"design": ctx.rel(ctx.output("design", "design")),
                                                "design_sha256": plant.design_sha256, "study_sha256": ctx.study.sha256})
-    body = plant.to_dict()
-    k = body["local_stiffness_N_per_um"]
-    ctx.progress.say(f"{plant.rig.n_stacks} x {plant.rig.stack.name}, stacks' share 0-{body['stack_force_max_N']:.0f} N, "
-                     f"{k['at_bolts']:.0f}-{k['at_max']:.0f} N/um of stroke over the range, slew {body['slew_V_per_s']:.0f} V/s")
-    return {"plant": path}, {key: body[key] for key in ("design_sha256", "stack_force_max_N", "local_stiffness_N_per_um",
-                                                      "bolt_preload_N")}
+    k = plant.local_stiffness_N_per_um()
+    ctx.progress.say(f"{plant.rig.n_stacks} x {plant.rig.stack.name}, stacks' share 0-{plant.stack_force_max_N:.0f} N, "
+                     f"{k['at_bolts']:.0f}-{k['at_max']:.0f} N/um of stroke over the range, "
+                     f"slew {float(plant.rig.slew_V_per_s):.0f} V/s")
+    return {"plant": path}, {"design_sha256": plant.design_sha256, "stack_force_max_N": plant.stack_force_max_N,
+                             "local_stiffness_N_per_um": k, "bolt_preload_N": plant.bolt_preload_N}
 
 
 def _stage_learn(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     study, gain_set = ctx.study, GainSet.load(ctx.output("validate", "gains"))
-    system, passes = study.learn_schedule(ctx.designed_plant(), study.schedule_for(ctx.design_point()), gain_set,
-                                          progress=ctx.progress.say)
+    system, passes = study.learn_schedule(ctx.designed_plant(), ctx.schedule(), gain_set, progress=ctx.progress.say)
     inputs = {"gain_set_sha256": gain_set.content_sha256, "plant_sha256": ctx.sha256("plant", "plant"),
               "study_sha256": study.sha256}
     outputs = save_passes(passes, ctx.out / "learn", gain_set.content_sha256, inputs)
@@ -256,12 +263,17 @@ def _stage_system(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     extra, before = None, {}
     if ctx.records.get("learn", {}).get("status") == "done":  # each pass plays the signal learned on its reference
         extra, before = played_passes(ctx.output("learn", "learning"), gain_set.content_sha256)
-    result = study.track_schedule(plant, study.schedule_for(ctx.design_point()), gain_set, ff_extra_V=extra,
-                                  progress=ctx.progress.say)
-    return result.save(ctx.out / "system", {
+    result = study.track_schedule(plant, ctx.schedule(), gain_set, ff_extra_V=extra, progress=ctx.progress.say)
+    paths = result.save(ctx.out / "system", {
         "gain_set_sha256": gain_set.content_sha256, "design_sha256": ctx.sha256("design", "design"),
         "plant_sha256": ctx.sha256("plant", "plant"), "study_sha256": study.sha256,
-        **({"learned": ctx.rel(ctx.output("learn", "learning"))} if extra is not None else {})}), {**result.summary(), **before}
+        **({"learned": ctx.rel(ctx.output("learn", "learning"))} if extra is not None else {})})
+    record = SystemRecord.load(paths["system"])
+    for r in record.missed:
+        ctx.progress.say(f"requirement missed: {r.sentence()}")
+    for b in record.bounds:
+        ctx.progress.say(f"what stops it: {b.sentence()}")
+    return paths, {**record.summary(), **before}
 
 
 def _stage_export(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
@@ -332,7 +344,8 @@ STAGES: tuple[Stage, ...] = (
     Stage("design", "ball-screw preload design, Pareto fronts, schedule",
           ("ballscrew", "feed_drive", "duty", "design", "schedule"), (), ("models", "artifacts", "design"), _stage_design,
           files=("schedule.profile",), applies=_design_applies),
-    Stage("plant", "the designed preload system as the plant", ("rig", "plant"), ("design",), ("models", "artifacts", "design"),
+    Stage("plant", "the designed preload system as the plant", ("rig", "plant"), ("design",),
+          ("models", "artifacts", "design"),
           _stage_plant, applies=_plant_applies),
     Stage("identify", "the feedforward's P-I model", ("rig", "feedforward", "reference"), ("plant",),
           ("models", "artifacts", "tuning"), _stage_identify, files=("feedforward.data",)),
@@ -345,10 +358,10 @@ STAGES: tuple[Stage, ...] = (
           ("study", "rig", "controller", "reference", "simulation", "published"), ("plant", "identify", "validate"),
           ("models", "artifacts", "tuning"), _stage_compare),
     Stage("learn", "learning control on the repeated schedule (each margin pass learned)",
-          ("rig", "plant", "schedule", "simulation", "learning"), ("design", "plant", "validate"),
+          ("rig", "plant", "schedule", "simulation", "learning", "validation"), ("design", "plant", "validate"),
           ("models", "artifacts", "design", "tuning"), _stage_learn, files=("schedule.profile",), applies=_learn_applies),
     Stage("system", "the controlled preload along the schedule: rigidity and deflection while cutting, energy",
-          ("rig", "plant", "schedule", "simulation", "learning"), ("design", "plant", "validate", "learn"),
+          ("rig", "plant", "schedule", "simulation", "learning", "validation"), ("design", "plant", "validate", "learn"),
           ("models", "artifacts", "design", "tuning"), _stage_system, files=("schedule.profile",), applies=_plant_applies),
     Stage("export", "the gain set in the controllers' formats", ("export",), ("validate",), ("models", "artifacts", "rig"),
           _stage_export, validated_only=True),

@@ -509,10 +509,13 @@ class Study:
 
     def track_schedule(self, plant: DesignedPlant, schedule: PreloadSchedule, gain_set: GainSet, *,
                        ff_extra_V: Any = None, progress: Callable[[str], None] | None = None) -> SystemRun:
-        """The validated gains with their feedforward following ``schedule`` on ``plant`` for ``[plant] cycles``,
-        the schedule planned again with a margin while the rigidity falls short (:func:`design.system.track_schedule`)."""
+        """The validated gains with their feedforward following ``schedule`` on ``plant`` for ``[plant] cycles``
+        after a pre-cycle to its first level (held the validated settling time, ``[validation] settling_max_s``),
+        the schedule planned again with local margins while a requirement is missed
+        (:func:`design.system.track_schedule`)."""
         return (self.plant or PlantTable()).track(plant, gain_set.controller(), schedule, seed=self.seed,
-                                                  ff_extra_V=ff_extra_V, progress=progress)
+                                                  settle_s=self.criteria.settling_max_s, ff_extra_V=ff_extra_V,
+                                                  progress=progress)
 
     def learn_schedule(self, plant: DesignedPlant, schedule: PreloadSchedule, gain_set: GainSet, *,
                        progress: Callable[[str], None] | None = None) -> tuple[SystemRun, list[LearningResult]]:

@@ -15,8 +15,11 @@ from typing import Any
 
 import numpy as np
 
+from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.plant import DesignedPlant
 from piezopreload.artifacts.requirements import Requirement, checked_by_stages
+from piezopreload.artifacts.system import SystemRecord
 from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core.artifacts import read_artifact
 from piezopreload.core.errors import InputError
@@ -121,17 +124,17 @@ class Artifacts:
     def tuning(self) -> dict[str, Any]:
         return self._read("tuning", "tune", "tuning", "tuning")
 
-    @property
-    def design(self) -> dict[str, Any] | None:
-        return self._read("design", "design", "design", "design") if self.has("design") else None
+    @functools.cached_property
+    def design(self) -> DesignRecord | None:
+        return DesignRecord.load(self.path("design", "design")) if self.has("design") else None
 
-    @property
-    def plant(self) -> dict[str, Any] | None:
-        return self._read("plant", "plant", "plant", "plant") if self.has("plant") else None
+    @functools.cached_property
+    def plant(self) -> DesignedPlant | None:
+        return DesignedPlant.load(self.path("plant", "plant")) if self.has("plant") else None
 
-    @property
-    def system(self) -> dict[str, Any] | None:
-        return self._read("system", "system", "system", "system") if self.has("system") else None
+    @functools.cached_property
+    def system(self) -> SystemRecord | None:
+        return SystemRecord.load(self.path("system", "system")) if self.has("system") else None
 
     @property
     def learning(self) -> dict[str, Any] | None:

@@ -15,7 +15,9 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
+from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import gains_to_dict
+from piezopreload.artifacts.system import SystemRecord
 from piezopreload.reports import figures as F
 from piezopreload.reports.document import Section, Table, fmt, pct
 from piezopreload.reports.inputs import Artifacts, ReportStudy
@@ -64,11 +66,13 @@ def study_section(study: ReportStudy, a: Artifacts, stage_names: tuple[str, ...]
     plant = a.plant
     paragraphs = [study.description] if study.description else []
     if plant is not None:
+        k = plant.to_dict()["local_stiffness_N_per_um"]
         paragraphs.append(
-            f"The plant is the designed preload system ([plant] from_design): {plant['rig']['n_stacks']} x "
-            f"{plant['rig']['stack']['name']} stacks between the two nuts, the stacks' share of the preload "
-            f"0-{fmt(plant['stack_force_max_N'])} N on top of {fmt(plant['bolt_preload_N'])} N from the bolts; every "
-            "control step (identification, tuning, validation, learning) ran on it.")
+            f"The plant is the designed preload system ([plant] from_design): {plant.rig.n_stacks} x "
+            f"{plant.rig.stack.name} stacks between the two nuts, the stacks' share of the preload "
+            f"0-{fmt(plant.stack_force_max_N)} N on top of {fmt(plant.bolt_preload_N)} N from the bolts. The nuts' Hertz "
+            f"contacts make the force per volt {fmt(k['at_max'] / k['at_bolts'])} times higher at the stacks' full force "
+            "than at the bolts' preload. Every control step (identification, tuning, validation, learning) ran on it.")
     else:
         paragraphs.append("The plant is the study's [rig] table; every control step (identification, tuning, "
                           "validation) ran on it.")
@@ -95,60 +99,56 @@ def requirements_section(a: Artifacts) -> Part | None:
 # --------------------------------------------------------------------------------------
 # the design
 # --------------------------------------------------------------------------------------
-def design_section(study: ReportStudy, design: dict[str, Any]) -> Part:
+def design_section(study: ReportStudy, design: DesignRecord) -> Part:
     """The design optimum, its fronts, the planned schedule and the axis' natural frequency."""
-    p, sch = design["optimum"]["point"], design["schedule"]
+    p, sch = design.point, design.schedule
     rows = (
-        ("contact angle", fmt(p["contact_angle_deg"]), "°"), ("ball diameter", fmt(p["ball_mm"], 4), "mm"),
-        ("conformity", fmt(p["conformity"]), ""), ("loaded turns per nut", f"{p['turns']:.0f}", ""),
-        ("balls per turn", f"{p['balls_per_turn']:.0f}", ""), ("bolt preload", fmt(p["bolt_preload_N"], 4), "N"),
-        ("maximum (piezo) preload", fmt(p["max_preload_N"], 4), "N"),
-        ("least rigidity over the duty cycle", fmt(p["stiffness_N_per_um"], 4), "N/um"),
-        ("mean drag torque", fmt(p["mean_drag_torque_Nm"]), "N m"), ("rating life", fmt(p["life_h"], 4), "h"),
-        ("C_dyn (estimate)", fmt(p["c_dyn_N"], 4), "N"), ("peak contact pressure", fmt(p["peak_pressure_MPa"], 4), "MPa"),
-        ("lowest axial natural frequency", fmt(p["frequency_min_Hz"], 4), "Hz"),
-        ("stack stroke used", fmt(p["stack_stroke_used_um"]), "um"),
+        ("contact angle", fmt(p.contact_angle_deg), "°"), ("ball diameter", fmt(p.ball_mm, 4), "mm"),
+        ("conformity", fmt(p.conformity), ""), ("loaded turns per nut", f"{p.turns:.0f}", ""),
+        ("balls per turn", f"{p.balls_per_turn:.0f}", ""), ("bolt preload", fmt(p.bolt_preload_N, 4), "N"),
+        ("maximum (piezo) preload", fmt(p.max_preload_N, 4), "N"),
+        ("least rigidity over the duty cycle", fmt(p.stiffness_N_per_um, 4), "N/um"),
+        ("mean drag torque", fmt(p.mean_drag_torque_Nm), "N m"), ("rating life", fmt(p.life_h, 4), "h"),
+        ("C_dyn (estimate)", fmt(p.c_dyn_N, 4), "N"), ("peak contact pressure", fmt(p.peak_pressure_MPa, 4), "MPa"),
+        ("lowest axial natural frequency", fmt(p.frequency_min_Hz, 4), "Hz"),
+        ("stack stroke used", fmt(p.stack_stroke_used_um), "um"),
     )
     diameter, lead = study.screw_mm or (None, None)
     screw = "" if diameter is None else f" ({fmt(diameter)} mm nominal diameter, {fmt(lead)} mm lead)"
-    binding = design["optimum"]["binding"]
+    binding = design.optimum.binding
+    e = sch.energy_units
     paragraphs = [
         f"The preload design for the study's screw{screw}, solved with CasADi and IPOPT over the integer turns and "
-        f"balls per turn, objective {design['optimum']['objective']}. Constraints that bind at the optimum: "
+        f"balls per turn, objective {design.optimum.objective}. Constraints that bind at the optimum: "
         f"{', '.join(binding) if binding else 'none'}.",
-        f"The least-friction preload schedule over the study's load profile ({sch['samples']} samples) keeps the "
-        f"rigidity above its requirement with {fmt(sch['friction_energy'], 4)} {sch['energy_units']} of friction "
-        f"energy, against {fmt(sch['constant_friction_energy'], 4)} {sch['energy_units']} at the best constant preload "
-        f"({fmt(sch['constant_preload_N'], 4)} N): {pct(sch['saving_fraction'])} less. These are the schedule as "
-        "planned; the controlled system's figures are those of the section on the designed system."]
-    figures: list[tuple[str, Figure, str]] = []
-    fronts = design["fronts"]
-    curve = design.get("preload_curve")
-    if curve is not None:
-        figures.append(("stiffness", F.stiffness_vs_preload(curve),
-                        "Axial rigidity and preload drag torque of the optimum's double nut against preload; the duty "
-                        "cases at their preloads."))
+        f"The least-friction preload schedule over the study's load profile ({sch.preload_N.size} samples) keeps the "
+        f"requirements with {fmt(sch.friction_energy_J, 4)} {e} of friction energy per cycle as planned, against "
+        f"{fmt(sch.constant_friction_energy_J, 4)} {e} at the best constant preload "
+        f"({fmt(sch.constant_preload_N, 4)} N): {pct(sch.saving_fraction)} less. What the controlled system achieves "
+        "is in the section on the designed system."]
+    figures: list[tuple[str, Figure, str]] = [
+        ("stiffness", F.stiffness_vs_preload(design.preload_curve.to_dict()),
+         "Axial rigidity and preload drag torque of the optimum's double nut against preload; the duty cases at their "
+         "preloads.")]
     omitted = []
-    if fronts:
-        figures.append(("pareto", F.pareto_fronts(fronts, p),
+    if design.fronts:
+        figures.append(("pareto", F.pareto_fronts([f.to_dict() for f in design.fronts], p.to_dict()),
                         "Pareto fronts by the epsilon-constraint method (each point an optimal design); star: the "
-                        f"optimum. Fronts: {', '.join(f['pair'] for f in fronts)}."))
+                        f"optimum. Fronts: {', '.join(f.pair for f in design.fronts)}."))
     else:
         omitted.append("Pareto fronts: the study's [design] pareto list is empty.")
-    figures.append(("schedule", F.preload_schedule(np.asarray(sch["time_s"]), np.asarray(sch["axial_load_N"]),
-                                                    np.asarray(sch["preload_N"]), float(sch["constant_preload_N"])),
+    figures.append(("schedule", F.preload_schedule(sch.profile.time_s, sch.profile.axial_load_N, sch.preload_N,
+                                                    sch.constant_preload_N),
                     f"The load profile and the planned least-friction preload schedule against the best constant "
-                    f"preload ({fmt(sch['constant_preload_N'], 4)} N)."))
-    nf = design["natural_frequency"]
-    figures.append(("natural-frequency", F.natural_frequency(np.asarray(nf["position_mm"]),
-                                                             np.asarray(nf["bolt_preload_Hz"]),
-                                                             np.asarray(nf["max_preload_Hz"]), study.frequency_min_Hz),
+                    f"preload ({fmt(sch.constant_preload_N, 4)} N)."))
+    nf = design.natural_frequency
+    limit = "" if study.frequency_min_Hz is None else f"; dashed, the study's limit {fmt(study.frequency_min_Hz)} Hz"
+    figures.append(("natural-frequency", F.natural_frequency(nf.position_mm, nf.bolt_preload_Hz, nf.max_preload_Hz,
+                                                             study.frequency_min_Hz),
                     "The first axial natural frequency of the table against its position, with the bolts' preload "
-                    "and with the stacks at full drive" + ("" if study.frequency_min_Hz is None else
-                                                           f"; dashed, the study's limit {fmt(study.frequency_min_Hz)} Hz")
-                    + "."))
+                    f"and with the stacks at full drive{limit}."))
     table = Table(("design variable or result", "optimum", "unit"), rows,
-                  f"The design optimum (objective: {design['optimum']['objective']}).", "lrl")
+                  f"The design optimum (objective: {design.optimum.objective}).", "lrl")
     return Part(Section("Ball-screw preload design", tuple(paragraphs), (table,), tuple(n for n, _, _ in figures),
                         tuple(omitted)), tuple(figures))
 
@@ -156,59 +156,58 @@ def design_section(study: ReportStudy, design: dict[str, Any]) -> Part:
 # --------------------------------------------------------------------------------------
 # the whole system and learning
 # --------------------------------------------------------------------------------------
-def _saving(system: dict[str, Any]) -> float:
-    return 1.0 - system["friction_energy_per_cycle"] / system["constant_friction_energy_per_cycle"]
-
-
-def system_section(system: dict[str, Any], learning: dict[str, Any] | None) -> Part:
+def system_section(system: SystemRecord, design: DesignRecord, learning: dict[str, Any] | None) -> Part:
     """The designed system along its schedule: tracking, rigidity and deflection while cutting, friction."""
-    e = system["energy_units"]
+    n, sch = system.numbers, design.schedule
+    e = n.energy_units
     rows: list[tuple[str, str, str]] = [
         ("tracking RMS of the true force" + ("" if learning is None else ", learned"),
-         f"{fmt(system['tracking_rms_N'])} N", f"{fmt(system['tracking_rms_pct_of_range'])} % of the schedule's "
-                                                f"{fmt(system['schedule_range_N'])} N range")]
+         f"{fmt(n.tracking_rms_N)} N", f"{fmt(n.tracking_rms_pct_of_range)} % of the schedule's "
+                                       f"{fmt(n.schedule_range_N)} N range")]
     if learning is not None:
         rows.append(("tracking RMS before learning", f"{fmt(learning['before_learning_rms_N'])} N",
                      f"{fmt(learning['before_learning_pct_of_range'])} % of the range (the last pass)"))
+    deflection = ("no limit set" if n.deflection_limit_um is None else f"limit {fmt(n.deflection_limit_um)} um")
     rows += [
-        ("largest tracking error", f"{fmt(system['tracking_max_N'])} N", ""),
-        ("least rigidity while cutting", f"{fmt(system['rigidity_min_cutting_N_per_um'])} N/um",
-         f"required {fmt(system['rigidity_required_N_per_um'])} N/um"),
-        ("time below the required rigidity", f"{fmt(system['rigidity_below_requirement_s'])} s", ""),
-        ("largest axial deflection while cutting", f"{fmt(system['deflection_max_um'])} um",
-         f"limit {fmt(system['deflection_limit_um'])} um"),
-        ("least preload over the lift-off bound", fmt(system["lift_off_ratio_min"]),
-         f"the bound with its {fmt(system['lift_off_margin'])} margin"),
-        ("friction energy per cycle, achieved", f"{fmt(system['friction_energy_per_cycle'])} {e}",
-         f"planned {fmt(system['planned_friction_energy_per_cycle'])} {e}"),
-        ("friction energy per cycle, best constant preload", f"{fmt(system['constant_friction_energy_per_cycle'])} {e}",
-         f"at {fmt(system['constant_preload_N'])} N"),
-        ("preload margin planned for the loop's error", f"{fmt(system['preload_margin_N'])} N",
-         f"{len(system['passes'])} planning pass(es)"),
+        ("largest tracking error", f"{fmt(n.tracking_max_N)} N", ""),
+        ("error when the first cut begins", f"{fmt(n.cycle_start_error_N)} N",
+         f"after a {fmt(system.pre_cycle.duration_s)} s pre-cycle to the first level"),
+        ("least rigidity while cutting", f"{fmt(n.rigidity_min_cutting_N_per_um)} N/um",
+         f"required {fmt(n.rigidity_required_N_per_um)} N/um"),
+        ("time below the required rigidity", f"{fmt(n.rigidity_below_requirement_s)} s", ""),
+        ("largest axial deflection while cutting", f"{fmt(n.deflection_max_um)} um", deflection),
+        ("least preload over the lift-off bound", fmt(n.lift_off_ratio_min),
+         f"the bound with its {fmt(n.lift_off_margin)} margin"),
+        ("friction energy per cycle, achieved", f"{fmt(n.friction_energy_per_cycle)} {e}",
+         f"planned {fmt(n.planned_friction_energy_per_cycle)} {e}"),
+        ("friction energy per cycle, best constant preload", f"{fmt(sch.constant_friction_energy_J)} {e}",
+         f"at {fmt(sch.constant_preload_N)} N (the design's)"),
+        ("largest local preload margin for the loop's error", f"{fmt(system.preload_margin_N)} N",
+         f"{len(system.passes)} planning pass(es)"),
     ]
     follow = ("the tuned gains with the inverse-P-I feedforward follow it" if learning is None else
-              f"the tuned gains with the inverse-P-I feedforward and the correction learned on each pass follow it "
+              "the tuned gains with the inverse-P-I feedforward and the correction learned on each pass follow it "
               f"(from {fmt(learning['before_learning_pct_of_range'])} % of the range before learning)")
     text = (f"The design's preload schedule is the reference of the force loop on the designed plant: the stacks' "
-            f"share of it, over {system['cycles']} machining cycles. {follow[0].upper() + follow[1:]} within "
-            f"{fmt(system['tracking_rms_N'])} N RMS, {fmt(system['tracking_rms_pct_of_range'])} % of its range. "
-            f"While cutting, the least rigidity is {fmt(system['rigidity_min_cutting_N_per_um'])} N/um against the "
-            f"{fmt(system['rigidity_required_N_per_um'])} N/um required, and the largest deflection "
-            f"{fmt(system['deflection_max_um'])} um against {fmt(system['deflection_limit_um'])} um. The achieved "
-            f"preload needs {pct(_saving(system))} less friction energy than the best constant preload "
-            f"({fmt(system['friction_energy_per_cycle'])} against {fmt(system['constant_friction_energy_per_cycle'])} "
-            f"{e} per cycle).")
-    ser = {k: np.asarray(v, float) for k, v in system["series"].items()}
-    fig = F.system_tracking(ser["time_s"], ser["planned_N"], ser["achieved_N"], ser["rigidity_N_per_um"],
-                            ser["required_N_per_um"], ser["cutting"], ser["deflection_um"],
-                            system.get("deflection_limit_um"))
-    caption = (f"The designed system over {system['cycles']} machining cycles: the planned preload (the schedule, "
-               f"margin {fmt(system['preload_margin_N'])} N) and the preload the loop achieves (true force); the axial "
-               "rigidity at the achieved preload under the cutting load against the requirement (dashed); the axial "
-               "deflection under the load against its limit (dashed).")
+            f"share of it, over {system.cycles} machining cycles, after a {fmt(system.pre_cycle.duration_s)} s "
+            f"pre-cycle that brings the stacks to the first level at the slew limit before the first cut. "
+            f"{follow[0].upper() + follow[1:]} within {fmt(n.tracking_rms_N)} N RMS, "
+            f"{fmt(n.tracking_rms_pct_of_range)} % of its range. While cutting, the least rigidity is "
+            f"{fmt(n.rigidity_min_cutting_N_per_um)} N/um against the {fmt(n.rigidity_required_N_per_um)} N/um "
+            f"required. The achieved preload needs {pct(n.friction_saved_fraction)} less friction energy than the "
+            f"design's best constant preload ({fmt(n.friction_energy_per_cycle)} against "
+            f"{fmt(sch.constant_friction_energy_J)} {e} per cycle).")
+    paragraphs = [text] + [f"What stops a requirement: {b.sentence()}." for b in system.bounds]
+    ser = system.series
+    fig = F.system_tracking(ser.time_s, ser.planned_N, ser.achieved_N, ser.rigidity_N_per_um, ser.required_N_per_um,
+                            ser.cutting, ser.deflection_um, n.deflection_limit_um)
+    caption = (f"The designed system over the pre-cycle and {system.cycles} machining cycles: the planned preload (the "
+               f"schedule, local margins up to {fmt(system.preload_margin_N)} N) and the preload the loop achieves "
+               "(true force); the axial rigidity at the achieved preload under the cutting load against the "
+               "requirement (dashed); the axial deflection under the load against its limit (dashed).")
     table = Table(("quantity", "value", "against"), tuple(rows),
                   "The controlled preload of the designed system over the machining cycles.", "lrl")
-    return Part(Section("The designed system along its preload schedule", (text,), (table,), ("system",)),
+    return Part(Section("The designed system along its preload schedule", tuple(paragraphs), (table,), ("system",)),
                 (("system", fig, caption),))
 
 

@@ -36,8 +36,8 @@ def _parts(study: ReportStudy, a: Artifacts) -> list[S.Part]:
     requirements = S.requirements_section(a)
     if requirements is not None:
         parts.append(requirements)
-    if a.system is not None:
-        parts.append(S.system_section(a.system, a.learning))
+    if a.system is not None and a.design is not None:
+        parts.append(S.system_section(a.system, a.design, a.learning))
     if a.learning is not None:
         parts.append(S.learning_section(a.learning))
     parts += [S.controller_section(study, a), S.responses_section(study, a), S.feedforward_section(study, a)]

@@ -12,8 +12,10 @@ from __future__ import annotations
 
 from typing import Any
 
+from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import gains_to_dict
 from piezopreload.artifacts.requirements import missed
+from piezopreload.artifacts.system import SystemRecord
 from piezopreload.reports.document import fmt, pct
 from piezopreload.reports.inputs import Artifacts, Published, ReportStudy
 from piezopreload.reports.sections import levels_text, signal_name
@@ -36,8 +38,8 @@ def verdicts(a: Artifacts) -> tuple[str, ...]:
 def summary(study: ReportStudy, a: Artifacts) -> tuple[str, ...]:
     """The study's headline figures, in the order a reader of this study asks for them."""
     lines: list[str] = []
-    if a.system is not None:
-        lines += _system_lines(a.system, a.learning)
+    if a.system is not None and a.design is not None:
+        lines += _system_lines(a.system, a.design, a.learning)
     lines.append(_controller_line(a))
     lines.append(_step_line(study, a))
     lines.append(_rig_line(a))
@@ -46,21 +48,21 @@ def summary(study: ReportStudy, a: Artifacts) -> tuple[str, ...]:
     return tuple(lines)
 
 
-def _system_lines(system: dict[str, Any], learning: dict[str, Any] | None) -> list[str]:
-    e = system["energy_units"]
+def _system_lines(system: SystemRecord, design: DesignRecord, learning: dict[str, Any] | None) -> list[str]:
+    n, sch = system.numbers, design.schedule
     before = ("" if learning is None else
               f", from {fmt(learning['before_learning_rms_N'])} N ({fmt(learning['before_learning_pct_of_range'])} %) "
               "before learning")
-    saving = 1.0 - system["friction_energy_per_cycle"] / system["constant_friction_energy_per_cycle"]
+    deflection = ("" if n.deflection_limit_um is None else
+                  f", and its largest deflection {fmt(n.deflection_max_um)} um against {fmt(n.deflection_limit_um)} um")
     return [
-        f"The designed axis follows its preload schedule within {fmt(system['tracking_rms_N'])} N RMS "
-        f"({fmt(system['tracking_rms_pct_of_range'])} % of its {fmt(system['schedule_range_N'])} N range){before}.",
-        f"While cutting, its least rigidity is {fmt(system['rigidity_min_cutting_N_per_um'])} N/um against the "
-        f"{fmt(system['rigidity_required_N_per_um'])} N/um required, and its largest deflection "
-        f"{fmt(system['deflection_max_um'])} um against {fmt(system['deflection_limit_um'])} um.",
-        f"The achieved preload needs {pct(saving)} less friction energy than the best constant preload "
-        f"({fmt(system['friction_energy_per_cycle'])} against {fmt(system['constant_friction_energy_per_cycle'])} {e} "
-        f"per cycle at {fmt(system['constant_preload_N'])} N).",
+        f"The designed axis follows its preload schedule within {fmt(n.tracking_rms_N)} N RMS "
+        f"({fmt(n.tracking_rms_pct_of_range)} % of its {fmt(n.schedule_range_N)} N range){before}.",
+        f"While cutting, its least rigidity is {fmt(n.rigidity_min_cutting_N_per_um)} N/um against the "
+        f"{fmt(n.rigidity_required_N_per_um)} N/um required{deflection}.",
+        f"The achieved preload needs {pct(n.friction_saved_fraction)} less friction energy than the design's best "
+        f"constant preload ({fmt(n.friction_energy_per_cycle)} against {fmt(sch.constant_friction_energy_J)} "
+        f"{n.energy_units} per cycle at {fmt(sch.constant_preload_N)} N).",
     ]
 
 

@@ -184,15 +184,17 @@ def _json_text(digest: str, g: dict[str, float], ff: dict[str, Any] | None, sche
 
 # ---- labview ----------------------------------------------------------------------------------
 def _table_lines(schedule: GainSchedule, comment: str, names: tuple[tuple[str, float], ...]) -> list[str]:
-    """The schedule as an INI section: the setpoints and each gain as comma-separated lists (entry by entry)."""
+    """The schedule as an INI section: the setpoints and each gain (and the setpoint weight, where the schedule has
+    one per entry) as comma-separated lists, entry by entry."""
     def row(values: tuple[float, ...], divide: float) -> str:
         return ", ".join(f"{x / divide:.12g}" for x in values)
 
-    (kc, kc_d), (ti, ti_d), (td, td_d) = names
+    (kc, kc_d), (ti, ti_d), (td, td_d), (b, _) = names
     return [f"{comment}gain schedule: {SCHEDULE_INTERPOLATION}; the single gains above are the robust set, "
             "not used while the schedule is", "[gain schedule]", f"entries = {schedule.size}",
             f"setpoint (N) = {row(schedule.levels_N, 1.0)}", f"{kc} = {row(schedule.Kc, kc_d)}",
-            f"{ti} = {row(schedule.Ti_s, ti_d)}", f"{td} = {row(schedule.Td_s, td_d)}"]
+            f"{ti} = {row(schedule.Ti_s, ti_d)}", f"{td} = {row(schedule.Td_s, td_d)}",
+            *([] if schedule.b is None else [f"{b} = {row(schedule.b, 1.0)}"])]
 
 
 def _row(values: np.ndarray) -> str:
@@ -234,7 +236,8 @@ def _labview_text(head: list[str], g: dict[str, float], schedule: GainSchedule |
         "[output range]", f"low (V) = {g['u_min_V']:.12g}", f"high (V) = {g['u_max_V']:.12g}",
         "[advanced]", f"setpoint weight beta = {g['b']:.12g}", f"derivative filter time constant (s) = {g['Tf_s']:.12g}"]
     if schedule is not None:  # LabVIEW's PID Gain Schedule VI takes a table of setpoint breakpoints and gains
-        lines += _table_lines(schedule, "; ", (("Kc", 1.0), ("Ti (min)", 60.0), ("Td (min)", 60.0)))
+        lines += _table_lines(schedule, "; ", (("Kc", 1.0), ("Ti (min)", 60.0), ("Td (min)", 60.0),
+                                               ("setpoint weight beta", 1.0)))
     lines += ["[feedforward]", "model = none (the PID alone)"] if table is None else _labview_feedforward(table)
     return "\n".join(lines) + "\n"
 
@@ -251,7 +254,7 @@ def _plc_text(head: list[str], g: dict[str, float], schedule: GainSchedule | Non
              f"Kp = {g['Kc_V_per_N']:.12g}", f"Tn = {g['Ti_s']:.12g}", f"Tv = {g['Td_s']:.12g}",
              f"Tf = {g['Tf_s']:.12g}", f"b = {g['b']:.12g}", f"Ymin = {g['u_min_V']:.12g}", f"Ymax = {g['u_max_V']:.12g}"]
     if schedule is not None:
-        lines += _table_lines(schedule, "; ", (("Kp", 1.0), ("Tn", 1.0), ("Tv", 1.0)))
+        lines += _table_lines(schedule, "; ", (("Kp", 1.0), ("Tn", 1.0), ("Tv", 1.0), ("b", 1.0)))
     if table is None:
         lines.append("[feedforward] none: the PID alone *)")
         return "\n".join(lines) + "\n"
@@ -279,10 +282,11 @@ def _schedule_comment(doc: GainSet) -> list[str]:
         return []
     def row(values: tuple[float, ...]) -> str:
         return ", ".join(f"{x:.6g}" for x in values)
-    return [f"/* gain schedule ({sch.size} entries), compiled into the step: Kc, Ti and Td linear in the setpoint",
+    b = "" if sch.b is None else f"; b: {row(sch.b)}"
+    return [f"/* gain schedule ({sch.size} entries), compiled into the step: Kc, Ti, Td and b linear in the setpoint",
             "   between entries, the end entries' values beyond them; the integral state is the integral action (V),",
             f"   so a change of gains does not jump the output. setpoint (N): {row(sch.levels_N)};",
-            f"   Kc (V/N): {row(sch.Kc)}; Ti (s): {row(sch.Ti_s)}; Td (s): {row(sch.Td_s)} */"]
+            f"   Kc (V/N): {row(sch.Kc)}; Ti (s): {row(sch.Ti_s)}; Td (s): {row(sch.Td_s)}{b} */"]
 
 
 def _casadi_c(doc: GainSet, g: dict[str, float], digest: str, head: list[str]) -> str:
@@ -385,16 +389,21 @@ def _c_model(ff: dict[str, Any]) -> list[str]:
 
 def _c_schedule(schedule: GainSchedule) -> list[str]:
     """The gain schedule as C arrays, with the interpolation the controller step does spelled out."""
-    return ["/* gain schedule: Kc, Ti and Td linear in the setpoint r between entries, the end entries' values",
+    b = "Kc, Ti, Td and b" if schedule.b is not None else "Kc, Ti and Td"
+    single = ("Tf and the output range are single;" if schedule.b is not None else
+              "Tf, b (PP_SETPOINT_WEIGHT) and the output range are single;")
+    robust = "PP_KC_V_PER_N, PP_TI_S, PP_TD_S" + (" and PP_SETPOINT_WEIGHT" if schedule.b is not None else "")
+    return [f"/* gain schedule: {b} linear in the setpoint r between entries, the end entries' values",
             "   beyond them: for PP_SCHEDULE_LEVELS_N[i] <= r <= PP_SCHEDULE_LEVELS_N[i+1],",
-            "   K(r) = K[i] + (K[i+1] - K[i]) (r - L[i]) / (L[i+1] - L[i]). Tf, b and the output range are single;",
+            f"   K(r) = K[i] + (K[i+1] - K[i]) (r - L[i]) / (L[i+1] - L[i]). {single}",
             "   the integral state is the integral action (V), so a change of gains does not jump the output.",
-            "   PP_KC_V_PER_N, PP_TI_S and PP_TD_S above are the robust set, not used while the schedule is. */",
+            f"   {robust} above are the robust set, not used while the schedule is. */",
             f"#define PP_SCHEDULE_N {schedule.size}",
             _c_array("PP_SCHEDULE_LEVELS_N", "PP_SCHEDULE_N", schedule.levels_N),
             _c_array("PP_SCHEDULE_KC_V_PER_N", "PP_SCHEDULE_N", schedule.Kc),
             _c_array("PP_SCHEDULE_TI_S", "PP_SCHEDULE_N", schedule.Ti_s),
-            _c_array("PP_SCHEDULE_TD_S", "PP_SCHEDULE_N", schedule.Td_s)]
+            _c_array("PP_SCHEDULE_TD_S", "PP_SCHEDULE_N", schedule.Td_s),
+            *([] if schedule.b is None else [_c_array("PP_SCHEDULE_B", "PP_SCHEDULE_N", schedule.b)])]
 
 
 def _c_header(digest: str, head: list[str], g: dict[str, float], ff: dict[str, Any] | None,

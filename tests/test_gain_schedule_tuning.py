@@ -12,7 +12,14 @@ from piezopreload.models.actuator import RigParams
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import PIDGains
 from piezopreload.tuning.pid import TuningSpec, _small_signal_gains
-from piezopreload.tuning.schedule import choose, level_windows, schedule_levels, tune_schedule
+from piezopreload.tuning.schedule import (
+    choose,
+    level_windows,
+    rising_setpoint_weights,
+    schedule_levels,
+    setpoint_action_rises,
+    tune_schedule,
+)
 from piezopreload.tuning.validate import validate
 
 
@@ -62,6 +69,7 @@ def test_a_window_s_slopes_are_the_hertz_coupling_s_there():
     assert whole[0] < lo < hi < whole[1], "a window's slopes are not inside the whole stroke's"
 
 
+@pytest.mark.slow  # four tunings and eight Monte Carlo validations (about 8 s under load)
 def test_tune_schedule_records_both_sets_per_level_and_chooses_by_them():
     rig = _hertz_rig()
     spec = TuningSpec(band_N=1.5)
@@ -72,7 +80,7 @@ def test_tune_schedule_records_both_sets_per_level_and_chooses_by_them():
     res = tune_schedule(rig, None, spec, criteria, robust, levels_N=[30.0, 60.0], step=step, trajectory=trajectory,
                         n_plants=3, seed=1, workers=1)
     assert res.schedule.levels_N == (30.0, 60.0)
-    assert res.scheduled.schedule is res.schedule and res.scheduled.b == robust.b and res.scheduled.Tf_s == robust.Tf_s
+    assert res.scheduled.schedule is res.schedule and res.scheduled.Tf_s == robust.Tf_s
     d = res.to_dict()
     assert d["choice"] in ("robust", "schedule") and res.gains is (res.robust if d["choice"] == "robust" else res.scheduled)
     assert (d["choice"], d["reason"]) == choose(d["levels"], d["whole_range"])
@@ -83,12 +91,16 @@ def test_tune_schedule_records_both_sets_per_level_and_chooses_by_them():
                      trajectory=Reference.staircase(lo, [hi, lo], 0.6, t_start_s=0.3))
     for k in ("settling_s", "overshoot_N", "tracking_rms_N"):
         assert r0["robust"][k] == again.summary()[k]["worst"], f"level 30 N, robust, {k} is not the validation's"
-    # an entry whose tuning was infeasible keeps the robust set's gains, and says so
-    for r, kc in zip(d["levels"], res.schedule.Kc):
-        assert r["entry"]["Kc_V_per_N"] == kc
-        assert (r["entry"]["b"], r["entry"]["Tf_s"]) == (robust.b, robust.Tf_s), "an entry was tuned with its own b or Tf"
+    # each entry has its own b (the table's column, tuned with the entry) and the robust set's Tf; an entry whose
+    # tuning was infeasible keeps the robust set's gains, and says so
+    assert res.schedule.b is not None and d["table"]["b"] == list(res.schedule.b)
+    for r, kc, b in zip(d["levels"], res.schedule.Kc, res.schedule.b):
+        assert r["entry"]["Kc_V_per_N"] == kc and r["entry"]["b"] == b and r["entry"]["Tf_s"] == robust.Tf_s
+        assert 0.0 <= b <= 1.0, f"the setpoint weight {b} is outside the tuning's box"
         if "infeasible" in r["tuning"]:
             assert kc == robust.Kc
+        assert ("bound" in r) == (not r["scheduled"]["passed"]), "a level the schedule misses does not say what stops it"
+    assert setpoint_action_rises(res.schedule.levels_N, res.schedule.Kc, res.schedule.b)
 
 
 def test_a_flat_schedule_validates_as_the_robust_set():
@@ -103,3 +115,48 @@ def test_a_flat_schedule_validates_as_the_robust_set():
     b = validate(flat, None, rig, Criteria(band_N=1.5), n_plants=3, seed=2, step=ref[0], trajectory=ref[1])
     for k in a.metrics:
         np.testing.assert_allclose(b.metrics[k], a.metrics[k], rtol=0, atol=1e-9, err_msg=k)
+
+
+def test_the_setpoint_action_must_rise_with_the_setpoint_and_the_weights_are_raised_to_the_least_that_does():
+    """Kc constant, b linear between (L0, b0) and (L1, b1): d(b r)/dr = b(r) + r (b1 - b0) / (L1 - L0) is least at
+    L1 when b falls, so the setpoint action rises iff b1 >= b0 L1 / (2 L1 - L0); the raised weight is that bound."""
+    lv, kc = (2000.0, 4000.0), (0.011, 0.011)
+    bound = 0.6 * 4000.0 / (2 * 4000.0 - 2000.0)
+    assert setpoint_action_rises(lv, kc, (0.6, bound + 1e-4)) and not setpoint_action_rises(lv, kc, (0.6, bound - 1e-3))
+    raised = rising_setpoint_weights(lv, kc, (0.6, 0.1))
+    assert raised[0] == 0.6 and raised[1] == pytest.approx(bound, abs=2e-6), raised
+    assert rising_setpoint_weights(lv, kc, (0.6, 0.7)) == (0.6, 0.7), "a rising table was changed"
+    # three entries, from the bottom up: the middle one is raised first, and the top one against the raised middle
+    three = rising_setpoint_weights((0.0, 2000.0, 4000.0), (0.01, 0.0115, 0.0112), (0.9, 0.05, 0.6))
+    assert setpoint_action_rises((0.0, 2000.0, 4000.0), (0.01, 0.0115, 0.0112), three)
+    assert three[1] > 0.05 and three[2] == 0.6
+    # a falling setpoint action makes a step across the segment lower the command: the closed loop lags
+    from piezopreload.models.controller import Controller, GainSchedule
+
+    def command_after_step(b):
+        g = PIDGains(Kc=0.011, Ti_s=0.05, b=0.6, u_min=-1e3, u_max=1e3, schedule=GainSchedule(lv, kc, (0.05, 0.05),
+                                                                                               (0.0, 0.0), b))
+        c = Controller(g, 1e-3)
+        state = c.initial_state(3000.0, 3000.0, u0=0.0)
+        u, _ = c.step(state, 3500.0, 3000.0)
+        return float(u)
+
+    assert command_after_step((0.6, 0.1)) < 0.0 < command_after_step(raised), \
+        "the raised weights do not make a step up raise the command"
+
+
+def test_a_level_the_schedule_misses_says_what_stops_a_pid_entry():
+    from piezopreload.tuning.schedule import _bound
+
+    limits = {"settling_s": 0.6, "overshoot_N": 25.0, "tracking_rms_N": 40.0, "peak_voltage_V": 120.0}
+    figures = {"overshoot_N": 28.8, "settling_s": 0.5, "failures": ["overshoot_N"], "passed": False}
+    tuned = _bound({"binding": ["Ms <= 1.6, variant 2", "overshoot inside 15 N, step, variant 1"],
+                    "overshoot_target_N": 15.0}, figures, limits)
+    assert "Ms <= 1.6, variant 2" in tuned and "overshoot_N 28.8 against 25" in tuned and "15 N" in tuned
+    none = _bound({"infeasible": "not met: overshoot inside 15 N, step, variant 2 (by 18.5)"}, figures, limits)
+    assert "no PID entry meets" in none and "by 18.5" in none
+    levels = [{"level_N": 2000.0, "robust": _figures(False, ("overshoot_N",)), "scheduled": _figures(False, ("overshoot_N",)),
+               "bound": tuned}]
+    whole = {"robust": _figures(True), "scheduled": _figures(True)}
+    choice, reason = choose(levels, whole)
+    assert choice == "robust" and "What stops a PID entry: at 2000 N" in reason and "Ms <= 1.6" in reason

@@ -21,6 +21,10 @@ from piezopreload.rig.export import export
 SCHEDULE = GainSchedule(levels_N=(30.0, 60.0, 100.0), Kc=(0.9, 1.6, 0.7), Ti_s=(0.08, 0.04, 0.06),
                         Td_s=(0.0, 0.004, 0.002))
 BASE = dict(Kc=1.2, Ti_s=0.05, Td_s=0.003, Tf_s=0.002, b=0.4, u_min=0.0, u_max=110.0)
+#: the same table with a setpoint weight per entry (tuned with each entry)
+SCHEDULE_B = GainSchedule(levels_N=SCHEDULE.levels_N, Kc=SCHEDULE.Kc, Ti_s=SCHEDULE.Ti_s, Td_s=SCHEDULE.Td_s,
+                          b=(0.3, 0.8, 0.5))
+BOTH = pytest.mark.parametrize("table", [SCHEDULE, SCHEDULE_B], ids=["single b", "b per entry"])
 
 
 @pytest.fixture
@@ -49,6 +53,29 @@ def test_schedule_interpolates_linearly_and_clamps_at_the_ends_on_numpy_and_casa
         np.testing.assert_allclose(cas[:3], [c[list(x).index(xi)] for c in got], rtol=0, atol=1e-14,
                                    err_msg=f"CasADi's gains at {xi} N differ from numpy's")
         assert cas[3:] == [BASE["Tf_s"], BASE["b"]], "Tf and b are single"
+    # a b column: b interpolated as the gains are (numpy's interp), Tf still single, and the numpy face agrees
+    controller = Controller(PIDGains(**BASE, schedule=SCHEDULE_B), 1e-3)
+    model, p = controller.model, controller.parameter_vector()
+    fn = ca.Function("g", [s], list(model.gains_at(__import__("piezopreload").models.ops.CASADI,
+                                                   model.params.unpack(ca.DM(p)), s)))
+    for xi in x:
+        cas = [float(v) for v in fn(xi)]
+        want = float(np.interp(xi, SCHEDULE_B.levels_N, SCHEDULE_B.b))
+        assert cas[4] == pytest.approx(want, abs=1e-14), f"b at {xi} N: CasADi {cas[4]}, numpy.interp {want}"
+        assert float(SCHEDULE_B.b_at(xi, 0.4)) == pytest.approx(want, abs=1e-14) and cas[3] == BASE["Tf_s"]
+    assert float(SCHEDULE.b_at(61.0, 0.4)) == 0.4, "a table without a b column does not use the single b"
+
+
+def test_a_flat_b_column_is_the_single_b_exactly():
+    """A b column whose entries are all the single b gives the very commands of no column (to 1e-12)."""
+    flat = GainSchedule(SCHEDULE.levels_N, SCHEDULE.Kc, SCHEDULE.Ti_s, SCHEDULE.Td_s, b=(BASE["b"],) * 3)
+    rig = Rig(RigParams(noise_N=0.2))
+    ref = Reference.staircase(25.0, [60.0, 110.0, 40.0], 0.3, t_start_s=0.05)
+    one = simulate(rig, Controller(PIDGains(**BASE, schedule=SCHEDULE), rig.dt_s), ref, seed=3)
+    col = simulate(rig, Controller(PIDGains(**BASE, schedule=flat), rig.dt_s), ref, seed=3)
+    np.testing.assert_allclose(col.command_V, one.command_V, rtol=0, atol=1e-12)
+    other = simulate(rig, Controller(PIDGains(**BASE, schedule=SCHEDULE_B), rig.dt_s), ref, seed=3)
+    assert np.max(np.abs(other.command_V - one.command_V)) > 0.1, "the b column does not reach the step"
 
 
 def test_identical_entries_give_the_unscheduled_controller():
@@ -101,8 +128,24 @@ def test_a_ramp_through_the_entries_moves_the_output_as_the_closed_form_says():
     assert np.max(np.abs(du)) <= bound, f"a jump of {np.max(np.abs(du)):.3g} V exceeds the bound {bound:.3g} V"
 
 
-def test_numpy_and_casadi_steps_agree_with_a_schedule(rng):
-    g = PIDGains(**BASE, schedule=SCHEDULE)
+def test_a_ramp_through_entries_with_their_own_b_moves_the_output_as_the_closed_form_says():
+    """With a b column the proportional action is Kc(s) (b(s) s - y), both interpolated in the setpoint s: the
+    increments are u_k - u_{k-1} = Kc_k (b_k s_k - y) - Kc_{k-1} (b_{k-1} s_{k-1} - y) + Kc_k / Ti_k (e_k + e_{k-1}) / 2 dt
+    (measurement held, so no derivative action; the integral state is the integral action)."""
+    g = PIDGains(**{**BASE, "u_min": -1e4, "u_max": 1e4}, schedule=SCHEDULE_B)
+    y, dt = 40.0, 1e-3
+    sp, u = _ramp_open_loop(g, y0=y, dt=dt)
+    Kc, Ti, _ = SCHEDULE_B.at(sp)
+    b = np.interp(sp, SCHEDULE_B.levels_N, SCHEDULE_B.b)
+    e = sp - y
+    p = Kc * (b * sp - y)
+    want = np.diff(p) + Kc[1:] / Ti[1:] * 0.5 * (e[1:] + e[:-1]) * dt
+    np.testing.assert_allclose(np.diff(u), want, rtol=0, atol=1e-11, err_msg="the output's increments with a b column")
+
+
+@BOTH
+def test_numpy_and_casadi_steps_agree_with_a_schedule(rng, table):
+    g = PIDGains(**BASE, schedule=table)
     c = Controller(g, 1e-3)
     _, step = controller_functions(c.model)
     p = c.parameter_vector()
@@ -115,12 +158,13 @@ def test_numpy_and_casadi_steps_agree_with_a_schedule(rng):
         x = nxt
 
 
-def test_switching_to_and_from_a_schedule_is_bumpless():
+@BOTH
+def test_switching_to_and_from_a_schedule_is_bumpless(table):
     """Controller.switch (the rig's gain change) with schedules: a loop resting with a 1 N error at 80 N (between
     two entries) moves by the new controller's integral increment only, Kc(80)/Ti(80) * 1 N * dt."""
     dt = 1e-3
     robust = Controller(PIDGains(**BASE), dt)
-    scheduled = Controller(PIDGains(**BASE, schedule=SCHEDULE), dt)
+    scheduled = Controller(PIDGains(**BASE, schedule=table), dt)
     for a, b in ((robust, scheduled), (scheduled, robust)):
         state = a.initial_state(80.0, 79.0, u0=50.0)
         for _ in range(300):
@@ -142,9 +186,12 @@ def test_switching_to_and_from_a_schedule_is_bumpless():
     (lambda d: d.update(levels_N=list(range(40)), Kc_V_per_N=[1.0] * 40, Ti_s=[0.1] * 40, Td_s=[0.0] * 40),
      "gains.schedule.levels_N"),
     (lambda d: d.pop("Ti_s"), "gains.schedule.Ti_s"),
+    (lambda d: d.update(b=[0.3, float("inf"), 0.5]), "gains.schedule.b"),
+    (lambda d: d.update(b=[0.3, 0.5]), "gains.schedule.b"),
+    (lambda d: d.update(b="half"), "gains.schedule.b"),
 ])
 def test_a_bad_schedule_is_refused_naming_its_field(mutate, field):
-    doc = gains_to_dict(PIDGains(**BASE, schedule=SCHEDULE))
+    doc = gains_to_dict(PIDGains(**BASE, schedule=SCHEDULE_B))
     mutate(doc["schedule"])
     with pytest.raises(InputError, match=re.escape(f"'{field}'")):
         gains_from_dict(doc)
@@ -158,10 +205,12 @@ def _gain_set(tmp_path, schedule=SCHEDULE, name="gains.json"):
     return path
 
 
-def test_the_schedule_round_trips_and_its_hash_covers_it(tmp_path):
-    path = _gain_set(tmp_path)
+@BOTH
+def test_the_schedule_round_trips_and_its_hash_covers_it(tmp_path, table):
+    path = _gain_set(tmp_path, table)
     loaded = GainSet.load(path)
-    assert loaded.gains.schedule == SCHEDULE, "the table did not come back"
+    assert loaded.gains.schedule == table, "the table did not come back"
+    assert ("b" in json.loads(path.read_text())["gains"]["schedule"]) == (table.b is not None)
     again = GainSet.from_dict(loaded.to_dict())
     assert again.gains == loaded.gains
     doc = json.loads(path.read_text())
@@ -182,10 +231,11 @@ def _ini_table(text, section="[gain schedule]"):
     return rows
 
 
-def test_every_text_format_writes_the_table(tmp_path):
-    gs = GainSet.load(_gain_set(tmp_path))
+@BOTH
+def test_every_text_format_writes_the_table(tmp_path, table):
+    gs = GainSet.load(_gain_set(tmp_path, table))
     js = json.loads(export(gs, "json"))["gain_schedule"]
-    assert GainSchedule(js["levels_N"], js["Kc_V_per_N"], js["Ti_s"], js["Td_s"]) == SCHEDULE
+    assert GainSchedule(js["levels_N"], js["Kc_V_per_N"], js["Ti_s"], js["Td_s"], js.get("b")) == table
     assert "linear in the setpoint" in js["interpolation"]
     lv = _ini_table(export(gs, "labview"))
     np.testing.assert_allclose(lv["setpoint (N)"], SCHEDULE.levels_N, rtol=1e-12)
@@ -196,6 +246,13 @@ def test_every_text_format_writes_the_table(tmp_path):
     np.testing.assert_allclose(plc["Kp"], SCHEDULE.Kc, rtol=1e-12)
     np.testing.assert_allclose(plc["Tn"], SCHEDULE.Ti_s, rtol=1e-12)
     np.testing.assert_allclose(plc["Tv"], SCHEDULE.Td_s, rtol=1e-12)
+    header = export(gs, "c-header")
+    if table.b is None:  # the single b holds for every entry: no column anywhere
+        assert "setpoint weight beta" not in lv and "b" not in plc and "PP_SCHEDULE_B[" not in header
+    else:
+        np.testing.assert_allclose(lv["setpoint weight beta"], table.b, rtol=1e-12)
+        np.testing.assert_allclose(plc["b"], table.b, rtol=1e-12)
+        assert "PP_SCHEDULE_B[PP_SCHEDULE_N] = {0.3, 0.8, 0.5}" in header
     for fmt in ("json", "labview", "plc", "c-header"):
         plain = export(GainSet.load(_gain_set(tmp_path, None, "plain.json")), fmt)
         assert "schedule" not in plain.lower(), f"{fmt}: a table where there is no schedule"
@@ -222,7 +279,8 @@ static double at(const double* k, double r) {
 int main(void) {
   double r;
   while (scanf("%lf", &r) == 1)
-    printf("%.17g %.17g %.17g\n", at(PP_SCHEDULE_KC_V_PER_N, r), at(PP_SCHEDULE_TI_S, r), at(PP_SCHEDULE_TD_S, r));
+    printf("%.17g %.17g %.17g %.17g\n", at(PP_SCHEDULE_KC_V_PER_N, r), at(PP_SCHEDULE_TI_S, r), at(PP_SCHEDULE_TD_S, r),
+           at(PP_SCHEDULE_B, r));
   return 0;
 }
 """
@@ -230,7 +288,7 @@ int main(void) {
 
 def test_the_c_header_table_interpolates_as_the_step(tmp_path):
     cc = _cc()
-    gs = GainSet.load(_gain_set(tmp_path))
+    gs = GainSet.load(_gain_set(tmp_path, SCHEDULE_B))
     (tmp_path / "gains.h").write_text(export(gs, "c-header"))
     (tmp_path / "main.c").write_text(_HEADER_MAIN)
     subprocess.run([cc, "-std=c99", "-Wall", "-Werror", "-Wno-unused-const-variable", "-o", str(tmp_path / "m"),
@@ -238,8 +296,8 @@ def test_the_c_header_table_interpolates_as_the_step(tmp_path):
     x = np.linspace(0.0, 140.0, 57)
     res = subprocess.run([str(tmp_path / "m")], input="\n".join(repr(float(v)) for v in x) + "\n",
                          capture_output=True, text=True, check=True)
-    got = np.array(res.stdout.split(), float).reshape(-1, 3).T
-    want = np.array(SCHEDULE.at(x))
+    got = np.array(res.stdout.split(), float).reshape(-1, 4).T
+    want = np.array([*SCHEDULE_B.at(x), SCHEDULE_B.b_at(x, BASE["b"])])
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-14, err_msg="the header's table does not give the step's gains")
 
 
@@ -258,10 +316,11 @@ int main(void) {
 """
 
 
-def test_the_casadi_c_step_is_the_scheduled_step(tmp_path):
+@BOTH
+def test_the_casadi_c_step_is_the_scheduled_step(tmp_path, table):
     """The generated C (the schedule compiled in) against Controller.step over a closed loop through every entry."""
     cc = _cc()
-    gs = GainSet.load(_gain_set(tmp_path))
+    gs = GainSet.load(_gain_set(tmp_path, table))
     controller = gs.controller()
     rig = Rig(RigParams(noise_N=0.2))
     ref = Reference.staircase(25.0, [45.0, 80.0, 120.0, 60.0, 30.0], 0.5, t_start_s=0.1)
@@ -273,7 +332,7 @@ def test_the_casadi_c_step_is_the_scheduled_step(tmp_path):
         u_py[k], state = controller.step(state, sp[k], pv[k])
     np.testing.assert_allclose(u_py, run.command_V, rtol=0, atol=1e-9, err_msg="the step is not the simulation's")
     text = export(gs, "casadi-c")
-    assert "gain schedule (3 entries)" in text
+    assert "gain schedule (3 entries)" in text and (("b: 0.3, 0.8, 0.5" in text) == (table.b is not None))
     (tmp_path / "pp_controller.c").write_text(text)
     (tmp_path / "main.c").write_text(_STEP_MAIN)
     exe = tmp_path / "step"
@@ -285,8 +344,9 @@ def test_the_casadi_c_step_is_the_scheduled_step(tmp_path):
     np.testing.assert_allclose(u_c, u_py, rtol=0, atol=1e-9, err_msg="the C step differs from the Python step")
 
 
+@BOTH
 @pytest.mark.parametrize("prefer", ["numpy", "c"])
-def test_the_rig_step_switches_to_a_schedule_as_the_controller_does(prefer):
+def test_the_rig_step_switches_to_a_schedule_as_the_controller_does(prefer, table):
     """The rig executor's step (numpy, or the compiled C step: another structure, another library) switching from the
     robust set to a schedule mid-run gives the numpy controller's outputs, switch included."""
     from piezopreload.rig.compiled import controller_step
@@ -295,7 +355,7 @@ def test_the_rig_step_switches_to_a_schedule_as_the_controller_does(prefer):
         _cc()
     dt = 1e-3
     robust = Controller(PIDGains(**BASE), dt)
-    scheduled = Controller(PIDGains(**BASE, schedule=SCHEDULE), dt)
+    scheduled = Controller(PIDGains(**BASE, schedule=table), dt)
     step = controller_step(robust, prefer=prefer)
     assert step.kind == prefer
     step.start(30.0, 30.0, 5.0)

@@ -9,6 +9,9 @@ from pathlib import Path
 
 import pytest
 
+from piezopreload.artifacts.design import DesignRecord
+from piezopreload.artifacts.plant import DesignedPlant
+from piezopreload.artifacts.system import SystemRecord
 from piezopreload.cli import main
 from piezopreload.core.artifacts import read_artifact
 from piezopreload.pipeline import STAGES, read_manifest, run_study
@@ -16,6 +19,7 @@ from piezopreload.progress import Progress
 from piezopreload.study import load_study
 
 SMALL_AXIS = Path(__file__).parent / "data" / "small_axis.toml"
+pytestmark = pytest.mark.slow  # the whole small study runs (tens of seconds)
 
 
 @pytest.fixture(scope="module")
@@ -30,15 +34,28 @@ def test_every_stage_runs_and_the_plant_is_the_designs(axis_run, capsys):
     out = axis_run
     manifest = read_manifest(out)
     assert {n: r["status"] for n, r in manifest["stages"].items()} == {s.name: "done" for s in STAGES}
-    plant = read_artifact(out / "plant.json", "plant")
-    assert plant["design_sha256"] == manifest["stages"]["design"]["outputs"]["design"]["sha256"]
-    assert plant["rig"]["hertz_um_per_N23"] > 0 and plant["rig"]["bolt_preload_N"] == 0.0
+    plant = DesignedPlant.load(out / "plant.json")
+    assert plant.design_sha256 == manifest["stages"]["design"]["outputs"]["design"]["sha256"]
+    assert plant.rig.hertz_um_per_N23 > 0 and plant.rig.bolt_preload_N == 0.0
     gains = read_artifact(out / "gains.json", "gain-set")
-    assert gains["plant"]["rig"]["hertz_um_per_N23"] == plant["rig"]["hertz_um_per_N23"], \
+    assert gains["plant"]["rig"]["hertz_um_per_N23"] == plant.rig.hertz_um_per_N23, \
         "the gain set was not tuned and validated on the designed plant"
-    system = read_artifact(out / "system" / "system.json", "system")
-    assert system["inputs"]["gain_set_sha256"] == gains["content_sha256"]
-    assert 0 < system["tracking_rms_pct_of_range"] < 100 and system["rigidity_required_N_per_um"] > 0
+    system = SystemRecord.load(out / "system" / "system.json")
+    assert system.inputs["gain_set_sha256"] == gains["content_sha256"]
+    assert 0 < system.numbers.tracking_rms_pct_of_range < 100 and system.numbers.rigidity_required_N_per_um > 0
+    # the requirements as verdicts, beside their sum
+    names = [r.name for r in system.requirements]
+    assert names == ["rigidity while cutting", "axial deflection while cutting",
+                     "preload against the lift-off bound while cutting"], names
+    assert system.requirements_met == all(r.met for r in system.requirements)
+    rigidity = system.requirements[0]
+    assert (rigidity.value, rigidity.limit) == (system.numbers.rigidity_min_cutting_N_per_um,
+                                                system.numbers.rigidity_required_N_per_um)
+    # the cycles start after the pre-cycle: from rest to the first level at the slew limit, then the settling time
+    design = DesignRecord.load(out / "design" / "design.json")
+    pre = system.pre_cycle
+    assert pre.slew_N_per_s == design.schedule.spec.slew_N_per_s and pre.level_N >= 50.0
+    assert pre.settle_s >= load_study(SMALL_AXIS).criteria.settling_max_s
 
 
 def test_run_json_summary_names_the_whole_systems_numbers(axis_run, capsys):
@@ -49,8 +66,28 @@ def test_run_json_summary_names_the_whole_systems_numbers(axis_run, capsys):
     assert [s["stage"] for s in result["stages"]] == [s.name for s in STAGES]
     summary = result["summary"]
     system = read_artifact(axis_run / "system" / "system.json", "system")
-    for key in ("tracking_rms_pct_of_range", "rigidity_min_cutting_N_per_um", "rigidity_required_N_per_um"):
+    for key in ("tracking_rms_pct_of_range", "rigidity_min_cutting_N_per_um", "rigidity_required_N_per_um",
+                "friction_saved_fraction", "requirements_met"):
         assert summary[key] == system[key], f"summary.{key} is not the system stage's"
+
+
+def test_the_best_constant_preload_is_computed_once_and_read_from_the_design(axis_run):
+    """One number, one source: the design records the best constant preload and its friction energy; the system's
+    saving is read against it, and the report's table prints the design's."""
+    design = DesignRecord.load(axis_run / "design" / "design.json")
+    system = SystemRecord.load(axis_run / "system" / "system.json")
+    s = design.schedule
+    assert system.numbers.friction_saved_fraction == pytest.approx(
+        1.0 - system.numbers.friction_energy_per_cycle / s.constant_friction_energy_J, rel=1e-12)
+    summary = read_manifest(axis_run)["stages"]["design"]["summary"]
+    assert (summary["constant_preload_N"], summary["constant_friction_energy"]) == (s.constant_preload_N,
+                                                                                    s.constant_friction_energy_J)
+    report = read_artifact(axis_run / "report" / "report.json", "report")
+    section = next(x for x in report["sections"] if x["title"] == "The designed system along its preload schedule")
+    row = next(r for r in section["tables"][0]["rows"] if r[0].startswith("friction energy per cycle, best constant"))
+    from piezopreload.reports.document import fmt
+
+    assert row[1].startswith(fmt(s.constant_friction_energy_J)) and row[2].startswith(f"at {fmt(s.constant_preload_N)} N"), row
 
 
 def test_the_learn_stage_learns_on_each_pass_and_the_system_and_the_rig_play_it(axis_run):
@@ -90,9 +127,9 @@ def test_a_changed_design_rebuilds_the_plant_and_everything_after_it(axis_run, t
                                   "rig", "report"}, f"a stage after the changed design was not run again: {result.ran}"
     after = read_manifest(out)["stages"]
     assert after["plant"]["outputs"]["plant"]["sha256"] != before["plant"]["outputs"]["plant"]["sha256"]
-    plant = read_artifact(out / "plant.json", "plant")
-    assert plant["design_sha256"] == after["design"]["outputs"]["design"]["sha256"]
-    assert plant["rig"]["amp_current_limit_A"] == pytest.approx(0.08), "the plant does not carry the new amplifier"
+    plant = DesignedPlant.load(out / "plant.json")
+    assert plant.design_sha256 == after["design"]["outputs"]["design"]["sha256"]
+    assert plant.rig.amp_current_limit_A == pytest.approx(0.08), "the plant does not carry the new amplifier"
 
 
 def test_the_tune_stage_chooses_between_the_schedule_and_the_robust_set_and_the_report_shows_it(axis_run):
@@ -167,7 +204,8 @@ def test_the_report_speaks_of_its_own_study_and_leads_with_its_figures(axis_run)
     first = report["summary"][0]
     assert first.startswith("The designed axis follows its preload schedule") and \
         f"{system['tracking_rms_N']:.3g} N RMS" in first
-    saving = 1.0 - system["friction_energy_per_cycle"] / system["constant_friction_energy_per_cycle"]
+    design = read_artifact(axis_run / "design" / "design.json", "design")
     friction = [s for s in report["summary"] if "friction energy" in s][0]
-    assert f"{100 * saving:.2g} %" in friction and f"{system['constant_preload_N']:,.0f} N" in friction
+    assert f"{100 * system['friction_saved_fraction']:.2g} %" in friction, "the saving is not the system artifact's"
+    assert f"{design['schedule']['constant_preload_N']:,.0f} N" in friction, "the constant preload is not the design's"
     assert report["verdicts"], "the verdicts on the requirements come first"

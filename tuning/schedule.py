@@ -11,20 +11,33 @@ is soft. :func:`tune_schedule`:
 2. tunes each entry with CasADi (:func:`~piezopreload.tuning.pid.tune_pid`, warm-started from the
    robust set) on a step across its window and a staircase inside it, the Ms constraints on the
    force per volt of that window (``TuningSpec.force_range_N``) and the usual plant variants
-   around it; an entry whose window's specification no gains meet keeps the robust set's gains
-   (its record says so);
+   around it. ``Kc``, ``Ti``, ``Td`` and the setpoint weight ``b`` are each entry's decision
+   variables (``b`` takes the step's kick off the command: the feedforward already follows the
+   setpoint); the derivative filter ``Tf`` is held at the robust set's (where the tuned ``Td`` sits
+   at its lower bound, as on the machine axis, the filter does not act, and a filter per entry
+   would add a decision variable that changes nothing). An entry whose
+   window's specification no gains meet keeps the robust set's gains (its record says so).
+   Between two entries the controller interpolates ``Kc`` and ``b``: where the proportional
+   action's setpoint part ``Kc(r) b(r) r`` would fall as the setpoint rises (a high ``b`` below a
+   low one), a step up lowers the command and the integral carries the difference, so the loop
+   lags every step there; the upper entry's ``b`` is raised to the least value that keeps it
+   rising (:func:`rising_setpoint_weights`);
 3. validates the schedule and the robust set alike by Monte Carlo
    (:func:`~piezopreload.tuning.validate.validate`, the study's criteria) at every entry's window
    and over the whole range (the study's own step and trajectory);
-4. chooses: the robust set if it meets the specification at every level and over the whole
+4. tunes again, once, each entry whose window the schedule still misses on the overshoot: with
+   the overshoot margin widened by the Monte Carlo excess (the nominal variants' overshoot must
+   come down by what the drawn plants add), and validates the schedule again;
+5. chooses: the robust set if it meets the specification at every level and over the whole
    range (one set is simpler to commission and to certify), else the schedule if it does; where
    neither does, the one that meets it over the whole range (the robust set first), and the
-   reason says which failed where.
+   reason says which failed where. Where the schedule misses a level, the level's ``bound`` says
+   what stops a PID entry there: the tuning's constraints that bind (Ms, the noise gain, the
+   overshoot on the variants), or the specification no entry meets, and the Monte Carlo figure
+   against its limit.
 
-The schedule's ``Tf`` and ``b`` are single (:class:`~piezopreload.models.controller.GainSchedule`):
-every entry is tuned with the robust set's ``b`` and ``Tf`` held (``Kc``, ``Ti`` and ``Td`` are
-its decision variables). The per-level figures (gains, worst-case settling, overshoot and tracking
-error over the plants, both sets) are the report's "gain schedule" table.
+The per-level figures (gains, worst-case settling, overshoot and tracking error over the plants,
+both sets) are the report's "gain schedule" table.
 """
 
 from __future__ import annotations
@@ -45,7 +58,8 @@ from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, tune_pid
 from piezopreload.tuning.validate import executor, validate
 
-__all__ = ["ScheduleResult", "tune_schedule", "schedule_levels", "level_windows", "choose", "CHOICES"]
+__all__ = ["ScheduleResult", "tune_schedule", "schedule_levels", "level_windows", "choose", "CHOICES",
+           "setpoint_action_rises", "rising_setpoint_weights"]
 
 #: what :func:`tune_schedule` may choose
 CHOICES = ("robust", "schedule")
@@ -134,9 +148,11 @@ def choose(levels: list[dict[str, Any]], whole: dict[str, Any]) -> tuple[str, st
     # the validation stage judges the whole range as always: keep the set that meets it there
     choice = "schedule" if whole["scheduled"]["passed"] and not whole["robust"]["passed"] else "robust"
     kept = whole["robust" if choice == "robust" else "scheduled"]["passed"]
+    bounds = "; ".join(f"at {r['level_N']:g} N {r['bound']}" for r in levels if r.get("bound"))
     return choice, (f"neither meets the specification at every level (the robust set misses it at {where('robust')}, "
                     f"the schedule at {where('scheduled')}); the {choice} set is kept"
-                    + (", as it meets it over the whole range" if kept else ""))
+                    + (", as it meets it over the whole range" if kept else "")
+                    + (f". What stops a PID entry: {bounds}" if bounds else ""))
 
 
 def _worst(result: ValidationResult) -> dict[str, Any]:
@@ -160,9 +176,116 @@ def _tune_entry(args: tuple[RigParams, Any, TuningSpec, PIDGains]) -> tuple[PIDG
     try:
         tuned = tune_pid(params, inverse, spec, start=start, starts=1, max_iterations=40)
     except TuningInfeasible as exc:  # no gains meet the window's specification: the entry keeps the robust set's
-        return start, {"infeasible": str(exc), "kept": "the robust set"}
+        return start, {"infeasible": str(exc), "kept": "the robust set",
+                       "overshoot_target_N": spec.band_N - spec.overshoot_margin_N}
     return tuned.gains, {"iterations": tuned.iterations, "seconds": tuned.seconds, "ms": tuned.ms,
-                         "objective": tuned.objective, "binding": tuned.binding, "engine": tuned.engine}
+                         "objective": tuned.objective, "binding": tuned.binding, "engine": tuned.engine,
+                         "overshoot_target_N": spec.band_N - spec.overshoot_margin_N}
+
+
+def _entry_spec(spec: TuningSpec, robust: PIDGains, lo: float, level: float, hi: float,
+                overshoot_margin_N: float | None = None) -> TuningSpec:
+    """An entry's tuning: a step across its window after a rest at its bottom (the loop starts at 0 V: the rest lets
+    the step start from the window, as the validation's does) and a short staircase inside it, the Ms constraints on
+    the window's force per volt, ``b`` tuned, the robust set's derivative filter held."""
+    refs = {"step": Reference.step(lo, hi, _REST_S, _REST_S + 0.6),
+            "trajectory": Reference.staircase(lo, _path(lo, float(level), hi), 0.4, t_start_s=_REST_S)}
+    margin = spec.overshoot_margin_N if overshoot_margin_N is None else overshoot_margin_N
+    return replace(spec, **refs, force_range_N=(lo, hi), tune_setpoint_weight=True, filter_s=robust.Tf_s,
+                   overshoot_margin_N=margin)
+
+
+def _schedule_of(levels_N: np.ndarray, entries: list[PIDGains]) -> GainSchedule:
+    return GainSchedule(tuple(levels_N), tuple(g.Kc for g in entries), tuple(g.Ti_s for g in entries),
+                        tuple(g.Td_s for g in entries), tuple(g.b for g in entries))
+
+
+def setpoint_action_rises(levels_N: Any, Kc: Any, b: Any) -> bool:
+    """Whether the proportional action's setpoint part ``w(r) = Kc(r) b(r) r`` never falls as the setpoint ``r`` rises
+    (``Kc`` and ``b`` linear between the entries, as the controller interpolates them). On each segment ``w`` is a
+    cubic; its derivative, a quadratic, is checked at the segment's ends and at its vertex where that lies inside.
+    Where ``w`` falls, a rising setpoint lowers the command and the integral has to carry the difference: the loop
+    lags every step across that segment."""
+    lv, kc, bb = (np.asarray(x, float) for x in (levels_N, Kc, b))
+    for i in range(lv.size - 1):
+        lo, hi = lv[i], lv[i + 1]
+        k = np.polyfit([lo, hi], kc[i:i + 2], 1)
+        c = np.polyfit([lo, hi], bb[i:i + 2], 1)
+        dw = np.polyder(np.polymul(np.polymul(k, c), [1.0, 0.0]))
+        r = [lo, hi] + ([-dw[1] / (2 * dw[0])] if dw[0] != 0 and lo < -dw[1] / (2 * dw[0]) < hi else [])
+        scale = max(abs(float(np.polyval(dw, x))) for x in (lo, hi)) or 1.0
+        if min(float(np.polyval(dw, x)) for x in r) < -1e-12 * scale:
+            return False
+    return True
+
+
+def rising_setpoint_weights(levels_N: Any, Kc: Any, b: Any) -> tuple[float, ...]:
+    """The entries' setpoint weights, each raised (from the lowest entry up) to the least value in ``[b_i, 1]`` for
+    which the setpoint action rises over the segment below it (:func:`setpoint_action_rises`), by bisection to
+    1e-6; an entry already rising keeps its ``b``."""
+    lv, kc, out = np.asarray(levels_N, float), np.asarray(Kc, float), [float(x) for x in b]
+    for i in range(1, lv.size):
+        def ok(x: float, i: int = i) -> bool:
+            return setpoint_action_rises(lv[i - 1:i + 1], kc[i - 1:i + 1], [out[i - 1], x])
+
+        if ok(out[i]):
+            continue
+        lo, hi = out[i], max(1.0, out[i])
+        while hi - lo > 1e-6:
+            mid = 0.5 * (lo + hi)
+            lo, hi = (lo, mid) if ok(mid) else (mid, hi)
+        out[i] = hi
+    return tuple(out)
+
+
+def _rising(levels_N: np.ndarray, tuned: list[tuple[PIDGains, dict[str, Any]]]) -> list[tuple[PIDGains, dict[str, Any]]]:
+    """The tuned entries with their setpoint weights raised where the setpoint action would fall between entries
+    (:func:`rising_setpoint_weights`); a raised entry's record says from what to what."""
+    entries = [g for g, _ in tuned]
+    b = rising_setpoint_weights(levels_N, [g.Kc for g in entries], [g.b for g in entries])
+    return [(g, r) if nb == g.b else (replace(g, b=nb), {**r, "b_raised": {"from": g.b, "to": nb, "why": (
+                "so that the setpoint action Kc b r rises with the setpoint between this entry and the one below")}})
+            for (g, r), nb in zip(tuned, b)]
+
+
+def _tighter(spec: TuningSpec, figures: dict[str, Any], criteria: Criteria) -> float | None:
+    """The overshoot margin an entry is tuned again with where the Monte Carlo overshoot exceeds its limit: widened by
+    the excess (the drawn plants add it to the variants' nominal overshoot); None where it does not exceed it."""
+    excess = figures["overshoot_N"] - criteria.overshoot_max_N
+    return None if excess <= 0 else spec.overshoot_margin_N + excess
+
+
+def _bound(record: dict[str, Any], figures: dict[str, Any], limits: dict[str, float]) -> str:
+    """What stops the schedule's entry at a level it misses: the tuning's binding constraints (or the specification no
+    entry met) beside the Monte Carlo worst case of each failed metric against its limit."""
+    missed = ", ".join(f"{m} {figures[m]:.3g} against {limits[m]:.3g}" for m in figures["failures"] if m in limits)
+    if "infeasible" in record:
+        return f"no PID entry meets the window's tuning specification ({record['infeasible']}); Monte Carlo: {missed}"
+    binding = "; ".join(record.get("binding", [])) or "none"
+    return (f"the entry's tuning (nominal overshoot inside {record.get('overshoot_target_N', float('nan')):.3g} N on "
+            f"its plant variants) binds on: {binding}; Monte Carlo: {missed}")
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """What a schedule is tuned and judged on: the levels, their windows, each entry's tuning, the validations."""
+
+    levels_N: np.ndarray
+    windows: list[tuple[float, float]]
+    specs: list[TuningSpec]
+    checks: list[tuple[Reference, Reference]]
+
+
+def _plan(spec: TuningSpec, robust: PIDGains, levels_N: Any, step: Reference, trajectory: Reference) -> _Plan:
+    lv = np.asarray(levels_N, float)
+    windows = level_windows(lv)
+    t_step = float(step.times_s[1]) if step.times_s.size > 1 else 0.5
+    hold = float(np.min(np.diff(trajectory.times_s[1:]))) if trajectory.times_s.size > 2 else 1.0  # its levels' hold
+    # each window validated on a step across it and a staircase inside it, with the study's timing; then the whole range
+    checks = [(Reference.step(lo, hi, t_step, float(step.duration_s)),
+               Reference.staircase(lo, _path(lo, float(level), hi), hold, t_start_s=float(trajectory.times_s[1])))
+              for level, (lo, hi) in zip(lv, windows)] + [(step, trajectory)]
+    return _Plan(lv, windows, [_entry_spec(spec, robust, lo, float(x), hi) for x, (lo, hi) in zip(lv, windows)], checks)
 
 
 def tune_schedule(
@@ -193,54 +316,47 @@ def tune_schedule(
     """
     say = progress or (lambda _m: None)
     t0 = time.perf_counter()
-    lv = np.asarray(levels_N, float)
-    windows = level_windows(lv)
-    inverse = None if feedforward is None else inverse_at(feedforward, params.sample_period_s)
-    jobs = []
-    for level, (lo, hi) in zip(lv, windows):
-        # the tuning's step across the window after a rest at its bottom (the loop starts at 0 V: the rest lets the
-        # step start from the window, as the validation's does), and a short staircase inside it
-        refs = {"step": Reference.step(lo, hi, _REST_S, _REST_S + 0.6),
-                "trajectory": Reference.staircase(lo, _path(lo, float(level), hi), 0.4, t_start_s=_REST_S)}
-        jobs.append((params, inverse, replace(spec, **refs, force_range_N=(lo, hi), tune_setpoint_weight=False,
-                                              setpoint_weight=robust.b, filter_s=robust.Tf_s),
-                     robust))
-    t_step = float(step.times_s[1]) if step.times_s.size > 1 else 0.5
-    hold = float(np.min(np.diff(trajectory.times_s[1:]))) if trajectory.times_s.size > 2 else 1.0  # its levels' hold
-    # each window validated on a step across it and a staircase inside it, with the study's timing; then the whole range
-    checks = [(Reference.step(lo, hi, t_step, float(step.duration_s)),
-               Reference.staircase(lo, _path(lo, float(level), hi), hold, t_start_s=float(trajectory.times_s[1])))
-              for level, (lo, hi) in zip(lv, windows)] + [(step, trajectory)]
+    plan = _plan(spec, robust, levels_N, step, trajectory)
+    lv, inverse = plan.levels_N, None if feedforward is None else inverse_at(feedforward, params.sample_period_s)
+    limits = {"settling_s": criteria.settling_max_s, "overshoot_N": criteria.overshoot_max_N,
+              "tracking_rms_N": criteria.tracking_rms_max_N, "peak_voltage_V": criteria.peak_voltage_max_V}
 
     def judging(gains: PIDGains) -> list[tuple[Any, ...]]:
-        return [(gains, feedforward, params, criteria, n_plants, seed, s, t) for s, t in checks]
+        return [(gains, feedforward, params, criteria, n_plants, seed, s, t) for s, t in plan.checks]
 
-    n_workers = max(1, min(len(jobs) + len(checks), spare_cpus() if workers is None else workers))
+    n_workers = max(1, min(2 * len(plan.checks), spare_cpus() if workers is None else workers))
     with executor(n_workers) as (pool, pool_name):
-        say(f"tuning {lv.size} entries of the gain schedule at {', '.join(f'{x:g}' for x in lv)} N, validating the "
-            f"robust set at each level and over the whole range beside them ({n_plants} plants each; {pool_name}) ...")
-        tuning_futures = [pool.submit(_tune_entry, j) for j in jobs]
+        say(f"tuning {lv.size} entries of the gain schedule at {', '.join(f'{x:g}' for x in lv)} N (Kc, Ti, Td and b "
+            f"each), validating the robust set at each level and over the whole range beside them ({n_plants} plants "
+            f"each; {pool_name}) ...")
+        tuning_futures = [pool.submit(_tune_entry, (params, inverse, sp, robust)) for sp in plan.specs]
         robust_futures = [pool.submit(_judge, j) for j in judging(robust)]  # needs nothing the tuning gives
-        tuned = [f.result() for f in tuning_futures]
-        entries = [g for g, _ in tuned]
-        schedule = GainSchedule(tuple(lv), tuple(g.Kc for g in entries), tuple(g.Ti_s for g in entries),
-                                tuple(g.Td_s for g in entries))
-        scheduled = replace(robust, schedule=schedule)
+        tuned = _rising(lv, [f.result() for f in tuning_futures])
         say("validating the schedule at each level and over the whole range ...")
-        scheduled_futures = [pool.submit(_judge, j) for j in judging(scheduled)]
+        scheduled_figures = [f.result() for f in [pool.submit(_judge, j) for j in
+                                                  judging(replace(robust, schedule=_schedule_of(lv, [g for g, _ in tuned])))]]
+        again = {i: m for i, (fig, sp) in enumerate(zip(scheduled_figures, plan.specs))
+                 if (m := _tighter(sp, fig, criteria)) is not None and m < sp.band_N}
+        if again:
+            say(f"tuning again the entries at {', '.join(f'{lv[i]:g}' for i in again)} N with their overshoot margin "
+                "widened by the Monte Carlo excess, and validating the schedule again ...")
+            retuned = {i: pool.submit(_tune_entry, (params, inverse, replace(plan.specs[i], overshoot_margin_N=m), robust))
+                       for i, m in again.items()}
+            tuned = _rising(lv, [retuned[i].result() if i in retuned else t for i, t in enumerate(tuned)])
+            scheduled_figures = [f.result() for f in [pool.submit(_judge, j) for j in
+                                                      judging(replace(robust, schedule=_schedule_of(lv, [g for g, _ in tuned])))]]
         robust_figures = [f.result() for f in robust_futures]
-        scheduled_figures = [f.result() for f in scheduled_futures]
+    schedule = _schedule_of(lv, [g for g, _ in tuned])
     levels = []
-    for level, (lo, hi), g, (_, record), rb, sc in zip(lv, windows, entries, tuned, robust_figures, scheduled_figures):
-        levels.append({"level_N": float(level), "window_N": [lo, hi],
+    for level, window, (g, record), rb, sc in zip(lv, plan.windows, tuned, robust_figures, scheduled_figures):
+        levels.append({"level_N": float(level), "window_N": list(window),
                        "entry": {"Kc_V_per_N": g.Kc, "Ti_s": g.Ti_s, "Td_s": g.Td_s, "Tf_s": g.Tf_s, "b": g.b},
-                       "tuning": record, "robust": rb, "scheduled": sc})
+                       "tuning": record, "robust": rb, "scheduled": sc,
+                       **({} if sc["passed"] else {"bound": _bound(record, sc, limits)})})
     whole = {"robust": robust_figures[-1], "scheduled": scheduled_figures[-1]}
 
     choice, reason = choose(levels, whole)
     say(f"gain schedule: {choice}: {reason}")
-    return ScheduleResult(schedule=schedule, robust=robust, scheduled=scheduled, levels=levels, whole_range=whole,
-                          choice=choice, reason=reason, n_plants=n_plants, seconds=time.perf_counter() - t0,
-                          limits={"settling_s": criteria.settling_max_s, "overshoot_N": criteria.overshoot_max_N,
-                                  "tracking_rms_N": criteria.tracking_rms_max_N,
-                                  "peak_voltage_V": criteria.peak_voltage_max_V})
+    return ScheduleResult(schedule=schedule, robust=robust, scheduled=replace(robust, schedule=schedule), levels=levels,
+                          whole_range=whole, choice=choice, reason=reason, n_plants=n_plants,
+                          seconds=time.perf_counter() - t0, limits=limits)
