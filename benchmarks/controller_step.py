@@ -36,7 +36,7 @@ def per_call(fn, repeat: int = 5) -> float:
 
 def main() -> dict:
     study = load_study(paper_study())
-    model, _ = identify_feedforward(Rig(study.rig), study.excitation)
+    model, _ = identify_feedforward(Rig(study.plant), study.excitation)
     assert model.n_operators == 40
     gains = PIDGains(Kc=0.5, Ti_s=0.05, Td_s=0.001, Tf_s=0.01, b=0.3)
     controller = Controller(gains, 1e-3, model.inverse())
@@ -81,7 +81,7 @@ def main() -> dict:
 
         log = RunLog(Path(tmp), "bench", {})
         # the streak interlock out of the way: the run is timed whole, stalls and all
-        ex = Executor(controller, SimBackend(study.rig), ref, Safety(missed_streak=10**9), realtime=True, log=log)
+        ex = Executor(controller, SimBackend(study.plant), ref, Safety(missed_streak=10**9), realtime=True, log=log)
         result = ex.run()
     t = result.timing
     print(f"{t['loop']} loop at 1 kHz for 10 s ({result.status}): {t['missed_deadlines']} missed deadlines of {t['cycles']}, "

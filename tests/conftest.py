@@ -14,6 +14,6 @@ def study():
 
 @pytest.fixture(scope="session")
 def feedforward(study):
-    model, _ = identify_feedforward(Rig(study.rig), study.excitation)
+    model, _ = identify_feedforward(Rig(study.plant), study.excitation)
     return model
 
