@@ -231,6 +231,35 @@ def test_example_sweep_of_the_bolt_preload(tmp_path):
     assert (tmp_path / "settling_vs_bolt_preload.png").stat().st_size > 0
 
 
+@pytest.mark.slow
+def test_example_sweep_of_the_bolt_preload_on_its_documented_default(tmp_path, monkeypatch):
+    """``python examples/sweep_bolt_preload.py``: the machine axis, whose bolts' preload is its design's. Each row is
+    another design (the failsafe requirement gives the bolts' preload asked for), so another plant: the nuts' Hertz
+    contacts stiffen with the preload as their law says, and the tuned loop changes with them."""
+    example = _example("sweep_bolt_preload")
+    monkeypatch.chdir(tmp_path)
+    rows = example.main([])
+    axis = pp.load_study(progress=lambda _m: None)
+    own = axis.designed_plant.bolt_preload_N
+    assert [r["asked_N"] for r in rows] == [round(f * own, 1) for f in (0.5, 1.0, 2.0)]
+    for r in rows:  # the failsafe requirement binds: the design gives the bolts' preload asked for
+        assert r["bolt_preload_N"] == pytest.approx(r["asked_N"], rel=1e-6), r
+        plant = example.with_bolt_preload(axis, r["asked_N"]).plant
+        k = plant.effective_stiffness_N_per_um  # the Hertz law at the bolts' preload, dF/dx = 1/(1/k + 2c/(3 F0^1/3))
+        hertz = 1.0 / (1.0 / k + 2.0 * plant.hertz_um_per_N23 / (3.0 * np.cbrt(r["bolt_preload_N"])))
+        assert r["stiffness_at_bolts_N_per_um"] == pytest.approx(hertz, rel=1e-9)
+        assert r["validated"] and 0 < r["settling_s"] <= r["worst_settling_s"] < 0.6, r
+    stiffness = [r["stiffness_at_bolts_N_per_um"] for r in rows]
+    assert np.all(np.diff(stiffness) > 0), f"the plant does not stiffen with the bolts' preload: {stiffness}"
+    assert len({r["settling_s"] for r in rows}) == 3 and len({r["Kc_V_per_N"] for r in rows}) == 3, \
+        f"the sweep sweeps nothing: {rows}"
+    fig = example.plot(rows, axis.name)
+    left, right = fig.axes
+    assert left.lines[0].get_ydata().tolist() == stiffness
+    assert right.lines[0].get_ydata().tolist() == [r["settling_s"] for r in rows]
+    assert (tmp_path / "sweep-out" / "settling_vs_bolt_preload.png").stat().st_size > 0
+
+
 def test_example_identify_from_a_csv_and_export(measured_study, tmp_path):
     _, loop = measured_study
     out = _example("identify_and_export").main([str(loop), "--study", str(SMALL), "--operators", "20",
@@ -253,6 +282,16 @@ def test_example_identify_from_a_csv_and_export(measured_study, tmp_path):
         assert "Tn = " in (tmp_path / "gains.plc.txt").read_text()
     else:  # a candidate is never exported
         assert not (tmp_path / "gains.labview.txt").exists()
+
+
+def test_example_pareto_front_of_a_catalogue_screw_on_its_documented_default(tmp_path, monkeypatch):
+    """``python examples/pareto_catalogue_screw.py``: the machine axis' design tables, 30 points."""
+    monkeypatch.chdir(tmp_path)
+    design = _example("pareto_catalogue_screw").main([])
+    assert design.spec == pp.load_study().replace(ballscrew={"nominal_diameter_mm": 40.0, "lead_mm": 10.0,
+                                                             "ball_mm": [6.35, 6.35], "turns": [4, 4]}).design_spec
+    assert len(design.fronts[0].points) >= 25 and np.all(np.diff(design.fronts[0].y) >= -1e-9)
+    assert (tmp_path / "pareto-out" / "pareto.png").stat().st_size > 0
 
 
 def test_example_pareto_front_of_a_catalogue_screw(tmp_path):

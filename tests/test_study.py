@@ -359,3 +359,42 @@ def test_learning_on_the_schedule_needs_the_designed_plant_and_one_plant():
         pp.load_study(PAPER).learn(reference="schedule")
     with pytest.raises(pp.InputError, match="plants: the schedule is learned on the designed plant itself"):
         pp.load_study(**QUIET).learn(reference="schedule", plants=4)
+
+
+@pytest.mark.slow
+def test_learning_along_the_schedule_is_one_call_and_plays_what_it_learned(tmp_path, capsys):
+    """``axis.learn(reference="schedule")``: each margin pass learned on the reference that pass tracks, the
+    schedule tracked with it (the system run is the loop with the last pass's signal, simulated here again), the
+    error smaller after learning; its figure, its JSON, its artifacts; the command line's learn does the same."""
+    import json
+
+    from matplotlib.figure import Figure
+
+    from piezopreload.artifacts.learned import LearnedSignal, reference_sha256
+    from piezopreload.design.system import schedule_reference
+
+    axis = pp.load_study(**QUIET)
+    result = axis.learn(reference="schedule", iterations=2)
+    system, designed, table = result.system, axis.designed_plant, axis.plant_table
+    assert len(result.passes) == len(system.passes) >= 1
+    reference = schedule_reference(designed, system.schedule, table.cycles, table.stack_contact_N)
+    assert reference_sha256(result.last.reference) == reference_sha256(reference), "learned on another reference"
+    controller = Controller(axis.gains, axis.plant.sample_period_s, axis.identify_feedforward().inverse())
+    again = simulate_loop(Rig(designed.rig), controller, reference, seed=axis.seed, ff_extra_V=result.last.ff_extra_V)
+    np.testing.assert_array_equal(system.run.force_N, again.force_N, err_msg="the schedule was not played with the "
+                                                                             "last pass's learned signal")
+    for learned in result.passes:
+        before = float(np.max(learned.history[0].tracking_rms_N))
+        assert learned.tracking_rms_N < 0.7 * before, f"learning did not reduce the error: {before} -> {learned}"
+    doc = json.loads(json.dumps(result.to_dict(), allow_nan=False))
+    assert doc["tracking_rms_N"] == result.last.tracking_rms_N and len(doc["passes"]) == len(result.passes)
+    assert doc["system"]["requirements_met"] == system.numbers["requirements_met"]
+    assert "ScheduleLearning(" in repr(result) and f"{result.last.tracking_rms_N:.2f} N after learning" in repr(result)
+    fig = result.plot()
+    assert isinstance(fig, Figure) and len(fig.axes[0].lines) == len(result.passes)
+    saved = result.save(tmp_path / "learn", None)
+    assert LearnedSignal.load(saved["out"]).content_sha256 == saved["content_sha256"]
+    code = main(["learn", "--study", str(AXIS), "--reference", "schedule", "--iterations", "2", "--json"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert json.loads(out)["tracking_rms_N"] == pytest.approx(result.last.tracking_rms_N, rel=1e-9)
