@@ -173,7 +173,12 @@ def _is(x: Any, kind: str) -> bool:
         return isinstance(x, str)
     if kind == "integer":
         return isinstance(x, int) and not isinstance(x, bool)
-    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+    if isinstance(x, int) and not isinstance(x, bool):
+        return abs(x) <= _LARGEST  # TOML integers are unbounded here: one a float cannot hold is not a number
+    return isinstance(x, float) and math.isfinite(x)
+
+
+_LARGEST = 1.7976931348623157e308
 
 
 def _num(x: float) -> str:

@@ -164,6 +164,10 @@ class Study:
     say: Say = field(default=_stderr, repr=False, compare=False)  # progress where a step is given none
     _kept: _Kept = field(default_factory=_Kept, repr=False, compare=False)
 
+    def __repr__(self) -> str:
+        plant = "its design's ([plant] from_design)" if self.plant_from_design else "its [rig]"
+        return f"Study({self.name!r} from {self.path!r}, sha256 {self.sha256[:12]}; the plant is {plant})"
+
     # ---- the tables --------------------------------------------------------------------------
     @property
     def folder(self) -> Path:
@@ -584,6 +588,8 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
         spec = t["tuning"].spec(band_N=sim.band_N, u_min_V=gains.u_min, u_max_V=gains.u_max)
     except Invalid as exc:
         raise fail(f"tuning.{exc.path}", exc.message) from None
+    except ValueError as exc:  # every key was checked; a rule between them the table misses
+        raise fail("tuning", f"does not make a tuning specification: {exc}") from None
     validation: ValidationTable = t["validation"]
     if validation.seed is None:
         validation = _replace(validation, seed=sim.seed)
