@@ -304,7 +304,8 @@ class Study:
         if k.point is None:
             say = progress or self.say
             objective = (self.design_table or DesignTable()).objective
-            say(f"solving the design's optimum ({objective}) for the plant; kept for every later step ...")
+            say(f"solving the design's optimum ({objective}) once, for the plant and the preload schedule; every "
+                "later step keeps it ...")
             t0 = time.perf_counter()
             try:
                 k.optimum = optimise(self._spec("the design's optimum"), objective)
