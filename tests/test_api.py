@@ -37,6 +37,7 @@ def _small(snippet: str) -> str:
     return snippet.replace('pp.load_study("paper2021")', f"pp.load_study({str(SMALL)!r})", 1).replace("plants=200", "plants=8")
 
 
+@pytest.mark.slow  # it tunes, validates and runs every stage of the small study: half a minute
 def test_the_readme_snippet_runs_end_to_end(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     ns: dict = {}
@@ -222,6 +223,7 @@ def _example(name: str):
     return module
 
 
+@pytest.mark.slow  # two tunings and validations
 def test_example_sweep_of_the_bolt_preload(tmp_path):
     rows = _example("sweep_bolt_preload").main(["--study", str(SMALL), "--preloads", "22", "28", "--plants", "4",
                                                 "--out", str(tmp_path)])
