@@ -62,6 +62,7 @@ from piezopreload.tables import (
     STUDY_TABLES,
     ControllerTable,
     FeedforwardTable,
+    PublishedTable,
     ReferenceTables,
     RigTable,
     SimulationTable,
@@ -150,6 +151,7 @@ class Study:
     schedule: ScheduleTable | None
     plant_table: PlantTable | None
     learning: LearningTable | None
+    published: PublishedTable | None
     # what the tables make, built and checked on load
     gains: PIDGains = field(repr=False)
     references: dict[str, Reference] = field(repr=False)
@@ -534,7 +536,7 @@ def _parse(data: dict[str, Any], where: _Source) -> dict[str, Any]:
     for name in REQUIRED_TABLES:
         if name not in data:
             raise InputError(f"{where.shown}: the table [{name}] is missing")
-    optional = (*DESIGN_TABLES, "learning")  # None where not given; the others' keys all have defaults
+    optional = (*DESIGN_TABLES, "learning", "published")  # None where not given; the others' keys all have defaults
     return {name: cls.parse(data[name], where.fail, name) if name in data else (None if name in optional else cls())
             for name, cls in STUDY_TABLES.items()}
 
@@ -602,7 +604,8 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
         description=meta.description, rig=rig, controller=c, feedforward=t["feedforward"], reference=t["reference"],
         simulation=sim, tuning=t["tuning"], validation=validation, export=t["export"],
         rig_run=t["rig_run"].resolved(), ballscrew=t["ballscrew"], feed_drive=t["feed_drive"], duty=t["duty"],
-        design_table=t["design"], schedule=t["schedule"], plant_table=t["plant"], learning=t["learning"], gains=gains,
+        design_table=t["design"], schedule=t["schedule"], plant_table=t["plant"], learning=t["learning"],
+        published=t["published"], gains=gains,
         references=_references(t["reference"], fail), excitation=t["feedforward"].excitation(), tuning_spec=spec,
         criteria=validation.criteria(sim.band_N), design_spec=design_spec, where=where, source_text=text,
         given=copy.deepcopy(data), say=say, _kept=kept)

@@ -31,7 +31,8 @@ from piezopreload.tuning.identify import MODELS
 from piezopreload.tuning.tables import LearningTable, TuningTable, ValidationTable
 
 __all__ = ["StudyTable", "StackTable", "RigTable", "ControllerTable", "FeedforwardTable", "StepTable",
-           "TrajectoryTable", "ReferenceTables", "SimulationTable", "STUDY_TABLES", "REQUIRED_TABLES",
+           "TrajectoryTable", "ReferenceTables", "SimulationTable", "StepNumbers", "PublishedTable", "STUDY_TABLES",
+           "REQUIRED_TABLES",
            "study_keys_markdown"]
 
 UNITS = ("seconds", "minutes")
@@ -213,13 +214,37 @@ class SimulationTable(Table):
                       choices=SIGNALS)
 
 
+@dataclass(frozen=True)
+class StepNumbers(Table):
+    """[published.pid], [published.ff_pid]: one controller's published step numbers."""
+
+    rise_s: float = key(None, "rise time", unit="s", gt=0, required=True)
+    peak_s: float = key(None, "peak time", unit="s", gt=0, required=True)
+    settling_s: float = key(None, "settling time", unit="s", gt=0, required=True)
+
+
+@dataclass(frozen=True)
+class PublishedTable(Table):
+    """[published]: step numbers a publication reports for this study's rig and gains, which the report and
+    ``reproduce`` set beside the simulation's (a study without the table compares with nothing published)."""
+
+    source: str = key(None, "where the numbers are published", required=True)
+    gains_label: str = key(None, "what the report calls the study's [controller] gains beside them", required=True)
+    pid: StepNumbers = key(None, "PID alone", required=True)
+    ff_pid: StepNumbers = key(None, "the feedforward with PID", required=True)
+
+    def step(self) -> dict[str, dict[str, float]]:
+        """The numbers by controller (``pid``, ``ff+pid``) and metric."""
+        return {"pid": self.pid.to_dict(), "ff+pid": self.ff_pid.to_dict()}
+
+
 #: the study file's tables, by name, in the order a file has them
 STUDY_TABLES: dict[str, type[Table]] = {
     "study": StudyTable, "rig": RigTable, "plant": PlantTable, "learning": LearningTable,
     "controller": ControllerTable, "feedforward": FeedforwardTable, "reference": ReferenceTables,
     "simulation": SimulationTable, "ballscrew": BallscrewTable, "feed_drive": FeedDriveTable, "duty": DutyTable,
     "design": DesignTable, "schedule": ScheduleTable, "tuning": TuningTable, "validation": ValidationTable,
-    "export": ExportTable, "rig_run": RigRunPlan,
+    "export": ExportTable, "rig_run": RigRunPlan, "published": PublishedTable,
 }
 #: the tables every study has
 REQUIRED_TABLES = ("rig", "controller")

@@ -54,7 +54,7 @@ _SUFFIX_UNITS = {"_N_per_um": "N/um", "_V_per_N": "V/N", "_um_per_V": "um/V", "_
 def test_every_key_is_declared_once_with_a_doc_and_the_unit_its_name_spells():
     seen = 0
     for path, cls in _all_tables():
-        assert cls.__doc__ and cls.__doc__.startswith(f"[{path}]"), f"{cls.__name__}'s doc does not open with [{path}]"
+        assert cls.__doc__ and f"[{path}]" in cls.__doc__.split(": ")[0], f"{cls.__name__}'s doc does not open with [{path}]"
         for spec in cls.declared():
             seen += 1
             assert spec.key.doc.strip(), f"{path}.{spec.name} has no doc"
@@ -399,3 +399,19 @@ def test_learning_along_the_schedule_is_one_call_and_plays_what_it_learned(tmp_p
     out, err = capsys.readouterr()
     assert code == 0, err
     assert json.loads(out)["tracking_rms_N"] == pytest.approx(result.last.tracking_rms_N, rel=1e-9)
+
+
+def test_published_numbers_are_a_declared_table_too(tmp_path):
+    table = ('\n[published]\nsource = "Zhang, Jin, Lin 2021"\ngains_label = "the paper\'s gains"\n'
+             "pid = { rise_s = 1.69, peak_s = 3.38, settling_s = 3.38 }\n"
+             "ff_pid = { rise_s = 0.08, peak_s = 0.13, settling_s = 1.43 }\n")
+    path = tmp_path / "study.toml"
+    path.write_text(PAPER.read_text() + table)
+    study = pp.load_study(path)
+    assert study.published.step() == {"pid": {"rise_s": 1.69, "peak_s": 3.38, "settling_s": 3.38},
+                                      "ff+pid": {"rise_s": 0.08, "peak_s": 0.13, "settling_s": 1.43}}
+    assert pp.load_study(PAPER).published is None
+    changed = (PAPER.read_text() + table).replace("peak_s = 0.13, ", "")
+    path.write_text(changed)
+    with pytest.raises(pp.InputError, match=rf":{_line(changed, 'ff_pid =')}: 'published.ff_pid' needs 'peak_s'"):
+        pp.load_study(path)
