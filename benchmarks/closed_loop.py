@@ -81,11 +81,11 @@ def main() -> None:
     if not native.enabled():
         raise SystemExit("no working C compiler here (or PIEZOPRELOAD_ENGINE=numpy): nothing compiled to time")
     study = load_study(paper_study())
-    rig = Rig(study.rig)
-    ff = identify_feedforward(study.rig, study.excitation, check_range_N=None).model
+    rig = Rig(study.plant)
+    ff = identify_feedforward(study.plant, study.excitation, check_range_N=None).model
     controller = Controller(study.gains, rig.dt_s, ff.inverse())
     ref = Reference.step(25.0, 60.0, 0.5, SIM_S)
-    batch = Rig(study.rig.vary(BATCH, SPREAD, seed=0))
+    batch = Rig(study.plant.vary(BATCH, SPREAD, seed=0))
     n = int(round(SIM_S / rig.dt_s)) + 1
     simulate(rig, controller, Reference.step(25.0, 60.0, 0.01, 0.02), engine="c")  # build (or load) first
 

@@ -35,7 +35,7 @@ def per_call(fn, repeat: int = 5) -> float:
 
 def main() -> dict:
     study = load_study(paper_study())
-    model = identify_feedforward(study.rig, study.excitation, check_range_N=None).model
+    model = identify_feedforward(study.plant, study.excitation, check_range_N=None).model
     assert model.n_operators == 40
     gains = PIDGains(Kc=0.5, Ti_s=0.05, Td_s=0.001, Tf_s=0.01, b=0.3)
     controller = Controller(gains, 1e-3, model.inverse())
@@ -80,7 +80,7 @@ def main() -> dict:
 
         log = RunLog(Path(tmp), "bench", {})
         # the streak interlock out of the way: the run is timed whole, stalls and all
-        ex = Executor(controller, SimBackend(study.rig), ref, Safety(missed_streak=10**9), realtime=True, log=log)
+        ex = Executor(controller, SimBackend(study.plant), ref, Safety(missed_streak=10**9), realtime=True, log=log)
         result = ex.run()
     t = result.timing
     print(f"{t['loop']} loop at 1 kHz for 10 s ({result.status}): {t['missed_deadlines']} missed deadlines of {t['cycles']}, "

@@ -71,7 +71,7 @@ def main() -> None:
     ap.add_argument("--norm-optimal", action="store_true")
     args = ap.parse_args()
     study = load_study("paper2021")
-    rig = Rig(study.rig)
+    rig = Rig(study.plant)
     controller = Controller(study.gains, rig.dt_s, study.identify_feedforward().inverse())
     ref = study.references["trajectory"]
     peer = simulate(rig, controller, ref, seed=study.seed)
@@ -100,7 +100,7 @@ def main() -> None:
                                  "tracking_rms_after_change_N": r.tracking_rms_after_change_N})
         print(f"after-change weight {w:g}: {r.tracking_rms_N:.3f} N whole, {r.tracking_rms_after_change_N:.3f} N "
               "after jumps", flush=True)
-    front = plan_front(study.rig, ref, [0.0, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 1e3, 1e4])
+    front = plan_front(study.plant, ref, [0.0, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 1e3, 1e4])
     out["plan_front"] = front
     for key in ("", "_from_start"):
         meets = [f[f"rms_N{key}"] for f in front if f[f"rms_after_change_N{key}"] <= 0.15]

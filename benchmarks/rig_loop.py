@@ -181,7 +181,7 @@ def main() -> dict:
     ap.add_argument("--seconds", type=float, default=60.0, help="seconds per loop (default 60)")
     args = ap.parse_args()
     study = load_study(paper_study())  # the paper's rig: the default study is now the machine axis
-    ff = identify_feedforward(study.rig, study.excitation, check_range_N=None).model
+    ff = identify_feedforward(study.plant, study.excitation, check_range_N=None).model
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
@@ -190,7 +190,7 @@ def main() -> dict:
                                                          Td_s=study.gains.Td_s, Tf_s=study.gains.Tf_s,
                                                          b=study.gains.b, u_min=study.gains.u_min,
                                                          u_max=study.gains.u_max))):
-            g = GainSet(gains=gains, status="validated", feedforward=ff, plant=study.rig, preset=study.name,
+            g = GainSet(gains=gains, status="validated", feedforward=ff, plant=study.plant, preset=study.name,
                         references={k: study.references[k] for k in ("step", "trajectory")},
                         criteria=Criteria(band_N=study.band_N))
             g.save(tmp / f"gains{j}.json")

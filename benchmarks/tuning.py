@@ -33,19 +33,19 @@ def main() -> None:
     cache = tempfile.TemporaryDirectory()
     os.environ["XDG_CACHE_HOME"] = cache.name  # an empty build cache: the first compiled tuning builds
     study = load_study(paper_study())
-    ff = identify_feedforward(study.rig, study.excitation, check_range_N=None).model
+    ff = identify_feedforward(study.plant, study.excitation, check_range_N=None).model
     spec = study.tuning_spec
 
     t0 = time.perf_counter()
-    first = tune_pid(study.rig, ff.inverse(), spec, engine="compiled")
+    first = tune_pid(study.plant, ff.inverse(), spec, engine="compiled")
     first_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    compiled = tune_pid(study.rig, ff.inverse(), spec, engine="compiled")
+    compiled = tune_pid(study.plant, ff.inverse(), spec, engine="compiled")
     compiled_s = time.perf_counter() - t0
     print(f"tuning, compiled: {compiled_s:.1f} s ({compiled.status}, {compiled.iterations} IPOPT iterations); "
           f"the first, building the library, {first_s:.1f} s of which {first.compile_s:.1f} s compiling", flush=True)
     t0 = time.perf_counter()
-    plain = tune_pid(study.rig, ff.inverse(), spec, engine="plain")
+    plain = tune_pid(study.plant, ff.inverse(), spec, engine="plain")
     plain_s = time.perf_counter() - t0
     print(f"tuning, plain: {plain_s:.1f} s ({plain.status}, {plain.iterations} IPOPT iterations)", flush=True)
     rel = max(abs(getattr(compiled.gains, k) - getattr(plain.gains, k)) / abs(getattr(plain.gains, k))
@@ -57,7 +57,7 @@ def main() -> None:
     for workers in (1, 2):
         with executor(workers) as (pool, name):
             t0 = time.perf_counter()
-            results[workers] = validate(compiled.gains, ff, study.rig, study.criteria, pool=pool, pool_name=name, **kw)
+            results[workers] = validate(compiled.gains, ff, study.plant, study.criteria, pool=pool, pool_name=name, **kw)
             seconds[workers] = time.perf_counter() - t0
         print(f"validation of {N_PLANTS} plants on {name}: {seconds[workers]:.1f} s", flush=True)
     same = all((results[1].metrics[k] == results[2].metrics[k]).all() for k in results[1].metrics)

@@ -25,8 +25,6 @@ from piezopreload.core.artifacts import atomic_write_text
 from piezopreload.core.errors import InputError
 from piezopreload.core.tables import read_table
 from piezopreload.design.preload import (
-    OBJECTIVES,
-    PARETO_PAIRS,
     DesignNLP,
     DesignOptimum,
     DesignPoint,
@@ -151,17 +149,20 @@ def design_study(spec: DesignSpec, objective: str, pairs: list[str] | tuple[str,
                  profile: LoadProfile | None = None, profile_name: str = "example", stiffness_min_N_per_um: float = 0.0,
                  deflection_max_um: float = math.inf, lift_off_margin: float | None = None,
                  progress: Callable[[str], None] | None = None,
-                 bar: Callable[[int, int], None] | None = None) -> DesignResult:
+                 bar: Callable[[int, int], None] | None = None, optimum: DesignOptimum | None = None) -> DesignResult:
     """Optimum for ``objective``, the fronts of ``pairs`` (``points`` each) and the schedule for ``profile``.
 
     The schedule keeps the rigidity above ``stiffness_min_N_per_um`` and the deflection
     ``|F_a| / rigidity`` below ``deflection_max_um`` (the machining cycle of
     :func:`~piezopreload.design.schedule.example_profile` when ``profile`` is None).
-    ``progress`` gets messages, ``bar`` (points done, points in all) over the fronts.
+    ``progress`` gets messages, ``bar`` (points done, points in all) over the fronts. ``optimum``:
+    the optimum for ``objective`` already solved on ``spec`` (it is not solved again).
     """
     say = progress or (lambda _msg: None)
-    nlp = DesignNLP(spec)
-    result = optimise(spec, objective, nlp)
+    nlp = DesignNLP(spec) if optimum is None or pairs else None
+    if optimum is not None and optimum.objective != objective:
+        raise InputError(f"design_study: the optimum given is for {optimum.objective!r}, not {objective!r}")
+    result = optimise(spec, objective, nlp) if optimum is None else optimum
     p = result.point
     say(f"optimum ({objective}): {p.turns:.0f} turns x {p.balls_per_turn:.0f} balls of {p.ball_mm:.3f} mm, "
         f"contact angle {p.contact_angle_deg:.1f} deg, preload {p.bolt_preload_N:.0f}-{p.max_preload_N:.0f} N")
@@ -272,58 +273,29 @@ def check_screw(screw: BallScrew, preload_N: float | None = None, preload_fracti
     }
 
 
-def design_spec_from_tables(t: dict[str, Any], fail: Callable[[str, str], InputError]) -> DesignSpec:
-    """A study's design tables (``ballscrew``, ``design``, ``feed_drive``, ``duty``: records with their keys as
-    attributes and ``to_dict()``) as a :class:`DesignSpec`; keys not given keep its defaults. ``fail(key, message)``
-    makes the error naming the file and line."""
-    b = t["ballscrew"]
-    d = t["design"]
-    kwargs: dict[str, Any] = {k: float(v) for k, v in b.to_dict().items()
-                              if k in ("nominal_diameter_mm", "lead_mm", "load_sharing")}
-    for key in ("contact_angle_deg", "ball_mm", "conformity", "turns"):
-        value = getattr(b, key)
-        if value is None:
-            continue
-        if len(value) != 2:
-            raise fail(f"ballscrew.{key}", f"must have 2 values (low, high), got {list(value)!r}")
-        if key == "turns" and any(x != int(x) for x in value):
-            raise fail("ballscrew.turns", f"must be two integers, got {list(value)!r}")
-        kwargs[key] = tuple(int(x) for x in value) if key == "turns" else tuple(float(x) for x in value)
-    fd = t["feed_drive"]
+def design_spec_from_tables(t: dict[str, Any], fail: Callable[[str, str], Exception]) -> DesignSpec:
+    """A study's design tables (``ballscrew``, ``design``, ``feed_drive``, ``duty``: :mod:`piezopreload.design.tables`'
+    records, each key checked on its own; ``feed_drive`` and ``duty`` None for the defaults) as a :class:`DesignSpec`.
+    The rules between tables are checked here; ``fail(key path, message)`` makes the error naming the file and line."""
+    b, d, fd, duty = t["ballscrew"], t["design"], t["feed_drive"], t["duty"]
+    kwargs: dict[str, Any] = {k: getattr(b, k) for k in ("nominal_diameter_mm", "lead_mm", "load_sharing",
+                                                          "contact_angle_deg", "ball_mm", "conformity", "turns")}
+    kwargs["turns"] = tuple(int(x) for x in b.turns)
     if fd is not None:
-        default = DesignSpec().feed_drive
-        given = fd.to_dict()
-        if "travel_mm" in given and len(given["travel_mm"]) != 2:
-            raise fail("feed_drive.travel_mm", f"must have 2 values (low, high), got {given['travel_mm']!r}")
-        try:
-            kwargs["feed_drive"] = FeedDrive(**{**{f.name: getattr(default, f.name) for f in fields(FeedDrive)},
-                                                **{k: tuple(v) if isinstance(v, list) else v for k, v in given.items()}})
-        except ValueError as exc:
-            raise fail("feed_drive", f"is not valid: {exc}") from None
-    duty = t["duty"]
-    if duty is not None:
-        lists = [duty.axial_load_N, duty.speed_rpm, duty.time_share]
-        if any(v is None for v in lists) or len({len(v) for v in lists if v is not None}) != 1 or not lists[0]:
-            raise fail("duty", "needs axial_load_N, speed_rpm and time_share as lists of equal, non-zero length")
-        try:
-            kwargs["duty"] = tuple(DutyCase(float(a), float(n), float(s)) for a, n, s in zip(*lists))  # type: ignore[arg-type]
-        except ValueError as exc:
-            raise fail("duty", f"is not valid: {exc}") from None
+        kwargs["feed_drive"] = FeedDrive(table_mass_kg=fd.table_mass_kg, screw_length_mm=fd.screw_length_mm,
+                                         bearing_stiffness_N_per_um=fd.bearing_stiffness_N_per_um,
+                                         travel_mm=fd.travel_mm, mounting=fd.mounting)
+    cases = None if duty is None else duty.cases()
+    if cases is not None:
+        kwargs["duty"] = tuple(DutyCase(a, n, s) for a, n, s in cases)
+    largest = max(abs(c.axial_load_N) for c in kwargs.get("duty", DesignSpec().duty))
+    if d.axial_load_max_N < largest:
+        raise fail("design.axial_load_max_N", f"must be at least the duty cycle's largest axial load ({largest:g} N), "
+                                              f"got {d.axial_load_max_N:g}")
     names = {f.name for f in fields(DesignSpec)}
-    kwargs.update({k: float(v) for k, v in d.to_dict().items() if k in names})
+    kwargs.update({k: v for k, v in d.to_dict().items() if k in names})
+    kwargs["actuator"] = PiezoPreload(drive_V=d.stack_drive_V, amp_current_limit_A=d.amp_current_limit_A)
     try:
-        kwargs["actuator"] = PiezoPreload(**{k: float(v) for k, v in (("drive_V", d.stack_drive_V),
-                                                                      ("amp_current_limit_A", d.amp_current_limit_A))
-                                             if v is not None})
-        spec = DesignSpec(**kwargs)
-    except ValueError as exc:
-        table = "design" if "DesignSpec" in str(exc) or "PiezoPreload" in str(exc) else "ballscrew"
-        raise fail(table, f"is not valid: {exc}") from None
-    if d.objective not in OBJECTIVES:
-        raise fail("design.objective", f"must be one of {', '.join(OBJECTIVES)}, got {d.objective!r}")
-    for pair in d.pareto:
-        if pair not in PARETO_PAIRS:
-            raise fail("design.pareto", f"has {pair!r}; expected some of {', '.join(PARETO_PAIRS)}")
-    if not 2 <= d.pareto_points <= 500:
-        raise fail("design.pareto_points", f"must be in 2..500, got {d.pareto_points}")
-    return spec
+        return DesignSpec(**kwargs)
+    except ValueError as exc:  # every key was checked alone and with the others above: a rule this code misses
+        raise fail("design", f"and the tables it is made with do not make a design specification: {exc}") from None

@@ -1,10 +1,11 @@
 """The design's tables of a study file: ``[ballscrew]``, ``[feed_drive]``, ``[duty]``, ``[design]``,
-``[schedule]`` and ``[plant]``, as frozen records with their keys as fields.
+``[schedule]`` and ``[plant]``, as frozen records whose fields declare their keys (type, default,
+unit, range, doc: :func:`piezopreload.core.config.key`).
 
-A key not given is None where the domain's default applies (:class:`~piezopreload.design.preload.DesignSpec`'s,
-the design's lift-off margin). :func:`~piezopreload.design.study.design_spec_from_tables` makes the
-design's specification from them; :class:`PlantTable` checks itself, makes the designed plant and
-tracks a schedule on it with its settings.
+The defaults are :class:`~piezopreload.design.preload.DesignSpec`'s; a key left at None means what
+its doc says (no limit, the design's value). :func:`~piezopreload.design.study.design_spec_from_tables`
+makes the design's specification from them; :class:`PlantTable` makes the designed plant and tracks
+a schedule on it with its settings.
 """
 
 from __future__ import annotations
@@ -14,80 +15,125 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from piezopreload.core.config import Table
-from piezopreload.core.errors import InputError
+from piezopreload.core.config import Invalid, Table, key
 from piezopreload.design.plant import DesignedPlant, plant_from_design
-from piezopreload.design.preload import PARETO_PAIRS, DesignPoint, DesignSpec
+from piezopreload.design.preload import OBJECTIVES, PARETO_PAIRS, DesignPoint, DesignSpec
 from piezopreload.design.schedule import PreloadSchedule
 from piezopreload.design.system import SystemRun, track_schedule
 from piezopreload.models.actuator import RigParams
 from piezopreload.models.controller import Controller
+from piezopreload.models.feed_drive import MOUNTINGS
 
 __all__ = ["BallscrewTable", "FeedDriveTable", "DutyTable", "DesignTable", "ScheduleTable", "PlantTable"]
+
+_SPEC = DesignSpec()  # the defaults
 
 
 @dataclass(frozen=True)
 class BallscrewTable(Table):
-    """[ballscrew]: what the machine fixes and the design variables' bounds (low, high)."""
+    """[ballscrew]: what the machine fixes of the screw (its nominal diameter and lead) and the design variables'
+    bounds (low, high); the design chooses each variable inside its bounds."""
 
-    nominal_diameter_mm: float | None = None
-    lead_mm: float | None = None
-    contact_angle_deg: tuple[float, float] | None = None
-    ball_mm: tuple[float, float] | None = None
-    conformity: tuple[float, float] | None = None
-    turns: tuple[int, int] | None = None
-    load_sharing: float | None = None
+    nominal_diameter_mm: float = key(_SPEC.nominal_diameter_mm, "nominal diameter of the screw", unit="mm", gt=0)
+    lead_mm: float = key(_SPEC.lead_mm, "lead of the screw", unit="mm", gt=0)
+    contact_angle_deg: tuple[float, float] = key(_SPEC.contact_angle_deg, "bounds of the balls' contact angle",
+                                                 unit="deg", ge=20, le=70, increasing=True)
+    ball_mm: tuple[float, float] = key(_SPEC.ball_mm, "bounds of the ball diameter", unit="mm", gt=0, increasing=True)
+    conformity: tuple[float, float] = key(_SPEC.conformity, "bounds of the grooves' conformity (groove radius over "
+                                          "ball diameter)", ge=0.505, le=0.6, increasing=True)
+    turns: tuple[int, int] = key(_SPEC.turns, "bounds of the loaded turns per nut", ge=1, increasing=True)
+    load_sharing: float = key(_SPEC.load_sharing, "effective share of the balls that carry load (the calibrated "
+                              "default: docs/ballscrew.md)", gt=0, le=1)
 
 
 @dataclass(frozen=True)
 class FeedDriveTable(Table):
-    table_mass_kg: float | None = None
-    screw_length_mm: float | None = None
-    bearing_stiffness_N_per_um: float | None = None
-    travel_mm: tuple[float, float] | None = None
-    mounting: str | None = None
+    """[feed_drive]: the axis the screw drives: its table, the screw between its bearings, the travel."""
+
+    table_mass_kg: float = key(_SPEC.feed_drive.table_mass_kg, "mass of the table and its load", unit="kg", gt=0)
+    screw_length_mm: float = key(_SPEC.feed_drive.screw_length_mm, "screw length between the bearings", unit="mm",
+                                 gt=0)
+    bearing_stiffness_N_per_um: float = key(_SPEC.feed_drive.bearing_stiffness_N_per_um, "axial stiffness of each "
+                                            "end bearing", unit="N/um", gt=0)
+    travel_mm: tuple[float, float] = key(_SPEC.feed_drive.travel_mm, "the nut centre's travel from bearing A (start, "
+                                         "end), inside the screw length", unit="mm", gt=0, increasing=True)
+    mounting: str = key(_SPEC.feed_drive.mounting, "how the screw's ends are held", choices=MOUNTINGS)
+
+    def check(self) -> None:
+        if not self.travel_mm[0] < self.travel_mm[1] < self.screw_length_mm:
+            raise Invalid("travel_mm", f"must lie inside the screw (0 < start < end < screw_length_mm = "
+                                       f"{self.screw_length_mm:g} mm), got {list(self.travel_mm)!r}")
 
 
 @dataclass(frozen=True)
 class DutyTable(Table):
-    """[duty]: the duty cycle's cases, one entry per case in each list."""
+    """[duty]: the duty cycle's cases, one entry per case in each list (all three lists, or none: the default
+    cycle of roughing, finishing and rapid traverse)."""
 
-    axial_load_N: tuple[float, ...] | None = None
-    speed_rpm: tuple[float, ...] | None = None
-    time_share: tuple[float, ...] | None = None
+    axial_load_N: tuple[float, ...] | None = key(None, "each case's axial load (its sign: the direction)", unit="N",
+                                                 min_length=1)
+    speed_rpm: tuple[float, ...] | None = key(None, "each case's screw speed", unit="rpm", ge=0, min_length=1)
+    time_share: tuple[float, ...] | None = key(None, "each case's share of the time", gt=0, min_length=1)
+
+    def check(self) -> None:
+        lists = {"axial_load_N": self.axial_load_N, "speed_rpm": self.speed_rpm, "time_share": self.time_share}
+        given = {k: v for k, v in lists.items() if v is not None}
+        if given and (len(given) < 3 or len({len(v) for v in given.values()}) != 1):
+            name = next((k for k, v in lists.items() if v is None), "time_share")
+            raise Invalid(name, "must be given with the other two lists of [duty], each with one entry per case; got "
+                                + ", ".join(f"{k} with {len(v)}" for k, v in given.items()))
+
+    def cases(self) -> tuple[tuple[float, float, float], ...] | None:
+        """Each case's (axial load, speed, time share), or None for the default cycle."""
+        if self.axial_load_N is None or self.speed_rpm is None or self.time_share is None:
+            return None
+        return tuple(zip(self.axial_load_N, self.speed_rpm, self.time_share))
 
 
 @dataclass(frozen=True)
 class DesignTable(Table):
-    """[design]: the objective, the fronts, and the constraints' limits (None: DesignSpec's default)."""
+    """[design]: the objective, the Pareto fronts the design stage traces, and the constraints' limits."""
 
-    objective: str = "stiffness"
-    pareto: tuple[str, ...] = PARETO_PAIRS
-    pareto_points: int = 50
-    axial_load_max_N: float | None = None
-    failsafe_load_N: float | None = None
-    lift_off_margin: float | None = None
-    preload_fraction_max: float | None = None
-    contact_pressure_max_MPa: float | None = None
-    life_min_h: float | None = None
-    drag_torque_max_Nm: float | None = None
-    frequency_min_Hz: float | None = None
-    stiffness_min_N_per_um: float | None = None
-    nut_length_max_mm: float | None = None
-    ball_lead_ratio_max: float | None = None
-    load_factor: float | None = None
-    stack_drive_V: float | None = None
-    amp_current_limit_A: float | None = None
+    objective: str = key("stiffness", "what the optimum maximises (stiffness: the least rigidity over the duty "
+                         "cycle) or minimises (drag: the mean drag torque; life: as rating life)", choices=OBJECTIVES)
+    pareto: tuple[str, ...] = key(PARETO_PAIRS, "the Pareto fronts ``piezopreload design`` and the design stage "
+                                  "trace (none is traced to make the plant)", choices=PARETO_PAIRS)
+    pareto_points: int = key(50, "points on each front", ge=2, le=500)
+    axial_load_max_N: float = key(_SPEC.axial_load_max_N, "largest axial load: no lift-off up to it at the highest "
+                                  "preload, the contact pressure at it", unit="N", gt=0)
+    failsafe_load_N: float = key(_SPEC.failsafe_load_N, "load the bolts alone hold without lift-off with the stacks "
+                                 "off: it sets the bolts' least preload", unit="N", ge=0)
+    lift_off_margin: float = key(_SPEC.lift_off_margin, "safety factor on the lift-off loads", gt=0)
+    preload_fraction_max: float = key(_SPEC.preload_fraction_max, "highest preload as a fraction of the dynamic "
+                                      "rating C_dyn", gt=0)
+    contact_pressure_max_MPa: float = key(_SPEC.contact_pressure_max_MPa, "peak Hertz pressure at axial_load_max_N",
+                                          unit="MPa", gt=0)
+    life_min_h: float = key(_SPEC.life_min_h, "least rating life over the duty cycle", unit="h", gt=0)
+    drag_torque_max_Nm: float = key(_SPEC.drag_torque_max_Nm, "drag torque at the highest preload", unit="N m", gt=0)
+    frequency_min_Hz: float = key(_SPEC.frequency_min_Hz, "least first axial natural frequency (weakest table "
+                                  "position)", unit="Hz", gt=0)
+    stiffness_min_N_per_um: float = key(_SPEC.stiffness_min_N_per_um, "least rigidity in every duty case",
+                                        unit="N/um", ge=0)
+    nut_length_max_mm: float = key(_SPEC.nut_length_max_mm, "longest nut (turns times lead)", unit="mm", gt=0)
+    ball_lead_ratio_max: float = key(_SPEC.ball_lead_ratio_max, "largest ball diameter over the lead", gt=0)
+    load_factor: float = key(_SPEC.load_factor, "factor on the duty loads for the rating life", gt=0)
+    stack_drive_V: float = key(_SPEC.actuator.drive_V, "the stacks' drive voltage at the highest preload", unit="V",
+                               gt=0, le=_SPEC.actuator.stack.v_max_V)
+    amp_current_limit_A: float = key(_SPEC.actuator.amp_current_limit_A, "the amplifier's current limit (the "
+                                     "preload's slew rate; the designed plant's amplifier)", unit="A", gt=0)
 
 
 @dataclass(frozen=True)
 class ScheduleTable(Table):
-    """[schedule]: the load profile (a CSV; None: a machining cycle) and what the schedule must keep."""
+    """[schedule]: the load profile the least-friction preload schedule is planned for and what it must keep."""
 
-    profile: str | None = None
-    stiffness_min_N_per_um: float = 0.0
-    deflection_max_um: float | None = None  # None: no limit
-    lift_off_margin: float | None = None  # None: the design's
+    profile: str | None = key(None, "a CSV of time_s, axial_load_N[, speed_rpm], relative to the study file "
+                              "(not set: a machining cycle)")
+    stiffness_min_N_per_um: float = key(0.0, "least rigidity while cutting", unit="N/um", ge=0)
+    deflection_max_um: float | None = key(None, "largest axial deflection under the cutting load (not set: no "
+                                          "limit)", unit="um", gt=0)
+    lift_off_margin: float | None = key(None, "safety factor on lift-off along the profile (not set: [design]'s)",
+                                        gt=0)
 
     def limits(self) -> dict[str, Any]:
         """What the schedule must keep, as :func:`~piezopreload.design.study.plan_schedule` takes it."""
@@ -98,31 +144,20 @@ class ScheduleTable(Table):
 
 @dataclass(frozen=True)
 class PlantTable(Table):
-    """[plant]: the designed preload system as the plant: the design sets the stacks, the amplifier's current limit
-    and the coupling, ``[rig]`` the rest of the hardware (design/plant.py); the schedule is tracked for ``cycles``,
-    planned again with a margin at most ``passes`` times (design/system.py)."""
+    """[plant]: the designed preload system as the plant. With ``from_design = true`` the design sets the stacks,
+    the amplifier's current limit and the coupling (design/plant.py; ``[rig]`` gives the rest of the hardware and
+    may not set those), and the schedule is tracked for ``cycles``, planned again with a margin at most ``passes``
+    times (design/system.py). Its other keys apply to the designed plant only."""
 
-    from_design: bool = True
-    sleeve_stiffness_N_per_um: float | None = None  # None: a rigid sleeve
-    cycles: int = 2
-    passes: int = 3
-    margin_factor: float = 1.25
-    stack_contact_N: float = 0.0  # the least force the stacks keep on the nuts (not bonded to them)
-
-    def check(self, has_design: bool, fail: Callable[[str, str], InputError]) -> None:
-        """Check the table's values (``has_design``: the study has the design's tables); ``fail(key, message)``
-        makes the error naming the file and line."""
-        if self.from_design and not has_design:
-            raise fail("plant.from_design", "needs the design's tables ([ballscrew], ...) to make the plant from")
-        for key, low in (("cycles", 1), ("passes", 1)):
-            if getattr(self, key) < low:
-                raise fail(f"plant.{key}", f"must be >= {low}, got {getattr(self, key)!r}")
-        if not self.stack_contact_N >= 0.0:
-            raise fail("plant.stack_contact_N", f"must be >= 0, got {self.stack_contact_N!r}")
-        if not self.margin_factor >= 1.0:
-            raise fail("plant.margin_factor", f"must be >= 1, got {self.margin_factor!r}")
-        if self.sleeve_stiffness_N_per_um is not None and not self.sleeve_stiffness_N_per_um > 0:
-            raise fail("plant.sleeve_stiffness_N_per_um", f"must be > 0, got {self.sleeve_stiffness_N_per_um!r}")
+    from_design: bool = key(True, "the plant is the design's optimum (true) or the [rig] table (false)")
+    sleeve_stiffness_N_per_um: float | None = key(None, "the sleeve and bolts in series with the nuts (not set: "
+                                                  "rigid)", unit="N/um", gt=0)
+    cycles: int = key(2, "machining cycles the schedule is tracked for", ge=1)
+    passes: int = key(3, "most times the schedule is planned (again with a margin while a requirement is missed)",
+                      ge=1)
+    margin_factor: float = key(1.25, "factor on the shortfall that makes the next pass's preload margin", ge=1)
+    stack_contact_N: float = key(0.0, "least force the stacks keep on the nuts (they are not bonded to them)",
+                                 unit="N", ge=0)
 
     def plant(self, spec: DesignSpec, point: DesignPoint, hardware: RigParams, design_sha256: str = "") -> DesignedPlant:
         """The plant of the design ``point`` with this table's sleeve (:func:`~piezopreload.design.plant.plant_from_design`)."""

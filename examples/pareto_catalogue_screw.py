@@ -7,7 +7,11 @@ preloads (the bolts' and the stacks'). The study's design tables are changed to 
 least rigidity against mean drag torque is traced, and the design the study's objective
 chooses is marked on it (its rigidity is printed beside the catalogue's at 0.1 C_dyn).
 
-    python examples/pareto_catalogue_screw.py --points 20 --out pareto/
+It runs on the default study, the machine axis (``pp.load_study()``, studies/machine_axis.toml: its
+feed drive, duty cycle and design limits), unless ``--study`` names another with the design's tables.
+
+    python examples/pareto_catalogue_screw.py                       # the machine axis, 30 points
+    python examples/pareto_catalogue_screw.py --study paper2021 --points 20 --out pareto/
 """
 
 import argparse
@@ -47,7 +51,8 @@ def plot(design: pp.DesignResult, screw: dict = CATALOGUE) -> Figure:
 
 def main(argv: list[str] | None = None) -> pp.DesignResult:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--study", help="study file with the design tables (default: the paper's)")
+    parser.add_argument("--study", help="a shipped study's name or a study file with the design's tables (default: the "
+                                         "machine axis)")
     parser.add_argument("--points", type=int, default=30, help="points on the front")
     parser.add_argument("--out", default="pareto-out", help="folder for the figure and the design artifact")
     args = parser.parse_args(argv)

@@ -4,7 +4,8 @@ The front door for design-study scripts::
 
     import piezopreload as pp
     study = pp.load_study()                            # the default study (the machine axis); a name or a file
-    s2 = study.replace(rig={"bolt_preload_N": 30.0})   # a validated, changed copy
+    study.plant                                        # the plant every step runs on (here: its design's)
+    s2 = study.replace(design={"failsafe_load_N": 800.0})  # a validated, changed copy
     ff = study.identify_feedforward()                  # honours [feedforward] data
     tuned = study.tune(feedforward=ff)                 # TuningResult: .gains, .table, .to_dict(), .plot()
     gain_set = tuned.validate(plants=200, seed=0)      # GainSet: .validated, .gains, .validation
@@ -12,6 +13,7 @@ The front door for design-study scripts::
     design = study.design()                            # DesignResult: .optimum, .fronts, .schedule, .plot()
     gain_set.save("gains.json"); pp.GainSet.load("gains.json")
     pp.export(gain_set, "labview")                     # the text the CLI writes; a model alone: pp.export(ff.record, "plc")
+    learned = study.learn(gain_set, reference="schedule")  # ScheduleLearning: along the preload schedule
     result = study.run(out="piezopreload-out")         # the whole pipeline, as ``piezopreload run``
 
 The physics lives in :mod:`piezopreload.models`, identification and tuning in
@@ -40,7 +42,7 @@ from piezopreload.design.study import DesignResult
 from piezopreload.models.closedloop import ClosedLoopRun, Reference
 from piezopreload.models.controller import PIDGains
 from piezopreload.models.metrics import StepMetrics
-from piezopreload.results import StudyRun, TuningResult
+from piezopreload.results import ScheduleLearning, StudyRun, TuningResult
 from piezopreload.rig.export import export
 from piezopreload.study import Study, load_study, shipped_studies
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
@@ -48,7 +50,8 @@ from piezopreload.tuning.identification import Identification, Window, identify
 from piezopreload.tuning.identify import NotFittedError, PIIdentifier
 
 __all__ = [
-    "__version__", "load_study", "shipped_studies", "Study", "GainSet", "TuningResult", "StudyRun", "ClosedLoopRun",
+    "__version__", "load_study", "shipped_studies", "Study", "GainSet", "TuningResult", "StudyRun", "ScheduleLearning",
+    "ClosedLoopRun",
     "DesignResult", "IdentifiedFeedforward", "PIDGains", "Reference", "StepMetrics", "Record", "read_record",
     "export", "identify", "Identification", "PIIdentifier", "NotFittedError", "IdentifiedModel", "Window", "PiezopreloadError", "InputError", "ArtifactError", "InfeasibleError",
     "InternalError",

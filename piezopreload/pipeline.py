@@ -25,9 +25,10 @@ report      figures and the PDF (Typst)                                         
 ==========  ==================================================================  ==========================
 
 A study without ``[plant] from_design`` (the paper's) runs on its ``[rig]``: plant and system do
-not apply. With it, identify, tune, validate and compare run on the designed plant (the
-study with ``plant.json``'s rig as its ``[rig]``), and their keys include the plant's hash: a
-changed design makes another plant and everything after it runs again. With a ``[learning]``
+not apply. With it, identify, tune, validate and compare run on the designed plant (``study.plant``
+of the study given the design stage's optimum, :meth:`Study.with_design`: the plant stage writes it
+as ``plant.json``), and their keys include the plant's hash: a changed design makes another plant
+and everything after it runs again. With a ``[learning]``
 table too, the learn stage learns on each margin pass of the schedule and the system stage
 plays each pass's signal (:meth:`Study.track_schedule`'s ``ff_extra_V``): its summary is after
 learning, with the error before learning beside it; the rig stage plays the last pass's signal.
@@ -54,7 +55,6 @@ from typing import Any
 from piezopreload import __version__
 from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import GainSet
-from piezopreload.artifacts.plant import DesignedPlant
 from piezopreload.artifacts.requirements import checked_by_stages, missed
 from piezopreload.artifacts.schedule import PreloadSchedule
 from piezopreload.artifacts.system import SystemRecord
@@ -125,16 +125,13 @@ class _Ctx:
         """The design's preload schedule, as the design stage recorded it."""
         return self.design().schedule
 
-    def designed_plant(self) -> DesignedPlant:
-        """The plant the plant stage wrote."""
-        return DesignedPlant.load(self.output("plant", "plant"))
-
     def subject(self) -> Study:
-        """The study the control stages run on: with the designed plant as its rig where the plant stage ran."""
-        if self.records.get("plant", {}).get("status") != "done":
+        """The study the stages after the design run on: where the plant is the design, the study given the design
+        stage's optimum (its plant, designed plant and preload schedule are made from it, not solved again)."""
+        if not self.study.plant_from_design:
             return self.study
         if self._subject is None:
-            self._subject = self.study.with_plant(self.designed_plant())
+            self._subject = self.study.with_design(self.design(), self.sha256("design", "design"))
         return self._subject
 
 
@@ -207,7 +204,7 @@ def _stage_validate(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
 def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     study, ff = ctx.subject(), ctx.feedforward()
     gain_set = GainSet.load(ctx.output("validate", "gains"))
-    runs = responses(study.rig, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model,
+    runs = responses(study.plant, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model,
                      seed=study.seed, band_N=study.band_N, signal=study.signal,
                      after_change_s=study.criteria.tracking_after_change_s, progress=ctx.progress.bar("closed-loop runs"))
     d = ctx.out / "responses"
@@ -221,7 +218,7 @@ def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
                      **r.numbers})
     table = None if study.published is None else reproduction(runs, study.published.step())
     creep = None if ff.without_creep is None else creep_effect(  # FF + PID with and without creep compensation
-        study.rig, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model, ff.without_creep,
+        study.plant, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model, ff.without_creep,
         seed=study.seed, band_N=study.band_N, signal=study.signal, after_change_s=study.criteria.tracking_after_change_s)
     outputs["responses"] = d / "responses.json"
     write_artifact(outputs["responses"], "responses", {
@@ -234,7 +231,7 @@ def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
 
 
 def _stage_plant(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
-    plant = ctx.study.designed_plant(ctx.design().point, ctx.sha256("design", "design"))
+    plant = ctx.subject().designed_plant
     path = plant.save(ctx.out / "plant.json", {"design": ctx.rel(ctx.output("design", "design")),
                                                "design_sha256": plant.design_sha256, "study_sha256": ctx.study.sha256})
     k = plant.local_stiffness_N_per_um()
@@ -246,24 +243,23 @@ def _stage_plant(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
 
 
 def _stage_learn(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
-    study, gain_set = ctx.study, GainSet.load(ctx.output("validate", "gains"))
-    system, passes = study.learn_schedule(ctx.designed_plant(), ctx.schedule(), gain_set, progress=ctx.progress.say)
+    study, gain_set = ctx.subject(), GainSet.load(ctx.output("validate", "gains"))
+    learned = study.learn(gain_set, reference="schedule", progress=ctx.progress.say)
     inputs = {"gain_set_sha256": gain_set.content_sha256, "plant_sha256": ctx.sha256("plant", "plant"),
               "study_sha256": study.sha256}
-    outputs = save_passes(passes, ctx.out / "learn", gain_set.content_sha256, inputs)
+    outputs = save_passes(list(learned.passes), ctx.out / "learn", gain_set.content_sha256, inputs)
     record = read_artifact(outputs["learning"], "learning")
     return outputs, {k: record[k] for k in ("tracking_rms_N", "tracking_rms_pct_of_range", "before_learning_rms_N",
                                             "before_learning_pct_of_range", "iterations", "converged", "passes",
-                                            "contraction_over_range")} | {"preload_margin_N": system.margin_N}
+                                            "contraction_over_range")} | {"preload_margin_N": learned.system.margin_N}
 
 
 def _stage_system(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
-    study, gain_set = ctx.study, GainSet.load(ctx.output("validate", "gains"))
-    plant = ctx.designed_plant()
+    study, gain_set = ctx.subject(), GainSet.load(ctx.output("validate", "gains"))
     extra, before = None, {}
     if ctx.records.get("learn", {}).get("status") == "done":  # each pass plays the signal learned on its reference
         extra, before = played_passes(ctx.output("learn", "learning"), gain_set.content_sha256)
-    result = study.track_schedule(plant, ctx.schedule(), gain_set, ff_extra_V=extra, progress=ctx.progress.say)
+    result = study.track_schedule(gain_set, ff_extra_V=extra, progress=ctx.progress.say)
     paths = result.save(ctx.out / "system", {
         "gain_set_sha256": gain_set.content_sha256, "design_sha256": ctx.sha256("design", "design"),
         "plant_sha256": ctx.sha256("plant", "plant"), "study_sha256": study.sha256,

@@ -1,4 +1,5 @@
-"""What a study's steps return: :class:`TuningResult` (``study.tune()``) and :class:`StudyRun` (``study.simulate()``).
+"""What a study's steps return: :class:`TuningResult` (``study.tune()``), :class:`StudyRun` (``study.simulate()``)
+and :class:`ScheduleLearning` (``study.learn(reference="schedule")``).
 
 Each result carries its numbers, ``to_dict()`` (what ``--json`` prints or the artifact
 holds) and ``plot()`` (a matplotlib Figure, no pyplot state). The domain computations are the
@@ -17,10 +18,12 @@ from typing import Any
 import numpy as np
 
 from piezopreload.artifacts.gainset import REFERENCES, GainSet, gains_from_dict, gains_to_dict
+from piezopreload.artifacts.learned import LearnedSignal
 from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.parallel import beside
+from piezopreload.design.system import SystemRun
 from piezopreload.models.actuator import Rig
 from piezopreload.models.closedloop import ClosedLoopRun
 from piezopreload.models.closedloop import simulate as simulate_loop
@@ -31,11 +34,12 @@ from piezopreload.tuning.calibrate import CONTROLLERS, PAPER_RESULTS
 from piezopreload.tuning.calibrate import reproduce as reproduce_paper
 from piezopreload.tuning.compare import compare_gains, reproduction_summary, tracking_improvement
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
+from piezopreload.tuning.learning import LearningResult, save_passes
 from piezopreload.tuning.pid import TuningInfeasible, minimum_time, tracking_floor, tune_pid
 from piezopreload.tuning.schedule import schedule_levels, tune_schedule
 from piezopreload.tuning.verdict import validate_gain_set
 
-__all__ = ["TuningResult", "StudyRun", "tune", "simulate", "reproduce"]
+__all__ = ["TuningResult", "StudyRun", "ScheduleLearning", "tune", "simulate", "reproduce"]
 
 _STEP_KEYS = ("rise_s", "peak_s", "settling_s", "overshoot_N")
 _TRACK_KEYS = ("tracking_rms_N", "tracking_max_N")
@@ -96,7 +100,7 @@ class TuningResult:
         """The tuned gains as a gain set not yet validated: feedforward, plant, references and criteria."""
         s, ff = self.study, self.feedforward
         return GainSet(gains=self.gains, status="candidate", feedforward=ff.model, feedforward_info=ff.info(),
-                       plant=s.rig, preset=s.name, references={k: s.references[k] for k in REFERENCES},
+                       plant=s.plant, preset=s.name, references={k: s.references[k] for k in REFERENCES},
                        criteria=s.criteria, tuning={**self.tuning, "simc_baseline": gains_to_dict(self.simc)},
                        inputs={"study": s.path, "study_sha256": s.sha256, **(inputs or {})})
 
@@ -153,10 +157,10 @@ def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None =
     seed = study.seed if seed is None else seed
     spec, criteria, step, trajectory = study.tuning_spec, study.criteria, study.references["step"], study.references["trajectory"]
     say("tuning the PID around the compensated plant (CasADi + IPOPT), the minimum-time bound beside it ...")
-    bounding = beside(minimum_time, study.rig, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]),
+    bounding = beside(minimum_time, study.plant, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]),
                       band_N=study.band_N, u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
     try:
-        tuned = tune_pid(study.rig, feedforward.inverse(), spec, progress=iterations)
+        tuned = tune_pid(study.plant, feedforward.inverse(), spec, progress=iterations)
     except TuningInfeasible as exc:
         bounding.discard()
         raise InfeasibleError(f"{study.path}: {exc}") from exc
@@ -166,7 +170,7 @@ def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None =
     record: dict[str, Any] = {**tuned.to_dict(), "spec": spec.to_dict()}
     if study.tuning.schedule_levels >= 2:  # a gain schedule on the preload level, or the robust set if it does as well
         span = np.concatenate([study.references[k].levels_N for k in ("step", "trajectory")])
-        sched = tune_schedule(study.rig, feedforward.model, spec, criteria, g, step=step, trajectory=trajectory,
+        sched = tune_schedule(study.plant, feedforward.model, spec, criteria, g, step=step, trajectory=trajectory,
                               levels_N=schedule_levels(span.min(), span.max(), study.tuning.schedule_levels),
                               n_plants=study.tuning.schedule_plants, seed=seed, progress=say)
         g, record["schedule"] = sched.gains, sched.to_dict()
@@ -175,9 +179,9 @@ def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None =
     except TuningInfeasible as exc:  # the bound is a comparison, not a requirement: say why it is missing
         say(f"no minimum-time bound: {exc}")
         bound = {"settling_s": None, "reason": str(exc)}
-    floor = tracking_floor(study.rig, trajectory)
+    floor = tracking_floor(study.plant, trajectory)
     say("comparing the paper's, the SIMC and the tuned gains on the nominal rig ...")
-    table = compare_gains(study.rig, step, trajectory, {"paper": study.gains, "simc": tuned.baseline, "tuned": g},
+    table = compare_gains(study.plant, step, trajectory, {"paper": study.gains, "simc": tuned.baseline, "tuned": g},
                           feedforward.model, criteria, seed)
     row = next(r for r in table if r["gains"] == "tuned" and r["feedforward"])
     settle = row["settling_s"]
@@ -243,7 +247,7 @@ def simulate(study: Study, gains: GainSet | PIDGains | None, *, controller: str 
         pid, source = gains, {"source": "given"}
     else:
         pid, source = study.gains, {"source": f"{study.path} [controller], read as {study.controller.units}"}
-    rig = Rig(study.rig)
+    rig = Rig(study.plant)
     inverse, ff_info = None, None
     if controller == "ff+pid":
         if feedforward is None and isinstance(gains, GainSet) and gains.feedforward is not None:
@@ -277,11 +281,75 @@ def reproduce(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | N
     if study.published is None:
         raise InputError(f"{study.path}: the study declares no published step numbers (a [published] table, as "
                          "studies/paper2021.toml has); reproduce sets a study's simulation beside published numbers")
-    rep = reproduce_paper(study.rig, study.gains, step=study.references["step"], excitation=study.excitation,
+    rep = reproduce_paper(study.plant, study.gains, step=study.references["step"], excitation=study.excitation,
                           seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
                           repeats=repeats, feedforward=feedforward.model,
                           feedforward_fit=feedforward.fit.to_dict())
     return {"study": {"path": study.path, "sha256": study.sha256, "name": study.name},
             "gains": {**gains_to_dict(study.gains), "read_as": study.controller.units}, "band_N": study.band_N,
             "signal": study.signal, "published": study.published.source,
+            "step": " -> ".join(f"{x:g}" for x in study.references["step"].levels_N) + " N",
             **reproduction_summary(rep, study.published.step()), "seconds": time.perf_counter() - t0}
+
+
+@dataclass(frozen=True, eq=False)
+class ScheduleLearning:
+    """Learning along the design's preload schedule (``study.learn(gains, reference="schedule")``): each margin
+    pass of the schedule learned on its own repeated reference (``passes``, one
+    :class:`~piezopreload.tuning.learning.LearningResult` each), and the tracking of the schedule with each pass's
+    learned signal played (``system``, the last pass's :class:`~piezopreload.design.system.SystemRun`)."""
+
+    system: SystemRun
+    passes: tuple[LearningResult, ...]
+
+    @property
+    def last(self) -> LearningResult:
+        """The last pass's learning: the signal the schedule is played with."""
+        return self.passes[-1]
+
+    @property
+    def before_learning_rms_N(self) -> float:
+        """The last pass's RMS error before learning (the tuned loop with its feedforward and preview)."""
+        return float(np.max(self.last.history[0].tracking_rms_N))
+
+    def save(self, folder: str | Path, gain_set_sha256: str | None, inputs: dict[str, Any] | None = None) -> dict[str, Any]:
+        """Write each pass's learned signal and ``learning.json`` (:func:`~piezopreload.tuning.learning.save_passes`)
+        into ``folder``; returns the last pass's signal (``out``, what the rig plays) and its hash."""
+        paths = save_passes(list(self.passes), folder, gain_set_sha256, dict(inputs or {}))
+        return {"out": str(paths["learned"]), "learning": str(paths["learning"]),
+                "content_sha256": LearnedSignal.load(paths["learned"]).content_sha256}
+
+    def to_dict(self) -> dict[str, Any]:
+        """The last pass's learning (as a :class:`LearningResult`'s), each pass's figures and the schedule's tracking."""
+        return {**self.last.to_dict(), "before_learning_rms_N": self.before_learning_rms_N,
+                "passes": [{"pass": k, "preload_margin_N": None if p is None else p.preload_margin_N,
+                            "tracking_rms_N": r.tracking_rms_N,
+                            "before_learning_rms_N": float(np.max(r.history[0].tracking_rms_N))}
+                           for k, (r, p) in enumerate(zip(self.passes, self._pass_records()), start=1)],
+                "system": self.system.summary()}
+
+    def _pass_records(self) -> list[Any]:
+        """The system's record of each learned pass (None for a pass the system did not run again)."""
+        records: list[Any] = list(self.system.passes)
+        return records + [None] * (len(self.passes) - len(records))
+
+    def __repr__(self) -> str:
+        return (f"ScheduleLearning({len(self.passes)} pass{'es' if len(self.passes) > 1 else ''}, margin "
+                f"{self.system.margin_N:.1f} N: tracking RMS {self.last.tracking_rms_N:.2f} N after learning, "
+                f"{self.before_learning_rms_N:.2f} N before; requirements met: {self.system.requirements_met})")
+
+    def plot(self) -> Any:
+        """The error per iteration of each pass (left) and the schedule's tracking (the system run's figure is
+        ``system.plot()``): a Figure."""
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(5.5, 3.6), layout="constrained")
+        ax = fig.subplots()
+        for k, result in enumerate(self.passes, start=1):
+            ax.semilogy([h.iteration for h in result.history],
+                        [float(np.max(np.atleast_1d(h.tracking_rms_N))) for h in result.history], "o-",
+                        label=f"pass {k}")
+        ax.set(xlabel="iteration", ylabel="RMS error of the true force (N)",
+               title="learning along the preload schedule, each margin pass")
+        ax.legend(fontsize="small")
+        return fig

@@ -1,216 +1,94 @@
-"""The study: a TOML file parsed once into typed tables, and the steps a design-study script calls on it.
+"""The study: a TOML file parsed once into typed tables, its plant, and the steps a design-study script calls on it.
 
-A study names the rig (the simulated plant), the controller's gains, the feedforward's
+A study names its plant's hardware (``[rig]``), the controller's starting gains, the feedforward's
 identification experiment, the references, the simulation settings, the ball-screw design
-(``[ballscrew]``, ``[feed_drive]``, ``[duty]``, ``[design]``, ``[schedule]``) and the
-one-command study's ``[tuning]``, ``[validation]``, ``[export]`` and ``[rig_run]``. Every key
-is checked on load: an unknown key, a wrong type or an out-of-range value is an
-:class:`~piezopreload.core.errors.InputError` naming the file, the line and the key's path.
+(``[ballscrew]``, ``[feed_drive]``, ``[duty]``, ``[design]``, ``[schedule]``), the plant
+(``[plant]``: the design's, or ``[rig]`` itself) and the one-command study's ``[tuning]``,
+``[validation]``, ``[learning]``, ``[export]`` and ``[rig_run]``. Every key is declared once on
+its table's dataclass (:mod:`piezopreload.tables`) and checked on load: an unknown key, a wrong
+type or an out-of-range value is an :class:`~piezopreload.core.errors.InputError` naming the file,
+the key's line and its path. A key the designed plant sets is refused where the plant is the
+design: a study never ignores what it is given.
+
+``study.plant`` is the plant every control step (identify, tune, simulate, learn, validate) runs
+on: ``[rig]`` as given, or, where ``[plant] from_design = true``, the plant of the design's
+optimum, solved once (saying so) and kept.
 
 >>> import piezopreload as pp
->>> study = pp.load_study("paper2021")                 # the paper's study, shipped
->>> study.rig.bolt_preload_N
-25.0
->>> study.replace(rig={"bolt_preload_N": 30.0}).rig.bolt_preload_N
+>>> study = pp.load_study("paper2021")                 # the paper's study, shipped: its [rig] is the plant
+>>> study.rig.bolt_preload_N, study.plant.bolt_preload_N
+(25.0, 25.0)
+>>> study.replace(rig={"bolt_preload_N": 30.0}).plant.bolt_preload_N
 30.0
+>>> axis = pp.load_study()                             # the machine axis: its plant is its design
+>>> axis.rig.bolt_preload_N is None                    # the design sets it; [rig] may not
+True
+>>> axis.replace(rig={"bolt_preload_N": 30.0})  # doctest: +ELLIPSIS
+Traceback (most recent call last):
+...
+piezopreload.core.errors.InputError: ...: 'rig.bolt_preload_N' is set by the design where [plant] from_design = true ...
 """
 
 from __future__ import annotations
 
+import copy
 import hashlib
+import sys
+import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field
 from dataclasses import replace as _replace
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.validation import Criteria
-from piezopreload.core.config import NUMBER, Lines, Table, check_tree, read_config, toml_text
+from piezopreload.core.config import Invalid, Lines, Table, read_toml, toml_text
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.tables import Record, read_record
-from piezopreload.design.plant import DesignedPlant
-from piezopreload.design.preload import DesignInfeasible, DesignPoint, DesignSpec
+from piezopreload.design.plant import DESIGNED_FIELDS, DesignedPlant
+from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignPoint, DesignSpec, optimise
 from piezopreload.design.schedule import PreloadSchedule
 from piezopreload.design.study import DesignResult, design_spec_from_tables, design_study, plan_schedule, read_profile
 from piezopreload.design.system import SystemRun
 from piezopreload.design.tables import BallscrewTable, DesignTable, DutyTable, FeedDriveTable, PlantTable, ScheduleTable
-from piezopreload.models.actuator import P888_91, RigParams, StackData
+from piezopreload.models.actuator import RigParams
 from piezopreload.models.closedloop import Reference
-from piezopreload.models.controller import PIDGains
+from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.rig.tables import ExportTable, RigRunPlan
+from piezopreload.tables import (
+    DESIGN_TABLES,
+    REQUIRED_TABLES,
+    STUDY_TABLES,
+    ControllerTable,
+    FeedforwardTable,
+    PublishedTable,
+    ReferenceTables,
+    RigTable,
+    SimulationTable,
+    StudyTable,
+)
 from piezopreload.tuning.feedforward import IdentifiedFeedforward, LoopExcitation, identify_feedforward, loop_covers
 from piezopreload.tuning.pid import TuningSpec
 from piezopreload.tuning.tables import LearningTable, TuningTable, ValidationTable
 
 if TYPE_CHECKING:  # the results module imports this one
     from piezopreload.outcome import StudyResult
-    from piezopreload.results import StudyRun, TuningResult
+    from piezopreload.results import ScheduleLearning, StudyRun, TuningResult
     from piezopreload.tuning.learning import LearningResult
 
-__all__ = ["Study", "load_study", "default_study", "paper_study", "shipped_studies", "DEFAULT_STUDY", "PAPER_STUDY",
-           "RigRunPlan", "PlantTable"]
+__all__ = ["Study", "load_study", "default_study", "paper_study", "shipped_studies", "DEFAULT_STUDY", "PAPER_STUDY"]
 
 DEFAULT_STUDY = "machine_axis"  # the whole system: the designed preload system is the plant
 PAPER_STUDY = "paper2021"       # the paper's rig and gains
-
-_NUM = NUMBER
-_RIG_SCALARS = {f.name for f in fields(RigParams)} - {"stack", "creep_tau_s", "n_stacks", "adc_bits", "delay_samples"}
-_SCHEMA: dict[str, Any] = {
-    "study": {"name": str, "title": str, "description": str},
-    "rig": {
-        **{name: _NUM for name in _RIG_SCALARS},
-        "n_stacks": int, "adc_bits": int, "delay_samples": int, "creep_tau_s": list,
-        "stack": {f.name: (str if f.name == "name" else _NUM) for f in fields(StackData)},
-    },
-    "controller": {
-        "Kc": _NUM, "Ti": _NUM, "Td": _NUM, "Tf_s": _NUM, "b": _NUM, "units": str, "u_min_V": _NUM, "u_max_V": _NUM,
-    },
-    "feedforward": {"v_max_V": _NUM, "frequency_Hz": _NUM, "cycles": int, "n_operators": int, "seed": int,
-                    "data": str, "kind": str, "creep": bool},
-    "reference": {
-        "step": {"initial_N": _NUM, "final_N": _NUM, "t_step_s": _NUM, "duration_s": _NUM},
-        "trajectory": {"initial_N": _NUM, "levels_N": list, "hold_s": _NUM, "t_start_s": _NUM},
-    },
-    "simulation": {"seed": int, "band_N": _NUM, "signal": str},
-    # the ball-screw design (piezopreload design): what the machine fixes and the design's bounds
-    "ballscrew": {"nominal_diameter_mm": _NUM, "lead_mm": _NUM, "contact_angle_deg": list, "ball_mm": list,
-                  "conformity": list, "turns": list, "load_sharing": _NUM},
-    "feed_drive": {"table_mass_kg": _NUM, "screw_length_mm": _NUM, "bearing_stiffness_N_per_um": _NUM,
-                   "travel_mm": list, "mounting": str},
-    "duty": {"axial_load_N": list, "speed_rpm": list, "time_share": list},
-    "design": {"objective": str, "pareto": list, "pareto_points": int, "axial_load_max_N": _NUM,
-               "failsafe_load_N": _NUM, "lift_off_margin": _NUM, "preload_fraction_max": _NUM,
-               "contact_pressure_max_MPa": _NUM, "life_min_h": _NUM, "drag_torque_max_Nm": _NUM,
-               "frequency_min_Hz": _NUM, "stiffness_min_N_per_um": _NUM, "nut_length_max_mm": _NUM,
-               "ball_lead_ratio_max": _NUM, "load_factor": _NUM, "stack_drive_V": _NUM,
-               "amp_current_limit_A": _NUM},
-    "schedule": {"profile": str, "stiffness_min_N_per_um": _NUM, "deflection_max_um": _NUM,
-                 "lift_off_margin": _NUM},
-    # the one-command study (piezopreload run): tuning, validation, export and the rig run
-    "tuning": {"overshoot_margin_N": _NUM, "ms_max": _NUM, "noise_gain_max_V_per_N": _NUM,
-               "tune_setpoint_weight": bool, "step_N": list, "trajectory_N": list, "schedule_levels": int,
-               "schedule_plants": int},
-    # the designed preload system as the plant (design/plant.py, design/system.py)
-    "plant": {"from_design": bool, "sleeve_stiffness_N_per_um": _NUM, "cycles": int, "passes": int,
-              "margin_factor": _NUM, "stack_contact_N": _NUM},
-    "learning": {"iterations": int, "preview_s": _NUM, "method": str},
-    "validation": {"plants": int, "seed": int, "workers": int, "settling_max_s": _NUM, "overshoot_max_N": _NUM,
-                   "tracking_rms_max_N": _NUM, "peak_voltage_max_V": _NUM},
-    "export": {"formats": list},
-    "rig_run": {"backend": str, "reference": str, "realtime": bool, "seed": int, "force_max_N": _NUM,
-                "ramp_s": _NUM, "missed_streak": int},
-    # published step numbers the study compares itself with (the paper's study has them; a new study does not)
-    "published": {"source": str, "gains_label": str,
-                  "pid": {"rise_s": _NUM, "peak_s": _NUM, "settling_s": _NUM},
-                  "ff_pid": {"rise_s": _NUM, "peak_s": _NUM, "settling_s": _NUM}},
-}
-_REQUIRED = ("rig", "controller")
-_STRING_LISTS = {"design.pareto", "export.formats"}
-_UNITS = ("seconds", "minutes")
-_SIGNALS = ("measured_N", "force_N")
+Say = Callable[[str], None]
 
 
-# --------------------------------------------------------------------------------------
-# the tables: one frozen record per table of the file, its keys as fields
-# --------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class ControllerTable(Table):
-    """[controller]: the gains as entered (``Ti`` and ``Td`` in ``units``), the output range."""
-
-    Kc: float
-    Ti: float
-    Td: float
-    Tf_s: float = 0.0
-    b: float = 1.0
-    units: str = "seconds"
-    u_min_V: float = 0.0
-    u_max_V: float = 110.0
-
-
-@dataclass(frozen=True)
-class FeedforwardTable(Table):
-    """[feedforward]: the loop measurement the feedforward is identified from (``data``: a measured one), the P-I
-    model's ``kind`` and whether it compensates ``creep`` too."""
-
-    v_max_V: float = LoopExcitation.v_max_V
-    frequency_Hz: float = LoopExcitation.frequency_Hz
-    cycles: int = LoopExcitation.cycles
-    n_operators: int = LoopExcitation.n_operators
-    seed: int = LoopExcitation.seed
-    data: str | None = None
-    kind: str = LoopExcitation.kind
-    creep: bool = LoopExcitation.creep
-
-
-@dataclass(frozen=True)
-class StepTable(Table):
-    initial_N: float = 25.0
-    final_N: float = 60.0
-    t_step_s: float = 0.5
-    duration_s: float = 10.0
-
-
-@dataclass(frozen=True)
-class TrajectoryTable(Table):
-    initial_N: float = 25.0
-    levels_N: tuple[float, ...] = (60.0, 80.0, 100.0, 80.0, 60.0)
-    hold_s: float = 5.0
-    t_start_s: float = 0.5
-
-
-@dataclass(frozen=True)
-class ReferenceTables(Table):
-    """[reference.step] and [reference.trajectory]: the paper's step and staircase."""
-
-    step: StepTable = StepTable()
-    trajectory: TrajectoryTable = TrajectoryTable()
-
-
-@dataclass(frozen=True)
-class StepNumbers(Table):
-    rise_s: float
-    peak_s: float
-    settling_s: float
-
-
-@dataclass(frozen=True)
-class PublishedTable(Table):
-    """[published]: step numbers a publication reports for this study's rig and gains, which the report and
-    ``reproduce`` set beside the simulation's (a study without the table compares with nothing published)."""
-
-    source: str
-    gains_label: str
-    pid: StepNumbers
-    ff_pid: StepNumbers
-
-    def step(self) -> dict[str, dict[str, float]]:
-        """The numbers by controller (``pid``, ``ff+pid``) and metric."""
-        return {"pid": self.pid.to_dict(), "ff+pid": self.ff_pid.to_dict()}
-
-
-@dataclass(frozen=True)
-class SimulationTable(Table):
-    """[simulation]: the noise seed, the error band and the signal the step numbers are read on."""
-
-    seed: int = 0
-    band_N: float = 1.5
-    signal: str = "measured_N"
-
-
-_TABLES: dict[str, type[Table]] = {
-    "controller": ControllerTable, "feedforward": FeedforwardTable, "simulation": SimulationTable,
-    "ballscrew": BallscrewTable, "feed_drive": FeedDriveTable, "duty": DutyTable, "design": DesignTable,
-    "schedule": ScheduleTable, "tuning": TuningTable, "validation": ValidationTable, "export": ExportTable,
-    "rig_run": RigRunPlan, "plant": PlantTable, "learning": LearningTable,
-}
-#: the attribute of each table whose name is taken by a method (``study.design()``)
-_ATTRIBUTE = {"design": "design_table"}
-
-
-def _table(cls: type[Table], data: dict[str, Any]) -> Any:
-    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+def _stderr(message: str) -> None:
+    """A study's progress where its caller gives none: a line on standard error."""
+    print(f"piezopreload: {message}", file=sys.stderr, flush=True)
 
 
 @dataclass(frozen=True)
@@ -226,22 +104,39 @@ class _Source:
         return InputError(f"{self.shown}:{line}: '{key_path}' {message}" if line else f"{self.shown}: '{key_path}' {message}")
 
 
+class _Kept:
+    """What a study derives at a cost and keeps: the design's optimum (solved once, or given by
+    :meth:`Study.with_design`), and from it the designed plant, the plant and the preload schedule."""
+
+    def __init__(self, optimum: DesignOptimum | None = None, point: DesignPoint | None = None,
+                 design_sha256: str = "", plant: RigParams | None = None) -> None:
+        self.optimum, self.point, self.design_sha256 = optimum, point, design_sha256
+        self.plant: RigParams | None = plant
+        self.designed: DesignedPlant | None = None
+        self.schedule: PreloadSchedule | None = None
+
+    def design_of(self) -> _Kept:
+        """A cache holding only the design (for a study whose tables around the design changed)."""
+        return _Kept(self.optimum, self.point, self.design_sha256)
+
+
 # --------------------------------------------------------------------------------------
 # the study
 # --------------------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class Study:
-    """A loaded, validated study: its tables (typed, as in the file) and what they make (gains, references, specs).
+    """A loaded, validated study: its tables (typed, as in the file), its plant and what the tables make.
 
-    Make one with :func:`load_study`, a changed copy with :meth:`replace`. The ``[design]``
-    table is ``design_table`` (``design()`` runs it).
+    Make one with :func:`load_study`, a changed copy with :meth:`replace`. The ``[design]`` table is
+    ``design_table`` (``design()`` runs it), the ``[plant]`` table ``plant_table`` (``plant`` is the
+    plant itself, a :class:`~piezopreload.models.actuator.RigParams`).
     """
 
     path: str
     sha256: str
     name: str
     title: str
-    rig: RigParams
+    rig: RigTable
     controller: ControllerTable
     feedforward: FeedforwardTable
     reference: ReferenceTables
@@ -255,7 +150,7 @@ class Study:
     duty: DutyTable | None
     design_table: DesignTable | None
     schedule: ScheduleTable | None
-    plant: PlantTable | None
+    plant_table: PlantTable | None
     learning: LearningTable | None
     published: PublishedTable | None
     # what the tables make, built and checked on load
@@ -267,8 +162,14 @@ class Study:
     design_spec: DesignSpec | None = field(repr=False)
     where: _Source = field(repr=False)
     source_text: bytes = field(repr=False)  # the file as read, or as :meth:`replace` wrote it
+    given: dict[str, Any] = field(repr=False)  # the tables and keys the file gives, as it gives them
     description: str = ""
-    on_designed_plant: bool = field(default=False, repr=False, compare=False)  # set by with_plant
+    say: Say = field(default=_stderr, repr=False, compare=False)  # progress where a step is given none
+    _kept: _Kept = field(default_factory=_Kept, repr=False, compare=False)
+
+    def __repr__(self) -> str:
+        plant = "its design's ([plant] from_design)" if self.plant_from_design else "its [rig]"
+        return f"Study({self.name!r} from {self.path!r}, sha256 {self.sha256[:12]}; the plant is {plant})"
 
     # ---- the tables --------------------------------------------------------------------------
     @property
@@ -306,58 +207,155 @@ class Study:
                 raise self.where.fail(key, f"names {path}, which is not a file; give a path relative to the study file")
 
     def tables(self) -> dict[str, Any]:
-        """The study's tables as the file holds them (every key, defaults filled), e.g. for a stage's key."""
-        out: dict[str, Any] = {"study": {"name": self.name, "title": self.title, "description": self.description},
-                               "rig": self.rig.to_dict(), "reference": self.reference.to_dict()}
-        for table in _TABLES:
-            value = getattr(self, _ATTRIBUTE.get(table, table))
-            if value is not None:
+        """The study's tables as the file holds them, every key with its value (defaults filled): a stage's key."""
+        out: dict[str, Any] = {"study": {"name": self.name, "title": self.title, "description": self.description}}
+        for table in STUDY_TABLES:
+            value = getattr(self, _ATTRIBUTE.get(table, table), None)
+            if isinstance(value, Table):
                 out[table] = value.to_dict()
-        if self.published is not None:
-            out["published"] = self.published.to_dict()
         return out
 
-    def replace(self, **changes: dict[str, Any]) -> Study:
-        """A validated copy with some keys changed: ``study.replace(rig={"bolt_preload_N": 30.0})``.
+    def replace(self, **changes: dict[str, Any] | None) -> Study:
+        """A validated copy with some keys changed: ``study.replace(rig={"noise_N": 0.5})``.
 
-        Each argument names a table (``reference={"step": {"final_N": 80.0}}`` for a nested
-        one) and holds the keys to change; a bad key or value raises :class:`InputError`. A study
-        given its plant (:meth:`with_plant`) keeps it.
+        Each argument names a table (``reference={"step": {"final_N": 80.0}}`` for a nested one) and
+        holds the keys to change; a key (or a table) given as None is removed. The copy is checked as a
+        file is: a bad key or value, or a key the designed plant sets where the plant is the design,
+        raises :class:`InputError`. The design solved for this study is kept where the copy's design
+        is the same.
         """
-        data = self.tables()
+        data = copy.deepcopy(self.given)
         for table, keys in changes.items():
-            if table not in _SCHEMA or not isinstance(keys, dict):
-                raise InputError(f"Study.replace: '{table}' must be a table of the study given as a dict of keys, got "
-                                 f"{keys!r}; tables: {', '.join(_SCHEMA)}")
-            _merge(data.setdefault(table, {}), keys)
-        for table, rel in (("feedforward", "data"), ("schedule", "profile")):  # files stay where they were
-            if data.get(table, {}).get(rel) is not None:
-                data[table][rel] = str(self.folder / data[table][rel])
-        if data["rig_run"]["reference"].lower().endswith(".csv"):
-            data["rig_run"]["reference"] = str(self.folder / data["rig_run"]["reference"])
+            if table not in STUDY_TABLES or not (keys is None or isinstance(keys, dict)):
+                raise InputError(f"Study.replace: '{table}' must be a table of the study given as a dict of keys (or "
+                                 f"None to remove it), got {keys!r}; tables: {', '.join(STUDY_TABLES)}")
+            if keys is None:
+                data.pop(table, None)
+            else:
+                _merge(data.setdefault(table, {}), keys)
+        for table, rel in (("feedforward", "data"), ("schedule", "profile"), ("rig_run", "reference")):
+            value = data.get(table, {}).get(rel)  # files stay where they were, wherever the copy is written
+            if isinstance(value, str) and (table != "rig_run" or value.lower().endswith(".csv")):
+                data[table][rel] = str(self.folder / value)
         where = _Source(f"{self.path} (replaced)", Lines(""), self.folder)
-        check_tree(data, _SCHEMA, where.lines, where.shown, string_lists=_STRING_LISTS)
-        # a study given its plant (with_plant) keeps it: its [rig] is that plant's, changed as asked
-        return _replace(_build(data, where, self.path, toml_text(data).encode("utf-8")),
-                        on_designed_plant=self.on_designed_plant)
+        study = _build(data, where, self.path, toml_text(data).encode("utf-8"), self.say)
+        objective = (study.design_table or DesignTable()).objective == (self.design_table or DesignTable()).objective
+        same = self.design_spec is not None and study.design_spec == self.design_spec and objective
+        if not same:
+            return study
+        kept = self._kept.design_of()
+        kept.plant = study._kept.plant  # [rig]'s plant is the copy's own
+        return _replace(study, _kept=kept)
 
     def to_toml(self) -> str:
         """The study as a TOML file (the file itself when it was not changed)."""
         return self.source_text.decode("utf-8")
 
+    # ---- the plant ---------------------------------------------------------------------------
+    @property
+    def plant_from_design(self) -> bool:
+        """Whether the plant is the designed preload system (``[plant] from_design``) rather than ``[rig]`` itself."""
+        return self.plant_table is not None and self.plant_table.from_design
+
+    @property
+    def plant(self) -> RigParams:
+        """The plant every control step runs on: ``[rig]``, or the plant of the design's optimum where
+        ``[plant] from_design = true`` (the design solved once, saying so through the study's progress, and kept)."""
+        return self._plant(None)
+
+    @property
+    def designed_plant(self) -> DesignedPlant:
+        """Where the plant is the design: the designed preload system (its rig, :attr:`plant`; its screw, its
+        preload range and where it comes from, the design's hash)."""
+        if not self.plant_from_design:
+            raise InputError(f"{self.path}: the plant is [rig] ([plant] from_design is not true): there is no "
+                             "designed plant")
+        return self._designed(None)
+
+    @property
+    def preload_schedule(self) -> PreloadSchedule:
+        """The study's least-friction preload schedule (``[schedule]``) on the screw of the design's optimum."""
+        k = self._kept
+        if k.schedule is None:
+            s = self.schedule or ScheduleTable()
+            path = self.resolve(s.profile)
+            k.schedule, _, _ = plan_schedule(self._spec("the preload schedule"), self._point(None),
+                                             None if path is None else read_profile(path), profile_name=str(path),
+                                             **s.limits())
+        return k.schedule
+
+    def with_design(self, design: DesignRecord | DesignResult | DesignOptimum | DesignPoint,
+                    design_sha256: str = "") -> Study:
+        """This study with its design's optimum given (a design artifact, say) instead of solved: its plant,
+        designed plant and preload schedule are made from it; a design artifact's (:class:`DesignRecord`) own
+        schedule is kept as recorded, so the best constant preload has one source. ``design_sha256``: the design
+        artifact's hash, which the designed plant records."""
+        self._spec("a design")
+        point = design.point if isinstance(design, DesignRecord | DesignResult | DesignOptimum) else design
+        optimum = design.optimum if isinstance(design, DesignResult) else design if isinstance(design, DesignOptimum) \
+            else None
+        plant = None if self.plant_from_design else self._kept.plant
+        kept = _Kept(optimum, point, design_sha256, plant)
+        if isinstance(design, DesignRecord):
+            kept.schedule = design.schedule
+        return _replace(self, _kept=kept)
+
+    def _spec(self, what: str) -> DesignSpec:
+        if self.design_spec is None:
+            raise InputError(f"{self.path}: {what} needs the design's tables: the study has no [ballscrew] (see "
+                             "studies/machine_axis.toml)")
+        return self.design_spec
+
+    def _point(self, progress: Say | None) -> DesignPoint:
+        """The design's optimum, solved once (its cost said through ``progress``, or the study's)."""
+        k = self._kept
+        if k.point is None:
+            say = progress or self.say
+            objective = (self.design_table or DesignTable()).objective
+            say(f"solving the design's optimum ({objective}) once, for the plant and the preload schedule; every "
+                "later step keeps it ...")
+            t0 = time.perf_counter()
+            try:
+                k.optimum = optimise(self._spec("the design's optimum"), objective)
+            except DesignInfeasible as exc:
+                raise InfeasibleError(f"{self.path}: {exc}") from exc
+            k.point = k.optimum.point
+            say(f"design optimum in {time.perf_counter() - t0:.1f} s: bolts' preload {k.point.bolt_preload_N:.0f} N, "
+                f"stacks' reach {k.point.max_preload_N:.0f} N, least rigidity {k.point.stiffness_N_per_um:.0f} N/um")
+        return k.point
+
+    def _designed(self, progress: Say | None) -> DesignedPlant:
+        k = self._kept
+        if k.designed is None:
+            table = self.plant_table or PlantTable()
+            k.designed = table.plant(self._spec("the designed plant"), self._point(progress), self.rig.params(),
+                                     k.design_sha256)
+        return k.designed
+
+    def _plant(self, progress: Say | None) -> RigParams:
+        k = self._kept
+        if k.plant is None:
+            k.plant = self._designed(progress).rig if self.plant_from_design else self.rig.params()
+        return k.plant
+
+    def _controller(self, gains: GainSet | None, progress: Say | None) -> Controller:
+        """The gain set's controller, or the study's [controller] gains with the identified feedforward."""
+        if gains is not None:
+            return gains.controller()
+        return Controller(self.gains, self._plant(progress).sample_period_s,
+                          self.identify_feedforward(progress).inverse())
+
     # ---- the steps -----------------------------------------------------------------------------
-    def identify_feedforward(self, progress: Callable[[str], None] | None = None) -> IdentifiedFeedforward:
+    def identify_feedforward(self, progress: Say | None = None) -> IdentifiedFeedforward:
         """The feedforward's P-I model: from ``[feedforward] data`` (a measured V -> N loop) when the study names
-        one, else from the loop measurement simulated on the rig; with its open-loop compensation check."""
+        one, else from the loop measurement simulated on :attr:`plant`; with its open-loop compensation check."""
         say = progress or (lambda _m: None)
-        if not self._on_plant:
-            self._measured_loop(say)  # refused before the design if it does not cover the references
-            return self.plant_study(progress).identify_feedforward(progress)
-        ex, record = self.excitation, self._measured_loop(say)
-        low, high = self.reference_range_N
+        record = self._measured_loop(say)  # refused before the design if it does not cover the references
+        plant = self._plant(progress)
+        ex, (low, high) = self.excitation, self.reference_range_N
         if record is None:
-            say(f"simulating the {ex.v_max_V:g} V, {ex.frequency_Hz:g} Hz loop measurement on the rig's truth model")
-        ff = identify_feedforward(self.rig, ex, record, check_range_N=(low, high))
+            say(f"simulating the {ex.v_max_V:g} V, {ex.frequency_Hz:g} Hz loop measurement on the plant's truth model")
+        ff = identify_feedforward(plant, ex, record, check_range_N=(low, high))
         say(f"P-I model ({ff.model.kind}): {ff.model.n_operators} operators, fit RMS {ff.fit.rms_pct:.2f} % "
             f"(max {ff.fit.max_pct:.2f} %) of the force span, identified over {ff.record.output_range[0]:,.4g} to "
             f"{ff.record.output_range[1]:,.4g} N")
@@ -383,23 +381,22 @@ class Study:
         return float(min(x.min() for x in levels)), float(max(x.max() for x in levels))
 
     def tune(self, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,
-             progress: Callable[[str], None] | None = None,
-             iterations: Callable[[int], None] | None = None) -> TuningResult:
-        """Tune the PID around the rig compensated by ``feedforward`` (default: :meth:`identify_feedforward`);
-        compare it with the paper's and SIMC's gains and bound it. Returns a :class:`~piezopreload.results.TuningResult`."""
+             progress: Say | None = None, iterations: Callable[[int], None] | None = None) -> TuningResult:
+        """Tune the PID around :attr:`plant` compensated by ``feedforward`` (default: :meth:`identify_feedforward`);
+        compare it with the study's and SIMC's gains and bound it. Returns a :class:`~piezopreload.results.TuningResult`."""
         from piezopreload.results import tune
 
         if feedforward is not None:  # refused before the design and the tuning, with both ranges
             feedforward.covers(*self.reference_range_N, f"the study's references ({self.path})")
         else:
             self._measured_loop(progress or (lambda _m: None))
-        study = self.plant_study(progress)
-        return tune(study, feedforward or study.identify_feedforward(progress), seed=seed, progress=progress,
+        self._plant(progress)
+        return tune(self, feedforward or self.identify_feedforward(progress), seed=seed, progress=progress,
                     iterations=iterations)
 
     def simulate(self, gains: GainSet | PIDGains | None = None, *, controller: str = "ff+pid", reference: str = "step",
                  feedforward: IdentifiedFeedforward | None = None, seed: int | None = None) -> StudyRun:
-        """One controller on the study's rig over one of its references: a
+        """One controller on :attr:`plant` over one of the study's references: a
         :class:`~piezopreload.results.StudyRun` (``.step_metrics()``, ``.plot()``, ``.to_dict()``).
 
         ``gains``: a gain set (its feedforward too, unless ``feedforward`` is given), PID gains, or
@@ -407,129 +404,102 @@ class Study:
         """
         from piezopreload.results import simulate
 
-        return simulate(self.plant_study(), gains, controller=controller, reference=reference, feedforward=feedforward, seed=seed)
+        return simulate(self, gains, controller=controller, reference=reference, feedforward=feedforward, seed=seed)
 
-    def learn(self, gains: GainSet | None = None, *, reference: Any = "trajectory", iterations: int = 10,
-              preview_s: float | None = None, method: str = "p-type", plants: int | None = None,
-              seed: int | None = None, progress: Callable[[str], None] | None = None) -> LearningResult:
-        """Preview and iterative learning control over a repeated reference: a
-        :class:`~piezopreload.tuning.learning.LearningResult` (``.ff_extra_V``, ``.history``,
-        ``.signal(gain_set_sha256)``, ``.to_dict()``, ``.plot()``); see :func:`piezopreload.tuning.learning.learn`.
+    def learn(self, gains: GainSet | None = None, *, reference: Any = "trajectory", iterations: int | None = None,
+              preview_s: float | None = None, method: str | None = None, plants: int | None = None,
+              seed: int | None = None, progress: Say | None = None) -> LearningResult | ScheduleLearning:
+        """Preview and iterative learning control over a repeated reference on :attr:`plant`.
 
         ``gains`` a gain set (its controller) or None (the study's ``[controller]`` with the identified
-        feedforward); ``reference`` a name of :attr:`references` or a ``Reference``; ``preview_s`` None
-        for the default horizon, 0 for none; ``method`` ``p-type`` or ``norm-optimal``; ``plants`` N to
-        learn on N Monte Carlo plants (each its own learning; the result reports the worst).
+        feedforward); ``reference`` a name of :attr:`references`, a ``Reference``, or ``"schedule"``:
+        the design's preload schedule, learned as the pipeline's learn stage does (each margin pass of
+        :meth:`track_schedule` on its own reference; a study whose plant is its design). ``iterations``,
+        ``preview_s`` (0: none) and ``method`` default to the study's ``[learning]``; ``plants`` N learns
+        on N Monte Carlo plants (each its own learning; the result reports the worst).
+
+        Returns a :class:`~piezopreload.tuning.learning.LearningResult` (``.ff_extra_V``, ``.history``,
+        ``.plot()``), for ``"schedule"`` a :class:`~piezopreload.results.ScheduleLearning` (each pass's
+        learning and the last pass's tracking of the schedule).
         """
         from piezopreload.models.actuator import Rig
-        from piezopreload.models.controller import Controller
         from piezopreload.tuning.learning import learn, named_reference
 
-        study = self.plant_study(progress)
-        reference = named_reference(reference, study.references)
-        controller = gains.controller() if gains is not None else Controller(
-            study.gains, study.rig.sample_period_s, study.identify_feedforward().inverse())
-        return learn(controller, Rig(study.rig), reference, iterations=iterations, preview_s=preview_s, method=method,
-                     plants=plants, seed=self.seed if seed is None else seed, progress=progress)
+        table = self.learning or LearningTable()
+        iterations = table.iterations if iterations is None else iterations
+        preview_s = table.preview_s if preview_s is None else preview_s
+        method = table.method if method is None else method
+        seed = self.seed if seed is None else seed
+        if isinstance(reference, str) and reference == "schedule":
+            if plants is not None:
+                raise InputError("Study.learn: plants: the schedule is learned on the designed plant itself (each "
+                                 "margin pass); give plants=None, or learn on a Reference over Monte Carlo plants")
+            return self._learn_schedule(gains, iterations, preview_s, method, seed, progress)
+        reference = named_reference(reference, self.references)
+        return learn(self._controller(gains, progress), Rig(self._plant(progress)), reference, iterations=iterations,
+                     preview_s=preview_s, method=method, plants=plants, seed=seed, progress=progress)
+
+    def _learn_schedule(self, gains: GainSet | None, iterations: int, preview_s: float | None, method: str,
+                        seed: int, progress: Say | None) -> ScheduleLearning:
+        from piezopreload.results import ScheduleLearning
+        from piezopreload.tuning.learning import schedule_learner
+
+        designed = self._designed_for("reference 'schedule'", progress)
+        controller = self._controller(gains, progress)
+        learned, passes = schedule_learner(designed.rig, controller, iterations=iterations, preview_s=preview_s,
+                                           method=method, seed=seed, progress=progress)
+        system = (self.plant_table or PlantTable()).track(designed, controller, self.preload_schedule, seed=seed,
+                                                          settle_s=self.criteria.settling_max_s, ff_extra_V=learned,
+                                                          progress=progress)
+        return ScheduleLearning(system, tuple(passes))
+
+    def _designed_for(self, what: str, progress: Say | None) -> DesignedPlant:
+        if not self.plant_from_design:
+            raise InputError(f"{self.path}: {what} needs a study whose plant is its design ([plant] from_design = "
+                             "true, with the design's tables); this study's plant is its [rig]")
+        return self._designed(progress)
+
+    def track_schedule(self, gains: GainSet | None = None, *, ff_extra_V: Any = None,
+                       progress: Say | None = None) -> SystemRun:
+        """The gains (a gain set, or the study's ``[controller]`` with the identified feedforward) following the
+        preload schedule on the designed plant for ``[plant] cycles`` after a pre-cycle to its first level (held the
+        validated settling time, ``[validation] settling_max_s``), the schedule planned again with local margins while
+        a requirement is missed (:func:`piezopreload.design.system.track_schedule`); ``ff_extra_V`` a correction
+        added to the feedforward (one array, or one per pass's reference: a callable)."""
+        designed = self._designed_for("tracking the schedule", progress)
+        return (self.plant_table or PlantTable()).track(designed, self._controller(gains, progress),
+                                                        self.preload_schedule, seed=self.seed,
+                                                        settle_s=self.criteria.settling_max_s, ff_extra_V=ff_extra_V,
+                                                        progress=progress)
 
     def reproduce(self, *, seed: int | None = None, repeats: int = 1,
                   feedforward: IdentifiedFeedforward | None = None) -> dict[str, Any]:
-        """The paper's six step numbers beside the simulation's (medians over ``repeats`` noise draws)."""
+        """The paper's six step numbers beside the simulation's on :attr:`plant` (medians over ``repeats`` noise draws)."""
         from piezopreload.results import reproduce
 
-        study = self.plant_study()
-        return reproduce(study, feedforward or study.identify_feedforward(), seed=seed, repeats=repeats)
+        return reproduce(self, feedforward or self.identify_feedforward(), seed=seed, repeats=repeats)
 
     def design(self, *, objective: str | None = None, pareto: list[str] | None = None, points: int | None = None,
-               schedule: str | Path | None = None, progress: Callable[[str], None] | None = None,
+               schedule: str | Path | None = None, progress: Say | None = None,
                bar: Callable[[int, int], None] | None = None) -> DesignResult:
-        """The ball-screw preload design: the optimum for ``objective``, the Pareto fronts and the preload schedule
-        for a load profile (``schedule``, a CSV; default: the study's, or a machining cycle)."""
-        if self.design_spec is None:
-            raise InputError(f"{self.path}: the study has no [ballscrew] table; the design needs the screw's nominal "
-                             "diameter and lead (see studies/paper2021.toml)")
+        """The ball-screw preload design: the optimum for ``objective`` (the study's: solved once and kept, shared
+        with :attr:`plant`), the Pareto fronts ``pareto`` (default: ``[design] pareto``; ``[]`` for none) and the
+        preload schedule for a load profile (``schedule``, a CSV; default: the study's, or a machining cycle)."""
+        spec = self._spec("the design")
         d, s = self.design_table or DesignTable(), self.schedule or ScheduleTable()
+        objective = objective or d.objective
+        k = self._kept
         profile_path = Path(schedule) if schedule is not None else self.resolve(s.profile)
         try:
-            return design_study(
-                self.design_spec, objective or d.objective, list(d.pareto if pareto is None else pareto),
-                d.pareto_points if points is None else points,
+            result = design_study(
+                spec, objective, list(d.pareto if pareto is None else pareto), d.pareto_points if points is None else points,
                 profile=None if profile_path is None else read_profile(profile_path), profile_name=str(profile_path),
-                **s.limits(), progress=progress, bar=bar)
+                **s.limits(), progress=progress, bar=bar, optimum=k.optimum if objective == d.objective else None)
         except DesignInfeasible as exc:
             raise InfeasibleError(f"{self.path}: {exc}") from exc
-
-    @property
-    def plant_from_design(self) -> bool:
-        """Whether the plant is the designed preload system (``[plant] from_design``) rather than ``[rig]`` itself."""
-        return self.plant is not None and bool(self.plant.from_design) and self.design_spec is not None
-
-    def designed_plant(self, design: DesignResult | DesignPoint, design_sha256: str = "") -> DesignedPlant:
-        """The plant of ``design`` (a design result or its optimum's point): its stacks, amplifier current limit
-        and coupling, the rest of the hardware from ``[rig]`` (:func:`piezopreload.design.plant.plant_from_design`)."""
-        if self.design_spec is None:
-            raise InputError(f"{self.path}: the plant from a design needs the [ballscrew] table")
-        point = design.point if isinstance(design, DesignResult) else design
-        return (self.plant or PlantTable()).plant(self.design_spec, point, self.rig, design_sha256)
-
-    def schedule_for(self, point: DesignPoint) -> PreloadSchedule:
-        """The study's preload schedule on the screw of ``point``, as :meth:`design` plans it."""
-        if self.design_spec is None:
-            raise InputError(f"{self.path}: the schedule needs the [ballscrew] table")
-        s = self.schedule or ScheduleTable()
-        path = self.resolve(s.profile)
-        schedule, _, _ = plan_schedule(self.design_spec, point, None if path is None else read_profile(path),
-                                       profile_name=str(path), **s.limits())
-        return schedule
-
-    def with_plant(self, plant: DesignedPlant | dict[str, Any]) -> Study:
-        """This study with the designed plant as its ``[rig]``: what identification, tuning and validation run on.
-
-        ``plant``: a :class:`DesignedPlant`, or the ``[rig]`` table of one (as the plant stage writes it).
-        """
-        rig = plant.rig.to_dict() if isinstance(plant, DesignedPlant) else plant
-        return _replace(self.replace(rig=rig), on_designed_plant=True)
-
-    @property
-    def _on_plant(self) -> bool:
-        return self.on_designed_plant or not self.plant_from_design
-
-    def plant_study(self, progress: Callable[[str], None] | None = None) -> Study:
-        """The study the control steps (identify, tune, simulate, learn) run on: this one, or, where the plant is
-        the design (``[plant] from_design``) and :meth:`with_plant` has not given it, this study on the plant of
-        :meth:`design`'s optimum (designed once, then kept)."""
-        if self._on_plant:
-            return self
-        cached = self.__dict__.get("_plant_study")
-        if cached is None:
-            (progress or (lambda _m: None))("the plant is the designed preload system: designing it first")
-            cached = self.with_plant(self.designed_plant(self.design(progress=progress)))
-            object.__setattr__(self, "_plant_study", cached)  # a frozen study keeps what it derived, as a cache
-        return cached
-
-    def track_schedule(self, plant: DesignedPlant, schedule: PreloadSchedule, gain_set: GainSet, *,
-                       ff_extra_V: Any = None, progress: Callable[[str], None] | None = None) -> SystemRun:
-        """The validated gains with their feedforward following ``schedule`` on ``plant`` for ``[plant] cycles``
-        after a pre-cycle to its first level (held the validated settling time, ``[validation] settling_max_s``),
-        the schedule planned again with local margins while a requirement is missed
-        (:func:`design.system.track_schedule`)."""
-        return (self.plant or PlantTable()).track(plant, gain_set.controller(), schedule, seed=self.seed,
-                                                  settle_s=self.criteria.settling_max_s, ff_extra_V=ff_extra_V,
-                                                  progress=progress)
-
-    def learn_schedule(self, plant: DesignedPlant, schedule: PreloadSchedule, gain_set: GainSet, *,
-                       progress: Callable[[str], None] | None = None) -> tuple[SystemRun, list[LearningResult]]:
-        """:meth:`track_schedule` with the loop learning on each pass's repeated reference first (``[learning]``:
-        :func:`piezopreload.tuning.learning.learn` on the plant, its best signal played in the pass), so the
-        schedule's margin is planned from the tuned and learned loop's error. Returns the last pass's run and
-        each pass's learning."""
-        from piezopreload.tuning.learning import schedule_learner
-
-        table = self.learning or LearningTable()
-        learned, results = schedule_learner(plant.rig, gain_set.controller(), iterations=table.iterations,
-                                            preview_s=table.preview_s, method=table.method, seed=self.seed,
-                                            progress=progress)
-        return self.track_schedule(plant, schedule, gain_set, ff_extra_V=learned, progress=progress), results
+        if objective == d.objective and k.point is None:
+            k.optimum, k.point = result.optimum, result.point
+        return result
 
     def run(self, out: str | Path = "piezopreload-out", *, force: bool = False, progress: Any = None) -> StudyResult:
         """The whole study, as ``piezopreload run``: its stages into ``out``, unchanged ones not run again."""
@@ -538,12 +508,18 @@ class Study:
         return run_study(self, out, force=force, progress=progress)
 
 
+#: the attribute of each table whose name is taken (``study.design()`` is a method, ``study.plant`` the plant)
+_ATTRIBUTE = {"design": "design_table", "plant": "plant_table"}
+
+
 def _merge(into: dict[str, Any], changes: dict[str, Any]) -> None:
     for key, value in changes.items():
-        if isinstance(value, dict) and isinstance(into.get(key), dict):
+        if value is None:
+            into.pop(key, None)
+        elif isinstance(value, dict) and isinstance(into.get(key), dict):
             _merge(into[key], value)
         else:
-            into[key] = list(value) if isinstance(value, tuple) else value
+            into[key] = list(value) if isinstance(value, tuple) else copy.deepcopy(value)
 
 
 # --------------------------------------------------------------------------------------
@@ -565,135 +541,114 @@ def paper_study() -> Path:
     return shipped_studies()[PAPER_STUDY]
 
 
-def load_study(study: str | Path | None = None) -> Study:
-    """Read and validate a study: None for the default (``machine_axis``), a shipped study's name
-    (``"paper2021"``), or a file."""
+def load_study(study: str | Path | None = None, *, progress: Say | None = None) -> Study:
+    """Read and validate a study: None for the default (``machine_axis``), a shipped study's name (``"paper2021"``),
+    or a file. ``progress`` gets what the study says where a step is given no progress of its own (solving the
+    design for the plant, say); default: a line on standard error."""
     if study is None:
         path = default_study()
     elif isinstance(study, str) and not study.endswith(".toml") and study in shipped_studies():
         path = shipped_studies()[study]
     else:
         path = Path(study)
-    data, lines, raw = read_config(path, _SCHEMA, "study file", _STRING_LISTS)
+    data, lines, raw = read_toml(path, "study file")
     shown = str(path)
-    where = _Source(shown, lines, Path(shown).parent)
-    for table in _REQUIRED:
-        if table not in data:
-            raise InputError(f"{shown}: the table [{table}] is missing")
-    return _build(data, where, shown, raw)
+    return _build(data, _Source(shown, lines, Path(shown).parent), shown, raw, progress or _stderr)
 
 
-def _build(data: dict[str, Any], where: _Source, path: str, text: bytes) -> Study:
-    """The typed study from its checked tables; every value checked, errors naming the key and its line."""
+def _parse(data: dict[str, Any], where: _Source) -> dict[str, Any]:
+    """Every table of the file checked against its declaration (``None`` for an optional table not given)."""
+    for name, value in data.items():
+        if name not in STUDY_TABLES:
+            raise where.fail(name, f"is an unknown table; a study has: {', '.join(STUDY_TABLES)}")
+        if not isinstance(value, dict):
+            raise where.fail(name, f"must be a table ([{name}]), got {value!r}")
+    for name in REQUIRED_TABLES:
+        if name not in data:
+            raise InputError(f"{where.shown}: the table [{name}] is missing")
+    optional = (*DESIGN_TABLES, "learning", "published")  # None where not given; the others' keys all have defaults
+    return {name: cls.parse(data[name], where.fail, name) if name in data else (None if name in optional else cls())
+            for name, cls in STUDY_TABLES.items()}
+
+
+def _refuse_ignored(data: dict[str, Any], where: _Source) -> None:
+    """No key is ignored: where the plant is the design, the [rig] keys the design sets are refused; where it is
+    [rig], the [plant] keys that only a designed plant uses are. (Before [rig] is checked: its own rules may
+    involve a refused key.)"""
     fail = where.fail
-    rig = _rig(dict(data["rig"]), fail)
-    c = data["controller"]
-    for key in ("Kc", "Ti", "Td"):
-        if key not in c:
-            raise fail("controller", f"needs '{key}'")
-    controller = _table(ControllerTable, c)
-    if controller.units not in _UNITS:
-        raise fail("controller.units", f"must be one of {', '.join(_UNITS)}, got {controller.units!r}")
-    scale = 60.0 if controller.units == "minutes" else 1.0
+    if "plant" not in data:
+        return
+    plant = PlantTable.parse(data["plant"], fail, "plant")
+    if plant.from_design:
+        if "ballscrew" not in data:
+            raise fail("plant.from_design", "= true needs the design's tables ([ballscrew], [design], ...) to make "
+                                            "the plant from")
+        for name in DESIGNED_FIELDS:
+            if name in data.get("rig", {}):
+                raise fail(f"rig.{name}", "is set by the design where [plant] from_design = true (the designed plant "
+                                          f"takes it from the design's optimum): remove {name} from [rig], or set "
+                                          "[plant] from_design = false to make [rig] the plant")
+        return
+    for name in data["plant"]:
+        if name != "from_design":
+            raise fail(f"plant.{name}", "applies to the designed plant only, and [plant] from_design = false makes "
+                                        "[rig] the plant: remove it, or set from_design = true")
+
+
+def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Say) -> Study:
+    """The typed study from a file's tables; every value checked, errors naming the key and its line."""
+    fail = where.fail
+    _refuse_ignored(data, where)
+    t = _parse(data, where)
+    rig: RigTable = t["rig"]
+    kept = _Kept()
+    if t["plant"] is not None and t["plant"].from_design:  # the design sets these: None, not the model's defaults
+        rig = _replace(rig, **{name: None for name in DESIGNED_FIELDS})
     try:
-        gains = PIDGains(Kc=float(c["Kc"]), Ti_s=scale * float(c["Ti"]), Td_s=scale * float(c["Td"]),
-                         Tf_s=float(controller.Tf_s), b=float(controller.b), u_min=float(controller.u_min_V),
-                         u_max=float(controller.u_max_V))
-    except ValueError as exc:
-        raise fail("controller", f"is not valid: {exc}") from None
-    feedforward = _table(FeedforwardTable, data.get("feedforward", {}))
+        hardware = rig.params()
+    except ValueError as exc:  # every key was checked; a rule between them the table misses
+        raise fail("rig", f"does not make a plant: {exc}") from None
+    if t["plant"] is None or not t["plant"].from_design:
+        kept.plant = hardware
+    c: ControllerTable = t["controller"]
+    sim: SimulationTable = t["simulation"]
     try:
-        excitation = LoopExcitation(**{k: v for k, v in asdict(feedforward).items() if k != "data"})
-    except ValueError as exc:
-        raise fail("feedforward", f"is not valid: {exc}") from None
-    reference, references = _references(data.get("reference", {}), fail)
-    simulation = _table(SimulationTable, data.get("simulation", {}))
-    if not simulation.band_N > 0:
-        raise fail("simulation.band_N", f"must be > 0, got {simulation.band_N}")
-    if simulation.signal not in _SIGNALS:
-        raise fail("simulation.signal", f"must be one of {', '.join(_SIGNALS)}, got {simulation.signal!r}")
-    if simulation.seed < 0:
-        raise fail("simulation.seed", f"must be >= 0, got {simulation.seed}")
-    tuning = _table(TuningTable, data.get("tuning", {}))
+        gains = PIDGains(Kc=c.Kc, Ti_s=c.seconds * c.Ti, Td_s=c.seconds * c.Td, Tf_s=c.Tf_s, b=c.b, u_min=c.u_min_V,
+                         u_max=c.u_max_V)
+    except ValueError as exc:  # every key was checked; a rule between them the table misses
+        raise fail("controller", f"does not make PID gains: {exc}") from None
     try:
-        spec = tuning.spec(band_N=simulation.band_N, u_min_V=gains.u_min, u_max_V=gains.u_max)
-    except ValueError as exc:
-        key = next((k for k in data.get("tuning", {}) if k in str(exc)), "")
-        raise fail(f"tuning.{key}" if key else "tuning", f"is not valid: {exc}") from None
-    validation = _table(ValidationTable, data.get("validation", {})).checked(simulation.seed, fail)
-    try:
-        criteria = validation.criteria(simulation.band_N)
-    except ValueError as exc:
-        key = next((k for k in data.get("validation", {}) if k in str(exc)), "")
-        raise fail(f"validation.{key}" if key else "validation", f"is not valid: {exc}") from None
-    export = _table(ExportTable, data.get("export", {}))
-    export.check(fail)
-    design_tables = {t: _table(_TABLES[t], data[t]) if t in data else None
-                     for t in ("ballscrew", "feed_drive", "duty", "design", "schedule", "plant")}
-    if design_tables["plant"] is not None:
-        design_tables["plant"].check("ballscrew" in data, fail)
-    design_spec = design_spec_from_tables({**design_tables, "design": design_tables["design"] or DesignTable()}, where.fail) if design_tables["ballscrew"] is not None else None
-    meta = data.get("study", {})
+        spec = t["tuning"].spec(band_N=sim.band_N, u_min_V=gains.u_min, u_max_V=gains.u_max)
+    except Invalid as exc:
+        raise fail(f"tuning.{exc.path}", exc.message) from None
+    except ValueError as exc:  # every key was checked; a rule between them the table misses
+        raise fail("tuning", f"does not make a tuning specification: {exc}") from None
+    validation: ValidationTable = t["validation"]
+    if validation.seed is None:
+        validation = _replace(validation, seed=sim.seed)
+    design_spec = None if t["ballscrew"] is None else design_spec_from_tables(
+        {**t, "design": t["design"] or DesignTable()}, fail)
+    meta: StudyTable = t["study"]
     return Study(
-        path=path, sha256=hashlib.sha256(text).hexdigest(), name=meta.get("name", Path(path).stem),
-        title=meta.get("title", ""), description=meta.get("description", ""), rig=rig, controller=controller,
-        feedforward=feedforward, reference=reference, simulation=simulation, tuning=tuning, validation=validation,
-        export=export, rig_run=_table(RigRunPlan, data.get("rig_run", {})).checked(fail), ballscrew=design_tables["ballscrew"],
-        feed_drive=design_tables["feed_drive"], duty=design_tables["duty"], design_table=design_tables["design"],
-        schedule=design_tables["schedule"], plant=design_tables["plant"],
-        learning=_table(LearningTable, data["learning"]).checked(fail) if "learning" in data else None,
-        published=_published(data.get("published"), fail), gains=gains, references=references, excitation=excitation,
-        tuning_spec=spec, criteria=criteria, design_spec=design_spec, where=where, source_text=text)
+        path=path, sha256=hashlib.sha256(text).hexdigest(), name=meta.name or Path(path).stem, title=meta.title,
+        description=meta.description, rig=rig, controller=c, feedforward=t["feedforward"], reference=t["reference"],
+        simulation=sim, tuning=t["tuning"], validation=validation, export=t["export"],
+        rig_run=t["rig_run"].resolved(), ballscrew=t["ballscrew"], feed_drive=t["feed_drive"], duty=t["duty"],
+        design_table=t["design"], schedule=t["schedule"], plant_table=t["plant"], learning=t["learning"],
+        published=t["published"], gains=gains,
+        references=_references(t["reference"], fail), excitation=t["feedforward"].excitation(), tuning_spec=spec,
+        criteria=validation.criteria(sim.band_N), design_spec=design_spec, where=where, source_text=text,
+        given=copy.deepcopy(data), say=say, _kept=kept)
 
 
-def _published(doc: dict[str, Any] | None, fail: Callable[[str, str], InputError]) -> PublishedTable | None:
-    if doc is None:
-        return None
-    for key in ("source", "gains_label", "pid", "ff_pid"):
-        if key not in doc:
-            raise fail(f"published.{key}", "is missing: [published] needs source, gains_label, pid and ff_pid")
-    steps = {}
-    for key in ("pid", "ff_pid"):
-        missing = [m for m in ("rise_s", "peak_s", "settling_s") if m not in doc[key]]
-        if missing:
-            raise fail(f"published.{key}.{missing[0]}", "is missing")
-        bad = [m for m, v in doc[key].items() if not v > 0]
-        if bad:
-            raise fail(f"published.{key}.{bad[0]}", f"must be > 0 s, got {doc[key][bad[0]]}")
-        steps[key] = StepNumbers(**doc[key])
-    return PublishedTable(doc["source"], doc["gains_label"], steps["pid"], steps["ff_pid"])
-
-
-def _rig(rig_data: dict[str, Any], fail: Callable[[str, str], InputError]) -> RigParams:
-    if "stack" in rig_data:
-        try:
-            rig_data["stack"] = StackData(**{f.name: rig_data["stack"].get(f.name, getattr(P888_91, f.name))
-                                             for f in fields(StackData)})
-        except ValueError as exc:
-            raise fail("rig.stack", f"is not valid: {exc}") from None
-    if "creep_tau_s" in rig_data:
-        rig_data["creep_tau_s"] = tuple(float(x) for x in rig_data["creep_tau_s"])
+def _references(tables: ReferenceTables, fail: Callable[[str, str], InputError]) -> dict[str, Reference]:
+    s, tr = tables.step, tables.trajectory
     try:
-        return RigParams(**rig_data)
+        step = Reference.step(s.initial_N, s.final_N, s.t_step_s, s.duration_s)
     except ValueError as exc:
-        name = next((k for k in rig_data if f"RigParams.{k} " in str(exc)), "")
-        raise fail(f"rig.{name}" if name else "rig", f"is not valid: {exc}") from None
-
-
-def _references(refs: dict[str, Any], fail: Callable[[str, str], InputError]) -> tuple[ReferenceTables, dict[str, Reference]]:
-    tables = ReferenceTables(_table(StepTable, refs.get("step", {})), _table(TrajectoryTable, refs.get("trajectory", {})))
-    references: dict[str, Reference] = {}
+        raise fail("reference.step", f"does not make a step: {exc}") from None
     try:
-        s = tables.step
-        references["step"] = Reference.step(float(s.initial_N), float(s.final_N), float(s.t_step_s), float(s.duration_s))
+        trajectory = Reference.staircase(tr.initial_N, list(tr.levels_N), tr.hold_s, tr.t_start_s)
     except ValueError as exc:
-        raise fail("reference.step", f"is not valid: {exc}") from None
-    try:
-        tr = tables.trajectory
-        if not tr.hold_s > 0:
-            raise ValueError(f"hold_s must be > 0, got {tr.hold_s}")
-        references["trajectory"] = Reference.staircase(float(tr.initial_N), list(tr.levels_N), float(tr.hold_s),
-                                                       float(tr.t_start_s))
-    except ValueError as exc:
-        raise fail("reference.trajectory", f"is not valid: {exc}") from None
-    return tables, references
+        raise fail("reference.trajectory", f"does not make a staircase: {exc}") from None
+    return {"step": step, "trajectory": trajectory}

@@ -37,6 +37,7 @@ def _small(snippet: str) -> str:
     return snippet.replace('pp.load_study("paper2021")', f"pp.load_study({str(SMALL)!r})", 1).replace("plants=200", "plants=8")
 
 
+@pytest.mark.slow  # it tunes, validates and runs every stage of the small study: half a minute
 def test_the_readme_snippet_runs_end_to_end(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     ns: dict = {}
@@ -82,26 +83,6 @@ def test_studies_by_default_name_and_path():
         pp.load_study("no-such-study")
 
 
-def test_a_study_whose_plant_is_its_design_runs_its_control_steps_on_that_plant():
-    axis = pp.load_study()
-    said: list[str] = []
-    on_plant = axis.plant_study(said.append)
-    assert any("designing it first" in m for m in said), said
-    designed = axis.designed_plant(axis.design()).rig
-    assert on_plant.rig.to_dict() == designed.to_dict() != axis.rig.to_dict(), "the steps' rig is not the designed plant's"
-    assert axis.plant_study() is on_plant and on_plant.plant_study() is on_plant, "the design ran again"
-    # a step on the study itself runs on that plant: the simulated run's rig is the designed one
-    run = axis.simulate(axis.gains, controller="pid", reference="step")
-    on_designed = on_plant.simulate(axis.gains, controller="pid", reference="step")
-    on_table = axis.replace(plant={"from_design": False}).simulate(axis.gains, controller="pid", reference="step")
-    np.testing.assert_array_equal(run.force_N, on_designed.force_N, err_msg="Study.simulate did not run on the plant")
-    assert not np.allclose(run.force_N, on_table.force_N), "the designed plant and [rig] give the same run: no test"
-    # what with_plant gave is kept through a change of keys; a study on its own rig is its own plant study
-    assert on_plant.replace(simulation={"seed": 3}).plant_study().rig.to_dict() == designed.to_dict()
-    paper = pp.load_study("paper2021")
-    assert paper.plant_study() is paper
-
-
 def test_typed_tables_mirror_the_file_and_a_copy_is_checked_as_a_file_is():
     study = pp.load_study(SMALL)
     assert study.reference.step.duration_s == 3.0 and study.design_table.pareto_points == 5
@@ -110,18 +91,13 @@ def test_typed_tables_mirror_the_file_and_a_copy_is_checked_as_a_file_is():
                             design={"pareto_points": 7})
     assert changed.rig.bolt_preload_N == 30.0 and changed.references["step"].levels_N.tolist() == [25.0, 70.0]
     assert changed.design_table.pareto_points == 7 and changed.sha256 != study.sha256
-    assert study.rig.bolt_preload_N == 25.0  # the original stays
-    # what replace wrote is a study file that reads back to the same tables
+    assert study.rig.bolt_preload_N == 25.0 and changed.plant.bolt_preload_N == 30.0  # the original stays
+    # what replace wrote is a study file that reads back to the same tables; None removes a key
     path = Path(__import__("tempfile").mkdtemp()) / "copy.toml"
     path.write_text(changed.to_toml())
     assert pp.load_study(path).tables() == changed.tables()
-    for bad, match in (({"rig": {"bolt_preload_N": -1.0}}, r"'rig.bolt_preload_N' is not valid: .*>= 0"),
-                       ({"rig": {"stiffnes": 2.0}}, "unknown key 'rig.stiffnes'"),
-                       ({"validation": {"plants": 0}}, r"'validation.plants' must be in 1..100000, got 0"),
-                       ({"simulation": {"band_N": "wide"}}, "'simulation.band_N' must be a number"),
-                       ({"rigs": {}}, "'rigs' must be a table of the study")):
-        with pytest.raises(pp.InputError, match=match):
-            study.replace(**bad)
+    assert changed.replace(rig={"bolt_preload_N": None}).rig.bolt_preload_N == pp.load_study(SMALL).replace(
+        rig={"bolt_preload_N": None}).plant.bolt_preload_N == 25.0  # the model's default
 
 
 # ---- the gain set --------------------------------------------------------------------------------------
@@ -131,7 +107,7 @@ def gain_set(tmp_path_factory):
     study = pp.load_study(SMALL)
     ff = study.identify_feedforward()
     gs = pp.GainSet(gains=study.gains, status="validated", feedforward=ff.model, feedforward_info=ff.info(),
-                    plant=study.rig, preset=study.name, references=dict(study.references),
+                    plant=study.plant, preset=study.name, references=dict(study.references),
                     criteria=study.criteria, inputs={"study_sha256": study.sha256})
     return gs.save(tmp_path_factory.mktemp("gs") / "gains.json"), tmp_path_factory.getbasetemp()
 
@@ -242,6 +218,7 @@ def _example(name: str):
     return module
 
 
+@pytest.mark.slow  # two tunings and validations
 def test_example_sweep_of_the_bolt_preload(tmp_path):
     rows = _example("sweep_bolt_preload").main(["--study", str(SMALL), "--preloads", "22", "28", "--plants", "4",
                                                 "--out", str(tmp_path)])
@@ -273,6 +250,35 @@ def _check_example_output(out, tmp_path, loop):
     return gs
 
 
+@pytest.mark.slow
+def test_example_sweep_of_the_bolt_preload_on_its_documented_default(tmp_path, monkeypatch):
+    """``python examples/sweep_bolt_preload.py``: the machine axis, whose bolts' preload is its design's. Each row is
+    another design (the failsafe requirement gives the bolts' preload asked for), so another plant: the nuts' Hertz
+    contacts stiffen with the preload as their law says, and the tuned loop changes with them."""
+    example = _example("sweep_bolt_preload")
+    monkeypatch.chdir(tmp_path)
+    rows = example.main([])
+    axis = pp.load_study(progress=lambda _m: None)
+    own = axis.designed_plant.bolt_preload_N
+    assert [r["asked_N"] for r in rows] == [round(f * own, 1) for f in (0.5, 1.0, 2.0)]
+    for r in rows:  # the failsafe requirement binds: the design gives the bolts' preload asked for
+        assert r["bolt_preload_N"] == pytest.approx(r["asked_N"], rel=1e-6), r
+        plant = example.with_bolt_preload(axis, r["asked_N"]).plant
+        k = plant.effective_stiffness_N_per_um  # the Hertz law at the bolts' preload, dF/dx = 1/(1/k + 2c/(3 F0^1/3))
+        hertz = 1.0 / (1.0 / k + 2.0 * plant.hertz_um_per_N23 / (3.0 * np.cbrt(r["bolt_preload_N"])))
+        assert r["stiffness_at_bolts_N_per_um"] == pytest.approx(hertz, rel=1e-9)
+        assert r["validated"] and 0 < r["settling_s"] <= r["worst_settling_s"] < 0.6, r
+    stiffness = [r["stiffness_at_bolts_N_per_um"] for r in rows]
+    assert np.all(np.diff(stiffness) > 0), f"the plant does not stiffen with the bolts' preload: {stiffness}"
+    assert len({r["settling_s"] for r in rows}) == 3 and len({r["Kc_V_per_N"] for r in rows}) == 3, \
+        f"the sweep sweeps nothing: {rows}"
+    fig = example.plot(rows, axis.name)
+    left, right = fig.axes
+    assert left.lines[0].get_ydata().tolist() == stiffness
+    assert right.lines[0].get_ydata().tolist() == [r["settling_s"] for r in rows]
+    assert (tmp_path / "sweep-out" / "settling_vs_bolt_preload.png").stat().st_size > 0
+
+
 def test_example_identify_from_a_csv_and_export(measured_study, tmp_path):
     _, loop = measured_study
     out = _example("identify_and_export").main([str(loop), "--study", str(SMALL), "--operators", "20",
@@ -297,7 +303,7 @@ def test_example_refuses_a_loop_that_does_not_cover_the_studys_references(measur
     the tuning run, with both ranges in the message."""
     import piezopreload.study as study_module
 
-    monkeypatch.setattr(study_module.Study, "plant_study", lambda *a, **k: pytest.fail("the design ran first"))
+    monkeypatch.setattr(study_module.Study, "_designed", lambda *a, **k: pytest.fail("the design ran first"))
     _, loop = measured_study
     with pytest.raises(pp.InputError) as exc:
         _example("identify_and_export").main([str(loop), "--study", "machine_axis", "--operators", "20",
@@ -305,6 +311,16 @@ def test_example_refuses_a_loop_that_does_not_cover_the_studys_references(measur
     message = str(exc.value)
     assert re.search(r"identified over [\d.]+ to [\d.]+ N", message) and "span 0 to 4,000 N" in message, message
     assert not (tmp_path / "gains.json").exists()
+
+
+def test_example_pareto_front_of_a_catalogue_screw_on_its_documented_default(tmp_path, monkeypatch):
+    """``python examples/pareto_catalogue_screw.py``: the machine axis' design tables, 30 points."""
+    monkeypatch.chdir(tmp_path)
+    design = _example("pareto_catalogue_screw").main([])
+    assert design.spec == pp.load_study().replace(ballscrew={"nominal_diameter_mm": 40.0, "lead_mm": 10.0,
+                                                             "ball_mm": [6.35, 6.35], "turns": [4, 4]}).design_spec
+    assert len(design.fronts[0].points) >= 25 and np.all(np.diff(design.fronts[0].y) >= -1e-9)
+    assert (tmp_path / "pareto-out" / "pareto.png").stat().st_size > 0
 
 
 def test_example_pareto_front_of_a_catalogue_screw(tmp_path):

@@ -25,7 +25,7 @@ def test_the_preset_reproduces_the_paper_as_documented():
 
 
 def test_the_preset_is_physical():
-    rig = Rig(load_study(paper_study()).rig)
+    rig = Rig(load_study(paper_study()).plant)
     assert float(reach_N(rig, 110.0)) >= 100.0, "the trajectory's 100 N must be reachable within 0-110 V"
     assert 0.10 <= float(loop_width(rig)) <= 0.15
 
@@ -39,7 +39,7 @@ def test_mismatch_is_zero_at_the_papers_numbers_and_penalises_never():
 
 def test_calibrate_improves_on_its_start():
     study = load_study(paper_study())
-    start = replace(study.rig, amp_current_limit_A=0.05)  # the feedforward step would rise far too fast
+    start = replace(study.plant, amp_current_limit_A=0.05)  # the feedforward step would rise far too fast
     res = calibrate(start, {"amp_current_limit_A": (0.005, 0.1)}, max_evaluations=6)
     assert res.evaluations >= 6 and len(res.history) == res.evaluations
     first = res.history[0]["objective"]
@@ -51,11 +51,11 @@ def test_calibrate_improves_on_its_start():
 
 def test_calibrate_rejects_unknown_parameters():
     with pytest.raises(ValueError, match="cannot calibrate"):
-        calibrate(load_study(paper_study()).rig, {"wheel_count": (1.0, 2.0)})
+        calibrate(load_study(paper_study()).plant, {"wheel_count": (1.0, 2.0)})
 
 
 def test_repeats_report_the_median_and_range_of_independent_noise_realisations():
-    rig = load_study(paper_study()).rig
+    rig = load_study(paper_study()).plant
     rep = reproduce(rig, repeats=3)
     runs = rep.runs["ff+pid"].step_metrics(1.5, signal="measured_N")
     assert len(runs) == 3

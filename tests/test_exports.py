@@ -211,7 +211,7 @@ def identified(tmp_path_factory):
     from piezopreload.tuning.feedforward import LoopExcitation, identify_feedforward
 
     study = pp.load_study("paper2021")
-    ff = identify_feedforward(study.rig, LoopExcitation(n_operators=10, kind="classical", creep=True),
+    ff = identify_feedforward(study.plant, LoopExcitation(n_operators=10, kind="classical", creep=True),
                               check_range_N=None)
     path = tmp_path_factory.mktemp("model") / "model.json"
     return ff.record.save(path), path
@@ -224,7 +224,7 @@ def gain_set_with_creep(identified, tmp_path_factory):
 
     study = pp.load_study("paper2021")
     record, _ = identified
-    plant = dataclasses.replace(study.rig, sample_period_s=0.002)
+    plant = dataclasses.replace(study.plant, sample_period_s=0.002)
     gs = pp.GainSet(gains=study.gains, status="validated", feedforward=record.model, plant=plant, preset="paper2021",
                     inputs={"test": "exports"})
     return gs.save(tmp_path_factory.mktemp("gs") / "gains.json")

@@ -209,7 +209,7 @@ def test_the_studys_feedforward_writes_the_same_model_json(tmp_path):
     from piezopreload.tuning.feedforward import LoopExcitation, identify_feedforward
 
     study = pp.load_study("paper2021")
-    ff = identify_feedforward(study.rig, LoopExcitation(n_operators=10, cycles=2), check_range_N=(25.0, 90.0))
+    ff = identify_feedforward(study.plant, LoopExcitation(n_operators=10, cycles=2), check_range_N=(25.0, 90.0))
     paths = ff.save(tmp_path / "ff", inputs={"study_sha256": study.sha256})
     back = pp.IdentifiedModel.load(paths["model"])
     assert back.data.kind == "simulated" and back.test is None and back.compensation.rms_N == ff.check.rms_N
@@ -228,7 +228,7 @@ def test_a_feedforward_that_does_not_cover_the_references_is_refused_before_tuni
     from piezopreload.tuning.feedforward import LoopExcitation, identify_feedforward
 
     study = pp.load_study("paper2021")
-    small = identify_feedforward(study.rig, LoopExcitation(v_max_V=40.0, n_operators=8, cycles=2), check_range_N=None)
+    small = identify_feedforward(study.plant, LoopExcitation(v_max_V=40.0, n_operators=8, cycles=2), check_range_N=None)
     lo, hi = small.record.output_range
     assert hi < 60.0, "a 40 V loop on the paper's rig stays well below the 100 N the references reach"
     monkeypatch.setattr(results, "tune", lambda *a, **k: pytest.fail("tuned with a feedforward that does not cover"))
@@ -236,7 +236,7 @@ def test_a_feedforward_that_does_not_cover_the_references_is_refused_before_tuni
         study.tune(feedforward=small)
     message = str(exc.value)
     assert f"identified over {lo:,.4g} to {hi:,.4g} N" in message and "span 25 to 100 N" in message, message
-    wide = identify_feedforward(study.rig, LoopExcitation(n_operators=8, cycles=2), check_range_N=None)
+    wide = identify_feedforward(study.plant, LoopExcitation(n_operators=8, cycles=2), check_range_N=None)
     wide.covers(25.0, 100.0)  # the paper's own loop: 0-100 V reaches 91 N; 100 N is within its margin
     with pytest.raises(pp.InputError, match="span 0 to 4,000 N"):
         wide.covers(0.0, 4000.0)

@@ -142,7 +142,7 @@ def test_gain_switch_is_bumpless_and_taken_at_a_cycle_boundary(study, tmp_path):
     integral's increment Kc/Ti dt e (the start's closed form), and the run goes on under them."""
     old, new = _controller(), _controller(Kc=1.5, Ti_s=0.02)
     log = RunLog(tmp_path, "sw", {})
-    ex = Executor(old, SimBackend(study.rig), Reference.step(25.0, 60.0, 0.05, 1.0), Safety(missed_streak=100_000),
+    ex = Executor(old, SimBackend(study.plant), Reference.step(25.0, 60.0, 0.05, 1.0), Safety(missed_streak=100_000),
                   realtime=True, log=log,
                   hold=True, loop="native")
     import threading
@@ -210,7 +210,7 @@ def test_native_loop_falls_back_for_a_python_backend(study):
         name = "py"
 
         def __init__(self):
-            self.inner = SimBackend(study.rig)
+            self.inner = SimBackend(study.plant)
 
         def arm(self):
             self.inner.arm()
@@ -228,7 +228,7 @@ def test_native_loop_falls_back_for_a_python_backend(study):
     assert ex.loop == "python" and "Python backend" in ex.loop_reason
     with pytest.raises(ValueError, match="native loop cannot run"):
         Executor(_controller(), Plugin(), Reference.step(25.0, 40.0, 0.1, 0.2), Safety(), loop="native")
-    wrapped = FaultInjector(SimBackend(study.rig), [Fault("nan", 0.1)])
+    wrapped = FaultInjector(SimBackend(study.plant), [Fault("nan", 0.1)])
     assert Executor(_controller(), wrapped, Reference.step(25.0, 40.0, 0.1, 0.2), Safety()).loop == "native"
 
 
@@ -306,7 +306,7 @@ def test_bad_arguments_exit_2_with_what_is_allowed(gains_path, tmp_path, capsys,
 def test_interlock_limits_come_from_safety_once(study):
     """The native loop reads every limit of Safety; a changed Safety changes what the C loop checks."""
     s = Safety(force_max_N=90.0, missed_streak=None)
-    ex = Executor(_controller(), SimBackend(study.rig), Reference.step(25.0, 40.0, 0.1, 0.2), s, realtime=False)
+    ex = Executor(_controller(), SimBackend(study.plant), Reference.step(25.0, 40.0, 0.1, 0.2), s, realtime=False)
     loop = ex._native_setup()
     assert loop._L.force_max == 90.0 and loop._L.force_low == s.force_low_N and loop._L.missed_streak == 5
     assert s.streak_limit("python") == 50

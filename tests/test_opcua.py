@@ -62,7 +62,7 @@ async def _read(endpoint, name):
 def test_serve_push_and_refusals(tmp_path, study, feedforward):
     # a quieter sensor (0.05 N) than the paper's (0.25 N): the command's sample-to-sample noise then stays
     # well below the 0.5 V the switch is held to, so what the test sees at the switch is the switch
-    quiet = replace(study.rig, noise_N=0.05)
+    quiet = replace(study.plant, noise_N=0.05)
     first = write_gain_set(tmp_path / "paper.json", study, feedforward, plant=quiet)
     # b = 0: a proportional action on the measurement alone, -0.5 V/N x 60 N = -30 V away from the paper's
     # (b = 1, e ~ 0): a switch that is not bumpless jumps by that much

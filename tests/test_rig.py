@@ -109,7 +109,7 @@ def test_rig_run_reproduces_the_simulation(gains_path, study, tmp_path, capsys):
     sim = study.simulate(GainSet.load(gains_path), reference="step").to_dict()
     for key in ("rise_s", "peak_s", "settling_s"):
         assert r["metrics"][key] == pytest.approx(sim[key], abs=DT), key
-    assert r["metrics"]["overshoot_N"] == pytest.approx(sim["overshoot_N"], abs=study.rig.adc_lsb_N)
+    assert r["metrics"]["overshoot_N"] == pytest.approx(sim["overshoot_N"], abs=study.plant.adc_lsb_N)
     assert r["status"] == "completed" and r["cycles"] == 10_001
     side = read_artifact(r["log_json"], "rig-run")
     assert side["gain_set_sha256"] == read_artifact(gains_path, "gain-set")["content_sha256"]
@@ -174,8 +174,8 @@ def test_sim_backend_is_the_closed_loop_simulation(study, feedforward):
 
     c = Controller(study.gains, DT, feedforward.inverse())
     ref = study.references["step"]
-    sim = simulate(Rig(study.rig), c, ref, seed=7)
-    backend = SimBackend(study.rig, seed=7)
+    sim = simulate(Rig(study.plant), c, ref, seed=7)
+    backend = SimBackend(study.plant, seed=7)
     amp = []
 
     class Probe(FaultInjector):

@@ -233,12 +233,12 @@ def test_report_renders_again_from_the_artifacts_alone(small_run, tmp_path, caps
 
 
 @pytest.mark.parametrize("edit, expected", [
-    (("[rig_run]", "[rig_run]\nspeed = 3"), r"small_study.toml:\d+: unknown key 'rig_run.speed'"),
-    (("plants = 8", 'plants = "8"'), r":\d+: 'validation.plants' must be an integer, got str '8'"),
-    (("plants = 8", "plants = 0"), r":\d+: 'validation.plants' must be in 1..100000, got 0"),
-    (('formats = ["json", "labview", "c-header"]', 'formats = ["pdf"]'), r":\d+: 'export.formats' has 'pdf'"),
-    (('reference = "step"', 'reference = "ramp"'), r":\d+: 'rig_run.reference' must be step, trajectory or"),
-    (("[rig_run]", "[tuning]\nms_max = 0.9\n\n[rig_run]"), r":\d+: 'tuning.ms_max' is not valid"),
+    (("[rig_run]", "[rig_run]\nspeed = 3"), r"small_study.toml:\d+: 'rig_run.speed' is an unknown key"),
+    (("plants = 8", 'plants = "8"'), r":\d+: 'validation.plants' must be an integer >= 1 and <= 100000, got '8'"),
+    (("plants = 8", "plants = 0"), r":\d+: 'validation.plants' must be an integer >= 1 and <= 100000, got 0"),
+    (('formats = ["json", "labview", "c-header"]', 'formats = ["pdf"]'), r":\d+: 'export.formats' must be a list of strings from json"),
+    (('reference = "step"', 'reference = "ramp"'), r":\d+: 'rig_run.reference' must be step, trajectory, schedule or"),
+    (("[rig_run]", "[tuning]\nms_max = 0.9\n\n[rig_run]"), r":\d+: 'tuning.ms_max' must be a number > 1, got 0.9"),
     (("n_operators = 20", 'n_operators = 20\ndata = "nowhere.csv"'),
      r":\d+: 'feedforward.data' names .*nowhere.csv, which is not a file"),
 ])
@@ -336,7 +336,7 @@ def test_a_study_asking_for_creep_compensates_it_and_reports_what_it_buys(creep_
 def test_the_feedforward_kind_and_creep_keys_are_checked(tmp_path, capsys):
     study = tmp_path / "study.toml"
     study.write_text(SMALL.read_text().replace("n_operators = 20", 'n_operators = 20\nkind = "bouc-wen"'))
-    with pytest.raises(InputError, match=r"feedforward.*kind must be one of classical, paper-asymmetric, modified"):
+    with pytest.raises(InputError, match=r"'feedforward.kind' must be one of classical, paper-asymmetric, modified"):
         load_study(study)
     study.write_text(SMALL.read_text().replace("n_operators = 20", 'n_operators = 20\ncreep = "yes"'))
     with pytest.raises(InputError, match=r"study.toml:\d+: 'feedforward.creep'"):

@@ -73,7 +73,7 @@ def test_the_tuning_horizon_derivatives_are_the_loops(study, feedforward):
     spec = pid.TuningSpec(step=Reference.step(25.0, 50.0, 0.02, 0.2),
                           trajectory=Reference.staircase(25.0, [50.0, 40.0], 0.1, t_start_s=0.02),
                           variants={"gain": 0.1})
-    prob = pid._build_problem(study.rig, feedforward.inverse(), spec, "compiled" if native.enabled() else "plain")
+    prob = pid._build_problem(study.plant, feedforward.inverse(), spec, "compiled" if native.enabled() else "plain")
     h = prob.horizon
     g = np.array([1.6, 0.06, 0.004, 0.02, 0.4])
     out = h.forces(g)

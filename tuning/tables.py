@@ -1,16 +1,15 @@
-"""The tuning's tables of a study file: ``[tuning]`` (the PID tuning's specification) and ``[validation]``
-(the Monte Carlo set and its limits), as frozen records with their keys as fields and their defaults
-from :class:`~piezopreload.tuning.pid.TuningSpec` and :class:`~piezopreload.tuning.validate.Criteria`.
+"""The tuning's tables of a study file: ``[tuning]`` (the PID tuning's specification), ``[validation]``
+(the Monte Carlo set and its limits) and ``[learning]``, as frozen records whose fields declare their
+keys (type, default, unit, range, doc: :func:`piezopreload.core.config.key`), with their defaults from
+:class:`~piezopreload.tuning.pid.TuningSpec` and :class:`~piezopreload.tuning.validate.Criteria`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
 from piezopreload.artifacts.validation import Criteria
-from piezopreload.core.config import Table
-from piezopreload.core.errors import InputError
+from piezopreload.core.config import Invalid, Table, key
 from piezopreload.models.controller import SCHEDULE_MAX
 from piezopreload.tuning.learning import METHODS
 from piezopreload.tuning.pid import TuningSpec, scaled_references
@@ -23,71 +22,63 @@ CRITERIA_LIMITS = ("settling_max_s", "overshoot_max_N", "tracking_rms_max_N", "p
 
 @dataclass(frozen=True)
 class TuningTable(Table):
-    """[tuning]: the PID tuning's specification (tuning.pid.TuningSpec)."""
+    """[tuning]: the PID tuning's specification (tuning/pid.py, ``TuningSpec``) and the gain schedule's."""
 
-    overshoot_margin_N: float = TuningSpec.overshoot_margin_N
-    ms_max: float = TuningSpec.ms_max
-    noise_gain_max_V_per_N: float = TuningSpec.noise_gain_max_V_per_N
-    tune_setpoint_weight: bool = TuningSpec.tune_setpoint_weight
-    step_N: tuple[float, float] | None = None            # (from, to); None: TuningSpec's (the paper's scale)
-    trajectory_N: tuple[float, ...] | None = None        # rest level, then the levels; None: TuningSpec's
-    schedule_levels: int = 0     # entries of a gain schedule on the preload level (tuning.schedule); 0: one set
-    schedule_plants: int = 50    # Monte Carlo plants per level and set when choosing between schedule and robust set
+    overshoot_margin_N: float = key(TuningSpec.overshoot_margin_N, "the noise-free step stays this far inside the "
+                                    "error band ([simulation] band_N, which it must be below)", unit="N", gt=0)
+    ms_max: float = key(TuningSpec.ms_max, "largest maximum sensitivity over the plant variants", gt=1)
+    noise_gain_max_V_per_N: float = key(TuningSpec.noise_gain_max_V_per_N, "the controller's largest gain at the "
+                                        "Nyquist frequency (sensor noise into the command)", unit="V/N", gt=0)
+    tune_setpoint_weight: bool = key(TuningSpec.tune_setpoint_weight, "tune the setpoint weight b too (false: "
+                                     "[controller] b)")
+    step_N: tuple[float, float] | None = key(None, "the tuning's step (from, to) (not set: the paper's 25 -> 60 N)",
+                                             unit="N")
+    trajectory_N: tuple[float, ...] | None = key(None, "the tuning's staircase: its rest level, then its levels (not "
+                                                 "set: the paper's)", unit="N", min_length=2)
+    schedule_levels: int = key(0, f"entries of a gain schedule on the preload level (0: one gain set; else "
+                               f"2..{SCHEDULE_MAX})", ge=0, le=SCHEDULE_MAX)
+    schedule_plants: int = key(50, "Monte Carlo plants per level and gain set when choosing between the schedule "
+                               "and the robust set", ge=1, le=100_000)
+
+    def check(self) -> None:
+        if self.schedule_levels == 1:
+            raise Invalid("schedule_levels", f"must be 0 (one gain set) or 2..{SCHEDULE_MAX}, got 1")
 
     def spec(self, band_N: float, u_min_V: float, u_max_V: float) -> TuningSpec:
-        """The tuning's specification for the study's error band and output range; a ValueError where it is not valid."""
-        if self.schedule_levels != 0 and not 2 <= self.schedule_levels <= SCHEDULE_MAX:
-            raise ValueError(f"schedule_levels must be 0 (one set) or 2..{SCHEDULE_MAX}, got {self.schedule_levels}")
-        if not 1 <= self.schedule_plants <= 100_000:
-            raise ValueError(f"schedule_plants must be in 1..100000, got {self.schedule_plants}")
+        """The tuning's specification for the study's error band and output range (both checked by the study)."""
+        if not self.overshoot_margin_N < band_N:
+            raise Invalid("overshoot_margin_N", f"must be below [simulation] band_N ({band_N:g} N), got "
+                                                f"{self.overshoot_margin_N:g}")
         return TuningSpec(band_N=band_N, u_min_V=u_min_V, u_max_V=u_max_V, **scaled_references(self.step_N, self.trajectory_N),
-                          **{k: (bool(x) if k == "tune_setpoint_weight" else float(x)) for k, x in asdict(self).items()
+                          **{k: x for k, x in asdict(self).items()
                              if k not in ("step_N", "trajectory_N", "schedule_levels", "schedule_plants")})
 
 
 @dataclass(frozen=True)
 class ValidationTable(Table):
-    """[validation]: the Monte Carlo set (``seed`` None: the simulation's) and the limits every plant must meet."""
+    """[validation]: the Monte Carlo set and the limits every plant must meet for the gain set to be validated."""
 
-    plants: int = 200
-    seed: int | None = None
-    workers: int | None = None
-    settling_max_s: float = Criteria.settling_max_s
-    overshoot_max_N: float = Criteria.overshoot_max_N
-    tracking_rms_max_N: float = Criteria.tracking_rms_max_N
-    peak_voltage_max_V: float = Criteria.peak_voltage_max_V
-
-    def checked(self, default_seed: int, fail: Callable[[str, str], InputError]) -> ValidationTable:
-        """The table checked, its seed ``default_seed`` (the simulation's) where it gives none; ``fail(key, message)``
-        makes the error naming the file and line."""
-        if not 1 <= self.plants <= 100_000:
-            raise fail("validation.plants", f"must be in 1..100000, got {self.plants}")
-        if self.workers is not None and self.workers < 1:
-            raise fail("validation.workers", f"must be >= 1, got {self.workers}")
-        return self if self.seed is not None else ValidationTable(**{**asdict(self), "seed": default_seed})
+    plants: int = key(200, "Monte Carlo plants", ge=1, le=100_000)
+    seed: int | None = key(None, "the Monte Carlo draw's seed (not set: [simulation] seed)", ge=0)
+    workers: int | None = key(None, "local worker processes (not set: the CPU count)", ge=1)
+    settling_max_s: float = key(Criteria.settling_max_s, "longest settling time of the true force into the band",
+                                unit="s", gt=0)
+    overshoot_max_N: float = key(Criteria.overshoot_max_N, "largest overshoot", unit="N", gt=0)
+    tracking_rms_max_N: float = key(Criteria.tracking_rms_max_N, "largest RMS tracking error on the trajectory "
+                                    "(outside 0.1 s after each jump and the saturated samples)", unit="N", gt=0)
+    peak_voltage_max_V: float = key(Criteria.peak_voltage_max_V, "highest command voltage", unit="V", gt=0)
 
     def criteria(self, band_N: float) -> Criteria:
-        """The limits every plant must meet; a ValueError where they are not valid."""
+        """The limits every plant must meet, in the study's error band."""
         return Criteria(band_N=band_N, **{k: float(getattr(self, k)) for k in CRITERIA_LIMITS})
 
 
 @dataclass(frozen=True)
 class LearningTable(Table):
-    """[learning]: learning control on the whole system's repeated schedule (the pipeline's learn stage, which runs
-    where the study has this table and its plant is its design): ``iterations`` learning updates per pass of the
-    schedule, ``preview_s`` the preview (None: :func:`~piezopreload.tuning.learning.default_preview_s`, 0: none),
-    ``method`` the law (:data:`~piezopreload.tuning.learning.METHODS`)."""
+    """[learning]: learning control over a repeated reference (``study.learn``'s defaults; on a study whose plant
+    is its design, the pipeline's learn stage along the schedule, each margin pass learned)."""
 
-    iterations: int = 6
-    preview_s: float | None = None
-    method: str = "p-type"
-
-    def checked(self, fail: Callable[[str, str], InputError]) -> LearningTable:
-        """The table checked; ``fail(key, message)`` makes the error naming the file and line."""
-        if not 0 <= self.iterations <= 100:
-            raise fail("learning.iterations", f"must be in 0..100, got {self.iterations}")
-        if self.preview_s is not None and not (0.0 <= self.preview_s < float("inf")):
-            raise fail("learning.preview_s", f"must be a finite number >= 0 (0: no preview), got {self.preview_s}")
-        if self.method not in METHODS:
-            raise fail("learning.method", f"must be one of {', '.join(METHODS)}, got {self.method!r}")
-        return self
+    iterations: int = key(6, "learning updates (per pass of the schedule)", ge=0, le=100)
+    preview_s: float | None = key(None, "how far the learning reads the reference ahead (not set: the delay, the "
+                                  "amplifier's lag and the largest change's slew time; 0: no preview)", unit="s", ge=0)
+    method: str = key("p-type", "the learning law", choices=METHODS)

@@ -91,7 +91,7 @@ def study_arguments(p: argparse.ArgumentParser, seed: bool = True) -> None:
 
 
 def study_of(args: argparse.Namespace) -> Any:
-    # the single-step commands work on a study's plant (its [rig], or its design's: Study.plant_study): the paper's unless named
+    # the single-step commands work on a study's plant (Study.plant: its [rig], or its design's): the paper's unless named
     return load_study(args.study or PAPER_STUDY)
 
 

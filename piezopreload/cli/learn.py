@@ -31,10 +31,14 @@ def register_learn(sub: Any) -> None:
     study_arguments(p)
     p.add_argument("--gains", metavar="gains.json", help="a gain set (default: the study's [controller] gains)")
     p.add_argument("--reference", default="trajectory", metavar="step|trajectory|schedule|FILE.csv",
-                   help="the repeated reference (default trajectory)")
-    p.add_argument("--iterations", type=nonnegative_int, default=10, help="learning updates (default 10)")
-    p.add_argument("--preview-s", type=nonnegative_float, help="preview horizon (default: delay + lag + slew time)")
-    p.add_argument("--method", choices=METHODS, default="p-type", help="the learning law (default p-type)")
+                   help="the repeated reference (default trajectory); schedule: the design's preload schedule, "
+                        "each margin pass learned, on a study whose plant is its design")
+    p.add_argument("--iterations", type=nonnegative_int,
+                   help="learning updates (default: the study's [learning] iterations, else 6)")
+    p.add_argument("--preview-s", type=nonnegative_float,
+                   help="preview horizon (default: the study's [learning] preview_s, else delay + lag + slew time)")
+    p.add_argument("--method", choices=METHODS, help="the learning law (default: the study's [learning] method, "
+                                                     "else p-type)")
     p.add_argument("--plants", type=positive_int, help="learn on N Monte Carlo plants and report the worst")
     p.add_argument("--out", metavar="DIR", help="write learned.json (and learning.png) here")
     p.add_argument("--from-run", metavar="LOG.csv", help="a rig run log of --learned FILE: one learning update")
