@@ -14,6 +14,7 @@ export; ``docs/exports.md`` says what each holds.
 
 from __future__ import annotations
 
+import html
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -152,6 +153,38 @@ class GainSet:
     def validated(self) -> bool:
         """Whether every Monte Carlo plant met every criterion (export and the rig need it)."""
         return self.status == "validated"
+
+    # ---- how it shows itself --------------------------------------------------------------------
+    def _controller_text(self) -> str:
+        g = self.gains
+        if g.schedule is not None:
+            return f"gain schedule of {g.schedule.size} entries on the setpoint, Kc {min(g.schedule.Kc):.4g}-" \
+                   f"{max(g.schedule.Kc):.4g} V/N"
+        if g.Td_s == 0.0:
+            return f"PI Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s"
+        return f"PID Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s, Td {g.Td_s:.4g} s"
+
+    def __repr__(self) -> str:
+        ff = "no feedforward" if self.feedforward is None else f"{self.feedforward.kind} P-I feedforward"
+        val = "not validated" if self.validation is None else (
+            f"validation {'passed' if self.validation.passed else 'failed'} on {self.validation.n_plants} plants")
+        digest = "" if self.content_sha256 is None else f", sha256 {self.content_sha256[:12]}"
+        return f"GainSet({self.status}: {self._controller_text()}; {ff}; {val}{digest})"
+
+    def _repr_html_(self) -> str:
+        rows = [("status", self.status), ("controller", self._controller_text()),
+                ("feedforward", "none" if self.feedforward is None else
+                 f"{self.feedforward.kind}, {self.feedforward.n_operators} operators"),
+                ("plant", self.preset or "given"), ("content SHA-256", self.content_sha256 or "not saved")]
+        body = "".join(f"<tr><td>{k}</td><td>{html.escape(str(v))}</td></tr>" for k, v in rows)
+        validation = "" if self.validation is None else self.validation._repr_html_()
+        return f"<p><b>Gain set</b></p><table>{body}</table>{validation}"
+
+    def plot(self) -> Any:
+        """The Monte Carlo validation it carries, each bounded metric over the plants against its limit: a Figure."""
+        if self.validation is None:
+            raise InputError("the gain set carries no validation to plot; validate it first")
+        return self.validation.plot()
 
     # ---- the document ------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:

@@ -72,6 +72,25 @@ class DesignResult:
     def point(self) -> Any:
         return self.optimum.point
 
+    def __repr__(self) -> str:
+        p = self.optimum.point
+        return (f"DesignResult({self.optimum.objective} optimum: {p.turns:.0f} turns x {p.balls_per_turn:.0f} balls of "
+                f"{p.ball_mm:.3f} mm at {p.contact_angle_deg:.1f} deg, rigidity {p.stiffness_N_per_um:,.0f} N/um; "
+                f"{len(self.fronts)} Pareto front(s); schedule saves {100 * self.schedule.saving_fraction:.0f} % of "
+                f"the best constant preload's friction)")
+
+    def _repr_html_(self) -> str:
+        p = self.optimum.point
+        rows = (("objective", self.optimum.objective), ("contact angle (deg)", f"{p.contact_angle_deg:.3g}"),
+                ("balls", f"{p.turns:.0f} turns x {p.balls_per_turn:.0f} of {p.ball_mm:.4g} mm"),
+                ("bolt / maximum preload (N)", f"{p.bolt_preload_N:,.0f} / {p.max_preload_N:,.0f}"),
+                ("least rigidity (N/um)", f"{p.stiffness_N_per_um:,.0f}"), ("life (h)", f"{p.life_h:,.0f}"),
+                ("binding", ", ".join(self.optimum.binding) or "none"),
+                ("Pareto fronts", ", ".join(f.pair for f in self.fronts) or "none"),
+                ("schedule: friction saved", f"{100 * self.schedule.saving_fraction:.0f} %"))
+        body = "".join(f"<tr><td>{k}</td><td>{v}</td></tr>" for k, v in rows)
+        return f"<p><b>Ball-screw preload design</b></p><table>{body}</table>"
+
     def record(self, inputs: dict[str, Any] | None = None) -> DesignRecord:
         """The design artifact's record (:class:`~piezopreload.artifacts.design.DesignRecord`): the optimum, every
         front's points, the schedule with its samples, the curves; ``inputs`` the hashes it came from."""

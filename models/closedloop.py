@@ -158,6 +158,22 @@ class ClosedLoopRun:
     def batch_shape(self) -> tuple[int, ...]:
         return self.force_N.shape[:-1]
 
+    def __repr__(self) -> str:
+        levels = " -> ".join(f"{x:g}" for x in self.reference.levels_N[:6])
+        more = " ..." if self.reference.levels_N.size > 6 else ""
+        batch = f", {int(np.prod(self.batch_shape))} plants" if self.batch_shape else ""
+        return (f"{type(self).__name__}({self.t_s.size} samples over {self.t_s[-1]:.3g} s, reference {levels}{more} N"
+                f"{batch}, seed {self.seed}, engine {self.engine})")
+
+    def _repr_html_(self) -> str:
+        err = np.asarray(self.reference_N) - np.asarray(self.force_N)
+        rows = (("samples", f"{self.t_s.size} over {self.t_s[-1]:.4g} s"),
+                ("reference levels (N)", ", ".join(f"{x:g}" for x in self.reference.levels_N[:12])),
+                ("tracking error of the true force, RMS (N)", f"{float(np.sqrt(np.mean(err ** 2))):.4g}"),
+                ("peak command (V)", f"{float(np.max(self.command_V)):.4g}"), ("seed", str(self.seed)))
+        body = "".join(f"<tr><td>{k}</td><td>{v}</td></tr>" for k, v in rows)
+        return f"<p><b>{type(self).__name__}</b></p><table>{body}</table>"
+
     def step_metrics(self, band_N: float | None = PAPER_BAND_N, *, which: int = 1, signal: str = "force_N") -> StepMetrics | list:
         """Metrics of the reference's ``which``-th change (1: the first step), per plant.
 

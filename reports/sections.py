@@ -306,8 +306,11 @@ def controller_section(study: ReportStudy, a: Artifacts) -> Part:
     text = (f"{form} gains tuned with CasADi and IPOPT around the P-I-compensated plant (maximum sensitivity "
             f"{fmt(tuning['tuning']['ms'])} at worst over the plant variants; solver: {tuning['tuning']['status']}); "
             f"controller form: {g['form']}.{words}")
-    table = Table(("parameter", "SI", "LabVIEW PID VI"), _gains_rows(g),
-                  f"The gain set ({gain_set.status}), SHA-256 {gain_set.content_sha256}.", "lrr")
+    scheduled = gain_set.gains.schedule is not None
+    caption = (f"The gain set ({gain_set.status}), SHA-256 {gain_set.content_sha256}"
+               + (": the robust set, kept in it for the record; the gain schedule below is what runs." if scheduled
+                  else "."))
+    table = Table(("parameter", "SI", "LabVIEW PID VI"), _gains_rows(g), caption, "lrr")
     parts = [s for s in (_schedule_part(tuning), _validation_part(val)) if s is not None]
     return Part(Section("The tuned controller", (text,), (table,), (), omitted, tuple(p.section for p in parts)),
                 tuple(f for p in parts for f in p.figures))

@@ -67,16 +67,21 @@ def _system_lines(system: SystemRecord, design: DesignRecord, learning: dict[str
 
 
 def _controller_line(a: Artifacts) -> str:
-    g, val = gains_to_dict(a.gain_set.gains), a.validation
-    form = (f"PI (Kc {fmt(g['Kc_V_per_N'], 4)} V/N, Ti {fmt(g['Ti_s'], 4)} s)" if g["Td_s"] == 0.0 else
-            f"PID (Kc {fmt(g['Kc_V_per_N'], 4)} V/N, Ti {fmt(g['Ti_s'], 4)} s, Td {fmt(g['Td_s'], 4)} s)")
+    gains, val = a.gain_set.gains, a.validation
+    g = gains_to_dict(gains)
+    if gains.schedule is not None:
+        s = gains.schedule
+        form = (f"gain schedule ({s.size} entries on the preload level, {fmt(min(s.levels_N))} to "
+                f"{fmt(max(s.levels_N))} N; Kc {fmt(1e3 * min(s.Kc), 4)} to {fmt(1e3 * max(s.Kc), 4)} mV/N)")
+    elif g["Td_s"] == 0.0:
+        form = f"PI (Kc {fmt(g['Kc_V_per_N'], 4)} V/N, Ti {fmt(g['Ti_s'], 4)} s)"
+    else:
+        form = f"PID (Kc {fmt(g['Kc_V_per_N'], 4)} V/N, Ti {fmt(g['Ti_s'], 4)} s, Td {fmt(g['Td_s'], 4)} s)"
     w = val.worst
     settling = "never settled on one plant at least" if w.settling_s is None else f"worst settling {fmt(w.settling_s)} s"
     verdict = "passed" if val.passed else f"failed on {val.failed_plant_count} of {val.n_plants} plants"
-    schedule = a.tuning["tuning"].get("schedule")
-    chosen = "" if schedule is None else f" The gain schedule's choice: {schedule['choice']}."
     return (f"The tuned {form} {verdict} the Monte Carlo validation on {val.n_plants} nonlinear plants: {settling}, "
-            f"worst overshoot {fmt(w.overshoot_N)} N, worst tracking RMS {fmt(w.tracking_rms_N)} N.{chosen}")
+            f"worst overshoot {fmt(w.overshoot_N)} N, worst tracking RMS {fmt(w.tracking_rms_N)} N.")
 
 
 def _step_line(study: ReportStudy, a: Artifacts) -> str:

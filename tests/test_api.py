@@ -346,3 +346,37 @@ def test_requirement_verdicts_and_their_doctest():
     assert abs(low.margin + 0.2) < 1e-12 and ok.margin == 400.0
     assert missed([ok, low]) == (low,)
     assert Requirement.from_dict(low.to_dict()) == low
+
+
+def test_results_show_themselves_in_a_terminal_and_a_notebook(gain_set):
+    """repr fits a line and names what matters; _repr_html_ is a table; plot() is a Figure with something drawn."""
+    from matplotlib.figure import Figure
+
+    from piezopreload.artifacts.requirements import Requirement
+    from piezopreload.artifacts.validation import Criteria, ValidationResult
+    from piezopreload.models.actuator import Rig
+    from piezopreload.models.closedloop import simulate
+    from piezopreload.models.controller import Controller
+    from piezopreload.outcome import Headline, StageOutcome, StudyResult
+
+    gs = gain_set[0]
+    text = repr(gs)
+    assert text.startswith("GainSet(validated: PID Kc") and gs.content_sha256[:12] in text and "\n" not in text
+    assert "<table>" in gs._repr_html_() and gs.status in gs._repr_html_()
+    study = pp.load_study(SMALL)
+    run = simulate(Rig(study.plant), Controller(study.gains, study.plant.sample_period_s), study.references["step"])
+    assert repr(run).startswith("ClosedLoopRun(") and "25 -> 60 N" in repr(run) and "<table>" in run._repr_html_()
+    metrics = {k: np.array([0.1, 0.2]) for k in ("rise_s", "settling_s", "settling_measured_s", "overshoot_N",
+                                                 "tracking_rms_N", "saturated_fraction", "tracking_rms_all_N",
+                                                 "tracking_max_N", "peak_voltage_V")}
+    metrics["settling_s"] = np.array([0.1, np.nan])  # one plant never settled
+    val = ValidationResult(metrics, Criteria(), 2, 0, {})
+    assert not val.passed and val.worst.settling_s is None and "failed on 1 plants" in repr(val)
+    assert isinstance(val.plot(), Figure) and "<b>missed</b>" in val._repr_html_()
+    missed = Requirement("rigidity while cutting", 761.0, 1000.0, "N/um", "min", "[schedule] stiffness_min_N_per_um")
+    result = StudyResult(Path("out"), {"name": "axis"}, (StageOutcome("design", True, "done", 1.0),), 1.0, Headline(),
+                         (missed,))
+    assert result.exit_code == 4 and "1 requirement(s) missed" in repr(result) and "<b>missed</b>" in result._repr_html_()
+    fig = result.plot()
+    assert isinstance(fig, Figure) and fig.axes[0].patches, "the margin bars are drawn"
+    assert result.to_dict()["summary"]["requirements_missed"][0]["margin"] == -239.0
