@@ -58,6 +58,7 @@ def test_identify_shipped_data_json(capsys, tmp_path):
     assert model.n_operators == 40 and model.invertible
 
 
+@pytest.mark.slow  # two identifications with creep
 def test_identify_with_creep_reports_the_refit_without_it(capsys, tmp_path):
     """--creep on the shipped record: the test error with creep, and without it (the same model refitted,
     which must be what 'identify' without --creep gives); the model name '+creep' is the same request."""
@@ -229,6 +230,7 @@ def _readme_block(title):
     return match.group(1).strip()
 
 
+@pytest.mark.slow  # the whole default study, as a user runs it
 def test_readme_main_job_runs_as_written(tmp_path):
     """The README's main command, after its set-up part, runs with the installed console script.
 

@@ -220,6 +220,7 @@ _BUILD = textwrap.dedent("""
 
 
 @needs_cc
+@pytest.mark.slow  # tunings, validations, builds
 def test_two_processes_building_the_same_library_at_once(tmp_path):
     """Each compiles in a private folder and renames the result into place: both load a whole library."""
     env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path)}
@@ -242,6 +243,7 @@ def test_the_papers_six_numbers_as_before(study):
     assert rep.runs["ff+pid"].engine == ("c" if native.enabled() else "numpy")
 
 
+@pytest.mark.slow  # tunings, validations, builds
 def test_the_tuned_gains_and_the_validation_verdict_as_before(study, feedforward):
     """The paper's study tuned on the one (smooth) loop gives the gains the separate tuning model gave, and the
     200-plant Monte Carlo validation of them (compiled loop, per-chunk seeds) the same worst cases and verdict."""
@@ -258,6 +260,7 @@ def test_the_tuned_gains_and_the_validation_verdict_as_before(study, feedforward
 
 
 @needs_cc
+@pytest.mark.slow  # tunings, validations, builds
 def test_compiled_and_plain_tuning_agree():
     """The same NLP with its loop compiled and in CasADi's virtual machine: the same iterates, the same gains."""
     from piezopreload.tuning.pid import TuningSpec

@@ -27,6 +27,8 @@ from piezopreload.study import load_study
 
 pypdf = pytest.importorskip("pypdf", reason="pypdf (the test extra) reads the report back")
 
+pytestmark = pytest.mark.slow  # the small study runs end to end (tens of seconds), each test on a copy of its folder
+
 SMALL = Path(__file__).parent / "data" / "small_study.toml"
 TEMPLATE = Path(__file__).parents[1] / "reports" / "report.typ"
 
