@@ -13,6 +13,7 @@ The front door for design-study scripts::
     gain_set.save("gains.json"); pp.GainSet.load("gains.json")
     gain_set.export("labview")                         # the text the CLI writes
     result = study.run(out="piezopreload-out")         # the whole pipeline, as ``piezopreload run``
+    sweep = study.sweep({"tuning.ms_max": [1.4, 1.6]})  # SweepResult: .rows, .plot(x, y), as ``piezopreload sweep``
 
 The physics lives in :mod:`piezopreload.models`, identification and tuning in
 :mod:`piezopreload.tuning`, the design in :mod:`piezopreload.design`, the rig executor in
@@ -49,5 +50,14 @@ __all__ = [
     "__version__", "load_study", "shipped_studies", "Study", "GainSet", "TuningResult", "StudyRun", "ClosedLoopRun",
     "DesignResult", "IdentifiedFeedforward", "PIDGains", "Reference", "StepMetrics", "Record", "read_record",
     "identify", "HoldoutFit", "Window", "PiezopreloadError", "InputError", "ArtifactError", "InfeasibleError",
-    "InternalError",
+    "InternalError", "SweepResult",
 ]
+
+
+def __getattr__(name: str) -> object:
+    # the sweep loads the whole pipeline (the report's figures, the rig): on first use, not on import
+    if name == "SweepResult":
+        from piezopreload.sweep import SweepResult
+
+        return SweepResult
+    raise AttributeError(f"module 'piezopreload' has no attribute '{name}'")

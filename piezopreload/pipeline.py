@@ -39,6 +39,13 @@ stages before it wrote stays, and the manifest records the failure. A new stage 
 :class:`Stage` in :data:`STAGES`: its tables, the stages it reads, its code and its body. The
 keying, the records and the loop that runs stages are :mod:`piezopreload.core.stages`; what is
 here is what makes them a study's.
+
+Several output folders can share their stages' outputs through a
+:class:`~piezopreload.core.stagecache.StageCache` (``run_study(..., cache=...)``; a design sweep
+gives every point's folder the same one): a stage whose key another folder has computed is
+restored from the store instead of run (its artifacts are byte for byte that folder's, naming
+the study that computed them), and one being computed by another process is waited for. The rig
+and report stages are not shared (``Stage.shared``): each records its own folder's run.
 """
 
 from __future__ import annotations
@@ -54,6 +61,7 @@ from piezopreload import __version__
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.core.artifacts import atomic_write_bytes, read_artifact, write_artifact
 from piezopreload.core.errors import InputError
+from piezopreload.core.stagecache import StageCache
 from piezopreload.core.stages import (
     Partial,
     StageCrashed,
@@ -80,7 +88,8 @@ from piezopreload.tuning.compare import creep_effect, reproduction, responses
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.learning import played_passes, save_passes
 
-__all__ = ["Stage", "STAGES", "StageFailed", "StageCrashed", "run_study", "rerender_report", "read_manifest", "DEFAULT_OUT"]
+__all__ = ["Stage", "STAGES", "StageFailed", "StageCrashed", "run_study", "rerender_report", "read_manifest", "run_summary",
+           "DEFAULT_OUT"]
 
 DEFAULT_OUT = "piezopreload-out"
 MANIFEST = "pipeline.json"
@@ -98,6 +107,7 @@ class _Ctx:
     records: dict[str, dict[str, Any]]
     source: str = ""                         # the study file as the user named it
     template: str | None = None              # a Typst template's text to use instead of the shipped one
+    cache: StageCache | None = None          # stage outputs shared with other folders
     _subject: Study | None = None
 
     def output(self, stage: str, label: str) -> Path:
@@ -142,6 +152,7 @@ class Stage:
     files: tuple[str, ...] = ()  # the study's file keys it reads (hashed into its key)
     applies: Callable[[Study], str | None] = field(default=lambda study: None)  # a reason it does not apply, or None
     reads: Callable[[Study], tuple[str, ...]] = field(default=lambda study: ())  # more tables, as the study asks
+    shared: bool = True  # its outputs may be restored from a StageCache (False: they record this folder's own run)
 
 
 def _stage_identify(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
@@ -348,9 +359,9 @@ STAGES: tuple[Stage, ...] = (
     Stage("export", "the gain set in the controllers' formats", ("export",), ("validate",), ("models", "rig"),
           _stage_export),
     Stage("rig", "the validated gains on the rig executor", ("rig_run",), ("validate", "system", "learn"), ("models", "rig"),
-          _stage_rig, files=("rig_run.reference",)),
+          _stage_rig, files=("rig_run.reference",), shared=False),  # a run log of its own, with its time and paths
     Stage("report", "figures and the PDF", ("study", "ballscrew", "design"), STAGES_READ, ("models", "reports"),
-          _stage_report),
+          _stage_report, shared=False),  # the folder's provenance, its date
 )
 _BY_NAME = {s.name: s for s in STAGES}
 
@@ -396,9 +407,19 @@ def _locked(out: Path) -> AbstractContextManager[None]:
 # running
 # --------------------------------------------------------------------------------------
 def _execute(stages: list[Stage], ctx: _Ctx, force: bool, started: str) -> list[dict[str, Any]]:
-    return run_stages(stages, ctx.records, ctx.out, ctx.progress, force=force,
-                      key=lambda stage: _stage_key(stage, ctx.study, ctx.records),
-                      applies=lambda stage: stage.applies(ctx.study), run=lambda stage: stage.run(ctx),
+    keys: dict[str, str] = {}
+
+    def key(stage: Stage) -> str:
+        keys[stage.name] = _stage_key(stage, ctx.study, ctx.records)
+        return keys[stage.name]
+
+    def run(stage: Stage) -> tuple[dict[str, Path], dict[str, Any]]:
+        if ctx.cache is None or not stage.shared:
+            return stage.run(ctx)
+        return ctx.cache.run(stage.name, keys[stage.name], ctx.out, lambda: stage.run(ctx), say=ctx.progress.say)
+
+    return run_stages(stages, ctx.records, ctx.out, ctx.progress, force=force, key=key,
+                      applies=lambda stage: stage.applies(ctx.study), run=run,
                       save=lambda: _write_manifest(ctx.out, ctx.study, ctx.records, started, ctx.source))
 
 
@@ -413,8 +434,13 @@ def _previous(out: Path, progress: Progress) -> dict[str, dict[str, Any]]:
 
 
 def run_study(study: Study | str | Path | None = None, out: str | Path = DEFAULT_OUT, *, force: bool = False,
-              progress: Progress | None = None) -> dict[str, Any]:
-    """Run a study's stages into ``out``; a stage whose key and outputs are unchanged is not run again."""
+              progress: Progress | None = None, cache: StageCache | None = None) -> dict[str, Any]:
+    """Run a study's stages into ``out``; a stage whose key and outputs are unchanged is not run again.
+
+    ``cache``: a store of stage outputs shared with other folders (see the module docstring); with ``force``
+    the stages run again but a shared one is restored where the store holds its key (empty the store to
+    compute those again too).
+    """
     progress = progress or Progress()
     t0 = time.perf_counter()
     study = study if isinstance(study, Study) else load_study(study)
@@ -424,7 +450,7 @@ def run_study(study: Study | str | Path | None = None, out: str | Path = DEFAULT
         copy = out / STUDY_COPY
         if not copy.is_file() or copy.read_bytes() != study.source_text:
             atomic_write_bytes(copy, study.source_text)
-        ctx = _Ctx(study, out, progress, _previous(out, progress), study.path)
+        ctx = _Ctx(study, out, progress, _previous(out, progress), study.path, cache=cache)
         stages = _execute(list(STAGES), ctx, force, utc())
     ran = [s["stage"] for s in stages if s["ran"]]
     seconds = time.perf_counter() - t0
@@ -490,6 +516,12 @@ SUMMARY_KEYS = ("tracking_rms_pct_of_range", "tracking_rms_pct_of_range_before_l
                 "tracking_rms_N_before_learning", "learning_iterations", "tracking_max_N", "rigidity_min_cutting_N_per_um",
                 "rigidity_required_N_per_um", "rigidity_ratio_min", "deflection_max_um", "friction_energy_per_cycle",
                 "constant_friction_energy_per_cycle", "preload_margin_N")
+
+
+def run_summary(out: str | Path) -> dict[str, Any]:
+    """The headline numbers of the run in ``out`` (``run``'s ``summary``), read from its ``pipeline.json``: also for
+    a run that stopped at a failing stage (what the stages before it recorded)."""
+    return _summary(dict(read_manifest(out)["stages"]))
 
 
 def _summary(records: dict[str, dict[str, Any]]) -> dict[str, Any]:
