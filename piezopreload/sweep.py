@@ -213,6 +213,8 @@ def run_point(task: _Task) -> SweepPoint:
             code = int(getattr(exc, "exit_code", 1 if isinstance(exc, InternalError) else 2))
         except Exception as exc:  # an internal failure of this point; the others go on
             status, error, code = "failed", f"internal failure: {type(exc).__name__}: {exc}", 1
+        if error is not None:  # paths in the sweep's folder as the rows name the points', relative to it
+            error = error.replace(f"{Path(task.out)}{os.sep}", "")
         log.write(f"point {task.index}: {status}{'' if error is None else ': ' + error}\n")
     return SweepPoint(task.index, task.values, task.folder, status, error, stage, code, time.perf_counter() - t0, ran,
                       tuple(cache.reused), headline(folder, summary))
@@ -292,8 +294,10 @@ def _lost(task: _Task, exc: BaseException) -> SweepPoint:
 
 
 def _run_local(tasks: list[_Task], workers: int, done: Callable[[SweepPoint], None]) -> None:
-    context = multiprocessing.get_context("fork") if "fork" in multiprocessing.get_all_start_methods() else None
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_worker_init)
+    # fresh processes: a forked one inherits the threads' locks of whatever ran here before (Typst's compiler
+    # threads, after a report: a forked point then hangs in its own report); they import the package once each
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_worker_init)
     try:
         futures = {pool.submit(run_point, t): t for t in tasks}
         for fut in as_completed(futures):

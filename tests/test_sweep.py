@@ -404,6 +404,34 @@ def test_the_points_one_after_another_give_the_same_rows(grid_sweep, tmp_path):
     assert not (tmp_path / "serial" / "report.pdf").exists()
 
 
+_AFTER_A_REPORT = """
+import json, sys
+from pathlib import Path
+from piezopreload.progress import Progress
+from piezopreload.reports.typeset import compile_pdf
+from piezopreload.study import load_study
+out = Path(sys.argv[1])
+out.mkdir()
+(out / "page.typ").write_text("= A page")
+compile_pdf(out / "page.typ")  # Typst's compiler threads now run in this process
+result = load_study(sys.argv[2]).sweep({"tuning.ms_max": [1.5, 1.7], "validation.plants": [4]}, out=out / "sweep",
+                                       workers=2, progress=Progress(quiet=True), report=False)
+print(json.dumps(result.rows))
+"""
+
+
+@pytest.mark.slow
+def test_worker_processes_started_after_a_report_in_the_same_process_run_their_points(grid_sweep, tmp_path):
+    """A forked worker inherits the locks of the compiler's threads and hangs in its own report: the workers are fresh
+    processes. The timeout guards against that hang; it is not a bound on the time."""
+    _, grid, _ = grid_sweep
+    done = subprocess.run([sys.executable, "-c", _AFTER_A_REPORT, str(tmp_path / "run"), str(SMALL)],
+                          capture_output=True, text=True, timeout=900, check=False)
+    assert done.returncode == 0, done.stderr[-2000:]
+    rows = json.loads(done.stdout.splitlines()[-1])
+    assert [_figures(r) for r in rows] == [_figures(r) for r in grid.rows if r["validation.plants"] == 4]
+
+
 @pytest.mark.slow
 def test_a_failing_point_is_recorded_and_the_others_go_on(tmp_path, capsys):
     out = tmp_path / "sweep"
@@ -414,6 +442,8 @@ def test_a_failing_point_is_recorded_and_the_others_go_on(tmp_path, capsys):
     ok, bad = doc["rows"]
     assert ok["status"] == "done" and ok["gain_set_status"] == "validated"
     assert bad["status"] == "failed" and "stage 'validate' failed" in bad["error"]
+    assert "points/p001/gains.json is a candidate" in bad["error"] and str(out) not in bad["error"], \
+        "a path in the sweep's folder is named relative to it, so two runs of a sweep give the same rows"
     assert bad["gain_set_status"] == "candidate" and bad["worst_overshoot_N"] > 0.01 and bad["validation_failures"] > 0
     assert bad["Kc_V_per_N"] == ok["Kc_V_per_N"], "the tuning, before the failure, is the same and its row says so"
     record = SweepRecord.load(out / "sweep.json")
