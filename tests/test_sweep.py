@@ -275,6 +275,14 @@ def test_the_plot_draws_one_line_per_value_of_the_other_key(tmp_path):
         result.plot("tuning.ms_max", "tracking_rms_N")
 
 
+def test_the_front_door_names_the_sweep_result_on_first_use():
+    import piezopreload as pp
+
+    assert pp.SweepResult is SweepResult and "SweepResult" in pp.__all__
+    with pytest.raises(AttributeError, match="no attribute 'Sweeps'"):
+        pp.Sweeps  # noqa: B018
+
+
 def test_headline_figures_of_a_folder_with_nothing_run_are_empty(tmp_path):
     assert headline(tmp_path) == PointFigures()
 
