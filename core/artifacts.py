@@ -39,6 +39,9 @@ KINDS = {
     "learning": ("pass_records", "tracking_rms_N", "before_learning_rms_N", "history", "inputs"),
     "learned-signal": ("ff_extra_V", "setpoint_N", "sample_period_s", "reference", "reference_sha256",
                        "gain_set_sha256", "inputs"),
+    "sweep": ("study", "mode", "axes", "points"),
+    "sweep-report": ("title", "summary", "table", "figures", "provenance"),
+    "stage-cache": ("stage", "key", "summary", "outputs"),
 }
 #: kinds whose documents carry ``content_sha256``, checked on every read
 HASHED = {"gain-set", "learned-signal"}

@@ -15,6 +15,7 @@ The front door for design-study scripts::
     pp.export(gain_set, "labview")                     # the text the CLI writes; a model alone: pp.export(ff.record, "plc")
     learned = study.learn(gain_set, reference="schedule")  # ScheduleLearning: along the preload schedule
     result = study.run(out="piezopreload-out")         # the whole pipeline, as ``piezopreload run``
+    sweep = study.sweep({"tuning.ms_max": [1.4, 1.6]})  # SweepResult: .rows, .plot(x, y), as ``piezopreload sweep``
 
 The physics lives in :mod:`piezopreload.models`, identification and tuning in
 :mod:`piezopreload.tuning`, the design in :mod:`piezopreload.design`, the rig executor in
@@ -54,5 +55,14 @@ __all__ = [
     "ClosedLoopRun",
     "DesignResult", "IdentifiedFeedforward", "PIDGains", "Reference", "StepMetrics", "Record", "read_record",
     "export", "identify", "Identification", "PIIdentifier", "NotFittedError", "IdentifiedModel", "Window", "PiezopreloadError", "InputError", "ArtifactError", "InfeasibleError",
-    "InternalError",
+    "InternalError", "SweepResult",
 ]
+
+
+def __getattr__(name: str) -> object:
+    # the sweep loads the whole pipeline (the report's figures, the rig): on first use, not on import
+    if name == "SweepResult":
+        from piezopreload.sweep import SweepResult
+
+        return SweepResult
+    raise AttributeError(f"module 'piezopreload' has no attribute '{name}'")

@@ -15,7 +15,7 @@ from typing import Any
 
 from piezopreload.artifacts.requirements import EXIT_REQUIREMENT_MISSED, Requirement, missed
 
-__all__ = ["StageOutcome", "Headline", "StudyResult"]
+__all__ = ["StageOutcome", "Headline", "StudyResult", "summary_of"]
 
 
 @dataclass(frozen=True)
@@ -67,6 +67,14 @@ class Headline:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
+def summary_of(headline: Headline, requirements: tuple[Requirement, ...]) -> dict[str, Any]:
+    """``run --json``'s ``summary``: the headline figures, whether every requirement is met (None: none checked),
+    the missed ones and every one, each with its margin."""
+    miss = missed(requirements)
+    return {**headline.to_dict(), "requirements_met": None if not requirements else not miss,
+            "requirements_missed": [r.to_dict() for r in miss], "requirements": [r.to_dict() for r in requirements]}
+
+
 @dataclass(frozen=True)
 class StudyResult:
     """A study's run: its outputs, its stages, its headline figures and its requirements' verdicts.
@@ -109,9 +117,7 @@ class StudyResult:
         def path(p: Path | None) -> str | None:
             return None if p is None else str(p)
 
-        summary = {**self.headline.to_dict(), "requirements_met": self.requirements_met,
-                   "requirements_missed": [r.to_dict() for r in self.missed],
-                   "requirements": [r.to_dict() for r in self.requirements]}
+        summary = summary_of(self.headline, self.requirements)
         return {"out": str(self.out), "study": dict(self.study), "stages": [s.to_dict() for s in self.stages],
                 "ran": list(self.ran), "seconds": self.seconds, "report": path(self.report),
                 "gain_set": path(self.gain_set), "gain_set_sha256": self.gain_set_sha256, "rig_log": path(self.rig_log),

@@ -41,6 +41,13 @@ stages before it wrote stays, and the manifest records the failure. A new stage 
 :class:`Stage` in :data:`STAGES`: its tables, the stages it reads, its code and its body. The
 keying, the records and the loop that runs stages are :mod:`piezopreload.core.stages`; what is
 here is what makes them a study's.
+
+Several output folders can share their stages' outputs through a
+:class:`~piezopreload.core.stagecache.StageCache` (``run_study(..., cache=...)``; a design sweep
+gives every point's folder the same one): a stage whose key another folder has computed is
+restored from the store instead of run (its artifacts are byte for byte that folder's, naming
+the study that computed them), and one being computed by another process is waited for. The rig
+and report stages are not shared (``Stage.shared``): each records its own folder's run.
 """
 
 from __future__ import annotations
@@ -60,6 +67,7 @@ from piezopreload.artifacts.schedule import PreloadSchedule
 from piezopreload.artifacts.system import SystemRecord
 from piezopreload.core.artifacts import atomic_write_bytes, read_artifact, write_artifact
 from piezopreload.core.errors import InputError
+from piezopreload.core.stagecache import StageCache
 from piezopreload.core.stages import (
     Partial,
     StageCrashed,
@@ -74,7 +82,7 @@ from piezopreload.core.stages import (
     utc,
 )
 from piezopreload.core.tables import write_csv
-from piezopreload.outcome import Headline, StageOutcome, StudyResult
+from piezopreload.outcome import Headline, StageOutcome, StudyResult, summary_of
 from piezopreload.progress import Progress
 from piezopreload.reports.study_report import STAGES_READ, Published, ReportStudy, render_report
 from piezopreload.results import TuningResult
@@ -85,7 +93,8 @@ from piezopreload.tuning.compare import creep_effect, reproduction, responses
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.learning import played_passes, save_passes
 
-__all__ = ["Stage", "STAGES", "StageFailed", "StageCrashed", "run_study", "rerender_report", "read_manifest", "DEFAULT_OUT"]
+__all__ = ["Stage", "STAGES", "StageFailed", "StageCrashed", "run_study", "rerender_report", "read_manifest", "run_summary",
+           "DEFAULT_OUT"]
 
 DEFAULT_OUT = "piezopreload-out"
 MANIFEST = "pipeline.json"
@@ -103,6 +112,7 @@ class _Ctx:
     records: dict[str, dict[str, Any]]
     source: str = ""                         # the study file as the user named it
     template: str | None = None              # a Typst template's text to use instead of the shipped one
+    cache: StageCache | None = None          # stage outputs shared with other folders
     _subject: Study | None = None
 
     def output(self, stage: str, label: str) -> Path:
@@ -149,6 +159,7 @@ class Stage:
     applies: Callable[[Study], str | None] = field(default=lambda study: None)  # a reason it does not apply, or None
     validated_only: bool = False  # runs only on a validated gain set (export, the rig)
     reads: Callable[[Study], tuple[str, ...]] = field(default=lambda study: ())  # more tables, as the study asks
+    shared: bool = True  # its outputs may be restored from a StageCache (False: they record this folder's own run)
 
 
 def _stage_identify(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
@@ -362,10 +373,11 @@ STAGES: tuple[Stage, ...] = (
     Stage("export", "the gain set in the controllers' formats", ("export",), ("validate",), ("models", "artifacts", "rig"),
           _stage_export, validated_only=True),
     Stage("rig", "the validated gains on the rig executor", ("rig_run",), ("validate", "system", "learn"), ("models", "artifacts", "rig"),
-          _stage_rig, files=("rig_run.reference",), validated_only=True),
+          _stage_rig, files=("rig_run.reference",), validated_only=True,
+          shared=False),  # a run log of its own, with its time and paths
     Stage("report", "figures and the PDF", ("study", "ballscrew", "design", "published"), STAGES_READ,
           ("models", "artifacts", "reports"),
-          _stage_report),
+          _stage_report, shared=False),  # the folder's provenance, its date
 )
 _BY_NAME = {s.name: s for s in STAGES}
 
@@ -422,9 +434,19 @@ def _applies(stage: Stage, ctx: _Ctx) -> str | None:
 
 
 def _execute(stages: list[Stage], ctx: _Ctx, force: bool, started: str) -> list[dict[str, Any]]:
-    return run_stages(stages, ctx.records, ctx.out, ctx.progress, force=force,
-                      key=lambda stage: _stage_key(stage, ctx.study, ctx.records),
-                      applies=lambda stage: _applies(stage, ctx), run=lambda stage: stage.run(ctx),
+    keys: dict[str, str] = {}
+
+    def key(stage: Stage) -> str:
+        keys[stage.name] = _stage_key(stage, ctx.study, ctx.records)
+        return keys[stage.name]
+
+    def run(stage: Stage) -> tuple[dict[str, Path], dict[str, Any]]:
+        if ctx.cache is None or not stage.shared:
+            return stage.run(ctx)
+        return ctx.cache.run(stage.name, keys[stage.name], ctx.out, lambda: stage.run(ctx), say=ctx.progress.say)
+
+    return run_stages(stages, ctx.records, ctx.out, ctx.progress, force=force, key=key,
+                      applies=lambda stage: _applies(stage, ctx), run=run,
                       save=lambda: _write_manifest(ctx.out, ctx.study, ctx.records, started, ctx.source))
 
 
@@ -439,8 +461,13 @@ def _previous(out: Path, progress: Progress) -> dict[str, dict[str, Any]]:
 
 
 def run_study(study: Study | str | Path | None = None, out: str | Path = DEFAULT_OUT, *, force: bool = False,
-              progress: Progress | None = None) -> StudyResult:
-    """Run a study's stages into ``out``; a stage whose key and outputs are unchanged is not run again."""
+              progress: Progress | None = None, cache: StageCache | None = None) -> StudyResult:
+    """Run a study's stages into ``out``; a stage whose key and outputs are unchanged is not run again.
+
+    ``cache``: a store of stage outputs shared with other folders (see the module docstring); with ``force``
+    the stages run again but a shared one is restored where the store holds its key (empty the store to
+    compute those again too).
+    """
     progress = progress or Progress()
     t0 = time.perf_counter()
     study = study if isinstance(study, Study) else load_study(study)
@@ -450,7 +477,7 @@ def run_study(study: Study | str | Path | None = None, out: str | Path = DEFAULT
         copy = out / STUDY_COPY
         if not copy.is_file() or copy.read_bytes() != study.source_text:
             atomic_write_bytes(copy, study.source_text)
-        ctx = _Ctx(study, out, progress, _previous(out, progress), study.path)
+        ctx = _Ctx(study, out, progress, _previous(out, progress), study.path, cache=cache)
         stages = _execute(list(STAGES), ctx, force, utc())
     ran = [s["stage"] for s in stages if s["ran"]]
     seconds = time.perf_counter() - t0
@@ -513,3 +540,11 @@ def _result(out: Path, study: Study, stages: list[dict[str, Any]], seconds: floa
         gain_set_sha256=records.get("validate", {}).get("summary", {}).get("content_sha256"),
         rig_log=(out / records["rig"]["outputs"]["log_csv"]["path"]) if records.get("rig", {}).get("status") == "done"
         else None)
+
+
+def run_summary(out: str | Path) -> dict[str, Any]:
+    """The headline numbers and the verdicts of the run in ``out`` (``run --json``'s ``summary``), read from its
+    ``pipeline.json``: also for a run that stopped at a failing stage (what the stages before it recorded)."""
+    records = dict(read_manifest(out)["stages"])
+    return summary_of(Headline.from_records(records),
+                      checked_by_stages({name: records[name] for name in _BY_NAME if name in records}))

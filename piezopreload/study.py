@@ -77,6 +77,7 @@ from piezopreload.tuning.tables import LearningTable, TuningTable, ValidationTab
 if TYPE_CHECKING:  # the results module imports this one
     from piezopreload.outcome import StudyResult
     from piezopreload.results import ScheduleLearning, StudyRun, TuningResult
+    from piezopreload.sweep import SweepResult
     from piezopreload.tuning.learning import LearningResult
 
 __all__ = ["Study", "load_study", "default_study", "paper_study", "shipped_studies", "DEFAULT_STUDY", "PAPER_STUDY"]
@@ -506,6 +507,19 @@ class Study:
         from piezopreload.pipeline import run_study
 
         return run_study(self, out, force=force, progress=progress)
+
+    def sweep(self, vary: dict[str, Any], *, mode: str = "grid", out: str | Path = "piezopreload-sweep",
+              workers: int | None = None, scheduler: str | None = None, force: bool = False, progress: Any = None,
+              report: bool = True, where: str = "Study.sweep") -> SweepResult:
+        """The whole study at every point of ``vary`` (``{"rig.bolt_preload_N": [20.0, 25.0, 30.0]}``), as
+        ``piezopreload sweep``: each point :meth:`replace`'d and run into its own folder under ``out``, stages
+        the points share computed once, on ``workers`` local processes or a Dask ``scheduler``. Returns a
+        :class:`~piezopreload.sweep.SweepResult` (``.rows``, ``.plot(x, y)``, ``.to_dataframe()``); see
+        :func:`piezopreload.sweep.sweep`."""
+        from piezopreload.sweep import sweep
+
+        return sweep(self, vary, mode=mode, out=out, workers=workers, scheduler=scheduler, force=force,
+                     progress=progress, report=report, where=where)
 
 
 #: the attribute of each table whose name is taken (``study.design()`` is a method, ``study.plant`` the plant)

@@ -1,8 +1,8 @@
 """Typesetting the report with Typst (the ``typst`` package from PyPI: the compiler and its fonts).
 
 :data:`TEMPLATE` is the shipped template, ``report.typ``; it reads ``report.json`` and the
-figures from its own folder. :func:`compile_pdf` compiles a template in a folder with only the
-fonts Typst ships (Libertinus Serif, New Computer Modern, DejaVu Sans Mono), so the PDF is
+figures from its own folder (a sweep's report has its own, ``sweep.typ``). :func:`compile_pdf`
+compiles a template in a folder with only the fonts Typst ships (Libertinus Serif, New Computer Modern, DejaVu Sans Mono), so the PDF is
 the same on every machine.
 """
 
@@ -23,9 +23,9 @@ class ReportError(PiezopreloadError, RuntimeError):
     """Typst could not compile the report; the message carries its diagnostics."""
 
 
-def template_text() -> str:
-    """The shipped template's text."""
-    return (resources.files("piezopreload.reports") / TEMPLATE).read_text(encoding="utf-8")
+def template_text(name: str = TEMPLATE) -> str:
+    """A shipped template's text: the study report's (``report.typ``), or another by its file name (``sweep.typ``)."""
+    return (resources.files("piezopreload.reports") / name).read_text(encoding="utf-8")
 
 
 def compile_pdf(main: str | Path, *, date: _dt.datetime | None = None) -> bytes:

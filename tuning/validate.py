@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
-import os
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
@@ -31,6 +30,7 @@ import numpy as np
 
 from piezopreload.artifacts.validation import METRICS, Criteria, ValidationResult
 from piezopreload.core.errors import PiezopreloadError
+from piezopreload.core.parallel import spare_cpus
 from piezopreload.models.actuator import Rig, RigParams
 from piezopreload.models.closedloop import Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
@@ -122,7 +122,8 @@ def executor(workers: int | None = None, scheduler: str | None = None) -> Iterat
     """A ``concurrent.futures`` executor and its description.
 
     ``scheduler`` (``tcp://HOST:PORT``) uses a Dask distributed cluster (the optional ``dask``
-    extra); otherwise ``workers`` local processes (default: the CPU count; 1 runs inline).
+    extra); otherwise ``workers`` local processes (default: the CPU count, or ``PIEZOPRELOAD_WORKERS`` where set:
+    :func:`piezopreload.core.parallel.spare_cpus`; 1 runs inline).
     """
     if scheduler is not None:
         try:
@@ -140,7 +141,7 @@ def executor(workers: int | None = None, scheduler: str | None = None) -> Iterat
         finally:
             client.close()
         return
-    n = workers if workers is not None else (os.cpu_count() or 1)
+    n = workers if workers is not None else spare_cpus()
     if n <= 1:
         yield _Inline(), "inline"
         return

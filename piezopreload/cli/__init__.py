@@ -27,6 +27,7 @@ from piezopreload.cli.identify import register_identify
 from piezopreload.cli.learn import register_learn
 from piezopreload.cli.rig import register_rig
 from piezopreload.cli.study import register_report, register_reproduce, register_run, register_simulate
+from piezopreload.cli.sweep import register_sweep
 from piezopreload.cli.tune import register_tune, register_validate
 from piezopreload.core.errors import InternalError, PiezopreloadError
 
@@ -38,7 +39,7 @@ __all__ = ["main", "build_parser", "COMMANDS", "EXIT_OK", "EXIT_INTERNAL", "EXIT
 # --------------------------------------------------------------------------------------
 #: one register function per subcommand, in the order ``--help`` lists them
 COMMANDS: tuple[Callable[[Any], None], ...] = (
-    register_run, register_report, register_identify, register_simulate, register_reproduce, register_tune,
+    register_run, register_sweep, register_report, register_identify, register_simulate, register_reproduce, register_tune,
     register_learn, register_validate, register_ballscrew, register_design, register_export, register_rig,
 )
 

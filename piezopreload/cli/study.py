@@ -74,10 +74,11 @@ def _print_run(s: dict[str, Any]) -> None:
 
 def register_report(sub: Any) -> None:
     p = sub.add_parser(
-        "report", help="render a study's PDF report again from its artifacts",
+        "report", help="render a study's (or a sweep's) PDF report again from its artifacts",
         description=("Draw the figures and typeset report.pdf again from the artifacts in a study's output folder "
-                     "(written by 'piezopreload run'); nothing else is computed."))
-    p.add_argument("dir", metavar="DIR", help="a study's output folder")
+                     "(written by 'piezopreload run'), or a sweep's report from a sweep's folder (written by "
+                     "'piezopreload sweep'); nothing else is computed."))
+    p.add_argument("dir", metavar="DIR", help="a study's output folder, or a sweep's")
     p.add_argument("--template", metavar="REPORT.typ",
                    help="typeset this Typst template instead of the shipped one (start from a copy of DIR/report/report.typ)")
     p.add_argument("--quiet", action="store_true", help="no progress on standard error")
@@ -88,7 +89,10 @@ def register_report(sub: Any) -> None:
 def _cmd_report(args: argparse.Namespace) -> dict[str, Any]:
     from piezopreload.pipeline import rerender_report
     from piezopreload.progress import Progress
+    from piezopreload.sweep import is_sweep_folder, rerender_sweep_report
 
+    if is_sweep_folder(args.dir):  # a sweep's folder (piezopreload sweep): the sweep's report
+        return rerender_sweep_report(args.dir, progress=Progress(quiet=args.quiet), template=args.template)
     return rerender_report(args.dir, progress=Progress(quiet=args.quiet), template=args.template).to_dict()
 
 

@@ -1,0 +1,598 @@
+"""Design sweeps: a study at every point of a grid of values of its keys, each point through the study pipeline.
+
+``piezopreload sweep STUDY --vary TABLE.KEY=V1,V2,... [--vary ...] [--grid|--zip]`` and
+``study.sweep({"tuning.ms_max": [1.4, 1.6, 1.8], ...})``:
+
+- each point is the study with its values, made by :meth:`Study.replace
+  <piezopreload.study.Study.replace>` (checked as a study file is; a key the designed plant sets
+  is refused there), and every point is made and checked before any runs;
+- each point runs through :func:`piezopreload.pipeline.run_study` into its own folder,
+  ``OUT/points/pNNN/`` (its ``study.toml``, ``pipeline.json``, artifacts, report and
+  ``sweep-point.log``, its progress); the points share one
+  :class:`~piezopreload.core.stagecache.StageCache` (``OUT/cache/``), so a stage whose content key
+  two points share is computed once and restored into the other's folder;
+- the points run in local worker processes (``workers``, default one per CPU) or on a Dask
+  cluster (``scheduler``, the ``dask`` extra); each process runs its point's stages one at a time
+  (``PIEZOPRELOAD_WORKERS=1``), so the points are the parallel work. A point that fails is
+  recorded with its error and the stage that failed, and the others go on;
+- ``OUT/sweep.json`` (:class:`~piezopreload.artifacts.sweep.SweepRecord`) is written before the
+  first point and again as each one ends; ``OUT/sweep.csv`` holds the rows, and ``OUT/report.pdf``
+  the sweep's report. A sweep that was stopped is resumed by running it again: a finished point's
+  stages are up to date in its folder (their content keys), and shared stages are in the store.
+
+A point's headline figures (:class:`~piezopreload.artifacts.sweep.PointFigures`) come from its
+``pipeline.json`` (the stages' records), its gain set (the validation's verdict and worst cases,
+also where the validation failed) and its run's summary (:func:`piezopreload.pipeline.run_summary`).
+The folders must be on a file system every worker sees at the same path.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import itertools
+import multiprocessing
+import os
+import re
+import threading
+import time
+import tomllib
+import uuid
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.requirements import EXIT_REQUIREMENT_MISSED
+from piezopreload.artifacts.sweep import (
+    DEFAULT_SWEEP_OUT,
+    EXIT_POINT_FAILED,
+    MODES,
+    PointFigures,
+    Scalar,
+    SweepAxis,
+    SweepPoint,
+    SweepRecord,
+)
+from piezopreload.core.artifacts import atomic_write_text
+from piezopreload.core.errors import InputError, InternalError, PiezopreloadError
+from piezopreload.core.parallel import spare_cpus
+from piezopreload.core.stagecache import StageCache
+from piezopreload.core.stages import locked, utc
+from piezopreload.pipeline import read_manifest, run_study, run_summary
+from piezopreload.progress import Progress
+from piezopreload.reports.sweep_figures import sweep_plot
+from piezopreload.reports.sweep_report import render_sweep_report
+from piezopreload.study import Study
+from piezopreload.tuning.validate import SchedulerError
+
+__all__ = ["sweep", "SweepResult", "parse_vary", "plan_points", "headline", "rerender_sweep_report", "is_sweep_folder",
+           "DEFAULT_SWEEP_OUT", "EXIT_POINT_FAILED"]
+
+RECORD, ROWS, CACHE, POINTS, POINT_LOG = "sweep.json", "sweep.csv", "cache", "points", "sweep-point.log"
+
+
+# --------------------------------------------------------------------------------------
+# the points
+# --------------------------------------------------------------------------------------
+_BARE = re.compile(r"[^\s\[\]{}\"'=,#]+")  # a string without quotes: a word, a file name
+
+
+def _value(text: str, where: str) -> Scalar:
+    """One value as TOML reads it (``30``, ``1.5``, ``true``, ``"text"``); a bare word is a string."""
+    text = text.strip()
+    if not text:
+        raise InputError(f"{where}: an empty value; give V1,V2,... (example: --vary tuning.ms_max=1.4,1.6)")
+    try:
+        value = tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = text if _BARE.fullmatch(text) else None
+    if not isinstance(value, bool | int | float | str):
+        raise InputError(f"{where}: '{text}' is not a number, a string or a boolean (a string with spaces or commas "
+                         'in quotes: "a b")')
+    return value
+
+
+def parse_vary(text: str, option: str = "--vary") -> tuple[str, list[Scalar]]:
+    """``'tuning.ms_max=1.4,1.6'`` -> ``('tuning.ms_max', [1.4, 1.6])``; bad text raises :class:`InputError` naming ``option``."""
+    key, sep, values = text.partition("=")
+    key = key.strip()
+    if not sep or "." not in key or not all(key.split(".")):
+        raise InputError(f"{option} '{text}': expected TABLE.KEY=V1,V2,... (example: {option} rig.bolt_preload_N=20,25,30)")
+    return key, [_value(v, f"{option} {key}") for v in values.split(",")]
+
+
+def _label(values: Mapping[str, Scalar]) -> str:
+    return ", ".join(f"{k}={v}" for k, v in values.items())
+
+
+def _changes(values: Mapping[str, Scalar]) -> dict[str, Any]:
+    """``{"reference.step.final_N": 80}`` -> ``{"reference": {"step": {"final_N": 80}}}`` (``Study.replace``'s form)."""
+    changes: dict[str, Any] = {}
+    for key, value in values.items():
+        *tables, name = key.split(".")
+        node = changes
+        for t in tables:
+            node = node.setdefault(t, {})
+        node[name] = value
+    return changes
+
+
+def plan_points(study: Study, vary: Mapping[str, Sequence[Scalar]], mode: str = "grid",
+                where: str = "Study.sweep") -> tuple[tuple[SweepAxis, ...], list[tuple[dict[str, Scalar], Study]]]:
+    """The axes and, per point, its values and its study (``study.replace`` with them), every point checked.
+
+    ``mode``: ``grid`` (every combination, the last axis fastest) or ``zip`` (the i-th value of each
+    axis together; the axes must be as long). Raises :class:`InputError` naming ``where`` and the point.
+    """
+    if mode not in MODES:
+        raise InputError(f"{where}: mode must be one of {', '.join(MODES)}, got {mode!r}")
+    if not vary:
+        raise InputError(f"{where}: nothing to vary; give at least one key with its values (TABLE.KEY=V1,V2,...)")
+    try:
+        axes = tuple(SweepAxis(str(k), tuple(v)) for k, v in vary.items())
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{where}: {exc}") from None
+    lengths = {a.key: len(a.values) for a in axes}
+    if mode == "zip" and len(set(lengths.values())) > 1:
+        raise InputError(f"{where}: --zip pairs the i-th values of every key, so each needs as many values; got "
+                         + ", ".join(f"{k} {n}" for k, n in lengths.items()) + " (or sweep the --grid)")
+    combos = itertools.product(*(a.values for a in axes)) if mode == "grid" else zip(*(a.values for a in axes))
+    points = []
+    for combo in combos:
+        values = dict(zip((a.key for a in axes), combo))
+        try:
+            points.append((values, study.replace(**_changes(values))))
+        except PiezopreloadError as exc:
+            raise InputError(f"{where}: the point {_label(values)}: {exc}") from None
+    return axes, points
+
+
+# --------------------------------------------------------------------------------------
+# one point (in a worker)
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Task:
+    index: int
+    values: dict[str, Scalar]
+    folder: str        # relative to out
+    study: Study
+    out: str           # the sweep's folder, absolute
+    force: bool
+    one_process: bool  # set PIEZOPRELOAD_WORKERS=1 around the point (a Dask worker; local workers set it at start)
+
+
+_ENV = "PIEZOPRELOAD_WORKERS"
+_env_lock = threading.Lock()
+_env_users = [0, None]  # points running with one process here, the value to restore
+
+
+@contextmanager
+def _one_process(on: bool) -> Iterator[None]:
+    """``PIEZOPRELOAD_WORKERS=1`` while points run here (threads of one Dask worker share the count)."""
+    if not on:
+        yield
+        return
+    with _env_lock:
+        if _env_users[0] == 0:
+            _env_users[1] = os.environ.get(_ENV)
+            os.environ[_ENV] = "1"
+        _env_users[0] += 1
+    try:
+        yield
+    finally:
+        with _env_lock:
+            _env_users[0] -= 1
+            if _env_users[0] == 0:
+                if _env_users[1] is None:
+                    os.environ.pop(_ENV, None)
+                else:
+                    os.environ[_ENV] = str(_env_users[1])
+
+
+def _worker_init() -> None:
+    os.environ[_ENV] = "1"  # a sweep's worker process: the points are the parallel work
+
+
+def run_point(task: _Task) -> SweepPoint:
+    """Run one point into its folder (sharing the sweep's stage store) and read its headline figures."""
+    t0 = time.perf_counter()
+    folder = Path(task.out) / task.folder
+    folder.mkdir(parents=True, exist_ok=True)
+    cache = StageCache(Path(task.out) / CACHE)
+    status, error, stage, code, ran = "done", None, None, None, ()
+    summary: dict[str, Any] | None = None
+    with _one_process(task.one_process), open(folder / POINT_LOG, "w", encoding="utf-8") as log:
+        try:
+            result = run_study(task.study, folder, force=task.force, progress=Progress(stream=log), cache=cache)
+            summary, ran = result.to_dict()["summary"], tuple(s for s in result.ran if s not in cache.reused)
+        except PiezopreloadError as exc:
+            status, error, stage = "failed", str(exc), getattr(exc, "stage", None)
+            code = int(getattr(exc, "exit_code", 1 if isinstance(exc, InternalError) else 2))
+        except Exception as exc:  # an internal failure of this point; the others go on
+            status, error, code = "failed", f"internal failure: {type(exc).__name__}: {exc}", 1
+        if error is not None:  # paths in the sweep's folder as the rows name the points', relative to it
+            error = error.replace(f"{Path(task.out)}{os.sep}", "")
+        log.write(f"point {task.index}: {status}{'' if error is None else ': ' + error}\n")
+    return SweepPoint(task.index, task.values, task.folder, status, error, stage, code, time.perf_counter() - t0, ran,
+                      tuple(cache.reused), headline(folder, summary))
+
+
+def _stage_summary(records: dict[str, Any], name: str) -> dict[str, Any]:
+    rec = records.get(name, {})
+    return rec.get("summary") or {} if rec.get("status") == "done" else {}
+
+
+def _gain_set(folder: Path, records: dict[str, Any]) -> GainSet | None:
+    """The point's gain set: validated, or the candidate a failed validation left (its verdict and worst cases)."""
+    out = records.get("validate", {}).get("outputs", {}).get("gains")
+    if out is None:
+        return None
+    try:
+        return GainSet.load(folder / out["path"])
+    except PiezopreloadError:
+        return None
+
+
+def _tuned_settling(compare: dict[str, Any]) -> float | None:
+    rows = compare.get("reproduction") or []
+    return next((r.get("tuned") for r in rows if isinstance(r, dict) and r.get("controller") == "ff+pid"
+                 and r.get("metric") == "settling_s"), None)
+
+
+def _requirements(summary: dict[str, Any], records: dict[str, Any]) -> tuple[bool | None, tuple[dict[str, Any], ...]]:
+    """Met (None where the study sets none) and the missed ones: the run's summary where it says, else the system stage's."""
+    if "requirements_met" in summary:
+        return summary["requirements_met"], tuple(summary.get("requirements_missed") or ())
+    met = _stage_summary(records, "system").get("requirements_met")
+    return (None if met is None else bool(met)), ()
+
+
+def headline(folder: str | Path, summary: dict[str, Any] | None = None) -> PointFigures:
+    """A point's headline figures from its folder (``pipeline.json``, the gain set) and its run's ``summary``
+    (default: :func:`~piezopreload.pipeline.run_summary` of the folder, also for a run that stopped at a stage)."""
+    folder = Path(folder)
+    try:
+        records = dict(read_manifest(folder)["stages"])
+        summary = run_summary(folder) if summary is None else summary
+    except PiezopreloadError:  # the point stopped before its first stage was recorded
+        return PointFigures()
+    tune, design = _stage_summary(records, "tune"), _stage_summary(records, "design")
+    gain_set = _gain_set(folder, records)
+    validation = None if gain_set is None else gain_set.validation
+    worst = {} if validation is None else {k: v["worst"] for k, v in validation.summary().items()}
+    energy, saved = summary.get("friction_energy_per_cycle"), summary.get("friction_saved_fraction")
+    met, missed = _requirements(summary, records)
+    return PointFigures(
+        design_stiffness_N_per_um=design.get("stiffness_N_per_um"),
+        **{k: tune.get(k) for k in ("Kc_V_per_N", "Ti_s", "Td_s", "Tf_s", "b", "ms")},
+        gain_schedule=tune.get("gain_schedule"),
+        gain_set_status=None if gain_set is None else gain_set.status,
+        validation_plants=None if validation is None else validation.n_plants,
+        validation_failures=None if validation is None else len(validation.failures),
+        worst_settling_s=worst.get("settling_s"), worst_overshoot_N=worst.get("overshoot_N"),
+        worst_tracking_rms_N=worst.get("tracking_rms_N"), worst_peak_voltage_V=worst.get("peak_voltage_V"),
+        tuned_settling_s=_tuned_settling(_stage_summary(records, "compare")),
+        **{k: summary.get(k) for k in ("tracking_rms_N", "tracking_rms_pct_of_range",
+                                       "tracking_rms_pct_of_range_before_learning", "tracking_max_N",
+                                       "rigidity_min_cutting_N_per_um", "rigidity_required_N_per_um", "rigidity_ratio_min",
+                                       "deflection_max_um", "rig_tracking_rms_N")},
+        friction_energy_per_cycle=energy,
+        constant_friction_energy_per_cycle=None if energy is None else design.get("constant_friction_energy"),
+        friction_saving_pct=None if saved is None else 100.0 * saved,
+        rig_status=_stage_summary(records, "rig").get("status"),
+        requirements_met=met, requirements_missed=missed)
+
+
+# --------------------------------------------------------------------------------------
+# running the points
+# --------------------------------------------------------------------------------------
+def _lost(task: _Task, exc: BaseException) -> SweepPoint:
+    """A point whose worker was lost (a killed process, a lost Dask worker): failed, with what its folder holds."""
+    return SweepPoint(task.index, task.values, task.folder, "failed", f"its worker was lost: {type(exc).__name__}: {exc}",
+                      None, 1, None, (), (), headline(Path(task.out) / task.folder))
+
+
+def _run_local(tasks: list[_Task], workers: int, done: Callable[[SweepPoint], None]) -> None:
+    # fresh processes: a forked one inherits the threads' locks of whatever ran here before (Typst's compiler
+    # threads, after a report: a forked point then hangs in its own report); they import the package once each
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_worker_init)
+    try:
+        futures = {pool.submit(run_point, t): t for t in tasks}
+        for fut in as_completed(futures):
+            try:
+                point = fut.result()
+            except Exception as exc:  # the worker process died (killed, out of memory)
+                point = _lost(futures[fut], exc)
+            done(point)
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
+
+
+def _run_dask(tasks: list[_Task], scheduler: str, done: Callable[[SweepPoint], None]) -> None:
+    try:
+        from distributed import Client
+        from distributed import as_completed as dask_completed
+    except ImportError:
+        raise SchedulerError("--scheduler needs Dask distributed: pip install 'piezopreload[dask]'") from None
+    try:
+        client = Client(scheduler, timeout=10)
+    except (OSError, TimeoutError) as exc:
+        raise SchedulerError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+    try:
+        run = uuid.uuid4().hex[:8]
+        futures = [client.submit(run_point, t, key=f"piezopreload-sweep-{run}-{t.index}", pure=False) for t in tasks]
+        by_key = {f.key: t for f, t in zip(futures, tasks)}
+        for fut in dask_completed(futures):
+            try:
+                point = fut.result()
+            except Exception as exc:  # a worker lost with the point, or the task could not be sent
+                point = _lost(by_key[fut.key], exc)
+            done(point)
+    finally:
+        client.close()
+
+
+def _point_line(point: SweepPoint, count: int, total: int) -> str:
+    head = f"[{count}/{total}] p{point.index:03d} {_label(point.values)}: "
+    took = "" if point.seconds is None else f" in {point.seconds:.1f} s"
+    if point.status == "failed":
+        return head + f"FAILED{took}: {point.error}\n"
+    ran = f"ran {', '.join(point.ran)}" if point.ran else "nothing to run"
+    reused = f"; reused {', '.join(point.reused)}" if point.reused else ""
+    return head + f"done{took} ({ran}{reused})\n"
+
+
+def _check_where(workers: int | None, scheduler: str | None) -> None:
+    if workers is not None and scheduler is not None:
+        raise InputError("--workers and --scheduler: give one (local worker processes or a Dask cluster), not both")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise InputError(f"--workers: must be a whole number >= 1, got {workers!r}")
+    if scheduler is not None and not str(scheduler).startswith("tcp://"):
+        raise InputError(f"--scheduler: '{scheduler}' is not a Dask scheduler address tcp://HOST:PORT")
+
+
+def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "grid", out: str | Path = DEFAULT_SWEEP_OUT,
+          workers: int | None = None, scheduler: str | None = None, force: bool = False,
+          progress: Progress | None = None, report: bool = True, where: str = "Study.sweep") -> SweepResult:
+    """Run ``study`` at every point of ``vary`` (key -> values) into ``out``; see the module docstring.
+
+    Parameters
+    ----------
+    study : Study
+        The study swept.
+    vary : mapping of str to list
+        ``{"TABLE.KEY": [V1, V2, ...]}``: the keys as a study file's tables name them
+        (``reference.step.final_N`` for a nested one).
+    mode : {"grid", "zip"}
+        Every combination of the values, or the i-th values of the keys together.
+    out : str or Path
+        The sweep's folder (points, shared stages, rows, report).
+    workers, scheduler : int or str, optional
+        Local worker processes (default: one per CPU, at most one per point; 1 runs the points
+        here, one after another) or a Dask scheduler's address ``tcp://HOST:PORT``.
+    force : bool
+        Run every stage of every point again (the shared stages once each).
+    progress : Progress, optional
+        Where each point's line goes (standard error by default).
+    report : bool
+        Typeset the sweep's report (``OUT/report.pdf``) at the end.
+    where : str
+        How errors name the caller (``--vary`` on the command line).
+
+    Returns
+    -------
+    SweepResult
+        One row per point; a point that failed is a row with its error.
+    """
+    _check_where(workers, scheduler)
+    progress = progress or Progress()
+    t0 = time.perf_counter()
+    axes, planned = plan_points(study, vary, mode, where)
+    study.check_files()
+    out = Path(out).absolute()
+    with locked(out, f"{out}: another sweep is writing this folder; wait for it or give another --out"):
+        # what a killed sweep left half-stored goes; with force, the whole store (the shared stages run once again)
+        StageCache(out / CACHE).clean(everything=force)
+        record = SweepRecord(study.name, study.path, study.sha256, mode, axes,
+                             tuple(SweepPoint(i, values, f"{POINTS}/p{i:03d}") for i, (values, _) in enumerate(planned)),
+                             utc())
+        record.save(out / RECORD)
+        n = min(workers or spare_cpus(), len(planned))
+        progress.write(f"sweep of {study.name}: {len(planned)} points ({mode}: "
+                       + " x ".join(f"{a.key} {len(a.values)}" for a in axes) + "), on "
+                       + (f"the Dask cluster {scheduler}" if scheduler else
+                          f"{n} local worker processes" if n > 1 else "this process, one after another")
+                       + f"; outputs in {out}/\n")
+        tasks = [_Task(i, values, f"{POINTS}/p{i:03d}", s, str(out), force, scheduler is not None)
+                 for i, (values, s) in enumerate(planned)]
+        state = {"record": record, "count": 0}
+
+        def done(point: SweepPoint) -> None:
+            state["record"] = state["record"].with_point(point)
+            state["record"].save(out / RECORD)
+            state["count"] += 1
+            progress.write(_point_line(point, state["count"], len(tasks)))
+
+        if scheduler is not None:
+            _run_dask(tasks, scheduler, done)
+        elif n <= 1:
+            for task in tasks:
+                done(run_point(task))
+        else:
+            _run_local(tasks, n, done)
+        record = state["record"]
+        result = SweepResult(out, record, time.perf_counter() - t0)
+        atomic_write_text(out / ROWS, result.csv_text())
+        if report:
+            render_sweep_report(out, record, say=progress.say)
+    seconds = time.perf_counter() - t0
+    failed = len(result.failed)
+    progress.write(f"{len(tasks) - failed} of {len(tasks)} points done{f', {failed} failed' if failed else ''} "
+                   f"({seconds:.1f} s); rows in {out / ROWS}" + (f", report {out / 'report.pdf'}" if report else "") + "\n")
+    return SweepResult(out, record, seconds)
+
+
+def is_sweep_folder(out: str | Path) -> bool:
+    """Whether ``out`` holds a sweep (its ``sweep.json``) rather than one study's outputs."""
+    return (Path(out) / RECORD).is_file()
+
+
+def rerender_sweep_report(out: str | Path, progress: Progress | None = None,
+                          template: str | Path | None = None) -> dict[str, Any]:
+    """Typeset a sweep's report again from ``OUT/sweep.json`` (``piezopreload report SWEEP_DIR``); nothing else runs."""
+    progress = progress or Progress()
+    t0 = time.perf_counter()
+    out = Path(out)
+    text = None
+    if template is not None:
+        try:
+            text = Path(template).read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise InputError(f"--template {template}: cannot read it ({exc})") from None
+    record = SweepRecord.load(out / RECORD)
+    with locked(out, f"{out}: a sweep is writing this folder; wait for it"):
+        written = render_sweep_report(out, record, say=progress.say, template=text)
+    seconds = time.perf_counter() - t0
+    progress.write(f"the sweep's report is {written['report']} ({seconds:.1f} s)\n")
+    return {"out": str(out.resolve()), "report": str(written["report"].resolve()), "seconds": seconds,
+            "points": len(record.points)}
+
+
+# --------------------------------------------------------------------------------------
+# the result
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SweepResult:
+    """A sweep's outcome: its folder and record; one row per point (:attr:`rows`), as CSV, JSON, a data frame, a plot."""
+
+    out: Path
+    record: SweepRecord
+    seconds: float | None = None
+
+    @classmethod
+    def load(cls, out: str | Path) -> SweepResult:
+        """The sweep in ``out`` as its ``sweep.json`` records it."""
+        return cls(Path(out), SweepRecord.load(Path(out) / RECORD))
+
+    @property
+    def rows(self) -> list[dict[str, Any]]:
+        return self.record.rows()
+
+    @property
+    def keys(self) -> tuple[str, ...]:
+        """The swept keys."""
+        return self.record.keys
+
+    @property
+    def points(self) -> tuple[SweepPoint, ...]:
+        return self.record.points
+
+    @property
+    def failed(self) -> list[SweepPoint]:
+        return [p for p in self.record.points if p.status == "failed"]
+
+    @property
+    def missed(self) -> list[SweepPoint]:
+        """The points that ran but missed a requirement of their study."""
+        return [p for p in self.record.points if p.status == "done" and p.figures.requirements_met is False]
+
+    @property
+    def exit_code(self) -> int:
+        """5 where a point failed, else 4 where a point missed a requirement (as ``run``), else 0."""
+        return EXIT_POINT_FAILED if self.failed else EXIT_REQUIREMENT_MISSED if self.missed else 0
+
+    def folder(self, index: int) -> Path:
+        """The folder of point ``index`` (its study outputs)."""
+        return self.out / self.record.points[index].folder
+
+    def csv_text(self) -> str:
+        """The rows as CSV (a missed requirement list as its names, ``; ``-separated; None as an empty cell)."""
+        buf = io.StringIO()
+        writer = csv.writer(buf, lineterminator="\n")
+        columns = self.record.columns()
+        writer.writerow(columns)
+        for row in self.rows:
+            writer.writerow(["" if row[c] is None else "; ".join(r["name"] for r in row[c]) if c == "requirements_missed"
+                             else row[c] for c in columns])
+        return buf.getvalue()
+
+    def to_dict(self) -> dict[str, Any]:
+        r = self.record
+        return {"out": str(self.out), "study": {"name": r.study_name, "path": r.study_path, "sha256": r.study_sha256},
+                "mode": r.mode, "axes": [a.to_dict() for a in r.axes], "points": len(r.points),
+                "done": sum(p.status == "done" for p in r.points), "failed": len(self.failed),
+                "missed_requirements": len(self.missed),
+                "columns": list(r.columns()), "rows": self.rows, "csv": str(self.out / ROWS),
+                "report": str(self.out / "report.pdf") if (self.out / "report.pdf").is_file() else None,
+                "seconds": {"total": self.seconds, "points": {p.folder: p.seconds for p in r.points}},
+                "exit_code": self.exit_code}
+
+    def to_dataframe(self) -> Any:
+        """The rows as a :class:`pandas.DataFrame` (pandas is not a dependency: install it to use this)."""
+        try:
+            import pandas as pd
+        except ImportError:
+            raise InputError("SweepResult.to_dataframe needs pandas, which piezopreload does not install: "
+                             "pip install pandas (or use .rows, or the CSV)") from None
+        return pd.DataFrame(self.rows, columns=list(self.record.columns()))
+
+    def plot(self, x: str | None = None, y: str | Sequence[str] = "worst_settling_s", *,
+             by: str | Sequence[str] | None = None) -> Any:
+        """A figure of ``y`` (a column, or several: one panel each) against ``x`` (default: the first swept key),
+        one line per value of ``by`` (default: the other swept keys of a grid); failed points marked."""
+        x = x or self.keys[0]
+        ys = [y] if isinstance(y, str) else list(y)
+        if by is None:
+            groups = [k for k in self.keys if k != x] if self.record.mode == "grid" else []
+        else:
+            groups = [by] if isinstance(by, str) else list(by)
+        columns = self.record.columns()
+        unknown = [c for c in (x, *ys, *groups) if c not in columns]
+        if unknown:
+            raise InputError(f"SweepResult.plot: no column '{unknown[0]}'; the columns are {', '.join(columns)}")
+        return sweep_plot(self.rows, x, ys, groups, title=f"sweep of {self.record.study_name}")
+
+    def _table(self) -> tuple[list[str], list[list[str]]]:
+        figures = [c for c in ("gain_set_status", "Kc_V_per_N", "Ti_s", "worst_settling_s", "worst_overshoot_N",
+                               "tracking_rms_pct_of_range", "rigidity_min_cutting_N_per_um", "requirements_met")
+                   if any(row[c] is not None for row in self.rows)]
+        header = ["point", *self.keys, "status", *figures]
+        body = [[str(row["point"]), *(str(row[k]) for k in self.keys), row["status"],
+                 *(_cell(row[c]) for c in figures)] for row in self.rows]
+        return header, body
+
+    def __repr__(self) -> str:
+        header, body = self._table()
+        widths = [max(len(h), *(len(r[i]) for r in body)) if body else len(h) for i, h in enumerate(header)]
+        lines = [f"SweepResult({self.record.study_name}, {len(body)} points, {self.record.mode}, {len(self.failed)} failed, "
+                 f"{self.out})", "  ".join(h.rjust(w) for h, w in zip(header, widths))]
+        lines += ["  ".join(c.rjust(w) for c, w in zip(r, widths)) for r in body]
+        lines += [f"  p{p.index:03d} failed: {p.error}" for p in self.failed]
+        return "\n".join(lines)
+
+    def _repr_html_(self) -> str:
+        from html import escape
+
+        header, body = self._table()
+        head = "".join(f"<th>{escape(h)}</th>" for h in header)
+        rows = "".join("<tr>" + "".join(f"<td>{escape(c)}</td>" for c in r) + "</tr>" for r in body)
+        errors = "".join(f"<li>p{p.index:03d}: {escape(p.error or '')}</li>" for p in self.failed)
+        return (f"<p><b>Sweep of {escape(self.record.study_name)}</b>: {len(body)} points ({self.record.mode}), "
+                f"{len(self.failed)} failed; <code>{escape(str(self.out))}</code></p>"
+                f"<table><thead><tr>{head}</tr></thead><tbody>{rows}</tbody></table>"
+                + (f"<ul>{errors}</ul>" if errors else ""))
+
+
+def _cell(value: Any) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return str(value)
