@@ -18,7 +18,8 @@ from piezopreload.models.loop import LOOP_OUTPUTS, step_function
 from piezopreload.models.loop import run as run_loop
 from piezopreload.models.ops import CASADI, NUMPY, clip
 from piezopreload.rig.export import ExportError, export_text
-from piezopreload.tuning import pid
+from piezopreload.tuning import bounds, fopdt, horizon, pid
+from piezopreload.tuning.loopshape import isa_pid_response, omega_terms
 from piezopreload.tuning.validate import Criteria, executor, validate
 
 QUIET = dict(noise_N=0.0, adc_bits=32, amp_current_limit_A=0.02, creep_per_decade=0.02, bw_kappa=0.05)
@@ -28,7 +29,7 @@ def test_controller_frequency_response_equals_python_control():
     control = pytest.importorskip("control")
     dt, g = 1e-3, PIDGains(Kc=1.3, Ti_s=0.04, Td_s=0.006, Tf_s=0.002)
     omega = np.logspace(0, np.log10(3000), 40)
-    re, im = pid._controller_frequency_response([g.Kc, g.Ti_s, g.Td_s, g.Tf_s], omega, dt)
+    re, im = isa_pid_response([g.Kc, g.Ti_s, g.Td_s, g.Tf_s], dt, omega_terms(omega, dt))
     a = g.Tf_s / (g.Tf_s + dt)
     z = control.TransferFunction.z
     # the feedback path of Controller.step: P + trapezoidal I + filtered backward-difference D on y
@@ -50,7 +51,7 @@ def test_the_tuning_model_follows_the_rig_in_closed_loop(gains):
     ref = Reference.step(25.0, 55.0, 0.02, 0.6)
     run = simulate(rig, Controller(gains, rig.dt_s), ref)
     n = run.t_s.size
-    loop = pid.tuning_loop(params)
+    loop = horizon.tuning_loop(params)
     p = loop.parameters(loop.plant.parameters(params), Controller(gains, rig.dt_s).parameter_vector())
     r = ref.at(run.t_s)
     x0 = loop.start(NUMPY, p, r[0])  # at rest, bumpless at 0 V, as simulate's
@@ -104,16 +105,16 @@ def test_smooth_clip_is_the_clip_away_from_its_corners():
 
 
 def test_simc_rule():
-    model = pid.FOPDT(K=0.5, T_s=0.02, theta_s=0.004, rms_N=0.0)
-    g = pid.simc(model)
+    model = fopdt.FOPDT(K=0.5, T_s=0.02, theta_s=0.004, rms_N=0.0)
+    g = fopdt.simc(model)
     assert g.Kc == pytest.approx(0.02 / (0.5 * 0.008)) and g.Ti_s == pytest.approx(0.02)
-    g = pid.simc(model, tau_c_s=0.05)
+    g = fopdt.simc(model, tau_c_s=0.05)
     assert g.Ti_s == pytest.approx(0.02) and g.Kc == pytest.approx(0.02 / (0.5 * 0.054))
 
 
 def test_minimum_time_is_a_lower_bound_the_rig_reaches():
     params = RigParams(**QUIET)
-    bound = pid.minimum_time(params, final_N=50.0, hold_s=0.1, horizon_s=0.2)
+    bound = bounds.minimum_time(params, final_N=50.0, hold_s=0.1, horizon_s=0.2)
     # the amplifier cannot beat its slew limit: the voltage for 50 N takes at least this long
     rig = Rig(params)
     v_needed = 25.0 / (float(params.effective_stiffness_N_per_um) * params.stroke_um_per_V * 1.2)
@@ -367,7 +368,7 @@ def test_tracking_floor_bounds_the_force_rate_and_every_controller():
     """The floor's rate is not beaten by a full-range bang on the rig, and no controller beats the floor."""
     params = RigParams(noise_N=0.0, adc_bits=32)
     rig = Rig(params)
-    floor = pid.tracking_floor(params, Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 0.5, t_start_s=0.1))
+    floor = bounds.tracking_floor(params, Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 0.5, t_start_s=0.1))
     # bang up and down over the whole range, from rest and after reversals
     state, forces = rig.initial_state(), []
     for u in [110.0] * 200 + [0.0] * 200 + [110.0] * 200 + [40.0] * 100 + [110.0] * 200:
@@ -404,9 +405,11 @@ def test_tracking_error_leaves_out_the_samples_out_of_authority():
 
 def test_tracking_improvement_has_no_ratio_where_the_tuned_loop_has_nothing_to_score():
     """A reference with nothing after its changes (a ramped schedule) scores 0 N there: no ratio, not a crash."""
+    from piezopreload.artifacts.tuning import ComparisonRow
     from piezopreload.tuning.compare import tracking_improvement
 
-    rows = [{"gains": g, "feedforward": ff, "tracking_rms_N": rms, "tracking_rms_after_change_N": after}
+    rows = [ComparisonRow(gains=g, feedforward=ff, rise_s=None, settling_s=None, settling_measured_s=None,
+                          overshoot_N=0.0, tracking_rms_N=rms, tracking_rms_after_change_N=after, peak_command_V=0.0)
             for g, ff, rms, after in (("paper", False, 4.0, 2.0), ("paper", True, 3.0, 1.0),
                                       ("tuned", True, 2.0, 0.0))]
     out = tracking_improvement(rows)
