@@ -13,6 +13,8 @@ The front door for design-study scripts::
     gain_set.save("gains.json"); pp.GainSet.load("gains.json")
     gain_set.export("labview")                         # the text the CLI writes
     result = study.run(out="piezopreload-out")         # the whole pipeline, as ``piezopreload run``
+    tuned = pp.autotune(plant, Ms=1.4, delay_s=0.001)  # AutotuneResult for any python-control plant: .gains, .plot()
+    fit = pp.fit_plant("step.csv")                     # FittedPlant from a measured step response; pp.autotune(fit, ...)
 
 The physics lives in :mod:`piezopreload.models`, identification and tuning in
 :mod:`piezopreload.tuning`, the design in :mod:`piezopreload.design`, the rig executor in
@@ -41,13 +43,16 @@ from piezopreload.models.controller import PIDGains
 from piezopreload.models.metrics import StepMetrics
 from piezopreload.results import StudyRun, TuningResult
 from piezopreload.study import Study, load_study, shipped_studies
+from piezopreload.tuning.autotune import autotune
+from piezopreload.tuning.autotune_result import AutotuneResult
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.holdout import HoldoutFit, Window
 from piezopreload.tuning.holdout import identify_record as identify
+from piezopreload.tuning.plantfit import FittedPlant, fit_plant
 
 __all__ = [
     "__version__", "load_study", "shipped_studies", "Study", "GainSet", "TuningResult", "StudyRun", "ClosedLoopRun",
     "DesignResult", "IdentifiedFeedforward", "PIDGains", "Reference", "StepMetrics", "Record", "read_record",
-    "identify", "HoldoutFit", "Window", "PiezopreloadError", "InputError", "ArtifactError", "InfeasibleError",
+    "identify", "HoldoutFit", "Window", "autotune", "AutotuneResult", "fit_plant", "FittedPlant", "PiezopreloadError", "InputError", "ArtifactError", "InfeasibleError",
     "InternalError",
 ]
