@@ -15,7 +15,8 @@ Hägglund 1998) are its PI special case.
 The method:
 
 1. the frequency grid is chosen from the plant (a hundredth of its lowest characteristic frequency
-   to a hundred times its highest, 25 points a decade) or given (``w``);
+   to a hundred times its highest, 25 points a decade, and a point three decades on, where the
+   controller's gain has levelled off) or given (``w``);
 2. the starts: AMIGO and SIMC on a FOPDT reading of the plant, and the best stabilising gains of a
    coarse search (:mod:`piezopreload.tuning.starts`); each is solved with IPOPT, exact first and
    second derivatives from CasADi (:mod:`piezopreload.tuning.pidopt`); the closed loop of each is
@@ -35,7 +36,7 @@ the loop as it will run.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -59,6 +60,7 @@ TOLERANCE = 0.005
 #: how far the refinement goes (the grid gains the dense grid's peaks until they are within this)
 _REFINE_TO = 1e-4
 _REFINEMENTS = 8
+_LOCAL_OPTIMA = 3  # the distinct local optima refined
 _PER_DECADE = 25
 _FEASIBLE = 1e-6  # |X| / M - 1 on the design grid
 
@@ -104,9 +106,17 @@ def _spec(Ms: Any, Mt: Any, Mks: Any, metric: str, form: str, Ts: Any, horizon_s
     return _Spec(bounds, metric, form, order, dt, dt, _positive("horizon_s", horizon_s), solver)
 
 
+def _far(plant: LinearPlant, omega: np.ndarray, decades: float, points: int) -> np.ndarray:
+    """A continuous rational plant's grid continued ``decades`` beyond its end (``|KS|`` approaches its supremum
+    ``|C(inf)|`` there); a discrete or measured plant's as it is."""
+    if plant.discrete or not plant.rational:
+        return omega
+    return np.unique(np.append(omega, np.logspace(np.log10(omega[-1]), np.log10(omega[-1]) + decades, points)))
+
+
 def _grid(w: Any, plant: LinearPlant) -> np.ndarray:
     if w is None:
-        return plant.grid(_PER_DECADE)
+        return _far(plant, plant.grid(_PER_DECADE), 3.0, 2)
     w = np.asarray(w, float).ravel()
     if w.size < 8 or not (np.all(np.isfinite(w)) and np.all(w > 0) and np.all(np.diff(w) > 0)):
         raise InputError("w must hold at least 8 finite, positive, strictly increasing frequencies (rad/s)")
@@ -117,7 +127,8 @@ def _grid(w: Any, plant: LinearPlant) -> np.ndarray:
 
 
 def _check_grid(plant: LinearPlant, omega: np.ndarray) -> np.ndarray:
-    """Ten times denser than the design grid and a decade wider each side (a measured response: every frequency)."""
+    """Ten times denser than the design grid and a decade wider each side, and three decades further where a
+    continuous controller's gain levels off (a measured response: every frequency)."""
     if not plant.rational:
         return plant.omega_data
     dense = plant.grid(10 * _PER_DECADE, widen=1.0)
@@ -125,7 +136,7 @@ def _check_grid(plant: LinearPlant, omega: np.ndarray) -> np.ndarray:
     if plant.discrete:
         hi = min(hi, np.log10(0.999 * np.pi / plant.dt))
     extra = np.logspace(lo, hi, int(np.ceil((hi - lo) * 10 * _PER_DECADE)) + 1)
-    return np.unique(np.concatenate([dense, extra, omega]))
+    return _far(plant, np.unique(np.concatenate([dense, extra, omega])), 3.0, 31)
 
 
 # --------------------------------------------------------------------------------------
@@ -139,6 +150,7 @@ class _State:
     best: Solution | None
     records: list[StartRecord]
     solutions: list[Solution]
+    candidates: list[Solution] = field(default_factory=list)
     refinements: int = 0
     iterations: int = 0
 
@@ -157,11 +169,32 @@ def _solve_starts(state: _State, plant: LinearPlant, sign: float, spec: _Spec,
         ctrl = scales.controller(sol.x)
         stable = plant.closed_loop_stable(ctrl.scaled(sign))
         state.solutions.append(sol)
+        if sol.violation <= _FEASIBLE and stable:
+            state.candidates.append(sol)
         state.records.append(StartRecord(name, *ctrl.scaled(sign).parallel(), objective=sol.objective,
                                          violation=sol.violation, stable=stable, status=sol.status,
                                          iterations=sol.iterations, seconds=sol.seconds))
         if sol.violation <= _FEASIBLE and stable and (state.best is None or sol.objective < state.best.objective):
             state.best = sol
+
+
+def _local_solve(problem: PIDProblem, x0: np.ndarray, solver: str) -> Solution:
+    """The solution near ``x0`` (a refined grid moves the optimum a little): in a trust region of a third of each
+    scaled gain (and half a unit of the filter's log), moved with the solution while it ends on the region's edge."""
+    iterations, sol = 0, None
+    for _ in range(6):
+        width = np.maximum(np.abs(x0) / 3.0, 0.05)
+        if x0.size == 4:
+            width[3] = 0.5
+        sol = problem.solve(x0, solver, (x0 - width, x0 + width))
+        iterations += sol.iterations
+        lo, hi = problem.scales.box()
+        inner = np.all((sol.x > np.maximum(x0 - width, lo) + 1e-6 * width) | (sol.x <= lo + 1e-12)) and \
+            np.all((sol.x < np.minimum(x0 + width, hi) - 1e-6 * width) | (sol.x >= hi - 1e-12))
+        if inner or sol.violation > _FEASIBLE:
+            break
+        x0 = sol.x
+    return replace(sol, iterations=iterations)
 
 
 def _refine(state: _State, plant: LinearPlant, sign: float, spec: _Spec, objective: Any, iae_scale: float) -> None:
@@ -177,7 +210,7 @@ def _refine(state: _State, plant: LinearPlant, sign: float, spec: _Spec, objecti
             return
         omega = np.unique(np.concatenate([state.problem.omega, over]))
         problem = _problem(plant, omega, sign, spec, state.problem.scales, objective, iae_scale)
-        sol = problem.solve(state.best.x, spec.solver)
+        sol = _local_solve(problem, state.best.x, spec.solver)
         state.iterations += sol.iterations
         if sol.violation > _FEASIBLE or not plant.closed_loop_stable(problem.scales.controller(sol.x).scaled(sign)):
             break  # the refined problem did not solve: keep the last solution if it is within the tolerance
@@ -221,11 +254,11 @@ def _starts(design: LinearPlant, omega: np.ndarray, spec: _Spec) -> tuple[float,
 
 
 def _scales(starts: list[tuple[str, PIDController]], plant: LinearPlant, omega: np.ndarray, spec: _Spec) -> Scales:
-    """The gains' scales from the first start (``ki``; ``kp`` no less than ``ki`` over the reference frequency,
+    """The gains' scales from the coarse search's best start (``ki``; ``kp`` no less than ``ki`` over the reference frequency,
     ``kd`` no less than ``kp`` over it) and the reference frequency (``Tf``): the search box spans three decades
     above each."""
     wr = reference_frequency(plant, omega)
-    c = starts[0][1]
+    c = next((c for name, c in starts if name.startswith("search")), starts[0][1])  # the search's best: stabilising
     ki = max(abs(c.ki), 1e-12)
     kp = max(abs(c.kp), ki / wr)
     kd = max(abs(c.kd), kp / wr)
@@ -238,8 +271,25 @@ def _search(plant: LinearPlant, omega: np.ndarray, sign: float, spec: _Spec, sta
     _solve_starts(state, plant, sign, spec, starts)
     if state.best is None:
         _infeasible(state.problem, state.solutions, state.records, spec)
-    _refine(state, plant, sign, spec, objective, iae_scale)
-    return state
+    # the problem is not convex: each distinct local optimum (the best few) is refined on its own, and the best
+    # after refinement kept (a warm-started refinement may leave its basin for a worse one)
+    distinct: list[Solution] = []
+    for sol in sorted(state.candidates, key=lambda c: c.objective):
+        if all(np.max(np.abs(sol.x - d.x) / (np.abs(d.x) + 1e-3)) > 1e-3 for d in distinct):
+            distinct.append(sol)
+    refined: list[_State] = []
+    for sol in distinct[:_LOCAL_OPTIMA]:
+        branch = replace(state, best=sol, refinements=0, iterations=0)
+        try:
+            _refine(branch, plant, sign, spec, objective, iae_scale)
+        except InternalError:
+            continue
+        refined.append(branch)
+        state.iterations += branch.iterations
+    if not refined:
+        raise InternalError("no local optimum met the bounds on the dense grid after refinement; give a finer grid (w)")
+    best = min(refined, key=lambda b: b.best.objective)
+    return replace(state, problem=best.problem, best=best.best, refinements=best.refinements)
 
 
 # --------------------------------------------------------------------------------------
@@ -327,7 +377,7 @@ def autotune(plant: Any, *, Ms: float, Mt: float | None = None, Mks: float | Non
         fn = iae_function(sim, n, sign)
         scale = float(fn(np.array([ie_ctrl.kp, ie_ctrl.ki, ie_ctrl.kd, ie_ctrl.Tf])))
         records = state.records
-        iae_starts = [("IE optimum", ie_ctrl)] + [(n, c) for n, c in starts if n in ("AMIGO", "SIMC")]
+        iae_starts = [("IE optimum", ie_ctrl)] + [(n, c) for n, c in starts if n.startswith(("AMIGO", "SIMC"))]
         state = _search(design, state.problem.omega, sign, spec, iae_starts, scales, objective=fn, iae_scale=scale)
         state.records = records + state.records
         best = scales.controller(state.best.x)

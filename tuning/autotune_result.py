@@ -119,10 +119,14 @@ def margins_of(plant: LinearPlant, controller: PIDController,
     if pm is not None:
         dm = pm / wc if pm > 0 else 0.0
     gm = None
-    k = np.flatnonzero(np.diff(np.floor((phase + np.pi) / (2 * np.pi))) != 0)  # phase crossings of -180 (mod 360)
-    for i in k:
-        if mag[i] < 1.0 and (gm is None or 1.0 / mag[i] < gm):
-            gm = float(1.0 / mag[i])
+    turns = (phase + np.pi) / (2 * np.pi)
+    k = np.flatnonzero(np.diff(np.floor(turns)) != 0)  # phase crossings of -180 deg (mod 360)
+    for i in k:  # |L| there, by linear interpolation in the phase of log |L|
+        edge = np.floor(max(turns[i], turns[i + 1]))
+        f = (edge - turns[i]) / (turns[i + 1] - turns[i])
+        m = float(np.exp(np.log(mag[i]) + f * (np.log(mag[i + 1]) - np.log(mag[i]))))
+        if m < 1.0 and (gm is None or 1.0 / m < gm):
+            gm = 1.0 / m
     return Margins(Ms=peaks["Ms"][0], Mt=peaks["Mt"][0], Mks=peaks["Mks"][0], Ms_rad_per_s=peaks["Ms"][1],
                    Mt_rad_per_s=peaks["Mt"][1], Mks_rad_per_s=peaks["Mks"][1], gain_margin=gm,
                    phase_margin_deg=None if pm is None else float(np.degrees(pm)),
@@ -247,7 +251,7 @@ class AutotuneResult:
         return (f"AutotuneResult({kind}{'' if c.dt is None else f' at Ts {c.dt:g} s'}: kp {self.kp:.4g}, ki {self.ki:.4g}, "
                 f"kd {self.kd:.4g}, Tf {self.Tf:.4g} s; "
                 + (f"IE {self.ie:.4g}" if self.iae is None else f"IAE {self.iae:.4g} (IE {self.ie:.4g})")
-                + f"; {self._bound_text()}; GM {_fmt(mg.gain_margin)}, PM {_fmt(mg.phase_margin_deg, ' deg', 3)}, "
+                + f"; {self._bound_text()}; GM {'inf' if mg.gain_margin is None else f'{mg.gain_margin:.4g}'}, PM {_fmt(mg.phase_margin_deg, ' deg', 3)}, "
                 f"delay margin {_fmt(mg.delay_margin_s, ' s')}; {'stable' if self.stable else 'UNSTABLE'}; "
                 f"{len(self.starts)} starts, {self.refinements} refinements, {self.seconds:.2f} s)")
 
@@ -260,7 +264,8 @@ class AutotuneResult:
         rows += [("metric", f"{self.metric}: IE {self.ie:.5g}" + ("" if self.iae is None else f", IAE {self.iae:.5g}")),
                  ("Ms, Mt, Mks reached", f"{mg.Ms:.4g}, {mg.Mt:.4g}, {mg.Mks:.4g}"),
                  ("bounds", ", ".join(f"{k} {v:g}" for k, v in self.bounds.items() if v is not None)),
-                 ("gain, phase, delay margin", f"{_fmt(mg.gain_margin)}, {_fmt(mg.phase_margin_deg, ' deg', 3)}, "
+                 ("gain, phase, delay margin", f"{'inf' if mg.gain_margin is None else f'{mg.gain_margin:.4g}'}, "
+                                               f"{_fmt(mg.phase_margin_deg, ' deg', 3)}, "
                                                f"{_fmt(mg.delay_margin_s, ' s')}"),
                  ("closed loop", "stable" if self.stable else "UNSTABLE"),
                  ("on a bound", "; ".join(b.sentence() for b in self.active_bounds) or "none"),

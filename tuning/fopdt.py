@@ -43,7 +43,7 @@ def _fit_at(t: np.ndarray, y: np.ndarray, step: float, theta: float,
     after = t > theta
 
     def parts(log_T: float) -> tuple[float, float, np.ndarray]:
-        phi = step * np.where(after, -np.expm1(-(t - theta) / np.exp(log_T)), 0.0)
+        phi = step * np.where(after, -np.expm1(-np.maximum(t - theta, 0.0) / np.exp(log_T)), 0.0)
         K = max(float(phi @ y) / max(float(phi @ phi), 1e-300), 1e-6)
         r = K * phi - y
         return 0.5 * float(r @ r), K, r
@@ -55,17 +55,26 @@ def _fit_at(t: np.ndarray, y: np.ndarray, step: float, theta: float,
 
 
 def fit_first_order(t: np.ndarray, y: np.ndarray, step: float, thetas: np.ndarray,
-                    T_range_s: tuple[float, float]) -> FOPDT:
+                    T_range_s: tuple[float, float], refine: bool = False) -> FOPDT:
     """Least-squares FOPDT fit of the response ``y`` (from 0 at ``t = 0``) to an input step of ``step``.
 
-    The dead time is the best of ``thetas`` (the residual is not smooth in it), ``T`` is searched
-    in ``T_range_s``, ``K`` (>= 1e-6: the response is taken to rise) follows in closed form.
+    The dead time is the best of ``thetas`` (the residual is not smooth in it) and, with ``refine``, the best
+    between that one's neighbours by a bounded scalar search; ``T`` is searched in ``T_range_s``, ``K``
+    (>= 1e-6: the response is taken to rise) follows in closed form.
     """
     bounds = (float(np.log(T_range_s[0])), float(np.log(T_range_s[1])))
     fits = [_fit_at(t, y, step, float(th), bounds) for th in thetas]
     best = int(np.argmin([f[0] for f in fits]))
+    theta = float(thetas[best])
+    if refine and thetas.size > 1:
+        lo, hi = float(thetas[max(best - 1, 0)]), float(thetas[min(best + 1, thetas.size - 1)])
+        res = minimize_scalar(lambda th: _fit_at(t, y, step, th, bounds)[0], bounds=(lo, hi), method="bounded",
+                              options={"xatol": 1e-6 * max(hi - lo, 1e-12)})
+        if float(res.fun) < fits[best][0]:
+            theta = float(res.x)
+            fits[best] = _fit_at(t, y, step, theta, bounds)
     _, K, T, residual = fits[best]
-    return FOPDT(K=K, T_s=T, theta_s=float(thetas[best]), rms_N=float(np.sqrt(np.mean(residual**2))))
+    return FOPDT(K=K, T_s=T, theta_s=theta, rms_N=float(np.sqrt(np.mean(residual**2))))
 
 
 def fit_fopdt(rig: Rig, feedforward: Any, *, level_N: float = 60.0, step_V: float = 5.0,

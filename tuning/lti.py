@@ -78,8 +78,10 @@ class LinearPlant:
     source : str
         What it was made from.
     ss : tuple of ndarray or None
-        ``(A, B, C, D)`` where the plant was made from a state space (a sampled plant's): its response and its
-        simulation come from it.
+        ``(A, B, C, D)`` where the plant was made from a state space (a sampled plant's, its delay a line of
+        states): its poles and its simulation come from it.
+    hold : _Hold or None
+        A sampled plant's zero-order-hold equivalent in its small form: its response comes from it.
     """
 
     num: np.ndarray | None
@@ -90,6 +92,7 @@ class LinearPlant:
     data: np.ndarray | None = None
     source: str = "TransferFunction"
     ss: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+    hold: _Hold | None = None
 
     # ---- what it is --------------------------------------------------------------------------
     @property
@@ -102,6 +105,8 @@ class LinearPlant:
 
     @property
     def poles(self) -> np.ndarray | None:
+        if self.ss is not None:
+            return np.linalg.eigvals(self.ss[0])
         return None if self.den is None else np.roots(self.den)
 
     def _boundary(self, p: np.ndarray) -> np.ndarray:
@@ -140,7 +145,11 @@ class LinearPlant:
         """The frequencies (rad/s) of the plant's poles and zeros (not at the origin) and of its delay."""
         if not self.rational:
             return np.array([self.omega_data[0], self.omega_data[-1]])
-        roots = np.concatenate([np.roots(self.num), self.poles])
+        if self.hold is not None:  # a sampled plant: its continuous part's poles and its delay
+            roots = np.linalg.eigvals(self.hold.Phi)
+            extra = [1.0 / (self.hold.d * self.dt)] if self.hold.d else []
+        else:
+            roots, extra = np.concatenate([np.roots(self.num), self.poles]), []
         if self.discrete:
             roots = roots[np.abs(roots) > 1e-12]
             mags = np.abs(np.log(roots.astype(complex))) / self.dt
@@ -149,6 +158,7 @@ class LinearPlant:
         mags = mags[mags > 1e-9 * max(1.0, float(np.max(mags, initial=1.0)))]
         if self.delay_s > 0:
             mags = np.append(mags, 1.0 / self.delay_s)
+        mags = np.append(mags, extra)
         return mags if mags.size else np.array([1.0])
 
     def grid(self, per_decade: int = 25, widen: float = 0.0) -> np.ndarray:
@@ -179,11 +189,8 @@ class LinearPlant:
             x = np.log(np.clip(w, self.omega_data[0], self.omega_data[-1]))
             return np.exp(np.interp(x, lw, lg) + 1j * np.interp(x, lw, ph)) * delay
         s = np.exp(1j * w * self.dt) if self.discrete else 1j * w
-        if self.ss is not None:
-            A, B, C, D = self.ss
-            eye = np.eye(A.shape[0])
-            x = np.linalg.solve(s[:, None, None] * eye[None] - A[None], np.broadcast_to(B, (s.size,) + B.shape))
-            return ((C @ x)[:, 0, 0] + D[0, 0]) * delay
+        if self.hold is not None:
+            return self.hold.response(s) * delay
         return np.polyval(self.num, s) / np.polyval(self.den, s) * delay
 
     def transfer_function(self) -> control.TransferFunction:
@@ -213,11 +220,11 @@ class LinearPlant:
             hold = np.where(w * Ts > 0, (1 - np.exp(-1j * w * Ts)) / (1j * w * Ts), 1.0)
             return LinearPlant(None, None, Ts, self.delay_s, w, self.data[:w.size] * hold,
                                f"{self.source}, held at {Ts:g} s")
-        ss = _sampled_ss(self.num, self.den, self.delay_s, Ts)
+        ss, hold = _sampled_ss(self.num, self.den, self.delay_s, Ts)
         tf = control.ss2tf(*ss, Ts)
         num, den = _trim(tf.num[0][0]), _trim(tf.den[0][0])
         return LinearPlant(_poly(num, "numerator"), _poly(den, "denominator"), Ts, 0.0,
-                           source=f"{self.source}, held at {Ts:g} s", ss=ss)
+                           source=f"{self.source}, held at {Ts:g} s", ss=ss, hold=hold)
 
     def state_space(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(A, B, C, D)`` of a discrete rational plant, its delay as a line of states."""
@@ -245,7 +252,7 @@ class LinearPlant:
         """The eigenvalues of the loop's state matrix (plant and controller in state space, negative feedback):
         better conditioned than the roots of the characteristic polynomial for long delay lines."""
         dt = 0 if self.dt is None else self.dt
-        A, B, C, D = self.ss if self.ss is not None else _matrices(control.tf2ss(self.num, self.den, dt))
+        A, B, C, D = self.ss if self.ss is not None else _matrices(control.tf2ss(self.num, self.den, dt))  # type: ignore[misc]
         Ac, Bc, Cc, Dc = _matrices(control.tf2ss(c_num, c_den, dt))
         # u = Cc xc + Dc e, e = -y, y = C x + D u: y = (C x + D Cc xc) / (1 + D Dc)
         k = 1.0 / (1.0 + float(D[0, 0]) * float(Dc[0, 0]))
@@ -304,8 +311,27 @@ def _lowest(coeffs: np.ndarray) -> float:
     return float(ascending[np.flatnonzero(np.abs(ascending) > 1e-12 * scale)[0]])
 
 
+@dataclass(frozen=True, eq=False)
+class _Hold:
+    """A zero-order-hold equivalent in its small form: ``P(z) = z^-d C (zI - Phi)^-1 (G0 + G1 z^-1) + D z^-dd``."""
+
+    Phi: np.ndarray
+    G0: np.ndarray
+    G1: np.ndarray
+    C: np.ndarray
+    D: float
+    d: int
+    d_direct: int
+
+    def response(self, z: np.ndarray) -> np.ndarray:
+        eye = np.eye(self.Phi.shape[0])
+        rhs = self.G0[None] + self.G1[None] / z[:, None, None]
+        x = np.linalg.solve(z[:, None, None] * eye[None] - self.Phi[None], rhs)
+        return (self.C @ x)[:, 0, 0] * z ** (-self.d) + self.D * z ** (-self.d_direct)
+
+
 def _sampled_ss(num: np.ndarray, den: np.ndarray, delay_s: float, Ts: float
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], _Hold]:
     """The zero-order-hold equivalent of ``num/den e^{-s L}`` at ``Ts``: with ``L = d Ts + tau`` (``0 <= tau < Ts``),
     ``x+ = Phi x + G0 u[k-d] + G1 u[k-d-1]``, ``G0 = int_0^{Ts-tau} e^{As} ds B``,
     ``G1 = e^{A(Ts-tau)} int_0^tau e^{As} ds B``; the delayed inputs are states."""
@@ -355,7 +381,8 @@ def _sampled_ss(num: np.ndarray, den: np.ndarray, delay_s: float, Ts: float
         Dd[:] = D
     else:
         Cd[0, n + d_direct - 1] += float(D[0, 0])
-    return Ad, Bd, Cd, Dd
+    hold = _Hold(Phi, G0, G1 if tau > 0 else np.zeros_like(G0), C, float(D[0, 0]), d, d_direct)
+    return (Ad, Bd, Cd, Dd), hold
 
 
 def as_plant(plant: Any, delay_s: float = 0.0) -> LinearPlant:
@@ -366,7 +393,7 @@ def as_plant(plant: Any, delay_s: float = 0.0) -> LinearPlant:
     delay_s = float(delay_s)
     if isinstance(plant, LinearPlant):
         return plant if delay_s == 0 else LinearPlant(plant.num, plant.den, plant.dt, plant.delay_s + delay_s,
-                                                      plant.omega_data, plant.data, plant.source, plant.ss)
+                                                      plant.omega_data, plant.data, plant.source, plant.ss, plant.hold)
     if isinstance(plant, control.FrequencyResponseData):
         return _from_frd(plant, delay_s)
     if isinstance(plant, control.StateSpace | control.TransferFunction):

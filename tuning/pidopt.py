@@ -147,13 +147,19 @@ class PIDProblem:
         if self._ipopt is None:
             self._ipopt = ca.nlpsol("autotune", "ipopt", {"x": self.x, "f": self.f, "g": self.g}, {
                 "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.tol": 1e-9,
-                "ipopt.constr_viol_tol": 1e-9, "ipopt.max_iter": self.max_iterations})
+                "ipopt.constr_viol_tol": 1e-9, "ipopt.max_iter": self.max_iterations,
+                # a small barrier to start with: the scaled problem's starts are near its optimum, and IPOPT's
+                # default (0.1) pushes them off the active bounds into another local optimum's basin
+                "ipopt.mu_init": 1e-4})
         return self._ipopt
 
-    def solve(self, x0: np.ndarray, method: str = "ipopt") -> Solution:
+    def solve(self, x0: np.ndarray, method: str = "ipopt", box: tuple[np.ndarray, np.ndarray] | None = None) -> Solution:
         """Solve from ``x0`` with IPOPT (exact first and second derivatives) or scipy's SLSQP (``method="slsqp"``:
-        the same functions and exact first derivatives, a quasi-Newton Hessian)."""
+        the same functions and exact first derivatives, a quasi-Newton Hessian), in :meth:`Scales.box` or the
+        narrower ``box`` (a trust region)."""
         lo, hi = self.scales.box()
+        if box is not None:
+            lo, hi = np.maximum(lo, box[0]), np.minimum(hi, box[1])
         x0 = np.clip(np.asarray(x0, float), lo, hi)
         t0 = time.perf_counter()
         if method == "slsqp":

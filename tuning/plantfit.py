@@ -116,7 +116,7 @@ def fit_plant(source: str | Path | Record, *, order: int | str = "auto") -> Fitt
     span = float(t[-1])
     dt = float(np.min(np.diff(t)))
     thetas = np.linspace(0.0, 0.5 * span, min(400, max(20, int(0.5 * span / dt) + 1)))
-    first = fit_first_order(t, y, du, thetas, (max(dt / 10.0, 1e-9), 10.0 * span))
+    first = fit_first_order(t, y, du, thetas, (max(dt / 10.0, 1e-9), 10.0 * span), refine=True)
     fits = [FittedPlant(first.K, (first.T_s,), first.theta_s, first.rms_N, du, t, y, record.path, record.output_name)]
     if order in (2, "auto"):
         fits.append(_second_order(t, y, du, fits[0], record))

@@ -58,10 +58,8 @@ def fotd_of(plant: LinearPlant, omega: np.ndarray) -> FOTDReading | None:
     m = plant.integrators
     i = _phase_crossover(omega, G)
     w0 = float(omega[0])
-    if m == 1:
-        Kv = float(np.abs(G[0]) * w0)
-        w180 = float(omega[i]) if i is not None else float(omega[-1])
-        return FOTDReading(Kv, 0.0, np.pi / (2.0 * w180), True)
+    if m == 1:  # an integrator; without a phase crossover there is no dead time for the rules to work on
+        return None if i is None else FOTDReading(float(np.abs(G[0]) * w0), 0.0, np.pi / (2.0 * float(omega[i])), True)
     if m > 1:
         return None
     K = float(np.abs(G[0]))
@@ -75,15 +73,20 @@ def fotd_of(plant: LinearPlant, omega: np.ndarray) -> FOTDReading | None:
     return FOTDReading(K, T, max(L, 1e-3 * max(T, 1.0 / w180)), False)
 
 
-def _from_isa(Kc: float, Ti: float, Td: float, filter_order: int, dt: float | None) -> PIDController:
+def _from_isa(name: str, Kc: float, Ti: float, Td: float, filter_order: int,
+              dt: float | None) -> list[tuple[str, PIDController]]:
+    """The rule's gains as starts: a PI as it is; a PID with a derivative filter of a tenth of ``Td`` and, a second
+    start, of ``Td`` itself (the rules have none; the problem has a local optimum of each kind)."""
     if filter_order == 0:
-        return PIDController(Kc, Kc / Ti, 0.0, 0.0, 0, dt)
-    Tf = max(Td / 10.0, 1e-6 * Ti)  # a derivative filter of a tenth of Td (none in the rules themselves)
-    return PIDController(Kc, Kc / Ti, Kc * Td, Tf, filter_order, dt)
+        return [(name, PIDController(Kc, Kc / Ti, 0.0, 0.0, 0, dt))]
+    return [(name if k == 0 else f"{name}, slow filter", PIDController(Kc, Kc / Ti, Kc * Td, max(f * Td, 1e-6 * Ti),
+                                                                         filter_order, dt))
+            for k, f in enumerate((0.1, 1.0))]
 
 
 def rule_starts(reading: FOTDReading | None, filter_order: int, dt: float | None) -> list[tuple[str, PIDController]]:
-    """AMIGO (PI or PID as ``filter_order`` asks) and SIMC PI on the reading; none for an unstable plant."""
+    """AMIGO (PI or PID as ``filter_order`` asks) and SIMC PI (with a derivative of a quarter of the dead time for a
+    PID) on the reading; none for an unstable plant."""
     if reading is None:
         return []
     form = "PI" if filter_order == 0 else "PID"
@@ -95,9 +98,9 @@ def rule_starts(reading: FOTDReading | None, filter_order: int, dt: float | None
         else:
             model = FOPDT(reading.K, reading.T_s, reading.L_s, 0.0)
             g = amigo(model, form)
-        out.append(("AMIGO", _from_isa(g.Kc, g.Ti_s, g.Td_s, filter_order, dt)))
+        out += _from_isa("AMIGO", g.Kc, g.Ti_s, g.Td_s, filter_order, dt)
         s = simc(model, u_min_V=-1.0, u_max_V=1.0)
-        out.append(("SIMC", _from_isa(s.Kc, s.Ti_s, 0.25 * reading.L_s, filter_order, dt)))
+        out += _from_isa("SIMC", s.Kc, s.Ti_s, 0.25 * reading.L_s, filter_order, dt)
     except (InputError, ValueError):  # a reading the rules do not take (a zero time constant, ...)
         pass
     return out
