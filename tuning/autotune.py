@@ -51,9 +51,11 @@ from piezopreload.tuning.pidopt import TF_RANGE, X_MAX, PIDProblem, Scales, Solu
 from piezopreload.tuning.plantfit import FittedPlant
 from piezopreload.tuning.starts import fotd_of, reference_frequency, rule_starts, search_starts
 
-__all__ = ["autotune", "METRICS", "FORMS", "TOLERANCE"]
+__all__ = ["autotune", "METRICS", "FORMS", "SOLVERS", "TOLERANCE"]
 
 METRICS = ("IE", "IAE")
+#: IPOPT (exact derivatives); scipy's SLSQP with the same exact first derivatives, or with finite differences
+SOLVERS = ("ipopt", "slsqp", "slsqp-fd")
 FORMS = ("PI", "PID")
 #: how far (relative) a bound may be exceeded on the dense grid
 TOLERANCE = 0.005
@@ -100,8 +102,8 @@ def _spec(Ms: Any, Mt: Any, Mks: Any, metric: str, form: str, Ts: Any, horizon_s
     if metric == "IAE" and order == 2:
         raise InputError("metric='IAE' simulates the load step as the controller step runs it (a first-order filter "
                          "on the derivative); use filter_order=1")
-    if solver not in ("ipopt", "slsqp"):
-        raise InputError(f"solver must be 'ipopt' or 'slsqp', got {solver!r}")
+    if solver not in SOLVERS:
+        raise InputError(f"solver must be one of {', '.join(SOLVERS)}, got {solver!r}")
     dt = _positive("Ts", Ts)
     return _Spec(bounds, metric, form, order, dt, dt, _positive("horizon_s", horizon_s), solver)
 
@@ -132,7 +134,7 @@ def _check_grid(plant: LinearPlant, omega: np.ndarray) -> np.ndarray:
     if not plant.rational:
         return plant.omega_data
     dense = plant.grid(10 * _PER_DECADE, widen=1.0)
-    lo, hi = np.log10(omega[0]) - 1.0, np.log10(omega[-1]) + 1.0
+    lo, hi = np.log10(omega.min()) - 1.0, np.log10(omega.max()) + 1.0
     if plant.discrete:
         hi = min(hi, np.log10(0.999 * np.pi / plant.dt))
     extra = np.logspace(lo, hi, int(np.ceil((hi - lo) * 10 * _PER_DECADE)) + 1)
@@ -178,20 +180,22 @@ def _solve_starts(state: _State, plant: LinearPlant, sign: float, spec: _Spec,
             state.best = sol
 
 
-def _local_solve(problem: PIDProblem, x0: np.ndarray, solver: str) -> Solution:
-    """The solution near ``x0`` (a refined grid moves the optimum a little): in a trust region of a third of each
-    scaled gain (and half a unit of the filter's log), moved with the solution while it ends on the region's edge."""
-    iterations, sol = 0, None
+def _local_solve(problem: PIDProblem, previous: Solution, solver: str) -> Solution:
+    """The solution near ``previous`` (a refined grid moves the optimum a little), warm-started from it and its
+    multipliers: in a trust region of a third of each scaled gain (and half a unit of the filter's log), moved with
+    the solution while it ends on the region's edge."""
+    iterations, sol, x0 = 0, previous, previous.x
     for _ in range(6):
         width = np.maximum(np.abs(x0) / 3.0, 0.05)
         if x0.size == 4:
             width[3] = 0.5
-        sol = problem.solve(x0, solver, (x0 - width, x0 + width))
+        sol = problem.solve(x0, solver, (x0 - width, x0 + width), warm=sol)
         iterations += sol.iterations
         lo, hi = problem.scales.box()
-        inner = np.all((sol.x > np.maximum(x0 - width, lo) + 1e-6 * width) | (sol.x <= lo + 1e-12)) and \
-            np.all((sol.x < np.minimum(x0 + width, hi) - 1e-6 * width) | (sol.x >= hi - 1e-12))
-        if inner or sol.violation > _FEASIBLE:
+        tol = 1e-6 * width
+        edge = ((np.abs(sol.x - (x0 - width)) < tol) & (x0 - width > lo + tol)) | \
+            ((np.abs(sol.x - (x0 + width)) < tol) & (x0 + width < hi - tol))  # on the region's edge, not the box's
+        if not np.any(edge) or sol.violation > _FEASIBLE:
             break
         x0 = sol.x
     return replace(sol, iterations=iterations)
@@ -205,12 +209,14 @@ def _refine(state: _State, plant: LinearPlant, sign: float, spec: _Spec, objecti
     for _ in range(_REFINEMENTS):
         ctrl = state.problem.scales.controller(state.best.x).scaled(sign)
         peaks = sensitivity_peaks(plant, ctrl, check, tuple(bounded), {k: m * (1.0 + _REFINE_TO) for k, m in bounded.items()})
-        over = [w for k, found in peaks.items() for v, w in found if v / bounded[k] > 1.0 + _REFINE_TO]
+        over = [w * f for k, found in peaks.items() for v, w in found if v / bounded[k] > 1.0 + _REFINE_TO
+                for f in (0.995, 1.0, 1.005)]  # each peak and its neighbours: the peak moves as the gains do
         if not over:
             return
-        omega = np.unique(np.concatenate([state.problem.omega, over]))
+        # the peaks after the grid's frequencies (their slots, and so the warm start's multipliers, stay)
+        omega = np.concatenate([state.problem.omega, np.setdiff1d(np.unique(over), state.problem.omega)])
         problem = _problem(plant, omega, sign, spec, state.problem.scales, objective, iae_scale)
-        sol = _local_solve(problem, state.best.x, spec.solver)
+        sol = _local_solve(problem, state.best, spec.solver)
         state.iterations += sol.iterations
         if sol.violation > _FEASIBLE or not plant.closed_loop_stable(problem.scales.controller(sol.x).scaled(sign)):
             break  # the refined problem did not solve: keep the last solution if it is within the tolerance
@@ -279,6 +285,8 @@ def _search(plant: LinearPlant, omega: np.ndarray, sign: float, spec: _Spec, sta
             distinct.append(sol)
     refined: list[_State] = []
     for sol in distinct[:_LOCAL_OPTIMA]:
+        if refined and sol.objective >= min(b.best.objective for b in refined):
+            break  # a refined grid only adds constraints: this one cannot end better than one already refined
         branch = replace(state, best=sol, refinements=0, iterations=0)
         try:
             _refine(branch, plant, sign, spec, objective, iae_scale)
@@ -339,8 +347,9 @@ def autotune(plant: Any, *, Ms: float, Mt: float | None = None, Mks: float | Non
         An input delay (s), exact in the frequency response.
     w : array_like, optional
         The design grid (rad/s) instead of the plant's.
-    solver : {"ipopt", "slsqp"}
-        IPOPT with exact derivatives; ``slsqp`` runs scipy's SLSQP on the same problem (for comparison).
+    solver : {"ipopt", "slsqp", "slsqp-fd"}
+        IPOPT with exact derivatives; ``slsqp`` runs scipy's SLSQP on the same problem with the same exact first
+        derivatives, ``slsqp-fd`` with finite differences (for comparison).
 
     Returns
     -------
