@@ -280,10 +280,13 @@ class GainSet:
 
     def controller(self) -> Controller:
         """The controller the gain set describes: its gains, the plant's sample period, the feedforward's inverse."""
-        if self.plant is None and self.sample_period_s is None:
+        if self.plant is not None:
+            dt = float(self.plant.sample_period_s)
+        elif self.sample_period_s is not None:
+            dt = float(self.sample_period_s)
+        else:
             raise InputError("field 'plant.rig' is missing: the gain set does not name its plant (the loop's sample "
                              f"period); {_REWRITE}")
-        dt = float(self.plant.sample_period_s if self.plant is not None else self.sample_period_s)
         # creep's lags resampled at the loop's period; NotInvertibleError says why a model has no inverse
         inverse = None if self.feedforward is None else inverse_at(self.feedforward, dt)
         return Controller(self.gains, dt, inverse)
