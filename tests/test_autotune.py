@@ -285,3 +285,23 @@ def test_the_command_line(tmp_path, capsys):
         assert main(["autotune", *argv, "--Ms", "1.4"]) == 2
         err = capsys.readouterr().err
         assert err.startswith("error: ") and words in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("delay", [0.0, 0.1])
+def test_the_stability_check_agrees_with_python_controls_poles(delay):
+    """Nyquist (with a delay) or the loop's eigenvalues (without) against the poles python-control finds (a
+    12th-order Padé of the delay), for PIDs over a range of gains on an unstable plant: stable ones and not."""
+    from piezopreload.tuning.pidform import PIDController
+
+    P = control.tf([1.0], [1.0, -1.0])
+    plant = as_plant(P, delay)
+    pade = control.tf(*control.pade(delay, 12)) if delay else control.tf([1.0], [1.0])
+    verdicts = []
+    for kp in (0.5, 1.5, 4.0, 12.0):
+        for ki in (0.2, 2.0, 20.0):
+            c = PIDController(kp, ki, 0.05 * kp, 0.01, 1)
+            ours = plant.closed_loop_stable(c)
+            theirs = bool(np.all(control.feedback(P * pade * c.transfer_function(), 1).poles().real < 0))
+            assert ours == theirs, f"kp {kp}, ki {ki}: ours {ours}, python-control {theirs}"
+            verdicts.append(ours)
+    assert any(verdicts) and not all(verdicts)

@@ -465,6 +465,8 @@ def test_both_tuners_state_their_bounds_with_the_one_definition(monkeypatch):
     monkeypatch.setattr(loopshape, "bound_rows", lambda *a, **k: {n: 2 * r for n, r in original(*a, **k).items()})
     monkeypatch.setattr(pid, "bound_rows", loopshape.bound_rows)
     monkeypatch.setattr(pidopt, "bound_rows", loopshape.bound_rows)
+    monkeypatch.setattr(pidopt, "_CACHE", {})  # the autotuner's compiled problems are kept: build them again
+    monkeypatch.setattr(pidopt, "_SOLVERS", {})
     rig_after, auto_after = constraints()
     assert not np.allclose(rig_after, rig_before) and not np.allclose(auto_after, auto_before)
 
