@@ -96,6 +96,16 @@ def gains_from_dict(g: Any, where: str = "gains") -> PIDGains:
         raise InputError(f"field '{where}' is not valid: {exc}") from exc
 
 
+def _sample_period(doc: dict[str, Any], fail: Any) -> float | None:
+    """The document's ``sample_period_s`` (None where it has none); ``fail`` makes the error naming it."""
+    x = doc.get("sample_period_s")
+    if x is None:
+        return None
+    if isinstance(x, bool) or not isinstance(x, int | float) or not (np.isfinite(x) and x > 0):
+        raise fail(f"field 'sample_period_s' must be a number > 0, got {x!r}")
+    return float(x)
+
+
 @dataclass(frozen=True, eq=False)
 class GainSet:
     """A gain set (see the module docstring); its dicts are records, read but not changed.
@@ -123,6 +133,9 @@ class GainSet:
         The Monte Carlo validation's result (every plant's metrics, the verdict).
     tuning, inputs : dict
         The tuning's record, the inputs' hashes.
+    sample_period_s : float or None
+        The controller's sample period where the gain set names no plant (an autotuned loop's); a plant's
+        ``sample_period_s`` otherwise.
     content_sha256 : str or None
         The artifact's hash, set by :meth:`load` and :meth:`save`.
     """
@@ -139,8 +152,11 @@ class GainSet:
     tuning: dict[str, Any] | None = None
     inputs: dict[str, Any] = field(default_factory=dict)
     content_sha256: str | None = None
+    sample_period_s: float | None = None
 
     def __post_init__(self) -> None:
+        if self.sample_period_s is not None and not (np.isfinite(self.sample_period_s) and self.sample_period_s > 0):
+            raise InputError(f"GainSet.sample_period_s must be a finite number > 0, got {self.sample_period_s!r}.")
         if self.status not in STATUSES:
             raise InputError(f"GainSet.status must be one of {', '.join(STATUSES)}, got {self.status!r}.")
         bad = [k for k, r in self.references.items() if not isinstance(r, Reference)]
@@ -203,6 +219,8 @@ class GainSet:
             out["validation"] = self.validation.to_dict()
         if self.tuning is not None:
             out["tuning"] = self.tuning
+        if self.sample_period_s is not None:
+            out["sample_period_s"] = float(self.sample_period_s)
         out["inputs"] = dict(self.inputs)
         return out
 
@@ -254,7 +272,8 @@ class GainSet:
         return cls(gains=gains, status=status, feedforward=model, feedforward_info=dict(ff_doc.get("identification") or {}),
                    plant=plant, preset=plant_doc.get("preset"), references=references,
                    criteria=criteria, validation=validation, tuning=doc.get("tuning"),
-                   inputs=dict(doc.get("inputs") or {}), content_sha256=doc.get("content_sha256"))
+                   inputs=dict(doc.get("inputs") or {}), content_sha256=doc.get("content_sha256"),
+                   sample_period_s=_sample_period(doc, fail))
 
     # ---- the artifact: one reader, one writer ---------------------------------------------------
     @classmethod
@@ -282,10 +301,13 @@ class GainSet:
 
     def controller(self) -> Controller:
         """The controller the gain set describes: its gains, the plant's sample period, the feedforward's inverse."""
-        if self.plant is None:
+        if self.plant is not None:
+            dt = float(self.plant.sample_period_s)
+        elif self.sample_period_s is not None:
+            dt = float(self.sample_period_s)
+        else:
             raise InputError("field 'plant.rig' is missing: the gain set does not name its plant (the loop's sample "
                              f"period); {_REWRITE}")
-        dt = float(self.plant.sample_period_s)
         # creep's lags resampled at the loop's period; NotInvertibleError says why a model has no inverse
         inverse = None if self.feedforward is None else inverse_at(self.feedforward, dt)
         return Controller(self.gains, dt, inverse)

@@ -9,6 +9,10 @@
 * A 200-plant Monte Carlo validation of the tuned gains in this process (one worker) and on 2
   local worker processes: ``validation_2_workers_vs_1_worker_ratio`` (0.5 would be a perfect
   split on this 2-core machine); the results must be identical.
+* The minimum-time bound (:func:`piezopreload.tuning.bounds.minimum_time`) on the paper's rig and
+  on the default study's designed plant (the machine axis: designed first, not timed):
+  ``minimum_time_paper_s`` and ``minimum_time_designed_s`` the wall time (target: a few seconds),
+  ``minimum_time_designed_bound_s`` the bound itself.
 
 The last line printed is one JSON object.
 """
@@ -22,6 +26,7 @@ import time
 
 from piezopreload.core import native
 from piezopreload.study import load_study, paper_study
+from piezopreload.tuning.bounds import minimum_time
 from piezopreload.tuning.feedforward import identify_feedforward
 from piezopreload.tuning.pid import tune_pid
 from piezopreload.tuning.validate import executor, validate
@@ -61,6 +66,14 @@ def main() -> None:
             seconds[workers] = time.perf_counter() - t0
         print(f"validation of {N_PLANTS} plants on {name}: {seconds[workers]:.1f} s", flush=True)
     same = all((results[1].metrics[k] == results[2].metrics[k]).all() for k in results[1].metrics)
+    bounds = {}
+    for name, s in (("paper", study), ("designed", load_study().plant_study())):
+        step = s.references["step"]
+        t0 = time.perf_counter()
+        b = minimum_time(s.rig, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]), band_N=s.band_N,
+                         u_min_V=s.tuning_spec.u_min_V, u_max_V=s.tuning_spec.u_max_V)
+        bounds[name] = (time.perf_counter() - t0, b["settling_s"])
+        print(f"minimum-time bound, {name}: {b['settling_s']:.4g} s in {bounds[name][0]:.2f} s", flush=True)
     figures = {
         "tune_compiled_s": compiled_s, "tune_plain_s": plain_s, "tune_compiled_vs_plain_ratio": compiled_s / plain_s,
         "tune_gains_max_rel_diff": rel, "compile_s": first.compile_s, "tune_compiled_first_s": first_s,
@@ -69,6 +82,9 @@ def main() -> None:
         "validation_plants": N_PLANTS, "validation_1_worker_s": seconds[1], "validation_2_workers_s": seconds[2],
         "validation_2_workers_vs_1_worker_ratio": seconds[2] / seconds[1],
         "validation_results_identical": bool(same), "validated": results[1].passed,
+        "minimum_time_paper_s": bounds["paper"][0], "minimum_time_paper_bound_s": bounds["paper"][1],
+        "minimum_time_designed_s": bounds["designed"][0], "minimum_time_designed_bound_s": bounds["designed"][1],
+        "loadavg_1min": os.getloadavg()[0],
     }
     print(f"compiled over plain {figures['tune_compiled_vs_plain_ratio']:.3f} (target <= 0.25), gains within "
           f"{rel:.1e} (target <= 1e-4); 2 workers take {figures['validation_2_workers_vs_1_worker_ratio']:.2f} of "

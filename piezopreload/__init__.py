@@ -16,6 +16,8 @@ The front door for design-study scripts::
     learned = study.learn(gain_set, reference="schedule")  # ScheduleLearning: along the preload schedule
     result = study.run(out="piezopreload-out")         # the whole pipeline, as ``piezopreload run``
     sweep = study.sweep({"tuning.ms_max": [1.4, 1.6]})  # SweepResult: .rows, .plot(x, y), as ``piezopreload sweep``
+    tuned = pp.autotune(plant, Ms=1.4, delay_s=0.001)  # AutotuneResult for any python-control plant: .gains, .plot()
+    fit = pp.fit_plant("step.csv")                     # FittedPlant from a measured step response; pp.autotune(fit, ...)
 
 The physics lives in :mod:`piezopreload.models`, identification and tuning in
 :mod:`piezopreload.tuning`, the design in :mod:`piezopreload.design`, the rig executor in
@@ -46,16 +48,20 @@ from piezopreload.models.metrics import StepMetrics
 from piezopreload.results import ScheduleLearning, StudyRun, TuningResult
 from piezopreload.rig.export import export
 from piezopreload.study import Study, load_study, shipped_studies
+from piezopreload.tuning.autotune import autotune
+from piezopreload.tuning.autotune_result import AutotuneResult
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.identification import Identification, Window, identify
 from piezopreload.tuning.identify import NotFittedError, PIIdentifier
+from piezopreload.tuning.plantfit import FittedPlant, fit_plant
 
 __all__ = [
     "__version__", "load_study", "shipped_studies", "Study", "GainSet", "TuningResult", "StudyRun", "ScheduleLearning",
     "ClosedLoopRun",
     "DesignResult", "IdentifiedFeedforward", "PIDGains", "Reference", "StepMetrics", "Record", "read_record",
-    "export", "identify", "Identification", "PIIdentifier", "NotFittedError", "IdentifiedModel", "Window", "PiezopreloadError", "InputError", "ArtifactError", "InfeasibleError",
-    "InternalError", "SweepResult",
+    "export", "identify", "Identification", "PIIdentifier", "NotFittedError", "IdentifiedModel", "Window",
+    "autotune", "AutotuneResult", "fit_plant", "FittedPlant", "PiezopreloadError", "InputError", "ArtifactError",
+    "InfeasibleError", "InternalError", "SweepResult",
 ]
 
 

@@ -187,10 +187,12 @@ def _stage_design(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
 def _stage_tune(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     tuned = ctx.subject().tune(ctx.feedforward(), progress=ctx.progress.say,
                            iterations=ctx.progress.counter("IPOPT iterations", every=10))
-    g, sched = tuned.gains, tuned.tuning.get("schedule")
-    return {"tuning": tuned.save(ctx.out / "tuning.json")}, {"Kc_V_per_N": g.Kc, "Ti_s": g.Ti_s, "Td_s": g.Td_s,
-                                                             "Tf_s": g.Tf_s, "b": g.b, "ms": tuned.tuning["ms"],
-                                                             **({} if sched is None else {"gain_schedule": sched["choice"]})}
+    g, sched, bound = tuned.gains, tuned.solve.schedule, tuned.minimum_time
+    return {"tuning": tuned.save(ctx.out / "tuning.json")}, {
+        "Kc_V_per_N": g.Kc, "Ti_s": g.Ti_s, "Td_s": g.Td_s, "Tf_s": g.Tf_s, "b": g.b, "form": tuned.solve.form,
+        "ms": tuned.solve.ms, "active_bounds": [b.sentence() for b in tuned.active_bounds],
+        "minimum_time_s": bound.settling_s, "tuned_over_bound_ratio": bound.tuned_over_bound_ratio,
+        **({} if sched is None else {"gain_schedule": sched["choice"]})}
 
 
 def _stage_validate(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:

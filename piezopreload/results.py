@@ -3,7 +3,7 @@ and :class:`ScheduleLearning` (``study.learn(reference="schedule")``).
 
 Each result carries its numbers, ``to_dict()`` (what ``--json`` prints or the artifact
 holds) and ``plot()`` (a matplotlib Figure, no pyplot state). The domain computations are the
-floors': the tuning (:mod:`piezopreload.tuning.pid`), the comparison
+floors': the tuning (:mod:`piezopreload.tuning.pid`, its record :mod:`piezopreload.artifacts.tuning`), the comparison
 (:mod:`piezopreload.tuning.compare`), the verdict (:mod:`piezopreload.tuning.verdict`).
 """
 
@@ -17,10 +17,17 @@ from typing import Any
 
 import numpy as np
 
-from piezopreload.artifacts.gainset import REFERENCES, GainSet, gains_from_dict, gains_to_dict
+from piezopreload.artifacts.gainset import REFERENCES, GainSet, gains_to_dict
 from piezopreload.artifacts.learned import LearnedSignal
+from piezopreload.artifacts.tuning import (
+    ActiveBound,
+    ComparisonRow,
+    MinimumTimeBound,
+    TrackingFloor,
+    TuningRecord,
+    TuningSolve,
+)
 from piezopreload.artifacts.validation import ValidationResult
-from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.parallel import beside
 from piezopreload.design.system import SystemRun
@@ -30,12 +37,13 @@ from piezopreload.models.closedloop import simulate as simulate_loop
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.metrics import StepMetrics, run_numbers
 from piezopreload.study import Study
-from piezopreload.tuning.calibrate import CONTROLLERS, PAPER_RESULTS
+from piezopreload.tuning.bounds import minimum_time, tracking_floor
+from piezopreload.tuning.calibrate import CONTROLLERS
 from piezopreload.tuning.calibrate import reproduce as reproduce_paper
 from piezopreload.tuning.compare import compare_gains, reproduction_summary, tracking_improvement
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.learning import LearningResult, save_passes
-from piezopreload.tuning.pid import TuningInfeasible, minimum_time, tracking_floor, tune_pid
+from piezopreload.tuning.pid import TuningInfeasible, tune_pid
 from piezopreload.tuning.schedule import schedule_levels, tune_schedule
 from piezopreload.tuning.verdict import validate_gain_set
 
@@ -49,59 +57,83 @@ _TRACK_KEYS = ("tracking_rms_N", "tracking_max_N")
 class TuningResult:
     """Tuned PID gains around a study's compensated rig, compared and bounded; :meth:`validate` judges them.
 
-    ``table`` holds the paper's, SIMC's and the tuned gains on the nominal rig, PID alone and
-    with the feedforward; ``minimum_time`` the least settling time any command reaches (the
-    tuned over it, ``tuned_over_bound_ratio``); ``tracking_floor`` the trajectory's least RMS
-    error any causal controller reaches.
+    ``record`` is the tune stage's artifact (:class:`~piezopreload.artifacts.tuning.TuningRecord`): the
+    study's ``[controller]``, SIMC's and the tuned gains on the nominal plant, PID alone and with the feedforward (``table``),
+    the gains on the ends of their search range (``active_bounds``), the least settling time any command
+    reaches (``minimum_time``, the tuned over it ``tuned_over_bound_ratio``) and the trajectory's least RMS
+    error any causal controller reaches (``tracking_floor``).
     """
 
     study: Study
     feedforward: IdentifiedFeedforward
-    gains: PIDGains
-    simc: PIDGains
-    tuning: dict[str, Any]
-    table: list[dict[str, Any]]
-    minimum_time: dict[str, Any]
-    tracking_floor: dict[str, Any]
-    improvement: dict[str, float]
-    inputs: dict[str, Any]
+    record: TuningRecord
 
-    def row(self, gains: str = "tuned", feedforward: bool = True) -> dict[str, Any]:
+    @property
+    def gains(self) -> PIDGains:
+        return self.record.gains
+
+    @property
+    def simc(self) -> PIDGains:
+        return self.record.simc_baseline
+
+    @property
+    def solve(self) -> TuningSolve:
+        """What the NLP did (status, iterations, Ms reached, binding constraints, the gain schedule's record)."""
+        return self.record.solve
+
+    @property
+    def table(self) -> tuple[ComparisonRow, ...]:
+        return self.record.table
+
+    @property
+    def active_bounds(self) -> tuple[ActiveBound, ...]:
+        return self.record.active_bounds
+
+    @property
+    def minimum_time(self) -> MinimumTimeBound:
+        return self.record.minimum_time
+
+    @property
+    def tracking_floor(self) -> TrackingFloor:
+        return self.record.tracking_floor
+
+    @property
+    def improvement(self) -> dict[str, float | None]:
+        return self.record.tracking_improvement
+
+    def row(self, gains: str = "tuned", feedforward: bool = True) -> ComparisonRow:
         """One row of the comparison table."""
-        return next(r for r in self.table if r["gains"] == gains and r["feedforward"] == feedforward)
+        return self.record.row(gains, feedforward)
 
     def to_dict(self) -> dict[str, Any]:
         """The tuning artifact's body."""
-        criteria = self.study.criteria.to_dict()
-        return {
-            "gains": gains_to_dict(self.gains), "simc_baseline": gains_to_dict(self.simc), "tuning": self.tuning,
-            # how the table was scored (the validation's limits are the validate step's)
-            "criteria": {k: criteria[k] for k in ("band_N", "signal", "tracking_after_change_s")},
-            "table": self.table, "paper": {"ff+pid": PAPER_RESULTS["ff+pid"]}, "minimum_time": self.minimum_time,
-            "tracking_floor": self.tracking_floor, "tracking_improvement": self.improvement, "inputs": self.inputs,
-        }
+        return self.record.to_dict()
 
     def save(self, path: str | Path) -> Path:
-        write_artifact(path, "tuning", self.to_dict())
-        return Path(path)
+        return self.record.save(path)
 
     @classmethod
     def load(cls, path: str | Path, study: Study, feedforward: IdentifiedFeedforward) -> TuningResult:
         """A tuning artifact read back, for the study and feedforward it was tuned with."""
-        doc = read_artifact(path, "tuning")
-        try:
-            gains, simc = gains_from_dict(doc["gains"]), gains_from_dict(doc["simc_baseline"], "simc_baseline")
-            return cls(study, feedforward, gains, simc, doc["tuning"], doc["table"], doc["minimum_time"],
-                       doc["tracking_floor"], doc["tracking_improvement"], doc["inputs"])
-        except (KeyError, ValueError) as exc:
-            raise InputError(f"{path}: field {exc} is missing or invalid; run the tune stage again") from exc
+        return cls(study, feedforward, TuningRecord.load(path))
+
+    def __repr__(self) -> str:
+        g, m = self.gains, self.minimum_time
+        bound = "none" if m.settling_s is None else f"{m.settling_s:.4g} s"
+        return (f"TuningResult({self.study.name}: {self.solve.form} Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s, "
+                f"Td {g.Td_s:.4g} s, Tf {g.Tf_s:.4g} s, b {g.b:.3g}; Ms {self.solve.ms:.3g}; tuned settling "
+                f"{_fmt(self.row().settling_s)} s, minimum-time bound {bound}; "
+                f"{len(self.active_bounds)} gain(s) on a bound)")
 
     def candidate(self, inputs: dict[str, Any] | None = None) -> GainSet:
-        """The tuned gains as a gain set not yet validated: feedforward, plant, references and criteria."""
+        """The tuned gains as a gain set not yet validated: feedforward, plant, references and criteria; its tuning
+        record names the gains on their bounds (``active_bounds``) and the controller's form."""
         s, ff = self.study, self.feedforward
+        tuning = {**self.solve.to_dict(), "simc_baseline": gains_to_dict(self.simc),
+                  "active_bounds": [b.to_dict() for b in self.active_bounds]}
         return GainSet(gains=self.gains, status="candidate", feedforward=ff.model, feedforward_info=ff.info(),
                        plant=s.plant, preset=s.name, references={k: s.references[k] for k in REFERENCES},
-                       criteria=s.criteria, tuning={**self.tuning, "simc_baseline": gains_to_dict(self.simc)},
+                       criteria=s.criteria, tuning=tuning,
                        inputs={"study": s.path, "study_sha256": s.sha256, **(inputs or {})})
 
     def validation(self, *, plants: int | None = None, seed: int | None = None, workers: int | None = None,
@@ -125,29 +157,49 @@ class TuningResult:
 
     def summary(self, gain_set: GainSet, out: str | None = None, seconds: float = 0.0) -> dict[str, Any]:
         """What ``piezopreload tune`` prints: the tuned row with the feedforward as the headline, and the verdict."""
-        tuned, paper = self.row("tuned"), self.row("paper")
+        tuned, start = self.row("tuned"), self.row("study")
+        record = self.record.to_dict()
         return {
-            "settling_s": tuned["settling_s"], "settling_measured_s": tuned["settling_measured_s"],
-            "overshoot_N": tuned["overshoot_N"], "tracking_rms_N": tuned["tracking_rms_N"],
-            "tracking_rms_after_change_N": tuned["tracking_rms_after_change_N"],
-            "paper_tracking_rms_N": paper["tracking_rms_N"],
-            "paper_tracking_rms_after_change_N": paper["tracking_rms_after_change_N"],
-            "lower_bound_settling_s": self.minimum_time["settling_s"],
-            "lower_bound_tracking_rms_N": self.tracking_floor["rms_N"],
+            "settling_s": tuned.settling_s, "settling_measured_s": tuned.settling_measured_s,
+            "overshoot_N": tuned.overshoot_N, "tracking_rms_N": tuned.tracking_rms_N,
+            "tracking_rms_after_change_N": tuned.tracking_rms_after_change_N,
+            "study_tracking_rms_N": start.tracking_rms_N,
+            "study_tracking_rms_after_change_N": start.tracking_rms_after_change_N,
+            "lower_bound_settling_s": self.minimum_time.settling_s,
+            "lower_bound_tracking_rms_N": self.tracking_floor.rms_N,
             "out": out, "status": gain_set.status, "content_sha256": gain_set.content_sha256,
-            "gains": gains_to_dict(self.gains), "simc": gains_to_dict(self.simc),
-            "tuning": {k: v for k, v in self.tuning.items() if k != "spec"}, "table": self.table,
-            "paper": {"ff+pid": PAPER_RESULTS["ff+pid"]}, "minimum_time": self.minimum_time,
-            "tracking_improvement": self.improvement, "tracking_floor": self.tracking_floor,
-            "validation": None if gain_set.validation is None else gain_set.validation.to_dict(), "seconds": seconds,
-            "gain_schedule": self.tuning.get("schedule"),  # the schedule's entries, figures and choice, or None
+            "gains": record["gains"], "simc": record["simc_baseline"], "form": self.solve.form,
+            "tuning": {k: v for k, v in record["tuning"].items() if k != "spec"}, "table": record["table"],
+            "active_bounds": record["active_bounds"], "published": record.get("published"),
+            "minimum_time": record["minimum_time"], "tracking_improvement": self.improvement,
+            "tracking_floor": record["tracking_floor"], "validation": None if gain_set.validation is None else gain_set.validation.to_dict(),
+            "seconds": seconds,
+            "gain_schedule": self.solve.schedule,  # the schedule's entries, figures and choice, or None
         }
 
     def plot(self) -> Any:
         """The comparison table as bars (settling time, tracking RMS): a Figure."""
         from piezopreload.reports import figures  # matplotlib only when drawing
 
-        return figures.gains_comparison(self.table)
+        return figures.gains_comparison([r.to_dict() for r in self.table])
+
+
+def _fmt(x: float | None) -> str:
+    return "none" if x is None else f"{x:.4g}"
+
+
+def _minimum_time_bound(bounding: Any, settle: float | None, say: Callable[[str], None]) -> MinimumTimeBound:
+    """The minimum-time bound from its worker, beside the tuned settling (a missing bound says why)."""
+    try:
+        bound = bounding.result()
+    except InfeasibleError as exc:  # the bound is a comparison, not a requirement: say why it is missing
+        say(f"no minimum-time bound: {exc}")
+        return MinimumTimeBound(settling_s=None, tuned_over_bound_ratio=None, reason=str(exc))
+    ratio = None if settle is None else settle / bound["settling_s"]
+    say(f"minimum-time bound: {bound['settling_s']:.4g} s ({bound['seconds']:.1f} s to compute); the tuned settling "
+        f"{_fmt(settle)} s is {_fmt(ratio)} times it")
+    return MinimumTimeBound(settling_s=bound["settling_s"], tuned_over_bound_ratio=ratio, samples=bound["samples"],
+                            hold_s=bound["hold_s"], seconds=bound["seconds"])
 
 
 def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None = None,
@@ -165,35 +217,37 @@ def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None =
         bounding.discard()
         raise InfeasibleError(f"{study.path}: {exc}") from exc
     g = tuned.gains
-    say(f"tuned in {tuned.seconds:.0f} s: Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s, Td {g.Td_s:.4g} s, Tf {g.Tf_s:.4g} s, "
-        f"b {g.b:.3g}")
-    record: dict[str, Any] = {**tuned.to_dict(), "spec": spec.to_dict()}
+    say(f"tuned in {tuned.seconds:.0f} s: {tuned.form} Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s, Td {g.Td_s:.4g} s, "
+        f"Tf {g.Tf_s:.4g} s, b {g.b:.3g}")
+    for b in tuned.active_bounds:
+        say(f"  {b.sentence()}")
+    schedule = None
     if study.tuning.schedule_levels >= 2:  # a gain schedule on the preload level, or the robust set if it does as well
         span = np.concatenate([study.references[k].levels_N for k in ("step", "trajectory")])
         sched = tune_schedule(study.plant, feedforward.model, spec, criteria, g, step=step, trajectory=trajectory,
                               levels_N=schedule_levels(span.min(), span.max(), study.tuning.schedule_levels),
                               n_plants=study.tuning.schedule_plants, seed=seed, progress=say)
-        g, record["schedule"] = sched.gains, sched.to_dict()
-    try:
-        bound = bounding.result()
-    except TuningInfeasible as exc:  # the bound is a comparison, not a requirement: say why it is missing
-        say(f"no minimum-time bound: {exc}")
-        bound = {"settling_s": None, "reason": str(exc)}
+        g, schedule = sched.gains, sched.to_dict()
     floor = tracking_floor(study.plant, trajectory)
-    say("comparing the paper's, the SIMC and the tuned gains on the nominal rig ...")
-    table = compare_gains(study.plant, step, trajectory, {"paper": study.gains, "simc": tuned.baseline, "tuned": g},
+    say("comparing the study's, SIMC's and the tuned gains on the nominal plant ...")
+    table = compare_gains(study.plant, step, trajectory, {"study": study.gains, "simc": tuned.baseline, "tuned": g},
                           feedforward.model, criteria, seed)
-    row = next(r for r in table if r["gains"] == "tuned" and r["feedforward"])
-    settle = row["settling_s"]
+    row = next(r for r in table if r.gains == "tuned" and r.feedforward)
     inputs = {"study": study.path, "study_sha256": study.sha256, "seed": seed}
     if feedforward.model_sha256:
         inputs["feedforward_sha256"] = feedforward.model_sha256
-    return TuningResult(
-        study, feedforward, g, tuned.baseline, record, table,
-        {"settling_s": bound["settling_s"], **({"reason": bound["reason"]} if "reason" in bound else {}),
-         "tuned_over_bound_ratio": None if settle is None or bound["settling_s"] is None else settle / bound["settling_s"]},
-        {**floor, "tuned_over_floor_ratio": row["tracking_rms_N"] / floor["rms_N"]}, tracking_improvement(table),
-        inputs)
+    solve = TuningSolve.from_dict({**tuned.to_dict(), "spec": spec.to_dict(), "schedule": schedule})
+    criteria_doc = criteria.to_dict()
+    record = TuningRecord(
+        gains=g, simc_baseline=tuned.baseline, solve=solve, table=table,
+        minimum_time=_minimum_time_bound(bounding, row.settling_s, say),
+        tracking_floor=TrackingFloor(floor["rms_N"], floor["rate_N_per_s"], row.tracking_rms_N / floor["rms_N"]),
+        active_bounds=tuned.active_bounds,
+        # how the table was scored (the validation's limits are the validate step's)
+        criteria={k: criteria_doc[k] for k in ("band_N", "signal", "tracking_after_change_s")},
+        tracking_improvement=tracking_improvement(table), inputs=inputs,
+        published=None if study.published is None else {"ff+pid": study.published.step()["ff+pid"]})
+    return TuningResult(study, feedforward, record)
 
 
 _STUDY = object()  # step_metrics' default: the study's band and signal

@@ -20,6 +20,7 @@ from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.plant import DesignedPlant
 from piezopreload.artifacts.requirements import Requirement, checked_by_stages
 from piezopreload.artifacts.system import SystemRecord
+from piezopreload.artifacts.tuning import TuningRecord
 from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core.artifacts import read_artifact
 from piezopreload.core.errors import InputError
@@ -120,9 +121,9 @@ class Artifacts:
     def feedforward(self) -> dict[str, Any]:
         return self._read("feedforward", "identify", "model", "hysteresis-model")
 
-    @property
-    def tuning(self) -> dict[str, Any]:
-        return self._read("tuning", "tune", "tuning", "tuning")
+    @functools.cached_property
+    def tuning(self) -> TuningRecord:
+        return TuningRecord.load(self.path("tune", "tuning"))
 
     @functools.cached_property
     def design(self) -> DesignRecord | None:

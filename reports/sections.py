@@ -18,6 +18,7 @@ from matplotlib.figure import Figure
 from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import gains_to_dict
 from piezopreload.artifacts.system import SystemRecord
+from piezopreload.artifacts.tuning import TuningRecord
 from piezopreload.reports import figures as F
 from piezopreload.reports.document import Section, Table, fmt, pct
 from piezopreload.reports.inputs import Artifacts, ReportStudy
@@ -284,17 +285,15 @@ def _gains_rows(g: dict[str, Any]) -> tuple[tuple[str, str, str], ...]:
     return tuple(rows)
 
 
-def _bound_text(tuning: dict[str, Any]) -> tuple[str, tuple[str, ...]]:
+def _bound_text(tuning: TuningRecord) -> tuple[str, tuple[str, ...]]:
     """The tuning's active bounds in words, and what is left out (the minimum-time bound, when it has none)."""
-    t = tuning["tuning"]
-    binding = [b for b in t.get("binding", []) if "search range" in b]
-    words = ("" if not binding else
-             " Gains on a bound of their search range: " + "; ".join(binding) + " (the optimum is not interior there).")
-    mt = tuning["minimum_time"]
-    if mt.get("settling_s") is None:
-        return words, (f"The minimum-time bound on the step's settling: {mt.get('reason', 'it was not computed')}.",)
-    return (words + f" The minimum-time bound on the step's settling is {fmt(mt['settling_s'])} s; the tuned "
-                    f"settling is {fmt(mt['tuned_over_bound_ratio'])} times it."), ()
+    words = ("" if not tuning.active_bounds else
+             " " + " ".join(b.sentence().rstrip(".") + "." for b in tuning.active_bounds))
+    mt = tuning.minimum_time
+    if mt.settling_s is None:
+        return words, (f"The minimum-time bound on the step's settling: {mt.reason or 'it was not computed'}.",)
+    ratio = "" if mt.tuned_over_bound_ratio is None else f"; the tuned settling is {fmt(mt.tuned_over_bound_ratio)} times it"
+    return words + f" The minimum-time bound on the step's settling is {fmt(mt.settling_s)} s{ratio}.", ()
 
 
 def controller_section(study: ReportStudy, a: Artifacts) -> Part:
@@ -304,20 +303,19 @@ def controller_section(study: ReportStudy, a: Artifacts) -> Part:
     form = "PI" if g["Td_s"] == 0.0 else "PID"
     words, omitted = _bound_text(tuning)
     text = (f"{form} gains tuned with CasADi and IPOPT around the P-I-compensated plant (maximum sensitivity "
-            f"{fmt(tuning['tuning']['ms'])} at worst over the plant variants; solver: {tuning['tuning']['status']}); "
+            f"{fmt(tuning.solve.ms)} at worst over the plant variants; solver: {tuning.solve.status}); "
             f"controller form: {g['form']}.{words}")
     scheduled = gain_set.gains.schedule is not None
     caption = (f"The gain set ({gain_set.status}), SHA-256 {gain_set.content_sha256}"
                + (": the robust set, kept in it for the record; the gain schedule below is what runs." if scheduled
                   else "."))
     table = Table(("parameter", "SI", "LabVIEW PID VI"), _gains_rows(g), caption, "lrr")
-    parts = [s for s in (_schedule_part(tuning), _validation_part(val)) if s is not None]
+    parts = [s for s in (_schedule_part(tuning.solve.schedule), _validation_part(val)) if s is not None]
     return Part(Section("The tuned controller", (text,), (table,), (), omitted, tuple(p.section for p in parts)),
                 tuple(f for p in parts for f in p.figures))
 
 
-def _schedule_part(tuning: dict[str, Any]) -> Part | None:
-    schedule = tuning["tuning"].get("schedule")
+def _schedule_part(schedule: dict[str, Any] | None) -> Part | None:
     if schedule is None:
         return None
     rows = []

@@ -1,6 +1,7 @@
 """PID tuning (CasADi), its tuning model, the minimum-time bound, validation and export."""
 
 import json
+import re
 import shutil
 from dataclasses import replace
 
@@ -19,7 +20,8 @@ from piezopreload.models.loop import LOOP_OUTPUTS, step_function
 from piezopreload.models.loop import run as run_loop
 from piezopreload.models.ops import CASADI, NUMPY, clip
 from piezopreload.rig.export import ExportError, export
-from piezopreload.tuning import pid
+from piezopreload.tuning import bounds, fopdt, horizon, pid
+from piezopreload.tuning.loopshape import isa_pid_response, omega_terms
 from piezopreload.tuning.validate import executor, validate
 
 QUIET = dict(noise_N=0.0, adc_bits=32, amp_current_limit_A=0.02, creep_per_decade=0.02, bw_kappa=0.05)
@@ -29,7 +31,7 @@ def test_controller_frequency_response_equals_python_control():
     control = pytest.importorskip("control")
     dt, g = 1e-3, PIDGains(Kc=1.3, Ti_s=0.04, Td_s=0.006, Tf_s=0.002)
     omega = np.logspace(0, np.log10(3000), 40)
-    re, im = pid._controller_frequency_response([g.Kc, g.Ti_s, g.Td_s, g.Tf_s], omega, dt)
+    re, im = isa_pid_response([g.Kc, g.Ti_s, g.Td_s, g.Tf_s], dt, omega_terms(omega, dt))
     a = g.Tf_s / (g.Tf_s + dt)
     z = control.TransferFunction.z
     # the feedback path of Controller.step: P + trapezoidal I + filtered backward-difference D on y
@@ -51,7 +53,7 @@ def test_the_tuning_model_follows_the_rig_in_closed_loop(gains):
     ref = Reference.step(25.0, 55.0, 0.02, 0.6)
     run = simulate(rig, Controller(gains, rig.dt_s), ref)
     n = run.t_s.size
-    loop = pid.tuning_loop(params)
+    loop = horizon.tuning_loop(params)
     p = loop.parameters(loop.plant.parameters(params), Controller(gains, rig.dt_s).parameter_vector())
     r = ref.at(run.t_s)
     x0 = loop.start(NUMPY, p, r[0])  # at rest, bumpless at 0 V, as simulate's
@@ -105,16 +107,16 @@ def test_smooth_clip_is_the_clip_away_from_its_corners():
 
 
 def test_simc_rule():
-    model = pid.FOPDT(K=0.5, T_s=0.02, theta_s=0.004, rms_N=0.0)
-    g = pid.simc(model)
+    model = fopdt.FOPDT(K=0.5, T_s=0.02, theta_s=0.004, rms_N=0.0)
+    g = fopdt.simc(model)
     assert g.Kc == pytest.approx(0.02 / (0.5 * 0.008)) and g.Ti_s == pytest.approx(0.02)
-    g = pid.simc(model, tau_c_s=0.05)
+    g = fopdt.simc(model, tau_c_s=0.05)
     assert g.Ti_s == pytest.approx(0.02) and g.Kc == pytest.approx(0.02 / (0.5 * 0.054))
 
 
 def test_minimum_time_is_a_lower_bound_the_rig_reaches():
     params = RigParams(**QUIET)
-    bound = pid.minimum_time(params, final_N=50.0, hold_s=0.1, horizon_s=0.2)
+    bound = bounds.minimum_time(params, final_N=50.0, hold_s=0.1, horizon_s=0.2)
     # the amplifier cannot beat its slew limit: the voltage for 50 N takes at least this long
     rig = Rig(params)
     v_needed = 25.0 / (float(params.effective_stiffness_N_per_um) * params.stroke_um_per_V * 1.2)
@@ -171,6 +173,7 @@ def test_validation_is_the_same_on_any_executor_and_names_failures():
     assert failed == {int(i): float(settle[i]) for i in np.flatnonzero(settle > limit)} and 0 < len(failed) < 4
 
 
+@pytest.mark.slow
 def test_validation_on_a_dask_local_cluster():
     distributed = pytest.importorskip("distributed", reason="Dask distributed is the optional 'dask' extra")
     a = _small_validation()
@@ -339,17 +342,18 @@ def test_casadi_c_controller_equals_the_python_step(tmp_path, kind):
     np.testing.assert_allclose(u_py, run.command_V, rtol=0, atol=1e-9)  # and the Python step is the simulation's
 
 
+@pytest.mark.slow
 def test_tune_validate_export_from_the_command_line(tmp_path, capsys):
     """The paper's study: tune (few plants), validate again, export; the JSON keys the tools promise."""
     out = tmp_path / "gains.json"
     assert main(["tune", "--out", str(out), "--plants", "3", "--workers", "1", "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
-    for key in ("settling_s", "overshoot_N", "tracking_rms_N", "paper_tracking_rms_N", "lower_bound_settling_s", "status"):
+    for key in ("settling_s", "overshoot_N", "tracking_rms_N", "study_tracking_rms_N", "lower_bound_settling_s", "status"):
         assert key in s
     assert s["status"] == "validated" and s["settling_s"] <= 0.30 and s["overshoot_N"] <= 1.5
     assert s["lower_bound_settling_s"] < s["settling_s"]
     rows = {(r["gains"], r["feedforward"]) for r in s["table"]}
-    assert rows == {(g, ff) for g in ("paper", "simc", "tuned") for ff in (False, True)}
+    assert rows == {(g, ff) for g in ("study", "simc", "tuned") for ff in (False, True)}
     assert main(["validate", str(out), "--plants", "3", "--workers", "1", "--json"]) == 0
     v = json.loads(capsys.readouterr().out)
     assert v["validated"] is True and v["plants"] == 3 and v["worst_settling_s"] >= v["p95_settling_s"]
@@ -368,7 +372,7 @@ def test_tracking_floor_bounds_the_force_rate_and_every_controller():
     """The floor's rate is not beaten by a full-range bang on the rig, and no controller beats the floor."""
     params = RigParams(noise_N=0.0, adc_bits=32)
     rig = Rig(params)
-    floor = pid.tracking_floor(params, Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 0.5, t_start_s=0.1))
+    floor = bounds.tracking_floor(params, Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 0.5, t_start_s=0.1))
     # bang up and down over the whole range, from rest and after reversals
     state, forces = rig.initial_state(), []
     for u in [110.0] * 200 + [0.0] * 200 + [110.0] * 200 + [40.0] * 100 + [110.0] * 200:
@@ -405,11 +409,181 @@ def test_tracking_error_leaves_out_the_samples_out_of_authority():
 
 def test_tracking_improvement_has_no_ratio_where_the_tuned_loop_has_nothing_to_score():
     """A reference with nothing after its changes (a ramped schedule) scores 0 N there: no ratio, not a crash."""
+    from piezopreload.artifacts.tuning import ComparisonRow
     from piezopreload.tuning.compare import tracking_improvement
 
-    rows = [{"gains": g, "feedforward": ff, "tracking_rms_N": rms, "tracking_rms_after_change_N": after}
-            for g, ff, rms, after in (("paper", False, 4.0, 2.0), ("paper", True, 3.0, 1.0),
+    rows = [ComparisonRow(gains=g, feedforward=ff, rise_s=None, settling_s=None, settling_measured_s=None,
+                          overshoot_N=0.0, tracking_rms_N=rms, tracking_rms_after_change_N=after, peak_command_V=0.0)
+            for g, ff, rms, after in (("study", False, 4.0, 2.0), ("study", True, 3.0, 1.0),
                                       ("tuned", True, 2.0, 0.0))]
     out = tracking_improvement(rows)
-    assert out["paper_pid_over_tuned"] == 2.0 and out["paper_ff_pid_over_tuned"] == 1.5
-    assert out["paper_pid_over_tuned_after_change"] is None and out["paper_ff_pid_over_tuned_after_change"] is None
+    assert out["study_pid_over_tuned"] == 2.0 and out["study_ff_pid_over_tuned"] == 1.5
+    assert out["study_pid_over_tuned_after_change"] is None and out["study_ff_pid_over_tuned_after_change"] is None
+
+
+# --------------------------------------------------------------------------------------
+# one definition of the loop's bounds; the gains on their bounds; the typed record
+# --------------------------------------------------------------------------------------
+def test_the_bound_rows_are_the_sensitivities():
+    """|N|^2/M^2 - |1 + L|^2 against |S|, |T|, |KS| computed directly: negative exactly where the bound holds."""
+    from piezopreload.tuning.loopshape import bound_rows, peaks
+
+    rng = np.random.default_rng(3)
+    C = rng.normal(size=200) + 1j * rng.normal(size=200)
+    G = rng.normal(size=200) + 1j * rng.normal(size=200)
+    L = C * G
+    direct = {"Ms": 1 / np.abs(1 + L), "Mt": np.abs(L / (1 + L)), "Mks": np.abs(C / (1 + L))}
+    rows = bound_rows(C.real, C.imag, G.real, G.imag, {"Ms": 1.4, "Mt": 1.3, "Mks": 2.0})
+    for k, m in (("Ms", 1.4), ("Mt", 1.3), ("Mks", 2.0)):
+        np.testing.assert_allclose(rows[k] / np.abs(1 + L) ** 2 + 1, (direct[k] / m) ** 2, rtol=1e-10, err_msg=k)
+        np.testing.assert_array_equal(rows[k] <= 0, direct[k] <= m, err_msg=k)
+        assert peaks(C, G)[k] == pytest.approx(direct[k].max(), rel=1e-12)
+
+
+def test_both_tuners_state_their_bounds_with_the_one_definition(monkeypatch):
+    """The rig tuner's Ms constraints and the autotuner's Ms/Mt/Mks constraints are built by
+    loopshape.bound_rows: replaced by one that doubles every row, both tuners' constraints change with it."""
+    import control
+
+    from piezopreload.tuning import loopshape, pidopt
+    from piezopreload.tuning.pidopt import PIDProblem, Scales
+
+    params = RigParams(**QUIET)
+    spec = pid.TuningSpec(step=Reference.step(25.0, 50.0, 0.02, 0.1), trajectory=Reference.staircase(
+        25.0, [50.0], 0.1, t_start_s=0.02), variants={"gain": 0.1})
+    z = np.full(5, 0.5)
+    w = np.logspace(-1, 1, 20)
+    G = control.tf([1.0], [1.0, 1.0])(1j * w)
+    scales = Scales(1.0, 1.0, 1.0, 1.0, 1, None)
+    x = np.array([0.5, 0.5, 0.1, 0.0])
+
+    def constraints() -> tuple[np.ndarray, np.ndarray]:
+        prob = pid._build_problem(params, None, spec, "plain")
+        g = ca.Function("g", [prob.z, prob.s, prob.p], [prob.g])(z, 0.0, prob.data)
+        ms = [i for i, label in enumerate(prob.labels) if label.startswith("Ms")]
+        return np.asarray(g, float).ravel()[ms], np.asarray(PIDProblem(w, G, {"Ms": 1.4}, scales).fg(x)[1]).ravel()
+
+    rig_before, auto_before = constraints()
+    original = loopshape.bound_rows
+    monkeypatch.setattr(loopshape, "bound_rows", lambda *a, **k: {n: 2 * r for n, r in original(*a, **k).items()})
+    monkeypatch.setattr(pid, "bound_rows", loopshape.bound_rows)
+    monkeypatch.setattr(pidopt, "bound_rows", loopshape.bound_rows)
+    monkeypatch.setattr(pidopt, "_CACHE", {})  # the autotuner's compiled problems are kept: build them again
+    monkeypatch.setattr(pidopt, "_SOLVERS", {})
+    rig_after, auto_after = constraints()
+    assert not np.allclose(rig_after, rig_before) and not np.allclose(auto_after, auto_before)
+
+
+@pytest.mark.slow
+def test_a_derivative_on_its_lower_bound_makes_the_tuned_controller_a_pi(monkeypatch):
+    """Where the NLP ends with Td on the lower end of its range, the result is the PI (Td = 0, no filter), checked
+    against every constraint of a PI tuning, with the bound named; a PI spec (filter_s = 0) tunes no derivative."""
+    params = RigParams(**QUIET)
+    spec = pid.TuningSpec(step=Reference.step(25.0, 50.0, 0.02, 0.3),
+                          trajectory=Reference.staircase(25.0, [50.0, 40.0], 0.2, t_start_s=0.02),
+                          variants={"gain": 0.1})
+    best_of = pid._Solvers.best_of
+
+    def derivative_at_its_least(self, seeds, starts):
+        zv, objective, status = best_of(self, seeds, starts)
+        if "Td" in self.prob.names:
+            zv = zv.copy()
+            zv[self.prob.names.index("Td")] = 0.0
+        return zv, objective, status
+
+    monkeypatch.setattr(pid._Solvers, "best_of", derivative_at_its_least)
+    res = pid.tune_pid(params, None, spec, starts=1)
+    assert res.gains.Td_s == 0.0 and res.gains.Tf_s == 0.0 and res.form == "PI"
+    assert res.active_bounds[0].gain == "Td_s" and res.active_bounds[0].side == "lower"
+    assert "PI (Td = 0, no derivative filter)" in res.active_bounds[0].note
+    assert max(res.constraint_margins.values()) <= 1e-4
+    assert not any(label.startswith("derivative filter") for label in res.constraint_margins)
+    assert res.to_dict()["form"] == "PI"
+
+
+def test_the_tune_output_names_the_bounds(capsys):
+    from piezopreload.cli.tune import _print_bounds
+
+    _print_bounds({"settling_s": 0.014, "tuned_over_bound_ratio": 14.9}, {"rms_N": 2.0, "rate_N_per_s": 3.9e5,
+                                                                          "tuned_over_floor_ratio": 1.5}, 0.209)
+    assert "0.014 s beside the tuned settling 0.209 s (14.90 times it)" in capsys.readouterr().out
+    _print_bounds({"settling_s": None, "tuned_over_bound_ratio": None, "reason": "no command"},
+                  {"rms_N": 2.0, "rate_N_per_s": 1.0, "tuned_over_floor_ratio": None}, None)
+    assert "minimum-time bound: none (no command)" in capsys.readouterr().out
+
+
+def _record():
+    from piezopreload.artifacts.tuning import (
+        ActiveBound,
+        ComparisonRow,
+        MinimumTimeBound,
+        TrackingFloor,
+        TuningRecord,
+        TuningSolve,
+    )
+
+    row = ComparisonRow("tuned", True, 0.01, 0.2, 0.21, 3.0, 5.0, 2.0, 60.0)
+    solve = TuningSolve("Solve_Succeeded", 40, 6.0, "compiled", 0.0, 64.9, 1.6, ("Ms <= 1.6",), {"Ms <= 1.6": -1e-8},
+                        {"K_N_per_V": 29.0, "T_s": 0.0014, "theta_s": 0.0015, "rms_N": 3.0}, "PI", {"ms_max": 1.6})
+    return TuningRecord(PIDGains(Kc=0.01, Ti_s=0.05, b=0.9, u_min=-20.0, u_max=115.0), PIDGains(Kc=0.02, Ti_s=0.002),
+                        solve, (row, replace(row, gains="simc")), MinimumTimeBound(0.014, 14.3, 14, 0.3, 2.0),
+                        TrackingFloor(2.0, 3.9e5, 1.4), (ActiveBound("Td_s", "lower", 1e-5, "a PI"),),
+                        {"band_N": 25.0}, {"study_pid_over_tuned": None}, {"study": "x.toml"})
+
+
+def test_the_tuning_record_reads_back_and_names_a_bad_field(tmp_path):
+    from piezopreload.artifacts.tuning import TuningRecord
+    from piezopreload.core.errors import ArtifactError
+
+    record = _record()
+    path = record.save(tmp_path / "tuning.json")
+    back = TuningRecord.load(path)
+    assert back.to_dict() == record.to_dict()
+    assert back.row("tuned").settling_s == 0.2 and back.row("tuned")["settling_s"] == 0.2
+    assert back.active_bounds[0].sentence().startswith("Td_s at its lower bound")
+    doc = json.loads(path.read_text())
+    for field, value, words in (("minimum_time", {"settling_s": None, "tuned_over_bound_ratio": None}, "reason"),
+                                ("table", [{"gains": "tuned"}], "table[0].rise_s"),
+                                ("tracking_floor", {"rms_N": "x", "rate_N_per_s": 1.0, "tuned_over_floor_ratio": None},
+                                 "tracking_floor.rms_N")):
+        bad = {**doc, field: value}
+        with pytest.raises(ArtifactError, match=re.escape(words)):
+            TuningRecord.from_dict(bad)
+    del doc["tuning"]
+    with pytest.raises(ArtifactError, match="'tuning record.tuning' is missing"):
+        TuningRecord.from_dict(doc)
+    # the layout the tune stage wrote before the record was typed (no active_bounds, no minimum-time samples) reads
+    old = record.to_dict()
+    del old["active_bounds"]
+    old["minimum_time"] = {"settling_s": None, "reason": "no command reaches 2500 N", "tuned_over_bound_ratio": None}
+    assert TuningRecord.from_dict(old).active_bounds == ()
+
+
+@pytest.mark.slow
+def test_the_minimum_time_bound_on_the_designed_plant_and_the_pi_it_is_read_against():
+    """The machine axis (its designed plant): the minimum-time bound exists and its command, played into the rig,
+    settles there; the tuned controller is a PI with its bound named, in the gain set and every export."""
+    import piezopreload as pp
+    from piezopreload.tuning.bounds import minimum_time
+
+    study = pp.load_study()
+    step = study.references["step"]
+    spec = study.tuning_spec
+    bound = minimum_time(study.plant, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]),
+                         band_N=study.band_N, u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
+    # the bound is the tuning model's (the rig with its corners rounded): its numpy step, fed the command
+    plant = horizon.tuning_loop(study.plant).plant
+    theta = plant.parameters(study.plant)
+    state, force = plant.rest_state(NUMPY, theta), []
+    for u in bound["command_V"]:
+        force.append(float(plant.force(NUMPY, theta, state)))
+        state = plant.step(NUMPY, theta, state, u)
+    k = bound["samples"]
+    err = np.abs(np.array(force) - float(step.levels_N[1]))
+    assert np.all(err[k:] <= study.band_N * (1 + 1e-6)) and err[k - 1] > study.band_N * (1 - 1e-6)
+    tuned = study.tune()
+    assert tuned.gains.Td_s == 0.0 and tuned.solve.form == "PI"
+    assert tuned.active_bounds[0].gain == "Td_s"
+    assert tuned.minimum_time.settling_s == pytest.approx(bound["settling_s"])
+    candidate = tuned.candidate()
+    assert candidate.tuning["active_bounds"][0]["gain"] == "Td_s" and candidate.gains.Tf_s == 0.0

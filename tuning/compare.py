@@ -1,18 +1,19 @@
 """Gains side by side on a study's rig: the tuning's comparison table and the closed-loop responses.
 
-:func:`compare_gains` scores each candidate (the paper's, SIMC's, the tuned gains) without and
+:func:`compare_gains` scores each candidate (the study's, SIMC's, the tuned gains) without and
 with the feedforward on the nominal rig, as the validation scores a plant
-(:func:`~piezopreload.tuning.validate.evaluate`); :func:`responses` simulates the paper's step
-and trajectory for the paper's and the tuned gains, PID alone and with the feedforward, and
-:func:`reproduction` lays the paper's six step numbers (Sections 4.2-4.3) beside them.
+(:func:`~piezopreload.tuning.validate.evaluate`); :func:`responses` simulates the study's step
+and trajectory for its starting and its tuned gains, PID alone and with the feedforward, and
+:func:`reproduction` lays the step numbers a study declares published (``[published]``) beside them.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from piezopreload.artifacts.tuning import ComparisonRow
 from piezopreload.artifacts.validation import Criteria
 from piezopreload.core.artifacts import finite_or_none
 from piezopreload.models.actuator import Rig, RigParams
@@ -29,27 +30,27 @@ __all__ = ["compare_gains", "tracking_improvement", "Response", "responses", "cr
 
 
 def compare_gains(rig: RigParams, step: Reference, trajectory: Reference, candidates: dict[str, PIDGains],
-                  feedforward: FeedforwardModel, criteria: Criteria, seed: int) -> list[dict[str, Any]]:
+                  feedforward: FeedforwardModel, criteria: Criteria, seed: int) -> tuple[ComparisonRow, ...]:
     """Each gain set without and with the feedforward on the nominal rig: one row each."""
     rows = []
     for name, gains in candidates.items():
         for ff in (False, True):
             m = evaluate(gains, feedforward if ff else None, rig, step, trajectory, criteria, seed)
-            rows.append({
-                "gains": name, "feedforward": ff,
-                "rise_s": finite_or_none(m["rise_s"][0]), "settling_s": finite_or_none(m["settling_s"][0]),
-                "settling_measured_s": finite_or_none(m["settling_measured_s"][0]),
-                "overshoot_N": float(m["overshoot_N"][0]), "tracking_rms_N": float(m["tracking_rms_all_N"][0]),
-                "tracking_rms_after_change_N": float(m["tracking_rms_N"][0]),
-                "peak_command_V": float(m["peak_voltage_V"][0]),
-            })
-    return rows
+            rows.append(ComparisonRow(
+                gains=name, feedforward=ff,
+                rise_s=finite_or_none(m["rise_s"][0]), settling_s=finite_or_none(m["settling_s"][0]),
+                settling_measured_s=finite_or_none(m["settling_measured_s"][0]),
+                overshoot_N=float(m["overshoot_N"][0]), tracking_rms_N=float(m["tracking_rms_all_N"][0]),
+                tracking_rms_after_change_N=float(m["tracking_rms_N"][0]),
+                peak_command_V=float(m["peak_voltage_V"][0]),
+            ))
+    return tuple(rows)
 
 
-def tracking_improvement(table: list[dict[str, Any]]) -> dict[str, float | None]:
-    """The paper's tracking RMS over the tuned one (with feedforward), both ways of scoring it (None where the
+def tracking_improvement(table: Sequence[ComparisonRow]) -> dict[str, float | None]:
+    """The study's starting gains' tracking RMS over the tuned one (with feedforward), both ways of scoring it (None where the
     tuned loop's is 0 or not a number: a reference with nothing to score after its changes)."""
-    row = {(r["gains"], r["feedforward"]): r for r in table}
+    row = {(r.gains, r.feedforward): r for r in table}
     tuned = row[("tuned", True)]
 
     def ratio(num: Any, den: Any) -> float | None:
@@ -57,10 +58,10 @@ def tracking_improvement(table: list[dict[str, Any]]) -> dict[str, float | None]
 
     out = {}
     for ff in (False, True):
-        key = "paper_ff_pid" if ff else "paper_pid"
-        out[f"{key}_over_tuned"] = ratio(row[("paper", ff)]["tracking_rms_N"], tuned["tracking_rms_N"])
-        out[f"{key}_over_tuned_after_change"] = ratio(row[("paper", ff)]["tracking_rms_after_change_N"],
-                                                      tuned["tracking_rms_after_change_N"])
+        key = "study_ff_pid" if ff else "study_pid"
+        out[f"{key}_over_tuned"] = ratio(row[("study", ff)].tracking_rms_N, tuned.tracking_rms_N)
+        out[f"{key}_over_tuned_after_change"] = ratio(row[("study", ff)].tracking_rms_after_change_N,
+                                                      tuned.tracking_rms_after_change_N)
     return out
 
 

@@ -21,6 +21,7 @@ from typing import Any
 
 from piezopreload import __version__
 from piezopreload.cli._common import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, Parser
+from piezopreload.cli.autotune import register_autotune
 from piezopreload.cli.design import register_ballscrew, register_design
 from piezopreload.cli.export import register_export
 from piezopreload.cli.identify import register_identify
@@ -39,8 +40,9 @@ __all__ = ["main", "build_parser", "COMMANDS", "EXIT_OK", "EXIT_INTERNAL", "EXIT
 # --------------------------------------------------------------------------------------
 #: one register function per subcommand, in the order ``--help`` lists them
 COMMANDS: tuple[Callable[[Any], None], ...] = (
-    register_run, register_sweep, register_report, register_identify, register_simulate, register_reproduce, register_tune,
-    register_learn, register_validate, register_ballscrew, register_design, register_export, register_rig,
+    register_run, register_sweep, register_report, register_identify, register_simulate, register_reproduce,
+    register_tune, register_autotune, register_learn, register_validate, register_ballscrew, register_design,
+    register_export, register_rig,
 )
 
 

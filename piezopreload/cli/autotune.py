@@ -1,0 +1,125 @@
+"""``autotune``: a PI or PID for the user's own loop (a transfer function, a measured frequency or step response)."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from piezopreload.cli._common import json_flag, nonnegative_float, say
+from piezopreload.core.errors import InputError
+
+
+def _coefficients(text: str, what: str) -> list[float]:
+    try:
+        values = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise InputError(f"--tf: the {what} '{text}' is not comma-separated numbers (example: --tf 30/0.005,1)") from None
+    return values
+
+
+def _positive(text: str) -> float:
+    value = nonnegative_float(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
+
+
+def register_autotune(sub: Any) -> None:
+    p = sub.add_parser(
+        "autotune", help="tune a PI or PID for your own loop under Ms, Mt and Mks bounds",
+        description=(
+            "Tune a PI, or a PID with its derivative filter, for a linear plant given as a transfer function, a "
+            "measured frequency response or a measured step response (fitted first or second order with dead time), "
+            "with an exact input delay: the largest integral gain (IE) or the least IAE of a load step at the plant "
+            "input, subject to |S| <= Ms, |T| <= Mt, |KS| <= Mks on a frequency grid chosen from the plant and a "
+            "stable closed loop (CasADi + IPOPT, several starts including AMIGO and SIMC). With --out, write a gain "
+            "set 'piezopreload export' writes for LabVIEW, PLCs and C."),
+        epilog=(
+            "--tf NUM/DEN: coefficients in descending powers of s (of z with --dt), e.g. --tf 30/0.005,1 for "
+            "30/(0.005 s + 1). --frd: a CSV with omega_rad_per_s (or frequency_Hz) and magnitude, phase_deg (or real, "
+            "imag). --step: a CSV of time_s, the input (input_* or voltage_*) and the output."))
+    plant = p.add_mutually_exclusive_group(required=True)
+    plant.add_argument("--tf", metavar="NUM/DEN", help="the plant's transfer function")
+    plant.add_argument("--frd", metavar="FILE.csv", help="a measured frequency response")
+    plant.add_argument("--step", metavar="FILE.csv", help="a measured step response, fitted with dead time")
+    p.add_argument("--dt", type=_positive, metavar="S", help="--tf is discrete with this sample period (s)")
+    p.add_argument("--delay-s", type=nonnegative_float, default=0.0, metavar="L", help="input delay in s (default 0)")
+    p.add_argument("--Ms", type=float, required=True, help="largest |S| (> 1; 1.4 is common)")
+    p.add_argument("--Mt", type=float, help="largest |T|")
+    p.add_argument("--Mks", type=float, help="largest |KS| (controller output per measured unit)")
+    p.add_argument("--metric", choices=("IE", "IAE"), default="IE", help="IE: largest ki (default); IAE: least IAE")
+    p.add_argument("--form", choices=("PI", "PID"), default="PID", help="the controller (default PID)")
+    p.add_argument("--Ts", type=_positive, metavar="S", help="the controller's sample period: tune the loop as it runs")
+    p.add_argument("--order", type=int, choices=(1, 2), help="--step: the fitted model's order (default: the better)")
+    p.add_argument("--out", metavar="gains.json", help="write the gain set (needs --Ts or a discrete plant, --u-min, "
+                                                        "--u-max)")
+    p.add_argument("--u-min", type=float, metavar="V", help="the controller's lowest output (for --out)")
+    p.add_argument("--u-max", type=float, metavar="V", help="the controller's highest output (for --out)")
+    json_flag(p)
+    p.set_defaults(run=_cmd_autotune, show=_print_autotune)
+
+
+def _plant(args: argparse.Namespace) -> tuple[Any, float, dict[str, Any] | None]:
+    """The plant, its delay and (for --step) the fit's record."""
+    import control
+
+    from piezopreload.tuning.plantfit import fit_plant, read_frequency_response
+
+    if args.tf is not None:
+        num, sep, den = args.tf.partition("/")
+        if not sep:
+            raise InputError(f"--tf: '{args.tf}' is not NUM/DEN (example: --tf 30/0.005,1)")
+        return control.tf(_coefficients(num, "numerator"), _coefficients(den, "denominator"),
+                          0 if args.dt is None else args.dt), args.delay_s, None
+    if args.dt is not None:
+        raise InputError("--dt belongs to --tf (a discrete transfer function); a measured response carries its own")
+    if args.frd is not None:
+        return read_frequency_response(args.frd), args.delay_s, None
+    fit = fit_plant(args.step, order=args.order or "auto")
+    say(repr(fit))
+    return fit.transfer_function(), fit.delay_s + args.delay_s, fit.to_dict()
+
+
+def _cmd_autotune(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.tuning.autotune import autotune
+
+    if args.order is not None and args.step is None:
+        raise InputError("--order belongs to --step (the fitted model's order)")
+    if args.out is not None and (args.u_min is None or args.u_max is None):
+        raise InputError("--out writes a gain set, which needs the controller's output range: give --u-min and --u-max")
+    plant, delay, fit = _plant(args)
+    result = autotune(plant, Ms=args.Ms, Mt=args.Mt, Mks=args.Mks, metric=args.metric, form=args.form, Ts=args.Ts,
+                      delay_s=delay)
+    out: dict[str, Any] = {**result.to_dict(), "fit": fit, "out": None}
+    if args.out is not None:
+        gain_set = result.to_gain_set(u_min_V=args.u_min, u_max_V=args.u_max, name="autotune").save(args.out)
+        out.update(out=args.out, status=gain_set.status, content_sha256=gain_set.content_sha256,
+                   discrete_check=gain_set.validation)
+    return out
+
+
+def _print_autotune(s: dict[str, Any]) -> None:
+    mg, b = s["margins"], s["bounds"]
+    kind = s["form"] if s["form"] == "PI" or s["kd"] == 0 else f"PID, filter order {s['filter_order']}"
+    at = "" if s["Ts_s"] is None else f" at Ts {s['Ts_s']:g} s"
+    print(f"{kind}{at}: kp {s['kp']:.5g}, ki {s['ki']:.5g}, kd {s['kd']:.5g}, Tf {s['Tf_s']:.5g} s "
+          "(C = (kp + ki/s + kd s) F(s))")
+    if "gains" in s:
+        g = s["gains"]
+        print(f"ideal/ISA: Kc {g['Kc']:.5g}, Ti {g['Ti_s']:.5g} s, Td {g['Td_s']:.5g} s, Tf {g['Tf_s']:.5g} s")
+    what = f"IE {s['ie']:.5g}" + ("" if s["iae"] is None else f", IAE {s['iae']:.5g}")
+    print(f"unit load step at the plant input: {what} (tuned for the {'largest ki' if s['metric'] == 'IE' else 'least IAE'})")
+    print("reached: " + ", ".join(f"{k} {mg[k]:.4g}" + (f" (bound {b[k]:g})" if k in b else "") for k in ("Ms", "Mt", "Mks")))
+    gm = "inf" if mg["gain_margin"] is None else f"{mg['gain_margin']:.3g}"
+    pm = "-" if mg["phase_margin_deg"] is None else f"{mg['phase_margin_deg']:.1f} deg"
+    dm = "-" if mg["delay_margin_s"] is None else f"{mg['delay_margin_s']:.4g} s"
+    print(f"gain margin {gm}, phase margin {pm}, delay margin {dm}; closed loop {'stable' if s['stable'] else 'UNSTABLE'}")
+    for bound in s["active_bounds"]:
+        print(f"  on its bound: {bound['gain']} at its {bound['side']} bound ({bound['bound']:.4g}): {bound['note']}")
+    print(f"{len(s['starts'])} starts, {s['iterations']} IPOPT iterations, {s['refinements']} grid refinements, "
+          f"{s['seconds']:.2f} s")
+    if s["out"]:
+        c = s["discrete_check"]
+        print(f"wrote {s['out']} ({s['status']}, sha256 {s['content_sha256'][:12]}...): at Ts {c['sample_period_s']:g} s "
+              + ", ".join(f"{k} {v:.4g}" for k, v in c["achieved"].items())
+              + f", {'stable' if c['stable'] else 'UNSTABLE'}")

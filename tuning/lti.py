@@ -1,0 +1,468 @@
+"""The autotuner's plant: a user's linear loop as python-control gives it, with an exact input delay, checked once.
+
+:func:`as_plant` turns a python-control ``TransferFunction`` or ``StateSpace`` (continuous or
+discrete; stable, integrating or unstable) or a ``FrequencyResponseData`` (a measured frequency
+response), with an input delay ``delay_s``, into a :class:`LinearPlant`: its frequency response
+with the delay exact (``e^{-j w L}``, not a Padé approximant), its poles where it has them, its
+sign and its integrators, the frequencies that characterise it (the design grid is chosen from
+them), and its sampled-data equivalent at a controller's sample period (:meth:`LinearPlant.sampled`:
+zero-order hold, the delay split into whole samples and a fraction, exactly). A malformed plant
+(not single-input single-output, improper, not finite, a delay that is not a whole number of a
+discrete plant's samples, poles on the stability boundary other than integrators) is refused with
+an :class:`~piezopreload.core.errors.InputError` that says what was received and what is expected.
+
+:func:`encirclements` and :meth:`LinearPlant.closed_loop_stable` decide the closed loop's
+stability: from its poles where the loop is rational, by the Nyquist criterion (the argument of
+``1 + L`` along the frequency axis, the integrators indented) where it has a delay or is measured.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import control
+import numpy as np
+from scipy.linalg import expm
+
+from piezopreload.core.errors import InputError
+
+__all__ = ["LinearPlant", "as_plant", "encirclements", "nyquist_unstable"]
+
+_ON_AXIS = 1e-9  # a pole this close to the stability boundary (relative) is on it
+
+
+def _poly(c: Any, what: str) -> np.ndarray:
+    a = np.atleast_1d(np.asarray(c, float)).ravel()
+    if not np.all(np.isfinite(a)):
+        raise InputError(f"the plant's {what} coefficients must be finite, got {a.tolist()!r}")
+    nz = np.flatnonzero(a)
+    if nz.size == 0:
+        raise InputError(f"the plant's {what} is zero; expected a nonzero polynomial")
+    return a[nz[0]:]
+
+
+def _siso(sys: Any) -> None:
+    if sys.ninputs != 1 or sys.noutputs != 1:
+        raise InputError(f"the plant must have one input and one output, got {sys.ninputs} inputs and "
+                         f"{sys.noutputs} outputs; tune each loop on its own channel (sys[i, j])")
+
+
+def _sample_period(sys: Any) -> float | None:
+    dt = sys.dt
+    if dt is None or dt == 0 or dt is False:
+        return None
+    if dt is True:
+        raise InputError("the plant is discrete with an unspecified sample period (dt=True); give it its sample "
+                         "period in seconds")
+    dt = float(dt)
+    if not (np.isfinite(dt) and dt > 0):
+        raise InputError(f"the plant's sample period must be a finite number > 0, got {dt!r}")
+    return dt
+
+
+@dataclass(frozen=True, eq=False)
+class LinearPlant:
+    """A checked linear plant (see the module docstring); built by :func:`as_plant`.
+
+    Parameters
+    ----------
+    num, den : ndarray or None
+        Numerator and denominator, descending powers of ``s`` (or of ``z`` with ``dt``); None for measured data.
+    dt : float or None
+        The sample period of a discrete plant (s); None for a continuous one.
+    delay_s : float
+        The input delay (s), exact in the response; a discrete plant's is a whole number of samples.
+    omega_data, data : ndarray or None
+        A measured response: frequencies (rad/s, increasing) and the complex response there (delay not included).
+    source : str
+        What it was made from.
+    ss : tuple of ndarray or None
+        ``(A, B, C, D)`` where the plant was made from a state space (a sampled plant's, its delay a line of
+        states): its poles and its simulation come from it.
+    hold : _Hold or None
+        A sampled plant's zero-order-hold equivalent in its small form: its response comes from it.
+    """
+
+    num: np.ndarray | None
+    den: np.ndarray | None
+    dt: float | None
+    delay_s: float
+    omega_data: np.ndarray | None = None
+    data: np.ndarray | None = None
+    source: str = "TransferFunction"
+    ss: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+    hold: _Hold | None = None
+
+    # ---- what it is --------------------------------------------------------------------------
+    @property
+    def rational(self) -> bool:
+        return self.num is not None
+
+    @property
+    def discrete(self) -> bool:
+        return self.dt is not None
+
+    @property
+    def poles(self) -> np.ndarray | None:
+        if self.ss is not None:
+            return np.linalg.eigvals(self.ss[0])
+        return None if self.den is None else np.roots(self.den)
+
+    def _boundary(self, p: np.ndarray) -> np.ndarray:
+        """The poles' distance past the stability boundary (> 0 unstable): Re p, or |p| - 1 when discrete."""
+        return np.abs(p) - 1.0 if self.discrete else p.real
+
+    @property
+    def integrators(self) -> int:
+        """Poles at ``s = 0`` (``z = 1``); for measured data, the low-frequency slope of the magnitude in decades."""
+        if self.poles is None:
+            w, g = self.omega_data, np.abs(self.data)
+            slope = -np.log(g[1] / g[0]) / np.log(w[1] / w[0])
+            return int(np.clip(np.round(slope), 0, 2))
+        at = 1.0 if self.discrete else 0.0
+        return int(np.sum(np.abs(self.poles - at) <= _ON_AXIS * max(1.0, np.max(np.abs(self.poles)))))
+
+    @property
+    def unstable_poles(self) -> int:
+        """Poles past the stability boundary (measured data: assumed 0, a response measured in open loop)."""
+        if self.poles is None:
+            return 0
+        return int(np.sum(self._boundary(self.poles) > _ON_AXIS))
+
+    @property
+    def sign(self) -> float:
+        """The sign of the low-frequency gain (``lim s^m G(s)`` for ``m`` integrators): the controller's sign."""
+        if self.rational:
+            num, den = np.poly1d(self.num), np.poly1d(self.den)
+            if self.discrete:  # in w = z - 1
+                num, den = num(np.poly1d([1.0, 1.0])), den(np.poly1d([1.0, 1.0]))
+            return float(np.sign(_lowest(num.coeffs) / _lowest(den.coeffs)))
+        phase = np.angle(self.data[0])  # about 0 (type 0) or -90 deg (type 1) when the gain is positive
+        return 1.0 if -0.75 * np.pi < phase <= 0.25 * np.pi else -1.0
+
+    def characteristic_frequencies(self) -> np.ndarray:
+        """The frequencies (rad/s) of the plant's poles and zeros (not at the origin) and of its delay."""
+        if not self.rational:
+            return np.array([self.omega_data[0], self.omega_data[-1]])
+        if self.hold is not None:  # a sampled plant: its continuous part's poles and its delay
+            roots = np.linalg.eigvals(self.hold.Phi)
+            extra = [1.0 / (self.hold.d * self.dt)] if self.hold.d else []
+        else:
+            roots, extra = np.concatenate([np.roots(self.num), self.poles]), []
+        if self.discrete:
+            roots = roots[np.abs(roots) > 1e-12]
+            mags = np.abs(np.log(roots.astype(complex))) / self.dt
+        else:
+            mags = np.abs(roots)
+        mags = mags[mags > 1e-9 * max(1.0, float(np.max(mags, initial=1.0)))]
+        if self.delay_s > 0:
+            mags = np.append(mags, 1.0 / self.delay_s)
+        mags = np.append(mags, extra)
+        return mags if mags.size else np.array([1.0])
+
+    def grid(self, per_decade: int = 25, widen: float = 0.0) -> np.ndarray:
+        """The design grid (rad/s): from a hundredth of the lowest characteristic frequency to a hundred times the
+        highest (``widen`` decades more each side), log-spaced; a discrete plant's up to just below its Nyquist
+        frequency; a measured response's data frequencies (every ``k``-th, for about ``per_decade`` a decade)."""
+        if not self.rational:
+            decades = np.log10(self.omega_data[-1] / self.omega_data[0])
+            step = max(1, int(self.omega_data.size / max(per_decade * decades, 1.0)))
+            keep = np.unique(np.append(np.arange(0, self.omega_data.size, step), self.omega_data.size - 1))
+            return self.omega_data[keep]
+        f = self.characteristic_frequencies()
+        lo, hi = np.log10(0.01 * f.min()) - widen, np.log10(100.0 * f.max()) + widen
+        if self.discrete:
+            hi = min(hi, np.log10(0.999 * np.pi / self.dt))
+            lo = min(lo, hi - 2.0)
+        return np.logspace(lo, hi, int(np.ceil((hi - lo) * per_decade)) + 1)
+
+    # ---- its response ------------------------------------------------------------------------
+    def response(self, omega: Any) -> np.ndarray:
+        """``G(j w)`` (``G(e^{j w dt})`` when discrete) at ``omega`` (rad/s), the delay included exactly; a measured
+        response between its frequencies by linear interpolation of log-magnitude and unwrapped phase."""
+        w = np.asarray(omega, float)
+        delay = np.exp(-1j * w * self.delay_s)
+        if not self.rational:
+            lw, lg = np.log(self.omega_data), np.log(np.abs(self.data))
+            ph = np.unwrap(np.angle(self.data))
+            x = np.log(np.clip(w, self.omega_data[0], self.omega_data[-1]))
+            return np.exp(np.interp(x, lw, lg) + 1j * np.interp(x, lw, ph)) * delay
+        s = np.exp(1j * w * self.dt) if self.discrete else 1j * w
+        if self.hold is not None:
+            return self.hold.response(s) * delay
+        return np.polyval(self.num, s) / np.polyval(self.den, s) * delay
+
+    def transfer_function(self) -> control.TransferFunction:
+        """The rational part as a python-control transfer function (the delay is :attr:`delay_s`)."""
+        if not self.rational:
+            raise InputError("a measured frequency response has no transfer function; fit one (fit_plant)")
+        return control.tf(self.num, self.den, 0 if self.dt is None else self.dt)
+
+    # ---- sampled ---------------------------------------------------------------------------------
+    def sampled(self, Ts: float) -> LinearPlant:
+        """The plant between a controller's D/A (zero-order hold) and A/D at sample period ``Ts``: exact for a
+        rational plant (the delay split into whole samples and a fraction, Åström and Wittenmark's modified
+        z-transform); for measured data, ``G(j w) (1 - e^{-j w Ts}) / (j w Ts)`` below the Nyquist frequency
+        (the hold's response at the fundamental; the aliases are left out)."""
+        if not (np.isfinite(Ts) and Ts > 0):
+            raise InputError(f"the sample period must be a finite number > 0, got {Ts!r}")
+        if self.discrete:
+            if abs(Ts - self.dt) > 1e-9 * self.dt:
+                raise InputError(f"the plant is discrete with sample period {self.dt:g} s; the controller's must be "
+                                 f"the same, got {Ts:g} s")
+            return self
+        if not self.rational:
+            w = self.omega_data[self.omega_data < np.pi / Ts]
+            if w.size < 4:
+                raise InputError(f"the measured response has {w.size} frequencies below the Nyquist frequency of "
+                                 f"Ts = {Ts:g} s; expected at least 4")
+            hold = np.where(w * Ts > 0, (1 - np.exp(-1j * w * Ts)) / (1j * w * Ts), 1.0)
+            return LinearPlant(None, None, Ts, self.delay_s, w, self.data[:w.size] * hold,
+                               f"{self.source}, held at {Ts:g} s")
+        ss, hold = _sampled_ss(self.num, self.den, self.delay_s, Ts)
+        tf = control.ss2tf(*ss, Ts)
+        num, den = _trim(tf.num[0][0]), _trim(tf.den[0][0])
+        return LinearPlant(_poly(num, "numerator"), _poly(den, "denominator"), Ts, 0.0,
+                           source=f"{self.source}, held at {Ts:g} s", ss=ss, hold=hold)
+
+    def state_space(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(A, B, C, D)`` of a discrete rational plant, its delay as a line of states."""
+        if not (self.rational and self.discrete):
+            raise InputError("a state space is taken of a discrete rational plant; sample it first (sampled(Ts))")
+        if self.ss is not None:
+            return self.ss
+        sys = control.tf2ss(self.num, self.den, self.dt)
+        return np.asarray(sys.A), np.asarray(sys.B), np.asarray(sys.C), np.asarray(sys.D)
+
+    # ---- the closed loop -----------------------------------------------------------------------
+    def closed_loop_stable(self, controller: Any) -> bool:
+        """Whether the loop with ``controller`` is stable: from the closed loop's poles where plant and controller
+        are rational and the plant has no delay, else by the Nyquist criterion (:func:`nyquist_unstable`) on a
+        grid that resolves the phase of ``1 + L``. ``controller`` gives ``num_den(dt)`` (None where it has no
+        rational form), ``response(omega, dt)`` and ``integrators``."""
+        rational = controller.num_den(self.dt) if self.rational and self.delay_s == 0.0 else None
+        if rational is not None:
+            return bool(np.all(self._boundary(self._closed_loop_eigenvalues(*rational)) < -_ON_AXIS))
+        omega, loop = self.resolved_loop(lambda w: controller.response(w, self.dt))
+        return nyquist_unstable(omega, loop, self.unstable_poles, self.integrators + controller.integrators,
+                                self.dt) == 0
+
+    def _closed_loop_eigenvalues(self, c_num: np.ndarray, c_den: np.ndarray) -> np.ndarray:
+        """The eigenvalues of the loop's state matrix (plant and controller in state space, negative feedback):
+        better conditioned than the roots of the characteristic polynomial for long delay lines."""
+        dt = 0 if self.dt is None else self.dt
+        A, B, C, D = self.ss if self.ss is not None else _matrices(control.tf2ss(self.num, self.den, dt))  # type: ignore[misc]
+        Ac, Bc, Cc, Dc = _matrices(control.tf2ss(c_num, c_den, dt))
+        # u = Cc xc + Dc e, e = -y, y = C x + D u: y = (C x + D Cc xc) / (1 + D Dc)
+        k = 1.0 / (1.0 + float(D[0, 0]) * float(Dc[0, 0]))
+        y_x, y_xc = k * C, k * float(D[0, 0]) * Cc
+        u_x, u_xc = -float(Dc[0, 0]) * y_x, Cc - float(Dc[0, 0]) * y_xc
+        top = np.hstack([A + B @ u_x, B @ u_xc])
+        bottom = np.hstack([-Bc @ y_x, Ac - Bc @ y_xc])
+        return np.linalg.eigvals(np.vstack([top, bottom]))
+
+    def resolved_loop(self, controller_response: Any) -> tuple[np.ndarray, np.ndarray]:
+        """The loop ``C G`` on a grid fine enough for the Nyquist criterion: the plant's grid a decade wider, ten
+        times denser, points added where ``1 + L`` turns by more than an eighth of a turn between neighbours; a
+        continuous loop's grid extended until ``|L| < 1/2``, a discrete loop's ending at its Nyquist frequency.
+        Measured data: its own frequencies (the phase must be resolved there; checked)."""
+        def loop_at(w: np.ndarray) -> np.ndarray:
+            return np.asarray(controller_response(w), complex) * self.response(w)
+
+        if not self.rational:
+            w = self.omega_data
+            return w, loop_at(w)
+        w = self.grid(per_decade=250, widen=1.0)
+        if self.discrete:
+            w = np.append(w[w < np.pi / self.dt], np.pi / self.dt)
+        else:
+            for _ in range(12):
+                if abs(loop_at(w[-1:])[0]) < 0.5:
+                    break
+                w = np.append(w, np.logspace(np.log10(w[-1]), np.log10(w[-1]) + 1.0, 251)[1:])
+        loop = loop_at(w)
+        for _ in range(8):
+            turn = np.abs(np.diff(np.unwrap(np.angle(1.0 + loop))))
+            coarse = np.flatnonzero(turn > np.pi / 4)
+            if coarse.size == 0:
+                break
+            mid = np.sqrt(w[coarse] * w[coarse + 1])
+            w = np.insert(w, coarse + 1, mid)
+            loop = np.insert(loop, coarse + 1, loop_at(mid))
+        return w, loop
+
+
+def _matrices(sys: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    return tuple(np.atleast_2d(np.asarray(m, float)) for m in (sys.A, sys.B, sys.C, sys.D))  # type: ignore[return-value]
+
+
+def _trim(c: Any) -> np.ndarray:
+    """A polynomial's coefficients without leading ones that are rounding noise (below 1e-12 of the largest)."""
+    a = np.asarray(c, float).ravel()
+    big = np.flatnonzero(np.abs(a) > 1e-12 * float(np.max(np.abs(a), initial=0.0)))
+    return a[big[0]:] if big.size else a
+
+
+def _lowest(coeffs: np.ndarray) -> float:
+    """The lowest-order nonzero coefficient of a polynomial given in descending powers."""
+    ascending = np.asarray(coeffs, float)[::-1]
+    scale = float(np.max(np.abs(ascending)))
+    return float(ascending[np.flatnonzero(np.abs(ascending) > 1e-12 * scale)[0]])
+
+
+@dataclass(frozen=True, eq=False)
+class _Hold:
+    """A zero-order-hold equivalent in its small form: ``P(z) = z^-d C (zI - Phi)^-1 (G0 + G1 z^-1) + D z^-dd``."""
+
+    Phi: np.ndarray
+    G0: np.ndarray
+    G1: np.ndarray
+    C: np.ndarray
+    D: float
+    d: int
+    d_direct: int
+
+    def response(self, z: np.ndarray) -> np.ndarray:
+        eye = np.eye(self.Phi.shape[0])
+        rhs = self.G0[None] + self.G1[None] / z[:, None, None]
+        x = np.linalg.solve(z[:, None, None] * eye[None] - self.Phi[None], rhs)
+        return (self.C @ x)[:, 0, 0] * z ** (-self.d) + self.D * z ** (-self.d_direct)
+
+
+def _sampled_ss(num: np.ndarray, den: np.ndarray, delay_s: float, Ts: float
+                ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], _Hold]:
+    """The zero-order-hold equivalent of ``num/den e^{-s L}`` at ``Ts``: with ``L = d Ts + tau`` (``0 <= tau < Ts``),
+    ``x+ = Phi x + G0 u[k-d] + G1 u[k-d-1]``, ``G0 = int_0^{Ts-tau} e^{As} ds B``,
+    ``G1 = e^{A(Ts-tau)} int_0^tau e^{As} ds B``; the delayed inputs are states."""
+    sys = control.tf2ss(num, den)
+    A, B, C, D = (np.atleast_2d(np.asarray(m, float)) for m in (sys.A, sys.B, sys.C, sys.D))
+    n = A.shape[0]
+    d = int(np.floor(delay_s / Ts + 1e-9))
+    tau = max(delay_s - d * Ts, 0.0)
+    if tau < 1e-9 * Ts:
+        tau = 0.0
+
+    def integral(t: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(e^{A t}, int_0^t e^{As} ds B)``."""
+        M = expm(np.block([[A, B], [np.zeros((1, n + 1))]]) * t)
+        return M[:n, :n], M[:n, n:]
+
+    Phi, _ = integral(Ts)
+    E, G0 = integral(Ts - tau)
+    _, Gt = integral(tau)
+    G1 = E @ Gt
+    if tau > 0 and np.any(D != 0):
+        d_direct = d + 1
+    else:
+        d_direct = d
+    lags = max(d + (1 if tau > 0 else 0), d_direct)
+    # states: x, then u[k-1], ..., u[k-lags]
+    N = n + lags
+    Ad, Bd = np.zeros((N, N)), np.zeros((N, 1))
+    Ad[:n, :n] = Phi
+
+    def feed(lag: int, gain: np.ndarray) -> None:  # x+ += gain u[k - lag]
+        if lag == 0:
+            Bd[:n] += gain
+        else:
+            Ad[:n, n + lag - 1:n + lag] += gain
+
+    feed(d, G0)
+    if tau > 0:
+        feed(d + 1, G1)
+    if lags:
+        Bd[n, 0] = 1.0
+        for i in range(1, lags):
+            Ad[n + i, n + i - 1] = 1.0
+    Cd, Dd = np.zeros((1, N)), np.zeros((1, 1))
+    Cd[:, :n] = C
+    if d_direct == 0:
+        Dd[:] = D
+    else:
+        Cd[0, n + d_direct - 1] += float(D[0, 0])
+    hold = _Hold(Phi, G0, G1 if tau > 0 else np.zeros_like(G0), C, float(D[0, 0]), d, d_direct)
+    return (Ad, Bd, Cd, Dd), hold
+
+
+def as_plant(plant: Any, delay_s: float = 0.0) -> LinearPlant:
+    """A python-control ``TransferFunction``, ``StateSpace`` or ``FrequencyResponseData`` (or a :class:`LinearPlant`)
+    with an input delay, checked (see the module docstring)."""
+    if not (isinstance(delay_s, int | float) and np.isfinite(delay_s) and delay_s >= 0):
+        raise InputError(f"delay_s must be a finite number >= 0, got {delay_s!r}")
+    delay_s = float(delay_s)
+    if isinstance(plant, LinearPlant):
+        return plant if delay_s == 0 else LinearPlant(plant.num, plant.den, plant.dt, plant.delay_s + delay_s,
+                                                      plant.omega_data, plant.data, plant.source, plant.ss, plant.hold)
+    if isinstance(plant, control.FrequencyResponseData):
+        return _from_frd(plant, delay_s)
+    if isinstance(plant, control.StateSpace | control.TransferFunction):
+        _siso(plant)
+        tf = control.tf(plant) if isinstance(plant, control.StateSpace) else plant
+        return _from_tf(tf, delay_s, type(plant).__name__)
+    raise InputError(f"the plant must be a python-control TransferFunction, StateSpace or FrequencyResponseData, "
+                     f"got {type(plant).__name__}")
+
+
+def _from_tf(tf: control.TransferFunction, delay_s: float, source: str) -> LinearPlant:
+    dt = _sample_period(tf)
+    num, den = _poly(tf.num[0][0], "numerator"), _poly(tf.den[0][0], "denominator")
+    if num.size > den.size:
+        raise InputError(f"the plant is improper (numerator degree {num.size - 1} > denominator degree "
+                         f"{den.size - 1}); a physical plant's gain falls at high frequency")
+    if dt is not None:  # the delay as poles at the origin: z^-k
+        k = delay_s / dt
+        if abs(k - round(k)) > 1e-9 * max(1.0, k):
+            raise InputError(f"a discrete plant's delay must be a whole number of its samples ({dt:g} s), got "
+                             f"{delay_s:g} s ({k:.6g} samples)")
+        den, delay_s = np.concatenate([den, np.zeros(int(round(k)))]), 0.0
+    plant = LinearPlant(num, den, dt, delay_s, source=source)
+    poles = plant.poles
+    near = np.abs(plant._boundary(poles)) <= _ON_AXIS * max(1.0, float(np.max(np.abs(poles), initial=1.0)))
+    at = 1.0 if dt is not None else 0.0
+    odd = poles[near & (np.abs(poles - at) > _ON_AXIS)]
+    if odd.size:
+        raise InputError(f"the plant has poles on the stability boundary ({', '.join(f'{p:.4g}' for p in odd)}) "
+                         "other than integrators; the autotuner needs them off it (add a little damping)")
+    return plant
+
+
+def _from_frd(frd: control.FrequencyResponseData, delay_s: float) -> LinearPlant:
+    _siso(frd)
+    omega = np.asarray(frd.omega, float)
+    data = np.asarray(frd.eval(omega), complex).ravel()
+    if omega.size < 8:
+        raise InputError(f"a measured frequency response needs at least 8 frequencies, got {omega.size}")
+    if not (np.all(np.isfinite(omega)) and np.all(omega > 0) and np.all(np.diff(omega) > 0)):
+        raise InputError("the measured response's frequencies must be finite, > 0 and strictly increasing")
+    if not np.all(np.isfinite(data)) or np.any(data == 0):
+        raise InputError("the measured response must be finite and nonzero at every frequency")
+    dt = _sample_period(frd)
+    return LinearPlant(None, None, dt, delay_s, omega, data, "FrequencyResponseData")
+
+
+def encirclements(omega: np.ndarray, loop: np.ndarray, integrators: int, dt: float | None) -> float:
+    """The counterclockwise turns of ``1 + L`` about the origin as the frequency runs over the whole axis
+    (``-w..w``, the Nyquist contour: up the imaginary axis, or around the unit circle), the ``integrators`` poles at
+    ``s = 0`` (``z = 1``) indented on the unstable side, and the high-frequency end closed (``|L| < 1`` there: the
+    loop falls off; a discrete loop is real at the Nyquist frequency)."""
+    f = 1.0 + np.asarray(loop, complex)
+    phase = np.unwrap(np.angle(f))
+    half = phase[-1] - phase[0]
+    if dt is None:  # from the grid's end to infinity 1 + L stays in the right half plane (|L| < 1): back to 0
+        half += -np.angle(f[-1])
+    return (2.0 * half - integrators * np.pi) / (2.0 * np.pi)
+
+
+def nyquist_unstable(omega: np.ndarray, loop: np.ndarray, open_loop_unstable: int, integrators: int,
+                     dt: float | None) -> int:
+    """The closed loop's unstable poles by the Nyquist criterion, ``Z = P - N`` with ``N`` the counterclockwise
+    turns of :func:`encirclements`. ``omega`` must resolve the phase of ``1 + L`` (adjacent points turn less than
+    half a turn) and end where ``|L| < 1`` (continuous) or at the Nyquist frequency; an
+    :class:`~piezopreload.core.errors.InputError` says when it does not."""
+    loop = np.asarray(loop, complex)
+    if dt is None and abs(loop[-1]) >= 1.0:
+        raise InputError(f"the loop's gain is {abs(loop[-1]):.3g} >= 1 at the grid's highest frequency "
+                         f"({omega[-1]:.4g} rad/s): the frequencies must reach beyond the loop's crossover")
+    turns = encirclements(omega, loop, integrators, dt)
+    return int(round(open_loop_unstable - turns))

@@ -1,0 +1,315 @@
+"""The autotuner's optimisation problem on one frequency grid: CasADi expressions, IPOPT with exact derivatives.
+
+Decision variables, scaled to O(1) (:class:`Scales`): ``kp = s_p x0``, ``ki = s_i x1`` and, with a
+derivative, ``kd = s_d x2``, ``Tf = s_f exp(x3)`` (:class:`~piezopreload.tuning.pidform.PIDController`'s
+forms). The objective: ``-ki / s_i`` (``IE``: the integrated error of a unit load step at the plant
+input is ``1/ki``), or the load step's IAE (:func:`~piezopreload.tuning.loadstep.iae_function`).
+The constraints: for each bound ``|X| <= M`` (``X`` one of ``S``, ``T``, ``KS``) and each grid
+frequency, the row of :func:`~piezopreload.tuning.loopshape.bound_rows` divided by ``|1 + L|^2``,
+``|X|^2 / M^2 - 1 <= 0``: one per frequency, scaled alike. :meth:`PIDProblem.solve` runs IPOPT
+(exact Hessian), or scipy's SLSQP on the same functions and first derivatives (the benchmark's
+peer); :meth:`PIDProblem.least_violation` the smallest ``max |X| / M`` any gains reach.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import casadi as ca
+import numpy as np
+from scipy.optimize import minimize
+
+from piezopreload.core.errors import InputError
+from piezopreload.tuning.loopshape import (
+    bound_rows,
+    continuous_pid_response,
+    discrete_pid_response,
+    loop_terms,
+    omega_terms,
+)
+from piezopreload.tuning.pidform import PIDController
+
+__all__ = ["Scales", "PIDProblem", "Solution", "TF_RANGE", "X_MAX"]
+
+#: the derivative filter's range relative to its scale (``Tf = s_f exp(x3)``)
+TF_RANGE = (1e-3, 1e2)
+#: the largest scaled gain
+X_MAX = 1e3
+#: the smallest scaled proportional and integral gains (the ideal/ISA form needs them positive)
+_X_MIN = (1e-6, 1e-8)
+
+
+@dataclass(frozen=True)
+class Scales:
+    """The gains' scales (``x = gain / scale``) and the controller's form: ``filter_order`` 0 (PI), 1 or 2; ``dt``
+    a discrete controller's period (None: continuous)."""
+
+    kp: float
+    ki: float
+    kd: float
+    Tf: float
+    filter_order: int
+    dt: float | None
+
+    def __post_init__(self) -> None:
+        for name in ("kp", "ki", "kd", "Tf"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise InputError(f"Scales.{name} must be finite and > 0, got {value!r}")
+
+    @property
+    def n(self) -> int:
+        return 2 if self.filter_order == 0 else 4
+
+    def gains(self, x: Any) -> tuple[Any, Any, Any, Any]:
+        """``(kp, ki, kd, Tf)`` of the scaled variables (numbers or CasADi expressions)."""
+        if self.filter_order == 0:
+            return self.kp * x[0], self.ki * x[1], 0.0, 0.0
+        return self.kp * x[0], self.ki * x[1], self.kd * x[2], self.Tf * (np.exp(x[3]) if isinstance(
+            x, np.ndarray) else ca.exp(x[3]))
+
+    def controller(self, x: np.ndarray) -> PIDController:
+        kp, ki, kd, Tf = (float(v) for v in self.gains(np.asarray(x, float)))
+        return PIDController(kp, ki, kd, Tf, self.filter_order, self.dt)
+
+    def x(self, c: PIDController) -> np.ndarray:
+        """The scaled variables of ``c`` (clipped into :meth:`box`)."""
+        lo, hi = self.box()
+        if self.filter_order == 0:
+            x = np.array([c.kp / self.kp, c.ki / self.ki])
+        else:
+            x = np.array([c.kp / self.kp, c.ki / self.ki, c.kd / self.kd, np.log(max(c.Tf, 1e-300) / self.Tf)])
+        return np.clip(x, lo, hi)
+
+    def box(self) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper bounds of the scaled variables."""
+        lo = [_X_MIN[0], _X_MIN[1]] + ([0.0, np.log(TF_RANGE[0])] if self.n == 4 else [])
+        hi = [X_MAX, X_MAX] + ([X_MAX, np.log(TF_RANGE[1])] if self.n == 4 else [])
+        return np.array(lo), np.array(hi)
+
+
+@dataclass(frozen=True)
+class Solution:
+    """One solve: the variables, the objective, the worst bound's ``|X| / M - 1`` on the grid, the solver's word."""
+
+    x: np.ndarray
+    objective: float
+    violation: float
+    status: str
+    iterations: int
+    seconds: float
+    lam_g: np.ndarray | None = None
+    lam_x: np.ndarray | None = None
+
+
+#: the grid's rows come in blocks of this many (padding rows are free), so one compiled NLP serves many grids
+_BLOCK = 64
+
+
+@dataclass(frozen=True, eq=False)
+class _Compiled:
+    """The NLP's CasADi functions for one structure: variables ``x``, numbers ``p`` (the scales, the sample period,
+    the bounds' squares, then per grid slot the frequency's features and the plant's response)."""
+
+    x: Any
+    p: Any
+    f: Any
+    g: Any
+    fg: Any
+    derivatives: Any
+    features: int
+
+
+_CACHE: dict[tuple[Any, ...], _Compiled] = {}
+_SOLVERS: dict[tuple[Any, ...], dict[str, Any]] = {}
+
+
+def _features(omega: np.ndarray, filter_order: int, dt: float | None) -> np.ndarray:
+    """Per frequency, what the controller's response is built from (rows): the frequency (continuous), the discrete
+    terms of :func:`~piezopreload.tuning.loopshape.omega_terms` (the controller step at ``dt``), or the frequency
+    Tustin's map warps it to (a second-order filter at ``dt``)."""
+    if dt is None:
+        return omega[None, :]
+    if filter_order < 2:
+        return omega_terms(omega, dt)
+    return (2.0 / dt * np.tan(omega * dt / 2.0))[None, :]
+
+
+def _compile(n: int, names: tuple[str, ...], filter_order: int, discrete: bool, objective: Any) -> _Compiled:
+    nf = 6 if discrete and filter_order < 2 else 1
+    nx = 2 if filter_order == 0 else 4
+    sym = ca.SX if isinstance(objective, str) else ca.MX  # the IAE's simulation stays a call, not an expansion
+    x = sym.sym("x", nx)
+    p = sym.sym("p", 5 + len(names) + n * (nf + 2))
+    s_kp, s_ki, s_kd, s_tf, dt = (p[i] for i in range(5))
+    kp, ki = s_kp * x[0], s_ki * x[1]
+    kd, Tf = (0.0, 0.0) if filter_order == 0 else (s_kd * x[2], s_tf * ca.exp(x[3]))
+    grid = ca.reshape(p[5 + len(names):], nf + 2, n)
+    if discrete and filter_order < 2:
+        re, im = discrete_pid_response(kp, ki, kd, Tf, dt, [grid[i, :] for i in range(6)])
+    else:
+        re, im = continuous_pid_response(kp, ki, kd, Tf, grid[0, :], filter_order)
+    g_re, g_im = grid[nf, :], grid[nf + 1, :]
+    rows = bound_rows(re, im, g_re, g_im, {name: ca.sqrt(p[5 + i]) for i, name in enumerate(names)})
+    _, _, d = loop_terms(re, im, g_re, g_im)
+    g = ca.vertcat(*[(rows[name] / d).T for name in names]) if names else sym(0, 1)
+    f = -x[1] if isinstance(objective, str) else objective(ca.vertcat(kp, ki, kd, Tf))
+    return _Compiled(x, p, f, g, ca.Function("fg", [x, p], [f, g]),
+                     ca.Function("dfg", [x, p], [ca.gradient(f, x), ca.jacobian(g, x)]), nf)
+
+
+class PIDProblem:
+    """The problem on the grid ``omega`` with the plant's response ``G`` there (see the module docstring).
+
+    ``bounds`` maps ``Ms``, ``Mt``, ``Mks`` to limits (None: unbounded); ``objective`` is ``"IE"`` or a CasADi
+    function ``(kp, ki, kd, Tf) -> IAE`` with ``iae_scale`` its typical size. The grid is laid out in blocks of
+    :data:`_BLOCK` slots (the spare ones free rows), so the IE problem's CasADi functions and IPOPT solver are
+    built once per structure and grid size and kept.
+    """
+
+    def __init__(self, omega: np.ndarray, G: np.ndarray, bounds: dict[str, float | None], scales: Scales,
+                 objective: Any = "IE", iae_scale: float = 1.0, max_iterations: int = 300) -> None:
+        self.omega, self.scales, self.bounds = np.asarray(omega, float), scales, bounds
+        self.names = tuple(name for name, m in bounds.items() if m is not None)
+        n = self.omega.size
+        cap = _BLOCK * int(np.ceil(n / _BLOCK))
+        key = (cap, self.names, scales.filter_order, scales.dt is not None, max_iterations)
+        if isinstance(objective, str):
+            if key not in _CACHE:
+                _CACHE[key] = _compile(cap, self.names, scales.filter_order, scales.dt is not None, "IE")
+            self.compiled = _CACHE[key]
+            self._solvers = _SOLVERS.setdefault(key, {})
+        else:  # the IAE: a function of this plant's, not kept
+            g4 = ca.MX.sym("g4", 4)
+            fn = ca.Function("iae_scaled", [g4], [objective(g4) / iae_scale])
+            self.compiled = _compile(cap, self.names, scales.filter_order, scales.dt is not None, fn)
+            self._solvers = {}
+        feats = _features(self.omega, scales.filter_order, scales.dt)
+        G = np.asarray(G, complex)
+        slots = np.zeros((self.compiled.features + 2, cap))
+        slots[:, :n] = np.vstack([feats, G.real[None, :], G.imag[None, :]])
+        slots[:, n:] = slots[:, n - 1:n]  # spare slots: the last frequency again, their rows free
+        self.data = np.concatenate([[scales.kp, scales.ki, scales.kd, scales.Tf, scales.dt or 0.0],
+                                    [float(bounds[k]) ** 2 for k in self.names], slots.ravel(order="F")])
+        self.ubg = np.tile(np.concatenate([np.zeros(n), np.full(cap - n, np.inf)]), len(self.names))
+        self.cap, self.max_iterations = cap, max_iterations
+        self.x, self.f, self.g = self.compiled.x, self.compiled.f, self.compiled.g
+
+    def fg(self, x: np.ndarray) -> tuple[Any, Any]:
+        """The objective and the rows of the grid's frequencies (the spare slots left out)."""
+        f, g = self.compiled.fg(x, self.data)
+        g = np.asarray(g, float).ravel().reshape(len(self.names), self.cap)[:, :self.omega.size]
+        return f, g.ravel()
+
+    def derivatives(self, x: np.ndarray) -> tuple[Any, Any]:
+        df, dg = self.compiled.derivatives(x, self.data)
+        dg = np.asarray(dg, float).reshape(len(self.names), self.cap, -1)[:, :self.omega.size, :]
+        return df, dg.reshape(-1, dg.shape[-1])
+
+    # ---- evaluation ----------------------------------------------------------------------------
+    def evaluate(self, x: np.ndarray) -> tuple[float, float]:
+        """The objective and the worst bound's ``|X| / M - 1`` (<= 0 met) at ``x``."""
+        f, g = self.fg(x)
+        g = np.asarray(g, float).ravel()
+        worst = float(np.sqrt(max(1.0 + np.max(g, initial=-1.0), 0.0)) - 1.0)
+        return float(f), worst
+
+    def worst_by_bound(self, x: np.ndarray) -> dict[str, tuple[float, float]]:
+        """Per bound, ``(max |X| / M, the frequency where)`` on the grid."""
+        g = np.asarray(self.fg(x)[1], float).ravel().reshape(len(self.names), -1)
+        out = {}
+        for name, row in zip(self.names, g):
+            i = int(np.argmax(row))
+            out[name] = (float(np.sqrt(max(1.0 + row[i], 0.0))), float(self.omega[i]))
+        return out
+
+    # ---- solving -------------------------------------------------------------------------------
+    def _solver(self, name: str = "ipopt") -> Any:
+        if name not in self._solvers:
+            t = type(self.x).sym("t")
+            nlp = ({"x": self.x, "p": self.compiled.p, "f": self.f, "g": self.g} if name != "least_violation" else
+                   {"x": ca.vertcat(self.x, t), "p": self.compiled.p, "f": t, "g": self.g - t})
+            warm = {"ipopt.warm_start_init_point": "yes", "ipopt.mu_init": 1e-8, "ipopt.warm_start_bound_push": 1e-9,
+                    "ipopt.warm_start_mult_bound_push": 1e-9, "ipopt.warm_start_slack_bound_push": 1e-9}
+            self._solvers[name] = ca.nlpsol(f"autotune_{name}", "ipopt", nlp, {
+                "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.tol": 1e-9,
+                "ipopt.constr_viol_tol": 1e-9, "ipopt.max_iter": self.max_iterations,
+                # a small barrier to start with: the scaled problem's starts are near its optimum, and IPOPT's
+                # default (0.1) pushes them off the active bounds into another local optimum's basin; a warm start
+                # (the previous solution and its multipliers, a refined grid) starts at the barrier's end
+                "ipopt.mu_init": 1e-4, **(warm if name == "ipopt_warm" else {})})
+        return self._solvers[name]
+
+    def _multipliers(self, warm: Solution) -> np.ndarray:
+        """``warm``'s constraint multipliers in this problem's slots (its grid is this one's first frequencies)."""
+        lam = np.zeros((len(self.names), self.cap))
+        old = np.asarray(warm.lam_g, float).reshape(len(self.names), -1)
+        k = min(old.shape[1], self.cap)
+        lam[:, :k] = old[:, :k]
+        return lam.ravel()
+
+    def solve(self, x0: np.ndarray, method: str = "ipopt", box: tuple[np.ndarray, np.ndarray] | None = None,
+              warm: Solution | None = None) -> Solution:
+        """Solve from ``x0`` with IPOPT (exact first and second derivatives) or scipy's SLSQP (``method="slsqp"``:
+        the same functions and exact first derivatives, a quasi-Newton Hessian; ``"slsqp-fd"``: finite-difference
+        derivatives, as scipy takes a problem without them), in :meth:`Scales.box` or the narrower ``box`` (a trust
+        region). ``warm``: a solution of a problem whose grid is this one's first frequencies (IPOPT starts from its
+        multipliers too)."""
+        lo, hi = self.scales.box()
+        if box is not None:
+            lo, hi = np.maximum(lo, box[0]), np.minimum(hi, box[1])
+        x0 = np.clip(np.asarray(x0, float), lo, hi)
+        t0 = time.perf_counter()
+        if method in ("slsqp", "slsqp-fd"):
+            x, status, iterations = self._slsqp(x0, lo, hi, exact=method == "slsqp")
+        elif method == "ipopt":
+            use_warm = warm is not None and warm.lam_g is not None
+            solver = self._solver("ipopt_warm" if use_warm else "ipopt")
+            extra = {"lam_g0": self._multipliers(warm), "lam_x0": warm.lam_x} if use_warm else {}
+            sol = solver(x0=x0, p=self.data, lbx=lo, ubx=hi, lbg=-np.inf, ubg=self.ubg, **extra)
+            stats = solver.stats()
+            x, status, iterations = (np.asarray(sol["x"], float).ravel(), str(stats.get("return_status")),
+                                     int(stats.get("iter_count", 0)))
+            lam = (np.asarray(sol["lam_g"], float).ravel(), np.asarray(sol["lam_x"], float).ravel())
+        else:
+            raise InputError(f"method must be 'ipopt', 'slsqp' or 'slsqp-fd', got {method!r}")
+        x = np.clip(x, lo, hi)
+        f, worst = self.evaluate(x)
+        return Solution(x, f, worst, status, iterations, time.perf_counter() - t0,
+                        *(lam if method == "ipopt" else (None, None)))
+
+    def _slsqp(self, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, exact: bool) -> tuple[np.ndarray, str, int]:
+        def fun(x: np.ndarray) -> float:
+            return float(self.fg(x)[0])
+
+        def grad(x: np.ndarray) -> np.ndarray:
+            return np.asarray(self.derivatives(x)[0], float).ravel()
+
+        def cons(x: np.ndarray) -> np.ndarray:
+            return -np.asarray(self.fg(x)[1], float).ravel()
+
+        def cons_jac(x: np.ndarray) -> np.ndarray:
+            return -np.asarray(self.derivatives(x)[1], float)
+
+        constraint: dict[str, Any] = {"type": "ineq", "fun": cons, **({"jac": cons_jac} if exact else {})}
+        res = minimize(fun, x0, jac=grad if exact else None, method="SLSQP", bounds=list(zip(lo, hi)),
+                       constraints=[constraint], options={"maxiter": self.max_iterations, "ftol": 1e-12})
+        return np.asarray(res.x, float), str(res.message), int(res.nit)
+
+    def least_violation(self, x0: np.ndarray) -> Solution:
+        """The gains with the smallest worst bound ``max |X| / M`` on the grid (the phase one of an infeasible
+        problem): minimise ``t`` subject to every row ``<= t``."""
+        lo, hi = self.scales.box()
+        solver = self._solver("least_violation")
+        x0 = np.clip(np.asarray(x0, float), lo, hi)
+        t0 = time.perf_counter()
+        g0 = float(np.max(np.asarray(self.fg(x0)[1], float), initial=0.0))
+        sol = solver(x0=np.append(x0, g0), p=self.data, lbx=np.append(lo, -1.0), ubx=np.append(hi, np.inf),
+                     lbg=-np.inf, ubg=self.ubg)
+        x = np.clip(np.asarray(sol["x"], float).ravel()[:-1], lo, hi)
+        f, worst = self.evaluate(x)
+        stats = solver.stats()
+        return Solution(x, f, worst, str(stats.get("return_status")), int(stats.get("iter_count", 0)),
+                        time.perf_counter() - t0)
