@@ -93,12 +93,14 @@ class TuningResult:
             raise InputError(f"{path}: field {exc} is missing or invalid; run the tune stage again") from exc
 
     def candidate(self, inputs: dict[str, Any] | None = None) -> GainSet:
-        """The tuned gains as a gain set not yet validated: feedforward, plant, references and criteria."""
+        """The tuned gains as a gain set not yet validated: feedforward, plant, references, criteria and the rig's
+        interlock settings of the study's ``[rig_run]``."""
         s, ff = self.study, self.feedforward
         return GainSet(gains=self.gains, status="candidate", feedforward=ff.model, feedforward_info=ff.info(),
                        plant=s.rig, preset=s.name, references={k: s.references[k] for k in REFERENCES},
                        criteria=s.criteria.to_dict(), tuning={**self.tuning, "simc_baseline": gains_to_dict(self.simc)},
-                       inputs={"study": s.path, "study_sha256": s.sha256, **(inputs or {})})
+                       inputs={"study": s.path, "study_sha256": s.sha256, **(inputs or {})},
+                       rig_interlocks=s.rig_run.interlocks(s.rig, s.path))
 
     def validation(self, *, plants: int | None = None, seed: int | None = None, workers: int | None = None,
                    scheduler: str | None = None, progress: Callable[[str], None] | None = None,

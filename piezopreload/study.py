@@ -100,7 +100,7 @@ _SCHEMA: dict[str, Any] = {
                    "tracking_rms_max_N": _NUM, "peak_voltage_max_V": _NUM},
     "export": {"formats": list},
     "rig_run": {"backend": str, "reference": str, "realtime": bool, "seed": int, "force_max_N": _NUM,
-                "ramp_s": _NUM, "missed_streak": int},
+                "force_low_margin_N": _NUM, "ramp_s": _NUM, "stall_limit_s": _NUM},
 }
 _REQUIRED = ("rig", "controller")
 _STRING_LISTS = {"design.pareto", "export.formats"}
