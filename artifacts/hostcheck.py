@@ -69,10 +69,11 @@ def _need(doc: dict[str, Any], key: str, kind: Any, shown: str) -> Any:
 class HostCheck:
     """A host check (see the module docstring); times in seconds.
 
-    ``missed`` counts the wake-ups later than the budget (``budget_s``: the period less the
-    controller step's p99 compute time), which would have missed their deadline. ``verdict``
-    is ``pass`` when every criterion passed. ``lateness_s`` (the samples, for :meth:`plot`) is
-    kept in memory only.
+    ``lateness_*`` describe every wake-up; ``waited_p99_s`` the wake-ups that waited for their
+    deadline (not those catching up after one later than a period). ``missed`` counts the
+    wake-ups later than the budget (``budget_s``: the period less the controller step's p99
+    compute time), which would have missed their deadline. ``verdict`` is ``pass`` when every
+    criterion passed. ``lateness_s`` (the samples, for :meth:`plot`) is kept in memory only.
     """
 
     seconds: float
@@ -82,6 +83,7 @@ class HostCheck:
     lateness_p99_s: float
     lateness_p999_s: float
     lateness_max_s: float
+    waited_p99_s: float
     missed: int
     step_p99_s: float
     step_max_s: float
@@ -129,7 +131,7 @@ class HostCheck:
             raise ArtifactError(f"{shown}: expected an object")
         numbers = {k: _need(doc, k, float, shown) for k in (
             "seconds", "rate_Hz", "lateness_p50_s", "lateness_p99_s", "lateness_p999_s", "lateness_max_s",
-            "step_p99_s", "step_max_s", "budget_s")}
+            "waited_p99_s", "step_p99_s", "step_max_s", "budget_s")}
         limit = doc.get("stall_limit_s")
         counts = _need(doc, "histogram_counts", list, shown)
         if len(counts) != len(BIN_EDGES_S) - 1 or not all(isinstance(c, int) and c >= 0 for c in counts):

@@ -440,6 +440,7 @@ def check(gains_path: str | Path | None = None, *, seconds: float = 10.0, rate_H
         return check_host(rate_Hz=1000.0 if rate_Hz is None else rate_Hz, seconds=seconds, loop=loop,
                           progress=progress)
     su = _setup(gains_path, "sim", None, "step", rate_Hz, True, None, None, 0)
+    _close(su.backend)
     return check_host(rate_Hz=1.0 / su.controller.dt_s, seconds=seconds, controller=su.controller,
                       stall_limit_s=su.limits.safety.stall_limit_s, loop=loop, progress=progress)
 

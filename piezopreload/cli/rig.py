@@ -263,7 +263,8 @@ def _print_rig_check(s: dict[str, Any]) -> None:
     f = s["facts"]
     print(f"{s['samples']} wake-ups at {s['rate_Hz']:g} Hz: lateness p50 {s['lateness_p50_s'] * 1e6:.0f} us, p99 "
           f"{s['lateness_p99_s'] * 1e6:.0f} us, p99.9 {s['lateness_p999_s'] * 1e6:.0f} us, max "
-          f"{s['lateness_max_s'] * 1e3:.2f} ms; {s['missed']} later than the budget")
+          f"{s['lateness_max_s'] * 1e3:.2f} ms; {s['missed']} later than the budget; p99 of the wake-ups that "
+          f"waited {s['waited_p99_s'] * 1e6:.0f} us")
     print(f"budget: the period {s['period_s'] * 1e6:.0f} us less the step's p99 {s['step_p99_s'] * 1e6:.2f} us "
           f"({s['step_what']})" + (f"; stall limit {s['stall_limit_s'] * 1e3:g} ms" if s["stall_limit_s"] else
                                    "; no stall limit (give --gains)"))
