@@ -64,6 +64,7 @@ def test_native_loop_gives_the_python_loops_samples(gains_path, tmp_path):
     assert rn["timing"]["lost_samples"] == 0
 
 
+@pytest.mark.slow
 def test_learned_signal_plays_back_on_the_native_loop_as_on_the_python_loop(gains_path, tmp_path):
     """'rig run --learned': the signal's ff_extra reaches the native loop's compiled step at each sample; the log is
     the Python loop's (compiled step: to the bit; numpy step: to float64 rounding), and the executor says native."""
@@ -270,6 +271,7 @@ _KILLED = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 @pytest.mark.realtime
 @pytest.mark.parametrize("loop", ["native", "python"])
 def test_supervisor_killed_the_watchdog_cuts_the_voltage_and_the_log_is_intact(gains_path, tmp_path, loop):

@@ -29,7 +29,7 @@ USER, PASSWORD = "operator", "correct horse"
 #: a short host check before arming: these tests are about the server (the check has its own, tests/test_rig.py)
 QUICK = {"host_check_s": 0.2, "accept_host": True}
 
-pytestmark = pytest.mark.realtime
+pytestmark = [pytest.mark.realtime, pytest.mark.slow]
 
 
 def _free_port() -> int:

@@ -305,6 +305,7 @@ def _wait_for_rows(log_dir, rows, timeout=30.0):
     raise AssertionError("the run log did not grow")
 
 
+@pytest.mark.slow
 @pytest.mark.realtime
 def test_sigint_ramps_down_and_exits_3(gains_path, tmp_path):
     log_dir = tmp_path / "runs"
@@ -321,6 +322,7 @@ def test_sigint_ramps_down_and_exits_3(gains_path, tmp_path):
     assert log["voltage_V"][-1] == 0.0 and log["time_s"][-1] - trip["t_s"] <= 0.2 + DT
 
 
+@pytest.mark.slow
 @pytest.mark.realtime
 def test_sigkill_leaves_a_readable_log_up_to_the_last_flush(gains_path, tmp_path):
     log_dir = tmp_path / "runs"
@@ -521,6 +523,7 @@ def test_the_host_checks_criteria_follow_the_budget_and_the_stall_limit():
     assert [c.name for c in judge(quiet, step, 1e-3, None)] == ["rate"], "without a stall limit it is not judged"
 
 
+@pytest.mark.slow
 @pytest.mark.realtime
 def test_rig_check_measures_the_host_and_draws_it(gains_path, tmp_path, capsys):
     assert main(["rig", "check", "--seconds", "0.3", "--json"]) == 0
@@ -538,6 +541,7 @@ def test_rig_check_measures_the_host_and_draws_it(gains_path, tmp_path, capsys):
     assert "--rate 500" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 @pytest.mark.realtime
 def test_a_realtime_run_refuses_a_host_that_fails_its_check_unless_accepted(gains_path, tmp_path, monkeypatch, capsys):
     """The check before arming is injected to fail: the run is refused (exit 2, nothing armed, no log); with
