@@ -199,7 +199,7 @@ def trip_detail(cause: str, value: float, safety: Safety) -> str:
 
 def c_defines() -> str:
     """The codes of the table as C ``#define`` lines, put before ``native_loop.c`` when it is built."""
-    lines = ["/* generated from piezopreload/rig/interlocks.py: the codes of the interlock table */"]
+    lines = ["/* generated from rig/interlocks.py: the codes of the interlock table */"]
     for prefix, names in (("PP_STAGE_", STAGES), ("PP_Q_", QUANTITIES), ("PP_TEST_", TESTS)):
         lines += [f"#define {prefix}{name.upper()} {j}" for j, name in enumerate(names)]
     lines.append(f"#define PP_N_QUANTITIES {len(QUANTITIES)}")
