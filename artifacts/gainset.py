@@ -29,7 +29,7 @@ from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import SCHEDULE_MAX, Controller, GainSchedule, PIDGains
 from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at, model_from_dict
 
-__all__ = ["GainSet", "REFERENCES", "STATUSES", "gains_to_dict", "gains_from_dict", "schedule_from_dict"]
+__all__ = ["GainSet", "RigInterlocks", "REFERENCES", "STATUSES", "gains_to_dict", "gains_from_dict", "schedule_from_dict"]
 
 #: the named references a gain set is validated on (and the rig runs by name)
 REFERENCES = ("step", "trajectory")
@@ -106,6 +106,77 @@ def _sample_period(doc: dict[str, Any], fail: Any) -> float | None:
     return float(x)
 
 
+@dataclass(frozen=True)
+class RigInterlocks:
+    """The rig's interlock settings of the gain set's study (its ``[rig_run]``), carried with the gains.
+
+    ``rig run``, ``rig serve``, the OPC UA push and a study's rig stage take these limits unless
+    the command line overrides them: the highest force (``force_max_N``), the margin below
+    the bolt preload (``force_low_margin_N``), the time of the ramp down (``ramp_s``) and, where
+    the study sets one, a stall limit shorter than the plant's (``stall_limit_s``). ``sources``
+    says where each came from (the study's key, or how it was derived where the study sets none).
+    """
+
+    force_max_N: float
+    force_low_margin_N: float
+    ramp_s: float
+    stall_limit_s: float | None = None
+    sources: dict[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name in ("force_max_N", "force_low_margin_N", "ramp_s", "stall_limit_s"):
+            value = getattr(self, name)
+            if value is None and name == "stall_limit_s":
+                continue
+            if isinstance(value, bool) or not isinstance(value, int | float) or not (np.isfinite(value) and value > 0):
+                raise InputError(f"RigInterlocks.{name} must be a finite number > 0, got {value!r}.")
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"force_max_N": self.force_max_N, "force_low_margin_N": self.force_low_margin_N,
+                               "ramp_s": self.ramp_s, "sources": dict(self.sources)}
+        if self.stall_limit_s is not None:
+            out["stall_limit_s"] = self.stall_limit_s
+        return out
+
+    @classmethod
+    def from_dict(cls, doc: Any, where: str = "rig_interlocks") -> RigInterlocks:
+        """The inverse of :meth:`to_dict`; an :class:`InputError` names the field that is missing or wrong."""
+        if not isinstance(doc, dict):
+            raise InputError(f"field '{where}' must be an object")
+        for key in ("force_max_N", "force_low_margin_N", "ramp_s"):
+            if key not in doc:
+                raise InputError(f"field '{where}.{key}' is missing")
+        sources = doc.get("sources") or {}
+        if not isinstance(sources, dict):
+            raise InputError(f"field '{where}.sources' must be an object")
+        try:
+            return cls(doc["force_max_N"], doc["force_low_margin_N"], doc["ramp_s"], doc.get("stall_limit_s"),
+                       {str(k): str(v) for k, v in sources.items()})
+        except InputError as exc:
+            raise InputError(f"field '{where}' is not valid: {exc}") from None
+
+
+def _plant_from(plant_doc: dict[str, Any], fail: Any) -> RigParams | None:
+    if plant_doc.get("rig") is None:
+        return None
+    try:
+        return RigParams.from_dict(plant_doc["rig"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise fail(f"field 'plant.rig' is not a rig: {exc}") from None
+
+
+def _references_from(refs: Any, fail: Any) -> dict[str, Reference]:
+    if not isinstance(refs, dict):
+        raise fail("field 'references' must be an object")
+    references = {}
+    for name, r in refs.items():
+        try:
+            references[name] = Reference.from_dict(r)
+        except ValueError as exc:
+            raise fail(f"field 'references.{name}' is not a reference ({exc}); {_REWRITE}") from None
+    return references
+
+
 @dataclass(frozen=True, eq=False)
 class GainSet:
     """A gain set (see the module docstring); its dicts are records, read but not changed.
@@ -136,6 +207,9 @@ class GainSet:
     sample_period_s : float or None
         The controller's sample period where the gain set names no plant (an autotuned loop's); a plant's
         ``sample_period_s`` otherwise.
+    rig_interlocks : RigInterlocks or None
+        The rig's interlock settings of the study the gains were tuned for (None: a gain set
+        written before gain sets carried them; the rig then derives them from the plant).
     content_sha256 : str or None
         The artifact's hash, set by :meth:`load` and :meth:`save`.
     """
@@ -153,10 +227,13 @@ class GainSet:
     inputs: dict[str, Any] = field(default_factory=dict)
     content_sha256: str | None = None
     sample_period_s: float | None = None
+    rig_interlocks: RigInterlocks | None = None
 
     def __post_init__(self) -> None:
         if self.sample_period_s is not None and not (np.isfinite(self.sample_period_s) and self.sample_period_s > 0):
             raise InputError(f"GainSet.sample_period_s must be a finite number > 0, got {self.sample_period_s!r}.")
+        if self.rig_interlocks is not None and not isinstance(self.rig_interlocks, RigInterlocks):
+            raise InputError(f"GainSet.rig_interlocks must be RigInterlocks, got {type(self.rig_interlocks).__name__}.")
         if self.status not in STATUSES:
             raise InputError(f"GainSet.status must be one of {', '.join(STATUSES)}, got {self.status!r}.")
         bad = [k for k, r in self.references.items() if not isinstance(r, Reference)]
@@ -221,6 +298,8 @@ class GainSet:
             out["tuning"] = self.tuning
         if self.sample_period_s is not None:
             out["sample_period_s"] = float(self.sample_period_s)
+        if self.rig_interlocks is not None:
+            out["rig_interlocks"] = self.rig_interlocks.to_dict()
         out["inputs"] = dict(self.inputs)
         return out
 
@@ -245,21 +324,8 @@ class GainSet:
         except ValueError as exc:
             raise fail(f"field {exc}") from None
         plant_doc: dict[str, Any] = doc["plant"] if isinstance(doc.get("plant"), dict) else {}
-        plant = None
-        if plant_doc.get("rig") is not None:
-            try:
-                plant = RigParams.from_dict(plant_doc["rig"])
-            except (KeyError, TypeError, ValueError) as exc:
-                raise fail(f"field 'plant.rig' is not a rig: {exc}") from None
-        refs = doc.get("references") or {}
-        if not isinstance(refs, dict):
-            raise fail("field 'references' must be an object")
-        references = {}
-        for name, r in refs.items():
-            try:
-                references[name] = Reference.from_dict(r)
-            except ValueError as exc:
-                raise fail(f"field 'references.{name}' is not a reference ({exc}); {_REWRITE}") from None
+        plant = _plant_from(plant_doc, fail)
+        references = _references_from(doc.get("references") or {}, fail)
         for key, value in (("inputs", doc.get("inputs")), ("feedforward.identification", ff_doc.get("identification")),
                            ("tuning", doc.get("tuning"))):
             if value is not None and not isinstance(value, dict):
@@ -269,11 +335,15 @@ class GainSet:
             validation = None if doc.get("validation") is None else ValidationResult.from_dict(doc["validation"])
         except ArtifactError as exc:
             raise fail(f"{exc}; {_REWRITE}") from None
+        try:
+            interlocks = None if doc.get("rig_interlocks") is None else RigInterlocks.from_dict(doc["rig_interlocks"])
+        except InputError as exc:
+            raise fail(str(exc)) from None
         return cls(gains=gains, status=status, feedforward=model, feedforward_info=dict(ff_doc.get("identification") or {}),
                    plant=plant, preset=plant_doc.get("preset"), references=references,
                    criteria=criteria, validation=validation, tuning=doc.get("tuning"),
                    inputs=dict(doc.get("inputs") or {}), content_sha256=doc.get("content_sha256"),
-                   sample_period_s=_sample_period(doc, fail))
+                   sample_period_s=_sample_period(doc, fail), rig_interlocks=interlocks)
 
     # ---- the artifact: one reader, one writer ---------------------------------------------------
     @classmethod

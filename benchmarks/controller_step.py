@@ -15,6 +15,7 @@ import json
 import sys
 import tempfile
 import timeit
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -78,11 +79,11 @@ def main() -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         from piezopreload.rig.runlog import RunLog
 
-        log = RunLog(Path(tmp), "bench", {})
-        # the streak interlock out of the way: the run is timed whole, stalls and all
-        ex = Executor(controller, SimBackend(study.plant), ref, Safety(missed_streak=10**9), realtime=True, log=log)
+        log = RunLog(Path(tmp), "bench")
+        # the stall interlock out of the way: the run is timed whole, stalls and all
+        ex = Executor(controller, SimBackend(study.plant), ref, Safety(stall_limit_s=1e9), realtime=True, log=log)
         result = ex.run()
-    t = result.timing
+    t = asdict(result.timing)
     print(f"{t['loop']} loop at 1 kHz for 10 s ({result.status}): {t['missed_deadlines']} missed deadlines of {t['cycles']}, "
           f"lateness p50 {t['lateness_p50_s'] * 1e6:.1f} us, p99 {t['lateness_p99_s'] * 1e6:.1f} us, "
           f"max {t['lateness_max_s'] * 1e3:.2f} ms", file=sys.stderr)

@@ -43,11 +43,13 @@ class StageCrashed(InternalError):
 
 
 class Partial(Exception):
-    """Carries what a failing stage wrote, so the manifest can list it (raise the failure ``from Partial(...)``)."""
+    """Carries what a failing stage wrote, so the manifest can list it (raise the failure ``from Partial(...)``),
+    and, where it has one, the failed stage's summary (a tripped rig run's trip)."""
 
-    def __init__(self, outputs: dict[str, Path]) -> None:
+    def __init__(self, outputs: dict[str, Path], summary: dict[str, Any] | None = None) -> None:
         super().__init__("partial outputs")
         self.outputs = outputs
+        self.summary = summary
 
 
 class StageLike(Protocol):
@@ -194,6 +196,8 @@ def run_stages(stages: Sequence[S], records: dict[str, dict[str, Any]], out: Pat
             records[stage.name] = {"status": "failed", "key": stage_key, "message": message,
                                    "seconds": time.perf_counter() - t0, "finished_utc": utc(),
                                    "outputs": record_outputs(out, partial)}
+            if isinstance(exc.__cause__, Partial) and exc.__cause__.summary is not None:
+                records[stage.name]["summary"] = exc.__cause__.summary
             save()
             if isinstance(exc, StageFailed):
                 raise

@@ -63,6 +63,7 @@ from piezopreload import __version__
 from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.requirements import checked_by_stages, missed
+from piezopreload.artifacts.rigrun import RigRunRecord
 from piezopreload.artifacts.schedule import PreloadSchedule
 from piezopreload.artifacts.system import SystemRecord
 from piezopreload.core.artifacts import atomic_write_bytes, read_artifact, write_artifact
@@ -308,20 +309,41 @@ def _stage_rig(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
                      f"{' (learned)' if learned else ''}, {'real time' if plan.realtime else 'back to back'}")
     s = session.run(ctx.output("validate", "gains"), backend=plan.backend, reference=reference,
                     realtime=bool(plan.realtime), log_dir=ctx.out / "runs", safety=plan.safety(), seed=plan.seed,
-                    learned=learned).summary
+                    learned=learned, safety_source=f"the study's [rig_run] ({ctx.study.path})",
+                    say=ctx.progress.say).summary
     outputs = {"log_csv": Path(s["log_csv"]), "log_json": Path(s["log_json"])}
-    m = s["metrics"]
-    summary = {"status": s["status"], "cycles": s["cycles"], "controller_step": s["controller_step"],
-               "settling_s": m.get("settling_s"), "overshoot_N": m.get("overshoot_N"),
-               "tracking_rms_N": m.get("tracking_rms_N"), "missed_deadlines": s["timing"].get("missed_deadlines"),
-               "learned_tracking_rms_measured_N": (s.get("learned") or {}).get("tracking_rms_measured_N")}
-    if s["exit_code"] != 0:
-        trip = s["trip"] or {}
-        raise StageFailed("rig", f"the run was stopped by the interlock '{trip.get('cause')}' at "
-                                 f"t = {trip.get('t_s', float('nan')):.3f} s: {trip.get('detail')}; "
-                                 f"the log is {s['log_csv']}", exit_code=session.EXIT_TRIPPED) from Partial(outputs)
-    ctx.progress.say(f"{s['status']}: {s['cycles']} cycles; log {ctx.rel(Path(s['log_csv']))}")
+    record = RigRunRecord.load(outputs["log_json"])
+    summary = _rig_summary(record)
+    if record.trip is not None:
+        trip = record.trip
+        raise StageFailed("rig", f"the run was stopped by the interlock '{trip.cause}' at t = {trip.t_s:.3f} s with "
+                                 f"{trip.voltage_V:.4g} V held: {trip.detail}; the log is {s['log_csv']}",
+                          exit_code=session.EXIT_TRIPPED) from Partial(outputs, summary)
+    ctx.progress.say(f"{record.status}: {summary['cycles']} cycles; log {ctx.rel(outputs['log_csv'])}")
     return outputs, summary
+
+
+def _rig_summary(record: RigRunRecord) -> dict[str, Any]:
+    """The rig stage's summary from the run's sidecar: a tripped run's trip (no step figures), a completed run's
+    figures; both with the loop's timing against the stall limit."""
+    out = record.summary
+    if out is None:
+        raise StageFailed("rig", f"the run's sidecar says '{record.status}' and holds no outcome")
+    summary: dict[str, Any] = {"status": record.status, "cycles": out.cycles, "controller_step": out.controller_step,
+                               "missed_deadlines": out.timing.missed_deadlines,
+                               "stalls": out.timing.stalls, "held_max_s": out.timing.held_max_s,
+                               "stall_limit_s": out.timing.stall_limit_s,
+                               "force_max_N": record.safety.get("force_max_N")}
+    if out.trip is not None:
+        summary["trip"] = {"cause": out.trip.cause, "detail": out.trip.detail, "t_s": out.trip.t_s,
+                           "voltage_V": out.trip.voltage_V}
+        return summary
+    m = out.metrics
+    summary.update({"settling_s": None if m is None else m.settling_s, "overshoot_N": None if m is None else m.overshoot_N,
+                    "tracking_rms_N": None if m is None else m.tracking_rms_N})
+    learned = record.learned or {}
+    summary["learned_tracking_rms_measured_N"] = learned.get("tracking_rms_measured_N")
+    return summary
 
 
 def _stage_report(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:

@@ -126,15 +126,17 @@ class TuningResult:
                 f"{len(self.active_bounds)} gain(s) on a bound)")
 
     def candidate(self, inputs: dict[str, Any] | None = None) -> GainSet:
-        """The tuned gains as a gain set not yet validated: feedforward, plant, references and criteria; its tuning
-        record names the gains on their bounds (``active_bounds``) and the controller's form."""
+        """The tuned gains as a gain set not yet validated: feedforward, plant, references, criteria, the rig's
+        interlock settings of the study's ``[rig_run]``; its tuning record names the gains on their bounds
+        (``active_bounds``) and the controller's form."""
         s, ff = self.study, self.feedforward
         tuning = {**self.solve.to_dict(), "simc_baseline": gains_to_dict(self.simc),
                   "active_bounds": [b.to_dict() for b in self.active_bounds]}
         return GainSet(gains=self.gains, status="candidate", feedforward=ff.model, feedforward_info=ff.info(),
                        plant=s.plant, preset=s.name, references={k: s.references[k] for k in REFERENCES},
                        criteria=s.criteria, tuning=tuning,
-                       inputs={"study": s.path, "study_sha256": s.sha256, **(inputs or {})})
+                       inputs={"study": s.path, "study_sha256": s.sha256, **(inputs or {})},
+                       rig_interlocks=s.rig_run.interlocks(s.plant, s.path))
 
     def validation(self, *, plants: int | None = None, seed: int | None = None, workers: int | None = None,
                    scheduler: str | None = None, progress: Callable[[str], None] | None = None,

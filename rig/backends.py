@@ -69,7 +69,7 @@ from piezopreload.rig.compiled import PlantStep
 from piezopreload.rig.watchdog import SharedDAQ
 
 __all__ = ["Reading", "Backend", "SimBackend", "CLibraryBackend", "Fault", "FaultInjector", "FAULT_KINDS", "ENTRY_POINT_GROUP",
-           "BackendError", "available_backends", "open_backend", "parse_fault"]
+           "BackendError", "InjectedFault", "injected_failure", "available_backends", "open_backend", "parse_fault"]
 
 ENTRY_POINT_GROUP = "piezopreload.rig_backends"
 
@@ -297,12 +297,21 @@ class CLibraryBackend:
                 "hw_heartbeat": address(self._heartbeat)}
 
 
+class InjectedFault(RuntimeError):
+    """The backend failure a ``raise`` fault injects (a fire drill, not a bug: no traceback is logged)."""
+
+
+def injected_failure(t_s: float) -> str:
+    """The words of an injected backend failure at ``t_s`` (both loops say it so)."""
+    return f"injected fault at t = {t_s:.3f} s: the backend failed"
+
+
 FAULT_KINDS = {
     "nan": "the sensor reads NaN",
     "stale": "the sensor repeats its last sample (a frozen A/D)",
     "offset": "the force reads VALUE N more (a load the rig should not see)",
     "reading": "the sensor reads VALUE N (for example beyond its range)",
-    "delay": "each cycle takes VALUE s longer (a stalled bus; missed deadlines)",
+    "delay": "each cycle's read takes VALUE s longer (a stalled bus or host: the output held longer)",
     "raise": "the backend raises an exception",
     "signal": "the process receives signal VALUE (2 SIGINT, 15 SIGTERM)",
 }
@@ -341,12 +350,17 @@ def parse_fault(text: str) -> Fault:
 
 
 class FaultInjector:
-    """Any backend with faults injected at set times: how the interlocks are tested."""
+    """Any backend with faults injected at set times: how the interlocks are tested.
+
+    A ``delay`` stalls the read through :attr:`stall` (``time.sleep``; the executor gives it
+    its clock's, so that a run back to back stalls its virtual clock instead of the host).
+    """
 
     def __init__(self, inner: Backend, faults: list[Fault]) -> None:
         self.inner = inner
         self.faults = list(faults)
         self.name = f"{inner.name}+faults"
+        self.stall: Callable[[float], None] = time.sleep
         self._last: Reading | None = None
         self._signalled: set[int] = set()
 
@@ -360,9 +374,9 @@ class FaultInjector:
         active = [f for f in self.faults if f.active(t_s)]
         for f in active:
             if f.kind == "raise":
-                raise RuntimeError(f"injected fault at t = {t_s:.3f} s: the backend failed")
+                raise InjectedFault(injected_failure(t_s))
             if f.kind == "delay":
-                time.sleep(f.value)
+                self.stall(f.value)
             if f.kind == "signal" and id(f) not in self._signalled:
                 self._signalled.add(id(f))
                 os.kill(os.getpid(), int(f.value or signal.SIGTERM))

@@ -1,15 +1,19 @@
 /* piezopreload: the rig's fixed-rate loop in a native thread (see rig/native_loop.py).
 
-   One cycle k has the absolute deadline t0 + k dt on CLOCK_MONOTONIC; the thread sleeps to it
-   with clock_nanosleep(TIMER_ABSTIME), reads the force, checks it against the interlocks, runs
-   the compiled controller step, clamps and slew-limits the command, writes it, toggles the
-   heartbeat and puts the sample into a single-producer/single-consumer ring buffer that the
-   Python supervisor drains. Nothing in a cycle takes a lock, allocates or calls Python.
+   One cycle k has the absolute deadline t0 + k dt; the thread sleeps to it with
+   clock_nanosleep(TIMER_ABSTIME) on CLOCK_MONOTONIC (or, for a run back to back, advances a
+   virtual clock to it), reads the force, tests the interlock table, runs the compiled
+   controller step, tests the table's command rows, clamps and slew-limits the command, writes
+   it, toggles the heartbeat and puts the sample into a single-producer/single-consumer ring
+   buffer that the Python supervisor drains. Nothing in a cycle takes a lock, allocates or
+   calls Python.
 
-   The interlocks are the executor's (rig/executor.py, class Safety): the same causes, in the
-   same order, with the same numbers. A stop ramps the voltage to the safe level at the loop's
-   rate and disarms. The numbers of the Python loop and of this one agree to the last bit for
-   a simulated run (tests/test_native_loop.py). */
+   The interlocks are not written here: the loop receives the rows of rig/interlocks.py
+   (stage, quantity, test, cause, limits) and tests them in their order; the codes of the
+   stages, quantities, tests and causes are #define lines generated from that module and put
+   before this source when it is built. A stop ramps the voltage to the safe level at the
+   loop's rate and disarms. The Python loop tests the same rows: the two loops give the same
+   samples and the same events for a simulated run (tests/test_native_loop.py). */
 #define _GNU_SOURCE
 #include <errno.h>
 #include <math.h>
@@ -38,19 +42,19 @@ typedef int (*hw_heartbeat_fn)(int);
 
 /* fault kinds, as rig/backends.py FAULT_KINDS */
 enum { F_NAN = 1, F_STALE, F_OFFSET, F_READING, F_DELAY, F_RAISE, F_SIGNAL };
-/* trip causes: 1 + the index in rig/executor.py TRIP_CAUSES */
-enum { T_NONE = 0, T_FORCE_HIGH, T_FORCE_LOW, T_NAN, T_STALE, T_RANGE, T_DEADLINE, T_SIGNAL, T_COMMAND, T_EXCEPTION };
 /* where an exception came from */
 enum { X_ARM = 1, X_READ, X_WRITE, X_STEP, X_START, X_FAULT };
 
 typedef struct { int32_t kind, fired; double at_s, value, duration_s; } pp_fault;
+/* one interlock: cause trips when test holds for quantity at stage (rig/interlocks.py rows) */
+typedef struct { int32_t stage, quantity, test, cause; double lo, hi; } pp_interlock;
 
 typedef struct {
   /* ---- set before the start ---- */
   double dt_s; int64_t n_ref; const double* ref; const double* extra; /* ff_extra per sample, or NULL */
-  int32_t hold, realtime;
-  double v_min, v_max, slew_V_per_s, force_max, force_low, sensor_min, sensor_max, stale_after_s, ramp_s, safe_V;
-  int64_t missed_streak;
+  int32_t hold, realtime; /* realtime 0: back to back on a virtual clock */
+  double v_min, v_max, slew_V_per_s, ramp_s, safe_V, stall_report_s;
+  pp_interlock interlocks[PP_MAX_INTERLOCKS]; int32_t n_interlocks;
   pp_step_fn step; pp_start_fn start; double* state; double* params[2];
   int32_t backend; /* 0: the simulated plant, 1: a C-ABI library */
   pp_plant_read_fn plant_read; pp_plant_write_fn plant_write; double* plant_state; const double* plant_params;
@@ -60,20 +64,21 @@ typedef struct {
   pp_fault faults[PP_MAX_FAULTS]; int32_t n_faults;
   int32_t want_fifo, fifo_priority, want_mlock, spin_ns;
   double* ring; int64_t ring_rows;
+  double* stalls; int64_t stall_rows; /* (t_s, held_s) of each stall, a ring */
   /* ---- shared: ring indices, requests ---- */
-  int64_t head, tail, lost;
+  int64_t head, tail, lost, n_stalls;
   int32_t active, taken;   /* the parameter buffer Python asks for; the one the loop runs */
   int32_t stop, stop_signal; /* 1 trip (signal), 2 end completed */
   /* ---- status, written by the loop ---- */
   int32_t started, finished, fifo_errno, mlock_errno;
   int64_t cycles, missed, clamped, switches;
-  double switch_t;
-  int32_t trip_cause, trip_where; double trip_t, trip_value;
+  double switch_t, held_max;
+  int32_t trip_cause, trip_where; double trip_t, trip_value, trip_v;
   double v_end, t_end; int32_t ramp_failed; double ramp_failed_t;
   double latest_t, latest_sp, latest_y, latest_v; int32_t latest_mode; /* 0 running, 1 ramp, 2 done */
   pthread_t thread;
   /* ---- the loop's own ---- */
-  double last_force, last_sample_t; int64_t noise_k;
+  double last_force, last_sample_t; int64_t noise_k, vclock;
 } pp_loop;
 
 static int64_t now_ns(void) {
@@ -89,15 +94,30 @@ static void sleep_until(int64_t t_ns) {
   while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR) {}
 }
 
-static int64_t wait_for(const pp_loop* L, int64_t deadline) {
+/* the wait of a cycle: sleep to the deadline (the last spin_ns spun), as the host check waits too */
+static int64_t wait_until(int64_t deadline, int32_t spin_ns) {
   int64_t t;
-  if (L->spin_ns > 0) {
-    if (deadline - now_ns() > L->spin_ns) sleep_until(deadline - L->spin_ns);
+  if (spin_ns > 0) {
+    if (deadline - now_ns() > spin_ns) sleep_until(deadline - spin_ns);
     while ((t = now_ns()) < deadline) {}
     return t;
   }
   sleep_until(deadline);
   return now_ns();
+}
+
+/* the loop's clock: the monotonic clock in real time, else a virtual one that only waits and stalls move */
+static int64_t clock_now(const pp_loop* L) { return L->realtime ? now_ns() : L->vclock; }
+
+static int64_t clock_wait(pp_loop* L, int64_t deadline) {
+  if (L->realtime) return wait_until(deadline, L->spin_ns);
+  if (L->vclock < deadline) L->vclock = deadline;
+  return L->vclock;
+}
+
+static void clock_stall(pp_loop* L, double seconds) {
+  if (L->realtime) sleep_until(now_ns() + llround(seconds * 1e9));
+  else L->vclock += llround(seconds * 1e9);
 }
 
 static void push_row(pp_loop* L, const double* row) {
@@ -117,6 +137,13 @@ static void log_row(pp_loop* L, int64_t* rows, double t, double sp, double y, do
   double r[PP_COLS] = {t, sp, y, u, v, ff, p, i, d, period, late, compute, (double)miss, (double)mode};
   push_row(L, r);
   ++*rows;
+}
+
+static void record_stall(pp_loop* L, double t, double held) {
+  int64_t n = L->n_stalls, j = n % L->stall_rows;
+  L->stalls[2 * j] = t;
+  L->stalls[2 * j + 1] = held;
+  __atomic_store_n(&L->n_stalls, n + 1, __ATOMIC_RELEASE);
 }
 
 /* ---- the backend: the simulated plant or a C-ABI library, with injected faults ---- */
@@ -140,7 +167,7 @@ static int read_force(pp_loop* L, double t, double* f, double* ts) {
     pp_fault* F = &L->faults[j];
     if (!active_fault(F, t)) continue;
     if (F->kind == F_RAISE) return -1000;
-    if (F->kind == F_DELAY) sleep_until(now_ns() + (int64_t)(F->value * 1e9));
+    if (F->kind == F_DELAY) clock_stall(L, F->value);
     if (F->kind == F_SIGNAL && !F->fired) { /* to this thread: handled before the call returns */
       F->fired = 1;
       pthread_kill(pthread_self(), F->value ? (int)F->value : SIGTERM);
@@ -173,18 +200,28 @@ static void heartbeat(pp_loop* L, int64_t k) {
   if (L->backend == 1 && L->hw_heartbeat) L->hw_heartbeat((int)(k & 1));
 }
 
-/* the interlock checks of Safety, in the executor's order; the cause (0: none) and its number */
-static int check(const pp_loop* L, double y, double sample_t, double t, double* value) {
-  if (isnan(y)) { *value = y; return T_NAN; }
-  if (t - sample_t > L->stale_after_s) { *value = t - sample_t; return T_STALE; }
-  if (!(L->sensor_min < y && y < L->sensor_max)) { *value = y; return T_RANGE; }
-  if (y > L->force_max) { *value = y; return T_FORCE_HIGH; }
-  if (y < L->force_low) { *value = y; return T_FORCE_LOW; }
-  return T_NONE;
+/* the interlock rows of one stage, in their order: the cause of the first that holds (0: none) and its value */
+static int check(const pp_loop* L, int stage, const double* q, double* value) {
+  int j, hit;
+  for (j = 0; j < L->n_interlocks; ++j) {
+    const pp_interlock* r = &L->interlocks[j];
+    double x;
+    if (r->stage != stage) continue;
+    x = q[r->quantity];
+    switch (r->test) {
+      case PP_TEST_NAN: hit = isnan(x); break;
+      case PP_TEST_ABOVE: hit = x > r->lo; break;
+      case PP_TEST_BELOW: hit = x < r->lo; break;
+      case PP_TEST_OUTSIDE: hit = !(r->lo < x && x < r->hi); break;
+      default: hit = !isfinite(x); break;
+    }
+    if (hit) { *value = x; return r->cause; }
+  }
+  return 0;
 }
 
-static void trip(pp_loop* L, int cause, int where, double t, double value) {
-  L->trip_cause = cause; L->trip_where = where; L->trip_t = t; L->trip_value = value;
+static void trip(pp_loop* L, int cause, int where, double t, double value, double v) {
+  L->trip_cause = cause; L->trip_where = where; L->trip_t = t; L->trip_value = value; L->trip_v = v;
 }
 
 static void ramp_down(pp_loop* L, int64_t* rows, double v_from, int64_t t0, int64_t dt_ns) {
@@ -195,7 +232,7 @@ static void ramp_down(pp_loop* L, int64_t* rows, double v_from, int64_t t0, int6
   L->latest_mode = 1;
   for (j = 1; j <= n; ++j) {
     t = (k0 + j) * dt;
-    if (L->realtime) wait_for(L, t0 + (k0 + j) * dt_ns);
+    clock_wait(L, t0 + (k0 + j) * dt_ns);
     v = j == n ? L->safe_V : v_from + (L->safe_V - v_from) * (double)j / (double)n;
     if (read_force(L, t, &y, &ts)) y = NAN;
     if (write_voltage(L, v)) {
@@ -211,89 +248,117 @@ static void ramp_down(pp_loop* L, int64_t* rows, double v_from, int64_t t0, int6
   L->t_end = t;
 }
 
+/* what a cycle carries from one to the next */
+typedef struct {
+  int64_t t0, dt_ns, k, rows, wake_prev, last_write;
+  double v_last;
+  int need_start, p_idx;
+  const double* params;
+} pp_cycle;
+
+/* a new gain set asked for: taken at this cycle boundary, started bumplessly before the step */
+static void take_switch(pp_loop* L, pp_cycle* c, double t) {
+  int want = __atomic_load_n(&L->active, __ATOMIC_ACQUIRE);
+  if (want == c->p_idx) return;
+  c->p_idx = want; c->params = L->params[want]; c->need_start = 1;
+  L->switch_t = t;
+  __atomic_store_n(&L->taken, want, __ATOMIC_RELEASE);
+  __atomic_add_fetch(&L->switches, 1, __ATOMIC_RELEASE);
+}
+
+/* one cycle of control; 0 to go on, 1 to stop (the trip, if any, recorded) */
+static int cycle(pp_loop* L, pp_cycle* c) {
+  double dt = L->dt_s, t = c->k * dt, y, ts, u, v, value, out[5], q[PP_N_QUANTITIES];
+  double slew = L->slew_V_per_s * dt, sp, fx, late, period;
+  int64_t deadline = c->t0 + c->k * c->dt_ns, wake, done;
+  int cause, rc, stop, miss;
+  sp = L->ref[c->k < L->n_ref ? c->k : L->n_ref - 1];
+  fx = L->extra ? L->extra[c->k < L->n_ref ? c->k : L->n_ref - 1] : 0.0;
+  wake = clock_wait(L, deadline);
+  take_switch(L, c, t);
+  stop = __atomic_load_n(&L->stop, __ATOMIC_ACQUIRE);
+  late = (wake - deadline) * 1e-9;
+  period = (wake - c->wake_prev) * 1e-9;
+  if (stop) { /* this cycle is the stop's: logged, no reading, no command */
+    log_row(L, &c->rows, t, sp, NAN, NAN, c->v_last, NAN, NAN, NAN, NAN, period, late, 0.0, 0, 2);
+    if (stop == 1) trip(L, PP_T_SIGNAL, 0, t, L->stop_signal, c->v_last);
+    else L->trip_t = t;
+    return 1;
+  }
+  if ((rc = read_force(L, t, &y, &ts)) != 0) { trip(L, PP_T_EXCEPTION, X_READ, t, rc, c->v_last); return -1; }
+  q[PP_Q_FORCE_N] = y; q[PP_Q_SAMPLE_AGE_S] = t - ts;
+  q[PP_Q_HELD_S] = (clock_now(L) - c->last_write) * 1e-9; q[PP_Q_COMMAND_V] = NAN;
+  if (q[PP_Q_HELD_S] > L->held_max) L->held_max = q[PP_Q_HELD_S];
+  if (q[PP_Q_HELD_S] > L->stall_report_s) record_stall(L, t, q[PP_Q_HELD_S]);
+  if ((cause = check(L, PP_STAGE_READING, q, &value)) != 0) {
+    trip(L, cause, 0, t, value, c->v_last);
+    log_row(L, &c->rows, t, sp, y, NAN, c->v_last, NAN, NAN, NAN, NAN, period, late, 0.0, 0, 2);
+    return 1;
+  }
+  if (c->need_start) { /* bumpless: the first command of a start or a new gain set is the last one written */
+    if ((rc = L->start(sp, y, c->v_last, fx, c->params, L->state)) != 0) {
+      trip(L, PP_T_EXCEPTION, X_START, t, rc, c->v_last);
+      return -1;
+    }
+    c->need_start = 0;
+  }
+  if ((rc = L->step(sp, y, fx, L->state, c->params, out)) != 0) { trip(L, PP_T_EXCEPTION, X_STEP, t, rc, c->v_last); return -1; }
+  u = out[0];
+  q[PP_Q_COMMAND_V] = u;
+  if ((cause = check(L, PP_STAGE_COMMAND, q, &value)) != 0) {
+    trip(L, cause, 0, t, value, c->v_last);
+    log_row(L, &c->rows, t, sp, y, u, c->v_last, out[4], out[1], out[2], out[3], period, late, 0.0, 0, 2);
+    return 1;
+  }
+  v = fmin(fmax(u, L->v_min), L->v_max);
+  v = fmin(fmax(v, c->v_last - slew), c->v_last + slew);
+  if (v != u) ++L->clamped;
+  if ((rc = write_voltage(L, v)) != 0) { trip(L, PP_T_EXCEPTION, X_WRITE, t, rc, c->v_last); return -1; }
+  c->last_write = clock_now(L);
+  heartbeat(L, c->k);
+  c->v_last = v;
+  done = clock_now(L);
+  miss = done > deadline + c->dt_ns;
+  L->missed += miss;
+  log_row(L, &c->rows, t, sp, y, u, v, out[4], out[1], out[2], out[3], period, late, (done - wake) * 1e-9, miss, 0);
+  c->wake_prev = wake;
+  L->latest_t = t; L->latest_sp = sp; L->latest_y = y; L->latest_v = v;
+  ++c->k;
+  L->cycles = c->k;
+  return 0;
+}
+
 static void* run(void* arg) {
   pp_loop* L = (pp_loop*)arg;
-  double dt = L->dt_s, t = 0.0, sp, fx, y, ts, u, v, v_last = L->safe_V, value, slew = L->slew_V_per_s * L->dt_s;
-  double out[5];
-  int64_t dt_ns = (int64_t)llround(dt * 1e9), k = 0, rows = 0, streak = 0, t0, wake = 0, wake_prev, deadline, done;
-  int cause = T_NONE, rc, need_start = 1, p_idx = __atomic_load_n(&L->active, __ATOMIC_ACQUIRE);
-  const double* params = L->params[p_idx];
+  pp_cycle c;
+  int rc, how = 0;
 
   prctl(PR_SET_TIMERSLACK, 1UL, 0, 0, 0); /* wake at the deadline, not up to 50 us after it */
-  L->last_force = NAN; L->last_sample_t = NAN; L->noise_k = 0;
-  L->taken = p_idx;
+  memset(&c, 0, sizeof c);
+  L->last_force = NAN; L->last_sample_t = NAN; L->noise_k = 0; L->vclock = 0;
+  c.dt_ns = (int64_t)llround(L->dt_s * 1e9);
+  c.v_last = L->safe_V;
+  c.need_start = 1;
+  c.p_idx = __atomic_load_n(&L->active, __ATOMIC_ACQUIRE);
+  c.params = L->params[c.p_idx];
+  L->taken = c.p_idx;
   __atomic_store_n(&L->started, 1, __ATOMIC_RELEASE);
   if (L->backend == 1 && L->hw_arm && (rc = L->hw_arm()) != 0) {
-    trip(L, T_EXCEPTION, X_ARM, 0.0, rc);
-    log_row(L, &rows, 0.0, NAN, NAN, NAN, v_last, NAN, NAN, NAN, NAN, 0.0, 0.0, 0.0, 0, 2);
+    trip(L, PP_T_EXCEPTION, X_ARM, 0.0, rc, c.v_last);
+    log_row(L, &c.rows, 0.0, NAN, NAN, NAN, c.v_last, NAN, NAN, NAN, NAN, 0.0, 0.0, 0.0, 0, 2);
     goto stop;
   }
-  t0 = wake_prev = now_ns();
-  for (;;) {
-    if (k >= L->n_ref && !L->hold) break;
-    t = k * dt;
-    sp = L->ref[k < L->n_ref ? k : L->n_ref - 1];
-    fx = L->extra ? L->extra[k < L->n_ref ? k : L->n_ref - 1] : 0.0;
-    deadline = t0 + k * dt_ns;
-    wake = L->realtime ? wait_for(L, deadline) : now_ns();
-    int want = __atomic_load_n(&L->active, __ATOMIC_ACQUIRE);
-    if (want != p_idx) { /* a new gain set: taken at this cycle boundary, started bumplessly below */
-      p_idx = want; params = L->params[p_idx]; need_start = 1;
-      L->switch_t = t;
-      __atomic_store_n(&L->taken, p_idx, __ATOMIC_RELEASE);
-      __atomic_add_fetch(&L->switches, 1, __ATOMIC_RELEASE);
-    }
-    int stop = __atomic_load_n(&L->stop, __ATOMIC_ACQUIRE);
-    double late = L->realtime ? (wake - deadline) * 1e-9 : 0.0, period = (wake - wake_prev) * 1e-9;
-    if (stop) { /* this cycle is the stop's: logged, no reading, no command */
-      log_row(L, &rows, t, sp, NAN, NAN, v_last, NAN, NAN, NAN, NAN, period, late, 0.0, 0, 2);
-      if (stop == 1) trip(L, T_SIGNAL, 0, t, L->stop_signal);
-      else L->trip_t = t;
-      break;
-    }
-    rc = read_force(L, t, &y, &ts);
-    if (rc) { trip(L, T_EXCEPTION, X_READ, t, rc); goto exception; }
-    cause = check(L, y, ts, t, &value);
-    if (cause) {
-      trip(L, cause, 0, t, value);
-      log_row(L, &rows, t, sp, y, NAN, v_last, NAN, NAN, NAN, NAN, period, late, 0.0, 0, 2);
-      break;
-    }
-    if (need_start) { /* bumpless: the first command of a start or a new gain set is the last one written */
-      if ((rc = L->start(sp, y, v_last, fx, params, L->state)) != 0) { trip(L, T_EXCEPTION, X_START, t, rc); goto exception; }
-      need_start = 0;
-    }
-    if ((rc = L->step(sp, y, fx, L->state, params, out)) != 0) { trip(L, T_EXCEPTION, X_STEP, t, rc); goto exception; }
-    u = out[0];
-    if (!isfinite(u)) {
-      trip(L, T_COMMAND, 0, t, u);
-      log_row(L, &rows, t, sp, y, u, v_last, out[4], out[1], out[2], out[3], period, late, 0.0, 0, 2);
-      break;
-    }
-    v = fmin(fmax(u, L->v_min), L->v_max);
-    v = fmin(fmax(v, v_last - slew), v_last + slew);
-    if (v != u) ++L->clamped;
-    if ((rc = write_voltage(L, v)) != 0) { trip(L, T_EXCEPTION, X_WRITE, t, rc); goto exception; }
-    heartbeat(L, k);
-    v_last = v;
-    done = now_ns();
-    int miss = L->realtime && done > deadline + dt_ns;
-    L->missed += miss;
-    streak = miss ? streak + 1 : 0;
-    log_row(L, &rows, t, sp, y, u, v, out[4], out[1], out[2], out[3], period, late, (done - wake) * 1e-9, miss, 0);
-    wake_prev = wake;
-    L->latest_t = t; L->latest_sp = sp; L->latest_y = y; L->latest_v = v;
-    ++k;
-    L->cycles = k;
-    if (streak >= L->missed_streak) { trip(L, T_DEADLINE, 0, t, (double)streak); break; }
+  c.t0 = c.wake_prev = c.last_write = clock_now(L);
+  while (how == 0) {
+    if (c.k >= L->n_ref && !L->hold) break;
+    how = cycle(L, &c);
   }
-  goto stop;
-exception:
-  log_row(L, &rows, t, NAN, NAN, NAN, v_last, NAN, NAN, NAN, NAN, 0.0, 0.0, 0.0, 0, 2);
+  if (how < 0) /* an exception: the cycle that raised is logged, no reading, no command */
+    log_row(L, &c.rows, L->trip_t, NAN, NAN, NAN, c.v_last, NAN, NAN, NAN, NAN, 0.0, 0.0, 0.0, 0, 2);
 stop:
-  L->cycles = k;
-  if (rows == 0) t0 = now_ns();
-  ramp_down(L, &rows, v_last, t0, dt_ns);
+  L->cycles = c.k;
+  if (c.rows == 0) c.t0 = clock_now(L);
+  ramp_down(L, &c.rows, c.v_last, c.t0, c.dt_ns);
   if (L->backend == 1 && L->hw_disarm) L->hw_disarm();
   L->latest_mode = 2;
   __atomic_store_n(&L->finished, 1, __ATOMIC_RELEASE);
@@ -341,26 +406,30 @@ int pp_loop_lock_memory(pp_loop* L) {
   return L->mlock_errno;
 }
 
-/* start the loop's thread: SCHED_FIFO and locked memory where permitted (errno kept, not fatal) */
-int pp_loop_start(pp_loop* L) {
+/* a thread running fn: SCHED_FIFO at priority where asked and permitted; *fifo_errno: -1 not asked, 0 granted */
+static int start_thread(pthread_t* thread, int want_fifo, int priority, void* (*fn)(void*), void* arg,
+                        int32_t* fifo_errno) {
   pthread_attr_t attr;
   struct sched_param sp;
   int rc;
-  L->fifo_errno = -1; /* -1: not asked */
-  if (L->want_fifo) {
+  *fifo_errno = -1;
+  if (want_fifo) {
     pthread_attr_init(&attr);
     pthread_attr_setinheritsched(&attr, PTHREAD_EXPLICIT_SCHED);
     pthread_attr_setschedpolicy(&attr, SCHED_FIFO);
     memset(&sp, 0, sizeof sp);
-    sp.sched_priority = L->fifo_priority;
+    sp.sched_priority = priority;
     pthread_attr_setschedparam(&attr, &sp);
-    rc = pthread_create(&L->thread, &attr, run, L);
+    rc = pthread_create(thread, &attr, fn, arg);
     pthread_attr_destroy(&attr);
-    L->fifo_errno = rc;
+    *fifo_errno = rc;
     if (rc == 0) return 0;
   }
-  return pthread_create(&L->thread, NULL, run, L);
+  return pthread_create(thread, NULL, fn, arg);
 }
+
+/* start the loop's thread: SCHED_FIFO and locked memory where permitted (errno kept, not fatal) */
+int pp_loop_start(pp_loop* L) { return start_thread(&L->thread, L->want_fifo, L->fifo_priority, run, L, &L->fifo_errno); }
 
 int pp_loop_join(pp_loop* L) {
   int rc = pthread_join(L->thread, NULL);
@@ -377,9 +446,57 @@ int64_t pp_loop_drain(pp_loop* L, double* out, int64_t max_rows) {
   return n;
 }
 
+/* the stalls recorded so far (the supervisor reads those it has not seen from the stall ring) */
+int64_t pp_loop_stalls(pp_loop* L) { return __atomic_load_n(&L->n_stalls, __ATOMIC_ACQUIRE); }
+
 /* a new parameter vector is in the buffer that does not run; the loop takes it at its next cycle */
 void pp_loop_switch(pp_loop* L, int32_t index) { __atomic_store_n(&L->active, index, __ATOMIC_RELEASE); }
 
 void pp_loop_stop(pp_loop* L, int32_t how) { __atomic_store_n(&L->stop, how, __ATOMIC_RELEASE); }
 
 int64_t pp_loop_sizeof(void) { return (int64_t)sizeof(pp_loop); }
+
+/* ---- the host check: a bare thread waking as the loop waits, nothing else (rig/hostcheck.py) ---- */
+typedef struct {
+  double dt_s; int64_t n; int32_t want_fifo, fifo_priority, want_mlock, spin_ns;
+  int64_t* late_ns; /* n wake-up latenesses */
+  int32_t fifo_errno, mlock_errno;
+} pp_probe;
+
+static void* probe_run(void* arg) {
+  pp_probe* P = (pp_probe*)arg;
+  int64_t dt_ns = (int64_t)llround(P->dt_s * 1e9), t0, k;
+  prctl(PR_SET_TIMERSLACK, 1UL, 0, 0, 0);
+  t0 = now_ns() + dt_ns;
+  for (k = 0; k < P->n; ++k) {
+    int64_t deadline = t0 + k * dt_ns;
+    P->late_ns[k] = wait_until(deadline, P->spin_ns) - deadline;
+  }
+  return NULL;
+}
+
+/* run the probe to its end (blocking): SCHED_FIFO and locked memory where permitted, as the loop takes them */
+int pp_probe_run(pp_probe* P) {
+  pthread_t thread;
+  int rc;
+  P->mlock_errno = P->want_mlock ? (mlockall(MCL_CURRENT) ? errno : 0) : -1;
+  rc = start_thread(&thread, P->want_fifo, P->fifo_priority, probe_run, P, &P->fifo_errno);
+  if (rc == 0) rc = pthread_join(thread, NULL);
+  if (P->mlock_errno == 0) munlockall();
+  return rc;
+}
+
+int64_t pp_probe_sizeof(void) { return (int64_t)sizeof(pp_probe); }
+
+/* the compiled controller step's compute time: n calls at (setpoint, pv), each timed, into ns */
+int pp_time_step(pp_step_fn step, double setpoint, double pv, double* state, const double* params, int64_t n,
+                 int64_t* ns) {
+  double out[5];
+  int64_t k, t;
+  for (k = 0; k < n; ++k) {
+    t = now_ns();
+    if (step(setpoint, pv + 1e-3 * (double)(k & 7), 0.0, state, params, out)) return -1;
+    ns[k] = now_ns() - t;
+  }
+  return 0;
+}

@@ -4,8 +4,7 @@ The cycle (``native_loop.c`` beside this file, compiled once by :mod:`piezoprelo
 and cached by hash) runs in a POSIX thread outside the interpreter. Each cycle ``k`` sleeps to
 the absolute deadline ``t0 + k dt`` (``clock_nanosleep`` with ``TIMER_ABSTIME`` on
 ``CLOCK_MONOTONIC``, the timer slack set to 1 ns), reads the force, checks it against the
-interlocks of :class:`~piezopreload.rig.executor.Safety` (the same causes, order and numbers
-as the Python loop), calls the compiled controller step (``pp_rig_step``, :mod:`.compiled`),
+interlock rows of :mod:`piezopreload.rig.interlocks` (the table both loops test), calls the compiled controller step (``pp_rig_step``, :mod:`.compiled`),
 clamps and slew-limits the command, writes it, toggles the backend's heartbeat and puts the
 sample into a single-producer/single-consumer ring buffer. A stop (an interlock, SIGINT or
 SIGTERM caught in C, :meth:`NativeLoop.stop`) ramps the voltage to the safe level at the
@@ -52,12 +51,17 @@ import numpy as np
 
 from piezopreload.core import native
 from piezopreload.models.controller import Controller, ControllerModel, controller_functions
+from piezopreload.rig import interlocks
 from piezopreload.rig.compiled import step_library
 
-__all__ = ["NativeLoop", "loop_library", "start_library", "available", "COLS", "FAULT_CODES", "EXCEPTION_WHERE"]
+__all__ = ["NativeLoop", "loop_library", "start_library", "available", "COLS", "FAULT_CODES", "EXCEPTION_WHERE",
+           "LoopStatus", "probe", "time_step", "source"]
 
 COLS = 14
 MAX_FAULTS = 16
+MAX_INTERLOCKS = max(16, len(interlocks.INTERLOCKS))
+#: the stall ring's length: the supervisor drains it every 10 ms, the loop writes one entry per stall
+STALL_ROWS = 4096
 #: the fault kinds' codes in the C source (rig/backends.py FAULT_KINDS)
 FAULT_CODES = {"nan": 1, "stale": 2, "offset": 3, "reading": 4, "delay": 5, "raise": 6, "signal": 7}
 #: what failed when the loop trips with cause ``exception``
@@ -76,14 +80,19 @@ class _Fault(ctypes.Structure):
 _D, _I32, _I64, _P = ctypes.c_double, ctypes.c_int32, ctypes.c_int64, ctypes.c_void_p
 
 
+class _Interlock(ctypes.Structure):
+    """``pp_interlock``: one row of :func:`piezopreload.rig.interlocks.rows`."""
+
+    _fields_ = [("stage", _I32), ("quantity", _I32), ("test", _I32), ("cause", _I32), ("lo", _D), ("hi", _D)]
+
+
 class _Loop(ctypes.Structure):
     """The prefix of ``pp_loop`` in native_loop.c, field for field (the rest is the thread's)."""
 
     _fields_ = [
         ("dt_s", _D), ("n_ref", _I64), ("ref", _P), ("extra", _P), ("hold", _I32), ("realtime", _I32),
-        ("v_min", _D), ("v_max", _D), ("slew_V_per_s", _D), ("force_max", _D), ("force_low", _D),
-        ("sensor_min", _D), ("sensor_max", _D), ("stale_after_s", _D), ("ramp_s", _D), ("safe_V", _D),
-        ("missed_streak", _I64),
+        ("v_min", _D), ("v_max", _D), ("slew_V_per_s", _D), ("ramp_s", _D), ("safe_V", _D), ("stall_report_s", _D),
+        ("interlocks", _Interlock * MAX_INTERLOCKS), ("n_interlocks", _I32),
         ("step", _FN), ("start", _FN), ("state", _P), ("params", _P * 2),
         ("backend", _I32),
         ("plant_read", _FN), ("plant_write", _FN), ("plant_state", _P), ("plant_params", _P),
@@ -92,30 +101,45 @@ class _Loop(ctypes.Structure):
         ("heartbeat", _P), ("daq_V", _P),
         ("faults", _Fault * MAX_FAULTS), ("n_faults", _I32),
         ("want_fifo", _I32), ("fifo_priority", _I32), ("want_mlock", _I32), ("spin_ns", _I32),
-        ("ring", _P), ("ring_rows", _I64),
-        ("head", _I64), ("tail", _I64), ("lost", _I64),
+        ("ring", _P), ("ring_rows", _I64), ("stalls", _P), ("stall_rows", _I64),
+        ("head", _I64), ("tail", _I64), ("lost", _I64), ("n_stalls", _I64),
         ("active", _I32), ("taken", _I32),
         ("stop", _I32), ("stop_signal", _I32),
         ("started", _I32), ("finished", _I32), ("fifo_errno", _I32), ("mlock_errno", _I32),
         ("cycles", _I64), ("missed", _I64), ("clamped", _I64), ("switches", _I64),
-        ("switch_t", _D),
-        ("trip_cause", _I32), ("trip_where", _I32), ("trip_t", _D), ("trip_value", _D),
+        ("switch_t", _D), ("held_max", _D),
+        ("trip_cause", _I32), ("trip_where", _I32), ("trip_t", _D), ("trip_value", _D), ("trip_v", _D),
         ("v_end", _D), ("t_end", _D), ("ramp_failed", _I32), ("ramp_failed_t", _D),
         ("latest_t", _D), ("latest_sp", _D), ("latest_y", _D), ("latest_v", _D), ("latest_mode", _I32),
     ]
 
 
+class _Probe(ctypes.Structure):
+    """``pp_probe`` in native_loop.c: the host check's bare thread."""
+
+    _fields_ = [("dt_s", _D), ("n", _I64), ("want_fifo", _I32), ("fifo_priority", _I32), ("want_mlock", _I32),
+                ("spin_ns", _I32), ("late_ns", _P), ("fifo_errno", _I32), ("mlock_errno", _I32)]
+
+
+def source() -> str:
+    """The loop's C source as it is built: the interlock table's codes, then ``native_loop.c``."""
+    return interlocks.c_defines() + _SOURCE.read_text(encoding="utf-8")
+
+
 def loop_library() -> ctypes.CDLL:
     """The loop's shared library (built once per source and compiler, cached); :class:`native.NativeBuildError` if not."""
-    lib = native.load(native.build("pp_loop", _SOURCE.read_text(encoding="utf-8"), (*native.FLAGS, "-pthread")))
+    lib = native.load(native.build("pp_loop", source(), (*native.FLAGS, "-pthread")))
     for name, res, args in (("pp_loop_start", ctypes.c_int, [_P]), ("pp_loop_join", ctypes.c_int, [_P]),
                             ("pp_loop_drain", ctypes.c_int64, [_P, _P, ctypes.c_int64]),
+                            ("pp_loop_stalls", ctypes.c_int64, [_P]),
                             ("pp_loop_switch", None, [_P, ctypes.c_int32]), ("pp_loop_stop", None, [_P, ctypes.c_int32]),
                             ("pp_loop_sizeof", ctypes.c_int64, []), ("pp_loop_catch_signals", ctypes.c_int, [_P]),
-                            ("pp_loop_release_signals", ctypes.c_int, []), ("pp_loop_lock_memory", ctypes.c_int, [_P])):
+                            ("pp_loop_release_signals", ctypes.c_int, []), ("pp_loop_lock_memory", ctypes.c_int, [_P]),
+                            ("pp_probe_run", ctypes.c_int, [_P]), ("pp_probe_sizeof", ctypes.c_int64, []),
+                            ("pp_time_step", ctypes.c_int, [_FN, _D, _D, _P, _P, ctypes.c_int64, _P])):
         fn = getattr(lib, name)
         fn.restype, fn.argtypes = res, args
-    if lib.pp_loop_sizeof() < ctypes.sizeof(_Loop):
+    if lib.pp_loop_sizeof() < ctypes.sizeof(_Loop) or lib.pp_probe_sizeof() != ctypes.sizeof(_Probe):
         raise native.NativeBuildError("native_loop.c and native_loop.py disagree on the loop's layout")
     return lib
 
@@ -184,7 +208,7 @@ def _errno_text(code: int, what: str) -> str:
 
 @dataclass
 class LoopStatus:
-    """What the loop reports at its end."""
+    """What the loop reports at its end (``trip_v``: the voltage held when it tripped)."""
 
     cycles: int
     missed: int
@@ -195,26 +219,32 @@ class LoopStatus:
     trip_where: int
     trip_t: float
     trip_value: float
+    trip_v: float
     v_end: float
     t_end: float
     ramp_failed: bool
     ramp_failed_t: float
+    stalls: int
+    held_max_s: float
 
 
 class NativeLoop:
     """One run of the native loop: configure, :meth:`start`, :meth:`drain` until :attr:`finished`, :meth:`join`.
 
     ``controller``'s step and start are compiled for its structure; ``reference`` is the
-    setpoint per sample; ``limits`` a dict of the interlock numbers (see
-    :meth:`Executor._native_limits <piezopreload.rig.executor.Executor>`); ``backend`` a dict
+    setpoint per sample; ``safety`` the interlocks' limits (the rows of
+    :func:`piezopreload.rig.interlocks.rows` and the command's shaping); ``backend`` a dict
     made by the backend's ``native_backend()``. ``ring_s`` seconds of samples fit the ring.
     ``step_fn``: the loaded ``pp_rig_step`` of ``controller``'s structure (a
     :class:`~piezopreload.rig.compiled.CompiledStep`'s), else it is loaded here. ``ff_extra``:
     the external feedforward per sample of ``reference`` (a learned signal), read by the loop
     at the sample counter as the setpoint is (held at its last value past the end); None: 0.
+    ``realtime=False`` runs the cycles back to back on a virtual clock: a cycle waits no time,
+    an injected delay advances the clock by its value, so a stall is the same on every host.
     """
 
-    def __init__(self, controller: Controller, reference: np.ndarray, limits: dict[str, float], backend: dict[str, Any],
+    def __init__(self, controller: Controller, reference: np.ndarray, safety: interlocks.Safety,
+                 backend: dict[str, Any],
                  *, realtime: bool, hold: bool, faults: list[tuple[int, float, float, float]] = (),  # type: ignore[assignment]
                  ring_s: float = 30.0, fifo_priority: int = 80, spin_us: float = 0.0, step_fn: Any = None,
                  ff_extra: np.ndarray | None = None) -> None:
@@ -239,16 +269,42 @@ class NativeLoop:
                                  f"got shape {self._extra.shape}")
             L.extra = self._extra.ctypes.data
         L.hold, L.realtime = int(hold), int(realtime)
-        for key in ("v_min", "v_max", "slew_V_per_s", "force_max", "force_low", "sensor_min", "sensor_max",
-                    "stale_after_s", "ramp_s", "safe_V"):
-            setattr(L, key, float(limits[key]))
-        L.missed_streak = int(limits["missed_streak"])
+        self._set_limits(safety)
         L.step, L.start = _address(step), _address(start)
         self._state = np.zeros(self._model.state.size)
         self._params = [np.ascontiguousarray(controller.parameter_vector(), dtype=float), None]
         self._params[1] = self._params[0].copy()
         L.state = self._state.ctypes.data
         L.params[0], L.params[1] = self._params[0].ctypes.data, self._params[1].ctypes.data
+        self._set_backend(backend, faults)
+        L.want_fifo = L.want_mlock = int(realtime)
+        L.fifo_priority, L.spin_ns = int(fifo_priority), int(spin_us * 1e3)
+        rows = max(1024, int(ring_s / controller.dt_s))
+        self._ring = np.zeros((rows, COLS))
+        self._out = np.zeros((rows, COLS))
+        L.ring, L.ring_rows = self._ring.ctypes.data, rows
+        self._stalls = np.zeros((STALL_ROWS, 2))
+        L.stalls, L.stall_rows = self._stalls.ctypes.data, STALL_ROWS
+        self._stalls_seen = 0
+        self._addr = ctypes.addressof(L)
+        L.mlock_errno = L.fifo_errno = -1
+        self._started = False
+        self._signals = False
+
+    def _set_limits(self, safety: interlocks.Safety) -> None:
+        """The interlock table's rows and the command's shaping, from ``safety``."""
+        L = self._L
+        L.v_min, L.v_max, L.slew_V_per_s = safety.v_min_V, safety.v_max_V, safety.slew_V_per_s
+        L.ramp_s, L.safe_V = safety.ramp_s, safety.safe_V
+        L.stall_report_s = interlocks.STALL_REPORT_PERIODS * self.controller.dt_s
+        table = interlocks.rows(safety)
+        for j, row in enumerate(table):
+            L.interlocks[j] = _Interlock(*row)
+        L.n_interlocks = len(table)
+
+    def _set_backend(self, backend: dict[str, Any], faults: Any) -> None:
+        """The backend's entry points and buffers, and the faults to inject."""
+        L = self._L
         L.backend = int(backend["kind"])
         for key, value in backend.items():
             if key != "kind":
@@ -259,16 +315,6 @@ class NativeLoop:
         for j, (kind, at_s, value, duration_s) in enumerate(faults):
             L.faults[j] = _Fault(kind, 0, at_s, value, duration_s)
         L.n_faults = len(faults)
-        L.want_fifo = L.want_mlock = int(realtime)
-        L.fifo_priority, L.spin_ns = int(fifo_priority), int(spin_us * 1e3)
-        rows = max(1024, int(ring_s / controller.dt_s))
-        self._ring = np.zeros((rows, COLS))
-        self._out = np.zeros((rows, COLS))
-        L.ring, L.ring_rows = self._ring.ctypes.data, rows
-        self._addr = ctypes.addressof(L)
-        L.mlock_errno = L.fifo_errno = -1
-        self._started = False
-        self._signals = False
 
     # ---- the supervisor's side ----------------------------------------------------------------
     def lock_memory(self) -> None:
@@ -303,6 +349,16 @@ class NativeLoop:
         """The samples the loop has put in the ring since the last drain, as rows of the run log's columns."""
         n = int(self._lib.pp_loop_drain(self._addr, self._out.ctypes.data, self._out.shape[0]))
         return self._out[:n].copy()
+
+    def stalls(self) -> tuple[np.ndarray, int]:
+        """The stalls recorded since the last call, rows of ``(t_s, held_s)``, and how many of them the ring
+        no longer held (overwritten before they were read)."""
+        n = int(self._lib.pp_loop_stalls(self._addr))
+        new = n - self._stalls_seen
+        kept = min(new, STALL_ROWS)
+        index = np.arange(n - kept, n) % STALL_ROWS
+        self._stalls_seen = n
+        return self._stalls[index].copy(), new - kept
 
     def join(self) -> None:
         if self._started:
@@ -364,5 +420,35 @@ class NativeLoop:
     def status(self) -> LoopStatus:
         L = self._L
         return LoopStatus(int(L.cycles), int(L.missed), int(L.clamped), int(L.lost), int(L.switches),
-                          int(L.trip_cause), int(L.trip_where), float(L.trip_t), float(L.trip_value),
-                          float(L.v_end), float(L.t_end), bool(L.ramp_failed), float(L.ramp_failed_t))
+                          int(L.trip_cause), int(L.trip_where), float(L.trip_t), float(L.trip_value), float(L.trip_v),
+                          float(L.v_end), float(L.t_end), bool(L.ramp_failed), float(L.ramp_failed_t),
+                          int(L.n_stalls), float(L.held_max))
+
+
+def probe(dt_s: float, n: int, *, fifo_priority: int = 80, spin_us: float = 0.0,
+          realtime: bool = True) -> tuple[np.ndarray, dict[str, str]]:
+    """The host check's bare thread: ``n`` wake-ups every ``dt_s`` on absolute deadlines, waited for as the loop
+    waits (the same priority, memory locking, timer slack and spin); their lateness in seconds and what the
+    system granted (:attr:`NativeLoop.realtime_report`'s words)."""
+    lib = loop_library()
+    late = np.zeros(int(n), dtype=np.int64)
+    P = _Probe(float(dt_s), int(n), int(realtime), int(fifo_priority), int(realtime), int(spin_us * 1e3),
+               late.ctypes.data, -1, -1)
+    rc = lib.pp_probe_run(ctypes.byref(P))
+    if rc:
+        raise OSError(rc, f"cannot start the check's thread: {os.strerror(rc)}")
+    return late * 1e-9, {"sched_fifo": _errno_text(int(P.fifo_errno), "SCHED_FIFO"),
+                         "memory_locked": _errno_text(int(P.mlock_errno), "mlockall")}
+
+
+def time_step(controller: Controller, n: int = 2000) -> np.ndarray:
+    """The compiled controller step's compute time (s) over ``n`` calls from C, each timed by the monotonic clock."""
+    lib = loop_library()
+    model = controller.model
+    step = step_library(model).pp_rig_step
+    state = np.zeros(model.state.size)
+    params = np.ascontiguousarray(controller.parameter_vector(), dtype=float)
+    ns = np.zeros(int(n), dtype=np.int64)
+    if lib.pp_time_step(_address(step), 50.0, 50.0, state.ctypes.data, params.ctypes.data, int(n), ns.ctypes.data):
+        raise RuntimeError("the compiled controller step failed while being timed")
+    return ns * 1e-9

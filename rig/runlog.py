@@ -1,4 +1,5 @@
-"""The rig's run log: samples as CSV, a JSON sidecar with what ran and what happened.
+"""The rig's run log: samples as CSV, a JSON sidecar (:class:`~piezopreload.artifacts.rigrun.RigRunRecord`) with what
+ran and what happened.
 
 Both files of a run share a name that no earlier run has (``run-<UTC time>-<gain set hash>``,
 with ``-2``, ``-3`` ... on a clash); the CSV is created exclusively, so a run never
@@ -11,21 +12,24 @@ The files are flushed to the operating system, not fsynced per flush: they survi
 process, not the power going down mid-run. The log also keeps its samples in memory (the first
 ``keep_rows``, all by default): a run is scored from :meth:`RunLog.columns`, not by reading
 its CSV back. ``measured_N`` is the force the sensor read (what the controller saw).
+
+An event may be logged without rewriting the sidecar at once (``write=False``: a stall, which the
+Python loop logs inside its cycle); the next event or the end writes it with the rest.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import threading
 import time
 from array import array
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from piezopreload.core.artifacts import atomic_write_text, package_version, schema_name
+from piezopreload.artifacts.rigrun import RigRunRecord, RunMetrics, RunOutcome
 from piezopreload.core.errors import InputError
 
 __all__ = ["RunLog", "COLUMNS", "read_run_log"]
@@ -34,6 +38,9 @@ __all__ = ["RunLog", "COLUMNS", "read_run_log"]
 COLUMNS = ("time_s", "reference_N", "measured_N", "command_V", "voltage_V", "feedforward_V", "p_V", "i_V", "d_V",
            "period_s", "lateness_s", "compute_s", "missed", "mode")
 _ROW = ",".join(["%.6f"] + ["%.9g"] * (len(COLUMNS) - 3) + ["%d", "%d"]) + "\n"
+#: the columns' units as the sidecar states them
+UNITS = {"time_s": "s on the run's timeline (sample k at k / rate)",
+         "mode": "0 control, 1 ramp-down, 2 the sample that stopped the run"}
 
 
 def utc_now() -> str:
@@ -41,9 +48,9 @@ def utc_now() -> str:
 
 
 class RunLog:
-    """One run's CSV and JSON sidecar in ``folder``; ``info`` goes into the sidecar as it is."""
+    """One run's CSV and JSON sidecar in ``folder``; ``record`` is what ran (the sidecar's fields before the run)."""
 
-    def __init__(self, folder: str | Path, tag: str, info: dict[str, Any], *, flush_s: float = 0.05,
+    def __init__(self, folder: str | Path, tag: str, record: RigRunRecord | None = None, *, flush_s: float = 0.05,
                  keep_rows: int | None = None) -> None:
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
@@ -70,12 +77,9 @@ class RunLog:
         self._last_flush = time.monotonic()
         self._fh.write(",".join(COLUMNS) + "\n")
         self._fh.flush()
-        self.doc: dict[str, Any] = {
-            "schema": schema_name("rig-run"), "package_version": package_version(), "created_utc": utc_now(),
-            "status": "running", "csv": csv.name, "columns": list(COLUMNS),
-            "units": {"time_s": "s on the run's timeline (sample k at k / rate)", "mode": "0 control, 1 ramp-down, 2 the sample that stopped the run"},
-            **info, "events": [], "summary": None,
-        }
+        self.record = replace(record or RigRunRecord(), status="running", created_utc=utc_now(), csv=csv.name,
+                              columns=COLUMNS, units=dict(UNITS), events=(), summary=None, reason=None,
+                              finished_utc=None)
         self._write_sidecar()
 
     def sample(self, row: tuple, now: float) -> None:
@@ -98,32 +102,47 @@ class RunLog:
         """The samples kept in memory, as named columns (:data:`COLUMNS`)."""
         return {name: np.frombuffer(column, dtype=float).copy() for name, column in zip(COLUMNS, self._kept)}
 
-    def event(self, event: dict[str, Any]) -> None:
-        """Record an event (interlock, gain switch, ...) with its UTC time; the sidecar is rewritten.
+    def event(self, event: dict[str, Any], write: bool = True) -> None:
+        """Record an event (interlock, gain switch, ...) with its UTC time; the sidecar is rewritten (``write``).
 
         Safe from another thread than the loop's: only the loop writes the CSV, which it
         flushes within ``flush_s``.
         """
         with self._lock:
-            self.doc["events"].append({"utc": utc_now(), **event})
+            self.record = self.record.event({"utc": utc_now(), **event})
+            if write:
+                self._write_sidecar()
+
+    def close(self, status: str, outcome: RunOutcome) -> None:
+        """The run has ended: the CSV closed, the sidecar's status and outcome written."""
+        self._close(status=status, summary=outcome)
+
+    def not_started(self, reason: str) -> None:
+        """The run was refused after the log was opened (before arming): closed with the reason."""
+        self._close(status="not started", reason=reason)
+
+    def record_metrics(self, metrics: RunMetrics, learned: dict[str, float] | None = None) -> None:
+        """A completed run's step and tracking figures, added to its outcome (a tripped run has none), and a
+        learned signal's figures (``learned``) to the record of the signal."""
+        with self._lock:
+            summary = self.record.summary
+            if summary is None or summary.trip is not None:
+                raise ValueError("only a completed run's outcome takes metrics")
+            changes: dict[str, Any] = {"summary": replace(summary, metrics=metrics)}
+            if learned:
+                changes["learned"] = {**(self.record.learned or {}), **learned}
+            self.record = replace(self.record, **changes)
             self._write_sidecar()
 
-    def close(self, status: str, summary: dict[str, Any]) -> None:
+    def _close(self, **fields: Any) -> None:
         self.flush()
         self._fh.close()
         with self._lock:
-            self.doc.update(status=status, summary=summary, finished_utc=utc_now())
+            self.record = replace(self.record, finished_utc=utc_now(), **fields)
             self._write_sidecar()
 
     def _write_sidecar(self) -> None:
-        atomic_write_text(self.json_path, json.dumps(self.doc, indent=2, allow_nan=False, default=_jsonable) + "\n")
-
-
-def _jsonable(x: Any) -> Any:
-    try:
-        return float(x)
-    except (TypeError, ValueError):
-        return str(x)
+        self.record.save(self.json_path)
 
 
 def read_run_log(csv_path: str | Path) -> dict[str, np.ndarray]:

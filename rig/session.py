@@ -1,47 +1,61 @@
-"""A validated gain set on the rig: run it, serve it over OPC UA, push it; the interlocks and the scoring.
+"""A validated gain set on the rig: run it, serve it over OPC UA, push it; the host check, the limits, the scoring.
 
 This module puts the rig floor's parts together for one session: it reads the gain set (the
 one reader, :meth:`~piezopreload.artifacts.gainset.GainSet.load`; candidates and changed files
 are refused), builds its controller, the reference (one the gain set stores by name, or a
-``time_s,force_N`` CSV), the backend and the interlocks (:func:`interlocks`: the command
-range within the gains' and the stacks', the sensor's range and the bolt preload from the
-plant), runs :class:`~piezopreload.rig.executor.Executor` with its run log, and scores the
-run from the samples the log kept in memory (:func:`run_metrics`) by the code that scores a
-simulation (:func:`~piezopreload.models.metrics.run_numbers`).
+``time_s,force_N`` CSV), the limits (:func:`~piezopreload.rig.limits.run_limits`: the gain
+set's study's interlock settings unless the command line overrides them, the plant's command
+range, bolt preload and sensor range, the stall limit the plant tolerates, each with its
+source), and the backend; in real time it checks the host first
+(:func:`~piezopreload.rig.hostcheck.check_host`) and refuses one that fails unless
+``accept_host``; it runs :class:`~piezopreload.rig.executor.Executor` with its run log and,
+for a completed run, scores it from the samples the log kept in memory (:func:`run_metrics`)
+by the code that scores a simulation (:func:`~piezopreload.models.metrics.run_numbers`). A
+tripped run reports its trip and no step figures.
 """
 
 from __future__ import annotations
 
 import asyncio
+import functools
 import math
 import signal
 import sys
 import threading
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from piezopreload.artifacts.gainset import REFERENCES, GainSet
+from piezopreload.artifacts.hostcheck import HostCheck
 from piezopreload.artifacts.learned import LearnedSignal
+from piezopreload.artifacts.rigrun import RigRunRecord, RunMetrics
+from piezopreload.core.artifacts import finite_or_none
 from piezopreload.core.errors import InputError
 from piezopreload.core.tables import read_table
-from piezopreload.models.actuator import Rig, RigParams, reach_N
 from piezopreload.models.closedloop import PAPER_BAND_N, ClosedLoopRun, Reference
 from piezopreload.models.controller import Controller
 from piezopreload.models.metrics import run_numbers
 from piezopreload.rig.backends import BackendError, Fault, FaultInjector, open_backend
-from piezopreload.rig.executor import Executor, RunResult, Safety
+from piezopreload.rig.executor import Executor
 from piezopreload.rig.export import ExportError, controller_from_gain_set
+from piezopreload.rig.hostcheck import check_host
+from piezopreload.rig.limits import RunLimits, run_limits, study_values
 from piezopreload.rig.opcua import PushRefused, RigServer, feedforward_hash, push_gain_set
+from piezopreload.rig.outcome import RunResult
 from piezopreload.rig.runlog import RunLog
+from piezopreload.rig.tables import INTERLOCK_KEYS
 
-__all__ = ["EXIT_TRIPPED", "RigRun", "load_validated", "reference_for", "check_reference", "interlocks", "run_metrics", "run", "serve",
-           "push", "check_pushed"]
+__all__ = ["EXIT_TRIPPED", "HOST_CHECK_S", "RigRun", "load_validated", "reference_for", "run_metrics", "run", "serve",
+           "push", "check_pushed", "check"]
 
 #: the exit code of a run that an interlock (or a signal) stopped
 EXIT_TRIPPED = 3
+#: how long a run in real time checks its host before arming
+HOST_CHECK_S = 2.0
 
 
 def _require_validated(gain_set: GainSet, shown: str) -> GainSet:
@@ -68,17 +82,24 @@ def _controller(shown: str | Path, gain_set: GainSet) -> Controller:
         raise InputError(f"{shown}: {exc}") from None
 
 
-def check_pushed(text: str) -> tuple[Controller, dict[str, str]]:
-    """The executor's check of a pushed document: the artifact's checks, validated, a controller it can build.
+def check_pushed(text: str, served: dict[str, float] | None = None) -> tuple[Controller, dict[str, str]]:
+    """The executor's check of a pushed document: the artifact's checks, validated, a controller it can build, and
+    (``served``) the interlock settings of the served run's gain set, which the pushed one's study must share.
 
     Raises ValueError with the reason (the server sends it back to the client).
     """
     shown = "the pushed gain set"
     try:
         gain_set = _require_validated(GainSet.parse(text, shown), shown)
-        return _controller(shown, gain_set), _identity(gain_set)
+        controller = _controller(shown, gain_set)
+        pushed, sources = study_values(gain_set)
     except InputError as exc:
         raise ValueError(str(exc)) from None
+    for key, value in (served or {}).items():
+        if pushed.get(key) is not None and not math.isclose(float(pushed[key]), value, rel_tol=1e-12):
+            raise ValueError(f"{shown} carries {key} = {pushed[key]:g} ({sources[key]}), the served rig runs with "
+                             f"{value:g}: the interlocks are set when the rig is armed; serve that gain set instead")
+    return controller, _identity(gain_set)
 
 
 def reference_for(spec: str, gain_set: GainSet, shown: str | Path = "the gain set") -> tuple[Reference, str]:
@@ -102,73 +123,27 @@ def reference_for(spec: str, gain_set: GainSet, shown: str | Path = "the gain se
     return Reference(t, f, float(t[-1] + (t[-1] - t[-2]))), str(path)
 
 
-def check_reference(reference: Reference, shown: str, limits: Safety, plant: RigParams | None) -> None:
-    """Refuse, before arming, a reference outside the interlocks' force range or the plant's reach.
-
-    A level must lie strictly inside the force interlocks (above the bolt preload less the
-    margin, below ``force_max_N``: at either limit the run would trip at once), and, with the
-    gain set's plant, within what its stacks reach over their voltage range (creep
-    settled, :func:`~piezopreload.models.actuator.reach_N`). A CSV's level is named by its line
-    (the header is line 1).
-    """
-    lo, hi = limits.force_low_N, limits.force_max_N
-    reach: tuple[float, float] | None = None
-    if plant is not None:
-        rig = Rig(plant)
-        tol = 3.0 * plant.adc_lsb_N
-        v_lo, v_hi = plant.stack.v_min_V, plant.stack.v_max_V
-        reach = (float(reach_N(rig, v_lo)) - tol, float(reach_N(rig, v_hi)) + tol)
-    csv = shown.lower().endswith(".csv")
-    for j, level in enumerate(reference.levels_N.tolist()):
-        where = f"{shown}:{j + 2}: field 'force_N'" if csv else f"the reference '{shown}', level {j + 1}"
-        if not math.isfinite(level) or not lo < level < hi:
-            raise InputError(f"{where}: {level:g} N is outside the rig's safe force range ({lo:g} N, {hi:g} N) "
-                             "(the bolt preload less the margin, force_max_N); refused before arming")
-        if reach is not None and not reach[0] <= level <= reach[1]:
-            raise InputError(f"{where}: {level:g} N is beyond what the gain set's plant reaches between "
-                             f"its stacks' {v_lo:g} V and {v_hi:g} V ({reach[0]:.4g}..{reach[1]:.4g} N); "
-                             "refused before arming")
-
-
-def interlocks(controller: Controller, plant: RigParams | None, overrides: dict[str, float | None] | None = None) -> Safety:
-    """Interlocks for a controller on a plant: the command range within the gains' and the stacks', the force
-    floor at the bolt preload, the sensor's range; ``plant`` None (hardware) leaves the plant's limits at
-    :class:`Safety`'s defaults. ``overrides`` (not None) win."""
-    g = controller.gains
-    kw: dict[str, Any] = {"v_min_V": g.u_min, "v_max_V": g.u_max, "safe_V": max(g.u_min, 0.0)}
-    if plant is not None:
-        kw.update(v_min_V=max(g.u_min, plant.stack.v_min_V), v_max_V=min(g.u_max, plant.stack.v_max_V),
-                  bolt_preload_N=float(plant.bolt_preload_N),
-                  sensor_min_N=-float(plant.adc_full_scale_N), sensor_max_N=float(plant.adc_full_scale_N) - plant.adc_lsb_N)
-    kw.update({k: v for k, v in (overrides or {}).items() if v is not None})
-    try:
-        return Safety(**kw)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"interlocks: {exc}") from None
-
-
-def run_metrics(columns: dict[str, np.ndarray], reference: Reference, band_N: float) -> dict[str, Any]:
+def run_metrics(columns: dict[str, np.ndarray], reference: Reference, band_N: float) -> RunMetrics:
     """Step and tracking metrics of a run's controlled samples (the run log's columns), on the measured force."""
     keep = columns["mode"] == 0
     n = int(keep.sum())
     if n < 2:
-        return {"samples": n}
+        return RunMetrics(n)
     c = {k: v[keep] for k, v in columns.items()}
-    out: dict[str, Any] = {"samples": n, "peak_voltage_V": float(np.max(c["voltage_V"]))}
-    if reference.times_s.size > 1 and c["time_s"][-1] > reference.times_s[1]:
-        # on a rig the measured force is all there is: it stands for the true force too
-        run = ClosedLoopRun(t_s=c["time_s"], reference_N=c["reference_N"], force_N=c["measured_N"],
-                            measured_N=c["measured_N"], command_V=c["command_V"], voltage_V=c["voltage_V"],
-                            p_V=c["p_V"], i_V=c["i_V"], d_V=c["d_V"], ff_V=c["feedforward_V"], reference=reference, seed=0)
-        try:
-            numbers = run_numbers(run, band_N, "measured_N")
-        except ValueError:  # no step to read (a schedule: ramps, or a first row that repeats the level)
-            te = run.tracking_error(t_from_s=0.0)
-            numbers = {"rise_s": None, "peak_s": None, "settling_s": None, "overshoot_N": None,
-                       "tracking_rms_N": float(te["rms"]), "tracking_max_N": float(te["max"])}
-        out.update({k: numbers[k] for k in ("rise_s", "peak_s", "settling_s", "overshoot_N", "tracking_rms_N",
-                                             "tracking_max_N")})
-    return out
+    peak = float(np.max(c["voltage_V"]))
+    if not (reference.times_s.size > 1 and c["time_s"][-1] > reference.times_s[1]):
+        return RunMetrics(n, peak)
+    # on a rig the measured force is all there is: it stands for the true force too
+    run = ClosedLoopRun(t_s=c["time_s"], reference_N=c["reference_N"], force_N=c["measured_N"],
+                        measured_N=c["measured_N"], command_V=c["command_V"], voltage_V=c["voltage_V"],
+                        p_V=c["p_V"], i_V=c["i_V"], d_V=c["d_V"], ff_V=c["feedforward_V"], reference=reference, seed=0)
+    try:
+        numbers = run_numbers(run, band_N, "measured_N")
+    except ValueError:  # no step to read (a schedule: ramps, or a first row that repeats the level)
+        te = run.tracking_error(t_from_s=0.0)
+        numbers = {"tracking_rms_N": float(te["rms"]), "tracking_max_N": float(te["max"])}
+    keys = ("rise_s", "peak_s", "settling_s", "overshoot_N", "tracking_rms_N", "tracking_max_N")
+    return RunMetrics(n, peak, **{k: None if numbers.get(k) is None else finite_or_none(numbers[k]) for k in keys})
 
 
 @dataclass(frozen=True, eq=False)
@@ -210,35 +185,30 @@ class _Setup:
     controller: Controller
     backend: Any
     reference: Reference
-    safety: Safety
-    info: dict[str, Any]
+    limits: RunLimits
+    record: RigRunRecord
     band_N: float
     learned: LearnedSignal | None = None
 
 
-def _setup(gains_path: str | Path, backend: str, backend_options: dict[str, str] | None, reference: str | None,
-           rate_Hz: float | None, realtime: bool, faults: list[Fault] | None, safety: dict[str, float | None] | None,
-           seed: int, learned: str | Path | None = None) -> _Setup:
-    gain_set = load_validated(gains_path)
-    controller = _controller(gains_path, gain_set)
-    if rate_Hz is not None and not math.isclose(rate_Hz * controller.dt_s, 1.0, rel_tol=1e-9):
-        raise InputError(f"--rate {rate_Hz:g}: the gain set was tuned and validated at {1.0 / controller.dt_s:g} Hz; "
-                         "run it at that rate or tune for the other one")
-    signal = None
-    if learned is not None:  # the signal's own reference unless one is named; either way its hashes must match
-        signal = LearnedSignal.load(learned)
-        ref, ref_name = (signal.reference, f"learned {Path(learned).name}") if reference is None else \
-            reference_for(reference, gain_set, gains_path)
-        signal.check(gain_set.content_sha256, ref, str(learned))
-        if not math.isclose(signal.sample_period_s, controller.dt_s, rel_tol=1e-9):
-            raise InputError(f"{learned}: learned at {signal.sample_period_s} s a sample, the gain set runs at "
-                             f"{controller.dt_s} s")
-    else:
-        ref, ref_name = reference_for(reference or "step", gain_set, gains_path)
-    limits = interlocks(controller, gain_set.plant if backend == "sim" else None, safety)
-    check_reference(ref, ref_name, limits, gain_set.plant)
-    if signal is not None:  # the plan is what the loop runs: its levels are held to the same range
-        check_reference(signal.setpoint, f"setpoint_N of {learned}", limits, gain_set.plant)
+def _plan(gains_path: str | Path, gain_set: GainSet, controller: Controller, reference: str | None,
+          learned: str | Path | None) -> tuple[Reference, str, LearnedSignal | None]:
+    """The reference the run follows (the learned signal's own unless one is named) and the learned signal."""
+    if learned is None:
+        ref, name = reference_for(reference or "step", gain_set, gains_path)
+        return ref, name, None
+    signal = LearnedSignal.load(learned)
+    ref, name = (signal.reference, f"learned {Path(learned).name}") if reference is None else \
+        reference_for(reference, gain_set, gains_path)
+    signal.check(gain_set.content_sha256, ref, str(learned))
+    if not math.isclose(signal.sample_period_s, controller.dt_s, rel_tol=1e-9):
+        raise InputError(f"{learned}: learned at {signal.sample_period_s} s a sample, the gain set runs at "
+                         f"{controller.dt_s} s")
+    return ref, name, signal
+
+
+def _open(backend: str, backend_options: dict[str, str] | None, gain_set: GainSet, seed: int, realtime: bool,
+          faults: list[Fault] | None) -> Any:
     try:
         rig = open_backend(backend, backend_options, plant=gain_set.plant, seed=seed)
     except BackendError as exc:
@@ -246,38 +216,90 @@ def _setup(gains_path: str | Path, backend: str, backend_options: dict[str, str]
     if not realtime and not getattr(rig, "simulated", False):
         raise InputError(f"--fast: the backend '{backend}' does not declare itself a simulation (simulated = True); "
                          "hardware runs in real time")
-    if faults:
-        rig = FaultInjector(rig, faults)
-    info = {
-        "gain_set": str(gains_path), **_identity(gain_set), "backend": rig.name, "rig_preset": gain_set.preset,
-        "reference": ref_name, "reference_levels_N": ref.levels_N.tolist(), "rate_Hz": 1.0 / controller.dt_s,
-        "realtime": realtime, "safety": limits.to_dict(), "seed": seed,
-        "faults_injected": [{**f.__dict__, "duration_s": f.duration_s if math.isfinite(f.duration_s) else None}
-                            for f in faults or []],
-    }
+    return FaultInjector(rig, faults) if faults else rig
+
+
+def _limits(gain_set: GainSet, controller: Controller, ref: Reference, ref_name: str, signal: LearnedSignal | None,
+            learned: str | Path | None, safety: dict[str, float | None] | None, safety_source: str, seed: int,
+            watchdog_s: float | None) -> RunLimits:
+    checked = [(ref, ref_name)]
+    if signal is not None:  # the plan is what the loop runs: its levels are held to the same range
+        checked.append((signal.setpoint, f"setpoint_N of {learned}"))
+    runs = ref if signal is None else signal.setpoint
+    return run_limits(gain_set, controller, runs, ref_name, overrides=safety, override_source=safety_source,
+                      ff_extra_V=None if signal is None else signal.ff_extra_V, seed=seed, watchdog_s=watchdog_s,
+                      checked=tuple(checked))
+
+
+def _setup(gains_path: str | Path, backend: str, backend_options: dict[str, str] | None, reference: str | None,
+           rate_Hz: float | None, realtime: bool, faults: list[Fault] | None, safety: dict[str, float | None] | None,
+           seed: int, learned: str | Path | None = None, safety_source: str = "the command line") -> _Setup:
+    gain_set = load_validated(gains_path)
+    controller = _controller(gains_path, gain_set)
+    if rate_Hz is not None and not math.isclose(rate_Hz * controller.dt_s, 1.0, rel_tol=1e-9):
+        raise InputError(f"--rate {rate_Hz:g}: the gain set was tuned and validated at {1.0 / controller.dt_s:g} Hz; "
+                         "run it at that rate or tune for the other one")
+    ref, ref_name, signal = _plan(gains_path, gain_set, controller, reference, learned)
+    wd = backend_options.get("watchdog_s") if backend == "sim" and backend_options else None
+    try:
+        watchdog_s = None if wd is None else float(wd)
+    except ValueError:
+        raise InputError(f"--backend-option watchdog_s={wd!r}: not a number") from None
+    limits = _limits(gain_set, controller, ref, ref_name, signal, learned, safety, safety_source, seed, watchdog_s)
+    rig = _open(backend, backend_options, gain_set, seed, realtime, faults)
+    record = RigRunRecord(
+        gain_set=str(gains_path), backend=rig.name, rig_preset=gain_set.preset, reference=ref_name,
+        reference_levels_N=tuple(ref.levels_N.tolist()), rate_Hz=1.0 / controller.dt_s, realtime=realtime,
+        safety=limits.safety.to_dict(), safety_sources=dict(limits.sources), stall_limit=limits.stall, seed=seed,
+        faults_injected=tuple({**f.__dict__, "duration_s": f.duration_s if math.isfinite(f.duration_s) else None}
+                              for f in faults or []), **_identity(gain_set))
     if signal is not None:
-        info["learned"] = {"path": str(learned), "sha256": signal.content_sha256, "iteration": signal.iteration,
-                           "method": signal.method, "preview_s": signal.preview_s,
-                           "reference_sha256": signal.reference_sha256}
+        record = replace(record, learned={"path": str(learned), "sha256": signal.content_sha256,
+                                          "iteration": signal.iteration, "method": signal.method,
+                                          "preview_s": signal.preview_s, "reference_sha256": signal.reference_sha256})
     band = gain_set.criteria.band_N if gain_set.criteria is not None else PAPER_BAND_N
-    return _Setup(gain_set, controller, rig, ref, limits, info, band, signal)
+    return _Setup(gain_set, controller, rig, ref, limits, record, band, signal)
 
 
-def _summary(result: RunResult, log: RunLog, su: _Setup, info: dict[str, Any]) -> RigRun:
+def _check_host(su: _Setup, executor: Executor, seconds: float, accept_host: bool,
+                say: Callable[[str], None] | None) -> HostCheck:
+    """The host check before arming; a failing host is refused (exit 2) unless ``accept_host``."""
+    checked = check_host(rate_Hz=1.0 / su.controller.dt_s, seconds=seconds, controller=su.controller,
+                         stall_limit_s=su.limits.safety.stall_limit_s, loop=executor.loop, progress=say)
+    if not checked.passed and not accept_host:
+        failed = "; ".join(c.text for c in checked.criteria if not c.passed)
+        raise InputError(f"this host failed the check before arming ({failed}); see 'piezopreload rig check', or "
+                         "give --accept-host to run on it anyway")
+    if say is not None:
+        say(f"host check: {checked.verdict} (lateness p99 {checked.lateness_p99_s * 1e6:.0f} us, max "
+            f"{checked.lateness_max_s * 1e3:.2f} ms){'; run anyway (--accept-host)' if not checked.passed else ''}")
+    return checked
+
+
+def _summary(result: RunResult, log: RunLog, su: _Setup) -> RigRun:
+    """What ``--json`` prints: a tripped run's trip and no step figures, a completed run's figures."""
     columns = log.columns()
-    summary = {
+    metrics = None
+    if result.ok:
+        metrics = run_metrics(columns, su.reference, su.band_N)
+        log.record_metrics(metrics, None if su.learned is None else _learned_metrics(columns, su.learned))
+    rec = log.record
+    summary: dict[str, Any] = {
         "status": result.status, "exit_code": 0 if result.ok else EXIT_TRIPPED,
-        "trip": None if result.trip is None else result.trip.__dict__,
-        "cycles": result.cycles, "controller_step": result.controller_step, "loop": result.timing.get("loop"),
-        "timing": result.timing,
-        "clamped_cycles": result.clamped_cycles, "metrics": run_metrics(columns, su.reference, su.band_N),
+        "trip": None if result.trip is None else asdict(result.trip),
+        "cycles": result.cycles, "controller_step": result.controller_step, "loop": result.timing.loop,
+        "timing": asdict(result.timing), "clamped_cycles": result.clamped_cycles,
+        "metrics": None if metrics is None else asdict(metrics),
         "log_csv": result.csv_path, "log_json": result.json_path,
-        **{k: info[k] for k in ("gain_set", "gain_set_sha256", "feedforward_sha256", "backend", "reference",
-                                "rate_Hz", "realtime")},
+        "gain_set": rec.gain_set, "gain_set_sha256": rec.gain_set_sha256, "feedforward_sha256": rec.feedforward_sha256,
+        "backend": rec.backend, "reference": rec.reference, "rate_Hz": rec.rate_Hz, "realtime": rec.realtime,
+        "interlocks": dict(rec.safety), "interlock_sources": dict(rec.safety_sources),
+        "stall_limit": None if rec.stall_limit is None else asdict(rec.stall_limit),
+        "host_check": None if rec.host_check is None else rec.host_check.to_dict(), "host_accepted": rec.host_accepted,
         "events": [e["event"] for e in result.events],
     }
     if su.learned is not None:
-        summary["learned"] = {**info["learned"], **_learned_metrics(columns, su.learned)}
+        summary["learned"] = dict(rec.learned or {})
     return RigRun(summary, columns)
 
 
@@ -298,28 +320,37 @@ def _learned_metrics(columns: dict[str, np.ndarray], signal: LearnedSignal) -> d
 def run(gains_path: str | Path, *, backend: str = "sim", backend_options: dict[str, str] | None = None,
         reference: str | None = "step", rate_Hz: float | None = None, realtime: bool = True, log_dir: str | Path = "runs",
         faults: list[Fault] | None = None, safety: dict[str, float | None] | None = None, seed: int = 0,
-        step: str = "c", learned: str | Path | None = None, loop: str = "auto") -> RigRun:
+        step: str = "c", learned: str | Path | None = None, loop: str = "auto", safety_source: str = "the command line",
+        host_check_s: float = HOST_CHECK_S, accept_host: bool = False,
+        say: Callable[[str], None] | None = None) -> RigRun:
     """Run a validated gain set on a backend (see ``piezopreload rig run``); the log goes to ``log_dir``.
 
-    ``learned`` (a learned-signal artifact, :class:`~piezopreload.artifacts.learned.LearnedSignal`)
-    plays back a learned signal: its setpoint (the plan) is the run's reference and its
-    ``ff_extra_V`` is added to the feedforward (on either loop). It must have been learned with this gain set and on this reference
-    (``reference=None``: its own); the run's log gives the next learning iteration
-    (``piezopreload learn --from-run LOG``). ``loop``: ``auto``, ``native`` or ``python``.
+    ``safety`` overrides the gain set's interlock settings (``force_max_N``, ``force_low_margin_N``,
+    ``ramp_s``, ``stall_limit_s``; None: not overridden), ``safety_source`` names where the
+    overrides come from in the sidecar. ``learned`` (a learned-signal artifact,
+    :class:`~piezopreload.artifacts.learned.LearnedSignal`) plays back a learned signal: its
+    setpoint (the plan) is the run's reference and its ``ff_extra_V`` is added to the
+    feedforward (on either loop). It must have been learned with this gain set and on this
+    reference (``reference=None``: its own); the run's log gives the next learning iteration
+    (``piezopreload learn --from-run LOG``). ``loop``: ``auto``, ``native`` or ``python``. In
+    real time the host is checked for ``host_check_s`` first (:mod:`piezopreload.rig.hostcheck`)
+    and refused if it fails, unless ``accept_host``.
     """
-    su = _setup(gains_path, backend, backend_options, reference, rate_Hz, realtime, faults, safety, seed, learned)
-    log = RunLog(log_dir, (su.gain_set.content_sha256 or "")[:12], su.info)
+    su = _setup(gains_path, backend, backend_options, reference, rate_Hz, realtime, faults, safety, seed, learned,
+                safety_source)
     try:
-        if su.learned is not None:
-            executor = Executor(su.controller, su.backend, su.learned.setpoint, su.safety, realtime=realtime, log=log,
-                                step=step, ff_extra_V=su.learned.ff_extra_V, loop=loop)
-        else:
-            executor = Executor(su.controller, su.backend, su.reference, su.safety, realtime=realtime, log=log,
-                                step=step, loop=loop)
-        return _summary(executor.run(), log, su, su.info)
-    except ValueError as exc:
-        log.close("not started", {"reason": str(exc)})
-        raise InputError(f"--loop {loop}: {exc}") from None
+        try:
+            plan = su.learned.setpoint if su.learned is not None else su.reference
+            executor = Executor(su.controller, su.backend, plan, su.limits.safety, realtime=realtime, step=step,
+                                ff_extra_V=None if su.learned is None else su.learned.ff_extra_V, loop=loop)
+        except ValueError as exc:
+            raise InputError(f"--loop {loop}: {exc}") from None
+        record = su.record
+        if realtime:
+            record = replace(record, host_check=_check_host(su, executor, host_check_s, accept_host, say),
+                             host_accepted=accept_host)
+        executor.log = log = RunLog(log_dir, (su.gain_set.content_sha256 or "")[:12], record)
+        return _summary(executor.run(), log, su)
     finally:
         _close(su.backend)
 
@@ -334,37 +365,48 @@ def _close(backend: Any) -> None:
 SERVE_KEEP_S = 600.0
 
 
+def _served_interlocks(su: _Setup, overrides: dict[str, float | None] | None) -> dict[str, float]:
+    """The interlock settings the served run took from its gain set, not from the command line: a pushed gain set
+    must carry the same (an override holds whatever is pushed)."""
+    given = {k for k, v in (overrides or {}).items() if v is not None}
+    return {k: float(getattr(su.limits.safety, k)) for k in INTERLOCK_KEYS if k != "stall_limit_s" and k not in given}
+
+
 def serve(gains_path: str | Path, *, endpoint: str, users: dict[str, str], certificate: str | None = None,
           private_key: str | None = None, backend: str = "sim", backend_options: dict[str, str] | None = None,
           reference: str = "step", log_dir: str | Path = "runs", faults: list[Fault] | None = None,
           safety: dict[str, float | None] | None = None, seed: int = 0, duration_s: float | None = None,
-          ready: Any = None, stop: Any = None, say: Any = None, loop: str = "auto") -> RigRun:
+          ready: Any = None, stop: Any = None, say: Any = None, loop: str = "auto",
+          host_check_s: float = HOST_CHECK_S, accept_host: bool = False) -> RigRun:
     """Run a validated gain set in real time and serve it over OPC UA until SIGINT/SIGTERM or ``duration_s``.
 
     The reference's last level is held after its end. A push of another validated gain set
-    switches the running controller bumplessly (see :mod:`piezopreload.rig.opcua`). The
+    (of a study with the same interlock settings) switches the running controller bumplessly
+    (see :mod:`piezopreload.rig.opcua`). The host is checked first, as by :func:`run`. The
     metrics score the first :data:`SERVE_KEEP_S` seconds.
     """
     su = _setup(gains_path, backend, backend_options, reference, None, True, faults, safety, seed)
-    info = {**su.info, "endpoint": endpoint, "users": sorted(users), "served": True}
-    log = RunLog(log_dir, (su.gain_set.content_sha256 or "")[:12], info,
-                 keep_rows=int(SERVE_KEEP_S / su.controller.dt_s))
     try:
-        executor = Executor(su.controller, su.backend, su.reference, su.safety, realtime=True, hold=True, log=log,
-                            loop=loop)
-        server = RigServer(executor, check_pushed, identity=_identity(su.gain_set), endpoint=endpoint,
-                           users=users, certificate=certificate, private_key=private_key)
-    except (ValueError, OSError) as exc:
-        log.close("not started", {"reason": str(exc)})
-        _close(su.backend)
-        raise InputError(f"rig serve: {exc}") from None
-    if say is not None:
-        say(f"serving {endpoint} (log {log.csv_path}); stop with Ctrl-C")
-    try:
-        out = _summary(asyncio.run(_serve(server, executor, duration_s, ready, stop)), log, su, info)
-    except OSError as exc:  # the server could not start (the address in use, a certificate): nothing ran
-        log.close("not started", {"reason": str(exc)})
-        raise InputError(f"rig serve: {exc}") from None
+        try:
+            executor = Executor(su.controller, su.backend, su.reference, su.limits.safety, realtime=True, hold=True,
+                                loop=loop)
+            check = _check_host(su, executor, host_check_s, accept_host, say)
+            record = replace(su.record, endpoint=endpoint, users=tuple(sorted(users)), served=True, host_check=check,
+                             host_accepted=accept_host)
+            server = RigServer(executor, functools.partial(check_pushed, served=_served_interlocks(su, safety)),
+                               identity=_identity(su.gain_set), endpoint=endpoint, users=users, certificate=certificate,
+                               private_key=private_key)
+        except (ValueError, OSError) as exc:
+            raise InputError(f"rig serve: {exc}") from None
+        executor.log = log = RunLog(log_dir, (su.gain_set.content_sha256 or "")[:12], record,
+                                    keep_rows=int(SERVE_KEEP_S / su.controller.dt_s))
+        if say is not None:
+            say(f"serving {endpoint} (log {log.csv_path}); stop with Ctrl-C")
+        try:
+            out = _summary(asyncio.run(_serve(server, executor, duration_s, ready, stop)), log, su)
+        except OSError as exc:  # the server could not start (the address in use, a certificate): nothing ran
+            log.not_started(str(exc))
+            raise InputError(f"rig serve: {exc}") from None
     finally:
         _close(su.backend)
     out.summary["pushes"] = server.pushes
@@ -384,6 +426,23 @@ async def _serve(server: RigServer, executor: Executor, duration_s: float | None
         return await server.run(ready=ready, stop=stop)
     finally:
         sys.setswitchinterval(switch)
+
+
+def check(gains_path: str | Path | None = None, *, seconds: float = 10.0, rate_Hz: float | None = None,
+          loop: str = "native", progress: Callable[[str], None] | None = None) -> HostCheck:
+    """``piezopreload rig check``: this host against a loop's budget (see :mod:`piezopreload.rig.hostcheck`).
+
+    With a gain set: its rate (``rate_Hz`` must agree), its compiled step and the stall limit
+    its step reference would run with; without: ``rate_Hz`` (default 1 kHz), a PID step, and no
+    stall limit judged.
+    """
+    if gains_path is None:
+        return check_host(rate_Hz=1000.0 if rate_Hz is None else rate_Hz, seconds=seconds, loop=loop,
+                          progress=progress)
+    su = _setup(gains_path, "sim", None, "step", rate_Hz, True, None, None, 0)
+    _close(su.backend)
+    return check_host(rate_Hz=1.0 / su.controller.dt_s, seconds=seconds, controller=su.controller,
+                      stall_limit_s=su.limits.safety.stall_limit_s, loop=loop, progress=progress)
 
 
 def push(gains_path: str | Path, *, endpoint: str, username: str | None, password: str | None,

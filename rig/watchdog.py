@@ -21,7 +21,7 @@ import struct
 import sys
 import time
 
-__all__ = ["SharedDAQ", "SIZE", "main"]
+__all__ = ["SharedDAQ", "SIZE", "Watch", "main"]
 
 #: field: (offset, struct format)
 FIELDS = {
@@ -63,6 +63,22 @@ class SharedDAQ:
         self.mm.close()
 
 
+class Watch:
+    """The watchdog's decision on the times it is given: the relay opens once the heartbeat has not changed for
+    longer than ``timeout_s`` while armed (:meth:`poll` says when)."""
+
+    def __init__(self, timeout_s: float, beat: int, now: float) -> None:
+        self.timeout_s = float(timeout_s)
+        self.last, self.last_t = beat, now
+
+    def poll(self, beat: int, armed: bool, now: float) -> bool:
+        """One look at the heartbeat at ``now``: True when the relay must open."""
+        if beat != self.last or not armed:
+            self.last, self.last_t = beat, now
+            return False
+        return now - self.last_t > self.timeout_s
+
+
 def main(argv: list[str]) -> int:
     """``watchdog.py PATH TIMEOUT_S``: watch the heartbeat in PATH; open the relay when it stops."""
     path, timeout_s = argv[0], float(argv[1])
@@ -71,15 +87,15 @@ def main(argv: list[str]) -> int:
     daq = SharedDAQ(path)
     daq.set("watchdog_pid", os.getpid())
     daq.set("timeout_s", timeout_s)
-    last, last_t = daq.get("heartbeat"), time.monotonic()
+    watch = Watch(timeout_s, daq.get("heartbeat"), time.monotonic())
     daq.set("ready", 1)
     while not daq.get("quit"):
         time.sleep(poll_s)
         beat, now = daq.get("heartbeat"), time.monotonic()
-        if beat != last or not daq.get("armed"):
-            last, last_t = beat, now
+        cut = watch.poll(beat, bool(daq.get("armed")), now)
+        if watch.last_t == now:
             daq.set("last_beat_at", now)
-        elif now - last_t > timeout_s and not daq.get("relay_open"):
+        elif cut and not daq.get("relay_open"):
             daq.set("relay_open", 1)  # the relay opens: the stacks see 0 V whatever the DAQ holds
             daq.set("cut_at", now)
         if os.getppid() != parent and (daq.get("relay_open") or not daq.get("armed")):

@@ -1,4 +1,4 @@
-"""``rig run``, ``rig serve`` and ``rig push``: the rig executor from the command line."""
+"""``rig run``, ``rig serve``, ``rig push`` and ``rig check``: the rig executor from the command line."""
 
 from __future__ import annotations
 
@@ -13,7 +13,6 @@ from piezopreload.cli._common import (
     Parser,
     fmt,
     json_flag,
-    positive_int,
     say,
 )
 from piezopreload.core.errors import InputError
@@ -39,7 +38,19 @@ def _rig_common(args: argparse.Namespace) -> dict[str, Any]:
     return {"backend": args.backend, "backend_options": _key_values(args.backend_option, "--backend-option"),
             "reference": args.reference or "step", "log_dir": args.log_dir, "seed": args.seed,
             "faults": [parse_fault(f) for f in args.inject or []], "loop": args.loop,
-            "safety": {"force_max_N": args.force_max_N, "ramp_s": args.ramp_s, "missed_streak": args.missed_streak}}
+            "safety": {"force_max_N": args.force_max_N, "force_low_margin_N": args.force_low_margin_N,
+                       "ramp_s": args.ramp_s, "stall_limit_s": args.stall_limit_s},
+            "host_check_s": args.host_check_s, "accept_host": args.accept_host}
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+    if not (value > 0 and value != float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
 
 
 def _quiet_asyncua() -> None:
@@ -71,11 +82,19 @@ def _rig_arguments(p: argparse.ArgumentParser) -> None:
                         "(default step; with --learned the signal's own)")
     p.add_argument("--log-dir", default="runs", metavar="DIR", help="where the run log goes (default runs/)")
     p.add_argument("--seed", type=int, default=0, help="noise seed of the simulated rig (default 0)")
-    p.add_argument("--force-max-N", type=float, help="interlock: highest force (default 150 N)")
-    p.add_argument("--ramp-s", type=float, help="interlock: time to ramp the voltage down on a stop (default 0.5 s)")
-    p.add_argument("--missed-streak", type=positive_int,
-                   help="interlock: missed deadlines in a row that stop the run (default 5 on the native loop, 50 on "
-                        "the Python loop)")
+    p.add_argument("--force-max-N", type=_positive_float, metavar="N",
+                   help="interlock: highest force (default: the gain set's study's [rig_run] force_max_N)")
+    p.add_argument("--force-low-margin-N", type=_positive_float, metavar="N",
+                   help="interlock: margin below the bolt preload (default: the gain set's study's)")
+    p.add_argument("--ramp-s", type=_positive_float, metavar="S",
+                   help="time to ramp the voltage down on a stop (default: the gain set's study's)")
+    p.add_argument("--stall-limit-s", type=_positive_float, metavar="S",
+                   help="interlock: the longest hold of the output without an update; at most what the plant "
+                        "tolerates (default: that, derived from the gain set's plant; see docs/rig.md)")
+    p.add_argument("--host-check-s", type=_positive_float, default=2.0, metavar="S",
+                   help="in real time, check the host this long before arming (default 2 s; see 'rig check')")
+    p.add_argument("--accept-host", action="store_true",
+                   help="run on a host that fails the check (recorded in the run's sidecar)")
     p.add_argument("--loop", choices=("auto", "native", "python"), default="auto",
                    help="the fixed-rate loop: native (a C thread; the simulated rig or a C-ABI library backend), "
                         "python (the interpreter; any backend), auto (native where it can run, default)")
@@ -89,15 +108,17 @@ def register_rig(sub: Any) -> None:
     rig = sub.add_parser("rig", help="run, serve and push gains on the rig executor",
                          description="The rig executor: a validated gain set at a fixed rate against a backend, "
                                      "behind interlocks, with a run log; served over OPC UA; gains pushed to it.")
-    rig_sub = rig.add_subparsers(dest="rig_command", metavar="run|serve|push", parser_class=Parser, required=True)
+    rig_sub = rig.add_subparsers(dest="rig_command", metavar="run|serve|push|check", parser_class=Parser, required=True)
     p = rig_sub.add_parser(
         "run", help="run a validated gain set on a backend",
         description=(
             "Run the controller step (inverse-P-I feedforward + PID) of a validated gain set at its fixed rate with "
             "absolute deadlines, against the simulated rig (default) or a hardware backend, behind the interlocks "
-            "(voltage clamp and slew limit; force, sensor NaN/stale/range, missed deadlines, SIGINT/SIGTERM, "
-            "exceptions: each ramps the voltage down, disarms and exits 3). Writes the run log (CSV + JSON sidecar) "
-            "and prints the step metrics and the loop's timing."),
+            "(voltage clamp and slew limit; force, sensor NaN/stale/range, the output held longer than the plant "
+            "tolerates, SIGINT/SIGTERM, exceptions: each ramps the voltage down, disarms and exits 3). The interlocks' "
+            "limits come from the gain set's study unless given here. In real time the host is checked first "
+            "('rig check'). Writes the run log (CSV + JSON sidecar) and prints the step metrics (or the trip) and "
+            "the loop's timing."),
         epilog="exit codes: 0 completed, 1 internal failure, 2 bad input, 3 stopped by an interlock or a signal")
     _rig_arguments(p)
     p.add_argument("--rate", type=float, metavar="HZ", help="the loop's rate; must be the gain set's (default: it)")
@@ -113,8 +134,8 @@ def register_rig(sub: Any) -> None:
         description=(
             "Run a validated gain set in real time like 'rig run' (the reference's last level held after its end) and "
             "serve it over OPC UA: CtrlP, CtrlTi, CtrlTd (LADS names), the gain set's and the feedforward's hashes, "
-            "setpoint, force, voltage, state, last event, and the method PushGainSet. Ends on SIGINT/SIGTERM (exit 3) "
-            "or after --duration (exit 0)."),
+            "setpoint, force, voltage, state, last event, and the method PushGainSet. The host is checked first "
+            "('rig check'). Ends on SIGINT/SIGTERM (exit 3) or after --duration (exit 0)."),
         epilog=f"The password of --user is read from ${PASSWORD_ENV}.")
     _rig_arguments(p)
     p.add_argument("--endpoint", default=DEFAULT_RIG_ENDPOINT, help=f"default {DEFAULT_RIG_ENDPOINT} (loopback)")
@@ -139,6 +160,23 @@ def register_rig(sub: Any) -> None:
     json_flag(p)
     p.set_defaults(run=_cmd_rig_push, show=_print_rig_push)
 
+    p = rig_sub.add_parser(
+        "check", help="measure this host's wake-up lateness against the loop's budget",
+        description=("A bare thread at the loop's priority and rate measures how late this host wakes it (p50, p99, "
+                     "p99.9, max, missed), shows a histogram, compares it with the loop's budget (the period and the "
+                     "controller step's compute time) and, with --gains, the gain set's stall limit, and names what "
+                     "matters (an RT kernel or not, SCHED_FIFO and memory locking, CPU governor, virtualisation, "
+                     "isolated CPUs). The verdict is pass or fail (see docs/rig-check.md)."),
+        epilog="exit codes: 0 the check ran (whatever its verdict), 1 internal failure, 2 bad input")
+    p.add_argument("--gains", metavar="gains.json", help="a validated gain set: its rate, its step, its stall limit")
+    p.add_argument("--seconds", type=_positive_float, default=10.0, metavar="S", help="how long (default 10 s)")
+    p.add_argument("--rate", type=_positive_float, metavar="HZ", help="the loop's rate (default the gain set's, or 1000)")
+    p.add_argument("--loop", choices=("native", "python"), default="native",
+                   help="whose wait to measure: the native loop's C thread (default) or the Python loop's")
+    p.add_argument("--out", metavar="DIR", help="write the histogram's figure there (host-check.png)")
+    json_flag(p)
+    p.set_defaults(run=_cmd_rig_check, show=_print_rig_check)
+
 
 def _cmd_rig_run(args: argparse.Namespace) -> dict[str, Any]:
     from piezopreload.rig import session
@@ -146,7 +184,8 @@ def _cmd_rig_run(args: argparse.Namespace) -> dict[str, Any]:
     common = _rig_common(args)
     if args.learned and args.reference is None:
         common["reference"] = None  # the learned signal's own
-    return session.run(args.gains, rate_Hz=args.rate, realtime=not args.fast, learned=args.learned, **common).to_dict()
+    return session.run(args.gains, rate_Hz=args.rate, realtime=not args.fast, learned=args.learned, say=say,
+                       **common).to_dict()
 
 
 def _cmd_rig_serve(args: argparse.Namespace) -> dict[str, Any]:
@@ -173,23 +212,74 @@ def _cmd_rig_push(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _print_rig_run(s: dict[str, Any]) -> None:
-    m, t = s["metrics"], s["timing"]
+    t = s["timing"]
     print(f"{s['status']}: {s['cycles']} cycles at {s['rate_Hz']:g} Hz on '{s['backend']}' "
-          f"({'real time' if s['realtime'] else 'as fast as possible'}), controller step in {s['controller_step']}, "
+          f"({'real time' if s['realtime'] else 'back to back'}), controller step in {s['controller_step']}, "
           f"{s.get('loop') or 'python'} loop")
     if s["trip"]:
-        print(f"stopped by interlock '{s['trip']['cause']}' at t = {s['trip']['t_s']:.3f} s: {s['trip']['detail']}")
-    if "settling_s" in m:
+        trip = s["trip"]
+        print(f"stopped by interlock '{trip['cause']}' at t = {trip['t_s']:.3f} s with {trip['voltage_V']:.4g} V held: "
+              f"{trip['detail']}")
+    m = s["metrics"]
+    if m is not None and m.get("settling_s") is not None:
         print(f"step: rise {fmt(m['rise_s'], ' s')}, peak {fmt(m['peak_s'], ' s')}, settling {fmt(m['settling_s'], ' s')}, "
               f"overshoot {fmt(m['overshoot_N'], ' N')}; tracking RMS {m['tracking_rms_N']:.3g} N")
-    if t["realtime"]:
-        print(f"timing: {t['missed_deadlines']} missed deadlines, lateness p99 {t['lateness_p99_s'] * 1e6:.0f} us, "
-              f"max {t['lateness_max_s'] * 1e3:.2f} ms, {t.get('lost_samples', 0)} samples lost"
-              + (f"; {t['sched_fifo']}; {t['memory_locked']}" if "sched_fifo" in t else ""))
+    elif m is not None and m.get("tracking_rms_N") is not None:
+        print(f"tracking RMS {m['tracking_rms_N']:.3g} N, largest error {m['tracking_max_N']:.3g} N")
+    lim, src = s["interlocks"], s["interlock_sources"]
+    print(f"interlocks: force {lim['bolt_preload_N'] - lim['force_low_margin_N']:g}..{lim['force_max_N']:g} N "
+          f"(force_max_N from {src['force_max_N']}); stall limit {lim['stall_limit_s'] * 1e3:g} ms "
+          f"(from {src['stall_limit_s']})")
+    print(f"timing: {t['missed_deadlines']} missed deadlines, {t['stalls']} stalls (longest hold "
+          f"{t['held_max_s'] * 1e3:.2f} ms), lateness p99 {t['lateness_p99_s'] * 1e6:.0f} us, max "
+          f"{t['lateness_max_s'] * 1e3:.2f} ms, {t.get('lost_samples', 0)} samples lost"
+          + (f"; {t['sched_fifo']}; {t['memory_locked']}" if t.get("sched_fifo") else ""))
+    if s.get("host_check"):
+        h = s["host_check"]
+        print(f"host check: {h['verdict']}{' (run anyway: --accept-host)' if h['verdict'] == 'fail' else ''}; "
+              f"lateness p99 {h['lateness_p99_s'] * 1e6:.0f} us, max {h['lateness_max_s'] * 1e3:.2f} ms")
     for p in s.get("pushes", []):
         print(f"push by {p['user']}: {'accepted' if p['accepted'] else 'refused'} "
               f"{p.get('gain_set_sha256', '')[:12]} {p.get('reason', '')}")
     print(f"run log: {s['log_csv']} and {s['log_json']}")
+
+
+def _cmd_rig_check(args: argparse.Namespace) -> dict[str, Any]:
+    from pathlib import Path
+
+    from piezopreload.rig import session
+
+    result = session.check(args.gains, seconds=args.seconds, rate_Hz=args.rate, loop=args.loop, progress=say)
+    out = {**result.to_dict(), "histogram_text": result.histogram_text(), "figure": None}
+    if args.out:
+        folder = Path(args.out)
+        folder.mkdir(parents=True, exist_ok=True)
+        out["figure"] = str(folder / "host-check.png")
+        result.plot().savefig(out["figure"], dpi=120)
+    return out
+
+
+def _print_rig_check(s: dict[str, Any]) -> None:
+    f = s["facts"]
+    print(f"{s['samples']} wake-ups at {s['rate_Hz']:g} Hz: lateness p50 {s['lateness_p50_s'] * 1e6:.0f} us, p99 "
+          f"{s['lateness_p99_s'] * 1e6:.0f} us, p99.9 {s['lateness_p999_s'] * 1e6:.0f} us, max "
+          f"{s['lateness_max_s'] * 1e3:.2f} ms; {s['missed']} later than the budget; p99 of the wake-ups that "
+          f"waited {s['waited_p99_s'] * 1e6:.0f} us")
+    print(f"budget: the period {s['period_s'] * 1e6:.0f} us less the step's p99 {s['step_p99_s'] * 1e6:.2f} us "
+          f"({s['step_what']})" + (f"; stall limit {s['stall_limit_s'] * 1e3:g} ms" if s["stall_limit_s"] else
+                                   "; no stall limit (give --gains)"))
+    print("lateness histogram:")
+    print(s["histogram_text"])
+    print(f"host: {f['kernel']} ({'RT kernel' if f['rt_kernel'] else 'not an RT kernel'}, preemption "
+          f"{f['preemption']}), {f['cpus']} CPUs; {f['sched_fifo']}; {f['memory_locked']}; governor: {f['cpu_governor']}; "
+          f"{f['virtualisation']}; isolated CPUs: {f['isolated_cpus']}")
+    for line in s["findings"]:
+        print(f"  - {line}")
+    for c in s["criteria"]:
+        print(f"{'pass' if c['passed'] else 'FAIL'} {c['name']}: {c['text']}")
+    print(f"verdict: {s['verdict']}")
+    if s["figure"]:
+        print(f"figure: {s['figure']}")
 
 
 def _print_rig_push(s: dict[str, Any]) -> None:
