@@ -241,11 +241,20 @@ def _stage_learn(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
                                           progress=ctx.progress.say)
     inputs = {"gain_set_sha256": gain_set.content_sha256, "plant_sha256": ctx.sha256("plant", "plant"),
               "study_sha256": study.sha256}
-    outputs = save_passes(passes, ctx.out / "learn", gain_set.content_sha256, inputs)
-    record = read_artifact(outputs["learning"], "learning")
-    return outputs, {k: record[k] for k in ("tracking_rms_N", "tracking_rms_pct_of_range", "before_learning_rms_N",
-                                            "before_learning_pct_of_range", "iterations", "converged", "passes",
-                                            "contraction_over_range")} | {"preload_margin_N": system.margin_N}
+    outputs, record = save_passes(passes, ctx.out / "learn", gain_set.content_sha256, inputs)
+    last = record.last
+    cycles = study.plant.cycles if study.plant is not None else 1
+    ctx.progress.say(f"{record.trials} learning trials over {len(record.passes)} pass(es) "
+                     f"({', '.join(str(t) for t in record.trials_per_pass)}; each trial {cycles} machining "
+                     f"cycle(s)), the last pass within 1.1 x its best from trial {last.trials_to_within_1p1}")
+    return outputs, {"tracking_rms_N": last.tracking_rms_N, "tracking_rms_pct_of_range": last.tracking_rms_pct_of_range,
+                     "before_learning_rms_N": last.before_learning_rms_N,
+                     "before_learning_pct_of_range": last.before_learning_pct_of_range, "iterations": last.trials,
+                     "trials": record.trials, "trials_per_pass": record.trials_per_pass,
+                     "trials_to_within_1p1_per_pass": [p.trials_to_within_1p1 for p in record.passes],
+                     "method": last.method, "converged": last.converged, "passes": len(record.passes),
+                     "contraction_over_range": last.learning.get("contraction_over_range"),
+                     "preload_margin_N": system.margin_N}
 
 
 def _stage_system(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
@@ -253,7 +262,10 @@ def _stage_system(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     plant = ctx.designed_plant()
     extra, before = None, {}
     if ctx.records.get("learn", {}).get("status") == "done":  # each pass plays the signal learned on its reference
-        extra, before = played_passes(ctx.output("learn", "learning"), gain_set.content_sha256)
+        extra, record = played_passes(ctx.output("learn", "learning"), gain_set.content_sha256)
+        before = {"tracking_rms_N_before_learning": record.last.before_learning_rms_N,
+                  "tracking_rms_pct_of_range_before_learning": record.last.before_learning_pct_of_range,
+                  "learning_iterations": record.last.trials, "learning_trials": record.trials}
     result = study.track_schedule(plant, study.schedule_for(ctx.design_point()), gain_set, ff_extra_V=extra,
                                   progress=ctx.progress.say)
     return result.save(ctx.out / "system", {
@@ -487,7 +499,7 @@ def _result(out: Path, study: Study, stages: list[dict[str, Any]], seconds: floa
 
 #: what ``run --json``'s summary takes from the system stage (None where the study has none)
 SUMMARY_KEYS = ("tracking_rms_pct_of_range", "tracking_rms_pct_of_range_before_learning", "tracking_rms_N",
-                "tracking_rms_N_before_learning", "learning_iterations", "tracking_max_N", "rigidity_min_cutting_N_per_um",
+                "tracking_rms_N_before_learning", "learning_iterations", "learning_trials", "tracking_max_N", "rigidity_min_cutting_N_per_um",
                 "rigidity_required_N_per_um", "rigidity_ratio_min", "deflection_max_um", "friction_energy_per_cycle",
                 "constant_friction_energy_per_cycle", "preload_margin_N")
 

@@ -33,7 +33,7 @@ from piezopreload.design.plant import DesignedPlant
 from piezopreload.design.preload import DesignInfeasible, DesignPoint, DesignSpec
 from piezopreload.design.schedule import PreloadSchedule
 from piezopreload.design.study import DesignResult, design_spec_from_tables, design_study, plan_schedule, read_profile
-from piezopreload.design.system import SystemRun
+from piezopreload.design.system import SystemRun, schedule_reference
 from piezopreload.design.tables import BallscrewTable, DesignTable, DutyTable, FeedDriveTable, PlantTable, ScheduleTable
 from piezopreload.models.actuator import P888_91, RigParams, StackData
 from piezopreload.models.closedloop import Reference
@@ -359,27 +359,55 @@ class Study:
         return simulate(self.plant_study(), gains, controller=controller, reference=reference, feedforward=feedforward, seed=seed)
 
     def learn(self, gains: GainSet | None = None, *, reference: Any = "trajectory", iterations: int = 10,
-              preview_s: float | None = None, method: str = "p-type", plants: int | None = None,
-              seed: int | None = None, progress: Callable[[str], None] | None = None) -> LearningResult:
+              preview_s: float | None = None, method: str = "norm-optimal", plants: int | None = None,
+              seed: int | None = None, after_change_weight: float = 0.0,
+              progress: Callable[[str], None] | None = None) -> LearningResult:
         """Preview and iterative learning control over a repeated reference: a
-        :class:`~piezopreload.tuning.learning.LearningResult` (``.ff_extra_V``, ``.history``,
+        :class:`~piezopreload.tuning.learning.LearningResult` (``.ff_extra_V``, ``.history``, ``.trials``,
         ``.signal(gain_set_sha256)``, ``.to_dict()``, ``.plot()``); see :func:`piezopreload.tuning.learning.learn`.
 
         ``gains`` a gain set (its controller) or None (the study's ``[controller]`` with the identified
-        feedforward); ``reference`` a name of :attr:`references` or a ``Reference``; ``preview_s`` None
-        for the default horizon, 0 for none; ``method`` ``p-type`` or ``norm-optimal``; ``plants`` N to
-        learn on N Monte Carlo plants (each its own learning; the result reports the worst).
+        feedforward); ``reference`` a name of :attr:`references`, ``"schedule"`` (the design's preload
+        schedule, :meth:`schedule_reference`) or a ``Reference``; ``iterations`` the most learning trials
+        (fewer where more no longer pay); ``preview_s`` None for the default horizon, 0 for none;
+        ``method`` ``norm-optimal`` or ``p-type``; ``plants`` N to learn on N Monte Carlo plants (each its
+        own learning; the result reports the worst); ``after_change_weight`` how the plan places each change.
         """
         from piezopreload.models.actuator import Rig
         from piezopreload.models.controller import Controller
-        from piezopreload.tuning.learning import learn, named_reference
+        from piezopreload.tuning.learning import learn
 
-        study = self.plant_study(progress)
-        reference = named_reference(reference, study.references)
+        if isinstance(reference, str) and reference == "schedule":
+            study, reference = self._on_schedule(progress)
+        else:
+            study = self.plant_study(progress)
+            if not isinstance(reference, Reference):
+                if reference not in study.references:
+                    raise InputError(f"reference must be one of {', '.join([*study.references, 'schedule'])} or a "
+                                     f"Reference, got {reference!r}")
+                reference = study.references[reference]
         controller = gains.controller() if gains is not None else Controller(
             study.gains, study.rig.sample_period_s, study.identify_feedforward().inverse())
         return learn(controller, Rig(study.rig), reference, iterations=iterations, preview_s=preview_s, method=method,
-                     plants=plants, seed=self.seed if seed is None else seed, progress=progress)
+                     plants=plants, seed=self.seed if seed is None else seed, after_change_weight=after_change_weight,
+                     progress=progress)
+
+    def schedule_reference(self, progress: Callable[[str], None] | None = None) -> Reference:
+        """The design's preload schedule as the force loop follows it: the stacks' share, ``[plant] cycles`` times in a
+        row, as planned (the first of the system's passes, no margin). Designs the optimum (no Pareto fronts)."""
+        return self._on_schedule(progress)[1]
+
+    def _on_schedule(self, progress: Callable[[str], None] | None) -> tuple[Study, Reference]:
+        """This study on its designed plant, and the design's schedule as that plant's reference."""
+        if not self.plant_from_design:
+            raise InputError(f"{self.path}: the reference 'schedule' is the design's preload schedule; the study needs "
+                             "a [ballscrew] table and [plant] from_design = true (see studies/machine_axis.toml)")
+        (progress or (lambda _m: None))("the reference is the design's schedule: designing the optimum first")
+        result = self.design(pareto=[], progress=progress)
+        plant = self.designed_plant(result)
+        table = self.plant or PlantTable()
+        reference = schedule_reference(plant, result.schedule, table.cycles, table.stack_contact_N)
+        return (self if self._on_plant else self.with_plant(plant)), reference
 
     def reproduce(self, *, seed: int | None = None, repeats: int = 1,
                   feedforward: IdentifiedFeedforward | None = None) -> dict[str, Any]:

@@ -11,7 +11,7 @@ from dataclasses import asdict, dataclass
 from piezopreload.core.config import Table
 from piezopreload.core.errors import InputError
 from piezopreload.models.controller import SCHEDULE_MAX
-from piezopreload.tuning.learning import METHODS
+from piezopreload.tuning.ilc import METHODS
 from piezopreload.tuning.pid import TuningSpec, scaled_references
 from piezopreload.tuning.validate import Criteria
 
@@ -74,13 +74,14 @@ class ValidationTable(Table):
 @dataclass(frozen=True)
 class LearningTable(Table):
     """[learning]: learning control on the whole system's repeated schedule (the pipeline's learn stage, which runs
-    where the study has this table and its plant is its design): ``iterations`` learning updates per pass of the
-    schedule, ``preview_s`` the preview (None: :func:`~piezopreload.tuning.learning.default_preview_s`, 0: none),
-    ``method`` the law (:data:`~piezopreload.tuning.learning.METHODS`)."""
+    where the study has this table and its plant is its design): at most ``iterations`` learning trials per pass of
+    the schedule (fewer where more no longer pay), ``preview_s`` the preview (None:
+    :func:`~piezopreload.tuning.preview.default_preview_s`, 0: none), ``method`` the law
+    (:data:`~piezopreload.tuning.ilc.METHODS`: the norm-optimal law by default, ``p-type`` the model-free option)."""
 
     iterations: int = 6
     preview_s: float | None = None
-    method: str = "p-type"
+    method: str = METHODS[0]
 
     def checked(self, fail: Callable[[str, str], InputError]) -> LearningTable:
         """The table checked; ``fail(key, message)`` makes the error naming the file and line."""
