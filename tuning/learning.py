@@ -516,11 +516,13 @@ def learn_from_run(signal: LearnedSignal, measured_N: Array, command_V: Array, l
 # --------------------------------------------------------------------------------------
 def schedule_learner(params: RigParams, controller: Controller, *, iterations: int, preview_s: float | None,
                      method: str, seed: int, progress: Callable[[str], None] | None = None,
-                     warm_start: bool = True) -> tuple[Callable[[Reference], Array], list[LearningResult]]:
+                     warm_start: bool = True, stop_gain: float | None = STOP_GAIN
+                     ) -> tuple[Callable[[Reference], Array], list[LearningResult]]:
     """A learner for each pass of a schedule on one plant (``params``): called with a pass's repeated
     reference it learns on it (:func:`learn`) and returns the best signal; the list collects each pass's
     :class:`LearningResult`. With ``warm_start`` a pass starts from the correction the pass before learned
-    (where the references have as many samples: a pass is the schedule planned again with a margin)."""
+    (where the references have as many samples: a pass is the schedule planned again with a margin);
+    ``stop_gain`` as :func:`learn`'s."""
     results: list[LearningResult] = []
     p_type = learning_model_over(params, controller) if method == "p-type" else None  # one law for every pass
 
@@ -532,7 +534,7 @@ def schedule_learner(params: RigParams, controller: Controller, *, iterations: i
             if n == before.ff_extra_V.size:
                 initial = before.ff_extra_V - before.preview.ff_extra_V
         results.append(learn(controller, Rig(params), reference, iterations=iterations, law=p_type, method=method,
-                             preview_s=preview_s, seed=seed, progress=progress, initial_V=initial))
+                             preview_s=preview_s, seed=seed, progress=progress, initial_V=initial, stop_gain=stop_gain))
         return results[-1].ff_extra_V
 
     return learned, results
