@@ -143,10 +143,11 @@ class PassRecord:
     ``trials`` learning trials ran after trial 0 (each one run of the pass's repeated reference);
     ``trials_to_within_1p1`` is the first trial whose error came within 1.1 times the pass's best;
     ``stop_reason`` why the pass stopped learning. ``warm_start`` says whether its trial 0 carried the
-    correction learned on the pass before; ``before_learning_rms_N`` is the loop's error without any
-    learned correction (trial 0, or for a warm start a run without it). ``noise_floor_N`` is how much
-    the sensor's noise alone moves the RMS error from one trial to the next. ``learning`` is the
-    law's settings.
+    correction learned on the pass before; ``tracking_rms_N`` is scored from the reference's first change
+    (as the floors), ``tracking_rms_from_start_N`` from t = 0; ``before_learning_rms_N`` is the loop's error without any
+    learned correction (trial 0, or for a warm start a run without it). ``noise_floor_N`` is the RMS
+    difference of the true force between two runs of the same signal under other sensor noise.
+    ``learning`` is the law's settings.
     """
 
     pass_number: int
@@ -169,6 +170,7 @@ class PassRecord:
     warm_start: bool
     learning: dict[str, Any]
     history: list[TrialRecord]
+    tracking_rms_from_start_N: float | None = None
 
     def __post_init__(self) -> None:
         if len(self.history) != self.trials + 1:
@@ -196,7 +198,8 @@ class PassRecord:
                 "causal_floor_N": self.causal_floor_N, "preview_floor_N": self.preview_floor_N,
                 "noise_floor_N": self.noise_floor_N, "preview_s": self.preview_s, "method": self.method,
                 "warm_start": self.warm_start, "learning": self.learning,
-                "history": [h.to_dict() for h in self.history]}
+                "history": [h.to_dict() for h in self.history],
+                "tracking_rms_from_start_N": self.tracking_rms_from_start_N}
 
     @classmethod
     def from_dict(cls, doc: Any, where: str = "pass") -> PassRecord:
@@ -210,7 +213,8 @@ class PassRecord:
                    f("stop_reason", _text), f("converged", _flag), f("best_iteration", _counts),
                    f("causal_floor_N", _number), f("preview_floor_N", _number), f("noise_floor_N", _optional_number, None),
                    f("preview_s", _number), f("method", _text), f("warm_start", _flag, False),
-                   f("learning", _mapping), f("history", lambda x: _trials(x, where)))
+                   f("learning", _mapping), f("history", lambda x: _trials(x, where)),
+                   f("tracking_rms_from_start_N", _optional_number, None))
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ Td 0.001 s) with the identified inverse-P-I feedforward, the trajectory 25 -> 60
 * the default law on ``--plants`` Monte Carlo plants (each its own learning with the nominal law):
   ``mc_converged_fraction`` (converged, by the stopping rule, with an error that never rose by more than
   the noise floor from one trial to the next; target 1.0), ``mc_monotone_fraction``, the worst plant's errors;
-* ``trade_off`` (``--trade-off``): the learning again with the plan's changes placed to weigh the error
+* ``trade_off`` (unless ``--no-trade-off``): the learning again with the plan's changes placed to weigh the error
   outside 0.1 s after the jumps ``w`` times more, and ``plan_front``, the plans alone over a sweep of ``w``.
 
 **The machine axis** (studies/machine_axis.toml, ``--machine``): the study is run to its learn stage's
@@ -90,8 +90,9 @@ def paper(args: argparse.Namespace) -> dict:
     out.update({k: d[k] for k in ("tracking_rms_N", "tracking_rms_after_change_N", "tracking_rms_from_start_N",
                                   "tracking_rms_outside_transitions_N", "tracking_rms_pct_of_range", "causal_floor_N",
                                   "preview_floor_N", "preview_floor_branch_N", "plan_rms_after_change_N",
-                                  "over_preview_floor_ratio", "trials", "stop_reason", "converged", "best_iteration",
-                                  "preview_s", "method", "noise_floor_N", "learning")})
+                                  "over_preview_floor_ratio", "iterations", "trials", "stop_reason", "converged",
+                                  "best_iteration", "preview_s", "method", "noise_floor_N", "plan_slew_fraction",
+                                  "learning")})
     out["over_branch_floor_ratio"] = d["tracking_rms_N"] / d["preview_floor_branch_N"]
     out["learned_over_paper_ratio"] = d["tracking_rms_N"] / out["paper_tracking_rms_N"]
     out["nominal_seconds"] = time.perf_counter() - t0
@@ -103,11 +104,12 @@ def paper(args: argparse.Namespace) -> dict:
         history = [float(h.tracking_rms_N) for h in full.history]
         out[f"{prefix}trials_to_within_1p1"] = full.trials_to_within_1p1
         out[f"{prefix}history_rms_N"] = history
+        out[f"{prefix}history_after_change_N"] = [float(h.tracking_rms_after_change_N) for h in full.history]
         if prefix:
             out["p_type_tracking_rms_N"] = full.tracking_rms_N
         print(f"{method}, every trial: {' '.join(f'{x:.3f}' for x in history)}; within 1.1 x the best from trial "
               f"{full.trials_to_within_1p1}", flush=True)
-    if args.trade_off:
+    if not args.no_trade_off:
         out["trade_off"] = []
         for w in (3.0, 10.0, 30.0):
             r = learn(controller, rig, ref, iterations=args.iterations, seed=study.seed, after_change_weight=w)
@@ -131,7 +133,8 @@ def monte_carlo(controller, rig, ref, plants: int, iterations: int, seed: int) -
     limits = (controller.gains.u_min, controller.gains.u_max)
     print(f"{plants} Monte Carlo plants: {m['converged_plants']} converged, {m['monotone_plants']} monotone, worst "
           f"{m['tracking_rms_N']:.3f} N ({time.perf_counter() - t0:.0f} s)", flush=True)
-    return {"mc_plants": plants, "mc_converged_fraction": m["converged_plants"] / plants,
+    return {"mc_plants": plants, "mc_converged_plants": m["converged_plants"],
+            "mc_converged_fraction": m["converged_plants"] / plants,
             "mc_monotone_fraction": m["monotone_plants"] / plants, "mc_diverged_plants": m["diverged_plants"],
             "mc_trials_max": m["trials"], "mc_worst_tracking_rms_N": m["tracking_rms_N"],
             "mc_worst_tracking_rms_after_change_N": m["tracking_rms_after_change_N"],
@@ -196,7 +199,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--plants", type=int, default=50, help="Monte Carlo plants (0: none)")
     ap.add_argument("--iterations", type=int, default=10)
-    ap.add_argument("--trade-off", action="store_true", help="the after-change trade-off and the plans' front")
+    ap.add_argument("--no-trade-off", action="store_true", help="leave out the after-change trade-off and the plans' front")
     ap.add_argument("--no-machine", action="store_true", help="leave out the machine axis (a minute for its study)")
     args = ap.parse_args()
     out = paper(args)

@@ -13,7 +13,7 @@ at a limit); the reported errors are of the true force. Each trial on a machine 
 cycle, so learning stops as soon as more trials no longer pay (:func:`more_trials_pay`: the
 error, extrapolated from the last three trials, would not fall by more than ``stop_gain`` of
 itself, or is already within that of the sensor's noise) and keeps the best trial; a divergence
-guard stops a plant whose error grows past its best by ``grow_tol``. On Monte Carlo plants each
+guard stops a plant whose error grows past its best by ``grow_tol`` and the noise floor. On Monte Carlo plants each
 plant learns with the nominal law and stops on its own; :attr:`LearningResult.monotone` records,
 per plant, whether its error never rose by more than the noise floor from one trial to the next.
 """
@@ -96,8 +96,9 @@ class LearningResult:
     per plant (by the measured error, what a rig knows), ``trials`` the learning trials each plant
     ran after trial 0 (it stops when more no longer pay, or diverges), ``run`` the best trial's run
     scored against the reference, ``converged``/``diverged``/``monotone`` per plant, ``noise_floor_N``
-    the spread of the true force's RMS error from one trial to the next under the sensor's noise
-    alone (the nominal plant's), ``preview`` the plan and its floors, ``law`` the learning law.
+    the RMS difference of the true force between two runs of trial 0's signal under other sensor
+    noise (the worst plant's: by the triangle inequality their RMS errors may differ that much with
+    no learning at all), ``preview`` the plan and its floors, ``law`` the learning law.
     """
 
     ff_extra_V: Array
@@ -297,7 +298,8 @@ class _Trials:
         self.best_it = np.where(improved, k, self.best_it)
         self.best_u[improved] = self.u[improved]
         self.best_run = scored if self.best_run is None else _merge_runs(self.best_run, scored, improved)
-        grew = self.active & (measured > (1.0 + self.grow_tol) * self.best_err)
+        # (a rise within the noise floor is the sensor's noise shaking the stacks' hysteresis, not divergence)
+        grew = self.active & (measured > (1.0 + self.grow_tol) * self.best_err + self.noise_floor_N)
         self.diverged |= grew
         self.active &= ~grew
         return improved
@@ -326,10 +328,10 @@ class _Trials:
 
 
 def _noise_floor(rig: Rig, controller: Controller, setpoint: Reference, u: Array, seed: int, first: ClosedLoopRun) -> Array:
-    """Per plant: the change of the true force's RMS error between two runs of the same signal under other sensor
-    noise (the RMS of the two forces' difference over sqrt 2): what no trial can count as learning."""
+    """Per plant: the RMS difference of the true force between two runs of the same signal under other sensor noise.
+    By the triangle inequality the two runs' RMS errors may differ by that much with no learning at all."""
     again = simulate(rig, controller, setpoint, seed=seed + 7919, ff_extra_V=np.moveaxis(u, -1, 0))
-    return np.sqrt(np.mean((again.force_N - first.force_N) ** 2, axis=-1) / 2.0)
+    return np.sqrt(np.mean((again.force_N - first.force_N) ** 2, axis=-1))
 
 
 def learn(controller: Controller, rig: Rig, reference: Reference, *, iterations: int = 10, preview_s: float | None = None,
@@ -360,7 +362,8 @@ def learn(controller: Controller, rig: Rig, reference: Reference, *, iterations:
     law : LearningModel or NormOptimalLaw or None
         A law to use instead of :func:`law_for`'s (the same law for several references, say).
     grow_tol : float
-        A plant stops when its measured error exceeds its best by ``grow_tol`` (diverged; its best trial is kept).
+        A plant stops when its measured error exceeds its best by ``grow_tol`` of it and the noise floor
+        (diverged; its best trial is kept).
     stop_gain : float or None
         A plant stops when another trial is not expected to lower its measured error by more than
         this share (:func:`more_trials_pay`); None runs every trial.
@@ -549,7 +552,7 @@ def _pass_record(k: int, result: LearningResult, signal: str) -> PassRecord:
                       result.stop_reason[0] if len(result.stop_reason) == 1 else "; ".join(sorted(set(result.stop_reason))),
                       d["converged"], d["best_iteration"], d["causal_floor_N"], d["preview_floor_N"], d["noise_floor_N"],
                       d["preview_s"], d["method"], bool(result.info.get("warm_start", False)), d["learning"],
-                      [TrialRecord.from_dict(h) for h in d["history"]])
+                      [TrialRecord.from_dict(h) for h in d["history"]], d["tracking_rms_from_start_N"])
 
 
 def save_passes(passes: list[LearningResult], folder: str | Path, gain_set_sha256: str | None,

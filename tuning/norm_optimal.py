@@ -75,6 +75,9 @@ WINDOW_BEFORE_S = 0.05
 WINDOW_AFTER_S = 0.1
 #: between the plan's changes the error is low-passed here before it is learned (the sensor noise out)
 HOLD_CUTOFF_HZ = 10.0
+#: between the changes, what the error holds above the hold's cut-off is learned beyond this many times the
+#: sensor's noise (a soft threshold: 3 sigma passes a Gaussian noise's sample 0.3 % of the time)
+NOISE_THRESHOLD = 3.0
 #: a constrained window starts this long before the first sample whose limit it guards
 WINDOW_PAD_S = 0.1
 
@@ -298,22 +301,19 @@ def _costate(gains: RiccatiGains, E: Array, keep: bool = False) -> tuple[Array, 
     return bs, S
 
 
-def _forward(gains: RiccatiGains, bs: Array, E0: Array, t_from: int = 0, x: Array | None = None,
-             dv_fixed: Array | None = None) -> tuple[Array, Array, Array, Array, Array]:
-    """The forward pass of the law from sample ``t_from`` (state ``x`` there; the start for 0): ``dv`` (the feedback
-    law's, or ``dv_fixed`` where that is finite) and the force, command, voltage and ``ff_extra`` changes."""
+def _forward(gains: RiccatiGains, bs: Array, E0: Array) -> tuple[Array, Array, Array, Array, Array]:
+    """The forward pass of the law for every plant (``bs`` from :func:`_costate`, ``E0`` the first sample's error):
+    ``dv`` and the ``ff_extra``, force, command and voltage changes it makes."""
     lifted, K, den = gains.lifted, gains.K, gains.den
     n, p = lifted.n, bs.shape[1]
     dv, force, command, voltage, ff = (np.zeros((n, p)) for _ in range(5))
-    fixed = np.full((n, p), np.nan) if dv_fixed is None else dv_fixed
-    if t_from == 0:
-        dv[0] = np.where(np.isfinite(fixed[0]), fixed[0], (lifted.D0 * E0 + bs[0]) / den[0])
-        force[0], command[0], voltage[0] = lifted.D0 * dv[0], lifted.Du0 * dv[0], lifted.V0 * dv[0]
-        ff[0] = lifted.Fd * dv[0]
-        x, t_from = np.outer(lifted.B0, dv[0]), 1
-    for t in range(t_from, n):
+    dv[0] = (lifted.D0 * E0 + bs[0]) / den[0]
+    force[0], command[0], voltage[0] = lifted.D0 * dv[0], lifted.Du0 * dv[0], lifted.V0 * dv[0]
+    ff[0] = lifted.Fd * dv[0]
+    x = np.outer(lifted.B0, dv[0])
+    for t in range(1, n):
         A, B, C, Cu, Du, Cv = lifted.at(t)
-        dv[t] = np.where(np.isfinite(fixed[t]), fixed[t], -K[t] @ x + bs[t] / den[t])
+        dv[t] = -K[t] @ x + bs[t] / den[t]
         force[t], command[t], voltage[t] = C @ x, Cu @ x + Du * dv[t], Cv @ x
         ff[t] = lifted.Fx @ x + lifted.Fd * dv[t]
         x = A @ x + np.outer(B, dv[t])
@@ -670,13 +670,17 @@ def uncertainty_set(params: RigParams, controller: Controller, nominal: list[Loo
 # --------------------------------------------------------------------------------------
 # the error the law learns from
 # --------------------------------------------------------------------------------------
-def learning_error(e: Array, target_N: Array, dt_s: float, *, before_s: float = WINDOW_BEFORE_S,
-                   after_s: float = WINDOW_AFTER_S, hold_cutoff_Hz: float = HOLD_CUTOFF_HZ) -> Array:
+def learning_error(e: Array, target_N: Array, dt_s: float, noise_N: float = 0.0, *, before_s: float = WINDOW_BEFORE_S,
+                   after_s: float = WINDOW_AFTER_S, hold_cutoff_Hz: float = HOLD_CUTOFF_HZ,
+                   noise_threshold: float = NOISE_THRESHOLD) -> Array:
     """The error a trial measured as the law learns it: at full bandwidth from ``before_s`` before each change of the
-    plan ``target_N`` to ``after_s`` after it, low-passed at ``hold_cutoff_Hz`` (zero phase) elsewhere.
+    plan ``target_N`` to ``after_s`` after it; elsewhere low-passed at ``hold_cutoff_Hz`` (zero phase), plus what
+    its rest holds beyond ``noise_threshold`` times the sensor's noise ``noise_N`` (soft-thresholded: that much
+    less).
 
-    Where the plan holds, what the error holds above a few hertz is the sensor's noise, different in
-    every trial; learned, it would come back as a dither of the stacks.
+    Where the plan holds, what the error holds above a few hertz is mostly the sensor's noise, different
+    in every trial; learned, it would come back as a dither of the stacks. A transient well above the
+    noise (a loop settling after a long ramp) is learned all the same.
     """
     e = np.asarray(e, float)
     moving = np.abs(np.diff(np.asarray(target_N, float), prepend=float(target_N[0]))) > 1e-9
@@ -684,7 +688,10 @@ def learning_error(e: Array, target_N: Array, dt_s: float, *, before_s: float = 
     n = moving.size
     near = np.convolve(moving.astype(float), np.ones(after + 1))[:n] > 0  # a change in the last `after` samples
     near |= np.convolve(moving[::-1].astype(float), np.ones(before + 1))[:n][::-1] > 0  # or in the next `before`
-    return np.where(near, e, zero_phase_lowpass(e, hold_cutoff_Hz, dt_s))
+    slow = zero_phase_lowpass(e, hold_cutoff_Hz, dt_s)
+    rest = e - slow
+    kept = np.sign(rest) * np.maximum(np.abs(rest) - noise_threshold * float(noise_N), 0.0)
+    return np.where(near, e, slow + kept)
 
 
 # --------------------------------------------------------------------------------------
@@ -709,6 +716,7 @@ class NormOptimalLaw:
     slew_V_per_sample: float
     target_N: Array
     base_V: Array
+    noise_N: float = 0.0
     constrained: bool = True
     stats: dict[str, Any] = field(default_factory=dict)
 
@@ -724,7 +732,7 @@ class NormOptimalLaw:
         """The next trial's ``ff_extra`` for each plant (last axis the samples), from the last trial's signal ``u``,
         its error ``e`` and its command and amplifier voltage (the limits' starting point)."""
         dt, gain = self.lifted.dt_s, self.robust.gain
-        e_l = learning_error(e, self.target_N, dt)
+        e_l = learning_error(e, self.target_N, dt, self.noise_N)
         step = norm_optimal_step(self.gains, e_l)
         du = gain * step.du
         if self.constrained:
@@ -769,7 +777,8 @@ def norm_optimal_law(params: RigParams, controller: Controller, target_N: Array,
     if base.shape != target.shape:
         raise InputError(f"base_V has shape {base.shape}; the plan {target.shape}")
     return NormOptimalLaw(lifted, float(weight), choice, (g.u_min, g.u_max),
-                          float(params.slew_V_per_s) * params.sample_period_s, target, base, constrained)
+                          float(params.slew_V_per_s) * params.sample_period_s, target, base, float(params.noise_N),
+                          constrained)
 
 
 def with_gain(law: NormOptimalLaw, gain: float) -> NormOptimalLaw:

@@ -105,7 +105,7 @@ def _print_learn(s: dict[str, Any]) -> None:
           f"{s['tracking_rms_after_change_N']:.3f} N outside 0.1 s after jumps; "
           f"{'converged' if s['converged'] else 'NOT converged'}"
           + (f" ({s['converged_plants']} of {s['plants']} plants)" if s["plants"] else ""))
-    print(f"floors: causal {s['causal_floor_N']:.3f} N, with this preview {s['preview_floor_N']:.3f} N; the sensor "
-          f"noise moves the RMS by {s['noise_floor_N']:.3f} N from trial to trial")
+    print(f"floors: causal {s['causal_floor_N']:.3f} N, with this preview {s['preview_floor_N']:.3f} N; noise "
+          f"{s['noise_floor_N']:.3f} N (two runs of one signal differ by that much, RMS)")
     if s.get("out"):
         print(f"wrote {s['out']}")
