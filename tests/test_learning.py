@@ -455,8 +455,9 @@ def test_on_monte_carlo_plants_every_plant_converges_monotonically_and_a_diverge
     preview = P.plan_preview(params, c, ref)
     law = NO.with_gain(L.law_for("norm-optimal", params, c, preview), 4.0)
     bad = L.learn(c, rig, ref, iterations=4, seed=2, plants=4, law=law, stop_gain=None)
-    assert not bad.converged.any() and (bad.diverged.any() or not bad.monotone.all()), \
-        "four times the robust gain went unnoticed"
+    rose = [h.tracking_rms_N for h in bad.history]
+    assert bad.diverged.all() and not bad.monotone.any() and not bad.converged.any(), \
+        f"four times the robust gain went unnoticed: {rose}"
 
 
 def test_a_warm_started_pass_starts_near_where_the_last_one_ended():
@@ -516,7 +517,7 @@ def test_a_schedules_passes_are_saved_as_one_typed_record_and_each_signal_is_fou
         L.learned_by_reference([paths["pass1"]], "b" * 64)
     # the reader names a missing, a non-finite and an inconsistent field
     doc = json.loads(paths["learning"].read_text())
-    for change, field in ((lambda d: d["pass_records"][0].pop("trials"), "trials"),
+    for change, field in ((lambda d: d["pass_records"][0].pop("trials"), "field 'trials' is missing"),
                           (lambda d: d["pass_records"][1].__setitem__("tracking_rms_N", "NaN"), "tracking_rms_N"),
                           (lambda d: d.__setitem__("passes", 3), "passes")):
         bad = json.loads(json.dumps(doc))
