@@ -16,6 +16,7 @@ from piezopreload.models.closedloop import Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.tuning import ilc as I
 from piezopreload.tuning import learning as L
+from piezopreload.tuning import lifted as LI
 from piezopreload.tuning import norm_optimal as NO
 from piezopreload.tuning import preview as P
 from piezopreload.tuning.pid import tracking_floor
@@ -214,13 +215,13 @@ def paper_loop():
     return params, Controller(PIDGains(Kc=0.3, Ti_s=0.08, Td_s=0.001), params.sample_period_s)
 
 
-def _lti(params, controller, v0=50.0, n=200) -> NO.LiftedLoop:
+def _lti(params, controller, v0=50.0, n=200) -> LI.LiftedLoop:
     """The lifted loop at one level (linear time-invariant after its start), ``n`` samples long."""
     lin = I.linearise_loop(params, controller, [v0])
-    return NO.lifted_loop(params, controller, np.full(n, lin[0].force_N), linearisations=lin)
+    return LI.lifted_loop(params, controller, np.full(n, lin[0].force_N), linearisations=lin)
 
 
-def _dense_lti(lifted: NO.LiftedLoop) -> np.ndarray:
+def _dense_lti(lifted: LI.LiftedLoop) -> np.ndarray:
     """The lifted matrix H from python-control's impulse response of the level's state space (an independent
     computation of the Markov parameters), its first column from the start's ``B0`` and ``D0``."""
     import control
@@ -251,18 +252,18 @@ def test_the_riccati_form_is_the_dense_lifted_solution(paper_loop):
     e = np.cumsum(rng.normal(size=(2, lifted.n)), axis=-1)
     for w in (1e-3, 1e-2, 1.0):
         dense = np.linalg.solve(H.T @ H + w * np.eye(lifted.n), H.T @ e.T).T
-        step = NO.norm_optimal_step(NO.riccati_gains(lifted, w), e)  # two plants at once
+        step = LI.norm_optimal_step(LI.riccati_gains(lifted, w), e)  # two plants at once
         np.testing.assert_allclose(step.dv, dense, rtol=0, atol=1e-9 * np.max(np.abs(dense)),
                                    err_msg=f"the Riccati step is not the dense solution at w = {w}")
         np.testing.assert_allclose(step.force_N, dense @ H.T, atol=1e-9 * np.max(np.abs(dense @ H.T)),
                                    err_msg="the step's predicted force is not H dv")
     # a model that changes along the plan: its own dense H, column by column from its response to unit steps
     target = np.r_[np.full(60, 30.0), np.linspace(30.0, 95.0, 80), np.full(60, 95.0)]
-    tv = NO.lifted_loop(params, controller, target, levels=4)
+    tv = LI.lifted_loop(params, controller, target, levels=4)
     assert len(set(map(tuple, np.c_[tv.level, tv.frac]))) > 10, "the model does not change along the plan"
     Htv = np.array([tv.response(col).force_N for col in np.eye(tv.n)]).T
     dense = np.linalg.solve(Htv.T @ Htv + 1e-2 * np.eye(tv.n), Htv.T @ e[0])
-    np.testing.assert_allclose(NO.norm_optimal_step(NO.riccati_gains(tv, 1e-2), e[0]).dv, dense,
+    np.testing.assert_allclose(LI.norm_optimal_step(LI.riccati_gains(tv, 1e-2), e[0]).dv, dense,
                                atol=1e-9 * np.max(np.abs(dense)), err_msg="the time-varying Riccati step is not dense")
 
 
@@ -274,7 +275,7 @@ def test_the_lifted_model_predicts_the_rig_including_the_bumpless_start(paper_lo
     rig = Rig(params)
     ref = Reference.ramps([0.0, 0.2], [50.0, 50.0], 0.25)
     n = int(round(ref.duration_s / rig.dt_s)) + 1
-    lifted = NO.lifted_loop(params, controller, np.full(n, 50.0), levels=2)
+    lifted = LI.lifted_loop(params, controller, np.full(n, 50.0), levels=2)
     dv = np.zeros(n)
     dv[0] = 0.5  # half a newton of setpoint, through F
     model = lifted.response(dv)
@@ -291,11 +292,11 @@ def test_the_lifted_model_predicts_the_rig_including_the_bumpless_start(paper_lo
 def test_the_constrained_law_is_the_riccati_step_where_no_limit_binds_and_keeps_the_limits_where_they_do(paper_loop):
     params, controller = paper_loop
     lifted = _lti(params, controller, n=300)
-    gains = NO.riccati_gains(lifted, 1e-2)
+    gains = LI.riccati_gains(lifted, 1e-2)
     t = np.arange(lifted.n) * lifted.dt_s
     e = np.where((t > 0.05) & (t < 0.2), 3.0, 0.0)
     free = NO.Limits((-np.inf, np.inf), np.inf, np.zeros(lifted.n), np.zeros(lifted.n))
-    riccati = NO.norm_optimal_step(gains, e)
+    riccati = LI.norm_optimal_step(gains, e)
     exact = NO.constrained_step(gains, e, free, exact=True)
     np.testing.assert_allclose(exact.dv, riccati.dv, atol=1e-6 * np.max(np.abs(riccati.dv)),
                                err_msg="the sparse QP without active limits is not the Riccati step")
@@ -318,7 +319,7 @@ def test_the_constrained_law_is_the_riccati_step_where_no_limit_binds_and_keeps_
 def test_the_robust_gain_and_q_filter_keep_every_member_of_the_uncertainty_set_monotone(paper_loop):
     params, controller = paper_loop
     lins = I.linearise_loop(params, controller, [20.0, 80.0])
-    lifted = NO.lifted_loop(params, controller, np.linspace(lins[0].force_N, lins[1].force_N, 50), linearisations=lins)
+    lifted = LI.lifted_loop(params, controller, np.linspace(lins[0].force_N, lins[1].force_N, 50), linearisations=lins)
     alone = NO.robust_choice(lifted, [lins], controller, 1e-2)
     assert alone.gain == pytest.approx(1.0) and alone.q_cutoff_Hz == pytest.approx(0.5 / lifted.dt_s), \
         "on the nominal model alone the law needs neither a lower gain nor a Q-filter"
@@ -334,12 +335,12 @@ def test_the_robust_gain_and_q_filter_keep_every_member_of_the_uncertainty_set_m
     f = np.geomspace(0.01, 0.5 / lifted.dt_s, 400)
     z = np.exp(2j * np.pi * f * lifted.dt_s)
     Q = NO._q_gain(f, choice.q_cutoff_Hz, lifted.dt_s)
-    kp, ki_dt = NO._setpoint_path(controller)
+    kp, ki_dt = LI.setpoint_path(controller)
     for j in range(2):
         H = NO._frequency_response(lifted.A[j], lifted.B[j], lifted.C[j], z)
         L = np.conj(H) / (np.abs(H) ** 2 + 1e-2)
         for member in (lins, strong, late):
-            A, B, C = NO._composite(member[j], kp, ki_dt)[:3]
+            A, B, C = LI.composite(member[j], kp, ki_dt)[:3]
             r = NO._frequency_response(A, B, C, z) * L
             assert np.max(Q * np.abs(1.0 - choice.gain * r)) <= 1.0 + 1e-9, "a member's learned signal can grow"
 
