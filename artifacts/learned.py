@@ -122,7 +122,19 @@ class LearnedSignal:
     content_sha256: str | None = None
 
     def __post_init__(self) -> None:
-        u, s = np.asarray(self.ff_extra_V, float), np.asarray(self.setpoint_N, float)
+        self._check_fields()
+        n = self._samples()
+        for name in ("ff_extra_V", "setpoint_N"):
+            x = np.asarray(getattr(self, name), float)
+            if x.shape != (n,):
+                raise InputError(f"LearnedSignal.{name} needs one value per sample of the reference ({n}), got shape "
+                                 f"{x.shape}.")
+            if not np.all(np.isfinite(x)):
+                raise InputError(f"LearnedSignal.{name} must be finite.")
+            object.__setattr__(self, name, x)
+
+    def _check_fields(self) -> None:
+        """Every field but the two signals: its type and range."""
         if not (np.isfinite(self.sample_period_s) and self.sample_period_s > 0):
             raise InputError(f"LearnedSignal.sample_period_s must be > 0, got {self.sample_period_s!r}.")
         if not isinstance(self.reference, Reference):
@@ -136,19 +148,14 @@ class LearnedSignal:
             raise InputError(f"LearnedSignal.preview_s must be finite and >= 0, got {self.preview_s!r}.")
         if not isinstance(self.method, str):
             raise InputError(f"LearnedSignal.method must be text, got {self.method!r}.")
+
+    def _samples(self) -> int:
+        """The reference's samples at the signal's period (refused beyond 1e8, before anything is sized by it)."""
         ratio = self.reference.duration_s / self.sample_period_s
-        if not ratio < 1e8:  # before anything is sized by it
+        if not ratio < 1e8:
             raise InputError(f"LearnedSignal.sample_period_s {self.sample_period_s!r} gives {ratio:.3g} samples over "
                              f"the reference's {self.reference.duration_s} s; at most 1e8.")
-        n = int(round(self.reference.duration_s / self.sample_period_s)) + 1
-        for name, x in (("ff_extra_V", u), ("setpoint_N", s)):
-            if x.shape != (n,):
-                raise InputError(f"LearnedSignal.{name} needs one value per sample of the reference ({n}), got shape "
-                                 f"{x.shape}.")
-            if not np.all(np.isfinite(x)):
-                raise InputError(f"LearnedSignal.{name} must be finite.")
-        object.__setattr__(self, "ff_extra_V", u)
-        object.__setattr__(self, "setpoint_N", s)
+        return int(round(self.reference.duration_s / self.sample_period_s)) + 1
 
     @property
     def reference_sha256(self) -> str:

@@ -41,6 +41,7 @@ class Headline:
     tracking_rms_N: float | None = None
     tracking_rms_N_before_learning: float | None = None
     learning_iterations: int | None = None
+    learning_trials: int | None = None
     tracking_max_N: float | None = None
     rigidity_min_cutting_N_per_um: float | None = None
     rigidity_required_N_per_um: float | None = None

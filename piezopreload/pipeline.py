@@ -83,6 +83,7 @@ from piezopreload.core.stages import (
     utc,
 )
 from piezopreload.core.tables import write_csv
+from piezopreload.design.tables import PlantTable
 from piezopreload.outcome import Headline, StageOutcome, StudyResult, summary_of
 from piezopreload.progress import Progress
 from piezopreload.reports.study_report import STAGES_READ, Published, ReportStudy, render_report
@@ -261,18 +262,30 @@ def _stage_learn(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     learned = study.learn(gain_set, reference="schedule", progress=ctx.progress.say)
     inputs = {"gain_set_sha256": gain_set.content_sha256, "plant_sha256": ctx.sha256("plant", "plant"),
               "study_sha256": study.sha256}
-    outputs = save_passes(list(learned.passes), ctx.out / "learn", gain_set.content_sha256, inputs)
-    record = read_artifact(outputs["learning"], "learning")
-    return outputs, {k: record[k] for k in ("tracking_rms_N", "tracking_rms_pct_of_range", "before_learning_rms_N",
-                                            "before_learning_pct_of_range", "iterations", "converged", "passes",
-                                            "contraction_over_range")} | {"preload_margin_N": learned.system.margin_N}
+    outputs, record = save_passes(list(learned.passes), ctx.out / "learn", gain_set.content_sha256, inputs)
+    last = record.last
+    cycles = (study.plant_table or PlantTable()).cycles
+    ctx.progress.say(f"{record.trials} learning trials over {len(record.passes)} pass(es) "
+                     f"({', '.join(str(t) for t in record.trials_per_pass)}; each trial {cycles} machining "
+                     f"cycle(s)), the last pass within 1.1 x its best from trial {last.trials_to_within_1p1}")
+    return outputs, {"tracking_rms_N": last.tracking_rms_N, "tracking_rms_pct_of_range": last.tracking_rms_pct_of_range,
+                     "before_learning_rms_N": last.before_learning_rms_N,
+                     "before_learning_pct_of_range": last.before_learning_pct_of_range, "iterations": last.trials,
+                     "trials": record.trials, "trials_per_pass": record.trials_per_pass,
+                     "trials_to_within_1p1_per_pass": [p.trials_to_within_1p1 for p in record.passes],
+                     "method": last.method, "converged": last.converged, "passes": len(record.passes),
+                     "contraction_over_range": last.learning.get("contraction_over_range"),
+                     "preload_margin_N": learned.system.margin_N}
 
 
 def _stage_system(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     study, gain_set = ctx.subject(), GainSet.load(ctx.output("validate", "gains"))
     extra, before = None, {}
     if ctx.records.get("learn", {}).get("status") == "done":  # each pass plays the signal learned on its reference
-        extra, before = played_passes(ctx.output("learn", "learning"), gain_set.content_sha256)
+        extra, record = played_passes(ctx.output("learn", "learning"), gain_set.content_sha256)
+        before = {"tracking_rms_N_before_learning": record.last.before_learning_rms_N,
+                  "tracking_rms_pct_of_range_before_learning": record.last.before_learning_pct_of_range,
+                  "learning_iterations": record.last.trials, "learning_trials": record.trials}
     result = study.track_schedule(gain_set, ff_extra_V=extra, progress=ctx.progress.say)
     paths = result.save(ctx.out / "system", {
         "gain_set_sha256": gain_set.content_sha256, "design_sha256": ctx.sha256("design", "design"),

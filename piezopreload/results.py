@@ -348,6 +348,12 @@ def reproduce(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | N
             **reproduction_summary(rep, study.published.step()), "seconds": time.perf_counter() - t0}
 
 
+def _before_learning(result: LearningResult) -> float:
+    """A pass's RMS error before learning: without any learned correction (a warm-started pass's first trial already
+    carries the pass before's)."""
+    return float(result.info.get("before_learning_rms_N", np.max(result.history[0].tracking_rms_N)))
+
+
 @dataclass(frozen=True, eq=False)
 class ScheduleLearning:
     """Learning along the design's preload schedule (``study.learn(gains, reference="schedule")``): each margin
@@ -366,12 +372,12 @@ class ScheduleLearning:
     @property
     def before_learning_rms_N(self) -> float:
         """The last pass's RMS error before learning (the tuned loop with its feedforward and preview)."""
-        return float(np.max(self.last.history[0].tracking_rms_N))
+        return _before_learning(self.last)
 
     def save(self, folder: str | Path, gain_set_sha256: str | None, inputs: dict[str, Any] | None = None) -> dict[str, Any]:
         """Write each pass's learned signal and ``learning.json`` (:func:`~piezopreload.tuning.learning.save_passes`)
         into ``folder``; returns the last pass's signal (``out``, what the rig plays) and its hash."""
-        paths = save_passes(list(self.passes), folder, gain_set_sha256, dict(inputs or {}))
+        paths, _ = save_passes(list(self.passes), folder, gain_set_sha256, dict(inputs or {}))
         return {"out": str(paths["learned"]), "learning": str(paths["learning"]),
                 "content_sha256": LearnedSignal.load(paths["learned"]).content_sha256}
 
@@ -380,7 +386,7 @@ class ScheduleLearning:
         return {**self.last.to_dict(), "before_learning_rms_N": self.before_learning_rms_N,
                 "passes": [{"pass": k, "preload_margin_N": None if p is None else p.preload_margin_N,
                             "tracking_rms_N": r.tracking_rms_N,
-                            "before_learning_rms_N": float(np.max(r.history[0].tracking_rms_N))}
+                            "before_learning_rms_N": _before_learning(r)}
                            for k, (r, p) in enumerate(zip(self.passes, self._pass_records()), start=1)],
                 "system": self.system.summary()}
 

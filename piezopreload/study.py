@@ -409,7 +409,8 @@ class Study:
 
     def learn(self, gains: GainSet | None = None, *, reference: Any = "trajectory", iterations: int | None = None,
               preview_s: float | None = None, method: str | None = None, plants: int | None = None,
-              seed: int | None = None, progress: Say | None = None) -> LearningResult | ScheduleLearning:
+              seed: int | None = None, after_change_weight: float = 0.0,
+              progress: Say | None = None) -> LearningResult | ScheduleLearning:
         """Preview and iterative learning control over a repeated reference on :attr:`plant`.
 
         ``gains`` a gain set (its controller) or None (the study's ``[controller]`` with the identified
@@ -417,14 +418,16 @@ class Study:
         the design's preload schedule, learned as the pipeline's learn stage does (each margin pass of
         :meth:`track_schedule` on its own reference; a study whose plant is its design). ``iterations``,
         ``preview_s`` (0: none) and ``method`` default to the study's ``[learning]``; ``plants`` N learns
-        on N Monte Carlo plants (each its own learning; the result reports the worst).
+        on N Monte Carlo plants (each its own learning; the result reports the worst); ``iterations`` is the most
+        learning trials (fewer where more no longer pay); ``after_change_weight`` how the plan places each change
+        (:func:`~piezopreload.tuning.learning.learn`).
 
         Returns a :class:`~piezopreload.tuning.learning.LearningResult` (``.ff_extra_V``, ``.history``,
         ``.plot()``), for ``"schedule"`` a :class:`~piezopreload.results.ScheduleLearning` (each pass's
         learning and the last pass's tracking of the schedule).
         """
         from piezopreload.models.actuator import Rig
-        from piezopreload.tuning.learning import learn, named_reference
+        from piezopreload.tuning.learning import learn
 
         table = self.learning or LearningTable()
         iterations = table.iterations if iterations is None else iterations
@@ -436,9 +439,14 @@ class Study:
                 raise InputError("Study.learn: plants: the schedule is learned on the designed plant itself (each "
                                  "margin pass); give plants=None, or learn on a Reference over Monte Carlo plants")
             return self._learn_schedule(gains, iterations, preview_s, method, seed, progress)
-        reference = named_reference(reference, self.references)
+        if not isinstance(reference, Reference):
+            if reference not in self.references:
+                raise InputError(f"reference must be one of {', '.join([*self.references, 'schedule'])} or a "
+                                 f"Reference, got {reference!r}")
+            reference = self.references[reference]
         return learn(self._controller(gains, progress), Rig(self._plant(progress)), reference, iterations=iterations,
-                     preview_s=preview_s, method=method, plants=plants, seed=seed, progress=progress)
+                     preview_s=preview_s, method=method, plants=plants, seed=seed,
+                     after_change_weight=after_change_weight, progress=progress)
 
     def _learn_schedule(self, gains: GainSet | None, iterations: int, preview_s: float | None, method: str,
                         seed: int, progress: Say | None) -> ScheduleLearning:

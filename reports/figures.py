@@ -429,9 +429,9 @@ def learning_iterations(passes: list[dict[str, Any]]) -> Figure:
         it = [h["iteration"] for h in p["history"]]
         pct = [100.0 * float(np.max(h["tracking_rms_N"])) / span for h in p["history"]]
         a.semilogy(it, pct, "o-", ms=3, lw=0.9, color=f"C{k}",
-                   label=f"pass {p['pass']} (best: iteration {int(np.max(p['best_iteration']))})")
+                   label=f"pass {p['pass']} (best: trial {int(np.max(p['best_iteration']))})")
         a.axhline(100.0 * p["causal_floor_N"] / span, color=f"C{k}", ls=":", lw=0.7)
-    a.set_xlabel("learning trial (0: the tuned loop with its feedforward alone)")
+    a.set_xlabel("learning trial (0: before the pass learns)")
     a.set_ylabel("tracking RMS (% of range)")
     a.legend(loc="upper right")
     return fig

@@ -17,6 +17,7 @@ import numpy as np
 
 from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.learning import LearningRecord
 from piezopreload.artifacts.plant import DesignedPlant
 from piezopreload.artifacts.requirements import Requirement, checked_by_stages
 from piezopreload.artifacts.system import SystemRecord
@@ -137,9 +138,9 @@ class Artifacts:
     def system(self) -> SystemRecord | None:
         return SystemRecord.load(self.path("system", "system")) if self.has("system") else None
 
-    @property
-    def learning(self) -> dict[str, Any] | None:
-        return self._read("learning", "learn", "learning", "learning") if self.has("learn") else None
+    @functools.cached_property
+    def learning(self) -> LearningRecord | None:
+        return LearningRecord.load(self.path("learn", "learning")) if self.has("learn") else None
 
     @property
     def rig_run(self) -> dict[str, Any] | None:

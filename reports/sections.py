@@ -17,6 +17,7 @@ from matplotlib.figure import Figure
 
 from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import gains_to_dict
+from piezopreload.artifacts.learning import LearningRecord
 from piezopreload.artifacts.system import SystemRecord
 from piezopreload.artifacts.tuning import TuningRecord
 from piezopreload.reports import figures as F
@@ -157,7 +158,7 @@ def design_section(study: ReportStudy, design: DesignRecord) -> Part:
 # --------------------------------------------------------------------------------------
 # the whole system and learning
 # --------------------------------------------------------------------------------------
-def system_section(system: SystemRecord, design: DesignRecord, learning: dict[str, Any] | None) -> Part:
+def system_section(system: SystemRecord, design: DesignRecord, learning: LearningRecord | None) -> Part:
     """The designed system along its schedule: tracking, rigidity and deflection while cutting, friction."""
     n, sch = system.numbers, design.schedule
     e = n.energy_units
@@ -166,8 +167,10 @@ def system_section(system: SystemRecord, design: DesignRecord, learning: dict[st
          f"{fmt(n.tracking_rms_N)} N", f"{fmt(n.tracking_rms_pct_of_range)} % of the schedule's "
                                        f"{fmt(n.schedule_range_N)} N range")]
     if learning is not None:
-        rows.append(("tracking RMS before learning", f"{fmt(learning['before_learning_rms_N'])} N",
-                     f"{fmt(learning['before_learning_pct_of_range'])} % of the range (the last pass)"))
+        rows.append(("tracking RMS before learning", f"{fmt(learning.last.before_learning_rms_N)} N",
+                     f"{fmt(learning.last.before_learning_pct_of_range)} % of the range (the last pass)"))
+        rows.append(("learning trials (machining cycles' runs)", str(learning.trials),
+                     ", ".join(str(n) for n in learning.trials_per_pass) + " per pass"))
     deflection = ("no limit set" if n.deflection_limit_um is None else f"limit {fmt(n.deflection_limit_um)} um")
     rows += [
         ("largest tracking error", f"{fmt(n.tracking_max_N)} N", ""),
@@ -188,7 +191,8 @@ def system_section(system: SystemRecord, design: DesignRecord, learning: dict[st
     ]
     follow = ("the tuned gains with the inverse-P-I feedforward follow it" if learning is None else
               "the tuned gains with the inverse-P-I feedforward and the correction learned on each pass follow it "
-              f"(from {fmt(learning['before_learning_pct_of_range'])} % of the range before learning)")
+              f"(from {fmt(learning.last.before_learning_pct_of_range)} % of the range before learning, "
+              f"{learning.trials} learning trials)")
     text = (f"The design's preload schedule is the reference of the force loop on the designed plant: the stacks' "
             f"share of it, over {system.cycles} machining cycles, after a {fmt(system.pre_cycle.duration_s)} s "
             f"pre-cycle that brings the stacks to the first level at the slew limit before the first cut. "
@@ -212,27 +216,34 @@ def system_section(system: SystemRecord, design: DesignRecord, learning: dict[st
                 (("system", fig, caption),))
 
 
-def learning_section(learning: dict[str, Any]) -> Part:
-    """Learning control on the repeated schedule: the error per trial of each margin pass."""
+def learning_section(learning: LearningRecord) -> Part:
+    """Learning control on the repeated schedule: the error per trial of each margin pass, and how many trials."""
     rows = []
-    for p in learning["pass_records"]:
-        span = p["tracking_rms_N"] / p["tracking_rms_pct_of_range"] * 100.0 if p["tracking_rms_pct_of_range"] else 1.0
-        best = int(np.max(p["best_iteration"]))
-        for h in p["history"]:
-            rms = float(np.max(h["tracking_rms_N"]))
-            rows.append((str(p["pass"]), str(h["iteration"]) + (" (best)" if h["iteration"] == best else ""),
-                         fmt(rms), fmt(100.0 * rms / span), fmt(float(np.max(h["measured_rms_N"])))))
+    for p in learning.passes:
+        best = int(np.max(p.best_iteration))
+        for h in p.history:
+            rms = h.worst_tracking_rms_N
+            rows.append((str(p.pass_number), str(h.iteration) + (" (best)" if h.iteration == best else ""), fmt(rms),
+                         fmt(100.0 * rms / p.span_N), fmt(float(np.max(h.measured_rms_N)))))
+    last = learning.last
+    per_pass = ", ".join(f"pass {p.pass_number}: {p.trials} (within 1.1 x its best from trial "
+                         f"{p.trials_to_within_1p1}; stopped: {p.stop_reason})" for p in learning.passes)
+    contraction = last.learning.get("contraction_over_range")
+    law = ("" if contraction is None else
+           f" The law is checked to contract on the loop linearised over the command's range (worst "
+           f"{fmt(contraction)}; below 1, the linearised loop converges monotonically).")
     text = (f"The machining cycle repeats, so the loop learns a feedforward correction from each cycle's error "
-            f"({learning['method']} law; preview {fmt(1e3 * learning['preview_s'])} ms). The law is checked to contract "
-            f"on the loop linearised over the command's range (worst {fmt(learning['contraction_over_range'])}; below "
-            "1, the linearised loop converges monotonically). Each margin pass of the schedule learns on its own "
-            f"reference. On the last pass the error falls from {fmt(learning['before_learning_rms_N'])} N to "
-            f"{fmt(learning['tracking_rms_N'])} N RMS ({fmt(learning['tracking_rms_pct_of_range'])} % of the range; "
-            f"the causal floor of the ramped reference is {fmt(learning['causal_floor_N'])} N).")
+            f"({last.method} law; preview {fmt(1e3 * last.preview_s)} ms). Each trial is one run of the pass's "
+            f"reference, as many machining cycles as the schedule holds; learning stops when another trial no longer "
+            f"pays. {learning.trials} learning trials in all ({per_pass}).{law} Each margin pass of the schedule "
+            f"learns on its own reference{', starting from what the pass before learned' if last.warm_start else ''}. "
+            f"On the last pass the error falls from {fmt(last.before_learning_rms_N)} N to {fmt(last.tracking_rms_N)} N "
+            f"RMS ({fmt(last.tracking_rms_pct_of_range)} % of the range; the causal floor of the ramped reference is "
+            f"{fmt(last.causal_floor_N)} N).")
     table = Table(("pass", "trial", "RMS (N)", "% of range", "measured (N)"), tuple(rows),
-                  "The error per learning trial (trial 0: the tuned loop with its feedforward alone): whole cycles, "
-                  "true force; measured: the sensor's force against the plan, what the law learns from.", "rlrrr")
-    fig = F.learning_iterations(learning["pass_records"])
+                  "The error per learning trial (trial 0: before the pass learns): whole cycles, true force; measured: "
+                  "the sensor's force against the plan, what the law learns from.", "rlrrr")
+    fig = F.learning_iterations([p.to_dict() for p in learning.passes])
     caption = ("The error per learning trial on the repeated schedule, each margin pass on its own reference (whole "
                "cycles, true force, in % of the schedule's range); dotted: the causal floor of each pass's reference.")
     return Part(Section("Learning control on the repeated schedule", (text,), (table,), ("learning",)),

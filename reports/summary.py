@@ -14,6 +14,7 @@ from typing import Any
 
 from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import gains_to_dict
+from piezopreload.artifacts.learning import LearningRecord
 from piezopreload.artifacts.requirements import missed
 from piezopreload.artifacts.system import SystemRecord
 from piezopreload.reports.document import fmt, pct
@@ -48,11 +49,11 @@ def summary(study: ReportStudy, a: Artifacts) -> tuple[str, ...]:
     return tuple(lines)
 
 
-def _system_lines(system: SystemRecord, design: DesignRecord, learning: dict[str, Any] | None) -> list[str]:
+def _system_lines(system: SystemRecord, design: DesignRecord, learning: LearningRecord | None) -> list[str]:
     n, sch = system.numbers, design.schedule
     before = ("" if learning is None else
-              f", from {fmt(learning['before_learning_rms_N'])} N ({fmt(learning['before_learning_pct_of_range'])} %) "
-              "before learning")
+              f", from {fmt(learning.last.before_learning_rms_N)} N ({fmt(learning.last.before_learning_pct_of_range)} %) "
+              f"before learning, after {learning.trials} learning trials")
     deflection = ("" if n.deflection_limit_um is None else
                   f", and its largest deflection {fmt(n.deflection_max_um)} um against {fmt(n.deflection_limit_um)} um")
     return [

@@ -11,7 +11,7 @@ from dataclasses import asdict, dataclass
 from piezopreload.artifacts.validation import Criteria
 from piezopreload.core.config import Invalid, Table, key
 from piezopreload.models.controller import SCHEDULE_MAX
-from piezopreload.tuning.learning import METHODS
+from piezopreload.tuning.ilc import METHODS
 from piezopreload.tuning.pid import TuningSpec, scaled_references
 
 __all__ = ["TuningTable", "ValidationTable", "LearningTable", "CRITERIA_LIMITS"]
@@ -76,9 +76,12 @@ class ValidationTable(Table):
 @dataclass(frozen=True)
 class LearningTable(Table):
     """[learning]: learning control over a repeated reference (``study.learn``'s defaults; on a study whose plant
-    is its design, the pipeline's learn stage along the schedule, each margin pass learned)."""
+    is its design, the pipeline's learn stage along the schedule, each margin pass learned): at most ``iterations``
+    learning trials (fewer where more no longer pay), the norm-optimal law by default, ``p-type`` the model-free
+    option."""
 
-    iterations: int = key(6, "learning updates (per pass of the schedule)", ge=0, le=100)
+    iterations: int = key(6, "the most learning trials (per pass of the schedule); fewer where more no longer pay",
+                          ge=0, le=100)
     preview_s: float | None = key(None, "how far the learning reads the reference ahead (not set: the delay, the "
                                   "amplifier's lag and the largest change's slew time; 0: no preview)", unit="s", ge=0)
-    method: str = key("p-type", "the learning law", choices=METHODS)
+    method: str = key(METHODS[0], "the learning law: norm-optimal, or p-type (model-free)", choices=METHODS)
