@@ -324,11 +324,15 @@ class ValidationResult:
         for ax, (metric, limit) in zip(axes, limits.items()):
             values = self.metrics[metric][np.isfinite(self.metrics[metric])]
             ax.hist(values, bins=20, color="tab:blue", alpha=0.8)
-            ax.axvline(limit, color="tab:red", linestyle="--")
-            ax.set_xlabel(metric)
+            ax.axvline(limit, color="tab:red", linestyle="--", label="limit")
+            ax.set_xlabel(_AXIS_LABELS.get(metric, metric))
         axes[0].set_ylabel("plants")
         fig.tight_layout()
         return fig
+
+
+_AXIS_LABELS = {"settling_s": "settling time (s)", "overshoot_N": "overshoot (N)",
+                "tracking_rms_N": "tracking RMS after the changes (N)", "peak_voltage_V": "peak command (V)"}
 
 
 def _show(x: float | None, unit: str) -> str:

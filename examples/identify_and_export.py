@@ -1,4 +1,8 @@
-"""From a loop measurement to gains and a feedforward a LabVIEW program and a PLC run.
+"""
+From a measured loop to exported gains
+======================================
+
+From a loop measurement to gains and a feedforward a LabVIEW program and a PLC run.
 
 Study: the paper's, ``paper2021`` (the simulated rig calibrated to Zhang, Jin, Lin (2021), its
 25 -> 60 N step and 25-100 N staircase), unless ``--study`` names another.
@@ -14,6 +18,8 @@ Study: the paper's, ``paper2021`` (the simulated rig calibrated to Zhang, Jin, L
    by that model, validate the gains by Monte Carlo (the study's ``[validation] plants``), save the
    gain set and, if it is validated, export it for LabVIEW (Ti and Td in minutes, the feedforward's
    tables) and for a PLC (Structured Text: the gains, and the feedforward's function block).
+
+Run it from the repository root::
 
     python examples/identify_and_export.py [loop.csv] [--study paper2021] [--out gains-out/]
 """
@@ -38,7 +44,8 @@ def _loop(args: argparse.Namespace, study: pp.Study, out: Path) -> Path:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description="From a loop measurement to gains and a feedforward a LabVIEW program "
+                                                 "and a PLC run.")
     parser.add_argument("data", nargs="?", help="the measured loop: time_s,voltage_V,force_N (default: simulated)")
     parser.add_argument("--study", default="paper2021", help="the study tuned on (default: paper2021, the paper's)")
     parser.add_argument("--operators", type=int, default=40, help="play operators (default 40, as the paper)")

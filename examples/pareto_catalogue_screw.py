@@ -1,4 +1,8 @@
-"""The stiffness-drag Pareto front of a catalogue ball screw, with the chosen design marked.
+"""
+The Pareto front of a catalogue screw
+=====================================
+
+The stiffness-drag Pareto front of a catalogue ball screw, with the chosen design marked.
 
 A catalogue screw fixes the nominal diameter, the lead, the ball size and the loaded turns;
 what is left to design is the contact angle, the conformity, the balls per turn and the
@@ -9,6 +13,8 @@ chooses is marked on it (its rigidity is printed beside the catalogue's at 0.1 C
 
 It runs on the default study, the machine axis (``pp.load_study()``, studies/machine_axis.toml: its
 feed drive, duty cycle and design limits), unless ``--study`` names another with the design's tables.
+
+Run it from the repository root::
 
     python examples/pareto_catalogue_screw.py                       # the machine axis, 30 points
     python examples/pareto_catalogue_screw.py --study paper2021 --points 20 --out pareto/
@@ -50,7 +56,8 @@ def plot(design: pp.DesignResult, screw: dict = CATALOGUE) -> Figure:
 
 
 def main(argv: list[str] | None = None) -> pp.DesignResult:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description="The stiffness-drag Pareto front of a catalogue ball screw, with the "
+                                                 "chosen design marked.")
     parser.add_argument("--study", help="a shipped study's name or a study file with the design's tables (default: the "
                                          "machine axis)")
     parser.add_argument("--points", type=int, default=30, help="points on the front")

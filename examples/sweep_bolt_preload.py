@@ -1,4 +1,8 @@
-"""Sweep the bolts' preload and see what it does to the plant, the tuned loop and its worst Monte Carlo case.
+"""
+Sweep the bolts' preload
+========================
+
+Sweep the bolts' preload and see what it does to the plant, the tuned loop and its worst Monte Carlo case.
 
 It runs on the default study, the machine axis (``pp.load_study()``, studies/machine_axis.toml),
 unless ``--study`` names another. The machine axis' plant is its design, so there the bolts' preload
@@ -13,6 +17,8 @@ For each bolt preload the study is copied with it, the feedforward identified on
 the PID tuned around it and validated by Monte Carlo; the figure shows the plant's stiffness at the
 bolts' preload (left) and the tuned settling time on the nominal plant and the worst Monte Carlo
 plant's (right) against the bolts' preload.
+
+Run it from the repository root::
 
     python examples/sweep_bolt_preload.py                  # the machine axis: 0.5, 1 and 2 times its design's
     python examples/sweep_bolt_preload.py --study paper2021 --preloads 20 25 30 --plants 50 --out sweep/
@@ -80,7 +86,8 @@ def plot(rows: list[dict], study_name: str) -> Figure:
 
 
 def main(argv: list[str] | None = None) -> list[dict]:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description="Sweep the bolts' preload and see what it does to the plant, the tuned "
+                                                 "loop and its worst Monte Carlo case.")
     parser.add_argument("--study", help="a shipped study's name or a study file (default: the machine axis)")
     parser.add_argument("--preloads", type=float, nargs="+",
                         help="bolts' preloads (N; default: 0.5, 1 and 2 times the design's, or 0.8, 1 and 1.2 times "

@@ -1,27 +1,13 @@
 """piezopreload: design and tuning studies for feed drives with piezo-actuated ball-screw preload.
 
-The front door for design-study scripts::
+The front door for design-study scripts: ``import piezopreload as pp``. The README's example is
+the short tour (``pp.load_study``, ``study.tune``, ``tuned.validate``, ``study.simulate``,
+``pp.export``, ``study.run``); the documentation's API reference lists every name exported here.
 
-    import piezopreload as pp
-    study = pp.load_study()                            # the default study (the machine axis); a name or a file
-    study.plant                                        # the plant every step runs on (here: its design's)
-    s2 = study.replace(design={"failsafe_load_N": 800.0})  # a validated, changed copy
-    ff = study.identify_feedforward()                  # honours [feedforward] data
-    tuned = study.tune(feedforward=ff)                 # TuningResult: .gains, .table, .to_dict(), .plot()
-    gain_set = tuned.validate(plants=200, seed=0)      # GainSet: .validated, .gains, .validation
-    run = study.simulate(gain_set, reference="step")   # StudyRun: .step_metrics(), .plot()
-    design = study.design()                            # DesignResult: .optimum, .fronts, .schedule, .plot()
-    gain_set.save("gains.json"); pp.GainSet.load("gains.json")
-    pp.export(gain_set, "labview")                     # the text the CLI writes; a model alone: pp.export(ff.record, "plc")
-    learned = study.learn(gain_set, reference="schedule")  # ScheduleLearning: along the preload schedule
-    result = study.run(out="piezopreload-out")         # the whole pipeline, as ``piezopreload run``
-    sweep = study.sweep({"tuning.ms_max": [1.4, 1.6]})  # SweepResult: .rows, .plot(x, y), as ``piezopreload sweep``
-    tuned = pp.autotune(plant, Ms=1.4, delay_s=0.001)  # AutotuneResult for any python-control plant: .gains, .plot()
-    fit = pp.fit_plant("step.csv")                     # FittedPlant from a measured step response; pp.autotune(fit, ...)
-
-The physics lives in :mod:`piezopreload.models`, identification and tuning in
-:mod:`piezopreload.tuning`, the design in :mod:`piezopreload.design`, the rig executor in
-:mod:`piezopreload.rig`; ``docs/`` has the equations and the architecture.
+The physics lives in :mod:`piezopreload.models`, the typed artifacts in
+:mod:`piezopreload.artifacts`, identification and tuning in :mod:`piezopreload.tuning`, the design
+in :mod:`piezopreload.design`, the rig executor in :mod:`piezopreload.rig`, the report in
+:mod:`piezopreload.reports`.
 """
 
 from importlib.metadata import PackageNotFoundError, version

@@ -9,6 +9,7 @@ floors': the tuning (:mod:`piezopreload.tuning.pid`, its record :mod:`piezoprelo
 
 from __future__ import annotations
 
+import html
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
@@ -124,6 +125,17 @@ class TuningResult:
                 f"Td {g.Td_s:.4g} s, Tf {g.Tf_s:.4g} s, b {g.b:.3g}; Ms {self.solve.ms:.3g}; tuned settling "
                 f"{_fmt(self.row().settling_s)} s, minimum-time bound {bound}; "
                 f"{len(self.active_bounds)} gain(s) on a bound)")
+
+    def _repr_html_(self) -> str:
+        head = "".join(f"<th>{h}</th>" for h in ("gains", "feedforward", "settling (s)", "overshoot (N)",
+                                                 "tracking RMS (N)", "peak command (V)"))
+        rows = "".join(f"<tr><td>{r.gains}</td><td>{'yes' if r.feedforward else 'no'}</td>"
+                       f"<td>{_fmt(r.settling_s)}</td><td>{r.overshoot_N:.3g}</td><td>{r.tracking_rms_N:.3g}</td>"
+                       f"<td>{r.peak_command_V:.3g}</td></tr>" for r in self.table)
+        bounds = "".join(f"<li>{html.escape(b.sentence())}</li>" for b in self.active_bounds)
+        return (f"<p><b>Tuned {self.solve.form}</b> for study {html.escape(self.study.name)}: "
+                f"<code>{html.escape(repr(self))}</code></p><table><tr>{head}</tr>{rows}</table>"
+                + (f"<p>Gains on a bound:</p><ul>{bounds}</ul>" if bounds else ""))
 
     def candidate(self, inputs: dict[str, Any] | None = None) -> GainSet:
         """The tuned gains as a gain set not yet validated: feedforward, plant, references, criteria, the rig's

@@ -169,8 +169,20 @@ class Study:
     _kept: _Kept = field(default_factory=_Kept, repr=False, compare=False)
 
     def __repr__(self) -> str:
-        plant = "its design's ([plant] from_design)" if self.plant_from_design else "its [rig]"
-        return f"Study({self.name!r} from {self.path!r}, sha256 {self.sha256[:12]}; the plant is {plant})"
+        plant = "its design" if self.plant_from_design else "its [rig]"
+        published = "; published numbers: " + self.published.source if self.published is not None else ""
+        return f"Study({self.name!r}: {self.title or 'untitled'}; plant: {plant}{published}; file {self.path})"
+
+    def _repr_html_(self) -> str:
+        import html
+
+        rows = [("name", self.name), ("title", self.title), ("file", self.path),
+                ("plant", "the designed preload system ([plant] from_design)" if self.plant_from_design else "[rig]"),
+                ("step", " -> ".join(f"{x:g}" for x in self.references["step"].levels_N) + " N"),
+                ("trajectory", " -> ".join(f"{x:g}" for x in self.references["trajectory"].levels_N) + " N"),
+                ("published numbers", self.published.source if self.published is not None else "none declared")]
+        body = "".join(f"<tr><td>{k}</td><td>{html.escape(str(v))}</td></tr>" for k, v in rows)
+        return f"<p><b>Study</b></p><table>{body}</table>"
 
     # ---- the tables --------------------------------------------------------------------------
     @property

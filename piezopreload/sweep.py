@@ -513,7 +513,8 @@ class SweepResult:
         return self.out / self.record.points[index].folder
 
     def csv_text(self) -> str:
-        """The rows as CSV (a missed requirement list as its names, ``; ``-separated; None as an empty cell)."""
+        """The rows as CSV (a list of missed requirements as their names separated by semicolons; None as an empty
+        cell)."""
         buf = io.StringIO()
         writer = csv.writer(buf, lineterminator="\n")
         columns = self.record.columns()

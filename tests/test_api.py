@@ -38,28 +38,28 @@ def _small(snippet: str) -> str:
 
 
 @pytest.mark.slow  # it tunes, validates and runs every stage of the small study: half a minute
-def test_the_readme_snippet_runs_end_to_end(tmp_path, monkeypatch):
+def test_the_readme_snippet_runs_end_to_end(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     ns: dict = {}
     exec(compile(_small(_readme_snippet()), "README.md (Python API)", "exec"), ns)
-    study, s2, gain_set, run, design, result = (ns[k] for k in ("study", "s2", "gain_set", "run", "design", "result"))
-    assert study.rig.bolt_preload_N == 25.0 and s2.rig.bolt_preload_N == 30.0
+    study, tuned, gain_set, run, plc, result = (ns[k] for k in ("study", "tuned", "gain_set", "run", "plc", "result"))
     assert isinstance(gain_set, pp.GainSet) and gain_set.validated, gain_set.validation
     assert gain_set.validation.n_plants == 8
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[0] == str(gain_set.validation.worst.settling_s), "the snippet prints the worst settling time"
     assert isinstance(run, pp.ClosedLoopRun)
     m = run.step_metrics()
     assert isinstance(m, pp.StepMetrics) and 0 < m.settling_s < study.references["step"].duration_s
     # the run is the tuned gains' with the gain set's feedforward: the comparison table's tuned row
-    assert m.settling_s == pytest.approx(ns["tuned"].row("tuned")["settling_measured_s"], abs=study.rig.sample_period_s)
-    assert pp.GainSet.load(tmp_path / "gains.json").gains == gain_set.gains
-    assert pp.export(ns["gain_set"], "labview").startswith("; gain set sha256")
-    assert len(design.fronts) == 2 and design.optimum.point.stiffness_N_per_um > 0
+    assert m.settling_s == pytest.approx(tuned.row("tuned")["settling_measured_s"], abs=study.plant.sample_period_s)
+    assert "FUNCTION_BLOCK PP_FEEDFORWARD" in plc and plc == pp.export(gain_set, "plc")
     assert list(result.ran) == [s.name for s in __import__("piezopreload.pipeline").pipeline.STAGES
-                             if s.applies(study) is None]
+                                if s.applies(study) is None]
+    assert printed[1] == repr(result) and result.requirements_met is True and result.exit_code == 0
     assert (tmp_path / "piezopreload-out" / "report.pdf").read_bytes().startswith(b"%PDF")
-    for fig in (ns["tuned"].plot(), run.plot(), design.plot(), ns["ff"].plot()):
+    for fig in (tuned.plot(), run.plot(), gain_set.plot()):
         assert isinstance(fig, Figure) and fig.axes, f"{fig!r} draws nothing"
-    for r in (ns["tuned"], run, design, ns["ff"], gain_set):
+    for r in (tuned, run, result):
         json.dumps(r.to_dict(), allow_nan=False)  # what --json prints: plain, finite JSON
 
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 _SKIP = {".git", ".venv", "build", "dist", "__pycache__", ".pytest_cache", ".ruff_cache", ".mypy_cache",
-         "piezopreload-out"}
+         "piezopreload-out", "_build", "auto_examples", "generated", "jupyter_execute"}  # the last four: the docs' build
 _SUFFIXES = (".py", ".md", ".toml", ".typ", ".txt", ".cfg")
 #: a file name with one of these extensions, possibly with folders before it
 #: a web address: the files it names are another site's
@@ -35,7 +35,8 @@ def missing_references(texts: list[tuple[Path, str]]) -> list[str]:
     A reference with folders is checked when its first folder is one of the repository's
     (``models/ballscrew.py``, ``docs/models.md``); a bare Markdown name (``paper2021.md``) must
     name a file somewhere in the repository. Anything starting with ``../`` is outside it; a web
-    address is skipped whole.
+    address is skipped whole. A reference starting with ``../`` is resolved from its file's folder:
+    inside the repository it must exist, outside it is an error.
     """
     folders, names = _folders(), {p.name for p, _ in texts}
     bad = []
@@ -44,7 +45,8 @@ def missing_references(texts: list[tuple[Path, str]]) -> list[str]:
             for ref in _REFERENCE.findall(_URL.sub("", line)):
                 parts = ref.split("/")
                 if parts[0] == "..":
-                    ok = False
+                    target = (ROOT / rel.parent / ref).resolve()
+                    ok = target.is_relative_to(ROOT) and target.exists()
                 elif len(parts) > 1 and parts[0] in folders:
                     ok = (ROOT / ref).exists()
                 elif len(parts) == 1 and ref.endswith(".md"):

@@ -256,11 +256,24 @@ class PIIdentifier:
     creep_shortest_s : float
         The shortest time constant of the ``"log"`` bank.
 
-    Attributes (after :meth:`fit`)
-    -----------------------------
-    model_ : the identified model; ``thresholds_``; ``time_constants_s_`` (creep only);
-    ``status_`` (solver status); ``solve_time_s_`` (QP only); ``fit_time_s_`` (operators +
-    compression + QP); ``polished_`` (active-set polish accepted); ``n_train_`` (samples used).
+    Attributes
+    ----------
+    model_ : HysteresisModel or CreepPI
+        The identified model (every attribute ending in ``_`` is set by :meth:`fit`).
+    thresholds_ : ndarray
+        The play operators' thresholds.
+    time_constants_s_ : ndarray or None
+        The creep bank's time constants (creep only).
+    status_ : str
+        The solver's status.
+    solve_time_s_ : float
+        The QP's time.
+    fit_time_s_ : float
+        The whole fit's time: the operators, the compression and the QP.
+    polished_ : bool
+        Whether the active-set polish was accepted.
+    n_train_ : int
+        The samples used.
     """
 
     model: ModelName = "classical"

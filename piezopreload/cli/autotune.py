@@ -31,7 +31,7 @@ def register_autotune(sub: Any) -> None:
             "Tune a PI, or a PID with its derivative filter, for a linear plant given as a transfer function, a "
             "measured frequency response or a measured step response (fitted first or second order with dead time), "
             "with an exact input delay: the largest integral gain (IE) or the least IAE of a load step at the plant "
-            "input, subject to |S| <= Ms, |T| <= Mt, |KS| <= Mks on a frequency grid chosen from the plant and a "
+            "input, subject to abs(S) <= Ms, abs(T) <= Mt, abs(KS) <= Mks on a frequency grid chosen from the plant and a "
             "stable closed loop (CasADi + IPOPT, several starts including AMIGO and SIMC). With --out, write a gain "
             "set 'piezopreload export' writes for LabVIEW, PLCs and C."),
         epilog=(
@@ -44,9 +44,9 @@ def register_autotune(sub: Any) -> None:
     plant.add_argument("--step", metavar="FILE.csv", help="a measured step response, fitted with dead time")
     p.add_argument("--dt", type=_positive, metavar="S", help="--tf is discrete with this sample period (s)")
     p.add_argument("--delay-s", type=nonnegative_float, default=0.0, metavar="L", help="input delay in s (default 0)")
-    p.add_argument("--Ms", type=float, required=True, help="largest |S| (> 1; 1.4 is common)")
-    p.add_argument("--Mt", type=float, help="largest |T|")
-    p.add_argument("--Mks", type=float, help="largest |KS| (controller output per measured unit)")
+    p.add_argument("--Ms", type=float, required=True, help="the largest sensitivity magnitude, abs(S) (> 1; 1.4 is common)")
+    p.add_argument("--Mt", type=float, help="the largest complementary sensitivity magnitude, abs(T)")
+    p.add_argument("--Mks", type=float, help="the largest abs(KS), the controller's output per unit of measurement noise")
     p.add_argument("--metric", choices=("IE", "IAE"), default="IE", help="IE: largest ki (default); IAE: least IAE")
     p.add_argument("--form", choices=("PI", "PID"), default="PID", help="the controller (default PID)")
     p.add_argument("--Ts", type=_positive, metavar="S", help="the controller's sample period: tune the loop as it runs")
