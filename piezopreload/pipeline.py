@@ -94,6 +94,7 @@ from piezopreload.study import Study, load_study
 from piezopreload.tuning.compare import creep_effect, reproduction, responses
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.learning import played_passes, save_passes
+from piezopreload.tuning.schedule import level_requirements
 
 __all__ = ["Stage", "STAGES", "StageFailed", "StageCrashed", "run_study", "rerender_report", "read_manifest", "run_summary",
            "DEFAULT_OUT"]
@@ -194,7 +195,8 @@ def _stage_tune(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
         "Kc_V_per_N": g.Kc, "Ti_s": g.Ti_s, "Td_s": g.Td_s, "Tf_s": g.Tf_s, "b": g.b, "form": tuned.solve.form,
         "ms": tuned.solve.ms, "active_bounds": [b.sentence() for b in tuned.active_bounds],
         "minimum_time_s": bound.settling_s, "tuned_over_bound_ratio": bound.tuned_over_bound_ratio,
-        **({} if sched is None else {"gain_schedule": sched["choice"]})}
+        **({} if sched is None else {"gain_schedule": sched["choice"],
+                                     "requirements": [r.to_dict() for r in level_requirements(sched)]})}
 
 
 def _stage_validate(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:

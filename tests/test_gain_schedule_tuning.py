@@ -160,3 +160,24 @@ def test_a_level_the_schedule_misses_says_what_stops_a_pid_entry():
     whole = {"robust": _figures(True), "scheduled": _figures(True)}
     choice, reason = choose(levels, whole)
     assert choice == "robust" and "What stops a PID entry: at 2000 N" in reason and "Ms <= 1.6" in reason
+
+
+def test_the_chosen_sets_verdict_at_each_level_is_a_requirement():
+    """The tune stage's per-level verdicts: the chosen set's worst case at each level against every limit, a miss
+    where it misses (the robust set kept at a level it misses is reported as missing it, not hidden)."""
+    from piezopreload.tuning.schedule import level_requirements
+
+    limits = {"settling_s": 0.6, "overshoot_N": 25.0, "tracking_rms_N": 40.0, "peak_voltage_V": 120.0}
+    ok = {"settling_s": 0.3, "overshoot_N": 20.0, "tracking_rms_N": 30.0, "peak_voltage_V": 100.0}
+    over = {**ok, "overshoot_N": 28.8}
+    record = {"choice": "robust", "plants": 50, "limits": limits,
+              "levels": [{"level_N": 0.0, "robust": ok, "scheduled": ok},
+                         {"level_N": 2000.0, "robust": over, "scheduled": ok}]}
+    reqs = level_requirements(record)
+    assert len(reqs) == 8 and [r.met for r in reqs].count(False) == 1
+    missed = next(r for r in reqs if not r.met)
+    assert missed.name == "worst overshoot at the 2,000 N level over 50 Monte Carlo plants (robust)"
+    assert missed.value == 28.8 and missed.limit == 25.0 and missed.source == "[validation] overshoot_max_N"
+    assert all(r.met for r in level_requirements({**record, "choice": "schedule"})), "the schedule meets every level"
+    never = {**record, "levels": [{"level_N": 0.0, "robust": {**ok, "settling_s": None}, "scheduled": ok}]}
+    assert not level_requirements(never)[0].met, "a step that never settles misses the settling limit"

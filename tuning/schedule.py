@@ -49,6 +49,7 @@ from typing import Any
 
 import numpy as np
 
+from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.validation import Criteria, ValidationResult
 from piezopreload.core.parallel import spare_cpus
 from piezopreload.models.actuator import RigParams
@@ -58,7 +59,7 @@ from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, tune_pid
 from piezopreload.tuning.validate import executor, validate
 
-__all__ = ["ScheduleResult", "tune_schedule", "schedule_levels", "level_windows", "choose", "CHOICES",
+__all__ = ["ScheduleResult", "tune_schedule", "level_requirements", "schedule_levels", "level_windows", "choose", "CHOICES",
            "setpoint_action_rises", "rising_setpoint_weights"]
 
 #: what :func:`tune_schedule` may choose
@@ -153,6 +154,30 @@ def choose(levels: list[dict[str, Any]], whole: dict[str, Any]) -> tuple[str, st
                     f"the schedule at {where('scheduled')}); the {choice} set is kept"
                     + (", as it meets it over the whole range" if kept else "")
                     + (f". What stops a PID entry: {bounds}" if bounds else ""))
+
+
+#: each limit of the per-level validation: its words, its unit and the [validation] key that sets it
+_LEVEL_LIMITS = {"settling_s": ("worst settling time", "s", "settling_max_s"),
+                 "overshoot_N": ("worst overshoot", "N", "overshoot_max_N"),
+                 "tracking_rms_N": ("worst tracking RMS after the changes", "N", "tracking_rms_max_N"),
+                 "peak_voltage_V": ("highest command", "V", "peak_voltage_max_V")}
+
+
+def level_requirements(schedule: dict[str, Any]) -> tuple[Requirement, ...]:
+    """The chosen set's verdict at each preload level of a gain schedule's record (:meth:`ScheduleResult.to_dict`):
+    its worst case over the level's Monte Carlo plants against each limit of the study's ``[validation]``."""
+    chosen = "scheduled" if schedule["choice"] == "schedule" else "robust"
+    out = []
+    for level in schedule["levels"]:
+        figures = level[chosen]
+        for metric, (words, unit, key) in _LEVEL_LIMITS.items():
+            value = figures.get(metric)
+            limit = schedule["limits"][metric]
+            value = 1e9 * max(abs(limit), 1.0) if value is None else float(value)  # never settled: missed by far
+            out.append(Requirement(f"{words} at the {level['level_N']:,.0f} N level over {schedule['plants']} "
+                                   f"Monte Carlo plants ({schedule['choice']})", value, float(limit), unit, "max",
+                                   f"[validation] {key}"))
+    return tuple(out)
 
 
 def _worst(result: ValidationResult) -> dict[str, Any]:
