@@ -63,6 +63,7 @@ from piezopreload import __version__
 from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.requirements import checked_by_stages, missed
+from piezopreload.artifacts.responses import RESPONSE_FIGURES, ResponseRun, ResponsesRecord
 from piezopreload.artifacts.rigrun import RigRunRecord
 from piezopreload.artifacts.schedule import PreloadSchedule
 from piezopreload.artifacts.system import SystemRecord
@@ -231,20 +232,19 @@ def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
         path = outputs[r.label] = d / f"{r.label}.csv"
         write_csv(path, r.run.columns(), f"piezopreload {__version__} run: study {study.name}, {r.gains} gains, "
                                          f"{r.controller}, {r.reference}, seed {study.seed}")
-        rows.append({"gains": r.gains, "controller": r.controller, "reference": r.reference, "csv": ctx.rel(path),
-                     **r.numbers})
-    table = None if study.published is None else reproduction(runs, study.published.step())
+        rows.append(ResponseRun(r.gains, r.controller, r.reference, ctx.rel(path),
+                                **{k: r.numbers.get(k) for k in RESPONSE_FIGURES}))
+    table = [] if study.published is None else reproduction(runs, study.published.step())
     creep = None if ff.without_creep is None else creep_effect(  # FF + PID with and without creep compensation
         study.plant, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model, ff.without_creep,
         seed=study.seed, band_N=study.band_N, signal=study.signal, after_change_s=study.criteria.tracking_after_change_s)
-    outputs["responses"] = d / "responses.json"
-    write_artifact(outputs["responses"], "responses", {
-        "runs": rows, "reproduction": table, "creep_effect": creep, "band_N": study.band_N, "signal": study.signal,
-        "seed": study.seed,
-        "inputs": {"gain_set_sha256": gain_set.content_sha256, "study_sha256": study.sha256,
-                   "feedforward_sha256": ctx.sha256("identify", "model")},
-    })
-    return outputs, {"reproduction": table}
+    record = ResponsesRecord(
+        tuple(rows), study.band_N, study.signal, study.seed, tuple(table), tuple(creep or ()),
+        {"gain_set_sha256": gain_set.content_sha256, "study_sha256": study.sha256,
+         "feedforward_sha256": ctx.sha256("identify", "model")})
+    outputs["responses"] = record.save(d / "responses.json")
+    return outputs, {"tuned_settling_s": record.run("tuned", "ff+pid", "step").settling_s,
+                     "reproduction": [r.to_dict() for r in table]}
 
 
 def _stage_plant(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:

@@ -237,12 +237,6 @@ def _gain_set(folder: Path, records: dict[str, Any]) -> GainSet | None:
         return None
 
 
-def _tuned_settling(compare: dict[str, Any]) -> float | None:
-    rows = compare.get("reproduction") or []
-    return next((r.get("tuned") for r in rows if isinstance(r, dict) and r.get("controller") == "ff+pid"
-                 and r.get("metric") == "settling_s"), None)
-
-
 def _requirements(summary: dict[str, Any], records: dict[str, Any]) -> tuple[bool | None, tuple[dict[str, Any], ...]]:
     """Met (None where the study sets none) and the missed ones: the run's summary where it says, else the system stage's."""
     if "requirements_met" in summary:
@@ -275,7 +269,7 @@ def headline(folder: str | Path, summary: dict[str, Any] | None = None) -> Point
         validation_failures=None if validation is None else len(validation.failures),
         worst_settling_s=worst.get("settling_s"), worst_overshoot_N=worst.get("overshoot_N"),
         worst_tracking_rms_N=worst.get("tracking_rms_N"), worst_peak_voltage_V=worst.get("peak_voltage_V"),
-        tuned_settling_s=_tuned_settling(_stage_summary(records, "compare")),
+        tuned_settling_s=_stage_summary(records, "compare").get("tuned_settling_s"),
         **{k: summary.get(k) for k in ("tracking_rms_N", "tracking_rms_pct_of_range",
                                        "tracking_rms_pct_of_range_before_learning", "tracking_max_N",
                                        "rigidity_min_cutting_N_per_um", "rigidity_required_N_per_um", "rigidity_ratio_min",

@@ -20,6 +20,8 @@ from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.learning import LearningRecord
 from piezopreload.artifacts.plant import DesignedPlant
 from piezopreload.artifacts.requirements import Requirement, checked_by_stages
+from piezopreload.artifacts.responses import ResponsesRecord
+from piezopreload.artifacts.rigrun import RigRunRecord
 from piezopreload.artifacts.system import SystemRecord
 from piezopreload.artifacts.tuning import TuningRecord
 from piezopreload.artifacts.validation import ValidationResult
@@ -114,9 +116,9 @@ class Artifacts:
     def validation(self) -> ValidationResult:
         return ValidationResult.load(self.path("validate", "validation"))
 
-    @property
-    def responses(self) -> dict[str, Any]:
-        return self._read("responses", "compare", "responses", "responses")
+    @functools.cached_property
+    def responses(self) -> ResponsesRecord:
+        return ResponsesRecord.load(self.path("compare", "responses"))
 
     @property
     def feedforward(self) -> dict[str, Any]:
@@ -142,9 +144,9 @@ class Artifacts:
     def learning(self) -> LearningRecord | None:
         return LearningRecord.load(self.path("learn", "learning")) if self.has("learn") else None
 
-    @property
-    def rig_run(self) -> dict[str, Any] | None:
-        return self._read("rig_run", "rig", "log_json", "rig-run") if self.has("rig") else None
+    @functools.cached_property
+    def rig_run(self) -> RigRunRecord | None:
+        return RigRunRecord.load(self.path("rig", "log_json")) if self.has("rig") else None
 
     def csv(self, stage: str, label: str) -> dict[str, np.ndarray]:
         return read_csv_columns(self.path(stage, label))
@@ -152,9 +154,8 @@ class Artifacts:
     def response_runs(self) -> dict[str, dict[str, dict[str, np.ndarray]]]:
         """Each reference's closed-loop runs, by ``"<gains> <controller>"`` (``study pid``, ``tuned ff+pid``)."""
         runs: dict[str, dict[str, dict[str, np.ndarray]]] = {}
-        for run in self.responses["runs"]:
-            runs.setdefault(run["reference"], {})[f"{run['gains']} {run['controller']}"] = read_csv_columns(
-                self.out / run["csv"])
+        for run in self.responses.runs:
+            runs.setdefault(run.reference, {})[f"{run.gains} {run.controller}"] = read_csv_columns(self.out / run.csv)
         return runs
 
     def requirements(self) -> tuple[Requirement, ...]:

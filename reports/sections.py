@@ -18,6 +18,8 @@ from matplotlib.figure import Figure
 from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import gains_to_dict
 from piezopreload.artifacts.learning import LearningRecord
+from piezopreload.artifacts.responses import ResponsesRecord
+from piezopreload.artifacts.rigrun import RigRunRecord
 from piezopreload.artifacts.system import SystemRecord
 from piezopreload.artifacts.tuning import TuningRecord
 from piezopreload.reports import figures as F
@@ -395,7 +397,7 @@ def _validation_part(val: Any) -> Part:
 def responses_section(study: ReportStudy, a: Artifacts) -> Part:
     responses = a.responses
     runs = a.response_runs()
-    signal, band = responses["signal"], float(responses["band_N"])
+    signal, band = responses.signal, responses.band_N
     step, traj = levels_text(runs["step"]["tuned pid"]["reference_N"]), levels_text(
         runs["trajectory"]["tuned pid"]["reference_N"])
     labels = {"study": study.gains_label, "tuned": "the tuned gains"}
@@ -404,13 +406,13 @@ def responses_section(study: ReportStudy, a: Artifacts) -> Part:
             f"{signal_name(signal)} against a ±{fmt(band)} N band; tracking errors are those of the true force.")
     tables = [_responses_table(responses, labels)]
     paragraphs = [text]
-    if study.published is not None and responses.get("reproduction"):
+    if study.published is not None and responses.reproduction:
         paragraphs.append(f"The study declares published step numbers ({study.published.source}); they stand beside "
                           f"the same controllers on this plant.")
         tables.insert(0, Table(("controller", "metric", "published", study.gains_label, "tuned gains"),
-                               tuple((CONTROLLER_NAMES[r["controller"]], _METRIC_NAMES[r["metric"]], fmt(r["paper"]),
-                                      _when(r["reproduction"], "", "never").strip(), _when(r["tuned"], "", "never").strip())
-                                     for r in responses["reproduction"]),
+                               tuple((CONTROLLER_NAMES[r.controller], _METRIC_NAMES[r.metric], fmt(r.published),
+                                      _when(r.study, "", "never").strip(), _when(r.tuned, "", "never").strip())
+                                     for r in responses.reproduction),
                                f"Published step numbers ({study.published.source}) against this plant's.", "llrrr"))
     creep = _creep_table(responses, labels)
     if creep is not None:
@@ -427,16 +429,15 @@ def responses_section(study: ReportStudy, a: Artifacts) -> Part:
                 figures)
 
 
-def _responses_table(responses: dict[str, Any], labels: dict[str, str]) -> Table:
+def _responses_table(responses: ResponsesRecord, labels: dict[str, str]) -> Table:
     rows = []
-    for run in responses["runs"]:
-        if run["reference"] != "step":
+    for run in responses.runs:
+        if run.reference != "step":
             continue
-        traj = next(t for t in responses["runs"] if t["reference"] == "trajectory" and t["gains"] == run["gains"]
-                    and t["controller"] == run["controller"])
-        rows.append((labels.get(run["gains"], run["gains"]), CONTROLLER_NAMES[run["controller"]],
-                     _when(run["settling_s"], "", "never").strip(), fmt(run["overshoot_N"]), fmt(traj["tracking_rms_N"]),
-                     fmt(traj["tracking_rms_after_change_N"]), fmt(run["peak_command_V"])))
+        traj = responses.run(run.gains, run.controller, "trajectory")
+        rows.append((labels.get(run.gains, run.gains), CONTROLLER_NAMES[run.controller],
+                     _when(run.settling_s, "", "never").strip(), fmt(run.overshoot_N), fmt(traj.tracking_rms_N),
+                     fmt(traj.tracking_rms_after_change_N), fmt(run.peak_command_V)))
     return Table(("gains", "controller", "settling (s)", "overshoot (N)", "RMS (N)", "RMS after changes (N)",
                   "peak (V)"), tuple(rows),
                  "Each controller on the study's step (settling time, overshoot) and trajectory (RMS error of the true "
@@ -444,18 +445,18 @@ def _responses_table(responses: dict[str, Any], labels: dict[str, str]) -> Table
                  "command.", "llrrrrr")
 
 
-def _creep_table(responses: dict[str, Any], labels: dict[str, str]) -> Table | None:
-    rows_in = responses.get("creep_effect")
+def _creep_table(responses: ResponsesRecord, labels: dict[str, str]) -> Table | None:
+    rows_in = responses.creep_effect
     if not rows_in:
         return None
-    by = {(r["gains"], r["creep"], r["reference"]): r for r in rows_in}
+    by = {(r.gains, r.creep, r.reference): r for r in rows_in}
     rows = []
-    for gains in dict.fromkeys(r["gains"] for r in rows_in):
+    for gains in dict.fromkeys(r.gains for r in rows_in):
         for creep in (False, True):
             s, t = by[(gains, creep, "step")], by[(gains, creep, "trajectory")]
-            rows.append((labels.get(gains, gains), s["feedforward"] + (" with creep" if creep else " without creep"),
-                         _when(s["settling_s"], "", "never").strip(), fmt(s["overshoot_N"]), fmt(t["tracking_rms_N"]),
-                         fmt(t["tracking_rms_after_change_N"])))
+            rows.append((labels.get(gains, gains), s.feedforward + (" with creep" if creep else " without creep"),
+                         _when(s.settling_s, "", "never").strip(), fmt(s.overshoot_N), fmt(t.tracking_rms_N),
+                         fmt(t.tracking_rms_after_change_N)))
     return Table(("gains", "feedforward", "settling (s)", "overshoot (N)", "RMS (N)", "RMS after changes (N)"),
                  tuple(rows), "FF + PID with the feedforward's creep compensation and with the same P-I model refitted "
                               "without creep, on the same noise.", "llrrrr")
@@ -464,41 +465,64 @@ def _creep_table(responses: dict[str, Any], labels: dict[str, str]) -> Table | N
 # --------------------------------------------------------------------------------------
 # exports and the rig run
 # --------------------------------------------------------------------------------------
+def _rig_rows(run: RigRunRecord) -> list[tuple[str, str]]:
+    out = run.summary
+    step = {"c": "compiled C (CasADi codegen)", "numpy": "numpy"}
+    rows = [("status", run.status), ("cycles", str(0 if out is None else out.cycles)),
+            ("controller step", "" if out is None else step.get(out.controller_step, out.controller_step))]
+    m = None if out is None else out.metrics
+    if out is not None and out.trip is None and m is not None:
+        rows += [(label, fmt(value)) for label, value in (("tracking RMS over the reference (N)", m.tracking_rms_N),
+                                                          ("settling time (s)", m.settling_s),
+                                                          ("overshoot (N)", m.overshoot_N)) if value is not None]
+    if run.stall_limit is not None:
+        rows.append(("stall limit (s)", f"{fmt(run.stall_limit.limit_s)} ({run.stall_limit.source})"))
+    if out is not None and run.realtime:
+        rows += [("missed deadlines", str(out.timing.missed_deadlines)), ("stalls", str(out.timing.stalls))]
+    return rows
+
+
+def _host_text(run: RigRunRecord) -> str:
+    host = run.host_check
+    if host is None:
+        return ""
+    accepted = " and was run on anyway (--accept-host)" if run.host_accepted and not host.passed else ""
+    return (f" Before arming, the host check {'passed' if host.passed else 'failed'}{accepted}: wake-up lateness p99 "
+            f"{fmt(1e6 * host.lateness_p99_s)} us, at most {fmt(1e3 * host.lateness_max_s)} ms, against a "
+            f"{fmt(1e3 * host.budget_s)} ms budget.")
+
+
 def rig_section(study: ReportStudy, a: Artifacts) -> Part:
+    """The exports, and the run on the rig executor: how it ended, its figures, its limits and the host check."""
     paragraphs, omitted = [], []
     if a.has("export"):
         exports = [Path(o["path"]).name for o in a.records["export"]["outputs"].values()]
         paragraphs.append("The validated gain set was exported as " + ", ".join(exports) + ".")
     else:
         omitted.append(f"The exports: {a.reason('export')}.")
-    sidecar = a.rig_run
-    if sidecar is None:
+    run = a.rig_run
+    if run is None:
         omitted.append(f"The rig run: {a.reason('rig')}.")
         return Part(Section("Exports and the rig run", tuple(paragraphs), (), (), tuple(omitted)))
-    s = a.summary("rig")
-    trip = sidecar["summary"].get("trip")
-    mode = "real time" if sidecar["realtime"] else "back to back"
-    head = (f"The validated gains ran on the rig executor at {sidecar['rate_Hz']:g} Hz ({mode}) against the "
-            f"'{sidecar['backend']}' backend behind its interlocks, reference {sidecar['reference']}: ")
-    rows = [("status", sidecar["status"]), ("cycles", str(s["cycles"])),
-            ("controller step", {"c": "compiled C (CasADi codegen)", "numpy": "numpy"}.get(s["controller_step"],
-                                                                                         s["controller_step"]))]
-    if trip:
-        paragraphs.append(head + f"it was stopped by the interlock '{trip['cause']}' at t = {fmt(trip['t_s'])} s "
-                                 f"({trip['detail']}); the figures of a completed run do not apply.")
+    mode = "real time" if run.realtime else "back to back"
+    head = (f"The validated gains ran on the rig executor at {run.rate_Hz:g} Hz ({mode}) against the "
+            f"'{run.backend}' backend behind its interlocks (force limit {fmt(run.safety.get('force_max_N', 0.0))} N), "
+            f"reference {run.reference}: ")
+    trip = run.trip
+    if trip is not None:
+        paragraphs.append(head + f"it was stopped by the interlock '{trip.cause}' at t = {fmt(trip.t_s)} s with "
+                                 f"{fmt(trip.voltage_V)} V held ({trip.detail}); the figures of a completed run do "
+                                 "not apply." + _host_text(run))
     else:
-        paragraphs.append(head + f"it completed; the force read tracked the reference within "
-                                 f"{fmt(s['tracking_rms_N'])} N RMS.")
-        rows.append(("tracking RMS over the reference (N)", fmt(s["tracking_rms_N"])))
-        if s.get("settling_s") is not None:
-            rows += [("settling time (s)", fmt(s["settling_s"])), ("overshoot (N)", fmt(s["overshoot_N"]))]
-    if sidecar["realtime"]:
-        rows.append(("missed deadlines", str(s["missed_deadlines"])))
+        m = None if run.summary is None else run.summary.metrics
+        tracking = "" if m is None or m.tracking_rms_N is None else \
+            f"; the force read tracked the reference within {fmt(m.tracking_rms_N)} N RMS"
+        paragraphs.append(head + f"it completed{tracking}." + _host_text(run))
     log = a.csv("rig", "log_csv")
     fig = F.rig_run(log["time_s"], log["reference_N"], log["measured_N"], log["voltage_V"], log["mode"])
-    caption = (f"The validated gains on the rig executor (backend '{sidecar['backend']}', {sidecar['rate_Hz']:g} Hz, "
-               f"{mode}), from its run log; grey, the ramp down to the safe voltage and disarm.")
-    table = Table(("quantity", "value"), tuple(rows), f"The rig run (log {Path(a.path('rig', 'log_csv')).name}).", "lr")
+    caption = (f"The validated gains on the rig executor (backend '{run.backend}', {run.rate_Hz:g} Hz, {mode}), from "
+               "its run log; grey, the ramp down to the safe voltage and disarm.")
+    table = Table(("quantity", "value"), tuple(_rig_rows(run)), f"The rig run (log {run.csv}).", "lr")
     return Part(Section("Exports and the rig run", tuple(paragraphs), (table,), ("rig-run",), tuple(omitted)),
                 (("rig-run", fig, caption),))
 

@@ -10,12 +10,11 @@ from the same artifact field the section that details it reads.
 
 from __future__ import annotations
 
-from typing import Any
-
 from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import gains_to_dict
 from piezopreload.artifacts.learning import LearningRecord
 from piezopreload.artifacts.requirements import missed
+from piezopreload.artifacts.responses import ResponseRun
 from piezopreload.artifacts.system import SystemRecord
 from piezopreload.reports.document import fmt, pct
 from piezopreload.reports.inputs import Artifacts, Published, ReportStudy
@@ -44,7 +43,7 @@ def summary(study: ReportStudy, a: Artifacts) -> tuple[str, ...]:
     lines.append(_controller_line(a))
     lines.append(_step_line(study, a))
     lines.append(_rig_line(a))
-    if study.published is not None and a.responses.get("reproduction"):
+    if study.published is not None and a.responses.reproduction:
         lines.append(_published_line(study.published, study.gains_label, a))
     return tuple(lines)
 
@@ -87,34 +86,34 @@ def _controller_line(a: Artifacts) -> str:
 
 def _step_line(study: ReportStudy, a: Artifacts) -> str:
     responses = a.responses
-    by = {(r["gains"], r["controller"], r["reference"]): r for r in responses["runs"]}
     runs = a.response_runs()
     step = levels_text(runs["step"]["tuned ff+pid"]["reference_N"])
-    tuned, start = by[("tuned", "ff+pid", "step")], by[("study", "ff+pid", "step")]
+    tuned, start = responses.run("tuned", "ff+pid", "step"), responses.run("study", "ff+pid", "step")
 
-    def settle(r: dict[str, Any]) -> str:  # the subject is a gain set, named in the plural ("the tuned gains")
-        return "do not settle" if r["settling_s"] is None else f"settle in {fmt(r['settling_s'])} s"
+    def settle(r: ResponseRun) -> str:  # the subject is a gain set, named in the plural ("the tuned gains")
+        return "do not settle" if r.settling_s is None else f"settle in {fmt(r.settling_s)} s"
 
     return (f"On the study's {step} step with the feedforward, the tuned gains {settle(tuned)} (overshoot "
-            f"{fmt(tuned['overshoot_N'])} N) and {study.gains_label} {settle(start)} ({signal_name(responses['signal'])}, "
-            f"±{fmt(responses['band_N'])} N band).")
+            f"{fmt(tuned.overshoot_N)} N) and {study.gains_label} {settle(start)} ({signal_name(responses.signal)}, "
+            f"±{fmt(responses.band_N)} N band).")
 
 
 def _rig_line(a: Artifacts) -> str:
-    sidecar = a.rig_run
-    if sidecar is None:
+    run = a.rig_run
+    if run is None:
         return f"The rig run did not take place: {a.reason('rig')}."
-    trip = sidecar["summary"].get("trip")
-    head = f"On the rig executor ('{sidecar['backend']}' backend, {'real time' if sidecar['realtime'] else 'back to back'})"
-    if trip:
-        return f"{head} the run was stopped by the interlock '{trip['cause']}' at t = {fmt(trip['t_s'])} s."
-    return f"{head} the validated gains completed the run, tracking within {fmt(a.summary('rig')['tracking_rms_N'])} N RMS."
+    head = f"On the rig executor ('{run.backend}' backend, {'real time' if run.realtime else 'back to back'})"
+    if run.trip is not None:
+        return f"{head} the run was stopped by the interlock '{run.trip.cause}' at t = {fmt(run.trip.t_s)} s."
+    m = None if run.summary is None else run.summary.metrics
+    tracking = "" if m is None or m.tracking_rms_N is None else f", tracking within {fmt(m.tracking_rms_N)} N RMS"
+    return f"{head} the validated gains completed the run{tracking}."
 
 
 def _published_line(published: Published, gains_label: str, a: Artifacts) -> str:
-    rows = {(r["controller"], r["metric"]): r for r in a.responses["reproduction"]}
+    rows = {(r.controller, r.metric): r for r in a.responses.reproduction}
     r = rows[("ff+pid", "settling_s")]
-    got = "never settle" if r["reproduction"] is None else f"settle in {fmt(r['reproduction'])} s"
-    tuned = "never settles" if r["tuned"] is None else f"{fmt(r['tuned'])} s"
-    return (f"Published ({published.source}): the FF + PID step settles in {fmt(r['paper'])} s; on this plant "
+    got = "never settle" if r.study is None else f"settle in {fmt(r.study)} s"
+    tuned = "never settles" if r.tuned is None else f"{fmt(r.tuned)} s"
+    return (f"Published ({published.source}): the FF + PID step settles in {fmt(r.published)} s; on this plant "
             f"{gains_label} {got}, the tuned gains {tuned}.")

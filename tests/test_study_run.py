@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.cli import main
 from piezopreload.core.artifacts import read_artifact
 from piezopreload.core.errors import InputError
@@ -79,10 +80,11 @@ def test_the_small_study_runs_every_stage_and_leaves_its_artifacts(small_run):
 def test_the_compare_stage_reproduces_what_reproduce_prints(small_run):
     """The paper's gains in the report's table == ``piezopreload reproduce`` (its own feedforward identification)."""
     out = small_run[0]
-    rows = read_artifact(out / "responses" / "responses.json", "responses")["reproduction"]
+    rows = ResponsesRecord.load(out / "responses" / "responses.json").reproduction
     ref = {(r["controller"], r["metric"]): r["simulated"] for r in load_study(SMALL).reproduce()["rows"]}
+    assert len(rows) == len(ref) == 6
     for r in rows:
-        assert r["reproduction"] == pytest.approx(ref[(r["controller"], r["metric"])], abs=1e-12)
+        assert r.study == pytest.approx(ref[(r.controller, r.metric)], abs=1e-12)
 
 
 def test_the_pdf_holds_its_pages_tables_and_figures(small_run):
@@ -96,10 +98,9 @@ def test_the_pdf_holds_its_pages_tables_and_figures(small_run):
     squeezed = text.replace(" ", "")
 
     # the tables' numbers, formatted here from the artifacts (3 significant digits, 4 for gains)
-    responses = read_artifact(out / "responses" / "responses.json", "responses")
-    for r in responses["reproduction"]:
-        for col in ("paper", "reproduction", "tuned"):
-            assert f"{r[col]:.3g}" in text, (r, col)
+    for r in ResponsesRecord.load(out / "responses" / "responses.json").reproduction:
+        for col in (r.published, r.study, r.tuned):
+            assert f"{col:.3g}" in text, (r, col)
     gains = read_artifact(out / "gains.json", "gain-set")
     g = gains["gains"]
     for value in (g["Kc_V_per_N"], g["Ti_s"], g["Td_s"], g["labview"]["Ti_min"], g["labview"]["Td_min"]):
@@ -320,19 +321,19 @@ def test_a_study_asking_for_creep_compensates_it_and_reports_what_it_buys(creep_
     gains = GainSet.load(out / "gains.json")
     assert gains.feedforward is not None and gains.feedforward.kind == "modified+creep"
     assert "PP_CREEP_TIME_CONSTANTS_S" in (out / "exports" / "pp_gains.h").read_text()
-    responses = read_artifact(out / "responses" / "responses.json", "responses")
-    rows = {(r["gains"], r["creep"], r["reference"]): r for r in responses["creep_effect"]}
+    responses = ResponsesRecord.load(out / "responses" / "responses.json")
+    rows = {(r.gains, r.creep, r.reference): r for r in responses.creep_effect}
     assert set(rows) == {(g, c, ref) for g in ("study", "tuned") for c in (False, True) for ref in ("step", "trajectory")}
-    runs = {(r["gains"], r["reference"]): r for r in responses["runs"] if r["controller"] == "ff+pid"}
+    runs = {(r.gains, r.reference): r for r in responses.runs if r.controller == "ff+pid"}
     for (g, ref), r in runs.items():  # with creep, the comparison is the compare stage's own FF + PID run
         for key in ("settling_s", "overshoot_N", "tracking_rms_N"):
-            assert rows[(g, True, ref)][key] == pytest.approx(r[key], abs=1e-12), (g, ref, key)
+            assert getattr(rows[(g, True, ref)], key) == pytest.approx(getattr(r, key), abs=1e-12), (g, ref, key)
     # the rig's truth creeps: compensating it settles the paper's FF + PID step sooner
-    assert rows[("study", True, "step")]["settling_s"] < rows[("study", False, "step")]["settling_s"]
+    assert rows[("study", True, "step")].settling_s < rows[("study", False, "step")].settling_s
     _, text = _pdf_text(out / "report.pdf")
     assert "modified+creep" in text and "refitted without creep" in text
     for g in ("study", "tuned"):
-        assert f"{rows[(g, False, 'step')]['settling_s']:.3g}" in text, g
+        assert f"{rows[(g, False, 'step')].settling_s:.3g}" in text, g
 
 
 def test_the_feedforward_kind_and_creep_keys_are_checked(tmp_path, capsys):

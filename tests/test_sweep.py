@@ -25,6 +25,7 @@ import pytest
 from matplotlib.figure import Figure
 
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.sweep import EXIT_POINT_FAILED, PointFigures, SweepAxis, SweepPoint, SweepRecord
 from piezopreload.cli import main
 from piezopreload.core.artifacts import read_artifact
@@ -370,10 +371,8 @@ def test_the_rows_hold_each_points_figures_as_its_artifacts_say(grid_sweep, tmp_
         assert row["worst_settling_s"] == worst.settling_s
         assert row["worst_overshoot_N"] == worst.overshoot_N
         assert row["validation_plants"] == p.values["validation.plants"] == gain_set.validation.n_plants
-        responses = read_artifact(out / p.folder / "responses" / "responses.json", "responses")
-        step = next(r for r in responses["runs"] if (r["gains"], r["controller"], r["reference"]) ==
-                    ("tuned", "ff+pid", "step"))
-        assert row["tuned_settling_s"] == step["settling_s"]
+        step = ResponsesRecord.load(out / p.folder / "responses" / "responses.json").run("tuned", "ff+pid", "step")
+        assert row["tuned_settling_s"] == step.settling_s
         assert row["rig_status"] == "completed" and row["requirements_met"] is True  # the validation's limits
         assert row["tracking_rms_pct_of_range"] is None, "the small study has no whole system"
     # the last point run alone, without the store: the same numbers (sharing changes no result)

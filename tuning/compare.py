@@ -13,6 +13,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from piezopreload.artifacts.responses import CreepRow, ReproductionRow
 from piezopreload.artifacts.tuning import ComparisonRow
 from piezopreload.artifacts.validation import Criteria
 from piezopreload.core.artifacts import finite_or_none
@@ -101,7 +102,7 @@ def responses(rig: RigParams, references: dict[str, Reference], candidates: dict
 
 def creep_effect(rig: RigParams, references: dict[str, Reference], candidates: dict[str, PIDGains],
                  with_creep: FeedforwardModel, without_creep: FeedforwardModel, *, seed: int, band_N: float,
-                 signal: str, after_change_s: float) -> list[dict[str, Any]]:
+                 signal: str, after_change_s: float) -> list[CreepRow]:
     """FF + PID with the feedforward's creep compensation and with the same model refitted without creep.
 
     One row per gains, feedforward and reference, on one noise draw (``seed``, the same for both):
@@ -111,21 +112,22 @@ def creep_effect(rig: RigParams, references: dict[str, Reference], candidates: d
     for creep, model in ((False, without_creep), (True, with_creep)):
         for r in responses(rig, references, candidates, model, seed=seed, band_N=band_N, signal=signal,
                            after_change_s=after_change_s, controllers=("ff+pid",)):
-            rows.append({"gains": r.gains, "creep": creep, "feedforward": model.kind, "reference": r.reference,
-                         **r.numbers})
+            n = r.numbers
+            rows.append(CreepRow(r.gains, creep, model.kind, r.reference, n.get("settling_s"), n.get("overshoot_N"),
+                                 n.get("tracking_rms_N"), n.get("tracking_rms_after_change_N")))
     return rows
 
 
 def reproduction(runs: list[Response], published: dict[str, dict[str, float]],
-                 reference: str = "step") -> list[dict[str, Any]]:
+                 reference: str = "step") -> list[ReproductionRow]:
     """Published step numbers (by controller and metric: a study's ``[published]``) beside the study's and the tuned
     gains' on its plant, per controller and metric."""
     rows = []
     for controller in CONTROLLERS:
         for metric in ("rise_s", "peak_s", "settling_s"):
             got = {r.gains: r.numbers[metric] for r in runs if r.controller == controller and r.reference == reference}
-            rows.append({"controller": controller, "metric": metric, "paper": published[controller][metric],
-                         "reproduction": got["study"], "tuned": got["tuned"]})
+            rows.append(ReproductionRow(controller, metric, published[controller][metric], got["study"],
+                                        got["tuned"]))
     return rows
 
 
