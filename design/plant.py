@@ -28,12 +28,13 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+from piezopreload.artifacts.design import DesignPoint
 from piezopreload.artifacts.plant import DesignedPlant
 from piezopreload.core.errors import InputError
-from piezopreload.design.preload import DesignOptimum, DesignPoint, DesignSpec
+from piezopreload.design.preload import DesignOptimum, DesignSpec
 from piezopreload.models.actuator import RigParams, bouc_wen_increment
 
-__all__ = ["DesignedPlant", "plant_from_design", "DESIGNED_FIELDS"]
+__all__ = ["plant_from_design", "DESIGNED_FIELDS"]
 
 #: the rig parameters the design sets (:func:`plant_from_design`); the others come from the study's hardware table
 DESIGNED_FIELDS = ("stack", "n_stacks", "amp_current_limit_A", "stroke_um_per_V", "coupling_stiffness_N_per_um",

@@ -90,7 +90,7 @@ from piezopreload.models.ballscrew import (
 from piezopreload.models.feed_drive import FeedDrive, PiezoPreload, stack_loop_um
 from piezopreload.models.ops import CASADI, NUMPY
 
-__all__ = ["DesignSpec", "DesignPoint", "DesignOptimum", "DesignInfeasible", "ParetoFront", "OBJECTIVES",
+__all__ = ["DesignSpec", "DesignOptimum", "DesignInfeasible", "ParetoFront", "OBJECTIVES",
            "PARETO_PAIRS", "CONSTRAINTS", "WEIGHTS", "optimise", "pareto_front", "DesignNLP"]
 
 OBJECTIVES = ("stiffness", "drag", "life")

@@ -50,7 +50,7 @@ from piezopreload.artifacts.schedule import LoadProfile, PreloadSchedule, Schedu
 from piezopreload.models.ballscrew import LIFT_OFF_RATIO, BallScrew, _rigidity, nut_forces
 from piezopreload.models.ops import CASADI
 
-__all__ = ["LoadProfile", "ScheduleSpec", "PreloadSchedule", "schedule_preload", "least_preload", "example_profile"]
+__all__ = ["schedule_preload", "least_preload", "example_profile"]
 
 Array = NDArray[np.float64]
 

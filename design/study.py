@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from piezopreload.artifacts.design import DesignRecord, DutyCasePoint, FrequencyCurve, Front, Optimum, PreloadCurve
+from piezopreload.artifacts.schedule import LoadProfile, PreloadSchedule, ScheduleSpec
 from piezopreload.core.artifacts import atomic_write_text
 from piezopreload.core.errors import InputError
 from piezopreload.core.tables import read_table
@@ -33,7 +34,7 @@ from piezopreload.design.preload import (
     optimise,
     pareto_front,
 )
-from piezopreload.design.schedule import LoadProfile, PreloadSchedule, ScheduleSpec, example_profile, schedule_preload
+from piezopreload.design.schedule import example_profile, schedule_preload
 from piezopreload.models.ballscrew import BallScrew, DutyCase, hiwin_loaded_nut_force, lift_off_load_N
 from piezopreload.models.feed_drive import FeedDrive, PiezoPreload
 

@@ -15,10 +15,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from piezopreload.artifacts.design import DesignPoint
+from piezopreload.artifacts.plant import DesignedPlant
+from piezopreload.artifacts.schedule import PreloadSchedule
 from piezopreload.core.config import Invalid, Table, key
-from piezopreload.design.plant import DesignedPlant, plant_from_design
-from piezopreload.design.preload import OBJECTIVES, PARETO_PAIRS, DesignPoint, DesignSpec
-from piezopreload.design.schedule import PreloadSchedule
+from piezopreload.design.plant import plant_from_design
+from piezopreload.design.preload import OBJECTIVES, PARETO_PAIRS, DesignSpec
 from piezopreload.design.system import SystemRun, track_schedule
 from piezopreload.models.actuator import RigParams
 from piezopreload.models.controller import Controller

@@ -42,15 +42,16 @@ from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from piezopreload.artifacts.design import DesignRecord
+from piezopreload.artifacts.design import DesignPoint, DesignRecord
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.plant import DesignedPlant
+from piezopreload.artifacts.schedule import PreloadSchedule
 from piezopreload.artifacts.validation import Criteria
 from piezopreload.core.config import Invalid, Lines, Table, read_toml, toml_text
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.tables import Record, read_record
-from piezopreload.design.plant import DESIGNED_FIELDS, DesignedPlant
-from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignPoint, DesignSpec, optimise
-from piezopreload.design.schedule import PreloadSchedule
+from piezopreload.design.plant import DESIGNED_FIELDS
+from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignSpec, optimise
 from piezopreload.design.study import DesignResult, design_spec_from_tables, design_study, plan_schedule, read_profile
 from piezopreload.design.system import SystemRun
 from piezopreload.design.tables import BallscrewTable, DesignTable, DutyTable, FeedDriveTable, PlantTable, ScheduleTable

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
+from piezopreload.artifacts.schedule import LoadProfile, ScheduleSpec
 from piezopreload.cli import main
 from piezopreload.design.preload import (
     OBJECTIVES,
@@ -22,7 +23,7 @@ from piezopreload.design.preload import (
     optimise,
     pareto_front,
 )
-from piezopreload.design.schedule import LoadProfile, ScheduleSpec, example_profile, schedule_preload
+from piezopreload.design.schedule import example_profile, schedule_preload
 from piezopreload.models.ballscrew import LIFT_OFF_RATIO, BallScrew
 
 

@@ -11,7 +11,8 @@ from piezopreload.artifacts.validation import Criteria
 from piezopreload.models.actuator import RigParams
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import PIDGains
-from piezopreload.tuning.pid import TuningSpec, _small_signal_gains
+from piezopreload.tuning.linearised import small_signal_gains
+from piezopreload.tuning.pid import TuningSpec
 from piezopreload.tuning.schedule import (
     choose,
     level_windows,
@@ -61,8 +62,8 @@ def test_a_window_s_slopes_are_the_hertz_coupling_s_there():
     """TuningSpec.force_range_N: the linearised loop's slopes at the window's ends, from the coupling's own
     local stiffness (stroke per volt times it; Bouc-Wen's alpha and kappa as over the whole stroke)."""
     rig = _hertz_rig()
-    whole = _small_signal_gains(rig)
-    lo, hi = _small_signal_gains(rig, (40.0, 60.0))
+    whole = small_signal_gains(rig)
+    lo, hi = small_signal_gains(rig, (40.0, 60.0))
     k = np.asarray(rig.local_stiffness_N_per_um(np.array([40.0, 60.0]) - rig.bolt_preload_N)) * rig.stroke_um_per_V
     assert lo == pytest.approx(k[0] * (1 - rig.bw_alpha), rel=1e-12)
     assert hi == pytest.approx(k[1] * (1 + 2 * rig.bw_kappa * 1.1), rel=1e-12)

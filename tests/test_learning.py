@@ -19,7 +19,7 @@ from piezopreload.tuning import learning as L
 from piezopreload.tuning import lifted as LI
 from piezopreload.tuning import norm_optimal as NO
 from piezopreload.tuning import preview as P
-from piezopreload.tuning.pid import tracking_floor
+from piezopreload.tuning.bounds import tracking_floor
 
 TRAJECTORY = Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 1.0, t_start_s=0.5)
 

@@ -2,7 +2,7 @@
 
 A learned signal ``u`` enters the loop as ``ff_extra`` (added to the feedforward, before the
 clamp); the system it drives is the closed loop from ``ff_extra`` to the force. One loop step
-(:func:`~piezopreload.tuning.pid.tuning_loop`: the rig's step with its corners rounded, the PID;
+(:func:`~piezopreload.tuning.horizon.tuning_loop`: the rig's step with its corners rounded, the PID;
 the inverse-P-I feedforward depends on the setpoint alone and drops out of the response to
 ``ff_extra``) is linearised by CasADi at rest at a voltage (:func:`linearise_loop`, one
 :class:`LoopLinearisation` per voltage and plant: the force and the command as outputs, and the
@@ -34,7 +34,7 @@ from piezopreload.models.actuator import RigParams
 from piezopreload.models.controller import Controller
 from piezopreload.models.loop import LoopModel, step_function
 from piezopreload.models.ops import NUMPY
-from piezopreload.tuning.pid import tuning_loop
+from piezopreload.tuning.horizon import tuning_loop
 from piezopreload.tuning.preview import advance
 
 __all__ = ["METHODS", "LoopLinearisation", "linearise_loop", "LearningModel", "learning_model", "learning_model_over",

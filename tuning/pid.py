@@ -52,7 +52,6 @@ from piezopreload.models.closedloop import PAPER_BAND_N, Reference
 from piezopreload.models.controller import PIDGains
 from piezopreload.models.hysteresis import InverseClassicalPI
 from piezopreload.models.ops import Layout
-from piezopreload.tuning.bounds import tracking_floor
 from piezopreload.tuning.fopdt import FOPDT, fit_fopdt, simc
 from piezopreload.tuning.horizon import ROWS, Horizon, TimeDomain, feedforward_sequence, loop_rows, tuning_loop
 from piezopreload.tuning.linearised import max_sensitivity, omega_grid, plant_frequency_response, small_signal_gains
@@ -68,12 +67,6 @@ __all__ = [
     "ENGINES",
     "SEARCH_BOX",
 ]
-
-# re-exported where the tuner was split (tuning.horizon, tuning.bounds, tuning.linearised) for the floor's
-# modules and tests that import them from here: tuning.learning, the gain schedule's tests
-_REEXPORTED = (tuning_loop, tracking_floor)
-_small_signal_gains = small_signal_gains
-
 
 class TuningInfeasible(InfeasibleError):
     """The specification cannot be met; the message names the binding constraints."""

@@ -2,7 +2,7 @@
 
 A planned reference is known ahead. With a preview horizon ``P`` (``p`` samples) the controller may
 start a change before it is due. What it can gain is bounded by the argument
-:func:`~piezopreload.tuning.pid.tracking_floor` makes for a causal controller: the force moves at most
+:func:`~piezopreload.tuning.bounds.tracking_floor` makes for a causal controller: the force moves at most
 ``rate`` per second (the amplifier's slew times the steepest slope of force over voltage), and it
 cannot leave its level before the command that knows of the change has come through the delay.
 Without preview that is ``delay`` samples after the jump; with preview ``p - delay`` samples
@@ -34,7 +34,7 @@ from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Rig, RigParams, reach_N
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import Controller
-from piezopreload.tuning.pid import tracking_floor
+from piezopreload.tuning.bounds import tracking_floor
 
 __all__ = ["AFTER_CHANGE_S", "PLAN_SLEW_FRACTION", "advance", "PreviewPlan", "Preview", "plan_preview",
            "default_preview_s", "feedforward_lead", "branch_ramps", "preview_plan", "ramp_plan", "causal_floor",
@@ -150,7 +150,7 @@ def preview_plan(params: RigParams, reference: Reference, preview_s: float, *, u
                  after_change_weight: float = 0.0) -> PreviewPlan:
     """The preview floor and the planned force (see the module docstring).
 
-    Per jump the force ramps at ``rate`` (:func:`~piezopreload.tuning.pid.tracking_floor`'s)
+    Per jump the force ramps at ``rate`` (:func:`~piezopreload.tuning.bounds.tracking_floor`'s)
     from a last sample at the old level ``s`` samples after the jump, ``s`` searched over
     ``[lead - p, lead]`` (``p`` the preview in samples; ``lead`` the delay, the default, for the
     floor, or :func:`feedforward_lead` for the plan a controller can follow); the levels are held
@@ -229,7 +229,7 @@ def ramp_plan(params: RigParams, reference: Reference, preview_s: float, *, u_ma
     it, the best the loop can do is extrapolate the reference's last known slope over the
     ``d = lead - p`` samples it does not know, ``r[k - d] + d (r[k - d] - r[k - d - 1])``. The plan
     is held inside the force the voltage range reaches and, where the reference is steeper than
-    :func:`~piezopreload.tuning.pid.tracking_floor`'s rate, moves toward it at that rate. Its RMS
+    :func:`~piezopreload.tuning.bounds.tracking_floor`'s rate, moves toward it at that rate. Its RMS
     error against the reference (from the first point on, as ``tracking_error`` scores) is the
     floor; with ``p = 0`` the causal floor of a ramped reference (:func:`causal_floor`).
     """
@@ -258,7 +258,7 @@ def ramp_plan(params: RigParams, reference: Reference, preview_s: float, *, u_ma
 
 
 def causal_floor(params: RigParams, reference: Reference) -> float:
-    """The causal floor (RMS, N) of ``reference``: :func:`~piezopreload.tuning.pid.tracking_floor` over a
+    """The causal floor (RMS, N) of ``reference``: :func:`~piezopreload.tuning.bounds.tracking_floor` over a
     held reference's jumps, the extrapolated slope's lag (:func:`ramp_plan` without preview) on a ramped one."""
     if reference.interpolation == "hold":
         return float(tracking_floor(params, reference)["rms_N"])
