@@ -66,8 +66,8 @@ class ResponseRun:
     def from_dict(cls, doc: Any, where: str) -> ResponseRun:
         if not isinstance(doc, dict):
             raise ArtifactError(f"{where}: expected an object")
-        return cls(*(_text(doc, k, where) for k in ("gains", "controller", "reference", "csv")),
-                   **{k: _optional_number(doc, k, where) for k in RESPONSE_FIGURES})
+        gains, controller, reference, csv = (_text(doc, k, where) for k in ("gains", "controller", "reference", "csv"))
+        return cls(gains, controller, reference, csv, **{k: _optional_number(doc, k, where) for k in RESPONSE_FIGURES})
 
 
 @dataclass(frozen=True)
@@ -160,9 +160,12 @@ class ResponsesRecord:
             raise ArtifactError(f"{where}: field 'band_N' must be a number > 0, got {band!r}")
         if isinstance(seed, bool) or not isinstance(seed, int):
             raise ArtifactError(f"{where}: field 'seed' must be an integer, got {seed!r}")
+        inputs = doc.get("inputs") or {}
+        if not isinstance(inputs, dict):
+            raise ArtifactError(f"{where}: field 'inputs' must be an object, got {inputs!r}")
         return cls(_rows(doc, "runs", ResponseRun, where), float(band), _text(doc, "signal", where), seed,
                    _rows(doc, "reproduction", ReproductionRow, where, True),
-                   _rows(doc, "creep_effect", CreepRow, where, True), dict(doc.get("inputs") or {}))
+                   _rows(doc, "creep_effect", CreepRow, where, True), dict(inputs))
 
     def save(self, path: str | Path) -> Path:
         """Write ``responses.json`` atomically."""

@@ -20,6 +20,7 @@ from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.hysteresis import DataSource, FitError, IdentifiedModel, SolverReport, Units
 from piezopreload.artifacts.learned import KIND as LEARNED
 from piezopreload.artifacts.learned import LearnedSignal
+from piezopreload.artifacts.responses import CreepRow, ReproductionRow, ResponseRun, ResponsesRecord
 from piezopreload.cli import main
 from piezopreload.core.artifacts import write_artifact
 from piezopreload.core.errors import ArtifactError, PiezopreloadError
@@ -293,3 +294,31 @@ def test_the_mutations_reach_the_readers_checks(study):
     doc[key][1] = math.nan
     with pytest.raises(PiezopreloadError, match=key):
         Reference.from_dict(doc)
+
+
+def _responses_record():
+    runs = tuple(ResponseRun(g, c, ref, f"responses/{g}_{c}_{ref}.csv", settling_s=None if g == "study" else 0.05,
+                             overshoot_N=1.5, tracking_rms_N=2.0)
+                 for g in ("study", "tuned") for c in ("pid", "ff+pid") for ref in ("step", "trajectory"))
+    return ResponsesRecord(runs, 1.5, "measured", 7, (ReproductionRow("ff+pid", "settling_s", 0.06, None, 0.05),),
+                           (CreepRow("tuned", True, "modified+creep", "step", 0.05, 1.5, 2.0, 1.0),), {"seed": 7})
+
+
+def test_the_responses_record_round_trips_and_finds_its_runs(tmp_path):
+    record = _responses_record()
+    back = ResponsesRecord.load(record.save(tmp_path / "responses.json"))
+    assert back == record
+    assert back.run("tuned", "ff+pid", "step").settling_s == 0.05 and back.run("study", "pid", "step").settling_s is None
+    with pytest.raises(ArtifactError, match="no run of tuned pid on the ramp"):
+        back.run("tuned", "pid", "ramp")
+    doc = record.to_dict()
+    for key, value in (("inputs", [1]), ("band_N", 0), ("runs", {}), ("seed", 1.5)):
+        with pytest.raises(ArtifactError, match=f"'{key}'"):
+            ResponsesRecord.from_dict({**doc, key: value})
+
+
+@FAST
+@given(data=st.data())
+def test_responses_record_reader(data):
+    _refused_cleanly(ResponsesRecord.from_dict, data.draw(mutated(_responses_record().to_dict())))
+    _refused_cleanly(ResponsesRecord.from_dict, data.draw(st.dictionaries(st.text(max_size=6), json_values)))
