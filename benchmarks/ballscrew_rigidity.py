@@ -1,7 +1,8 @@
 """The double-nut rigidity model against the catalogue rows, and its two constants left out.
 
 Reads ``tests/data/ballscrew_rigidity.csv`` (sources: ``tests/data/ballscrew_rigidity_sources.toml``)
-through the tests' one reader of it, and prints:
+through the one reader of catalogue tables, ``piezopreload.design.catalogue`` (the tests use it too),
+and prints:
 
 * every row: the model's rigidity at the row's preload, the catalogue's, the error, and the
   paper's eq. (13) (Hertz only, all balls, rigid nut and screw) beside it;
@@ -21,14 +22,11 @@ The last line printed is one JSON object. Run from the repository root:
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-
-from ballscrew_catalogue import (
+from piezopreload.design.catalogue import (
     checked,
     error_stats,
     first_order_body_error,
@@ -37,12 +35,14 @@ from ballscrew_catalogue import (
     largest_lambda_L,
     load_rows,
 )
-
 from piezopreload.models.ballscrew import ACCURACY_FACTOR_P5, EFFECTIVE_BALL_SHARE
+
+#: the repository's catalogue table (a data file of the tests, which check the same rows)
+CATALOGUE = Path(__file__).resolve().parent.parent / "tests" / "data" / "ballscrew_rigidity.csv"
 
 
 def main() -> dict:
-    rows = load_rows()
+    rows = load_rows(CATALOGUE)
     good = checked(rows)
     print(f"{'row':32s} {'source':15s} {'d':>4s} {'P':>3s} {'D_w':>6s} {'i':>4s} {'F_p/C':>6s} "
           f"{'catalogue':>9s} {'model':>7s} {'error':>7s} {'eq.(13)':>8s}")

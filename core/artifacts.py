@@ -158,14 +158,19 @@ def read_artifact(path: str | Path, kind: str) -> dict[str, Any]:
     return parse_artifact(text, kind, shown)
 
 
-def parse_artifact(text: str, kind: str, shown: str = "the document") -> dict[str, Any]:
-    """:func:`read_artifact` on a document's text (pushed over a network, say); ``shown`` names it in errors."""
+def _json_object(text: str, shown: str) -> dict[str, Any]:
+    """The JSON object ``text`` holds; :class:`ArtifactError` when it is not JSON or not an object."""
     try:
         doc = json.loads(text)  # NaN and Infinity parse to floats; _first_non_finite names them
     except json.JSONDecodeError as exc:
         raise ArtifactError(f"{shown}:{exc.lineno}: not valid JSON ({exc.msg})") from None
     if not isinstance(doc, dict):
         raise ArtifactError(f"{shown}: expected a JSON object at the top level")
+    return doc
+
+
+def _check_schema(doc: dict[str, Any], kind: str, shown: str) -> None:
+    """The document's ``schema`` must be this version's schema of ``kind``."""
     schema = doc.get("schema")
     expected = schema_name(kind)
     if not isinstance(schema, str) or not schema.startswith("piezopreload/"):
@@ -175,19 +180,35 @@ def parse_artifact(text: str, kind: str, shown: str = "the document") -> dict[st
         if got_kind != kind:
             raise ArtifactError(f"{shown}: this is a '{got_kind}' artifact; expected a '{kind}' ({expected})")
         raise ArtifactError(f"{shown}: schema '{schema}' is not supported by this version; expected '{expected}'")
+
+
+def _check_fields(doc: dict[str, Any], kind: str, shown: str) -> None:
+    """Every field a ``kind`` needs is there, and every number is finite."""
     for name in KINDS[kind]:
         if name not in doc:
             raise ArtifactError(f"{shown}: field '{name}' is missing")
     bad = _first_non_finite(doc, "")
     if bad is not None:
         raise ArtifactError(f"{shown}: field '{bad.lstrip('.')}' is not a finite number; artifacts hold finite numbers only")
+
+
+def _check_hash(doc: dict[str, Any], kind: str, shown: str) -> None:
+    """A hashed ``kind`` carries the hash of its content as it was written."""
+    stored = doc.get(HASH_FIELD)
+    if not isinstance(stored, str):
+        raise ArtifactError(f"{shown}: field '{HASH_FIELD}' is missing; a {kind} must carry the hash it was written with")
+    if stored != content_hash(doc):
+        raise ArtifactError(f"{shown}: the content does not match its '{HASH_FIELD}': the file was changed after it "
+                            f"was written; regenerate it with 'piezopreload {_WRITER.get(kind, 'tune')}'")
+
+
+def parse_artifact(text: str, kind: str, shown: str = "the document") -> dict[str, Any]:
+    """:func:`read_artifact` on a document's text (pushed over a network, say); ``shown`` names it in errors."""
+    doc = _json_object(text, shown)
+    _check_schema(doc, kind, shown)
+    _check_fields(doc, kind, shown)
     if kind in HASHED:
-        stored = doc.get(HASH_FIELD)
-        if not isinstance(stored, str):
-            raise ArtifactError(f"{shown}: field '{HASH_FIELD}' is missing; a {kind} must carry the hash it was written with")
-        if stored != content_hash(doc):
-            raise ArtifactError(f"{shown}: the content does not match its '{HASH_FIELD}': the file was changed after it "
-                                f"was written; regenerate it with 'piezopreload {_WRITER.get(kind, 'tune')}'")
+        _check_hash(doc, kind, shown)
     return doc
 
 

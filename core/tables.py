@@ -136,6 +136,80 @@ def _csv_lines(path: str | Path) -> tuple[bytes, list[tuple[int, str]]]:
                  if line.strip() and not line.lstrip().startswith("#")]
 
 
+def _number(cell: str, shown: str, no: int, label: str, hint: str = "") -> float:
+    """The finite number in ``cell``; else :class:`InputError` naming the line and ``label`` (the column)."""
+    try:
+        value = float(cell)
+    except ValueError:
+        raise InputError(f"{shown}:{no}: {label} holds '{cell}', which is not a number") from None
+    if not math.isfinite(value):
+        raise InputError(f"{shown}:{no}: {label} is {cell}; every value must be finite{hint}")
+    return value
+
+
+def _first_not_increasing(values: NDArray[np.float64]) -> int | None:
+    """The index of the first value that is not above the one before it, or None."""
+    bad = np.flatnonzero(np.diff(values) <= 0)
+    return int(bad[0]) + 1 if bad.size else None
+
+
+def _resolve_columns(columns: dict[str, ColumnSpec], names: list[str], header_no: int,
+                     shown: str) -> dict[str, ColumnSpec]:
+    """Each role's column found in the header ``names``: by header name or by index, with its name."""
+    resolved = {}
+    for role, spec in columns.items():
+        if spec.header is not None:
+            if spec.header not in names:
+                raise InputError(
+                    f"{shown}:{header_no}: no column named '{spec.header}' for {role}; the header has {names}"
+                )
+            resolved[role] = ColumnSpec(role, names.index(spec.header), None, spec.name)
+        elif spec.index is not None:
+            if spec.index >= len(names):
+                raise InputError(
+                    f"{shown}:{header_no}: column {spec.index} for {role} does not exist; the header has "
+                    f"{len(names)} columns (indices are 0-based)"
+                )
+            resolved[role] = ColumnSpec(role, spec.index, None, spec.name or names[spec.index])
+    return resolved
+
+
+def _record_columns(lines: list[tuple[int, str]], columns: dict[str, ColumnSpec] | None, header: bool,
+                    shown: str) -> tuple[list[tuple[int, str]], dict[str, ColumnSpec]]:
+    """The data lines and the columns of the roles: from the header line, or as ``columns`` gives them."""
+    if header:
+        header_no, header_line = lines[0]
+        names = [h.strip() for h in header_line.split(",")]
+        if columns is None:
+            columns = _default_specs(names, shown)
+        return lines[1:], _resolve_columns(columns, names, header_no, shown)
+    if columns is None:
+        raise InputError(f"{shown}: a file without a header needs --columns time=I,input=J,output=K")
+    for role, spec in columns.items():
+        if spec.index is None:
+            raise InputError(f"--columns: {role}={spec.header} names a header column, but --no-header was given")
+    return lines, columns
+
+
+def _record_rows(lines: list[tuple[int, str]], order: list[ColumnSpec], shown: str) -> NDArray[np.float64]:
+    """The time, input and output of every data line, as the columns of an array."""
+    index = [int(s.index) for s in order if s.index is not None]  # resolved: every role has its index
+    width = max(index) + 1
+    labels = [f"{spec.role} column '{spec.name or f'column {spec.index}'}'" for spec in order]
+    data = np.empty((len(lines), 3))
+    for row, (no, line) in enumerate(lines):
+        cells = line.split(",")
+        if len(cells) < width:
+            raise InputError(
+                f"{shown}:{no}: {len(cells)} columns, expected at least {width} "
+                f"(time, input, output in columns {index})"
+            )
+        for j in range(len(order)):
+            data[row, j] = _number(cells[index[j]].strip(), shown, no, labels[j],
+                                   " (remove or interpolate the sample)")
+    return data
+
+
 def read_record(
     path: str | Path,
     columns: dict[str, ColumnSpec] | None = None,
@@ -153,67 +227,13 @@ def read_record(
     raw, lines = _csv_lines(path)
     if not lines:
         raise InputError(f"{shown}: the file is empty (no data rows); expected a CSV of time, input and output")
-    if header:
-        header_no, header_line = lines[0]
-        names = [h.strip() for h in header_line.split(",")]
-        lines = lines[1:]
-        if columns is None:
-            columns = _default_specs(names, shown)
-        resolved = {}
-        for role, spec in columns.items():
-            if spec.header is not None:
-                if spec.header not in names:
-                    raise InputError(
-                        f"{shown}:{header_no}: no column named '{spec.header}' for {role}; the header has {names}"
-                    )
-                resolved[role] = ColumnSpec(role, names.index(spec.header), None, spec.name)
-            elif spec.index is not None:
-                if spec.index >= len(names):
-                    raise InputError(
-                        f"{shown}:{header_no}: column {spec.index} for {role} does not exist; the header has "
-                        f"{len(names)} columns (indices are 0-based)"
-                    )
-                resolved[role] = ColumnSpec(role, spec.index, None, spec.name or names[spec.index])
-        columns = resolved
-    else:
-        if columns is None:
-            raise InputError(f"{shown}: a file without a header needs --columns time=I,input=J,output=K")
-        for role, spec in columns.items():
-            if spec.index is None:
-                raise InputError(f"--columns: {role}={spec.header} names a header column, but --no-header was given")
+    lines, columns = _record_columns(lines, columns, header, shown)
     if not lines:
         raise InputError(f"{shown}: the file has a header but no data rows")
-
-    order = [columns[r] for r in ROLES]
-    index = [int(s.index) for s in order if s.index is not None]  # resolved above: every role has its index
-    width = max(index) + 1
-    data = np.empty((len(lines), 3))
-    for row, (no, line) in enumerate(lines):
-        cells = line.split(",")
-        if len(cells) < width:
-            raise InputError(
-                f"{shown}:{no}: {len(cells)} columns, expected at least {width} "
-                f"(time, input, output in columns {index})"
-            )
-        for j, spec in enumerate(order):
-            cell = cells[index[j]].strip()
-            label = spec.name or f"column {spec.index}"
-            try:
-                value = float(cell)
-            except ValueError:
-                raise InputError(
-                    f"{shown}:{no}: {spec.role} column '{label}' holds '{cell}', which is not a number"
-                ) from None
-            if not math.isfinite(value):
-                raise InputError(
-                    f"{shown}:{no}: {spec.role} column '{label}' is {cell}; every value must be finite "
-                    "(remove or interpolate the sample)"
-                )
-            data[row, j] = value
+    data = _record_rows(lines, [columns[r] for r in ROLES], shown)
     t = data[:, 0]
-    step = np.diff(t)
-    if np.any(step <= 0):
-        k = int(np.flatnonzero(step <= 0)[0]) + 1
+    k = _first_not_increasing(t)
+    if k is not None:
         raise InputError(
             f"{shown}:{lines[k][0]}: time {float(t[k])!r} is not after the previous sample's {float(t[k - 1])!r}; "
             "time must be strictly increasing"
@@ -232,6 +252,34 @@ def read_record(
     )
 
 
+def _table_header(lines: list[tuple[int, str]], required: tuple[str, ...], optional: tuple[str, ...],
+                  shown: str) -> list[str]:
+    """The column names of a table's header line, which must hold every ``required`` one."""
+    if not lines:
+        raise InputError(f"{shown}: the file is empty; expected a CSV with the header {','.join(required)}")
+    header_no, header = lines[0]
+    names = [h.strip() for h in header.split(",")]
+    for name in required:
+        if name not in names:
+            raise InputError(f"{shown}:{header_no}: no column named '{name}'; the header has {names}, "
+                             f"expected {list(required) + [f'[{o}]' for o in optional]}")
+    return names
+
+
+def _table_rows(rows: list[tuple[int, str]], names: list[str], wanted: list[str],
+                shown: str) -> dict[str, NDArray[np.float64]]:
+    """The ``wanted`` columns of a table's data rows, each row as wide as the header ``names``."""
+    out = {n: np.empty(len(rows)) for n in wanted}
+    where = [(n, names.index(n), f"column '{n}'") for n in wanted]
+    for row, (no, line) in enumerate(rows):
+        cells = line.split(",")
+        if len(cells) != len(names):
+            raise InputError(f"{shown}:{no}: {len(cells)} columns, expected {len(names)} as in the header")
+        for n, j, label in where:
+            out[n][row] = _number(cells[j].strip(), shown, no, label)
+    return out
+
+
 def read_table(path: str | Path, required: tuple[str, ...], optional: tuple[str, ...] = (),
                increasing: str | None = None) -> dict[str, NDArray[np.float64]]:
     """Read a CSV with a header by column names; every problem names the file and line.
@@ -242,37 +290,17 @@ def read_table(path: str | Path, required: tuple[str, ...], optional: tuple[str,
     """
     shown = str(path)
     _, lines = _csv_lines(path)
-    if not lines:
-        raise InputError(f"{shown}: the file is empty; expected a CSV with the header {','.join(required)}")
-    header_no, header = lines[0]
-    names = [h.strip() for h in header.split(",")]
-    for name in required:
-        if name not in names:
-            raise InputError(f"{shown}:{header_no}: no column named '{name}'; the header has {names}, "
-                             f"expected {list(required) + [f'[{o}]' for o in optional]}")
+    names = _table_header(lines, required, optional, shown)
     wanted = [n for n in required + optional if n in names]
     if len(lines) < 3:
         raise InputError(f"{shown}: {len(lines) - 1} data rows, need at least 2")
-    out = {n: np.empty(len(lines) - 1) for n in wanted}
-    for row, (no, line) in enumerate(lines[1:]):
-        cells = line.split(",")
-        if len(cells) != len(names):
-            raise InputError(f"{shown}:{no}: {len(cells)} columns, expected {len(names)} as in the header")
-        for n in wanted:
-            cell = cells[names.index(n)].strip()
-            try:
-                value = float(cell)
-            except ValueError:
-                raise InputError(f"{shown}:{no}: column '{n}' holds '{cell}', which is not a number") from None
-            if not math.isfinite(value):
-                raise InputError(f"{shown}:{no}: column '{n}' is {cell}; every value must be finite")
-            out[n][row] = value
+    out = _table_rows(lines[1:], names, wanted, shown)
     if increasing is not None:
-        bad = np.flatnonzero(np.diff(out[increasing]) <= 0)
-        if bad.size:
-            k = int(bad[0]) + 1
-            raise InputError(f"{shown}:{lines[k + 1][0]}: {increasing} {out[increasing][k]!r} is not after the previous "
-                             f"row's {out[increasing][k - 1]!r}; it must be strictly increasing")
+        values = out[increasing]
+        k = _first_not_increasing(values)
+        if k is not None:
+            raise InputError(f"{shown}:{lines[k + 1][0]}: {increasing} {values[k]!r} is not after the previous "
+                             f"row's {values[k - 1]!r}; it must be strictly increasing")
     return out
 
 

@@ -70,6 +70,7 @@ import casadi as ca
 import numpy as np
 
 from piezopreload.artifacts.design import DesignPoint  # the design artifact's record of a design
+from piezopreload.core.checks import FieldRule, check_fields
 from piezopreload.core.errors import InfeasibleError
 from piezopreload.models.ballscrew import (
     EFFECTIVE_BALL_SHARE,
@@ -148,6 +149,32 @@ class DesignInfeasible(InfeasibleError):
         self.violations = violations
 
 
+def _positive(value: Any) -> bool:
+    return isinstance(value, (int, float)) and math.isfinite(value) and value > 0
+
+
+def _range(value: Any) -> bool:
+    lo, hi = value
+    return math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi
+
+
+#: DesignSpec's fields: (field, test, requirement), checked in order
+_SPEC_RULES: tuple[FieldRule, ...] = (
+    *((name, _positive, "must be a finite number > 0")
+      for name in ("nominal_diameter_mm", "lead_mm", "axial_load_max_N", "lift_off_margin", "preload_fraction_max",
+                   "contact_pressure_max_MPa", "life_min_h", "drag_torque_max_Nm", "frequency_min_Hz",
+                   "nut_length_max_mm", "ball_lead_ratio_max", "load_sharing", "accuracy_factor", "load_factor")),
+    *((name, lambda x: math.isfinite(x) and x >= 0, "must be a finite number >= 0")
+      for name in ("failsafe_load_N", "stiffness_min_N_per_um")),
+    *((name, _range, "must be a range (low, high) with 0 < low <= high")
+      for name in ("contact_angle_deg", "ball_mm", "conformity", "turns")),
+    ("contact_angle_deg", lambda r: r[0] >= 20 and r[1] <= 70, "must lie in [20, 70]"),
+    ("conformity", lambda r: r[0] >= 0.505 and r[1] <= 0.6, "must lie in [0.505, 0.6]"),
+    ("turns", lambda r: isinstance(r[0], int) and isinstance(r[1], int) and r[0] >= 1, "must be two integers >= 1"),
+    *((name, lambda x: x <= 1, "must be in (0, 1]") for name in ("load_sharing", "accuracy_factor")),
+)
+
+
 @dataclass(frozen=True)
 class DesignSpec:
     """What the machine fixes, the design's bounds, and the constraints' limits."""
@@ -185,31 +212,9 @@ class DesignSpec:
     load_factor: float = 1.2
 
     def __post_init__(self) -> None:
-        for name in ("nominal_diameter_mm", "lead_mm", "axial_load_max_N", "lift_off_margin", "preload_fraction_max",
-                     "contact_pressure_max_MPa", "life_min_h", "drag_torque_max_Nm", "frequency_min_Hz",
-                     "nut_length_max_mm", "ball_lead_ratio_max", "load_sharing", "accuracy_factor", "load_factor"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"DesignSpec.{name} must be a finite number > 0, got {value!r}.")
-        for name in ("failsafe_load_N", "stiffness_min_N_per_um"):
-            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
-                raise ValueError(f"DesignSpec.{name} must be a finite number >= 0, got {getattr(self, name)!r}.")
-        for name in ("contact_angle_deg", "ball_mm", "conformity", "turns"):
-            lo, hi = getattr(self, name)
-            if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
-                raise ValueError(f"DesignSpec.{name} must be a range (low, high) with 0 < low <= high, got "
-                                 f"{getattr(self, name)!r}.")
-        if not (self.contact_angle_deg[0] >= 20 and self.contact_angle_deg[1] <= 70):
-            raise ValueError(f"DesignSpec.contact_angle_deg must lie in [20, 70], got {self.contact_angle_deg!r}.")
-        if not (self.conformity[0] >= 0.505 and self.conformity[1] <= 0.6):
-            raise ValueError(f"DesignSpec.conformity must lie in [0.505, 0.6], got {self.conformity!r}.")
-        if not (isinstance(self.turns[0], int) and isinstance(self.turns[1], int) and self.turns[0] >= 1):
-            raise ValueError(f"DesignSpec.turns must be two integers >= 1, got {self.turns!r}.")
+        check_fields(self, "DesignSpec", _SPEC_RULES)
         if not self.duty:
             raise ValueError("DesignSpec.duty needs at least one duty case.")
-        for name in ("load_sharing", "accuracy_factor"):
-            if not getattr(self, name) <= 1:
-                raise ValueError(f"DesignSpec.{name} must be in (0, 1], got {getattr(self, name)!r}.")
         if max(abs(c.axial_load_N) for c in self.duty) > self.axial_load_max_N:
             raise ValueError(f"DesignSpec.axial_load_max_N ({self.axial_load_max_N}) is below a duty case's load; "
                              f"it must be the largest axial load the nut sees.")

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from piezopreload.core.checks import FieldRule, check_fields
 from piezopreload.core.errors import InputError
 from piezopreload.models.ops import NUMPY, Layout, Ops, absolute, clip
 
@@ -95,6 +96,36 @@ _POSITIVE = (
     "sample_period_s",
 )
 _NONNEGATIVE = ("bolt_preload_N", "noise_N", "creep_per_decade", "bw_beta_per_V", "hertz_um_per_N23", "hertz_preload_N")
+_FINITE = ("stroke_um_per_V", "bw_gamma_per_V", "bw_kappa", "amp_v_min_V", "amp_v_max_V")
+
+
+def _all_positive(value: Any) -> bool:
+    x = np.asarray(value, float)
+    return bool(np.all(np.isfinite(x)) and np.all(x > 0))
+
+
+def _all_nonnegative(value: Any) -> bool:
+    x = np.asarray(value, float)
+    return bool(np.all(np.isfinite(x)) and np.all(x >= 0))
+
+
+def _time_constants(value: Any) -> bool:
+    taus = np.asarray(value, float)
+    return bool(taus.ndim == 1 and np.all(np.isfinite(taus) & (taus > 0)))
+
+
+#: RigParams' fields: (field, test, requirement), checked in order; the rules between fields follow in code
+_RIG_RULES: tuple[FieldRule, ...] = (
+    *((name, _all_positive, "must be finite and > 0") for name in _POSITIVE),
+    *((name, _all_nonnegative, "must be finite and >= 0") for name in _NONNEGATIVE),
+    *((name, lambda v: np.all(np.isfinite(np.asarray(v, float))), "must be finite") for name in _FINITE),
+    ("stroke_um_per_V", lambda v: np.all(np.asarray(v) > 0), "must be > 0"),
+    ("n_stacks", lambda n: isinstance(n, int | np.integer) and n >= 1, "must be a positive integer"),
+    ("adc_bits", lambda b: isinstance(b, int | np.integer) and 2 <= b <= 32, "must be an integer in 2..32"),
+    ("delay_samples", lambda d: isinstance(d, int | np.integer) and d >= 0, "must be an integer >= 0"),
+    ("adc_full_scale_N", lambda x: np.isfinite(x) and x > 0, "must be > 0"),
+    ("creep_tau_s", _time_constants, "must be positive time constants"),
+)
 
 
 @dataclass(frozen=True, eq=False)
@@ -178,19 +209,7 @@ class RigParams:
     hertz_preload_N: Any = 0.0
 
     def __post_init__(self) -> None:
-        for name in _POSITIVE:
-            x = np.asarray(getattr(self, name), float)
-            if not (np.all(np.isfinite(x)) and np.all(x > 0)):
-                raise ValueError(f"RigParams.{name} must be finite and > 0, got {getattr(self, name)!r}.")
-        for name in _NONNEGATIVE:
-            x = np.asarray(getattr(self, name), float)
-            if not (np.all(np.isfinite(x)) and np.all(x >= 0)):
-                raise ValueError(f"RigParams.{name} must be finite and >= 0, got {getattr(self, name)!r}.")
-        for name in ("stroke_um_per_V", "bw_gamma_per_V", "bw_kappa", "amp_v_min_V", "amp_v_max_V"):
-            if not np.all(np.isfinite(np.asarray(getattr(self, name), float))):
-                raise ValueError(f"RigParams.{name} must be finite, got {getattr(self, name)!r}.")
-        if not np.all(np.asarray(self.stroke_um_per_V) > 0):
-            raise ValueError(f"RigParams.stroke_um_per_V must be > 0, got {self.stroke_um_per_V!r}.")
+        check_fields(self, "RigParams", _RIG_RULES)
         if not np.all(np.asarray(self.bw_beta_per_V) > np.abs(np.asarray(self.bw_gamma_per_V))):
             raise ValueError(
                 "RigParams needs bw_beta_per_V > |bw_gamma_per_V| for a bounded Bouc-Wen loop, "
@@ -198,27 +217,16 @@ class RigParams:
             )
         if not np.all(np.asarray(self.amp_v_min_V) < np.asarray(self.amp_v_max_V)):
             raise ValueError("RigParams needs amp_v_min_V < amp_v_max_V.")
-        if not (isinstance(self.n_stacks, int | np.integer) and self.n_stacks >= 1):
-            raise ValueError(f"RigParams.n_stacks must be a positive integer, got {self.n_stacks!r}.")
-        if not (isinstance(self.adc_bits, int | np.integer) and 2 <= self.adc_bits <= 32):
-            raise ValueError(f"RigParams.adc_bits must be an integer in 2..32, got {self.adc_bits!r}.")
-        if not (isinstance(self.delay_samples, int | np.integer) and self.delay_samples >= 0):
-            raise ValueError(f"RigParams.delay_samples must be an integer >= 0, got {self.delay_samples!r}.")
-        if not (np.isfinite(self.adc_full_scale_N) and self.adc_full_scale_N > 0):
-            raise ValueError(f"RigParams.adc_full_scale_N must be > 0, got {self.adc_full_scale_N!r}.")
         if np.any(np.asarray(self.hertz_um_per_N23, float) > 0) and not np.all(np.asarray(self.hertz_preload_N) > 0):
             raise ValueError("RigParams.hertz_preload_N must be > 0 (the bolts' preload on the nuts) when "
                              f"hertz_um_per_N23 > 0, got {self.hertz_preload_N!r}.")
-        taus = np.asarray(self.creep_tau_s, float)
-        if taus.ndim != 1 or not np.all(np.isfinite(taus) & (taus > 0)):
-            raise ValueError(f"RigParams.creep_tau_s must be positive time constants, got {self.creep_tau_s!r}.")
         np.broadcast_shapes(*(np.shape(getattr(self, n)) for n in self.batch_fields()))
 
     # ---- batches -----------------------------------------------------------------------
     @staticmethod
     def batch_fields() -> tuple[str, ...]:
         """The numeric fields that may vary across a batch of plants."""
-        return _POSITIVE + _NONNEGATIVE + ("stroke_um_per_V", "bw_gamma_per_V", "bw_kappa", "amp_v_min_V", "amp_v_max_V")
+        return _POSITIVE + _NONNEGATIVE + _FINITE
 
     @property
     def batch_shape(self) -> tuple[int, ...]:

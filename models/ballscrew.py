@@ -69,6 +69,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import brentq
 
+from piezopreload.core.checks import FieldRule, check_fields
 from piezopreload.core.errors import InputError
 from piezopreload.models.ops import NUMPY
 
@@ -334,6 +335,22 @@ class Life:
 # ---- the screw ------------------------------------------------------------------------------
 
 
+def _positive_or_none(value: Any) -> bool:
+    return value is None or (isinstance(value, (int, float)) and math.isfinite(value) and value > 0)
+
+
+#: BallScrew's fields: (field, test, requirement), checked in order; the rules between fields follow in code
+_SCREW_RULES: tuple[FieldRule, ...] = (
+    *((name, _positive_or_none, "must be a finite number > 0")
+      for name in ("nominal_diameter_mm", "lead_mm", "ball_mm", "turns", "pitch_diameter_mm",
+                   "nut_outer_diameter_mm", "c_dyn_N", "c0_N", "drag_coefficient", "balls_per_turn")),
+    ("contact_angle_deg", lambda x: 20.0 <= x <= 70.0, "must be in [20, 70]"),
+    *((name, lambda x: 0.505 <= x <= 0.6, "must be in [0.505, 0.6] (ISO 3408-5 needs > 0.5; 0.52-0.56 is usual)")
+      for name in ("conformity_screw", "conformity_nut")),
+    *((name, lambda x: 0 < x <= 1, "must be in (0, 1]") for name in ("load_sharing", "accuracy_factor")),
+)
+
+
 @dataclass(frozen=True)
 class BallScrew:
     """A double-nut ball screw with 2-point (gothic-arch) contact, preloaded between the nuts.
@@ -384,23 +401,7 @@ class BallScrew:
     material: Material = field(default=STEEL)
 
     def __post_init__(self) -> None:
-        def positive(name: str) -> None:
-            value = getattr(self, name)
-            if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise InputError(f"BallScrew.{name} must be a finite number > 0, got {value!r}.")
-
-        for name in ("nominal_diameter_mm", "lead_mm", "ball_mm", "turns", "pitch_diameter_mm",
-                     "nut_outer_diameter_mm", "c_dyn_N", "c0_N", "drag_coefficient", "balls_per_turn"):
-            positive(name)
-        if not 20.0 <= self.contact_angle_deg <= 70.0:
-            raise InputError(f"BallScrew.contact_angle_deg must be in [20, 70], got {self.contact_angle_deg!r}.")
-        for name in ("conformity_screw", "conformity_nut"):
-            if not 0.505 <= getattr(self, name) <= 0.6:
-                raise InputError(f"BallScrew.{name} must be in [0.505, 0.6] (ISO 3408-5 needs > 0.5; "
-                                 f"0.52-0.56 is usual), got {getattr(self, name)!r}.")
-        for name in ("load_sharing", "accuracy_factor"):
-            if not 0 < getattr(self, name) <= 1:
-                raise InputError(f"BallScrew.{name} must be in (0, 1], got {getattr(self, name)!r}.")
+        check_fields(self, "BallScrew", _SCREW_RULES, InputError)
         if not self.ball_mm < 0.25 * self.pitch_diameter:
             raise InputError(f"BallScrew.ball_mm = {self.ball_mm} is too large for a pitch diameter of "
                              f"{self.pitch_diameter} mm (needs < 0.25 D_pw).")

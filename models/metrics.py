@@ -46,6 +46,35 @@ class StepMetrics:
         return asdict(self)
 
 
+def _step_samples(t: ArrayLike, y: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """``t`` and ``y`` as float arrays, checked: 1-D, of equal length >= 2, finite, ``t`` strictly increasing."""
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if t.ndim != 1 or t.shape != y.shape or t.size < 2:
+        raise ValueError(f"t and y must be 1-D of equal length >= 2, got {t.shape} and {y.shape}.")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(y))):
+        raise ValueError("t and y must be finite.")
+    if np.any(np.diff(t) <= 0):
+        raise ValueError("t must be strictly increasing.")
+    return t, y
+
+
+def _first(tt: np.ndarray, mask: np.ndarray) -> float:
+    """The first time at which ``mask`` holds; ``nan`` when it never does."""
+    idx = np.flatnonzero(mask)
+    return float(tt[idx[0]]) if idx.size else float("nan")
+
+
+def _settling_s(tt: np.ndarray, error: np.ndarray, tolerance: float) -> float:
+    """The time from which ``error`` stays within ``tolerance``; ``nan`` when it is still outside at the end."""
+    outside = np.flatnonzero(error > tolerance)
+    if outside.size == 0:
+        return 0.0
+    if outside[-1] == tt.size - 1:
+        return float("nan")  # still outside at the end of the record
+    return float(tt[outside[-1] + 1])
+
+
 def step_metrics(
     t: ArrayLike,
     y: ArrayLike,
@@ -73,14 +102,7 @@ def step_metrics(
         Absolute error band (output units) for the paper's definitions; ``None`` for the
         conventional ones (``rise_limits`` and ``settling_threshold`` of the step size).
     """
-    t = np.asarray(t, dtype=float)
-    y = np.asarray(y, dtype=float)
-    if t.ndim != 1 or t.shape != y.shape or t.size < 2:
-        raise ValueError(f"t and y must be 1-D of equal length >= 2, got {t.shape} and {y.shape}.")
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(y))):
-        raise ValueError("t and y must be finite.")
-    if np.any(np.diff(t) <= 0):
-        raise ValueError("t must be strictly increasing.")
+    t, y = _step_samples(t, y)
     t_step = float(t[0]) if t_step is None else float(t_step)
     after = t >= t_step
     if not after.any():
@@ -91,30 +113,18 @@ def step_metrics(
     size = final - initial
     if size == 0:
         raise ValueError("final equals initial: there is no step to measure.")
-    sign = np.sign(size)
-    progress = sign * (yy - initial)  # rises from 0 to |size|
+    progress = np.sign(size) * (yy - initial)  # rises from 0 to |size|
     error = np.abs(yy - final)
-
-    def first(mask: np.ndarray) -> float:
-        idx = np.flatnonzero(mask)
-        return float(tt[idx[0]]) if idx.size else float("nan")
-
     if band is None:
         lo, hi = rise_limits
-        rise = first(progress >= hi * abs(size)) - first(progress >= lo * abs(size))
+        rise = _first(tt, progress >= hi * abs(size)) - _first(tt, progress >= lo * abs(size))
         tolerance = settling_threshold * abs(size)
     else:
         if not band > 0:
             raise ValueError(f"band must be positive, got {band}.")
-        rise = first(error <= band)
+        rise = _first(tt, error <= band)
         tolerance = float(band)
-    outside = np.flatnonzero(error > tolerance)
-    if outside.size == 0:
-        settling = 0.0
-    elif outside[-1] == tt.size - 1:
-        settling = float("nan")  # still outside at the end of the record
-    else:
-        settling = float(tt[outside[-1] + 1])
+    settling = _settling_s(tt, error, tolerance)
     k = int(np.argmax(progress))
     overshoot = max(0.0, float(progress[k]) - abs(size))
     undershoot = max(0.0, -float(np.min(progress)))

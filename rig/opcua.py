@@ -479,15 +479,10 @@ class _ServerProcess:
                 os._exit(0)
 
 
-async def push_gain_set(document: str, endpoint: str, *, username: str | None = None, password: str | None = None,
-                        certificate: str | Path | None = None, private_key: str | Path | None = None,
-                        server_certificate: str | Path | None = None, timeout_s: float = 10.0,
-                        expect_sha256: str | None = None) -> dict[str, Any]:
-    """Push a gain set's JSON ``document`` through ``PushGainSet``; :class:`PushRefused` says why not.
-
-    With ``expect_sha256``, waits (up to ``timeout_s``) until the server shows that gain set
-    running and returns the parameters it then shows.
-    """
+async def _client(endpoint: str, timeout_s: float, username: str | None, password: str | None,
+                  certificate: str | Path | None, private_key: str | Path | None,
+                  server_certificate: str | Path | None) -> Client:
+    """A client of ``endpoint`` with the user's name and password and, with a certificate, encryption."""
     client = Client(endpoint, timeout=timeout_s)
     if username is not None:
         client.set_user(username)
@@ -496,6 +491,11 @@ async def push_gain_set(document: str, endpoint: str, *, username: str | None = 
         await client.set_security(SecurityPolicyBasic256Sha256, str(certificate), str(private_key),
                                   server_certificate=None if server_certificate is None else str(server_certificate),
                                   mode=ua.MessageSecurityMode.SignAndEncrypt)
+    return client
+
+
+async def _connect(client: Client, endpoint: str) -> None:
+    """Open the session; :class:`PushRefused` says why the server refused it or could not be reached."""
     try:
         try:
             await client.connect()
@@ -512,26 +512,53 @@ async def push_gain_set(document: str, endpoint: str, *, username: str | None = 
                           "certificate and key)") from None
     except (TimeoutError, OSError) as exc:
         raise PushRefused(f"cannot reach {endpoint}: {exc or type(exc).__name__}") from None
-    try:
-        idx = await client.get_namespace_index(NAMESPACE)
-        root = await client.nodes.objects.get_child([f"{idx}:{ROOT}"])
-        method = await root.get_child([f"{idx}:PushGainSet"])
-        try:
-            accepted, message = await root.call_method(method, ua.Variant(document, ua.VariantType.String))
-        except ua.UaStatusCodeError as exc:
-            raise PushRefused(f"the server refused the call: {type(exc).__name__}") from None
-        running_node = await root.get_child([f"{idx}:GainSetSha256"])
+
+
+async def _await_running(running_node: Any, running: str, expect_sha256: str, timeout_s: float) -> str:
+    """The gain set the server runs, read again until it is ``expect_sha256`` (or ``timeout_s`` has passed)."""
+    deadline = asyncio.get_running_loop().time() + timeout_s
+    while running != expect_sha256:
+        if asyncio.get_running_loop().time() > deadline:
+            raise PushRefused(f"the server accepted the gain set but still runs {running[:12]} after {timeout_s:g} s")
+        await asyncio.sleep(0.02)
         running = await running_node.read_value()
-        deadline = asyncio.get_running_loop().time() + timeout_s
-        while accepted and expect_sha256 is not None and running != expect_sha256:
-            if asyncio.get_running_loop().time() > deadline:
-                raise PushRefused(f"the server accepted the gain set but still runs {running[:12]} after {timeout_s:g} s")
-            await asyncio.sleep(0.02)
-            running = await running_node.read_value()
-        params = await root.get_child([f"{idx}:ControllerParameters"])
-        values = {}
-        for name in ("CtrlP", "CtrlTi", "CtrlTd"):
-            values[name] = await (await params.get_child([f"{idx}:{name}"])).read_value()
+    return running
+
+
+async def _push_and_read(client: Client, document: str, timeout_s: float,
+                         expect_sha256: str | None) -> tuple[bool, str, dict[str, Any], str]:
+    """Call ``PushGainSet`` on a connected client; the answer, then the parameters and the gain set the server shows."""
+    idx = await client.get_namespace_index(NAMESPACE)
+    root = await client.nodes.objects.get_child([f"{idx}:{ROOT}"])
+    method = await root.get_child([f"{idx}:PushGainSet"])
+    try:
+        accepted, message = await root.call_method(method, ua.Variant(document, ua.VariantType.String))
+    except ua.UaStatusCodeError as exc:
+        raise PushRefused(f"the server refused the call: {type(exc).__name__}") from None
+    running_node = await root.get_child([f"{idx}:GainSetSha256"])
+    running = await running_node.read_value()
+    if accepted and expect_sha256 is not None:
+        running = await _await_running(running_node, running, expect_sha256, timeout_s)
+    params = await root.get_child([f"{idx}:ControllerParameters"])
+    values = {}
+    for name in ("CtrlP", "CtrlTi", "CtrlTd"):
+        values[name] = await (await params.get_child([f"{idx}:{name}"])).read_value()
+    return accepted, message, values, running
+
+
+async def push_gain_set(document: str, endpoint: str, *, username: str | None = None, password: str | None = None,
+                        certificate: str | Path | None = None, private_key: str | Path | None = None,
+                        server_certificate: str | Path | None = None, timeout_s: float = 10.0,
+                        expect_sha256: str | None = None) -> dict[str, Any]:
+    """Push a gain set's JSON ``document`` through ``PushGainSet``; :class:`PushRefused` says why not.
+
+    With ``expect_sha256``, waits (up to ``timeout_s``) until the server shows that gain set
+    running and returns the parameters it then shows.
+    """
+    client = await _client(endpoint, timeout_s, username, password, certificate, private_key, server_certificate)
+    await _connect(client, endpoint)
+    try:
+        accepted, message, values, running = await _push_and_read(client, document, timeout_s, expect_sha256)
     finally:
         await client.disconnect()
     if not accepted:

@@ -1,18 +1,22 @@
 """The ball-screw and feed-drive models against catalogue rows and closed forms.
 
 Catalogue rows: ``data/ballscrew_rigidity.csv`` (sources in ``data/ballscrew_rigidity_sources.toml``;
-HIWIN, THK and Rexroth ground double nuts, 16-63 mm), read by ``ballscrew_catalogue.py``. The
+HIWIN, THK and Rexroth ground double nuts, 16-63 mm), read by ``design/catalogue.py``. The
 model and its two calibrated constants are derived in ``docs/ballscrew.md``.
 """
 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
-from ballscrew_catalogue import (
+
+from piezopreload.core.errors import InputError
+from piezopreload.design.catalogue import (
     CatalogueRow,
     checked,
     error_stats,
@@ -22,8 +26,6 @@ from ballscrew_catalogue import (
     largest_lambda_L,
     load_rows,
 )
-
-from piezopreload.core.errors import InputError
 from piezopreload.models.ballscrew import (
     ACCURACY_FACTOR_P5,
     EFFECTIVE_BALL_SHARE,
@@ -40,10 +42,41 @@ from piezopreload.models.ballscrew import (
 from piezopreload.models.feed_drive import FeedDrive, PiezoPreload, stack_loop_um
 from piezopreload.models.ops import CASADI, NUMPY
 
-ROWS = load_rows()
+CATALOGUE = Path(__file__).parent / "data" / "ballscrew_rigidity.csv"
+ROWS = load_rows(CATALOGUE)
 CHECKED = checked(ROWS)
 
 # ---- the catalogue rows ------------------------------------------------------------------------
+
+
+def test_the_table_is_read_whole():
+    lines = [line for line in CATALOGUE.read_text(encoding="utf-8").splitlines()[1:] if line.strip()]
+    assert len(ROWS) == len(lines) == 148, (len(ROWS), len(lines))
+    first = ROWS[0]
+    assert (first.designation, first.source, first.nominal_diameter_mm, first.ball_mm, first.turns, first.c0_N,
+            first.rigidity_N_per_um, first.basis, first.check) == (
+        "R16-5T3-FDI", "hiwin_bs08", 16.0, 3.175, 3.0, 13310.0, 200.0, "theoretical", False)
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda text: text.replace("R20-5T3-FDI,hiwin_bs08,20,5,", "R20-5T3-FDI,hiwin_bs08,20,five,"),
+     ":4: column 'lead_mm' holds 'five', which is not a number"),
+    (lambda text: text.replace("R20-5T3-FDI,hiwin_bs08,20,5,", "R20-5T3-FDI,hiwin_bs08,20,-5,"),
+     ":4: column 'lead_mm' is -5; it must be a finite number > 0"),
+    (lambda text: text.replace("0.1,390,theoretical,yes", "0.1,390,theory,yes"),
+     ":4: row 'R20-5T3-FDI' has basis 'theory' and check 'yes'; expected one of"),
+    (lambda text: text.replace("rigidity_N_per_um,", "stiffness_N_per_um,", 1),
+     ":1: no column named 'rigidity_N_per_um'"),
+    (lambda text: text.replace("R20-5T3-FDI,hiwin_bs08,20,5,3.175,20.6,3,34,", "R20-5T3-FDI,"),
+     ":4: 9 columns, expected 16 as in the header"),
+])
+def test_a_bad_catalogue_table_is_refused_at_its_line_and_column(tmp_path, change, message):
+    bad = tmp_path / "catalogue.csv"
+    bad.write_text(change(CATALOGUE.read_text(encoding="utf-8")), encoding="utf-8")
+    with pytest.raises(InputError, match="^" + re.escape(str(bad) + message)):
+        load_rows(bad)
+    with pytest.raises(InputError, match="no such catalogue table"):
+        load_rows(tmp_path / "missing.csv")
 
 
 def test_the_table_covers_what_the_issue_asks():

@@ -1,15 +1,27 @@
-"""The catalogue rows of ``data/ballscrew_rigidity.csv`` and the rigidity model evaluated on them.
+"""Ball-screw catalogue rows and the rigidity model evaluated on them.
 
-The one reader of that table (its sources: ``data/ballscrew_rigidity_sources.toml``), shared by
-``test_ballscrew.py`` and ``benchmarks/ballscrew_rigidity.py``: each row becomes the screw the
-vendor tabulates (:meth:`BallScrew.from_catalogue`: the groove conformity from the printed C_0),
-evaluated at the row's preload, and the model's two calibrated constants can be fitted again on
-any subset of rows (the leave-out checks).
+A catalogue table is a CSV with a header, one row per printed rigidity of a preloaded double
+nut; the columns the reader uses are ``designation``, ``source`` (``<vendor>_<catalogue>``),
+the screw (``nominal_diameter_mm``, ``lead_mm``, ``ball_mm``, ``pitch_diameter_mm``, ``turns``,
+``nut_outer_diameter_mm``), its ratings ``c_dyn_N`` and ``c0_N``, the preload the figure is
+stated at (``preload_fraction`` of C_dyn), the figure ``rigidity_N_per_um``, its ``basis``
+(``theoretical``, or ``accuracy_p5``: corrected for tolerance class P5) and ``check`` (``yes``,
+or ``no`` for a row the vendor's own tables contradict); other columns (the figure as printed, a
+note) are kept in the file and not read. The repository's table of HIWIN, THK and Rexroth ground
+double nuts, 16-63 mm, is ``tests/data/ballscrew_rigidity.csv`` (its sources in
+``tests/data/ballscrew_rigidity_sources.toml``); the tests and ``benchmarks/ballscrew_rigidity.py``
+read it through :func:`load_rows`.
+
+Each row becomes the screw the vendor tabulates (:meth:`BallScrew.from_catalogue`: the groove
+conformity from the printed C_0), evaluated at the row's preload; the model's two calibrated
+constants (:data:`EFFECTIVE_BALL_SHARE`, :data:`ACCURACY_FACTOR_P5`) can be fitted again on any
+subset of rows (the leave-out checks).
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
@@ -19,10 +31,18 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from piezopreload.core.artifacts import read_bytes
+from piezopreload.core.errors import InputError
 from piezopreload.models.ballscrew import ACCURACY_FACTOR_P5, EFFECTIVE_BALL_SHARE, BallScrew
 
-DATA = Path(__file__).parent / "data" / "ballscrew_rigidity.csv"
+__all__ = ["CatalogueRow", "BASES", "load_rows", "checked", "error_stats", "fit_share", "fit_accuracy",
+           "largest_lambda_L", "first_order_body_error"]
+
+#: what a row's figure is: calculated for the nominal geometry, or corrected for tolerance class P5
 BASES = ("theoretical", "accuracy_p5")
+_NUMBERS = ("nominal_diameter_mm", "lead_mm", "ball_mm", "pitch_diameter_mm", "turns", "nut_outer_diameter_mm",
+            "c_dyn_N", "c0_N", "preload_fraction", "rigidity_N_per_um")
+_COLUMNS = ("designation", "source", *_NUMBERS, "basis", "check")
 
 
 @dataclass(frozen=True)
@@ -76,23 +96,63 @@ class CatalogueRow:
         return float(self.screw.hertz_rigidity_N_per_um(self.preload_N)) / self.rigidity_N_per_um - 1.0
 
 
-def load_rows(path: Path = DATA) -> list[CatalogueRow]:
-    """Every row of the table, in its order."""
-    numbers = ("nominal_diameter_mm", "lead_mm", "ball_mm", "pitch_diameter_mm", "turns", "nut_outer_diameter_mm",
-               "c_dyn_N", "c0_N", "preload_fraction", "rigidity_N_per_um")
+def _row(record: dict[str, str], where: str) -> CatalogueRow:
+    """One CSV record as a row; ``where`` (``file:line``) names it in errors."""
+    numbers = {}
+    for name in _NUMBERS:
+        try:
+            numbers[name] = float(record[name])
+        except ValueError:
+            raise InputError(f"{where}: column '{name}' holds {record[name]!r}, which is not a number") from None
+        if not (math.isfinite(numbers[name]) and numbers[name] > 0):
+            raise InputError(f"{where}: column '{name}' is {record[name]}; it must be a finite number > 0")
+    if record["basis"] not in BASES or record["check"] not in ("yes", "no"):
+        raise InputError(f"{where}: row {record['designation']!r} has basis {record['basis']!r} and check "
+                         f"{record['check']!r}; expected one of {BASES} and yes/no")
+    return CatalogueRow(designation=record["designation"], source=record["source"], basis=record["basis"],
+                        check=record["check"] == "yes", **numbers)
+
+
+def load_rows(path: str | Path) -> list[CatalogueRow]:
+    """Every row of a catalogue table (the layout of the module docstring), in its order.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file.
+
+    Returns
+    -------
+    list of CatalogueRow
+        The rows, flagged ones (``check = no``) included.
+
+    Raises
+    ------
+    InputError
+        The file cannot be read, a column is missing, or a row holds a value that is not
+        what its column needs; the message names the file, the line and the column.
+    """
+    shown = str(path)
+    try:
+        text = read_bytes(path, "catalogue table", InputError).decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{shown}: not a UTF-8 text file (byte {exc.start}); expected a CSV") from None
+    reader = csv.DictReader(io.StringIO(text, newline=""))
+    missing = [c for c in _COLUMNS if c not in (reader.fieldnames or ())]
+    if missing:
+        raise InputError(f"{shown}:1: no column named '{missing[0]}'; a catalogue table needs {list(_COLUMNS)}")
     rows = []
-    with open(path, newline="", encoding="utf-8") as fh:
-        for record in csv.DictReader(fh):
-            if record["basis"] not in BASES or record["check"] not in ("yes", "no"):
-                raise ValueError(f"{path}: row {record['designation']!r} has basis {record['basis']!r} and check "
-                                 f"{record['check']!r}; expected one of {BASES} and yes/no")
-            rows.append(CatalogueRow(designation=record["designation"], source=record["source"],
-                                     basis=record["basis"], check=record["check"] == "yes",
-                                     **{k: float(record[k]) for k in numbers}))
+    for record in reader:
+        if None in record or None in record.values():  # csv's marks of a row longer or shorter than the header
+            cells = sum(v is not None for k, v in record.items() if k is not None) + len(record.get(None) or ())
+            raise InputError(f"{shown}:{reader.line_num}: {cells} columns, expected {len(reader.fieldnames or ())} "
+                             "as in the header")
+        rows.append(_row(record, f"{shown}:{reader.line_num}"))
     return rows
 
 
 def checked(rows: Iterable[CatalogueRow]) -> list[CatalogueRow]:
+    """The rows the acceptance checks use: those the vendor's own tables do not contradict."""
     return [r for r in rows if r.check]
 
 
