@@ -252,13 +252,15 @@ def folded_shortfall(schedule: PreloadSchedule, frame: _Frame, shortfall: Array,
 
 
 def binding_stretches(schedule: PreloadSchedule) -> list[tuple[int, int]]:
-    """The stretches ``[a, b)`` of the profile's samples where a requirement binds the plan: under load, the need
-    above the bolts' preload, and the planned preload less its margin at that need (within :data:`ROUND_OFF`;
+    """The stretches ``[a, b)`` of the profile's samples where a requirement binds the plan: under load (or next to
+    a sample under load: the loop is judged between them, on the plan interpolated), the need above the bolts' preload, and the planned preload less its margin at that need (within :data:`ROUND_OFF`;
     a ramp of the load, where the plan follows the need, included). Between them the plan stands above every
     requirement (at the bolts' preload, on a slew cone, or without load)."""
     spec, need = schedule.spec, schedule.needed_N
     held = schedule.preload_N - schedule.margin_N <= need * (1.0 + ROUND_OFF)
-    binds = schedule.profile.cutting & (need > spec.bolt_preload_N * (1.0 + ROUND_OFF)) & held
+    cut = schedule.profile.cutting
+    judged = cut | np.concatenate([cut[1:], [False]]) | np.concatenate([[False], cut[:-1]])  # the loop between them
+    binds = judged & (need > spec.bolt_preload_N * (1.0 + ROUND_OFF)) & held
     edges = np.flatnonzero(np.diff(np.concatenate([[0], binds.astype(np.int8), [0]])))
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
 
