@@ -29,11 +29,19 @@ Where the achieved preload misses a requirement, the shortfall below the least p
 sample's requirements need (``PreloadSchedule.needed_N``) is the margin the loop needs there:
 the schedule is planned again with that margin (times ``margin_factor``, and over the fraction of
 the previous pass's added margin the loop turned into preload there) at those samples, over the
-loop's lag before them and a short plateau around them (:func:`folded_shortfall`,
-:func:`local_margins`), every other sample keeping its least-friction preload, and the loop runs
-it again: at most ``passes`` times. Where the stacks'
-reach cannot give the margin, or the passes end first, :class:`~piezopreload.artifacts.system.ScheduleBound`
-says which requirement is stopped, where, and by how much.
+loop's lag before them and a short plateau around them (:func:`folded_shortfall`), held over the
+whole stretch of the cycle where a requirement binds the plan around them (:func:`binding_stretches`,
+:func:`held_over_stretches`), every other sample keeping its least-friction preload
+(:func:`local_margins`), and the loop runs it again: at most ``passes`` times. Inside a stretch
+where a requirement binds, the next pass's plan is the last one raised by one constant, so the
+loop's error there (its transients and its noise) is the one the margin was taken from. A margin
+that stepped up and down inside the stretch would change the loop's reference where the
+requirement binds: the loop's transient after each step (a learned loop's too, in a pass's first
+trials after the plan changed), and the noise extremes of a learned loop, which fall elsewhere in
+every pass, would fall short next to the margin, and the passes would chase their own steps.
+Where the stacks' reach cannot give the margin, or the passes end first,
+:class:`~piezopreload.artifacts.system.ScheduleBound` says which requirement is stopped, where, and
+by how much.
 """
 
 from __future__ import annotations
@@ -68,7 +76,7 @@ from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller
 
 __all__ = ["PRE_CYCLE_REST_S", "ROUND_OFF", "SystemRun", "Evaluation", "pre_cycle_for", "schedule_reference", "track_schedule", "evaluate_tracking",
-           "requirements_of", "folded_shortfall", "local_margins"]
+           "requirements_of", "folded_shortfall", "binding_stretches", "held_over_stretches", "local_margins"]
 
 Array = NDArray[np.float64]
 
@@ -240,6 +248,29 @@ def folded_shortfall(schedule: PreloadSchedule, frame: _Frame, shortfall: Array,
     on = wanted > 0
     np.maximum.at(out, j[on], wanted[on])
     np.maximum.at(out, j[on] + 1, wanted[on])
+    return out
+
+
+def binding_stretches(schedule: PreloadSchedule) -> list[tuple[int, int]]:
+    """The stretches ``[a, b)`` of the profile's samples where a requirement binds the plan: under load (or next to
+    a sample under load: the loop is judged between them, on the plan interpolated), the need above the bolts' preload, and the planned preload less its margin at that need (within :data:`ROUND_OFF`;
+    a ramp of the load, where the plan follows the need, included). Between them the plan stands above every
+    requirement (at the bolts' preload, on a slew cone, or without load)."""
+    spec, need = schedule.spec, schedule.needed_N
+    held = schedule.preload_N - schedule.margin_N <= need * (1.0 + ROUND_OFF)
+    cut = schedule.profile.cutting
+    judged = cut | np.concatenate([cut[1:], [False]]) | np.concatenate([[False], cut[:-1]])  # the loop between them
+    binds = judged & (need > spec.bolt_preload_N * (1.0 + ROUND_OFF)) & held
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], binds.astype(np.int8), [0]])))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
+
+
+def held_over_stretches(folded: Array, stretches: list[tuple[int, int]]) -> Array:
+    """``folded`` (per profile sample) with each of ``stretches`` at its largest value over the stretch: a margin
+    that holds through the stretch where its requirement binds, with no step inside it."""
+    out = np.array(folded, float)
+    for a, b in stretches:
+        out[a:b] = np.max(out[a:b])
     return out
 
 
@@ -451,6 +482,7 @@ def track_schedule(plant: DesignedPlant, controller: Controller, schedule: Prelo
     record: list[PassRecord] = []
     dt = float(plant.rig.sample_period_s)
     current, lag, hold = schedule, int(round(_LAG_MAX_S / dt)), int(round(_HOLD_S / dt))
+    stretches = binding_stretches(schedule)  # the design's: where its requirements bind, whatever the margins
     before = added = response = None
     for k in range(1, passes + 1):
         pre = pre_cycle_for(plant, current, contact_N, settle_s)  # the first level may carry a margin
@@ -464,7 +496,8 @@ def track_schedule(plant: DesignedPlant, controller: Controller, schedule: Prelo
         say(f"pass {k}: local margins up to {record[-1].preload_margin_N:.1f} N, tracking RMS {n.tracking_rms_N:.2f} N "
             f"({n.tracking_rms_pct_of_range:.2f} % of the range), least rigidity / requirement "
             f"{n.rigidity_ratio_min:.3f}, least preload / lift-off bound {n.lift_off_ratio_min:.3f}")
-        folded = folded_shortfall(current, ev.frame, ev.shortfall, _lag_samples(run, ev.frame.cycle, lag), hold)
+        folded = held_over_stretches(
+            folded_shortfall(current, ev.frame, ev.shortfall, _lag_samples(run, ev.frame.cycle, lag), hold), stretches)
         if before is not None:
             response = _response(before, folded, added)
         wanted = local_margins(current, folded, margin_factor, response)

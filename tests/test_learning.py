@@ -433,7 +433,7 @@ def test_on_the_papers_rig_with_its_feedforward_one_trial_comes_within_1p1_of_th
     from piezopreload.study import load_study
 
     study = load_study("paper2021")
-    rig = Rig(study.rig)
+    rig = Rig(study.plant)
     c = Controller(study.gains, rig.dt_s, study.identify_feedforward().inverse())
     full = L.learn(c, rig, TRAJECTORY, iterations=6, seed=study.seed, stop_gain=None)
     whole = [float(h.tracking_rms_N) for h in full.history]
@@ -641,9 +641,9 @@ def test_learn_cli_takes_the_after_change_weight_and_the_designs_schedule(tmp_pa
     assert weighted["plan_rms_after_change_N"] < plain["plan_rms_after_change_N"], "the weight did not move the plan"
     assert main([*args, "--after-change-weight", "-1"]) == 2
     assert "error:" in capsys.readouterr().err
-    # the paper's study has no design: 'schedule' is refused with what it needs
+    # the paper's study's plant is its rig, not a design: 'schedule' is refused with what it needs
     assert main([*args, "--reference", "schedule"]) == 2
-    assert "[ballscrew]" in capsys.readouterr().err
+    assert "[plant] from_design = true" in capsys.readouterr().err
     small = Path(__file__).parent / "data" / "small_axis.toml"
     assert main(["learn", "--study", str(small), "--reference", "schedule", "--iterations", "1", "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
