@@ -288,7 +288,7 @@ def test_study_plant_is_the_designed_plant_and_what_the_control_steps_run_on():
     np.testing.assert_array_equal(run.force_N, alone.force_N, err_msg="Study.simulate did not run on study.plant")
     paper = pp.load_study(PAPER)
     assert paper.plant.to_dict() == paper.rig.params().to_dict() and paper.plant.bolt_preload_N == 25.0
-    assert repr(axis).endswith("the plant is its design's ([plant] from_design))") and "its [rig])" in repr(paper)
+    assert "plant: its design;" in repr(axis) and "plant: its [rig];" in repr(paper)
     with pytest.raises(pp.InputError, match="there is no designed plant"):
         _ = paper.designed_plant
 
