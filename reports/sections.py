@@ -172,7 +172,7 @@ def system_section(system: SystemRecord, design: DesignRecord, learning: Learnin
         rows.append(("tracking RMS before learning", f"{fmt(learning.last.before_learning_rms_N)} N",
                      f"{fmt(learning.last.before_learning_pct_of_range)} % of the range (the last pass)"))
         rows.append(("learning trials (machining cycles' runs)", str(learning.trials),
-                     ", ".join(str(n) for n in learning.trials_per_pass) + " per pass"))
+                     ", ".join(f"pass {i}: {n}" for i, n in enumerate(learning.trials_per_pass, 1))))
     deflection = ("no limit set" if n.deflection_limit_um is None else f"limit {fmt(n.deflection_limit_um)} um")
     rows += [
         ("largest tracking error", f"{fmt(n.tracking_max_N)} N", ""),
