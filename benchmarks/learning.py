@@ -150,7 +150,7 @@ def machine_axis(folder: Path) -> dict:
     from piezopreload.artifacts.gainset import GainSet
     from piezopreload.artifacts.learned import LearnedSignal
     from piezopreload.artifacts.learning import LearningRecord
-    from piezopreload.core.artifacts import read_artifact
+    from piezopreload.artifacts.plant import DesignedPlant
     from piezopreload.pipeline import run_study
     from piezopreload.progress import Progress
     from piezopreload.tuning.learning import law_for
@@ -164,7 +164,7 @@ def machine_axis(folder: Path) -> dict:
     out["machine_axis_trials_per_pass"] = record.trials_per_pass
     out["machine_axis_stopped_within_1p1_per_pass"] = [p.trials_to_within_1p1 for p in record.passes]
     out["machine_axis_tracking_rms_N_per_pass"] = [p.tracking_rms_N for p in record.passes]
-    params = study.with_plant(read_artifact(folder / "plant.json", "plant")["rig"]).rig
+    params = DesignedPlant.load(folder / "plant.json").rig  # the plant the learn stage ran on
     controller = GainSet.load(folder / "gains.json").controller()
     references = [LearnedSignal.load(path).reference for path in record.signal_paths(folder / "learn")]
     learner, results = schedule_learner(params, controller, iterations=8, preview_s=None, method="norm-optimal",

@@ -67,10 +67,10 @@ def main() -> None:
         print(f"validation of {N_PLANTS} plants on {name}: {seconds[workers]:.1f} s", flush=True)
     same = all((results[1].metrics[k] == results[2].metrics[k]).all() for k in results[1].metrics)
     bounds = {}
-    for name, s in (("paper", study), ("designed", load_study().plant_study())):
+    for name, s in (("paper", study), ("designed", load_study())):
         step = s.references["step"]
         t0 = time.perf_counter()
-        b = minimum_time(s.rig, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]), band_N=s.band_N,
+        b = minimum_time(s.plant, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]), band_N=s.band_N,
                          u_min_V=s.tuning_spec.u_min_V, u_max_V=s.tuning_spec.u_max_V)
         bounds[name] = (time.perf_counter() - t0, b["settling_s"])
         print(f"minimum-time bound, {name}: {b['settling_s']:.4g} s in {bounds[name][0]:.2f} s", flush=True)
