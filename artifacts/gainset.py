@@ -24,7 +24,7 @@ import numpy as np
 from piezopreload.artifacts.validation import Criteria, ValidationResult
 from piezopreload.core.artifacts import parse_artifact, read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError, InputError
-from piezopreload.models.actuator import RigParams
+from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import SCHEDULE_MAX, Controller, GainSchedule, PIDGains
 from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at, model_from_dict
@@ -156,11 +156,11 @@ class RigInterlocks:
             raise InputError(f"field '{where}' is not valid: {exc}") from None
 
 
-def _plant_from(plant_doc: dict[str, Any], fail: Any) -> RigParams | None:
+def _plant_from(plant_doc: dict[str, Any], fail: Any) -> Plant | None:
     if plant_doc.get("rig") is None:
         return None
     try:
-        return RigParams.from_dict(plant_doc["rig"])
+        return Plant.from_dict(plant_doc["rig"])
     except (KeyError, TypeError, ValueError) as exc:
         raise fail(f"field 'plant.rig' is not a rig: {exc}") from None
 
@@ -192,7 +192,7 @@ class GainSet:
         modified or the paper's asymmetric, with or without creep.
     feedforward_info : dict
         How the feedforward was identified (source, fit).
-    plant : RigParams or None
+    plant : Plant or None
         The plant the gains were tuned and validated on; its ``sample_period_s`` is the loop's.
     preset : str or None
         The plant's name (the study's).
@@ -218,7 +218,7 @@ class GainSet:
     status: str = "candidate"
     feedforward: HysteresisModel | CreepPI | None = None
     feedforward_info: dict[str, Any] = field(default_factory=dict)
-    plant: RigParams | None = None
+    plant: Plant | None = None
     preset: str | None = None
     references: dict[str, Reference] = field(default_factory=dict)
     criteria: Criteria | None = None

@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from piezopreload.artifacts._fields import Fields
 from piezopreload.core.artifacts import read_artifact, write_artifact
-from piezopreload.models.actuator import RigParams
+from piezopreload.models.actuator import Plant
 from piezopreload.models.ballscrew import BallScrew, Material
 
 __all__ = ["DesignedPlant", "KIND"]
@@ -49,13 +49,13 @@ def _screw_from_fields(f: Fields) -> BallScrew:
 class DesignedPlant:
     """The rig of a designed preload system and where its numbers come from.
 
-    ``rig`` is the plant (:class:`RigParams`, Hertzian coupling); ``screw`` the optimum's
+    ``rig`` is the plant (:class:`Plant`, Hertzian coupling); ``screw`` the optimum's
     double nut; ``bolt_preload_N`` and ``max_preload_N`` the design's preload range;
     ``sleeve_stiffness_N_per_um`` the sleeve and bolts (inf: rigid); ``design_sha256`` the design
     artifact the plant was made from; ``inputs`` the hashes the plant artifact records.
     """
 
-    rig: RigParams
+    rig: Plant
     screw: BallScrew
     bolt_preload_N: float
     max_preload_N: float
@@ -93,7 +93,7 @@ class DesignedPlant:
         """The double nut's axial rigidity at ``preload_N`` as the plant has it.
 
         The plant's local stroke compliance ``dx/dF_E`` (a central difference of
-        :meth:`RigParams.stroke_for_force_um`) less the stacks' and the sleeve's compliance is the
+        :meth:`Plant.stroke_for_force_um`) less the stacks' and the sleeve's compliance is the
         two nuts in series, ``2 delta'(F)``; an external load meets them in parallel, so the
         rigidity is ``2 / delta'(F) = 4 / (2 delta'(F))``.
         """
@@ -126,7 +126,7 @@ class DesignedPlant:
         """The inverse of :meth:`to_dict`; an :class:`~piezopreload.core.errors.ArtifactError` names the field."""
         f = Fields(doc, shown)
         try:
-            rig = RigParams.from_dict(f.mapping("rig"))
+            rig = Plant.from_dict(f.mapping("rig"))
         except (KeyError, TypeError, ValueError) as exc:
             raise f.fail("rig", f"is not a rig: {exc}") from None
         sleeve = f.optional_number("sleeve_stiffness_N_per_um")

@@ -39,7 +39,7 @@ from scipy.signal import savgol_filter
 
 from piezopreload.core.tables import parse_columns, read_record
 from piezopreload.data import SHIPPED_COLUMNS, shipped_data
-from piezopreload.models.actuator import Rig, RigParams
+from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import simulate_open_loop
 from piezopreload.models.hysteresis import ClassicalPI, play, uniform_thresholds
 from piezopreload.tuning.identify import MODELS, PIIdentifier, fit_error
@@ -168,7 +168,7 @@ def shipped() -> dict[str, Any]:
 # --------------------------------------------------------------------------------------
 def drift(duration_s: float = 80.0) -> dict[str, Any]:
     with STUDY.open("rb") as f:
-        rig = Rig(RigParams.from_dict(tomllib.load(f)["rig"]))
+        rig = Rig(Plant.from_dict(tomllib.load(f)["rig"]))
     dt = rig.dt_s
     t = np.arange(int(round(duration_s / dt)) + 1) * dt
     t0 = time.perf_counter()

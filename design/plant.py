@@ -32,7 +32,7 @@ from piezopreload.artifacts.design import DesignPoint
 from piezopreload.artifacts.plant import DesignedPlant
 from piezopreload.core.errors import InputError
 from piezopreload.design.preload import DesignOptimum, DesignSpec
-from piezopreload.models.actuator import RigParams, bouc_wen_increment
+from piezopreload.models.actuator import Plant, bouc_wen_increment
 
 __all__ = ["plant_from_design", "DESIGNED_FIELDS"]
 
@@ -41,7 +41,7 @@ DESIGNED_FIELDS = ("stack", "n_stacks", "amp_current_limit_A", "stroke_um_per_V"
                    "bolt_preload_N", "hertz_um_per_N23", "hertz_preload_N")
 
 
-def plant_from_design(spec: DesignSpec, design: DesignOptimum | DesignPoint, hardware: RigParams, *,
+def plant_from_design(spec: DesignSpec, design: DesignOptimum | DesignPoint, hardware: Plant, *,
                       design_sha256: str, sleeve_stiffness_N_per_um: float = math.inf) -> DesignedPlant:
     """The plant of ``design``, an optimum or its point (module docstring).
 

@@ -22,7 +22,7 @@ from piezopreload.core.config import Invalid, Table, key
 from piezopreload.design.plant import plant_from_design
 from piezopreload.design.preload import OBJECTIVES, PARETO_PAIRS, DesignSpec
 from piezopreload.design.system import SystemRun, track_schedule
-from piezopreload.models.actuator import RigParams
+from piezopreload.models.actuator import Plant
 from piezopreload.models.controller import Controller
 from piezopreload.models.feed_drive import MOUNTINGS
 
@@ -161,7 +161,7 @@ class PlantTable(Table):
     stack_contact_N: float = key(0.0, "least force the stacks keep on the nuts (they are not bonded to them)",
                                  unit="N", ge=0)
 
-    def plant(self, spec: DesignSpec, point: DesignPoint, hardware: RigParams, design_sha256: str = "") -> DesignedPlant:
+    def plant(self, spec: DesignSpec, point: DesignPoint, hardware: Plant, design_sha256: str = "") -> DesignedPlant:
         """The plant of the design ``point`` with this table's sleeve (:func:`~piezopreload.design.plant.plant_from_design`)."""
         sleeve = math.inf if self.sleeve_stiffness_N_per_um is None else float(self.sleeve_stiffness_N_per_um)
         return plant_from_design(spec, point, hardware, design_sha256=design_sha256, sleeve_stiffness_N_per_um=sleeve)

@@ -25,7 +25,7 @@ calibrated ~3 N/um gives ~400 Hz) lies more than two decades above the force loo
 (about 1 Hz with the paper's gains), so the coupling is quasi-static here.
 
 Everything broadcasts: give any numeric parameter as an array of shape ``(n,)`` and the rig
-is a batch of ``n`` plants simulated at once (:meth:`RigParams.vary` draws such a batch).
+is a batch of ``n`` plants simulated at once (:meth:`Plant.vary` draws such a batch).
 The Bouc-Wen equation is rate-independent and, on a monotone voltage increment, linear in
 its state on each side of zero, so it is integrated *exactly* over each sample.
 """
@@ -43,7 +43,7 @@ from piezopreload.core.checks import FieldRule, check_fields
 from piezopreload.core.errors import InputError
 from piezopreload.models.ops import NUMPY, Layout, Ops, absolute, clip
 
-__all__ = ["StackData", "P888_91", "RigParams", "RigState", "Rig", "PlantModel", "bouc_wen_step", "bouc_wen_increment",
+__all__ = ["StackData", "P888_91", "Plant", "RigState", "Rig", "PlantModel", "bouc_wen_step", "bouc_wen_increment",
            "loop_width", "reach_N", "ABS_SCALE_V", "hertz_force"]
 
 Array = NDArray[np.float64]
@@ -114,7 +114,7 @@ def _time_constants(value: Any) -> bool:
     return bool(taus.ndim == 1 and np.all(np.isfinite(taus) & (taus > 0)))
 
 
-#: RigParams' fields: (field, test, requirement), checked in order; the rules between fields follow in code
+#: Plant' fields: (field, test, requirement), checked in order; the rules between fields follow in code
 _RIG_RULES: tuple[FieldRule, ...] = (
     *((name, _all_positive, "must be finite and > 0") for name in _POSITIVE),
     *((name, _all_nonnegative, "must be finite and >= 0") for name in _NONNEGATIVE),
@@ -129,8 +129,12 @@ _RIG_RULES: tuple[FieldRule, ...] = (
 
 
 @dataclass(frozen=True, eq=False)
-class RigParams:
-    """Parameters of the simulated rig (one plant, or a batch when fields are arrays).
+class Plant:
+    """The plant every control step runs on: the stacks, the amplifier, the coupling and the sensor.
+
+    One plant, or a batch when fields are arrays (the Monte Carlo plants, :meth:`vary`). A study's
+    plant is its ``[rig]`` table, or the designed preload system's (``[plant] from_design``,
+    :func:`piezopreload.design.plant.plant_from_design`); :class:`Rig` simulates it.
 
     Parameters
     ----------
@@ -209,16 +213,16 @@ class RigParams:
     hertz_preload_N: Any = 0.0
 
     def __post_init__(self) -> None:
-        check_fields(self, "RigParams", _RIG_RULES)
+        check_fields(self, "Plant", _RIG_RULES)
         if not np.all(np.asarray(self.bw_beta_per_V) > np.abs(np.asarray(self.bw_gamma_per_V))):
             raise ValueError(
-                "RigParams needs bw_beta_per_V > |bw_gamma_per_V| for a bounded Bouc-Wen loop, "
+                "Plant needs bw_beta_per_V > |bw_gamma_per_V| for a bounded Bouc-Wen loop, "
                 f"got beta={self.bw_beta_per_V!r}, gamma={self.bw_gamma_per_V!r}."
             )
         if not np.all(np.asarray(self.amp_v_min_V) < np.asarray(self.amp_v_max_V)):
-            raise ValueError("RigParams needs amp_v_min_V < amp_v_max_V.")
+            raise ValueError("Plant needs amp_v_min_V < amp_v_max_V.")
         if np.any(np.asarray(self.hertz_um_per_N23, float) > 0) and not np.all(np.asarray(self.hertz_preload_N) > 0):
-            raise ValueError("RigParams.hertz_preload_N must be > 0 (the bolts' preload on the nuts) when "
+            raise ValueError("Plant.hertz_preload_N must be > 0 (the bolts' preload on the nuts) when "
                              f"hertz_um_per_N23 > 0, got {self.hertz_preload_N!r}.")
         np.broadcast_shapes(*(np.shape(getattr(self, n)) for n in self.batch_fields()))
 
@@ -232,7 +236,7 @@ class RigParams:
     def batch_shape(self) -> tuple[int, ...]:
         return np.broadcast_shapes(*(np.shape(getattr(self, n)) for n in self.batch_fields()))
 
-    def vary(self, n: int, spread: dict[str, float], seed: int | np.random.Generator = 0) -> RigParams:
+    def vary(self, n: int, spread: dict[str, float], seed: int | np.random.Generator = 0) -> Plant:
         """A batch of ``n`` plants around this one.
 
         ``spread`` maps a field name to a relative standard deviation; each plant's value is
@@ -253,7 +257,7 @@ class RigParams:
             changes[name] = np.asarray(getattr(self, name), float) * factor
         return replace(self, **changes)
 
-    def take(self, index: int | slice) -> RigParams:
+    def take(self, index: int | slice) -> Plant:
         """One plant (or a sub-batch) of a batch."""
         shape = self.batch_shape
         changes: dict[str, Any] = {}
@@ -326,7 +330,7 @@ class RigParams:
         return out
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> RigParams:
+    def from_dict(cls, data: dict[str, Any]) -> Plant:
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
@@ -450,7 +454,7 @@ class PlantModel:
     n_creep: int
     delay_samples: int = 1
     smoothing: float = 0.0
-    hertz: bool = False  # the nuts' Hertz law in the coupling (RigParams.hertz_um_per_N23 > 0)
+    hertz: bool = False  # the nuts' Hertz law in the coupling (Plant.hertz_um_per_N23 > 0)
 
     def __post_init__(self) -> None:
         if not (isinstance(self.n_creep, int | np.integer) and self.n_creep >= 0):
@@ -461,7 +465,7 @@ class PlantModel:
             raise InputError(f"PlantModel.smoothing must be in [0, 1), got {self.smoothing!r}.")
 
     @classmethod
-    def of(cls, params: RigParams, smoothing: float = 0.0) -> PlantModel:
+    def of(cls, params: Plant, smoothing: float = 0.0) -> PlantModel:
         """The structure of the rig ``params``."""
         return cls(len(params.creep_tau_s), int(params.delay_samples), float(smoothing), params.hertz)
 
@@ -474,7 +478,7 @@ class PlantModel:
 
     @cached_property
     def params(self) -> Layout:
-        """The step's numbers, derived once from :class:`RigParams` (per sample where it says so)."""
+        """The step's numbers, derived once from :class:`Plant` (per sample where it says so)."""
         return Layout("plant parameters", [
             ("bolt_preload_N", None), ("keff_N_per_um", None), ("stroke_um_per_V", None), ("bw_kappa", None),
             ("amp_v_min_V", None), ("amp_v_max_V", None),
@@ -485,7 +489,7 @@ class PlantModel:
             ("noise_N", None), ("adc_lsb_N", None), ("adc_full_scale_N", None),
         ] + ([("hertz_um_per_N23", None), ("hertz_preload_N", None)] if self.hertz else []))
 
-    def parameters(self, params: RigParams) -> Array:
+    def parameters(self, params: Plant) -> Array:
         """The parameter vector of ``params`` (shape ``batch + (n,)`` for a batch of plants)."""
         if len(params.creep_tau_s) != self.n_creep or params.delay_samples != self.delay_samples:
             raise InputError(f"the rig has {len(params.creep_tau_s)} creep lags and {params.delay_samples} samples of "
@@ -585,7 +589,7 @@ class Rig:
     The numpy face of :class:`PlantModel` (exact, no smoothing) for one plant or a batch.
     """
 
-    params: RigParams = field(default_factory=RigParams)
+    params: Plant = field(default_factory=Plant)
 
     @property
     def dt_s(self) -> float:

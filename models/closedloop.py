@@ -6,7 +6,7 @@ reading and the reference at ``t_k``, the command is written to the D/A and reac
 amplifier after the rig's ``delay_samples``, and the rig advances to ``t_{k+1}``. The loop runs
 compiled where a C compiler works and in numpy elsewhere, with the same numbers.
 
-The same function simulates one plant or a batch (a :class:`~piezopreload.models.actuator.RigParams`
+The same function simulates one plant or a batch (a :class:`~piezopreload.models.actuator.Plant`
 with array fields): every array carries the batch in its leading axes and time last.
 """
 

@@ -28,6 +28,7 @@ from piezopreload.core.errors import (
 )
 from piezopreload.core.tables import Record, read_record
 from piezopreload.design.study import DesignResult
+from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import ClosedLoopRun, Reference
 from piezopreload.models.controller import PIDGains
 from piezopreload.models.metrics import StepMetrics
@@ -43,7 +44,7 @@ from piezopreload.tuning.plantfit import FittedPlant, fit_plant
 
 __all__ = [
     "__version__", "load_study", "shipped_studies", "Study", "GainSet", "TuningResult", "StudyRun", "ScheduleLearning",
-    "ClosedLoopRun",
+    "ClosedLoopRun", "Plant",
     "DesignResult", "IdentifiedFeedforward", "PIDGains", "Reference", "StepMetrics", "Record", "read_record",
     "export", "identify", "Identification", "PIIdentifier", "NotFittedError", "IdentifiedModel", "Window",
     "autotune", "AutotuneResult", "fit_plant", "FittedPlant", "PiezopreloadError", "InputError", "ArtifactError",

@@ -55,7 +55,7 @@ from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignS
 from piezopreload.design.study import DesignResult, design_spec_from_tables, design_study, plan_schedule, read_profile
 from piezopreload.design.system import SystemRun
 from piezopreload.design.tables import BallscrewTable, DesignTable, DutyTable, FeedDriveTable, PlantTable, ScheduleTable
-from piezopreload.models.actuator import RigParams
+from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.rig.tables import ExportTable, RigRunPlan
@@ -111,9 +111,9 @@ class _Kept:
     :meth:`Study.with_design`), and from it the designed plant, the plant and the preload schedule."""
 
     def __init__(self, optimum: DesignOptimum | None = None, point: DesignPoint | None = None,
-                 design_sha256: str = "", plant: RigParams | None = None) -> None:
+                 design_sha256: str = "", plant: Plant | None = None) -> None:
         self.optimum, self.point, self.design_sha256 = optimum, point, design_sha256
-        self.plant: RigParams | None = plant
+        self.plant: Plant | None = plant
         self.designed: DesignedPlant | None = None
         self.schedule: PreloadSchedule | None = None
 
@@ -131,7 +131,7 @@ class Study:
 
     Make one with :func:`load_study`, a changed copy with :meth:`replace`. The ``[design]`` table is
     ``design_table`` (``design()`` runs it), the ``[plant]`` table ``plant_table`` (``plant`` is the
-    plant itself, a :class:`~piezopreload.models.actuator.RigParams`).
+    plant itself, a :class:`~piezopreload.models.actuator.Plant`).
     """
 
     path: str
@@ -272,7 +272,7 @@ class Study:
         return self.plant_table is not None and self.plant_table.from_design
 
     @property
-    def plant(self) -> RigParams:
+    def plant(self) -> Plant:
         """The plant every control step runs on: ``[rig]``, or the plant of the design's optimum where
         ``[plant] from_design = true`` (the design solved once, saying so through the study's progress, and kept)."""
         return self._plant(None)
@@ -346,7 +346,7 @@ class Study:
                                      k.design_sha256)
         return k.designed
 
-    def _plant(self, progress: Say | None) -> RigParams:
+    def _plant(self, progress: Say | None) -> Plant:
         k = self._kept
         if k.plant is None:
             k.plant = self._designed(progress).rig if self.plant_from_design else self.rig.params()

@@ -24,7 +24,7 @@ from piezopreload.design.tables import (
     PlantTable,
     ScheduleTable,
 )
-from piezopreload.models.actuator import P888_91, RigParams, StackData
+from piezopreload.models.actuator import P888_91, Plant, StackData
 from piezopreload.rig.tables import ExportTable, RigRunPlan
 from piezopreload.tuning.calibrate import LoopExcitation
 from piezopreload.tuning.identify import MODELS
@@ -37,7 +37,7 @@ __all__ = ["StudyTable", "StackTable", "RigTable", "ControllerTable", "Feedforwa
 
 UNITS = ("seconds", "minutes")
 SIGNALS = ("measured_N", "force_N")
-_RIG = RigParams()
+_RIG = Plant()
 
 
 @dataclass(frozen=True)
@@ -121,12 +121,12 @@ class RigTable(Table):
             raise Invalid("hertz_preload_N", f"must be > 0 (the bolts' preload on the nuts) where hertz_um_per_N23 "
                                              f"> 0, got {self.hertz_preload_N!r}")
 
-    def params(self) -> RigParams:
+    def params(self) -> Plant:
         """The rig the table describes (a key not set: the model's default)."""
         given = {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}
         if "stack" in given:
             given["stack"] = given["stack"].data()
-        return RigParams(**given)
+        return Plant(**given)
 
 
 @dataclass(frozen=True)

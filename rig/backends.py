@@ -63,7 +63,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from piezopreload.core.errors import InputError
-from piezopreload.models.actuator import Rig, RigParams
+from piezopreload.models.actuator import Plant, Rig
 from piezopreload.rig import watchdog
 from piezopreload.rig.compiled import PlantStep
 from piezopreload.rig.watchdog import SharedDAQ
@@ -116,7 +116,7 @@ class SimBackend:
     #: a simulation may run back to back (``rig run --fast``); a backend without this runs in real time
     simulated = True
 
-    def __init__(self, plant: RigParams, seed: int = 0, *, watchdog_s: float | None = None,
+    def __init__(self, plant: Plant, seed: int = 0, *, watchdog_s: float | None = None,
                  daq_path: str | None = None) -> None:
         if plant.batch_shape:
             raise ValueError("the simulated backend runs one plant, not a batch")
@@ -410,7 +410,7 @@ def available_backends() -> list[str]:
     return ["sim", "clib", *sorted(n for n in _plugins() if n not in ("sim", "clib"))]
 
 
-def open_backend(name: str, options: Mapping[str, str] | None = None, *, plant: RigParams | None = None,
+def open_backend(name: str, options: Mapping[str, str] | None = None, *, plant: Plant | None = None,
                  seed: int = 0) -> Backend:
     """The backend ``name``: ``sim`` on ``plant``, or the installed plug-in of that name with ``options``."""
     options = dict(options or {})

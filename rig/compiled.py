@@ -34,7 +34,7 @@ import numpy as np
 
 from piezopreload.core import native
 from piezopreload.core.errors import InputError
-from piezopreload.models.actuator import PlantModel, Rig, RigParams
+from piezopreload.models.actuator import Plant, PlantModel, Rig
 from piezopreload.models.controller import Controller, ControllerModel, ControllerState, controller_functions
 from piezopreload.models.ops import CASADI, NUMPY
 
@@ -238,7 +238,7 @@ class PlantStep:
     standard normal draw, :meth:`write` advances the plant by one sample under a command.
     """
 
-    def __init__(self, params: RigParams, prefer: str = "c") -> None:
+    def __init__(self, params: Plant, prefer: str = "c") -> None:
         if params.batch_shape:
             raise InputError("a plant step runs one plant, not a batch")
         self.rig = Rig(params)

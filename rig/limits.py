@@ -28,7 +28,7 @@ import numpy as np
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.rigrun import StallLimit
 from piezopreload.core.errors import InputError
-from piezopreload.models.actuator import Rig, RigParams, reach_N
+from piezopreload.models.actuator import Plant, Rig, reach_N
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import Controller
 from piezopreload.rig.interlocks import Safety
@@ -63,7 +63,7 @@ def study_values(gain_set: GainSet) -> tuple[dict[str, float | None], dict[str, 
     return {**values, "stall_limit_s": None}, {**{k: v + note for k, v in sources.items()}, "stall_limit_s": "not set"}
 
 
-def plant_of(gain_set: GainSet) -> RigParams:
+def plant_of(gain_set: GainSet) -> Plant:
     """The gain set's plant; an :class:`InputError` where it names none."""
     if gain_set.plant is None:
         raise InputError("field 'plant.rig' is missing: the gain set does not name its plant; write it again with "

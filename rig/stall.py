@@ -33,7 +33,7 @@ from functools import lru_cache
 import numpy as np
 
 from piezopreload.artifacts.rigrun import StallLimit
-from piezopreload.models.actuator import Rig, RigParams
+from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import Reference, simulate
 from piezopreload.models.controller import Controller
 from piezopreload.models.loop import OpenLoopModel, run
@@ -49,7 +49,7 @@ SIGMAS = 5.0
 MAX_STARTS = 2000
 
 
-def _nominal(plant: RigParams, controller: Controller, reference: Reference, v_range: tuple[float, float],
+def _nominal(plant: Plant, controller: Controller, reference: Reference, v_range: tuple[float, float],
              ff_extra_V: np.ndarray | None, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """The commands the loop writes on the nominal run and the plant's state at each sample (before its write)."""
     rig = Rig(plant)
@@ -75,7 +75,7 @@ def _starts(u: np.ndarray, states: np.ndarray, amp_index: int) -> np.ndarray:
     return np.unique(np.concatenate([spread, biggest]))
 
 
-def _held_forces(plant: RigParams, states: np.ndarray, held_V: np.ndarray, steps: int) -> np.ndarray:
+def _held_forces(plant: Plant, states: np.ndarray, held_V: np.ndarray, steps: int) -> np.ndarray:
     """The true force of each state held at its command, for ``steps + 1`` samples (rows: starts)."""
     rig = Rig(plant)
     model = OpenLoopModel(rig.model)
@@ -84,7 +84,7 @@ def _held_forces(plant: RigParams, states: np.ndarray, held_V: np.ndarray, steps
     return y[:, model.outputs.index("force_N"), :]
 
 
-def derive_stall_limit(plant: RigParams, controller: Controller, reference: Reference, *, force_low_N: float,
+def derive_stall_limit(plant: Plant, controller: Controller, reference: Reference, *, force_low_N: float,
                        force_max_N: float, v_range: tuple[float, float], reference_name: str = "the reference",
                        ff_extra_V: np.ndarray | None = None, seed: int = 0, sigmas: float = SIGMAS,
                        horizon_s: float = HORIZON_S) -> StallLimit:
@@ -111,7 +111,7 @@ def derive_stall_limit(plant: RigParams, controller: Controller, reference: Refe
 class _Key:
     """Holds unhashable inputs for the cache, compared by their JSON documents."""
 
-    def __init__(self, parts: tuple[RigParams, Controller, Reference]) -> None:
+    def __init__(self, parts: tuple[Plant, Controller, Reference]) -> None:
         self.parts = parts
         plant, controller, reference = parts
         self._id = (repr(sorted(plant.to_dict().items())), controller.parameter_vector().tobytes(),

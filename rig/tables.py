@@ -9,7 +9,7 @@ from dataclasses import dataclass, fields, replace
 
 from piezopreload.artifacts.gainset import REFERENCES, RigInterlocks
 from piezopreload.core.config import Invalid, Table, key
-from piezopreload.models.actuator import Rig, RigParams, reach_N
+from piezopreload.models.actuator import Plant, Rig, reach_N
 from piezopreload.rig.export import FORMATS
 from piezopreload.rig.interlocks import Safety
 
@@ -60,7 +60,7 @@ class RigRunPlan(Table):
         """The interlock keys the study sets (None: not set)."""
         return {name: getattr(self, name) for name in INTERLOCK_KEYS}
 
-    def interlocks(self, plant: RigParams, source: str) -> RigInterlocks:
+    def interlocks(self, plant: Plant, source: str) -> RigInterlocks:
         """The interlock settings a gain set of this study carries: the keys the study sets (``source`` names the
         study), the others as :func:`default_interlocks` derives them for ``plant``."""
         values, sources = default_interlocks(plant)
@@ -76,7 +76,7 @@ class RigRunPlan(Table):
         return self if self.realtime is not None else replace(self, realtime=self.backend != "sim")
 
 
-def default_interlocks(plant: RigParams) -> tuple[dict[str, float], dict[str, str]]:
+def default_interlocks(plant: Plant) -> tuple[dict[str, float], dict[str, str]]:
     """The interlock settings for a study that sets none, and where each comes from.
 
     ``force_max_N``: :data:`FORCE_MAX_FACTOR` times the force the plant's stacks reach from

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from piezopreload.models.actuator import P888_91, Rig, RigParams, bouc_wen_increment, loop_width, reach_N
+from piezopreload.models.actuator import P888_91, Plant, Rig, bouc_wen_increment, loop_width, reach_N
 from piezopreload.tuning.identify import PIIdentifier
 
 QUIET = dict(noise_N=0.0, creep_per_decade=0.0)
@@ -43,7 +43,7 @@ def test_bouc_wen_increment_composes():
 
 
 def test_stacks_match_the_data_sheet_and_the_stiffness_chain():
-    p = RigParams()
+    p = Plant()
     # the data sheet's blocked force is stiffness x travel, for each stack
     assert P888_91.stiffness_N_per_um * P888_91.max_travel_um == pytest.approx(P888_91.blocked_force_N, rel=0.06)
     assert p.stack_stiffness_N_per_um == 300.0
@@ -55,12 +55,12 @@ def test_stacks_match_the_data_sheet_and_the_stiffness_chain():
 
 
 def test_force_at_rest_is_the_bolt_preload():
-    rig = Rig(RigParams(bolt_preload_N=25.0))
+    rig = Rig(Plant(bolt_preload_N=25.0))
     assert rig.force(rig.initial_state()) == pytest.approx(25.0)
 
 
 def test_amplifier_small_step_is_first_order_and_large_step_is_slew_limited():
-    p = RigParams(**QUIET, amp_bandwidth_Hz=20.0, amp_current_limit_A=0.01, delay_samples=0)
+    p = Plant(**QUIET, amp_bandwidth_Hz=20.0, amp_current_limit_A=0.01, delay_samples=0)
     rig = Rig(p)
     dt, tau = p.sample_period_s, 1 / (2 * np.pi * 20.0)
     # small step: below the slew limit the output follows 1 - exp(-t/tau) exactly at the samples
@@ -78,7 +78,7 @@ def test_amplifier_small_step_is_first_order_and_large_step_is_slew_limited():
 
 
 def test_one_sample_delay():
-    p = RigParams(**QUIET)
+    p = Plant(**QUIET)
     rig0, rig1 = Rig(replace(p, delay_samples=0)), Rig(p)
     s0, s1 = rig0.step(rig0.initial_state(), 10.0), rig1.step(rig1.initial_state(), 10.0)
     assert float(s0.v_amp) > 0 and float(s1.v_amp) == 0.0
@@ -88,7 +88,7 @@ def test_one_sample_delay():
 
 def test_creep_after_a_step_follows_its_closed_form():
     """x_total(t) = x - sum_i c (x - x0) exp(-t / tau_i) at constant voltage: exact at the samples."""
-    p = RigParams(noise_N=0.0, creep_per_decade=0.02, amp_bandwidth_Hz=1e4, amp_current_limit_A=10.0, delay_samples=0)
+    p = Plant(noise_N=0.0, creep_per_decade=0.02, amp_bandwidth_Hz=1e4, amp_current_limit_A=10.0, delay_samples=0)
     rig = Rig(p)
     st = rig.step(rig.initial_state(), 50.0)  # the amplifier reaches 50 V within this sample
     assert float(st.v_amp) == pytest.approx(50.0, abs=1e-9)
@@ -107,7 +107,7 @@ def test_creep_after_a_step_follows_its_closed_form():
 
 
 def test_sensor_quantises_and_adds_noise_of_the_stated_level():
-    p = RigParams(noise_N=0.3)
+    p = Plant(noise_N=0.3)
     rig = Rig(p)
     st = rig.initial_state((20000,))
     y = rig.measure(st, np.random.default_rng(0))
@@ -119,14 +119,14 @@ def test_sensor_quantises_and_adds_noise_of_the_stated_level():
 
 
 def test_width_and_reach_are_those_of_real_stacks():
-    rig = Rig(RigParams(bw_alpha=0.3, bw_beta_per_V=0.02, coupling_stiffness_N_per_um=3.0))
+    rig = Rig(Plant(bw_alpha=0.3, bw_beta_per_V=0.02, coupling_stiffness_N_per_um=3.0))
     assert 0.10 <= float(loop_width(rig)) <= 0.15
     assert float(reach_N(rig, 110.0)) > 100.0
 
 
 def test_truth_model_is_not_a_prandtl_ishlinskii_model():
     """A P-I model with many operators still leaves a residual on the noise-free truth loop."""
-    rig = Rig(RigParams(**QUIET, bw_kappa=0.2))
+    rig = Rig(Plant(**QUIET, bw_kappa=0.2))
     v = np.concatenate([np.linspace(0, 100, 401), np.linspace(100, 20, 321)[1:], np.linspace(20, 80, 241)[1:],
                         np.linspace(80, 0, 321)[1:]])
     f, _ = rig.quasi_static_loop(v)
@@ -136,7 +136,7 @@ def test_truth_model_is_not_a_prandtl_ishlinskii_model():
 
 
 def test_batches_vary_deterministically_and_simulate_like_single_plants():
-    base = RigParams(**QUIET)
+    base = Plant(**QUIET)
     a = base.vary(8, {"amp_bandwidth_Hz": 0.2, "coupling_stiffness_N_per_um": 0.1}, seed=4)
     b = base.vary(8, {"amp_bandwidth_Hz": 0.2, "coupling_stiffness_N_per_um": 0.1}, seed=4)
     np.testing.assert_array_equal(a.amp_bandwidth_Hz, b.amp_bandwidth_Hz)
@@ -161,13 +161,13 @@ def test_bad_parameters_are_named(field, value):
     if field == "bw_beta_per_V":
         kwargs["bw_gamma_per_V"] = 0.01
     with pytest.raises(ValueError, match=field):
-        RigParams(**kwargs)
+        Plant(**kwargs)
 
 
 def test_parameters_round_trip_through_a_dict():
-    p = RigParams(bw_kappa=0.1).vary(3, {"noise_N": 0.2}, seed=1)
-    q = RigParams.from_dict(p.to_dict())
+    p = Plant(bw_kappa=0.1).vary(3, {"noise_N": 0.2}, seed=1)
+    q = Plant.from_dict(p.to_dict())
     np.testing.assert_array_equal(q.noise_N, p.noise_N)
     assert q.stack == p.stack and q.creep_tau_s == p.creep_tau_s and q.bw_kappa == 0.1
     with pytest.raises(ValueError, match="unknown rig parameter"):
-        RigParams.from_dict({"noise": 0.1})
+        Plant.from_dict({"noise": 0.1})

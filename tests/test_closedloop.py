@@ -5,14 +5,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from piezopreload.models.actuator import Rig, RigParams
+from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import Reference, simulate, simulate_open_loop, triangle
 from piezopreload.models.controller import Controller, PIDGains
 
 control = pytest.importorskip("control", reason="python-control is the independent reference (extra 'test')")
 
 # a rig without hysteresis, creep, noise or quantisation: linear, so python-control can check it
-LINEAR = RigParams(bw_alpha=1e-12, bw_beta_per_V=1e-3, creep_per_decade=0.0, noise_N=0.0, adc_bits=32,
+LINEAR = Plant(bw_alpha=1e-12, bw_beta_per_V=1e-3, creep_per_decade=0.0, noise_N=0.0, adc_bits=32,
                    amp_current_limit_A=100.0, amp_bandwidth_Hz=15.0)
 
 
@@ -37,7 +37,7 @@ def test_closed_loop_matches_python_control_on_a_linear_rig():
 
 
 def test_pid_alone_reaches_the_setpoint_and_holds_it():
-    rig = Rig(RigParams())
+    rig = Rig(Plant())
     run = simulate(rig, Controller(PIDGains(0.3, 0.08, 0.001), rig.dt_s), Reference.step(25.0, 60.0, 0.5, 8.0))
     late = run.t_s > 6.0
     # creep keeps pushing the force up and the PI lowers the voltage along a descending branch
@@ -48,7 +48,7 @@ def test_pid_alone_reaches_the_setpoint_and_holds_it():
 
 
 def test_simulation_is_deterministic_for_a_seed():
-    rig = Rig(RigParams(noise_N=0.3))
+    rig = Rig(Plant(noise_N=0.3))
     c = Controller(PIDGains(0.3, 0.08, 0.001), rig.dt_s)
     ref = Reference.step(25.0, 60.0, 0.1, 1.0)
     a, b = simulate(rig, c, ref, seed=7), simulate(rig, c, ref, seed=7)
@@ -59,7 +59,7 @@ def test_simulation_is_deterministic_for_a_seed():
 
 
 def test_a_batch_simulates_each_plant_as_alone():
-    base = replace(RigParams(), noise_N=0.0)
+    base = replace(Plant(), noise_N=0.0)
     batch = base.vary(5, {"amp_bandwidth_Hz": 0.3, "coupling_stiffness_N_per_um": 0.15, "creep_per_decade": 0.3}, seed=2)
     c = Controller(PIDGains(0.3, 0.08, 0.001), base.sample_period_s)
     ref = Reference.step(25.0, 60.0, 0.1, 4.0)
@@ -73,7 +73,7 @@ def test_a_batch_simulates_each_plant_as_alone():
 
 
 def test_step_metrics_of_a_run_use_the_step_window():
-    rig = Rig(replace(RigParams(), noise_N=0.0))
+    rig = Rig(replace(Plant(), noise_N=0.0))
     ref = Reference.staircase(25.0, [60.0, 80.0], hold_s=3.0, t_start_s=0.5)
     run = simulate(rig, Controller(PIDGains(0.3, 0.08, 0.001), rig.dt_s), ref)
     first, second = run.step_metrics(1.5, which=1), run.step_metrics(1.5, which=2)
@@ -93,6 +93,6 @@ def test_references_and_the_open_loop_measurement():
     assert ref.duration_s == pytest.approx(25.5)
     t, v = triangle(100.0, 0.5, 2, 1e-3)
     assert v.max() == pytest.approx(100.0) and v[0] == 0.0 and t[-1] == pytest.approx(4.0)
-    rec = simulate_open_loop(Rig(RigParams()), v, seed=1)
+    rec = simulate_open_loop(Rig(Plant()), v, seed=1)
     assert rec["measured_N"].shape == v.shape
     assert rec["force_N"].max() > 90.0  # about 1 N/V over the 0-100 V loop

@@ -12,7 +12,7 @@ from scipy.integrate import solve_ivp
 from scipy.signal import cont2discrete
 
 from piezopreload.core.errors import InputError
-from piezopreload.models.actuator import Rig, RigParams
+from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import simulate_open_loop
 from piezopreload.models.hysteresis import (
     AsymmetricPI,
@@ -371,7 +371,7 @@ def test_a_drift_the_hysteresis_alone_cannot_fit_is_fitted_with_creep():
     creep on the later window, 1.3 % without; the bounds leave room for solver differences.
     """
     dt = 0.01
-    rig = Rig(RigParams(bw_alpha=0.32, bw_kappa=0.09, creep_per_decade=0.04, noise_N=0.0, sample_period_s=dt,
+    rig = Rig(Plant(bw_alpha=0.32, bw_kappa=0.09, creep_per_decade=0.04, noise_N=0.0, sample_period_s=dt,
                         coupling_stiffness_N_per_um=2.2, amp_current_limit_A=0.0142))
     t = np.arange(int(60 / dt) + 1) * dt
     rec = simulate_open_loop(rig, 50 - 50 * np.cos(2 * np.pi * 0.5 * t))  # 0..100 V from rest at 0 V
@@ -409,7 +409,7 @@ def test_shipped_record_with_creep(request):
 
 def test_modified_model_with_creep_is_invertible_on_the_rig_record():
     dt = 0.01
-    rig = Rig(RigParams(bw_kappa=0.09, noise_N=0.0, sample_period_s=dt))
+    rig = Rig(Plant(bw_kappa=0.09, noise_N=0.0, sample_period_s=dt))
     t = np.arange(int(20 / dt) + 1) * dt
     rec = simulate_open_loop(rig, 50 - 50 * np.cos(2 * np.pi * 0.5 * t))
     est = PIIdentifier(model="modified", creep=True).fit(rec["voltage_V"], rec["force_N"], sample_period_s=dt)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from piezopreload.artifacts.validation import Criteria
-from piezopreload.models.actuator import RigParams
+from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import PIDGains
 from piezopreload.tuning.linearised import small_signal_gains
@@ -55,7 +55,7 @@ def test_the_choice_follows_the_figures(robust, scheduled, whole, expected):
 
 def _hertz_rig(**kw):
     """The paper's rig with a Hertz coupling whose force per volt grows with the preload."""
-    return RigParams(noise_N=0.2, hertz_um_per_N23=0.5, hertz_preload_N=25.0, **kw)
+    return Plant(noise_N=0.2, hertz_um_per_N23=0.5, hertz_preload_N=25.0, **kw)
 
 
 def test_a_window_s_slopes_are_the_hertz_coupling_s_there():

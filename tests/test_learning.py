@@ -11,7 +11,7 @@ import pytest
 from piezopreload.artifacts.learned import LearnedSignal
 from piezopreload.artifacts.learning import LearningRecord
 from piezopreload.core.errors import ArtifactError, InputError
-from piezopreload.models.actuator import Rig, RigParams
+from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.tuning import ilc as I
@@ -35,7 +35,7 @@ def _simulate_linear(model: I.LearningModel, u: np.ndarray) -> np.ndarray:
 
 # ---- preview ---------------------------------------------------------------------------------
 def test_preview_floor_without_preview_is_the_causal_floor_and_falls_with_preview():
-    params = RigParams(amp_current_limit_A=0.0142)  # the paper's slow amplifier: ramps of tens of samples
+    params = Plant(amp_current_limit_A=0.0142)  # the paper's slow amplifier: ramps of tens of samples
     causal = tracking_floor(params, TRAJECTORY)["rms_N"]
     plan0 = P.preview_plan(params, TRAJECTORY, 0.0)
     assert plan0.rms_N == pytest.approx(causal, rel=1e-12), "with no preview the plan's floor is not tracking_floor's"
@@ -50,9 +50,9 @@ def test_preview_floor_without_preview_is_the_causal_floor_and_falls_with_previe
     assert floors[-1] == pytest.approx(centred, rel=0.02), "the long-preview floor is not the centred ramps' error"
 
 
-def _pure_delay() -> RigParams:
+def _pure_delay() -> Plant:
     """A rig that is a pure delay (amplifier and slew far faster than a sample, no creep, hysteresis negligible)."""
-    return RigParams(amp_bandwidth_Hz=1e6, amp_current_limit_A=1e3, creep_per_decade=0.0, bw_alpha=1e-12,
+    return Plant(amp_bandwidth_Hz=1e6, amp_current_limit_A=1e3, creep_per_decade=0.0, bw_alpha=1e-12,
                      bw_kappa=0.0, noise_N=0.0, adc_bits=32, delay_samples=2)
 
 
@@ -74,7 +74,7 @@ def test_preview_on_a_pure_delay_removes_it_exactly():
 
 
 def test_the_rigs_own_branch_is_never_faster_than_the_steepest_slope_and_ends_at_each_level():
-    params = RigParams(amp_current_limit_A=0.0142)
+    params = Plant(amp_current_limit_A=0.0142)
     rate = tracking_floor(params, TRAJECTORY)["rate_N_per_s"] * params.sample_period_s
     ramps = P.branch_ramps(params, TRAJECTORY.levels_N)
     assert len(ramps) == TRAJECTORY.levels_N.size - 1
@@ -91,7 +91,7 @@ def test_the_rigs_own_branch_is_never_faster_than_the_steepest_slope_and_ends_at
 
 
 def test_a_slower_planned_ramp_follows_the_same_branch_in_proportionally_more_samples():
-    params = RigParams(amp_current_limit_A=0.0142)
+    params = Plant(amp_current_limit_A=0.0142)
     full = P.branch_ramps(params, TRAJECTORY.levels_N)
     half = P.branch_ramps(params, TRAJECTORY.levels_N, slew_fraction=0.5)
     for a, b in zip(full, half):
@@ -105,7 +105,7 @@ def test_a_slower_planned_ramp_follows_the_same_branch_in_proportionally_more_sa
 
 
 def test_weighting_the_after_change_error_starts_the_ramps_later_and_trades_the_two_scores():
-    params = RigParams(amp_current_limit_A=0.0142)
+    params = Plant(amp_current_limit_A=0.0142)
     ramps = P.branch_ramps(params, TRAJECTORY.levels_N)
     lead = P.feedforward_lead(params)
 
@@ -211,7 +211,7 @@ def test_the_model_contraction_bound_matches_the_lifted_norm_for_long_trials():
 @pytest.fixture(scope="module")
 def paper_loop():
     """The paper's rig under its PID gains (no feedforward): the loop the laws linearise."""
-    params = RigParams(noise_N=0.0)
+    params = Plant(noise_N=0.0)
     return params, Controller(PIDGains(Kc=0.3, Ti_s=0.08, Td_s=0.001), params.sample_period_s)
 
 
@@ -388,7 +388,7 @@ def test_more_trials_pay_until_the_extrapolated_limit_is_within_the_stop_gain():
 
 # ---- learning on the rig ---------------------------------------------------------------------------
 def test_learning_on_the_rig_converges_and_the_guard_keeps_the_best():
-    params = RigParams(noise_N=0.05)
+    params = Plant(noise_N=0.05)
     rig = Rig(params)
     c = Controller(PIDGains(Kc=0.3, Ti_s=0.08, Td_s=0.001), rig.dt_s)
     ref = Reference.staircase(25.0, [60.0, 80.0], 0.6, t_start_s=0.2)
@@ -407,7 +407,7 @@ def test_learning_on_the_rig_converges_and_the_guard_keeps_the_best():
 
 
 def test_the_norm_optimal_law_learns_in_one_trial_what_p_type_learns_in_four_and_stops_when_more_no_longer_pay():
-    params = RigParams(noise_N=0.05)
+    params = Plant(noise_N=0.05)
     rig = Rig(params)
     c = Controller(PIDGains(Kc=0.3, Ti_s=0.08, Td_s=0.001), rig.dt_s)  # no feedforward: the loop alone, 13.7 N RMS
     ref = Reference.staircase(25.0, [60.0, 80.0, 60.0], 0.5, t_start_s=0.2)
@@ -445,7 +445,7 @@ def test_on_the_papers_rig_with_its_feedforward_one_trial_comes_within_1p1_of_th
 def test_on_monte_carlo_plants_every_plant_converges_monotonically_and_a_divergent_law_is_caught():
     # the paper's rig's sensor noise (0.249 N); with a fifth of it a plant's error may stall by ~0.01 N at trial 2
     # (the stacks' hysteresis remembers trial 1's correction), beyond a noise floor of 0.006 N
-    params = RigParams(noise_N=0.249)
+    params = Plant(noise_N=0.249)
     rig = Rig(params)
     c = Controller(PIDGains(Kc=0.3, Ti_s=0.08, Td_s=0.001, u_max=200.0), rig.dt_s)
     ref = Reference.staircase(25.0, [45.0, 60.0], 0.4, t_start_s=0.1)
@@ -462,7 +462,7 @@ def test_on_monte_carlo_plants_every_plant_converges_monotonically_and_a_diverge
 
 
 def test_a_warm_started_pass_starts_near_where_the_last_one_ended():
-    params = RigParams(noise_N=0.05)
+    params = Plant(noise_N=0.05)
     c = Controller(PIDGains(Kc=0.3, Ti_s=0.08, Td_s=0.001), params.sample_period_s)
     refs = [Reference.ramps([0.0, 0.1, 0.3, 0.5], [25.0, 25.0, 60.0 + m, 60.0 + m], 0.6).repeat(2) for m in (0.0, 2.0)]
     learner, results = L.schedule_learner(params, c, iterations=3, preview_s=None, method="norm-optimal", seed=1)
@@ -498,7 +498,7 @@ def test_the_learned_signal_artifact_is_tied_to_its_gain_set_and_reference(tmp_p
 def test_a_schedules_passes_are_saved_as_one_typed_record_and_each_signal_is_found_by_its_reference(tmp_path):
     import json
 
-    params = RigParams(noise_N=0.05)
+    params = Plant(noise_N=0.05)
     rig = Rig(params)
     c = Controller(PIDGains(Kc=0.3, Ti_s=0.08, Td_s=0.001), rig.dt_s)
     refs = [Reference.ramps([0.0, 0.1, 0.3, 0.5], [25.0, 25.0, 60.0 + m, 60.0 + m], 0.6).repeat(2) for m in (0.0, 5.0)]
@@ -537,7 +537,7 @@ def designed_loop():
 
     spec = DesignSpec()
     opt = optimise(spec, "stiffness", DesignNLP(spec))
-    hardware = RigParams(amp_bandwidth_Hz=100.0, bw_alpha=0.3238, bw_kappa=0.0931, creep_per_decade=0.0385,
+    hardware = Plant(amp_bandwidth_Hz=100.0, bw_alpha=0.3238, bw_kappa=0.0931, creep_per_decade=0.0385,
                          noise_N=1.0, adc_full_scale_N=10000.0, amp_v_min_V=-20.0, amp_v_max_V=120.0)
     plant = plant_from_design(spec, opt, hardware, design_sha256="0" * 64, sleeve_stiffness_N_per_um=4000.0)
     c = Controller(PIDGains(Kc=0.0108, Ti_s=0.0486, b=0.91, u_min=-20.0, u_max=115.0), plant.rig.sample_period_s)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from piezopreload.core import native
-from piezopreload.models.actuator import PlantModel, Rig, RigParams
+from piezopreload.models.actuator import Plant, PlantModel, Rig
 from piezopreload.models.closedloop import Reference, simulate, simulate_open_loop
 from piezopreload.models.controller import Controller, ControllerModel, PIDGains
 from piezopreload.models.hysteresis import ClassicalPI
@@ -55,7 +55,7 @@ def test_one_compiled_step_equals_the_numpy_step_from_any_state():
     """The loop's step as C (the runner, one sample each) and on numpy, from 400 random states and plants:
     slewing, clamped and inside both."""
     rng = np.random.default_rng(5)
-    base = RigParams(bw_gamma_per_V=0.004)
+    base = Plant(bw_gamma_per_V=0.004)
     plants = base.vary(400, {"amp_bandwidth_Hz": 0.3, "amp_current_limit_A": 0.5, "bw_alpha": 0.3,
                              "coupling_stiffness_N_per_um": 0.2, "creep_per_decade": 0.5}, seed=1)
     rig = Rig(plants)
@@ -87,7 +87,7 @@ def test_one_compiled_step_equals_the_numpy_step_from_any_state():
 def test_the_compiled_loop_runs_the_numpy_loop(batch):
     """simulate with the compiled loop against the numpy loop, one plant and a batch (each its own noise), through
     the clamp, the conditional integration and the slew limit: every sample of every signal to 1e-9."""
-    params = RigParams(noise_N=0.3, bw_gamma_per_V=0.003)
+    params = Plant(noise_N=0.3, bw_gamma_per_V=0.003)
     if batch:
         params = params.vary(batch, {"amp_current_limit_A": 0.3, "bw_alpha": 0.2, "creep_per_decade": 0.3}, seed=3)
     rig = Rig(params)
@@ -108,7 +108,7 @@ def test_the_compiled_loop_runs_the_numpy_loop(batch):
 @pytest.mark.parametrize("delay", [0, 2])
 def test_other_structures_compile_to_the_same_numbers(delay):
     """No delay, a two-sample delay line, two creep lags and no feedforward: other layouts, other code."""
-    rig = Rig(RigParams(noise_N=0.2, delay_samples=delay, creep_tau_s=(0.05, 0.5)))
+    rig = Rig(Plant(noise_N=0.2, delay_samples=delay, creep_tau_s=(0.05, 0.5)))
     c = Controller(PIDGains(Kc=0.5, Ti_s=0.05, Td_s=0.002, Tf_s=0.01), rig.dt_s)
     ref = Reference.step(25.0, 70.0, 0.05, 0.5)
     fast, slow = simulate(rig, c, ref, seed=1, engine="c"), simulate(rig, c, ref, seed=1, engine="numpy")
@@ -118,7 +118,7 @@ def test_other_structures_compile_to_the_same_numbers(delay):
 
 @needs_cc
 def test_the_compiled_open_loop_runs_the_numpy_open_loop():
-    rig = Rig(RigParams(noise_N=0.2))
+    rig = Rig(Plant(noise_N=0.2))
     command = np.concatenate([np.linspace(0.0, 160.0, 900), np.full(400, 160.0), np.full(600, -45.0),
                               np.linspace(-10.0, 90.0, 800)])
     fast = simulate_open_loop(rig, command, seed=2, engine="c")
@@ -133,7 +133,7 @@ def test_the_compiled_open_loop_runs_the_numpy_open_loop():
 def test_a_batch_keeps_each_plants_noise_whatever_the_engine():
     """A batch of identical plants draws one noise value per plant and sample, in time order: plant 2 of the
     batch is not the single run with the same seed, but both engines give it alike (the noise is an input)."""
-    rig = Rig(RigParams(noise_N=0.5))
+    rig = Rig(Plant(noise_N=0.5))
     c = Controller(PIDGains(Kc=0.3, Ti_s=0.08, Td_s=0.001), rig.dt_s)
     ref = Reference.step(25.0, 60.0, 0.1, 0.5)
     runs = {e: simulate(rig, c, ref, seed=4, batch=(3,), engine=e) for e in ("c", "numpy")}
@@ -146,7 +146,7 @@ def test_a_batch_keeps_each_plants_noise_whatever_the_engine():
 
 def test_the_numpy_engine_is_forced_by_the_environment(monkeypatch):
     monkeypatch.setenv(native.ENGINE_ENV, "numpy")
-    rig = Rig(RigParams())
+    rig = Rig(Plant())
     run_ = simulate(rig, Controller(PIDGains(0.3, 0.08), rig.dt_s), Reference.step(25.0, 30.0, 0.01, 0.05))
     assert run_.engine == "numpy"
     from piezopreload.rig.compiled import controller_step
@@ -155,7 +155,7 @@ def test_the_numpy_engine_is_forced_by_the_environment(monkeypatch):
 
 
 def test_no_compiler_falls_back_to_numpy_and_a_failing_one_too(monkeypatch, tmp_path):
-    rig = Rig(RigParams(delay_samples=3))  # a structure no other test compiles
+    rig = Rig(Plant(delay_samples=3))  # a structure no other test compiles
     c = Controller(PIDGains(0.3, 0.08), rig.dt_s)
     ref = Reference.step(25.0, 30.0, 0.01, 0.05)
     reference = simulate(rig, c, ref, engine="numpy")
@@ -174,7 +174,7 @@ def test_no_compiler_falls_back_to_numpy_and_a_failing_one_too(monkeypatch, tmp_
     np.testing.assert_array_equal(fallback.force_N, reference.force_N)
     monkeypatch.setenv(native.ENGINE_ENV, "c")
     with pytest.raises(native.NativeBuildError, match="broken-cc failed"):
-        simulate(Rig(RigParams(delay_samples=4)), c, ref)
+        simulate(Rig(Plant(delay_samples=4)), c, ref)
     native.reset_failures()
 
 
@@ -196,7 +196,7 @@ def test_the_cache_rebuilds_when_the_definition_changes(monkeypatch, tmp_path):
     changed = native.StepRunner(step_function(model), "pp_test_open_loop")
     assert native.build_stats()["builds"] - after["builds"] == 1
     assert len(list(tmp_path.glob("piezopreload/pp_test_open_loop-*.so"))) == 2
-    rig = Rig(RigParams(creep_tau_s=(0.1, 1.0)))
+    rig = Rig(Plant(creep_tau_s=(0.1, 1.0)))
     x0 = model.start(NUMPY, rig.parameter_vector)
     u = np.linspace(0.0, 50.0, 20)
     y0, _ = first(rig.parameter_vector, x0, [u, np.zeros(20)], 1)
@@ -265,7 +265,7 @@ def test_compiled_and_plain_tuning_agree():
     """The same NLP with its loop compiled and in CasADi's virtual machine: the same iterates, the same gains."""
     from piezopreload.tuning.pid import TuningSpec
 
-    params = RigParams(noise_N=0.0, adc_bits=32, amp_current_limit_A=0.02, creep_per_decade=0.02, bw_kappa=0.05)
+    params = Plant(noise_N=0.0, adc_bits=32, amp_current_limit_A=0.02, creep_per_decade=0.02, bw_kappa=0.05)
     spec = TuningSpec(step=Reference.step(25.0, 50.0, 0.02, 0.2),
                       trajectory=Reference.staircase(25.0, [50.0, 40.0], 0.1, t_start_s=0.02), variants={"gain": 0.1})
     a = tune_pid(params, None, spec, starts=1, engine="compiled")
@@ -280,12 +280,12 @@ def test_controller_model_layouts_name_every_number():
     assert isinstance(model, ControllerModel) and model.params.names[:8] == (
         "Kc", "Ti_s", "Td_s", "Tf_s", "b", "u_min_V", "u_max_V", "dt_s")
     assert model.state.field_size("ff") == 4 and model.params.field_size("ff") == 2 + 5 * 4  # offset, bias; r, w, W, r', w'
-    loop = LoopModel(PlantModel.of(RigParams()), model)
+    loop = LoopModel(PlantModel.of(Plant()), model)
     assert loop.params.size == loop.plant.params.size + model.params.size
     fn = step_function(loop)
     assert isinstance(fn, ca.Function) and fn.name_in() == ["x", "p", "reference_N", "noise", "ff_extra_V"]
     with pytest.raises(ValueError, match="creep lags"):
-        PlantModel(n_creep=2).parameters(RigParams())
+        PlantModel(n_creep=2).parameters(Plant())
     with pytest.raises(ValueError, match="smoothing"):
         replace(PlantModel(4), smoothing=1.5)
 
@@ -295,7 +295,7 @@ def test_the_simulated_backends_plant_step_is_the_rigs():
     """The compiled plant step the simulated rig backend runs (read, then write) against Rig.measure/Rig.step."""
     from piezopreload.rig.compiled import PlantStep
 
-    params = RigParams(noise_N=0.3, bw_gamma_per_V=0.004)
+    params = Plant(noise_N=0.3, bw_gamma_per_V=0.004)
     fast, slow = PlantStep(params), PlantStep(params, prefer="numpy")
     assert (fast.kind, slow.kind) == ("c", "numpy")
     rig = Rig(params)

@@ -241,14 +241,14 @@ def test_reference_from_csv(gains_path, tmp_path, capsys):
 
 
 _PLUGIN = '''
-from piezopreload.models.actuator import RigParams
+from piezopreload.models.actuator import Plant
 from piezopreload.rig.backends import SimBackend
 
 class QuietRig(SimBackend):
     name = "quietrig"
 
 def make(options):
-    return QuietRig(RigParams(noise_N=0.0), seed=int(options.get("seed", 0)))
+    return QuietRig(Plant(noise_N=0.0), seed=int(options.get("seed", 0)))
 
 def broken(options):
     raise RuntimeError("no card")

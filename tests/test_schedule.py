@@ -12,7 +12,7 @@ import pytest
 from piezopreload.artifacts.gainset import GainSet, gains_from_dict, gains_to_dict
 from piezopreload.core.artifacts import write_artifact
 from piezopreload.core.errors import ArtifactError, InputError
-from piezopreload.models.actuator import Rig, RigParams
+from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import Reference, simulate
 from piezopreload.models.controller import Controller, GainSchedule, PIDGains, controller_functions
 from piezopreload.models.ops import NUMPY
@@ -69,7 +69,7 @@ def test_schedule_interpolates_linearly_and_clamps_at_the_ends_on_numpy_and_casa
 def test_a_flat_b_column_is_the_single_b_exactly():
     """A b column whose entries are all the single b gives the very commands of no column (to 1e-12)."""
     flat = GainSchedule(SCHEDULE.levels_N, SCHEDULE.Kc, SCHEDULE.Ti_s, SCHEDULE.Td_s, b=(BASE["b"],) * 3)
-    rig = Rig(RigParams(noise_N=0.2))
+    rig = Rig(Plant(noise_N=0.2))
     ref = Reference.staircase(25.0, [60.0, 110.0, 40.0], 0.3, t_start_s=0.05)
     one = simulate(rig, Controller(PIDGains(**BASE, schedule=SCHEDULE), rig.dt_s), ref, seed=3)
     col = simulate(rig, Controller(PIDGains(**BASE, schedule=flat), rig.dt_s), ref, seed=3)
@@ -81,7 +81,7 @@ def test_a_flat_b_column_is_the_single_b_exactly():
 def test_identical_entries_give_the_unscheduled_controller():
     """A schedule whose entries are all the single set is that set, in closed loop on the rig (to 1e-12)."""
     flat = GainSchedule((25.0, 70.0, 120.0), (BASE["Kc"],) * 3, (BASE["Ti_s"],) * 3, (BASE["Td_s"],) * 3)
-    rig = Rig(RigParams(noise_N=0.2))
+    rig = Rig(Plant(noise_N=0.2))
     ref = Reference.staircase(25.0, [60.0, 110.0, 40.0], 0.3, t_start_s=0.05)
     one = simulate(rig, Controller(PIDGains(**BASE), rig.dt_s), ref, seed=3)
     sch = simulate(rig, Controller(PIDGains(**BASE, schedule=flat), rig.dt_s), ref, seed=3)
@@ -201,7 +201,7 @@ def _gain_set(tmp_path, schedule=SCHEDULE, name="gains.json"):
     gains = gains_to_dict(PIDGains(**BASE, schedule=schedule))
     path = tmp_path / name
     write_artifact(path, "gain-set", {"status": "validated", "gains": gains, "inputs": {},
-                                      "plant": {"rig": RigParams(noise_N=0.2).to_dict()}})
+                                      "plant": {"rig": Plant(noise_N=0.2).to_dict()}})
     return path
 
 
@@ -322,7 +322,7 @@ def test_the_casadi_c_step_is_the_scheduled_step(tmp_path, table):
     cc = _cc()
     gs = GainSet.load(_gain_set(tmp_path, table))
     controller = gs.controller()
-    rig = Rig(RigParams(noise_N=0.2))
+    rig = Rig(Plant(noise_N=0.2))
     ref = Reference.staircase(25.0, [45.0, 80.0, 120.0, 60.0, 30.0], 0.5, t_start_s=0.1)
     run = simulate(rig, controller, ref, seed=2)
     sp, pv = run.reference_N, run.measured_N

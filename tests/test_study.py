@@ -20,7 +20,7 @@ from piezopreload.core.config import Invalid, Table, key, keys_markdown
 from piezopreload.design.plant import DESIGNED_FIELDS, plant_from_design
 from piezopreload.design.preload import optimise
 from piezopreload.design.tables import DesignTable, PlantTable
-from piezopreload.models.actuator import Rig, RigParams
+from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import simulate as simulate_loop
 from piezopreload.models.controller import Controller
 from piezopreload.tables import STUDY_TABLES, RigTable, study_keys_markdown
@@ -160,7 +160,7 @@ def test_a_table_checks_itself_when_made_in_code():
         PlantTable(cycles=0)
     with pytest.raises(Invalid, match="'stack' must be a StackTable"):
         RigTable(stack={"name": "x"})  # type: ignore[arg-type]
-    assert DesignTable().pareto_points == 50 and RigTable().params().to_dict() == RigParams().to_dict()
+    assert DesignTable().pareto_points == 50 and RigTable().params().to_dict() == Plant().to_dict()
 
 
 def test_the_key_table_is_rendered_from_the_declarations():
@@ -234,13 +234,13 @@ def test_the_design_sets_exactly_the_rig_keys_it_refuses():
     designed plant in exactly the fields the design does not set (design/plant.py's DESIGNED_FIELDS)."""
     axis = pp.load_study(AXIS, **QUIET)
     opt = optimise(axis.design_spec, "stiffness")
-    base = RigParams()
+    base = Plant()
     plant = plant_from_design(axis.design_spec, opt, base, design_sha256="").rig
     special = {"stack": {"stack": dataclasses.replace(base.stack, capacitance_uF=7.0)}, "n_stacks": {"n_stacks": 5},
                "adc_bits": {"adc_bits": 12}, "delay_samples": {"delay_samples": 2},
                "creep_tau_s": {"creep_tau_s": (0.2, 2.0)},
                "hertz_um_per_N23": {"hertz_um_per_N23": 0.1, "hertz_preload_N": 100.0}}
-    for f in dataclasses.fields(RigParams):
+    for f in dataclasses.fields(Plant):
         change = special[f.name] if f.name in special else {f.name: 1.3 * float(getattr(base, f.name)) + 0.01}
         made = plant_from_design(axis.design_spec, opt, dataclasses.replace(base, **change), design_sha256="").rig
         moved = getattr(made, f.name) != getattr(plant, f.name)
@@ -273,7 +273,7 @@ def test_study_plant_is_the_designed_plant_and_what_the_control_steps_run_on():
     assert len(said) == 2 and "solving the design's optimum" in said[0] and "bolts' preload 255 N" in said[1], said
     # the plant of the design's optimum, made here independently of the study
     opt = optimise(axis.design_spec, "stiffness")
-    hardware = RigParams(**{k: v for k, v in axis.rig.to_dict().items() if k != "stack"})
+    hardware = Plant(**{k: v for k, v in axis.rig.to_dict().items() if k != "stack"})
     expected = plant_from_design(axis.design_spec, opt, hardware, design_sha256="", sleeve_stiffness_N_per_um=4000.0)
     assert plant.to_dict() == expected.rig.to_dict()
     # the issue's numbers: the plant has no bolt preload of its own, a 1,370 N/um coupling, a 255 N Hertz preload

@@ -9,7 +9,7 @@ from scipy.optimize import brentq
 from piezopreload.core.errors import InputError
 from piezopreload.design.plant import plant_from_design
 from piezopreload.design.preload import DesignNLP, DesignSpec, optimise
-from piezopreload.models.actuator import PlantModel, Rig, RigParams, hertz_force
+from piezopreload.models.actuator import Plant, PlantModel, Rig, hertz_force
 from piezopreload.models.feed_drive import stack_loop_um
 from piezopreload.models.ops import NUMPY
 
@@ -32,7 +32,7 @@ def test_hertz_force_inverts_the_nut_law_as_brentq_does():
 
 def test_plant_from_design_reproduces_the_designs_rigidity_at_its_preload(design):
     spec, opt = design
-    plant = plant_from_design(spec, opt, RigParams(), design_sha256="0" * 64)
+    plant = plant_from_design(spec, opt, Plant(), design_sha256="0" * 64)
     p = opt.point
     preloads = np.array([p.bolt_preload_N, 0.5 * (p.bolt_preload_N + p.max_preload_N), p.max_preload_N])
     ours = plant.nut_rigidity_N_per_um(preloads)
@@ -47,7 +47,7 @@ def test_plant_from_design_reproduces_the_designs_rigidity_at_its_preload(design
 
 def test_plant_force_per_volt_grows_with_the_preload(design):
     spec, opt = design
-    plant = plant_from_design(spec, opt, RigParams(bw_alpha=0.2, creep_per_decade=0.0, noise_N=0.0,
+    plant = plant_from_design(spec, opt, Plant(bw_alpha=0.2, creep_per_decade=0.0, noise_N=0.0,
                                                    adc_full_scale_N=20000.0), design_sha256="0" * 64)
     f, _ = Rig(plant.rig).quasi_static_loop(np.linspace(0.0, 100.0, 2001))
     slope = np.gradient(f, 0.05)
@@ -58,13 +58,13 @@ def test_plant_force_per_volt_grows_with_the_preload(design):
 
 
 def test_a_linear_rig_keeps_its_layout_and_document():
-    rig = RigParams()
+    rig = Plant()
     assert not rig.hertz and "hertz_um_per_N23" not in rig.to_dict()
     assert PlantModel.of(rig).params.names == PlantModel(4, 1).params.names
     with pytest.raises(InputError, match="Hertzian"):
-        PlantModel.of(rig).parameters(RigParams(hertz_um_per_N23=0.05, hertz_preload_N=100.0))
+        PlantModel.of(rig).parameters(Plant(hertz_um_per_N23=0.05, hertz_preload_N=100.0))
     with pytest.raises(ValueError, match="hertz_preload_N"):
-        RigParams(hertz_um_per_N23=0.05)
+        Plant(hertz_um_per_N23=0.05)
 
 
 # ---- references -----------------------------------------------------------------------------------
@@ -88,7 +88,7 @@ def axis(design):
     from piezopreload.design.study import plan_schedule
 
     spec, opt = design
-    hardware = RigParams(amp_bandwidth_Hz=100.0, bw_alpha=0.3238, bw_kappa=0.0931, creep_per_decade=0.0385,
+    hardware = Plant(amp_bandwidth_Hz=100.0, bw_alpha=0.3238, bw_kappa=0.0931, creep_per_decade=0.0385,
                          noise_N=1.0, adc_full_scale_N=10000.0)
     plant = plant_from_design(spec, opt, hardware, design_sha256="0" * 64, sleeve_stiffness_N_per_um=4000.0)
     schedule, _, _ = plan_schedule(spec, opt.point, stiffness_min_N_per_um=300.0, deflection_max_um=5.0)
@@ -326,7 +326,7 @@ def test_the_pre_cycle_brings_the_stacks_to_the_first_level_before_the_first_cut
     from piezopreload.models.controller import Controller, PIDGains
 
     spec, opt = design
-    hardware = RigParams(amp_bandwidth_Hz=100.0, bw_alpha=0.3238, bw_kappa=0.0931, creep_per_decade=0.0385,
+    hardware = Plant(amp_bandwidth_Hz=100.0, bw_alpha=0.3238, bw_kappa=0.0931, creep_per_decade=0.0385,
                          noise_N=1.0, adc_full_scale_N=10000.0)
     plant = plant_from_design(spec, opt, hardware, design_sha256="0" * 64, sleeve_stiffness_N_per_um=4000.0)
     stiff, _, _ = plan_schedule(spec, opt.point, stiffness_min_N_per_um=1000.0, deflection_max_um=5.0)

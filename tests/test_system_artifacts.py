@@ -18,7 +18,7 @@ from piezopreload.design.plant import plant_from_design
 from piezopreload.design.preload import DesignSpec
 from piezopreload.design.study import design_study
 from piezopreload.design.system import track_schedule
-from piezopreload.models.actuator import RigParams
+from piezopreload.models.actuator import Plant
 from piezopreload.models.controller import Controller, PIDGains
 
 
@@ -26,7 +26,7 @@ from piezopreload.models.controller import Controller, PIDGains
 def designed():
     spec = DesignSpec()
     result = design_study(spec, "stiffness", ["stiffness:drag"], 3, stiffness_min_N_per_um=300.0, deflection_max_um=5.0)
-    hardware = RigParams(amp_bandwidth_Hz=100.0, bw_alpha=0.3238, bw_kappa=0.0931, creep_per_decade=0.0385,
+    hardware = Plant(amp_bandwidth_Hz=100.0, bw_alpha=0.3238, bw_kappa=0.0931, creep_per_decade=0.0385,
                          noise_N=1.0, adc_full_scale_N=10000.0)
     plant = plant_from_design(spec, result.optimum, hardware, design_sha256="a" * 64, sleeve_stiffness_N_per_um=4000.0)
     return result, plant

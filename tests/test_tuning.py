@@ -13,7 +13,7 @@ from piezopreload.artifacts.validation import Criteria
 from piezopreload.cli import main
 from piezopreload.core import native
 from piezopreload.core.artifacts import write_artifact
-from piezopreload.models.actuator import Rig, RigParams
+from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.loop import LOOP_OUTPUTS, step_function
@@ -48,7 +48,7 @@ def test_controller_frequency_response_equals_python_control():
 def test_the_tuning_model_follows_the_rig_in_closed_loop(gains):
     """The smooth tuning loop (its CasADi step, as the NLP differentiates it) against the exact rig's simulation
     (noise off): clamp and anti-windup included; and the same smooth step on numpy gives the CasADi numbers."""
-    params = RigParams(**QUIET)
+    params = Plant(**QUIET)
     rig = Rig(params)
     ref = Reference.step(25.0, 55.0, 0.02, 0.6)
     run = simulate(rig, Controller(gains, rig.dt_s), ref)
@@ -115,7 +115,7 @@ def test_simc_rule():
 
 
 def test_minimum_time_is_a_lower_bound_the_rig_reaches():
-    params = RigParams(**QUIET)
+    params = Plant(**QUIET)
     bound = bounds.minimum_time(params, final_N=50.0, hold_s=0.1, horizon_s=0.2)
     # the amplifier cannot beat its slew limit: the voltage for 50 N takes at least this long
     rig = Rig(params)
@@ -133,7 +133,7 @@ def test_minimum_time_is_a_lower_bound_the_rig_reaches():
 
 
 def test_tune_pid_meets_its_constraints_and_beats_simc_objective():
-    params = RigParams(**QUIET)
+    params = Plant(**QUIET)
     spec = pid.TuningSpec(step=Reference.step(25.0, 50.0, 0.02, 0.4),
                           trajectory=Reference.staircase(25.0, [50.0, 40.0], 0.25, t_start_s=0.02),
                           variants={"gain": 0.1})
@@ -149,7 +149,7 @@ def test_tune_pid_meets_its_constraints_and_beats_simc_objective():
 
 
 def _small_validation(pool=None, name="inline", **kw):
-    params = RigParams(noise_N=0.1, amp_current_limit_A=0.02)
+    params = Plant(noise_N=0.1, amp_current_limit_A=0.02)
     return validate(PIDGains(Kc=0.5, Ti_s=0.05, b=0.3), None, params, Criteria(**kw), n_plants=4, chunk_size=2,
                     step=Reference.step(25.0, 50.0, 0.05, 0.6),
                     trajectory=Reference.staircase(25.0, [50.0, 40.0], 0.3, t_start_s=0.05), pool=pool, pool_name=name)
@@ -311,15 +311,15 @@ def test_casadi_c_controller_equals_the_python_step(tmp_path, kind):
     path = tmp_path / "gains.json"
     write_artifact(path, "gain-set", {"status": "validated", "gains": gains, "inputs": {},
                                       "feedforward": {"model": ff.to_dict()},
-                                      "plant": {"rig": RigParams(noise_N=0.2).to_dict()}})
+                                      "plant": {"rig": Plant(noise_N=0.2).to_dict()}})
     doc = json.loads(path.read_text())
     controller = controller_from_gain_set(doc)
     assert controller.feedforward is not None and controller.feedforward.forward.kind == kind
     if kind.endswith("+creep"):
-        assert controller.feedforward.forward.sample_period_s == RigParams().sample_period_s, "creep at the loop's period"
+        assert controller.feedforward.forward.sample_period_s == Plant().sample_period_s, "creep at the loop's period"
     # the closed loop on the noisy rig gives the inputs: a trajectory that reverses, saturates
     # (the 110 V clamp and the conditional integration) and comes back
-    rig = Rig(RigParams(noise_N=0.2))
+    rig = Rig(Plant(noise_N=0.2))
     ref = Reference.staircase(25.0, [60.0, 120.0, 80.0, 40.0, 70.0], 1.6, t_start_s=2.0)
     run = simulate(rig, controller, ref, seed=4)
     sp, pv = run.reference_N, run.measured_N
@@ -370,7 +370,7 @@ def test_tune_validate_export_from_the_command_line(tmp_path, capsys):
 
 def test_tracking_floor_bounds_the_force_rate_and_every_controller():
     """The floor's rate is not beaten by a full-range bang on the rig, and no controller beats the floor."""
-    params = RigParams(noise_N=0.0, adc_bits=32)
+    params = Plant(noise_N=0.0, adc_bits=32)
     rig = Rig(params)
     floor = bounds.tracking_floor(params, Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 0.5, t_start_s=0.1))
     # bang up and down over the whole range, from rest and after reversals
@@ -388,7 +388,7 @@ def test_tracking_floor_bounds_the_force_rate_and_every_controller():
 
 def test_tracking_error_leaves_out_the_samples_out_of_authority():
     """A plant that cannot reach the top level: its saturated samples are left out and counted."""
-    params = RigParams(**QUIET)
+    params = Plant(**QUIET)
     weak = replace(params, coupling_stiffness_N_per_um=np.array([params.coupling_stiffness_N_per_um, 0.5]))
     ref = Reference.staircase(25.0, [60.0, 100.0, 60.0], 0.5, t_start_s=0.05)
     run = simulate(Rig(weak), Controller(PIDGains(Kc=0.5, Ti_s=0.05), 1e-3), ref)
@@ -448,7 +448,7 @@ def test_both_tuners_state_their_bounds_with_the_one_definition(monkeypatch):
     from piezopreload.tuning import loopshape, pidopt
     from piezopreload.tuning.pidopt import PIDProblem, Scales
 
-    params = RigParams(**QUIET)
+    params = Plant(**QUIET)
     spec = pid.TuningSpec(step=Reference.step(25.0, 50.0, 0.02, 0.1), trajectory=Reference.staircase(
         25.0, [50.0], 0.1, t_start_s=0.02), variants={"gain": 0.1})
     z = np.full(5, 0.5)
@@ -478,7 +478,7 @@ def test_both_tuners_state_their_bounds_with_the_one_definition(monkeypatch):
 def test_a_derivative_on_its_lower_bound_makes_the_tuned_controller_a_pi(monkeypatch):
     """Where the NLP ends with Td on the lower end of its range, the result is the PI (Td = 0, no filter), checked
     against every constraint of a PI tuning, with the bound named; a PI spec (filter_s = 0) tunes no derivative."""
-    params = RigParams(**QUIET)
+    params = Plant(**QUIET)
     spec = pid.TuningSpec(step=Reference.step(25.0, 50.0, 0.02, 0.3),
                           trajectory=Reference.staircase(25.0, [50.0, 40.0], 0.2, t_start_s=0.02),
                           variants={"gain": 0.1})

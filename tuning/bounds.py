@@ -15,7 +15,7 @@ import casadi as ca
 import numpy as np
 
 from piezopreload.core.errors import InfeasibleError
-from piezopreload.models.actuator import RigParams
+from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import PAPER_BAND_N, Reference
 from piezopreload.models.ops import CASADI, NUMPY
 from piezopreload.tuning.horizon import tuning_loop
@@ -32,7 +32,7 @@ class _RigSteps:
     """The tuning model's rig step (the plant of :func:`~piezopreload.tuning.horizon.tuning_loop`) on numpy
     (a batch of states) and in CasADi, with its rest state at 0 V."""
 
-    def __init__(self, params: RigParams) -> None:
+    def __init__(self, params: Plant) -> None:
         self.plant = tuning_loop(params).plant
         self.theta = np.asarray(self.plant.parameters(params), float)
         self.x0 = np.asarray(self.plant.rest_state(NUMPY, self.theta), float)
@@ -48,7 +48,7 @@ class _RigSteps:
         return np.asarray(self.plant.force(NUMPY, self.theta, x), float)
 
 
-def _greedy_start(rig: _RigSteps, params: RigParams, final_N: float, n: int, u_range: tuple[float, float]
+def _greedy_start(rig: _RigSteps, params: Plant, final_N: float, n: int, u_range: tuple[float, float]
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A command sequence that takes the rig to ``final_N`` and holds it there: at each sample, the command
     whose force, held for the delay and three of the amplifier's time constants, is ``final_N`` (two grids
@@ -112,7 +112,7 @@ class _MinimumTimeNLP:
 
 
 def minimum_time(
-    params: RigParams,
+    params: Plant,
     *,
     initial_N: float = 25.0,
     final_N: float = 60.0,
@@ -176,7 +176,7 @@ def minimum_time(
             "seconds": time.perf_counter() - t0, "start_settling_s": n_start * dt}
 
 
-def tracking_floor(params: RigParams, reference: Reference) -> dict[str, Any]:
+def tracking_floor(params: Plant, reference: Reference) -> dict[str, Any]:
     """A lower bound on the RMS tracking error of any causal controller without preview.
 
     After a jump of ``dF`` the force cannot move for ``delay + 1`` samples (the commands that

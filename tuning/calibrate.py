@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import minimize
 
-from piezopreload.models.actuator import Rig, RigParams, loop_width, reach_N
+from piezopreload.models.actuator import Plant, Rig, loop_width, reach_N
 from piezopreload.models.closedloop import (
     PAPER_BAND_N,
     ClosedLoopRun,
@@ -82,7 +82,7 @@ class Reproduction:
 
 
 def reproduce(
-    params: RigParams,
+    params: Plant,
     gains: PIDGains = PAPER_GAINS,
     *,
     step: Reference | None = None,
@@ -158,7 +158,7 @@ def _worst_mismatch(metrics: dict[str, dict[str, float]], skip: tuple[tuple[str,
 
 @dataclass(frozen=True, eq=False)
 class CalibrationResult:
-    params: RigParams
+    params: Plant
     reproduction: Reproduction
     objective: float
     evaluations: int
@@ -169,7 +169,7 @@ class CalibrationResult:
 
 
 def calibrate(
-    base: RigParams,
+    base: Plant,
     free: dict[str, tuple[float, float]],
     gains: PIDGains = PAPER_GAINS,
     *,
@@ -200,9 +200,9 @@ def calibrate(
     realisations per evaluation, metrics their medians (see :func:`reproduce`).
     """
     names = sorted(free)
-    bad = sorted(set(names) - set(RigParams.batch_fields()))
+    bad = sorted(set(names) - set(Plant.batch_fields()))
     if bad:
-        raise ValueError(f"cannot calibrate {bad}; free parameters must be among {sorted(RigParams.batch_fields())}.")
+        raise ValueError(f"cannot calibrate {bad}; free parameters must be among {sorted(Plant.batch_fields())}.")
     lo = np.log([free[n][0] for n in names])
     hi = np.log([free[n][1] for n in names])
     if not np.all(hi > lo):
@@ -211,7 +211,7 @@ def calibrate(
     history: list[dict[str, Any]] = []
     t0 = time.perf_counter()
 
-    def to_params(z: np.ndarray) -> RigParams:
+    def to_params(z: np.ndarray) -> Plant:
         values = np.exp(lo + np.clip(z, 0.0, 1.0) * (hi - lo))
         return replace(base, **{n: float(v) for n, v in zip(names, values)})
 

@@ -17,7 +17,7 @@ from piezopreload.artifacts.responses import CreepRow, ReproductionRow
 from piezopreload.artifacts.tuning import ComparisonRow
 from piezopreload.artifacts.validation import Criteria
 from piezopreload.core.artifacts import finite_or_none
-from piezopreload.models.actuator import Rig, RigParams
+from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.hysteresis import inverse_at
@@ -30,7 +30,7 @@ __all__ = ["compare_gains", "tracking_improvement", "Response", "responses", "cr
            "reproduction_summary"]
 
 
-def compare_gains(rig: RigParams, step: Reference, trajectory: Reference, candidates: dict[str, PIDGains],
+def compare_gains(rig: Plant, step: Reference, trajectory: Reference, candidates: dict[str, PIDGains],
                   feedforward: FeedforwardModel, criteria: Criteria, seed: int) -> tuple[ComparisonRow, ...]:
     """Each gain set without and with the feedforward on the nominal rig: one row each."""
     rows = []
@@ -81,7 +81,7 @@ class Response:
         return f"{self.gains}-{self.controller.replace('+', '-')}-{self.reference}"
 
 
-def responses(rig: RigParams, references: dict[str, Reference], candidates: dict[str, PIDGains],
+def responses(rig: Plant, references: dict[str, Reference], candidates: dict[str, PIDGains],
               feedforward: FeedforwardModel, *, seed: int, band_N: float, signal: str, after_change_s: float,
               progress: Callable[[int, int], None] | None = None,
               controllers: tuple[str, ...] = CONTROLLERS) -> list[Response]:
@@ -100,7 +100,7 @@ def responses(rig: RigParams, references: dict[str, Reference], candidates: dict
     return out
 
 
-def creep_effect(rig: RigParams, references: dict[str, Reference], candidates: dict[str, PIDGains],
+def creep_effect(rig: Plant, references: dict[str, Reference], candidates: dict[str, PIDGains],
                  with_creep: FeedforwardModel, without_creep: FeedforwardModel, *, seed: int, band_N: float,
                  signal: str, after_change_s: float) -> list[CreepRow]:
     """FF + PID with the feedforward's creep compensation and with the same model refitted without creep.

@@ -25,7 +25,7 @@ from piezopreload.artifacts.hysteresis import Compensation, DataSource, FitError
 from piezopreload.core.artifacts import ArtifactError, package_version
 from piezopreload.core.errors import InputError
 from piezopreload.core.tables import Record, write_csv
-from piezopreload.models.actuator import Rig, RigParams
+from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import simulate_open_loop, triangle
 from piezopreload.models.hysteresis import ClassicalPI, CreepPI, HysteresisModel, NotInvertibleError, inverse_at
 from piezopreload.tuning.identification import Window, identify
@@ -65,7 +65,7 @@ class LoopExcitation:
             raise ValueError(f"creep must be true or false, got {self.creep!r}.")
 
 
-def simulate_loop(rig: RigParams, excitation: LoopExcitation) -> Record:
+def simulate_loop(rig: Plant, excitation: LoopExcitation) -> Record:
     """The 0..v_max V triangle loop measured on the rig's truth model (sensor noise included): a :class:`Record`.
 
     Its ``sha256`` is that of its samples (float64: time, voltage, force one after the other).
@@ -109,7 +109,7 @@ class CompensationCheck:
         return float(np.max(np.abs(self.error_N)))
 
 
-def compensation_check(rig: RigParams, model: FeedforwardModel, low_N: float, high_N: float, frequency_Hz: float,
+def compensation_check(rig: Plant, model: FeedforwardModel, low_N: float, high_N: float, frequency_Hz: float,
                        seed: int) -> CompensationCheck:
     """Two cycles of a ``low_N -> high_N`` force triangle through the inverse of ``model``, in open loop on ``rig``."""
     plant = Rig(rig)
@@ -240,7 +240,7 @@ class IdentifiedFeedforward:
         return fig
 
 
-def identify_feedforward(rig: RigParams, excitation: LoopExcitation, record: Record | None = None, *,
+def identify_feedforward(rig: Plant, excitation: LoopExcitation, record: Record | None = None, *,
                          check_range_N: tuple[float, float] | None = (25.0, 100.0)) -> IdentifiedFeedforward:
     """The feedforward's model from the loop simulated on ``rig`` (``record`` None) or a measured V -> N record.
 

@@ -26,7 +26,7 @@ import casadi as ca
 import numpy as np
 
 from piezopreload.core import native
-from piezopreload.models.actuator import PlantModel, RigParams
+from piezopreload.models.actuator import Plant, PlantModel
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import ControllerModel
 from piezopreload.models.hysteresis import InverseClassicalPI
@@ -41,7 +41,7 @@ __all__ = ["TUNING_SMOOTHING", "tuning_loop", "feedforward_sequence", "loop_rows
 TUNING_SMOOTHING = 0.02
 
 
-def tuning_loop(params: RigParams, smoothing: float = TUNING_SMOOTHING, schedule_size: int = 0) -> LoopModel:
+def tuning_loop(params: Plant, smoothing: float = TUNING_SMOOTHING, schedule_size: int = 0) -> LoopModel:
     """The loop the tuning differentiates: the rig's one step with its corners rounded
     (``smoothing``; 0 is the exact rig), the PID alone (the feedforward enters as ``ff_extra``,
     computed once from the reference; ``schedule_size`` entries of a gain schedule), the sensor
@@ -124,7 +124,7 @@ class Horizon:
     The last evaluation is kept: IPOPT asks for values, Jacobians and Hessians at one point.
     """
 
-    def __init__(self, loop: LoopModel, variants: list[RigParams], rows: np.ndarray, tail: np.ndarray,
+    def __init__(self, loop: LoopModel, variants: list[Plant], rows: np.ndarray, tail: np.ndarray,
                  engine: str) -> None:
         self.loop, self.rows, self.tail = loop, rows, tail  # tail: the controller's parameters after the gains
         self.plants = np.array([loop.plant.parameters(v) for v in variants])

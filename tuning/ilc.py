@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from scipy.signal import butter, lfilter
 
 from piezopreload.core.errors import InputError, InternalError
-from piezopreload.models.actuator import RigParams
+from piezopreload.models.actuator import Plant
 from piezopreload.models.controller import Controller
 from piezopreload.models.loop import LoopModel, step_function
 from piezopreload.models.ops import NUMPY
@@ -87,13 +87,13 @@ class LoopLinearisation:
     force_N: float
 
 
-def _loop_of(params: RigParams, controller: Controller) -> tuple[LoopModel, Controller]:
+def _loop_of(params: Plant, controller: Controller) -> tuple[LoopModel, Controller]:
     """The loop the learning model linearises (the PID with its gain schedule, if any; no feedforward)."""
     c = Controller(controller.gains, controller.dt_s, None)
     return tuning_loop(params, schedule_size=c.model.schedule_size), c
 
 
-def linearise_loop(params: RigParams, controller: Controller, voltages_V: Any) -> list[LoopLinearisation]:
+def linearise_loop(params: Plant, controller: Controller, voltages_V: Any) -> list[LoopLinearisation]:
     """The loop of ``controller`` on the plant ``params`` linearised at rest at each of ``voltages_V``.
 
     One CasADi function of the step's Jacobians serves every voltage; the rest state at each
@@ -101,7 +101,7 @@ def linearise_loop(params: RigParams, controller: Controller, voltages_V: Any) -
     the controller's setpoint at the force there).
     """
     if params.batch_shape:
-        raise InputError("linearise_loop: give one plant, not a batch (RigParams.take(i) picks one)")
+        raise InputError("linearise_loop: give one plant, not a batch (Plant.take(i) picks one)")
     v = np.atleast_1d(np.asarray(voltages_V, float))
     if v.size == 0 or not np.all(np.isfinite(v)):
         raise InputError(f"voltages_V: give finite voltages to linearise the loop at, got {voltages_V!r}")
@@ -222,14 +222,14 @@ class LearningModel:
 
 
 
-def learning_model(params: RigParams, controller: Controller, *, v0_V: float = 50.0,
+def learning_model(params: Plant, controller: Controller, *, v0_V: float = 50.0,
                    q_cutoff_Hz: float | None = None) -> LearningModel:
     """The P-type law's model of a controller on a rig: the loop linearised at rest at ``v0_V``
     (:func:`linearise_loop`), the law's settings from it (:func:`tune_laws`)."""
     return _tuned(params, controller, linearise_loop(params, controller, [v0_V])[0], q_cutoff_Hz)
 
 
-def _tuned(params: RigParams, controller: Controller, lin: LoopLinearisation, q_cutoff_Hz: float | None) -> LearningModel:
+def _tuned(params: Plant, controller: Controller, lin: LoopLinearisation, q_cutoff_Hz: float | None) -> LearningModel:
     gains = controller.gains
     dt = params.sample_period_s
     ki = 0.0 if not np.isfinite(gains.Ti_s) else gains.Kc / gains.Ti_s
@@ -238,7 +238,7 @@ def _tuned(params: RigParams, controller: Controller, lin: LoopLinearisation, q_
     return tune_laws(base, q_cutoff_Hz=q_cutoff_Hz)
 
 
-def learning_model_over(params: RigParams, controller: Controller, voltages_V: Any = None, *, v0_V: float = 50.0,
+def learning_model_over(params: Plant, controller: Controller, voltages_V: Any = None, *, v0_V: float = 50.0,
                         q_cutoff_Hz: float | None = None) -> LearningModel:
     """The learning model whose P-type law contracts on the loop linearised at every one of ``voltages_V``.
 

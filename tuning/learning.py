@@ -33,7 +33,7 @@ from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.learned import LearnedSignal, reference_sha256
 from piezopreload.artifacts.learning import LearningRecord, PassRecord, TrialRecord
 from piezopreload.core.errors import InputError, InternalError
-from piezopreload.models.actuator import Rig, RigParams
+from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller
 from piezopreload.tuning.ilc import METHODS, LearningModel, learning_model_over
@@ -253,7 +253,7 @@ def more_trials_pay(measured: Array, floor_N: Any = 0.0, stop_gain: float = STOP
 # --------------------------------------------------------------------------------------
 # the trials
 # --------------------------------------------------------------------------------------
-def law_for(method: str, params: RigParams, controller: Controller, preview: Preview, *, seed: int = 0,
+def law_for(method: str, params: Plant, controller: Controller, preview: Preview, *, seed: int = 0,
             spread: dict[str, float] | None = None) -> Law:
     """The learning law ``method`` for ``controller`` on the nominal plant ``params`` along ``preview``'s plan."""
     if method not in METHODS:
@@ -517,7 +517,7 @@ def learn_from_run(signal: LearnedSignal, measured_N: Array, command_V: Array, l
 # --------------------------------------------------------------------------------------
 # learning over a schedule's passes (the whole system's learn stage)
 # --------------------------------------------------------------------------------------
-def schedule_learner(params: RigParams, controller: Controller, *, iterations: int, preview_s: float | None,
+def schedule_learner(params: Plant, controller: Controller, *, iterations: int, preview_s: float | None,
                      method: str, seed: int, progress: Callable[[str], None] | None = None,
                      warm_start: bool = True, stop_gain: float | None = STOP_GAIN
                      ) -> tuple[Callable[[Reference], Array], list[LearningResult]]:

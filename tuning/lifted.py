@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezopreload.core.errors import InputError
-from piezopreload.models.actuator import RigParams
+from piezopreload.models.actuator import Plant
 from piezopreload.models.controller import Controller
 from piezopreload.tuning.ilc import LoopLinearisation, linearise_loop
 
@@ -116,7 +116,7 @@ class LiftedLoop:
         return NormOptimalStep(dv, ff, force, command, voltage)
 
 
-def level_linearisations(params: RigParams, controller: Controller, target_N: Array, count: int) -> list[LoopLinearisation]:
+def level_linearisations(params: Plant, controller: Controller, target_N: Array, count: int) -> list[LoopLinearisation]:
     """Linearisations at rest at ``count`` levels spanning ``target_N`` (by force; at least two)."""
     g = controller.gains
     coarse = linearise_loop(params, controller, np.linspace(g.u_min, g.u_max, 9))
@@ -148,7 +148,7 @@ def setpoint_path(controller: Controller) -> tuple[float, float]:
     return float(g.Kc * g.b), float(ki * controller.dt_s)
 
 
-def lifted_loop(params: RigParams, controller: Controller, target_N: Array, *, levels: int = DEFAULT_LEVELS,
+def lifted_loop(params: Plant, controller: Controller, target_N: Array, *, levels: int = DEFAULT_LEVELS,
                 linearisations: list[LoopLinearisation] | None = None) -> LiftedLoop:
     """The lifted model of ``controller`` on ``params`` along the planned force ``target_N`` (one per sample).
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from piezopreload.models.actuator import RigParams, hertz_force
+from piezopreload.models.actuator import Plant, hertz_force
 from piezopreload.models.controller import PIDGains
 from piezopreload.models.ops import NUMPY
 from piezopreload.tuning.loopshape import isa_pid_response, omega_terms, peaks
@@ -22,7 +22,7 @@ __all__ = ["plant_frequency_response", "small_signal_gains", "loop_frequency_res
            "max_sensitivity"]
 
 
-def plant_frequency_response(params: RigParams, omega: np.ndarray, gain_N_per_V: float) -> np.ndarray:
+def plant_frequency_response(params: Plant, omega: np.ndarray, gain_N_per_V: float) -> np.ndarray:
     """Small-signal response from command to measured force of the discrete rig at ``omega`` (rad/s)."""
     dt = params.sample_period_s
     zi = np.exp(-1j * omega * dt)  # z^-1
@@ -33,7 +33,7 @@ def plant_frequency_response(params: RigParams, omega: np.ndarray, gain_N_per_V:
     return gain_N_per_V * amp * creep
 
 
-def small_signal_gains(params: RigParams, force_range_N: tuple[float, float] | None = None) -> tuple[float, float]:
+def small_signal_gains(params: Plant, force_range_N: tuple[float, float] | None = None) -> tuple[float, float]:
     """The lowest and highest local slope dF/dV of the quasi-static loop over 0..110 V (N/V), or with a Hertz
     coupling over the measured forces ``force_range_N`` (within the stroke).
 
@@ -58,7 +58,7 @@ def small_signal_gains(params: RigParams, force_range_N: tuple[float, float] | N
     return lo, hi
 
 
-def loop_frequency_response(gains: PIDGains, params: RigParams, omega: np.ndarray, gain_N_per_V: float) -> np.ndarray:
+def loop_frequency_response(gains: PIDGains, params: Plant, omega: np.ndarray, gain_N_per_V: float) -> np.ndarray:
     """The loop transfer ``C G`` at ``omega`` (rad/s), numerically, for reports and checks."""
     re, im = isa_pid_response([gains.Kc, gains.Ti_s, gains.Td_s, gains.Tf_s], params.sample_period_s,
                               omega_terms(omega, params.sample_period_s))
@@ -70,7 +70,7 @@ def omega_grid(dt: float, n: int = 160) -> np.ndarray:
     return np.logspace(np.log10(2 * np.pi * 0.05), np.log10(0.999 * np.pi / dt), n)
 
 
-def max_sensitivity(gains: PIDGains, params: RigParams, force_range_N: tuple[float, float] | None = None) -> float:
+def max_sensitivity(gains: PIDGains, params: Plant, force_range_N: tuple[float, float] | None = None) -> float:
     """The largest ``|S|`` of the linearised loop at both ends of the local slope, on a 2,000-point grid."""
     dt = params.sample_period_s
     omega = omega_grid(dt, 2000)

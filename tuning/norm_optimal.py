@@ -45,7 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezopreload.core.errors import InputError, InternalError
-from piezopreload.models.actuator import RigParams
+from piezopreload.models.actuator import Plant
 from piezopreload.models.controller import Controller
 from piezopreload.tuning.ilc import LoopLinearisation, linearise_loop, zero_phase_lowpass
 from piezopreload.tuning.lifted import (
@@ -402,7 +402,7 @@ def robust_choice(nominal: LiftedLoop, members: list[list[LoopLinearisation]], c
     return RobustChoice(gain, cutoff, contraction, len(members), band)
 
 
-def uncertainty_set(params: RigParams, controller: Controller, nominal: list[LoopLinearisation], plants: int,
+def uncertainty_set(params: Plant, controller: Controller, nominal: list[LoopLinearisation], plants: int,
                     spread: dict[str, float] | None = None, seed: int = 0) -> list[list[LoopLinearisation]]:
     """The nominal plant and ``plants`` Monte Carlo plants (the validation's spread), each linearised at the
     voltages of ``nominal``."""
@@ -507,7 +507,7 @@ class NormOptimalLaw:
                 "constrained_steps": int(self.stats.get("constrained_steps", 0))}
 
 
-def norm_optimal_law(params: RigParams, controller: Controller, target_N: Array, base_V: Array | None = None, *,
+def norm_optimal_law(params: Plant, controller: Controller, target_N: Array, base_V: Array | None = None, *,
                      weight: float = DEFAULT_WEIGHT, levels: int = DEFAULT_LEVELS, plants: int = 8,
                      spread: dict[str, float] | None = None, seed: int = 0, constrained: bool = True) -> NormOptimalLaw:
     """The norm-optimal law of ``controller`` on ``params`` along the plan ``target_N`` (learning from ``base_V``,

@@ -47,7 +47,7 @@ import numpy as np
 from piezopreload.artifacts.tuning import ActiveBound
 from piezopreload.core import native
 from piezopreload.core.errors import InfeasibleError, InputError
-from piezopreload.models.actuator import Rig, RigParams
+from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import PAPER_BAND_N, Reference
 from piezopreload.models.controller import PIDGains
 from piezopreload.models.hysteresis import InverseClassicalPI
@@ -183,7 +183,7 @@ def scaled_references(step_N: Any = None, trajectory_N: Any = None) -> dict[str,
 # --------------------------------------------------------------------------------------
 # the plant variants
 # --------------------------------------------------------------------------------------
-def plant_variants(params: RigParams, spread: dict[str, float]) -> list[RigParams]:
+def plant_variants(params: Plant, spread: dict[str, float]) -> list[Plant]:
     """The nominal plant and the corners that bound it: low/high gain with a slow/fast amplifier.
 
     ``spread`` gives relative changes: ``gain`` (coupling stiffness), ``amp_bandwidth_Hz``,
@@ -196,7 +196,7 @@ def plant_variants(params: RigParams, spread: dict[str, float]) -> list[RigParam
         raise ValueError(f"unknown variant spread {sorted(unknown)}")
     s = {k: float(spread.get(k, 0.0)) for k in ("gain", "amp_bandwidth_Hz", "slew", "hysteresis", "creep")}
 
-    def corner(gain: float, amp: float, slew: float, hyst: float, creep: float) -> RigParams:
+    def corner(gain: float, amp: float, slew: float, hyst: float, creep: float) -> Plant:
         return replace(
             params,
             coupling_stiffness_N_per_um=params.coupling_stiffness_N_per_um * (1 + gain * s["gain"]),
@@ -345,7 +345,7 @@ class _Problem:
     data: np.ndarray
     names: list[str]
     scaling: _Scaling
-    variants: list[RigParams]
+    variants: list[Plant]
     objective: Any
     labels: list[str]
     g: Any
@@ -373,7 +373,7 @@ def _variable_names(spec: TuningSpec) -> list[str]:
             + (["b"] if spec.tune_setpoint_weight else []))
 
 
-def _horizon(params: RigParams, feedforward: InverseClassicalPI | None, spec: TuningSpec, variants: list[RigParams],
+def _horizon(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningSpec, variants: list[Plant],
              engine: str) -> Horizon:
     """The step, then the trajectory, on one horizon: the loop restarts at each one's first sample (the
     trajectory's top is out of reach of the weakest variants: only the step's overshoot counts)."""
@@ -407,7 +407,7 @@ def _ms_blocks(d: Any, gains4: list[Any], slopes: list[tuple[float, float]], n_o
     return blocks
 
 
-def _build_problem(params: RigParams, feedforward: InverseClassicalPI | None, spec: TuningSpec,
+def _build_problem(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningSpec,
                    engine: str = "plain") -> _Problem:
     dt = params.sample_period_s
     variants = plant_variants(params, spec.variants)
@@ -555,7 +555,7 @@ def _active_bounds(on_bounds: list[tuple[str, str, float]], made_pi: bool, retun
     return tuple(out)
 
 
-def _engine(params: RigParams, feedforward: InverseClassicalPI | None, spec: TuningSpec,
+def _engine(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningSpec,
             engine: str) -> tuple[_Problem, str, float]:
     """The problem on the compiled engine where asked and available, else plain; the engine and its build time."""
     used, compile_s = "plain", 0.0
@@ -573,7 +573,7 @@ def _engine(params: RigParams, feedforward: InverseClassicalPI | None, spec: Tun
     return prob, used, compile_s
 
 
-def _as_pi(params: RigParams, feedforward: InverseClassicalPI | None, spec: TuningSpec, engine: str,
+def _as_pi(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningSpec, engine: str,
            pid: PIDGains, max_iterations: int, progress: Callable[[int], None] | None
            ) -> tuple[PIDGains, _Solvers, np.ndarray, str, bool] | None:
     """The PI of ``pid`` (its derivative on its lower bound): ``pid`` without its derivative and filter where that
@@ -592,7 +592,7 @@ def _as_pi(params: RigParams, feedforward: InverseClassicalPI | None, spec: Tuni
 
 
 def tune_pid(
-    params: RigParams,
+    params: Plant,
     feedforward: InverseClassicalPI | None,
     spec: TuningSpec = TuningSpec(),
     *,

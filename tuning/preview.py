@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezopreload.core.errors import InputError
-from piezopreload.models.actuator import Rig, RigParams, reach_N
+from piezopreload.models.actuator import Plant, Rig, reach_N
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import Controller
 from piezopreload.tuning.bounds import tracking_floor
@@ -92,7 +92,7 @@ class PreviewPlan:
                 "lead_samples": self.lead_samples, "starts_samples": self.starts, "reach_N": list(self.reach_N)}
 
 
-def default_preview_s(params: RigParams, reference: Reference) -> float:
+def default_preview_s(params: Plant, reference: Reference) -> float:
     """The preview that plans every jump as well as any preview could: the delay and the amplifier's lag
     (the feedforward's lead, :func:`feedforward_lead`) plus the slew time of the largest jump; for a ramped
     reference the lead alone."""
@@ -103,13 +103,13 @@ def default_preview_s(params: RigParams, reference: Reference) -> float:
     return feedforward_lead(params) * params.sample_period_s + jump / rate
 
 
-def feedforward_lead(params: RigParams) -> int:
+def feedforward_lead(params: Plant) -> int:
     """Samples the feedforward reads the plan ahead: the delay line, the D/A's sample and the amplifier's lag."""
     tau = 1.0 / (2.0 * np.pi * float(np.max(params.amp_bandwidth_Hz)))
     return int(params.delay_samples) + 1 + int(round(tau / params.sample_period_s))
 
 
-def branch_ramps(params: RigParams, levels_N: Array, u_max_V: float = 110.0, slew_fraction: float = 1.0) -> list[Array]:
+def branch_ramps(params: Plant, levels_N: Array, u_max_V: float = 110.0, slew_fraction: float = 1.0) -> list[Array]:
     """Per change of ``levels_N``, the fastest force path along the rig's own hysteresis branch.
 
     The quasi-static rig (:meth:`~piezopreload.models.actuator.Rig.quasi_static_loop`: the truth
@@ -145,7 +145,7 @@ def branch_ramps(params: RigParams, levels_N: Array, u_max_V: float = 110.0, sle
     return ramps
 
 
-def preview_plan(params: RigParams, reference: Reference, preview_s: float, *, u_max_V: float = 110.0,
+def preview_plan(params: Plant, reference: Reference, preview_s: float, *, u_max_V: float = 110.0,
                  lead_samples: int | None = None, ramps: list[Array] | None = None,
                  after_change_weight: float = 0.0) -> PreviewPlan:
     """The preview floor and the planned force (see the module docstring).
@@ -217,7 +217,7 @@ def preview_plan(params: RigParams, reference: Reference, preview_s: float, *, u
     return PreviewPlan(t, force, rms, floor["rate_N_per_s"], float(preview_s), lead, starts, (lo, hi))
 
 
-def ramp_plan(params: RigParams, reference: Reference, preview_s: float, *, u_max_V: float = 110.0,
+def ramp_plan(params: Plant, reference: Reference, preview_s: float, *, u_max_V: float = 110.0,
               lead_samples: int | None = None) -> PreviewPlan:
     """The plan and the preview floor of a ramped (piecewise linear) reference.
 
@@ -257,7 +257,7 @@ def ramp_plan(params: RigParams, reference: Reference, preview_s: float, *, u_ma
     return PreviewPlan(t, force, rms, rate, float(preview_s), lead, [], (lo, hi), interpolation="linear")
 
 
-def causal_floor(params: RigParams, reference: Reference) -> float:
+def causal_floor(params: Plant, reference: Reference) -> float:
     """The causal floor (RMS, N) of ``reference``: :func:`~piezopreload.tuning.bounds.tracking_floor` over a
     held reference's jumps, the extrapolated slope's lag (:func:`ramp_plan` without preview) on a ramped one."""
     if reference.interpolation == "hold":
@@ -330,7 +330,7 @@ class Preview:
                 "after_change_weight": self.after_change_weight}
 
 
-def plan_preview(params: RigParams, controller: Controller, reference: Reference, preview_s: float | None = None, *,
+def plan_preview(params: Plant, controller: Controller, reference: Reference, preview_s: float | None = None, *,
                  after_change_weight: float = 0.0, slew_fraction: float = PLAN_SLEW_FRACTION) -> Preview:
     """The plan, the setpoint, the previewed feedforward and the floors of ``controller`` on ``params`` over ``reference``.
 

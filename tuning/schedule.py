@@ -52,7 +52,7 @@ import numpy as np
 from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.validation import Criteria, ValidationResult
 from piezopreload.core.parallel import spare_cpus
-from piezopreload.models.actuator import RigParams
+from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import GainSchedule, PIDGains
 from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at
@@ -196,7 +196,7 @@ def _judge(args: tuple[Any, ...]) -> dict[str, Any]:
                            trajectory=trajectory))
 
 
-def _tune_entry(args: tuple[RigParams, Any, TuningSpec, PIDGains]) -> tuple[PIDGains, dict[str, Any]]:
+def _tune_entry(args: tuple[Plant, Any, TuningSpec, PIDGains]) -> tuple[PIDGains, dict[str, Any]]:
     params, inverse, spec, start = args
     try:
         tuned = tune_pid(params, inverse, spec, start=start, starts=1, max_iterations=40)
@@ -314,7 +314,7 @@ def _plan(spec: TuningSpec, robust: PIDGains, levels_N: Any, step: Reference, tr
 
 
 def tune_schedule(
-    params: RigParams,
+    params: Plant,
     feedforward: HysteresisModel | CreepPI | None,
     spec: TuningSpec,
     criteria: Criteria,

@@ -1,7 +1,7 @@
 """Validation of candidate gains on the nonlinear rig simulation, by Monte Carlo.
 
 The gains and the identified feedforward run on a batch of plants drawn around the nominal
-rig (:meth:`RigParams.vary`), each with the truth hysteresis, creep, sensor noise,
+rig (:meth:`Plant.vary`), each with the truth hysteresis, creep, sensor noise,
 quantisation, the amplifier's limits and the controller's clamp, over the step and the
 trajectory. A gain set passes only if every plant meets every criterion.
 
@@ -31,7 +31,7 @@ import numpy as np
 from piezopreload.artifacts.validation import METRICS, Criteria, ValidationResult
 from piezopreload.core.errors import PiezopreloadError
 from piezopreload.core.parallel import spare_cpus
-from piezopreload.models.actuator import Rig, RigParams
+from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at
@@ -59,14 +59,14 @@ class SchedulerError(PiezopreloadError, RuntimeError):
 class _Chunk:
     gains: PIDGains
     feedforward: HysteresisModel | CreepPI | None
-    plants: RigParams
+    plants: Plant
     step: Reference
     trajectory: Reference
     criteria: Criteria
     seed: int
 
 
-def evaluate(gains: PIDGains, feedforward: HysteresisModel | CreepPI | None, plants: RigParams, step_ref: Reference,
+def evaluate(gains: PIDGains, feedforward: HysteresisModel | CreepPI | None, plants: Plant, step_ref: Reference,
              trajectory: Reference, criteria: Criteria, seed: int) -> dict[str, np.ndarray]:
     """The metrics the criteria judge, per plant: the step (noise ``seed``) and the trajectory (``seed + 1``).
 
@@ -152,7 +152,7 @@ def executor(workers: int | None = None, scheduler: str | None = None) -> Iterat
 def validate(
     gains: PIDGains,
     feedforward: HysteresisModel | CreepPI | None,
-    plant: RigParams,
+    plant: Plant,
     criteria: Criteria | None = None,
     *,
     n_plants: int = 200,
