@@ -29,7 +29,8 @@ from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import SCHEDULE_MAX, Controller, GainSchedule, PIDGains
 from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at, model_from_dict
 
-__all__ = ["GainSet", "RigInterlocks", "REFERENCES", "STATUSES", "gains_to_dict", "gains_from_dict", "schedule_from_dict"]
+__all__ = ["GainSet", "RigInterlocks", "REFERENCES", "STATUSES", "gains_to_dict", "gains_from_dict",
+           "schedule_from_dict"]
 
 #: the named references a gain set is validated on (and the rig runs by name)
 REFERENCES = ("step", "trajectory")
@@ -238,7 +239,8 @@ class GainSet:
             raise InputError(f"GainSet.status must be one of {', '.join(STATUSES)}, got {self.status!r}.")
         bad = [k for k, r in self.references.items() if not isinstance(r, Reference)]
         if bad:
-            raise InputError(f"GainSet.references['{bad[0]}'] must be a Reference, got {type(self.references[bad[0]]).__name__}.")
+            raise InputError(f"GainSet.references['{bad[0]}'] must be a Reference, "
+                             f"got {type(self.references[bad[0]]).__name__}.")
         if not isinstance(self.gains, PIDGains):
             raise InputError(f"GainSet.gains must be PIDGains, got {type(self.gains).__name__}.")
 
@@ -339,7 +341,8 @@ class GainSet:
             interlocks = None if doc.get("rig_interlocks") is None else RigInterlocks.from_dict(doc["rig_interlocks"])
         except InputError as exc:
             raise fail(str(exc)) from None
-        return cls(gains=gains, status=status, feedforward=model, feedforward_info=dict(ff_doc.get("identification") or {}),
+        return cls(gains=gains, status=status, feedforward=model,
+                   feedforward_info=dict(ff_doc.get("identification") or {}),
                    plant=plant, preset=plant_doc.get("preset"), references=references,
                    criteria=criteria, validation=validation, tuning=doc.get("tuning"),
                    inputs=dict(doc.get("inputs") or {}), content_sha256=doc.get("content_sha256"),
@@ -365,8 +368,8 @@ class GainSet:
     def reference(self, name: str) -> Reference:
         """The named reference of the validation; an error names what the gain set holds."""
         if name not in self.references:
-            raise InputError(f"the gain set has no reference '{name}' (it holds {', '.join(self.references) or 'none'}); "
-                             f"{_REWRITE}")
+            raise InputError(f"the gain set has no reference '{name}' (it holds "
+                             f"{', '.join(self.references) or 'none'}); {_REWRITE}")
         return self.references[name]
 
     def controller(self) -> Controller:

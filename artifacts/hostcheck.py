@@ -1,4 +1,5 @@
-"""The host check's result: how late this host wakes a thread at the loop's priority and rate, against the loop's budget.
+"""The host check's result: how late this host wakes a thread at the loop's priority and rate,
+against the loop's budget.
 
 :func:`piezopreload.rig.hostcheck.check_host` measures it (``piezopreload rig check``, and the
 check ``rig run --realtime`` and ``rig serve`` make before arming); a run's sidecar keeps it

@@ -393,7 +393,8 @@ class IdentifiedModel:
     def covers(self, low: float, high: float, what: str = "the references") -> None:
         """Refuse (an :class:`InputError` naming both ranges) outputs ``[low, high]`` the model was not identified
         over: :func:`require_coverage`."""
-        shown = f"{self.data.kind} {self.units.output_name}" + ("" if self.data.path is None else f" of {self.data.path}")
+        shown = f"{self.data.kind} {self.units.output_name}" + ("" if self.data.path is None
+                                                                else f" of {self.data.path}")
         require_coverage(self.output_range, (low, high), what, unit=self.units.output, source=shown)
 
 

@@ -167,7 +167,8 @@ class LearnedSignal:
         dt, s = self.sample_period_s, self.setpoint_N
         return Reference(np.arange(s.size - 1) * dt, s[:-1], self.reference.duration_s)
 
-    def check(self, gain_set_sha256: str | None, reference: Reference | None = None, shown: str = "the learned signal") -> None:
+    def check(self, gain_set_sha256: str | None, reference: Reference | None = None,
+              shown: str = "the learned signal") -> None:
         """Refuse playing this signal with another gain set or on another reference (an :class:`InputError`)."""
         if self.gain_set_sha256 is None or gain_set_sha256 != self.gain_set_sha256:
             raise InputError(f"{shown} was learned with gain set {self.gain_set_sha256 or 'none (unsaved gains)'}, "

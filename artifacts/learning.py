@@ -211,9 +211,9 @@ class PassRecord:
                    f("before_learning_pct_of_range", _number), f("tracking_rms_N", _number),
                    f("tracking_rms_pct_of_range", _number), f("trials", _count), f("trials_to_within_1p1", _count),
                    f("stop_reason", _text), f("converged", _flag), f("best_iteration", _counts),
-                   f("causal_floor_N", _number), f("preview_floor_N", _number), f("noise_floor_N", _optional_number, None),
-                   f("preview_s", _number), f("method", _text), f("warm_start", _flag, False),
-                   f("learning", _mapping), f("history", lambda x: _trials(x, where)),
+                   f("causal_floor_N", _number), f("preview_floor_N", _number),
+                   f("noise_floor_N", _optional_number, None), f("preview_s", _number), f("method", _text),
+                   f("warm_start", _flag, False), f("learning", _mapping), f("history", lambda x: _trials(x, where)),
                    f("tracking_rms_from_start_N", _optional_number, None))
 
 

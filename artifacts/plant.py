@@ -118,8 +118,8 @@ class DesignedPlant:
                                               else self.sleeve_stiffness_N_per_um),
                 "nut_hertz_um_per_N23": float(self.rig.hertz_um_per_N23),
                 "nut_structural_um_per_N": self.nut_structural_um_per_N, "screw": _screw_to_dict(self.screw),
-                "slew_V_per_s": float(self.rig.slew_V_per_s), "local_stiffness_N_per_um": self.local_stiffness_N_per_um(),
-                "inputs": dict(self.inputs)}
+                "slew_V_per_s": float(self.rig.slew_V_per_s),
+                "local_stiffness_N_per_um": self.local_stiffness_N_per_um(), "inputs": dict(self.inputs)}
 
     @classmethod
     def from_dict(cls, doc: dict[str, Any], shown: str = "the plant") -> DesignedPlant:

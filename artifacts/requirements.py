@@ -10,7 +10,7 @@ prints the missed ones and exits with :data:`EXIT_REQUIREMENT_MISSED` when any i
 (False, -239.0)
 >>> r.sentence()
 'rigidity while cutting: 761 N/um against at least 1,000 N/um ([schedule] stiffness_min_N_per_um), missed by 239 N/um (23.9 %)'
-"""
+"""  # noqa: E501 (a doctest's expected output is one line)
 
 from __future__ import annotations
 
@@ -80,7 +80,8 @@ class Requirement:
         """The verdict in words: achieved against required, and the margin."""
         bound = "at least" if self.sense == "min" else "at most"
         where = f" ({self.source})" if self.source else ""
-        head = f"{self.name}: {_number(self.value)} {self.unit} against {bound} {_number(self.limit)} {self.unit}{where}"
+        head = (f"{self.name}: {_number(self.value)} {self.unit} against {bound} "
+                f"{_number(self.limit)} {self.unit}{where}")
         if self.met:
             return f"{head}, met with {_number(self.margin)} {self.unit} to spare"
         pct = f" ({100 * abs(self.margin) / abs(self.limit):.1f} %)" if self.limit else ""

@@ -21,8 +21,8 @@ __all__ = ["ResponseRun", "ReproductionRow", "CreepRow", "ResponsesRecord", "RES
 
 KIND = "responses"
 #: the figures of a run, None where they do not apply (a step that never settles)
-RESPONSE_FIGURES = ("rise_s", "peak_s", "settling_s", "overshoot_N", "peak_command_V", "tracking_rms_N", "tracking_max_N",
-            "tracking_rms_after_change_N")
+RESPONSE_FIGURES = ("rise_s", "peak_s", "settling_s", "overshoot_N", "peak_command_V",
+                    "tracking_rms_N", "tracking_max_N", "tracking_rms_after_change_N")
 
 
 def _optional_number(doc: dict[str, Any], key: str, where: str) -> float | None:

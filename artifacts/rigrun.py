@@ -136,7 +136,8 @@ class RunTiming:
     @classmethod
     def from_dict(cls, doc: Any, shown: str) -> RunTiming:
         f = _Fields(doc, shown)
-        numbers: dict[str, Any] = {k: f.number(k) for k in ("rate_Hz", "lateness_p50_s", "lateness_p99_s", "lateness_max_s",
+        numbers: dict[str, Any] = {k: f.number(k)
+                                   for k in ("rate_Hz", "lateness_p50_s", "lateness_p99_s", "lateness_max_s",
                                              "period_mean_s", "period_std_s", "period_max_s", "held_max_s",
                                              "stall_limit_s")}
         counts: dict[str, Any] = {k: f.count(k) for k in ("cycles", "missed_deadlines", "stalls", "stall_events_logged",
@@ -334,8 +335,8 @@ class RigRunRecord:
             host_check=None if host is None else HostCheck.from_dict(host, f"{shown}: host_check"),
             host_accepted=bool(doc.get("host_accepted", False)),
             faults_injected=tuple(f.items("faults_injected")), learned=f.mapping("learned", True),
-            endpoint=f.text("endpoint", True), users=tuple(doc.get("users") or ()), served=bool(doc.get("served", False)),
-            events=tuple(f.items("events")),
+            endpoint=f.text("endpoint", True), users=tuple(doc.get("users") or ()),
+            served=bool(doc.get("served", False)), events=tuple(f.items("events")),
             summary=None if summary is None else RunOutcome.from_dict(summary, f"{shown}: summary"),
             reason=f.text("reason", True), finished_utc=f.text("finished_utc", True))
 

@@ -174,12 +174,14 @@ class PreloadSchedule:
     def from_fields(cls, f: Fields) -> PreloadSchedule:
         """The inverse of :meth:`to_dict`, each field checked (its errors name the field)."""
         t = f.array("time_s")
-        profile = f.build(lambda: LoadProfile(t, f.array("axial_load_N", t.size), f.optional_array("speed_rpm", t.size)))
+        profile = f.build(lambda: LoadProfile(t, f.array("axial_load_N", t.size),
+                                              f.optional_array("speed_rpm", t.size)))
         series = {name: f.array(name, t.size) for name in _SERIES}
         return f.build(lambda: cls(
             profile=profile, spec=ScheduleSpec.from_fields(f), constant_preload_N=f.number("constant_preload_N"),
-            friction_energy_J=f.number("friction_energy"), constant_friction_energy_J=f.number("constant_friction_energy"),
-            energy_units=f.text("energy_units"), status=f.text("status"), **series))
+            friction_energy_J=f.number("friction_energy"),
+            constant_friction_energy_J=f.number("constant_friction_energy"), energy_units=f.text("energy_units"),
+            status=f.text("status"), **series))
 
     def plot(self, axes: Any = None) -> Any:
         """Load profile, the two preloads, and rigidity against the requirement, on three axes (new ones on a

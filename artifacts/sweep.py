@@ -39,7 +39,8 @@ def _is_scalar(value: Any) -> bool:
 
 
 def _checked(value: Any, kind: str, where: str) -> Any:
-    """``value`` as a field of ``kind`` (``number``, ``int``, ``str``, ``bool``; each may be None), or an error naming it."""
+    """``value`` as a field of ``kind`` (``number``, ``int``, ``str``, ``bool``; each may be None),
+    or an error naming it."""
     if value is None:
         return None
     if kind == "number" and isinstance(value, int | float) and not isinstance(value, bool):
@@ -211,8 +212,9 @@ class SweepPoint:
                 raise ArtifactError(f"{where}: field '{name}' is missing or of the wrong type")
         figures = PointFigures.from_dict(doc.get("figures"), f"{where}.figures")
         try:
-            return cls(doc["index"], dict(doc["values"]), doc["folder"], doc["status"], doc["error"], doc["failed_stage"],
-                       doc["exit_code"], doc["seconds"], tuple(doc["ran"]), tuple(doc["reused"]), figures)
+            return cls(doc["index"], dict(doc["values"]), doc["folder"], doc["status"], doc["error"],
+                       doc["failed_stage"], doc["exit_code"], doc["seconds"], tuple(doc["ran"]),
+                       tuple(doc["reused"]), figures)
         except (TypeError, ValueError) as exc:
             raise ArtifactError(f"{where}: {exc}") from None
 

@@ -99,7 +99,8 @@ class PreCycle:
     def __post_init__(self) -> None:
         if not (self.slew_N_per_s > 0 and min(self.ramp_s, self.settle_s, self.rest_s) >= 0
                 and np.isfinite(self.level_N)):
-            raise ValueError(f"PreCycle needs a finite level, slew > 0 and rest_s, ramp_s, settle_s >= 0, got {self!r}.")
+            raise ValueError("PreCycle needs a finite level, slew > 0 and rest_s, ramp_s, "
+                             f"settle_s >= 0, got {self!r}.")
 
     @property
     def duration_s(self) -> float:
@@ -136,8 +137,9 @@ class PassRecord:
     @classmethod
     def from_fields(cls, f: Fields) -> PassRecord:
         return cls(f.integer("pass"), f.number("preload_margin_N"), f.number("tracking_rms_N"),
-                   f.number("tracking_rms_pct_of_range"), f.number("rigidity_ratio_min"), f.number("lift_off_ratio_min"),
-                   f.flag("requirements_met"), f.number("preload_shortfall_max_N"), f.number("friction_energy_per_cycle"))
+                   f.number("tracking_rms_pct_of_range"), f.number("rigidity_ratio_min"),
+                   f.number("lift_off_ratio_min"), f.flag("requirements_met"), f.number("preload_shortfall_max_N"),
+                   f.number("friction_energy_per_cycle"))
 
 
 @dataclass(frozen=True)
@@ -201,8 +203,8 @@ class PlannedSchedule:
         return {"status": self.status, "friction_energy": self.friction_energy, "energy_units": self.energy_units,
                 "preload_min_N": float(np.min(self.preload_N)), "preload_max_N": float(np.max(self.preload_N)),
                 "preload_margin_N": float(np.max(self.margin_N)), "samples": int(self.time_s.size),
-                "time_s": self.time_s.tolist(), "preload_N": self.preload_N.tolist(), "margin_N": self.margin_N.tolist(),
-                "margin_short_N": self.margin_short_N.tolist()}
+                "time_s": self.time_s.tolist(), "preload_N": self.preload_N.tolist(),
+                "margin_N": self.margin_N.tolist(), "margin_short_N": self.margin_short_N.tolist()}
 
     @classmethod
     def from_fields(cls, f: Fields) -> PlannedSchedule:
@@ -291,8 +293,10 @@ class SystemRecord:
         f = Fields(doc, shown)
         record = cls(numbers=TrackingNumbers.from_fields(f), requirements=requirements_from_dict(
                          f.raw("requirements"), f"{shown}: field 'requirements'"),
-                     bounds=f.items("bounds", ScheduleBound.from_fields), pre_cycle=PreCycle.from_fields(f.sub("pre_cycle")),
-                     passes=f.items("passes", PassRecord.from_fields), schedule=PlannedSchedule.from_fields(f.sub("schedule")),
+                     bounds=f.items("bounds", ScheduleBound.from_fields),
+                     pre_cycle=PreCycle.from_fields(f.sub("pre_cycle")),
+                     passes=f.items("passes", PassRecord.from_fields),
+                     schedule=PlannedSchedule.from_fields(f.sub("schedule")),
                      series=SystemSeries.from_fields(f.sub("series")), cycles=f.integer("cycles"),
                      inputs=f.mapping("inputs", {}))
         if f.flag("requirements_met") != record.requirements_met:

@@ -1,4 +1,5 @@
-"""The tuning record: what the tune stage writes (``tuning.json``, kind ``tuning``) and the report and validate stage read.
+"""The tuning record: what the tune stage writes (``tuning.json``, kind ``tuning``) and the
+report and validate stage read.
 
 One frozen dataclass per part, each with ``to_dict``/``from_dict``:
 
@@ -256,7 +257,8 @@ class TrackingFloor:
         _check_finite(self, ("rms_N", "rate_N_per_s"), ("tuned_over_floor_ratio",))
 
     def to_dict(self) -> dict[str, Any]:
-        return {"rms_N": self.rms_N, "rate_N_per_s": self.rate_N_per_s, "tuned_over_floor_ratio": self.tuned_over_floor_ratio}
+        return {"rms_N": self.rms_N, "rate_N_per_s": self.rate_N_per_s,
+                "tuned_over_floor_ratio": self.tuned_over_floor_ratio}
 
     @classmethod
     def from_dict(cls, doc: Any, where: str = "tracking_floor") -> TrackingFloor:

@@ -311,8 +311,8 @@ class ValidationResult:
             f"<td>{r.limit:g} {r.unit}</td><td>{'met' if r.met else '<b>missed</b>'}</td></tr>"
             for r in self.requirements)
         return (f"<p><b>Monte Carlo validation</b>: {'passed' if self.passed else 'failed'} on {self.n_plants} plants "
-                f"(seed {self.seed})</p><table><tr><th>limit</th><th>worst plant</th><th>limit</th><th>verdict</th></tr>"
-                f"{rows}</table>")
+                f"(seed {self.seed})</p>"
+                f"<table><tr><th>limit</th><th>worst plant</th><th>limit</th><th>verdict</th></tr>{rows}</table>")
 
     def plot(self) -> Any:
         """A Figure: each bounded metric's distribution over the plants, with its limit dashed."""

@@ -86,7 +86,8 @@ def main() -> None:
     print(f"front of {POINTS} points, integers fixed: {fixed_s:.3f} s ({fixed_ok} solved) = "
           f"{fixed_s / ours_s:.1f} x one NLP", flush=True)
     print(f"front of {POINTS} points, mixed-integer: {mixed_s:.3f} s ({len(front.points)} points, "
-          f"{front.nlp_solves} solver runs) = {mixed_s / design_s:.1f} x one design solve ({1e3 * design_s:.1f} ms)", flush=True)
+          f"{front.nlp_solves} solver runs) = {mixed_s / design_s:.1f} x one design solve "
+          f"({1e3 * design_s:.1f} ms)", flush=True)
     print(f"the same front with IPOPT for every warm solve: {ipopt_s:.3f} s; same integers at every point: "
           f"{same_integers}; largest relative difference: "
           + (f"stiffness {dx:.1e}, drag {dy:.1e}" if same_points else

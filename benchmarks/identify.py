@@ -1,4 +1,5 @@
-"""Identification: speed against scipy's NNLS, and accuracy with and without creep on data the models were not fitted to.
+"""Identification: speed against scipy's NNLS, and accuracy with and without creep on data the
+models were not fitted to.
 
 Three parts (``--part speed|shipped|drift``; all by default), one JSON object on the last line.
 
@@ -145,7 +146,8 @@ def shipped() -> dict[str, Any]:
         sweep[f"modified+creep, {n_dz} dead zones a side"] = fit(model="modified", creep=True, n_deadzone=n_dz)
 
     print(f"\nshipped record, train 4-7 s, test 7-10 s, 40 operators (% of span {span:.2f} um); "
-          f"the noise alone reaches {np.max(np.abs(noise[test])):.3f} % in the test window (RMS {np.std(noise[test]):.3f} %)")
+          f"the noise alone reaches {np.max(np.abs(noise[test])):.3f} % in the test window "
+          f"(RMS {np.std(noise[test]):.3f} %)")
     print(f"{'model':58s} {'test RMS':>8s} {'max':>6s} | model error: {'RMS':>5s} {'max':>5s} "
           f"{'near rev.':>9s} {'elsewhere':>9s}  {'at the max':>10s}")
     for name, e in list(table.items()) + list(sweep.items()):
@@ -197,8 +199,9 @@ def drift(duration_s: float = 80.0) -> dict[str, Any]:
     per_cycle = int(round(1.0 / (FREQUENCY_HZ * dt)))
     peaks = force[: (t.size - 1) // per_cycle * per_cycle].reshape(-1, per_cycle).max(axis=1)
     print(f"\nsimulated rig (paper's study), 0..100 V at 0.5 Hz from rest, {duration_s:.0f} s at {1 / dt:.0f} Hz "
-          f"(simulated in {simulate_s:.0f} s); train 0-{duration_s / 2:.0f} s, test {duration_s / 2:.0f}-{duration_s:.0f} s; "
-          f"noise floor {floor:.3f} N RMS (span {span:.1f} N); the force at the top of the cycle creeps "
+          f"(simulated in {simulate_s:.0f} s); train 0-{duration_s / 2:.0f} s, "
+          f"test {duration_s / 2:.0f}-{duration_s:.0f} s; noise floor {floor:.3f} N RMS (span {span:.1f} N); "
+          "the force at the top of the cycle creeps "
           f"{peaks[0]:.2f} -> {peaks[peaks.size // 2]:.2f} -> {peaks[-1]:.2f} N (first, middle, last cycle)")
     print(f"{'model':40s} {'test RMS N':>10s} {'x floor':>8s} {'vs true force N':>16s} {'mean error N':>13s}")
     for name, e in table.items():

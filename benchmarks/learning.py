@@ -188,7 +188,8 @@ def machine_axis(folder: Path) -> dict:
         t1 = time.perf_counter()
         law.update(preview.ff_extra_V, e, run.command_V, run.voltage_V)
         times.append(time.perf_counter() - t1)
-    out.update({"norm_optimal_schedule_s_per_trial": times[0], "norm_optimal_schedule_s_per_later_trial": min(times[1:]),
+    out.update({"norm_optimal_schedule_s_per_trial": times[0],
+                "norm_optimal_schedule_s_per_later_trial": min(times[1:]),
                 "norm_optimal_schedule_samples": int(preview.target_N.size)})
     print(f"one norm-optimal update on the schedule's {preview.target_N.size} samples: {times[0]:.2f} s "
           f"(later ones {min(times[1:]):.2f} s)", flush=True)
@@ -199,7 +200,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--plants", type=int, default=50, help="Monte Carlo plants (0: none)")
     ap.add_argument("--iterations", type=int, default=10)
-    ap.add_argument("--no-trade-off", action="store_true", help="leave out the after-change trade-off and the plans' front")
+    ap.add_argument("--no-trade-off", action="store_true",
+                    help="leave out the after-change trade-off and the plans' front")
     ap.add_argument("--no-machine", action="store_true", help="leave out the machine axis (a minute for its study)")
     args = ap.parse_args()
     out = paper(args)

@@ -109,7 +109,8 @@ def _port() -> int:
         return s.getsockname()[1]
 
 
-def one_loop(loop: str, paths: list[Path], shas: list[str], seconds: float, tmp: Path, accept_host: bool = True) -> dict:
+def one_loop(loop: str, paths: list[Path], shas: list[str], seconds: float, tmp: Path,
+             accept_host: bool = True) -> dict:
     endpoint = f"opc.tcp://127.0.0.1:{_port()}/piezopreload/"
     ready, stop, out = threading.Event(), threading.Event(), {}
 

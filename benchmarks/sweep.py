@@ -23,9 +23,9 @@ model code into the build cache:
 seconds: the CPUs it already kept busy on its own (its figures and Monte Carlo in worker processes,
 the minimum-time bound beside the tuning), which bounds what two workers can gain on two CPUs;
 ``rows_identical``: the three runs' rows are equal, value for value (``rows_differ`` names the
-columns where they are not). Each wall time has the load average beside it, and each run's CPU seconds (``runs``: this process and the worker processes that ended; a Dask
-cluster's workers are counted when the cluster is closed, so its ``cpu_s`` is not comparable). The
-last line printed is one JSON object.
+columns where they are not). Each wall time has the load average beside it, and each run's CPU seconds (``runs``: this
+process and the worker processes that ended; a Dask cluster's workers are counted when the cluster is closed, so its
+``cpu_s`` is not comparable). The last line printed is one JSON object.
 
     python benchmarks/sweep.py [--study STUDY.toml] [--workers 2]
 """

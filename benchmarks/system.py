@@ -71,7 +71,8 @@ def main() -> None:
         "friction_energy_per_cycle": n.friction_energy_per_cycle,
         "planned_friction_energy_per_cycle": n.planned_friction_energy_per_cycle,
         "design_plan_friction_energy": plan.friction_energy_J, "constant_preload_N": plan.constant_preload_N,
-        "constant_friction_energy": plan.constant_friction_energy_J, "friction_saved_fraction": n.friction_saved_fraction,
+        "constant_friction_energy": plan.constant_friction_energy_J,
+        "friction_saved_fraction": n.friction_saved_fraction,
         "friction_local_over_uniform_margin_ratio": float(
             system.schedule.friction_energy / uniform.friction_energy_J),
         "energy_units": n.energy_units,

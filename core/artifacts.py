@@ -189,14 +189,16 @@ def _check_fields(doc: dict[str, Any], kind: str, shown: str) -> None:
             raise ArtifactError(f"{shown}: field '{name}' is missing")
     bad = _first_non_finite(doc, "")
     if bad is not None:
-        raise ArtifactError(f"{shown}: field '{bad.lstrip('.')}' is not a finite number; artifacts hold finite numbers only")
+        raise ArtifactError(f"{shown}: field '{bad.lstrip('.')}' is not a finite number; "
+                            "artifacts hold finite numbers only")
 
 
 def _check_hash(doc: dict[str, Any], kind: str, shown: str) -> None:
     """A hashed ``kind`` carries the hash of its content as it was written."""
     stored = doc.get(HASH_FIELD)
     if not isinstance(stored, str):
-        raise ArtifactError(f"{shown}: field '{HASH_FIELD}' is missing; a {kind} must carry the hash it was written with")
+        raise ArtifactError(f"{shown}: field '{HASH_FIELD}' is missing; "
+                            f"a {kind} must carry the hash it was written with")
     if stored != content_hash(doc):
         raise ArtifactError(f"{shown}: the content does not match its '{HASH_FIELD}': the file was changed after it "
                             f"was written; regenerate it with 'piezopreload {_WRITER.get(kind, 'tune')}'")

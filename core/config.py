@@ -406,7 +406,8 @@ def toml_text(data: dict[str, Any]) -> str:
         return repr(float(x)) if isinstance(x, float) else str(x)
 
     def table(name: str, body: dict[str, Any]) -> list[str]:
-        lines = [f"[{name}]"] + [f"{k} = {value(v)}" for k, v in body.items() if not isinstance(v, dict) and v is not None]
+        lines = [f"[{name}]"] + [f"{k} = {value(v)}"
+                                 for k, v in body.items() if not isinstance(v, dict) and v is not None]
         for k, v in body.items():
             if isinstance(v, dict):
                 lines += ["", *table(f"{name}.{k}", v)]

@@ -42,8 +42,9 @@ import numpy as np
 
 from piezopreload.core.errors import InputError, InternalError
 
-__all__ = ["ENGINE_ENV", "FLAGS", "FLAGS_LARGE", "prelude", "NativeBuildError", "cache_dir", "compiler", "engine", "enabled", "generate",
-           "build", "build_from", "load", "library", "StepRunner", "step_runner", "build_stats", "reset_failures"]
+__all__ = ["ENGINE_ENV", "FLAGS", "FLAGS_LARGE", "prelude", "NativeBuildError", "cache_dir", "compiler", "engine",
+           "enabled", "generate", "build", "build_from", "load", "library", "StepRunner", "step_runner",
+           "build_stats", "reset_failures"]
 
 #: ``numpy`` forces the numpy path; ``c`` makes a failed build an error; anything else: C where it works
 ENGINE_ENV = "PIEZOPRELOAD_ENGINE"

@@ -50,7 +50,8 @@ class CacheEntry:
 
     def __post_init__(self) -> None:
         if not self.stage or len(self.key) != 64:
-            raise ValueError(f"CacheEntry: a stage name and a 64-digit key are needed, got {self.stage!r}, {self.key!r}")
+            raise ValueError("CacheEntry: a stage name and a 64-digit key are needed, "
+                             f"got {self.stage!r}, {self.key!r}")
         for label, o in self.outputs.items():
             path = Path(o.get("path", ""))
             if not o.get("path") or path.is_absolute() or ".." in path.parts or len(o.get("sha256", "")) != 64:
@@ -67,7 +68,8 @@ class CacheEntry:
                 raise ArtifactError(f"{where}: field '{name}' is missing or not a {kind.__name__}")
         try:
             return cls(doc["stage"], doc["key"], dict(doc["summary"]),
-                       {str(k): {"path": str(v["path"]), "sha256": str(v["sha256"])} for k, v in doc["outputs"].items()})
+                       {str(k): {"path": str(v["path"]), "sha256": str(v["sha256"])}
+                        for k, v in doc["outputs"].items()})
         except (KeyError, TypeError, ValueError) as exc:
             raise ArtifactError(f"{where}: field 'outputs' is not valid ({exc})") from None
 
@@ -157,7 +159,8 @@ class StageCache:
         recorded = {}
         for label, path in outputs.items():
             if Path(path).is_file():  # as the stage's record lists them: the files that exist
-                recorded[label] = {"path": Path(path).resolve().relative_to(root).as_posix(), "sha256": sha256_file(path)}
+                recorded[label] = {"path": Path(path).resolve().relative_to(root).as_posix(),
+                                   "sha256": sha256_file(path)}
         entry = CacheEntry(stage, key, summary, recorded)
         tmp = self.root / _INCOMING / f"{key}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         try:

@@ -92,7 +92,8 @@ def code_hash(modules: tuple[str, ...]) -> str:
         h = hashlib.sha256()
         for name in modules:
             root = Path(importlib.import_module(name).__file__ or "").parent
-            for path in sorted(p for p in root.rglob("*") if p.suffix in (".py", ".typ") and "__pycache__" not in p.parts):
+            for path in sorted(p for p in root.rglob("*")
+                               if p.suffix in (".py", ".typ") and "__pycache__" not in p.parts):
                 h.update(f"{name}/{path.relative_to(root).as_posix()}\n".encode())
                 h.update(path.read_bytes())
         _CODE_HASHES[key] = h.hexdigest()
@@ -109,8 +110,8 @@ def upstream_hashes(needs: tuple[str, ...], records: dict[str, dict[str, Any]]) 
     upstream = {}
     for name in needs:
         rec = records.get(name, {})
-        upstream[name] = {label: o["sha256"] for label, o in rec.get("outputs", {}).items()} if rec.get("status") == "done" \
-            else rec.get("status")
+        upstream[name] = ({label: o["sha256"] for label, o in rec.get("outputs", {}).items()}
+                          if rec.get("status") == "done" else rec.get("status"))
     return upstream
 
 

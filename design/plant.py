@@ -63,7 +63,8 @@ def plant_from_design(spec: DesignSpec, design: DesignOptimum | DesignPoint, har
     v = 100.0
     h = float(bouc_wen_increment(0.0, v, hardware.bw_alpha, hardware.bw_beta_per_V, hardware.bw_gamma_per_V))
     stroke_um_per_V = act.stack.nominal_travel_um / (v + float(hardware.bw_kappa) * v * v / 100.0 - h)
-    linear_um_per_N = 2.0 * screw.structural_compliance_um_per_N / screw.accuracy_factor + 1.0 / sleeve_stiffness_N_per_um
+    linear_um_per_N = (2.0 * screw.structural_compliance_um_per_N / screw.accuracy_factor
+                       + 1.0 / sleeve_stiffness_N_per_um)
     designed = {"stack": act.stack, "n_stacks": act.n_stacks, "amp_current_limit_A": act.amp_current_limit_A,
                 "stroke_um_per_V": stroke_um_per_V, "coupling_stiffness_N_per_um": 1.0 / linear_um_per_N,
                 "bolt_preload_N": 0.0, "hertz_um_per_N23": 2.0 * screw.axial_constant_um / screw.accuracy_factor,
@@ -73,5 +74,5 @@ def plant_from_design(spec: DesignSpec, design: DesignOptimum | DesignPoint, har
     except ValueError as exc:
         raise InputError(f"the plant of the design is not valid: {exc}") from exc
     return DesignedPlant(rig=rig, screw=screw, bolt_preload_N=float(p.bolt_preload_N),
-                         max_preload_N=float(p.max_preload_N), sleeve_stiffness_N_per_um=float(sleeve_stiffness_N_per_um),
-                         design_sha256=design_sha256)
+                         max_preload_N=float(p.max_preload_N),
+                         sleeve_stiffness_N_per_um=float(sleeve_stiffness_N_per_um), design_sha256=design_sha256)

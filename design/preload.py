@@ -609,7 +609,8 @@ class DesignNLP:
         x = self.to_physical(y)
         if integer:  # fixed integers come back through the scaling as e.g. 0.7 * 20 = 14.000000000000002
             x[3:5] = np.round(x[3:5])
-        c_dyn, rig, freq, p_s, p_n, stroke, drag_hi, t, mean_drag, log_L = (np.asarray(v).ravel() for v in self._exprs(y))
+        c_dyn, rig, freq, p_s, p_n, stroke, drag_hi, t, mean_drag, log_L = (np.asarray(v).ravel()
+                                                                            for v in self._exprs(y))
         spec = self.spec
         pt = DesignPoint(
             contact_angle_deg=float(np.degrees(x[0])), ball_mm=float(x[1]), conformity=float(x[2]), turns=float(x[3]),

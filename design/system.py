@@ -75,8 +75,9 @@ from piezopreload.models.ballscrew import LIFT_OFF_RATIO
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller
 
-__all__ = ["PRE_CYCLE_REST_S", "ROUND_OFF", "SystemRun", "Evaluation", "pre_cycle_for", "schedule_reference", "track_schedule", "evaluate_tracking",
-           "requirements_of", "folded_shortfall", "binding_stretches", "held_over_stretches", "local_margins"]
+__all__ = ["PRE_CYCLE_REST_S", "ROUND_OFF", "SystemRun", "Evaluation", "pre_cycle_for", "schedule_reference",
+           "track_schedule", "evaluate_tracking", "requirements_of", "folded_shortfall", "binding_stretches",
+           "held_over_stretches", "local_margins"]
 
 Array = NDArray[np.float64]
 
@@ -253,9 +254,10 @@ def folded_shortfall(schedule: PreloadSchedule, frame: _Frame, shortfall: Array,
 
 def binding_stretches(schedule: PreloadSchedule) -> list[tuple[int, int]]:
     """The stretches ``[a, b)`` of the profile's samples where a requirement binds the plan: under load (or next to
-    a sample under load: the loop is judged between them, on the plan interpolated), the need above the bolts' preload, and the planned preload less its margin at that need (within :data:`ROUND_OFF`;
-    a ramp of the load, where the plan follows the need, included). Between them the plan stands above every
-    requirement (at the bolts' preload, on a slew cone, or without load)."""
+    a sample under load: the loop is judged between them, on the plan interpolated), the need above the bolts' preload,
+    and the planned preload less its margin at that need (within :data:`ROUND_OFF`; a ramp of the load, where the plan
+    follows the need, included). Between them the plan stands above every requirement (at the bolts' preload, on a slew
+    cone, or without load)."""
     spec, need = schedule.spec, schedule.needed_N
     held = schedule.preload_N - schedule.margin_N <= need * (1.0 + ROUND_OFF)
     cut = schedule.profile.cutting

@@ -162,7 +162,8 @@ class PlantTable(Table):
                                  unit="N", ge=0)
 
     def plant(self, spec: DesignSpec, point: DesignPoint, hardware: Plant, design_sha256: str = "") -> DesignedPlant:
-        """The plant of the design ``point`` with this table's sleeve (:func:`~piezopreload.design.plant.plant_from_design`)."""
+        """The plant of the design ``point`` with this table's sleeve
+        (:func:`~piezopreload.design.plant.plant_from_design`)."""
         sleeve = math.inf if self.sleeve_stiffness_N_per_um is None else float(self.sleeve_stiffness_N_per_um)
         return plant_from_design(spec, point, hardware, design_sha256=design_sha256, sleeve_stiffness_N_per_um=sleeve)
 

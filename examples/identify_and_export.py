@@ -50,7 +50,8 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--study", default="paper2021", help="the study tuned on (default: paper2021, the paper's)")
     parser.add_argument("--operators", type=int, default=40, help="play operators (default 40, as the paper)")
     parser.add_argument("--plants", type=int, help="Monte Carlo plants (default: the study's [validation] plants)")
-    parser.add_argument("--out", default="gains-out", help="folder for the loop, the model, the gain set and the exports")
+    parser.add_argument("--out", default="gains-out",
+                        help="folder for the loop, the model, the gain set and the exports")
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

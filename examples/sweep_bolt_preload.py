@@ -86,8 +86,8 @@ def plot(rows: list[dict], study_name: str) -> Figure:
 
 
 def main(argv: list[str] | None = None) -> list[dict]:
-    parser = argparse.ArgumentParser(description="Sweep the bolts' preload and see what it does to the plant, the tuned "
-                                                 "loop and its worst Monte Carlo case.")
+    parser = argparse.ArgumentParser(description="Sweep the bolts' preload and see what it does to the plant, "
+                                                 "the tuned loop and its worst Monte Carlo case.")
     parser.add_argument("--study", help="a shipped study's name or a study file (default: the machine axis)")
     parser.add_argument("--preloads", type=float, nargs="+",
                         help="bolts' preloads (N; default: 0.5, 1 and 2 times the design's, or 0.8, 1 and 1.2 times "

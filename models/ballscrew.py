@@ -240,7 +240,8 @@ def _c_dyn(ops: Any, D_pw: Any, D_w: Any, beta: Any, helix: Any, f_screw: Any, f
            balls_per_turn: Any, turns: Any) -> Any:
     """Dynamic axial load rating estimate (N): the Lundberg-Palmgren form, see the module."""
     gamma = D_w * ops.cos(beta) / D_pw
-    q = 1.04 * ((1.0 - gamma) / (1.0 + gamma)) ** 1.72 * (f_screw * (2.0 * f_nut - 1.0) / (f_nut * (2.0 * f_screw - 1.0))) ** 0.41
+    q = (1.04 * ((1.0 - gamma) / (1.0 + gamma)) ** 1.72
+         * (f_screw * (2.0 * f_nut - 1.0) / (f_nut * (2.0 * f_screw - 1.0))) ** 0.41)
     f_c = (gamma ** 0.3 * (1.0 - gamma) ** 1.39 / (1.0 + gamma) ** (1.0 / 3.0)
            * (1.0 + q ** (10.0 / 3.0)) ** -0.3 * (2.0 * f_screw / (2.0 * f_screw - 1.0)) ** 0.41)
     return (_CDYN_CONSTANT * f_c * ops.cos(beta) ** 0.7 * ops.tan(beta) * ops.cos(helix) ** 1.3
@@ -500,7 +501,8 @@ class BallScrew:
     def nut_approach_um(self, nut_force_N: ArrayLike) -> Array:
         """delta(F) = (c_h F^(2/3) + s F) / f_ar (um): one nut's axial shift on the screw under F."""
         F = np.asarray(nut_force_N, float)
-        return (self.axial_constant_um * np.cbrt(F) ** 2 + self.structural_compliance_um_per_N * F) / self.accuracy_factor
+        return (self.axial_constant_um * np.cbrt(F) ** 2
+                + self.structural_compliance_um_per_N * F) / self.accuracy_factor
 
     def sigma(self, preload_N: ArrayLike) -> Array:
         """sigma = s F_p^(1/3) / c_h: the body's share of the nut law at the preload."""

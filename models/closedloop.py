@@ -119,13 +119,14 @@ class Reference:
     def from_dict(cls, data: Any) -> Reference:
         """The inverse of :meth:`to_dict`; an :class:`InputError` (a ValueError) names what is missing or wrong."""
         if not isinstance(data, dict):
-            raise InputError(f"a reference is an object with times_s, levels_N and duration_s, got {type(data).__name__}")
+            raise InputError("a reference is an object with times_s, levels_N and duration_s, "
+                             f"got {type(data).__name__}")
         missing = [k for k in ("times_s", "levels_N", "duration_s") if k not in data]
         if missing:
             raise InputError(f"{missing[0]} is missing (a reference has times_s, levels_N and duration_s)")
         try:
-            return cls(np.asarray(data["times_s"], float), np.asarray(data["levels_N"], float), float(data["duration_s"]),
-                       str(data.get("interpolation", "hold")))
+            return cls(np.asarray(data["times_s"], float), np.asarray(data["levels_N"], float),
+                       float(data["duration_s"]), str(data.get("interpolation", "hold")))
         except (TypeError, ValueError) as exc:
             raise InputError(str(exc)) from exc
 
@@ -174,7 +175,8 @@ class ClosedLoopRun:
         body = "".join(f"<tr><td>{k}</td><td>{v}</td></tr>" for k, v in rows)
         return f"<p><b>{type(self).__name__}</b></p><table>{body}</table>"
 
-    def step_metrics(self, band_N: float | None = PAPER_BAND_N, *, which: int = 1, signal: str = "force_N") -> StepMetrics | list:
+    def step_metrics(self, band_N: float | None = PAPER_BAND_N, *, which: int = 1,
+                     signal: str = "force_N") -> StepMetrics | list:
         """Metrics of the reference's ``which``-th change (1: the first step), per plant.
 
         The window runs from that change to the next (or to the end); ``band_N=None`` gives the
@@ -209,7 +211,8 @@ class ClosedLoopRun:
         range: there the plant is out of the controller's authority (a reference it cannot
         reach within the voltage range); ``saturated_fraction`` says how much that removed.
         """
-        t_from = self.reference.times_s[1] if t_from_s is None and self.reference.times_s.size > 1 else (t_from_s or 0.0)
+        t_from = (self.reference.times_s[1] if t_from_s is None and self.reference.times_s.size > 1
+                  else (t_from_s or 0.0))
         mask = self.t_s >= t_from
         if after_change_s > 0 and self.reference.interpolation == "hold":  # a ramped reference has no jumps
             changes = self.reference.times_s[1:]
@@ -307,7 +310,8 @@ def simulate(
     )
 
 
-def triangle(v_max_V: float, frequency_Hz: float, cycles: int, dt_s: float, v_min_V: float = 0.0) -> tuple[Array, Array]:
+def triangle(v_max_V: float, frequency_Hz: float, cycles: int, dt_s: float,
+             v_min_V: float = 0.0) -> tuple[Array, Array]:
     """A triangle wave ``v_min -> v_max -> v_min``, ``cycles`` times: the usual loop measurement."""
     if not (frequency_Hz > 0 and cycles >= 1 and dt_s > 0 and v_max_V > v_min_V):
         raise ValueError("need frequency_Hz > 0, cycles >= 1, dt_s > 0 and v_max_V > v_min_V.")

@@ -43,8 +43,8 @@ from numpy.typing import ArrayLike, NDArray
 from piezopreload.core.errors import InputError
 from piezopreload.models.ops import CASADI, NUMPY, Layout, Ops
 
-__all__ = ["PIDGains", "GainSchedule", "SCHEDULE_MAX", "Controller", "ControllerState", "ControllerModel", "Terms", "Feedforward", "FeedforwardStep",
-           "pid_update", "controller_functions"]
+__all__ = ["PIDGains", "GainSchedule", "SCHEDULE_MAX", "Controller", "ControllerState", "ControllerModel", "Terms",
+           "Feedforward", "FeedforwardStep", "pid_update", "controller_functions"]
 
 
 
@@ -67,7 +67,8 @@ def pid_update(ops: Any, gains: Any, u_range: tuple[Any, Any], dt: Any, integral
     increment = Kc / Ti * 0.5 * (e + e_prev) * dt  # 0 for Ti = inf
     trial = proportional + integral + increment + derivative + ff
     # conditional integration: no integrating further into a limit
-    winding = ops.logical_or(ops.logical_and(trial > u_max, increment > 0), ops.logical_and(trial < u_min, increment < 0))
+    winding = ops.logical_or(ops.logical_and(trial > u_max, increment > 0),
+                             ops.logical_and(trial < u_min, increment < 0))
     integral = integral + ops.where(winding, 0.0 * increment, increment)
     u = ops.minimum(ops.maximum(proportional + integral + derivative + ff, u_min), u_max)
     return u, proportional, integral, derivative, e, dpv
@@ -519,7 +520,8 @@ class Controller:
         before, _ = actions(self, state.ff)
         same_ff = new.feedforward is self.feedforward
         after, ff_state = actions(new, state.ff if same_ff else
-                                  None if new.feedforward is None else new.feedforward.initial_state(state.sp_prev.shape))
+                                  None if new.feedforward is None
+                                  else new.feedforward.initial_state(state.sp_prev.shape))
         return replace(state, integral=state.integral + before - after, ff=ff_state)
 
 
@@ -549,7 +551,8 @@ def controller_functions(model: ControllerModel, params: ArrayLike | None = None
         p, extra_in, extra_names = ca.DM(values), [], []
     nxt, t = model.step(CASADI, p, x, sp, pv, extra)
     step = ca.Function(f"{prefix}_step_fn", [x, sp, pv, *extra_in_ff, *extra_in], [t.u, t.p, t.i, t.d, t.ff, nxt],
-                       ["state", "setpoint", "pv", *extra_names_ff, *extra_names], ["u", "p", "i", "d", "ff", "state_next"])
+                       ["state", "setpoint", "pv", *extra_names_ff, *extra_names],
+                       ["u", "p", "i", "d", "ff", "state_next"])
     start = model.start(CASADI, p, sp, pv, u0, extra)
     init = ca.Function(f"{prefix}_initial_state_fn", [sp, pv, u0, *extra_in_ff, *extra_in], [start],
                        ["setpoint", "pv", "u0", *extra_names_ff, *extra_names], ["state"])

@@ -1,7 +1,7 @@
 """The operations the model steps are written over, and the named layouts of their vectors.
 
-A model step (the plant's, the controller's, the closed loop's, the ball screw's formulas) is written once as a function of
-an *ops table* and runs on numpy arrays or on CasADi expressions:
+A model step (the plant's, the controller's, the closed loop's, the ball screw's formulas) is written once as a function
+of an *ops table* and runs on numpy arrays or on CasADi expressions:
 
 * :data:`NUMPY`: arrays whose last axis is the vector's and whose leading axes are a batch (one
   plant or thousands at once), for the reference simulation;
@@ -57,10 +57,10 @@ class Ops:
     """What differs between numpy arrays and CasADi expressions, by name.
 
     ``expand(s)`` lets a scalar field meet a vector field (numpy: a trailing axis; CasADi: as
-    is); ``dot(z, w)`` and ``sum(z)`` reduce a vector field, ``cumsum(z)`` its partial sums; ``repeat(s, n)`` makes one of ``n``
-    copies of a scalar; ``first(line)`` and ``shift_in(line, s)`` read and advance a delay line
-    (drop the oldest entry, append ``s``). ``cbrt`` on CasADi is ``x ** (1/3)``: positive
-    arguments only (the ball-screw formulas' forces), where numpy's also takes negative ones.
+    is); ``dot(z, w)`` and ``sum(z)`` reduce a vector field, ``cumsum(z)`` its partial sums; ``repeat(s, n)`` makes one
+    of ``n`` copies of a scalar; ``first(line)`` and ``shift_in(line, s)`` read and advance a delay line (drop the
+    oldest entry, append ``s``). ``cbrt`` on CasADi is ``x ** (1/3)``: positive arguments only (the ball-screw formulas'
+    forces), where numpy's also takes negative ones.
     """
 
     name: str

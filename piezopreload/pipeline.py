@@ -97,8 +97,8 @@ from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.learning import played_passes, save_passes
 from piezopreload.tuning.schedule import level_requirements
 
-__all__ = ["Stage", "STAGES", "StageFailed", "StageCrashed", "run_study", "rerender_report", "read_manifest", "run_summary",
-           "DEFAULT_OUT"]
+__all__ = ["Stage", "STAGES", "StageFailed", "StageCrashed", "run_study", "rerender_report",
+           "read_manifest", "run_summary", "DEFAULT_OUT"]
 
 DEFAULT_OUT = "piezopreload-out"
 MANIFEST = "pipeline.json"
@@ -224,7 +224,8 @@ def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     gain_set = GainSet.load(ctx.output("validate", "gains"))
     runs = responses(study.plant, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model,
                      seed=study.seed, band_N=study.band_N, signal=study.signal,
-                     after_change_s=study.criteria.tracking_after_change_s, progress=ctx.progress.bar("closed-loop runs"))
+                     after_change_s=study.criteria.tracking_after_change_s,
+                     progress=ctx.progress.bar("closed-loop runs"))
     d = ctx.out / "responses"
     outputs: dict[str, Path] = {}
     rows = []
@@ -237,7 +238,8 @@ def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     table = [] if study.published is None else reproduction(runs, study.published.step())
     creep = None if ff.without_creep is None else creep_effect(  # FF + PID with and without creep compensation
         study.plant, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model, ff.without_creep,
-        seed=study.seed, band_N=study.band_N, signal=study.signal, after_change_s=study.criteria.tracking_after_change_s)
+        seed=study.seed, band_N=study.band_N, signal=study.signal,
+        after_change_s=study.criteria.tracking_after_change_s)
     record = ResponsesRecord(
         tuple(rows), study.band_N, study.signal, study.seed, tuple(table), tuple(creep or ()),
         {"gain_set_sha256": gain_set.content_sha256, "study_sha256": study.sha256,
@@ -354,7 +356,8 @@ def _rig_summary(record: RigRunRecord) -> dict[str, Any]:
                            "voltage_V": out.trip.voltage_V}
         return summary
     m = out.metrics
-    summary.update({"settling_s": None if m is None else m.settling_s, "overshoot_N": None if m is None else m.overshoot_N,
+    summary.update({"settling_s": None if m is None else m.settling_s,
+                    "overshoot_N": None if m is None else m.overshoot_N,
                     "tracking_rms_N": None if m is None else m.tracking_rms_N})
     learned = record.learned or {}
     summary["learned_tracking_rms_measured_N"] = learned.get("tracking_rms_measured_N")
@@ -388,16 +391,17 @@ def _learn_applies(study: Study) -> str | None:
 
 STAGES: tuple[Stage, ...] = (
     Stage("design", "ball-screw preload design, Pareto fronts, schedule",
-          ("ballscrew", "feed_drive", "duty", "design", "schedule"), (), ("models", "artifacts", "design"), _stage_design,
-          files=("schedule.profile",), applies=_design_applies),
+          ("ballscrew", "feed_drive", "duty", "design", "schedule"), (),
+          ("models", "artifacts", "design"), _stage_design, files=("schedule.profile",), applies=_design_applies),
     Stage("plant", "the designed preload system as the plant", ("rig", "plant"), ("design",),
           ("models", "artifacts", "design"),
           _stage_plant, applies=_plant_applies),
     Stage("identify", "the feedforward's P-I model", ("rig", "feedforward", "reference"), ("plant",),
           ("models", "artifacts", "tuning"), _stage_identify, files=("feedforward.data",)),
     Stage("tune", "PID gains around the compensated plant (CasADi + IPOPT)",
-          ("rig", "controller", "reference", "simulation", "tuning"), ("plant", "identify"), ("models", "artifacts", "tuning"),
-          _stage_tune, reads=lambda study: ("validation",) if study.tuning.schedule_levels >= 2 else ()),
+          ("rig", "controller", "reference", "simulation", "tuning"), ("plant", "identify"),
+          ("models", "artifacts", "tuning"), _stage_tune,
+          reads=lambda study: ("validation",) if study.tuning.schedule_levels >= 2 else ()),
     Stage("validate", "Monte Carlo on nonlinear rigs", ("study", "rig", "reference", "simulation", "validation"),
           ("plant", "identify", "tune"), ("models", "artifacts", "tuning"), _stage_validate),
     Stage("compare", "step and trajectory: the study's and the tuned gains, with and without feedforward",
@@ -405,14 +409,16 @@ STAGES: tuple[Stage, ...] = (
           ("models", "artifacts", "tuning"), _stage_compare),
     Stage("learn", "learning control on the repeated schedule (each margin pass learned)",
           ("rig", "plant", "schedule", "simulation", "learning", "validation"), ("design", "plant", "validate"),
-          ("models", "artifacts", "design", "tuning"), _stage_learn, files=("schedule.profile",), applies=_learn_applies),
+          ("models", "artifacts", "design", "tuning"), _stage_learn, files=("schedule.profile",),
+          applies=_learn_applies),
     Stage("system", "the controlled preload along the schedule: rigidity and deflection while cutting, energy",
-          ("rig", "plant", "schedule", "simulation", "learning", "validation"), ("design", "plant", "validate", "learn"),
-          ("models", "artifacts", "design", "tuning"), _stage_system, files=("schedule.profile",), applies=_plant_applies),
-    Stage("export", "the gain set in the controllers' formats", ("export",), ("validate",), ("models", "artifacts", "rig"),
-          _stage_export, validated_only=True),
-    Stage("rig", "the validated gains on the rig executor", ("rig_run",), ("validate", "system", "learn"), ("models", "artifacts", "rig"),
-          _stage_rig, files=("rig_run.reference",), validated_only=True,
+          ("rig", "plant", "schedule", "simulation", "learning", "validation"),
+          ("design", "plant", "validate", "learn"), ("models", "artifacts", "design", "tuning"), _stage_system,
+          files=("schedule.profile",), applies=_plant_applies),
+    Stage("export", "the gain set in the controllers' formats", ("export",), ("validate",),
+          ("models", "artifacts", "rig"), _stage_export, validated_only=True),
+    Stage("rig", "the validated gains on the rig executor", ("rig_run",), ("validate", "system", "learn"),
+          ("models", "artifacts", "rig"), _stage_rig, files=("rig_run.reference",), validated_only=True,
           shared=False),  # a run log of its own, with its time and paths
     Stage("report", "figures and the PDF", ("study", "ballscrew", "design", "published"), STAGES_READ,
           ("models", "artifacts", "reports"),

@@ -59,10 +59,10 @@ class TuningResult:
     """Tuned PID gains around a study's compensated rig, compared and bounded; :meth:`validate` judges them.
 
     ``record`` is the tune stage's artifact (:class:`~piezopreload.artifacts.tuning.TuningRecord`): the
-    study's ``[controller]``, SIMC's and the tuned gains on the nominal plant, PID alone and with the feedforward (``table``),
-    the gains on the ends of their search range (``active_bounds``), the least settling time any command
-    reaches (``minimum_time``, the tuned over it ``tuned_over_bound_ratio``) and the trajectory's least RMS
-    error any causal controller reaches (``tracking_floor``).
+    study's ``[controller]``, SIMC's and the tuned gains on the nominal plant, PID alone and with the feedforward
+    (``table``), the gains on the ends of their search range (``active_bounds``), the least settling time any command
+    reaches (``minimum_time``, the tuned over it ``tuned_over_bound_ratio``) and the trajectory's least RMS error any
+    causal controller reaches (``tracking_floor``).
     """
 
     study: Study
@@ -159,7 +159,8 @@ class TuningResult:
         plants = v.plants if plants is None else plants
         say = progress or (lambda _m: None)
         say(f"validating on {plants} plants ...")
-        return validate_gain_set(self.candidate(inputs), n_plants=plants, seed=(self.study.seed if v.seed is None else v.seed) if seed is None else seed,
+        return validate_gain_set(self.candidate(inputs), n_plants=plants,
+                                 seed=(self.study.seed if v.seed is None else v.seed) if seed is None else seed,
                                  workers=v.workers if workers is None else workers, scheduler=scheduler,
                                  progress=bar or (lambda i, n: say(f"  chunk {i}/{n}")))
 
@@ -186,8 +187,8 @@ class TuningResult:
             "tuning": {k: v for k, v in record["tuning"].items() if k != "spec"}, "table": record["table"],
             "active_bounds": record["active_bounds"], "published": record.get("published"),
             "minimum_time": record["minimum_time"], "tracking_improvement": self.improvement,
-            "tracking_floor": record["tracking_floor"], "validation": None if gain_set.validation is None else gain_set.validation.to_dict(),
-            "seconds": seconds,
+            "tracking_floor": record["tracking_floor"],
+            "validation": None if gain_set.validation is None else gain_set.validation.to_dict(), "seconds": seconds,
             "gain_schedule": self.solve.schedule,  # the schedule's entries, figures and choice, or None
         }
 
@@ -217,11 +218,14 @@ def _minimum_time_bound(bounding: Any, settle: float | None, say: Callable[[str]
 
 
 def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None = None,
-         progress: Callable[[str], None] | None = None, iterations: Callable[[int], None] | None = None) -> TuningResult:
-    """The body of :meth:`Study.tune`: tune, bound, compare (``progress`` gets messages, ``iterations`` IPOPT's count)."""
+         progress: Callable[[str], None] | None = None,
+         iterations: Callable[[int], None] | None = None) -> TuningResult:
+    """The body of :meth:`Study.tune`: tune, bound, compare (``progress`` gets messages,
+    ``iterations`` IPOPT's count)."""
     say = progress or (lambda _m: None)
     seed = study.seed if seed is None else seed
-    spec, criteria, step, trajectory = study.tuning_spec, study.criteria, study.references["step"], study.references["trajectory"]
+    spec, criteria, step, trajectory = (study.tuning_spec, study.criteria, study.references["step"],
+                                        study.references["trajectory"])
     say("tuning the PID around the compensated plant (CasADi + IPOPT), the minimum-time bound beside it ...")
     bounding = beside(minimum_time, study.plant, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]),
                       band_N=study.band_N, u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
@@ -298,7 +302,8 @@ class StudyRun(ClosedLoopRun):
         """Reference and force (top), command and amplifier voltage (bottom): a Figure."""
         from piezopreload.reports import figures  # matplotlib only when drawing
 
-        title = f"{self.info['controller'].replace('ff+pid', 'FF + PID').replace('pid', 'PID')}, {self.info['reference']}"
+        title = (f"{self.info['controller'].replace('ff+pid', 'FF + PID').replace('pid', 'PID')}, "
+                 f"{self.info['reference']}")
         return figures.closed_loop(self.columns(), self.band_N, self.signal, title)
 
 
@@ -386,7 +391,8 @@ class ScheduleLearning:
         """The last pass's RMS error before learning (the tuned loop with its feedforward and preview)."""
         return _before_learning(self.last)
 
-    def save(self, folder: str | Path, gain_set_sha256: str | None, inputs: dict[str, Any] | None = None) -> dict[str, Any]:
+    def save(self, folder: str | Path, gain_set_sha256: str | None,
+             inputs: dict[str, Any] | None = None) -> dict[str, Any]:
         """Write each pass's learned signal and ``learning.json`` (:func:`~piezopreload.tuning.learning.save_passes`)
         into ``folder``; returns the last pass's signal (``out``, what the rig plays) and its hash."""
         paths, _ = save_passes(list(self.passes), folder, gain_set_sha256, dict(inputs or {}))
@@ -394,7 +400,8 @@ class ScheduleLearning:
                 "content_sha256": LearnedSignal.load(paths["learned"]).content_sha256}
 
     def to_dict(self) -> dict[str, Any]:
-        """The last pass's learning (as a :class:`LearningResult`'s), each pass's figures and the schedule's tracking."""
+        """The last pass's learning (as a :class:`LearningResult`'s), each pass's figures and
+        the schedule's tracking."""
         return {**self.last.to_dict(), "before_learning_rms_N": self.before_learning_rms_N,
                 "passes": [{"pass": k, "preload_margin_N": None if p is None else p.preload_margin_N,
                             "tracking_rms_N": r.tracking_rms_N,

@@ -103,7 +103,8 @@ class _Source:
 
     def fail(self, key_path: str, message: str) -> InputError:
         line = self.lines.of(key_path)
-        return InputError(f"{self.shown}:{line}: '{key_path}' {message}" if line else f"{self.shown}: '{key_path}' {message}")
+        return InputError(f"{self.shown}:{line}: '{key_path}' {message}" if line
+                          else f"{self.shown}: '{key_path}' {message}")
 
 
 class _Kept:
@@ -204,14 +205,17 @@ class Study:
         return self.simulation.signal
 
     def resolve(self, relative: str | None) -> Path | None:
-        """A file the study names (``feedforward.data``, ``schedule.profile``, ``rig_run.reference``), from its folder."""
+        """A file the study names (``feedforward.data``, ``schedule.profile``,
+        ``rig_run.reference``), from its folder."""
         return None if relative is None else self.folder / relative
 
     def files(self) -> dict[str, Path]:
-        """The input files the study names, by key (``feedforward.data``, ``schedule.profile``, ``rig_run.reference``)."""
+        """The input files the study names, by key (``feedforward.data``, ``schedule.profile``,
+        ``rig_run.reference``)."""
         named = {"feedforward.data": self.feedforward.data,
                  "schedule.profile": None if self.ballscrew is None or self.schedule is None else self.schedule.profile,
-                 "rig_run.reference": self.rig_run.reference if self.rig_run.reference.lower().endswith(".csv") else None}
+                 "rig_run.reference": (self.rig_run.reference if self.rig_run.reference.lower().endswith(".csv")
+                                       else None)}
         return {key: self.folder / rel for key, rel in named.items() if rel is not None}
 
     def check_files(self) -> None:
@@ -397,7 +401,8 @@ class Study:
     def tune(self, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,
              progress: Say | None = None, iterations: Callable[[int], None] | None = None) -> TuningResult:
         """Tune the PID around :attr:`plant` compensated by ``feedforward`` (default: :meth:`identify_feedforward`);
-        compare it with the study's and SIMC's gains and bound it. Returns a :class:`~piezopreload.results.TuningResult`."""
+        compare it with the study's and SIMC's gains and bound it. Returns a
+        :class:`~piezopreload.results.TuningResult`."""
         from piezopreload.results import tune
 
         if feedforward is not None:  # refused before the design and the tuning, with both ranges
@@ -496,7 +501,8 @@ class Study:
 
     def reproduce(self, *, seed: int | None = None, repeats: int = 1,
                   feedforward: IdentifiedFeedforward | None = None) -> dict[str, Any]:
-        """The paper's six step numbers beside the simulation's on :attr:`plant` (medians over ``repeats`` noise draws)."""
+        """The paper's six step numbers beside the simulation's on :attr:`plant` (medians over
+        ``repeats`` noise draws)."""
         from piezopreload.results import reproduce
 
         return reproduce(self, feedforward or self.identify_feedforward(), seed=seed, repeats=repeats)
@@ -514,7 +520,8 @@ class Study:
         profile_path = Path(schedule) if schedule is not None else self.resolve(s.profile)
         try:
             result = design_study(
-                spec, objective, list(d.pareto if pareto is None else pareto), d.pareto_points if points is None else points,
+                spec, objective, list(d.pareto if pareto is None else pareto),
+                d.pareto_points if points is None else points,
                 profile=None if profile_path is None else read_profile(profile_path), profile_name=str(profile_path),
                 **s.limits(), progress=progress, bar=bar, optimum=k.optimum if objective == d.objective else None)
         except DesignInfeasible as exc:

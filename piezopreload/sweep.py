@@ -97,11 +97,13 @@ def _value(text: str, where: str) -> Scalar:
 
 
 def parse_vary(text: str, option: str = "--vary") -> tuple[str, list[Scalar]]:
-    """``'tuning.ms_max=1.4,1.6'`` -> ``('tuning.ms_max', [1.4, 1.6])``; bad text raises :class:`InputError` naming ``option``."""
+    """``'tuning.ms_max=1.4,1.6'`` -> ``('tuning.ms_max', [1.4, 1.6])``; bad text raises
+    :class:`InputError` naming ``option``."""
     key, sep, values = text.partition("=")
     key = key.strip()
     if not sep or "." not in key or not all(key.split(".")):
-        raise InputError(f"{option} '{text}': expected TABLE.KEY=V1,V2,... (example: {option} rig.bolt_preload_N=20,25,30)")
+        raise InputError(f"{option} '{text}': expected TABLE.KEY=V1,V2,... (example: "
+                         f"{option} rig.bolt_preload_N=20,25,30)")
     return key, [_value(v, f"{option} {key}") for v in values.split(",")]
 
 
@@ -238,7 +240,8 @@ def _gain_set(folder: Path, records: dict[str, Any]) -> GainSet | None:
 
 
 def _requirements(summary: dict[str, Any], records: dict[str, Any]) -> tuple[bool | None, tuple[dict[str, Any], ...]]:
-    """Met (None where the study sets none) and the missed ones: the run's summary where it says, else the system stage's."""
+    """Met (None where the study sets none) and the missed ones: the run's summary where it says,
+    else the system stage's."""
     if "requirements_met" in summary:
         return summary["requirements_met"], tuple(summary.get("requirements_missed") or ())
     met = _stage_summary(records, "system").get("requirements_met")
@@ -272,8 +275,8 @@ def headline(folder: str | Path, summary: dict[str, Any] | None = None) -> Point
         tuned_settling_s=_stage_summary(records, "compare").get("tuned_settling_s"),
         **{k: summary.get(k) for k in ("tracking_rms_N", "tracking_rms_pct_of_range",
                                        "tracking_rms_pct_of_range_before_learning", "tracking_max_N",
-                                       "rigidity_min_cutting_N_per_um", "rigidity_required_N_per_um", "rigidity_ratio_min",
-                                       "deflection_max_um", "rig_tracking_rms_N")},
+                                       "rigidity_min_cutting_N_per_um", "rigidity_required_N_per_um",
+                                       "rigidity_ratio_min", "deflection_max_um", "rig_tracking_rms_N")},
         friction_energy_per_cycle=energy,
         constant_friction_energy_per_cycle=None if energy is None else design.get("constant_friction_energy"),
         friction_saving_pct=None if saved is None else 100.0 * saved,
@@ -286,8 +289,9 @@ def headline(folder: str | Path, summary: dict[str, Any] | None = None) -> Point
 # --------------------------------------------------------------------------------------
 def _lost(task: _Task, exc: BaseException) -> SweepPoint:
     """A point whose worker was lost (a killed process, a lost Dask worker): failed, with what its folder holds."""
-    return SweepPoint(task.index, task.values, task.folder, "failed", f"its worker was lost: {type(exc).__name__}: {exc}",
-                      None, 1, None, (), (), headline(Path(task.out) / task.folder))
+    return SweepPoint(task.index, task.values, task.folder, "failed",
+                      f"its worker was lost: {type(exc).__name__}: {exc}", None, 1, None, (), (),
+                      headline(Path(task.out) / task.folder))
 
 
 def _run_local(tasks: list[_Task], workers: int, done: Callable[[SweepPoint], None]) -> None:
@@ -352,9 +356,10 @@ def _check_where(workers: int | None, scheduler: str | None) -> None:
         raise InputError(f"--scheduler: '{scheduler}' is not a Dask scheduler address tcp://HOST:PORT")
 
 
-def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "grid", out: str | Path = DEFAULT_SWEEP_OUT,
-          workers: int | None = None, scheduler: str | None = None, force: bool = False,
-          progress: Progress | None = None, report: bool = True, where: str = "Study.sweep") -> SweepResult:
+def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "grid",
+          out: str | Path = DEFAULT_SWEEP_OUT, workers: int | None = None, scheduler: str | None = None,
+          force: bool = False, progress: Progress | None = None, report: bool = True,
+          where: str = "Study.sweep") -> SweepResult:
     """Run ``study`` at every point of ``vary`` (key -> values) into ``out``; see the module docstring.
 
     Parameters
@@ -395,7 +400,8 @@ def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "gr
         # what a killed sweep left half-stored goes; with force, the whole store (the shared stages run once again)
         StageCache(out / CACHE).clean(everything=force)
         record = SweepRecord(study.name, study.path, study.sha256, mode, axes,
-                             tuple(SweepPoint(i, values, f"{POINTS}/p{i:03d}") for i, (values, _) in enumerate(planned)),
+                             tuple(SweepPoint(i, values, f"{POINTS}/p{i:03d}")
+                                   for i, (values, _) in enumerate(planned)),
                              utc())
         record.save(out / RECORD)
         n = min(workers or spare_cpus(), len(planned))
@@ -429,7 +435,8 @@ def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "gr
     seconds = time.perf_counter() - t0
     failed = len(result.failed)
     progress.write(f"{len(tasks) - failed} of {len(tasks)} points done{f', {failed} failed' if failed else ''} "
-                   f"({seconds:.1f} s); rows in {out / ROWS}" + (f", report {out / 'report.pdf'}" if report else "") + "\n")
+                   f"({seconds:.1f} s); rows in {out / ROWS}"
+                   + (f", report {out / 'report.pdf'}" if report else "") + "\n")
     return SweepResult(out, record, seconds)
 
 
@@ -464,7 +471,8 @@ def rerender_sweep_report(out: str | Path, progress: Progress | None = None,
 # --------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class SweepResult:
-    """A sweep's outcome: its folder and record; one row per point (:attr:`rows`), as CSV, JSON, a data frame, a plot."""
+    """A sweep's outcome: its folder and record; one row per point (:attr:`rows`), as CSV,
+    JSON, a data frame, a plot."""
 
     out: Path
     record: SweepRecord
@@ -514,7 +522,8 @@ class SweepResult:
         columns = self.record.columns()
         writer.writerow(columns)
         for row in self.rows:
-            writer.writerow(["" if row[c] is None else "; ".join(r["name"] for r in row[c]) if c == "requirements_missed"
+            writer.writerow(["" if row[c] is None
+                             else "; ".join(r["name"] for r in row[c]) if c == "requirements_missed"
                              else row[c] for c in columns])
         return buf.getvalue()
 
@@ -566,8 +575,8 @@ class SweepResult:
     def __repr__(self) -> str:
         header, body = self._table()
         widths = [max(len(h), *(len(r[i]) for r in body)) if body else len(h) for i, h in enumerate(header)]
-        lines = [f"SweepResult({self.record.study_name}, {len(body)} points, {self.record.mode}, {len(self.failed)} failed, "
-                 f"{self.out})", "  ".join(h.rjust(w) for h, w in zip(header, widths))]
+        lines = [f"SweepResult({self.record.study_name}, {len(body)} points, {self.record.mode}, "
+                 f"{len(self.failed)} failed, {self.out})", "  ".join(h.rjust(w) for h, w in zip(header, widths))]
         lines += ["  ".join(c.rjust(w) for c, w in zip(r, widths)) for r in body]
         lines += [f"  p{p.index:03d} failed: {p.error}" for p in self.failed]
         return "\n".join(lines)

@@ -113,7 +113,8 @@ class RigTable(Table):
 
     def check(self) -> None:
         if not self.amp_v_min_V < self.amp_v_max_V:
-            raise Invalid("amp_v_max_V", f"must be above amp_v_min_V ({self.amp_v_min_V:g} V), got {self.amp_v_max_V:g}")
+            raise Invalid("amp_v_max_V",
+                          f"must be above amp_v_min_V ({self.amp_v_min_V:g} V), got {self.amp_v_max_V:g}")
         if not self.bw_beta_per_V > abs(self.bw_gamma_per_V):
             raise Invalid("bw_beta_per_V", f"must be above |bw_gamma_per_V| ({abs(self.bw_gamma_per_V):g}) for a "
                                            f"bounded loop, got {self.bw_beta_per_V:g}")
@@ -182,7 +183,8 @@ class StepTable(Table):
 
     def check(self) -> None:
         if not self.duration_s > self.t_step_s:
-            raise Invalid("duration_s", f"must be after the step (t_step_s = {self.t_step_s:g} s), got {self.duration_s:g}")
+            raise Invalid("duration_s",
+                          f"must be after the step (t_step_s = {self.t_step_s:g} s), got {self.duration_s:g}")
 
 
 @dataclass(frozen=True)

@@ -73,8 +73,8 @@ def save_all(figures: Sequence[tuple[Figure, str | Path]], *, workers: int | Non
     """Write each ``(figure, path)`` as :func:`save` does, drawn by ``workers`` processes at once.
 
     Drawing is most of a report's time and the figures are independent: by default one worker
-    per CPU (at most four, ``PIEZOPRELOAD_WORKERS`` if set); ``workers=1``, or a platform without ``fork``, draws them here, one
-    after the other. ``progress(done, total)`` is called as each file is written.
+    per CPU (at most four, ``PIEZOPRELOAD_WORKERS`` if set); ``workers=1``, or a platform without ``fork``, draws them
+    here, one after the other. ``progress(done, total)`` is called as each file is written.
     """
     total = len(figures)
     n = min(total, spare_cpus(), 4) if workers is None else max(1, min(workers, total))
@@ -205,7 +205,8 @@ def stiffness_vs_preload(curve: Mapping[str, Any]) -> Figure:
     fp = np.asarray(curve["preload_N"])
     a.plot(fp, curve["rigidity_N_per_um"], color=COLOURS["model"], label="no axial load")
     for j, case in enumerate(curve["cases"]):
-        a.plot(case["preload_N"], case["rigidity_N_per_um"], "o", ms=4, label=f"case {j + 1}: {case['axial_load_N']:g} N")
+        a.plot(case["preload_N"], case["rigidity_N_per_um"], "o", ms=4,
+               label=f"case {j + 1}: {case['axial_load_N']:g} N")
     for a_ in (a, b):
         a_.axvline(curve["bolt_preload_N"], color="0.5", ls=":", lw=0.8)
         a_.axvline(curve["max_preload_N"], color="0.3", ls="--", lw=0.8)
@@ -228,7 +229,8 @@ def pareto_fronts(fronts: Sequence[Mapping[str, Any]], optimum: Mapping[str, flo
     """The epsilon-constraint Pareto fronts, one panel each, the design optimum marked."""
     n = max(len(fronts), 1)
     fig, ax = _figure(2.4, ncols=n)
-    keys = {"stiffness": "stiffness_N_per_um", "preload": "max_preload_N", "drag": "mean_drag_torque_Nm", "life": "life_h"}
+    keys = {"stiffness": "stiffness_N_per_um", "preload": "max_preload_N",
+            "drag": "mean_drag_torque_Nm", "life": "life_h"}
     for a, f in zip(ax[0], fronts):
         a.plot(f["x"], f["y"], "o-", ms=2.5, color=COLOURS["model"], label="front")
         if optimum is not None:

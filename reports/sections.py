@@ -26,9 +26,9 @@ from piezopreload.reports import figures as F
 from piezopreload.reports.document import Section, Table, fmt, pct
 from piezopreload.reports.inputs import Artifacts, ReportStudy
 
-__all__ = ["Part", "study_section", "requirements_section", "design_section", "system_section", "learning_section", "feedforward_section",
-           "controller_section", "responses_section", "rig_section", "provenance_section", "levels_text",
-           "signal_name", "CONTROLLER_NAMES"]
+__all__ = ["Part", "study_section", "requirements_section", "design_section", "system_section", "learning_section",
+           "feedforward_section", "controller_section", "responses_section", "rig_section",
+           "provenance_section", "levels_text", "signal_name", "CONTROLLER_NAMES"]
 
 CONTROLLER_NAMES = {"pid": "PID", "ff+pid": "FF + PID"}
 _METRIC_NAMES = {"rise_s": "rise time (s)", "peak_s": "peak time (s)", "settling_s": "settling time (s)"}
@@ -50,7 +50,8 @@ def signal_name(signal: str) -> str:
 
 
 def levels_text(reference_N: np.ndarray) -> str:
-    """A reference's levels as the report names it: ``0 → 2,500 N`` for a step, ``60-80-100-80-60 N`` for a staircase."""
+    """A reference's levels as the report names it: ``0 → 2,500 N`` for a step,
+    ``60-80-100-80-60 N`` for a staircase."""
     levels = [float(reference_N[0])] + [float(b) for a, b in zip(reference_N[:-1], reference_N[1:]) if b != a]
     if len(levels) > 12:  # a ramped reference: its range
         return f"{fmt(min(levels))} to {fmt(max(levels))} N"
@@ -74,9 +75,10 @@ def study_section(study: ReportStudy, a: Artifacts, stage_names: tuple[str, ...]
         paragraphs.append(
             f"The plant is the designed preload system ([plant] from_design): {plant.rig.n_stacks} x "
             f"{plant.rig.stack.name} stacks between the two nuts, the stacks' share of the preload "
-            f"0-{fmt(plant.stack_force_max_N)} N on top of {fmt(plant.bolt_preload_N)} N from the bolts. The nuts' Hertz "
-            f"contacts make the force per volt {fmt(k['at_max'] / k['at_bolts'])} times higher at the stacks' full force "
-            "than at the bolts' preload. Every control step (identification, tuning, validation, learning) ran on it.")
+            f"0-{fmt(plant.stack_force_max_N)} N on top of {fmt(plant.bolt_preload_N)} N from the bolts. "
+            f"The nuts' Hertz contacts make the force per volt {fmt(k['at_max'] / k['at_bolts'])} times higher "
+            "at the stacks' full force than at the bolts' preload. Every control step (identification, tuning, "
+            "validation, learning) ran on it.")
     else:
         paragraphs.append("The plant is the study's [rig] table; every control step (identification, tuning, "
                           "validation) ran on it.")
@@ -239,9 +241,9 @@ def learning_section(learning: LearningRecord) -> Part:
             f"reference, as many machining cycles as the schedule holds; learning stops when another trial no longer "
             f"pays. {learning.trials} learning trials in all ({per_pass}).{law} Each margin pass of the schedule "
             f"learns on its own reference{', starting from what the pass before learned' if last.warm_start else ''}. "
-            f"On the last pass the error falls from {fmt(last.before_learning_rms_N)} N to {fmt(last.tracking_rms_N)} N "
-            f"RMS ({fmt(last.tracking_rms_pct_of_range)} % of the range; the causal floor of the ramped reference is "
-            f"{fmt(last.causal_floor_N)} N).")
+            f"On the last pass the error falls from {fmt(last.before_learning_rms_N)} N to "
+            f"{fmt(last.tracking_rms_N)} N RMS ({fmt(last.tracking_rms_pct_of_range)} % of the range; "
+            f"the causal floor of the ramped reference is {fmt(last.causal_floor_N)} N).")
     table = Table(("pass", "trial", "RMS (N)", "% of range", "measured (N)"), tuple(rows),
                   "The error per learning trial (trial 0: before the pass learns): whole cycles, true force; measured: "
                   "the sensor's force against the plan, what the law learns from.", "rlrrr")
@@ -294,7 +296,8 @@ def _gains_rows(g: dict[str, Any]) -> tuple[tuple[str, str, str], ...]:
         rows += [("derivative time Td", f"{fmt(g['Td_s'], 4)} s", f"{fmt(lv['Td_min'], 4)} min"),
                  ("derivative filter Tf", f"{fmt(g['Tf_s'], 4)} s", "not in the PID VI: filter the measurement")]
     rows += [("setpoint weight b", fmt(g["b"], 4), "not in the PID VI: weight the setpoint"),
-             ("output range", f"{fmt(g['u_min_V'])} to {fmt(g['u_max_V'])} V", f"{fmt(g['u_min_V'])} to {fmt(g['u_max_V'])}")]
+             ("output range", f"{fmt(g['u_min_V'])} to {fmt(g['u_max_V'])} V",
+              f"{fmt(g['u_min_V'])} to {fmt(g['u_max_V'])}")]
     return tuple(rows)
 
 
@@ -305,7 +308,8 @@ def _bound_text(tuning: TuningRecord) -> tuple[str, tuple[str, ...]]:
     mt = tuning.minimum_time
     if mt.settling_s is None:
         return words, (f"The minimum-time bound on the step's settling: {mt.reason or 'it was not computed'}.",)
-    ratio = "" if mt.tuned_over_bound_ratio is None else f"; the tuned settling is {fmt(mt.tuned_over_bound_ratio)} times it"
+    ratio = ("" if mt.tuned_over_bound_ratio is None
+             else f"; the tuned settling is {fmt(mt.tuned_over_bound_ratio)} times it")
     return words + f" The minimum-time bound on the step's settling is {fmt(mt.settling_s)} s{ratio}.", ()
 
 
@@ -355,13 +359,15 @@ def _schedule_part(schedule: dict[str, Any] | None) -> Part | None:
         text += (f" Neither set meets the study's limits at {', '.join(missed_by_both)}: the exported gains carry that "
                  "miss, listed in the verdicts above.")
     table = Table(("level (N)", "window (N)", "Kc (mV/N)", "Ti (ms)", "robust: settling (s)", "overshoot (N)",
-                   "tracking (N)", "schedule: settling (s)", "overshoot (N)", "tracking (N)", "meets (robust / schedule)"),
+                   "tracking (N)", "schedule: settling (s)", "overshoot (N)", "tracking (N)",
+                   "meets (robust / schedule)"),
                   tuple(rows), "Each schedule entry's gains and the worst case over the Monte Carlo plants at its "
                                "level for the robust set and the schedule (tracking: RMS after the changes).",
                   "ll" + "r" * 8 + "c", small=True)
     fig = F.gain_schedule(schedule)
     caption = (f"The gain schedule on the preload level ({len(schedule['levels'])} entries) against the robust set "
-               f"(dashed), and each set's worst case over the Monte Carlo plants per level; chosen: {schedule['choice']}.")
+               "(dashed), and each set's worst case over the Monte Carlo plants per level; "
+               f"chosen: {schedule['choice']}.")
     return Part(Section("The gain schedule", (text,), (table,), ("gain-schedule",)), (("gain-schedule", fig, caption),))
 
 
@@ -386,8 +392,8 @@ def _validation_part(val: Any) -> Part:
                   "The tuned gains over the Monte Carlo set of nonlinear plants.", "lrrrr")
     fig = F.monte_carlo({k: list(v) for k, v in val.metrics.items()}, limits)
     caption = (f"The tuned gains with the feedforward over {val.n_plants} Monte Carlo plants (seed {val.seed}): "
-               f"settling time into ±{fmt(val.criteria.band_N)} N and overshoot of the true force, and the trajectory's "
-               "tracking RMS; dashed, the study's limits.")
+               f"settling time into ±{fmt(val.criteria.band_N)} N and overshoot of the true "
+               "force, and the trajectory's tracking RMS; dashed, the study's limits.")
     return Part(Section("Validation", (text,), (table,), ("monte-carlo",)), (("monte-carlo", fig, caption),))
 
 

@@ -51,7 +51,8 @@ def summary(study: ReportStudy, a: Artifacts) -> tuple[str, ...]:
 def _system_lines(system: SystemRecord, design: DesignRecord, learning: LearningRecord | None) -> list[str]:
     n, sch = system.numbers, design.schedule
     before = ("" if learning is None else
-              f", from {fmt(learning.last.before_learning_rms_N)} N ({fmt(learning.last.before_learning_pct_of_range)} %) "
+              f", from {fmt(learning.last.before_learning_rms_N)} N "
+              f"({fmt(learning.last.before_learning_pct_of_range)} %) "
               f"before learning, after {learning.trials} learning trials")
     deflection = ("" if n.deflection_limit_um is None else
                   f", and its largest deflection {fmt(n.deflection_max_um)} um against {fmt(n.deflection_limit_um)} um")
@@ -78,7 +79,8 @@ def _controller_line(a: Artifacts) -> str:
     else:
         form = f"PID (Kc {fmt(g['Kc_V_per_N'], 4)} V/N, Ti {fmt(g['Ti_s'], 4)} s, Td {fmt(g['Td_s'], 4)} s)"
     w = val.worst
-    settling = "never settled on one plant at least" if w.settling_s is None else f"worst settling {fmt(w.settling_s)} s"
+    settling = ("never settled on one plant at least" if w.settling_s is None
+                else f"worst settling {fmt(w.settling_s)} s")
     verdict = "passed" if val.passed else f"failed on {val.failed_plant_count} of {val.n_plants} plants"
     return (f"The tuned {form} {verdict} the Monte Carlo validation on {val.n_plants} nonlinear plants: {settling}, "
             f"worst overshoot {fmt(w.overshoot_N)} N, worst tracking RMS {fmt(w.tracking_rms_N)} N.")

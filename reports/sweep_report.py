@@ -26,7 +26,8 @@ from piezopreload.reports.typeset import ReportError, compile_pdf, template_text
 __all__ = ["render_sweep_report", "SWEEP_TEMPLATE", "SWEEP_FIGURES", "TABLE_COLUMNS"]
 
 SWEEP_TEMPLATE = "sweep.typ"
-#: the figures, in the template's order: name, the columns drawn (one panel each), what they show, the stage writing them
+#: the figures, in the template's order: name, the columns drawn (one panel each), what they show,
+#: the stage writing them
 SWEEP_FIGURES: tuple[tuple[str, tuple[str, ...], str, str], ...] = (
     ("gains", ("Kc_V_per_N", "Ti_s", "Td_s"), "The tuned PID gains", "tune"),
     ("validation", ("worst_settling_s", "worst_overshoot_N", "worst_tracking_rms_N"),
@@ -68,12 +69,14 @@ def _cell(value: Any, digits: int) -> str:
 
 
 def _summary(record: SweepRecord) -> list[str]:
-    """The sweep in sentences: its points' outcome, the validation's verdicts, each headline figure's range, requirements."""
+    """The sweep in sentences: its points' outcome, the validation's verdicts, each headline
+    figure's range, requirements."""
     rows, keys = record.rows(), record.keys
     failed = [p for p in record.points if p.status == "failed"]
     lines = [f"{len(rows)} points of the study {record.study_name} ({record.mode} over "
              + "; ".join(f"{a.key} = {', '.join(str(v) for v in a.values)}" for a in record.axes) + "): "
-             + f"{len(rows) - len(failed)} ran to the end" + (f", {len(failed)} failed (listed below)." if failed else ".")]
+             + f"{len(rows) - len(failed)} ran to the end"
+             + (f", {len(failed)} failed (listed below)." if failed else ".")]
     judged = [r for r in rows if r["gain_set_status"] is not None]
     if judged:
         passed = [r for r in judged if r["gain_set_status"] == "validated"]
@@ -128,7 +131,8 @@ def _figures(record: SweepRecord, figdir: Path, bar: Callable[[int, int], None] 
         lines = f", one line per {', '.join(by)}" if by else ""
         failed = any(r["status"] == "failed" and any(numeric(r[c]) for c in have) for r in rows)
         shown[name] = {"file": f"figures/{name}.pdf",
-                       "caption": f"{what}, against {x}{lines}" + ("; red crosses: points that failed" if failed else "")
+                       "caption": f"{what}, against {x}{lines}"
+                       + ("; red crosses: points that failed" if failed else "")
                                   + "."}
     F.save_all(pending, progress=bar)
     return shown, omitted, written
@@ -158,7 +162,8 @@ def render_sweep_report(out: Path, record: SweepRecord, *, say: Callable[[str], 
             ["package", f"piezopreload {version}"], ["study file", record.study_path],
             ["study SHA-256", record.study_sha256], ["sweep started (UTC)", record.started_utc],
             ["report date (UTC)", now.strftime("%Y-%m-%d %H:%M:%S")],
-            ["points' folders", f"{record.points[0].folder} to {record.points[-1].folder}" if record.points else "none"],
+            ["points' folders",
+             f"{record.points[0].folder} to {record.points[-1].folder}" if record.points else "none"],
             ["rows", "sweep.csv, sweep.json"]]},
     }
     write_artifact(folder / "report.json", "sweep-report", data)

@@ -2,8 +2,8 @@
 
 :data:`TEMPLATE` is the shipped template, ``report.typ``; it reads ``report.json`` and the
 figures from its own folder (a sweep's report has its own, ``sweep.typ``). :func:`compile_pdf`
-compiles a template in a folder with only the fonts Typst ships (Libertinus Serif, New Computer Modern, DejaVu Sans Mono), so the PDF is
-the same on every machine.
+compiles a template in a folder with only the fonts Typst ships (Libertinus Serif, New Computer Modern, DejaVu Sans
+Mono), so the PDF is the same on every machine.
 """
 
 from __future__ import annotations

@@ -68,8 +68,9 @@ from piezopreload.rig import watchdog
 from piezopreload.rig.compiled import PlantStep
 from piezopreload.rig.watchdog import SharedDAQ
 
-__all__ = ["Reading", "Backend", "SimBackend", "CLibraryBackend", "Fault", "FaultInjector", "FAULT_KINDS", "ENTRY_POINT_GROUP",
-           "BackendError", "InjectedFault", "injected_failure", "available_backends", "open_backend", "parse_fault"]
+__all__ = ["Reading", "Backend", "SimBackend", "CLibraryBackend", "Fault", "FaultInjector", "FAULT_KINDS",
+           "ENTRY_POINT_GROUP", "BackendError", "InjectedFault", "injected_failure", "available_backends",
+           "open_backend", "parse_fault"]
 
 ENTRY_POINT_GROUP = "piezopreload.rig_backends"
 
@@ -132,7 +133,8 @@ class SimBackend:
         self._own_path = False
         if watchdog_s is not None:
             if daq_path is None:
-                fd, daq_path = tempfile.mkstemp(prefix="piezopreload-daq-", dir="/dev/shm" if os.path.isdir("/dev/shm") else None)
+                fd, daq_path = tempfile.mkstemp(prefix="piezopreload-daq-",
+                                                dir="/dev/shm" if os.path.isdir("/dev/shm") else None)
                 os.close(fd)
                 self._own_path = True
             self.daq = SharedDAQ(daq_path, create=True)
@@ -252,7 +254,8 @@ class CLibraryBackend:
         missing = [f for f in ("arm", "read_force", "write_voltage", "disarm") if not hasattr(self.lib, f)]
         if missing:
             raise BackendError(f"--backend-option library={path}: the library lacks '{missing[0]}' of the C ABI "
-                               "(arm, read_force, write_voltage, disarm; see piezopreload.rig.backends.CLibraryBackend)")
+                               "(arm, read_force, write_voltage, disarm; "
+                               "see piezopreload.rig.backends.CLibraryBackend)")
         self.path = str(path)
         self.name = name or f"clib:{Path(path).name}"
         lib = self.lib
@@ -330,7 +333,8 @@ class Fault:
         if self.kind not in FAULT_KINDS:
             raise ValueError(f"unknown fault '{self.kind}'; expected one of {', '.join(FAULT_KINDS)}")
         if not (math.isfinite(self.at_s) and self.at_s >= 0 and self.duration_s > 0):
-            raise ValueError(f"a fault needs a finite at_s >= 0 and duration_s > 0, got {self.at_s} and {self.duration_s}")
+            raise ValueError("a fault needs a finite at_s >= 0 and duration_s > 0, "
+                             f"got {self.at_s} and {self.duration_s}")
 
     def active(self, t_s: float) -> bool:
         return self.at_s <= t_s < self.at_s + self.duration_s

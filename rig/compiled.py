@@ -99,7 +99,8 @@ class PythonStep:
         """One sample: ``(u, p, i, d, ff)`` in volts; ``ff_extra`` is added to the feedforward."""
         if self._x is None:
             raise RuntimeError("start() the step before stepping it")
-        self._x, t = self._model.step(NUMPY, self._p, self._x, np.float64(setpoint), np.float64(pv), np.float64(ff_extra))
+        self._x, t = self._model.step(NUMPY, self._p, self._x, np.float64(setpoint), np.float64(pv),
+                                      np.float64(ff_extra))
         return float(t.u), float(t.p), float(t.i), float(t.d), float(t.ff)
 
     @property

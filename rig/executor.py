@@ -124,7 +124,8 @@ class Executor:
         else:
             inner = self.backend.inner if isinstance(self.backend, FaultInjector) else self.backend
             if not callable(getattr(inner, "native_backend", None)) or inner.native_backend(1) is None:
-                why = f"the backend '{self.backend.name}' is a Python backend (the loop would call into the interpreter)"
+                why = (f"the backend '{self.backend.name}' is a Python backend (the loop would "
+                       "call into the interpreter)")
             elif isinstance(self.backend, FaultInjector) and len(self.backend.faults) > native_loop.MAX_FAULTS:
                 why = f"more than {native_loop.MAX_FAULTS} injected faults"
         if not why:

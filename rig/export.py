@@ -234,7 +234,8 @@ def _labview_text(head: list[str], g: dict[str, float], schedule: GainSchedule |
         "; LabVIEW PID VIs take Ti and Td in minutes", "[PID gains]",
         f"Kc = {g['Kc_V_per_N']:.12g}", f"Ti (min) = {g['Ti_s'] / 60.0:.12g}", f"Td (min) = {g['Td_s'] / 60.0:.12g}",
         "[output range]", f"low (V) = {g['u_min_V']:.12g}", f"high (V) = {g['u_max_V']:.12g}",
-        "[advanced]", f"setpoint weight beta = {g['b']:.12g}", f"derivative filter time constant (s) = {g['Tf_s']:.12g}"]
+        "[advanced]", f"setpoint weight beta = {g['b']:.12g}",
+        f"derivative filter time constant (s) = {g['Tf_s']:.12g}"]
     if schedule is not None:  # LabVIEW's PID Gain Schedule VI takes a table of setpoint breakpoints and gains
         lines += _table_lines(schedule, "; ", (("Kc", 1.0), ("Ti (min)", 60.0), ("Td (min)", 60.0),
                                                ("setpoint weight beta", 1.0)))
@@ -252,7 +253,8 @@ def _plc_text(head: list[str], g: dict[str, float], schedule: GainSchedule | Non
              *("; " + h for h in head),
              "; Kp in V/N; Tn (reset time) and Tv (rate time) in seconds", "[PID]",
              f"Kp = {g['Kc_V_per_N']:.12g}", f"Tn = {g['Ti_s']:.12g}", f"Tv = {g['Td_s']:.12g}",
-             f"Tf = {g['Tf_s']:.12g}", f"b = {g['b']:.12g}", f"Ymin = {g['u_min_V']:.12g}", f"Ymax = {g['u_max_V']:.12g}"]
+             f"Tf = {g['Tf_s']:.12g}", f"b = {g['b']:.12g}", f"Ymin = {g['u_min_V']:.12g}",
+             f"Ymax = {g['u_max_V']:.12g}"]
     if schedule is not None:
         lines += _table_lines(schedule, "; ", (("Kp", 1.0), ("Tn", 1.0), ("Tv", 1.0), ("b", 1.0)))
     if table is None:
@@ -431,8 +433,9 @@ def _model_head(record: IdentifiedModel | None, t: FeedforwardTable) -> list[str
     head = [f"piezopreload: the feedforward of a {t.kind} P-I model alone (no PID gains), its inverse step at the "
             f"sample period {period}"]
     if record is not None:
-        head.append(f"identified on {record.data.kind} data sha256 {record.data.sha256}, over {record.output_range[0]:.6g} "
-                    f"to {record.output_range[1]:.6g} {record.units.output}; fit {record.fit.rms_pct:.4g} % RMS of the span")
+        head.append(f"identified on {record.data.kind} data sha256 {record.data.sha256}, "
+                    f"over {record.output_range[0]:.6g} to {record.output_range[1]:.6g} {record.units.output}; "
+                    f"fit {record.fit.rms_pct:.4g} % RMS of the span")
     return head
 
 
@@ -483,7 +486,8 @@ def _export_model(obj: IdentifiedModel | HysteresisModel | CreepPI, fmt: str, sa
     if fmt == "plc":
         return "(* " + "\n   ".join(head) + " *)\n\n" + function_block(t)
     if fmt == "c-header":
-        lines = [f"/* {h} */" for h in head] + ["#ifndef PIEZOPRELOAD_FEEDFORWARD_H", "#define PIEZOPRELOAD_FEEDFORWARD_H",
+        lines = [f"/* {h} */" for h in head] + ["#ifndef PIEZOPRELOAD_FEEDFORWARD_H",
+                                                "#define PIEZOPRELOAD_FEEDFORWARD_H",
                                                  "", *_c_model(model.to_dict()), "", "#endif"]
         return "\n".join(lines) + "\n"
     return _model_casadi_c(t, head)
@@ -540,7 +544,8 @@ def export(obj: GainSet | IdentifiedModel | HysteresisModel | CreepPI | dict[str
     raise ExportError(f"cannot export a {type(obj).__name__}: give a GainSet, an IdentifiedModel or a P-I model")
 
 
-def write_exports(gain_set: GainSet, folder: str | Path, formats: tuple[str, ...] | list[str] = FORMATS) -> dict[str, Path]:
+def write_exports(gain_set: GainSet, folder: str | Path,
+                  formats: tuple[str, ...] | list[str] = FORMATS) -> dict[str, Path]:
     """Write ``formats`` of a validated gain set into ``folder`` (one file each, named by :data:`EXPORT_FILES`)."""
     written = {}
     for fmt in formats:

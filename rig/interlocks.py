@@ -77,10 +77,11 @@ class Safety:
         for name in ("slew_V_per_s", "stale_after_s", "ramp_s", "force_low_margin_N", "stall_limit_s"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"safety.{name} must be > 0, got {getattr(self, name)}")
-        if not self.sensor_min_N < self.bolt_preload_N - self.force_low_margin_N < self.force_max_N <= self.sensor_max_N:
+        low_N = self.bolt_preload_N - self.force_low_margin_N
+        if not self.sensor_min_N < low_N < self.force_max_N <= self.sensor_max_N:
             raise ValueError(f"safety needs sensor_min_N < bolt_preload_N - force_low_margin_N < force_max_N <= "
-                             f"sensor_max_N, got {self.sensor_min_N:g} < {self.force_low_N:g} < {self.force_max_N:g} <= "
-                             f"{self.sensor_max_N:g}")
+                             f"sensor_max_N, got {self.sensor_min_N:g} < {self.force_low_N:g} "
+                             f"< {self.force_max_N:g} <= {self.sensor_max_N:g}")
 
     def to_dict(self) -> dict[str, float]:
         return asdict(self)

@@ -4,11 +4,10 @@ The cycle (``native_loop.c`` beside this file, compiled once by :mod:`piezoprelo
 and cached by hash) runs in a POSIX thread outside the interpreter. Each cycle ``k`` sleeps to
 the absolute deadline ``t0 + k dt`` (``clock_nanosleep`` with ``TIMER_ABSTIME`` on
 ``CLOCK_MONOTONIC``, the timer slack set to 1 ns), reads the force, checks it against the
-interlock rows of :mod:`piezopreload.rig.interlocks` (the table both loops test), calls the compiled controller step (``pp_rig_step``, :mod:`.compiled`),
-clamps and slew-limits the command, writes it, toggles the backend's heartbeat and puts the
-sample into a single-producer/single-consumer ring buffer. A stop (an interlock, SIGINT or
-SIGTERM caught in C, :meth:`NativeLoop.stop`) ramps the voltage to the safe level at the
-loop's rate and disarms, all inside the thread.
+interlock rows of :mod:`piezopreload.rig.interlocks` (the table both loops test), calls the compiled controller step
+(``pp_rig_step``, :mod:`.compiled`), clamps and slew-limits the command, writes it, toggles the backend's heartbeat and
+puts the sample into a single-producer/single-consumer ring buffer. A stop (an interlock, SIGINT or SIGTERM caught in C,
+:meth:`NativeLoop.stop`) ramps the voltage to the safe level at the loop's rate and disarms, all inside the thread.
 
 Where the system permits, the thread runs under ``SCHED_FIFO`` and the process's memory is
 locked (``mlockall(MCL_CURRENT)``); where it does not, the loop runs anyway and
@@ -127,13 +126,15 @@ def source() -> str:
 
 
 def loop_library() -> ctypes.CDLL:
-    """The loop's shared library (built once per source and compiler, cached); :class:`native.NativeBuildError` if not."""
+    """The loop's shared library (built once per source and compiler, cached);
+    :class:`native.NativeBuildError` if not."""
     lib = native.load(native.build("pp_loop", source(), (*native.FLAGS, "-pthread")))
     for name, res, args in (("pp_loop_start", ctypes.c_int, [_P]), ("pp_loop_join", ctypes.c_int, [_P]),
                             ("pp_loop_drain", ctypes.c_int64, [_P, _P, ctypes.c_int64]),
                             ("pp_loop_stalls", ctypes.c_int64, [_P]),
-                            ("pp_loop_switch", None, [_P, ctypes.c_int32]), ("pp_loop_stop", None, [_P, ctypes.c_int32]),
-                            ("pp_loop_sizeof", ctypes.c_int64, []), ("pp_loop_catch_signals", ctypes.c_int, [_P]),
+                            ("pp_loop_switch", None, [_P, ctypes.c_int32]),
+                            ("pp_loop_stop", None, [_P, ctypes.c_int32]), ("pp_loop_sizeof", ctypes.c_int64, []),
+                            ("pp_loop_catch_signals", ctypes.c_int, [_P]),
                             ("pp_loop_release_signals", ctypes.c_int, []), ("pp_loop_lock_memory", ctypes.c_int, [_P]),
                             ("pp_probe_run", ctypes.c_int, [_P]), ("pp_probe_sizeof", ctypes.c_int64, []),
                             ("pp_time_step", ctypes.c_int, [_FN, _D, _D, _P, _P, ctypes.c_int64, _P])):
@@ -245,7 +246,8 @@ class NativeLoop:
 
     def __init__(self, controller: Controller, reference: np.ndarray, safety: interlocks.Safety,
                  backend: dict[str, Any],
-                 *, realtime: bool, hold: bool, faults: list[tuple[int, float, float, float]] = (),  # type: ignore[assignment]
+                 *, realtime: bool, hold: bool,
+                 faults: list[tuple[int, float, float, float]] = (),  # type: ignore[assignment]
                  ring_s: float = 30.0, fifo_priority: int = 80, spin_us: float = 0.0, step_fn: Any = None,
                  ff_extra: np.ndarray | None = None) -> None:
         self._lib = loop_library()

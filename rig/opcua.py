@@ -106,7 +106,8 @@ class _Users:
                  certificate: Any = None) -> User | None:
         if username is not None:
             known = self._hashes.get(username)
-            if known is not None and password is not None and hmac.compare_digest(known, _hash_password(password, self._salt)):
+            if (known is not None and password is not None
+                    and hmac.compare_digest(known, _hash_password(password, self._salt))):
                 return User(role=UserRole.User, name=username)
         return None
 
@@ -403,7 +404,8 @@ class _ServerProcess:
             tf=await var(params, "CtrlTf", "derivative filter time constant, s"),
             b=await var(params, "CtrlB", "setpoint weight of the proportional action"),
             gain_sha=await var(root, "GainSetSha256", "the running gain set"),
-            ff_sha=await var(root, "FeedforwardSha256", "SHA-256 of the feedforward's hysteresis model (canonical JSON)"),
+            ff_sha=await var(root, "FeedforwardSha256",
+                             "SHA-256 of the feedforward's hysteresis model (canonical JSON)"),
             setpoint=await var(root, "SetPoint", "force setpoint, N"),
             force=await var(root, "MeasuredForce", "measured preload force, N"),
             voltage=await var(root, "CommandVoltage", "voltage written to the amplifier, V"),

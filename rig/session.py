@@ -318,9 +318,10 @@ def _learned_metrics(columns: dict[str, np.ndarray], signal: LearnedSignal) -> d
 
 
 def run(gains_path: str | Path, *, backend: str = "sim", backend_options: dict[str, str] | None = None,
-        reference: str | None = "step", rate_Hz: float | None = None, realtime: bool = True, log_dir: str | Path = "runs",
-        faults: list[Fault] | None = None, safety: dict[str, float | None] | None = None, seed: int = 0,
-        step: str = "c", learned: str | Path | None = None, loop: str = "auto", safety_source: str = "the command line",
+        reference: str | None = "step", rate_Hz: float | None = None, realtime: bool = True,
+        log_dir: str | Path = "runs", faults: list[Fault] | None = None,
+        safety: dict[str, float | None] | None = None, seed: int = 0, step: str = "c",
+        learned: str | Path | None = None, loop: str = "auto", safety_source: str = "the command line",
         host_check_s: float = HOST_CHECK_S, accept_host: bool = False,
         say: Callable[[str], None] | None = None) -> RigRun:
     """Run a validated gain set on a backend (see ``piezopreload rig run``); the log goes to ``log_dir``.

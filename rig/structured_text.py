@@ -132,13 +132,15 @@ def _update(t: FeedforwardTable) -> list[str]:
 
 
 def function_block(t: FeedforwardTable, name: str = "PP_FEEDFORWARD") -> str:
-    """The Structured Text source of the inverse step of ``t`` (a :class:`~piezopreload.rig.export.FeedforwardTable`)."""
+    """The Structured Text source of the inverse step of ``t`` (a
+    :class:`~piezopreload.rig.export.FeedforwardTable`)."""
     period = "any period (no creep)" if t.sample_period_s is None else f"a sample period of {t.sample_period_s!r} s"
     body = _reset(t) + _shaper_and_creep(t) + _direction(t, "rising", "v")
     if t.structure.asymmetric:
         body += _direction(t, "falling", "v_fall") + _SWITCH
     lines = [f"FUNCTION_BLOCK {name}",
              f"(* The inverse P-I step of a {t.kind} model at {period} (piezopreload; docs/exports.md):",
-             "   call it once per sample with the desired force; add command_V to the PID's output before the clamp. *)",
+             "   call it once per sample with the desired force; "
+             "add command_V to the PID's output before the clamp. *)",
              *_variables(t), *_constants(t), *body, *_update(t), "END_FUNCTION_BLOCK"]
     return "\n".join(lines) + "\n"

@@ -13,7 +13,8 @@ from piezopreload.models.actuator import Plant, Rig, reach_N
 from piezopreload.rig.export import FORMATS
 from piezopreload.rig.interlocks import Safety
 
-__all__ = ["ExportTable", "RigRunPlan", "RIG_RUN_REFERENCES", "INTERLOCK_KEYS", "FORCE_MAX_FACTOR", "default_interlocks"]
+__all__ = ["ExportTable", "RigRunPlan", "RIG_RUN_REFERENCES", "INTERLOCK_KEYS", "FORCE_MAX_FACTOR",
+           "default_interlocks"]
 
 #: the [rig_run] keys that set the interlocks (and the command-line options that override them)
 INTERLOCK_KEYS = ("force_max_N", "force_low_margin_N", "ramp_s", "stall_limit_s")

@@ -221,7 +221,8 @@ class _Parser:
         self.take(")")
         types = {t for _, t in args}
         if len(args) != (1 if fn == "ABS" else 2) or len(types) != 1 or types == {"BOOL"}:
-            raise STError(f"{fn} takes {'one' if fn == 'ABS' else 'two'} numbers of one type, got {[t for _, t in args]}")
+            raise STError(f"{fn} takes {'one' if fn == 'ABS' else 'two'} numbers of one type, "
+                          f"got {[t for _, t in args]}")
         return f"{fn.lower()}({', '.join(c for c, _ in args)})", types.pop()
 
     def reference(self) -> tuple[str, str]:

@@ -34,7 +34,8 @@ def _readme_snippet() -> str:
 def _small(snippet: str) -> str:
     """The snippet with small settings: the small study, 8 Monte Carlo plants. Nothing else changes."""
     assert 'pp.load_study("paper2021")' in snippet and "plants=200" in snippet
-    return snippet.replace('pp.load_study("paper2021")', f"pp.load_study({str(SMALL)!r})", 1).replace("plants=200", "plants=8")
+    return (snippet.replace('pp.load_study("paper2021")', f"pp.load_study({str(SMALL)!r})", 1)
+            .replace("plants=200", "plants=8"))
 
 
 @pytest.mark.slow  # it tunes, validates and runs every stage of the small study: half a minute
@@ -128,10 +129,12 @@ def test_the_gain_set_round_trips_and_its_exports_are_the_cli_s(gain_set, tmp_pa
     g = gs.gains
     lv = dict(line.split(" = ") for line in pp.export(loaded, "labview").splitlines()
               if " = " in line and not line.startswith(";"))
-    assert [float(lv[k]) for k in ("Kc", "Ti (min)", "Td (min)")] == pytest.approx([g.Kc, g.Ti_s / 60, g.Td_s / 60], rel=1e-11)
+    assert ([float(lv[k]) for k in ("Kc", "Ti (min)", "Td (min)")]
+            == pytest.approx([g.Kc, g.Ti_s / 60, g.Td_s / 60], rel=1e-11))
     plc = dict(line.split(" = ") for line in pp.export(loaded, "plc").splitlines()
                if " = " in line and not line.startswith(";"))
-    assert [float(plc[k]) for k in ("Kp", "Tn", "Tv", "Ymax")] == pytest.approx([g.Kc, g.Ti_s, g.Td_s, g.u_max], rel=1e-11)
+    assert ([float(plc[k]) for k in ("Kp", "Tn", "Tv", "Ymax")]
+            == pytest.approx([g.Kc, g.Ti_s, g.Td_s, g.u_max], rel=1e-11))
     assert f"#define PP_TI_S {g.Ti_s!r}" in pp.export(loaded, "c-header")
     assert json.loads(pp.export(loaded, "json"))["gains"]["Ti_s"] == g.Ti_s
     doc = json.loads(path.read_text())
@@ -155,7 +158,8 @@ def test_gain_set_and_reference_documents_are_checked_naming_the_field():
     assert pp.GainSet.from_dict(doc).gains.Kc == 0.5
     for field, value, match in (("status", "approved", "field 'status' is 'approved'"),
                                 ("gains", {"Kc_V_per_N": 0.5}, r"field 'gains.Ti_s' is missing"),
-                                ("references", {"step": {"times_s": [0.0]}}, r"field 'references.step' is not a reference"),
+                                ("references", {"step": {"times_s": [0.0]}},
+                                 r"field 'references.step' is not a reference"),
                                 ("plant", {"rig": {"noise_N": -1.0}}, r"field 'plant.rig' is not a rig")):
         with pytest.raises(pp.ArtifactError, match=match):
             pp.GainSet.from_dict({**doc, field: value}, "g.json")
@@ -235,7 +239,8 @@ def _check_example_output(out, tmp_path, loop):
     record = pp.read_record(loop)
     window = record.window(*result.record.test.window_s)
     err = model(record.input)[window] - record.output[window]
-    assert 100 * np.sqrt(np.mean(err ** 2)) / np.ptp(record.output) == pytest.approx(result.record.test.rms_pct, rel=1e-9)
+    assert (100 * np.sqrt(np.mean(err ** 2)) / np.ptp(record.output)
+            == pytest.approx(result.record.test.rms_pct, rel=1e-9))
     assert result.record.test.rms_pct < result.record.line.test.rms_pct / 3  # the P-I model explains what a line cannot
     gs = out["gain_set"]
     assert pp.GainSet.load(tmp_path / "gains.json").content_sha256 == gs.content_sha256
@@ -376,7 +381,8 @@ def test_results_show_themselves_in_a_terminal_and_a_notebook(gain_set):
     missed = Requirement("rigidity while cutting", 761.0, 1000.0, "N/um", "min", "[schedule] stiffness_min_N_per_um")
     result = StudyResult(Path("out"), {"name": "axis"}, (StageOutcome("design", True, "done", 1.0),), 1.0, Headline(),
                          (missed,))
-    assert result.exit_code == 4 and "1 requirement(s) missed" in repr(result) and "<b>missed</b>" in result._repr_html_()
+    assert (result.exit_code == 4 and "1 requirement(s) missed" in repr(result)
+            and "<b>missed</b>" in result._repr_html_())
     fig = result.plot()
     assert isinstance(fig, Figure) and fig.axes[0].patches, "the margin bars are drawn"
     assert result.to_dict()["summary"]["requirements_missed"][0]["margin"] == -239.0

@@ -435,10 +435,12 @@ def test_life_and_drag_closed_forms():
     L_nut = (37890.0 / (1.2 * fp)) ** 3 * 1e6
     np.testing.assert_allclose(life.revolutions, 2 ** (-0.9) * L_nut, rtol=1e-12)
     np.testing.assert_allclose(life.hours, life.revolutions / (60 * 1000.0), rtol=1e-12)
-    assert screw.life(fp, [DutyCase(0.0, 1000.0, 1.0)], reliability=0.99).revolutions == pytest.approx(0.21 * life.revolutions)
+    assert (screw.life(fp, [DutyCase(0.0, 1000.0, 1.0)], reliability=0.99).revolutions
+            == pytest.approx(0.21 * life.revolutions))
     # drag torque T = K_p F_p P / (2000 pi), K_p = 0.05 / sqrt(tan(helix))
     helix = math.atan(10.0 / (math.pi * 40.0))
-    np.testing.assert_allclose(screw.drag_torque_Nm(fp), 0.05 / math.sqrt(math.tan(helix)) * fp * 10.0 / (2000 * math.pi))
+    np.testing.assert_allclose(screw.drag_torque_Nm(fp),
+                               0.05 / math.sqrt(math.tan(helix)) * fp * 10.0 / (2000 * math.pi))
     # a heavier load shortens life
     assert screw.life(fp, [DutyCase(5000.0, 1000.0, 1.0)]).revolutions < life.revolutions
 
@@ -470,7 +472,8 @@ def test_stacks_reach_closes_the_loop_equation():
     stacks = PiezoPreload()
     f_max = stacks.max_preload_N(screw, 500.0)
     # the loop: both nuts shift by their nut law, the stacks compress
-    used = 2 * (screw.nut_approach_um(f_max) - screw.nut_approach_um(500.0)) + (f_max - 500.0) / stacks.stiffness_N_per_um
+    used = (2 * (screw.nut_approach_um(f_max) - screw.nut_approach_um(500.0))
+            + (f_max - 500.0) / stacks.stiffness_N_per_um)
     np.testing.assert_allclose(used, stacks.stroke_um, rtol=1e-9)
     np.testing.assert_allclose(stack_loop_um(screw.axial_constant_um, 500.0, f_max, stacks.stiffness_N_per_um,
                                              screw.structural_compliance_um_per_N), used, rtol=1e-12)

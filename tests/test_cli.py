@@ -67,11 +67,14 @@ def test_identify_with_creep_reports_the_refit_without_it(capsys, tmp_path):
     assert code == 0, err
     doc = json.loads(out)
     assert doc["model"] == "paper-asymmetric+creep" and len(doc["creep"]["weights"]) == 4
-    assert doc["creep"]["time_constants_s"][0] == pytest.approx(0.01) and doc["creep"]["sample_period_s"] == pytest.approx(2e-4)
+    assert (doc["creep"]["time_constants_s"][0] == pytest.approx(0.01)
+            and doc["creep"]["sample_period_s"] == pytest.approx(2e-4))
     assert doc["without_creep"]["how"].startswith("refit")
     assert doc["test"]["rms_pct"] <= 0.15 and doc["test"]["max_pct"] <= 0.75, "the issue's target with 40 operators"
-    assert doc["test"]["rms_pct"] < doc["without_creep"]["test"]["rms_pct"], "creep should help on data it was not fitted to"
-    code, out, err = run(capsys, "identify", "--model", "paper-asymmetric", "--train", "4:7", "--test", "7:10", "--json")
+    assert doc["test"]["rms_pct"] < doc["without_creep"]["test"]["rms_pct"], (
+        "creep should help on data it was not fitted to")
+    code, out, err = run(capsys, "identify", "--model", "paper-asymmetric", "--train", "4:7",
+                         "--test", "7:10", "--json")
     plain = json.loads(out)
     keys = ("rms_pct", "max_pct")
     assert {k: plain["test"][k] for k in keys} == pytest.approx({k: doc["without_creep"]["test"][k] for k in keys},
@@ -130,7 +133,8 @@ GOOD_ROWS = "".join(f"{i * 0.01:.2f},{(i % 20) * 5.0},{(i % 20) * 0.4}\n" for i 
         ("", (), r"bad\.csv: the file is empty"),
         ("# only a comment\n", (), r"bad\.csv: the file is empty"),
         ("time_s,voltage_V\n0,1\n", (), r"bad\.csv:1: the header .* 0 candidate output columns"),
-        ("time_s,voltage_V,force_N\n" + GOOD_ROWS + "2.5,abc,3\n", (), r"bad\.csv:202: input column 'voltage_V' holds 'abc'"),
+        ("time_s,voltage_V,force_N\n" + GOOD_ROWS + "2.5,abc,3\n", (),
+         r"bad\.csv:202: input column 'voltage_V' holds 'abc'"),
         ("time_s,voltage_V,force_N\n" + GOOD_ROWS + "2.5,1,nan\n", (), r"bad\.csv:202: output column 'force_N' is nan"),
         ("time_s,voltage_V,force_N\n" + GOOD_ROWS + "2.5,inf,1\n", (), r"bad\.csv:202: .* is inf"),
         ("time_s,voltage_V,force_N\n" + GOOD_ROWS + "1.0,1,1\n", (), r"bad\.csv:202: time 1\.0 is not after"),

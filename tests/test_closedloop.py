@@ -60,7 +60,8 @@ def test_simulation_is_deterministic_for_a_seed():
 
 def test_a_batch_simulates_each_plant_as_alone():
     base = replace(Plant(), noise_N=0.0)
-    batch = base.vary(5, {"amp_bandwidth_Hz": 0.3, "coupling_stiffness_N_per_um": 0.15, "creep_per_decade": 0.3}, seed=2)
+    batch = base.vary(5, {"amp_bandwidth_Hz": 0.3, "coupling_stiffness_N_per_um": 0.15, "creep_per_decade": 0.3},
+                      seed=2)
     c = Controller(PIDGains(0.3, 0.08, 0.001), base.sample_period_s)
     ref = Reference.step(25.0, 60.0, 0.1, 4.0)
     runs = simulate(Rig(batch), c, ref)

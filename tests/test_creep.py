@@ -184,7 +184,8 @@ def test_asymmetric_inverse_recovers_the_input_and_holds_in_the_gaps(rng):
     t = np.arange(0, 6, model.sample_period_s)
     u = 45 + 30 * np.sin(2 * np.pi * 0.7 * t) * np.exp(-0.1 * t)  # smooth: each target has one input near the last
     target = model(u)
-    np.testing.assert_allclose(inverse(target), u, rtol=0, atol=1e-9, err_msg="asymmetric+creep: inverse(model(u)) != u")
+    np.testing.assert_allclose(inverse(target), u, rtol=0, atol=1e-9,
+                               err_msg="asymmetric+creep: inverse(model(u)) != u")
     # a jump of the input: the target may have two inputs (the output jumps up at a reversal); either serves
     jump = u + 8 * (t > 3)
     v = inverse(model(jump))
@@ -226,7 +227,8 @@ def test_inverse_step_is_one_definition_for_numpy_casadi_and_batches(rng, kind):
     np.testing.assert_allclose(inverse(batch)[1], inverse(targets[::-1]), atol=1e-12, err_msg="batch row")
 
 
-@pytest.mark.skipif(shutil.which(os.environ.get("CC", "cc")) is None, reason="no C compiler to build the generated code")
+@pytest.mark.skipif(shutil.which(os.environ.get("CC", "cc")) is None,
+                    reason="no C compiler to build the generated code")
 def test_generated_c_computes_the_numpy_step(rng, tmp_path):
     model = creep_model(rng, "paper-asymmetric")
     inverse = model.inverse()
@@ -289,7 +291,8 @@ def test_asymmetric_creep_model_is_not_exactly_invertible_and_bad_weights_are_re
 def test_creep_models_round_trip_and_old_documents_read_as_before(rng):
     v = 40 * np.sin(np.linspace(0, 10, 200)) + 30
     for model in (creep_model(rng), creep_model(rng, "modified"),
-                  CreepPI(AsymmetricPI(uniform_thresholds(3, 50.0), [1.0, 0.1, 0.2], [0.9, 0.2, 0.1]), Creep([2.0], [0.1], 0.01))):
+                  CreepPI(AsymmetricPI(uniform_thresholds(3, 50.0), [1.0, 0.1, 0.2], [0.9, 0.2, 0.1]),
+                          Creep([2.0], [0.1], 0.01))):
         doc = model.to_dict()
         back = model_from_dict(doc)
         assert isinstance(back, CreepPI) and back.kind == doc["kind"]
@@ -302,7 +305,8 @@ def test_creep_models_round_trip_and_old_documents_read_as_before(rng):
     with pytest.raises(InputError, match=r"model.creep must be an object"):
         model_from_dict({k: x for k, x in doc.items() if k != "creep"})
     with pytest.raises(InputError, match=r"model.creep: creep time_constants_s must be strictly increasing"):
-        model_from_dict(doc | {"creep": {"time_constants_s": [1.0, 0.5], "weights": [0.1, 0.1], "sample_period_s": 1e-3}})
+        model_from_dict(doc | {"creep": {"time_constants_s": [1.0, 0.5], "weights": [0.1, 0.1],
+                                         "sample_period_s": 1e-3}})
 
 
 @pytest.mark.parametrize(

@@ -6,7 +6,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 _SKIP = {".git", ".venv", "build", "dist", "__pycache__", ".pytest_cache", ".ruff_cache", ".mypy_cache",
-         "piezopreload-out", "_build", "auto_examples", "generated", "jupyter_execute"}  # the last four: the docs' build
+         # the last four: the docs' build
+         "piezopreload-out", "_build", "auto_examples", "generated", "jupyter_execute"}
 _SUFFIXES = (".py", ".md", ".toml", ".typ", ".txt", ".cfg")
 #: a file name with one of these extensions, possibly with folders before it
 #: a web address: the files it names are another site's

@@ -257,7 +257,8 @@ def test_the_model_alones_json_and_its_period(identified):
     assert doc["identified"]["output_range"] == list(record.output_range)
 
 
-@pytest.mark.skipif(shutil.which(os.environ.get("CC", "cc")) is None, reason="no C compiler to build the generated code")
+@pytest.mark.skipif(shutil.which(os.environ.get("CC", "cc")) is None,
+                    reason="no C compiler to build the generated code")
 def test_the_model_alones_c_code_runs_the_numpy_step(identified, tmp_path):
     record, _ = identified
     (tmp_path / "ff.c").write_text(pp.export(record, "casadi-c"))
@@ -266,7 +267,8 @@ def test_the_model_alones_c_code_runs_the_numpy_step(identified, tmp_path):
         "int main(void){double x[64] = {0}; double u; int i; for (i = 0; i < 300; ++i) {"
         "pp_feedforward_step(40.0 + 30.0 * sin(0.05 * i), x, &u); printf(\"%.17g\\n\", u);} return 0;}\n")
     cc = shutil.which(os.environ.get("CC", "cc"))
-    subprocess.run([cc, "-o", str(tmp_path / "ff"), str(tmp_path / "main.c"), str(tmp_path / "ff.c"), "-lm"], check=True)
+    subprocess.run([cc, "-o", str(tmp_path / "ff"), str(tmp_path / "main.c"),
+                    str(tmp_path / "ff.c"), "-lm"], check=True)
     out = np.array(subprocess.run([str(tmp_path / "ff")], capture_output=True, text=True, check=True).stdout.split(),
                    float)
     targets = 40.0 + 30.0 * np.sin(0.05 * np.arange(300))

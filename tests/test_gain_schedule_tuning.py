@@ -45,12 +45,14 @@ def _figures(passed, failures=()):
 ])
 def test_the_choice_follows_the_figures(robust, scheduled, whole, expected):
     levels = [{"level_N": float(i), "robust": _figures(r, () if r else ("overshoot_N",)),
-               "scheduled": _figures(s, () if s else ("settling_s",))} for i, (r, s) in enumerate(zip(robust, scheduled))]
+               "scheduled": _figures(s, () if s else ("settling_s",))}
+              for i, (r, s) in enumerate(zip(robust, scheduled))]
     w = {"robust": _figures(whole[0], () if whole[0] else ("tracking_rms_N",)), "scheduled": _figures(whole[1])}
     choice, reason = choose(levels, w)
     assert choice == expected, reason
     if not all(robust) or not whole[0]:
-        assert "overshoot_N" in reason or "tracking_rms_N" in reason, "the reason does not say where the robust set failed"
+        assert "overshoot_N" in reason or "tracking_rms_N" in reason, (
+            "the reason does not say where the robust set failed")
 
 
 def _hertz_rig(**kw):
@@ -83,7 +85,8 @@ def test_tune_schedule_records_both_sets_per_level_and_chooses_by_them():
     assert res.schedule.levels_N == (30.0, 60.0)
     assert res.scheduled.schedule is res.schedule and res.scheduled.Tf_s == robust.Tf_s
     d = res.to_dict()
-    assert d["choice"] in ("robust", "schedule") and res.gains is (res.robust if d["choice"] == "robust" else res.scheduled)
+    assert (d["choice"] in ("robust", "schedule")
+            and res.gains is (res.robust if d["choice"] == "robust" else res.scheduled))
     assert (d["choice"], d["reason"]) == choose(d["levels"], d["whole_range"])
     # the figures are the validation's own: the first level's robust worst case again, independently
     r0 = d["levels"][0]
@@ -100,7 +103,8 @@ def test_tune_schedule_records_both_sets_per_level_and_chooses_by_them():
         assert 0.0 <= b <= 1.0, f"the setpoint weight {b} is outside the tuning's box"
         if "infeasible" in r["tuning"]:
             assert kc == robust.Kc
-        assert ("bound" in r) == (not r["scheduled"]["passed"]), "a level the schedule misses does not say what stops it"
+        assert ("bound" in r) == (not r["scheduled"]["passed"]), (
+            "a level the schedule misses does not say what stops it")
     assert setpoint_action_rises(res.schedule.levels_N, res.schedule.Kc, res.schedule.b)
 
 
@@ -156,8 +160,8 @@ def test_a_level_the_schedule_misses_says_what_stops_a_pid_entry():
     assert "Ms <= 1.6, variant 2" in tuned and "overshoot_N 28.8 against 25" in tuned and "15 N" in tuned
     none = _bound({"infeasible": "not met: overshoot inside 15 N, step, variant 2 (by 18.5)"}, figures, limits)
     assert "no PID entry meets" in none and "by 18.5" in none
-    levels = [{"level_N": 2000.0, "robust": _figures(False, ("overshoot_N",)), "scheduled": _figures(False, ("overshoot_N",)),
-               "bound": tuned}]
+    levels = [{"level_N": 2000.0, "robust": _figures(False, ("overshoot_N",)),
+               "scheduled": _figures(False, ("overshoot_N",)), "bound": tuned}]
     whole = {"robust": _figures(True), "scheduled": _figures(True)}
     choice, reason = choose(levels, whole)
     assert choice == "robust" and "What stops a PID entry: at 2000 N" in reason and "Ms <= 1.6" in reason

@@ -98,7 +98,8 @@ def test_a_slower_planned_ramp_follows_the_same_branch_in_proportionally_more_sa
         # quasi-static: the force is a function of the voltage along the branch, so half the voltage step per
         # sample takes twice the samples to the level, up to where the last level was reached (each ramp stops at
         # the first sample past its level: the next starts from a voltage up to one step apart, a few % of a ramp)
-        assert abs(b.size - 2 * a.size) <= max(3, 0.1 * 2 * a.size), f"{a.size} samples at full slew but {b.size} at half"
+        assert abs(b.size - 2 * a.size) <= max(3, 0.1 * 2 * a.size), (
+            f"{a.size} samples at full slew but {b.size} at half")
         assert b[-1] == pytest.approx(a[-1]), "the slower ramp does not end where the full-slew one does"
     with pytest.raises(InputError, match="slew_fraction"):
         P.branch_ramps(params, TRAJECTORY.levels_N, slew_fraction=0.0)
@@ -142,7 +143,8 @@ def test_preview_on_a_ramp_with_a_pure_delay_removes_it_and_without_it_the_floor
     r = ref.at(np.arange(n) * dt)
     lag = params.delay_samples + 1  # the delay line and the D/A's sample
     plan = P.ramp_plan(params, ref, lag * dt, lead_samples=lag)
-    np.testing.assert_allclose(plan.force_N, r, atol=1e-12, err_msg="with preview over the lead the plan is not the ramp")
+    np.testing.assert_allclose(plan.force_N, r, atol=1e-12,
+                               err_msg="with preview over the lead the plan is not the ramp")
     c = Controller(PIDGains(Kc=0.0, Ti_s=np.inf, u_min=-1e3, u_max=1e3), dt)  # the feedforward alone
     ff = (plan.force_N - params.bolt_preload_N) / gain
     late = simulate(rig, c, ref, ff_extra_V=ff, engine="numpy")
@@ -159,8 +161,10 @@ def test_preview_on_a_ramp_with_a_pure_delay_removes_it_and_without_it_the_floor
     kinks = 6
     scored = int(np.sum(np.arange(n) * dt >= ref.times_s[1] - 1e-12))
     closed = np.sqrt(kinks * slope**2 * d * (d + 1) * (2 * d + 1) / 6 / scored)
-    assert P.causal_floor(params, ref) == pytest.approx(closed, rel=1e-9), "the ramp's causal floor is not the kinks' lag"
-    assert P.preview_plan(params, ref, d * dt).rms_N == pytest.approx(0.0, abs=1e-12), "a preview of the delay leaves a floor"
+    assert P.causal_floor(params, ref) == pytest.approx(closed, rel=1e-9), (
+        "the ramp's causal floor is not the kinks' lag")
+    assert P.preview_plan(params, ref, d * dt).rms_N == pytest.approx(0.0, abs=1e-12), (
+        "a preview of the delay leaves a floor")
 
 
 # ---- the P-type law on linear plants -----------------------------------------------------------
@@ -366,7 +370,8 @@ def test_the_error_is_learned_at_full_bandwidth_only_around_the_plans_changes_an
     transient = np.where((k >= 800) & (k < 820), 8.0 * np.sin(np.pi * (k - 800) / 10.0), 0.0)  # 50 Hz, 8 sigma
     out = NO.learning_error(noise + transient, target, dt, noise_N=1.0)
     near = (k >= 501 - 50) & (k <= 549 + 100)  # the plan moves at samples 501..549 (50 before, 100 after: 0.05, 0.1 s)
-    np.testing.assert_array_equal(out[near], (noise + transient)[near], err_msg="the error around a change was filtered")
+    np.testing.assert_array_equal(out[near], (noise + transient)[near],
+                                  err_msg="the error around a change was filtered")
     hold = k < 400
     assert np.std(out[hold]) < 0.3 * np.std(noise[hold]), "the noise between the changes was not filtered out"
     seen = out[800:820] - NO.learning_error(noise, target, dt, noise_N=1.0)[800:820]
@@ -511,7 +516,8 @@ def test_a_schedules_passes_are_saved_as_one_typed_record_and_each_signal_is_fou
     assert back.trials_per_pass == [2, 2] and back.trials == 4 and back.last.method == "p-type"
     signal_for = L.learned_by_reference(back.signal_paths(tmp_path / "learn"), "a" * 64)
     for ref, result in zip(refs, passes):
-        np.testing.assert_array_equal(signal_for(ref), result.ff_extra_V, err_msg="not the signal learned on this reference")
+        np.testing.assert_array_equal(signal_for(ref), result.ff_extra_V,
+                                      err_msg="not the signal learned on this reference")
     with pytest.raises(InputError, match="no learned signal was learned on reference"):
         signal_for(TRAJECTORY)
     with pytest.raises(InputError, match="a{64}"):
@@ -550,7 +556,8 @@ def test_the_p_type_law_contracts_over_the_designed_plants_range(designed_loop):
     model = I.learning_model_over(plant.rig, c, levels)
     loops = [I.learning_model(plant.rig, c, v0_V=v) for v in levels]
     gains = [float(np.max(lp.g)) for lp in loops]
-    assert max(gains) > 1.3 * min(gains), f"the plant's force per volt should change with the level: peak responses {gains}"
+    assert max(gains) > 1.3 * min(gains), (
+        f"the plant's force per volt should change with the level: peak responses {gains}")
     worst = max(model.contraction(loop=lp) for lp in loops)
     assert model.range_contraction == pytest.approx(worst) and worst < 1.0, \
         f"the law does not contract at every level: {[model.contraction(loop=lp) for lp in loops]}"

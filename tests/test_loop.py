@@ -279,7 +279,8 @@ def test_controller_model_layouts_name_every_number():
     model = Controller(PIDGains(1.0, 0.1), 1e-3, _ff()).model
     assert isinstance(model, ControllerModel) and model.params.names[:8] == (
         "Kc", "Ti_s", "Td_s", "Tf_s", "b", "u_min_V", "u_max_V", "dt_s")
-    assert model.state.field_size("ff") == 4 and model.params.field_size("ff") == 2 + 5 * 4  # offset, bias; r, w, W, r', w'
+    # offset, bias; r, w, W, r', w'
+    assert model.state.field_size("ff") == 4 and model.params.field_size("ff") == 2 + 5 * 4
     loop = LoopModel(PlantModel.of(Plant()), model)
     assert loop.params.size == loop.plant.params.size + model.params.size
     fn = step_function(loop)

@@ -175,8 +175,8 @@ def test_gain_switch_is_bumpless_and_taken_at_a_cycle_boundary(study, tmp_path):
 
     old, new = _controller(), _controller(Kc=1.5, Ti_s=0.02)
     log = RunLog(tmp_path, "sw")
-    ex = Executor(old, SimBackend(study.plant), Reference.step(25.0, 60.0, 0.05, 1.0), Safety(), realtime=False, log=log,
-                  hold=True, loop="native")
+    ex = Executor(old, SimBackend(study.plant), Reference.step(25.0, 60.0, 0.05, 1.0), Safety(),
+                  realtime=False, log=log, hold=True, loop="native")
     th = threading.Thread(target=ex.run)
     th.start()
     _until(lambda: ex.latest[0] > 0.4, "t = 0.4 s")

@@ -170,7 +170,8 @@ def test_push_needs_a_password_from_the_environment(tmp_path, study, feedforward
     assert main(["rig", "push", str(gains), "--user", USER]) == 2
     assert "PIEZOPRELOAD_RIG_PASSWORD" in capsys.readouterr().err
     monkeypatch.setenv("PIEZOPRELOAD_RIG_PASSWORD", PASSWORD)
-    assert main(["rig", "push", str(gains), "--user", USER, "--endpoint", f"opc.tcp://127.0.0.1:{_free_port()}/x/"]) == 2
+    assert (main(["rig", "push", str(gains), "--user", USER, "--endpoint",
+                  f"opc.tcp://127.0.0.1:{_free_port()}/x/"]) == 2)
     assert "cannot reach" in capsys.readouterr().err
 
 

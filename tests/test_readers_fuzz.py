@@ -2,8 +2,8 @@
 
 Never a traceback of another kind, and nothing written by a refused run. The mutations start
 from a valid document (a gain set, a hysteresis model, a reference, a study file, a CSV record,
-a reference CSV, a load profile, a learned signal, a hysteresis-model file, a run log) and delete a field, replace one with any JSON value, or cut,
-duplicate or overwrite a stretch of the text.
+a reference CSV, a load profile, a learned signal, a hysteresis-model file, a run log) and delete a field, replace one
+with any JSON value, or cut, duplicate or overwrite a stretch of the text.
 """
 
 import json
@@ -308,7 +308,8 @@ def test_the_responses_record_round_trips_and_finds_its_runs(tmp_path):
     record = _responses_record()
     back = ResponsesRecord.load(record.save(tmp_path / "responses.json"))
     assert back == record
-    assert back.run("tuned", "ff+pid", "step").settling_s == 0.05 and back.run("study", "pid", "step").settling_s is None
+    assert (back.run("tuned", "ff+pid", "step").settling_s == 0.05
+            and back.run("study", "pid", "step").settling_s is None)
     with pytest.raises(ArtifactError, match="no run of tuned pid on the ramp"):
         back.run("tuned", "pid", "ramp")
     doc = record.to_dict()

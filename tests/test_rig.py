@@ -230,7 +230,8 @@ def test_run_logs_never_overwrite_and_refuse_candidates(gains_path, study, feedf
 def test_reference_from_csv(gains_path, tmp_path, capsys):
     ref = tmp_path / "ref.csv"
     ref.write_text("time_s,force_N\n0,25\n0.2,45\n0.6,45\n")
-    assert main(["rig", "run", str(gains_path), "--fast", "--reference", str(ref), "--log-dir", str(tmp_path), "--json"]) == 0
+    assert (main(["rig", "run", str(gains_path), "--fast", "--reference", str(ref), "--log-dir",
+                  str(tmp_path), "--json"]) == 0)
     r = json.loads(capsys.readouterr().out)
     log = read_run_log(r["log_csv"])
     control = log["mode"] == 0
@@ -280,7 +281,8 @@ def test_hardware_backends_are_entry_point_plugins(gains_path, tmp_path, monkeyp
     monkeypatch.syspath_prepend(str(tmp_path))
     backend = open_backend("quietrig", {"seed": "3"})
     assert backend.name == "quietrig" and backend.seed == 3
-    assert main(["rig", "run", str(gains_path), "--backend", "quietrig", "--fast", "--log-dir", str(tmp_path), "--json"]) == 0
+    assert (main(["rig", "run", str(gains_path), "--backend", "quietrig", "--fast", "--log-dir",
+                  str(tmp_path), "--json"]) == 0)
     r = json.loads(capsys.readouterr().out)
     assert r["backend"] == "quietrig" and r["status"] == "completed"
     assert main(["rig", "run", str(gains_path), "--backend", "brokenrig", "--fast"]) == 2
@@ -380,13 +382,15 @@ def test_compiled_feedforward_compensates_a_creeping_model(kind):
     sp = 45 + 15 * np.sin(2 * np.pi * 1.3 * t) * np.exp(-0.4 * t) + 10 * (t > 2)
     fast.start(sp[0], sp[0], 0.0)
     ff = np.array([fast.step(s, s)[4] for s in sp])
-    np.testing.assert_allclose(model(ff), sp, rtol=1e-9, atol=0, err_msg=f"{kind}+creep: model(compiled feedforward) != setpoint")
+    np.testing.assert_allclose(model(ff), sp, rtol=1e-9, atol=0,
+                               err_msg=f"{kind}+creep: model(compiled feedforward) != setpoint")
 
 
 # ---- the limits: the gain set's study's, the command line's, the plant's ------------------------------------------
-_STUDY_INTERLOCKS = RigInterlocks(130.0, 12.0, 0.3, None, {"force_max_N": "study.toml [rig_run] force_max_N",
-                                                           "force_low_margin_N": "study.toml [rig_run] force_low_margin_N",
-                                                           "ramp_s": "study.toml [rig_run] ramp_s"})
+_STUDY_INTERLOCKS = RigInterlocks(130.0, 12.0, 0.3, None,
+                                  {"force_max_N": "study.toml [rig_run] force_max_N",
+                                   "force_low_margin_N": "study.toml [rig_run] force_low_margin_N",
+                                   "ramp_s": "study.toml [rig_run] ramp_s"})
 
 
 def test_the_rig_takes_its_limits_from_the_gain_sets_study_and_the_command_line_overrides(study, feedforward, tmp_path,
@@ -406,7 +410,8 @@ def test_the_rig_takes_its_limits_from_the_gain_sets_study_and_the_command_line_
     assert main(["rig", "run", str(gains), "--fast", "--log-dir", str(tmp_path / "b"), "--inject", "offset@1=80",
                  "--force-max-N", "170", "--json"]) == 0
     r = json.loads(capsys.readouterr().out)
-    assert r["interlocks"]["force_max_N"] == 170.0 and r["interlock_sources"]["force_max_N"] == "the command line (--force-max-N)"
+    assert (r["interlocks"]["force_max_N"] == 170.0
+            and r["interlock_sources"]["force_max_N"] == "the command line (--force-max-N)")
     assert r["interlock_sources"]["ramp_s"] == "the gain set: study.toml [rig_run] ramp_s"
 
 
@@ -419,7 +424,8 @@ def test_a_gain_set_without_study_limits_gets_them_from_its_plant_not_the_paper_
     stiff = replace(study.plant, coupling_stiffness_N_per_um=60.0, adc_full_scale_N=5000.0)
     reach = float(reach_N(Rig(stiff), stiff.stack.v_max_V))
     GainSet(gains=replace(study.gains, Kc=0.05), status="validated", feedforward=None, plant=stiff, preset="stiff",
-                references={"step": Reference.step(25.0, 1500.0, 0.5, 1.5), "trajectory": study.references["trajectory"]},
+                references={"step": Reference.step(25.0, 1500.0, 0.5, 1.5),
+                            "trajectory": study.references["trajectory"]},
                 criteria=Criteria(band_N=study.band_N)).save(tmp_path / "stiff.json")
     r = run_rig(tmp_path / "stiff.json", realtime=False, log_dir=tmp_path).to_dict()
     assert r["interlocks"]["force_max_N"] == pytest.approx(1.25 * reach) and reach > 1500.0
@@ -453,8 +459,8 @@ def test_a_candidate_carries_its_studys_rig_run_limits_through_validation(study,
 def test_a_study_sets_a_stall_limit_only_below_the_plants(study, feedforward, tmp_path):
     """[rig_run] stall_limit_s (carried by the gain set) or --stall-limit-s may shorten the plant's limit, never
     lengthen it; the simulated watchdog's timeout shortens it too. The sidecar says which."""
-    carried = replace(_STUDY_INTERLOCKS, stall_limit_s=0.05, sources={**_STUDY_INTERLOCKS.sources,
-                                                                      "stall_limit_s": "study.toml [rig_run] stall_limit_s"})
+    carried = replace(_STUDY_INTERLOCKS, stall_limit_s=0.05,
+                      sources={**_STUDY_INTERLOCKS.sources, "stall_limit_s": "study.toml [rig_run] stall_limit_s"})
     gains = write_gain_set(tmp_path / "g.json", study, feedforward, rig_interlocks=carried)
     side = RigRunRecord.load(_run(gains, tmp_path / "a", [])["log_json"])
     assert side.safety["stall_limit_s"] == 0.05 and side.stall_limit.limit_s == 0.05
@@ -499,7 +505,7 @@ def test_the_stall_limit_is_the_held_forces_first_exit_from_the_margin(study, fe
     assert max(forces[1:n + 1]) <= ceiling < forces[n + 1], "the limit is not where the held force leaves the margin"
 
 
-# ---- the host check ---------------------------------------------------------------------------------------------------
+# ---- the host check --------------------------------------------------------------------------------------------------
 def test_the_host_checks_criteria_follow_the_budget_and_the_stall_limit():
     """The rate criterion: p99 lateness + p99 step within the period; the stall criterion: the latest wake-up + a
     period + the longest step below the stall limit. Closed-form cases either side of each bound."""

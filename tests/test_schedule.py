@@ -120,7 +120,8 @@ def test_a_ramp_through_the_entries_moves_the_output_as_the_closed_form_says():
     e = sp - y
     du = np.diff(u)
     want = np.diff(Kc) * (b * sp[1:] - y) + Kc[:-1] * b * np.diff(sp) + Kc[1:] / Ti[1:] * 0.5 * (e[1:] + e[:-1]) * dt
-    np.testing.assert_allclose(du, want, rtol=0, atol=1e-11, err_msg="the output's increments are not the closed form's")
+    np.testing.assert_allclose(du, want, rtol=0, atol=1e-11,
+                               err_msg="the output's increments are not the closed form's")
     ds = float(np.max(np.abs(np.diff(sp))))
     lv, kc = np.array(SCHEDULE.levels_N), np.array(SCHEDULE.Kc)
     slope = float(np.max(np.abs(np.diff(kc) / np.diff(lv))))
@@ -130,7 +131,8 @@ def test_a_ramp_through_the_entries_moves_the_output_as_the_closed_form_says():
 
 def test_a_ramp_through_entries_with_their_own_b_moves_the_output_as_the_closed_form_says():
     """With a b column the proportional action is Kc(s) (b(s) s - y), both interpolated in the setpoint s: the
-    increments are u_k - u_{k-1} = Kc_k (b_k s_k - y) - Kc_{k-1} (b_{k-1} s_{k-1} - y) + Kc_k / Ti_k (e_k + e_{k-1}) / 2 dt
+    increments are
+    u_k - u_{k-1} = Kc_k (b_k s_k - y) - Kc_{k-1} (b_{k-1} s_{k-1} - y) + Kc_k / Ti_k (e_k + e_{k-1}) / 2 dt
     (measurement held, so no derivative action; the integral state is the integral action)."""
     g = PIDGains(**{**BASE, "u_min": -1e4, "u_max": 1e4}, schedule=SCHEDULE_B)
     y, dt = 40.0, 1e-3
@@ -283,7 +285,7 @@ int main(void) {
            at(PP_SCHEDULE_B, r));
   return 0;
 }
-"""
+"""  # noqa: E501 (C source kept as written)
 
 
 def test_the_c_header_table_interpolates_as_the_step(tmp_path):
@@ -298,7 +300,8 @@ def test_the_c_header_table_interpolates_as_the_step(tmp_path):
                          capture_output=True, text=True, check=True)
     got = np.array(res.stdout.split(), float).reshape(-1, 4).T
     want = np.array([*SCHEDULE_B.at(x), SCHEDULE_B.b_at(x, BASE["b"])])
-    np.testing.assert_allclose(got, want, rtol=0, atol=1e-14, err_msg="the header's table does not give the step's gains")
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-14,
+                               err_msg="the header's table does not give the step's gains")
 
 
 _STEP_MAIN = """#include <stdio.h>

@@ -54,7 +54,8 @@ _SUFFIX_UNITS = {"_N_per_um": "N/um", "_V_per_N": "V/N", "_um_per_V": "um/V", "_
 def test_every_key_is_declared_once_with_a_doc_and_the_unit_its_name_spells():
     seen = 0
     for path, cls in _all_tables():
-        assert cls.__doc__ and f"[{path}]" in cls.__doc__.split(": ")[0], f"{cls.__name__}'s doc does not open with [{path}]"
+        assert cls.__doc__ and f"[{path}]" in cls.__doc__.split(": ")[0], (
+            f"{cls.__name__}'s doc does not open with [{path}]")
         for spec in cls.declared():
             seen += 1
             assert spec.key.doc.strip(), f"{path}.{spec.name} has no doc"
@@ -145,7 +146,8 @@ def test_a_copy_is_checked_as_a_file_is_and_names_the_key():
     study = pp.load_study(PAPER)
     for bad, match in (({"rig": {"bolt_preload_N": -1.0}}, r"\(replaced\): 'rig.bolt_preload_N' must be a number >= 0"),
                        ({"rig": {"stiffnes": 2.0}}, r"'rig.stiffnes' is an unknown key"),
-                       ({"ballscrew": {"ball_mm": [-3.0, 7.5]}}, r"'ballscrew.ball_mm' must be a list of 2 numbers > 0"),
+                       ({"ballscrew": {"ball_mm": [-3.0, 7.5]}},
+                        r"'ballscrew.ball_mm' must be a list of 2 numbers > 0"),
                        ({"validation": {"plants": 0}}, r"'validation.plants' must be an integer >= 1"),
                        ({"simulation": {"band_N": "wide"}}, r"'simulation.band_N' must be a number > 0, got 'wide'"),
                        ({"rigs": {}}, "'rigs' must be a table of the study")):
@@ -179,7 +181,8 @@ def test_the_key_table_is_rendered_from_the_declarations():
         "### `[axis]`\n\nAn example.\n\n"
         "| key | takes | default | unit | description |\n|---|---|---|---|---|\n"
         "| `mass_kg` | a number > 0 | `350` | kg | the table's mass |\n"
-        "| `travel_mm` | a list of 2 numbers >= 0, increasing | not set | mm | its travel (not set: the whole screw) |\n"
+        "| `travel_mm` | a list of 2 numbers >= 0, increasing | not set | mm | "
+        "its travel (not set: the whole screw) |\n"
         "| `mounting` | one of fixed-fixed, fixed-supported | `\"fixed-fixed\"` |  | the ends; a note |\n")
 
 
@@ -202,7 +205,8 @@ def test_the_docs_hold_the_generated_table_of_every_key():
 @pytest.mark.parametrize("name", DESIGNED_FIELDS)
 def test_a_rig_key_the_design_sets_is_refused_where_the_plant_is_the_design(tmp_path, capsys, name):
     text = AXIS.read_text()
-    value = '\n[rig.stack]\nname = "PI P-888.91"' if name == "stack" else f"\n{name} = {3 if name == 'n_stacks' else 0.5}"
+    value = ('\n[rig.stack]\nname = "PI P-888.91"' if name == "stack"
+             else f"\n{name} = {3 if name == 'n_stacks' else 0.5}")
     anchor = "delay_samples = 1"
     changed = text.replace(anchor, anchor + value, 1)
     path = tmp_path / "study.toml"
@@ -260,7 +264,8 @@ def test_plant_keys_of_a_designed_plant_are_refused_where_rig_is_the_plant(tmp_p
     assert not rig_plant.plant_from_design and rig_plant.plant.to_dict() == rig_plant.rig.params().to_dict()
     text = PAPER.read_text() + "\n[plant]\nfrom_design = true\n"
     path = tmp_path / "study.toml"
-    path.write_text(text.replace("[ballscrew]", "[ballscrews]").split("[ballscrews]")[0] + "\n[plant]\nfrom_design = true\n")
+    path.write_text(text.replace("[ballscrew]", "[ballscrews]").split("[ballscrews]")[0]
+                    + "\n[plant]\nfrom_design = true\n")
     with pytest.raises(pp.InputError, match=r"'plant.from_design' = true needs the design's tables"):
         pp.load_study(path)
 

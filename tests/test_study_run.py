@@ -239,7 +239,8 @@ def test_report_renders_again_from_the_artifacts_alone(small_run, tmp_path, caps
     (("[rig_run]", "[rig_run]\nspeed = 3"), r"small_study.toml:\d+: 'rig_run.speed' is an unknown key"),
     (("plants = 8", 'plants = "8"'), r":\d+: 'validation.plants' must be an integer >= 1 and <= 100000, got '8'"),
     (("plants = 8", "plants = 0"), r":\d+: 'validation.plants' must be an integer >= 1 and <= 100000, got 0"),
-    (('formats = ["json", "labview", "c-header"]', 'formats = ["pdf"]'), r":\d+: 'export.formats' must be a list of strings from json"),
+    (('formats = ["json", "labview", "c-header"]', 'formats = ["pdf"]'),
+     r":\d+: 'export.formats' must be a list of strings from json"),
     (('reference = "step"', 'reference = "ramp"'), r":\d+: 'rig_run.reference' must be step, trajectory, schedule or"),
     (("[rig_run]", "[tuning]\nms_max = 0.9\n\n[rig_run]"), r":\d+: 'tuning.ms_max' must be a number > 1, got 0.9"),
     (("n_operators = 20", 'n_operators = 20\ndata = "nowhere.csv"'),
@@ -317,13 +318,15 @@ def test_a_study_asking_for_creep_compensates_it_and_reports_what_it_buys(creep_
     model_doc = read_artifact(out / "feedforward" / "model.json", "hysteresis-model")
     assert model_doc["model"]["kind"] == "modified+creep"
     plain = model_doc["identification"]["without_creep"]
-    assert plain["model"]["kind"] == "modified" and plain["fit"]["rms_pct"] > model_doc["identification"]["fit"]["rms_pct"]
+    assert (plain["model"]["kind"] == "modified"
+            and plain["fit"]["rms_pct"] > model_doc["identification"]["fit"]["rms_pct"])
     gains = GainSet.load(out / "gains.json")
     assert gains.feedforward is not None and gains.feedforward.kind == "modified+creep"
     assert "PP_CREEP_TIME_CONSTANTS_S" in (out / "exports" / "pp_gains.h").read_text()
     responses = ResponsesRecord.load(out / "responses" / "responses.json")
     rows = {(r.gains, r.creep, r.reference): r for r in responses.creep_effect}
-    assert set(rows) == {(g, c, ref) for g in ("study", "tuned") for c in (False, True) for ref in ("step", "trajectory")}
+    assert (set(rows)
+            == {(g, c, ref) for g in ("study", "tuned") for c in (False, True) for ref in ("step", "trajectory")})
     runs = {(r.gains, r.reference): r for r in responses.runs if r.controller == "ff+pid"}
     for (g, ref), r in runs.items():  # with creep, the comparison is the compare stage's own FF + PID run
         for key in ("settling_s", "overshoot_N", "tracking_rms_N"):

@@ -71,7 +71,8 @@ def test_a_grid_takes_every_combination_and_a_zip_pairs_the_values():
     assert [tuple(v.values()) for v, _ in points] == [(1.5, 4), (1.5, 8), (1.5, 16), (1.7, 4), (1.7, 8), (1.7, 16)]
     for values, s in points:  # each point's study carries its values, the rest as the study had it
         assert (s.tuning.ms_max, s.validation.plants) == (values["tuning.ms_max"], values["validation.plants"])
-        assert s.rig.to_dict() == study.rig.to_dict() and s.validation.seed == study.validation.seed and s.name == study.name
+        assert (s.rig.to_dict() == study.rig.to_dict() and s.validation.seed == study.validation.seed
+                and s.name == study.name)
     _, zipped = plan_points(study, {"tuning.ms_max": [1.5, 1.7], "reference.step.final_N": [70.0, 80.0]}, "zip")
     assert [(s.tuning.ms_max, s.reference.step.final_N) for _, s in zipped] == [(1.5, 70.0), (1.7, 80.0)]
     with pytest.raises(InputError, match="as many values"):
@@ -174,7 +175,8 @@ def test_a_damaged_entry_is_computed_again_and_a_failure_stores_nothing(tmp_path
     cache.run("stage", KEY, tmp_path / "o1", _compute_into(tmp_path / "o1", log, "one"))
     outputs, _ = cache.run("stage", KEY, tmp_path / "o2", _compute_into(tmp_path / "o2", log, "two"))
     assert len(log.read_text().split()) == 1 and outputs["a"].read_text() == "one" and cache.reused == ["stage"]
-    (cache.folder(KEY) / "files" / "sub" / "a.txt").write_text("changed")  # the stored file no longer hashes as recorded
+    # the stored file no longer hashes as recorded
+    (cache.folder(KEY) / "files" / "sub" / "a.txt").write_text("changed")
     outputs, _ = cache.run("stage", KEY, tmp_path / "o3", _compute_into(tmp_path / "o3", log, "three"))
     assert len(log.read_text().split()) == 2 and outputs["a"].read_text() == "three"
     assert cache.entry(KEY) is not None and cache.entry(KEY).summary == {"n": 3, "x": [1.5]}
@@ -198,14 +200,16 @@ def _record() -> SweepRecord:
     for i, (ms, signal_) in enumerate([(1.5, "force_N"), (1.5, "measured_N"), (1.7, "force_N"), (1.7, "measured_N")]):
         failed = i == 3
         points.append(SweepPoint(i, {"tuning.ms_max": ms, "simulation.signal": signal_}, f"points/p{i:03d}",
-                                 "failed" if failed else "done", "stage 'validate' failed: too slow" if failed else None,
+                                 "failed" if failed else "done",
+                                 "stage 'validate' failed: too slow" if failed else None,
                                  "validate" if failed else None, 2 if failed else None, 1.0 + i, ("tune",), (),
                                  PointFigures(Kc_V_per_N=1.0 + i, worst_settling_s=0.1 * (i + 1),
                                               gain_set_status="candidate" if failed else "validated",
                                               requirements_met=None if i == 0 else i != 2,
                                               requirements_missed=[{"name": "rigidity while cutting", "value": 1.0}]
                                               if i == 2 else [])))
-    return SweepRecord("small", "tests/data/small_study.toml", "0" * 64, "grid", axes, tuple(points), "2026-01-01T00:00:00Z")
+    return SweepRecord("small", "tests/data/small_study.toml", "0" * 64, "grid", axes, tuple(points),
+                       "2026-01-01T00:00:00Z")
 
 
 def test_the_record_round_trips_and_names_a_bad_field(tmp_path):
@@ -481,7 +485,8 @@ def test_a_killed_sweep_resumes_where_it_stopped(tmp_path):
     deadline = time.monotonic() + 600  # a guard against a hang, not a bound on the time
     try:
         while time.monotonic() < deadline and proc.poll() is None:
-            if first.is_file() and read_artifact(first, "study-run")["stages"].get("report", {}).get("status") == "done":
+            if (first.is_file()
+                    and read_artifact(first, "study-run")["stages"].get("report", {}).get("status") == "done"):
                 break
             time.sleep(0.05)
     finally:

@@ -1,4 +1,5 @@
-"""The designed preload system as the plant: Hertz coupling, the plant from a design, references, the schedule's margin."""
+"""The designed preload system as the plant: Hertz coupling, the plant from a design, references,
+the schedule's margin."""
 
 from __future__ import annotations
 
@@ -51,7 +52,8 @@ def test_plant_force_per_volt_grows_with_the_preload(design):
                                                    adc_full_scale_N=20000.0), design_sha256="0" * 64)
     f, _ = Rig(plant.rig).quasi_static_loop(np.linspace(0.0, 100.0, 2001))
     slope = np.gradient(f, 0.05)
-    assert slope[200] < slope[-200], f"dF/dV at 10 V ({slope[200]:.1f}) should be below that at 90 V ({slope[-200]:.1f})"
+    assert slope[200] < slope[-200], (
+        f"dF/dV at 10 V ({slope[200]:.1f}) should be below that at 90 V ({slope[-200]:.1f})")
     # the data sheet's travel: the rising branch at 100 V gives the stack type's nominal 32 um
     x = float(plant.rig.stroke_for_force_um(f[-1]))
     assert x == pytest.approx(spec.actuator.stack.nominal_travel_um, rel=1e-6)
@@ -156,7 +158,8 @@ def test_the_pre_cycle_ramps_at_the_slew_limit_and_is_left_out_of_the_verdicts(a
     assert pre.level_N == pytest.approx(max(plant.stack_force_N(schedule.preload_N[0]), contact))
     assert pre.ramp_s == pytest.approx(pre.level_N / schedule.spec.slew_N_per_s, rel=1e-12)
     dt = plant.rig.sample_period_s
-    assert pre.duration_s == pytest.approx(round(pre.duration_s / dt) * dt, abs=1e-12), "the cycles start between samples"
+    assert pre.duration_s == pytest.approx(round(pre.duration_s / dt) * dt, abs=1e-12), (
+        "the cycles start between samples")
     assert pre.duration_s - PRE_CYCLE_REST_S - pre.ramp_s >= 0.3
     ref = schedule_reference(plant, schedule, cycles=1, contact_N=contact, pre_cycle=pre)
     t = np.arange(0.0, pre.duration_s, dt / 10)
@@ -243,7 +246,8 @@ def test_a_margin_holds_over_the_stretch_where_its_requirement_binds(axis):
     spans = [(float(t[a]), float(t[b - 1])) for a, b in stretches]
     assert len(spans) == 2, f"binding stretches at {spans}"
     for (lo, hi), (start, end) in zip(spans, ((1.5, 6.55), (8.0, 12.05))):
-        assert start < lo <= start + 0.011 and end - 0.04 <= hi < end, f"stretch {lo:.2f}..{hi:.2f} s, not {start}..{end}"
+        assert start < lo <= start + 0.011 and end - 0.04 <= hi < end, (
+            f"stretch {lo:.2f}..{hi:.2f} s, not {start}..{end}")
     binds = np.zeros(t.size, bool)
     for a, b in stretches:
         binds[a:b] = True
@@ -255,7 +259,8 @@ def test_a_margin_holds_over_the_stretch_where_its_requirement_binds(axis):
     folded[k + 2] = 7.0
     held = held_over_stretches(folded, stretches)
     a, b = stretches[0]
-    np.testing.assert_array_equal(held[a:b], 7.0, err_msg="the roughing's margin is not its largest shortfall throughout")
+    np.testing.assert_array_equal(held[a:b], 7.0,
+                                  err_msg="the roughing's margin is not its largest shortfall throughout")
     assert np.all(held[~binds] == 0.0) and np.all(held[stretches[1][0]:stretches[1][1]] == 0.0), \
         "a margin outside the stretch that fell short"
     # a sample outside every stretch keeps its own value
@@ -302,7 +307,8 @@ def test_a_lagging_loop_gets_local_margins_and_then_keeps_every_requirement(axis
     first, last = result.passes[0], result.passes[-1]
     assert not first.requirements_met, "the sluggish loop was meant to fall short on the design's own schedule"
     assert len(result.passes) >= 2 and last.preload_margin_N > 0, result.passes
-    assert min(last.rigidity_ratio_min, last.lift_off_ratio_min) > min(first.rigidity_ratio_min, first.lift_off_ratio_min)
+    assert (min(last.rigidity_ratio_min, last.lift_off_ratio_min)
+            > min(first.rigidity_ratio_min, first.lift_off_ratio_min))
     assert last.requirements_met and result.requirements_met and result.bounds == (), result.passes
     assert result.margin_N == last.preload_margin_N
     # local, not everywhere: outside the stretches where a requirement binds, only the samples near a shortfall
@@ -311,7 +317,8 @@ def test_a_lagging_loop_gets_local_margins_and_then_keeps_every_requirement(axis
     assert np.mean(m == 0.0) > 0.15, f"margins on {np.mean(m > 0):.0%} of the samples"
     for a, b in binding_stretches(schedule):
         assert np.ptp(m[a:b]) == 0.0, f"the margin steps inside the binding stretch {a}..{b}: {np.unique(m[a:b])}"
-    uniform = schedule.friction_energy_J + result.margin_N * schedule.constant_friction_energy_J / schedule.constant_preload_N
+    uniform = (schedule.friction_energy_J
+               + result.margin_N * schedule.constant_friction_energy_J / schedule.constant_preload_N)
     assert result.schedule.friction_energy_J - schedule.friction_energy_J < 0.2 * (uniform - schedule.friction_energy_J)
     record = result.record({"test": "x"})
     assert record.requirements_met and record.to_dict()["series"]["time_s"] and record.inputs == {"test": "x"}

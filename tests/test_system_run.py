@@ -87,7 +87,8 @@ def test_the_best_constant_preload_is_computed_once_and_read_from_the_design(axi
     row = next(r for r in section["tables"][0]["rows"] if r[0].startswith("friction energy per cycle, best constant"))
     from piezopreload.reports.document import fmt
 
-    assert row[1].startswith(fmt(s.constant_friction_energy_J)) and row[2].startswith(f"at {fmt(s.constant_preload_N)} N"), row
+    assert (row[1].startswith(fmt(s.constant_friction_energy_J))
+            and row[2].startswith(f"at {fmt(s.constant_preload_N)} N")), row
 
 
 def test_the_learn_stage_learns_on_each_pass_and_the_system_and_the_rig_play_it(axis_run):
@@ -100,13 +101,15 @@ def test_the_learn_stage_learns_on_each_pass_and_the_system_and_the_rig_play_it(
     assert learning["passes"] == len(system["passes"]), "a margin pass of the schedule was not learned"
     for record in learning["pass_records"]:
         signal = LearnedSignal.load(out / "learn" / record["signal"])
-        assert signal.gain_set_sha256 == gains["content_sha256"], "a learned signal is not tied to the exported gain set"
+        assert signal.gain_set_sha256 == gains["content_sha256"], (
+            "a learned signal is not tied to the exported gain set")
         history = [h["tracking_rms_N"] for h in record["history"]]
         # at most [learning] iterations = 3 trials after trial 0, fewer where more no longer paid
         assert len(history) == record["trials"] + 1 <= 4, f"pass {record['pass']}: {record['trials']} trials, {history}"
         assert record["tracking_rms_N"] < 0.5 * record["before_learning_rms_N"], f"pass {record['pass']}: {history}"
     learn = read_manifest(out)["stages"]["learn"]["summary"]
-    assert learn["trials"] == sum(learn["trials_per_pass"]) == learning["trials"], "the learn stage does not count trials"
+    assert learn["trials"] == sum(learn["trials_per_pass"]) == learning["trials"], (
+        "the learn stage does not count trials")
     # the system stage's last pass plays the last pass's signal on its reference: the learning's best iterate, scored
     # as the system scores it (from t = 0: the start, 0 N against the stacks' contact force, counts), but with the
     # run's own noise draw (the trials draw seed + k)
@@ -117,7 +120,8 @@ def test_the_learn_stage_learns_on_each_pass_and_the_system_and_the_rig_play_it(
     assert system["tracking_rms_N"] == pytest.approx(last["tracking_rms_from_start_N"], rel=0.15), \
         "the system stage's learned run is not the learning's best iterate"
     rig = read_manifest(out)["stages"]["rig"]
-    assert rig["summary"]["learned_tracking_rms_measured_N"] is not None, "the rig stage did not play the learned signal back"
+    assert rig["summary"]["learned_tracking_rms_measured_N"] is not None, (
+        "the rig stage did not play the learned signal back")
 
 
 def test_a_changed_design_rebuilds_the_plant_and_everything_after_it(axis_run, tmp_path):

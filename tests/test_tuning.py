@@ -225,7 +225,8 @@ def test_the_c_header_states_every_model_with_its_creep(tmp_path):
             import subprocess
 
             (tmp_path / "gains.h").write_text(header)
-            (tmp_path / "main.c").write_text('#include <stdio.h>\n#include "gains.h"\nint main(void){printf("%.17g\\n", '
+            (tmp_path / "main.c").write_text('#include <stdio.h>\n#include "gains.h"\n'
+                                             'int main(void){printf("%.17g\\n", '
                                              "PP_CREEP_WEIGHTS_N_PER_V[3]); return 0;}\n")
             subprocess.run([cc, "-Wall", "-Werror", "-Wno-unused-const-variable", "-o", str(tmp_path / "m"),
                             str(tmp_path / "main.c")], check=True)
@@ -348,7 +349,8 @@ def test_tune_validate_export_from_the_command_line(tmp_path, capsys):
     out = tmp_path / "gains.json"
     assert main(["tune", "--out", str(out), "--plants", "3", "--workers", "1", "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
-    for key in ("settling_s", "overshoot_N", "tracking_rms_N", "study_tracking_rms_N", "lower_bound_settling_s", "status"):
+    for key in ("settling_s", "overshoot_N", "tracking_rms_N", "study_tracking_rms_N",
+                "lower_bound_settling_s", "status"):
         assert key in s
     assert s["status"] == "validated" and s["settling_s"] <= 0.30 and s["overshoot_N"] <= 1.5
     assert s["lower_bound_settling_s"] < s["settling_s"]
@@ -360,7 +362,8 @@ def test_tune_validate_export_from_the_command_line(tmp_path, capsys):
     assert v["worst_overshoot_N"] <= 1.5
     # a stricter seed set written out as a new gain set keeps its hash valid and exports
     again = tmp_path / "again.json"
-    assert main(["validate", str(out), "--plants", "2", "--seed", "5", "--workers", "1", "--out", str(again), "--json"]) == 0
+    assert (main(["validate", str(out), "--plants", "2", "--seed", "5", "--workers", "1", "--out",
+                  str(again), "--json"]) == 0)
     capsys.readouterr()
     assert main(["export", str(again), "--format", "plc", "--json"]) == 0
     assert "Tn = " in json.loads(capsys.readouterr().out)["text"]
@@ -372,7 +375,8 @@ def test_tracking_floor_bounds_the_force_rate_and_every_controller():
     """The floor's rate is not beaten by a full-range bang on the rig, and no controller beats the floor."""
     params = Plant(noise_N=0.0, adc_bits=32)
     rig = Rig(params)
-    floor = bounds.tracking_floor(params, Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 0.5, t_start_s=0.1))
+    floor = bounds.tracking_floor(params,
+                                  Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 0.5, t_start_s=0.1))
     # bang up and down over the whole range, from rest and after reversals
     state, forces = rig.initial_state(), []
     for u in [110.0] * 200 + [0.0] * 200 + [110.0] * 200 + [40.0] * 100 + [110.0] * 200:

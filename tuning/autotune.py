@@ -98,7 +98,8 @@ def _spec(Ms: Any, Mt: Any, Mks: Any, metric: str, form: str, Ts: Any, horizon_s
         raise InputError(f"form must be one of {', '.join(FORMS)}, got {form!r}")
     order = (0 if form == "PI" else 1) if filter_order is None else filter_order
     if order not in (0, 1, 2) or (form == "PI") != (order == 0):
-        raise InputError(f"filter_order must be 1 or 2 for a PID (0 is the PI's), got {filter_order!r} with form {form!r}")
+        raise InputError("filter_order must be 1 or 2 for a PID (0 is the PI's), "
+                         f"got {filter_order!r} with form {form!r}")
     if metric == "IAE" and order == 2:
         raise InputError("metric='IAE' simulates the load step as the controller step runs it (a first-order filter "
                          "on the derivative); use filter_order=1")
@@ -208,7 +209,8 @@ def _refine(state: _State, plant: LinearPlant, sign: float, spec: _Spec, objecti
     bounded = {k: m for k, m in spec.bounds.items() if m is not None}
     for _ in range(_REFINEMENTS):
         ctrl = state.problem.scales.controller(state.best.x).scaled(sign)
-        peaks = sensitivity_peaks(plant, ctrl, check, tuple(bounded), {k: m * (1.0 + _REFINE_TO) for k, m in bounded.items()})
+        peaks = sensitivity_peaks(plant, ctrl, check, tuple(bounded),
+                                  {k: m * (1.0 + _REFINE_TO) for k, m in bounded.items()})
         over = [w * f for k, found in peaks.items() for v, w in found if v / bounded[k] > 1.0 + _REFINE_TO
                 for f in (0.995, 1.0, 1.005)]  # each peak and its neighbours: the peak moves as the gains do
         if not over:
@@ -238,10 +240,11 @@ def _infeasible(problem: PIDProblem, solutions: list[Solution], records: list[St
                               f"were found from {len(records)} starts; the closed loop the bounds allow is unstable")
     name, (ratio, w) = max(worst.items(), key=lambda kv: kv[1][0])
     what = {"Ms": "|S|", "Mt": "|T|", "Mks": "|KS|"}[name]
-    others = "; ".join(f"{k} <= {spec.bounds[k]:g} at {v[0] * spec.bounds[k]:.4g}" for k, v in worst.items() if k != name)
+    others = "; ".join(f"{k} <= {spec.bounds[k]:g} at {v[0] * spec.bounds[k]:.4g}"
+                       for k, v in worst.items() if k != name)
     raise InfeasibleError(f"{name} <= {spec.bounds[name]:g} cannot be met with a {spec.form} on this plant: the least "
-                          f"largest {what} any gains reach is {ratio * spec.bounds[name]:.4g} (over by {ratio - 1:.1%}, "
-                          f"at {w:.4g} rad/s)" + (f"; there, {others}" if others else "")
+                          f"largest {what} any gains reach is {ratio * spec.bounds[name]:.4g} "
+                          f"(over by {ratio - 1:.1%}, at {w:.4g} rad/s)" + (f"; there, {others}" if others else "")
                           + ". Relax that bound, or tune the other form")
 
 
@@ -260,9 +263,9 @@ def _starts(design: LinearPlant, omega: np.ndarray, spec: _Spec) -> tuple[float,
 
 
 def _scales(starts: list[tuple[str, PIDController]], plant: LinearPlant, omega: np.ndarray, spec: _Spec) -> Scales:
-    """The gains' scales from the coarse search's best start (``ki``; ``kp`` no less than ``ki`` over the reference frequency,
-    ``kd`` no less than ``kp`` over it) and the reference frequency (``Tf``): the search box spans three decades
-    above each."""
+    """The gains' scales from the coarse search's best start (``ki``; ``kp`` no less than ``ki`` over the
+    reference frequency, ``kd`` no less than ``kp`` over it) and the reference frequency (``Tf``): the search
+    box spans three decades above each."""
     wr = reference_frequency(plant, omega)
     c = next((c for name, c in starts if name.startswith("search")), starts[0][1])  # the search's best: stabilising
     ki = max(abs(c.ki), 1e-12)
@@ -410,7 +413,8 @@ def _active_bounds(x: np.ndarray, scales: Scales) -> tuple[ActiveBound, ...]:
         elif i < 3 and x[i] >= X_MAX * (1 - 1e-6):
             out.append(ActiveBound(gains[i], "upper", float(value), "the optimum may lie beyond the search range"))
         elif i == 0 and x[0] <= lo[0] * (1 + 1e-3):
-            out.append(ActiveBound("kp", "lower", float(value), "almost no proportional action: an integral controller"))
+            out.append(ActiveBound("kp", "lower", float(value),
+                                   "almost no proportional action: an integral controller"))
     return tuple(out)
 
 

@@ -1,4 +1,5 @@
-"""The autotuner's picture: the gang of four with the bounds, and the load step (a matplotlib Figure, no pyplot state)."""
+"""The autotuner's picture: the gang of four with the bounds, and the load step (a matplotlib
+Figure, no pyplot state)."""
 
 from __future__ import annotations
 

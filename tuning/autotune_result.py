@@ -213,8 +213,9 @@ class AutotuneResult:
 
     @property
     def gains(self) -> Any:
-        """The ideal/ISA gains ``Kc, Ti, Td, Tf`` the controller step runs (:class:`~piezopreload.models.controller.PIDGains`,
-        no output limit); a second-order filter has none (an :class:`InputError` says so)."""
+        """The ideal/ISA gains ``Kc, Ti, Td, Tf`` the controller step runs
+        (:class:`~piezopreload.models.controller.PIDGains`, no output limit); a second-order filter has none (an
+        :class:`InputError` says so)."""
         return self.controller_.isa()
 
     @property
@@ -248,10 +249,11 @@ class AutotuneResult:
         c = self.controller_
         kind = "PI" if c.filter_order == 0 or c.kd == 0 else f"PID (filter order {c.filter_order})"
         mg = self.margins
-        return (f"AutotuneResult({kind}{'' if c.dt is None else f' at Ts {c.dt:g} s'}: kp {self.kp:.4g}, ki {self.ki:.4g}, "
-                f"kd {self.kd:.4g}, Tf {self.Tf:.4g} s; "
+        return (f"AutotuneResult({kind}{'' if c.dt is None else f' at Ts {c.dt:g} s'}: "
+                f"kp {self.kp:.4g}, ki {self.ki:.4g}, kd {self.kd:.4g}, Tf {self.Tf:.4g} s; "
                 + (f"IE {self.ie:.4g}" if self.iae is None else f"IAE {self.iae:.4g} (IE {self.ie:.4g})")
-                + f"; {self._bound_text()}; GM {'inf' if mg.gain_margin is None else f'{mg.gain_margin:.4g}'}, PM {_fmt(mg.phase_margin_deg, ' deg', 3)}, "
+                + f"; {self._bound_text()}; GM {'inf' if mg.gain_margin is None else f'{mg.gain_margin:.4g}'}, "
+                f"PM {_fmt(mg.phase_margin_deg, ' deg', 3)}, "
                 f"delay margin {_fmt(mg.delay_margin_s, ' s')}; {'stable' if self.stable else 'UNSTABLE'}; "
                 f"{len(self.starts)} starts, {self.refinements} refinements, {self.seconds:.2f} s)")
 
@@ -327,8 +329,8 @@ class AutotuneResult:
             raise InputError("to_gain_set needs the controller's sample period (sample_period_s): the gain set runs "
                              "as a discrete controller")
         if self.Ts is not None and abs(Ts - self.Ts) > 1e-9 * self.Ts:
-            raise InputError(f"the controller was tuned discrete at Ts {self.Ts:g} s; its gain set runs at that period, "
-                             f"not at {Ts:g} s")
+            raise InputError(f"the controller was tuned discrete at Ts {self.Ts:g} s; "
+                             f"its gain set runs at that period, not at {Ts:g} s")
         gains = self.controller_.isa(u_min=float(u_min_V), u_max=float(u_max_V), b=float(b))
         check = self.discrete_check(Ts)
         sampled = {"method": "the autotuned loop at its sample period: the controller step behind a zero-order "

@@ -133,8 +133,9 @@ def minimum_time(
     1, 2, 2, 4, ... samples while feasible, then bisection), above a bound no command beats (the force
     does not move for ``delay + 1`` samples and then at most at the steepest slope times the slew, as
     :func:`tracking_floor` argues), each candidate one IPOPT solve of the same problem
-    (:class:`_MinimumTimeNLP`, the band set through its bounds) started from the last feasible solution. IPOPT finds local solutions: the result is the least settling time it finds a
-    command for. ``horizon_s`` (None: as long as the start needs) caps the settling time searched.
+    (:class:`_MinimumTimeNLP`, the band set through its bounds) started from the last feasible solution. IPOPT finds
+    local solutions: the result is the least settling time it finds a command for. ``horizon_s`` (None: as long as the
+    start needs) caps the settling time searched.
 
     Returns ``{"settling_s", "samples", "command_V", "hold_s", "seconds", "start_settling_s"}``.
     """

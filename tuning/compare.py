@@ -49,8 +49,8 @@ def compare_gains(rig: Plant, step: Reference, trajectory: Reference, candidates
 
 
 def tracking_improvement(table: Sequence[ComparisonRow]) -> dict[str, float | None]:
-    """The study's starting gains' tracking RMS over the tuned one (with feedforward), both ways of scoring it (None where the
-    tuned loop's is 0 or not a number: a reference with nothing to score after its changes)."""
+    """The study's starting gains' tracking RMS over the tuned one (with feedforward), both ways of scoring it (None
+    where the tuned loop's is 0 or not a number: a reference with nothing to score after its changes)."""
     row = {(r.gains, r.feedforward): r for r in table}
     tuned = row[("tuned", True)]
 
@@ -135,7 +135,8 @@ def reproduction_summary(rep: Reproduction, published: dict[str, dict[str, float
     """The paper's six step numbers beside a :class:`Reproduction`'s, each judged within 25 % of the paper's,
     with its range over the noise realisations (a time never reached is None and not within)."""
     rows = [{**r, "within_25pct": bool(abs(r["ratio"] - 1.0) <= 0.25),
-             "range": [finite_or_none(x) for x in rep.spread[r["controller"]][r["metric"]]]} for r in rep.table(published)]
+             "range": [finite_or_none(x) for x in rep.spread[r["controller"]][r["metric"]]]}
+            for r in rep.table(published)]
     for r in rows:
         if r["simulated"] != r["simulated"]:  # nan: never reached
             r.update(simulated=None, ratio=None, within_25pct=False)

@@ -154,7 +154,8 @@ class IdentifiedFeedforward:
         return self.record.file_sha256
 
     def inverse(self) -> Any:
-        """The feedforward itself: desired force -> command voltage, eqs. (19)-(20) (with creep: :class:`InverseStep`)."""
+        """The feedforward itself: desired force -> command voltage, eqs. (19)-(20) (with creep:
+        :class:`InverseStep`)."""
         return self.model.inverse()
 
     def covers(self, low_N: float, high_N: float, what: str = "the references") -> None:
@@ -166,7 +167,8 @@ class IdentifiedFeedforward:
         src = self.record.data
         if src.kind == "simulated" and src.excitation:
             ex = src.excitation
-            where = f"identified from a simulated {ex['v_max_V']:g} V, {ex['frequency_Hz']:g} Hz loop measurement of the rig"
+            where = (f"identified from a simulated {ex['v_max_V']:g} V, "
+                     f"{ex['frequency_Hz']:g} Hz loop measurement of the rig")
         else:
             where = f"identified from the measured loop {src.path}"
         return {"source": where, "model": self.model.kind, "operators": self.model.n_operators,
@@ -185,7 +187,8 @@ class IdentifiedFeedforward:
         return out
 
     def save(self, folder: str | Path, inputs: dict[str, Any] | None = None) -> dict[str, Path]:
-        """Write ``model.json`` (the hysteresis-model artifact), ``loop.csv`` and ``compensation.csv`` into ``folder``."""
+        """Write ``model.json`` (the hysteresis-model artifact), ``loop.csv`` and
+        ``compensation.csv`` into ``folder``."""
         if self.loop is None or self.check is None:
             raise InputError("this feedforward was read from its artifact: there is no loop record to write again")
         d = Path(folder)

@@ -281,7 +281,8 @@ def identify(record: Record, *, model: str = "classical", operators: int = 40, t
     if model.endswith(CREEP_SUFFIX):
         model, creep = model.removesuffix(CREEP_SUFFIX), True
     if creep_time_constants_s is not None and not creep:
-        raise InputError("creep time constants were given without creep: add --creep (or a model name ending in +creep)")
+        raise InputError("creep time constants were given without creep: "
+                         "add --creep (or a model name ending in +creep)")
     train, rows, test, test_rows = _windows(record, train, test)
     span = _check_record(record, rows, train)
     dt = _sample_period(record) if creep else None

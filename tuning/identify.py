@@ -304,7 +304,8 @@ class PIIdentifier:
         if isinstance(self.creep_time_constants_s, str):
             if self.creep_time_constants_s != "log":
                 raise InputError(
-                    f"creep_time_constants_s must be 'log' or an array of time constants in s, got {self.creep_time_constants_s!r}."
+                    "creep_time_constants_s must be 'log' or an array of time constants in s, "
+                    f"got {self.creep_time_constants_s!r}."
                 )
         else:
             Creep(self.creep_time_constants_s, np.zeros(np.size(self.creep_time_constants_s)), 1.0)  # validates
@@ -442,7 +443,8 @@ class PIIdentifier:
         return 1.0 - float(np.sum(e**2)) / total
 
     def inverse(self) -> Any:
-        """The fitted model's inverse: the feedforward (output -> input, eqs. (19)-(20); with creep, one sample at a time)."""
+        """The fitted model's inverse: the feedforward (output -> input, eqs. (19)-(20); with creep,
+        one sample at a time)."""
         return self._check_fitted().inverse()
 
 

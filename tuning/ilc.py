@@ -185,7 +185,8 @@ class LearningModel:
         """``G(e^{j w dt})`` (rad/s) from the state space; ``learning=True``: ``G F``."""
         z = np.exp(1j * np.asarray(omega, float) * self.dt_s)
         n = self.A.shape[0]
-        resolvent = np.linalg.solve(z[:, None, None] * np.eye(n) - self.A, np.broadcast_to(self.B, (z.size,) + self.B.shape))
+        resolvent = np.linalg.solve(z[:, None, None] * np.eye(n) - self.A,
+                                    np.broadcast_to(self.B, (z.size,) + self.B.shape))
         out = (self.C @ resolvent)[:, 0, 0]
         if learning:
             zi = 1.0 / z
@@ -208,7 +209,8 @@ class LearningModel:
         ``F``) on another loop's ``G`` (the same loop linearised elsewhere, say)."""
         omega = np.linspace(0.0, np.pi / self.dt_s, n_freq + 1)[1:]
         lead = np.exp(1j * omega * self.delta * self.dt_s)
-        G = (self if loop is None else replace(self, A=loop.A, B=loop.B, C=loop.C)).frequency_response(omega, learning=True)
+        G = (self if loop is None
+             else replace(self, A=loop.A, B=loop.B, C=loop.C)).frequency_response(omega, learning=True)
         return float(np.max(self.q_response(omega) * np.abs(1.0 - self.gamma * lead * G)))
 
     def update(self, u: Array, e: Array, command_V: Array | None = None, voltage_V: Array | None = None) -> Array:

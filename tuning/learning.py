@@ -159,7 +159,8 @@ class LearningResult:
         """The worst plant's first trial within 1.1 times its best error (true force, whole trajectory)."""
         return int(np.max(within_1p1(self._rows("tracking_rms_N"))))
 
-    def signal(self, gain_set_sha256: str | None, inputs: dict[str, Any] | None = None, plant: int = 0) -> LearnedSignal:
+    def signal(self, gain_set_sha256: str | None, inputs: dict[str, Any] | None = None,
+               plant: int = 0) -> LearnedSignal:
         """The learned signal as an artifact (of plant ``plant`` for a batch)."""
         u = self.ff_extra_V if self.ff_extra_V.ndim == 1 else self.ff_extra_V[plant]
         best = int(np.asarray(self.best).reshape(-1)[plant])
@@ -167,8 +168,10 @@ class LearningResult:
                              gain_set_sha256, best, self.preview_s, self.method, [h.to_dict() for h in self.history],
                              dict(inputs or {}))
 
-    def save(self, folder: str | Path, gain_set_sha256: str | None, inputs: dict[str, Any] | None = None) -> dict[str, Any]:
-        """Write the learned signal (``learned.json``, :meth:`signal`) and the figure (``learning.png``) to ``folder``."""
+    def save(self, folder: str | Path, gain_set_sha256: str | None,
+             inputs: dict[str, Any] | None = None) -> dict[str, Any]:
+        """Write the learned signal (``learned.json``, :meth:`signal`) and the figure
+        (``learning.png``) to ``folder``."""
         folder = Path(folder)
         saved = self.signal(gain_set_sha256, inputs).save(folder / "learned.json")
         self.plot().savefig(folder / "learning.png", dpi=120)
@@ -204,7 +207,8 @@ class LearningResult:
         fig = Figure(figsize=(9.0, 3.6), layout="constrained")
         a, b = fig.subplots(1, 2)
         it = [h.iteration for h in self.history]
-        for key, label in (("tracking_rms_N", "whole trajectory"), ("tracking_rms_after_change_N", "outside 0.1 s after jumps")):
+        for key, label in (("tracking_rms_N", "whole trajectory"),
+                           ("tracking_rms_after_change_N", "outside 0.1 s after jumps")):
             a.semilogy(it, [float(np.max(np.atleast_1d(getattr(h, key)))) for h in self.history], "o-", label=label)
         a.axhline(self.preview_floor_N, color="0.4", ls="--", label="preview floor")
         a.axhline(self.causal_floor_N, color="0.7", ls=":", label="causal floor")
@@ -327,17 +331,19 @@ class _Trials:
         return out
 
 
-def _noise_floor(rig: Rig, controller: Controller, setpoint: Reference, u: Array, seed: int, first: ClosedLoopRun) -> Array:
+def _noise_floor(rig: Rig, controller: Controller, setpoint: Reference, u: Array, seed: int,
+                 first: ClosedLoopRun) -> Array:
     """Per plant: the RMS difference of the true force between two runs of the same signal under other sensor noise.
     By the triangle inequality the two runs' RMS errors may differ by that much with no learning at all."""
     again = simulate(rig, controller, setpoint, seed=seed + 7919, ff_extra_V=np.moveaxis(u, -1, 0))
     return np.sqrt(np.mean((again.force_N - first.force_N) ** 2, axis=-1))
 
 
-def learn(controller: Controller, rig: Rig, reference: Reference, *, iterations: int = 10, preview_s: float | None = None,
-          method: str = METHODS[0], plants: int | None = None, seed: int = 0, spread: dict[str, float] | None = None,
-          law: Law | None = None, grow_tol: float = 0.05, stop_gain: float | None = STOP_GAIN,
-          after_change_weight: float = 0.0, slew_fraction: float = PLAN_SLEW_FRACTION, initial_V: Array | None = None,
+def learn(controller: Controller, rig: Rig, reference: Reference, *, iterations: int = 10,
+          preview_s: float | None = None, method: str = METHODS[0], plants: int | None = None, seed: int = 0,
+          spread: dict[str, float] | None = None, law: Law | None = None, grow_tol: float = 0.05,
+          stop_gain: float | None = STOP_GAIN, after_change_weight: float = 0.0,
+          slew_fraction: float = PLAN_SLEW_FRACTION, initial_V: Array | None = None,
           progress: Callable[[str], None] | None = None) -> LearningResult:
     """Learn a feedforward correction for ``controller`` on ``rig`` over ``reference``, with preview.
 
@@ -477,7 +483,8 @@ def _merge_runs(old: ClosedLoopRun, new: ClosedLoopRun, take: Array) -> ClosedLo
 # --------------------------------------------------------------------------------------
 # one update from a rig run
 # --------------------------------------------------------------------------------------
-def learn_from_log(signal: LearnedSignal, log: dict[str, Array], gain_set: GainSet, shown: str = "the learned signal") -> LearnedSignal:
+def learn_from_log(signal: LearnedSignal, log: dict[str, Array], gain_set: GainSet,
+                   shown: str = "the learned signal") -> LearnedSignal:
     """:func:`learn_from_run` from a rig run log's columns (the controlled samples) of ``signal`` played with
     ``gain_set`` (whose plant and controller give the law); a signal of another gain set is refused."""
     signal.check(gain_set.content_sha256, None, shown)
@@ -549,9 +556,11 @@ def _pass_record(k: int, result: LearningResult, signal: str) -> PassRecord:
     before = float(result.info.get("before_learning_rms_N", np.max(result.history[0].tracking_rms_N)))
     return PassRecord(k, signal, reference_sha256(result.reference), before, 100.0 * before / span,
                       d["tracking_rms_N"], d["tracking_rms_pct_of_range"], d["trials"], d["trials_to_within_1p1"],
-                      result.stop_reason[0] if len(result.stop_reason) == 1 else "; ".join(sorted(set(result.stop_reason))),
-                      d["converged"], d["best_iteration"], d["causal_floor_N"], d["preview_floor_N"], d["noise_floor_N"],
-                      d["preview_s"], d["method"], bool(result.info.get("warm_start", False)), d["learning"],
+                      result.stop_reason[0] if len(result.stop_reason) == 1
+                      else "; ".join(sorted(set(result.stop_reason))),
+                      d["converged"], d["best_iteration"], d["causal_floor_N"],
+                      d["preview_floor_N"], d["noise_floor_N"], d["preview_s"], d["method"],
+                      bool(result.info.get("warm_start", False)), d["learning"],
                       [TrialRecord.from_dict(h) for h in d["history"]], d["tracking_rms_from_start_N"])
 
 

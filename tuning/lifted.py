@@ -181,7 +181,8 @@ def lifted_loop(params: Plant, controller: Controller, target_N: Array, *, level
     Fx = np.zeros(m)
     Fx[-1] = 1.0
     return LiftedLoop(A, B, C, Cu, Du, Cv, first(A) @ e0 + first(B), float(first(C) @ e0),
-                      float(first(Cu) @ e0 + first(Du)), float(first(Cv) @ e0), Fx, f0, level.astype(int), frac, forces, float(controller.dt_s))
+                      float(first(Cu) @ e0 + first(Du)), float(first(Cv) @ e0), Fx, f0, level.astype(int), frac, forces,
+                      float(controller.dt_s))
 
 
 # --------------------------------------------------------------------------------------

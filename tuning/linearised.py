@@ -1,4 +1,5 @@
-"""The rig's compensated loop, linearised: the plant's small-signal frequency response and the loop's maximum sensitivity.
+"""The rig's compensated loop, linearised: the plant's small-signal frequency response and the
+loop's maximum sensitivity.
 
 The feedforward cancels the hysteresis to first order, so what the PID sees around an operating
 point is the rig's small-signal response from command to measured force: the amplifier's

@@ -252,7 +252,8 @@ class LinearPlant:
         """The eigenvalues of the loop's state matrix (plant and controller in state space, negative feedback):
         better conditioned than the roots of the characteristic polynomial for long delay lines."""
         dt = 0 if self.dt is None else self.dt
-        A, B, C, D = self.ss if self.ss is not None else _matrices(control.tf2ss(self.num, self.den, dt))  # type: ignore[misc]
+        A, B, C, D = (self.ss if self.ss is not None  # type: ignore[misc]
+                      else _matrices(control.tf2ss(self.num, self.den, dt)))
         Ac, Bc, Cc, Dc = _matrices(control.tf2ss(c_num, c_den, dt))
         # u = Cc xc + Dc e, e = -y, y = C x + D u: y = (C x + D Cc xc) / (1 + D Dc)
         k = 1.0 / (1.0 + float(D[0, 0]) * float(Dc[0, 0]))
@@ -294,7 +295,8 @@ class LinearPlant:
 
 
 def _matrices(sys: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    return tuple(np.atleast_2d(np.asarray(m, float)) for m in (sys.A, sys.B, sys.C, sys.D))  # type: ignore[return-value]
+    return tuple(np.atleast_2d(np.asarray(m, float))  # type: ignore[return-value]
+                 for m in (sys.A, sys.B, sys.C, sys.D))
 
 
 def _trim(c: Any) -> np.ndarray:

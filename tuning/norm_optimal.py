@@ -313,7 +313,8 @@ def constrained_step(gains: RiccatiGains, e: Array, limits: Limits, *, exact: bo
             # on to the next window's start (its state), after the last to the end
             _rollout(gains, bs, e[0], fixed, t0, r, windows[i + 1][0] + 1 if i + 1 < len(windows) else None)
     if limits.broken(r.step, tol=1e-4).any():
-        raise InternalError(f"the constrained norm-optimal step still breaks the limits after {rounds} rounds of windows")
+        raise InternalError("the constrained norm-optimal step still breaks the limits after "
+                            f"{rounds} rounds of windows")
     return r.step
 
 

@@ -158,9 +158,11 @@ class TuningSpec:
             raise ValueError(f"TuningSpec.filter_s must be finite and >= 0, got {self.filter_s!r}.")
         if not 0.0 <= self.setpoint_weight <= 1.0:
             raise ValueError(f"TuningSpec.setpoint_weight must be in [0, 1], got {self.setpoint_weight!r}.")
-        if self.force_range_N is not None and not (len(self.force_range_N) == 2 and np.all(np.isfinite(self.force_range_N))
+        if self.force_range_N is not None and not (len(self.force_range_N) == 2
+                                                   and np.all(np.isfinite(self.force_range_N))
                                                    and self.force_range_N[0] <= self.force_range_N[1]):
-            raise ValueError(f"TuningSpec.force_range_N must be (low, high) with low <= high, got {self.force_range_N!r}.")
+            raise ValueError("TuningSpec.force_range_N must be (low, high) with low <= high, "
+                             f"got {self.force_range_N!r}.")
 
 
 def scaled_references(step_N: Any = None, trajectory_N: Any = None) -> dict[str, Reference]:
@@ -174,7 +176,8 @@ def scaled_references(step_N: Any = None, trajectory_N: Any = None) -> dict[str,
         out["step"] = Reference.step(float(step_N[0]), float(step_N[1]), 0.02, 0.6)
     if trajectory_N is not None:
         if len(trajectory_N) < 2:
-            raise ValueError(f"tuning.trajectory_N must be the rest level and at least one level, got {list(trajectory_N)!r}")
+            raise ValueError("tuning.trajectory_N must be the rest level and at least one level, "
+                             f"got {list(trajectory_N)!r}")
         out["trajectory"] = Reference.staircase(float(trajectory_N[0]), [float(x) for x in trajectory_N[1:]], 0.4,
                                                 t_start_s=0.02)
     return out
@@ -367,7 +370,8 @@ class _Problem:
 
 
 def _variable_names(spec: TuningSpec) -> list[str]:
-    """The decision variables: Kc and Ti; Td where a derivative filter is (tuned, or held above 0); Tf where tuned; b."""
+    """The decision variables: Kc and Ti; Td where a derivative filter is (tuned, or held above
+    0); Tf where tuned; b."""
     derivative = spec.filter_s is None or spec.filter_s > 0
     return (["Kc", "Ti"] + (["Td"] if derivative else []) + (["Tf"] if spec.filter_s is None else [])
             + (["b"] if spec.tune_setpoint_weight else []))
@@ -474,7 +478,8 @@ class _Solvers:
         if progress is not None:
             counters = [_IterationCounter(prob.x.numel(), prob.g.numel(), progress) for _ in range(2)]
         self.counters = counters
-        self.solver = ca.nlpsol("tune", "ipopt", nlp, {**options, **({"iteration_callback": counters[0]} if counters else {})})
+        self.solver = ca.nlpsol("tune", "ipopt", nlp,
+                                {**options, **({"iteration_callback": counters[0]} if counters else {})})
         self.phase_one = ca.nlpsol("tune_phase_one", "ipopt", nlp, {
             **options, "ipopt.tol": 1e-8, **({"iteration_callback": counters[1]} if counters else {})})
         self.evaluate = ca.Function("evaluate", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]])
@@ -547,7 +552,8 @@ def _active_bounds(on_bounds: list[tuple[str, str, float]], made_pi: bool, retun
     for name, side, bound in on_bounds:
         if made_pi and name in ("Td", "Tf"):
             continue
-        note = ("the derivative is at its least; without it no PI meets the specification" if (name, side) == ("Td", "lower")
+        note = ("the derivative is at its least; without it no PI meets the specification"
+                if (name, side) == ("Td", "lower")
                 else "the optimum may lie beyond the search range")
         out.append(ActiveBound(_FIELDS[name], side, bound, note))
     if made_pi:

@@ -1,4 +1,5 @@
-"""The autotuner's controller: a PID in parallel form with its filter, in continuous time or as the controller step runs it.
+"""The autotuner's controller: a PID in parallel form with its filter, in continuous time or as
+the controller step runs it.
 
 :class:`PIDController` holds ``kp, ki, kd, Tf`` of one of three forms (``filter_order``):
 

@@ -199,14 +199,16 @@ def preview_plan(params: Plant, reference: Reference, preview_s: float, *, u_max
             s0 = int(k) + s
             if s0 < prev_end:
                 continue
-            m = np.arange(max(min(s0, int(k)), 0), min(s0 + n_ramp + 1, n))  # from the jump when the ramp starts after it
+            # from the jump when the ramp starts after it
+            m = np.arange(max(min(s0, int(k)), 0), min(s0 + n_ramp + 1, n))
             sq = (r[m] - _ramp(m, s0, old, new, rho, path)) ** 2
             err = float(np.sum(sq) + after_change_weight * np.sum(sq[(m < k) | (m >= k + after)]))
             if best is None or err < best[0]:
                 best = (err, s)
         if best is None:
-            raise InputError(f"the reference's change at {reference.times_s[j + 1]:g} s comes before the previous one's "
-                             "ramp can end; hold each level longer than the slew time and the preview")
+            raise InputError(f"the reference's change at {reference.times_s[j + 1]:g} s comes "
+                             "before the previous one's ramp can end; hold each level longer than the "
+                             "slew time and the preview")
         s0 = int(k) + best[1]
         m = np.arange(max(s0, 0), n)  # to the end: the next jump's ramp overwrites from its start
         force[m] = _ramp(m, s0, old, new, rho, path)
@@ -324,15 +326,16 @@ class Preview:
                          ref.duration_s)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"preview_s": self.preview_s, "plan_rms_N": self.plan.rms_N, "feedforward_lead_samples": self.lead_samples,
-                "preview_floor_N": self.floor_N, "preview_floor_branch_N": self.branch_floor_N,
-                "causal_floor_N": self.causal_floor_N, "plan_slew_fraction": self.slew_fraction,
-                "after_change_weight": self.after_change_weight}
+        return {"preview_s": self.preview_s, "plan_rms_N": self.plan.rms_N,
+                "feedforward_lead_samples": self.lead_samples, "preview_floor_N": self.floor_N,
+                "preview_floor_branch_N": self.branch_floor_N, "causal_floor_N": self.causal_floor_N,
+                "plan_slew_fraction": self.slew_fraction, "after_change_weight": self.after_change_weight}
 
 
 def plan_preview(params: Plant, controller: Controller, reference: Reference, preview_s: float | None = None, *,
                  after_change_weight: float = 0.0, slew_fraction: float = PLAN_SLEW_FRACTION) -> Preview:
-    """The plan, the setpoint, the previewed feedforward and the floors of ``controller`` on ``params`` over ``reference``.
+    """The plan, the setpoint, the previewed feedforward and the floors of ``controller`` on
+    ``params`` over ``reference``.
 
     ``preview_s`` None takes :func:`default_preview_s`, 0 none (the setpoint is then the reference and
     the feedforward gets no lead). ``after_change_weight`` places each planned change
@@ -346,7 +349,8 @@ def plan_preview(params: Plant, controller: Controller, reference: Reference, pr
     floor = preview_plan(params, reference, preview, u_max_V=u_max)
     lead = feedforward_lead(params) if preview > 0 else 0
     held = reference.interpolation == "hold"  # a ramped reference has no jumps to slew across
-    branch = preview_plan(params, reference, preview, u_max_V=u_max, ramps=branch_ramps(params, reference.levels_N, u_max)
+    branch = preview_plan(params, reference, preview, u_max_V=u_max,
+                          ramps=branch_ramps(params, reference.levels_N, u_max)
                           ) if held else floor
     plan = preview_plan(params, reference, preview, u_max_V=u_max, lead_samples=max(lead, params.delay_samples),
                         ramps=branch_ramps(params, reference.levels_N, u_max, slew_fraction) if held else None,

@@ -59,8 +59,8 @@ from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, tune_pid
 from piezopreload.tuning.validate import executor, validate
 
-__all__ = ["ScheduleResult", "tune_schedule", "level_requirements", "schedule_levels", "level_windows", "choose", "CHOICES",
-           "setpoint_action_rises", "rising_setpoint_weights"]
+__all__ = ["ScheduleResult", "tune_schedule", "level_requirements", "schedule_levels", "level_windows",
+           "choose", "CHOICES", "setpoint_action_rises", "rising_setpoint_weights"]
 
 #: what :func:`tune_schedule` may choose
 CHOICES = ("robust", "schedule")
@@ -263,7 +263,8 @@ def rising_setpoint_weights(levels_N: Any, Kc: Any, b: Any) -> tuple[float, ...]
     return tuple(out)
 
 
-def _rising(levels_N: np.ndarray, tuned: list[tuple[PIDGains, dict[str, Any]]]) -> list[tuple[PIDGains, dict[str, Any]]]:
+def _rising(levels_N: np.ndarray,
+            tuned: list[tuple[PIDGains, dict[str, Any]]]) -> list[tuple[PIDGains, dict[str, Any]]]:
     """The tuned entries with their setpoint weights raised where the setpoint action would fall between entries
     (:func:`rising_setpoint_weights`); a raised entry's record says from what to what."""
     entries = [g for g, _ in tuned]
@@ -358,18 +359,19 @@ def tune_schedule(
         robust_futures = [pool.submit(_judge, j) for j in judging(robust)]  # needs nothing the tuning gives
         tuned = _rising(lv, [f.result() for f in tuning_futures])
         say("validating the schedule at each level and over the whole range ...")
-        scheduled_figures = [f.result() for f in [pool.submit(_judge, j) for j in
-                                                  judging(replace(robust, schedule=_schedule_of(lv, [g for g, _ in tuned])))]]
+        scheduled_set = replace(robust, schedule=_schedule_of(lv, [g for g, _ in tuned]))
+        scheduled_figures = [f.result() for f in [pool.submit(_judge, j) for j in judging(scheduled_set)]]
         again = {i: m for i, (fig, sp) in enumerate(zip(scheduled_figures, plan.specs))
                  if (m := _tighter(sp, fig, criteria)) is not None and m < sp.band_N}
         if again:
             say(f"tuning again the entries at {', '.join(f'{lv[i]:g}' for i in again)} N with their overshoot margin "
                 "widened by the Monte Carlo excess, and validating the schedule again ...")
-            retuned = {i: pool.submit(_tune_entry, (params, inverse, replace(plan.specs[i], overshoot_margin_N=m), robust))
+            retuned = {i: pool.submit(_tune_entry,
+                                      (params, inverse, replace(plan.specs[i], overshoot_margin_N=m), robust))
                        for i, m in again.items()}
             tuned = _rising(lv, [retuned[i].result() if i in retuned else t for i, t in enumerate(tuned)])
-            scheduled_figures = [f.result() for f in [pool.submit(_judge, j) for j in
-                                                      judging(replace(robust, schedule=_schedule_of(lv, [g for g, _ in tuned])))]]
+            scheduled_set = replace(robust, schedule=_schedule_of(lv, [g for g, _ in tuned]))
+            scheduled_figures = [f.result() for f in [pool.submit(_judge, j) for j in judging(scheduled_set)]]
         robust_figures = [f.result() for f in robust_futures]
     schedule = _schedule_of(lv, [g for g, _ in tuned])
     levels = []

@@ -49,7 +49,8 @@ class TuningTable(Table):
         if not self.overshoot_margin_N < band_N:
             raise Invalid("overshoot_margin_N", f"must be below [simulation] band_N ({band_N:g} N), got "
                                                 f"{self.overshoot_margin_N:g}")
-        return TuningSpec(band_N=band_N, u_min_V=u_min_V, u_max_V=u_max_V, **scaled_references(self.step_N, self.trajectory_N),
+        return TuningSpec(band_N=band_N, u_min_V=u_min_V, u_max_V=u_max_V,
+                          **scaled_references(self.step_N, self.trajectory_N),
                           **{k: x for k, x in asdict(self).items()
                              if k not in ("step_N", "trajectory_N", "schedule_levels", "schedule_plants")})
 

@@ -95,8 +95,8 @@ def creep_lags(
 
     ``state`` holds the carries before the first sample (shape ``(..., m)``; 0, at rest at
     0 V, by default). The carry remembers the last input too: from rest at 0 V the first
-    sample's input is taken as reached linearly from 0 over one sample period. The recursion ``z_k = s_{k-1} + b0 v_k``, ``s_k = a z_k + b1 v_k`` is an
-    IIR filter with numerator ``(b0, b1)`` and denominator ``(1, -a)`` whose transposed
+    sample's input is taken as reached linearly from 0 over one sample period. The recursion ``z_k = s_{k-1} + b0 v_k``,
+    ``s_k = a z_k + b1 v_k`` is an IIR filter with numerator ``(b0, b1)`` and denominator ``(1, -a)`` whose transposed
     direct-form state is the carry, so :func:`scipy.signal.lfilter` runs it.
     """
     from scipy.signal import lfilter
@@ -153,7 +153,8 @@ class Creep:
             raise InputError(f"creep weights must have {tau.size} entries like time_constants_s, got {c.size}.")
         dt = float(self.sample_period_s)
         if not (np.isfinite(dt) and dt > 0):
-            raise InputError(f"creep sample_period_s must be a positive number of seconds, got {self.sample_period_s!r}.")
+            raise InputError("creep sample_period_s must be a positive number of seconds, "
+                             f"got {self.sample_period_s!r}.")
         object.__setattr__(self, "time_constants_s", tau)
         object.__setattr__(self, "weights", c)
         object.__setattr__(self, "sample_period_s", dt)
@@ -329,7 +330,8 @@ class CreepPI:
     def step(self, state: ArrayLike, v: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """One sample of the classical or modified model: ``(output, new_state)``."""
         if isinstance(self.hysteresis, AsymmetricPI):
-            raise InputError("step needs the classical or the modified model; run the asymmetric one with run(v, state, v_prev).")
+            raise InputError("step needs the classical or the modified model; "
+                             "run the asymmetric one with run(v, state, v_prev).")
         v = np.asarray(v, dtype=float)
         y_prev, s_prev = self._split(state, v.shape)
         k = self.creep.coefficients

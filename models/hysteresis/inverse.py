@@ -242,7 +242,8 @@ class _RealTimeInverse:
         return structure.step(CASADI, ca.DM(params), state, target)
 
     def run(self, target: ArrayLike, state: ArrayLike | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Inputs for the targets of shape (..., N), sample by sample from ``state`` (at rest by default), and the final state."""
+        """Inputs for the targets of shape (..., N), sample by sample from ``state`` (at rest by
+        default), and the final state."""
         target = np.asarray(target, dtype=float)
         x = self.initial_state(target.shape[:-1]) if state is None else np.asarray(state, float)
         out = np.empty(target.shape)

@@ -54,7 +54,8 @@ def _creep_model_from_dict(data: dict[str, Any], kind: str, where: str) -> Creep
                          f"(a {kind} model), got {type(creep).__name__}.")
     missing = [n for n in ("time_constants_s", "weights", "sample_period_s") if n not in creep]
     if missing:
-        raise InputError(f"{where}.creep.{missing[0]} is missing (a creep bank needs time_constants_s, weights, sample_period_s).")
+        raise InputError(f"{where}.creep.{missing[0]} is missing (a creep bank needs time_constants_s, "
+                         "weights, sample_period_s).")
     hysteresis = model_from_dict({k: v for k, v in data.items() if k != "creep"} | {"kind": base}, where)
     if isinstance(hysteresis, CreepPI):  # not reached: the caller checked that base is a plain kind
         raise InternalError(f"{where}.kind {kind!r}: a creep model inside a creep model.")

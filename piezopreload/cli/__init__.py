@@ -48,7 +48,8 @@ COMMANDS: tuple[Callable[[Any], None], ...] = (
 
 def build_parser() -> argparse.ArgumentParser:
     parser = Parser(prog="piezopreload",
-                     description="Design and tuning studies for feed drives whose ball-screw preload is set by piezo stacks.")
+                     description="Design and tuning studies for feed drives whose ball-screw "
+                                 "preload is set by piezo stacks.")
     parser.add_argument("--version", action="version", version=f"piezopreload {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     for register in COMMANDS:

@@ -55,7 +55,8 @@ def time_constants(text: str) -> list[float]:
     except ValueError:
         values = []
     if not values or not all(0 < x < float("inf") for x in values) or any(b <= a for a, b in zip(values, values[1:])):
-        raise argparse.ArgumentTypeError(f"'{text}' is not a list of positive, increasing times in s (example: 0.01,0.1,1)")
+        raise argparse.ArgumentTypeError(f"'{text}' is not a list of positive, "
+                                         "increasing times in s (example: 0.01,0.1,1)")
     return values
 
 
@@ -91,7 +92,8 @@ def study_arguments(p: argparse.ArgumentParser, seed: bool = True) -> None:
 
 
 def study_of(args: argparse.Namespace) -> Any:
-    # the single-step commands work on a study's plant (Study.plant: its [rig], or its design's): the paper's unless named
+    # the single-step commands work on a study's plant (Study.plant: its [rig], or its design's):
+    # the paper's unless named
     return load_study(args.study or PAPER_STUDY)
 
 

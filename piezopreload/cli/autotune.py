@@ -13,7 +13,8 @@ def _coefficients(text: str, what: str) -> list[float]:
     try:
         values = [float(x) for x in text.split(",")]
     except ValueError:
-        raise InputError(f"--tf: the {what} '{text}' is not comma-separated numbers (example: --tf 30/0.005,1)") from None
+        raise InputError(f"--tf: the {what} '{text}' is not comma-separated numbers "
+                         "(example: --tf 30/0.005,1)") from None
     return values
 
 
@@ -31,9 +32,9 @@ def register_autotune(sub: Any) -> None:
             "Tune a PI, or a PID with its derivative filter, for a linear plant given as a transfer function, a "
             "measured frequency response or a measured step response (fitted first or second order with dead time), "
             "with an exact input delay: the largest integral gain (IE) or the least IAE of a load step at the plant "
-            "input, subject to abs(S) <= Ms, abs(T) <= Mt, abs(KS) <= Mks on a frequency grid chosen from the plant and a "
-            "stable closed loop (CasADi + IPOPT, several starts including AMIGO and SIMC). With --out, write a gain "
-            "set 'piezopreload export' writes for LabVIEW, PLCs and C."),
+            "input, subject to abs(S) <= Ms, abs(T) <= Mt, abs(KS) <= Mks on a frequency grid chosen from the plant "
+            "and a stable closed loop (CasADi + IPOPT, several starts including AMIGO and SIMC). With --out, write a "
+            "gain set 'piezopreload export' writes for LabVIEW, PLCs and C."),
         epilog=(
             "--tf NUM/DEN: coefficients in descending powers of s (of z with --dt), e.g. --tf 30/0.005,1 for "
             "30/(0.005 s + 1). --frd: a CSV with omega_rad_per_s (or frequency_Hz) and magnitude, phase_deg (or real, "
@@ -44,9 +45,11 @@ def register_autotune(sub: Any) -> None:
     plant.add_argument("--step", metavar="FILE.csv", help="a measured step response, fitted with dead time")
     p.add_argument("--dt", type=_positive, metavar="S", help="--tf is discrete with this sample period (s)")
     p.add_argument("--delay-s", type=nonnegative_float, default=0.0, metavar="L", help="input delay in s (default 0)")
-    p.add_argument("--Ms", type=float, required=True, help="the largest sensitivity magnitude, abs(S) (> 1; 1.4 is common)")
+    p.add_argument("--Ms", type=float, required=True,
+                   help="the largest sensitivity magnitude, abs(S) (> 1; 1.4 is common)")
     p.add_argument("--Mt", type=float, help="the largest complementary sensitivity magnitude, abs(T)")
-    p.add_argument("--Mks", type=float, help="the largest abs(KS), the controller's output per unit of measurement noise")
+    p.add_argument("--Mks", type=float,
+                   help="the largest abs(KS), the controller's output per unit of measurement noise")
     p.add_argument("--metric", choices=("IE", "IAE"), default="IE", help="IE: largest ki (default); IAE: least IAE")
     p.add_argument("--form", choices=("PI", "PID"), default="PID", help="the controller (default PID)")
     p.add_argument("--Ts", type=_positive, metavar="S", help="the controller's sample period: tune the loop as it runs")
@@ -108,18 +111,22 @@ def _print_autotune(s: dict[str, Any]) -> None:
         g = s["gains"]
         print(f"ideal/ISA: Kc {g['Kc']:.5g}, Ti {g['Ti_s']:.5g} s, Td {g['Td_s']:.5g} s, Tf {g['Tf_s']:.5g} s")
     what = f"IE {s['ie']:.5g}" + ("" if s["iae"] is None else f", IAE {s['iae']:.5g}")
-    print(f"unit load step at the plant input: {what} (tuned for the {'largest ki' if s['metric'] == 'IE' else 'least IAE'})")
-    print("reached: " + ", ".join(f"{k} {mg[k]:.4g}" + (f" (bound {b[k]:g})" if k in b else "") for k in ("Ms", "Mt", "Mks")))
+    print("unit load step at the plant input: "
+          f"{what} (tuned for the {'largest ki' if s['metric'] == 'IE' else 'least IAE'})")
+    print("reached: "
+          + ", ".join(f"{k} {mg[k]:.4g}" + (f" (bound {b[k]:g})" if k in b else "") for k in ("Ms", "Mt", "Mks")))
     gm = "inf" if mg["gain_margin"] is None else f"{mg['gain_margin']:.3g}"
     pm = "-" if mg["phase_margin_deg"] is None else f"{mg['phase_margin_deg']:.1f} deg"
     dm = "-" if mg["delay_margin_s"] is None else f"{mg['delay_margin_s']:.4g} s"
-    print(f"gain margin {gm}, phase margin {pm}, delay margin {dm}; closed loop {'stable' if s['stable'] else 'UNSTABLE'}")
+    print(f"gain margin {gm}, phase margin {pm}, delay margin {dm}; "
+          f"closed loop {'stable' if s['stable'] else 'UNSTABLE'}")
     for bound in s["active_bounds"]:
         print(f"  on its bound: {bound['gain']} at its {bound['side']} bound ({bound['bound']:.4g}): {bound['note']}")
     print(f"{len(s['starts'])} starts, {s['iterations']} IPOPT iterations, {s['refinements']} grid refinements, "
           f"{s['seconds']:.2f} s")
     if s["out"]:
         c = s["discrete_check"]
-        print(f"wrote {s['out']} ({s['status']}, sha256 {s['content_sha256'][:12]}...): at Ts {c['sample_period_s']:g} s "
+        print(f"wrote {s['out']} ({s['status']}, sha256 {s['content_sha256'][:12]}...): "
+              f"at Ts {c['sample_period_s']:g} s "
               + ", ".join(f"{k} {v:.4g}" for k, v in c["achieved"].items())
               + f", {'stable' if c['stable'] else 'UNSTABLE'}")

@@ -38,7 +38,8 @@ def register_ballscrew(sub: Any) -> None:
     p.add_argument("--preload-N", type=float, help="the preload (default: --preload-fraction of C_dyn)")
     p.add_argument("--preload-fraction", type=float, help="preload as a fraction of C_dyn (default 0.1)")
     p.add_argument("--axial-load-N", type=float, default=0.0, help="axial load on the nut (default 0)")
-    p.add_argument("--speed-rpm", type=nonnegative_float, default=1000.0, help="for life in hours and heat (default 1000)")
+    p.add_argument("--speed-rpm", type=nonnegative_float, default=1000.0,
+                   help="for life in hours and heat (default 1000)")
     p.add_argument("--c-dyn-N", type=float, help="catalogue dynamic load rating (default: estimated)")
     p.add_argument("--c0-N", type=float, help="catalogue static load rating (default: Hertz at 4,200 MPa)")
     json_flag(p)
@@ -100,7 +101,8 @@ def register_design(sub: Any) -> None:
     p.add_argument("--schedule", metavar="LOADS.csv",
                    help="load profile: time_s, axial_load_N[, speed_rpm] (default: the study's, or a machining cycle)")
     p.add_argument("--out", default="piezopreload-out/design.json", metavar="design.json",
-                   help="the design artifact; each front's CSV is written beside it (default piezopreload-out/design.json)")
+                   help="the design artifact; each front's CSV is written beside it "
+                        "(default piezopreload-out/design.json)")
     json_flag(p)
     p.set_defaults(run=_cmd_design, show=_print_design)
 

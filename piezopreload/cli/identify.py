@@ -50,7 +50,8 @@ def register_identify(sub: Any) -> None:
     p.add_argument("--operators", type=positive_int, default=40, help="number of play operators (default 40)")
     p.add_argument("--train", metavar="T0:T1", help="training window in s (default: first 70 %% of the record)")
     p.add_argument("--test", metavar="T0:T1", help="test window in s (default: after the training window)")
-    p.add_argument("--ridge", type=nonnegative_float, default=0.0, help="ridge weight on the scaled weights (default 0)")
+    p.add_argument("--ridge", type=nonnegative_float, default=0.0,
+                   help="ridge weight on the scaled weights (default 0)")
     p.add_argument("--out", metavar="model.json", help="write the identified model as an artifact")
     json_flag(p)
     p.set_defaults(run=_cmd_identify, show=_print_identify)

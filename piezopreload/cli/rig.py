@@ -74,7 +74,8 @@ def _password(args: argparse.Namespace, required: bool) -> str | None:
 def _rig_arguments(p: argparse.ArgumentParser) -> None:
     from piezopreload.rig.backends import FAULT_KINDS
 
-    p.add_argument("gains", metavar="gains.json", help="a validated gain set (candidates and tampered files are refused)")
+    p.add_argument("gains", metavar="gains.json",
+                   help="a validated gain set (candidates and tampered files are refused)")
     p.add_argument("--backend", default="sim", help="sim (the simulated rig, default) or an installed hardware plug-in")
     p.add_argument("--backend-option", action="append", metavar="KEY=VALUE", help="passed to the backend (repeatable)")
     p.add_argument("--reference", metavar="|".join(REFERENCES) + "|FILE.csv",
@@ -140,7 +141,8 @@ def register_rig(sub: Any) -> None:
     _rig_arguments(p)
     p.add_argument("--endpoint", default=DEFAULT_RIG_ENDPOINT, help=f"default {DEFAULT_RIG_ENDPOINT} (loopback)")
     p.add_argument("--user", metavar="NAME", help=f"the user allowed to push; password in ${PASSWORD_ENV}")
-    p.add_argument("--certificate", metavar="CERT", help="the server's certificate: enables Basic256Sha256 SignAndEncrypt only")
+    p.add_argument("--certificate", metavar="CERT",
+                   help="the server's certificate: enables Basic256Sha256 SignAndEncrypt only")
     p.add_argument("--private-key", metavar="KEY", help="the server certificate's private key")
     p.add_argument("--duration", type=float, metavar="S", help="serve this long, then ramp down and exit 0")
     p.set_defaults(run=_cmd_rig_serve, show=_print_rig_run)
@@ -170,7 +172,8 @@ def register_rig(sub: Any) -> None:
         epilog="exit codes: 0 the check ran (whatever its verdict), 1 internal failure, 2 bad input")
     p.add_argument("--gains", metavar="gains.json", help="a validated gain set: its rate, its step, its stall limit")
     p.add_argument("--seconds", type=_positive_float, default=10.0, metavar="S", help="how long (default 10 s)")
-    p.add_argument("--rate", type=_positive_float, metavar="HZ", help="the loop's rate (default the gain set's, or 1000)")
+    p.add_argument("--rate", type=_positive_float, metavar="HZ",
+                   help="the loop's rate (default the gain set's, or 1000)")
     p.add_argument("--loop", choices=("native", "python"), default="native",
                    help="whose wait to measure: the native loop's C thread (default) or the Python loop's")
     p.add_argument("--out", metavar="DIR", help="write the histogram's figure there (host-check.png)")
@@ -193,7 +196,8 @@ def _cmd_rig_serve(args: argparse.Namespace) -> dict[str, Any]:
 
     _quiet_asyncua()
     if args.user is None:
-        raise InputError("rig serve: give --user NAME (password in $" + PASSWORD_ENV + "); anonymous sessions are refused")
+        raise InputError("rig serve: give --user NAME (password in $" + PASSWORD_ENV
+                         + "); anonymous sessions are refused")
     users = {args.user: _password(args, True)}
     if args.certificate is None:
         say("warning: no --certificate: passwords cross the network unencrypted; keep the endpoint on loopback")
@@ -222,8 +226,9 @@ def _print_rig_run(s: dict[str, Any]) -> None:
               f"{trip['detail']}")
     m = s["metrics"]
     if m is not None and m.get("settling_s") is not None:
-        print(f"step: rise {fmt(m['rise_s'], ' s')}, peak {fmt(m['peak_s'], ' s')}, settling {fmt(m['settling_s'], ' s')}, "
-              f"overshoot {fmt(m['overshoot_N'], ' N')}; tracking RMS {m['tracking_rms_N']:.3g} N")
+        print(f"step: rise {fmt(m['rise_s'], ' s')}, peak {fmt(m['peak_s'], ' s')}, "
+              f"settling {fmt(m['settling_s'], ' s')}, overshoot {fmt(m['overshoot_N'], ' N')}; "
+              f"tracking RMS {m['tracking_rms_N']:.3g} N")
     elif m is not None and m.get("tracking_rms_N") is not None:
         print(f"tracking RMS {m['tracking_rms_N']:.3g} N, largest error {m['tracking_max_N']:.3g} N")
     lim, src = s["interlocks"], s["interlock_sources"]
@@ -271,8 +276,8 @@ def _print_rig_check(s: dict[str, Any]) -> None:
     print("lateness histogram:")
     print(s["histogram_text"])
     print(f"host: {f['kernel']} ({'RT kernel' if f['rt_kernel'] else 'not an RT kernel'}, preemption "
-          f"{f['preemption']}), {f['cpus']} CPUs; {f['sched_fifo']}; {f['memory_locked']}; governor: {f['cpu_governor']}; "
-          f"{f['virtualisation']}; isolated CPUs: {f['isolated_cpus']}")
+          f"{f['preemption']}), {f['cpus']} CPUs; {f['sched_fifo']}; {f['memory_locked']}; "
+          f"governor: {f['cpu_governor']}; {f['virtualisation']}; isolated CPUs: {f['isolated_cpus']}")
     for line in s["findings"]:
         print(f"  - {line}")
     for c in s["criteria"]:

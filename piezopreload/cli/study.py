@@ -39,8 +39,10 @@ def register_run(sub: Any) -> None:
         epilog=("exit codes: 0 done, every requirement met; 1 internal failure; 2 bad input or a stage that failed "
                 "(named); 3 the rig run stopped by an interlock; 4 the study ran but missed a requirement (each one "
                 "is printed, and listed under summary.requirements_missed with --json)"))
-    p.add_argument("study", nargs="?", metavar="STUDY.toml", help="study file (default: the machine axis, machine_axis.toml)")
-    p.add_argument("--out", default="piezopreload-out", metavar="DIR", help="output folder (default ./piezopreload-out)")
+    p.add_argument("study", nargs="?", metavar="STUDY.toml",
+                   help="study file (default: the machine axis, machine_axis.toml)")
+    p.add_argument("--out", default="piezopreload-out", metavar="DIR",
+                   help="output folder (default ./piezopreload-out)")
     p.add_argument("--force", action="store_true", help="run every stage again, changed or not")
     p.add_argument("--quiet", action="store_true", help="no progress on standard error")
     json_flag(p)
@@ -80,7 +82,8 @@ def register_report(sub: Any) -> None:
                      "'piezopreload sweep'); nothing else is computed."))
     p.add_argument("dir", metavar="DIR", help="a study's output folder, or a sweep's")
     p.add_argument("--template", metavar="REPORT.typ",
-                   help="typeset this Typst template instead of the shipped one (start from a copy of DIR/report/report.typ)")
+                   help="typeset this Typst template instead of the shipped one "
+                        "(start from a copy of DIR/report/report.typ)")
     p.add_argument("--quiet", action="store_true", help="no progress on standard error")
     json_flag(p)
     p.set_defaults(run=_cmd_report, show=lambda s: print(f"report: {s['report']}"))

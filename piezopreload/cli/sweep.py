@@ -25,7 +25,8 @@ def register_sweep(sub: Any) -> None:
                 f"input, {EXIT_POINT_FAILED} the sweep ran but a point failed (its row has the error)"))
     p.add_argument("study", metavar="STUDY", help="a study file, or a shipped study's name (paper2021, machine_axis)")
     p.add_argument("--vary", action="append", required=True, metavar="TABLE.KEY=V1,V2,...",
-                   help="a key of the study and its values (repeat for more keys); a nested key as reference.step.final_N")
+                   help="a key of the study and its values (repeat for more keys); "
+                        "a nested key as reference.step.final_N")
     how = p.add_mutually_exclusive_group()
     how.add_argument("--grid", dest="mode", action="store_const", const="grid",
                      help="every combination of the values (the default)")
@@ -33,10 +34,13 @@ def register_sweep(sub: Any) -> None:
                      help="the i-th values of every key together (each key as many values)")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--workers", type=positive_int, metavar="N",
-                       help="local worker processes, one point each at a time (default: one per CPU; 1: one after another here)")
+                       help="local worker processes, one point each at a time (default: one per CPU; "
+                            "1: one after another here)")
     where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
-                       help="run the points on this Dask cluster (the dask extra; the folders on a file system the workers share)")
-    p.add_argument("--out", default=DEFAULT_SWEEP_OUT, metavar="DIR", help=f"the sweep's folder (default ./{DEFAULT_SWEEP_OUT})")
+                       help="run the points on this Dask cluster (the dask extra; "
+                            "the folders on a file system the workers share)")
+    p.add_argument("--out", default=DEFAULT_SWEEP_OUT, metavar="DIR",
+                   help=f"the sweep's folder (default ./{DEFAULT_SWEEP_OUT})")
     p.add_argument("--force", action="store_true", help="run every stage of every point again (shared ones once)")
     p.add_argument("--quiet", action="store_true", help="no progress on standard error")
     json_flag(p)

@@ -30,7 +30,8 @@ def register_tune(sub: Any) -> None:
             "on a Monte Carlo set of nonlinear rigs, and write a gain-set artifact: 'validated' if every "
             "plant met every criterion, else 'candidate'."))
     study_arguments(p)
-    p.add_argument("--out", default="gains.json", metavar="gains.json", help="the gain-set artifact (default gains.json)")
+    p.add_argument("--out", default="gains.json", metavar="gains.json",
+                   help="the gain-set artifact (default gains.json)")
     monte_carlo_arguments(p)
     json_flag(p)
     p.set_defaults(run=_cmd_tune, show=_print_tune)
@@ -55,7 +56,8 @@ def _print_tune(s: dict[str, Any]) -> None:
         print(f"  on its bound: {bound['gain']} at its {bound['side']} bound ({bound['bound']:.4g}): {bound['note']}")
     print(f"SIMC baseline: Kc {b['Kc_V_per_N']:.4g} V/N, Ti {b['Ti_s']:.4g} s")
     print("the study's step and trajectory on the nominal rig:")
-    print(f"  {'gains':8s}{'FF':>4s}{'settling':>10s}{'overshoot':>11s}{'track RMS':>11s}{'RMS >0.1 s':>12s}{'peak V':>8s}")
+    print(f"  {'gains':8s}{'FF':>4s}{'settling':>10s}{'overshoot':>11s}{'track RMS':>11s}"
+          f"{'RMS >0.1 s':>12s}{'peak V':>8s}")
     for r in s["table"]:
         print(f"  {r['gains']:8s}{'yes' if r['feedforward'] else 'no':>4s}{fmt(r['settling_s'], ' s'):>10s}"
               f"{r['overshoot_N']:9.2f} N{r['tracking_rms_N']:9.2f} N{r['tracking_rms_after_change_N']:10.2f} N"
@@ -115,13 +117,15 @@ def _cmd_validate(args: argparse.Namespace) -> dict[str, Any]:
     if args.out is not None:
         after = after.save(args.out)
     return {"gains": args.gains, "validated": result.passed, "status": after.status, "plants": plants, "seed": seed,
-            **result.headline(), "validation": result.to_dict(), "out": args.out, "content_sha256": after.content_sha256}
+            **result.headline(), "validation": result.to_dict(), "out": args.out,
+            "content_sha256": after.content_sha256}
 
 
 def _print_validate(s: dict[str, Any]) -> None:
     v = s["validation"]
-    print(f"validation of {s['gains']} on {s['plants']} plants (seed {s['seed']}, {v['workers']}, {v['seconds']:.0f} s): "
-          f"{'PASSED' if s['validated'] else 'FAILED'} ({v['n_failures']} failures)")
+    print(f"validation of {s['gains']} on {s['plants']} plants (seed {s['seed']}, "
+          f"{v['workers']}, {v['seconds']:.0f} s): {'PASSED' if s['validated'] else 'FAILED'} "
+          f"({v['n_failures']} failures)")
     print_validation_summary(v)
     for f in v["failures"][:10]:
         print(f"  plant {f['plant']}: {f['metric']} {fmt(f['value'])} > {f['limit']:g}")
