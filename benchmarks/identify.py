@@ -50,7 +50,7 @@ FREQUENCY_HZ = 0.5  # the drifting record's drive
 STUDY = Path(__file__).resolve().parent.parent / "studies" / "paper2021.toml"
 
 
-def timed(fn) -> tuple[float, object]:
+def timed(fn) -> tuple[float, Any]:
     times, result = [], None
     for _ in range(REPEATS):
         t0 = time.perf_counter()

@@ -42,6 +42,7 @@ import sys
 import tempfile
 import threading
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -176,7 +177,7 @@ def gain_set_runs(path: Path, runs: int, seconds: float, tmp: Path) -> dict:
 
     g = GainSet.load(path)
     ref = _held_step(g, seconds, tmp / f"{path.parent.name}-reference.csv")
-    results = []
+    results: list[dict[str, Any]] = []
     for j in range(runs):
         try:
             s = run(path, reference=str(ref), realtime=True, log_dir=tmp / f"{path.parent.name}-{j}").summary

@@ -56,6 +56,7 @@ def main() -> None:
         design = DesignRecord.load(out / "design" / "design.json")
         tuning = read_artifact(out / "tuning.json", "tuning")["tuning"].get("schedule")
     n, plan, m = system.numbers, design.schedule, system.schedule.margin_N
+    assert study.design_spec is not None, f"{study.name} has no design"
     screw = study.design_spec.screw(design.point)
     uniform = schedule_preload(screw, plan.profile, replace(plan.spec, preload_margin_N=float(m.max())))
     result = {

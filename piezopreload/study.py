@@ -645,7 +645,8 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
     rig: RigTable = t["rig"]
     kept = _Kept()
     if t["plant"] is not None and t["plant"].from_design:  # the design sets these: None, not the model's defaults
-        rig = _replace(rig, **{name: None for name in DESIGNED_FIELDS})
+        cleared: dict[str, Any] = dict.fromkeys(DESIGNED_FIELDS)
+        rig = _replace(rig, **cleared)
     try:
         hardware = rig.params()
     except ValueError as exc:  # every key was checked; a rule between them the table misses

@@ -169,7 +169,17 @@ class _Task:
 
 _ENV = "PIEZOPRELOAD_WORKERS"
 _env_lock = threading.Lock()
-_env_users = [0, None]  # points running with one process here, the value to restore
+
+
+@dataclass
+class _Borrowers:
+    """The points running with one process here, and the value of the setting to restore after the last."""
+
+    users: int = 0
+    saved: str | None = None
+
+
+_env_users = _Borrowers()
 
 
 @contextmanager
@@ -179,20 +189,20 @@ def _one_process(on: bool) -> Iterator[None]:
         yield
         return
     with _env_lock:
-        if _env_users[0] == 0:
-            _env_users[1] = os.environ.get(_ENV)
+        if _env_users.users == 0:
+            _env_users.saved = os.environ.get(_ENV)
             os.environ[_ENV] = "1"
-        _env_users[0] += 1
+        _env_users.users += 1
     try:
         yield
     finally:
         with _env_lock:
-            _env_users[0] -= 1
-            if _env_users[0] == 0:
-                if _env_users[1] is None:
+            _env_users.users -= 1
+            if _env_users.users == 0:
+                if _env_users.saved is None:
                     os.environ.pop(_ENV, None)
                 else:
-                    os.environ[_ENV] = str(_env_users[1])
+                    os.environ[_ENV] = _env_users.saved
 
 
 def _worker_init() -> None:
@@ -205,7 +215,9 @@ def run_point(task: _Task) -> SweepPoint:
     folder = Path(task.out) / task.folder
     folder.mkdir(parents=True, exist_ok=True)
     cache = StageCache(Path(task.out) / CACHE)
-    status, error, stage, code, ran = "done", None, None, None, ()
+    status, error, stage = "done", None, None
+    code: int | None = None
+    ran: tuple[str, ...] = ()
     summary: dict[str, Any] | None = None
     with _one_process(task.one_process), open(folder / POINT_LOG, "w", encoding="utf-8") as log:
         try:
