@@ -175,6 +175,16 @@ def test_help(capsys, argv):
     assert "usage:" in capsys.readouterr().out
 
 
+def test_the_run_command_s_help_names_every_stage_in_order(capsys):
+    """The one-line help of 'run' lists the pipeline's stages as the pipeline runs them (it once left 'learn' out)."""
+    from piezopreload.pipeline import STAGES
+
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "run a whole study: " + ", ".join(s.name for s in STAGES) in text, text
+
+
 def test_internal_failure_exit_1(capsys, monkeypatch):
     import piezopreload.cli.identify as cli
 

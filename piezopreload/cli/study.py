@@ -27,12 +27,14 @@ from piezopreload.tuning.feedforward import IdentifiedFeedforward
 # --------------------------------------------------------------------------------------
 def register_run(sub: Any) -> None:
     p = sub.add_parser(
-        "run", help="run a whole study: design, plant, identify, tune, validate, compare, system, export, rig, report",
+        "run",
+        help="run a whole study: design, plant, identify, tune, validate, compare, learn, system, export, rig, report",
         description=(
             "Take a study file through its stages: the ball-screw preload design, the designed system as the plant "
             "(where the study's [plant] says so), the feedforward's P-I identification, PID tuning, Monte Carlo "
-            "validation, the closed-loop comparison, the controlled preload along the design's schedule, gain "
-            "export, a run on the rig executor (the simulated rig by default) and the PDF report. Each stage writes "
+            "validation, the closed-loop comparison, learning on each margin pass of the design's schedule, the "
+            "controlled preload along that schedule, gain export, a run on the rig executor (the simulated rig by "
+            "default) and the PDF report. Each stage writes "
             "its artifacts into the output folder and records its inputs' hashes in pipeline.json; a stage whose "
             "inputs have not changed is not run again. Without STUDY, the machine axis (studies/machine_axis.toml); "
             "the paper's study is studies/paper2021.toml."),
