@@ -445,9 +445,11 @@ def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "gr
         if report:
             render_sweep_report(out, record, say=progress.say)
     seconds = time.perf_counter() - t0
-    failed = len(result.failed)
-    progress.write(f"{len(tasks) - failed} of {len(tasks)} points done{f', {failed} failed' if failed else ''} "
-                   f"({seconds:.1f} s); rows in {out / ROWS}"
+    failed, missed = len(result.failed), result.missed
+    missing = (f", {len(missed)} of them missed a requirement ({', '.join(Path(p.folder).name for p in missed)}: "
+               "see requirements_missed in its row)" if missed else "")
+    progress.write(f"{len(tasks) - failed} of {len(tasks)} points done in {seconds:.1f} s"
+                   f"{f', {failed} failed' if failed else ''}{missing}; rows in {out / ROWS}"
                    + (f", report {out / 'report.pdf'}" if report else "") + "\n")
     return SweepResult(out, record, seconds)
 

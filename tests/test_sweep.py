@@ -15,6 +15,7 @@ import io
 import json
 import multiprocessing
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -465,9 +466,12 @@ def test_a_failing_point_is_recorded_and_the_others_go_on(tmp_path, capsys):
 def test_a_point_that_misses_a_requirement_runs_through_and_the_sweep_exits_4(tmp_path, capsys):
     out = tmp_path / "sweep"
     code = main(["sweep", str(SMALL), "--vary", "validation.overshoot_max_N=1.5,0.01", "--workers", "1",
-                 "--out", str(out), "--json", "--quiet"])
-    doc = json.loads(capsys.readouterr().out)
+                 "--out", str(out), "--json"])
+    captured = capsys.readouterr()
+    doc = json.loads(captured.out)
     assert code == 4 == doc["exit_code"] and (doc["done"], doc["failed"], doc["missed_requirements"]) == (2, 0, 1)
+    assert re.search(r"2 of 2 points done in [0-9.]+ s, 1 of them missed a requirement \(p001: ", captured.err), \
+        captured.err
     ok, bad = doc["rows"]
     assert ok["requirements_met"] is True and bad["requirements_met"] is False
     assert bad["gain_set_status"] == "candidate" and bad["worst_overshoot_N"] > 0.01 and bad["validation_failures"] > 0

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from piezopreload.artifacts.requirements import EXIT_REQUIREMENT_MISSED
 from piezopreload.artifacts.sweep import DEFAULT_SWEEP_OUT, EXIT_POINT_FAILED
 from piezopreload.cli._common import json_flag, positive_int
 from piezopreload.core.errors import InputError
@@ -22,7 +23,8 @@ def register_sweep(sub: Any) -> None:
             "and the sweep's report OUT/report.pdf ('piezopreload report OUT' typesets it again)."),
         epilog=(f"example: piezopreload sweep studies/paper2021.toml --vary tuning.ms_max=1.4,1.6,1.8 --vary "
                 f"validation.plants=50,200 --workers 2. Exit codes: 0 every point done, 1 internal failure, 2 bad "
-                f"input, {EXIT_POINT_FAILED} the sweep ran but a point failed (its row has the error)"))
+                f"input, {EXIT_REQUIREMENT_MISSED} every point ran but one missed a requirement of its study (its row "
+                f"names it), {EXIT_POINT_FAILED} a point failed (its row has the error)"))
     p.add_argument("study", metavar="STUDY", help="a study file, or a shipped study's name (paper2021, machine_axis)")
     p.add_argument("--vary", action="append", required=True, metavar="TABLE.KEY=V1,V2,...",
                    help="a key of the study and its values (repeat for more keys); "
