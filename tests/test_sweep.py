@@ -343,7 +343,7 @@ def test_each_point_is_the_study_with_its_values_in_its_own_folder(grid_sweep):
         assert all(r["status"] in ("done", "not applicable") for r in records.values())
         assert (folder / "report.pdf").is_file() and (folder / "gains.json").is_file()
         assert f"p{p.index:03d} tuning.ms_max={p.values['tuning.ms_max']}" in log, "a progress line per point"
-    assert log.count("done in") == 4 and "on 2 local worker processes" in log
+    assert log.count(": done in") == 4 and "on 2 local worker processes" in log
     assert SweepRecord.load(out / "sweep.json") == result.record
 
 
