@@ -14,12 +14,15 @@ from piezopreload.rig.export import FORMATS
 from piezopreload.rig.interlocks import Safety
 
 __all__ = ["ExportTable", "RigRunPlan", "RIG_RUN_REFERENCES", "INTERLOCK_KEYS", "FORCE_MAX_FACTOR",
-           "default_interlocks"]
+           "LOW_MARGIN_SHARE", "default_interlocks"]
 
 #: the [rig_run] keys that set the interlocks (and the command-line options that override them)
 INTERLOCK_KEYS = ("force_max_N", "force_low_margin_N", "ramp_s", "stall_limit_s")
 #: a study that sets no force_max_N gets this times the force its stacks reach at their highest voltage
 FORCE_MAX_FACTOR = 1.25
+#: the share of the force the stacks reach that a reading may fall below the bolts' preload before the low-force
+#: interlock trips, where the study sets no margin and this is more than the executor's default
+LOW_MARGIN_SHARE = 0.01
 
 #: what ``[rig_run] reference`` may name besides a CSV: the gain set's references, or the design's schedule
 RIG_RUN_REFERENCES = (*REFERENCES, "schedule")
@@ -45,7 +48,8 @@ class RigRunPlan(Table):
     force_max_N: float | None = key(None, "the interlock's highest force (not set: 1.25 x the force the stacks reach "
                                     "at their highest voltage)", unit="N", gt=0)
     force_low_margin_N: float | None = key(None, "the margin below the bolts' preload the force may fall to (not set: "
-                                           "the executor's default)", unit="N", gt=0)
+                                           "the larger of the executor's 10 N and 1 % of the force the stacks "
+                                           "reach)", unit="N", gt=0)
     ramp_s: float | None = key(None, "the ramp down to the safe voltage on a stop (not set: the executor's default)",
                                unit="s", gt=0)
     stall_limit_s: float | None = key(None, "the longest the loop may go without an update before it trips (not set: "
@@ -83,15 +87,20 @@ def default_interlocks(plant: Plant) -> tuple[dict[str, float], dict[str, str]]:
     ``force_max_N``: :data:`FORCE_MAX_FACTOR` times the force the plant's stacks reach from
     rest at their highest voltage, creep settled (:func:`~piezopreload.models.actuator.reach_N`):
     a reading that far beyond what the stacks can push is a load the rig should not see or a
-    broken sensor. ``force_low_margin_N`` and ``ramp_s``: the executor's defaults
-    (:class:`~piezopreload.rig.interlocks.Safety`). No stall limit: the plant's applies.
+    broken sensor. ``force_low_margin_N``: the executor's default
+    (:class:`~piezopreload.rig.interlocks.Safety`), or :data:`LOW_MARGIN_SHARE` of that reach where that is more
+    (the default is sized for a rig of a few hundred newtons; on an axis of thousands, a reading 10 N below the
+    bolts' preload is the loop's noise and undershoot, not a preload lost, and it leaves a stalled loop a few
+    milliseconds). ``ramp_s``: the executor's default. No stall limit: the plant's applies.
     """
     defaults = {f.name: f.default for f in fields(Safety)}
     v_max = float(plant.stack.v_max_V)
     reach = float(reach_N(Rig(plant), v_max))
-    values = {"force_max_N": FORCE_MAX_FACTOR * reach, "force_low_margin_N": float(defaults["force_low_margin_N"]),
-              "ramp_s": float(defaults["ramp_s"])}
+    low = max(float(defaults["force_low_margin_N"]), LOW_MARGIN_SHARE * reach)
+    values = {"force_max_N": FORCE_MAX_FACTOR * reach, "force_low_margin_N": low, "ramp_s": float(defaults["ramp_s"])}
     sources = {"force_max_N": f"derived: {FORCE_MAX_FACTOR:g} x the {reach:.4g} N the plant's stacks reach at "
                               f"their {v_max:g} V",
-               "force_low_margin_N": "the executor's default", "ramp_s": "the executor's default"}
+               "force_low_margin_N": ("the executor's default" if low == defaults["force_low_margin_N"] else
+                                      f"derived: {LOW_MARGIN_SHARE:.0%} of the {reach:.4g} N the plant's stacks reach"),
+               "ramp_s": "the executor's default"}
     return values, sources

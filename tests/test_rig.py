@@ -5,6 +5,7 @@ import io
 import json
 import math
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -416,8 +417,9 @@ def test_the_rig_takes_its_limits_from_the_gain_sets_study_and_the_command_line_
 
 
 def test_a_gain_set_without_study_limits_gets_them_from_its_plant_not_the_paper_rig(study, feedforward, tmp_path):
-    """No [rig_run] in the gain set: force_max_N is derived from its plant (1.25 x what its stacks reach), here
-    on a stiffer rig whose references reach 1,500 N, far beyond the paper rig's 150 N."""
+    """No [rig_run] in the gain set: force_max_N is derived from its plant (1.25 x what its stacks reach), and the
+    low margin (1 % of that reach), here on a stiffer rig whose references reach 1,500 N, far beyond the paper
+    rig's 150 N."""
     from piezopreload.models.actuator import reach_N
     from piezopreload.models.closedloop import Reference
 
@@ -431,8 +433,13 @@ def test_a_gain_set_without_study_limits_gets_them_from_its_plant_not_the_paper_
     assert r["interlocks"]["force_max_N"] == pytest.approx(1.25 * reach) and reach > 1500.0
     assert r["interlock_sources"]["force_max_N"].startswith("derived: 1.25 x the")
     assert r["status"] == "completed", r["trip"]
-    with pytest.raises(InputError, match=r"1500 N is outside the rig's safe force range \(15 N, 1400 N\)"):
+    # the low margin too is the plant's: 1 % of its stacks' reach, more than the executor's 10 N here
+    assert r["interlocks"]["force_low_margin_N"] == pytest.approx(0.01 * reach) and 0.01 * reach > 10.0
+    outside = r"1500 N is outside the rig's safe force range \(([0-9.]+) N, 1400 N\)"
+    with pytest.raises(InputError, match=outside) as exc:
         run_rig(tmp_path / "stiff.json", realtime=False, log_dir=tmp_path, safety={"force_max_N": 1400.0})
+    low = float(re.search(r"range \(([0-9.]+) N", str(exc.value)).group(1))
+    assert low == pytest.approx(25.0 - 0.01 * reach, rel=1e-4), "the floor is not the bolt preload less the margin"
 
 
 def test_a_candidate_carries_its_studys_rig_run_limits_through_validation(study, feedforward, tmp_path):
@@ -618,3 +625,23 @@ def test_the_pipelines_rig_stage_reports_a_trip_and_no_step_figures(gains_path, 
         run_stages([Stage()], records, out, Progress(stream=io.StringIO()), force=True, key=lambda s: "k",
                    applies=lambda s: None, run=run, save=lambda: None)
     assert records["rig"]["status"] == "failed" and records["rig"]["summary"]["trip"]["cause"] == "force_high"
+
+
+def test_the_low_force_margin_a_study_leaves_unset_follows_the_stacks_reach():
+    """default_interlocks: the executor's 10 N on a rig of a few hundred newtons (the paper's: its stacks reach 143 N),
+    1 % of the stacks' reach where that is more (the designed machine axis: 6,329 N), each with its source."""
+    from piezopreload.models.actuator import Plant, reach_N
+    from piezopreload.rig.interlocks import Safety
+    from piezopreload.rig.tables import LOW_MARGIN_SHARE, default_interlocks
+    from piezopreload.study import load_study
+
+    small = Plant()  # the paper's rig
+    values, sources = default_interlocks(small)
+    assert values["force_low_margin_N"] == Safety().force_low_margin_N == 10.0
+    assert sources["force_low_margin_N"] == "the executor's default"
+    big = load_study("machine_axis").plant  # the designed axis: three stacks against the nuts' Hertz contacts
+    reach = float(reach_N(Rig(big), float(big.stack.v_max_V)))
+    assert reach > 2000.0, reach
+    values, sources = default_interlocks(big)
+    assert values["force_low_margin_N"] == pytest.approx(LOW_MARGIN_SHARE * reach, rel=1e-12)
+    assert sources["force_low_margin_N"].startswith("derived: 1% of the"), sources["force_low_margin_N"]
