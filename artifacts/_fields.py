@@ -20,10 +20,54 @@ from numpy.typing import NDArray
 
 from piezopreload.core.errors import ArtifactError
 
-__all__ = ["Fields"]
+__all__ = ["Fields", "number", "optional_number", "count", "optional_count", "text", "optional_text", "flag",
+           "mapping"]
 
 T = TypeVar("T")
 _MISSING = object()
+
+
+# ---- one value: converters for readers that name the field themselves (a ValueError says what was expected) -------
+def number(x: Any) -> float:
+    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
+        raise ValueError(f"expected a finite number, got {x!r}")
+    return float(x)
+
+
+def optional_number(x: Any) -> float | None:
+    return None if x is None else number(x)
+
+
+def count(x: Any) -> int:
+    if isinstance(x, bool) or not isinstance(x, int | float) or not float(x).is_integer() or x < 0:
+        raise ValueError(f"expected a whole number >= 0, got {x!r}")
+    return int(x)
+
+
+def optional_count(x: Any) -> int | None:
+    return None if x is None else count(x)
+
+
+def text(x: Any) -> str:
+    if not isinstance(x, str):
+        raise ValueError(f"expected text, got {x!r}")
+    return x
+
+
+def optional_text(x: Any) -> str | None:
+    return None if x is None else text(x)
+
+
+def flag(x: Any) -> bool:
+    if not isinstance(x, bool):
+        raise ValueError(f"expected true or false, got {x!r}")
+    return x
+
+
+def mapping(x: Any) -> dict[str, Any]:
+    if not isinstance(x, dict):
+        raise ValueError(f"expected an object, got {type(x).__name__}")
+    return dict(x)
 
 
 class Fields:

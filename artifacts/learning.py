@@ -12,12 +12,12 @@ all passes. :meth:`LearningRecord.load` is the one reader, :meth:`LearningRecord
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from piezopreload.artifacts._fields import count, flag, mapping, number, optional_number, text
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError
 
@@ -28,57 +28,19 @@ KIND = "learning"
 _REQUIRED = object()
 
 
-def _number(x: Any) -> float:
-    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(float(x)):
-        raise ValueError(f"expected a finite number, got {x!r}")
-    return float(x)
-
-
-def _optional_number(x: Any) -> float | None:
-    return None if x is None else _number(x)
-
-
-def _count(x: Any) -> int:
-    if isinstance(x, bool) or not isinstance(x, int | float) or not float(x).is_integer() or x < 0:
-        raise ValueError(f"expected a whole number >= 0, got {x!r}")
-    return int(x)
-
-
-def _optional_count(x: Any) -> int | None:
-    return None if x is None else _count(x)
-
-
 def _numbers(x: Any) -> float | list[float]:
     """One number, or one per plant."""
     if isinstance(x, list):
         if not x:
             raise ValueError("expected at least one number")
-        return [_number(v) for v in x]
-    return _number(x)
+        return [number(v) for v in x]
+    return number(x)
 
 
 def _counts(x: Any) -> list[int]:
     if not isinstance(x, list) or not x:
         raise ValueError(f"expected a list of whole numbers, got {x!r}")
-    return [_count(v) for v in x]
-
-
-def _text(x: Any) -> str:
-    if not isinstance(x, str):
-        raise ValueError(f"expected text, got {x!r}")
-    return x
-
-
-def _flag(x: Any) -> bool:
-    if not isinstance(x, bool):
-        raise ValueError(f"expected true or false, got {x!r}")
-    return x
-
-
-def _mapping(x: Any) -> dict[str, Any]:
-    if not isinstance(x, dict):
-        raise ValueError(f"expected an object, got {type(x).__name__}")
-    return dict(x)
+    return [count(v) for v in x]
 
 
 def _worst(x: float | list[float]) -> float:
@@ -126,7 +88,7 @@ class TrialRecord:
     @classmethod
     def from_dict(cls, doc: Any, where: str = "trial") -> TrialRecord:
         f = _Fields(doc, where)
-        return cls(f("iteration", _count), f("tracking_rms_N", _numbers), f("tracking_rms_after_change_N", _numbers),
+        return cls(f("iteration", count), f("tracking_rms_N", _numbers), f("tracking_rms_after_change_N", _numbers),
                    f("measured_rms_N", _numbers))
 
 
@@ -204,17 +166,17 @@ class PassRecord:
     @classmethod
     def from_dict(cls, doc: Any, where: str = "pass") -> PassRecord:
         f = _Fields(doc, where)
-        k = f("pass", _count)
+        k = f("pass", count)
         where = f"{where} {k}"
         f = _Fields(doc, where)
-        return cls(k, f("signal", _text), f("reference_sha256", _text), f("before_learning_rms_N", _number),
-                   f("before_learning_pct_of_range", _number), f("tracking_rms_N", _number),
-                   f("tracking_rms_pct_of_range", _number), f("trials", _count), f("trials_to_within_1p1", _count),
-                   f("stop_reason", _text), f("converged", _flag), f("best_iteration", _counts),
-                   f("causal_floor_N", _number), f("preview_floor_N", _number),
-                   f("noise_floor_N", _optional_number, None), f("preview_s", _number), f("method", _text),
-                   f("warm_start", _flag, False), f("learning", _mapping), f("history", lambda x: _trials(x, where)),
-                   f("tracking_rms_from_start_N", _optional_number, None))
+        return cls(k, f("signal", text), f("reference_sha256", text), f("before_learning_rms_N", number),
+                   f("before_learning_pct_of_range", number), f("tracking_rms_N", number),
+                   f("tracking_rms_pct_of_range", number), f("trials", count), f("trials_to_within_1p1", count),
+                   f("stop_reason", text), f("converged", flag), f("best_iteration", _counts),
+                   f("causal_floor_N", number), f("preview_floor_N", number),
+                   f("noise_floor_N", optional_number, None), f("preview_s", number), f("method", text),
+                   f("warm_start", flag, False), f("learning", mapping), f("history", lambda x: _trials(x, where)),
+                   f("tracking_rms_from_start_N", optional_number, None))
 
 
 @dataclass(frozen=True)
@@ -266,9 +228,9 @@ class LearningRecord:
         f = _Fields(doc, where)
         records = f("pass_records", lambda x: x if isinstance(x, list) and x else _raise("expected a list of passes"))
         passes = [PassRecord.from_dict(p, f"{where}, pass record {k + 1}") for k, p in enumerate(records)]
-        if f("passes", _count) != len(passes):
+        if f("passes", count) != len(passes):
             raise ArtifactError(f"{where}: field 'passes' does not match its {len(passes)} pass records")
-        record = cls(passes, f("learned", _text), f("inputs", _mapping, {}))
+        record = cls(passes, f("learned", text), f("inputs", mapping, {}))
         if passes[-1].signal != record.learned:
             raise ArtifactError(f"{where}: field 'learned' ({record.learned}) is not the last pass's signal "
                                 f"({passes[-1].signal})")

@@ -24,6 +24,16 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from piezopreload.artifacts._fields import (
+    count,
+    flag,
+    mapping,
+    number,
+    optional_count,
+    optional_number,
+    optional_text,
+    text,
+)
 from piezopreload.artifacts.gainset import gains_from_dict, gains_to_dict
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError, InputError
@@ -38,64 +48,22 @@ _REQUIRED = object()
 _AGAIN = "run the tune stage again"
 
 
-def _number(x: Any) -> float:
-    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
-        raise ValueError(f"expected a finite number, got {x!r}")
-    return float(x)
-
-
-def _optional_number(x: Any) -> float | None:
-    return None if x is None else _number(x)
-
-
-def _count(x: Any) -> int:
-    if isinstance(x, bool) or not isinstance(x, int | float) or not float(x).is_integer() or x < 0:
-        raise ValueError(f"expected a whole number >= 0, got {x!r}")
-    return int(x)
-
-
-def _optional_count(x: Any) -> int | None:
-    return None if x is None else _count(x)
-
-
-def _text(x: Any) -> str:
-    if not isinstance(x, str):
-        raise ValueError(f"expected text, got {x!r}")
-    return x
-
-
-def _optional_text(x: Any) -> str | None:
-    return None if x is None else _text(x)
-
-
-def _flag(x: Any) -> bool:
-    if not isinstance(x, bool):
-        raise ValueError(f"expected true or false, got {x!r}")
-    return x
-
-
-def _mapping(x: Any) -> dict[str, Any]:
-    if not isinstance(x, dict):
-        raise ValueError(f"expected an object, got {type(x).__name__}")
-    return dict(x)
-
-
 def _optional_mapping(x: Any) -> dict[str, Any] | None:
-    return None if x is None else _mapping(x)
+    return None if x is None else mapping(x)
 
 
 def _texts(x: Any) -> tuple[str, ...]:
     if not isinstance(x, list):
         raise ValueError(f"expected a list, got {type(x).__name__}")
-    return tuple(_text(v) for v in x)
+    return tuple(text(v) for v in x)
 
 
 def _ratios(x: Any) -> dict[str, float | None]:
-    return {str(k): _optional_number(v) for k, v in _mapping(x).items()}
+    return {str(k): optional_number(v) for k, v in mapping(x).items()}
 
 
 def _numbers(x: Any) -> dict[str, float]:
-    return {str(k): _number(v) for k, v in _mapping(x).items()}
+    return {str(k): number(v) for k, v in mapping(x).items()}
 
 
 def _field(doc: Any, name: str, convert: Callable[[Any], Any], where: str, default: Any = _REQUIRED) -> Any:
@@ -156,8 +124,8 @@ class ActiveBound:
 
     @classmethod
     def from_dict(cls, doc: Any, where: str = "active_bounds[]") -> ActiveBound:
-        return _construct(cls, where, gain=_field(doc, "gain", _text, where), side=_field(doc, "side", _text, where),
-                          bound=_field(doc, "bound", _number, where), note=_field(doc, "note", _text, where))
+        return _construct(cls, where, gain=_field(doc, "gain", text, where), side=_field(doc, "side", text, where),
+                          bound=_field(doc, "bound", number, where), note=_field(doc, "note", text, where))
 
 
 def _construct(cls: Any, where: str, **kwargs: Any) -> Any:
@@ -198,12 +166,12 @@ class ComparisonRow:
 
     @classmethod
     def from_dict(cls, doc: Any, where: str = "table[]") -> ComparisonRow:
-        values = {name: _field(doc, name, _optional_number, where)
+        values = {name: _field(doc, name, optional_number, where)
                   for name in ("rise_s", "settling_s", "settling_measured_s")}
-        values |= {name: _field(doc, name, _number, where)
+        values |= {name: _field(doc, name, number, where)
                    for name in ("overshoot_N", "tracking_rms_N", "tracking_rms_after_change_N", "peak_command_V")}
-        return _construct(cls, where, gains=_field(doc, "gains", _text, where),
-                          feedforward=_field(doc, "feedforward", _flag, where), **values)
+        return _construct(cls, where, gains=_field(doc, "gains", text, where),
+                          feedforward=_field(doc, "feedforward", flag, where), **values)
 
 
 _ROW_FIELDS = tuple(f.name for f in fields(ComparisonRow))
@@ -237,12 +205,12 @@ class MinimumTimeBound:
 
     @classmethod
     def from_dict(cls, doc: Any, where: str = "minimum_time") -> MinimumTimeBound:
-        return _construct(cls, where, settling_s=_field(doc, "settling_s", _optional_number, where),
-                          tuned_over_bound_ratio=_field(doc, "tuned_over_bound_ratio", _optional_number, where),
-                          samples=_field(doc, "samples", _optional_count, where, None),
-                          hold_s=_field(doc, "hold_s", _optional_number, where, None),
-                          seconds=_field(doc, "seconds", _optional_number, where, None),
-                          reason=_field(doc, "reason", _optional_text, where, None))
+        return _construct(cls, where, settling_s=_field(doc, "settling_s", optional_number, where),
+                          tuned_over_bound_ratio=_field(doc, "tuned_over_bound_ratio", optional_number, where),
+                          samples=_field(doc, "samples", optional_count, where, None),
+                          hold_s=_field(doc, "hold_s", optional_number, where, None),
+                          seconds=_field(doc, "seconds", optional_number, where, None),
+                          reason=_field(doc, "reason", optional_text, where, None))
 
 
 @dataclass(frozen=True)
@@ -262,9 +230,9 @@ class TrackingFloor:
 
     @classmethod
     def from_dict(cls, doc: Any, where: str = "tracking_floor") -> TrackingFloor:
-        return _construct(cls, where, rms_N=_field(doc, "rms_N", _number, where),
-                          rate_N_per_s=_field(doc, "rate_N_per_s", _number, where),
-                          tuned_over_floor_ratio=_field(doc, "tuned_over_floor_ratio", _optional_number, where))
+        return _construct(cls, where, rms_N=_field(doc, "rms_N", number, where),
+                          rate_N_per_s=_field(doc, "rate_N_per_s", number, where),
+                          tuned_over_floor_ratio=_field(doc, "tuned_over_floor_ratio", optional_number, where))
 
 
 @dataclass(frozen=True)
@@ -304,11 +272,11 @@ class TuningSolve:
     @classmethod
     def from_dict(cls, doc: Any, where: str = "tuning") -> TuningSolve:
         f = {name: _field(doc, name, convert, where) for name, convert in (
-            ("status", _text), ("iterations", _count), ("seconds", _number), ("engine", _text), ("compile_s", _number),
-            ("objective", _number), ("ms", _number), ("binding", _texts), ("constraint_margins", _numbers),
+            ("status", text), ("iterations", count), ("seconds", number), ("engine", text), ("compile_s", number),
+            ("objective", number), ("ms", number), ("binding", _texts), ("constraint_margins", _numbers),
             ("fopdt", _numbers))}
-        return _construct(cls, where, **f, form=_field(doc, "form", _text, where, "PID"),
-                          spec=_field(doc, "spec", _mapping, where, {}),
+        return _construct(cls, where, **f, form=_field(doc, "form", text, where, "PID"),
+                          spec=_field(doc, "spec", mapping, where, {}),
                           schedule=_field(doc, "schedule", _optional_mapping, where, None))
 
 
@@ -389,14 +357,14 @@ class TuningRecord:
         bounds = _field(doc, "active_bounds", _list, "tuning record", [])
         return cls(
             gains=gains("gains"), simc_baseline=gains("simc_baseline"),
-            solve=TuningSolve.from_dict(_field(doc, "tuning", _mapping, "tuning record")),
+            solve=TuningSolve.from_dict(_field(doc, "tuning", mapping, "tuning record")),
             table=tuple(ComparisonRow.from_dict(r, f"table[{i}]") for i, r in enumerate(table)),
-            minimum_time=MinimumTimeBound.from_dict(_field(doc, "minimum_time", _mapping, "tuning record")),
-            tracking_floor=TrackingFloor.from_dict(_field(doc, "tracking_floor", _mapping, "tuning record")),
+            minimum_time=MinimumTimeBound.from_dict(_field(doc, "minimum_time", mapping, "tuning record")),
+            tracking_floor=TrackingFloor.from_dict(_field(doc, "tracking_floor", mapping, "tuning record")),
             active_bounds=tuple(ActiveBound.from_dict(b, f"active_bounds[{i}]") for i, b in enumerate(bounds)),
-            criteria=_field(doc, "criteria", _mapping, "tuning record", {}),
+            criteria=_field(doc, "criteria", mapping, "tuning record", {}),
             tracking_improvement=_field(doc, "tracking_improvement", _ratios, "tuning record", {}),
-            inputs=_field(doc, "inputs", _mapping, "tuning record", {}),
+            inputs=_field(doc, "inputs", mapping, "tuning record", {}),
             published=_field(doc, "published", _optional_mapping, "tuning record", None))
 
     @classmethod
