@@ -97,7 +97,7 @@ from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.learning import played_passes, save_passes
 from piezopreload.tuning.schedule import level_requirements
 
-__all__ = ["Stage", "STAGES", "StageFailed", "StageCrashed", "run_study", "rerender_report",
+__all__ = ["Stage", "STAGES", "StageFailed", "StageCrashed", "run_study", "rerender_report", "read_template",
            "read_manifest", "run_summary", "DEFAULT_OUT"]
 
 DEFAULT_OUT = "piezopreload-out"
@@ -531,6 +531,16 @@ def run_study(study: Study | str | Path | None = None, out: str | Path = DEFAULT
     return _result(out, study, stages, seconds)
 
 
+def read_template(template: str | Path | None) -> str | None:
+    """The text of a report template given on the command line (``--template``), or None for the shipped one."""
+    if template is None:
+        return None
+    try:
+        return Path(template).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"--template {template}: cannot read it ({exc})") from None
+
+
 def rerender_report(out: str | Path, progress: Progress | None = None,
                     template: str | Path | None = None) -> StudyResult:
     """Render the report again from the artifacts in ``out`` (``piezopreload report DIR``); nothing else runs.
@@ -541,12 +551,7 @@ def rerender_report(out: str | Path, progress: Progress | None = None,
     progress = progress or Progress()
     t0 = time.perf_counter()
     out = Path(out)
-    template_text = None
-    if template is not None:
-        try:
-            template_text = Path(template).read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise InputError(f"--template {template}: cannot read it ({exc})") from None
+    template_text = read_template(template)
     if not (out / MANIFEST).is_file():
         raise InputError(f"{out}: no {MANIFEST}; this is not a study's output folder (run 'piezopreload run' first)")
     manifest = read_manifest(out)

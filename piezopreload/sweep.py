@@ -62,7 +62,7 @@ from piezopreload.core.errors import InputError, InternalError, PiezopreloadErro
 from piezopreload.core.parallel import spare_cpus
 from piezopreload.core.stagecache import StageCache
 from piezopreload.core.stages import locked, utc
-from piezopreload.pipeline import read_manifest, run_study, run_summary
+from piezopreload.pipeline import read_manifest, read_template, run_study, run_summary
 from piezopreload.progress import Progress
 from piezopreload.reports.sweep_figures import sweep_plot
 from piezopreload.reports.sweep_report import render_sweep_report
@@ -465,12 +465,7 @@ def rerender_sweep_report(out: str | Path, progress: Progress | None = None,
     progress = progress or Progress()
     t0 = time.perf_counter()
     out = Path(out)
-    text = None
-    if template is not None:
-        try:
-            text = Path(template).read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise InputError(f"--template {template}: cannot read it ({exc})") from None
+    text = read_template(template)
     record = SweepRecord.load(out / RECORD)
     with locked(out, f"{out}: a sweep is writing this folder; wait for it"):
         written = render_sweep_report(out, record, say=progress.say, template=text)
