@@ -232,6 +232,8 @@ def learning_section(learning: LearningRecord) -> Part:
     last = learning.last
     per_pass = ", ".join(f"pass {p.pass_number}: {p.trials} (within 1.1 x its best from trial "
                          f"{p.trials_to_within_1p1}; stopped: {p.stop_reason})" for p in learning.passes)
+    start = (f" and {fmt(last.history[0].worst_tracking_rms_N)} N at its trial 0, which starts from the pass "
+             "before's correction" if last.warm_start else "")
     contraction = last.learning.get("contraction_over_range")
     law = ("" if contraction is None else
            f" The law is checked to contract on the loop linearised over the command's range (worst "
@@ -241,12 +243,13 @@ def learning_section(learning: LearningRecord) -> Part:
             f"reference, as many machining cycles as the schedule holds; learning stops when another trial no longer "
             f"pays. {learning.trials} learning trials in all ({per_pass}).{law} Each margin pass of the schedule "
             f"learns on its own reference{', starting from what the pass before learned' if last.warm_start else ''}. "
-            f"On the last pass the error falls from {fmt(last.before_learning_rms_N)} N to "
-            f"{fmt(last.tracking_rms_N)} N RMS ({fmt(last.tracking_rms_pct_of_range)} % of the range; "
-            f"the causal floor of the ramped reference is {fmt(last.causal_floor_N)} N).")
+            f"On the last pass the error is {fmt(last.tracking_rms_N)} N RMS ({fmt(last.tracking_rms_pct_of_range)} % "
+            f"of the range; the causal floor of the ramped reference is {fmt(last.causal_floor_N)} N), from "
+            f"{fmt(last.before_learning_rms_N)} N without any learned correction{start}.")
     table = Table(("pass", "trial", "RMS (N)", "% of range", "measured (N)"), tuple(rows),
-                  "The error per learning trial (trial 0: before the pass learns): whole cycles, true force; measured: "
-                  "the sensor's force against the plan, what the law learns from.", "rlrrr")
+                  "The error per learning trial (trial 0: before the pass learns, with the correction the pass "
+                  "before learned where it starts from it): whole cycles, true force; measured: the sensor's force "
+                  "against the plan, what the law learns from.", "rlrrr")
     fig = F.learning_iterations([p.to_dict() for p in learning.passes])
     caption = ("The error per learning trial on the repeated schedule, each margin pass on its own reference (whole "
                "cycles, true force, in % of the schedule's range); dotted: the causal floor of each pass's reference.")
