@@ -49,13 +49,16 @@ from piezopreload.rig.outcome import RunResult
 from piezopreload.rig.runlog import RunLog
 from piezopreload.rig.tables import INTERLOCK_KEYS
 
-__all__ = ["EXIT_TRIPPED", "HOST_CHECK_S", "RigRun", "load_validated", "reference_for", "run_metrics", "run", "serve",
-           "push", "check_pushed", "check"]
+__all__ = ["EXIT_TRIPPED", "HOST_CHECK_S", "MAX_REFERENCE_S", "RigRun", "load_validated", "reference_for",
+           "run_metrics", "run", "serve", "push", "check_pushed", "check"]
 
 #: the exit code of a run that an interlock (or a signal) stopped
 EXIT_TRIPPED = 3
 #: how long a run in real time checks its host before arming
 HOST_CHECK_S = 2.0
+#: the longest reference a run plays (an hour: a machining cycle's schedule is seconds to minutes; a longer file is a
+#: unit mistake, and its samples at the loop's rate would not fit in memory)
+MAX_REFERENCE_S = 3600.0
 
 
 def _require_validated(gain_set: GainSet, shown: str) -> GainSet:
@@ -120,7 +123,11 @@ def reference_for(spec: str, gain_set: GainSet, shown: str | Path = "the gain se
     t, f = table["time_s"], table["force_N"]
     if t[0] != 0.0:
         raise InputError(f"{spec}: the first row's time_s is {t[0]!r}; the reference must start at 0")
-    return Reference(t, f, float(t[-1] + (t[-1] - t[-2]))), str(path)
+    duration = float(t[-1] + (t[-1] - t[-2]))
+    if not duration <= MAX_REFERENCE_S:
+        raise InputError(f"{spec}: the reference lasts {duration:.6g} s (its last row held one more interval); a run "
+                         f"plays at most {MAX_REFERENCE_S:g} s: is time_s in seconds?")
+    return Reference(t, f, duration), str(path)
 
 
 def run_metrics(columns: dict[str, np.ndarray], reference: Reference, band_N: float) -> RunMetrics:

@@ -645,3 +645,17 @@ def test_the_low_force_margin_a_study_leaves_unset_follows_the_stacks_reach():
     values, sources = default_interlocks(big)
     assert values["force_low_margin_N"] == pytest.approx(LOW_MARGIN_SHARE * reach, rel=1e-12)
     assert sources["force_low_margin_N"].startswith("derived: 1% of the"), sources["force_low_margin_N"]
+
+
+def test_a_reference_file_longer_than_a_run_plays_is_refused_before_anything_is_written(gains_path, tmp_path, capsys):
+    """A time_s column in the wrong unit (here 1e95 s, found by the fuzz test as an internal failure) is refused by
+    name, exit 2, and no run log is written; an hour is the longest a run plays."""
+    from piezopreload.rig.session import MAX_REFERENCE_S
+
+    ref = tmp_path / "ref.csv"
+    ref.write_text("time_s,force_N\n0,25\n1e95,60\n")
+    logs = tmp_path / "logs"
+    assert main(["rig", "run", str(gains_path), "--fast", "--reference", str(ref), "--log-dir", str(logs)]) == 2
+    err = capsys.readouterr().err
+    assert f"{ref}: the reference lasts 2e+95 s" in err and f"at most {MAX_REFERENCE_S:g} s" in err, err
+    assert not logs.exists() or not any(logs.iterdir()), "a refused run wrote a log"
