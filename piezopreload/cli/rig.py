@@ -79,8 +79,8 @@ def _rig_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--backend", default="sim", help="sim (the simulated rig, default) or an installed hardware plug-in")
     p.add_argument("--backend-option", action="append", metavar="KEY=VALUE", help="passed to the backend (repeatable)")
     p.add_argument("--reference", metavar="|".join(REFERENCES) + "|FILE.csv",
-                   help="the paper's step or trajectory as the gain set stores them, or a CSV of time_s,force_N "
-                        "(default step; with --learned the signal's own)")
+                   help="the step or trajectory of the gain set's study, as the gain set stores them, or a CSV of "
+                        "time_s,force_N from 0 s, at most an hour long (default step; with --learned the signal's own)")
     p.add_argument("--log-dir", default="runs", metavar="DIR", help="where the run log goes (default runs/)")
     p.add_argument("--seed", type=int, default=0, help="noise seed of the simulated rig (default 0)")
     p.add_argument("--force-max-N", type=_positive_float, metavar="N",

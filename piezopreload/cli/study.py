@@ -106,16 +106,16 @@ def _cmd_report(args: argparse.Namespace) -> dict[str, Any]:
 # --------------------------------------------------------------------------------------
 def register_simulate(sub: Any) -> None:
     p = sub.add_parser(
-        "simulate", help="simulate a controller on the reference rig",
+        "simulate", help="simulate a controller on the study's plant",
         description=(
-            "Simulate the PID alone or the inverse-P-I feedforward plus PID on the study's simulated rig "
-            "(truth hysteresis, creep, amplifier, sensor noise and quantisation, one-sample delay) over the "
-            "paper's step or trajectory, and print rise, peak and settling time, overshoot and tracking "
-            "errors beside the paper's values."))
+            "Simulate the PID alone or the inverse-P-I feedforward plus PID on the study's plant, simulated "
+            "(truth hysteresis, creep, amplifier, sensor noise and quantisation, one-sample delay), over the "
+            "study's step or trajectory, and print rise, peak and settling time, overshoot and tracking "
+            "errors, beside the study's published values where it declares them ([published])."))
     study_arguments(p)
     p.add_argument("--controller", choices=CONTROLLERS, default="ff+pid", help="default: ff+pid")
     p.add_argument("--reference", choices=REFERENCES, default="step",
-                   help="step: 25 -> 60 N; trajectory: 60-80-100-80-60 N (default: step)")
+                   help="the study's [reference.step] or [reference.trajectory] (default: step)")
     p.add_argument("--gains", metavar="gains.json", help="a gain-set artifact (default: the study's gains)")
     p.add_argument("--feedforward", metavar="model.json",
                    help="an identified hysteresis-model artifact to invert (default: identify one from a "
