@@ -34,13 +34,13 @@ from piezopreload.artifacts._fields import (
     optional_text,
     text,
 )
-from piezopreload.artifacts.gainset import gains_from_dict, gains_to_dict
-from piezopreload.core.artifacts import read_artifact, write_artifact
+from piezopreload.artifacts.gainset import GainSet, gains_from_dict, gains_to_dict
+from piezopreload.core.artifacts import artifact_kind, read_artifact, schema_name, write_artifact
 from piezopreload.core.errors import ArtifactError, InputError
 from piezopreload.models.controller import PIDGains
 
 __all__ = ["KIND", "ActiveBound", "ComparisonRow", "MinimumTimeBound", "TrackingFloor", "TuningSolve", "TuningRecord",
-           "SIDES"]
+           "SIDES", "warm_start_gains"]
 
 KIND = "tuning"
 SIDES = ("lower", "upper")
@@ -239,7 +239,8 @@ class TrackingFloor:
 class TuningSolve:
     """What the tuning NLP did: IPOPT's status, iterations and time, the engine, the objective, the Ms reached,
     the binding constraints and every constraint's margin (``g <= 0`` met), the FOPDT fit the start came from,
-    the controller's form (``PI`` or ``PID``), the specification and, if one was tuned, the gain schedule's record."""
+    the controller's form (``PI`` or ``PID``), the specification, how the search ended (``search``: its runs, those
+    stopped on the iteration limit, where the result came from) and, if one was tuned, the gain schedule's record."""
 
     status: str
     iterations: int
@@ -254,6 +255,7 @@ class TuningSolve:
     form: str = "PID"
     spec: dict[str, Any] = field(default_factory=dict)
     schedule: dict[str, Any] | None = None
+    search: str = ""
 
     def __post_init__(self) -> None:
         _check_finite(self, ("iterations", "seconds", "compile_s", "objective", "ms"))
@@ -264,7 +266,7 @@ class TuningSolve:
         out = {"status": self.status, "iterations": self.iterations, "seconds": self.seconds, "engine": self.engine,
                "compile_s": self.compile_s, "objective": self.objective, "ms": self.ms, "binding": list(self.binding),
                "constraint_margins": dict(self.constraint_margins), "fopdt": dict(self.fopdt), "form": self.form,
-               "spec": dict(self.spec)}
+               "spec": dict(self.spec), "search": self.search}
         if self.schedule is not None:
             out["schedule"] = self.schedule
         return out
@@ -277,7 +279,8 @@ class TuningSolve:
             ("fopdt", _numbers))}
         return _construct(cls, where, **f, form=_field(doc, "form", text, where, "PID"),
                           spec=_field(doc, "spec", mapping, where, {}),
-                          schedule=_field(doc, "schedule", _optional_mapping, where, None))
+                          schedule=_field(doc, "schedule", _optional_mapping, where, None),
+                          search=_field(doc, "search", text, where, ""))
 
 
 @dataclass(frozen=True)
@@ -376,6 +379,19 @@ class TuningRecord:
         """Write atomically (:func:`~piezopreload.core.artifacts.write_artifact`); returns the path."""
         write_artifact(path, KIND, self.to_dict())
         return Path(path)
+
+
+def warm_start_gains(path: str | Path) -> PIDGains:
+    """The gains of a tuning record (``tuning.json``) or of a gain set (``gains.json``), each through its one reader
+    (schema, fields and content hash checked): what ``[tuning] warm_start`` names. An :class:`ArtifactError` names
+    the file where it is neither."""
+    kind = artifact_kind(path)
+    if kind == KIND:
+        return TuningRecord.load(path).gains
+    if kind == "gain-set":
+        return GainSet.load(path).gains
+    raise ArtifactError(f"{path}: is a {kind} artifact; expected a tuning record ({schema_name(KIND)}) or a gain set "
+                        f"({schema_name('gain-set')})")
 
 
 def _list(x: Any) -> list[Any]:

@@ -20,7 +20,8 @@ from typing import Any
 from piezopreload.core.errors import ArtifactError
 
 __all__ = ["ArtifactError", "schema_name", "write_artifact", "read_artifact", "atomic_write_text", "atomic_write_bytes",
-           "content_hash", "parse_artifact", "package_version", "read_bytes", "finite_or_none"]
+           "content_hash", "parse_artifact", "package_version", "read_bytes", "finite_or_none",
+           "artifact_kind"]
 
 VERSION = 1
 KINDS = {
@@ -156,6 +157,21 @@ def read_artifact(path: str | Path, kind: str) -> dict[str, Any]:
     except UnicodeDecodeError as exc:
         raise ArtifactError(f"{shown}: cannot read ({exc})") from None
     return parse_artifact(text, kind, shown)
+
+
+def artifact_kind(path: str | Path) -> str:
+    """The kind an artifact's ``schema`` names (``gain-set``, ``tuning``, ...), for a reader that takes more than
+    one; :class:`ArtifactError` names the file where it is not an artifact of this package."""
+    shown = str(path)
+    try:
+        text = read_bytes(path).decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ArtifactError(f"{shown}: cannot read ({exc})") from None
+    schema = _json_object(text, shown).get("schema")
+    kind = schema.split("/")[1] if isinstance(schema, str) and schema.count("/") == 2 else None
+    if not (isinstance(schema, str) and schema.startswith("piezopreload/") and kind in KINDS):
+        raise ArtifactError(f"{shown}: field 'schema' is {schema!r}; expected a piezopreload artifact")
+    return kind
 
 
 def _json_object(text: str, shown: str) -> dict[str, Any]:

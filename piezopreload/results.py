@@ -27,6 +27,7 @@ from piezopreload.artifacts.tuning import (
     TrackingFloor,
     TuningRecord,
     TuningSolve,
+    warm_start_gains,
 )
 from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core.errors import InfeasibleError, InputError
@@ -229,14 +230,20 @@ def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None =
     say("tuning the PID around the compensated plant (CasADi + IPOPT), the minimum-time bound beside it ...")
     bounding = beside(minimum_time, study.plant, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]),
                       band_N=study.band_N, u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
+    warm = study.files().get("tuning.warm_start")
+    warm_gains = None if warm is None else warm_start_gains(warm)
+    known = {"the study's [controller] gains": study.gains,
+             **({} if warm_gains is None else {f"the warm start ({warm.name})": warm_gains})}
     try:
-        tuned = tune_pid(study.plant, feedforward.inverse(), spec, progress=iterations)
+        tuned = tune_pid(study.plant, feedforward.inverse(), spec, progress=iterations, known=known)
     except TuningInfeasible as exc:
         bounding.discard()
         raise InfeasibleError(f"{study.path}: {exc}") from exc
     g = tuned.gains
     say(f"tuned in {tuned.seconds:.0f} s: {tuned.form} Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s, Td {g.Td_s:.4g} s, "
         f"Tf {g.Tf_s:.4g} s, b {g.b:.3g}")
+    if tuned.stopped_on_limit:
+        say(f"  the search stopped on IPOPT's iteration limit: {tuned.search}")
     for b in tuned.active_bounds:
         say(f"  {b.sentence()}")
     schedule = None
@@ -244,7 +251,8 @@ def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None =
         span = np.concatenate([study.references[k].levels_N for k in ("step", "trajectory")])
         sched = tune_schedule(study.plant, feedforward.model, spec, criteria, g, step=step, trajectory=trajectory,
                               levels_N=schedule_levels(span.min(), span.max(), study.tuning.schedule_levels),
-                              n_plants=study.tuning.schedule_plants, seed=seed, progress=say)
+                              n_plants=study.tuning.schedule_plants, seed=seed, progress=say,
+                              known=None if warm_gains is None else warm_gains.schedule)
         g, schedule = sched.gains, sched.to_dict()
     floor = tracking_floor(study.plant, trajectory)
     say("comparing the study's, SIMC's and the tuned gains on the nominal plant ...")

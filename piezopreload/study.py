@@ -211,11 +211,12 @@ class Study:
 
     def files(self) -> dict[str, Path]:
         """The input files the study names, by key (``feedforward.data``, ``schedule.profile``,
-        ``rig_run.reference``)."""
+        ``rig_run.reference``, ``tuning.warm_start``)."""
         named = {"feedforward.data": self.feedforward.data,
                  "schedule.profile": None if self.ballscrew is None or self.schedule is None else self.schedule.profile,
                  "rig_run.reference": (self.rig_run.reference if self.rig_run.reference.lower().endswith(".csv")
-                                       else None)}
+                                       else None),
+                 "tuning.warm_start": self.tuning.warm_start}
         return {key: self.folder / rel for key, rel in named.items() if rel is not None}
 
     def check_files(self) -> None:
@@ -251,7 +252,8 @@ class Study:
                 data.pop(table, None)
             else:
                 _merge(data.setdefault(table, {}), keys)
-        for table, rel in (("feedforward", "data"), ("schedule", "profile"), ("rig_run", "reference")):
+        for table, rel in (("feedforward", "data"), ("schedule", "profile"), ("rig_run", "reference"),
+                           ("tuning", "warm_start")):
             value = data.get(table, {}).get(rel)  # files stay where they were, wherever the copy is written
             if isinstance(value, str) and (table != "rig_run" or value.lower().endswith(".csv")):
                 data[table][rel] = str(self.folder / value)

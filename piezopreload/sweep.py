@@ -41,7 +41,7 @@ import uuid
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -151,6 +151,48 @@ def plan_points(study: Study, vary: Mapping[str, Sequence[Scalar]], mode: str = 
         except PiezopreloadError as exc:
             raise InputError(f"{where}: the point {_label(values)}: {exc}") from None
     return axes, points
+
+
+#: the [tuning] limits a sweep may relax, with the direction in which a value is tighter (-1: a smaller value)
+RELAXED_LIMITS = {"tuning.ms_max": -1, "tuning.noise_gain_max_V_per_N": -1, "tuning.overshoot_margin_N": +1}
+
+
+def _tighter(a: Mapping[str, Scalar], b: Mapping[str, Scalar]) -> bool:
+    """Whether point ``b``'s tuning problem is point ``a``'s with limits as tight or tighter and nothing else changed
+    (the same plant, references and objective: ``b``'s tuned gains meet ``a``'s limits)."""
+    changed = [k for k in a if a[k] != b[k]]
+    return bool(changed) and all(
+        k in RELAXED_LIMITS and isinstance(a[k], int | float) and isinstance(b[k], int | float)
+        and RELAXED_LIMITS[k] * (float(b[k]) - float(a[k])) > 0 for k in changed)
+
+
+def tighter_neighbours(values: Sequence[Mapping[str, Scalar]]) -> dict[int, int]:
+    """For each point whose limits another point's relaxes (:data:`RELAXED_LIMITS`, nothing else changed), the closest
+    such tighter point: its index. A looser point's tuning starts from that point's gains (``[tuning] warm_start``),
+    which meet its limits, so relaxing a limit never loses what the tighter point found."""
+    out: dict[int, int] = {}
+    for i, a in enumerate(values):
+        found = [j for j, b in enumerate(values) if j != i and _tighter(a, b)]
+        # the closest: no other tighter point lies between it and this one
+        closest = [j for j in found if not any(_tighter(values[k], values[j]) for k in found if k != j)]
+        if closest:
+            out[i] = min(closest)
+    return out
+
+
+def _waves(n: int, after: Mapping[int, int]) -> list[list[int]]:
+    """The points in waves: each point in the wave after the one its tighter neighbour is in."""
+    depth: dict[int, int] = {}
+
+    def level(i: int) -> int:
+        if i not in depth:
+            depth[i] = 0 if i not in after else level(after[i]) + 1
+        return depth[i]
+
+    waves: list[list[int]] = [[] for _ in range(max((level(i) for i in range(n)), default=-1) + 1)]
+    for i in range(n):
+        waves[level(i)].append(i)
+    return waves
 
 
 # --------------------------------------------------------------------------------------
@@ -349,6 +391,21 @@ def _run_dask(tasks: list[_Task], scheduler: str, done: Callable[[SweepPoint], N
         client.close()
 
 
+def _warm_started(task: _Task, tighter: _Task | None, progress: Progress) -> _Task:
+    """``task`` with its tuning started from its tighter neighbour's tuned gains, where that point wrote them."""
+    if tighter is None:
+        return task
+    tuning = Path(tighter.out) / tighter.folder / "tuning.json"
+    if not tuning.is_file():
+        progress.write(f"p{task.index:03d}: its tighter point p{tighter.index:03d} wrote no tuning; it is tuned "
+                       "from its own starts only\n")
+        return task
+    changed = {k: v for k, v in tighter.values.items() if v != task.values[k]}
+    progress.write(f"p{task.index:03d}: its tuning starts from p{tighter.index:03d}'s gains, which meet its limits "
+                   f"(p{tighter.index:03d} has them tighter: {_label(changed)})\n")
+    return replace(task, study=task.study.replace(tuning={"warm_start": str(tuning)}))
+
+
 def _point_line(point: SweepPoint, count: int, total: int) -> str:
     head = f"[{count}/{total}] p{point.index:03d} {_label(point.values)}: "
     took = "" if point.seconds is None else f" in {point.seconds:.1f} s"
@@ -432,13 +489,16 @@ def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "gr
             state["count"] += 1
             progress.write(_point_line(point, state["count"], len(tasks)))
 
-        if scheduler is not None:
-            _run_dask(tasks, scheduler, done)
-        elif n <= 1:
-            for task in tasks:
-                done(run_point(task))
-        else:
-            _run_local(tasks, n, done)
+        after = tighter_neighbours([v for v, _ in planned])
+        for wave in _waves(len(tasks), after):
+            batch = [_warm_started(tasks[i], tasks[after[i]] if i in after else None, progress) for i in wave]
+            if scheduler is not None:
+                _run_dask(batch, scheduler, done)
+            elif n <= 1 or len(batch) == 1:
+                for task in batch:
+                    done(run_point(task))
+            else:
+                _run_local(batch, min(n, len(batch)), done)
         record = state["record"]
         result = SweepResult(out, record, time.perf_counter() - t0)
         atomic_write_text(out / ROWS, result.csv_text())

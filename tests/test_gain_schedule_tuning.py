@@ -186,3 +186,33 @@ def test_the_chosen_sets_verdict_at_each_level_is_a_requirement():
     assert all(r.met for r in level_requirements({**record, "choice": "schedule"})), "the schedule meets every level"
     never = {**record, "levels": [{"level_N": 0.0, "robust": {**ok, "settling_s": None}, "scheduled": ok}]}
     assert not level_requirements(never)[0].met, "a step that never settles misses the settling limit"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("draw", [3, 11])
+def test_the_machine_axis_verdict_does_not_hang_on_the_last_digits(monkeypatch, draw):
+    """Another machine's rounding, played here: the tuner's starting points moved by 1e-9 (in the unit box). Before
+    the search kept its best point and its known ones, draw 3 ended the 4,000 N entry on IPOPT's iteration limit
+    from its one start, the entry kept the robust set, the schedule missed the whole range and the robust set (28.9
+    N overshoot at 2,000 N against 25 N) was kept: the default study exited 4. Now every draw tunes every entry and
+    the schedule meets each level's Monte Carlo limits with at least 5 % to spare."""
+    from piezopreload import results
+    from piezopreload.study import load_study
+    from piezopreload.tuning import pid
+    from piezopreload.tuning.schedule import level_requirements
+
+    study = load_study("machine_axis")
+    feedforward = study.identify_feedforward()
+    seeds, rng = pid._seeds, np.random.default_rng(draw)
+
+    def moved(*args, **kwargs):
+        points = seeds(*args, **kwargs)
+        return np.clip(points + 1e-9 * rng.standard_normal(points.shape), 0.0, 1.0)
+
+    monkeypatch.setattr(pid, "_seeds", moved)
+    schedule = results.tune(study, feedforward).solve.schedule
+    assert schedule is not None and schedule["choice"] == "schedule", schedule and schedule["reason"]
+    kept = [lv["level_N"] for lv in schedule["levels"] if "infeasible" in lv["tuning"]]
+    assert not kept, f"the entries at {kept} N kept the robust set"
+    least = min((r for r in level_requirements(schedule)), key=lambda r: r.margin_pct)
+    assert least.margin_pct >= 5.0, least.sentence()

@@ -35,7 +35,7 @@ from piezopreload.core.stagecache import StageCache
 from piezopreload.pipeline import read_manifest, run_study
 from piezopreload.progress import Progress
 from piezopreload.study import load_study
-from piezopreload.sweep import SweepResult, headline, parse_vary, plan_points
+from piezopreload.sweep import SweepResult, _waves, headline, parse_vary, plan_points, tighter_neighbours
 
 DATA = Path(__file__).parent / "data"
 SMALL = DATA / "small_study.toml"
@@ -80,6 +80,21 @@ def test_a_grid_takes_every_combination_and_a_zip_pairs_the_values():
         plan_points(study, {"tuning.ms_max": [1.5, 1.7], "validation.plants": [4]}, "zip")
     with pytest.raises(InputError, match="mode"):
         plan_points(study, {"tuning.ms_max": [1.5]}, "diagonal")
+
+
+def test_a_looser_tuning_point_starts_from_its_closest_tighter_neighbour():
+    """A point whose [tuning] limits another point's relax (Ms, the noise gain: smaller is tighter; the overshoot
+    margin: larger is tighter), nothing else changed, takes the closest such point's gains: 1.8 from 1.6, 1.6 from
+    1.4; a point that changes another key too (the seed) or tightens one limit while relaxing another takes none."""
+    grid = [{"tuning.ms_max": m, "simulation.seed": k} for k in (0, 1) for m in (1.8, 1.4, 1.6)]
+    after = tighter_neighbours(grid)
+    assert after == {0: 2, 2: 1, 3: 5, 5: 4}, after
+    assert _waves(len(grid), after) == [[1, 4], [2, 5], [0, 3]]
+    mixed = [{"tuning.ms_max": 1.4, "tuning.overshoot_margin_N": 0.5},
+             {"tuning.ms_max": 1.6, "tuning.overshoot_margin_N": 0.7},  # relaxes Ms, tightens the margin: neither
+             {"tuning.ms_max": 1.6, "tuning.overshoot_margin_N": 0.5}]
+    assert tighter_neighbours(mixed) == {2: 0}
+    assert tighter_neighbours([{"rig.noise_N": 1.0}, {"rig.noise_N": 0.5}]) == {}, "only the tuning's limits"
 
 
 @pytest.mark.parametrize(("vary", "named"), [

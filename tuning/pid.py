@@ -37,7 +37,7 @@ tracking floor) are :mod:`piezopreload.tuning.bounds`.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -240,6 +240,12 @@ class TuningResult:
     engine: str = "plain"
     compile_s: float = 0.0
     active_bounds: tuple[ActiveBound, ...] = ()
+    search: str = ""
+
+    @property
+    def stopped_on_limit(self) -> bool:
+        """Whether the result came from a run of IPOPT stopped on its iteration limit (its best iterate)."""
+        return self.status == "Maximum_Iterations_Exceeded"
 
     @property
     def form(self) -> str:
@@ -250,7 +256,7 @@ class TuningResult:
         return {
             "status": self.status, "iterations": self.iterations, "seconds": self.seconds,
             "engine": self.engine, "compile_s": self.compile_s,
-            "objective": self.objective, "ms": self.ms, "binding": self.binding,
+            "objective": self.objective, "ms": self.ms, "binding": self.binding, "search": self.search,
             "constraint_margins": self.constraint_margins, "form": self.form,
             "fopdt": {"K_N_per_V": self.fopdt.K, "T_s": self.fopdt.T_s, "theta_s": self.fopdt.theta_s,
                       "rms_N": self.fopdt.rms_N},
@@ -311,12 +317,16 @@ class _Scaling:
         return out
 
 
-def _seeds(names: list[str], scaling: _Scaling, baseline: PIDGains, start: PIDGains | None = None) -> np.ndarray:
-    """Starting points: the SIMC baseline (``start`` before it, if given) and a coarse grid around the box's middle."""
+def _z_of(names: list[str], scaling: _Scaling, g: PIDGains) -> np.ndarray:
+    """``g`` in the unit box (clipped into it)."""
+    return np.array([scaling.z(n, {"Kc": g.Kc, "Ti": g.Ti_s, "Td": g.Td_s, "Tf": g.Tf_s, "b": g.b}[n]) for n in names])
+
+
+def _seeds(names: list[str], scaling: _Scaling, baseline: PIDGains, first: list[PIDGains] = ()) -> np.ndarray:
+    """Starting points: the SIMC baseline (the ``first`` gains before it: warm starts, known good gains) and a coarse
+    grid around the box's middle."""
     pts = [[scaling.z(n, {"Kc": baseline.Kc, "Ti": baseline.Ti_s, "Td": 1e-4, "Tf": 1e-4, "b": 1.0}[n]) for n in names]]
-    if start is not None:  # a warm start: gains tuned for a neighbouring problem
-        pts.insert(0, [scaling.z(n, {"Kc": start.Kc, "Ti": start.Ti_s, "Td": start.Td_s, "Tf": start.Tf_s,
-                                     "b": start.b}[n]) for n in names])
+    pts[:0] = [list(_z_of(names, scaling, g)) for g in first]  # gains tuned for a neighbouring problem, say
     k = scaling.bounds["Kc"][0] / SEARCH_BOX["Kc"][0]
     grid = {"Kc": [0.3 * k, 1.0 * k, 3.0 * k], "Ti": [0.02, 0.05, 0.15], "Td": [1e-4], "Tf": [1e-4], "b": [0.0, 0.5]}
     axes = [[scaling.z(n, v) for v in grid[n]] for n in names]
@@ -460,12 +470,52 @@ ENGINES = ("auto", "compiled", "plain")
 # --------------------------------------------------------------------------------------
 # solving
 # --------------------------------------------------------------------------------------
+#: a point whose worst constraint is within this of its bound is feasible (the constraints' units: N, Ms^2, ...)
+_FEASIBLE = 1e-4
+#: IPOPT's statuses that end a run at a local optimum (anything else: a limit reached, or trouble)
+_CONVERGED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+#: a run that has found nothing better than the incumbent (feasible) for this many iterations is stopped: on a loop
+#: with kinks an interior-point method may wander without end around the best point it has seen
+_PATIENCE = 50
+_STALLED = "User_Requested_Stop"
+
+
+@dataclass
+class _Incumbent:
+    """The best point the search has seen, from any start, any iterate or any known point: a feasible one beats an
+    infeasible one; among feasible the lower objective, among infeasible the smaller violation. A run that ends on
+    its iteration limit (or wanders off, as an interior-point method may on a loop with kinks) loses nothing it
+    found, and gains that meet the specification are never reported infeasible once one was seen."""
+
+    z: np.ndarray | None = None
+    objective: float = float("inf")
+    violation: float = float("inf")
+    source: str = ""
+
+    @property
+    def feasible(self) -> bool:
+        return self.violation <= _FEASIBLE
+
+    def offer(self, z: np.ndarray, objective: float, violation: float, source: str) -> bool:
+        """Keep ``z`` if it beats the incumbent; whether it did."""
+        if not (np.isfinite(objective) and np.isfinite(violation)):
+            return False
+        feasible = violation <= _FEASIBLE
+        better = (self.z is None or (feasible and (not self.feasible or objective < self.objective))
+                  or (not feasible and not self.feasible and violation < self.violation))
+        if better:
+            self.z, self.objective, self.violation, self.source = np.array(z, float), objective, violation, source
+        return better
+
+
 class _Solvers:
-    """The NLP's two IPOPT solvers (the tuning and the least violation, :class:`_Problem`) and its evaluation."""
+    """The NLP's two IPOPT solvers (the tuning and the least violation, :class:`_Problem`), its evaluation and the
+    incumbent every iterate of the tuning is offered to (:class:`_Incumbent`)."""
 
     def __init__(self, prob: _Problem, max_iterations: int, verbose: bool,
-                 progress: Callable[[int], None] | None) -> None:
+                 progress: Callable[[], None] | None) -> None:
         self.prob = prob
+        self.max_iterations = max_iterations
         nlp = prob.nlp()
         options = {
             # the slew clip and the output clamp are kinks: the dual infeasibility stalls near 1e-3
@@ -474,21 +524,32 @@ class _Solvers:
             "ipopt.acceptable_iter": 5, "ipopt.acceptable_obj_change_tol": 1e-4,
             "ipopt.print_level": 5 if verbose else 0, "print_time": False, "ipopt.sb": "yes",
         }
-        counters: list[Any] = []
-        if progress is not None:
-            counters = [_IterationCounter(prob.x.numel(), prob.g.numel(), progress) for _ in range(2)]
-        self.counters = counters
-        self.solver = ca.nlpsol("tune", "ipopt", nlp,
-                                {**options, **({"iteration_callback": counters[0]} if counters else {})})
+        self.incumbent = _Incumbent()
+        self._run = ""  # the run the tuning solver's iterates belong to (the incumbent's source)
+        self._idle = 0  # the run's iterations since it last improved the incumbent
+        n_x, n_g = prob.x.numel(), prob.g.numel()
+        self.watch = _Watch(n_x, n_g, self._iterate, progress)  # every iterate of the tuning
+        self.counter = _Watch(n_x, n_g, None, progress)  # the least violation's: counted, not offered
+        self.solver = ca.nlpsol("tune", "ipopt", nlp, {**options, "iteration_callback": self.watch})
         self.phase_one = ca.nlpsol("tune_phase_one", "ipopt", nlp, {
-            **options, "ipopt.tol": 1e-8, **({"iteration_callback": counters[1]} if counters else {})})
+            **options, "ipopt.tol": 1e-8, "iteration_callback": self.counter})
         self.evaluate = ca.Function("evaluate", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]])
         self.data, self.data_one = prob.with_phase(False), prob.with_phase(True)
         self.iterations = 0
+        self.runs: list[dict[str, Any]] = []
 
     @property
     def n_z(self) -> int:
         return len(self.prob.names)
+
+    def _iterate(self, x: np.ndarray, f: float, g: np.ndarray) -> bool:
+        """An iterate of the tuning (its slack is 0, so ``g`` is the constraints): offered to the incumbent. Whether
+        to stop the run: it has found nothing better than a feasible incumbent for :data:`_PATIENCE` iterations."""
+        z = x[:self.n_z]
+        better = bool(np.all((z >= 0.0) & (z <= 1.0))) and self.incumbent.offer(
+            z, f, float(np.max(g, initial=0.0)), self._run)
+        self._idle = 0 if better else self._idle + 1
+        return self.incumbent.feasible and self._idle >= _PATIENCE
 
     def score(self, zv: np.ndarray) -> tuple[float, float]:
         """The worst constraint violation (0 if feasible) and the objective."""
@@ -499,46 +560,80 @@ class _Solvers:
         g = np.asarray(self.evaluate(np.append(zv, 0.0), self.data)[1], float).ravel()
         return dict(zip(self.prob.labels, (float(x) for x in g)))
 
-    def solve(self, x0: np.ndarray, violation: float) -> tuple[np.ndarray, str]:
-        """From ``x0``: the least violation first if it violates a constraint, then the tuning."""
+    def offer(self, zv: np.ndarray, source: str) -> tuple[float, float]:
+        """Score ``zv`` and offer it to the incumbent; its violation and objective."""
+        violation, f = self.score(zv)
+        self.incumbent.offer(zv, f, violation, source)
+        return violation, f
+
+    def solve(self, x0: np.ndarray, violation: float, run: str) -> tuple[np.ndarray, str]:
+        """From ``x0``: the least violation first if it violates a constraint, then the tuning (``run`` names it)."""
         n_z = self.n_z
         if violation > 0:
             sol = self.phase_one(x0=np.append(x0, violation), p=self.data_one, lbx=np.append(np.zeros(n_z), -np.inf),
                                  ubx=np.append(np.ones(n_z), np.inf), lbg=-np.inf, ubg=0.0)
             self.iterations += int(self.phase_one.stats().get("iter_count", 0))
             x0 = np.clip(np.asarray(sol["x"], float).ravel()[:-1], 0.0, 1.0)
+        self._run, self._idle = run, 0
         sol = self.solver(x0=np.append(x0, 0.0), p=self.data, lbx=np.append(np.zeros(n_z), 0.0),
                           ubx=np.append(np.ones(n_z), 0.0), lbg=-np.inf, ubg=0.0)
         stats = self.solver.stats()
         self.iterations += int(stats.get("iter_count", 0))
-        return np.clip(np.asarray(sol["x"], float).ravel()[:-1], 0.0, 1.0), str(stats.get("return_status", "unknown"))
+        zv = np.clip(np.asarray(sol["x"], float).ravel()[:-1], 0.0, 1.0)
+        status = str(stats.get("return_status", "unknown"))
+        self.offer(zv, run)
+        self.runs.append({"run": run, "status": status, "iterations": int(stats.get("iter_count", 0))})
+        return zv, status
 
-    def best_of(self, seeds: np.ndarray, starts: int) -> tuple[np.ndarray, float, str]:
-        """The best solution from the ``starts`` best seeds (by violation, then objective): feasible beats
-        infeasible; among feasible the lower objective, among infeasible the smaller violation (what the error
-        message then reports). Stops at the first feasible one."""
+    def best_of(self, seeds: np.ndarray, starts: int, known: dict[str, np.ndarray] | None = None) -> tuple[str, str]:
+        """Search from the ``starts`` best seeds (by violation, then objective), the ``known`` points (gains known to
+        be good, scored first) offered too; the incumbent is the result. A start that converges to a feasible point
+        ends the search; one that stops on its iteration limit does not, and where the incumbent came from such a
+        run the search goes on from it once more. Returns IPOPT's status of the incumbent's run and a sentence on
+        how the search ended."""
+        for name, z in (known or {}).items():
+            self.offer(z, name)
         scores = [self.score(sd) for sd in seeds]
         order = sorted(range(len(seeds)), key=lambda i: (round(scores[i][0], 3), scores[i][1]))
-        best: tuple[bool, float, np.ndarray, float, str] | None = None
-        for i in order[:starts]:
-            zv, status = self.solve(seeds[i], scores[i][0])
-            worst, f = self.score(zv)
-            infeasible = worst > 1e-4
-            candidate = (infeasible, worst if infeasible else f, zv, f, status)
-            if best is None or candidate[:2] < best[:2]:
-                best = candidate
-            if not infeasible:
+        status = "not run"
+        for k, i in enumerate(order[:starts]):
+            zv, status = self.solve(seeds[i], scores[i][0], f"start {k + 1}")
+            if status in _CONVERGED and self.score(zv)[0] <= _FEASIBLE:
                 break
-        if best is None:
-            raise InputError(f"starts must be >= 1, got {starts}.")
-        return best[2], best[3], best[4]
+        inc = self.incumbent
+        run_status = next((r["status"] for r in self.runs if r["run"] == inc.source), "a known point")
+        if inc.z is not None and run_status == "Maximum_Iterations_Exceeded":
+            # the best point came from a run stopped on its limit: go on from it (IPOPT's barrier starts afresh)
+            again = f"{inc.source}, continued"
+            _, status = self.solve(inc.z, inc.violation, again)
+            run_status = next((r["status"] for r in self.runs if r["run"] == self.incumbent.source), run_status)
+        return run_status, self._ending()
+
+    def _ending(self) -> str:
+        """How the search ended, in words: the runs, their statuses, where the result came from."""
+        limited = sum(r["status"] == "Maximum_Iterations_Exceeded" for r in self.runs)
+        stalled = sum(r["status"] == _STALLED for r in self.runs)
+        runs = f"{len(self.runs)} run(s) of IPOPT" + (
+            f", {limited} stopped on the iteration limit ({self.max_iterations})" if limited else "") + (
+            f", {stalled} stopped after {_PATIENCE} iterations without a better point" if stalled else "")
+        inc = self.incumbent
+        src = next((r for r in self.runs if r["run"] == inc.source), None)
+        if src is None:
+            where = f"{inc.source} (no run found better)"
+        elif src["status"] in _CONVERGED:
+            where = f"{inc.source}, converged ({src['status']})"
+        elif src["status"] == _STALLED:
+            where = f"the best iterate of {inc.source} (no better one in the {_PATIENCE} iterations after it)"
+        else:
+            where = f"the best iterate of {inc.source} ({src['status']})"
+        return f"{runs}; the result is {'feasible' if inc.feasible else 'the least violation'}: {where}"
 
 
-def _check_feasible(margins: dict[str, float], status: str, starts: int) -> None:
-    violated = sorted(((m, label) for label, m in margins.items() if m > 1e-4), reverse=True)
+def _check_feasible(margins: dict[str, float], search: str) -> None:
+    violated = sorted(((m, label) for label, m in margins.items() if m > _FEASIBLE), reverse=True)
     if violated:
         detail = "; ".join(f"{label} (by {m:.3g})" for m, label in violated[:5])
-        raise TuningInfeasible(f"PID tuning found no gains that meet the specification ({status}, {starts} starts); "
+        raise TuningInfeasible(f"PID tuning found no gains that meet the specification ({search}); "
                                f"not met: {detail}. Relax those limits or the plant variants' spread.")
 
 
@@ -580,21 +675,22 @@ def _engine(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningS
 
 
 def _as_pi(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningSpec, engine: str,
-           pid: PIDGains, max_iterations: int, progress: Callable[[int], None] | None
-           ) -> tuple[PIDGains, _Solvers, np.ndarray, str, bool] | None:
+           pid: PIDGains, max_iterations: int, progress: Callable[[], None] | None
+           ) -> tuple[PIDGains, _Solvers, np.ndarray, bool] | None:
     """The PI of ``pid`` (its derivative on its lower bound): ``pid`` without its derivative and filter where that
-    meets every constraint of the tuning, else the PI tuned from its Kc, Ti (and b); with whether it was tuned
-    again. None if no PI is feasible."""
+    meets every constraint of the tuning, else the PI tuned from its Kc, Ti (and b); with its solvers (their
+    incumbent is the PI), its point and whether it was tuned again. None if no PI is feasible."""
     spec_pi = replace(spec, filter_s=0.0)
     prob, _, _ = _engine(params, feedforward, spec_pi, engine)
     solvers = _Solvers(prob, max_iterations, False, progress)
-    seed = np.array([prob.scaling.z(n, {"Kc": pid.Kc, "Ti": pid.Ti_s, "b": pid.b}[n]) for n in prob.names])
-    if solvers.score(seed)[0] <= 1e-4:
-        return replace(pid, Td_s=0.0, Tf_s=0.0), solvers, seed, "the PID without its derivative", False
-    zv, _, status = solvers.best_of(seed[None, :], 1)
-    if solvers.score(zv)[0] > 1e-4:
+    seed = _z_of(prob.names, prob.scaling, pid)
+    if solvers.offer(seed, "the PID without its derivative")[0] <= _FEASIBLE:
+        return replace(pid, Td_s=0.0, Tf_s=0.0), solvers, seed, False
+    solvers.best_of(seed[None, :], 1)
+    inc = solvers.incumbent
+    if inc.z is None or not inc.feasible:
         return None
-    return prob.scaling.gains(zv, spec_pi), solvers, zv, status, True
+    return prob.scaling.gains(inc.z, spec_pi), solvers, inc.z, True
 
 
 def tune_pid(
@@ -608,6 +704,7 @@ def tune_pid(
     progress: Callable[[int], None] | None = None,
     engine: str = "auto",
     start: PIDGains | None = None,
+    known: Mapping[str, PIDGains] | None = None,
 ) -> TuningResult:
     """Tune ``Kc, Ti, Td, Tf`` (and ``b``) on the compensated plant; see the module docstring.
 
@@ -616,9 +713,15 @@ def tune_pid(
     IPOPT runs with the exact Hessian. The NLP starts from the best of a few seeds (the SIMC
     baseline and a coarse grid) by constraint violation and then objective; a start that
     violates a constraint first minimises the violation (a phase-one problem), then the
-    objective. Raises :class:`TuningInfeasible` naming the violated constraints when no start
-    ends feasible. ``progress``, if given, is called with the count of IPOPT iterations so far
-    (all starts and phases) at every iteration.
+    objective. Every iterate of every run is offered to an incumbent (feasible beats
+    infeasible, then the lower objective), which is the result: a run that ends on its
+    iteration limit, or wanders off as an interior-point method may on a loop with kinks,
+    loses nothing it found; a start that converges to a feasible point ends the search, one
+    stopped on its limit does not, and the search goes on once from an incumbent such a run
+    found. :attr:`TuningResult.search` says how it ended. Raises :class:`TuningInfeasible`
+    naming the violated constraints when no feasible point was seen. ``progress``, if given,
+    is called with the count of IPOPT iterations so far (all starts and phases) at every
+    iteration.
 
     ``engine``: ``"compiled"`` runs the loop with its derivatives as C (built once and cached,
     :mod:`piezopreload.core.native`), ``"plain"`` in CasADi's virtual machine, ``"auto"``
@@ -626,7 +729,11 @@ def tune_pid(
     the same iterates and optimum; the result says which ran and how long the build took.
 
     ``start``: gains to try first (a warm start, say the robust set for one entry of a gain
-    schedule); the seeds are still ranked by violation and objective.
+    schedule); the seeds are still ranked by violation and objective. ``known``: gains known to
+    be good by name (the study's, a tighter problem's, the last run's): each is scored and
+    offered to the incumbent before any run and tried as a start, so the result is never worse
+    than the best of them that meets the specification (a relaxed limit cannot lose a solution
+    it is given).
 
     A derivative time that ends on the lower end of its range makes the result a PI: tuned again
     without the derivative and its filter from the PID's Kc and Ti (:attr:`TuningResult.active_bounds`
@@ -647,10 +754,18 @@ def tune_pid(
         if progress is not None:
             progress(total[0])
 
+    known = dict(known or {})
     solvers = _Solvers(prob, max_iterations, verbose, tick if progress is not None else None)
-    zv, objective, status = solvers.best_of(_seeds(prob.names, prob.scaling, baseline, start), starts)
+    status, search = solvers.best_of(
+        _seeds(prob.names, prob.scaling, baseline, list(dict.fromkeys(g for g in (start, *known.values()) if g))),
+        starts,
+        {name: _z_of(prob.names, prob.scaling, g) for name, g in known.items()})
+    zv = solvers.incumbent.z
+    if zv is None:  # pragma: no cover - a search always scores its seeds
+        raise TuningInfeasible(f"PID tuning found no point to judge ({search})")
     margins = solvers.margins(zv)
-    _check_feasible(margins, status, starts)
+    _check_feasible(margins, search)
+    objective = solvers.incumbent.objective
     tuned, on_bounds, iterations = prob.scaling.gains(zv, spec), prob.scaling.on_bounds(zv), solvers.iterations
     made_pi = any(name == "Td" and side == "lower" for name, side, _ in on_bounds)
     retuned = False
@@ -659,28 +774,34 @@ def tune_pid(
         if pi is None:  # no PI meets the specification: keep the PID with its derivative on the bound
             made_pi = False
         else:
-            tuned, pi_solvers, zv_pi, pi_status, retuned = pi
-            objective, margins = pi_solvers.score(zv_pi)[1], pi_solvers.margins(zv_pi)
-            on_bounds = on_bounds + pi_solvers.prob.scaling.on_bounds(zv_pi)
+            tuned, pi_solvers, z_pi, retuned = pi
+            inc = pi_solvers.incumbent
+            objective, margins = pi_solvers.score(z_pi)[1], pi_solvers.margins(z_pi)
+            on_bounds = on_bounds + pi_solvers.prob.scaling.on_bounds(z_pi)
             iterations += pi_solvers.iterations
-            status = pi_status if retuned else status
+            if retuned:
+                status, search = (next((r["status"] for r in pi_solvers.runs if r["run"] == inc.source), status),
+                                  f"{search}; as a PI: {pi_solvers._ending()}")
     binding = sorted(label for label, m in margins.items() if m > -1e-3)
     ms = max(max_sensitivity(tuned, v) for v in prob.variants)
     return TuningResult(
         gains=tuned, baseline=baseline, fopdt=fopdt, objective=objective, status=status,
         iterations=iterations, seconds=time.perf_counter() - t0, ms=ms, binding=binding,
         constraint_margins=margins, engine=used, compile_s=compile_s,
-        active_bounds=_active_bounds(sorted(set(on_bounds)), made_pi, retuned),
+        active_bounds=_active_bounds(sorted(set(on_bounds)), made_pi, retuned), search=search,
     )
 
 
-class _IterationCounter(ca.Callback):
-    """CasADi's ``iteration_callback`` for an NLP with ``nx`` variables and ``ng`` constraints: calls ``tick()``."""
+class _Watch(ca.Callback):
+    """CasADi's ``iteration_callback`` for an NLP with ``nx`` variables and ``ng`` constraints: hands every iterate
+    (``x``, ``f``, ``g``) to ``on_iterate`` where given (which returns whether to stop the run), and calls
+    ``tick()`` where given."""
 
-    def __init__(self, nx: int, ng: int, tick: Callable[[], None]) -> None:
+    def __init__(self, nx: int, ng: int, on_iterate: Callable[[np.ndarray, float, np.ndarray], bool] | None,
+                 tick: Callable[[], None] | None) -> None:
         ca.Callback.__init__(self)
-        self.nx, self.ng, self.tick = nx, ng, tick
-        self.construct("iteration_counter", {})
+        self.nx, self.ng, self.on_iterate, self.tick = nx, ng, on_iterate, tick
+        self.construct("iteration_watch", {})
 
     def get_n_in(self) -> int:
         return ca.nlpsol_n_out()
@@ -705,8 +826,14 @@ class _IterationCounter(ca.Callback):
         return ca.Sparsity(0, 0)
 
     def eval(self, arg: list[Any]) -> list[Any]:
-        self.tick()
-        return [0]
+        stop = False
+        if self.on_iterate is not None:
+            names = [ca.nlpsol_out(i) for i in range(ca.nlpsol_n_out())]
+            x, f, g = (np.asarray(arg[names.index(k)], float).ravel() for k in ("x", "f", "g"))
+            stop = self.on_iterate(x, float(f[0]), g)
+        if self.tick is not None:
+            self.tick()
+        return [1 if stop else 0]  # non-zero: IPOPT stops (User_Requested_Stop)
 
 
 class _ZeroFF:

@@ -176,7 +176,7 @@ def level_requirements(schedule: dict[str, Any]) -> tuple[Requirement, ...]:
             value = 1e9 * max(abs(limit), 1.0) if value is None else float(value)  # never settled: missed by far
             out.append(Requirement(f"{words} at the {level['level_N']:,.0f} N level over {schedule['plants']} "
                                    f"Monte Carlo plants ({schedule['choice']})", value, float(limit), unit, "max",
-                                   f"[validation] {key}"))
+                                   f"[validation] {key}", f"validation.{key}@{level['level_N']:g}N"))
     return tuple(out)
 
 
@@ -196,15 +196,19 @@ def _judge(args: tuple[Any, ...]) -> dict[str, Any]:
                            trajectory=trajectory))
 
 
-def _tune_entry(args: tuple[Plant, Any, TuningSpec, PIDGains]) -> tuple[PIDGains, dict[str, Any]]:
-    params, inverse, spec, start = args
+def _tune_entry(args: tuple[Plant, Any, TuningSpec, PIDGains, PIDGains | None]) -> tuple[PIDGains, dict[str, Any]]:
+    """One entry tuned on its window from the robust set, which it keeps unless it finds better (and the warm
+    start's entry at this level, where given)."""
+    params, inverse, spec, start, warm = args
+    known = {"the robust set": start, **({} if warm is None else {"the warm start's entry": warm})}
     try:
-        tuned = tune_pid(params, inverse, spec, start=start, starts=1, max_iterations=40)
+        tuned = tune_pid(params, inverse, spec, start=start, known=known)
     except TuningInfeasible as exc:  # no gains meet the window's specification: the entry keeps the robust set's
         return start, {"infeasible": str(exc), "kept": "the robust set",
                        "overshoot_target_N": spec.band_N - spec.overshoot_margin_N}
     return tuned.gains, {"iterations": tuned.iterations, "seconds": tuned.seconds, "ms": tuned.ms,
                          "objective": tuned.objective, "binding": tuned.binding, "engine": tuned.engine,
+                         "status": tuned.status, "search": tuned.search,
                          "overshoot_target_N": spec.band_N - spec.overshoot_margin_N}
 
 
@@ -292,6 +296,21 @@ def _bound(record: dict[str, Any], figures: dict[str, Any], limits: dict[str, fl
             f"its plant variants) binds on: {binding}; Monte Carlo: {missed}")
 
 
+def _warm_entries(known: GainSchedule | None, levels_N: np.ndarray, robust: PIDGains) -> list[PIDGains | None]:
+    """Each level's entry of a known schedule (the robust set's filter and range), None where it has none at that
+    level."""
+    if known is None:
+        return [None] * levels_N.size
+    at = {round(float(x), 6): i for i, x in enumerate(known.levels_N)}
+    b = known.b if known.b is not None else (robust.b,) * known.size
+    out: list[PIDGains | None] = []
+    for x in levels_N:
+        i = at.get(round(float(x), 6))
+        out.append(None if i is None else replace(robust, Kc=known.Kc[i], Ti_s=known.Ti_s[i], Td_s=known.Td_s[i],
+                                                  b=b[i], schedule=None))
+    return out
+
+
 @dataclass(frozen=True)
 class _Plan:
     """What a schedule is tuned and judged on: the levels, their windows, each entry's tuning, the validations."""
@@ -328,6 +347,7 @@ def tune_schedule(
     seed: int = 0,
     workers: int | None = None,
     progress: Callable[[str], None] | None = None,
+    known: GainSchedule | None = None,
 ) -> ScheduleResult:
     """Tune a gain schedule at ``levels_N`` (measured force, N) around the robust set; validate both; choose.
 
@@ -338,7 +358,9 @@ def tune_schedule(
     the whole range. ``step`` and ``trajectory`` are the study's references (the whole range);
     each window is validated on a step and a staircase with their timing. ``n_plants`` Monte
     Carlo plants per validation (noise and draws from ``seed``); ``workers`` processes for the
-    entries' tunings and the validations (default: the spare CPUs). See the module docstring.
+    entries' tunings and the validations (default: the spare CPUs). ``known``: a schedule whose
+    entries at the same levels each entry's tuning is given as a known point (a warm start's). See
+    the module docstring.
     """
     say = progress or (lambda _m: None)
     t0 = time.perf_counter()
@@ -355,7 +377,8 @@ def tune_schedule(
         say(f"tuning {lv.size} entries of the gain schedule at {', '.join(f'{x:g}' for x in lv)} N (Kc, Ti, Td and b "
             f"each), validating the robust set at each level and over the whole range beside them ({n_plants} plants "
             f"each; {pool_name}) ...")
-        tuning_futures = [pool.submit(_tune_entry, (params, inverse, sp, robust)) for sp in plan.specs]
+        warm = _warm_entries(known, lv, robust)
+        tuning_futures = [pool.submit(_tune_entry, (params, inverse, sp, robust, w)) for sp, w in zip(plan.specs, warm)]
         robust_futures = [pool.submit(_judge, j) for j in judging(robust)]  # needs nothing the tuning gives
         tuned = _rising(lv, [f.result() for f in tuning_futures])
         say("validating the schedule at each level and over the whole range ...")
@@ -366,8 +389,8 @@ def tune_schedule(
         if again:
             say(f"tuning again the entries at {', '.join(f'{lv[i]:g}' for i in again)} N with their overshoot margin "
                 "widened by the Monte Carlo excess, and validating the schedule again ...")
-            retuned = {i: pool.submit(_tune_entry,
-                                      (params, inverse, replace(plan.specs[i], overshoot_margin_N=m), robust))
+            retuned = {i: pool.submit(_tune_entry, (params, inverse, replace(plan.specs[i], overshoot_margin_N=m),
+                                                    robust, warm[i]))
                        for i, m in again.items()}
             tuned = _rising(lv, [retuned[i].result() if i in retuned else t for i, t in enumerate(tuned)])
             scheduled_set = replace(robust, schedule=_schedule_of(lv, [g for g, _ in tuned]))

@@ -39,6 +39,9 @@ class TuningTable(Table):
                                f"2..{SCHEDULE_MAX})", ge=0, le=SCHEDULE_MAX)
     schedule_plants: int = key(50, "Monte Carlo plants per level and gain set when choosing between the schedule "
                                "and the robust set", ge=1, le=100_000)
+    warm_start: str | None = key(None, "a tuning record or gain set (JSON, relative to the study file) whose gains the "
+                                 "tuning starts from and keeps unless it finds better: a tighter problem's, the last "
+                                 "run's (not set: the study's [controller] gains and SIMC's only)")
 
     def check(self) -> None:
         if self.schedule_levels == 1:
@@ -52,7 +55,8 @@ class TuningTable(Table):
         return TuningSpec(band_N=band_N, u_min_V=u_min_V, u_max_V=u_max_V,
                           **scaled_references(self.step_N, self.trajectory_N),
                           **{k: x for k, x in asdict(self).items()
-                             if k not in ("step_N", "trajectory_N", "schedule_levels", "schedule_plants")})
+                             if k not in ("step_N", "trajectory_N", "schedule_levels", "schedule_plants",
+                                          "warm_start")})
 
 
 @dataclass(frozen=True)
