@@ -2,8 +2,10 @@
 
 A gain set holds the PID gains (SI units, the controller form stated), the feedforward's P-I
 model, the plant the gains were tuned and validated on, the references and criteria of that
-validation, its verdict (``status``: ``validated`` only if every Monte Carlo plant met every
-criterion, else ``candidate``), the tuning's record and the inputs' hashes. It is written and
+validation, its verdict (``status``: ``validated`` only if every Monte Carlo requirement of its
+study holds, the whole range's and a gain schedule's at each level, else ``candidate``; the
+requirements it was judged against, with their margins, are ``requirements`` and the missed ones
+``missed``), the tuning's record and the inputs' hashes. It is written and
 read through the artifact envelope of :mod:`piezopreload.core.artifacts` (kind ``gain-set``,
 content-hashed): :meth:`GainSet.load` is the one reader, :meth:`GainSet.save` the one writer.
 
@@ -15,12 +17,14 @@ export; ``docs/exports.md`` says what each holds.
 from __future__ import annotations
 
 import html
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from piezopreload.artifacts.requirements import Requirement, requirements_from_dict, unaccepted
 from piezopreload.artifacts.validation import Criteria, ValidationResult
 from piezopreload.core.artifacts import parse_artifact, read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError, InputError
@@ -95,6 +99,18 @@ def gains_from_dict(g: Any, where: str = "gains") -> PIDGains:
                         u_min=float(g.get("u_min_V", 0.0)), u_max=float(g.get("u_max_V", 110.0)), schedule=schedule)
     except (TypeError, ValueError) as exc:
         raise InputError(f"field '{where}' is not valid: {exc}") from exc
+
+
+def _requirements_from(doc: dict[str, Any], fail: Any) -> tuple[Requirement, ...]:
+    """The requirements the document's status was judged on; a ``validated`` status beside a missed one is refused
+    (``fail`` makes the error)."""
+    try:
+        requirements = requirements_from_dict(doc.get("requirements", []))
+    except ArtifactError as exc:
+        raise fail(str(exc)) from None
+    if doc.get("status") == "validated" and any(not r.met for r in requirements):
+        raise fail(f"field 'status' is 'validated' but field 'requirements' holds a missed one; {_REWRITE}")
+    return requirements
 
 
 def _sample_period(doc: dict[str, Any], fail: Any) -> float | None:
@@ -187,7 +203,8 @@ class GainSet:
     gains : PIDGains
         The PID gains and output range.
     status : str
-        ``validated`` (export and the rig accept it) or ``candidate``.
+        ``validated`` (export and the rig accept it) or ``candidate`` (refused unless the user accepts each of
+        :attr:`missed` by name).
     feedforward : HysteresisModel, CreepPI or None
         The forward P-I model whose inverse is the feedforward (None: PID alone): classical,
         modified or the paper's asymmetric, with or without creep.
@@ -213,6 +230,10 @@ class GainSet:
         written before gain sets carried them; the rig then derives them from the plant).
     content_sha256 : str or None
         The artifact's hash, set by :meth:`load` and :meth:`save`.
+    requirements : tuple of Requirement
+        The Monte Carlo requirements of its study it was judged against (the whole range's and, for a gain
+        schedule, each level's), each with its value and margin: the one record the status, the report and the
+        JSON read.
     """
 
     gains: PIDGains
@@ -229,6 +250,7 @@ class GainSet:
     content_sha256: str | None = None
     sample_period_s: float | None = None
     rig_interlocks: RigInterlocks | None = None
+    requirements: tuple[Requirement, ...] = ()
 
     def __post_init__(self) -> None:
         if self.sample_period_s is not None and not (np.isfinite(self.sample_period_s) and self.sample_period_s > 0):
@@ -246,8 +268,45 @@ class GainSet:
 
     @property
     def validated(self) -> bool:
-        """Whether every Monte Carlo plant met every criterion (export and the rig need it)."""
+        """Whether every Monte Carlo requirement of its study holds (export and the rig need it)."""
         return self.status == "validated"
+
+    @property
+    def missed(self) -> tuple[Requirement, ...]:
+        """The requirements it was judged against and missed (none for a validated set)."""
+        return tuple(r for r in self.requirements if not r.met)
+
+    def require_usable(self, accepted: Iterable[str] = (), *, shown: str = "the gain set",
+                       use: str = "used") -> tuple[Requirement, ...]:
+        """Refuse a gain set that is not validated unless the user accepts each requirement it missed by name
+        (:attr:`Requirement.key`, ``--accept KEY``); returns the missed requirements so accepted (none for a
+        validated set), for the caller to record. :class:`InputError` names what was missed and the way to accept
+        it, or that the set was never validated (nothing to accept by name then)."""
+        if self.validated:
+            return ()
+        miss = self.missed
+        if self.validation is None or not miss:
+            raise InputError(f"{shown}: the gain set is a '{self.status}' ({self.verdict()}), not 'validated': only "
+                             f"validated gains are {use}; validate it ('piezopreload validate')")
+        left = unaccepted(miss, accepted)
+        if left:
+            keys = " ".join(f"--accept {r.key}" for r in left)
+            raise InputError(f"{shown}: the gain set is a '{self.status}': it missed "
+                             + "; ".join(r.sentence() for r in left)
+                             + f". Only validated gains are {use}; tune again, or accept what it missed by name "
+                             f"({keys})")
+        return miss
+
+    def verdict(self) -> str:
+        """The status in words: what it was validated against, or what it missed by how much."""
+        if self.validation is None:
+            return f"{self.status}: not validated"
+        if self.validated:
+            return f"validated: every one of its {len(self.requirements)} Monte Carlo requirements met"
+        miss = self.missed
+        if not miss:
+            return f"{self.status}: {self.validation.failed_plants()}"
+        return f"{self.status}: missed " + "; ".join(f"{r.key} ({r.sentence()})" for r in miss)
 
     # ---- how it shows itself --------------------------------------------------------------------
     def _controller_text(self) -> str:
@@ -302,6 +361,8 @@ class GainSet:
             out["sample_period_s"] = float(self.sample_period_s)
         if self.rig_interlocks is not None:
             out["rig_interlocks"] = self.rig_interlocks.to_dict()
+        if self.requirements:
+            out["requirements"] = [r.to_dict() for r in self.requirements]
         out["inputs"] = dict(self.inputs)
         return out
 
@@ -341,12 +402,13 @@ class GainSet:
             interlocks = None if doc.get("rig_interlocks") is None else RigInterlocks.from_dict(doc["rig_interlocks"])
         except InputError as exc:
             raise fail(str(exc)) from None
+        requirements = _requirements_from(doc, fail)
         return cls(gains=gains, status=status, feedforward=model,
                    feedforward_info=dict(ff_doc.get("identification") or {}),
                    plant=plant, preset=plant_doc.get("preset"), references=references,
                    criteria=criteria, validation=validation, tuning=doc.get("tuning"),
                    inputs=dict(doc.get("inputs") or {}), content_sha256=doc.get("content_sha256"),
-                   sample_period_s=_sample_period(doc, fail), rig_interlocks=interlocks)
+                   sample_period_s=_sample_period(doc, fail), rig_interlocks=interlocks, requirements=requirements)
 
     # ---- the artifact: one reader, one writer ---------------------------------------------------
     @classmethod

@@ -10,18 +10,22 @@ prints the missed ones and exits with :data:`EXIT_REQUIREMENT_MISSED` when any i
 (False, -239.0)
 >>> r.sentence()
 'rigidity while cutting: 761 N/um against at least 1,000 N/um ([schedule] stiffness_min_N_per_um), missed by 239 N/um (23.9 %)'
+>>> r.key, round(r.margin_pct, 1)
+('schedule.stiffness_min_N_per_um', -23.9)
 """  # noqa: E501 (a doctest's expected output is one line)
 
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
 from piezopreload.core.errors import ArtifactError
 
-__all__ = ["Requirement", "EXIT_REQUIREMENT_MISSED", "requirements_from_dict", "missed", "checked_by_stages"]
+__all__ = ["Requirement", "EXIT_REQUIREMENT_MISSED", "requirements_from_dict", "missed", "checked_by_stages",
+           "least_margin", "unaccepted"]
 
 #: the exit code of a study that ran but missed a requirement (0 done, 1 internal, 2 bad input, 3 rig stopped)
 EXIT_REQUIREMENT_MISSED = 4
@@ -51,6 +55,9 @@ class Requirement:
         ``min``: the value must be at least the limit; ``max``: at most.
     source : str
         Where the limit is set ("[schedule] stiffness_min_N_per_um").
+    key : str
+        A short name a user gives to accept a missed requirement (``validation.overshoot_max_N@2000N``);
+        where not given, the source's table and key (``schedule.stiffness_min_N_per_um``), else the name's words.
     """
 
     name: str
@@ -59,8 +66,13 @@ class Requirement:
     unit: str
     sense: str
     source: str = ""
+    key: str = ""
 
     def __post_init__(self) -> None:
+        if not self.key:  # the source's table and key: "[schedule] deflection_max_um" -> "schedule.deflection_max_um"
+            match = re.match(r"\[([\w.]+)\]\s+(\w+)", self.source)
+            object.__setattr__(self, "key", f"{match.group(1)}.{match.group(2)}" if match
+                               else re.sub(r"\W+", "_", self.name).strip("_"))
         if self.sense not in _SENSES:
             raise ValueError(f"Requirement.sense must be one of {', '.join(_SENSES)}, got {self.sense!r}")
         for label in ("value", "limit"):
@@ -73,6 +85,13 @@ class Requirement:
         return self.value - self.limit if self.sense == "min" else self.limit - self.value
 
     @property
+    def margin_pct(self) -> float | None:
+        """The margin as a share of the limit, in %: a verdict met by 0.5 % is missed on the next machine, one met
+        by 20 % holds. None where the limit is 0."""
+        return None if self.limit == 0 else 100.0 * self.margin / abs(self.limit)
+
+
+    @property
     def met(self) -> bool:
         return self.margin >= 0.0
 
@@ -82,14 +101,15 @@ class Requirement:
         where = f" ({self.source})" if self.source else ""
         head = (f"{self.name}: {_number(self.value)} {self.unit} against {bound} "
                 f"{_number(self.limit)} {self.unit}{where}")
+        pct = "" if self.margin_pct is None else f" ({abs(self.margin_pct):.1f} %)"
         if self.met:
-            return f"{head}, met with {_number(self.margin)} {self.unit} to spare"
-        pct = f" ({100 * abs(self.margin) / abs(self.limit):.1f} %)" if self.limit else ""
+            return f"{head}, met with {_number(self.margin)} {self.unit} to spare{pct}"
         return f"{head}, missed by {_number(-self.margin)} {self.unit}{pct}"
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "value": self.value, "limit": self.limit, "unit": self.unit, "sense": self.sense,
-                "source": self.source, "met": self.met, "margin": self.margin}
+        return {"name": self.name, "key": self.key, "value": self.value, "limit": self.limit, "unit": self.unit,
+                "sense": self.sense, "source": self.source, "met": self.met, "margin": self.margin,
+                "margin_pct": self.margin_pct}
 
     @classmethod
     def from_dict(cls, doc: Any, where: str = "requirement") -> Requirement:
@@ -97,7 +117,7 @@ class Requirement:
             raise ArtifactError(f"{where}: expected an object, got {type(doc).__name__}")
         try:
             return cls(str(doc["name"]), float(doc["value"]), float(doc["limit"]), str(doc["unit"]), str(doc["sense"]),
-                       str(doc.get("source", "")))
+                       str(doc.get("source", "")), str(doc.get("key", "")))
         except KeyError as exc:
             raise ArtifactError(f"{where}: missing field {exc.args[0]!r}") from None
         except (TypeError, ValueError) as exc:
@@ -114,6 +134,18 @@ def requirements_from_dict(docs: Any, where: str = "requirements") -> tuple[Requ
 def missed(requirements: Iterable[Requirement]) -> tuple[Requirement, ...]:
     """The requirements not met, in their order."""
     return tuple(r for r in requirements if not r.met)
+
+
+def least_margin(requirements: Iterable[Requirement]) -> Requirement | None:
+    """The requirement with the least margin as a share of its limit (the one nearest to being missed), or None."""
+    rs = [r for r in requirements if r.margin_pct is not None]
+    return min(rs, key=lambda r: r.margin_pct or 0.0) if rs else None
+
+
+def unaccepted(missed_ones: Iterable[Requirement], accepted: Iterable[str]) -> tuple[Requirement, ...]:
+    """The missed requirements a user has not accepted by name (:attr:`Requirement.key`)."""
+    names = set(accepted)
+    return tuple(r for r in missed_ones if r.key not in names)
 
 
 def checked_by_stages(records: dict[str, dict[str, Any]]) -> tuple[Requirement, ...]:

@@ -254,8 +254,9 @@ class RigRunRecord:
     command line, the gain set's study, its plant, its gains, the executor's default);
     ``stall_limit`` how the stall limit was derived; ``host_check`` the check made before
     arming (real time) and ``host_accepted`` whether a failing host was run anyway
-    (``--accept-host``). ``summary`` is None until the run ends; ``reason`` says why a run was
-    not started.
+    (``--accept-host``); ``accepted_missed`` the requirements a gain set that is not validated
+    missed and the user accepted by name (``--accept KEY``). ``summary`` is None until the run
+    ends; ``reason`` says why a run was not started.
     """
 
     status: str = "running"
@@ -278,6 +279,7 @@ class RigRunRecord:
     stall_limit: StallLimit | None = None
     host_check: HostCheck | None = None
     host_accepted: bool = False
+    accepted_missed: tuple[dict[str, Any], ...] = ()
     faults_injected: tuple[dict[str, Any], ...] = ()
     learned: dict[str, Any] | None = None
     endpoint: str | None = None
@@ -333,7 +335,8 @@ class RigRunRecord:
             safety_sources={k: str(v) for k, v in (f.mapping("safety_sources", True) or {}).items()},
             stall_limit=None if stall is None else StallLimit.from_dict(stall, f"{shown}: stall_limit"),
             host_check=None if host is None else HostCheck.from_dict(host, f"{shown}: host_check"),
-            host_accepted=bool(doc.get("host_accepted", False)),
+            host_accepted=bool(doc.get("host_accepted", False)), accepted_missed=tuple(
+                f.items("accepted_missed") if "accepted_missed" in doc else ()),
             faults_injected=tuple(f.items("faults_injected")), learned=f.mapping("learned", True),
             endpoint=f.text("endpoint", True), users=tuple(doc.get("users") or ()),
             served=bool(doc.get("served", False)), events=tuple(f.items("events")),

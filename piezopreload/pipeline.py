@@ -95,7 +95,6 @@ from piezopreload.study import Study, load_study
 from piezopreload.tuning.compare import creep_effect, reproduction, responses
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.learning import played_passes, save_passes
-from piezopreload.tuning.schedule import level_requirements
 
 __all__ = ["Stage", "STAGES", "StageFailed", "StageCrashed", "run_study", "rerender_report", "read_template",
            "read_manifest", "run_summary", "DEFAULT_OUT"]
@@ -196,8 +195,7 @@ def _stage_tune(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
         "Kc_V_per_N": g.Kc, "Ti_s": g.Ti_s, "Td_s": g.Td_s, "Tf_s": g.Tf_s, "b": g.b, "form": tuned.solve.form,
         "ms": tuned.solve.ms, "active_bounds": [b.sentence() for b in tuned.active_bounds],
         "minimum_time_s": bound.settling_s, "tuned_over_bound_ratio": bound.tuned_over_bound_ratio,
-        **({} if sched is None else {"gain_schedule": sched["choice"],
-                                     "requirements": [r.to_dict() for r in level_requirements(sched)]})}
+        "search": tuned.solve.search, **({} if sched is None else {"gain_schedule": sched["choice"]})}
 
 
 def _stage_validate(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
@@ -210,13 +208,13 @@ def _stage_validate(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     gain_set = gain_set.save(gains_path)
     replace(result, gain_set_sha256=gain_set.content_sha256,
             inputs={"gain_set": "gains.json", "study_sha256": study.sha256}).save(validation_path)
-    if not result.passed:  # a verdict, not a failure: the study goes on, export and the rig take validated sets only
-        ctx.progress.say(f"the tuned gains {result.failed_plants()}: {gains_path.name} is a candidate")
+    if not gain_set.validated:  # a verdict, not a failure: the study goes on, export and the rig take validated sets
+        ctx.progress.say(f"{gains_path.name} is a {gain_set.verdict()}")
     h = result.headline()
     return {"gains": gains_path, "validation": validation_path}, {
         "status": gain_set.status, "content_sha256": gain_set.content_sha256, "plants": result.n_plants,
         "worst_settling_s": h["worst_settling_s"], "worst_overshoot_N": h["worst_overshoot_N"],
-        "requirements": [r.to_dict() for r in result.requirements]}
+        "requirements": [r.to_dict() for r in gain_set.requirements]}
 
 
 def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
@@ -400,7 +398,7 @@ STAGES: tuple[Stage, ...] = (
           ("models", "artifacts", "tuning"), _stage_identify, files=("feedforward.data",)),
     Stage("tune", "PID gains around the compensated plant (CasADi + IPOPT)",
           ("rig", "controller", "reference", "simulation", "tuning"), ("plant", "identify"),
-          ("models", "artifacts", "tuning"), _stage_tune,
+          ("models", "artifacts", "tuning"), _stage_tune, files=("tuning.warm_start",),
           reads=lambda study: ("validation",) if study.tuning.schedule_levels >= 2 else ()),
     Stage("validate", "Monte Carlo on nonlinear rigs", ("study", "rig", "reference", "simulation", "validation"),
           ("plant", "identify", "tune"), ("models", "artifacts", "tuning"), _stage_validate),

@@ -16,7 +16,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from piezopreload.artifacts.design import DesignRecord
-from piezopreload.artifacts.gainset import gains_to_dict
+from piezopreload.artifacts.gainset import GainSet, gains_to_dict
 from piezopreload.artifacts.learning import LearningRecord
 from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.rigrun import RigRunRecord
@@ -95,10 +95,13 @@ def requirements_section(a: Artifacts) -> Part | None:
     if not checked:
         return None
     rows = tuple((r.name, f"{fmt(r.value)} {r.unit}", f"{'at least' if r.sense == 'min' else 'at most'} "
-                  f"{fmt(r.limit)} {r.unit}", f"{fmt(r.margin)} {r.unit}", "met" if r.met else "missed", r.source)
+                  f"{fmt(r.limit)} {r.unit}", f"{fmt(r.margin)} {r.unit}",
+                  "" if r.margin_pct is None else f"{r.margin_pct:.1f} %", "met" if r.met else "missed", r.source)
                  for r in checked)
-    table = Table(("requirement", "achieved", "required", "margin", "verdict", "set by"), rows,
-                  "The study's requirements, each against the worst case its run reached.", "lrrrcl", small=True)
+    table = Table(("requirement", "achieved", "required", "margin", "margin (% of limit)", "verdict", "set by"), rows,
+                  "The study's requirements, each against the worst case its run reached, with its margin in its "
+                  "unit and as a share of the limit (a verdict met by a hair is missed on the next machine).",
+                  "lrrrrcl", small=True)
     return Part(Section("The requirements", (), (table,)))
 
 
@@ -322,15 +325,16 @@ def controller_section(study: ReportStudy, a: Artifacts) -> Part:
     g = gains_to_dict(gain_set.gains)
     form = "PI" if g["Td_s"] == 0.0 else "PID"
     words, omitted = _bound_text(tuning)
+    search = f" The search: {tuning.solve.search}." if tuning.solve.search else ""
     text = (f"{form} gains tuned with CasADi and IPOPT around the P-I-compensated plant (maximum sensitivity "
             f"{fmt(tuning.solve.ms)} at worst over the plant variants; solver: {tuning.solve.status}); "
-            f"controller form: {g['form']}.{words}")
+            f"controller form: {g['form']}.{words}{search}")
     scheduled = gain_set.gains.schedule is not None
-    caption = (f"The gain set ({gain_set.status}), SHA-256 {gain_set.content_sha256}"
+    caption = (f"The gain set ({gain_set.status}), content SHA-256 {gain_set.content_sha256}"
                + (": the robust set, kept in it for the record; the gain schedule below is what runs." if scheduled
                   else "."))
     table = Table(("parameter", "SI", "LabVIEW PID VI"), _gains_rows(g), caption, "lrr")
-    parts = [s for s in (_schedule_part(tuning.solve.schedule), _validation_part(val)) if s is not None]
+    parts = [s for s in (_schedule_part(tuning.solve.schedule), _validation_part(val, gain_set)) if s is not None]
     return Part(Section("The tuned controller", (text,), (table,), (), omitted, tuple(p.section for p in parts)),
                 tuple(f for p in parts for f in p.figures))
 
@@ -379,7 +383,7 @@ _VALIDATION_NAMES = {"settling_s": "settling time (s)", "settling_measured_s": "
                      "tracking_rms_all_N": "tracking RMS, whole trajectory (N)", "peak_voltage_V": "peak command (V)"}
 
 
-def _validation_part(val: Any) -> Part:
+def _validation_part(val: Any, gain_set: GainSet) -> Part:
     limits = val.criteria.limits()
     rows = []
     for key, name in _VALIDATION_NAMES.items():
@@ -389,8 +393,12 @@ def _validation_part(val: Any) -> Part:
     verdict = ("every plant met every limit" if val.passed else
                f"{val.failed_plant_count} of {val.n_plants} plants missed a limit")
     spread = ", ".join(f"{k} {fmt(v)}" for k, v in val.spread.items())
+    levels = (", and each preload level's, where the tuning chose between a gain schedule and the robust set"
+              if isinstance((gain_set.tuning or {}).get("schedule"), dict) else "")
     text = (f"{val.n_plants} plants drawn around the nominal one (seed {val.seed}; relative spread {spread}), each run "
-            f"through the study's step and trajectory with the tuned gains and the feedforward: {verdict}.")
+            f"through the study's step and trajectory with the tuned gains and the feedforward: {verdict}. "
+            f"The gain set's status, from every Monte Carlo requirement of the study (the whole range's"
+            f"{levels}): {gain_set.verdict()}.")
     table = Table(("metric", "worst", "95th percentile", "median", "limit"), tuple(rows),
                   "The tuned gains over the Monte Carlo set of nonlinear plants.", "lrrrr")
     fig = F.monte_carlo({k: list(v) for k, v in val.metrics.items()}, limits)

@@ -13,7 +13,7 @@ from __future__ import annotations
 from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import gains_to_dict
 from piezopreload.artifacts.learning import LearningRecord
-from piezopreload.artifacts.requirements import missed
+from piezopreload.artifacts.requirements import least_margin, missed
 from piezopreload.artifacts.responses import ResponseRun
 from piezopreload.artifacts.system import SystemRecord
 from piezopreload.reports.document import fmt, pct
@@ -30,8 +30,10 @@ def verdicts(a: Artifacts) -> tuple[str, ...]:
         return ()
     miss = missed(checked)
     if not miss:
+        least = least_margin(checked)
+        nearest = "" if least is None else f"; the nearest to its limit: {least.sentence()}"
         return (f"Every requirement the study sets is met: {len(checked)} checked, each with its margin in the "
-                "section on the requirements.",)
+                f"section on the requirements{nearest}.",)
     return tuple(f"Requirement missed: {r.sentence()}." for r in miss)
 
 

@@ -142,11 +142,13 @@ def feedforward_table(model: HysteresisModel | CreepPI, sample_period_s: float |
 # --------------------------------------------------------------------------------------
 # the gain set's numbers
 # --------------------------------------------------------------------------------------
-def validated_gains(gain_set: GainSet) -> dict[str, float]:
-    """The gains every format writes (SI, by name); refuses a gain set that is not validated."""
-    if not gain_set.validated:
-        raise ExportError(f"the gain set is a '{gain_set.status}', not 'validated': only validated gains are "
-                          "exported; run 'piezopreload tune' until its validation passes")
+def validated_gains(gain_set: GainSet, accepted: tuple[str, ...] = ()) -> dict[str, float]:
+    """The gains every format writes (SI, by name); refuses a gain set that is not validated unless each requirement
+    it missed is in ``accepted`` by name (:meth:`GainSet.require_usable`)."""
+    try:
+        gain_set.require_usable(accepted, use="exported")
+    except InputError as exc:
+        raise ExportError(str(exc)) from None
     g = {k: float(v) for k, v in gains_to_dict(gain_set.gains).items() if k in _GAIN_KEYS}
     bad = [k for k, v in g.items() if not np.isfinite(v)]
     if bad:
@@ -154,9 +156,13 @@ def validated_gains(gain_set: GainSet) -> dict[str, float]:
     return g
 
 
-def _header(digest: str) -> list[str]:
-    """The comment lines every gain set's text format starts with: its hash and the controller form."""
-    return [f"gain set sha256 {digest}", "controller: " + CONTROLLER_FORM["structure"],
+def _header(digest: str, gain_set: GainSet | None = None) -> list[str]:
+    """The comment lines every gain set's text format starts with: its content hash, the controller form and, for a
+    gain set that is not validated, what it missed and that the user accepted it by name."""
+    accepted = [] if gain_set is None or gain_set.validated else [
+        f"NOT VALIDATED: exported because the user accepted by name what it missed: {r.key} "
+        f"({r.value:.6g} {r.unit} against {r.limit:.6g} {r.unit})" for r in gain_set.missed]
+    return [f"gain set content sha256 {digest}", *accepted, "controller: " + CONTROLLER_FORM["structure"],
             "derivative " + CONTROLLER_FORM["derivative"] + "; anti-windup: " + CONTROLLER_FORM["anti_windup"]]
 
 
@@ -496,10 +502,10 @@ def _export_model(obj: IdentifiedModel | HysteresisModel | CreepPI, fmt: str, sa
 # --------------------------------------------------------------------------------------
 # the one entry point
 # --------------------------------------------------------------------------------------
-def _export_gain_set(gain_set: GainSet, fmt: str) -> str:
-    g = validated_gains(gain_set)
+def _export_gain_set(gain_set: GainSet, fmt: str, accepted: tuple[str, ...] = ()) -> str:
+    g = validated_gains(gain_set, accepted)
     digest = gain_set.content_sha256 or ""
-    head, schedule = _header(digest), gain_set.gains.schedule
+    head, schedule = _header(digest, gain_set), gain_set.gains.schedule
     ff = None if gain_set.feedforward is None else gain_set.feedforward.to_dict()
     if fmt == "casadi-c":
         return _casadi_c(gain_set, g, digest, head)
@@ -518,7 +524,7 @@ def _gain_set(doc: GainSet | dict[str, Any]) -> GainSet:
 
 
 def export(obj: GainSet | IdentifiedModel | HysteresisModel | CreepPI | dict[str, Any], fmt: str, *,
-           sample_period_s: float | None = None) -> str:
+           sample_period_s: float | None = None, accepted: tuple[str, ...] = ()) -> str:
     """``obj`` in format ``fmt`` (one of :data:`FORMATS`), as text: exactly what ``piezopreload export`` writes.
 
     Parameters
@@ -531,6 +537,10 @@ def export(obj: GainSet | IdentifiedModel | HysteresisModel | CreepPI | dict[str
     sample_period_s : float, optional
         A model alone: the loop's sample period its creep lags are discretised at (default: the
         model's own). A gain set's is its plant's: giving another is refused.
+    accepted : tuple of str
+        A gain set that is not validated is exported only where every requirement it missed is
+        named here (:attr:`~piezopreload.artifacts.requirements.Requirement.key`); the text
+        then says so in its header.
     """
     if fmt not in FORMATS:
         raise ExportError(f"unknown format '{fmt}'; expected one of {', '.join(FORMATS)}")
@@ -538,18 +548,19 @@ def export(obj: GainSet | IdentifiedModel | HysteresisModel | CreepPI | dict[str
         if sample_period_s is not None:
             raise ExportError("a gain set's feedforward runs at its plant's sample period: sample_period_s is for a "
                               "hysteresis model alone")
-        return _export_gain_set(_gain_set(obj), fmt)
+        return _export_gain_set(_gain_set(obj), fmt, accepted)
     if isinstance(obj, IdentifiedModel) or callable(getattr(obj, "inverse_spec", None)):
         return _export_model(obj, fmt, sample_period_s)
     raise ExportError(f"cannot export a {type(obj).__name__}: give a GainSet, an IdentifiedModel or a P-I model")
 
 
-def write_exports(gain_set: GainSet, folder: str | Path,
-                  formats: tuple[str, ...] | list[str] = FORMATS) -> dict[str, Path]:
-    """Write ``formats`` of a validated gain set into ``folder`` (one file each, named by :data:`EXPORT_FILES`)."""
+def write_exports(gain_set: GainSet, folder: str | Path, formats: tuple[str, ...] | list[str] = FORMATS,
+                  accepted: tuple[str, ...] = ()) -> dict[str, Path]:
+    """Write ``formats`` of a validated gain set (or one whose misses are ``accepted`` by name) into ``folder`` (one
+    file each, named by :data:`EXPORT_FILES`)."""
     written = {}
     for fmt in formats:
-        text = export(gain_set, fmt)
+        text = export(gain_set, fmt, accepted=accepted)
         path = Path(folder) / EXPORT_FILES[fmt]
         atomic_write_text(path, text)
         written[fmt] = path

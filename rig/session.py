@@ -61,16 +61,15 @@ HOST_CHECK_S = 2.0
 MAX_REFERENCE_S = 3600.0
 
 
-def _require_validated(gain_set: GainSet, shown: str) -> GainSet:
-    if not gain_set.validated:
-        raise InputError(f"{shown}: the gain set is a '{gain_set.status}', not 'validated': the rig runs validated "
-                         "gains only; run 'piezopreload validate' until it passes")
+def _require_validated(gain_set: GainSet, shown: str, accepted: tuple[str, ...] = ()) -> GainSet:
+    gain_set.require_usable(accepted, shown=shown, use="run on the rig")
     return gain_set
 
 
-def load_validated(path: str | Path) -> GainSet:
-    """A gain set whose hash matches and that passed validation; anything else is refused (exit 2)."""
-    return _require_validated(GainSet.load(path), str(path))
+def load_validated(path: str | Path, accepted: tuple[str, ...] = ()) -> GainSet:
+    """A gain set whose hash matches and that passed validation (or whose every missed requirement is ``accepted``
+    by name); anything else is refused (exit 2)."""
+    return _require_validated(GainSet.load(path), str(path), accepted)
 
 
 def _identity(gain_set: GainSet) -> dict[str, str]:
@@ -240,8 +239,9 @@ def _limits(gain_set: GainSet, controller: Controller, ref: Reference, ref_name:
 
 def _setup(gains_path: str | Path, backend: str, backend_options: dict[str, str] | None, reference: str | None,
            rate_Hz: float | None, realtime: bool, faults: list[Fault] | None, safety: dict[str, float | None] | None,
-           seed: int, learned: str | Path | None = None, safety_source: str = "the command line") -> _Setup:
-    gain_set = load_validated(gains_path)
+           seed: int, learned: str | Path | None = None, safety_source: str = "the command line",
+           accepted: tuple[str, ...] = ()) -> _Setup:
+    gain_set = load_validated(gains_path, accepted)
     controller = _controller(gains_path, gain_set)
     if rate_Hz is not None and not math.isclose(rate_Hz * controller.dt_s, 1.0, rel_tol=1e-9):
         raise InputError(f"--rate {rate_Hz:g}: the gain set was tuned and validated at {1.0 / controller.dt_s:g} Hz; "
@@ -259,7 +259,8 @@ def _setup(gains_path: str | Path, backend: str, backend_options: dict[str, str]
         reference_levels_N=tuple(ref.levels_N.tolist()), rate_Hz=1.0 / controller.dt_s, realtime=realtime,
         safety=limits.safety.to_dict(), safety_sources=dict(limits.sources), stall_limit=limits.stall, seed=seed,
         faults_injected=tuple({**f.__dict__, "duration_s": f.duration_s if math.isfinite(f.duration_s) else None}
-                              for f in faults or []), **_identity(gain_set))
+                              for f in faults or []), **_identity(gain_set),
+        accepted_missed=tuple(r.to_dict() for r in gain_set.require_usable(accepted)))
     if signal is not None:
         record = replace(record, learned={"path": str(learned), "sha256": signal.content_sha256,
                                           "iteration": signal.iteration, "method": signal.method,
@@ -330,7 +331,7 @@ def run(gains_path: str | Path, *, backend: str = "sim", backend_options: dict[s
         safety: dict[str, float | None] | None = None, seed: int = 0, step: str = "c",
         learned: str | Path | None = None, loop: str = "auto", safety_source: str = "the command line",
         host_check_s: float = HOST_CHECK_S, accept_host: bool = False,
-        say: Callable[[str], None] | None = None) -> RigRun:
+        say: Callable[[str], None] | None = None, accepted: tuple[str, ...] = ()) -> RigRun:
     """Run a validated gain set on a backend (see ``piezopreload rig run``); the log goes to ``log_dir``.
 
     ``safety`` overrides the gain set's interlock settings (``force_max_N``, ``force_low_margin_N``,
@@ -342,10 +343,11 @@ def run(gains_path: str | Path, *, backend: str = "sim", backend_options: dict[s
     reference (``reference=None``: its own); the run's log gives the next learning iteration
     (``piezopreload learn --from-run LOG``). ``loop``: ``auto``, ``native`` or ``python``. In
     real time the host is checked for ``host_check_s`` first (:mod:`piezopreload.rig.hostcheck`)
-    and refused if it fails, unless ``accept_host``.
+    and refused if it fails, unless ``accept_host``. A gain set that is not validated is refused unless each
+    requirement it missed is named in ``accepted`` (the sidecar records them: ``accepted_missed``).
     """
     su = _setup(gains_path, backend, backend_options, reference, rate_Hz, realtime, faults, safety, seed, learned,
-                safety_source)
+                safety_source, accepted)
     try:
         try:
             plan = su.learned.setpoint if su.learned is not None else su.reference

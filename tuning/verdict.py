@@ -3,7 +3,10 @@
 One body for both ways a gain set is judged: the tuned gains written as a candidate and
 validated for the first time (``piezopreload tune``, the study's validate stage), and a gain
 set validated again on a new Monte Carlo set (``piezopreload validate``). The gain set that
-comes back is ``validated`` only if every plant met every criterion, else ``candidate``.
+comes back is ``validated`` only if every Monte Carlo requirement of its study holds: every
+plant met every criterion over the whole range and, for a gain schedule, at each preload level
+(the tuning's Monte Carlo there, which chose the set); else ``candidate``. It carries those
+requirements with their margins (``GainSet.requirements``).
 """
 
 from __future__ import annotations
@@ -13,11 +16,13 @@ from dataclasses import replace
 from typing import Any
 
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core.errors import InputError
+from piezopreload.tuning.schedule import level_requirements
 from piezopreload.tuning.validate import SchedulerError, executor, validate
 
-__all__ = ["validate_gain_set"]
+__all__ = ["validate_gain_set", "level_requirements_of"]
 
 
 def validate_gain_set(gain_set: GainSet, *, n_plants: int, seed: int, workers: int | None = None,
@@ -43,7 +48,16 @@ def validate_gain_set(gain_set: GainSet, *, n_plants: int, seed: int, workers: i
                               progress=progress)
     except SchedulerError as exc:
         raise InputError(f"--scheduler: {exc}") from None
-    judged = replace(gain_set, status="validated" if result.passed else "candidate", validation=result,
-                     inputs={**gain_set.inputs, **(inputs or {}), "seed": seed},
+    requirements = result.requirements + level_requirements_of(gain_set)
+    met = result.passed and all(r.met for r in requirements)
+    judged = replace(gain_set, status="validated" if met else "candidate", validation=result,
+                     inputs={**gain_set.inputs, **(inputs or {}), "seed": seed}, requirements=requirements,
                      content_sha256=None)
     return judged, result
+
+
+def level_requirements_of(gain_set: GainSet) -> tuple[Requirement, ...]:
+    """A gain schedule's Monte Carlo requirements at each preload level, as its tuning judged the chosen set there
+    (:func:`~piezopreload.tuning.schedule.level_requirements`); none where the tuning chose between no sets."""
+    schedule = (gain_set.tuning or {}).get("schedule")
+    return level_requirements(schedule) if isinstance(schedule, dict) else ()

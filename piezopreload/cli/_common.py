@@ -85,6 +85,14 @@ def json_flag(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print the results as one JSON object")
 
 
+def accept_flag(p: argparse.ArgumentParser, use: str) -> None:
+    """``--accept KEY`` (repeatable): a gain set that is not validated is ``use``d only where each requirement it
+    missed is named (its key, as the refusal and the gain set's ``requirements`` give it)."""
+    p.add_argument("--accept", action="append", default=[], metavar="KEY",
+                   help=f"a gain set that is not validated is {use} only if each requirement it missed is accepted "
+                        "by name (repeatable; the key the refusal names, e.g. validation.overshoot_max_N@2000N)")
+
+
 def study_arguments(p: argparse.ArgumentParser, seed: bool = True) -> None:
     p.add_argument("--study", metavar="STUDY.toml", help="study file (default: the paper's, paper2021.toml)")
     if seed:

@@ -11,6 +11,7 @@ from piezopreload.artifacts.gainset import REFERENCES
 from piezopreload.cli._common import (
     PASSWORD_ENV,
     Parser,
+    accept_flag,
     fmt,
     json_flag,
     say,
@@ -96,6 +97,7 @@ def _rig_arguments(p: argparse.ArgumentParser) -> None:
                    help="in real time, check the host this long before arming (default 2 s; see 'rig check')")
     p.add_argument("--accept-host", action="store_true",
                    help="run on a host that fails the check (recorded in the run's sidecar)")
+    accept_flag(p, "run (recorded in the run's sidecar)")
     p.add_argument("--loop", choices=("auto", "native", "python"), default="auto",
                    help="the fixed-rate loop: native (a C thread; the simulated rig or a C-ABI library backend), "
                         "python (the interpreter; any backend), auto (native where it can run, default)")
@@ -188,7 +190,7 @@ def _cmd_rig_run(args: argparse.Namespace) -> dict[str, Any]:
     if args.learned and args.reference is None:
         common["reference"] = None  # the learned signal's own
     return session.run(args.gains, rate_Hz=args.rate, realtime=not args.fast, learned=args.learned, say=say,
-                       **common).to_dict()
+                       accepted=tuple(args.accept), **common).to_dict()
 
 
 def _cmd_rig_serve(args: argparse.Namespace) -> dict[str, Any]:

@@ -8,7 +8,7 @@ from typing import Any
 
 from piezopreload import __version__
 from piezopreload.artifacts.gainset import REFERENCES, GainSet
-from piezopreload.artifacts.requirements import Requirement
+from piezopreload.artifacts.requirements import Requirement, least_margin
 from piezopreload.cli._common import (
     fmt,
     json_flag,
@@ -69,11 +69,24 @@ def _print_run(s: dict[str, Any]) -> None:
         print(f"report: {s['report']}")
     print(f"outputs: {s['out']}")
     met = s["summary"]["requirements_met"]
-    if met is not None:
-        missed = s["summary"]["requirements_missed"]
-        print("every requirement met" if met else f"{len(missed)} requirement(s) missed:")
-        for r in missed:
-            print(f"  missed: {Requirement.from_dict(r).sentence()}")
+    if met is None:
+        return
+    checked = [Requirement.from_dict(r) for r in s["summary"]["requirements"]]
+    print("requirements (achieved against required; the margin, and as a share of the limit):")
+    width = max(len(r.key) for r in checked)
+    for r in checked:
+        pct = "" if r.margin_pct is None else f" ({r.margin_pct:+.1f} %)"
+        print(f"  {'met   ' if r.met else 'MISSED'} {r.key:{width}s}  {r.value:,.4g} {r.unit} against "
+              f"{'>=' if r.sense == 'min' else '<='} {r.limit:,.4g} {r.unit}, margin {r.margin:,.4g} {r.unit}{pct}")
+    least = least_margin(checked)
+    missed = s["summary"]["requirements_missed"]
+    if met:
+        print(f"every requirement met; the least margin: {least.margin_pct:.1f} % ({least.name})" if least else
+              "every requirement met")
+        return
+    print(f"{len(missed)} requirement(s) missed:")
+    for r in missed:
+        print(f"  missed: {Requirement.from_dict(r).sentence()}")
 
 
 def register_report(sub: Any) -> None:
