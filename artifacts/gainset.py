@@ -286,12 +286,12 @@ class GainSet:
             return ()
         miss = self.missed
         if self.validation is None or not miss:
-            raise InputError(f"{shown}: the gain set is a '{self.status}' ({self.verdict()}), not 'validated': only "
-                             f"validated gains are {use}; validate it ('piezopreload validate')")
+            raise InputError(f"{shown} is a '{self.status}' ({self.verdict()}), not 'validated': only validated "
+                             f"gains are {use}; validate it ('piezopreload validate')")
         left = unaccepted(miss, accepted)
         if left:
             keys = " ".join(f"--accept {r.key}" for r in left)
-            raise InputError(f"{shown}: the gain set is a '{self.status}': it missed "
+            raise InputError(f"{shown} is a '{self.status}': it missed "
                              + "; ".join(r.sentence() for r in left)
                              + f". Only validated gains are {use}; tune again, or accept what it missed by name "
                              f"({keys})")

@@ -175,10 +175,10 @@ def _frame(plant: DesignedPlant, schedule: PreloadSchedule, run: ClosedLoopRun, 
         weight=np.where(cycle, float(screw.drag_torque_Nm(1.0)) * speed * dt, 0.0))
 
 
-def _verdict(name: str, value: float, limit: float, unit: str, sense: str, source: str) -> Requirement:
+def _verdict(name: str, value: float, limit: float, unit: str, sense: str, source: str, key: str) -> Requirement:
     """A requirement, its value within :data:`ROUND_OFF` of the limit taken as the limit (met with nothing to spare)."""
     value = limit if abs(value - limit) <= ROUND_OFF * abs(limit) else value
-    return Requirement(name, float(value), float(limit), unit, sense, source)
+    return Requirement(name, float(value), float(limit), unit, sense, source, key)
 
 
 def requirements_of(frame: _Frame, schedule: PreloadSchedule) -> tuple[Requirement, ...]:
@@ -191,14 +191,16 @@ def requirements_of(frame: _Frame, schedule: PreloadSchedule) -> tuple[Requireme
     by_deflection = frame.required[k] > spec.stiffness_min_N_per_um
     out = [_verdict("rigidity while cutting", frame.rigidity[k], frame.required[k], "N/um", "min",
                     "[schedule] deflection_max_um (|F_a| / deflection_max_um)" if by_deflection
-                    else "[schedule] stiffness_min_N_per_um")]
+                    else "[schedule] stiffness_min_N_per_um", "schedule.rigidity_while_cutting")]
     if math.isfinite(spec.deflection_max_um):
         out.append(_verdict("axial deflection while cutting", float(np.max(np.abs(frame.deflection[c]))),
-                            spec.deflection_max_um, "um", "max", "[schedule] deflection_max_um"))
+                            spec.deflection_max_um, "um", "max", "[schedule] deflection_max_um",
+                            "schedule.deflection_max_um"))
     lift = np.where(c, frame.achieved / np.maximum(frame.lift_bound, 1e-9), np.inf)
     j = int(np.argmin(lift))
     out.append(_verdict("preload against the lift-off bound while cutting", frame.achieved[j], frame.lift_bound[j], "N",
-                        "min", "[schedule] lift_off_margin (lift_off_margin |F_a| / 2^(3/2))"))
+                        "min", "[schedule] lift_off_margin (lift_off_margin |F_a| / 2^(3/2))",
+                        "schedule.lift_off_margin"))
     return tuple(out)
 
 

@@ -272,11 +272,12 @@ def _plc_text(head: list[str], g: dict[str, float], schedule: GainSchedule | Non
 
 
 # ---- casadi-c ---------------------------------------------------------------------------------
-def controller_from_gain_set(doc: GainSet | dict[str, Any]) -> Controller:
-    """The controller a validated gain set describes: gains, sample period and feedforward (any P-I model, with or
-    without creep: :class:`~piezopreload.models.hysteresis.InverseStep`)."""
+def controller_from_gain_set(doc: GainSet | dict[str, Any], accepted: tuple[str, ...] = ()) -> Controller:
+    """The controller a validated gain set describes (or a candidate whose misses are ``accepted`` by name): gains,
+    sample period and feedforward (any P-I model, with or without creep:
+    :class:`~piezopreload.models.hysteresis.InverseStep`)."""
     gain_set = _gain_set(doc)
-    validated_gains(gain_set)  # refuses a candidate
+    validated_gains(gain_set, accepted)  # refuses a candidate
     try:
         return gain_set.controller()
     except ValueError as exc:

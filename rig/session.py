@@ -77,9 +77,9 @@ def _identity(gain_set: GainSet) -> dict[str, str]:
     return {"gain_set_sha256": gain_set.content_sha256 or "", "feedforward_sha256": feedforward_hash(model)}
 
 
-def _controller(shown: str | Path, gain_set: GainSet) -> Controller:
+def _controller(shown: str | Path, gain_set: GainSet, accepted: tuple[str, ...] = ()) -> Controller:
     try:
-        return controller_from_gain_set(gain_set)
+        return controller_from_gain_set(gain_set, accepted)
     except (ExportError, ValueError) as exc:
         raise InputError(f"{shown}: {exc}") from None
 
@@ -242,7 +242,7 @@ def _setup(gains_path: str | Path, backend: str, backend_options: dict[str, str]
            seed: int, learned: str | Path | None = None, safety_source: str = "the command line",
            accepted: tuple[str, ...] = ()) -> _Setup:
     gain_set = load_validated(gains_path, accepted)
-    controller = _controller(gains_path, gain_set)
+    controller = _controller(gains_path, gain_set, accepted)
     if rate_Hz is not None and not math.isclose(rate_Hz * controller.dt_s, 1.0, rel_tol=1e-9):
         raise InputError(f"--rate {rate_Hz:g}: the gain set was tuned and validated at {1.0 / controller.dt_s:g} Hz; "
                          "run it at that rate or tune for the other one")

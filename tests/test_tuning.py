@@ -687,3 +687,18 @@ def test_a_validated_status_beside_a_missed_requirement_is_refused(tmp_path):
     write_artifact(path, "gain-set", doc)  # hashed again: only the record's own agreement can catch it
     with pytest.raises(ArtifactError, match="'validated' but field 'requirements' holds a missed one"):
         GainSet.load(path)
+
+
+def test_the_rig_runs_a_candidate_only_where_its_misses_are_accepted_and_records_them(tmp_path, capsys):
+    from piezopreload.artifacts.rigrun import RigRunRecord
+
+    _, path = _judged_gain_set(tmp_path, 28.8)
+    argv = ["rig", "run", str(path), "--fast", "--reference", "step", "--log-dir", str(tmp_path / "runs"), "--json"]
+    assert main(argv) == 2
+    assert "--accept validation.overshoot_max_N@2000N" in capsys.readouterr().err
+    assert not (tmp_path / "runs").exists() or not list((tmp_path / "runs").iterdir()), "a refused run writes nothing"
+    assert main([*argv, "--accept", "validation.overshoot_max_N@2000N"]) == 0
+    run = json.loads(capsys.readouterr().out)
+    sidecar = RigRunRecord.load(run["log_json"])
+    assert [r["key"] for r in sidecar.accepted_missed] == ["validation.overshoot_max_N@2000N"]
+    assert sidecar.accepted_missed[0]["value"] == 28.8
