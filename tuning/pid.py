@@ -595,19 +595,19 @@ class _Solvers:
             self.offer(z, name)
         scores = [self.score(sd) for sd in seeds]
         order = sorted(range(len(seeds)), key=lambda i: (round(scores[i][0], 3), scores[i][1]))
-        status = "not run"
         for k, i in enumerate(order[:starts]):
             zv, status = self.solve(seeds[i], scores[i][0], f"start {k + 1}")
             if status in _CONVERGED and self.score(zv)[0] <= _FEASIBLE:
                 break
         inc = self.incumbent
-        run_status = next((r["status"] for r in self.runs if r["run"] == inc.source), "a known point")
-        if inc.z is not None and run_status == "Maximum_Iterations_Exceeded":
+        if inc.z is not None and self.status_of(inc.source) == "Maximum_Iterations_Exceeded":
             # the best point came from a run stopped on its limit: go on from it (IPOPT's barrier starts afresh)
-            again = f"{inc.source}, continued"
-            _, status = self.solve(inc.z, inc.violation, again)
-            run_status = next((r["status"] for r in self.runs if r["run"] == self.incumbent.source), run_status)
-        return run_status, self._ending()
+            self.solve(inc.z, inc.violation, f"{inc.source}, continued")
+        return self.status_of(self.incumbent.source), self._ending()
+
+    def status_of(self, run: str) -> str:
+        """IPOPT's status at the end of the run named ``run`` (``a known point`` where no run is named so)."""
+        return next((r["status"] for r in self.runs if r["run"] == run), "a known point")
 
     def _ending(self) -> str:
         """How the search ended, in words: the runs, their statuses, where the result came from."""
@@ -617,15 +617,15 @@ class _Solvers:
             f", {limited} stopped on the iteration limit ({self.max_iterations})" if limited else "") + (
             f", {stalled} stopped after {_PATIENCE} iterations without a better point" if stalled else "")
         inc = self.incumbent
-        src = next((r for r in self.runs if r["run"] == inc.source), None)
-        if src is None:
+        status = self.status_of(inc.source)
+        if status == "a known point":
             where = f"{inc.source} (no run found better)"
-        elif src["status"] in _CONVERGED:
-            where = f"{inc.source}, converged ({src['status']})"
-        elif src["status"] == _STALLED:
+        elif status in _CONVERGED:
+            where = f"{inc.source}, converged ({status})"
+        elif status == _STALLED:
             where = f"the best iterate of {inc.source} (no better one in the {_PATIENCE} iterations after it)"
         else:
-            where = f"the best iterate of {inc.source} ({src['status']})"
+            where = f"the best iterate of {inc.source} ({status})"
         return f"{runs}; the result is {'feasible' if inc.feasible else 'the least violation'}: {where}"
 
 
@@ -780,8 +780,7 @@ def tune_pid(
             on_bounds = on_bounds + pi_solvers.prob.scaling.on_bounds(z_pi)
             iterations += pi_solvers.iterations
             if retuned:
-                status, search = (next((r["status"] for r in pi_solvers.runs if r["run"] == inc.source), status),
-                                  f"{search}; as a PI: {pi_solvers._ending()}")
+                status, search = pi_solvers.status_of(inc.source), f"{search}; as a PI: {pi_solvers._ending()}"
     binding = sorted(label for label, m in margins.items() if m > -1e-3)
     ms = max(max_sensitivity(tuned, v) for v in prob.variants)
     return TuningResult(
