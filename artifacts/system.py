@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from piezopreload.artifacts._fields import Fields
 from piezopreload.artifacts.requirements import Requirement, requirements_from_dict
+from piezopreload.artifacts.thermal import ThermalRecord
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError
 
@@ -261,6 +262,7 @@ class SystemRecord:
     series: SystemSeries
     cycles: int
     inputs: dict[str, Any] = field(default_factory=dict)
+    thermal: ThermalRecord | None = None  # the shift's thermal budget, where the study has a [thermal] table
 
     @property
     def requirements_met(self) -> bool:
@@ -281,11 +283,12 @@ class SystemRecord:
         return {**self.numbers.to_dict(), "requirements_met": self.requirements_met,
                 "requirements": [r.to_dict() for r in self.requirements], "bounds": [b.to_dict() for b in self.bounds],
                 "pre_cycle": self.pre_cycle.to_dict(), "preload_margin_N": self.preload_margin_N, "cycles": self.cycles,
-                "passes": [p.to_dict() for p in self.passes]}
+                "passes": [p.to_dict() for p in self.passes],
+                **({} if self.thermal is None else {"thermal": self.thermal.summary()})}
 
     def to_dict(self) -> dict[str, Any]:
         return {**self.summary(), "schedule": self.schedule.to_dict(), "series": self.series.to_dict(),
-                "inputs": dict(self.inputs)}
+                "inputs": dict(self.inputs), **({} if self.thermal is None else {"thermal": self.thermal.to_dict()})}
 
     @classmethod
     def from_dict(cls, doc: dict[str, Any], shown: str = "the system") -> SystemRecord:
@@ -298,7 +301,8 @@ class SystemRecord:
                      passes=f.items("passes", PassRecord.from_fields),
                      schedule=PlannedSchedule.from_fields(f.sub("schedule")),
                      series=SystemSeries.from_fields(f.sub("series")), cycles=f.integer("cycles"),
-                     inputs=f.mapping("inputs", {}))
+                     inputs=f.mapping("inputs", {}),
+                     thermal=ThermalRecord.from_fields(f.sub("thermal")) if f.has("thermal") else None)
         if f.flag("requirements_met") != record.requirements_met:
             raise ArtifactError(f"{shown}: field 'requirements_met' does not agree with its 'requirements'")
         return record

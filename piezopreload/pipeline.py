@@ -18,7 +18,8 @@ compare     step and trajectory, the study's and the tuned gains, with/without  
 learn       learning control on the repeated schedule, each margin pass on its  learn/learning.json,
             own reference (``[learning]``; the margin from the learned error)   learn/learned-pass*.json
 system      the controlled preload along the design's schedule (learned where   system/system.json,
-            learn ran): rigidity and deflection while cutting, friction energy  system/reference.csv
+            learn ran): rigidity and deflection while cutting, friction energy; system/reference.csv
+            the shift's heat, temperature and growth (``[thermal]``)
 export      the validated gain set in the study's controller formats            exports/
 rig         the validated gains on the rig executor (simulated by default)      runs/run-*.csv + .json
 report      figures and the PDF (Typst)                                          report/, report.pdf
@@ -412,7 +413,7 @@ STAGES: tuple[Stage, ...] = (
           ("models", "artifacts", "design", "tuning"), _stage_learn, files=("schedule.profile",),
           applies=_learn_applies),
     Stage("system", "the controlled preload along the schedule: rigidity and deflection while cutting, energy",
-          ("rig", "plant", "schedule", "simulation", "learning", "validation"),
+          ("rig", "plant", "schedule", "simulation", "learning", "validation", "thermal", "feed_drive"),
           ("design", "plant", "validate", "learn"), ("models", "artifacts", "design", "tuning"), _stage_system,
           files=("schedule.profile",), applies=_plant_applies),
     Stage("export", "the gain set in the controllers' formats", ("export",), ("validate",),

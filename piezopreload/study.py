@@ -54,7 +54,16 @@ from piezopreload.design.plant import DESIGNED_FIELDS
 from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignSpec, optimise
 from piezopreload.design.study import DesignResult, design_spec_from_tables, design_study, plan_schedule, read_profile
 from piezopreload.design.system import SystemRun
-from piezopreload.design.tables import BallscrewTable, DesignTable, DutyTable, FeedDriveTable, PlantTable, ScheduleTable
+from piezopreload.design.tables import (
+    BallscrewTable,
+    DesignTable,
+    DutyTable,
+    FeedDriveTable,
+    PlantTable,
+    ScheduleTable,
+    ThermalTable,
+)
+from piezopreload.design.thermal import thermal_budget
 from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import Controller, PIDGains
@@ -167,6 +176,7 @@ class Study:
     source_text: bytes = field(repr=False)  # the file as read, or as :meth:`replace` wrote it
     given: dict[str, Any] = field(repr=False)  # the tables and keys the file gives, as it gives them
     description: str = ""
+    thermal: ThermalTable | None = None  # [thermal]: the shift's heat, temperature and growth (the system stage)
     say: Say = field(default=_stderr, repr=False, compare=False)  # progress where a step is given none
     _kept: _Kept = field(default_factory=_Kept, repr=False, compare=False)
 
@@ -494,10 +504,17 @@ class Study:
         a requirement is missed (:func:`piezopreload.design.system.track_schedule`); ``ff_extra_V`` a correction
         added to the feedforward (one array, or one per pass's reference: a callable)."""
         designed = self._designed_for("tracking the schedule", progress)
-        return (self.plant_table or PlantTable()).track(designed, self._controller(gains, progress),
-                                                        self.preload_schedule, seed=self.seed,
-                                                        settle_s=self.criteria.settling_max_s, ff_extra_V=ff_extra_V,
-                                                        progress=progress)
+        controller = self._controller(gains, progress)
+        run = (self.plant_table or PlantTable()).track(designed, controller, self.preload_schedule, seed=self.seed,
+                                                       settle_s=self.criteria.settling_max_s, ff_extra_V=ff_extra_V,
+                                                       progress=progress)
+        if self.thermal is None:
+            return run
+        budget = thermal_budget(run, self._spec("[thermal]").feed_drive, self.thermal,
+                                command_range_V=(controller.gains.u_min, controller.gains.u_max))
+        if progress is not None:
+            progress(f"thermal: {budget.record.sentence()}")
+        return _replace(run, thermal=budget)
 
     def reproduce(self, *, seed: int | None = None, repeats: int = 1,
                   feedforward: IdentifiedFeedforward | None = None) -> dict[str, Any]:
@@ -618,9 +635,12 @@ def _refuse_ignored(data: dict[str, Any], where: _Source) -> None:
     [rig], the [plant] keys that only a designed plant uses are. (Before [rig] is checked: its own rules may
     involve a refused key.)"""
     fail = where.fail
-    if "plant" not in data:
+    plant = PlantTable.parse(data["plant"], fail, "plant") if "plant" in data else None
+    if "thermal" in data and not (plant is not None and plant.from_design):
+        raise fail("thermal", "needs a study whose plant is its design ([plant] from_design = true, with the design's "
+                              "tables): the shift's budget is that of the system along its schedule")
+    if plant is None:
         return
-    plant = PlantTable.parse(data["plant"], fail, "plant")
     if plant.from_design:
         if "ballscrew" not in data:
             raise fail("plant.from_design", "= true needs the design's tables ([ballscrew], [design], ...) to make "
@@ -671,6 +691,8 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
         validation = _replace(validation, seed=sim.seed)
     design_spec = None if t["ballscrew"] is None else design_spec_from_tables(
         {**t, "design": t["design"] or DesignTable()}, fail)
+    if t["thermal"] is not None and design_spec is not None:
+        t["thermal"].against(design_spec.feed_drive, fail)
     meta: StudyTable = t["study"]
     return Study(
         path=path, sha256=hashlib.sha256(text).hexdigest(), name=meta.name or Path(path).stem, title=meta.title,
@@ -678,7 +700,7 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
         simulation=sim, tuning=t["tuning"], validation=validation, export=t["export"],
         rig_run=t["rig_run"].resolved(), ballscrew=t["ballscrew"], feed_drive=t["feed_drive"], duty=t["duty"],
         design_table=t["design"], schedule=t["schedule"], plant_table=t["plant"], learning=t["learning"],
-        published=t["published"], gains=gains,
+        published=t["published"], thermal=t["thermal"], gains=gains,
         references=_references(t["reference"], fail), excitation=t["feedforward"].excitation(), tuning_spec=spec,
         criteria=validation.criteria(sim.band_N), design_spec=design_spec, where=where, source_text=text,
         given=copy.deepcopy(data), say=say, _kept=kept)
