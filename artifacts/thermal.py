@@ -46,10 +46,11 @@ class ThermalCase:
     Scalars: the nut's friction heat (cycle mean, the study's heat model and the other one), the support
     bearings' (both ends, all of it), the mean preload, the screw's largest rise over the shift (both heat
     models), the nut's, the largest growth at the table's positions (both models), the largest positioning
-    error (the budget's total) and the tracking error's share of the deflection. Per hour of the shift
-    (``hours``): the rise along the screw (``rise_along_K``, one row per hour, one column per volume), the nut's
-    rise and the nut's over the screw's under it, the growth at the table's positions (signed, um), and the
-    budget there (um); ``elastic_um`` the deflection under the worst cut at each position.
+    error (the budget's total) and the tracking error's share of the deflection. At each of ``times_h`` (the
+    warm-up's first minutes, then the end of each hour of the shift): the rise along the screw (``rise_along_K``,
+    one row per time, one column per volume), the nut's rise and the nut's over the screw's under it, the growth
+    at the table's positions (signed, um), and the budget there (um); ``elastic_um`` the deflection under the
+    worst cut at each position.
     """
 
     heat_mean_W: float
@@ -63,7 +64,7 @@ class ThermalCase:
     growth_max_other_um: float
     positioning_error_max_um: float
     tracking_um: float
-    hours: Array
+    times_h: Array
     rise_along_K: Array
     nut_rise_K: Array
     nut_over_screw_K: Array
@@ -74,22 +75,27 @@ class ThermalCase:
     def summary(self) -> dict[str, float]:
         return {name: float(getattr(self, name)) for name in _FIGURES}
 
+    @property
+    def hourly(self) -> NDArray[np.bool_]:
+        """Which of ``times_h`` end an hour of the shift (or the shift)."""
+        return self.times_h >= 1.0 - 1e-9
+
     def worst(self) -> tuple[int, int]:
-        """(hour index, position index) of the largest budget."""
+        """(time index, position index) of the largest budget."""
         h, p = np.unravel_index(int(np.argmax(self.budget_um)), self.budget_um.shape)
         return int(h), int(p)
 
     def to_dict(self) -> dict[str, Any]:
-        return {**self.summary(), "hours": self.hours.tolist(), "rise_along_K": self.rise_along_K.tolist(),
+        return {**self.summary(), "times_h": self.times_h.tolist(), "rise_along_K": self.rise_along_K.tolist(),
                 "nut_rise_K": self.nut_rise_K.tolist(), "nut_over_screw_K": self.nut_over_screw_K.tolist(),
                 "growth_um": self.growth_um.tolist(), "elastic_um": self.elastic_um.tolist(),
                 "budget_um": self.budget_um.tolist()}
 
     @classmethod
     def from_fields(cls, f: Fields, volumes: int, positions: int) -> ThermalCase:
-        hours = f.array("hours")
-        n = hours.size
-        return cls(**{name: f.number(name) for name in _FIGURES}, hours=hours,
+        times = f.array("times_h")
+        n = times.size
+        return cls(**{name: f.number(name) for name in _FIGURES}, times_h=times,
                    rise_along_K=_matrix(f, "rise_along_K", n, volumes), nut_rise_K=f.array("nut_rise_K", n),
                    nut_over_screw_K=f.array("nut_over_screw_K", n), growth_um=_matrix(f, "growth_um", n, positions),
                    elastic_um=f.array("elastic_um", positions), budget_um=_matrix(f, "budget_um", n, positions))
@@ -99,14 +105,16 @@ class ThermalCase:
 class PreloadDrift:
     """The passive nut's drift and the force loop's room to hold it.
 
-    A spacer-preloaded double nut of the same design at the best constant preload changes its preload by
-    ``passive_N_per_K`` per kelvin of nut over screw, ``passive_max_N`` at most over the shift. With the stacks
-    in the loop the preload holds; their stroke takes up the spacer's mismatch, ``stroke_max_um`` at most over
-    the schedule's shift, ``voltage_needed_V`` of command (signed: + more voltage, the screw warmer than the
-    nut), against ``headroom_V`` the run left on that side of the command's range.
+    A spacer-preloaded double nut of the same design at the best constant preload, its nuts' loaded turns
+    ``span_mm`` apart (middle to middle), changes its preload by ``passive_N_per_K`` per kelvin of nut over
+    screw; ``passive_max_N`` is its largest change over the shift, signed (< 0: the screw warmer than the nut,
+    the preload falls). With the stacks in the loop the preload holds; their stroke takes up the spacer's
+    mismatch, ``stroke_max_um`` at most over the schedule's shift, ``voltage_needed_V`` of command (signed: + more
+    voltage, the screw warmer than the nut), against ``headroom_V`` the run left on that side of the command's
+    range.
     """
 
-    spacer_length_mm: float
+    span_mm: float
     passive_N_per_K: float
     passive_max_N: float
     passive_preload_N: float
@@ -120,14 +128,14 @@ class PreloadDrift:
         return abs(self.voltage_needed_V) <= self.headroom_V
 
     def to_dict(self) -> dict[str, Any]:
-        return {"spacer_length_mm": self.spacer_length_mm, "passive_N_per_K": self.passive_N_per_K,
+        return {"span_mm": self.span_mm, "passive_N_per_K": self.passive_N_per_K,
                 "passive_max_N": self.passive_max_N, "passive_preload_N": self.passive_preload_N,
                 "stroke_max_um": self.stroke_max_um, "voltage_needed_V": self.voltage_needed_V,
                 "headroom_V": self.headroom_V, "held": self.held}
 
     @classmethod
     def from_fields(cls, f: Fields) -> PreloadDrift:
-        return cls(*(f.number(k) for k in ("spacer_length_mm", "passive_N_per_K", "passive_max_N",
+        return cls(*(f.number(k) for k in ("span_mm", "passive_N_per_K", "passive_max_N",
                                            "passive_preload_N", "stroke_max_um", "voltage_needed_V", "headroom_V")))
 
 

@@ -156,8 +156,9 @@ def nut_centre_m(cycle: CycleLoad, stroke_mm: tuple[float, float]) -> Array:
 @dataclass(frozen=True, eq=False)
 class CycleSources:
     """Where a cycle's heat enters the axis, per sample: the nut's friction heat (W), each end bearing's heat
-    (W, all of it), the nut's coverage of the screw's volumes (rows sum to 1), the screw's film (W/m^2 K); with the
-    model, the cycle and the table's shares, and the coolant's constant heat per node (W)."""
+    (W, all of it; its share enters the screw at the end face, :meth:`AxisModel.face_share`), the nut's coverage
+    of the screw's volumes (rows sum to 1), the screw's film (W/m^2 K); with the model, the cycle and the table's
+    shares, and the coolant's constant heat per node (W)."""
 
     model: AxisModel
     cycle: CycleLoad
@@ -176,8 +177,8 @@ class CycleSources:
         q = np.zeros((self.nut_W.size, self.model.size))
         q[:, :n] = self.nut_share * self.nut_W[:, None] * self.coverage
         q[:, n] = (1.0 - self.nut_share) * self.nut_W
-        q[:, 0] += self.bearing_share * self.bearing_W[:, 0]
-        q[:, n - 1] += self.bearing_share * self.bearing_W[:, 1]
+        q[:, 0] += self.bearing_share * self.model.face_share(0) * self.bearing_W[:, 0]
+        q[:, n - 1] += self.bearing_share * self.model.face_share(1) * self.bearing_W[:, 1]
         return q + self.coolant_W[None, :]
 
     def mean_heat_W(self) -> Array:
@@ -187,8 +188,8 @@ class CycleSources:
         q = np.zeros(self.model.size)
         q[:n] = self.nut_share * c.mean(self.nut_W[:, None] * self.coverage)
         q[n] = (1.0 - self.nut_share) * c.mean(self.nut_W)
-        q[0] += self.bearing_share * c.mean(self.bearing_W[:, 0])
-        q[n - 1] += self.bearing_share * c.mean(self.bearing_W[:, 1])
+        q[0] += self.bearing_share * self.model.face_share(0) * c.mean(self.bearing_W[:, 0])
+        q[n - 1] += self.bearing_share * self.model.face_share(1) * c.mean(self.bearing_W[:, 1])
         return q + self.coolant_W
 
     def network(self) -> Network:
@@ -236,9 +237,12 @@ def cycle_sources(screw: BallScrew, drive: FeedDrive, table: ThermalTable, cycle
 
 
 def shift_hours(shift_h: float) -> Array:
-    """The end of each hour of the shift, and the shift's end (h)."""
+    """The times the budget records (h): 5, 10, 20 and 30 minutes into the warm-up (those within the shift), the end
+    of each hour, and the shift's end."""
     whole = np.arange(1.0, math.floor(shift_h) + 1.0)
-    return whole if math.isclose(shift_h, math.floor(shift_h)) else np.append(whole, shift_h)
+    early = np.array([1 / 12, 1 / 6, 1 / 3, 0.5])
+    times = np.concatenate([early[early < shift_h], whole])
+    return times if math.isclose(shift_h, times[-1]) else np.append(times, shift_h)
 
 
 @dataclass(frozen=True)
@@ -281,16 +285,16 @@ class ThermalBudget:
 
 
 def _case(sources: CycleSources, other: CycleSources, mech: _Mechanics, elastic: Array, tracking: float,
-          semi_closed: bool, hours: Array) -> tuple[ThermalCase, Array, Array]:
+          semi_closed: bool, times_h: Array) -> tuple[ThermalCase, Array, Array]:
     """One preload's shift: the case, and its nut-over-screw rises and times on the grid."""
     n = sources.model.volumes
-    grid = np.union1d(np.arange(0.0, hours[-1] * 3600.0, _GRID_S)[1:], hours * 3600.0)
+    grid = np.union1d(np.arange(0.0, times_h[-1] * 3600.0, _GRID_S)[1:], times_h * 3600.0)
     rises, other_rises = sources.shift(grid), other.shift(grid)
-    at_hour = np.searchsorted(grid, hours * 3600.0)
+    at = np.searchsorted(grid, times_h * 3600.0)
     growth, other_growth = mech.growth_um(rises[:, :n]), mech.growth_um(other_rises[:, :n])
     under = rises[:, :n] @ sources.cycle.mean(sources.coverage)
     nut_over = rises[:, n] - under
-    budget = elastic[None, :] + tracking + (np.abs(growth) if semi_closed else 0.0)
+    budget = elastic[None, :] + tracking + (np.abs(growth) if semi_closed else np.zeros_like(growth))
     c = sources.cycle
     case = ThermalCase(
         heat_mean_W=float(c.mean(sources.nut_W)), heat_mean_other_W=float(c.mean(other.nut_W)),
@@ -299,8 +303,8 @@ def _case(sources: CycleSources, other: CycleSources, mech: _Mechanics, elastic:
         temperature_rise_max_other_K=float(np.max(other_rises[:, :n])),
         nut_rise_max_K=float(np.max(rises[:, n])), growth_max_um=float(np.max(np.abs(growth))),
         growth_max_other_um=float(np.max(np.abs(other_growth))), positioning_error_max_um=float(np.max(budget)),
-        tracking_um=float(tracking), hours=hours, rise_along_K=rises[at_hour, :n], nut_rise_K=rises[at_hour, n],
-        nut_over_screw_K=nut_over[at_hour], growth_um=growth[at_hour], elastic_um=elastic, budget_um=budget[at_hour])
+        tracking_um=float(tracking), times_h=times_h, rise_along_K=rises[at, :n], nut_rise_K=rises[at, n],
+        nut_over_screw_K=nut_over[at], growth_um=growth[at], elastic_um=elastic, budget_um=budget[at])
     return case, nut_over, grid
 
 
@@ -332,8 +336,8 @@ def _drift(run: SystemRun, table: ThermalTable, constant_over: Array, schedule_o
     cycles = run.run.t_s >= run.pre_cycle.duration_s
     volts = run.run.voltage_V[cycles]
     headroom = command_range_V[1] - float(np.max(volts)) if needed > 0 else float(np.min(volts)) - command_range_V[0]
-    return PreloadDrift(spacer, per_K, per_K * float(np.max(np.abs(constant_over))), float(constant), abs(stroke),
-                        needed, headroom)
+    k = int(np.argmax(np.abs(constant_over)))
+    return PreloadDrift(spacer, per_K, per_K * float(constant_over[k]), float(constant), abs(stroke), needed, headroom)
 
 
 def _pair(x: Any) -> tuple[float, float]:
@@ -373,7 +377,7 @@ def thermal_budget(run: SystemRun, drive: FeedDrive, table: ThermalTable, *,
     elastic_planned = _elastic_um(screw, drive, planned, load, positions)
     tracking = float(np.max(np.maximum(_elastic_um(screw, drive, achieved.preload_N, load, positions)
                                        - elastic_planned, 0.0)))
-    hours = shift_hours(table.shift_h)
+    times = shift_hours(table.shift_h)
     semi = table.feedback == "semi-closed"
     sources, cases, over = {}, {}, {}
     for name, cycle, elastic, share in (("schedule", achieved, elastic_planned, tracking),
@@ -382,7 +386,7 @@ def thermal_budget(run: SystemRun, drive: FeedDrive, table: ThermalTable, *,
         other = cycle_sources(screw, drive, table, cycle, heat_model=other_model, model=model)
         if elastic is None:
             elastic = _elastic_um(screw, drive, cycle.preload_N, cycle.axial_load_N, positions)
-        cases[name], over[name], _ = _case(sources[name], other, mech, elastic, share, semi, hours)
+        cases[name], over[name], _ = _case(sources[name], other, mech, elastic, share, semi, times)
     film = float(achieved.mean(sources["schedule"].film_W_per_m2K))
     record = ThermalRecord(
         table.heat_model, other_model, table.lubricant_vg, table.sealed, mounting, table.pretension_K, table.feedback,

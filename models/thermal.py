@@ -294,9 +294,20 @@ class AxisModel:
         g = self.coolant_W_per_m2K * math.pi * self.screw.bore_m * self.dx_m
         return np.concatenate([np.full(self.volumes, g), [0.0, 0.0]])
 
+    def _half_W_per_K(self) -> float:
+        return self.screw.conductivity_W_per_mK * self.screw.area_m2 / (0.5 * self.dx_m)
+
     def _end_W_per_K(self, bearing: float) -> float:
-        half = self.screw.conductivity_W_per_mK * self.screw.area_m2 / (0.5 * self.dx_m)
+        half = self._half_W_per_K()
         return half if math.isinf(bearing) else (0.0 if bearing == 0 else 1.0 / (1.0 / half + 1.0 / bearing))
+
+    def face_share(self, end: int) -> float:
+        """The share of a heat entering the screw at its end face ``end`` (0: bearing A, 1: B) that reaches the
+        end volume: the face sits between half a volume of screw (G_h) and the bearing (G_b), so G_h / (G_h + G_b)
+        goes into the screw and the rest straight into the housing (placing it in the volume's middle instead
+        would warm it by q dx / (2 k A), an error of the first order in dx)."""
+        bearing, half = self.bearing_W_per_K[end], self._half_W_per_K()
+        return 0.0 if math.isinf(bearing) else half / (half + bearing)
 
     def ambient_W_per_K(self, screw_film_W_per_m2K: float, nut_film_W_per_m2K: float) -> Array:
         """Each node's conductance to the ambient (air, bearings' housings, the table) at the given films."""
