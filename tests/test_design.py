@@ -238,6 +238,33 @@ def test_the_envelope_schedule_is_the_nlps_optimum(spec, margin_N):
     assert exact.constant_preload_N == nlp.constant_preload_N
 
 
+@pytest.mark.parametrize("model", ["catalogue", "contact"])
+def test_the_least_friction_schedule_is_the_least_heat_one_under_either_model(spec, model):
+    """The heat grows with the preload at every sample (linearly in the catalogue's model, as F_p^0.484 in the
+    rolling-contact one): the NLP that minimises the cycle's heat instead of its friction energy lands on the
+    envelope, and no schedule it finds makes less heat."""
+    p = optimise(spec, "drag").point
+    screw = spec.screw(p)
+    f_max = spec.actuator.max_preload_N(screw, p.bolt_preload_N)
+    sspec = ScheduleSpec(p.bolt_preload_N, f_max, slew_N_per_s=20000.0, stiffness_min_N_per_um=300.0,
+                         deflection_max_um=5.0)
+    profile = example_profile(0.05)
+    heat = {"model": model, "lubricant_vg": 68, "sealed": True, "temperature_C": 40.0}
+    exact = schedule_preload(screw, profile, sspec)
+    nlp = schedule_preload(screw, profile, sspec, method="nlp", heat=heat)
+    assert nlp.status == "Solve_Succeeded"
+    np.testing.assert_allclose(exact.preload_N, nlp.preload_N, atol=1e-4 * f_max,
+                               err_msg="the least-heat schedule is not the envelope")
+
+    def joules(preload):
+        return float(np.dot(screw.friction_heat_W(preload, profile.speed_rpm, **heat), profile.dt_s))
+
+    assert joules(exact.preload_N) <= joules(nlp.preload_N) * (1 + 1e-7), "the NLP found a schedule with less heat"
+    assert joules(exact.preload_N) < joules(np.full(profile.time_s.size, exact.constant_preload_N))
+    with pytest.raises(ValueError, match="needs the load profile's speed_rpm"):
+        schedule_preload(screw, LoadProfile(profile.time_s, profile.axial_load_N), sspec, heat=heat)
+
+
 def test_a_constant_load_gives_a_constant_schedule(spec):
     screw = BallScrew(32.0, 10.0, 6.35, 4)
     t = np.linspace(0, 1, 51)
