@@ -6,8 +6,9 @@ the pre-cycle that brings the stacks to the schedule's first level before the fi
 tracking, the requirements as verdicts (:class:`~piezopreload.artifacts.requirements.Requirement`,
 ``requirements`` beside ``requirements_met``), the bounds that stop a requirement where no schedule
 within the stacks' force can meet it with the loop's error, the margin passes, the schedule the
-last pass planned (its local margins) and the time series. The best constant preload is not here:
-it is the design's (:class:`~piezopreload.artifacts.design.DesignRecord`'s schedule), and
+last pass planned (its local margins), the time series and, where the study has a ``[thermal]`` table, the
+shift's thermal budget (:class:`~piezopreload.artifacts.thermal.ThermalRecord`). The best constant preload is
+not here: it is the design's (:class:`~piezopreload.artifacts.design.DesignRecord`'s schedule), and
 ``friction_saved_fraction`` is the achieved friction energy against it.
 """
 

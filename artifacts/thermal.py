@@ -26,8 +26,8 @@ Array = NDArray[np.float64]
 CASES = ("schedule", "constant")
 #: the scalar figures of a case, in its summary's order
 _FIGURES = ("heat_mean_W", "heat_mean_other_W", "bearing_heat_mean_W", "preload_mean_N", "temperature_rise_max_K",
-            "temperature_rise_max_other_K", "nut_rise_max_K", "growth_max_um", "growth_max_other_um",
-            "positioning_error_max_um", "tracking_um")
+            "temperature_rise_max_other_K", "nut_rise_max_K", "end_force_max_N", "growth_max_um",
+            "growth_max_other_um", "positioning_error_max_um", "tracking_um")
 
 
 def _matrix(f: Fields, key: str, rows: int, cols: int) -> Array:
@@ -45,7 +45,8 @@ class ThermalCase:
 
     Scalars: the nut's friction heat (cycle mean, the study's heat model and the other one), the support
     bearings' (both ends, all of it), the mean preload, the screw's largest rise over the shift (both heat
-    models), the nut's, the largest growth at the table's positions (both models), the largest positioning
+    models), the nut's, the largest force the held ends take up from the growth (compressive, or the pretension's
+    loss; 0 fixed-free), the largest growth at the table's positions (both models), the largest positioning
     error (the budget's total) and the tracking error's share of the deflection. At each of ``times_h`` (the
     warm-up's first minutes, then the end of each hour of the shift): the rise along the screw (``rise_along_K``,
     one row per time, one column per volume), the nut's rise and the nut's over the screw's under it, the growth
@@ -60,6 +61,7 @@ class ThermalCase:
     temperature_rise_max_K: float
     temperature_rise_max_other_K: float
     nut_rise_max_K: float
+    end_force_max_N: float
     growth_max_um: float
     growth_max_other_um: float
     positioning_error_max_um: float

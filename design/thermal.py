@@ -50,6 +50,7 @@ from piezopreload.models.thermal import (
     ScrewBody,
     bearing_torque_Nm,
     growth_m,
+    held_force_N,
     nut_coverage,
     pipe_film_W_per_m2K,
     shaft_film_W_per_m2K,
@@ -256,6 +257,11 @@ class _Mechanics:
     positions_m: Array
     dx_m: float
 
+    def force_N(self, rise_screw: Array) -> Array:
+        """The force the held ends take up, for each row of screw rises."""
+        return held_force_N(rise_screw, self.dx_m, self.mounting, EA_N=self.EA_N, bearing_N_per_m=self.bearing_N_per_m,
+                            pretension_K=self.pretension_K)
+
     def growth_um(self, rise_screw: Array) -> Array:
         """The growth (um) at the table's positions for each row of screw rises."""
         faces = growth_m(rise_screw, self.dx_m, self.mounting, EA_N=self.EA_N, bearing_N_per_m=self.bearing_N_per_m,
@@ -301,7 +307,8 @@ def _case(sources: CycleSources, other: CycleSources, mech: _Mechanics, elastic:
         bearing_heat_mean_W=float(np.sum(c.mean(sources.bearing_W))), preload_mean_N=float(c.mean(c.preload_N)),
         temperature_rise_max_K=float(np.max(rises[:, :n])),
         temperature_rise_max_other_K=float(np.max(other_rises[:, :n])),
-        nut_rise_max_K=float(np.max(rises[:, n])), growth_max_um=float(np.max(np.abs(growth))),
+        nut_rise_max_K=float(np.max(rises[:, n])), end_force_max_N=float(np.max(np.abs(mech.force_N(rises[:, :n])))),
+        growth_max_um=float(np.max(np.abs(growth))),
         growth_max_other_um=float(np.max(np.abs(other_growth))), positioning_error_max_um=float(np.max(budget)),
         tracking_um=float(tracking), times_h=times_h, rise_along_K=rises[at, :n], nut_rise_K=rises[at, n],
         nut_over_screw_K=nut_over[at], growth_um=growth[at], elastic_um=elastic, budget_um=budget[at])

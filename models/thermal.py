@@ -70,7 +70,8 @@ __all__ = [
     "EXPANSION_PER_K", "STEEL_CONDUCTIVITY_W_PER_MK", "STEEL_HEAT_CAPACITY_J_PER_M3K", "VG_GRADES", "OIL_DENSITY",
     "HEAT_MODELS", "THERMAL_MOUNTINGS", "viscosity_m2_s", "pressure_viscosity_per_Pa", "seal_factor",
     "catalogue_heat_W", "contact_heat_W", "bearing_torque_Nm", "shaft_film_W_per_m2K", "pipe_film_W_per_m2K",
-    "ScrewBody", "AxisModel", "Network", "FineMarch", "growth_m", "spacer_drift_N_per_K", "nut_coverage",
+    "ScrewBody", "AxisModel", "Network", "FineMarch", "growth_m", "held_force_N", "spacer_drift_N_per_K",
+    "nut_coverage",
 ]
 
 Array = NDArray[np.float64]
@@ -468,19 +469,28 @@ def growth_m(rise_K: ArrayLike, dx_m: float, mounting: str, *, EA_N: float, bear
     bearings (k_b each), u = g(x) - F (1 / k_b + x / EA); pretensioned, F is at most the pretension
     F_t = alpha dT_p EA, beyond which the screw grows freely.
     """
+    rise = np.asarray(rise_K, float)
+    g = expansion_per_K * dx_m * np.concatenate([np.zeros(rise.shape[:-1] + (1,)), np.cumsum(rise, axis=-1)], axis=-1)
+    force = held_force_N(rise, dx_m, mounting, EA_N=EA_N, bearing_N_per_m=bearing_N_per_m, pretension_K=pretension_K,
+                         expansion_per_K=expansion_per_K)[..., None]
+    x = np.arange(rise.shape[-1] + 1) * dx_m
+    return g - force * (1.0 / bearing_N_per_m + x / EA_N)
+
+
+def held_force_N(rise_K: ArrayLike, dx_m: float, mounting: str, *, EA_N: float, bearing_N_per_m: float = math.inf,
+                 pretension_K: float = 0.0, expansion_per_K: float = EXPANSION_PER_K) -> Array:
+    """The axial force (N) the held ends take up from the growth (:func:`growth_m`; compressive, or the
+    pretension's loss): 0 fixed-free, G / (L / EA + 2 / k_b) fixed-fixed, at most F_t pretensioned."""
     if mounting not in THERMAL_MOUNTINGS:
         raise InputError(f"mounting must be one of {', '.join(THERMAL_MOUNTINGS)}, got {mounting!r}.")
     rise = np.asarray(rise_K, float)
-    g = expansion_per_K * dx_m * np.concatenate([np.zeros(rise.shape[:-1] + (1,)), np.cumsum(rise, axis=-1)], axis=-1)
     if mounting == "fixed-free":
-        return g
-    x = np.arange(rise.shape[-1] + 1) * dx_m
+        return np.zeros(rise.shape[:-1])
     length = rise.shape[-1] * dx_m
-    compliance = length / EA_N + 2.0 / bearing_N_per_m
-    force = g[..., -1:] / compliance
+    force = expansion_per_K * dx_m * np.sum(rise, axis=-1) / (length / EA_N + 2.0 / bearing_N_per_m)
     if mounting == "pretensioned":
         force = np.minimum(force, expansion_per_K * pretension_K * EA_N)
-    return g - force * (1.0 / bearing_N_per_m + x / EA_N)
+    return force
 
 
 def spacer_drift_N_per_K(nut_stiffness_N_per_um: ArrayLike, spacer_length_mm: float,

@@ -632,15 +632,13 @@ def _parse(data: dict[str, Any], where: _Source) -> dict[str, Any]:
 
 def _refuse_ignored(data: dict[str, Any], where: _Source) -> None:
     """No key is ignored: where the plant is the design, the [rig] keys the design sets are refused; where it is
-    [rig], the [plant] keys that only a designed plant uses are. (Before [rig] is checked: its own rules may
-    involve a refused key.)"""
+    [rig], the [plant] keys that only a designed plant uses are, and [thermal]. (Before [rig] is checked: its own
+    rules may involve a refused key.)"""
     fail = where.fail
-    plant = PlantTable.parse(data["plant"], fail, "plant") if "plant" in data else None
-    if "thermal" in data and not (plant is not None and plant.from_design):
-        raise fail("thermal", "needs a study whose plant is its design ([plant] from_design = true, with the design's "
-                              "tables): the shift's budget is that of the system along its schedule")
-    if plant is None:
+    if "plant" not in data:
+        _refuse_thermal(data, fail)
         return
+    plant = PlantTable.parse(data["plant"], fail, "plant")
     if plant.from_design:
         if "ballscrew" not in data:
             raise fail("plant.from_design", "= true needs the design's tables ([ballscrew], [design], ...) to make "
@@ -655,6 +653,14 @@ def _refuse_ignored(data: dict[str, Any], where: _Source) -> None:
         if name != "from_design":
             raise fail(f"plant.{name}", "applies to the designed plant only, and [plant] from_design = false makes "
                                         "[rig] the plant: remove it, or set from_design = true")
+    _refuse_thermal(data, fail)
+
+
+def _refuse_thermal(data: dict[str, Any], fail: Callable[[str, str], InputError]) -> None:
+    """[thermal] is the budget of the designed system along its schedule: refused where [rig] is the plant."""
+    if "thermal" in data:
+        raise fail("thermal", "needs a study whose plant is its design ([plant] from_design = true, with the design's "
+                              "tables): the shift's budget is that of the system along its schedule")
 
 
 def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Say) -> Study:

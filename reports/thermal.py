@@ -64,6 +64,7 @@ def _rows(t: ThermalRecord) -> tuple[tuple[str, str, str], ...]:
         row(f"largest rise of the screw, {_MODELS[t.other_model]} (K)", s.temperature_rise_max_other_K,
             c.temperature_rise_max_other_K),
         row("rise of the nut (K)", s.nut_rise_max_K, c.nut_rise_max_K),
+        row("force the held ends take up from the growth (N)", s.end_force_max_N, c.end_force_max_N, 4),
         row("largest growth at the table (um)", s.growth_max_um, c.growth_max_um),
         row(f"largest growth at the table, {_MODELS[t.other_model]} (um)", s.growth_max_other_um,
             c.growth_max_other_um),

@@ -7,11 +7,13 @@ mounting."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
 import pytest
 
+from piezopreload.cli import main
 from piezopreload.core.errors import InputError
 from piezopreload.design.tables import ThermalTable
 from piezopreload.design.thermal import CycleLoad, axis_model, cycle_sources, nut_centre_m, shift_hours
@@ -27,6 +29,7 @@ from piezopreload.models.thermal import (
     ScrewBody,
     bearing_torque_Nm,
     growth_m,
+    held_force_N,
     nut_coverage,
     pressure_viscosity_per_Pa,
     shaft_film_W_per_m2K,
@@ -361,6 +364,10 @@ def test_growth_for_each_mounting():
     u = growth_m(uniform, dx, "fixed-fixed", EA_N=EA, bearing_N_per_m=k_b)
     force = EXPANSION_PER_K * L * 4.0 / (L / EA + 2.0 / k_b)
     assert (u[0], u[-1]) == pytest.approx((-force / k_b, force / k_b), rel=1e-12)
+    assert float(held_force_N(uniform, dx, "fixed-fixed", EA_N=EA, bearing_N_per_m=k_b)) == pytest.approx(force)
+    assert float(held_force_N(uniform, dx, "pretensioned", EA_N=EA, pretension_K=3.0)) == pytest.approx(
+        EXPANSION_PER_K * 3.0 * EA, rel=1e-12), "a pretensioned screw's ends take up at most the pretension"
+    assert float(held_force_N(uniform, dx, "fixed-free", EA_N=EA)) == 0.0
     with pytest.raises(InputError, match="mounting must be one of"):
         growth_m(uniform, dx, "floating", EA_N=EA)
 
@@ -371,3 +378,33 @@ def test_a_spacer_preloaded_nut_drifts_by_its_stiffness_times_the_spacers_mismat
     per_K = float(spacer_drift_N_per_K(500.0, 100.0, 4000.0))
     assert per_K == pytest.approx(1.0 / (2.0 / 500.0 + 1.0 / 4000.0) * 1.16, rel=1e-12)
     assert float(spacer_drift_N_per_K(500.0, 100.0)) == pytest.approx(250.0 * 1.16, rel=1e-12)
+
+
+# ---- the study's [thermal] table --------------------------------------------------------------------------------
+AXIS = Path(__file__).resolve().parents[1] / "studies" / "machine_axis.toml"
+PAPER = AXIS.with_name("paper2021.toml")
+
+
+@pytest.mark.parametrize("study, old, new, key_path, expected", [
+    (AXIS, 'mounting = "pretensioned"            # the fixed-fixed screw stretched at assembly for a 3 K rise\n'
+           "pretension_K = 3.0", 'mounting = "fixed-free"', "thermal.mounting",
+     "does not hold the ends [feed_drive] mounting = 'fixed-fixed' gives"),
+    (AXIS, "shift_h = 8.0", "shift_h = 8.0\ncoolant_flow_l_per_min = 2.0", "thermal.coolant_flow_l_per_min",
+     "needs a hollow screw: set bore_mm"),
+    (AXIS, "shift_h = 8.0", "shift_h = 8.0\nstroke_mm = [150.0, 1250.0]", "thermal.stroke_mm",
+     "must lie inside the screw (end < screw_length_mm = 1200 mm)"),
+    (AXIS, "shift_h = 8.0", "shift_h = 8.0\nvolume = 60", "thermal.volume", "is an unknown key; [thermal] has:"),
+    (PAPER, "[ballscrew]", "[thermal]\nshift_h = 8.0\n\n[ballscrew]", "thermal",
+     "needs a study whose plant is its design"),
+])
+def test_a_bad_thermal_table_exits_2_naming_its_key(tmp_path, capsys, study, old, new, key_path, expected):
+    text = study.read_text()
+    assert old in text, old
+    path = tmp_path / "study.toml"
+    path.write_text(text.replace(old, new, 1))
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"error: {path}:"), err
+    assert f"'{key_path}' " in err and expected in err, err
+    assert not (out / "pipeline.json").exists(), "a refused study ran"
