@@ -100,8 +100,9 @@ class DesignTable(Table):
 
     objective: str = key("stiffness", "what the optimum maximises (stiffness: the least rigidity over the duty "
                          "cycle) or minimises (drag: the mean drag torque; life: as rating life)", choices=OBJECTIVES)
-    pareto: tuple[str, ...] = key(PARETO_PAIRS, "the Pareto fronts ``piezopreload design`` and the design stage "
-                                  "trace (none is traced to make the plant)", choices=PARETO_PAIRS)
+    pareto: tuple[str, ...] = key(PARETO_PAIRS[:3], "the Pareto fronts ``piezopreload design`` and the design stage "
+                                  "trace (none is traced to make the plant; stiffness:growth, the least heat's growth "
+                                  "over the shift, needs [thermal])", choices=PARETO_PAIRS)
     pareto_points: int = key(50, "points on each front", ge=2, le=500)
     axial_load_max_N: float = key(_SPEC.axial_load_max_N, "largest axial load: no lift-off up to it at the highest "
                                   "preload, the contact pressure at it", unit="N", gt=0)

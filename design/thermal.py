@@ -59,7 +59,7 @@ from piezopreload.models.thermal import (
 )
 
 __all__ = ["CycleLoad", "CycleSources", "ThermalBudget", "axis_model", "cycle_sources", "nut_centre_m",
-           "shift_hours", "thermal_budget", "mounting_of", "POSITIONS"]
+           "shift_hours", "thermal_budget", "mounting_of", "duty_cycle", "duty_growth_um", "POSITIONS"]
 
 Array = NDArray[np.float64]
 #: the table's positions the budget is read at, evenly over the travel
@@ -270,6 +270,18 @@ class _Mechanics:
         return 1e6 * np.stack([np.interp(self.positions_m, x, row) for row in np.atleast_2d(faces)])
 
 
+def _mechanics(screw: BallScrew, drive: FeedDrive, table: ThermalTable, model: AxisModel,
+               positions_mm: Array) -> _Mechanics:
+    area = 0.25 * math.pi * (1e-3 * screw.root_diameter_mm) ** 2
+    return _Mechanics(mounting_of(table, drive), screw.material.E_MPa * 1e6 * area,
+                      drive.bearing_stiffness_N_per_um * 1e6, table.pretension_K, 1e-3 * positions_mm, model.dx_m)
+
+
+def _grid(times_h: Array) -> Array:
+    """The shift's five-minute grid with the recorded times in it (s)."""
+    return np.union1d(np.arange(0.0, times_h[-1] * 3600.0, _GRID_S)[1:], times_h * 3600.0)
+
+
 def _elastic_um(screw: BallScrew, drive: FeedDrive, preload_N: Array, load_N: Array, positions_mm: Array) -> Array:
     """The largest deflection (um) at each table position under the cycle's cuts: the double nut's at its preload
     and the screw with its bearings from that position."""
@@ -294,7 +306,7 @@ def _case(sources: CycleSources, other: CycleSources, mech: _Mechanics, elastic:
           semi_closed: bool, times_h: Array) -> tuple[ThermalCase, Array, Array]:
     """One preload's shift: the case, and its nut-over-screw rises and times on the grid."""
     n = sources.model.volumes
-    grid = np.union1d(np.arange(0.0, times_h[-1] * 3600.0, _GRID_S)[1:], times_h * 3600.0)
+    grid = _grid(times_h)
     rises, other_rises = sources.shift(grid), other.shift(grid)
     at = np.searchsorted(grid, times_h * 3600.0)
     growth, other_growth = mech.growth_um(rises[:, :n]), mech.growth_um(other_rises[:, :n])
@@ -378,9 +390,8 @@ def thermal_budget(run: SystemRun, drive: FeedDrive, table: ThermalTable, *,
     constant = CycleLoad.on_profile(prof.time_s, design.constant_preload_N, prof.speed_rpm, prof.axial_load_N)
     travel = drive.travel_mm
     positions = np.linspace(travel[0], travel[1], POSITIONS)
-    mounting = mounting_of(table, drive)
-    mech = _Mechanics(mounting, screw.material.E_MPa * 1e6 * 0.25 * math.pi * (1e-3 * screw.root_diameter_mm) ** 2,
-                      drive.bearing_stiffness_N_per_um * 1e6, table.pretension_K, 1e-3 * positions, model.dx_m)
+    mech = _mechanics(screw, drive, table, model, positions)
+    mounting = mech.mounting
     elastic_planned = _elastic_um(screw, drive, planned, load, positions)
     tracking = float(np.max(np.maximum(_elastic_um(screw, drive, achieved.preload_N, load, positions)
                                        - elastic_planned, 0.0)))
@@ -401,3 +412,25 @@ def thermal_budget(run: SystemRun, drive: FeedDrive, table: ThermalTable, *,
         model.screw.time_constant_s(film), cases["schedule"], cases["constant"],
         _drift(run, table, over["constant"], over["schedule"], command_range_V))
     return ThermalBudget(record, _requirements(table, cases["schedule"]), sources)
+
+
+def duty_cycle(spec: Any, point: Any, samples_per_case: int = 100, period_s: float = 60.0) -> CycleLoad:
+    """A design's duty cycle as a machining cycle: each case (:class:`~piezopreload.models.ballscrew.DutyCase`) its
+    share of ``period_s`` at its preload of the design ``point``, its speed and its load, in
+    ``samples_per_case`` samples (so the nut sweeps its stroke)."""
+    total = sum(c.time_share for c in spec.duty)
+    rows = [(c.time_share / total * period_s / samples_per_case, f, c.speed_rpm, c.axial_load_N)
+            for c, f in zip(spec.duty, point.case_preload_N) for _ in range(samples_per_case)]
+    return CycleLoad(*(np.array(col) for col in zip(*rows)))
+
+
+def duty_growth_um(spec: Any, point: Any, table: ThermalTable) -> float:
+    """The largest growth at the table over the shift of a design ``point`` (on
+    :class:`~piezopreload.design.preload.DesignSpec` ``spec``) running its duty cycle (:func:`duty_cycle`): the y
+    of a ``stiffness:growth`` Pareto front."""
+    screw, drive = spec.screw(point), spec.feed_drive
+    model = axis_model(screw, drive, table)
+    sources = cycle_sources(screw, drive, table, duty_cycle(spec, point), model=model)
+    rises = sources.shift(_grid(shift_hours(table.shift_h)))
+    mech = _mechanics(screw, drive, table, model, np.linspace(*drive.travel_mm, POSITIONS))
+    return float(np.max(np.abs(mech.growth_um(rises[:, :model.volumes]))))

@@ -125,16 +125,17 @@ def catalogue_heat_W(ops: Any, drag_coefficient: float, lead_mm: float, preload_
     return seal_factor(sealed) * drag_coefficient * preload_N * lead_mm / (2000.0 * math.pi) * omega_rad_s
 
 
-def contact_heat_W(ops: Any, preload_N: Any, omega_rad_s: Any, *, balls: float, contact_rad: float,
-                   helix_rad: float, pitch_diameter_mm: float, ball_mm: float, lubricant_vg: int = 68,
+def contact_heat_W(ops: Any, preload_N: Any, omega_rad_s: Any, *, balls: Any, contact_rad: Any,
+                   helix_rad: float, pitch_diameter_mm: float, ball_mm: Any, lubricant_vg: int = 68,
                    temperature_C: Any = 40.0, sealed: bool = True) -> Any:
     """Jungnickel's rolling-contact loss of a double nut (module docstring), W.
 
-    ``balls``: z, the loaded balls of one nut; ``omega_rad_s`` >= 0 the screw's speed.
+    ``balls``: z, the loaded balls of one nut; ``omega_rad_s`` >= 0 the screw's speed. The geometry may be CasADi
+    expressions too (the design's variables).
     """
     r, r_b = 0.5e-3 * pitch_diameter_mm, 0.5e-3 * ball_mm
-    cl = math.cos(helix_rad)
-    f_c = preload_N / (balls * math.sin(contact_rad) * cl)
+    cl = ops.cos(helix_rad)
+    f_c = preload_N / (balls * ops.sin(contact_rad) * cl)
     load = f_c / (_E_PRIME * r_b ** 2)
     material = pressure_viscosity_per_Pa(lubricant_vg) * _E_PRIME
     eta = OIL_DENSITY * viscosity_m2_s(lubricant_vg, temperature_C, ops)

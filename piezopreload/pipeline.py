@@ -85,7 +85,7 @@ from piezopreload.core.stages import (
     utc,
 )
 from piezopreload.core.tables import write_csv
-from piezopreload.design.tables import PlantTable
+from piezopreload.design.tables import DesignTable, PlantTable
 from piezopreload.outcome import Headline, StageOutcome, StudyResult, summary_of
 from piezopreload.progress import Progress
 from piezopreload.reports.study_report import STAGES_READ, Published, ReportStudy, render_report
@@ -393,7 +393,9 @@ def _learn_applies(study: Study) -> str | None:
 STAGES: tuple[Stage, ...] = (
     Stage("design", "ball-screw preload design, Pareto fronts, schedule",
           ("ballscrew", "feed_drive", "duty", "design", "schedule"), (),
-          ("models", "artifacts", "design"), _stage_design, files=("schedule.profile",), applies=_design_applies),
+          ("models", "artifacts", "design"), _stage_design, files=("schedule.profile",), applies=_design_applies,
+          reads=lambda study: ("thermal",) if "stiffness:growth" in (study.design_table or DesignTable()).pareto
+          else ()),
     Stage("plant", "the designed preload system as the plant", ("rig", "plant"), ("design",),
           ("models", "artifacts", "design"),
           _stage_plant, applies=_plant_applies),

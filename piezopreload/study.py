@@ -63,7 +63,7 @@ from piezopreload.design.tables import (
     ScheduleTable,
     ThermalTable,
 )
-from piezopreload.design.thermal import thermal_budget
+from piezopreload.design.thermal import duty_growth_um, thermal_budget
 from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import Controller, PIDGains
@@ -535,12 +535,17 @@ class Study:
         objective = objective or d.objective
         k = self._kept
         profile_path = Path(schedule) if schedule is not None else self.resolve(s.profile)
+        pairs = list(d.pareto if pareto is None else pareto)
+        if "stiffness:growth" in pairs and self.thermal is None:
+            raise InputError(f"{self.path}: the Pareto front stiffness:growth needs a [thermal] table (the shift the "
+                             "growth is read over)")
+        table = self.thermal
         try:
             result = design_study(
-                spec, objective, list(d.pareto if pareto is None else pareto),
-                d.pareto_points if points is None else points,
+                spec, objective, pairs, d.pareto_points if points is None else points,
                 profile=None if profile_path is None else read_profile(profile_path), profile_name=str(profile_path),
-                **s.limits(), progress=progress, bar=bar, optimum=k.optimum if objective == d.objective else None)
+                **s.limits(), progress=progress, bar=bar, optimum=k.optimum if objective == d.objective else None,
+                growth=None if table is None else lambda point: duty_growth_um(spec, point, table))
         except DesignInfeasible as exc:
             raise InfeasibleError(f"{self.path}: {exc}") from exc
         if objective == d.objective and k.point is None:
@@ -699,6 +704,9 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
         {**t, "design": t["design"] or DesignTable()}, fail)
     if t["thermal"] is not None and design_spec is not None:
         t["thermal"].against(design_spec.feed_drive, fail)
+    if t["design"] is not None and "stiffness:growth" in t["design"].pareto and t["thermal"] is None:
+        raise fail("design.pareto", "has stiffness:growth, which needs a [thermal] table (the shift the growth is read "
+                                    "over)")
     meta: StudyTable = t["study"]
     return Study(
         path=path, sha256=hashlib.sha256(text).hexdigest(), name=meta.name or Path(path).stem, title=meta.title,

@@ -408,3 +408,39 @@ def test_a_bad_thermal_table_exits_2_naming_its_key(tmp_path, capsys, study, old
     assert err.count("\n") == 1 and err.startswith(f"error: {path}:"), err
     assert f"'{key_path}' " in err and expected in err, err
     assert not (out / "pipeline.json").exists(), "a refused study ran"
+
+
+# ---- the design's Pareto front with the shift's growth as an axis -------------------------------------------------
+def test_the_growth_front_minimises_the_duty_cycles_heat_and_reports_its_growth():
+    """stiffness:growth: at each stiffness the design with the least mean nut heat over the duty cycle (here by the
+    rolling-contact model, whose heat depends on the balls as well as the preloads: its least-heat designs are not
+    the least-drag ones), its y the growth that design's duty cycle gives over the shift. Each point's heat,
+    evaluated by BallScrew.friction_heat_W on the point's own screw, is no more than that of the least-drag front's
+    design at a stiffness at least its own; the growth rises with the stiffness bought."""
+    from piezopreload.design.preload import DesignSpec, HeatSpec, pareto_front
+    from piezopreload.design.thermal import duty_growth_um
+
+    spec = DesignSpec(heat=HeatSpec("contact"))
+    table = ThermalTable(volumes=30, shift_h=2.0, heat_model="contact")
+
+    def heat(point):
+        screw = spec.screw(point)
+        shares = np.array([c.time_share for c in spec.duty])
+        w = screw.friction_heat_W(np.array(point.case_preload_N), np.array([c.speed_rpm for c in spec.duty]),
+                                  model="contact")
+        return float(shares @ w / shares.sum())
+
+    front = pareto_front(spec, "stiffness:growth", 4, growth=lambda p: duty_growth_um(spec, p, table))
+    drag = pareto_front(spec, "stiffness:drag", 4)
+    assert front.y_name == "growth" and len(front.points) == 4
+    np.testing.assert_allclose(front.y, [duty_growth_um(spec, p, table) for p in front.points], rtol=1e-12)
+    assert np.all(np.diff(front.x) > 0) and np.all(np.diff(front.y) > -1e-9), (front.x, front.y)
+    compared = 0
+    for p in front.points:
+        for q in drag.points:
+            if q.stiffness_N_per_um >= p.stiffness_N_per_um - 1e-6:  # the drag front's design meets this stiffness
+                assert heat(p) <= heat(q) * (1 + 1e-6), (p.stiffness_N_per_um, heat(p), q.stiffness_N_per_um, heat(q))
+                compared += 1
+    assert compared >= 8 and heat(front.points[0]) < 0.5 * heat(drag.points[0]), "the fronts' designs do not differ"
+    with pytest.raises(ValueError, match="stiffness:growth front needs growth"):
+        pareto_front(spec, "stiffness:growth", 3)
