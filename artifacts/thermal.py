@@ -194,9 +194,8 @@ class ThermalRecord:
         x, positions = f.array("screw_x_mm"), f.array("positions_mm")
         stroke = f.array("stroke_mm", 2)
         cases = f.sub("cases")
+        schedule, constant = (ThermalCase.from_fields(cases.sub(c), x.size, positions.size) for c in CASES)
         return cls(f.text("heat_model"), f.text("other_model"), f.integer("lubricant_vg"), f.flag("sealed"),
                    f.text("mounting"), f.number("pretension_K"), f.text("feedback"), f.number("shift_h"),
                    (float(stroke[0]), float(stroke[1])), x, positions, f.number("film_mean_W_per_m2K"),
-                   f.number("screw_time_constant_s"),
-                   *(ThermalCase.from_fields(cases.sub(c), x.size, positions.size) for c in CASES),
-                   PreloadDrift.from_fields(f.sub("drift")))
+                   f.number("screw_time_constant_s"), schedule, constant, PreloadDrift.from_fields(f.sub("drift")))

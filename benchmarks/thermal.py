@@ -25,6 +25,7 @@ import json
 import math
 import statistics
 import time
+from typing import Any
 
 import numpy as np
 
@@ -114,12 +115,12 @@ def _closed_forms(volumes: int) -> dict[str, float]:
             "fin_error_rel": errors[volumes], "fin_order": float(np.log2(errors[120] / errors[240]))}
 
 
-def _heat_grid() -> dict[str, object]:
+def _heat_grid() -> dict[str, Any]:
     screw = BallScrew.from_catalogue(40.0, 10.0, 6.35, 4.0, c_dyn_N=37890.0, c0_N=94260.0)
     fractions = np.array([0.02, 0.05, 0.10])
     speeds = np.array([500.0, 1000.0, 2000.0, 3000.0])
     preload = fractions[:, None] * screw.dynamic_rating_N
-    out: dict[str, object] = {"screw": "HIWIN R40-10T4-RDI", "sealed": True, "lubricant_vg": 68,
+    out: dict[str, Any] = {"screw": "HIWIN R40-10T4-RDI", "sealed": True, "lubricant_vg": 68,
                               "temperature_C": 40.0, "preload_fraction_of_c_dyn": fractions.tolist(),
                               "speed_rpm": speeds.tolist()}
     for model in ("catalogue", "contact"):

@@ -432,5 +432,5 @@ def duty_growth_um(spec: Any, point: Any, table: ThermalTable) -> float:
     model = axis_model(screw, drive, table)
     sources = cycle_sources(screw, drive, table, duty_cycle(spec, point), model=model)
     rises = sources.shift(_grid(shift_hours(table.shift_h)))
-    mech = _mechanics(screw, drive, table, model, np.linspace(*drive.travel_mm, POSITIONS))
+    mech = _mechanics(screw, drive, table, model, np.linspace(drive.travel_mm[0], drive.travel_mm[1], POSITIONS))
     return float(np.max(np.abs(mech.growth_um(rises[:, :model.volumes]))))

@@ -271,12 +271,12 @@ class AxisModel:
     @property
     def centres_m(self) -> Array:
         """The volumes' centres from bearing A."""
-        return (np.arange(self.volumes) + 0.5) * self.dx_m
+        return (np.arange(self.volumes, dtype=float) + 0.5) * float(self.dx_m)
 
     @property
     def faces_m(self) -> Array:
         """The volumes' faces from bearing A (0 .. L)."""
-        return np.arange(self.volumes + 1) * self.dx_m
+        return np.arange(self.volumes + 1, dtype=float) * float(self.dx_m)
 
     @property
     def size(self) -> int:
