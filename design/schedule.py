@@ -223,7 +223,7 @@ def _schedule_nlp(k_map: ca.Function, Fa: Array, required: Array, weight: Array,
     if objective is None:
         f = ca.dot(ca.DM(weight + tie), F) / float(np.sum(weight))
     else:  # scaled by its value at the start; the tie term 1e-3 of the start's heat per newton, by time
-        base = float(objective(np.full(n, start)))
+        base = abs(float(objective(np.full(n, start)))) or 1.0
         f = (objective(F) + ca.dot(ca.DM(1e-3 * base / (start * float(np.sum(dt))) * dt), F)) / base
     nlp = {"x": y, "f": f, "g": ca.vertcat(g_stiff, g_slew)}
     solver = ca.nlpsol("schedule", "ipopt", nlp, {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",

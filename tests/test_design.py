@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
+import piezopreload.design.schedule as schedule_module
 from piezopreload.artifacts.schedule import LoadProfile, ScheduleSpec
 from piezopreload.cli import main
 from piezopreload.design.preload import (
@@ -267,8 +268,33 @@ def test_the_least_friction_schedule_is_the_least_heat_one_under_either_model(sp
 
     assert joules(exact.preload_N) <= joules(nlp.preload_N) * (1 + 1e-7), "the NLP found a schedule with less heat"
     assert joules(exact.preload_N) < joules(np.full(profile.time_s.size, exact.constant_preload_N))
+    # the NLP's objective is that heat: the CasADi function against the numpy model on another schedule
+    other = np.linspace(p.bolt_preload_N, f_max, profile.time_s.size)
+    assert float(schedule_module._heat_objective(screw, profile, heat)(other)) == pytest.approx(joules(other), rel=1e-9)
     with pytest.raises(ValueError, match="needs the load profile's speed_rpm"):
         schedule_preload(screw, LoadProfile(profile.time_s, profile.axial_load_N), sspec, heat=heat)
+
+
+def test_the_heat_objective_is_what_the_schedule_nlp_minimises(spec, monkeypatch):
+    """The NLP takes its objective from the heat (no silent fall-back to the friction energy): an objective that
+    rewards preload instead takes the plan to the stacks' reach wherever the screw turns."""
+    p = optimise(spec, "drag").point
+    screw = spec.screw(p)
+    f_max = spec.actuator.max_preload_N(screw, p.bolt_preload_N)
+    sspec = ScheduleSpec(p.bolt_preload_N, f_max, slew_N_per_s=20000.0, stiffness_min_N_per_um=300.0)
+    profile = example_profile(0.1)
+    real = schedule_module._heat_objective
+    monkeypatch.setattr(schedule_module, "_heat_objective", lambda *a: _negated(real(*a)))
+    upside_down = schedule_preload(screw, profile, sspec, method="nlp", heat={"model": "catalogue"})
+    turning = np.asarray(profile.speed_rpm) > 0
+    assert np.all(upside_down.preload_N[turning] > 0.99 * f_max), "the NLP did not minimise the objective it was given"
+
+
+def _negated(f):
+    import casadi as ca
+
+    x = ca.MX.sym("F", f.size1_in(0))
+    return ca.Function("negated", [x], [-f(x)])
 
 
 def test_a_constant_load_gives_a_constant_schedule(spec):
