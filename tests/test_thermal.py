@@ -95,6 +95,30 @@ def test_the_contact_model_scales_as_its_exponents_say():
     assert cat[1] / cat[0] == pytest.approx(0.5, rel=1e-15)
 
 
+def test_the_contact_model_is_the_restated_formula_term_by_term():
+    """Jungnickel's eq. 9.49 as THERMAL's restatement writes it, k0 omega (omega exp(k1 / (T + 95)))^k2 with
+    k0 = z 9.16 G^-0.2 W^-e (rho A R / (2 E' cos lambda))^k2 F_c r / cos lambda s, computed here from its own
+    terms for HIWIN's R40-10T4 (z = 4 turns of 19 balls, beta 45 deg): the model's value to round-off."""
+    screw = _hiwin("R40-10T4-RDI")
+    preload, n, temperature = 3000.0, 1200.0, 35.0
+    z = screw.balls_per_nut
+    lam, beta = math.atan(10.0 / (math.pi * 40.0)), math.radians(45.0)
+    r, r_b, e_prime = 0.020, 0.5 * 6.35e-3, 2.31e11
+    a, k1 = 0.071e-6, 929.0  # VG68's Vogel fit
+    k2, e = 0.512, 0.516
+    nu40 = a * math.exp(k1 / 135.0)
+    f_c = preload / (z * math.sin(beta) * math.cos(lam))
+    w_load = f_c / (e_prime * r_b ** 2)
+    g_mat = 1.29e-7 * nu40 ** 0.204 * e_prime
+    k0 = (z * 9.16 * g_mat ** -0.2 * w_load ** -e * (870.0 * a * (r / r_b) / (2 * e_prime * math.cos(lam))) ** k2
+          * f_c * r / math.cos(lam) * 2.0)
+    omega = n * math.pi / 30.0
+    expected = k0 * omega * (omega * math.exp(k1 / (temperature + 95.0))) ** k2
+    assert z == 76 and screw.contact_angle_deg == 45.0
+    assert float(screw.friction_heat_W(preload, n, model="contact", temperature_C=temperature)) == pytest.approx(
+        expected, rel=1e-12)
+
+
 def test_the_two_heat_models_agree_in_order_of_magnitude_on_a_catalogue_screw():
     """At the rigidity rating's preload and 1,000-3,000 rpm the rolling-contact loss of HIWIN's R40-10T4 lies within
     a factor of five of the catalogue's drag heat (both sealed; 0.26 at 1,000 rpm, 0.45 at 3,000): the restated
