@@ -3,11 +3,11 @@
 A study names its plant's hardware (``[rig]``), the controller's starting gains, the feedforward's
 identification experiment, the references, the simulation settings, the ball-screw design
 (``[ballscrew]``, ``[feed_drive]``, ``[duty]``, ``[design]``, ``[schedule]``), the plant
-(``[plant]``: the design's, or ``[rig]`` itself) and the one-command study's ``[tuning]``,
-``[validation]``, ``[learning]``, ``[export]`` and ``[rig_run]``. Every key is declared once on
-its table's dataclass (:mod:`piezopreload.tables`) and checked on load: an unknown key, a wrong
-type or an out-of-range value is an :class:`~piezopreload.core.errors.InputError` naming the file,
-the key's line and its path. A key the designed plant sets is refused where the plant is the
+(``[plant]``: the design's, or ``[rig]`` itself), the shift's heat and growth (``[thermal]``) and the
+one-command study's ``[tuning]``, ``[validation]``, ``[learning]``, ``[export]`` and ``[rig_run]``. Every key
+is declared once on its table's dataclass (:mod:`piezopreload.tables`) and checked on load: an unknown key, a
+wrong type or an out-of-range value is an :class:`~piezopreload.core.errors.InputError` naming the file, the
+key's line and its path. A key the designed plant sets is refused where the plant is the
 design: a study never ignores what it is given.
 
 ``study.plant`` is the plant every control step (identify, tune, simulate, learn, validate) runs
