@@ -94,8 +94,9 @@ class PointFigures:
     Gains (the tune stage), the validation's verdict and worst cases over its Monte Carlo plants
     (the gain set), the tuned FF + PID step's settling on the nominal plant (compare), the whole
     system along its schedule (tracking, rigidity and deflection while cutting, friction energy: the
-    system stage), the rig run and the requirements (``requirements_missed``: each missed one's
-    ``Requirement.to_dict()``).
+    system stage; where the study has a ``[thermal]`` table, the shift's nut heat, screw rise, growth and positioning
+    error for the schedule and, ``_constant``, the best constant preload), the rig run and the requirements
+    (``requirements_missed``: each missed one's ``Requirement.to_dict()``).
     """
 
     design_stiffness_N_per_um: float | None = _figure("number")
@@ -125,6 +126,14 @@ class PointFigures:
     friction_energy_per_cycle: float | None = _figure("number")
     constant_friction_energy_per_cycle: float | None = _figure("number")
     friction_saving_pct: float | None = _figure("number")
+    heat_mean_W: float | None = _figure("number")
+    heat_mean_constant_W: float | None = _figure("number")
+    temperature_rise_max_K: float | None = _figure("number")
+    temperature_rise_max_constant_K: float | None = _figure("number")
+    thermal_growth_max_um: float | None = _figure("number")
+    thermal_growth_max_constant_um: float | None = _figure("number")
+    positioning_error_max_um: float | None = _figure("number")
+    positioning_error_max_constant_um: float | None = _figure("number")
     rig_status: str | None = _figure("str")
     rig_tracking_rms_N: float | None = _figure("number")
     requirements_met: bool | None = _figure("bool")

@@ -6,8 +6,9 @@ the pre-cycle that brings the stacks to the schedule's first level before the fi
 tracking, the requirements as verdicts (:class:`~piezopreload.artifacts.requirements.Requirement`,
 ``requirements`` beside ``requirements_met``), the bounds that stop a requirement where no schedule
 within the stacks' force can meet it with the loop's error, the margin passes, the schedule the
-last pass planned (its local margins) and the time series. The best constant preload is not here:
-it is the design's (:class:`~piezopreload.artifacts.design.DesignRecord`'s schedule), and
+last pass planned (its local margins), the time series and, where the study has a ``[thermal]`` table, the
+shift's thermal budget (:class:`~piezopreload.artifacts.thermal.ThermalRecord`). The best constant preload is
+not here: it is the design's (:class:`~piezopreload.artifacts.design.DesignRecord`'s schedule), and
 ``friction_saved_fraction`` is the achieved friction energy against it.
 """
 
@@ -22,6 +23,7 @@ from numpy.typing import NDArray
 
 from piezopreload.artifacts._fields import Fields
 from piezopreload.artifacts.requirements import Requirement, requirements_from_dict
+from piezopreload.artifacts.thermal import ThermalRecord
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError
 
@@ -261,6 +263,7 @@ class SystemRecord:
     series: SystemSeries
     cycles: int
     inputs: dict[str, Any] = field(default_factory=dict)
+    thermal: ThermalRecord | None = None  # the shift's thermal budget, where the study has a [thermal] table
 
     @property
     def requirements_met(self) -> bool:
@@ -281,11 +284,12 @@ class SystemRecord:
         return {**self.numbers.to_dict(), "requirements_met": self.requirements_met,
                 "requirements": [r.to_dict() for r in self.requirements], "bounds": [b.to_dict() for b in self.bounds],
                 "pre_cycle": self.pre_cycle.to_dict(), "preload_margin_N": self.preload_margin_N, "cycles": self.cycles,
-                "passes": [p.to_dict() for p in self.passes]}
+                "passes": [p.to_dict() for p in self.passes],
+                **({} if self.thermal is None else {"thermal": self.thermal.summary()})}
 
     def to_dict(self) -> dict[str, Any]:
         return {**self.summary(), "schedule": self.schedule.to_dict(), "series": self.series.to_dict(),
-                "inputs": dict(self.inputs)}
+                "inputs": dict(self.inputs), **({} if self.thermal is None else {"thermal": self.thermal.to_dict()})}
 
     @classmethod
     def from_dict(cls, doc: dict[str, Any], shown: str = "the system") -> SystemRecord:
@@ -298,7 +302,8 @@ class SystemRecord:
                      passes=f.items("passes", PassRecord.from_fields),
                      schedule=PlannedSchedule.from_fields(f.sub("schedule")),
                      series=SystemSeries.from_fields(f.sub("series")), cycles=f.integer("cycles"),
-                     inputs=f.mapping("inputs", {}))
+                     inputs=f.mapping("inputs", {}),
+                     thermal=ThermalRecord.from_fields(f.sub("thermal")) if f.has("thermal") else None)
         if f.flag("requirements_met") != record.requirements_met:
             raise ArtifactError(f"{shown}: field 'requirements_met' does not agree with its 'requirements'")
         return record

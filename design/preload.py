@@ -90,13 +90,15 @@ from piezopreload.models.ballscrew import (
 )
 from piezopreload.models.feed_drive import FeedDrive, PiezoPreload, stack_loop_um
 from piezopreload.models.ops import CASADI, NUMPY
+from piezopreload.models.thermal import catalogue_heat_W, contact_heat_W
 
-__all__ = ["DesignSpec", "DesignOptimum", "DesignInfeasible", "ParetoFront", "OBJECTIVES",
+__all__ = ["DesignSpec", "HeatSpec", "DesignOptimum", "DesignInfeasible", "ParetoFront", "OBJECTIVES",
            "PARETO_PAIRS", "CONSTRAINTS", "WEIGHTS", "optimise", "pareto_front", "DesignNLP"]
 
 OBJECTIVES = ("stiffness", "drag", "life")
-#: fronts a user can ask for: x:y, x swept as an epsilon constraint, y optimised
-PARETO_PAIRS = ("stiffness:preload", "stiffness:drag", "stiffness:life")
+#: fronts a user can ask for: x:y, x swept as an epsilon constraint, y optimised (growth: the duty cycle's nut heat
+#: minimised, the shift's growth it makes reported, design/thermal.py)
+PARETO_PAIRS = ("stiffness:preload", "stiffness:drag", "stiffness:life", "stiffness:growth")
 _TIE_WEIGHT = 1e-3
 _BALLS_PER_TURN = (4, 200)  # search range of the relaxed balls per turn
 _WARM_START = {"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-9,
@@ -151,6 +153,21 @@ class DesignInfeasible(InfeasibleError):
 
 def _positive(value: Any) -> bool:
     return isinstance(value, (int, float)) and math.isfinite(value) and value > 0
+
+
+@dataclass(frozen=True)
+class HeatSpec:
+    """How the design counts the nut's friction heat (:meth:`BallScrew.friction_heat_W`'s keywords): what a
+    ``stiffness:growth`` front minimises."""
+
+    model: str = "catalogue"
+    lubricant_vg: int = 68
+    sealed: bool = True
+    temperature_C: float = 40.0
+
+    def kwargs(self) -> dict[str, Any]:
+        return {"model": self.model, "lubricant_vg": self.lubricant_vg, "sealed": self.sealed,
+                "temperature_C": self.temperature_C}
 
 
 def _range(value: Any) -> bool:
@@ -210,6 +227,7 @@ class DesignSpec:
     load_sharing: float = EFFECTIVE_BALL_SHARE
     accuracy_factor: float = 1.0
     load_factor: float = 1.2
+    heat: HeatSpec = field(default_factory=HeatSpec)
 
     def __post_init__(self) -> None:
         check_fields(self, "DesignSpec", _SPEC_RULES)
@@ -324,7 +342,8 @@ class ParetoFront:
 
 
 _LABELS = {"stiffness": "least rigidity over the duty cycle (N/um)", "preload": "max preload F_hi (N)",
-           "drag": "time-mean drag torque (N m)", "life": "rating life (h)"}
+           "drag": "time-mean drag torque (N m)", "life": "rating life (h)",
+           "growth": "the duty cycle's thermal growth over the shift (um)"}
 
 
 # ---- the NLP ------------------------------------------------------------------------------------
@@ -356,6 +375,7 @@ def _expressions(spec: DesignSpec, ops: Any, x: Any) -> dict[str, Any]:
     drag = [k_p * F * spec.lead_mm / (2000.0 * math.pi) for F in F_case]
     share = [c.time_share for c in spec.duty]
     mean_drag = sum(s * d for s, d in zip(share, drag)) / sum(share)
+    mean_heat = sum(s * h for s, h in zip(share, _case_heat(spec, ops, F_case, k_p, z, beta, D_w))) / sum(share)
     k_side = spec.feed_drive.screw_side_stiffness_N_per_um(D_pw - D_w * ops.cos(beta),
                                                            spec.feed_drive.weakest_position_mm())
     rig, freq, F_A, F_B = [], [], [], []
@@ -381,16 +401,30 @@ def _expressions(spec: DesignSpec, ops: Any, x: Any) -> dict[str, Any]:
     Q_max = F_hi * f_max / (z * sb * ch)
     stroke = stack_loop_um(c_h, F_i, F_hi, spec.actuator.stiffness_N_per_um, s, acc)
     return dict(beta=beta, D_w=D_w, f=f, turns=turns, z1=z1, F_i=F_i, F_hi=F_hi, t=t, F_case=F_case, c_h=c_h,
-                s=s, c_dyn=c_dyn, drag=drag, mean_drag=mean_drag, rigidity=rig, freq=freq, log_L=log_L,
+                s=s, c_dyn=c_dyn, drag=drag, mean_drag=mean_drag, mean_heat=mean_heat, rigidity=rig, freq=freq,
+                log_L=log_L,
                 p_screw=cp_s * Q_max ** (1.0 / 3.0), p_nut=cp_n * Q_max ** (1.0 / 3.0), stroke=stroke,
                 drag_hi=k_p * F_hi * spec.lead_mm / (2000.0 * math.pi), cp_s=cp_s, cp_n=cp_n, z=z, helix=helix)
 
 
+def _case_heat(spec: DesignSpec, ops: Any, F_case: list[Any], k_p: Any, z: Any, beta: Any, D_w: Any) -> list[Any]:
+    """Each duty case's nut friction heat (W) at its preload and speed, by the spec's heat model
+    (:meth:`BallScrew.friction_heat_W`'s formulas on the design's variables)."""
+    h = spec.heat
+    omegas = [abs(c.speed_rpm) * math.pi / 30.0 for c in spec.duty]
+    if h.model == "catalogue":
+        return [catalogue_heat_W(ops, k_p, spec.lead_mm, F, w, h.sealed) for F, w in zip(F_case, omegas)]
+    return [contact_heat_W(ops, F, w, balls=z, contact_rad=beta, helix_rad=spec.helix_rad,
+                           pitch_diameter_mm=spec.nominal_diameter_mm, ball_mm=D_w, lubricant_vg=h.lubricant_vg,
+                           temperature_C=h.temperature_C, sealed=h.sealed) for F, w in zip(F_case, omegas)]
+
+
 def _objective(e: dict[str, Any], w: Any) -> Any:
-    """The weighted objective (weights: -stiffness, drag, -log life, preload) plus the
-    tie-break towards more stiffness, less drag and a lower bolt preload; numbers or CasADi
+    """The weighted objective (weights: -stiffness, drag, -log life, preload, the duty cycle's mean nut heat per
+    100 W) plus the tie-break towards more stiffness, less drag and a lower bolt preload; numbers or CasADi
     expressions."""
     return (-w[0] * e["t"] / 1000.0 + w[1] * e["mean_drag"] - w[2] * e["log_L"] + w[3] * e["F_hi"] / 1000.0
+            + w[4] * e["mean_heat"] / 100.0
             + _TIE_WEIGHT * (e["mean_drag"] + e["drag_hi"] + e["F_i"] / 1000.0 - e["t"] / 1000.0))
 
 
@@ -460,7 +494,7 @@ class DesignNLP:
         self.row_names = [r[0] for r in rows]
         self.row_scale = np.array([r[2] for r in rows])
         g = ca.vertcat(*[r[1] / r[2] for r in rows])
-        w = ca.SX.sym("w", 4)  # weights: -stiffness, drag, -log life, preload
+        w = ca.SX.sym("w", 5)  # weights: -stiffness, drag, -log life, preload, heat
         objective = _objective(e, w)
         opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.tol": 1e-8,
                 "ipopt.max_iter": 500}
@@ -647,8 +681,9 @@ class DesignNLP:
         return out
 
 
-WEIGHTS = {"stiffness": (1.0, 0.0, 0.0, 0.0), "drag": (0.0, 1.0, 0.0, 0.0), "life": (0.0, 0.0, 1.0, 0.0),
-            "preload": (0.0, 0.0, 0.0, 1.0)}
+WEIGHTS = {"stiffness": (1.0, 0.0, 0.0, 0.0, 0.0), "drag": (0.0, 1.0, 0.0, 0.0, 0.0),
+           "life": (0.0, 0.0, 1.0, 0.0, 0.0), "preload": (0.0, 0.0, 0.0, 1.0, 0.0),
+           "heat": (0.0, 0.0, 0.0, 0.0, 1.0)}
 
 
 def _elastic(nlp: DesignNLP, y0: np.ndarray, integers: tuple[int, int] | None) -> list[dict[str, Any]]:
@@ -710,7 +745,7 @@ def optimise(spec: DesignSpec, objective: str = "stiffness", nlp: DesignNLP | No
 
 def _optimise(spec: DesignSpec, objective: str, nlp: DesignNLP | None) -> tuple[DesignOptimum, dict[str, Any]]:
     """:func:`optimise`, also returning the relaxed solution (a warm start for fronts)."""
-    if objective not in OBJECTIVES:
+    if objective not in (*OBJECTIVES, "heat"):  # the heat: the growth front's other end
         raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}.")
     nlp = nlp or DesignNLP(spec)
     start_solves, t0 = nlp.solves, time.perf_counter()
@@ -736,7 +771,8 @@ def _infeasible_message(violations: list[dict[str, Any]]) -> str:
 
 
 def pareto_front(spec: DesignSpec, pair: str, n_points: int = 50, nlp: DesignNLP | None = None,
-                 progress: Callable[[int, int], None] | None = None) -> ParetoFront:
+                 progress: Callable[[int, int], None] | None = None,
+                 growth: Callable[[DesignPoint], float] | None = None) -> ParetoFront:
     """The epsilon-constraint front of ``pair`` ("stiffness:drag" and so on).
 
     The least rigidity over the duty cycle is swept from that of the other quantity's
@@ -745,6 +781,11 @@ def pareto_front(spec: DesignSpec, pair: str, n_points: int = 50, nlp: DesignNLP
     integers handled as in :func:`optimise`, warm-started from the previous point (the first
     from the other optimum's relaxation), primal and dual. An integer pair found infeasible
     at one epsilon is not tried at the higher ones.
+
+    ``stiffness:growth``: each point minimises the duty cycle's mean nut heat (``spec.heat``'s model; the
+    least-heat design at the front's start) and its y is ``growth(point)``, the shift's growth that design makes
+    (:func:`piezopreload.design.thermal.duty_growth_um`): the growth grows with the heat, and the root section's
+    small change with the ball is in the y, not in the objective.
     """
     if pair not in PARETO_PAIRS:
         raise ValueError(f"pareto must be one of {', '.join(PARETO_PAIRS)}, got {pair!r}.")
@@ -753,12 +794,17 @@ def pareto_front(spec: DesignSpec, pair: str, n_points: int = 50, nlp: DesignNLP
     nlp = nlp or DesignNLP(spec)
     start_solves, t0 = nlp.solves, time.perf_counter()
     y_name = pair.split(":")[1]
+    if y_name == "growth" and growth is None:
+        raise ValueError("the stiffness:growth front needs growth, the shift's growth of a design point (a study's "
+                         "[thermal] table: design.thermal.duty_growth_um)")
+    # the growth grows with the nut's heat: the front minimises the duty cycle's mean heat and reports the growth
+    objective = {"preload": "drag", "growth": "heat"}.get(y_name, y_name)
     stiff = optimise(spec, "stiffness", nlp)
-    other, other_relaxed = _optimise(spec, y_name if y_name != "preload" else "drag", nlp)
+    other, other_relaxed = _optimise(spec, objective, nlp)
     k_lo = other.point.stiffness_N_per_um
     k_hi = stiff.point.stiffness_N_per_um * 0.99
     eps = np.linspace(min(k_lo, k_hi), k_hi, n_points)
-    weights = WEIGHTS[y_name]
+    weights = WEIGHTS["heat" if y_name == "growth" else y_name]
     # the first epsilon is the other optimum's own stiffness: start from its relaxation
     y_prev, lam_prev, lam_x_prev = other_relaxed["y"], other_relaxed["lam_g"], other_relaxed["lam_x"]
     xs, ys, points = [], [], []
@@ -771,7 +817,8 @@ def pareto_front(spec: DesignSpec, pair: str, n_points: int = 50, nlp: DesignNLP
         if best is not None:
             pt = nlp.point(best["y"], y_name, True)
             xs.append(pt.stiffness_N_per_um)
-            ys.append({"preload": pt.max_preload_N, "drag": pt.mean_drag_torque_Nm, "life": pt.life_h}[y_name])
+            ys.append(growth(pt) if growth is not None and y_name == "growth" else
+                      {"preload": pt.max_preload_N, "drag": pt.mean_drag_torque_Nm, "life": pt.life_h}[y_name])
             points.append(pt)
         if progress:
             progress(i + 1, n_points)

@@ -41,6 +41,7 @@ schedule's is the saving. The types (:class:`LoadProfile`, :class:`ScheduleSpec`
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -135,7 +136,7 @@ def least_preload(screw: BallScrew, spec: ScheduleSpec, axial_load_N: ArrayLike)
 
 
 def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec, method: str = "envelope",
-                     local_margin_N: ArrayLike | None = None) -> PreloadSchedule:
+                     local_margin_N: ArrayLike | None = None, heat: dict[str, Any] | None = None) -> PreloadSchedule:
     """The least-friction preload schedule and the best constant preload (module docstring).
 
     ``method="envelope"`` (the default) solves the problem exactly without iterating. The
@@ -153,9 +154,16 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec,
     ``local_margin_N``: a margin per sample on top of the spec's (capped where the stacks' reach
     cannot give it, the rest recorded in ``margin_short_N``). The best constant preload is the
     margin-free one.
+
+    ``heat``: the objective is the nut's friction heat over the cycle instead of the friction energy,
+    ``sum_k P(F_p,k, n_k) dt_k`` (J), ``P`` :meth:`BallScrew.friction_heat_W` with these keywords (``model``,
+    ``lubricant_vg``, ``sealed``, ``temperature_C``): the NLP minimises it; the envelope is its optimum too (the heat
+    grows with the preload at every sample, under either model). The schedule still records its friction energy.
     """
     if method not in ("envelope", "nlp"):
         raise ValueError(f"method must be 'envelope' or 'nlp', got {method!r}")
+    if heat is not None and profile.speed_rpm is None:
+        raise ValueError("a heat objective needs the load profile's speed_rpm: the heat is the drag times the speed")
     Fa = np.asarray(profile.axial_load_N, float)
     n = Fa.size
     weight, units = _weights(screw, profile)
@@ -177,8 +185,9 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec,
             F_opt[k] = max(F_opt[k], F_opt[k + 1] - slew_step[k])
         status = "Solve_Succeeded (exact: the envelope of the slew cones)"
     else:
+        objective = None if heat is None else _heat_objective(screw, profile, heat)
         F_opt, status = _schedule_nlp(k_map, Fa, required, weight, profile.dt_s, F_lo, slew_step, spec, margin,
-                                      float(low.max()))
+                                      float(low.max()), objective)
     return PreloadSchedule(
         profile=profile, spec=spec, preload_N=F_opt, constant_preload_N=constant,
         rigidity_N_per_um=np.asarray(k_map(F_opt, Fa)).ravel(), required_N_per_um=required,
@@ -189,10 +198,19 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec,
 
 
 
+def _heat_objective(screw: BallScrew, profile: LoadProfile, heat: dict[str, Any]) -> ca.Function:
+    """The cycle's friction heat (J) as a CasADi function of the preloads on the profile's samples."""
+    F = ca.MX.sym("F", profile.time_s.size)
+    power = screw.friction_heat_W(F, np.asarray(profile.speed_rpm, float), ops=CASADI, **heat)
+    return ca.Function("heat", [F], [ca.dot(power, ca.DM(profile.dt_s))])
+
+
 def _schedule_nlp(k_map: ca.Function, Fa: Array, required: Array, weight: Array, dt: Array, F_lo: Array,
-                  slew_step: Array, spec: ScheduleSpec, margin: Array, start: float) -> tuple[Array, str]:
+                  slew_step: Array, spec: ScheduleSpec, margin: Array, start: float,
+                  objective: ca.Function | None = None) -> tuple[Array, str]:
     """The schedule as the NLP of the module docstring, solved by CasADi/IPOPT from the constant ``start``
-    (the largest of the samples' least preloads with their margins: feasible)."""
+    (the largest of the samples' least preloads with their margins: feasible); ``objective`` a function of the
+    preloads to minimise instead of the friction energy (the heat)."""
     n, scale = Fa.size, 1000.0
     # ---- decision variables, objective, constraints, initial guess, solve ----
     y = ca.MX.sym("y", n)
@@ -202,7 +220,12 @@ def _schedule_nlp(k_map: ca.Function, Fa: Array, required: Array, weight: Array,
     # where the screw stands still the energy does not see the preload: a small time-weighted
     # drag term (1e-3 of the mean weight per second) takes it to its least value there
     tie = 1e-3 * float(np.sum(weight) / np.sum(dt)) * dt
-    nlp = {"x": y, "f": ca.dot(ca.DM(weight + tie), F) / float(np.sum(weight)), "g": ca.vertcat(g_stiff, g_slew)}
+    if objective is None:
+        f = ca.dot(ca.DM(weight + tie), F) / float(np.sum(weight))
+    else:  # scaled by its value at the start; the tie term 1e-3 of the start's heat per newton, by time
+        base = abs(float(objective(np.full(n, start)))) or 1.0
+        f = (objective(F) + ca.dot(ca.DM(1e-3 * base / (start * float(np.sum(dt))) * dt), F)) / base
+    nlp = {"x": y, "f": f, "g": ca.vertcat(g_stiff, g_slew)}
     solver = ca.nlpsol("schedule", "ipopt", nlp, {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
                                                  "ipopt.tol": 1e-9, "ipopt.max_iter": 1000})
     lbg = np.concatenate([np.zeros(n), -slew_step / scale])

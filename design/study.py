@@ -30,6 +30,7 @@ from piezopreload.design.preload import (
     DesignOptimum,
     DesignPoint,
     DesignSpec,
+    HeatSpec,
     ParetoFront,
     optimise,
     pareto_front,
@@ -149,8 +150,9 @@ class DesignResult:
         for j, front in enumerate(self.fronts):
             ax = fig.add_subplot(grid[0, j])
             front.plot(ax)
-            y = {"preload": p.max_preload_N, "drag": p.mean_drag_torque_Nm, "life": p.life_h}[front.y_name]
-            ax.plot([p.stiffness_N_per_um], [y], "*", ms=10, color="k", label="optimum")
+            y = {"preload": p.max_preload_N, "drag": p.mean_drag_torque_Nm, "life": p.life_h}.get(front.y_name)
+            if y is not None:  # a point's growth is not one of its fields
+                ax.plot([p.stiffness_N_per_um], [y], "*", ms=10, color="k", label="optimum")
             ax.legend(fontsize="small")
         self.optimum.plot(fig.add_subplot(grid[1, :]))
         load, preload = fig.add_subplot(grid[2, :]), None
@@ -169,14 +171,17 @@ def design_study(spec: DesignSpec, objective: str, pairs: list[str] | tuple[str,
                  profile: LoadProfile | None = None, profile_name: str = "example", stiffness_min_N_per_um: float = 0.0,
                  deflection_max_um: float = math.inf, lift_off_margin: float | None = None,
                  progress: Callable[[str], None] | None = None,
-                 bar: Callable[[int, int], None] | None = None, optimum: DesignOptimum | None = None) -> DesignResult:
+                 bar: Callable[[int, int], None] | None = None, optimum: DesignOptimum | None = None,
+                 growth: Callable[[DesignPoint], float] | None = None) -> DesignResult:
     """Optimum for ``objective``, the fronts of ``pairs`` (``points`` each) and the schedule for ``profile``.
 
     The schedule keeps the rigidity above ``stiffness_min_N_per_um`` and the deflection
     ``|F_a| / rigidity`` below ``deflection_max_um`` (the machining cycle of
     :func:`~piezopreload.design.schedule.example_profile` when ``profile`` is None).
     ``progress`` gets messages, ``bar`` (points done, points in all) over the fronts. ``optimum``:
-    the optimum for ``objective`` already solved on ``spec`` (it is not solved again).
+    the optimum for ``objective`` already solved on ``spec`` (it is not solved again). ``growth``: a design
+    point's growth over a shift, the y of a ``stiffness:growth`` front
+    (:func:`~piezopreload.design.thermal.duty_growth_um` with the study's ``[thermal]`` table).
     """
     say = progress or (lambda _msg: None)
     nlp = DesignNLP(spec) if optimum is None or pairs else None
@@ -192,7 +197,7 @@ def design_study(spec: DesignSpec, objective: str, pairs: list[str] | tuple[str,
             report = lambda i, n, j=j: bar(j * n + i, len(pairs) * n)  # noqa: E731
         else:
             report = lambda i, n, pair=pair: say(f"front {pair}: {i}/{n}") if i in (n // 2, n) else None  # noqa: E731
-        fronts.append(pareto_front(spec, pair, points, nlp, progress=report))
+        fronts.append(pareto_front(spec, pair, points, nlp, progress=report, growth=growth))
 
     # ---- the schedule on the optimum's screw -------------------------------------------------
     schedule, max_preload, slew = plan_schedule(spec, p, profile, profile_name=profile_name,
@@ -294,9 +299,10 @@ def check_screw(screw: BallScrew, preload_N: float | None = None, preload_fracti
 
 
 def design_spec_from_tables(t: dict[str, Any], fail: Callable[[str, str], Exception]) -> DesignSpec:
-    """A study's design tables (``ballscrew``, ``design``, ``feed_drive``, ``duty``: :mod:`piezopreload.design.tables`'
-    records, each key checked on its own; ``feed_drive`` and ``duty`` None for the defaults) as a :class:`DesignSpec`.
-    The rules between tables are checked here; ``fail(key path, message)`` makes the error naming the file and line."""
+    """A study's design tables (``ballscrew``, ``design``, ``feed_drive``, ``duty``, and ``thermal`` where given:
+    :mod:`piezopreload.design.tables`' records, each key checked on its own; ``feed_drive`` and ``duty`` None for
+    the defaults) as a :class:`DesignSpec`. The rules between tables are checked here; ``fail(key path, message)``
+    makes the error naming the file and line."""
     b, d, fd, duty = t["ballscrew"], t["design"], t["feed_drive"], t["duty"]
     kwargs: dict[str, Any] = {k: getattr(b, k) for k in ("nominal_diameter_mm", "lead_mm", "load_sharing",
                                                           "contact_angle_deg", "ball_mm", "conformity", "turns")}
@@ -314,6 +320,10 @@ def design_spec_from_tables(t: dict[str, Any], fail: Callable[[str, str], Except
                                               f"got {d.axial_load_max_N:g}")
     names = {f.name for f in fields(DesignSpec)}
     kwargs.update({k: v for k, v in d.to_dict().items() if k in names})
+    thermal = t.get("thermal")
+    if thermal is not None:  # how a stiffness:growth front counts the nut's heat
+        kwargs["heat"] = HeatSpec(thermal.heat_model, thermal.lubricant_vg, thermal.sealed,
+                                  thermal.contact_temperature_C)
     kwargs["actuator"] = PiezoPreload(drive_V=d.stack_drive_V, amp_current_limit_A=d.amp_current_limit_A)
     try:
         return DesignSpec(**kwargs)

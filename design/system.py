@@ -50,7 +50,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -74,6 +74,9 @@ from piezopreload.models.actuator import Rig
 from piezopreload.models.ballscrew import LIFT_OFF_RATIO
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller
+
+if TYPE_CHECKING:  # the thermal budget reads a system run
+    from piezopreload.design.thermal import ThermalBudget
 
 __all__ = ["PRE_CYCLE_REST_S", "ROUND_OFF", "SystemRun", "Evaluation", "pre_cycle_for", "schedule_reference",
            "track_schedule", "evaluate_tracking", "requirements_of", "folded_shortfall", "binding_stretches",
@@ -365,6 +368,7 @@ class SystemRun:
     evaluation: Evaluation
     passes: tuple[PassRecord, ...]
     bounds: tuple[ScheduleBound, ...] = ()
+    thermal: ThermalBudget | None = None  # the shift's heat, temperature and growth (design/thermal.py)
 
     @property
     def numbers(self) -> TrackingNumbers:
@@ -372,11 +376,11 @@ class SystemRun:
 
     @property
     def requirements(self) -> tuple[Requirement, ...]:
-        return self.evaluation.requirements
+        return self.evaluation.requirements + (() if self.thermal is None else self.thermal.requirements)
 
     @property
     def requirements_met(self) -> bool:
-        return self.evaluation.met
+        return all(r.met for r in self.requirements)
 
     @property
     def margin_N(self) -> float:
@@ -393,7 +397,7 @@ class SystemRun:
         plan = PlannedSchedule(s.profile.time_s, s.preload_N, s.margin_N, s.margin_short_N, s.friction_energy_J,
                                s.energy_units, s.status)
         return SystemRecord(self.numbers, self.requirements, self.bounds, self.pre_cycle, self.passes, plan, series,
-                            self.cycles, dict(inputs or {}))
+                            self.cycles, dict(inputs or {}), None if self.thermal is None else self.thermal.record)
 
     def summary(self) -> dict[str, Any]:
         """The run's numbers, verdicts, pre-cycle and passes (the record's summary)."""

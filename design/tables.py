@@ -1,5 +1,5 @@
 """The design's tables of a study file: ``[ballscrew]``, ``[feed_drive]``, ``[duty]``, ``[design]``,
-``[schedule]`` and ``[plant]``, as frozen records whose fields declare their keys (type, default,
+``[schedule]``, ``[plant]`` and ``[thermal]``, as frozen records whose fields declare their keys (type, default,
 unit, range, doc: :func:`piezopreload.core.config.key`).
 
 The defaults are :class:`~piezopreload.design.preload.DesignSpec`'s; a key left at None means what
@@ -25,8 +25,10 @@ from piezopreload.design.system import SystemRun, track_schedule
 from piezopreload.models.actuator import Plant
 from piezopreload.models.controller import Controller
 from piezopreload.models.feed_drive import MOUNTINGS
+from piezopreload.models.thermal import HEAT_MODELS, THERMAL_MOUNTINGS, VG_GRADES
 
-__all__ = ["BallscrewTable", "FeedDriveTable", "DutyTable", "DesignTable", "ScheduleTable", "PlantTable"]
+__all__ = ["BallscrewTable", "FeedDriveTable", "DutyTable", "DesignTable", "ScheduleTable", "PlantTable",
+           "ThermalTable", "FEEDBACKS"]
 
 _SPEC = DesignSpec()  # the defaults
 
@@ -98,8 +100,9 @@ class DesignTable(Table):
 
     objective: str = key("stiffness", "what the optimum maximises (stiffness: the least rigidity over the duty "
                          "cycle) or minimises (drag: the mean drag torque; life: as rating life)", choices=OBJECTIVES)
-    pareto: tuple[str, ...] = key(PARETO_PAIRS, "the Pareto fronts ``piezopreload design`` and the design stage "
-                                  "trace (none is traced to make the plant)", choices=PARETO_PAIRS)
+    pareto: tuple[str, ...] = key(PARETO_PAIRS[:3], "the Pareto fronts ``piezopreload design`` and the design stage "
+                                  "trace (none is traced to make the plant; stiffness:growth, the least heat's growth "
+                                  "over the shift, needs [thermal])", choices=PARETO_PAIRS)
     pareto_points: int = key(50, "points on each front", ge=2, le=500)
     axial_load_max_N: float = key(_SPEC.axial_load_max_N, "largest axial load: no lift-off up to it at the highest "
                                   "preload, the contact pressure at it", unit="N", gt=0)
@@ -175,3 +178,89 @@ class PlantTable(Table):
         return track_schedule(plant, controller, schedule, cycles=self.cycles, seed=seed, passes=self.passes,
                               margin_factor=self.margin_factor, contact_N=self.stack_contact_N, settle_s=settle_s,
                               ff_extra_V=ff_extra_V, progress=progress)
+
+
+#: how the axis measures the table's position: the motor's encoder, or a linear scale on the table
+FEEDBACKS = ("semi-closed", "linear-scale")
+
+
+@dataclass(frozen=True)
+class ThermalTable(Table):
+    """[thermal]: the heat the preload makes over a shift, the axis' temperature and the screw's growth, and the
+    limits on growth and on the positioning error (design/thermal.py; the model and its sources: docs/thermal.md).
+    Every key has a default; the limits are requirements only where set."""
+
+    heat_model: str = key("catalogue", "the nut's heat the verdicts use: catalogue (drag torque times speed) or "
+                          "contact (Jungnickel's rolling-contact loss); the other is shown beside it as a bound",
+                          choices=HEAT_MODELS)
+    lubricant_vg: int = key(68, "the lubricant's ISO VG grade (10, 22, 32, 46, 68, 100, 150 or 220): the contact "
+                            "model's and the support bearings' viscosity")
+    sealed: bool = key(True, "the nut has seals (a factor 2 on its heat)")
+    contact_temperature_C: float = key(40.0, "the lubricant's temperature at the contacts (its viscosity)",
+                                       unit="degC", ge=-20, le=150)
+    ambient_C: float = key(20.0, "the air's temperature around the axis (the rises are above it)", unit="degC",
+                           ge=-20, le=60)
+    nut_heat_share: float = key(0.5, "share of the nut's heat that enters the screw under its loaded turns (the "
+                                "rest heats the nut's body)", ge=0, le=1)
+    spacer_length_mm: float = key(40.0, "the spacer (the stacks' sleeve) between the two nuts", unit="mm", gt=0)
+    bearing_preload_N: float = key(2000.0, "axial preload of each end's support bearing set (a fixed-free screw's "
+                                   "far end has none)", unit="N", ge=0)
+    bearing_dm_mm: float | None = key(None, "the support bearings' pitch diameter (not set: the screw's nominal "
+                                      "diameter + 10 mm)", unit="mm", gt=0)
+    bearing_f0: float = key(2.0, "Palmgren's lubrication factor f0 of each end's bearing set", gt=0)
+    bearing_f1: float = key(0.001, "Palmgren's load factor f1", ge=0)
+    bearing_heat_share: float = key(0.5, "share of the bearings' heat that enters the screw's end (the rest their "
+                                    "housing)", ge=0, le=1)
+    bearing_W_per_K: float = key(1.0, "conductance from each end of the screw into its bearing's housing",
+                                 unit="W/K", ge=0)
+    free_convection_W_per_m2K: float = key(8.0, "free convection's film coefficient: the screw at rest (the "
+                                           "rotating shaft's is higher), the nut", unit="W/m^2 K", gt=0)
+    flange_mass_kg: float = key(2.0, "the nut's flange and bracket (a lumped body)", unit="kg", gt=0)
+    nut_flange_W_per_K: float = key(10.0, "conductance from the nut into its flange", unit="W/K", ge=0)
+    flange_table_W_per_K: float = key(10.0, "conductance from the flange into the table (at the ambient)",
+                                      unit="W/K", ge=0)
+    bore_mm: float | None = key(None, "a hollow screw's bore (not set: solid)", unit="mm", gt=0)
+    coolant_flow_l_per_min: float | None = key(None, "water through the bore (not set: no coolant; needs "
+                                               "bore_mm)", unit="l/min", gt=0)
+    coolant_C: float | None = key(None, "the coolant's temperature (not set: the ambient)", unit="degC", ge=-20,
+                                  le=60)
+    mounting: str | None = key(None, "how the screw's ends hold its growth (not set: [feed_drive] mounting's, "
+                               "fixed-supported being fixed-free); pretensioned needs pretension_K",
+                               choices=THERMAL_MOUNTINGS)
+    pretension_K: float = key(0.0, "the temperature rise the pretension takes up (mounting = pretensioned)",
+                              unit="K", ge=0)
+    feedback: str = key("semi-closed", "the position loop's feedback: semi-closed (the motor's encoder: the "
+                        "growth is a positioning error) or linear-scale (the growth is not)", choices=FEEDBACKS)
+    stroke_mm: tuple[float, float] | None = key(None, "the nut's stroke in a cycle, from bearing A (not set: "
+                                                "[feed_drive] travel_mm)", unit="mm", gt=0, increasing=True)
+    shift_h: float = key(8.0, "the shift: the cycle repeated from a cold axis", unit="h", gt=0, le=24)
+    volumes: int = key(60, "finite volumes along the screw", ge=4, le=400)
+    thermal_growth_max_um: float | None = key(None, "largest thermal growth at the table's positions over the "
+                                              "shift (not set: no requirement)", unit="um", gt=0)
+    positioning_error_max_um: float | None = key(None, "largest positioning error over the shift: the deflection "
+                                                 "under the cutting load, the growth and the force loop's share "
+                                                 "(not set: no requirement)", unit="um", gt=0)
+
+    def check(self) -> None:
+        if self.lubricant_vg not in VG_GRADES:
+            raise Invalid("lubricant_vg", f"must be an ISO VG grade, one of {', '.join(map(str, VG_GRADES))}; got "
+                                          f"{self.lubricant_vg!r}")
+        if (self.mounting == "pretensioned") != (self.pretension_K > 0):
+            name = "pretension_K" if self.mounting == "pretensioned" else "mounting"
+            raise Invalid(name, "a pretension needs mounting = \"pretensioned\" and pretension_K > 0 together; got "
+                                f"mounting = {self.mounting!r}, pretension_K = {self.pretension_K:g}")
+        if self.coolant_flow_l_per_min is not None and self.bore_mm is None:
+            raise Invalid("coolant_flow_l_per_min", "needs a hollow screw: set bore_mm")
+        if self.coolant_C is not None and self.coolant_flow_l_per_min is None:
+            raise Invalid("coolant_C", "needs a coolant: set coolant_flow_l_per_min")
+
+    def against(self, drive: Any, fail: Callable[[str, str], Exception]) -> None:
+        """The rules between this table and the axis (:class:`~piezopreload.models.feed_drive.FeedDrive`):
+        the mounting agrees with the axis' ends, the stroke lies inside the screw."""
+        if self.mounting is not None and (self.mounting == "fixed-free") != (drive.mounting == "fixed-supported"):
+            raise fail("thermal.mounting", f"= {self.mounting!r} does not hold the ends [feed_drive] mounting = "
+                                           f"{drive.mounting!r} gives (fixed-supported floats: fixed-free; fixed-fixed "
+                                           "holds both: fixed-fixed or pretensioned)")
+        if self.stroke_mm is not None and not self.stroke_mm[1] < drive.screw_length_mm:
+            raise fail("thermal.stroke_mm", f"must lie inside the screw (end < screw_length_mm = "
+                                            f"{drive.screw_length_mm:g} mm), got {list(self.stroke_mm)!r}")

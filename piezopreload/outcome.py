@@ -33,8 +33,10 @@ class StageOutcome:
 
 @dataclass(frozen=True)
 class Headline:
-    """The study's headline figures: the whole system's (None where the study has no system stage), the gain
-    set's status and the rig run's tracking."""
+    """The study's headline figures: the whole system's (None where the study has no system stage; ``thermal``
+    where it has a ``[thermal]`` table: ``heat_mean_W``, ``temperature_rise_max_K``, ``growth_max_um``,
+    ``positioning_error_max_um``, ... each ``{"schedule": ..., "constant": ...}``), the gain set's status and
+    the rig run's tracking."""
 
     tracking_rms_pct_of_range: float | None = None
     tracking_rms_pct_of_range_before_learning: float | None = None
@@ -50,6 +52,7 @@ class Headline:
     friction_energy_per_cycle: float | None = None
     friction_saved_fraction: float | None = None
     preload_margin_N: float | None = None
+    thermal: dict[str, Any] | None = None  # the shift's figures, each for the schedule and the constant preload
     system: str = "not run"
     gain_set_status: str | None = None
     rig_tracking_rms_N: float | None = None

@@ -18,7 +18,8 @@ compare     step and trajectory, the study's and the tuned gains, with/without  
 learn       learning control on the repeated schedule, each margin pass on its  learn/learning.json,
             own reference (``[learning]``; the margin from the learned error)   learn/learned-pass*.json
 system      the controlled preload along the design's schedule (learned where   system/system.json,
-            learn ran): rigidity and deflection while cutting, friction energy  system/reference.csv
+            learn ran): rigidity and deflection while cutting, friction energy; system/reference.csv
+            the shift's heat, temperature and growth (``[thermal]``)
 export      the validated gain set in the study's controller formats            exports/
 rig         the validated gains on the rig executor (simulated by default)      runs/run-*.csv + .json
 report      figures and the PDF (Typst)                                          report/, report.pdf
@@ -84,7 +85,7 @@ from piezopreload.core.stages import (
     utc,
 )
 from piezopreload.core.tables import write_csv
-from piezopreload.design.tables import PlantTable
+from piezopreload.design.tables import DesignTable, PlantTable
 from piezopreload.outcome import Headline, StageOutcome, StudyResult, summary_of
 from piezopreload.progress import Progress
 from piezopreload.reports.study_report import STAGES_READ, Published, ReportStudy, render_report
@@ -390,7 +391,9 @@ def _learn_applies(study: Study) -> str | None:
 STAGES: tuple[Stage, ...] = (
     Stage("design", "ball-screw preload design, Pareto fronts, schedule",
           ("ballscrew", "feed_drive", "duty", "design", "schedule"), (),
-          ("models", "artifacts", "design"), _stage_design, files=("schedule.profile",), applies=_design_applies),
+          ("models", "artifacts", "design"), _stage_design, files=("schedule.profile",), applies=_design_applies,
+          reads=lambda study: ("thermal",) if "stiffness:growth" in (study.design_table or DesignTable()).pareto
+          else ()),
     Stage("plant", "the designed preload system as the plant", ("rig", "plant"), ("design",),
           ("models", "artifacts", "design"),
           _stage_plant, applies=_plant_applies),
@@ -410,7 +413,7 @@ STAGES: tuple[Stage, ...] = (
           ("models", "artifacts", "design", "tuning"), _stage_learn, files=("schedule.profile",),
           applies=_learn_applies),
     Stage("system", "the controlled preload along the schedule: rigidity and deflection while cutting, energy",
-          ("rig", "plant", "schedule", "simulation", "learning", "validation"),
+          ("rig", "plant", "schedule", "simulation", "learning", "validation", "thermal", "feed_drive"),
           ("design", "plant", "validate", "learn"), ("models", "artifacts", "design", "tuning"), _stage_system,
           files=("schedule.profile",), applies=_plant_applies),
     Stage("export", "the gain set in the controllers' formats", ("export",), ("validate",),

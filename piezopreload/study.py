@@ -3,11 +3,11 @@
 A study names its plant's hardware (``[rig]``), the controller's starting gains, the feedforward's
 identification experiment, the references, the simulation settings, the ball-screw design
 (``[ballscrew]``, ``[feed_drive]``, ``[duty]``, ``[design]``, ``[schedule]``), the plant
-(``[plant]``: the design's, or ``[rig]`` itself) and the one-command study's ``[tuning]``,
-``[validation]``, ``[learning]``, ``[export]`` and ``[rig_run]``. Every key is declared once on
-its table's dataclass (:mod:`piezopreload.tables`) and checked on load: an unknown key, a wrong
-type or an out-of-range value is an :class:`~piezopreload.core.errors.InputError` naming the file,
-the key's line and its path. A key the designed plant sets is refused where the plant is the
+(``[plant]``: the design's, or ``[rig]`` itself), the shift's heat and growth (``[thermal]``) and the
+one-command study's ``[tuning]``, ``[validation]``, ``[learning]``, ``[export]`` and ``[rig_run]``. Every key
+is declared once on its table's dataclass (:mod:`piezopreload.tables`) and checked on load: an unknown key, a
+wrong type or an out-of-range value is an :class:`~piezopreload.core.errors.InputError` naming the file, the
+key's line and its path. A key the designed plant sets is refused where the plant is the
 design: a study never ignores what it is given.
 
 ``study.plant`` is the plant every control step (identify, tune, simulate, learn, validate) runs
@@ -54,7 +54,16 @@ from piezopreload.design.plant import DESIGNED_FIELDS
 from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignSpec, optimise
 from piezopreload.design.study import DesignResult, design_spec_from_tables, design_study, plan_schedule, read_profile
 from piezopreload.design.system import SystemRun
-from piezopreload.design.tables import BallscrewTable, DesignTable, DutyTable, FeedDriveTable, PlantTable, ScheduleTable
+from piezopreload.design.tables import (
+    BallscrewTable,
+    DesignTable,
+    DutyTable,
+    FeedDriveTable,
+    PlantTable,
+    ScheduleTable,
+    ThermalTable,
+)
+from piezopreload.design.thermal import duty_growth_um, thermal_budget
 from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import Controller, PIDGains
@@ -167,6 +176,7 @@ class Study:
     source_text: bytes = field(repr=False)  # the file as read, or as :meth:`replace` wrote it
     given: dict[str, Any] = field(repr=False)  # the tables and keys the file gives, as it gives them
     description: str = ""
+    thermal: ThermalTable | None = None  # [thermal]: the shift's heat, temperature and growth (the system stage)
     say: Say = field(default=_stderr, repr=False, compare=False)  # progress where a step is given none
     _kept: _Kept = field(default_factory=_Kept, repr=False, compare=False)
 
@@ -496,10 +506,17 @@ class Study:
         a requirement is missed (:func:`piezopreload.design.system.track_schedule`); ``ff_extra_V`` a correction
         added to the feedforward (one array, or one per pass's reference: a callable)."""
         designed = self._designed_for("tracking the schedule", progress)
-        return (self.plant_table or PlantTable()).track(designed, self._controller(gains, progress),
-                                                        self.preload_schedule, seed=self.seed,
-                                                        settle_s=self.criteria.settling_max_s, ff_extra_V=ff_extra_V,
-                                                        progress=progress)
+        controller = self._controller(gains, progress)
+        run = (self.plant_table or PlantTable()).track(designed, controller, self.preload_schedule, seed=self.seed,
+                                                       settle_s=self.criteria.settling_max_s, ff_extra_V=ff_extra_V,
+                                                       progress=progress)
+        if self.thermal is None:
+            return run
+        budget = thermal_budget(run, self._spec("[thermal]").feed_drive, self.thermal,
+                                command_range_V=(controller.gains.u_min, controller.gains.u_max))
+        if progress is not None:
+            progress(f"thermal: {budget.record.sentence()}")
+        return _replace(run, thermal=budget)
 
     def reproduce(self, *, seed: int | None = None, repeats: int = 1,
                   feedforward: IdentifiedFeedforward | None = None) -> dict[str, Any]:
@@ -520,12 +537,17 @@ class Study:
         objective = objective or d.objective
         k = self._kept
         profile_path = Path(schedule) if schedule is not None else self.resolve(s.profile)
+        pairs = list(d.pareto if pareto is None else pareto)
+        if "stiffness:growth" in pairs and self.thermal is None:
+            raise InputError(f"{self.path}: the Pareto front stiffness:growth needs a [thermal] table (the shift the "
+                             "growth is read over)")
+        table = self.thermal
         try:
             result = design_study(
-                spec, objective, list(d.pareto if pareto is None else pareto),
-                d.pareto_points if points is None else points,
+                spec, objective, pairs, d.pareto_points if points is None else points,
                 profile=None if profile_path is None else read_profile(profile_path), profile_name=str(profile_path),
-                **s.limits(), progress=progress, bar=bar, optimum=k.optimum if objective == d.objective else None)
+                **s.limits(), progress=progress, bar=bar, optimum=k.optimum if objective == d.objective else None,
+                growth=None if table is None else lambda point: duty_growth_um(spec, point, table))
         except DesignInfeasible as exc:
             raise InfeasibleError(f"{self.path}: {exc}") from exc
         if objective == d.objective and k.point is None:
@@ -617,10 +639,11 @@ def _parse(data: dict[str, Any], where: _Source) -> dict[str, Any]:
 
 def _refuse_ignored(data: dict[str, Any], where: _Source) -> None:
     """No key is ignored: where the plant is the design, the [rig] keys the design sets are refused; where it is
-    [rig], the [plant] keys that only a designed plant uses are. (Before [rig] is checked: its own rules may
-    involve a refused key.)"""
+    [rig], the [plant] keys that only a designed plant uses are, and [thermal]. (Before [rig] is checked: its own
+    rules may involve a refused key.)"""
     fail = where.fail
     if "plant" not in data:
+        _refuse_thermal(data, fail)
         return
     plant = PlantTable.parse(data["plant"], fail, "plant")
     if plant.from_design:
@@ -637,6 +660,14 @@ def _refuse_ignored(data: dict[str, Any], where: _Source) -> None:
         if name != "from_design":
             raise fail(f"plant.{name}", "applies to the designed plant only, and [plant] from_design = false makes "
                                         "[rig] the plant: remove it, or set from_design = true")
+    _refuse_thermal(data, fail)
+
+
+def _refuse_thermal(data: dict[str, Any], fail: Callable[[str, str], InputError]) -> None:
+    """[thermal] is the budget of the designed system along its schedule: refused where [rig] is the plant."""
+    if "thermal" in data:
+        raise fail("thermal", "needs a study whose plant is its design ([plant] from_design = true, with the design's "
+                              "tables): the shift's budget is that of the system along its schedule")
 
 
 def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Say) -> Study:
@@ -673,6 +704,11 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
         validation = _replace(validation, seed=sim.seed)
     design_spec = None if t["ballscrew"] is None else design_spec_from_tables(
         {**t, "design": t["design"] or DesignTable()}, fail)
+    if t["thermal"] is not None and design_spec is not None:
+        t["thermal"].against(design_spec.feed_drive, fail)
+    if t["design"] is not None and "stiffness:growth" in t["design"].pareto and t["thermal"] is None:
+        raise fail("design.pareto", "has stiffness:growth, which needs a [thermal] table (the shift the growth is read "
+                                    "over)")
     meta: StudyTable = t["study"]
     return Study(
         path=path, sha256=hashlib.sha256(text).hexdigest(), name=meta.name or Path(path).stem, title=meta.title,
@@ -680,7 +716,7 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
         simulation=sim, tuning=t["tuning"], validation=validation, export=t["export"],
         rig_run=t["rig_run"].resolved(), ballscrew=t["ballscrew"], feed_drive=t["feed_drive"], duty=t["duty"],
         design_table=t["design"], schedule=t["schedule"], plant_table=t["plant"], learning=t["learning"],
-        published=t["published"], gains=gains,
+        published=t["published"], thermal=t["thermal"], gains=gains,
         references=_references(t["reference"], fail), excitation=t["feedforward"].excitation(), tuning_spec=spec,
         criteria=validation.criteria(sim.band_N), design_spec=design_spec, where=where, source_text=text,
         given=copy.deepcopy(data), say=say, _kept=kept)

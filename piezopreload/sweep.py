@@ -302,6 +302,18 @@ def _requirements(summary: dict[str, Any], records: dict[str, Any]) -> tuple[boo
     return (None if met is None else bool(met)), ()
 
 
+def _thermal_figures(thermal: dict[str, Any] | None) -> dict[str, float | None]:
+    """The shift's figures of a run's summary (``thermal``), for the schedule and the constant preload."""
+    names = {"heat_mean_W": "heat_mean", "temperature_rise_max_K": "temperature_rise_max",
+             "growth_max_um": "thermal_growth_max", "positioning_error_max_um": "positioning_error_max"}
+    out: dict[str, float | None] = {}
+    for key, column in names.items():
+        unit = key.rsplit("_", 1)[1]
+        pair = (thermal or {}).get(key) or {}
+        out[f"{column}_{unit}"], out[f"{column}_constant_{unit}"] = pair.get("schedule"), pair.get("constant")
+    return out
+
+
 def headline(folder: str | Path, summary: dict[str, Any] | None = None) -> PointFigures:
     """A point's headline figures from its folder (``pipeline.json``, the gain set) and its run's ``summary``
     (default: :func:`~piezopreload.pipeline.run_summary` of the folder, also for a run that stopped at a stage)."""
@@ -333,7 +345,7 @@ def headline(folder: str | Path, summary: dict[str, Any] | None = None) -> Point
                                        "rigidity_ratio_min", "deflection_max_um", "rig_tracking_rms_N")},
         friction_energy_per_cycle=energy,
         constant_friction_energy_per_cycle=None if energy is None else design.get("constant_friction_energy"),
-        friction_saving_pct=None if saved is None else 100.0 * saved,
+        friction_saving_pct=None if saved is None else 100.0 * saved, **_thermal_figures(summary.get("thermal")),
         rig_status=_stage_summary(records, "rig").get("status"),
         requirements_met=met, requirements_missed=missed)
 

@@ -23,6 +23,7 @@ from piezopreload.design.tables import (
     FeedDriveTable,
     PlantTable,
     ScheduleTable,
+    ThermalTable,
 )
 from piezopreload.models.actuator import P888_91, Plant, StackData
 from piezopreload.rig.tables import ExportTable, RigRunPlan
@@ -245,13 +246,13 @@ STUDY_TABLES: dict[str, type[Table]] = {
     "study": StudyTable, "rig": RigTable, "plant": PlantTable, "learning": LearningTable,
     "controller": ControllerTable, "feedforward": FeedforwardTable, "reference": ReferenceTables,
     "simulation": SimulationTable, "ballscrew": BallscrewTable, "feed_drive": FeedDriveTable, "duty": DutyTable,
-    "design": DesignTable, "schedule": ScheduleTable, "tuning": TuningTable, "validation": ValidationTable,
-    "export": ExportTable, "rig_run": RigRunPlan, "published": PublishedTable,
+    "design": DesignTable, "schedule": ScheduleTable, "thermal": ThermalTable, "tuning": TuningTable,
+    "validation": ValidationTable, "export": ExportTable, "rig_run": RigRunPlan, "published": PublishedTable,
 }
 #: the tables every study has
 REQUIRED_TABLES = ("rig", "controller")
 #: the tables that are only read where the study has the design's ([ballscrew])
-DESIGN_TABLES = ("ballscrew", "feed_drive", "duty", "design", "schedule", "plant")
+DESIGN_TABLES = ("ballscrew", "feed_drive", "duty", "design", "schedule", "plant", "thermal")
 
 
 def study_keys_markdown() -> str:

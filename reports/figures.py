@@ -221,7 +221,7 @@ def stiffness_vs_preload(curve: Mapping[str, Any]) -> Figure:
 
 
 _FRONT_LABELS = {"stiffness": "least rigidity (N/um)", "preload": "max preload (N)",
-                 "drag": "mean drag torque (N m)", "life": "rating life (h)"}
+                 "drag": "mean drag torque (N m)", "life": "rating life (h)", "growth": "growth over the shift (um)"}
 
 
 @_styled
@@ -233,7 +233,7 @@ def pareto_fronts(fronts: Sequence[Mapping[str, Any]], optimum: Mapping[str, flo
             "drag": "mean_drag_torque_Nm", "life": "life_h"}
     for a, f in zip(ax[0], fronts):
         a.plot(f["x"], f["y"], "o-", ms=2.5, color=COLOURS["model"], label="front")
-        if optimum is not None:
+        if optimum is not None and f["y_name"] in keys:  # a point's growth is not one of its fields
             a.plot(optimum[keys[f["x_name"]]], optimum[keys[f["y_name"]]], "*", ms=8, color=COLOURS["limit"],
                    label="the design optimum")
         a.set_xlabel(_FRONT_LABELS[f["x_name"]])

@@ -22,6 +22,7 @@ from piezopreload.reports import sections as S
 from piezopreload.reports.document import Report
 from piezopreload.reports.inputs import Artifacts, Published, ReportStudy
 from piezopreload.reports.summary import summary, verdicts
+from piezopreload.reports.thermal import thermal_section
 from piezopreload.reports.typeset import ReportError, compile_pdf, template_text
 
 __all__ = ["ReportStudy", "Published", "render_report", "STAGES_READ"]
@@ -38,6 +39,9 @@ def _parts(study: ReportStudy, a: Artifacts) -> list[S.Part]:
         parts.append(requirements)
     if a.system is not None and a.design is not None:
         parts.append(S.system_section(a.system, a.design, a.learning))
+        if a.system.thermal is not None:
+            parts.append(thermal_section(a.system.thermal, [r for r in a.system.requirements if r.source.startswith(
+                "[thermal]")]))
     if a.learning is not None:
         parts.append(S.learning_section(a.learning))
     parts += [S.controller_section(study, a), S.responses_section(study, a), S.feedforward_section(study, a)]

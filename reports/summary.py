@@ -19,6 +19,7 @@ from piezopreload.artifacts.system import SystemRecord
 from piezopreload.reports.document import fmt, pct
 from piezopreload.reports.inputs import Artifacts, Published, ReportStudy
 from piezopreload.reports.sections import levels_text, signal_name
+from piezopreload.reports.thermal import thermal_lines
 
 __all__ = ["verdicts", "summary"]
 
@@ -42,6 +43,8 @@ def summary(study: ReportStudy, a: Artifacts) -> tuple[str, ...]:
     lines: list[str] = []
     if a.system is not None and a.design is not None:
         lines += _system_lines(a.system, a.design, a.learning)
+        if a.system.thermal is not None:
+            lines += thermal_lines(a.system.thermal)
     lines.append(_controller_line(a))
     lines.append(_step_line(study, a))
     lines.append(_rig_line(a))

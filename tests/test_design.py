@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
+import piezopreload.design.schedule as schedule_module
 from piezopreload.artifacts.schedule import LoadProfile, ScheduleSpec
 from piezopreload.cli import main
 from piezopreload.design.preload import (
@@ -138,7 +139,13 @@ def test_sqp_warm_starts_reach_the_ipopt_optimum(spec, nlp, reference_nlp, objec
 
 @pytest.mark.parametrize("pair", PARETO_PAIRS)
 def test_fronts_with_sqp_warm_starts_match_the_ipopt_fronts(spec, nlp, reference_nlp, pair):
-    ours, ref = pareto_front(spec, pair, 20, nlp), pareto_front(spec, pair, 20, reference_nlp)
+    from piezopreload.design.tables import ThermalTable
+    from piezopreload.design.thermal import duty_growth_um
+
+    table = ThermalTable(volumes=20, shift_h=1.0)  # the growth front's y: the shift's growth of each point
+    growth = (lambda p: duty_growth_um(spec, p, table)) if pair == "stiffness:growth" else None
+    ours, ref = pareto_front(spec, pair, 20, nlp, growth=growth), pareto_front(spec, pair, 20, reference_nlp,
+                                                                                growth=growth)
     assert len(ours.points) == len(ref.points) == 20
     assert [(p.turns, p.balls_per_turn) for p in ours.points] == [(p.turns, p.balls_per_turn) for p in ref.points]
     np.testing.assert_allclose(ours.x, ref.x, rtol=1e-4)  # where the epsilon is slack, set by the tie-break
@@ -236,6 +243,58 @@ def test_the_envelope_schedule_is_the_nlps_optimum(spec, margin_N):
                                err_msg="the envelope is not the NLP's optimum")
     assert exact.friction_energy_J <= nlp.friction_energy_J * (1 + 1e-7), "the NLP found a cheaper schedule"
     assert exact.constant_preload_N == nlp.constant_preload_N
+
+
+@pytest.mark.parametrize("model", ["catalogue", "contact"])
+def test_the_least_friction_schedule_is_the_least_heat_one_under_either_model(spec, model):
+    """The heat grows with the preload at every sample (linearly in the catalogue's model, as F_p^0.484 in the
+    rolling-contact one): the NLP that minimises the cycle's heat instead of its friction energy lands on the
+    envelope, and no schedule it finds makes less heat."""
+    p = optimise(spec, "drag").point
+    screw = spec.screw(p)
+    f_max = spec.actuator.max_preload_N(screw, p.bolt_preload_N)
+    sspec = ScheduleSpec(p.bolt_preload_N, f_max, slew_N_per_s=20000.0, stiffness_min_N_per_um=300.0,
+                         deflection_max_um=5.0)
+    profile = example_profile(0.05)
+    heat = {"model": model, "lubricant_vg": 68, "sealed": True, "temperature_C": 40.0}
+    exact = schedule_preload(screw, profile, sspec)
+    nlp = schedule_preload(screw, profile, sspec, method="nlp", heat=heat)
+    assert nlp.status == "Solve_Succeeded"
+    np.testing.assert_allclose(exact.preload_N, nlp.preload_N, atol=1e-4 * f_max,
+                               err_msg="the least-heat schedule is not the envelope")
+
+    def joules(preload):
+        return float(np.dot(screw.friction_heat_W(preload, profile.speed_rpm, **heat), profile.dt_s))
+
+    assert joules(exact.preload_N) <= joules(nlp.preload_N) * (1 + 1e-7), "the NLP found a schedule with less heat"
+    assert joules(exact.preload_N) < joules(np.full(profile.time_s.size, exact.constant_preload_N))
+    # the NLP's objective is that heat: the CasADi function against the numpy model on another schedule
+    other = np.linspace(p.bolt_preload_N, f_max, profile.time_s.size)
+    assert float(schedule_module._heat_objective(screw, profile, heat)(other)) == pytest.approx(joules(other), rel=1e-9)
+    with pytest.raises(ValueError, match="needs the load profile's speed_rpm"):
+        schedule_preload(screw, LoadProfile(profile.time_s, profile.axial_load_N), sspec, heat=heat)
+
+
+def test_the_heat_objective_is_what_the_schedule_nlp_minimises(spec, monkeypatch):
+    """The NLP takes its objective from the heat (no silent fall-back to the friction energy): an objective that
+    rewards preload instead takes the plan to the stacks' reach wherever the screw turns."""
+    p = optimise(spec, "drag").point
+    screw = spec.screw(p)
+    f_max = spec.actuator.max_preload_N(screw, p.bolt_preload_N)
+    sspec = ScheduleSpec(p.bolt_preload_N, f_max, slew_N_per_s=20000.0, stiffness_min_N_per_um=300.0)
+    profile = example_profile(0.1)
+    real = schedule_module._heat_objective
+    monkeypatch.setattr(schedule_module, "_heat_objective", lambda *a: _negated(real(*a)))
+    upside_down = schedule_preload(screw, profile, sspec, method="nlp", heat={"model": "catalogue"})
+    turning = np.asarray(profile.speed_rpm) > 0
+    assert np.all(upside_down.preload_N[turning] > 0.99 * f_max), "the NLP did not minimise the objective it was given"
+
+
+def _negated(f):
+    import casadi as ca
+
+    x = ca.MX.sym("F", f.size1_in(0))
+    return ca.Function("negated", [x], [-f(x)])
 
 
 def test_a_constant_load_gives_a_constant_schedule(spec):

@@ -107,6 +107,13 @@ def test_a_key_without_a_declaration_is_refused_when_the_table_is_made():
     (AXIS, "plants = 200", "plants = 0", "validation.plants", "must be an integer >= 1 and <= 100000, got 0"),
     (AXIS, 'formats = ["json"', 'formats = ["pdf", "json"', "export.formats", "from json, labview"),
     (AXIS, 'reference = "schedule"', 'reference = "ramp"', "rig_run.reference", "step, trajectory, schedule"),
+    (AXIS, "lubricant_vg = 68", "lubricant_vg = 70", "thermal.lubricant_vg", "must be an ISO VG grade, one of 10"),
+    (AXIS, 'heat_model = "catalogue"', 'heat_model = "viscous"', "thermal.heat_model",
+     "must be one of catalogue, contact"),
+    (AXIS, "shift_h = 8.0", "shift_h = 30.0", "thermal.shift_h", "must be a number > 0 and <= 24, got 30.0"),
+    (AXIS, "pretension_K = 3.0", "pretension_K = 0.0", "thermal.pretension_K",
+     'a pretension needs mounting = "pretensioned" and pretension_K > 0 together'),
+    (AXIS, "thermal_growth_max_um = 25.0", "thermal_growth_max_um = -1.0", "thermal.thermal_growth_max_um", "> 0"),
     (PAPER, "creep = false", "creep = 1", "feedforward.creep", "must be true or false, got 1"),
     (PAPER, "band_N = 1.5", 'band_N = "a"', "simulation.band_N", "must be a number > 0, got 'a'"),
     (PAPER, "adc_bits = 16", "adc_bits = 16.0", "rig.adc_bits", "must be an integer >= 2 and <= 32, got 16.0"),
@@ -223,7 +230,8 @@ def test_a_rig_key_the_design_sets_is_refused_where_the_plant_is_the_design(tmp_
     with pytest.raises(pp.PiezopreloadError, match=rf"'rig.{name}' is set by the design where \[plant\] from_design"):
         axis.replace(rig={name: change})
     if name == "bolt_preload_N":  # the way out the message names: [rig] is the plant, and its value is applied
-        assert axis.replace(rig={name: change}, plant=None).plant.bolt_preload_N == change
+        # ([thermal] goes too: it is the budget of a designed system, refused where [rig] is the plant)
+        assert axis.replace(rig={name: change}, plant=None, thermal=None).plant.bolt_preload_N == change
 
 
 def code_and_line(capsys, argv: list[str]) -> tuple[int, str]:
@@ -259,8 +267,11 @@ def test_plant_keys_of_a_designed_plant_are_refused_where_rig_is_the_plant(tmp_p
     axis = pp.load_study(AXIS, **QUIET)
     with pytest.raises(pp.InputError, match=r"'plant.sleeve_stiffness_N_per_um' applies to the designed plant only"):
         axis.replace(plant={"from_design": False})
+    with pytest.raises(pp.InputError, match=r"'thermal' needs a study whose plant is its design"):
+        axis.replace(plant={"from_design": False, "sleeve_stiffness_N_per_um": None, "cycles": None, "passes": None,
+                            "stack_contact_N": None})
     rig_plant = axis.replace(plant={"from_design": False, "sleeve_stiffness_N_per_um": None, "cycles": None,
-                                    "passes": None, "stack_contact_N": None})
+                                    "passes": None, "stack_contact_N": None}, thermal=None)
     assert not rig_plant.plant_from_design and rig_plant.plant.to_dict() == rig_plant.rig.params().to_dict()
     text = PAPER.read_text() + "\n[plant]\nfrom_design = true\n"
     path = tmp_path / "study.toml"

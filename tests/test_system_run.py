@@ -46,7 +46,8 @@ def test_every_stage_runs_and_the_plant_is_the_designs(axis_run, capsys):
     # the requirements as verdicts, beside their sum
     names = [r.name for r in system.requirements]
     assert names == ["rigidity while cutting", "axial deflection while cutting",
-                     "preload against the lift-off bound while cutting"], names
+                     "preload against the lift-off bound while cutting", "thermal growth at the table over the shift",
+                     "positioning error over the shift (deflection, growth, tracking)"], names
     assert system.requirements_met == all(r.met for r in system.requirements)
     rigidity = system.requirements[0]
     assert (rigidity.value, rigidity.limit) == (system.numbers.rigidity_min_cutting_N_per_um,
@@ -219,3 +220,37 @@ def test_the_report_speaks_of_its_own_study_and_leads_with_its_figures(axis_run)
     assert f"{100 * system['friction_saved_fraction']:.2g} %" in friction, "the saving is not the system artifact's"
     assert f"{design['schedule']['constant_preload_N']:,.0f} N" in friction, "the constant preload is not the design's"
     assert report["verdicts"], "the verdicts on the requirements come first"
+
+
+def test_the_shifts_thermal_budget_is_in_the_system_artifact_the_summary_the_report_and_the_sweeps_columns(axis_run):
+    """[thermal]: the system artifact records the shift for the schedule and the best constant preload; run --json's
+    summary and a sweep's columns read the same numbers; the requirements carry their margins; the report has its
+    section, its figures and its summary lines."""
+    from piezopreload.artifacts.thermal import ThermalRecord
+    from piezopreload.pipeline import run_summary
+    from piezopreload.sweep import headline
+
+    system = SystemRecord.load(axis_run / "system" / "system.json")
+    thermal = system.thermal
+    assert isinstance(thermal, ThermalRecord) and thermal.shift_h == 2.5 and thermal.mounting == "pretensioned"
+    s, c = thermal.schedule, thermal.constant
+    assert s.times_h.tolist()[-3:] == [1.0, 2.0, 2.5] and s.rise_along_K.shape == (s.times_h.size, 30)
+    assert s.heat_mean_W < c.heat_mean_W and s.heat_mean_other_W < c.heat_mean_other_W
+    assert s.growth_max_um < c.growth_max_um and s.positioning_error_max_um <= c.positioning_error_max_um
+    assert s.positioning_error_max_um >= s.growth_max_um, "the budget holds the growth (a semi-closed loop)"
+    summary = run_summary(axis_run)["thermal"]
+    for key in ("heat_mean_W", "temperature_rise_max_K", "growth_max_um", "positioning_error_max_um"):
+        assert summary[key] == {"schedule": getattr(s, key), "constant": getattr(c, key)}, key
+    growth, budget = system.requirements[-2:]
+    assert (growth.value, growth.limit, growth.margin) == (s.growth_max_um, 200.0, 200.0 - s.growth_max_um)
+    assert (budget.value, budget.limit) == (s.positioning_error_max_um, 250.0) and budget.met
+    figures = headline(axis_run)
+    assert (figures.thermal_growth_max_um, figures.thermal_growth_max_constant_um) == (s.growth_max_um,
+                                                                                       c.growth_max_um)
+    assert (figures.heat_mean_W, figures.positioning_error_max_constant_um) == (s.heat_mean_W,
+                                                                                c.positioning_error_max_um)
+    report = read_artifact(axis_run / "report" / "report.json", "report")
+    section = next(x for x in report["sections"] if x["title"] == "Heat, temperature and growth over a shift")
+    assert section["figures"] == ["thermal-temperature", "thermal-growth", "thermal-budget"]
+    assert all((axis_run / "report" / report["figures"][f]["file"]).is_file() for f in section["figures"])
+    assert any(line.startswith("Over the 2.5 h shift, the schedule's") for line in report["summary"])

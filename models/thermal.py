@@ -1,0 +1,504 @@
+"""The preload's heat, the axis' temperature and the screw's thermal growth: the physics, pure.
+
+``docs/thermal.md`` states the model, its sources and its limits; in brief:
+
+**Heat at the nut**, two models (both on the ops table, numpy or CasADi):
+
+* *catalogue*: the preload drag torque T_p = K_p F_p P / (2 pi) (HIWIN, NSK, THK) times the screw's
+  angular speed omega: linear in the preload, no dependence on speed, lubricant or temperature;
+* *contact*: the rolling-contact loss of Jungnickel (2010, eq. 9.49), restated as
+  P = z mu F_c r omega / cos(lambda) s with the rolling friction coefficient
+  mu = 9.16 G^-0.2 W^-e U^k2, the load parameter W = F_c / (E' r_b^2), the material parameter
+  G = alpha_p E', the speed parameter U = eta(T) omega R / (2 E' cos(lambda)), the contact force
+  F_c = F_p / (z sin(beta) cos(lambda)) of the z loaded balls of one nut, R = r / r_b, and s the seal
+  factor (2 sealed, 1 open). For the double nut with two-point contact k2 = 0.512 and e = 0.516: the loss
+  grows as F_p^0.484, omega^1.512 and the viscosity^0.512.
+
+The lubricant's viscosity follows a Vogel law nu(T) = a exp(b / (T + 95)) (T in deg C) fitted per ISO VG
+grade (:data:`VG_GRADES`); its pressure-viscosity coefficient is alpha_p = 1.29e-7 nu40^0.204 (1/Pa,
+nu40 in m^2/s). The seals are Jungnickel's factor s in both models (a catalogue's drag torque is that of an
+open nut; its seal torque is listed apart, and taking the same factor keeps the two models different only
+in how they scale with the preload, the speed and the viscosity).
+
+**The support bearings** (Palmgren): M = M0 + M1, M0 = 1e-7 f0 max(nu n, 2000)^(2/3) dm^3 (N mm; nu in
+mm^2/s, n in rpm, dm in mm; below nu n = 2000 the constant 160e-7 f0 dm^3), M1 = f1 F dm.
+
+**Temperature.** The screw between its bearings is a row of finite volumes along its length (conduction
+k A_c / dx between neighbours, the root section's heat capacity), each losing heat to the air through a
+rotating shaft's film coefficient (Nu = 0.133 Re^(2/3) Pr^(1/3), Re = omega d^2 / nu_air, no less than free
+convection) and, in a hollow screw with coolant, to the coolant (the pipe flow's Nusselt number); its end
+volumes conduct into their bearings (half a volume of screw in series with the bearing's conductance). The
+nut and its flange are lumped bodies: the nut takes its share of the friction heat, loses heat to the air
+and to the flange, the flange to the table. Every body's temperature is a rise above the ambient, so the
+model is linear, C dT/dt = -K T + q, with C the heat capacities and K the symmetric conductance matrix.
+
+**Two time scales.** A machining cycle of seconds is far shorter than the screw's time constant
+(rho c d / (4 h), tens of minutes): over a shift of repeated cycles the cycle-averaged heat q and film
+coefficient drive the slow model, whose solution :meth:`Network.response` evaluates exactly (the symmetric
+eigen-decomposition of C^(-1/2) K C^(-1/2)) at any time, at no cost per hour simulated.
+:class:`FineMarch` is the same network stepped through every cycle (Crank-Nicolson, the heat where the nut
+is at each step): the reference the averaged model is checked against.
+
+**Growth** from the screw's temperature rise, u(x) = alpha int_0^x dT, for its mounting: fixed-free (the
+far end floats), fixed-fixed (both ends held by bearings of stiffness k_b: the screw pushes against them),
+pretensioned (fixed-fixed, stretched at assembly by F_t = alpha dT_p E A: the ends hold while the tension
+lasts, so the length does not grow until the mean rise exceeds dT_p; a local rise still moves the thread
+inside the length). In a semi-closed loop (the encoder on the motor, at bearing A) u at the table's position
+is its positioning error.
+
+**Passive preload drift.** A double nut preloaded by a spacer of length L_s between its nuts' loaded turns
+changes its preload by k_pair alpha L_s (T_nut - T_screw) when nut and screw warm differently, k_pair the
+two nuts' tangent stiffnesses (and the spacer's) in series.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import eigh, solve_banded
+
+from piezopreload.core.checks import FieldRule, check_fields
+from piezopreload.core.errors import InputError
+from piezopreload.models.ops import NUMPY
+
+__all__ = [
+    "EXPANSION_PER_K", "STEEL_CONDUCTIVITY_W_PER_MK", "STEEL_HEAT_CAPACITY_J_PER_M3K", "VG_GRADES", "OIL_DENSITY",
+    "HEAT_MODELS", "THERMAL_MOUNTINGS", "viscosity_m2_s", "pressure_viscosity_per_Pa", "seal_factor",
+    "catalogue_heat_W", "contact_heat_W", "bearing_torque_Nm", "shaft_film_W_per_m2K", "pipe_film_W_per_m2K",
+    "ScrewBody", "AxisModel", "Network", "FineMarch", "growth_m", "held_force_N", "spacer_drift_N_per_K",
+    "nut_coverage",
+]
+
+Array = NDArray[np.float64]
+
+#: linear expansion of screw steel (1/K), the catalogues' 11.6e-6
+EXPANSION_PER_K = 11.6e-6
+#: conductivity of screw steel (W/m K) and its heat capacity per volume (J/m^3 K): 7,850 kg/m^3 x 460 J/kg K
+STEEL_CONDUCTIVITY_W_PER_MK = 45.0
+STEEL_HEAT_CAPACITY_J_PER_M3K = 7850.0 * 460.0
+#: Vogel fits nu = a exp(b / (T + 95)) of mineral oils by ISO VG grade: a (m^2/s), b (K)
+VG_GRADES: dict[int, tuple[float, float]] = {
+    10: (0.1e-6, 623.0), 22: (0.087e-6, 748.0), 32: (0.0813e-6, 808.0), 46: (0.0762e-6, 866.0),
+    68: (0.071e-6, 929.0), 100: (0.0662e-6, 990.0), 150: (0.0616e-6, 1055.0), 220: (0.0575e-6, 1116.0)}
+#: a mineral oil's density (kg/m^3)
+OIL_DENSITY = 870.0
+#: the reduced modulus of Jungnickel's fit (Pa)
+_E_PRIME = 2.31e11
+#: Jungnickel's exponents for a double nut with two-point contact: speed parameter k2, load parameter e
+_K2, _E_LOAD = 0.512, 0.516
+HEAT_MODELS = ("catalogue", "contact")
+THERMAL_MOUNTINGS = ("fixed-free", "fixed-fixed", "pretensioned")
+
+
+# ---- the lubricant -------------------------------------------------------------------------------------
+def _grade(vg: Any) -> tuple[float, float]:
+    if vg not in VG_GRADES:
+        raise InputError(f"lubricant_vg must be an ISO VG grade of {', '.join(map(str, VG_GRADES))}, got {vg!r}.")
+    return VG_GRADES[vg]
+
+
+def viscosity_m2_s(vg: int, temperature_C: Any, ops: Any = NUMPY) -> Any:
+    """Kinematic viscosity (m^2/s) of ISO VG ``vg`` mineral oil at ``temperature_C`` (its Vogel fit)."""
+    a, b = _grade(vg)
+    return a * ops.exp(b / (temperature_C + 95.0))
+
+
+def pressure_viscosity_per_Pa(vg: int) -> float:
+    """alpha_p = 1.29e-7 nu40^0.204 (1/Pa, nu40 in m^2/s): about 1.8e-8 for VG68."""
+    return 1.29e-7 * float(viscosity_m2_s(vg, 40.0)) ** 0.204
+
+
+def seal_factor(sealed: bool) -> float:
+    """Jungnickel's s: 2 for a sealed nut, 1 for an open one."""
+    return 2.0 if sealed else 1.0
+
+
+# ---- heat at the nut (numpy or CasADi) ------------------------------------------------------------------
+def catalogue_heat_W(ops: Any, drag_coefficient: float, lead_mm: float, preload_N: Any, omega_rad_s: Any,
+                     sealed: bool = True) -> Any:
+    """K_p F_p P / (2000 pi) (N m, P in mm) times omega, times the seal factor."""
+    return seal_factor(sealed) * drag_coefficient * preload_N * lead_mm / (2000.0 * math.pi) * omega_rad_s
+
+
+def contact_heat_W(ops: Any, preload_N: Any, omega_rad_s: Any, *, balls: Any, contact_rad: Any,
+                   helix_rad: float, pitch_diameter_mm: float, ball_mm: Any, lubricant_vg: int = 68,
+                   temperature_C: Any = 40.0, sealed: bool = True) -> Any:
+    """Jungnickel's rolling-contact loss of a double nut (module docstring), W.
+
+    ``balls``: z, the loaded balls of one nut; ``omega_rad_s`` >= 0 the screw's speed. The geometry may be CasADi
+    expressions too (the design's variables).
+    """
+    r, r_b = 0.5e-3 * pitch_diameter_mm, 0.5e-3 * ball_mm
+    cl = ops.cos(helix_rad)
+    f_c = preload_N / (balls * ops.sin(contact_rad) * cl)
+    load = f_c / (_E_PRIME * r_b ** 2)
+    material = pressure_viscosity_per_Pa(lubricant_vg) * _E_PRIME
+    eta = OIL_DENSITY * viscosity_m2_s(lubricant_vg, temperature_C, ops)
+    speed = eta * omega_rad_s * (r / r_b) / (2.0 * _E_PRIME * cl)
+    mu = 9.16 * material ** -0.2 * load ** -_E_LOAD * speed ** _K2
+    return seal_factor(sealed) * balls * mu * f_c * r * omega_rad_s / cl
+
+
+# ---- the support bearings ---------------------------------------------------------------------------------
+def bearing_torque_Nm(speed_rpm: ArrayLike, viscosity_mm2_s: float, pitch_diameter_mm: float, axial_load_N: float,
+                      f0: float, f1: float) -> Array:
+    """Palmgren's friction torque (N m) of a bearing set: M0 (the lubricant) + M1 (the load), module docstring."""
+    n = np.abs(np.asarray(speed_rpm, float))
+    m0 = 1e-7 * f0 * np.maximum(viscosity_mm2_s * n, 2000.0) ** (2.0 / 3.0) * pitch_diameter_mm ** 3
+    m1 = f1 * axial_load_N * pitch_diameter_mm
+    return 1e-3 * np.where(n > 0, m0 + m1, 0.0)
+
+
+# ---- film coefficients ----------------------------------------------------------------------------------
+def _air(ambient_C: float) -> tuple[float, float, float]:
+    """Air at ``ambient_C`` (0-60 deg C; linear fits of the tables): conductivity W/m K, kinematic viscosity
+    m^2/s, Prandtl number."""
+    return 0.0241 + 7.6e-5 * ambient_C, 1.33e-5 + 9.0e-8 * ambient_C, 0.71
+
+
+def shaft_film_W_per_m2K(omega_rad_s: ArrayLike, diameter_m: float, ambient_C: float = 20.0,
+                         free_W_per_m2K: float = 8.0) -> Array:
+    """A rotating shaft's film coefficient in air, Nu = 0.133 Re^(2/3) Pr^(1/3) with Re = omega d^2 / nu_air,
+    and no less than free convection's ``free_W_per_m2K``."""
+    k, nu, pr = _air(ambient_C)
+    re = np.abs(np.asarray(omega_rad_s, float)) * diameter_m ** 2 / nu
+    return np.maximum(0.133 * re ** (2.0 / 3.0) * pr ** (1.0 / 3.0) * k / diameter_m, free_W_per_m2K)
+
+
+def pipe_film_W_per_m2K(flow_l_per_min: float, bore_m: float) -> float:
+    """Water at 20 deg C in the screw's bore: laminar Nu = 4.36 below Re = 2,300, Dittus-Boelter
+    Nu = 0.023 Re^0.8 Pr^0.4 above 10,000, linear in Re between."""
+    k, nu, pr = 0.598, 1.0e-6, 7.0
+    velocity = flow_l_per_min / 60e3 / (0.25 * math.pi * bore_m ** 2)
+    re = velocity * bore_m / nu
+    turbulent = 0.023 * max(re, 1e4) ** 0.8 * pr ** 0.4
+    if re <= 2300.0:
+        nu_number = 4.36
+    elif re >= 1e4:
+        nu_number = turbulent
+    else:
+        nu_number = 4.36 + (turbulent - 4.36) * (re - 2300.0) / (1e4 - 2300.0)
+    return nu_number * k / bore_m
+
+
+# ---- the network -----------------------------------------------------------------------------------------
+def _finite_positive(x: Any) -> bool:
+    return isinstance(x, int | float) and math.isfinite(x) and x > 0
+
+
+_BODY_RULES: tuple[FieldRule, ...] = (
+    *((name, _finite_positive, "must be a finite number > 0")
+      for name in ("length_m", "outer_diameter_m", "core_diameter_m", "conductivity_W_per_mK",
+                   "heat_capacity_J_per_m3K")),
+    ("bore_m", lambda x: math.isfinite(x) and x >= 0, "must be a finite number >= 0"),
+)
+
+
+@dataclass(frozen=True)
+class ScrewBody:
+    """The screw between its bearings: its length, the outer diameter its surface loses heat through, the core
+    (root) diameter that conducts and stores heat, a bore (0: solid), and the steel's properties."""
+
+    length_m: float
+    outer_diameter_m: float
+    core_diameter_m: float
+    bore_m: float = 0.0
+    conductivity_W_per_mK: float = STEEL_CONDUCTIVITY_W_PER_MK
+    heat_capacity_J_per_m3K: float = STEEL_HEAT_CAPACITY_J_PER_M3K
+
+    def __post_init__(self) -> None:
+        check_fields(self, "ScrewBody", _BODY_RULES, InputError)
+        if not self.bore_m < self.core_diameter_m <= self.outer_diameter_m:
+            raise InputError(f"ScrewBody needs bore < core diameter <= outer diameter, got {self.bore_m}, "
+                             f"{self.core_diameter_m} and {self.outer_diameter_m} m.")
+
+    @property
+    def area_m2(self) -> float:
+        """The conducting (and heat-storing) section."""
+        return 0.25 * math.pi * (self.core_diameter_m ** 2 - self.bore_m ** 2)
+
+    def time_constant_s(self, film_W_per_m2K: float) -> float:
+        """A lumped length of screw losing heat through its surface alone: rho c A / (h pi d_o)
+        (rho c d / (4 h) for a solid screw whose core is its outer diameter)."""
+        return self.heat_capacity_J_per_m3K * self.area_m2 / (film_W_per_m2K * math.pi * self.outer_diameter_m)
+
+
+_AXIS_RULES: tuple[FieldRule, ...] = (
+    ("volumes", lambda n: isinstance(n, int) and n >= 1, "must be an integer >= 1"),
+    ("bearing_W_per_K", lambda g: len(g) == 2 and all(x >= 0 for x in g), "must be two conductances >= 0 (inf: "
+                                                                          "the end held at the ambient)"),
+    *((name, lambda x: math.isfinite(x) and x >= 0, "must be a finite number >= 0")
+      for name in ("nut_area_m2", "nut_flange_W_per_K", "flange_table_W_per_K", "coolant_W_per_m2K")),
+    *((name, _finite_positive, "must be a finite number > 0")
+      for name in ("nut_capacity_J_per_K", "flange_capacity_J_per_K")),
+)
+
+
+@dataclass(frozen=True)
+class AxisModel:
+    """The axis as a network: the screw in ``volumes`` equal volumes (nodes 0..N-1 from bearing A), the nut
+    (node N) and its flange (node N+1).
+
+    ``bearing_W_per_K``: each end bearing's conductance to its housing (A, B; inf holds the end at the
+    ambient); ``nut_area_m2`` the nut's surface in air; the flange conducts to the table
+    (``flange_table_W_per_K``, the table at the ambient); ``coolant_W_per_m2K`` the film in the bore (0: none).
+    """
+
+    screw: ScrewBody
+    volumes: int
+    bearing_W_per_K: tuple[float, float]
+    nut_capacity_J_per_K: float
+    nut_area_m2: float
+    flange_capacity_J_per_K: float
+    nut_flange_W_per_K: float
+    flange_table_W_per_K: float
+    coolant_W_per_m2K: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_fields(self, "AxisModel", _AXIS_RULES, InputError)
+        if self.coolant_W_per_m2K > 0 and self.screw.bore_m <= 0:
+            raise InputError("AxisModel: a coolant needs a hollow screw (ScrewBody.bore_m > 0).")
+
+    @property
+    def dx_m(self) -> float:
+        return self.screw.length_m / self.volumes
+
+    @property
+    def centres_m(self) -> Array:
+        """The volumes' centres from bearing A."""
+        return (np.arange(self.volumes, dtype=float) + 0.5) * float(self.dx_m)
+
+    @property
+    def faces_m(self) -> Array:
+        """The volumes' faces from bearing A (0 .. L)."""
+        return np.arange(self.volumes + 1, dtype=float) * float(self.dx_m)
+
+    @property
+    def size(self) -> int:
+        return self.volumes + 2
+
+    def capacities_J_per_K(self) -> Array:
+        s = self.screw
+        return np.concatenate([np.full(self.volumes, s.heat_capacity_J_per_m3K * s.area_m2 * self.dx_m),
+                               [self.nut_capacity_J_per_K, self.flange_capacity_J_per_K]])
+
+    def surface_W_per_K(self) -> Array:
+        """Each node's conductance to the air per W/m^2 K of its film (the screw's volumes' surfaces)."""
+        return np.concatenate([np.full(self.volumes, math.pi * self.screw.outer_diameter_m * self.dx_m), [0.0, 0.0]])
+
+    def coolant_W_per_K(self) -> Array:
+        """Each node's conductance to the coolant."""
+        g = self.coolant_W_per_m2K * math.pi * self.screw.bore_m * self.dx_m
+        return np.concatenate([np.full(self.volumes, g), [0.0, 0.0]])
+
+    def _half_W_per_K(self) -> float:
+        return self.screw.conductivity_W_per_mK * self.screw.area_m2 / (0.5 * self.dx_m)
+
+    def _end_W_per_K(self, bearing: float) -> float:
+        half = self._half_W_per_K()
+        return half if math.isinf(bearing) else (0.0 if bearing == 0 else 1.0 / (1.0 / half + 1.0 / bearing))
+
+    def face_share(self, end: int) -> float:
+        """The share of a heat entering the screw at its end face ``end`` (0: bearing A, 1: B) that reaches the
+        end volume: the face sits between half a volume of screw (G_h) and the bearing (G_b), so G_h / (G_h + G_b)
+        goes into the screw and the rest straight into the housing (placing it in the volume's middle instead
+        would warm it by q dx / (2 k A), an error of the first order in dx)."""
+        bearing, half = self.bearing_W_per_K[end], self._half_W_per_K()
+        return 0.0 if math.isinf(bearing) else half / (half + bearing)
+
+    def ambient_W_per_K(self, screw_film_W_per_m2K: float, nut_film_W_per_m2K: float) -> Array:
+        """Each node's conductance to the ambient (air, bearings' housings, the table) at the given films."""
+        g = self.surface_W_per_K() * screw_film_W_per_m2K
+        g[0] += self._end_W_per_K(self.bearing_W_per_K[0])
+        g[self.volumes - 1] += self._end_W_per_K(self.bearing_W_per_K[1])
+        g[self.volumes] += nut_film_W_per_m2K * self.nut_area_m2
+        g[self.volumes + 1] += self.flange_table_W_per_K
+        return g
+
+    def coupling_W_per_K(self) -> Array:
+        """The conductance between node i and node i + 1 (the screw's neighbours, then nut-flange); the last
+        screw volume and the nut are not coupled (the nut's heat share is its coupling)."""
+        s = self.screw
+        axial = s.conductivity_W_per_mK * s.area_m2 / self.dx_m
+        return np.concatenate([np.full(self.volumes - 1, axial), [0.0, self.nut_flange_W_per_K]])
+
+    def network(self, screw_film_W_per_m2K: float, nut_film_W_per_m2K: float) -> Network:
+        """The linear network C dT/dt = -K T + q at the given films (the cycle's means, for the slow model)."""
+        return Network(self.capacities_J_per_K(), self.coupling_W_per_K(),
+                       self.ambient_W_per_K(screw_film_W_per_m2K, nut_film_W_per_m2K) + self.coolant_W_per_K())
+
+
+def nut_coverage(model: AxisModel, centre_m: ArrayLike, zones: Sequence[tuple[float, float]]) -> Array:
+    """Where the nut's heat enters the screw: for the nut's centre at each of ``centre_m``, each volume's share
+    (rows sum to 1) of ``zones``, the nut's loaded lengths as (offset of its middle from the centre, length), m,
+    each taking an equal part."""
+    centre = np.atleast_1d(np.asarray(centre_m, float))
+    faces = model.faces_m
+    out = np.zeros((centre.size, model.volumes))
+    for offset, length in zones:
+        lo = np.clip(centre[:, None] + offset - 0.5 * length, 0.0, model.screw.length_m)
+        hi = np.clip(centre[:, None] + offset + 0.5 * length, 0.0, model.screw.length_m)
+        overlap = np.clip(np.minimum(hi, faces[None, 1:]) - np.maximum(lo, faces[None, :-1]), 0.0, None)
+        out += overlap / np.maximum(overlap.sum(axis=1, keepdims=True), 1e-300) / len(zones)
+    return out
+
+
+class Network:
+    """C dT/dt = -K T + q with C diagonal (``capacities``) and K symmetric, tridiagonal: ``coupling[i]`` between
+    node i and i + 1, ``ambient[i]`` from node i to the ambient (T the rise above it).
+
+    The exact solution for a constant q from T0: T(t) = T_ss + C^(-1/2) V exp(-Lambda t) V' C^(1/2) (T0 - T_ss)
+    with V Lambda V' = C^(-1/2) K C^(-1/2) (symmetric: real, orthogonal eigenvectors) and K T_ss = q.
+    """
+
+    def __init__(self, capacities: ArrayLike, coupling: ArrayLike, ambient: ArrayLike) -> None:
+        self.C = np.asarray(capacities, float)
+        self.coupling = np.asarray(coupling, float)
+        self.ambient = np.asarray(ambient, float)
+        n = self.C.size
+        if self.coupling.shape != (n - 1,) or self.ambient.shape != (n,):
+            raise InputError(f"Network: {n} capacities need {n - 1} couplings and {n} ambient conductances.")
+        if np.any(self.C <= 0) or np.any(self.coupling < 0) or np.any(self.ambient < 0):
+            raise InputError("Network: capacities must be > 0 and conductances >= 0.")
+        self.K = np.diag(self.ambient + np.concatenate([self.coupling, [0.0]]) + np.concatenate([[0.0], self.coupling]))
+        self.K -= np.diag(self.coupling, 1) + np.diag(self.coupling, -1)
+        s = 1.0 / np.sqrt(self.C)
+        lam, V = eigh(s[:, None] * self.K * s[None, :])
+        if lam[0] <= 1e-12 * max(lam[-1], 1e-300):
+            raise InputError("Network: a body loses no heat to the ambient (every path to it is 0): no steady state.")
+        self.rates_per_s = lam
+        self._left = s[:, None] * V           # C^(-1/2) V
+        self._right = V.T * np.sqrt(self.C)   # V' C^(1/2)
+
+    @property
+    def time_constants_s(self) -> Array:
+        """The network's time constants, slowest first."""
+        return 1.0 / self.rates_per_s
+
+    def steady(self, q: ArrayLike) -> Array:
+        """The steady rise under the heat ``q`` (W per node)."""
+        return np.linalg.solve(self.K, np.asarray(q, float))
+
+    def response(self, q: ArrayLike, times_s: ArrayLike, start: ArrayLike | None = None) -> Array:
+        """The rises at ``times_s`` (rows) under the constant heat ``q`` from ``start`` (default: the ambient)."""
+        t = np.atleast_1d(np.asarray(times_s, float))
+        steady = self.steady(q)
+        first = np.zeros_like(steady) if start is None else np.asarray(start, float)
+        modes = self._right @ (first - steady)
+        return steady[None, :] + (np.exp(-np.outer(t, self.rates_per_s)) * modes[None, :]) @ self._left.T
+
+    def losses_W(self, rise: ArrayLike) -> Array:
+        """The heat each state loses to the ambient (W), per row of ``rise``."""
+        return np.asarray(rise, float) @ self.ambient
+
+
+class FineMarch:
+    """The same network stepped through every cycle: each step's own film coefficient on the screw and heat
+    where the nut is (Crank-Nicolson with the step's mean film; one tridiagonal solve per step).
+
+    ``heat_W`` (steps x nodes), ``screw_film_W_per_m2K`` and ``dt_s`` (steps, or one step for all) are one
+    cycle; the cycle repeats. ``model`` gives the network's parts; ``nut_film_W_per_m2K`` is constant.
+    """
+
+    def __init__(self, model: AxisModel, heat_W: ArrayLike, screw_film_W_per_m2K: ArrayLike, dt_s: ArrayLike,
+                 nut_film_W_per_m2K: float) -> None:
+        self.q = np.asarray(heat_W, float)
+        self.h = np.asarray(screw_film_W_per_m2K, float)
+        self.dt = np.broadcast_to(np.asarray(dt_s, float), self.h.shape).copy()
+        if self.q.ndim != 2 or self.q.shape != (self.h.size, model.size) or not np.all(self.dt > 0):
+            raise InputError(f"FineMarch: heat_W must be (steps, {model.size}) with one film and one step > 0 per "
+                             "step.")
+        self.C = model.capacities_J_per_K()
+        self.coupling = model.coupling_W_per_K()
+        self.base = model.ambient_W_per_K(0.0, nut_film_W_per_m2K) + model.coolant_W_per_K()
+        self.surface = model.surface_W_per_K()
+        self.n = model.size
+
+    @property
+    def period_s(self) -> float:
+        return float(np.sum(self.dt))
+
+    def _band(self, ambient: Array, dt: float) -> Array:
+        """C/dt + K/2 as a banded (1, 1) matrix for solve_banded."""
+        ab = np.zeros((3, self.n))
+        diag = ambient + np.concatenate([self.coupling, [0.0]]) + np.concatenate([[0.0], self.coupling])
+        ab[1] = self.C / dt + 0.5 * diag
+        ab[0, 1:] = -0.5 * self.coupling
+        ab[2, :-1] = -0.5 * self.coupling
+        return ab
+
+    def run(self, cycles: int, start: ArrayLike | None = None) -> tuple[Array, Array, Array]:
+        """March ``cycles`` cycles from ``start`` (default: the ambient): the state at each cycle's end, each
+        cycle's mean state (trapezoid over its steps) and the heat lost to the ambient per cycle (J), each a row
+        per cycle."""
+        T = np.zeros(self.n) if start is None else np.asarray(start, float).copy()
+        ambient = [self.base + h * self.surface for h in self.h]
+        lhs = [self._band(a, dt) for a, dt in zip(ambient, self.dt)]
+        scale = [self.C / dt for dt in self.dt]
+        weights = 0.5 * (self.dt + np.roll(self.dt, -1)) / self.period_s  # the trapezoid's weight of each step's end
+        ends, means, lost = np.empty((cycles, self.n)), np.empty((cycles, self.n)), np.empty(cycles)
+        for c in range(cycles):
+            total, loss = 0.5 * self.dt[0] / self.period_s * T, 0.0
+            for k in range(self.h.size):
+                rhs = scale[k] * T - 0.5 * (ambient[k] * T + self._couple(T)) + self.q[k]
+                new = solve_banded((1, 1), lhs[k], rhs, check_finite=False)
+                loss += 0.5 * self.dt[k] * float(ambient[k] @ (T + new))
+                T = new
+                total += (weights[k] if k < self.h.size - 1 else 0.5 * self.dt[k] / self.period_s) * T
+            ends[c], means[c], lost[c] = T, total, loss
+        return ends, means, lost
+
+    def _couple(self, T: Array) -> Array:
+        """The coupling's part of K T."""
+        flow = self.coupling * (T[:-1] - T[1:])
+        return np.concatenate([flow, [0.0]]) - np.concatenate([[0.0], flow])
+
+
+# ---- growth ------------------------------------------------------------------------------------------------
+def growth_m(rise_K: ArrayLike, dx_m: float, mounting: str, *, EA_N: float, bearing_N_per_m: float = math.inf,
+             pretension_K: float = 0.0, expansion_per_K: float = EXPANSION_PER_K) -> Array:
+    """The screw's axial displacement (m) at its volumes' faces (0 .. L from bearing A) under the volumes' rises
+    ``rise_K`` (last axis; leading axes a batch, times say), for its mounting (module docstring).
+
+    fixed-free: u = g(x) = alpha int_0^x dT. Held ends (fixed-fixed; pretensioned while the tension lasts):
+    the free elongation G = g(L) is met by a force F = G / (L / EA + 2 / k_b) through the screw and both
+    bearings (k_b each), u = g(x) - F (1 / k_b + x / EA); pretensioned, F is at most the pretension
+    F_t = alpha dT_p EA, beyond which the screw grows freely.
+    """
+    rise = np.asarray(rise_K, float)
+    g = expansion_per_K * dx_m * np.concatenate([np.zeros(rise.shape[:-1] + (1,)), np.cumsum(rise, axis=-1)], axis=-1)
+    force = held_force_N(rise, dx_m, mounting, EA_N=EA_N, bearing_N_per_m=bearing_N_per_m, pretension_K=pretension_K,
+                         expansion_per_K=expansion_per_K)[..., None]
+    x = np.arange(rise.shape[-1] + 1) * dx_m
+    return g - force * (1.0 / bearing_N_per_m + x / EA_N)
+
+
+def held_force_N(rise_K: ArrayLike, dx_m: float, mounting: str, *, EA_N: float, bearing_N_per_m: float = math.inf,
+                 pretension_K: float = 0.0, expansion_per_K: float = EXPANSION_PER_K) -> Array:
+    """The axial force (N) the held ends take up from the growth (:func:`growth_m`; compressive, or the
+    pretension's loss): 0 fixed-free, G / (L / EA + 2 / k_b) fixed-fixed, at most F_t pretensioned."""
+    if mounting not in THERMAL_MOUNTINGS:
+        raise InputError(f"mounting must be one of {', '.join(THERMAL_MOUNTINGS)}, got {mounting!r}.")
+    rise = np.asarray(rise_K, float)
+    if mounting == "fixed-free":
+        return np.zeros(rise.shape[:-1])
+    length = rise.shape[-1] * dx_m
+    force = expansion_per_K * dx_m * np.sum(rise, axis=-1) / (length / EA_N + 2.0 / bearing_N_per_m)
+    if mounting == "pretensioned":
+        force = np.minimum(force, expansion_per_K * pretension_K * EA_N)
+    return force
+
+
+def spacer_drift_N_per_K(nut_stiffness_N_per_um: ArrayLike, spacer_length_mm: float,
+                         spacer_stiffness_N_per_um: float = math.inf,
+                         expansion_per_K: float = EXPANSION_PER_K) -> Array:
+    """A spacer-preloaded double nut's preload change per kelvin of nut over screw: the two nuts (each of
+    tangent stiffness ``nut_stiffness_N_per_um``) and the spacer in series, times alpha L_s (um/K)."""
+    k = np.asarray(nut_stiffness_N_per_um, float)
+    pair = 1.0 / (2.0 / k + 1.0 / spacer_stiffness_N_per_um)
+    return pair * expansion_per_K * spacer_length_mm * 1e3
