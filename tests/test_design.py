@@ -100,10 +100,46 @@ def test_infeasible_request_names_the_constraint_and_the_shortfall(spec):
         optimise(bad, "stiffness")
     names = [v["constraint"] for v in info.value.violations]
     assert "life" in names, names
-    assert "life" in str(info.value) and "short by" in str(info.value)
+    assert "[design] life_min_h" in str(info.value) and "short" in str(info.value)
     # a request that is fine except for an impossible frequency
-    with pytest.raises(DesignInfeasible, match="frequency_case"):
+    with pytest.raises(DesignInfeasible, match=r"natural frequency in duty case \d .*\[design\] frequency_min_Hz"):
         optimise(replace(spec, frequency_min_Hz=2000.0), "drag")
+
+
+def _only_miss(spec, objective="stiffness"):
+    with pytest.raises(DesignInfeasible) as info:
+        optimise(spec, objective)
+    assert len(info.value.violations) == 1, str(info.value)
+    return info.value.violations[0], str(info.value)
+
+
+def test_a_least_rigidity_above_the_optimum_names_it_with_the_rigidity_reached(spec):
+    """[design] stiffness_min_N_per_um above what any design reaches: the message names that key, the value the
+    stiffest design meeting every other requirement reaches (the stiffness optimum of the same spec without the
+    requirement: an independent solve) and the shortfall, in N/um."""
+    best = optimise(spec, "stiffness").point.stiffness_N_per_um
+    required = round(1.3 * best, -1)
+    miss, text = _only_miss(replace(spec, stiffness_min_N_per_um=required))
+    assert miss["constraint"] == "stiffness_min" and miss["units"] == "N/um", miss
+    assert miss["reached"] == pytest.approx(best, rel=1e-3) and miss["required"] == required, miss
+    assert miss["short_by"] == pytest.approx(required - best, rel=1e-2), miss
+    assert "[design] stiffness_min_N_per_um" in text and f"reaches {miss['reached']:,.0f} N/um" in text, text
+    assert f"{required - miss['reached']:,.0f} N/um short" in text and "nan" not in text, text
+
+
+def test_a_life_beyond_reach_names_it_in_hours_with_the_longest_life(spec):
+    longest = optimise(spec, "life").point.life_h
+    miss, text = _only_miss(replace(spec, life_min_h=100 * longest))
+    assert miss["constraint"] == "life" and miss["units"] == "h", miss
+    assert miss["reached"] == pytest.approx(longest, rel=1e-3), (miss, longest)
+    assert "[design] life_min_h" in text and f"reaches {miss['reached']:,.0f} h" in text, text
+
+
+def test_a_failsafe_load_beyond_the_bolts_names_the_lift_off(spec):
+    miss, text = _only_miss(replace(spec, failsafe_load_N=40000.0))
+    assert miss["constraint"] == "lift_off_failsafe" and miss["units"] == "N", miss
+    assert miss["short_by"] == pytest.approx(40000.0 - miss["reached"]) and miss["short_by"] > 0, miss
+    assert "without lift-off" in text and "[design] failsafe_load_N" in text, text
 
 
 def test_pareto_fronts_are_monotone(spec, nlp):
@@ -302,7 +338,7 @@ def test_design_cli_infeasible_study_exits_2_naming_the_constraint(tmp_path, cap
     code = main(["design", "--study", str(study), "--pareto", "stiffness:drag", "--points", "3",
                  "--out", str(tmp_path / "d.json")])
     err = capsys.readouterr().err
-    assert code == 2 and "life" in err and "short by" in err
+    assert code == 2 and "[design] life_min_h" in err and " h short" in err, err
     assert not (tmp_path / "d.json").exists()
 
 
