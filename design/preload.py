@@ -100,6 +100,8 @@ OBJECTIVES = ("stiffness", "drag", "life")
 #: fronts a user can ask for: x:y, x swept as an epsilon constraint, y optimised
 PARETO_PAIRS = ("stiffness:preload", "stiffness:drag", "stiffness:life")
 _TIE_WEIGHT = 1e-3
+#: a front's last point: the stiffness optimum's rigidity less this fraction (the solver's tolerance on it)
+_FRONT_END_TOL = 1e-6
 _BALLS_PER_TURN = (4, 200)  # search range of the relaxed balls per turn
 _WARM_START = {"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-9,
                "ipopt.warm_start_slack_bound_push": 1e-9, "ipopt.warm_start_mult_bound_push": 1e-9,
@@ -729,7 +731,7 @@ def pareto_front(spec: DesignSpec, pair: str, n_points: int = 50, nlp: DesignNLP
 
     The least rigidity over the duty cycle is swept from that of the other quantity's
     optimum (the least-drag design for preload and drag, the longest-life one for life) to
-    99 % of the stiffness optimum's; at each epsilon the other quantity is optimised with the
+    the stiffness optimum's (less :data:`_FRONT_END_TOL`); at each epsilon the other quantity is optimised with the
     integers handled as in :func:`optimise`, warm-started from the previous point (the first
     from the other optimum's relaxation), primal and dual. An integer pair found infeasible
     at one epsilon is not tried at the higher ones.
@@ -744,7 +746,9 @@ def pareto_front(spec: DesignSpec, pair: str, n_points: int = 50, nlp: DesignNLP
     stiff = optimise(spec, "stiffness", nlp)
     other, other_relaxed = _optimise(spec, y_name if y_name != "preload" else "drag", nlp)
     k_lo = other.point.stiffness_N_per_um
-    k_hi = stiff.point.stiffness_N_per_um * 0.99
+    # up to the stiffness optimum's own rigidity (less the solver's tolerance): the front ends at the optimum, whose
+    # other figures are the least any design that stiff has (its tie-break), where it stood 1 % short of it before
+    k_hi = stiff.point.stiffness_N_per_um * (1.0 - _FRONT_END_TOL)
     eps = np.linspace(min(k_lo, k_hi), k_hi, n_points)
     weights = WEIGHTS[y_name]
     # the first epsilon is the other optimum's own stiffness: start from its relaxation

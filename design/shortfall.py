@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 import casadi as ca
 import numpy as np
 
+from piezopreload.artifacts.design import CONSTRAINT_WORDS, case_words
 from piezopreload.models.ballscrew import LIFT_OFF_RATIO
 
 if TYPE_CHECKING:  # the NLP's type only: design/preload.py calls this module when it finds no design
@@ -37,51 +38,39 @@ __all__ = ["REQUIREMENTS", "binding", "shortfall_message"]
 _TOL = 1e-6  # a slack (scaled, O(1) rows) below this meets the requirement
 
 Reading = Callable[["DesignSpec", dict[str, Any], int], tuple[float, float]]
-
-
 def _case(spec: DesignSpec, j: int) -> str:
-    return f" in duty case {j + 1} (axial load {spec.duty[j].axial_load_N:,.0f} N)"
+    return f"{case_words([j + 1])} (axial load {spec.duty[j].axial_load_N:,.0f} N)"
 
 
-#: each requirement a study sets: (what it bounds, in words; the study key that sets it; unit; sense, "min" for
-#: at least, "max" for at most; its value and its limit at a design, from the design's expressions and a case index)
-REQUIREMENTS: dict[str, tuple[str, str, str, str, Reading]] = {
-    "stiffness_min": ("the least rigidity over the duty cases", "[design] stiffness_min_N_per_um", "N/um", "min",
-                      lambda s, e, j: (min(e["rigidity"]), s.stiffness_min_N_per_um)),
-    "life": ("the rating life over the duty cycle", "[design] life_min_h", "h", "min",
-             lambda s, e, j: (math.exp(e["log_L"]), s.life_min_h)),
-    "preload_limit": ("the stacks' highest preload", "[design] preload_fraction_max (of the dynamic rating C_dyn)",
-                      "N", "max", lambda s, e, j: (e["F_hi"], s.preload_fraction_max * e["c_dyn"])),
-    "lift_off_max_load": ("the axial load the nuts carry at the highest preload without lift-off, 2^1.5 F_hi / "
-                          "lift_off_margin", "[design] axial_load_max_N", "N", "min",
-                          lambda s, e, j: (LIFT_OFF_RATIO * e["F_hi"] / s.lift_off_margin, s.axial_load_max_N)),
-    "lift_off_failsafe": ("the load the bolts alone carry without lift-off, 2^1.5 F_i / lift_off_margin",
-                          "[design] failsafe_load_N", "N", "min",
-                          lambda s, e, j: (LIFT_OFF_RATIO * e["F_i"] / s.lift_off_margin, s.failsafe_load_N)),
-    "contact_pressure_screw": ("the peak contact pressure at the largest axial load, screw side",
-                               "[design] contact_pressure_max_MPa", "MPa", "max",
-                               lambda s, e, j: (e["p_screw"], s.contact_pressure_max_MPa)),
-    "contact_pressure_nut": ("the peak contact pressure at the largest axial load, nut side",
-                             "[design] contact_pressure_max_MPa", "MPa", "max",
-                             lambda s, e, j: (e["p_nut"], s.contact_pressure_max_MPa)),
-    "drag_torque": ("the drag torque at the highest preload", "[design] drag_torque_max_Nm", "N m", "max",
-                    lambda s, e, j: (e["drag_hi"], s.drag_torque_max_Nm)),
-    "stack_stroke": ("the stacks' stroke from the bolts' preload to the highest", "the stacks' stroke at [design] "
-                     "stack_drive_V", "um", "max", lambda s, e, j: (e["stroke"], s.actuator.stroke_um)),
-    "stack_force": ("the stacks' share of the preload (highest less the bolts')", "the stacks' blocked force at "
-                    "[design] stack_drive_V", "N", "max",
-                    lambda s, e, j: (e["F_hi"] - e["F_i"], s.actuator.blocked_force_N)),
-    "ball_lead": ("the ball diameter", "[design] ball_lead_ratio_max (of the lead)", "mm", "max",
-                  lambda s, e, j: (e["D_w"], s.ball_lead_ratio_max * s.lead_mm)),
-    "nut_length": ("the nut's length (turns times lead)", "[design] nut_length_max_mm", "mm", "max",
-                   lambda s, e, j: (e["turns"] * s.lead_mm, s.nut_length_max_mm)),
-    "lift_off_case": ("the axial load the nuts carry without lift-off at the case's preload", "[duty] axial_load_N "
-                      "with [design] lift_off_margin", "N", "min",
-                      lambda s, e, j: (LIFT_OFF_RATIO * e["F_case"][j] / s.lift_off_margin,
-                                       abs(s.duty[j].axial_load_N))),
-    "frequency_case": ("the first axial natural frequency", "[design] frequency_min_Hz", "Hz", "min",
-                       lambda s, e, j: (e["freq"][j], s.frequency_min_Hz)),
+#: each requirement a study sets (its words and key: :data:`~piezopreload.artifacts.design.CONSTRAINT_WORDS`): its
+#: unit; its sense, "min" for at least, "max" for at most; its value and its limit at a design, from the design's
+#: expressions and a case index
+REQUIREMENTS: dict[str, tuple[str, str, Reading]] = {
+    "stiffness_min": ("N/um", "min", lambda s, e, j: (min(e["rigidity"]), s.stiffness_min_N_per_um)),
+    "life": ("h", "min", lambda s, e, j: (math.exp(e["log_L"]), s.life_min_h)),
+    "preload_limit": ("N", "max", lambda s, e, j: (e["F_hi"], s.preload_fraction_max * e["c_dyn"])),
+    # the largest load without lift-off at the highest preload, 2^1.5 F_hi / lift_off_margin
+    "lift_off_max_load": ("N", "min", lambda s, e, j: (LIFT_OFF_RATIO * e["F_hi"] / s.lift_off_margin,
+                                                       s.axial_load_max_N)),
+    # the load the bolts alone carry without lift-off, 2^1.5 F_i / lift_off_margin
+    "lift_off_failsafe": ("N", "min", lambda s, e, j: (LIFT_OFF_RATIO * e["F_i"] / s.lift_off_margin,
+                                                       s.failsafe_load_N)),
+    "contact_pressure_screw": ("MPa", "max", lambda s, e, j: (e["p_screw"], s.contact_pressure_max_MPa)),
+    "contact_pressure_nut": ("MPa", "max", lambda s, e, j: (e["p_nut"], s.contact_pressure_max_MPa)),
+    "drag_torque": ("N m", "max", lambda s, e, j: (e["drag_hi"], s.drag_torque_max_Nm)),
+    "stack_stroke": ("um", "max", lambda s, e, j: (e["stroke"], s.actuator.stroke_um)),
+    "stack_force": ("N", "max", lambda s, e, j: (e["F_hi"] - e["F_i"], s.actuator.blocked_force_N)),
+    "ball_lead": ("mm", "max", lambda s, e, j: (e["D_w"], s.ball_lead_ratio_max * s.lead_mm)),
+    "nut_length": ("mm", "max", lambda s, e, j: (e["turns"] * s.lead_mm, s.nut_length_max_mm)),
+    "lift_off_case": ("N", "min", lambda s, e, j: (LIFT_OFF_RATIO * e["F_case"][j] / s.lift_off_margin,
+                                                   abs(s.duty[j].axial_load_N))),
+    "frequency_case": ("Hz", "min", lambda s, e, j: (e["freq"][j], s.frequency_min_Hz)),
 }
+
+
+#: what a requirement's value is, where "reaches" would not say it
+_READINGS = {"lift_off_max_load": "carries without lift-off at most", "lift_off_failsafe": "carries on the bolts "
+             "alone without lift-off at most", "lift_off_case": "carries without lift-off at most"}
 
 
 def _group(row: str) -> str:
@@ -119,15 +108,16 @@ def _least_slack(nlp: DesignNLP, solver: Any, rows: list[str], groups: set[str],
 
 def _reading(nlp: DesignNLP, group: str, y: np.ndarray, turns: tuple[int, int] | None) -> dict[str, Any]:
     """What a binding requirement reads at the closest design ``y``: its worst row's value against its limit."""
-    what, key, unit, sense, read = REQUIREMENTS[group]
+    unit, sense, read = REQUIREMENTS[group]
+    what, key = CONSTRAINT_WORDS[group]
     spec, e = nlp.spec, nlp.evaluate(y)
     cases = range(len(spec.duty)) if group.endswith("_case") else (0,)
     values = [(*read(spec, e, j), j) for j in cases]
     reached, required, j = min(values, key=lambda v: (v[0] - v[1]) if sense == "min" else (v[1] - v[0]))
-    where = _case(spec, j) if group.endswith("_case") else ""
     x = nlp.to_physical(y)
     short = required - reached if sense == "min" else reached - required
-    return {"constraint": group, "requirement": what + where, "key": key, "reached": float(reached),
+    return {"constraint": group, "requirement": what.format(cases=_case(spec, j)), "key": key,
+            "reading": _READINGS.get(group, "reaches"), "reached": float(reached),
             "required": float(required), "sense": sense, "short_by": float(short), "units": unit,
             "turns": int(round(x[3])) if turns else None, "balls_per_turn": int(round(x[4])) if turns else None}
 
@@ -183,7 +173,7 @@ def shortfall_message(misses: list[dict[str, Any]]) -> str:
     for m in misses:
         design = ("" if m.get("turns") is None else
                   f" ({m['turns']} turns of {m['balls_per_turn']} balls per turn)")
-        parts.append(f"{m['requirement']}, set by {m['key']}: the closest design{design} reaches "
+        parts.append(f"{m['requirement']}, set by {m['key']}: the closest design{design} {m.get('reading', 'reaches')} "
                      f"{_number(m['reached'])} {m['units']} against {'at least' if m['sense'] == 'min' else 'at most'} "
                      f"{_number(m['required'])} {m['units']}, {_number(m['short_by'])} {m['units']} short")
     return "; ".join(parts)

@@ -139,7 +139,20 @@ def test_a_failsafe_load_beyond_the_bolts_names_the_lift_off(spec):
     miss, text = _only_miss(replace(spec, failsafe_load_N=40000.0))
     assert miss["constraint"] == "lift_off_failsafe" and miss["units"] == "N", miss
     assert miss["short_by"] == pytest.approx(40000.0 - miss["reached"]) and miss["short_by"] > 0, miss
-    assert "without lift-off" in text and "[design] failsafe_load_N" in text, text
+    assert f"without lift-off at most {miss['reached']:,.0f} N against at least 40,000 N" in text, text
+    assert "[design] failsafe_load_N" in text, text
+
+
+@pytest.mark.parametrize("pair", PARETO_PAIRS)
+def test_a_front_ends_at_the_stiffness_optimum_so_the_optimum_lies_on_it(spec, nlp, pair):
+    """The report draws the optimum (objective stiffness) on each front: the front's last point is that optimum's
+    rigidity with the other quantity the optimum's own (its tie-break leaves the least drag and preload at that
+    rigidity; the life there is the one design's), so the star sits on the front's end, not beyond it."""
+    best = optimise(spec, "stiffness", nlp).point
+    front = pareto_front(spec, pair, 6, nlp)
+    other = {"preload": best.max_preload_N, "drag": best.mean_drag_torque_Nm, "life": best.life_h}[front.y_name]
+    assert front.x[-1] == pytest.approx(best.stiffness_N_per_um, rel=1e-5), (front.x[-1], best.stiffness_N_per_um)
+    assert front.y[-1] == pytest.approx(other, rel=1e-4), (front.y[-1], other)
 
 
 def test_pareto_fronts_are_monotone(spec, nlp):
@@ -177,7 +190,9 @@ def test_fronts_with_sqp_warm_starts_match_the_ipopt_fronts(spec, nlp, reference
     ours, ref = pareto_front(spec, pair, 20, nlp), pareto_front(spec, pair, 20, reference_nlp)
     assert len(ours.points) == len(ref.points) == 20
     assert [(p.turns, p.balls_per_turn) for p in ours.points] == [(p.turns, p.balls_per_turn) for p in ref.points]
-    np.testing.assert_allclose(ours.x, ref.x, rtol=1e-4)  # where the epsilon is slack, set by the tie-break
+    # where the epsilon binds, x is the epsilon; where it is slack, x is set by the tie-break alone (weight 1e-3, a
+    # gradient of 1e-6 per N/um against the solvers' 1e-8 tolerance): the two solvers stop within 0.1 % of each other
+    np.testing.assert_allclose(ours.x, ref.x, rtol=2e-3)
     np.testing.assert_allclose(ours.y, ref.y, rtol=1e-5)
 
 
