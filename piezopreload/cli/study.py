@@ -62,7 +62,8 @@ def _print_run(s: dict[str, Any]) -> None:
         state = f"ran in {st['seconds']:.1f} s" if st["ran"] else st["status"]
         print(f"  {st['stage']:9s} {state}")
     if s["gain_set"]:
-        print(f"gain set: {s['gain_set']} (sha256 {(s['gain_set_sha256'] or '')[:12]}...)")
+        print(f"gain set: {s['gain_set']} (content hash {(s['gain_set_sha256'] or '')[:12]}..., the SHA-256 of its "
+              "fields, not of the file)")
     if s["rig_log"]:
         print(f"rig run log: {s['rig_log']}")
     if s["report"]:
