@@ -57,7 +57,8 @@ def test_the_readme_snippet_runs_end_to_end(tmp_path, monkeypatch, capsys):
     assert list(result.ran) == [s.name for s in __import__("piezopreload.pipeline").pipeline.STAGES
                                 if s.applies(study) is None]
     assert printed[1] == repr(result) and result.requirements_met is True and result.exit_code == 0
-    assert (tmp_path / "piezopreload-out" / "report.pdf").read_bytes().startswith(b"%PDF")
+    assert (tmp_path / "paper2021-out" / "report.pdf").read_bytes().startswith(b"%PDF"), "not where it says"
+    assert not (tmp_path / "piezopreload-out").exists(), "the paper's study wrote into the main job's folder"
     for fig in (tuned.plot(), run.plot(), gain_set.plot()):
         assert isinstance(fig, Figure) and fig.axes, f"{fig!r} draws nothing"
     for r in (tuned, run, result):

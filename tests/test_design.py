@@ -332,7 +332,8 @@ def test_ballscrew_cli_bad_input(capsys, argv, fragment):
 
 def test_design_cli_writes_the_artifact_and_fronts(tmp_path, capsys):
     out = tmp_path / "design.json"
-    code = main(["design", "--pareto", "stiffness:drag", "--points", "6", "--out", str(out), "--json"])
+    code = main(["design", "--study", "paper2021", "--pareto", "stiffness:drag", "--points", "6", "--out", str(out),
+                 "--json"])
     result = json.loads(capsys.readouterr().out)
     assert code == 0
     doc = json.loads(out.read_text())
@@ -372,8 +373,8 @@ def test_design_study_errors_name_the_line(tmp_path, capsys):
 def test_load_profile_csv_errors_name_the_line(tmp_path, capsys):
     csv = tmp_path / "loads.csv"
     csv.write_text("time_s,axial_load_N,speed_rpm\n0,100,300\n0.1,nan,300\n")
-    code = main(["design", "--schedule", str(csv), "--pareto", "stiffness:drag", "--points", "2",
-                 "--out", str(tmp_path / "d.json")])
+    code = main(["design", "--study", "paper2021", "--schedule", str(csv), "--pareto", "stiffness:drag",
+                 "--points", "2", "--out", str(tmp_path / "d.json")])
     err = capsys.readouterr().err
     assert code == 2 and "loads.csv:3" in err and "axial_load_N" in err
 

@@ -271,6 +271,28 @@ def test_one_run_at_a_time_per_folder(tmp_path, capsys):
     assert "another 'piezopreload run' or 'report' is writing this folder" in capsys.readouterr().err
 
 
+def test_a_folder_holding_another_study_is_refused_by_name_or_cleared_with_overwrite(small_run, tmp_path, capsys):
+    """One folder, one study: the machine axis into the small study's folder is refused before anything is written
+    (exit 2, one line naming the folder, the study it holds and the two fixes); with --overwrite the small study's
+    files go (what its manifest records, the rig's logs, the folders left empty) and a file of the user's stays."""
+    from piezopreload.pipeline import _one_study_per_folder
+
+    out = _copy(small_run, tmp_path)
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert main(["run", "machine_axis", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"error: {out}: holds the outputs of the study 'small'"), err
+    assert "not of 'machine_axis'" in err and "--out" in err and "--overwrite" in err, err
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before, "a refused run wrote into the folder"
+    with pytest.raises(InputError, match="holds the outputs of the study 'small'"):
+        load_study("machine_axis").run(out)
+    (out / "notes.txt").write_text("the user's own")
+    _one_study_per_folder(out, load_study("machine_axis"), True, Progress(stream=io.StringIO()))
+    assert [p.relative_to(out).as_posix() for p in out.rglob("*")] == ["notes.txt"], list(out.rglob("*"))
+    # the same study, changed or not, runs into its own folder as ever
+    _one_study_per_folder(_copy(small_run, tmp_path / "again"), load_study(SMALL), False, Progress())
+
+
 def test_measured_feedforward_data_is_identified_and_hashed(small_run, tmp_path):
     """``[feedforward] data``: the identify stage reads a measured V -> N loop (here the small run's own)."""
     loop = tmp_path / "loop.csv"
