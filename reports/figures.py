@@ -77,26 +77,47 @@ def _covers(box: Any, ax: Any) -> bool:
     return any(text.get_visible() and text.get_text() and box.overlaps(text.get_window_extent()) for text in ax.texts)
 
 
+def _clear_of_axes(box: Any, fig: Any, renderer: Any) -> bool:
+    """Whether a legend outside its axes stays on the figure and off every axes, their tick labels, axis labels and
+    titles (the data is inside the axes)."""
+    if not fig.bbox.contains(box.x0, box.y0) or not fig.bbox.contains(box.x1, box.y1):
+        return False
+    return not any(box.overlaps(ax.get_tightbbox(renderer, bbox_extra_artists=[])) for ax in fig.axes)
+
+
 def _fits(ax: Any, renderer: Any) -> bool:
-    """Whether the axes' legend is off the data: outside the axes, or inside them covering none of it."""
+    """Whether the axes' legend is off the data: inside the axes covering none of it, or outside every axes."""
     legend = ax.get_legend()
     if legend is None:
         return False
-    if legend.get_bbox_to_anchor() is not ax.bbox and legend.get_bbox_to_anchor().x0 >= ax.bbox.x1:
-        return True  # placed outside, at the right
     frame, box = ax.get_window_extent(renderer), legend.get_window_extent(renderer)
-    return frame.contains(box.x0, box.y0) and frame.contains(box.x1, box.y1) and not _covers(box, ax)
+    if frame.contains(box.x0, box.y0) and frame.contains(box.x1, box.y1):
+        return not _covers(box, ax)
+    return not box.overlaps(frame) and _clear_of_axes(box, ax.get_figure(), renderer)
 
 
-def _headroom(ax: Any, renderer: Any) -> None:
+def _headroom(ax: Any, renderer: Any) -> tuple[float, float]:
     """Raise the axes' top so that a band above the data holds the legend (its height and a pad), in the axes'
-    scale (linear or log)."""
+    scale (linear or log); returns the limits before."""
+    before = ax.get_ylim()
     box, frame = ax.get_legend().get_window_extent(renderer), ax.get_window_extent(renderer)
     share = min((box.height + 12.0) / frame.height, 0.6)
     scale = ax.yaxis.get_transform()  # the data's scale: linear, or log
-    lo, hi = np.ravel(scale.transform(np.array(ax.get_ylim(), float)))
+    lo, hi = np.ravel(scale.transform(np.array(before, float)))
     top = lo + (hi - lo) / (1.0 - share)
     ax.set_ylim(top=float(np.ravel(scale.inverted().transform(np.array([top])))[0]))
+    return before
+
+
+def _outside(ax: Any, renderer: Any, kw: dict[str, Any]) -> None:
+    """At the axes' right, or below their axis label, whichever is clear of every axes (below where neither is)."""
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, **kw)
+    if _fits(ax, renderer):
+        return
+    frame, tight = ax.get_window_extent(renderer), ax.get_tightbbox(renderer, bbox_extra_artists=[])
+    below = (frame.y0 - tight.y0 + 4.0) / frame.height
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -below), borderaxespad=0.0,
+              ncols=min(len(ax.get_legend_handles_labels()[0]), 3), **kw)
 
 
 def _place(ax: Any, renderer: Any, kw: dict[str, Any]) -> None:
@@ -104,12 +125,13 @@ def _place(ax: Any, renderer: Any, kw: dict[str, Any]) -> None:
         ax.legend(loc=loc, **kw)
         if _fits(ax, renderer):
             return
-    _headroom(ax, renderer)  # no free place: a band above the data, the legend in it
+    before = _headroom(ax, renderer)  # no free place: a band above the data, the legend in it
     for loc in ("upper right", "upper left", "upper center"):
         ax.legend(loc=loc, **kw)
         if _fits(ax, renderer):
             return
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, **kw)
+    ax.set_ylim(before)  # the band did not free a place (lines across the whole height): outside
+    _outside(ax, renderer, kw)
 
 
 def legends(*placed: Any, **kw: Any) -> None:
@@ -298,7 +320,7 @@ def stiffness_vs_preload(curve: Mapping[str, Any]) -> Figure:
         a_.axvline(curve["max_preload_N"], color="0.3", ls="--", lw=0.8)
         a_.set_xlabel("preload (N)")
     a.set_ylabel("axial rigidity (N/um)")
-    a.set_title("rigidity (dotted: bolts only; dashed: stacks at full drive)")
+    a.set_title("axial rigidity")
     b.plot(fp, curve["drag_torque_Nm"], color=COLOURS["study pid"])
     b.set_ylabel("drag torque (N m)")
     b.set_title("preload drag torque")

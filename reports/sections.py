@@ -157,7 +157,7 @@ def design_section(study: ReportStudy, design: DesignRecord) -> Part:
     figures: list[tuple[str, Figure, str]] = [
         ("stiffness", F.stiffness_vs_preload(design.preload_curve.to_dict()),
          "Axial rigidity and preload drag torque of the optimum's double nut against preload; the duty cases at their "
-         "preloads.")]
+         "preloads; dotted: the bolts' preload alone, dashed: the stacks at full drive.")]
     omitted = []
     if design.fronts:
         figures.append(("pareto", F.pareto_fronts([f.to_dict() for f in design.fronts], p.to_dict()),

@@ -26,12 +26,15 @@ def legends_over_ink(fig: Figure) -> list[str]:
         placed = [(ax, ax.get_legend()) for ax in fig.axes if ax.get_legend() is not None]
         canvas.draw()
         boxes = [(ax, legend.get_window_extent(canvas.get_renderer())) for ax, legend in placed]
+        engine = fig.get_layout_engine()
+        fig.set_layout_engine("none")  # the layout as drawn: a hidden legend must not move the axes
         for _, legend in placed:
             legend.set_visible(False)
         canvas.draw()
         image = np.asarray(canvas.buffer_rgba(), float)[..., :3] / 255.0
         for _, legend in placed:
             legend.set_visible(True)
+        fig.set_layout_engine(engine)
     height = image.shape[0]
     found = []
     for ax, box in boxes:
@@ -42,3 +45,18 @@ def legends_over_ink(fig: Figure) -> list[str]:
         if ink:
             found.append(f"{ax.get_title() or ax.get_ylabel()!r}: {ink} pixels of ink under its legend")
     return found
+
+
+def report_figures(out) -> list[tuple[str, Figure]]:
+    """The figures the report of the study run in ``out`` draws, built from its artifacts as the report stage does."""
+    import datetime as dt
+
+    from piezopreload.pipeline import read_manifest
+    from piezopreload.reports.inputs import Artifacts, ReportStudy
+    from piezopreload.reports.study_report import build_report
+
+    manifest = read_manifest(out)
+    study = ReportStudy(manifest["study"]["name"], "", manifest["study"]["path"], manifest["study"]["sha256"],
+                        manifest["study"]["path"])
+    _, figures = build_report(study, Artifacts(out, dict(manifest["stages"])), dt.datetime.now(dt.UTC))
+    return [(name, fig) for name, fig, _ in figures]

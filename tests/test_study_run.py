@@ -369,3 +369,25 @@ def test_the_feedforward_kind_and_creep_keys_are_checked(tmp_path, capsys):
     study.write_text(SMALL.read_text().replace("n_operators = 20", 'n_operators = 20\ncreep = "yes"'))
     with pytest.raises(InputError, match=r"study.toml:\d+: 'feedforward.creep'"):
         load_study(study)
+
+
+def test_no_figure_of_the_paper_rig_report_has_a_legend_over_its_data(small_run):
+    from figkit import legends_over_ink, report_figures
+
+    covered = {name: found for name, fig in report_figures(small_run[0]) if (found := legends_over_ink(fig))}
+    assert not covered, covered
+
+
+def test_run_prints_the_gain_set_s_content_hash_as_that(small_run, capsys):
+    """'gain set: ... (content hash 1234...)': the hash of the gain set's fields, which every artifact that uses it
+    names; not the file's SHA-256 (sha256sum gives another), so it is not called that."""
+    import hashlib
+
+    from piezopreload.cli.study import _print_run
+
+    out, result, _ = small_run
+    _print_run(result.to_dict())
+    line = [s for s in capsys.readouterr().out.splitlines() if s.startswith("gain set: ")][0]
+    content = GainSet.load(out / "gains.json").content_sha256
+    assert f"(content hash {content[:12]}..." in line and "sha256 " not in line, line
+    assert hashlib.sha256((out / "gains.json").read_bytes()).hexdigest()[:12] not in line

@@ -223,3 +223,40 @@ def test_the_report_speaks_of_its_own_study_and_leads_with_its_figures(axis_run)
     assert f"{100 * system['friction_saved_fraction']:.2g} %" in friction, "the saving is not the system artifact's"
     assert f"{design['schedule']['constant_preload_N']:,.0f} N" in friction, "the constant preload is not the design's"
     assert report["verdicts"], "the verdicts on the requirements come first"
+
+
+def test_the_report_names_each_figure_apart_and_rounds_it_once(axis_run):
+    """The least rigidity while cutting is the system's least over its cutting samples, beside the requirement at
+    that moment, and the ratio to the requirement is its own line; the design's least rigidity over its duty cases
+    is named as the design's; the system's tracking and the learning runs' are named apart; the friction energies
+    achieved, the loop's plan and the design's plan are named apart; each quantity is printed with one rounding; the
+    gain set's hash is called its content hash."""
+    from piezopreload.reports.document import fmt
+
+    report = read_artifact(axis_run / "report" / "report.json", "report")
+    words = _report_words(report)
+    system = SystemRecord.load(axis_run / "system" / "system.json").numbers
+    design = DesignRecord.load(axis_run / "design" / "design.json")
+    rigidity = [s for s in report["summary"] if s.startswith("While cutting")][0]
+    assert (f"least rigidity is {fmt(system.rigidity_min_cutting_N_per_um)} N/um "
+            f"({fmt(system.rigidity_required_at_min_N_per_um)} N/um required at that moment)") in rigidity, rigidity
+    assert f"at least {fmt(system.rigidity_ratio_min)} times its requirement" in rigidity, rigidity
+    assert "least rigidity over the duty cycle" not in words and \
+        "least rigidity over the duty cases at their design preloads" in words
+    assert "over the machining cycles" in report["summary"][0] and "learning runs" in report["summary"][0]
+    for name in ("friction energy per cycle, achieved", "friction energy per cycle, the loop's plan",
+                 "friction energy per cycle, the design's plan"):
+        assert name in words, name
+    sch = design.schedule
+    for x in (sch.constant_friction_energy_J, sch.constant_preload_N, sch.friction_energy_J,
+              design.optimum.point.bolt_preload_N):
+        other = [f"{x:.4g}", f"{x:.5g}", f"{x:,.1f}"]
+        assert fmt(x) in words and not [o for o in other if o != fmt(x) and f" {o} " in words], (x, fmt(x))
+    assert "content hash" in words and "gain set SHA-256" not in words
+
+
+def test_no_figure_of_the_report_has_a_legend_over_its_data(axis_run):
+    from figkit import legends_over_ink, report_figures
+
+    covered = {name: found for name, fig in report_figures(axis_run) if (found := legends_over_ink(fig))}
+    assert not covered, covered
