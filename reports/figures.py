@@ -116,8 +116,12 @@ def _outside(ax: Any, renderer: Any, kw: dict[str, Any]) -> None:
         return
     frame, tight = ax.get_window_extent(renderer), ax.get_tightbbox(renderer, bbox_extra_artists=[])
     below = (frame.y0 - tight.y0 + 4.0) / frame.height
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -below), borderaxespad=0.0,
-              ncols=min(len(ax.get_legend_handles_labels()[0]), 3), **kw)
+    entries = len(ax.get_legend_handles_labels()[0])
+    for ncols in (entries, 2, 1):  # one row where the figure is wide enough
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -below), borderaxespad=0.0, ncols=ncols, **kw)
+        box = ax.get_legend().get_window_extent(renderer)
+        if ax.get_figure().bbox.x0 <= box.x0 and box.x1 <= ax.get_figure().bbox.x1:
+            return
 
 
 def _place(ax: Any, renderer: Any, kw: dict[str, Any]) -> None:
@@ -346,7 +350,6 @@ def pareto_fronts(fronts: Sequence[Mapping[str, Any]], optimum: Mapping[str, flo
                    label="the design optimum")
         a.set_xlabel(_FRONT_LABELS[f["x_name"]])
         a.set_ylabel(_FRONT_LABELS[f["y_name"]])
-        a.set_title(_FRONT_LABELS[f["y_name"]].split(" (")[0] + " against rigidity")
         if f["y_name"] == "life":
             a.set_yscale("log")
     legends(ax[0][0])

@@ -126,7 +126,7 @@ def requirements_section(a: Artifacts) -> Part | None:
 # --------------------------------------------------------------------------------------
 # the design
 # --------------------------------------------------------------------------------------
-def design_section(study: ReportStudy, design: DesignRecord) -> Part:
+def design_section(study: ReportStudy, design: DesignRecord, system_shown: bool = False) -> Part:
     """The design optimum, its fronts, the planned schedule and the axis' natural frequency."""
     p, sch = design.point, design.schedule
     rows = (
@@ -152,8 +152,9 @@ def design_section(study: ReportStudy, design: DesignRecord) -> Part:
         f"The design's least-friction preload schedule over the study's load profile ({sch.preload_N.size} samples) "
         f"keeps the requirements with {fmt(sch.friction_energy_J)} {e} of friction energy per cycle, against "
         f"{fmt(sch.constant_friction_energy_J)} {e} at the best constant preload ({fmt(sch.constant_preload_N)} N): "
-        f"{pct(sch.saving_fraction)} less. That is the design's plan, before the margins the controlled loop's "
-        "schedule adds; what the controlled system plans and achieves is in the section on the designed system."]
+        f"{pct(sch.saving_fraction)} less. That is the design's plan, before any margin a controlled loop adds"
+        + ("; what the controlled system plans and achieves is in the section on the designed system." if system_shown
+           else " (this study's plant is not its design: no loop followed the schedule).")]
     figures: list[tuple[str, Figure, str]] = [
         ("stiffness", F.stiffness_vs_preload(design.preload_curve.to_dict()),
          "Axial rigidity and preload drag torque of the optimum's double nut against preload; the duty cases at their "
@@ -209,10 +210,11 @@ def system_section(system: SystemRecord, design: DesignRecord, learning: Learnin
         ("error when the first cut begins", f"{fmt(n.cycle_start_error_N)} N",
          f"after a {fmt(system.pre_cycle.duration_s)} s pre-cycle to the first level"),
         ("least rigidity while cutting", f"{fmt(n.rigidity_min_cutting_N_per_um)} N/um",
-         f"{fmt(n.rigidity_required_at_min_N_per_um)} N/um required at that moment (t = {fmt(n.rigidity_min_t_s)} s)"),
+         f"{fmt(n.rigidity_required_at_min_N_per_um)} N/um required at that moment, {fmt(n.rigidity_min_t_s)} s into "
+         "the run"),
         ("least rigidity over its requirement while cutting", f"{fmt(n.rigidity_ratio_min)} times",
          f"{fmt(n.rigidity_at_worst_ratio_N_per_um)} against {fmt(n.rigidity_required_at_worst_ratio_N_per_um)} N/um "
-         f"required (t = {fmt(n.rigidity_worst_t_s)} s)"),
+         f"required, {fmt(n.rigidity_worst_t_s)} s into the run"),
         ("time below the required rigidity", f"{fmt(n.rigidity_below_requirement_s)} s", ""),
         ("largest axial deflection while cutting", f"{fmt(n.deflection_max_um)} um", deflection),
         ("least preload over the lift-off bound", f"{fmt(n.lift_off_ratio_min)} times",
@@ -406,11 +408,16 @@ def _schedule_part(schedule: dict[str, Any] | None) -> Part | None:
                   "ll" + "r" * 8 + "c", small=True)
     fig = F.gain_schedule(schedule)
     caption = (f"The gain schedule on the preload level ({len(schedule['levels'])} entries) against the robust set "
-               "(dashed), and each set's worst case over the Monte Carlo plants per level; "
-               f"chosen: {schedule['choice']}.")
+               "(dashed), and each set's worst case over the Monte Carlo plants per level, the study's limits in red "
+               f"(dashed: tracking RMS, dotted: overshoot); chosen: {schedule['choice']}.")
     return Part(Section("The gain schedule", (text,), (table,), ("gain-schedule",)), (("gain-schedule", fig, caption),))
 
 
+#: the Monte Carlo spread's parameters as the report names them (a key not here is shown as the study names it)
+_SPREAD_NAMES = {"coupling_stiffness_N_per_um": "coupling stiffness", "amp_bandwidth_Hz": "amplifier bandwidth",
+                 "amp_current_limit_A": "amplifier current limit", "bw_alpha": "Bouc-Wen alpha",
+                 "bw_beta_per_V": "Bouc-Wen beta", "bw_kappa": "Bouc-Wen kappa", "creep_per_decade": "creep per decade",
+                 "noise_N": "sensor noise", "hertz_um_per_N23": "Hertz compliance"}
 _VALIDATION_NAMES = {"settling_s": "settling time (s)", "settling_measured_s": "settling time, measured force (s)",
                      "overshoot_N": "overshoot (N)", "tracking_rms_N": "tracking RMS after changes (N)",
                      "tracking_rms_all_N": "tracking RMS, whole trajectory (N)", "peak_voltage_V": "peak command (V)"}
@@ -425,7 +432,7 @@ def _validation_part(val: Any) -> Part:
                      fmt(limits[key]) if key in limits else "not a criterion"))
     verdict = ("every plant met every limit" if val.passed else
                f"{val.failed_plant_count} of {val.n_plants} plants missed a limit")
-    spread = ", ".join(f"{k} {fmt(v)}" for k, v in val.spread.items())
+    spread = ", ".join(f"{_SPREAD_NAMES.get(k, k)} {pct(v)}" for k, v in val.spread.items())
     text = (f"{val.n_plants} plants drawn around the nominal one (seed {val.seed}; relative spread {spread}), each run "
             f"through the study's step and trajectory with the tuned gains and the feedforward: {verdict}.")
     table = Table(("metric", "worst", "95th percentile", "median", "limit"), tuple(rows),
