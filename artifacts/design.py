@@ -22,7 +22,8 @@ from piezopreload.artifacts.schedule import PreloadSchedule
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import InputError
 
-__all__ = ["DesignPoint", "Optimum", "Front", "PreloadCurve", "DutyCasePoint", "FrequencyCurve", "DesignRecord", "KIND"]
+__all__ = ["CONSTRAINT_WORDS", "VARIABLE_WORDS", "binding_words", "case_words", "DesignPoint", "Optimum", "Front",
+           "PreloadCurve", "DutyCasePoint", "FrequencyCurve", "DesignRecord", "KIND"]
 
 KIND = "design"
 Array = NDArray[np.float64]
@@ -78,6 +79,79 @@ class DesignPoint:
             else:
                 values[fd.name] = f.number(fd.name)
         return cls(**values)
+
+
+#: the design's requirements and constraint rows in words, with the study key that sets each limit ("" where none
+#: does: the geometry, the design's own variables); a per-case row ``name[j]`` is ``name`` in duty case j (its
+#: words' ``{cases}``). What the report and the infeasible design's message say instead of the solver's row names.
+CONSTRAINT_WORDS: dict[str, tuple[str, str]] = {
+    "stiffness_min": ("the least rigidity over the duty cases", "[design] stiffness_min_N_per_um"),
+    "preload_limit": ("the highest preload at its share of the dynamic rating C_dyn", "[design] preload_fraction_max"),
+    "lift_off_max_load": ("no lift-off at the largest axial load with the highest preload",
+                          "[design] axial_load_max_N"),
+    "lift_off_failsafe": ("no lift-off at the fail-safe load on the bolts alone", "[design] failsafe_load_N"),
+    "contact_pressure_screw": ("the peak contact pressure at the largest axial load, screw side",
+                               "[design] contact_pressure_max_MPa"),
+    "contact_pressure_nut": ("the peak contact pressure at the largest axial load, nut side",
+                             "[design] contact_pressure_max_MPa"),
+    "life": ("the rating life over the duty cycle", "[design] life_min_h"),
+    "drag_torque": ("the drag torque at the highest preload", "[design] drag_torque_max_Nm"),
+    "stack_stroke": ("the stacks' stroke from the bolts' preload to the highest", "[design] stack_drive_V"),
+    "stack_force": ("the stacks' blocked force against their share of the preload", "[design] stack_drive_V"),
+    "ball_fit": ("the balls filling a turn of the helix", ""),
+    "ball_lead": ("the ball diameter against the lead", "[design] ball_lead_ratio_max"),
+    "nut_length": ("the nut's length, turns times lead", "[design] nut_length_max_mm"),
+    "lift_off_case": ("no lift-off {cases} at its preload", "[design] lift_off_margin"),
+    "stiffness_case": ("the rigidity {cases}, the least over the duty cases", ""),
+    "frequency_case": ("the first axial natural frequency {cases}", "[design] frequency_min_Hz"),
+    "preload_order_low": ("the preload {cases} down at the bolts' preload", ""),
+    "preload_order_high": ("the preload {cases} up at the highest preload", ""),
+}
+#: the design variables a bound can hold, in words, with their unit
+VARIABLE_WORDS: dict[str, tuple[str, str]] = {
+    "contact_angle_deg": ("the contact angle", "°"), "ball_mm": ("the ball diameter", " mm"),
+    "conformity": ("the groove conformity", ""), "turns": ("the loaded turns per nut", ""),
+    "balls_per_turn": ("the balls per turn", ""), "bolt_preload_N": ("the bolts' preload", " N"),
+    "max_preload_N": ("the highest preload", " N"), "stiffness_min_N_per_um": ("the least rigidity", " N/um"),
+}
+
+
+def case_words(numbers: list[int]) -> str:
+    """``in duty case 1``, ``in duty cases 1, 2 and 3`` (the cases numbered from 1)."""
+    if not numbers:
+        return "in a duty case"
+    words = [str(n) for n in sorted(numbers)]
+    listed = words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]
+    return f"in duty case{'s' if len(words) > 1 else ''} {listed}"
+
+
+def binding_words(binding: tuple[str, ...] | list[str], point: DesignPoint) -> list[str]:
+    """The constraints that bind at a design (its ``Optimum.binding``: row names, ``"<variable> at its upper
+    bound"``) in words: each with the key that sets it, a per-case row once with its cases, a variable with its
+    value and unit."""
+    per_case: dict[str, list[int]] = {}
+    out: list[tuple[str, str]] = []
+    for name in binding:
+        base, _, rest = name.partition("[")
+        if rest:
+            if base not in per_case:
+                out.append((base, ""))
+            per_case.setdefault(base, []).append(int(rest.rstrip("]")))
+        elif " at its " in name:
+            var, _, side = name.partition(" at its ")
+            words, unit = VARIABLE_WORDS.get(var, (var, ""))
+            value = getattr(point, var, None)
+            out.append((f"{words} at its {side}" + ("" if value is None else f" ({value:.3g}{unit})"), "text"))
+        else:
+            out.append((name, ""))
+    text = []
+    for name, kind in out:
+        if kind == "text":
+            text.append(name)
+            continue
+        words, key = CONSTRAINT_WORDS.get(name, (name, ""))
+        text.append(words.format(cases=case_words(per_case.get(name, []))) + (f" ({key})" if key else ""))
+    return text
 
 
 @dataclass(frozen=True)

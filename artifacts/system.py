@@ -38,15 +38,18 @@ Array = NDArray[np.float64]
 class TrackingNumbers:
     """The numbers of one run over the schedule's cycles (the pre-cycle left out).
 
-    Tracking of the stacks' share (RMS, worst, in % of the schedule's range); the least
-    rigidity while cutting against its requirement (the sample where their ratio is least),
-    the time below it; the largest axial deflection while cutting and its limit (None: no
-    limit); the least ratio of the achieved preload to the lift-off bound; the largest
-    shortfall of the achieved preload below the least preload each sample's requirements
-    need; the friction energy per cycle achieved and planned (the loop's reference: the
-    schedule with its margins and the stacks' least contact force, on the loop's samples),
-    and the fraction the achieved one saves against the design's best constant preload; the
-    peak voltage; the error when the first cut begins (after the pre-cycle).
+    Tracking of the stacks' share over the machining cycles (RMS, worst, in % of the
+    schedule's range); the least rigidity while cutting (over the cutting samples) with the
+    requirement at that moment and its time; apart from it, the least ratio of the rigidity to
+    its requirement (the requirement follows the load) with the rigidity, the requirement and
+    the time at that sample; the time below the requirement; the largest axial deflection
+    while cutting and its limit (None: no limit); the least ratio of the achieved preload to
+    the lift-off bound; the largest shortfall of the achieved preload below the least preload
+    each sample's requirements need; the friction energy per cycle achieved and planned (the
+    loop's reference: the last pass's schedule with its local margins and the stacks' least
+    contact force, on the loop's samples), and the fraction the achieved one saves against
+    the design's best constant preload; the peak voltage; the error when the first cut begins
+    (after the pre-cycle).
     """
 
     tracking_rms_N: float
@@ -54,8 +57,11 @@ class TrackingNumbers:
     tracking_rms_pct_of_range: float
     schedule_range_N: float
     rigidity_min_cutting_N_per_um: float
-    rigidity_required_N_per_um: float
+    rigidity_required_at_min_N_per_um: float
+    rigidity_min_t_s: float
     rigidity_ratio_min: float
+    rigidity_at_worst_ratio_N_per_um: float
+    rigidity_required_at_worst_ratio_N_per_um: float
     rigidity_worst_t_s: float
     rigidity_below_requirement_s: float
     deflection_max_um: float

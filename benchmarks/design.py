@@ -64,7 +64,7 @@ def main() -> None:
     # ---- fronts --------------------------------------------------------------------------
     def fixed_front():
         k_lo = optimise(spec, "drag", nlp).point.stiffness_N_per_um
-        eps = np.linspace(k_lo, 0.99 * best.point.stiffness_N_per_um, POINTS)
+        eps = np.linspace(k_lo, (1.0 - 1e-6) * best.point.stiffness_N_per_um, POINTS)  # pareto_front's span
         start = nlp.solve(WEIGHTS["drag"], y0, integers=ints)
         y, lam, ok = start["y"], start["lam_g"], 0
         for k in eps:

@@ -35,7 +35,7 @@ KINDS = {
     "study-run": ("study", "stages"),
     "report": ("title", "verdicts", "summary", "sections", "appendix", "figures"),
     "plant": ("rig", "design_sha256", "inputs"),
-    "system": ("tracking_rms_pct_of_range", "rigidity_min_cutting_N_per_um", "rigidity_required_N_per_um", "series",
+    "system": ("tracking_rms_pct_of_range", "rigidity_min_cutting_N_per_um", "rigidity_ratio_min", "series",
                "inputs"),
     "learning": ("pass_records", "tracking_rms_N", "before_learning_rms_N", "history", "inputs"),
     "learned-signal": ("ff_extra_V", "setpoint_N", "sample_period_s", "reference", "reference_sha256",

@@ -49,9 +49,10 @@ neighbours, the points of a front) is CasADi's SQP method with qpOASES first, wh
 neighbouring solution converges in a few iterations, with IPOPT behind it (see
 :class:`DesignNLP`): on the paper's study the three fronts match IPOPT's point for point
 (the same integers, stiffness and objective within 1e-4) at a third of the time or less.
-An infeasible request is solved again in elastic form (every constraint gets a slack, their
-scaled sum is minimised) and the message names the constraints that cannot be met and by
-how much, in their units.
+An infeasible request names the requirement that binds (:mod:`piezopreload.design.shortfall`):
+each requirement is given a slack in turn with every other kept; one that still needs it is named
+with the study key that sets it, the value the closest design reaches and the shortfall, in the
+requirement's units.
 """
 
 from __future__ import annotations
@@ -72,6 +73,7 @@ import numpy as np
 from piezopreload.artifacts.design import DesignPoint  # the design artifact's record of a design
 from piezopreload.core.checks import FieldRule, check_fields
 from piezopreload.core.errors import InfeasibleError
+from piezopreload.design.shortfall import binding, shortfall_message
 from piezopreload.models.ballscrew import (
     EFFECTIVE_BALL_SHARE,
     LIFT_OFF_RATIO,
@@ -100,6 +102,8 @@ OBJECTIVES = ("stiffness", "drag", "life")
 #: minimised, the shift's growth it makes reported, design/thermal.py)
 PARETO_PAIRS = ("stiffness:preload", "stiffness:drag", "stiffness:life", "stiffness:growth")
 _TIE_WEIGHT = 1e-3
+#: a front's last point: the stiffness optimum's rigidity less this fraction (the solver's tolerance on it)
+_FRONT_END_TOL = 1e-6
 _BALLS_PER_TURN = (4, 200)  # search range of the relaxed balls per turn
 _WARM_START = {"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-9,
                "ipopt.warm_start_slack_bound_push": 1e-9, "ipopt.warm_start_mult_bound_push": 1e-9,
@@ -500,6 +504,8 @@ class DesignNLP:
                 "ipopt.max_iter": 500}
         opts.update(ipopt_options or {})
         problem = {"x": y, "f": objective, "g": g, "p": w}
+        #: the scaled variables and rows (g <= 0), for the problems built on them (design/shortfall.py)
+        self.problem = problem
         self.solver = ca.nlpsol("design", "ipopt", problem, opts)
         # from a nearby solution and its multipliers (fronts, integer neighbours): start at a
         # small barrier parameter instead of pushing the point back into the interior
@@ -573,6 +579,10 @@ class DesignNLP:
 
     def to_physical(self, y: np.ndarray) -> np.ndarray:
         return self.offset + self.scale * np.asarray(y, float).ravel()
+
+    def evaluate(self, y: np.ndarray) -> dict[str, Any]:
+        """Every quantity of the design at the scaled point ``y``, in numbers (numpy)."""
+        return _expressions(self.spec, NUMPY, list(self.to_physical(y)))
 
     # ---- one solve ---------------------------------------------------------------------
     def solve(self, weights: Iterable[float], y0: np.ndarray, lam_g0: np.ndarray | None = None,
@@ -670,28 +680,10 @@ class DesignNLP:
                 names.append(f"{_VARIABLES[k]} at its {'upper' if lam > 0 else 'lower'} bound")
         return names
 
-    def violations(self, y: np.ndarray) -> list[dict[str, Any]]:
-        g = np.asarray(self.constraints(y)).ravel() * self.row_scale
-        out = []
-        for name, value in zip(self.row_names, g):
-            if value > 1e-6 * max(1.0, abs(value)):
-                base = name.split("[")[0]
-                meaning, unit = CONSTRAINTS[base]
-                out.append({"constraint": name, "meaning": meaning, "short_by": float(value), "units": unit})
-        return out
-
 
 WEIGHTS = {"stiffness": (1.0, 0.0, 0.0, 0.0, 0.0), "drag": (0.0, 1.0, 0.0, 0.0, 0.0),
            "life": (0.0, 0.0, 1.0, 0.0, 0.0), "preload": (0.0, 0.0, 0.0, 1.0, 0.0),
            "heat": (0.0, 0.0, 0.0, 0.0, 1.0)}
-
-
-def _elastic(nlp: DesignNLP, y0: np.ndarray, integers: tuple[int, int] | None) -> list[dict[str, Any]]:
-    """Least total scaled violation (every row gets a slack): what cannot be met, by how much."""
-    solver = ca.nlpsol("design_elastic", "ipopt", nlp.elastic_problem,
-                       {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 1000})
-    out = solver(**nlp.elastic_args(y0, *nlp.bounds(integers, stiffness_min=0.0)))
-    return nlp.violations(np.asarray(out["x"]).ravel()[: nlp.n])
 
 
 def _integer_candidates(turns: float, z1: float, spec: DesignSpec) -> list[tuple[int, int]]:
@@ -752,21 +744,19 @@ def _optimise(spec: DesignSpec, objective: str, nlp: DesignNLP | None) -> tuple[
     y0 = nlp.initial_guess()
     best, relaxed, tried = _solve_mixed(nlp, WEIGHTS[objective], y0, None)
     if best is None:
-        violations = _elastic(nlp, relaxed["y"], None)
-        if not violations:  # the relaxation may be feasible while no integer neighbour is
-            violations = [{"constraint": "integers", "meaning": "no integer turns/balls-per-turn neighbour of the "
-                           "relaxed optimum is feasible", "short_by": float("nan"), "units": ""}]
-        raise DesignInfeasible(_infeasible_message(violations), violations)
+        misses = binding(nlp, relaxed["y"], lambda y: _integer_candidates(*nlp.to_physical(y)[3:5], spec))
+        raise DesignInfeasible(_infeasible_message(misses), misses)
     result = DesignOptimum(spec=spec, objective=objective, point=nlp.point(best["y"], objective, True),
                           binding=nlp.binding(best), tried=tried, solve_s=time.perf_counter() - t0,
                           nlp_solves=nlp.solves - start_solves)
     return result, relaxed
 
 
-def _infeasible_message(violations: list[dict[str, Any]]) -> str:
-    parts = [f"{v['constraint']} ({v['meaning']}) short by {v['short_by']:.4g} {v['units']}".rstrip()
-             for v in violations]
-    return ("no design meets the constraints; the closest design still misses: " + "; ".join(parts)
+def _infeasible_message(misses: list[dict[str, Any]]) -> str:
+    if not misses:  # the solvers found no point to read a shortfall at
+        return ("no design meets the constraints, and none could be found to say which binds. Relax the limits in "
+                "the study's [design] table or widen the design's bounds.")
+    return ("no design meets the constraints: " + shortfall_message(misses)
             + ". Relax these limits in the study's [design] table or widen the design's bounds.")
 
 
@@ -777,7 +767,7 @@ def pareto_front(spec: DesignSpec, pair: str, n_points: int = 50, nlp: DesignNLP
 
     The least rigidity over the duty cycle is swept from that of the other quantity's
     optimum (the least-drag design for preload and drag, the longest-life one for life) to
-    99 % of the stiffness optimum's; at each epsilon the other quantity is optimised with the
+    the stiffness optimum's (less :data:`_FRONT_END_TOL`); at each epsilon the other quantity is optimised with the
     integers handled as in :func:`optimise`, warm-started from the previous point (the first
     from the other optimum's relaxation), primal and dual. An integer pair found infeasible
     at one epsilon is not tried at the higher ones.
@@ -802,7 +792,9 @@ def pareto_front(spec: DesignSpec, pair: str, n_points: int = 50, nlp: DesignNLP
     stiff = optimise(spec, "stiffness", nlp)
     other, other_relaxed = _optimise(spec, objective, nlp)
     k_lo = other.point.stiffness_N_per_um
-    k_hi = stiff.point.stiffness_N_per_um * 0.99
+    # up to the stiffness optimum's own rigidity (less the solver's tolerance): the front ends at the optimum, whose
+    # other figures are the least any design that stiff has (its tie-break), where it stood 1 % short of it before
+    k_hi = stiff.point.stiffness_N_per_um * (1.0 - _FRONT_END_TOL)
     eps = np.linspace(min(k_lo, k_hi), k_hi, n_points)
     weights = WEIGHTS["heat" if y_name == "growth" else y_name]
     # the first epsilon is the other optimum's own stiffness: start from its relaxation

@@ -78,9 +78,9 @@ from piezopreload.models.controller import Controller
 if TYPE_CHECKING:  # the thermal budget reads a system run
     from piezopreload.design.thermal import ThermalBudget
 
-__all__ = ["PRE_CYCLE_REST_S", "ROUND_OFF", "SystemRun", "Evaluation", "pre_cycle_for", "schedule_reference",
-           "track_schedule", "evaluate_tracking", "requirements_of", "folded_shortfall", "binding_stretches",
-           "held_over_stretches", "local_margins"]
+__all__ = ["PRE_CYCLE_REST_S", "RIGIDITY_VERDICT", "ROUND_OFF", "SystemRun", "Evaluation", "pre_cycle_for",
+           "schedule_reference", "track_schedule", "evaluate_tracking", "requirements_of", "folded_shortfall",
+           "binding_stretches", "held_over_stretches", "local_margins"]
 
 Array = NDArray[np.float64]
 
@@ -90,6 +90,9 @@ PRE_CYCLE_REST_S = 0.05
 #: a requirement counts as met within this fraction of its limit: the floating-point round-off of the preload's way
 #: through the stacks' share and the load's interpolation (1e-13 of it in practice), far below any sensor's resolution
 ROUND_OFF = 1e-9
+#: the rigidity's verdict: at the sample where the rigidity is least against its requirement (the requirement
+#: follows the load: the least rigidity itself may fall where little is required)
+RIGIDITY_VERDICT = "rigidity while cutting, where least against its requirement"
 #: the longest lag of the loop behind its reference the margins look back over (s)
 _LAG_MAX_S = 0.25
 #: a local margin holds this long either side of the shortfall it answers (s): one load ramp of the machining cycle
@@ -192,7 +195,7 @@ def requirements_of(frame: _Frame, schedule: PreloadSchedule) -> tuple[Requireme
     ratio = np.where(c, frame.rigidity / frame.required, np.inf)
     k = int(np.argmin(ratio))
     by_deflection = frame.required[k] > spec.stiffness_min_N_per_um
-    out = [_verdict("rigidity while cutting", frame.rigidity[k], frame.required[k], "N/um", "min",
+    out = [_verdict(RIGIDITY_VERDICT, frame.rigidity[k], frame.required[k], "N/um", "min",
                     "[schedule] deflection_max_um (|F_a| / deflection_max_um)" if by_deflection
                     else "[schedule] stiffness_min_N_per_um", "schedule.rigidity_while_cutting")]
     if math.isfinite(spec.deflection_max_um):
@@ -302,15 +305,18 @@ def _numbers(frame: _Frame, schedule: PreloadSchedule, run: ClosedLoopRun, cycle
     error = (run.reference_N - run.force_N)[c]
     span = float(np.ptp(frame.planned[c])) or 1.0
     ratio = np.where(cut, frame.rigidity / frame.required, np.inf)
-    k = int(np.argmin(ratio))
+    k = int(np.argmin(ratio))  # where the rigidity is least against its requirement
+    m = int(np.argmin(np.where(cut, frame.rigidity, np.inf)))  # where the rigidity itself is least
     dt = float(run.t_s[1] - run.t_s[0])
     achieved_energy = float(np.dot(frame.weight, frame.achieved)) / cycles
     spec = schedule.spec
     return TrackingNumbers(
         tracking_rms_N=float(np.sqrt(np.mean(error**2))), tracking_max_N=float(np.max(np.abs(error))),
         tracking_rms_pct_of_range=float(100.0 * np.sqrt(np.mean(error**2)) / span), schedule_range_N=span,
-        rigidity_min_cutting_N_per_um=float(frame.rigidity[k]), rigidity_required_N_per_um=float(frame.required[k]),
-        rigidity_ratio_min=float(ratio[k]), rigidity_worst_t_s=float(run.t_s[k]),
+        rigidity_min_cutting_N_per_um=float(frame.rigidity[m]),
+        rigidity_required_at_min_N_per_um=float(frame.required[m]), rigidity_min_t_s=float(run.t_s[m]),
+        rigidity_ratio_min=float(ratio[k]), rigidity_at_worst_ratio_N_per_um=float(frame.rigidity[k]),
+        rigidity_required_at_worst_ratio_N_per_um=float(frame.required[k]), rigidity_worst_t_s=float(run.t_s[k]),
         rigidity_below_requirement_s=float(np.sum(cut & (frame.rigidity < frame.required * (1.0 - ROUND_OFF))) * dt),
         deflection_max_um=float(np.max(np.abs(frame.deflection[cut]))),
         deflection_limit_um=None if math.isinf(spec.deflection_max_um) else float(spec.deflection_max_um),
@@ -446,7 +452,7 @@ def _bounds(schedule: PreloadSchedule, ev: Evaluation, wanted: Array) -> tuple[S
     short = schedule.needed_N + margin - reach
     k = int(np.argmax(ev.shortfall))
     rigidity_missed = f.rigidity[k] < f.required[k]
-    name = "rigidity while cutting" if rigidity_missed else "preload against the lift-off bound"
+    name = RIGIDITY_VERDICT if rigidity_missed else "preload against the lift-off bound"
     j = int(np.argmax(short)) if np.max(short) > 0 else int(np.argmin(np.abs(schedule.profile.time_s - f.t_cycle[k])))
     t0 = float(schedule.profile.time_s[0])
     return (ScheduleBound(name, float(schedule.profile.time_s[j] - t0), float(schedule.needed_N[j]), float(margin[j]),

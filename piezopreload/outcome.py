@@ -46,8 +46,10 @@ class Headline:
     learning_trials: int | None = None
     tracking_max_N: float | None = None
     rigidity_min_cutting_N_per_um: float | None = None
-    rigidity_required_N_per_um: float | None = None
+    rigidity_required_at_min_N_per_um: float | None = None
     rigidity_ratio_min: float | None = None
+    rigidity_at_worst_ratio_N_per_um: float | None = None
+    rigidity_required_at_worst_ratio_N_per_um: float | None = None
     deflection_max_um: float | None = None
     friction_energy_per_cycle: float | None = None
     friction_saved_fraction: float | None = None

@@ -506,13 +506,52 @@ def _previous(out: Path, progress: Progress) -> dict[str, dict[str, Any]]:
         return {}
 
 
+def _outputs_of(out: Path, manifest: dict[str, Any]) -> list[Path]:
+    """Every file a study's run wrote into ``out``: its stages' outputs as its manifest records them, the rig's logs
+    (one pair per run, the earlier runs' too), the study's copy and the manifest."""
+    files = [out / o["path"] for r in manifest.get("stages", {}).values() for o in r.get("outputs", {}).values()]
+    logs = sorted((out / "runs").glob("run-*.csv")) + sorted((out / "runs").glob("run-*.json"))
+    return [*files, *logs, out / STUDY_COPY, out / MANIFEST]
+
+
+def _one_study_per_folder(out: Path, study: Study, overwrite: bool, progress: Progress) -> None:
+    """A folder holds one study's outputs: a folder holding another study's (by its ``[study] name``) is refused by
+    name, or with ``overwrite`` cleared of them (the files its manifest records, its rig logs, then the folders
+    left empty) before this study runs. The same study, changed, runs into its folder as ever (changed stages
+    again)."""
+    if not (out / MANIFEST).is_file():
+        return
+    try:
+        manifest = read_manifest(out)
+    except InputError:
+        return  # unreadable: every stage runs again (_previous says so) and writes over it
+    held = manifest.get("study", {})
+    if held.get("name") == study.name:
+        return
+    if not overwrite:
+        raise InputError(f"{out}: holds the outputs of the study '{held.get('name')}' ({held.get('path')}), not of "
+                         f"'{study.name}'; give another --out (say --out {study.name}-out), or --overwrite to replace "
+                         "them (in Python: study.run(out=..., overwrite=True))")
+    removed = 0
+    for path in _outputs_of(out, manifest):
+        if path.is_file():
+            path.unlink()
+            removed += 1
+    for folder in sorted((p for p in out.rglob("*") if p.is_dir()), key=lambda p: len(p.parts), reverse=True):
+        if not any(folder.iterdir()):
+            folder.rmdir()
+    progress.say(f"--overwrite: removed the {removed} files of the study '{held.get('name')}' from {out}")
+
+
 def run_study(study: Study | str | Path | None = None, out: str | Path = DEFAULT_OUT, *, force: bool = False,
-              progress: Progress | None = None, cache: StageCache | None = None) -> StudyResult:
+              progress: Progress | None = None, cache: StageCache | None = None,
+              overwrite: bool = False) -> StudyResult:
     """Run a study's stages into ``out``; a stage whose key and outputs are unchanged is not run again.
 
     ``cache``: a store of stage outputs shared with other folders (see the module docstring); with ``force``
     the stages run again but a shared one is restored where the store holds its key (empty the store to
-    compute those again too).
+    compute those again too). A folder holding another study's outputs is refused by name; ``overwrite`` clears
+    them first (:func:`_one_study_per_folder`): one folder never mixes two studies.
     """
     progress = progress or Progress()
     t0 = time.perf_counter()
@@ -520,6 +559,7 @@ def run_study(study: Study | str | Path | None = None, out: str | Path = DEFAULT
     study.check_files()
     out = Path(out)
     with _locked(out):
+        _one_study_per_folder(out, study, overwrite, progress)
         copy = out / STUDY_COPY
         if not copy.is_file() or copy.read_bytes() != study.source_text:
             atomic_write_bytes(copy, study.source_text)

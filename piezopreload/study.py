@@ -554,11 +554,14 @@ class Study:
             k.optimum, k.point = result.optimum, result.point
         return result
 
-    def run(self, out: str | Path = "piezopreload-out", *, force: bool = False, progress: Any = None) -> StudyResult:
-        """The whole study, as ``piezopreload run``: its stages into ``out``, unchanged ones not run again."""
+    def run(self, out: str | Path = "piezopreload-out", *, force: bool = False, progress: Any = None,
+            overwrite: bool = False) -> StudyResult:
+        """The whole study, as ``piezopreload run``: its stages into ``out``, unchanged ones not run again. A folder
+        holding another study's outputs is refused by name (an :class:`InputError`); ``overwrite=True`` replaces
+        them."""
         from piezopreload.pipeline import run_study
 
-        return run_study(self, out, force=force, progress=progress)
+        return run_study(self, out, force=force, progress=progress, overwrite=overwrite)
 
     def sweep(self, vary: dict[str, Any], *, mode: str = "grid", out: str | Path = "piezopreload-sweep",
               workers: int | None = None, scheduler: str | None = None, force: bool = False, progress: Any = None,

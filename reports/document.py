@@ -17,12 +17,16 @@ __all__ = ["fmt", "pct", "Table", "Section", "Report"]
 
 def fmt(x: float, digits: int = 3) -> str:
     """A number as the report prints it: ``digits`` significant digits, whole numbers with thousands
-    separators from ``10**digits`` up (13,236 rather than 1.32e+04)."""
+    separators from ``10**digits`` up (13,236 rather than 1.32e+04), and thousands separated from 1,000
+    up whatever the digits (1,697.3 rather than 1697.3)."""
     if x is None:  # a report never shows a dash for a missing number: the caller leaves it out with a reason
         raise ValueError("fmt: a missing number cannot be printed; leave the figure out and say why")
     x = float(x)
     if abs(x) >= 10 ** digits:
         return f"{x:,.0f}"
+    rounded = float(f"{x:.{digits}g}")  # 999.96 to 3 digits is 1,000
+    if abs(rounded) >= 1000:
+        return f"{rounded:,.{max(digits - len(str(int(abs(rounded)))), 0)}f}"
     return f"{x:.{digits}g}"
 
 

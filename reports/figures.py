@@ -19,12 +19,15 @@ from typing import Any
 
 import matplotlib as mpl
 import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from piezopreload.core.parallel import fork_pool, spare_cpus
 
 __all__ = [
-    "STYLE", "COLOURS", "save", "save_all", "hysteresis_loops", "inverse_model", "step_responses", "tracking",
+    "STYLE", "COLOURS", "legends", "save", "save_all", "hysteresis_loops", "inverse_model", "step_responses",
+    "tracking",
     "stiffness_vs_preload", "pareto_fronts", "preload_schedule", "natural_frequency", "monte_carlo",
     "rig_run", "closed_loop", "gains_comparison",
 ]
@@ -45,6 +48,114 @@ def _figure(height: float, ncols: int = 1, nrows: int = 1, **kw: Any) -> tuple[F
     """A page-wide figure and its axes (called inside :func:`_styled`, under :data:`STYLE`)."""
     fig = Figure(figsize=(_WIDTH, height), layout="constrained")
     return fig, fig.subplots(nrows, ncols, squeeze=False, **kw)
+
+
+#: where a legend may sit inside its axes, in the order tried
+_INSIDE = ("upper right", "upper left", "lower right", "lower left", "center right", "center left", "upper center",
+           "lower center", "center")
+
+
+def _covers(box: Any, ax: Any) -> bool:
+    """Whether the display box ``box`` covers any of the axes' data: a line's path or markers, a patch (bars,
+    spans), a collection's points, a text drawn in the axes."""
+    pad = 2.0  # display units (pixels at the figure's dpi): a line grazing the box's edge is on it
+    grown = box.expanded(1.0, 1.0).padded(pad)
+    for line in ax.get_lines():
+        if not line.get_visible():
+            continue
+        path = line.get_transform().transform_path(line.get_path()).cleaned(remove_nans=True)
+        if line.get_linestyle() not in ("None", "", " ") and path.intersects_bbox(grown, filled=False):
+            return True
+        if line.get_marker() not in ("None", "", " ", None) and grown.count_contains(path.vertices) > 0:
+            return True
+    for patch in ax.patches:
+        if patch.get_visible() and patch.get_transform().transform_path(patch.get_path()).intersects_bbox(grown):
+            return True
+    for coll in ax.collections:
+        if coll.get_visible() and grown.count_contains(coll.get_offset_transform().transform(coll.get_offsets())):
+            return True
+    return any(text.get_visible() and text.get_text() and box.overlaps(text.get_window_extent()) for text in ax.texts)
+
+
+def _clear_of_axes(box: Any, fig: Any, renderer: Any) -> bool:
+    """Whether a legend outside its axes stays on the figure and off every axes, their tick labels, axis labels and
+    titles (the data is inside the axes)."""
+    if not fig.bbox.contains(box.x0, box.y0) or not fig.bbox.contains(box.x1, box.y1):
+        return False
+    return not any(box.overlaps(ax.get_tightbbox(renderer, bbox_extra_artists=[])) for ax in fig.axes)
+
+
+def _fits(ax: Any, renderer: Any) -> bool:
+    """Whether the axes' legend is off the data: inside the axes covering none of it, or outside every axes."""
+    legend = ax.get_legend()
+    if legend is None:
+        return False
+    frame, box = ax.get_window_extent(renderer), legend.get_window_extent(renderer)
+    if frame.contains(box.x0, box.y0) and frame.contains(box.x1, box.y1):
+        return not _covers(box, ax)
+    return not box.overlaps(frame) and _clear_of_axes(box, ax.get_figure(), renderer)
+
+
+def _headroom(ax: Any, renderer: Any) -> tuple[float, float]:
+    """Raise the axes' top so that a band above the data holds the legend (its height and a pad), in the axes'
+    scale (linear or log); returns the limits before."""
+    before = ax.get_ylim()
+    box, frame = ax.get_legend().get_window_extent(renderer), ax.get_window_extent(renderer)
+    share = min((box.height + 12.0) / frame.height, 0.6)
+    scale = ax.yaxis.get_transform()  # the data's scale: linear, or log
+    lo, hi = np.ravel(scale.transform(np.array(before, float)))
+    top = lo + (hi - lo) / (1.0 - share)
+    ax.set_ylim(top=float(np.ravel(scale.inverted().transform(np.array([top])))[0]))
+    return before
+
+
+def _outside(ax: Any, renderer: Any, kw: dict[str, Any]) -> None:
+    """At the axes' right, or below their axis label, whichever is clear of every axes (below where neither is)."""
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, **kw)
+    if _fits(ax, renderer):
+        return
+    frame, tight = ax.get_window_extent(renderer), ax.get_tightbbox(renderer, bbox_extra_artists=[])
+    below = (frame.y0 - tight.y0 + 4.0) / frame.height
+    entries = len(ax.get_legend_handles_labels()[0])
+    for ncols in (entries, 2, 1):  # one row where the figure is wide enough
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -below), borderaxespad=0.0, ncols=ncols, **kw)
+        box = ax.get_legend().get_window_extent(renderer)
+        if ax.get_figure().bbox.x0 <= box.x0 and box.x1 <= ax.get_figure().bbox.x1:
+            return
+
+
+def _place(ax: Any, renderer: Any, kw: dict[str, Any]) -> None:
+    for loc in _INSIDE:
+        ax.legend(loc=loc, **kw)
+        if _fits(ax, renderer):
+            return
+    before = _headroom(ax, renderer)  # no free place: a band above the data, the legend in it
+    for loc in ("upper right", "upper left", "upper center"):
+        ax.legend(loc=loc, **kw)
+        if _fits(ax, renderer):
+            return
+    ax.set_ylim(before)  # the band did not free a place (lines across the whole height): outside
+    _outside(ax, renderer, kw)
+
+
+def legends(*placed: Any, **kw: Any) -> None:
+    """Legends off the data: each axes' legend at the first place of :data:`_INSIDE` where it stays inside the axes
+    and covers none of their data (:func:`_covers`), or outside the axes at their right where there is none. Called
+    once a figure's artists are all drawn; ``placed`` are axes, or ``(axes, legend keywords)`` pairs. The figure is
+    laid out again after each round (a legend moved outside narrows the axes) until every legend fits."""
+    pairs = [(p, dict(kw)) if not isinstance(p, tuple) else (p[0], {**kw, **p[1]}) for p in placed]
+    if not pairs:
+        return
+    fig = pairs[0][0].get_figure()
+    canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
+    for _ in range(3):
+        fig.draw_without_rendering()
+        renderer = canvas.get_renderer()
+        unfit = [(ax, k) for ax, k in pairs if not _fits(ax, renderer)]
+        if not unfit:
+            return
+        for ax, k in unfit:
+            _place(ax, renderer, k)
 
 
 def save(fig: Figure, path: str | Path) -> Path:
@@ -104,21 +215,22 @@ def _styled(fn: Any) -> Any:
 
 @_styled
 def hysteresis_loops(time_s: np.ndarray, voltage_V: np.ndarray, measured_N: np.ndarray,
-                     model_N: np.ndarray, source: str) -> Figure:
-    """Measured and modelled voltage -> force loops, and the model's error over the record."""
+                     model_N: np.ndarray) -> Figure:
+    """Measured and modelled voltage -> force loops, and the model's error over the record (where the measurement
+    came from is the caption's)."""
     fig, ax = _figure(2.6, ncols=2)
     a, b = ax[0]
-    a.plot(voltage_V, measured_N, color=COLOURS["measured"], lw=0.8, label=f"measured ({source})")
+    a.plot(voltage_V, measured_N, color=COLOURS["measured"], lw=0.8, label="measured")
     a.plot(voltage_V, model_N, color=COLOURS["model"], lw=1.0, ls="--", label="P-I model")
     a.set_xlabel("command voltage (V)")
     a.set_ylabel("force (N)")
-    a.legend(loc="lower right")
     a.set_title("hysteresis loops")
     err = model_N - measured_N
     b.plot(time_s, err, color=COLOURS["model"], lw=0.6)
     b.set_xlabel("time (s)")
     b.set_ylabel("model - measured (N)")
-    b.set_title(f"model error: RMS {np.sqrt(np.mean(err ** 2)):.2f} N, max {np.max(np.abs(err)):.2f} N")
+    b.set_title(f"model error: RMS {np.sqrt(np.mean(err ** 2)):.3g} N, largest {np.max(np.abs(err)):.3g} N")
+    legends(a)
     return fig
 
 
@@ -138,7 +250,7 @@ def inverse_model(desired_N: np.ndarray, command_V: np.ndarray, force_N: np.ndar
     b.set_xlabel("desired force (N)")
     b.set_ylabel("rig's force (N)")
     b.set_title("compensated, open loop (second cycle)")
-    b.legend(loc="upper left")
+    legends(b)
     return fig
 
 
@@ -169,8 +281,8 @@ def step_responses(runs: Mapping[str, Mapping[str, np.ndarray]], band_N: float, 
         for s in (-1, 1):
             a.axhline(final + s * band_N, color=COLOURS["limit"], lw=0.5, ls="--")
         a.set_title(labels[who])
-        a.legend(loc="lower right")
     ax[0][1].set_ylabel("")
+    legends(*ax[0])
     return fig
 
 
@@ -185,7 +297,6 @@ def tracking(runs: Mapping[str, Mapping[str, np.ndarray]], signal: str, labels: 
         keys = [f"{who} pid", f"{who} ff+pid"]
         _runs_axes(ax[0][j], runs, keys, signal, None)
         ax[0][j].set_title(labels[who])
-        ax[0][j].legend(loc="lower right")
         ax[0][j].set_xlabel("")
         for key in keys:
             r = runs[key]
@@ -194,6 +305,7 @@ def tracking(runs: Mapping[str, Mapping[str, np.ndarray]], signal: str, labels: 
         ax[1][j].set_ylim(-scale, scale)
         ax[1][j].set_xlabel("time (s)")
         ax[1][j].set_ylabel("reference - force (N)")
+    legends(*ax[0])
     return fig
 
 
@@ -212,15 +324,15 @@ def stiffness_vs_preload(curve: Mapping[str, Any]) -> Figure:
         a_.axvline(curve["max_preload_N"], color="0.3", ls="--", lw=0.8)
         a_.set_xlabel("preload (N)")
     a.set_ylabel("axial rigidity (N/um)")
-    a.set_title("rigidity (dotted: bolts only; dashed: stacks at full drive)")
-    a.legend(loc="lower right")
+    a.set_title("axial rigidity")
     b.plot(fp, curve["drag_torque_Nm"], color=COLOURS["study pid"])
     b.set_ylabel("drag torque (N m)")
     b.set_title("preload drag torque")
+    legends(a)
     return fig
 
 
-_FRONT_LABELS = {"stiffness": "least rigidity (N/um)", "preload": "max preload (N)",
+_FRONT_LABELS = {"stiffness": "least rigidity (N/um)", "preload": "highest preload (N)",
                  "drag": "mean drag torque (N m)", "life": "rating life (h)", "growth": "growth over the shift (um)"}
 
 
@@ -238,10 +350,9 @@ def pareto_fronts(fronts: Sequence[Mapping[str, Any]], optimum: Mapping[str, flo
                    label="the design optimum")
         a.set_xlabel(_FRONT_LABELS[f["x_name"]])
         a.set_ylabel(_FRONT_LABELS[f["y_name"]])
-        a.set_title(f["pair"])
         if f["y_name"] == "life":
             a.set_yscale("log")
-    ax[0][0].legend(loc="best")
+    legends(ax[0][0])
     return fig
 
 
@@ -260,7 +371,7 @@ def preload_schedule(time_s: np.ndarray, load_N: np.ndarray, preload_N: np.ndarr
            label="lift-off limit |F_a| / 2^1.5")
     b.set_xlabel("time (s)")
     b.set_ylabel("preload (N)")
-    b.legend(loc="upper right")
+    legends(b)
     return fig
 
 
@@ -276,7 +387,7 @@ def natural_frequency(position_mm: np.ndarray, low_Hz: np.ndarray, high_Hz: np.n
         a.axhline(frequency_min_Hz, color=COLOURS["limit"], ls="--", lw=0.8, label="required minimum")
     a.set_xlabel("nut position from bearing A (mm)")
     a.set_ylabel("axial natural frequency (Hz)")
-    a.legend(loc="best")
+    legends(a)
     return fig
 
 
@@ -286,6 +397,7 @@ def monte_carlo(metrics: Mapping[str, Sequence[float | None]], limits: Mapping[s
     panels = (("settling_s", "settling time (s)"), ("overshoot_N", "overshoot (N)"),
               ("tracking_rms_N", "tracking RMS after changes (N)"))
     fig, ax = _figure(2.4, ncols=len(panels))
+    marked = []
     for a, (key, label) in zip(ax[0], panels):
         raw = [x for x in metrics[key]]
         values = np.array([x for x in raw if x is not None], float)
@@ -293,10 +405,12 @@ def monte_carlo(metrics: Mapping[str, Sequence[float | None]], limits: Mapping[s
         a.hist(values, bins=min(30, max(5, values.size // 5)), color=COLOURS["model"], alpha=0.8)
         if key in limits:
             a.axvline(limits[key], color=COLOURS["limit"], ls="--", lw=0.9, label="limit")
-            a.legend(loc="upper right")
+            marked.append(a)
         a.set_xlabel(label)
         a.set_ylabel("plants")
+        a.yaxis.set_major_locator(MaxNLocator(integer=True))  # a count of plants
         a.set_title(f"{values.size} plants" + (f", {never} never settled" if never else ""))
+    legends(*marked)
     return fig
 
 
@@ -314,7 +428,6 @@ def gain_schedule(schedule: Mapping[str, Any]) -> Figure:
         a.axhline(scale * robust[key], color=COLOURS["limit"], ls="--", lw=0.9, label="robust set")
         a.set_xlabel("preload setpoint (N)")
         a.set_ylabel(label)
-    ax[0][0].legend(loc="best")
     a = ax[0][2]
     at = np.array([r["level_N"] for r in levels])
     for which, marker, name in (("robust", "s", "robust set"), ("scheduled", "o", "schedule")):
@@ -324,9 +437,9 @@ def gain_schedule(schedule: Mapping[str, Any]) -> Figure:
         if key in schedule.get("limits", {}):
             a.axhline(schedule["limits"][key], color=COLOURS["limit"], ls=ls, lw=0.8)
     a.set_xlabel("preload level (N)")
-    a.set_ylabel("worst case over the plants (N)\n(red: the limits)")
-    a.legend(loc="best", fontsize=6)
+    a.set_ylabel("worst case over the plants (N)")
     fig.suptitle(f"chosen: {schedule['choice']}", fontsize=8)
+    legends(ax[0][0], (a, {"fontsize": 6}))
     return fig
 
 
@@ -340,13 +453,12 @@ def rig_run(time_s: np.ndarray, reference_N: np.ndarray, force_N: np.ndarray, vo
     a.plot(time_s, reference_N, color=COLOURS["reference"], ls=":", label="reference")
     a.plot(time_s[control], force_N[control], color=COLOURS["tuned ff+pid"], lw=0.7, label="force read")
     a.set_ylabel("force (N)")
-    a.legend(loc="lower right")
     b.plot(time_s, voltage_V, color=COLOURS["study ff+pid"], lw=0.7)
     if (~control).any():
         b.axvspan(float(time_s[~control][0]), float(time_s[-1]), color="0.9", label="ramp down, disarm")
-        b.legend(loc="upper right")
     b.set_xlabel("time (s)")
     b.set_ylabel("stack voltage (V)")
+    legends(a, *([b] if (~control).any() else []))
     return fig
 
 
@@ -366,12 +478,11 @@ def closed_loop(run: Mapping[str, np.ndarray], band_N: float | None, signal: str
             a.axhline(float(run["reference_N"][-1]) + s * band_N, color=COLOURS["limit"], lw=0.5, ls="--")
     a.set_ylabel("force (N)")
     a.set_title(title)
-    a.legend(loc="lower right")
     b.plot(t, run["command_V"], color=COLOURS["study ff+pid"], lw=0.7, label="command")
     b.plot(t, run["voltage_V"], color=COLOURS["study pid"], lw=0.7, label="amplifier")
     b.set_xlabel("time (s)")
     b.set_ylabel("voltage (V)")
-    b.legend(loc="lower right")
+    legends(a, b)
     return fig
 
 
@@ -404,19 +515,17 @@ def system_tracking(time_s: np.ndarray, planned_N: np.ndarray, achieved_N: np.nd
     a.plot(time_s, planned_N, color=COLOURS["reference"], lw=0.9, label="planned (schedule)")
     a.plot(time_s, achieved_N, color=COLOURS["model"], lw=0.7, label="achieved (true force)")
     a.set_ylabel("preload (N)")
-    a.legend(loc="upper right")
     cut = np.asarray(cutting, bool)
     b.plot(time_s, np.where(cut, rigidity_N_per_um, np.nan), color=COLOURS["model"], lw=0.8, label="achieved")
     b.plot(time_s, np.where(cut, required_N_per_um, np.nan), color=COLOURS["limit"], ls="--", lw=0.8,
            label="required")
     b.set_ylabel("rigidity under load (N/um)")
-    b.legend(loc="upper right")
     c.plot(time_s, np.where(cut, np.abs(deflection_um), np.nan), color=COLOURS["model"], lw=0.8, label="|deflection|")
     if deflection_limit_um is not None and np.isfinite(deflection_limit_um):
         c.axhline(deflection_limit_um, color=COLOURS["limit"], ls="--", lw=0.8, label="limit")
     c.set_xlabel("time (s)")
     c.set_ylabel("axial deflection (um)")
-    c.legend(loc="upper right")
+    legends(a, b, c)
     return fig
 
 
@@ -434,6 +543,7 @@ def learning_iterations(passes: list[dict[str, Any]]) -> Figure:
                    label=f"pass {p['pass']} (best: trial {int(np.max(p['best_iteration']))})")
         a.axhline(100.0 * p["causal_floor_N"] / span, color=f"C{k}", ls=":", lw=0.7)
     a.set_xlabel("learning trial (0: before the pass learns)")
-    a.set_ylabel("tracking RMS (% of range)")
-    a.legend(loc="upper right")
+    a.set_ylabel("tracking RMS (% of the pass's range)")
+    a.xaxis.set_major_locator(MaxNLocator(integer=True))  # trials are counted
+    legends(a)
     return fig

@@ -15,12 +15,12 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from piezopreload.artifacts.design import DesignRecord
+from piezopreload.artifacts.design import DesignRecord, binding_words
 from piezopreload.artifacts.gainset import GainSet, gains_to_dict
 from piezopreload.artifacts.learning import LearningRecord
 from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.rigrun import RigRunRecord
-from piezopreload.artifacts.system import SystemRecord
+from piezopreload.artifacts.system import SystemRecord, TrackingNumbers
 from piezopreload.artifacts.tuning import TuningRecord
 from piezopreload.reports import figures as F
 from piezopreload.reports.document import Section, Table, fmt, pct
@@ -28,9 +28,21 @@ from piezopreload.reports.inputs import Artifacts, ReportStudy
 
 __all__ = ["Part", "study_section", "requirements_section", "design_section", "system_section", "learning_section",
            "feedforward_section", "controller_section", "responses_section", "rig_section",
-           "provenance_section", "levels_text", "signal_name", "CONTROLLER_NAMES"]
+           "provenance_section", "levels_text", "signal_name", "rigidity_words", "CONTROLLER_NAMES"]
 
 CONTROLLER_NAMES = {"pid": "PID", "ff+pid": "FF + PID"}
+_FRONT_WORDS = {"preload": "highest preload", "drag": "time-mean drag torque", "life": "rating life"}
+
+
+def _and(words: Any) -> str:
+    w = list(words)
+    return w[0] if len(w) == 1 else ", ".join(w[:-1]) + " and " + w[-1]
+
+
+#: the design's figure of rigidity, named apart from the controlled system's while cutting
+DESIGN_RIGIDITY = "least rigidity over the duty cases at their design preloads"
+_OBJECTIVE_NAMES = {"stiffness": "the least rigidity over the duty cases, maximised",
+                    "drag": "the time-mean drag torque, minimised", "life": "the rating life, maximised"}
 _METRIC_NAMES = {"rise_s": "rise time (s)", "peak_s": "peak time (s)", "settling_s": "settling time (s)"}
 _KIND_NAMES = {"classical": "a classical Prandtl-Ishlinskii model (the paper's eq. 15)",
                "paper-asymmetric": "the asymmetric Prandtl-Ishlinskii model of the paper's eq. 18",
@@ -57,6 +69,15 @@ def levels_text(reference_N: np.ndarray) -> str:
         return f"{fmt(min(levels))} to {fmt(max(levels))} N"
     sep = " → " if len(levels) == 2 else "-"
     return sep.join(fmt(x) for x in levels) + " N"
+
+
+def rigidity_words(n: TrackingNumbers) -> str:
+    """The rigidity while cutting in words: its least, with the requirement at that moment, and apart from it its
+    least ratio to the requirement (the requirement follows the load), with the two figures at that moment."""
+    return (f"the least rigidity is {fmt(n.rigidity_min_cutting_N_per_um)} N/um "
+            f"({fmt(n.rigidity_required_at_min_N_per_um)} N/um required at that moment) and the rigidity is at least "
+            f"{fmt(n.rigidity_ratio_min)} times its requirement ({fmt(n.rigidity_at_worst_ratio_N_per_um)} against "
+            f"{fmt(n.rigidity_required_at_worst_ratio_N_per_um)} N/um at the tightest moment)")
 
 
 def _when(x: float | None, unit: str, never: str) -> str:
@@ -108,18 +129,19 @@ def requirements_section(a: Artifacts) -> Part | None:
 # --------------------------------------------------------------------------------------
 # the design
 # --------------------------------------------------------------------------------------
-def design_section(study: ReportStudy, design: DesignRecord) -> Part:
+def design_section(study: ReportStudy, design: DesignRecord, system_shown: bool = False) -> Part:
     """The design optimum, its fronts, the planned schedule and the axis' natural frequency."""
     p, sch = design.point, design.schedule
     rows = (
         ("contact angle", fmt(p.contact_angle_deg), "°"), ("ball diameter", fmt(p.ball_mm, 4), "mm"),
         ("conformity", fmt(p.conformity), ""), ("loaded turns per nut", f"{p.turns:.0f}", ""),
-        ("balls per turn", f"{p.balls_per_turn:.0f}", ""), ("bolt preload", fmt(p.bolt_preload_N, 4), "N"),
-        ("maximum (piezo) preload", fmt(p.max_preload_N, 4), "N"),
-        ("least rigidity over the duty cycle", fmt(p.stiffness_N_per_um, 4), "N/um"),
-        ("mean drag torque", fmt(p.mean_drag_torque_Nm), "N m"), ("rating life", fmt(p.life_h, 4), "h"),
-        ("C_dyn (estimate)", fmt(p.c_dyn_N, 4), "N"), ("peak contact pressure", fmt(p.peak_pressure_MPa, 4), "MPa"),
-        ("lowest axial natural frequency", fmt(p.frequency_min_Hz, 4), "Hz"),
+        ("balls per turn", f"{p.balls_per_turn:.0f}", ""), ("bolt preload", fmt(p.bolt_preload_N), "N"),
+        ("highest preload (stacks at full drive)", fmt(p.max_preload_N), "N"),
+        (DESIGN_RIGIDITY, fmt(p.stiffness_N_per_um), "N/um"),
+        ("mean drag torque", fmt(p.mean_drag_torque_Nm), "N m"), ("rating life", fmt(p.life_h), "h"),
+        ("dynamic load rating C_dyn (estimate)", fmt(p.c_dyn_N), "N"),
+        ("peak contact pressure", fmt(p.peak_pressure_MPa), "MPa"),
+        ("lowest axial natural frequency", fmt(p.frequency_min_Hz), "Hz"),
         ("stack stroke used", fmt(p.stack_stroke_used_um), "um"),
     )
     diameter, lead = study.screw_mm or (None, None)
@@ -128,28 +150,31 @@ def design_section(study: ReportStudy, design: DesignRecord) -> Part:
     e = sch.energy_units
     paragraphs = [
         f"The preload design for the study's screw{screw}, solved with CasADi and IPOPT over the integer turns and "
-        f"balls per turn, objective {design.optimum.objective}. Constraints that bind at the optimum: "
-        f"{', '.join(binding) if binding else 'none'}.",
-        f"The least-friction preload schedule over the study's load profile ({sch.preload_N.size} samples) keeps the "
-        f"requirements with {fmt(sch.friction_energy_J, 4)} {e} of friction energy per cycle as planned, against "
-        f"{fmt(sch.constant_friction_energy_J, 4)} {e} at the best constant preload "
-        f"({fmt(sch.constant_preload_N, 4)} N): {pct(sch.saving_fraction)} less. What the controlled system achieves "
-        "is in the section on the designed system."]
+        f"balls per turn, objective {design.optimum.objective} ({_OBJECTIVE_NAMES.get(design.optimum.objective, '')})."
+        f" Constraints that bind at the optimum: {'; '.join(binding_words(binding, p)) if binding else 'none'}.",
+        f"The design's least-friction preload schedule over the study's load profile ({sch.preload_N.size} samples) "
+        f"keeps the requirements with {fmt(sch.friction_energy_J)} {e} of friction energy per cycle, against "
+        f"{fmt(sch.constant_friction_energy_J)} {e} at the best constant preload ({fmt(sch.constant_preload_N)} N): "
+        f"{pct(sch.saving_fraction)} less. That is the design's plan, before any margin a controlled loop adds"
+        + ("; what the controlled system plans and achieves is in the section on the designed system." if system_shown
+           else " (this study's plant is not its design: no loop followed the schedule).")]
     figures: list[tuple[str, Figure, str]] = [
         ("stiffness", F.stiffness_vs_preload(design.preload_curve.to_dict()),
          "Axial rigidity and preload drag torque of the optimum's double nut against preload; the duty cases at their "
-         "preloads.")]
+         "preloads; dotted: the bolts' preload alone, dashed: the stacks at full drive.")]
     omitted = []
     if design.fronts:
         figures.append(("pareto", F.pareto_fronts([f.to_dict() for f in design.fronts], p.to_dict()),
-                        "Pareto fronts by the epsilon-constraint method (each point an optimal design); star: the "
-                        f"optimum. Fronts: {', '.join(f.pair for f in design.fronts)}."))
+                        "Pareto fronts by the epsilon-constraint method (each point an optimal design): the "
+                        f"{_and(_FRONT_WORDS[f.y_name] for f in design.fronts)} against the least rigidity over the "
+                        "duty cases, swept up to the optimum's; star: the design optimum (objective "
+                        f"{design.optimum.objective})."))
     else:
         omitted.append("Pareto fronts: the study's [design] pareto list is empty.")
     figures.append(("schedule", F.preload_schedule(sch.profile.time_s, sch.profile.axial_load_N, sch.preload_N,
                                                     sch.constant_preload_N),
-                    f"The load profile and the planned least-friction preload schedule against the best constant "
-                    f"preload ({fmt(sch.constant_preload_N, 4)} N)."))
+                    f"The load profile and the design's least-friction preload schedule against the best constant "
+                    f"preload ({fmt(sch.constant_preload_N)} N)."))
     nf = design.natural_frequency
     limit = "" if study.frequency_min_Hz is None else f"; dashed, the study's limit {fmt(study.frequency_min_Hz)} Hz"
     figures.append(("natural-frequency", F.natural_frequency(nf.position_mm, nf.bolt_preload_Hz, nf.max_preload_Hz,
@@ -170,45 +195,53 @@ def system_section(system: SystemRecord, design: DesignRecord, learning: Learnin
     n, sch = system.numbers, design.schedule
     e = n.energy_units
     rows: list[tuple[str, str, str]] = [
-        ("tracking RMS of the true force" + ("" if learning is None else ", learned"),
+        ("tracking RMS over the machining cycles" + ("" if learning is None else ", learned"),
          f"{fmt(n.tracking_rms_N)} N", f"{fmt(n.tracking_rms_pct_of_range)} % of the schedule's "
-                                       f"{fmt(n.schedule_range_N)} N range")]
+                                       f"{fmt(n.schedule_range_N)} N range; true force, pre-cycle left out")]
     if learning is not None:
-        rows.append(("tracking RMS before learning", f"{fmt(learning.last.before_learning_rms_N)} N",
-                     f"{fmt(learning.last.before_learning_pct_of_range)} % of the range (the last pass)"))
-        rows.append(("learning trials (machining cycles' runs)", str(learning.trials),
-                     ", ".join(f"pass {i}: {n}" for i, n in enumerate(learning.trials_per_pass, 1))))
+        last = learning.last
+        rows += [("learning runs' tracking RMS, before learning", f"{fmt(last.before_learning_rms_N)} N",
+                  f"{fmt(last.before_learning_pct_of_range)} % of the last pass's {fmt(last.span_N)} N reference "
+                  "range, from its first change"),
+                 ("learning runs' tracking RMS, last pass's best trial", f"{fmt(last.tracking_rms_N)} N",
+                  f"{fmt(last.tracking_rms_pct_of_range)} % of that range (the section on learning)"),
+                 ("learning trials (machining cycles' runs)", str(learning.trials),
+                  ", ".join(f"pass {i}: {k}" for i, k in enumerate(learning.trials_per_pass, 1)))]
     deflection = ("no limit set" if n.deflection_limit_um is None else f"limit {fmt(n.deflection_limit_um)} um")
     rows += [
         ("largest tracking error", f"{fmt(n.tracking_max_N)} N", ""),
         ("error when the first cut begins", f"{fmt(n.cycle_start_error_N)} N",
          f"after a {fmt(system.pre_cycle.duration_s)} s pre-cycle to the first level"),
         ("least rigidity while cutting", f"{fmt(n.rigidity_min_cutting_N_per_um)} N/um",
-         f"required {fmt(n.rigidity_required_N_per_um)} N/um"),
+         f"{fmt(n.rigidity_required_at_min_N_per_um)} N/um required at that moment, {fmt(n.rigidity_min_t_s)} s into "
+         "the run"),
+        ("least rigidity over its requirement while cutting", f"{fmt(n.rigidity_ratio_min)} times",
+         f"{fmt(n.rigidity_at_worst_ratio_N_per_um)} against {fmt(n.rigidity_required_at_worst_ratio_N_per_um)} N/um "
+         f"required, {fmt(n.rigidity_worst_t_s)} s into the run"),
         ("time below the required rigidity", f"{fmt(n.rigidity_below_requirement_s)} s", ""),
         ("largest axial deflection while cutting", f"{fmt(n.deflection_max_um)} um", deflection),
-        ("least preload over the lift-off bound", fmt(n.lift_off_ratio_min),
+        ("least preload over the lift-off bound", f"{fmt(n.lift_off_ratio_min)} times",
          f"the bound with its {fmt(n.lift_off_margin)} margin"),
-        ("friction energy per cycle, achieved", f"{fmt(n.friction_energy_per_cycle)} {e}",
-         f"planned {fmt(n.planned_friction_energy_per_cycle)} {e}"),
+        ("friction energy per cycle, achieved", f"{fmt(n.friction_energy_per_cycle)} {e}", "the true force"),
+        ("friction energy per cycle, the loop's plan", f"{fmt(n.planned_friction_energy_per_cycle)} {e}",
+         "the last pass's schedule, with its local margins and the stacks' least contact force"),
+        ("friction energy per cycle, the design's plan", f"{fmt(sch.friction_energy_J)} {e}",
+         "the design's least-friction schedule, before the margins"),
         ("friction energy per cycle, best constant preload", f"{fmt(sch.constant_friction_energy_J)} {e}",
          f"at {fmt(sch.constant_preload_N)} N (the design's)"),
         ("largest local preload margin for the loop's error", f"{fmt(system.preload_margin_N)} N",
          f"{len(system.passes)} planning pass(es)"),
     ]
     follow = ("the tuned gains with the inverse-P-I feedforward follow it" if learning is None else
-              "the tuned gains with the inverse-P-I feedforward and the correction learned on each pass follow it "
-              f"(from {fmt(learning.last.before_learning_pct_of_range)} % of the range before learning, "
-              f"{learning.trials} learning trials)")
+              "the tuned gains with the inverse-P-I feedforward and the correction learned on each pass follow it")
     text = (f"The design's preload schedule is the reference of the force loop on the designed plant: the stacks' "
             f"share of it, over {system.cycles} machining cycles, after a {fmt(system.pre_cycle.duration_s)} s "
             f"pre-cycle that brings the stacks to the first level at the slew limit before the first cut. "
-            f"{follow[0].upper() + follow[1:]} within {fmt(n.tracking_rms_N)} N RMS, "
-            f"{fmt(n.tracking_rms_pct_of_range)} % of its range. While cutting, the least rigidity is "
-            f"{fmt(n.rigidity_min_cutting_N_per_um)} N/um against the {fmt(n.rigidity_required_N_per_um)} N/um "
-            f"required. The achieved preload needs {pct(n.friction_saved_fraction)} less friction energy than the "
-            f"design's best constant preload ({fmt(n.friction_energy_per_cycle)} against "
-            f"{fmt(sch.constant_friction_energy_J)} {e} per cycle).")
+            f"Over the machining cycles {follow} within {fmt(n.tracking_rms_N)} N RMS, "
+            f"{fmt(n.tracking_rms_pct_of_range)} % of the schedule's range. While cutting, {rigidity_words(n)}. The "
+            f"achieved preload needs {pct(n.friction_saved_fraction)} less friction energy than the design's best "
+            f"constant preload ({fmt(n.friction_energy_per_cycle)} against {fmt(sch.constant_friction_energy_J)} {e} "
+            "per cycle).")
     paragraphs = [text] + [f"What stops a requirement: {b.sentence()}." for b in system.bounds]
     ser = system.series
     fig = F.system_tracking(ser.time_s, ser.planned_N, ser.achieved_N, ser.rigidity_N_per_um, ser.required_N_per_um,
@@ -246,16 +279,21 @@ def learning_section(learning: LearningRecord) -> Part:
             f"reference, as many machining cycles as the schedule holds; learning stops when another trial no longer "
             f"pays. {learning.trials} learning trials in all ({per_pass}).{law} Each margin pass of the schedule "
             f"learns on its own reference{', starting from what the pass before learned' if last.warm_start else ''}. "
-            f"On the last pass the error is {fmt(last.tracking_rms_N)} N RMS ({fmt(last.tracking_rms_pct_of_range)} % "
-            f"of the range; the causal floor of the ramped reference is {fmt(last.causal_floor_N)} N), from "
-            f"{fmt(last.before_learning_rms_N)} N without any learned correction{start}.")
+            f"On the last pass the learning run's error (from the reference's first change, the pre-cycle's ramp "
+            f"included) is {fmt(last.tracking_rms_N)} N RMS at its best trial ({fmt(last.tracking_rms_pct_of_range)} % "
+            f"of the pass's {fmt(last.span_N)} N reference range; the causal floor of the ramped reference is "
+            f"{fmt(last.causal_floor_N)} N), from {fmt(last.before_learning_rms_N)} N without any learned "
+            f"correction{start}. The system's own figure over the machining cycles alone is in the section on the "
+            "designed system.")
     table = Table(("pass", "trial", "RMS (N)", "% of range", "measured (N)"), tuple(rows),
                   "The error per learning trial (trial 0: before the pass learns, with the correction the pass "
-                  "before learned where it starts from it): whole cycles, true force; measured: the sensor's force "
-                  "against the plan, what the law learns from.", "rlrrr")
+                  "before learned where it starts from it): whole runs from the reference's first change, true force, "
+                  "in % of the pass's reference range; measured: the sensor's force against the plan, what the law "
+                  "learns from.", "rlrrr")
     fig = F.learning_iterations([p.to_dict() for p in learning.passes])
     caption = ("The error per learning trial on the repeated schedule, each margin pass on its own reference (whole "
-               "cycles, true force, in % of the schedule's range); dotted: the causal floor of each pass's reference.")
+               "runs, true force, in % of the pass's reference range); dotted: the causal floor of each pass's "
+               "reference.")
     return Part(Section("Learning control on the repeated schedule", (text,), (table,), ("learning",)),
                 (("learning", fig, caption),))
 
@@ -282,7 +320,7 @@ def feedforward_section(study: ReportStudy, a: Artifacts) -> Part:
             f"({fmt(ident['compensation_max_N'])} N at worst).")
     loop, comp = a.csv("identify", "loop"), a.csv("identify", "compensation")
     figures = (
-        ("hysteresis", F.hysteresis_loops(loop["time_s"], loop["voltage_V"], loop["force_N"], loop["model_N"], src),
+        ("hysteresis", F.hysteresis_loops(loop["time_s"], loop["voltage_V"], loop["force_N"], loop["model_N"]),
          f"The feedforward's voltage-to-force loop measurement ({src}) and the {kind} P-I model identified from it; "
          "right, the model's error."),
         ("inverse", F.inverse_model(comp["desired_N"], comp["command_V"], comp["force_N"], comp["time_s"]),
@@ -330,7 +368,8 @@ def controller_section(study: ReportStudy, a: Artifacts) -> Part:
             f"{fmt(tuning.solve.ms)} at worst over the plant variants; solver: {tuning.solve.status}); "
             f"controller form: {g['form']}.{words}{search}")
     scheduled = gain_set.gains.schedule is not None
-    caption = (f"The gain set ({gain_set.status}), content SHA-256 {gain_set.content_sha256}"
+    caption = (f"The gain set ({gain_set.status}), content hash {gain_set.content_sha256} (the SHA-256 of its fields, "
+               "which every artifact that uses it names; not the file's)"
                + (": the robust set, kept in it for the record; the gain schedule below is what runs." if scheduled
                   else "."))
     table = Table(("parameter", "SI", "LabVIEW PID VI"), _gains_rows(g), caption, "lrr")
@@ -373,11 +412,16 @@ def _schedule_part(schedule: dict[str, Any] | None) -> Part | None:
                   "ll" + "r" * 8 + "c", small=True)
     fig = F.gain_schedule(schedule)
     caption = (f"The gain schedule on the preload level ({len(schedule['levels'])} entries) against the robust set "
-               "(dashed), and each set's worst case over the Monte Carlo plants per level; "
-               f"chosen: {schedule['choice']}.")
+               "(dashed), and each set's worst case over the Monte Carlo plants per level, the study's limits in red "
+               f"(dashed: tracking RMS, dotted: overshoot); chosen: {schedule['choice']}.")
     return Part(Section("The gain schedule", (text,), (table,), ("gain-schedule",)), (("gain-schedule", fig, caption),))
 
 
+#: the Monte Carlo spread's parameters as the report names them (a key not here is shown as the study names it)
+_SPREAD_NAMES = {"coupling_stiffness_N_per_um": "coupling stiffness", "amp_bandwidth_Hz": "amplifier bandwidth",
+                 "amp_current_limit_A": "amplifier current limit", "bw_alpha": "Bouc-Wen alpha",
+                 "bw_beta_per_V": "Bouc-Wen beta", "bw_kappa": "Bouc-Wen kappa", "creep_per_decade": "creep per decade",
+                 "noise_N": "sensor noise", "hertz_um_per_N23": "Hertz compliance"}
 _VALIDATION_NAMES = {"settling_s": "settling time (s)", "settling_measured_s": "settling time, measured force (s)",
                      "overshoot_N": "overshoot (N)", "tracking_rms_N": "tracking RMS after changes (N)",
                      "tracking_rms_all_N": "tracking RMS, whole trajectory (N)", "peak_voltage_V": "peak command (V)"}
@@ -392,7 +436,7 @@ def _validation_part(val: Any, gain_set: GainSet) -> Part:
                      fmt(limits[key]) if key in limits else "not a criterion"))
     verdict = ("every plant met every limit" if val.passed else
                f"{val.failed_plant_count} of {val.n_plants} plants missed a limit")
-    spread = ", ".join(f"{k} {fmt(v)}" for k, v in val.spread.items())
+    spread = ", ".join(f"{_SPREAD_NAMES.get(k, k)} {pct(v)}" for k, v in val.spread.items())
     levels = (", and each preload level's, where the tuning chose between a gain schedule and the robust set"
               if isinstance((gain_set.tuning or {}).get("schedule"), dict) else "")
     text = (f"{val.n_plants} plants drawn around the nominal one (seed {val.seed}; relative spread {spread}), each run "
@@ -554,7 +598,7 @@ def provenance_section(study: ReportStudy, a: Artifacts, stage_names: tuple[str,
     source = ff["inputs"]["data"]
     rows = [("package", f"piezopreload {version}"), ("study file", study.source), ("study SHA-256", study.sha256),
             ("feedforward data", "simulated" if source["kind"] == "simulated" else str(source.get("path"))),
-            ("feedforward data SHA-256", source["sha256"]), ("gain set SHA-256", a.gain_set.content_sha256 or ""),
+            ("feedforward data SHA-256", source["sha256"]), ("gain set content hash", a.gain_set.content_sha256 or ""),
             ("report date (UTC)", date),
             ("stage times", ", ".join(f"{n} {a.records[n]['seconds']:.1f} s" for n in stage_names
                                       if a.records.get(n, {}).get("status") == "done" and "seconds" in a.records[n]))]
@@ -567,6 +611,6 @@ def provenance_section(study: ReportStudy, a: Artifacts, stage_names: tuple[str,
                 artifacts.append((o["path"], o["sha256"][:24]))
     return Part(Section("Provenance", (), (
         Table(("item", "value"), tuple(rows), "The study's inputs.", "ll"),
-        Table(("artifact", "SHA-256 (first 24 hex digits; all 64 in pipeline.json)"), tuple(artifacts),
-              "Every artifact the report read.", "ll", small=True))))
+        Table(("artifact", "file SHA-256 (first 24 hex digits; all 64 in pipeline.json)"), tuple(artifacts),
+              "Every artifact the report read, the SHA-256 of each file as written.", "ll", small=True))))
 

@@ -46,7 +46,7 @@ def _parts(study: ReportStudy, a: Artifacts) -> list[S.Part]:
         parts.append(S.learning_section(a.learning))
     parts += [S.controller_section(study, a), S.responses_section(study, a), S.feedforward_section(study, a)]
     if a.design is not None:
-        parts.append(S.design_section(study, a.design))
+        parts.append(S.design_section(study, a.design, a.system is not None))
     parts.append(S.rig_section(study, a))
     return parts
 

@@ -18,7 +18,7 @@ from piezopreload.artifacts.responses import ResponseRun
 from piezopreload.artifacts.system import SystemRecord
 from piezopreload.reports.document import fmt, pct
 from piezopreload.reports.inputs import Artifacts, Published, ReportStudy
-from piezopreload.reports.sections import levels_text, signal_name
+from piezopreload.reports.sections import levels_text, rigidity_words, signal_name
 from piezopreload.reports.thermal import thermal_lines
 
 __all__ = ["verdicts", "summary"]
@@ -55,17 +55,15 @@ def summary(study: ReportStudy, a: Artifacts) -> tuple[str, ...]:
 
 def _system_lines(system: SystemRecord, design: DesignRecord, learning: LearningRecord | None) -> list[str]:
     n, sch = system.numbers, design.schedule
-    before = ("" if learning is None else
-              f", from {fmt(learning.last.before_learning_rms_N)} N "
-              f"({fmt(learning.last.before_learning_pct_of_range)} %) "
-              f"before learning, after {learning.trials} learning trials")
+    learned = ("" if learning is None else
+               f"; learning took the error of its learning runs from {fmt(learning.last.before_learning_rms_N)} N to "
+               f"{fmt(learning.last.tracking_rms_N)} N RMS in {learning.trials} trials")
     deflection = ("" if n.deflection_limit_um is None else
-                  f", and its largest deflection {fmt(n.deflection_max_um)} um against {fmt(n.deflection_limit_um)} um")
+                  f"; its largest deflection is {fmt(n.deflection_max_um)} um against {fmt(n.deflection_limit_um)} um")
     return [
-        f"The designed axis follows its preload schedule within {fmt(n.tracking_rms_N)} N RMS "
-        f"({fmt(n.tracking_rms_pct_of_range)} % of its {fmt(n.schedule_range_N)} N range){before}.",
-        f"While cutting, its least rigidity is {fmt(n.rigidity_min_cutting_N_per_um)} N/um against the "
-        f"{fmt(n.rigidity_required_N_per_um)} N/um required{deflection}.",
+        f"The designed axis follows its preload schedule over the machining cycles within {fmt(n.tracking_rms_N)} N "
+        f"RMS ({fmt(n.tracking_rms_pct_of_range)} % of the schedule's {fmt(n.schedule_range_N)} N range){learned}.",
+        f"While cutting, {rigidity_words(n)}{deflection}.",
         f"The achieved preload needs {pct(n.friction_saved_fraction)} less friction energy than the design's best "
         f"constant preload ({fmt(n.friction_energy_per_cycle)} against {fmt(sch.constant_friction_energy_J)} "
         f"{n.energy_units} per cycle at {fmt(sch.constant_preload_N)} N).",

@@ -15,11 +15,49 @@ from typing import Any
 import matplotlib as mpl
 from matplotlib.figure import Figure
 
-from piezopreload.reports.figures import COLOURS, STYLE
+from piezopreload.reports.figures import COLOURS, STYLE, legends
 
-__all__ = ["sweep_plot", "numeric"]
+__all__ = ["sweep_plot", "numeric", "LABELS", "label", "MIN_SPAN"]
 
 _WIDTH = 6.3  # inches: the study report's text width
+#: the sweep's columns as a reader names them, with their units (the table's headers and the figures' axes)
+LABELS = {
+    "design_stiffness_N_per_um": "design's least rigidity (N/um)", "Kc_V_per_N": "Kc (V/N)", "Ti_s": "Ti (s)",
+    "Td_s": "Td (s)", "Tf_s": "Tf (s)", "b": "setpoint weight b", "ms": "max. sensitivity Ms",
+    "gain_set_status": "gain set", "validation_plants": "Monte Carlo plants", "validation_failures": "plants failed",
+    "worst_settling_s": "worst settling (s)", "worst_overshoot_N": "worst overshoot (N)",
+    "worst_tracking_rms_N": "worst tracking RMS (N)", "worst_peak_voltage_V": "worst peak command (V)",
+    "tuned_settling_s": "nominal settling (s)", "tracking_rms_N": "tracking RMS (N)",
+    "tracking_rms_pct_of_range": "tracking (% of range)",
+    "tracking_rms_pct_of_range_before_learning": "tracking before learning (% of range)",
+    "tracking_max_N": "largest tracking error (N)", "rigidity_min_cutting_N_per_um": "least rigidity (N/um)",
+    "rigidity_required_at_min_N_per_um": "required there (N/um)",
+    "rigidity_ratio_min": "least rigidity / requirement", "deflection_max_um": "largest deflection (um)",
+    "friction_energy_per_cycle": "friction energy per cycle", "friction_saving_pct": "friction saved (%)",
+    "constant_friction_energy_per_cycle": "best constant preload's friction energy", "rig_status": "rig run",
+    "rig_tracking_rms_N": "rig tracking RMS (N)", "requirements_met": "requirements met",
+}
+#: a panel's axis spans at least this fraction of its values' size: a variation below it (below the 3 significant
+#: digits the table prints) is drawn flat, not stretched over the whole axis
+MIN_SPAN = 0.02
+
+
+def label(column: str, rows: Sequence[dict[str, Any]] = ()) -> str:
+    """A column's name as a reader reads it, with its unit (the friction energy's from the rows, J or N m s)."""
+    name = LABELS.get(column, column)
+    if column.endswith("friction_energy_per_cycle"):
+        units = {r.get("energy_units") for r in rows if r.get("energy_units")}
+        name += f" ({units.pop()})" if len(units) == 1 else ""
+    return name
+
+
+def _span(ax: Any, values: Sequence[float]) -> None:
+    """At least :data:`MIN_SPAN` of the values' size on the axis, about their middle."""
+    lo, hi = min(values), max(values)
+    need = MIN_SPAN * max(abs(lo), abs(hi))
+    if need > 0 and hi - lo < need:
+        mid = 0.5 * (lo + hi)
+        ax.set_ylim(mid - need, mid + need)
 
 
 def numeric(value: Any) -> bool:
@@ -56,6 +94,7 @@ def sweep_plot(rows: Sequence[dict[str, Any]], x: str, ys: Sequence[str], by: Se
     with mpl.rc_context(STYLE):
         fig = Figure(figsize=(_WIDTH, 0.9 + 1.35 * len(ys)), layout="constrained")
         axes = fig.subplots(len(ys), 1, squeeze=False, sharex=True)[:, 0]
+        marked = []
         for ax, y in zip(axes, ys):
             for name, members in groups.items():
                 pts = sorted((where[r[x]], float(r[y])) for r in members if numeric(r.get(y)))
@@ -65,12 +104,15 @@ def sweep_plot(rows: Sequence[dict[str, Any]], x: str, ys: Sequence[str], by: Se
             if failed:
                 ax.plot([p[0] for p in failed], [p[1] for p in failed], "x", color=COLOURS["limit"], ms=7, mew=1.5,
                         label="failed point")
-            ax.set_ylabel(y)
+            ax.set_ylabel(label(y, rows))
+            ax.yaxis.get_major_formatter().set_useOffset(False)  # the values themselves, not an offset from them
+            _span(ax, [float(r[y]) for r in rows if numeric(r.get(y))])
             if ax.get_legend_handles_labels()[0] and (len(groups) > 1 or failed):
-                ax.legend(loc="best")
+                marked.append(ax)
         axes[-1].set_xlabel(x)
         if labels is not None:
             axes[-1].set_xticks(range(len(labels)), [str(v) for v in labels])
         if title:
             axes[0].set_title(title)
+        legends(*marked)
     return fig

@@ -20,7 +20,7 @@ from piezopreload.core.artifacts import atomic_write_bytes, atomic_write_text, p
 from piezopreload.core.errors import InputError
 from piezopreload.reports import figures as F
 from piezopreload.reports.document import fmt
-from piezopreload.reports.sweep_figures import numeric, sweep_plot
+from piezopreload.reports.sweep_figures import label, numeric, sweep_plot
 from piezopreload.reports.typeset import ReportError, compile_pdf, template_text
 
 __all__ = ["render_sweep_report", "SWEEP_TEMPLATE", "SWEEP_FIGURES", "TABLE_COLUMNS"]
@@ -40,14 +40,17 @@ SWEEP_FIGURES: tuple[tuple[str, tuple[str, ...], str, str], ...] = (
      "Friction energy per machining cycle at the achieved preload, and the saving against the best constant preload",
      "system"),
 )
-#: the table's columns after the point, its values and its status: column, header, significant digits
-TABLE_COLUMNS: tuple[tuple[str, str, int], ...] = (
-    ("Kc_V_per_N", "Kc (V/N)", 4), ("Ti_s", "Ti (s)", 3), ("Td_s", "Td (s)", 3), ("gain_set_status", "gain set", 0),
-    ("worst_settling_s", "worst settling (s)", 3), ("worst_overshoot_N", "worst overshoot (N)", 3),
-    ("tuned_settling_s", "nominal settling (s)", 3), ("tracking_rms_pct_of_range", "tracking (% of range)", 3),
-    ("rigidity_min_cutting_N_per_um", "least rigidity (N/um)", 4), ("deflection_max_um", "deflection (um)", 3),
-    ("friction_saving_pct", "friction saved (%)", 3), ("requirements_met", "requirements met", 0),
+#: the table's columns after the point, its values and its status: column and significant digits (the header is the
+#: column's label, :data:`~piezopreload.reports.sweep_figures.LABELS`, as on the figures' axes)
+TABLE_COLUMNS: tuple[tuple[str, int], ...] = (
+    ("Kc_V_per_N", 4), ("Ti_s", 3), ("Td_s", 3), ("gain_set_status", 0), ("worst_settling_s", 3),
+    ("worst_overshoot_N", 3), ("tuned_settling_s", 3), ("tracking_rms_pct_of_range", 3),
+    ("rigidity_min_cutting_N_per_um", 3), ("deflection_max_um", 3), ("friction_saving_pct", 3),
+    ("requirements_met", 0),
 )
+#: where a long name may break in a table's header: after each dot and underscore (a zero-width space: a swept key
+#: such as schedule.stiffness_min_N_per_um is one word to the typesetter, wider than its column)
+_BREAK = str.maketrans({".": ".\u200b", "_": "_\u200b"})
 #: the figures the summary gives the range of: column, words, unit
 _RANGES = (("worst_settling_s", "the worst settling time", "s"), ("worst_overshoot_N", "the worst overshoot", "N"),
            ("tracking_rms_pct_of_range", "the schedule's tracking RMS", "% of its range"),
@@ -87,6 +90,9 @@ def _summary(record: SweepRecord) -> list[str]:
         have = [r for r in rows if numeric(r[column])]
         if len(have) >= 2:
             lo, hi = min(have, key=lambda r: r[column]), max(have, key=lambda r: r[column])
+            if fmt(lo[column]) == fmt(hi[column]):  # one value to the digits shown: no range to speak of
+                lines.append(f"At every point, {words} is {fmt(lo[column])} {unit}.")
+                continue
             lines.append(f"Over the points, {words} runs from {fmt(lo[column])} {unit} ({_label(lo, keys)}) to "
                          f"{fmt(hi[column])} {unit} ({_label(hi, keys)}).")
     stated = [r for r in rows if r["requirements_met"] is not None]
@@ -102,9 +108,9 @@ def _summary(record: SweepRecord) -> list[str]:
 def _table(record: SweepRecord) -> dict[str, Any]:
     rows = record.rows()
     columns = [c for c in TABLE_COLUMNS if any(r[c[0]] is not None for r in rows)]
-    header = ["point", *record.keys, "status", *(c[1] for c in columns)]
+    header = ["point", *(k.translate(_BREAK) for k in record.keys), "status", *(label(c[0], rows) for c in columns)]
     body = [[f"p{r['point']:03d}", *(str(r[k]) for k in record.keys), r["status"],
-             *(_cell(r[c[0]], c[2]) for c in columns)] for r in rows]
+             *(_cell(r[c[0]], c[1]) for c in columns)] for r in rows]
     return {"header": header, "rows": body}
 
 

@@ -101,10 +101,59 @@ def test_infeasible_request_names_the_constraint_and_the_shortfall(spec):
         optimise(bad, "stiffness")
     names = [v["constraint"] for v in info.value.violations]
     assert "life" in names, names
-    assert "life" in str(info.value) and "short by" in str(info.value)
+    assert "[design] life_min_h" in str(info.value) and "short" in str(info.value)
     # a request that is fine except for an impossible frequency
-    with pytest.raises(DesignInfeasible, match="frequency_case"):
+    with pytest.raises(DesignInfeasible, match=r"natural frequency in duty case \d .*\[design\] frequency_min_Hz"):
         optimise(replace(spec, frequency_min_Hz=2000.0), "drag")
+
+
+def _only_miss(spec, objective="stiffness"):
+    with pytest.raises(DesignInfeasible) as info:
+        optimise(spec, objective)
+    assert len(info.value.violations) == 1, str(info.value)
+    return info.value.violations[0], str(info.value)
+
+
+def test_a_least_rigidity_above_the_optimum_names_it_with_the_rigidity_reached(spec):
+    """[design] stiffness_min_N_per_um above what any design reaches: the message names that key, the value the
+    stiffest design meeting every other requirement reaches (the stiffness optimum of the same spec without the
+    requirement: an independent solve) and the shortfall, in N/um."""
+    best = optimise(spec, "stiffness").point.stiffness_N_per_um
+    required = round(1.3 * best, -1)
+    miss, text = _only_miss(replace(spec, stiffness_min_N_per_um=required))
+    assert miss["constraint"] == "stiffness_min" and miss["units"] == "N/um", miss
+    assert miss["reached"] == pytest.approx(best, rel=1e-3) and miss["required"] == required, miss
+    assert miss["short_by"] == pytest.approx(required - best, rel=1e-2), miss
+    assert "[design] stiffness_min_N_per_um" in text and f"reaches {miss['reached']:,.0f} N/um" in text, text
+    assert f"{required - miss['reached']:,.0f} N/um short" in text and "nan" not in text, text
+
+
+def test_a_life_beyond_reach_names_it_in_hours_with_the_longest_life(spec):
+    longest = optimise(spec, "life").point.life_h
+    miss, text = _only_miss(replace(spec, life_min_h=100 * longest))
+    assert miss["constraint"] == "life" and miss["units"] == "h", miss
+    assert miss["reached"] == pytest.approx(longest, rel=1e-3), (miss, longest)
+    assert "[design] life_min_h" in text and f"reaches {miss['reached']:,.0f} h" in text, text
+
+
+def test_a_failsafe_load_beyond_the_bolts_names_the_lift_off(spec):
+    miss, text = _only_miss(replace(spec, failsafe_load_N=40000.0))
+    assert miss["constraint"] == "lift_off_failsafe" and miss["units"] == "N", miss
+    assert miss["short_by"] == pytest.approx(40000.0 - miss["reached"]) and miss["short_by"] > 0, miss
+    assert f"without lift-off at most {miss['reached']:,.0f} N against at least 40,000 N" in text, text
+    assert "[design] failsafe_load_N" in text, text
+
+
+@pytest.mark.parametrize("pair", PARETO_PAIRS)
+def test_a_front_ends_at_the_stiffness_optimum_so_the_optimum_lies_on_it(spec, nlp, pair):
+    """The report draws the optimum (objective stiffness) on each front: the front's last point is that optimum's
+    rigidity with the other quantity the optimum's own (its tie-break leaves the least drag and preload at that
+    rigidity; the life there is the one design's), so the star sits on the front's end, not beyond it."""
+    best = optimise(spec, "stiffness", nlp).point
+    front = pareto_front(spec, pair, 6, nlp)
+    other = {"preload": best.max_preload_N, "drag": best.mean_drag_torque_Nm, "life": best.life_h}[front.y_name]
+    assert front.x[-1] == pytest.approx(best.stiffness_N_per_um, rel=1e-5), (front.x[-1], best.stiffness_N_per_um)
+    assert front.y[-1] == pytest.approx(other, rel=1e-4), (front.y[-1], other)
 
 
 def test_pareto_fronts_are_monotone(spec, nlp):
@@ -148,7 +197,9 @@ def test_fronts_with_sqp_warm_starts_match_the_ipopt_fronts(spec, nlp, reference
                                                                                 growth=growth)
     assert len(ours.points) == len(ref.points) == 20
     assert [(p.turns, p.balls_per_turn) for p in ours.points] == [(p.turns, p.balls_per_turn) for p in ref.points]
-    np.testing.assert_allclose(ours.x, ref.x, rtol=1e-4)  # where the epsilon is slack, set by the tie-break
+    # where the epsilon binds, x is the epsilon; where it is slack, x is set by the tie-break alone (weight 1e-3, a
+    # gradient of 1e-6 per N/um against the solvers' 1e-8 tolerance): the two solvers stop within 0.1 % of each other
+    np.testing.assert_allclose(ours.x, ref.x, rtol=2e-3)
     np.testing.assert_allclose(ours.y, ref.y, rtol=1e-5)
 
 
@@ -340,7 +391,8 @@ def test_ballscrew_cli_bad_input(capsys, argv, fragment):
 
 def test_design_cli_writes_the_artifact_and_fronts(tmp_path, capsys):
     out = tmp_path / "design.json"
-    code = main(["design", "--pareto", "stiffness:drag", "--points", "6", "--out", str(out), "--json"])
+    code = main(["design", "--study", "paper2021", "--pareto", "stiffness:drag", "--points", "6", "--out", str(out),
+                 "--json"])
     result = json.loads(capsys.readouterr().out)
     assert code == 0
     doc = json.loads(out.read_text())
@@ -361,7 +413,7 @@ def test_design_cli_infeasible_study_exits_2_naming_the_constraint(tmp_path, cap
     code = main(["design", "--study", str(study), "--pareto", "stiffness:drag", "--points", "3",
                  "--out", str(tmp_path / "d.json")])
     err = capsys.readouterr().err
-    assert code == 2 and "life" in err and "short by" in err
+    assert code == 2 and "[design] life_min_h" in err and " h short" in err, err
     assert not (tmp_path / "d.json").exists()
 
 
@@ -380,8 +432,8 @@ def test_design_study_errors_name_the_line(tmp_path, capsys):
 def test_load_profile_csv_errors_name_the_line(tmp_path, capsys):
     csv = tmp_path / "loads.csv"
     csv.write_text("time_s,axial_load_N,speed_rpm\n0,100,300\n0.1,nan,300\n")
-    code = main(["design", "--schedule", str(csv), "--pareto", "stiffness:drag", "--points", "2",
-                 "--out", str(tmp_path / "d.json")])
+    code = main(["design", "--study", "paper2021", "--schedule", str(csv), "--pareto", "stiffness:drag",
+                 "--points", "2", "--out", str(tmp_path / "d.json")])
     err = capsys.readouterr().err
     assert code == 2 and "loads.csv:3" in err and "axial_load_N" in err
 

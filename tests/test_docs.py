@@ -78,3 +78,26 @@ def test_the_check_catches_a_missing_file():
                             f'also ``docs/models{md}`` and ``gains.json``."""')]
     found = [b for b in missing_references(texts + _texts()) if b.startswith("x.py")]
     assert found == [f"x.py:1: docs/nowhere{md}", f"x.py:1: GONE{md}", f"x.py:1: ../other/file{md}"]
+
+
+#: the seed paper's authors as its own citation gives them (Appl. Sci. 11, 8491): Guangcheng Zhang, Hao Jin,
+#: Yueh-Jaw Lin
+_AUTHORS = {"Zhang": ("G.", "Guangcheng"), "Jin": ("H.", "Hao"), "Lin": ("Y.-J.", "Yueh-Jaw")}
+_NAMED = re.compile(r"\b((?:[A-Z]\.-?)+|[A-Z][a-z]+(?:-[A-Z][a-z]+)?) (Zhang|Jin|Lin)\b")
+
+
+def test_the_seed_paper_s_authors_are_named_as_the_paper_names_them():
+    """Wherever a document gives the authors' initials or first names, they are the paper's own; the
+    references page cites all three."""
+    wrong = []
+    for rel, text in _texts():
+        for n, line in enumerate(text.splitlines(), 1):
+            for m in _NAMED.finditer(line):
+                given, surname = m.group(1), m.group(2)
+                first = given.split()[-1]
+                if (given.endswith(".") or first in {"Guangcheng", "Hao", "Yueh-Jaw"}) and \
+                        first not in _AUTHORS[surname]:
+                    wrong.append(f"{rel}:{n}: {m.group(0)}")
+    assert not wrong, "the seed paper's authors named wrongly:\n" + "\n".join(wrong)
+    references = (ROOT / "docs" / "references.md").read_text(encoding="utf-8")
+    assert "G. Zhang, H. Jin, Y.-J. Lin" in references, "docs/references.md does not cite the paper's authors"

@@ -35,3 +35,81 @@ def test_a_failed_draw_leaves_no_partial_file(tmp_path, monkeypatch):
         F.save(fig, path)
     assert path.read_bytes() == b"the previous report's figure"
     assert [p.name for p in path.parent.iterdir()] == [path.name], "a temporary file was left behind"
+
+
+# --------------------------------------------------------------------------------------
+# legends off the data, integer counts: figures as the report draws them, checked on their pixels (tests/figkit.py)
+# --------------------------------------------------------------------------------------
+def _loops():
+    """A hysteresis record as the paper's rig gives it: three loops of 0-100 V, 30-90 N, the model close to it."""
+    t = np.linspace(0.0, 6.0, 3000)
+    v = 50.0 - 50.0 * np.cos(2 * np.pi * t / 2.0)
+    force = 30.0 + 0.6 * v + 4.0 * np.sin(2 * np.pi * t / 2.0)
+    return t, v, force, force + 0.5 * np.sin(7 * t)
+
+
+def _system(limit_um=5.0):
+    t = np.linspace(0.0, 30.0, 3001)
+    level = np.where((t % 15) < 2, 300.0, np.where((t % 15) < 7, 1700.0, np.where((t % 15) < 9, 300.0, 650.0)))
+    cut = (t % 15) > 0.7
+    rigidity = 700.0 + 0.25 * level
+    required = np.where(level > 1000, 800.0, 300.0)
+    deflection = np.where(cut, 3.15 * level / 1700.0, 0.0)
+    return t, level, level + 0.3, rigidity, required, cut, deflection, limit_um
+
+
+def _passes():
+    history = [{"iteration": i, "tracking_rms_N": [20.0 / 8 ** i]} for i in range(3)]
+    return [{"pass": 1, "tracking_rms_N": 0.75, "tracking_rms_pct_of_range": 0.052, "history": history,
+             "best_iteration": [2], "causal_floor_N": 0.68},
+            {"pass": 2, "tracking_rms_N": 0.43, "tracking_rms_pct_of_range": 0.0296, "history": history[:2],
+             "best_iteration": [1], "causal_floor_N": 0.68}]
+
+
+def _schedule():
+    levels = [{"level_N": lv, "robust": {"tracking_rms_N": tr, "overshoot_N": os_},
+               "scheduled": {"tracking_rms_N": ts, "overshoot_N": oss}}
+              for lv, tr, os_, ts, oss in ((0.0, 30.0, 10.1, 15.9, 6.8), (2000.0, 23.7, 28.9, 17.4, 19.3),
+                                            (4000.0, 31.6, 26.1, 34.2, 20.2))]
+    return {"table": {"levels_N": [0.0, 2000.0, 4000.0], "Kc_V_per_N": [0.01195, 0.01152, 0.01119],
+                      "Ti_s": [0.0034, 0.0447, 0.0461]},
+            "robust": {"Kc_V_per_N": 0.01077, "Ti_s": 0.0486}, "levels": levels, "choice": "schedule",
+            "limits": {"tracking_rms_N": 40.0, "overshoot_N": 25.0}}
+
+
+def _drawn(name):
+    if name == "hysteresis":
+        return F.hysteresis_loops(*_loops())
+    if name == "system":
+        return F.system_tracking(*_system())
+    if name == "learning":
+        return F.learning_iterations(_passes())
+    if name == "gain schedule":
+        return F.gain_schedule(_schedule())
+    t = np.linspace(0.0, 14.5, 1451)
+    if name == "schedule":
+        load = np.where(t < 1.5, 600.0, np.where(t < 6.5, 4000.0, np.where(t < 8, -600.0, -1500.0)))
+        return F.preload_schedule(t, load, np.maximum(np.abs(load) / 2.83 * 1.2, 255.0), 1697.0)
+    t = np.linspace(0.0, 30.5, 3051)
+    ref = np.where((t % 15) < 2, 50.0, np.where((t % 15) < 7, 1450.0, 380.0))
+    return F.rig_run(t, ref, ref + 0.5, 0.02 * ref, (t > 29.9).astype(int))
+
+
+@pytest.mark.parametrize("name", ["hysteresis", "system", "learning", "gain schedule", "schedule", "rig run"])
+def test_no_legend_covers_the_data_or_a_tick_label(name):
+    """Each figure's legends stand where no data, limit line or tick label is (the report's figure 7 had its legend
+    over the loops and the y tick '0'; figure 1's over the deflection limit)."""
+    from figkit import legends_over_ink
+
+    assert legends_over_ink(_drawn(name)) == [], name
+
+
+def test_counts_are_ticked_in_whole_numbers():
+    """A learning trial and a number of plants are counts: no tick at 0.5 or 2.5."""
+    learning = F.learning_iterations(_passes()).axes[0]
+    rng = np.random.default_rng(0)
+    hist = F.monte_carlo({"settling_s": list(0.3 + 0.02 * rng.random(200)), "overshoot_N": list(rng.random(200)),
+                          "tracking_rms_N": list(rng.random(200))}, {"settling_s": 0.6})
+    for ticks, what in ((learning.get_xticks(), "learning trials"),
+                        *((a.get_yticks(), "plants") for a in hist.axes)):
+        assert np.allclose(ticks, np.round(ticks)), f"{what}: ticks at {ticks}"

@@ -612,7 +612,8 @@ def test_learn_rig_playback_and_one_update_per_rig_run(tmp_path, capsys):
 
     study = load_study("paper2021")
     gains = write_gain_set(tmp_path / "gains.json", study, study.identify_feedforward().model)
-    assert main(["learn", "--gains", str(gains), "--iterations", "2", "--out", str(tmp_path / "L"), "--json"]) == 0
+    assert main(["learn", "--study", "paper2021", "--gains", str(gains), "--iterations", "2",
+                 "--out", str(tmp_path / "L"), "--json"]) == 0
     learned = json.loads(capsys.readouterr().out)
     assert learned["iterations"] <= 2 and learned["preview_floor_N"] < learned["causal_floor_N"]
     assert learned["trials"] == len(learned["history"]) - 1 and learned["method"] == "norm-optimal"

@@ -72,7 +72,8 @@ def test_study_line_numbers_point_at_the_key(tmp_path):
 
 def test_simulate_step_json_holds_the_metrics_and_the_published_ones(capsys, tmp_path):
     out = tmp_path / "run.csv"
-    code, stdout, err = run_cli(capsys, "simulate", "--controller", "pid", "--out", str(out), "--json")
+    code, stdout, err = run_cli(capsys, "simulate", "--study", "paper2021", "--controller", "pid", "--out", str(out),
+                                "--json")
     assert code == 0, err
     s = json.loads(stdout)
     for key in ("rise_s", "peak_s", "settling_s", "overshoot_N"):
@@ -89,7 +90,7 @@ def test_simulate_step_json_holds_the_metrics_and_the_published_ones(capsys, tmp
 
 
 def test_simulate_trajectory_reports_tracking(capsys):
-    code, stdout, err = run_cli(capsys, "simulate", "--reference", "trajectory", "--json")
+    code, stdout, err = run_cli(capsys, "simulate", "--study", "paper2021", "--reference", "trajectory", "--json")
     assert code == 0, err
     s = json.loads(stdout)
     assert s["controller"] == "ff+pid" and s["feedforward"]["operators"] == 40
@@ -115,7 +116,7 @@ def test_a_study_without_published_numbers_compares_with_none(capsys, tmp_path):
 
 
 def test_simulate_text_output_and_seed(capsys):
-    code, stdout, _ = run_cli(capsys, "simulate", "--controller", "pid", "--seed", "3")
+    code, stdout, _ = run_cli(capsys, "simulate", "--study", "paper2021", "--controller", "pid", "--seed", "3")
     assert code == 0
     assert "rise time (s)" in stdout and "1.690" in stdout and "seed 3" in stdout
 
@@ -130,13 +131,14 @@ def test_a_tampered_gain_file_is_refused(capsys, tmp_path):
     doc = json.loads(g.read_text())
     doc["gains"]["Kc_V_per_N"] = 5.0
     g.write_text(json.dumps(doc))
-    code, _, err = run_cli(capsys, "simulate", "--controller", "pid", "--gains", str(g))
+    code, _, err = run_cli(capsys, "simulate", "--study", "paper2021", "--controller", "pid", "--gains", str(g))
     assert code == 2 and "does not match its 'content_sha256'" in err and err.count("\n") == 1
 
 
 def test_simulate_with_a_gain_file(capsys, tmp_path):
     g = _gain_file(tmp_path / "g.json", {"Kc_V_per_N": 0.5, "Ti_s": 0.1, "Td_s": 0.0})
-    code, stdout, err = run_cli(capsys, "simulate", "--controller", "pid", "--gains", str(g), "--json")
+    code, stdout, err = run_cli(capsys, "simulate", "--study", "paper2021", "--controller", "pid", "--gains", str(g),
+                                "--json")
     assert code == 0, err
     s = json.loads(stdout)
     assert s["gains"]["Kc_V_per_N"] == 0.5 and s["gains"]["source"] == str(g)
@@ -172,12 +174,12 @@ def test_simulate_rejects_bad_gain_files(capsys, tmp_path, gains, needle):
                                  "gains": gains, "content_sha256": "0" * 64}))
     else:
         g = _gain_file(tmp_path / "g.json", gains)
-    code, _, err = run_cli(capsys, "simulate", "--gains", str(g))
+    code, _, err = run_cli(capsys, "simulate", "--study", "paper2021", "--gains", str(g))
     assert code == 2 and needle in err, err
 
 
 def test_reproduce_prints_the_six_numbers(capsys):
-    code, stdout, err = run_cli(capsys, "reproduce", "--json")
+    code, stdout, err = run_cli(capsys, "reproduce", "--study", "paper2021", "--json")
     assert code == 0, err
     s = json.loads(stdout)
     rows = {(r["controller"], r["metric"]): r for r in s["rows"]}

@@ -271,6 +271,30 @@ def test_one_run_at_a_time_per_folder(tmp_path, capsys):
     assert "another 'piezopreload run' or 'report' is writing this folder" in capsys.readouterr().err
 
 
+def test_a_folder_holding_another_study_is_refused_by_name_or_cleared_with_overwrite(small_run, tmp_path, capsys):
+    """One folder, one study: the machine axis into the small study's folder is refused before anything is written
+    (exit 2, one line naming the folder, the study it holds and the two fixes); with --overwrite the small study's
+    files go (what its manifest records, the rig's logs, the folders left empty) and a file of the user's stays."""
+    from piezopreload.pipeline import _one_study_per_folder
+
+    out = _copy(small_run, tmp_path)
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert main(["run", "machine_axis", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"error: {out}: holds the outputs of the study 'small'"), err
+    assert "not of 'machine_axis'" in err and "--out" in err and "--overwrite" in err, err
+    after = {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and p.name != ".lock"}  # the folder's lock
+    assert after == before, "a refused run wrote into the folder"
+    with pytest.raises(InputError, match="holds the outputs of the study 'small'"):
+        load_study("machine_axis").run(out)
+    (out / "notes.txt").write_text("the user's own")
+    _one_study_per_folder(out, load_study("machine_axis"), True, Progress(stream=io.StringIO()))
+    left = sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.name != ".lock")
+    assert left == ["notes.txt"], left
+    # the same study, changed or not, runs into its own folder as ever
+    _one_study_per_folder(_copy(small_run, tmp_path / "again"), load_study(SMALL), False, Progress())
+
+
 def test_measured_feedforward_data_is_identified_and_hashed(small_run, tmp_path):
     """``[feedforward] data``: the identify stage reads a measured V -> N loop (here the small run's own)."""
     loop = tmp_path / "loop.csv"
@@ -347,3 +371,25 @@ def test_the_feedforward_kind_and_creep_keys_are_checked(tmp_path, capsys):
     study.write_text(SMALL.read_text().replace("n_operators = 20", 'n_operators = 20\ncreep = "yes"'))
     with pytest.raises(InputError, match=r"study.toml:\d+: 'feedforward.creep'"):
         load_study(study)
+
+
+def test_no_figure_of_the_paper_rig_report_has_a_legend_over_its_data(small_run):
+    from figkit import legends_over_ink, report_figures
+
+    covered = {name: found for name, fig in report_figures(small_run[0]) if (found := legends_over_ink(fig))}
+    assert not covered, covered
+
+
+def test_run_prints_the_gain_set_s_content_hash_as_that(small_run, capsys):
+    """'gain set: ... (content hash 1234...)': the hash of the gain set's fields, which every artifact that uses it
+    names; not the file's SHA-256 (sha256sum gives another), so it is not called that."""
+    import hashlib
+
+    from piezopreload.cli.study import _print_run
+
+    out, result, _ = small_run
+    _print_run(result.to_dict())
+    line = [s for s in capsys.readouterr().out.splitlines() if s.startswith("gain set: ")][0]
+    content = GainSet.load(out / "gains.json").content_sha256
+    assert f"(content hash {content[:12]}..." in line and "sha256 " not in line, line
+    assert hashlib.sha256((out / "gains.json").read_bytes()).hexdigest()[:12] not in line

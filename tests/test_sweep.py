@@ -287,13 +287,58 @@ def test_the_plot_draws_one_line_per_value_of_the_other_key(tmp_path):
     assert lines["simulation.signal=force_N"] == ([1.5, 1.7], [1.0, 3.0])
     assert lines["simulation.signal=measured_N"] == ([1.5, 1.7], [2.0, 4.0])
     assert lines["failed point"] == ([1.7], [4.0]), "the failed point is marked"
-    assert ax.get_ylabel() == "Kc_V_per_N" and fig.axes[1].get_xlabel() == "tuning.ms_max"
+    assert ax.get_ylabel() == "Kc (V/N)" and fig.axes[1].get_xlabel() == "tuning.ms_max"
     categorical = result.plot("simulation.signal", "Kc_V_per_N")  # strings on evenly spaced positions
     assert [t.get_text() for t in categorical.axes[0].get_xticklabels()] == ["force_N", "measured_N"]
     with pytest.raises(InputError, match="no column 'settling'"):
         result.plot("tuning.ms_max", "settling")
     with pytest.raises(ValueError, match="tracking_rms_N"):
         result.plot("tuning.ms_max", "tracking_rms_N")
+
+
+def _system_record() -> SweepRecord:
+    """A whole-system study's sweep over a long key: every column of the table, a deflection that varies in its
+    fourth digit."""
+    key = "schedule.stiffness_min_N_per_um"
+    points = tuple(SweepPoint(i, {key: k}, f"points/p{i:03d}", "done", None, None, None, 70.0, ("tune",), (),
+                              PointFigures(Kc_V_per_N=0.0107, Ti_s=0.0486, Td_s=0.0, gain_set_status="validated",
+                                           worst_settling_s=0.354, worst_overshoot_N=20.7, tuned_settling_s=0.322,
+                                           tracking_rms_pct_of_range=0.03 + 0.001 * i,
+                                           rigidity_min_cutting_N_per_um=723.0 + 40 * i,
+                                           deflection_max_um=2.579 + 0.0015 * i, friction_energy_per_cycle=218.0 + i,
+                                           energy_units="J", friction_saving_pct=72.0 - i, requirements_met=True))
+                   for i, k in enumerate((300.0, 500.0, 700.0)))
+    return SweepRecord("machine_axis", "studies/machine_axis.toml", "0" * 64, "grid",
+                       (SweepAxis(key, (300.0, 500.0, 700.0)),), points, "2026-01-01T00:00:00Z")
+
+
+def test_the_sweep_table_s_header_can_break_and_speaks_a_reader_s_names(tmp_path):
+    """Every header cell of the sweep's table breaks into pieces a column of a page-wide table of 15 columns holds
+    at 7 pt (a swept key is one word to the typesetter: unbroken it ran over its neighbours), and a figure is named
+    with its unit, not by its column's name."""
+    from piezopreload.reports.sweep_report import _table
+
+    table = _table(_system_record())
+    pieces = [w for h in table["header"] for w in re.split(r"[\s\u200b-]+", h)]
+    assert max(len(w) for w in pieces) <= 16, [w for w in pieces if len(w) > 16]
+    assert "largest deflection (um)" in table["header"] and "least rigidity (N/um)" in table["header"], table["header"]
+    assert not [h for h in table["header"] if "_N" in h.replace("\u200b", "") and h.count("_") > 1
+                and not h.startswith("schedule.")], table["header"]
+
+
+def test_the_sweep_figures_name_their_axes_and_do_not_stretch_a_variation_below_the_digits_shown():
+    from piezopreload.reports.sweep_figures import MIN_SPAN, sweep_plot
+
+    rows = _system_record().rows()
+    fig = sweep_plot(rows, "schedule.stiffness_min_N_per_um",
+                     ["rigidity_min_cutting_N_per_um", "deflection_max_um", "friction_energy_per_cycle"])
+    rigidity, deflection, energy = fig.axes
+    assert [a.get_ylabel() for a in fig.axes] == ["least rigidity (N/um)", "largest deflection (um)",
+                                                  "friction energy per cycle (J)"]
+    lo, hi = deflection.get_ylim()  # 2.579 to 2.582 um: drawn within 2 % of 2.58 um, flat, not over the whole axis
+    assert hi - lo >= 2 * MIN_SPAN * 2.58 * 0.999 and lo < 2.579 and hi > 2.582, (lo, hi)
+    lo, hi = rigidity.get_ylim()  # a variation that the digits show keeps matplotlib's axis
+    assert hi - lo < 100.0, (lo, hi)
 
 
 def test_the_front_door_names_the_sweep_result_on_first_use():

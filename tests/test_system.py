@@ -144,6 +144,36 @@ def test_tracking_numbers_of_a_perfect_run_are_the_plans(axis):
     assert n.friction_saved_fraction == pytest.approx(schedule.saving_fraction, abs=0.005)
 
 
+def test_the_least_rigidity_while_cutting_is_the_least_over_the_cutting_samples(axis):
+    """The least rigidity while cutting is the least over the samples under load, beside the requirement at that
+    moment; the least ratio to the requirement (the requirement follows the load: |F_a| / deflection_max where that is
+    more than stiffness_min) is its own figure, at its own sample. Checked on the perfect run against the numpy nut
+    law at the planned preload under each sample's load, and on this schedule the two samples differ."""
+    from piezopreload.design.system import RIGIDITY_VERDICT, evaluate_tracking, pre_cycle_for, schedule_reference
+    from piezopreload.models.closedloop import simulate
+    from piezopreload.models.controller import Controller, PIDGains
+
+    spec, opt, plant, schedule = axis
+    pre = pre_cycle_for(plant, schedule, settle_s=0.2)
+    run = _perfect(simulate(Rig(plant.rig), Controller(PIDGains(0.001, 0.05), 1e-3),
+                            schedule_reference(plant, schedule, cycles=1, pre_cycle=pre)))
+    ev = evaluate_tracking(plant, schedule, run, cycles=1, pre_cycle_s=pre.duration_s)
+    n, f = ev.numbers, ev.frame
+    cut = f.cutting
+    rigidity = np.asarray(plant.screw.rigidity_N_per_um(f.planned[cut], f.load[cut]), float)  # the numpy model
+    assert n.rigidity_min_cutting_N_per_um == pytest.approx(float(np.min(rigidity)), rel=1e-9)
+    m = int(np.argmin(np.where(cut, f.rigidity, np.inf)))
+    assert n.rigidity_required_at_min_N_per_um == f.required[m] and n.rigidity_min_t_s == run.t_s[m]
+    ratio = f.rigidity[cut] / f.required[cut]
+    assert n.rigidity_ratio_min == pytest.approx(float(np.min(ratio)), rel=1e-12)
+    assert n.rigidity_at_worst_ratio_N_per_um / n.rigidity_required_at_worst_ratio_N_per_um == \
+        pytest.approx(n.rigidity_ratio_min, rel=1e-12)
+    # the tightest moment is not the least rigidity's: a figure read at one cannot stand for the other
+    assert n.rigidity_at_worst_ratio_N_per_um > 1.2 * n.rigidity_min_cutting_N_per_um, n
+    verdict = ev.requirements[0]
+    assert verdict.name == RIGIDITY_VERDICT and verdict.value == n.rigidity_at_worst_ratio_N_per_um
+
+
 def test_the_pre_cycle_ramps_at_the_slew_limit_and_is_left_out_of_the_verdicts(axis):
     """The reference rests, ramps to the first level at the schedule's slew limit and holds before the first cut; a
     run that is exact over the cycles but nowhere near the reference in the pre-cycle meets everything, and its

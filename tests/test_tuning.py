@@ -347,7 +347,7 @@ def test_casadi_c_controller_equals_the_python_step(tmp_path, kind):
 def test_tune_validate_export_from_the_command_line(tmp_path, capsys):
     """The paper's study: tune (few plants), validate again, export; the JSON keys the tools promise."""
     out = tmp_path / "gains.json"
-    assert main(["tune", "--out", str(out), "--plants", "3", "--workers", "1", "--json"]) == 0
+    assert main(["tune", "--study", "paper2021", "--out", str(out), "--plants", "3", "--workers", "1", "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
     for key in ("settling_s", "overshoot_N", "tracking_rms_N", "study_tracking_rms_N",
                 "lower_bound_settling_s", "status"):

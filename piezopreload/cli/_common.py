@@ -9,7 +9,7 @@ from collections.abc import Callable
 from typing import Any
 
 from piezopreload.core.errors import InputError
-from piezopreload.study import PAPER_STUDY, load_study
+from piezopreload.study import load_study
 from piezopreload.tuning.identification import Window
 
 EXIT_OK, EXIT_INTERNAL, EXIT_INPUT = 0, 1, 2
@@ -94,15 +94,23 @@ def accept_flag(p: argparse.ArgumentParser, use: str) -> None:
 
 
 def study_arguments(p: argparse.ArgumentParser, seed: bool = True) -> None:
-    p.add_argument("--study", metavar="STUDY.toml", help="study file (default: the paper's, paper2021.toml)")
+    p.add_argument("--study", metavar="STUDY.toml",
+                   help="study file, or a shipped study's name (default: the machine axis, machine_axis.toml, as "
+                        "for 'run'; the paper's is paper2021)")
     if seed:
         p.add_argument("--seed", type=nonnegative_int, help="noise seed (default: the study's)")
 
 
-def study_of(args: argparse.Namespace) -> Any:
-    # the single-step commands work on a study's plant (Study.plant: its [rig], or its design's):
-    # the paper's unless named
-    return load_study(args.study or PAPER_STUDY)
+def study_of(args: argparse.Namespace, gains: Any = None) -> Any:
+    """The study a single-step command works on (its plant: Study.plant, its [rig] or its design's): --study, else
+    the default study every command shares (the machine axis). A gain set tuned for another study is refused
+    without --study, rather than run on a plant it was not tuned for."""
+    study = load_study(args.study)
+    named = None if gains is None else gains.inputs.get("study_sha256")
+    if args.study is None and named and named != study.sha256:
+        raise InputError(f"--gains: the gain set was tuned for the study {gains.inputs.get('study', '(unnamed)')}, "
+                         f"not the default ({study.name}); name its study with --study")
+    return study
 
 
 

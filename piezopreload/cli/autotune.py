@@ -126,7 +126,7 @@ def _print_autotune(s: dict[str, Any]) -> None:
           f"{s['seconds']:.2f} s")
     if s["out"]:
         c = s["discrete_check"]
-        print(f"wrote {s['out']} ({s['status']}, sha256 {s['content_sha256'][:12]}...): "
+        print(f"wrote {s['out']} ({s['status']}, content hash {s['content_sha256'][:12]}...): "
               f"at Ts {c['sample_period_s']:g} s "
               + ", ".join(f"{k} {v:.4g}" for k, v in c["achieved"].items())
               + f", {'stable' if c['stable'] else 'UNSTABLE'}")

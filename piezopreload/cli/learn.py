@@ -75,7 +75,7 @@ def _cmd_learn(args: argparse.Namespace) -> dict[str, Any]:
     gain_set = None if args.gains is None else GainSet.load(args.gains)
     if args.from_run or args.learned:
         return _from_run(args, gain_set)
-    study = study_of(args)
+    study = study_of(args, gain_set)
     reference: Any = args.reference
     if reference not in (*study.references, "schedule"):
         reference = reference_for(reference, gain_set or GainSet(gains=study.gains), "--reference")[0]

@@ -46,6 +46,9 @@ def register_run(sub: Any) -> None:
     p.add_argument("--out", default="piezopreload-out", metavar="DIR",
                    help="output folder (default ./piezopreload-out)")
     p.add_argument("--force", action="store_true", help="run every stage again, changed or not")
+    p.add_argument("--overwrite", action="store_true",
+                   help="where --out holds another study's outputs, remove them first (without it such a folder is "
+                        "refused: one folder never mixes two studies)")
     p.add_argument("--quiet", action="store_true", help="no progress on standard error")
     json_flag(p)
     p.set_defaults(run=_cmd_run, show=_print_run)
@@ -54,7 +57,8 @@ def register_run(sub: Any) -> None:
 def _cmd_run(args: argparse.Namespace) -> dict[str, Any]:
     from piezopreload.progress import Progress
 
-    return load_study(args.study).run(args.out, force=args.force, progress=Progress(quiet=args.quiet)).to_dict()
+    return load_study(args.study).run(args.out, force=args.force, progress=Progress(quiet=args.quiet),
+                                      overwrite=args.overwrite).to_dict()
 
 
 def _print_run(s: dict[str, Any]) -> None:
@@ -62,7 +66,8 @@ def _print_run(s: dict[str, Any]) -> None:
         state = f"ran in {st['seconds']:.1f} s" if st["ran"] else st["status"]
         print(f"  {st['stage']:9s} {state}")
     if s["gain_set"]:
-        print(f"gain set: {s['gain_set']} (sha256 {(s['gain_set_sha256'] or '')[:12]}...)")
+        print(f"gain set: {s['gain_set']} (content hash {(s['gain_set_sha256'] or '')[:12]}..., the SHA-256 of its "
+              "fields, not of the file)")
     if s["rig_log"]:
         print(f"rig run log: {s['rig_log']}")
     if s["report"]:
@@ -140,8 +145,8 @@ def register_simulate(sub: Any) -> None:
 
 def _cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
     t0 = time.perf_counter()
-    study = study_of(args)
     gains = None if args.gains is None else GainSet.load(args.gains)
+    study = study_of(args, gains)
     ff = None
     if args.controller == "ff+pid":  # the study's feedforward (or the file's), as the paper identified its own
         ff = IdentifiedFeedforward.load(args.feedforward) if args.feedforward else study.identify_feedforward()

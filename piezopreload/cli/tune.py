@@ -67,7 +67,7 @@ def _print_tune(s: dict[str, Any]) -> None:
     print(f"validation on {v['n_plants']} plants ({v['workers']}, {v['seconds']:.0f} s): "
           f"{'PASSED' if v['passed'] else 'FAILED'} ({v['n_failures']} failures)")
     print_validation_summary(v)
-    print(f"wrote {s['out']} ({s['status']}, sha256 {s['content_sha256'][:12]}...)")
+    print(f"wrote {s['out']} ({s['status']}, content hash {s['content_sha256'][:12]}...)")
 
 
 def _print_bounds(mt: dict[str, Any], tf: dict[str, Any], settling_s: float | None) -> None:
@@ -130,6 +130,6 @@ def _print_validate(s: dict[str, Any]) -> None:
     for f in v["failures"][:10]:
         print(f"  plant {f['plant']}: {f['metric']} {fmt(f['value'])} > {f['limit']:g}")
     if s["out"]:
-        print(f"wrote {s['out']} ({s['status']}, sha256 {s['content_sha256'][:12]}...)")
+        print(f"wrote {s['out']} ({s['status']}, content hash {s['content_sha256'][:12]}...)")
 
 
