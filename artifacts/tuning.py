@@ -116,8 +116,9 @@ class ActiveBound:
         _check_finite(self, ("bound",))
 
     def sentence(self) -> str:
-        """The bound in words: ``Td_s at its lower bound (1e-05): ...``."""
-        return f"{self.gain} at its {self.side} bound ({self.bound:.4g}): {self.note}"
+        """The bound in words: ``the derivative time Td at its lower bound (1e-05 s): ...``."""
+        words, unit = _GAIN_WORDS.get(self.gain, (self.gain, ""))
+        return f"{words} at its {self.side} bound ({self.bound:.4g}{unit}): {self.note}"
 
     def to_dict(self) -> dict[str, Any]:
         return {"gain": self.gain, "side": self.side, "bound": self.bound, "note": self.note}
@@ -126,6 +127,12 @@ class ActiveBound:
     def from_dict(cls, doc: Any, where: str = "active_bounds[]") -> ActiveBound:
         return _construct(cls, where, gain=_field(doc, "gain", text, where), side=_field(doc, "side", text, where),
                           bound=_field(doc, "bound", number, where), note=_field(doc, "note", text, where))
+
+
+#: each gain's words and unit, as a sentence names it
+_GAIN_WORDS = {"Kc": ("the gain Kc", " V/N"), "Ti_s": ("the integral time Ti", " s"),
+               "Td_s": ("the derivative time Td", " s"), "Tf_s": ("the derivative filter's time Tf", " s"),
+               "b": ("the setpoint weight b", "")}
 
 
 def _construct(cls: Any, where: str, **kwargs: Any) -> Any:

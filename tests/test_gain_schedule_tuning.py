@@ -51,8 +51,9 @@ def test_the_choice_follows_the_figures(robust, scheduled, whole, expected):
     choice, reason = choose(levels, w)
     assert choice == expected, reason
     if not all(robust) or not whole[0]:
-        assert "overshoot_N" in reason or "tracking_rms_N" in reason, (
-            "the reason does not say where the robust set failed")
+        assert "worst overshoot" in reason or "worst tracking RMS" in reason, (
+            "the reason does not say in words where the robust set failed")
+        assert "_N" not in reason, f"a field name in the reason: {reason}"
 
 
 def _hertz_rig(**kw):
@@ -157,7 +158,7 @@ def test_a_level_the_schedule_misses_says_what_stops_a_pid_entry():
     figures = {"overshoot_N": 28.8, "settling_s": 0.5, "failures": ["overshoot_N"], "passed": False}
     tuned = _bound({"binding": ["Ms <= 1.6, variant 2", "overshoot inside 15 N, step, variant 1"],
                     "overshoot_target_N": 15.0}, figures, limits)
-    assert "Ms <= 1.6, variant 2" in tuned and "overshoot_N 28.8 against 25" in tuned and "15 N" in tuned
+    assert "Ms <= 1.6, variant 2" in tuned and "worst overshoot 28.8 N against 25" in tuned and "15 N" in tuned
     none = _bound({"infeasible": "not met: overshoot inside 15 N, step, variant 2 (by 18.5)"}, figures, limits)
     assert "no PID entry meets" in none and "by 18.5" in none
     levels = [{"level_N": 2000.0, "robust": _figures(False, ("overshoot_N",)),
@@ -165,6 +166,7 @@ def test_a_level_the_schedule_misses_says_what_stops_a_pid_entry():
     whole = {"robust": _figures(True), "scheduled": _figures(True)}
     choice, reason = choose(levels, whole)
     assert choice == "robust" and "What stops a PID entry: at 2000 N" in reason and "Ms <= 1.6" in reason
+    assert "misses it at 2,000 N (worst overshoot)" in reason, reason
 
 
 def test_the_chosen_sets_verdict_at_each_level_is_a_requirement():

@@ -544,7 +544,7 @@ def test_the_tuning_record_reads_back_and_names_a_bad_field(tmp_path):
     back = TuningRecord.load(path)
     assert back.to_dict() == record.to_dict()
     assert back.row("tuned").settling_s == 0.2 and back.row("tuned")["settling_s"] == 0.2
-    assert back.active_bounds[0].sentence().startswith("Td_s at its lower bound")
+    assert back.active_bounds[0].sentence().startswith("the derivative time Td at its lower bound")
     doc = json.loads(path.read_text())
     for field, value, words in (("minimum_time", {"settling_s": None, "tuned_over_bound_ratio": None}, "reason"),
                                 ("table", [{"gains": "tuned"}], "table[0].rise_s"),

@@ -136,9 +136,9 @@ def choose(levels: list[dict[str, Any]], whole: dict[str, Any]) -> tuple[str, st
         return whole[which]["passed"] and all(r[which]["passed"] for r in levels)
 
     def where(which: str) -> str:
-        bad = [f"{r['level_N']:g} N ({', '.join(r[which]['failures'])})" for r in levels if not r[which]["passed"]]
+        bad = [f"{r['level_N']:,.0f} N ({_failed_words(r[which])})" for r in levels if not r[which]["passed"]]
         if not whole[which]["passed"]:
-            bad.append(f"the whole range ({', '.join(whole[which]['failures'])})")
+            bad.append(f"the whole range ({_failed_words(whole[which])})")
         return "; ".join(bad)
 
     if passes("robust"):
@@ -161,6 +161,11 @@ _LEVEL_LIMITS = {"settling_s": ("worst settling time", "s", "settling_max_s"),
                  "overshoot_N": ("worst overshoot", "N", "overshoot_max_N"),
                  "tracking_rms_N": ("worst tracking RMS after the changes", "N", "tracking_rms_max_N"),
                  "peak_voltage_V": ("highest command", "V", "peak_voltage_max_V")}
+
+
+def _failed_words(figures: dict[str, Any]) -> str:
+    """The metrics a set failed at a level, in words."""
+    return ", ".join(_LEVEL_LIMITS[m][0] if m in _LEVEL_LIMITS else m for m in figures["failures"])
 
 
 def level_requirements(schedule: dict[str, Any]) -> tuple[Requirement, ...]:
@@ -288,7 +293,8 @@ def _tighter(spec: TuningSpec, figures: dict[str, Any], criteria: Criteria) -> f
 def _bound(record: dict[str, Any], figures: dict[str, Any], limits: dict[str, float]) -> str:
     """What stops the schedule's entry at a level it misses: the tuning's binding constraints (or the specification no
     entry met) beside the Monte Carlo worst case of each failed metric against its limit."""
-    missed = ", ".join(f"{m} {figures[m]:.3g} against {limits[m]:.3g}" for m in figures["failures"] if m in limits)
+    missed = ", ".join(f"{_LEVEL_LIMITS[m][0]} {figures[m]:.3g} {_LEVEL_LIMITS[m][1]} against {limits[m]:.3g}"
+                       for m in figures["failures"] if m in limits)
     if "infeasible" in record:
         return f"no PID entry meets the window's tuning specification ({record['infeasible']}); Monte Carlo: {missed}"
     binding = "; ".join(record.get("binding", [])) or "none"
