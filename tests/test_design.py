@@ -144,7 +144,8 @@ def test_a_failsafe_load_beyond_the_bolts_names_the_lift_off(spec):
     assert "[design] failsafe_load_N" in text, text
 
 
-@pytest.mark.parametrize("pair", PARETO_PAIRS)
+# the growth front's y is a shift's growth, which the optimum's record does not carry: the report draws no star on it
+@pytest.mark.parametrize("pair", [p for p in PARETO_PAIRS if not p.endswith(":growth")])
 def test_a_front_ends_at_the_stiffness_optimum_so_the_optimum_lies_on_it(spec, nlp, pair):
     """The report draws the optimum (objective stiffness) on each front: the front's last point is that optimum's
     rigidity with the other quantity the optimum's own (its tie-break leaves the least drag and preload at that
