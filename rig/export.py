@@ -45,8 +45,8 @@ from piezopreload.rig.controller_code import ControllerCode, controller_code
 from piezopreload.rig.structured_text import controller_block, function_block, loop_program
 
 __all__ = ["FORMATS", "EXPORT_FILES", "MODEL_FILES", "CONTROLLER_FORM", "INVERSE_STEP_ALGORITHM", "ExportError",
-           "FeedforwardTable", "export", "feedforward_table", "write_exports", "controller_from_gain_set",
-           "validated_gains"]
+           "NotValidated", "FeedforwardTable", "export", "feedforward_table", "write_exports",
+           "controller_from_gain_set", "validated_gains", "require_validated"]
 
 #: the formats a gain set or a hysteresis model is exported to
 FORMATS = ("json", "labview", "plc", "c-header", "casadi-c")
@@ -91,6 +91,10 @@ INVERSE_STEP_ALGORITHM = (
 
 class ExportError(InputError):
     """The gain set or model cannot be exported (for example: the gain set is not validated)."""
+
+
+class NotValidated(ExportError):
+    """A gain set whose status does not let it leave the tool (:func:`require_validated`)."""
 
 
 # --------------------------------------------------------------------------------------
@@ -144,11 +148,20 @@ def feedforward_table(model: HysteresisModel | CreepPI, sample_period_s: float |
 # --------------------------------------------------------------------------------------
 # the gain set's numbers
 # --------------------------------------------------------------------------------------
+def require_validated(gain_set: GainSet, use: str, shown: str | None = None) -> GainSet:
+    """The one check of a gain set's status before it leaves the tool: exported, run on the rig, pushed to a served rig
+    or to a PLC (``use`` says which, in words: "exported", "run on the rig", ...). Reads the status through the gain
+    set's own verdict (:attr:`GainSet.validated`); :class:`NotValidated` (bad input) says what it is instead."""
+    if not gain_set.validated:
+        where = "" if shown is None else f"{shown}: "
+        raise NotValidated(f"{where}the gain set is a '{gain_set.status}', not 'validated': only validated gains are "
+                           f"{use}; tune it again ('piezopreload tune') until its validation passes")
+    return gain_set
+
+
 def validated_gains(gain_set: GainSet) -> dict[str, float]:
     """The gains every format writes (SI, by name); refuses a gain set that is not validated."""
-    if not gain_set.validated:
-        raise ExportError(f"the gain set is a '{gain_set.status}', not 'validated': only validated gains are "
-                          "exported; run 'piezopreload tune' until its validation passes")
+    require_validated(gain_set, "exported")
     g = {k: float(v) for k, v in gains_to_dict(gain_set.gains).items() if k in _GAIN_KEYS}
     bad = [k for k, v in g.items() if not np.isfinite(v)]
     if bad:

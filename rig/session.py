@@ -41,7 +41,7 @@ from piezopreload.models.controller import Controller
 from piezopreload.models.metrics import run_numbers
 from piezopreload.rig.backends import BackendError, Fault, FaultInjector, open_backend
 from piezopreload.rig.executor import Executor
-from piezopreload.rig.export import ExportError, controller_from_gain_set
+from piezopreload.rig.export import ExportError, controller_from_gain_set, require_validated
 from piezopreload.rig.hostcheck import check_host
 from piezopreload.rig.limits import RunLimits, run_limits, study_values
 from piezopreload.rig.opcua import PushRefused, RigServer, feedforward_hash, push_gain_set
@@ -61,16 +61,9 @@ HOST_CHECK_S = 2.0
 MAX_REFERENCE_S = 3600.0
 
 
-def _require_validated(gain_set: GainSet, shown: str) -> GainSet:
-    if not gain_set.validated:
-        raise InputError(f"{shown}: the gain set is a '{gain_set.status}', not 'validated': the rig runs validated "
-                         "gains only; run 'piezopreload validate' until it passes")
-    return gain_set
-
-
-def load_validated(path: str | Path) -> GainSet:
+def load_validated(path: str | Path, use: str = "run on the rig") -> GainSet:
     """A gain set whose hash matches and that passed validation; anything else is refused (exit 2)."""
-    return _require_validated(GainSet.load(path), str(path))
+    return require_validated(GainSet.load(path), use, str(path))
 
 
 def _identity(gain_set: GainSet) -> dict[str, str]:
@@ -93,7 +86,7 @@ def check_pushed(text: str, served: dict[str, float] | None = None) -> tuple[Con
     """
     shown = "the pushed gain set"
     try:
-        gain_set = _require_validated(GainSet.parse(text, shown), shown)
+        gain_set = require_validated(GainSet.parse(text, shown), "pushed", shown)
         controller = _controller(shown, gain_set)
         pushed, sources = study_values(gain_set)
     except InputError as exc:
@@ -457,7 +450,7 @@ def push(gains_path: str | Path, *, endpoint: str, username: str | None, passwor
          certificate: str | None = None, private_key: str | None = None,
          server_certificate: str | None = None) -> dict[str, Any]:
     """Push a validated gain set to a serving rig; refused pushes are bad input (exit 2) with the server's reason."""
-    gain_set = load_validated(gains_path)  # refuse locally first: nothing is sent that the server would refuse
+    gain_set = load_validated(gains_path, "pushed")  # refuse locally first: nothing is sent the server would refuse
     text = Path(gains_path).read_text(encoding="utf-8")
     try:
         reply = asyncio.run(push_gain_set(text, endpoint, username=username, password=password, certificate=certificate,
