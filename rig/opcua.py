@@ -8,11 +8,15 @@ Address space (namespace ``urn:piezopreload:rig``), under ``Objects/PreloadRig``
 * ``GainSetSha256`` and ``FeedforwardSha256``: which gain set runs, and which hysteresis model
   its feedforward inverts (the hash of the model's JSON);
 * ``SetPoint`` (N), ``MeasuredForce`` (N), ``CommandVoltage`` (V), ``State`` and ``LastEvent``;
-* the method ``PushGainSet(document: String) -> (accepted: Boolean, message: String)``.
+* the method ``PushGainSet(GainSetDocument: String, Note: String) -> (Accepted: Boolean, Message:
+  String)`` (:data:`PUSH_INPUTS`, :data:`PUSH_OUTPUTS`).
 
 Every variable is read-only to clients; the one way to change the controller is the method,
-which checks the document again (its hash, its status, its sample period), hands it to the
-executor to switch bumplessly between two cycles, and records who pushed what and when.
+which checks the document again (its hash, its status, the rig's plant, the limits it would be
+armed with against those it was armed with, a controller of another structure compiled:
+:func:`piezopreload.rig.session.check_pushed`), hands it to the executor to switch bumplessly
+between two cycles, and records who pushed what, why and when. ``docs/targets/rig-opcua.md``
+lists the address space and the security.
 
 Security: sessions authenticate with a user name and password (``users``); anonymous
 sessions are refused.
@@ -77,7 +81,8 @@ from piezopreload.models.controller import Controller
 from piezopreload.rig import DEFAULT_ENDPOINT
 from piezopreload.rig.executor import Executor, RunResult
 
-__all__ = ["RigServer", "push_gain_set", "PushRefused", "NAMESPACE", "DEFAULT_ENDPOINT", "ROOT"]
+__all__ = ["RigServer", "push_gain_set", "PushRefused", "NAMESPACE", "DEFAULT_ENDPOINT", "ROOT", "PUSH_INPUTS",
+           "PUSH_OUTPUTS"]
 
 NAMESPACE = "urn:piezopreload:rig"
 ROOT = "PreloadRig"
@@ -364,6 +369,40 @@ def _serve_process(fd: int) -> None:
             conn.send(("failed", f"the OPC UA server could not start: {type(exc).__name__}: {exc}"))
 
 
+#: PushGainSet's input arguments: name, type, what
+PUSH_INPUTS = (
+    ("GainSetDocument", ua.VariantType.String,
+     "the gain set file's text, its JSON document as 'piezopreload tune' wrote it (not a path to it)"),
+    ("Note", ua.VariantType.String, "why it is pushed, recorded with the push in the run log (may be empty)"),
+)
+#: PushGainSet's output arguments
+PUSH_OUTPUTS = (
+    ("Accepted", ua.VariantType.Boolean, "TRUE: the rig switches to it at its next cycle"),
+    ("Message", ua.VariantType.String, "what the rig did, or why it refused, in a sentence"),
+)
+
+
+def _argument(name: str, vtype: ua.VariantType, what: str) -> ua.Argument:
+    arg = ua.Argument()
+    arg.Name, arg.DataType, arg.ValueRank = name, ua.NodeId(vtype.value), -1
+    arg.Description = ua.LocalizedText(what)
+    return arg
+
+
+def _push_arguments(args: tuple) -> tuple[str, str]:
+    """PushGainSet's arguments, checked: ``(document, note)``; a ValueError says what was expected."""
+    names = " and ".join(f"{name} ({what})" for name, _, what in PUSH_INPUTS)
+    if len(args) != len(PUSH_INPUTS) or not all(isinstance(a.Value, str) for a in args):
+        raise ValueError(f"PushGainSet takes {len(PUSH_INPUTS)} String arguments: {names}; got "
+                         f"{len(args)} of {', '.join(type(a.Value).__name__ for a in args) or 'none'}")
+    document, note = (a.Value for a in args)
+    if not document.lstrip().startswith("{"):
+        shown = document if len(document) <= 60 else document[:57] + "..."
+        raise ValueError(f"GainSetDocument must be the gain set file's text (its JSON document), not a path or a "
+                         f"name: got '{shown}'; read the file and send what it holds")
+    return document, note
+
+
 class _ServerProcess:
     def __init__(self, conn: Any, cfg: _Config) -> None:
         self.conn, self.cfg = conn, cfg
@@ -412,10 +451,11 @@ class _ServerProcess:
             state=await var(root, "State", "idle, running, ramping down, completed or tripped"),
             last_event=await var(root, "LastEvent", "the executor's last event as JSON"),
         )
-        method = await root.add_method(idx, "PushGainSet", self._push_callback, [ua.VariantType.String],
-                                       [ua.VariantType.Boolean, ua.VariantType.String])
+        method = await root.add_method(idx, "PushGainSet", self._push_callback,
+                                       [_argument(name, vtype, what) for name, vtype, what in PUSH_INPUTS],
+                                       [_argument(name, vtype, what) for name, vtype, what in PUSH_OUTPUTS])
         await method.write_attribute(ua.AttributeIds.Description, ua.DataValue(ua.Variant(ua.LocalizedText(
-            "push a validated gain set (the JSON document); it runs from the next cycle on, switched bumplessly"))))
+            "push a validated gain set of this rig's plant; it runs from the next cycle on, switched bumplessly"))))
         return server, nodes
 
     async def _push_callback(self, parent: Any, *args: Any) -> list[ua.Variant]:
@@ -425,9 +465,10 @@ class _ServerProcess:
 
     async def _push(self, args: tuple, user: str) -> tuple[bool, str]:
         try:
-            if len(args) != 1 or not isinstance(args[0].Value, str):
-                raise ValueError("PushGainSet takes one String argument: the gain set's JSON document")
-            controller, identity = self.cfg.check(args[0].Value)
+            document, note = _push_arguments(args)
+            controller, identity = self.cfg.check(document)
+            if note:
+                identity = {**identity, "note": note}
         except ValueError as exc:  # refused here: the supervisor records it, the client has the reason
             self.conn.send(("refused", user, str(exc)))
             return False, f"refused: {exc}"
@@ -527,14 +568,15 @@ async def _await_running(running_node: Any, running: str, expect_sha256: str, ti
     return running
 
 
-async def _push_and_read(client: Client, document: str, timeout_s: float,
+async def _push_and_read(client: Client, document: str, note: str, timeout_s: float,
                          expect_sha256: str | None) -> tuple[bool, str, dict[str, Any], str]:
     """Call ``PushGainSet`` on a connected client; the answer, then the parameters and the gain set the server shows."""
     idx = await client.get_namespace_index(NAMESPACE)
     root = await client.nodes.objects.get_child([f"{idx}:{ROOT}"])
     method = await root.get_child([f"{idx}:PushGainSet"])
     try:
-        accepted, message = await root.call_method(method, ua.Variant(document, ua.VariantType.String))
+        accepted, message = await root.call_method(method, ua.Variant(document, ua.VariantType.String),
+                                                   ua.Variant(note, ua.VariantType.String))
     except ua.UaStatusCodeError as exc:
         raise PushRefused(f"the server refused the call: {type(exc).__name__}") from None
     running_node = await root.get_child([f"{idx}:GainSetSha256"])
@@ -551,8 +593,9 @@ async def _push_and_read(client: Client, document: str, timeout_s: float,
 async def push_gain_set(document: str, endpoint: str, *, username: str | None = None, password: str | None = None,
                         certificate: str | Path | None = None, private_key: str | Path | None = None,
                         server_certificate: str | Path | None = None, timeout_s: float = 10.0,
-                        expect_sha256: str | None = None) -> dict[str, Any]:
-    """Push a gain set's JSON ``document`` through ``PushGainSet``; :class:`PushRefused` says why not.
+                        expect_sha256: str | None = None, note: str = "") -> dict[str, Any]:
+    """Push a gain set's JSON ``document`` through ``PushGainSet`` (with ``note``, recorded with it);
+    :class:`PushRefused` says why not.
 
     With ``expect_sha256``, waits (up to ``timeout_s``) until the server shows that gain set
     running and returns the parameters it then shows.
@@ -560,7 +603,7 @@ async def push_gain_set(document: str, endpoint: str, *, username: str | None = 
     client = await _client(endpoint, timeout_s, username, password, certificate, private_key, server_certificate)
     await _connect(client, endpoint)
     try:
-        accepted, message, values, running = await _push_and_read(client, document, timeout_s, expect_sha256)
+        accepted, message, values, running = await _push_and_read(client, document, note, timeout_s, expect_sha256)
     finally:
         await client.disconnect()
     if not accepted:

@@ -107,7 +107,7 @@ class PythonLoop:
             ex._pending = None
             ex.step.switch(new)
             ex.controller = new
-            ex._event("gains_switched", self.t, **info)
+            ex._event("gains_switched", self.t, cycle=self.k, **info)
 
     def _cycle(self) -> tuple[bool, Trip | None]:
         """One cycle: ``(stop, trip)``; a stop without a trip is a run ended by :meth:`Executor.stop`."""

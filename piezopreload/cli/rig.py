@@ -135,8 +135,10 @@ def register_rig(sub: Any) -> None:
         description=(
             "Run a validated gain set in real time like 'rig run' (the reference's last level held after its end) and "
             "serve it over OPC UA: CtrlP, CtrlTi, CtrlTd (LADS names), the gain set's and the feedforward's hashes, "
-            "setpoint, force, voltage, state, last event, and the method PushGainSet. The host is checked first "
-            "('rig check'). Ends on SIGINT/SIGTERM (exit 3) or after --duration (exit 0)."),
+            "setpoint, force, voltage, state, last event, and the method PushGainSet(GainSetDocument, Note), which "
+            "takes any validated gain set of this rig's plant whose limits fit the interlocks the rig was armed with. "
+            "Anonymous sessions are refused: --user is required. The host is checked first ('rig check'). Ends on "
+            "SIGINT/SIGTERM (exit 3) or after --duration (exit 0)."),
         epilog=f"The password of --user is read from ${PASSWORD_ENV}.")
     _rig_arguments(p)
     p.add_argument("--endpoint", default=DEFAULT_RIG_ENDPOINT, help=f"default {DEFAULT_RIG_ENDPOINT} (loopback)")
@@ -149,9 +151,11 @@ def register_rig(sub: Any) -> None:
 
     p = rig_sub.add_parser(
         "push", help="push a validated gain set to a serving rig",
-        description=("Push a validated gain set to 'rig serve' through the OPC UA method PushGainSet; the executor "
-                     "checks it again and switches bumplessly between two cycles. Candidates, tampered files, wrong "
-                     "passwords and refused calls exit 2 with the reason."),
+        description=("Push a validated gain set to 'rig serve' through the OPC UA method PushGainSet; the served rig "
+                     "checks it again (its plant, its status, its limits against the armed interlocks) and switches "
+                     "bumplessly at its next cycle, also to another structure (a gain schedule where there was none). "
+                     "Candidates, tampered files, gain sets of another plant or with stricter limits, wrong passwords "
+                     "and refused calls exit 2 with the reason."),
         epilog=f"The password of --user is read from ${PASSWORD_ENV} (or asked for on a terminal).")
     p.add_argument("gains", metavar="gains.json", help="a validated gain set")
     p.add_argument("--endpoint", default=DEFAULT_RIG_ENDPOINT, help=f"default {DEFAULT_RIG_ENDPOINT}")
@@ -159,6 +163,7 @@ def register_rig(sub: Any) -> None:
     p.add_argument("--certificate", metavar="CERT", help="the client's certificate (Basic256Sha256 SignAndEncrypt)")
     p.add_argument("--private-key", metavar="KEY", help="the client certificate's private key")
     p.add_argument("--server-certificate", metavar="CERT", help="the server's certificate, to trust it")
+    p.add_argument("--note", default="", metavar="TEXT", help="why it is pushed, recorded with the push in the run log")
     json_flag(p)
     p.set_defaults(run=_cmd_rig_push, show=_print_rig_push)
 
@@ -212,7 +217,7 @@ def _cmd_rig_push(args: argparse.Namespace) -> dict[str, Any]:
     password = _password(args, args.user is not None) if args.user else None
     return session.push(args.gains, endpoint=args.endpoint, username=args.user, password=password,
                         certificate=args.certificate, private_key=args.private_key,
-                        server_certificate=args.server_certificate)
+                        server_certificate=args.server_certificate, note=args.note)
 
 
 def _print_rig_run(s: dict[str, Any]) -> None:
