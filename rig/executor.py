@@ -106,6 +106,7 @@ class Executor:
         self._native: Any = None
         self._switch_lock = threading.Lock()
         self._switch_info: list[dict[str, Any]] = []
+        self._unsaved = False  # an event the loop recorded and left to another thread to write
         self.loop, self.loop_reason = self._choose_loop(loop)
 
     @property
@@ -189,6 +190,13 @@ class Executor:
         self._stop = reason
         if self._native is not None:
             self._native.stop(trip)
+
+    def save_events(self) -> None:
+        """Write the events the loop recorded without writing them (a gain switch on the Python loop) to the run log's
+        sidecar; for the thread that serves the rig, never the loop's."""
+        if self._unsaved and self.log is not None:
+            self._unsaved = False
+            self.log.save()
 
     def record(self, kind: str, **detail: Any) -> None:
         """An event from outside the loop (a refused push, an operator's note), at the loop's last time."""

@@ -74,15 +74,21 @@ from typing import Any
 
 from asyncua import Client, Server, ua
 from asyncua.crypto.permission_rules import SimpleRoleRuleset, User, UserRole
-from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+from asyncua.crypto.security_policies import (
+    SecurityPolicyAes128Sha256RsaOaep,
+    SecurityPolicyAes256Sha256RsaPss,
+    SecurityPolicyBasic256Sha256,
+)
 
 from piezopreload.core.errors import PiezopreloadError
 from piezopreload.models.controller import Controller
 from piezopreload.rig import DEFAULT_ENDPOINT
+from piezopreload.rig import SECURITY_MODES as MODE_NAMES
+from piezopreload.rig import SECURITY_POLICIES as POLICY_NAMES
 from piezopreload.rig.executor import Executor, RunResult
 
 __all__ = ["RigServer", "push_gain_set", "PushRefused", "NAMESPACE", "DEFAULT_ENDPOINT", "ROOT", "PUSH_INPUTS",
-           "PUSH_OUTPUTS"]
+           "PUSH_OUTPUTS", "Credentials", "connect", "SECURITY_POLICIES", "SECURITY_MODES"]
 
 NAMESPACE = "urn:piezopreload:rig"
 ROOT = "PreloadRig"
@@ -158,6 +164,9 @@ _NODE_KEYS = {"CtrlP": "p", "CtrlTi": "ti", "CtrlTd": "td", "CtrlTf": "tf", "Ctr
 
 #: how long the server process waits for the supervisor's answer to a push before refusing it
 ANSWER_TIMEOUT_S = 10.0
+#: how long a client waits for a push's answer: the served rig's check derives the limits on a simulation and may
+#: compile a controller of another structure first (well under a second on a quiet machine, seconds on a loaded one)
+PUSH_TIMEOUT_S = 60.0
 #: how often the server process checks that its supervisor is alive
 PARENT_CHECK_S = 0.2
 #: the server process's niceness increment: it yields the CPU to the loop's process
@@ -213,6 +222,7 @@ class RigServer:
     # ---- the supervisor's side -------------------------------------------------------------------
     def _values(self) -> dict[str, Any]:
         """Every node's value now (the executor's latest cycle, the running gains and identity)."""
+        pending = self.executor.switch_pending  # first: a loop that took a switch has set its controller already
         t, sp, y, v, state = self.executor.latest
         g = self.executor.controller.gains
         values: dict[str, Any] = {"CtrlP": float(g.Kc), "CtrlTi": float(g.Ti_s), "CtrlTd": float(g.Td_s),
@@ -222,7 +232,7 @@ class RigServer:
         if events and len(events) != self._events_shown:
             self._events_shown = len(events)
             values["LastEvent"] = json.dumps(events[-1], default=str)
-        if not self.executor.switch_pending:  # the pushed hash is shown once the loop runs it
+        if not pending:  # the pushed hash is shown once the loop runs it
             values["GainSetSha256"] = self.identity.get("gain_set_sha256", "")
             values["FeedforwardSha256"] = self.identity.get("feedforward_sha256", "")
         return values
@@ -320,6 +330,7 @@ class RigServer:
                 if stop is not None and stop.is_set():
                     self.executor.stop("stopped by the server", trip=False)
                 self._publish()
+                self.executor.save_events()
                 if self._showing is not None and not self.executor.switch_pending:
                     record, t0 = self._showing  # the supervisor's share of push-to-switch: taken and shown
                     record["switch_shown_ms"] = round((time.monotonic() - t0) * 1e3, 3)
@@ -466,7 +477,9 @@ class _ServerProcess:
     async def _push(self, args: tuple, user: str) -> tuple[bool, str]:
         try:
             document, note = _push_arguments(args)
-            controller, identity = self.cfg.check(document)
+            # in a thread: the check derives the limits on a simulation and may compile a new structure's step, and
+            # the server answers its other sessions (their keep-alive reads) meanwhile
+            controller, identity = await asyncio.get_running_loop().run_in_executor(None, self.cfg.check, document)
             if note:
                 identity = {**identity, "note": note}
         except ValueError as exc:  # refused here: the supervisor records it, the client has the reason
@@ -522,18 +535,63 @@ class _ServerProcess:
                 os._exit(0)
 
 
-async def _client(endpoint: str, timeout_s: float, username: str | None, password: str | None,
-                  certificate: str | Path | None, private_key: str | Path | None,
-                  server_certificate: str | Path | None) -> Client:
-    """A client of ``endpoint`` with the user's name and password and, with a certificate, encryption."""
-    client = Client(endpoint, timeout=timeout_s)
-    if username is not None:
-        client.set_user(username)
-        client.set_password(password or "")
-    if certificate is not None:
-        await client.set_security(SecurityPolicyBasic256Sha256, str(certificate), str(private_key),
-                                  server_certificate=None if server_certificate is None else str(server_certificate),
-                                  mode=ua.MessageSecurityMode.SignAndEncrypt)
+#: the security policies a client may ask for with a certificate, by name (piezopreload.rig.SECURITY_POLICIES)
+SECURITY_POLICIES = dict(zip(POLICY_NAMES, (SecurityPolicyBasic256Sha256, SecurityPolicyAes128Sha256RsaOaep,
+                                            SecurityPolicyAes256Sha256RsaPss), strict=True))
+#: the message security modes a client may ask for with a certificate, by name (piezopreload.rig.SECURITY_MODES)
+SECURITY_MODES = dict(zip(MODE_NAMES, (ua.MessageSecurityMode.SignAndEncrypt, ua.MessageSecurityMode.Sign),
+                          strict=True))
+
+
+@dataclass(frozen=True)
+class Credentials:
+    """How a client authenticates and secures its channel: a user name and password (None: anonymous), and with a
+    certificate and its private key a secure channel of ``policy`` and ``mode`` (``server_certificate``: the server's,
+    to trust it)."""
+
+    username: str | None = None
+    password: str | None = None
+    certificate: str | Path | None = None
+    private_key: str | Path | None = None
+    server_certificate: str | Path | None = None
+    policy: str = "Basic256Sha256"
+    mode: str = "SignAndEncrypt"
+
+    def __post_init__(self) -> None:
+        if self.policy not in SECURITY_POLICIES:
+            raise ValueError(f"security policy '{self.policy}': expected one of {', '.join(SECURITY_POLICIES)}")
+        if self.mode not in SECURITY_MODES:
+            raise ValueError(f"security mode '{self.mode}': expected one of {', '.join(SECURITY_MODES)}")
+        if (self.certificate is None) != (self.private_key is None):
+            raise ValueError("give the client's certificate and its private key, or neither")
+
+
+async def _client(endpoint: str, timeout_s: float, who: Credentials) -> Client:
+    """A client of ``endpoint`` with the user's name and password and, with a certificate, a secure channel.
+
+    Its health probe (a read of the server's state between requests) waits as long as a request: a session of a
+    few requests on a loaded host is not dropped because the server took over a second to answer one probe."""
+    client = Client(endpoint, timeout=timeout_s, watchdog_intervall=timeout_s)
+    if who.username is not None:
+        client.set_user(who.username)
+        client.set_password(who.password or "")
+    if who.certificate is not None:
+        server = None if who.server_certificate is None else str(who.server_certificate)
+        await client.set_security(SECURITY_POLICIES[who.policy], str(who.certificate), str(who.private_key),
+                                  server_certificate=server, mode=SECURITY_MODES[who.mode])
+    return client
+
+
+def lost(endpoint: str, exc: BaseException) -> str:
+    """The words for a session that ended before its answer (the push may or may not have been taken)."""
+    return (f"the session with {endpoint} ended before its answer ({exc or type(exc).__name__}); read what the server "
+            "shows before pushing again")
+
+
+async def connect(endpoint: str, who: Credentials, timeout_s: float = 10.0) -> Client:
+    """A connected session with ``endpoint`` (disconnect it when done); :class:`PushRefused` says why not."""
+    client = await _client(endpoint, timeout_s, who)
+    await _connect(client, endpoint)
     return client
 
 
@@ -592,7 +650,7 @@ async def _push_and_read(client: Client, document: str, note: str, timeout_s: fl
 
 async def push_gain_set(document: str, endpoint: str, *, username: str | None = None, password: str | None = None,
                         certificate: str | Path | None = None, private_key: str | Path | None = None,
-                        server_certificate: str | Path | None = None, timeout_s: float = 10.0,
+                        server_certificate: str | Path | None = None, timeout_s: float = PUSH_TIMEOUT_S,
                         expect_sha256: str | None = None, note: str = "") -> dict[str, Any]:
     """Push a gain set's JSON ``document`` through ``PushGainSet`` (with ``note``, recorded with it);
     :class:`PushRefused` says why not.
@@ -600,10 +658,12 @@ async def push_gain_set(document: str, endpoint: str, *, username: str | None = 
     With ``expect_sha256``, waits (up to ``timeout_s``) until the server shows that gain set
     running and returns the parameters it then shows.
     """
-    client = await _client(endpoint, timeout_s, username, password, certificate, private_key, server_certificate)
-    await _connect(client, endpoint)
+    who = Credentials(username, password, certificate, private_key, server_certificate)
+    client = await connect(endpoint, who, timeout_s)
     try:
         accepted, message, values, running = await _push_and_read(client, document, note, timeout_s, expect_sha256)
+    except (ConnectionError, TimeoutError) as exc:
+        raise PushRefused(lost(endpoint, exc)) from None
     finally:
         await client.disconnect()
     if not accepted:
