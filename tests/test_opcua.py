@@ -390,3 +390,70 @@ def test_a_retuned_and_a_redesigned_gain_set_switch_within_one_period_without_a_
     kc = np.interp(log["reference_N"][k2 + 1:k2 + 300], (40.0, 60.0, 100.0), (0.4, 0.6, 0.5))
     np.testing.assert_allclose(p[k2 + 1:k2 + 300], -kc * y[k2 + 1:k2 + 300], rtol=1e-6,
                                err_msg="the scheduled gains do not run")
+
+
+# --------------------------------------------------------------------------------------
+# the documentation's page: its client example and its address space
+# --------------------------------------------------------------------------------------
+_PAGE = Path(__file__).resolve().parents[1] / "docs" / "targets" / "rig-opcua.md"
+
+
+def _page_example():
+    text = _PAGE.read_text()
+    block = text.split("<!-- client-example-start -->", 1)[1].split("<!-- client-example-end -->", 1)[0]
+    return block.split("```python", 1)[1].rsplit("```", 1)[0]
+
+
+def _page_nodes():
+    """The address space as the page lists it: path -> (type, access)."""
+    rows = re.findall(r"^\| `PreloadRig/([\w/]+)` \| (\w+) \| (\w+) \|", _PAGE.read_text(), re.MULTILINE)
+    return {path: (kind, access) for path, kind, access in rows}
+
+
+async def _served_nodes(endpoint):
+    """Every node under PreloadRig as the server has it: path -> (type, access)."""
+    client = Client(endpoint)
+    client.set_user(USER)
+    client.set_password(PASSWORD)
+    out = {}
+    async with client:
+        idx = await client.get_namespace_index(NAMESPACE)
+        root = await client.nodes.objects.get_child([f"{idx}:{ROOT}"])
+
+        async def walk(node, prefix):
+            for child in await node.get_children():
+                name = (await child.read_browse_name()).Name
+                kind = await child.read_node_class()
+                if kind == ua.NodeClass.Object:
+                    await walk(child, f"{prefix}{name}/")
+                elif kind == ua.NodeClass.Method:
+                    out[prefix + name] = ("Method", "call")
+                elif kind == ua.NodeClass.Variable and (await child.read_browse_name()).NamespaceIndex == idx:
+                    dtype = await child.read_data_type()
+                    access = await child.read_attribute(ua.AttributeIds.UserAccessLevel)
+                    writable = access.Value.Value & ua.AccessLevel.CurrentWrite.mask
+                    out[prefix + name] = (ua.ObjectIdNames[dtype.Identifier], "write" if writable else "read")
+        await walk(root, "")
+    return out
+
+
+def test_the_pages_client_example_pushes_and_the_address_space_is_the_pages(tmp_path, study, feedforward):
+    """docs/targets/rig-opcua.md: its Python client pushes a retuned gain set to a served rig, and its table of the
+    address space is the server's, node for node (type and access)."""
+    first = write_gain_set(tmp_path / "paper.json", study, feedforward)
+    retuned = write_gain_set(tmp_path / "retuned.json", study, feedforward, gains=RETUNED)
+    endpoint = f"opc.tcp://127.0.0.1:{_free_port()}/piezopreload/"
+    thread, ready, stop, out = _serve_in_thread(first, endpoint, tmp_path)
+    namespace: dict = {}
+    exec(compile(_page_example(), str(_PAGE), "exec"), namespace)
+    try:
+        assert ready.wait(120)  # liveness on a loaded host, not a timing bound
+        _wait_for_the_loop(endpoint, 0.2)
+        served = asyncio.run(_served_nodes(endpoint))
+        running = asyncio.run(namespace["push"](endpoint, USER, PASSWORD, str(retuned), "from the docs"))
+    finally:
+        stop.set()
+        thread.join(60)
+    assert served == _page_nodes(), "the page's address space is not the server's"
+    assert running == read_artifact(retuned, "gain-set")["content_sha256"]
+    assert out["summary"]["pushes"][0]["note"] == "from the docs" and out["summary"]["status"] == "completed"
