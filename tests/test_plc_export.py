@@ -184,14 +184,18 @@ def test_the_program_switches_between_manual_and_automatic_bumplessly(tmp_path):
 
 @pytest.mark.slow
 def test_blark_parses_every_plc_export_and_refuses_a_broken_one(tmp_path):
-    """The gain sets' sources and a model alone's PP_FEEDFORWARD parse; a source with a statement cut short does
-    not (the check can fail)."""
-    from piezopreload.models.hysteresis import ClassicalPI
+    """The gain sets' sources (the one with a feedforward in the test above) and a model alone's PP_FEEDFORWARD of
+    every kind, with and without creep (tests/test_exports.py runs them), parse; a source with a statement cut
+    short does not (the check can fail)."""
+    from test_exports import KINDS as MODEL_KINDS
+    from test_exports import _model
 
     for kind in ("pid", "scheduled"):
         text = export(gain_set(kind, tmp_path / f"{kind}.json"), "plc")
         assert parse_iec(text) is None, f"{kind}: blark does not parse the export"
-    alone = export(ClassicalPI(np.array([0.0, 10.0, 30.0]), np.array([0.4, 0.1, 0.05]), 25.0), "plc")
-    assert parse_iec(alone) is None, "blark does not parse PP_FEEDFORWARD"
+    for kind in MODEL_KINDS:
+        for creep in (False, True):
+            alone = export(_model(kind, creep), "plc", sample_period_s=0.001)
+            assert parse_iec(alone) is None, f"blark does not parse PP_FEEDFORWARD of a {kind} model, creep {creep}"
     broken = export(gain_set("pid", tmp_path / "b.json"), "plc").replace("active := enable;", "active := ;")
     assert parse_iec(broken) is not None, "blark accepts a statement without its expression"
