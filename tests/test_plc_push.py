@@ -97,8 +97,8 @@ _VTYPES = {"Float": ua.VariantType.Float, "Double": ua.VariantType.Double, "Stri
 class AsyncuaPlc:
     """An asyncua server playing the PLC, in a thread of its own; :meth:`values` reads every variable."""
 
-    def __init__(self, spec):
-        self.spec, self.port = spec, _free_port()
+    def __init__(self, spec, certificate=None):
+        self.spec, self.port, self.certificate = spec, _free_port(), certificate
         self.endpoint = f"opc.tcp://127.0.0.1:{self.port}/plc"
         self._ready, self._loop, self._nodes = threading.Event(), None, {}
 
@@ -106,7 +106,13 @@ class AsyncuaPlc:
         server = Server(user_manager=_Users())
         await server.init()
         server.set_endpoint(self.endpoint)
-        server.set_security_policy([ua.SecurityPolicyType.NoSecurity], permission_ruleset=SimpleRoleRuleset())
+        if self.certificate is None:
+            server.set_security_policy([ua.SecurityPolicyType.NoSecurity], permission_ruleset=SimpleRoleRuleset())
+        else:  # a PLC that offers an encrypted channel only
+            await server.load_certificate(str(self.certificate[0]))
+            await server.load_private_key(str(self.certificate[1]))
+            server.set_security_policy([ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt],
+                                       permission_ruleset=SimpleRoleRuleset())
         server.set_identity_tokens([ua.UserNameIdentityToken])
         idx = await server.register_namespace(NAMESPACE)
         plc = await server.nodes.objects.add_object(idx, "PLC")
@@ -294,3 +300,31 @@ def test_the_status_the_map_and_the_session_are_checked_first(tmp_path, capsys, 
         code, err = _push(capsys, gains, plc.endpoint, _map(tmp_path))
         assert code == 2 and "refused the session" in err
         _nothing_written(plc, spec)
+
+
+def test_a_plc_that_offers_an_encrypted_channel_only(tmp_path, capsys):
+    """The user's security settings: a certificate and the policy and mode asked for reach a PLC that offers only
+    Basic256Sha256 SignAndEncrypt; without them the session is refused and nothing is written."""
+    from asyncua.crypto.cert_gen import setup_self_signed_certificate
+    from cryptography.x509.oid import ExtendedKeyUsageOID
+
+    async def make():
+        await setup_self_signed_certificate(tmp_path / "plc.pem", tmp_path / "plc.der", "urn:test:plc", "localhost",
+                                            [ExtendedKeyUsageOID.SERVER_AUTH], {"commonName": "plc"})
+        await setup_self_signed_certificate(tmp_path / "client.pem", tmp_path / "client.der", "urn:freeopcua:client",
+                                            "localhost", [ExtendedKeyUsageOID.CLIENT_AUTH], {"commonName": "bench"})
+
+    asyncio.run(make())
+    gains = _gain_set(tmp_path / "gains.json")
+    spec = _spec(gains)
+    secure = ["--certificate", str(tmp_path / "client.der"), "--private-key", str(tmp_path / "client.pem"),
+              "--server-certificate", str(tmp_path / "plc.der"), "--security-policy", "Basic256Sha256",
+              "--security-mode", "SignAndEncrypt"]
+    with AsyncuaPlc(spec, (tmp_path / "plc.der", tmp_path / "plc.pem")) as plc:
+        code, err = _push(capsys, gains, plc.endpoint, _map(tmp_path))
+        assert code == 2 and "refused the session" in err, "no encryption asked for: refused"
+        _nothing_written(plc, spec)
+        code, report = _push(capsys, gains, plc.endpoint, _map(tmp_path), *secure)
+        assert code == 0, report
+        assert all(r["as_written"] for r in report["nodes"])
+        assert plc.values()[PREFIX + "dt_s"] == Plant().sample_period_s
