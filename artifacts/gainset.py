@@ -26,7 +26,7 @@ import numpy as np
 
 from piezopreload.artifacts.requirements import Requirement, requirements_from_dict, unaccepted
 from piezopreload.artifacts.validation import Criteria, ValidationResult
-from piezopreload.core.artifacts import parse_artifact, read_artifact, write_artifact
+from piezopreload.core.artifacts import content_hash, parse_artifact, read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError, InputError
 from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
@@ -433,6 +433,12 @@ class GainSet:
             raise InputError(f"the gain set has no reference '{name}' (it holds "
                              f"{', '.join(self.references) or 'none'}); {_REWRITE}")
         return self.references[name]
+
+    @property
+    def plant_sha256(self) -> str | None:
+        """The hash that names the plant the gains were tuned and validated on: SHA-256 of its document as canonical
+        JSON (None: the gain set names no plant). A served rig takes gain sets of its own plant's hash only."""
+        return None if self.plant is None else content_hash(self.plant.to_dict())
 
     def controller(self) -> Controller:
         """The controller the gain set describes: its gains, the plant's sample period, the feedforward's inverse."""

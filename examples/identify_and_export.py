@@ -17,7 +17,7 @@ Study: the paper's, ``paper2021`` (the simulated rig calibrated to Zhang, Jin, L
    references is refused here, naming both ranges; then tune the PID around the rig compensated
    by that model, validate the gains by Monte Carlo (the study's ``[validation] plants``), save the
    gain set and, if it is validated, export it for LabVIEW (Ti and Td in minutes, the feedforward's
-   tables) and for a PLC (Structured Text: the gains, and the feedforward's function block).
+   tables) and for a PLC (Structured Text: the whole controller step as a function block).
 
 Run it from the repository root::
 

@@ -27,6 +27,7 @@ d, ff)``; 0 on success.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 
 import casadi as ca
@@ -61,8 +62,23 @@ int pp_rig_step(double setpoint, double pv, double ff_extra, double* state, cons
 """
 
 
+_STEPS: dict[ControllerModel, ctypes.CDLL] = {}
+
+
 def step_library(model: ControllerModel) -> ctypes.CDLL:
-    """The shared library with ``pp_rig_step`` for controllers of ``model``'s structure (built once, cached)."""
+    """The shared library with ``pp_rig_step`` for controllers of ``model``'s structure (built once, cached on disk
+    and, once loaded, in the process: a loop switching to a structure built before finds it at once)."""
+    try:
+        return _STEPS[model]
+    except (KeyError, TypeError):
+        pass
+    lib = _step_library(model)
+    with contextlib.suppress(TypeError):
+        _STEPS[model] = lib
+    return lib
+
+
+def _step_library(model: ControllerModel) -> ctypes.CDLL:
     _, fn = controller_functions(model, prefix="pp_rig", ff_extra=True)
     source = native.generate([fn], "pp_rig_step") + _WRAPPER.format(
         sz_arg=max(int(fn.sz_arg()), 5), sz_res=max(int(fn.sz_res()), 6), iw=max(int(fn.sz_iw()), 1),

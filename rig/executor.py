@@ -50,7 +50,7 @@ from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import Controller
 from piezopreload.rig import native_loop
 from piezopreload.rig.backends import Backend, FaultInjector
-from piezopreload.rig.compiled import controller_step
+from piezopreload.rig.compiled import controller_step, step_library
 from piezopreload.rig.interlocks import STALL_REPORT_PERIODS, TRIP_CAUSES, Safety, Trip, trip_detail
 from piezopreload.rig.native_run import NativeRun
 from piezopreload.rig.outcome import RunResult, StallLog
@@ -106,6 +106,7 @@ class Executor:
         self._native: Any = None
         self._switch_lock = threading.Lock()
         self._switch_info: list[dict[str, Any]] = []
+        self._unsaved = False  # an event the loop recorded and left to another thread to write
         self.loop, self.loop_reason = self._choose_loop(loop)
 
     @property
@@ -139,12 +140,28 @@ class Executor:
         return "python", why
 
     # ---- called from other threads ------------------------------------------------------------
+    def prepare(self, controller: Controller) -> None:
+        """Compile what the loop needs to run ``controller`` (its step and, for the native loop, its start), here
+        and not in the loop's cycle: a controller of another structure (a gain schedule where there was none,
+        another feedforward) has code of its own. A ValueError says why it cannot run."""
+        if controller.model == self.controller.model or self.step.kind != "c":
+            return
+        try:
+            step_library(controller.model)
+            if self.loop == "native":
+                native_loop.start_library(controller.model)
+        except native_loop.native.NativeBuildError as exc:
+            raise ValueError(f"the rig cannot compile the new controller's step ({exc})") from None
+
     def request_switch(self, controller: Controller, info: dict[str, Any]) -> None:
-        """Switch to ``controller`` between two cycles, bumplessly; ``info`` goes into the event."""
+        """Switch to ``controller`` between two cycles, bumplessly; ``info`` goes into the event, with the cycle the
+        loop was at when asked (``requested_cycle``: the next to start) beside the one that took it (``cycle``)."""
         if not math.isclose(controller.dt_s, self.dt, rel_tol=1e-12):
             raise ValueError(f"the new controller samples every {controller.dt_s} s, the loop every {self.dt} s")
+        self.prepare(controller)
         with self._switch_lock:
             if self._native is not None:
+                info = {**info, "requested_cycle": self._native.cycles}
                 self._switch_info.append(info)
                 try:
                     self._native.switch(controller)
@@ -153,7 +170,8 @@ class Executor:
                     raise
                 self.controller = controller
                 return
-            self._pending = (controller, info)
+            t, state = self.latest[0], self.latest[4]
+            self._pending = (controller, {**info, "requested_cycle": 0 if state == "idle" else round(t / self.dt) + 1})
 
     @property
     def switch_pending(self) -> bool:
@@ -172,6 +190,13 @@ class Executor:
         self._stop = reason
         if self._native is not None:
             self._native.stop(trip)
+
+    def save_events(self) -> None:
+        """Write the events the loop recorded without writing them (a gain switch on the Python loop) to the run log's
+        sidecar; for the thread that serves the rig, never the loop's."""
+        if self._unsaved and self.log is not None:
+            self._unsaved = False
+            self.log.save()
 
     def record(self, kind: str, **detail: Any) -> None:
         """An event from outside the loop (a refused push, an operator's note), at the loop's last time."""

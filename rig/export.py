@@ -11,13 +11,14 @@ into a folder (the files :data:`EXPORT_FILES` names). What each format holds, ex
 * ``labview``: an INI file LabVIEW's configuration-file VIs read: Kc, and Ti and Td in minutes,
   the gain schedule's table, and the feedforward as tables (one comma-separated row per
   parameter) with the inverse step's algorithm stated above them (:data:`INVERSE_STEP_ALGORITHM`);
-* ``plc``: an IEC 61131-3 Structured Text source: the PID gains (Kp, Tn, Tv) and the gain
-  schedule as an INI text in a comment, and the feedforward as the function block
-  ``PP_FEEDFORWARD`` (:mod:`piezopreload.rig.structured_text`);
+* ``plc``: an IEC 61131-3 Structured Text source: a gain set's whole controller step as the
+  function block ``PP_CONTROLLER`` and the program ``PP_LOOP`` that calls it, written from the
+  algorithm the ``casadi-c`` code is generated from; a model alone's inverse step as the function
+  block ``PP_FEEDFORWARD`` (:mod:`piezopreload.rig.structured_text`);
 * ``c-header``: constants (SI) of the gains, the schedule and the forward P-I model;
 * ``casadi-c``: the whole controller step (feedforward and PID with its state) as C code from
-  CasADi's code generator, from the one controller step the simulation runs; for a model alone,
-  the inverse step.
+  CasADi's code generator, from the one controller step the simulation runs, its numbers a
+  constant array (:mod:`piezopreload.rig.controller_code`); for a model alone, the inverse step.
 
 The feedforward every format carries is the inverse step of
 :class:`~piezopreload.models.hysteresis.InverseStep` at the loop's sample period (a gain set's
@@ -37,14 +38,15 @@ from piezopreload.artifacts.hysteresis import IdentifiedModel
 from piezopreload.core.artifacts import atomic_write_text
 from piezopreload.core.errors import InputError
 from piezopreload.core.native import generate
-from piezopreload.models.controller import SCHEDULE_INTERPOLATION, Controller, GainSchedule, controller_functions
+from piezopreload.models.controller import SCHEDULE_INTERPOLATION, Controller, GainSchedule
 from piezopreload.models.hysteresis import CreepPI, HysteresisModel, InverseStep, inverse_at
 from piezopreload.models.ops import CASADI
-from piezopreload.rig.structured_text import function_block
+from piezopreload.rig.controller_code import ControllerCode, controller_code
+from piezopreload.rig.structured_text import controller_block, function_block, loop_program
 
 __all__ = ["FORMATS", "EXPORT_FILES", "MODEL_FILES", "CONTROLLER_FORM", "INVERSE_STEP_ALGORITHM", "ExportError",
-           "FeedforwardTable", "export", "feedforward_table", "write_exports", "controller_from_gain_set",
-           "validated_gains"]
+           "NotValidated", "FeedforwardTable", "export", "feedforward_table", "write_exports",
+           "controller_from_gain_set", "validated_gains", "require_validated"]
 
 #: the formats a gain set or a hysteresis model is exported to
 FORMATS = ("json", "labview", "plc", "c-header", "casadi-c")
@@ -89,6 +91,10 @@ INVERSE_STEP_ALGORITHM = (
 
 class ExportError(InputError):
     """The gain set or model cannot be exported (for example: the gain set is not validated)."""
+
+
+class NotValidated(ExportError):
+    """A gain set whose status does not let it leave the tool (:func:`require_validated`)."""
 
 
 # --------------------------------------------------------------------------------------
@@ -142,13 +148,23 @@ def feedforward_table(model: HysteresisModel | CreepPI, sample_period_s: float |
 # --------------------------------------------------------------------------------------
 # the gain set's numbers
 # --------------------------------------------------------------------------------------
+def require_validated(gain_set: GainSet, use: str, shown: str | None = None,
+                      accepted: tuple[str, ...] = ()) -> GainSet:
+    """The one check of a gain set's status before it leaves the tool: exported, run on the rig, pushed to a served rig
+    or to a PLC (``use`` says which, in words: "exported", "run on the rig", ...). A gain set that is not validated
+    passes only where each requirement it missed is named in ``accepted`` (:meth:`GainSet.require_usable`);
+    :class:`NotValidated` (bad input) says what it missed and how to accept it by name."""
+    try:
+        gain_set.require_usable(accepted, shown=shown or "the gain set", use=use)
+    except InputError as exc:
+        raise NotValidated(str(exc)) from None
+    return gain_set
+
+
 def validated_gains(gain_set: GainSet, accepted: tuple[str, ...] = ()) -> dict[str, float]:
     """The gains every format writes (SI, by name); refuses a gain set that is not validated unless each requirement
-    it missed is in ``accepted`` by name (:meth:`GainSet.require_usable`)."""
-    try:
-        gain_set.require_usable(accepted, use="exported")
-    except InputError as exc:
-        raise ExportError(str(exc)) from None
+    it missed is in ``accepted`` by name (:func:`require_validated`)."""
+    require_validated(gain_set, "exported", accepted=accepted)
     g = {k: float(v) for k, v in gains_to_dict(gain_set.gains).items() if k in _GAIN_KEYS}
     bad = [k for k, v in g.items() if not np.isfinite(v)]
     if bad:
@@ -250,25 +266,22 @@ def _labview_text(head: list[str], g: dict[str, float], schedule: GainSchedule |
 
 
 # ---- plc --------------------------------------------------------------------------------------
-def _plc_text(head: list[str], g: dict[str, float], schedule: GainSchedule | None,
-              table: FeedforwardTable | None) -> str:
-    """A Structured Text source: the gains as an INI text in a comment (for the PLC's own PID block), then the
-    feedforward's function block."""
-    lines = ["(* piezopreload: a validated gain set for an IEC 61131-3 PLC. The INI text below, up to the",
-             "   [feedforward] line, is for the PLC's PID block; the function block after it is the feedforward.",
-             *("; " + h for h in head),
-             "; Kp in V/N; Tn (reset time) and Tv (rate time) in seconds", "[PID]",
-             f"Kp = {g['Kc_V_per_N']:.12g}", f"Tn = {g['Ti_s']:.12g}", f"Tv = {g['Td_s']:.12g}",
-             f"Tf = {g['Tf_s']:.12g}", f"b = {g['b']:.12g}", f"Ymin = {g['u_min_V']:.12g}",
-             f"Ymax = {g['u_max_V']:.12g}"]
-    if schedule is not None:
-        lines += _table_lines(schedule, "; ", (("Kp", 1.0), ("Tn", 1.0), ("Tv", 1.0), ("b", 1.0)))
-    if table is None:
-        lines.append("[feedforward] none: the PID alone *)")
-        return "\n".join(lines) + "\n"
-    lines.append("[feedforward] function block PP_FEEDFORWARD below: its command_V is added to the PID's output "
-                 "before the clamp *)")
-    return "\n".join(lines) + "\n\n" + function_block(table)
+def _plc_text(doc: GainSet, head: list[str]) -> str:
+    """A Structured Text source: the controller's function block and the program that calls it."""
+    code = controller_code(controller_from_gain_set(doc))
+    head = ["piezopreload: a validated gain set for an IEC 61131-3 PLC.", *head,
+            f"PP_CONTROLLER is the whole controller step{_structure_words(code)}; PP_LOOP calls it."]
+    return controller_block(code, head) + "\n" + loop_program(code.controller.dt_s)
+
+
+def _structure_words(code: ControllerCode) -> str:
+    model = code.model
+    parts = []
+    if model.feedforward is not None:
+        parts.append(f"the feedforward's inverse P-I step ({model.feedforward.n_operators} operators)")
+    if model.scheduled:
+        parts.append(f"the gain schedule's interpolation ({model.schedule_size} entries)")
+    return "" if not parts else ", with " + " and ".join(parts)
 
 
 # ---- casadi-c ---------------------------------------------------------------------------------
@@ -298,10 +311,17 @@ def _schedule_comment(doc: GainSet) -> list[str]:
             f"   Kc (V/N): {row(sch.Kc)}; Ti (s): {row(sch.Ti_s)}; Td (s): {row(sch.Td_s)}{b} */"]
 
 
+def _c_params(code: ControllerCode) -> str:
+    """The parameter vector as a C array, each part named in a comment."""
+    rows = [f"  /* {p.name}: {p.description} */ " + ", ".join(repr(x) for x in p.values) + ","
+            for p in code.parameters]
+    return ("static const double pp_controller_params[PP_CONTROLLER_PARAMS_SIZE] = {\n" + "\n".join(rows)
+            + "\n};\n")
+
+
 def _casadi_c(doc: GainSet, g: dict[str, float], digest: str, head: list[str]) -> str:
-    controller = controller_from_gain_set(doc)
-    model = controller.model
-    init, fn = controller_functions(model, controller.parameter_vector(), prefix="pp_controller")
+    code = controller_code(controller_from_gain_set(doc))
+    controller, model, init, fn = code.controller, code.model, code.start, code.step
     n_state = model.state.size
     body = generate([init, fn], "pp_controller", inline_minmax=False)
     fields = ", ".join(f"{name} ({model.state.field_size(name) or 1})" for name in model.state.names)
@@ -318,6 +338,8 @@ def _casadi_c(doc: GainSet, g: dict[str, float], digest: str, head: list[str]) -
         "   measurement (N) and setpoint (N), the filtered d(measurement)/dt (N/s), the feedforward's",
         f"   state: its forward model's ({ff_state}); start it with pp_controller_initial_state,",
         "   then call pp_controller_step once per sample. */",
+        "/* the step's numbers are the array pp_controller_params below (the names of the PLC export's",
+        "   PP_CONTROLLER); the code is the algorithm the PLC export writes in Structured Text */",
         *_schedule_comment(doc),
         "/* int pp_controller_initial_state(double setpoint0, double pv0, double u0, double* state);",
         "   int pp_controller_step(double setpoint, double pv, double* state, double* u); */",
@@ -326,15 +348,17 @@ def _casadi_c(doc: GainSet, g: dict[str, float], digest: str, head: list[str]) -
     wrapper = f"""
 #define PP_GAIN_SET_SHA256 "{digest}"
 #define PP_CONTROLLER_STATE_SIZE {n_state}
+#define PP_CONTROLLER_PARAMS_SIZE {model.params.size}
 
+{_c_params(code)}
 /* A bumpless start: the state whose first command, with this setpoint and measurement, is u0
    (0 V for the rig at rest on its bolt preload). Returns 0 on success. */
 int pp_controller_initial_state(double setpoint0, double pv0, double u0, double state[PP_CONTROLLER_STATE_SIZE]) {{
-  const double* arg[{max(int(init.sz_arg()), 3)}];
+  const double* arg[{max(int(init.sz_arg()), 4)}];
   double* res[{max(int(init.sz_res()), 1)}];
   casadi_int iw[{max(int(init.sz_iw()), 1)}];
   double w[{max(int(init.sz_w()), 1)}];
-  arg[0] = &setpoint0; arg[1] = &pv0; arg[2] = &u0;
+  arg[0] = &setpoint0; arg[1] = &pv0; arg[2] = &u0; arg[3] = pp_controller_params;
   res[0] = state;
   return {init.name()}(arg, res, iw, w, 0);
 }}
@@ -342,13 +366,13 @@ int pp_controller_initial_state(double setpoint0, double pv0, double u0, double 
 /* One sample: the command (V) for this setpoint and measurement (N); the state is updated in place.
    Returns 0 on success. */
 int pp_controller_step(double setpoint, double pv, double state[PP_CONTROLLER_STATE_SIZE], double* u) {{
-  const double* arg[{max(int(fn.sz_arg()), 3)}];
+  const double* arg[{max(int(fn.sz_arg()), 4)}];
   double* res[{max(int(fn.sz_res()), 6)}];
   double next[PP_CONTROLLER_STATE_SIZE];
   casadi_int iw[{max(int(fn.sz_iw()), 1)}];
   double w[{max(int(fn.sz_w()), 1)}];
   int i, flag;
-  arg[0] = state; arg[1] = &setpoint; arg[2] = &pv;
+  arg[0] = state; arg[1] = &setpoint; arg[2] = &pv; arg[3] = pp_controller_params;
   res[0] = u; res[1] = 0; res[2] = 0; res[3] = 0; res[4] = 0; res[5] = next;
   flag = {fn.name()}(arg, res, iw, w, 0);
   if (flag) return flag;
@@ -512,12 +536,12 @@ def _export_gain_set(gain_set: GainSet, fmt: str, accepted: tuple[str, ...] = ()
         return _casadi_c(gain_set, g, digest, head)
     if fmt == "c-header":  # the forward model's constants, its creep with the period it was identified at
         return _c_header(digest, head, g, ff, schedule)
+    if fmt == "plc":
+        return _plc_text(gain_set, head)
     table = _gain_set_table(gain_set)
     if fmt == "json":
         return _json_text(digest, g, ff, schedule, table)
-    if fmt == "labview":
-        return _labview_text(head, g, schedule, table)
-    return _plc_text(head, g, schedule, table)
+    return _labview_text(head, g, schedule, table)
 
 
 def _gain_set(doc: GainSet | dict[str, Any]) -> GainSet:

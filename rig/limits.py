@@ -35,7 +35,8 @@ from piezopreload.rig.interlocks import Safety
 from piezopreload.rig.stall import derive_stall_limit
 from piezopreload.rig.tables import INTERLOCK_KEYS, default_interlocks
 
-__all__ = ["RunLimits", "run_limits", "check_reference", "study_values", "plant_of", "OVERRIDE_OPTIONS"]
+__all__ = ["RunLimits", "run_limits", "check_reference", "study_values", "plant_of", "OVERRIDE_OPTIONS", "check_fit",
+           "FIT_TOLERANCE"]
 
 #: the command-line option of each overridable key
 OVERRIDE_OPTIONS = {"force_max_N": "--force-max-N", "force_low_margin_N": "--force-low-margin-N", "ramp_s": "--ramp-s",
@@ -169,3 +170,72 @@ def check_reference(reference: Reference, shown: str, limits: Safety, gain_set: 
             raise InputError(f"{where}: {level:g} N is beyond what the gain set's plant reaches between "
                              f"its stacks' {v_lo:g} V and {v_hi:g} V ({reach[0]:.4g}..{reach[1]:.4g} N); "
                              "refused before arming")
+
+
+# --------------------------------------------------------------------------------------
+# a gain set pushed to a running rig: do its limits fit the interlocks the rig was armed with?
+# --------------------------------------------------------------------------------------
+#: the relative tolerance a pushed gain set's limit is compared with the armed one's: a limit derived from the design
+#: (a force the stacks reach, a stall limit from the plant's drift) agrees far closer on the same plant; a value
+#: written by hand to four significant digits is within it
+FIT_TOLERANCE = 1e-3
+
+#: the limits fixed by the plant and the executor: a gain set for the same plant has the same
+_SAME = ("bolt_preload_N", "sensor_min_N", "sensor_max_N", "slew_V_per_s", "stale_after_s")
+
+
+def _misfit(key: str, a: Safety, p: RunLimits, armed_sources: dict[str, str]) -> str:
+    """The sentence that says why the armed limit ``key`` does not fit the pushed one."""
+    pa, pp, src_a, src_p = getattr(a, key), getattr(p.safety, key), armed_sources.get(key, "?"), p.sources.get(key, "?")
+    if key == "force_max_N":
+        return (f"the pushed gain set's limits trip the force above {pp:g} N ({src_p}), this rig trips only above "
+                f"{pa:g} N ({src_a})")
+    if key == "force_low_margin_N":
+        return (f"the pushed gain set's limits trip the force below {a.bolt_preload_N - pp:g} N (the bolts' "
+                f"{a.bolt_preload_N:g} N less {pp:g} N: {src_p}), this rig trips only below {a.bolt_preload_N - pa:g} "
+                f"N ({src_a})")
+    if key == "stall_limit_s":
+        return (f"the pushed controller tolerates the output held {pp * 1e3:.4g} ms without an update on this rig's "
+                f"reference ({src_p}), this rig trips only after {pa * 1e3:.4g} ms ({src_a})")
+    return (f"the pushed gain set's study ramps the rig down over {pp:g} s on a stop ({src_p}), this rig over {pa:g} s "
+            f"({src_a})")
+
+
+def check_fit(armed: Safety, armed_sources: dict[str, str], pushed: RunLimits,
+              tol: float = FIT_TOLERANCE) -> list[str]:
+    """Refuse a pushed gain set whose limits a running rig armed with ``armed`` cannot keep; the notes of the limits
+    it keeps that are stricter than the pushed set's.
+
+    ``pushed`` are the limits the rig would arm with for the pushed gain set (:func:`run_limits` on the rig's
+    reference, with its command line's overrides). They fit when the armed rig is at least as strict (within
+    ``tol``, relative): it trips the force no later (``force_max_N``, ``force_low_margin_N``) and the output held
+    no longer (``stall_limit_s``); it ramps down over the same time (``ramp_s``); and it commands the same range
+    (``v_min_V``, ``v_max_V``, ``safe_V``: a command clamped otherwise than in the validation, or outside the
+    new range at the switch, would not be bumpless). A running rig's interlocks do not change; an
+    :class:`InputError` says which limit does not fit and what to do.
+    """
+    p = pushed.safety
+    same = next((k for k in _SAME if not math.isclose(getattr(armed, k), getattr(p, k), rel_tol=1e-12)), None)
+    if same is not None:
+        raise InputError(f"the pushed gain set's {same} is {getattr(p, same):g}, this rig's {getattr(armed, same):g}: "
+                         "it is not for this rig's plant")
+    span = armed.v_max_V - armed.v_min_V
+    if not all(math.isclose(getattr(armed, k), getattr(p, k), rel_tol=tol, abs_tol=tol * span)
+               for k in ("v_min_V", "v_max_V", "safe_V")):
+        raise InputError(f"the pushed gain set commands {p.v_min_V:g} to {p.v_max_V:g} V (safe level {p.safe_V:g} V), "
+                         f"this rig was armed for {armed.v_min_V:g} to {armed.v_max_V:g} V (safe level "
+                         f"{armed.safe_V:g} V): its command would be clamped otherwise than in its validation and "
+                         "could jump at the switch; serve the rig with this gain set instead")
+    notes = []
+    for key in ("force_max_N", "force_low_margin_N", "stall_limit_s", "ramp_s"):
+        a, b = getattr(armed, key), getattr(p, key)
+        # the armed limit stops the rig no later than the pushed gain set asks; the ramp is the one it asks
+        fits = math.isclose(a, b, rel_tol=tol) if key == "ramp_s" else a <= b * (1.0 + tol)
+        if not fits:
+            option = OVERRIDE_OPTIONS[key]
+            raise InputError(f"{_misfit(key, armed, pushed, armed_sources)}. A running rig's interlocks stay as it "
+                             f"was armed: serve the rig with this gain set, or start it with {option} {b:g}")
+        if not math.isclose(a, b, rel_tol=tol):
+            notes.append(f"{key}: the rig keeps {a:g} ({armed_sources.get(key, '?')}), stricter than the pushed gain "
+                         f"set's {b:g} ({pushed.sources.get(key, '?')})")
+    return notes

@@ -55,7 +55,9 @@ typedef struct {
   int32_t hold, realtime; /* realtime 0: back to back on a virtual clock */
   double v_min, v_max, slew_V_per_s, ramp_s, safe_V, stall_report_s;
   pp_interlock interlocks[PP_MAX_INTERLOCKS]; int32_t n_interlocks;
-  pp_step_fn step; pp_start_fn start; double* state; double* params[2];
+  /* two slots: the controller running and the next; each its step, start, state and parameters (a gain set of
+     another structure brings its own step and start, and a state of its own size) */
+  pp_step_fn step[2]; pp_start_fn start[2]; double* state[2]; double* params[2];
   int32_t backend; /* 0: the simulated plant, 1: a C-ABI library */
   pp_plant_read_fn plant_read; pp_plant_write_fn plant_write; double* plant_state; const double* plant_params;
   const double* noise; int64_t n_noise;
@@ -254,6 +256,7 @@ typedef struct {
   double v_last;
   int need_start, p_idx;
   const double* params;
+  pp_step_fn step; pp_start_fn start; double* state; /* the slot p_idx's */
 } pp_cycle;
 
 /* a new gain set asked for: taken at this cycle boundary, started bumplessly before the step */
@@ -261,6 +264,7 @@ static void take_switch(pp_loop* L, pp_cycle* c, double t) {
   int want = __atomic_load_n(&L->active, __ATOMIC_ACQUIRE);
   if (want == c->p_idx) return;
   c->p_idx = want; c->params = L->params[want]; c->need_start = 1;
+  c->step = L->step[want]; c->start = L->start[want]; c->state = L->state[want];
   L->switch_t = t;
   __atomic_store_n(&L->taken, want, __ATOMIC_RELEASE);
   __atomic_add_fetch(&L->switches, 1, __ATOMIC_RELEASE);
@@ -296,13 +300,13 @@ static int cycle(pp_loop* L, pp_cycle* c) {
     return 1;
   }
   if (c->need_start) { /* bumpless: the first command of a start or a new gain set is the last one written */
-    if ((rc = L->start(sp, y, c->v_last, fx, c->params, L->state)) != 0) {
+    if ((rc = c->start(sp, y, c->v_last, fx, c->params, c->state)) != 0) {
       trip(L, PP_T_EXCEPTION, X_START, t, rc, c->v_last);
       return -1;
     }
     c->need_start = 0;
   }
-  if ((rc = L->step(sp, y, fx, L->state, c->params, out)) != 0) { trip(L, PP_T_EXCEPTION, X_STEP, t, rc, c->v_last); return -1; }
+  if ((rc = c->step(sp, y, fx, c->state, c->params, out)) != 0) { trip(L, PP_T_EXCEPTION, X_STEP, t, rc, c->v_last); return -1; }
   u = out[0];
   q[PP_Q_COMMAND_V] = u;
   if ((cause = check(L, PP_STAGE_COMMAND, q, &value)) != 0) {
@@ -341,6 +345,7 @@ static void* run(void* arg) {
   c.need_start = 1;
   c.p_idx = __atomic_load_n(&L->active, __ATOMIC_ACQUIRE);
   c.params = L->params[c.p_idx];
+  c.step = L->step[c.p_idx]; c.start = L->start[c.p_idx]; c.state = L->state[c.p_idx];
   L->taken = c.p_idx;
   __atomic_store_n(&L->started, 1, __ATOMIC_RELEASE);
   if (L->backend == 1 && L->hw_arm && (rc = L->hw_arm()) != 0) {

@@ -92,7 +92,7 @@ class _Loop(ctypes.Structure):
         ("dt_s", _D), ("n_ref", _I64), ("ref", _P), ("extra", _P), ("hold", _I32), ("realtime", _I32),
         ("v_min", _D), ("v_max", _D), ("slew_V_per_s", _D), ("ramp_s", _D), ("safe_V", _D), ("stall_report_s", _D),
         ("interlocks", _Interlock * MAX_INTERLOCKS), ("n_interlocks", _I32),
-        ("step", _FN), ("start", _FN), ("state", _P), ("params", _P * 2),
+        ("step", _FN * 2), ("start", _FN * 2), ("state", _P * 2), ("params", _P * 2),
         ("backend", _I32),
         ("plant_read", _FN), ("plant_write", _FN), ("plant_state", _P), ("plant_params", _P),
         ("noise", _P), ("n_noise", _I64),
@@ -253,8 +253,8 @@ class NativeLoop:
         self._lib = loop_library()
         self.controller = controller
         self._model = controller.model
-        step = step_library(self._model).pp_rig_step if step_fn is None else step_fn
-        start = start_library(self._model).pp_rig_start
+        #: each slot's controller structure, its step and start, and the state and parameters they use
+        self._slots: list[tuple[ControllerModel, Any, Any, np.ndarray, np.ndarray] | None] = [None, None]
         self._keep: list[Any] = []  # every buffer the thread points into lives as long as this object
         self._mem = ctypes.create_string_buffer(int(self._lib.pp_loop_sizeof()))
         L = _Loop.from_buffer(self._mem)
@@ -272,12 +272,8 @@ class NativeLoop:
             L.extra = self._extra.ctypes.data
         L.hold, L.realtime = int(hold), int(realtime)
         self._set_limits(safety)
-        L.step, L.start = _address(step), _address(start)
-        self._state = np.zeros(self._model.state.size)
-        self._params = [np.ascontiguousarray(controller.parameter_vector(), dtype=float), None]
-        self._params[1] = self._params[0].copy()
-        L.state = self._state.ctypes.data
-        L.params[0], L.params[1] = self._params[0].ctypes.data, self._params[1].ctypes.data
+        for slot in (0, 1):
+            self._fill(slot, controller, step_fn)
         self._set_backend(backend, faults)
         L.want_fifo = L.want_mlock = int(realtime)
         L.fifo_priority, L.spin_ns = int(fifo_priority), int(spin_us * 1e3)
@@ -292,6 +288,20 @@ class NativeLoop:
         L.mlock_errno = L.fifo_errno = -1
         self._started = False
         self._signals = False
+
+    def _fill(self, slot: int, controller: Controller, step_fn: Any = None) -> None:
+        """Put ``controller`` into ``slot`` (one the loop does not run): its parameters and, for another structure,
+        its step and start (compiled now, or taken from the cache) and a state of its size."""
+        model, L = controller.model, self._L
+        current = self._slots[slot]
+        if current is None or current[0] != model:
+            step = step_library(model).pp_rig_step if step_fn is None else step_fn
+            start = start_library(model).pp_rig_start
+            state, params = np.zeros(model.state.size), np.zeros(model.params.size)
+            self._slots[slot] = current = (model, step, start, state, params)
+            L.step[slot], L.start[slot] = _address(step), _address(start)
+            L.state[slot], L.params[slot] = state.ctypes.data, params.ctypes.data
+        current[4][:] = controller.parameter_vector()
 
     def _set_limits(self, safety: interlocks.Safety) -> None:
         """The interlock table's rows and the command's shaping, from ``safety``."""
@@ -381,16 +391,20 @@ class NativeLoop:
         return int(self._L.stop_signal)
 
     def switch(self, controller: Controller) -> None:
-        """Write ``controller``'s parameters into the idle buffer and flip the index; taken at a cycle boundary."""
-        if controller.model != self._model:
-            raise ValueError("the native loop switches gain sets of the same controller structure (feedforward kind "
-                             f"and size); the running one is {self._model}, the new one {controller.model}")
+        """Write ``controller`` into the idle slot (its parameters; for another structure, its compiled step and
+        start and a state of its size) and flip the index; the loop takes it at a cycle boundary and starts it
+        bumplessly from the last command written."""
         if self.switch_pending:
             raise ValueError("the previous gain set has not been taken by the loop yet")
         idle = 1 - int(self._L.taken)
-        self._params[idle][:] = controller.parameter_vector()
+        self._fill(idle, controller)
         self.controller = controller
         self._lib.pp_loop_switch(self._addr, idle)
+
+    @property
+    def cycles(self) -> int:
+        """The cycles the loop has completed (the next to start is this one's index)."""
+        return int(self._L.cycles)
 
     @property
     def switch_pending(self) -> bool:

@@ -119,7 +119,7 @@ class NativeRun:
             self.switches_seen += 1
             with ex._switch_lock:
                 info = ex._switch_info.pop(0) if ex._switch_info else {}
-            ex._event("gains_switched", loop.switch_t, **info)
+            ex._event("gains_switched", loop.switch_t, cycle=round(loop.switch_t / ex.dt), **info)
         t, sp, y, v, mode = loop.latest
         ex.latest = (t, sp, y, v, "running" if mode == 0 else "ramping down")
         return finished

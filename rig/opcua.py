@@ -8,11 +8,15 @@ Address space (namespace ``urn:piezopreload:rig``), under ``Objects/PreloadRig``
 * ``GainSetSha256`` and ``FeedforwardSha256``: which gain set runs, and which hysteresis model
   its feedforward inverts (the hash of the model's JSON);
 * ``SetPoint`` (N), ``MeasuredForce`` (N), ``CommandVoltage`` (V), ``State`` and ``LastEvent``;
-* the method ``PushGainSet(document: String) -> (accepted: Boolean, message: String)``.
+* the method ``PushGainSet(GainSetDocument: String, Note: String, AcceptedMisses: String) -> (Accepted:
+  Boolean, Message: String)`` (:data:`PUSH_INPUTS`, :data:`PUSH_OUTPUTS`).
 
 Every variable is read-only to clients; the one way to change the controller is the method,
-which checks the document again (its hash, its status, its sample period), hands it to the
-executor to switch bumplessly between two cycles, and records who pushed what and when.
+which checks the document again (its hash, its status, the rig's plant, the limits it would be
+armed with against those it was armed with, a controller of another structure compiled:
+:func:`piezopreload.rig.session.check_pushed`), hands it to the executor to switch bumplessly
+between two cycles, and records who pushed what, why and when. ``docs/targets/rig-opcua.md``
+lists the address space and the security.
 
 Security: sessions authenticate with a user name and password (``users``); anonymous
 sessions are refused.
@@ -52,6 +56,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import hashlib
 import hmac
 import json
@@ -70,14 +75,21 @@ from typing import Any
 
 from asyncua import Client, Server, ua
 from asyncua.crypto.permission_rules import SimpleRoleRuleset, User, UserRole
-from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+from asyncua.crypto.security_policies import (
+    SecurityPolicyAes128Sha256RsaOaep,
+    SecurityPolicyAes256Sha256RsaPss,
+    SecurityPolicyBasic256Sha256,
+)
 
 from piezopreload.core.errors import PiezopreloadError
 from piezopreload.models.controller import Controller
 from piezopreload.rig import DEFAULT_ENDPOINT
+from piezopreload.rig import SECURITY_MODES as MODE_NAMES
+from piezopreload.rig import SECURITY_POLICIES as POLICY_NAMES
 from piezopreload.rig.executor import Executor, RunResult
 
-__all__ = ["RigServer", "push_gain_set", "PushRefused", "NAMESPACE", "DEFAULT_ENDPOINT", "ROOT"]
+__all__ = ["RigServer", "push_gain_set", "PushRefused", "NAMESPACE", "DEFAULT_ENDPOINT", "ROOT", "PUSH_INPUTS",
+           "PUSH_OUTPUTS", "Credentials", "connect", "SECURITY_POLICIES", "SECURITY_MODES"]
 
 NAMESPACE = "urn:piezopreload:rig"
 ROOT = "PreloadRig"
@@ -153,6 +165,9 @@ _NODE_KEYS = {"CtrlP": "p", "CtrlTi": "ti", "CtrlTd": "td", "CtrlTf": "tf", "Ctr
 
 #: how long the server process waits for the supervisor's answer to a push before refusing it
 ANSWER_TIMEOUT_S = 10.0
+#: how long a client waits for a push's answer: the served rig's check derives the limits on a simulation and may
+#: compile a controller of another structure first (well under a second on a quiet machine, seconds on a loaded one)
+PUSH_TIMEOUT_S = 60.0
 #: how often the server process checks that its supervisor is alive
 PARENT_CHECK_S = 0.2
 #: the server process's niceness increment: it yields the CPU to the loop's process
@@ -208,6 +223,7 @@ class RigServer:
     # ---- the supervisor's side -------------------------------------------------------------------
     def _values(self) -> dict[str, Any]:
         """Every node's value now (the executor's latest cycle, the running gains and identity)."""
+        pending = self.executor.switch_pending  # first: a loop that took a switch has set its controller already
         t, sp, y, v, state = self.executor.latest
         g = self.executor.controller.gains
         values: dict[str, Any] = {"CtrlP": float(g.Kc), "CtrlTi": float(g.Ti_s), "CtrlTd": float(g.Td_s),
@@ -217,7 +233,7 @@ class RigServer:
         if events and len(events) != self._events_shown:
             self._events_shown = len(events)
             values["LastEvent"] = json.dumps(events[-1], default=str)
-        if not self.executor.switch_pending:  # the pushed hash is shown once the loop runs it
+        if not pending:  # the pushed hash is shown once the loop runs it
             values["GainSetSha256"] = self.identity.get("gain_set_sha256", "")
             values["FeedforwardSha256"] = self.identity.get("feedforward_sha256", "")
         return values
@@ -315,6 +331,7 @@ class RigServer:
                 if stop is not None and stop.is_set():
                     self.executor.stop("stopped by the server", trip=False)
                 self._publish()
+                self.executor.save_events()
                 if self._showing is not None and not self.executor.switch_pending:
                     record, t0 = self._showing  # the supervisor's share of push-to-switch: taken and shown
                     record["switch_shown_ms"] = round((time.monotonic() - t0) * 1e3, 3)
@@ -362,6 +379,43 @@ def _serve_process(fd: int) -> None:
     except Exception as exc:  # a server that cannot start (address in use, a bad certificate): say why
         with contextlib.suppress(OSError, ValueError):
             conn.send(("failed", f"the OPC UA server could not start: {type(exc).__name__}: {exc}"))
+
+
+#: PushGainSet's input arguments: name, type, what
+PUSH_INPUTS = (
+    ("GainSetDocument", ua.VariantType.String,
+     "the gain set file's text, its JSON document as 'piezopreload tune' wrote it (not a path to it)"),
+    ("Note", ua.VariantType.String, "why it is pushed, recorded with the push in the run log (may be empty)"),
+    ("AcceptedMisses", ua.VariantType.String,
+     "a gain set that is not validated: the keys of the requirements it missed that the pusher accepts, separated by "
+     "commas (empty for a validated one); recorded with the push"),
+)
+#: PushGainSet's output arguments
+PUSH_OUTPUTS = (
+    ("Accepted", ua.VariantType.Boolean, "TRUE: the rig switches to it at its next cycle"),
+    ("Message", ua.VariantType.String, "what the rig did, or why it refused, in a sentence"),
+)
+
+
+def _argument(name: str, vtype: ua.VariantType, what: str) -> ua.Argument:
+    arg = ua.Argument()
+    arg.Name, arg.DataType, arg.ValueRank = name, ua.NodeId(vtype.value), -1
+    arg.Description = ua.LocalizedText(what)
+    return arg
+
+
+def _push_arguments(args: tuple) -> tuple[str, str, tuple[str, ...]]:
+    """PushGainSet's arguments, checked: ``(document, note, accepted)``; a ValueError says what was expected."""
+    names = " and ".join(f"{name} ({what})" for name, _, what in PUSH_INPUTS)
+    if len(args) != len(PUSH_INPUTS) or not all(isinstance(a.Value, str) for a in args):
+        raise ValueError(f"PushGainSet takes {len(PUSH_INPUTS)} String arguments: {names}; got "
+                         f"{len(args)} of {', '.join(type(a.Value).__name__ for a in args) or 'none'}")
+    document, note, accepted = (a.Value for a in args)
+    if not document.lstrip().startswith("{"):
+        shown = document if len(document) <= 60 else document[:57] + "..."
+        raise ValueError(f"GainSetDocument must be the gain set file's text (its JSON document), not a path or a "
+                         f"name: got '{shown}'; read the file and send what it holds")
+    return document, note, tuple(k.strip() for k in accepted.split(",") if k.strip())
 
 
 class _ServerProcess:
@@ -412,10 +466,11 @@ class _ServerProcess:
             state=await var(root, "State", "idle, running, ramping down, completed or tripped"),
             last_event=await var(root, "LastEvent", "the executor's last event as JSON"),
         )
-        method = await root.add_method(idx, "PushGainSet", self._push_callback, [ua.VariantType.String],
-                                       [ua.VariantType.Boolean, ua.VariantType.String])
+        method = await root.add_method(idx, "PushGainSet", self._push_callback,
+                                       [_argument(name, vtype, what) for name, vtype, what in PUSH_INPUTS],
+                                       [_argument(name, vtype, what) for name, vtype, what in PUSH_OUTPUTS])
         await method.write_attribute(ua.AttributeIds.Description, ua.DataValue(ua.Variant(ua.LocalizedText(
-            "push a validated gain set (the JSON document); it runs from the next cycle on, switched bumplessly"))))
+            "push a validated gain set of this rig's plant; it runs from the next cycle on, switched bumplessly"))))
         return server, nodes
 
     async def _push_callback(self, parent: Any, *args: Any) -> list[ua.Variant]:
@@ -425,9 +480,13 @@ class _ServerProcess:
 
     async def _push(self, args: tuple, user: str) -> tuple[bool, str]:
         try:
-            if len(args) != 1 or not isinstance(args[0].Value, str):
-                raise ValueError("PushGainSet takes one String argument: the gain set's JSON document")
-            controller, identity = self.cfg.check(args[0].Value)
+            document, note, accepted = _push_arguments(args)
+            # in a thread: the check derives the limits on a simulation and may compile a new structure's step, and
+            # the server answers its other sessions (their keep-alive reads) meanwhile
+            controller, identity = await asyncio.get_running_loop().run_in_executor(
+                None, functools.partial(self.cfg.check, document, accepted=accepted))
+            if note:
+                identity = {**identity, "note": note}
         except ValueError as exc:  # refused here: the supervisor records it, the client has the reason
             self.conn.send(("refused", user, str(exc)))
             return False, f"refused: {exc}"
@@ -481,18 +540,63 @@ class _ServerProcess:
                 os._exit(0)
 
 
-async def _client(endpoint: str, timeout_s: float, username: str | None, password: str | None,
-                  certificate: str | Path | None, private_key: str | Path | None,
-                  server_certificate: str | Path | None) -> Client:
-    """A client of ``endpoint`` with the user's name and password and, with a certificate, encryption."""
-    client = Client(endpoint, timeout=timeout_s)
-    if username is not None:
-        client.set_user(username)
-        client.set_password(password or "")
-    if certificate is not None:
-        await client.set_security(SecurityPolicyBasic256Sha256, str(certificate), str(private_key),
-                                  server_certificate=None if server_certificate is None else str(server_certificate),
-                                  mode=ua.MessageSecurityMode.SignAndEncrypt)
+#: the security policies a client may ask for with a certificate, by name (piezopreload.rig.SECURITY_POLICIES)
+SECURITY_POLICIES = dict(zip(POLICY_NAMES, (SecurityPolicyBasic256Sha256, SecurityPolicyAes128Sha256RsaOaep,
+                                            SecurityPolicyAes256Sha256RsaPss), strict=True))
+#: the message security modes a client may ask for with a certificate, by name (piezopreload.rig.SECURITY_MODES)
+SECURITY_MODES = dict(zip(MODE_NAMES, (ua.MessageSecurityMode.SignAndEncrypt, ua.MessageSecurityMode.Sign),
+                          strict=True))
+
+
+@dataclass(frozen=True)
+class Credentials:
+    """How a client authenticates and secures its channel: a user name and password (None: anonymous), and with a
+    certificate and its private key a secure channel of ``policy`` and ``mode`` (``server_certificate``: the server's,
+    to trust it)."""
+
+    username: str | None = None
+    password: str | None = None
+    certificate: str | Path | None = None
+    private_key: str | Path | None = None
+    server_certificate: str | Path | None = None
+    policy: str = "Basic256Sha256"
+    mode: str = "SignAndEncrypt"
+
+    def __post_init__(self) -> None:
+        if self.policy not in SECURITY_POLICIES:
+            raise ValueError(f"security policy '{self.policy}': expected one of {', '.join(SECURITY_POLICIES)}")
+        if self.mode not in SECURITY_MODES:
+            raise ValueError(f"security mode '{self.mode}': expected one of {', '.join(SECURITY_MODES)}")
+        if (self.certificate is None) != (self.private_key is None):
+            raise ValueError("give the client's certificate and its private key, or neither")
+
+
+async def _client(endpoint: str, timeout_s: float, who: Credentials) -> Client:
+    """A client of ``endpoint`` with the user's name and password and, with a certificate, a secure channel.
+
+    Its health probe (a read of the server's state between requests) waits as long as a request: a session of a
+    few requests on a loaded host is not dropped because the server took over a second to answer one probe."""
+    client = Client(endpoint, timeout=timeout_s, watchdog_intervall=timeout_s)
+    if who.username is not None:
+        client.set_user(who.username)
+        client.set_password(who.password or "")
+    if who.certificate is not None:
+        server = None if who.server_certificate is None else str(who.server_certificate)
+        await client.set_security(SECURITY_POLICIES[who.policy], str(who.certificate), str(who.private_key),
+                                  server_certificate=server, mode=SECURITY_MODES[who.mode])
+    return client
+
+
+def lost(endpoint: str, exc: BaseException) -> str:
+    """The words for a session that ended before its answer (the push may or may not have been taken)."""
+    return (f"the session with {endpoint} ended before its answer ({exc or type(exc).__name__}); read what the server "
+            "shows before pushing again")
+
+
+async def connect(endpoint: str, who: Credentials, timeout_s: float = 10.0) -> Client:
+    """A connected session with ``endpoint`` (disconnect it when done); :class:`PushRefused` says why not."""
+    client = await _client(endpoint, timeout_s, who)
+    await _connect(client, endpoint)
     return client
 
 
@@ -527,42 +631,50 @@ async def _await_running(running_node: Any, running: str, expect_sha256: str, ti
     return running
 
 
-async def _push_and_read(client: Client, document: str, timeout_s: float,
-                         expect_sha256: str | None) -> tuple[bool, str, dict[str, Any], str]:
+async def _push_and_read(client: Client, document: str, note: str, timeout_s: float,
+                         expect_sha256: str | None, accepted: tuple[str, ...] = ()) -> tuple[bool, str, dict[str, Any],
+                                                                                            str]:
     """Call ``PushGainSet`` on a connected client; the answer, then the parameters and the gain set the server shows."""
     idx = await client.get_namespace_index(NAMESPACE)
     root = await client.nodes.objects.get_child([f"{idx}:{ROOT}"])
     method = await root.get_child([f"{idx}:PushGainSet"])
     try:
-        accepted, message = await root.call_method(method, ua.Variant(document, ua.VariantType.String))
+        taken, message = await root.call_method(method, ua.Variant(document, ua.VariantType.String),
+                                                ua.Variant(note, ua.VariantType.String),
+                                                ua.Variant(",".join(accepted), ua.VariantType.String))
     except ua.UaStatusCodeError as exc:
         raise PushRefused(f"the server refused the call: {type(exc).__name__}") from None
     running_node = await root.get_child([f"{idx}:GainSetSha256"])
     running = await running_node.read_value()
-    if accepted and expect_sha256 is not None:
+    if taken and expect_sha256 is not None:
         running = await _await_running(running_node, running, expect_sha256, timeout_s)
     params = await root.get_child([f"{idx}:ControllerParameters"])
     values = {}
     for name in ("CtrlP", "CtrlTi", "CtrlTd"):
         values[name] = await (await params.get_child([f"{idx}:{name}"])).read_value()
-    return accepted, message, values, running
+    return taken, message, values, running
 
 
 async def push_gain_set(document: str, endpoint: str, *, username: str | None = None, password: str | None = None,
                         certificate: str | Path | None = None, private_key: str | Path | None = None,
-                        server_certificate: str | Path | None = None, timeout_s: float = 10.0,
-                        expect_sha256: str | None = None) -> dict[str, Any]:
-    """Push a gain set's JSON ``document`` through ``PushGainSet``; :class:`PushRefused` says why not.
+                        server_certificate: str | Path | None = None, timeout_s: float = PUSH_TIMEOUT_S,
+                        expect_sha256: str | None = None, note: str = "",
+                        accepted: tuple[str, ...] = ()) -> dict[str, Any]:
+    """Push a gain set's JSON ``document`` through ``PushGainSet`` (with ``note``, recorded with it, and the keys of
+    the requirements a candidate missed that the pusher ``accepted``); :class:`PushRefused` says why not.
 
     With ``expect_sha256``, waits (up to ``timeout_s``) until the server shows that gain set
     running and returns the parameters it then shows.
     """
-    client = await _client(endpoint, timeout_s, username, password, certificate, private_key, server_certificate)
-    await _connect(client, endpoint)
+    who = Credentials(username, password, certificate, private_key, server_certificate)
+    client = await connect(endpoint, who, timeout_s)
     try:
-        accepted, message, values, running = await _push_and_read(client, document, timeout_s, expect_sha256)
+        taken, message, values, running = await _push_and_read(client, document, note, timeout_s, expect_sha256,
+                                                               accepted)
+    except (ConnectionError, TimeoutError) as exc:
+        raise PushRefused(lost(endpoint, exc)) from None
     finally:
         await client.disconnect()
-    if not accepted:
+    if not taken:
         raise PushRefused(message)
     return {"accepted": True, "message": message, "server_parameters": values, "server_gain_set_sha256": running}

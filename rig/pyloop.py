@@ -104,10 +104,13 @@ class PythonLoop:
         ex = self.ex
         if ex._pending is not None:
             new, info = ex._pending
-            ex._pending = None
             ex.step.switch(new)
-            ex.controller = new
-            ex._event("gains_switched", self.t, **info)
+            ex.controller = new  # before the switch stops pending: a server shows the new hash with the new gains
+            ex._pending = None
+            # recorded now, written to the sidecar by the server's thread (Executor.save_events): a sidecar's
+            # rewrite (its fsync) has no place inside a cycle
+            ex._event("gains_switched", self.t, persist=False, cycle=self.k, **info)
+            ex._unsaved = True
 
     def _cycle(self) -> tuple[bool, Trip | None]:
         """One cycle: ``(stop, trip)``; a stop without a trip is a run ended by :meth:`Executor.stop`."""

@@ -113,6 +113,11 @@ class RunLog:
             if write:
                 self._write_sidecar()
 
+    def save(self) -> None:
+        """Rewrite the sidecar with every event recorded so far (those recorded with ``write=False`` too)."""
+        with self._lock:
+            self._write_sidecar()
+
     def close(self, status: str, outcome: RunOutcome) -> None:
         """The run has ended: the CSV closed, the sidecar's status and outcome written."""
         self._close(status=status, summary=outcome)

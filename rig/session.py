@@ -33,24 +33,26 @@ from piezopreload.artifacts.gainset import REFERENCES, GainSet
 from piezopreload.artifacts.hostcheck import HostCheck
 from piezopreload.artifacts.learned import LearnedSignal
 from piezopreload.artifacts.rigrun import RigRunRecord, RunMetrics
+from piezopreload.core import native
 from piezopreload.core.artifacts import finite_or_none
 from piezopreload.core.errors import InputError
 from piezopreload.core.tables import read_table
 from piezopreload.models.closedloop import PAPER_BAND_N, ClosedLoopRun, Reference
-from piezopreload.models.controller import Controller
+from piezopreload.models.controller import Controller, ControllerModel
 from piezopreload.models.metrics import run_numbers
+from piezopreload.rig import native_loop
 from piezopreload.rig.backends import BackendError, Fault, FaultInjector, open_backend
+from piezopreload.rig.compiled import step_library
 from piezopreload.rig.executor import Executor
-from piezopreload.rig.export import ExportError, controller_from_gain_set
+from piezopreload.rig.export import ExportError, controller_from_gain_set, require_validated
 from piezopreload.rig.hostcheck import check_host
-from piezopreload.rig.limits import RunLimits, run_limits, study_values
+from piezopreload.rig.limits import RunLimits, check_fit, run_limits
 from piezopreload.rig.opcua import PushRefused, RigServer, feedforward_hash, push_gain_set
 from piezopreload.rig.outcome import RunResult
 from piezopreload.rig.runlog import RunLog
-from piezopreload.rig.tables import INTERLOCK_KEYS
 
-__all__ = ["EXIT_TRIPPED", "HOST_CHECK_S", "MAX_REFERENCE_S", "RigRun", "load_validated", "reference_for",
-           "run_metrics", "run", "serve", "push", "check_pushed", "check"]
+__all__ = ["EXIT_TRIPPED", "HOST_CHECK_S", "MAX_REFERENCE_S", "RigRun", "ServedRig", "load_validated", "reference_for",
+           "run_metrics", "run", "serve", "push", "check_pushed", "check", "controller_words"]
 
 #: the exit code of a run that an interlock (or a signal) stopped
 EXIT_TRIPPED = 3
@@ -61,15 +63,10 @@ HOST_CHECK_S = 2.0
 MAX_REFERENCE_S = 3600.0
 
 
-def _require_validated(gain_set: GainSet, shown: str, accepted: tuple[str, ...] = ()) -> GainSet:
-    gain_set.require_usable(accepted, shown=shown, use="run on the rig")
-    return gain_set
-
-
-def load_validated(path: str | Path, accepted: tuple[str, ...] = ()) -> GainSet:
+def load_validated(path: str | Path, use: str = "run on the rig", accepted: tuple[str, ...] = ()) -> GainSet:
     """A gain set whose hash matches and that passed validation (or whose every missed requirement is ``accepted``
     by name); anything else is refused (exit 2)."""
-    return _require_validated(GainSet.load(path), str(path), accepted)
+    return require_validated(GainSet.load(path), use, str(path), accepted)
 
 
 def _identity(gain_set: GainSet) -> dict[str, str]:
@@ -84,24 +81,94 @@ def _controller(shown: str | Path, gain_set: GainSet, accepted: tuple[str, ...] 
         raise InputError(f"{shown}: {exc}") from None
 
 
-def check_pushed(text: str, served: dict[str, float] | None = None) -> tuple[Controller, dict[str, str]]:
-    """The executor's check of a pushed document: the artifact's checks, validated, a controller it can build, and
-    (``served``) the interlock settings of the served run's gain set, which the pushed one's study must share.
+def controller_words(controller: Controller) -> str:
+    """The controller's structure in words: "PID", with its feedforward and its gain schedule where it has them."""
+    model, parts = controller.model, ["PID"]
+    if model.feedforward is not None:
+        kind = getattr(getattr(controller.feedforward, "forward", None), "kind", "P-I")
+        parts.append(f"a {kind} feedforward of {model.feedforward.n_operators} operators")
+    if model.scheduled:
+        parts.append(f"a gain schedule of {model.schedule_size} entries")
+    return parts[0] + ("" if len(parts) == 1 else " with " + " and ".join(parts[1:]))
+
+
+@dataclass(frozen=True, eq=False)
+class ServedRig:
+    """What a served rig's check of a pushed gain set needs (:func:`check_pushed`, run in the server's process).
+
+    ``plant_sha256`` names the rig's plant; ``limits`` are the interlocks it was armed with and where each came from;
+    ``overrides`` the command line's (they hold for any gain set pushed); ``reference`` and ``seed`` the run the
+    stall limit of a pushed controller is derived on; ``model`` the running controller's structure and ``compiled``
+    whether the rig runs compiled steps (and ``native`` on the native loop): a pushed controller of another
+    structure is compiled in the server's process before the rig is asked to switch.
+    """
+
+    plant_sha256: str
+    preset: str | None
+    limits: RunLimits
+    overrides: dict[str, float | None]
+    reference: Reference
+    reference_name: str
+    seed: int
+    watchdog_s: float | None
+    dt_s: float
+    model: ControllerModel
+    compiled: bool
+    native: bool
+
+
+def _same_plant(gain_set: GainSet, served: ServedRig) -> None:
+    digest = gain_set.plant_sha256
+    if digest is None:
+        raise InputError("the pushed gain set names no plant (field 'plant.rig'): a rig runs gain sets validated on "
+                         "its own plant only")
+    if digest != served.plant_sha256:
+        raise InputError(f"the pushed gain set was tuned and validated on another plant ('{gain_set.preset}', plant "
+                         f"sha256 {digest[:12]}) than this rig runs ('{served.preset}', {served.plant_sha256[:12]}): a "
+                         "gain set runs only on the plant it was validated on")
+
+
+def _compile(controller: Controller, served: ServedRig) -> None:
+    """A controller of another structure than the running one: its step (and start) built now, here, so the rig's
+    switch finds them; a compiler that fails refuses the push."""
+    if not served.compiled or controller.model == served.model:
+        return
+    try:
+        step_library(controller.model)
+        if served.native:
+            native_loop.start_library(controller.model)
+    except native.NativeBuildError as exc:
+        raise InputError(f"the rig cannot compile the pushed controller's step ({exc})") from None
+
+
+def check_pushed(text: str, served: ServedRig, accepted: tuple[str, ...] = ()) -> tuple[Controller, dict[str, Any]]:
+    """The served rig's check of a pushed document, in the server's process: the artifact's checks, its status
+    (:func:`~piezopreload.rig.export.require_validated`), the rig's plant (by its hash), the sample period, the limits
+    it would be armed with here (:func:`~piezopreload.rig.limits.run_limits` on the served reference with the command
+    line's overrides) fitting the armed ones (:func:`~piezopreload.rig.limits.check_fit`), and a controller of
+    another structure compiled. A gain set that is not validated runs only where each requirement it missed is in
+    ``accepted`` by name. Returns the controller and what the push records (its identity, its structure, the armed
+    limits kept that are stricter than its own, the misses accepted).
 
     Raises ValueError with the reason (the server sends it back to the client).
     """
     shown = "the pushed gain set"
     try:
-        gain_set = _require_validated(GainSet.parse(text, shown), shown)
-        controller = _controller(shown, gain_set)
-        pushed, sources = study_values(gain_set)
+        gain_set = require_validated(GainSet.parse(text, shown), "pushed", shown, accepted)
+        _same_plant(gain_set, served)
+        controller = _controller(shown, gain_set, accepted)
+        if not math.isclose(controller.dt_s, served.dt_s, rel_tol=1e-12):
+            raise InputError(f"{shown} samples every {controller.dt_s:g} s, this rig's loop every {served.dt_s:g} s")
+        limits = run_limits(gain_set, controller, served.reference, served.reference_name, overrides=served.overrides,
+                            override_source="the served rig's command line", seed=served.seed,
+                            watchdog_s=served.watchdog_s)
+        kept = check_fit(served.limits.safety, served.limits.sources, limits)
+        _compile(controller, served)
     except InputError as exc:
         raise ValueError(str(exc)) from None
-    for key, value in (served or {}).items():
-        if pushed.get(key) is not None and not math.isclose(float(pushed[key]), value, rel_tol=1e-12):
-            raise ValueError(f"{shown} carries {key} = {pushed[key]:g} ({sources[key]}), the served rig runs with "
-                             f"{value:g}: the interlocks are set when the rig is armed; serve that gain set instead")
-    return controller, _identity(gain_set)
+    misses = {"accepted_missed": [r.to_dict() for r in gain_set.missed]} if not gain_set.validated else {}
+    return controller, {**_identity(gain_set), "controller": controller_words(controller), "interlocks_kept": kept,
+                        **misses}
 
 
 def reference_for(spec: str, gain_set: GainSet, shown: str | Path = "the gain set") -> tuple[Reference, str]:
@@ -241,7 +308,7 @@ def _setup(gains_path: str | Path, backend: str, backend_options: dict[str, str]
            rate_Hz: float | None, realtime: bool, faults: list[Fault] | None, safety: dict[str, float | None] | None,
            seed: int, learned: str | Path | None = None, safety_source: str = "the command line",
            accepted: tuple[str, ...] = ()) -> _Setup:
-    gain_set = load_validated(gains_path, accepted)
+    gain_set = load_validated(gains_path, accepted=accepted)
     controller = _controller(gains_path, gain_set, accepted)
     if rate_Hz is not None and not math.isclose(rate_Hz * controller.dt_s, 1.0, rel_tol=1e-9):
         raise InputError(f"--rate {rate_Hz:g}: the gain set was tuned and validated at {1.0 / controller.dt_s:g} Hz; "
@@ -375,11 +442,12 @@ def _close(backend: Any) -> None:
 SERVE_KEEP_S = 600.0
 
 
-def _served_interlocks(su: _Setup, overrides: dict[str, float | None] | None) -> dict[str, float]:
-    """The interlock settings the served run took from its gain set, not from the command line: a pushed gain set
-    must carry the same (an override holds whatever is pushed)."""
-    given = {k for k, v in (overrides or {}).items() if v is not None}
-    return {k: float(getattr(su.limits.safety, k)) for k in INTERLOCK_KEYS if k != "stall_limit_s" and k not in given}
+def _served(su: _Setup, executor: Executor, overrides: dict[str, float | None] | None, reference: str, seed: int,
+            watchdog_s: float | None) -> ServedRig:
+    """The served rig as :func:`check_pushed` judges a push against it."""
+    return ServedRig(su.gain_set.plant_sha256 or "", su.gain_set.preset, su.limits, dict(overrides or {}), su.reference,
+                     reference, seed, watchdog_s, su.controller.dt_s, su.controller.model, executor.step.kind == "c",
+                     executor.loop == "native")
 
 
 def serve(gains_path: str | Path, *, endpoint: str, users: dict[str, str], certificate: str | None = None,
@@ -403,7 +471,9 @@ def serve(gains_path: str | Path, *, endpoint: str, users: dict[str, str], certi
             check = _check_host(su, executor, host_check_s, accept_host, say)
             record = replace(su.record, endpoint=endpoint, users=tuple(sorted(users)), served=True, host_check=check,
                              host_accepted=accept_host)
-            server = RigServer(executor, functools.partial(check_pushed, served=_served_interlocks(su, safety)),
+            wd = (backend_options or {}).get("watchdog_s") if backend == "sim" else None
+            served = _served(su, executor, safety, reference, seed, None if wd is None else float(wd))
+            server = RigServer(executor, functools.partial(check_pushed, served=served),
                                identity=_identity(su.gain_set), endpoint=endpoint, users=users, certificate=certificate,
                                private_key=private_key)
         except (ValueError, OSError) as exc:
@@ -457,14 +527,16 @@ def check(gains_path: str | Path | None = None, *, seconds: float = 10.0, rate_H
 
 def push(gains_path: str | Path, *, endpoint: str, username: str | None, password: str | None,
          certificate: str | None = None, private_key: str | None = None,
-         server_certificate: str | None = None) -> dict[str, Any]:
-    """Push a validated gain set to a serving rig; refused pushes are bad input (exit 2) with the server's reason."""
-    gain_set = load_validated(gains_path)  # refuse locally first: nothing is sent that the server would refuse
+         server_certificate: str | None = None, note: str = "", accepted: tuple[str, ...] = ()) -> dict[str, Any]:
+    """Push a validated gain set to a serving rig (``note``: why, recorded with the push; a candidate only where each
+    requirement it missed is ``accepted`` by name, sent with it); refused pushes are bad input (exit 2) with the
+    server's reason."""
+    gain_set = load_validated(gains_path, "pushed", accepted)  # refuse locally first: nothing sent the server refuses
     text = Path(gains_path).read_text(encoding="utf-8")
     try:
         reply = asyncio.run(push_gain_set(text, endpoint, username=username, password=password, certificate=certificate,
                                           private_key=private_key, server_certificate=server_certificate,
-                                          expect_sha256=gain_set.content_sha256))
+                                          expect_sha256=gain_set.content_sha256, note=note, accepted=accepted))
     except PushRefused as exc:
         raise InputError(f"{endpoint}: {exc}") from None
     return {"gain_set": str(gains_path), "gain_set_sha256": gain_set.content_sha256, "endpoint": endpoint, **reply}

@@ -1,16 +1,34 @@
-"""The feedforward as an IEC 61131-3 Structured Text function block, for a PLC to run.
+"""The PLC exports' IEC 61131-3 Structured Text: the controller's function block and program, the feedforward's block.
 
-:func:`function_block` writes ``PP_FEEDFORWARD``: one call per sample period, the desired force
-in (``target_N``), the command out (``command_V``); its instance keeps the inverse step's state
-(the play operators' outputs, the creep carries and, for the paper's direction-switched model,
-the last command). The model's numbers are ``VAR CONSTANT`` arrays, the creep lags discretised at
-the loop's sample period. The code is the algorithm of
-:class:`~piezopreload.models.hysteresis.InverseStep` written out statement by statement (the
-steps of :data:`piezopreload.rig.export.INVERSE_STEP_ALGORITHM`), in a small subset of the
-language: declarations of ``LREAL``, ``BOOL``, ``DINT`` and one-based ``ARRAY [1..n] OF LREAL``
-with their initial values; assignments; ``IF``/``ELSIF``/``ELSE``; ``FOR ... TO ... DO``; the
-operators ``+ - * / < > <= >= AND NOT``; ``MAX``, ``MIN`` and ``ABS``. Real literals always
-carry a decimal point and 17 significant digits, so every number is the double the model holds.
+A gain set (:func:`controller_block`, :func:`loop_program`):
+
+* ``PP_CONTROLLER``, the whole controller step as the simulation, the rig and the exported C run
+  it (the PID in its form, trapezoidal integral, derivative on the measurement through its
+  filter, setpoint weight, conditional-integration anti-windup, the output clamp; the
+  feedforward and the gain schedule's interpolation where the gain set has them). Its body is the
+  algorithm of the CasADi functions the C is generated from (:mod:`piezopreload.rig.controller_code`),
+  statement for statement (:mod:`piezopreload.rig.casadi_st`), so the two cannot differ. It adds
+  what a PLC needs around the step: ``enable`` (``FALSE``: ``u_V`` follows ``track_V``; its rising
+  edge starts the step bumplessly from ``track_V``, as the rig starts it); the parameters are
+  variables holding the gain set's numbers, by the names of
+  :func:`~piezopreload.rig.controller_code.parameters`, which ``rig push --to`` writes;
+* ``PP_LOOP``, a program that calls it once per task cycle with bumpless switching between
+  manual and automatic.
+
+A hysteresis model alone (:func:`function_block`) writes ``PP_FEEDFORWARD``: one call per
+sample period, the desired force in (``target_N``), the command out (``command_V``); its
+instance keeps the inverse step's state (the play operators' outputs, the creep carries and, for
+the paper's direction-switched model, the last command). The model's numbers are ``VAR
+CONSTANT`` arrays, the creep lags discretised at the loop's sample period. The code is the
+algorithm of :class:`~piezopreload.models.hysteresis.InverseStep` written out statement by
+statement (the steps of :data:`piezopreload.rig.export.INVERSE_STEP_ALGORITHM`), readable as the
+algorithm's text.
+
+Both use a small subset of the language: declarations of ``LREAL``, ``BOOL``, ``DINT`` and
+one-based ``ARRAY [1..n] OF LREAL`` with their initial values; assignments; ``IF``/``ELSIF``/
+``ELSE``; ``FOR ... TO ... DO``; the operators ``+ - * / < > <= >= = <> AND OR NOT``; ``MAX``,
+``MIN``, ``ABS`` and ``SEL``; the program calls the block. Real literals always carry a decimal
+point and 17 significant digits, so every number is the double the gain set holds.
 """
 
 from __future__ import annotations
@@ -19,10 +37,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from piezopreload.rig.casadi_st import real, statements
+from piezopreload.rig.controller_code import DESCRIPTIONS, ControllerCode, state_fields
+
 if TYPE_CHECKING:
     from piezopreload.rig.export import FeedforwardTable
 
-__all__ = ["function_block", "real"]
+__all__ = ["function_block", "controller_block", "loop_program", "real", "CONTROLLER_BLOCK", "LOOP_PROGRAM"]
+
+#: the names of the gain set's function block and of the program that calls it
+CONTROLLER_BLOCK, LOOP_PROGRAM = "PP_CONTROLLER", "PP_LOOP"
 
 #: the array constants: the table's parameter, its name in the block, its unit
 _ARRAYS = (("thresholds", "THRESHOLD_V", "play operator thresholds r, V"),
@@ -34,14 +58,6 @@ _ARRAYS = (("thresholds", "THRESHOLD_V", "play operator thresholds r, V"),
 _DIRECTION_ARRAYS = (("weights", "WEIGHT", "weights w, N/V"), ("partial", "PARTIAL", "partial sums W, N/V"),
                      ("inverse_thresholds", "INV_THRESHOLD", "inverse thresholds, N"),
                      ("inverse_weights", "INV_WEIGHT", "inverse weights, V/N"))
-
-
-def real(x: float) -> str:
-    """An LREAL literal that reads back as the double ``x`` (always a decimal point, 17 significant digits)."""
-    x = float(x)
-    if not np.isfinite(x):
-        raise ValueError(f"a Structured Text literal must be finite, got {x!r}")
-    return format(x, ".16E")
 
 
 def _array(name: str, values: np.ndarray, what: str) -> list[str]:
@@ -144,3 +160,121 @@ def function_block(t: FeedforwardTable, name: str = "PP_FEEDFORWARD") -> str:
              "add command_V to the PID's output before the clamp. *)",
              *_variables(t), *_constants(t), *body, *_update(t), "END_FUNCTION_BLOCK"]
     return "\n".join(lines) + "\n"
+
+
+# --------------------------------------------------------------------------------------
+# a gain set: the controller's block and the program that calls it
+# --------------------------------------------------------------------------------------
+_OUTPUTS = (("u_V", "the command, V, clamped to u_min_V..u_max_V"), ("p_V", "its proportional action, V"),
+            ("i_V", "its integral action, V"), ("d_V", "its derivative action, V"),
+            ("ff_V", "its feedforward, V"))
+
+
+def _declaration(name: str, values: tuple[float, ...], array: bool, what: str) -> list[str]:
+    """``name : LREAL`` or ``name : ARRAY[1..n] OF LREAL``, with its initial values."""
+    if not array:
+        return [f"    {name} : LREAL := {real(values[0])}; (* {what} *)"]
+    n = len(values)
+    items = [real(v) for v in values]
+    rows = (",\n" + " " * 8).join(", ".join(items[i:i + 4]) for i in range(0, len(items), 4))
+    return [f"    (* {what} *)", f"    {name} : ARRAY[1..{n}] OF LREAL := [", f"        {rows}];"]
+
+
+def _state(code: ControllerCode) -> tuple[list[str], list[str], list[str]]:
+    """The state's declarations, each element's ST variable, and the copy of ``state_next`` into the state."""
+    decls, refs, copy = [], [], []
+    for name, start, size in state_fields(code.model):
+        what = DESCRIPTIONS.get(name, name)
+        if size is None or size == 1:
+            decls.append(f"    {name} : LREAL; (* {what} *)")
+            refs.append(name)
+            copy.append(f"    {name} := state_next[{start + 1}];")
+        else:
+            decls.append(f"    {name} : ARRAY[1..{size}] OF LREAL; (* {what} *)")
+            refs += [f"{name}[{j + 1}]" for j in range(size)]
+            copy += [f"    FOR k := 1 TO {size} DO", f"        {name}[k] := state_next[{start} + k];", "    END_FOR;"]
+    return decls, refs, copy
+
+
+def _parameter_refs(code: ControllerCode) -> list[str]:
+    refs: list[str] = []
+    for p in code.parameters:
+        refs += [f"{p.name}[{j + 1}]" for j in range(p.size)] if p.array else [p.name]
+    return refs
+
+
+def controller_block(code: ControllerCode, head: list[str] | tuple[str, ...] = ()) -> str:
+    """``PP_CONTROLLER``: the controller step of ``code`` as a function block (see the module docstring)."""
+    params = _parameter_refs(code)
+    decls, state, copy = _state(code)
+    n_state = code.model.state.size
+    start = statements(code.start, [lambda k: "setpoint_N", lambda k: "pv_N", lambda k: "track_V",
+                                    lambda k: params[k]], [lambda k: state[k]], prefix="s")
+    step = statements(code.step, [lambda k: state[k], lambda k: "setpoint_N", lambda k: "pv_N", lambda k: params[k]],
+                      [lambda k: "u_V", lambda k: "p_V", lambda k: "i_V", lambda k: "d_V", lambda k: "ff_V",
+                       lambda k: f"state_next[{k + 1}]"], prefix="t")
+    work = {**start.variables, **step.variables}
+    dt = code.controller.dt_s
+    lines = [f"FUNCTION_BLOCK {CONTROLLER_BLOCK}",
+             *(["(* " + "\n   ".join(head) + " *)"] if head else []),
+             f"(* Call it once per sample period, {dt!r} s (a cyclic task of that period). Generated by piezopreload",
+             "   from the controller step the gains were tuned and validated with, as its C export is: do not edit",
+             "   the body; change the numbers below (or write them with 'piezopreload rig push --to'). *)",
+             "VAR_INPUT",
+             "    enable : BOOL; (* TRUE: the loop runs; when it rises the loop starts bumplessly from track_V *)",
+             "    setpoint_N : LREAL; (* the force setpoint, N *)",
+             "    pv_N : LREAL; (* the measured force, N *)",
+             "    track_V : LREAL; (* the command the actuator holds (the last one written), V: u_V while enable is",
+             "                        FALSE, and the first command when it rises *)",
+             "END_VAR", "VAR_OUTPUT",
+             *(f"    {name} : LREAL; (* {what} *)" for name, what in _OUTPUTS),
+             "    active : BOOL; (* TRUE while the loop runs *)", "END_VAR",
+             "VAR (* the gain set's numbers *)"]
+    for p in code.parameters:
+        lines += _declaration(p.name, p.values, p.array, p.description)
+    lines += ["END_VAR", "VAR (* the step's state *)", *decls, "END_VAR",
+              "VAR (* the algorithm's work variables *)",
+              f"    state_next : ARRAY[1..{n_state}] OF LREAL;", "    k : DINT;",
+              *(f"    {name} : {work[name]};" for name in sorted(work, key=lambda x: (x[0], int(x[1:])))),
+              "END_VAR",
+              "IF enable AND NOT active THEN",
+              "    (* the bumpless start: the state whose first command at this setpoint and measurement is track_V *)",
+              *("    " + line for line in start.lines),
+              "END_IF;",
+              "IF enable THEN",
+              "    (* one sample of the controller step *)",
+              *("    " + line for line in step.lines),
+              *copy,
+              "ELSE",
+              *(f"    {name} := {'track_V' if name == 'u_V' else '0.0'};" for name, _ in _OUTPUTS),
+              "END_IF;",
+              "active := enable;",
+              "END_FUNCTION_BLOCK"]
+    return "\n".join(lines) + "\n"
+
+
+def loop_program(dt_s: float) -> str:
+    """``PP_LOOP``: one instance of ``PP_CONTROLLER`` called every task cycle, switched bumplessly between manual
+    and automatic."""
+    return "\n".join([
+        f"PROGRAM {LOOP_PROGRAM}",
+        f"(* Run it in a cyclic task of {dt_s!r} s. Connect force_N to the force sensor's reading and command_V to",
+        "   the amplifier's input (in N and V: scale the raw channels first). automatic switches the loop in and",
+        "   out bumplessly: in manual, command_V is manual_V, which follows the loop's command while the loop runs, so",
+        "   switching to manual holds the last command and switching back starts from the command held. *)",
+        "VAR",
+        f"    ctrl : {CONTROLLER_BLOCK};",
+        "    automatic : BOOL; (* TRUE: the loop runs; FALSE: manual *)",
+        "    setpoint_N : LREAL; (* the force setpoint, N *)",
+        "    force_N : LREAL; (* the measured force, N *)",
+        "    manual_V : LREAL; (* the command in manual, V *)",
+        "    command_V : LREAL; (* the command to the amplifier, V *)",
+        "END_VAR",
+        "ctrl(enable := automatic, setpoint_N := setpoint_N, pv_N := force_N, track_V := command_V);",
+        "IF automatic THEN",
+        "    command_V := ctrl.u_V;",
+        "    manual_V := command_V;",
+        "ELSE",
+        "    command_V := manual_V;",
+        "END_IF;",
+        "END_PROGRAM"]) + "\n"

@@ -5,8 +5,9 @@ registries this project uses, so the test parses the exported source with a gram
 subset (IEC 61131-3, 3rd edition: function blocks, ``VAR_INPUT``/``VAR_OUTPUT``/``VAR``/``VAR
 CONSTANT`` declarations of ``LREAL``, ``BOOL``, ``DINT`` and ``ARRAY[a..b] OF LREAL`` with their
 initial values, ``:=``, ``IF``/``ELSIF``/``ELSE``/``END_IF``, ``FOR ... TO ... DO``/``END_FOR``,
-``MAX``, ``MIN``, ``ABS``, comments) and refuses anything outside it. Each construct maps to the
-Python one with the same meaning:
+``MAX``, ``MIN``, ``ABS``, ``SEL``, comments; a program that declares instances of the source's
+function blocks, calls them with named inputs and reads their outputs) and refuses anything outside
+it. Each construct maps to the Python one with the same meaning:
 
 * the operator precedence is the standard's (table 71: unary ``-`` and ``NOT``; ``*`` ``/``;
   ``+`` ``-``; ``< > <= >=``; ``= <>``; ``AND``; ``XOR``; ``OR``), applied by this parser, and the
@@ -20,6 +21,10 @@ Python one with the same meaning:
   negative index silently);
 * identifiers are case-insensitive, as in ST, and a name declared twice is refused;
 * ``FOR i := a TO b`` runs ``i = a, a+1, ..., b`` (none when ``a > b``);
+* ``SEL(g, in0, in1)`` is ``in1`` when ``g`` is TRUE, else ``in0`` (table 23 of the standard), ``g``
+  BOOL and the two inputs of one type;
+* a call ``inst(a := x, ...)`` sets the instance's inputs it names (the others keep theirs) and runs
+  its body once; ``inst.out`` reads an output (or an input) of the instance;
 * the instance's variables keep their values between calls (a function block's memory), and
   start at their initial values (0.0, FALSE, 0 where none is given).
 """
@@ -42,12 +47,13 @@ _TOKEN = re.compile(r"""
   | (?P<real>\d+\.\d+(?:[eE][+-]?\d+)?)
   | (?P<int>\d+)
   | (?P<name>[A-Za-z_][A-Za-z0-9_]*)
-  | (?P<op>:=|<=|>=|<>|\.\.|[-+*/<>=()\[\],;:])
+  | (?P<op>:=|<=|>=|<>|\.\.|[-+*/<>=()\[\],;:.])
   | (?P<space>\s+)
 """, re.VERBOSE | re.DOTALL)
 _KEYWORDS = {"FUNCTION_BLOCK", "END_FUNCTION_BLOCK", "VAR_INPUT", "VAR_OUTPUT", "VAR", "CONSTANT", "END_VAR",
              "ARRAY", "OF", "LREAL", "BOOL", "DINT", "IF", "THEN", "ELSIF", "ELSE", "END_IF", "FOR", "TO", "DO",
-             "END_FOR", "AND", "OR", "XOR", "NOT", "TRUE", "FALSE", "MAX", "MIN", "ABS"}
+             "END_FOR", "AND", "OR", "XOR", "NOT", "TRUE", "FALSE", "MAX", "MIN", "ABS", "SEL", "PROGRAM",
+             "END_PROGRAM"}
 _SCALARS = {"LREAL": 0.0, "BOOL": False, "DINT": 0}
 
 
@@ -70,10 +76,20 @@ def _tokens(text: str) -> list[tuple[str, str]]:
 
 @dataclass
 class _Var:
-    type: str  # LREAL, BOOL, DINT or ARRAY
+    type: str  # LREAL, BOOL, DINT, ARRAY, or a function block's name
     section: str  # VAR_INPUT, VAR_OUTPUT, VAR, CONSTANT
     bounds: tuple[int, int] | None = None
     init: Any = None
+
+
+@dataclass
+class _Pou:
+    """A translated function block or program: its variables and the Python of its body."""
+
+    name: str
+    kind: str
+    variables: dict[str, _Var]
+    body: str
 
 
 class _Parser:
@@ -81,6 +97,7 @@ class _Parser:
         self.toks, self.i = _tokens(text), 0
         self.vars: dict[str, _Var] = {}
         self.lines: list[str] = []
+        self.blocks: dict[str, _Pou] = {}
 
     # ---- tokens ----------------------------------------------------------------------------------
     def peek(self) -> tuple[str, str]:
@@ -120,6 +137,8 @@ class _Parser:
             self.take("OF")
             self.take("LREAL")
             var = _Var("ARRAY", section, (lo, hi), [0.0] * (hi - lo + 1))
+        elif self.peek()[0] == "name" and self.peek()[1].upper() in self.blocks and section == "VAR":
+            var = _Var(self.take().upper(), section)
         else:
             t = self.take(kind="kw")
             if t not in _SCALARS:
@@ -211,6 +230,8 @@ class _Parser:
             return str(v == "TRUE"), "BOOL"
         if v in ("MAX", "MIN", "ABS"):
             return self.call(self.take())
+        if v == "SEL":
+            return self.select()
         return self.reference()
 
     def call(self, fn: str) -> tuple[str, str]:
@@ -225,11 +246,31 @@ class _Parser:
                           f"got {[t for _, t in args]}")
         return f"{fn.lower()}({', '.join(c for c, _ in args)})", types.pop()
 
+    def select(self) -> tuple[str, str]:
+        self.take("SEL")
+        self.take("(")
+        g, gt = self.expr()
+        self.take(",")
+        in0, t0 = self.expr()
+        self.take(",")
+        in1, t1 = self.expr()
+        self.take(")")
+        if gt != "BOOL" or t0 != t1:
+            raise STError(f"SEL takes a BOOL and two inputs of one type, got {gt}, {t0} and {t1}")
+        return f"({in1} if {g} else {in0})", t0
+
     def reference(self) -> tuple[str, str]:
         name = self.take(kind="name").lower()
         var = self.vars.get(name)
         if var is None:
             raise STError(f"'{name}' is not declared")
+        if var.type in self.blocks:
+            self.take(".")
+            field = self.take(kind="name").lower()
+            inner = self.blocks[var.type].variables.get(field)
+            if inner is None or inner.section not in ("VAR_INPUT", "VAR_OUTPUT") or inner.type == "ARRAY":
+                raise STError(f"{var.type} has no input or output '{field}'")
+            return f"m[{name!r}].memory[{field!r}]", inner.type
         if var.type != "ARRAY":
             return f"m[{name!r}]", var.type
         self.take("[")
@@ -275,9 +316,30 @@ class _Parser:
             self.lines.append(pad + f"for m[{name!r}] in range({lo}, ({hi}) + 1):")
             self.statements(depth + 1, ("END_FOR",))
             self.take("END_FOR")
+        elif self.vars.get(self.peek()[1].lower(), _Var("", "")).type in self.blocks:
+            self.instance_call(pad)
         else:
             self.assignment(pad)
         self.take(";")
+
+    def instance_call(self, pad: str) -> None:
+        name = self.take(kind="name").lower()
+        block = self.blocks[self.vars[name].type]
+        self.take("(")
+        args = []
+        while not self.accept(")"):
+            if args:
+                self.take(",")
+            field = self.take(kind="name").lower()
+            inner = block.variables.get(field)
+            if inner is None or inner.section != "VAR_INPUT":
+                raise STError(f"{block.name} has no input '{field}'")
+            self.take(":=")
+            code, t = self.expr()
+            if t != inner.type:
+                raise STError(f"{block.name}.{field} is {inner.type}, given a {t}")
+            args.append(f"{field!r}: {code}")
+        self.lines.append(pad + f"m[{name!r}].call({{{', '.join(args)}}})")
 
     def branch(self, depth: int, word: str) -> None:
         cond, t = self.expr()
@@ -299,14 +361,26 @@ class _Parser:
             raise STError(f"assigning a {et} to '{name}' ({t})")
         self.lines.append(pad + f"{target} = {code}")
 
-    def block(self) -> tuple[str, dict[str, _Var]]:
-        self.take("FUNCTION_BLOCK")
-        name = self.take(kind="name")
+    def pou(self) -> _Pou:
+        kind = self.take()
+        if kind not in ("FUNCTION_BLOCK", "PROGRAM"):
+            raise STError(f"expected FUNCTION_BLOCK or PROGRAM, got {kind!r}")
+        name = self.take(kind="name").upper()
+        self.vars, self.lines = {}, []
         self.declarations()
-        self.statements(1, ("END_FUNCTION_BLOCK",))
-        self.take("END_FUNCTION_BLOCK")
-        self.take(kind="end")
-        return name, self.vars
+        self.statements(1, (f"END_{kind}",))
+        self.take(f"END_{kind}")
+        pou = _Pou(name, kind, self.vars, "def _step(m):\n" + "\n".join(self.lines) + "\n")
+        if name in self.blocks:
+            raise STError(f"'{name}' is declared twice")
+        self.blocks[name] = pou
+        return pou
+
+    def source(self) -> list[_Pou]:
+        pous = [self.pou()]
+        while self.peek()[0] != "end":
+            pous.append(self.pou())
+        return pous
 
 
 def _ix(i: int, lo: int, hi: int, name: str) -> int:
@@ -321,14 +395,25 @@ def _idiv(a: int, b: int) -> int:
 
 
 class FunctionBlock:
-    """An instance of the translated function block: call it with its inputs by name, read its outputs."""
+    """An instance of a translated function block or program: call it with its inputs by name (a program has
+    none: set its variables in :attr:`memory`), read its outputs."""
 
-    def __init__(self, name: str, variables: dict[str, _Var], body: str) -> None:
-        self.name, self.variables = name, variables
-        self.memory: dict[str, Any] = {n: (list(v.init) if v.type == "ARRAY" else v.init) for n, v in variables.items()}
+    def __init__(self, pou: _Pou, pous: dict[str, _Pou]) -> None:
+        self.name, self.variables = pou.name, pou.variables
+        self.memory: dict[str, Any] = {}
+        for n, v in pou.variables.items():
+            if v.type in pous:
+                self.memory[n] = FunctionBlock(pous[v.type], pous)
+            else:
+                self.memory[n] = list(v.init) if v.type == "ARRAY" else v.init
         scope = {"_ix": _ix, "_idiv": _idiv, "max": max, "min": min, "abs": abs}
-        exec(compile(body, f"<{name}>", "exec"), scope)
+        exec(compile(pou.body, f"<{pou.name}>", "exec"), scope)
         self._run = scope["_step"]
+
+    def call(self, inputs: dict[str, Any]) -> None:
+        """A call from a translated program: the inputs it names set (types checked when translated), one run."""
+        self.memory.update(inputs)
+        self._run(self.memory)
 
     def __call__(self, **inputs: Any) -> dict[str, Any]:
         for key, value in inputs.items():
@@ -340,8 +425,14 @@ class FunctionBlock:
         return {n: self.memory[n] for n, v in self.variables.items() if v.section == "VAR_OUTPUT"}
 
 
-def translate(source: str) -> FunctionBlock:
-    """The first function block in ``source`` (anything before it must be comments), as a callable instance."""
-    parser = _Parser(source)
-    name, variables = parser.block()
-    return FunctionBlock(name, variables, "def _step(m):\n" + "\n".join(parser.lines) + "\n")
+def translate(source: str, name: str | None = None) -> FunctionBlock:
+    """An instance of the function block or program ``name`` in ``source`` (default: the first), as a callable.
+
+    Anything before the first declaration must be comments; a program may use the function blocks declared
+    before it."""
+    pous = _Parser(source).source()
+    table = {p.name: p for p in pous}
+    pou = pous[0] if name is None else table.get(name.upper())
+    if pou is None:
+        raise STError(f"'{name}' is not in the source")
+    return FunctionBlock(pou, table)

@@ -53,7 +53,7 @@ def test_the_readme_snippet_runs_end_to_end(tmp_path, monkeypatch, capsys):
     assert isinstance(m, pp.StepMetrics) and 0 < m.settling_s < study.references["step"].duration_s
     # the run is the tuned gains' with the gain set's feedforward: the comparison table's tuned row
     assert m.settling_s == pytest.approx(tuned.row("tuned")["settling_measured_s"], abs=study.plant.sample_period_s)
-    assert "FUNCTION_BLOCK PP_FEEDFORWARD" in plc and plc == pp.export(gain_set, "plc")
+    assert "FUNCTION_BLOCK PP_CONTROLLER" in plc and plc == pp.export(gain_set, "plc")
     assert list(result.ran) == [s.name for s in __import__("piezopreload.pipeline").pipeline.STAGES
                                 if s.applies(study) is None]
     assert printed[1] == repr(result) and result.requirements_met is True and result.exit_code == 0
@@ -126,16 +126,14 @@ def test_the_gain_set_round_trips_and_its_exports_are_the_cli_s(gain_set, tmp_pa
         assert main(["export", str(path), "--format", fmt, "--out", str(out)]) == 0
         capsys.readouterr()
         assert out.read_text() == pp.export(loaded, fmt), f"{fmt}: the API's text is not the CLI's"
-    # the units each format states: LabVIEW's minutes, a PLC's Kp/Tn/Tv in seconds, the C header in SI
+    # the units each format states: LabVIEW's minutes, the PLC block's Kc, Ti_s and Td_s in SI, the C header in SI
     g = gs.gains
     lv = dict(line.split(" = ") for line in pp.export(loaded, "labview").splitlines()
               if " = " in line and not line.startswith(";"))
     assert ([float(lv[k]) for k in ("Kc", "Ti (min)", "Td (min)")]
             == pytest.approx([g.Kc, g.Ti_s / 60, g.Td_s / 60], rel=1e-11))
-    plc = dict(line.split(" = ") for line in pp.export(loaded, "plc").splitlines()
-               if " = " in line and not line.startswith(";"))
-    assert ([float(plc[k]) for k in ("Kp", "Tn", "Tv", "Ymax")]
-            == pytest.approx([g.Kc, g.Ti_s, g.Td_s, g.u_max], rel=1e-11))
+    plc = dict(re.findall(r"^    (\w+) : LREAL := ([^;]+);", pp.export(loaded, "plc"), re.MULTILINE))
+    assert [float(plc[k]) for k in ("Kc", "Ti_s", "Td_s", "u_max_V")] == [g.Kc, g.Ti_s, g.Td_s, g.u_max]
     assert f"#define PP_TI_S {g.Ti_s!r}" in pp.export(loaded, "c-header")
     assert json.loads(pp.export(loaded, "json"))["gains"]["Ti_s"] == g.Ti_s
     doc = json.loads(path.read_text())
@@ -249,7 +247,7 @@ def _check_example_output(out, tmp_path, loop):
     assert "FUNCTION_BLOCK PP_FEEDFORWARD" in (tmp_path / "feedforward.plc.st").read_text()
     if gs.validated:
         assert (tmp_path / "gains.labview.txt").read_text() == pp.export(gs, "labview")
-        assert "Tn = " in (tmp_path / "gains.plc.st").read_text()
+        assert "FUNCTION_BLOCK PP_CONTROLLER" in (tmp_path / "gains.plc.st").read_text()
         assert "[feedforward operators]" in (tmp_path / "gains.labview.txt").read_text()
     else:  # a candidate is never exported
         assert not (tmp_path / "gains.labview.txt").exists()

@@ -84,19 +84,17 @@ def test_the_structured_text_block_runs_the_numpy_inverse_step(kind, creep):
     np.testing.assert_allclose(again, expected[:50], rtol=0, atol=ATOL_V, err_msg="after reset")
 
 
-def test_the_gain_sets_plc_file_is_structured_text_with_its_gains_and_its_feedforward(gain_set_with_creep):
-    """The gain set's PLC file: the gains in a comment (still INI), the block discretised at the plant's period."""
+def test_the_gain_sets_plc_block_runs_its_feedforward_at_the_plants_period(gain_set_with_creep):
+    """The gain set's PP_CONTROLLER: its feedforward (creep identified at 1 ms) discretised at the plant's 2 ms, as
+    the controller step runs it (tests/test_plc_export.py holds the whole step to the C and the numpy step)."""
     gs = gain_set_with_creep
-    text = export(gs, "plc")
-    ini = text.split("(*", 1)[1].split("*)", 1)[0]
-    gains = dict(line.split(" = ") for line in ini.splitlines() if " = " in line)
-    assert float(gains["Kp"]) == gs.gains.Kc and float(gains["Tn"]) == gs.gains.Ti_s
     dt = gs.plant.sample_period_s
     assert gs.feedforward.sample_period_s != dt, "the test needs a model identified at another period"
-    block, targets = translate(text), _targets(800)
-    commands = [block(target_N=f)["command_v"] for f in targets]
-    np.testing.assert_allclose(commands, _numpy(gs.feedforward, dt, targets), rtol=0, atol=ATOL_V)
-    assert "feedforward] none" in export(_with_feedforward(gs, None), "plc")
+    block, targets = translate(export(gs, "plc"), "PP_CONTROLLER"), _targets(800)
+    block(enable=False, track_V=0.0)
+    ff = [block(enable=True, setpoint_N=f, pv_N=f, track_V=0.0)["ff_v"] for f in targets]
+    np.testing.assert_allclose(ff, _numpy(gs.feedforward, dt, targets), rtol=0, atol=ATOL_V)
+    assert block.memory["dt_s"] == dt
 
 
 def test_the_translator_keeps_the_standards_meaning():

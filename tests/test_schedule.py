@@ -8,6 +8,7 @@ import subprocess
 import casadi as ca
 import numpy as np
 import pytest
+from stkit import translate
 
 from piezopreload.artifacts.gainset import GainSet, gains_from_dict, gains_to_dict
 from piezopreload.core.artifacts import write_artifact
@@ -244,16 +245,16 @@ def test_every_text_format_writes_the_table(tmp_path, table):
     np.testing.assert_allclose(lv["Kc"], SCHEDULE.Kc, rtol=1e-12)
     np.testing.assert_allclose(np.array(lv["Ti (min)"]) * 60.0, SCHEDULE.Ti_s, rtol=1e-11)
     np.testing.assert_allclose(np.array(lv["Td (min)"]) * 60.0, SCHEDULE.Td_s, rtol=1e-11)
-    plc = _ini_table(export(gs, "plc"))
-    np.testing.assert_allclose(plc["Kp"], SCHEDULE.Kc, rtol=1e-12)
-    np.testing.assert_allclose(plc["Tn"], SCHEDULE.Ti_s, rtol=1e-12)
-    np.testing.assert_allclose(plc["Tv"], SCHEDULE.Td_s, rtol=1e-12)
+    plc = translate(export(gs, "plc"), "PP_CONTROLLER").memory  # the block's variables as it starts
+    for name in ("levels_N", "Kc", "Ti_s", "Td_s"):
+        assert plc[f"schedule_{name}".lower()] == list(getattr(SCHEDULE, name)), f"the PLC block's schedule_{name}"
     header = export(gs, "c-header")
-    if table.b is None:  # the single b holds for every entry: no column anywhere
-        assert "setpoint weight beta" not in lv and "b" not in plc and "PP_SCHEDULE_B[" not in header
+    if table.b is None:  # the single b holds for every entry: no column in the tables, the single b in the step's
+        assert "setpoint weight beta" not in lv and "PP_SCHEDULE_B[" not in header
+        assert plc["schedule_b"] == [BASE["b"]] * 3
     else:
         np.testing.assert_allclose(lv["setpoint weight beta"], table.b, rtol=1e-12)
-        np.testing.assert_allclose(plc["b"], table.b, rtol=1e-12)
+        assert plc["schedule_b"] == list(table.b)
         assert "PP_SCHEDULE_B[PP_SCHEDULE_N] = {0.3, 0.8, 0.5}" in header
     for fmt in ("json", "labview", "plc", "c-header"):
         plain = export(GainSet.load(_gain_set(tmp_path, None, "plain.json")), fmt)

@@ -190,7 +190,8 @@ def _gain_set(tmp_path, status="validated"):
     gains = {"Kc_V_per_N": 1.5, "Ti_s": 0.06, "Td_s": 0.006, "Tf_s": 0.03, "b": 0.0, "u_min_V": 0.0, "u_max_V": 110.0}
     ff = {"kind": "classical", "thresholds": [0.0, 10.0], "weights": [0.5, 0.2], "offset": 25.0}
     path = tmp_path / "gains.json"
-    write_artifact(path, "gain-set", {"status": status, "gains": gains, "inputs": {}, "feedforward": {"model": ff}})
+    write_artifact(path, "gain-set", {"status": status, "gains": gains, "inputs": {}, "feedforward": {"model": ff},
+                                      "plant": {"rig": Plant().to_dict()}})
     return path
 
 
@@ -199,7 +200,7 @@ def test_export_formats_carry_the_units_each_controller_expects(tmp_path):
     lv = export(doc, "labview")
     assert "Ti (min) = 0.001\n" in lv and "Td (min) = 0.0001\n" in lv and "Kc = 1.5\n" in lv
     plc = export(doc, "plc")
-    assert "Tn = 0.06\n" in plc and "Tv = 0.006\n" in plc
+    assert "    Ti_s : LREAL := 0.06; (* integral time Ti, s *)" in plc and "    Td_s : LREAL := 0.006;" in plc
     js = json.loads(export(doc, "json"))
     assert js["gains"]["Ti_s"] == 0.06 and js["gain_set_sha256"] == doc["content_sha256"]
     header = export(doc, "c-header")
@@ -366,7 +367,7 @@ def test_tune_validate_export_from_the_command_line(tmp_path, capsys):
                   str(again), "--json"]) == 0)
     capsys.readouterr()
     assert main(["export", str(again), "--format", "plc", "--json"]) == 0
-    assert "Tn = " in json.loads(capsys.readouterr().out)["text"]
+    assert "FUNCTION_BLOCK PP_CONTROLLER" in json.loads(capsys.readouterr().out)["text"]
     assert main(["validate", str(tmp_path / "missing.json")]) == 2
     assert capsys.readouterr().err.startswith("error: ")
 

@@ -18,6 +18,7 @@ from piezopreload.cli._common import (
 )
 from piezopreload.core.errors import InputError
 from piezopreload.rig import DEFAULT_ENDPOINT as DEFAULT_RIG_ENDPOINT
+from piezopreload.rig import SECURITY_MODES, SECURITY_POLICIES
 
 
 # --------------------------------------------------------------------------------------
@@ -137,8 +138,10 @@ def register_rig(sub: Any) -> None:
         description=(
             "Run a validated gain set in real time like 'rig run' (the reference's last level held after its end) and "
             "serve it over OPC UA: CtrlP, CtrlTi, CtrlTd (LADS names), the gain set's and the feedforward's hashes, "
-            "setpoint, force, voltage, state, last event, and the method PushGainSet. The host is checked first "
-            "('rig check'). Ends on SIGINT/SIGTERM (exit 3) or after --duration (exit 0)."),
+            "setpoint, force, voltage, state, last event, and the method PushGainSet(GainSetDocument, Note), which "
+            "takes any validated gain set of this rig's plant whose limits fit the interlocks the rig was armed with. "
+            "Anonymous sessions are refused: --user is required. The host is checked first ('rig check'). Ends on "
+            "SIGINT/SIGTERM (exit 3) or after --duration (exit 0)."),
         epilog=f"The password of --user is read from ${PASSWORD_ENV}.")
     _rig_arguments(p)
     p.add_argument("--endpoint", default=DEFAULT_RIG_ENDPOINT, help=f"default {DEFAULT_RIG_ENDPOINT} (loopback)")
@@ -150,17 +153,32 @@ def register_rig(sub: Any) -> None:
     p.set_defaults(run=_cmd_rig_serve, show=_print_rig_run)
 
     p = rig_sub.add_parser(
-        "push", help="push a validated gain set to a serving rig",
-        description=("Push a validated gain set to 'rig serve' through the OPC UA method PushGainSet; the executor "
-                     "checks it again and switches bumplessly between two cycles. Candidates, tampered files, wrong "
-                     "passwords and refused calls exit 2 with the reason."),
+        "push", help="push a validated gain set to a serving rig, or to a PLC's own OPC UA server",
+        description=("Push a validated gain set to 'rig serve' through the OPC UA method PushGainSet; the served rig "
+                     "checks it again (its plant, its status, its limits against the armed interlocks) and switches "
+                     "bumplessly at its next cycle, also to another structure (a gain schedule where there was none). "
+                     "With --to and --map, write its numbers (the gains, the feedforward's table, the schedule's, by "
+                     "the names of the PLC export's PP_CONTROLLER) to the nodes the map names on any OPC UA server, "
+                     "read them back and report the difference; a node missing, of another type or not writable is "
+                     "refused by name and nothing is written. Candidates, tampered files, gain sets of another plant "
+                     "or with stricter limits, wrong passwords and refused calls exit 2 with the reason."),
         epilog=f"The password of --user is read from ${PASSWORD_ENV} (or asked for on a terminal).")
     p.add_argument("gains", metavar="gains.json", help="a validated gain set")
-    p.add_argument("--endpoint", default=DEFAULT_RIG_ENDPOINT, help=f"default {DEFAULT_RIG_ENDPOINT}")
+    p.add_argument("--endpoint", metavar="URL", help=f"the served rig (default {DEFAULT_RIG_ENDPOINT})")
+    p.add_argument("--to", metavar="URL", help="a PLC's own OPC UA server (opc.tcp://HOST:PORT), with --map")
+    p.add_argument("--map", metavar="NODES.toml", help="with --to: which node holds which number (docs: a PLC over "
+                                                       "OPC UA)")
     p.add_argument("--user", metavar="NAME", help=f"user name; password in ${PASSWORD_ENV}")
-    p.add_argument("--certificate", metavar="CERT", help="the client's certificate (Basic256Sha256 SignAndEncrypt)")
+    p.add_argument("--certificate", metavar="CERT", help="the client's certificate (a secure channel)")
     p.add_argument("--private-key", metavar="KEY", help="the client certificate's private key")
     p.add_argument("--server-certificate", metavar="CERT", help="the server's certificate, to trust it")
+    p.add_argument("--security-policy", default="Basic256Sha256", choices=list(SECURITY_POLICIES),
+                   help="with --to and a certificate: the secure channel's policy (default Basic256Sha256; the rig's "
+                        "server offers that one)")
+    p.add_argument("--security-mode", default="SignAndEncrypt", choices=list(SECURITY_MODES),
+                   help="with --to and a certificate: sign, or sign and encrypt (default)")
+    p.add_argument("--note", default="", metavar="TEXT", help="why it is pushed, recorded with the push in the run log")
+    accept_flag(p, "pushed (sent with the push and recorded with it)")
     json_flag(p)
     p.set_defaults(run=_cmd_rig_push, show=_print_rig_push)
 
@@ -208,13 +226,27 @@ def _cmd_rig_serve(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _cmd_rig_push(args: argparse.Namespace) -> dict[str, Any]:
-    from piezopreload.rig import session
+    from piezopreload.rig import plc_push, session
+    from piezopreload.rig.opcua import Credentials
 
     _quiet_asyncua()
+    if (args.to is None) != (args.map is None):
+        raise InputError("rig push: --to URL and --map NODES.toml go together (a PLC's server and where its numbers "
+                         "are); without them the gain set goes to a served rig (--endpoint)")
+    if args.to is not None and args.endpoint is not None:
+        raise InputError("rig push: --endpoint is the served rig's, --to a PLC's: give one")
     password = _password(args, args.user is not None) if args.user else None
-    return session.push(args.gains, endpoint=args.endpoint, username=args.user, password=password,
-                        certificate=args.certificate, private_key=args.private_key,
-                        server_certificate=args.server_certificate)
+    if args.to is None:
+        return session.push(args.gains, endpoint=args.endpoint or DEFAULT_RIG_ENDPOINT, username=args.user,
+                            password=password, certificate=args.certificate, private_key=args.private_key,
+                            server_certificate=args.server_certificate, note=args.note,
+                            accepted=tuple(args.accept))
+    try:
+        who = Credentials(args.user, password, args.certificate, args.private_key, args.server_certificate,
+                          args.security_policy, args.security_mode)
+    except ValueError as exc:
+        raise InputError(f"rig push: {exc}") from None
+    return plc_push.push(args.gains, to=args.to, map_path=args.map, who=who, accepted=tuple(args.accept))
 
 
 def _print_rig_run(s: dict[str, Any]) -> None:
@@ -290,6 +322,14 @@ def _print_rig_check(s: dict[str, Any]) -> None:
 
 
 def _print_rig_push(s: dict[str, Any]) -> None:
+    if "to" in s:
+        for r in s["nodes"]:
+            what = "as written" if r["difference"] is None or r["difference"] == 0.0 else \
+                f"read back {r['relative_difference']:.2g} off (its {r['type']} rounding)"
+            print(f"{r['name']} -> {r['node']}: {what}")
+        print(f"{s['to']}: wrote {len(s['nodes'])} nodes from {s['gain_set']} ({s['gain_set_sha256'][:12]}); "
+              f"largest difference read back {s['max_relative_difference']:.2g} (relative)")
+        return
     p = s["server_parameters"]
     print(f"{s['endpoint']}: {s['message']}")
     print(f"the server now runs {s['server_gain_set_sha256'][:12]}: CtrlP {p['CtrlP']:.6g} V/N, "

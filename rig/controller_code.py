@@ -1,0 +1,131 @@
+"""A controller as code: the one controller step's CasADi functions and its numbers and state, by name.
+
+Every generated controller (the C of ``export --format casadi-c``, the PLC's function block
+``PP_CONTROLLER`` of ``--format plc``) is written from :func:`controller_code`: the start and the
+step of :class:`~piezopreload.models.controller.ControllerModel` as CasADi functions whose
+parameter vector is an *input* (:func:`~piezopreload.models.controller.controller_functions`),
+one expression tree per structure, and the gain set's numbers beside it. The C code passes the
+numbers as a constant array, the PLC block holds them in variables (which ``rig push --to``
+writes on a PLC's OPC UA server, by the same names).
+
+The names (:class:`Parameter`, :func:`state_fields`) are the layouts' own
+(:attr:`ControllerModel.params`, :attr:`ControllerModel.state`), the feedforward's parameters and
+state prefixed ``ff_`` (the inverse step's, :class:`~piezopreload.models.hysteresis.InverseStep`);
+a field of no numbers (no creep, no dead zones) has no name.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from piezopreload.core.errors import InputError
+from piezopreload.models.controller import Controller, ControllerModel, controller_functions
+from piezopreload.models.ops import Layout
+
+__all__ = ["Parameter", "ControllerCode", "controller_code", "parameters", "state_fields", "DESCRIPTIONS"]
+
+#: what each parameter is, with its unit (a feedforward's: the inverse step's table, docs/exports.md)
+DESCRIPTIONS = {
+    "Kc": "controller gain Kc, V/N", "Ti_s": "integral time Ti, s", "Td_s": "derivative time Td, s",
+    "Tf_s": "derivative filter time constant Tf, s (0: unfiltered)",
+    "b": "setpoint weight b of the proportional action",
+    "u_min_V": "output range, low, V", "u_max_V": "output range, high, V",
+    "dt_s": "sample period, s (the task's cycle time)",
+    "ff_offset_N": "feedforward: the model's output at rest, N", "ff_bias": "feedforward: the modified model's bias, N",
+    "ff_thresholds": "feedforward: play operator thresholds r, V",
+    "ff_shaper_thresholds": "feedforward: inverse dead-zone thresholds, N",
+    "ff_shaper_weights": "feedforward: inverse dead-zone weights",
+    "ff_creep_weights": "feedforward: creep weights c, N/V", "ff_creep_decay": "feedforward: creep decay a per sample",
+    "ff_creep_input": "feedforward: creep input gain e per sample",
+    "schedule_levels_N": "gain schedule: the setpoints of its entries, N", "schedule_Kc": "gain schedule: Kc, V/N",
+    "schedule_Ti_s": "gain schedule: Ti, s", "schedule_Td_s": "gain schedule: Td, s",
+    "schedule_b": "gain schedule: setpoint weight b",
+    "integral_V": "the integral action, V", "e_prev_N": "the previous error, N",
+    "pv_prev_N": "the previous measurement, N", "sp_prev_N": "the previous setpoint, N",
+    "dpv_N_per_s": "the filtered derivative of the measurement, N/s",
+    "ff_operators": "feedforward: the play operators' outputs, V", "ff_carries": "feedforward: the creep carries, V",
+    "ff_v_prev_V": "feedforward: the last command, V",
+}
+for _d in ("rising", "falling"):
+    DESCRIPTIONS.update({f"ff_weights_{_d}": f"feedforward: one-sample weights w, {_d}, N/V",
+                         f"ff_partial_{_d}": f"feedforward: partial sums W of the weights, {_d}, N/V",
+                         f"ff_inverse_thresholds_{_d}": f"feedforward: inverse thresholds, {_d}, N",
+                         f"ff_inverse_weights_{_d}": f"feedforward: inverse weights, {_d}, V/N"})
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One named part of the parameter vector: ``values`` (one for a scalar), ``array`` whether it is a table."""
+
+    name: str
+    start: int
+    values: tuple[float, ...]
+    array: bool
+
+    @property
+    def size(self) -> int:
+        return len(self.values)
+
+    @property
+    def description(self) -> str:
+        return DESCRIPTIONS.get(self.name, self.name)
+
+
+def _fields(layout: Layout, nested: Layout | None, nested_name: str) -> list[tuple[str, int, int | None]]:
+    """``(name, start, size)`` of every field of ``layout`` with numbers, ``nested_name``'s own fields prefixed."""
+    out: list[tuple[str, int, int | None]] = []
+    for name in layout.names:
+        start, size = layout.slice(name).start, layout.field_size(name)
+        if name == nested_name and nested is not None:
+            out += [(f"{nested_name}_{sub}", start + s, n) for sub, s, n in _fields(nested, None, "")]
+        elif size != 0:
+            out.append((name, start, size))
+    return out
+
+
+def parameters(model: ControllerModel, vector: np.ndarray) -> tuple[Parameter, ...]:
+    """The parameter vector of ``model`` by name (see the module docstring)."""
+    ff = None if model.feedforward is None else model.feedforward.params
+    vector = np.asarray(vector, float)
+    return tuple(Parameter(name, start, tuple(float(x) for x in vector[start:start + (size or 1)]), size is not None)
+                 for name, start, size in _fields(model.params, ff, "ff"))
+
+
+def state_fields(model: ControllerModel) -> tuple[tuple[str, int, int | None], ...]:
+    """``(name, start, size)`` of the state vector's fields (size None: a scalar), the feedforward's prefixed."""
+    ff = None if model.feedforward is None else model.feedforward.state
+    return tuple(_fields(model.state, ff, "ff"))
+
+
+@dataclass(frozen=True, eq=False)
+class ControllerCode:
+    """A controller's step as code: ``start(setpoint, pv, u0, params) -> state`` and ``step(state, setpoint, pv,
+    params) -> (u, p, i, d, ff, state_next)``, its :class:`Parameter` list and its numbers."""
+
+    controller: Controller
+    start: ca.Function
+    step: ca.Function
+    parameters: tuple[Parameter, ...]
+
+    @property
+    def model(self) -> ControllerModel:
+        return self.controller.model
+
+    @property
+    def vector(self) -> np.ndarray:
+        return self.controller.parameter_vector()
+
+
+def controller_code(controller: Controller, prefix: str = "pp_controller") -> ControllerCode:
+    """:class:`ControllerCode` of ``controller``; refuses a parameter that is not finite (no code can hold it)."""
+    model = controller.model
+    params = parameters(model, controller.parameter_vector())
+    bad = next((p for p in params if not all(np.isfinite(p.values))), None)
+    if bad is not None:
+        raise InputError(f"the controller's parameter {bad.name} is {list(bad.values)!r}: generated code holds finite "
+                         "numbers only")
+    start, step = controller_functions(model, prefix=prefix)
+    return ControllerCode(controller, start, step, params)

@@ -1,0 +1,282 @@
+"""A validated gain set written to a PLC's own OPC UA server: the nodes a map names, checked, written, read back.
+
+``piezopreload rig push GAINS --to opc.tcp://HOST:PORT --map NODES.toml`` (:func:`push`) writes the
+numbers of the gain set's controller (:func:`~piezopreload.rig.controller_code.parameters`: the
+gains, the output range, the sample period, the feedforward's table and the gain schedule's,
+by the names of the PLC export's ``PP_CONTROLLER``) to the nodes the map names, on any OPC UA
+server, in the user's session (user name and password, a secure channel of the policy and mode
+asked for). In order:
+
+1. the gain set: its status (:func:`~piezopreload.rig.export.require_validated`), its controller;
+2. the map (:class:`NodeMap`): a node for every number the controller has (a feedforward's and
+   a schedule's too), no name it does not know;
+3. every node, read before anything is written: it exists, it is a variable of a type the number
+   fits (``Float``, a PLC's ``REAL``, or ``Double``, ``LREAL``; an array of the table's length for
+   a table; ``String`` for ``gain_set_sha256``) and this user may write it. Anything wrong is
+   refused by its name and nothing is written;
+4. one write request for every node, then every node read back: the report holds each number
+   before, as written and as read back, and the difference (a ``REAL`` holds the number rounded
+   to single precision; anything more is refused after the write, naming the nodes).
+
+A node is named by its node id, ``ns=<index>;...`` or, steadier across a PLC's restarts,
+``nsu=<namespace URI>;...`` (resolved through the server's namespace array).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from asyncua import Client, ua
+
+from piezopreload.artifacts.gainset import GainSet
+from piezopreload.core.errors import InputError
+from piezopreload.rig.controller_code import Parameter, parameters
+from piezopreload.rig.export import controller_from_gain_set, require_validated
+from piezopreload.rig.opcua import Credentials, PushRefused, connect, lost
+
+__all__ = ["NodeMap", "push", "push_to_server", "SHA_NODE", "NUMBER_TYPES"]
+
+#: the one node a map may name besides the numbers: a String node the push writes the gain set's hash to
+SHA_NODE = "gain_set_sha256"
+#: the OPC UA data types (their ids in namespace 0) a number may be written to, as PLCs name them
+NUMBER_TYPES = {ua.ObjectIds.Float: "Float (REAL)", ua.ObjectIds.Double: "Double (LREAL)"}
+_VARIANTS = {ua.ObjectIds.Float: ua.VariantType.Float, ua.ObjectIds.Double: ua.VariantType.Double,
+             ua.ObjectIds.String: ua.VariantType.String}
+_ATTRIBUTES = (ua.AttributeIds.NodeClass, ua.AttributeIds.DataType, ua.AttributeIds.ValueRank,
+               ua.AttributeIds.ArrayDimensions, ua.AttributeIds.UserAccessLevel, ua.AttributeIds.Value)
+
+
+@dataclass(frozen=True)
+class NodeMap:
+    """Which node holds which number: ``nodes`` (name -> node id) and ``prefix`` (a name the table does not give is
+    ``prefix + name``); ``path`` is the file's, for messages."""
+
+    path: str
+    nodes: dict[str, str]
+    prefix: str | None = None
+
+    @classmethod
+    def load(cls, path: str | Path) -> NodeMap:
+        """Read a map: ``prefix = "..."`` (optional) and a table ``[nodes]`` of ``name = "node id"``."""
+        shown = str(path)
+        try:
+            doc = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        except OSError as exc:
+            raise InputError(f"{shown}: cannot read the node map ({exc.strerror or exc})") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise InputError(f"{shown}: not a TOML file: {exc}") from None
+        unknown = sorted(set(doc) - {"prefix", "nodes"})
+        if unknown:
+            raise InputError(f"{shown}: key '{unknown[0]}' is not a node map's; expected 'prefix' and a table [nodes]")
+        prefix, nodes = doc.get("prefix"), doc.get("nodes", {})
+        if prefix is not None and not isinstance(prefix, str):
+            raise InputError(f"{shown}: field 'prefix' must be a string (the node id every name is appended to)")
+        if not isinstance(nodes, dict):
+            raise InputError(f"{shown}: field 'nodes' must be a table of name = \"node id\"")
+        bad = next((k for k, v in nodes.items() if not isinstance(v, str) or not v.strip()), None)
+        if bad is not None:
+            raise InputError(f"{shown}: field 'nodes.{bad}' must be a node id such as \"ns=4;s=PLC.Kc\"")
+        return cls(shown, dict(nodes), prefix)
+
+    def node_ids(self, names: list[str]) -> dict[str, str]:
+        """The node id of every name of ``names`` (and of :data:`SHA_NODE` where the map names it); a name the map
+        cannot place, or one it names that the gain set does not have, is refused."""
+        extra = sorted(set(self.nodes) - set(names) - {SHA_NODE})
+        if extra:
+            raise InputError(f"{self.path}: field 'nodes.{extra[0]}' names no number of this gain set's controller; "
+                             f"it has {', '.join(names)}")
+        missing = [n for n in names if n not in self.nodes and self.prefix is None]
+        if missing:
+            raise InputError(f"{self.path}: no node for {', '.join(missing)} (this gain set's controller has them); "
+                             "name each under [nodes], or give a prefix")
+        out = {n: self.nodes.get(n) or f"{self.prefix}{n}" for n in names}
+        if SHA_NODE in self.nodes:
+            out[SHA_NODE] = self.nodes[SHA_NODE]
+        return out
+
+
+@dataclass
+class _Target:
+    """One node to write: the name, the node id as the map gives it, the value (numbers, or the hash)."""
+
+    name: str
+    node_id: str
+    value: tuple[float, ...] | str
+    array: bool
+    node: Any = None
+    type_id: int = 0
+    before: Any = None
+
+
+async def _resolve(client: Client, text: str) -> ua.NodeId:
+    """A node id from its text; ``nsu=URI;...`` through the server's namespace array."""
+    if text.startswith("nsu="):
+        uri, sep, rest = text[4:].partition(";")
+        if not sep:
+            raise ValueError("nsu=<namespace URI>; must be followed by the identifier")
+        try:
+            index = await client.get_namespace_index(uri)
+        except ValueError:
+            raise ValueError(f"the server has no namespace '{uri}'") from None
+        text = f"ns={index};{rest}"
+    return ua.NodeId.from_string(text)
+
+
+def _good(dv: ua.DataValue) -> bool:
+    return dv.StatusCode is None or dv.StatusCode.is_good()
+
+
+def _value(dv: ua.DataValue) -> Any:
+    """A read attribute's value; None where the read failed."""
+    return dv.Value.Value if _good(dv) and dv.Value is not None else None
+
+
+def _length(values: list[ua.DataValue]) -> int | None:
+    """An array node's length: its ArrayDimensions, else its value's."""
+    dims = _value(values[3])
+    if dims and dims[0]:
+        return int(dims[0])
+    value = _value(values[5])
+    return len(value) if isinstance(value, list) else None
+
+
+def _type_id(dtype: Any) -> int | None:
+    """The id of a data type of namespace 0 (the standard's), else None."""
+    if isinstance(dtype, ua.NodeId) and dtype.NamespaceIndex == 0 and isinstance(dtype.Identifier, int):
+        return int(dtype.Identifier)
+    return None
+
+
+def _problem(t: _Target, values: list[ua.DataValue], user: str) -> str | None:
+    """What is wrong with writing ``t`` to the node whose attributes are ``values``, or None."""
+    where = f"node '{t.node_id}' for {t.name}"
+    if not _good(values[0]):
+        status = values[0].StatusCode
+        return f"{where} does not exist on the server ({'' if status is None else status.name})"
+    if _value(values[0]) != ua.NodeClass.Variable:
+        return f"{where} is not a variable"
+    dtype = _value(values[1])
+    type_id = _type_id(dtype)
+    want = {ua.ObjectIds.String: "String"} if t.name == SHA_NODE else NUMBER_TYPES
+    if type_id not in want:
+        name = str(dtype) if type_id is None else ua.ObjectIdNames.get(type_id, str(dtype))
+        return f"{where} is of type {name}; expected {' or '.join(want.values())}"
+    rank = _value(values[2])
+    if t.array:
+        n = _length(values)
+        if rank != 1 or n != len(t.value):
+            shape = "a scalar" if rank == -1 else f"an array of {n}"
+            return f"{where} is {shape}; expected an array of {len(t.value)}"
+    elif rank not in (-1, None):
+        return f"{where} is an array; expected a scalar"
+    if not int(_value(values[4]) or 0) & ua.AccessLevel.CurrentWrite.mask:
+        return f"{where} is not writable for {user}"
+    t.type_id = int(type_id)
+    t.before = _value(values[5])
+    return None
+
+
+async def _check(client: Client, targets: list[_Target], user: str) -> None:
+    """Every node read before anything is written; :class:`PushRefused` names everything wrong."""
+    problems = []
+    for t in targets:
+        try:
+            t.node = client.get_node(await _resolve(client, t.node_id))
+        except (ValueError, ua.UaError) as exc:
+            problems.append(f"node id '{t.node_id}' for {t.name} is not valid: {exc}")
+            continue
+        values = await t.node.read_attributes(list(_ATTRIBUTES))
+        problem = _problem(t, values, user)
+        if problem is not None:
+            problems.append(problem)
+    if problems:
+        raise PushRefused("nothing was written: " + "; ".join(problems))
+
+
+def _as_written(t: _Target) -> Any:
+    """The value as the node holds it: single precision for a REAL."""
+    if isinstance(t.value, str):
+        return t.value
+    x = np.asarray(t.value, np.float32 if t.type_id == ua.ObjectIds.Float else np.float64).astype(float)
+    return x.tolist() if t.array else float(x[0])
+
+
+def _report(t: _Target, read: Any) -> dict[str, Any]:
+    row: dict[str, Any] = {"name": t.name, "node": t.node_id, "type": NUMBER_TYPES.get(t.type_id, "String"),
+                           "before": t.before, "written": t.value if isinstance(t.value, str) else
+                           (list(t.value) if t.array else t.value[0]), "read_back": read}
+    if isinstance(t.value, str):
+        row.update(difference=None, as_written=read == t.value)
+        return row
+    got, want = np.atleast_1d(np.asarray(read, float)), np.asarray(t.value, float)
+    diff = float(np.max(np.abs(got - want))) if got.shape == want.shape else float("inf")
+    row.update(difference=diff, relative_difference=float(diff / max(float(np.max(np.abs(want))), 1e-300)),
+               as_written=got.shape == want.shape and bool(np.array_equal(got, np.atleast_1d(_as_written(t)))))
+    return row
+
+
+async def _write_and_read(client: Client, targets: list[_Target]) -> list[dict[str, Any]]:
+    """One write request for every node, then each read back."""
+    values = [ua.DataValue(ua.Variant(_as_written(t), _VARIANTS[t.type_id or ua.ObjectIds.String])) for t in targets]
+    codes = await client.write_values([t.node for t in targets], values, raise_on_partial_error=False)
+    failed = [f"{t.name} ({c.name})" for t, c in zip(targets, codes) if not c.is_good()]
+    if failed:
+        raise PushRefused(f"the server refused writing {', '.join(failed)}; the other nodes were written")
+    read = await client.read_values([t.node for t in targets])
+    return [_report(t, r) for t, r in zip(targets, read)]
+
+
+def _targets(gain_set: GainSet, node_map: NodeMap, accepted: tuple[str, ...] = ()) -> list[_Target]:
+    controller = controller_from_gain_set(gain_set, accepted)
+    params: tuple[Parameter, ...] = parameters(controller.model, controller.parameter_vector())
+    ids = node_map.node_ids([p.name for p in params])
+    out = [_Target(p.name, ids[p.name], p.values, p.array) for p in params]
+    if SHA_NODE in ids:
+        out.append(_Target(SHA_NODE, ids[SHA_NODE], gain_set.content_sha256 or "", False))
+    return out
+
+
+async def push_to_server(gain_set: GainSet, endpoint: str, node_map: NodeMap, who: Credentials,
+                         timeout_s: float = 10.0, accepted: tuple[str, ...] = ()) -> list[dict[str, Any]]:
+    """Write ``gain_set``'s numbers to the nodes of ``node_map`` on ``endpoint`` (see the module docstring); the rows of
+    the report, one per node. :class:`PushRefused` says why nothing (or not everything) was written."""
+    targets = _targets(gain_set, node_map, accepted)
+    client = await connect(endpoint, who, timeout_s)
+    try:
+        await _check(client, targets, who.username or "an anonymous session")
+        return await _write_and_read(client, targets)
+    except (ConnectionError, TimeoutError) as exc:
+        raise PushRefused(lost(endpoint, exc)) from None
+    finally:
+        await client.disconnect()
+
+
+def push(gains_path: str | Path, *, to: str, map_path: str | Path, who: Credentials,
+         timeout_s: float = 10.0, accepted: tuple[str, ...] = ()) -> dict[str, Any]:
+    """``rig push GAINS --to URL --map NODES.toml``: the report of :func:`push_to_server`, with what it wrote where.
+
+    Refusals (the gain set's status, the map, a node missing, of another type or not writable, the session) are bad
+    input: :class:`InputError` with the reason, nothing written. A number read back otherwise than written (beyond
+    a ``REAL``'s rounding) is refused after the write, naming the nodes. A gain set that is not validated is pushed
+    only where each requirement it missed is ``accepted`` by name (the report lists them)."""
+    gain_set = require_validated(GainSet.load(gains_path), "pushed", str(gains_path), accepted)
+    node_map = NodeMap.load(map_path)
+    try:
+        rows = asyncio.run(push_to_server(gain_set, to, node_map, who, timeout_s, accepted))
+    except PushRefused as exc:
+        raise InputError(f"{to}: {exc}") from None
+    off = [r["name"] for r in rows if not r["as_written"]]
+    if off:
+        raise InputError(f"{to}: written, but {', '.join(off)} read back otherwise than written (see the node's "
+                         "scaling or limits on the PLC)")
+    numbers = [r for r in rows if r["difference"] is not None]
+    return {"gain_set": str(gains_path), "gain_set_sha256": gain_set.content_sha256, "to": to,
+            "map": node_map.path, "nodes": rows,
+            "max_relative_difference": max((r["relative_difference"] for r in numbers), default=0.0),
+            "exact": all(r["difference"] == 0.0 for r in numbers),
+            "accepted_missed": [r.to_dict() for r in gain_set.missed] if not gain_set.validated else []}
