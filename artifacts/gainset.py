@@ -286,8 +286,10 @@ class GainSet:
             return ()
         miss = self.missed
         if self.validation is None or not miss:
-            raise InputError(f"{shown} is a '{self.status}' ({self.verdict()}), not 'validated': only validated "
-                             f"gains are {use}; validate it ('piezopreload validate')")
+            why = ("it was never validated" if self.validation is None
+                   else f"its validation {self.validation.failed_plants()}")
+            raise InputError(f"{shown} is a '{self.status}', not 'validated' ({why}): only validated gains are {use}; "
+                             "validate it, or tune it again until it passes ('piezopreload tune')")
         left = unaccepted(miss, accepted)
         if left:
             keys = " ".join(f"--accept {r.key}" for r in left)

@@ -266,9 +266,9 @@ def _labview_text(head: list[str], g: dict[str, float], schedule: GainSchedule |
 
 
 # ---- plc --------------------------------------------------------------------------------------
-def _plc_text(doc: GainSet, head: list[str]) -> str:
+def _plc_text(doc: GainSet, head: list[str], accepted: tuple[str, ...] = ()) -> str:
     """A Structured Text source: the controller's function block and the program that calls it."""
-    code = controller_code(controller_from_gain_set(doc))
+    code = controller_code(controller_from_gain_set(doc, accepted))
     head = ["piezopreload: a validated gain set for an IEC 61131-3 PLC.", *head,
             f"PP_CONTROLLER is the whole controller step{_structure_words(code)}; PP_LOOP calls it."]
     return controller_block(code, head) + "\n" + loop_program(code.controller.dt_s)
@@ -319,8 +319,8 @@ def _c_params(code: ControllerCode) -> str:
             + "\n};\n")
 
 
-def _casadi_c(doc: GainSet, g: dict[str, float], digest: str, head: list[str]) -> str:
-    code = controller_code(controller_from_gain_set(doc))
+def _casadi_c(doc: GainSet, g: dict[str, float], digest: str, head: list[str], accepted: tuple[str, ...] = ()) -> str:
+    code = controller_code(controller_from_gain_set(doc, accepted))
     controller, model, init, fn = code.controller, code.model, code.start, code.step
     n_state = model.state.size
     body = generate([init, fn], "pp_controller", inline_minmax=False)
@@ -533,11 +533,11 @@ def _export_gain_set(gain_set: GainSet, fmt: str, accepted: tuple[str, ...] = ()
     head, schedule = _header(digest, gain_set), gain_set.gains.schedule
     ff = None if gain_set.feedforward is None else gain_set.feedforward.to_dict()
     if fmt == "casadi-c":
-        return _casadi_c(gain_set, g, digest, head)
+        return _casadi_c(gain_set, g, digest, head, accepted)
     if fmt == "c-header":  # the forward model's constants, its creep with the period it was identified at
         return _c_header(digest, head, g, ff, schedule)
     if fmt == "plc":
-        return _plc_text(gain_set, head)
+        return _plc_text(gain_set, head, accepted)
     table = _gain_set_table(gain_set)
     if fmt == "json":
         return _json_text(digest, g, ff, schedule, table)

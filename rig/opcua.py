@@ -407,10 +407,10 @@ def _argument(name: str, vtype: ua.VariantType, what: str) -> ua.Argument:
 def _push_arguments(args: tuple) -> tuple[str, str, tuple[str, ...]]:
     """PushGainSet's arguments, checked: ``(document, note, accepted)``; a ValueError says what was expected."""
     names = " and ".join(f"{name} ({what})" for name, _, what in PUSH_INPUTS)
-    if len(args) != len(PUSH_INPUTS) or not all(isinstance(a.Value, str) for a in args):
+    if len(args) not in (2, len(PUSH_INPUTS)) or not all(isinstance(a.Value, str) for a in args):
         raise ValueError(f"PushGainSet takes {len(PUSH_INPUTS)} String arguments: {names}; got "
                          f"{len(args)} of {', '.join(type(a.Value).__name__ for a in args) or 'none'}")
-    document, note, accepted = (a.Value for a in args)
+    document, note, accepted = (*(a.Value for a in args), "")[:3]  # AcceptedMisses may be left out (none)
     if not document.lstrip().startswith("{"):
         shown = document if len(document) <= 60 else document[:57] + "..."
         raise ValueError(f"GainSetDocument must be the gain set file's text (its JSON document), not a path or a "

@@ -287,7 +287,8 @@ def test_the_status_the_map_and_the_session_are_checked_first(tmp_path, capsys, 
     spec = _spec(gains)
     with AsyncuaPlc(spec) as plc:
         code, err = _push(capsys, _gain_set(tmp_path / "cand.json", "candidate"), plc.endpoint, _map(tmp_path))
-        assert code == 2 and "the gain set is a 'candidate', not 'validated': only validated gains are pushed" in err
+        assert code == 2 and "cand.json is a 'candidate', not 'validated'" in err, err
+        assert "only validated gains are pushed" in err, err
         partial = tmp_path / "partial.toml"
         partial.write_text('[nodes]\nKc = "ns=2;s=PLC.PP_LOOP.ctrl.Kc"\n')
         code, err = _push(capsys, gains, plc.endpoint, partial)

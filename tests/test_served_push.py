@@ -103,8 +103,8 @@ def test_another_plant_range_period_or_status_is_refused_in_a_sentence(tmp_path,
              gains=RETUNED, plant=dataclasses.replace(study.plant, noise_N=0.05))
     _refused(tmp_path, study, feedforward, served, r"commands 0 to 100 V .* armed for 0 to 110 V .* could jump at the "
              r"switch", gains=dataclasses.replace(RETUNED, u_max=100.0))
-    _refused(tmp_path, study, feedforward, served, r"the gain set is a 'candidate', not 'validated': only validated "
-             r"gains are pushed", gains=RETUNED, status="candidate")
+    _refused(tmp_path, study, feedforward, served, r"the pushed gain set is a 'candidate', not 'validated' \(it was "
+             r"never validated\): only validated gains are pushed", gains=RETUNED, status="candidate")
     slower = _served(served_gain_set(tmp_path, study, feedforward))
     slower = dataclasses.replace(slower, dt_s=2 * slower.dt_s)
     _refused(tmp_path, study, feedforward, slower, r"samples every 0.001 s, this rig's loop every 0.002 s",
