@@ -1,0 +1,64 @@
+"""The tree static tools read: the links that show the floors inside the package, and a type check that fails.
+
+A type checker, import-linter and an IDE resolve ``piezopreload.models.x`` to ``models/x.py`` through the
+links committed under ``piezopreload/`` (docs/architecture.md); pyproject's package-dir mapping builds the
+wheel. The two must name the same folders, and the type check must see across them: a script that calls a
+name a floor does not have, or calls one with the wrong type, turns it red.
+"""
+
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+MAPPING = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"]
+
+
+@pytest.mark.parametrize("package", sorted(p for p in MAPPING if p != "piezopreload"))
+def test_each_mapped_folder_is_linked_from_the_package(package):
+    link = ROOT / "piezopreload" / package.split(".", 1)[1]
+    assert link.is_symlink(), f"{link.relative_to(ROOT)} is not a link (pyproject maps {package} to {MAPPING[package]})"
+    assert link.readlink() == Path("..", MAPPING[package]), f"{link.relative_to(ROOT)} points at {link.readlink()}"
+    assert link.resolve() == (ROOT / MAPPING[package]).resolve()
+
+
+def test_every_folder_under_the_package_is_mapped_for_the_build():
+    """A link without its package-dir entry would type-check but be missing from the wheel."""
+    links = {f"piezopreload.{p.name}" for p in (ROOT / "piezopreload").iterdir() if p.is_symlink()}
+    assert links == set(MAPPING) - {"piezopreload"}
+
+
+GOOD = '''\
+from piezopreload.core.errors import InputError
+from piezopreload.models.metrics import step_metrics
+
+error: InputError = InputError("a message")
+'''
+
+BAD = '''\
+from piezopreload.models.metrics import no_such_function  # line 1: a name models does not have
+from piezopreload.core.errors import InputError
+
+error: int = InputError("a message")  # line 4: an error is not an int
+'''
+
+
+@pytest.mark.slow
+def test_the_type_check_sees_the_floors_and_fails_on_a_wrong_call(tmp_path):
+    """The check CI runs (mypy from the root, pyproject's settings) on a right and a wrong script."""
+    (tmp_path / "good_probe.py").write_text(GOOD)
+    (tmp_path / "bad_probe.py").write_text(BAD)
+    done = subprocess.run([sys.executable, "-m", "mypy", "--cache-dir", str(tmp_path / "cache"),
+                           "--config-file", str(ROOT / "pyproject.toml"),
+                           str(tmp_path / "good_probe.py"), str(tmp_path / "bad_probe.py")],
+                          cwd=ROOT, capture_output=True, text=True)
+    out = done.stdout + done.stderr
+    errors = [line for line in out.splitlines() if "_probe.py:" in line and ": error:" in line]
+    assert done.returncode == 1, out
+    assert not [e for e in errors if "good_probe.py" in e], out
+    assert any("bad_probe.py:1:" in e and "no_such_function" in e and "[attr-defined]" in e for e in errors), out
+    assert any("bad_probe.py:4:" in e and "[assignment]" in e for e in errors), out
+    assert len(errors) == 2, out  # the package's own errors are CI's `mypy -p piezopreload`
