@@ -116,7 +116,7 @@ def margins_of(plant: LinearPlant, controller: PIDController,
         margin = (ph + 2 * np.pi) % (2 * np.pi) - np.pi  # 180 deg + the phase, wrapped into [-180, 180)
         if pm is None or margin < pm:
             pm, wc = margin, w
-    if pm is not None:
+    if pm is not None and wc is not None:
         dm = pm / wc if pm > 0 else 0.0
     gm = None
     turns = (phase + np.pi) / (2 * np.pi)
