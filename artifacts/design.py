@@ -15,17 +15,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from piezopreload.artifacts._fields import Fields
 from piezopreload.artifacts.schedule import PreloadSchedule
+from piezopreload.core._typing import Array
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import InputError
 
 __all__ = ["DesignPoint", "Optimum", "Front", "PreloadCurve", "DutyCasePoint", "FrequencyCurve", "DesignRecord", "KIND"]
 
 KIND = "design"
-Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -16,10 +16,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from piezopreload.artifacts._fields import Fields
+from piezopreload.core._typing import Array
 
 __all__ = ["LoadProfile", "ScheduleSpec", "PreloadSchedule"]
-
-Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

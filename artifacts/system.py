@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from piezopreload.artifacts._fields import Fields
 from piezopreload.artifacts.requirements import Requirement, requirements_from_dict
+from piezopreload.core._typing import Array
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError
 
@@ -29,7 +30,6 @@ __all__ = ["TrackingNumbers", "PreCycle", "PassRecord", "ScheduleBound", "Planne
            "SystemRecord", "KIND"]
 
 KIND = "system"
-Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

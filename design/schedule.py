@@ -44,15 +44,14 @@ import math
 
 import casadi as ca
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from piezopreload.artifacts.schedule import LoadProfile, PreloadSchedule, ScheduleSpec
+from piezopreload.core._typing import Array
 from piezopreload.models.ballscrew import LIFT_OFF_RATIO, BallScrew, _rigidity, nut_forces
 from piezopreload.models.ops import CASADI
 
 __all__ = ["schedule_preload", "least_preload", "example_profile"]
-
-Array = NDArray[np.float64]
 
 
 def example_profile(dt_s: float = 0.01) -> LoadProfile:

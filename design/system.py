@@ -67,6 +67,7 @@ from piezopreload.artifacts.system import (
     SystemSeries,
     TrackingNumbers,
 )
+from piezopreload.core._typing import Array
 from piezopreload.core.errors import InputError
 from piezopreload.core.tables import write_csv
 from piezopreload.design.schedule import least_preload, schedule_preload
@@ -79,7 +80,6 @@ __all__ = ["PRE_CYCLE_REST_S", "ROUND_OFF", "SystemRun", "Evaluation", "pre_cycl
            "track_schedule", "evaluate_tracking", "requirements_of", "folded_shortfall", "binding_stretches",
            "held_over_stretches", "local_margins"]
 
-Array = NDArray[np.float64]
 
 #: the pre-cycle's rest before its ramp (s): the loop starts bumplessly on its first sample's feedforward, so a
 #: learned feedforward that leads the ramp needs samples before it

@@ -66,9 +66,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.optimize import brentq
 
+from piezopreload.core._typing import Array
 from piezopreload.core.checks import FieldRule, check_fields
 from piezopreload.core.errors import InputError
 from piezopreload.models.ops import NUMPY
@@ -80,7 +81,6 @@ __all__ = [
     "EFFECTIVE_BALL_SHARE", "ACCURACY_FACTOR_P5",
 ]
 
-Array = NDArray[np.float64]
 
 #: Static contact-pressure limit of hardened bearing steel (ISO 76), MPa.
 CONTACT_LIMIT_MPA = 4200.0

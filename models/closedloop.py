@@ -16,8 +16,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from piezopreload.core._typing import Array
 from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Rig
 from piezopreload.models.controller import Controller
@@ -27,7 +28,6 @@ from piezopreload.models.ops import NUMPY
 
 __all__ = ["Reference", "ClosedLoopRun", "simulate", "simulate_open_loop", "triangle", "PAPER_BAND_N"]
 
-Array = NDArray[np.float64]
 
 #: how a reference goes between its points: held (steps) or ramped
 INTERPOLATIONS = ("hold", "linear")

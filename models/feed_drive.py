@@ -30,15 +30,15 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.optimize import brentq
 
+from piezopreload.core._typing import Array
 from piezopreload.models.actuator import P888_91, StackData
 from piezopreload.models.ballscrew import BallScrew
 
 __all__ = ["FeedDrive", "PiezoPreload", "MOUNTINGS", "stack_loop_um"]
 
-Array = NDArray[np.float64]
 MOUNTINGS = ("fixed-fixed", "fixed-supported")
 
 

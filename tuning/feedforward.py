@@ -19,9 +19,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from piezopreload.artifacts.hysteresis import Compensation, DataSource, FitError, IdentifiedModel, require_coverage
+from piezopreload.core._typing import Array
 from piezopreload.core.artifacts import ArtifactError, package_version
 from piezopreload.core.errors import InputError
 from piezopreload.core.tables import Record, write_csv
@@ -34,7 +34,6 @@ from piezopreload.tuning.identify import MODELS
 __all__ = ["LoopExcitation", "FeedforwardModel", "IdentifiedFeedforward", "CompensationCheck", "identify_feedforward",
            "simulate_loop", "compensation_check", "loop_covers"]
 
-Array = NDArray[np.float64]
 
 #: what a study's feedforward may be: a P-I model, with or without creep
 FeedforwardModel = HysteresisModel | CreepPI

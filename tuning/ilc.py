@@ -26,9 +26,9 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from numpy.typing import NDArray
 from scipy.signal import butter, lfilter
 
+from piezopreload.core._typing import Array
 from piezopreload.core.errors import InputError, InternalError
 from piezopreload.models.actuator import Plant
 from piezopreload.models.controller import Controller
@@ -40,7 +40,6 @@ from piezopreload.tuning.preview import advance
 __all__ = ["METHODS", "LoopLinearisation", "linearise_loop", "LearningModel", "learning_model", "learning_model_over",
            "tune_laws", "zero_phase_lowpass", "p_type_update"]
 
-Array = NDArray[np.float64]
 
 #: the learning laws; the first is the default
 METHODS = ("norm-optimal", "p-type")

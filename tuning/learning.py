@@ -27,11 +27,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.learned import LearnedSignal, reference_sha256
 from piezopreload.artifacts.learning import LearningRecord, PassRecord, TrialRecord
+from piezopreload.core._typing import Array
 from piezopreload.core.errors import InputError, InternalError
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
@@ -52,7 +52,6 @@ __all__ = ["METHODS", "Iteration", "LearningResult", "learn", "law_for", "more_t
            "schedule_learner", "learn_from_run", "learn_from_log", "save_passes", "played_passes",
            "learned_by_reference", "STOP_GAIN"]
 
-Array = NDArray[np.float64]
 Law = LearningModel | NormOptimalLaw
 
 #: another trial pays while it is expected to lower the measured error by more than this share of it

@@ -23,8 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from piezopreload.core._typing import Array
 from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Plant
 from piezopreload.models.controller import Controller
@@ -33,7 +33,6 @@ from piezopreload.tuning.ilc import LoopLinearisation, linearise_loop
 __all__ = ["LiftedLoop", "lifted_loop", "level_linearisations", "composite", "setpoint_path", "RiccatiGains",
            "riccati_gains", "NormOptimalStep", "costate", "norm_optimal_step", "DEFAULT_LEVELS"]
 
-Array = NDArray[np.float64]
 
 #: the levels the loop is linearised at between the plan's lowest and highest force
 DEFAULT_LEVELS = 12

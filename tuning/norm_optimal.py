@@ -42,8 +42,8 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from piezopreload.core._typing import Array
 from piezopreload.core.errors import InputError, InternalError
 from piezopreload.models.actuator import Plant
 from piezopreload.models.controller import Controller
@@ -66,7 +66,6 @@ from piezopreload.tuning.validate import DEFAULT_SPREAD
 __all__ = ["Limits", "constrained_step", "uncertainty_set", "with_gain", "RobustChoice", "robust_choice",
            "learning_error", "NormOptimalLaw", "norm_optimal_law", "DEFAULT_WEIGHT"]
 
-Array = NDArray[np.float64]
 
 #: the weight on a change of setpoint (N) against the force error (N): where the loop passes less than
 #: about 10 % of a setpoint change (``|H|^2 < w``) the law learns little (the noise's band)

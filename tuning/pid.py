@@ -37,7 +37,7 @@ tracking floor) are :mod:`piezopreload.tuning.bounds`.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -464,7 +464,7 @@ class _Solvers:
     """The NLP's two IPOPT solvers (the tuning and the least violation, :class:`_Problem`) and its evaluation."""
 
     def __init__(self, prob: _Problem, max_iterations: int, verbose: bool,
-                 progress: Callable[[int], None] | None) -> None:
+                 progress: Callable[[], None] | None) -> None:
         self.prob = prob
         nlp = prob.nlp()
         options = {
@@ -580,7 +580,7 @@ def _engine(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningS
 
 
 def _as_pi(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningSpec, engine: str,
-           pid: PIDGains, max_iterations: int, progress: Callable[[int], None] | None
+           pid: PIDGains, max_iterations: int, progress: Callable[[], None] | None
            ) -> tuple[PIDGains, _Solvers, np.ndarray, str, bool] | None:
     """The PI of ``pid`` (its derivative on its lower bound): ``pid`` without its derivative and filter where that
     meets every constraint of the tuning, else the PI tuned from its Kc, Ti (and b); with whether it was tuned
@@ -704,7 +704,7 @@ class _IterationCounter(ca.Callback):
             return ca.Sparsity.dense(self.ng)
         return ca.Sparsity(0, 0)
 
-    def eval(self, arg: list[Any]) -> list[Any]:
+    def eval(self, arg: Sequence[Any]) -> list[Any]:
         self.tick()
         return [0]
 

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from piezopreload.core._typing import Array
 from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Plant, Rig, reach_N
 from piezopreload.models.closedloop import Reference
@@ -40,7 +40,6 @@ __all__ = ["AFTER_CHANGE_S", "PLAN_SLEW_FRACTION", "advance", "PreviewPlan", "Pr
            "default_preview_s", "feedforward_lead", "branch_ramps", "preview_plan", "ramp_plan", "causal_floor",
            "preview_feedforward"]
 
-Array = NDArray[np.float64]
 
 #: the transport after a jump the after-change error leaves out (as the validation's criteria)
 AFTER_CHANGE_S = 0.1
@@ -59,7 +58,6 @@ def advance(x: Array, samples: int, fill: str = "hold") -> Array:
     m = min(samples, x.shape[-1])
     tail = np.repeat(x[..., -1:], m, axis=-1) if fill == "hold" else np.zeros(x.shape[:-1] + (m,))
     return np.concatenate([x[..., samples:], tail], axis=-1)[..., : x.shape[-1]]
-
 
 
 @dataclass(frozen=True, eq=False)
