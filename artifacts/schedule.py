@@ -127,16 +127,14 @@ class PreloadSchedule:
     constant_friction_energy_J: float
     energy_units: str
     status: str
-    needed_N: Array | None = None
-    margin_N: Array | None = None
-    margin_short_N: Array | None = None
+    needed_N: Array
+    margin_N: Array
+    margin_short_N: Array
 
     def __post_init__(self) -> None:
         n = np.asarray(self.profile.time_s).size
-        defaults = {"needed_N": self.preload_N, "margin_N": np.zeros(n), "margin_short_N": np.zeros(n)}
         for name in _SERIES:
-            value = getattr(self, name)
-            value = np.asarray(defaults[name] if value is None else value, float)
+            value = np.asarray(getattr(self, name), float)
             if value.shape != (n,) or not np.all(np.isfinite(value)):
                 raise ValueError(f"PreloadSchedule.{name} must hold one finite number per sample ({n}).")
             object.__setattr__(self, name, value)

@@ -99,9 +99,9 @@ OBJECTIVES = ("stiffness", "drag", "life")
 PARETO_PAIRS = ("stiffness:preload", "stiffness:drag", "stiffness:life")
 _TIE_WEIGHT = 1e-3
 _BALLS_PER_TURN = (4, 200)  # search range of the relaxed balls per turn
-_WARM_START = {"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-9,
-               "ipopt.warm_start_slack_bound_push": 1e-9, "ipopt.warm_start_mult_bound_push": 1e-9,
-               "ipopt.mu_init": 1e-6}
+_WARM_START: dict[str, str | float] = {
+    "ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-9,
+    "ipopt.warm_start_slack_bound_push": 1e-9, "ipopt.warm_start_mult_bound_push": 1e-9, "ipopt.mu_init": 1e-6}
 #: a least total scaled violation above this (the rows are O(1)-scaled; a feasible point's
 #: is zero) is the SQP's verdict that a warm-started problem is infeasible
 _INFEASIBLE_VIOLATION = 1e-5
@@ -111,9 +111,10 @@ _INFEASIBLE_VIOLATION = 1e-5
 #: interior point pays its set-up and a barrier path every call; what it has not solved in
 #: max_iter goes to the infeasibility check and then to warm IPOPT (:class:`DesignNLP`). Its
 #: evaluation warnings are off: a trial step outside the model's domain only fails it over.
-_SQP = {"qpsol": "qpoases", "max_iter": 12, "tol_pr": 1e-8, "tol_du": 1e-8, "show_eval_warnings": False,
-        "print_time": False, "print_header": False, "print_iteration": False, "print_status": False,
-        "error_on_fail": False, "qpsol_options": {"error_on_fail": False, "printLevel": "none"}}
+_SQP: dict[str, Any] = {
+    "qpsol": "qpoases", "max_iter": 12, "tol_pr": 1e-8, "tol_du": 1e-8, "show_eval_warnings": False,
+    "print_time": False, "print_header": False, "print_iteration": False, "print_status": False,
+    "error_on_fail": False, "qpsol_options": {"error_on_fail": False, "printLevel": "none"}}
 
 
 @contextlib.contextmanager
@@ -462,7 +463,7 @@ class DesignNLP:
         g = ca.vertcat(*[r[1] / r[2] for r in rows])
         w = ca.SX.sym("w", 4)  # weights: -stiffness, drag, -log life, preload
         objective = _objective(e, w)
-        opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.tol": 1e-8,
+        opts: dict[str, Any] = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.tol": 1e-8,
                 "ipopt.max_iter": 500}
         opts.update(ipopt_options or {})
         problem = {"x": y, "f": objective, "g": g, "p": w}
@@ -505,7 +506,7 @@ class DesignNLP:
     def initial_guess(self) -> np.ndarray:
         spec = self.spec
         beta = np.radians(np.mean(spec.contact_angle_deg))
-        ball = min(np.mean(spec.ball_mm), 0.5 * spec.ball_lead_ratio_max * spec.lead_mm + 0.5 * spec.ball_mm[0])
+        ball = min(float(np.mean(spec.ball_mm)), 0.5 * spec.ball_lead_ratio_max * spec.lead_mm + 0.5 * spec.ball_mm[0])
         z1 = math.floor(math.pi * spec.nominal_diameter_mm / (ball * math.cos(spec.helix_rad)))
         turns = min(spec.turns[1], max(spec.turns[0], math.floor(spec.nut_length_max_mm / spec.lead_mm)))
         F_hi = max(spec.lift_off_margin * spec.axial_load_max_N / LIFT_OFF_RATIO, 100.0) * 1.05

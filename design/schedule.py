@@ -215,7 +215,7 @@ def _schedule_nlp(k_map: ca.Function, Fa: Array, required: Array, weight: Array,
 
 
 def _least_preloads(k_map: ca.Function, Fa: Array, required: Array, F_lo: Array, F_max: float,
-                    margin: ArrayLike = 0.0) -> Array:
+                    margin: Array | float = 0.0) -> Array:
     """Each sample's least preload meeting its rows (the rigidity grows with the preload), by bisection
     on all samples at once to 2^-60 of the range. Their maximum is the best constant preload."""
     lo = F_lo.copy()

@@ -500,7 +500,7 @@ def track_schedule(plant: DesignedPlant, controller: Controller, schedule: Prelo
             f"{n.rigidity_ratio_min:.3f}, least preload / lift-off bound {n.lift_off_ratio_min:.3f}")
         folded = held_over_stretches(
             folded_shortfall(current, ev.frame, ev.shortfall, _lag_samples(run, ev.frame.cycle, lag), hold), stretches)
-        if before is not None:
+        if before is not None and added is not None:  # set together, from the second pass on
             response = _response(before, folded, added)
         wanted = local_margins(current, folded, margin_factor, response)
         if ev.met or k == passes:

@@ -213,7 +213,8 @@ def calibrate(
 
     def to_params(z: np.ndarray) -> Plant:
         values = np.exp(lo + np.clip(z, 0.0, 1.0) * (hi - lo))
-        return replace(base, **{n: float(v) for n, v in zip(names, values)})
+        fields: dict[str, Any] = {n: float(v) for n, v in zip(names, values)}  # Plant's batch fields, checked above
+        return replace(base, **fields)
 
     def objective(z: np.ndarray) -> float:
         p = to_params(z)

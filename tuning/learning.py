@@ -31,7 +31,7 @@ import numpy as np
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.learned import LearnedSignal, reference_sha256
 from piezopreload.artifacts.learning import LearningRecord, PassRecord, TrialRecord
-from piezopreload.core._typing import Array
+from piezopreload.core._typing import Array, BoolArray, IntArray
 from piezopreload.core.errors import InputError, InternalError
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
@@ -102,12 +102,12 @@ class LearningResult:
 
     ff_extra_V: Array
     history: list[Iteration]
-    best: Array
-    trials: Array
+    best: IntArray
+    trials: IntArray
     stop_reason: list[str]
-    converged: Array
-    diverged: Array
-    monotone: Array
+    converged: BoolArray
+    diverged: BoolArray
+    monotone: BoolArray
     run: ClosedLoopRun
     preview: Preview
     method: str
@@ -230,7 +230,7 @@ class LearningResult:
 # --------------------------------------------------------------------------------------
 # when more trials no longer pay
 # --------------------------------------------------------------------------------------
-def more_trials_pay(measured: Array, floor_N: Any = 0.0, stop_gain: float = STOP_GAIN) -> Array:
+def more_trials_pay(measured: Array, floor_N: Any = 0.0, stop_gain: float = STOP_GAIN) -> BoolArray:
     """Per plant (columns; a row per trial so far): whether another trial is expected to lower the measured RMS error
     by more than ``stop_gain`` of it.
 
@@ -289,7 +289,7 @@ class _Trials:
         self.trials = np.zeros(shape, int)
         self.best_run: ClosedLoopRun | None = None
 
-    def record(self, k: int, scored: ClosedLoopRun, measured: Array) -> Array:
+    def record(self, k: int, scored: ClosedLoopRun, measured: Array) -> BoolArray:
         """Book trial ``k``; returns which plants improved on their best."""
         whole = scored.tracking_error()["rms"]
         after = scored.tracking_error(after_change_s=AFTER_CHANGE_S)["rms"]
@@ -313,7 +313,7 @@ class _Trials:
         self.settled |= done
         self.active &= ~done
 
-    def monotone(self) -> Array:
+    def monotone(self) -> BoolArray:
         """Per plant: its true error never rose by more than the noise floor from one trial to the next."""
         rows = np.array([np.atleast_1d(h.tracking_rms_N) for h in self.history])  # (trials, plants)
         trials = np.asarray(self.trials).reshape(-1)
@@ -467,7 +467,7 @@ def _scored(run: ClosedLoopRun, reference: Reference) -> ClosedLoopRun:
     return replace(run, reference=reference, reference_N=reference.at(run.t_s))
 
 
-def _merge_runs(old: ClosedLoopRun, new: ClosedLoopRun, take: Array) -> ClosedLoopRun:
+def _merge_runs(old: ClosedLoopRun, new: ClosedLoopRun, take: BoolArray) -> ClosedLoopRun:
     """Per plant, the new run's samples where ``take``, else the old's."""
     if not np.any(take):
         return old

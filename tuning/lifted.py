@@ -21,6 +21,7 @@ from ``e = H dv + `` unit white noise. The law around it is :mod:`piezopreload.t
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, overload
 
 import numpy as np
 
@@ -232,6 +233,14 @@ class NormOptimalStep:
     force_N: Array
     command_V: Array
     voltage_V: Array
+
+
+@overload
+def costate(gains: RiccatiGains, E: Array, keep: Literal[False] = False) -> tuple[Array, None]: ...
+
+
+@overload
+def costate(gains: RiccatiGains, E: Array, keep: Literal[True]) -> tuple[Array, Array]: ...
 
 
 def costate(gains: RiccatiGains, E: Array, keep: bool = False) -> tuple[Array, Array | None]:

@@ -115,7 +115,7 @@ class LinearPlant:
             raise InternalError(f"{self.source}: a rational plant has no measured response")
         return self.omega_data, self.data
 
-    def _period(self) -> float:
+    def sample_period(self) -> float:
         """:attr:`dt`, where the caller has found the plant :attr:`discrete`."""
         if self.dt is None:
             raise InternalError(f"{self.source}: a continuous plant has no sample period")
@@ -169,13 +169,13 @@ class LinearPlant:
             return np.array([omega[0], omega[-1]])
         if self.hold is not None:  # a sampled plant: its continuous part's poles and its delay
             roots = np.linalg.eigvals(self.hold.Phi)
-            extra = [1.0 / (self.hold.d * self._period())] if self.hold.d else []
+            extra = [1.0 / (self.hold.d * self.sample_period())] if self.hold.d else []
         else:
             poles = self.poles  # a rational plant's are never None
             roots, extra = np.concatenate([np.roots(self._tf()[0]), poles if poles is not None else []]), []
         if self.discrete:
             roots = roots[np.abs(roots) > 1e-12]
-            mags = np.abs(np.log(roots.astype(complex))) / self._period()
+            mags = np.abs(np.log(roots.astype(complex))) / self.sample_period()
         else:
             mags = np.abs(roots)
         mags = mags[mags > 1e-9 * max(1.0, float(np.max(mags, initial=1.0)))]
@@ -197,7 +197,7 @@ class LinearPlant:
         f = self.characteristic_frequencies()
         lo, hi = np.log10(0.01 * f.min()) - widen, np.log10(100.0 * f.max()) + widen
         if self.discrete:
-            hi = min(hi, np.log10(0.999 * np.pi / self._period()))
+            hi = min(hi, np.log10(0.999 * np.pi / self.sample_period()))
             lo = min(lo, hi - 2.0)
         return np.logspace(lo, hi, int(np.ceil((hi - lo) * per_decade)) + 1)
 
@@ -213,7 +213,7 @@ class LinearPlant:
             ph = np.unwrap(np.angle(data))
             x = np.log(np.clip(w, omega[0], omega[-1]))
             return np.exp(np.interp(x, lw, lg) + 1j * np.interp(x, lw, ph)) * delay
-        s = np.exp(1j * w * self._period()) if self.discrete else 1j * w
+        s = np.exp(1j * w * self.sample_period()) if self.discrete else 1j * w
         if self.hold is not None:
             return self.hold.response(s) * delay
         num, den = self._tf()

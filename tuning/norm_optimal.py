@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from piezopreload.core._typing import Array
+from piezopreload.core._typing import Array, BoolArray
 from piezopreload.core.errors import InputError, InternalError
 from piezopreload.models.actuator import Plant
 from piezopreload.models.controller import Controller
@@ -96,7 +96,7 @@ class Limits:
     command_V: Array
     voltage_V: Array
 
-    def broken(self, step: NormOptimalStep, tol: float = 1e-6) -> Array:
+    def broken(self, step: NormOptimalStep, tol: float = 1e-6) -> BoolArray:
         """Per sample: where the command or the voltage after ``step`` breaks a limit (one plant)."""
         lo, hi = self.u_range_V
         c, v = self.command_V, self.voltage_V
@@ -262,7 +262,8 @@ def _rollout(gains: RiccatiGains, bs: Array, e0: float, fixed: Array, t_from: in
     state at ``t_from`` the start): the feedback law's ``dv``, or ``fixed`` where that is finite."""
     lifted, K, den = gains.lifted, gains.K, gains.den
     n, m = lifted.n, lifted.states
-    r = _Rollout(*(np.zeros(n) for _ in range(5)), np.zeros((n, m))) if base is None else base
+    r = (_Rollout(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros((n, m))) if base is None
+         else base)
     if t_from == 0:
         d = fixed[0] if np.isfinite(fixed[0]) else (lifted.D0 * e0 + bs[0]) / den[0]
         r.dv[0], r.du[0], r.force[0] = d, lifted.Fd * d, lifted.D0 * d

@@ -39,7 +39,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, TypedDict
 
 import casadi as ca
 import numpy as np
@@ -165,11 +165,18 @@ class TuningSpec:
                              f"got {self.force_range_N!r}.")
 
 
-def scaled_references(step_N: Any = None, trajectory_N: Any = None) -> dict[str, Reference]:
+class ScaledReferences(TypedDict, total=False):
+    """:func:`scaled_references`: the ones a study sets, as :class:`TuningSpec`'s keywords."""
+
+    step: Reference
+    trajectory: Reference
+
+
+def scaled_references(step_N: Any = None, trajectory_N: Any = None) -> ScaledReferences:
     """The tuning's short step and staircase at a study's force scale (``TuningSpec``'s time scale:
     0.6 s for the step, 0.4 s per level): ``step_N = (from, to)``, ``trajectory_N = (rest, levels...)``;
     None keeps the paper's."""
-    out: dict[str, Reference] = {}
+    out: ScaledReferences = {}
     if step_N is not None:
         if len(step_N) != 2:
             raise ValueError(f"tuning.step_N must be (from, to), got {list(step_N)!r}")

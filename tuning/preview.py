@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from piezopreload.core._typing import Array
+from piezopreload.core._typing import Array, IntArray
 from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Plant, Rig, reach_N
 from piezopreload.models.closedloop import Reference
@@ -171,7 +171,7 @@ def preview_plan(params: Plant, reference: Reference, preview_s: float, *, u_max
     p = int(round(preview_s / dt))
     floor = tracking_floor(params, reference)
     n = int(round(reference.duration_s / dt)) + 1
-    t = np.arange(n) * dt
+    t = np.arange(n, dtype=np.float64) * dt
     r = reference.at(t)
     lo, hi = float(np.min(params.bolt_preload_N)), float(np.min(reach_N(Rig(params), u_max_V)))
     levels = np.clip(reference.levels_N, lo, hi)
@@ -184,14 +184,13 @@ def preview_plan(params: Plant, reference: Reference, preview_s: float, *, u_max
         old, new = levels[j], levels[j + 1]
         size = abs(new - old)
         rho = floor["rate_N_per_s"] * dt
-        if ramps is None:
+        path = None if ramps is None else ramps[j]
+        if path is None:
             n_ramp = int(np.ceil(size / rho - 1e-12)) if size > 0 else 0
         else:  # the rig's own path: its samples, then the level (held where the voltage limit stopped it)
-            path = ramps[j]
             n_ramp = path.size
             new = float(path[-1])
             size = abs(new - old)
-        path = None if ramps is None else ramps[j]
         best: tuple[float, int] | None = None
         for s in range(lead - p, lead + 1):
             s0 = int(k) + s
@@ -238,7 +237,7 @@ def ramp_plan(params: Plant, reference: Reference, preview_s: float, *, u_max_V:
     p = int(round(preview_s / dt))
     d = max(lead - p, 0)
     n = int(round(reference.duration_s / dt)) + 1
-    t = np.arange(n) * dt
+    t = np.arange(n, dtype=np.float64) * dt
     r = reference.at(t)
     # the steepest rate the force can move (tracking_floor's, which depends on the rig alone; one 1 N step asks it)
     rate = float(tracking_floor(params, Reference(np.array([0.0, dt]), np.array([0.0, 1.0]), 2 * dt))["rate_N_per_s"])
@@ -265,7 +264,7 @@ def causal_floor(params: Plant, reference: Reference) -> float:
     return ramp_plan(params, reference, 0.0).rms_N
 
 
-def _ramp(m: Array, s0: int, old: float, new: float, rho: float, path: Array | None) -> Array:
+def _ramp(m: IntArray, s0: int, old: float, new: float, rho: float, path: Array | None) -> Array:
     """The force at samples ``m`` of a change from ``old`` to ``new`` whose last sample at ``old`` is ``s0``:
     a straight ramp of ``rho`` per sample, or ``path`` (the rig's own, sample by sample) then held."""
     if path is None:

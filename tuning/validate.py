@@ -182,7 +182,7 @@ def validate(
     t0 = time.perf_counter()
     drawn = plant.vary(n_plants, spread, seed=seed)
     # the nominal plant first: a validation set must contain the plant the gains were tuned on
-    batch_fields = {n: np.asarray(getattr(drawn, n), float).copy() for n in spread}
+    batch_fields: dict[str, Any] = {n: np.asarray(getattr(drawn, n), float).copy() for n in spread}
     for n in batch_fields:
         batch_fields[n][0] = float(getattr(plant, n))
     plants = replace(drawn, **batch_fields)
