@@ -242,9 +242,8 @@ class SystemSeries:
     @classmethod
     def from_fields(cls, f: Fields) -> SystemSeries:
         t = f.array("time_s")
-        values = {name: f.array(name, t.size) for name in SERIES[1:]}
-        values["cutting"] = values["cutting"] > 0.5
-        return cls(time_s=t, **values)
+        values = {name: f.array(name, t.size) for name in SERIES[1:-1]}
+        return cls(time_s=t, cutting=f.array("cutting", t.size) > 0.5, **values)
 
 
 @dataclass(frozen=True, eq=False)

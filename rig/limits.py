@@ -135,6 +135,7 @@ def run_limits(gain_set: GainSet, controller: Controller, reference: Reference, 
     plant_stall = derive_stall_limit(plant_of(gain_set), controller, reference, force_low_N=safety.force_low_N,
                                      force_max_N=safety.force_max_N, v_range=(safety.v_min_V, safety.v_max_V),
                                      reference_name=reference_name, ff_extra_V=ff_extra_V, seed=seed)
+    asked: float | None
     if "stall_limit_s" in given:
         asked, asked_source = float(given["stall_limit_s"]), f"{override_source} (--stall-limit-s)"
     else:

@@ -274,8 +274,8 @@ class NativeLoop:
         self._set_limits(safety)
         L.step, L.start = _address(step), _address(start)
         self._state = np.zeros(self._model.state.size)
-        self._params = [np.ascontiguousarray(controller.parameter_vector(), dtype=float), None]
-        self._params[1] = self._params[0].copy()
+        params = np.ascontiguousarray(controller.parameter_vector(), dtype=float)
+        self._params = [params, params.copy()]
         L.state = self._state.ctypes.data
         L.params[0], L.params[1] = self._params[0].ctypes.data, self._params[1].ctypes.data
         self._set_backend(backend, faults)

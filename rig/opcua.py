@@ -71,6 +71,7 @@ from typing import Any
 from asyncua import Client, Server, ua
 from asyncua.crypto.permission_rules import SimpleRoleRuleset, User, UserRole
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+from asyncua.server.user_managers import UserManager
 
 from piezopreload.core.errors import PiezopreloadError
 from piezopreload.models.controller import Controller
@@ -95,7 +96,7 @@ def _hash_password(password: str, salt: bytes) -> bytes:
     return hashlib.pbkdf2_hmac("sha256", password.encode(), salt, 200_000)
 
 
-class _Users:
+class _Users(UserManager):
     """User names with salted password hashes."""
 
     def __init__(self, passwords: dict[str, str]) -> None:
@@ -119,7 +120,7 @@ class _Ruleset(SimpleRoleRuleset):
 
     def check_validity(self, user: User, action_type_id: Any, body: Any) -> bool:
         ok = super().check_validity(user, action_type_id, body)
-        if ok and action_type_id == ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary):
+        if ok and action_type_id == ua.NodeId(ua.Int32(ua.ObjectIds.CallRequest_Encoding_DefaultBinary)):
             self.caller = user.name
         return ok
 
@@ -534,7 +535,7 @@ async def _push_and_read(client: Client, document: str, timeout_s: float,
     root = await client.nodes.objects.get_child([f"{idx}:{ROOT}"])
     method = await root.get_child([f"{idx}:PushGainSet"])
     try:
-        accepted, message = await root.call_method(method, ua.Variant(document, ua.VariantType.String))
+        accepted, message = await root.call_method(method.nodeid, ua.Variant(document, ua.VariantType.String))
     except ua.UaStatusCodeError as exc:
         raise PushRefused(f"the server refused the call: {type(exc).__name__}") from None
     running_node = await root.get_child([f"{idx}:GainSetSha256"])

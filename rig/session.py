@@ -99,8 +99,9 @@ def check_pushed(text: str, served: dict[str, float] | None = None) -> tuple[Con
     except InputError as exc:
         raise ValueError(str(exc)) from None
     for key, value in (served or {}).items():
-        if pushed.get(key) is not None and not math.isclose(float(pushed[key]), value, rel_tol=1e-12):
-            raise ValueError(f"{shown} carries {key} = {pushed[key]:g} ({sources[key]}), the served rig runs with "
+        carried = pushed.get(key)
+        if carried is not None and not math.isclose(float(carried), value, rel_tol=1e-12):
+            raise ValueError(f"{shown} carries {key} = {carried:g} ({sources[key]}), the served rig runs with "
                              f"{value:g}: the interlocks are set when the rig is armed; serve that gain set instead")
     return controller, _identity(gain_set)
 
@@ -150,7 +151,7 @@ def run_metrics(columns: dict[str, np.ndarray], reference: Reference, band_N: fl
         te = run.tracking_error(t_from_s=0.0)
         numbers = {"tracking_rms_N": float(te["rms"]), "tracking_max_N": float(te["max"])}
     keys = ("rise_s", "peak_s", "settling_s", "overshoot_N", "tracking_rms_N", "tracking_max_N")
-    return RunMetrics(n, peak, **{k: None if numbers.get(k) is None else finite_or_none(numbers[k]) for k in keys})
+    return RunMetrics(n, peak, **{k: None if (x := numbers.get(k)) is None else finite_or_none(x) for k in keys})
 
 
 @dataclass(frozen=True, eq=False)
@@ -254,12 +255,14 @@ def _setup(gains_path: str | Path, backend: str, backend_options: dict[str, str]
         raise InputError(f"--backend-option watchdog_s={wd!r}: not a number") from None
     limits = _limits(gain_set, controller, ref, ref_name, signal, learned, safety, safety_source, seed, watchdog_s)
     rig = _open(backend, backend_options, gain_set, seed, realtime, faults)
+    identity = _identity(gain_set)
     record = RigRunRecord(
         gain_set=str(gains_path), backend=rig.name, rig_preset=gain_set.preset, reference=ref_name,
         reference_levels_N=tuple(ref.levels_N.tolist()), rate_Hz=1.0 / controller.dt_s, realtime=realtime,
         safety=limits.safety.to_dict(), safety_sources=dict(limits.sources), stall_limit=limits.stall, seed=seed,
         faults_injected=tuple({**f.__dict__, "duration_s": f.duration_s if math.isfinite(f.duration_s) else None}
-                              for f in faults or []), **_identity(gain_set))
+                              for f in faults or []), gain_set_sha256=identity["gain_set_sha256"],
+        feedforward_sha256=identity["feedforward_sha256"])
     if signal is not None:
         record = replace(record, learned={"path": str(learned), "sha256": signal.content_sha256,
                                           "iteration": signal.iteration, "method": signal.method,
