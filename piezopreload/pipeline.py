@@ -295,12 +295,12 @@ def _stage_system(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
         "gain_set_sha256": gain_set.content_sha256, "design_sha256": ctx.sha256("design", "design"),
         "plant_sha256": ctx.sha256("plant", "plant"), "study_sha256": study.sha256,
         **({"learned": ctx.rel(ctx.output("learn", "learning"))} if extra is not None else {})})
-    record = SystemRecord.load(paths["system"])
-    for r in record.missed:
+    system = SystemRecord.load(paths["system"])
+    for r in system.missed:
         ctx.progress.say(f"requirement missed: {r.sentence()}")
-    for b in record.bounds:
+    for b in system.bounds:
         ctx.progress.say(f"what stops it: {b.sentence()}")
-    return paths, {**record.summary(), **before}
+    return paths, {**system.summary(), **before}
 
 
 def _stage_export(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from dataclasses import replace as _replace
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal, overload
 
 from piezopreload.artifacts.design import DesignPoint, DesignRecord
 from piezopreload.artifacts.gainset import GainSet
@@ -425,9 +425,24 @@ class Study:
 
         return simulate(self, gains, controller=controller, reference=reference, feedforward=feedforward, seed=seed)
 
-    def learn(self, gains: GainSet | None = None, *, reference: Any = "trajectory", iterations: int | None = None,
-              preview_s: float | None = None, method: str | None = None, plants: int | None = None,
+    # "schedule" is also a str: mypy calls the two overlapping; a str that only holds "schedule" at run time is typed
+    # as the second (write the literal where the schedule is meant)
+    @overload
+    def learn(  # type: ignore[overload-overlap]
+              self, gains: GainSet | None = None, *, reference: Literal["schedule"], iterations: int | None = None,
+              preview_s: float | None = None, method: str | None = None, plants: None = None,
               seed: int | None = None, after_change_weight: float = 0.0,
+              progress: Say | None = None) -> ScheduleLearning: ...
+
+    @overload
+    def learn(self, gains: GainSet | None = None, *, reference: str | Reference = "trajectory",
+              iterations: int | None = None, preview_s: float | None = None, method: str | None = None,
+              plants: int | None = None, seed: int | None = None, after_change_weight: float = 0.0,
+              progress: Say | None = None) -> LearningResult: ...
+
+    def learn(self, gains: GainSet | None = None, *, reference: str | Reference = "trajectory",
+              iterations: int | None = None, preview_s: float | None = None, method: str | None = None,
+              plants: int | None = None, seed: int | None = None, after_change_weight: float = 0.0,
               progress: Say | None = None) -> LearningResult | ScheduleLearning:
         """Preview and iterative learning control over a repeated reference on :attr:`plant`.
 

@@ -424,13 +424,14 @@ def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "gr
                        + f"; outputs in {out}/\n")
         tasks = [_Task(i, values, f"{POINTS}/p{i:03d}", s, str(out), force, scheduler is not None)
                  for i, (values, s) in enumerate(planned)]
-        state = {"record": record, "count": 0}
+        count = 0
 
         def done(point: SweepPoint) -> None:
-            state["record"] = state["record"].with_point(point)
-            state["record"].save(out / RECORD)
-            state["count"] += 1
-            progress.write(_point_line(point, state["count"], len(tasks)))
+            nonlocal record, count
+            record = record.with_point(point)
+            record.save(out / RECORD)
+            count += 1
+            progress.write(_point_line(point, count, len(tasks)))
 
         if scheduler is not None:
             _run_dask(tasks, scheduler, done)
@@ -439,7 +440,6 @@ def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "gr
                 done(run_point(task))
         else:
             _run_local(tasks, n, done)
-        record = state["record"]
         result = SweepResult(out, record, time.perf_counter() - t0)
         atomic_write_text(out / ROWS, result.csv_text())
         if report:

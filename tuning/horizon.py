@@ -30,7 +30,7 @@ from piezopreload.core import native
 from piezopreload.models.actuator import Plant, PlantModel
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import ControllerModel
-from piezopreload.models.hysteresis import InverseClassicalPI
+from piezopreload.models.hysteresis import InverseModel
 from piezopreload.models.loop import LOOP_OUTPUTS, LoopModel
 from piezopreload.models.ops import CASADI
 
@@ -50,7 +50,7 @@ def tuning_loop(params: Plant, smoothing: float = TUNING_SMOOTHING, schedule_siz
     return LoopModel(PlantModel.of(params, smoothing), ControllerModel(None, schedule_size=schedule_size))
 
 
-def feedforward_sequence(feedforward: InverseClassicalPI | None, r: np.ndarray) -> np.ndarray:
+def feedforward_sequence(feedforward: InverseModel | None, r: np.ndarray) -> np.ndarray:
     """The feedforward's voltage for the reference ``r`` from its initial state (zeros without one)."""
     if feedforward is None:
         return np.zeros_like(r)

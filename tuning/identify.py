@@ -58,7 +58,7 @@ __all__ = [
     "straight_line",
 ]
 
-MODELS = ("classical", "paper-asymmetric", "modified")
+MODELS: tuple[ModelName, ...] = ("classical", "paper-asymmetric", "modified")
 ModelName = Literal["classical", "paper-asymmetric", "modified"]
 
 

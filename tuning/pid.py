@@ -50,7 +50,7 @@ from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import PAPER_BAND_N, Reference
 from piezopreload.models.controller import PIDGains
-from piezopreload.models.hysteresis import InverseClassicalPI
+from piezopreload.models.hysteresis import InverseModel
 from piezopreload.models.ops import Layout
 from piezopreload.tuning.fopdt import FOPDT, fit_fopdt, simc
 from piezopreload.tuning.horizon import ROWS, Horizon, TimeDomain, feedforward_sequence, loop_rows, tuning_loop
@@ -384,7 +384,7 @@ def _variable_names(spec: TuningSpec) -> list[str]:
             + (["b"] if spec.tune_setpoint_weight else []))
 
 
-def _horizon(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningSpec, variants: list[Plant],
+def _horizon(params: Plant, feedforward: InverseModel | None, spec: TuningSpec, variants: list[Plant],
              engine: str) -> Horizon:
     """The step, then the trajectory, on one horizon: the loop restarts at each one's first sample (the
     trajectory's top is out of reach of the weakest variants: only the step's overshoot counts)."""
@@ -418,7 +418,7 @@ def _ms_blocks(d: Any, gains4: list[Any], slopes: list[tuple[float, float]], n_o
     return blocks
 
 
-def _build_problem(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningSpec,
+def _build_problem(params: Plant, feedforward: InverseModel | None, spec: TuningSpec,
                    engine: str = "plain") -> _Problem:
     dt = params.sample_period_s
     variants = plant_variants(params, spec.variants)
@@ -568,7 +568,7 @@ def _active_bounds(on_bounds: list[tuple[str, str, float]], made_pi: bool, retun
     return tuple(out)
 
 
-def _engine(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningSpec,
+def _engine(params: Plant, feedforward: InverseModel | None, spec: TuningSpec,
             engine: str) -> tuple[_Problem, str, float]:
     """The problem on the compiled engine where asked and available, else plain; the engine and its build time."""
     used, compile_s = "plain", 0.0
@@ -586,7 +586,7 @@ def _engine(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningS
     return prob, used, compile_s
 
 
-def _as_pi(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningSpec, engine: str,
+def _as_pi(params: Plant, feedforward: InverseModel | None, spec: TuningSpec, engine: str,
            pid: PIDGains, max_iterations: int, progress: Callable[[], None] | None
            ) -> tuple[PIDGains, _Solvers, np.ndarray, str, bool] | None:
     """The PI of ``pid`` (its derivative on its lower bound): ``pid`` without its derivative and filter where that
@@ -606,7 +606,7 @@ def _as_pi(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningSp
 
 def tune_pid(
     params: Plant,
-    feedforward: InverseClassicalPI | None,
+    feedforward: InverseModel | None,
     spec: TuningSpec = TuningSpec(),
     *,
     max_iterations: int = 150,

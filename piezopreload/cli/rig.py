@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from typing import Any
+from typing import Any, Literal, overload
 
 from piezopreload.artifacts.gainset import REFERENCES
 from piezopreload.cli._common import (
@@ -57,6 +57,14 @@ def _quiet_asyncua() -> None:
     import logging
 
     logging.getLogger("asyncua").setLevel(logging.CRITICAL)
+
+
+@overload
+def _password(args: argparse.Namespace, required: Literal[True]) -> str: ...
+
+
+@overload
+def _password(args: argparse.Namespace, required: bool) -> str | None: ...
 
 
 def _password(args: argparse.Namespace, required: bool) -> str | None:
