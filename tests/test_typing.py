@@ -32,6 +32,7 @@ def test_every_folder_under_the_package_is_mapped_for_the_build():
 
 
 GOOD = '''\
+from piezopreload import Study, __version__
 from piezopreload.core.errors import InputError
 from piezopreload.models.metrics import step_metrics
 
@@ -41,8 +42,9 @@ error: InputError = InputError("a message")
 BAD = '''\
 from piezopreload.models.metrics import no_such_function  # line 1: a name models does not have
 from piezopreload.core.errors import InputError
+from piezopreload import Studdy  # line 3: a name the front door does not export (its lazy loading hides none)
 
-error: int = InputError("a message")  # line 4: an error is not an int
+error: int = InputError("a message")  # line 5: an error is not an int
 '''
 
 
@@ -60,5 +62,22 @@ def test_the_type_check_sees_the_floors_and_fails_on_a_wrong_call(tmp_path):
     assert done.returncode == 1, out
     assert not [e for e in errors if "good_probe.py" in e], out
     assert any("bad_probe.py:1:" in e and "no_such_function" in e and "[attr-defined]" in e for e in errors), out
-    assert any("bad_probe.py:4:" in e and "[assignment]" in e for e in errors), out
-    assert len(errors) == 2, out  # the package's own errors are CI's `mypy -p piezopreload`
+    assert any("bad_probe.py:3:" in e and "Studdy" in e and "[attr-defined]" in e for e in errors), out
+    assert any("bad_probe.py:5:" in e and "[assignment]" in e for e in errors), out
+    assert len(errors) == 3, out  # the package's own errors are CI's `mypy -p piezopreload`
+
+
+def test_the_front_door_lists_each_name_once_for_the_runtime_and_for_static_tools():
+    """``__all__``, the lazy map and the TYPE_CHECKING imports name the same things from the same modules."""
+    import ast
+
+    import piezopreload
+
+    tree = ast.parse((ROOT / "piezopreload" / "__init__.py").read_text())
+    guarded = next(node for node in tree.body if isinstance(node, ast.If) and ast.unparse(node.test) == "TYPE_CHECKING")
+    static = {alias.name: node.module for node in guarded.body if isinstance(node, ast.ImportFrom)
+              for alias in node.names}
+    assert static == piezopreload._EXPORTS
+    assert set(piezopreload.__all__) == {"__version__", *piezopreload._EXPORTS}
+    for name in piezopreload.__all__:
+        assert getattr(piezopreload, name) is not None, name
