@@ -67,7 +67,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.optimize import brentq
 
 from piezopreload.core._typing import Array
 from piezopreload.core.checks import FieldRule, check_fields
@@ -437,6 +436,8 @@ class BallScrew:
             raise InputError(f"BallScrew.from_catalogue: c0_N = {c0_N!r} N is outside the static ratings this "
                              f"geometry has for conformities 0.505-0.6 ({c0_hi:.0f}-{c0_lo:.0f} N); check the "
                              f"ball diameter, turns and pitch diameter.")
+        from scipy.optimize import brentq  # scipy.optimize loads on first use, not on import
+
         f = brentq(lambda x: screw(x).static_rating_N - c0_N, lo, hi, xtol=1e-12)
         return cls(nominal_diameter_mm, lead_mm, ball_mm, turns, conformity_screw=f, conformity_nut=f,
                    c_dyn_N=c_dyn_N, c0_N=c0_N, **kwargs)

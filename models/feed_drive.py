@@ -31,7 +31,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.optimize import brentq
 
 from piezopreload.core._typing import Array
 from piezopreload.models.actuator import P888_91, StackData
@@ -162,6 +161,8 @@ class PiezoPreload:
             return stack_loop_um(c_h, bolt_preload_N, fp, k, s, screw.accuracy_factor) - self.stroke_um
 
         hi = bolt_preload_N + self.blocked_force_N * 1.01
+        from scipy.optimize import brentq  # scipy.optimize loads on first use, not on import
+
         return float(brentq(gap, bolt_preload_N, hi, xtol=1e-9, rtol=1e-12))
 
     def preload_slew_N_per_s(self, screw: BallScrew, preload_N: float, bolt_preload_N: float) -> float:

@@ -89,7 +89,6 @@ from piezopreload.outcome import Headline, StageOutcome, StudyResult, summary_of
 from piezopreload.progress import Progress
 from piezopreload.reports.study_report import STAGES_READ, Published, ReportStudy, render_report
 from piezopreload.results import TuningResult
-from piezopreload.rig import session
 from piezopreload.rig.export import write_exports
 from piezopreload.study import Study, load_study
 from piezopreload.tuning.compare import creep_effect, reproduction, responses
@@ -312,6 +311,8 @@ def _stage_export(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
 
 
 def _stage_rig(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+    from piezopreload.rig import session  # with the OPC UA push: loaded when the stage runs, not on every rerun
+
     plan = ctx.study.rig_run
     reference: str | None = str(ctx.study.files().get("rig_run.reference", plan.reference))
     learned = None

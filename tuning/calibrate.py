@@ -23,7 +23,6 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from scipy.optimize import minimize
 
 from piezopreload.models.actuator import Plant, Rig, loop_width, reach_N
 from piezopreload.models.closedloop import (
@@ -231,6 +230,8 @@ def calibrate(
         if progress is not None:
             progress(len(history), f, history[-1])
         return f
+
+    from scipy.optimize import minimize  # scipy.optimize loads on first use, not on import
 
     res = minimize(
         objective, x0, method="Nelder-Mead", bounds=[(0.0, 1.0)] * len(names),

@@ -15,7 +15,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Rig
@@ -48,6 +47,8 @@ def _fit_at(t: np.ndarray, y: np.ndarray, step: float, theta: float,
         r = K * phi - y
         return 0.5 * float(r @ r), K, r
 
+    from scipy.optimize import minimize_scalar  # loads on first use, not on import
+
     res = minimize_scalar(lambda log_T: parts(log_T)[0], bounds=log_T_bounds, method="bounded",
                           options={"xatol": 1e-10})
     cost, K, r = parts(float(res.x))
@@ -68,6 +69,8 @@ def fit_first_order(t: np.ndarray, y: np.ndarray, step: float, thetas: np.ndarra
     theta = float(thetas[best])
     if refine and thetas.size > 1:
         lo, hi = float(thetas[max(best - 1, 0)]), float(thetas[min(best + 1, thetas.size - 1)])
+        from scipy.optimize import minimize_scalar  # loads on first use, not on import
+
         res = minimize_scalar(lambda th: _fit_at(t, y, step, th, bounds)[0], bounds=(lo, hi), method="bounded",
                               options={"xatol": 1e-6 * max(hi - lo, 1e-12)})
         if float(res.fun) < fits[best][0]:

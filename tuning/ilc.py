@@ -26,7 +26,6 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from scipy.signal import butter, lfilter
 
 from piezopreload.core._typing import Array
 from piezopreload.core.errors import InputError, InternalError
@@ -55,6 +54,8 @@ def zero_phase_lowpass(x: Array, cutoff_Hz: float, dt_s: float, order: int = 2) 
     nyquist = 0.5 / dt_s
     if cutoff_Hz >= nyquist:
         return np.asarray(x, float).copy()
+    from scipy.signal import butter, lfilter  # scipy.signal loads when a filter is first made, not on import
+
     b, a = butter(order, cutoff_Hz / nyquist)
     forward = lfilter(b, a, np.asarray(x, float), axis=-1)
     return np.asarray(lfilter(b, a, forward[..., ::-1], axis=-1)[..., ::-1], float)

@@ -6,11 +6,12 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from piezopreload.core.errors import InputError
-from piezopreload.study import PAPER_STUDY, load_study
-from piezopreload.tuning.identification import Window
+
+if TYPE_CHECKING:  # the parser is built without the floors; a command loads what it runs
+    from piezopreload.tuning.identification import Window
 
 EXIT_OK, EXIT_INTERNAL, EXIT_INPUT = 0, 1, 2
 PASSWORD_ENV = "PIEZOPRELOAD_RIG_PASSWORD"
@@ -62,6 +63,8 @@ def time_constants(text: str) -> list[float]:
 
 def time_window(text: str | None, option: str) -> Window | None:
     """``'4:7'`` -> ``Window(4, 7)``; bad text raises :class:`InputError` naming ``option``."""
+    from piezopreload.tuning.identification import Window
+
     if text is None:
         return None
     a, sep, b = text.partition(":")
@@ -94,6 +97,8 @@ def study_arguments(p: argparse.ArgumentParser, seed: bool = True) -> None:
 def study_of(args: argparse.Namespace) -> Any:
     # the single-step commands work on a study's plant (Study.plant: its [rig], or its design's):
     # the paper's unless named
+    from piezopreload.study import PAPER_STUDY, load_study
+
     return load_study(args.study or PAPER_STUDY)
 
 

@@ -14,8 +14,6 @@ from piezopreload.cli._common import (
 )
 from piezopreload.core.errors import InputError
 from piezopreload.design.preload import OBJECTIVES, PARETO_PAIRS
-from piezopreload.design.study import check_screw
-from piezopreload.models.ballscrew import BallScrew
 
 
 # --------------------------------------------------------------------------------------
@@ -47,6 +45,9 @@ def register_ballscrew(sub: Any) -> None:
 
 
 def _cmd_ballscrew(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.design.study import check_screw
+    from piezopreload.models.ballscrew import BallScrew
+
     if args.preload_N is not None and args.preload_fraction is not None:
         raise InputError("give --preload-N or --preload-fraction, not both")
     try:

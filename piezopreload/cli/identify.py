@@ -12,9 +12,6 @@ from piezopreload.cli._common import (
     time_constants,
     time_window,
 )
-from piezopreload.core.tables import ColumnSpec, parse_columns, read_record
-from piezopreload.data import SHIPPED_COLUMNS, shipped_data
-from piezopreload.tuning.identification import identify
 from piezopreload.tuning.identify import MODELS
 
 
@@ -58,6 +55,10 @@ def register_identify(sub: Any) -> None:
 
 
 def _cmd_identify(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.core.tables import ColumnSpec, parse_columns, read_record
+    from piezopreload.data import SHIPPED_COLUMNS, shipped_data
+    from piezopreload.tuning.identification import identify
+
     columns: dict[str, ColumnSpec] | None
     if args.data is None:
         path, columns, header = shipped_data(), parse_columns(SHIPPED_COLUMNS), False

@@ -6,9 +6,7 @@ import argparse
 import time
 from typing import Any
 
-from piezopreload import __version__
-from piezopreload.artifacts.gainset import REFERENCES, GainSet
-from piezopreload.artifacts.requirements import Requirement
+from piezopreload.artifacts.gainset import REFERENCES
 from piezopreload.cli._common import (
     fmt,
     json_flag,
@@ -16,10 +14,7 @@ from piezopreload.cli._common import (
     study_of,
 )
 from piezopreload.core.errors import InputError
-from piezopreload.core.tables import write_csv
-from piezopreload.study import load_study
 from piezopreload.tuning.calibrate import CONTROLLERS
-from piezopreload.tuning.feedforward import IdentifiedFeedforward
 
 
 # --------------------------------------------------------------------------------------
@@ -53,11 +48,14 @@ def register_run(sub: Any) -> None:
 
 def _cmd_run(args: argparse.Namespace) -> dict[str, Any]:
     from piezopreload.progress import Progress
+    from piezopreload.study import load_study
 
     return load_study(args.study).run(args.out, force=args.force, progress=Progress(quiet=args.quiet)).to_dict()
 
 
 def _print_run(s: dict[str, Any]) -> None:
+    from piezopreload.artifacts.requirements import Requirement
+
     for st in s["stages"]:
         state = f"ran in {st['seconds']:.1f} s" if st["ran"] else st["status"]
         print(f"  {st['stage']:9s} {state}")
@@ -126,6 +124,11 @@ def register_simulate(sub: Any) -> None:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload import __version__
+    from piezopreload.artifacts.gainset import GainSet
+    from piezopreload.core.tables import write_csv
+    from piezopreload.tuning.feedforward import IdentifiedFeedforward
+
     t0 = time.perf_counter()
     study = study_of(args)
     gains = None if args.gains is None else GainSet.load(args.gains)

@@ -6,7 +6,6 @@ import argparse
 import time
 from typing import Any
 
-from piezopreload.artifacts.gainset import GainSet
 from piezopreload.cli._common import (
     check_monte_carlo,
     fmt,
@@ -101,6 +100,7 @@ def register_validate(sub: Any) -> None:
 
 
 def _cmd_validate(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.artifacts.gainset import GainSet
     from piezopreload.tuning.verdict import validate_gain_set
 
     check_monte_carlo(args)
