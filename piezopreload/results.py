@@ -37,6 +37,7 @@ from piezopreload.models.closedloop import ClosedLoopRun
 from piezopreload.models.closedloop import simulate as simulate_loop
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.metrics import StepMetrics, run_numbers
+from piezopreload.progress import ProgressLike, say_of
 from piezopreload.study import Study
 from piezopreload.tuning.bounds import minimum_time, tracking_floor
 from piezopreload.tuning.calibrate import CONTROLLERS
@@ -151,13 +152,13 @@ class TuningResult:
                        rig_interlocks=s.rig_run.interlocks(s.plant, s.path))
 
     def validation(self, *, plants: int | None = None, seed: int | None = None, workers: int | None = None,
-                   scheduler: str | None = None, progress: Callable[[str], None] | None = None,
+                   scheduler: str | None = None, progress: ProgressLike | None = None,
                    bar: Callable[[int, int], None] | None = None,
                    inputs: dict[str, Any] | None = None) -> tuple[GainSet, ValidationResult]:
         """:meth:`validate`, also returning the per-plant result."""
         v = self.study.validation
         plants = v.plants if plants is None else plants
-        say = progress or (lambda _m: None)
+        say = say_of(progress) or (lambda _m: None)
         say(f"validating on {plants} plants ...")
         return validate_gain_set(self.candidate(inputs), n_plants=plants,
                                  seed=(self.study.seed if v.seed is None else v.seed) if seed is None else seed,
@@ -165,7 +166,7 @@ class TuningResult:
                                  progress=bar or (lambda i, n: say(f"  chunk {i}/{n}")))
 
     def validate(self, plants: int | None = None, seed: int | None = None, *, workers: int | None = None,
-                 scheduler: str | None = None, progress: Callable[[str], None] | None = None) -> GainSet:
+                 scheduler: str | None = None, progress: ProgressLike | None = None) -> GainSet:
         """Validate the tuned gains by Monte Carlo on the study's nonlinear rig (``[validation]`` by default):
         a :class:`GainSet`, ``validated`` only if every plant met every criterion. Save it with ``.save()``."""
         return self.validation(plants=plants, seed=seed, workers=workers, scheduler=scheduler, progress=progress)[0]
