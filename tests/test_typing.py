@@ -1,6 +1,6 @@
 """The tree static tools read: the links that show the floors inside the package, and a type check that fails.
 
-A type checker, import-linter and an IDE resolve ``piezopreload.models.x`` to ``models/x.py`` through the
+A type checker, import-linter and an IDE resolve ``piezopreload.models.metrics`` to ``models/metrics.py`` through the
 links committed under ``piezopreload/`` (docs/architecture.md); pyproject's package-dir mapping builds the
 wheel. The two must name the same folders, and the type check must see across them: a script that calls a
 name a floor does not have, or calls one with the wrong type, turns it red.

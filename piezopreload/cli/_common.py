@@ -8,7 +8,7 @@ import sys
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from piezopreload.core.errors import InputError
+from piezopreload.core.errors import InputError, InternalError
 
 if TYPE_CHECKING:  # the parser is built without the floors; a command loads what it runs
     from piezopreload.tuning.identification import Window
@@ -18,10 +18,49 @@ PASSWORD_ENV = "PIEZOPRELOAD_RIG_PASSWORD"
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse that reports bad arguments as one ``error: ...`` line with exit code 2."""
+    """argparse that reports bad arguments as one ``error: ...`` line with exit code 2.
+
+    A subcommand's parser may be ``deferred``: the function that registers it (``register_run``) runs, and imports
+    the constants its choices name, only when the subcommand is parsed or its help shown, so the command line
+    lists its subcommands without loading the floors.
+    """
+
+    deferred: Callable[[Any], None] | None = None
 
     def error(self, message: str) -> None:  # type: ignore[override]
         raise InputError(f"{self.prog}: {message} (see --help)")
+
+    def _register(self) -> None:
+        register, self.deferred = self.deferred, None
+        if register is not None:
+            register(_Into(self))
+
+    def parse_known_args(self, *args: Any, **kwargs: Any) -> Any:  # argparse's, after the deferred registration
+        self._register()
+        return super().parse_known_args(*args, **kwargs)
+
+    def format_help(self) -> str:
+        self._register()
+        return super().format_help()
+
+
+class _Into:
+    """What a deferred subcommand's register function adds to: the parser already listed under its name."""
+
+    def __init__(self, parser: Parser) -> None:
+        self.parser = parser
+
+    def add_parser(self, name: str, **kwargs: Any) -> Parser:
+        if self.parser.prog.split()[-1] != name:
+            raise InternalError(f"the subcommand listed as '{self.parser.prog}' registers '{name}'")
+        for key, value in kwargs.items():  # description, epilog, formatter_class: what it did not know when listed
+            setattr(self.parser, key, value)
+        return self.parser
+
+
+def command_help(register: Callable[[Any], None]) -> str:
+    """A subcommand's line in ``--help``: the first line of its register function's docstring."""
+    return (register.__doc__ or "").strip().splitlines()[0]
 
 
 def integer(low: int, what: str) -> Callable[[str], int]:

@@ -12,15 +12,17 @@ from piezopreload.cli._common import (
     time_constants,
     time_window,
 )
-from piezopreload.tuning.identify import MODELS
 
 
 # --------------------------------------------------------------------------------------
 # identify
 # --------------------------------------------------------------------------------------
 def register_identify(sub: Any) -> None:
+    """identify a P-I hysteresis model from a measured record"""
+    from piezopreload.tuning.identify import MODELS
+
     p = sub.add_parser(
-        "identify", help="identify a P-I hysteresis model from a measured record",
+        "identify",
         description=(
             "Identify the weights of a Prandtl-Ishlinskii hysteresis model from a measured "
             "input/output record as a constrained QP (cvxpy + Clarabel), and report train and test "

@@ -15,15 +15,17 @@ from piezopreload.cli._common import (
     study_of,
 )
 from piezopreload.core.errors import InputError
-from piezopreload.tuning.ilc import METHODS
 
 if TYPE_CHECKING:
     from piezopreload.artifacts.gainset import GainSet
 
 
 def register_learn(sub: Any) -> None:
+    """preview and iterative learning control over a repeated reference"""
+    from piezopreload.tuning.ilc import METHODS
+
     p = sub.add_parser(
-        "learn", help="preview and iterative learning control over a repeated reference",
+        "learn",
         description=(
             "Learn a feedforward correction trial by trial (each trial one run of the repeated reference, a machining "
             "cycle on a machine) on the study's rig, with the reference read ahead by --preview-s: norm-optimal ILC "

@@ -7,7 +7,6 @@ import os
 import sys
 from typing import Any, Literal, overload
 
-from piezopreload.artifacts.gainset import REFERENCES
 from piezopreload.cli._common import (
     PASSWORD_ENV,
     Parser,
@@ -16,7 +15,6 @@ from piezopreload.cli._common import (
     say,
 )
 from piezopreload.core.errors import InputError
-from piezopreload.rig import DEFAULT_ENDPOINT as DEFAULT_RIG_ENDPOINT
 
 
 # --------------------------------------------------------------------------------------
@@ -80,6 +78,7 @@ def _password(args: argparse.Namespace, required: bool) -> str | None:
 
 
 def _rig_arguments(p: argparse.ArgumentParser) -> None:
+    from piezopreload.artifacts.gainset import REFERENCES
     from piezopreload.rig.backends import FAULT_KINDS
 
     p.add_argument("gains", metavar="gains.json",
@@ -114,7 +113,10 @@ def _rig_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def register_rig(sub: Any) -> None:
-    rig = sub.add_parser("rig", help="run, serve and push gains on the rig executor",
+    """run, serve and push gains on the rig executor"""
+    from piezopreload.rig import DEFAULT_ENDPOINT as DEFAULT_RIG_ENDPOINT
+
+    rig = sub.add_parser("rig",
                          description="The rig executor: a validated gain set at a fixed rate against a backend, "
                                      "behind interlocks, with a run log; served over OPC UA; gains pushed to it.")
     rig_sub = rig.add_subparsers(dest="rig_command", metavar="run|serve|push|check", parser_class=Parser, required=True)

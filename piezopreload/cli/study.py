@@ -6,7 +6,6 @@ import argparse
 import time
 from typing import Any
 
-from piezopreload.artifacts.gainset import REFERENCES
 from piezopreload.cli._common import (
     fmt,
     json_flag,
@@ -14,16 +13,15 @@ from piezopreload.cli._common import (
     study_of,
 )
 from piezopreload.core.errors import InputError
-from piezopreload.tuning.calibrate import CONTROLLERS
 
 
 # --------------------------------------------------------------------------------------
 # run (the one-command study) and report
 # --------------------------------------------------------------------------------------
 def register_run(sub: Any) -> None:
+    """run a whole study: design, plant, identify, tune, validate, compare, learn, system, export, rig, report"""
     p = sub.add_parser(
         "run",
-        help="run a whole study: design, plant, identify, tune, validate, compare, learn, system, export, rig, report",
         description=(
             "Take a study file through its stages: the ball-screw preload design, the designed system as the plant "
             "(where the study's [plant] says so), the feedforward's P-I identification, PID tuning, Monte Carlo "
@@ -75,8 +73,9 @@ def _print_run(s: dict[str, Any]) -> None:
 
 
 def register_report(sub: Any) -> None:
+    """render a study's (or a sweep's) PDF report again from its artifacts"""
     p = sub.add_parser(
-        "report", help="render a study's (or a sweep's) PDF report again from its artifacts",
+        "report",
         description=("Draw the figures and typeset report.pdf again from the artifacts in a study's output folder "
                      "(written by 'piezopreload run'), or a sweep's report from a sweep's folder (written by "
                      "'piezopreload sweep'); nothing else is computed."))
@@ -103,8 +102,12 @@ def _cmd_report(args: argparse.Namespace) -> dict[str, Any]:
 # simulate and reproduce
 # --------------------------------------------------------------------------------------
 def register_simulate(sub: Any) -> None:
+    """simulate a controller on the study's plant"""
+    from piezopreload.artifacts.gainset import REFERENCES
+    from piezopreload.tuning.calibrate import CONTROLLERS
+
     p = sub.add_parser(
-        "simulate", help="simulate a controller on the study's plant",
+        "simulate",
         description=(
             "Simulate the PID alone or the inverse-P-I feedforward plus PID on the study's plant, simulated "
             "(truth hysteresis, creep, amplifier, sensor noise and quantisation, one-sample delay), over the "
@@ -176,8 +179,9 @@ def _print_simulate(s: dict[str, Any]) -> None:
 
 
 def register_reproduce(sub: Any) -> None:
+    """a study's published step numbers beside the simulation's"""
     p = sub.add_parser(
-        "reproduce", help="a study's published step numbers beside the simulation's",
+        "reproduce",
         description=("Run the study's step on its plant with the PID alone and with the P-I feedforward, and print "
                      "rise, peak and settling time beside the published ones the study declares ([published]; the "
                      "paper's study has the paper's, Sections 4.2-4.3). A study without published numbers is refused."))

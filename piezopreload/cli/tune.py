@@ -20,8 +20,9 @@ from piezopreload.core.errors import InputError
 
 
 def register_tune(sub: Any) -> None:
+    """tune the PID (CasADi), validate it by Monte Carlo, write the gain set"""
     p = sub.add_parser(
-        "tune", help="tune the PID (CasADi), validate it by Monte Carlo, write the gain set",
+        "tune",
         description=(
             "Tune Kc, Ti, Td, the derivative filter and the setpoint weight around the study's "
             "P-I-compensated rig (CasADi + IPOPT, several plant variants, Ms and noise bounds), compare "
@@ -84,8 +85,9 @@ def _print_bounds(mt: dict[str, Any], tf: dict[str, Any], settling_s: float | No
 
 
 def register_validate(sub: Any) -> None:
+    """validate a gain set again by Monte Carlo on the nonlinear rig"""
     p = sub.add_parser(
-        "validate", help="validate a gain set again by Monte Carlo on the nonlinear rig",
+        "validate",
         description=(
             "Run a gain set's gains and feedforward on a new Monte Carlo set of nonlinear rigs drawn around "
             "the plant it names, against the criteria it names, and report worst case and percentiles. "
