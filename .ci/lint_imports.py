@@ -21,4 +21,4 @@ if missing:
     sys.exit(f"error: {', '.join(missing)}: these links are not folders in this checkout (check it out with "
              "symbolic links, see docs/architecture.md), so the import contract cannot see those floors")
 lint = Path(sys.executable).with_name("lint-imports")
-sys.exit(subprocess.run([str(lint), "--config", str(root / "pyproject.toml")], cwd=root).returncode)
+sys.exit(subprocess.run([str(lint)], cwd=root).returncode)  # it reads pyproject.toml from the root
