@@ -17,7 +17,7 @@ from __future__ import annotations
 import html
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -28,6 +28,9 @@ from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import SCHEDULE_MAX, Controller, GainSchedule, PIDGains
 from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at, model_from_dict
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["GainSet", "RigInterlocks", "REFERENCES", "STATUSES", "gains_to_dict", "gains_from_dict",
            "schedule_from_dict"]
@@ -275,7 +278,7 @@ class GainSet:
         validation = "" if self.validation is None else self.validation._repr_html_()
         return f"<p><b>Gain set</b></p><table>{body}</table>{validation}"
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """The Monte Carlo validation it carries, each bounded metric over the plants against its limit: a Figure."""
         if self.validation is None:
             raise InputError("the gain set carries no validation to plot; validate it first")

@@ -10,13 +10,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from piezopreload.artifacts._fields import Fields
 from piezopreload.core._typing import Array
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["LoadProfile", "ScheduleSpec", "PreloadSchedule"]
 
@@ -180,13 +183,12 @@ class PreloadSchedule:
             constant_friction_energy_J=f.number("constant_friction_energy"), energy_units=f.text("energy_units"),
             status=f.text("status"), **series))
 
-    def plot(self, axes: Any = None) -> Any:
-        """Load profile, the two preloads, and rigidity against the requirement, on three axes (new ones on a
-        :class:`~matplotlib.figure.Figure` where none are given); returns the axes."""
-        if axes is None:
-            from matplotlib.figure import Figure
+    def plot(self) -> Figure:
+        """Load profile, the two preloads, and rigidity against the requirement, on three axes: a Figure."""
+        from matplotlib.figure import Figure
 
-            axes = Figure(figsize=(6.0, 6.0), layout="constrained").subplots(3, 1, sharex=True)
+        fig = Figure(figsize=(6.0, 6.0), layout="constrained")
+        axes = fig.subplots(3, 1, sharex=True)
         t = self.profile.time_s
         axes[0].plot(t, self.profile.axial_load_N, color="0.3")
         axes[0].set_ylabel("axial load (N)")
@@ -200,4 +202,4 @@ class PreloadSchedule:
         axes[2].set_ylabel("rigidity (N/um)")
         axes[2].set_xlabel("time (s)")
         axes[2].legend(fontsize="small")
-        return axes
+        return fig

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,6 +22,9 @@ from piezopreload.artifacts.requirements import Requirement
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError
 from piezopreload.models.closedloop import PAPER_BAND_N
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["Criteria", "Metrics", "Failure", "ValidationResult", "METRICS"]
 
@@ -314,7 +317,7 @@ class ValidationResult:
                 f"(seed {self.seed})</p>"
                 f"<table><tr><th>limit</th><th>worst plant</th><th>limit</th><th>verdict</th></tr>{rows}</table>")
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """A Figure: each bounded metric's distribution over the plants, with its limit dashed."""
         from matplotlib.figure import Figure
 

@@ -64,7 +64,7 @@ import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
@@ -90,6 +90,10 @@ from piezopreload.models.ballscrew import (
 )
 from piezopreload.models.feed_drive import FeedDrive, PiezoPreload, stack_loop_um
 from piezopreload.models.ops import CASADI, NUMPY
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 __all__ = ["DesignSpec", "DesignOptimum", "DesignInfeasible", "ParetoFront", "OBJECTIVES",
            "PARETO_PAIRS", "CONSTRAINTS", "WEIGHTS", "optimise", "pareto_front", "DesignNLP"]
@@ -274,12 +278,12 @@ class DesignOptimum:
         return {"objective": self.objective, "point": self.point.to_dict(), "binding": self.binding,
                 "integer_candidates": self.tried, "solve_s": self.solve_s, "nlp_solves": self.nlp_solves}
 
-    def plot(self, ax: Any = None) -> Any:
-        """Rigidity against preload for the optimum's screw, the design's preloads marked."""
-        import matplotlib.pyplot as plt
+    def plot(self) -> Figure:
+        """Rigidity against preload for the optimum's screw, the design's preloads marked: a Figure."""
+        return _figure(self.draw)
 
-        if ax is None:
-            _, ax = plt.subplots(figsize=(5.5, 3.5))
+    def draw(self, ax: Axes) -> None:
+        """:meth:`plot` on ``ax`` (a figure's panel)."""
         screw = self.spec.screw(self.point)
         fp = np.linspace(0.25 * self.point.bolt_preload_N, 1.5 * self.point.max_preload_N, 200)
         ax.plot(fp, screw.rigidity_N_per_um(fp), label="rigidity, no load")
@@ -291,7 +295,6 @@ class DesignOptimum:
         ax.set_xlabel("preload F_p (N)")
         ax.set_ylabel("axial rigidity (N/um)")
         ax.legend(fontsize="small")
-        return ax
 
 
 @dataclass(frozen=True)
@@ -312,16 +315,25 @@ class ParetoFront:
                 "y": self.y.tolist(), "points": [p.to_dict() for p in self.points], "solve_s": self.solve_s,
                 "nlp_solves": self.nlp_solves}
 
-    def plot(self, ax: Any = None) -> Any:
-        import matplotlib.pyplot as plt
+    def plot(self) -> Figure:
+        """The front, the optimised quantity against the swept one: a Figure."""
+        return _figure(self.draw)
 
-        if ax is None:
-            _, ax = plt.subplots(figsize=(5.5, 3.5))
+    def draw(self, ax: Axes) -> None:
+        """:meth:`plot` on ``ax`` (a figure's panel)."""
         ax.plot(self.x, self.y, "o-", ms=3)
         ax.set_xlabel(_LABELS[self.x_name])
         ax.set_ylabel(_LABELS[self.y_name])
         ax.set_title(f"Pareto front, {self.pair}")
-        return ax
+
+
+def _figure(draw: Callable[[Axes], None]) -> Figure:
+    """A one-panel Figure (made without pyplot) drawn by ``draw``."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(5.5, 3.5), layout="constrained")
+    draw(fig.subplots())
+    return fig
 
 
 _LABELS = {"stiffness": "least rigidity over the duty cycle (N/um)", "preload": "max preload F_hi (N)",

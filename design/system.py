@@ -50,7 +50,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -75,6 +75,9 @@ from piezopreload.models.actuator import Rig
 from piezopreload.models.ballscrew import LIFT_OFF_RATIO
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["PRE_CYCLE_REST_S", "ROUND_OFF", "SystemRun", "Evaluation", "pre_cycle_for", "schedule_reference",
            "track_schedule", "evaluate_tracking", "requirements_of", "folded_shortfall", "binding_stretches",
@@ -408,7 +411,7 @@ class SystemRun:
                   f"local margins up to {self.margin_N:.1f} N")
         return paths
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """Planned against achieved preload, rigidity against the requirement, deflection: a Figure."""
         from matplotlib.figure import Figure
 

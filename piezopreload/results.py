@@ -14,7 +14,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -48,6 +48,9 @@ from piezopreload.tuning.learning import LearningResult, save_passes
 from piezopreload.tuning.pid import TuningInfeasible, tune_pid
 from piezopreload.tuning.schedule import schedule_levels, tune_schedule
 from piezopreload.tuning.verdict import validate_gain_set
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["TuningResult", "StudyRun", "ScheduleLearning", "tune", "simulate", "reproduce"]
 
@@ -193,7 +196,7 @@ class TuningResult:
             "gain_schedule": self.solve.schedule,  # the schedule's entries, figures and choice, or None
         }
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """The comparison table as bars (settling time, tracking RMS): a Figure."""
         from piezopreload.reports import figures  # matplotlib only when drawing
 
@@ -299,7 +302,7 @@ class StudyRun(ClosedLoopRun):
             **{k: numbers[k] for k in (*_STEP_KEYS, "peak_command_V", *(_TRACK_KEYS if tracking else ()))},
         }
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """Reference and force (top), command and amplifier voltage (bottom): a Figure."""
         from piezopreload.reports import figures  # matplotlib only when drawing
 
@@ -420,7 +423,7 @@ class ScheduleLearning:
                 f"{self.system.margin_N:.1f} N: tracking RMS {self.last.tracking_rms_N:.2f} N after learning, "
                 f"{self.before_learning_rms_N:.2f} N before; requirements met: {self.system.requirements_met})")
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """The error per iteration of each pass (left) and the schedule's tracking (the system run's figure is
         ``system.plot()``): a Figure."""
         from matplotlib.figure import Figure

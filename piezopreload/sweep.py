@@ -43,7 +43,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.requirements import EXIT_REQUIREMENT_MISSED
@@ -68,6 +68,9 @@ from piezopreload.reports.sweep_figures import sweep_plot
 from piezopreload.reports.sweep_report import render_sweep_report
 from piezopreload.study import Study
 from piezopreload.tuning.validate import SchedulerError
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["sweep", "SweepResult", "parse_vary", "plan_points", "headline", "rerender_sweep_report", "is_sweep_folder",
            "DEFAULT_SWEEP_OUT", "EXIT_POINT_FAILED"]
@@ -558,7 +561,7 @@ class SweepResult:
         return pd.DataFrame(self.rows, columns=list(self.record.columns()))
 
     def plot(self, x: str | None = None, y: str | Sequence[str] = "worst_settling_s", *,
-             by: str | Sequence[str] | None = None) -> Any:
+             by: str | Sequence[str] | None = None) -> Figure:
         """A figure of ``y`` (a column, or several: one panel each) against ``x`` (default: the first swept key),
         one line per value of ``by`` (default: the other swept keys of a grid); failed points marked."""
         x = x or self.keys[0]

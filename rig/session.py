@@ -25,7 +25,7 @@ import threading
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -48,6 +48,9 @@ from piezopreload.rig.opcua import PushRefused, RigServer, feedforward_hash, pus
 from piezopreload.rig.outcome import RunResult
 from piezopreload.rig.runlog import RunLog
 from piezopreload.rig.tables import INTERLOCK_KEYS
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["EXIT_TRIPPED", "HOST_CHECK_S", "MAX_REFERENCE_S", "RigRun", "load_validated", "reference_for",
            "run_metrics", "run", "serve", "push", "check_pushed", "check"]
@@ -168,7 +171,7 @@ class RigRun:
     def to_dict(self) -> dict[str, Any]:
         return dict(self.summary)
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """Reference and measured force (top), amplifier voltage (bottom); grey: the ramp down."""
         from matplotlib.figure import Figure
 

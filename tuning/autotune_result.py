@@ -18,7 +18,7 @@ from __future__ import annotations
 import html
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import control
 import numpy as np
@@ -29,6 +29,9 @@ from piezopreload.artifacts.tuning import ActiveBound
 from piezopreload.core.errors import InputError
 from piezopreload.tuning.lti import LinearPlant
 from piezopreload.tuning.pidform import PIDController
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["AutotuneResult", "Margins", "StartRecord", "sensitivity_peaks", "margins_of", "achieved"]
 
@@ -297,7 +300,7 @@ class AutotuneResult:
         return out
 
     # ---- its picture ---------------------------------------------------------------------------------
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """The gang of four (``|S|``, ``|T|``, ``|PS|``, ``|CS|``) with the bounds, and the load step: a Figure."""
         from piezopreload.tuning.autotune_plot import draw
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 import hashlib
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -30,6 +30,9 @@ from piezopreload.models.closedloop import simulate_open_loop, triangle
 from piezopreload.models.hysteresis import ClassicalPI, CreepPI, HysteresisModel, NotInvertibleError, inverse_at
 from piezopreload.tuning.identification import Window, identify
 from piezopreload.tuning.identify import MODELS
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["LoopExcitation", "FeedforwardModel", "IdentifiedFeedforward", "CompensationCheck", "identify_feedforward",
            "simulate_loop", "compensation_check", "loop_covers"]
@@ -218,7 +221,7 @@ class IdentifiedFeedforward:
             raise InputError(f"{path}: the model cannot serve as a feedforward: {exc}") from None
         return cls(record)
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """The loop measurement and the model (left), the rig through the inverse in open loop (right)."""
         from matplotlib.figure import Figure
 

@@ -24,7 +24,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -47,6 +47,9 @@ from piezopreload.tuning.preview import (
     preview_feedforward,
 )
 from piezopreload.tuning.validate import DEFAULT_SPREAD
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["METHODS", "Iteration", "LearningResult", "learn", "law_for", "more_trials_pay", "within_1p1",
            "schedule_learner", "learn_from_run", "learn_from_log", "save_passes", "played_passes",
@@ -199,7 +202,7 @@ class LearningResult:
             **self.preview.to_dict(), **self.info,
         }
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """The error per trial (left) and the best trial's force against the reference (right): a Figure."""
         from matplotlib.figure import Figure
 
