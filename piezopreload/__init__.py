@@ -22,6 +22,10 @@ __all__ = [
     "export", "identify", "Identification", "PIIdentifier", "NotFittedError", "IdentifiedModel", "Window",
     "autotune", "AutotuneResult", "fit_plant", "FittedPlant", "PiezopreloadError", "InputError", "ArtifactError",
     "InfeasibleError", "InternalError", "SweepResult",
+    # the results a study's steps give back, and the records they carry (what a script reads off them)
+    "StudyResult", "SystemRun", "LearningResult", "ValidationResult", "Metrics", "Failure", "Requirement",
+    "ComparisonRow", "ActiveBound", "MinimumTimeBound", "TrackingFloor", "TuningSolve", "DesignRecord", "DesignPoint",
+    "DesignedPlant", "PreloadSchedule", "SystemRecord", "TrackingNumbers", "FitError", "LearnedSignal", "SweepPoint",
 ]
 
 #: the module each public name comes from: a name is imported on its first use (a module ``__getattr__``, as numpy
@@ -30,6 +34,7 @@ _EXPORTS: dict[str, str] = {name: module for module, names in {
     "piezopreload.study": ("load_study", "shipped_studies", "Study"),
     "piezopreload.results": ("TuningResult", "StudyRun", "ScheduleLearning"),
     "piezopreload.sweep": ("SweepResult",),
+    "piezopreload.outcome": ("StudyResult",),
     "piezopreload.core.errors": ("PiezopreloadError", "InputError", "ArtifactError", "InfeasibleError",
                                  "InternalError"),
     "piezopreload.core.tables": ("Record", "read_record"),
@@ -38,9 +43,21 @@ _EXPORTS: dict[str, str] = {name: module for module, names in {
     "piezopreload.models.controller": ("PIDGains",),
     "piezopreload.models.metrics": ("StepMetrics",),
     "piezopreload.artifacts.gainset": ("GainSet",),
-    "piezopreload.artifacts.hysteresis": ("IdentifiedModel",),
+    "piezopreload.artifacts.hysteresis": ("IdentifiedModel", "FitError"),
+    "piezopreload.artifacts.validation": ("ValidationResult", "Metrics", "Failure"),
+    "piezopreload.artifacts.requirements": ("Requirement",),
+    "piezopreload.artifacts.tuning": ("ComparisonRow", "ActiveBound", "MinimumTimeBound", "TrackingFloor",
+                                      "TuningSolve"),
+    "piezopreload.artifacts.design": ("DesignRecord", "DesignPoint"),
+    "piezopreload.artifacts.plant": ("DesignedPlant",),
+    "piezopreload.artifacts.schedule": ("PreloadSchedule",),
+    "piezopreload.artifacts.system": ("SystemRecord", "TrackingNumbers"),
+    "piezopreload.artifacts.learned": ("LearnedSignal",),
+    "piezopreload.artifacts.sweep": ("SweepPoint",),
     "piezopreload.design.study": ("DesignResult",),
+    "piezopreload.design.system": ("SystemRun",),
     "piezopreload.tuning.feedforward": ("IdentifiedFeedforward",),
+    "piezopreload.tuning.learning": ("LearningResult",),
     "piezopreload.tuning.identification": ("identify", "Identification", "Window"),
     "piezopreload.tuning.identify": ("PIIdentifier", "NotFittedError"),
     "piezopreload.tuning.autotune": ("autotune",),
@@ -51,15 +68,26 @@ _EXPORTS: dict[str, str] = {name: module for module, names in {
 
 if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests/test_typing.py holds the three equal)
     __version__: str
+    from piezopreload.artifacts.design import DesignPoint, DesignRecord
     from piezopreload.artifacts.gainset import GainSet
-    from piezopreload.artifacts.hysteresis import IdentifiedModel
+    from piezopreload.artifacts.hysteresis import FitError, IdentifiedModel
+    from piezopreload.artifacts.learned import LearnedSignal
+    from piezopreload.artifacts.plant import DesignedPlant
+    from piezopreload.artifacts.requirements import Requirement
+    from piezopreload.artifacts.schedule import PreloadSchedule
+    from piezopreload.artifacts.sweep import SweepPoint
+    from piezopreload.artifacts.system import SystemRecord, TrackingNumbers
+    from piezopreload.artifacts.tuning import ActiveBound, ComparisonRow, MinimumTimeBound, TrackingFloor, TuningSolve
+    from piezopreload.artifacts.validation import Failure, Metrics, ValidationResult
     from piezopreload.core.errors import ArtifactError, InfeasibleError, InputError, InternalError, PiezopreloadError
     from piezopreload.core.tables import Record, read_record
     from piezopreload.design.study import DesignResult
+    from piezopreload.design.system import SystemRun
     from piezopreload.models.actuator import Plant
     from piezopreload.models.closedloop import ClosedLoopRun, Reference
     from piezopreload.models.controller import PIDGains
     from piezopreload.models.metrics import StepMetrics
+    from piezopreload.outcome import StudyResult
     from piezopreload.results import ScheduleLearning, StudyRun, TuningResult
     from piezopreload.rig.export import export
     from piezopreload.study import Study, load_study, shipped_studies
@@ -69,6 +97,7 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     from piezopreload.tuning.feedforward import IdentifiedFeedforward
     from piezopreload.tuning.identification import Identification, Window, identify
     from piezopreload.tuning.identify import NotFittedError, PIIdentifier
+    from piezopreload.tuning.learning import LearningResult
     from piezopreload.tuning.plantfit import FittedPlant, fit_plant
 
 
