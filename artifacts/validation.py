@@ -22,6 +22,7 @@ from piezopreload.artifacts.requirements import Requirement
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError
 from piezopreload.models.closedloop import PAPER_BAND_N
+from piezopreload.models.controller import OUTPUT_MAX_V
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -61,7 +62,7 @@ class Criteria:
     settling_max_s: float = 0.60
     overshoot_max_N: float = PAPER_BAND_N
     tracking_rms_max_N: float = 1.0
-    peak_voltage_max_V: float = 110.0
+    peak_voltage_max_V: float = OUTPUT_MAX_V
     band_N: float = PAPER_BAND_N
     signal: str = "force_N"
     tracking_after_change_s: float = 0.1

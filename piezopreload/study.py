@@ -681,12 +681,12 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
     c: ControllerTable = t["controller"]
     sim: SimulationTable = t["simulation"]
     try:
-        gains = PIDGains(Kc=c.Kc, Ti_s=c.seconds * c.Ti, Td_s=c.seconds * c.Td, Tf_s=c.Tf_s, b=c.b, u_min=c.u_min_V,
-                         u_max=c.u_max_V)
+        gains = PIDGains(Kc=c.Kc, Ti_s=c.seconds * c.Ti, Td_s=c.seconds * c.Td, Tf_s=c.Tf_s, b=c.b, u_min_V=c.u_min_V,
+                         u_max_V=c.u_max_V)
     except ValueError as exc:  # every key was checked; a rule between them the table misses
         raise fail("controller", f"does not make PID gains: {exc}") from None
     try:
-        spec = t["tuning"].spec(band_N=sim.band_N, u_min_V=gains.u_min, u_max_V=gains.u_max)
+        spec = t["tuning"].spec(band_N=sim.band_N, u_min_V=gains.u_min_V, u_max_V=gains.u_max_V)
     except Invalid as exc:
         raise fail(f"tuning.{exc.path}", exc.message) from None
     except ValueError as exc:  # every key was checked; a rule between them the table misses

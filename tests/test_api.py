@@ -134,7 +134,7 @@ def test_the_gain_set_round_trips_and_its_exports_are_the_cli_s(gain_set, tmp_pa
     plc = dict(line.split(" = ") for line in pp.export(loaded, "plc").splitlines()
                if " = " in line and not line.startswith(";"))
     assert ([float(plc[k]) for k in ("Kp", "Tn", "Tv", "Ymax")]
-            == pytest.approx([g.Kc, g.Ti_s, g.Td_s, g.u_max], rel=1e-11))
+            == pytest.approx([g.Kc, g.Ti_s, g.Td_s, g.u_max_V], rel=1e-11))
     assert f"#define PP_TI_S {g.Ti_s!r}" in pp.export(loaded, "c-header")
     assert json.loads(pp.export(loaded, "json"))["gains"]["Ti_s"] == g.Ti_s
     doc = json.loads(path.read_text())

@@ -334,7 +334,7 @@ class AutotuneResult:
         if self.Ts is not None and abs(Ts - self.Ts) > 1e-9 * self.Ts:
             raise InputError(f"the controller was tuned discrete at Ts {self.Ts:g} s; "
                              f"its gain set runs at that period, not at {Ts:g} s")
-        gains = self.controller_.isa(u_min=float(u_min_V), u_max=float(u_max_V), b=float(b))
+        gains = self.controller_.isa(u_min_V=float(u_min_V), u_max_V=float(u_max_V), b=float(b))
         check = self.discrete_check(Ts)
         sampled = {"method": "the autotuned loop at its sample period: the controller step behind a zero-order "
                              "hold, its stability and its largest |S|, |T|, |KS| against the bounds",

@@ -19,7 +19,7 @@ import numpy as np
 from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Rig
 from piezopreload.models.closedloop import simulate_open_loop
-from piezopreload.models.controller import PIDGains
+from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V, PIDGains
 
 __all__ = ["FOPDT", "fit_first_order", "fit_fopdt", "simc", "amigo", "amigo_integrating"]
 
@@ -105,7 +105,8 @@ def fit_fopdt(rig: Rig, feedforward: Any, *, level_N: float = 60.0, step_V: floa
     return fit_first_order(t, y, step_V, thetas, (1e-4, 10.0))
 
 
-def simc(model: FOPDT, *, tau_c_s: float | None = None, u_min_V: float = 0.0, u_max_V: float = 110.0) -> PIDGains:
+def simc(model: FOPDT, *, tau_c_s: float | None = None, u_min_V: float = OUTPUT_MIN_V,
+         u_max_V: float = OUTPUT_MAX_V) -> PIDGains:
     """Skogestad's SIMC PI rule: ``Kc = T / (K (tau_c + theta))``, ``Ti = min(T, 4 (tau_c + theta))``.
 
     ``tau_c`` defaults to ``theta`` (SIMC's "tight control" choice).
@@ -114,7 +115,7 @@ def simc(model: FOPDT, *, tau_c_s: float | None = None, u_min_V: float = 0.0, u_
     tau_c = max(tau_c, 1e-4)
     Kc = model.T_s / (model.K * (tau_c + model.theta_s))
     Ti = min(model.T_s, 4.0 * (tau_c + model.theta_s))
-    return PIDGains(Kc=Kc, Ti_s=Ti, Td_s=0.0, Tf_s=0.0, u_min=u_min_V, u_max=u_max_V)
+    return PIDGains(Kc=Kc, Ti_s=Ti, Td_s=0.0, Tf_s=0.0, u_min_V=u_min_V, u_max_V=u_max_V)
 
 
 def _check_form(form: str) -> None:

@@ -235,7 +235,7 @@ def _tuned(params: Plant, controller: Controller, lin: LoopLinearisation, q_cuto
     gains = controller.gains
     dt = params.sample_period_s
     ki = 0.0 if not np.isfinite(gains.Ti_s) else gains.Kc / gains.Ti_s
-    base = LearningModel(lin.A, lin.B[:, None], lin.C[None, :], dt, u_range_V=(gains.u_min, gains.u_max),
+    base = LearningModel(lin.A, lin.B[:, None], lin.C[None, :], dt, u_range_V=(gains.u_min_V, gains.u_max_V),
                          sp_gain=gains.Kc * gains.b, sp_integral_per_s=ki)
     return tune_laws(base, q_cutoff_Hz=q_cutoff_Hz)
 
@@ -255,7 +255,7 @@ def learning_model_over(params: Plant, controller: Controller, voltages_V: Any =
     """
     gains = controller.gains
     if voltages_V is None:
-        voltages_V = np.linspace(max(gains.u_min, 0.0), gains.u_max, 5)
+        voltages_V = np.linspace(max(gains.u_min_V, 0.0), gains.u_max_V, 5)
     v = np.unique(np.asarray(voltages_V, float).ravel())
     lins = linearise_loop(params, controller, np.concatenate([v, [v0_V]]))
     loops = [_tuned(params, controller, lin, q_cutoff_Hz) for lin in lins[:-1]]

@@ -414,7 +414,7 @@ def _initial(initial_V: Array, preview: Preview) -> Array:
 def _run_trials(controller: Controller, rig: Rig, preview: Preview, law: Law, u: Array, iterations: int, seed: int,
                 grow_tol: float, stop_gain: float | None, say: Callable[[str], None]) -> _Trials:
     """Trial 0 and up to ``iterations`` learning trials on every plant of ``rig``."""
-    lo, hi = controller.gains.u_min, controller.gains.u_max
+    lo, hi = controller.gains.u_min_V, controller.gains.u_max_V
     scored_from = preview.reference.times_s[min(1, preview.reference.times_s.size - 1)]
     sensor = np.broadcast_to(np.asarray(rig.params.noise_N, float), u.shape[:-1])
     book: _Trials | None = None

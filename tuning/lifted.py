@@ -119,7 +119,7 @@ class LiftedLoop:
 def level_linearisations(params: Plant, controller: Controller, target_N: Array, count: int) -> list[LoopLinearisation]:
     """Linearisations at rest at ``count`` levels spanning ``target_N`` (by force; at least two)."""
     g = controller.gains
-    coarse = linearise_loop(params, controller, np.linspace(g.u_min, g.u_max, 9))
+    coarse = linearise_loop(params, controller, np.linspace(g.u_min_V, g.u_max_V, 9))
     volts, forces = np.array([c.voltage_V for c in coarse]), np.array([c.force_N for c in coarse])
     lo, hi = float(np.min(target_N)), float(np.max(target_N))
     wanted = np.linspace(lo, hi, max(count, 2)) if hi > lo else np.array([lo])

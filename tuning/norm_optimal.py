@@ -524,7 +524,7 @@ def norm_optimal_law(params: Plant, controller: Controller, target_N: Array, bas
     base = np.zeros_like(target) if base_V is None else np.asarray(base_V, float)
     if base.shape != target.shape:
         raise InputError(f"base_V has shape {base.shape}; the plan {target.shape}")
-    return NormOptimalLaw(lifted, float(weight), choice, (g.u_min, g.u_max),
+    return NormOptimalLaw(lifted, float(weight), choice, (g.u_min_V, g.u_max_V),
                           float(params.slew_V_per_s) * params.sample_period_s, target, base, float(params.noise_N),
                           constrained)
 

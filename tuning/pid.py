@@ -49,7 +49,7 @@ from piezopreload.core import native
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import PAPER_BAND_N, Reference
-from piezopreload.models.controller import PIDGains
+from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V, PIDGains
 from piezopreload.models.hysteresis import InverseModel
 from piezopreload.models.ops import Layout
 from piezopreload.tuning.fopdt import FOPDT, fit_fopdt, simc
@@ -119,8 +119,8 @@ class TuningSpec:
     overshoot_margin_N: float = 0.6
     ms_max: float = 1.6
     noise_gain_max_V_per_N: float = 8.0
-    u_min_V: float = 0.0
-    u_max_V: float = 110.0
+    u_min_V: float = OUTPUT_MIN_V
+    u_max_V: float = OUTPUT_MAX_V
     step: Reference = field(default_factory=lambda: Reference.step(25.0, 60.0, 0.02, 0.6))
     trajectory: Reference = field(
         default_factory=lambda: Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 0.4, t_start_s=0.02)
@@ -306,7 +306,7 @@ class _Scaling:
         x = {n: float(self.value(n, float(z[i]))) for i, n in enumerate(self.names)}
         return PIDGains(Kc=x["Kc"], Ti_s=x["Ti"], Td_s=x.get("Td", 0.0), Tf_s=x.get("Tf", spec.filter_s or 0.0),
                         b=x.get("b", spec.setpoint_weight),
-                        u_min=spec.u_min_V, u_max=spec.u_max_V)
+                        u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
 
     def on_bounds(self, z: np.ndarray) -> list[tuple[str, str, float]]:
         """``(name, side, bound)`` of every gain (not ``b``) within :data:`_ON_BOUND` of an end of its box."""

@@ -33,7 +33,7 @@ from piezopreload.core._typing import Array, IntArray
 from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Plant, Rig, reach_N
 from piezopreload.models.closedloop import Reference
-from piezopreload.models.controller import Controller
+from piezopreload.models.controller import OUTPUT_MAX_V, Controller
 from piezopreload.tuning.bounds import tracking_floor
 
 __all__ = ["AFTER_CHANGE_S", "PLAN_SLEW_FRACTION", "advance", "PreviewPlan", "Preview", "plan_preview",
@@ -107,7 +107,8 @@ def feedforward_lead(params: Plant) -> int:
     return int(params.delay_samples) + 1 + int(round(tau / params.sample_period_s))
 
 
-def branch_ramps(params: Plant, levels_N: Array, u_max_V: float = 110.0, slew_fraction: float = 1.0) -> list[Array]:
+def branch_ramps(params: Plant, levels_N: Array, u_max_V: float = OUTPUT_MAX_V,
+                 slew_fraction: float = 1.0) -> list[Array]:
     """Per change of ``levels_N``, the fastest force path along the rig's own hysteresis branch.
 
     The quasi-static rig (:meth:`~piezopreload.models.actuator.Rig.quasi_static_loop`: the truth
@@ -143,7 +144,7 @@ def branch_ramps(params: Plant, levels_N: Array, u_max_V: float = 110.0, slew_fr
     return ramps
 
 
-def preview_plan(params: Plant, reference: Reference, preview_s: float, *, u_max_V: float = 110.0,
+def preview_plan(params: Plant, reference: Reference, preview_s: float, *, u_max_V: float = OUTPUT_MAX_V,
                  lead_samples: int | None = None, ramps: list[Array] | None = None,
                  after_change_weight: float = 0.0) -> PreviewPlan:
     """The preview floor and the planned force (see the module docstring).
@@ -216,7 +217,7 @@ def preview_plan(params: Plant, reference: Reference, preview_s: float, *, u_max
     return PreviewPlan(t, force, rms, floor["rate_N_per_s"], float(preview_s), lead, starts, (lo, hi))
 
 
-def ramp_plan(params: Plant, reference: Reference, preview_s: float, *, u_max_V: float = 110.0,
+def ramp_plan(params: Plant, reference: Reference, preview_s: float, *, u_max_V: float = OUTPUT_MAX_V,
               lead_samples: int | None = None) -> PreviewPlan:
     """The plan and the preview floor of a ramped (piecewise linear) reference.
 
@@ -342,7 +343,7 @@ def plan_preview(params: Plant, controller: Controller, reference: Reference, pr
     if params.batch_shape:
         raise InputError("plan_preview: give one plant (the nominal), not a batch")
     preview = default_preview_s(params, reference) if preview_s is None else float(preview_s)
-    u_max = controller.gains.u_max
+    u_max = controller.gains.u_max_V
     floor = preview_plan(params, reference, preview, u_max_V=u_max)
     lead = feedforward_lead(params) if preview > 0 else 0
     held = reference.interpolation == "hold"  # a ramped reference has no jumps to slew across
