@@ -15,10 +15,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from piezopreload.artifacts._fields import Fields
 from piezopreload.artifacts.schedule import PreloadSchedule
+from piezopreload.core._typing import Array
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import InputError
 
@@ -26,7 +26,6 @@ __all__ = ["CONSTRAINT_WORDS", "VARIABLE_WORDS", "binding_words", "case_words", 
            "PreloadCurve", "DutyCasePoint", "FrequencyCurve", "DesignRecord", "KIND"]
 
 KIND = "design"
-Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ import html
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -30,8 +30,11 @@ from piezopreload.core.artifacts import content_hash, parse_artifact, read_artif
 from piezopreload.core.errors import ArtifactError, InputError
 from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
-from piezopreload.models.controller import SCHEDULE_MAX, Controller, GainSchedule, PIDGains
+from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V, SCHEDULE_MAX, Controller, GainSchedule, PIDGains
 from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at, model_from_dict
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["GainSet", "RigInterlocks", "REFERENCES", "STATUSES", "gains_to_dict", "gains_from_dict",
            "schedule_from_dict"]
@@ -47,7 +50,7 @@ _REWRITE = "write the gain set again with 'piezopreload tune'"
 def gains_to_dict(gains: PIDGains) -> dict[str, Any]:
     """The gains in SI with the controller form stated, plus LabVIEW's minutes; a schedule as its table."""
     out = {"Kc_V_per_N": gains.Kc, "Ti_s": gains.Ti_s, "Td_s": gains.Td_s, "Tf_s": gains.Tf_s, "b": gains.b,
-           "u_min_V": gains.u_min, "u_max_V": gains.u_max, "form": _FORM_SHORT, "labview": gains.labview()}
+           "u_min_V": gains.u_min_V, "u_max_V": gains.u_max_V, "form": _FORM_SHORT, "labview": gains.labview()}
     if gains.schedule is not None:
         out["schedule"] = gains.schedule.to_dict()
     return out
@@ -96,7 +99,8 @@ def gains_from_dict(g: Any, where: str = "gains") -> PIDGains:
     try:
         return PIDGains(Kc=float(g["Kc_V_per_N"]), Ti_s=float(g["Ti_s"]), Td_s=float(g["Td_s"]),
                         Tf_s=float(g.get("Tf_s", 0.0)), b=float(g.get("b", 1.0)),
-                        u_min=float(g.get("u_min_V", 0.0)), u_max=float(g.get("u_max_V", 110.0)), schedule=schedule)
+                        u_min_V=float(g.get("u_min_V", OUTPUT_MIN_V)), u_max_V=float(g.get("u_max_V", OUTPUT_MAX_V)),
+                        schedule=schedule)
     except (TypeError, ValueError) as exc:
         raise InputError(f"field '{where}' is not valid: {exc}") from exc
 
@@ -336,7 +340,7 @@ class GainSet:
         validation = "" if self.validation is None else self.validation._repr_html_()
         return f"<p><b>Gain set</b></p><table>{body}</table>{validation}"
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """The Monte Carlo validation it carries, each bounded metric over the plants against its limit: a Figure."""
         if self.validation is None:
             raise InputError("the gain set carries no validation to plot; validate it first")

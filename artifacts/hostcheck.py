@@ -12,11 +12,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from piezopreload.core.errors import ArtifactError
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["HostCheck", "Criterion", "HostFacts", "BIN_EDGES_S"]
 
@@ -164,7 +167,7 @@ class HostCheck:
             lines.append(f"  {label} {n:>8} {bar}")
         return "\n".join(lines)
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """The lateness histogram on a log axis with the budget and the stall limit marked: a Figure."""
         from matplotlib.figure import Figure
 

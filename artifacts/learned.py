@@ -165,7 +165,7 @@ class LearnedSignal:
     def setpoint(self) -> Reference:
         """The setpoint as a reference the loop can run (one level per sample)."""
         dt, s = self.sample_period_s, self.setpoint_N
-        return Reference(np.arange(s.size - 1) * dt, s[:-1], self.reference.duration_s)
+        return Reference(np.arange(s.size - 1, dtype=np.float64) * dt, s[:-1], self.reference.duration_s)
 
     def check(self, gain_set_sha256: str | None, reference: Reference | None = None,
               shown: str = "the learned signal") -> None:

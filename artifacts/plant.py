@@ -14,9 +14,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from piezopreload.artifacts._fields import Fields
+from piezopreload.core._typing import Array
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.models.actuator import Plant
 from piezopreload.models.ballscrew import BallScrew, Material
@@ -24,7 +25,6 @@ from piezopreload.models.ballscrew import BallScrew, Material
 __all__ = ["DesignedPlant", "KIND"]
 
 KIND = "plant"
-Array = NDArray[np.float64]
 
 #: the screw's fields the artifact records (its ``screw`` object), every one BallScrew takes
 _SCREW_FIELDS = tuple(f.name for f in fields(BallScrew) if f.name != "material")

@@ -10,16 +10,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from piezopreload.artifacts._fields import Fields
+from piezopreload.core._typing import Array
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["LoadProfile", "ScheduleSpec", "PreloadSchedule"]
-
-Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -128,16 +130,14 @@ class PreloadSchedule:
     constant_friction_energy_J: float
     energy_units: str
     status: str
-    needed_N: Array | None = None
-    margin_N: Array | None = None
-    margin_short_N: Array | None = None
+    needed_N: Array
+    margin_N: Array
+    margin_short_N: Array
 
     def __post_init__(self) -> None:
         n = np.asarray(self.profile.time_s).size
-        defaults = {"needed_N": self.preload_N, "margin_N": np.zeros(n), "margin_short_N": np.zeros(n)}
         for name in _SERIES:
-            value = getattr(self, name)
-            value = np.asarray(defaults[name] if value is None else value, float)
+            value = np.asarray(getattr(self, name), float)
             if value.shape != (n,) or not np.all(np.isfinite(value)):
                 raise ValueError(f"PreloadSchedule.{name} must hold one finite number per sample ({n}).")
             object.__setattr__(self, name, value)
@@ -183,13 +183,12 @@ class PreloadSchedule:
             constant_friction_energy_J=f.number("constant_friction_energy"), energy_units=f.text("energy_units"),
             status=f.text("status"), **series))
 
-    def plot(self, axes: Any = None) -> Any:
-        """Load profile, the two preloads, and rigidity against the requirement, on three axes (new ones on a
-        :class:`~matplotlib.figure.Figure` where none are given); returns the axes."""
-        if axes is None:
-            from matplotlib.figure import Figure
+    def plot(self) -> Figure:
+        """Load profile, the two preloads, and rigidity against the requirement, on three axes: a Figure."""
+        from matplotlib.figure import Figure
 
-            axes = Figure(figsize=(6.0, 6.0), layout="constrained").subplots(3, 1, sharex=True)
+        fig = Figure(figsize=(6.0, 6.0), layout="constrained")
+        axes = fig.subplots(3, 1, sharex=True)
         t = self.profile.time_s
         axes[0].plot(t, self.profile.axial_load_N, color="0.3")
         axes[0].set_ylabel("axial load (N)")
@@ -203,4 +202,4 @@ class PreloadSchedule:
         axes[2].set_ylabel("rigidity (N/um)")
         axes[2].set_xlabel("time (s)")
         axes[2].legend(fontsize="small")
-        return axes
+        return fig

@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from piezopreload.artifacts._fields import Fields
 from piezopreload.artifacts.requirements import Requirement, requirements_from_dict
 from piezopreload.artifacts.thermal import ThermalRecord
+from piezopreload.core._typing import Array
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError
 
@@ -31,7 +32,6 @@ __all__ = ["TrackingNumbers", "PreCycle", "PassRecord", "ScheduleBound", "Planne
            "SystemRecord", "KIND"]
 
 KIND = "system"
-Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -250,9 +250,8 @@ class SystemSeries:
     @classmethod
     def from_fields(cls, f: Fields) -> SystemSeries:
         t = f.array("time_s")
-        values = {name: f.array(name, t.size) for name in SERIES[1:]}
-        values["cutting"] = values["cutting"] > 0.5
-        return cls(time_s=t, **values)
+        values = {name: f.array(name, t.size) for name in SERIES[1:-1]}
+        return cls(time_s=t, cutting=f.array("cutting", t.size) > 0.5, **values)
 
 
 @dataclass(frozen=True, eq=False)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,6 +22,10 @@ from piezopreload.artifacts.requirements import Requirement
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError
 from piezopreload.models.closedloop import PAPER_BAND_N
+from piezopreload.models.controller import OUTPUT_MAX_V
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["Criteria", "Metrics", "Failure", "ValidationResult", "METRICS"]
 
@@ -58,7 +62,7 @@ class Criteria:
     settling_max_s: float = 0.60
     overshoot_max_N: float = PAPER_BAND_N
     tracking_rms_max_N: float = 1.0
-    peak_voltage_max_V: float = 110.0
+    peak_voltage_max_V: float = OUTPUT_MAX_V
     band_N: float = PAPER_BAND_N
     signal: str = "force_N"
     tracking_after_change_s: float = 0.1
@@ -314,7 +318,7 @@ class ValidationResult:
                 f"(seed {self.seed})</p>"
                 f"<table><tr><th>limit</th><th>worst plant</th><th>limit</th><th>verdict</th></tr>{rows}</table>")
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """A Figure: each bounded metric's distribution over the plants, with its limit dashed."""
         from matplotlib.figure import Figure
 

@@ -44,6 +44,8 @@ def _median_time(fn, repeats: int = REPEATS):
 
 def main() -> None:
     spec = load_study().design_spec
+    if spec is None:
+        raise SystemExit("the default study has no [design] table to benchmark")
     nlp = DesignNLP(spec)
     best = optimise(spec, "stiffness", nlp)
     ints = (int(best.point.turns), int(best.point.balls_per_turn))
@@ -53,8 +55,9 @@ def main() -> None:
 
     ours_s, ours = _median_time(lambda: nlp.solve(weights, y0, integers=ints))
     f, g = nlp.numpy_functions(weights)
-    bounds = list(zip(lbx, np.where(np.isinf(ubx), None, ubx)))
-    peer_s, peer = _median_time(lambda: minimize(
+    bounds = [(lo, None if np.isinf(hi) else hi) for lo, hi in zip(lbx, ubx)]
+    # scipy-stubs type a constraint dict's fun as scalar-valued; SLSQP takes a vector of inequalities
+    peer_s, peer = _median_time(lambda: minimize(  # type: ignore[call-overload]
         f, y0, method="SLSQP", bounds=bounds, constraints=[{"type": "ineq", "fun": lambda y: -g(y)}],
         options={"maxiter": 500, "ftol": 1e-10}))
     print(f"one NLP: CasADi/IPOPT {1e3 * ours_s:.2f} ms, objective {ours['f']:.10f} ({ours['status']}); "

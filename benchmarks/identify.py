@@ -42,7 +42,7 @@ from piezopreload.core.tables import parse_columns, read_record
 from piezopreload.data import SHIPPED_COLUMNS, shipped_data
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import simulate_open_loop
-from piezopreload.models.hysteresis import ClassicalPI, play, uniform_thresholds
+from piezopreload.models.hysteresis import ClassicalPI, CreepPI, play, uniform_thresholds
 from piezopreload.tuning.identify import MODELS, PIIdentifier, fit_error
 
 N_SAMPLES, N_OPERATORS, REPEATS = 100_000, 40, 5
@@ -110,7 +110,7 @@ def _shipped_fit(rec: Any, smooth: np.ndarray, near: np.ndarray, train: np.ndarr
     k = int(np.argmax(np.abs(pred[test] - rec.output[test])))
     out["max_at_s"] = float(rec.time_s[test][k])
     out["model_error_at_max_pct"] = float(bias[test][k])
-    if kwargs.get("creep"):
+    if isinstance(est.model_, CreepPI):
         out["creep_weights"] = est.model_.creep.weights.tolist()
         out["creep_time_constants_s"] = est.model_.creep.time_constants_s.tolist()
     return out

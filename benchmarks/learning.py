@@ -130,7 +130,7 @@ def monte_carlo(controller, rig, ref, plants: int, iterations: int, seed: int) -
     mc = learn(controller, rig, ref, iterations=iterations, plants=plants, seed=seed)
     m = mc.to_dict()
     rows = np.array([np.atleast_1d(h.tracking_rms_N) for h in mc.history])
-    limits = (controller.gains.u_min, controller.gains.u_max)
+    limits = (controller.gains.u_min_V, controller.gains.u_max_V)
     print(f"{plants} Monte Carlo plants: {m['converged_plants']} converged, {m['monotone_plants']} monotone, worst "
           f"{m['tracking_rms_N']:.3f} N ({time.perf_counter() - t0:.0f} s)", flush=True)
     return {"mc_plants": plants, "mc_converged_plants": m["converged_plants"],

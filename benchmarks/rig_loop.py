@@ -233,8 +233,8 @@ def main() -> dict:
         paths, shas = [], []
         for j, gains in enumerate((study.gains, PIDGains(Kc=study.gains.Kc * 0.8, Ti_s=study.gains.Ti_s * 1.2,
                                                          Td_s=study.gains.Td_s, Tf_s=study.gains.Tf_s,
-                                                         b=study.gains.b, u_min=study.gains.u_min,
-                                                         u_max=study.gains.u_max))):
+                                                         b=study.gains.b, u_min_V=study.gains.u_min_V,
+                                                         u_max_V=study.gains.u_max_V))):
             g = GainSet(gains=gains, status="validated", feedforward=ff, plant=study.plant, preset=study.name,
                         references={k: study.references[k] for k in ("step", "trajectory")},
                         criteria=Criteria(band_N=study.band_N))

@@ -56,14 +56,14 @@ def main() -> None:
     rel = max(abs(getattr(compiled.gains, k) - getattr(plain.gains, k)) / abs(getattr(plain.gains, k))
               for k in ("Kc", "Ti_s", "Td_s", "Tf_s", "b"))
 
-    kw = dict(n_plants=N_PLANTS, seed=study.seed if study.validation.seed is None else study.validation.seed,
-              step=study.references["step"], trajectory=study.references["trajectory"])
+    seed = study.seed if study.validation.seed is None else study.validation.seed
     seconds, results = {}, {}
     for workers in (1, 2):
         with executor(workers) as (pool, name):
             t0 = time.perf_counter()
             results[workers] = validate(compiled.gains, ff, study.plant, study.criteria, pool=pool,
-                                        pool_name=name, **kw)
+                                        pool_name=name, n_plants=N_PLANTS, seed=seed, step=study.references["step"],
+                                        trajectory=study.references["trajectory"])
             seconds[workers] = time.perf_counter() - t0
         print(f"validation of {N_PLANTS} plants on {name}: {seconds[workers]:.1f} s", flush=True)
     same = all((results[1].metrics[k] == results[2].metrics[k]).all() for k in results[1].metrics)

@@ -92,8 +92,10 @@ def code_hash(modules: tuple[str, ...]) -> str:
         h = hashlib.sha256()
         for name in modules:
             root = Path(importlib.import_module(name).__file__ or "").parent
+            real = root.resolve()  # the package's own files: not a subpackage linked into it (piezopreload/core)
             for path in sorted(p for p in root.rglob("*")
-                               if p.suffix in (".py", ".typ") and "__pycache__" not in p.parts):
+                               if p.suffix in (".py", ".typ") and "__pycache__" not in p.parts
+                               and p.resolve().is_relative_to(real)):
                 h.update(f"{name}/{path.relative_to(root).as_posix()}\n".encode())
                 h.update(path.read_bytes())
         _CODE_HASHES[key] = h.hexdigest()

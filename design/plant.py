@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import Any
 
 from piezopreload.artifacts.design import DesignPoint
 from piezopreload.artifacts.plant import DesignedPlant
@@ -65,7 +66,8 @@ def plant_from_design(spec: DesignSpec, design: DesignOptimum | DesignPoint, har
     stroke_um_per_V = act.stack.nominal_travel_um / (v + float(hardware.bw_kappa) * v * v / 100.0 - h)
     linear_um_per_N = (2.0 * screw.structural_compliance_um_per_N / screw.accuracy_factor
                        + 1.0 / sleeve_stiffness_N_per_um)
-    designed = {"stack": act.stack, "n_stacks": act.n_stacks, "amp_current_limit_A": act.amp_current_limit_A,
+    designed: dict[str, Any] = {
+                "stack": act.stack, "n_stacks": act.n_stacks, "amp_current_limit_A": act.amp_current_limit_A,
                 "stroke_um_per_V": stroke_um_per_V, "coupling_stiffness_N_per_um": 1.0 / linear_um_per_N,
                 "bolt_preload_N": 0.0, "hertz_um_per_N23": 2.0 * screw.axial_constant_um / screw.accuracy_factor,
                 "hertz_preload_N": float(p.bolt_preload_N)}

@@ -65,7 +65,7 @@ import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
@@ -94,6 +94,10 @@ from piezopreload.models.feed_drive import FeedDrive, PiezoPreload, stack_loop_u
 from piezopreload.models.ops import CASADI, NUMPY
 from piezopreload.models.thermal import catalogue_heat_W, contact_heat_W
 
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
 __all__ = ["DesignSpec", "HeatSpec", "DesignOptimum", "DesignInfeasible", "ParetoFront", "OBJECTIVES",
            "PARETO_PAIRS", "CONSTRAINTS", "WEIGHTS", "optimise", "pareto_front", "DesignNLP"]
 
@@ -105,9 +109,9 @@ _TIE_WEIGHT = 1e-3
 #: a front's last point: the stiffness optimum's rigidity less this fraction (the solver's tolerance on it)
 _FRONT_END_TOL = 1e-6
 _BALLS_PER_TURN = (4, 200)  # search range of the relaxed balls per turn
-_WARM_START = {"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-9,
-               "ipopt.warm_start_slack_bound_push": 1e-9, "ipopt.warm_start_mult_bound_push": 1e-9,
-               "ipopt.mu_init": 1e-6}
+_WARM_START: dict[str, str | float] = {
+    "ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-9,
+    "ipopt.warm_start_slack_bound_push": 1e-9, "ipopt.warm_start_mult_bound_push": 1e-9, "ipopt.mu_init": 1e-6}
 #: a least total scaled violation above this (the rows are O(1)-scaled; a feasible point's
 #: is zero) is the SQP's verdict that a warm-started problem is infeasible
 _INFEASIBLE_VIOLATION = 1e-5
@@ -117,9 +121,10 @@ _INFEASIBLE_VIOLATION = 1e-5
 #: interior point pays its set-up and a barrier path every call; what it has not solved in
 #: max_iter goes to the infeasibility check and then to warm IPOPT (:class:`DesignNLP`). Its
 #: evaluation warnings are off: a trial step outside the model's domain only fails it over.
-_SQP = {"qpsol": "qpoases", "max_iter": 12, "tol_pr": 1e-8, "tol_du": 1e-8, "show_eval_warnings": False,
-        "print_time": False, "print_header": False, "print_iteration": False, "print_status": False,
-        "error_on_fail": False, "qpsol_options": {"error_on_fail": False, "printLevel": "none"}}
+_SQP: dict[str, Any] = {
+    "qpsol": "qpoases", "max_iter": 12, "tol_pr": 1e-8, "tol_du": 1e-8, "show_eval_warnings": False,
+    "print_time": False, "print_header": False, "print_iteration": False, "print_status": False,
+    "error_on_fail": False, "qpsol_options": {"error_on_fail": False, "printLevel": "none"}}
 
 
 @contextlib.contextmanager
@@ -295,12 +300,12 @@ class DesignOptimum:
         return {"objective": self.objective, "point": self.point.to_dict(), "binding": self.binding,
                 "integer_candidates": self.tried, "solve_s": self.solve_s, "nlp_solves": self.nlp_solves}
 
-    def plot(self, ax: Any = None) -> Any:
-        """Rigidity against preload for the optimum's screw, the design's preloads marked."""
-        import matplotlib.pyplot as plt
+    def plot(self) -> Figure:
+        """Rigidity against preload for the optimum's screw, the design's preloads marked: a Figure."""
+        return _figure(self.draw)
 
-        if ax is None:
-            _, ax = plt.subplots(figsize=(5.5, 3.5))
+    def draw(self, ax: Axes) -> None:
+        """:meth:`plot` on ``ax`` (a figure's panel)."""
         screw = self.spec.screw(self.point)
         fp = np.linspace(0.25 * self.point.bolt_preload_N, 1.5 * self.point.max_preload_N, 200)
         ax.plot(fp, screw.rigidity_N_per_um(fp), label="rigidity, no load")
@@ -312,7 +317,6 @@ class DesignOptimum:
         ax.set_xlabel("preload F_p (N)")
         ax.set_ylabel("axial rigidity (N/um)")
         ax.legend(fontsize="small")
-        return ax
 
 
 @dataclass(frozen=True)
@@ -333,16 +337,25 @@ class ParetoFront:
                 "y": self.y.tolist(), "points": [p.to_dict() for p in self.points], "solve_s": self.solve_s,
                 "nlp_solves": self.nlp_solves}
 
-    def plot(self, ax: Any = None) -> Any:
-        import matplotlib.pyplot as plt
+    def plot(self) -> Figure:
+        """The front, the optimised quantity against the swept one: a Figure."""
+        return _figure(self.draw)
 
-        if ax is None:
-            _, ax = plt.subplots(figsize=(5.5, 3.5))
+    def draw(self, ax: Axes) -> None:
+        """:meth:`plot` on ``ax`` (a figure's panel)."""
         ax.plot(self.x, self.y, "o-", ms=3)
         ax.set_xlabel(_LABELS[self.x_name])
         ax.set_ylabel(_LABELS[self.y_name])
         ax.set_title(f"Pareto front, {self.pair}")
-        return ax
+
+
+def _figure(draw: Callable[[Axes], None]) -> Figure:
+    """A one-panel Figure (made without pyplot) drawn by ``draw``."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(5.5, 3.5), layout="constrained")
+    draw(fig.subplots())
+    return fig
 
 
 _LABELS = {"stiffness": "least rigidity over the duty cycle (N/um)", "preload": "max preload F_hi (N)",
@@ -500,7 +513,7 @@ class DesignNLP:
         g = ca.vertcat(*[r[1] / r[2] for r in rows])
         w = ca.SX.sym("w", 5)  # weights: -stiffness, drag, -log life, preload, heat
         objective = _objective(e, w)
-        opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.tol": 1e-8,
+        opts: dict[str, Any] = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.tol": 1e-8,
                 "ipopt.max_iter": 500}
         opts.update(ipopt_options or {})
         problem = {"x": y, "f": objective, "g": g, "p": w}
@@ -545,7 +558,7 @@ class DesignNLP:
     def initial_guess(self) -> np.ndarray:
         spec = self.spec
         beta = np.radians(np.mean(spec.contact_angle_deg))
-        ball = min(np.mean(spec.ball_mm), 0.5 * spec.ball_lead_ratio_max * spec.lead_mm + 0.5 * spec.ball_mm[0])
+        ball = min(float(np.mean(spec.ball_mm)), 0.5 * spec.ball_lead_ratio_max * spec.lead_mm + 0.5 * spec.ball_mm[0])
         z1 = math.floor(math.pi * spec.nominal_diameter_mm / (ball * math.cos(spec.helix_rad)))
         turns = min(spec.turns[1], max(spec.turns[0], math.floor(spec.nut_length_max_mm / spec.lead_mm)))
         F_hi = max(spec.lift_off_margin * spec.axial_load_max_N / LIFT_OFF_RATIO, 100.0) * 1.05
@@ -686,6 +699,12 @@ WEIGHTS = {"stiffness": (1.0, 0.0, 0.0, 0.0, 0.0), "drag": (0.0, 1.0, 0.0, 0.0, 
            "heat": (0.0, 0.0, 0.0, 0.0, 1.0)}
 
 
+def _turns_and_balls(nlp: DesignNLP, y: np.ndarray) -> tuple[float, float]:
+    """The relaxed turns and balls per turn of the NLP's point ``y``."""
+    physical = nlp.to_physical(y)
+    return float(physical[3]), float(physical[4])
+
+
 def _integer_candidates(turns: float, z1: float, spec: DesignSpec) -> list[tuple[int, int]]:
     """Floor and ceiling of each relaxed integer, less those the bounds alone rule out: more
     balls per turn than fit with the smallest ball allowed (``ball_fit``), more turns than
@@ -744,7 +763,7 @@ def _optimise(spec: DesignSpec, objective: str, nlp: DesignNLP | None) -> tuple[
     y0 = nlp.initial_guess()
     best, relaxed, tried = _solve_mixed(nlp, WEIGHTS[objective], y0, None)
     if best is None:
-        misses = binding(nlp, relaxed["y"], lambda y: _integer_candidates(*nlp.to_physical(y)[3:5], spec))
+        misses = binding(nlp, relaxed["y"], lambda y: _integer_candidates(*_turns_and_balls(nlp, y), spec))
         raise DesignInfeasible(_infeasible_message(misses), misses)
     result = DesignOptimum(spec=spec, objective=objective, point=nlp.point(best["y"], objective, True),
                           binding=nlp.binding(best), tried=tried, solve_s=time.perf_counter() - t0,

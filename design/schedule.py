@@ -45,15 +45,14 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from piezopreload.artifacts.schedule import LoadProfile, PreloadSchedule, ScheduleSpec
+from piezopreload.core._typing import Array
 from piezopreload.models.ballscrew import LIFT_OFF_RATIO, BallScrew, _rigidity, nut_forces
 from piezopreload.models.ops import CASADI
 
 __all__ = ["schedule_preload", "least_preload", "example_profile"]
-
-Array = NDArray[np.float64]
 
 
 def example_profile(dt_s: float = 0.01) -> LoadProfile:
@@ -239,7 +238,7 @@ def _schedule_nlp(k_map: ca.Function, Fa: Array, required: Array, weight: Array,
 
 
 def _least_preloads(k_map: ca.Function, Fa: Array, required: Array, F_lo: Array, F_max: float,
-                    margin: ArrayLike = 0.0) -> Array:
+                    margin: Array | float = 0.0) -> Array:
     """Each sample's least preload meeting its rows (the rigidity grows with the preload), by bisection
     on all samples at once to 2^-60 of the range. Their maximum is the best constant preload."""
     lo = F_lo.copy()

@@ -16,7 +16,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -38,6 +38,9 @@ from piezopreload.design.preload import (
 from piezopreload.design.schedule import example_profile, schedule_preload
 from piezopreload.models.ballscrew import BallScrew, DutyCase, hiwin_loaded_nut_force, lift_off_load_N
 from piezopreload.models.feed_drive import FeedDrive, PiezoPreload
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["DesignResult", "design_study", "plan_schedule", "read_profile", "check_screw", "FRONT_COLUMNS",
            "design_spec_from_tables"]
@@ -139,7 +142,7 @@ class DesignResult:
             written.append(csv)
         return written
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """The Pareto fronts (optimum marked), rigidity against preload, and the schedule: a Figure."""
         from matplotlib.figure import Figure
 
@@ -149,12 +152,12 @@ class DesignResult:
         p = self.optimum.point
         for j, front in enumerate(self.fronts):
             ax = fig.add_subplot(grid[0, j])
-            front.plot(ax)
+            front.draw(ax)
             y = {"preload": p.max_preload_N, "drag": p.mean_drag_torque_Nm, "life": p.life_h}.get(front.y_name)
             if y is not None:  # a point's growth is not one of its fields
                 ax.plot([p.stiffness_N_per_um], [y], "*", ms=10, color="k", label="optimum")
             ax.legend(fontsize="small")
-        self.optimum.plot(fig.add_subplot(grid[1, :]))
+        self.optimum.draw(fig.add_subplot(grid[1, :]))
         load, preload = fig.add_subplot(grid[2, :]), None
         preload = load.twinx()
         t = self.schedule.profile.time_s

@@ -67,6 +67,7 @@ from piezopreload.artifacts.system import (
     SystemSeries,
     TrackingNumbers,
 )
+from piezopreload.core._typing import Array
 from piezopreload.core.errors import InputError
 from piezopreload.core.tables import write_csv
 from piezopreload.design.schedule import least_preload, schedule_preload
@@ -75,14 +76,15 @@ from piezopreload.models.ballscrew import LIFT_OFF_RATIO
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller
 
-if TYPE_CHECKING:  # the thermal budget reads a system run
+if TYPE_CHECKING:  # the thermal budget reads a system run; the plots name their type
+    from matplotlib.figure import Figure
+
     from piezopreload.design.thermal import ThermalBudget
 
 __all__ = ["PRE_CYCLE_REST_S", "RIGIDITY_VERDICT", "ROUND_OFF", "SystemRun", "Evaluation", "pre_cycle_for",
            "schedule_reference", "track_schedule", "evaluate_tracking", "requirements_of", "folded_shortfall",
            "binding_stretches", "held_over_stretches", "local_margins"]
 
-Array = NDArray[np.float64]
 
 #: the pre-cycle's rest before its ramp (s): the loop starts bumplessly on its first sample's feedforward, so a
 #: learned feedforward that leads the ramp needs samples before it
@@ -420,7 +422,7 @@ class SystemRun:
                   f"local margins up to {self.margin_N:.1f} N")
         return paths
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """Planned against achieved preload, rigidity against the requirement, deflection: a Figure."""
         from matplotlib.figure import Figure
 
@@ -512,7 +514,7 @@ def track_schedule(plant: DesignedPlant, controller: Controller, schedule: Prelo
             f"{n.rigidity_ratio_min:.3f}, least preload / lift-off bound {n.lift_off_ratio_min:.3f}")
         folded = held_over_stretches(
             folded_shortfall(current, ev.frame, ev.shortfall, _lag_samples(run, ev.frame.cycle, lag), hold), stretches)
-        if before is not None:
+        if before is not None and added is not None:  # set together, from the second pass on
             response = _response(before, folded, added)
         wanted = local_margins(current, folded, margin_factor, response)
         if ev.met or k == passes:

@@ -37,16 +37,15 @@ from functools import cached_property
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from piezopreload.core._typing import Array
 from piezopreload.core.checks import FieldRule, check_fields
 from piezopreload.core.errors import InputError
 from piezopreload.models.ops import NUMPY, Layout, Ops, absolute, clip
 
 __all__ = ["StackData", "P888_91", "Plant", "RigState", "Rig", "PlantModel", "bouc_wen_step", "bouc_wen_increment",
            "loop_width", "reach_N", "ABS_SCALE_V", "hertz_force"]
-
-Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

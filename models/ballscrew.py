@@ -66,9 +66,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import brentq
+from numpy.typing import ArrayLike
 
+from piezopreload.core._typing import Array
 from piezopreload.core.checks import FieldRule, check_fields
 from piezopreload.core.errors import InputError
 from piezopreload.models.ops import NUMPY
@@ -81,7 +81,6 @@ __all__ = [
     "EFFECTIVE_BALL_SHARE", "ACCURACY_FACTOR_P5",
 ]
 
-Array = NDArray[np.float64]
 
 #: Static contact-pressure limit of hardened bearing steel (ISO 76), MPa.
 CONTACT_LIMIT_MPA = 4200.0
@@ -438,6 +437,8 @@ class BallScrew:
             raise InputError(f"BallScrew.from_catalogue: c0_N = {c0_N!r} N is outside the static ratings this "
                              f"geometry has for conformities 0.505-0.6 ({c0_hi:.0f}-{c0_lo:.0f} N); check the "
                              f"ball diameter, turns and pitch diameter.")
+        from scipy.optimize import brentq  # scipy.optimize loads on first use, not on import
+
         f = brentq(lambda x: screw(x).static_rating_N - c0_N, lo, hi, xtol=1e-12)
         return cls(nominal_diameter_mm, lead_mm, ball_mm, turns, conformity_screw=f, conformity_nut=f,
                    c_dyn_N=c_dyn_N, c0_N=c0_N, **kwargs)

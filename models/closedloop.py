@@ -16,8 +16,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from piezopreload.core._typing import Array
 from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Rig
 from piezopreload.models.controller import Controller
@@ -27,7 +28,6 @@ from piezopreload.models.ops import NUMPY
 
 __all__ = ["Reference", "ClosedLoopRun", "simulate", "simulate_open_loop", "triangle", "PAPER_BAND_N"]
 
-Array = NDArray[np.float64]
 
 #: how a reference goes between its points: held (steps) or ramped
 INTERPOLATIONS = ("hold", "linear")
@@ -193,12 +193,12 @@ class ClosedLoopRun:
         if np.count_nonzero(mask) < 2:  # the next change within a sample (a ramp, sampled): to the end
             mask = self.t_s >= self.t_s[k0]
         y = getattr(self, signal)
-        kw = dict(initial=float(ref.levels_N[which - 1]), t_step=float(self.t_s[k0]), band=band_N)
-        final = float(ref.levels_N[which])
+        initial, t_step, final = float(ref.levels_N[which - 1]), float(self.t_s[k0]), float(ref.levels_N[which])
         if y.ndim == 1:
-            return step_metrics(self.t_s[mask], y[mask], final, **kw)
+            return step_metrics(self.t_s[mask], y[mask], final, initial=initial, t_step=t_step, band=band_N)
         flat = y.reshape(-1, y.shape[-1])
-        return [step_metrics(self.t_s[mask], row[mask], final, **kw) for row in flat]
+        return [step_metrics(self.t_s[mask], row[mask], final, initial=initial, t_step=t_step, band=band_N)
+                for row in flat]
 
     def tracking_error(self, t_from_s: float | None = None, *, after_change_s: float = 0.0,
                        u_range: tuple[float, float] | None = None) -> dict[str, Any]:
@@ -280,7 +280,7 @@ def simulate(
     if not np.isclose(controller.dt_s, dt, rtol=1e-9, atol=0.0):
         raise ValueError(f"the controller samples every {controller.dt_s} s but the rig every {dt} s.")
     n = int(round(reference.duration_s / dt)) + 1
-    t = np.arange(n) * dt
+    t = np.arange(n, dtype=np.float64) * dt
     r = reference.at(t)
     shape = np.broadcast_shapes(tuple(batch), rig.params.batch_shape)
     model = LoopModel(rig.model, controller.model)

@@ -44,7 +44,11 @@ from piezopreload.core.errors import InputError
 from piezopreload.models.ops import CASADI, NUMPY, Layout, Ops
 
 __all__ = ["PIDGains", "GainSchedule", "SCHEDULE_MAX", "Controller", "ControllerState", "ControllerModel", "Terms",
-           "Feedforward", "FeedforwardStep", "pid_update", "controller_functions"]
+           "Feedforward", "FeedforwardStep", "pid_update", "controller_functions", "OUTPUT_MIN_V", "OUTPUT_MAX_V"]
+
+#: the controller's output range where nothing else sets one (V): the paper's closed loop drives its amplifier over
+#: 0-110 V; the study's ``[controller]``, the tuning, the interlocks and the exports all start from these
+OUTPUT_MIN_V, OUTPUT_MAX_V = 0.0, 110.0
 
 
 
@@ -228,8 +232,8 @@ class PIDGains:
         Time constant of the first-order derivative filter in s (0: unfiltered).
     b : float
         Setpoint weight of the proportional action (1: error feedback, as LabVIEW).
-    u_min, u_max : float
-        Output range (V); the paper's closed loop uses 0-110 V.
+    u_min_V, u_max_V : float
+        Output range (V); default :data:`OUTPUT_MIN_V` .. :data:`OUTPUT_MAX_V`, the paper's 0-110 V.
     schedule : GainSchedule or None
         ``Kc``, ``Ti`` and ``Td`` scheduled on the setpoint; the step then uses the table, and
         the single ``Kc``, ``Ti_s``, ``Td_s`` are the set it was chosen against (the robust set),
@@ -241,8 +245,8 @@ class PIDGains:
     Td_s: float = 0.0
     Tf_s: float = 0.0
     b: float = 1.0
-    u_min: float = 0.0
-    u_max: float = 110.0
+    u_min_V: float = OUTPUT_MIN_V
+    u_max_V: float = OUTPUT_MAX_V
     schedule: GainSchedule | None = None
 
     def __post_init__(self) -> None:
@@ -253,8 +257,8 @@ class PIDGains:
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}.")
         _finite("b", self.b)
-        if not (np.isfinite(self.u_min) and np.isfinite(self.u_max) and self.u_min < self.u_max):
-            raise ValueError(f"need finite u_min < u_max, got {self.u_min!r} and {self.u_max!r}.")
+        if not (np.isfinite(self.u_min_V) and np.isfinite(self.u_max_V) and self.u_min_V < self.u_max_V):
+            raise ValueError(f"need finite u_min_V < u_max_V, got {self.u_min_V!r} and {self.u_max_V!r}.")
         if self.schedule is not None and not isinstance(self.schedule, GainSchedule):
             raise ValueError(f"schedule must be a GainSchedule or None, got {type(self.schedule).__name__}.")
 
@@ -422,8 +426,8 @@ class Controller:
         table = {} if sch is None else {"schedule_levels_N": np.array(sch.levels_N), "schedule_Kc": np.array(sch.Kc),
                                         "schedule_Ti_s": np.array(sch.Ti_s), "schedule_Td_s": np.array(sch.Td_s),
                                         "schedule_b": np.full(sch.size, g.b) if sch.b is None else np.array(sch.b)}
-        params = model.params.numbers(Kc=g.Kc, Ti_s=g.Ti_s, Td_s=g.Td_s, Tf_s=g.Tf_s, b=g.b, u_min_V=g.u_min,
-                                      u_max_V=g.u_max, dt_s=self.dt_s, ff=ff, **table)
+        params = model.params.numbers(Kc=g.Kc, Ti_s=g.Ti_s, Td_s=g.Td_s, Tf_s=g.Tf_s, b=g.b, u_min_V=g.u_min_V,
+                                      u_max_V=g.u_max_V, dt_s=self.dt_s, ff=ff, **table)
         return model, params
 
     @property

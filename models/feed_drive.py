@@ -30,15 +30,14 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import brentq
+from numpy.typing import ArrayLike
 
+from piezopreload.core._typing import Array
 from piezopreload.models.actuator import P888_91, StackData
 from piezopreload.models.ballscrew import BallScrew
 
 __all__ = ["FeedDrive", "PiezoPreload", "MOUNTINGS", "stack_loop_um"]
 
-Array = NDArray[np.float64]
 MOUNTINGS = ("fixed-fixed", "fixed-supported")
 
 
@@ -162,6 +161,8 @@ class PiezoPreload:
             return stack_loop_um(c_h, bolt_preload_N, fp, k, s, screw.accuracy_factor) - self.stroke_um
 
         hi = bolt_preload_N + self.blocked_force_N * 1.01
+        from scipy.optimize import brentq  # scipy.optimize loads on first use, not on import
+
         return float(brentq(gap, bolt_preload_N, hi, xtol=1e-9, rtol=1e-12))
 
     def preload_slew_N_per_s(self, screw: BallScrew, preload_N: float, bolt_preload_N: float) -> float:

@@ -24,9 +24,9 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from numpy.typing import NDArray
 
 from piezopreload.core import native
+from piezopreload.core._typing import Array
 from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import PlantModel
 from piezopreload.models.controller import ControllerModel
@@ -34,7 +34,6 @@ from piezopreload.models.ops import CASADI, NUMPY, Layout, Ops
 
 __all__ = ["LoopModel", "OpenLoopModel", "LOOP_OUTPUTS", "OPEN_LOOP_OUTPUTS", "run", "step_function", "ENGINES"]
 
-Array = NDArray[np.float64]
 
 #: what one sample of the closed loop records (in this order)
 LOOP_OUTPUTS = Layout("loop outputs", [("force_N", None), ("measured_N", None), ("command_V", None),

@@ -10,37 +10,10 @@ in :mod:`piezopreload.design`, the rig executor in :mod:`piezopreload.rig`, the 
 :mod:`piezopreload.reports`.
 """
 
-from importlib.metadata import PackageNotFoundError, version
+from __future__ import annotations
 
-try:
-    __version__ = version("piezopreload")
-except PackageNotFoundError:  # running from a source tree that is not installed
-    __version__ = "0+unknown"
-
-from piezopreload.artifacts.gainset import GainSet
-from piezopreload.artifacts.hysteresis import IdentifiedModel
-from piezopreload.core.errors import (
-    ArtifactError,
-    InfeasibleError,
-    InputError,
-    InternalError,
-    PiezopreloadError,
-)
-from piezopreload.core.tables import Record, read_record
-from piezopreload.design.study import DesignResult
-from piezopreload.models.actuator import Plant
-from piezopreload.models.closedloop import ClosedLoopRun, Reference
-from piezopreload.models.controller import PIDGains
-from piezopreload.models.metrics import StepMetrics
-from piezopreload.results import ScheduleLearning, StudyRun, TuningResult
-from piezopreload.rig.export import export
-from piezopreload.study import Study, load_study, shipped_studies
-from piezopreload.tuning.autotune import autotune
-from piezopreload.tuning.autotune_result import AutotuneResult
-from piezopreload.tuning.feedforward import IdentifiedFeedforward
-from piezopreload.tuning.identification import Identification, Window, identify
-from piezopreload.tuning.identify import NotFittedError, PIIdentifier
-from piezopreload.tuning.plantfit import FittedPlant, fit_plant
+import importlib
+from typing import TYPE_CHECKING, Any
 
 __all__ = [
     "__version__", "load_study", "shipped_studies", "Study", "GainSet", "TuningResult", "StudyRun", "ScheduleLearning",
@@ -49,13 +22,106 @@ __all__ = [
     "export", "identify", "Identification", "PIIdentifier", "NotFittedError", "IdentifiedModel", "Window",
     "autotune", "AutotuneResult", "fit_plant", "FittedPlant", "PiezopreloadError", "InputError", "ArtifactError",
     "InfeasibleError", "InternalError", "SweepResult",
+    # the results a study's steps give back, and the records they carry (what a script reads off them)
+    "StudyResult", "SystemRun", "LearningResult", "ValidationResult", "Metrics", "Failure", "Requirement",
+    "ComparisonRow", "ActiveBound", "MinimumTimeBound", "TrackingFloor", "TuningSolve", "DesignRecord", "DesignPoint",
+    "DesignedPlant", "PreloadSchedule", "SystemRecord", "TrackingNumbers", "FitError", "LearnedSignal", "SweepPoint",
 ]
 
+#: the module each public name comes from: a name is imported on its first use (a module ``__getattr__``, as numpy
+#: and scipy load their submodules), so ``import piezopreload`` loads no floor and no solver
+_EXPORTS: dict[str, str] = {name: module for module, names in {
+    "piezopreload.study": ("load_study", "shipped_studies", "Study"),
+    "piezopreload.results": ("TuningResult", "StudyRun", "ScheduleLearning"),
+    "piezopreload.sweep": ("SweepResult",),
+    "piezopreload.outcome": ("StudyResult",),
+    "piezopreload.core.errors": ("PiezopreloadError", "InputError", "ArtifactError", "InfeasibleError",
+                                 "InternalError"),
+    "piezopreload.core.tables": ("Record", "read_record"),
+    "piezopreload.models.actuator": ("Plant",),
+    "piezopreload.models.closedloop": ("ClosedLoopRun", "Reference"),
+    "piezopreload.models.controller": ("PIDGains",),
+    "piezopreload.models.metrics": ("StepMetrics",),
+    "piezopreload.artifacts.gainset": ("GainSet",),
+    "piezopreload.artifacts.hysteresis": ("IdentifiedModel", "FitError"),
+    "piezopreload.artifacts.validation": ("ValidationResult", "Metrics", "Failure"),
+    "piezopreload.artifacts.requirements": ("Requirement",),
+    "piezopreload.artifacts.tuning": ("ComparisonRow", "ActiveBound", "MinimumTimeBound", "TrackingFloor",
+                                      "TuningSolve"),
+    "piezopreload.artifacts.design": ("DesignRecord", "DesignPoint"),
+    "piezopreload.artifacts.plant": ("DesignedPlant",),
+    "piezopreload.artifacts.schedule": ("PreloadSchedule",),
+    "piezopreload.artifacts.system": ("SystemRecord", "TrackingNumbers"),
+    "piezopreload.artifacts.learned": ("LearnedSignal",),
+    "piezopreload.artifacts.sweep": ("SweepPoint",),
+    "piezopreload.design.study": ("DesignResult",),
+    "piezopreload.design.system": ("SystemRun",),
+    "piezopreload.tuning.feedforward": ("IdentifiedFeedforward",),
+    "piezopreload.tuning.learning": ("LearningResult",),
+    "piezopreload.tuning.identification": ("identify", "Identification", "Window"),
+    "piezopreload.tuning.identify": ("PIIdentifier", "NotFittedError"),
+    "piezopreload.tuning.autotune": ("autotune",),
+    "piezopreload.tuning.autotune_result": ("AutotuneResult",),
+    "piezopreload.tuning.plantfit": ("fit_plant", "FittedPlant"),
+    "piezopreload.rig.export": ("export",),
+}.items() for name in names}
 
-def __getattr__(name: str) -> object:
-    # the sweep loads the whole pipeline (the report's figures, the rig): on first use, not on import
-    if name == "SweepResult":
-        from piezopreload.sweep import SweepResult
+if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests/test_typing.py holds the three equal)
+    __version__: str
+    from piezopreload.artifacts.design import DesignPoint, DesignRecord
+    from piezopreload.artifacts.gainset import GainSet
+    from piezopreload.artifacts.hysteresis import FitError, IdentifiedModel
+    from piezopreload.artifacts.learned import LearnedSignal
+    from piezopreload.artifacts.plant import DesignedPlant
+    from piezopreload.artifacts.requirements import Requirement
+    from piezopreload.artifacts.schedule import PreloadSchedule
+    from piezopreload.artifacts.sweep import SweepPoint
+    from piezopreload.artifacts.system import SystemRecord, TrackingNumbers
+    from piezopreload.artifacts.tuning import ActiveBound, ComparisonRow, MinimumTimeBound, TrackingFloor, TuningSolve
+    from piezopreload.artifacts.validation import Failure, Metrics, ValidationResult
+    from piezopreload.core.errors import ArtifactError, InfeasibleError, InputError, InternalError, PiezopreloadError
+    from piezopreload.core.tables import Record, read_record
+    from piezopreload.design.study import DesignResult
+    from piezopreload.design.system import SystemRun
+    from piezopreload.models.actuator import Plant
+    from piezopreload.models.closedloop import ClosedLoopRun, Reference
+    from piezopreload.models.controller import PIDGains
+    from piezopreload.models.metrics import StepMetrics
+    from piezopreload.outcome import StudyResult
+    from piezopreload.results import ScheduleLearning, StudyRun, TuningResult
+    from piezopreload.rig.export import export
+    from piezopreload.study import Study, load_study, shipped_studies
+    from piezopreload.sweep import SweepResult
+    from piezopreload.tuning.autotune import autotune
+    from piezopreload.tuning.autotune_result import AutotuneResult
+    from piezopreload.tuning.feedforward import IdentifiedFeedforward
+    from piezopreload.tuning.identification import Identification, Window, identify
+    from piezopreload.tuning.identify import NotFittedError, PIIdentifier
+    from piezopreload.tuning.learning import LearningResult
+    from piezopreload.tuning.plantfit import FittedPlant, fit_plant
 
-        return SweepResult
-    raise AttributeError(f"module 'piezopreload' has no attribute '{name}'")
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("piezopreload")
+    except PackageNotFoundError:  # running from a source tree that is not installed
+        return "0+unknown"
+
+
+if not TYPE_CHECKING:  # hidden from type checkers, which would otherwise take any name as defined here
+
+    def __getattr__(name: str) -> Any:
+        if name == "__version__":
+            value = _version()
+        elif name in _EXPORTS:
+            value = getattr(importlib.import_module(_EXPORTS[name]), name)
+        else:
+            raise AttributeError(f"module 'piezopreload' has no attribute '{name}'")
+        globals()[name] = value  # the next use is a plain attribute
+        return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

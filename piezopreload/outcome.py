@@ -11,9 +11,12 @@ from __future__ import annotations
 import html
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from piezopreload.artifacts.requirements import EXIT_REQUIREMENT_MISSED, Requirement, missed
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["StageOutcome", "Headline", "StudyResult", "summary_of"]
 
@@ -147,7 +150,7 @@ class StudyResult:
                 + ("" if not reqs else
                    f"<table><tr><th>requirement</th><th>achieved</th><th>required</th><th></th></tr>{reqs}</table>"))
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """A Figure: each requirement's margin as a share of its limit (right of zero: met; left: missed)."""
         from matplotlib.figure import Figure
 

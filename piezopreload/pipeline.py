@@ -87,10 +87,9 @@ from piezopreload.core.stages import (
 from piezopreload.core.tables import write_csv
 from piezopreload.design.tables import DesignTable, PlantTable
 from piezopreload.outcome import Headline, StageOutcome, StudyResult, summary_of
-from piezopreload.progress import Progress
+from piezopreload.progress import Progress, ProgressLike, as_progress
 from piezopreload.reports.study_report import STAGES_READ, Published, ReportStudy, render_report
 from piezopreload.results import TuningResult
-from piezopreload.rig import session
 from piezopreload.rig.export import write_exports
 from piezopreload.study import Study, load_study
 from piezopreload.tuning.compare import creep_effect, reproduction, responses
@@ -294,12 +293,12 @@ def _stage_system(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
         "gain_set_sha256": gain_set.content_sha256, "design_sha256": ctx.sha256("design", "design"),
         "plant_sha256": ctx.sha256("plant", "plant"), "study_sha256": study.sha256,
         **({"learned": ctx.rel(ctx.output("learn", "learning"))} if extra is not None else {})})
-    record = SystemRecord.load(paths["system"])
-    for r in record.missed:
+    system = SystemRecord.load(paths["system"])
+    for r in system.missed:
         ctx.progress.say(f"requirement missed: {r.sentence()}")
-    for b in record.bounds:
+    for b in system.bounds:
         ctx.progress.say(f"what stops it: {b.sentence()}")
-    return paths, {**record.summary(), **before}
+    return paths, {**system.summary(), **before}
 
 
 def _stage_export(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
@@ -311,6 +310,8 @@ def _stage_export(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
 
 
 def _stage_rig(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+    from piezopreload.rig import session  # with the OPC UA push: loaded when the stage runs, not on every rerun
+
     plan = ctx.study.rig_run
     reference: str | None = str(ctx.study.files().get("rig_run.reference", plan.reference))
     learned = None
@@ -544,30 +545,31 @@ def _one_study_per_folder(out: Path, study: Study, overwrite: bool, progress: Pr
 
 
 def run_study(study: Study | str | Path | None = None, out: str | Path = DEFAULT_OUT, *, force: bool = False,
-              progress: Progress | None = None, cache: StageCache | None = None,
+              progress: ProgressLike | None = None, cache: StageCache | None = None,
               overwrite: bool = False) -> StudyResult:
     """Run a study's stages into ``out``; a stage whose key and outputs are unchanged is not run again.
 
     ``cache``: a store of stage outputs shared with other folders (see the module docstring); with ``force``
     the stages run again but a shared one is restored where the store holds its key (empty the store to
     compute those again too). A folder holding another study's outputs is refused by name; ``overwrite`` clears
-    them first (:func:`_one_study_per_folder`): one folder never mixes two studies.
+    them first (:func:`_one_study_per_folder`): one folder never mixes two studies. ``progress``:
+    :data:`~piezopreload.progress.ProgressLike`.
     """
-    progress = progress or Progress()
+    reporter = as_progress(progress)
     t0 = time.perf_counter()
     study = study if isinstance(study, Study) else load_study(study)
     study.check_files()
     out = Path(out)
     with _locked(out):
-        _one_study_per_folder(out, study, overwrite, progress)
+        _one_study_per_folder(out, study, overwrite, reporter)
         copy = out / STUDY_COPY
         if not copy.is_file() or copy.read_bytes() != study.source_text:
             atomic_write_bytes(copy, study.source_text)
-        ctx = _Ctx(study, out, progress, _previous(out, progress), study.path, cache=cache)
+        ctx = _Ctx(study, out, reporter, _previous(out, reporter), study.path, cache=cache)
         stages = _execute(list(STAGES), ctx, force, utc())
     ran = [s["stage"] for s in stages if s["ran"]]
     seconds = time.perf_counter() - t0
-    progress.write(f"{'ran ' + ', '.join(ran) if ran else 'nothing to run: every stage is up to date'} "
+    reporter.write(f"{'ran ' + ', '.join(ran) if ran else 'nothing to run: every stage is up to date'} "
                    f"({seconds:.1f} s)\nthe study's outputs are in {out.resolve()}/ (report: {out / 'report.pdf'})\n")
     return _result(out, study, stages, seconds)
 
@@ -582,14 +584,14 @@ def read_template(template: str | Path | None) -> str | None:
         raise InputError(f"--template {template}: cannot read it ({exc})") from None
 
 
-def rerender_report(out: str | Path, progress: Progress | None = None,
+def rerender_report(out: str | Path, progress: ProgressLike | None = None,
                     template: str | Path | None = None) -> StudyResult:
     """Render the report again from the artifacts in ``out`` (``piezopreload report DIR``); nothing else runs.
 
     ``template``: a Typst file to typeset instead of the shipped template (a copy of
     ``DIR/report/report.typ``, edited); it reads ``report.json`` and ``figures/`` as the shipped one does.
     """
-    progress = progress or Progress()
+    reporter = as_progress(progress)
     t0 = time.perf_counter()
     out = Path(out)
     template_text = read_template(template)
@@ -608,10 +610,10 @@ def rerender_report(out: str | Path, progress: Progress | None = None,
                          f"run 'piezopreload run {out / STUDY_COPY} --out {out}' to make them again")
     study = load_study(out / STUDY_COPY)
     with _locked(out):
-        ctx = _Ctx(study, out, progress, records, manifest["study"].get("path", study.path), template_text)
+        ctx = _Ctx(study, out, reporter, records, manifest["study"].get("path", study.path), template_text)
         stages = _execute([report], ctx, True, manifest.get("started_utc", utc()))
     seconds = time.perf_counter() - t0
-    progress.write(f"the report is {out / 'report.pdf'} ({seconds:.1f} s)\n")
+    reporter.write(f"the report is {out / 'report.pdf'} ({seconds:.1f} s)\n")
     return _result(out, study, stages, seconds)
 
 

@@ -1,7 +1,13 @@
-"""Progress of a long command on standard error: stage lines, messages and progress bars.
+"""Progress of a long command: stage lines, messages and progress bars, and the one type every step takes for it.
 
-On a terminal a bar redraws itself in place; into a file or a pipe it prints a line at each
-quarter, so a log stays readable. Nothing goes to standard output, which ``--json`` keeps for
+Every step of the API that reports progress (``load_study``, ``Study.design``, ``.tune``, ``.learn``,
+``.track_schedule``, ``.run``, ``.sweep``, ``TuningResult.validate``, ...) takes ``progress`` of one type,
+:data:`ProgressLike`: a function given each line (``print``, a logger's ``info``), or a :class:`Progress`
+(stage lines, indented messages and bars on a stream); None is the step's default (a study's run and
+sweep: a :class:`Progress` on standard error; a single step: the study's own, see ``load_study``).
+
+On a terminal a bar redraws itself in place; into a file, a pipe or a function it gives a line at
+each quarter, so a log stays readable. Nothing goes to standard output, which ``--json`` keeps for
 its one JSON object.
 """
 
@@ -10,25 +16,34 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
-from typing import TextIO
+from typing import TextIO, TypeAlias
 
-__all__ = ["Progress"]
+from piezopreload.core.errors import InputError
+
+__all__ = ["Progress", "ProgressLike", "as_progress", "say_of"]
 
 
 class Progress:
-    """Stage headers, indented messages and bars; ``quiet`` prints nothing."""
+    """Stage headers, indented messages and bars on ``stream`` (standard error by default), or each line given to
+    ``lines`` (a function such as ``print``); ``quiet`` gives nothing."""
 
-    def __init__(self, stream: TextIO | None = None, quiet: bool = False, width: int = 30) -> None:
+    def __init__(self, stream: TextIO | None = None, quiet: bool = False, width: int = 30,
+                 lines: Callable[[str], None] | None = None) -> None:
         self.stream = stream if stream is not None else sys.stderr
         self.quiet = quiet
         self.width = width
-        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.lines = lines
+        self.tty = lines is None and bool(getattr(self.stream, "isatty", lambda: False)())
         self._open = False  # a bar or counter line redrawn in place, not yet ended
 
     def write(self, text: str) -> None:
         """Write ``text``; a line starting with a carriage return redraws the open line in place,
-        any other first ends the open line."""
+        any other first ends the open line. With ``lines``, each complete line is given to it."""
         if self.quiet:
+            return
+        if self.lines is not None:
+            for line in text.strip("\r\n").split("\n"):
+                self.lines(line)
             return
         if self._open and not text.startswith("\r"):
             text = "\n" + text
@@ -77,3 +92,28 @@ class Progress:
                 self.write(f"      {label}: {count} ({elapsed:.1f} s)\n")
 
         return update
+
+
+#: what every step that reports progress takes: a function given each line of progress, or a :class:`Progress`
+ProgressLike: TypeAlias = Callable[[str], None] | Progress
+
+
+def as_progress(progress: ProgressLike | None) -> Progress:
+    """``progress`` as a :class:`Progress`: itself, one that gives each line to the function, or (None) one on
+    standard error."""
+    if isinstance(progress, Progress):
+        return progress
+    if progress is None:
+        return Progress()
+    if not callable(progress):
+        raise InputError(f"progress must be a function taking a line (such as print) or a Progress, got {progress!r}")
+    return Progress(lines=progress)
+
+
+def say_of(progress: ProgressLike | None) -> Callable[[str], None] | None:
+    """Where a step's messages go: a :class:`Progress`'s :meth:`~Progress.say`, the function itself, or None."""
+    if isinstance(progress, Progress):
+        return progress.say
+    if progress is not None and not callable(progress):
+        raise InputError(f"progress must be a function taking a line (such as print) or a Progress, got {progress!r}")
+    return progress

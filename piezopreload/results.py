@@ -14,7 +14,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -38,6 +38,7 @@ from piezopreload.models.closedloop import ClosedLoopRun
 from piezopreload.models.closedloop import simulate as simulate_loop
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.metrics import StepMetrics, run_numbers
+from piezopreload.progress import ProgressLike, say_of
 from piezopreload.study import Study
 from piezopreload.tuning.bounds import minimum_time, tracking_floor
 from piezopreload.tuning.calibrate import CONTROLLERS
@@ -48,6 +49,9 @@ from piezopreload.tuning.learning import LearningResult, save_passes
 from piezopreload.tuning.pid import TuningInfeasible, tune_pid
 from piezopreload.tuning.schedule import schedule_levels, tune_schedule
 from piezopreload.tuning.verdict import validate_gain_set
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["TuningResult", "StudyRun", "ScheduleLearning", "tune", "simulate", "reproduce"]
 
@@ -152,13 +156,13 @@ class TuningResult:
                        rig_interlocks=s.rig_run.interlocks(s.plant, s.path))
 
     def validation(self, *, plants: int | None = None, seed: int | None = None, workers: int | None = None,
-                   scheduler: str | None = None, progress: Callable[[str], None] | None = None,
+                   scheduler: str | None = None, progress: ProgressLike | None = None,
                    bar: Callable[[int, int], None] | None = None,
                    inputs: dict[str, Any] | None = None) -> tuple[GainSet, ValidationResult]:
         """:meth:`validate`, also returning the per-plant result."""
         v = self.study.validation
         plants = v.plants if plants is None else plants
-        say = progress or (lambda _m: None)
+        say = say_of(progress) or (lambda _m: None)
         say(f"validating on {plants} plants ...")
         return validate_gain_set(self.candidate(inputs), n_plants=plants,
                                  seed=(self.study.seed if v.seed is None else v.seed) if seed is None else seed,
@@ -166,7 +170,7 @@ class TuningResult:
                                  progress=bar or (lambda i, n: say(f"  chunk {i}/{n}")))
 
     def validate(self, plants: int | None = None, seed: int | None = None, *, workers: int | None = None,
-                 scheduler: str | None = None, progress: Callable[[str], None] | None = None) -> GainSet:
+                 scheduler: str | None = None, progress: ProgressLike | None = None) -> GainSet:
         """Validate the tuned gains by Monte Carlo on the study's nonlinear rig (``[validation]`` by default):
         a :class:`GainSet`, ``validated`` only if every plant met every criterion. Save it with ``.save()``."""
         return self.validation(plants=plants, seed=seed, workers=workers, scheduler=scheduler, progress=progress)[0]
@@ -193,7 +197,7 @@ class TuningResult:
             "gain_schedule": self.solve.schedule,  # the schedule's entries, figures and choice, or None
         }
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """The comparison table as bars (settling time, tracking RMS): a Figure."""
         from piezopreload.reports import figures  # matplotlib only when drawing
 
@@ -230,10 +234,11 @@ def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None =
     say("tuning the PID around the compensated plant (CasADi + IPOPT), the minimum-time bound beside it ...")
     bounding = beside(minimum_time, study.plant, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]),
                       band_N=study.band_N, u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
+    known = {"the study's [controller] gains": study.gains}
     warm = study.files().get("tuning.warm_start")
     warm_gains = None if warm is None else warm_start_gains(warm)
-    known = {"the study's [controller] gains": study.gains,
-             **({} if warm_gains is None else {f"the warm start ({warm.name})": warm_gains})}
+    if warm is not None and warm_gains is not None:
+        known[f"the warm start ({warm.name})"] = warm_gains
     try:
         tuned = tune_pid(study.plant, feedforward.inverse(), spec, progress=iterations, known=known)
     except TuningInfeasible as exc:
@@ -306,7 +311,7 @@ class StudyRun(ClosedLoopRun):
             **{k: numbers[k] for k in (*_STEP_KEYS, "peak_command_V", *(_TRACK_KEYS if tracking else ()))},
         }
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """Reference and force (top), command and amplifier voltage (bottom): a Figure."""
         from piezopreload.reports import figures  # matplotlib only when drawing
 
@@ -427,7 +432,7 @@ class ScheduleLearning:
                 f"{self.system.margin_N:.1f} N: tracking RMS {self.last.tracking_rms_N:.2f} N after learning, "
                 f"{self.before_learning_rms_N:.2f} N before; requirements met: {self.system.requirements_met})")
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """The error per iteration of each pass (left) and the schedule's tracking (the system run's figure is
         ``system.plot()``): a Figure."""
         from matplotlib.figure import Figure

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from dataclasses import replace as _replace
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal, overload
 
 from piezopreload.artifacts.design import DesignPoint, DesignRecord
 from piezopreload.artifacts.gainset import GainSet
@@ -67,6 +67,7 @@ from piezopreload.design.thermal import duty_growth_um, thermal_budget
 from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import Controller, PIDGains
+from piezopreload.progress import ProgressLike, say_of
 from piezopreload.rig.tables import ExportTable, RigRunPlan
 from piezopreload.tables import (
     DESIGN_TABLES,
@@ -376,12 +377,14 @@ class Study:
                           self.identify_feedforward(progress).inverse())
 
     # ---- the steps -----------------------------------------------------------------------------
-    def identify_feedforward(self, progress: Say | None = None) -> IdentifiedFeedforward:
+    def identify_feedforward(self, progress: ProgressLike | None = None) -> IdentifiedFeedforward:
         """The feedforward's P-I model: from ``[feedforward] data`` (a measured V -> N loop) when the study names
-        one, else from the loop measurement simulated on :attr:`plant`; with its open-loop compensation check."""
-        say = progress or (lambda _m: None)
+        one, else from the loop measurement simulated on :attr:`plant`; with its open-loop compensation check.
+        ``progress``: :data:`~piezopreload.progress.ProgressLike`."""
+        said = say_of(progress)
+        say = said or (lambda _m: None)
         record = self._measured_loop(say)  # refused before the design if it does not cover the references
-        plant = self._plant(progress)
+        plant = self._plant(said)
         ex, (low, high) = self.excitation, self.reference_range_N
         if record is None:
             say(f"simulating the {ex.v_max_V:g} V, {ex.frequency_Hz:g} Hz loop measurement on the plant's truth model")
@@ -411,18 +414,19 @@ class Study:
         return float(min(x.min() for x in levels)), float(max(x.max() for x in levels))
 
     def tune(self, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,
-             progress: Say | None = None, iterations: Callable[[int], None] | None = None) -> TuningResult:
+             progress: ProgressLike | None = None, iterations: Callable[[int], None] | None = None) -> TuningResult:
         """Tune the PID around :attr:`plant` compensated by ``feedforward`` (default: :meth:`identify_feedforward`);
         compare it with the study's and SIMC's gains and bound it. Returns a
-        :class:`~piezopreload.results.TuningResult`."""
+        :class:`~piezopreload.results.TuningResult`. ``progress``: :data:`~piezopreload.progress.ProgressLike`."""
         from piezopreload.results import tune
 
+        said = say_of(progress)
         if feedforward is not None:  # refused before the design and the tuning, with both ranges
             feedforward.covers(*self.reference_range_N, f"the study's references ({self.path})")
         else:
-            self._measured_loop(progress or (lambda _m: None))
-        self._plant(progress)
-        return tune(self, feedforward or self.identify_feedforward(progress), seed=seed, progress=progress,
+            self._measured_loop(said or (lambda _m: None))
+        self._plant(said)
+        return tune(self, feedforward or self.identify_feedforward(said), seed=seed, progress=said,
                     iterations=iterations)
 
     def simulate(self, gains: GainSet | PIDGains | None = None, *, controller: str = "ff+pid", reference: str = "step",
@@ -437,10 +441,25 @@ class Study:
 
         return simulate(self, gains, controller=controller, reference=reference, feedforward=feedforward, seed=seed)
 
-    def learn(self, gains: GainSet | None = None, *, reference: Any = "trajectory", iterations: int | None = None,
-              preview_s: float | None = None, method: str | None = None, plants: int | None = None,
+    # "schedule" is also a str: mypy calls the two overlapping; a str that only holds "schedule" at run time is typed
+    # as the second (write the literal where the schedule is meant)
+    @overload
+    def learn(  # type: ignore[overload-overlap]
+              self, gains: GainSet | None = None, *, reference: Literal["schedule"], iterations: int | None = None,
+              preview_s: float | None = None, method: str | None = None, plants: None = None,
               seed: int | None = None, after_change_weight: float = 0.0,
-              progress: Say | None = None) -> LearningResult | ScheduleLearning:
+              progress: ProgressLike | None = None) -> ScheduleLearning: ...
+
+    @overload
+    def learn(self, gains: GainSet | None = None, *, reference: str | Reference = "trajectory",
+              iterations: int | None = None, preview_s: float | None = None, method: str | None = None,
+              plants: int | None = None, seed: int | None = None, after_change_weight: float = 0.0,
+              progress: ProgressLike | None = None) -> LearningResult: ...
+
+    def learn(self, gains: GainSet | None = None, *, reference: str | Reference = "trajectory",
+              iterations: int | None = None, preview_s: float | None = None, method: str | None = None,
+              plants: int | None = None, seed: int | None = None, after_change_weight: float = 0.0,
+              progress: ProgressLike | None = None) -> LearningResult | ScheduleLearning:
         """Preview and iterative learning control over a repeated reference on :attr:`plant`.
 
         ``gains`` a gain set (its controller) or None (the study's ``[controller]`` with the identified
@@ -468,15 +487,16 @@ class Study:
             if plants is not None:
                 raise InputError("Study.learn: plants: the schedule is learned on the designed plant itself (each "
                                  "margin pass); give plants=None, or learn on a Reference over Monte Carlo plants")
-            return self._learn_schedule(gains, iterations, preview_s, method, seed, progress)
+            return self._learn_schedule(gains, iterations, preview_s, method, seed, say_of(progress))
         if not isinstance(reference, Reference):
             if reference not in self.references:
                 raise InputError(f"reference must be one of {', '.join([*self.references, 'schedule'])} or a "
                                  f"Reference, got {reference!r}")
             reference = self.references[reference]
-        return learn(self._controller(gains, progress), Rig(self._plant(progress)), reference, iterations=iterations,
+        said = say_of(progress)
+        return learn(self._controller(gains, said), Rig(self._plant(said)), reference, iterations=iterations,
                      preview_s=preview_s, method=method, plants=plants, seed=seed,
-                     after_change_weight=after_change_weight, progress=progress)
+                     after_change_weight=after_change_weight, progress=said)
 
     def _learn_schedule(self, gains: GainSet | None, iterations: int, preview_s: float | None, method: str,
                         seed: int, progress: Say | None) -> ScheduleLearning:
@@ -499,23 +519,24 @@ class Study:
         return self._designed(progress)
 
     def track_schedule(self, gains: GainSet | None = None, *, ff_extra_V: Any = None,
-                       progress: Say | None = None) -> SystemRun:
+                       progress: ProgressLike | None = None) -> SystemRun:
         """The gains (a gain set, or the study's ``[controller]`` with the identified feedforward) following the
         preload schedule on the designed plant for ``[plant] cycles`` after a pre-cycle to its first level (held the
         validated settling time, ``[validation] settling_max_s``), the schedule planned again with local margins while
         a requirement is missed (:func:`piezopreload.design.system.track_schedule`); ``ff_extra_V`` a correction
         added to the feedforward (one array, or one per pass's reference: a callable)."""
-        designed = self._designed_for("tracking the schedule", progress)
-        controller = self._controller(gains, progress)
+        said = say_of(progress)
+        designed = self._designed_for("tracking the schedule", said)
+        controller = self._controller(gains, said)
         run = (self.plant_table or PlantTable()).track(designed, controller, self.preload_schedule, seed=self.seed,
                                                        settle_s=self.criteria.settling_max_s, ff_extra_V=ff_extra_V,
-                                                       progress=progress)
+                                                       progress=said)
         if self.thermal is None:
             return run
         budget = thermal_budget(run, self._spec("[thermal]").feed_drive, self.thermal,
-                                command_range_V=(controller.gains.u_min, controller.gains.u_max))
-        if progress is not None:
-            progress(f"thermal: {budget.record.sentence()}")
+                                command_range_V=(controller.gains.u_min_V, controller.gains.u_max_V))
+        if said is not None:
+            said(f"thermal: {budget.record.sentence()}")
         return _replace(run, thermal=budget)
 
     def reproduce(self, *, seed: int | None = None, repeats: int = 1,
@@ -527,7 +548,7 @@ class Study:
         return reproduce(self, feedforward or self.identify_feedforward(), seed=seed, repeats=repeats)
 
     def design(self, *, objective: str | None = None, pareto: list[str] | None = None, points: int | None = None,
-               schedule: str | Path | None = None, progress: Say | None = None,
+               schedule: str | Path | None = None, progress: ProgressLike | None = None,
                bar: Callable[[int, int], None] | None = None) -> DesignResult:
         """The ball-screw preload design: the optimum for ``objective`` (the study's: solved once and kept, shared
         with :attr:`plant`), the Pareto fronts ``pareto`` (default: ``[design] pareto``; ``[]`` for none) and the
@@ -546,7 +567,8 @@ class Study:
             result = design_study(
                 spec, objective, pairs, d.pareto_points if points is None else points,
                 profile=None if profile_path is None else read_profile(profile_path), profile_name=str(profile_path),
-                **s.limits(), progress=progress, bar=bar, optimum=k.optimum if objective == d.objective else None,
+                **s.limits(), progress=say_of(progress), bar=bar,
+                optimum=k.optimum if objective == d.objective else None,
                 growth=None if table is None else lambda point: duty_growth_um(spec, point, table))
         except DesignInfeasible as exc:
             raise InfeasibleError(f"{self.path}: {exc}") from exc
@@ -554,17 +576,18 @@ class Study:
             k.optimum, k.point = result.optimum, result.point
         return result
 
-    def run(self, out: str | Path = "piezopreload-out", *, force: bool = False, progress: Any = None,
-            overwrite: bool = False) -> StudyResult:
+    def run(self, out: str | Path = "piezopreload-out", *, force: bool = False,
+            progress: ProgressLike | None = None, overwrite: bool = False) -> StudyResult:
         """The whole study, as ``piezopreload run``: its stages into ``out``, unchanged ones not run again. A folder
         holding another study's outputs is refused by name (an :class:`InputError`); ``overwrite=True`` replaces
-        them."""
+        them. ``progress``: :data:`~piezopreload.progress.ProgressLike` (default: stage lines on standard error)."""
         from piezopreload.pipeline import run_study
 
         return run_study(self, out, force=force, progress=progress, overwrite=overwrite)
 
     def sweep(self, vary: dict[str, Any], *, mode: str = "grid", out: str | Path = "piezopreload-sweep",
-              workers: int | None = None, scheduler: str | None = None, force: bool = False, progress: Any = None,
+              workers: int | None = None, scheduler: str | None = None, force: bool = False,
+              progress: ProgressLike | None = None,
               report: bool = True, where: str = "Study.sweep") -> SweepResult:
         """The whole study at every point of ``vary`` (``{"rig.bolt_preload_N": [20.0, 25.0, 30.0]}``), as
         ``piezopreload sweep``: each point :meth:`replace`'d and run into its own folder under ``out``, stages
@@ -610,10 +633,10 @@ def paper_study() -> Path:
     return shipped_studies()[PAPER_STUDY]
 
 
-def load_study(study: str | Path | None = None, *, progress: Say | None = None) -> Study:
+def load_study(study: str | Path | None = None, *, progress: ProgressLike | None = None) -> Study:
     """Read and validate a study: None for the default (``machine_axis``), a shipped study's name (``"paper2021"``),
-    or a file. ``progress`` gets what the study says where a step is given no progress of its own (solving the
-    design for the plant, say); default: a line on standard error."""
+    or a file. ``progress`` (:data:`~piezopreload.progress.ProgressLike`) gets what the study says where a step is
+    given no progress of its own (solving the design for the plant, say); default: a line on standard error."""
     if study is None:
         path = default_study()
     elif isinstance(study, str) and not study.endswith(".toml") and study in shipped_studies():
@@ -622,7 +645,7 @@ def load_study(study: str | Path | None = None, *, progress: Say | None = None) 
         path = Path(study)
     data, lines, raw = read_toml(path, "study file")
     shown = str(path)
-    return _build(data, _Source(shown, lines, Path(shown).parent), shown, raw, progress or _stderr)
+    return _build(data, _Source(shown, lines, Path(shown).parent), shown, raw, say_of(progress) or _stderr)
 
 
 def _parse(data: dict[str, Any], where: _Source) -> dict[str, Any]:
@@ -692,12 +715,12 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
     c: ControllerTable = t["controller"]
     sim: SimulationTable = t["simulation"]
     try:
-        gains = PIDGains(Kc=c.Kc, Ti_s=c.seconds * c.Ti, Td_s=c.seconds * c.Td, Tf_s=c.Tf_s, b=c.b, u_min=c.u_min_V,
-                         u_max=c.u_max_V)
+        gains = PIDGains(Kc=c.Kc, Ti_s=c.seconds * c.Ti, Td_s=c.seconds * c.Td, Tf_s=c.Tf_s, b=c.b, u_min_V=c.u_min_V,
+                         u_max_V=c.u_max_V)
     except ValueError as exc:  # every key was checked; a rule between them the table misses
         raise fail("controller", f"does not make PID gains: {exc}") from None
     try:
-        spec = t["tuning"].spec(band_N=sim.band_N, u_min_V=gains.u_min, u_max_V=gains.u_max)
+        spec = t["tuning"].spec(band_N=sim.band_N, u_min_V=gains.u_min_V, u_max_V=gains.u_max_V)
     except Invalid as exc:
         raise fail(f"tuning.{exc.path}", exc.message) from None
     except ValueError as exc:  # every key was checked; a rule between them the table misses

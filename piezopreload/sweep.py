@@ -43,7 +43,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.requirements import EXIT_REQUIREMENT_MISSED
@@ -63,11 +63,14 @@ from piezopreload.core.parallel import spare_cpus
 from piezopreload.core.stagecache import StageCache
 from piezopreload.core.stages import locked, utc
 from piezopreload.pipeline import read_manifest, read_template, run_study, run_summary
-from piezopreload.progress import Progress
+from piezopreload.progress import Progress, ProgressLike, as_progress
 from piezopreload.reports.sweep_figures import sweep_plot
 from piezopreload.reports.sweep_report import render_sweep_report
 from piezopreload.study import Study
 from piezopreload.tuning.validate import SchedulerError
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["sweep", "SweepResult", "parse_vary", "plan_points", "headline", "rerender_sweep_report", "is_sweep_folder",
            "DEFAULT_SWEEP_OUT", "EXIT_POINT_FAILED"]
@@ -439,7 +442,7 @@ def _check_where(workers: int | None, scheduler: str | None) -> None:
 
 def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "grid",
           out: str | Path = DEFAULT_SWEEP_OUT, workers: int | None = None, scheduler: str | None = None,
-          force: bool = False, progress: Progress | None = None, report: bool = True,
+          force: bool = False, progress: ProgressLike | None = None, report: bool = True,
           where: str = "Study.sweep") -> SweepResult:
     """Run ``study`` at every point of ``vary`` (key -> values) into ``out``; see the module docstring.
 
@@ -459,8 +462,9 @@ def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "gr
         here, one after another) or a Dask scheduler's address ``tcp://HOST:PORT``.
     force : bool
         Run every stage of every point again (the shared stages once each).
-    progress : Progress, optional
-        Where each point's line goes (standard error by default).
+    progress : ProgressLike, optional
+        Where each point's line goes: a function given each line, or a
+        :class:`~piezopreload.progress.Progress` (default: standard error).
     report : bool
         Typeset the sweep's report (``OUT/report.pdf``) at the end.
     where : str
@@ -472,7 +476,7 @@ def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "gr
         One row per point; a point that failed is a row with its error.
     """
     _check_where(workers, scheduler)
-    progress = progress or Progress()
+    reporter = as_progress(progress)
     t0 = time.perf_counter()
     axes, planned = plan_points(study, vary, mode, where)
     study.check_files()
@@ -486,24 +490,25 @@ def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "gr
                              utc())
         record.save(out / RECORD)
         n = min(workers or spare_cpus(), len(planned))
-        progress.write(f"sweep of {study.name}: {len(planned)} points ({mode}: "
+        reporter.write(f"sweep of {study.name}: {len(planned)} points ({mode}: "
                        + " x ".join(f"{a.key} {len(a.values)}" for a in axes) + "), on "
                        + (f"the Dask cluster {scheduler}" if scheduler else
                           f"{n} local worker processes" if n > 1 else "this process, one after another")
                        + f"; outputs in {out}/\n")
         tasks = [_Task(i, values, f"{POINTS}/p{i:03d}", s, str(out), force, scheduler is not None)
                  for i, (values, s) in enumerate(planned)]
-        state = {"record": record, "count": 0}
+        count = 0
 
         def done(point: SweepPoint) -> None:
-            state["record"] = state["record"].with_point(point)
-            state["record"].save(out / RECORD)
-            state["count"] += 1
-            progress.write(_point_line(point, state["count"], len(tasks)))
+            nonlocal record, count
+            record = record.with_point(point)
+            record.save(out / RECORD)
+            count += 1
+            reporter.write(_point_line(point, count, len(tasks)))
 
         after = tighter_neighbours([v for v, _ in planned])
         for wave in _waves(len(tasks), after):
-            batch = [_warm_started(tasks[i], tasks[after[i]] if i in after else None, progress) for i in wave]
+            batch = [_warm_started(tasks[i], tasks[after[i]] if i in after else None, reporter) for i in wave]
             if scheduler is not None:
                 _run_dask(batch, scheduler, done)
             elif n <= 1 or len(batch) == 1:
@@ -511,16 +516,15 @@ def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "gr
                     done(run_point(task))
             else:
                 _run_local(batch, min(n, len(batch)), done)
-        record = state["record"]
         result = SweepResult(out, record, time.perf_counter() - t0)
         atomic_write_text(out / ROWS, result.csv_text())
         if report:
-            render_sweep_report(out, record, say=progress.say)
+            render_sweep_report(out, record, say=reporter.say)
     seconds = time.perf_counter() - t0
     failed, missed = len(result.failed), result.missed
     missing = (f", {len(missed)} of them missed a requirement ({', '.join(Path(p.folder).name for p in missed)}: "
                "see requirements_missed in its row)" if missed else "")
-    progress.write(f"{len(tasks) - failed} of {len(tasks)} points done in {seconds:.1f} s"
+    reporter.write(f"{len(tasks) - failed} of {len(tasks)} points done in {seconds:.1f} s"
                    f"{f', {failed} failed' if failed else ''}{missing}; rows in {out / ROWS}"
                    + (f", report {out / 'report.pdf'}" if report else "") + "\n")
     return SweepResult(out, record, seconds)
@@ -531,18 +535,18 @@ def is_sweep_folder(out: str | Path) -> bool:
     return (Path(out) / RECORD).is_file()
 
 
-def rerender_sweep_report(out: str | Path, progress: Progress | None = None,
+def rerender_sweep_report(out: str | Path, progress: ProgressLike | None = None,
                           template: str | Path | None = None) -> dict[str, Any]:
     """Typeset a sweep's report again from ``OUT/sweep.json`` (``piezopreload report SWEEP_DIR``); nothing else runs."""
-    progress = progress or Progress()
+    reporter = as_progress(progress)
     t0 = time.perf_counter()
     out = Path(out)
     text = read_template(template)
     record = SweepRecord.load(out / RECORD)
     with locked(out, f"{out}: a sweep is writing this folder; wait for it"):
-        written = render_sweep_report(out, record, say=progress.say, template=text)
+        written = render_sweep_report(out, record, say=reporter.say, template=text)
     seconds = time.perf_counter() - t0
-    progress.write(f"the sweep's report is {written['report']} ({seconds:.1f} s)\n")
+    reporter.write(f"the sweep's report is {written['report']} ({seconds:.1f} s)\n")
     return {"out": str(out.resolve()), "report": str(written["report"].resolve()), "seconds": seconds,
             "points": len(record.points)}
 
@@ -629,7 +633,7 @@ class SweepResult:
         return pd.DataFrame(self.rows, columns=list(self.record.columns()))
 
     def plot(self, x: str | None = None, y: str | Sequence[str] = "worst_settling_s", *,
-             by: str | Sequence[str] | None = None) -> Any:
+             by: str | Sequence[str] | None = None) -> Figure:
         """A figure of ``y`` (a column, or several: one panel each) against ``x`` (default: the first swept key),
         one line per value of ``by`` (default: the other swept keys of a grid); failed points marked."""
         x = x or self.keys[0]

@@ -26,6 +26,7 @@ from piezopreload.design.tables import (
     ThermalTable,
 )
 from piezopreload.models.actuator import P888_91, Plant, StackData
+from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V
 from piezopreload.rig.tables import ExportTable, RigRunPlan
 from piezopreload.tuning.calibrate import LoopExcitation
 from piezopreload.tuning.identify import MODELS
@@ -141,8 +142,8 @@ class ControllerTable(Table):
     Tf_s: float = key(0.0, "derivative filter time constant", unit="s", ge=0)
     b: float = key(1.0, "setpoint weight of the proportional term")
     units: str = key("seconds", "the unit of Ti and Td as entered (LabVIEW's PID takes minutes)", choices=UNITS)
-    u_min_V: float = key(0.0, "the controller's lowest output", unit="V")
-    u_max_V: float = key(110.0, "the controller's highest output", unit="V")
+    u_min_V: float = key(OUTPUT_MIN_V, "the controller's lowest output", unit="V")
+    u_max_V: float = key(OUTPUT_MAX_V, "the controller's highest output", unit="V")
 
     def check(self) -> None:
         if not self.u_min_V < self.u_max_V:

@@ -15,7 +15,7 @@ import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import as_completed
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import matplotlib as mpl
 import numpy as np
@@ -25,6 +25,9 @@ from matplotlib.ticker import MaxNLocator
 
 from piezopreload.core.parallel import fork_pool, spare_cpus
 
+if TYPE_CHECKING:
+    from matplotlib.typing import RcKeyType
+
 __all__ = [
     "STYLE", "COLOURS", "legends", "save", "save_all", "hysteresis_loops", "inverse_model", "step_responses",
     "tracking",
@@ -32,7 +35,7 @@ __all__ = [
     "rig_run", "closed_loop", "gains_comparison",
 ]
 
-STYLE: dict[str, Any] = {
+STYLE: dict[RcKeyType, Any] = {
     "font.size": 8.5, "axes.titlesize": 9, "axes.labelsize": 8.5, "legend.fontsize": 7.5,
     "xtick.labelsize": 7.5, "ytick.labelsize": 7.5, "axes.grid": True, "grid.alpha": 0.3,
     "grid.linewidth": 0.5, "lines.linewidth": 1.1, "axes.spines.top": False, "axes.spines.right": False,

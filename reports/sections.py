@@ -84,6 +84,11 @@ def _when(x: float | None, unit: str, never: str) -> str:
     return never if x is None else f"{fmt(x)} {unit}"
 
 
+def _recorded(x: float | None) -> str:
+    """A run's figure in a table cell; the responses record leaves one out where it was not finite."""
+    return "not finite" if x is None else fmt(x)
+
+
 # --------------------------------------------------------------------------------------
 # 1. the study
 # --------------------------------------------------------------------------------------
@@ -144,8 +149,8 @@ def design_section(study: ReportStudy, design: DesignRecord, system_shown: bool 
         ("lowest axial natural frequency", fmt(p.frequency_min_Hz), "Hz"),
         ("stack stroke used", fmt(p.stack_stroke_used_um), "um"),
     )
-    diameter, lead = study.screw_mm or (None, None)
-    screw = "" if diameter is None else f" ({fmt(diameter)} mm nominal diameter, {fmt(lead)} mm lead)"
+    screw = ("" if study.screw_mm is None
+             else f" ({fmt(study.screw_mm[0])} mm nominal diameter, {fmt(study.screw_mm[1])} mm lead)")
     binding = design.optimum.binding
     e = sch.energy_units
     paragraphs = [
@@ -497,8 +502,8 @@ def _responses_table(responses: ResponsesRecord, labels: dict[str, str]) -> Tabl
             continue
         traj = responses.run(run.gains, run.controller, "trajectory")
         rows.append((labels.get(run.gains, run.gains), CONTROLLER_NAMES[run.controller],
-                     _when(run.settling_s, "", "never").strip(), fmt(run.overshoot_N), fmt(traj.tracking_rms_N),
-                     fmt(traj.tracking_rms_after_change_N), fmt(run.peak_command_V)))
+                     _when(run.settling_s, "", "never").strip(), *(_recorded(x) for x in (
+                         run.overshoot_N, traj.tracking_rms_N, traj.tracking_rms_after_change_N, run.peak_command_V))))
     return Table(("gains", "controller", "settling (s)", "overshoot (N)", "RMS (N)", "RMS after changes (N)",
                   "peak (V)"), tuple(rows),
                  "Each controller on the study's step (settling time, overshoot) and trajectory (RMS error of the true "
@@ -516,8 +521,8 @@ def _creep_table(responses: ResponsesRecord, labels: dict[str, str]) -> Table | 
         for creep in (False, True):
             s, t = by[(gains, creep, "step")], by[(gains, creep, "trajectory")]
             rows.append((labels.get(gains, gains), s.feedforward + (" with creep" if creep else " without creep"),
-                         _when(s.settling_s, "", "never").strip(), fmt(s.overshoot_N), fmt(t.tracking_rms_N),
-                         fmt(t.tracking_rms_after_change_N)))
+                         _when(s.settling_s, "", "never").strip(),
+                         *(_recorded(x) for x in (s.overshoot_N, t.tracking_rms_N, t.tracking_rms_after_change_N))))
     return Table(("gains", "feedforward", "settling (s)", "overshoot (N)", "RMS (N)", "RMS after changes (N)"),
                  tuple(rows), "FF + PID with the feedforward's creep compensation and with the same P-I model refitted "
                               "without creep, on the same noise.", "llrrrr")

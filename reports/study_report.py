@@ -13,17 +13,16 @@ from __future__ import annotations
 import datetime as _dt
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from piezopreload.core.artifacts import atomic_write_bytes, atomic_write_text, package_version, write_artifact
 from piezopreload.core.errors import InputError
-from piezopreload.reports import figures as F
-from piezopreload.reports import sections as S
 from piezopreload.reports.document import Report
 from piezopreload.reports.inputs import Artifacts, Published, ReportStudy
-from piezopreload.reports.summary import summary, verdicts
-from piezopreload.reports.thermal import thermal_section
 from piezopreload.reports.typeset import ReportError, compile_pdf, template_text
+
+if TYPE_CHECKING:  # the figures and their sections load matplotlib: when a report is built, not on import
+    from piezopreload.reports import sections as S
 
 __all__ = ["ReportStudy", "Published", "render_report", "STAGES_READ"]
 
@@ -33,6 +32,9 @@ STAGES_READ = ("design", "plant", "identify", "tune", "validate", "compare", "le
 
 def _parts(study: ReportStudy, a: Artifacts) -> list[S.Part]:
     """The sections that apply to the study, in the order its reader asks for them."""
+    from piezopreload.reports import sections as S
+    from piezopreload.reports.thermal import thermal_section
+
     parts = [S.study_section(study, a, STAGES_READ)]
     requirements = S.requirements_section(a)
     if requirements is not None:
@@ -53,6 +55,9 @@ def _parts(study: ReportStudy, a: Artifacts) -> list[S.Part]:
 
 def build_report(study: ReportStudy, a: Artifacts, now: _dt.datetime) -> tuple[Report, list[tuple[str, Any, str]]]:
     """The report for ``study`` from its artifacts, and the figures it names ``(name, figure, caption)``."""
+    from piezopreload.reports import sections as S
+    from piezopreload.reports.summary import summary, verdicts
+
     version, date = package_version(), now.strftime("%Y-%m-%d %H:%M:%S")
     parts = _parts(study, a)
     appendix = S.provenance_section(study, a, STAGES_READ, version, date)
@@ -76,6 +81,8 @@ def render_report(out: Path, records: dict[str, dict[str, Any]], study: ReportSt
     ``records`` are the stages' records (their outputs' paths); ``template`` a Typst
     template's text (default: the shipped one); ``say`` gets messages, ``bar`` the figures drawn.
     """
+    from piezopreload.reports import figures as F
+
     folder = out / "report"
     now = _dt.datetime.now(_dt.UTC).replace(microsecond=0)
     report, figures = build_report(study, Artifacts(out, records), now)

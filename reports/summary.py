@@ -85,8 +85,10 @@ def _controller_line(a: Artifacts) -> str:
     settling = ("never settled on one plant at least" if w.settling_s is None
                 else f"worst settling {fmt(w.settling_s)} s")
     verdict = "passed" if val.passed else f"failed on {val.failed_plant_count} of {val.n_plants} plants"
+    worst = ", ".join(f"no plant's {what} was finite" if x is None else f"worst {what} {fmt(x)} N"
+                      for what, x in (("overshoot", w.overshoot_N), ("tracking RMS", w.tracking_rms_N)))
     return (f"The tuned {form} {verdict} the Monte Carlo validation on {val.n_plants} nonlinear plants: {settling}, "
-            f"worst overshoot {fmt(w.overshoot_N)} N, worst tracking RMS {fmt(w.tracking_rms_N)} N.")
+            f"{worst}.")
 
 
 def _step_line(study: ReportStudy, a: Artifacts) -> str:
@@ -98,8 +100,9 @@ def _step_line(study: ReportStudy, a: Artifacts) -> str:
     def settle(r: ResponseRun) -> str:  # the subject is a gain set, named in the plural ("the tuned gains")
         return "do not settle" if r.settling_s is None else f"settle in {fmt(r.settling_s)} s"
 
-    return (f"On the study's {step} step with the feedforward, the tuned gains {settle(tuned)} (overshoot "
-            f"{fmt(tuned.overshoot_N)} N) and {study.gains_label} {settle(start)} ({signal_name(responses.signal)}, "
+    overshoot = "overshoot not finite" if tuned.overshoot_N is None else f"overshoot {fmt(tuned.overshoot_N)} N"
+    return (f"On the study's {step} step with the feedforward, the tuned gains {settle(tuned)} ({overshoot}) "
+            f"and {study.gains_label} {settle(start)} ({signal_name(responses.signal)}, "
             f"±{fmt(responses.band_N)} N band).")
 
 

@@ -70,7 +70,7 @@ from piezopreload.rig.watchdog import SharedDAQ
 
 __all__ = ["Reading", "Backend", "SimBackend", "CLibraryBackend", "Fault", "FaultInjector", "FAULT_KINDS",
            "ENTRY_POINT_GROUP", "BackendError", "InjectedFault", "injected_failure", "available_backends",
-           "open_backend", "parse_fault"]
+           "open_backend", "parse_fault", "native_backend"]
 
 ENTRY_POINT_GROUP = "piezopreload.rig_backends"
 
@@ -97,6 +97,13 @@ class Backend(Protocol):
     def write_voltage(self, volts: float) -> None: ...
 
     def disarm(self) -> None: ...
+
+
+def native_backend(backend: Backend, n_noise: int) -> dict[str, Any] | None:
+    """What the native loop needs to run ``backend`` itself (its ``native_backend(n_noise)``, which a backend may
+    offer: the built-in ones do), or None where it offers none and the loop would call into the interpreter."""
+    offer = getattr(backend, "native_backend", None)
+    return offer(n_noise) if callable(offer) else None
 
 
 class SimBackend:

@@ -49,7 +49,7 @@ from piezopreload.artifacts.rigrun import RunOutcome, RunTiming, TripRecord
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import Controller
 from piezopreload.rig import native_loop
-from piezopreload.rig.backends import Backend, FaultInjector
+from piezopreload.rig.backends import Backend, FaultInjector, native_backend
 from piezopreload.rig.compiled import controller_step, step_library
 from piezopreload.rig.interlocks import STALL_REPORT_PERIODS, TRIP_CAUSES, Safety, Trip, trip_detail
 from piezopreload.rig.native_run import NativeRun
@@ -124,7 +124,7 @@ class Executor:
             why = "the native loop could not be built (no working C compiler)"
         else:
             inner = self.backend.inner if isinstance(self.backend, FaultInjector) else self.backend
-            if not callable(getattr(inner, "native_backend", None)) or inner.native_backend(1) is None:
+            if native_backend(inner, 1) is None:
                 why = (f"the backend '{self.backend.name}' is a Python backend (the loop would "
                        "call into the interpreter)")
             elif isinstance(self.backend, FaultInjector) and len(self.backend.faults) > native_loop.MAX_FAULTS:
@@ -231,15 +231,15 @@ class Executor:
             self.log.close(result.status, RunOutcome(cycles, timing, clamped, record, controller_step=self.step.kind))
         return result
 
-    def _install_signal_handlers(self) -> dict[int, Any]:
+    def _install_signal_handlers(self) -> dict[signal.Signals, Any]:
         if threading.current_thread() is not threading.main_thread():
             return {}
-        previous = {}
+        previous: dict[signal.Signals, Any] = {}
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, lambda signum, frame: self.stop(signal.Signals(signum).name))
         return previous
 
     @staticmethod
-    def _restore_signal_handlers(previous: dict[int, Any]) -> None:
+    def _restore_signal_handlers(previous: dict[signal.Signals, Any]) -> None:
         for sig, handler in previous.items():
             signal.signal(sig, handler)

@@ -30,6 +30,8 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
+from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V
+
 __all__ = ["Safety", "Interlock", "INTERLOCKS", "TRIP_CAUSES", "QUANTITIES", "TESTS", "STAGES", "Trip", "Row", "rows",
            "first_trip", "trip_detail", "c_defines", "STALL_REPORT_PERIODS", "cause_code"]
 
@@ -52,8 +54,8 @@ class Safety:
     and its gains (the command range), and records where each value came from.
     """
 
-    v_min_V: float = 0.0
-    v_max_V: float = 110.0
+    v_min_V: float = OUTPUT_MIN_V
+    v_max_V: float = OUTPUT_MAX_V
     slew_V_per_s: float = 20_000.0
     force_max_N: float = 150.0
     bolt_preload_N: float = 25.0

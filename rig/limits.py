@@ -75,8 +75,9 @@ def plant_of(gain_set: GainSet) -> Plant:
 def _plant_values(controller: Controller, gain_set: GainSet) -> tuple[dict[str, float], dict[str, str]]:
     """What the gain set's plant and gains fix: the command range, the safe level, the bolt preload, the sensor."""
     g, plant = controller.gains, plant_of(gain_set)
-    values = {"v_min_V": max(g.u_min, float(plant.stack.v_min_V)), "v_max_V": min(g.u_max, float(plant.stack.v_max_V)),
-              "safe_V": max(g.u_min, 0.0), "bolt_preload_N": float(plant.bolt_preload_N),
+    values = {"v_min_V": max(g.u_min_V, float(plant.stack.v_min_V)),
+              "v_max_V": min(g.u_max_V, float(plant.stack.v_max_V)),
+              "safe_V": max(g.u_min_V, 0.0), "bolt_preload_N": float(plant.bolt_preload_N),
               "sensor_min_N": -float(plant.adc_full_scale_N),
               "sensor_max_N": float(plant.adc_full_scale_N) - float(plant.adc_lsb_N)}
     sources = {"v_min_V": "the gains' output range within the plant's stacks' voltage range",
@@ -136,6 +137,7 @@ def run_limits(gain_set: GainSet, controller: Controller, reference: Reference, 
     plant_stall = derive_stall_limit(plant_of(gain_set), controller, reference, force_low_N=safety.force_low_N,
                                      force_max_N=safety.force_max_N, v_range=(safety.v_min_V, safety.v_max_V),
                                      reference_name=reference_name, ff_extra_V=ff_extra_V, seed=seed)
+    asked: float | None
     if "stall_limit_s" in given:
         asked, asked_source = float(given["stall_limit_s"]), f"{override_source} (--stall-limit-s)"
     else:

@@ -40,8 +40,7 @@ typedef int (*hw_write_fn)(double);
 typedef int (*hw_disarm_fn)(void);
 typedef int (*hw_heartbeat_fn)(int);
 
-/* fault kinds, as rig/backends.py FAULT_KINDS */
-enum { F_NAN = 1, F_STALE, F_OFFSET, F_READING, F_DELAY, F_RAISE, F_SIGNAL };
+/* fault kinds: F_NAN, F_STALE, ... are defined before this source, from rig/backends.py FAULT_KINDS */
 /* where an exception came from */
 enum { X_ARM = 1, X_READ, X_WRITE, X_STEP, X_START, X_FAULT };
 

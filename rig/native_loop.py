@@ -51,6 +51,7 @@ import numpy as np
 from piezopreload.core import native
 from piezopreload.models.controller import Controller, ControllerModel, controller_functions
 from piezopreload.rig import interlocks
+from piezopreload.rig.backends import FAULT_KINDS
 from piezopreload.rig.compiled import step_library
 
 __all__ = ["NativeLoop", "loop_library", "start_library", "available", "COLS", "FAULT_CODES", "EXCEPTION_WHERE",
@@ -61,8 +62,9 @@ MAX_FAULTS = 16
 MAX_INTERLOCKS = max(16, len(interlocks.INTERLOCKS))
 #: the stall ring's length: the supervisor drains it every 10 ms, the loop writes one entry per stall
 STALL_ROWS = 4096
-#: the fault kinds' codes in the C source (rig/backends.py FAULT_KINDS)
-FAULT_CODES = {"nan": 1, "stale": 2, "offset": 3, "reading": 4, "delay": 5, "raise": 6, "signal": 7}
+#: each fault kind's code in the C source: numbered from 1 in the order of
+#: :data:`~piezopreload.rig.backends.FAULT_KINDS` (the C source gets them as ``F_<KIND>`` defines, :func:`source`)
+FAULT_CODES = {kind: code for code, kind in enumerate(FAULT_KINDS, start=1)}
 #: what failed when the loop trips with cause ``exception``
 EXCEPTION_WHERE = {1: "the backend's arm", 2: "the backend's read_force", 3: "the backend's write_voltage",
                    4: "the compiled controller step", 5: "the compiled controller start", 6: "an injected fault"}
@@ -121,8 +123,10 @@ class _Probe(ctypes.Structure):
 
 
 def source() -> str:
-    """The loop's C source as it is built: the interlock table's codes, then ``native_loop.c``."""
-    return interlocks.c_defines() + _SOURCE.read_text(encoding="utf-8")
+    """The loop's C source as it is built: the interlock table's and the fault kinds' codes, then ``native_loop.c``."""
+    faults = "".join(f"#define F_{kind.upper()} {code}\n" for kind, code in FAULT_CODES.items())
+    return (interlocks.c_defines() + "/* generated from rig/backends.py: the fault kinds' codes */\n" + faults
+            + _SOURCE.read_text(encoding="utf-8"))
 
 
 def loop_library() -> ctypes.CDLL:

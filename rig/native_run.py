@@ -17,8 +17,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from piezopreload.core.errors import InternalError
 from piezopreload.rig import native_loop
-from piezopreload.rig.backends import FaultInjector, injected_failure
+from piezopreload.rig.backends import FaultInjector, injected_failure, native_backend
 from piezopreload.rig.interlocks import TRIP_CAUSES, Trip, trip_detail
 from piezopreload.rig.native_loop import LoopStatus, NativeLoop
 from piezopreload.rig.outcome import RunResult, timing_summary
@@ -54,7 +55,9 @@ class NativeRun:
         n_noise = len(ex._ref) + int(np.ceil(s.ramp_s / dt)) + 16
         if ex.hold:
             n_noise = max(n_noise, 1 << 18)
-        backend = inner.native_backend(n_noise)
+        backend = native_backend(inner, n_noise)
+        if backend is None:  # the executor chose the native loop because the backend offers one
+            raise InternalError(f"the backend '{inner.name}' offers no native loop")
         return NativeLoop(ex.controller, np.asarray(ex._ref), s, backend, realtime=ex.realtime, hold=ex.hold,
                           faults=faults, step_fn=getattr(ex.step, "_fn", None),
                           ff_extra=None if ex._extra is None else np.asarray(ex._extra))
@@ -104,7 +107,7 @@ class NativeRun:
                 ex._switch_info.append(info)
                 loop.switch(new)
         loop.start(catch_signals=catch_signals)
-        ex._event("armed", 0.0, backend=ex.backend.name, controller_step=ex.step.kind, loop="native",
+        ex._event("armed", 0.0, True, backend=ex.backend.name, controller_step=ex.step.kind, loop="native",
                   **loop.realtime_report)
         if ex._stop is not None:
             loop.stop(ex._stop_trips)

@@ -68,10 +68,9 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from asyncua import Client, Server, ua
 from asyncua.crypto.permission_rules import SimpleRoleRuleset, User, UserRole
@@ -80,6 +79,7 @@ from asyncua.crypto.security_policies import (
     SecurityPolicyAes256Sha256RsaPss,
     SecurityPolicyBasic256Sha256,
 )
+from asyncua.server.user_managers import UserManager
 
 from piezopreload.core.errors import PiezopreloadError
 from piezopreload.models.controller import Controller
@@ -96,7 +96,12 @@ ROOT = "PreloadRig"
 
 #: check_gain_set(document text) -> (controller, {"gain_set_sha256": ..., "feedforward_sha256": ...});
 #: raises ValueError with the reason when the document cannot run
-GainSetCheck = Callable[[str], tuple[Controller, dict[str, Any]]]
+class GainSetCheck(Protocol):
+    """The served rig's check of a pushed document (``session.check_pushed`` with the rig bound): the controller it
+    switches to and what the push records; ``accepted``: the keys of the requirements a candidate missed that the
+    pusher accepts."""
+
+    def __call__(self, text: str, *, accepted: tuple[str, ...] = ()) -> tuple[Controller, dict[str, Any]]: ...
 
 
 class PushRefused(PiezopreloadError, RuntimeError):
@@ -107,7 +112,7 @@ def _hash_password(password: str, salt: bytes) -> bytes:
     return hashlib.pbkdf2_hmac("sha256", password.encode(), salt, 200_000)
 
 
-class _Users:
+class _Users(UserManager):
     """User names with salted password hashes."""
 
     def __init__(self, passwords: dict[str, str]) -> None:
@@ -131,7 +136,7 @@ class _Ruleset(SimpleRoleRuleset):
 
     def check_validity(self, user: User, action_type_id: Any, body: Any) -> bool:
         ok = super().check_validity(user, action_type_id, body)
-        if ok and action_type_id == ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary):
+        if ok and action_type_id == ua.NodeId(ua.Int32(ua.ObjectIds.CallRequest_Encoding_DefaultBinary)):
             self.caller = user.name
         return ok
 
@@ -399,7 +404,7 @@ PUSH_OUTPUTS = (
 
 def _argument(name: str, vtype: ua.VariantType, what: str) -> ua.Argument:
     arg = ua.Argument()
-    arg.Name, arg.DataType, arg.ValueRank = name, ua.NodeId(vtype.value), -1
+    arg.Name, arg.DataType, arg.ValueRank = name, ua.NodeId(ua.Int32(vtype.value)), -1
     arg.Description = ua.LocalizedText(what)
     return arg
 
@@ -541,8 +546,8 @@ class _ServerProcess:
 
 
 #: the security policies a client may ask for with a certificate, by name (piezopreload.rig.SECURITY_POLICIES)
-SECURITY_POLICIES = dict(zip(POLICY_NAMES, (SecurityPolicyBasic256Sha256, SecurityPolicyAes128Sha256RsaOaep,
-                                            SecurityPolicyAes256Sha256RsaPss), strict=True))
+SECURITY_POLICIES: dict[str, Any] = dict(zip(POLICY_NAMES, (  # concrete classes: a client instantiates one
+    SecurityPolicyBasic256Sha256, SecurityPolicyAes128Sha256RsaOaep, SecurityPolicyAes256Sha256RsaPss), strict=True))
 #: the message security modes a client may ask for with a certificate, by name (piezopreload.rig.SECURITY_MODES)
 SECURITY_MODES = dict(zip(MODE_NAMES, (ua.MessageSecurityMode.SignAndEncrypt, ua.MessageSecurityMode.Sign),
                           strict=True))
@@ -639,7 +644,7 @@ async def _push_and_read(client: Client, document: str, note: str, timeout_s: fl
     root = await client.nodes.objects.get_child([f"{idx}:{ROOT}"])
     method = await root.get_child([f"{idx}:PushGainSet"])
     try:
-        taken, message = await root.call_method(method, ua.Variant(document, ua.VariantType.String),
+        taken, message = await root.call_method(method.nodeid, ua.Variant(document, ua.VariantType.String),
                                                 ua.Variant(note, ua.VariantType.String),
                                                 ua.Variant(",".join(accepted), ua.VariantType.String))
     except ua.UaStatusCodeError as exc:

@@ -25,7 +25,7 @@ import threading
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -50,6 +50,9 @@ from piezopreload.rig.limits import RunLimits, check_fit, run_limits
 from piezopreload.rig.opcua import PushRefused, RigServer, feedforward_hash, push_gain_set
 from piezopreload.rig.outcome import RunResult
 from piezopreload.rig.runlog import RunLog
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["EXIT_TRIPPED", "HOST_CHECK_S", "MAX_REFERENCE_S", "RigRun", "ServedRig", "load_validated", "reference_for",
            "run_metrics", "run", "serve", "push", "check_pushed", "check", "controller_words"]
@@ -216,7 +219,7 @@ def run_metrics(columns: dict[str, np.ndarray], reference: Reference, band_N: fl
         te = run.tracking_error(t_from_s=0.0)
         numbers = {"tracking_rms_N": float(te["rms"]), "tracking_max_N": float(te["max"])}
     keys = ("rise_s", "peak_s", "settling_s", "overshoot_N", "tracking_rms_N", "tracking_max_N")
-    return RunMetrics(n, peak, **{k: None if numbers.get(k) is None else finite_or_none(numbers[k]) for k in keys})
+    return RunMetrics(n, peak, **{k: None if (x := numbers.get(k)) is None else finite_or_none(x) for k in keys})
 
 
 @dataclass(frozen=True, eq=False)
@@ -233,7 +236,7 @@ class RigRun:
     def to_dict(self) -> dict[str, Any]:
         return dict(self.summary)
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """Reference and measured force (top), amplifier voltage (bottom); grey: the ramp down."""
         from matplotlib.figure import Figure
 
@@ -321,12 +324,14 @@ def _setup(gains_path: str | Path, backend: str, backend_options: dict[str, str]
         raise InputError(f"--backend-option watchdog_s={wd!r}: not a number") from None
     limits = _limits(gain_set, controller, ref, ref_name, signal, learned, safety, safety_source, seed, watchdog_s)
     rig = _open(backend, backend_options, gain_set, seed, realtime, faults)
+    identity = _identity(gain_set)
     record = RigRunRecord(
         gain_set=str(gains_path), backend=rig.name, rig_preset=gain_set.preset, reference=ref_name,
         reference_levels_N=tuple(ref.levels_N.tolist()), rate_Hz=1.0 / controller.dt_s, realtime=realtime,
         safety=limits.safety.to_dict(), safety_sources=dict(limits.sources), stall_limit=limits.stall, seed=seed,
         faults_injected=tuple({**f.__dict__, "duration_s": f.duration_s if math.isfinite(f.duration_s) else None}
-                              for f in faults or []), **_identity(gain_set),
+                              for f in faults or []), gain_set_sha256=identity["gain_set_sha256"],
+        feedforward_sha256=identity["feedforward_sha256"],
         accepted_missed=tuple(r.to_dict() for r in gain_set.require_usable(accepted)))
     if signal is not None:
         record = replace(record, learned={"path": str(learned), "sha256": signal.content_sha256,

@@ -5,7 +5,7 @@ declare their keys (type, default, unit, range, doc: :func:`piezopreload.core.co
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 
 from piezopreload.artifacts.gainset import REFERENCES, RigInterlocks
 from piezopreload.core.config import Invalid, Table, key
@@ -93,14 +93,14 @@ def default_interlocks(plant: Plant) -> tuple[dict[str, float], dict[str, str]]:
     bolts' preload is the loop's noise and undershoot, not a preload lost, and it leaves a stalled loop a few
     milliseconds). ``ramp_s``: the executor's default. No stall limit: the plant's applies.
     """
-    defaults = {f.name: f.default for f in fields(Safety)}
+    defaults = Safety()
     v_max = float(plant.stack.v_max_V)
     reach = float(reach_N(Rig(plant), v_max))
-    low = max(float(defaults["force_low_margin_N"]), LOW_MARGIN_SHARE * reach)
-    values = {"force_max_N": FORCE_MAX_FACTOR * reach, "force_low_margin_N": low, "ramp_s": float(defaults["ramp_s"])}
+    low = max(float(defaults.force_low_margin_N), LOW_MARGIN_SHARE * reach)
+    values = {"force_max_N": FORCE_MAX_FACTOR * reach, "force_low_margin_N": low, "ramp_s": float(defaults.ramp_s)}
     sources = {"force_max_N": f"derived: {FORCE_MAX_FACTOR:g} x the {reach:.4g} N the plant's stacks reach at "
                               f"their {v_max:g} V",
-               "force_low_margin_N": ("the executor's default" if low == defaults["force_low_margin_N"] else
+               "force_low_margin_N": ("the executor's default" if low == defaults.force_low_margin_N else
                                       f"derived: {LOW_MARGIN_SHARE:.0%} of the {reach:.4g} N the plant's stacks reach"),
                "ramp_s": "the executor's default"}
     return values, sources

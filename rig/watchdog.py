@@ -67,11 +67,11 @@ class Watch:
     """The watchdog's decision on the times it is given: the relay opens once the heartbeat has not changed for
     longer than ``timeout_s`` while armed (:meth:`poll` says when)."""
 
-    def __init__(self, timeout_s: float, beat: int, now: float) -> None:
+    def __init__(self, timeout_s: float, beat: float, now: float) -> None:
         self.timeout_s = float(timeout_s)
         self.last, self.last_t = beat, now
 
-    def poll(self, beat: int, armed: bool, now: float) -> bool:
+    def poll(self, beat: float, armed: bool, now: float) -> bool:
         """One look at the heartbeat at ``now``: True when the relay must open."""
         if beat != self.last or not armed:
             self.last, self.last_t = beat, now

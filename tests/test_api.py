@@ -133,7 +133,7 @@ def test_the_gain_set_round_trips_and_its_exports_are_the_cli_s(gain_set, tmp_pa
     assert ([float(lv[k]) for k in ("Kc", "Ti (min)", "Td (min)")]
             == pytest.approx([g.Kc, g.Ti_s / 60, g.Td_s / 60], rel=1e-11))
     plc = dict(re.findall(r"^    (\w+) : LREAL := ([^;]+);", pp.export(loaded, "plc"), re.MULTILINE))
-    assert [float(plc[k]) for k in ("Kc", "Ti_s", "Td_s", "u_max_V")] == [g.Kc, g.Ti_s, g.Td_s, g.u_max]
+    assert [float(plc[k]) for k in ("Kc", "Ti_s", "Td_s", "u_max_V")] == [g.Kc, g.Ti_s, g.Td_s, g.u_max_V]
     assert f"#define PP_TI_S {g.Ti_s!r}" in pp.export(loaded, "c-header")
     assert json.loads(pp.export(loaded, "json"))["gains"]["Ti_s"] == g.Ti_s
     doc = json.loads(path.read_text())

@@ -1,5 +1,6 @@
 """The command line: JSON output, exit codes, one-line errors naming file and line; artifacts."""
 
+import argparse
 import json
 import os
 import re
@@ -12,7 +13,7 @@ import numpy as np
 import pytest
 
 from piezopreload.artifacts.hysteresis import DataSource, FitError, IdentifiedModel, SolverReport, Units
-from piezopreload.cli import main
+from piezopreload.cli import COMMANDS, build_parser, main
 from piezopreload.core.artifacts import ArtifactError, read_artifact, write_artifact
 from piezopreload.models.hysteresis import ClassicalPI, uniform_thresholds
 
@@ -175,6 +176,32 @@ def test_help(capsys, argv):
     assert "usage:" in capsys.readouterr().out
 
 
+def test_the_command_line_lists_its_subcommands_without_loading_the_floors():
+    """``piezopreload --help`` and the parser it builds import no floor: each subcommand registers its arguments (and
+    imports the constants its choices name) when it is used."""
+    probe = ("import sys\nfrom piezopreload.cli import main\n"
+             "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
+             "print('loaded:', *sorted(m for m in sys.modules if m.split('.')[0] in ('numpy', 'scipy', 'casadi') "
+             "or m.startswith(('piezopreload.models', 'piezopreload.design', 'piezopreload.tuning', "
+             "'piezopreload.rig', 'piezopreload.artifacts', 'piezopreload.reports', 'piezopreload.study'))))")
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    assert "COMMAND" in done.stdout
+    assert done.stdout.splitlines()[-1] == "loaded:", done.stdout.splitlines()[-1]
+
+
+@pytest.mark.parametrize("command", [register.__name__.removeprefix("register_") for register in COMMANDS])
+def test_a_deferred_subcommand_is_the_subcommand_registered_at_once(command):
+    """What ``main`` parses (each subcommand registered when used) is what the docs' reference shows (all at once)."""
+    def subcommand(parser):
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        return sub.choices[command]
+
+    deferred, full = build_parser(deferred=True), build_parser()
+    assert deferred.format_help() == full.format_help()
+    assert subcommand(deferred).format_help() == subcommand(full).format_help()
+    assert subcommand(deferred).get_default("run") is subcommand(full).get_default("run")
+
+
 def test_the_run_command_s_help_names_every_stage_in_order(capsys):
     """The one-line help of 'run' lists the pipeline's stages as the pipeline runs them (it once left 'learn' out)."""
     from piezopreload.pipeline import STAGES
@@ -186,12 +213,12 @@ def test_the_run_command_s_help_names_every_stage_in_order(capsys):
 
 
 def test_internal_failure_exit_1(capsys, monkeypatch):
-    import piezopreload.cli.identify as cli
+    import piezopreload.tuning.identification as identification  # what the identify command calls when it runs
 
     def boom(*a, **k):
         raise RuntimeError("simulated bug")
 
-    monkeypatch.setattr(cli, "identify", boom)
+    monkeypatch.setattr(identification, "identify", boom)
     code, _, err = run(capsys, "identify")
     assert code == 1
     assert err.strip().startswith("error: internal failure: RuntimeError: simulated bug")

@@ -20,7 +20,7 @@ def test_closed_loop_matches_python_control_on_a_linear_rig():
     """y = T r with T = CP / (1 + CP): the PID (trapezoidal I) and the discrete rig in z."""
     rig = Rig(LINEAR)
     dt = rig.dt_s
-    gains = PIDGains(Kc=0.3, Ti_s=0.08, Td_s=0.0, u_min=-1e6, u_max=1e6)
+    gains = PIDGains(Kc=0.3, Ti_s=0.08, Td_s=0.0, u_min_V=-1e6, u_max_V=1e6)
     ref = Reference.step(25.0, 60.0, 0.05, 1.5)
     run = simulate(rig, Controller(gains, dt), ref, seed=0)
 

@@ -9,7 +9,7 @@ from piezopreload.models.hysteresis import ClassicalPI, uniform_thresholds
 
 control = pytest.importorskip("control", reason="python-control is the independent reference")
 
-WIDE = dict(u_min=-1e9, u_max=1e9)
+WIDE = dict(u_min_V=-1e9, u_max_V=1e9)
 
 
 def run(ctrl, sp, pv, state=None):
@@ -52,7 +52,7 @@ def test_matches_discrete_transfer_functions():
 
 
 def test_anti_windup_leaves_saturation_at_once():
-    gains = PIDGains(Kc=1.0, Ti_s=0.05, u_min=0.0, u_max=10.0)
+    gains = PIDGains(Kc=1.0, Ti_s=0.05, u_min_V=0.0, u_max_V=10.0)
     ctrl = Controller(gains, dt_s=1e-3)
     sp = np.r_[np.full(2000, 100.0), np.full(50, 0.0)]  # unreachable setpoint, then back to 0
     pv = np.full(sp.size, 5.0)
@@ -100,13 +100,13 @@ def test_labview_minutes():
     assert g.labview() == pytest.approx({"Kc": 0.3, "Ti_min": 0.08, "Td_min": 0.001})
     with pytest.raises(ValueError, match="Ti_s must be > 0"):
         PIDGains(Kc=1.0, Ti_s=0.0)
-    with pytest.raises(ValueError, match="u_min < u_max"):
-        PIDGains(Kc=1.0, Ti_s=1.0, u_min=5.0, u_max=5.0)
+    with pytest.raises(ValueError, match="u_min_V < u_max_V"):
+        PIDGains(Kc=1.0, Ti_s=1.0, u_min_V=5.0, u_max_V=5.0)
 
 
 def test_feedforward_inverts_the_hysteresis_and_start_is_bumpless():
     model = ClassicalPI(uniform_thresholds(10, 100.0), np.r_[0.5, np.full(9, 0.03)], offset=25.0)
-    ctrl = Controller(PIDGains(Kc=0.0, Ti_s=np.inf, u_min=-1e9, u_max=1e9), dt_s=1e-3,
+    ctrl = Controller(PIDGains(Kc=0.0, Ti_s=np.inf, u_min_V=-1e9, u_max_V=1e9), dt_s=1e-3,
                       feedforward=model.inverse())
     target = 40 + 20 * np.sin(np.linspace(0, 6, 500))
     u, _ = run(ctrl, target, target)  # Kc = 0: pure feedforward

@@ -446,14 +446,14 @@ def test_results_draw_themselves(spec, nlp):
     import matplotlib.pyplot as plt
 
     result = optimise(spec, "drag", nlp)
-    ax = result.plot()
+    (ax,) = result.plot().axes
     assert len(ax.lines) == 1 + len(spec.duty) + 2 and ax.get_xlabel() == "preload F_p (N)"
     front = pareto_front(spec, "stiffness:life", 4, nlp)
-    ax = front.plot()
+    (ax,) = front.plot().axes
     np.testing.assert_allclose(ax.lines[0].get_ydata(), front.y)
     screw = spec.screw(result.point)
     s = schedule_preload(screw, example_profile(0.05),
                          ScheduleSpec(result.point.bolt_preload_N, 4000.0, 2e4, stiffness_min_N_per_um=300.0))
-    axes = s.plot()
+    axes = s.plot().axes
     np.testing.assert_allclose(axes[1].lines[0].get_ydata(), s.preload_N)
-    plt.close("all")
+    assert plt.get_fignums() == []  # drawn without pyplot: no figure left in its state

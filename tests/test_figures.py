@@ -113,3 +113,25 @@ def test_counts_are_ticked_in_whole_numbers():
     for ticks, what in ((learning.get_xticks(), "learning trials"),
                         *((a.get_yticks(), "plants") for a in hist.axes)):
         assert np.allclose(ticks, np.round(ticks)), f"{what}: ticks at {ticks}"
+def test_every_plot_method_is_typed_to_return_a_figure_and_nothing_uses_pyplot():
+    """Every result's ``plot()`` returns a matplotlib Figure made without pyplot (no global figure state): its
+    annotation says so (a type checker then holds each body to it), and no module of the package imports pyplot."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    folders = ("core", "models", "artifacts", "design", "tuning", "rig", "reports", "piezopreload")
+    plots, pyplot = [], []
+    for folder in folders:
+        for path in sorted((root / folder).rglob("*.py")):
+            tree = ast.parse(path.read_text())
+            for node in ast.walk(tree):
+                if isinstance(node, ast.FunctionDef) and node.name == "plot":
+                    plots.append((f"{path.relative_to(root)}:{node.lineno}", ast.unparse(node.returns)))
+                if isinstance(node, ast.ImportFrom | ast.Import):
+                    names = [getattr(node, "module", None) or ""] + [a.name for a in node.names]
+                    if any(n == "matplotlib.pyplot" or n.endswith(".pyplot") or n == "pyplot" for n in names):
+                        pyplot.append(f"{path.relative_to(root)}:{node.lineno}")
+    assert len(plots) >= 19
+    assert [p for p in plots if p[1] != "Figure"] == []
+    assert pyplot == []

@@ -140,7 +140,7 @@ def test_the_setpoint_action_must_rise_with_the_setpoint_and_the_weights_are_rai
     from piezopreload.models.controller import Controller, GainSchedule
 
     def command_after_step(b):
-        g = PIDGains(Kc=0.011, Ti_s=0.05, b=0.6, u_min=-1e3, u_max=1e3, schedule=GainSchedule(lv, kc, (0.05, 0.05),
+        g = PIDGains(Kc=0.011, Ti_s=0.05, b=0.6, u_min_V=-1e3, u_max_V=1e3, schedule=GainSchedule(lv, kc, (0.05, 0.05),
                                                                                                (0.0, 0.0), b))
         c = Controller(g, 1e-3)
         state = c.initial_state(3000.0, 3000.0, u0=0.0)

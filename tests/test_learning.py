@@ -61,7 +61,7 @@ def test_preview_on_a_pure_delay_removes_it_exactly():
     rig = Rig(params)
     gain = float(params.effective_stiffness_N_per_um * params.stroke_um_per_V)  # N/V
     ref = Reference.staircase(25.0, [40.0, 55.0, 30.0], 0.05, t_start_s=0.02)
-    c = Controller(PIDGains(Kc=0.0, Ti_s=np.inf, u_min=-1e3, u_max=1e3), rig.dt_s)  # the feedforward alone
+    c = Controller(PIDGains(Kc=0.0, Ti_s=np.inf, u_min_V=-1e3, u_max_V=1e3), rig.dt_s)  # the feedforward alone
     n = int(round(ref.duration_s / rig.dt_s)) + 1
     r = ref.at(np.arange(n) * rig.dt_s)
     ff = (r - params.bolt_preload_N) / gain
@@ -145,7 +145,7 @@ def test_preview_on_a_ramp_with_a_pure_delay_removes_it_and_without_it_the_floor
     plan = P.ramp_plan(params, ref, lag * dt, lead_samples=lag)
     np.testing.assert_allclose(plan.force_N, r, atol=1e-12,
                                err_msg="with preview over the lead the plan is not the ramp")
-    c = Controller(PIDGains(Kc=0.0, Ti_s=np.inf, u_min=-1e3, u_max=1e3), dt)  # the feedforward alone
+    c = Controller(PIDGains(Kc=0.0, Ti_s=np.inf, u_min_V=-1e3, u_max_V=1e3), dt)  # the feedforward alone
     ff = (plan.force_N - params.bolt_preload_N) / gain
     late = simulate(rig, c, ref, ff_extra_V=ff, engine="numpy")
     early = simulate(rig, c, ref, ff_extra_V=P.advance(ff, lag), engine="numpy")
@@ -452,7 +452,7 @@ def test_on_monte_carlo_plants_every_plant_converges_monotonically_and_a_diverge
     # (the stacks' hysteresis remembers trial 1's correction), beyond a noise floor of 0.006 N
     params = Plant(noise_N=0.249)
     rig = Rig(params)
-    c = Controller(PIDGains(Kc=0.3, Ti_s=0.08, Td_s=0.001, u_max=200.0), rig.dt_s)
+    c = Controller(PIDGains(Kc=0.3, Ti_s=0.08, Td_s=0.001, u_max_V=200.0), rig.dt_s)
     ref = Reference.staircase(25.0, [45.0, 60.0], 0.4, t_start_s=0.1)
     res = L.learn(c, rig, ref, iterations=4, seed=2, plants=4, stop_gain=None)
     assert res.monotone.shape == (4,) and bool(res.monotone.all()), [h.tracking_rms_N for h in res.history]
@@ -546,7 +546,7 @@ def designed_loop():
     hardware = Plant(amp_bandwidth_Hz=100.0, bw_alpha=0.3238, bw_kappa=0.0931, creep_per_decade=0.0385,
                          noise_N=1.0, adc_full_scale_N=10000.0, amp_v_min_V=-20.0, amp_v_max_V=120.0)
     plant = plant_from_design(spec, opt, hardware, design_sha256="0" * 64, sleeve_stiffness_N_per_um=4000.0)
-    c = Controller(PIDGains(Kc=0.0108, Ti_s=0.0486, b=0.91, u_min=-20.0, u_max=115.0), plant.rig.sample_period_s)
+    c = Controller(PIDGains(Kc=0.0108, Ti_s=0.0486, b=0.91, u_min_V=-20.0, u_max_V=115.0), plant.rig.sample_period_s)
     return plant, c
 
 

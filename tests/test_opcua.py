@@ -70,7 +70,7 @@ def _gain_sets(tmp_path, study, feedforward):
     quiet = replace(study.plant, noise_N=0.05)
     # b = 0: a proportional action on the measurement alone, -0.5 V/N x 60 N = -30 V away from the paper's
     # (b = 1, e ~ 0): a switch that is not bumpless jumps by that much
-    tuned = PIDGains(Kc=0.5, Ti_s=0.05, Td_s=0.001, Tf_s=0.01, b=0.0, u_min=0.0, u_max=110.0)
+    tuned = PIDGains(Kc=0.5, Ti_s=0.05, Td_s=0.001, Tf_s=0.01, b=0.0, u_min_V=0.0, u_max_V=110.0)
     sets = {"first": write_gain_set(tmp_path / "paper.json", study, feedforward, plant=quiet),
             "second": write_gain_set(tmp_path / "tuned.json", study, feedforward, gains=tuned, plant=quiet),
             "candidate": write_gain_set(tmp_path / "candidate.json", study, feedforward, gains=tuned,
@@ -198,7 +198,7 @@ def test_basic256sha256_channel_with_a_password(tmp_path, study, feedforward):
     asyncio.run(make())
     first = write_gain_set(tmp_path / "paper.json", study, feedforward)
     second = write_gain_set(tmp_path / "tuned.json", study, feedforward,
-                            gains=PIDGains(Kc=0.4, Ti_s=0.06, Td_s=0.001, u_min=0.0, u_max=110.0))
+                            gains=PIDGains(Kc=0.4, Ti_s=0.06, Td_s=0.001, u_min_V=0.0, u_max_V=110.0))
     sha2 = read_artifact(second, "gain-set")["content_sha256"]
     endpoint = f"opc.tcp://127.0.0.1:{_free_port()}/piezopreload/"
     ready, stop, out = threading.Event(), threading.Event(), {}

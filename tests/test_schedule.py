@@ -21,7 +21,7 @@ from piezopreload.rig.export import export
 
 SCHEDULE = GainSchedule(levels_N=(30.0, 60.0, 100.0), Kc=(0.9, 1.6, 0.7), Ti_s=(0.08, 0.04, 0.06),
                         Td_s=(0.0, 0.004, 0.002))
-BASE = dict(Kc=1.2, Ti_s=0.05, Td_s=0.003, Tf_s=0.002, b=0.4, u_min=0.0, u_max=110.0)
+BASE = dict(Kc=1.2, Ti_s=0.05, Td_s=0.003, Tf_s=0.002, b=0.4, u_min_V=0.0, u_max_V=110.0)
 #: the same table with a setpoint weight per entry (tuned with each entry)
 SCHEDULE_B = GainSchedule(levels_N=SCHEDULE.levels_N, Kc=SCHEDULE.Kc, Ti_s=SCHEDULE.Ti_s, Td_s=SCHEDULE.Td_s,
                           b=(0.3, 0.8, 0.5))
@@ -113,7 +113,7 @@ def test_a_ramp_through_the_entries_moves_the_output_as_the_closed_form_says():
     u_k - u_{k-1} = (Kc_k - Kc_{k-1}) (b s_k - y) + Kc_{k-1} b (s_k - s_{k-1}) + Kc_k / Ti_k (e_k + e_{k-1}) / 2 dt,
     because the integral state is the integral action (V): a change of gains moves nothing stored. So each
     sample's jump is bounded by the ramp's increment times the gains and their slopes."""
-    g = PIDGains(**{**BASE, "u_min": -1e4, "u_max": 1e4}, schedule=SCHEDULE)  # a range the output never reaches
+    g = PIDGains(**{**BASE, "u_min_V": -1e4, "u_max_V": 1e4}, schedule=SCHEDULE)  # a range the output never reaches
     y, dt, b = 40.0, 1e-3, BASE["b"]
     sp, u = _ramp_open_loop(g, y0=y, dt=dt)
     assert np.all(np.abs(u) < 1e4), "the check is for the unclamped output"
@@ -135,7 +135,7 @@ def test_a_ramp_through_entries_with_their_own_b_moves_the_output_as_the_closed_
     increments are
     u_k - u_{k-1} = Kc_k (b_k s_k - y) - Kc_{k-1} (b_{k-1} s_{k-1} - y) + Kc_k / Ti_k (e_k + e_{k-1}) / 2 dt
     (measurement held, so no derivative action; the integral state is the integral action)."""
-    g = PIDGains(**{**BASE, "u_min": -1e4, "u_max": 1e4}, schedule=SCHEDULE_B)
+    g = PIDGains(**{**BASE, "u_min_V": -1e4, "u_max_V": 1e4}, schedule=SCHEDULE_B)
     y, dt = 40.0, 1e-3
     sp, u = _ramp_open_loop(g, y0=y, dt=dt)
     Kc, Ti, _ = SCHEDULE_B.at(sp)

@@ -25,7 +25,7 @@ def test_the_shipped_study_is_the_repository_one():
     assert paper_study().read_bytes() == (REPO / "studies" / "paper2021.toml").read_bytes()
     study = load_study(paper_study())
     assert study.gains.Kc == 0.3 and study.gains.Ti_s == 0.08 and study.gains.Td_s == 0.001
-    assert study.gains.u_min == 0.0 and study.gains.u_max == 110.0
+    assert study.gains.u_min_V == 0.0 and study.gains.u_max_V == 110.0
     assert study.rig.bolt_preload_N == 25.0
     assert study.references["step"].levels_N.tolist() == [25.0, 60.0]
     assert study.references["trajectory"].levels_N.tolist() == [25.0, 60.0, 80.0, 100.0, 80.0, 60.0]

@@ -160,6 +160,17 @@ def test_a_second_run_reruns_nothing_and_says_so(small_run, tmp_path, capsys):
     assert after == before
 
 
+def test_study_run_takes_a_function_for_its_progress_as_every_step_does(small_run, tmp_path):
+    """``study.run(progress=print)`` gives each line to the function (it took only a Progress object before)."""
+    out = _copy(small_run, tmp_path)
+    lines: list[str] = []
+    result = load_study(SMALL).run(out, progress=lines.append)
+    assert result.ran == ()
+    assert lines[0].startswith("[1/") and "up to date, not run again" in lines[0]
+    assert any(line.startswith("nothing to run: every stage is up to date") for line in lines)
+    assert not any("\n" in line for line in lines)
+
+
 def test_a_changed_table_reruns_only_the_stages_that_read_it(small_run, tmp_path):
     out = _copy(small_run, tmp_path)
     study = tmp_path / "study.toml"

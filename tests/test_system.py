@@ -332,7 +332,7 @@ def test_a_lagging_loop_gets_local_margins_and_then_keeps_every_requirement(axis
 
     spec, opt, plant, schedule = axis
     # the machine axis's tuned PI without its feedforward: it lags the schedule's ramps
-    sluggish = Controller(PIDGains(0.0108, 0.0486, u_min=-20.0, u_max=115.0), 1e-3)
+    sluggish = Controller(PIDGains(0.0108, 0.0486, u_min_V=-20.0, u_max_V=115.0), 1e-3)
     result = track_schedule(plant, sluggish, schedule, cycles=1, passes=3)
     first, last = result.passes[0], result.passes[-1]
     assert not first.requirements_met, "the sluggish loop was meant to fall short on the design's own schedule"
@@ -367,7 +367,7 @@ def test_the_pre_cycle_brings_the_stacks_to_the_first_level_before_the_first_cut
                          noise_N=1.0, adc_full_scale_N=10000.0)
     plant = plant_from_design(spec, opt, hardware, design_sha256="0" * 64, sleeve_stiffness_N_per_um=4000.0)
     stiff, _, _ = plan_schedule(spec, opt.point, stiffness_min_N_per_um=1000.0, deflection_max_um=5.0)
-    loop = Controller(PIDGains(0.0108, 0.0486, u_min=-20.0, u_max=115.0), 1e-3)
+    loop = Controller(PIDGains(0.0108, 0.0486, u_min_V=-20.0, u_max_V=115.0), 1e-3)
     first = {}
     for settle in (0.0, 0.5):
         run = track_schedule(plant, loop, stiff, cycles=1, passes=1, settle_s=settle)

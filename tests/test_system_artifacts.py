@@ -96,7 +96,7 @@ def test_the_plant_record_makes_the_plant_again(designed, tmp_path):
 @pytest.fixture(scope="module")
 def system(designed):
     result, plant = designed
-    loop = Controller(PIDGains(0.0108, 0.0486, u_min=-20.0, u_max=115.0), 1e-3)
+    loop = Controller(PIDGains(0.0108, 0.0486, u_min_V=-20.0, u_max_V=115.0), 1e-3)
     return track_schedule(plant, loop, result.schedule, cycles=1, passes=2, settle_s=0.3)
 
 

@@ -530,7 +530,8 @@ def _record():
     row = ComparisonRow("tuned", True, 0.01, 0.2, 0.21, 3.0, 5.0, 2.0, 60.0)
     solve = TuningSolve("Solve_Succeeded", 40, 6.0, "compiled", 0.0, 64.9, 1.6, ("Ms <= 1.6",), {"Ms <= 1.6": -1e-8},
                         {"K_N_per_V": 29.0, "T_s": 0.0014, "theta_s": 0.0015, "rms_N": 3.0}, "PI", {"ms_max": 1.6})
-    return TuningRecord(PIDGains(Kc=0.01, Ti_s=0.05, b=0.9, u_min=-20.0, u_max=115.0), PIDGains(Kc=0.02, Ti_s=0.002),
+    return TuningRecord(PIDGains(Kc=0.01, Ti_s=0.05, b=0.9, u_min_V=-20.0, u_max_V=115.0),
+                        PIDGains(Kc=0.02, Ti_s=0.002),
                         solve, (row, replace(row, gains="simc")), MinimumTimeBound(0.014, 14.3, 14, 0.3, 2.0),
                         TrackingFloor(2.0, 3.9e5, 1.4), (ActiveBound("Td_s", "lower", 1e-5, "a PI"),),
                         {"band_N": 25.0}, {"study_pid_over_tuned": None}, {"study": "x.toml"})

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -123,7 +123,7 @@ def _grid(w: Any, plant: LinearPlant) -> np.ndarray:
     w = np.asarray(w, float).ravel()
     if w.size < 8 or not (np.all(np.isfinite(w)) and np.all(w > 0) and np.all(np.diff(w) > 0)):
         raise InputError("w must hold at least 8 finite, positive, strictly increasing frequencies (rad/s)")
-    if plant.discrete and w[-1] >= np.pi / plant.dt:
+    if plant.dt is not None and w[-1] >= np.pi / plant.dt:
         raise InputError(f"w reaches {w[-1]:g} rad/s, at or beyond the Nyquist frequency {np.pi / plant.dt:g} rad/s "
                          f"of the sample period {plant.dt:g} s")
     return w
@@ -132,11 +132,11 @@ def _grid(w: Any, plant: LinearPlant) -> np.ndarray:
 def _check_grid(plant: LinearPlant, omega: np.ndarray) -> np.ndarray:
     """Ten times denser than the design grid and a decade wider each side, and three decades further where a
     continuous controller's gain levels off (a measured response: every frequency)."""
-    if not plant.rational:
+    if plant.omega_data is not None:  # a measured response
         return plant.omega_data
     dense = plant.grid(10 * _PER_DECADE, widen=1.0)
     lo, hi = np.log10(omega.min()) - 1.0, np.log10(omega.max()) + 1.0
-    if plant.discrete:
+    if plant.dt is not None:
         hi = min(hi, np.log10(0.999 * np.pi / plant.dt))
     extra = np.logspace(lo, hi, int(np.ceil((hi - lo) * 10 * _PER_DECADE)) + 1)
     return _far(plant, np.unique(np.concatenate([dense, extra, omega])), 3.0, 31)
@@ -156,6 +156,13 @@ class _State:
     candidates: list[Solution] = field(default_factory=list)
     refinements: int = 0
     iterations: int = 0
+
+    @property
+    def found(self) -> Solution:
+        """The best solution, once the starts have found one (the search refuses the plant where they found none)."""
+        if self.best is None:
+            raise InternalError("the search has no solution yet")
+        return self.best
 
 
 def _problem(plant: LinearPlant, omega: np.ndarray, sign: float, spec: _Spec, scales: Scales,
@@ -177,7 +184,7 @@ def _solve_starts(state: _State, plant: LinearPlant, sign: float, spec: _Spec,
         state.records.append(StartRecord(name, *ctrl.scaled(sign).parallel(), objective=sol.objective,
                                          violation=sol.violation, stable=stable, status=sol.status,
                                          iterations=sol.iterations, seconds=sol.seconds))
-        if sol.violation <= _FEASIBLE and stable and (state.best is None or sol.objective < state.best.objective):
+        if sol.violation <= _FEASIBLE and stable and (state.best is None or sol.objective < state.found.objective):
             state.best = sol
 
 
@@ -208,7 +215,7 @@ def _refine(state: _State, plant: LinearPlant, sign: float, spec: _Spec, objecti
     check = _check_grid(plant, state.problem.omega)
     bounded = {k: m for k, m in spec.bounds.items() if m is not None}
     for _ in range(_REFINEMENTS):
-        ctrl = state.problem.scales.controller(state.best.x).scaled(sign)
+        ctrl = state.problem.scales.controller(state.found.x).scaled(sign)
         peaks = sensitivity_peaks(plant, ctrl, check, tuple(bounded),
                                   {k: m * (1.0 + _REFINE_TO) for k, m in bounded.items()})
         over = [w * f for k, found in peaks.items() for v, w in found if v / bounded[k] > 1.0 + _REFINE_TO
@@ -218,12 +225,12 @@ def _refine(state: _State, plant: LinearPlant, sign: float, spec: _Spec, objecti
         # the peaks after the grid's frequencies (their slots, and so the warm start's multipliers, stay)
         omega = np.concatenate([state.problem.omega, np.setdiff1d(np.unique(over), state.problem.omega)])
         problem = _problem(plant, omega, sign, spec, state.problem.scales, objective, iae_scale)
-        sol = _local_solve(problem, state.best, spec.solver)
+        sol = _local_solve(problem, state.found, spec.solver)
         state.iterations += sol.iterations
         if sol.violation > _FEASIBLE or not plant.closed_loop_stable(problem.scales.controller(sol.x).scaled(sign)):
             break  # the refined problem did not solve: keep the last solution if it is within the tolerance
         state.problem, state.best, state.refinements = problem, sol, state.refinements + 1
-    ctrl = state.problem.scales.controller(state.best.x).scaled(sign)
+    ctrl = state.problem.scales.controller(state.found.x).scaled(sign)
     peaks = sensitivity_peaks(plant, ctrl, check, tuple(bounded))
     worst = max(found[0][0] / bounded[k] for k, found in peaks.items())
     if worst > 1.0 + TOLERANCE:
@@ -231,7 +238,7 @@ def _refine(state: _State, plant: LinearPlant, sign: float, spec: _Spec, objecti
                             "the dense grid; give a finer grid (w)")
 
 
-def _infeasible(problem: PIDProblem, solutions: list[Solution], records: list[StartRecord], spec: _Spec) -> None:
+def _infeasible(problem: PIDProblem, solutions: list[Solution], records: list[StartRecord], spec: _Spec) -> NoReturn:
     """Raise the :class:`InfeasibleError` that names the bound no gains meet and by how much."""
     least = problem.least_violation(min(solutions, key=lambda s: s.violation).x)
     worst = problem.worst_by_bound(least.x)
@@ -240,10 +247,11 @@ def _infeasible(problem: PIDProblem, solutions: list[Solution], records: list[St
                               f"were found from {len(records)} starts; the closed loop the bounds allow is unstable")
     name, (ratio, w) = max(worst.items(), key=lambda kv: kv[1][0])
     what = {"Ms": "|S|", "Mt": "|T|", "Mks": "|KS|"}[name]
-    others = "; ".join(f"{k} <= {spec.bounds[k]:g} at {v[0] * spec.bounds[k]:.4g}"
+    bound = {k: m for k, m in spec.bounds.items() if m is not None}  # the bounds set: those worst_by_bound has
+    others = "; ".join(f"{k} <= {bound[k]:g} at {v[0] * bound[k]:.4g}"
                        for k, v in worst.items() if k != name)
-    raise InfeasibleError(f"{name} <= {spec.bounds[name]:g} cannot be met with a {spec.form} on this plant: the least "
-                          f"largest {what} any gains reach is {ratio * spec.bounds[name]:.4g} "
+    raise InfeasibleError(f"{name} <= {bound[name]:g} cannot be met with a {spec.form} on this plant: the least "
+                          f"largest {what} any gains reach is {ratio * bound[name]:.4g} "
                           f"(over by {ratio - 1:.1%}, at {w:.4g} rad/s)" + (f"; there, {others}" if others else "")
                           + ". Relax that bound, or tune the other form")
 
@@ -288,7 +296,7 @@ def _search(plant: LinearPlant, omega: np.ndarray, sign: float, spec: _Spec, sta
             distinct.append(sol)
     refined: list[_State] = []
     for sol in distinct[:_LOCAL_OPTIMA]:
-        if refined and sol.objective >= min(b.best.objective for b in refined):
+        if refined and sol.objective >= min(b.found.objective for b in refined):
             break  # a refined grid only adds constraints: this one cannot end better than one already refined
         branch = replace(state, best=sol, refinements=0, iterations=0)
         try:
@@ -299,8 +307,8 @@ def _search(plant: LinearPlant, omega: np.ndarray, sign: float, spec: _Spec, sta
         state.iterations += branch.iterations
     if not refined:
         raise InternalError("no local optimum met the bounds on the dense grid after refinement; give a finer grid (w)")
-    best = min(refined, key=lambda b: b.best.objective)
-    return replace(state, problem=best.problem, best=best.best, refinements=best.refinements)
+    best = min(refined, key=lambda b: b.found.objective)
+    return replace(state, problem=best.problem, best=best.found, refinements=best.refinements)
 
 
 # --------------------------------------------------------------------------------------
@@ -370,7 +378,7 @@ def autotune(plant: Any, *, Ms: float, Mt: float | None = None, Mks: float | Non
         plant, delay_s = plant.transfer_function(), plant.delay_s + float(delay_s)
     P = as_plant(plant, delay_s)
     spec = _spec(Ms, Mt, Mks, metric, form, Ts, horizon_s, filter_order, solver)
-    if P.discrete:
+    if P.dt is not None:
         if spec.dt is not None and abs(spec.dt - P.dt) > 1e-9 * P.dt:
             raise InputError(f"Ts {spec.dt:g} s is not the discrete plant's sample period {P.dt:g} s")
         spec = _Spec(spec.bounds, spec.metric, spec.form, spec.filter_order, P.dt, P.dt, spec.horizon_s, spec.solver)
@@ -384,7 +392,7 @@ def autotune(plant: Any, *, Ms: float, Mt: float | None = None, Mks: float | Non
     state = _search(design, omega, sign, spec, starts, scales)
     iae = None
     if spec.metric == "IAE":
-        ie_ctrl = scales.controller(state.best.x)
+        ie_ctrl = scales.controller(state.found.x)
         sim, n = _iae_setup(P, design, ie_ctrl.scaled(sign), spec)
         fn = iae_function(sim, n, sign)
         scale = float(fn(np.array([ie_ctrl.kp, ie_ctrl.ki, ie_ctrl.kd, ie_ctrl.Tf])))
@@ -392,7 +400,7 @@ def autotune(plant: Any, *, Ms: float, Mt: float | None = None, Mks: float | Non
         iae_starts = [("IE optimum", ie_ctrl)] + [(n, c) for n, c in starts if n.startswith(("AMIGO", "SIMC"))]
         state = _search(design, state.problem.omega, sign, spec, iae_starts, scales, objective=fn, iae_scale=scale)
         state.records = records + state.records
-        best = scales.controller(state.best.x)
+        best = scales.controller(state.found.x)
         iae = (float(fn(np.array([best.kp, best.ki, best.kd, best.Tf]))), sim.dt, n)
     return _result(P, design, sign, spec, state, iae, time.perf_counter() - t0)
 
@@ -421,8 +429,8 @@ def _active_bounds(x: np.ndarray, scales: Scales) -> tuple[ActiveBound, ...]:
 def _result(P: LinearPlant, design: LinearPlant, sign: float, spec: _Spec, state: _State, iae: Any,
             seconds: float) -> AutotuneResult:
     scales = state.problem.scales
-    ctrl = scales.controller(state.best.x)
-    bounds = _active_bounds(state.best.x, scales)
+    ctrl = scales.controller(state.found.x)
+    bounds = _active_bounds(state.found.x, scales)
     if any(b.gain == "kd" and b.side == "lower" for b in bounds):  # a derivative on its lower bound: a PI
         ctrl = PIDController(ctrl.kp, ctrl.ki, 0.0, 0.0, ctrl.filter_order, ctrl.dt)
     check = _check_grid(design, state.problem.omega)
@@ -448,7 +456,7 @@ def _load_response(P: LinearPlant, design: LinearPlant, ctrl: PIDController, sig
     if not P.rational and not design.rational:
         return None
     wc = margins.crossover_rad_per_s or 1.0
-    if design.discrete:
+    if design.dt is not None:
         sim, Ts = design, design.dt
     else:
         Ts = iae[1] if iae is not None else 2 * np.pi / wc / 50.0

@@ -18,7 +18,7 @@ from __future__ import annotations
 import html
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import control
 import numpy as np
@@ -29,6 +29,9 @@ from piezopreload.artifacts.tuning import ActiveBound
 from piezopreload.core.errors import InputError
 from piezopreload.tuning.lti import LinearPlant
 from piezopreload.tuning.pidform import PIDController
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["AutotuneResult", "Margins", "StartRecord", "sensitivity_peaks", "margins_of", "achieved"]
 
@@ -116,7 +119,7 @@ def margins_of(plant: LinearPlant, controller: PIDController,
         margin = (ph + 2 * np.pi) % (2 * np.pi) - np.pi  # 180 deg + the phase, wrapped into [-180, 180)
         if pm is None or margin < pm:
             pm, wc = margin, w
-    if pm is not None:
+    if pm is not None and wc is not None:
         dm = pm / wc if pm > 0 else 0.0
     gm = None
     turns = (phase + np.pi) / (2 * np.pi)
@@ -297,7 +300,7 @@ class AutotuneResult:
         return out
 
     # ---- its picture ---------------------------------------------------------------------------------
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """The gang of four (``|S|``, ``|T|``, ``|PS|``, ``|CS|``) with the bounds, and the load step: a Figure."""
         from piezopreload.tuning.autotune_plot import draw
 
@@ -331,7 +334,7 @@ class AutotuneResult:
         if self.Ts is not None and abs(Ts - self.Ts) > 1e-9 * self.Ts:
             raise InputError(f"the controller was tuned discrete at Ts {self.Ts:g} s; "
                              f"its gain set runs at that period, not at {Ts:g} s")
-        gains = self.controller_.isa(u_min=float(u_min_V), u_max=float(u_max_V), b=float(b))
+        gains = self.controller_.isa(u_min_V=float(u_min_V), u_max_V=float(u_max_V), b=float(b))
         check = self.discrete_check(Ts)
         sampled = {"method": "the autotuned loop at its sample period: the controller step behind a zero-order "
                              "hold, its stability and its largest |S|, |T|, |KS| against the bounds",

@@ -17,6 +17,7 @@ import numpy as np
 from piezopreload.core.errors import InfeasibleError
 from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import PAPER_BAND_N, Reference
+from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V
 from piezopreload.models.ops import CASADI, NUMPY
 from piezopreload.tuning.horizon import tuning_loop
 from piezopreload.tuning.linearised import small_signal_gains
@@ -118,8 +119,8 @@ def minimum_time(
     final_N: float = 60.0,
     band_N: float = PAPER_BAND_N,
     hold_s: float = 0.3,
-    u_min_V: float = 0.0,
-    u_max_V: float = 110.0,
+    u_min_V: float = OUTPUT_MIN_V,
+    u_max_V: float = OUTPUT_MAX_V,
     horizon_s: float | None = None,
 ) -> dict[str, Any]:
     """The shortest settling time any command sequence gives on this plant: an optimal control problem.

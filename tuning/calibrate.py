@@ -23,7 +23,6 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from scipy.optimize import minimize
 
 from piezopreload.models.actuator import Plant, Rig, loop_width, reach_N
 from piezopreload.models.closedloop import (
@@ -32,7 +31,7 @@ from piezopreload.models.closedloop import (
     Reference,
     simulate,
 )
-from piezopreload.models.controller import Controller, PIDGains
+from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V, Controller, PIDGains
 from piezopreload.models.hysteresis import inverse_at
 from piezopreload.tuning.feedforward import FeedforwardModel, LoopExcitation, identify_feedforward
 
@@ -46,7 +45,7 @@ __all__ = [
 ]
 
 #: The paper's gains as entered (Section 4.2), read as seconds: see the study's documentation.
-PAPER_GAINS = PIDGains(Kc=0.3, Ti_s=0.08, Td_s=0.001, u_min=0.0, u_max=110.0)
+PAPER_GAINS = PIDGains(Kc=0.3, Ti_s=0.08, Td_s=0.001, u_min_V=OUTPUT_MIN_V, u_max_V=OUTPUT_MAX_V)
 
 #: The paper's step metrics (Section 4.2, Figure 10; Section 4.3, Figure 13), band 1.5 N.
 PAPER_RESULTS: dict[str, dict[str, float]] = {
@@ -213,12 +212,13 @@ def calibrate(
 
     def to_params(z: np.ndarray) -> Plant:
         values = np.exp(lo + np.clip(z, 0.0, 1.0) * (hi - lo))
-        return replace(base, **{n: float(v) for n, v in zip(names, values)})
+        fields: dict[str, Any] = {n: float(v) for n, v in zip(names, values)}  # Plant's batch fields, checked above
+        return replace(base, **fields)
 
     def objective(z: np.ndarray) -> float:
         p = to_params(z)
         rig = Rig(p)
-        reach = float(reach_N(rig, gains.u_max))
+        reach = float(reach_N(rig, gains.u_max_V))
         width = float(loop_width(rig, excitation.v_max_V))
         # quadratic penalties that outweigh the mismatch (order 0.1-1) once a requirement is
         # missed by a few per cent: 1e3 x (relative force shortfall)^2, 1e4 x (width excess)^2
@@ -230,6 +230,8 @@ def calibrate(
         if progress is not None:
             progress(len(history), f, history[-1])
         return f
+
+    from scipy.optimize import minimize  # scipy.optimize loads on first use, not on import
 
     res = minimize(
         objective, x0, method="Nelder-Mead", bounds=[(0.0, 1.0)] * len(names),

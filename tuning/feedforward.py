@@ -16,12 +16,12 @@ from __future__ import annotations
 import hashlib
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from piezopreload.artifacts.hysteresis import Compensation, DataSource, FitError, IdentifiedModel, require_coverage
+from piezopreload.core._typing import Array
 from piezopreload.core.artifacts import ArtifactError, package_version
 from piezopreload.core.errors import InputError
 from piezopreload.core.tables import Record, write_csv
@@ -31,10 +31,12 @@ from piezopreload.models.hysteresis import ClassicalPI, CreepPI, HysteresisModel
 from piezopreload.tuning.identification import Window, identify
 from piezopreload.tuning.identify import MODELS
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 __all__ = ["LoopExcitation", "FeedforwardModel", "IdentifiedFeedforward", "CompensationCheck", "identify_feedforward",
            "simulate_loop", "compensation_check", "loop_covers"]
 
-Array = NDArray[np.float64]
 
 #: what a study's feedforward may be: a P-I model, with or without creep
 FeedforwardModel = HysteresisModel | CreepPI
@@ -219,7 +221,7 @@ class IdentifiedFeedforward:
             raise InputError(f"{path}: the model cannot serve as a feedforward: {exc}") from None
         return cls(record)
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """The loop measurement and the model (left), the rig through the inverse in open loop (right)."""
         from matplotlib.figure import Figure
 

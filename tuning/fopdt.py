@@ -15,12 +15,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Rig
 from piezopreload.models.closedloop import simulate_open_loop
-from piezopreload.models.controller import PIDGains
+from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V, PIDGains
 
 __all__ = ["FOPDT", "fit_first_order", "fit_fopdt", "simc", "amigo", "amigo_integrating"]
 
@@ -48,6 +47,8 @@ def _fit_at(t: np.ndarray, y: np.ndarray, step: float, theta: float,
         r = K * phi - y
         return 0.5 * float(r @ r), K, r
 
+    from scipy.optimize import minimize_scalar  # loads on first use, not on import
+
     res = minimize_scalar(lambda log_T: parts(log_T)[0], bounds=log_T_bounds, method="bounded",
                           options={"xatol": 1e-10})
     cost, K, r = parts(float(res.x))
@@ -68,6 +69,8 @@ def fit_first_order(t: np.ndarray, y: np.ndarray, step: float, thetas: np.ndarra
     theta = float(thetas[best])
     if refine and thetas.size > 1:
         lo, hi = float(thetas[max(best - 1, 0)]), float(thetas[min(best + 1, thetas.size - 1)])
+        from scipy.optimize import minimize_scalar  # loads on first use, not on import
+
         res = minimize_scalar(lambda th: _fit_at(t, y, step, th, bounds)[0], bounds=(lo, hi), method="bounded",
                               options={"xatol": 1e-6 * max(hi - lo, 1e-12)})
         if float(res.fun) < fits[best][0]:
@@ -102,7 +105,8 @@ def fit_fopdt(rig: Rig, feedforward: Any, *, level_N: float = 60.0, step_V: floa
     return fit_first_order(t, y, step_V, thetas, (1e-4, 10.0))
 
 
-def simc(model: FOPDT, *, tau_c_s: float | None = None, u_min_V: float = 0.0, u_max_V: float = 110.0) -> PIDGains:
+def simc(model: FOPDT, *, tau_c_s: float | None = None, u_min_V: float = OUTPUT_MIN_V,
+         u_max_V: float = OUTPUT_MAX_V) -> PIDGains:
     """Skogestad's SIMC PI rule: ``Kc = T / (K (tau_c + theta))``, ``Ti = min(T, 4 (tau_c + theta))``.
 
     ``tau_c`` defaults to ``theta`` (SIMC's "tight control" choice).
@@ -111,7 +115,7 @@ def simc(model: FOPDT, *, tau_c_s: float | None = None, u_min_V: float = 0.0, u_
     tau_c = max(tau_c, 1e-4)
     Kc = model.T_s / (model.K * (tau_c + model.theta_s))
     Ti = min(model.T_s, 4.0 * (tau_c + model.theta_s))
-    return PIDGains(Kc=Kc, Ti_s=Ti, Td_s=0.0, Tf_s=0.0, u_min=u_min_V, u_max=u_max_V)
+    return PIDGains(Kc=Kc, Ti_s=Ti, Td_s=0.0, Tf_s=0.0, u_min_V=u_min_V, u_max_V=u_max_V)
 
 
 def _check_form(form: str) -> None:

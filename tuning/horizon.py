@@ -20,6 +20,7 @@ iterates.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import casadi as ca
@@ -29,7 +30,7 @@ from piezopreload.core import native
 from piezopreload.models.actuator import Plant, PlantModel
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import ControllerModel
-from piezopreload.models.hysteresis import InverseClassicalPI
+from piezopreload.models.hysteresis import InverseModel
 from piezopreload.models.loop import LOOP_OUTPUTS, LoopModel
 from piezopreload.models.ops import CASADI
 
@@ -49,7 +50,7 @@ def tuning_loop(params: Plant, smoothing: float = TUNING_SMOOTHING, schedule_siz
     return LoopModel(PlantModel.of(params, smoothing), ControllerModel(None, schedule_size=schedule_size))
 
 
-def feedforward_sequence(feedforward: InverseClassicalPI | None, r: np.ndarray) -> np.ndarray:
+def feedforward_sequence(feedforward: InverseModel | None, r: np.ndarray) -> np.ndarray:
     """The feedforward's voltage for the reference ``r`` from its initial state (zeros without one)."""
     if feedforward is None:
         return np.zeros_like(r)
@@ -220,7 +221,7 @@ class TimeDomain(ca.Callback):
         shape = self._shapes_in[i % 3]
         return ca.Sparsity.dense(rows, N_GAINS) if i % 3 == 0 else ca.Sparsity(rows, shape[0] * shape[1])
 
-    def eval(self, arg: list[Any]) -> list[Any]:
+    def eval(self, arg: Sequence[Any]) -> list[Any]:
         v = self.h.evaluate(arg[0])
         if self.order == 0:
             return [np.sum(v["objective"]), v["overshoot"]]
@@ -234,7 +235,8 @@ class TimeDomain(ca.Callback):
     def has_jacobian(self) -> bool:
         return self.order < 2
 
-    def get_jacobian(self, name: str, inames: list[str], onames: list[str], opts: dict[str, Any]) -> ca.Function:
+    def get_jacobian(self, name: str, inames: Sequence[str], onames: Sequence[str],
+                     opts: Mapping[str, Any]) -> ca.Function:
         child = TimeDomain(self.h, self.order + 1)
         self._children.append(child)  # CasADi keeps a reference to the Function, not to the Python object
         return child

@@ -15,7 +15,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,6 +33,9 @@ from piezopreload.core.errors import InputError
 from piezopreload.core.tables import Record
 from piezopreload.models.hysteresis import CREEP_SUFFIX, CreepPI, HysteresisModel
 from piezopreload.tuning.identify import IdentificationError, PIIdentifier, fit_error, paper_baseline, straight_line
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["Window", "Identification", "identify", "check_operators", "MAX_MATRIX_BYTES"]
 
@@ -161,7 +164,7 @@ class Identification:
                 f"<th>RMS (% of {self.record.output_span:.4g} {escape(self.record.units.output)})</th><th>max (%)</th>"
                 f"</tr></thead><tbody>{rows}</tbody></table>")
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """The record and the model's output against the input, on the training and the test window: a Figure."""
         from matplotlib.figure import Figure
 

@@ -58,7 +58,7 @@ __all__ = [
     "straight_line",
 ]
 
-MODELS = ("classical", "paper-asymmetric", "modified")
+MODELS: tuple[ModelName, ...] = ("classical", "paper-asymmetric", "modified")
 ModelName = Literal["classical", "paper-asymmetric", "modified"]
 
 
@@ -308,7 +308,8 @@ class PIIdentifier:
                     f"got {self.creep_time_constants_s!r}."
                 )
         else:
-            Creep(self.creep_time_constants_s, np.zeros(np.size(self.creep_time_constants_s)), 1.0)  # validates
+            taus = np.asarray(self.creep_time_constants_s, dtype=np.float64)
+            Creep(taus, np.zeros(taus.size), 1.0)  # validates
         if not (np.isfinite(self.creep_shortest_s) and self.creep_shortest_s > 0):
             raise InputError(f"creep_shortest_s must be a positive time in s, got {self.creep_shortest_s!r}.")
 
@@ -456,9 +457,14 @@ def _record(v: ArrayLike, y: ArrayLike, rows: ArrayLike | slice | None) -> tuple
         raise ValueError(f"v and y must be 1-D of equal length, got shapes {v.shape} and {y.shape}.")
     if not (np.all(np.isfinite(v)) and np.all(np.isfinite(y))):
         raise ValueError("v and y must be finite.")
-    mask = np.zeros(v.size, bool)
-    mask[slice(None) if rows is None else rows] = True
-    return v, y, mask
+    return v, y, _mask(v.size, rows)
+
+
+def _mask(n: int, rows: ArrayLike | slice | None) -> NDArray[np.bool_]:
+    """The mask over ``n`` samples of ``rows``: a slice, indices or a mask (None: every sample)."""
+    mask = np.zeros(n, bool)
+    mask[slice(None) if rows is None else rows if isinstance(rows, slice) else np.asarray(rows)] = True
+    return mask
 
 
 # --------------------------------------------------------------------------------------
@@ -615,8 +621,7 @@ def paper_baseline(
     """The paper's identification (eqs. (17)-(18)): branch-slope weights, offset by least squares."""
     v = np.asarray(v, float)
     y = np.asarray(y, float)
-    rows = np.zeros(v.size, bool)
-    rows[slice(None) if train is None else train] = True
+    rows = _mask(v.size, train)
     r = np.asarray(thresholds, float)
     w_rise = paper_branch_weights(v[rows], y[rows], r, rising=True)
     w_fall = paper_branch_weights(v[rows], y[rows], r, rising=False)

@@ -26,9 +26,8 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from numpy.typing import NDArray
-from scipy.signal import butter, lfilter
 
+from piezopreload.core._typing import Array
 from piezopreload.core.errors import InputError, InternalError
 from piezopreload.models.actuator import Plant
 from piezopreload.models.controller import Controller
@@ -40,7 +39,6 @@ from piezopreload.tuning.preview import advance
 __all__ = ["METHODS", "LoopLinearisation", "linearise_loop", "LearningModel", "learning_model", "learning_model_over",
            "tune_laws", "zero_phase_lowpass", "p_type_update"]
 
-Array = NDArray[np.float64]
 
 #: the learning laws; the first is the default
 METHODS = ("norm-optimal", "p-type")
@@ -56,6 +54,8 @@ def zero_phase_lowpass(x: Array, cutoff_Hz: float, dt_s: float, order: int = 2) 
     nyquist = 0.5 / dt_s
     if cutoff_Hz >= nyquist:
         return np.asarray(x, float).copy()
+    from scipy.signal import butter, lfilter  # scipy.signal loads when a filter is first made, not on import
+
     b, a = butter(order, cutoff_Hz / nyquist)
     forward = lfilter(b, a, np.asarray(x, float), axis=-1)
     return np.asarray(lfilter(b, a, forward[..., ::-1], axis=-1)[..., ::-1], float)
@@ -235,7 +235,7 @@ def _tuned(params: Plant, controller: Controller, lin: LoopLinearisation, q_cuto
     gains = controller.gains
     dt = params.sample_period_s
     ki = 0.0 if not np.isfinite(gains.Ti_s) else gains.Kc / gains.Ti_s
-    base = LearningModel(lin.A, lin.B[:, None], lin.C[None, :], dt, u_range_V=(gains.u_min, gains.u_max),
+    base = LearningModel(lin.A, lin.B[:, None], lin.C[None, :], dt, u_range_V=(gains.u_min_V, gains.u_max_V),
                          sp_gain=gains.Kc * gains.b, sp_integral_per_s=ki)
     return tune_laws(base, q_cutoff_Hz=q_cutoff_Hz)
 
@@ -255,7 +255,7 @@ def learning_model_over(params: Plant, controller: Controller, voltages_V: Any =
     """
     gains = controller.gains
     if voltages_V is None:
-        voltages_V = np.linspace(max(gains.u_min, 0.0), gains.u_max, 5)
+        voltages_V = np.linspace(max(gains.u_min_V, 0.0), gains.u_max_V, 5)
     v = np.unique(np.asarray(voltages_V, float).ravel())
     lins = linearise_loop(params, controller, np.concatenate([v, [v0_V]]))
     loops = [_tuned(params, controller, lin, q_cutoff_Hz) for lin in lins[:-1]]

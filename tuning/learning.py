@@ -24,14 +24,14 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.learned import LearnedSignal, reference_sha256
 from piezopreload.artifacts.learning import LearningRecord, PassRecord, TrialRecord
+from piezopreload.core._typing import Array, BoolArray, IntArray
 from piezopreload.core.errors import InputError, InternalError
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
@@ -48,11 +48,13 @@ from piezopreload.tuning.preview import (
 )
 from piezopreload.tuning.validate import DEFAULT_SPREAD
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 __all__ = ["METHODS", "Iteration", "LearningResult", "learn", "law_for", "more_trials_pay", "within_1p1",
            "schedule_learner", "learn_from_run", "learn_from_log", "save_passes", "played_passes",
            "learned_by_reference", "STOP_GAIN"]
 
-Array = NDArray[np.float64]
 Law = LearningModel | NormOptimalLaw
 
 #: another trial pays while it is expected to lower the measured error by more than this share of it
@@ -103,12 +105,12 @@ class LearningResult:
 
     ff_extra_V: Array
     history: list[Iteration]
-    best: Array
-    trials: Array
+    best: IntArray
+    trials: IntArray
     stop_reason: list[str]
-    converged: Array
-    diverged: Array
-    monotone: Array
+    converged: BoolArray
+    diverged: BoolArray
+    monotone: BoolArray
     run: ClosedLoopRun
     preview: Preview
     method: str
@@ -200,7 +202,7 @@ class LearningResult:
             **self.preview.to_dict(), **self.info,
         }
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """The error per trial (left) and the best trial's force against the reference (right): a Figure."""
         from matplotlib.figure import Figure
 
@@ -231,7 +233,7 @@ class LearningResult:
 # --------------------------------------------------------------------------------------
 # when more trials no longer pay
 # --------------------------------------------------------------------------------------
-def more_trials_pay(measured: Array, floor_N: Any = 0.0, stop_gain: float = STOP_GAIN) -> Array:
+def more_trials_pay(measured: Array, floor_N: Any = 0.0, stop_gain: float = STOP_GAIN) -> BoolArray:
     """Per plant (columns; a row per trial so far): whether another trial is expected to lower the measured RMS error
     by more than ``stop_gain`` of it.
 
@@ -290,7 +292,7 @@ class _Trials:
         self.trials = np.zeros(shape, int)
         self.best_run: ClosedLoopRun | None = None
 
-    def record(self, k: int, scored: ClosedLoopRun, measured: Array) -> Array:
+    def record(self, k: int, scored: ClosedLoopRun, measured: Array) -> BoolArray:
         """Book trial ``k``; returns which plants improved on their best."""
         whole = scored.tracking_error()["rms"]
         after = scored.tracking_error(after_change_s=AFTER_CHANGE_S)["rms"]
@@ -314,7 +316,7 @@ class _Trials:
         self.settled |= done
         self.active &= ~done
 
-    def monotone(self) -> Array:
+    def monotone(self) -> BoolArray:
         """Per plant: its true error never rose by more than the noise floor from one trial to the next."""
         rows = np.array([np.atleast_1d(h.tracking_rms_N) for h in self.history])  # (trials, plants)
         trials = np.asarray(self.trials).reshape(-1)
@@ -412,7 +414,7 @@ def _initial(initial_V: Array, preview: Preview) -> Array:
 def _run_trials(controller: Controller, rig: Rig, preview: Preview, law: Law, u: Array, iterations: int, seed: int,
                 grow_tol: float, stop_gain: float | None, say: Callable[[str], None]) -> _Trials:
     """Trial 0 and up to ``iterations`` learning trials on every plant of ``rig``."""
-    lo, hi = controller.gains.u_min, controller.gains.u_max
+    lo, hi = controller.gains.u_min_V, controller.gains.u_max_V
     scored_from = preview.reference.times_s[min(1, preview.reference.times_s.size - 1)]
     sensor = np.broadcast_to(np.asarray(rig.params.noise_N, float), u.shape[:-1])
     book: _Trials | None = None
@@ -468,7 +470,7 @@ def _scored(run: ClosedLoopRun, reference: Reference) -> ClosedLoopRun:
     return replace(run, reference=reference, reference_N=reference.at(run.t_s))
 
 
-def _merge_runs(old: ClosedLoopRun, new: ClosedLoopRun, take: Array) -> ClosedLoopRun:
+def _merge_runs(old: ClosedLoopRun, new: ClosedLoopRun, take: BoolArray) -> ClosedLoopRun:
     """Per plant, the new run's samples where ``take``, else the old's."""
     if not np.any(take):
         return old

@@ -21,10 +21,11 @@ from ``e = H dv + `` unit white noise. The law around it is :mod:`piezopreload.t
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, overload
 
 import numpy as np
-from numpy.typing import NDArray
 
+from piezopreload.core._typing import Array
 from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Plant
 from piezopreload.models.controller import Controller
@@ -33,7 +34,6 @@ from piezopreload.tuning.ilc import LoopLinearisation, linearise_loop
 __all__ = ["LiftedLoop", "lifted_loop", "level_linearisations", "composite", "setpoint_path", "RiccatiGains",
            "riccati_gains", "NormOptimalStep", "costate", "norm_optimal_step", "DEFAULT_LEVELS"]
 
-Array = NDArray[np.float64]
 
 #: the levels the loop is linearised at between the plan's lowest and highest force
 DEFAULT_LEVELS = 12
@@ -119,7 +119,7 @@ class LiftedLoop:
 def level_linearisations(params: Plant, controller: Controller, target_N: Array, count: int) -> list[LoopLinearisation]:
     """Linearisations at rest at ``count`` levels spanning ``target_N`` (by force; at least two)."""
     g = controller.gains
-    coarse = linearise_loop(params, controller, np.linspace(g.u_min, g.u_max, 9))
+    coarse = linearise_loop(params, controller, np.linspace(g.u_min_V, g.u_max_V, 9))
     volts, forces = np.array([c.voltage_V for c in coarse]), np.array([c.force_N for c in coarse])
     lo, hi = float(np.min(target_N)), float(np.max(target_N))
     wanted = np.linspace(lo, hi, max(count, 2)) if hi > lo else np.array([lo])
@@ -233,6 +233,14 @@ class NormOptimalStep:
     force_N: Array
     command_V: Array
     voltage_V: Array
+
+
+@overload
+def costate(gains: RiccatiGains, E: Array, keep: Literal[False] = False) -> tuple[Array, None]: ...
+
+
+@overload
+def costate(gains: RiccatiGains, E: Array, keep: Literal[True]) -> tuple[Array, Array]: ...
 
 
 def costate(gains: RiccatiGains, E: Array, keep: bool = False) -> tuple[Array, Array | None]:

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from piezopreload.models.actuator import Plant, hertz_force
-from piezopreload.models.controller import PIDGains
+from piezopreload.models.controller import OUTPUT_MAX_V, PIDGains
 from piezopreload.models.ops import NUMPY
 from piezopreload.tuning.loopshape import isa_pid_response, omega_terms, peaks
 
@@ -35,7 +35,7 @@ def plant_frequency_response(params: Plant, omega: np.ndarray, gain_N_per_V: flo
 
 
 def small_signal_gains(params: Plant, force_range_N: tuple[float, float] | None = None) -> tuple[float, float]:
-    """The lowest and highest local slope dF/dV of the quasi-static loop over 0..110 V (N/V), or with a Hertz
+    """The lowest and highest local slope dF/dV of the quasi-static loop over 0..OUTPUT_MAX_V (N/V), or with a Hertz
     coupling over the measured forces ``force_range_N`` (within the stroke).
 
     Right after a reversal the Bouc-Wen state has slope ``alpha``, so the stroke's slope is
@@ -44,7 +44,7 @@ def small_signal_gains(params: Plant, force_range_N: tuple[float, float] | None 
     k = float(params.effective_stiffness_N_per_um) * float(params.stroke_um_per_V)
     k_lo = k
     if params.hertz:  # the nuts' Hertz contacts: softest at the bolts' preload, stiffest at full stroke
-        x_top = float(params.stroke_um_per_V) * 110.0
+        x_top = float(params.stroke_um_per_V) * OUTPUT_MAX_V
         f_top = float(hertz_force(NUMPY, x_top, float(params.effective_stiffness_N_per_um),
                                   float(params.hertz_um_per_N23), float(params.hertz_preload_N)))
         f_lo, f_hi = 0.0, f_top
@@ -55,7 +55,7 @@ def small_signal_gains(params: Plant, force_range_N: tuple[float, float] | None 
         k_lo = float(params.local_stiffness_N_per_um(f_lo)) * float(params.stroke_um_per_V)
         k = float(params.local_stiffness_N_per_um(f_hi)) * float(params.stroke_um_per_V)
     lo = k_lo * (1.0 - float(params.bw_alpha))
-    hi = k * (1.0 + 2.0 * max(float(params.bw_kappa), 0.0) * 110.0 / 100.0)
+    hi = k * (1.0 + 2.0 * max(float(params.bw_kappa), 0.0) * OUTPUT_MAX_V / 100.0)
     return lo, hi
 
 

@@ -47,8 +47,8 @@ def load_step_function(plant: LinearPlant, sign: float = 1.0) -> ca.Function:
     xp, integral, e_prev, pv_prev, dpv = x[:n], x[n], x[n + 1], x[n + 2], x[n + 3]
     y = sign * ca.mtimes(ca.DM(C), xp)
     gains = (kp, kp / ki, kd / kp, Tf, 1.0)
-    u, _, integral, _, e, dpv = pid_update(CASADI, gains, (-_OPEN, _OPEN), plant.dt, integral, e_prev, pv_prev,
-                                           dpv, 0.0, y, 0.0)
+    u, _, integral, _, e, dpv = pid_update(CASADI, gains, (-_OPEN, _OPEN), plant.sample_period(), integral, e_prev,
+                                           pv_prev, dpv, 0.0, y, 0.0)
     x_next = ca.vertcat(ca.mtimes(ca.DM(A), xp) + ca.DM(B) * (u + 1.0), integral, e, y, dpv)
     return ca.Function("load_step", [x, g], [x_next, y], ["x", "gains"], ["x_next", "y"])
 
@@ -60,7 +60,7 @@ def iae_function(plant: LinearPlant, n_steps: int, sign: float = 1.0, smooth: fl
     g = ca.MX.sym("g", 4)
     x0 = ca.DM.zeros(step.size1_in(0))
     _, y = step.mapaccum(n_steps)(x0, ca.repmat(g, 1, n_steps))
-    return ca.Function("iae", [g], [ca.sum2(ca.sqrt(y**2 + smooth**2)) * plant.dt])
+    return ca.Function("iae", [g], [ca.sum2(ca.sqrt(y**2 + smooth**2)) * plant.sample_period()])
 
 
 def load_response(plant: LinearPlant, controller: PIDController, n_steps: int, sign: float = 1.0
@@ -75,7 +75,7 @@ def load_response(plant: LinearPlant, controller: PIDController, n_steps: int, s
         y = np.asarray(y, float).ravel()
     else:
         y = _linear_response(plant, controller, n_steps, sign)
-    return np.arange(n_steps) * plant.dt, y
+    return np.arange(n_steps) * plant.sample_period(), y
 
 
 def _linear_response(plant: LinearPlant, controller: PIDController, n_steps: int, sign: float) -> np.ndarray:

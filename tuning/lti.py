@@ -25,7 +25,7 @@ import control
 import numpy as np
 from scipy.linalg import expm
 
-from piezopreload.core.errors import InputError
+from piezopreload.core.errors import InputError, InternalError
 
 __all__ = ["LinearPlant", "as_plant", "encirclements", "nyquist_unstable"]
 
@@ -103,6 +103,24 @@ class LinearPlant:
     def discrete(self) -> bool:
         return self.dt is not None
 
+    def _tf(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(num, den)``, where the caller has found the plant :attr:`rational`."""
+        if self.num is None or self.den is None:
+            raise InternalError(f"{self.source}: a measured response has no numerator and denominator")
+        return self.num, self.den
+
+    def _measured(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(omega_data, data)``, where the caller has found the plant not :attr:`rational`."""
+        if self.omega_data is None or self.data is None:
+            raise InternalError(f"{self.source}: a rational plant has no measured response")
+        return self.omega_data, self.data
+
+    def sample_period(self) -> float:
+        """:attr:`dt`, where the caller has found the plant :attr:`discrete`."""
+        if self.dt is None:
+            raise InternalError(f"{self.source}: a continuous plant has no sample period")
+        return self.dt
+
     @property
     def poles(self) -> np.ndarray | None:
         if self.ss is not None:
@@ -116,43 +134,48 @@ class LinearPlant:
     @property
     def integrators(self) -> int:
         """Poles at ``s = 0`` (``z = 1``); for measured data, the low-frequency slope of the magnitude in decades."""
-        if self.poles is None:
-            w, g = self.omega_data, np.abs(self.data)
+        poles = self.poles
+        if poles is None:
+            w, data = self._measured()
+            g = np.abs(data)
             slope = -np.log(g[1] / g[0]) / np.log(w[1] / w[0])
             return int(np.clip(np.round(slope), 0, 2))
         at = 1.0 if self.discrete else 0.0
-        return int(np.sum(np.abs(self.poles - at) <= _ON_AXIS * max(1.0, np.max(np.abs(self.poles)))))
+        return int(np.sum(np.abs(poles - at) <= _ON_AXIS * max(1.0, np.max(np.abs(poles)))))
 
     @property
     def unstable_poles(self) -> int:
         """Poles past the stability boundary (measured data: assumed 0, a response measured in open loop)."""
-        if self.poles is None:
+        poles = self.poles
+        if poles is None:
             return 0
-        return int(np.sum(self._boundary(self.poles) > _ON_AXIS))
+        return int(np.sum(self._boundary(poles) > _ON_AXIS))
 
     @property
     def sign(self) -> float:
         """The sign of the low-frequency gain (``lim s^m G(s)`` for ``m`` integrators): the controller's sign."""
         if self.rational:
-            num, den = np.poly1d(self.num), np.poly1d(self.den)
+            num, den = (np.poly1d(c) for c in self._tf())
             if self.discrete:  # in w = z - 1
                 num, den = num(np.poly1d([1.0, 1.0])), den(np.poly1d([1.0, 1.0]))
             return float(np.sign(_lowest(num.coeffs) / _lowest(den.coeffs)))
-        phase = np.angle(self.data[0])  # about 0 (type 0) or -90 deg (type 1) when the gain is positive
+        phase = np.angle(self._measured()[1][0])  # about 0 (type 0) or -90 deg (type 1) when the gain is positive
         return 1.0 if -0.75 * np.pi < phase <= 0.25 * np.pi else -1.0
 
     def characteristic_frequencies(self) -> np.ndarray:
         """The frequencies (rad/s) of the plant's poles and zeros (not at the origin) and of its delay."""
         if not self.rational:
-            return np.array([self.omega_data[0], self.omega_data[-1]])
+            omega = self._measured()[0]
+            return np.array([omega[0], omega[-1]])
         if self.hold is not None:  # a sampled plant: its continuous part's poles and its delay
             roots = np.linalg.eigvals(self.hold.Phi)
-            extra = [1.0 / (self.hold.d * self.dt)] if self.hold.d else []
+            extra = [1.0 / (self.hold.d * self.sample_period())] if self.hold.d else []
         else:
-            roots, extra = np.concatenate([np.roots(self.num), self.poles]), []
+            poles = self.poles  # a rational plant's are never None
+            roots, extra = np.concatenate([np.roots(self._tf()[0]), poles if poles is not None else []]), []
         if self.discrete:
             roots = roots[np.abs(roots) > 1e-12]
-            mags = np.abs(np.log(roots.astype(complex))) / self.dt
+            mags = np.abs(np.log(roots.astype(complex))) / self.sample_period()
         else:
             mags = np.abs(roots)
         mags = mags[mags > 1e-9 * max(1.0, float(np.max(mags, initial=1.0)))]
@@ -166,14 +189,15 @@ class LinearPlant:
         highest (``widen`` decades more each side), log-spaced; a discrete plant's up to just below its Nyquist
         frequency; a measured response's data frequencies (every ``k``-th, for about ``per_decade`` a decade)."""
         if not self.rational:
-            decades = np.log10(self.omega_data[-1] / self.omega_data[0])
-            step = max(1, int(self.omega_data.size / max(per_decade * decades, 1.0)))
-            keep = np.unique(np.append(np.arange(0, self.omega_data.size, step), self.omega_data.size - 1))
-            return self.omega_data[keep]
+            omega = self._measured()[0]
+            decades = np.log10(omega[-1] / omega[0])
+            step = max(1, int(omega.size / max(per_decade * decades, 1.0)))
+            keep = np.unique(np.append(np.arange(0, omega.size, step), omega.size - 1))
+            return omega[keep]
         f = self.characteristic_frequencies()
         lo, hi = np.log10(0.01 * f.min()) - widen, np.log10(100.0 * f.max()) + widen
         if self.discrete:
-            hi = min(hi, np.log10(0.999 * np.pi / self.dt))
+            hi = min(hi, np.log10(0.999 * np.pi / self.sample_period()))
             lo = min(lo, hi - 2.0)
         return np.logspace(lo, hi, int(np.ceil((hi - lo) * per_decade)) + 1)
 
@@ -184,14 +208,16 @@ class LinearPlant:
         w = np.asarray(omega, float)
         delay = np.exp(-1j * w * self.delay_s)
         if not self.rational:
-            lw, lg = np.log(self.omega_data), np.log(np.abs(self.data))
-            ph = np.unwrap(np.angle(self.data))
-            x = np.log(np.clip(w, self.omega_data[0], self.omega_data[-1]))
+            omega, data = self._measured()
+            lw, lg = np.log(omega), np.log(np.abs(data))
+            ph = np.unwrap(np.angle(data))
+            x = np.log(np.clip(w, omega[0], omega[-1]))
             return np.exp(np.interp(x, lw, lg) + 1j * np.interp(x, lw, ph)) * delay
-        s = np.exp(1j * w * self.dt) if self.discrete else 1j * w
+        s = np.exp(1j * w * self.sample_period()) if self.discrete else 1j * w
         if self.hold is not None:
             return self.hold.response(s) * delay
-        return np.polyval(self.num, s) / np.polyval(self.den, s) * delay
+        num, den = self._tf()
+        return np.polyval(num, s) / np.polyval(den, s) * delay
 
     def transfer_function(self) -> control.TransferFunction:
         """The rational part as a python-control transfer function (the delay is :attr:`delay_s`)."""
@@ -207,24 +233,25 @@ class LinearPlant:
         (the hold's response at the fundamental; the aliases are left out)."""
         if not (np.isfinite(Ts) and Ts > 0):
             raise InputError(f"the sample period must be a finite number > 0, got {Ts!r}")
-        if self.discrete:
+        if self.dt is not None:
             if abs(Ts - self.dt) > 1e-9 * self.dt:
                 raise InputError(f"the plant is discrete with sample period {self.dt:g} s; the controller's must be "
                                  f"the same, got {Ts:g} s")
             return self
         if not self.rational:
-            w = self.omega_data[self.omega_data < np.pi / Ts]
+            omega, data = self._measured()
+            w = omega[omega < np.pi / Ts]
             if w.size < 4:
                 raise InputError(f"the measured response has {w.size} frequencies below the Nyquist frequency of "
                                  f"Ts = {Ts:g} s; expected at least 4")
             hold = np.where(w * Ts > 0, (1 - np.exp(-1j * w * Ts)) / (1j * w * Ts), 1.0)
-            return LinearPlant(None, None, Ts, self.delay_s, w, self.data[:w.size] * hold,
+            return LinearPlant(None, None, Ts, self.delay_s, w, data[:w.size] * hold,
                                f"{self.source}, held at {Ts:g} s")
-        ss, hold = _sampled_ss(self.num, self.den, self.delay_s, Ts)
+        ss, zoh = _sampled_ss(*self._tf(), self.delay_s, Ts)
         tf = control.ss2tf(*ss, Ts)
         num, den = _trim(tf.num[0][0]), _trim(tf.den[0][0])
         return LinearPlant(_poly(num, "numerator"), _poly(den, "denominator"), Ts, 0.0,
-                           source=f"{self.source}, held at {Ts:g} s", ss=ss, hold=hold)
+                           source=f"{self.source}, held at {Ts:g} s", ss=ss, hold=zoh)
 
     def state_space(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(A, B, C, D)`` of a discrete rational plant, its delay as a line of states."""
@@ -232,7 +259,7 @@ class LinearPlant:
             raise InputError("a state space is taken of a discrete rational plant; sample it first (sampled(Ts))")
         if self.ss is not None:
             return self.ss
-        sys = control.tf2ss(self.num, self.den, self.dt)
+        sys = control.tf2ss(*self._tf(), self.dt)
         return np.asarray(sys.A), np.asarray(sys.B), np.asarray(sys.C), np.asarray(sys.D)
 
     # ---- the closed loop -----------------------------------------------------------------------
@@ -252,8 +279,7 @@ class LinearPlant:
         """The eigenvalues of the loop's state matrix (plant and controller in state space, negative feedback):
         better conditioned than the roots of the characteristic polynomial for long delay lines."""
         dt = 0 if self.dt is None else self.dt
-        A, B, C, D = (self.ss if self.ss is not None  # type: ignore[misc]
-                      else _matrices(control.tf2ss(self.num, self.den, dt)))
+        A, B, C, D = self.ss if self.ss is not None else _matrices(control.tf2ss(*self._tf(), dt))
         Ac, Bc, Cc, Dc = _matrices(control.tf2ss(c_num, c_den, dt))
         # u = Cc xc + Dc e, e = -y, y = C x + D u: y = (C x + D Cc xc) / (1 + D Dc)
         k = 1.0 / (1.0 + float(D[0, 0]) * float(Dc[0, 0]))
@@ -272,10 +298,10 @@ class LinearPlant:
             return np.asarray(controller_response(w), complex) * self.response(w)
 
         if not self.rational:
-            w = self.omega_data
+            w = self._measured()[0]
             return w, loop_at(w)
         w = self.grid(per_decade=250, widen=1.0)
-        if self.discrete:
+        if self.dt is not None:
             w = np.append(w[w < np.pi / self.dt], np.pi / self.dt)
         else:
             for _ in range(12):
@@ -419,7 +445,7 @@ def _from_tf(tf: control.TransferFunction, delay_s: float, source: str) -> Linea
                              f"{delay_s:g} s ({k:.6g} samples)")
         den, delay_s = np.concatenate([den, np.zeros(int(round(k)))]), 0.0
     plant = LinearPlant(num, den, dt, delay_s, source=source)
-    poles = plant.poles
+    poles = np.roots(den)  # plant.poles: it has no state space
     near = np.abs(plant._boundary(poles)) <= _ON_AXIS * max(1.0, float(np.max(np.abs(poles), initial=1.0)))
     at = 1.0 if dt is not None else 0.0
     odd = poles[near & (np.abs(poles - at) > _ON_AXIS)]

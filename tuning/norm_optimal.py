@@ -42,8 +42,8 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from piezopreload.core._typing import Array, BoolArray
 from piezopreload.core.errors import InputError, InternalError
 from piezopreload.models.actuator import Plant
 from piezopreload.models.controller import Controller
@@ -66,7 +66,6 @@ from piezopreload.tuning.validate import DEFAULT_SPREAD
 __all__ = ["Limits", "constrained_step", "uncertainty_set", "with_gain", "RobustChoice", "robust_choice",
            "learning_error", "NormOptimalLaw", "norm_optimal_law", "DEFAULT_WEIGHT"]
 
-Array = NDArray[np.float64]
 
 #: the weight on a change of setpoint (N) against the force error (N): where the loop passes less than
 #: about 10 % of a setpoint change (``|H|^2 < w``) the law learns little (the noise's band)
@@ -97,7 +96,7 @@ class Limits:
     command_V: Array
     voltage_V: Array
 
-    def broken(self, step: NormOptimalStep, tol: float = 1e-6) -> Array:
+    def broken(self, step: NormOptimalStep, tol: float = 1e-6) -> BoolArray:
         """Per sample: where the command or the voltage after ``step`` breaks a limit (one plant)."""
         lo, hi = self.u_range_V
         c, v = self.command_V, self.voltage_V
@@ -263,7 +262,8 @@ def _rollout(gains: RiccatiGains, bs: Array, e0: float, fixed: Array, t_from: in
     state at ``t_from`` the start): the feedback law's ``dv``, or ``fixed`` where that is finite."""
     lifted, K, den = gains.lifted, gains.K, gains.den
     n, m = lifted.n, lifted.states
-    r = _Rollout(*(np.zeros(n) for _ in range(5)), np.zeros((n, m))) if base is None else base
+    r = (_Rollout(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros((n, m))) if base is None
+         else base)
     if t_from == 0:
         d = fixed[0] if np.isfinite(fixed[0]) else (lifted.D0 * e0 + bs[0]) / den[0]
         r.dv[0], r.du[0], r.force[0] = d, lifted.Fd * d, lifted.D0 * d
@@ -524,7 +524,7 @@ def norm_optimal_law(params: Plant, controller: Controller, target_N: Array, bas
     base = np.zeros_like(target) if base_V is None else np.asarray(base_V, float)
     if base.shape != target.shape:
         raise InputError(f"base_V has shape {base.shape}; the plan {target.shape}")
-    return NormOptimalLaw(lifted, float(weight), choice, (g.u_min, g.u_max),
+    return NormOptimalLaw(lifted, float(weight), choice, (g.u_min_V, g.u_max_V),
                           float(params.slew_V_per_s) * params.sample_period_s, target, base, float(params.noise_N),
                           constrained)
 

@@ -37,9 +37,9 @@ tracking floor) are :mod:`piezopreload.tuning.bounds`.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, TypedDict
 
 import casadi as ca
 import numpy as np
@@ -49,8 +49,8 @@ from piezopreload.core import native
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import PAPER_BAND_N, Reference
-from piezopreload.models.controller import PIDGains
-from piezopreload.models.hysteresis import InverseClassicalPI
+from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V, PIDGains
+from piezopreload.models.hysteresis import InverseModel
 from piezopreload.models.ops import Layout
 from piezopreload.tuning.fopdt import FOPDT, fit_fopdt, simc
 from piezopreload.tuning.horizon import ROWS, Horizon, TimeDomain, feedforward_sequence, loop_rows, tuning_loop
@@ -119,8 +119,8 @@ class TuningSpec:
     overshoot_margin_N: float = 0.6
     ms_max: float = 1.6
     noise_gain_max_V_per_N: float = 8.0
-    u_min_V: float = 0.0
-    u_max_V: float = 110.0
+    u_min_V: float = OUTPUT_MIN_V
+    u_max_V: float = OUTPUT_MAX_V
     step: Reference = field(default_factory=lambda: Reference.step(25.0, 60.0, 0.02, 0.6))
     trajectory: Reference = field(
         default_factory=lambda: Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 0.4, t_start_s=0.02)
@@ -165,11 +165,18 @@ class TuningSpec:
                              f"got {self.force_range_N!r}.")
 
 
-def scaled_references(step_N: Any = None, trajectory_N: Any = None) -> dict[str, Reference]:
+class ScaledReferences(TypedDict, total=False):
+    """:func:`scaled_references`: the ones a study sets, as :class:`TuningSpec`'s keywords."""
+
+    step: Reference
+    trajectory: Reference
+
+
+def scaled_references(step_N: Any = None, trajectory_N: Any = None) -> ScaledReferences:
     """The tuning's short step and staircase at a study's force scale (``TuningSpec``'s time scale:
     0.6 s for the step, 0.4 s per level): ``step_N = (from, to)``, ``trajectory_N = (rest, levels...)``;
     None keeps the paper's."""
-    out: dict[str, Reference] = {}
+    out: ScaledReferences = {}
     if step_N is not None:
         if len(step_N) != 2:
             raise ValueError(f"tuning.step_N must be (from, to), got {list(step_N)!r}")
@@ -305,7 +312,7 @@ class _Scaling:
         x = {n: float(self.value(n, float(z[i]))) for i, n in enumerate(self.names)}
         return PIDGains(Kc=x["Kc"], Ti_s=x["Ti"], Td_s=x.get("Td", 0.0), Tf_s=x.get("Tf", spec.filter_s or 0.0),
                         b=x.get("b", spec.setpoint_weight),
-                        u_min=spec.u_min_V, u_max=spec.u_max_V)
+                        u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
 
     def on_bounds(self, z: np.ndarray) -> list[tuple[str, str, float]]:
         """``(name, side, bound)`` of every gain (not ``b``) within :data:`_ON_BOUND` of an end of its box."""
@@ -322,7 +329,7 @@ def _z_of(names: list[str], scaling: _Scaling, g: PIDGains) -> np.ndarray:
     return np.array([scaling.z(n, {"Kc": g.Kc, "Ti": g.Ti_s, "Td": g.Td_s, "Tf": g.Tf_s, "b": g.b}[n]) for n in names])
 
 
-def _seeds(names: list[str], scaling: _Scaling, baseline: PIDGains, first: list[PIDGains] = ()) -> np.ndarray:
+def _seeds(names: list[str], scaling: _Scaling, baseline: PIDGains, first: Sequence[PIDGains] = ()) -> np.ndarray:
     """Starting points: the SIMC baseline (the ``first`` gains before it: warm starts, known good gains) and a coarse
     grid around the box's middle."""
     pts = [[scaling.z(n, {"Kc": baseline.Kc, "Ti": baseline.Ti_s, "Td": 1e-4, "Tf": 1e-4, "b": 1.0}[n]) for n in names]]
@@ -387,7 +394,7 @@ def _variable_names(spec: TuningSpec) -> list[str]:
             + (["b"] if spec.tune_setpoint_weight else []))
 
 
-def _horizon(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningSpec, variants: list[Plant],
+def _horizon(params: Plant, feedforward: InverseModel | None, spec: TuningSpec, variants: list[Plant],
              engine: str) -> Horizon:
     """The step, then the trajectory, on one horizon: the loop restarts at each one's first sample (the
     trajectory's top is out of reach of the weakest variants: only the step's overshoot counts)."""
@@ -421,7 +428,7 @@ def _ms_blocks(d: Any, gains4: list[Any], slopes: list[tuple[float, float]], n_o
     return blocks
 
 
-def _build_problem(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningSpec,
+def _build_problem(params: Plant, feedforward: InverseModel | None, spec: TuningSpec,
                    engine: str = "plain") -> _Problem:
     dt = params.sample_period_s
     variants = plant_variants(params, spec.variants)
@@ -656,7 +663,7 @@ def _active_bounds(on_bounds: list[tuple[str, str, float]], made_pi: bool, retun
     return tuple(out)
 
 
-def _engine(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningSpec,
+def _engine(params: Plant, feedforward: InverseModel | None, spec: TuningSpec,
             engine: str) -> tuple[_Problem, str, float]:
     """The problem on the compiled engine where asked and available, else plain; the engine and its build time."""
     used, compile_s = "plain", 0.0
@@ -674,7 +681,7 @@ def _engine(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningS
     return prob, used, compile_s
 
 
-def _as_pi(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningSpec, engine: str,
+def _as_pi(params: Plant, feedforward: InverseModel | None, spec: TuningSpec, engine: str,
            pid: PIDGains, max_iterations: int, progress: Callable[[], None] | None
            ) -> tuple[PIDGains, _Solvers, np.ndarray, bool] | None:
     """The PI of ``pid`` (its derivative on its lower bound): ``pid`` without its derivative and filter where that
@@ -695,7 +702,7 @@ def _as_pi(params: Plant, feedforward: InverseClassicalPI | None, spec: TuningSp
 
 def tune_pid(
     params: Plant,
-    feedforward: InverseClassicalPI | None,
+    feedforward: InverseModel | None,
     spec: TuningSpec = TuningSpec(),
     *,
     max_iterations: int = 150,
@@ -824,7 +831,7 @@ class _Watch(ca.Callback):
             return ca.Sparsity.dense(self.ng)
         return ca.Sparsity(0, 0)
 
-    def eval(self, arg: list[Any]) -> list[Any]:
+    def eval(self, arg: Sequence[Any]) -> list[Any]:
         stop = False
         if self.on_iterate is not None:
             names = [ca.nlpsol_out(i) for i in range(ca.nlpsol_n_out())]

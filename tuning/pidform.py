@@ -108,9 +108,9 @@ class PIDController:
             return self.kp + self.ki * self.Tf, self.ki, self.kd + self.kp * self.Tf, self.Tf
         return self.kp, self.ki, self.kd, self.Tf
 
-    def isa(self, u_min: float = -UNLIMITED_V, u_max: float = UNLIMITED_V, b: float = 1.0) -> PIDGains:
+    def isa(self, u_min_V: float = -UNLIMITED_V, u_max_V: float = UNLIMITED_V, b: float = 1.0) -> PIDGains:
         """The ideal/ISA gains ``Kc, Ti, Td, Tf`` the controller step runs (forms 0 and 1; a PI has ``Td = Tf = 0``),
-        with the output range ``u_min..u_max`` (default :data:`UNLIMITED_V`: none)."""
+        with the output range ``u_min_V..u_max_V`` (default :data:`UNLIMITED_V`: none)."""
         if self.filter_order == 2:
             raise InputError("a second-order filter on the whole controller has no ideal/ISA form the controller step "
                              "runs (its filter is first order, on the derivative): tune with filter_order=1 for gains "
@@ -119,7 +119,7 @@ class PIDController:
             raise InputError(f"the ideal/ISA form needs kp > 0 and ki > 0, got kp {self.kp!r}, ki {self.ki!r}")
         td = self.kd / self.kp if self.filter_order else 0.0
         return PIDGains(Kc=self.kp, Ti_s=self.kp / self.ki, Td_s=td, Tf_s=self.Tf if td > 0 else 0.0, b=b,
-                        u_min=u_min, u_max=u_max)
+                        u_min_V=u_min_V, u_max_V=u_max_V)
 
     def scaled(self, sign: float) -> PIDController:
         """The controller with its gains times ``sign`` (for a plant of negative gain)."""

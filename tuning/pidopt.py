@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import casadi as ca
 import numpy as np
@@ -137,10 +137,20 @@ def _features(omega: np.ndarray, filter_order: int, dt: float | None) -> np.ndar
     return (2.0 / dt * np.tan(omega * dt / 2.0))[None, :]
 
 
+#: the symbols an NLP is built of: scalar expressions, or matrix ones where it calls a function (the IAE's simulation)
+_Sym = TypeVar("_Sym", ca.SX, ca.MX)
+
+
 def _compile(n: int, names: tuple[str, ...], filter_order: int, discrete: bool, objective: Any) -> _Compiled:
+    if isinstance(objective, str):
+        return _build(ca.SX, n, names, filter_order, discrete, objective)
+    return _build(ca.MX, n, names, filter_order, discrete, objective)  # the simulation stays a call, not an expansion
+
+
+def _build(sym: type[_Sym], n: int, names: tuple[str, ...], filter_order: int, discrete: bool,
+           objective: Any) -> _Compiled:
     nf = 6 if discrete and filter_order < 2 else 1
     nx = 2 if filter_order == 0 else 4
-    sym = ca.SX if isinstance(objective, str) else ca.MX  # the IAE's simulation stays a call, not an expansion
     x = sym.sym("x", nx)
     p = sym.sym("p", 5 + len(names) + n * (nf + 2))
     s_kp, s_ki, s_kd, s_tf, dt = (p[i] for i in range(5))
@@ -172,7 +182,8 @@ class PIDProblem:
     def __init__(self, omega: np.ndarray, G: np.ndarray, bounds: dict[str, float | None], scales: Scales,
                  objective: Any = "IE", iae_scale: float = 1.0, max_iterations: int = 300) -> None:
         self.omega, self.scales, self.bounds = np.asarray(omega, float), scales, bounds
-        self.names = tuple(name for name, m in bounds.items() if m is not None)
+        limits = {name: m for name, m in bounds.items() if m is not None}
+        self.names = tuple(limits)
         n = self.omega.size
         cap = _BLOCK * int(np.ceil(n / _BLOCK))
         key = (cap, self.names, scales.filter_order, scales.dt is not None, max_iterations)
@@ -192,7 +203,7 @@ class PIDProblem:
         slots[:, :n] = np.vstack([feats, G.real[None, :], G.imag[None, :]])
         slots[:, n:] = slots[:, n - 1:n]  # spare slots: the last frequency again, their rows free
         self.data = np.concatenate([[scales.kp, scales.ki, scales.kd, scales.Tf, scales.dt or 0.0],
-                                    [float(bounds[k]) ** 2 for k in self.names], slots.ravel(order="F")])
+                                    [float(limits[k]) ** 2 for k in self.names], slots.ravel(order="F")])
         self.ubg = np.tile(np.concatenate([np.zeros(n), np.full(cap - n, np.inf)]), len(self.names))
         self.cap, self.max_iterations = cap, max_iterations
         self.x, self.f, self.g = self.compiled.x, self.compiled.f, self.compiled.g
@@ -231,8 +242,9 @@ class PIDProblem:
             t = type(self.x).sym("t")
             nlp = ({"x": self.x, "p": self.compiled.p, "f": self.f, "g": self.g} if name != "least_violation" else
                    {"x": ca.vertcat(self.x, t), "p": self.compiled.p, "f": t, "g": self.g - t})
-            warm = {"ipopt.warm_start_init_point": "yes", "ipopt.mu_init": 1e-8, "ipopt.warm_start_bound_push": 1e-9,
-                    "ipopt.warm_start_mult_bound_push": 1e-9, "ipopt.warm_start_slack_bound_push": 1e-9}
+            warm: dict[str, str | float] = {
+                "ipopt.warm_start_init_point": "yes", "ipopt.mu_init": 1e-8, "ipopt.warm_start_bound_push": 1e-9,
+                "ipopt.warm_start_mult_bound_push": 1e-9, "ipopt.warm_start_slack_bound_push": 1e-9}
             self._solvers[name] = ca.nlpsol(f"autotune_{name}", "ipopt", nlp, {
                 "ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.tol": 1e-9,
                 "ipopt.constr_viol_tol": 1e-9, "ipopt.max_iter": self.max_iterations,
@@ -265,9 +277,9 @@ class PIDProblem:
         if method in ("slsqp", "slsqp-fd"):
             x, status, iterations = self._slsqp(x0, lo, hi, exact=method == "slsqp")
         elif method == "ipopt":
-            use_warm = warm is not None and warm.lam_g is not None
-            solver = self._solver("ipopt_warm" if use_warm else "ipopt")
-            extra = {"lam_g0": self._multipliers(warm), "lam_x0": warm.lam_x} if use_warm else {}
+            start = warm if warm is not None and warm.lam_g is not None else None
+            solver = self._solver("ipopt" if start is None else "ipopt_warm")
+            extra = {} if start is None else {"lam_g0": self._multipliers(start), "lam_x0": start.lam_x}
             sol = solver(x0=x0, p=self.data, lbx=lo, ubx=hi, lbg=-np.inf, ubg=self.ubg, **extra)
             stats = solver.stats()
             x, status, iterations = (np.asarray(sol["x"], float).ravel(), str(stats.get("return_status")),
@@ -294,8 +306,10 @@ class PIDProblem:
             return -np.asarray(self.derivatives(x)[1], float)
 
         constraint: dict[str, Any] = {"type": "ineq", "fun": cons, **({"jac": cons_jac} if exact else {})}
-        res = minimize(fun, x0, jac=grad if exact else None, method="SLSQP", bounds=list(zip(lo, hi)),
-                       constraints=[constraint], options={"maxiter": self.max_iterations, "ftol": 1e-12})
+        # scipy-stubs type a constraint dict's fun as scalar-valued; SLSQP takes a vector of inequalities
+        res = minimize(fun, x0, jac=grad if exact else None, method="SLSQP",  # type: ignore[call-overload]
+                       bounds=list(zip(lo, hi)), constraints=[constraint],
+                       options={"maxiter": self.max_iterations, "ftol": 1e-12})
         return np.asarray(res.x, float), str(res.message), int(res.nit)
 
     def least_violation(self, x0: np.ndarray) -> Solution:

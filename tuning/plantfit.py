@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import control
 import numpy as np
@@ -23,6 +23,9 @@ from scipy.optimize import least_squares
 from piezopreload.core.errors import InputError
 from piezopreload.core.tables import Record, read_record
 from piezopreload.tuning.fopdt import fit_first_order
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = ["FittedPlant", "fit_plant", "read_frequency_response"]
 
@@ -66,7 +69,7 @@ class FittedPlant:
         return {"K": self.K, "T_s": list(self.T_s), "delay_s": self.delay_s, "order": self.order, "rms": self.rms,
                 "step": self.step, "samples": int(self.t_s.size), "source": self.source}
 
-    def plot(self) -> Any:
+    def plot(self) -> Figure:
         """The measured response and the fit over it: a Figure."""
         from matplotlib.figure import Figure
 

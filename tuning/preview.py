@@ -28,19 +28,18 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from piezopreload.core._typing import Array, IntArray
 from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Plant, Rig, reach_N
 from piezopreload.models.closedloop import Reference
-from piezopreload.models.controller import Controller
+from piezopreload.models.controller import OUTPUT_MAX_V, Controller
 from piezopreload.tuning.bounds import tracking_floor
 
 __all__ = ["AFTER_CHANGE_S", "PLAN_SLEW_FRACTION", "advance", "PreviewPlan", "Preview", "plan_preview",
            "default_preview_s", "feedforward_lead", "branch_ramps", "preview_plan", "ramp_plan", "causal_floor",
            "preview_feedforward"]
 
-Array = NDArray[np.float64]
 
 #: the transport after a jump the after-change error leaves out (as the validation's criteria)
 AFTER_CHANGE_S = 0.1
@@ -59,7 +58,6 @@ def advance(x: Array, samples: int, fill: str = "hold") -> Array:
     m = min(samples, x.shape[-1])
     tail = np.repeat(x[..., -1:], m, axis=-1) if fill == "hold" else np.zeros(x.shape[:-1] + (m,))
     return np.concatenate([x[..., samples:], tail], axis=-1)[..., : x.shape[-1]]
-
 
 
 @dataclass(frozen=True, eq=False)
@@ -109,7 +107,8 @@ def feedforward_lead(params: Plant) -> int:
     return int(params.delay_samples) + 1 + int(round(tau / params.sample_period_s))
 
 
-def branch_ramps(params: Plant, levels_N: Array, u_max_V: float = 110.0, slew_fraction: float = 1.0) -> list[Array]:
+def branch_ramps(params: Plant, levels_N: Array, u_max_V: float = OUTPUT_MAX_V,
+                 slew_fraction: float = 1.0) -> list[Array]:
     """Per change of ``levels_N``, the fastest force path along the rig's own hysteresis branch.
 
     The quasi-static rig (:meth:`~piezopreload.models.actuator.Rig.quasi_static_loop`: the truth
@@ -145,7 +144,7 @@ def branch_ramps(params: Plant, levels_N: Array, u_max_V: float = 110.0, slew_fr
     return ramps
 
 
-def preview_plan(params: Plant, reference: Reference, preview_s: float, *, u_max_V: float = 110.0,
+def preview_plan(params: Plant, reference: Reference, preview_s: float, *, u_max_V: float = OUTPUT_MAX_V,
                  lead_samples: int | None = None, ramps: list[Array] | None = None,
                  after_change_weight: float = 0.0) -> PreviewPlan:
     """The preview floor and the planned force (see the module docstring).
@@ -173,7 +172,7 @@ def preview_plan(params: Plant, reference: Reference, preview_s: float, *, u_max
     p = int(round(preview_s / dt))
     floor = tracking_floor(params, reference)
     n = int(round(reference.duration_s / dt)) + 1
-    t = np.arange(n) * dt
+    t = np.arange(n, dtype=np.float64) * dt
     r = reference.at(t)
     lo, hi = float(np.min(params.bolt_preload_N)), float(np.min(reach_N(Rig(params), u_max_V)))
     levels = np.clip(reference.levels_N, lo, hi)
@@ -186,14 +185,13 @@ def preview_plan(params: Plant, reference: Reference, preview_s: float, *, u_max
         old, new = levels[j], levels[j + 1]
         size = abs(new - old)
         rho = floor["rate_N_per_s"] * dt
-        if ramps is None:
+        path = None if ramps is None else ramps[j]
+        if path is None:
             n_ramp = int(np.ceil(size / rho - 1e-12)) if size > 0 else 0
         else:  # the rig's own path: its samples, then the level (held where the voltage limit stopped it)
-            path = ramps[j]
             n_ramp = path.size
             new = float(path[-1])
             size = abs(new - old)
-        path = None if ramps is None else ramps[j]
         best: tuple[float, int] | None = None
         for s in range(lead - p, lead + 1):
             s0 = int(k) + s
@@ -219,7 +217,7 @@ def preview_plan(params: Plant, reference: Reference, preview_s: float, *, u_max
     return PreviewPlan(t, force, rms, floor["rate_N_per_s"], float(preview_s), lead, starts, (lo, hi))
 
 
-def ramp_plan(params: Plant, reference: Reference, preview_s: float, *, u_max_V: float = 110.0,
+def ramp_plan(params: Plant, reference: Reference, preview_s: float, *, u_max_V: float = OUTPUT_MAX_V,
               lead_samples: int | None = None) -> PreviewPlan:
     """The plan and the preview floor of a ramped (piecewise linear) reference.
 
@@ -240,7 +238,7 @@ def ramp_plan(params: Plant, reference: Reference, preview_s: float, *, u_max_V:
     p = int(round(preview_s / dt))
     d = max(lead - p, 0)
     n = int(round(reference.duration_s / dt)) + 1
-    t = np.arange(n) * dt
+    t = np.arange(n, dtype=np.float64) * dt
     r = reference.at(t)
     # the steepest rate the force can move (tracking_floor's, which depends on the rig alone; one 1 N step asks it)
     rate = float(tracking_floor(params, Reference(np.array([0.0, dt]), np.array([0.0, 1.0]), 2 * dt))["rate_N_per_s"])
@@ -267,7 +265,7 @@ def causal_floor(params: Plant, reference: Reference) -> float:
     return ramp_plan(params, reference, 0.0).rms_N
 
 
-def _ramp(m: Array, s0: int, old: float, new: float, rho: float, path: Array | None) -> Array:
+def _ramp(m: IntArray, s0: int, old: float, new: float, rho: float, path: Array | None) -> Array:
     """The force at samples ``m`` of a change from ``old`` to ``new`` whose last sample at ``old`` is ``s0``:
     a straight ramp of ``rho`` per sample, or ``path`` (the rig's own, sample by sample) then held."""
     if path is None:
@@ -345,7 +343,7 @@ def plan_preview(params: Plant, controller: Controller, reference: Reference, pr
     if params.batch_shape:
         raise InputError("plan_preview: give one plant (the nominal), not a batch")
     preview = default_preview_s(params, reference) if preview_s is None else float(preview_s)
-    u_max = controller.gains.u_max
+    u_max = controller.gains.u_max_V
     floor = preview_plan(params, reference, preview, u_max_V=u_max)
     lead = feedforward_lead(params) if preview > 0 else 0
     held = reference.interpolation == "hold"  # a ramped reference has no jumps to slew across

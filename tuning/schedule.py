@@ -222,11 +222,11 @@ def _entry_spec(spec: TuningSpec, robust: PIDGains, lo: float, level: float, hi:
     """An entry's tuning: a step across its window after a rest at its bottom (the loop starts at 0 V: the rest lets
     the step start from the window, as the validation's does) and a short staircase inside it, the Ms constraints on
     the window's force per volt, ``b`` tuned, the robust set's derivative filter held."""
-    refs = {"step": Reference.step(lo, hi, _REST_S, _REST_S + 0.6),
-            "trajectory": Reference.staircase(lo, _path(lo, float(level), hi), 0.4, t_start_s=_REST_S)}
+    step = Reference.step(lo, hi, _REST_S, _REST_S + 0.6)
+    trajectory = Reference.staircase(lo, _path(lo, float(level), hi), 0.4, t_start_s=_REST_S)
     margin = spec.overshoot_margin_N if overshoot_margin_N is None else overshoot_margin_N
-    return replace(spec, **refs, force_range_N=(lo, hi), tune_setpoint_weight=True, filter_s=robust.Tf_s,
-                   overshoot_margin_N=margin)
+    return replace(spec, step=step, trajectory=trajectory, force_range_N=(lo, hi), tune_setpoint_weight=True,
+                   filter_s=robust.Tf_s, overshoot_margin_N=margin)
 
 
 def _schedule_of(levels_N: np.ndarray, entries: list[PIDGains]) -> GainSchedule:

@@ -7,6 +7,7 @@ keys (type, default, unit, range, doc: :func:`piezopreload.core.config.key`), wi
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import Any
 
 from piezopreload.artifacts.validation import Criteria
 from piezopreload.core.config import Invalid, Table, key
@@ -75,7 +76,8 @@ class ValidationTable(Table):
 
     def criteria(self, band_N: float) -> Criteria:
         """The limits every plant must meet, in the study's error band."""
-        return Criteria(band_N=band_N, **{k: float(getattr(self, k)) for k in CRITERIA_LIMITS})
+        limits: dict[str, Any] = {k: float(getattr(self, k)) for k in CRITERIA_LIMITS}
+        return Criteria(band_N=band_N, **limits)
 
 
 @dataclass(frozen=True)

@@ -84,7 +84,8 @@ def evaluate(gains: PIDGains, feedforward: HysteresisModel | CreepPI | None, pla
     ms, mt, mm = by_signal[signal], by_signal["force_N"], by_signal["measured_N"]
     traj = simulate(rig, controller, trajectory, seed=seed + 1)
     te = traj.tracking_error()
-    te_after = traj.tracking_error(after_change_s=criteria.tracking_after_change_s, u_range=(gains.u_min, gains.u_max))
+    te_after = traj.tracking_error(after_change_s=criteria.tracking_after_change_s,
+                                   u_range=(gains.u_min_V, gains.u_max_V))
     peak = np.maximum(np.max(step.command_V, axis=-1), np.max(traj.command_V, axis=-1))
     return {
         "rise_s": np.array([m.rise_s for m in ms], float),
@@ -182,7 +183,7 @@ def validate(
     t0 = time.perf_counter()
     drawn = plant.vary(n_plants, spread, seed=seed)
     # the nominal plant first: a validation set must contain the plant the gains were tuned on
-    batch_fields = {n: np.asarray(getattr(drawn, n), float).copy() for n in spread}
+    batch_fields: dict[str, Any] = {n: np.asarray(getattr(drawn, n), float).copy() for n in spread}
     for n in batch_fields:
         batch_fields[n][0] = float(getattr(plant, n))
     plants = replace(drawn, **batch_fields)

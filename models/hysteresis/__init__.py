@@ -35,6 +35,7 @@ from piezopreload.models.hysteresis.inverse import (
     InverseAsymmetricPI,
     InverseClassicalPI,
     InverseCreepPI,
+    InverseModel,
     InverseModifiedPI,
     InverseSpec,
     InverseStep,
@@ -55,7 +56,7 @@ from piezopreload.models.hysteresis.serialise import MODEL_KINDS, model_from_dic
 __all__ = [
     "NotInvertibleError", "play", "play_step", "rising", "deadzone", "DeadZone", "uniform_thresholds",
     "ClassicalPI", "AsymmetricPI", "ModifiedPI", "HysteresisModel",
-    "InverseClassicalPI", "InverseAsymmetricPI", "InverseModifiedPI", "InverseCreepPI",
+    "InverseClassicalPI", "InverseAsymmetricPI", "InverseModifiedPI", "InverseCreepPI", "InverseModel",
     "InverseSpec", "InverseStep", "inverse_realtime", "inverse_at",
     "log_spaced_time_constants", "LagCoefficients", "lag_coefficients", "creep_lags", "Creep", "CreepPI",
     "CREEP_SUFFIX", "model_from_dict", "MODEL_KINDS",

@@ -31,7 +31,7 @@ if TYPE_CHECKING:
     from piezopreload.models.hysteresis.pi import AsymmetricPI, ClassicalPI, ModifiedPI
 
 __all__ = ["InverseSpec", "InverseStep", "inverse_realtime", "InverseClassicalPI", "InverseAsymmetricPI",
-           "InverseModifiedPI", "InverseCreepPI"]
+           "InverseModifiedPI", "InverseCreepPI", "InverseModel"]
 
 _EMPTY = np.zeros(0)
 
@@ -334,3 +334,6 @@ class InverseModifiedPI(_RealTimeInverse):
         z = self.shaper_inverse(np.asarray(target, dtype=float) - self.forward.offset)
         return self.play_inverse(z, state)
 
+
+#: any P-I model's inverse: the feedforward a controller runs (each is a :class:`InverseStep` with its own numbers)
+InverseModel = InverseClassicalPI | InverseAsymmetricPI | InverseModifiedPI | InverseCreepPI

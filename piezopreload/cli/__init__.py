@@ -19,8 +19,7 @@ import traceback
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from piezopreload import __version__
-from piezopreload.cli._common import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, Parser
+from piezopreload.cli._common import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, Parser, command_help
 from piezopreload.cli.autotune import register_autotune
 from piezopreload.cli.design import register_ballscrew, register_design
 from piezopreload.cli.export import register_export
@@ -38,7 +37,8 @@ __all__ = ["main", "build_parser", "COMMANDS", "EXIT_OK", "EXIT_INTERNAL", "EXIT
 # --------------------------------------------------------------------------------------
 # the parser
 # --------------------------------------------------------------------------------------
-#: one register function per subcommand, in the order ``--help`` lists them
+#: one register function per subcommand, in the order ``--help`` lists them: ``register_NAME`` registers NAME, the
+#: first line of its docstring is NAME's line in ``--help``; it imports the floors' constants its choices name
 COMMANDS: tuple[Callable[[Any], None], ...] = (
     register_run, register_sweep, register_report, register_identify, register_simulate, register_reproduce,
     register_tune, register_autotune, register_learn, register_validate, register_ballscrew, register_design,
@@ -46,19 +46,48 @@ COMMANDS: tuple[Callable[[Any], None], ...] = (
 )
 
 
-def build_parser() -> argparse.ArgumentParser:
+class _Version(argparse.Action):
+    """``--version``: the installed package's version, read when asked (not on every start)."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, **kwargs: Any) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, help="show the version and exit")
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        from piezopreload import __version__
+
+        print(f"piezopreload {__version__}")
+        parser.exit()
+
+
+class _Listed:
+    """What :func:`build_parser` hands a register function: ``add_parser`` lists the subcommand with its line."""
+
+    def __init__(self, sub: Any, register: Callable[[Any], None]) -> None:
+        self.sub, self.register = sub, register
+
+    def add_parser(self, name: str, **kwargs: Any) -> Parser:
+        return self.sub.add_parser(name, help=command_help(self.register), **kwargs)
+
+
+def build_parser(*, deferred: bool = False) -> argparse.ArgumentParser:
+    """The command line's parser. ``deferred``: each subcommand's arguments are registered when it is used (what
+    ``main`` does: ``piezopreload --help`` lists the subcommands without loading the floors their choices name)."""
     parser = Parser(prog="piezopreload",
                      description="Design and tuning studies for feed drives whose ball-screw "
                                  "preload is set by piezo stacks.")
-    parser.add_argument("--version", action="version", version=f"piezopreload {__version__}")
+    parser.add_argument("--version", action=_Version)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     for register in COMMANDS:
-        register(sub)
+        if deferred:
+            sub.add_parser(register.__name__.removeprefix("register_"), help=command_help(register)).deferred = register
+        else:
+            register(_Listed(sub, register))
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    parser = build_parser(deferred=True)
     try:
         args = parser.parse_args(argv)
         if args.command is None:

@@ -6,21 +6,61 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from piezopreload.core.errors import InputError
-from piezopreload.study import load_study
-from piezopreload.tuning.identification import Window
+from piezopreload.core.errors import InputError, InternalError
+
+if TYPE_CHECKING:  # the parser is built without the floors; a command loads what it runs
+    from piezopreload.tuning.identification import Window
 
 EXIT_OK, EXIT_INTERNAL, EXIT_INPUT = 0, 1, 2
 PASSWORD_ENV = "PIEZOPRELOAD_RIG_PASSWORD"
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse that reports bad arguments as one ``error: ...`` line with exit code 2."""
+    """argparse that reports bad arguments as one ``error: ...`` line with exit code 2.
+
+    A subcommand's parser may be ``deferred``: the function that registers it (``register_run``) runs, and imports
+    the constants its choices name, only when the subcommand is parsed or its help shown, so the command line
+    lists its subcommands without loading the floors.
+    """
+
+    deferred: Callable[[Any], None] | None = None
 
     def error(self, message: str) -> None:  # type: ignore[override]
         raise InputError(f"{self.prog}: {message} (see --help)")
+
+    def _register(self) -> None:
+        register, self.deferred = self.deferred, None
+        if register is not None:
+            register(_Into(self))
+
+    def parse_known_args(self, *args: Any, **kwargs: Any) -> Any:  # argparse's, after the deferred registration
+        self._register()
+        return super().parse_known_args(*args, **kwargs)
+
+    def format_help(self) -> str:
+        self._register()
+        return super().format_help()
+
+
+class _Into:
+    """What a deferred subcommand's register function adds to: the parser already listed under its name."""
+
+    def __init__(self, parser: Parser) -> None:
+        self.parser = parser
+
+    def add_parser(self, name: str, **kwargs: Any) -> Parser:
+        if self.parser.prog.split()[-1] != name:
+            raise InternalError(f"the subcommand listed as '{self.parser.prog}' registers '{name}'")
+        for key, value in kwargs.items():  # description, epilog, formatter_class: what it did not know when listed
+            setattr(self.parser, key, value)
+        return self.parser
+
+
+def command_help(register: Callable[[Any], None]) -> str:
+    """A subcommand's line in ``--help``: the first line of its register function's docstring."""
+    return (register.__doc__ or "").strip().splitlines()[0]
 
 
 def integer(low: int, what: str) -> Callable[[str], int]:
@@ -62,6 +102,8 @@ def time_constants(text: str) -> list[float]:
 
 def time_window(text: str | None, option: str) -> Window | None:
     """``'4:7'`` -> ``Window(4, 7)``; bad text raises :class:`InputError` naming ``option``."""
+    from piezopreload.tuning.identification import Window
+
     if text is None:
         return None
     a, sep, b = text.partition(":")
@@ -105,6 +147,8 @@ def study_of(args: argparse.Namespace, gains: Any = None) -> Any:
     """The study a single-step command works on (its plant: Study.plant, its [rig] or its design's): --study, else
     the default study every command shares (the machine axis). A gain set tuned for another study is refused
     without --study, rather than run on a plant it was not tuned for."""
+    from piezopreload.study import load_study
+
     study = load_study(args.study)
     named = None if gains is None else gains.inputs.get("study_sha256")
     if args.study is None and named and named != study.sha256:

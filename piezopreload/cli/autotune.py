@@ -26,8 +26,9 @@ def _positive(text: str) -> float:
 
 
 def register_autotune(sub: Any) -> None:
+    """tune a PI or PID for your own loop under Ms, Mt and Mks bounds"""
     p = sub.add_parser(
-        "autotune", help="tune a PI or PID for your own loop under Ms, Mt and Mks bounds",
+        "autotune",
         description=(
             "Tune a PI, or a PID with its derivative filter, for a linear plant given as a transfer function, a "
             "measured frequency response or a measured step response (fitted first or second order with dead time), "

@@ -13,17 +13,15 @@ from piezopreload.cli._common import (
     study_of,
 )
 from piezopreload.core.errors import InputError
-from piezopreload.design.preload import OBJECTIVES, PARETO_PAIRS
-from piezopreload.design.study import check_screw
-from piezopreload.models.ballscrew import BallScrew
 
 
 # --------------------------------------------------------------------------------------
 # ballscrew and design
 # --------------------------------------------------------------------------------------
 def register_ballscrew(sub: Any) -> None:
+    """evaluate one double-nut ball screw: ratings, rigidity, load sharing, drag, life"""
     p = sub.add_parser(
-        "ballscrew", help="evaluate one double-nut ball screw: ratings, rigidity, load sharing, drag, life",
+        "ballscrew",
         description=(
             "Evaluate a given (catalogue) double-nut ball screw at a preload and an axial load: C_dyn and C_0 "
             "(estimated from the geometry unless given), rigidity, deflection, the nuts' loads and lift-off, "
@@ -47,6 +45,9 @@ def register_ballscrew(sub: Any) -> None:
 
 
 def _cmd_ballscrew(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.design.study import check_screw
+    from piezopreload.models.ballscrew import BallScrew
+
     if args.preload_N is not None and args.preload_fraction is not None:
         raise InputError("give --preload-N or --preload-fraction, not both")
     try:
@@ -87,8 +88,11 @@ def _print_ballscrew(r: dict[str, Any]) -> None:
 
 
 def register_design(sub: Any) -> None:
+    """design the preloaded ball screw (CasADi): optimum, Pareto fronts, preload schedule"""
+    from piezopreload.design.preload import OBJECTIVES, PARETO_PAIRS
+
     p = sub.add_parser(
-        "design", help="design the preloaded ball screw (CasADi): optimum, Pareto fronts, preload schedule",
+        "design",
         description=(
             "Solve the study's ball-screw preload design (contact angle, ball size, conformity, turns and balls "
             "per turn, bolt preload and piezo preload range) for one objective, trace the Pareto fronts by the "

@@ -7,9 +7,7 @@ import json
 from typing import Any
 
 from piezopreload.cli._common import accept_flag, json_flag
-from piezopreload.core.artifacts import read_bytes
 from piezopreload.core.errors import InputError
-from piezopreload.rig.export import FORMATS
 
 
 def _period(text: str) -> float:
@@ -23,8 +21,11 @@ def _period(text: str) -> float:
 
 
 def register_export(sub: Any) -> None:
+    """export a validated gain set, or a hysteresis model alone, for a controller"""
+    from piezopreload.rig.export import FORMATS
+
     p = sub.add_parser(
-        "export", help="export a validated gain set, or a hysteresis model alone, for a controller",
+        "export",
         description=(
             "Write a validated gain set (gains.json, from 'piezopreload tune') or a hysteresis model alone "
             "(model.json, from 'piezopreload identify --out' or a study's feedforward/) in a controller's format: "
@@ -51,6 +52,8 @@ def register_export(sub: Any) -> None:
 
 def _kind(path: str) -> str:
     """The artifact's kind, from its schema (``piezopreload/<kind>/1``); the readers check the rest."""
+    from piezopreload.core.artifacts import read_bytes
+
     try:
         schema = json.loads(read_bytes(path, "artifact", InputError)).get("schema", "")
     except (ValueError, AttributeError):

@@ -12,18 +12,17 @@ from piezopreload.cli._common import (
     time_constants,
     time_window,
 )
-from piezopreload.core.tables import parse_columns, read_record
-from piezopreload.data import SHIPPED_COLUMNS, shipped_data
-from piezopreload.tuning.identification import identify
-from piezopreload.tuning.identify import MODELS
 
 
 # --------------------------------------------------------------------------------------
 # identify
 # --------------------------------------------------------------------------------------
 def register_identify(sub: Any) -> None:
+    """identify a P-I hysteresis model from a measured record"""
+    from piezopreload.tuning.identify import MODELS
+
     p = sub.add_parser(
-        "identify", help="identify a P-I hysteresis model from a measured record",
+        "identify",
         description=(
             "Identify the weights of a Prandtl-Ishlinskii hysteresis model from a measured "
             "input/output record as a constrained QP (cvxpy + Clarabel), and report train and test "
@@ -58,6 +57,11 @@ def register_identify(sub: Any) -> None:
 
 
 def _cmd_identify(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.core.tables import ColumnSpec, parse_columns, read_record
+    from piezopreload.data import SHIPPED_COLUMNS, shipped_data
+    from piezopreload.tuning.identification import identify
+
+    columns: dict[str, ColumnSpec] | None
     if args.data is None:
         path, columns, header = shipped_data(), parse_columns(SHIPPED_COLUMNS), False
     else:

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from piezopreload.artifacts.gainset import GainSet
 from piezopreload.cli._common import (
     json_flag,
     nonnegative_float,
@@ -16,12 +15,17 @@ from piezopreload.cli._common import (
     study_of,
 )
 from piezopreload.core.errors import InputError
-from piezopreload.tuning.ilc import METHODS
+
+if TYPE_CHECKING:
+    from piezopreload.artifacts.gainset import GainSet
 
 
 def register_learn(sub: Any) -> None:
+    """preview and iterative learning control over a repeated reference"""
+    from piezopreload.tuning.ilc import METHODS
+
     p = sub.add_parser(
-        "learn", help="preview and iterative learning control over a repeated reference",
+        "learn",
         description=(
             "Learn a feedforward correction trial by trial (each trial one run of the repeated reference, a machining "
             "cycle on a machine) on the study's rig, with the reference read ahead by --preview-s: norm-optimal ILC "
@@ -70,6 +74,7 @@ def _from_run(args: argparse.Namespace, gain_set: GainSet | None) -> dict[str, A
 
 
 def _cmd_learn(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.artifacts.gainset import GainSet
     from piezopreload.rig.session import reference_for
 
     gain_set = None if args.gains is None else GainSet.load(args.gains)

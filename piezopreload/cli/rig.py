@@ -5,9 +5,8 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from typing import Any
+from typing import Any, Literal, overload
 
-from piezopreload.artifacts.gainset import REFERENCES
 from piezopreload.cli._common import (
     PASSWORD_ENV,
     Parser,
@@ -17,8 +16,6 @@ from piezopreload.cli._common import (
     say,
 )
 from piezopreload.core.errors import InputError
-from piezopreload.rig import DEFAULT_ENDPOINT as DEFAULT_RIG_ENDPOINT
-from piezopreload.rig import SECURITY_MODES, SECURITY_POLICIES
 
 
 # --------------------------------------------------------------------------------------
@@ -61,6 +58,14 @@ def _quiet_asyncua() -> None:
     logging.getLogger("asyncua").setLevel(logging.CRITICAL)
 
 
+@overload
+def _password(args: argparse.Namespace, required: Literal[True]) -> str: ...
+
+
+@overload
+def _password(args: argparse.Namespace, required: bool) -> str | None: ...
+
+
 def _password(args: argparse.Namespace, required: bool) -> str | None:
     password = os.environ.get(PASSWORD_ENV)
     if password is None and required:
@@ -74,6 +79,7 @@ def _password(args: argparse.Namespace, required: bool) -> str | None:
 
 
 def _rig_arguments(p: argparse.ArgumentParser) -> None:
+    from piezopreload.artifacts.gainset import REFERENCES
     from piezopreload.rig.backends import FAULT_KINDS
 
     p.add_argument("gains", metavar="gains.json",
@@ -109,7 +115,11 @@ def _rig_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def register_rig(sub: Any) -> None:
-    rig = sub.add_parser("rig", help="run, serve and push gains on the rig executor",
+    """run, serve and push gains on the rig executor"""
+    from piezopreload.rig import DEFAULT_ENDPOINT as DEFAULT_RIG_ENDPOINT
+    from piezopreload.rig import SECURITY_MODES, SECURITY_POLICIES
+
+    rig = sub.add_parser("rig",
                          description="The rig executor: a validated gain set at a fixed rate against a backend, "
                                      "behind interlocks, with a run log; served over OPC UA; gains pushed to it.")
     rig_sub = rig.add_subparsers(dest="rig_command", metavar="run|serve|push|check", parser_class=Parser, required=True)
@@ -226,6 +236,7 @@ def _cmd_rig_serve(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _cmd_rig_push(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.rig import DEFAULT_ENDPOINT as DEFAULT_RIG_ENDPOINT
     from piezopreload.rig import plc_push, session
     from piezopreload.rig.opcua import Credentials
 

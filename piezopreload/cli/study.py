@@ -6,9 +6,6 @@ import argparse
 import time
 from typing import Any
 
-from piezopreload import __version__
-from piezopreload.artifacts.gainset import REFERENCES, GainSet
-from piezopreload.artifacts.requirements import Requirement, least_margin
 from piezopreload.cli._common import (
     fmt,
     json_flag,
@@ -16,19 +13,15 @@ from piezopreload.cli._common import (
     study_of,
 )
 from piezopreload.core.errors import InputError
-from piezopreload.core.tables import write_csv
-from piezopreload.study import load_study
-from piezopreload.tuning.calibrate import CONTROLLERS
-from piezopreload.tuning.feedforward import IdentifiedFeedforward
 
 
 # --------------------------------------------------------------------------------------
 # run (the one-command study) and report
 # --------------------------------------------------------------------------------------
 def register_run(sub: Any) -> None:
+    """run a whole study: design, plant, identify, tune, validate, compare, learn, system, export, rig, report"""
     p = sub.add_parser(
         "run",
-        help="run a whole study: design, plant, identify, tune, validate, compare, learn, system, export, rig, report",
         description=(
             "Take a study file through its stages: the ball-screw preload design, the designed system as the plant "
             "(where the study's [plant] says so), the feedforward's P-I identification, PID tuning, Monte Carlo "
@@ -56,12 +49,15 @@ def register_run(sub: Any) -> None:
 
 def _cmd_run(args: argparse.Namespace) -> dict[str, Any]:
     from piezopreload.progress import Progress
+    from piezopreload.study import load_study
 
     return load_study(args.study).run(args.out, force=args.force, progress=Progress(quiet=args.quiet),
                                       overwrite=args.overwrite).to_dict()
 
 
 def _print_run(s: dict[str, Any]) -> None:
+    from piezopreload.artifacts.requirements import Requirement, least_margin
+
     for st in s["stages"]:
         state = f"ran in {st['seconds']:.1f} s" if st["ran"] else st["status"]
         print(f"  {st['stage']:9s} {state}")
@@ -95,8 +91,9 @@ def _print_run(s: dict[str, Any]) -> None:
 
 
 def register_report(sub: Any) -> None:
+    """render a study's (or a sweep's) PDF report again from its artifacts"""
     p = sub.add_parser(
-        "report", help="render a study's (or a sweep's) PDF report again from its artifacts",
+        "report",
         description=("Draw the figures and typeset report.pdf again from the artifacts in a study's output folder "
                      "(written by 'piezopreload run'), or a sweep's report from a sweep's folder (written by "
                      "'piezopreload sweep'); nothing else is computed."))
@@ -123,8 +120,12 @@ def _cmd_report(args: argparse.Namespace) -> dict[str, Any]:
 # simulate and reproduce
 # --------------------------------------------------------------------------------------
 def register_simulate(sub: Any) -> None:
+    """simulate a controller on the study's plant"""
+    from piezopreload.artifacts.gainset import REFERENCES
+    from piezopreload.tuning.calibrate import CONTROLLERS
+
     p = sub.add_parser(
-        "simulate", help="simulate a controller on the study's plant",
+        "simulate",
         description=(
             "Simulate the PID alone or the inverse-P-I feedforward plus PID on the study's plant, simulated "
             "(truth hysteresis, creep, amplifier, sensor noise and quantisation, one-sample delay), over the "
@@ -144,6 +145,11 @@ def register_simulate(sub: Any) -> None:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload import __version__
+    from piezopreload.artifacts.gainset import GainSet
+    from piezopreload.core.tables import write_csv
+    from piezopreload.tuning.feedforward import IdentifiedFeedforward
+
     t0 = time.perf_counter()
     gains = None if args.gains is None else GainSet.load(args.gains)
     study = study_of(args, gains)
@@ -191,8 +197,9 @@ def _print_simulate(s: dict[str, Any]) -> None:
 
 
 def register_reproduce(sub: Any) -> None:
+    """a study's published step numbers beside the simulation's"""
     p = sub.add_parser(
-        "reproduce", help="a study's published step numbers beside the simulation's",
+        "reproduce",
         description=("Run the study's step on its plant with the PID alone and with the P-I feedforward, and print "
                      "rise, peak and settling time beside the published ones the study declares ([published]; the "
                      "paper's study has the paper's, Sections 4.2-4.3). A study without published numbers is refused."))

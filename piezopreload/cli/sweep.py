@@ -5,15 +5,17 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from piezopreload.artifacts.requirements import EXIT_REQUIREMENT_MISSED
-from piezopreload.artifacts.sweep import DEFAULT_SWEEP_OUT, EXIT_POINT_FAILED
 from piezopreload.cli._common import json_flag, positive_int
 from piezopreload.core.errors import InputError
 
 
 def register_sweep(sub: Any) -> None:
+    """run a study at every point of a grid of values of its keys: one row per point, a report"""
+    from piezopreload.artifacts.requirements import EXIT_REQUIREMENT_MISSED
+    from piezopreload.artifacts.sweep import DEFAULT_SWEEP_OUT, EXIT_POINT_FAILED
+
     p = sub.add_parser(
-        "sweep", help="run a study at every point of a grid of values of its keys: one row per point, a report",
+        "sweep",
         description=(
             "Run STUDY through every stage of 'piezopreload run' once per point of a grid (or a zip) of values of its "
             "keys, each point into its own folder OUT/points/pNNN/. Each point is the study with its values, checked "

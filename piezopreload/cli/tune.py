@@ -6,7 +6,6 @@ import argparse
 import time
 from typing import Any
 
-from piezopreload.artifacts.gainset import GainSet
 from piezopreload.cli._common import (
     check_monte_carlo,
     fmt,
@@ -21,8 +20,9 @@ from piezopreload.core.errors import InputError
 
 
 def register_tune(sub: Any) -> None:
+    """tune the PID (CasADi), validate it by Monte Carlo, write the gain set"""
     p = sub.add_parser(
-        "tune", help="tune the PID (CasADi), validate it by Monte Carlo, write the gain set",
+        "tune",
         description=(
             "Tune Kc, Ti, Td, the derivative filter and the setpoint weight around the study's "
             "P-I-compensated rig (CasADi + IPOPT, several plant variants, Ms and noise bounds), compare "
@@ -85,8 +85,9 @@ def _print_bounds(mt: dict[str, Any], tf: dict[str, Any], settling_s: float | No
 
 
 def register_validate(sub: Any) -> None:
+    """validate a gain set again by Monte Carlo on the nonlinear rig"""
     p = sub.add_parser(
-        "validate", help="validate a gain set again by Monte Carlo on the nonlinear rig",
+        "validate",
         description=(
             "Run a gain set's gains and feedforward on a new Monte Carlo set of nonlinear rigs drawn around "
             "the plant it names, against the criteria it names, and report worst case and percentiles. "
@@ -101,6 +102,7 @@ def register_validate(sub: Any) -> None:
 
 
 def _cmd_validate(args: argparse.Namespace) -> dict[str, Any]:
+    from piezopreload.artifacts.gainset import GainSet
     from piezopreload.tuning.verdict import validate_gain_set
 
     check_monte_carlo(args)
