@@ -301,10 +301,10 @@ def test_a_server_that_cannot_start_is_refused_before_the_loop_runs(tmp_path, st
 # --------------------------------------------------------------------------------------
 #: a gain schedule on the setpoint where the served gain set had none (b = 0: the proportional action is -Kc(r) y, so
 #: the log shows which gains run)
-REDESIGNED = PIDGains(Kc=0.5, Ti_s=0.05, Td_s=0.001, Tf_s=0.01, b=0.0, u_min=0.0, u_max=110.0,
+REDESIGNED = PIDGains(Kc=0.5, Ti_s=0.05, Td_s=0.001, Tf_s=0.01, b=0.0, u_min_V=0.0, u_max_V=110.0,
                       schedule=GainSchedule(levels_N=(40.0, 60.0, 100.0), Kc=(0.4, 0.6, 0.5), Ti_s=(0.06, 0.05, 0.05),
                                             Td_s=(0.001, 0.001, 0.001), b=(0.0, 0.0, 0.0)))
-RETUNED = PIDGains(Kc=0.5, Ti_s=0.05, Td_s=0.001, Tf_s=0.01, b=0.0, u_min=0.0, u_max=110.0)
+RETUNED = PIDGains(Kc=0.5, Ti_s=0.05, Td_s=0.001, Tf_s=0.01, b=0.0, u_min_V=0.0, u_max_V=110.0)
 
 
 def _serve_in_thread(gains, endpoint, tmp_path, **options):

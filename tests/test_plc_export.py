@@ -30,7 +30,7 @@ from piezopreload.models.hysteresis import AsymmetricPI, Creep, CreepPI
 from piezopreload.rig.export import export
 
 ATOL_V = 1e-9
-GAINS = dict(Kc=1.4, Ti_s=0.05, Td_s=0.004, Tf_s=0.02, b=0.3, u_min=0.0, u_max=110.0)
+GAINS = dict(Kc=1.4, Ti_s=0.05, Td_s=0.004, Tf_s=0.02, b=0.3, u_min_V=0.0, u_max_V=110.0)
 SCHEDULE = GainSchedule(levels_N=(30.0, 60.0, 100.0), Kc=(0.9, 1.6, 0.7), Ti_s=(0.08, 0.04, 0.06),
                         Td_s=(0.0, 0.004, 0.002), b=(0.3, 0.8, 0.5))
 KINDS = ("pid", "pid+feedforward", "scheduled")

@@ -43,7 +43,7 @@ def _gain_set(path, status="validated"):
     """A gain set with everything a push writes: gains, a feedforward's table, a gain schedule's table."""
     schedule = GainSchedule(levels_N=(30.0, 60.0, 100.0), Kc=(0.9, 1.6, 0.7), Ti_s=(0.08, 0.04, 0.06),
                             Td_s=(0.0, 0.004, 0.002), b=(0.3, 0.8, 0.5))
-    gains = PIDGains(Kc=1.4, Ti_s=0.05, Td_s=0.004, Tf_s=0.02, b=0.3, u_min=0.0, u_max=110.0, schedule=schedule)
+    gains = PIDGains(Kc=1.4, Ti_s=0.05, Td_s=0.004, Tf_s=0.02, b=0.3, u_min_V=0.0, u_max_V=110.0, schedule=schedule)
     ff = ClassicalPI(np.array([0.0, 8.0, 20.0, 40.0]), np.array([0.45, 0.12, 0.08, 0.05]), 25.0)
     GainSet(gains=gains, status=status, feedforward=ff, plant=Plant(), preset="test").save(path)
     return path

@@ -18,7 +18,7 @@ from piezopreload.models.controller import GainSchedule, PIDGains
 from piezopreload.rig.limits import FIT_TOLERANCE, run_limits
 from piezopreload.rig.session import ServedRig, check_pushed
 
-RETUNED = PIDGains(Kc=0.5, Ti_s=0.05, Td_s=0.001, Tf_s=0.01, b=0.0, u_min=0.0, u_max=110.0)
+RETUNED = PIDGains(Kc=0.5, Ti_s=0.05, Td_s=0.001, Tf_s=0.01, b=0.0, u_min_V=0.0, u_max_V=110.0)
 
 
 @pytest.fixture(scope="module")
@@ -102,7 +102,7 @@ def test_another_plant_range_period_or_status_is_refused_in_a_sentence(tmp_path,
              r"than this rig runs .* a gain set runs only on the plant it was validated on",
              gains=RETUNED, plant=dataclasses.replace(study.plant, noise_N=0.05))
     _refused(tmp_path, study, feedforward, served, r"commands 0 to 100 V .* armed for 0 to 110 V .* could jump at the "
-             r"switch", gains=dataclasses.replace(RETUNED, u_max=100.0))
+             r"switch", gains=dataclasses.replace(RETUNED, u_max_V=100.0))
     _refused(tmp_path, study, feedforward, served, r"the pushed gain set is a 'candidate', not 'validated' \(it was "
              r"never validated\): only validated gains are pushed", gains=RETUNED, status="candidate")
     slower = _served(served_gain_set(tmp_path, study, feedforward))

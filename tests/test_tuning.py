@@ -597,7 +597,7 @@ def test_the_minimum_time_bound_on_the_designed_plant_and_the_pi_it_is_read_agai
 
 #: the paper's study tuned at Ms <= 1.4 (its objective 3.722): a point that meets the Ms <= 1.8 problem's limits
 _TUNED_AT_MS_1P4 = PIDGains(Kc=1.5444370296285501, Ti_s=0.053605887904364664, Td_s=0.006576257098163378,
-                            Tf_s=0.08249461188641002, b=6.970797574067171e-07, u_min=0.0, u_max=110.0)
+                            Tf_s=0.08249461188641002, b=6.970797574067171e-07, u_min_V=0.0, u_max_V=110.0)
 
 
 def _relaxed(study):
