@@ -19,6 +19,7 @@ stability: from its poles where the loop is rational, by the Nyquist criterion (
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import control
@@ -30,6 +31,8 @@ from piezopreload.core.errors import InputError
 __all__ = ["LinearPlant", "as_plant", "encirclements", "nyquist_unstable"]
 
 _ON_AXIS = 1e-9  # a pole this close to the stability boundary (relative) is on it
+#: a pole or zero pair damped less than this is a resonance (or an anti-resonance) the grid resolves
+LIGHT = 0.3
 
 
 def _poly(c: Any, what: str) -> np.ndarray:
@@ -82,6 +85,9 @@ class LinearPlant:
         states): its poles and its simulation come from it.
     hold : _Hold or None
         A sampled plant's zero-order-hold equivalent in its small form: its response comes from it.
+    continuous_roots : ndarray or None
+        A sampled plant's: the poles and zeros of the continuous plant it was sampled from (its grid is placed
+        from them).
     """
 
     num: np.ndarray | None
@@ -93,6 +99,7 @@ class LinearPlant:
     source: str = "TransferFunction"
     ss: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
     hold: _Hold | None = None
+    continuous_roots: np.ndarray | None = None
 
     # ---- what it is --------------------------------------------------------------------------
     @property
@@ -103,7 +110,7 @@ class LinearPlant:
     def discrete(self) -> bool:
         return self.dt is not None
 
-    @property
+    @cached_property
     def poles(self) -> np.ndarray | None:
         if self.ss is not None:
             return np.linalg.eigvals(self.ss[0])
@@ -113,17 +120,20 @@ class LinearPlant:
         """The poles' distance past the stability boundary (> 0 unstable): Re p, or |p| - 1 when discrete."""
         return np.abs(p) - 1.0 if self.discrete else p.real
 
-    @property
+    @cached_property
     def integrators(self) -> int:
-        """Poles at ``s = 0`` (``z = 1``); for measured data, the low-frequency slope of the magnitude in decades."""
+        """Poles at ``s = 0`` (``z = 1``); for measured data, the low-frequency slope of the magnitude in decades,
+        fitted by least squares over the lowest half decade (at least three points: one noisy point does not
+        decide it)."""
         if self.poles is None:
-            w, g = self.omega_data, np.abs(self.data)
-            slope = -np.log(g[1] / g[0]) / np.log(w[1] / w[0])
+            lw, lg = np.log10(self.omega_data), np.log10(np.abs(self.data))
+            low = max(3, int(np.searchsorted(lw, lw[0] + 0.5)))
+            slope = -np.polyfit(lw[:low], lg[:low], 1)[0]
             return int(np.clip(np.round(slope), 0, 2))
         at = 1.0 if self.discrete else 0.0
         return int(np.sum(np.abs(self.poles - at) <= _ON_AXIS * max(1.0, np.max(np.abs(self.poles)))))
 
-    @property
+    @cached_property
     def unstable_poles(self) -> int:
         """Poles past the stability boundary (measured data: assumed 0, a response measured in open loop)."""
         if self.poles is None:
@@ -141,30 +151,45 @@ class LinearPlant:
         phase = np.angle(self.data[0])  # about 0 (type 0) or -90 deg (type 1) when the gain is positive
         return 1.0 if -0.75 * np.pi < phase <= 0.25 * np.pi else -1.0
 
+    @cached_property
+    def roots_s(self) -> np.ndarray:
+        """The poles and zeros of the plant's continuous part (rad/s, ``s``-plane; a discrete plant's mapped by
+        ``s = ln(z) / dt``; a sampled plant's those of the plant it was sampled from), none at the origin."""
+        if self.continuous_roots is not None:
+            return self.continuous_roots
+        if not self.rational:
+            return np.zeros(0, complex)
+        roots = np.concatenate([np.roots(self.num), self.poles]).astype(complex)
+        if self.discrete:
+            roots = np.log(roots[np.abs(roots) > 1e-12]) / self.dt
+        return roots[np.abs(roots) > 1e-9 * max(1.0, float(np.max(np.abs(roots), initial=1.0)))]
+
+    def resonances(self) -> np.ndarray:
+        """``(w_n, zeta)`` per row of the lightly damped pole and zero pairs (``|zeta| <`` :data:`LIGHT`): a
+        resonance or an anti-resonance, stable or not; shape ``(k, 2)``."""
+        r = self.roots_s[self.roots_s.imag > 0]
+        wn = np.abs(r)
+        zeta = -r.real / np.where(wn > 0, wn, 1.0)
+        keep = np.abs(zeta) < LIGHT
+        return np.column_stack([wn[keep], zeta[keep]])
+
     def characteristic_frequencies(self) -> np.ndarray:
         """The frequencies (rad/s) of the plant's poles and zeros (not at the origin) and of its delay."""
         if not self.rational:
             return np.array([self.omega_data[0], self.omega_data[-1]])
-        if self.hold is not None:  # a sampled plant: its continuous part's poles and its delay
-            roots = np.linalg.eigvals(self.hold.Phi)
-            extra = [1.0 / (self.hold.d * self.dt)] if self.hold.d else []
-        else:
-            roots, extra = np.concatenate([np.roots(self.num), self.poles]), []
-        if self.discrete:
-            roots = roots[np.abs(roots) > 1e-12]
-            mags = np.abs(np.log(roots.astype(complex))) / self.dt
-        else:
-            mags = np.abs(roots)
-        mags = mags[mags > 1e-9 * max(1.0, float(np.max(mags, initial=1.0)))]
-        if self.delay_s > 0:
-            mags = np.append(mags, 1.0 / self.delay_s)
-        mags = np.append(mags, extra)
+        mags = np.abs(self.roots_s)
+        delay = self.delay_s + (self.hold.d * self.dt if self.hold is not None else 0.0)
+        if delay > 0:
+            mags = np.append(mags, 1.0 / delay)
         return mags if mags.size else np.array([1.0])
 
     def grid(self, per_decade: int = 25, widen: float = 0.0) -> np.ndarray:
-        """The design grid (rad/s): from a hundredth of the lowest characteristic frequency to a hundred times the
-        highest (``widen`` decades more each side), log-spaced; a discrete plant's up to just below its Nyquist
-        frequency; a measured response's data frequencies (every ``k``-th, for about ``per_decade`` a decade)."""
+        """The design grid (rad/s), placed from the plant: log-spaced from a hundredth of its lowest characteristic
+        frequency to a hundred times its highest (``widen`` decades more each side), and around each lightly damped
+        pole or zero pair ``(w_n, zeta)`` a cluster of ``per_decade`` points over ``w_n e^{+-4 zeta}`` (its peak's
+        width is ``2 zeta w_n``: a log grid alone steps over a resonance); a discrete plant's up to just below its
+        Nyquist frequency; a measured response's data frequencies (every ``k``-th, for about ``per_decade`` a
+        decade)."""
         if not self.rational:
             decades = np.log10(self.omega_data[-1] / self.omega_data[0])
             step = max(1, int(self.omega_data.size / max(per_decade * decades, 1.0)))
@@ -175,19 +200,28 @@ class LinearPlant:
         if self.discrete:
             hi = min(hi, np.log10(0.999 * np.pi / self.dt))
             lo = min(lo, hi - 2.0)
-        return np.logspace(lo, hi, int(np.ceil((hi - lo) * per_decade)) + 1)
+        w = np.logspace(lo, hi, int(np.ceil((hi - lo) * per_decade)) + 1)
+        u = np.linspace(-4.0, 4.0, per_decade)
+        clusters = [wn * np.exp(max(abs(zeta), 1e-5) * u) for wn, zeta in self.resonances()]
+        if clusters:
+            w = np.concatenate([w, *clusters])
+            w = np.unique(w[(w >= w[0]) & (w <= 10.0**hi)])
+        return w
 
     # ---- its response ------------------------------------------------------------------------
     def response(self, omega: Any) -> np.ndarray:
         """``G(j w)`` (``G(e^{j w dt})`` when discrete) at ``omega`` (rad/s), the delay included exactly; a measured
-        response between its frequencies by linear interpolation of log-magnitude and unwrapped phase."""
+        response between its frequencies by linear interpolation of log-magnitude and unwrapped phase, below them
+        its low-frequency asymptote (the lowest point's phase, the magnitude rising with its integrators), above
+        them its highest point."""
         w = np.asarray(omega, float)
         delay = np.exp(-1j * w * self.delay_s)
-        if not self.rational:
+        if not self.rational:  # below the data: its low-frequency asymptote (its integrators' slope)
             lw, lg = np.log(self.omega_data), np.log(np.abs(self.data))
             ph = np.unwrap(np.angle(self.data))
             x = np.log(np.clip(w, self.omega_data[0], self.omega_data[-1]))
-            return np.exp(np.interp(x, lw, lg) + 1j * np.interp(x, lw, ph)) * delay
+            below = self.integrators * np.maximum(lw[0] - np.log(np.maximum(w, 1e-300)), 0.0)
+            return np.exp(np.interp(x, lw, lg) + below + 1j * np.interp(x, lw, ph)) * delay
         s = np.exp(1j * w * self.dt) if self.discrete else 1j * w
         if self.hold is not None:
             return self.hold.response(s) * delay
@@ -224,7 +258,8 @@ class LinearPlant:
         tf = control.ss2tf(*ss, Ts)
         num, den = _trim(tf.num[0][0]), _trim(tf.den[0][0])
         return LinearPlant(_poly(num, "numerator"), _poly(den, "denominator"), Ts, 0.0,
-                           source=f"{self.source}, held at {Ts:g} s", ss=ss, hold=hold)
+                           source=f"{self.source}, held at {Ts:g} s", ss=ss, hold=hold,
+                           continuous_roots=self.roots_s)
 
     def state_space(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(A, B, C, D)`` of a discrete rational plant, its delay as a line of states."""
@@ -266,15 +301,16 @@ class LinearPlant:
     def resolved_loop(self, controller_response: Any) -> tuple[np.ndarray, np.ndarray]:
         """The loop ``C G`` on a grid fine enough for the Nyquist criterion: the plant's grid a decade wider, ten
         times denser, points added where ``1 + L`` turns by more than an eighth of a turn between neighbours; a
-        continuous loop's grid extended until ``|L| < 1/2``, a discrete loop's ending at its Nyquist frequency.
-        Measured data: its own frequencies (the phase must be resolved there; checked)."""
+        continuous loop's grid extended until ``|L| < 1/2``, a discrete loop's ending at its Nyquist frequency; an
+        integrating loop's extended down until ``|L| >= 10`` (where the criterion's indentation holds).
+        Measured data: its own frequencies (the phase must be resolved there; checked), below them the asymptote."""
         def loop_at(w: np.ndarray) -> np.ndarray:
             return np.asarray(controller_response(w), complex) * self.response(w)
 
+        w = _down_to_asymptote(self.omega_data if not self.rational else self.grid(per_decade=250, widen=1.0),
+                               loop_at)
         if not self.rational:
-            w = self.omega_data
             return w, loop_at(w)
-        w = self.grid(per_decade=250, widen=1.0)
         if self.discrete:
             w = np.append(w[w < np.pi / self.dt], np.pi / self.dt)
         else:
@@ -292,6 +328,17 @@ class LinearPlant:
             w = np.insert(w, coarse + 1, mid)
             loop = np.insert(loop, coarse + 1, loop_at(mid))
         return w, loop
+
+
+def _down_to_asymptote(w: np.ndarray, loop_at: Any) -> np.ndarray:
+    """``w`` extended down, a decade at a time (at most twelve), while the loop's gain still grows below it and is
+    under 10: an integrating loop's grid reaches its asymptote, where the Nyquist criterion's indentation holds."""
+    for _ in range(12):
+        ends = np.abs(loop_at(np.array([w[0] / 10.0, w[0]])))
+        if ends[1] >= 10.0 or ends[0] < 1.5 * ends[1]:
+            break
+        w = np.concatenate([np.logspace(np.log10(w[0]) - 1.0, np.log10(w[0]), 26)[:-1], w])
+    return w
 
 
 def _matrices(sys: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -395,7 +442,8 @@ def as_plant(plant: Any, delay_s: float = 0.0) -> LinearPlant:
     delay_s = float(delay_s)
     if isinstance(plant, LinearPlant):
         return plant if delay_s == 0 else LinearPlant(plant.num, plant.den, plant.dt, plant.delay_s + delay_s,
-                                                      plant.omega_data, plant.data, plant.source, plant.ss, plant.hold)
+                                                      plant.omega_data, plant.data, plant.source, plant.ss, plant.hold,
+                                                      plant.continuous_roots)
     if isinstance(plant, control.FrequencyResponseData):
         return _from_frd(plant, delay_s)
     if isinstance(plant, control.StateSpace | control.TransferFunction):
