@@ -111,7 +111,7 @@ def test_a_discrete_plant_is_tuned_as_the_controller_step_runs():
     peaks = _peaks_by_python_control(Pd, Cd, omega)
     assert peaks["Ms"] <= 1.4 * (1 + TOLERANCE)
     assert np.all(np.abs(control.feedback(Pd * Cd, 1).poles()) < 1)
-    same = autotune(FOTD, Ms=1.4, delay_s=1.0, Ts=Ts)
+    same = autotune(FOTD, Ms=1.4, delay_s=1.0, Ts=Ts, loop="sampled")
     np.testing.assert_allclose([same.kp, same.ki, same.kd], [r.kp, r.ki, r.kd], rtol=1e-5)
 
 
@@ -132,12 +132,15 @@ def test_the_sampled_plant_is_the_continuous_one_at_the_samples():
 @pytest.mark.slow
 def test_a_measured_response_of_a_transfer_function_gives_its_gains():
     """The FOTD's frequency response at 1,500 frequencies (the delay in the data) and the transfer function with
-    its delay: the same PID under Ms, Mt, Mks (a unique optimum), to a fraction of a per cent."""
+    its delay: the same optimum under Ms, Mt, Mks. The integral gain (the objective) to 1e-4 (the bounds hold within
+    1e-4 on both; the data's interpolation errs by ~1e-6 at 250 points a decade); the other gains to 2 %: the
+    optimum is flat along the derivative and its filter (a 0.6 % move of kd changes ki by 1e-5)."""
     w = np.logspace(-3, 3, 1500)
     frd = control.frd(np.asarray(control.frd(FOTD, w).eval(w)).ravel() * np.exp(-1j * w), w)
     a = autotune(FOTD, Ms=1.4, Mt=1.4, Mks=2.0, delay_s=1.0)
     b = autotune(frd, Ms=1.4, Mt=1.4, Mks=2.0)
-    np.testing.assert_allclose([b.kp, b.ki, b.kd, b.Tf], [a.kp, a.ki, a.kd, a.Tf], rtol=5e-3)
+    assert b.ki == pytest.approx(a.ki, rel=1e-4)
+    np.testing.assert_allclose([b.kp, b.kd, b.Tf], [a.kp, a.kd, a.Tf], rtol=2e-2)
     assert b.load_response is None and a.load_response is not None
 
 
@@ -160,7 +163,7 @@ def test_a_bound_no_controller_meets_is_named_with_its_shortfall():
     is refused, naming Mt and a least |T| at or above e^0.5."""
     with pytest.raises(InfeasibleError, match=r"Mt <= 1.3 cannot be met") as err:
         autotune(control.tf([1.0], [1.0, -1.0]), Ms=2.0, Mt=1.3, delay_s=0.5)
-    least = float(str(err.value).split("any gains reach is ")[1].split(" ")[0])
+    least = float(str(err.value).split("the search reached is ")[1].split(" ")[0])
     assert least >= np.exp(0.5) * (1 - 1e-3)
 
 
@@ -274,6 +277,7 @@ def test_the_command_line(tmp_path, capsys):
                header="omega_rad_per_s,magnitude,phase_deg", comments="")
     out = tmp_path / "gains.json"
     assert main(["autotune", "--frd", str(tmp_path / "frd.csv"), "--delay-s", "1", "--Ms", "1.4", "--form", "PI",
+                 "--loop", "sampled",
                  "--Ts", "0.05", "--u-min", "-5", "--u-max", "5", "--out", str(out), "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
     assert s["status"] == "validated" and GainSet.load(out).gains.Td_s == 0.0

@@ -1,0 +1,382 @@
+"""The autotuner's search on a plant's grid: analytic starts, a local solve, a refinement until the bounds hold.
+
+:class:`Search` holds what every step shares, computed once: the design grid and the plant's response on it, the
+check grid (ten times denser and a decade wider) and the response there, the low frequencies the Nyquist count
+runs on. :meth:`Search.run`:
+
+1. the starts: the best slices of the stabilising set in the ``(kp, ki)`` plane cut by the bounds
+   (:func:`~piezopreload.tuning.stabset.stabilising_starts`), for the plant's sign (an unstable plant's: the
+   sign whose slices stabilise);
+2. from each, the local solve on the design grid (:class:`~piezopreload.tuning.pidopt.PIDProblem`, an SQP with
+   exact derivatives); a solution counts where it meets every bound on the grid and the loop is stable (the
+   Nyquist criterion on the count grid);
+3. from the best: the bounds on the check grid, each peak above its bound located by successive parabolas;
+   those frequencies join the grid (in the problem's spare slots) and the problem is solved again, warm (the last
+   solution and its multipliers), until every bound holds on the check grid within :data:`REFINE_TO`; where that
+   fails, the next solution is refined;
+4. no start: the bounds relaxed until a slice stabilises, the least worst bound any gains reach from there
+   (:meth:`~piezopreload.tuning.pidopt.PIDProblem.least_violation`), and an
+   :class:`~piezopreload.core.errors.InfeasibleError` that names the bound and that least value.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from piezopreload.core.errors import InfeasibleError, InternalError
+from piezopreload.tuning.autotune_result import StartRecord, located_peaks, magnitudes
+from piezopreload.tuning.lti import LinearPlant
+from piezopreload.tuning.pidform import PIDController
+from piezopreload.tuning.pidopt import PIDProblem, Scales, Solution
+from piezopreload.tuning.stabset import plane_of, stabilising_any, stabilising_starts, unstable_counts
+
+__all__ = ["Search", "Found", "TOLERANCE", "REFINE_TO", "FINISH_TO", "PER_DECADE"]
+
+#: how far (relative) a bound may be exceeded on the check grid
+TOLERANCE = 0.005
+#: how far the refinement goes (the grid gains the check grid's peaks until they are within this)
+REFINE_TO = 1e-3
+#: how far the best start's solution is refined at the end
+FINISH_TO = 1e-4
+#: the design grid's points a decade (the check grid has ten times as many)
+PER_DECADE = 25
+_ROUNDS = 16  # the exchange's solves from one start
+_FEASIBLE = 1e-6  # |X| / M - 1 on the problem's frequencies
+_LOW_DECADES = 8  # the Nyquist count's frequencies below the design grid
+_SLICE_PER_DECADE = 10
+_PEAKS = 4  # the peaks of each bound a round adds to the problem, largest first
+_KEEP = 0.6  # a row whose |X| / M falls below this leaves the problem
+#: a start whose ki is below this fraction of the best start's after three solves stops (an IAE: above its inverse)
+_BEHIND = 0.75
+
+
+@dataclass
+class Found:
+    """What the search found: the problem it ended on, its solution, the controller (of the plant of positive
+    gain), the controller's sign, each start's record, the refinements and iterations."""
+
+    problem: PIDProblem
+    solution: Solution
+    controller: PIDController
+    sign: float
+    records: list[StartRecord] = field(default_factory=list)
+    refinements: int = 0
+    iterations: int = 0
+    seconds: float = 0.0
+    ratio: float = np.inf  # the worst bound's |X| / M on the check grid (peaks located)
+    rows: Any = None  # the problem's rows (_Rows)
+
+
+def _far(plant: LinearPlant, omega: np.ndarray, decades: float, points: int) -> np.ndarray:
+    """A continuous rational plant's grid continued ``decades`` beyond its end (``|KS|`` approaches its supremum
+    ``|C(inf)|`` there); a discrete or measured plant's as it is."""
+    if plant.discrete or not plant.rational:
+        return omega
+    return np.unique(np.append(omega, np.logspace(np.log10(omega[-1]), np.log10(omega[-1]) + decades, points)))
+
+
+def design_grid(plant: LinearPlant, per_decade: int = PER_DECADE) -> np.ndarray:
+    """The plant's design grid (:meth:`~piezopreload.tuning.lti.LinearPlant.grid`, :data:`PER_DECADE` a decade,
+    clusters at its resonances) and, continuous, two points three decades on."""
+    return _far(plant, plant.grid(per_decade), 3.0, 2)
+
+
+def check_grid(plant: LinearPlant, omega: np.ndarray) -> np.ndarray:
+    """Ten times denser than the design grid and a decade wider each side (resonances' clusters included), and
+    three decades further where a continuous controller's gain levels off; a measured response: every frequency."""
+    if not plant.rational:
+        return plant.omega_data
+    dense = plant.grid(10 * PER_DECADE, widen=1.0)
+    lo, hi = np.log10(omega.min()) - 1.0, np.log10(omega.max()) + 1.0
+    if plant.discrete:
+        hi = min(hi, np.log10(0.999 * np.pi / plant.dt))
+    if lo < np.log10(dense[0]) - 1e-9 or hi > np.log10(dense[-1]) + 1e-9:  # a grid given wider than the plant's
+        dense = np.union1d(dense, np.logspace(lo, hi, int(np.ceil((hi - lo) * 10 * PER_DECADE)) + 1))
+    return _far(plant, np.union1d(dense, omega), 3.0, 31)
+
+
+class Search:
+    """The search for ``plant`` on the design grid ``omega`` (see the module docstring): ``bounds`` the problem's
+    (the user's and the defaults), ``filter_order`` and ``dt`` the controller's form and period (None: continuous),
+    ``Tf_min`` the filter's floor, ``method`` the local solver."""
+
+    def __init__(self, plant: LinearPlant, omega: np.ndarray, bounds: dict[str, float | None], filter_order: int,
+                 dt: float | None, Tf_min: float, method: str, given: Any = None) -> None:
+        self.plant, self.omega, self.bounds = plant, omega, bounds
+        self.filter_order, self.dt, self.Tf_min, self.method = filter_order, dt, Tf_min, method
+        self.names = tuple(k for k, m in bounds.items() if m is not None)
+        self.G = plant.response(omega)
+        self.check = check_grid(plant, omega)
+        self.G_check = plant.response(self.check)
+        self.low = np.logspace(np.log10(omega[0]) - _LOW_DECADES, np.log10(omega[0]), 5 * _LOW_DECADES + 1)[:-1]
+        self.count_w = np.concatenate([self.low, omega])
+        self.G_count = np.concatenate([plant.response(self.low), self.G])
+        # the slices' grid: the design grid at SLICE_PER_DECADE (a given grid: as it is), their starts refined after
+        self.slice_w = design_grid(plant, _SLICE_PER_DECADE) if given is None else omega
+        self.G_slice = plant.response(self.slice_w)
+        self.G_low = plant.response(self.low)
+
+    # ---- the pieces ----------------------------------------------------------------------------------
+    def stable(self, c: PIDController, sign: float) -> bool:
+        """The Nyquist criterion on the count grid (a fast check; the result's is on a resolved grid)."""
+        L = c.response(self.count_w) * sign * self.G_count
+        return bool(unstable_counts(L[None, :], self.plant.unstable_poles,
+                                    self.plant.integrators + c.integrators, self.dt)[0] == 0)
+
+    def problem(self, omega: np.ndarray, G: np.ndarray, sign: float, scales: Scales, objective: Any = "IE",
+                iae_scale: float = 1.0, which: Any = None) -> PIDProblem:
+        return PIDProblem(omega, sign * G, self.bounds, scales, objective, iae_scale, which=which)
+
+    def scales(self, c: PIDController) -> Scales:
+        """Scales from a start: its gains (``kp`` at least a tenth of the derivative's high-frequency gain: a start
+        without proportional action still has room for it); a PI start's derivative scale ``kp Ti / 10``, its
+        filter's a tenth of ``Ti``; the filter's floor."""
+        kp = max(c.kp, 0.1 * c.kd / c.Tf if c.Tf > 0 else 0.0)
+        Ti = kp / c.ki
+        kd = c.kd if c.kd > 0 else 0.1 * kp * Ti
+        Tf = c.Tf if c.Tf > 0 else max(0.01 * Ti, self.Tf_min)
+        return Scales(kp=kp, ki=c.ki, kd=kd, Tf=Tf, filter_order=self.filter_order, dt=self.dt, Tf_min=self.Tf_min)
+
+    def plane(self, sign: float, bounds: dict[str, float | None]) -> Any:
+        """The stabilising set's plane on the slices' grid for the plant times ``sign``."""
+        return plane_of(self.slice_w, sign * self.G_slice, self.low, sign * self.G_low, bounds,
+                        self.plant.unstable_poles, self.plant.integrators, self.filter_order, self.dt)
+
+    def starts(self) -> tuple[float, list[tuple[str, PIDController]]]:
+        """The sign and the starts (see the module docstring); empty where no slice stabilises within the bounds."""
+        plant = self.plant
+        for sign in [plant.sign] + ([-plant.sign] if plant.unstable_poles else []):
+            plane = self.plane(sign, self.bounds)
+            found = stabilising_starts(plane, self.Tf_min, keep=3)
+            if found:
+                return sign, [(name, c) for name, c, _ in found]
+        return plant.sign, []
+
+    # ---- the search ----------------------------------------------------------------------------------
+    def run(self, objective: Any = "IE", iae_scale: float = 1.0,
+            seeds: list[tuple[str, PIDController]] | None = None, sign: float | None = None) -> Found:
+        """The search (see the module docstring); ``seeds`` and ``sign``: starts given (the IAE's, from the IE
+        optimum) instead of the slices."""
+        if seeds is None:
+            sign, seeds = self.starts()
+            if not seeds:
+                self.infeasible()
+        sign = self.plant.sign if sign is None else sign
+        records: list[StartRecord] = []
+        best: tuple[float, Found] | None = None
+        for name, c in seeds:
+            found = self.local(c, sign, objective, iae_scale, None if best is None else best[0])
+            ctrl, sol = found.controller, found.solution
+            ok = found.ratio <= 1.0 + TOLERANCE and self.stable(ctrl, sign)
+            value = _value(sol, ctrl, objective)
+            records.append(StartRecord(name, *ctrl.scaled(sign).parallel(), objective=value,
+                                       violation=self.over(ctrl, sign), stable=self.stable(ctrl, sign),
+                                       status=sol.status, iterations=found.iterations, seconds=found.seconds))
+            if ok and (best is None or value < best[0]):
+                best = (value, found)
+        if best is None:
+            raise InternalError(f"none of the {len(seeds)} starts ended on gains that meet the bounds on the check "
+                                "grid with a stable loop; give a finer grid (w)")
+        found = self.finish(best[1], objective, iae_scale)
+        found.records, found.iterations = records, sum(r.iterations for r in records) + found.iterations - \
+            best[1].iterations
+        return found
+
+    def over(self, c: PIDController, sign: float) -> float:
+        """The worst bound's ``|X| / M - 1`` on the check grid (its grid points)."""
+        C, G = c.response(self.check), sign * self.G_check
+        return max(float(np.max(magnitudes(k, C, G))) / self.bounds[k] for k in self.names) - 1.0
+
+    def _near(self, c: PIDController, sign: float, above: float) -> dict[str, np.ndarray]:
+        """Per bound, the design grid's frequencies at and beside each local maximum of its ``|X| / M`` above
+        ``above`` (a plateau's first point; the :data:`_PEAKS` largest)."""
+        C, G = c.response(self.omega), sign * self.G
+        out = {}
+        for k in self.names:
+            r = magnitudes(k, C, G) / self.bounds[k]
+            peak = np.zeros(r.size, bool)
+            peak[1:-1] = (r[1:-1] > r[:-2]) & (r[1:-1] >= r[2:])
+            peak[0], peak[-1] = r[0] >= r[1], r[-1] > r[-2]
+            idx = np.flatnonzero(peak & (r > above))
+            idx = idx[np.argsort(-r[idx])][:_PEAKS]  # the largest (a delay's ripples of |KS| would add hundreds)
+            out[k] = self.omega[np.unique(np.clip((idx[:, None] + np.arange(-1, 2)[None, :]).ravel(), 0, r.size - 1))]
+        return out
+
+    def local(self, c: PIDController, sign: float, objective: Any = "IE", iae_scale: float = 1.0,
+              best: float | None = None) -> Found:
+        """The local solve from ``c`` by exchange (see the module docstring): the problem holds, per bound, the
+        design grid's frequencies about its peaks above 0.8 of it, in a trust region (:func:`_region`); after each
+        solve the peaks over a bound on the check grid (located by successive parabolas) and the design grid's about
+        the new peaks join it, and it is solved again, warm, until every bound holds on the check grid within
+        :data:`REFINE_TO` inside the region (a solution on its edge that holds every bound moves it). ``best``: the
+        value an earlier start reached; this one stops after three solves where it is far behind (:data:`_BEHIND`)."""
+        scales = self.scales(c)
+        rows = _Rows(self.names)
+        rows.add(self._near(c, sign, 0.8))
+        return self._exchange(scales, rows, scales.x(c), None, sign, objective, iae_scale, REFINE_TO, best)
+
+    def finish(self, found: Found, objective: Any = "IE", iae_scale: float = 1.0) -> Found:
+        """The best start's solution refined further, until every bound holds within :data:`FINISH_TO`."""
+        if found.ratio <= 1.0 + FINISH_TO:
+            return found
+        more = self._exchange(found.problem.scales, found.rows, found.solution.x, found.solution, found.sign,
+                              objective, iae_scale, FINISH_TO, None, reach=0.5)
+        worse = more.ratio > found.ratio or more.solution.violation > _FEASIBLE
+        if worse or not self.stable(more.controller, found.sign):
+            return found
+        more.iterations += found.iterations
+        more.refinements += found.refinements + 1
+        return more
+
+    def _exchange(self, scales: Scales, rows: _Rows, x0: np.ndarray, warm: Solution | None, sign: float,
+                  objective: Any, iae_scale: float, refine_to: float, best: float | None, reach: float = 1.0) -> Found:
+        t0 = time.perf_counter()
+        iterations, ratio, centre = 0, np.inf, x0
+        for k in range(_ROUNDS):
+            problem = self.problem(rows.omega, self.plant.response(rows.omega), sign, scales, objective, iae_scale,
+                                   rows.which)
+            region = _region(centre, reach)
+            sol = problem.solve(x0, self.method, box=region, warm=warm)
+            iterations += sol.iterations
+            ctrl = scales.controller(sol.x)
+            if sol.violation > _FEASIBLE:
+                break  # the solver ended off its own rows: no solution from this start
+            peaks = self.worst(ctrl, sign)
+            ratio = max(p[0][0] for p in peaks.values())
+            over = {name: [q for q in p if q[0] > 1.0 + refine_to] for name, p in peaks.items()}
+            edge = _on_edge(sol.x, region, scales.box())
+            if not any(over.values()) and not edge:
+                break
+            if best is not None and k >= 2 and _behind(_value(sol, ctrl, objective), best):
+                break  # far behind the best start's optimum after three solves: another basin, not worth refining
+            x0, warm = sol.x, sol
+            if rows.prune(ctrl, sign, self):  # rows far from their bounds now: out (their multipliers with them)
+                warm = None
+            rows.add({name: np.array([w * f for _, w in p for f in (0.995, 1.0, 1.005)]) for name, p in over.items()})
+            rows.add(self._near(ctrl, sign, 0.9))
+            if not any(over.values()):  # on the trust region's edge, every bound held: move the region there,
+                centre, warm, reach = sol.x, None, min(2.0 * reach, 8.0)  # twice as wide (its multipliers on the
+                # edge would hold the solver where it was)
+        return Found(problem, sol, ctrl, sign, refinements=k, iterations=iterations, seconds=time.perf_counter() - t0,
+                     ratio=ratio, rows=rows)
+
+    def worst(self, c: PIDController, sign: float) -> dict[str, list[tuple[float, float]]]:
+        """Per bound, its largest ``|X| / M`` on the check grid and every other peak above 1, located (successive
+        parabolas), ``(|X| / M, w)``, largest first (at most :data:`_PEAKS`)."""
+        C = c.response(self.check)
+        out = {}
+        for name in self.names:
+            r = magnitudes(name, C, sign * self.G_check) / self.bounds[name]
+            inner = np.flatnonzero((r[1:-1] >= r[:-2]) & (r[1:-1] >= r[2:]) & (r[1:-1] > 1.0)) + 1
+            idx = np.union1d(inner, [int(np.argmax(r))]).astype(int)
+            idx = idx[np.argsort(-r[idx])][:_PEAKS]  # the largest first; the rest in later rounds
+            found = located_peaks(self.plant, c, name, self.check, idx, sign)
+            out[name] = [(v / self.bounds[name], w) for v, w in found]
+        return out
+
+    # ---- no start ------------------------------------------------------------------------------------
+    def infeasible(self) -> None:
+        """Raise the :class:`InfeasibleError` that names the bound no gains meet and the least value found."""
+        plant = self.plant
+        seeds: list[tuple[str, PIDController]] = []
+        sign = plant.sign
+        for s in [plant.sign] + ([-plant.sign] if plant.unstable_poles else []):
+            plane = self.plane(s, self.bounds)
+            seeds = [(name, c) for name, c, _ in stabilising_any(plane, self.bounds, self.Tf_min)]
+            if seeds:
+                sign = s
+                break
+        if not seeds:
+            raise InfeasibleError(f"no {_form(self.filter_order)} stabilises this plant within any bounds on the "
+                                  "grid (the stabilising set of the (kp, ki) plane is empty on every slice searched); "
+                                  "check the plant and its sign")
+        best = None
+        for _, c in seeds:
+            scales = self.scales(c)
+            problem = self.problem(self.omega, self.G, sign, scales)
+            least = problem.least_violation(scales.x(c))
+            if self.stable(scales.controller(least.x), sign) and (best is None or least.violation < best[1].violation):
+                best = (problem, least)
+        if best is None or best[1].violation <= TOLERANCE:
+            raise InfeasibleError("no stabilising gains that meet every bound were found; the least worst bound the "
+                                  "search reached is within the tolerance, so the bounds are at the edge of what a "
+                                  f"{_form(self.filter_order)} reaches here: relax them a little")
+        problem, least = best
+        worst = problem.worst_by_bound(least.x)
+        name, (ratio, w) = max(worst.items(), key=lambda kv: kv[1][0])
+        what = {"Ms": "|S|", "Mt": "|T|", "Mks": "|KS|"}[name]
+        others = "; ".join(f"{k} <= {self.bounds[k]:g} at {v[0] * self.bounds[k]:.4g}"
+                           for k, v in worst.items() if k != name)
+        raise InfeasibleError(
+            f"{name} <= {self.bounds[name]:g} cannot be met with a {_form(self.filter_order)} on this plant: the least "
+            f"largest {what} the search reached is {ratio * self.bounds[name]:.4g} (over by {ratio - 1:.1%}, at "
+            f"{w:.4g} rad/s)" + (f"; there, {others}" if others else "") + ". Relax that bound, or tune the other form")
+
+
+class _Rows:
+    """The problem's rows: ``(frequency, bound)`` pairs, in the order they were added (a warm start's multipliers
+    stay with their rows)."""
+
+    def __init__(self, names: tuple[str, ...]) -> None:
+        self.names = names
+        self.omega = np.zeros(0)
+        self.which = np.zeros(0, dtype=object)
+
+    def prune(self, c: PIDController, sign: float, search: Search) -> bool:
+        """Drop the rows whose ``|X| / M`` is below :data:`_KEEP` at ``c``; whether any were."""
+        C, G = c.response(self.omega), sign * search.plant.response(self.omega)
+        ratio = np.zeros(self.omega.size)
+        for name in self.names:
+            mine = self.which == name
+            ratio[mine] = magnitudes(name, C[mine], G[mine]) / search.bounds[name]
+        keep = ratio >= _KEEP
+        if keep.all():
+            return False
+        self.omega, self.which = self.omega[keep], self.which[keep]
+        return True
+
+    def add(self, per_bound: dict[str, np.ndarray]) -> None:
+        for name, w in per_bound.items():
+            new = np.setdiff1d(np.unique(np.asarray(w, float)), self.omega[self.which == name])
+            self.omega = np.concatenate([self.omega, new])
+            self.which = np.concatenate([self.which, np.full(new.size, name, dtype=object)])
+
+
+def _region(x: np.ndarray, reach: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """The trust region about ``x`` (scaled gains, O(1) at the start): ``kp`` and ``ki`` within a factor
+    ``1 + reach / 2`` (never to zero: an unstable plant's loop needs its proportional gain), the derivative within
+    ``reach / 2`` of its scale (it may reach zero: a PI), the filter's log within ``reach / 2``. A problem holding a
+    few frequencies may not move far before the check grid sees it; each move that holds every bound doubles
+    ``reach``."""
+    f = 1.0 + 0.5 * reach
+    lo, hi = x / f, x * f
+    if x.size == 4:
+        lo[2:], hi[2:] = x[2:] - 0.5 * reach * np.array([max(abs(x[2]), 0.1), 1.0]), \
+            x[2:] + 0.5 * reach * np.array([max(abs(x[2]), 0.1), 1.0])
+    return lo, hi
+
+
+def _on_edge(x: np.ndarray, region: tuple[np.ndarray, np.ndarray], box: tuple[np.ndarray, np.ndarray]) -> bool:
+    """Whether ``x`` ends on the trust region's edge where that is not the search box's."""
+    tol = 1e-6 * (region[1] - region[0])
+    lo = (x - region[0] < tol) & (region[0] > box[0] + tol)
+    hi = (region[1] - x < tol) & (region[1] < box[1] - tol)
+    return bool(np.any(lo | hi))
+
+
+def _behind(value: float, best: float) -> bool:
+    """Whether ``value`` (``-ki``, or an IAE) is far behind ``best`` (:data:`_BEHIND`)."""
+    return value > best * (_BEHIND if best < 0 else 1.0 / _BEHIND)
+
+
+def _form(filter_order: int) -> str:
+    return "PI" if filter_order == 0 else "PID"
+
+
+def _value(sol: Solution, c: PIDController, objective: Any) -> float:
+    """What is minimised, unscaled: ``-ki`` (IE) or the scaled IAE."""
+    return -c.ki if isinstance(objective, str) else float(sol.objective)
