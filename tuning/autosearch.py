@@ -113,12 +113,15 @@ class Search:
         self.check = check_grid(plant, omega)
         self.G_check = plant.response(self.check)
         self.low = np.logspace(np.log10(omega[0]) - _LOW_DECADES, np.log10(omega[0]), 5 * _LOW_DECADES + 1)[:-1]
-        self.count_w = np.concatenate([self.low, omega])
-        self.G_count = np.concatenate([plant.response(self.low), self.G])
+        grid = omega if plant.rational else np.union1d(omega, plant.omega_data)  # measured: every data point
+        self.count_w = np.concatenate([self.low, grid])
+        self.G_count = plant.response(self.count_w)
         # the slices' grid: the design grid at SLICE_PER_DECADE (a given grid: as it is), their starts refined after
         self.slice_w = design_grid(plant, _SLICE_PER_DECADE) if given is None else omega
         self.G_slice = plant.response(self.slice_w)
-        self.G_low = plant.response(self.low)
+        f = np.sort(plant.characteristic_frequencies()) if plant.rational else np.zeros(0)
+        self.hints = tuple(float(x) for x in np.concatenate([0.2 * f[:1], f]))  # the slices' reference frequencies
+        self.w_mid = float(np.sqrt(omega[0] * omega[-1]) if not f.size else np.exp(np.mean(np.log(f))))
 
     # ---- the pieces ----------------------------------------------------------------------------------
     def stable(self, c: PIDController, sign: float) -> bool:
@@ -132,18 +135,20 @@ class Search:
         return PIDProblem(omega, sign * G, self.bounds, scales, objective, iae_scale, which=which)
 
     def scales(self, c: PIDController) -> Scales:
-        """Scales from a start: its gains (``kp`` at least a tenth of the derivative's high-frequency gain: a start
-        without proportional action still has room for it); a PI start's derivative scale ``kp Ti / 10``, its
-        filter's a tenth of ``Ti``; the filter's floor."""
+        """Scales from a start: its gains (``kp`` at least a tenth of the derivative's high-frequency gain, ``ki`` at
+        least a thousandth of ``kp`` times the plant's middle frequency: a start without proportional or integral
+        action still has room for it); a PI start's derivative scale ``kp Ti / 10``, its filter's a hundredth of
+        ``Ti``; the filter's floor."""
         kp = max(c.kp, 0.1 * c.kd / c.Tf if c.Tf > 0 else 0.0)
-        Ti = kp / c.ki
+        ki = max(c.ki, 1e-3 * kp * self.w_mid)  # a start with almost no integral action still has room for it
+        Ti = kp / ki
         kd = c.kd if c.kd > 0 else 0.1 * kp * Ti
         Tf = c.Tf if c.Tf > 0 else max(0.01 * Ti, self.Tf_min)
-        return Scales(kp=kp, ki=c.ki, kd=kd, Tf=Tf, filter_order=self.filter_order, dt=self.dt, Tf_min=self.Tf_min)
+        return Scales(kp=kp, ki=ki, kd=kd, Tf=Tf, filter_order=self.filter_order, dt=self.dt, Tf_min=self.Tf_min)
 
     def plane(self, sign: float, bounds: dict[str, float | None]) -> Any:
         """The stabilising set's plane on the slices' grid for the plant times ``sign``."""
-        return plane_of(self.slice_w, sign * self.G_slice, self.low, sign * self.G_low, bounds,
+        return plane_of(self.slice_w, sign * self.G_slice, self.count_w, sign * self.G_count, bounds,
                         self.plant.unstable_poles, self.plant.integrators, self.filter_order, self.dt)
 
     def starts(self) -> tuple[float, list[tuple[str, PIDController]]]:
@@ -151,7 +156,7 @@ class Search:
         plant = self.plant
         for sign in [plant.sign] + ([-plant.sign] if plant.unstable_poles else []):
             plane = self.plane(sign, self.bounds)
-            found = stabilising_starts(plane, self.Tf_min, keep=3)
+            found = stabilising_starts(plane, self.Tf_min, keep=3, hints=self.hints)
             if found:
                 return sign, [(name, c) for name, c, _ in found]
         return plant.sign, []
@@ -164,7 +169,7 @@ class Search:
         if seeds is None:
             sign, seeds = self.starts()
             if not seeds:
-                self.infeasible()
+                sign, seeds = self.least()
         sign = self.plant.sign if sign is None else sign
         records: list[StartRecord] = []
         best: tuple[float, Found] | None = None
@@ -235,7 +240,8 @@ class Search:
     def _exchange(self, scales: Scales, rows: _Rows, x0: np.ndarray, warm: Solution | None, sign: float,
                   objective: Any, iae_scale: float, refine_to: float, best: float | None, reach: float = 1.0) -> Found:
         t0 = time.perf_counter()
-        iterations, ratio, centre = 0, np.inf, x0
+        iterations, centre = 0, x0
+        good: Found | None = None
         for k in range(_ROUNDS):
             problem = self.problem(rows.omega, self.plant.response(rows.omega), sign, scales, objective, iae_scale,
                                    rows.which)
@@ -245,8 +251,15 @@ class Search:
             ctrl = scales.controller(sol.x)
             if sol.violation > _FEASIBLE:
                 break  # the solver ended off its own rows: no solution from this start
+            if not self.stable(ctrl, sign):  # the step left the stable loops between the rows: a shorter one
+                reach /= 2.0
+                if reach < 1.0 / 16.0:
+                    break
+                warm = None
+                continue
             peaks = self.worst(ctrl, sign)
-            ratio = max(p[0][0] for p in peaks.values())
+            good = Found(problem, sol, ctrl, sign, refinements=k, ratio=max(p[0][0] for p in peaks.values()),
+                         rows=rows)
             over = {name: [q for q in p if q[0] > 1.0 + refine_to] for name, p in peaks.items()}
             edge = _on_edge(sol.x, region, scales.box())
             if not any(over.values()) and not edge:
@@ -261,8 +274,10 @@ class Search:
             if not any(over.values()):  # on the trust region's edge, every bound held: move the region there,
                 centre, warm, reach = sol.x, None, min(2.0 * reach, 8.0)  # twice as wide (its multipliers on the
                 # edge would hold the solver where it was)
-        return Found(problem, sol, ctrl, sign, refinements=k, iterations=iterations, seconds=time.perf_counter() - t0,
-                     ratio=ratio, rows=rows)
+        if good is None:  # no stable solution from this start: its last, marked as failing
+            good = Found(problem, sol, ctrl, sign, ratio=np.inf, rows=rows)
+        good.iterations, good.seconds = iterations, time.perf_counter() - t0
+        return good
 
     def worst(self, c: PIDController, sign: float) -> dict[str, list[tuple[float, float]]]:
         """Per bound, its largest ``|X| / M`` on the check grid and every other peak above 1, located (successive
@@ -279,14 +294,17 @@ class Search:
         return out
 
     # ---- no start ------------------------------------------------------------------------------------
-    def infeasible(self) -> None:
-        """Raise the :class:`InfeasibleError` that names the bound no gains meet and the least value found."""
+    def least(self) -> tuple[float, list[tuple[str, PIDController]]]:
+        """Where no slice stabilises within the bounds: the bounds relaxed until one does, and from there the gains
+        with the least worst bound (the least-violation problem on the design grid). Gains that meet every bound
+        there are the starts ``(sign, [("least violation", controller)])``; else the :class:`InfeasibleError` that
+        names the bound no gains meet and the least value reached."""
         plant = self.plant
         seeds: list[tuple[str, PIDController]] = []
         sign = plant.sign
         for s in [plant.sign] + ([-plant.sign] if plant.unstable_poles else []):
-            plane = self.plane(s, self.bounds)
-            seeds = [(name, c) for name, c, _ in stabilising_any(plane, self.bounds, self.Tf_min)]
+            seeds = [(name, c) for name, c, _ in stabilising_any(self.plane(s, self.bounds), self.bounds,
+                                                                 self.Tf_min, self.hints)]
             if seeds:
                 sign = s
                 break
@@ -301,11 +319,16 @@ class Search:
             least = problem.least_violation(scales.x(c))
             if self.stable(scales.controller(least.x), sign) and (best is None or least.violation < best[1].violation):
                 best = (problem, least)
-        if best is None or best[1].violation <= TOLERANCE:
-            raise InfeasibleError("no stabilising gains that meet every bound were found; the least worst bound the "
-                                  "search reached is within the tolerance, so the bounds are at the edge of what a "
-                                  f"{_form(self.filter_order)} reaches here: relax them a little")
+        if best is None:
+            raise InfeasibleError(f"no {_form(self.filter_order)} was found that stabilises this plant and comes "
+                                  "near the bounds; relax them, or check the plant")
         problem, least = best
+        if least.violation <= 0.0:
+            return sign, [("least violation", problem.scales.controller(least.x))]
+        self._infeasible(problem, least)
+        return sign, []
+
+    def _infeasible(self, problem: PIDProblem, least: Solution) -> None:
         worst = problem.worst_by_bound(least.x)
         name, (ratio, w) = max(worst.items(), key=lambda kv: kv[1][0])
         what = {"Ms": "|S|", "Mt": "|T|", "Mks": "|KS|"}[name]
@@ -348,12 +371,13 @@ class _Rows:
 
 def _region(x: np.ndarray, reach: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """The trust region about ``x`` (scaled gains, O(1) at the start): ``kp`` and ``ki`` within a factor
-    ``1 + reach / 2`` (never to zero: an unstable plant's loop needs its proportional gain), the derivative within
+    ``1 + reach / 2`` (never to zero: an unstable plant's loop needs its proportional gain; from zero up by a quarter
+    of ``reach``), the derivative within
     ``reach / 2`` of its scale (it may reach zero: a PI), the filter's log within ``reach / 2``. A problem holding a
     few frequencies may not move far before the check grid sees it; each move that holds every bound doubles
     ``reach``."""
     f = 1.0 + 0.5 * reach
-    lo, hi = x / f, x * f
+    lo, hi = x / f, np.maximum(x * f, x + 0.25 * reach)  # a gain at zero may grow by a quarter of its scale
     if x.size == 4:
         lo[2:], hi[2:] = x[2:] - 0.5 * reach * np.array([max(abs(x[2]), 0.1), 1.0]), \
             x[2:] + 0.5 * reach * np.array([max(abs(x[2]), 0.1), 1.0])

@@ -191,10 +191,7 @@ class LinearPlant:
         Nyquist frequency; a measured response's data frequencies (every ``k``-th, for about ``per_decade`` a
         decade)."""
         if not self.rational:
-            decades = np.log10(self.omega_data[-1] / self.omega_data[0])
-            step = max(1, int(self.omega_data.size / max(per_decade * decades, 1.0)))
-            keep = np.unique(np.append(np.arange(0, self.omega_data.size, step), self.omega_data.size - 1))
-            return self.omega_data[keep]
+            return self._data_grid(per_decade)
         f = self.characteristic_frequencies()
         lo, hi = np.log10(0.01 * f.min()) - widen, np.log10(100.0 * f.max()) + widen
         if self.discrete:
@@ -207,6 +204,23 @@ class LinearPlant:
             w = np.concatenate([w, *clusters])
             w = np.unique(w[(w >= w[0]) & (w <= 10.0**hi)])
         return w
+
+    def _data_grid(self, per_decade: int) -> np.ndarray:
+        """A measured response's frequencies, every ``k``-th for about ``per_decade`` a decade, and every one where
+        the response turns fast (its phase or log-magnitude moving more than ``1 / k`` per data point: a resonance
+        the data resolve and every ``k``-th point would step over)."""
+        w = self.omega_data
+        decades = np.log10(w[-1] / w[0])
+        step = max(1, int(w.size / max(per_decade * decades, 1.0)))
+        fast = np.zeros(w.size, bool)
+        if step > 1:
+            phase, magnitude = np.unwrap(np.angle(self.data)), np.log(np.abs(self.data))
+            moves = np.maximum(np.abs(np.diff(phase)), np.abs(np.diff(magnitude)))
+            fast[:-1] |= moves > 1.0 / step
+            fast[1:] |= moves > 1.0 / step
+        keep = np.zeros(w.size, bool)
+        keep[::step], keep[-1] = True, True
+        return w[keep | fast]
 
     # ---- its response ------------------------------------------------------------------------
     def response(self, omega: Any) -> np.ndarray:

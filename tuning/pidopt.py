@@ -43,7 +43,7 @@ from piezopreload.tuning.pidform import PIDController
 __all__ = ["Scales", "PIDProblem", "Solution", "TF_RANGE", "X_MAX", "METHODS"]
 
 #: the derivative filter's range relative to its scale (``Tf = s_f exp(x3)``)
-TF_RANGE = (1e-3, 1e2)
+TF_RANGE = (1e-4, 1e4)
 #: the largest scaled gain
 X_MAX = 1e3
 #: the smallest scaled proportional and integral gains (the ideal/ISA form needs them positive)

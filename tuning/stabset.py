@@ -153,9 +153,9 @@ def unstable_counts(L: np.ndarray, unstable: int, integrators: int, dt: float | 
 @dataclass(frozen=True)
 class Plane:
     """What every slice shares: the design grid and the plant's response there, the bounds' discs, the grid the
-    Nyquist count runs on (``count_w``, ``count_G``: the design grid with eight decades below it, where an
-    integrating loop's gain grows to its asymptote), the plant's unstable poles and integrators, the controller's
-    form and sample period, the bound on ``|KS|`` (None: none)."""
+    Nyquist count runs on (``count_w``, ``count_G``: the design grid, or every measured point, with eight decades
+    below it, where an integrating loop's gain grows to its asymptote), the plant's unstable poles and integrators,
+    the controller's form and sample period, the bound on ``|KS|`` (None: none)."""
 
     omega: np.ndarray
     G: np.ndarray
@@ -180,11 +180,12 @@ class Plane:
         return resp(1.0, 0.0, 0.0 * kd), resp(0.0, 1.0, 0.0 * kd), resp(0.0, 0.0, kd)
 
 
-def plane_of(omega: np.ndarray, G: np.ndarray, low_w: np.ndarray, low_G: np.ndarray, bounds: dict[str, float | None],
-             unstable: int, integrators: int, filter_order: int, dt: float | None) -> Plane:
-    """The :class:`Plane` of the design grid ``omega`` (``G`` there) with the count's low frequencies ``low_w``."""
-    return Plane(omega, G, bound_discs(G, bounds), np.concatenate([low_w, omega]), np.concatenate([low_G, G]),
-                 unstable, integrators, filter_order, dt, bounds.get("Mks"))
+def plane_of(omega: np.ndarray, G: np.ndarray, count_w: np.ndarray, count_G: np.ndarray,
+             bounds: dict[str, float | None], unstable: int, integrators: int, filter_order: int,
+             dt: float | None) -> Plane:
+    """The :class:`Plane` of the grid ``omega`` (``G`` there) with the Nyquist count's grid ``count_w``."""
+    return Plane(omega, G, bound_discs(G, bounds), count_w, count_G, unstable, integrators, filter_order, dt,
+                 bounds.get("Mks"))
 
 
 def _tops(plane: Plane, kp: np.ndarray, basis: tuple[np.ndarray, ...], count: tuple[np.ndarray, ...],
@@ -254,18 +255,26 @@ def slice_optima(plane: Plane, kd: np.ndarray, Tf: np.ndarray, kp_ref: float, w_
             for q in range(kd.size)]
 
 
-def _reference(omega: np.ndarray, G: np.ndarray) -> tuple[float, float]:
-    """The reference frequency (the first phase crossover of ``G``, else where ``|G|`` is the geometric middle of its
-    range on the grid) and ``1/|G|`` there."""
+def _references(omega: np.ndarray, G: np.ndarray, hints: tuple[float, ...] = ()) -> list[tuple[float, float]]:
+    """Reference frequencies and ``1/|G|`` there, the scales the slices search about: the first phase crossover of
+    ``G`` where its phase starts above -170 degrees (else the frequency where ``|G|`` is the geometric middle of its
+    range on the grid), then each of ``hints`` (the plant's characteristic frequencies and a fifth of the lowest: a
+    plant whose phase starts at -180 degrees, a double integrator, is controlled below its first resonance or pole;
+    an unstable one about its unstable pole) more than a factor 3 from those before it."""
     phase = np.unwrap(np.angle(G))
     phase -= 2 * np.pi * np.round(phase[0] / (2 * np.pi))
     below = np.flatnonzero(phase <= -np.pi)
-    if below.size:
+    if below.size and phase[0] > -np.radians(170.0):
         i = int(below[0])
     else:
         lg = np.log(np.abs(G))
         i = int(np.argmin(np.abs(lg - 0.5 * (lg.max() + lg.min()))))
-    return float(omega[i]), float(1.0 / np.abs(G[i]))
+    picked = [i]
+    for w in hints:
+        j = int(np.argmin(np.abs(np.log(omega / w))))
+        if all(abs(np.log(omega[j] / omega[k])) > np.log(3.0) for k in picked):
+            picked.append(j)
+    return [(float(omega[k]), float(1.0 / np.abs(G[k]))) for k in picked]
 
 
 def _pid_slices(plane: Plane, pi: SliceOptimum | None, w_ref: float, kp_ref: float,
@@ -273,38 +282,44 @@ def _pid_slices(plane: Plane, pi: SliceOptimum | None, w_ref: float, kp_ref: flo
     """The PID's slices, by rows of ``Tf``: the derivative's high-frequency gain ``g = kd / Tf`` and ``Tf`` about the
     PI's ``kp`` (``k1``) and integral time (``t1``): ``g`` of ``2 k1``, ``7 k1`` and, with a bound on ``|KS|``, what
     it leaves beside ``1.5 k1`` of proportional gain (``|C(inf)| = kp + g``); ``Tf`` of ``0.07``, ``0.2`` and ``2``
-    times ``t1``. The optima of the benchmark batch's reference lie in these regimes: ``|KS|`` on its bound with a
-    fast filter, an intermediate one, and (delay-dominant plants) almost no proportional gain and a slow filter, the
-    derivative a lagged proportional action."""
+    times ``t1``. Where no PI stabilises (a double integrator, an unstable plant behind a delay), ``k1`` and ``t1``
+    are the reference's ``1/|G|`` and period and ``g`` is ``0.3 k1`` or ``3 k1``. The optima of the benchmark
+    batch's reference lie in these regimes: ``|KS|`` on its bound with a fast filter, an intermediate one, and
+    (delay-dominant plants) almost no proportional gain and a slow filter, the derivative a lagged proportional
+    action."""
     k1 = pi.kp if pi is not None else kp_ref
     t1 = pi.kp / pi.ki if pi is not None and not pi.capped else 1.0 / w_ref
-    gains = [2.0 * k1, 7.0 * k1]
+    gains = [2.0 * k1, 7.0 * k1] if pi is not None else [0.3 * k1, 3.0 * k1]  # no PI: a PD's lead about the reference
     if plane.Mks is not None:
         gains = [g for g in gains if g < plane.Mks - 0.5 * k1] + ([plane.Mks - 1.5 * k1] if plane.Mks > 2 * k1 else
                                                                   [0.5 * plane.Mks])
     else:
         gains.append(25.0 * k1)
     rows = []
-    for c in (0.07, 0.2, 2.0):
+    for c in ((0.07, 0.2, 2.0) if pi is not None else (0.1, 0.5, 2.0)):
         Tf = max(c * t1, Tf_min)
         opts = slice_optima(plane, np.array(gains) * Tf, np.full(len(gains), Tf), k1, 1.0 / t1, kp_decades=_PID_KP)
         rows.append([(f"slice kd {o.kd:.3g}, Tf {o.Tf:.3g} s", o) for o in opts if o is not None])
     return rows
 
 
-def stabilising_starts(plane: Plane, Tf_min: float = 0.0,
-                       keep: int = 3) -> list[tuple[str, PIDController, SliceOptimum]]:
+def stabilising_starts(plane: Plane, Tf_min: float = 0.0, keep: int = 3,
+                       hints: tuple[float, ...] = ()) -> list[tuple[str, PIDController, SliceOptimum]]:
     """Starts ``(name, controller, slice)``, best first: for a PI its slice's optimum; for a PID the best slice of
     each row of :func:`_pid_slices` (each a regime of its own, so the local solves start in each basin), then the
-    PI's, at most ``keep`` distinct ones. Empty where no slice has a stabilising line that meets the bounds on the
-    grid."""
-    w_ref, kp_ref = _reference(plane.omega, plane.G)
-    pi = slice_optima(plane, np.zeros(1), np.zeros(1), kp_ref, w_ref)[0]
+    PI's, at most ``keep`` distinct ones. The PI slice about each reference of :func:`_references` (the best kept),
+    the PID's about the PI's optimum, or, where no PI stabilises, about each reference. Empty where no slice has a
+    stabilising line that meets the bounds on the grid."""
+    refs = _references(plane.omega, plane.G, hints)
+    pis = [(ref, slice_optima(plane, np.zeros(1), np.zeros(1), ref[1], ref[0])[0]) for ref in refs]
+    live = [(ref, pi) for ref, pi in pis if pi is not None]
+    pi = max(live, key=lambda rp: rp[1].ki)[1] if live else None
     found: list[tuple[str, SliceOptimum]] = []
     if plane.filter_order > 0:
-        for row in _pid_slices(plane, pi, w_ref, kp_ref, Tf_min):
-            if row:
-                found.append(max(row, key=lambda nf: nf[1].ki))
+        for w_ref, kp_ref in ([max(live, key=lambda rp: rp[1].ki)[0]] if live else refs):
+            for row in _pid_slices(plane, pi, w_ref, kp_ref, Tf_min):
+                if row:
+                    found.append(max(row, key=lambda nf: nf[1].ki))
         found.sort(key=lambda nf: -nf[1].ki)
     if pi is not None:
         found.append(("PI slice", pi))
@@ -318,14 +333,14 @@ def stabilising_starts(plane: Plane, Tf_min: float = 0.0,
     return out
 
 
-def stabilising_any(plane: Plane, bounds: dict[str, float | None],
-                    Tf_min: float = 0.0) -> list[tuple[str, PIDController, SliceOptimum]]:
+def stabilising_any(plane: Plane, bounds: dict[str, float | None], Tf_min: float = 0.0,
+                    hints: tuple[float, ...] = ()) -> list[tuple[str, PIDController, SliceOptimum]]:
     """Starts for the least-violation problem of bounds no controller meets: the bounds relaxed by factors from 1.5
     to 100 until a slice has a stabilising line that meets them."""
     for factor in (1.5, 2.0, 3.0, 5.0, 10.0, 100.0):
         relaxed = {k: (None if m is None else m * factor) for k, m in bounds.items()}
         starts = stabilising_starts(replace(plane, discs=bound_discs(plane.G, relaxed), Mks=relaxed.get("Mks")),
-                                    Tf_min, keep=2)
+                                    Tf_min, keep=2, hints=hints)
         if starts:
             return starts
     return []
