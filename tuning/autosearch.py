@@ -49,7 +49,10 @@ _FEASIBLE = 1e-6  # |X| / M - 1 on the problem's frequencies
 _LOW_DECADES = 8  # the Nyquist count's frequencies below the design grid
 _SLICE_PER_DECADE = 10
 _PEAKS = 4  # the peaks of each bound a round adds to the problem, largest first
+#: the slices' optima the local solve starts from (a start far behind the best stops early: _BEHIND)
+_STARTS = 3
 _KEEP = 0.6  # a row whose |X| / M falls below this leaves the problem
+_LOCATE = 2e-3  # a check-grid peak this close to its bound, or over it, is located between the grid's points
 #: a start whose ki is below this fraction of the best start's after three solves stops (an IAE: above its inverse)
 _BEHIND = 0.75
 
@@ -156,7 +159,7 @@ class Search:
         plant = self.plant
         for sign in [plant.sign] + ([-plant.sign] if plant.unstable_poles else []):
             plane = self.plane(sign, self.bounds)
-            found = stabilising_starts(plane, self.Tf_min, keep=3, hints=self.hints)
+            found = stabilising_starts(plane, self.Tf_min, keep=_STARTS, hints=self.hints)
             if found:
                 return sign, [(name, c) for name, c, _ in found]
         return plant.sign, []
@@ -280,8 +283,10 @@ class Search:
         return good
 
     def worst(self, c: PIDController, sign: float) -> dict[str, list[tuple[float, float]]]:
-        """Per bound, its largest ``|X| / M`` on the check grid and every other peak above 1, located (successive
-        parabolas), ``(|X| / M, w)``, largest first (at most :data:`_PEAKS`)."""
+        """Per bound, its largest ``|X| / M`` on the check grid and every other peak above 1 (at most
+        :data:`_PEAKS`, largest first), ``(|X| / M, w)``; a peak within :data:`_LOCATE` of the bound or over it
+        located between its grid points (successive parabolas), the rest as the grid has them (ten times the design
+        grid's density: a peak's top is within a small fraction of it)."""
         C = c.response(self.check)
         out = {}
         for name in self.names:
@@ -289,8 +294,10 @@ class Search:
             inner = np.flatnonzero((r[1:-1] >= r[:-2]) & (r[1:-1] >= r[2:]) & (r[1:-1] > 1.0)) + 1
             idx = np.union1d(inner, [int(np.argmax(r))]).astype(int)
             idx = idx[np.argsort(-r[idx])][:_PEAKS]  # the largest first; the rest in later rounds
-            found = located_peaks(self.plant, c, name, self.check, idx, sign)
-            out[name] = [(v / self.bounds[name], w) for v, w in found]
+            near = r[idx] > 1.0 - _LOCATE
+            found = located_peaks(self.plant, c, name, self.check, idx[near], sign) if near.any() else []
+            found = [(v / self.bounds[name], w) for v, w in found]
+            out[name] = sorted(found + [(float(r[i]), float(self.check[i])) for i in idx[~near]], reverse=True)
         return out
 
     # ---- no start ------------------------------------------------------------------------------------

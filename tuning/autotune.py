@@ -372,7 +372,7 @@ def _result(P: LinearPlant, design: LinearPlant, search: Search, found: Found, s
         controller_=final, plant=P, design_plant=design, form=spec.form, metric=spec.metric,
         bounds=dict(spec.bounds), margins=margins, peaks=peaks, stable=stable, iae=None if iae is None else iae[0],
         iae_Ts=None if iae is None else iae[1], starts=tuple(found.records), active_bounds=active,
-        grid_points=int(found.problem.omega.size), check_points=int(search.check.size),
+        grid_points=int(search.omega.size), check_points=int(search.check.size),
         refinements=found.refinements, iterations=found.iterations, seconds=time.perf_counter() - t0,
         solver=spec.solver, loop=spec.loop, sample_period_s=spec.Ts, user_bounds=dict(spec.user_bounds),
         defaults={k: dict(v) for k, v in spec.defaults.items()}, leans_on=_leans_on(spec, peaks, active),

@@ -46,10 +46,10 @@ def magnitudes(name: str, C: np.ndarray, G: np.ndarray) -> np.ndarray:
 
 
 def located_peaks(plant: LinearPlant, controller: PIDController, name: str, omega: np.ndarray, idx: np.ndarray,
-                  sign: float = 1.0) -> list[tuple[float, float]]:
+                  sign: float = 1.0, steps: int = 8) -> list[tuple[float, float]]:
     """The peaks of ``name`` at the grid points ``idx``, each located between its neighbours by bracketed parabolic
     interpolation in ``log w`` (the bracket's three points' parabola, its vertex kept at least a tenth of the larger
-    side from the middle point so the bracket always shrinks: twelve steps, all peaks at once), ``(value, w)``
+    side from the middle point so the bracket always shrinks: ``steps`` steps, all peaks at once), ``(value, w)``
     largest first; a measured response's, and a grid end's, are the grid's own. ``sign`` multiplies the plant."""
     idx = np.asarray(idx, int)
 
@@ -63,7 +63,7 @@ def located_peaks(plant: LinearPlant, controller: PIDController, name: str, omeg
         k = idx[inner]
         a, b, c = np.log(omega[k - 1]), np.log(omega[k]), np.log(omega[k + 1])
         fa, fb, fc = at(a), values[inner], at(c)
-        for _ in range(12):
+        for _ in range(steps):
             num = (b - a) ** 2 * (fb - fc) - (b - c) ** 2 * (fb - fa)
             den = (b - a) * (fb - fc) - (b - c) * (fb - fa)
             x = b - 0.5 * num / np.where(den != 0, den, 1.0)
@@ -100,7 +100,7 @@ def sensitivity_peaks(plant: LinearPlant, controller: PIDController, omega: np.n
         inner = np.flatnonzero((r[1:-1] >= r[:-2]) & (r[1:-1] >= r[2:])) + 1
         idx = np.union1d(inner, [int(np.argmax(r))])
         idx = idx[np.argsort(-r[idx])][:most]
-        out[name] = located_peaks(plant, controller, name, omega, idx)
+        out[name] = located_peaks(plant, controller, name, omega, idx, steps=12)
     return out
 
 
@@ -199,6 +199,7 @@ LOOPS = ("continuous", "sampled")
 class AutotuneResult:
     """The autotuner's result (see the module docstring); :func:`~piezopreload.tuning.autotune.autotune` makes it.
 
+    ``grid_points`` is the design grid's size, ``check_points`` the check grid's (ten times as dense).
     ``bounds`` are the bounds the problem held: the user's (``user_bounds``) and the defaults the tuner set where
     the user set none (``defaults``: name -> ``{"value", "reason"}``, with the filter's floor ``Tf_min_s``);
     ``loop`` says which loop they hold on (``"continuous"``: the continuous controller on the plant; ``"sampled"``:
