@@ -117,6 +117,10 @@ CLASSES = {
                                                      (1.0, 1e4), 1e4),
     "two-inertia drive (a resonance at 300 rad/s)": (_two_inertia(), 0.001, {"Ms": 1.4, "Mt": 1.4, "Mks": 1.0},
                                                      (1e-3, 1.0), 1e3),
+    "axial mode (zeta 0.002, narrower than the grid's step)": (
+        control.tf([(2 * np.pi * 200) ** 2], np.polymul([1 / (2 * np.pi * 500), 1.0],
+                                                      [1.0, 2 * 0.002 * 2 * np.pi * 200, (2 * np.pi * 200) ** 2])),
+        2e-4, {"Ms": 1.4, "Mt": 1.4}, (1e-8, 1.0), 1e4),  # its optimum: almost no proportional action
     "oscillatory lag (zeta 0.02)": (4 / ((s + 1) * (s**2 + 0.08 * s + 4)), 0.0, {"Ms": 1.4, "Mt": 1.4},
                                     (1e-7, 10.0), 10.0),  # its optimum: almost no proportional action
     "open-loop unstable": (1 / ((s - 1) * (0.1 * s + 1)), 0.0, {"Ms": 1.6}, (1.0, 50.0), 200.0),
@@ -129,7 +133,8 @@ CLASSES = {
 }
 
 
-QUICK = ("two-inertia drive (a resonance at 300 rad/s)", "open-loop unstable")
+QUICK = ("two-inertia drive (a resonance at 300 rad/s)", "axial mode (zeta 0.002, narrower than the grid's step)",
+         "open-loop unstable")
 
 
 @pytest.mark.parametrize("name", [n if n in QUICK else pytest.param(n, marks=pytest.mark.slow) for n in CLASSES])
