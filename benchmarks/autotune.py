@@ -73,8 +73,8 @@ Per plant, in the same run:
 * every bound of ours checked on a grid ten times denser than the tuner's (250 points a decade over
   three decades beyond the plant's poles and zeros each side, 2,000 points across each lightly damped
   pair; a measured plant: every data point, 250 a decade) with python-control's response and the
-  controller's formula; the loop's stability from python-control's closed-loop poles (a 12th-order
-  Padé for a delay; a measured plant: the model it was measured from).
+  controller's formula; the loop's stability from python-control's closed-loop poles in state space (a
+  12th-order Padé for a delay; a measured plant: the model it was measured from).
 
 Figures (the last line of output, one JSON object): ``ki_over_reference_min`` (target >= 0.99),
 ``bound_violation_max`` (``max |X| / M - 1`` over every plant and bound; target <= 0.005), ``all_stable``,
@@ -312,23 +312,29 @@ def bound_rows(C: np.ndarray, G: np.ndarray, case: Case, dC: list[np.ndarray] | 
 
 
 def stable(case: Case, kp: float, ki: float, kd: float, Tf: float) -> bool:
-    """The closed loop's poles by python-control (a 12th-order Padé for a delay; a sampled loop's whole-sample
-    delay as poles at the origin; a measured plant: the model it was measured from)."""
+    """The closed loop's poles by python-control, in state space (a transfer function's roots lose the slow poles'
+    digits where they cluster near ``s = 0`` or ``z = 1``): the eigenvalues of the loop of the plant's state space
+    (a 12th-order Padé of a delay; a sampled loop's zero-order hold, its whole-sample delay as states) and the
+    controller's; a measured plant: the model it was measured from."""
     G, delay = (case.model if case.measured else (case.G, case.delay))
     if case.Ts is None:
         C = control.tf([kp * Tf + kd, kp + ki * Tf, ki], [Tf, 1.0, 0.0]) if case.form == "PID" else \
             control.tf([kp, ki], [1.0, 0.0])
-        P = G * (control.tf(*control.pade(delay, 12)) if delay > 0 else 1)
-        return bool(np.all(control.feedback(P * C, 1).poles().real < 0))
+        P = control.ss(G)
+        if delay > 0:
+            P = P * control.ss(control.tf(*control.pade(delay, 12)))
+        return bool(np.all(np.linalg.eigvals(control.feedback(P * control.ss(C), 1).A).real < 0))
     Ts = case.Ts
     d = int(round(delay / Ts))
-    P = control.c2d(G, Ts, "zoh") * control.tf([1.0], [1.0] + [0.0] * d, Ts)
+    P = control.c2d(control.ss(G), Ts, "zoh")
+    if d:
+        P = P * control.ss(control.tf([1.0], [1.0] + [0.0] * d, Ts))
     a = Tf / (Tf + Ts) if case.form == "PID" else 0.0
     gd = kd * (1 - a) / Ts if case.form == "PID" else 0.0
     num = (kp * np.polymul([1, -1], [1, -a]) + ki * Ts / 2 * np.polymul([1, 1], [1, -a])
            + gd * np.polymul([1, -1], [1, -1]))
-    C = control.tf(num, np.polymul([1, -1], [1, -a]), Ts)
-    return bool(np.all(np.abs(control.feedback(P * C, 1).poles()) < 1))
+    C = control.ss(control.tf(num, np.polymul([1, -1], [1, -a]), Ts))
+    return bool(np.all(np.abs(np.linalg.eigvals(control.feedback(P * C, 1).A)) < 1))
 
 
 # --------------------------------------------------------------------------------------

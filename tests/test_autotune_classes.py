@@ -5,7 +5,7 @@ response from python-control on a dense grid (2,000 log-spaced points over three
 each side, and 400 across each lightly damped pair), for each of 120 proportional gains the largest integral gain
 below the first bound it breaks (a log scan up, then bisection: ``ki`` between zero and it meets every bound), the best
 proportional gain's bracket searched again twice, 120 times finer each, and the loop's stability from python-control's
-closed-loop poles (a 12th-order Padé of a delay). The tolerance: the search's proportional gain ends within 1e-4
+closed-loop poles (in state space, a 12th-order Padé of a delay). The tolerance: the search's proportional gain ends within 1e-4
 (relative) of its best, where the integral gain is flat to first order, and its bisection to 1e-12, so its ki is
 within 1e-4 of the optimum on its grid; the tuner holds the bounds within 1e-4 on a grid ten times its own (which
 moves ki by about as much). ``rel=2e-3`` covers both with a margin; a tuner that ended in another local optimum, or
@@ -39,8 +39,10 @@ def _grid(G: control.TransferFunction, delay: float) -> np.ndarray:
 
 
 def _stable(G: control.TransferFunction, delay: float, kp: float, ki: float) -> bool:
-    P = G * (control.tf(*control.pade(delay, 12)) if delay else 1)
-    return bool(np.all(control.feedback(P * control.tf([kp, ki], [1, 0]), 1).poles().real < 0))
+    """python-control's closed-loop poles, in state space (a transfer function's roots lose slow poles' digits)."""
+    P = control.ss(G) * (control.ss(control.tf(*control.pade(delay, 12))) if delay else 1)
+    loop = control.feedback(P * control.ss(control.tf([kp, ki], [1, 0])), 1)
+    return bool(np.all(np.linalg.eigvals(loop.A).real < 0))
 
 
 def _ki_max(kp: np.ndarray, w: np.ndarray, Gw: np.ndarray, bounds: dict, hi: float) -> np.ndarray:

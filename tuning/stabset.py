@@ -43,7 +43,7 @@ __all__ = ["SliceOptimum", "Plane", "plane_of", "bound_discs", "line_gaps", "uns
 #: the proportional gains a slice searches: per decade; the PID slices' decades about the PI's (the PI's are
 #: relative to ``1/|G|`` at the reference frequency: four decades below, three above)
 _KP_PER_DECADE = 5
-_PID_KP = (-2.0, 1.5)
+_PID_KP = (-4.0, 1.5)
 #: the largest integral gain a line reports, relative to ``1/|G|`` times the reference frequency (no bound met
 #: before); far above it an integral action's phase lag leaves only unstable loops
 _KI_CAP = 1e3
@@ -280,7 +280,7 @@ def _references(omega: np.ndarray, G: np.ndarray, hints: tuple[float, ...] = ())
 def _pid_slices(plane: Plane, pi: SliceOptimum | None, w_ref: float, kp_ref: float,
                 Tf_min: float) -> list[list[tuple[str, SliceOptimum]]]:
     """The PID's slices, by rows of ``Tf``: the derivative's high-frequency gain ``g = kd / Tf`` and ``Tf`` about the
-    PI's ``kp`` (``k1``) and integral time (``t1``): ``g`` of ``2 k1``, ``7 k1`` and, with a bound on ``|KS|``, what
+    PI's ``kp`` (``k1``) and integral time (``t1``): ``g`` of ``1.5 k1``, ``6 k1`` and, with a bound on ``|KS|``, what
     it leaves beside ``1.5 k1`` of proportional gain (``|C(inf)| = kp + g``); ``Tf`` of ``0.07``, ``0.2`` and ``2``
     times ``t1``. Where no PI stabilises (a double integrator, an unstable plant behind a delay), ``k1`` and ``t1``
     are the reference's ``1/|G|`` and period and ``g`` is ``0.3 k1`` or ``3 k1``. The optima of the benchmark
@@ -289,7 +289,7 @@ def _pid_slices(plane: Plane, pi: SliceOptimum | None, w_ref: float, kp_ref: flo
     action."""
     k1 = pi.kp if pi is not None else kp_ref
     t1 = pi.kp / pi.ki if pi is not None and not pi.capped else 1.0 / w_ref
-    gains = [2.0 * k1, 7.0 * k1] if pi is not None else [0.3 * k1, 3.0 * k1]  # no PI: a PD's lead about the reference
+    gains = [1.5 * k1, 6.0 * k1] if pi is not None else [0.3 * k1, 3.0 * k1]  # no PI: a PD's lead about the reference
     if plane.Mks is not None:
         gains = [g for g in gains if g < plane.Mks - 0.5 * k1] + ([plane.Mks - 1.5 * k1] if plane.Mks > 2 * k1 else
                                                                   [0.5 * plane.Mks])
