@@ -4,14 +4,14 @@ For a PI the problem has two gains, so an exhaustive search is cheap and indepen
 response from python-control on a dense grid (2,000 log-spaced points over three decades beyond its poles and zeros
 each side, and 400 across each lightly damped pair), for each of 120 proportional gains the largest integral gain
 below the first bound it breaks (a log scan up, then bisection: ``ki`` between zero and it meets every bound), the best
-proportional gain's bracket searched again twice, 120 times finer each, and the loop's stability from python-control's
-closed-loop poles (in state space, a 12th-order Padé of a delay). The tolerance: the search's proportional gain ends within 1e-4
-(relative) of its best, where the integral gain is flat to first order, and its bisection to 1e-12, so its ki is
-within 1e-4 of the optimum on its grid; the tuner holds the bounds within 1e-4 on a grid ten times its own (which
+proportional gain's bracket searched again twice, 120 times finer each, and the loop's stability from
+python-control's closed-loop poles (in state space, a 12th-order Padé of a delay). The tolerance: the search's
+proportional gain ends within 1e-4 (relative) of its best, where the integral gain is flat to first order, and its
+bisection to 1e-12, so its ki is within 1e-4 of the optimum on its grid; the tuner holds the bounds within 1e-4 on a grid ten times its own (which
 moves ki by about as much). ``rel=2e-3`` covers both with a margin; a tuner that ended in another local optimum, or
 a bound broken between its grid points, misses it by more (the batch's local optima differ by percent).
 
-The classes (issue 33): integrating and near-integrating (poles decades apart), lightly damped resonant (a
+The classes: integrating and near-integrating (poles decades apart), lightly damped resonant (a
 two-inertia drive, an oscillatory lag), open-loop unstable, delay-dominant, high-order, non-minimum phase, and a
 measured frequency response with noise.
 """
