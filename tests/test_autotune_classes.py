@@ -7,9 +7,10 @@ below the first bound it breaks (a log scan up, then bisection: ``ki`` between z
 proportional gain's bracket searched again twice, 120 times finer each, and the loop's stability from
 python-control's closed-loop poles (in state space, a 12th-order Padé of a delay). The tolerance: the search's
 proportional gain ends within 1e-4 (relative) of its best, where the integral gain is flat to first order, and its
-bisection to 1e-12, so its ki is within 1e-4 of the optimum on its grid; the tuner holds the bounds within 1e-4 on a grid ten times its own (which
-moves ki by about as much). ``rel=2e-3`` covers both with a margin; a tuner that ended in another local optimum, or
-a bound broken between its grid points, misses it by more (the batch's local optima differ by percent).
+bisection to 1e-12, so its ki is within 1e-4 of the optimum on its grid; the tuner holds the bounds within 1e-4 on
+a grid ten times its own (which moves ki by about as much). ``rel=2e-3`` covers both with a margin; a tuner that
+ended in another local optimum, or a bound broken between its grid points, misses it by more (the batch's local
+optima differ by percent).
 
 The classes: integrating and near-integrating (poles decades apart), lightly damped resonant (a
 two-inertia drive, an oscillatory lag), open-loop unstable, delay-dominant, high-order, non-minimum phase, and a
