@@ -39,7 +39,7 @@ __all__ = ["Search", "Found", "TOLERANCE", "REFINE_TO", "FINISH_TO", "PER_DECADE
 #: how far (relative) a bound may be exceeded on the check grid
 TOLERANCE = 0.005
 #: how far the refinement goes (the grid gains the check grid's peaks until they are within this)
-REFINE_TO = 1e-3
+REFINE_TO = 3e-3
 #: how far the best start's solution is refined at the end
 FINISH_TO = 1e-4
 #: the design grid's points a decade (the check grid has ten times as many)
@@ -50,7 +50,7 @@ _LOW_DECADES = 8  # the Nyquist count's frequencies below the design grid
 _SLICE_PER_DECADE = 10
 _PEAKS = 4  # the peaks of each bound a round adds to the problem, largest first
 #: the slices' optima the local solve starts from (a start far behind the best stops early: _BEHIND)
-_STARTS = 3
+_STARTS = 2
 _KEEP = 0.6  # a row whose |X| / M falls below this leaves the problem
 _LOCATE = 2e-3  # a check-grid peak this close to its bound, or over it, is located between the grid's points
 #: a start whose ki is below this fraction of the best start's after three solves stops (an IAE: above its inverse)
@@ -201,7 +201,7 @@ class Search:
 
     def _near(self, c: PIDController, sign: float, above: float) -> dict[str, np.ndarray]:
         """Per bound, the design grid's frequencies at and beside each local maximum of its ``|X| / M`` above
-        ``above`` (a plateau's first point; the :data:`_PEAKS` largest)."""
+        ``above`` (a plateau's first point; the :data:`_PEAKS` largest) and its largest value's."""
         C, G = c.response(self.omega), sign * self.G
         out = {}
         for k in self.names:
@@ -211,6 +211,7 @@ class Search:
             peak[0], peak[-1] = r[0] >= r[1], r[-1] > r[-2]
             idx = np.flatnonzero(peak & (r > above))
             idx = idx[np.argsort(-r[idx])][:_PEAKS]  # the largest (a delay's ripples of |KS| would add hundreds)
+            idx = np.union1d(idx, [int(np.argmax(r))])  # and the largest of all (|KS| at the grid's end, say)
             out[k] = self.omega[np.unique(np.clip((idx[:, None] + np.arange(-1, 2)[None, :]).ravel(), 0, r.size - 1))]
         return out
 
@@ -252,8 +253,11 @@ class Search:
             sol = problem.solve(x0, self.method, box=region, warm=warm)
             iterations += sol.iterations
             ctrl = scales.controller(sol.x)
-            if sol.violation > _FEASIBLE:
-                break  # the solver ended off its own rows: no solution from this start
+            if sol.violation > _FEASIBLE:  # no gains in the region meet its rows: a wider region, up to eight
+                if reach >= 8.0:
+                    break
+                reach, warm = min(2.0 * reach, 8.0), None
+                continue
             if not self.stable(ctrl, sign):  # the step left the stable loops between the rows: a shorter one
                 reach /= 2.0
                 if reach < 1.0 / 16.0:
