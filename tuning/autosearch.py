@@ -244,25 +244,20 @@ class Search:
     def _exchange(self, scales: Scales, rows: _Rows, x0: np.ndarray, warm: Solution | None, sign: float,
                   objective: Any, iae_scale: float, refine_to: float, best: float | None, reach: float = 1.0) -> Found:
         t0 = time.perf_counter()
-        iterations, centre = 0, x0
+        walk = _Walk(x0, x0, reach, warm)
+        iterations = 0
         good: Found | None = None
         for k in range(_ROUNDS):
             problem = self.problem(rows.omega, self.plant.response(rows.omega), sign, scales, objective, iae_scale,
                                    rows.which)
-            region = _region(centre, reach)
-            sol = problem.solve(x0, self.method, box=region, warm=warm)
+            region = _region(walk.centre, walk.reach)
+            sol = problem.solve(walk.x0, self.method, box=region, warm=walk.warm)
             iterations += sol.iterations
             ctrl = scales.controller(sol.x)
-            if sol.violation > _FEASIBLE:  # no gains in the region meet its rows: a wider region, up to eight
-                if reach >= 8.0:
-                    break
-                reach, warm = min(2.0 * reach, 8.0), None
-                continue
-            if not self.stable(ctrl, sign):  # the step left the stable loops between the rows: a shorter one
-                reach /= 2.0
-                if reach < 1.0 / 16.0:
-                    break
-                warm = None
+            verdict = walk.judge(sol, self.stable(ctrl, sign) if sol.violation <= _FEASIBLE else False)
+            if verdict == "stop":
+                break
+            if verdict == "again":
                 continue
             peaks = self.worst(ctrl, sign)
             good = Found(problem, sol, ctrl, sign, refinements=k, ratio=max(p[0][0] for p in peaks.values()),
@@ -273,14 +268,10 @@ class Search:
                 break
             if best is not None and k >= 2 and _behind(_value(sol, ctrl, objective), best):
                 break  # far behind the best start's optimum after three solves: another basin, not worth refining
-            x0, warm = sol.x, sol
-            if rows.prune(ctrl, sign, self):  # rows far from their bounds now: out (their multipliers with them)
-                warm = None
+            pruned = rows.prune(ctrl, sign, self)  # rows far from their bounds now: out (their multipliers too)
             rows.add({name: np.array([w * f for _, w in p for f in (0.995, 1.0, 1.005)]) for name, p in over.items()})
             rows.add(self._near(ctrl, sign, 0.9))
-            if not any(over.values()):  # on the trust region's edge, every bound held: move the region there,
-                centre, warm, reach = sol.x, None, min(2.0 * reach, 8.0)  # twice as wide (its multipliers on the
-                # edge would hold the solver where it was)
+            walk.accepted(sol, moved=not any(over.values()), keep_multipliers=not pruned)
         if good is None:  # no stable solution from this start: its last, marked as failing
             good = Found(problem, sol, ctrl, sign, ratio=np.inf, rows=rows)
         good.iterations, good.seconds = iterations, time.perf_counter() - t0
@@ -349,6 +340,39 @@ class Search:
             f"{name} <= {self.bounds[name]:g} cannot be met with a {_form(self.filter_order)} on this plant: the least "
             f"largest {what} the search reached is {ratio * self.bounds[name]:.4g} (over by {ratio - 1:.1%}, at "
             f"{w:.4g} rad/s)" + (f"; there, {others}" if others else "") + ". Relax that bound, or tune the other form")
+
+
+@dataclass
+class _Walk:
+    """Where the exchange stands: its start point, the trust region's centre and reach, the warm start."""
+
+    x0: np.ndarray
+    centre: np.ndarray
+    reach: float
+    warm: Solution | None
+
+    def judge(self, sol: Solution, stable: bool) -> str:
+        """``"ok"``, or ``"again"`` with the region changed, or ``"stop"``: a solution off its own rows (no gains in
+        the region meet them) widens the region, up to eight times; one that left the stable loops between the rows
+        shortens it, down to a sixteenth."""
+        if sol.violation > _FEASIBLE:
+            if self.reach >= 8.0:
+                return "stop"
+            self.reach, self.warm = min(2.0 * self.reach, 8.0), None
+            return "again"
+        if not stable:
+            self.reach /= 2.0
+            self.warm = None
+            return "stop" if self.reach < 1.0 / 16.0 else "again"
+        return "ok"
+
+    def accepted(self, sol: Solution, moved: bool, keep_multipliers: bool) -> None:
+        """The next solve starts from ``sol`` (warm where its rows stayed); ``moved``: it held every bound on the
+        region's edge, so the region moves there, twice as wide (its multipliers on the edge would hold the solver
+        where it was)."""
+        self.x0, self.warm = sol.x, sol if keep_multipliers else None
+        if moved:
+            self.centre, self.warm, self.reach = sol.x, None, min(2.0 * self.reach, 8.0)
 
 
 class _Rows:
