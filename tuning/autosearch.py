@@ -32,7 +32,7 @@ from piezopreload.tuning.autotune_result import StartRecord, located_peaks, magn
 from piezopreload.tuning.lti import LinearPlant
 from piezopreload.tuning.pidform import PIDController
 from piezopreload.tuning.pidopt import PIDProblem, Scales, Solution
-from piezopreload.tuning.stabset import plane_of, stabilising_any, stabilising_starts, unstable_counts
+from piezopreload.tuning.stabset import RELAX, plane_of, stabilising_any, stabilising_starts, unstable_counts
 
 __all__ = ["Search", "Found", "TOLERANCE", "REFINE_TO", "FINISH_TO", "PER_DECADE"]
 
@@ -304,11 +304,14 @@ class Search:
         plant = self.plant
         seeds: list[tuple[str, PIDController]] = []
         sign = plant.sign
-        for s in [plant.sign] + ([-plant.sign] if plant.unstable_poles else []):
-            seeds = [(name, c) for name, c, _ in stabilising_any(self.plane(s, self.bounds), self.bounds,
-                                                                 self.Tf_min, self.hints)]
+        for factor in RELAX:  # each relaxation for either sign before the next
+            for s in [plant.sign] + ([-plant.sign] if plant.unstable_poles else []):
+                seeds = [(name, c) for name, c, _ in stabilising_any(self.plane(s, self.bounds), self.bounds,
+                                                                     self.Tf_min, self.hints, (factor,))]
+                if seeds:
+                    sign = s
+                    break
             if seeds:
-                sign = s
                 break
         if not seeds:
             raise InfeasibleError(f"no {_form(self.filter_order)} stabilises this plant within any bounds on the "
@@ -318,7 +321,7 @@ class Search:
         for _, c in seeds:
             scales = self.scales(c)
             problem = self.problem(self.omega, self.G, sign, scales)
-            least = problem.least_violation(scales.x(c))
+            least = problem.least_violation(scales.x(c), self.method)
             if self.stable(scales.controller(least.x), sign) and (best is None or least.violation < best[1].violation):
                 best = (problem, least)
         if best is None:

@@ -276,9 +276,11 @@ class PIDProblem:
 
     # ---- solving -------------------------------------------------------------------------------
     def _solver(self, name: str = "ipopt") -> Any:
-        if name == "sqp" and name not in self._solvers:
-            self._solvers[name] = ca.nlpsol("autotune_sqp", "sqpmethod", {
-                "x": self.x, "p": self.compiled.p, "f": self.f, "g": self.g}, {**SQP_OPTIONS,
+        if name in ("sqp", "least_violation_sqp") and name not in self._solvers:
+            t = type(self.x).sym("t")
+            nlp = ({"x": self.x, "p": self.compiled.p, "f": self.f, "g": self.g} if name == "sqp" else
+                   {"x": ca.vertcat(self.x, t), "p": self.compiled.p, "f": t, "g": self.g - t})
+            self._solvers[name] = ca.nlpsol(f"autotune_{name}", "sqpmethod", nlp, {**SQP_OPTIONS,
                 "max_iter": min(self.max_iterations, _SQP_ITERATIONS), "print_header": False,
                 "print_iteration": False, "print_status": False, "print_time": False, "error_on_fail": False})
         if name not in self._solvers:
@@ -358,11 +360,12 @@ class PIDProblem:
                        constraints=[constraint], options={"maxiter": self.max_iterations, "ftol": 1e-12})
         return np.asarray(res.x, float), str(res.message), int(res.nit)
 
-    def least_violation(self, x0: np.ndarray) -> Solution:
+    def least_violation(self, x0: np.ndarray, method: str = "ipopt") -> Solution:
         """The gains with the smallest worst bound ``max |X| / M`` on the grid (the phase one of an infeasible
-        problem): minimise ``t`` subject to every row ``<= t``."""
+        problem): minimise ``t`` subject to every row ``<= t``; by the SQP (``method="sqp"``) or IPOPT (any other:
+        SLSQP has no such problem of its own)."""
         lo, hi = self.scales.box()
-        solver = self._solver("least_violation")
+        solver = self._solver("least_violation_sqp" if method == "sqp" else "least_violation")
         x0 = np.clip(np.asarray(x0, float), lo, hi)
         t0 = time.perf_counter()
         g0 = float(np.max(np.asarray(self.fg(x0)[1], float), initial=0.0))

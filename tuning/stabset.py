@@ -38,7 +38,7 @@ import numpy as np
 from piezopreload.tuning.pidform import PIDController, controller_response
 
 __all__ = ["SliceOptimum", "Plane", "plane_of", "bound_discs", "line_gaps", "unstable_counts", "slice_optima",
-           "stabilising_starts", "stabilising_any"]
+           "stabilising_starts", "stabilising_any", "RELAX"]
 
 #: the proportional gains a slice searches: per decade; the PID slices' decades about the PI's (the PI's are
 #: relative to ``1/|G|`` at the reference frequency: four decades below, three above)
@@ -333,11 +333,16 @@ def stabilising_starts(plane: Plane, Tf_min: float = 0.0, keep: int = 3,
     return out
 
 
+#: the factors :func:`stabilising_any` relaxes the bounds by, in turn
+RELAX = (1.5, 2.0, 3.0, 5.0, 10.0, 100.0)
+
+
 def stabilising_any(plane: Plane, bounds: dict[str, float | None], Tf_min: float = 0.0,
-                    hints: tuple[float, ...] = ()) -> list[tuple[str, PIDController, SliceOptimum]]:
-    """Starts for the least-violation problem of bounds no controller meets: the bounds relaxed by factors from 1.5
-    to 100 until a slice has a stabilising line that meets them."""
-    for factor in (1.5, 2.0, 3.0, 5.0, 10.0, 100.0):
+                    hints: tuple[float, ...] = (),
+                    factors: tuple[float, ...] = RELAX) -> list[tuple[str, PIDController, SliceOptimum]]:
+    """Starts for the least-violation problem of bounds no controller meets: the bounds relaxed by ``factors`` in
+    turn until a slice has a stabilising line that meets them."""
+    for factor in factors:
         relaxed = {k: (None if m is None else m * factor) for k, m in bounds.items()}
         starts = stabilising_starts(replace(plane, discs=bound_discs(plane.G, relaxed), Mks=relaxed.get("Mks")),
                                     Tf_min, keep=2, hints=hints)
