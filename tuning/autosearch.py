@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from piezopreload.core.errors import InfeasibleError, InternalError
-from piezopreload.tuning.autotune_result import StartRecord, located_peaks, magnitudes
+from piezopreload.tuning.autotune_result import StartRecord, located, magnitudes
 from piezopreload.tuning.lti import LinearPlant
 from piezopreload.tuning.pidform import PIDController
 from piezopreload.tuning.pidopt import PIDProblem, Scales, Solution
@@ -52,7 +52,8 @@ _PEAKS = 4  # the peaks of each bound a round adds to the problem, largest first
 #: the slices' optima the local solve starts from (a start far behind the best stops early: _BEHIND)
 _STARTS = 2
 _KEEP = 0.6  # a row whose |X| / M falls below this leaves the problem
-_LOCATE = 2e-3  # a check-grid peak this close to its bound, or over it, is located between the grid's points
+_LOCATE = 2e-3  # a check-grid peak this close under its bound, or over it ...
+_LOCATE_OVER = 3e-2  # ... by up to this, is located between the grid's points
 #: a start whose ki is below this fraction of the best start's after three solves stops (an IAE: above its inverse)
 _BEHIND = 0.75
 
@@ -279,20 +280,30 @@ class Search:
 
     def worst(self, c: PIDController, sign: float) -> dict[str, list[tuple[float, float]]]:
         """Per bound, its largest ``|X| / M`` on the check grid and every other peak above 1 (at most
-        :data:`_PEAKS`, largest first), ``(|X| / M, w)``; a peak within :data:`_LOCATE` of the bound or over it
-        located between its grid points (successive parabolas), the rest as the grid has them (ten times the design
-        grid's density: a peak's top is within a small fraction of it)."""
+        :data:`_PEAKS`, largest first), ``(|X| / M, w)``; a peak from :data:`_LOCATE` under the bound to
+        :data:`_LOCATE_OVER` over it located between its grid points (successive parabolas, every bound's at once),
+        the rest as the grid has them (ten times the design grid's density: a peak's top is within a small fraction
+        of it; one far over its bound joins the problem as it is)."""
         C = c.response(self.check)
-        out = {}
+        picked: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         for name in self.names:
             r = magnitudes(name, C, sign * self.G_check) / self.bounds[name]
             inner = np.flatnonzero((r[1:-1] >= r[:-2]) & (r[1:-1] >= r[2:]) & (r[1:-1] > 1.0)) + 1
             idx = np.union1d(inner, [int(np.argmax(r))]).astype(int)
             idx = idx[np.argsort(-r[idx])][:_PEAKS]  # the largest first; the rest in later rounds
-            near = r[idx] > 1.0 - _LOCATE
-            found = located_peaks(self.plant, c, name, self.check, idx[near], sign) if near.any() else []
-            found = [(v / self.bounds[name], w) for v, w in found]
-            out[name] = sorted(found + [(float(r[i]), float(self.check[i])) for i in idx[~near]], reverse=True)
+            picked[name] = (idx, r[idx])
+        near = {k: (r > 1.0 - _LOCATE) & (r < 1.0 + _LOCATE_OVER) for k, (_, r) in picked.items()}
+        idx = np.concatenate([picked[k][0][near[k]] for k in self.names])
+        names = np.concatenate([np.full(int(near[k].sum()), k, dtype=object) for k in self.names])
+        values, where = located(self.plant, c, names, self.check, idx, sign) if idx.size else (idx, idx)
+        out = {}
+        for name in self.names:
+            mine = names == name
+            found = [(float(v) / self.bounds[name], float(w)) for v, w in zip(values[mine], where[mine])]
+            i, r = picked[name]
+            out[name] = sorted(found + [(float(x), float(self.check[j])) for j, x in zip(i[~near[name]],
+                                                                                          r[~near[name]])],
+                               reverse=True)
         return out
 
     # ---- no start ------------------------------------------------------------------------------------

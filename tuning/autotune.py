@@ -49,14 +49,13 @@ import numpy as np
 
 from piezopreload.artifacts.tuning import ActiveBound
 from piezopreload.core.errors import InfeasibleError, InputError
-from piezopreload.tuning.autosearch import PER_DECADE, TOLERANCE, Found, Search, design_grid
+from piezopreload.tuning.autosearch import TOLERANCE, Found, Search, design_grid
 from piezopreload.tuning.autotune_result import LOOPS, AutotuneResult, achieved, margins_of
 from piezopreload.tuning.loadstep import iae_function, load_response
 from piezopreload.tuning.lti import LinearPlant, as_plant, nyquist_unstable
 from piezopreload.tuning.pidform import PIDController
 from piezopreload.tuning.pidopt import METHODS, TF_RANGE, X_MAX, Scales
 from piezopreload.tuning.plantfit import FittedPlant
-from piezopreload.tuning.starts import reference_frequency
 
 __all__ = ["autotune", "default_mks", "METRICS", "FORMS", "SOLVERS", "LOOPS", "TOLERANCE", "TF_FLOOR_PER_TS"]
 
@@ -297,9 +296,10 @@ def _iae(P: LinearPlant, design: LinearPlant, search: Search, found: Found, spec
 
 def _iae_setup(plant: LinearPlant, design: LinearPlant, ctrl: PIDController, spec: _Spec) -> tuple[LinearPlant, int]:
     """The plant the load step is simulated on and the samples: ``Ts`` (the given one, or a fiftieth of the IE
-    optimum's crossover period) over ``horizon_s`` (default: eight times the longer of that period and ``Ti``)."""
+    optimum's crossover period; a loop without one: of the plant's middle frequency's) over ``horizon_s`` (default:
+    eight times the longer of that period and ``Ti``)."""
     mg = margins_of(design, ctrl)
-    wc = mg.crossover_rad_per_s or reference_frequency(design, design.grid(PER_DECADE))
+    wc = mg.crossover_rad_per_s or float(np.exp(np.mean(np.log(design.characteristic_frequencies()))))
     horizon = spec.horizon_s or 8.0 * max(2 * np.pi / wc, abs(ctrl.kp / ctrl.ki))
     Ts = spec.Ts or min(2 * np.pi / wc / 50.0, horizon / 500.0)
     n = int(np.ceil(horizon / Ts))

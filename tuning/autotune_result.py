@@ -30,8 +30,8 @@ from piezopreload.core.errors import InputError
 from piezopreload.tuning.lti import LinearPlant
 from piezopreload.tuning.pidform import PIDController
 
-__all__ = ["AutotuneResult", "Margins", "StartRecord", "LOOPS", "sensitivity_peaks", "located_peaks", "magnitudes",
-           "margins_of", "achieved"]
+__all__ = ["AutotuneResult", "Margins", "StartRecord", "LOOPS", "sensitivity_peaks", "located_peaks", "located",
+           "magnitudes", "margins_of", "achieved"]
 
 _NAMES = {"Ms": "|S|", "Mt": "|T|", "Mks": "|KS|"}
 #: how far (relative) a bound may be exceeded (the autotuner's tolerance)
@@ -45,24 +45,28 @@ def magnitudes(name: str, C: np.ndarray, G: np.ndarray) -> np.ndarray:
     return num / np.abs(1 + L)
 
 
-def located_peaks(plant: LinearPlant, controller: PIDController, name: str, omega: np.ndarray, idx: np.ndarray,
-                  sign: float = 1.0, steps: int = 8) -> list[tuple[float, float]]:
-    """The peaks of ``name`` at the grid points ``idx``, each located between its neighbours by bracketed parabolic
-    interpolation in ``log w`` (the bracket's three points' parabola, its vertex kept at least a tenth of the larger
-    side from the middle point so the bracket always shrinks: ``steps`` steps, all peaks at once), ``(value, w)``
-    largest first; a measured response's, and a grid end's, are the grid's own. ``sign`` multiplies the plant."""
-    idx = np.asarray(idx, int)
+def located(plant: LinearPlant, controller: PIDController, names: np.ndarray, omega: np.ndarray, idx: np.ndarray,
+            sign: float = 1.0, steps: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """The peaks of ``names[i]`` (``Ms``, ``Mt`` or ``Mks``: ``|S|``, ``|T|``, ``|KS|``) at the grid points
+    ``idx[i]``, each located between its neighbours by bracketed parabolic interpolation in ``log w`` (the
+    bracket's three points' parabola, its vertex kept at least a tenth of the larger side from the middle point so
+    the bracket always shrinks: ``steps`` steps, all peaks at once): values and frequencies in the order given; a
+    measured response's, and a grid end's, are the grid's own. ``sign`` multiplies the plant."""
+    idx, names = np.asarray(idx, int), np.asarray(names, dtype=object)
 
-    def at(x: np.ndarray) -> np.ndarray:
+    def at(x: np.ndarray, which: np.ndarray) -> np.ndarray:
         w = np.exp(x)
-        return magnitudes(name, controller.response(w), sign * plant.response(w))
+        C = controller.response(w)
+        L = C * sign * plant.response(w)
+        num = np.where(which == "Ms", 1.0, np.where(which == "Mt", np.abs(L), np.abs(C)))
+        return num / np.abs(1 + L)
 
-    values, where = at(np.log(omega[idx])), omega[idx].copy()
+    values, where = at(np.log(omega[idx]), names), omega[idx].copy()
     inner = (idx > 0) & (idx < omega.size - 1)
     if plant.rational and np.any(inner):
-        k = idx[inner]
+        k, which = idx[inner], names[inner]
         a, b, c = np.log(omega[k - 1]), np.log(omega[k]), np.log(omega[k + 1])
-        fa, fb, fc = at(a), values[inner], at(c)
+        fa, fb, fc = at(a, which), values[inner], at(c, which)
         for _ in range(steps):
             num = (b - a) ** 2 * (fb - fc) - (b - c) ** 2 * (fb - fa)
             den = (b - a) * (fb - fc) - (b - c) * (fb - fa)
@@ -74,7 +78,7 @@ def located_peaks(plant: LinearPlant, controller: PIDController, name: str, omeg
             x = np.clip(x, np.where(right, lo_x, a), np.where(right, c, hi_x))
             x = np.where(np.abs(x - b) < 0.1 * np.maximum(c - b, b - a), np.where(right, b + 0.1 * (c - b),
                                                                                   b - 0.1 * (b - a)), x)
-            fx = at(x)
+            fx = at(x, which)
             up = fx > fb
             left = x < b
             # the new bracket: (a, x, b) or (x, b, c) when x < b; (b, x, c) or (a, b, x) when x > b
@@ -85,6 +89,13 @@ def located_peaks(plant: LinearPlant, controller: PIDController, name: str, omeg
             b, fb = np.where(up, x, b), np.where(up, fx, fb)
             a, fa, c, fc = na, nfa, nc, nfc
         values[inner], where[inner] = fb, np.exp(b)
+    return values, where
+
+
+def located_peaks(plant: LinearPlant, controller: PIDController, name: str, omega: np.ndarray, idx: np.ndarray,
+                  sign: float = 1.0, steps: int = 8) -> list[tuple[float, float]]:
+    """:func:`located` for one bound's peaks, ``(value, w)`` largest first."""
+    values, where = located(plant, controller, np.full(np.size(idx), name, dtype=object), omega, idx, sign, steps)
     return sorted(zip(values.tolist(), where.tolist()), reverse=True)
 
 

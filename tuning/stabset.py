@@ -303,26 +303,18 @@ def _pid_slices(plane: Plane, pi: SliceOptimum | None, w_ref: float, kp_ref: flo
     return rows
 
 
-def stabilising_starts(plane: Plane, Tf_min: float = 0.0, keep: int = 3,
-                       hints: tuple[float, ...] = ()) -> list[tuple[str, PIDController, SliceOptimum]]:
-    """Starts ``(name, controller, slice)``, best first: for a PI its slice's optimum; for a PID the best slice of
-    each row of :func:`_pid_slices` (each a regime of its own, so the local solves start in each basin), then the
-    PI's, at most ``keep`` distinct ones. The PI slice about each reference of :func:`_references` (the best kept),
-    the PID's about the PI's optimum, or, where no PI stabilises, about each reference. Empty where no slice has a
-    stabilising line that meets the bounds on the grid."""
-    refs = _references(plane.omega, plane.G, hints)
-    pis = [(ref, slice_optima(plane, np.zeros(1), np.zeros(1), ref[1], ref[0])[0]) for ref in refs]
-    live = [(ref, pi) for ref, pi in pis if pi is not None]
-    pi = max(live, key=lambda rp: rp[1].ki)[1] if live else None
-    found: list[tuple[str, SliceOptimum]] = []
-    if plane.filter_order > 0:
-        for w_ref, kp_ref in ([max(live, key=lambda rp: rp[1].ki)[0]] if live else refs):
-            for row in _pid_slices(plane, pi, w_ref, kp_ref, Tf_min):
-                if row:
-                    found.append(max(row, key=lambda nf: nf[1].ki))
-        found.sort(key=lambda nf: -nf[1].ki)
-    if pi is not None:
-        found.append(("PI slice", pi))
+def _pi_slice(plane: Plane, refs: list[tuple[float, float]]) -> tuple[tuple[float, float], SliceOptimum] | None:
+    """The PI slice's optimum about the first reference; about the next only where it finds none."""
+    for ref in refs:
+        pi = slice_optima(plane, np.zeros(1), np.zeros(1), ref[1], ref[0])[0]
+        if pi is not None:
+            return ref, pi
+    return None
+
+
+def _distinct(found: list[tuple[str, SliceOptimum]], plane: Plane,
+              keep: int) -> list[tuple[str, PIDController, SliceOptimum]]:
+    """The first ``keep`` of ``found`` more than 10 % apart from those before in ``kp``, ``kd`` or ``Tf``."""
     out: list[tuple[str, PIDController, SliceOptimum]] = []
     for name, opt in found:
         if all(abs(np.log(opt.kp / o.kp)) > 0.1 or abs(np.log((opt.kd + 1e-300) / (o.kd + 1e-300))) > 0.1
@@ -331,6 +323,28 @@ def stabilising_starts(plane: Plane, Tf_min: float = 0.0, keep: int = 3,
         if len(out) == keep:
             break
     return out
+
+
+def stabilising_starts(plane: Plane, Tf_min: float = 0.0, keep: int = 3,
+                       hints: tuple[float, ...] = ()) -> list[tuple[str, PIDController, SliceOptimum]]:
+    """Starts ``(name, controller, slice)``, best first: for a PI its slice's optimum; for a PID the best slice of
+    each row of :func:`_pid_slices` (each a regime of its own, so the local solves start in each basin), then the
+    PI's, at most ``keep`` distinct ones. The PI slice about the first reference of :func:`_references` (about the
+    next where it finds none), the PID's about the PI's optimum, or, where no PI stabilises, about each reference.
+    Empty where no slice has a stabilising line that meets the bounds on the grid."""
+    refs = _references(plane.omega, plane.G, hints)
+    got = _pi_slice(plane, refs)
+    pi = None if got is None else got[1]
+    found: list[tuple[str, SliceOptimum]] = []
+    if plane.filter_order > 0:
+        for w_ref, kp_ref in ([got[0]] if got is not None else refs):
+            for row in _pid_slices(plane, pi, w_ref, kp_ref, Tf_min):
+                if row:
+                    found.append(max(row, key=lambda nf: nf[1].ki))
+        found.sort(key=lambda nf: -nf[1].ki)
+    if pi is not None:
+        found.append(("PI slice", pi))
+    return _distinct(found, plane, keep)
 
 
 #: the factors :func:`stabilising_any` relaxes the bounds by, in turn
