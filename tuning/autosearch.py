@@ -295,7 +295,7 @@ class Search:
         near = {k: (r > 1.0 - _LOCATE) & (r < 1.0 + _LOCATE_OVER) for k, (_, r) in picked.items()}
         idx = np.concatenate([picked[k][0][near[k]] for k in self.names])
         names = np.concatenate([np.full(int(near[k].sum()), k, dtype=object) for k in self.names])
-        values, where = located(self.plant, c, names, self.check, idx, sign) if idx.size else (idx, idx)
+        values, where = located(self.plant, c, names, self.check, idx, sign, steps=5) if idx.size else (idx, idx)
         out = {}
         for name in self.names:
             mine = names == name

@@ -318,29 +318,34 @@ class PIDProblem:
             lo, hi = np.maximum(lo, box[0]), np.minimum(hi, box[1])
         x0 = np.clip(np.asarray(x0, float), lo, hi)
         t0 = time.perf_counter()
+        lam: tuple[Any, Any] = (None, None)
         if method in ("slsqp", "slsqp-fd"):
             x, status, iterations = self._slsqp(x0, lo, hi, exact=method == "slsqp")
+            f, worst = self.evaluate(np.clip(x, lo, hi))
         elif method in ("ipopt", "sqp"):
-            x, status, iterations, lam = self._casadi(method, x0, lo, hi, warm)
-            if method == "sqp" and (status not in _SQP_DONE or self.evaluate(np.clip(x, lo, hi))[1] > 1e-6):
-                x, status2, more, lam = self._casadi("ipopt", x0, lo, hi, warm)  # the SQP stalled: IPOPT from x0
+            x, status, iterations, lam, (f, worst) = self._casadi(method, x0, lo, hi, warm)
+            if method == "sqp" and (status not in _SQP_DONE or worst > 1e-6):
+                x, status2, more, lam, (f, worst) = self._casadi("ipopt", x0, lo, hi, warm)  # the SQP stalled: IPOPT
                 status, iterations = f"{status}; ipopt: {status2}", iterations + more
         else:
             raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-        x = np.clip(x, lo, hi)
-        f, worst = self.evaluate(x)
-        return Solution(x, f, worst, status, iterations, time.perf_counter() - t0,
-                        *(lam if method in ("ipopt", "sqp") else (None, None)))
+        return Solution(np.clip(x, lo, hi), f, worst, status, iterations, time.perf_counter() - t0, *lam)
 
     def _casadi(self, method: str, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                warm: Solution | None) -> tuple[np.ndarray, str, int, tuple[np.ndarray, np.ndarray]]:
+                warm: Solution | None) -> tuple[np.ndarray, str, int, tuple[np.ndarray, np.ndarray],
+                                                tuple[float, float]]:
+        """The solve, its status and iterations, its multipliers and ``(objective, worst |X| / M - 1)`` from the
+        solver's own values (no second evaluation)."""
         use_warm = warm is not None and warm.lam_g is not None
         solver = self._solver(method if method == "sqp" or not use_warm else "ipopt_warm")
         extra = {"lam_g0": self._multipliers(warm), "lam_x0": warm.lam_x} if use_warm else {}
         sol = solver(x0=x0, p=self.data, lbx=lo, ubx=hi, lbg=-np.inf, ubg=self.ubg, **extra)
         stats = solver.stats()
+        g = np.asarray(sol["g"], float).ravel()[:self.omega.size]
+        worst = float(np.sqrt(max(1.0 + np.max(g, initial=-1.0), 0.0)) - 1.0)
         return (np.asarray(sol["x"], float).ravel(), str(stats.get("return_status")), int(stats.get("iter_count", 0)),
-                (np.asarray(sol["lam_g"], float).ravel(), np.asarray(sol["lam_x"], float).ravel()))
+                (np.asarray(sol["lam_g"], float).ravel(), np.asarray(sol["lam_x"], float).ravel()),
+                (float(sol["f"]), worst))
 
     def _slsqp(self, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, exact: bool) -> tuple[np.ndarray, str, int]:
         def fun(x: np.ndarray) -> float:
