@@ -160,7 +160,7 @@ class Search:
         plant = self.plant
         for sign in [plant.sign] + ([-plant.sign] if plant.unstable_poles else []):
             plane = self.plane(sign, self.bounds)
-            found = stabilising_starts(plane, self.Tf_min, keep=_STARTS, hints=self.hints)
+            found = stabilising_starts(plane, self.Tf_min, keep=_STARTS + 2, hints=self.hints)
             if found:
                 return sign, [(name, c) for name, c, _ in found]
         return plant.sign, []
@@ -169,31 +169,47 @@ class Search:
     def run(self, objective: Any = "IE", iae_scale: float = 1.0,
             seeds: list[tuple[str, PIDController]] | None = None, sign: float | None = None) -> Found:
         """The search (see the module docstring); ``seeds`` and ``sign``: starts given (the IAE's, from the IE
-        optimum) instead of the slices."""
+        optimum) instead of the slices. Where none of the first :data:`_STARTS` starts ends on gains that meet the
+        bounds with a stable loop, the other slices' starts are tried, then those from relaxed bounds."""
+        spare: list[tuple[str, PIDController]] = []
+        sliced = seeds is None
         if seeds is None:
             sign, seeds = self.starts()
+            seeds, spare = seeds[:_STARTS], seeds[_STARTS:]
             if not seeds:
+                sliced = False
                 sign, seeds = self.least()
         sign = self.plant.sign if sign is None else sign
         records: list[StartRecord] = []
-        best: tuple[float, Found] | None = None
-        for name, c in seeds:
-            found = self.local(c, sign, objective, iae_scale, None if best is None else best[0])
-            ctrl, sol = found.controller, found.solution
-            ok = found.ratio <= 1.0 + TOLERANCE and self.stable(ctrl, sign)
-            value = _value(sol, ctrl, objective)
-            records.append(StartRecord(name, *ctrl.scaled(sign).parallel(), objective=value,
-                                       violation=self.over(ctrl, sign), stable=self.stable(ctrl, sign),
-                                       status=sol.status, iterations=found.iterations, seconds=found.seconds))
-            if ok and (best is None or value < best[0]):
-                best = (value, found)
+        best = self._try(seeds, sign, objective, iae_scale, records)
+        if best is None and spare:
+            best = self._try(spare, sign, objective, iae_scale, records)
+        if best is None and sliced:  # the slices' starts all failed: from relaxed bounds
+            sign, more = self.least()
+            best = self._try(more, sign, objective, iae_scale, records)
         if best is None:
-            raise InternalError(f"none of the {len(seeds)} starts ended on gains that meet the bounds on the check "
+            raise InternalError(f"none of the {len(records)} starts ended on gains that meet the bounds on the check "
                                 "grid with a stable loop; give a finer grid (w)")
         found = self.finish(best[1], objective, iae_scale)
         found.records, found.iterations = records, sum(r.iterations for r in records) + found.iterations - \
             best[1].iterations
         return found
+
+    def _try(self, seeds: list[tuple[str, PIDController]], sign: float, objective: Any, iae_scale: float,
+             records: list[StartRecord]) -> tuple[float, Found] | None:
+        """The local solve from each seed, each recorded; the best that meets the bounds with a stable loop."""
+        best: tuple[float, Found] | None = None
+        for name, c in seeds:
+            found = self.local(c, sign, objective, iae_scale, None if best is None else best[0])
+            ctrl, sol = found.controller, found.solution
+            stable = self.stable(ctrl, sign)
+            value = _value(sol, ctrl, objective)
+            records.append(StartRecord(name, *ctrl.scaled(sign).parallel(), objective=value,
+                                       violation=self.over(ctrl, sign), stable=stable, status=sol.status,
+                                       iterations=found.iterations, seconds=found.seconds))
+            if found.ratio <= 1.0 + TOLERANCE and stable and (best is None or value < best[0]):
+                best = (value, found)
+        return best
 
     def over(self, c: PIDController, sign: float) -> float:
         """The worst bound's ``|X| / M - 1`` on the check grid (its grid points)."""
@@ -267,6 +283,8 @@ class Search:
             edge = _on_edge(sol.x, region, scales.box())
             if not any(over.values()) and not edge:
                 break
+            if best is not None and not edge and _value(sol, ctrl, objective) >= best:
+                break  # behind the best start inside its region: more rows only lower its ki, it cannot win
             if best is not None and k >= 2 and _behind(_value(sol, ctrl, objective), best):
                 break  # far behind the best start's optimum after three solves: another basin, not worth refining
             pruned = rows.prune(ctrl, sign, self)  # rows far from their bounds now: out (their multipliers too)
@@ -295,7 +313,7 @@ class Search:
         near = {k: (r > 1.0 - _LOCATE) & (r < 1.0 + _LOCATE_OVER) for k, (_, r) in picked.items()}
         idx = np.concatenate([picked[k][0][near[k]] for k in self.names])
         names = np.concatenate([np.full(int(near[k].sum()), k, dtype=object) for k in self.names])
-        values, where = located(self.plant, c, names, self.check, idx, sign, steps=5) if idx.size else (idx, idx)
+        values, where = located(self.plant, c, names, self.check, idx, sign, steps=3) if idx.size else (idx, idx)
         out = {}
         for name in self.names:
             mine = names == name
