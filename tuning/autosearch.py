@@ -1,22 +1,25 @@
-"""The autotuner's search on a plant's grid: analytic starts, a local solve, a refinement until the bounds hold.
+"""The autotuner's search on a plant's grid: analytic starts, a local solve by exchange, a refinement of the best.
 
 :class:`Search` holds what every step shares, computed once: the design grid and the plant's response on it, the
-check grid (ten times denser and a decade wider) and the response there, the low frequencies the Nyquist count
-runs on. :meth:`Search.run`:
+check grid (ten times denser and a decade wider) and the response there, the grid the Nyquist count runs on (eight
+decades below the design grid, where an integrating loop reaches its asymptote; a measured response's every
+point). :meth:`Search.run`:
 
 1. the starts: the best slices of the stabilising set in the ``(kp, ki)`` plane cut by the bounds
    (:func:`~piezopreload.tuning.stabset.stabilising_starts`), for the plant's sign (an unstable plant's: the
    sign whose slices stabilise);
-2. from each, the local solve on the design grid (:class:`~piezopreload.tuning.pidopt.PIDProblem`, an SQP with
-   exact derivatives); a solution counts where it meets every bound on the grid and the loop is stable (the
-   Nyquist criterion on the count grid);
-3. from the best: the bounds on the check grid, each peak above its bound located by successive parabolas;
-   those frequencies join the grid (in the problem's spare slots) and the problem is solved again, warm (the last
-   solution and its multipliers), until every bound holds on the check grid within :data:`REFINE_TO`; where that
-   fails, the next solution is refined;
-4. no start: the bounds relaxed until a slice stabilises, the least worst bound any gains reach from there
-   (:meth:`~piezopreload.tuning.pidopt.PIDProblem.least_violation`), and an
-   :class:`~piezopreload.core.errors.InfeasibleError` that names the bound and that least value.
+2. from each of the first :data:`_STARTS`, the local solve by exchange (:meth:`Search.local`): the SQP with exact
+   derivatives (:class:`~piezopreload.tuning.pidopt.PIDProblem`) on the rows (frequency, bound) near each bound's
+   peaks, in a trust region; after each solve the peaks over a bound on the check grid (located by successive
+   parabolas) join the rows and it is solved again, warm, until every bound holds there within
+   :data:`REFINE_TO`; a step to an unstable loop (the Nyquist criterion on the count grid) shortens the region,
+   one on its edge that holds every bound moves it and widens it. A start behind the best inside its region stops
+   (more rows only lower its integral gain);
+3. the best start's solution refined the same way until every bound holds within :data:`FINISH_TO`;
+4. where no start ends on gains that meet the bounds with a stable loop: the other slices' starts, then the bounds
+   relaxed until a slice stabilises and from there the least worst bound any gains reach
+   (:meth:`~piezopreload.tuning.pidopt.PIDProblem.least_violation`): gains that meet every bound are a start, else
+   an :class:`~piezopreload.core.errors.InfeasibleError` names the bound and that least value.
 """
 
 from __future__ import annotations

@@ -103,16 +103,19 @@ def sensitivity_peaks(plant: LinearPlant, controller: PIDController, omega: np.n
                       names: tuple[str, ...] = ("Ms", "Mt", "Mks"),
                       most: int = 3) -> dict[str, list[tuple[float, float]]]:
     """Per name (``Ms``: ``|S|``, ``Mt``: ``|T|``, ``Mks``: ``|KS|``) the ``most`` largest local peaks ``(value,
-    frequency)`` on ``omega``, each located between its neighbours (:func:`located_peaks`), largest first."""
+    frequency)`` on ``omega``, each located between its neighbours (:func:`located`, every name's at once), largest
+    first."""
     G, C = plant.response(omega), controller.response(omega)
-    out = {}
+    picked = []
     for name in names:
         r = magnitudes(name, C, G)
         inner = np.flatnonzero((r[1:-1] >= r[:-2]) & (r[1:-1] >= r[2:])) + 1
-        idx = np.union1d(inner, [int(np.argmax(r))])
-        idx = idx[np.argsort(-r[idx])][:most]
-        out[name] = located_peaks(plant, controller, name, omega, idx, steps=12)
-    return out
+        idx = np.union1d(inner, [int(np.argmax(r))]).astype(int)
+        picked.append(idx[np.argsort(-r[idx])][:most])
+    which = np.concatenate([np.full(i.size, n, dtype=object) for n, i in zip(names, picked)])
+    values, where = located(plant, controller, which, omega, np.concatenate(picked), steps=10)
+    return {name: sorted(zip(values[which == name].tolist(), where[which == name].tolist()), reverse=True)
+            for name in names}
 
 
 def achieved(plant: LinearPlant, controller: PIDController, omega: np.ndarray) -> dict[str, tuple[float, float]]:
