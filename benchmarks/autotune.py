@@ -259,12 +259,12 @@ def grid(case: Case, per_decade: int, cluster: int) -> np.ndarray:
     if case.measured:
         return np.asarray(case.G.omega, float)
     lo, hi = _span(case)
-    w = [np.logspace(np.log10(lo), np.log10(hi), int(per_decade * np.log10(hi / lo)) + 1)]
+    parts = [np.logspace(np.log10(lo), np.log10(hi), int(per_decade * np.log10(hi / lo)) + 1)]
     for r in _roots(case):
         wn, zeta = abs(r), -r.real / abs(r)
         if r.imag > 0 and abs(zeta) < 0.3:
-            w.append(np.linspace(wn * (1 - 10 * abs(zeta)), wn * (1 + 10 * abs(zeta)), cluster))
-    w = np.unique(np.concatenate(w))
+            parts.append(np.linspace(wn * (1 - 10 * abs(zeta)), wn * (1 + 10 * abs(zeta)), cluster))
+    w = np.unique(np.concatenate(parts))
     return w[(w >= lo) & (w <= hi)]
 
 
@@ -499,7 +499,7 @@ def reference(case: Case, rng: np.random.Generator) -> dict[str, Any]:
     # confirmed stable by python-control's poles
     order = sorted(np.flatnonzero(stable_all), key=lambda i: (worst_all[i] > 1.0, worst_all[i] if worst_all[i] > 1.0
                                                               else -cand[i, 1]))
-    starts = []
+    starts: list[np.ndarray] = []
     for i in order:
         if len(starts) == REF_STARTS:
             break
