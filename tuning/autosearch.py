@@ -279,7 +279,7 @@ class Search:
                 break
             if verdict == "again":
                 continue
-            peaks = self.worst(ctrl, sign)
+            peaks = self.worst(ctrl, sign, fine=refine_to <= FINISH_TO)
             good = Found(problem, sol, ctrl, sign, refinements=k, ratio=max(p[0][0] for p in peaks.values()),
                          rows=rows)
             over = {name: [q for q in p if q[0] > 1.0 + refine_to] for name, p in peaks.items()}
@@ -299,16 +299,19 @@ class Search:
         good.iterations, good.seconds = iterations, time.perf_counter() - t0
         return good
 
-    def worst(self, c: PIDController, sign: float) -> dict[str, list[tuple[float, float]]]:
+    def worst(self, c: PIDController, sign: float, fine: bool = True) -> dict[str, list[tuple[float, float]]]:
         """Per bound, its largest ``|X| / M`` on the check grid and every other peak above 1 (at most
         :data:`_PEAKS`, largest first), ``(|X| / M, w)``; a peak from :data:`_LOCATE` under the bound to
         :data:`_LOCATE_OVER` over it located between its grid points (successive parabolas, every bound's at once),
         the rest as the grid has them (ten times the design grid's density: a peak's top is within a small fraction
-        of it; one far over its bound joins the problem as it is)."""
-        C = c.response(self.check)
+        of it; one far over its bound joins the problem as it is). ``fine=False``: every other point of the check
+        grid (five times the design grid's density: the starts' refinement to :data:`REFINE_TO`; the best's is on
+        the whole)."""
+        check, G_check = (self.check, self.G_check) if fine else (self.check[::2], self.G_check[::2])
+        C = c.response(check)
         picked: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         for name in self.names:
-            r = magnitudes(name, C, sign * self.G_check) / self.bounds[name]
+            r = magnitudes(name, C, sign * G_check) / self.bounds[name]
             inner = np.flatnonzero((r[1:-1] >= r[:-2]) & (r[1:-1] >= r[2:]) & (r[1:-1] > 1.0)) + 1
             idx = np.union1d(inner, [int(np.argmax(r))]).astype(int)
             idx = idx[np.argsort(-r[idx])][:_PEAKS]  # the largest first; the rest in later rounds
@@ -316,13 +319,13 @@ class Search:
         near = {k: (r > 1.0 - _LOCATE) & (r < 1.0 + _LOCATE_OVER) for k, (_, r) in picked.items()}
         idx = np.concatenate([picked[k][0][near[k]] for k in self.names])
         names = np.concatenate([np.full(int(near[k].sum()), k, dtype=object) for k in self.names])
-        values, where = located(self.plant, c, names, self.check, idx, sign, steps=3) if idx.size else (idx, idx)
+        values, where = located(self.plant, c, names, check, idx, sign, steps=3) if idx.size else (idx, idx)
         out = {}
         for name in self.names:
             mine = names == name
             found = [(float(v) / self.bounds[name], float(w)) for v, w in zip(values[mine], where[mine])]
             i, r = picked[name]
-            out[name] = sorted(found + [(float(x), float(self.check[j])) for j, x in zip(i[~near[name]],
+            out[name] = sorted(found + [(float(x), float(check[j])) for j, x in zip(i[~near[name]],
                                                                                           r[~near[name]])],
                                reverse=True)
         return out

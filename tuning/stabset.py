@@ -295,12 +295,11 @@ def _pid_slices(plane: Plane, pi: SliceOptimum | None, w_ref: float, kp_ref: flo
                                                                   [0.5 * plane.Mks])
     else:
         gains.append(25.0 * k1)
-    rows = []
-    for c in ((0.07, 0.2, 2.0) if pi is not None else (0.1, 0.5, 2.0)):
-        Tf = max(c * t1, Tf_min)
-        opts = slice_optima(plane, np.array(gains) * Tf, np.full(len(gains), Tf), k1, 1.0 / t1, kp_decades=_PID_KP)
-        rows.append([(f"slice kd {o.kd:.3g}, Tf {o.Tf:.3g} s", o) for o in opts if o is not None])
-    return rows
+    times = np.maximum(np.array((0.07, 0.2, 2.0) if pi is not None else (0.1, 0.5, 2.0)) * t1, Tf_min)
+    Tf = np.repeat(times, len(gains))  # every slice in one batch, row by row
+    opts = slice_optima(plane, np.tile(gains, times.size) * Tf, Tf, k1, 1.0 / t1, kp_decades=_PID_KP)
+    return [[(f"slice kd {o.kd:.3g}, Tf {o.Tf:.3g} s", o) for o in opts[r * len(gains):(r + 1) * len(gains)]
+             if o is not None] for r in range(times.size)]
 
 
 def _pi_slice(plane: Plane, refs: list[tuple[float, float]]) -> tuple[tuple[float, float], SliceOptimum] | None:
