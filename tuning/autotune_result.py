@@ -44,8 +44,9 @@ _TOLERANCE = 0.005
 def magnitudes(name: str, C: np.ndarray, G: np.ndarray) -> np.ndarray:
     """``|S|`` (``Ms``), ``|T|`` (``Mt``) or ``|KS|`` (``Mks``) of the responses ``C`` and ``G``."""
     L = C * G
-    num = {"Ms": np.ones_like(L.real), "Mt": np.abs(L), "Mks": np.abs(C)}[name]
-    return num / np.abs(1 + L)
+    if name == "Ms":
+        return 1.0 / np.abs(1 + L)
+    return np.abs(L if name == "Mt" else C) / np.abs(1 + L)
 
 
 def located(plant: LinearPlant, controller: PIDController, names: np.ndarray, omega: np.ndarray, idx: np.ndarray,
@@ -56,18 +57,19 @@ def located(plant: LinearPlant, controller: PIDController, names: np.ndarray, om
     the bracket always shrinks: ``steps`` steps, all peaks at once): values and frequencies in the order given; a
     measured response's, and a grid end's, are the grid's own. ``sign`` multiplies the plant."""
     idx, names = np.asarray(idx, int), np.asarray(names, dtype=object)
+    kinds = (names == "Ms", names == "Mt")  # |S|, |T|, else |KS|: compared once, not at every step
 
-    def at(x: np.ndarray, which: np.ndarray) -> np.ndarray:
+    def at(x: np.ndarray, which: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
         w = np.exp(x)
         C = controller.response(w)
         L = C * sign * plant.response(w)
-        num = np.where(which == "Ms", 1.0, np.where(which == "Mt", np.abs(L), np.abs(C)))
+        num = np.where(which[0], 1.0, np.where(which[1], np.abs(L), np.abs(C)))
         return num / np.abs(1 + L)
 
-    values, where = at(np.log(omega[idx]), names), omega[idx].copy()
+    values, where = at(np.log(omega[idx]), kinds), omega[idx].copy()
     inner = (idx > 0) & (idx < omega.size - 1)
     if plant.rational and np.any(inner):
-        k, which = idx[inner], names[inner]
+        k, which = idx[inner], (kinds[0][inner], kinds[1][inner])
         a, b, c = np.log(omega[k - 1]), np.log(omega[k]), np.log(omega[k + 1])
         fa, fb, fc = at(a, which), values[inner], at(c, which)
         for _ in range(steps):
@@ -103,17 +105,20 @@ def located_peaks(plant: LinearPlant, controller: PIDController, name: str, omeg
 
 
 def sensitivity_peaks(plant: LinearPlant, controller: PIDController, omega: np.ndarray,
-                      names: tuple[str, ...] = ("Ms", "Mt", "Mks"),
-                      most: int = 3) -> dict[str, list[tuple[float, float]]]:
+                      names: tuple[str, ...] = ("Ms", "Mt", "Mks"), most: int = 3,
+                      G: np.ndarray | None = None) -> dict[str, list[tuple[float, float]]]:
     """Per name (``Ms``: ``|S|``, ``Mt``: ``|T|``, ``Mks``: ``|KS|``) the ``most`` largest local peaks ``(value,
     frequency)`` on ``omega``, each located between its neighbours (:func:`located`, every name's at once), largest
-    first."""
-    G, C = plant.response(omega), controller.response(omega)
+    first. ``G``: the plant's response on ``omega`` where it is at hand."""
+    G = plant.response(omega) if G is None else G
+    C = controller.response(omega)
     picked = []
     for name in names:
         r = magnitudes(name, C, G)
-        inner = np.flatnonzero((r[1:-1] >= r[:-2]) & (r[1:-1] >= r[2:])) + 1
-        idx = np.union1d(inner, [int(np.argmax(r))]).astype(int)
+        top = np.zeros(r.size, bool)
+        top[1:-1] = (r[1:-1] >= r[:-2]) & (r[1:-1] >= r[2:])
+        top[int(np.argmax(r))] = True
+        idx = np.flatnonzero(top)
         picked.append(idx[np.argsort(-r[idx])][:most])
     which = np.concatenate([np.full(i.size, n, dtype=object) for n, i in zip(names, picked)])
     values, where = located(plant, controller, which, omega, np.concatenate(picked), steps=10)
@@ -121,9 +126,11 @@ def sensitivity_peaks(plant: LinearPlant, controller: PIDController, omega: np.n
             for name in names}
 
 
-def achieved(plant: LinearPlant, controller: PIDController, omega: np.ndarray) -> dict[str, tuple[float, float]]:
-    """The largest ``|S|``, ``|T|``, ``|KS|`` and where (rad/s)."""
-    return {k: v[0] for k, v in sensitivity_peaks(plant, controller, omega).items()}
+def achieved(plant: LinearPlant, controller: PIDController, omega: np.ndarray,
+             G: np.ndarray | None = None) -> dict[str, tuple[float, float]]:
+    """The largest ``|S|``, ``|T|``, ``|KS|`` and where (rad/s); ``G``: the plant's response on ``omega`` where it is
+    at hand."""
+    return {k: v[0] for k, v in sensitivity_peaks(plant, controller, omega, G=G).items()}
 
 
 @dataclass(frozen=True)

@@ -252,7 +252,7 @@ class PIDProblem:
             self.compiled = _compile(cap, self.names, scales.filter_order, scales.dt is not None, fn)
             self._solvers = {}
         feats = _features(self.omega, scales.filter_order, scales.dt) if n else np.zeros((self.compiled.features, 0))
-        select = np.array([[w == name for w in self.which] for name in self.names], float).reshape(len(self.names), n)
+        select = np.array([self.which == name for name in self.names], float).reshape(len(self.names), n)
         slots = np.zeros((self.compiled.features + 2 + len(self.names), cap))
         slots[:, :n] = np.vstack([feats, G.real[None, :], G.imag[None, :], select])
         if n:  # spare slots: the last frequency again, no bound selected (free rows)
