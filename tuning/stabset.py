@@ -107,7 +107,8 @@ def line_gaps(alpha: np.ndarray, b: np.ndarray, r2: np.ndarray, forbidden: np.nd
     C = alpha.real**2 + alpha.imag**2 - r2
     disc = B * B - 4.0 * A * C
     root = np.sqrt(np.maximum(disc, 0.0))
-    lo, hi = (-B - root) / (2.0 * A), (-B + root) / (2.0 * A)
+    minus_B, two_A = -B, 2.0 * A
+    lo, hi = (minus_B - root) / two_A, (minus_B + root) / two_A
     meets = disc > 0.0
     f = np.broadcast_to(forbidden, lo.shape)
     # the allowed discs' intervals intersect in one interval, with (0, cap]
@@ -128,15 +129,18 @@ def line_gaps(alpha: np.ndarray, b: np.ndarray, r2: np.ndarray, forbidden: np.nd
     valid = e_ > s_
     valid[..., :-1] &= np.isfinite(ends[..., :-1])  # the sweep's end: only the last slot
     # the gaps lie in the order of their slots: the highest are the last valid ones, the lowest the first
-    upto = np.cumsum(valid, axis=-1, dtype=np.int32)  # the valid slots up to each
-    total = upto[..., -1:]
-    out = np.full((*lead, most, 2), np.nan)
-    for j in range(most):
-        pick = valid & (upto == (total - j if j < most - 1 else 1))
-        k = np.argmax(pick, axis=-1)[..., None]
-        there = np.any(pick, axis=-1) & (total[..., 0] >= (j + 1 if j < most - 1 else most))
-        out[..., j, 0] = np.where(there, np.take_along_axis(s_, k, axis=-1)[..., 0], np.nan)
-        out[..., j, 1] = np.where(there, np.take_along_axis(e_, k, axis=-1)[..., 0], np.nan)
+    flat = valid.reshape(-1, n + 1)
+    line, slot = np.nonzero(flat)  # by line, then slot
+    total = flat.sum(axis=-1)
+    first = np.cumsum(total) - total  # each line's first in (line, slot)
+    rank = total[line] - 1 - (np.arange(line.size) - first[line])  # the valid slots above it
+    out = np.full((flat.shape[0], most, 2), np.nan)
+    gaps = np.stack([s_.reshape(-1, n + 1)[line, slot], e_.reshape(-1, n + 1)[line, slot]], axis=-1)
+    high = rank < most - 1
+    out[line[high], rank[high]] = gaps[high]
+    low = (rank == total[line] - 1) & (total[line] >= most)  # the lowest, where it is not among the highest
+    out[line[low], most - 1] = gaps[low]
+    out = out.reshape(*lead, most, 2)
     return out
 
 
