@@ -73,16 +73,15 @@ def located(plant: LinearPlant, controller: PIDController, names: np.ndarray, om
         a, b, c = np.log(omega[k - 1]), np.log(omega[k]), np.log(omega[k + 1])
         fa, fb, fc = at(a, which), values[inner], at(c, which)
         for _ in range(steps):
-            num = (b - a) ** 2 * (fb - fc) - (b - c) ** 2 * (fb - fa)
-            den = (b - a) * (fb - fc) - (b - c) * (fb - fa)
+            ba, cb, bc, da, dc = b - a, c - b, b - c, fb - fa, fb - fc
+            num = ba**2 * dc - bc**2 * da
+            den = ba * dc - bc * da
             x = b - 0.5 * num / np.where(den != 0, den, 1.0)
-            right = c - b > b - a  # the larger side; the vertex at least a tenth of it from b
-            lo_x = np.where(right, b + 0.1 * (c - b), a)
-            hi_x = np.where(right, c, b - 0.1 * (b - a))
-            x = np.where((den == 0) | ~np.isfinite(x), np.where(right, b + 0.38 * (c - b), b - 0.38 * (b - a)), x)
-            x = np.clip(x, np.where(right, lo_x, a), np.where(right, c, hi_x))
-            x = np.where(np.abs(x - b) < 0.1 * np.maximum(c - b, b - a), np.where(right, b + 0.1 * (c - b),
-                                                                                  b - 0.1 * (b - a)), x)
+            right = cb > ba  # the larger side; the vertex at least a tenth of it from b
+            tenth = np.where(right, b + 0.1 * cb, b - 0.1 * ba)
+            x = np.where((den == 0) | ~np.isfinite(x), np.where(right, b + 0.38 * cb, b - 0.38 * ba), x)
+            x = np.clip(x, np.where(right, tenth, a), np.where(right, c, tenth))
+            x = np.where(np.abs(x - b) < 0.1 * np.maximum(cb, ba), tenth, x)
             fx = at(x, which)
             up = fx > fb
             left = x < b
