@@ -131,13 +131,18 @@ class Search:
         f = np.sort(plant.characteristic_frequencies()) if plant.rational else np.zeros(0)
         self.hints = tuple(float(x) for x in np.concatenate([0.2 * f[:1], f]))  # the slices' reference frequencies
         self.w_mid = float(np.sqrt(omega[0] * omega[-1]) if not f.size else np.exp(np.mean(np.log(f))))
+        self._stable: dict[tuple[PIDController, float], bool] = {}
 
     # ---- the pieces ----------------------------------------------------------------------------------
     def stable(self, c: PIDController, sign: float) -> bool:
-        """The Nyquist criterion on the count grid (a fast check; the result's is on a resolved grid)."""
-        L = c.response(self.count_w) * sign * self.G_count
-        return bool(unstable_counts(L[None, :], self.plant.unstable_poles,
-                                    self.plant.integrators + c.integrators, self.dt)[0] == 0)
+        """The Nyquist criterion on the count grid (a fast check; the result's is on a resolved grid), once per
+        controller: the exchange, the start's record and the refinement ask it of the same gains."""
+        key = (c, sign)
+        if key not in self._stable:
+            L = c.response(self.count_w) * sign * self.G_count
+            self._stable[key] = bool(unstable_counts(L[None, :], self.plant.unstable_poles,
+                                                     self.plant.integrators + c.integrators, self.dt)[0] == 0)
+        return self._stable[key]
 
     def problem(self, omega: np.ndarray, G: np.ndarray, sign: float, scales: Scales, objective: Any = "IE",
                 iae_scale: float = 1.0, which: Any = None) -> PIDProblem:
@@ -218,8 +223,11 @@ class Search:
 
     def over(self, c: PIDController, sign: float) -> float:
         """The worst bound's ``|X| / M - 1`` on the check grid (its grid points)."""
-        C, G = c.response(self.check), sign * self.G_check
-        return max(float(np.max(magnitudes(k, C, G))) / self.limits[k] for k in self.names) - 1.0
+        C = c.response(self.check)
+        L = C * (sign * self.G_check)
+        d = np.abs(1 + L)  # |S|, |T|, |KS| share it
+        return max(float(np.max((1.0 / d) if k == "Ms" else np.abs(L if k == "Mt" else C) / d)) / self.limits[k]
+                   for k in self.names) - 1.0
 
     def _near(self, c: PIDController, sign: float, above: float) -> dict[str, np.ndarray]:
         """Per bound, the design grid's frequencies at and beside each local maximum of its ``|X| / M`` above

@@ -176,12 +176,12 @@ def margins_of(plant: LinearPlant, controller: PIDController, peaks: dict[str, t
     gm = None
     turns = (phase + np.pi) / (2 * np.pi)
     k = np.flatnonzero(np.diff(np.floor(turns)) != 0)  # phase crossings of -180 deg (mod 360)
-    for i in k:  # |L| there, by linear interpolation in the phase of log |L|
-        edge = np.floor(max(turns[i], turns[i + 1]))
-        f = (edge - turns[i]) / (turns[i + 1] - turns[i])
-        m = float(np.exp(np.log(mag[i]) + f * (np.log(mag[i + 1]) - np.log(mag[i]))))
-        if m < 1.0 and (gm is None or 1.0 / m < gm):
-            gm = 1.0 / m
+    # |L| at each, by linear interpolation in the phase of log |L|; the gain margin from the largest below 1
+    edge = np.floor(np.maximum(turns[k], turns[k + 1]))
+    f = (edge - turns[k]) / (turns[k + 1] - turns[k])
+    m = np.exp(np.log(mag[k]) + f * (np.log(mag[k + 1]) - np.log(mag[k])))
+    if np.any(m < 1.0):
+        gm = float(1.0 / np.max(m[m < 1.0]))
     return Margins(Ms=peaks["Ms"][0], Mt=peaks["Mt"][0], Mks=peaks["Mks"][0], Ms_rad_per_s=peaks["Ms"][1],
                    Mt_rad_per_s=peaks["Mt"][1], Mks_rad_per_s=peaks["Mks"][1], gain_margin=gm,
                    phase_margin_deg=None if pm is None else float(np.degrees(pm)),
