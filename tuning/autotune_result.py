@@ -66,33 +66,37 @@ def located(plant: LinearPlant, controller: PIDController, names: np.ndarray, om
         num = np.where(which[0], 1.0, np.where(which[1], np.abs(L), np.abs(C)))
         return num / np.abs(1 + L)
 
-    values, where = at(np.log(omega[idx]), kinds), omega[idx].copy()
     inner = (idx > 0) & (idx < omega.size - 1)
-    if plant.rational and np.any(inner):
-        k, which = idx[inner], (kinds[0][inner], kinds[1][inner])
-        a, b, c = np.log(omega[k - 1]), np.log(omega[k]), np.log(omega[k + 1])
-        fa, fb, fc = at(a, which), values[inner], at(c, which)
-        for _ in range(steps):
-            ba, cb, bc, da, dc = b - a, c - b, b - c, fb - fa, fb - fc
-            num = ba**2 * dc - bc**2 * da
-            den = ba * dc - bc * da
-            x = b - 0.5 * num / np.where(den != 0, den, 1.0)
-            right = cb > ba  # the larger side; the vertex at least a tenth of it from b
-            tenth = np.where(right, b + 0.1 * cb, b - 0.1 * ba)
-            x = np.where((den == 0) | ~np.isfinite(x), np.where(right, b + 0.38 * cb, b - 0.38 * ba), x)
-            x = np.clip(x, np.where(right, tenth, a), np.where(right, c, tenth))
-            x = np.where(np.abs(x - b) < 0.1 * np.maximum(cb, ba), tenth, x)
-            fx = at(x, which)
-            up = fx > fb
-            left = x < b
-            # the new bracket: (a, x, b) or (x, b, c) when x < b; (b, x, c) or (a, b, x) when x > b
-            na = np.where(left, np.where(up, a, x), np.where(up, b, a))
-            nfa = np.where(left, np.where(up, fa, fx), np.where(up, fb, fa))
-            nc = np.where(left, np.where(up, b, c), np.where(up, c, x))
-            nfc = np.where(left, np.where(up, fb, fc), np.where(up, fc, fx))
-            b, fb = np.where(up, x, b), np.where(up, fx, fb)
-            a, fa, c, fc = na, nfa, nc, nfc
-        values[inner], where[inner] = fb, np.exp(b)
+    if not (plant.rational and np.any(inner)):
+        return at(np.log(omega[idx]), kinds), omega[idx].copy()
+    k, which = idx[inner], (kinds[0][inner], kinds[1][inner])
+    a, b, c = np.log(omega[k - 1]), np.log(omega[k]), np.log(omega[k + 1])
+    # the grid's points and each bracket's ends in one evaluation
+    both = (np.concatenate([kinds[0], which[0], which[0]]), np.concatenate([kinds[1], which[1], which[1]]))
+    first = at(np.concatenate([np.log(omega[idx]), a, c]), both)
+    values, where = first[:idx.size], omega[idx].copy()
+    fa, fb, fc = first[idx.size:idx.size + k.size], values[inner], first[idx.size + k.size:]
+    for _ in range(steps):
+        ba, cb, bc, da, dc = b - a, c - b, b - c, fb - fa, fb - fc
+        num = ba**2 * dc - bc**2 * da
+        den = ba * dc - bc * da
+        x = b - 0.5 * num / np.where(den != 0, den, 1.0)
+        right = cb > ba  # the larger side; the vertex at least a tenth of it from b
+        tenth = np.where(right, b + 0.1 * cb, b - 0.1 * ba)
+        x = np.where((den == 0) | ~np.isfinite(x), np.where(right, b + 0.38 * cb, b - 0.38 * ba), x)
+        x = np.clip(x, np.where(right, tenth, a), np.where(right, c, tenth))
+        x = np.where(np.abs(x - b) < 0.1 * np.maximum(cb, ba), tenth, x)
+        fx = at(x, which)
+        up = fx > fb
+        left = x < b
+        # the new bracket: (a, x, b) or (x, b, c) when x < b; (b, x, c) or (a, b, x) when x > b
+        na = np.where(left, np.where(up, a, x), np.where(up, b, a))
+        nfa = np.where(left, np.where(up, fa, fx), np.where(up, fb, fa))
+        nc = np.where(left, np.where(up, b, c), np.where(up, c, x))
+        nfc = np.where(left, np.where(up, fb, fc), np.where(up, fc, fx))
+        b, fb = np.where(up, x, b), np.where(up, fx, fb)
+        a, fa, c, fc = na, nfa, nc, nfc
+    values[inner], where[inner] = fb, np.exp(b)
     return values, where
 
 
