@@ -239,8 +239,9 @@ class PIDProblem:
     ``bounds`` maps ``Ms``, ``Mt``, ``Mks`` to limits (None: unbounded); ``which`` names the bound each entry of
     ``omega`` holds (None: every bound at every frequency, the entries repeated per bound); ``objective`` is ``"IE"``
     or a CasADi function ``(kp, ki, kd, Tf) -> IAE`` with ``iae_scale`` its typical size. Each row is a slot of a
-    compiled problem of :data:`_BLOCK` times a power of two slots (the spare ones free rows), at least ``spare``
-    spare, so the IE problem's CasADi functions and solvers are built once per structure and size and kept.
+    compiled problem of :func:`_slots` slots (:data:`_BLOCK` times a power of two, or one and a half times that; the
+    spare ones free rows), at least ``spare`` spare, so the IE problem's CasADi functions and solvers are built once
+    per structure and size and kept.
     """
 
     def __init__(self, omega: np.ndarray, G: np.ndarray, bounds: dict[str, float | None], scales: Scales,
