@@ -76,7 +76,7 @@ class SweepAxis(Record):
 
     key: str = entry("The key, ``TABLE.KEY`` (``reference.step.final_N``).")
     values: tuple[Scalar, ...] = entry("Its values: finite numbers, strings or booleans.", read=_values,
-                                       takes="a list of finite numbers, strings or booleans")
+                                       write=list, takes="a list of finite numbers, strings or booleans")
 
     def __post_init__(self) -> None:
         if "." not in self.key or not all(self.key.split(".")):
