@@ -212,6 +212,16 @@ def _fmt(x: float | None, unit: str = "", digits: int = 4) -> str:
 LOOPS = ("continuous", "sampled")
 
 
+def _sampled_misses(check: dict[str, Any]) -> str:
+    """What the loop as it will run misses, in words: its instability or each bound over the tolerance, by how much."""
+    if not check["stable"]:
+        return f"the loop as it will run at Ts {check['sample_period_s']:g} s is unstable"
+    over = [f"{k} {check['achieved'][k]:.4g} against {check['bounds'][k]:g} (over by {x:.1%})"
+            for k, x in check["over_by"].items() if x > check["tolerance"]]
+    return (f"the loop as it will run at Ts {check['sample_period_s']:g} s misses its bounds beyond the "
+            f"{check['tolerance']:.1%} tolerance: " + ", ".join(over))
+
+
 @dataclass(frozen=True, eq=False)
 class AutotuneResult:
     """The autotuner's result (see the module docstring); :func:`~piezopreload.tuning.autotune.autotune` makes it.
@@ -438,11 +448,13 @@ class AutotuneResult:
         sampled = {"method": "the autotuned loop at its sample period: the controller step behind a zero-order "
                              "hold, its stability and its largest |S|, |T|, |KS| against the bounds",
                    **check, "bounds": {k: v for k, v in self.bounds.items() if v is not None}}
+        check["bounds"] = {k: v for k, v in self.bounds.items() if v is not None}
         validated = check["passed"] and not self.leans_on
         reason = ("the loop as it will run is stable and meets every bound within the tolerance, all of them set by "
                   "the user" if validated else
-                  "; ".join(([] if check["passed"] else ["the loop as it will run does not meet every bound within the "
-                                                         "tolerance, or is unstable (sampled_loop_check)"])
+                  "; ".join(([] if check["passed"] else [_sampled_misses(check) + (
+                      " (the bounds were tuned on the continuous loop: tune with loop='sampled' to hold them on the "
+                      "loop as it runs)" if self.loop == "continuous" else "")])
                             + [f"leans on a bound the user did not set: {x}" for x in self.leans_on]))
         # its verdict is this check on the one linear plant it was tuned for (no Monte Carlo set: validation None)
         return GainSet(gains=gains, status="validated" if validated else "candidate", preset=name,
