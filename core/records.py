@@ -921,4 +921,5 @@ def load_one_of(path: str | Path, *kinds: type[Artifact]) -> Artifact:
         if kind == k.KIND:
             return k.load(path)
     expected = " or ".join(f"{k.NOUN or k.__name__} ({schema_name(k.KIND)})" for k in kinds)
-    raise ArtifactError(f"{path}: field 'schema' names a {kind} artifact; expected {expected}")
+    raise ArtifactError(field_message(str(path), "schema", f"must be {expected}, got {schema_name(kind)!r} (a {kind} "
+                                                           "artifact)"))

@@ -230,3 +230,15 @@ def test_a_declared_record_round_trips_and_documents_its_fields():
     assert _Fit.required() == ("rms_pct", "kind")
     assert "Parameters\n    ----------\n    rms_pct : float\n        The RMS error. Unit: %." in _Fit.__doc__
     assert "kind : {'pi', 'mpi'}" in _Fit.__doc__
+
+
+def test_a_reader_of_two_kinds_names_both_in_the_one_format():
+    from piezopreload.artifacts.tuning import warm_start_gains
+
+    assert warm_start_gains(DATA / "tuning.json") == TuningRecord.load(DATA / "tuning.json").gains
+    assert warm_start_gains(DATA / "gains.json") == GainSet.load(DATA / "gains.json").gains
+    with pytest.raises(ArtifactError) as err:
+        warm_start_gains(DATA / "model.json")
+    assert str(err.value) == (f"{DATA / 'model.json'}: field 'schema' must be the tuning record "
+                              "(piezopreload/tuning/1) or the gain set (piezopreload/gain-set/1), got "
+                              "'piezopreload/hysteresis-model/1' (a hysteresis-model artifact)")
