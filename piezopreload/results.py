@@ -68,6 +68,15 @@ class TuningResult:
     (``table``), the gains on the ends of their search range (``active_bounds``), the least settling time any command
     reaches (``minimum_time``, the tuned over it ``tuned_over_bound_ratio``) and the trajectory's least RMS error any
     causal controller reaches (``tracking_floor``).
+
+    Parameters
+    ----------
+    study : Study
+        The study the gains were tuned for.
+    feedforward : IdentifiedFeedforward
+        The feedforward the gains were tuned with.
+    record : TuningRecord
+        The tune stage's artifact.
     """
 
     study: Study
@@ -286,7 +295,20 @@ _STUDY = object()  # step_metrics' default: the study's band and signal
 
 @dataclass(frozen=True, eq=False, kw_only=True)
 class StudyRun(ClosedLoopRun):
-    """A closed-loop run of one plant, scored as its study says (``band_N``, ``signal``); ``info`` says what ran."""
+    """A closed-loop run of one plant, scored as its study says (``band_N``, ``signal``); ``info`` says what ran.
+
+    Parameters
+    ----------
+    t_s, reference_N, force_N, measured_N, command_V, voltage_V, p_V, i_V, d_V, ff_V, reference, seed, engine
+        As :class:`~piezopreload.models.closedloop.ClosedLoopRun` has them.
+    band_N : float
+        The study's error band of the step metrics (N).
+    signal : str
+        The signal the study scores (the true force or the measured one).
+    info : dict
+        What ran: the study, the controller, the reference, the gains, the feedforward, the sample period and the
+        study's published numbers for the run.
+    """
 
     band_N: float
     signal: str
@@ -389,7 +411,15 @@ class ScheduleLearning:
     """Learning along the design's preload schedule (``study.learn(gains, reference="schedule")``): each margin
     pass of the schedule learned on its own repeated reference (``passes``, one
     :class:`~piezopreload.tuning.learning.LearningResult` each), and the tracking of the schedule with each pass's
-    learned signal played (``system``, the last pass's :class:`~piezopreload.design.system.SystemRun`)."""
+    learned signal played (``system``, the last pass's :class:`~piezopreload.design.system.SystemRun`).
+
+    Parameters
+    ----------
+    system : SystemRun
+        The schedule tracked with each pass's learned signal played.
+    passes : tuple of LearningResult
+        One learning per margin pass of the schedule, in order.
+    """
 
     system: SystemRun
     passes: tuple[LearningResult, ...]

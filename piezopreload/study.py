@@ -143,6 +143,46 @@ class Study:
     Make one with :func:`load_study`, a changed copy with :meth:`replace`. The ``[design]`` table is
     ``design_table`` (``design()`` runs it), the ``[plant]`` table ``plant_table`` (``plant`` is the
     plant itself, a :class:`~piezopreload.models.actuator.Plant`).
+
+    Parameters
+    ----------
+    path : str
+        The study's file.
+    sha256 : str
+        The SHA-256 of the file as read.
+    name, title : str
+        The study's name and title (its ``[study]`` table).
+    rig, controller, feedforward, reference, simulation, tuning, validation, export : table
+        The tables of those names, typed as the file gives them (defaults where it gives none).
+    rig_run : RigRunPlan
+        The ``[rig_run]`` table: the rig stage's plan.
+    ballscrew, feed_drive, duty, design_table, schedule, plant_table, learning, published : table or None
+        The optional tables (``[design]`` is ``design_table``, ``[plant]`` ``plant_table``); None where the file
+        has none.
+    gains : PIDGains
+        The starting gains the tables make.
+    references : dict of str to Reference
+        The step and the trajectory the tables make.
+    excitation : LoopExcitation
+        The loop the feedforward is identified on.
+    tuning_spec : TuningSpec
+        What the tuning requires.
+    criteria : Criteria
+        What the validation requires of every plant.
+    design_spec : DesignSpec or None
+        The preload design the tables make (None: the study has no design).
+    where : object
+        The file and its lines, for the messages.
+    source_text : bytes
+        The file as read, or as :meth:`replace` wrote it.
+    given : dict
+        The tables and keys the file gives, as it gives them.
+    description : str
+        The study's description.
+    thermal : table or None
+        The ``[thermal]`` table: the shift's heat, temperature and growth (None: none).
+    say : callable
+        Where the study says what it does when a step is given no progress of its own.
     """
 
     path: str
@@ -618,7 +658,13 @@ def _merge(into: dict[str, Any], changes: dict[str, Any]) -> None:
 # loading
 # --------------------------------------------------------------------------------------
 def shipped_studies() -> dict[str, Path]:
-    """The studies that ship with the package, by name."""
+    """The studies that ship with the package, by name.
+
+    Returns
+    -------
+    dict of str to Path
+        Each shipped study's name (``paper2021``, ``machine_axis``) and its file.
+    """
     root = resources.files("piezopreload.studies")
     return {p.name[:-5]: Path(str(p)) for p in root.iterdir() if p.name.endswith(".toml")}
 
@@ -636,7 +682,25 @@ def paper_study() -> Path:
 def load_study(study: str | Path | None = None, *, progress: ProgressLike | None = None) -> Study:
     """Read and validate a study: None for the default (``machine_axis``), a shipped study's name (``"paper2021"``),
     or a file. ``progress`` (:data:`~piezopreload.progress.ProgressLike`) gets what the study says where a step is
-    given no progress of its own (solving the design for the plant, say); default: a line on standard error."""
+    given no progress of its own (solving the design for the plant, say); default: a line on standard error.
+
+    Parameters
+    ----------
+    study : str, Path or None
+        A study file, a shipped study's name, or None for the default.
+    progress : ProgressLike, optional
+        Where the study says what it does.
+
+    Returns
+    -------
+    Study
+        The study, every table checked against its declaration.
+
+    Raises
+    ------
+    InputError
+        Naming the file, the line and the key that is wrong, and what was expected.
+    """
     if study is None:
         path = default_study()
     elif isinstance(study, str) and not study.endswith(".toml") and study in shipped_studies():

@@ -416,3 +416,16 @@ def test_the_command_line_writes_the_issues_gain_set_and_refuses_what_cannot_be(
         assert main(["autotune", "--tf", "1/1,3,3,1", "--delay-s", "0.2", "--Ms", "1.4", *extra]) == 2, extra
         err = capsys.readouterr().err
         assert err.startswith("error: ") and words in err and err.count("\n") == 1, (extra, err)
+
+
+def test_a_continuous_tuning_run_sampled_names_the_bound_it_misses():
+    """Tuned on the continuous loop and run at Ts = 0.01 s, the lagged plant's |S| peak grows past Ms beyond the
+    tolerance (the hold's lag): the candidate's reason names the bound, the value and the loop to tune on."""
+    r = autotune(LAG3, Ms=1.4, Mks=20.0, delay_s=0.2, Ts=0.01, u_min=-10.0, u_max=10.0)
+    assert r.loop == "continuous" and not r.leans_on
+    gain_set = r.to_gain_set()
+    check = gain_set.tuning["sampled_loop_check"]
+    assert not check["passed"] and check["over_by"]["Ms"] > check["tolerance"]
+    reason = gain_set.tuning["status_reason"]
+    assert gain_set.status == "candidate"
+    assert f"Ms {check['achieved']['Ms']:.4g} against 1.4" in reason and "loop='sampled'" in reason

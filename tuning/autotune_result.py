@@ -222,6 +222,16 @@ def _fmt(x: float | None, unit: str = "", digits: int = 4) -> str:
 LOOPS = ("continuous", "sampled")
 
 
+def _sampled_misses(check: dict[str, Any]) -> str:
+    """What the loop as it will run misses, in words: its instability or each bound over the tolerance, by how much."""
+    if not check["stable"]:
+        return f"the loop as it will run at Ts {check['sample_period_s']:g} s is unstable"
+    over = [f"{k} {check['achieved'][k]:.4g} against {check['bounds'][k]:g} (over by {x:.1%})"
+            for k, x in check["over_by"].items() if x > check["tolerance"]]
+    return (f"the loop as it will run at Ts {check['sample_period_s']:g} s misses its bounds beyond the "
+            f"{check['tolerance']:.1%} tolerance: " + ", ".join(over))
+
+
 @dataclass(frozen=True, eq=False)
 class AutotuneResult:
     """The autotuner's result (see the module docstring); :func:`~piezopreload.tuning.autotune.autotune` makes it.
@@ -232,6 +242,59 @@ class AutotuneResult:
     ``loop`` says which loop they hold on (``"continuous"``: the continuous controller on the plant; ``"sampled"``:
     the controller step at ``sample_period_s`` on the plant behind a zero-order hold); ``leans_on`` names, in
     sentences, each bound the user did not set that the result sits on.
+
+    Parameters
+    ----------
+    controller_ : PIDController
+        The tuned controller.
+    plant : LinearPlant
+        The plant as given.
+    design_plant : LinearPlant
+        The plant the bounds were held on (the sampled loop's, where ``loop`` is ``"sampled"``).
+    form : {'PI', 'PID'}
+        The controller's form.
+    metric : {'IE', 'IAE'}
+        What was optimised: the integral gain, or the IAE of a unit load step.
+    bounds : dict
+        The bounds the problem held (``Ms``, ``Mt``, ``Mks``; None: not bounded).
+    margins : Margins
+        The margins reached: the peaks of ``|S|``, ``|T|`` and ``|KS|``, gain, phase and delay margins.
+    peaks : dict
+        Each peak's name and its ``(frequency in rad/s, magnitude)``.
+    stable : bool
+        Whether the loop is stable.
+    iae : float or None
+        The IAE of a unit load step at the plant input (None: the metric is ``IE``, nothing simulated).
+    iae_Ts : float or None
+        The sample period that load step was simulated at (s).
+    starts : tuple of StartRecord
+        The starts of the local solver and what became of each.
+    active_bounds : tuple of ActiveBound
+        The gains on the ends of their range.
+    grid_points, check_points : int
+        The sizes of the design grid and of the check grid (ten times as dense).
+    refinements : int
+        The rounds of the winning start's solve in which the design grid was refined where a bound was exceeded.
+    iterations : int
+        The local solver's iterations, over all starts.
+    seconds : float
+        The wall-clock time it took (s).
+    solver : str
+        The local solver.
+    loop : {'continuous', 'sampled'}
+        Which loop the bounds hold on.
+    sample_period_s : float or None
+        The sample period the controller runs at (s).
+    user_bounds : dict
+        The bounds the user set.
+    defaults : dict
+        The bounds the tuner set where the user set none: name -> ``{"value", "reason"}``.
+    leans_on : tuple of str
+        Each bound the user did not set that the result sits on, in a sentence.
+    u_range : (float, float) or None
+        The actuator's range, the gain set's output range.
+    load_step : object
+        The simulated load step (None: not simulated).
     """
 
     controller_: PIDController
@@ -448,11 +511,13 @@ class AutotuneResult:
         sampled = {"method": "the autotuned loop at its sample period: the controller step behind a zero-order "
                              "hold, its stability and its largest |S|, |T|, |KS| against the bounds",
                    **check, "bounds": {k: v for k, v in self.bounds.items() if v is not None}}
+        check["bounds"] = {k: v for k, v in self.bounds.items() if v is not None}
         validated = check["passed"] and not self.leans_on
         reason = ("the loop as it will run is stable and meets every bound within the tolerance, all of them set by "
                   "the user" if validated else
-                  "; ".join(([] if check["passed"] else ["the loop as it will run does not meet every bound within the "
-                                                         "tolerance, or is unstable (sampled_loop_check)"])
+                  "; ".join(([] if check["passed"] else [_sampled_misses(check) + (
+                      " (the bounds were tuned on the continuous loop: tune with loop='sampled' to hold them on the "
+                      "loop as it runs)" if self.loop == "continuous" else "")])
                             + [f"leans on a bound the user did not set: {x}" for x in self.leans_on]))
         # its verdict is this check on the one linear plant it was tuned for (no Monte Carlo set: validation None)
         return GainSet(gains=gains, status="validated" if validated else "candidate", preset=name,

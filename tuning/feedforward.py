@@ -125,7 +125,17 @@ def compensation_check(rig: Plant, model: FeedforwardModel, low_N: float, high_N
 @dataclass(frozen=True, eq=False)
 class IdentifiedFeedforward:
     """A study's feedforward: its identified P-I model (``record``, as ``model.json`` holds it), and when it was
-    identified here rather than read back, the loop it was fitted to and the open-loop compensation check."""
+    identified here rather than read back, the loop it was fitted to and the open-loop compensation check.
+
+    Parameters
+    ----------
+    record : IdentifiedModel
+        The identified model, its errors and where it came from.
+    loop : Record or None
+        The hysteresis loop it was fitted to (None: read back from ``model.json``).
+    check : CompensationCheck or None
+        The open-loop check of its inverse on the plant (None: read back).
+    """
 
     record: IdentifiedModel
     loop: Record | None = None
