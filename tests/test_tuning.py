@@ -446,8 +446,10 @@ def test_the_bound_rows_are_the_sensitivities():
 
 
 def test_both_tuners_state_their_bounds_with_the_one_definition(monkeypatch):
-    """The rig tuner's Ms constraints and the autotuner's Ms/Mt/Mks constraints are built by
-    loopshape.bound_rows: replaced by one that doubles every row, both tuners' constraints change with it."""
+    """The rig tuner's Ms constraints and the autotuner's Ms/Mt/Mks constraints are built from
+    loopshape.bound_numerators (the rig tuner's through bound_rows): replaced by one that doubles every
+    numerator |N|^2, both tuners' constraints change with it (the autotuner's rows |X|^2/M^2 - 1 to twice
+    themselves plus one)."""
     import control
 
     from piezopreload.tuning import loopshape, pidopt
@@ -469,14 +471,15 @@ def test_both_tuners_state_their_bounds_with_the_one_definition(monkeypatch):
         return np.asarray(g, float).ravel()[ms], np.asarray(PIDProblem(w, G, {"Ms": 1.4}, scales).fg(x)[1]).ravel()
 
     rig_before, auto_before = constraints()
-    original = loopshape.bound_rows
-    monkeypatch.setattr(loopshape, "bound_rows", lambda *a, **k: {n: 2 * r for n, r in original(*a, **k).items()})
-    monkeypatch.setattr(pid, "bound_rows", loopshape.bound_rows)
-    monkeypatch.setattr(pidopt, "bound_rows", loopshape.bound_rows)
+    original = loopshape.bound_numerators
+    monkeypatch.setattr(loopshape, "bound_numerators",
+                        lambda *a, **k: {n: 2 * r for n, r in original(*a, **k).items()})
+    monkeypatch.setattr(pidopt, "bound_numerators", loopshape.bound_numerators)
     monkeypatch.setattr(pidopt, "_CACHE", {})  # the autotuner's compiled problems are kept: build them again
     monkeypatch.setattr(pidopt, "_SOLVERS", {})
     rig_after, auto_after = constraints()
-    assert not np.allclose(rig_after, rig_before) and not np.allclose(auto_after, auto_before)
+    assert not np.allclose(rig_after, rig_before)
+    np.testing.assert_allclose(auto_after, 2.0 * auto_before + 1.0, rtol=1e-12, atol=1e-12)
 
 
 @pytest.mark.slow

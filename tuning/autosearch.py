@@ -131,13 +131,18 @@ class Search:
         f = np.sort(plant.characteristic_frequencies()) if plant.rational else np.zeros(0)
         self.hints = tuple(float(x) for x in np.concatenate([0.2 * f[:1], f]))  # the slices' reference frequencies
         self.w_mid = float(np.sqrt(omega[0] * omega[-1]) if not f.size else np.exp(np.mean(np.log(f))))
+        self._stable: dict[tuple[PIDController, float], bool] = {}
 
     # ---- the pieces ----------------------------------------------------------------------------------
     def stable(self, c: PIDController, sign: float) -> bool:
-        """The Nyquist criterion on the count grid (a fast check; the result's is on a resolved grid)."""
-        L = c.response(self.count_w) * sign * self.G_count
-        return bool(unstable_counts(L[None, :], self.plant.unstable_poles,
-                                    self.plant.integrators + c.integrators, self.dt)[0] == 0)
+        """The Nyquist criterion on the count grid (a fast check; the result's is on a resolved grid), once per
+        controller: the exchange, the start's record and the refinement ask it of the same gains."""
+        key = (c, sign)
+        if key not in self._stable:
+            L = c.response(self.count_w) * sign * self.G_count
+            self._stable[key] = bool(unstable_counts(L[None, :], self.plant.unstable_poles,
+                                                     self.plant.integrators + c.integrators, self.dt)[0] == 0)
+        return self._stable[key]
 
     def problem(self, omega: np.ndarray, G: np.ndarray, sign: float, scales: Scales, objective: Any = "IE",
                 iae_scale: float = 1.0, which: Any = None) -> PIDProblem:
@@ -218,8 +223,11 @@ class Search:
 
     def over(self, c: PIDController, sign: float) -> float:
         """The worst bound's ``|X| / M - 1`` on the check grid (its grid points)."""
-        C, G = c.response(self.check), sign * self.G_check
-        return max(float(np.max(magnitudes(k, C, G))) / self.limits[k] for k in self.names) - 1.0
+        C = c.response(self.check)
+        L = C * (sign * self.G_check)
+        d = np.abs(1 + L)  # |S|, |T|, |KS| share it
+        return max(float(np.max((1.0 / d) if k == "Ms" else np.abs(L if k == "Mt" else C) / d)) / self.limits[k]
+                   for k in self.names) - 1.0
 
     def _near(self, c: PIDController, sign: float, above: float) -> dict[str, np.ndarray]:
         """Per bound, the design grid's frequencies at and beside each local maximum of its ``|X| / M`` above
@@ -232,9 +240,13 @@ class Search:
             peak[1:-1] = (r[1:-1] > r[:-2]) & (r[1:-1] >= r[2:])
             peak[0], peak[-1] = r[0] >= r[1], r[-1] > r[-2]
             idx = np.flatnonzero(peak & (r > above))
-            idx = idx[np.argsort(-r[idx])][:_PEAKS]  # the largest (a delay's ripples of |KS| would add hundreds)
-            idx = np.union1d(idx, [int(np.argmax(r))])  # and the largest of all (|KS| at the grid's end, say)
-            out[k] = self.omega[np.unique(np.clip((idx[:, None] + np.arange(-1, 2)[None, :]).ravel(), 0, r.size - 1))]
+            at = np.zeros(r.size, bool)
+            at[idx[np.argsort(-r[idx])][:_PEAKS]] = True  # the largest (a delay's ripples of |KS| would add hundreds)
+            at[int(np.argmax(r))] = True  # and the largest of all (|KS| at the grid's end, say)
+            beside = at.copy()  # and their neighbours
+            beside[1:] |= at[:-1]
+            beside[:-1] |= at[1:]
+            out[k] = self.omega[beside]
         return out
 
     def local(self, c: PIDController, sign: float, objective: Any = "IE", iae_scale: float = 1.0,
@@ -311,11 +323,15 @@ class Search:
         the whole)."""
         check, G_check = (self.check, self.G_check) if fine else (self.check[::2], self.G_check[::2])
         C = c.response(check)
+        L = C * (sign * G_check)
+        d = np.abs(1 + L)  # |S|, |T|, |KS| share it
         picked: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         for name in self.names:
-            r = magnitudes(name, C, sign * G_check) / self.limits[name]
-            inner = np.flatnonzero((r[1:-1] >= r[:-2]) & (r[1:-1] >= r[2:]) & (r[1:-1] > 1.0)) + 1
-            idx = np.union1d(inner, [int(np.argmax(r))]).astype(int)
+            r = ((1.0 / d) if name == "Ms" else np.abs(L if name == "Mt" else C) / d) / self.limits[name]
+            top = np.zeros(r.size, bool)
+            top[1:-1] = (r[1:-1] >= r[:-2]) & (r[1:-1] >= r[2:]) & (r[1:-1] > 1.0)
+            top[int(np.argmax(r))] = True
+            idx = np.flatnonzero(top)
             idx = idx[np.argsort(-r[idx])][:_PEAKS]  # the largest first; the rest in later rounds
             picked[name] = (idx, r[idx])
         near = {k: (r > 1.0 - _LOCATE) & (r < 1.0 + _LOCATE_OVER) for k, (_, r) in picked.items()}
@@ -423,6 +439,7 @@ class _Rows:
         self.names = names
         self.omega = np.zeros(0)
         self.which = np.zeros(0, dtype=object)
+        self._held: dict[str, set[float]] = {name: set() for name in names}  # each bound's frequencies, to add once
 
     def prune(self, c: PIDController, sign: float, search: Search) -> bool:
         """Drop the rows whose ``|X| / M`` is below :data:`_KEEP` at ``c``; whether any were."""
@@ -435,11 +452,15 @@ class _Rows:
         if keep.all():
             return False
         self.omega, self.which = self.omega[keep], self.which[keep]
+        self._held = {name: set(self.omega[self.which == name].tolist()) for name in self.names}
         return True
 
     def add(self, per_bound: dict[str, np.ndarray]) -> None:
+        """Each bound's frequencies it does not hold yet, in increasing order."""
         for name, w in per_bound.items():
-            new = np.setdiff1d(np.unique(np.asarray(w, float)), self.omega[self.which == name])
+            held = self._held[name]
+            new = np.array(sorted(set(np.asarray(w, float).ravel().tolist()) - held), float)
+            held.update(new.tolist())
             self.omega = np.concatenate([self.omega, new])
             self.which = np.concatenate([self.which, np.full(new.size, name, dtype=object)])
 

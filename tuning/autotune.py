@@ -363,7 +363,7 @@ def _result(P: LinearPlant, design: LinearPlant, search: Search, found: Found, s
     if any(b.gain == "kd" and b.side == "lower" for b in active):  # a derivative on its lower bound: a PI
         ctrl = PIDController(ctrl.kp, ctrl.ki, 0.0, 0.0, ctrl.filter_order, ctrl.dt)
     final = ctrl.scaled(found.sign)
-    peaks = achieved(design, final, search.check)
+    peaks = achieved(design, final, search.check, search.G_check)
     resolved = design.resolved_loop(lambda w: final.response(w))
     margins = margins_of(design, final, peaks, resolved)
     stable = _stable(design, final, resolved)

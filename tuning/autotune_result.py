@@ -44,8 +44,9 @@ _TOLERANCE = 0.005
 def magnitudes(name: str, C: np.ndarray, G: np.ndarray) -> np.ndarray:
     """``|S|`` (``Ms``), ``|T|`` (``Mt``) or ``|KS|`` (``Mks``) of the responses ``C`` and ``G``."""
     L = C * G
-    num = {"Ms": np.ones_like(L.real), "Mt": np.abs(L), "Mks": np.abs(C)}[name]
-    return num / np.abs(1 + L)
+    if name == "Ms":
+        return 1.0 / np.abs(1 + L)
+    return np.abs(L if name == "Mt" else C) / np.abs(1 + L)
 
 
 def located(plant: LinearPlant, controller: PIDController, names: np.ndarray, omega: np.ndarray, idx: np.ndarray,
@@ -56,42 +57,46 @@ def located(plant: LinearPlant, controller: PIDController, names: np.ndarray, om
     the bracket always shrinks: ``steps`` steps, all peaks at once): values and frequencies in the order given; a
     measured response's, and a grid end's, are the grid's own. ``sign`` multiplies the plant."""
     idx, names = np.asarray(idx, int), np.asarray(names, dtype=object)
+    kinds = (names == "Ms", names == "Mt")  # |S|, |T|, else |KS|: compared once, not at every step
 
-    def at(x: np.ndarray, which: np.ndarray) -> np.ndarray:
+    def at(x: np.ndarray, which: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
         w = np.exp(x)
         C = controller.response(w)
         L = C * sign * plant.response(w)
-        num = np.where(which == "Ms", 1.0, np.where(which == "Mt", np.abs(L), np.abs(C)))
+        num = np.where(which[0], 1.0, np.where(which[1], np.abs(L), np.abs(C)))
         return num / np.abs(1 + L)
 
-    values, where = at(np.log(omega[idx]), names), omega[idx].copy()
     inner = (idx > 0) & (idx < omega.size - 1)
-    if plant.rational and np.any(inner):
-        k, which = idx[inner], names[inner]
-        a, b, c = np.log(omega[k - 1]), np.log(omega[k]), np.log(omega[k + 1])
-        fa, fb, fc = at(a, which), values[inner], at(c, which)
-        for _ in range(steps):
-            num = (b - a) ** 2 * (fb - fc) - (b - c) ** 2 * (fb - fa)
-            den = (b - a) * (fb - fc) - (b - c) * (fb - fa)
-            x = b - 0.5 * num / np.where(den != 0, den, 1.0)
-            right = c - b > b - a  # the larger side; the vertex at least a tenth of it from b
-            lo_x = np.where(right, b + 0.1 * (c - b), a)
-            hi_x = np.where(right, c, b - 0.1 * (b - a))
-            x = np.where((den == 0) | ~np.isfinite(x), np.where(right, b + 0.38 * (c - b), b - 0.38 * (b - a)), x)
-            x = np.clip(x, np.where(right, lo_x, a), np.where(right, c, hi_x))
-            x = np.where(np.abs(x - b) < 0.1 * np.maximum(c - b, b - a), np.where(right, b + 0.1 * (c - b),
-                                                                                  b - 0.1 * (b - a)), x)
-            fx = at(x, which)
-            up = fx > fb
-            left = x < b
-            # the new bracket: (a, x, b) or (x, b, c) when x < b; (b, x, c) or (a, b, x) when x > b
-            na = np.where(left, np.where(up, a, x), np.where(up, b, a))
-            nfa = np.where(left, np.where(up, fa, fx), np.where(up, fb, fa))
-            nc = np.where(left, np.where(up, b, c), np.where(up, c, x))
-            nfc = np.where(left, np.where(up, fb, fc), np.where(up, fc, fx))
-            b, fb = np.where(up, x, b), np.where(up, fx, fb)
-            a, fa, c, fc = na, nfa, nc, nfc
-        values[inner], where[inner] = fb, np.exp(b)
+    if not (plant.rational and np.any(inner)):
+        return at(np.log(omega[idx]), kinds), omega[idx].copy()
+    k, which = idx[inner], (kinds[0][inner], kinds[1][inner])
+    a, b, c = np.log(omega[k - 1]), np.log(omega[k]), np.log(omega[k + 1])
+    # the grid's points and each bracket's ends in one evaluation
+    both = (np.concatenate([kinds[0], which[0], which[0]]), np.concatenate([kinds[1], which[1], which[1]]))
+    first = at(np.concatenate([np.log(omega[idx]), a, c]), both)
+    values, where = first[:idx.size], omega[idx].copy()
+    fa, fb, fc = first[idx.size:idx.size + k.size], values[inner], first[idx.size + k.size:]
+    for _ in range(steps):
+        ba, cb, bc, da, dc = b - a, c - b, b - c, fb - fa, fb - fc
+        num = ba**2 * dc - bc**2 * da
+        den = ba * dc - bc * da
+        x = b - 0.5 * num / np.where(den != 0, den, 1.0)
+        right = cb > ba  # the larger side; the vertex at least a tenth of it from b
+        tenth = np.where(right, b + 0.1 * cb, b - 0.1 * ba)
+        x = np.where((den == 0) | ~np.isfinite(x), np.where(right, b + 0.38 * cb, b - 0.38 * ba), x)
+        x = np.clip(x, np.where(right, tenth, a), np.where(right, c, tenth))
+        x = np.where(np.abs(x - b) < 0.1 * np.maximum(cb, ba), tenth, x)
+        fx = at(x, which)
+        up = fx > fb
+        left = x < b
+        # the new bracket: (a, x, b) or (x, b, c) when x < b; (b, x, c) or (a, b, x) when x > b
+        na = np.where(left, np.where(up, a, x), np.where(up, b, a))
+        nfa = np.where(left, np.where(up, fa, fx), np.where(up, fb, fa))
+        nc = np.where(left, np.where(up, b, c), np.where(up, c, x))
+        nfc = np.where(left, np.where(up, fb, fc), np.where(up, fc, fx))
+        b, fb = np.where(up, x, b), np.where(up, fx, fb)
+        a, fa, c, fc = na, nfa, nc, nfc
+    values[inner], where[inner] = fb, np.exp(b)
     return values, where
 
 
@@ -103,17 +108,20 @@ def located_peaks(plant: LinearPlant, controller: PIDController, name: str, omeg
 
 
 def sensitivity_peaks(plant: LinearPlant, controller: PIDController, omega: np.ndarray,
-                      names: tuple[str, ...] = ("Ms", "Mt", "Mks"),
-                      most: int = 3) -> dict[str, list[tuple[float, float]]]:
+                      names: tuple[str, ...] = ("Ms", "Mt", "Mks"), most: int = 3,
+                      G: np.ndarray | None = None) -> dict[str, list[tuple[float, float]]]:
     """Per name (``Ms``: ``|S|``, ``Mt``: ``|T|``, ``Mks``: ``|KS|``) the ``most`` largest local peaks ``(value,
     frequency)`` on ``omega``, each located between its neighbours (:func:`located`, every name's at once), largest
-    first."""
-    G, C = plant.response(omega), controller.response(omega)
+    first. ``G``: the plant's response on ``omega`` where it is at hand."""
+    G = plant.response(omega) if G is None else G
+    C = controller.response(omega)
     picked = []
     for name in names:
         r = magnitudes(name, C, G)
-        inner = np.flatnonzero((r[1:-1] >= r[:-2]) & (r[1:-1] >= r[2:])) + 1
-        idx = np.union1d(inner, [int(np.argmax(r))]).astype(int)
+        top = np.zeros(r.size, bool)
+        top[1:-1] = (r[1:-1] >= r[:-2]) & (r[1:-1] >= r[2:])
+        top[int(np.argmax(r))] = True
+        idx = np.flatnonzero(top)
         picked.append(idx[np.argsort(-r[idx])][:most])
     which = np.concatenate([np.full(i.size, n, dtype=object) for n, i in zip(names, picked)])
     values, where = located(plant, controller, which, omega, np.concatenate(picked), steps=10)
@@ -121,9 +129,11 @@ def sensitivity_peaks(plant: LinearPlant, controller: PIDController, omega: np.n
             for name in names}
 
 
-def achieved(plant: LinearPlant, controller: PIDController, omega: np.ndarray) -> dict[str, tuple[float, float]]:
-    """The largest ``|S|``, ``|T|``, ``|KS|`` and where (rad/s)."""
-    return {k: v[0] for k, v in sensitivity_peaks(plant, controller, omega).items()}
+def achieved(plant: LinearPlant, controller: PIDController, omega: np.ndarray,
+             G: np.ndarray | None = None) -> dict[str, tuple[float, float]]:
+    """The largest ``|S|``, ``|T|``, ``|KS|`` and where (rad/s); ``G``: the plant's response on ``omega`` where it is
+    at hand."""
+    return {k: v[0] for k, v in sensitivity_peaks(plant, controller, omega, G=G).items()}
 
 
 @dataclass(frozen=True)
@@ -170,12 +180,12 @@ def margins_of(plant: LinearPlant, controller: PIDController, peaks: dict[str, t
     gm = None
     turns = (phase + np.pi) / (2 * np.pi)
     k = np.flatnonzero(np.diff(np.floor(turns)) != 0)  # phase crossings of -180 deg (mod 360)
-    for i in k:  # |L| there, by linear interpolation in the phase of log |L|
-        edge = np.floor(max(turns[i], turns[i + 1]))
-        f = (edge - turns[i]) / (turns[i + 1] - turns[i])
-        m = float(np.exp(np.log(mag[i]) + f * (np.log(mag[i + 1]) - np.log(mag[i]))))
-        if m < 1.0 and (gm is None or 1.0 / m < gm):
-            gm = 1.0 / m
+    # |L| at each, by linear interpolation in the phase of log |L|; the gain margin from the largest below 1
+    edge = np.floor(np.maximum(turns[k], turns[k + 1]))
+    f = (edge - turns[k]) / (turns[k + 1] - turns[k])
+    m = np.exp(np.log(mag[k]) + f * (np.log(mag[k + 1]) - np.log(mag[k])))
+    if np.any(m < 1.0):
+        gm = float(1.0 / np.max(m[m < 1.0]))
     return Margins(Ms=peaks["Ms"][0], Mt=peaks["Mt"][0], Mks=peaks["Mks"][0], Ms_rad_per_s=peaks["Ms"][1],
                    Mt_rad_per_s=peaks["Mt"][1], Mks_rad_per_s=peaks["Mks"][1], gain_margin=gm,
                    phase_margin_deg=None if pm is None else float(np.degrees(pm)),

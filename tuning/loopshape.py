@@ -29,7 +29,7 @@ import casadi as ca
 import numpy as np
 
 __all__ = ["BOUNDS", "omega_terms", "discrete_pid_response", "isa_pid_response", "continuous_pid_response",
-           "loop_terms", "bound_rows", "peaks", "smooth_max"]
+           "loop_terms", "bound_rows", "bound_numerators", "peaks", "smooth_max"]
 
 #: the bounds a loop may carry, by name: maximum sensitivity, complementary sensitivity, noise sensitivity
 BOUNDS = ("Ms", "Mt", "Mks")
@@ -108,8 +108,14 @@ def bound_rows(c_re: Any, c_im: Any, g_re: Any, g_im: Any, bounds: dict[str, Any
     if unknown:
         raise ValueError(f"unknown bound(s) {sorted(unknown)}; expected {', '.join(BOUNDS)}")
     l_re, l_im, d = loop_terms(c_re, c_im, g_re, g_im)
-    numerators = {"Ms": 1.0, "Mt": l_re**2 + l_im**2, "Mks": c_re**2 + c_im**2}
+    numerators = bound_numerators(c_re, c_im, l_re, l_im)
     return {name: numerators[name] / m**2 - d for name, m in bounds.items() if m is not None}
+
+
+def bound_numerators(c_re: Any, c_im: Any, l_re: Any, l_im: Any) -> dict[str, Any]:
+    """``|N_X|^2`` of each bound (:data:`BOUNDS`), ``|X| = |N_X| / |1 + L|``: 1 for ``S``, ``|L|^2`` for ``T``,
+    ``|C|^2`` for ``KS``, from the parts of ``C`` and ``L``."""
+    return {"Ms": 1.0, "Mt": l_re**2 + l_im**2, "Mks": c_re**2 + c_im**2}
 
 
 def peaks(c: np.ndarray, g: np.ndarray) -> dict[str, float]:

@@ -253,7 +253,7 @@ class LinearPlant:
         its low-frequency asymptote (the lowest point's phase, the magnitude rising with its integrators), above
         them its highest point."""
         w = np.asarray(omega, float)
-        delay = np.exp(-1j * w * self.delay_s)
+        delay = np.exp(-1j * w * self.delay_s) if self.delay_s else 1.0  # times 1.0: exactly the same numbers
         if not self.rational:  # below the data: its low-frequency asymptote (its integrators' slope)
             omega, data = self.measured_response()
             lw, lg = np.log(omega), np.log(np.abs(data))
@@ -324,11 +324,19 @@ class LinearPlant:
         return nyquist_unstable(omega, loop, self.unstable_poles, self.integrators + controller.integrators,
                                 self.dt) == 0
 
+    @cached_property
+    def _realisation(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(A, B, C, D)`` of a rational plant: its own state space, or python-control's realisation of its transfer
+        function (made once: every closed-loop check of the plant uses it)."""
+        if self.ss is not None:
+            return self.ss
+        return _matrices(control.tf2ss(*self._tf(), 0 if self.dt is None else self.dt))
+
     def _closed_loop_eigenvalues(self, c_num: np.ndarray, c_den: np.ndarray) -> np.ndarray:
         """The eigenvalues of the loop's state matrix (plant and controller in state space, negative feedback):
         better conditioned than the roots of the characteristic polynomial for long delay lines."""
         dt = 0 if self.dt is None else self.dt
-        A, B, C, D = self.ss if self.ss is not None else _matrices(control.tf2ss(*self._tf(), dt))
+        A, B, C, D = self._realisation
         Ac, Bc, Cc, Dc = _matrices(control.tf2ss(c_num, c_den, dt))
         # u = Cc xc + Dc e, e = -y, y = C x + D u: y = (C x + D Cc xc) / (1 + D Dc)
         k = 1.0 / (1.0 + float(D[0, 0]) * float(Dc[0, 0]))

@@ -6,7 +6,9 @@ forms). The objective: ``-ki / s_i`` (``IE``: the integrated error of a unit loa
 input is ``1/ki``), or the load step's IAE (:func:`~piezopreload.tuning.loadstep.iae_function`).
 The constraints: for each bound ``|X| <= M`` (``X`` one of ``S``, ``T``, ``KS``) and each grid
 frequency, the row of :func:`~piezopreload.tuning.loopshape.bound_rows` divided by ``|1 + L|^2``,
-``|X|^2 / M^2 - 1 <= 0``: one per frequency, scaled alike. :meth:`PIDProblem.solve` runs CasADi's
+``|X|^2 / M^2 - 1 <= 0`` (built from its numerators, :func:`~piezopreload.tuning.loopshape.bound_numerators`,
+each slot's weight ``1/M^2`` given as a number: the fewest operations for the exact Hessian), one per
+frequency, scaled alike. :meth:`PIDProblem.solve` runs CasADi's
 ``sqpmethod`` (exact Hessian of the Lagrangian, its negative eigenvalues reflected where it is
 indefinite, each QP by DAQP, a dual active-set solver for small dense QPs: four variables, a few
 hundred rows; where it stalls, IPOPT from the same start), or IPOPT (exact Hessian), or scipy's
@@ -33,7 +35,7 @@ from scipy.optimize import minimize
 
 from piezopreload.core.errors import InputError, InternalError
 from piezopreload.tuning.loopshape import (
-    bound_rows,
+    bound_numerators,
     continuous_pid_response,
     discrete_pid_response,
     loop_terms,
@@ -138,15 +140,26 @@ class Solution:
     lam_x: np.ndarray | None = None
 
 
-#: the grid's rows come in this many slots times a power of two (padding rows are free), so one compiled NLP
+#: the grid's rows come in this many slots times a power of two, or one and a half times that (padding rows are
+#: free: on the benchmark batch a third of the slots were padding with powers of two alone), so one compiled NLP
 #: serves many grids
 _BLOCK = 32
+
+
+def _slots(rows: int) -> int:
+    """The slots of the compiled problem that holds ``rows`` rows: the least :data:`_BLOCK` times ``2^k`` or
+    ``1.5 * 2^k`` at or above it."""
+    cap = _BLOCK
+    while cap < rows:
+        cap = cap * 3 // 2 if (cap & (cap - 1)) == 0 else cap * 4 // 3
+    return cap
 
 
 @dataclass(frozen=True, eq=False)
 class _Compiled:
     """The NLP's CasADi functions for one structure: variables ``x``, numbers ``p`` (the scales, the sample period,
-    the bounds' squares, then per grid slot the frequency's features and the plant's response)."""
+    then per grid slot the frequency's features, the plant's response and each bound's weight: ``1/M^2`` for the
+    bound the slot holds, 0 for the others)."""
 
     x: Any
     p: Any
@@ -199,21 +212,23 @@ def _build(sym: type[_Sym], n: int, names: tuple[str, ...], filter_order: int, d
     nx = 2 if filter_order == 0 else 4
     nb = len(names)
     x = sym.sym("x", nx)
-    p = sym.sym("p", 5 + nb + n * (nf + 2 + nb))
+    p = sym.sym("p", 5 + n * (nf + 2 + nb))
     s_kp, s_ki, s_kd, s_tf, dt = (p[i] for i in range(5))
     kp, ki = s_kp * x[0], s_ki * x[1]
     kd, Tf = (0.0, 0.0) if filter_order == 0 else (s_kd * x[2], s_tf * ca.exp(x[3]))
-    grid = ca.reshape(p[5 + nb:], nf + 2 + nb, n)
+    grid = ca.reshape(p[5:], nf + 2 + nb, n)
     if discrete and filter_order < 2:
         re, im = discrete_pid_response(kp, ki, kd, Tf, dt, [grid[i, :] for i in range(6)])
     else:
         re, im = continuous_pid_response(kp, ki, kd, Tf, grid[0, :], filter_order)
     g_re, g_im = grid[nf, :], grid[nf + 1, :]
-    rows = bound_rows(re, im, g_re, g_im, {name: ca.sqrt(p[5 + i]) for i, name in enumerate(names)})
-    _, _, d = loop_terms(re, im, g_re, g_im)
-    g = sum((grid[nf + 2 + i, :] * rows[name] for i, name in enumerate(names)), 0.0 * d) / d if nb else sym(1, 0)
+    l_re, l_im, d = loop_terms(re, im, g_re, g_im)
+    numerators = bound_numerators(re, im, l_re, l_im)
+    # |X|^2 / M^2 - 1 of the bound the slot holds (its weight 1/M^2, the others' 0): bound_rows' row over |1 + L|^2
+    g = sum((grid[nf + 2 + i, :] * numerators[name] for i, name in enumerate(names)), 0.0 * d) / d - 1.0 if nb \
+        else sym(1, 0)
     f = -x[1] if isinstance(objective, str) else objective(ca.vertcat(kp, ki, kd, Tf))
-    g = g.T
+    g = ca.cse(g.T) if sym is ca.SX else g.T  # the slots' shared subexpressions once: a quarter fewer operations
     return _Compiled(x, p, f, g, ca.Function("fg", [x, p], [f, g]),
                      ca.Function("dfg", [x, p], [ca.gradient(f, x), ca.jacobian(g, x)]), nf)
 
@@ -224,8 +239,9 @@ class PIDProblem:
     ``bounds`` maps ``Ms``, ``Mt``, ``Mks`` to limits (None: unbounded); ``which`` names the bound each entry of
     ``omega`` holds (None: every bound at every frequency, the entries repeated per bound); ``objective`` is ``"IE"``
     or a CasADi function ``(kp, ki, kd, Tf) -> IAE`` with ``iae_scale`` its typical size. Each row is a slot of a
-    compiled problem of :data:`_BLOCK` times a power of two slots (the spare ones free rows), at least ``spare``
-    spare, so the IE problem's CasADi functions and solvers are built once per structure and size and kept.
+    compiled problem of :func:`_slots` slots (:data:`_BLOCK` times a power of two, or one and a half times that; the
+    spare ones free rows), at least ``spare`` spare, so the IE problem's CasADi functions and solvers are built once
+    per structure and size and kept.
     """
 
     def __init__(self, omega: np.ndarray, G: np.ndarray, bounds: dict[str, float | None], scales: Scales,
@@ -239,7 +255,7 @@ class PIDProblem:
             omega, G = np.tile(omega, len(self.names)), np.tile(G, len(self.names))
         self.omega, self.which = omega, np.asarray(which, dtype=object)
         n = self.omega.size
-        cap = _BLOCK * 2 ** int(np.ceil(np.log2(max((n + spare) / _BLOCK, 1.0))))
+        cap = _slots(n + spare)
         key = (cap, self.names, scales.filter_order, scales.dt is not None, max_iterations)
         if isinstance(objective, str):
             if key not in _CACHE:
@@ -252,7 +268,8 @@ class PIDProblem:
             self.compiled = _compile(cap, self.names, scales.filter_order, scales.dt is not None, fn)
             self._solvers = {}
         feats = _features(self.omega, scales.filter_order, scales.dt) if n else np.zeros((self.compiled.features, 0))
-        select = np.array([[w == name for w in self.which] for name in self.names], float).reshape(len(self.names), n)
+        select = np.array([(self.which == name) / float(_set(bounds, name)) ** 2 for name in self.names],
+                          float).reshape(len(self.names), n)
         slots = np.zeros((self.compiled.features + 2 + len(self.names), cap))
         slots[:, :n] = np.vstack([feats, G.real[None, :], G.imag[None, :], select])
         if n:  # spare slots: the last frequency again, no bound selected (free rows)
@@ -260,7 +277,7 @@ class PIDProblem:
         else:
             slots[:self.compiled.features, :] = 1.0
         self.data = np.concatenate([[scales.kp, scales.ki, scales.kd, scales.Tf, scales.dt or 0.0],
-                                    [float(_set(bounds, k)) ** 2 for k in self.names], slots.ravel(order="F")])
+                                    slots.ravel(order="F")])
         self.ubg = np.concatenate([np.zeros(n), np.full(cap - n, np.inf)])
         self.cap, self.max_iterations = cap, max_iterations
         self.x, self.f, self.g = self.compiled.x, self.compiled.f, self.compiled.g

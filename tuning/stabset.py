@@ -107,32 +107,40 @@ def line_gaps(alpha: np.ndarray, b: np.ndarray, r2: np.ndarray, forbidden: np.nd
     C = alpha.real**2 + alpha.imag**2 - r2
     disc = B * B - 4.0 * A * C
     root = np.sqrt(np.maximum(disc, 0.0))
-    lo, hi = (-B - root) / (2.0 * A), (-B + root) / (2.0 * A)
+    minus_B, two_A = -B, 2.0 * A
+    lo, hi = (minus_B - root) / two_A, (minus_B + root) / two_A
     meets = disc > 0.0
     f = np.broadcast_to(forbidden, lo.shape)
     # the allowed discs' intervals intersect in one interval, with (0, cap]
     a_lo = np.maximum(np.where(~f, lo, 0.0).max(axis=-1), 0.0)
     a_hi = np.minimum(np.where(~f, hi, np.inf).min(axis=-1), cap)
     a_hi = np.where(np.any(~f & ~meets, axis=-1), -np.inf, a_hi)
-    # the forbidden intervals' union, swept in order of their lower ends: the gaps between
+    # the forbidden intervals' union: with their lower ends and their upper ends each sorted, the k-th gap (k of the
+    # intervals below it) lies between the k-th upper end and the (k+1)-th lower end where the one is below the
+    # other; the last, above them all, from the largest upper end
     hit = f & meets
-    f_lo = np.where(hit, lo, np.inf)
-    order = np.argsort(f_lo, axis=-1)
-    f_lo = np.take_along_axis(f_lo, order, axis=-1)
-    reach = np.maximum.accumulate(np.take_along_axis(np.where(hit, hi, -np.inf), order, axis=-1), axis=-1)
-    lead = alpha.shape[:-1]
-    starts = np.concatenate([np.full((*lead, 1), -np.inf), reach], axis=-1)
-    ends = np.concatenate([f_lo, np.full((*lead, 1), np.inf)], axis=-1)
+    f_lo = np.sort(np.where(hit, lo, np.inf), axis=-1)
+    f_hi = np.sort(np.where(hit, hi, np.inf), axis=-1)
+    lead, n = alpha.shape[:-1], f_lo.shape[-1]
+    starts, ends = np.empty((*lead, n + 1)), np.empty((*lead, n + 1))
+    starts[..., 0], starts[..., 1:n], starts[..., n] = -np.inf, f_hi[..., :-1], np.where(hit, hi, -np.inf).max(axis=-1)
+    ends[..., :n], ends[..., n] = f_lo, np.inf
     s_, e_ = np.maximum(starts, a_lo[..., None]), np.minimum(ends, a_hi[..., None])
     valid = e_ > s_
     valid[..., :-1] &= np.isfinite(ends[..., :-1])  # the sweep's end: only the last slot
-    rank = np.argsort(-np.where(valid, e_, -np.inf), axis=-1)[..., :most - 1]
-    lowest = np.argmax(valid, axis=-1)[..., None]  # the lowest gap too: where it starts at ki = 0+, the plant's own
-    lowest = np.where(np.any(rank == lowest, axis=-1, keepdims=True), rank[..., -1:], lowest)
-    rank = np.concatenate([rank, lowest], axis=-1)
-    out = np.stack([np.take_along_axis(s_, rank, axis=-1), np.take_along_axis(e_, rank, axis=-1)], axis=-1)
-    out[~np.take_along_axis(valid, rank, axis=-1)] = np.nan
-    out[..., -1, :][np.all(rank[..., -1:] == rank[..., -2:-1], axis=-1)] = np.nan  # the lowest among the highest
+    # the gaps lie in the order of their slots: the highest are the last valid ones, the lowest the first
+    flat = valid.reshape(-1, n + 1)
+    line, slot = np.nonzero(flat)  # by line, then slot
+    total = flat.sum(axis=-1)
+    first = np.cumsum(total) - total  # each line's first in (line, slot)
+    rank = total[line] - 1 - (np.arange(line.size) - first[line])  # the valid slots above it
+    out = np.full((flat.shape[0], most, 2), np.nan)
+    gaps = np.stack([s_.reshape(-1, n + 1)[line, slot], e_.reshape(-1, n + 1)[line, slot]], axis=-1)
+    high = rank < most - 1
+    out[line[high], rank[high]] = gaps[high]
+    low = (rank == total[line] - 1) & (total[line] >= most)  # the lowest, where it is not among the highest
+    out[line[low], most - 1] = gaps[low]
+    out = out.reshape(*lead, most, 2)
     return out
 
 
@@ -141,8 +149,9 @@ def unstable_counts(L: np.ndarray, unstable: int, integrators: int, dt: float | 
     controller's integrator among ``integrators``); a large number where a continuous loop's gain is not below 1 at
     the grid's end (the count cannot be closed there). Vectorised :func:`~piezopreload.tuning.lti.nyquist_unstable`."""
     f = 1.0 + L
-    phase = np.unwrap(np.angle(f), axis=-1)
-    half = phase[..., -1] - phase[..., 0]
+    # the phase's change over the grid: the sum of its steps, each the principal angle of the ratio of neighbours
+    # (what unwrapping the phase adds up, without building the unwrapped phase)
+    half = np.angle(f[..., 1:] * np.conj(f[..., :-1])).sum(axis=-1)
     closed = np.ones(L.shape[:-1], bool)
     if dt is None:
         half = half - np.angle(f[..., -1])
