@@ -26,7 +26,7 @@ import numpy as np
 
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.tuning import ActiveBound
-from piezopreload.core.errors import InputError
+from piezopreload.core.errors import InputError, InternalError
 from piezopreload.tuning.lti import LinearPlant
 from piezopreload.tuning.pidform import PIDController
 
@@ -46,6 +46,8 @@ def magnitudes(name: str, C: np.ndarray, G: np.ndarray) -> np.ndarray:
     L = C * G
     if name == "Ms":
         return 1.0 / np.abs(1 + L)
+    if name not in ("Mt", "Mks"):
+        raise InternalError(f"no bound named {name!r}: Ms, Mt or Mks")
     return np.abs(L if name == "Mt" else C) / np.abs(1 + L)
 
 
