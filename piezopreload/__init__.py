@@ -32,7 +32,8 @@ __all__ = [
 #: and scipy load their submodules), so ``import piezopreload`` loads no floor and no solver
 _EXPORTS: dict[str, str] = {name: module for module, names in {
     "piezopreload.study": ("load_study", "shipped_studies", "Study"),
-    "piezopreload.results": ("TuningResult", "StudyRun", "ScheduleLearning"),
+    "piezopreload.results": ("TuningResult", "StudyRun"),
+    "piezopreload.schedule": ("ScheduleLearning",),
     "piezopreload.sweep": ("SweepResult",),
     "piezopreload.outcome": ("StudyResult",),
     "piezopreload.core.errors": ("PiezopreloadError", "InputError", "ArtifactError", "InfeasibleError",
@@ -88,8 +89,9 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     from piezopreload.models.controller import PIDGains
     from piezopreload.models.metrics import StepMetrics
     from piezopreload.outcome import StudyResult
-    from piezopreload.results import ScheduleLearning, StudyRun, TuningResult
+    from piezopreload.results import StudyRun, TuningResult
     from piezopreload.rig.export import export
+    from piezopreload.schedule import ScheduleLearning
     from piezopreload.study import Study, load_study, shipped_studies
     from piezopreload.sweep import SweepResult
     from piezopreload.tuning.autotune import autotune

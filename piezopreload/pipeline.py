@@ -27,11 +27,11 @@ report      figures and the PDF (Typst)                                         
 
 A study without ``[plant] from_design`` (the paper's) runs on its ``[rig]``: plant and system do
 not apply. With it, identify, tune, validate and compare run on the designed plant (``study.plant``
-of the study given the design stage's optimum, :meth:`Study.with_design`: the plant stage writes it
-as ``plant.json``), and their keys include the plant's hash: a changed design makes another plant
+of the study given the design stage's optimum, :meth:`~piezopreload.spec.StudySpec.with_design`: the plant stage
+writes it as ``plant.json``), and their keys include the plant's hash: a changed design makes another plant
 and everything after it runs again. With a ``[learning]``
 table too, the learn stage learns on each margin pass of the schedule and the system stage
-plays each pass's signal (:meth:`Study.track_schedule`'s ``ff_extra_V``): its summary is after
+plays each pass's signal (:meth:`~piezopreload.spec.StudySpec.track_schedule`'s ``ff_extra_V``): its summary is after
 learning, with the error before learning beside it; the rig stage plays the last pass's signal.
 
 Every stage has a key: the SHA-256 of its study tables, of the artifacts it reads, of the
@@ -60,7 +60,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from piezopreload import __version__
 from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.requirements import checked_by_stages, missed
@@ -68,7 +67,7 @@ from piezopreload.artifacts.responses import RESPONSE_FIGURES, ResponseRun, Resp
 from piezopreload.artifacts.rigrun import RigRunRecord
 from piezopreload.artifacts.schedule import PreloadSchedule
 from piezopreload.artifacts.system import SystemRecord
-from piezopreload.core.artifacts import atomic_write_bytes, read_artifact, write_artifact
+from piezopreload.core.artifacts import atomic_write_bytes, package_version, read_artifact, write_artifact
 from piezopreload.core.errors import InputError
 from piezopreload.core.stagecache import StageCache
 from piezopreload.core.stages import (
@@ -89,9 +88,9 @@ from piezopreload.design.tables import DesignTable, PlantTable
 from piezopreload.outcome import Headline, StageOutcome, StudyResult, summary_of
 from piezopreload.progress import Progress, ProgressLike, as_progress
 from piezopreload.reports.study_report import STAGES_READ, Published, ReportStudy, render_report
-from piezopreload.results import TuningResult
+from piezopreload.results import TuningResult, tune
 from piezopreload.rig.export import write_exports
-from piezopreload.study import Study, load_study
+from piezopreload.spec import StudySpec
 from piezopreload.tuning.compare import creep_effect, reproduction, responses
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.learning import played_passes, save_passes
@@ -109,14 +108,14 @@ STUDY_COPY = "study.toml"
 # --------------------------------------------------------------------------------------
 @dataclass
 class _Ctx:
-    study: Study
+    study: StudySpec
     out: Path
     progress: Progress
     records: dict[str, dict[str, Any]]
     source: str = ""                         # the study file as the user named it
     template: str | None = None              # a Typst template's text to use instead of the shipped one
     cache: StageCache | None = None          # stage outputs shared with other folders
-    _subject: Study | None = None
+    _subject: StudySpec | None = None
 
     def output(self, stage: str, label: str) -> Path:
         return self.out / self.records[stage]["outputs"][label]["path"]
@@ -138,7 +137,7 @@ class _Ctx:
         """The design's preload schedule, as the design stage recorded it."""
         return self.design().schedule
 
-    def subject(self) -> Study:
+    def subject(self) -> StudySpec:
         """The study the stages after the design run on: where the plant is the design, the study given the design
         stage's optimum (its plant, designed plant and preload schedule are made from it, not solved again)."""
         if not self.study.plant_from_design:
@@ -159,9 +158,9 @@ class Stage:
     code: tuple[str, ...]
     run: Callable[[_Ctx], tuple[dict[str, Path], dict[str, Any]]]
     files: tuple[str, ...] = ()  # the study's file keys it reads (hashed into its key)
-    applies: Callable[[Study], str | None] = field(default=lambda study: None)  # a reason it does not apply, or None
+    applies: Callable[[StudySpec], str | None] = field(default=lambda study: None)  # why it does not apply, or None
     validated_only: bool = False  # runs only on a validated gain set (export, the rig)
-    reads: Callable[[Study], tuple[str, ...]] = field(default=lambda study: ())  # more tables, as the study asks
+    reads: Callable[[StudySpec], tuple[str, ...]] = field(default=lambda study: ())  # more tables, as the study asks
     shared: bool = True  # its outputs may be restored from a StageCache (False: they record this folder's own run)
 
 
@@ -188,8 +187,8 @@ def _stage_design(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
 
 
 def _stage_tune(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
-    tuned = ctx.subject().tune(ctx.feedforward(), progress=ctx.progress.say,
-                           iterations=ctx.progress.counter("IPOPT iterations", every=10))
+    tuned = tune(ctx.subject(), ctx.feedforward(), progress=ctx.progress.say,
+                 iterations=ctx.progress.counter("IPOPT iterations", every=10))
     g, sched, bound = tuned.gains, tuned.solve.schedule, tuned.minimum_time
     return {"tuning": tuned.save(ctx.out / "tuning.json")}, {
         "Kc_V_per_N": g.Kc, "Ti_s": g.Ti_s, "Td_s": g.Td_s, "Tf_s": g.Tf_s, "b": g.b, "form": tuned.solve.form,
@@ -229,7 +228,7 @@ def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     rows = []
     for r in runs:
         path = outputs[r.label] = d / f"{r.label}.csv"
-        write_csv(path, r.run.columns(), f"piezopreload {__version__} run: study {study.name}, {r.gains} gains, "
+        write_csv(path, r.run.columns(), f"piezopreload {package_version()} run: study {study.name}, {r.gains} gains, "
                                          f"{r.controller}, {r.reference}, seed {study.seed}")
         rows.append(ResponseRun(r.gains, r.controller, r.reference, ctx.rel(path),
                                 **{k: r.numbers.get(k) for k in RESPONSE_FIGURES}))
@@ -377,15 +376,15 @@ def _stage_report(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
                          template=ctx.template)
 
 
-def _design_applies(study: Study) -> str | None:
+def _design_applies(study: StudySpec) -> str | None:
     return None if study.design_spec is not None else "the study has no [ballscrew] table"
 
 
-def _plant_applies(study: Study) -> str | None:
+def _plant_applies(study: StudySpec) -> str | None:
     return None if study.plant_from_design else "the study's [rig] is the plant ([plant] from_design is not set)"
 
 
-def _learn_applies(study: Study) -> str | None:
+def _learn_applies(study: StudySpec) -> str | None:
     return _plant_applies(study) or (None if study.learning is not None else "the study has no [learning] table")
 
 
@@ -429,7 +428,7 @@ STAGES: tuple[Stage, ...] = (
 _BY_NAME = {s.name: s for s in STAGES}
 
 
-def _stage_key(stage: Stage, study: Study, records: dict[str, dict[str, Any]]) -> str:
+def _stage_key(stage: Stage, study: StudySpec, records: dict[str, dict[str, Any]]) -> str:
     files = {}
     for key, path in study.files().items():
         if key in stage.files:
@@ -439,7 +438,7 @@ def _stage_key(stage: Stage, study: Study, records: dict[str, dict[str, Any]]) -
                 raise InputError(f"{study.path}: cannot read {path} ({exc.strerror or exc})") from None
     tables = study.tables()
     code = code_hash(("piezopreload",) + tuple(f"piezopreload.{p}" for p in stage.code))
-    return content_key({"stage": stage.name, "version": __version__, "code": code,
+    return content_key({"stage": stage.name, "version": package_version(), "code": code,
                         "tables": {t: tables.get(t) for t in stage.tables + stage.reads(study)},
                         "upstream": upstream_hashes(stage.needs, records), "files": files})
 
@@ -452,7 +451,7 @@ def read_manifest(out: str | Path) -> dict[str, Any]:
     return read_artifact(Path(out) / MANIFEST, "study-run")
 
 
-def _write_manifest(out: Path, study: Study, records: dict[str, dict[str, Any]], started: str, source: str) -> None:
+def _write_manifest(out: Path, study: StudySpec, records: dict[str, dict[str, Any]], started: str, source: str) -> None:
     write_artifact(out / MANIFEST, "study-run", {
         "study": {"path": source, "sha256": study.sha256, "name": study.name, "copy": STUDY_COPY},
         "started_utc": started,
@@ -515,7 +514,7 @@ def _outputs_of(out: Path, manifest: dict[str, Any]) -> list[Path]:
     return [*files, *logs, out / STUDY_COPY, out / MANIFEST]
 
 
-def _one_study_per_folder(out: Path, study: Study, overwrite: bool, progress: Progress) -> None:
+def _one_study_per_folder(out: Path, study: StudySpec, overwrite: bool, progress: Progress) -> None:
     """A folder holds one study's outputs: a folder holding another study's (by its ``[study] name``) is refused by
     name, or with ``overwrite`` cleared of them (the files its manifest records, its rig logs, then the folders
     left empty) before this study runs. The same study, changed, runs into its folder as ever (changed stages
@@ -544,7 +543,7 @@ def _one_study_per_folder(out: Path, study: Study, overwrite: bool, progress: Pr
     progress.say(f"--overwrite: removed the {removed} files of the study '{held.get('name')}' from {out}")
 
 
-def run_study(study: Study | str | Path | None = None, out: str | Path = DEFAULT_OUT, *, force: bool = False,
+def run_study(study: StudySpec | str | Path | None = None, out: str | Path = DEFAULT_OUT, *, force: bool = False,
               progress: ProgressLike | None = None, cache: StageCache | None = None,
               overwrite: bool = False) -> StudyResult:
     """Run a study's stages into ``out``; a stage whose key and outputs are unchanged is not run again.
@@ -557,7 +556,7 @@ def run_study(study: Study | str | Path | None = None, out: str | Path = DEFAULT
     """
     reporter = as_progress(progress)
     t0 = time.perf_counter()
-    study = study if isinstance(study, Study) else load_study(study)
+    study = study if isinstance(study, StudySpec) else StudySpec.load(study)
     study.check_files()
     out = Path(out)
     with _locked(out):
@@ -608,7 +607,7 @@ def rerender_report(out: str | Path, progress: ProgressLike | None = None,
     if broken:
         raise InputError(f"{out}: the outputs of {', '.join(broken)} changed or went missing since they were written; "
                          f"run 'piezopreload run {out / STUDY_COPY} --out {out}' to make them again")
-    study = load_study(out / STUDY_COPY)
+    study = StudySpec.load(out / STUDY_COPY)
     with _locked(out):
         ctx = _Ctx(study, out, reporter, records, manifest["study"].get("path", study.path), template_text)
         stages = _execute([report], ctx, True, manifest.get("started_utc", utc()))
@@ -617,7 +616,7 @@ def rerender_report(out: str | Path, progress: ProgressLike | None = None,
     return _result(out, study, stages, seconds)
 
 
-def _result(out: Path, study: Study, stages: list[dict[str, Any]], seconds: float) -> StudyResult:
+def _result(out: Path, study: StudySpec, stages: list[dict[str, Any]], seconds: float) -> StudyResult:
     records = read_manifest(out)["stages"]
     out = out.resolve()
 

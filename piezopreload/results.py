@@ -1,5 +1,5 @@
-"""What a study's steps return: :class:`TuningResult` (``study.tune()``), :class:`StudyRun` (``study.simulate()``)
-and :class:`ScheduleLearning` (``study.learn(reference="schedule")``).
+"""The steps that take a study, and what they return: :func:`tune` (a :class:`TuningResult`), :func:`simulate`
+(a :class:`StudyRun`) and :func:`reproduce`; :class:`~piezopreload.study.Study`'s methods of those names call them.
 
 Each result carries its numbers, ``to_dict()`` (what ``--json`` prints or the artifact
 holds) and ``plot()`` (a matplotlib Figure, no pyplot state). The domain computations are the
@@ -19,7 +19,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from piezopreload.artifacts.gainset import REFERENCES, GainSet, gains_to_dict
-from piezopreload.artifacts.learned import LearnedSignal
 from piezopreload.artifacts.tuning import (
     ActiveBound,
     ComparisonRow,
@@ -32,20 +31,18 @@ from piezopreload.artifacts.tuning import (
 from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.parallel import beside
-from piezopreload.design.system import SystemRun
 from piezopreload.models.actuator import Rig
 from piezopreload.models.closedloop import ClosedLoopRun
 from piezopreload.models.closedloop import simulate as simulate_loop
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.metrics import StepMetrics, run_numbers
 from piezopreload.progress import ProgressLike, say_of
-from piezopreload.study import Study
+from piezopreload.spec import StudySpec
 from piezopreload.tuning.bounds import minimum_time, tracking_floor
 from piezopreload.tuning.calibrate import CONTROLLERS
 from piezopreload.tuning.calibrate import reproduce as reproduce_paper
 from piezopreload.tuning.compare import compare_gains, reproduction_summary, tracking_improvement
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
-from piezopreload.tuning.learning import LearningResult, save_passes
 from piezopreload.tuning.pid import TuningInfeasible, tune_pid
 from piezopreload.tuning.schedule import schedule_levels, tune_schedule
 from piezopreload.tuning.verdict import validate_gain_set
@@ -53,7 +50,7 @@ from piezopreload.tuning.verdict import validate_gain_set
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["TuningResult", "StudyRun", "ScheduleLearning", "tune", "simulate", "reproduce"]
+__all__ = ["TuningResult", "StudyRun", "tune", "simulate", "reproduce"]
 
 _STEP_KEYS = ("rise_s", "peak_s", "settling_s", "overshoot_N")
 _TRACK_KEYS = ("tracking_rms_N", "tracking_max_N")
@@ -70,7 +67,7 @@ class TuningResult:
     causal controller reaches (``tracking_floor``).
     """
 
-    study: Study
+    study: StudySpec
     feedforward: IdentifiedFeedforward
     record: TuningRecord
 
@@ -119,7 +116,7 @@ class TuningResult:
         return self.record.save(path)
 
     @classmethod
-    def load(cls, path: str | Path, study: Study, feedforward: IdentifiedFeedforward) -> TuningResult:
+    def load(cls, path: str | Path, study: StudySpec, feedforward: IdentifiedFeedforward) -> TuningResult:
         """A tuning artifact read back, for the study and feedforward it was tuned with."""
         return cls(study, feedforward, TuningRecord.load(path))
 
@@ -222,12 +219,38 @@ def _minimum_time_bound(bounding: Any, settle: float | None, say: Callable[[str]
                             hold_s=bound["hold_s"], seconds=bound["seconds"])
 
 
-def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None = None,
-         progress: Callable[[str], None] | None = None,
-         iterations: Callable[[int], None] | None = None) -> TuningResult:
-    """The body of :meth:`Study.tune`: tune, bound, compare (``progress`` gets messages,
-    ``iterations`` IPOPT's count)."""
-    say = progress or (lambda _m: None)
+def tune(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,
+         progress: ProgressLike | None = None, iterations: Callable[[int], None] | None = None) -> TuningResult:
+    """Tune the PID around the study's plant compensated by ``feedforward``; compare it with the study's and SIMC's
+    gains and bound it (``study.tune()``).
+
+    Parameters
+    ----------
+    study : StudySpec
+        The study: its plant, its references, its ``[tuning]`` and ``[validation]`` tables.
+    feedforward : IdentifiedFeedforward, optional
+        The feedforward the PID is tuned around (default: the study's, identified); one that does not cover the
+        study's references is refused before the design and the tuning run.
+    seed : int, optional
+        The noise seed of the comparison (default: the study's).
+    progress : ProgressLike, optional
+        Where the steps are said: a function given each line, or a :class:`~piezopreload.progress.Progress`.
+    iterations : callable, optional
+        Given IPOPT's iteration count as it goes.
+
+    Returns
+    -------
+    TuningResult
+        The tuned gains, compared and bounded; ``.validate()`` judges them.
+    """
+    said = say_of(progress)
+    if feedforward is not None:  # refused before the design and the tuning, with both ranges
+        feedforward.covers(*study.reference_range_N, f"the study's references ({study.path})")
+    else:
+        study.measured_loop(said)
+    study.solved_plant(said)
+    feedforward = feedforward or study.identify_feedforward(said)
+    say = said or (lambda _m: None)
     seed = study.seed if seed is None else seed
     spec, criteria, step, trajectory = (study.tuning_spec, study.criteria, study.references["step"],
                                         study.references["trajectory"])
@@ -320,9 +343,32 @@ class StudyRun(ClosedLoopRun):
         return figures.closed_loop(self.columns(), self.band_N, self.signal, title)
 
 
-def simulate(study: Study, gains: GainSet | PIDGains | None, *, controller: str = "ff+pid", reference: str = "step",
-             feedforward: IdentifiedFeedforward | None = None, seed: int | None = None) -> StudyRun:
-    """The body of :meth:`Study.simulate`."""
+def simulate(study: StudySpec, gains: GainSet | PIDGains | None = None, *, controller: str = "ff+pid",
+             reference: str = "step", feedforward: IdentifiedFeedforward | None = None,
+             seed: int | None = None) -> StudyRun:
+    """One controller on the study's plant over one of its references (``study.simulate()``).
+
+    Parameters
+    ----------
+    study : StudySpec
+        The study: its plant, references, band and signal.
+    gains : GainSet or PIDGains, optional
+        A gain set (its feedforward too, unless ``feedforward`` is given), PID gains, or None for the study's
+        ``[controller]``.
+    controller : {"ff+pid", "pid"}
+        With the inverse-P-I feedforward or the PID alone.
+    reference : {"step", "trajectory"}
+        Which of the study's references.
+    feedforward : IdentifiedFeedforward, optional
+        The feedforward to invert (default: the gain set's, else the study's, identified).
+    seed : int, optional
+        The noise seed (default: the study's).
+
+    Returns
+    -------
+    StudyRun
+        The run, scored as the study says (``.step_metrics()``, ``.plot()``, ``.to_dict()``).
+    """
     if controller not in CONTROLLERS:
         raise InputError(f"controller must be one of {', '.join(CONTROLLERS)}, got {controller!r}")
     if reference not in REFERENCES:
@@ -355,18 +401,19 @@ def simulate(study: Study, gains: GainSet | PIDGains | None, *, controller: str 
                     info=info)
 
 
-def reproduce(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None = None,
+def reproduce(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,
               repeats: int = 1) -> dict[str, Any]:
     """The body of :meth:`Study.reproduce`: the paper's six step numbers beside the simulation's, both controllers.
 
     With ``repeats`` > 1, each number is the median over that many noise realisations, with its range.
     """
-    t0 = time.perf_counter()
     if repeats < 1:
         raise InputError(f"repeats: must be >= 1, got {repeats}")
     if study.published is None:
         raise InputError(f"{study.path}: the study declares no published step numbers (a [published] table, as "
                          "studies/paper2021.toml has); reproduce sets a study's simulation beside published numbers")
+    feedforward = feedforward or study.identify_feedforward()
+    t0 = time.perf_counter()
     rep = reproduce_paper(study.plant, study.gains, step=study.references["step"], excitation=study.excitation,
                           seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
                           repeats=repeats, feedforward=feedforward.model,
@@ -376,74 +423,3 @@ def reproduce(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | N
             "signal": study.signal, "published": study.published.source,
             "step": " -> ".join(f"{x:g}" for x in study.references["step"].levels_N) + " N",
             **reproduction_summary(rep, study.published.step()), "seconds": time.perf_counter() - t0}
-
-
-def _before_learning(result: LearningResult) -> float:
-    """A pass's RMS error before learning: without any learned correction (a warm-started pass's first trial already
-    carries the pass before's)."""
-    return float(result.info.get("before_learning_rms_N", np.max(result.history[0].tracking_rms_N)))
-
-
-@dataclass(frozen=True, eq=False)
-class ScheduleLearning:
-    """Learning along the design's preload schedule (``study.learn(gains, reference="schedule")``): each margin
-    pass of the schedule learned on its own repeated reference (``passes``, one
-    :class:`~piezopreload.tuning.learning.LearningResult` each), and the tracking of the schedule with each pass's
-    learned signal played (``system``, the last pass's :class:`~piezopreload.design.system.SystemRun`)."""
-
-    system: SystemRun
-    passes: tuple[LearningResult, ...]
-
-    @property
-    def last(self) -> LearningResult:
-        """The last pass's learning: the signal the schedule is played with."""
-        return self.passes[-1]
-
-    @property
-    def before_learning_rms_N(self) -> float:
-        """The last pass's RMS error before learning (the tuned loop with its feedforward and preview)."""
-        return _before_learning(self.last)
-
-    def save(self, folder: str | Path, gain_set_sha256: str | None,
-             inputs: dict[str, Any] | None = None) -> dict[str, Any]:
-        """Write each pass's learned signal and ``learning.json`` (:func:`~piezopreload.tuning.learning.save_passes`)
-        into ``folder``; returns the last pass's signal (``out``, what the rig plays) and its hash."""
-        paths, _ = save_passes(list(self.passes), folder, gain_set_sha256, dict(inputs or {}))
-        return {"out": str(paths["learned"]), "learning": str(paths["learning"]),
-                "content_sha256": LearnedSignal.load(paths["learned"]).content_sha256}
-
-    def to_dict(self) -> dict[str, Any]:
-        """The last pass's learning (as a :class:`LearningResult`'s), each pass's figures and
-        the schedule's tracking."""
-        return {**self.last.to_dict(), "before_learning_rms_N": self.before_learning_rms_N,
-                "passes": [{"pass": k, "preload_margin_N": None if p is None else p.preload_margin_N,
-                            "tracking_rms_N": r.tracking_rms_N,
-                            "before_learning_rms_N": _before_learning(r)}
-                           for k, (r, p) in enumerate(zip(self.passes, self._pass_records()), start=1)],
-                "system": self.system.summary()}
-
-    def _pass_records(self) -> list[Any]:
-        """The system's record of each learned pass (None for a pass the system did not run again)."""
-        records: list[Any] = list(self.system.passes)
-        return records + [None] * (len(self.passes) - len(records))
-
-    def __repr__(self) -> str:
-        return (f"ScheduleLearning({len(self.passes)} pass{'es' if len(self.passes) > 1 else ''}, margin "
-                f"{self.system.margin_N:.1f} N: tracking RMS {self.last.tracking_rms_N:.2f} N after learning, "
-                f"{self.before_learning_rms_N:.2f} N before; requirements met: {self.system.requirements_met})")
-
-    def plot(self) -> Figure:
-        """The error per iteration of each pass (left) and the schedule's tracking (the system run's figure is
-        ``system.plot()``): a Figure."""
-        from matplotlib.figure import Figure
-
-        fig = Figure(figsize=(5.5, 3.6), layout="constrained")
-        ax = fig.subplots()
-        for k, result in enumerate(self.passes, start=1):
-            ax.semilogy([h.iteration for h in result.history],
-                        [float(np.max(np.atleast_1d(h.tracking_rms_N))) for h in result.history], "o-",
-                        label=f"pass {k}")
-        ax.set(xlabel="iteration", ylabel="RMS error of the true force (N)",
-               title="learning along the preload schedule, each margin pass")
-        ax.legend(fontsize="small")
-        return fig

@@ -3,8 +3,8 @@
 ``piezopreload sweep STUDY --vary TABLE.KEY=V1,V2,... [--vary ...] [--grid|--zip]`` and
 ``study.sweep({"tuning.ms_max": [1.4, 1.6, 1.8], ...})``:
 
-- each point is the study with its values, made by :meth:`Study.replace
-  <piezopreload.study.Study.replace>` (checked as a study file is; a key the designed plant sets
+- each point is the study with its values, made by :meth:`StudySpec.replace
+  <piezopreload.spec.StudySpec.replace>` (checked as a study file is; a key the designed plant sets
   is refused there), and every point is made and checked before any runs;
 - each point runs through :func:`piezopreload.pipeline.run_study` into its own folder,
   ``OUT/points/pNNN/`` (its ``study.toml``, ``pipeline.json``, artifacts, report and
@@ -64,12 +64,10 @@ from piezopreload.core.stagecache import StageCache
 from piezopreload.core.stages import locked, utc
 from piezopreload.pipeline import read_manifest, read_template, run_study, run_summary
 from piezopreload.progress import Progress, ProgressLike, as_progress
-from piezopreload.reports.sweep_figures import sweep_plot
-from piezopreload.reports.sweep_report import render_sweep_report
-from piezopreload.study import Study
+from piezopreload.spec import StudySpec
 from piezopreload.tuning.validate import SchedulerError
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # the sweep's report and figures load matplotlib when they are drawn, not when a study is read
     from matplotlib.figure import Figure
 
 __all__ = ["sweep", "SweepResult", "parse_vary", "plan_points", "headline", "rerender_sweep_report", "is_sweep_folder",
@@ -115,7 +113,7 @@ def _label(values: Mapping[str, Scalar]) -> str:
 
 
 def _changes(values: Mapping[str, Scalar]) -> dict[str, Any]:
-    """``{"reference.step.final_N": 80}`` -> ``{"reference": {"step": {"final_N": 80}}}`` (``Study.replace``'s form)."""
+    """``{"reference.step.final_N": 80}`` -> ``{"reference": {"step": {"final_N": 80}}}`` (``replace``'s form)."""
     changes: dict[str, Any] = {}
     for key, value in values.items():
         *tables, name = key.split(".")
@@ -126,8 +124,8 @@ def _changes(values: Mapping[str, Scalar]) -> dict[str, Any]:
     return changes
 
 
-def plan_points(study: Study, vary: Mapping[str, Sequence[Scalar]], mode: str = "grid",
-                where: str = "Study.sweep") -> tuple[tuple[SweepAxis, ...], list[tuple[dict[str, Scalar], Study]]]:
+def plan_points(study: StudySpec, vary: Mapping[str, Sequence[Scalar]], mode: str = "grid",
+                where: str = "Study.sweep") -> tuple[tuple[SweepAxis, ...], list[tuple[dict[str, Scalar], StudySpec]]]:
     """The axes and, per point, its values and its study (``study.replace`` with them), every point checked.
 
     ``mode``: ``grid`` (every combination, the last axis fastest) or ``zip`` (the i-th value of each
@@ -206,7 +204,7 @@ class _Task:
     index: int
     values: dict[str, Scalar]
     folder: str        # relative to out
-    study: Study
+    study: StudySpec
     out: str           # the sweep's folder, absolute
     force: bool
     one_process: bool  # set PIEZOPRELOAD_WORKERS=1 around the point (a Dask worker; local workers set it at start)
@@ -440,7 +438,7 @@ def _check_where(workers: int | None, scheduler: str | None) -> None:
         raise InputError(f"--scheduler: '{scheduler}' is not a Dask scheduler address tcp://HOST:PORT")
 
 
-def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "grid",
+def sweep(study: StudySpec, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "grid",
           out: str | Path = DEFAULT_SWEEP_OUT, workers: int | None = None, scheduler: str | None = None,
           force: bool = False, progress: ProgressLike | None = None, report: bool = True,
           where: str = "Study.sweep") -> SweepResult:
@@ -448,7 +446,7 @@ def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "gr
 
     Parameters
     ----------
-    study : Study
+    study : StudySpec
         The study swept.
     vary : mapping of str to list
         ``{"TABLE.KEY": [V1, V2, ...]}``: the keys as a study file's tables name them
@@ -519,6 +517,8 @@ def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "gr
         result = SweepResult(out, record, time.perf_counter() - t0)
         atomic_write_text(out / ROWS, result.csv_text())
         if report:
+            from piezopreload.reports.sweep_report import render_sweep_report
+
             render_sweep_report(out, record, say=reporter.say)
     seconds = time.perf_counter() - t0
     failed, missed = len(result.failed), result.missed
@@ -543,6 +543,8 @@ def rerender_sweep_report(out: str | Path, progress: ProgressLike | None = None,
     out = Path(out)
     text = read_template(template)
     record = SweepRecord.load(out / RECORD)
+    from piezopreload.reports.sweep_report import render_sweep_report
+
     with locked(out, f"{out}: a sweep is writing this folder; wait for it"):
         written = render_sweep_report(out, record, say=reporter.say, template=text)
     seconds = time.perf_counter() - t0
@@ -646,6 +648,8 @@ class SweepResult:
         unknown = [c for c in (x, *ys, *groups) if c not in columns]
         if unknown:
             raise InputError(f"SweepResult.plot: no column '{unknown[0]}'; the columns are {', '.join(columns)}")
+        from piezopreload.reports.sweep_figures import sweep_plot
+
         return sweep_plot(self.rows, x, ys, groups, title=f"sweep of {self.record.study_name}")
 
     def _table(self) -> tuple[list[str], list[list[str]]]:

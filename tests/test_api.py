@@ -69,9 +69,12 @@ def test_the_readme_snippet_runs_end_to_end(tmp_path, monkeypatch, capsys):
 def test_the_study_docstring_examples_run():
     import doctest
 
+    import piezopreload.spec
     import piezopreload.study
 
     failed, tried = doctest.testmod(piezopreload.study)
+    assert tried >= 3 and failed == 0
+    failed, tried = doctest.testmod(piezopreload.spec)
     assert tried >= 3 and failed == 0
 
 

@@ -54,9 +54,9 @@ class _Version(argparse.Action):
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
                  option_string: str | None = None) -> None:
-        from piezopreload import __version__
+        from piezopreload.core.artifacts import package_version
 
-        print(f"piezopreload {__version__}")
+        print(f"piezopreload {package_version()}")
         parser.exit()
 
 

@@ -145,8 +145,8 @@ def register_simulate(sub: Any) -> None:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
-    from piezopreload import __version__
     from piezopreload.artifacts.gainset import GainSet
+    from piezopreload.core.artifacts import package_version
     from piezopreload.core.tables import write_csv
     from piezopreload.tuning.feedforward import IdentifiedFeedforward
 
@@ -163,7 +163,7 @@ def _cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
     if args.feedforward and ff is not None:
         s["feedforward"] = {"source": args.feedforward, "model": ff.model.kind, "operators": ff.model.n_operators}
     if args.out is not None:
-        write_csv(args.out, run.columns(), f"piezopreload {__version__} simulate: study {study.name} "
+        write_csv(args.out, run.columns(), f"piezopreload {package_version()} simulate: study {study.name} "
                                            f"({study.sha256[:12]}), controller {args.controller}, reference "
                                            f"{args.reference}, seed {run.seed}")
     return {**s, "seconds": time.perf_counter() - t0, "out": args.out}
