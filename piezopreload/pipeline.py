@@ -62,12 +62,28 @@ from typing import Any
 
 from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import GainSet
-from piezopreload.artifacts.requirements import checked_by_stages, missed
+from piezopreload.artifacts.manifest import MANIFEST, STUDY_COPY, StageRecord, StudyRef, StudyRunManifest
+from piezopreload.artifacts.requirements import missed
 from piezopreload.artifacts.responses import RESPONSE_FIGURES, ResponseRun, ResponsesRecord
 from piezopreload.artifacts.rigrun import RigRunRecord
 from piezopreload.artifacts.schedule import PreloadSchedule
+from piezopreload.artifacts.summaries import (
+    BeforeLearning,
+    CompareSummary,
+    DesignSummary,
+    ExportSummary,
+    IdentifySummary,
+    LearnSummary,
+    PlantSummary,
+    RigSummary,
+    RigTrip,
+    StageSummary,
+    SystemSummary,
+    TuneSummary,
+    ValidateSummary,
+)
 from piezopreload.artifacts.system import SystemRecord
-from piezopreload.core.artifacts import atomic_write_bytes, package_version, read_artifact, write_artifact
+from piezopreload.core.artifacts import atomic_write_bytes, package_version
 from piezopreload.core.errors import InputError
 from piezopreload.core.stagecache import StageCache
 from piezopreload.core.stages import (
@@ -85,7 +101,7 @@ from piezopreload.core.stages import (
 )
 from piezopreload.core.tables import write_csv
 from piezopreload.design.tables import DesignTable, PlantTable
-from piezopreload.outcome import Headline, StageOutcome, StudyResult, summary_of
+from piezopreload.outcome import Headline, RunSummary, StageOutcome, StudyResult
 from piezopreload.progress import Progress, ProgressLike, as_progress
 from piezopreload.reports.study_report import STAGES_READ, Published, ReportStudy, render_report
 from piezopreload.results import TuningResult, tune
@@ -96,11 +112,11 @@ from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.learning import played_passes, save_passes
 
 __all__ = ["Stage", "STAGES", "StageFailed", "StageCrashed", "run_study", "rerender_report", "read_template",
-           "read_manifest", "run_summary", "DEFAULT_OUT"]
+           "run_summary", "DEFAULT_OUT", "Produced"]
 
 DEFAULT_OUT = "piezopreload-out"
-MANIFEST = "pipeline.json"
-STUDY_COPY = "study.toml"
+#: what a stage's body returns: its outputs (label -> path in the folder) and its summary
+Produced = tuple[dict[str, Path], StageSummary]
 
 
 # --------------------------------------------------------------------------------------
@@ -117,11 +133,33 @@ class _Ctx:
     cache: StageCache | None = None          # stage outputs shared with other folders
     _subject: StudySpec | None = None
 
+    def record(self, stage: str) -> StageRecord | None:
+        """The record of ``stage`` so far in this run (None: not reached)."""
+        raw = self.records.get(stage)
+        return None if raw is None else StageRecord.from_dict(stage, raw, str(self.out / MANIFEST))
+
+    def done(self, stage: str) -> bool:
+        record = self.record(stage)
+        return record is not None and record.done
+
+    def _output(self, stage: str, label: str) -> tuple[str, str]:
+        record = self.record(stage)
+        o = None if record is None else record.outputs.get(label)
+        if o is None:
+            raise StageFailed(stage, f"it recorded no output '{label}'; run the study again with --force")
+        return o.path, o.sha256
+
     def output(self, stage: str, label: str) -> Path:
-        return self.out / self.records[stage]["outputs"][label]["path"]
+        return self.out / self._output(stage, label)[0]
 
     def sha256(self, stage: str, label: str) -> str:
-        return self.records[stage]["outputs"][label]["sha256"]
+        return self._output(stage, label)[1]
+
+    def manifest(self) -> StudyRunManifest:
+        """The stages' records so far, typed (what ``pipeline.json`` holds)."""
+        return StudyRunManifest.from_records(StudyRef(self.source or self.study.path, self.study.sha256,
+                                                      self.study.name), "", self.records, tuple(_BY_NAME),
+                                             str(self.out / MANIFEST))
 
     def rel(self, path: Path) -> str:
         return Path(path).resolve().relative_to(self.out.resolve()).as_posix()
@@ -156,7 +194,7 @@ class Stage:
     tables: tuple[str, ...]
     needs: tuple[str, ...]
     code: tuple[str, ...]
-    run: Callable[[_Ctx], tuple[dict[str, Path], dict[str, Any]]]
+    run: Callable[[_Ctx], Produced]
     files: tuple[str, ...] = ()  # the study's file keys it reads (hashed into its key)
     applies: Callable[[StudySpec], str | None] = field(default=lambda study: None)  # why it does not apply, or None
     validated_only: bool = False  # runs only on a validated gain set (export, the rig)
@@ -164,15 +202,14 @@ class Stage:
     shared: bool = True  # its outputs may be restored from a StageCache (False: they record this folder's own run)
 
 
-def _stage_identify(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_identify(ctx: _Ctx) -> Produced:
     ff = ctx.subject().identify_feedforward(progress=ctx.progress.say)
     paths = ff.save(ctx.out / "feedforward", inputs={"study_sha256": ctx.study.sha256})
-    return paths, {"source": ff.record.data.kind, "data_sha256": ff.record.data.sha256,
-                   "operators": ff.model.n_operators, "fit_rms_pct": ff.fit.rms_pct, "fit_max_pct": ff.fit.max_pct,
-                   "compensation_rms_N": None if ff.check is None else ff.check.rms_N}
+    return paths, IdentifySummary(ff.record.data.kind, ff.record.data.sha256, ff.model.n_operators, ff.fit.rms_pct,
+                                  ff.fit.max_pct, None if ff.check is None else ff.check.rms_N)
 
 
-def _stage_design(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_design(ctx: _Ctx) -> Produced:
     d = ctx.out / "design"
     for stale in d.glob("design.pareto-*.csv"):  # a front the study no longer asks for
         stale.unlink()
@@ -180,24 +217,23 @@ def _stage_design(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     written = result.save(d / "design.json", {"study": ctx.study.path, "study_sha256": ctx.study.sha256})
     outputs = {"design": written[0], **{p.stem.rpartition(".")[2]: p for p in written[1:]}}
     s = result.schedule
-    return outputs, {"objective": result.optimum.objective, "stiffness_N_per_um": result.point.stiffness_N_per_um,
-                     "binding": result.optimum.binding, "fronts": [f.pair for f in result.fronts],
-                     "schedule_saving_fraction": s.saving_fraction, "constant_preload_N": s.constant_preload_N,
-                     "constant_friction_energy": s.constant_friction_energy_J, "energy_units": s.energy_units}
+    return outputs, DesignSummary(result.optimum.objective, result.point.stiffness_N_per_um,
+                                  tuple(result.optimum.binding), tuple(f.pair for f in result.fronts),
+                                  s.saving_fraction, s.constant_preload_N, s.constant_friction_energy_J,
+                                  s.energy_units)
 
 
-def _stage_tune(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_tune(ctx: _Ctx) -> Produced:
     tuned = tune(ctx.subject(), ctx.feedforward(), progress=ctx.progress.say,
                  iterations=ctx.progress.counter("IPOPT iterations", every=10))
     g, sched, bound = tuned.gains, tuned.solve.schedule, tuned.minimum_time
-    return {"tuning": tuned.save(ctx.out / "tuning.json")}, {
-        "Kc_V_per_N": g.Kc, "Ti_s": g.Ti_s, "Td_s": g.Td_s, "Tf_s": g.Tf_s, "b": g.b, "form": tuned.solve.form,
-        "ms": tuned.solve.ms, "active_bounds": [b.sentence() for b in tuned.active_bounds],
-        "minimum_time_s": bound.settling_s, "tuned_over_bound_ratio": bound.tuned_over_bound_ratio,
-        "search": tuned.solve.search, **({} if sched is None else {"gain_schedule": sched["choice"]})}
+    return {"tuning": tuned.save(ctx.out / "tuning.json")}, TuneSummary(
+        g.Kc, g.Ti_s, g.Td_s, g.Tf_s, g.b, tuned.solve.form, tuned.solve.ms,
+        tuple(b.sentence() for b in tuned.active_bounds), bound.settling_s, bound.tuned_over_bound_ratio,
+        tuned.solve.search, None if sched is None else sched["choice"])
 
 
-def _stage_validate(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_validate(ctx: _Ctx) -> Produced:
     study = ctx.subject()
     tuned = TuningResult.load(ctx.output("tune", "tuning"), study, ctx.feedforward())
     gain_set, result = tuned.validation(inputs={"tuning_sha256": ctx.sha256("tune", "tuning")},
@@ -209,14 +245,12 @@ def _stage_validate(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
             inputs={"gain_set": "gains.json", "study_sha256": study.sha256}).save(validation_path)
     if not gain_set.validated:  # a verdict, not a failure: the study goes on, export and the rig take validated sets
         ctx.progress.say(f"{gains_path.name} is a {gain_set.verdict()}")
-    h = result.headline()
-    return {"gains": gains_path, "validation": validation_path}, {
-        "status": gain_set.status, "content_sha256": gain_set.content_sha256, "plants": result.n_plants,
-        "worst_settling_s": h["worst_settling_s"], "worst_overshoot_N": h["worst_overshoot_N"],
-        "requirements": [r.to_dict() for r in gain_set.requirements]}
+    return {"gains": gains_path, "validation": validation_path}, ValidateSummary(
+        gain_set.status, gain_set.content_sha256 or "", result.n_plants, result.worst.settling_s,
+        result.worst.overshoot_N, tuple(gain_set.requirements))
 
 
-def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_compare(ctx: _Ctx) -> Produced:
     study, ff = ctx.subject(), ctx.feedforward()
     gain_set = GainSet.load(ctx.output("validate", "gains"))
     runs = responses(study.plant, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model,
@@ -242,11 +276,10 @@ def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
         {"gain_set_sha256": gain_set.content_sha256, "study_sha256": study.sha256,
          "feedforward_sha256": ctx.sha256("identify", "model")})
     outputs["responses"] = record.save(d / "responses.json")
-    return outputs, {"tuned_settling_s": record.run("tuned", "ff+pid", "step").settling_s,
-                     "reproduction": [r.to_dict() for r in table]}
+    return outputs, CompareSummary(record.run("tuned", "ff+pid", "step").settling_s, tuple(table))
 
 
-def _stage_plant(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_plant(ctx: _Ctx) -> Produced:
     plant = ctx.subject().designed_plant
     path = plant.save(ctx.out / "plant.json", {"design": ctx.rel(ctx.output("design", "design")),
                                                "design_sha256": plant.design_sha256, "study_sha256": ctx.study.sha256})
@@ -254,11 +287,10 @@ def _stage_plant(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     ctx.progress.say(f"{plant.rig.n_stacks} x {plant.rig.stack.name}, stacks' share 0-{plant.stack_force_max_N:.0f} N, "
                      f"{k['at_bolts']:.0f}-{k['at_max']:.0f} N/um of stroke over the range, "
                      f"slew {float(plant.rig.slew_V_per_s):.0f} V/s")
-    return {"plant": path}, {"design_sha256": plant.design_sha256, "stack_force_max_N": plant.stack_force_max_N,
-                             "local_stiffness_N_per_um": k, "bolt_preload_N": plant.bolt_preload_N}
+    return {"plant": path}, PlantSummary(plant.design_sha256, plant.stack_force_max_N, k, plant.bolt_preload_N)
 
 
-def _stage_learn(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_learn(ctx: _Ctx) -> Produced:
     study, gain_set = ctx.subject(), GainSet.load(ctx.output("validate", "gains"))
     learned = study.learn(gain_set, reference="schedule", progress=ctx.progress.say)
     inputs = {"gain_set_sha256": gain_set.content_sha256, "plant_sha256": ctx.sha256("plant", "plant"),
@@ -269,24 +301,21 @@ def _stage_learn(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     ctx.progress.say(f"{record.trials} learning trials over {len(record.passes)} pass(es) "
                      f"({', '.join(str(t) for t in record.trials_per_pass)}; each trial {cycles} machining "
                      f"cycle(s)), the last pass within 1.1 x its best from trial {last.trials_to_within_1p1}")
-    return outputs, {"tracking_rms_N": last.tracking_rms_N, "tracking_rms_pct_of_range": last.tracking_rms_pct_of_range,
-                     "before_learning_rms_N": last.before_learning_rms_N,
-                     "before_learning_pct_of_range": last.before_learning_pct_of_range, "iterations": last.trials,
-                     "trials": record.trials, "trials_per_pass": record.trials_per_pass,
-                     "trials_to_within_1p1_per_pass": [p.trials_to_within_1p1 for p in record.passes],
-                     "method": last.method, "converged": last.converged, "passes": len(record.passes),
-                     "contraction_over_range": last.learning.get("contraction_over_range"),
-                     "preload_margin_N": learned.system.margin_N}
+    contraction = last.learning.get("contraction_over_range")
+    return outputs, LearnSummary(
+        last.tracking_rms_N, last.tracking_rms_pct_of_range, last.before_learning_rms_N,
+        last.before_learning_pct_of_range, last.trials, record.trials, tuple(record.trials_per_pass),
+        tuple(p.trials_to_within_1p1 for p in record.passes), last.method, last.converged, len(record.passes),
+        None if contraction is None else float(contraction), learned.system.margin_N)
 
 
-def _stage_system(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_system(ctx: _Ctx) -> Produced:
     study, gain_set = ctx.subject(), GainSet.load(ctx.output("validate", "gains"))
-    extra, before = None, {}
-    if ctx.records.get("learn", {}).get("status") == "done":  # each pass plays the signal learned on its reference
+    extra, before = None, None
+    if ctx.done("learn"):  # each pass plays the signal learned on its reference
         extra, record = played_passes(ctx.output("learn", "learning"), gain_set.content_sha256)
-        before = {"tracking_rms_N_before_learning": record.last.before_learning_rms_N,
-                  "tracking_rms_pct_of_range_before_learning": record.last.before_learning_pct_of_range,
-                  "learning_iterations": record.last.trials, "learning_trials": record.trials}
+        before = BeforeLearning(record.last.before_learning_rms_N, record.last.before_learning_pct_of_range,
+                                record.last.trials, record.trials)
     result = study.track_schedule(gain_set, ff_extra_V=extra, progress=ctx.progress.say)
     paths = result.save(ctx.out / "system", {
         "gain_set_sha256": gain_set.content_sha256, "design_sha256": ctx.sha256("design", "design"),
@@ -297,29 +326,31 @@ def _stage_system(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
         ctx.progress.say(f"requirement missed: {r.sentence()}")
     for b in system.bounds:
         ctx.progress.say(f"what stops it: {b.sentence()}")
-    return paths, {**system.summary(), **before}
+    return paths, SystemSummary(system.numbers, system.requirements, system.bounds, system.pre_cycle,
+                                system.preload_margin_N, system.cycles, system.passes,
+                                None if system.thermal is None else system.thermal.summary(), before)
 
 
-def _stage_export(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_export(ctx: _Ctx) -> Produced:
     formats = list(ctx.study.export.formats)
     outputs = write_exports(GainSet.load(ctx.output("validate", "gains")), ctx.out / "exports", formats)
     for fmt, path in outputs.items():
         ctx.progress.say(f"{fmt}: {ctx.rel(path)}")
-    return {fmt: Path(p) for fmt, p in outputs.items()}, {"formats": formats}
+    return {fmt: Path(p) for fmt, p in outputs.items()}, ExportSummary(tuple(formats))
 
 
-def _stage_rig(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_rig(ctx: _Ctx) -> Produced:
     from piezopreload.rig import session  # with the OPC UA push: loaded when the stage runs, not on every rerun
 
     plan = ctx.study.rig_run
     reference: str | None = str(ctx.study.files().get("rig_run.reference", plan.reference))
     learned = None
     if reference == "schedule":
-        if ctx.records.get("system", {}).get("status") != "done":
+        if not ctx.done("system"):
             raise StageFailed("rig", "[rig_run] reference = 'schedule' needs the system stage (a study whose "
                                      "[plant] is its design's)")
         reference = str(ctx.output("system", "reference"))
-        if ctx.records.get("learn", {}).get("status") == "done":  # the schedule, learned: the signal's own reference
+        if ctx.done("learn"):  # the schedule, learned: the signal's own reference
             learned, reference = ctx.output("learn", "learned"), None
     ctx.progress.say(f"backend '{plan.backend}', reference {Path(reference or learned or '').name}"
                      f"{' (learned)' if learned else ''}, {'real time' if plan.realtime else 'back to back'}")
@@ -334,36 +365,30 @@ def _stage_rig(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
         trip = record.trip
         raise StageFailed("rig", f"the run was stopped by the interlock '{trip.cause}' at t = {trip.t_s:.3f} s with "
                                  f"{trip.voltage_V:.4g} V held: {trip.detail}; the log is {s['log_csv']}",
-                          exit_code=session.EXIT_TRIPPED) from Partial(outputs, summary)
-    ctx.progress.say(f"{record.status}: {summary['cycles']} cycles; log {ctx.rel(outputs['log_csv'])}")
+                          exit_code=session.EXIT_TRIPPED) from Partial(outputs, summary.to_dict())
+    ctx.progress.say(f"{record.status}: {summary.cycles} cycles; log {ctx.rel(outputs['log_csv'])}")
     return outputs, summary
 
 
-def _rig_summary(record: RigRunRecord) -> dict[str, Any]:
+def _rig_summary(record: RigRunRecord) -> RigSummary:
     """The rig stage's summary from the run's sidecar: a tripped run's trip (no step figures), a completed run's
     figures; both with the loop's timing against the stall limit."""
     out = record.summary
     if out is None:
         raise StageFailed("rig", f"the run's sidecar says '{record.status}' and holds no outcome")
-    summary: dict[str, Any] = {"status": record.status, "cycles": out.cycles, "controller_step": out.controller_step,
-                               "missed_deadlines": out.timing.missed_deadlines,
-                               "stalls": out.timing.stalls, "held_max_s": out.timing.held_max_s,
-                               "stall_limit_s": out.timing.stall_limit_s,
-                               "force_max_N": record.safety.get("force_max_N")}
+    head = RigSummary(record.status, out.cycles, out.controller_step, out.timing.missed_deadlines, out.timing.stalls,
+                      out.timing.held_max_s, out.timing.stall_limit_s, record.safety.get("force_max_N"))
     if out.trip is not None:
-        summary["trip"] = {"cause": out.trip.cause, "detail": out.trip.detail, "t_s": out.trip.t_s,
-                           "voltage_V": out.trip.voltage_V}
-        return summary
+        return replace(head, trip=RigTrip(out.trip.cause, out.trip.detail, out.trip.t_s, out.trip.voltage_V))
     m = out.metrics
-    summary.update({"settling_s": None if m is None else m.settling_s,
-                    "overshoot_N": None if m is None else m.overshoot_N,
-                    "tracking_rms_N": None if m is None else m.tracking_rms_N})
     learned = record.learned or {}
-    summary["learned_tracking_rms_measured_N"] = learned.get("tracking_rms_measured_N")
-    return summary
+    return replace(head, settling_s=None if m is None else m.settling_s,
+                   overshoot_N=None if m is None else m.overshoot_N,
+                   tracking_rms_N=None if m is None else m.tracking_rms_N,
+                   learned_tracking_rms_measured_N=learned.get("tracking_rms_measured_N"))
 
 
-def _stage_report(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_report(ctx: _Ctx) -> Produced:
     study = ctx.study
     b, d = study.ballscrew, study.design_spec
     pub = study.published
@@ -372,7 +397,7 @@ def _stage_report(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
                         None if d is None else d.frequency_min_Hz,
                         None if pub is None else Published(pub.source, pub.gains_label, pub.step()),
                         "the study's gains" if pub is None else pub.gains_label)
-    return render_report(ctx.out, ctx.records, facts, say=ctx.progress.say, bar=ctx.progress.bar("figures"),
+    return render_report(ctx.out, ctx.manifest(), facts, say=ctx.progress.say, bar=ctx.progress.bar("figures"),
                          template=ctx.template)
 
 
@@ -446,17 +471,11 @@ def _stage_key(stage: Stage, study: StudySpec, records: dict[str, dict[str, Any]
 # --------------------------------------------------------------------------------------
 # the manifest and the lock
 # --------------------------------------------------------------------------------------
-def read_manifest(out: str | Path) -> dict[str, Any]:
-    """The output folder's ``pipeline.json`` (an artifact of kind ``study-run``)."""
-    return read_artifact(Path(out) / MANIFEST, "study-run")
-
-
 def _write_manifest(out: Path, study: StudySpec, records: dict[str, dict[str, Any]], started: str, source: str) -> None:
-    write_artifact(out / MANIFEST, "study-run", {
-        "study": {"path": source, "sha256": study.sha256, "name": study.name, "copy": STUDY_COPY},
-        "started_utc": started,
-        "stages": {name: records[name] for name in _BY_NAME if name in records},
-    })
+    """``pipeline.json``: the stages' records as :func:`~piezopreload.core.stages.run_stages` keeps them, read into
+    their types (a summary that would not read back fails here, where it is written) and saved."""
+    StudyRunManifest.from_records(StudyRef(source, study.sha256, study.name), started, records, tuple(_BY_NAME),
+                                  str(out / MANIFEST)).save(out)
 
 
 def _locked(out: Path) -> AbstractContextManager[None]:
@@ -472,24 +491,28 @@ def _applies(stage: Stage, ctx: _Ctx) -> str | None:
     """Why ``stage`` does not apply to the study (or to its gain set's verdict), or None."""
     reason = stage.applies(ctx.study)
     if reason is None and stage.validated_only:
-        validate = ctx.records.get("validate", {})
-        if validate.get("status") == "done" and validate.get("summary", {}).get("status") != "validated":
-            names = [r.name for r in missed(checked_by_stages({"validate": validate}))]
+        validate = ctx.manifest().summary(ValidateSummary)
+        if validate is not None and not validate.validated:
+            names = [r.name for r in missed(validate.requirements)]
             reason = f"the gain set is a candidate: it missed the validation's {', '.join(names) or 'limits'}"
     return reason
 
 
-def _execute(stages: list[Stage], ctx: _Ctx, force: bool, started: str) -> list[dict[str, Any]]:
+def _execute(stages: list[Stage], ctx: _Ctx, force: bool, started: str) -> list[StageOutcome]:
     keys: dict[str, str] = {}
 
     def key(stage: Stage) -> str:
         keys[stage.name] = _stage_key(stage, ctx.study, ctx.records)
         return keys[stage.name]
 
+    def body(stage: Stage) -> tuple[dict[str, Path], dict[str, Any]]:
+        outputs, summary = stage.run(ctx)
+        return outputs, summary.to_dict()  # the records (and the store) keep the summary's JSON
+
     def run(stage: Stage) -> tuple[dict[str, Path], dict[str, Any]]:
         if ctx.cache is None or not stage.shared:
-            return stage.run(ctx)
-        return ctx.cache.run(stage.name, keys[stage.name], ctx.out, lambda: stage.run(ctx), say=ctx.progress.say)
+            return body(stage)
+        return ctx.cache.run(stage.name, keys[stage.name], ctx.out, lambda: body(stage), say=ctx.progress.say)
 
     return run_stages(stages, ctx.records, ctx.out, ctx.progress, force=force, key=key,
                       applies=lambda stage: _applies(stage, ctx), run=run,
@@ -500,16 +523,16 @@ def _previous(out: Path, progress: Progress) -> dict[str, dict[str, Any]]:
     if not (out / MANIFEST).exists():
         return {}
     try:
-        return dict(read_manifest(out)["stages"])
+        return {name: record.to_dict() for name, record in StudyRunManifest.load(out).stages.items()}
     except InputError as exc:
         progress.say(f"warning: {exc}; every stage runs again")
         return {}
 
 
-def _outputs_of(out: Path, manifest: dict[str, Any]) -> list[Path]:
+def _outputs_of(out: Path, manifest: StudyRunManifest) -> list[Path]:
     """Every file a study's run wrote into ``out``: its stages' outputs as its manifest records them, the rig's logs
     (one pair per run, the earlier runs' too), the study's copy and the manifest."""
-    files = [out / o["path"] for r in manifest.get("stages", {}).values() for o in r.get("outputs", {}).values()]
+    files = [out / path for path in manifest.files()]
     logs = sorted((out / "runs").glob("run-*.csv")) + sorted((out / "runs").glob("run-*.json"))
     return [*files, *logs, out / STUDY_COPY, out / MANIFEST]
 
@@ -522,14 +545,14 @@ def _one_study_per_folder(out: Path, study: StudySpec, overwrite: bool, progress
     if not (out / MANIFEST).is_file():
         return
     try:
-        manifest = read_manifest(out)
+        manifest = StudyRunManifest.load(out)
     except InputError:
         return  # unreadable: every stage runs again (_previous says so) and writes over it
-    held = manifest.get("study", {})
-    if held.get("name") == study.name:
+    held = manifest.study
+    if held.name == study.name:
         return
     if not overwrite:
-        raise InputError(f"{out}: holds the outputs of the study '{held.get('name')}' ({held.get('path')}), not of "
+        raise InputError(f"{out}: holds the outputs of the study '{held.name}' ({held.path}), not of "
                          f"'{study.name}'; give another --out (say --out {study.name}-out), or --overwrite to replace "
                          "them (in Python: study.run(out=..., overwrite=True))")
     removed = 0
@@ -540,7 +563,7 @@ def _one_study_per_folder(out: Path, study: StudySpec, overwrite: bool, progress
     for folder in sorted((p for p in out.rglob("*") if p.is_dir()), key=lambda p: len(p.parts), reverse=True):
         if not any(folder.iterdir()):
             folder.rmdir()
-    progress.say(f"--overwrite: removed the {removed} files of the study '{held.get('name')}' from {out}")
+    progress.say(f"--overwrite: removed the {removed} files of the study '{held.name}' from {out}")
 
 
 def run_study(study: StudySpec | str | Path | None = None, out: str | Path = DEFAULT_OUT, *, force: bool = False,
@@ -566,7 +589,7 @@ def run_study(study: StudySpec | str | Path | None = None, out: str | Path = DEF
             atomic_write_bytes(copy, study.source_text)
         ctx = _Ctx(study, out, reporter, _previous(out, reporter), study.path, cache=cache)
         stages = _execute(list(STAGES), ctx, force, utc())
-    ran = [s["stage"] for s in stages if s["ran"]]
+    ran = [s.stage for s in stages if s.ran]
     seconds = time.perf_counter() - t0
     reporter.write(f"{'ran ' + ', '.join(ran) if ran else 'nothing to run: every stage is up to date'} "
                    f"({seconds:.1f} s)\nthe study's outputs are in {out.resolve()}/ (report: {out / 'report.pdf'})\n")
@@ -596,10 +619,10 @@ def rerender_report(out: str | Path, progress: ProgressLike | None = None,
     template_text = read_template(template)
     if not (out / MANIFEST).is_file():
         raise InputError(f"{out}: no {MANIFEST}; this is not a study's output folder (run 'piezopreload run' first)")
-    manifest = read_manifest(out)
-    records = dict(manifest["stages"])
+    manifest = StudyRunManifest.load(out)
+    records = {name: record.to_dict() for name, record in manifest.stages.items()}
     report = _BY_NAME["report"]
-    missing = [name for name in report.needs if records.get(name, {}).get("status") not in ("done", "not applicable")]
+    missing = [name for name in report.needs if manifest.status(name) not in ("done", "not applicable")]
     if missing:
         raise InputError(f"{out}: the stage(s) {', '.join(missing)} have not completed; "
                          f"run 'piezopreload run {out / STUDY_COPY} --out {out}' first")
@@ -609,34 +632,30 @@ def rerender_report(out: str | Path, progress: ProgressLike | None = None,
                          f"run 'piezopreload run {out / STUDY_COPY} --out {out}' to make them again")
     study = StudySpec.load(out / STUDY_COPY)
     with _locked(out):
-        ctx = _Ctx(study, out, reporter, records, manifest["study"].get("path", study.path), template_text)
-        stages = _execute([report], ctx, True, manifest.get("started_utc", utc()))
+        ctx = _Ctx(study, out, reporter, records, manifest.study.path, template_text)
+        stages = _execute([report], ctx, True, manifest.started_utc)
     seconds = time.perf_counter() - t0
     reporter.write(f"the report is {out / 'report.pdf'} ({seconds:.1f} s)\n")
     return _result(out, study, stages, seconds)
 
 
-def _result(out: Path, study: StudySpec, stages: list[dict[str, Any]], seconds: float) -> StudyResult:
-    records = read_manifest(out)["stages"]
+def _result(out: Path, study: StudySpec, stages: list[StageOutcome], seconds: float) -> StudyResult:
+    manifest = StudyRunManifest.load(out)
     out = out.resolve()
 
     def existing(path: Path) -> Path | None:
         return path if path.is_file() else None
 
+    validate, log = manifest.summary(ValidateSummary), manifest.output("rig", "log_csv")
     return StudyResult(
-        out=out, study={"path": study.path, "sha256": study.sha256, "name": study.name},
-        stages=tuple(StageOutcome(s["stage"], s["ran"], s["status"], s["seconds"]) for s in stages), seconds=seconds,
-        headline=Headline.from_records(records),
-        requirements=checked_by_stages({name: records[name] for name in _BY_NAME if name in records}),
-        report=existing(out / "report.pdf"), gain_set=existing(out / "gains.json"),
-        gain_set_sha256=records.get("validate", {}).get("summary", {}).get("content_sha256"),
-        rig_log=(out / records["rig"]["outputs"]["log_csv"]["path"]) if records.get("rig", {}).get("status") == "done"
-        else None)
+        out=out, study=study.ref, stages=tuple(stages), seconds=seconds, headline=Headline.from_manifest(manifest),
+        requirements=manifest.requirements, report=existing(out / "report.pdf"),
+        gain_set=existing(out / "gains.json"), gain_set_sha256=None if validate is None else validate.content_sha256,
+        rig_log=None if log is None else out / log.path)
 
 
-def run_summary(out: str | Path) -> dict[str, Any]:
+def run_summary(out: str | Path) -> RunSummary:
     """The headline numbers and the verdicts of the run in ``out`` (``run --json``'s ``summary``), read from its
     ``pipeline.json``: also for a run that stopped at a failing stage (what the stages before it recorded)."""
-    records = dict(read_manifest(out)["stages"])
-    return summary_of(Headline.from_records(records),
-                      checked_by_stages({name: records[name] for name in _BY_NAME if name in records}))
+    manifest = StudyRunManifest.load(out)
+    return RunSummary(Headline.from_manifest(manifest), manifest.requirements)

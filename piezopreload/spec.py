@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING, Any, Literal, Self, TypeVar, overload
 
 from piezopreload.artifacts.design import DesignPoint, DesignRecord
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.manifest import StudyRef
 from piezopreload.artifacts.plant import DesignedPlant
 from piezopreload.artifacts.schedule import PreloadSchedule
 from piezopreload.artifacts.validation import Criteria
@@ -225,6 +226,11 @@ class StudySpec:
         return f"<p><b>Study</b></p><table>{body}</table>"
 
     # ---- the tables --------------------------------------------------------------------------
+    @property
+    def ref(self) -> StudyRef:
+        """Which study this is, as the artifacts name it: its file, its SHA-256 and its name."""
+        return StudyRef(self.path, self.sha256, self.name)
+
     @property
     def folder(self) -> Path:
         """The study file's folder: the files it names are relative to it."""
