@@ -26,16 +26,19 @@ __all__ = [
     "StudyResult", "SystemRun", "LearningResult", "ValidationResult", "Metrics", "Failure", "Requirement",
     "ComparisonRow", "ActiveBound", "MinimumTimeBound", "TrackingFloor", "TuningSolve", "DesignRecord", "DesignPoint",
     "DesignedPlant", "PreloadSchedule", "SystemRecord", "TrackingNumbers", "FitError", "LearnedSignal", "SweepPoint",
+    "RunSummary", "StudyRef", "StudyReproduction", "ReproductionSummary", "PublishedRow",
 ]
 
 #: the module each public name comes from: a name is imported on its first use (a module ``__getattr__``, as numpy
 #: and scipy load their submodules), so ``import piezopreload`` loads no floor and no solver
 _EXPORTS: dict[str, str] = {name: module for module, names in {
     "piezopreload.study": ("load_study", "shipped_studies", "Study"),
-    "piezopreload.results": ("TuningResult", "StudyRun"),
+    "piezopreload.results": ("TuningResult", "StudyRun", "StudyReproduction"),
     "piezopreload.schedule": ("ScheduleLearning",),
     "piezopreload.sweep": ("SweepResult",),
-    "piezopreload.outcome": ("StudyResult",),
+    "piezopreload.outcome": ("StudyResult", "RunSummary"),
+    "piezopreload.artifacts.manifest": ("StudyRef",),
+    "piezopreload.tuning.compare": ("ReproductionSummary", "PublishedRow"),
     "piezopreload.core.errors": ("PiezopreloadError", "InputError", "ArtifactError", "InfeasibleError",
                                  "InternalError"),
     "piezopreload.core.tables": ("Record", "read_record"),
@@ -73,6 +76,7 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     from piezopreload.artifacts.gainset import GainSet
     from piezopreload.artifacts.hysteresis import FitError, IdentifiedModel
     from piezopreload.artifacts.learned import LearnedSignal
+    from piezopreload.artifacts.manifest import StudyRef
     from piezopreload.artifacts.plant import DesignedPlant
     from piezopreload.artifacts.requirements import Requirement
     from piezopreload.artifacts.schedule import PreloadSchedule
@@ -88,14 +92,15 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     from piezopreload.models.closedloop import ClosedLoopRun, Reference
     from piezopreload.models.controller import PIDGains
     from piezopreload.models.metrics import StepMetrics
-    from piezopreload.outcome import StudyResult
-    from piezopreload.results import StudyRun, TuningResult
+    from piezopreload.outcome import RunSummary, StudyResult
+    from piezopreload.results import StudyReproduction, StudyRun, TuningResult
     from piezopreload.rig.export import export
     from piezopreload.schedule import ScheduleLearning
     from piezopreload.study import Study, load_study, shipped_studies
     from piezopreload.sweep import SweepResult
     from piezopreload.tuning.autotune import autotune
     from piezopreload.tuning.autotune_result import AutotuneResult
+    from piezopreload.tuning.compare import PublishedRow, ReproductionSummary
     from piezopreload.tuning.feedforward import IdentifiedFeedforward
     from piezopreload.tuning.identification import Identification, Window, identify
     from piezopreload.tuning.identify import NotFittedError, PIIdentifier

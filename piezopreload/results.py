@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from piezopreload.artifacts.gainset import REFERENCES, GainSet, gains_to_dict
+from piezopreload.artifacts.manifest import StudyRef
 from piezopreload.artifacts.tuning import (
     ActiveBound,
     ComparisonRow,
@@ -41,7 +42,13 @@ from piezopreload.spec import StudySpec
 from piezopreload.tuning.bounds import minimum_time, tracking_floor
 from piezopreload.tuning.calibrate import CONTROLLERS
 from piezopreload.tuning.calibrate import reproduce as reproduce_paper
-from piezopreload.tuning.compare import compare_gains, reproduction_summary, tracking_improvement
+from piezopreload.tuning.compare import (
+    PublishedRow,
+    ReproductionSummary,
+    compare_gains,
+    reproduction_summary,
+    tracking_improvement,
+)
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.pid import TuningInfeasible, tune_pid
 from piezopreload.tuning.schedule import schedule_levels, tune_schedule
@@ -50,7 +57,7 @@ from piezopreload.tuning.verdict import validate_gain_set
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["TuningResult", "StudyRun", "tune", "simulate", "reproduce"]
+__all__ = ["TuningResult", "StudyRun", "StudyReproduction", "tune", "simulate", "reproduce"]
 
 _STEP_KEYS = ("rise_s", "peak_s", "settling_s", "overshoot_N")
 _TRACK_KEYS = ("tracking_rms_N", "tracking_max_N")
@@ -401,8 +408,58 @@ def simulate(study: StudySpec, gains: GainSet | PIDGains | None = None, *, contr
                     info=info)
 
 
+@dataclass(frozen=True)
+class StudyReproduction:
+    """A study's published step numbers beside its simulation's, with the PID alone and with the feedforward
+    (:meth:`Study.reproduce <piezopreload.study.Study.reproduce>`): the study, its gains (and how its
+    ``[controller]`` was read), the step, the band, the signal judged, and the comparison
+    (:class:`~piezopreload.tuning.compare.ReproductionSummary`: one row per controller and metric)."""
+
+    study: StudyRef
+    gains: PIDGains
+    read_as: str
+    band_N: float
+    signal: str
+    published: str
+    step_levels_N: tuple[float, ...]
+    comparison: ReproductionSummary
+    seconds: float
+
+    @property
+    def rows(self) -> tuple[PublishedRow, ...]:
+        return self.comparison.rows
+
+    @property
+    def repeats(self) -> int:
+        return self.comparison.repeats
+
+    @property
+    def feedforward_fit(self) -> dict[str, float]:
+        return self.comparison.feedforward_fit
+
+    @property
+    def all_within_25pct(self) -> bool:
+        return self.comparison.all_within_25pct
+
+    def row(self, controller: str, metric: str) -> PublishedRow:
+        """The row of ``controller`` (``pid``, ``ff+pid``) and ``metric`` (``rise_s``, ``peak_s``, ``settling_s``)."""
+        return self.comparison.row(controller, metric)
+
+    def to_dict(self) -> dict[str, Any]:
+        """What ``reproduce --json`` prints."""
+        return {"study": self.study.to_dict(), "gains": {**gains_to_dict(self.gains), "read_as": self.read_as},
+                "band_N": self.band_N, "signal": self.signal, "published": self.published,
+                "step": " -> ".join(f"{x:g}" for x in self.step_levels_N) + " N", **self.comparison.to_dict(),
+                "seconds": self.seconds}
+
+    def __repr__(self) -> str:
+        within = sum(r.within_25pct for r in self.rows)
+        return (f"StudyReproduction({self.study.name!r}: {within} of {len(self.rows)} step numbers within 25 % of "
+                f"{self.published}; {self.repeats} noise draw(s))")
+
+
 def reproduce(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,
-              repeats: int = 1) -> dict[str, Any]:
+              repeats: int = 1) -> StudyReproduction:
     """The body of :meth:`Study.reproduce`: the paper's six step numbers beside the simulation's, both controllers.
 
     With ``repeats`` > 1, each number is the median over that many noise realisations, with its range.
@@ -418,8 +475,7 @@ def reproduce(study: StudySpec, feedforward: IdentifiedFeedforward | None = None
                           seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
                           repeats=repeats, feedforward=feedforward.model,
                           feedforward_fit=feedforward.fit.to_dict())
-    return {"study": {"path": study.path, "sha256": study.sha256, "name": study.name},
-            "gains": {**gains_to_dict(study.gains), "read_as": study.controller.units}, "band_N": study.band_N,
-            "signal": study.signal, "published": study.published.source,
-            "step": " -> ".join(f"{x:g}" for x in study.references["step"].levels_N) + " N",
-            **reproduction_summary(rep, study.published.step()), "seconds": time.perf_counter() - t0}
+    comparison = reproduction_summary(rep, study.published.step())
+    return StudyReproduction(study.ref, study.gains, study.controller.units, study.band_N, study.signal,
+                             study.published.source, tuple(float(x) for x in study.references["step"].levels_N),
+                             comparison, time.perf_counter() - t0)

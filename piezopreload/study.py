@@ -27,7 +27,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
 
 from piezopreload import pipeline, results
 from piezopreload import sweep as sweeps
@@ -37,7 +36,7 @@ from piezopreload.models.controller import PIDGains
 from piezopreload.outcome import StudyResult
 from piezopreload.pipeline import DEFAULT_OUT
 from piezopreload.progress import ProgressLike
-from piezopreload.results import StudyRun, TuningResult
+from piezopreload.results import StudyReproduction, StudyRun, TuningResult
 from piezopreload.spec import DEFAULT_STUDY, PAPER_STUDY, StudySpec, default_study, paper_study, shipped_studies
 from piezopreload.sweep import SweepResult
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
@@ -104,7 +103,7 @@ class Study(StudySpec):
                                 seed=seed)
 
     def reproduce(self, *, seed: int | None = None, repeats: int = 1,
-                  feedforward: IdentifiedFeedforward | None = None) -> dict[str, Any]:
+                  feedforward: IdentifiedFeedforward | None = None) -> StudyReproduction:
         """The study's published step numbers beside the simulation's on :attr:`plant`:
         :func:`piezopreload.results.reproduce`.
 
@@ -119,8 +118,9 @@ class Study(StudySpec):
 
         Returns
         -------
-        dict
-            The rows (published, simulated, their ratio) and what ran.
+        StudyReproduction
+            One row per controller and metric (published, simulated, their ratio, within 25 % or not, the range over
+            the noise draws) and what ran (``.to_dict()``: what ``reproduce --json`` prints).
         """
         return results.reproduce(self, feedforward, seed=seed, repeats=repeats)
 

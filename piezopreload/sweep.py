@@ -73,8 +73,8 @@ from piezopreload.tuning.validate import SchedulerError
 if TYPE_CHECKING:  # the sweep's report and figures load matplotlib when they are drawn, not when a study is read
     from matplotlib.figure import Figure
 
-__all__ = ["sweep", "SweepResult", "parse_vary", "plan_points", "headline", "rerender_sweep_report", "is_sweep_folder",
-           "DEFAULT_SWEEP_OUT", "EXIT_POINT_FAILED"]
+__all__ = ["sweep", "SweepResult", "SweepReport", "parse_vary", "plan_points", "headline", "rerender_sweep_report",
+           "is_sweep_folder", "DEFAULT_SWEEP_OUT", "EXIT_POINT_FAILED"]
 
 RECORD, ROWS, CACHE, POINTS, POINT_LOG = "sweep.json", "sweep.csv", "cache", "points", "sweep-point.log"
 
@@ -536,8 +536,22 @@ def is_sweep_folder(out: str | Path) -> bool:
     return (Path(out) / RECORD).is_file()
 
 
+@dataclass(frozen=True)
+class SweepReport:
+    """A sweep's report typeset again (:func:`rerender_sweep_report`): the sweep's folder, the PDF, the time taken
+    and the sweep's points."""
+
+    out: Path
+    report: Path
+    seconds: float
+    points: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"out": str(self.out), "report": str(self.report), "seconds": self.seconds, "points": self.points}
+
+
 def rerender_sweep_report(out: str | Path, progress: ProgressLike | None = None,
-                          template: str | Path | None = None) -> dict[str, Any]:
+                          template: str | Path | None = None) -> SweepReport:
     """Typeset a sweep's report again from ``OUT/sweep.json`` (``piezopreload report SWEEP_DIR``); nothing else runs."""
     reporter = as_progress(progress)
     t0 = time.perf_counter()
@@ -550,8 +564,7 @@ def rerender_sweep_report(out: str | Path, progress: ProgressLike | None = None,
         written = render_sweep_report(out, record, say=reporter.say, template=text)
     seconds = time.perf_counter() - t0
     reporter.write(f"the sweep's report is {written['report']} ({seconds:.1f} s)\n")
-    return {"out": str(out.resolve()), "report": str(written["report"].resolve()), "seconds": seconds,
-            "points": len(record.points)}
+    return SweepReport(out.resolve(), written["report"].resolve(), seconds, len(record.points))
 
 
 # --------------------------------------------------------------------------------------

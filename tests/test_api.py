@@ -192,7 +192,7 @@ def test_feedforward_data_is_honoured_by_simulate_and_reproduce(measured_study):
     assert f"the measured loop {loop}" in run.to_dict()["feedforward"]["source"]
     ref = study.simulate(controller="ff+pid", feedforward=ff)
     np.testing.assert_array_equal(run.command_V, ref.command_V)
-    assert study.reproduce()["feedforward_fit"] == ff.fit.to_dict()
+    assert study.reproduce().feedforward_fit == ff.fit.to_dict()
 
 
 def test_feedforward_data_is_honoured_by_tune(measured_study, monkeypatch, capsys):

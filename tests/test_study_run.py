@@ -83,7 +83,7 @@ def test_the_compare_stage_reproduces_what_reproduce_prints(small_run):
     """The paper's gains in the report's table == ``piezopreload reproduce`` (its own feedforward identification)."""
     out = small_run[0]
     rows = ResponsesRecord.load(out / "responses" / "responses.json").reproduction
-    ref = {(r["controller"], r["metric"]): r["simulated"] for r in load_study(SMALL).reproduce()["rows"]}
+    ref = {(r.controller, r.metric): r.simulated for r in load_study(SMALL).reproduce().rows}
     assert len(rows) == len(ref) == 6
     for r in rows:
         assert r.study == pytest.approx(ref[(r.controller, r.metric)], abs=1e-12)

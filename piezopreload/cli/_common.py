@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from piezopreload.core.errors import InputError, InternalError
 
@@ -14,6 +14,20 @@ if TYPE_CHECKING:  # the parser is built without the floors; a command loads wha
     from piezopreload.tuning.identification import Window
 
 EXIT_OK, EXIT_INTERNAL, EXIT_INPUT = 0, 1, 2
+
+
+class CommandResult(Protocol):
+    """What a subcommand's handler returns: a result object; its printer reads it, ``--json`` prints its
+    ``to_dict()``, and its ``exit_code`` (where it has one) is the command's."""
+
+    def to_dict(self) -> dict[str, Any]: ...
+
+
+def exit_code_of(result: CommandResult | dict[str, Any]) -> int:
+    """A command's exit code: its result's ``exit_code`` (0 where it has none)."""
+    if isinstance(result, dict):
+        return int(result.get("exit_code", EXIT_OK))
+    return int(getattr(result, "exit_code", EXIT_OK))
 PASSWORD_ENV = "PIEZOPRELOAD_RIG_PASSWORD"
 
 

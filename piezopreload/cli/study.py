@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from piezopreload.cli._common import (
     fmt,
@@ -13,6 +13,11 @@ from piezopreload.cli._common import (
     study_of,
 )
 from piezopreload.core.errors import InputError
+
+if TYPE_CHECKING:
+    from piezopreload.outcome import StudyResult
+    from piezopreload.results import StudyReproduction
+    from piezopreload.sweep import SweepReport
 
 
 # --------------------------------------------------------------------------------------
@@ -47,47 +52,44 @@ def register_run(sub: Any) -> None:
     p.set_defaults(run=_cmd_run, show=_print_run)
 
 
-def _cmd_run(args: argparse.Namespace) -> dict[str, Any]:
+def _cmd_run(args: argparse.Namespace) -> StudyResult:
     from piezopreload.progress import Progress
     from piezopreload.study import load_study
 
     return load_study(args.study).run(args.out, force=args.force, progress=Progress(quiet=args.quiet),
-                                      overwrite=args.overwrite).to_dict()
+                                      overwrite=args.overwrite)
 
 
-def _print_run(s: dict[str, Any]) -> None:
-    from piezopreload.artifacts.requirements import Requirement, least_margin
-
-    for st in s["stages"]:
-        state = f"ran in {st['seconds']:.1f} s" if st["ran"] else st["status"]
-        print(f"  {st['stage']:9s} {state}")
-    if s["gain_set"]:
-        print(f"gain set: {s['gain_set']} (content hash {(s['gain_set_sha256'] or '')[:12]}..., the SHA-256 of its "
+def _print_run(s: StudyResult) -> None:
+    for st in s.stages:
+        state = f"ran in {st.seconds:.1f} s" if st.ran else st.status
+        print(f"  {st.stage:9s} {state}")
+    if s.gain_set:
+        print(f"gain set: {s.gain_set} (content hash {(s.gain_set_sha256 or '')[:12]}..., the SHA-256 of its "
               "fields, not of the file)")
-    if s["rig_log"]:
-        print(f"rig run log: {s['rig_log']}")
-    if s["report"]:
-        print(f"report: {s['report']}")
-    print(f"outputs: {s['out']}")
-    met = s["summary"]["requirements_met"]
+    if s.rig_log:
+        print(f"rig run log: {s.rig_log}")
+    if s.report:
+        print(f"report: {s.report}")
+    print(f"outputs: {s.out}")
+    summary = s.summary
+    met, checked = summary.requirements_met, summary.requirements
     if met is None:
         return
-    checked = [Requirement.from_dict(r) for r in s["summary"]["requirements"]]
     print("requirements (achieved against required; the margin, and as a share of the limit):")
     width = max(len(r.key) for r in checked)
     for r in checked:
         pct = "" if r.margin_pct is None else f" ({r.margin_pct:+.1f} %)"
         print(f"  {'met   ' if r.met else 'MISSED'} {r.key:{width}s}  {r.value:,.4g} {r.unit} against "
               f"{'>=' if r.sense == 'min' else '<='} {r.limit:,.4g} {r.unit}, margin {r.margin:,.4g} {r.unit}{pct}")
-    least = least_margin(checked)
-    missed = s["summary"]["requirements_missed"]
+    least = summary.least_margin
     if met:
         print(f"every requirement met; the least margin: {least.margin_pct:.1f} % ({least.name})" if least else
               "every requirement met")
         return
-    print(f"{len(missed)} requirement(s) missed:")
-    for r in missed:
-        print(f"  missed: {Requirement.from_dict(r).sentence()}")
+    print(f"{len(summary.missed)} requirement(s) missed:")
+    for r in summary.missed:
+        print(f"  missed: {r.sentence()}")
 
 
 def register_report(sub: Any) -> None:
@@ -103,17 +105,17 @@ def register_report(sub: Any) -> None:
                         "(start from a copy of DIR/report/report.typ)")
     p.add_argument("--quiet", action="store_true", help="no progress on standard error")
     json_flag(p)
-    p.set_defaults(run=_cmd_report, show=lambda s: print(f"report: {s['report']}"))
+    p.set_defaults(run=_cmd_report, show=lambda s: print(f"report: {s.report}"))
 
 
-def _cmd_report(args: argparse.Namespace) -> dict[str, Any]:
+def _cmd_report(args: argparse.Namespace) -> StudyResult | SweepReport:
     from piezopreload.pipeline import rerender_report
     from piezopreload.progress import Progress
     from piezopreload.sweep import is_sweep_folder, rerender_sweep_report
 
     if is_sweep_folder(args.dir):  # a sweep's folder (piezopreload sweep): the sweep's report
         return rerender_sweep_report(args.dir, progress=Progress(quiet=args.quiet), template=args.template)
-    return rerender_report(args.dir, progress=Progress(quiet=args.quiet), template=args.template).to_dict()
+    return rerender_report(args.dir, progress=Progress(quiet=args.quiet), template=args.template)
 
 
 # --------------------------------------------------------------------------------------
@@ -211,26 +213,25 @@ def register_reproduce(sub: Any) -> None:
     p.set_defaults(run=_cmd_reproduce, show=_print_reproduce)
 
 
-def _cmd_reproduce(args: argparse.Namespace) -> dict[str, Any]:
+def _cmd_reproduce(args: argparse.Namespace) -> StudyReproduction:
     if args.repeats < 1:
         raise InputError(f"--repeats: must be >= 1, got {args.repeats}")
     return study_of(args).reproduce(seed=args.seed, repeats=args.repeats)
 
 
-def _print_reproduce(s: dict[str, Any]) -> None:
-    g = s["gains"]
-    print(f"study {s['study']['name']} ({s['study']['path']}): step {s['step']}, band {s['band_N']:g} N, "
-          f"gains Kc {g['Kc_V_per_N']:g}, Ti {g['Ti_s']:g} s, Td {g['Td_s']:g} s ([controller] read as {g['read_as']})")
-    print(f"published: {s['published']}")
-    print(f"feedforward fit to the simulated loop: RMS {s['feedforward_fit']['rms_pct']:.2f} %, "
-          f"max {s['feedforward_fit']['max_pct']:.2f} % of span")
-    what = "simulated" if s["repeats"] == 1 else f"median of {s['repeats']}"
+def _print_reproduce(s: StudyReproduction) -> None:
+    g = s.gains
+    step = " -> ".join(f"{x:g}" for x in s.step_levels_N)
+    print(f"study {s.study.name} ({s.study.path}): step {step} N, band {s.band_N:g} N, "
+          f"gains Kc {g.Kc:g}, Ti {g.Ti_s:g} s, Td {g.Td_s:g} s ([controller] read as {s.read_as})")
+    print(f"published: {s.published}")
+    print(f"feedforward fit to the simulated loop: RMS {s.feedforward_fit['rms_pct']:.2f} %, "
+          f"max {s.feedforward_fit['max_pct']:.2f} % of span")
+    what = "simulated" if s.repeats == 1 else f"median of {s.repeats}"
     print(f"  {'controller':12s}{'metric':14s}{'published':>10s}{what:>14s}{'ratio':>8s}  within 25 %"
-          + ("" if s["repeats"] == 1 else "  range"))
-    for r in s["rows"]:
-        ratio = "n/a" if r["ratio"] is None else f"{r['ratio']:.2f}"
-        spread = "" if s["repeats"] == 1 else f"  {fmt(r['range'][0])}-{fmt(r['range'][1])}"
-        print(f"  {r['controller']:12s}{r['metric']:14s}{r['paper']:10.2f}{fmt(r['simulated']):>14s}{ratio:>8s}"
-              f"  {'yes' if r['within_25pct'] else 'NO ':11s}{spread}")
-
-
+          + ("" if s.repeats == 1 else "  range"))
+    for r in s.rows:
+        ratio = "n/a" if r.ratio is None else f"{r.ratio:.2f}"
+        spread = "" if s.repeats == 1 else f"  {fmt(r.range[0])}-{fmt(r.range[1])}"
+        print(f"  {r.controller:12s}{r.metric:14s}{r.paper:10.2f}{fmt(r.simulated):>14s}{ratio:>8s}"
+              f"  {'yes' if r.within_25pct else 'NO ':11s}{spread}")
