@@ -53,6 +53,7 @@ and report stages are not shared (``Stage.shared``): each records its own folder
 
 from __future__ import annotations
 
+import copy
 import time
 from collections.abc import Callable
 from contextlib import AbstractContextManager
@@ -454,14 +455,19 @@ _BY_NAME = {s.name: s for s in STAGES}
 
 
 def _stage_key(stage: Stage, study: StudySpec, records: dict[str, dict[str, Any]]) -> str:
+    """The stage's content key. A file the study names enters by its key and its content, not its path: the same
+    file in two folders (a sweep's points warm-started from equal tunings) is the same input."""
     files = {}
+    tables = copy.deepcopy(study.tables())
     for key, path in study.files().items():
+        table, _, name = key.rpartition(".")
+        if name in tables.get(table, {}):
+            tables[table][name] = "(a file: its content is in the key's files)"
         if key in stage.files:
             try:
-                files[str(path)] = sha256_file(path)
+                files[key] = sha256_file(path)
             except OSError as exc:
                 raise InputError(f"{study.path}: cannot read {path} ({exc.strerror or exc})") from None
-    tables = study.tables()
     code = code_hash(("piezopreload",) + tuple(f"piezopreload.{p}" for p in stage.code))
     return content_key({"stage": stage.name, "version": package_version(), "code": code,
                         "tables": {t: tables.get(t) for t in stage.tables + stage.reads(study)},

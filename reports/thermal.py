@@ -17,7 +17,7 @@ from matplotlib.figure import Figure
 from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.thermal import PreloadDrift, ThermalCase, ThermalRecord
 from piezopreload.reports.document import Section, Table, fmt, pct
-from piezopreload.reports.figures import COLOURS, _figure, _styled
+from piezopreload.reports.figures import COLOURS, _figure, _styled, legends
 from piezopreload.reports.sections import Part
 
 __all__ = ["thermal_lines", "thermal_section", "temperature_along_screw", "growth_along_travel", "error_budget"]
@@ -167,8 +167,8 @@ def temperature_along_screw(t: ThermalRecord) -> Figure:
                    label=_when(when) if k in (0, n - 1) else None)
         a.set_title(_NAMES[name])
         a.set_xlabel("position from bearing A (mm)")
-        a.legend(loc="upper right")
     ax[0][0].set_ylabel("temperature rise (K)")
+    legends(*ax[0])
     return fig
 
 
@@ -187,8 +187,8 @@ def growth_along_travel(t: ThermalRecord, limit_um: float | None = None) -> Figu
                 a.axhline(sign * limit_um, color=COLOURS["limit"], ls="--", lw=0.8)
         a.set_title(_NAMES[name])
         a.set_xlabel("table position from bearing A (mm)")
-        a.legend(loc="upper left")
     ax[0][0].set_ylabel("thermal growth (um)")
+    legends(*ax[0])
     return fig
 
 
@@ -221,5 +221,5 @@ def error_budget(t: ThermalRecord, limit_um: float | None = None) -> Figure:
     a.set_xticks(np.arange(hours.size), [_when(h) for h in hours])
     a.set_ylabel("positioning error (um)")
     a.set_xlabel("end of hour (left bar: schedule, right: best constant preload)")
-    a.legend(loc="upper left", ncols=2)
+    legends(a)
     return fig

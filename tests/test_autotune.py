@@ -111,7 +111,7 @@ def test_a_discrete_plant_is_tuned_as_the_controller_step_runs():
     peaks = _peaks_by_python_control(Pd, Cd, omega)
     assert peaks["Ms"] <= 1.4 * (1 + TOLERANCE)
     assert np.all(np.abs(control.feedback(Pd * Cd, 1).poles()) < 1)
-    same = autotune(FOTD, Ms=1.4, delay_s=1.0, Ts=Ts)
+    same = autotune(FOTD, Ms=1.4, delay_s=1.0, Ts=Ts, loop="sampled")
     np.testing.assert_allclose([same.kp, same.ki, same.kd], [r.kp, r.ki, r.kd], rtol=1e-5)
 
 
@@ -132,12 +132,15 @@ def test_the_sampled_plant_is_the_continuous_one_at_the_samples():
 @pytest.mark.slow
 def test_a_measured_response_of_a_transfer_function_gives_its_gains():
     """The FOTD's frequency response at 1,500 frequencies (the delay in the data) and the transfer function with
-    its delay: the same PID under Ms, Mt, Mks (a unique optimum), to a fraction of a per cent."""
+    its delay: the same optimum under Ms, Mt, Mks. The integral gain (the objective) to 1e-4 (the bounds hold within
+    1e-4 on both; the data's interpolation errs by ~1e-6 at 250 points a decade); the other gains to 2 %: the
+    optimum is flat along the derivative and its filter (a 0.6 % move of kd changes ki by 1e-5)."""
     w = np.logspace(-3, 3, 1500)
     frd = control.frd(np.asarray(control.frd(FOTD, w).eval(w)).ravel() * np.exp(-1j * w), w)
     a = autotune(FOTD, Ms=1.4, Mt=1.4, Mks=2.0, delay_s=1.0)
     b = autotune(frd, Ms=1.4, Mt=1.4, Mks=2.0)
-    np.testing.assert_allclose([b.kp, b.ki, b.kd, b.Tf], [a.kp, a.ki, a.kd, a.Tf], rtol=5e-3)
+    assert b.ki == pytest.approx(a.ki, rel=1e-4)
+    np.testing.assert_allclose([b.kp, b.kd, b.Tf], [a.kp, a.kd, a.Tf], rtol=2e-2)
     assert b.load_response is None and a.load_response is not None
 
 
@@ -160,7 +163,7 @@ def test_a_bound_no_controller_meets_is_named_with_its_shortfall():
     is refused, naming Mt and a least |T| at or above e^0.5."""
     with pytest.raises(InfeasibleError, match=r"Mt <= 1.3 cannot be met") as err:
         autotune(control.tf([1.0], [1.0, -1.0]), Ms=2.0, Mt=1.3, delay_s=0.5)
-    least = float(str(err.value).split("any gains reach is ")[1].split(" ")[0])
+    least = float(str(err.value).split("the search reached is ")[1].split(" ")[0])
     assert least >= np.exp(0.5) * (1 - 1e-3)
 
 
@@ -274,6 +277,7 @@ def test_the_command_line(tmp_path, capsys):
                header="omega_rad_per_s,magnitude,phase_deg", comments="")
     out = tmp_path / "gains.json"
     assert main(["autotune", "--frd", str(tmp_path / "frd.csv"), "--delay-s", "1", "--Ms", "1.4", "--form", "PI",
+                 "--loop", "sampled",
                  "--Ts", "0.05", "--u-min", "-5", "--u-max", "5", "--out", str(out), "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
     assert s["status"] == "validated" and GainSet.load(out).gains.Td_s == 0.0
@@ -305,3 +309,123 @@ def test_the_stability_check_agrees_with_python_controls_poles(delay):
             assert ours == theirs, f"kp {kp}, ki {ki}: ours {ours}, python-control {theirs}"
             verdicts.append(ours)
     assert any(verdicts) and not all(verdicts)
+
+
+# --------------------------------------------------------------------------------------
+# which loop the bounds hold on; gains a user can deploy
+# --------------------------------------------------------------------------------------
+LAG3 = control.tf([1.0], [1.0, 3.0, 3.0, 1.0])  # e^{-0.2 s} / (s + 1)^3 with delay_s=0.2: the issue's example
+
+
+def _sampled_peaks(P: control.TransferFunction, delay: float, Ts: float, Cd: control.TransferFunction) -> dict:
+    """Largest |S|, |T|, |KS| of the sampled loop by python-control: the plant's zero-order hold, the delay in
+    whole samples, the controller step at Ts."""
+    d = int(round(delay / Ts))
+    Pd = control.c2d(P, Ts, "zoh") * control.tf([1.0], [1.0] + [0.0] * d, Ts)
+    return _peaks_by_python_control(Pd, Cd, np.linspace(1e-4, np.pi / Ts, 40001)), Pd
+
+
+def test_the_bounds_hold_on_the_loop_asked_for():
+    """loop="continuous" (the default, Ts given): the bounds hold on the continuous loop (python-control's), and the
+    sampled loop at a coarse Ts exceeds Ms; loop="sampled": they hold on the sampled loop (python-control's
+    zero-order hold and the controller step), with lower gains. Each says which it is: loop, repr, to_dict."""
+    Ts = 0.1
+    cont = autotune(LAG3, Ms=1.4, Mks=4.0, delay_s=0.2, Ts=Ts)
+    samp = autotune(LAG3, Ms=1.4, Mks=4.0, delay_s=0.2, Ts=Ts, loop="sampled")
+    assert cont.loop == "continuous" and samp.loop == "sampled" and cont.Ts == samp.Ts == Ts
+    assert "bounds on the continuous loop" in repr(cont) and "bounds on the sampled loop" in repr(samp)
+    assert cont.to_dict()["loop"] == "continuous" and samp.to_dict()["bounds_hold_on"].startswith("the sampled loop")
+    omega = np.logspace(-3, 3, 40001)
+    P = LAG3 * control.tf(*control.pade(0.2, 12))
+    assert _peaks_by_python_control(P, cont.controller, omega)["Ms"] <= 1.4 * (1 + TOLERANCE)
+    on_samples, Pd = _sampled_peaks(LAG3, 0.2, Ts, samp.discrete(Ts))
+    assert on_samples["Ms"] <= 1.4 * (1 + TOLERANCE) and on_samples["Mks"] <= 4.0 * (1 + TOLERANCE)
+    assert np.all(np.abs(control.feedback(Pd * samp.discrete(Ts), 1).poles()) < 1)
+    assert _sampled_peaks(LAG3, 0.2, Ts, cont.discrete(Ts))[0]["Ms"] > 1.4 * (1 + TOLERANCE)
+    assert samp.ki < 0.97 * cont.ki  # the hold's lag costs integral gain
+
+
+def test_the_loop_argument_is_checked():
+    with pytest.raises(InputError, match="loop='sampled'.*give Ts"):
+        autotune(LAG3, Ms=1.4, loop="sampled")
+    with pytest.raises(InputError, match="its loop is the sampled one"):
+        autotune(control.c2d(LAG3, 0.1), Ms=1.4, loop="continuous")
+    with pytest.raises(InputError, match="loop must be one of"):
+        autotune(LAG3, Ms=1.4, Ts=0.1, loop="hybrid")
+
+
+def test_the_issues_example_gets_gains_it_can_deploy():
+    """e^{-0.2 s}/(s + 1)^3 at Ts = 0.01 s without Mks, the actuator's range -10..10: the filter at least Ts, |KS|
+    within the default bound from the range (20, stated in the result), and a result that sits on a bound the user
+    did not set says so, its gain set a candidate with the reason; the same bound given by the user: validated."""
+    r = autotune(LAG3, Ms=1.4, delay_s=0.2, Ts=0.01, loop="sampled", u_min=-10.0, u_max=10.0)
+    assert r.Tf >= 0.01 * (1 - 1e-9) and r.gains.Tf_s >= 0.01 * (1 - 1e-9)
+    assert r.defaults["Mks"]["value"] == 20.0 and "actuator's range" in r.defaults["Mks"]["reason"]
+    assert r.defaults["Tf_min_s"]["value"] == 0.01
+    assert r.margins.Mks <= 20.0 * (1 + TOLERANCE)
+    assert r.leans_on and "default Mks" in r.leans_on[0] and "you did not set" in repr(r)
+    gain_set = r.to_gain_set()
+    assert gain_set.status == "candidate" and "did not set" in gain_set.tuning["status_reason"]
+    assert gain_set.gains.u_min_V == -10.0 and gain_set.gains.u_max_V == 10.0 and gain_set.sample_period_s == 0.01
+    mine = autotune(LAG3, Ms=1.4, Mks=20.0, delay_s=0.2, Ts=0.01, loop="sampled", u_min=-10.0, u_max=10.0)
+    assert mine.leans_on == () and mine.defaults.keys() == {"Tf_min_s"}
+    assert mine.ki == pytest.approx(r.ki, rel=1e-3)
+    assert mine.to_gain_set().status == "validated"
+
+
+def test_without_mks_or_a_range_a_filter_on_its_floor_is_named():
+    """No Mks and no actuator's range: nothing the user set bounds the noise gain; the filter ends on its floor (the
+    sample period) and the result says it leans on it."""
+    r = autotune(LAG3, Ms=1.4, delay_s=0.2, Ts=0.01)
+    assert r.Tf == pytest.approx(0.01, rel=1e-6)
+    assert any(b.gain == "Tf" and b.side == "lower" for b in r.active_bounds)
+    assert r.leans_on and "filter" in r.leans_on[0]
+    assert r.to_gain_set(u_min_V=-10.0, u_max_V=10.0).status == "candidate"
+
+
+@pytest.mark.parametrize("kw, words", [
+    ({"Mt": 0.9}, ["Mt <= 0.9 cannot be met", "T = 1 at zero frequency", "reaches is 1"]),
+    ({"Mks": 0.5}, ["Mks <= 0.5", "KS = 1/G(0)", "1/|G(0)| = 1"]),
+])
+def test_bounds_integral_action_cannot_meet_are_refused_in_closed_form(kw, words):
+    with pytest.raises(InfeasibleError) as err:
+        autotune(LAG3, Ms=1.4, delay_s=0.2, **kw)
+    for w in words:
+        assert w in str(err.value)
+
+
+def test_the_command_line_writes_the_issues_gain_set_and_refuses_what_cannot_be(tmp_path, capsys):
+    """The issue's --out command exits 0 with no traceback and writes the gain set; impossible bounds exit 2 naming
+    the bound and the least value; --grid and --loop are checked."""
+    out = tmp_path / "g.json"
+    argv = ["autotune", "--tf", "1/1,3,3,1", "--delay-s", "0.2", "--Ms", "1.4", "--Mks", "4", "--Ts", "0.01",
+            "--u-min", "-10", "--u-max", "10", "--out", str(out)]
+    assert main(argv) == 0
+    printed = capsys.readouterr()
+    assert printed.err == "" and "wrote" in printed.out and "the bounds hold on the continuous loop" in printed.out
+    assert GainSet.load(out).sample_period_s == 0.01
+    assert main(argv + ["--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["sampled_loop_check"]["sample_period_s"] == 0.01 and s["status"] in ("validated", "candidate")
+    assert main(["autotune", "--tf", "1/1,3,3,1", "--Ms", "1.4", "--grid", "0.01:100:300", "--form", "PI",
+                 "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["grid_points"] == 300
+    for extra, words in ((["--Mt", "0.9"], "Mt <= 0.9 cannot be met"), (["--Mks", "0.5"], "1/|G(0)| = 1"),
+                         (["--grid", "100:1:50"], "--grid"), (["--grid", "1:100"], "LO:HI:N"),
+                         (["--loop", "sampled"], "give --Ts"), (["--u-min", "-1"], "--u-max")):
+        assert main(["autotune", "--tf", "1/1,3,3,1", "--delay-s", "0.2", "--Ms", "1.4", *extra]) == 2, extra
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and words in err and err.count("\n") == 1, (extra, err)
+
+
+def test_a_continuous_tuning_run_sampled_names_the_bound_it_misses():
+    """Tuned on the continuous loop and run at Ts = 0.01 s, the lagged plant's |S| peak grows past Ms beyond the
+    tolerance (the hold's lag): the candidate's reason names the bound, the value and the loop to tune on."""
+    r = autotune(LAG3, Ms=1.4, Mks=20.0, delay_s=0.2, Ts=0.01, u_min=-10.0, u_max=10.0)
+    assert r.loop == "continuous" and not r.leans_on
+    gain_set = r.to_gain_set()
+    check = gain_set.tuning["sampled_loop_check"]
+    assert not check["passed"] and check["over_by"]["Ms"] > check["tolerance"]
+    reason = gain_set.tuning["status_reason"]
+    assert gain_set.status == "candidate"
+    assert f"Ms {check['achieved']['Ms']:.4g} against 1.4" in reason and "loop='sampled'" in reason

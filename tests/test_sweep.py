@@ -405,6 +405,8 @@ def test_each_point_is_the_study_with_its_values_in_its_own_folder(grid_sweep):
         assert (folder / "report.pdf").is_file() and (folder / "gains.json").is_file()
         assert f"p{p.index:03d} tuning.ms_max={p.values['tuning.ms_max']}" in log, "a progress line per point"
     assert log.count(": done in") == 4 and "on 2 local worker processes" in log
+    # the looser Ms points start their tuning from the tighter point with the same plants
+    assert "p002: its tuning starts from p000's gains" in log and "p003: its tuning starts from p001's gains" in log
     assert SweepRecord.load(out / "sweep.json") == result.record
 
 
@@ -441,9 +443,11 @@ def test_the_rows_hold_each_points_figures_as_its_artifacts_say(grid_sweep, tmp_
         assert row["tuned_settling_s"] == step.settling_s
         assert row["rig_status"] == "completed" and row["requirements_met"] is True  # the validation's limits
         assert row["tracking_rms_pct_of_range"] is None, "the small study has no whole system"
-    # the last point run alone, without the store: the same numbers (sharing changes no result)
-    alone = run_study(load_study(SMALL).replace(tuning={"ms_max": 1.7}, validation={"plants": 8}), tmp_path / "alone",
-                      progress=Progress(quiet=True))
+    # the last point run alone, without the store, from the same warm start (its tighter point's tuning, p001's): the
+    # same numbers (sharing changes no result)
+    warm = str(out / result.points[1].folder / "tuning.json")
+    alone = run_study(load_study(SMALL).replace(tuning={"ms_max": 1.7, "warm_start": warm}, validation={"plants": 8}),
+                      tmp_path / "alone", progress=Progress(quiet=True))
     assert _figures(headline(tmp_path / "alone", alone.summary).to_dict()) == \
         {k: v for k, v in result.rows[3].items() if k in PointFigures.names()}
 

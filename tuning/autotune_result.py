@@ -18,11 +18,11 @@ from __future__ import annotations
 import html
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
 import control
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.tuning import ActiveBound
@@ -33,48 +33,92 @@ from piezopreload.tuning.pidform import PIDController
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["AutotuneResult", "Margins", "StartRecord", "sensitivity_peaks", "margins_of", "achieved"]
+__all__ = ["AutotuneResult", "Margins", "StartRecord", "LOOPS", "sensitivity_peaks", "located_peaks", "located",
+           "magnitudes", "margins_of", "achieved"]
 
 _NAMES = {"Ms": "|S|", "Mt": "|T|", "Mks": "|KS|"}
 #: how far (relative) a bound may be exceeded (the autotuner's tolerance)
 _TOLERANCE = 0.005
 
 
-def _magnitudes(name: str, C: np.ndarray, G: np.ndarray) -> np.ndarray:
+def magnitudes(name: str, C: np.ndarray, G: np.ndarray) -> np.ndarray:
+    """``|S|`` (``Ms``), ``|T|`` (``Mt``) or ``|KS|`` (``Mks``) of the responses ``C`` and ``G``."""
     L = C * G
     num = {"Ms": np.ones_like(L.real), "Mt": np.abs(L), "Mks": np.abs(C)}[name]
     return num / np.abs(1 + L)
 
 
+def located(plant: LinearPlant, controller: PIDController, names: np.ndarray, omega: np.ndarray, idx: np.ndarray,
+            sign: float = 1.0, steps: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """The peaks of ``names[i]`` (``Ms``, ``Mt`` or ``Mks``: ``|S|``, ``|T|``, ``|KS|``) at the grid points
+    ``idx[i]``, each located between its neighbours by bracketed parabolic interpolation in ``log w`` (the
+    bracket's three points' parabola, its vertex kept at least a tenth of the larger side from the middle point so
+    the bracket always shrinks: ``steps`` steps, all peaks at once): values and frequencies in the order given; a
+    measured response's, and a grid end's, are the grid's own. ``sign`` multiplies the plant."""
+    idx, names = np.asarray(idx, int), np.asarray(names, dtype=object)
+
+    def at(x: np.ndarray, which: np.ndarray) -> np.ndarray:
+        w = np.exp(x)
+        C = controller.response(w)
+        L = C * sign * plant.response(w)
+        num = np.where(which == "Ms", 1.0, np.where(which == "Mt", np.abs(L), np.abs(C)))
+        return num / np.abs(1 + L)
+
+    values, where = at(np.log(omega[idx]), names), omega[idx].copy()
+    inner = (idx > 0) & (idx < omega.size - 1)
+    if plant.rational and np.any(inner):
+        k, which = idx[inner], names[inner]
+        a, b, c = np.log(omega[k - 1]), np.log(omega[k]), np.log(omega[k + 1])
+        fa, fb, fc = at(a, which), values[inner], at(c, which)
+        for _ in range(steps):
+            num = (b - a) ** 2 * (fb - fc) - (b - c) ** 2 * (fb - fa)
+            den = (b - a) * (fb - fc) - (b - c) * (fb - fa)
+            x = b - 0.5 * num / np.where(den != 0, den, 1.0)
+            right = c - b > b - a  # the larger side; the vertex at least a tenth of it from b
+            lo_x = np.where(right, b + 0.1 * (c - b), a)
+            hi_x = np.where(right, c, b - 0.1 * (b - a))
+            x = np.where((den == 0) | ~np.isfinite(x), np.where(right, b + 0.38 * (c - b), b - 0.38 * (b - a)), x)
+            x = np.clip(x, np.where(right, lo_x, a), np.where(right, c, hi_x))
+            x = np.where(np.abs(x - b) < 0.1 * np.maximum(c - b, b - a), np.where(right, b + 0.1 * (c - b),
+                                                                                  b - 0.1 * (b - a)), x)
+            fx = at(x, which)
+            up = fx > fb
+            left = x < b
+            # the new bracket: (a, x, b) or (x, b, c) when x < b; (b, x, c) or (a, b, x) when x > b
+            na = np.where(left, np.where(up, a, x), np.where(up, b, a))
+            nfa = np.where(left, np.where(up, fa, fx), np.where(up, fb, fa))
+            nc = np.where(left, np.where(up, b, c), np.where(up, c, x))
+            nfc = np.where(left, np.where(up, fb, fc), np.where(up, fc, fx))
+            b, fb = np.where(up, x, b), np.where(up, fx, fb)
+            a, fa, c, fc = na, nfa, nc, nfc
+        values[inner], where[inner] = fb, np.exp(b)
+    return values, where
+
+
+def located_peaks(plant: LinearPlant, controller: PIDController, name: str, omega: np.ndarray, idx: np.ndarray,
+                  sign: float = 1.0, steps: int = 8) -> list[tuple[float, float]]:
+    """:func:`located` for one bound's peaks, ``(value, w)`` largest first."""
+    values, where = located(plant, controller, np.full(np.size(idx), name, dtype=object), omega, idx, sign, steps)
+    return sorted(zip(values.tolist(), where.tolist()), reverse=True)
+
+
 def sensitivity_peaks(plant: LinearPlant, controller: PIDController, omega: np.ndarray,
-                      names: tuple[str, ...] = ("Ms", "Mt", "Mks"), above: dict[str, float] | None = None,
-                      most: int = 8) -> dict[str, list[tuple[float, float]]]:
-    """Per name (``Ms``: ``|S|``, ``Mt``: ``|T|``, ``Mks``: ``|KS|``) the local peaks ``(value, frequency)`` on
-    ``omega``, each refined by a bounded scalar search between its neighbours (a rational plant; a measured
-    response's are its data points), largest first: the ``most`` largest, or every one above ``above[name]``."""
+                      names: tuple[str, ...] = ("Ms", "Mt", "Mks"),
+                      most: int = 3) -> dict[str, list[tuple[float, float]]]:
+    """Per name (``Ms``: ``|S|``, ``Mt``: ``|T|``, ``Mks``: ``|KS|``) the ``most`` largest local peaks ``(value,
+    frequency)`` on ``omega``, each located between its neighbours (:func:`located`, every name's at once), largest
+    first."""
     G, C = plant.response(omega), controller.response(omega)
-    out = {}
+    picked = []
     for name in names:
-        r = _magnitudes(name, C, G)
+        r = magnitudes(name, C, G)
         inner = np.flatnonzero((r[1:-1] >= r[:-2]) & (r[1:-1] >= r[2:])) + 1
-        idx = sorted(set(inner.tolist()) | {int(np.argmax(r))}, key=lambda j: -r[j])
-        idx = [j for j in idx if r[j] > above[name]] or idx[:1] if above is not None else idx[:most]
-        out[name] = sorted((_refine(plant, controller, name, omega, i, float(r[i])) for i in idx), reverse=True)
-    return out
-
-
-def _refine(plant: LinearPlant, controller: PIDController, name: str, omega: np.ndarray, i: int,
-            value: float) -> tuple[float, float]:
-    if not plant.rational or i == 0 or i == omega.size - 1:
-        return value, float(omega[i])
-
-    def minus(log_w: float) -> float:
-        w = np.array([np.exp(log_w)])
-        return -float(_magnitudes(name, controller.response(w), plant.response(w))[0])
-
-    res = minimize_scalar(minus, bounds=(np.log(omega[i - 1]), np.log(omega[i + 1])), method="bounded",
-                          options={"xatol": 1e-8})
-    return (-float(res.fun), float(np.exp(res.x))) if -res.fun > value else (value, float(omega[i]))
+        idx = np.union1d(inner, [int(np.argmax(r))]).astype(int)
+        picked.append(idx[np.argsort(-r[idx])][:most])
+    which = np.concatenate([np.full(i.size, n, dtype=object) for n, i in zip(names, picked)])
+    values, where = located(plant, controller, which, omega, np.concatenate(picked), steps=10)
+    return {name: sorted(zip(values[which == name].tolist(), where[which == name].tolist()), reverse=True)
+            for name in names}
 
 
 def achieved(plant: LinearPlant, controller: PIDController, omega: np.ndarray) -> dict[str, tuple[float, float]]:
@@ -103,10 +147,12 @@ class Margins:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 
-def margins_of(plant: LinearPlant, controller: PIDController,
-               peaks: dict[str, tuple[float, float]] | None = None) -> Margins:
-    """:class:`Margins` of the loop; ``peaks`` (from :func:`achieved`) where already found, else on the Nyquist grid."""
-    omega, loop = plant.resolved_loop(lambda w: controller.response(w))
+def margins_of(plant: LinearPlant, controller: PIDController, peaks: dict[str, tuple[float, float]] | None = None,
+               resolved: tuple[np.ndarray, np.ndarray] | None = None) -> Margins:
+    """:class:`Margins` of the loop; ``peaks`` (from :func:`achieved`) where already found, else on the Nyquist grid;
+    ``resolved``: the loop on its resolved grid (:meth:`~piezopreload.tuning.lti.LinearPlant.resolved_loop`) where
+    already computed."""
+    omega, loop = resolved if resolved is not None else plant.resolved_loop(lambda w: controller.response(w))
     if peaks is None:
         peaks = achieved(plant, controller, omega)
     mag, phase = np.abs(loop), np.unwrap(np.angle(loop))
@@ -138,8 +184,9 @@ def margins_of(plant: LinearPlant, controller: PIDController,
 
 @dataclass(frozen=True)
 class StartRecord:
-    """One start and what IPOPT (or SLSQP) made of it: the gains reached (parallel form), the objective, the worst
-    bound's ``|X| / M - 1`` on the design grid, whether the loop is stable, the solver's status, iterations, time."""
+    """One start and what the local solver made of it: the gains reached (parallel form), the objective (``-ki``, or
+    the scaled IAE), the worst bound's ``|X| / M - 1`` on the design grid, whether the loop is stable, the solver's
+    status, iterations, time."""
 
     name: str
     kp: float
@@ -161,9 +208,31 @@ def _fmt(x: float | None, unit: str = "", digits: int = 4) -> str:
     return "none" if x is None else f"{x:.{digits}g}{unit}"
 
 
+#: the loops the bounds can hold on
+LOOPS = ("continuous", "sampled")
+
+
+def _sampled_misses(check: dict[str, Any]) -> str:
+    """What the loop as it will run misses, in words: its instability or each bound over the tolerance, by how much."""
+    if not check["stable"]:
+        return f"the loop as it will run at Ts {check['sample_period_s']:g} s is unstable"
+    over = [f"{k} {check['achieved'][k]:.4g} against {check['bounds'][k]:g} (over by {x:.1%})"
+            for k, x in check["over_by"].items() if x > check["tolerance"]]
+    return (f"the loop as it will run at Ts {check['sample_period_s']:g} s misses its bounds beyond the "
+            f"{check['tolerance']:.1%} tolerance: " + ", ".join(over))
+
+
 @dataclass(frozen=True, eq=False)
 class AutotuneResult:
-    """The autotuner's result (see the module docstring); :func:`~piezopreload.tuning.autotune.autotune` makes it."""
+    """The autotuner's result (see the module docstring); :func:`~piezopreload.tuning.autotune.autotune` makes it.
+
+    ``grid_points`` is the design grid's size, ``check_points`` the check grid's (ten times as dense).
+    ``bounds`` are the bounds the problem held: the user's (``user_bounds``) and the defaults the tuner set where
+    the user set none (``defaults``: name -> ``{"value", "reason"}``, with the filter's floor ``Tf_min_s``);
+    ``loop`` says which loop they hold on (``"continuous"``: the continuous controller on the plant; ``"sampled"``:
+    the controller step at ``sample_period_s`` on the plant behind a zero-order hold); ``leans_on`` names, in
+    sentences, each bound the user did not set that the result sits on.
+    """
 
     controller_: PIDController
     plant: LinearPlant
@@ -183,8 +252,14 @@ class AutotuneResult:
     refinements: int
     iterations: int
     seconds: float
-    solver: str = "ipopt"
-    load_response: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+    solver: str = "sqp"
+    loop: str = "continuous"
+    sample_period_s: float | None = None
+    user_bounds: dict[str, float | None] = field(default_factory=dict)
+    defaults: dict[str, dict[str, Any]] = field(default_factory=dict)
+    leans_on: tuple[str, ...] = ()
+    u_range: tuple[float, float] | None = None
+    load_step: Any = field(default=None, repr=False)
 
     # ---- the gains -------------------------------------------------------------------------------
     @property
@@ -223,15 +298,21 @@ class AutotuneResult:
 
     @property
     def controller(self) -> control.TransferFunction:
-        """The controller as a continuous python-control transfer function, its filter included (a discrete
-        design's: the continuous controller whose discretisation at ``Ts`` was tuned)."""
+        """The controller as a continuous python-control transfer function, its filter included (a sampled-loop
+        design's: the continuous controller whose controller step at ``Ts`` was tuned)."""
         c = self.controller_
         return PIDController(c.kp, c.ki, c.kd, c.Tf, c.filter_order, None).transfer_function()
 
     @property
     def Ts(self) -> float | None:
-        """The controller's sample period where it was tuned discrete (None: continuous)."""
-        return self.controller_.dt
+        """The sample period the controller runs at (the ``Ts`` given, or a discrete plant's; None: none given)."""
+        return self.sample_period_s
+
+    @cached_property
+    def load_response(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(t_s, y)``: the output's response to a unit load step at the plant input, simulated as the controller
+        step runs it (None where the plant has no time-domain model); computed when first asked for."""
+        return None if self.load_step is None else self.load_step()
 
     def discrete(self, Ts: float, method: str | None = None) -> control.TransferFunction:
         """The controller at sample period ``Ts``: by default as the controller step runs it (trapezoidal integral,
@@ -245,20 +326,30 @@ class AutotuneResult:
         return control.sample_system(self.controller, Ts, method=method)
 
     # ---- what it is in words ----------------------------------------------------------------------
+    def loop_text(self) -> str:
+        """Which loop the bounds hold on, in words."""
+        if self.loop == "sampled":
+            return (f"the sampled loop at Ts {self.sample_period_s:g} s (the controller step, the plant behind a "
+                    "zero-order hold)")
+        return "the continuous loop (the continuous controller on the plant)"
+
     def _bound_text(self) -> str:
-        return ", ".join(f"{k} {self.peaks[k][0]:.3g} <= {v:g}" for k, v in self.bounds.items() if v is not None)
+        return ", ".join(f"{k} {self.peaks[k][0]:.3g} <= {v:g}" + (" (default)" if k in self.defaults else "")
+                         for k, v in self.bounds.items() if v is not None)
 
     def __repr__(self) -> str:
         c = self.controller_
         kind = "PI" if c.filter_order == 0 or c.kd == 0 else f"PID (filter order {c.filter_order})"
         mg = self.margins
-        return (f"AutotuneResult({kind}{'' if c.dt is None else f' at Ts {c.dt:g} s'}: "
+        runs = "" if self.sample_period_s is None else f", runs at Ts {self.sample_period_s:g} s"
+        return (f"AutotuneResult({kind}, bounds on the {self.loop} loop{runs}: "
                 f"kp {self.kp:.4g}, ki {self.ki:.4g}, kd {self.kd:.4g}, Tf {self.Tf:.4g} s; "
                 + (f"IE {self.ie:.4g}" if self.iae is None else f"IAE {self.iae:.4g} (IE {self.ie:.4g})")
                 + f"; {self._bound_text()}; GM {'inf' if mg.gain_margin is None else f'{mg.gain_margin:.4g}'}, "
                 f"PM {_fmt(mg.phase_margin_deg, ' deg', 3)}, "
-                f"delay margin {_fmt(mg.delay_margin_s, ' s')}; {'stable' if self.stable else 'UNSTABLE'}; "
-                f"{len(self.starts)} starts, {self.refinements} refinements, {self.seconds:.2f} s)")
+                f"delay margin {_fmt(mg.delay_margin_s, ' s')}; {'stable' if self.stable else 'UNSTABLE'}"
+                + (f"; leans on {len(self.leans_on)} bound(s) you did not set" if self.leans_on else "")
+                + f"; {len(self.starts)} starts, {self.refinements} refinements, {self.seconds * 1e3:.0f} ms)")
 
     def _repr_html_(self) -> str:
         rows = [("kp, ki, kd, Tf", f"{self.kp:.5g}, {self.ki:.5g}, {self.kd:.5g}, {self.Tf:.5g} s")]
@@ -267,15 +358,19 @@ class AutotuneResult:
             rows.append(("Kc, Ti, Td, Tf (ISA)", f"{g.Kc:.5g}, {g.Ti_s:.5g} s, {g.Td_s:.5g} s, {g.Tf_s:.5g} s"))
         mg = self.margins
         rows += [("metric", f"{self.metric}: IE {self.ie:.5g}" + ("" if self.iae is None else f", IAE {self.iae:.5g}")),
+                 ("bounds hold on", self.loop_text()),
                  ("Ms, Mt, Mks reached", f"{mg.Ms:.4g}, {mg.Mt:.4g}, {mg.Mks:.4g}"),
                  ("bounds", ", ".join(f"{k} {v:g}" for k, v in self.bounds.items() if v is not None)),
+                 ("defaults set", "; ".join(f"{k} {d['value']:.4g}: {d['reason']}" for k, d in self.defaults.items())
+                  or "none"),
+                 ("leans on bounds you did not set", "; ".join(self.leans_on) or "none"),
                  ("gain, phase, delay margin", f"{'inf' if mg.gain_margin is None else f'{mg.gain_margin:.4g}'}, "
                                                f"{_fmt(mg.phase_margin_deg, ' deg', 3)}, "
                                                f"{_fmt(mg.delay_margin_s, ' s')}"),
                  ("closed loop", "stable" if self.stable else "UNSTABLE"),
                  ("on a bound", "; ".join(b.sentence() for b in self.active_bounds) or "none"),
                  ("solve", f"{self.solver}, {len(self.starts)} starts, {self.iterations} iterations, "
-                           f"{self.refinements} refinements, {self.seconds:.2f} s")]
+                           f"{self.refinements} refinements, {self.seconds * 1e3:.0f} ms")]
         body = "".join(f"<tr><th style='text-align:left'>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>"
                        for k, v in rows)
         return f"<table><caption>AutotuneResult ({html.escape(self.form)})</caption>{body}</table>"
@@ -284,9 +379,13 @@ class AutotuneResult:
         """Everything as JSON-ready numbers (what ``piezopreload autotune --json`` prints)."""
         c = self.controller_
         out: dict[str, Any] = {
-            "form": self.form, "filter_order": c.filter_order, "metric": self.metric, "Ts_s": c.dt,
+            "form": self.form, "filter_order": c.filter_order, "metric": self.metric, "loop": self.loop,
+            "bounds_hold_on": self.loop_text(), "Ts_s": self.sample_period_s,
             "kp": self.kp, "ki": self.ki, "kd": self.kd, "Tf_s": self.Tf, "ie": self.ie, "iae": self.iae,
             "iae_Ts_s": self.iae_Ts, "bounds": {k: v for k, v in self.bounds.items() if v is not None},
+            "user_bounds": {k: v for k, v in self.user_bounds.items() if v is not None},
+            "defaults": {k: dict(v) for k, v in self.defaults.items()}, "leans_on": list(self.leans_on),
+            "u_range": None if self.u_range is None else list(self.u_range),
             "margins": self.margins.to_dict(), "stable": self.stable,
             "active_bounds": [b.to_dict() for b in self.active_bounds], "starts": [s.to_dict() for s in self.starts],
             "grid_points": self.grid_points, "check_points": self.check_points, "refinements": self.refinements,
@@ -321,27 +420,47 @@ class AutotuneResult:
         return {"sample_period_s": float(Ts), "stable": stable, "achieved": {k: v[0] for k, v in peaks.items()},
                 "over_by": over, "tolerance": _TOLERANCE, "passed": met}
 
-    def to_gain_set(self, sample_period_s: float | None = None, *, u_min_V: float, u_max_V: float, b: float = 1.0,
-                    name: str | None = None) -> GainSet:
-        """The tuned gains as a gain set the exports write (ideal/ISA, output range ``u_min_V..u_max_V``, setpoint
-        weight ``b``) at ``sample_period_s`` (a discrete design's by default). It is ``validated`` when the loop
-        as it will run at that period is stable and meets every bound within the tolerance
-        (:meth:`discrete_check`), else a ``candidate``, which export refuses; its validation record says which."""
-        Ts = self.Ts if sample_period_s is None else float(sample_period_s)
+    def to_gain_set(self, sample_period_s: float | None = None, *, u_min_V: float | None = None,
+                    u_max_V: float | None = None, b: float = 1.0, name: str | None = None) -> GainSet:
+        """The tuned gains as a gain set the exports write (ideal/ISA, output range ``u_min_V..u_max_V``, by default
+        the actuator's range the tuning was given; setpoint weight ``b``) at ``sample_period_s`` (by default the
+        ``Ts`` it was tuned with).
+
+        It is ``validated`` when the loop as it will run at that period is stable and meets every bound within the
+        tolerance (:meth:`discrete_check`) and the result leans on no bound the user did not set
+        (:attr:`leans_on`), else a ``candidate``, which export refuses; its tuning record says which loop the bounds
+        were tuned on, the defaults, what it leans on and why it has its status."""
+        Ts = self.sample_period_s if sample_period_s is None else float(sample_period_s)
         if Ts is None:
-            raise InputError("to_gain_set needs the controller's sample period (sample_period_s): the gain set runs "
-                             "as a discrete controller")
-        if self.Ts is not None and abs(Ts - self.Ts) > 1e-9 * self.Ts:
-            raise InputError(f"the controller was tuned discrete at Ts {self.Ts:g} s; "
-                             f"its gain set runs at that period, not at {Ts:g} s")
-        gains = self.controller_.isa(u_min_V=float(u_min_V), u_max_V=float(u_max_V), b=float(b))
+            raise InputError("to_gain_set needs the controller's sample period (sample_period_s, or Ts when tuning): "
+                             "the gain set runs as a discrete controller")
+        tuned = self.sample_period_s
+        if self.loop == "sampled" and tuned is not None and abs(Ts - tuned) > 1e-9 * tuned:
+            raise InputError(f"the bounds were tuned on the sampled loop at Ts {tuned:g} s; its gain "
+                             f"set runs at that period, not at {Ts:g} s")
+        lo = u_min_V if u_min_V is not None else (None if self.u_range is None else self.u_range[0])
+        hi = u_max_V if u_max_V is not None else (None if self.u_range is None else self.u_range[1])
+        if lo is None or hi is None:
+            raise InputError("to_gain_set needs the controller's output range: give u_min_V and u_max_V (or u_min and "
+                             "u_max when tuning)")
+        gains = self.controller_.isa(u_min_V=float(lo), u_max_V=float(hi), b=float(b))
         check = self.discrete_check(Ts)
         sampled = {"method": "the autotuned loop at its sample period: the controller step behind a zero-order "
                              "hold, its stability and its largest |S|, |T|, |KS| against the bounds",
                    **check, "bounds": {k: v for k, v in self.bounds.items() if v is not None}}
+        check["bounds"] = {k: v for k, v in self.bounds.items() if v is not None}
+        validated = check["passed"] and not self.leans_on
+        reason = ("the loop as it will run is stable and meets every bound within the tolerance, all of them set by "
+                  "the user" if validated else
+                  "; ".join(([] if check["passed"] else [_sampled_misses(check) + (
+                      " (the bounds were tuned on the continuous loop: tune with loop='sampled' to hold them on the "
+                      "loop as it runs)" if self.loop == "continuous" else "")])
+                            + [f"leans on a bound the user did not set: {x}" for x in self.leans_on]))
         # its verdict is this check on the one linear plant it was tuned for (no Monte Carlo set: validation None)
-        return GainSet(gains=gains, status="validated" if check["passed"] else "candidate", preset=name,
+        return GainSet(gains=gains, status="validated" if validated else "candidate", preset=name,
                        sample_period_s=Ts,
                        tuning={"autotune": self.to_dict(), "active_bounds": [x.to_dict() for x in self.active_bounds],
+                               "bounds_hold_on": self.loop_text(), "defaults": self.to_dict()["defaults"],
+                               "leans_on": list(self.leans_on), "status_reason": reason,
                                "sampled_loop_check": sampled},
                        inputs={"plant": self.plant.source})

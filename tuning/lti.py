@@ -19,6 +19,7 @@ stability: from its poles where the loop is rational, by the Nyquist criterion (
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import control
@@ -30,6 +31,8 @@ from piezopreload.core.errors import InputError, InternalError
 __all__ = ["LinearPlant", "as_plant", "encirclements", "nyquist_unstable"]
 
 _ON_AXIS = 1e-9  # a pole this close to the stability boundary (relative) is on it
+#: a pole or zero pair damped less than this is a resonance (or an anti-resonance) the grid resolves
+LIGHT = 0.3
 
 
 def _poly(c: Any, what: str) -> np.ndarray:
@@ -82,6 +85,9 @@ class LinearPlant:
         states): its poles and its simulation come from it.
     hold : _Hold or None
         A sampled plant's zero-order-hold equivalent in its small form: its response comes from it.
+    continuous_roots : ndarray or None
+        A sampled plant's: the poles and zeros of the continuous plant it was sampled from (its grid is placed
+        from them).
     """
 
     num: np.ndarray | None
@@ -93,6 +99,7 @@ class LinearPlant:
     source: str = "TransferFunction"
     ss: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
     hold: _Hold | None = None
+    continuous_roots: np.ndarray | None = None
 
     # ---- what it is --------------------------------------------------------------------------
     @property
@@ -109,7 +116,7 @@ class LinearPlant:
             raise InternalError(f"{self.source}: a measured response has no numerator and denominator")
         return self.num, self.den
 
-    def _measured(self) -> tuple[np.ndarray, np.ndarray]:
+    def measured_response(self) -> tuple[np.ndarray, np.ndarray]:
         """``(omega_data, data)``, where the caller has found the plant not :attr:`rational`."""
         if self.omega_data is None or self.data is None:
             raise InternalError(f"{self.source}: a rational plant has no measured response")
@@ -121,7 +128,7 @@ class LinearPlant:
             raise InternalError(f"{self.source}: a continuous plant has no sample period")
         return self.dt
 
-    @property
+    @cached_property
     def poles(self) -> np.ndarray | None:
         if self.ss is not None:
             return np.linalg.eigvals(self.ss[0])
@@ -131,19 +138,22 @@ class LinearPlant:
         """The poles' distance past the stability boundary (> 0 unstable): Re p, or |p| - 1 when discrete."""
         return np.abs(p) - 1.0 if self.discrete else p.real
 
-    @property
+    @cached_property
     def integrators(self) -> int:
-        """Poles at ``s = 0`` (``z = 1``); for measured data, the low-frequency slope of the magnitude in decades."""
+        """Poles at ``s = 0`` (``z = 1``); for measured data, the low-frequency slope of the magnitude in decades,
+        fitted by least squares over the lowest half decade (at least three points: one noisy point does not
+        decide it)."""
         poles = self.poles
         if poles is None:
-            w, data = self._measured()
-            g = np.abs(data)
-            slope = -np.log(g[1] / g[0]) / np.log(w[1] / w[0])
+            w, data = self.measured_response()
+            lw, lg = np.log10(w), np.log10(np.abs(data))
+            low = max(3, int(np.searchsorted(lw, lw[0] + 0.5)))
+            slope = -np.polyfit(lw[:low], lg[:low], 1)[0]
             return int(np.clip(np.round(slope), 0, 2))
         at = 1.0 if self.discrete else 0.0
         return int(np.sum(np.abs(poles - at) <= _ON_AXIS * max(1.0, np.max(np.abs(poles)))))
 
-    @property
+    @cached_property
     def unstable_poles(self) -> int:
         """Poles past the stability boundary (measured data: assumed 0, a response measured in open loop)."""
         poles = self.poles
@@ -159,60 +169,98 @@ class LinearPlant:
             if self.discrete:  # in w = z - 1
                 num, den = num(np.poly1d([1.0, 1.0])), den(np.poly1d([1.0, 1.0]))
             return float(np.sign(_lowest(num.coeffs) / _lowest(den.coeffs)))
-        phase = np.angle(self._measured()[1][0])  # about 0 (type 0) or -90 deg (type 1) when the gain is positive
+        # about 0 (type 0) or -90 deg (type 1) when the gain is positive
+        phase = np.angle(self.measured_response()[1][0])
         return 1.0 if -0.75 * np.pi < phase <= 0.25 * np.pi else -1.0
+
+    @cached_property
+    def roots_s(self) -> np.ndarray:
+        """The poles and zeros of the plant's continuous part (rad/s, ``s``-plane; a discrete plant's mapped by
+        ``s = ln(z) / dt``; a sampled plant's those of the plant it was sampled from), none at the origin."""
+        if self.continuous_roots is not None:
+            return self.continuous_roots
+        if not self.rational:
+            return np.zeros(0, complex)
+        num, den = self._tf()
+        roots = np.concatenate([np.roots(num), np.roots(den)]).astype(complex)
+        if self.discrete:
+            roots = np.log(roots[np.abs(roots) > 1e-12]) / self.sample_period()
+        return roots[np.abs(roots) > 1e-9 * max(1.0, float(np.max(np.abs(roots), initial=1.0)))]
+
+    def resonances(self) -> np.ndarray:
+        """``(w_n, zeta)`` per row of the lightly damped pole and zero pairs (``|zeta| <`` :data:`LIGHT`): a
+        resonance or an anti-resonance, stable or not; shape ``(k, 2)``."""
+        r = self.roots_s[self.roots_s.imag > 0]
+        wn = np.abs(r)
+        zeta = -r.real / np.where(wn > 0, wn, 1.0)
+        keep = np.abs(zeta) < LIGHT
+        return np.column_stack([wn[keep], zeta[keep]])
 
     def characteristic_frequencies(self) -> np.ndarray:
         """The frequencies (rad/s) of the plant's poles and zeros (not at the origin) and of its delay."""
         if not self.rational:
-            omega = self._measured()[0]
+            omega = self.measured_response()[0]
             return np.array([omega[0], omega[-1]])
-        if self.hold is not None:  # a sampled plant: its continuous part's poles and its delay
-            roots = np.linalg.eigvals(self.hold.Phi)
-            extra = [1.0 / (self.hold.d * self.sample_period())] if self.hold.d else []
-        else:
-            poles = self.poles  # a rational plant's are never None
-            roots, extra = np.concatenate([np.roots(self._tf()[0]), poles if poles is not None else []]), []
-        if self.discrete:
-            roots = roots[np.abs(roots) > 1e-12]
-            mags = np.abs(np.log(roots.astype(complex))) / self.sample_period()
-        else:
-            mags = np.abs(roots)
-        mags = mags[mags > 1e-9 * max(1.0, float(np.max(mags, initial=1.0)))]
-        if self.delay_s > 0:
-            mags = np.append(mags, 1.0 / self.delay_s)
-        mags = np.append(mags, extra)
+        mags = np.abs(self.roots_s)
+        delay = self.delay_s + (self.hold.d * self.sample_period() if self.hold is not None else 0.0)
+        if delay > 0:
+            mags = np.append(mags, 1.0 / delay)
         return mags if mags.size else np.array([1.0])
 
     def grid(self, per_decade: int = 25, widen: float = 0.0) -> np.ndarray:
-        """The design grid (rad/s): from a hundredth of the lowest characteristic frequency to a hundred times the
-        highest (``widen`` decades more each side), log-spaced; a discrete plant's up to just below its Nyquist
-        frequency; a measured response's data frequencies (every ``k``-th, for about ``per_decade`` a decade)."""
+        """The design grid (rad/s), placed from the plant: log-spaced from a hundredth of its lowest characteristic
+        frequency to a hundred times its highest (``widen`` decades more each side), and around each lightly damped
+        pole or zero pair ``(w_n, zeta)`` a cluster of ``per_decade`` points over ``w_n e^{+-4 zeta}`` (its peak's
+        width is ``2 zeta w_n``: a log grid alone steps over a resonance); a discrete plant's up to just below its
+        Nyquist frequency; a measured response's data frequencies (every ``k``-th, for about ``per_decade`` a
+        decade)."""
         if not self.rational:
-            omega = self._measured()[0]
-            decades = np.log10(omega[-1] / omega[0])
-            step = max(1, int(omega.size / max(per_decade * decades, 1.0)))
-            keep = np.unique(np.append(np.arange(0, omega.size, step), omega.size - 1))
-            return omega[keep]
+            return self._data_grid(per_decade)
         f = self.characteristic_frequencies()
         lo, hi = np.log10(0.01 * f.min()) - widen, np.log10(100.0 * f.max()) + widen
         if self.discrete:
             hi = min(hi, np.log10(0.999 * np.pi / self.sample_period()))
             lo = min(lo, hi - 2.0)
-        return np.logspace(lo, hi, int(np.ceil((hi - lo) * per_decade)) + 1)
+        w = np.logspace(lo, hi, int(np.ceil((hi - lo) * per_decade)) + 1)
+        u = np.linspace(-4.0, 4.0, per_decade)
+        clusters = [wn * np.exp(max(abs(zeta), 1e-5) * u) for wn, zeta in self.resonances()]
+        if clusters:
+            w = np.concatenate([w, *clusters])
+            w = np.unique(w[(w >= w[0]) & (w <= 10.0**hi)])
+        return w
+
+    def _data_grid(self, per_decade: int) -> np.ndarray:
+        """A measured response's frequencies, every ``k``-th for about ``per_decade`` a decade, and every one where
+        the response turns fast (its phase or log-magnitude moving more than ``1 / k`` per data point: a resonance
+        the data resolve and every ``k``-th point would step over)."""
+        w, data = self.measured_response()
+        decades = np.log10(w[-1] / w[0])
+        step = max(1, int(w.size / max(per_decade * decades, 1.0)))
+        fast = np.zeros(w.size, bool)
+        if step > 1:
+            phase, magnitude = np.unwrap(np.angle(data)), np.log(np.abs(data))
+            moves = np.maximum(np.abs(np.diff(phase)), np.abs(np.diff(magnitude)))
+            fast[:-1] |= moves > 1.0 / step
+            fast[1:] |= moves > 1.0 / step
+        keep = np.zeros(w.size, bool)
+        keep[::step], keep[-1] = True, True
+        return w[keep | fast]
 
     # ---- its response ------------------------------------------------------------------------
     def response(self, omega: Any) -> np.ndarray:
         """``G(j w)`` (``G(e^{j w dt})`` when discrete) at ``omega`` (rad/s), the delay included exactly; a measured
-        response between its frequencies by linear interpolation of log-magnitude and unwrapped phase."""
+        response between its frequencies by linear interpolation of log-magnitude and unwrapped phase, below them
+        its low-frequency asymptote (the lowest point's phase, the magnitude rising with its integrators), above
+        them its highest point."""
         w = np.asarray(omega, float)
         delay = np.exp(-1j * w * self.delay_s)
-        if not self.rational:
-            omega, data = self._measured()
+        if not self.rational:  # below the data: its low-frequency asymptote (its integrators' slope)
+            omega, data = self.measured_response()
             lw, lg = np.log(omega), np.log(np.abs(data))
             ph = np.unwrap(np.angle(data))
             x = np.log(np.clip(w, omega[0], omega[-1]))
-            return np.exp(np.interp(x, lw, lg) + 1j * np.interp(x, lw, ph)) * delay
+            below = self.integrators * np.maximum(lw[0] - np.log(np.maximum(w, 1e-300)), 0.0)
+            return np.exp(np.interp(x, lw, lg) + below + 1j * np.interp(x, lw, ph)) * delay
         s = np.exp(1j * w * self.sample_period()) if self.discrete else 1j * w
         if self.hold is not None:
             return self.hold.response(s) * delay
@@ -239,7 +287,7 @@ class LinearPlant:
                                  f"the same, got {Ts:g} s")
             return self
         if not self.rational:
-            omega, data = self._measured()
+            omega, data = self.measured_response()
             w = omega[omega < np.pi / Ts]
             if w.size < 4:
                 raise InputError(f"the measured response has {w.size} frequencies below the Nyquist frequency of "
@@ -251,7 +299,8 @@ class LinearPlant:
         tf = control.ss2tf(*ss, Ts)
         num, den = _trim(tf.num[0][0]), _trim(tf.den[0][0])
         return LinearPlant(_poly(num, "numerator"), _poly(den, "denominator"), Ts, 0.0,
-                           source=f"{self.source}, held at {Ts:g} s", ss=ss, hold=zoh)
+                           source=f"{self.source}, held at {Ts:g} s", ss=ss, hold=zoh,
+                           continuous_roots=self.roots_s)
 
     def state_space(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(A, B, C, D)`` of a discrete rational plant, its delay as a line of states."""
@@ -292,17 +341,18 @@ class LinearPlant:
     def resolved_loop(self, controller_response: Any) -> tuple[np.ndarray, np.ndarray]:
         """The loop ``C G`` on a grid fine enough for the Nyquist criterion: the plant's grid a decade wider, ten
         times denser, points added where ``1 + L`` turns by more than an eighth of a turn between neighbours; a
-        continuous loop's grid extended until ``|L| < 1/2``, a discrete loop's ending at its Nyquist frequency.
-        Measured data: its own frequencies (the phase must be resolved there; checked)."""
+        continuous loop's grid extended until ``|L| < 1/2``, a discrete loop's ending at its Nyquist frequency; an
+        integrating loop's extended down until ``|L| >= 10`` (where the criterion's indentation holds).
+        Measured data: its own frequencies (the phase must be resolved there; checked), below them the asymptote."""
         def loop_at(w: np.ndarray) -> np.ndarray:
             return np.asarray(controller_response(w), complex) * self.response(w)
 
+        start = self.measured_response()[0] if not self.rational else self.grid(per_decade=250, widen=1.0)
+        w = _down_to_asymptote(start, loop_at)
         if not self.rational:
-            w = self._measured()[0]
             return w, loop_at(w)
-        w = self.grid(per_decade=250, widen=1.0)
-        if self.dt is not None:
-            w = np.append(w[w < np.pi / self.dt], np.pi / self.dt)
+        if self.discrete:
+            w = np.append(w[w < np.pi / self.sample_period()], np.pi / self.sample_period())
         else:
             for _ in range(12):
                 if abs(loop_at(w[-1:])[0]) < 0.5:
@@ -318,6 +368,17 @@ class LinearPlant:
             w = np.insert(w, coarse + 1, mid)
             loop = np.insert(loop, coarse + 1, loop_at(mid))
         return w, loop
+
+
+def _down_to_asymptote(w: np.ndarray, loop_at: Any) -> np.ndarray:
+    """``w`` extended down, a decade at a time (at most twelve), while the loop's gain still grows below it and is
+    under 10: an integrating loop's grid reaches its asymptote, where the Nyquist criterion's indentation holds."""
+    for _ in range(12):
+        ends = np.abs(loop_at(np.array([w[0] / 10.0, w[0]])))
+        if ends[1] >= 10.0 or ends[0] < 1.5 * ends[1]:
+            break
+        w = np.concatenate([np.logspace(np.log10(w[0]) - 1.0, np.log10(w[0]), 26)[:-1], w])
+    return w
 
 
 def _matrices(sys: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -421,7 +482,8 @@ def as_plant(plant: Any, delay_s: float = 0.0) -> LinearPlant:
     delay_s = float(delay_s)
     if isinstance(plant, LinearPlant):
         return plant if delay_s == 0 else LinearPlant(plant.num, plant.den, plant.dt, plant.delay_s + delay_s,
-                                                      plant.omega_data, plant.data, plant.source, plant.ss, plant.hold)
+                                                      plant.omega_data, plant.data, plant.source, plant.ss, plant.hold,
+                                                      plant.continuous_roots)
     if isinstance(plant, control.FrequencyResponseData):
         return _from_frd(plant, delay_s)
     if isinstance(plant, control.StateSpace | control.TransferFunction):

@@ -1,4 +1,4 @@
-"""The autotuner's optimisation problem on one frequency grid: CasADi expressions, IPOPT with exact derivatives.
+"""The autotuner's optimisation problem on one frequency grid: CasADi expressions, an SQP with exact derivatives.
 
 Decision variables, scaled to O(1) (:class:`Scales`): ``kp = s_p x0``, ``ki = s_i x1`` and, with a
 derivative, ``kd = s_d x2``, ``Tf = s_f exp(x3)`` (:class:`~piezopreload.tuning.pidform.PIDController`'s
@@ -6,9 +6,19 @@ forms). The objective: ``-ki / s_i`` (``IE``: the integrated error of a unit loa
 input is ``1/ki``), or the load step's IAE (:func:`~piezopreload.tuning.loadstep.iae_function`).
 The constraints: for each bound ``|X| <= M`` (``X`` one of ``S``, ``T``, ``KS``) and each grid
 frequency, the row of :func:`~piezopreload.tuning.loopshape.bound_rows` divided by ``|1 + L|^2``,
-``|X|^2 / M^2 - 1 <= 0``: one per frequency, scaled alike. :meth:`PIDProblem.solve` runs IPOPT
-(exact Hessian), or scipy's SLSQP on the same functions and first derivatives (the benchmark's
-peer); :meth:`PIDProblem.least_violation` the smallest ``max |X| / M`` any gains reach.
+``|X|^2 / M^2 - 1 <= 0``: one per frequency, scaled alike. :meth:`PIDProblem.solve` runs CasADi's
+``sqpmethod`` (exact Hessian of the Lagrangian, its negative eigenvalues reflected where it is
+indefinite, each QP by DAQP, a dual active-set solver for small dense QPs: four variables, a few
+hundred rows; where it stalls, IPOPT from the same start), or IPOPT (exact Hessian), or scipy's
+SLSQP on the same functions and first derivatives (the benchmark's peer);
+:meth:`PIDProblem.least_violation` the smallest ``max |X| / M`` any gains reach.
+
+Why an SQP: with four variables and a few dozen inequality rows, started near the optimum (the
+starts of :mod:`~piezopreload.tuning.stabset`), an active-set SQP converges in a handful of
+iterations (four in the median on the benchmark batch), each a tiny dense QP; IPOPT's interior
+point needs tens of iterations from any start (its barrier pushes the start off the active
+bounds): with it as the local solver (``solver="ipopt"``) the whole search on Åström and
+Hägglund's 31 processes took three times as long, for the same integral gains to 3e-4.
 """
 
 from __future__ import annotations
@@ -21,7 +31,7 @@ import casadi as ca
 import numpy as np
 from scipy.optimize import minimize
 
-from piezopreload.core.errors import InputError
+from piezopreload.core.errors import InputError, InternalError
 from piezopreload.tuning.loopshape import (
     bound_rows,
     continuous_pid_response,
@@ -31,20 +41,32 @@ from piezopreload.tuning.loopshape import (
 )
 from piezopreload.tuning.pidform import PIDController
 
-__all__ = ["Scales", "PIDProblem", "Solution", "TF_RANGE", "X_MAX"]
+__all__ = ["Scales", "PIDProblem", "Solution", "TF_RANGE", "X_MAX", "METHODS"]
 
 #: the derivative filter's range relative to its scale (``Tf = s_f exp(x3)``)
-TF_RANGE = (1e-3, 1e2)
+TF_RANGE = (1e-4, 1e4)
 #: the largest scaled gain
 X_MAX = 1e3
 #: the smallest scaled proportional and integral gains (the ideal/ISA form needs them positive)
 _X_MIN = (1e-6, 1e-8)
+#: the local solvers :meth:`PIDProblem.solve` runs
+METHODS = ("sqp", "ipopt", "slsqp", "slsqp-fd")
+#: CasADi's ``sqpmethod`` as the SQP runs it: DAQP for the QPs; the Hessian's negative eigenvalues reflected (made
+#: positive: DAQP needs a positive definite Hessian, and clipping them to a small margin left it so ill-conditioned
+#: that the line search stalled on refined grids of the benchmark batch)
+SQP_OPTIONS: dict[str, Any] = {"qpsol": "daqp", "qpsol_options": {"error_on_fail": False},
+                               "convexify_strategy": "eigen-reflect", "tol_pr": 1e-9, "tol_du": 1e-8,
+                               "min_step_size": 1e-12}
+#: the SQP's iterations before IPOPT takes over from the same start (a start near the optimum needs a handful)
+_SQP_ITERATIONS = 30
+_SQP_DONE = ("Solve_Succeeded", "Search_Direction_Becomes_Too_Small")
 
 
 @dataclass(frozen=True)
 class Scales:
     """The gains' scales (``x = gain / scale``) and the controller's form: ``filter_order`` 0 (PI), 1 or 2; ``dt``
-    a discrete controller's period (None: continuous)."""
+    a discrete controller's period (None: continuous); ``Tf_min`` the least filter time constant (s, 0: only the
+    search range's :data:`TF_RANGE`)."""
 
     kp: float
     ki: float
@@ -52,6 +74,7 @@ class Scales:
     Tf: float
     filter_order: int
     dt: float | None
+    Tf_min: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("kp", "ki", "kd", "Tf"):
@@ -85,9 +108,20 @@ class Scales:
 
     def box(self) -> tuple[np.ndarray, np.ndarray]:
         """Lower and upper bounds of the scaled variables."""
-        lo = [_X_MIN[0], _X_MIN[1]] + ([0.0, np.log(TF_RANGE[0])] if self.n == 4 else [])
-        hi = [X_MAX, X_MAX] + ([X_MAX, np.log(TF_RANGE[1])] if self.n == 4 else [])
+        lo = [_X_MIN[0], _X_MIN[1]] + ([0.0, self.tf_low] if self.n == 4 else [])
+        hi = [X_MAX, X_MAX] + ([X_MAX, max(np.log(TF_RANGE[1]), self.tf_low)] if self.n == 4 else [])
         return np.array(lo), np.array(hi)
+
+    @property
+    def tf_low(self) -> float:
+        """The lower end of the filter's scaled variable: the search range's, or the floor ``Tf_min`` above it."""
+        floor = np.log(self.Tf_min / self.Tf) if self.Tf_min > 0 else -np.inf
+        return float(max(np.log(TF_RANGE[0]), floor))
+
+    @property
+    def tf_floor_binds(self) -> bool:
+        """Whether the floor ``Tf_min`` (not the search range) sets the filter's lower end."""
+        return self.Tf_min > 0 and np.log(self.Tf_min / self.Tf) >= np.log(TF_RANGE[0])
 
 
 @dataclass(frozen=True)
@@ -104,8 +138,9 @@ class Solution:
     lam_x: np.ndarray | None = None
 
 
-#: the grid's rows come in blocks of this many (padding rows are free), so one compiled NLP serves many grids
-_BLOCK = 64
+#: the grid's rows come in this many slots times a power of two (padding rows are free), so one compiled NLP
+#: serves many grids
+_BLOCK = 32
 
 
 @dataclass(frozen=True, eq=False)
@@ -141,7 +176,18 @@ def _features(omega: np.ndarray, filter_order: int, dt: float | None) -> np.ndar
 _Sym = TypeVar("_Sym", ca.SX, ca.MX)
 
 
+def _set(bounds: dict[str, float | None], name: str) -> float:
+    """The limit of a bound the problem holds (its names are those set)."""
+    m = bounds[name]
+    if m is None:
+        raise InternalError(f"the bound {name} is not set")
+    return m
+
+
 def _compile(n: int, names: tuple[str, ...], filter_order: int, discrete: bool, objective: Any) -> _Compiled:
+    """The NLP for ``n`` slots, each one row: the bound its weights select (one of ``names``) at its frequency,
+    ``|X|^2 / M^2 - 1`` (:func:`~piezopreload.tuning.loopshape.bound_rows` over ``|1 + L|^2``); a slot whose weights
+    are all zero is a free row."""
     if isinstance(objective, str):
         return _build(ca.SX, n, names, filter_order, discrete, objective)
     return _build(ca.MX, n, names, filter_order, discrete, objective)  # the simulation stays a call, not an expansion
@@ -151,12 +197,13 @@ def _build(sym: type[_Sym], n: int, names: tuple[str, ...], filter_order: int, d
            objective: Any) -> _Compiled:
     nf = 6 if discrete and filter_order < 2 else 1
     nx = 2 if filter_order == 0 else 4
+    nb = len(names)
     x = sym.sym("x", nx)
-    p = sym.sym("p", 5 + len(names) + n * (nf + 2))
+    p = sym.sym("p", 5 + nb + n * (nf + 2 + nb))
     s_kp, s_ki, s_kd, s_tf, dt = (p[i] for i in range(5))
     kp, ki = s_kp * x[0], s_ki * x[1]
     kd, Tf = (0.0, 0.0) if filter_order == 0 else (s_kd * x[2], s_tf * ca.exp(x[3]))
-    grid = ca.reshape(p[5 + len(names):], nf + 2, n)
+    grid = ca.reshape(p[5 + nb:], nf + 2 + nb, n)
     if discrete and filter_order < 2:
         re, im = discrete_pid_response(kp, ki, kd, Tf, dt, [grid[i, :] for i in range(6)])
     else:
@@ -164,28 +211,35 @@ def _build(sym: type[_Sym], n: int, names: tuple[str, ...], filter_order: int, d
     g_re, g_im = grid[nf, :], grid[nf + 1, :]
     rows = bound_rows(re, im, g_re, g_im, {name: ca.sqrt(p[5 + i]) for i, name in enumerate(names)})
     _, _, d = loop_terms(re, im, g_re, g_im)
-    g = ca.vertcat(*[(rows[name] / d).T for name in names]) if names else sym(0, 1)
+    g = sum((grid[nf + 2 + i, :] * rows[name] for i, name in enumerate(names)), 0.0 * d) / d if nb else sym(1, 0)
     f = -x[1] if isinstance(objective, str) else objective(ca.vertcat(kp, ki, kd, Tf))
+    g = g.T
     return _Compiled(x, p, f, g, ca.Function("fg", [x, p], [f, g]),
                      ca.Function("dfg", [x, p], [ca.gradient(f, x), ca.jacobian(g, x)]), nf)
 
 
 class PIDProblem:
-    """The problem on the grid ``omega`` with the plant's response ``G`` there (see the module docstring).
+    """The problem on the frequencies ``omega`` with the plant's response ``G`` there (see the module docstring).
 
-    ``bounds`` maps ``Ms``, ``Mt``, ``Mks`` to limits (None: unbounded); ``objective`` is ``"IE"`` or a CasADi
-    function ``(kp, ki, kd, Tf) -> IAE`` with ``iae_scale`` its typical size. The grid is laid out in blocks of
-    :data:`_BLOCK` slots (the spare ones free rows), so the IE problem's CasADi functions and IPOPT solver are
-    built once per structure and grid size and kept.
+    ``bounds`` maps ``Ms``, ``Mt``, ``Mks`` to limits (None: unbounded); ``which`` names the bound each entry of
+    ``omega`` holds (None: every bound at every frequency, the entries repeated per bound); ``objective`` is ``"IE"``
+    or a CasADi function ``(kp, ki, kd, Tf) -> IAE`` with ``iae_scale`` its typical size. Each row is a slot of a
+    compiled problem of :data:`_BLOCK` times a power of two slots (the spare ones free rows), at least ``spare``
+    spare, so the IE problem's CasADi functions and solvers are built once per structure and size and kept.
     """
 
     def __init__(self, omega: np.ndarray, G: np.ndarray, bounds: dict[str, float | None], scales: Scales,
-                 objective: Any = "IE", iae_scale: float = 1.0, max_iterations: int = 300) -> None:
-        self.omega, self.scales, self.bounds = np.asarray(omega, float), scales, bounds
-        limits = {name: m for name, m in bounds.items() if m is not None}
-        self.names = tuple(limits)
+                 objective: Any = "IE", iae_scale: float = 1.0, max_iterations: int = 100, spare: int = 0,
+                 which: Any = None) -> None:
+        self.scales, self.bounds = scales, bounds
+        self.names = tuple(name for name, m in bounds.items() if m is not None)
+        omega, G = np.asarray(omega, float).ravel(), np.asarray(G, complex).ravel()
+        if which is None:
+            which = np.repeat(np.array(self.names, dtype=object), omega.size)
+            omega, G = np.tile(omega, len(self.names)), np.tile(G, len(self.names))
+        self.omega, self.which = omega, np.asarray(which, dtype=object)
         n = self.omega.size
-        cap = _BLOCK * int(np.ceil(n / _BLOCK))
+        cap = _BLOCK * 2 ** int(np.ceil(np.log2(max((n + spare) / _BLOCK, 1.0))))
         key = (cap, self.names, scales.filter_order, scales.dt is not None, max_iterations)
         if isinstance(objective, str):
             if key not in _CACHE:
@@ -197,27 +251,28 @@ class PIDProblem:
             fn = ca.Function("iae_scaled", [g4], [objective(g4) / iae_scale])
             self.compiled = _compile(cap, self.names, scales.filter_order, scales.dt is not None, fn)
             self._solvers = {}
-        feats = _features(self.omega, scales.filter_order, scales.dt)
-        G = np.asarray(G, complex)
-        slots = np.zeros((self.compiled.features + 2, cap))
-        slots[:, :n] = np.vstack([feats, G.real[None, :], G.imag[None, :]])
-        slots[:, n:] = slots[:, n - 1:n]  # spare slots: the last frequency again, their rows free
+        feats = _features(self.omega, scales.filter_order, scales.dt) if n else np.zeros((self.compiled.features, 0))
+        select = np.array([[w == name for w in self.which] for name in self.names], float).reshape(len(self.names), n)
+        slots = np.zeros((self.compiled.features + 2 + len(self.names), cap))
+        slots[:, :n] = np.vstack([feats, G.real[None, :], G.imag[None, :], select])
+        if n:  # spare slots: the last frequency again, no bound selected (free rows)
+            slots[:self.compiled.features + 2, n:] = slots[:self.compiled.features + 2, n - 1:n]
+        else:
+            slots[:self.compiled.features, :] = 1.0
         self.data = np.concatenate([[scales.kp, scales.ki, scales.kd, scales.Tf, scales.dt or 0.0],
-                                    [float(limits[k]) ** 2 for k in self.names], slots.ravel(order="F")])
-        self.ubg = np.tile(np.concatenate([np.zeros(n), np.full(cap - n, np.inf)]), len(self.names))
+                                    [float(_set(bounds, k)) ** 2 for k in self.names], slots.ravel(order="F")])
+        self.ubg = np.concatenate([np.zeros(n), np.full(cap - n, np.inf)])
         self.cap, self.max_iterations = cap, max_iterations
         self.x, self.f, self.g = self.compiled.x, self.compiled.f, self.compiled.g
 
     def fg(self, x: np.ndarray) -> tuple[Any, Any]:
-        """The objective and the rows of the grid's frequencies (the spare slots left out)."""
+        """The objective and the rows of the problem's entries (the spare slots left out)."""
         f, g = self.compiled.fg(x, self.data)
-        g = np.asarray(g, float).ravel().reshape(len(self.names), self.cap)[:, :self.omega.size]
-        return f, g.ravel()
+        return f, np.asarray(g, float).ravel()[:self.omega.size]
 
     def derivatives(self, x: np.ndarray) -> tuple[Any, Any]:
         df, dg = self.compiled.derivatives(x, self.data)
-        dg = np.asarray(dg, float).reshape(len(self.names), self.cap, -1)[:, :self.omega.size, :]
-        return df, dg.reshape(-1, dg.shape[-1])
+        return df, np.asarray(dg, float)[:self.omega.size, :]
 
     # ---- evaluation ----------------------------------------------------------------------------
     def evaluate(self, x: np.ndarray) -> tuple[float, float]:
@@ -228,16 +283,25 @@ class PIDProblem:
         return float(f), worst
 
     def worst_by_bound(self, x: np.ndarray) -> dict[str, tuple[float, float]]:
-        """Per bound, ``(max |X| / M, the frequency where)`` on the grid."""
-        g = np.asarray(self.fg(x)[1], float).ravel().reshape(len(self.names), -1)
+        """Per bound, ``(max |X| / M, the frequency where)`` over the problem's entries."""
+        g = np.asarray(self.fg(x)[1], float).ravel()
         out = {}
-        for name, row in zip(self.names, g):
-            i = int(np.argmax(row))
-            out[name] = (float(np.sqrt(max(1.0 + row[i], 0.0))), float(self.omega[i]))
+        for name in self.names:
+            mine = np.flatnonzero(self.which == name)
+            if mine.size:
+                i = int(mine[np.argmax(g[mine])])
+                out[name] = (float(np.sqrt(max(1.0 + g[i], 0.0))), float(self.omega[i]))
         return out
 
     # ---- solving -------------------------------------------------------------------------------
     def _solver(self, name: str = "ipopt") -> Any:
+        if name in ("sqp", "least_violation_sqp") and name not in self._solvers:
+            t = type(self.x).sym("t")
+            nlp = ({"x": self.x, "p": self.compiled.p, "f": self.f, "g": self.g} if name == "sqp" else
+                   {"x": ca.vertcat(self.x, t), "p": self.compiled.p, "f": t, "g": self.g - t})
+            self._solvers[name] = ca.nlpsol(f"autotune_{name}", "sqpmethod", nlp, {**SQP_OPTIONS,
+                "max_iter": min(self.max_iterations, _SQP_ITERATIONS), "print_header": False,
+                "print_iteration": False, "print_status": False, "print_time": False, "error_on_fail": False})
         if name not in self._solvers:
             t = type(self.x).sym("t")
             nlp = ({"x": self.x, "p": self.compiled.p, "f": self.f, "g": self.g} if name != "least_violation" else
@@ -255,42 +319,53 @@ class PIDProblem:
         return self._solvers[name]
 
     def _multipliers(self, warm: Solution) -> np.ndarray:
-        """``warm``'s constraint multipliers in this problem's slots (its grid is this one's first frequencies)."""
-        lam = np.zeros((len(self.names), self.cap))
-        old = np.asarray(warm.lam_g, float).reshape(len(self.names), -1)
-        k = min(old.shape[1], self.cap)
-        lam[:, :k] = old[:, :k]
-        return lam.ravel()
+        """``warm``'s constraint multipliers in this problem's slots (its entries are this one's first)."""
+        lam = np.zeros(self.cap)
+        old = np.asarray(warm.lam_g, float).ravel()
+        k = min(old.size, self.cap)
+        lam[:k] = old[:k]
+        return lam
 
     def solve(self, x0: np.ndarray, method: str = "ipopt", box: tuple[np.ndarray, np.ndarray] | None = None,
               warm: Solution | None = None) -> Solution:
-        """Solve from ``x0`` with IPOPT (exact first and second derivatives) or scipy's SLSQP (``method="slsqp"``:
-        the same functions and exact first derivatives, a quasi-Newton Hessian; ``"slsqp-fd"``: finite-difference
-        derivatives, as scipy takes a problem without them), in :meth:`Scales.box` or the narrower ``box`` (a trust
-        region). ``warm``: a solution of a problem whose grid is this one's first frequencies (IPOPT starts from its
-        multipliers too)."""
+        """Solve from ``x0`` with the SQP (``method="sqp"``, see the module docstring), IPOPT (exact first and second
+        derivatives) or scipy's SLSQP (``method="slsqp"``: the same functions and exact first derivatives, a
+        quasi-Newton Hessian; ``"slsqp-fd"``: finite-difference derivatives, as scipy takes a problem without them),
+        in :meth:`Scales.box` or the narrower ``box`` (a trust region). ``warm``: a solution of a problem whose grid
+        is this one's first frequencies (the SQP and IPOPT start from its multipliers too)."""
         lo, hi = self.scales.box()
         if box is not None:
             lo, hi = np.maximum(lo, box[0]), np.minimum(hi, box[1])
         x0 = np.clip(np.asarray(x0, float), lo, hi)
         t0 = time.perf_counter()
+        lam: tuple[Any, Any] = (None, None)
         if method in ("slsqp", "slsqp-fd"):
             x, status, iterations = self._slsqp(x0, lo, hi, exact=method == "slsqp")
-        elif method == "ipopt":
-            start = warm if warm is not None and warm.lam_g is not None else None
-            solver = self._solver("ipopt" if start is None else "ipopt_warm")
-            extra = {} if start is None else {"lam_g0": self._multipliers(start), "lam_x0": start.lam_x}
-            sol = solver(x0=x0, p=self.data, lbx=lo, ubx=hi, lbg=-np.inf, ubg=self.ubg, **extra)
-            stats = solver.stats()
-            x, status, iterations = (np.asarray(sol["x"], float).ravel(), str(stats.get("return_status")),
-                                     int(stats.get("iter_count", 0)))
-            lam = (np.asarray(sol["lam_g"], float).ravel(), np.asarray(sol["lam_x"], float).ravel())
+            f, worst = self.evaluate(np.clip(x, lo, hi))
+        elif method in ("ipopt", "sqp"):
+            x, status, iterations, lam, (f, worst) = self._casadi(method, x0, lo, hi, warm)
+            if method == "sqp" and (status not in _SQP_DONE or worst > 1e-6):
+                x, status2, more, lam, (f, worst) = self._casadi("ipopt", x0, lo, hi, warm)  # the SQP stalled: IPOPT
+                status, iterations = f"{status}; ipopt: {status2}", iterations + more
         else:
-            raise InputError(f"method must be 'ipopt', 'slsqp' or 'slsqp-fd', got {method!r}")
-        x = np.clip(x, lo, hi)
-        f, worst = self.evaluate(x)
-        return Solution(x, f, worst, status, iterations, time.perf_counter() - t0,
-                        *(lam if method == "ipopt" else (None, None)))
+            raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+        return Solution(np.clip(x, lo, hi), f, worst, status, iterations, time.perf_counter() - t0, *lam)
+
+    def _casadi(self, method: str, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                warm: Solution | None) -> tuple[np.ndarray, str, int, tuple[np.ndarray, np.ndarray],
+                                                tuple[float, float]]:
+        """The solve, its status and iterations, its multipliers and ``(objective, worst |X| / M - 1)`` from the
+        solver's own values (no second evaluation)."""
+        use_warm = warm is not None and warm.lam_g is not None
+        solver = self._solver(method if method == "sqp" or not use_warm else "ipopt_warm")
+        extra = {"lam_g0": self._multipliers(warm), "lam_x0": warm.lam_x} if warm is not None and use_warm else {}
+        sol = solver(x0=x0, p=self.data, lbx=lo, ubx=hi, lbg=-np.inf, ubg=self.ubg, **extra)
+        stats = solver.stats()
+        g = np.asarray(sol["g"], float).ravel()[:self.omega.size]
+        worst = float(np.sqrt(max(1.0 + np.max(g, initial=-1.0), 0.0)) - 1.0)
+        return (np.asarray(sol["x"], float).ravel(), str(stats.get("return_status")), int(stats.get("iter_count", 0)),
+                (np.asarray(sol["lam_g"], float).ravel(), np.asarray(sol["lam_x"], float).ravel()),
+                (float(sol["f"]), worst))
 
     def _slsqp(self, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, exact: bool) -> tuple[np.ndarray, str, int]:
         def fun(x: np.ndarray) -> float:
@@ -312,11 +387,12 @@ class PIDProblem:
                        options={"maxiter": self.max_iterations, "ftol": 1e-12})
         return np.asarray(res.x, float), str(res.message), int(res.nit)
 
-    def least_violation(self, x0: np.ndarray) -> Solution:
+    def least_violation(self, x0: np.ndarray, method: str = "ipopt") -> Solution:
         """The gains with the smallest worst bound ``max |X| / M`` on the grid (the phase one of an infeasible
-        problem): minimise ``t`` subject to every row ``<= t``."""
+        problem): minimise ``t`` subject to every row ``<= t``; by the SQP (``method="sqp"``) or IPOPT (any other:
+        SLSQP has no such problem of its own)."""
         lo, hi = self.scales.box()
-        solver = self._solver("least_violation")
+        solver = self._solver("least_violation_sqp" if method == "sqp" else "least_violation")
         x0 = np.clip(np.asarray(x0, float), lo, hi)
         t0 = time.perf_counter()
         g0 = float(np.max(np.asarray(self.fg(x0)[1], float), initial=0.0))

@@ -25,6 +25,20 @@ def _positive(text: str) -> float:
     return value
 
 
+def _grid(text: str) -> Any:
+    """``--grid LO:HI:N``: ``N`` log-spaced frequencies from ``LO`` to ``HI`` rad/s."""
+    import numpy as np
+
+    parts = text.split(":")
+    try:
+        lo, hi, n = float(parts[0]), float(parts[1]), int(parts[2])
+    except (ValueError, IndexError):
+        raise argparse.ArgumentTypeError(f"'{text}' is not LO:HI:N (example: 0.01:100:400, rad/s)") from None
+    if len(parts) != 3 or not (0 < lo < hi < float("inf")) or n < 8:
+        raise argparse.ArgumentTypeError(f"'{text}' needs 0 < LO < HI (rad/s) and N >= 8 points")
+    return np.logspace(np.log10(lo), np.log10(hi), n)
+
+
 def register_autotune(sub: Any) -> None:
     """tune a PI or PID for your own loop under Ms, Mt and Mks bounds"""
     p = sub.add_parser(
@@ -34,8 +48,11 @@ def register_autotune(sub: Any) -> None:
             "measured frequency response or a measured step response (fitted first or second order with dead time), "
             "with an exact input delay: the largest integral gain (IE) or the least IAE of a load step at the plant "
             "input, subject to abs(S) <= Ms, abs(T) <= Mt, abs(KS) <= Mks on a frequency grid chosen from the plant "
-            "and a stable closed loop (CasADi + IPOPT, several starts including AMIGO and SIMC). With --out, write a "
-            "gain set 'piezopreload export' writes for LabVIEW, PLCs and C."),
+            "and a stable closed loop (analytic starts from the stabilising set, then an SQP with exact derivatives). "
+            "The bounds hold on the continuous loop, or with --loop sampled on the loop as it runs at --Ts (zero-order "
+            "hold, the controller step). With --u-min/--u-max and no --Mks, abs(KS) is bounded by the actuator's span "
+            "per measured unit (a default the result names). With --out, write a gain set 'piezopreload export' "
+            "writes for LabVIEW, PLCs and C."),
         epilog=(
             "--tf NUM/DEN: coefficients in descending powers of s (of z with --dt), e.g. --tf 30/0.005,1 for "
             "30/(0.005 s + 1). --frd: a CSV with omega_rad_per_s (or frequency_Hz) and magnitude, phase_deg (or real, "
@@ -53,12 +70,19 @@ def register_autotune(sub: Any) -> None:
                    help="the largest abs(KS), the controller's output per unit of measurement noise")
     p.add_argument("--metric", choices=("IE", "IAE"), default="IE", help="IE: largest ki (default); IAE: least IAE")
     p.add_argument("--form", choices=("PI", "PID"), default="PID", help="the controller (default PID)")
-    p.add_argument("--Ts", type=_positive, metavar="S", help="the controller's sample period: tune the loop as it runs")
+    p.add_argument("--Ts", type=_positive, metavar="S",
+                   help="the controller's sample period (the filter's floor, the gain set's period)")
+    p.add_argument("--loop", choices=("continuous", "sampled"),
+                   help="the loop the bounds hold on: continuous (default), or sampled at --Ts as it runs")
+    p.add_argument("--grid", type=_grid, metavar="LO:HI:N",
+                   help="the design grid: N log-spaced frequencies from LO to HI rad/s (default: from the plant)")
     p.add_argument("--order", type=int, choices=(1, 2), help="--step: the fitted model's order (default: the better)")
     p.add_argument("--out", metavar="gains.json", help="write the gain set (needs --Ts or a discrete plant, --u-min, "
                                                         "--u-max)")
-    p.add_argument("--u-min", type=float, metavar="V", help="the controller's lowest output (for --out)")
-    p.add_argument("--u-max", type=float, metavar="V", help="the controller's highest output (for --out)")
+    p.add_argument("--u-min", type=float, metavar="V",
+                   help="the controller's lowest output (the gain set's; with --u-max the default Mks)")
+    p.add_argument("--u-max", type=float, metavar="V",
+                   help="the controller's highest output (the gain set's; with --u-min the default Mks)")
     json_flag(p)
     p.set_defaults(run=_cmd_autotune, show=_print_autotune)
 
@@ -91,43 +115,56 @@ def _cmd_autotune(args: argparse.Namespace) -> dict[str, Any]:
         raise InputError("--order belongs to --step (the fitted model's order)")
     if args.out is not None and (args.u_min is None or args.u_max is None):
         raise InputError("--out writes a gain set, which needs the controller's output range: give --u-min and --u-max")
+    if (args.u_min is None) != (args.u_max is None):
+        raise InputError("--u-min and --u-max go together (the actuator's range); give both or neither")
+    if args.loop == "sampled" and args.Ts is None and args.dt is None:
+        raise InputError("--loop sampled holds the bounds on the loop as it runs at a sample period: give --Ts")
+    if args.out is not None and args.Ts is None and args.dt is None:
+        raise InputError("--out writes a gain set, which runs at a sample period: give --Ts (or a discrete --tf with "
+                         "--dt)")
     plant, delay, fit = _plant(args)
     result = autotune(plant, Ms=args.Ms, Mt=args.Mt, Mks=args.Mks, metric=args.metric, form=args.form, Ts=args.Ts,
-                      delay_s=delay)
+                      loop=args.loop, u_min=args.u_min, u_max=args.u_max, delay_s=delay, w=args.grid)
     out: dict[str, Any] = {**result.to_dict(), "fit": fit, "out": None}
     if args.out is not None:
-        gain_set = result.to_gain_set(u_min_V=args.u_min, u_max_V=args.u_max, name="autotune").save(args.out)
+        gain_set = result.to_gain_set(name="autotune").save(args.out)
+        record = gain_set.tuning or {}  # an autotuned set always carries its tuning record
         out.update(out=args.out, status=gain_set.status, content_sha256=gain_set.content_sha256,
-                   discrete_check=gain_set.validation)
+                   status_reason=record.get("status_reason"), sampled_loop_check=record.get("sampled_loop_check"))
     return out
 
 
 def _print_autotune(s: dict[str, Any]) -> None:
     mg, b = s["margins"], s["bounds"]
     kind = s["form"] if s["form"] == "PI" or s["kd"] == 0 else f"PID, filter order {s['filter_order']}"
-    at = "" if s["Ts_s"] is None else f" at Ts {s['Ts_s']:g} s"
+    at = "" if s["Ts_s"] is None else f", runs at Ts {s['Ts_s']:g} s"
     print(f"{kind}{at}: kp {s['kp']:.5g}, ki {s['ki']:.5g}, kd {s['kd']:.5g}, Tf {s['Tf_s']:.5g} s "
           "(C = (kp + ki/s + kd s) F(s))")
     if "gains" in s:
         g = s["gains"]
         print(f"ideal/ISA: Kc {g['Kc']:.5g}, Ti {g['Ti_s']:.5g} s, Td {g['Td_s']:.5g} s, Tf {g['Tf_s']:.5g} s")
+    print(f"the bounds hold on {s['bounds_hold_on']}")
     what = f"IE {s['ie']:.5g}" + ("" if s["iae"] is None else f", IAE {s['iae']:.5g}")
     print("unit load step at the plant input: "
           f"{what} (tuned for the {'largest ki' if s['metric'] == 'IE' else 'least IAE'})")
-    print("reached: "
-          + ", ".join(f"{k} {mg[k]:.4g}" + (f" (bound {b[k]:g})" if k in b else "") for k in ("Ms", "Mt", "Mks")))
+    bounds = {k: f" (bound {b[k]:g}{', a default' if k in s['defaults'] else ''})" for k in b}
+    print("reached: " + ", ".join(f"{k} {mg[k]:.4g}{bounds.get(k, '')}" for k in ("Ms", "Mt", "Mks")))
     gm = "inf" if mg["gain_margin"] is None else f"{mg['gain_margin']:.3g}"
     pm = "-" if mg["phase_margin_deg"] is None else f"{mg['phase_margin_deg']:.1f} deg"
     dm = "-" if mg["delay_margin_s"] is None else f"{mg['delay_margin_s']:.4g} s"
     print(f"gain margin {gm}, phase margin {pm}, delay margin {dm}; "
           f"closed loop {'stable' if s['stable'] else 'UNSTABLE'}")
+    for name, d in s["defaults"].items():
+        print(f"  default {name} {d['value']:.4g}: {d['reason']}")
     for bound in s["active_bounds"]:
         print(f"  on its bound: {bound['gain']} at its {bound['side']} bound ({bound['bound']:.4g}): {bound['note']}")
-    print(f"{len(s['starts'])} starts, {s['iterations']} IPOPT iterations, {s['refinements']} grid refinements, "
-          f"{s['seconds']:.2f} s")
+    for sentence in s["leans_on"]:
+        print(f"  leans on a bound you did not set: {sentence}")
+    print(f"{len(s['starts'])} starts, {s['iterations']} {s['solver']} iterations, {s['refinements']} grid "
+          f"refinements, {s['seconds'] * 1e3:.0f} ms")
     if s["out"]:
-        c = s["discrete_check"]
+        c = s["sampled_loop_check"]
         print(f"wrote {s['out']} ({s['status']}, content hash {s['content_sha256'][:12]}...): "
               f"at Ts {c['sample_period_s']:g} s "
               + ", ".join(f"{k} {v:.4g}" for k, v in c["achieved"].items())
-              + f", {'stable' if c['stable'] else 'UNSTABLE'}")
+              + f", {'stable' if c['stable'] else 'UNSTABLE'}; {s['status_reason']}")
