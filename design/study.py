@@ -114,18 +114,6 @@ class DesignResult:
         """The design artifact's body (:meth:`record`'s)."""
         return self.record().to_dict()
 
-    def summary(self) -> dict[str, Any]:
-        """What ``piezopreload design --json`` prints: the optimum, each front's span, the schedule's numbers."""
-        o = self.optimum
-        return {
-            "objective": o.objective, "optimum": o.point.to_dict(), "binding": o.binding, "integer_candidates": o.tried,
-            "solve_s": o.solve_s,
-            "fronts": [{"pair": f.pair, "points": len(f.points), "solve_s": f.solve_s, "nlp_solves": f.nlp_solves,
-                        "stiffness_N_per_um": [float(f.x.min()), float(f.x.max())],
-                        f.y_name: [float(f.y.min()), float(f.y.max())]} for f in self.fronts],
-            "schedule": self.schedule.summary(),
-        }
-
     def save(self, path: str | Path, inputs: dict[str, Any]) -> list[Path]:
         """Write the design artifact to ``path`` and each front's CSV beside it; returns the paths written."""
         path = self.record(inputs).save(path)

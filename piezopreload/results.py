@@ -179,28 +179,6 @@ class TuningResult:
         a :class:`GainSet`, ``validated`` only if every plant met every criterion. Save it with ``.save()``."""
         return self.validation(plants=plants, seed=seed, workers=workers, scheduler=scheduler, progress=progress)[0]
 
-    def summary(self, gain_set: GainSet, out: str | None = None, seconds: float = 0.0) -> dict[str, Any]:
-        """What ``piezopreload tune`` prints: the tuned row with the feedforward as the headline, and the verdict."""
-        tuned, start = self.row("tuned"), self.row("study")
-        record = self.record.to_dict()
-        return {
-            "settling_s": tuned.settling_s, "settling_measured_s": tuned.settling_measured_s,
-            "overshoot_N": tuned.overshoot_N, "tracking_rms_N": tuned.tracking_rms_N,
-            "tracking_rms_after_change_N": tuned.tracking_rms_after_change_N,
-            "study_tracking_rms_N": start.tracking_rms_N,
-            "study_tracking_rms_after_change_N": start.tracking_rms_after_change_N,
-            "lower_bound_settling_s": self.minimum_time.settling_s,
-            "lower_bound_tracking_rms_N": self.tracking_floor.rms_N,
-            "out": out, "status": gain_set.status, "content_sha256": gain_set.content_sha256,
-            "gains": record["gains"], "simc": record["simc_baseline"], "form": self.solve.form,
-            "tuning": {k: v for k, v in record["tuning"].items() if k != "spec"}, "table": record["table"],
-            "active_bounds": record["active_bounds"], "published": record.get("published"),
-            "minimum_time": record["minimum_time"], "tracking_improvement": self.improvement,
-            "tracking_floor": record["tracking_floor"],
-            "validation": None if gain_set.validation is None else gain_set.validation.to_dict(), "seconds": seconds,
-            "gain_schedule": self.solve.schedule,  # the schedule's entries, figures and choice, or None
-        }
-
     def plot(self) -> Figure:
         """The comparison table as bars (settling time, tracking RMS): a Figure."""
         from piezopreload.reports import figures  # matplotlib only when drawing
