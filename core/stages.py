@@ -122,9 +122,10 @@ def content_key(body: dict[str, Any]) -> str:
     return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":"), default=str).encode()).hexdigest()
 
 
-def upstream_hashes(needs: tuple[str, ...], records: dict[str, dict[str, Any]]) -> dict[str, Any]:
+def upstream_hashes(needs: tuple[str, ...], records: dict[str, dict[str, Any]]
+                    ) -> dict[str, dict[str, str] | str | None]:
     """For each stage read: its outputs' hashes where it is done, else its status (None if it never ran)."""
-    upstream = {}
+    upstream: dict[str, dict[str, str] | str | None] = {}
     for name in needs:
         rec = records.get(name, {})
         upstream[name] = ({label: o["sha256"] for label, o in rec.get("outputs", {}).items()}
