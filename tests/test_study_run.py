@@ -403,7 +403,7 @@ def test_run_prints_the_gain_set_s_content_hash_as_that(small_run, capsys):
     from piezopreload.cli.study import _print_run
 
     out, result, _ = small_run
-    _print_run(result.to_dict())
+    _print_run(result)
     line = [s for s in capsys.readouterr().out.splitlines() if s.startswith("gain set: ")][0]
     content = GainSet.load(out / "gains.json").content_sha256
     assert f"(content hash {content[:12]}..." in line and "sha256 " not in line, line
