@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -17,7 +18,7 @@ from piezopreload.cli._common import (
 from piezopreload.core.errors import InputError
 
 if TYPE_CHECKING:
-    from piezopreload.design.study import DesignResult
+    from piezopreload.design.study import DesignResult, ScrewCheck
 
 
 # --------------------------------------------------------------------------------------
@@ -49,7 +50,7 @@ def register_ballscrew(sub: Any) -> None:
     p.set_defaults(run=_cmd_ballscrew, show=_print_ballscrew)
 
 
-def _cmd_ballscrew(args: argparse.Namespace) -> dict[str, Any]:
+def _cmd_ballscrew(args: argparse.Namespace) -> ScrewCheck:
     from piezopreload.design.study import check_screw
     from piezopreload.models.ballscrew import BallScrew
 
@@ -71,25 +72,25 @@ def _cmd_ballscrew(args: argparse.Namespace) -> dict[str, Any]:
         raise InputError(f"--{option.replace('_', '-')}:{rest}") from exc
 
 
-def _print_ballscrew(r: dict[str, Any]) -> None:
-    s = r["screw"]
-    print(f"screw       {s['nominal_diameter_mm']:g} x {s['lead_mm']:g} mm, ball {s['ball_mm']:g} mm, "
-          f"{s['turns']:g} turns x {s['balls_per_turn']} balls, contact angle {s['contact_angle_deg']:g} deg, "
-          f"helix {s['helix_angle_deg']:.2f} deg")
-    print(f"ratings     C_dyn {r['c_dyn_N']:.0f} N ({r['c_dyn_source']}), C_0 {r['c0_N']:.0f} N ({r['c0_source']})")
-    print(f"preload     {r['preload_N']:.0f} N = {r['preload_fraction_of_c_dyn']:.3f} C_dyn; lift-off at "
-          f"{r['lift_off_load_N']:.0f} N axial")
-    print(f"rigidity    {r['rigidity_N_per_um']:.0f} N/um at {r['axial_load_N']:g} N axial "
-          f"({r['rigidity_no_load_N_per_um']:.0f} N/um without load)")
-    print(f"load        nuts carry {r['loaded_nut_N']:.0f} / {r['unloaded_nut_N']:.0f} N (HIWIN formula "
-          f"{r['loaded_nut_hiwin_N']:.0f} N), deflection {r['deflection_um']:.2f} um"
-          + ("; THE UNLOADED NUT HAS LIFTED OFF" if r["lifted_off"] else ""))
-    print(f"contact     peak pressure {r['peak_pressure_MPa']:.0f} MPa (limit 4200), static safety "
-          f"{r['static_safety']:.1f}")
-    print(f"drag        {r['drag_torque_Nm']:.3f} N m (K_p {r['drag_coefficient']:.3f}), {r['drag_heat_W']:.1f} W at "
-          f"{r['speed_rpm']:g} rpm")
-    if r["life_h"] is not None:
-        print(f"life        L10 {r['life_revolutions']:.3g} rev = {r['life_h']:.0f} h at {r['speed_rpm']:g} rpm")
+def _print_ballscrew(r: ScrewCheck) -> None:
+    s = r.screw
+    print(f"screw       {s.nominal_diameter_mm:g} x {s.lead_mm:g} mm, ball {s.ball_mm:g} mm, "
+          f"{s.turns:g} turns x {s.balls_on_turn} balls, contact angle {s.contact_angle_deg:g} deg, "
+          f"helix {math.degrees(s.helix_rad):.2f} deg")
+    print(f"ratings     C_dyn {r.c_dyn_N:.0f} N ({r.c_dyn_source}), C_0 {r.c0_N:.0f} N ({r.c0_source})")
+    print(f"preload     {r.preload_N:.0f} N = {r.preload_fraction_of_c_dyn:.3f} C_dyn; lift-off at "
+          f"{r.lift_off_load_N:.0f} N axial")
+    print(f"rigidity    {r.rigidity_N_per_um:.0f} N/um at {r.axial_load_N:g} N axial "
+          f"({r.rigidity_no_load_N_per_um:.0f} N/um without load)")
+    print(f"load        nuts carry {r.loaded_nut_N:.0f} / {r.unloaded_nut_N:.0f} N (HIWIN formula "
+          f"{r.loaded_nut_hiwin_N:.0f} N), deflection {r.deflection_um:.2f} um"
+          + ("; THE UNLOADED NUT HAS LIFTED OFF" if r.lifted_off else ""))
+    print(f"contact     peak pressure {r.peak_pressure_MPa:.0f} MPa (limit 4200), static safety "
+          f"{r.static_safety:.1f}")
+    print(f"drag        {r.drag_torque_Nm:.3f} N m (K_p {r.drag_coefficient:.3f}), {r.drag_heat_W:.1f} W at "
+          f"{r.speed_rpm:g} rpm")
+    if r.life_h is not None:
+        print(f"life        L10 {r.life_revolutions:.3g} rev = {r.life_h:.0f} h at {r.speed_rpm:g} rpm")
 
 
 def register_design(sub: Any) -> None:
