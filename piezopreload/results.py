@@ -49,7 +49,7 @@ from piezopreload.tuning.compare import (
     reproduction_summary,
     tracking_improvement,
 )
-from piezopreload.tuning.feedforward import IdentifiedFeedforward
+from piezopreload.tuning.feedforward import FeedforwardInfo, IdentifiedFeedforward
 from piezopreload.tuning.pid import TuningInfeasible, tune_pid
 from piezopreload.tuning.schedule import schedule_levels, tune_schedule
 from piezopreload.tuning.verdict import validate_gain_set
@@ -57,7 +57,7 @@ from piezopreload.tuning.verdict import validate_gain_set
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["TuningResult", "StudyRun", "StudyReproduction", "tune", "simulate", "reproduce"]
+__all__ = ["TuningResult", "StudyRun", "SimulationInfo", "StudyReproduction", "tune", "simulate", "reproduce"]
 
 _STEP_KEYS = ("rise_s", "peak_s", "settling_s", "overshoot_N")
 _TRACK_KEYS = ("tracking_rms_N", "tracking_max_N")
@@ -292,13 +292,38 @@ def tune(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, 
 _STUDY = object()  # step_metrics' default: the study's band and signal
 
 
+@dataclass(frozen=True)
+class SimulationInfo:
+    """What a study's simulation ran: the study, the controller and the reference, the gains and where they came from
+    (``gains_source``; a gain set's ``gains_status``), the feedforward (None: the PID alone), the sample period, and
+    the study's published numbers for this run (``published``: its source and the numbers by name; None where it
+    declares none)."""
+
+    study: StudyRef
+    controller: str
+    reference: str
+    gains: PIDGains
+    gains_source: str
+    sample_period_s: float
+    feedforward: FeedforwardInfo | None = None
+    gains_status: str | None = None
+    published: dict[str, Any] | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        source = {"source": self.gains_source, **({} if self.gains_status is None else {"status": self.gains_status})}
+        return {"study": self.study.to_dict(), "controller": self.controller, "reference": self.reference,
+                "gains": {**gains_to_dict(self.gains), **source},
+                "feedforward": None if self.feedforward is None else self.feedforward.to_dict(),
+                "sample_period_s": self.sample_period_s, "published": self.published}
+
+
 @dataclass(frozen=True, eq=False, kw_only=True)
 class StudyRun(ClosedLoopRun):
     """A closed-loop run of one plant, scored as its study says (``band_N``, ``signal``); ``info`` says what ran."""
 
     band_N: float
     signal: str
-    info: dict[str, Any]
+    info: SimulationInfo
 
     def step_metrics(self, band_N: Any = _STUDY, *, which: int = 1, signal: str | None = None) -> StepMetrics:
         """Rise, peak and settling time and overshoot of the reference's ``which``-th change, in the study's band
@@ -311,20 +336,24 @@ class StudyRun(ClosedLoopRun):
     def to_dict(self) -> dict[str, Any]:
         """What ``piezopreload simulate --json`` prints: what ran, the step numbers, tracking, and the study's published
         numbers for this run where it declares them (``published``: None otherwise)."""
-        numbers = run_numbers(self, self.band_N, self.signal)
-        tracking = self.info["reference"] == "trajectory"
         return {
-            **self.info, "reference_levels_N": self.reference.levels_N.tolist(), "band_N": self.band_N,
-            "signal": self.signal, "seed": self.seed, "samples": int(self.t_s.size),
-            **{k: numbers[k] for k in (*_STEP_KEYS, "peak_command_V", *(_TRACK_KEYS if tracking else ()))},
+            **self.info.to_dict(), "reference_levels_N": self.reference.levels_N.tolist(), "band_N": self.band_N,
+            "signal": self.signal, "seed": self.seed, "samples": int(self.t_s.size), **self.numbers(),
         }
+
+    def numbers(self) -> dict[str, float | None]:
+        """The step numbers (rise, peak, settling, overshoot) and the peak command, and over the trajectory the
+        tracking errors, in the study's band on its signal (None: a time never reached)."""
+        numbers = run_numbers(self, self.band_N, self.signal)
+        tracking = self.info.reference == "trajectory"
+        return {k: numbers[k] for k in (*_STEP_KEYS, "peak_command_V", *(_TRACK_KEYS if tracking else ()))}
 
     def plot(self) -> Figure:
         """Reference and force (top), command and amplifier voltage (bottom): a Figure."""
         from piezopreload.reports import figures  # matplotlib only when drawing
 
-        title = (f"{self.info['controller'].replace('ff+pid', 'FF + PID').replace('pid', 'PID')}, "
-                 f"{self.info['reference']}")
+        title = (f"{self.info.controller.replace('ff+pid', 'FF + PID').replace('pid', 'PID')}, "
+                 f"{self.info.reference}")
         return figures.closed_loop(self.columns(), self.band_N, self.signal, title)
 
 
@@ -358,19 +387,19 @@ def simulate(study: StudySpec, gains: GainSet | PIDGains | None = None, *, contr
         raise InputError(f"controller must be one of {', '.join(CONTROLLERS)}, got {controller!r}")
     if reference not in REFERENCES:
         raise InputError(f"reference must be one of {', '.join(REFERENCES)}, got {reference!r}")
+    status = None
     if isinstance(gains, GainSet):
-        pid, source = gains.gains, {"source": f"gain set {(gains.content_sha256 or '')[:12]}", "status": gains.status}
+        pid, source, status = gains.gains, f"gain set {(gains.content_sha256 or '')[:12]}", gains.status
     elif isinstance(gains, PIDGains):
-        pid, source = gains, {"source": "given"}
+        pid, source = gains, "given"
     else:
-        pid, source = study.gains, {"source": f"{study.path} [controller], read as {study.controller.units}"}
+        pid, source = study.gains, f"{study.path} [controller], read as {study.controller.units}"
     rig = Rig(study.plant)
     inverse, ff_info = None, None
     if controller == "ff+pid":
         if feedforward is None and isinstance(gains, GainSet) and gains.feedforward is not None:
             inverse = gains.feedforward.inverse()
-            ff_info = {"source": "the gain set's", "model": gains.feedforward.kind,
-                       "operators": gains.feedforward.n_operators}
+            ff_info = FeedforwardInfo("the gain set's", gains.feedforward.kind, gains.feedforward.n_operators)
         else:
             ff = feedforward or study.identify_feedforward()
             inverse, ff_info = ff.inverse(), ff.describe()
@@ -379,9 +408,7 @@ def simulate(study: StudySpec, gains: GainSet | PIDGains | None = None, *, contr
     published = None  # the study's published numbers for this run, where it declares them (the step alone)
     if study.published is not None and reference == "step":
         published = {"source": study.published.source, **study.published.step()[controller]}
-    info = {"study": {"path": study.path, "sha256": study.sha256, "name": study.name}, "controller": controller,
-            "reference": reference, "gains": {**gains_to_dict(pid), **source}, "feedforward": ff_info,
-            "sample_period_s": rig.dt_s, "published": published}
+    info = SimulationInfo(study.ref, controller, reference, pid, source, rig.dt_s, ff_info, status, published)
     return StudyRun(**{f.name: getattr(run, f.name) for f in fields(run)}, band_N=study.band_N, signal=study.signal,
                     info=info)
 

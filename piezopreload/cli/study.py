@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from piezopreload.cli._common import (
@@ -16,7 +17,7 @@ from piezopreload.core.errors import InputError
 
 if TYPE_CHECKING:
     from piezopreload.outcome import StudyResult
-    from piezopreload.results import StudyReproduction
+    from piezopreload.results import StudyReproduction, StudyRun
     from piezopreload.sweep import SweepReport
 
 
@@ -146,11 +147,25 @@ def register_simulate(sub: Any) -> None:
     p.set_defaults(run=_cmd_simulate, show=_print_simulate)
 
 
-def _cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
+@dataclass(frozen=True)
+class Simulated:
+    """``simulate``'s result: the run (what ran: ``run.info``), the time taken, and the CSV written (``out``)."""
+
+    run: StudyRun
+    seconds: float
+    out: str | None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**self.run.to_dict(), "seconds": self.seconds, "out": self.out}
+
+
+def _cmd_simulate(args: argparse.Namespace) -> Simulated:
+    from dataclasses import replace
+
     from piezopreload.artifacts.gainset import GainSet
     from piezopreload.core.artifacts import package_version
     from piezopreload.core.tables import write_csv
-    from piezopreload.tuning.feedforward import IdentifiedFeedforward
+    from piezopreload.tuning.feedforward import FeedforwardInfo, IdentifiedFeedforward
 
     t0 = time.perf_counter()
     gains = None if args.gains is None else GainSet.load(args.gains)
@@ -159,43 +174,46 @@ def _cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
     if args.controller == "ff+pid":  # the study's feedforward (or the file's), as the paper identified its own
         ff = IdentifiedFeedforward.load(args.feedforward) if args.feedforward else study.identify_feedforward()
     run = study.simulate(gains, controller=args.controller, reference=args.reference, feedforward=ff, seed=args.seed)
-    s = run.to_dict()
-    if gains is not None:
-        s["gains"]["source"] = args.gains
+    info = run.info
+    if gains is not None:  # the files, as the user named them
+        info = replace(info, gains_source=args.gains)
     if args.feedforward and ff is not None:
-        s["feedforward"] = {"source": args.feedforward, "model": ff.model.kind, "operators": ff.model.n_operators}
+        info = replace(info, feedforward=FeedforwardInfo(args.feedforward, ff.model.kind, ff.model.n_operators))
+    run = replace(run, info=info)
     if args.out is not None:
         write_csv(args.out, run.columns(), f"piezopreload {package_version()} simulate: study {study.name} "
                                            f"({study.sha256[:12]}), controller {args.controller}, reference "
                                            f"{args.reference}, seed {run.seed}")
-    return {**s, "seconds": time.perf_counter() - t0, "out": args.out}
+    return Simulated(run, time.perf_counter() - t0, args.out)
 
 
-def _print_simulate(s: dict[str, Any]) -> None:
-    g, ff = s["gains"], s["feedforward"]
-    print(f"study       {s['study']['name']} ({s['study']['path']})")
-    print(f"controller  {s['controller']}: Kc {g['Kc_V_per_N']:g} V/N, Ti {g['Ti_s']:g} s, Td {g['Td_s']:g} s "
-          f"(LabVIEW: Ti {g['labview']['Ti_min']:.4g} min, Td {g['labview']['Td_min']:.4g} min); "
-          f"output {g['u_min_V']:g}..{g['u_max_V']:g} V")
+def _print_simulate(s: Simulated) -> None:
+    run, info = s.run, s.run.info
+    g, ff, published = info.gains, info.feedforward, info.published
+    print(f"study       {info.study.name} ({info.study.path})")
+    print(f"controller  {info.controller}: Kc {g.Kc:g} V/N, Ti {g.Ti_s:g} s, Td {g.Td_s:g} s "
+          f"(LabVIEW: Ti {g.labview()['Ti_min']:.4g} min, Td {g.labview()['Td_min']:.4g} min); "
+          f"output {g.u_min_V:g}..{g.u_max_V:g} V")
     if ff:
-        print(f"feedforward {ff['model']} P-I, {ff['operators']} operators, {ff['source']}")
-    levels = " -> ".join(f"{x:g}" for x in s["reference_levels_N"])
-    print(f"reference   {s['reference']}: {levels} N; band {s['band_N']:g} N on the {s['signal']} signal, "
-          f"seed {s['seed']}")
-    published = s["published"]
+        print(f"feedforward {ff.model} P-I, {ff.operators} operators, {ff.source}")
+    levels = " -> ".join(f"{x:g}" for x in run.reference.levels_N)
+    print(f"reference   {info.reference}: {levels} N; band {run.band_N:g} N on the {run.signal} signal, "
+          f"seed {run.seed}")
     print(f"  {'':22s}{'simulated':>11s}" + ("" if published is None else f"{'published':>11s}"))
+    numbers = run.numbers()
     keys = [("rise_s", "rise time (s)"), ("peak_s", "peak time (s)"), ("settling_s", "settling time (s)"),
             ("overshoot_N", "overshoot (N)")]
-    if "tracking_rms_N" in s:
+    if "tracking_rms_N" in numbers:
         keys += [("tracking_rms_N", "tracking RMS (N)"), ("tracking_max_N", "tracking max (N)")]
     for key, label in keys:
         beside = "" if published is None or key not in published else f"{fmt(published[key]):>11s}"
-        print(f"  {label:22s}{fmt(s[key]):>11s}{beside}")
+        print(f"  {label:22s}{fmt(numbers[key]):>11s}{beside}")
     if published is not None:
         print(f"published: {published['source']}")
-    print(f"peak command {s['peak_command_V']:.1f} V; {s['samples']} samples at {1e3 * s['sample_period_s']:g} ms")
-    if s["out"]:
-        print(f"wrote       {s['out']}")
+    print(f"peak command {numbers['peak_command_V']:.1f} V; {run.t_s.size} samples at "
+          f"{1e3 * info.sample_period_s:g} ms")
+    if s.out:
+        print(f"wrote       {s.out}")
 
 
 def register_reproduce(sub: Any) -> None:
