@@ -3,7 +3,31 @@
 This floor sits above :mod:`piezopreload.models` (whose types the records hold) and below the
 floors that compute them (design, tuning, rig) and the one that reports them (reports), so a
 record is written by the floor that computes it and read, typed, by every floor above: the
-report never reads a raw dict. Each record is a frozen dataclass with ``to_dict()``,
-``from_dict()`` (every field checked, a missing or non-finite one named), ``save(path)``
-(atomic, through :func:`piezopreload.core.artifacts.write_artifact`) and ``load(path)``.
+report never reads a raw dict. Each record is a frozen dataclass whose fields are declared once
+(:func:`piezopreload.core.records.entry`); its ``from_dict()`` (every field checked, a missing,
+wrong or non-finite one named in one message format), ``to_dict()``, the fields its kind requires
+(:data:`piezopreload.core.artifacts.KINDS`) and its docstring's ``Parameters`` come from that
+declaration; an artifact's ``save(path)`` writes it atomically and ``load(path)`` is its one reader.
+
+Importing this package imports every record, so every kind is known to
+:mod:`piezopreload.core.artifacts` whichever record a program reads first.
 """
+
+from piezopreload.artifacts import (  # noqa: F401 (each registers its kinds)
+    design,
+    gainset,
+    hostcheck,
+    hysteresis,
+    learned,
+    learning,
+    plant,
+    requirements,
+    responses,
+    rigrun,
+    schedule,
+    sweep,
+    system,
+    thermal,
+    tuning,
+    validation,
+)

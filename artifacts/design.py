@@ -10,17 +10,12 @@ preload, its friction energy and the plan's saving.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
-import numpy as np
-
-from piezopreload.artifacts._fields import Fields
 from piezopreload.artifacts.schedule import PreloadSchedule
 from piezopreload.core._typing import Array
-from piezopreload.core.artifacts import read_artifact, write_artifact
-from piezopreload.core.errors import InputError
+from piezopreload.core.records import Artifact, Record, entry, record
 
 __all__ = ["CONSTRAINT_WORDS", "VARIABLE_WORDS", "binding_words", "case_words", "DesignPoint", "Optimum", "Front",
            "PreloadCurve", "DutyCasePoint", "FrequencyCurve", "DesignRecord", "KIND"]
@@ -28,56 +23,32 @@ __all__ = ["CONSTRAINT_WORDS", "VARIABLE_WORDS", "binding_words", "case_words", 
 KIND = "design"
 
 
-@dataclass(frozen=True)
-class DesignPoint:
+@record
+class DesignPoint(Record):
     """A design and everything it achieves."""
 
-    contact_angle_deg: float
-    ball_mm: float
-    conformity: float
-    turns: float
-    balls_per_turn: float
-    bolt_preload_N: float
-    max_preload_N: float
-    case_preload_N: tuple[float, ...]
-    stiffness_N_per_um: float  # least rigidity over the duty cases
-    rigidity_at_max_preload_N_per_um: float
-    mean_drag_torque_Nm: float
-    drag_torque_at_max_preload_Nm: float
-    life_h: float
-    c_dyn_N: float
-    c0_N: float
-    frequency_min_Hz: float
-    peak_pressure_MPa: float
-    stack_stroke_used_um: float
-    objective: str
-    integer: bool
+    NOUN: ClassVar[str] = "the design point"
 
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> DesignPoint:
-        """The inverse of :meth:`to_dict` (a design artifact's ``optimum.point``)."""
-        try:
-            return cls(**{**data, "case_preload_N": tuple(float(x) for x in data["case_preload_N"])})
-        except (KeyError, TypeError) as exc:
-            raise InputError(f"a design point needs the fields of DesignPoint: {exc}") from exc
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> DesignPoint:
-        """A design point from an artifact's object, each field checked (its errors name the field)."""
-        values: dict[str, Any] = {}
-        for fd in fields(cls):
-            if fd.name == "case_preload_N":
-                values[fd.name] = tuple(float(x) for x in f.array(fd.name))
-            elif fd.name == "objective":
-                values[fd.name] = f.text(fd.name)
-            elif fd.name == "integer":
-                values[fd.name] = f.flag(fd.name)
-            else:
-                values[fd.name] = f.number(fd.name)
-        return cls(**values)
+    contact_angle_deg: float = entry("The contact angle.", unit="deg")
+    ball_mm: float = entry("The ball diameter.", unit="mm")
+    conformity: float = entry("The groove conformity.")
+    turns: float = entry("The loaded turns per nut.")
+    balls_per_turn: float = entry("The balls per turn.")
+    bolt_preload_N: float = entry("The bolts' preload: the bottom of the preload range.", unit="N")
+    max_preload_N: float = entry("The highest preload.", unit="N")
+    case_preload_N: tuple[float, ...] = entry("The preload in each duty case.", unit="N")
+    stiffness_N_per_um: float = entry("The least rigidity over the duty cases.", unit="N/um")
+    rigidity_at_max_preload_N_per_um: float = entry("The rigidity at the highest preload.", unit="N/um")
+    mean_drag_torque_Nm: float = entry("The drag torque over the duty cycle.", unit="N m")
+    drag_torque_at_max_preload_Nm: float = entry("The drag torque at the highest preload.", unit="N m")
+    life_h: float = entry("The rating life over the duty cycle.", unit="h")
+    c_dyn_N: float = entry("The dynamic load rating.", unit="N")
+    c0_N: float = entry("The static load rating.", unit="N")
+    frequency_min_Hz: float = entry("The least first axial natural frequency.", unit="Hz")
+    peak_pressure_MPa: float = entry("The peak contact pressure at the largest axial load.", unit="MPa")
+    stack_stroke_used_um: float = entry("The stacks' stroke from the bolts' preload to the highest.", unit="um")
+    objective: str = entry("The objective it optimises.")
+    integer: bool = entry("Whether its balls per turn are a whole number (the integer neighbour of the relaxation).")
 
 
 #: the design's requirements and constraint rows in words, with the study key that sets each limit ("" where none
@@ -153,160 +124,110 @@ def binding_words(binding: tuple[str, ...] | list[str], point: DesignPoint) -> l
     return text
 
 
-@dataclass(frozen=True)
-class Optimum:
-    """The design optimum: its objective, its point, the constraints that bind, how it was solved
-    (``integer_candidates``: each integer neighbour of the relaxation tried, as the solver recorded it)."""
+@record
+class Optimum(Record):
+    """The design optimum: its objective, its point, the constraints that bind, how it was solved."""
 
-    objective: str
-    point: DesignPoint
-    binding: tuple[str, ...]
-    integer_candidates: tuple[dict[str, Any], ...]
-    solve_s: float
-    nlp_solves: int
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"objective": self.objective, "point": self.point.to_dict(), "binding": list(self.binding),
-                "integer_candidates": [dict(c) for c in self.integer_candidates], "solve_s": self.solve_s,
-                "nlp_solves": self.nlp_solves}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> Optimum:
-        candidates = f.raw("integer_candidates", [])
-        if not isinstance(candidates, list) or not all(isinstance(c, dict) for c in candidates):
-            raise f.fail("integer_candidates", "must be a list of objects")
-        return cls(f.text("objective"), DesignPoint.from_fields(f.sub("point")), f.texts("binding", []),
-                   tuple(dict(c) for c in candidates), f.number("solve_s", 0.0), f.integer("nlp_solves", 0))
+    objective: str = entry("The objective.")
+    point: DesignPoint = entry("The optimum.")
+    binding: tuple[str, ...] = entry("The constraints that bind (row names, ``\"<variable> at its upper bound\"``).",
+                                     absent=())
+    integer_candidates: tuple[dict[str, Any], ...] = entry("Each integer neighbour of the relaxation tried, as the "
+                                                           "solver recorded it.", absent=())
+    solve_s: float = entry("The solve's time.", unit="s", absent=0.0)
+    nlp_solves: int = entry("The NLPs solved.", ge=0, absent=0)
 
 
-@dataclass(frozen=True, eq=False)
-class Front:
+@record(eq=False)
+class Front(Record):
     """An epsilon-constraint Pareto front: ``x_name`` swept, ``y_name`` optimised, each point's design."""
 
-    pair: str
-    x_name: str
-    y_name: str
-    x: Array
-    y: Array
-    points: tuple[DesignPoint, ...]
-    solve_s: float
-    nlp_solves: int
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"pair": self.pair, "x_name": self.x_name, "y_name": self.y_name, "x": np.asarray(self.x).tolist(),
-                "y": np.asarray(self.y).tolist(), "points": [p.to_dict() for p in self.points],
-                "solve_s": self.solve_s, "nlp_solves": self.nlp_solves}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> Front:
-        x = f.array("x")
-        return cls(f.text("pair"), f.text("x_name"), f.text("y_name"), x, f.array("y", x.size),
-                   f.items("points", DesignPoint.from_fields), f.number("solve_s", 0.0), f.integer("nlp_solves", 0))
+    pair: str = entry('The pair of objectives ("stiffness-drag").')
+    x_name: str = entry("The quantity swept.")
+    y_name: str = entry("The quantity optimised.")
+    x: Array = entry("The swept values.")
+    y: Array = entry("The optimised values.", size="x")
+    points: tuple[DesignPoint, ...] = entry("Each point's design.")
+    solve_s: float = entry("The solves' time.", unit="s", absent=0.0)
+    nlp_solves: int = entry("The NLPs solved.", ge=0, absent=0)
 
 
-@dataclass(frozen=True)
-class DutyCasePoint:
+@record
+class DutyCasePoint(Record):
     """A duty case at its designed preload: the load, the preload and the rigidity there."""
 
-    axial_load_N: float
-    preload_N: float
-    rigidity_N_per_um: float
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> DutyCasePoint:
-        return cls(f.number("axial_load_N"), f.number("preload_N"), f.number("rigidity_N_per_um"))
+    axial_load_N: float = entry("The case's axial load.", unit="N")
+    preload_N: float = entry("Its designed preload.", unit="N")
+    rigidity_N_per_um: float = entry("The rigidity there.", unit="N/um")
 
 
-@dataclass(frozen=True, eq=False)
-class PreloadCurve:
+@record(eq=False)
+class PreloadCurve(Record):
     """Rigidity and drag torque of the optimum's double nut against the preload, the duty cases marked."""
 
-    preload_N: Array
-    rigidity_N_per_um: Array
-    drag_torque_Nm: Array
-    cases: tuple[DutyCasePoint, ...]
-    bolt_preload_N: float
-    max_preload_N: float
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"preload_N": self.preload_N.tolist(), "rigidity_N_per_um": self.rigidity_N_per_um.tolist(),
-                "drag_torque_Nm": self.drag_torque_Nm.tolist(), "cases": [asdict(c) for c in self.cases],
-                "bolt_preload_N": self.bolt_preload_N, "max_preload_N": self.max_preload_N}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> PreloadCurve:
-        p = f.array("preload_N")
-        return cls(p, f.array("rigidity_N_per_um", p.size), f.array("drag_torque_Nm", p.size),
-                   f.items("cases", DutyCasePoint.from_fields), f.number("bolt_preload_N"), f.number("max_preload_N"))
+    preload_N: Array = entry("The preloads.", unit="N")
+    rigidity_N_per_um: Array = entry("The rigidity at each.", unit="N/um", size="preload_N")
+    drag_torque_Nm: Array = entry("The drag torque at each.", unit="N m", size="preload_N")
+    cases: tuple[DutyCasePoint, ...] = entry("The duty cases at their designed preloads.")
+    bolt_preload_N: float = entry("The bolts' preload.", unit="N")
+    max_preload_N: float = entry("The highest preload.", unit="N")
 
 
-@dataclass(frozen=True, eq=False)
-class FrequencyCurve:
+@record(eq=False)
+class FrequencyCurve(Record):
     """The first axial natural frequency along the travel, at the bolts' preload and at full stack drive."""
 
-    position_mm: Array
-    bolt_preload_Hz: Array
-    max_preload_Hz: Array
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"position_mm": self.position_mm.tolist(), "bolt_preload_Hz": self.bolt_preload_Hz.tolist(),
-                "max_preload_Hz": self.max_preload_Hz.tolist()}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> FrequencyCurve:
-        x = f.array("position_mm")
-        return cls(x, f.array("bolt_preload_Hz", x.size), f.array("max_preload_Hz", x.size))
+    position_mm: Array = entry("The table's positions.", unit="mm")
+    bolt_preload_Hz: Array = entry("The frequency at the bolts' preload.", unit="Hz", size="position_mm")
+    max_preload_Hz: Array = entry("The frequency at the highest preload.", unit="Hz", size="position_mm")
 
 
-@dataclass(frozen=True, eq=False)
-class DesignRecord:
-    """The design artifact: the optimum, the fronts, the preload schedule on the optimum's screw (planned for the
-    load profile ``profile``, a file or ``example``), the curves, the units and the inputs.
+def _other_inputs(doc: Any) -> dict[str, Any]:
+    if not isinstance(doc, dict):
+        raise ValueError(f"expected an object, got {type(doc).__name__}")
+    return {k: v for k, v in doc.items() if k != "profile"}
+
+
+@record(eq=False)
+class DesignRecord(Artifact):
+    """The design artifact: the optimum, the fronts, the preload schedule on the optimum's screw, the curves, the
+    units and the inputs.
 
     The schedule's spec holds the stacks' reach (``schedule.spec.max_preload_N``) and the
     preload slew it was planned for; its ``constant_preload_N`` and ``constant_friction_energy_J``
     are the best constant preload's, recorded here only.
     """
 
-    optimum: Optimum
-    fronts: tuple[Front, ...]
-    schedule: PreloadSchedule
-    preload_curve: PreloadCurve
-    natural_frequency: FrequencyCurve
-    profile: str = "example"
-    units: dict[str, str] = field(default_factory=dict)
-    inputs: dict[str, Any] = field(default_factory=dict)
+    KIND: ClassVar[str] = KIND
+    NOUN: ClassVar[str] = "the design"
+    AGAIN: ClassVar[str] = "run the design again ('piezopreload design')"
+
+    optimum: Optimum = entry("The design optimum.")
+    fronts: tuple[Front, ...] = entry("The Pareto fronts.")
+    schedule: PreloadSchedule = entry("The preload schedule on the optimum's screw.")
+    preload_curve: PreloadCurve = entry("Rigidity and drag torque against the preload.")
+    natural_frequency: FrequencyCurve = entry("The first axial natural frequency along the travel.")
+    profile: str = entry("The load profile the schedule was planned for (a file, or ``example``).", at="inputs",
+                         default="example")
+    units: dict[str, str] = entry("The units of the figures.", default={}, required=True)
+    inputs: dict[str, Any] = entry("The inputs' hashes.", read=_other_inputs, default={}, required=True)
 
     @property
     def point(self) -> DesignPoint:
         return self.optimum.point
 
-    def to_dict(self) -> dict[str, Any]:
-        """The artifact's body (the layout the design artifact has always had, the schedule's series added)."""
-        return {"preload_curve": self.preload_curve.to_dict(), "units": dict(self.units),
-                "optimum": self.optimum.to_dict(), "fronts": [f.to_dict() for f in self.fronts],
-                "schedule": self.schedule.to_dict(), "natural_frequency": self.natural_frequency.to_dict(),
-                "inputs": {**self.inputs, "profile": self.profile}}
-
-    @classmethod
-    def from_dict(cls, doc: dict[str, Any], shown: str = "the design") -> DesignRecord:
-        """The inverse of :meth:`to_dict`; an :class:`~piezopreload.core.errors.ArtifactError` names the field."""
-        f = Fields(doc, shown)
-        inputs = f.mapping("inputs", {})
-        units = f.mapping("units", {})
-        return cls(optimum=Optimum.from_fields(f.sub("optimum")), fronts=f.items("fronts", Front.from_fields),
-                   schedule=PreloadSchedule.from_fields(f.sub("schedule")),
-                   preload_curve=PreloadCurve.from_fields(f.sub("preload_curve")),
-                   natural_frequency=FrequencyCurve.from_fields(f.sub("natural_frequency")),
-                   profile=str(inputs.pop("profile", "example")), units={k: str(v) for k, v in units.items()},
-                   inputs=inputs)
-
     def save(self, path: str | Path) -> Path:
-        """Write the artifact atomically (kind ``design``)."""
-        write_artifact(path, KIND, self.to_dict())
-        return Path(path)
+        """Write the artifact atomically (kind ``design``).
 
-    @classmethod
-    def load(cls, path: str | Path) -> DesignRecord:
-        """Read a design artifact: its schema and every field checked."""
-        return cls.from_dict(read_artifact(path, KIND), str(path))
+        Parameters
+        ----------
+        path : str or Path
+            The file.
+
+        Returns
+        -------
+        Path
+            The file written.
+        """
+        self._write(path)
+        return Path(path)

@@ -18,16 +18,17 @@ from __future__ import annotations
 
 import html
 from collections.abc import Iterable
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from piezopreload.artifacts.requirements import Requirement, requirements_from_dict, unaccepted
+from piezopreload.artifacts.requirements import Requirement, unaccepted
 from piezopreload.artifacts.validation import Criteria, ValidationResult
-from piezopreload.core.artifacts import content_hash, parse_artifact, read_artifact, write_artifact
-from piezopreload.core.errors import ArtifactError, InputError
+from piezopreload.core.artifacts import content_hash, parse_artifact
+from piezopreload.core.errors import InputError
+from piezopreload.core.records import Artifact, Raw, Record, entry, record
 from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V, SCHEDULE_MAX, Controller, GainSchedule, PIDGains
@@ -36,7 +37,7 @@ from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at,
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["GainSet", "RigInterlocks", "REFERENCES", "STATUSES", "gains_to_dict", "gains_from_dict",
+__all__ = ["GainSet", "GainsTable", "RigInterlocks", "REFERENCES", "STATUSES", "gains_to_dict", "gains_from_dict",
            "schedule_from_dict"]
 
 #: the named references a gain set is validated on (and the rig runs by name)
@@ -47,102 +48,166 @@ _FORM_SHORT = "ideal/ISA, trapezoidal integral, derivative on measurement, condi
 _REWRITE = "write the gain set again with 'piezopreload tune'"
 
 
+@record
+class _ScheduleTable(Record):
+    """A gain schedule as a gain set holds it: one column per gain, one entry per setpoint level."""
+
+    NOUN: ClassVar[str] = "the gain schedule"
+
+    levels_N: tuple[float, ...] = entry("The setpoints of the entries.", unit="N", size=(2, SCHEDULE_MAX),
+                                        increasing=True)
+    Kc_V_per_N: tuple[float, ...] = entry("The controller gain per entry.", unit="V/N", size="levels_N")
+    Ti_s: tuple[float, ...] = entry("The integral time per entry.", unit="s", gt=0, size="levels_N")
+    Td_s: tuple[float, ...] = entry("The derivative time per entry.", unit="s", ge=0, size="levels_N")
+    b: tuple[float, ...] | None = entry("The setpoint weight per entry (None: the gains' single one).",
+                                        size="levels_N", default=None, omit=True)
+
+    @classmethod
+    def from_value(cls, s: GainSchedule) -> _ScheduleTable:
+        return cls(s.levels_N, s.Kc, s.Ti_s, s.Td_s, s.b)
+
+    def to_value(self) -> GainSchedule:
+        return GainSchedule(self.levels_N, self.Kc_V_per_N, self.Ti_s, self.Td_s, self.b)
+
+
+@record
+class GainsTable(Record):
+    """The gains as an artifact holds them: SI, the controller form stated, LabVIEW's minutes beside them.
+
+    The document's form of :class:`~piezopreload.models.controller.PIDGains` (a field declared with
+    ``via=GainsTable`` is read and written through it).
+    """
+
+    NOUN: ClassVar[str] = "the gains"
+
+    Kc_V_per_N: float = entry("The controller gain.", unit="V/N")
+    Ti_s: float = entry("The integral time.", unit="s")
+    Td_s: float = entry("The derivative time.", unit="s")
+    Tf_s: float = entry("The derivative filter's time constant.", unit="s", default=0.0)
+    b: float = entry("The setpoint weight of the proportional action.", default=1.0)
+    u_min_V: float = entry("The output range's low end.", unit="V", default=OUTPUT_MIN_V)
+    u_max_V: float = entry("The output range's high end.", unit="V", default=OUTPUT_MAX_V)
+    schedule: GainSchedule | None = entry("The gains scheduled on the setpoint (None: one set of gains).",
+                                          via=_ScheduleTable, default=None, omit=True)
+
+    @classmethod
+    def from_value(cls, g: PIDGains) -> GainsTable:
+        """The table of gains ``g``.
+
+        Parameters
+        ----------
+        g : PIDGains
+            The gains.
+
+        Returns
+        -------
+        GainsTable
+            Their table.
+        """
+        return cls(g.Kc, g.Ti_s, g.Td_s, g.Tf_s, g.b, g.u_min_V, g.u_max_V, g.schedule)
+
+    def to_value(self) -> PIDGains:
+        """The gains the table holds.
+
+        Returns
+        -------
+        PIDGains
+            The gains, checked by their own rules.
+        """
+        return PIDGains(Kc=self.Kc_V_per_N, Ti_s=self.Ti_s, Td_s=self.Td_s, Tf_s=self.Tf_s, b=self.b,
+                        u_min_V=self.u_min_V, u_max_V=self.u_max_V, schedule=self.schedule)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The table, the controller form in words and LabVIEW's units beside it.
+
+        Returns
+        -------
+        dict
+            The gains' object.
+        """
+        return {**super().to_dict(), "form": _FORM_SHORT, "labview": self.to_value().labview()}
+
+
 def gains_to_dict(gains: PIDGains) -> dict[str, Any]:
-    """The gains in SI with the controller form stated, plus LabVIEW's minutes; a schedule as its table."""
-    out = {"Kc_V_per_N": gains.Kc, "Ti_s": gains.Ti_s, "Td_s": gains.Td_s, "Tf_s": gains.Tf_s, "b": gains.b,
-           "u_min_V": gains.u_min_V, "u_max_V": gains.u_max_V, "form": _FORM_SHORT, "labview": gains.labview()}
-    if gains.schedule is not None:
-        out["schedule"] = gains.schedule.to_dict()
-    return out
+    """The gains as a gain set holds them: SI with the controller form stated, LabVIEW's minutes, a schedule's table.
 
+    Parameters
+    ----------
+    gains : PIDGains
+        The gains.
 
-_SCHEDULE_KEYS = (("levels_N", "levels_N"), ("Kc_V_per_N", "Kc"), ("Ti_s", "Ti_s"), ("Td_s", "Td_s"))
-#: the columns a table may leave out (the single value then holds for every entry)
-_SCHEDULE_OPTIONAL = (("b", "b"),)
-
-
-def schedule_from_dict(doc: Any, where: str = "gains.schedule") -> GainSchedule:
-    """A gain schedule from its table (``b``, the setpoint weight per entry, optional); an :class:`InputError` names
-    the field that is wrong."""
-    if not isinstance(doc, dict):
-        raise InputError(f"field '{where}' must be an object with {', '.join(k for k, _ in _SCHEDULE_KEYS)}")
-    columns: dict[str, tuple[float, ...]] = {}
-    for key, name in _SCHEDULE_KEYS + tuple(kn for kn in _SCHEDULE_OPTIONAL if doc.get(kn[0]) is not None):
-        column = doc.get(key)
-        if not isinstance(column, list):
-            raise InputError(f"field '{where}.{key}' must be a list of numbers, got {type(column).__name__}")
-        if not 2 <= len(column) <= SCHEDULE_MAX:
-            raise InputError(f"field '{where}.{key}' must have 2 to {SCHEDULE_MAX} entries, got {len(column)}")
-        try:
-            values = tuple(float(x) for x in column)
-        except (TypeError, ValueError) as exc:
-            raise InputError(f"field '{where}.{key}' must hold numbers: {exc}") from exc
-        if not all(np.isfinite(values)):
-            raise InputError(f"field '{where}.{key}' must be finite, got {list(column)!r}")
-        columns[name] = values
-    try:
-        return GainSchedule(**columns)
-    except ValueError as exc:
-        field_name = str(exc).split(" ", 1)[0].removeprefix("schedule.")
-        key = {"Kc": "Kc_V_per_N"}.get(field_name, field_name)
-        raise InputError(f"field '{where}.{key}' is not valid: {exc}") from exc
+    Returns
+    -------
+    dict
+        ``Kc_V_per_N``, ``Ti_s``, ``Td_s``, ``Tf_s``, ``b``, ``u_min_V``, ``u_max_V``, ``form``, ``labview`` and,
+        for a gain schedule, ``schedule``.
+    """
+    return GainsTable.from_value(gains).to_dict()
 
 
 def gains_from_dict(g: Any, where: str = "gains") -> PIDGains:
-    """The inverse of :func:`gains_to_dict`; an :class:`InputError` names the field (``where``) that is wrong."""
-    if not isinstance(g, dict):
-        raise InputError(f"field '{where}' must be an object")
-    missing = next((k for k in ("Kc_V_per_N", "Ti_s", "Td_s") if k not in g), None)
-    if missing:
-        raise InputError(f"field '{where}.{missing}' is missing")
-    schedule = None if g.get("schedule") is None else schedule_from_dict(g["schedule"], f"{where}.schedule")
-    try:
-        return PIDGains(Kc=float(g["Kc_V_per_N"]), Ti_s=float(g["Ti_s"]), Td_s=float(g["Td_s"]),
-                        Tf_s=float(g.get("Tf_s", 0.0)), b=float(g.get("b", 1.0)),
-                        u_min_V=float(g.get("u_min_V", OUTPUT_MIN_V)), u_max_V=float(g.get("u_max_V", OUTPUT_MAX_V)),
-                        schedule=schedule)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"field '{where}' is not valid: {exc}") from exc
+    """The inverse of :func:`gains_to_dict`.
+
+    Parameters
+    ----------
+    g : dict
+        The gains' object.
+    where : str
+        Its path in its document, for the messages.
+
+    Returns
+    -------
+    PIDGains
+        The gains.
+
+    Raises
+    ------
+    ArtifactError
+        Naming the field (``gains.Ti_s``) that is missing or wrong.
+    """
+    return GainsTable.from_dict(g, path=where).to_value()
 
 
-def _requirements_from(doc: dict[str, Any], fail: Any) -> tuple[Requirement, ...]:
-    """The requirements the document's status was judged on; a ``validated`` status beside a missed one is refused
-    (``fail`` makes the error)."""
-    try:
-        requirements = requirements_from_dict(doc.get("requirements", []))
-    except ArtifactError as exc:
-        raise fail(str(exc)) from None
-    if doc.get("status") == "validated" and any(not r.met for r in requirements):
-        raise fail(f"field 'status' is 'validated' but field 'requirements' holds a missed one; {_REWRITE}")
-    return requirements
+def schedule_from_dict(doc: Any, where: str = "gains.schedule") -> GainSchedule:
+    """A gain schedule from its table (``b``, the setpoint weight per entry, optional).
+
+    Parameters
+    ----------
+    doc : dict
+        The table: ``levels_N``, ``Kc_V_per_N``, ``Ti_s``, ``Td_s`` and, optionally, ``b``.
+    where : str
+        Its path in its document, for the messages.
+
+    Returns
+    -------
+    GainSchedule
+        The schedule.
+
+    Raises
+    ------
+    ArtifactError
+        Naming the field (``gains.schedule.Ti_s``) that is missing or wrong.
+    """
+    return _ScheduleTable.from_dict(doc, path=where).to_value()
 
 
-def _sample_period(doc: dict[str, Any], fail: Any) -> float | None:
-    """The document's ``sample_period_s`` (None where it has none); ``fail`` makes the error naming it."""
-    x = doc.get("sample_period_s")
-    if x is None:
-        return None
-    if isinstance(x, bool) or not isinstance(x, int | float) or not (np.isfinite(x) and x > 0):
-        raise fail(f"field 'sample_period_s' must be a number > 0, got {x!r}")
-    return float(x)
-
-
-@dataclass(frozen=True)
-class RigInterlocks:
+@record
+class RigInterlocks(Record):
     """The rig's interlock settings of the gain set's study (its ``[rig_run]``), carried with the gains.
 
     ``rig run``, ``rig serve``, the OPC UA push and a study's rig stage take these limits unless
-    the command line overrides them: the highest force (``force_max_N``), the margin below
-    the bolt preload (``force_low_margin_N``), the time of the ramp down (``ramp_s``) and, where
-    the study sets one, a stall limit shorter than the plant's (``stall_limit_s``). ``sources``
-    says where each came from (the study's key, or how it was derived where the study sets none).
+    the command line overrides them.
     """
 
-    force_max_N: float
-    force_low_margin_N: float
-    ramp_s: float
-    stall_limit_s: float | None = None
-    sources: dict[str, str] = field(default_factory=dict)
+    NOUN: ClassVar[str] = "the rig's interlocks"
+
+    force_max_N: float = entry("The highest force.", unit="N", gt=0)
+    force_low_margin_N: float = entry("The margin below the bolts' preload the force may fall to.", unit="N", gt=0)
+    ramp_s: float = entry("The time of the ramp down.", unit="s", gt=0)
+    stall_limit_s: float | None = entry("Where the study sets one, a stall limit shorter than the plant's.",
+                                        unit="s", gt=0, default=None, omit=True)
+    sources: dict[str, str] = entry("Where each came from (the study's key, or how it was derived where the study "
+                                    "sets none).", default={})
 
     def __post_init__(self) -> None:
         for name in ("force_max_N", "force_low_margin_N", "ramp_s", "stall_limit_s"):
@@ -152,109 +217,65 @@ class RigInterlocks:
             if isinstance(value, bool) or not isinstance(value, int | float) or not (np.isfinite(value) and value > 0):
                 raise InputError(f"RigInterlocks.{name} must be a finite number > 0, got {value!r}.")
 
-    def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"force_max_N": self.force_max_N, "force_low_margin_N": self.force_low_margin_N,
-                               "ramp_s": self.ramp_s, "sources": dict(self.sources)}
-        if self.stall_limit_s is not None:
-            out["stall_limit_s"] = self.stall_limit_s
-        return out
 
-    @classmethod
-    def from_dict(cls, doc: Any, where: str = "rig_interlocks") -> RigInterlocks:
-        """The inverse of :meth:`to_dict`; an :class:`InputError` names the field that is missing or wrong."""
-        if not isinstance(doc, dict):
-            raise InputError(f"field '{where}' must be an object")
-        for key in ("force_max_N", "force_low_margin_N", "ramp_s"):
-            if key not in doc:
-                raise InputError(f"field '{where}.{key}' is missing")
-        sources = doc.get("sources") or {}
-        if not isinstance(sources, dict):
-            raise InputError(f"field '{where}.sources' must be an object")
-        try:
-            return cls(doc["force_max_N"], doc["force_low_margin_N"], doc["ramp_s"], doc.get("stall_limit_s"),
-                       {str(k): str(v) for k, v in sources.items()})
-        except InputError as exc:
-            raise InputError(f"field '{where}' is not valid: {exc}") from None
+def _model_from(doc: Any) -> HysteresisModel | CreepPI:
+    return model_from_dict(doc, where="feedforward.model")
 
 
-def _plant_from(plant_doc: dict[str, Any], fail: Any) -> Plant | None:
-    if plant_doc.get("rig") is None:
-        return None
-    try:
-        return Plant.from_dict(plant_doc["rig"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise fail(f"field 'plant.rig' is not a rig: {exc}") from None
+def _model_to(model: HysteresisModel | CreepPI) -> dict[str, Any]:
+    return model.to_dict()
 
 
-def _references_from(refs: Any, fail: Any) -> dict[str, Reference]:
-    if not isinstance(refs, dict):
-        raise fail("field 'references' must be an object")
-    references = {}
-    for name, r in refs.items():
-        try:
-            references[name] = Reference.from_dict(r)
-        except ValueError as exc:
-            raise fail(f"field 'references.{name}' is not a reference ({exc}); {_REWRITE}") from None
-    return references
+def _plant_to(plant: Plant) -> dict[str, Any]:
+    return plant.to_dict()
 
 
-@dataclass(frozen=True, eq=False)
-class GainSet:
-    """A gain set (see the module docstring); its dicts are records, read but not changed.
+def _reference_to(reference: Reference) -> dict[str, Any]:
+    return reference.to_dict()
 
-    Parameters
-    ----------
-    gains : PIDGains
-        The PID gains and output range.
-    status : str
-        ``validated`` (export and the rig accept it) or ``candidate`` (refused unless the user accepts each of
-        :attr:`missed` by name).
-    feedforward : HysteresisModel, CreepPI or None
-        The forward P-I model whose inverse is the feedforward (None: PID alone): classical,
-        modified or the paper's asymmetric, with or without creep.
-    feedforward_info : dict
-        How the feedforward was identified (source, fit).
-    plant : Plant or None
-        The plant the gains were tuned and validated on; its ``sample_period_s`` is the loop's.
-    preset : str or None
-        The plant's name (the study's).
-    references : dict of Reference
-        The references of the validation (``step``, ``trajectory``).
-    criteria : Criteria or None
-        What the validation requires of every plant.
-    validation : ValidationResult or None
-        The Monte Carlo validation's result (every plant's metrics, the verdict).
-    tuning, inputs : dict
-        The tuning's record, the inputs' hashes.
-    sample_period_s : float or None
-        The controller's sample period where the gain set names no plant (an autotuned loop's); a plant's
-        ``sample_period_s`` otherwise.
-    rig_interlocks : RigInterlocks or None
-        The rig's interlock settings of the study the gains were tuned for (None: a gain set
-        written before gain sets carried them; the rig then derives them from the plant).
-    content_sha256 : str or None
-        The artifact's hash, set by :meth:`load` and :meth:`save`.
-    requirements : tuple of Requirement
-        The Monte Carlo requirements of its study it was judged against (the whole range's and, for a gain
-        schedule, each level's), each with its value and margin: the one record the status, the report and the
-        JSON read.
-    """
 
-    gains: PIDGains
-    status: str = "candidate"
-    feedforward: HysteresisModel | CreepPI | None = None
-    feedforward_info: dict[str, Any] = field(default_factory=dict)
-    plant: Plant | None = None
-    preset: str | None = None
-    references: dict[str, Reference] = field(default_factory=dict)
-    criteria: Criteria | None = None
-    validation: ValidationResult | None = None
-    tuning: dict[str, Any] | None = None
-    inputs: dict[str, Any] = field(default_factory=dict)
-    content_sha256: str | None = None
-    sample_period_s: float | None = None
-    rig_interlocks: RigInterlocks | None = None
-    requirements: tuple[Requirement, ...] = ()
+@record(eq=False)
+class GainSet(Artifact):
+    """A gain set (see the module docstring); its dicts are records, read but not changed."""
+
+    KIND: ClassVar[str] = "gain-set"
+    NOUN: ClassVar[str] = "the gain set"
+    AGAIN: ClassVar[str] = _REWRITE
+    HASHED: ClassVar[bool] = True
+
+    gains: PIDGains = entry("The PID gains and output range.", via=GainsTable)
+    status: str = entry("``validated`` (export and the rig accept it) or ``candidate`` (refused unless the user "
+                        "accepts each of :attr:`missed` by name).", choices=STATUSES, default="candidate",
+                        required=True)
+    feedforward: HysteresisModel | CreepPI | None = entry(
+        "The forward P-I model whose inverse is the feedforward (None: PID alone): classical, modified or the "
+        "paper's asymmetric, with or without creep.", at="feedforward", name="model", read=_model_from,
+        write=_model_to, takes="a P-I model", default=None)
+    feedforward_info: dict[str, Any] = entry("How the feedforward was identified (source, fit).", at="feedforward",
+                                             name="identification", default={})
+    plant: Plant | None = entry("The plant the gains were tuned and validated on; its ``sample_period_s`` is the "
+                                "loop's.", at="plant", name="rig", read=Plant.from_dict, write=_plant_to,
+                                takes="a rig's parameters", default=None)
+    preset: str | None = entry("The plant's name (the study's).", at="plant", default=None)
+    references: dict[str, Reference] = entry("The references of the validation (``step``, ``trajectory``).",
+                                             read=Reference.from_dict, write=_reference_to, each=True,
+                                             takes="references", default={}, omit=True)
+    criteria: Criteria | None = entry("What the validation requires of every plant.", default=None, omit=True)
+    validation: ValidationResult | None = entry("The Monte Carlo validation's result (every plant's metrics, the "
+                                                "verdict).", default=None, omit=True)
+    tuning: dict[str, Any] | None = entry("The tuning's record.", default=None, omit=True)
+    inputs: dict[str, Any] = entry("The inputs' hashes.", default={}, required=True)
+    content_sha256: str | None = entry("The artifact's hash, set by :meth:`load` and :meth:`save`.", default=None)
+    sample_period_s: float | None = entry("The controller's sample period where the gain set names no plant (an "
+                                          "autotuned loop's); a plant's ``sample_period_s`` otherwise.", unit="s",
+                                          gt=0, default=None, omit=True)
+    rig_interlocks: RigInterlocks | None = entry(
+        "The rig's interlock settings of the study the gains were tuned for (None: a gain set written before gain "
+        "sets carried them; the rig then derives them from the plant).", default=None, omit=True)
+    requirements: tuple[Requirement, ...] = entry(
+        "The Monte Carlo requirements of its study it was judged against (the whole range's and, for a gain schedule, "
+        "each level's), each with its value and margin: the one record the status, the report and the JSON read.",
+        default=(), omit=True)
 
     def __post_init__(self) -> None:
         if self.sample_period_s is not None and not (np.isfinite(self.sample_period_s) and self.sample_period_s > 0):
@@ -348,88 +369,60 @@ class GainSet:
 
     # ---- the document ------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
-        """The artifact's body (what ``save`` writes inside the envelope)."""
-        out: dict[str, Any] = {"status": self.status, "gains": gains_to_dict(self.gains)}
-        if self.feedforward is not None or self.feedforward_info:
-            out["feedforward"] = {"model": None if self.feedforward is None else self.feedforward.to_dict(),
-                                  "units": {"input": "V", "output": "N"}, "identification": self.feedforward_info}
-        if self.plant is not None:
-            out["plant"] = {"preset": self.preset, "rig": self.plant.to_dict()}
-        if self.criteria is not None:
-            out["criteria"] = self.criteria.to_dict()
-        if self.references:
-            out["references"] = {name: ref.to_dict() for name, ref in self.references.items()}
-        if self.validation is not None:
-            out["validation"] = self.validation.to_dict()
-        if self.tuning is not None:
-            out["tuning"] = self.tuning
-        if self.sample_period_s is not None:
-            out["sample_period_s"] = float(self.sample_period_s)
-        if self.rig_interlocks is not None:
-            out["rig_interlocks"] = self.rig_interlocks.to_dict()
-        if self.requirements:
-            out["requirements"] = [r.to_dict() for r in self.requirements]
-        out["inputs"] = dict(self.inputs)
+        """The artifact's body (what :meth:`save` writes inside the envelope).
+
+        Returns
+        -------
+        dict
+            The document without its envelope and hash.
+        """
+        out = super().to_dict()
+        del out["content_sha256"]
+        if self.feedforward is None and not self.feedforward_info:
+            del out["feedforward"]
+        else:
+            out["feedforward"]["units"] = {"input": "V", "output": "N"}
+        if self.plant is None:
+            del out["plant"]
         return out
 
-    @classmethod
-    def from_dict(cls, doc: dict[str, Any], shown: str = "the gain set") -> GainSet:
-        """A gain set from its document; :class:`ArtifactError` names ``shown`` and the field."""
-        def fail(message: str) -> ArtifactError:
-            return ArtifactError(f"{shown}: {message}")
-
-        try:
-            gains = gains_from_dict(doc.get("gains"))
-        except ValueError as exc:
-            raise fail(str(exc)) from None
-        status = doc.get("status")
-        if status not in STATUSES:
-            raise fail(f"field 'status' is {status!r}; expected one of {', '.join(STATUSES)}")
-        ff_doc = doc.get("feedforward") or {}
-        if not isinstance(ff_doc, dict):
-            raise fail("field 'feedforward' must be an object")
-        try:
-            model = None if ff_doc.get("model") is None else model_from_dict(ff_doc["model"], where="feedforward.model")
-        except ValueError as exc:
-            raise fail(f"field {exc}") from None
-        plant_doc: dict[str, Any] = doc["plant"] if isinstance(doc.get("plant"), dict) else {}
-        plant = _plant_from(plant_doc, fail)
-        references = _references_from(doc.get("references") or {}, fail)
-        for key, value in (("inputs", doc.get("inputs")), ("feedforward.identification", ff_doc.get("identification")),
-                           ("tuning", doc.get("tuning"))):
-            if value is not None and not isinstance(value, dict):
-                raise fail(f"field '{key}' must be an object")
-        try:
-            criteria = None if doc.get("criteria") is None else Criteria.from_dict(doc["criteria"])
-            validation = None if doc.get("validation") is None else ValidationResult.from_dict(doc["validation"])
-        except ArtifactError as exc:
-            raise fail(f"{exc}; {_REWRITE}") from None
-        try:
-            interlocks = None if doc.get("rig_interlocks") is None else RigInterlocks.from_dict(doc["rig_interlocks"])
-        except InputError as exc:
-            raise fail(str(exc)) from None
-        requirements = _requirements_from(doc, fail)
-        return cls(gains=gains, status=status, feedforward=model,
-                   feedforward_info=dict(ff_doc.get("identification") or {}),
-                   plant=plant, preset=plant_doc.get("preset"), references=references,
-                   criteria=criteria, validation=validation, tuning=doc.get("tuning"),
-                   inputs=dict(doc.get("inputs") or {}), content_sha256=doc.get("content_sha256"),
-                   sample_period_s=_sample_period(doc, fail), rig_interlocks=interlocks, requirements=requirements)
+    def _check_document(self, raw: Raw) -> None:
+        if self.validated and self.missed:
+            raise raw.fail("status", "is 'validated' but field 'requirements' holds a missed one")
 
     # ---- the artifact: one reader, one writer ---------------------------------------------------
     @classmethod
-    def load(cls, path: str | Path) -> GainSet:
-        """Read a gain-set artifact: schema, fields and content hash checked (a changed file is refused)."""
-        return cls.from_dict(read_artifact(path, "gain-set"), str(path))
-
-    @classmethod
     def parse(cls, text: str, shown: str = "the gain set") -> GainSet:
-        """:meth:`load` on a document's text (pushed over a network, say)."""
-        return cls.from_dict(parse_artifact(text, "gain-set", shown), shown)
+        """:meth:`load` on a document's text (pushed over a network, say).
+
+        Parameters
+        ----------
+        text : str
+            The document's text.
+        shown : str
+            What the messages call it.
+
+        Returns
+        -------
+        GainSet
+            The gain set, its hash checked.
+        """
+        return cls.from_dict(parse_artifact(text, cls.KIND, shown, fields=False), shown)
 
     def save(self, path: str | Path) -> GainSet:
-        """Write the gain set atomically as a content-hashed artifact; returns it with its hash."""
-        doc = write_artifact(path, "gain-set", self.to_dict())
+        """Write the gain set atomically as a content-hashed artifact.
+
+        Parameters
+        ----------
+        path : str or Path
+            The file.
+
+        Returns
+        -------
+        GainSet
+            The gain set with the hash it was written with.
+        """
+        doc = self._write(path)
         return replace(self, content_sha256=doc["content_sha256"])
 
     # ---- what it drives -------------------------------------------------------------------------

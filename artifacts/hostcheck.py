@@ -11,12 +11,11 @@ draws itself (:meth:`HostCheck.plot`, :meth:`HostCheck.histogram_text`).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from piezopreload.core.errors import ArtifactError
+from piezopreload.core.records import Record, entry, record
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -28,49 +27,32 @@ BIN_EDGES_S = (0.0, 1e-6, 2e-6, 5e-6, 1e-5, 2e-5, 5e-5, 1e-4, 2e-4, 5e-4, 1e-3, 
                math.inf)
 
 
-@dataclass(frozen=True)
-class Criterion:
-    """One pass/fail criterion: its name, whether it passed, the words with the numbers."""
+@record
+class Criterion(Record):
+    """One pass/fail criterion of the host check."""
 
-    name: str
-    passed: bool
-    text: str
-
-
-@dataclass(frozen=True)
-class HostFacts:
-    """What the host is, as far as a real-time loop cares (each a sentence; ``None`` where not found)."""
-
-    kernel: str
-    rt_kernel: bool
-    preemption: str
-    sched_fifo: str
-    memory_locked: str
-    cpu_governor: str
-    virtualisation: str
-    isolated_cpus: str
-    cpus: int
+    name: str = entry('The criterion ("rate", "stall").')
+    passed: bool = entry("Whether it passed.")
+    text: str = entry("The criterion in words, with its numbers.")
 
 
-def _need(doc: dict[str, Any], key: str, kind: Any, shown: str) -> Any:
-    if key not in doc:
-        raise ArtifactError(f"{shown}: field '{key}' is missing")
-    value = doc[key]
-    if kind is float:
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise ArtifactError(f"{shown}: field '{key}' must be a finite number, got {value!r}")
-        return float(value)
-    if kind is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ArtifactError(f"{shown}: field '{key}' must be a whole number, got {value!r}")
-        return value
-    if not isinstance(value, kind):
-        raise ArtifactError(f"{shown}: field '{key}' must be {getattr(kind, '__name__', kind)}, got {value!r}")
-    return value
+@record
+class HostFacts(Record):
+    """What the host is, as far as a real-time loop cares (each a sentence)."""
+
+    kernel: str = entry("The kernel's name and release.")
+    rt_kernel: bool = entry("Whether it is a real-time (PREEMPT_RT) kernel.")
+    preemption: str = entry("The kernel's preemption model.")
+    sched_fifo: str = entry("Whether the loop's thread got SCHED_FIFO.")
+    memory_locked: str = entry("Whether its memory was locked.")
+    cpu_governor: str = entry("The CPUs' frequency governor.")
+    virtualisation: str = entry("The hypervisor, or bare metal.")
+    isolated_cpus: str = entry("The CPUs isolated from the scheduler.")
+    cpus: int = entry("The CPUs.", ge=1)
 
 
-@dataclass(frozen=True, eq=False)
-class HostCheck:
+@record(eq=False)
+class HostCheck(Record):
     """A host check (see the module docstring); times in seconds.
 
     ``lateness_*`` describe every wake-up; ``waited_p99_s`` the wake-ups that waited for their
@@ -80,25 +62,29 @@ class HostCheck:
     criterion passed. ``lateness_s`` (the samples, for :meth:`plot`) is kept in memory only.
     """
 
-    seconds: float
-    rate_Hz: float
-    samples: int
-    lateness_p50_s: float
-    lateness_p99_s: float
-    lateness_p999_s: float
-    lateness_max_s: float
-    waited_p99_s: float
-    missed: int
-    step_p99_s: float
-    step_max_s: float
-    step_what: str
-    budget_s: float
-    stall_limit_s: float | None
-    histogram_counts: tuple[int, ...]
-    facts: HostFacts
-    criteria: tuple[Criterion, ...]
-    findings: tuple[str, ...]
-    lateness_s: np.ndarray | None = field(default=None, repr=False)
+    NOUN: ClassVar[str] = "the host check"
+
+    seconds: float = entry("How long it measured.", unit="s")
+    rate_Hz: float = entry("The loop's rate it woke at.", unit="Hz", gt=0)
+    samples: int = entry("The wake-ups.", ge=0)
+    lateness_p50_s: float = entry("The median lateness of a wake-up.", unit="s")
+    lateness_p99_s: float = entry("Its 99th percentile.", unit="s")
+    lateness_p999_s: float = entry("Its 99.9th percentile.", unit="s")
+    lateness_max_s: float = entry("The latest wake-up's lateness.", unit="s")
+    waited_p99_s: float = entry("The 99th percentile of the wake-ups that waited for their deadline.", unit="s")
+    missed: int = entry("The wake-ups later than the budget.", ge=0)
+    step_p99_s: float = entry("The controller step's 99th-percentile compute time.", unit="s")
+    step_max_s: float = entry("Its longest.", unit="s")
+    step_what: str = entry("Which controller step was timed.")
+    budget_s: float = entry("The period less the step's p99 compute time.", unit="s")
+    stall_limit_s: float | None = entry("The stall interlock's limit it was judged against.", unit="s", absent=None)
+    histogram_counts: tuple[int, ...] = entry("The wake-ups per bin of :data:`BIN_EDGES_S`.", ge=0,
+                                              size=len(BIN_EDGES_S) - 1)
+    facts: HostFacts = entry("What the host is.")
+    criteria: tuple[Criterion, ...] = entry("The criteria and their verdicts.")
+    findings: tuple[str, ...] = entry("What stands in a real-time loop's way, in words.")
+    lateness_s: np.ndarray | None = entry("Every wake-up's lateness (in memory only).", unit="s", stored=False,
+                                          default=None)
 
     @property
     def period_s(self) -> float:
@@ -118,39 +104,15 @@ class HostCheck:
 
     # ---- the document ---------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
-        out = {k: v for k, v in asdict(self).items() if k not in ("lateness_s", "criteria", "facts")}
-        out["histogram_counts"] = list(self.histogram_counts)
-        out["histogram_edges_s"] = [e if math.isfinite(e) else None for e in BIN_EDGES_S]
-        out["findings"] = list(self.findings)
-        out["facts"] = asdict(self.facts)
-        out["criteria"] = [asdict(c) for c in self.criteria]
-        out["verdict"] = self.verdict
-        out["period_s"] = self.period_s
-        return out
+        """The check's figures, the histogram's edges, its verdict and its period.
 
-    @classmethod
-    def from_dict(cls, doc: Any, shown: str = "the host check") -> HostCheck:
-        """The inverse of :meth:`to_dict`; an :class:`ArtifactError` names the field that is missing or wrong."""
-        if not isinstance(doc, dict):
-            raise ArtifactError(f"{shown}: expected an object")
-        numbers = {k: _need(doc, k, float, shown) for k in (
-            "seconds", "rate_Hz", "lateness_p50_s", "lateness_p99_s", "lateness_p999_s", "lateness_max_s",
-            "waited_p99_s", "step_p99_s", "step_max_s", "budget_s")}
-        limit = doc.get("stall_limit_s")
-        counts = _need(doc, "histogram_counts", list, shown)
-        if len(counts) != len(BIN_EDGES_S) - 1 or not all(isinstance(c, int) and c >= 0 for c in counts):
-            raise ArtifactError(f"{shown}: field 'histogram_counts' must hold {len(BIN_EDGES_S) - 1} counts")
-        facts = _need(doc, "facts", dict, shown)
-        try:
-            host = HostFacts(**facts)
-            criteria = tuple(Criterion(**c) for c in _need(doc, "criteria", list, shown))
-        except TypeError as exc:
-            raise ArtifactError(f"{shown}: field 'facts' or 'criteria' is not valid: {exc}") from None
-        return cls(samples=_need(doc, "samples", int, shown), missed=_need(doc, "missed", int, shown),
-                   step_what=_need(doc, "step_what", str, shown),
-                   stall_limit_s=None if limit is None else _need(doc, "stall_limit_s", float, shown),
-                   histogram_counts=tuple(counts), facts=host, criteria=criteria,
-                   findings=tuple(str(f) for f in _need(doc, "findings", list, shown)), **numbers)
+        Returns
+        -------
+        dict
+            Its object.
+        """
+        return {**super().to_dict(), "histogram_edges_s": [e if math.isfinite(e) else None for e in BIN_EDGES_S],
+                "verdict": self.verdict, "period_s": self.period_s}
 
     # ---- pictures -------------------------------------------------------------------------------
     def histogram_text(self, width: int = 40) -> str:

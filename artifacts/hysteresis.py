@@ -25,12 +25,12 @@ from __future__ import annotations
 
 import hashlib
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
-from piezopreload.core.artifacts import read_artifact, write_artifact
-from piezopreload.core.errors import ArtifactError, InputError
+from piezopreload.core.errors import InputError
+from piezopreload.core.records import Artifact, Record, entry, record
 from piezopreload.models.hysteresis import CreepPI, HysteresisModel, model_from_dict
 
 __all__ = ["KIND", "FitError", "DataSource", "Units", "SolverReport", "StraightLine", "Refit", "Compensation",
@@ -40,186 +40,86 @@ KIND = "hysteresis-model"
 _SOURCES = ("simulated", "measured")
 
 
-# --------------------------------------------------------------------------------------
-# field readers: each names the field that is missing or wrong
-# --------------------------------------------------------------------------------------
-def _get(doc: Any, key: str, where: str) -> Any:
-    if not isinstance(doc, dict):
-        raise ArtifactError(f"field '{where}' must be an object, got {type(doc).__name__}")
-    if key not in doc:
-        raise ArtifactError(f"field '{where}.{key}' is missing")
-    return doc[key]
-
-
-def _number(x: Any, where: str) -> float:
-    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
-        raise ArtifactError(f"field '{where}' must be a finite number, got {x!r}")
-    return float(x)
-
-
-def _text(x: Any, where: str) -> str:
-    if not isinstance(x, str):
-        raise ArtifactError(f"field '{where}' must be text, got {x!r}")
-    return x
-
-
-def _pair(x: Any, where: str) -> tuple[float, float]:
-    if not isinstance(x, list | tuple) or len(x) != 2:
-        raise ArtifactError(f"field '{where}' must be a pair [low, high], got {x!r}")
-    return _number(x[0], f"{where}[0]"), _number(x[1], f"{where}[1]")
-
-
-def _mapping(x: Any, where: str) -> dict[str, Any]:
-    if not isinstance(x, dict):
-        raise ArtifactError(f"field '{where}' must be an object, got {type(x).__name__}")
-    return dict(x)
-
-
-def _optional(doc: dict[str, Any], key: str, read: Any, where: str) -> Any:
-    return None if doc.get(key) is None else read(doc[key], f"{where}.{key}")
-
-
 def _check(ok: bool, message: str) -> None:
     if not ok:
         raise InputError(message)
 
 
+def _model_from(doc: Any) -> HysteresisModel | CreepPI:
+    return model_from_dict(doc)
+
+
+def _model_to(model: HysteresisModel | CreepPI) -> dict[str, Any]:
+    return model.to_dict()
+
+
 # --------------------------------------------------------------------------------------
 # the parts
 # --------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class FitError:
-    """A model's error on a window of its record, in % of the record's output span (RMS and largest)."""
+@record
+class FitError(Record):
+    """A model's error on a window of its record, in % of the record's output span."""
 
-    rms_pct: float
-    max_pct: float
-    window_s: tuple[float, float] | None = None
-    samples: int | None = None
+    rms_pct: float = entry("The RMS error.", unit="%")
+    max_pct: float = entry("The largest error.", unit="%")
+    window_s: tuple[float, float] | None = entry("The window (from, to) it was scored on.", unit="s", default=None,
+                                                 omit=True)
+    samples: int | None = entry("The samples in the window.", ge=1, default=None, omit=True)
 
     def __post_init__(self) -> None:
         _check(math.isfinite(self.rms_pct) and math.isfinite(self.max_pct) and 0 <= self.rms_pct <= self.max_pct
                + 1e-12 * abs(self.max_pct), f"FitError needs finite 0 <= rms_pct <= max_pct, got {self.rms_pct!r}, "
                f"{self.max_pct!r}.")
 
-    def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"rms_pct": self.rms_pct, "max_pct": self.max_pct}
-        if self.window_s is not None:
-            out["window_s"] = list(self.window_s)
-        if self.samples is not None:
-            out["samples"] = self.samples
-        return out
 
-    @classmethod
-    def from_dict(cls, doc: Any, where: str = "fit") -> FitError:
-        window = _optional(doc, "window_s", _pair, where) if isinstance(doc, dict) else None
-        samples = doc.get("samples") if isinstance(doc, dict) else None
-        if samples is not None and (isinstance(samples, bool) or not isinstance(samples, int) or samples < 1):
-            raise ArtifactError(f"field '{where}.samples' must be a whole number >= 1, got {samples!r}")
-        try:
-            return cls(_number(_get(doc, "rms_pct", where), f"{where}.rms_pct"),
-                       _number(_get(doc, "max_pct", where), f"{where}.max_pct"), window, samples)
-        except InputError as exc:
-            raise ArtifactError(f"field '{where}': {exc}") from None
-
-
-@dataclass(frozen=True)
-class DataSource:
+@record
+class DataSource(Record):
     """Where the record came from: ``measured`` (a file, ``path``) or ``simulated`` (a loop on a rig, ``excitation``).
 
     ``sha256`` is the file's, or for a simulated loop that of its samples (float64, time, input and
     output one after the other).
     """
 
-    kind: str
-    sha256: str
-    path: str | None = None
-    excitation: dict[str, Any] | None = None
+    kind: str = entry("``measured`` or ``simulated``.", choices=_SOURCES)
+    sha256: str = entry("The SHA-256 of the file, or of a simulated loop's samples.")
+    path: str | None = entry("The measured file.", default=None, omit=True)
+    excitation: dict[str, Any] | None = entry("How the simulated loop was driven.", default=None, omit=True)
 
     def __post_init__(self) -> None:
         _check(self.kind in _SOURCES, f"DataSource.kind must be one of {', '.join(_SOURCES)}, got {self.kind!r}.")
         _check(isinstance(self.sha256, str) and len(self.sha256) == 64,
                f"DataSource.sha256 must be a SHA-256 in hex, got {self.sha256!r}.")
 
-    def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"kind": self.kind, "sha256": self.sha256}
-        if self.path is not None:
-            out["path"] = self.path
-        if self.excitation is not None:
-            out["excitation"] = dict(self.excitation)
-        return out
 
-    @classmethod
-    def from_dict(cls, doc: Any, where: str = "inputs.data") -> DataSource:
-        excitation = _optional(doc, "excitation", _mapping, where) if isinstance(doc, dict) else None
-        try:
-            return cls(_text(_get(doc, "kind", where), f"{where}.kind"), _text(_get(doc, "sha256", where),
-                       f"{where}.sha256"), _optional(doc, "path", _text, where), excitation)
-        except InputError as exc:
-            raise ArtifactError(f"field '{where}': {exc}") from None
-
-
-@dataclass(frozen=True)
-class Units:
+@record
+class Units(Record):
     """The model's input and output: their units and the record's column names."""
 
-    input: str = "V"
-    output: str = "N"
-    input_name: str = "voltage_V"
-    output_name: str = "force_N"
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"input": self.input, "output": self.output, "input_name": self.input_name,
-                "output_name": self.output_name}
-
-    @classmethod
-    def from_dict(cls, doc: Any, where: str = "units") -> Units:
-        return cls(*(_text(_get(doc, k, where), f"{where}.{k}") for k in ("input", "output", "input_name",
-                                                                              "output_name")))
+    input: str = entry("The input's unit.", default="V", required=True)
+    output: str = entry("The output's unit.", default="N", required=True)
+    input_name: str = entry("The record's input column.", default="voltage_V", required=True)
+    output_name: str = entry("The record's output column.", default="force_N", required=True)
 
 
-@dataclass(frozen=True)
-class SolverReport:
+@record
+class SolverReport(Record):
     """The QP's report: Clarabel's status, whether the active-set polish was kept, iterations and times."""
 
-    status: str
-    polished: bool
-    iterations: int
-    qp_seconds: float
-    fit_seconds: float
-    name: str = "CLARABEL"
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "status": self.status, "polished": self.polished, "iterations": self.iterations,
-                "qp_seconds": self.qp_seconds, "fit_seconds": self.fit_seconds}
-
-    @classmethod
-    def from_dict(cls, doc: Any, where: str = "identification.solver") -> SolverReport:
-        polished, iterations = _get(doc, "polished", where), _get(doc, "iterations", where)
-        if not isinstance(polished, bool):
-            raise ArtifactError(f"field '{where}.polished' must be true or false, got {polished!r}")
-        if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 0:
-            raise ArtifactError(f"field '{where}.iterations' must be a whole number >= 0, got {iterations!r}")
-        return cls(_text(_get(doc, "status", where), f"{where}.status"), polished, iterations,
-                   _number(_get(doc, "qp_seconds", where), f"{where}.qp_seconds"),
-                   _number(_get(doc, "fit_seconds", where), f"{where}.fit_seconds"),
-                   _text(doc.get("name", "CLARABEL"), f"{where}.name"))
+    status: str = entry("The solver's status.")
+    polished: bool = entry("Whether the active-set polish was kept.")
+    iterations: int = entry("The solver's iterations.", ge=0)
+    qp_seconds: float = entry("The QP's time.", unit="s")
+    fit_seconds: float = entry("The whole fit's time.", unit="s")
+    name: str = entry("The solver.", default="CLARABEL")
 
 
-@dataclass(frozen=True)
-class StraightLine:
+@record
+class StraightLine(Record):
     """The least-squares line ``output = slope * input + intercept`` on the training window, and its test error."""
 
-    slope: float
-    intercept: float
-    test: FitError
-
-    def to_dict(self) -> dict[str, Any]:
-        return {**self.test.to_dict(), "slope": self.slope, "intercept": self.intercept}
-
-    @classmethod
-    def from_dict(cls, doc: Any, where: str = "identification.line_test") -> StraightLine:
-        return cls(_number(_get(doc, "slope", where), f"{where}.slope"),
-                   _number(_get(doc, "intercept", where), f"{where}.intercept"), FitError.from_dict(doc, where))
+    slope: float = entry("The line's slope (output per input).")
+    intercept: float = entry("The line's intercept, in the output's unit.")
+    test: FitError = entry("Its error on the test window (its fields beside the slope's).", inline=True)
 
 
 #: why the comparison without creep is a refit, not the creep model with its creep weights zeroed
@@ -228,91 +128,80 @@ WITHOUT_CREEP_HOW = ("refit: the same model, operators and windows identified wi
                      "scoring a model nobody would use.")
 
 
-@dataclass(frozen=True, eq=False)
-class Refit:
+@record(eq=False)
+class Refit(Record):
     """A model with creep refitted without it (:data:`WITHOUT_CREEP_HOW`): the model and its errors."""
 
-    model: HysteresisModel
-    fit: FitError
-    test: FitError | None = None
+    model: HysteresisModel = entry("The model refitted without creep.", read=_model_from, write=_model_to,
+                                   takes="a P-I model without creep")
+    fit: FitError = entry("Its error on the training window.")
+    test: FitError | None = entry("Its error on the test window.", default=None)
+
+    def __post_init__(self) -> None:
+        _check(not isinstance(self.model, CreepPI),
+               f"Refit.model must be a model without creep, got '{getattr(self.model, 'kind', '?')}'.")
 
     def to_dict(self) -> dict[str, Any]:
-        return {"how": WITHOUT_CREEP_HOW, "model": self.model.to_dict(), "fit": self.fit.to_dict(),
-                "test": None if self.test is None else self.test.to_dict()}
+        """The refit and why it is one (``how``).
 
-    @classmethod
-    def from_dict(cls, doc: Any, where: str = "identification.without_creep") -> Refit:
-        model = _model(_get(doc, "model", where), f"{where}.model")
-        if isinstance(model, CreepPI):
-            raise ArtifactError(f"field '{where}.model.kind' is '{model.kind}': the refit has no creep")
-        return cls(model, FitError.from_dict(_get(doc, "fit", where), f"{where}.fit"),
-                   _optional(doc, "test", FitError.from_dict, where))
+        Returns
+        -------
+        dict
+            Its object.
+        """
+        return {"how": WITHOUT_CREEP_HOW, **super().to_dict()}
 
 
-@dataclass(frozen=True)
-class Compensation:
+@record
+class Compensation(Record):
     """The rig driven through the model's inverse in open loop: the force's error against the desired one."""
 
-    rms_N: float
-    max_N: float
+    rms_N: float = entry("The RMS error.", unit="N", name="compensation_rms_N")
+    max_N: float = entry("The largest error.", unit="N", name="compensation_max_N")
 
 
-def _model(doc: Any, where: str) -> HysteresisModel | CreepPI:
-    try:
-        return model_from_dict(doc, where)
-    except ValueError as exc:
-        raise ArtifactError(f"field {exc}") from None
+def _other_inputs(doc: Any) -> dict[str, Any]:
+    if not isinstance(doc, dict):
+        raise ValueError(f"expected an object, got {type(doc).__name__}")
+    return {k: v for k, v in doc.items() if k != "data"}
 
 
 # --------------------------------------------------------------------------------------
 # the record
 # --------------------------------------------------------------------------------------
-@dataclass(frozen=True, eq=False)
-class IdentifiedModel:
-    """An identified P-I model and its record (see the module docstring); frozen, checked on construction.
+@record(eq=False)
+class IdentifiedModel(Artifact):
+    """An identified P-I model and its record (see the module docstring); frozen, checked on construction."""
 
-    Parameters
-    ----------
-    model : HysteresisModel or CreepPI
-        The identified model.
-    data : DataSource
-        The record it was identified on.
-    units : Units
-        The model's input and output.
-    output_span : float
-        ``max - min`` of the record's output: what the errors are percentages of.
-    output_range : (float, float)
-        The output's least and largest value over the training window: the range the model was
-        identified over.
-    fit : FitError
-        The error on the training window.
-    solver : SolverReport
-        The QP's report.
-    test, line, paper_method_test, paper_method_note, without_creep, compensation
-        The held-out error, the straight line's, the paper's method's (or why it could not
-        run), the refit without creep, the open-loop compensation check; None where they were
-        not made.
-    inputs : dict
-        Hashes of what else it came from (the study, say).
-    file_sha256 : str or None
-        SHA-256 of the file it was read from or written to.
-    """
+    KIND: ClassVar[str] = KIND
+    NOUN: ClassVar[str] = "the hysteresis model"
+    AGAIN: ClassVar[str] = "identify the model again ('piezopreload identify --out')"
 
-    model: HysteresisModel | CreepPI
-    data: DataSource
-    units: Units
-    output_span: float
-    output_range: tuple[float, float]
-    fit: FitError
-    solver: SolverReport
-    test: FitError | None = None
-    line: StraightLine | None = None
-    paper_method_test: FitError | None = None
-    paper_method_note: str | None = None
-    without_creep: Refit | None = None
-    compensation: Compensation | None = None
-    inputs: dict[str, Any] = field(default_factory=dict)
-    file_sha256: str | None = None
+    model: HysteresisModel | CreepPI = entry("The identified model.", read=_model_from, write=_model_to,
+                                             takes="a P-I model")
+    data: DataSource = entry("The record it was identified on.", at="inputs")
+    units: Units = entry("The model's input and output.")
+    output_span: float = entry("``max - min`` of the record's output: what the errors are percentages of.",
+                               at="identification")
+    output_range: tuple[float, float] = entry("The output's least and largest value over the training window: the "
+                                              "range the model was identified over.", at="identification")
+    fit: FitError = entry("The error on the training window.", at="identification")
+    solver: SolverReport = entry("The QP's report.", at="identification")
+    test: FitError | None = entry("The held-out error.", at="identification", default=None)
+    line: StraightLine | None = entry("The straight line's errors.", at="identification", name="line_test",
+                                      default=None)
+    paper_method_test: FitError | None = entry("The paper's method's held-out error.", at="identification",
+                                               default=None)
+    paper_method_note: str | None = entry("Why the paper's method could not run, where it could not.",
+                                          at="identification", default=None)
+    without_creep: Refit | None = entry("The refit without creep, for a model with creep.", at="identification",
+                                        default=None)
+    compensation: Compensation | None = entry("The open-loop compensation check (a study's feedforward).",
+                                              at="identification", inline=True, default=None)
+    inputs: dict[str, Any] = entry("Hashes of what else it came from (the study, say).", read=_other_inputs,
+                                   default={})
+    file_sha256: str | None = entry("SHA-256 of the file it was read from or written to.", stored=False,
+                                    default=None)
 
     def __post_init__(self) -> None:
         _check(callable(getattr(self.model, "to_dict", None)) and hasattr(self.model, "kind"),
@@ -324,75 +213,56 @@ class IdentifiedModel:
                f"IdentifiedModel.output_range must be finite with low <= high, got {self.output_range!r}.")
         object.__setattr__(self, "output_range", (float(lo), float(hi)))
 
-    # ---- the document ------------------------------------------------------------------------
-    def to_dict(self) -> dict[str, Any]:
-        """The artifact's body (what :meth:`save` writes inside the envelope)."""
-        ident: dict[str, Any] = {
-            "output_span": self.output_span, "output_range": list(self.output_range), "fit": self.fit.to_dict(),
-            "test": None if self.test is None else self.test.to_dict(),
-            "line_test": None if self.line is None else self.line.to_dict(),
-            "paper_method_test": None if self.paper_method_test is None else self.paper_method_test.to_dict(),
-            "paper_method_note": self.paper_method_note, "solver": self.solver.to_dict(),
-            "without_creep": None if self.without_creep is None else self.without_creep.to_dict(),
-            "compensation_rms_N": None if self.compensation is None else self.compensation.rms_N,
-            "compensation_max_N": None if self.compensation is None else self.compensation.max_N}
-        return {"inputs": {"data": self.data.to_dict(), **self.inputs}, "units": self.units.to_dict(),
-                "model": self.model.to_dict(), "identification": ident}
-
-    @classmethod
-    def from_dict(cls, doc: dict[str, Any], shown: str = "the hysteresis model") -> IdentifiedModel:
-        """The inverse of :meth:`to_dict`; an :class:`ArtifactError` names ``shown`` and the field."""
-        try:
-            return cls._from_dict(doc)
-        except ArtifactError as exc:
-            raise ArtifactError(f"{shown}: {exc}") from None
-        except InputError as exc:
-            raise ArtifactError(f"{shown}: {exc}") from None
-
-    @classmethod
-    def _from_dict(cls, doc: dict[str, Any]) -> IdentifiedModel:
-        inputs, ident = _get(doc, "inputs", "document"), _get(doc, "identification", "document")
-        if not isinstance(ident, dict):
-            raise ArtifactError(f"field 'identification' must be an object, got {type(ident).__name__}")
-        w = "identification"
-        comp = None
-        if ident.get("compensation_rms_N") is not None:
-            comp = Compensation(_number(ident["compensation_rms_N"], f"{w}.compensation_rms_N"),
-                                _number(_get(ident, "compensation_max_N", w), f"{w}.compensation_max_N"))
-        note = _optional(ident, "paper_method_note", _text, w)
-        return cls(
-            model=_model(_get(doc, "model", "document"), "model"),
-            data=DataSource.from_dict(_get(inputs, "data", "inputs")),
-            units=Units.from_dict(_get(doc, "units", "document")),
-            output_span=_number(_get(ident, "output_span", w), f"{w}.output_span"),
-            output_range=_pair(_get(ident, "output_range", w), f"{w}.output_range"),
-            fit=FitError.from_dict(_get(ident, "fit", w), f"{w}.fit"),
-            solver=SolverReport.from_dict(_get(ident, "solver", w)),
-            test=_optional(ident, "test", FitError.from_dict, w),
-            line=_optional(ident, "line_test", StraightLine.from_dict, w),
-            paper_method_test=_optional(ident, "paper_method_test", FitError.from_dict, w),
-            paper_method_note=note,
-            without_creep=_optional(ident, "without_creep", Refit.from_dict, w),
-            compensation=comp,
-            inputs={k: v for k, v in inputs.items() if k != "data"})
-
     # ---- the artifact: one reader, one writer ---------------------------------------------------
     @classmethod
     def load(cls, path: str | Path) -> IdentifiedModel:
-        """Read a ``hysteresis-model`` artifact: schema and every field checked; errors name the file and field."""
-        doc = read_artifact(path, KIND)
-        digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()
-        return replace(cls.from_dict(doc, str(path)), file_sha256=digest)
+        """Read a ``hysteresis-model`` artifact: schema and every field checked; errors name the file and field.
+
+        Parameters
+        ----------
+        path : str or Path
+            The file.
+
+        Returns
+        -------
+        IdentifiedModel
+            The record, with the file's SHA-256.
+        """
+        digest = hashlib.sha256(Path(path).read_bytes()).hexdigest() if Path(path).is_file() else None
+        return replace(super().load(path), file_sha256=digest)
 
     def save(self, path: str | Path) -> IdentifiedModel:
-        """Write atomically; returns the record with the written file's SHA-256."""
-        write_artifact(path, KIND, self.to_dict())
+        """Write atomically.
+
+        Parameters
+        ----------
+        path : str or Path
+            The file.
+
+        Returns
+        -------
+        IdentifiedModel
+            The record with the written file's SHA-256.
+        """
+        self._write(path)
         return replace(self, file_sha256=hashlib.sha256(Path(path).read_bytes()).hexdigest())
 
     # ---- what it says ---------------------------------------------------------------------------
     def covers(self, low: float, high: float, what: str = "the references") -> None:
-        """Refuse (an :class:`InputError` naming both ranges) outputs ``[low, high]`` the model was not identified
-        over: :func:`require_coverage`."""
+        """Refuse outputs ``[low, high]`` the model was not identified over (:func:`require_coverage`).
+
+        Parameters
+        ----------
+        low, high : float
+            The outputs asked for, in the model's output unit.
+        what : str
+            What asks for them, for the message.
+
+        Raises
+        ------
+        InputError
+            Naming both ranges.
+        """
         shown = f"{self.data.kind} {self.units.output_name}" + ("" if self.data.path is None
                                                                 else f" of {self.data.path}")
         require_coverage(self.output_range, (low, high), what, unit=self.units.output, source=shown)

@@ -14,15 +14,15 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
-from piezopreload.core.artifacts import read_artifact, write_artifact
-from piezopreload.core.errors import ArtifactError, InputError
+from piezopreload.core.errors import InputError
+from piezopreload.core.records import Artifact, Raw, entry, record
 from piezopreload.models.closedloop import Reference
 
 __all__ = ["LearnedSignal", "reference_sha256", "KIND"]
@@ -36,90 +36,35 @@ def reference_sha256(reference: Reference) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-_REQUIRED = object()
+def _reference_to(reference: Reference) -> dict[str, Any]:
+    return reference.to_dict()
 
 
-def _floats(x: Any) -> NDArray[np.float64]:
-    if isinstance(x, str | dict):
-        raise TypeError(f"expected a list of numbers, got {type(x).__name__}")
-    return np.asarray(x, float)
+@record(eq=False)
+class LearnedSignal(Artifact):
+    """A learned feedforward correction for one gain set and one reference."""
 
+    KIND: ClassVar[str] = KIND
+    NOUN: ClassVar[str] = "the learned signal"
+    AGAIN: ClassVar[str] = "learn the signal again ('piezopreload learn')"
+    HASHED: ClassVar[bool] = True
 
-def _number(x: Any) -> float:
-    if isinstance(x, bool) or not isinstance(x, int | float):
-        raise TypeError(f"expected a number, got {x!r}")
-    return float(x)
-
-
-def _count(x: Any) -> int:
-    if isinstance(x, bool) or not isinstance(x, int | float) or not float(x).is_integer():
-        raise ValueError(f"expected a whole number, got {x!r}")
-    return int(x)
-
-
-def _text(x: Any) -> str:
-    if not isinstance(x, str):
-        raise TypeError(f"expected text, got {x!r}")
-    return x
-
-
-def _optional_text(x: Any) -> str | None:
-    return None if x is None else _text(x)
-
-
-def _list(x: Any) -> list[Any]:
-    if not isinstance(x, list):
-        raise TypeError(f"expected a list, got {type(x).__name__}")
-    return list(x)
-
-
-def _mapping(x: Any) -> dict[str, Any]:
-    if x is None:
-        return {}
-    if not isinstance(x, dict):
-        raise TypeError(f"expected an object, got {type(x).__name__}")
-    return dict(x)
-
-
-@dataclass(frozen=True, eq=False)
-class LearnedSignal:
-    """A learned feedforward correction for one gain set and one reference.
-
-    Parameters
-    ----------
-    ff_extra_V : ndarray
-        Voltage added to the feedforward at each sample (before the clamp).
-    setpoint_N : ndarray
-        The controller's setpoint at each sample (the preview plan; the reference itself without preview).
-    sample_period_s : float
-        The loop's sample period; the signals have one value per sample of the reference.
-    reference : Reference
-        The reference it was learned on (what the tracking error is scored against).
-    gain_set_sha256 : str or None
-        The gain set's content hash (None: learned on gains not saved as a gain set).
-    iteration : int
-        Learning updates behind this signal (0: the preview alone).
-    preview_s, method : float, str
-        The preview horizon and the learning law.
-    history : list of dict
-        The error per iteration as it was learned.
-    inputs : dict
-        Where it came from (study, seed, run logs).
-    content_sha256 : str or None
-        Set by :meth:`load` and :meth:`save`.
-    """
-
-    ff_extra_V: NDArray[np.float64]
-    setpoint_N: NDArray[np.float64]
-    sample_period_s: float
-    reference: Reference
-    gain_set_sha256: str | None
-    iteration: int = 0
-    preview_s: float = 0.0
-    method: str = "p-type"
-    history: list[dict[str, Any]] = field(default_factory=list)
-    inputs: dict[str, Any] = field(default_factory=dict)
-    content_sha256: str | None = None
+    ff_extra_V: NDArray[np.float64] = entry("Voltage added to the feedforward at each sample (before the clamp).",
+                                            unit="V")
+    setpoint_N: NDArray[np.float64] = entry("The controller's setpoint at each sample (the preview plan; the "
+                                            "reference itself without preview).", unit="N", size="ff_extra_V")
+    sample_period_s: float = entry("The loop's sample period; the signals have one value per sample of the "
+                                   "reference.", unit="s", gt=0)
+    reference: Reference = entry("The reference it was learned on (what the tracking error is scored against).",
+                                 read=Reference.from_dict, write=_reference_to, takes="a reference")
+    gain_set_sha256: str | None = entry("The gain set's content hash (None: learned on gains not saved as a gain "
+                                        "set).")
+    iteration: int = entry("Learning updates behind this signal (0: the preview alone).", ge=0, default=0)
+    preview_s: float = entry("The preview horizon.", unit="s", ge=0, default=0.0)
+    method: str = entry("The learning law.", default="p-type")
+    history: list[dict[str, Any]] = entry("The error per iteration as it was learned.", default=[])
+    inputs: dict[str, Any] = entry("Where it came from (study, seed, run logs).", default={}, required=True)
+    content_sha256: str | None = entry("Set by :meth:`load` and :meth:`save`.", default=None)
 
     def __post_init__(self) -> None:
         self._check_fields()
@@ -179,48 +124,36 @@ class LearnedSignal:
                              f"{reference_sha256(reference)}: run it with the reference it was learned on")
 
     def to_dict(self) -> dict[str, Any]:
-        return {"ff_extra_V": self.ff_extra_V.tolist(), "setpoint_N": self.setpoint_N.tolist(),
-                "sample_period_s": self.sample_period_s, "reference": self.reference.to_dict(),
-                "reference_sha256": self.reference_sha256, "gain_set_sha256": self.gain_set_sha256,
-                "iteration": int(self.iteration), "preview_s": float(self.preview_s), "method": self.method,
-                "history": self.history, "inputs": dict(self.inputs)}
+        """The artifact's body: the fields and the reference's hash (its hash is the envelope's).
 
-    @classmethod
-    def from_dict(cls, doc: dict[str, Any], shown: str = "the learned signal") -> LearnedSignal:
-        """The inverse of :meth:`to_dict`; an :class:`ArtifactError` names the field that is missing or wrong."""
-        if not isinstance(doc, dict):
-            raise ArtifactError(f"{shown}: a learned signal is a JSON object, got {type(doc).__name__}")
+        Returns
+        -------
+        dict
+            The document without its envelope.
+        """
+        out = super().to_dict()
+        del out["content_sha256"]
+        return {**out, "reference_sha256": self.reference_sha256}
 
-        def field(name: str, convert: Any, default: Any = _REQUIRED) -> Any:
-            if name not in doc:
-                if default is _REQUIRED:
-                    raise ArtifactError(f"{shown}: field '{name}' is missing; learn the signal again")
-                return default
-            try:
-                return convert(doc[name])
-            except (TypeError, ValueError, OverflowError) as exc:
-                raise ArtifactError(f"{shown}: field '{name}' is invalid ({exc}); learn the signal again") from exc
-
-        reference = field("reference", Reference.from_dict)
-        if field("reference_sha256", str) != reference_sha256(reference):
-            raise ArtifactError(f"{shown}: field 'reference_sha256' does not match its reference")
-        try:
-            return cls(field("ff_extra_V", _floats), field("setpoint_N", _floats), field("sample_period_s", _number),
-                       reference, field("gain_set_sha256", _optional_text), field("iteration", _count, 0),
-                       field("preview_s", _number, 0.0), field("method", _text, "p-type"),
-                       field("history", _list, []), field("inputs", _mapping, {}),
-                       field("content_sha256", _optional_text, None))
-        except ArtifactError:
-            raise
-        except InputError as exc:  # the signal's own checks (sizes, ranges)
-            raise ArtifactError(f"{shown}: {exc} Learn the signal again.") from exc
-
-    @classmethod
-    def load(cls, path: str | Path) -> LearnedSignal:
-        """The one reader: schema, fields and content hash checked (a changed file is refused)."""
-        return cls.from_dict(read_artifact(path, KIND), str(path))
+    def _check_document(self, raw: Raw) -> None:
+        stored = raw.get("reference_sha256")
+        if stored is None:
+            raise raw.fail("reference_sha256", "is missing; expected the SHA-256 of its reference")
+        if stored != self.reference_sha256:
+            raise raw.fail("reference_sha256", "does not match its reference")
 
     def save(self, path: str | Path) -> LearnedSignal:
-        """Write atomically as a content-hashed artifact; returns the signal with its hash."""
-        doc = write_artifact(path, KIND, self.to_dict())
+        """Write atomically as a content-hashed artifact.
+
+        Parameters
+        ----------
+        path : str or Path
+            The file.
+
+        Returns
+        -------
+        LearnedSignal
+            The signal with the hash it was written with.
+        """
+        doc = self._write(path)
         return replace(self, content_sha256=doc["content_sha256"])

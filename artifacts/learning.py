@@ -12,94 +12,64 @@ all passes. :meth:`LearningRecord.load` is the one reader, :meth:`LearningRecord
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field
+import math
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
-from piezopreload.artifacts._fields import count, flag, mapping, number, optional_number, text
-from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError
+from piezopreload.core.records import Artifact, Raw, Record, entry, record
 
 __all__ = ["KIND", "TrialRecord", "PassRecord", "LearningRecord"]
 
 KIND = "learning"
-
-_REQUIRED = object()
-
 
 def _numbers(x: Any) -> float | list[float]:
     """One number, or one per plant."""
     if isinstance(x, list):
         if not x:
             raise ValueError("expected at least one number")
-        return [number(v) for v in x]
-    return number(x)
+        return [_number(v) for v in x]
+    return _number(x)
 
 
-def _counts(x: Any) -> list[int]:
-    if not isinstance(x, list) or not x:
-        raise ValueError(f"expected a list of whole numbers, got {x!r}")
-    return [count(v) for v in x]
+def _number(x: Any) -> float:
+    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
+        raise ValueError(f"expected a finite number, got {x!r}")
+    return float(x)
 
 
 def _worst(x: float | list[float]) -> float:
     return max(x) if isinstance(x, list) else x
 
 
-class _Fields:
-    """Reads the fields of one JSON object, naming a missing or invalid one (and where it sits)."""
-
-    def __init__(self, doc: Any, where: str) -> None:
-        if not isinstance(doc, dict):
-            raise ArtifactError(f"{where}: expected a JSON object, got {type(doc).__name__}")
-        self.doc, self.where = doc, where
-
-    def __call__(self, name: str, convert: Callable[[Any], Any], default: Any = _REQUIRED) -> Any:
-        if name not in self.doc:
-            if default is _REQUIRED:
-                raise ArtifactError(f"{self.where}: field '{name}' is missing; run the learn stage again")
-            return default
-        try:
-            return convert(self.doc[name])
-        except (TypeError, ValueError) as exc:
-            raise ArtifactError(f"{self.where}: field '{name}' is invalid ({exc}); run the learn stage again") from exc
+_PER_PLANT = "a finite number, or a list of them (one per plant)"
 
 
-@dataclass(frozen=True)
-class TrialRecord:
+@record
+class TrialRecord(Record):
     """One trial: the RMS error of the true force (whole trajectory, and outside the transport after each
     change) against the reference, and of the measured force against the plan (what the law sees).
     One number, or one per plant."""
 
-    iteration: int
-    tracking_rms_N: float | list[float]
-    tracking_rms_after_change_N: float | list[float]
-    measured_rms_N: float | list[float]
+    NOUN: ClassVar[str] = "the trial"
+
+    iteration: int = entry("The trial's number (0: before any learned correction).", ge=0)
+    tracking_rms_N: float | list[float] = entry("The true force's RMS error over the whole trajectory.", unit="N",
+                                                read=_numbers, takes=_PER_PLANT)
+    tracking_rms_after_change_N: float | list[float] = entry(
+        "The true force's RMS error outside the transport after each change.", unit="N", read=_numbers,
+        takes=_PER_PLANT)
+    measured_rms_N: float | list[float] = entry("The measured force's RMS error against the plan.", unit="N",
+                                                read=_numbers, takes=_PER_PLANT)
 
     @property
     def worst_tracking_rms_N(self) -> float:
+        """The worst plant's :attr:`tracking_rms_N`."""
         return _worst(self.tracking_rms_N)
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"iteration": self.iteration, "tracking_rms_N": self.tracking_rms_N,
-                "tracking_rms_after_change_N": self.tracking_rms_after_change_N, "measured_rms_N": self.measured_rms_N}
 
-    @classmethod
-    def from_dict(cls, doc: Any, where: str = "trial") -> TrialRecord:
-        f = _Fields(doc, where)
-        return cls(f("iteration", count), f("tracking_rms_N", _numbers), f("tracking_rms_after_change_N", _numbers),
-                   f("measured_rms_N", _numbers))
-
-
-def _trials(x: Any, where: str) -> list[TrialRecord]:
-    if not isinstance(x, list) or not x:
-        raise ValueError("expected a list of trials (at least trial 0)")
-    return [TrialRecord.from_dict(h, f"{where}, trial {k}") for k, h in enumerate(x)]
-
-
-@dataclass(frozen=True)
-class PassRecord:
+@record
+class PassRecord(Record):
     """The learning on one pass's reference.
 
     ``trials`` learning trials ran after trial 0 (each one run of the pass's repeated reference);
@@ -112,27 +82,32 @@ class PassRecord:
     ``learning`` is the law's settings.
     """
 
-    pass_number: int
-    signal: str
-    reference_sha256: str
-    before_learning_rms_N: float
-    before_learning_pct_of_range: float
-    tracking_rms_N: float
-    tracking_rms_pct_of_range: float
-    trials: int
-    trials_to_within_1p1: int
-    stop_reason: str
-    converged: bool
-    best_iteration: list[int]
-    causal_floor_N: float
-    preview_floor_N: float
-    noise_floor_N: float | None
-    preview_s: float
-    method: str
-    warm_start: bool
-    learning: dict[str, Any]
-    history: list[TrialRecord]
-    tracking_rms_from_start_N: float | None = None
+    NOUN: ClassVar[str] = "the pass record"
+
+    pass_number: int = entry("The pass's number (from 1).", name="pass", ge=0)
+    signal: str = entry("Its learned signal's file (beside the record).")
+    reference_sha256: str = entry("Its reference's SHA-256.")
+    before_learning_rms_N: float = entry("The loop's error without any learned correction.", unit="N")
+    before_learning_pct_of_range: float = entry("The same, in % of the reference's range.", unit="%")
+    tracking_rms_N: float = entry("The error with the learned correction, from the reference's first change.",
+                                  unit="N")
+    tracking_rms_pct_of_range: float = entry("The same, in % of the reference's range.", unit="%")
+    trials: int = entry("The learning trials after trial 0.", ge=0)
+    trials_to_within_1p1: int = entry("The first trial whose error came within 1.1 times the pass's best.", ge=0)
+    stop_reason: str = entry("Why the pass stopped learning.")
+    converged: bool = entry("Whether the learning converged.")
+    best_iteration: list[int] = entry("The best trial (one per plant).", ge=0)
+    causal_floor_N: float = entry("The least RMS error of any causal controller without preview.", unit="N")
+    preview_floor_N: float = entry("The least RMS error with the preview.", unit="N")
+    noise_floor_N: float | None = entry("The RMS difference of the true force between two runs of the same signal "
+                                        "under other sensor noise.", unit="N", absent=None)
+    preview_s: float = entry("The preview horizon.", unit="s")
+    method: str = entry("The learning law.")
+    warm_start: bool = entry("Whether trial 0 carried the correction learned on the pass before.", absent=False)
+    learning: dict[str, Any] = entry("The law's settings.")
+    history: list[TrialRecord] = entry("The error per trial (trial 0 first).")
+    tracking_rms_from_start_N: float | None = entry("The error with the learned correction, from t = 0.", unit="N",
+                                                    default=None)
 
     def __post_init__(self) -> None:
         if len(self.history) != self.trials + 1:
@@ -151,42 +126,27 @@ class PassRecord:
         return 100.0 * self.tracking_rms_N / pct if pct else 1.0
 
     def to_dict(self) -> dict[str, Any]:
-        return {"pass": self.pass_number, "signal": self.signal, "reference_sha256": self.reference_sha256,
-                "before_learning_rms_N": self.before_learning_rms_N,
-                "before_learning_pct_of_range": self.before_learning_pct_of_range,
-                "tracking_rms_N": self.tracking_rms_N, "tracking_rms_pct_of_range": self.tracking_rms_pct_of_range,
-                "iterations": self.trials, "trials": self.trials, "trials_to_within_1p1": self.trials_to_within_1p1,
-                "stop_reason": self.stop_reason, "converged": self.converged, "best_iteration": self.best_iteration,
-                "causal_floor_N": self.causal_floor_N, "preview_floor_N": self.preview_floor_N,
-                "noise_floor_N": self.noise_floor_N, "preview_s": self.preview_s, "method": self.method,
-                "warm_start": self.warm_start, "learning": self.learning,
-                "history": [h.to_dict() for h in self.history],
-                "tracking_rms_from_start_N": self.tracking_rms_from_start_N}
+        """The pass's object (its trials also as ``iterations``, the name it had first).
 
-    @classmethod
-    def from_dict(cls, doc: Any, where: str = "pass") -> PassRecord:
-        f = _Fields(doc, where)
-        k = f("pass", count)
-        where = f"{where} {k}"
-        f = _Fields(doc, where)
-        return cls(k, f("signal", text), f("reference_sha256", text), f("before_learning_rms_N", number),
-                   f("before_learning_pct_of_range", number), f("tracking_rms_N", number),
-                   f("tracking_rms_pct_of_range", number), f("trials", count), f("trials_to_within_1p1", count),
-                   f("stop_reason", text), f("converged", flag), f("best_iteration", _counts),
-                   f("causal_floor_N", number), f("preview_floor_N", number),
-                   f("noise_floor_N", optional_number, None), f("preview_s", number), f("method", text),
-                   f("warm_start", flag, False), f("learning", mapping), f("history", lambda x: _trials(x, where)),
-                   f("tracking_rms_from_start_N", optional_number, None))
+        Returns
+        -------
+        dict
+            Its object.
+        """
+        return {**super().to_dict(), "iterations": self.trials}
 
 
-@dataclass(frozen=True)
-class LearningRecord:
-    """The learning of every pass of a schedule (module docstring); ``learned`` names the last pass's signal file,
-    what the rig plays. The top-level figures are the last pass's."""
+@record
+class LearningRecord(Artifact):
+    """The learning of every pass of a schedule (module docstring); the top-level figures are the last pass's."""
 
-    passes: list[PassRecord]
-    learned: str
-    inputs: dict[str, Any] = field(default_factory=dict)
+    KIND: ClassVar[str] = KIND
+    NOUN: ClassVar[str] = "the learning record"
+    AGAIN: ClassVar[str] = "run the learn stage again"
+
+    passes: list[PassRecord] = entry("One record per pass, in order.", name="pass_records")
+    learned: str = entry("The last pass's signal file: what the rig plays.")
+    inputs: dict[str, Any] = entry("Where it came from (the study, the gain set).", default={}, required=True)
 
     def __post_init__(self) -> None:
         if not self.passes:
@@ -210,8 +170,15 @@ class LearningRecord:
         return [Path(folder) / p.signal for p in self.passes]
 
     def to_dict(self) -> dict[str, Any]:
+        """The passes' records and, at the top, the last pass's figures and the trials over all passes.
+
+        Returns
+        -------
+        dict
+            The document's body.
+        """
         last = self.last
-        return {"pass_records": [p.to_dict() for p in self.passes], "passes": len(self.passes),
+        return {**super().to_dict(), "passes": len(self.passes),
                 "tracking_rms_N": last.tracking_rms_N, "tracking_rms_pct_of_range": last.tracking_rms_pct_of_range,
                 "before_learning_rms_N": last.before_learning_rms_N,
                 "before_learning_pct_of_range": last.before_learning_pct_of_range, "iterations": last.trials,
@@ -220,32 +187,28 @@ class LearningRecord:
                 "converged": last.converged, "causal_floor_N": last.causal_floor_N,
                 "preview_floor_N": last.preview_floor_N, "preview_s": last.preview_s, "method": last.method,
                 "history": [h.to_dict() for h in last.history],
-                "contraction_over_range": last.learning.get("contraction_over_range"), "learned": self.learned,
-                "inputs": dict(self.inputs)}
+                "contraction_over_range": last.learning.get("contraction_over_range")}
 
-    @classmethod
-    def from_dict(cls, doc: Any, where: str = "the learning record") -> LearningRecord:
-        f = _Fields(doc, where)
-        records = f("pass_records", lambda x: x if isinstance(x, list) and x else _raise("expected a list of passes"))
-        passes = [PassRecord.from_dict(p, f"{where}, pass record {k + 1}") for k, p in enumerate(records)]
-        if f("passes", count) != len(passes):
-            raise ArtifactError(f"{where}: field 'passes' does not match its {len(passes)} pass records")
-        record = cls(passes, f("learned", text), f("inputs", mapping, {}))
-        if passes[-1].signal != record.learned:
-            raise ArtifactError(f"{where}: field 'learned' ({record.learned}) is not the last pass's signal "
-                                f"({passes[-1].signal})")
-        return record
+    def _check_document(self, raw: Raw) -> None:
+        if raw.get("passes", len(self.passes)) != len(self.passes):  # a figure written beside them, checked if there
+            raise raw.fail("passes", f"must be {len(self.passes)}, the number of its pass records, got "
+                                     f"{raw.get('passes')!r}")
+        if self.passes[-1].signal != self.learned:
+            raise raw.fail("learned", f"must be the last pass's signal ({self.passes[-1].signal}), got "
+                                      f"{self.learned!r}")
 
     def save(self, path: str | Path) -> Path:
-        """Write atomically (the one writer)."""
-        write_artifact(path, KIND, self.to_dict())
+        """Write atomically (the one writer).
+
+        Parameters
+        ----------
+        path : str or Path
+            The file.
+
+        Returns
+        -------
+        Path
+            The file written.
+        """
+        self._write(path)
         return Path(path)
-
-    @classmethod
-    def load(cls, path: str | Path) -> LearningRecord:
-        """The one reader: schema, kind and every field checked."""
-        return cls.from_dict(read_artifact(path, KIND), str(path))
-
-
-def _raise(message: str) -> Any:
-    raise ValueError(message)

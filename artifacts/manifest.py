@@ -11,15 +11,15 @@ the one reader (the run, the report, the sweep and ``report DIR`` read the folde
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, ClassVar, Self, TypeVar
 
-from piezopreload.artifacts._fields import Fields
 from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.summaries import StageSummary, read_summary
 from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError
+from piezopreload.core.records import Record, entry, record
 
 __all__ = ["StudyRef", "OutputRecord", "StageRecord", "StudyRunManifest", "MANIFEST", "STUDY_COPY", "KIND",
            "STATUSES"]
@@ -28,60 +28,47 @@ KIND = "study-run"
 #: the manifest's file in an output folder, and the study's copy beside it
 MANIFEST, STUDY_COPY = "pipeline.json", "study.toml"
 STATUSES = ("done", "failed", "not applicable")
+_AGAIN = "run the study again with --force"
 S = TypeVar("S", bound=StageSummary)
 
 
-@dataclass(frozen=True)
-class StudyRef:
+@record
+class StudyRef(Record):
     """Which study: its file as named, its SHA-256 and its name (``[study] name``)."""
 
-    path: str
-    sha256: str
-    name: str
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"path": self.path, "sha256": self.sha256, "name": self.name}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> StudyRef:
-        return cls(f.text("path"), f.text("sha256"), f.text("name"))
+    AGAIN: ClassVar[str] = _AGAIN
+    path: str = entry("The study's file, as named.")
+    sha256: str = entry("The file's SHA-256.")
+    name: str = entry("The study's name.")
 
 
-@dataclass(frozen=True)
-class OutputRecord:
+@record
+class OutputRecord(Record):
     """A file a stage wrote: its path relative to the output folder and its SHA-256."""
 
-    path: str
-    sha256: str
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"path": self.path, "sha256": self.sha256}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> OutputRecord:
-        return cls(f.text("path"), f.text("sha256"))
+    AGAIN: ClassVar[str] = _AGAIN
+    path: str = entry("The file, relative to the output folder.")
+    sha256: str = entry("Its SHA-256.")
 
 
-@dataclass(frozen=True)
-class StageRecord:
+@record
+class StageRecord(Record):
     """One stage of a run as the manifest records it.
 
     ``reason`` says why a stage did not apply, ``message`` why it failed; ``summary`` is a done stage's (and a
-    failed one's where it left one: a tripped rig run's trip).
+    failed one's where it left one: a tripped rig run's trip), read by the stage's own record
+    (:mod:`piezopreload.artifacts.summaries`).
     """
 
-    status: str
-    key: str
-    outputs: dict[str, OutputRecord] = field(default_factory=dict)
-    seconds: float | None = None
-    finished_utc: str | None = None
-    summary: StageSummary | None = None
-    reason: str | None = None
-    message: str | None = None
-
-    def __post_init__(self) -> None:
-        if self.status not in STATUSES:
-            raise ValueError(f"StageRecord.status must be one of {', '.join(STATUSES)}, got {self.status!r}")
+    AGAIN: ClassVar[str] = _AGAIN
+    status: str = entry("Whether the stage ran.", choices=STATUSES)
+    reason: str | None = entry("Why the stage did not apply.", default=None, omit=True)
+    key: str = entry("The stage's content key.", default="", required=True)
+    message: str | None = entry("Why the stage failed.", default=None, omit=True)
+    seconds: float | None = entry("The stage's time.", unit="s", default=None, omit=True)
+    finished_utc: str | None = entry("When it finished (UTC).", default=None, omit=True)
+    summary: StageSummary | None = entry("The stage's summary (its record).", default=None, stored=False)
+    outputs: dict[str, OutputRecord] = entry("What it wrote, by label.", default_factory=dict, required=True)
 
     @property
     def done(self) -> bool:
@@ -94,39 +81,49 @@ class StageRecord:
 
     def to_dict(self) -> dict[str, Any]:
         """The record as ``pipeline.json`` holds it (the layout :mod:`piezopreload.core.stages` writes)."""
-        out: dict[str, Any] = {"status": self.status}
-        if self.reason is not None:
-            out["reason"] = self.reason
-        out["key"] = self.key
-        if self.message is not None:
-            out["message"] = self.message
-        if self.seconds is not None:
-            out["seconds"] = self.seconds
-        if self.finished_utc is not None:
-            out["finished_utc"] = self.finished_utc
+        out = super().to_dict()
+        outputs = out.pop("outputs")
         if self.summary is not None:
             out["summary"] = self.summary.to_dict()
-        out["outputs"] = {label: o.to_dict() for label, o in self.outputs.items()}
-        return out
+        return {**out, "outputs": outputs}
 
     @classmethod
-    def from_fields(cls, stage: str, f: Fields) -> StageRecord:
-        status, outputs = f.text("status"), f.sub("outputs")
-        if status not in STATUSES:
-            raise f.fail("status", f"must be one of {', '.join(STATUSES)}, got {status!r}")
-        return cls(
-            status=status, key=f.text("key"),
-            outputs={label: OutputRecord.from_fields(outputs.sub(label)) for label in outputs.doc},
-            seconds=f.optional_number("seconds"),
-            finished_utc=f.text("finished_utc") if f.has("finished_utc") else None,
-            summary=read_summary(stage, f.raw("summary"), f.shown, f.path("summary")) if f.has("summary") else None,
-            reason=f.text("reason") if f.has("reason") else None,
-            message=f.text("message") if f.has("message") else None)
+    def read(cls, stage: str, doc: Any, shown: str = "stage record", path: str = "") -> Self:
+        """A stage's record as :func:`piezopreload.core.stages.run_stages` keeps it, its summary read by the
+        stage's record.
 
-    @classmethod
-    def from_dict(cls, stage: str, doc: Any, shown: str = "stage record") -> StageRecord:
-        """A stage's record as :func:`piezopreload.core.stages.run_stages` keeps it."""
-        return cls.from_fields(stage, Fields(doc, shown, f"stages.{stage}"))
+        Parameters
+        ----------
+        stage : str
+            The stage's name.
+        doc : dict
+            The record's object.
+        shown : str
+            What the messages call the document.
+        path : str
+            Where the record sits in the document (default ``stages.STAGE``).
+
+        Returns
+        -------
+        StageRecord
+            The record.
+        """
+        path = path or f"stages.{stage}"
+        made = cls.from_dict(doc, shown, path=path)
+        if isinstance(doc, dict) and doc.get("summary") is not None:
+            made = replace(made, summary=read_summary(stage, doc["summary"], shown, f"{path}.summary"))
+        return made
+
+
+@record
+class _Document(Record):
+    """The manifest's own fields (each stage's record is read by :meth:`StageRecord.read`, by its stage)."""
+
+    AGAIN: ClassVar[str] = _AGAIN
+    study: StudyRef = entry("Which study.")
+    started_utc: str = entry("When the run started (UTC).")
+    stages: dict[str, dict[str, Any]] = entry("Each stage's record, by the stage's name.")
+    copy: str = entry("The study's copy in the folder.", at="study", default=STUDY_COPY)
 
 
 @dataclass(frozen=True)
@@ -185,11 +182,9 @@ class StudyRunManifest:
     @classmethod
     def from_dict(cls, doc: Any, shown: str = MANIFEST) -> StudyRunManifest:
         """The inverse of :meth:`to_dict`; an :class:`ArtifactError` names the field."""
-        f = Fields(doc, shown)
-        study, stages = f.sub("study"), f.sub("stages")
-        return cls(StudyRef.from_fields(study), f.text("started_utc"),
-                   {name: StageRecord.from_fields(name, stages.sub(name)) for name in stages.doc},
-                   study.text("copy", STUDY_COPY))
+        head = _Document.from_dict(doc, shown)
+        return cls(head.study, head.started_utc,
+                   {name: StageRecord.read(name, record, shown) for name, record in head.stages.items()}, head.copy)
 
     @classmethod
     def from_records(cls, study: StudyRef, started_utc: str, records: dict[str, dict[str, Any]],
@@ -197,7 +192,7 @@ class StudyRunManifest:
         """The manifest of the stages' records as :func:`piezopreload.core.stages.run_stages` keeps them, in
         ``order`` (each stage's summary read by its type, so a stage's summary that does not read back is an error
         where it is written)."""
-        return cls(study, started_utc, {name: StageRecord.from_dict(name, records[name], shown)
+        return cls(study, started_utc, {name: StageRecord.read(name, records[name], shown)
                                         for name in order if name in records})
 
     def save(self, out: str | Path) -> Path:

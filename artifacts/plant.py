@@ -9,16 +9,16 @@ stage and the report take the plant from the one file the plant stage wrote.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import fields, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from piezopreload.artifacts._fields import Fields
 from piezopreload.core._typing import Array
-from piezopreload.core.artifacts import read_artifact, write_artifact
+from piezopreload.core.config import Invalid
+from piezopreload.core.records import Artifact, entry, record
 from piezopreload.models.actuator import Plant
 from piezopreload.models.ballscrew import BallScrew, Material
 
@@ -35,33 +35,63 @@ def _screw_to_dict(s: BallScrew) -> dict[str, Any]:
             "material": {"E_MPa": s.material.E_MPa, "poisson": s.material.poisson}}
 
 
-def _screw_from_fields(f: Fields) -> BallScrew:
-    values: dict[str, Any] = {}
-    for name in _SCREW_FIELDS:
-        if f.has(name):
-            values[name] = int(f.integer(name)) if name == "balls_per_turn" else f.number(name)
-    m = f.sub("material") if f.has("material") else None
-    material = Material() if m is None else m.build(lambda: Material(m.number("E_MPa"), m.number("poisson")))
-    return f.build(lambda: BallScrew(**values, material=material))
+def _number(doc: dict[str, Any], key: str, integer: bool = False) -> float:
+    x = doc[key]
+    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x) or \
+            (integer and not float(x).is_integer()):
+        raise Invalid(key, f"must be a finite {'whole ' if integer else ''}number, got {x!r}")
+    return int(x) if integer else float(x)
 
 
-@dataclass(frozen=True, eq=False)
-class DesignedPlant:
-    """The rig of a designed preload system and where its numbers come from.
+def _screw_from(doc: Any) -> BallScrew:
+    """The double nut's screw from its object: each of BallScrew's fields the object gives (null: its default)."""
+    if not isinstance(doc, dict):
+        raise ValueError(f"expected an object of the screw's fields, got {type(doc).__name__}")
+    values: dict[str, Any] = {name: _number(doc, name, integer=name == "balls_per_turn")
+                              for name in _SCREW_FIELDS if doc.get(name) is not None}
+    m = doc.get("material")
+    if m is not None:
+        if not isinstance(m, dict) or "E_MPa" not in m or "poisson" not in m:
+            raise Invalid("material", f"must be an object of E_MPa and poisson, got {m!r}")
+        values["material"] = Material(_number(m, "E_MPa"), _number(m, "poisson"))
+    return BallScrew(**values)
 
-    ``rig`` is the plant (:class:`Plant`, Hertzian coupling); ``screw`` the optimum's
-    double nut; ``bolt_preload_N`` and ``max_preload_N`` the design's preload range;
-    ``sleeve_stiffness_N_per_um`` the sleeve and bolts (inf: rigid); ``design_sha256`` the design
-    artifact the plant was made from; ``inputs`` the hashes the plant artifact records.
-    """
 
-    rig: Plant
-    screw: BallScrew
-    bolt_preload_N: float
-    max_preload_N: float
-    sleeve_stiffness_N_per_um: float
-    design_sha256: str
-    inputs: dict[str, Any] = field(default_factory=dict)
+def _plant_to(plant: Plant) -> dict[str, Any]:
+    return plant.to_dict()
+
+
+def _sleeve_from(x: Any) -> float:
+    if x is None:
+        return math.inf
+    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
+        raise ValueError(f"expected a finite number, or null for a rigid sleeve, got {x!r}")
+    return float(x)
+
+
+def _sleeve_to(x: float) -> float | None:
+    return None if math.isinf(x) else x
+
+
+@record(eq=False)
+class DesignedPlant(Artifact):
+    """The rig of a designed preload system and where its numbers come from."""
+
+    KIND: ClassVar[str] = KIND
+    NOUN: ClassVar[str] = "the plant"
+    AGAIN: ClassVar[str] = "run the plant stage again"
+
+    rig: Plant = entry("The plant (:class:`~piezopreload.models.actuator.Plant`, Hertzian coupling).",
+                       read=Plant.from_dict, write=_plant_to, takes="a rig's parameters")
+    screw: BallScrew = entry("The optimum's double nut.", read=_screw_from, write=_screw_to_dict,
+                             takes="an object of the screw's fields")
+    bolt_preload_N: float = entry("The bolts' preload: the bottom of the design's preload range.", unit="N")
+    max_preload_N: float = entry("The top of the design's preload range.", unit="N")
+    sleeve_stiffness_N_per_um: float = entry("The sleeve and bolts (inf: rigid, null in the document).",
+                                             unit="N/um", read=_sleeve_from, write=_sleeve_to, absent=math.inf,
+                                             takes="a finite number, or null for a rigid sleeve")
+    design_sha256: str = entry("The design artifact the plant was made from.")
+    inputs: dict[str, Any] = entry("The hashes the plant artifact records.", default={}, required=True)
 
     def __post_init__(self) -> None:
         if not 0 < self.bolt_preload_N < self.max_preload_N < math.inf:
@@ -109,39 +139,34 @@ class DesignedPlant:
 
     # ---- the artifact: one writer, one reader ----------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
-        """The plant artifact's body: the rig and its origin (the layout the plant artifact has always had, the
-        screw's every field added so the artifact makes the plant again)."""
-        return {"rig": self.rig.to_dict(), "design_sha256": self.design_sha256,
-                "bolt_preload_N": self.bolt_preload_N, "max_preload_N": self.max_preload_N,
-                "stack_force_max_N": self.stack_force_max_N,
-                "sleeve_stiffness_N_per_um": (None if math.isinf(self.sleeve_stiffness_N_per_um)
-                                              else self.sleeve_stiffness_N_per_um),
-                "nut_hertz_um_per_N23": float(self.rig.hertz_um_per_N23),
-                "nut_structural_um_per_N": self.nut_structural_um_per_N, "screw": _screw_to_dict(self.screw),
-                "slew_V_per_s": float(self.rig.slew_V_per_s),
-                "local_stiffness_N_per_um": self.local_stiffness_N_per_um(), "inputs": dict(self.inputs)}
+        """The plant artifact's body: the rig and its origin, and the figures derived from them (the stacks' force
+        at the top, the nut's compliances, the slew limit, the coupling's stiffness).
 
-    @classmethod
-    def from_dict(cls, doc: dict[str, Any], shown: str = "the plant") -> DesignedPlant:
-        """The inverse of :meth:`to_dict`; an :class:`~piezopreload.core.errors.ArtifactError` names the field."""
-        f = Fields(doc, shown)
-        try:
-            rig = Plant.from_dict(f.mapping("rig"))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise f.fail("rig", f"is not a rig: {exc}") from None
-        sleeve = f.optional_number("sleeve_stiffness_N_per_um")
-        return f.build(lambda: cls(
-            rig=rig, screw=_screw_from_fields(f.sub("screw")), bolt_preload_N=f.number("bolt_preload_N"),
-            max_preload_N=f.number("max_preload_N"), sleeve_stiffness_N_per_um=math.inf if sleeve is None else sleeve,
-            design_sha256=f.text("design_sha256"), inputs=f.mapping("inputs", {})))
+        Returns
+        -------
+        dict
+            The document's body.
+        """
+        return {**super().to_dict(), "stack_force_max_N": self.stack_force_max_N,
+                "nut_hertz_um_per_N23": float(self.rig.hertz_um_per_N23),
+                "nut_structural_um_per_N": self.nut_structural_um_per_N, "slew_V_per_s": float(self.rig.slew_V_per_s),
+                "local_stiffness_N_per_um": self.local_stiffness_N_per_um()}
 
     def save(self, path: str | Path, inputs: dict[str, Any] | None = None) -> Path:
-        """Write the plant artifact (kind ``plant``) atomically; ``inputs`` replaces the recorded inputs."""
-        record = self if inputs is None else replace(self, inputs=dict(inputs))
-        write_artifact(path, KIND, record.to_dict())
-        return Path(path)
+        """Write the plant artifact (kind ``plant``) atomically.
 
-    @classmethod
-    def load(cls, path: str | Path) -> DesignedPlant:
-        """Read a plant artifact: its schema and every field checked."""
-        return cls.from_dict(read_artifact(path, KIND), str(path))
+        Parameters
+        ----------
+        path : str or Path
+            The file.
+        inputs : dict or None
+            The recorded inputs to write instead of its own (None: its own).
+
+        Returns
+        -------
+        Path
+            The file written.
+        """
+        record = self if inputs is None else replace(self, inputs=dict(inputs))
+        record._write(path)
+        return Path(path)

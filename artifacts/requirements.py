@@ -19,10 +19,10 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Iterable
-from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 from piezopreload.core.errors import ArtifactError
+from piezopreload.core.records import Record, entry, record
 
 __all__ = ["Requirement", "EXIT_REQUIREMENT_MISSED", "requirements_from_dict", "missed",
            "least_margin", "unaccepted"]
@@ -37,36 +37,21 @@ def _number(x: float) -> str:
     return f"{x:,.0f}" if abs(x) >= 1000 else f"{x:.3g}"
 
 
-@dataclass(frozen=True)
-class Requirement:
-    """One requirement and what was achieved.
+@record
+class Requirement(Record):
+    """One requirement and what was achieved."""
 
-    Parameters
-    ----------
-    name : str
-        What is required, in words ("rigidity while cutting").
-    value : float
-        What the run achieved (the worst case over the run).
-    limit : float
-        The required bound.
-    unit : str
-        The unit of ``value`` and ``limit`` ("N/um").
-    sense : {"min", "max"}
-        ``min``: the value must be at least the limit; ``max``: at most.
-    source : str
-        Where the limit is set ("[schedule] stiffness_min_N_per_um").
-    key : str
-        A short name a user gives to accept a missed requirement (``validation.overshoot_max_N@2000N``);
-        where not given, the source's table and key (``schedule.stiffness_min_N_per_um``), else the name's words.
-    """
+    NOUN: ClassVar[str] = "the requirement"
 
-    name: str
-    value: float
-    limit: float
-    unit: str
-    sense: str
-    source: str = ""
-    key: str = ""
+    name: str = entry('What is required, in words ("rigidity while cutting").')
+    value: float = entry("What the run achieved (the worst case over the run), in ``unit``.")
+    limit: float = entry("The required bound, in ``unit``.")
+    unit: str = entry('The unit of ``value`` and ``limit`` ("N/um").')
+    sense: str = entry("``min``: the value must be at least the limit; ``max``: at most.", choices=_SENSES)
+    source: str = entry('Where the limit is set ("[schedule] stiffness_min_N_per_um").', default="")
+    key: str = entry("A short name a user gives to accept a missed requirement (``validation.overshoot_max_N@2000N``); "
+                     "where not given, the source's table and key (``schedule.stiffness_min_N_per_um``), else the "
+                     "name's words.", default="")
 
     def __post_init__(self) -> None:
         if not self.key:  # the source's table and key: "[schedule] deflection_max_um" -> "schedule.deflection_max_um"
@@ -107,27 +92,38 @@ class Requirement:
         return f"{head}, missed by {_number(-self.margin)} {self.unit}{pct}"
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "key": self.key, "value": self.value, "limit": self.limit, "unit": self.unit,
-                "sense": self.sense, "source": self.source, "met": self.met, "margin": self.margin,
-                "margin_pct": self.margin_pct}
+        """The fields, and the verdict they give (``met``, ``margin``, ``margin_pct``), as an artifact holds them.
 
-    @classmethod
-    def from_dict(cls, doc: Any, where: str = "requirement") -> Requirement:
-        if not isinstance(doc, dict):
-            raise ArtifactError(f"{where}: expected an object, got {type(doc).__name__}")
-        try:
-            return cls(str(doc["name"]), float(doc["value"]), float(doc["limit"]), str(doc["unit"]), str(doc["sense"]),
-                       str(doc.get("source", "")), str(doc.get("key", "")))
-        except KeyError as exc:
-            raise ArtifactError(f"{where}: missing field {exc.args[0]!r}") from None
-        except (TypeError, ValueError) as exc:
-            raise ArtifactError(f"{where}: {exc}") from None
+        Returns
+        -------
+        dict
+            The requirement's object.
+        """
+        return {**super().to_dict(), "met": self.met, "margin": self.margin, "margin_pct": self.margin_pct}
 
 
 def requirements_from_dict(docs: Any, where: str = "requirements") -> tuple[Requirement, ...]:
-    """The requirements of an artifact's list field."""
+    """The requirements of a list of their objects (a stage's summary in a run's manifest).
+
+    Parameters
+    ----------
+    docs : list of dict
+        The requirements' objects.
+    where : str
+        What the messages call the list.
+
+    Returns
+    -------
+    tuple of Requirement
+        One per object, in order.
+
+    Raises
+    ------
+    ArtifactError
+        Naming the entry and its field that is missing or wrong.
+    """
     if not isinstance(docs, list):
-        raise ArtifactError(f"{where}: expected a list, got {type(docs).__name__}")
+        raise ArtifactError(f"{where} must be a list of requirements, got {type(docs).__name__}")
     return tuple(Requirement.from_dict(d, f"{where}[{i}]") for i, d in enumerate(docs))
 
 

@@ -9,13 +9,11 @@ and, where the feedforward compensates creep, FF + PID with the same model refit
 
 from __future__ import annotations
 
-import math
-from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
-from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError
+from piezopreload.core.records import Artifact, Record, entry, record
 
 __all__ = ["ResponseRun", "ReproductionRow", "CreepRow", "ResponsesRecord", "RESPONSE_FIGURES"]
 
@@ -25,154 +23,110 @@ RESPONSE_FIGURES = ("rise_s", "peak_s", "settling_s", "overshoot_N", "peak_comma
                     "tracking_rms_N", "tracking_max_N", "tracking_rms_after_change_N")
 
 
-def _optional_number(doc: dict[str, Any], key: str, where: str) -> float | None:
-    x = doc.get(key)
-    if x is None:
-        return None
-    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
-        raise ArtifactError(f"{where}: field '{key}' must be a finite number or null, got {x!r}")
-    return float(x)
+@record
+class ResponseRun(Record):
+    """One closed-loop run and its figures (None where a figure does not apply: a step that never settles)."""
+
+    gains: str = entry('Which gains ("study", "tuned").')
+    controller: str = entry('Which controller ("pid", "ff+pid").')
+    reference: str = entry('Which reference ("step", "trajectory").')
+    csv: str = entry("The run's CSV, relative to the output folder.")
+    rise_s: float | None = entry("The step's rise time.", unit="s", default=None)
+    peak_s: float | None = entry("The step's peak time.", unit="s", default=None)
+    settling_s: float | None = entry("The step's settling time.", unit="s", default=None)
+    overshoot_N: float | None = entry("The step's overshoot.", unit="N", default=None)
+    peak_command_V: float | None = entry("The highest command.", unit="V", default=None)
+    tracking_rms_N: float | None = entry("The RMS tracking error.", unit="N", default=None)
+    tracking_max_N: float | None = entry("The largest tracking error.", unit="N", default=None)
+    tracking_rms_after_change_N: float | None = entry("The RMS error outside the transport after each change.",
+                                                      unit="N", default=None)
 
 
-def _text(doc: dict[str, Any], key: str, where: str) -> str:
-    x = doc.get(key)
-    if not isinstance(x, str):
-        raise ArtifactError(f"{where}: field '{key}' must be text, got {x!r}")
-    return x
-
-
-@dataclass(frozen=True)
-class ResponseRun:
-    """One closed-loop run: which gains (``study``, ``tuned``), which controller (``pid``, ``ff+pid``), which
-    reference (``step``, ``trajectory``), its CSV (relative to the output folder) and its figures."""
-
-    gains: str
-    controller: str
-    reference: str
-    csv: str
-    rise_s: float | None = None
-    peak_s: float | None = None
-    settling_s: float | None = None
-    overshoot_N: float | None = None
-    peak_command_V: float | None = None
-    tracking_rms_N: float | None = None
-    tracking_max_N: float | None = None
-    tracking_rms_after_change_N: float | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, doc: Any, where: str) -> ResponseRun:
-        if not isinstance(doc, dict):
-            raise ArtifactError(f"{where}: expected an object")
-        gains, controller, reference, csv = (_text(doc, k, where) for k in ("gains", "controller", "reference", "csv"))
-        return cls(gains, controller, reference, csv, **{k: _optional_number(doc, k, where) for k in RESPONSE_FIGURES})
-
-
-@dataclass(frozen=True)
-class ReproductionRow:
+@record
+class ReproductionRow(Record):
     """A published step number beside the study's gains' and the tuned gains' on the study's plant."""
 
-    controller: str
-    metric: str
-    published: float
-    study: float | None
-    tuned: float | None
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, doc: Any, where: str) -> ReproductionRow:
-        if not isinstance(doc, dict):
-            raise ArtifactError(f"{where}: expected an object")
-        published = _optional_number(doc, "published", where)
-        if published is None:
-            raise ArtifactError(f"{where}: field 'published' is missing")
-        return cls(_text(doc, "controller", where), _text(doc, "metric", where), published,
-                   _optional_number(doc, "study", where), _optional_number(doc, "tuned", where))
+    controller: str = entry('The controller ("pid", "ff+pid").')
+    metric: str = entry('The step figure ("settling_s").')
+    published: float = entry("The published value.")
+    study: float | None = entry("The study's gains' value (None: it does not apply).", absent=None)
+    tuned: float | None = entry("The tuned gains' value.", absent=None)
 
 
-@dataclass(frozen=True)
-class CreepRow:
+@record
+class CreepRow(Record):
     """FF + PID with the feedforward's creep compensation (``creep``) or the same model refitted without it."""
 
-    gains: str
-    creep: bool
-    feedforward: str
-    reference: str
-    settling_s: float | None = None
-    overshoot_N: float | None = None
-    tracking_rms_N: float | None = None
-    tracking_rms_after_change_N: float | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, doc: Any, where: str) -> CreepRow:
-        if not isinstance(doc, dict) or not isinstance(doc.get("creep"), bool):
-            raise ArtifactError(f"{where}: expected an object with 'creep' true or false")
-        numbers = [f.name for f in fields(cls)][4:]
-        return cls(_text(doc, "gains", where), doc["creep"], _text(doc, "feedforward", where),
-                   _text(doc, "reference", where), **{k: _optional_number(doc, k, where) for k in numbers})
+    gains: str = entry('Which gains ("study", "tuned").')
+    creep: bool = entry("Whether the feedforward compensated creep.")
+    feedforward: str = entry("The feedforward's model.")
+    reference: str = entry('Which reference ("step", "trajectory").')
+    settling_s: float | None = entry("The step's settling time.", unit="s", default=None)
+    overshoot_N: float | None = entry("The step's overshoot.", unit="N", default=None)
+    tracking_rms_N: float | None = entry("The RMS tracking error.", unit="N", default=None)
+    tracking_rms_after_change_N: float | None = entry("The RMS error outside the transport after each change.",
+                                                      unit="N", default=None)
 
 
-def _rows(doc: dict[str, Any], key: str, kind: Any, where: str, optional: bool = False) -> tuple[Any, ...]:
-    items = doc.get(key)
-    if items is None and optional:
-        return ()
-    if not isinstance(items, list):
-        raise ArtifactError(f"{where}: field '{key}' must be a list")
-    return tuple(kind.from_dict(x, f"{where}: {key}[{i}]") for i, x in enumerate(items))
+def _rows_or_null(rows: tuple[Record, ...]) -> list[dict[str, Any]] | None:
+    return [r.to_dict() for r in rows] or None
 
 
-@dataclass(frozen=True)
-class ResponsesRecord:
-    """The compare stage's artifact (see the module docstring); ``signal`` and ``band_N`` say how the step times
-    were read, ``seed`` the noise."""
+@record
+class ResponsesRecord(Artifact):
+    """The compare stage's artifact (see the module docstring)."""
 
-    runs: tuple[ResponseRun, ...]
-    band_N: float
-    signal: str
-    seed: int
-    reproduction: tuple[ReproductionRow, ...] = ()
-    creep_effect: tuple[CreepRow, ...] = ()
-    inputs: dict[str, Any] = field(default_factory=dict)
+    KIND: ClassVar[str] = KIND
+    NOUN: ClassVar[str] = "the responses"
+    AGAIN: ClassVar[str] = "run the compare stage again"
+
+    runs: tuple[ResponseRun, ...] = entry("Every run: each gain set, controller and reference.")
+    band_N: float = entry("The band the step times were read in.", unit="N", gt=0)
+    signal: str = entry("The force the step times were read on.")
+    seed: int = entry("The sensor noise's seed.")
+    reproduction: tuple[ReproductionRow, ...] = entry("The published step numbers beside the simulated ones, where "
+                                                      "the study declares them (null: none).", default=(),
+                                                      absent=(), required=True, write=_rows_or_null)
+    creep_effect: tuple[CreepRow, ...] = entry("FF + PID with and without the creep compensation, where the "
+                                               "feedforward has creep (null: none).", default=(), absent=(),
+                                               write=_rows_or_null)
+    inputs: dict[str, Any] = entry("The inputs' hashes.", default={}, required=True)
 
     def run(self, gains: str, controller: str, reference: str) -> ResponseRun:
-        """The run of ``gains`` with ``controller`` on ``reference``."""
+        """The run of ``gains`` with ``controller`` on ``reference``.
+
+        Parameters
+        ----------
+        gains, controller, reference : str
+            The run's gains ("study", "tuned"), controller ("pid", "ff+pid") and reference ("step", "trajectory").
+
+        Returns
+        -------
+        ResponseRun
+            The run.
+
+        Raises
+        ------
+        ArtifactError
+            Where the record holds no such run.
+        """
         for r in self.runs:
             if (r.gains, r.controller, r.reference) == (gains, controller, reference):
                 return r
         raise ArtifactError(f"the responses hold no run of {gains} {controller} on the {reference}")
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"runs": [r.to_dict() for r in self.runs], "band_N": self.band_N, "signal": self.signal,
-                "seed": self.seed, "reproduction": [r.to_dict() for r in self.reproduction] or None,
-                "creep_effect": [r.to_dict() for r in self.creep_effect] or None, "inputs": dict(self.inputs)}
-
-    @classmethod
-    def from_dict(cls, doc: dict[str, Any], where: str = "the responses") -> ResponsesRecord:
-        band, seed = doc.get("band_N"), doc.get("seed")
-        if isinstance(band, bool) or not isinstance(band, int | float) or not band > 0:
-            raise ArtifactError(f"{where}: field 'band_N' must be a number > 0, got {band!r}")
-        if isinstance(seed, bool) or not isinstance(seed, int):
-            raise ArtifactError(f"{where}: field 'seed' must be an integer, got {seed!r}")
-        inputs = doc.get("inputs") or {}
-        if not isinstance(inputs, dict):
-            raise ArtifactError(f"{where}: field 'inputs' must be an object, got {inputs!r}")
-        return cls(_rows(doc, "runs", ResponseRun, where), float(band), _text(doc, "signal", where), seed,
-                   _rows(doc, "reproduction", ReproductionRow, where, True),
-                   _rows(doc, "creep_effect", CreepRow, where, True), dict(inputs))
-
     def save(self, path: str | Path) -> Path:
-        """Write ``responses.json`` atomically."""
-        write_artifact(path, KIND, self.to_dict())
-        return Path(path)
+        """Write ``responses.json`` atomically.
 
-    @classmethod
-    def load(cls, path: str | Path) -> ResponsesRecord:
-        """Read ``responses.json``: schema and every field checked."""
-        return cls.from_dict(read_artifact(path, KIND), str(path))
+        Parameters
+        ----------
+        path : str or Path
+            The file.
+
+        Returns
+        -------
+        Path
+            The file written.
+        """
+        self._write(path)
+        return Path(path)

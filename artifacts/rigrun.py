@@ -11,14 +11,13 @@ interlocks' sources, the stall limit's derivation and the host check added.
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import replace
 from pathlib import Path
-from typing import Any, Literal, overload
+from typing import Any, ClassVar
 
 from piezopreload.artifacts.hostcheck import HostCheck
-from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError
+from piezopreload.core.records import Artifact, Raw, Record, entry, record
 
 __all__ = ["RigRunRecord", "RunOutcome", "RunTiming", "RunMetrics", "TripRecord", "StallLimit", "KIND", "STATUSES"]
 
@@ -27,175 +26,79 @@ KIND = "rig-run"
 STATUSES = ("running", "completed", "tripped", "not started")
 
 
-class _Fields:
-    """Reads the fields of one object of the document, naming the first that is missing or wrong."""
+@record
+class TripRecord(Record):
+    """What stopped a run."""
 
-    def __init__(self, doc: Any, shown: str) -> None:
-        if not isinstance(doc, dict):
-            raise ArtifactError(f"{shown}: expected an object, got {type(doc).__name__}")
-        self.doc, self.shown = doc, shown
-
-    def _get(self, key: str, optional: bool) -> Any:
-        if key not in self.doc or (optional and self.doc[key] is None):
-            if optional:
-                return None
-            raise ArtifactError(f"{self.shown}: field '{key}' is missing")
-        return self.doc[key]
-
-    @overload
-    def number(self, key: str, optional: Literal[False] = False) -> float: ...
-
-    @overload
-    def number(self, key: str, optional: Literal[True]) -> float | None: ...
-
-    def number(self, key: str, optional: bool = False) -> float | None:
-        x = self._get(key, optional)
-        if x is None:
-            return None
-        if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
-            raise ArtifactError(f"{self.shown}: field '{key}' must be a finite number, got {x!r}")
-        return float(x)
-
-    def count(self, key: str) -> int:
-        x = self._get(key, False)
-        if isinstance(x, bool) or not isinstance(x, int) or x < 0:
-            raise ArtifactError(f"{self.shown}: field '{key}' must be a whole number >= 0, got {x!r}")
-        return x
-
-    @overload
-    def text(self, key: str, optional: Literal[False] = False) -> str: ...
-
-    @overload
-    def text(self, key: str, optional: Literal[True]) -> str | None: ...
-
-    def text(self, key: str, optional: bool = False) -> str | None:
-        x = self._get(key, optional)
-        if x is not None and not isinstance(x, str):
-            raise ArtifactError(f"{self.shown}: field '{key}' must be text, got {x!r}")
-        return x
-
-    def flag(self, key: str) -> bool:
-        x = self._get(key, False)
-        if not isinstance(x, bool):
-            raise ArtifactError(f"{self.shown}: field '{key}' must be true or false, got {x!r}")
-        return x
-
-    def mapping(self, key: str, optional: bool = False) -> dict[str, Any] | None:
-        x = self._get(key, optional)
-        if x is not None and not isinstance(x, dict):
-            raise ArtifactError(f"{self.shown}: field '{key}' must be an object, got {type(x).__name__}")
-        return x
-
-    def items(self, key: str) -> list[Any]:
-        x = self._get(key, False)
-        if not isinstance(x, list):
-            raise ArtifactError(f"{self.shown}: field '{key}' must be a list, got {type(x).__name__}")
-        return x
+    cause: str = entry("The interlock's cause (``force_high``, ``stall``, ...).")
+    detail: str = entry("The interlock's words, with its numbers.")
+    t_s: float = entry("The time on the run's timeline.", unit="s")
+    voltage_V: float = entry("The voltage held then.", unit="V")
 
 
-@dataclass(frozen=True)
-class TripRecord:
-    """What stopped a run: the interlock's cause and words, the time on the run's timeline, the voltage held then."""
-
-    cause: str
-    detail: str
-    t_s: float
-    voltage_V: float
-
-    @classmethod
-    def from_dict(cls, doc: Any, shown: str) -> TripRecord:
-        f = _Fields(doc, shown)
-        return cls(f.text("cause"), f.text("detail"), f.number("t_s"), f.number("voltage_V"))
-
-
-@dataclass(frozen=True)
-class RunTiming:
+@record
+class RunTiming(Record):
     """How the loop kept time: deadlines missed, lateness, periods, stalls (updates held longer than two
     periods) and the longest hold, against the stall limit; ``sched_fifo``/``memory_locked`` say what the
     system granted (the native loop)."""
 
-    loop: str
-    realtime: bool
-    rate_Hz: float
-    cycles: int
-    missed_deadlines: int
-    lateness_p50_s: float
-    lateness_p99_s: float
-    lateness_max_s: float
-    period_mean_s: float
-    period_std_s: float
-    period_max_s: float
-    stalls: int
-    stall_events_logged: int
-    held_max_s: float
-    stall_limit_s: float
-    lost_samples: int
-    sched_fifo: str | None = None
-    memory_locked: str | None = None
-
-    @classmethod
-    def from_dict(cls, doc: Any, shown: str) -> RunTiming:
-        f = _Fields(doc, shown)
-        numbers: dict[str, Any] = {k: f.number(k)
-                                   for k in ("rate_Hz", "lateness_p50_s", "lateness_p99_s", "lateness_max_s",
-                                             "period_mean_s", "period_std_s", "period_max_s", "held_max_s",
-                                             "stall_limit_s")}
-        counts: dict[str, Any] = {k: f.count(k) for k in ("cycles", "missed_deadlines", "stalls", "stall_events_logged",
-                                           "lost_samples")}
-        return cls(loop=f.text("loop"), realtime=f.flag("realtime"), sched_fifo=f.text("sched_fifo", True),
-                   memory_locked=f.text("memory_locked", True), **numbers, **counts)
+    loop: str = entry("Which loop ran (the native loop in C, the Python loop).")
+    realtime: bool = entry("Whether it ran on the wall clock.")
+    rate_Hz: float = entry("Its rate.", unit="Hz")
+    cycles: int = entry("The cycles it ran.", ge=0)
+    missed_deadlines: int = entry("The cycles that missed their deadline.", ge=0)
+    lateness_p50_s: float = entry("The median lateness of a cycle.", unit="s")
+    lateness_p99_s: float = entry("Its 99th percentile.", unit="s")
+    lateness_max_s: float = entry("The latest cycle's lateness.", unit="s")
+    period_mean_s: float = entry("The mean period.", unit="s")
+    period_std_s: float = entry("The periods' standard deviation.", unit="s")
+    period_max_s: float = entry("The longest period.", unit="s")
+    stalls: int = entry("The updates held longer than two periods.", ge=0)
+    stall_events_logged: int = entry("The stalls logged as events.", ge=0)
+    held_max_s: float = entry("The longest hold of the output.", unit="s")
+    stall_limit_s: float = entry("The stall interlock's limit.", unit="s")
+    lost_samples: int = entry("The samples the log lost.", ge=0)
+    sched_fifo: str | None = entry("Whether the loop's thread got SCHED_FIFO.", default=None)
+    memory_locked: str | None = entry("Whether its memory was locked.", default=None)
 
 
 _METRICS = ("peak_voltage_V", "rise_s", "peak_s", "settling_s", "overshoot_N", "tracking_rms_N", "tracking_max_N")
 
 
-@dataclass(frozen=True)
-class RunMetrics:
+@record
+class RunMetrics(Record):
     """The step and tracking figures of a completed run's controlled samples (None where they do not apply:
     no step in the reference, or too short a run)."""
 
-    samples: int
-    peak_voltage_V: float | None = None
-    rise_s: float | None = None
-    peak_s: float | None = None
-    settling_s: float | None = None
-    overshoot_N: float | None = None
-    tracking_rms_N: float | None = None
-    tracking_max_N: float | None = None
-
-    @classmethod
-    def from_dict(cls, doc: Any, shown: str) -> RunMetrics:
-        f = _Fields(doc, shown)
-        return cls(f.count("samples"), **{k: f.number(k, True) for k in _METRICS})
+    samples: int = entry("The controlled samples.", ge=0)
+    peak_voltage_V: float | None = entry("The highest voltage.", unit="V", default=None)
+    rise_s: float | None = entry("The step's rise time.", unit="s", default=None)
+    peak_s: float | None = entry("The step's peak time.", unit="s", default=None)
+    settling_s: float | None = entry("The step's settling time.", unit="s", default=None)
+    overshoot_N: float | None = entry("The step's overshoot.", unit="N", default=None)
+    tracking_rms_N: float | None = entry("The RMS tracking error.", unit="N", default=None)
+    tracking_max_N: float | None = entry("The largest tracking error.", unit="N", default=None)
 
 
-@dataclass(frozen=True)
-class RunOutcome:
+@record
+class RunOutcome(Record):
     """How the run ended (the sidecar's ``summary``): ``trip`` for a tripped run and no ``metrics``; ``metrics``
     for a completed one."""
 
-    cycles: int
-    timing: RunTiming
-    clamped_cycles: int
-    trip: TripRecord | None = None
-    metrics: RunMetrics | None = None
-    controller_step: str = ""
+    cycles: int = entry("The cycles it ran.", ge=0)
+    timing: RunTiming = entry("How the loop kept time.")
+    clamped_cycles: int = entry("The cycles whose command was clamped to the output range.", ge=0)
+    trip: TripRecord | None = entry("What stopped a tripped run.", default=None)
+    metrics: RunMetrics | None = entry("A completed run's figures.", default=None)
+    controller_step: str = entry("The controller step that ran (its source).", default="", required=True)
 
-    @classmethod
-    def from_dict(cls, doc: Any, shown: str) -> RunOutcome:
-        f = _Fields(doc, shown)
-        trip, metrics = f.mapping("trip", True), f.mapping("metrics", True)
-        out = cls(f.count("cycles"), RunTiming.from_dict(f.mapping("timing"), f"{shown}.timing"),
-                  f.count("clamped_cycles"), None if trip is None else TripRecord.from_dict(trip, f"{shown}.trip"),
-                  None if metrics is None else RunMetrics.from_dict(metrics, f"{shown}.metrics"),
-                  f.text("controller_step") or "")
-        if out.trip is not None and out.metrics is not None:
-            raise ArtifactError(f"{shown}: a tripped run has no 'metrics'")
-        return out
+    def _check_document(self, raw: Raw) -> None:
+        if self.trip is not None and self.metrics is not None:
+            raise raw.fail("metrics", "must be null: a tripped run has no 'metrics'")
 
 
-@dataclass(frozen=True)
-class StallLimit:
+@record
+class StallLimit(Record):
     """The stall interlock's limit and how it was derived (:func:`piezopreload.rig.stall.derive_stall_limit`).
 
     ``plant_limit_s`` is the longest hold of the output the plant tolerates: from every state
@@ -207,47 +110,27 @@ class StallLimit:
     ``source`` where it came from; ``how`` says it in a sentence.
     """
 
-    limit_s: float
-    source: str
-    how: str
-    plant_limit_s: float | None
-    horizon_s: float
-    sigmas: float
-    noise_N: float
-    force_low_N: float
-    force_max_N: float
-    reference: str
-    worst_t_s: float
-    worst_force_N: float
-    worst_held_V: float
-    worst_margin_N: float
-    drift_up_N: float
-    drift_down_N: float
-
-    @classmethod
-    def from_dict(cls, doc: Any, shown: str) -> StallLimit:
-        f = _Fields(doc, shown)
-        numbers: dict[str, Any] = {x.name: f.number(x.name) for x in fields(cls)
-                   if x.name not in ("source", "how", "reference", "plant_limit_s")}
-        return cls(source=f.text("source"), how=f.text("how"), reference=f.text("reference"),
-                   plant_limit_s=f.number("plant_limit_s", True), **numbers)
+    limit_s: float = entry("The limit the interlock uses.", unit="s")
+    source: str = entry("Where it came from.")
+    how: str = entry("How it was derived, in a sentence.")
+    plant_limit_s: float | None = entry("The longest hold the plant tolerates (None: longer than ``horizon_s``).",
+                                        unit="s", absent=None)
+    horizon_s: float = entry("The holds examined.", unit="s")
+    sigmas: float = entry("The margin inside the interlocks, in sensor noise.")
+    noise_N: float = entry("The sensor noise.", unit="N")
+    force_low_N: float = entry("The low force interlock.", unit="N")
+    force_max_N: float = entry("The high force interlock.", unit="N")
+    reference: str = entry("The reference whose nominal run was examined.")
+    worst_t_s: float = entry("When the worst hold starts.", unit="s")
+    worst_force_N: float = entry("The force there.", unit="N")
+    worst_held_V: float = entry("The command held.", unit="V")
+    worst_margin_N: float = entry("Its least margin to an interlock.", unit="N")
+    drift_up_N: float = entry("The largest drift up under a hold.", unit="N")
+    drift_down_N: float = entry("The largest drift down under a hold.", unit="N")
 
 
-def _plain(x: Any) -> Any:
-    """A record as the JSON it is written as (dataclasses to objects, tuples to lists)."""
-    if hasattr(x, "to_dict"):
-        return x.to_dict()
-    if hasattr(x, "__dataclass_fields__"):
-        return {k: _plain(v) for k, v in ((f.name, getattr(x, f.name)) for f in fields(x))}
-    if isinstance(x, dict):
-        return {k: _plain(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_plain(v) for v in x]
-    return x
-
-
-@dataclass(frozen=True)
-class RigRunRecord:
+@record
+class RigRunRecord(Artifact):
     """A rig run's sidecar (see the module docstring).
 
     ``safety`` holds every limit the run used and ``safety_sources`` where each came from (the
@@ -259,36 +142,44 @@ class RigRunRecord:
     ends; ``reason`` says why a run was not started.
     """
 
-    status: str = "running"
-    created_utc: str = ""
-    csv: str = ""
-    columns: tuple[str, ...] = ()
-    units: dict[str, str] = field(default_factory=dict)
-    gain_set: str | None = None
-    gain_set_sha256: str = ""
-    feedforward_sha256: str = ""
-    backend: str = ""
-    rig_preset: str | None = None
-    reference: str = ""
-    reference_levels_N: tuple[float, ...] = ()
-    rate_Hz: float = 1000.0
-    realtime: bool = False
-    seed: int = 0
-    safety: dict[str, float] = field(default_factory=dict)
-    safety_sources: dict[str, str] = field(default_factory=dict)
-    stall_limit: StallLimit | None = None
-    host_check: HostCheck | None = None
-    host_accepted: bool = False
-    accepted_missed: tuple[dict[str, Any], ...] = ()
-    faults_injected: tuple[dict[str, Any], ...] = ()
-    learned: dict[str, Any] | None = None
-    endpoint: str | None = None
-    users: tuple[str, ...] = ()
-    served: bool = False
-    events: tuple[dict[str, Any], ...] = ()
-    summary: RunOutcome | None = None
-    reason: str | None = None
-    finished_utc: str | None = None
+    KIND: ClassVar[str] = KIND
+    NOUN: ClassVar[str] = "the run's sidecar"
+    AGAIN: ClassVar[str] = "run the rig again ('piezopreload rig run')"
+
+    status: str = entry("``running`` until the run ends (a killed run stays so), then ``completed`` or ``tripped``; "
+                        "``not started`` when refused after its log was opened.", choices=STATUSES,
+                        default="running", required=True)
+    created_utc: str = entry("When the run started (UTC, ISO 8601).", default="", required=True)
+    csv: str = entry("Its samples' CSV (beside the sidecar).", default="", required=True)
+    columns: tuple[str, ...] = entry("The CSV's columns.", default=(), required=True)
+    units: dict[str, str] = entry("Each column's unit.", default={}, required=True)
+    gain_set: str | None = entry("The gain set's file.", default=None)
+    gain_set_sha256: str = entry("The gain set's content hash.", default="", required=True)
+    feedforward_sha256: str = entry("The feedforward's hash.", default="")
+    backend: str = entry("The backend that ran (``sim``, a plug-in's).", default="", required=True)
+    rig_preset: str | None = entry("The plant's name.", default=None)
+    reference: str = entry("The reference run (a name, or a CSV).", default="", required=True)
+    reference_levels_N: tuple[float, ...] = entry("The reference's levels.", unit="N", default=())
+    rate_Hz: float = entry("The loop's rate.", unit="Hz", default=1000.0, required=True)
+    realtime: bool = entry("Whether it ran on the wall clock.", default=False, required=True)
+    seed: int = entry("The simulated backend's noise seed.", ge=0, default=0, required=True)
+    safety: dict[str, float] = entry("Every limit the run used.", default={}, required=True)
+    safety_sources: dict[str, str] = entry("Where each limit came from.", default={})
+    stall_limit: StallLimit | None = entry("How the stall limit was derived.", default=None, omit=True)
+    host_check: HostCheck | None = entry("The host check made before arming.", default=None, omit=True)
+    host_accepted: bool = entry("Whether a failing host was run anyway (``--accept-host``).", default=False)
+    accepted_missed: tuple[dict[str, Any], ...] = entry("The requirements the gain set missed and the user accepted "
+                                                        "by name.", default=())
+    faults_injected: tuple[dict[str, Any], ...] = entry("The faults injected into the run.", default=(),
+                                                        required=True)
+    learned: dict[str, Any] | None = entry("The learned signal played, where one was.", default=None, omit=True)
+    endpoint: str | None = entry("The OPC UA endpoint a served rig listened on.", default=None, omit=True)
+    users: tuple[str, ...] = entry("The served rig's users.", default=())
+    served: bool = entry("Whether the rig was served over OPC UA.", default=False)
+    events: tuple[dict[str, Any], ...] = entry("What happened, in order.", default=(), required=True)
+    summary: RunOutcome | None = entry("How the run ended (None until it ends).", default=None, required=True)
+    reason: str | None = entry("Why a run was not started.", default=None, omit=True)
+    finished_utc: str | None = entry("When the run ended (UTC).", default=None, omit=True)
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
@@ -303,55 +194,32 @@ class RigRunRecord:
         return replace(self, events=(*self.events, dict(event)))
 
     def to_dict(self) -> dict[str, Any]:
-        out = {f.name: _plain(getattr(self, f.name)) for f in fields(self)}
-        for key in ("stall_limit", "host_check", "learned", "endpoint", "reason", "finished_utc"):
-            if out[key] is None:
-                del out[key]
+        """The sidecar's body; a rig that was not served leaves its endpoint and users out.
+
+        Returns
+        -------
+        dict
+            The document's body.
+        """
+        out = super().to_dict()
         if not self.served:
             for key in ("endpoint", "users", "served"):
                 out.pop(key, None)
         return out
 
-    @classmethod
-    def from_dict(cls, doc: dict[str, Any], shown: str = "the run's sidecar") -> RigRunRecord:
-        """The inverse of :meth:`to_dict`; an :class:`ArtifactError` names the field that is missing or wrong."""
-        f = _Fields(doc, shown)
-        status = f.text("status")
-        if status not in STATUSES:
-            raise ArtifactError(f"{shown}: field 'status' is {status!r}; expected one of {', '.join(STATUSES)}")
-        summary, stall, host = f.mapping("summary", True), f.mapping("stall_limit", True), f.mapping("host_check", True)
-        levels = f.items("reference_levels_N") if "reference_levels_N" in doc else []
-        try:
-            safety = {k: float(v) for k, v in (f.mapping("safety") or {}).items()}
-        except (TypeError, ValueError) as exc:
-            raise ArtifactError(f"{shown}: field 'safety' must hold numbers ({exc})") from None
-        return cls(
-            status=status, created_utc=f.text("created_utc") or "", csv=f.text("csv") or "",
-            columns=tuple(f.items("columns")), units=dict(f.mapping("units") or {}), gain_set=f.text("gain_set", True),
-            gain_set_sha256=f.text("gain_set_sha256") or "", feedforward_sha256=doc.get("feedforward_sha256") or "",
-            backend=f.text("backend") or "", rig_preset=f.text("rig_preset", True), reference=f.text("reference") or "",
-            reference_levels_N=tuple(float(x) for x in levels), rate_Hz=f.number("rate_Hz") or 0.0,
-            realtime=f.flag("realtime"), seed=f.count("seed"), safety=safety,
-            safety_sources={k: str(v) for k, v in (f.mapping("safety_sources", True) or {}).items()},
-            stall_limit=None if stall is None else StallLimit.from_dict(stall, f"{shown}: stall_limit"),
-            host_check=None if host is None else HostCheck.from_dict(host, f"{shown}: host_check"),
-            host_accepted=bool(doc.get("host_accepted", False)), accepted_missed=tuple(
-                f.items("accepted_missed") if "accepted_missed" in doc else ()),
-            faults_injected=tuple(f.items("faults_injected")), learned=f.mapping("learned", True),
-            endpoint=f.text("endpoint", True), users=tuple(doc.get("users") or ()),
-            served=bool(doc.get("served", False)), events=tuple(f.items("events")),
-            summary=None if summary is None else RunOutcome.from_dict(summary, f"{shown}: summary"),
-            reason=f.text("reason", True), finished_utc=f.text("finished_utc", True))
-
     # ---- the artifact: one reader, one writer ---------------------------------------------------
-    @classmethod
-    def load(cls, path: str | Path) -> RigRunRecord:
-        """Read a run's sidecar: schema and fields checked."""
-        return cls.from_dict(read_artifact(path, KIND), str(path))
-
     def save(self, path: str | Path) -> RigRunRecord:
-        """Write the sidecar atomically (a reader sees the previous one or this one, never a part)."""
-        write_artifact(path, KIND, self.to_dict())
+        """Write the sidecar atomically (a reader sees the previous one or this one, never a part).
+
+        Parameters
+        ----------
+        path : str or Path
+            The file.
+
+        Returns
+        -------
+        RigRunRecord
+            This record.
+        """
+        self._write(path)
         return self
-
-

@@ -9,14 +9,13 @@ energy are computed once, by the design, and read from this record.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from piezopreload.artifacts._fields import Fields
 from piezopreload.core._typing import Array
+from piezopreload.core.records import Record, entry, record
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -24,13 +23,14 @@ if TYPE_CHECKING:
 __all__ = ["LoadProfile", "ScheduleSpec", "PreloadSchedule"]
 
 
-@dataclass(frozen=True)
-class LoadProfile:
+@record
+class LoadProfile(Record):
     """Axial load (N) and screw speed (rpm) against time (s), one row per sample."""
 
-    time_s: Array
-    axial_load_N: Array
-    speed_rpm: Array | None = None
+    time_s: Array = entry("The samples' times, strictly increasing.", unit="s")
+    axial_load_N: Array = entry("The axial load at each (its sign the direction).", unit="N", size="time_s")
+    speed_rpm: Array | None = entry("The screw's speed at each (None: not given).", unit="rpm", size="time_s",
+                                    default=None)
 
     def __post_init__(self) -> None:
         t = np.asarray(self.time_s, float)
@@ -61,17 +61,32 @@ class LoadProfile:
         return np.abs(np.asarray(self.axial_load_N, float)) > 0
 
 
-@dataclass(frozen=True)
-class ScheduleSpec:
-    """The schedule's requirements and limits (``deflection_max_um`` inf: no limit)."""
+def _limit_from(x: Any) -> float:
+    if x is None:
+        return math.inf
+    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
+        raise ValueError(f"expected a finite number, or null for no limit, got {x!r}")
+    return float(x)
 
-    bolt_preload_N: float
-    max_preload_N: float
-    slew_N_per_s: float
-    stiffness_min_N_per_um: float = 0.0
-    deflection_max_um: float = math.inf
-    lift_off_margin: float = 1.2
-    preload_margin_N: float = 0.0  # the control's room everywhere: every requirement holds at the preload less this
+
+def _limit_to(x: float) -> float | None:
+    return None if math.isinf(x) else x
+
+
+@record
+class ScheduleSpec(Record):
+    """The schedule's requirements and limits."""
+
+    bolt_preload_N: float = entry("The bolts' preload: the least preload.", unit="N")
+    max_preload_N: float = entry("The highest preload the stacks reach.", unit="N")
+    slew_N_per_s: float = entry("The preload's slew limit.", unit="N/s")
+    stiffness_min_N_per_um: float = entry("The least rigidity while cutting.", unit="N/um", default=0.0)
+    deflection_max_um: float = entry("The largest axial deflection under the load (inf: no limit; null in the "
+                                     "document).", unit="um", read=_limit_from, write=_limit_to,
+                                     takes="a finite number, or null for no limit", default=math.inf)
+    lift_off_margin: float = entry("The least ratio of the preload to the lift-off bound.", default=1.2)
+    preload_margin_N: float = entry("The control's room everywhere: every requirement holds at the preload less "
+                                    "this.", unit="N", default=0.0)
 
     def __post_init__(self) -> None:
         if not 0 < self.bolt_preload_N < self.max_preload_N < math.inf:
@@ -88,28 +103,14 @@ class ScheduleSpec:
     def required_stiffness(self, axial_load_N: ArrayLike) -> Array:
         return np.maximum(self.stiffness_min_N_per_um, np.abs(np.asarray(axial_load_N, float)) / self.deflection_max_um)
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"bolt_preload_N": self.bolt_preload_N, "max_preload_N": self.max_preload_N,
-                "slew_N_per_s": self.slew_N_per_s, "stiffness_min_N_per_um": self.stiffness_min_N_per_um,
-                "deflection_max_um": None if math.isinf(self.deflection_max_um) else self.deflection_max_um,
-                "lift_off_margin": self.lift_off_margin, "preload_margin_N": self.preload_margin_N}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> ScheduleSpec:
-        deflection = f.optional_number("deflection_max_um")
-        return f.build(lambda: cls(
-            f.number("bolt_preload_N"), f.number("max_preload_N"), f.number("slew_N_per_s"),
-            f.number("stiffness_min_N_per_um", 0.0), math.inf if deflection is None else deflection,
-            f.number("lift_off_margin", 1.2), f.number("preload_margin_N", 0.0)))
-
 
 #: the per-sample series a schedule records (beside the profile's time, load and speed)
 _SERIES = ("preload_N", "needed_N", "margin_N", "margin_short_N", "rigidity_N_per_um", "required_N_per_um",
            "constant_rigidity_N_per_um")
 
 
-@dataclass(frozen=True, eq=False)
-class PreloadSchedule:
+@record(eq=False)
+class PreloadSchedule(Record):
     """The planned schedule, the best constant preload, and what the schedule saves.
 
     ``needed_N`` is each sample's least preload meeting its requirements (no margin): the
@@ -119,20 +120,25 @@ class PreloadSchedule:
     ``margin_short_N`` the local margin the stacks' reach could not give (0 where it could).
     """
 
-    profile: LoadProfile
-    spec: ScheduleSpec
-    preload_N: Array
-    constant_preload_N: float
-    rigidity_N_per_um: Array
-    required_N_per_um: Array
-    constant_rigidity_N_per_um: Array
-    friction_energy_J: float
-    constant_friction_energy_J: float
-    energy_units: str
-    status: str
-    needed_N: Array
-    margin_N: Array
-    margin_short_N: Array
+    profile: LoadProfile = entry("The load profile it was planned for (its fields beside the schedule's).",
+                                 inline=True)
+    spec: ScheduleSpec = entry("What the schedule must keep (its fields beside the schedule's).", inline=True)
+    preload_N: Array = entry("The planned preload at each sample.", unit="N", size="profile.time_s")
+    constant_preload_N: float = entry("The best constant preload.", unit="N")
+    rigidity_N_per_um: Array = entry("The rigidity at each sample.", unit="N/um", size="profile.time_s")
+    required_N_per_um: Array = entry("The rigidity each sample requires.", unit="N/um", size="profile.time_s")
+    constant_rigidity_N_per_um: Array = entry("The rigidity at the best constant preload.", unit="N/um",
+                                              size="profile.time_s")
+    friction_energy_J: float = entry("The plan's friction energy per cycle.", name="friction_energy")
+    constant_friction_energy_J: float = entry("The best constant preload's friction energy per cycle.",
+                                              name="constant_friction_energy")
+    energy_units: str = entry("The friction energy's unit.")
+    status: str = entry("The solver's status.")
+    needed_N: Array = entry("Each sample's least preload meeting its requirements (no margin).", unit="N",
+                            size="profile.time_s")
+    margin_N: Array = entry("The room each sample leaves the force loop.", unit="N", size="profile.time_s")
+    margin_short_N: Array = entry("The local margin the stacks' reach could not give.", unit="N",
+                                  size="profile.time_s")
 
     def __post_init__(self) -> None:
         n = np.asarray(self.profile.time_s).size
@@ -164,24 +170,14 @@ class PreloadSchedule:
         }
 
     def to_dict(self) -> dict[str, Any]:
-        """:meth:`summary`, the profile and every series: the design artifact's ``schedule``."""
-        p = self.profile
-        return {**self.summary(), "time_s": p.time_s.tolist(), "axial_load_N": p.axial_load_N.tolist(),
-                "speed_rpm": None if p.speed_rpm is None else np.asarray(p.speed_rpm, float).tolist(),
-                **{name: getattr(self, name).tolist() for name in _SERIES}}
+        """:meth:`summary`, the profile and every series: the design artifact's ``schedule``.
 
-    @classmethod
-    def from_fields(cls, f: Fields) -> PreloadSchedule:
-        """The inverse of :meth:`to_dict`, each field checked (its errors name the field)."""
-        t = f.array("time_s")
-        profile = f.build(lambda: LoadProfile(t, f.array("axial_load_N", t.size),
-                                              f.optional_array("speed_rpm", t.size)))
-        series = {name: f.array(name, t.size) for name in _SERIES}
-        return f.build(lambda: cls(
-            profile=profile, spec=ScheduleSpec.from_fields(f), constant_preload_N=f.number("constant_preload_N"),
-            friction_energy_J=f.number("friction_energy"),
-            constant_friction_energy_J=f.number("constant_friction_energy"), energy_units=f.text("energy_units"),
-            status=f.text("status"), **series))
+        Returns
+        -------
+        dict
+            Its object.
+        """
+        return {**self.summary(), **super().to_dict()}
 
     def plot(self) -> Figure:
         """Load profile, the two preloads, and rigidity against the requirement, on three axes: a Figure."""

@@ -3,8 +3,9 @@
 A stage of ``piezopreload run`` (:mod:`piezopreload.pipeline`) returns its outputs and one of these records; the
 manifest (:class:`~piezopreload.artifacts.manifest.StudyRunManifest`) holds each done stage's under ``summary``,
 and every reader (the run's headline, the sweep's rows, the report, the pipeline's own checks) reads the record,
-not the JSON. ``to_dict`` is the record's JSON (the keys ``pipeline.json`` has always had); ``from_fields`` reads it
-back, each field checked and a bad one named. :data:`SUMMARIES` maps each stage's name to its record.
+not the JSON. Each record's fields are declared once (:mod:`piezopreload.core.records`): its reader
+(``from_dict``, every field checked and a bad one named), its writer (``to_dict``, the keys ``pipeline.json`` has
+always had) and its documentation come from that declaration. :data:`SUMMARIES` maps each stage's name to its record.
 
 This module is a seam between the application layer (which builds the records from the steps' results) and the
 floors that read a run (the report); it holds no computation.
@@ -12,185 +13,111 @@ floors that read a run (the report); it holds no computation.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar
 
-from piezopreload.artifacts._fields import Fields
-from piezopreload.artifacts.requirements import Requirement, requirements_from_dict
+from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.responses import ReproductionRow
 from piezopreload.artifacts.system import PassRecord, PreCycle, ScheduleBound, TrackingNumbers
 from piezopreload.core.errors import ArtifactError
+from piezopreload.core.records import Raw, Record, entry, record
 
 __all__ = ["StageSummary", "DesignSummary", "PlantSummary", "IdentifySummary", "TuneSummary", "ValidateSummary",
-           "CompareSummary", "LearnSummary", "SystemSummary", "ExportSummary", "RigTrip", "RigSummary",
-           "ReportSummary", "SUMMARIES", "read_summary"]
+           "CompareSummary", "LearnSummary", "BeforeLearning", "SystemSummary", "ExportSummary", "RigTrip",
+           "RigSummary", "ReportSummary", "SUMMARIES", "read_summary"]
 
-T = TypeVar("T")
-
-
-def _optional(f: Fields, key: str, read: Callable[[str], T]) -> T | None:
-    """A field that may be null or absent."""
-    return read(key) if f.has(key) else None
+_AGAIN = "run the study again with --force"
 
 
-def _counts(f: Fields, key: str) -> tuple[int | None, ...]:
-    """A list of whole numbers >= 0, each may be null."""
-    raw = f.raw(key)
-    if not isinstance(raw, list) or not all(x is None or (isinstance(x, int) and not isinstance(x, bool) and x >= 0)
-                                            for x in raw):
-        raise f.fail(key, f"must be a list of whole numbers >= 0 (or null), got {raw!r}")
-    return tuple(raw)
+class StageSummary(Record):
+    """What every stage's summary has: the stage it belongs to and the requirements it checked (none, unless it
+    checks some)."""
 
-
-def _requirements(f: Fields) -> tuple[Requirement, ...]:
-    return requirements_from_dict(f.raw("requirements"), f"{f.shown}: field '{f.path('requirements')}'")
-
-
-class StageSummary:
-    """What every stage's summary has: the stage it belongs to, its JSON, and a reader of that JSON."""
-
-    STAGE: ClassVar[str]
-
-    def to_dict(self) -> dict[str, Any]:
-        """The summary as ``pipeline.json`` records it."""
-        raise NotImplementedError
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> StageSummary:
-        """The summary read back from its JSON (``f``), every field checked."""
-        raise NotImplementedError
+    STAGE: ClassVar[str] = ""
+    AGAIN: ClassVar[str] = _AGAIN
 
     @property
     def requirements(self) -> tuple[Requirement, ...]:
-        """The requirements the stage checked (none, unless it checks some)."""
+        """The requirements the stage checked."""
         return ()
 
 
-@dataclass(frozen=True)
+@record
 class DesignSummary(StageSummary):
     """The design stage: the optimum's objective and rigidity, the constraints that bind, the fronts traced, the
     preload schedule's saving against the best constant preload."""
 
     STAGE: ClassVar[str] = "design"
-    objective: str
-    stiffness_N_per_um: float
-    binding: tuple[str, ...]
-    fronts: tuple[str, ...]
-    schedule_saving_fraction: float
-    constant_preload_N: float
-    constant_friction_energy: float
-    energy_units: str
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"objective": self.objective, "stiffness_N_per_um": self.stiffness_N_per_um,
-                "binding": list(self.binding), "fronts": list(self.fronts),
-                "schedule_saving_fraction": self.schedule_saving_fraction,
-                "constant_preload_N": self.constant_preload_N,
-                "constant_friction_energy": self.constant_friction_energy, "energy_units": self.energy_units}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> DesignSummary:
-        return cls(f.text("objective"), f.number("stiffness_N_per_um"), f.texts("binding"), f.texts("fronts"),
-                   f.number("schedule_saving_fraction"), f.number("constant_preload_N"),
-                   f.number("constant_friction_energy"), f.text("energy_units"))
+    objective: str = entry("The design's objective.")
+    stiffness_N_per_um: float = entry("The optimum's least rigidity.", unit="N/um")
+    binding: tuple[str, ...] = entry("The constraints (and bounds) that bind at the optimum.")
+    fronts: tuple[str, ...] = entry("The Pareto fronts traced.")
+    schedule_saving_fraction: float = entry("The friction energy the schedule saves against the best constant "
+                                            "preload, as a fraction.")
+    constant_preload_N: float = entry("The best constant preload.", unit="N")
+    constant_friction_energy: float = entry("Its friction energy per cycle (in ``energy_units``).")
+    energy_units: str = entry("The unit of the energies.")
 
 
-@dataclass(frozen=True)
+@record
 class PlantSummary(StageSummary):
     """The plant stage: the designed plant's origin, the stacks' share of the preload and the coupling's local
     stiffness at the bolts' preload and at the top (``at_bolts``, ``at_max``)."""
 
     STAGE: ClassVar[str] = "plant"
-    design_sha256: str
-    stack_force_max_N: float
-    local_stiffness_N_per_um: dict[str, float]
-    bolt_preload_N: float
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"design_sha256": self.design_sha256, "stack_force_max_N": self.stack_force_max_N,
-                "local_stiffness_N_per_um": dict(self.local_stiffness_N_per_um), "bolt_preload_N": self.bolt_preload_N}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> PlantSummary:
-        k = f.sub("local_stiffness_N_per_um")
-        return cls(f.text("design_sha256"), f.number("stack_force_max_N"),
-                   {name: k.number(name) for name in k.doc}, f.number("bolt_preload_N"))
+    design_sha256: str = entry("The design artifact's SHA-256.")
+    stack_force_max_N: float = entry("The stacks' share of the preload at the top.", unit="N")
+    local_stiffness_N_per_um: dict[str, float] = entry("The coupling's local stiffness, by where.", unit="N/um")
+    bolt_preload_N: float = entry("The bolts' preload.", unit="N")
 
 
-@dataclass(frozen=True)
+@record
 class IdentifySummary(StageSummary):
     """The identify stage: where the loop came from, the model's operators, its fit and the open-loop check."""
 
     STAGE: ClassVar[str] = "identify"
-    source: str
-    data_sha256: str
-    operators: int
-    fit_rms_pct: float
-    fit_max_pct: float
-    compensation_rms_N: float | None
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"source": self.source, "data_sha256": self.data_sha256, "operators": self.operators,
-                "fit_rms_pct": self.fit_rms_pct, "fit_max_pct": self.fit_max_pct,
-                "compensation_rms_N": self.compensation_rms_N}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> IdentifySummary:
-        return cls(f.text("source"), f.text("data_sha256"), f.integer("operators"), f.number("fit_rms_pct"),
-                   f.number("fit_max_pct"), f.optional_number("compensation_rms_N"))
+    source: str = entry("Where the loop came from (``simulated`` or ``measured``).")
+    data_sha256: str = entry("The loop's SHA-256.")
+    operators: int = entry("The model's play operators.", ge=0)
+    fit_rms_pct: float = entry("The model's RMS error on the loop.", unit="% of the span")
+    fit_max_pct: float = entry("Its largest error.", unit="% of the span")
+    compensation_rms_N: float | None = entry("The plant driven through the inverse in open loop: its RMS error.",
+                                             unit="N")
 
 
-@dataclass(frozen=True)
+@record
 class TuneSummary(StageSummary):
     """The tune stage: the gains (SI), the controller's form, Ms, the gains on their bounds (sentences), the
     minimum-time bound and the tuned settling over it, how the search ended, and where a gain schedule was tuned,
     what was chosen (``gain_schedule``: ``schedule`` or ``robust``)."""
 
     STAGE: ClassVar[str] = "tune"
-    Kc_V_per_N: float
-    Ti_s: float
-    Td_s: float
-    Tf_s: float
-    b: float
-    form: str
-    ms: float
-    active_bounds: tuple[str, ...]
-    minimum_time_s: float | None
-    tuned_over_bound_ratio: float | None
-    search: str
-    gain_schedule: str | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {
-            "Kc_V_per_N": self.Kc_V_per_N, "Ti_s": self.Ti_s, "Td_s": self.Td_s, "Tf_s": self.Tf_s, "b": self.b,
-            "form": self.form, "ms": self.ms, "active_bounds": list(self.active_bounds),
-            "minimum_time_s": self.minimum_time_s, "tuned_over_bound_ratio": self.tuned_over_bound_ratio,
-            "search": self.search}
-        if self.gain_schedule is not None:  # written only where a schedule was tuned
-            out["gain_schedule"] = self.gain_schedule
-        return out
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> TuneSummary:
-        return cls(f.number("Kc_V_per_N"), f.number("Ti_s"), f.number("Td_s"), f.number("Tf_s"), f.number("b"),
-                   f.text("form"), f.number("ms"), f.texts("active_bounds"), f.optional_number("minimum_time_s"),
-                   f.optional_number("tuned_over_bound_ratio"), f.text("search"),
-                   _optional(f, "gain_schedule", f.text))
+    Kc_V_per_N: float = entry("The proportional gain.", unit="V/N")
+    Ti_s: float = entry("The integral time.", unit="s")
+    Td_s: float = entry("The derivative time.", unit="s")
+    Tf_s: float = entry("The derivative filter's time constant.", unit="s")
+    b: float = entry("The setpoint weight.")
+    form: str = entry("The controller's form (PID, PI).")
+    ms: float = entry("The maximum sensitivity.")
+    active_bounds: tuple[str, ...] = entry("The gains on an end of their range, in words.")
+    minimum_time_s: float | None = entry("The least settling time any command reaches.", unit="s")
+    tuned_over_bound_ratio: float | None = entry("The tuned settling over that bound.")
+    search: str = entry("How the search ended.")
+    gain_schedule: str | None = entry("Where a gain schedule was tuned: what was chosen.", default=None, omit=True)
 
 
-@dataclass(frozen=True)
+@record
 class ValidateSummary(StageSummary):
     """The validate stage: the gain set's status and content hash, the Monte Carlo plants, the worst settling and
     overshoot, and every requirement of the validation with its verdict."""
 
     STAGE: ClassVar[str] = "validate"
-    status: str
-    content_sha256: str
-    plants: int
-    worst_settling_s: float | None
-    worst_overshoot_N: float | None
-    checked: tuple[Requirement, ...] = field(default=())
+    status: str = entry("The gain set's status (``validated`` or ``candidate``).")
+    content_sha256: str = entry("The gain set's content hash.")
+    plants: int = entry("The Monte Carlo plants.", ge=0)
+    worst_settling_s: float | None = entry("The worst settling time.", unit="s")
+    worst_overshoot_N: float | None = entry("The worst overshoot.", unit="N")
+    checked: tuple[Requirement, ...] = entry("Every requirement of the validation with its verdict.",
+                                             name="requirements", default=(), required=True)
 
     @property
     def requirements(self) -> tuple[Requirement, ...]:
@@ -201,118 +128,70 @@ class ValidateSummary(StageSummary):
         """Whether the gain set passed (the export and the rig take validated sets only)."""
         return self.status == "validated"
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"status": self.status, "content_sha256": self.content_sha256, "plants": self.plants,
-                "worst_settling_s": self.worst_settling_s, "worst_overshoot_N": self.worst_overshoot_N,
-                "requirements": [r.to_dict() for r in self.checked]}
 
-    @classmethod
-    def from_fields(cls, f: Fields) -> ValidateSummary:
-        return cls(f.text("status"), f.text("content_sha256"), f.integer("plants"),
-                   f.optional_number("worst_settling_s"), f.optional_number("worst_overshoot_N"), _requirements(f))
-
-
-@dataclass(frozen=True)
+@record
 class CompareSummary(StageSummary):
     """The compare stage: the tuned gains' settling with the feedforward, and the published step numbers beside the
     simulation's where the study declares them."""
 
     STAGE: ClassVar[str] = "compare"
-    tuned_settling_s: float | None
-    reproduction: tuple[ReproductionRow, ...]
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"tuned_settling_s": self.tuned_settling_s, "reproduction": [r.to_dict() for r in self.reproduction]}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> CompareSummary:
-        raw = f.raw("reproduction")
-        if not isinstance(raw, list):
-            raise f.fail("reproduction", f"must be a list, got {type(raw).__name__}")
-        return cls(f.optional_number("tuned_settling_s"),
-                   tuple(ReproductionRow.from_dict(r, f"{f.shown}: field '{f.path('reproduction')}[{i}]'")
-                         for i, r in enumerate(raw)))
+    tuned_settling_s: float | None = entry("The tuned gains' settling time with the feedforward.", unit="s")
+    reproduction: tuple[ReproductionRow, ...] = entry("The published step numbers beside the simulation's.")
 
 
-@dataclass(frozen=True)
+@record
 class LearnSummary(StageSummary):
     """The learn stage: the last pass's error after and before learning, the trials (each pass's), the method,
     whether it converged, the passes and the contraction where known, and the margin the last pass planned."""
 
     STAGE: ClassVar[str] = "learn"
-    tracking_rms_N: float
-    tracking_rms_pct_of_range: float
-    before_learning_rms_N: float
-    before_learning_pct_of_range: float
-    iterations: int
-    trials: int
-    trials_per_pass: tuple[int, ...]
-    trials_to_within_1p1_per_pass: tuple[int | None, ...]
-    method: str
-    converged: bool
-    passes: int
-    contraction_over_range: float | None
-    preload_margin_N: float
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"tracking_rms_N": self.tracking_rms_N, "tracking_rms_pct_of_range": self.tracking_rms_pct_of_range,
-                "before_learning_rms_N": self.before_learning_rms_N,
-                "before_learning_pct_of_range": self.before_learning_pct_of_range, "iterations": self.iterations,
-                "trials": self.trials, "trials_per_pass": list(self.trials_per_pass),
-                "trials_to_within_1p1_per_pass": list(self.trials_to_within_1p1_per_pass), "method": self.method,
-                "converged": self.converged, "passes": self.passes,
-                "contraction_over_range": self.contraction_over_range, "preload_margin_N": self.preload_margin_N}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> LearnSummary:
-        per_pass = _counts(f, "trials_per_pass")
-        if None in per_pass:
-            raise f.fail("trials_per_pass", f"must be a list of whole numbers >= 0, got {list(per_pass)!r}")
-        return cls(f.number("tracking_rms_N"), f.number("tracking_rms_pct_of_range"),
-                   f.number("before_learning_rms_N"), f.number("before_learning_pct_of_range"),
-                   f.integer("iterations"), f.integer("trials"), tuple(int(k or 0) for k in per_pass),
-                   _counts(f, "trials_to_within_1p1_per_pass"), f.text("method"), f.flag("converged"),
-                   f.integer("passes"), f.optional_number("contraction_over_range"), f.number("preload_margin_N"))
+    tracking_rms_N: float = entry("The last pass's RMS error after learning.", unit="N")
+    tracking_rms_pct_of_range: float = entry("The same, in % of the range.", unit="%")
+    before_learning_rms_N: float = entry("Its RMS error before learning.", unit="N")
+    before_learning_pct_of_range: float = entry("The same, in % of the range.", unit="%")
+    iterations: int = entry("The last pass's trials.", ge=0)
+    trials: int = entry("Every pass's trials.", ge=0)
+    trials_per_pass: tuple[int, ...] = entry("The trials of each pass.", ge=0)
+    trials_to_within_1p1_per_pass: tuple[int | None, ...] = entry(
+        "Each pass's first trial within 1.1 times its best (null: none).")
+    method: str = entry("The learning law.")
+    converged: bool = entry("Whether the last pass converged.")
+    passes: int = entry("The margin passes learned.", ge=0)
+    contraction_over_range: float | None = entry("The law's contraction over the range, where known.")
+    preload_margin_N: float = entry("The margin the last pass planned.", unit="N")
 
 
-@dataclass(frozen=True)
-class BeforeLearning:
+@record
+class BeforeLearning(Record):
     """Where the learn stage ran, what the system stage reports of the error before learning, and the trials."""
 
-    tracking_rms_N_before_learning: float
-    tracking_rms_pct_of_range_before_learning: float
-    learning_iterations: int
-    learning_trials: int
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"tracking_rms_N_before_learning": self.tracking_rms_N_before_learning,
-                "tracking_rms_pct_of_range_before_learning": self.tracking_rms_pct_of_range_before_learning,
-                "learning_iterations": self.learning_iterations, "learning_trials": self.learning_trials}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> BeforeLearning:
-        return cls(f.number("tracking_rms_N_before_learning"), f.number("tracking_rms_pct_of_range_before_learning"),
-                   f.integer("learning_iterations"), f.integer("learning_trials"))
+    tracking_rms_N_before_learning: float = entry("The RMS error before learning.", unit="N")
+    tracking_rms_pct_of_range_before_learning: float = entry("The same, in % of the range.", unit="%")
+    learning_iterations: int = entry("The last pass's trials.", ge=0)
+    learning_trials: int = entry("Every pass's trials.", ge=0)
 
 
-@dataclass(frozen=True)
+@record
 class SystemSummary(StageSummary):
     """The system stage: the whole system's numbers along the schedule (:class:`TrackingNumbers`), its requirements
-    with their verdicts, what stops a missed one (``bounds``), the pre-cycle, the margin passes, the cycles run; the
-    shift's thermal figures where the study has a ``[thermal]`` table (``thermal``: as the system artifact's summary
-    writes them, each figure ``{"schedule": ..., "constant": ...}``); where the schedule was learned, the error
-    before learning (``before``)."""
+    with their verdicts (``requirements_met`` beside them in the document), what stops a missed one (``bounds``),
+    the pre-cycle, the margin passes, the cycles run; the shift's thermal figures where the study has a
+    ``[thermal]`` table (``thermal``: as the system artifact's summary writes them, each figure
+    ``{"schedule": ..., "constant": ...}``); where the schedule was learned, the error before learning
+    (``before``)."""
 
     STAGE: ClassVar[str] = "system"
-    numbers: TrackingNumbers
-    checked: tuple[Requirement, ...]
-    bounds: tuple[ScheduleBound, ...]
-    pre_cycle: PreCycle
-    preload_margin_N: float
-    cycles: int
-    passes: tuple[PassRecord, ...]
-    thermal: dict[str, Any] | None = None
-    before: BeforeLearning | None = None
+    numbers: TrackingNumbers = entry("The whole system's numbers along the schedule.", inline=True)
+    checked: tuple[Requirement, ...] = entry("The requirements with their verdicts.", name="requirements")
+    bounds: tuple[ScheduleBound, ...] = entry("What stops a missed requirement.")
+    pre_cycle: PreCycle = entry("The pre-cycle.")
+    preload_margin_N: float = entry("The margin the schedule was planned with.", unit="N")
+    cycles: int = entry("The machining cycles run.", ge=0)
+    passes: tuple[PassRecord, ...] = entry("The margin passes.")
+    thermal: dict[str, Any] | None = entry("The shift's thermal figures (schedule and constant preload).",
+                                           default=None, omit=True)
+    before: BeforeLearning | None = entry("Where the schedule was learned: the error before learning.",
+                                          default=None, inline=True, omit=True)
 
     @property
     def requirements(self) -> tuple[Requirement, ...]:
@@ -329,115 +208,76 @@ class SystemSummary(StageSummary):
         return pair.get("schedule"), pair.get("constant")
 
     def to_dict(self) -> dict[str, Any]:
-        return {**self.numbers.to_dict(), "requirements_met": self.requirements_met,
-                "requirements": [r.to_dict() for r in self.checked], "bounds": [b.to_dict() for b in self.bounds],
-                "pre_cycle": self.pre_cycle.to_dict(), "preload_margin_N": self.preload_margin_N,
-                "cycles": self.cycles, "passes": [p.to_dict() for p in self.passes],
-                **({} if self.thermal is None else {"thermal": dict(self.thermal)}),
-                **({} if self.before is None else self.before.to_dict())}
+        """The declared fields, with ``requirements_met`` (derived from the requirements) before them."""
+        out: dict[str, Any] = {}
+        for key, value in super().to_dict().items():
+            if key == "requirements":
+                out["requirements_met"] = self.requirements_met
+            out[key] = value
+        return out
 
-    @classmethod
-    def from_fields(cls, f: Fields) -> SystemSummary:
-        summary = cls(TrackingNumbers.from_fields(f), _requirements(f), f.items("bounds", ScheduleBound.from_fields),
-                      PreCycle.from_fields(f.sub("pre_cycle")), f.number("preload_margin_N"), f.integer("cycles"),
-                      f.items("passes", PassRecord.from_fields), _optional(f, "thermal", f.mapping),
-                      BeforeLearning.from_fields(f) if f.has("learning_trials") else None)
-        if f.flag("requirements_met") != summary.requirements_met:
-            raise f.fail("requirements_met", "does not agree with the field 'requirements'")
-        return summary
+    def _check_document(self, raw: Raw) -> None:
+        if raw.get("requirements_met") is not self.requirements_met:
+            raise raw.fail("requirements_met", "does not agree with the field 'requirements'")
 
 
-@dataclass(frozen=True)
+@record
 class ExportSummary(StageSummary):
     """The export stage: the formats the validated gain set was written in."""
 
     STAGE: ClassVar[str] = "export"
-    formats: tuple[str, ...]
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"formats": list(self.formats)}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> ExportSummary:
-        return cls(f.texts("formats"))
+    formats: tuple[str, ...] = entry("The formats written.")
 
 
-@dataclass(frozen=True)
-class RigTrip:
+@record
+class RigTrip(Record):
     """What stopped a rig run: the interlock, its words, when, and the voltage held then."""
 
-    cause: str
-    detail: str
-    t_s: float
-    voltage_V: float
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"cause": self.cause, "detail": self.detail, "t_s": self.t_s, "voltage_V": self.voltage_V}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> RigTrip:
-        return cls(f.text("cause"), f.text("detail"), f.number("t_s"), f.number("voltage_V"))
+    cause: str = entry("The interlock.")
+    detail: str = entry("What it saw, in words.")
+    t_s: float = entry("When.", unit="s")
+    voltage_V: float = entry("The voltage held then.", unit="V")
 
 
-@dataclass(frozen=True)
+_STEP_FIGURES = ("settling_s", "overshoot_N", "tracking_rms_N", "learned_tracking_rms_measured_N")
+
+
+@record
 class RigSummary(StageSummary):
     """The rig stage: how the run ended, its cycles and step, the loop's timing against the stall limit and the force
     limit; a tripped run's ``trip`` (and no step figures), a completed run's settling, overshoot and tracking (and
     where a learned signal was played, its tracking as measured)."""
 
     STAGE: ClassVar[str] = "rig"
-    status: str
-    cycles: int
-    controller_step: str
-    missed_deadlines: int
-    stalls: int
-    held_max_s: float
-    stall_limit_s: float | None
-    force_max_N: float | None
-    trip: RigTrip | None = None
-    settling_s: float | None = None
-    overshoot_N: float | None = None
-    tracking_rms_N: float | None = None
-    learned_tracking_rms_measured_N: float | None = None
+    status: str = entry("How the run ended.")
+    cycles: int = entry("The loop's cycles.", ge=0)
+    controller_step: str = entry("Which controller step ran (``c``, ``python``).")
+    missed_deadlines: int = entry("The cycles that missed their deadline.", ge=0)
+    stalls: int = entry("The stalls.", ge=0)
+    held_max_s: float = entry("The longest hold.", unit="s")
+    stall_limit_s: float | None = entry("The stall limit.", unit="s")
+    force_max_N: float | None = entry("The force limit.", unit="N")
+    trip: RigTrip | None = entry("What stopped a tripped run.", default=None, omit=True)
+    settling_s: float | None = entry("A completed run's settling time.", unit="s", default=None)
+    overshoot_N: float | None = entry("Its overshoot.", unit="N", default=None)
+    tracking_rms_N: float | None = entry("Its RMS tracking error.", unit="N", default=None)
+    learned_tracking_rms_measured_N: float | None = entry("Where a learned signal was played: its tracking error as "
+                                                          "measured.", unit="N", default=None)
 
     def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {
-            "status": self.status, "cycles": self.cycles, "controller_step": self.controller_step,
-            "missed_deadlines": self.missed_deadlines, "stalls": self.stalls, "held_max_s": self.held_max_s,
-            "stall_limit_s": self.stall_limit_s, "force_max_N": self.force_max_N}
-        if self.trip is not None:  # a tripped run has no step figures
-            return {**out, "trip": self.trip.to_dict()}
-        return {**out, "settling_s": self.settling_s, "overshoot_N": self.overshoot_N,
-                "tracking_rms_N": self.tracking_rms_N,
-                "learned_tracking_rms_measured_N": self.learned_tracking_rms_measured_N}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> RigSummary:
-        head = (f.text("status"), f.integer("cycles"), f.text("controller_step"), f.integer("missed_deadlines"),
-                f.integer("stalls"), f.number("held_max_s"), f.optional_number("stall_limit_s"),
-                f.optional_number("force_max_N"))
-        if f.has("trip"):
-            return cls(*head, trip=RigTrip.from_fields(f.sub("trip")))
-        return cls(*head, settling_s=f.optional_number("settling_s"), overshoot_N=f.optional_number("overshoot_N"),
-                   tracking_rms_N=f.optional_number("tracking_rms_N"),
-                   learned_tracking_rms_measured_N=f.optional_number("learned_tracking_rms_measured_N"))
+        """The declared fields; a tripped run's without the step figures."""
+        out = super().to_dict()
+        return {k: v for k, v in out.items() if k not in _STEP_FIGURES} if self.trip is not None else out
 
 
-@dataclass(frozen=True)
+@record
 class ReportSummary(StageSummary):
     """The report stage: the figures drawn, the PDF's size and the sections' titles."""
 
     STAGE: ClassVar[str] = "report"
-    figures: tuple[str, ...]
-    pdf_bytes: int
-    sections: tuple[str, ...]
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"figures": list(self.figures), "pdf_bytes": self.pdf_bytes, "sections": list(self.sections)}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> ReportSummary:
-        return cls(f.texts("figures"), f.integer("pdf_bytes"), f.texts("sections"))
+    figures: tuple[str, ...] = entry("The figures drawn.")
+    pdf_bytes: int = entry("The PDF's size.", unit="bytes", ge=0)
+    sections: tuple[str, ...] = entry("The sections' titles.")
 
 
 #: each stage's summary record, by the stage's name
@@ -446,9 +286,26 @@ SUMMARIES: dict[str, type[StageSummary]] = {cls.STAGE: cls for cls in (
     SystemSummary, ExportSummary, RigSummary, ReportSummary)}
 
 
-def read_summary(stage: str, doc: Any, shown: str, prefix: str = "") -> StageSummary:
-    """The summary of ``stage`` from its JSON; an :class:`ArtifactError` names the file and the field."""
+def read_summary(stage: str, doc: Any, shown: str, path: str = "") -> StageSummary:
+    """The summary of ``stage`` from its JSON (at ``path`` in its document); an :class:`ArtifactError` names the
+    file and the field.
+
+    Parameters
+    ----------
+    stage : str
+        The stage's name.
+    doc : dict
+        The summary's object.
+    shown : str
+        What the messages call the document (its file).
+    path : str
+        Where the summary sits in the document (``stages.tune.summary``).
+
+    Returns
+    -------
+    StageSummary
+        The stage's record.
+    """
     if stage not in SUMMARIES:
-        raise ArtifactError(f"{shown}: field '{prefix or stage}': no stage '{stage}' (stages: "
-                            f"{', '.join(SUMMARIES)})")
-    return SUMMARIES[stage].from_fields(Fields(doc, shown, prefix))
+        raise ArtifactError(f"{shown}: field '{path or stage}': no stage '{stage}' (stages: {', '.join(SUMMARIES)})")
+    return SUMMARIES[stage].from_dict(doc, shown, path=path)

@@ -14,12 +14,12 @@ artifact envelope (kind ``sweep``).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import fields
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
-from piezopreload.core.artifacts import read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError
+from piezopreload.core.records import Artifact, Record, entry, record
 
 __all__ = ["SweepAxis", "PointFigures", "SweepPoint", "SweepRecord", "STATUSES", "MODES", "KIND", "Scalar",
            "DEFAULT_SWEEP_OUT", "EXIT_POINT_FAILED"]
@@ -56,12 +56,27 @@ def _checked(value: Any, kind: str, where: str) -> Any:
     raise ArtifactError(f"{where}: expected {'a ' + kind if kind != 'int' else 'an integer'} or null, got {value!r}")
 
 
-@dataclass(frozen=True)
-class SweepAxis:
-    """One swept key (``TABLE.KEY``, ``reference.step.final_N``) and its values, in order."""
+def _point_values(x: Any) -> dict[str, Scalar]:
+    if not isinstance(x, dict):
+        raise ValueError(f"expected an object of the axes' keys and values, got {type(x).__name__}")
+    return dict(x)
 
-    key: str
-    values: tuple[Scalar, ...]
+
+def _values(x: Any) -> tuple[Scalar, ...]:
+    if not isinstance(x, list):
+        raise ValueError(f"expected a list of finite numbers, strings or booleans, got {type(x).__name__}")
+    return tuple(x)
+
+
+@record
+class SweepAxis(Record):
+    """One swept key and its values, in order."""
+
+    NOUN: ClassVar[str] = "the axis"
+
+    key: str = entry("The key, ``TABLE.KEY`` (``reference.step.final_N``).")
+    values: tuple[Scalar, ...] = entry("Its values: finite numbers, strings or booleans.", read=_values,
+                                       write=list, takes="a list of finite numbers, strings or booleans")
 
     def __post_init__(self) -> None:
         if "." not in self.key or not all(self.key.split(".")):
@@ -70,25 +85,13 @@ class SweepAxis:
             raise ValueError(f"SweepAxis '{self.key}': values must be a non-empty list of finite numbers, strings or "
                              f"booleans, got {self.values!r}")
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"key": self.key, "values": list(self.values)}
 
-    @classmethod
-    def from_dict(cls, doc: Any, where: str = "axis") -> SweepAxis:
-        if not isinstance(doc, dict) or not isinstance(doc.get("key"), str) or not isinstance(doc.get("values"), list):
-            raise ArtifactError(f"{where}: expected an object with 'key' (a string) and 'values' (a list), got {doc!r}")
-        try:
-            return cls(doc["key"], tuple(doc["values"]))
-        except ValueError as exc:
-            raise ArtifactError(f"{where}: {exc}") from None
+def _figure(doc: str, unit: str = "") -> Any:
+    return entry(doc, unit=unit, default=None, required=True)
 
 
-def _figure(kind: str) -> Any:
-    return field(default=None, metadata={"kind": kind})
-
-
-@dataclass(frozen=True)
-class PointFigures:
+@record
+class PointFigures(Record):
     """A point's headline figures; None where the point's study has no such figure or its run stopped before it.
 
     Gains (the tune stage), the validation's verdict and worst cases over its Monte Carlo plants
@@ -99,52 +102,54 @@ class PointFigures:
     (``requirements_missed``: each missed one's ``Requirement.to_dict()``).
     """
 
-    design_stiffness_N_per_um: float | None = _figure("number")
-    Kc_V_per_N: float | None = _figure("number")
-    Ti_s: float | None = _figure("number")
-    Td_s: float | None = _figure("number")
-    Tf_s: float | None = _figure("number")
-    b: float | None = _figure("number")
-    ms: float | None = _figure("number")
-    gain_schedule: str | None = _figure("str")
-    gain_set_status: str | None = _figure("str")
-    validation_plants: int | None = _figure("int")
-    validation_failures: int | None = _figure("int")
-    worst_settling_s: float | None = _figure("number")
-    worst_overshoot_N: float | None = _figure("number")
-    worst_tracking_rms_N: float | None = _figure("number")
-    worst_peak_voltage_V: float | None = _figure("number")
-    tuned_settling_s: float | None = _figure("number")
-    tracking_rms_N: float | None = _figure("number")
-    tracking_rms_pct_of_range: float | None = _figure("number")
-    tracking_rms_pct_of_range_before_learning: float | None = _figure("number")
-    tracking_max_N: float | None = _figure("number")
-    rigidity_min_cutting_N_per_um: float | None = _figure("number")
-    rigidity_required_at_min_N_per_um: float | None = _figure("number")
-    rigidity_ratio_min: float | None = _figure("number")
-    deflection_max_um: float | None = _figure("number")
-    friction_energy_per_cycle: float | None = _figure("number")
-    energy_units: str | None = _figure("str")
-    constant_friction_energy_per_cycle: float | None = _figure("number")
-    friction_saving_pct: float | None = _figure("number")
-    heat_mean_W: float | None = _figure("number")
-    heat_mean_constant_W: float | None = _figure("number")
-    temperature_rise_max_K: float | None = _figure("number")
-    temperature_rise_max_constant_K: float | None = _figure("number")
-    thermal_growth_max_um: float | None = _figure("number")
-    thermal_growth_max_constant_um: float | None = _figure("number")
-    positioning_error_max_um: float | None = _figure("number")
-    positioning_error_max_constant_um: float | None = _figure("number")
-    rig_status: str | None = _figure("str")
-    rig_tracking_rms_N: float | None = _figure("number")
-    requirements_met: bool | None = _figure("bool")
-    requirements_missed: tuple[dict[str, Any], ...] = field(default=(), metadata={"kind": "list"})
+    NOUN: ClassVar[str] = "the point's figures"
+
+    design_stiffness_N_per_um: float | None = _figure("The design optimum's least rigidity.", "N/um")
+    Kc_V_per_N: float | None = _figure("The tuned controller gain.", "V/N")
+    Ti_s: float | None = _figure("The tuned integral time.", "s")
+    Td_s: float | None = _figure("The tuned derivative time.", "s")
+    Tf_s: float | None = _figure("The tuned derivative filter's time.", "s")
+    b: float | None = _figure("The tuned setpoint weight.")
+    ms: float | None = _figure("The sensitivity peak the tuning reached.")
+    gain_schedule: str | None = _figure("The gain schedule in words, where one was tuned.")
+    gain_set_status: str | None = _figure("The gain set's status.")
+    validation_plants: int | None = _figure("The Monte Carlo plants.")
+    validation_failures: int | None = _figure("The plants that missed a criterion.")
+    worst_settling_s: float | None = _figure("The worst plant's settling time.", "s")
+    worst_overshoot_N: float | None = _figure("The worst plant's overshoot.", "N")
+    worst_tracking_rms_N: float | None = _figure("The worst plant's RMS tracking error.", "N")
+    worst_peak_voltage_V: float | None = _figure("The worst plant's highest command.", "V")
+    tuned_settling_s: float | None = _figure("The tuned FF + PID step's settling on the nominal plant.", "s")
+    tracking_rms_N: float | None = _figure("The whole system's RMS tracking error along its schedule.", "N")
+    tracking_rms_pct_of_range: float | None = _figure("The same, in % of the schedule's range.", "%")
+    tracking_rms_pct_of_range_before_learning: float | None = _figure("The same before any learned correction.", "%")
+    tracking_max_N: float | None = _figure("The largest tracking error.", "N")
+    rigidity_min_cutting_N_per_um: float | None = _figure("The least rigidity while cutting.", "N/um")
+    rigidity_required_at_min_N_per_um: float | None = _figure("The rigidity required at that moment.", "N/um")
+    rigidity_ratio_min: float | None = _figure("The least ratio of the rigidity to its requirement.")
+    deflection_max_um: float | None = _figure("The largest deflection while cutting.", "um")
+    friction_energy_per_cycle: float | None = _figure("The friction energy per cycle, in ``energy_units``.")
+    energy_units: str | None = _figure("The friction energy's unit.")
+    constant_friction_energy_per_cycle: float | None = _figure("The best constant preload's friction energy per "
+                                                               "cycle.")
+    friction_saving_pct: float | None = _figure("The friction energy the schedule saves against it.", "%")
+    heat_mean_W: float | None = _figure("The nut's mean friction heat along the schedule.", "W")
+    heat_mean_constant_W: float | None = _figure("The same at the best constant preload.", "W")
+    temperature_rise_max_K: float | None = _figure("The screw's largest rise over the shift.", "K")
+    temperature_rise_max_constant_K: float | None = _figure("The same at the best constant preload.", "K")
+    thermal_growth_max_um: float | None = _figure("The screw's largest growth at the table.", "um")
+    thermal_growth_max_constant_um: float | None = _figure("The same at the best constant preload.", "um")
+    positioning_error_max_um: float | None = _figure("The largest positioning error of the budget.", "um")
+    positioning_error_max_constant_um: float | None = _figure("The same at the best constant preload.", "um")
+    rig_status: str | None = _figure("How the rig run ended.")
+    rig_tracking_rms_N: float | None = _figure("The rig run's RMS tracking error.", "N")
+    requirements_met: bool | None = _figure("Whether every requirement held.")
+    requirements_missed: tuple[dict[str, Any], ...] = entry("Each missed requirement's ``Requirement.to_dict()``.",
+                                                            default=(), required=True)
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            if f.metadata["kind"] != "list":
-                object.__setattr__(self, f.name, _checked(getattr(self, f.name), f.metadata["kind"],
-                                                          f"PointFigures.{f.name}"))
+        for name, kind in _FIGURE_KINDS.items():
+            object.__setattr__(self, name, _checked(getattr(self, name), kind, f"PointFigures.{name}"))
         missed = self.requirements_missed
         if not isinstance(missed, tuple | list) or not all(isinstance(r, dict) and "name" in r for r in missed):
             raise ArtifactError(f"PointFigures.requirements_missed: expected a list of requirements (objects with a "
@@ -155,39 +160,32 @@ class PointFigures:
     def names(cls) -> tuple[str, ...]:
         return tuple(f.name for f in fields(cls))
 
-    def to_dict(self) -> dict[str, Any]:
-        out = {f.name: getattr(self, f.name) for f in fields(self)}
-        out["requirements_missed"] = [dict(r) for r in self.requirements_missed]
-        return out
-
-    @classmethod
-    def from_dict(cls, doc: Any, where: str = "figures") -> PointFigures:
-        if not isinstance(doc, dict):
-            raise ArtifactError(f"{where}: expected an object, got {type(doc).__name__}")
-        missing = [name for name in cls.names() if name not in doc]
-        if missing:
-            raise ArtifactError(f"{where}: field '{missing[0]}' is missing")
-        try:
-            return cls(**{name: doc[name] for name in cls.names()})
-        except ArtifactError as exc:
-            raise ArtifactError(f"{where}: {exc}") from None
 
 
-@dataclass(frozen=True)
-class SweepPoint:
-    """One point: its index, its values (key -> value), its folder (relative to the sweep's), its outcome."""
+#: each figure's kind (what ``_checked`` takes), from its annotation
+_FIGURE_KINDS = {f.name: {"float | None": "number", "int | None": "int", "str | None": "str",
+                          "bool | None": "bool"}[str(f.type)]
+                 for f in fields(PointFigures) if f.name != "requirements_missed"}
 
-    index: int
-    values: dict[str, Scalar]
-    folder: str
-    status: str = "pending"
-    error: str | None = None
-    failed_stage: str | None = None
-    exit_code: int | None = None
-    seconds: float | None = None
-    ran: tuple[str, ...] = ()
-    reused: tuple[str, ...] = ()
-    figures: PointFigures = PointFigures()
+
+@record
+class SweepPoint(Record):
+    """One point of a sweep: its values, its folder and its outcome."""
+
+    NOUN: ClassVar[str] = "the point"
+
+    index: int = entry("Its index in the sweep, from 0.", ge=0)
+    values: dict[str, Scalar] = entry("Each axis' key and its value at the point.", read=_point_values,
+                                      takes="an object of the axes' keys and values")
+    folder: str = entry("Its folder, relative to the sweep's.")
+    status: str = entry("``pending``, ``done`` or ``failed``.", choices=STATUSES, default="pending", required=True)
+    error: str | None = entry("Why it failed.", default=None, required=True)
+    failed_stage: str | None = entry("The stage that failed.", default=None, required=True)
+    exit_code: int | None = entry("The exit code its run gave.", default=None, required=True)
+    seconds: float | None = entry("How long it ran.", unit="s", default=None, required=True)
+    ran: tuple[str, ...] = entry("The stages it ran.", default=(), required=True)
+    reused: tuple[str, ...] = entry("The stages it reused.", default=(), required=True)
+    figures: PointFigures = entry("Its headline figures.", default=PointFigures(), required=True)
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
@@ -202,44 +200,24 @@ class SweepPoint:
         return {"point": self.index, "folder": self.folder, **self.values, "status": self.status, "error": self.error,
                 **self.figures.to_dict()}
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"index": self.index, "values": dict(self.values), "folder": self.folder, "status": self.status,
-                "error": self.error, "failed_stage": self.failed_stage, "exit_code": self.exit_code,
-                "seconds": self.seconds, "ran": list(self.ran), "reused": list(self.reused),
-                "figures": self.figures.to_dict()}
-
-    @classmethod
-    def from_dict(cls, doc: Any, where: str = "point") -> SweepPoint:
-        if not isinstance(doc, dict):
-            raise ArtifactError(f"{where}: expected an object, got {type(doc).__name__}")
-        for name, kind in (("index", "int"), ("folder", "str"), ("status", "str"), ("error", "str"),
-                           ("failed_stage", "str"), ("exit_code", "int"), ("seconds", "number")):
-            if name not in doc:
-                raise ArtifactError(f"{where}: field '{name}' is missing")
-            _checked(doc[name], kind, f"{where}.{name}")
-        for name in ("values", "ran", "reused"):
-            if not isinstance(doc.get(name), dict if name == "values" else list):
-                raise ArtifactError(f"{where}: field '{name}' is missing or of the wrong type")
-        figures = PointFigures.from_dict(doc.get("figures"), f"{where}.figures")
-        try:
-            return cls(doc["index"], dict(doc["values"]), doc["folder"], doc["status"], doc["error"],
-                       doc["failed_stage"], doc["exit_code"], doc["seconds"], tuple(doc["ran"]),
-                       tuple(doc["reused"]), figures)
-        except (TypeError, ValueError) as exc:
-            raise ArtifactError(f"{where}: {exc}") from None
 
 
-@dataclass(frozen=True)
-class SweepRecord:
-    """The sweep: the study it swept (name, path as given, SHA-256), how (``grid`` or ``zip``), its axes and points."""
+@record
+class SweepRecord(Artifact):
+    """The sweep: the study it swept, how, its axes and its points."""
 
-    study_name: str
-    study_path: str
-    study_sha256: str
-    mode: str
-    axes: tuple[SweepAxis, ...]
-    points: tuple[SweepPoint, ...]
-    started_utc: str = ""
+    KIND: ClassVar[str] = KIND
+    NOUN: ClassVar[str] = "the sweep"
+    AGAIN: ClassVar[str] = "run the sweep again ('piezopreload sweep')"
+
+    study_name: str = entry("The study's name.", at="study", name="name")
+    study_path: str = entry("The study's file, as it was given.", at="study", name="path")
+    study_sha256: str = entry("The study file's SHA-256.", at="study", name="sha256")
+    mode: str = entry("How the axes combine: ``grid`` (every combination) or ``zip`` (their values side by side).",
+                      choices=MODES)
+    axes: tuple[SweepAxis, ...] = entry("The axes.")
+    points: tuple[SweepPoint, ...] = entry("The points.")
+    started_utc: str = entry("When the sweep started (UTC).", default="")
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -269,33 +247,21 @@ class SweepRecord:
                            tuple(point if p.index == point.index else p for p in self.points), self.started_utc)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"study": {"name": self.study_name, "path": self.study_path, "sha256": self.study_sha256},
-                "mode": self.mode, "started_utc": self.started_utc, "axes": [a.to_dict() for a in self.axes],
-                "points": [p.to_dict() for p in self.points], "columns": list(self.columns())}
+        """The record and its rows' columns.
 
-    @classmethod
-    def from_dict(cls, doc: Any, where: str = "sweep") -> SweepRecord:
-        if not isinstance(doc, dict):
-            raise ArtifactError(f"{where}: expected an object, got {type(doc).__name__}")
-        study = doc.get("study")
-        if not isinstance(study, dict) or not all(isinstance(study.get(k), str) for k in ("name", "path", "sha256")):
-            raise ArtifactError(f"{where}: field 'study' must hold 'name', 'path' and 'sha256' (strings)")
-        for name in ("axes", "points"):
-            if not isinstance(doc.get(name), list):
-                raise ArtifactError(f"{where}: field '{name}' is missing or not a list")
-        axes = tuple(SweepAxis.from_dict(a, f"{where}.axes[{i}]") for i, a in enumerate(doc["axes"]))
-        points = tuple(SweepPoint.from_dict(p, f"{where}.points[{i}]") for i, p in enumerate(doc["points"]))
-        try:
-            return cls(study["name"], study["path"], study["sha256"], str(doc.get("mode")), axes, points,
-                       str(doc.get("started_utc", "")))
-        except ValueError as exc:
-            raise ArtifactError(f"{where}: {exc}") from None
+        Returns
+        -------
+        dict
+            The document's body.
+        """
+        return {**super().to_dict(), "columns": list(self.columns())}
 
     def save(self, path: str | Path) -> None:
-        """Write the record atomically (kind ``sweep``)."""
-        write_artifact(path, KIND, self.to_dict())
+        """Write the record atomically (kind ``sweep``).
 
-    @classmethod
-    def load(cls, path: str | Path) -> SweepRecord:
-        """Read a sweep record: schema and fields checked, a missing or wrong one named."""
-        return cls.from_dict(read_artifact(path, KIND), str(path))
+        Parameters
+        ----------
+        path : str or Path
+            The file.
+        """
+        self._write(path)

@@ -14,19 +14,16 @@ not here: it is the design's (:class:`~piezopreload.artifacts.design.DesignRecor
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
-from piezopreload.artifacts._fields import Fields
-from piezopreload.artifacts.requirements import Requirement, requirements_from_dict
+from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.thermal import ThermalRecord
 from piezopreload.core._typing import Array
-from piezopreload.core.artifacts import read_artifact, write_artifact
-from piezopreload.core.errors import ArtifactError
+from piezopreload.core.records import Artifact, Raw, Record, entry, record
 
 __all__ = ["TrackingNumbers", "PreCycle", "PassRecord", "ScheduleBound", "PlannedSchedule", "SystemSeries",
            "SystemRecord", "KIND"]
@@ -34,8 +31,8 @@ __all__ = ["TrackingNumbers", "PreCycle", "PassRecord", "ScheduleBound", "Planne
 KIND = "system"
 
 
-@dataclass(frozen=True)
-class TrackingNumbers:
+@record
+class TrackingNumbers(Record):
     """The numbers of one run over the schedule's cycles (the pre-cycle left out).
 
     Tracking of the stacks' share over the machining cycles (RMS, worst, in % of the
@@ -52,57 +49,44 @@ class TrackingNumbers:
     (after the pre-cycle).
     """
 
-    tracking_rms_N: float
-    tracking_max_N: float
-    tracking_rms_pct_of_range: float
-    schedule_range_N: float
-    rigidity_min_cutting_N_per_um: float
-    rigidity_required_at_min_N_per_um: float
-    rigidity_min_t_s: float
-    rigidity_ratio_min: float
-    rigidity_at_worst_ratio_N_per_um: float
-    rigidity_required_at_worst_ratio_N_per_um: float
-    rigidity_worst_t_s: float
-    rigidity_below_requirement_s: float
-    deflection_max_um: float
-    deflection_limit_um: float | None
-    lift_off_ratio_min: float
-    lift_off_margin: float
-    preload_shortfall_max_N: float
-    friction_energy_per_cycle: float
-    planned_friction_energy_per_cycle: float
-    friction_saved_fraction: float
-    energy_units: str
-    peak_voltage_V: float
-    cycle_start_error_N: float
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> TrackingNumbers:
-        values: dict[str, Any] = {}
-        for fd in fields(cls):
-            if fd.name == "energy_units":
-                values[fd.name] = f.text(fd.name)
-            elif fd.name == "deflection_limit_um":
-                values[fd.name] = f.optional_number(fd.name)
-            else:
-                values[fd.name] = f.number(fd.name)
-        return cls(**values)
+    tracking_rms_N: float = entry("The RMS tracking error of the stacks' share over the machining cycles.", unit="N")
+    tracking_max_N: float = entry("The worst tracking error.", unit="N")
+    tracking_rms_pct_of_range: float = entry("The RMS tracking error in % of the schedule's range.", unit="%")
+    schedule_range_N: float = entry("The schedule's range.", unit="N")
+    rigidity_min_cutting_N_per_um: float = entry("The least rigidity while cutting.", unit="N/um")
+    rigidity_required_at_min_N_per_um: float = entry("The rigidity required at that moment.", unit="N/um")
+    rigidity_min_t_s: float = entry("Its time.", unit="s")
+    rigidity_ratio_min: float = entry("The least ratio of the rigidity to its requirement.")
+    rigidity_at_worst_ratio_N_per_um: float = entry("The rigidity at that sample.", unit="N/um")
+    rigidity_required_at_worst_ratio_N_per_um: float = entry("The requirement at that sample.", unit="N/um")
+    rigidity_worst_t_s: float = entry("Its time.", unit="s")
+    rigidity_below_requirement_s: float = entry("The time below the requirement.", unit="s")
+    deflection_max_um: float = entry("The largest axial deflection while cutting.", unit="um")
+    deflection_limit_um: float | None = entry("Its limit (None: no limit).", unit="um", absent=None)
+    lift_off_ratio_min: float = entry("The least ratio of the achieved preload to the lift-off bound.")
+    lift_off_margin: float = entry("The ratio required.")
+    preload_shortfall_max_N: float = entry("The largest shortfall of the achieved preload below the least preload "
+                                           "each sample's requirements need.", unit="N")
+    friction_energy_per_cycle: float = entry("The friction energy per cycle achieved, in ``energy_units``.")
+    planned_friction_energy_per_cycle: float = entry("The friction energy per cycle planned, in ``energy_units``.")
+    friction_saved_fraction: float = entry("The fraction the achieved friction energy saves against the design's "
+                                           "best constant preload.")
+    energy_units: str = entry("The friction energy's unit.")
+    peak_voltage_V: float = entry("The peak voltage.", unit="V")
+    cycle_start_error_N: float = entry("The error when the first cut begins (after the pre-cycle).", unit="N")
 
 
-@dataclass(frozen=True)
-class PreCycle:
+@record
+class PreCycle(Record):
     """Before the first cut: the stacks at rest (0 N) for ``rest_s`` (room for a learned feedforward to lead the
     ramp), then to the schedule's first level ``level_N`` (their share) on a ramp at the slew limit
     ``slew_N_per_s`` (``ramp_s``), then held ``settle_s`` for the loop to settle."""
 
-    level_N: float
-    slew_N_per_s: float
-    ramp_s: float
-    settle_s: float
-    rest_s: float = 0.0
+    level_N: float = entry("The schedule's first level (the stacks' share).", unit="N")
+    slew_N_per_s: float = entry("The ramp's slew.", unit="N/s")
+    ramp_s: float = entry("The ramp's time.", unit="s")
+    settle_s: float = entry("The hold for the loop to settle.", unit="s")
+    rest_s: float = entry("The stacks at rest before the ramp.", unit="s", default=0.0)
 
     def __post_init__(self) -> None:
         if not (self.slew_N_per_s > 0 and min(self.ramp_s, self.settle_s, self.rest_s) >= 0
@@ -116,42 +100,33 @@ class PreCycle:
         return self.rest_s + self.ramp_s + self.settle_s
 
     def to_dict(self) -> dict[str, Any]:
-        return {**asdict(self), "duration_s": self.duration_s}
+        """Its fields and its duration.
 
-    @classmethod
-    def from_fields(cls, f: Fields) -> PreCycle:
-        return f.build(lambda: cls(f.number("level_N"), f.number("slew_N_per_s"), f.number("ramp_s"),
-                                   f.number("settle_s"), f.number("rest_s", 0.0)))
+        Returns
+        -------
+        dict
+            Its object.
+        """
+        return {**super().to_dict(), "duration_s": self.duration_s}
 
 
-@dataclass(frozen=True)
-class PassRecord:
+@record
+class PassRecord(Record):
     """One margin pass: the largest local margin it planned with and what the loop achieved on it."""
 
-    number: int
-    preload_margin_N: float
-    tracking_rms_N: float
-    tracking_rms_pct_of_range: float
-    rigidity_ratio_min: float
-    lift_off_ratio_min: float
-    requirements_met: bool
-    preload_shortfall_max_N: float
-    friction_energy_per_cycle: float
-
-    def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        return {"pass": d.pop("number"), **d}
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> PassRecord:
-        return cls(f.integer("pass"), f.number("preload_margin_N"), f.number("tracking_rms_N"),
-                   f.number("tracking_rms_pct_of_range"), f.number("rigidity_ratio_min"),
-                   f.number("lift_off_ratio_min"), f.flag("requirements_met"), f.number("preload_shortfall_max_N"),
-                   f.number("friction_energy_per_cycle"))
+    number: int = entry("The pass's number (from 1).", name="pass", ge=0)
+    preload_margin_N: float = entry("The largest local margin it planned with.", unit="N")
+    tracking_rms_N: float = entry("The RMS tracking error.", unit="N")
+    tracking_rms_pct_of_range: float = entry("The same, in % of the schedule's range.", unit="%")
+    rigidity_ratio_min: float = entry("The least ratio of the rigidity to its requirement.")
+    lift_off_ratio_min: float = entry("The least ratio of the preload to the lift-off bound.")
+    requirements_met: bool = entry("Whether every requirement held.")
+    preload_shortfall_max_N: float = entry("The largest shortfall below the least preload needed.", unit="N")
+    friction_energy_per_cycle: float = entry("The friction energy per cycle.")
 
 
-@dataclass(frozen=True)
-class ScheduleBound:
+@record
+class ScheduleBound(Record):
     """What stops a requirement: where the loop's error needs a margin above the requirement's least preload that the
     stacks' reach cannot give (``kind="reach"``), or where the margin passes ran out first (``kind="passes"``).
 
@@ -159,12 +134,13 @@ class ScheduleBound:
     loop's error a margin of ``margin_N`` above it; the stacks reach ``reach_N``.
     """
 
-    requirement: str
-    t_s: float
-    needed_N: float
-    margin_N: float
-    reach_N: float
-    kind: str = "reach"
+    requirement: str = entry("The requirement it stops.")
+    t_s: float = entry("When, into the cycle.", unit="s")
+    needed_N: float = entry("The preload the requirement needs there.", unit="N")
+    margin_N: float = entry("The margin the loop's error needs above it.", unit="N")
+    reach_N: float = entry("The preload the stacks reach.", unit="N")
+    kind: str = entry("``reach`` (the stacks cannot give the margin) or ``passes`` (the margin passes ran out).",
+                      choices=("reach", "passes"), default="reach")
 
     @property
     def short_N(self) -> float:
@@ -182,93 +158,80 @@ class ScheduleBound:
                 f"(within the stacks' {self.reach_N:,.0f} N): raise [plant] passes")
 
     def to_dict(self) -> dict[str, Any]:
-        return {**asdict(self), "short_N": self.short_N, "sentence": self.sentence()}
+        """Its fields, how far the stacks fall short and the sentence.
 
-    @classmethod
-    def from_fields(cls, f: Fields) -> ScheduleBound:
-        kind = f.text("kind", "reach")
-        if kind not in ("reach", "passes"):
-            raise f.fail("kind", f"must be 'reach' or 'passes', got {kind!r}")
-        return cls(f.text("requirement"), f.number("t_s"), f.number("needed_N"), f.number("margin_N"),
-                   f.number("reach_N"), kind)
+        Returns
+        -------
+        dict
+            Its object.
+        """
+        return {**super().to_dict(), "short_N": self.short_N, "sentence": self.sentence()}
 
 
-@dataclass(frozen=True, eq=False)
-class PlannedSchedule:
+@record(eq=False)
+class PlannedSchedule(Record):
     """The schedule the last pass planned, on the load profile's samples: the preload, each sample's margin (the
     room left for the loop; local: only where its error needed it), the margin the stacks' reach could not give,
     and its friction energy per cycle."""
 
-    time_s: Array
-    preload_N: Array
-    margin_N: Array
-    margin_short_N: Array
-    friction_energy: float
-    energy_units: str
-    status: str
+    time_s: Array = entry("The samples' times.", unit="s")
+    preload_N: Array = entry("The planned preload.", unit="N", size="time_s")
+    margin_N: Array = entry("Each sample's margin.", unit="N", size="time_s")
+    margin_short_N: Array = entry("The margin the stacks' reach could not give.", unit="N", size="time_s")
+    friction_energy: float = entry("Its friction energy per cycle, in ``energy_units``.")
+    energy_units: str = entry("The friction energy's unit.")
+    status: str = entry("The solver's status.")
 
     def to_dict(self) -> dict[str, Any]:
-        return {"status": self.status, "friction_energy": self.friction_energy, "energy_units": self.energy_units,
-                "preload_min_N": float(np.min(self.preload_N)), "preload_max_N": float(np.max(self.preload_N)),
-                "preload_margin_N": float(np.max(self.margin_N)), "samples": int(self.time_s.size),
-                "time_s": self.time_s.tolist(), "preload_N": self.preload_N.tolist(),
-                "margin_N": self.margin_N.tolist(), "margin_short_N": self.margin_short_N.tolist()}
+        """Its fields and its range, largest margin and samples.
 
-    @classmethod
-    def from_fields(cls, f: Fields) -> PlannedSchedule:
-        t = f.array("time_s")
-        return cls(t, f.array("preload_N", t.size), f.array("margin_N", t.size), f.array("margin_short_N", t.size),
-                   f.number("friction_energy"), f.text("energy_units"), f.text("status"))
-
-
-#: the series of the run (every ``every``-th sample), their names in the artifact
-SERIES = ("time_s", "planned_N", "achieved_N", "axial_load_N", "rigidity_N_per_um", "required_N_per_um",
-          "planned_rigidity_N_per_um", "deflection_um", "voltage_V", "cutting")
+        Returns
+        -------
+        dict
+            Its object.
+        """
+        return {**super().to_dict(), "preload_min_N": float(np.min(self.preload_N)),
+                "preload_max_N": float(np.max(self.preload_N)), "preload_margin_N": float(np.max(self.margin_N)),
+                "samples": int(self.time_s.size)}
 
 
-@dataclass(frozen=True, eq=False)
-class SystemSeries:
+@record(eq=False)
+class SystemSeries(Record):
     """The run's time series (total preload planned and achieved, the load, the rigidity and its requirement, the
     deflection, the voltage, and whether the axis cuts); the pre-cycle is in them, not cutting."""
 
-    time_s: Array
-    planned_N: Array
-    achieved_N: Array
-    axial_load_N: Array
-    rigidity_N_per_um: Array
-    required_N_per_um: Array
-    planned_rigidity_N_per_um: Array
-    deflection_um: Array
-    voltage_V: Array
-    cutting: NDArray[np.bool_]
-
-    def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {name: np.asarray(getattr(self, name), float).tolist() for name in SERIES[:-1]}
-        out["cutting"] = np.asarray(self.cutting).astype(int).tolist()
-        return out
-
-    @classmethod
-    def from_fields(cls, f: Fields) -> SystemSeries:
-        t = f.array("time_s")
-        values = {name: f.array(name, t.size) for name in SERIES[1:-1]}
-        return cls(time_s=t, cutting=f.array("cutting", t.size) > 0.5, **values)
+    time_s: Array = entry("The samples' times.", unit="s")
+    planned_N: Array = entry("The planned preload.", unit="N", size="time_s")
+    achieved_N: Array = entry("The achieved preload.", unit="N", size="time_s")
+    axial_load_N: Array = entry("The axial load.", unit="N", size="time_s")
+    rigidity_N_per_um: Array = entry("The rigidity.", unit="N/um", size="time_s")
+    required_N_per_um: Array = entry("The rigidity required.", unit="N/um", size="time_s")
+    planned_rigidity_N_per_um: Array = entry("The rigidity the plan gives.", unit="N/um", size="time_s")
+    deflection_um: Array = entry("The axial deflection.", unit="um", size="time_s")
+    voltage_V: Array = entry("The stacks' voltage.", unit="V", size="time_s")
+    cutting: NDArray[np.bool_] = entry("Whether the axis cuts (1) or not (0).", size="time_s")
 
 
-@dataclass(frozen=True, eq=False)
-class SystemRecord:
+@record(eq=False)
+class SystemRecord(Artifact):
     """The system artifact: the numbers, the requirements as verdicts, the bounds, the pre-cycle, the margin passes,
     the schedule the last pass planned, the series, the cycles run and the inputs' hashes."""
 
-    numbers: TrackingNumbers
-    requirements: tuple[Requirement, ...]
-    bounds: tuple[ScheduleBound, ...]
-    pre_cycle: PreCycle
-    passes: tuple[PassRecord, ...]
-    schedule: PlannedSchedule
-    series: SystemSeries
-    cycles: int
-    inputs: dict[str, Any] = field(default_factory=dict)
-    thermal: ThermalRecord | None = None  # the shift's thermal budget, where the study has a [thermal] table
+    KIND: ClassVar[str] = KIND
+    NOUN: ClassVar[str] = "the system"
+    AGAIN: ClassVar[str] = "run the system stage again"
+
+    numbers: TrackingNumbers = entry("The numbers of the run (at the document's top level).", inline=True)
+    requirements: tuple[Requirement, ...] = entry("The requirements as verdicts.")
+    bounds: tuple[ScheduleBound, ...] = entry("What stops a requirement no schedule within the stacks' force meets.")
+    pre_cycle: PreCycle = entry("Before the first cut.")
+    passes: tuple[PassRecord, ...] = entry("The margin passes.")
+    schedule: PlannedSchedule = entry("The schedule the last pass planned.")
+    series: SystemSeries = entry("The run's time series.")
+    cycles: int = entry("The machining cycles run.", ge=0)
+    inputs: dict[str, Any] = entry("The inputs' hashes.", default={}, required=True)
+    thermal: ThermalRecord | None = entry("The shift's thermal budget, where the study has a ``[thermal]`` table.",
+                                          default=None, omit=True)
 
     @property
     def requirements_met(self) -> bool:
@@ -293,32 +256,35 @@ class SystemRecord:
                 **({} if self.thermal is None else {"thermal": self.thermal.summary()})}
 
     def to_dict(self) -> dict[str, Any]:
-        return {**self.summary(), "schedule": self.schedule.to_dict(), "series": self.series.to_dict(),
-                "inputs": dict(self.inputs), **({} if self.thermal is None else {"thermal": self.thermal.to_dict()})}
+        """The artifact's body: the fields, the verdict over the requirements and the largest margin.
 
-    @classmethod
-    def from_dict(cls, doc: dict[str, Any], shown: str = "the system") -> SystemRecord:
-        """The inverse of :meth:`to_dict`; an :class:`~piezopreload.core.errors.ArtifactError` names the field."""
-        f = Fields(doc, shown)
-        record = cls(numbers=TrackingNumbers.from_fields(f), requirements=requirements_from_dict(
-                         f.raw("requirements"), f"{shown}: field 'requirements'"),
-                     bounds=f.items("bounds", ScheduleBound.from_fields),
-                     pre_cycle=PreCycle.from_fields(f.sub("pre_cycle")),
-                     passes=f.items("passes", PassRecord.from_fields),
-                     schedule=PlannedSchedule.from_fields(f.sub("schedule")),
-                     series=SystemSeries.from_fields(f.sub("series")), cycles=f.integer("cycles"),
-                     inputs=f.mapping("inputs", {}),
-                     thermal=ThermalRecord.from_fields(f.sub("thermal")) if f.has("thermal") else None)
-        if f.flag("requirements_met") != record.requirements_met:
-            raise ArtifactError(f"{shown}: field 'requirements_met' does not agree with its 'requirements'")
-        return record
+        Returns
+        -------
+        dict
+            The document's body.
+        """
+        return {**super().to_dict(), "requirements_met": self.requirements_met,
+                "preload_margin_N": self.preload_margin_N}
+
+    def _check_document(self, raw: Raw) -> None:
+        said = raw.get("requirements_met")
+        if not isinstance(said, bool):
+            raise raw.fail("requirements_met", f"must be true or false, got {said!r}")
+        if said != self.requirements_met:
+            raise raw.fail("requirements_met", "does not agree with its 'requirements'")
 
     def save(self, path: str | Path) -> Path:
-        """Write the artifact atomically (kind ``system``)."""
-        write_artifact(path, KIND, self.to_dict())
-        return Path(path)
+        """Write the artifact atomically (kind ``system``).
 
-    @classmethod
-    def load(cls, path: str | Path) -> SystemRecord:
-        """Read a system artifact: its schema and every field checked."""
-        return cls.from_dict(read_artifact(path, KIND), str(path))
+        Parameters
+        ----------
+        path : str or Path
+            The file.
+
+        Returns
+        -------
+        Path
+            The file written.
+        """
+        self._write(path)
+        return Path(path)

@@ -11,13 +11,12 @@ drift, against the command range the force loop has left to hold it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from piezopreload.artifacts._fields import Fields
+from piezopreload.core.records import Raw, Record, entry, record
 
 __all__ = ["ThermalCase", "PreloadDrift", "ThermalRecord", "CASES"]
 
@@ -30,17 +29,8 @@ _FIGURES = ("heat_mean_W", "heat_mean_other_W", "bearing_heat_mean_W", "preload_
             "growth_max_other_um", "positioning_error_max_um", "tracking_um")
 
 
-def _matrix(f: Fields, key: str, rows: int, cols: int) -> Array:
-    """A list of ``rows`` lists of ``cols`` finite numbers."""
-    x = f.raw(key)
-    if not isinstance(x, list) or len(x) != rows:
-        raise f.fail(key, f"must be a list of {rows} rows")
-    sub = Fields({str(i): r for i, r in enumerate(x)}, f.shown, f.path(key))
-    return np.array([sub.array(str(i), cols) for i in range(rows)]).reshape(rows, cols)
-
-
-@dataclass(frozen=True, eq=False)
-class ThermalCase:
+@record(eq=False)
+class ThermalCase(Record):
     """One preload over the shift: the schedule's as the loop achieved it, or the best constant.
 
     Scalars: the nut's friction heat (cycle mean, the study's heat model and the other one), the support
@@ -54,25 +44,30 @@ class ThermalCase:
     worst cut at each position.
     """
 
-    heat_mean_W: float
-    heat_mean_other_W: float
-    bearing_heat_mean_W: float
-    preload_mean_N: float
-    temperature_rise_max_K: float
-    temperature_rise_max_other_K: float
-    nut_rise_max_K: float
-    end_force_max_N: float
-    growth_max_um: float
-    growth_max_other_um: float
-    positioning_error_max_um: float
-    tracking_um: float
-    times_h: Array
-    rise_along_K: Array
-    nut_rise_K: Array
-    nut_over_screw_K: Array
-    growth_um: Array
-    elastic_um: Array
-    budget_um: Array
+    heat_mean_W: float = entry("The nut's friction heat, cycle mean, under the study's heat model.", unit="W")
+    heat_mean_other_W: float = entry("The same under the other heat model.", unit="W")
+    bearing_heat_mean_W: float = entry("The support bearings' heat (both ends).", unit="W")
+    preload_mean_N: float = entry("The mean preload.", unit="N")
+    temperature_rise_max_K: float = entry("The screw's largest rise over the shift.", unit="K")
+    temperature_rise_max_other_K: float = entry("The same under the other heat model.", unit="K")
+    nut_rise_max_K: float = entry("The nut's largest rise.", unit="K")
+    end_force_max_N: float = entry("The largest force the held ends take up from the growth (0 fixed-free).",
+                                   unit="N")
+    growth_max_um: float = entry("The largest growth at the table's positions.", unit="um")
+    growth_max_other_um: float = entry("The same under the other heat model.", unit="um")
+    positioning_error_max_um: float = entry("The largest positioning error (the budget's total).", unit="um")
+    tracking_um: float = entry("The force loop's tracking error's share of the deflection.", unit="um")
+    times_h: Array = entry("The times of the rows: the warm-up's first minutes, then the end of each hour.",
+                           unit="h")
+    rise_along_K: Array = entry("The rise along the screw: one row per time, one column per volume.", unit="K",
+                                rows=True, size="times_h")
+    nut_rise_K: Array = entry("The nut's rise at each time.", unit="K", size="times_h")
+    nut_over_screw_K: Array = entry("The nut's rise over the screw's under it.", unit="K", size="times_h")
+    growth_um: Array = entry("The growth at the table's positions (signed): one row per time, one column per "
+                             "position.", unit="um", rows=True, size="times_h")
+    elastic_um: Array = entry("The deflection under the worst cut at each position.", unit="um")
+    budget_um: Array = entry("The error budget: one row per time, one column per position.", unit="um", rows=True,
+                             size="times_h")
 
     def summary(self) -> dict[str, float]:
         return {name: float(getattr(self, name)) for name in _FIGURES}
@@ -88,23 +83,40 @@ class ThermalCase:
         return int(h), int(p)
 
     def to_dict(self) -> dict[str, Any]:
-        return {**self.summary(), "times_h": self.times_h.tolist(), "rise_along_K": self.rise_along_K.tolist(),
-                "nut_rise_K": self.nut_rise_K.tolist(), "nut_over_screw_K": self.nut_over_screw_K.tolist(),
-                "growth_um": self.growth_um.tolist(), "elastic_um": self.elastic_um.tolist(),
-                "budget_um": self.budget_um.tolist()}
+        """The case's figures and its rows.
 
-    @classmethod
-    def from_fields(cls, f: Fields, volumes: int, positions: int) -> ThermalCase:
-        times = f.array("times_h")
-        n = times.size
-        return cls(**{name: f.number(name) for name in _FIGURES}, times_h=times,
-                   rise_along_K=_matrix(f, "rise_along_K", n, volumes), nut_rise_K=f.array("nut_rise_K", n),
-                   nut_over_screw_K=f.array("nut_over_screw_K", n), growth_um=_matrix(f, "growth_um", n, positions),
-                   elastic_um=f.array("elastic_um", positions), budget_um=_matrix(f, "budget_um", n, positions))
+        Returns
+        -------
+        dict
+            Its object.
+        """
+        return {**self.summary(), **super().to_dict()}
+
+    def shape_problem(self, volumes: int, positions: int) -> tuple[str, str] | None:
+        """The first of its rows whose columns are not one per screw volume or table position: (field, what it
+        must be); None where every one fits.
+
+        Parameters
+        ----------
+        volumes, positions : int
+            The screw's volumes and the table's positions.
+
+        Returns
+        -------
+        tuple of (str, str) or None
+            The field and what it must hold.
+        """
+        for name, width, per in (("rise_along_K", volumes, "screw volume"), ("growth_um", positions, "position"),
+                                 ("budget_um", positions, "position")):
+            if getattr(self, name).shape[1:] != (width,) and getattr(self, name).size:
+                return name, f"must have {width} columns (one per {per}), got {getattr(self, name).shape[1]}"
+        if self.elastic_um.shape != (positions,):
+            return "elastic_um", f"must have {positions} entries (one per position), got {self.elastic_um.size}"
+        return None
 
 
-@dataclass(frozen=True)
-class PreloadDrift:
+@record
+class PreloadDrift(Record):
     """The passive nut's drift and the force loop's room to hold it.
 
     A spacer-preloaded double nut of the same design at the best constant preload, its nuts' loaded turns
@@ -116,13 +128,13 @@ class PreloadDrift:
     range.
     """
 
-    span_mm: float
-    passive_N_per_K: float
-    passive_max_N: float
-    passive_preload_N: float
-    stroke_max_um: float
-    voltage_needed_V: float
-    headroom_V: float
+    span_mm: float = entry("The nuts' loaded turns apart, middle to middle.", unit="mm")
+    passive_N_per_K: float = entry("The passive nut's preload change per kelvin of nut over screw.", unit="N/K")
+    passive_max_N: float = entry("Its largest change over the shift, signed (< 0: the preload falls).", unit="N")
+    passive_preload_N: float = entry("The best constant preload it holds.", unit="N")
+    stroke_max_um: float = entry("The stacks' largest stroke taking up the spacer's mismatch.", unit="um")
+    voltage_needed_V: float = entry("The command that needs (signed: + more voltage).", unit="V")
+    headroom_V: float = entry("The command's range the run left on that side.", unit="V")
 
     @property
     def held(self) -> bool:
@@ -130,39 +142,38 @@ class PreloadDrift:
         return abs(self.voltage_needed_V) <= self.headroom_V
 
     def to_dict(self) -> dict[str, Any]:
-        return {"span_mm": self.span_mm, "passive_N_per_K": self.passive_N_per_K,
-                "passive_max_N": self.passive_max_N, "passive_preload_N": self.passive_preload_N,
-                "stroke_max_um": self.stroke_max_um, "voltage_needed_V": self.voltage_needed_V,
-                "headroom_V": self.headroom_V, "held": self.held}
+        """Its fields and whether the run's command range holds the drift.
 
-    @classmethod
-    def from_fields(cls, f: Fields) -> PreloadDrift:
-        return cls(*(f.number(k) for k in ("span_mm", "passive_N_per_K", "passive_max_N",
-                                           "passive_preload_N", "stroke_max_um", "voltage_needed_V", "headroom_V")))
+        Returns
+        -------
+        dict
+            Its object.
+        """
+        return {**super().to_dict(), "held": self.held}
 
 
-@dataclass(frozen=True, eq=False)
-class ThermalRecord:
+@record(eq=False)
+class ThermalRecord(Record):
     """A shift's thermal budget: its settings, the screw's volumes and the table's positions (mm from bearing A),
     the cycle's mean film coefficient on the screw and the screw's lumped time constant under it, the two cases
     and the drift."""
 
-    heat_model: str
-    other_model: str
-    lubricant_vg: int
-    sealed: bool
-    mounting: str
-    pretension_K: float
-    feedback: str
-    shift_h: float
-    stroke_mm: tuple[float, float]
-    screw_x_mm: Array
-    positions_mm: Array
-    film_mean_W_per_m2K: float
-    screw_time_constant_s: float
-    schedule: ThermalCase
-    constant: ThermalCase
-    drift: PreloadDrift
+    heat_model: str = entry("The study's heat model of the nut's friction.")
+    other_model: str = entry("The other heat model, reported beside it.")
+    lubricant_vg: int = entry("The lubricant's viscosity grade (ISO VG).", ge=0)
+    sealed: bool = entry("Whether the nut is sealed.")
+    mounting: str = entry("How the screw's ends are held.")
+    pretension_K: float = entry("The screw's pretension, as a temperature rise it takes up.", unit="K")
+    feedback: str = entry("Where the position loop measures (what growth it sees).")
+    shift_h: float = entry("The shift's length.", unit="h")
+    stroke_mm: tuple[float, float] = entry("The table's stroke (from, to), from bearing A.", unit="mm")
+    screw_x_mm: Array = entry("The screw's volumes' positions, from bearing A.", unit="mm")
+    positions_mm: Array = entry("The table's positions, from bearing A.", unit="mm")
+    film_mean_W_per_m2K: float = entry("The cycle's mean film coefficient on the screw.", unit="W/(m^2 K)")
+    screw_time_constant_s: float = entry("The screw's lumped time constant under it.", unit="s")
+    schedule: ThermalCase = entry("The schedule's preload as the loop achieved it.", at="cases")
+    constant: ThermalCase = entry("The best constant preload.", at="cases")
+    drift: PreloadDrift = entry("The passive nut's drift and the force loop's room to hold it.")
 
     def sentence(self) -> str:
         """The shift in one sentence: each preload's heat, rise and growth."""
@@ -186,16 +197,17 @@ class ThermalRecord:
                 "screw_time_constant_s": self.screw_time_constant_s, "drift": self.drift.to_dict()}
 
     def to_dict(self) -> dict[str, Any]:
-        return {**self.summary(), "screw_x_mm": self.screw_x_mm.tolist(), "positions_mm": self.positions_mm.tolist(),
-                "cases": {c: getattr(self, c).to_dict() for c in CASES}}
+        """:meth:`summary`, the screw's volumes, the table's positions and both cases whole.
 
-    @classmethod
-    def from_fields(cls, f: Fields) -> ThermalRecord:
-        x, positions = f.array("screw_x_mm"), f.array("positions_mm")
-        stroke = f.array("stroke_mm", 2)
-        cases = f.sub("cases")
-        schedule, constant = (ThermalCase.from_fields(cases.sub(c), x.size, positions.size) for c in CASES)
-        return cls(f.text("heat_model"), f.text("other_model"), f.integer("lubricant_vg"), f.flag("sealed"),
-                   f.text("mounting"), f.number("pretension_K"), f.text("feedback"), f.number("shift_h"),
-                   (float(stroke[0]), float(stroke[1])), x, positions, f.number("film_mean_W_per_m2K"),
-                   f.number("screw_time_constant_s"), schedule, constant, PreloadDrift.from_fields(f.sub("drift")))
+        Returns
+        -------
+        dict
+            Its object.
+        """
+        return {**self.summary(), **super().to_dict()}
+
+    def _check_document(self, raw: Raw) -> None:
+        for name in CASES:
+            problem = self.case(name).shape_problem(self.screw_x_mm.size, self.positions_mm.size)
+            if problem is not None:
+                raise raw.fail(f"cases.{name}.{problem[0]}", problem[1])

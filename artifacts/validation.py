@@ -11,16 +11,14 @@ values (``result.requirements``).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from piezopreload.artifacts.requirements import Requirement
-from piezopreload.core.artifacts import read_artifact, write_artifact
-from piezopreload.core.errors import ArtifactError
+from piezopreload.core.records import Artifact, Record, entry, record
 from piezopreload.models.closedloop import PAPER_BAND_N
 from piezopreload.models.controller import OUTPUT_MAX_V
 
@@ -40,8 +38,8 @@ _LIMITS = {"settling_max_s": ("settling_s", "worst settling time", "s"),
            "peak_voltage_max_V": ("peak_voltage_V", "highest command", "V")}
 
 
-@dataclass(frozen=True)
-class Criteria:
+@record
+class Criteria(Record):
     """What every plant of the validation set must meet.
 
     * ``settling_max_s``: the step's settling time into ``band_N``, read on ``signal``: the
@@ -59,13 +57,20 @@ class Criteria:
     * ``peak_voltage_max_V``: the command over both.
     """
 
-    settling_max_s: float = 0.60
-    overshoot_max_N: float = PAPER_BAND_N
-    tracking_rms_max_N: float = 1.0
-    peak_voltage_max_V: float = OUTPUT_MAX_V
-    band_N: float = PAPER_BAND_N
-    signal: str = "force_N"
-    tracking_after_change_s: float = 0.1
+    NOUN: ClassVar[str] = "the criteria"
+    CLOSED: ClassVar[bool] = True
+
+    settling_max_s: float = entry("The worst plant's longest settling time.", unit="s", gt=0, default=0.60)
+    overshoot_max_N: float = entry("The worst plant's largest overshoot.", unit="N", gt=0, default=PAPER_BAND_N)
+    tracking_rms_max_N: float = entry("The worst plant's largest RMS tracking error after the changes.", unit="N",
+                                      gt=0, default=1.0)
+    peak_voltage_max_V: float = entry("The highest command over both references.", unit="V", gt=0,
+                                      default=OUTPUT_MAX_V)
+    band_N: float = entry("The settling band around the step's final level.", unit="N", gt=0, default=PAPER_BAND_N)
+    signal: str = entry("The force the step times are read on: the true force or the measured one.",
+                        choices=("force_N", "measured_N"), default="force_N")
+    tracking_after_change_s: float = entry("The time after each jump of the trajectory its RMS leaves out.",
+                                           unit="s", ge=0, default=0.1)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.tracking_after_change_s) and self.tracking_after_change_s >= 0):
@@ -76,21 +81,6 @@ class Criteria:
                 raise ValueError(f"Criteria.{name} must be finite and > 0, got {x!r}.")
         if self.signal not in ("measured_N", "force_N"):
             raise ValueError(f"Criteria.signal must be 'measured_N' or 'force_N', got {self.signal!r}.")
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, doc: Any, where: str = "criteria") -> Criteria:
-        if not isinstance(doc, dict):
-            raise ArtifactError(f"field '{where}' must be an object")
-        unknown = sorted(set(doc) - {f.name for f in fields(cls)})
-        if unknown:
-            raise ArtifactError(f"field '{where}.{unknown[0]}' is not a criterion")
-        try:
-            return cls(**doc)
-        except (TypeError, ValueError) as exc:
-            raise ArtifactError(f"field '{where}' is not valid: {exc}") from None
 
     def limits(self) -> dict[str, float]:
         """Each bounded metric's limit (``{"settling_s": 0.6, ...}``)."""
@@ -106,32 +96,30 @@ class Criteria:
         return tuple(out)
 
 
-@dataclass(frozen=True)
-class Metrics:
+@record
+class Metrics(Record):
     """One statistic (the worst, a percentile, the best) of every metric over the plants; None where none is finite."""
 
-    rise_s: float | None
-    settling_s: float | None
-    settling_measured_s: float | None
-    overshoot_N: float | None
-    tracking_rms_N: float | None
-    saturated_fraction: float | None
-    tracking_rms_all_N: float | None
-    tracking_max_N: float | None
-    peak_voltage_V: float | None
+    rise_s: float | None = entry("The step's rise time.", unit="s")
+    settling_s: float | None = entry("The step's settling time into the band, on the criteria's signal.", unit="s")
+    settling_measured_s: float | None = entry("The step's settling time on the measured force.", unit="s")
+    overshoot_N: float | None = entry("The step's overshoot of the true force.", unit="N")
+    tracking_rms_N: float | None = entry("The trajectory's RMS error after its changes, off the command's limits.",
+                                         unit="N")
+    saturated_fraction: float | None = entry("The share of the trajectory the command spent at a limit.")
+    tracking_rms_all_N: float | None = entry("The trajectory's RMS error over all of it.", unit="N")
+    tracking_max_N: float | None = entry("The trajectory's largest error.", unit="N")
+    peak_voltage_V: float | None = entry("The highest command over both references.", unit="V")
 
 
-@dataclass(frozen=True)
-class Failure:
-    """A plant that missed a criterion: its index, the metric, its value (None: never settled) and the limit."""
+@record
+class Failure(Record):
+    """A plant that missed a criterion."""
 
-    plant: int
-    metric: str
-    value: float | None
-    limit: float
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+    plant: int = entry("The plant's index in the set (0: the nominal plant).", ge=0)
+    metric: str = entry("The metric it missed (one of :data:`METRICS`).")
+    value: float | None = entry("Its value (None: the step never settled).")
+    limit: float = entry("The criterion's limit.")
 
 
 def _finite_or_none(x: float) -> float | None:
@@ -151,39 +139,44 @@ def _statistic(metrics: dict[str, NDArray[np.float64]], how: str) -> Metrics:
     return Metrics(**{key: _finite_or_none(_of(metrics[key], how)) for key in METRICS})
 
 
-@dataclass(frozen=True, eq=False)
-class ValidationResult:
-    """The gains run on a Monte Carlo set of nonlinear plants: every plant's metrics and the verdict.
+def _metrics_from(doc: Any) -> dict[str, NDArray[np.float64]]:
+    """Every metric's values, one per plant (null: a step that never settled, as NaN)."""
+    if not isinstance(doc, dict):
+        raise ValueError(f"expected an object of {', '.join(METRICS)}")
+    out = {}
+    for key in METRICS:
+        values = doc.get(key)
+        if not isinstance(values, list) or any(
+                x is not None and (isinstance(x, bool) or not isinstance(x, int | float)) for x in values):
+            raise ValueError(f"metrics.{key} must be a list of numbers or nulls")
+        out[key] = np.array([np.nan if x is None else x for x in values], dtype=np.float64)
+    return out
 
-    Parameters
-    ----------
-    metrics : dict of str to ndarray
-        Every metric of :data:`METRICS`, one value per plant (the nominal plant first).
-    criteria : Criteria
-        What every plant had to meet.
-    n_plants, seed : int
-        The set's size and its draw's (and noise's) seed.
-    spread : dict of str to float
-        The relative standard deviations the plants were drawn with.
-    seconds : float
-        How long it took.
-    workers : str
-        Where it ran ("inline", "2 local processes", "dask tcp://...").
-    gain_set_sha256 : str or None
-        The gain set validated (set when it is saved as ``validation.json``).
-    inputs : dict
-        The inputs' hashes (``validation.json``).
-    """
 
-    metrics: dict[str, NDArray[np.float64]]
-    criteria: Criteria
-    n_plants: int
-    seed: int
-    spread: dict[str, float]
-    seconds: float = 0.0
-    workers: str = "inline"
-    gain_set_sha256: str | None = None
-    inputs: dict[str, Any] = field(default_factory=dict)
+def _metrics_to(metrics: dict[str, NDArray[np.float64]]) -> dict[str, list[float | None]]:
+    return {k: [_finite_or_none(x) for x in metrics[k]] for k in METRICS}
+
+
+@record(eq=False)
+class ValidationResult(Artifact):
+    """The gains run on a Monte Carlo set of nonlinear plants: every plant's metrics and the verdict."""
+
+    KIND: ClassVar[str] = "validation"
+    NOUN: ClassVar[str] = "the validation"
+    AGAIN: ClassVar[str] = "validate the gain set again"
+
+    metrics: dict[str, NDArray[np.float64]] = entry(
+        "Every metric of :data:`METRICS`, one value per plant (the nominal plant first; NaN: a step that never "
+        "settled).", read=_metrics_from, write=_metrics_to, takes=f"an object of lists ({', '.join(METRICS)})")
+    criteria: Criteria = entry("What every plant had to meet.")
+    n_plants: int = entry("The set's size.", ge=1)
+    seed: int = entry("The seed of its draw (and of the sensor noise).")
+    spread: dict[str, float] = entry("The relative standard deviations the plants were drawn with.")
+    seconds: float = entry("How long it took.", unit="s", default=0.0)
+    workers: str = entry('Where it ran ("inline", "2 local processes", "dask tcp://...").', default="inline")
+    gain_set_sha256: str | None = entry("The gain set validated (set when it is saved as ``validation.json``).",
+                                        default=None, required=True)
+    inputs: dict[str, Any] = entry("The inputs' hashes (``validation.json``).", default={}, required=True)
 
     def __post_init__(self) -> None:
         missing = [k for k in METRICS if k not in self.metrics]
@@ -258,49 +251,33 @@ class ValidationResult:
 
     # ---- the document ----------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
-        """The body of ``validation.json`` and of a gain set's ``validation`` field."""
-        failures = self.failures
-        return {"gain_set_sha256": self.gain_set_sha256, "passed": self.passed, "n_plants": self.n_plants,
-                "seed": self.seed, "criteria": self.criteria.to_dict(), "spread": dict(self.spread),
-                "metrics": {k: [_finite_or_none(x) for x in self.metrics[k]] for k in METRICS},
-                "summary": self.summary(), "failures": [f.to_dict() for f in failures[:50]],
-                "n_failures": len(failures), "seconds": self.seconds, "workers": self.workers,
-                "inputs": dict(self.inputs)}
+        """The body of ``validation.json`` and of a gain set's ``validation`` field: the fields, the verdict, the
+        statistics and the first 50 failures.
 
-    @classmethod
-    def from_dict(cls, doc: Any, where: str = "validation") -> ValidationResult:
-        """The result from its document; an :class:`ArtifactError` names the field that is wrong."""
-        if not isinstance(doc, dict):
-            raise ArtifactError(f"field '{where}' must be an object")
-        for key in ("n_plants", "seed", "criteria", "spread", "metrics"):
-            if key not in doc:
-                raise ArtifactError(f"field '{where}.{key}' is missing; validate the gain set again")
-        raw = doc["metrics"]
-        if not isinstance(raw, dict):
-            raise ArtifactError(f"field '{where}.metrics' must be an object")
-        metrics = {}
-        for key in METRICS:
-            values = raw.get(key)
-            if not isinstance(values, list):
-                raise ArtifactError(f"field '{where}.metrics.{key}' must be a list of numbers")
-            metrics[key] = np.array([np.nan if x is None else x for x in values], float)
-        try:
-            return cls(metrics, Criteria.from_dict(doc["criteria"], f"{where}.criteria"), int(doc["n_plants"]),
-                       int(doc["seed"]), {str(k): float(v) for k, v in dict(doc["spread"]).items()},
-                       float(doc.get("seconds", 0.0)), str(doc.get("workers", "inline")), doc.get("gain_set_sha256"),
-                       dict(doc.get("inputs") or {}))
-        except (TypeError, ValueError) as exc:
-            raise ArtifactError(f"field '{where}' is not valid: {exc}") from None
+        Returns
+        -------
+        dict
+            The document's object.
+        """
+        failures = self.failures
+        return {**super().to_dict(), "passed": self.passed, "summary": self.summary(),
+                "failures": [f.to_dict() for f in failures[:50]], "n_failures": len(failures)}
 
     def save(self, path: str | Path) -> Path:
-        """Write ``validation.json`` atomically (kind ``validation``)."""
-        write_artifact(path, "validation", self.to_dict())
-        return Path(path)
+        """Write ``validation.json`` atomically (kind ``validation``).
 
-    @classmethod
-    def load(cls, path: str | Path) -> ValidationResult:
-        """Read ``validation.json``: schema and every field checked."""
-        return cls.from_dict(read_artifact(path, "validation"), str(path))
+        Parameters
+        ----------
+        path : str or Path
+            The file.
+
+        Returns
+        -------
+        Path
+            The file written.
+        """
+        self._write(path)
+        return Path(path)
 
     def __repr__(self) -> str:
         verdict = "passed" if self.passed else f"failed on {self.failed_plant_count} plants"

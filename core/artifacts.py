@@ -8,47 +8,104 @@ kind, missing fields and non-finite numbers, naming the field.
 from __future__ import annotations
 
 import datetime as _dt
+import functools
 import hashlib
 import json
 import math
 import os
+import re
 import tempfile
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
 from piezopreload.core.errors import ArtifactError
 
-__all__ = ["ArtifactError", "schema_name", "write_artifact", "read_artifact", "atomic_write_text", "atomic_write_bytes",
-           "content_hash", "parse_artifact", "package_version", "read_bytes", "finite_or_none",
-           "artifact_kind"]
+__all__ = ["ArtifactError", "KINDS", "schema_name", "write_artifact", "read_artifact", "atomic_write_text",
+           "atomic_write_bytes", "content_hash", "parse_artifact", "package_version", "read_bytes", "finite_or_none",
+           "artifact_kind", "register_kind"]
 
 VERSION = 1
-KINDS = {
-    "hysteresis-model": ("model", "units", "inputs"),
-    "gain-set": ("gains", "status", "inputs"),
-    "design": ("optimum", "fronts", "schedule", "inputs", "units"),
-    "rig-run": ("status", "events", "gain_set_sha256", "backend", "csv", "summary"),
-    "tuning": ("gains", "table", "criteria", "inputs"),
-    "validation": ("gain_set_sha256", "passed", "metrics", "inputs"),
-    "responses": ("runs", "reproduction", "inputs"),
+HASH_FIELD = "content_sha256"
+
+
+@dataclass(frozen=True)
+class _Kind:
+    """A kind of artifact as its record declares it: its required fields (computed when first asked, when every
+    type they name exists), whether it carries its content's hash, what writes it again."""
+
+    required: Callable[[], tuple[str, ...]]
+    hashed: bool
+    again: str
+    owner: str
+
+
+_REGISTERED: dict[str, _Kind] = {}
+
+
+def register_kind(kind: str, required: Callable[[], tuple[str, ...]], *, hashed: bool = False, again: str = "",
+                  owner: str = "") -> None:
+    """Make ``kind`` an artifact kind: what :func:`piezopreload.core.records.record` does for each
+    :class:`~piezopreload.core.records.Artifact`.
+
+    Parameters
+    ----------
+    kind : str
+        The kind (``gain-set``), the middle of its schema's name.
+    required : callable
+        ``required()``: the fields a document of the kind must hold at its top level.
+    hashed : bool
+        Whether its documents carry their content's hash (``content_sha256``), checked on every read.
+    again : str
+        What writes a document of the kind again, the end of every message about one.
+    owner : str
+        The type that declares it (a second type declaring the same kind is refused).
+    """
+    known = _REGISTERED.get(kind)
+    if known is not None and known.owner != owner:
+        raise ValueError(f"artifact kind '{kind}' is declared twice: by {known.owner} and by {owner}")
+    _REGISTERED[kind] = _Kind(required, hashed, again, owner)
+
+
+class _Kinds(Mapping[str, tuple[str, ...]]):
+    """Each artifact kind and the fields its documents must hold, derived from the records that declare them."""
+
+    def __getitem__(self, kind: str) -> tuple[str, ...]:
+        return _REGISTERED[kind].required()
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(sorted(_REGISTERED))
+
+    def __len__(self) -> int:
+        return len(_REGISTERED)
+
+    def __repr__(self) -> str:
+        return "KINDS(" + ", ".join(f"{k}: {self[k]}" for k in self) + ")"
+
+
+#: each artifact kind and its documents' required top-level fields, from the declaration of its record
+#: (:class:`piezopreload.core.records.Artifact`); a kind's record registers it when its module is imported,
+#: and ``import piezopreload.artifacts`` imports every one
+KINDS: Mapping[str, tuple[str, ...]] = _Kinds()
+
+# The documents whose writers do not declare them on a record yet (the study run's manifest, the two
+# reports): their required fields, here until a record declares each.
+_UNDECLARED: dict[str, tuple[str, ...]] = {
     "study-run": ("study", "stages"),
     "report": ("title", "verdicts", "summary", "sections", "appendix", "figures"),
-    "plant": ("rig", "design_sha256", "inputs"),
-    "system": ("tracking_rms_pct_of_range", "rigidity_min_cutting_N_per_um", "rigidity_ratio_min", "series",
-               "inputs"),
-    "learning": ("pass_records", "tracking_rms_N", "before_learning_rms_N", "history", "inputs"),
-    "learned-signal": ("ff_extra_V", "setpoint_N", "sample_period_s", "reference", "reference_sha256",
-                       "gain_set_sha256", "inputs"),
-    "sweep": ("study", "mode", "axes", "points"),
     "sweep-report": ("title", "summary", "table", "figures", "provenance"),
-    "stage-cache": ("stage", "key", "summary", "outputs"),
 }
-#: kinds whose documents carry ``content_sha256``, checked on every read
-HASHED = {"gain-set", "learned-signal"}
-HASH_FIELD = "content_sha256"
-#: the command that writes a hashed kind again
-_WRITER = {"learned-signal": "learn"}
+for _name, _required in _UNDECLARED.items():
+    register_kind(_name, functools.partial(tuple, _required), owner=f"the {_name} document")
+
+
+def _kind(kind: str) -> _Kind:
+    if kind not in _REGISTERED:
+        raise ValueError(f"unknown artifact kind {kind!r}; the kinds known are {', '.join(KINDS)} (a kind is known "
+                         "once the module of its record is imported: import piezopreload.artifacts)")
+    return _REGISTERED[kind]
 
 
 def package_version() -> str:
@@ -127,41 +184,111 @@ def _first_non_finite(value: Any, where: str) -> str | None:
 
 def write_artifact(path: str | Path, kind: str, body: dict[str, Any]) -> dict[str, Any]:
     """Write a ``kind`` artifact holding ``body`` atomically; returns the whole document."""
-    if kind not in KINDS:
-        raise ValueError(f"unknown artifact kind {kind!r}")
+    declared = _kind(kind)
     doc = {
         "schema": schema_name(kind),
         "package_version": package_version(),
         "created_utc": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
         **body,
     }
-    missing = [f for f in KINDS[kind] if f not in doc]
+    missing = [f for f in declared.required() if f not in doc]
     if missing:
         raise ValueError(f"a {kind} artifact needs the field '{missing[0]}'")
     bad = _first_non_finite(doc, "")
     if bad is not None:
         raise ValueError(f"{kind} artifact field '{bad.lstrip('.')}' is not finite")
-    if kind in HASHED:
+    if declared.hashed:
         doc.pop(HASH_FIELD, None)
         doc[HASH_FIELD] = content_hash(doc)
     atomic_write_text(path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
     return doc
 
 
-def read_artifact(path: str | Path, kind: str) -> dict[str, Any]:
-    """Read and check a ``kind`` artifact; :class:`ArtifactError` names what is wrong and where."""
+def field_message(shown: str, path: str, problem: str, again: str = "") -> str:
+    """The one format of a reader's message: the file, the field's path, what is wrong, how to write the file again.
+
+    Parameters
+    ----------
+    shown : str
+        The file (or what stands for it: "the gain set").
+    path : str
+        The field's path in the document (``gains.Ti_s``, ``fronts[0].pair``; "" for the document itself).
+    problem : str
+        What is wrong, as a sentence's predicate: ``is missing; expected a finite number``, ``must be WHAT, got
+        VALUE``, ``is not valid: WHY``.
+    again : str
+        What writes the file again ("" where nothing does).
+
+    Returns
+    -------
+    str
+        ``FILE: field 'PATH' PROBLEM; AGAIN``.
+
+    Examples
+    --------
+    >>> field_message("gains.json", "gains.Ti_s", "is missing; expected a finite number > 0", "run the tune stage")
+    "gains.json: field 'gains.Ti_s' is missing; expected a finite number > 0; run the tune stage"
+    """
+    head = f"{shown}: field '{path}' {problem}" if path else f"{shown} {problem}"
+    return head + (f"; {again}" if again else "")
+
+
+def _again(kind: str) -> str:
+    known = _REGISTERED.get(kind)
+    return known.again if known is not None else ""
+
+
+def read_artifact(path: str | Path, kind: str, *, fields: bool = True) -> dict[str, Any]:
+    """Read and check a ``kind`` artifact: its JSON, schema, finite numbers, a hashed kind's hash and, where
+    ``fields``, the fields its kind requires.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    kind : str
+        The kind it must be (a key of :data:`KINDS`).
+    fields : bool
+        Whether to check its kind's required fields (a record's own reader, which checks every field, passes
+        False).
+
+    Returns
+    -------
+    dict
+        The document.
+
+    Raises
+    ------
+    ArtifactError
+        Naming the file, the field and what was expected.
+    """
     shown = str(path)
     raw = read_bytes(path)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ArtifactError(f"{shown}: cannot read ({exc})") from None
-    return parse_artifact(text, kind, shown)
+    return parse_artifact(text, kind, shown, fields=fields)
 
 
 def artifact_kind(path: str | Path) -> str:
-    """The kind an artifact's ``schema`` names (``gain-set``, ``tuning``, ...), for a reader that takes more than
-    one; :class:`ArtifactError` names the file where it is not an artifact of this package."""
+    """The kind an artifact's ``schema`` names, for a reader that takes more than one.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+
+    Returns
+    -------
+    str
+        Its kind (``gain-set``, ``tuning``, ...).
+
+    Raises
+    ------
+    ArtifactError
+        Naming the file where it is not an artifact of this package.
+    """
     shown = str(path)
     try:
         text = read_bytes(path).decode("utf-8")
@@ -170,8 +297,10 @@ def artifact_kind(path: str | Path) -> str:
     schema = _json_object(text, shown).get("schema")
     kind = schema.split("/")[1] if isinstance(schema, str) and schema.count("/") == 2 else None
     if not (isinstance(schema, str) and schema.startswith("piezopreload/") and kind in KINDS):
-        raise ArtifactError(f"{shown}: field 'schema' is {schema!r}; expected a piezopreload artifact")
-    return kind
+        raise ArtifactError(field_message(shown, "schema", f"must name a piezopreload artifact (piezopreload/KIND/"
+                                                           f"{VERSION}, KIND one of {', '.join(KINDS)}), got "
+                                                           f"{schema!r}"))
+    return str(kind)
 
 
 def _json_object(text: str, shown: str) -> dict[str, Any]:
@@ -181,7 +310,7 @@ def _json_object(text: str, shown: str) -> dict[str, Any]:
     except json.JSONDecodeError as exc:
         raise ArtifactError(f"{shown}:{exc.lineno}: not valid JSON ({exc.msg})") from None
     if not isinstance(doc, dict):
-        raise ArtifactError(f"{shown}: expected a JSON object at the top level")
+        raise ArtifactError(field_message(shown, "", f"must be a JSON object, got {type(doc).__name__}"))
     return doc
 
 
@@ -189,43 +318,69 @@ def _check_schema(doc: dict[str, Any], kind: str, shown: str) -> None:
     """The document's ``schema`` must be this version's schema of ``kind``."""
     schema = doc.get("schema")
     expected = schema_name(kind)
-    if not isinstance(schema, str) or not schema.startswith("piezopreload/"):
-        raise ArtifactError(f"{shown}: field 'schema' is {schema!r}; expected '{expected}'")
-    if schema != expected:
-        got_kind = schema.split("/")[1] if schema.count("/") == 2 else schema
-        if got_kind != kind:
-            raise ArtifactError(f"{shown}: this is a '{got_kind}' artifact; expected a '{kind}' ({expected})")
-        raise ArtifactError(f"{shown}: schema '{schema}' is not supported by this version; expected '{expected}'")
+    if schema == expected:
+        return
+    got_kind = schema.split("/")[1] if isinstance(schema, str) and schema.count("/") == 2 else None
+    why = ("" if not isinstance(schema, str) or not schema.startswith("piezopreload/") or got_kind is None
+           else f" (a '{got_kind}' artifact)" if got_kind != kind
+           else " (a version of the kind this version of the package does not read)")
+    raise ArtifactError(field_message(shown, "schema", f"must be '{expected}', got {schema!r}{why}", _again(kind)))
 
 
-def _check_fields(doc: dict[str, Any], kind: str, shown: str) -> None:
-    """Every field a ``kind`` needs is there, and every number is finite."""
-    for name in KINDS[kind]:
+def _check_fields(doc: dict[str, Any], kind: str, shown: str, fields: bool) -> None:
+    """Every field a ``kind`` needs is there (where ``fields``), and every number is finite."""
+    required = _kind(kind).required() if fields else ()
+    for name in required:
         if name not in doc:
-            raise ArtifactError(f"{shown}: field '{name}' is missing")
+            raise ArtifactError(field_message(shown, name, f"is missing; a {kind} artifact holds "
+                                                           f"{', '.join(required)}", _again(kind)))
     bad = _first_non_finite(doc, "")
     if bad is not None:
-        raise ArtifactError(f"{shown}: field '{bad.lstrip('.')}' is not a finite number; "
-                            "artifacts hold finite numbers only")
+        value = _value_at(doc, bad)
+        raise ArtifactError(field_message(shown, bad.lstrip("."), f"must be a finite number, got {value!r}",
+                                          _again(kind)))
+
+
+def _value_at(doc: Any, path: str) -> Any:
+    for key in re.findall(r"\.([^.\[]+)|\[(\d+)\]", path):
+        doc = doc[key[0]] if key[0] else doc[int(key[1])]
+    return doc
 
 
 def _check_hash(doc: dict[str, Any], kind: str, shown: str) -> None:
     """A hashed ``kind`` carries the hash of its content as it was written."""
     stored = doc.get(HASH_FIELD)
     if not isinstance(stored, str):
-        raise ArtifactError(f"{shown}: field '{HASH_FIELD}' is missing; "
-                            f"a {kind} must carry the hash it was written with")
+        raise ArtifactError(field_message(shown, HASH_FIELD, f"is missing; expected the hash a {kind} artifact is "
+                                                             "written with", _again(kind)))
     if stored != content_hash(doc):
-        raise ArtifactError(f"{shown}: the content does not match its '{HASH_FIELD}': the file was changed after it "
-                            f"was written; regenerate it with 'piezopreload {_WRITER.get(kind, 'tune')}'")
+        raise ArtifactError(field_message(shown, HASH_FIELD, "does not match the content: the file was changed after "
+                                                             "it was written", _again(kind)))
 
 
-def parse_artifact(text: str, kind: str, shown: str = "the document") -> dict[str, Any]:
-    """:func:`read_artifact` on a document's text (pushed over a network, say); ``shown`` names it in errors."""
+def parse_artifact(text: str, kind: str, shown: str = "the document", *, fields: bool = True) -> dict[str, Any]:
+    """:func:`read_artifact` on a document's text (pushed over a network, say).
+
+    Parameters
+    ----------
+    text : str
+        The document's text.
+    kind : str
+        The kind it must be.
+    shown : str
+        What the messages call it.
+    fields : bool
+        Whether to check its kind's required fields (False for a record's own reader).
+
+    Returns
+    -------
+    dict
+        The document.
+    """
     doc = _json_object(text, shown)
     _check_schema(doc, kind, shown)
-    _check_fields(doc, kind, shown)
-    if kind in HASHED:
+    _check_fields(doc, kind, shown, fields)
+    if _kind(kind).hashed:
         _check_hash(doc, kind, shown)
     return doc
 

@@ -24,11 +24,12 @@ import shutil
 import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
-from piezopreload.core.artifacts import ArtifactError, atomic_write_bytes, read_artifact, write_artifact
+from piezopreload.core.artifacts import ArtifactError, atomic_write_bytes
+from piezopreload.core.config import Invalid
+from piezopreload.core.records import Artifact, entry, record
 from piezopreload.core.stages import sha256_file
 
 __all__ = ["StageCache", "CacheEntry", "KIND"]
@@ -39,14 +40,31 @@ _FILES = "files"
 _INCOMING = ".incoming"  # entries being written, renamed into place when whole
 
 
-@dataclass(frozen=True)
-class CacheEntry:
-    """One stored stage: its name, its key, its summary and its outputs (label -> relative path, SHA-256)."""
+def _outputs(doc: Any) -> dict[str, dict[str, str]]:
+    """Each output's label and its ``path`` and ``sha256``."""
+    if not isinstance(doc, dict):
+        raise ValueError(f"expected an object of outputs, got {type(doc).__name__}")
+    out = {}
+    for label, o in doc.items():
+        if not isinstance(o, dict) or not isinstance(o.get("path"), str) or not isinstance(o.get("sha256"), str):
+            raise Invalid(label, f"must be an object of 'path' and 'sha256' (strings), got {o!r}")
+        out[str(label)] = {"path": o["path"], "sha256": o["sha256"]}
+    return out
 
-    stage: str
-    key: str
-    summary: dict[str, Any]
-    outputs: dict[str, dict[str, str]]
+
+@record
+class CacheEntry(Artifact):
+    """One stored stage: its name, its key, its summary and its outputs."""
+
+    KIND: ClassVar[str] = KIND
+    NOUN: ClassVar[str] = "the cache entry"
+
+    stage: str = entry("The stage's name.")
+    key: str = entry("Its content key (64 hex digits).")
+    summary: dict[str, Any] = entry("Its summary, as its record in a run's manifest holds it.")
+    outputs: dict[str, dict[str, str]] = entry("Each output's label: its ``path`` (relative to the folder that wrote "
+                                               "it) and ``sha256``.", read=_outputs,
+                                               takes="an object of outputs (path, sha256)")
 
     def __post_init__(self) -> None:
         if not self.stage or len(self.key) != 64:
@@ -58,27 +76,15 @@ class CacheEntry:
                 raise ValueError(f"CacheEntry: output '{label}' needs a relative path inside its folder and a SHA-256, "
                                  f"got {o!r}")
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"stage": self.stage, "key": self.key, "summary": self.summary, "outputs": self.outputs}
-
-    @classmethod
-    def from_dict(cls, doc: dict[str, Any], where: str = "entry") -> CacheEntry:
-        for name, kind in (("stage", str), ("key", str), ("summary", dict), ("outputs", dict)):
-            if not isinstance(doc.get(name), kind):
-                raise ArtifactError(f"{where}: field '{name}' is missing or not a {kind.__name__}")
-        try:
-            return cls(doc["stage"], doc["key"], dict(doc["summary"]),
-                       {str(k): {"path": str(v["path"]), "sha256": str(v["sha256"])}
-                        for k, v in doc["outputs"].items()})
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ArtifactError(f"{where}: field 'outputs' is not valid ({exc})") from None
-
     def save(self, path: Path) -> None:
-        write_artifact(path, KIND, self.to_dict())
+        """Write the entry atomically.
 
-    @classmethod
-    def load(cls, path: Path) -> CacheEntry:
-        return cls.from_dict(read_artifact(path, KIND), str(path))
+        Parameters
+        ----------
+        path : Path
+            The file.
+        """
+        self._write(path)
 
 
 class StageCache:

@@ -75,7 +75,22 @@ def unit_of(name: str) -> str:
 
 @dataclass(frozen=True, eq=False)
 class Record:
-    """A measured record: strictly increasing time, one input and one output, all finite."""
+    """A measured record: strictly increasing time, one input and one output, all finite.
+
+    Parameters
+    ----------
+    path : str
+        The file it was read from.
+    sha256 : str
+        The SHA-256 of the file's bytes.
+    time_s : ndarray
+        The sample times, strictly increasing (s).
+    input, output : ndarray
+        The input (the stacks' voltage) and the output (the force) at each sample, in the units their
+        names carry.
+    input_name, output_name : str
+        The columns' names (``voltage_V``, ``force_N``): their units follow the last underscore.
+    """
 
     path: str
     sha256: str
@@ -221,6 +236,29 @@ def read_record(
     Lines that are blank or start with ``#`` are skipped. With ``header=True`` the first other
     line names the columns (``time_s,voltage_V,force_N``); without one, ``columns`` must say
     where time, input and output are.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file.
+    columns : dict of ColumnSpec, optional
+        Where the time, the input and the output are (``parse_columns("time=0,input=1,output=2")``); default:
+        the columns the header names ``time_*``, ``voltage_*`` (or ``input_*``) and the one other.
+    header : bool
+        Whether the first line that is not blank or a comment names the columns.
+    min_samples : int
+        The fewest data rows the record may have.
+
+    Returns
+    -------
+    Record
+        The record, its file's SHA-256 with it.
+
+    Raises
+    ------
+    InputError
+        Naming the file and line of the first problem (a missing column, a number that is not one, time
+        that does not increase).
     """
     path = Path(path)
     shown = str(path)

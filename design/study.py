@@ -61,7 +61,29 @@ def read_profile(path: str | Path) -> LoadProfile:
 
 @dataclass(frozen=True, eq=False)
 class DesignResult:
-    """A design study: ``optimum`` (a :class:`DesignOptimum`), ``fronts``, ``schedule`` and the curves."""
+    """A design study: ``optimum`` (a :class:`DesignOptimum`), ``fronts``, ``schedule`` and the curves.
+
+    Parameters
+    ----------
+    spec : DesignSpec
+        What was designed: the screw's ranges, the duty, the stacks, the objective.
+    optimum : DesignOptimum
+        The optimum: its point, its objective, the constraints that bind.
+    fronts : list of ParetoFront
+        The Pareto fronts of the study's pairs of objectives.
+    schedule : PreloadSchedule
+        The preload schedule of the machining cycle on the optimum's screw.
+    profile : str
+        The load profile's file, or ``example``.
+    max_preload_N : float
+        The stacks' reach on the optimum's screw: the top of its preload range (N).
+    slew_N_per_s : float
+        The fastest the stacks change the preload, at the bolts' preload (N/s).
+    preload_curve : PreloadCurve
+        Rigidity and drag torque of the optimum's double nut against the preload.
+    natural_frequency : FrequencyCurve
+        The first axial natural frequency along the travel.
+    """
 
     spec: DesignSpec
     optimum: DesignOptimum

@@ -365,7 +365,31 @@ def evaluate_tracking(plant: DesignedPlant, schedule: PreloadSchedule, run: Clos
 class SystemRun:
     """The controlled preload over the schedule's cycles (module docstring): the last pass's run and schedule, its
     evaluation, every pass's record, the pre-cycle and the bounds; ``design_schedule`` the schedule it started from
-    (the design's: its best constant preload is the one the saving is read against)."""
+    (the design's: its best constant preload is the one the saving is read against).
+
+    Parameters
+    ----------
+    schedule : PreloadSchedule
+        The last pass's schedule, the one the loop ran.
+    design_schedule : PreloadSchedule
+        The design's schedule it started from.
+    plant : DesignedPlant
+        The designed plant the loop ran on.
+    cycles : int
+        The machining cycles run.
+    run : ClosedLoopRun
+        The last pass's closed-loop run.
+    pre_cycle : PreCycle
+        The rest and the ramp before the first cut.
+    evaluation : Evaluation
+        The last pass's run judged: its numbers, its requirements as verdicts, its shortfall per sample.
+    passes : tuple of PassRecord
+        Every pass's record, in order.
+    bounds : tuple of ScheduleBound
+        What stops a requirement the passes could not meet (none: nothing).
+    thermal : ThermalBudget or None
+        The shift's heat, temperature and growth (None: the study has no thermal model).
+    """
 
     schedule: PreloadSchedule
     design_schedule: PreloadSchedule

@@ -139,6 +139,8 @@ class Plant:
     ----------
     stack : StackData
         The stack type; ``n_stacks`` of them act in parallel.
+    n_stacks : int
+        How many stacks push in parallel (three in the paper).
     bolt_preload_N : float
         Preload set by the adjusting bolts at 0 V (25 N in the paper).
     coupling_stiffness_N_per_um : float

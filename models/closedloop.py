@@ -43,6 +43,17 @@ class Reference:
     the last level held to the end).
 
     ``times_s[0]`` must be 0 (the level the rig rests at before the first change).
+
+    Parameters
+    ----------
+    times_s : ndarray
+        The times of the points, strictly increasing from 0 (s).
+    levels_N : ndarray
+        The force at each point (N).
+    duration_s : float
+        The reference's length, beyond its last point (s).
+    interpolation : {'hold', 'linear'}
+        Between points: hold each level, or ramp linearly to the next.
     """
 
     times_s: Array
@@ -139,6 +150,29 @@ class ClosedLoopRun:
     ``command_V`` the controller output (after its clamp) and ``p_V, i_V, d_V, ff_V`` its
     parts, ``voltage_V`` the amplifier output; ``engine`` which simulation ran (``"c"`` or
     ``"numpy"``: the same numbers).
+
+    Parameters
+    ----------
+    t_s : ndarray
+        The sample times (s).
+    reference_N : ndarray
+        The reference at each sample (N).
+    force_N : ndarray
+        The true force (N).
+    measured_N : ndarray
+        The force the A/D read, noise and quantisation included (N).
+    command_V : ndarray
+        The controller's output after its clamp (V).
+    voltage_V : ndarray
+        The amplifier's output, what the stacks see (V).
+    p_V, i_V, d_V, ff_V : ndarray
+        The command's proportional, integral, derivative and feedforward parts (V).
+    reference : Reference
+        The reference the run followed.
+    seed : int
+        The seed of the run's noise.
+    engine : {'numpy', 'c'}
+        Which simulation ran.
     """
 
     t_s: Array

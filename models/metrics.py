@@ -30,6 +30,24 @@ class StepMetrics:
     ``overshoot`` is in output units past ``final`` in the direction of the step, and
     ``overshoot_pct`` the same as a percentage of the step size. A time the response never
     reaches is ``nan``.
+
+    Parameters
+    ----------
+    initial, final : float
+        The levels before and after the step, in the output's unit.
+    rise_s : float
+        The rise time (s): from 10 % to 90 % of the step (the conventional definition), or until the output is
+        within the error band of ``final`` (the paper's).
+    peak_s : float
+        The time of the peak (s).
+    peak : float
+        The peak value, in the output's unit.
+    settling_s : float
+        The time after which the output stays within its band of ``final`` (s).
+    overshoot : float
+        How far the output passed ``final`` in the direction of the step, in the output's unit.
+    overshoot_pct, undershoot_pct : float
+        The overshoot, and the swing below ``initial`` against the step, as percentages of the step size.
     """
 
     initial: float

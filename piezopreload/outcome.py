@@ -85,7 +85,15 @@ class Headline:
 
 @dataclass(frozen=True)
 class RunSummary:
-    """A run's headline figures and every requirement its stages checked: ``run --json``'s ``summary``."""
+    """A run's headline figures and every requirement its stages checked: ``run --json``'s ``summary``.
+
+    Parameters
+    ----------
+    headline : Headline
+        The run's headline figures.
+    requirements : tuple of Requirement
+        Every requirement the stages checked, in stage order, each with its verdict.
+    """
 
     headline: Headline
     requirements: tuple[Requirement, ...]
@@ -118,6 +126,29 @@ class StudyResult:
     """A study's run: its outputs, its stages, its headline figures and its requirements' verdicts.
 
     ``to_dict()`` is what ``piezopreload run --json`` prints; ``exit_code`` what it exits with.
+
+    Parameters
+    ----------
+    out : Path
+        The run's folder.
+    study : dict of str to str
+        The study's ``path``, ``sha256`` and ``name`` (and its ``copy`` in the run's folder).
+    stages : tuple of StageOutcome
+        Each stage's outcome, in order (ran, up to date, or did not apply, with why).
+    seconds : float
+        The wall-clock time the run took (s).
+    headline : Headline
+        The run's headline figures.
+    requirements : tuple of Requirement
+        Every requirement the stages checked, with its value and margin, in stage order.
+    report : Path or None
+        The PDF report (None: not written).
+    gain_set : Path or None
+        The gain set the run wrote (None: none).
+    gain_set_sha256 : str or None
+        Its content hash.
+    rig_log : Path or None
+        The rig run's log (None: the rig stage did not run).
     """
 
     out: Path

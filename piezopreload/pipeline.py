@@ -137,7 +137,7 @@ class _Ctx:
     def record(self, stage: str) -> StageRecord | None:
         """The record of ``stage`` so far in this run (None: not reached)."""
         raw = self.records.get(stage)
-        return None if raw is None else StageRecord.from_dict(stage, raw, str(self.out / MANIFEST))
+        return None if raw is None else StageRecord.read(stage, raw, str(self.out / MANIFEST))
 
     def done(self, stage: str) -> bool:
         record = self.record(stage)

@@ -72,6 +72,15 @@ class TuningResult:
     (``table``), the gains on the ends of their search range (``active_bounds``), the least settling time any command
     reaches (``minimum_time``, the tuned over it ``tuned_over_bound_ratio``) and the trajectory's least RMS error any
     causal controller reaches (``tracking_floor``).
+
+    Parameters
+    ----------
+    study : Study
+        The study the gains were tuned for.
+    feedforward : IdentifiedFeedforward
+        The feedforward the gains were tuned with.
+    record : TuningRecord
+        The tune stage's artifact.
     """
 
     study: StudySpec
@@ -297,7 +306,29 @@ class SimulationInfo:
     """What a study's simulation ran: the study, the controller and the reference, the gains and where they came from
     (``gains_source``; a gain set's ``gains_status``), the feedforward (None: the PID alone), the sample period, and
     the study's published numbers for this run (``published``: its source and the numbers by name; None where it
-    declares none)."""
+    declares none).
+
+    Parameters
+    ----------
+    study : StudyRef
+        Which study.
+    controller : str
+        ``pid`` or ``ff+pid``.
+    reference : str
+        ``step`` or ``trajectory``.
+    gains : PIDGains
+        The gains that ran.
+    gains_source : str
+        Where they came from, in words (or the gain set's file).
+    sample_period_s : float
+        The loop's sample period (s).
+    feedforward : FeedforwardInfo or None
+        The feedforward (None: the PID alone).
+    gains_status : str or None
+        A gain set's status.
+    published : dict or None
+        The study's published numbers for this run, with their source.
+    """
 
     study: StudyRef
     controller: str
@@ -319,7 +350,20 @@ class SimulationInfo:
 
 @dataclass(frozen=True, eq=False, kw_only=True)
 class StudyRun(ClosedLoopRun):
-    """A closed-loop run of one plant, scored as its study says (``band_N``, ``signal``); ``info`` says what ran."""
+    """A closed-loop run of one plant, scored as its study says (``band_N``, ``signal``); ``info`` says what ran.
+
+    Parameters
+    ----------
+    t_s, reference_N, force_N, measured_N, command_V, voltage_V, p_V, i_V, d_V, ff_V, reference, seed, engine
+        As :class:`~piezopreload.models.closedloop.ClosedLoopRun` has them.
+    band_N : float
+        The study's error band of the step metrics (N).
+    signal : str
+        The signal the study scores (the true force or the measured one).
+    info : SimulationInfo
+        What ran: the study, the controller, the reference, the gains, the feedforward, the sample period and the
+        study's published numbers for the run.
+    """
 
     band_N: float
     signal: str
@@ -418,7 +462,29 @@ class StudyReproduction:
     """A study's published step numbers beside its simulation's, with the PID alone and with the feedforward
     (:meth:`Study.reproduce <piezopreload.study.Study.reproduce>`): the study, its gains (and how its
     ``[controller]`` was read), the step, the band, the signal judged, and the comparison
-    (:class:`~piezopreload.tuning.compare.ReproductionSummary`: one row per controller and metric)."""
+    (:class:`~piezopreload.tuning.compare.ReproductionSummary`: one row per controller and metric).
+
+    Parameters
+    ----------
+    study : StudyRef
+        Which study.
+    gains : PIDGains
+        The study's gains.
+    read_as : str
+        How its ``[controller]`` was read (the time unit of Ti and Td).
+    band_N : float
+        The settling band (N).
+    signal : str
+        The signal the step numbers are read on.
+    published : str
+        Where the published numbers come from.
+    step_levels_N : tuple of float
+        The step's levels (N).
+    comparison : ReproductionSummary
+        The published numbers beside the simulated ones.
+    seconds : float
+        The time the simulations took (s).
+    """
 
     study: StudyRef
     gains: PIDGains

@@ -34,7 +34,15 @@ class ScheduleLearning:
     """Learning along the design's preload schedule (``study.learn(gains, reference="schedule")``): each margin
     pass of the schedule learned on its own repeated reference (``passes``, one
     :class:`~piezopreload.tuning.learning.LearningResult` each), and the tracking of the schedule with each pass's
-    learned signal played (``system``, the last pass's :class:`~piezopreload.design.system.SystemRun`)."""
+    learned signal played (``system``, the last pass's :class:`~piezopreload.design.system.SystemRun`).
+
+    Parameters
+    ----------
+    system : SystemRun
+        The schedule tracked with each pass's learned signal played.
+    passes : tuple of LearningResult
+        One learning per margin pass of the schedule, in order.
+    """
 
     system: SystemRun
     passes: tuple[LearningResult, ...]

@@ -620,7 +620,13 @@ def _merge(into: dict[str, Any], changes: dict[str, Any]) -> None:
 # loading
 # --------------------------------------------------------------------------------------
 def shipped_studies() -> dict[str, Path]:
-    """The studies that ship with the package, by name."""
+    """The studies that ship with the package, by name.
+
+    Returns
+    -------
+    dict of str to Path
+        Each shipped study's name (``paper2021``, ``machine_axis``) and its file.
+    """
     root = resources.files("piezopreload.studies")
     return {p.name[:-5]: Path(str(p)) for p in root.iterdir() if p.name.endswith(".toml")}
 

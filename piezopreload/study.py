@@ -51,6 +51,46 @@ class Study(StudySpec):
     Make one with :func:`load_study`, a changed copy with :meth:`replace`. The ``[design]`` table is
     ``design_table`` (``design()`` runs it), the ``[plant]`` table ``plant_table`` (``plant`` is the
     plant itself, a :class:`~piezopreload.models.actuator.Plant`).
+
+    Parameters
+    ----------
+    path : str
+        The study's file.
+    sha256 : str
+        The SHA-256 of the file as read.
+    name, title : str
+        The study's name and title (its ``[study]`` table).
+    rig, controller, feedforward, reference, simulation, tuning, validation, export : table
+        The tables of those names, typed as the file gives them (defaults where it gives none).
+    rig_run : RigRunPlan
+        The ``[rig_run]`` table: the rig stage's plan.
+    ballscrew, feed_drive, duty, design_table, schedule, plant_table, learning, published : table or None
+        The optional tables (``[design]`` is ``design_table``, ``[plant]`` ``plant_table``); None where the file
+        has none.
+    gains : PIDGains
+        The starting gains the tables make.
+    references : dict of str to Reference
+        The step and the trajectory the tables make.
+    excitation : LoopExcitation
+        The loop the feedforward is identified on.
+    tuning_spec : TuningSpec
+        What the tuning requires.
+    criteria : Criteria
+        What the validation requires of every plant.
+    design_spec : DesignSpec or None
+        The preload design the tables make (None: the study has no design).
+    where : object
+        The file and its lines, for the messages.
+    source_text : bytes
+        The file as read, or as :meth:`replace` wrote it.
+    given : dict
+        The tables and keys the file gives, as it gives them.
+    description : str
+        The study's description.
+    thermal : table or None
+        The ``[thermal]`` table: the shift's heat, temperature and growth (None: none).
+    say : callable
+        Where the study says what it does when a step is given no progress of its own.
     """
 
     def tune(self, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,

@@ -573,7 +573,17 @@ def rerender_sweep_report(out: str | Path, progress: ProgressLike | None = None,
 @dataclass(frozen=True)
 class SweepResult:
     """A sweep's outcome: its folder and record; one row per point (:attr:`rows`), as CSV,
-    JSON, a data frame, a plot."""
+    JSON, a data frame, a plot.
+
+    Parameters
+    ----------
+    out : Path
+        The sweep's folder.
+    record : SweepRecord
+        Its record (``sweep.json``): the study, the axes, each point's values, status and figures.
+    seconds : float or None
+        The wall-clock time the sweep took (s; None: read back from its folder).
+    """
 
     out: Path
     record: SweepRecord

@@ -566,6 +566,17 @@ def export(obj: GainSet | IdentifiedModel | HysteresisModel | CreepPI | dict[str
         A gain set that is not validated is exported only where every requirement it missed is
         named here (:attr:`~piezopreload.artifacts.requirements.Requirement.key`); the text
         then says so in its header.
+
+    Returns
+    -------
+    str
+        The export's text (a JSON document, a LabVIEW table, Structured Text, C source).
+
+    Raises
+    ------
+    ExportError
+        For an unknown format, a gain set that is not validated (and whose misses are not accepted), or a
+        sample period given with a gain set.
     """
     if fmt not in FORMATS:
         raise ExportError(f"unknown format '{fmt}'; expected one of {', '.join(FORMATS)}")

@@ -158,11 +158,12 @@ def test_gain_set_and_reference_documents_are_checked_naming_the_field():
         pp.Reference.from_dict({"times_s": [0.5], "levels_N": [25.0], "duration_s": 1.0})
     doc = {"status": "candidate", "gains": {"Kc_V_per_N": 0.5, "Ti_s": 0.1, "Td_s": 0.0}, "inputs": {}}
     assert pp.GainSet.from_dict(doc).gains.Kc == 0.5
-    for field, value, match in (("status", "approved", "field 'status' is 'approved'"),
+    for field, value, match in (("status", "approved",
+                                 "field 'status' must be one of validated, candidate, got 'approved'"),
                                 ("gains", {"Kc_V_per_N": 0.5}, r"field 'gains.Ti_s' is missing"),
                                 ("references", {"step": {"times_s": [0.0]}},
-                                 r"field 'references.step' is not a reference"),
-                                ("plant", {"rig": {"noise_N": -1.0}}, r"field 'plant.rig' is not a rig")):
+                                 r"field 'references.step' is not valid"),
+                                ("plant", {"rig": {"noise_N": -1.0}}, r"field 'plant.rig' is not valid")):
         with pytest.raises(pp.ArtifactError, match=match):
             pp.GainSet.from_dict({**doc, field: value}, "g.json")
     with pytest.raises(pp.InputError, match="GainSet.status"):

@@ -236,12 +236,13 @@ def _write_model(path):
 @pytest.mark.parametrize(
     "tamper, expected",
     [
-        (lambda d: d.update(schema="piezopreload/hysteresis-model/9"), "not supported by this version"),
-        (lambda d: d.update(schema="piezopreload/gain-set/1"), "this is a 'gain-set' artifact"),
+        (lambda d: d.update(schema="piezopreload/hysteresis-model/9"), "a version of the kind this version of the "
+                                                                      "package does not read"),
+        (lambda d: d.update(schema="piezopreload/gain-set/1"), "a 'gain-set' artifact"),
         (lambda d: d.update(schema="something"), "field 'schema'"),
         (lambda d: d.pop("units"), "field 'units' is missing"),
         (lambda d: d["model"].pop("weights"), r"model.weights is missing"),
-        (lambda d: d["model"]["weights"].__setitem__(2, "NaN"), r"field 'model.weights\[2\]' is not a finite"),
+        (lambda d: d["model"]["weights"].__setitem__(2, "NaN"), r"field 'model.weights\[2\]' must be a finite number"),
         (lambda d: d["model"]["thresholds"].__setitem__(1, -1.0), "strictly increasing"),
     ],
 )
@@ -259,7 +260,8 @@ def test_artifact_write_is_atomic_and_refuses_non_finite(tmp_path):
     _write_model(path)
     before = path.read_text()
     with pytest.raises(ValueError, match="not finite"):
-        write_artifact(path, "hysteresis-model", {"inputs": {}, "units": {}, "model": {"offset": float("nan")}})
+        write_artifact(path, "hysteresis-model", {"inputs": {}, "units": {}, "model": {"offset": float("nan")},
+                                                  "identification": {}})
     assert path.read_text() == before, "a failed write must leave the old artifact intact"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.json"], "no temporary files left behind"
     assert read_artifact(path, "hysteresis-model")["package_version"]

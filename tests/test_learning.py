@@ -524,7 +524,8 @@ def test_a_schedules_passes_are_saved_as_one_typed_record_and_each_signal_is_fou
         L.learned_by_reference([paths["pass1"]], "b" * 64)
     # the reader names a missing, a non-finite and an inconsistent field
     doc = json.loads(paths["learning"].read_text())
-    for change, field in ((lambda d: d["pass_records"][0].pop("trials"), "field 'trials' is missing"),
+    for change, field in ((lambda d: d["pass_records"][0].pop("trials"),
+                           r"field 'pass_records\[0\]\.trials' is missing"),
                           (lambda d: d["pass_records"][1].__setitem__("tracking_rms_N", "NaN"), "tracking_rms_N"),
                           (lambda d: d.__setitem__("passes", 3), "passes")):
         bad = json.loads(json.dumps(doc))

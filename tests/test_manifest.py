@@ -107,7 +107,7 @@ def test_a_bad_field_is_refused_by_name(edit, named):
 
 def test_the_record_the_stage_runner_keeps_reads_as_a_stage_record():
     """What :func:`piezopreload.core.stages.run_stages` keeps for a failed stage reads back with its message."""
-    record = StageRecord.from_dict("compare", {"status": "failed", "key": "k", "message": "stage 'compare' failed: x",
+    record = StageRecord.read("compare", {"status": "failed", "key": "k", "message": "stage 'compare' failed: x",
                                                "seconds": 0.5, "finished_utc": "2026-01-01T00:00:00Z",
                                                "outputs": {}})
     assert not record.done and record.why_not == "stage 'compare' failed: x" and record.summary is None

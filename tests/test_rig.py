@@ -588,7 +588,7 @@ def test_the_sidecar_is_one_typed_record_that_names_a_bad_field(gains_path, tmp_
     assert RigRunRecord.from_dict(side.to_dict()).to_dict() == side.to_dict()
     doc = json.loads(Path(r["log_json"]).read_text())
     del doc["summary"]["timing"]["held_max_s"]
-    with pytest.raises(ArtifactError, match=r"summary.timing: field 'held_max_s' is missing"):
+    with pytest.raises(ArtifactError, match=r"field 'summary.timing.held_max_s' is missing"):
         RigRunRecord.from_dict(doc, "the run's sidecar")
     doc = json.loads(Path(r["log_json"]).read_text())
     doc["summary"]["trip"] = {"cause": "force_high", "detail": "x", "t_s": 1.0, "voltage_V": 3.0}

@@ -132,7 +132,7 @@ def test_a_tampered_gain_file_is_refused(capsys, tmp_path):
     doc["gains"]["Kc_V_per_N"] = 5.0
     g.write_text(json.dumps(doc))
     code, _, err = run_cli(capsys, "simulate", "--study", "paper2021", "--controller", "pid", "--gains", str(g))
-    assert code == 2 and "does not match its 'content_sha256'" in err and err.count("\n") == 1
+    assert code == 2 and "field 'content_sha256' does not match the content" in err and err.count("\n") == 1
 
 
 def test_simulate_with_a_gain_file(capsys, tmp_path):
@@ -163,7 +163,7 @@ def test_simulate_bad_input_exits_2(capsys, argv_tail, needle):
     [
         ({"Kc_V_per_N": 0.5, "Td_s": 0.0}, "field 'gains.Ti_s' is missing"),
         ({"Kc_V_per_N": 0.5, "Ti_s": -1.0, "Td_s": 0.0}, "Ti_s must be > 0"),
-        ({"Kc_V_per_N": float("nan"), "Ti_s": 1.0, "Td_s": 0.0}, "'gains.Kc_V_per_N' is not a finite number"),
+        ({"Kc_V_per_N": float("nan"), "Ti_s": 1.0, "Td_s": 0.0}, "'gains.Kc_V_per_N' must be a finite number"),
     ],
 )
 def test_simulate_rejects_bad_gain_files(capsys, tmp_path, gains, needle):

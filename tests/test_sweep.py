@@ -236,7 +236,7 @@ def test_the_record_round_trips_and_names_a_bad_field(tmp_path):
     assert back == record and back.rows() == record.rows()
     doc = read_artifact(tmp_path / "sweep.json", "sweep")
     del doc["points"][1]["figures"]["worst_settling_s"]
-    with pytest.raises(ArtifactError, match=r"points\[1\]\.figures: field 'worst_settling_s' is missing"):
+    with pytest.raises(ArtifactError, match=r"field 'points\[1\]\.figures\.worst_settling_s' is missing"):
         SweepRecord.from_dict(doc)
     doc = read_artifact(tmp_path / "sweep.json", "sweep")
     doc["points"][0]["figures"]["Kc_V_per_N"] = "fast"

@@ -548,14 +548,14 @@ def test_the_tuning_record_reads_back_and_names_a_bad_field(tmp_path):
     assert back.active_bounds[0].sentence().startswith("the derivative time Td at its lower bound")
     doc = json.loads(path.read_text())
     for field, value, words in (("minimum_time", {"settling_s": None, "tuned_over_bound_ratio": None}, "reason"),
-                                ("table", [{"gains": "tuned"}], "table[0].rise_s"),
+                                ("table", [{"gains": "tuned"}], "table[0].feedforward"),
                                 ("tracking_floor", {"rms_N": "x", "rate_N_per_s": 1.0, "tuned_over_floor_ratio": None},
                                  "tracking_floor.rms_N")):
         bad = {**doc, field: value}
         with pytest.raises(ArtifactError, match=re.escape(words)):
             TuningRecord.from_dict(bad)
     del doc["tuning"]
-    with pytest.raises(ArtifactError, match="'tuning record.tuning' is missing"):
+    with pytest.raises(ArtifactError, match="the tuning record: field 'tuning' is missing"):
         TuningRecord.from_dict(doc)
     # the layout the tune stage wrote before the record was typed (no active_bounds, no minimum-time samples) reads
     old = record.to_dict()

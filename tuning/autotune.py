@@ -249,6 +249,8 @@ def autotune(plant: Any, *, Ms: float, Mt: float | None = None, Mks: float | Non
         An input delay (s), exact in the frequency response.
     w : array_like, optional
         The design grid (rad/s) instead of the plant's.
+    filter_order : {1, 2}, optional
+        A PID's filter: first order on the derivative (1, the default) or second order on the whole controller (2).
     solver : {"sqp", "ipopt", "slsqp", "slsqp-fd"}
         The local solver: the SQP (exact derivatives, DAQP for its QPs), IPOPT (exact derivatives), scipy's SLSQP
         with the same exact first derivatives, or with finite differences (for comparison).

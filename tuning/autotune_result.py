@@ -232,6 +232,59 @@ class AutotuneResult:
     ``loop`` says which loop they hold on (``"continuous"``: the continuous controller on the plant; ``"sampled"``:
     the controller step at ``sample_period_s`` on the plant behind a zero-order hold); ``leans_on`` names, in
     sentences, each bound the user did not set that the result sits on.
+
+    Parameters
+    ----------
+    controller_ : PIDController
+        The tuned controller.
+    plant : LinearPlant
+        The plant as given.
+    design_plant : LinearPlant
+        The plant the bounds were held on (the sampled loop's, where ``loop`` is ``"sampled"``).
+    form : {'PI', 'PID'}
+        The controller's form.
+    metric : {'IE', 'IAE'}
+        What was optimised: the integral gain, or the IAE of a unit load step.
+    bounds : dict
+        The bounds the problem held (``Ms``, ``Mt``, ``Mks``; None: not bounded).
+    margins : Margins
+        The margins reached: the peaks of ``|S|``, ``|T|`` and ``|KS|``, gain, phase and delay margins.
+    peaks : dict
+        Each peak's name and its ``(frequency in rad/s, magnitude)``.
+    stable : bool
+        Whether the loop is stable.
+    iae : float or None
+        The IAE of a unit load step at the plant input (None: the metric is ``IE``, nothing simulated).
+    iae_Ts : float or None
+        The sample period that load step was simulated at (s).
+    starts : tuple of StartRecord
+        The starts of the local solver and what became of each.
+    active_bounds : tuple of ActiveBound
+        The gains on the ends of their range.
+    grid_points, check_points : int
+        The sizes of the design grid and of the check grid (ten times as dense).
+    refinements : int
+        The rounds of the winning start's solve in which the design grid was refined where a bound was exceeded.
+    iterations : int
+        The local solver's iterations, over all starts.
+    seconds : float
+        The wall-clock time it took (s).
+    solver : str
+        The local solver.
+    loop : {'continuous', 'sampled'}
+        Which loop the bounds hold on.
+    sample_period_s : float or None
+        The sample period the controller runs at (s).
+    user_bounds : dict
+        The bounds the user set.
+    defaults : dict
+        The bounds the tuner set where the user set none: name -> ``{"value", "reason"}``.
+    leans_on : tuple of str
+        Each bound the user did not set that the result sits on, in a sentence.
+    u_range : (float, float) or None
+        The actuator's range, the gain set's output range.
+    load_step : object
+        The simulated load step (None: not simulated).
     """
 
     controller_: PIDController

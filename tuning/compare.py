@@ -134,7 +134,25 @@ def reproduction(runs: list[Response], published: dict[str, dict[str, float]],
 @dataclass(frozen=True)
 class PublishedRow:
     """One published step number beside the simulation's: their ratio, whether it lies within 25 % of the published
-    one, and the simulated number's range over the noise realisations (a time never reached is None, not within)."""
+    one, and the simulated number's range over the noise realisations (a time never reached is None, not within).
+
+    Parameters
+    ----------
+    controller : str
+        ``pid`` or ``ff+pid``.
+    metric : str
+        ``rise_s``, ``peak_s`` or ``settling_s``.
+    paper : float
+        The published number (s).
+    simulated : float or None
+        The simulated one (s; None: never reached).
+    ratio : float or None
+        Simulated over published.
+    within_25pct : bool
+        Whether the ratio lies within 0.75 to 1.25.
+    range : (float or None, float or None)
+        The least and the largest simulated number over the noise realisations (s).
+    """
 
     controller: str
     metric: str
@@ -153,7 +171,19 @@ class PublishedRow:
 @dataclass(frozen=True)
 class ReproductionSummary:
     """The published step numbers beside a :class:`Reproduction`'s (one :class:`PublishedRow` per controller and
-    metric), the overshoot per controller, the feedforward's fit and the noise realisations behind each number."""
+    metric), the overshoot per controller, the feedforward's fit and the noise realisations behind each number.
+
+    Parameters
+    ----------
+    feedforward_fit : dict of str to float
+        The feedforward's fit to its loop (``rms_pct``, ``max_pct`` of the span).
+    rows : tuple of PublishedRow
+        One row per controller and metric.
+    overshoot_N : dict of str to float
+        The simulated overshoot per controller (N).
+    repeats : int
+        The noise realisations behind each number.
+    """
 
     feedforward_fit: dict[str, float]
     rows: tuple[PublishedRow, ...]

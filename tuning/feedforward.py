@@ -125,7 +125,19 @@ def compensation_check(rig: Plant, model: FeedforwardModel, low_N: float, high_N
 @dataclass(frozen=True)
 class FeedforwardInfo:
     """Where a feedforward came from (in words), its model and play operators, and, where it was identified for the
-    run, its fit to the loop (in % of the force span)."""
+    run, its fit to the loop (in % of the force span).
+
+    Parameters
+    ----------
+    source : str
+        Where the feedforward came from, in words.
+    model : str
+        The P-I model's kind.
+    operators : int
+        Its play operators.
+    fit_rms_pct, fit_max_pct : float or None
+        Its RMS and largest error on its loop, in % of the force span (None: not identified for the run).
+    """
 
     source: str
     model: str
@@ -143,7 +155,17 @@ class FeedforwardInfo:
 @dataclass(frozen=True, eq=False)
 class IdentifiedFeedforward:
     """A study's feedforward: its identified P-I model (``record``, as ``model.json`` holds it), and when it was
-    identified here rather than read back, the loop it was fitted to and the open-loop compensation check."""
+    identified here rather than read back, the loop it was fitted to and the open-loop compensation check.
+
+    Parameters
+    ----------
+    record : IdentifiedModel
+        The identified model, its errors and where it came from.
+    loop : Record or None
+        The hysteresis loop it was fitted to (None: read back from ``model.json``).
+    check : CompensationCheck or None
+        The open-loop check of its inverse on the plant (None: read back).
+    """
 
     record: IdentifiedModel
     loop: Record | None = None

@@ -42,7 +42,13 @@ __all__ = ["Window", "Identification", "identify", "check_operators", "MAX_MATRI
 
 @dataclass(frozen=True)
 class Window:
-    """A time window ``[t0_s, t1_s]``."""
+    """A time window ``[t0_s, t1_s]``.
+
+    Parameters
+    ----------
+    t0_s, t1_s : float
+        Its start and its end, ``t0_s < t1_s`` (s).
+    """
 
     t0_s: float
     t1_s: float
@@ -87,6 +93,21 @@ class Identification:
     ``record`` (:class:`~piezopreload.artifacts.hysteresis.IdentifiedModel`) holds the model, its
     errors and where it came from, exactly as :meth:`save` writes them; the other fields are what
     it was computed from.
+
+    Parameters
+    ----------
+    record : IdentifiedModel
+        The artifact's record: the model, its errors on the windows, the data and the solver.
+    data : Record
+        The measured record it was identified on.
+    train : Window
+        The window the weights were fitted on.
+    test : Window or None
+        The window it was scored on (None: scored on the training window only).
+    estimator : PIIdentifier
+        The fitted estimator (its weights, its solver's report).
+    seconds : float
+        The wall-clock time the identification took (s).
     """
 
     record: IdentifiedModel

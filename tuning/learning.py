@@ -101,6 +101,38 @@ class LearningResult:
     the RMS difference of the true force between two runs of trial 0's signal under other sensor
     noise (the worst plant's: by the triangle inequality their RMS errors may differ that much with
     no learning at all), ``preview`` the plan and its floors, ``law`` the learning law.
+
+    Parameters
+    ----------
+    ff_extra_V : ndarray
+        The best trial's learned signal per sample, ``(plants, n)`` for a batch (V).
+    history : list of Iteration
+        The error per trial, trial 0 first.
+    best : ndarray of int
+        The best trial per plant, by the measured error.
+    trials : ndarray of int
+        The learning trials each plant ran after trial 0.
+    stop_reason : list of str
+        Why each plant stopped learning.
+    converged, diverged, monotone : ndarray of bool
+        Per plant: whether its learning converged, diverged, and lowered the error at every trial.
+    run : ClosedLoopRun
+        The best trial's run, scored against the reference.
+    preview : Preview
+        The previewed plan: the reference, the setpoint the loop follows, its floors.
+    method : str
+        The learning method (one of :data:`METHODS`).
+    law : object
+        The learning law it ran.
+    plants : int or None
+        The Monte Carlo plants it learned on (None: the rig itself).
+    noise_floor_N : float
+        The RMS difference of the true force between two runs of trial 0's signal under other sensor noise,
+        the worst plant's (N).
+    seconds : float
+        The wall-clock time it took (s).
+    info : dict
+        Further figures (the plan's error after a change, the warm start, the error outside transitions).
     """
 
     ff_extra_V: Array

@@ -33,7 +33,29 @@ __all__ = ["FittedPlant", "fit_plant", "read_frequency_response"]
 @dataclass(frozen=True, eq=False)
 class FittedPlant:
     """A fitted step response: gain ``K`` (output per input), time constants ``T_s`` (one or two), dead time, the
-    fit's RMS residual (output units) and what it was fitted to (``t_s`` from the step, input step, response)."""
+    fit's RMS residual (output units) and what it was fitted to (``t_s`` from the step, input step, response).
+
+    Parameters
+    ----------
+    K : float
+        The steady-state gain, output per input.
+    T_s : tuple of float
+        The time constants, one (first order) or two (second order), largest first (s).
+    delay_s : float
+        The dead time (s).
+    rms : float
+        The fit's RMS residual, in the output's unit.
+    step : float
+        The size of the input step.
+    t_s : ndarray
+        The sample times from the step (s).
+    response : ndarray
+        The measured response from its level before the step, in the output's unit.
+    source : str
+        The file (or record) it was fitted to.
+    output_name : str
+        The output column's name (its unit after the last underscore).
+    """
 
     K: float
     T_s: tuple[float, ...]
@@ -111,7 +133,26 @@ def _step_of(record: Record) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 def fit_plant(source: str | Path | Record, *, order: int | str = "auto") -> FittedPlant:
-    """Fit a step response (a CSV path or a :class:`~piezopreload.core.tables.Record`); see the module docstring."""
+    """Fit a step response (a CSV path or a :class:`~piezopreload.core.tables.Record`); see the module docstring.
+
+    Parameters
+    ----------
+    source : str, Path or Record
+        The step test: a CSV of time, input and output (the input steps once), or its record.
+    order : {1, 2, 'auto'}
+        The model's order: first or second order plus dead time, or the second where it halves the first's
+        squared residual.
+
+    Returns
+    -------
+    FittedPlant
+        The fitted model and what it was fitted to.
+
+    Raises
+    ------
+    InputError
+        For an order that is not one of these, or a record with no step or too few samples after it.
+    """
     if order not in (1, 2, "auto"):
         raise InputError(f"order must be 1, 2 or 'auto', got {order!r}")
     record = source if isinstance(source, Record) else read_record(source, min_samples=12)

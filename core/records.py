@@ -1,0 +1,925 @@
+"""Artifact records whose fields are declared once: their reader, writer, required fields and docs come from it.
+
+A record of an artifact is a frozen dataclass made with :func:`record` from :class:`Record` (or, for a
+whole document of one kind, :class:`Artifact`), each of its fields declared with :func:`entry`: its
+documentation, its unit and its range, as :func:`piezopreload.core.config.key` declares a study's key,
+and, where it does not sit at the top of its object under its own name, its place in the document. Its
+type is the field's annotation: ``float`` (a finite number), ``int``, ``bool``, ``str``, a tuple or a list
+of them, a float array (``Array``), another record, a tuple or a list of records, a dict of numbers,
+strings or records, a dict of anything (an object kept as it is), with ``| None`` where null stands for
+"not set". A type the declaration does not know (a model of :mod:`piezopreload.models`) is read by the
+entry's ``read`` and written by its ``write``.
+
+From that one declaration come
+
+* the reader, :meth:`Record.from_dict`: every field checked in the order of the fields, the first that
+  is missing or wrong named with its path in the document, in one message format::
+
+      FILE: field 'PATH' is missing; expected WHAT; HOW TO WRITE IT AGAIN
+      FILE: field 'PATH' must be WHAT, got VALUE; HOW TO WRITE IT AGAIN
+      FILE: field 'PATH' is not valid: WHY; HOW TO WRITE IT AGAIN
+
+  (the last where the record's own checks refuse the values it was given);
+* the writer, :meth:`Record.to_dict` (a record that writes more, a figure derived from its fields,
+  adds it to this one's);
+* the fields a document of an artifact's kind must hold, :meth:`Artifact.required`, from which
+  :data:`piezopreload.core.artifacts.KINDS` is made;
+* the record's numpydoc ``Parameters`` section: its fields, their types, units and docs.
+
+>>> @record
+... class Fit(Record):
+...     '''A fit's error on a window of its record.'''
+...     rms_pct: float = entry("The RMS error.", unit="%", ge=0)
+...     window_s: tuple[float, float] | None = entry("The window it was scored on.", unit="s", default=None)
+>>> Fit.from_dict({"rms_pct": 0.5, "window_s": [0, 6]})
+Fit(rms_pct=0.5, window_s=(0.0, 6.0))
+>>> Fit.from_dict({"rms_pct": -1}, "fit.json")
+Traceback (most recent call last):
+...
+piezopreload.core.errors.ArtifactError: fit.json: field 'rms_pct' must be a finite number >= 0, got -1
+>>> Fit(0.5).to_dict()
+{'rms_pct': 0.5, 'window_s': None}
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import textwrap
+import types
+from collections.abc import Callable
+from dataclasses import MISSING, Field, dataclass, field, fields, replace
+from pathlib import Path
+from typing import (
+    Any,
+    ClassVar,
+    Self,
+    TypeVar,
+    Union,
+    dataclass_transform,
+    get_args,
+    get_origin,
+    get_type_hints,
+    overload,
+)
+
+import numpy as np
+
+from piezopreload.core.artifacts import field_message, read_artifact, register_kind, write_artifact
+from piezopreload.core.config import Invalid
+from piezopreload.core.errors import ArtifactError
+
+__all__ = ["Entry", "entry", "record", "Record", "Artifact", "Raw", "load_one_of"]
+
+#: the metadata entry of a field declared with :func:`entry`
+ENTRY = "piezopreload.entry"
+
+
+class _Nothing:
+    """No value: a field whose document may not leave it out (:attr:`Entry.absent`)."""
+
+    def __repr__(self) -> str:
+        return "NOTHING"
+
+
+NOTHING: Any = _Nothing()
+
+_R = TypeVar("_R")
+
+
+@dataclass(frozen=True)
+class Entry:
+    """What a field of a record declares beside its type and default.
+
+    Parameters
+    ----------
+    doc : str
+        What the field holds, in a sentence (the record's ``Parameters`` section shows it).
+    unit : str
+        Its unit ("" where it has none or its name carries it).
+    name : str
+        Its key in the document ("": the field's own name).
+    at : str
+        The dotted path of the object that holds it in the document ("": the record's own object).
+    required : bool
+        Whether a document must hold it even though the field has a default (a default for code, not for files).
+    omit : bool
+        Whether :meth:`Record.to_dict` leaves the field out where it is None (or, its default empty, empty).
+    inline : bool
+        For a field that is a record: its fields sit in this record's own object, not in one of their own.
+    stored : bool
+        Whether the document holds it at all (False: set by the reader or the writer of the file, a hash).
+    ge, gt, le, lt : float or None
+        Bounds of a number (or of each number of a list).
+    choices : tuple of str
+        The strings a string may be.
+    size : str, int, (int, int) or None
+        A list's or an array's length: a number, a range (least, most), or the name of an earlier field of the
+        same length.
+    increasing : bool
+        Whether a list's numbers must be strictly increasing.
+    rows : bool
+        Whether an array is 2-D: a list of rows of one length (``size`` counts the rows).
+    read : callable or None
+        ``read(value)`` makes the field from its document's value, for a type the declaration does not know;
+        a ``ValueError``, ``TypeError`` or ``KeyError`` it raises is the field's "is not valid".
+    each : bool
+        Whether ``read`` and ``write`` take each entry of a list or a dict (the field a tuple or a dict of them).
+    via : type or None
+        A record that is the document's form of the field's type: the field is read as that record and made
+        with its ``to_value()``, and written as ``via.from_value(value)``.
+    absent : object
+        What a document without the key (or with null there) reads as, for a field the constructor requires (files
+        written before the field was recorded); none: such a document is refused.
+    write : callable or None
+        ``write(value)``: the field's document value, the inverse of ``read``.
+    takes : str
+        What a field read by ``read`` takes, in words ("a rig's parameters"), for the messages.
+    """
+
+    doc: str
+    unit: str = ""
+    name: str = ""
+    at: str = ""
+    required: bool = False
+    omit: bool = False
+    inline: bool = False
+    stored: bool = True
+    ge: float | None = None
+    gt: float | None = None
+    le: float | None = None
+    lt: float | None = None
+    choices: tuple[str, ...] = ()
+    size: str | int | tuple[int, int] | None = None
+    increasing: bool = False
+    rows: bool = False
+    read: Callable[[Any], Any] | None = None
+    write: Callable[[Any], Any] | None = None
+    takes: str = ""
+    each: bool = False
+    via: Any = None
+    absent: Any = NOTHING
+
+
+def entry(doc: str, *, default: Any = MISSING, default_factory: Any = MISSING, unit: str = "", name: str = "",
+          at: str = "", required: bool = False, omit: bool = False, inline: bool = False, stored: bool = True,
+          ge: float | None = None, gt: float | None = None, le: float | None = None, lt: float | None = None,
+          choices: tuple[str, ...] | list[str] = (), size: str | int | tuple[int, int] | None = None,
+          increasing: bool = False, rows: bool = False, read: Callable[[Any], Any] | None = None,
+          write: Callable[[Any], Any] | None = None, takes: str = "", each: bool = False, via: Any = None,
+          absent: Any = NOTHING) -> Any:
+    """Declare a field of a :class:`Record`: see :class:`Entry` for what each argument declares.
+
+    Parameters
+    ----------
+    doc : str
+        What the field holds, in a sentence.
+    default, default_factory : object, optional
+        The field's default (a dict or a list default is copied for each record); none: the field is required.
+    unit, name, at, required, omit, inline, stored, ge, gt, le, lt, choices, size, increasing, rows, read, write,
+    takes, each, via, absent
+        As :class:`Entry` has them.
+
+    Returns
+    -------
+    dataclasses.Field
+        The dataclass field, its declaration in its metadata.
+    """
+    meta = {ENTRY: Entry(doc, unit, name, at, required, omit, inline, stored, ge, gt, le, lt, tuple(choices), size,
+                         increasing, rows, read, write, takes, each, via, absent)}
+    if default_factory is not MISSING:
+        return field(default_factory=default_factory, metadata=meta)
+    if isinstance(default, dict | list):
+        copy = type(default)
+        return field(default_factory=lambda: copy(default), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+# --------------------------------------------------------------------------------------
+# what a field holds, from its annotation
+# --------------------------------------------------------------------------------------
+_SCALARS: dict[Any, str] = {float: "number", int: "integer", bool: "flag", str: "text"}
+_A = {"number": "a finite number", "integer": "a whole number", "flag": "true or false", "text": "a string",
+      "any": "a value", "object": "an object"}
+_PLURAL = {"number": "finite numbers", "integer": "whole numbers", "flag": "booleans", "text": "strings",
+           "any": "values",
+           "object": "objects", "number|null": "finite numbers or nulls", "integer|null": "whole numbers or nulls",
+           "text|null": "strings or nulls"}
+
+
+@dataclass(frozen=True)
+class _Spec:
+    """A declared field as the reader and the writer see it."""
+
+    name: str  # the attribute
+    key: str  # its key in the document
+    at: tuple[str, ...]  # the path of the object that holds it
+    kind: str  # number, integer, flag, text, list, array, record, records, map, object, custom, inline
+    item: str  # a list's or a map's entries' kind (number, integer, flag, text, object, record, number|null)
+    optional: bool  # None allowed
+    default: Any  # MISSING: the document must hold it
+    factory: Any
+    container: type  # tuple or list, for a list
+    length: int | None  # a fixed-length tuple's
+    record: Any  # the record type of record, records, map of records, inline
+    entry: Entry
+
+    @property
+    def has_default(self) -> bool:
+        """Whether a document may leave the field out."""
+        return self.default is not MISSING or self.factory is not MISSING or self.entry.absent is not NOTHING
+
+    @property
+    def in_document(self) -> bool:
+        """Whether a document must hold the field."""
+        return self.entry.stored and (self.entry.required or not self.has_default) and self.kind != "inline"
+
+    def fallback(self) -> Any:
+        """What a document that leaves the field out reads as."""
+        if self.entry.absent is not NOTHING:
+            return self.entry.absent
+        return self.factory() if self.factory is not MISSING else self.default
+
+    def want(self) -> str:
+        """What the field takes, in words: ``a number > 0``, ``a list of 3 strings``, ``null or an object``."""
+        e = self.entry
+        bounds = " and ".join(f"{op} {v:g}" for op, v in ((">=", e.ge), (">", e.gt), ("<=", e.le), ("<", e.lt))
+                              if v is not None)
+        if self.kind in ("number", "integer", "flag", "text", "object"):
+            text = ("one of " + ", ".join(e.choices)) if e.choices else _A[self.kind] + (f" {bounds}" if bounds else "")
+        elif self.kind in ("list", "array"):
+            size = e.size
+            count = (f"{self.length} " if self.length else f"{size} " if isinstance(size, int)
+                     else f"{size[0]} to {size[1]} " if isinstance(size, tuple) else "")
+            per = f" (one per entry of '{size}')" if isinstance(size, str) else ""
+            if self.kind == "array" and self.item == "rows":
+                return f"a list of {count}rows, each a list of finite numbers" + per
+            plural = {"rows": "rows", "bool": "0s and 1s"}.get(self.item, "finite numbers") if self.kind == "array" \
+                else _PLURAL[self.item]
+            text = f"a list of {count}{plural}"
+            text += (f" {bounds}" if bounds else "") + (", strictly increasing" if e.increasing else "") + per
+        elif self.kind == "records" or (self.kind == "custom" and e.each and self.container is not dict):
+            text = f"a list of {e.takes or 'objects'}"
+        elif self.kind == "map" or (self.kind == "custom" and e.each):
+            text = "an object of " + (e.takes or _PLURAL.get(self.item, "objects"))
+        elif self.kind in ("record", "via"):
+            text = "an object"
+        else:
+            text = e.takes or "a valid value"
+        return f"null or {text}" if self.optional else text
+
+
+def _optional(hint: Any) -> tuple[bool, Any]:
+    if get_origin(hint) in (Union, types.UnionType) and type(None) in get_args(hint):
+        rest = tuple(a for a in get_args(hint) if a is not type(None))
+        return True, (rest[0] if len(rest) == 1 else Union[rest])  # noqa: UP007 (a Union made at run time)
+    return False, hint
+
+
+def _item_kind(hint: Any) -> tuple[str, Any]:
+    """The kind of a list's or a map's entries: a scalar, an object, a record, or a number that may be null."""
+    optional, inner = _optional(hint)
+    if inner in _SCALARS:
+        kind = _SCALARS[inner]
+        return (kind + "|null" if optional else kind), None
+    if isinstance(inner, type) and issubclass(inner, Record):
+        return "record", inner
+    if inner is Any or get_origin(inner) is dict or inner is dict:
+        return "object" if inner is not Any else "any", None
+    raise TypeError(f"entries of {hint!r}")
+
+
+def _spec(owner: type, f: Field[Any], hint: Any) -> _Spec:
+    """The :class:`_Spec` of field ``f`` of ``owner`` from its annotation ``hint`` and its declaration."""
+    e: Entry | None = f.metadata.get(ENTRY)
+    if e is None:
+        raise TypeError(f"{owner.__name__}.{f.name}: declare the field with records.entry(doc, ...)")
+    optional, inner = _optional(hint)
+    base = _Spec(name=f.name, key=e.name or f.name, at=tuple(p for p in e.at.split(".") if p), kind="custom", item="",
+                 optional=optional, default=f.default, factory=f.default_factory, container=tuple, length=None,
+                 record=None, entry=e)
+    origin = get_origin(inner)
+    is_record = isinstance(inner, type) and issubclass(inner, Record)
+    if e.via is not None:
+        return replace(base, kind="via", record=e.via)
+    if e.read is not None or not e.stored:
+        return replace(base, container=dict if origin is dict else tuple if origin is tuple else list) if e.each \
+            else base
+    if e.inline and not is_record:
+        raise TypeError(f"{owner.__name__}.{f.name}: only a record is inline")
+    if inner in _SCALARS or is_record:
+        return replace(base, kind="inline" if e.inline else "record", record=inner) if is_record else \
+            replace(base, kind=_SCALARS[inner])
+    try:
+        return _container_spec(base, inner)
+    except TypeError:
+        raise TypeError(f"{owner.__name__}.{f.name}: a field holds float, int, bool, str, an array, a record, a tuple, "
+                        f"list or dict of them, not {hint!r}; declare how to read it (entry(..., read=...))") from None
+
+
+def _container_spec(base: _Spec, inner: Any) -> _Spec:
+    """The spec of an array, a tuple, a list or a dict (a ``TypeError`` for any other type)."""
+    origin, args = get_origin(inner), get_args(inner)
+    if origin is np.ndarray:
+        dtype = get_args(args[1])[0] if len(args) == 2 and get_args(args[1]) else np.float64
+        item = "rows" if base.entry.rows else "bool" if dtype is np.bool_ else "number"
+        return replace(base, kind="array", item=item)
+    if origin in (tuple, list) and args:
+        fixed = origin is tuple and not (len(args) == 2 and args[1] is Ellipsis)
+        item, rec = _item_kind(args[0])
+        if fixed and any(a != args[0] for a in args):
+            raise TypeError("a tuple of mixed types")
+        return replace(base, kind="records" if item == "record" else "list", item=item, record=rec,
+                       container=origin, length=len(args) if fixed else None)
+    if origin is dict and len(args) == 2 and args[0] is str:
+        item, rec = _item_kind(args[1])
+        return replace(base, kind="object") if item in ("any", "object") else \
+            replace(base, kind="map", item=item, record=rec)
+    if inner is dict:
+        return replace(base, kind="object")
+    raise TypeError(f"{inner!r}")
+
+
+_SPECS: dict[type, tuple[_Spec, ...]] = {}
+
+
+def _specs(cls: type) -> tuple[_Spec, ...]:
+    if cls not in _SPECS:
+        hints = get_type_hints(cls)
+        _SPECS[cls] = tuple(_spec(cls, f, hints[f.name]) for f in fields(cls))
+    return _SPECS[cls]
+
+
+# --------------------------------------------------------------------------------------
+# reading: one message format
+# --------------------------------------------------------------------------------------
+class _Wrong(Exception):
+    """A field that is missing or wrong, at ``path`` in the document (made an :class:`ArtifactError` at the top)."""
+
+    def __init__(self, path: str, problem: str) -> None:
+        super().__init__(path, problem)
+        self.path, self.problem = path, problem
+
+
+def _got(value: Any) -> str:
+    """A document's value as a message shows it: JSON's words, a long list or an object by its size."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return repr(value if len(value) <= 40 else value[:37] + "...")
+    if isinstance(value, list | tuple):
+        if len(value) <= 4 and all(v is None or isinstance(v, bool | int | float) for v in value):
+            return "[" + ", ".join(_got(v) for v in value) + "]"
+        return f"a list of {len(value)} entries"
+    if isinstance(value, dict):
+        return "an object"
+    return repr(value)
+
+
+def _join(path: str, key: str | int) -> str:
+    if isinstance(key, int):
+        return f"{path}[{key}]"
+    return f"{path}.{key}" if path else key
+
+
+def _is(x: Any, kind: str) -> bool:
+    if kind.endswith("|null") and x is None:
+        return True
+    kind = kind.removesuffix("|null")
+    if kind == "flag":
+        return isinstance(x, bool)
+    if kind == "text":
+        return isinstance(x, str)
+    if kind == "object":
+        return isinstance(x, dict)
+    if kind == "any":
+        return True
+    if isinstance(x, bool) or not isinstance(x, int | float):
+        return False
+    if kind == "integer":
+        return math.isfinite(x) and float(x).is_integer()
+    return math.isfinite(x)
+
+
+def _as(x: Any, kind: str) -> Any:
+    if x is None or kind in ("flag", "text", "object", "any"):
+        return dict(x) if kind == "object" else x
+    return int(x) if kind.startswith("integer") else float(x)
+
+
+def _in_range(e: Entry, x: Any) -> bool:
+    if isinstance(x, str):
+        return not e.choices or x in e.choices
+    if x is None or isinstance(x, bool | dict):
+        return True
+    return ((e.ge is None or x >= e.ge) and (e.gt is None or x > e.gt) and (e.le is None or x <= e.le)
+            and (e.lt is None or x < e.lt))
+
+
+def _sized(spec: _Spec, n: int, values: dict[str, Any]) -> bool:
+    """Whether a list of ``n`` entries has the length the field declares."""
+    size = spec.entry.size
+    if isinstance(size, str):
+        first, *rest = size.split(".")
+        other = values.get(first)
+        for name in rest:
+            other = getattr(other, name, None)
+        return other is None or n == len(other)
+    if isinstance(size, tuple):
+        return size[0] <= n <= size[1]
+    want = size if size is not None else spec.length
+    return want is None or n == want
+
+
+def _custom(spec: _Spec, x: Any, path: str) -> Any:
+    """``read(x)``, its errors the field's "is not valid" (each entry's, for a field read entry by entry)."""
+    read = spec.entry.read
+    if read is None:
+        return x
+
+    def one(v: Any, where: str) -> Any:
+        try:
+            return read(v)
+        except Invalid as exc:  # names a key inside the field's value
+            raise _Wrong(_join(where, exc.path) if exc.path else where, exc.message) from None
+        except (ValueError, TypeError, KeyError, OverflowError) as exc:
+            why = str(exc).strip("'") if isinstance(exc, KeyError) else str(exc)
+            raise _Wrong(where, f"is not valid: {why}") from None
+
+    if not spec.entry.each:
+        return one(x, path)
+    if spec.container is dict:
+        if not isinstance(x, dict):
+            raise _Wrong(path, f"must be {spec.want()}, got {_got(x)}")
+        return {str(k): one(v, _join(path, str(k))) for k, v in x.items()}
+    if not isinstance(x, list | tuple):
+        raise _Wrong(path, f"must be {spec.want()}, got {_got(x)}")
+    return spec.container(one(v, _join(path, i)) for i, v in enumerate(x))
+
+
+def _matrix(spec: _Spec, x: Any, path: str, values: dict[str, Any]) -> Any:
+    """A 2-D array from a list of rows of finite numbers, all of one length (its rows ``size``)."""
+    if not (isinstance(x, list) and _sized(spec, len(x), values) and all(isinstance(r, list) for r in x)):
+        raise _Wrong(path, f"must be {spec.want()}, got {_got(x)}")
+    width = len(x[0]) if x else 0
+    for i, row in enumerate(x):
+        if len(row) != width or not all(_is(v, "number") for v in row):
+            raise _Wrong(_join(path, i), f"must be a list of {width} finite numbers (the first row's), got {_got(row)}")
+    return np.asarray(x, dtype=np.float64).reshape(len(x), width)
+
+
+def _read_value(spec: _Spec, x: Any, path: str, values: dict[str, Any]) -> Any:  # noqa: C901 (one branch per kind)
+    """The field's value from the document's ``x``; :class:`_Wrong` names what was expected."""
+    if x is None and (spec.optional or spec.entry.absent is not NOTHING):
+        return None if spec.optional else spec.entry.absent
+    kind, e = spec.kind, spec.entry
+
+    def wrong() -> _Wrong:
+        return _Wrong(path, f"must be {spec.want()}, got {_got(x)}")
+
+    if kind == "custom":
+        return _custom(spec, x, path)
+    if kind == "via":
+        made = _read_record(spec.record, x, path)
+        try:
+            return made.to_value()
+        except (ValueError, TypeError) as exc:
+            raise _Wrong(path, f"is not valid: {exc}") from None
+    if kind in ("number", "integer", "flag", "text", "object"):
+        if not (_is(x, kind) and _in_range(e, x)):
+            raise wrong()
+        return _as(x, kind)
+    if kind == "array" and spec.item == "rows":
+        return _matrix(spec, x, path, values)
+    if kind in ("list", "array"):
+        item = "number" if kind == "array" else spec.item
+        if not (isinstance(x, list | tuple) and all(_is(v, item) and _in_range(e, v) for v in x)
+                and _sized(spec, len(x), values)
+                and not (e.increasing and any(b <= a for a, b in zip(x, x[1:])))):
+            raise wrong()
+        if kind == "array":
+            return np.asarray(x, dtype=np.float64) > 0.5 if spec.item == "bool" else np.asarray(x, dtype=np.float64)
+        return spec.container(_as(v, item) for v in x)
+    if kind == "record":
+        return _read_record(spec.record, x, path)
+    if kind == "records":
+        if not isinstance(x, list | tuple):
+            raise wrong()
+        return spec.container(_read_record(spec.record, v, _join(path, i)) for i, v in enumerate(x))
+    if kind == "map":
+        if not isinstance(x, dict):
+            raise wrong()
+        if spec.item == "record":
+            return {str(k): _read_record(spec.record, v, _join(path, str(k))) for k, v in x.items()}
+        bad = next((k for k, v in x.items() if not (_is(v, spec.item) and _in_range(e, v))), None)
+        if bad is not None:
+            raise _Wrong(_join(path, str(bad)), f"must be {_A.get(spec.item, 'a finite number or null')}, got "
+                                               f"{_got(x[bad])}")
+        return {str(k): _as(v, spec.item) for k, v in x.items()}
+    raise AssertionError(kind)  # pragma: no cover (every kind is handled above)
+
+
+def _holder(obj: dict[str, Any], spec: _Spec, path: str) -> tuple[Any, str]:
+    """The object that holds ``spec`` (``at`` followed from ``obj``) and its path; MISSING where it is absent."""
+    holder: Any = obj
+    for part in spec.at:
+        here = _join(path, part)
+        if not isinstance(holder, dict) or part not in holder or holder[part] is None:
+            if spec.in_document:
+                raise _Wrong(here, "is missing; expected an object")
+            return MISSING, here
+        holder, path = holder[part], here
+        if not isinstance(holder, dict):
+            raise _Wrong(path, f"must be an object, got {_got(holder)}")
+    return holder, path
+
+
+def _read_inline(spec: _Spec, holder: Any, path: str) -> Any:
+    """An inline record from the object that holds its fields (None where they are all absent and it may be)."""
+    if spec.optional or spec.has_default:
+        keys = [s.key for s in _specs(spec.record) if s.in_document]
+        if holder is MISSING or all(holder.get(k) is None for k in keys):
+            return None if spec.optional and not spec.has_default else spec.fallback()
+    if holder is MISSING:
+        raise _Wrong(path, "is missing; expected an object")
+    return _read_record(spec.record, holder, path)
+
+
+def _read_record(cls: Any, obj: Any, path: str) -> Any:
+    """A record of ``cls`` from the document's object ``obj`` at ``path``."""
+    if not isinstance(obj, dict):
+        raise _Wrong(path, f"must be an object, got {_got(obj)}")
+    if cls.CLOSED:
+        known = {s.key for s in _specs(cls) if not s.at}
+        unknown = sorted(k for k in obj if k not in known)
+        if unknown:
+            raise _Wrong(_join(path, unknown[0]), f"is not a field of {cls.NOUN or cls.__name__}; it has "
+                                                  + ", ".join(sorted(known)))
+    values: dict[str, Any] = {}
+    for spec in _specs(cls):
+        if not spec.entry.stored:
+            continue
+        holder, where = _holder(obj, spec, path)
+        if spec.kind == "inline":
+            values[spec.name] = _read_inline(spec, holder, where)
+            continue
+        here = _join(where, spec.key)
+        if holder is MISSING or spec.key not in holder:
+            if spec.in_document or not spec.has_default:
+                raise _Wrong(here, f"is missing; expected {spec.want()}")
+            values[spec.name] = spec.fallback()
+            continue
+        values[spec.name] = _read_value(spec, holder[spec.key], here, values)
+    try:
+        made = cls(**values)
+    except (ValueError, TypeError) as exc:
+        raise _Wrong(path, f"is not valid: {exc}") from None
+    made._check_document(Raw(obj, path))
+    return made
+
+
+class Raw:
+    """A document's object as it was read (``doc``, at ``path``): what a record's own checks of its document read.
+
+    Parameters
+    ----------
+    doc : dict
+        The object.
+    path : str
+        Its path in the document ("" for the document itself).
+    """
+
+    def __init__(self, doc: dict[str, Any], path: str = "") -> None:
+        self.doc, self.path = doc, path
+
+    def get(self, key: str, default: Any = None) -> Any:
+        """The value at ``key`` (``default`` where there is none).
+
+        Parameters
+        ----------
+        key : str
+            The key in this object.
+        default : object
+            What an absent key gives.
+
+        Returns
+        -------
+        object
+            The value, as the document holds it.
+        """
+        return self.doc.get(key, default)
+
+    def fail(self, key: str, problem: str) -> Exception:
+        """The error for field ``key`` of this object (the reader adds the file and how to write it again).
+
+        Parameters
+        ----------
+        key : str
+            The field's key in this object ("": the object itself).
+        problem : str
+            What is wrong, as a sentence's predicate ("does not agree with its 'requirements'").
+
+        Returns
+        -------
+        Exception
+            The error to raise.
+        """
+        return _Wrong(_join(self.path, key) if key else self.path, problem)
+
+
+# --------------------------------------------------------------------------------------
+# writing
+# --------------------------------------------------------------------------------------
+def _plain(spec: _Spec, value: Any) -> Any:  # noqa: C901 (one branch per kind)
+    """A field's value as its document holds it."""
+    if value is None:
+        return None
+    e = spec.entry
+    if e.write is not None and not e.each:
+        return e.write(value)
+    if spec.kind == "custom":
+        if e.write is None:
+            return value
+        return {k: e.write(v) for k, v in value.items()} if spec.container is dict else [e.write(v) for v in value]
+    if spec.kind == "via":
+        return spec.record.from_value(value).to_dict()
+    if spec.kind in ("record", "inline"):
+        return value.to_dict()
+    if spec.kind == "records":
+        return [v.to_dict() for v in value]
+    if spec.kind == "array":
+        return np.asarray(value).astype(int).tolist() if spec.item == "bool" else \
+            np.asarray(value, dtype=np.float64).tolist()
+    if spec.kind == "list":
+        return [_as(v, spec.item) for v in value]
+    if spec.kind == "map":
+        if spec.item == "record":
+            return {k: v.to_dict() for k, v in value.items()}
+        return {k: _as(v, spec.item) for k, v in value.items()}
+    if spec.kind == "object":
+        return dict(value)
+    return _as(value, spec.kind)
+
+
+def _put(out: dict[str, Any], spec: _Spec, value: Any) -> None:
+    """Put a field's document value where it sits: an inline record's fields into the object that holds them, a
+    field under ``at`` into that object (made where it is not yet), an object beside another's keys merged."""
+    for part in spec.at:
+        out = out.setdefault(part, {})
+    if spec.kind == "inline":
+        out.update(value if value is not None else {s.key: None for s in _specs(spec.record) if s.entry.stored})
+    elif isinstance(out.get(spec.key), dict) and isinstance(value, dict):
+        out[spec.key] = {**value, **out[spec.key]}
+    else:
+        out[spec.key] = value
+
+
+# --------------------------------------------------------------------------------------
+# the record
+# --------------------------------------------------------------------------------------
+class Record:
+    """A frozen record whose fields are declared with :func:`entry` (made with :func:`record`).
+
+    Class attributes: ``NOUN`` names the record in messages ("the gain set"); ``AGAIN`` says what
+    writes its document again, the end of every message about it ("run the tune stage again");
+    ``CLOSED`` refuses a key of its object that is no field (a table of settings, where a misspelt
+    key would otherwise be lost).
+    """
+
+    NOUN: ClassVar[str] = ""
+    AGAIN: ClassVar[str] = ""
+    CLOSED: ClassVar[bool] = False
+
+    @classmethod
+    def from_dict(cls, doc: Any, shown: str = "", *, path: str = "") -> Self:
+        """The record from its document; an :class:`ArtifactError` names the field that is missing or wrong.
+
+        Parameters
+        ----------
+        doc : dict
+            The document (or an object of one), as JSON gives it.
+        shown : str
+            What the messages call it (a file's path); default: :attr:`NOUN`, else the record's name.
+        path : str
+            Where ``doc`` sits in its document (``gains``), for the messages ("": it is the document).
+
+        Returns
+        -------
+        Record
+            The record, checked by its declaration and its own checks.
+        """
+        try:
+            made: Self = _read_record(cls, doc, path)
+        except _Wrong as exc:
+            raise ArtifactError(field_message(shown or cls.NOUN or cls.__name__, exc.path, exc.problem, cls.AGAIN)) \
+                from None
+        return made
+
+    def to_dict(self) -> dict[str, Any]:
+        """The record as its document holds it (JSON's types: lists, objects, numbers, strings, null).
+
+        Returns
+        -------
+        dict
+            The document's object.
+        """
+        out: dict[str, Any] = {}
+        for spec in _specs(type(self)):
+            if not spec.entry.stored:
+                continue
+            value = getattr(self, spec.name)
+            if spec.entry.omit and (value is None or (isinstance(value, tuple | list | dict) and not value
+                                                      and spec.has_default and not spec.fallback())):
+                continue
+            _put(out, spec, _plain(spec, value))
+        return out
+
+    def _check_document(self, raw: Raw) -> None:
+        """The record's checks of what its document says beside its fields (a verdict that must agree with them);
+        raise ``raw.fail(key, problem)``."""
+
+    @classmethod
+    def required(cls) -> tuple[str, ...]:
+        """The keys its object must hold (an inlined record's among them), in the order of the fields.
+
+        Returns
+        -------
+        tuple of str
+            The keys; for an :class:`Artifact`, what :data:`piezopreload.core.artifacts.KINDS` lists for its kind.
+        """
+        out: list[str] = []
+        for spec in _specs(cls):
+            if spec.kind == "inline":
+                inner = () if spec.optional or spec.has_default else spec.record.required()
+                keys: tuple[str, ...] = ((spec.at[0],) if inner else ()) if spec.at else inner
+            else:
+                keys = ((spec.at or (spec.key,))[0],) if spec.in_document else ()
+            out += [k for k in keys if k not in out]
+        return tuple(out)
+
+
+class Artifact(Record):
+    """A record that is a whole artifact of kind ``KIND``: :meth:`load` is its one reader.
+
+    A ``HASHED`` kind carries its content's hash, checked on every read.
+    """
+
+    KIND: ClassVar[str] = ""
+    HASHED: ClassVar[bool] = False
+
+    @classmethod
+    def load(cls, path: str | Path) -> Self:
+        """Read the artifact at ``path``: its envelope (schema, kind, finite numbers, a hashed kind's hash), then
+        every field by the declaration.
+
+        Parameters
+        ----------
+        path : str or Path
+            The file.
+
+        Returns
+        -------
+        Artifact
+            The record.
+        """
+        return cls.from_dict(read_artifact(path, cls.KIND, fields=False), str(path))
+
+    def _write(self, path: str | Path) -> dict[str, Any]:
+        """Write the artifact atomically at ``path``; returns the whole document (envelope and hash)."""
+        return write_artifact(path, self.KIND, self.to_dict())
+
+
+# --------------------------------------------------------------------------------------
+# the decorator
+# --------------------------------------------------------------------------------------
+@overload
+def record(cls: type[_R], /) -> type[_R]: ...
+
+
+@overload
+def record(*, eq: bool = True) -> Callable[[type[_R]], type[_R]]: ...
+
+
+@dataclass_transform(frozen_default=True, field_specifiers=(entry,))
+def record(cls: Any = None, /, *, eq: bool = True) -> Any:
+    """Make ``cls`` (a :class:`Record`) a frozen dataclass of its declared fields.
+
+    Its docstring gains a ``Parameters`` section from the declarations, and an :class:`Artifact`'s
+    kind is registered (:data:`piezopreload.core.artifacts.KINDS`).
+
+    Parameters
+    ----------
+    cls : type
+        The class (``@record``), or None for ``@record(eq=False)``.
+    eq : bool
+        Whether records compare equal field by field (False for records of arrays).
+
+    Returns
+    -------
+    type
+        The dataclass (or, given ``eq`` alone, the decorator that makes it).
+    """
+    def make(c: Any) -> Any:
+        if not (isinstance(c, type) and issubclass(c, Record)):
+            raise TypeError(f"@record makes a Record's subclass, not {c!r}")
+        made = dataclass(frozen=True, eq=eq)(c)
+        made.__doc__ = _with_parameters(made)
+        if issubclass(made, Artifact) and made.KIND:
+            register_kind(made.KIND, made.required, hashed=made.HASHED, again=made.AGAIN,
+                          owner=f"{made.__module__}.{made.__qualname__}")
+        return made
+
+    return make if cls is None else make(cls)
+
+
+def _words(annotation: str) -> str:
+    """A field's annotation in numpydoc's words: ``float or None``, ``tuple of Front``, ``(float, float)``."""
+    text = annotation.strip()
+    optional = bool(re.search(r"\|\s*None$", text))
+    text = re.sub(r"\s*\|\s*None$", "", text)
+    pair = re.fullmatch(r"tuple\[(\w+)((?:, \1)+)\]", text)
+    many = re.fullmatch(r"(tuple|list)\[(.+?)(?:, \.\.\.)?\]", text)
+    if pair:
+        text = "(" + ", ".join([pair.group(1)] * (1 + pair.group(2).count(","))) + ")"
+    elif many:
+        text = f"{many.group(1)} of {_words(many.group(2))}"
+    elif text.startswith("dict["):
+        text = "dict"
+    elif text in ("Array", "BoolArray") or text.startswith(("NDArray", "np.ndarray")):
+        text = "ndarray"
+    return f"{text} or None" if optional else text
+
+
+def _with_parameters(cls: type) -> str:
+    """The class's docstring with a numpydoc ``Parameters`` section of its declared fields."""
+    doc = (cls.__doc__ or "").rstrip()
+    if re.search(r"^\s*Parameters\n\s*-{3,}", doc, flags=re.M):
+        raise TypeError(f"{cls.__name__}: its Parameters section comes from its fields' declarations; "
+                        "write each field's doc in its entry(...)")
+    indent = "    "
+    lines = ["", "", f"{indent}Parameters", f"{indent}----------"] if doc else ["Parameters", "----------"]
+    annotations = {k: v for c in reversed(cls.__mro__) for k, v in getattr(c, "__annotations__", {}).items()}
+    for f in fields(cls):
+        e: Entry | None = f.metadata.get(ENTRY)
+        if e is None or not f.init:
+            continue
+        hint = annotations.get(f.name, "")
+        words = _words(hint if isinstance(hint, str) else getattr(hint, "__name__", str(hint)))
+        if e.choices:
+            words = "{" + ", ".join(f"'{c}'" for c in e.choices) + "}"
+        default = f.default is not MISSING or f.default_factory is not MISSING
+        lines.append(f"{indent if doc else ''}{f.name} : {words}{', optional' if default else ''}")
+        text = e.doc + (f" Unit: {e.unit}." if e.unit else "")
+        pad = indent * (2 if doc else 1)
+        lines += textwrap.wrap(text, width=100, initial_indent=pad, subsequent_indent=pad)
+    return doc + "\n".join(lines) + "\n"
+
+
+_A1 = TypeVar("_A1", bound="Artifact")
+_A2 = TypeVar("_A2", bound="Artifact")
+_A3 = TypeVar("_A3", bound="Artifact")
+
+
+@overload
+def load_one_of(path: str | Path, a: type[_A1], /) -> _A1: ...
+
+
+@overload
+def load_one_of(path: str | Path, a: type[_A1], b: type[_A2], /) -> _A1 | _A2: ...
+
+
+@overload
+def load_one_of(path: str | Path, a: type[_A1], b: type[_A2], c: type[_A3], /) -> _A1 | _A2 | _A3: ...
+
+
+def load_one_of(path: str | Path, *kinds: type[Artifact]) -> Artifact:
+    """The artifact at ``path`` read by the one reader of its kind, among ``kinds``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    *kinds : type of Artifact
+        The records it may be.
+
+    Returns
+    -------
+    Artifact
+        The record of the kind its schema names.
+
+    Raises
+    ------
+    ArtifactError
+        Where the file is not an artifact of one of ``kinds``: the message names the file and the kinds.
+    """
+    from piezopreload.core.artifacts import artifact_kind, schema_name
+
+    kind = artifact_kind(path)
+    for k in kinds:
+        if kind == k.KIND:
+            return k.load(path)
+    expected = " or ".join(f"{k.NOUN or k.__name__} ({schema_name(k.KIND)})" for k in kinds)
+    raise ArtifactError(field_message(str(path), "schema", f"must be {expected}, got {schema_name(kind)!r} (a {kind} "
+                                                           "artifact)"))
