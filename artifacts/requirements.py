@@ -24,7 +24,7 @@ from typing import Any, ClassVar
 from piezopreload.core.errors import ArtifactError
 from piezopreload.core.records import Record, entry, record
 
-__all__ = ["Requirement", "EXIT_REQUIREMENT_MISSED", "requirements_from_dict", "missed", "checked_by_stages",
+__all__ = ["Requirement", "EXIT_REQUIREMENT_MISSED", "requirements_from_dict", "missed",
            "least_margin", "unaccepted"]
 
 #: the exit code of a study that ran but missed a requirement (0 done, 1 internal, 2 bad input, 3 rig stopped)
@@ -142,13 +142,3 @@ def unaccepted(missed_ones: Iterable[Requirement], accepted: Iterable[str]) -> t
     """The missed requirements a user has not accepted by name (:attr:`Requirement.key`)."""
     names = set(accepted)
     return tuple(r for r in missed_ones if r.key not in names)
-
-
-def checked_by_stages(records: dict[str, dict[str, Any]]) -> tuple[Requirement, ...]:
-    """Every requirement a study's stages checked, in the records' order: each stage that ran lists its own under
-    ``summary.requirements`` in the run's manifest (``pipeline.json``)."""
-    found: list[Requirement] = []
-    for name, stage in records.items():
-        if stage.get("status") == "done":
-            found += requirements_from_dict(stage.get("summary", {}).get("requirements", []), f"{name}.requirements")
-    return tuple(found)

@@ -60,7 +60,7 @@ def main() -> None:
     peer_s, peer = _median_time(lambda: minimize(  # type: ignore[call-overload]
         f, y0, method="SLSQP", bounds=bounds, constraints=[{"type": "ineq", "fun": lambda y: -g(y)}],
         options={"maxiter": 500, "ftol": 1e-10}))
-    print(f"one NLP: CasADi/IPOPT {1e3 * ours_s:.2f} ms, objective {ours['f']:.10f} ({ours['status']}); "
+    print(f"one NLP: CasADi/IPOPT {1e3 * ours_s:.2f} ms, objective {ours.f:.10f} ({ours.status}); "
           f"SLSQP + finite differences {1e3 * peer_s:.2f} ms, objective {peer.fun:.10f} ({peer.message}, "
           f"{peer.nfev} evaluations); max constraint violation {max(0.0, float(np.max(g(peer.x)))):.1e}", flush=True)
 
@@ -69,11 +69,11 @@ def main() -> None:
         k_lo = optimise(spec, "drag", nlp).point.stiffness_N_per_um
         eps = np.linspace(k_lo, (1.0 - 1e-6) * best.point.stiffness_N_per_um, POINTS)  # pareto_front's span
         start = nlp.solve(WEIGHTS["drag"], y0, integers=ints)
-        y, lam, ok = start["y"], start["lam_g"], 0
+        y, lam, ok = start.y, start.lam_g, 0
         for k in eps:
             s = nlp.solve(WEIGHTS["drag"], y, lam_g0=lam, integers=ints, stiffness_min=float(k))
-            y, lam = s["y"], s["lam_g"]
-            ok += s["success"] and s["feasible"]
+            y, lam = s.y, s.lam_g
+            ok += s.success and s.feasible
         return ok
 
     fixed_s, fixed_ok = _median_time(fixed_front, 3)
@@ -97,8 +97,8 @@ def main() -> None:
              f"none, the fronts have {len(front.points)} and {len(ipopt_front.points)} points"), flush=True)
     print(json.dumps({
         "nlp_casadi_s": ours_s, "nlp_slsqp_s": peer_s, "nlp_time_ratio": ours_s / peer_s,
-        "objective_casadi": ours["f"], "objective_slsqp": float(peer.fun),
-        "objective_gap": float(peer.fun - ours["f"]),
+        "objective_casadi": ours.f, "objective_slsqp": float(peer.fun),
+        "objective_gap": float(peer.fun - ours.f),
         "front_points": POINTS, "front_fixed_integers_s": fixed_s, "front_fixed_vs_one_nlp_ratio": fixed_s / ours_s,
         "design_solve_s": design_s, "front_mixed_integer_s": mixed_s,
         "front_mixed_vs_one_design_ratio": mixed_s / design_s, "front_mixed_nlp_solves": front.nlp_solves,

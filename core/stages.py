@@ -20,13 +20,15 @@ import json
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, TypeVar
 
 from piezopreload.core.errors import InputError, InternalError
 
-__all__ = ["StageFailed", "StageCrashed", "Partial", "StageLike", "Reporter", "sha256_file", "code_hash",
-           "content_key", "upstream_hashes", "outputs_intact", "record_outputs", "utc", "locked", "run_stages"]
+__all__ = ["StageFailed", "StageCrashed", "Partial", "StageLike", "Reporter", "StageOutcome", "sha256_file",
+           "code_hash", "content_key", "upstream_hashes", "outputs_intact", "record_outputs", "utc", "locked",
+           "run_stages"]
 
 
 class StageFailed(InputError):
@@ -73,6 +75,19 @@ class Reporter(Protocol):
 S = TypeVar("S", bound=StageLike)
 
 
+@dataclass(frozen=True)
+class StageOutcome:
+    """One stage of a run: whether it ran, its status (``done``, ``up to date``, ``not applicable``), its time."""
+
+    stage: str
+    ran: bool
+    status: str
+    seconds: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"stage": self.stage, "ran": self.ran, "status": self.status, "seconds": self.seconds}
+
+
 def sha256_file(path: Path) -> str:
     """SHA-256 (hex) of a file's bytes, read in blocks."""
     h = hashlib.sha256()
@@ -107,9 +122,10 @@ def content_key(body: dict[str, Any]) -> str:
     return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":"), default=str).encode()).hexdigest()
 
 
-def upstream_hashes(needs: tuple[str, ...], records: dict[str, dict[str, Any]]) -> dict[str, Any]:
+def upstream_hashes(needs: tuple[str, ...], records: dict[str, dict[str, Any]]
+                    ) -> dict[str, dict[str, str] | str | None]:
     """For each stage read: its outputs' hashes where it is done, else its status (None if it never ran)."""
-    upstream = {}
+    upstream: dict[str, dict[str, str] | str | None] = {}
     for name in needs:
         rec = records.get(name, {})
         upstream[name] = ({label: o["sha256"] for label, o in rec.get("outputs", {}).items()}
@@ -164,16 +180,16 @@ def locked(out: Path, busy: str) -> Iterator[None]:
 def run_stages(stages: Sequence[S], records: dict[str, dict[str, Any]], out: Path, progress: Reporter, *,
                force: bool, key: Callable[[S], str], applies: Callable[[S], str | None],
                run: Callable[[S], tuple[dict[str, Path], dict[str, Any]]],
-               save: Callable[[], None]) -> list[dict[str, Any]]:
+               save: Callable[[], None]) -> list[StageOutcome]:
     """Run ``stages`` in order into ``out``, updating ``records`` (and calling ``save``) after each.
 
     A stage that does not apply (``applies`` gives a reason) is recorded as such; one whose key and
     outputs are unchanged is not run again unless ``force``. A failing stage is recorded with
     what it wrote (a :class:`Partial` as the failure's cause) and stops the run: an
     :class:`InputError` as a :class:`StageFailed` naming it, anything else as a :class:`StageCrashed`.
-    Returns one entry per stage: ``stage``, ``ran``, ``status``, ``seconds`` and ``outputs``.
+    Returns one :class:`StageOutcome` per stage.
     """
-    done: list[dict[str, Any]] = []
+    done: list[StageOutcome] = []
     for i, stage in enumerate(stages, start=1):
         reason = applies(stage)
         stage_key = key(stage)
@@ -181,13 +197,12 @@ def run_stages(stages: Sequence[S], records: dict[str, dict[str, Any]], out: Pat
         if reason is not None:
             progress.stage(i, len(stages), stage.name, f"not applicable ({reason})")
             records[stage.name] = {"status": "not applicable", "reason": reason, "key": stage_key, "outputs": {}}
-            done.append({"stage": stage.name, "ran": False, "status": "not applicable", "seconds": 0.0})
+            done.append(StageOutcome(stage.name, False, "not applicable", 0.0))
             continue
         if not force and old is not None and old.get("status") == "done" and old.get("key") == stage_key \
                 and outputs_intact(out, old):
             progress.stage(i, len(stages), stage.name, "up to date, not run again")
-            done.append({"stage": stage.name, "ran": False, "status": "up to date", "seconds": 0.0,
-                         "outputs": {k: o["path"] for k, o in old["outputs"].items()}})
+            done.append(StageOutcome(stage.name, False, "up to date", 0.0))
             continue
         progress.stage(i, len(stages), stage.name, stage.what)
         t0 = time.perf_counter()
@@ -212,6 +227,5 @@ def run_stages(stages: Sequence[S], records: dict[str, dict[str, Any]], out: Pat
                                "summary": summary, "outputs": record_outputs(out, outputs)}
         save()
         progress.say(f"done in {seconds:.1f} s")
-        done.append({"stage": stage.name, "ran": True, "status": "done", "seconds": seconds,
-                     "outputs": {k: o["path"] for k, o in records[stage.name]["outputs"].items()}})
+        done.append(StageOutcome(stage.name, True, "done", seconds))
     return done

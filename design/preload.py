@@ -99,7 +99,8 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 __all__ = ["DesignSpec", "HeatSpec", "DesignOptimum", "DesignInfeasible", "ParetoFront", "OBJECTIVES",
-           "PARETO_PAIRS", "CONSTRAINTS", "WEIGHTS", "optimise", "pareto_front", "DesignNLP"]
+           "PARETO_PAIRS", "CONSTRAINTS", "WEIGHTS", "optimise", "pareto_front", "DesignNLP",
+           "NLPSolution"]
 
 OBJECTIVES = ("stiffness", "drag", "life")
 #: fronts a user can ask for: x:y, x swept as an epsilon constraint, y optimised (growth: the duty cycle's nut heat
@@ -474,6 +475,24 @@ def _constraint_rows(spec: DesignSpec, e: dict[str, Any], ops: Any) -> list[tupl
     return rows
 
 
+@dataclass(frozen=True, eq=False)
+class NLPSolution:
+    """One solve of the design NLP: the scaled point ``y``, its objective ``f``, the constraint rows ``g`` and the
+    multipliers of the rows and of the bounds; the integers fixed (None: relaxed), whether the solver succeeded, its
+    status and method (``ipopt``, ``sqp``), and whether the point is feasible (every row within 1e-6)."""
+
+    y: np.ndarray
+    f: float
+    g: np.ndarray
+    lam_g: np.ndarray
+    lam_x: np.ndarray
+    integers: tuple[int, int] | None
+    success: bool
+    status: str
+    method: str
+    feasible: bool
+
+
 class DesignNLP:
     """The design NLP built once for a spec, solved many times (objective weights as
     parameters, epsilon bounds and fixed integers as variable bounds, warm starts).
@@ -600,7 +619,7 @@ class DesignNLP:
     # ---- one solve ---------------------------------------------------------------------
     def solve(self, weights: Iterable[float], y0: np.ndarray, lam_g0: np.ndarray | None = None,
               integers: tuple[int, int] | None = None, stiffness_min: float | None = None,
-              lam_x0: np.ndarray | None = None) -> dict[str, Any]:
+              lam_x0: np.ndarray | None = None) -> NLPSolution:
         """One solve from ``y0``: cold (IPOPT) without multipliers, warm (see the class
         docstring) with the constraint multipliers ``lam_g0`` and, if given, the bound
         multipliers ``lam_x0`` of a neighbouring solution."""
@@ -615,7 +634,7 @@ class DesignNLP:
             args["lam_x0"] = lam_x0
         if self.warm == "sqp":  # the three steps of the class docstring
             sol = self._run(self.sqp_solver, args, integers)
-            if sol["success"] and sol["feasible"]:
+            if sol.success and sol.feasible:
                 return sol
             verdict = self._infeasible(args, integers)
             if verdict is not None:
@@ -631,9 +650,9 @@ class DesignNLP:
         return dict(x0=np.concatenate([y0, s0]), lbx=np.concatenate([lbx, np.zeros(ns)]),
                     ubx=np.concatenate([ubx, np.full(ns, np.inf)]), lbg=-np.inf, ubg=0.0)
 
-    def _infeasible(self, args: dict[str, Any], integers: tuple[int, int] | None) -> dict[str, Any] | None:
+    def _infeasible(self, args: dict[str, Any], integers: tuple[int, int] | None) -> NLPSolution | None:
         """The least-violation point from ``args``' start if the SQP converges there with a
-        violation above the tolerance (a solution dict marked infeasible), else None."""
+        violation above the tolerance (a solution marked infeasible), else None."""
         out = self.elastic_sqp(**self.elastic_args(args["x0"], args["lbx"], args["ubx"]))
         self.solves += 1
         violation = float(out["f"])
@@ -644,7 +663,7 @@ class DesignNLP:
                               np.asarray(out["lam_x"]).ravel()[: self.n], integers, False,
                               f"Infeasible: least total scaled violation {violation:.3g}", "sqp")
 
-    def _run(self, solver: Any, args: dict[str, Any], integers: tuple[int, int] | None) -> dict[str, Any]:
+    def _run(self, solver: Any, args: dict[str, Any], integers: tuple[int, int] | None) -> NLPSolution:
         out = solver(**args)
         self.solves += 1
         stats = solver.stats()
@@ -653,13 +672,12 @@ class DesignNLP:
                               "sqp" if solver is self.sqp_solver else "ipopt")
 
     def _solution(self, y: np.ndarray, f: float, lam_g: Any, lam_x: Any, integers: tuple[int, int] | None,
-                  success: bool, status: str, method: str) -> dict[str, Any]:
+                  success: bool, status: str, method: str) -> NLPSolution:
         """A solve's result: the point, its objective, constraints and multipliers, and whether
         the solver succeeded and the point is feasible (every row within 1e-6)."""
         g = np.asarray(self.constraints(y)).ravel()
-        return {"y": y, "f": f, "g": g, "lam_g": np.asarray(lam_g).ravel(), "lam_x": np.asarray(lam_x).ravel(),
-                "integers": integers, "success": success, "status": status, "method": method,
-                "feasible": bool(np.all(g <= 1e-6))}
+        return NLPSolution(y, f, g, np.asarray(lam_g).ravel(), np.asarray(lam_x).ravel(), integers, success, status,
+                           method, bool(np.all(g <= 1e-6)))
 
     # ---- reporting -------------------------------------------------------------------------
     def point(self, y: np.ndarray, objective: str, integer: bool) -> DesignPoint:
@@ -684,11 +702,11 @@ class DesignNLP:
                          c0_N=screw.static_rating_N)
         return pt
 
-    def binding(self, solution: dict[str, Any], tol: float = 1e-4) -> list[str]:
+    def binding(self, solution: NLPSolution, tol: float = 1e-4) -> list[str]:
         """Constraints active at the solution (a multiplier above ``tol``) and variables at a bound."""
-        names = [n for n, lam in zip(self.row_names, solution["lam_g"]) if lam > tol]
-        fixed = {3, 4} if solution.get("integers") else set()
-        for k, lam in enumerate(solution["lam_x"][:8]):
+        names = [n for n, lam in zip(self.row_names, solution.lam_g) if lam > tol]
+        fixed = {3, 4} if solution.integers else set()
+        for k, lam in enumerate(solution.lam_x[:8]):
             if k not in fixed and abs(lam) > tol:
                 names.append(f"{_VARIABLES[k]} at its {'upper' if lam > 0 else 'lower'} bound")
         return names
@@ -724,27 +742,28 @@ def _integer_candidates(turns: float, z1: float, spec: DesignSpec) -> list[tuple
 def _solve_mixed(nlp: DesignNLP, weights: tuple[float, ...], y0: np.ndarray, stiffness_min: float | None,
                  lam_g0: np.ndarray | None = None, lam_x0: np.ndarray | None = None,
                  known_infeasible: set[tuple[int, int]] | frozenset[tuple[int, int]] = frozenset(),
-                 ) -> tuple[dict[str, Any] | None, dict[str, Any], list[dict[str, Any]]]:
+                 ) -> tuple[NLPSolution | None, NLPSolution, list[dict[str, Any]]]:
     """Relaxation, then its integer neighbours; returns (best integer solution, relaxation, tried).
 
     A neighbour in ``known_infeasible`` is not solved again (a front passes the pairs found
     infeasible at a lower stiffness bound: raising the bound only shrinks the feasible set).
     """
     relaxed = nlp.solve(weights, y0, lam_g0=lam_g0, stiffness_min=stiffness_min, lam_x0=lam_x0)
-    x = nlp.to_physical(relaxed["y"])
-    best, tried = None, []
+    x = nlp.to_physical(relaxed.y)
+    best: NLPSolution | None = None
+    tried: list[dict[str, Any]] = []
     for ints in _integer_candidates(x[3], x[4], nlp.spec):
         if ints in known_infeasible:
             tried.append({"turns": ints[0], "balls_per_turn": ints[1], "feasible": False, "infeasible": True,
                           "objective": None, "status": "infeasible at a lower stiffness bound"})
             continue
-        sol = nlp.solve(weights, relaxed["y"], lam_g0=relaxed["lam_g"], integers=ints, stiffness_min=stiffness_min,
-                        lam_x0=relaxed["lam_x"])
-        ok = sol["success"] and sol["feasible"]
+        sol = nlp.solve(weights, relaxed.y, lam_g0=relaxed.lam_g, integers=ints, stiffness_min=stiffness_min,
+                        lam_x0=relaxed.lam_x)
+        ok = sol.success and sol.feasible
         tried.append({"turns": ints[0], "balls_per_turn": ints[1], "feasible": ok,
-                      "infeasible": sol["status"].startswith("Infeasible"), "objective": sol["f"],
-                      "status": sol["status"]})
-        if ok and (best is None or sol["f"] < best["f"]):
+                      "infeasible": sol.status.startswith("Infeasible"), "objective": sol.f,
+                      "status": sol.status})
+        if ok and (best is None or sol.f < best.f):
             best = sol
     return best, relaxed, tried
 
@@ -754,7 +773,7 @@ def optimise(spec: DesignSpec, objective: str = "stiffness", nlp: DesignNLP | No
     return _optimise(spec, objective, nlp)[0]
 
 
-def _optimise(spec: DesignSpec, objective: str, nlp: DesignNLP | None) -> tuple[DesignOptimum, dict[str, Any]]:
+def _optimise(spec: DesignSpec, objective: str, nlp: DesignNLP | None) -> tuple[DesignOptimum, NLPSolution]:
     """:func:`optimise`, also returning the relaxed solution (a warm start for fronts)."""
     if objective not in (*OBJECTIVES, "heat"):  # the heat: the growth front's other end
         raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}.")
@@ -763,9 +782,9 @@ def _optimise(spec: DesignSpec, objective: str, nlp: DesignNLP | None) -> tuple[
     y0 = nlp.initial_guess()
     best, relaxed, tried = _solve_mixed(nlp, WEIGHTS[objective], y0, None)
     if best is None:
-        misses = binding(nlp, relaxed["y"], lambda y: _integer_candidates(*_turns_and_balls(nlp, y), spec))
+        misses = binding(nlp, relaxed.y, lambda y: _integer_candidates(*_turns_and_balls(nlp, y), spec))
         raise DesignInfeasible(_infeasible_message(misses), misses)
-    result = DesignOptimum(spec=spec, objective=objective, point=nlp.point(best["y"], objective, True),
+    result = DesignOptimum(spec=spec, objective=objective, point=nlp.point(best.y, objective, True),
                           binding=nlp.binding(best), tried=tried, solve_s=time.perf_counter() - t0,
                           nlp_solves=nlp.solves - start_solves)
     return result, relaxed
@@ -817,16 +836,16 @@ def pareto_front(spec: DesignSpec, pair: str, n_points: int = 50, nlp: DesignNLP
     eps = np.linspace(min(k_lo, k_hi), k_hi, n_points)
     weights = WEIGHTS["heat" if y_name == "growth" else y_name]
     # the first epsilon is the other optimum's own stiffness: start from its relaxation
-    y_prev, lam_prev, lam_x_prev = other_relaxed["y"], other_relaxed["lam_g"], other_relaxed["lam_x"]
+    y_prev, lam_prev, lam_x_prev = other_relaxed.y, other_relaxed.lam_g, other_relaxed.lam_x
     xs, ys, points = [], [], []
     infeasible: set[tuple[int, int]] = set()
     for i, k in enumerate(eps):
         best, relaxed, tried = _solve_mixed(nlp, weights, y_prev, float(k), lam_prev, lam_x_prev, infeasible)
         infeasible.update((t["turns"], t["balls_per_turn"]) for t in tried if t["infeasible"])
-        if relaxed["success"]:
-            y_prev, lam_prev, lam_x_prev = relaxed["y"], relaxed["lam_g"], relaxed["lam_x"]
+        if relaxed.success:
+            y_prev, lam_prev, lam_x_prev = relaxed.y, relaxed.lam_g, relaxed.lam_x
         if best is not None:
-            pt = nlp.point(best["y"], y_name, True)
+            pt = nlp.point(best.y, y_name, True)
             xs.append(pt.stiffness_N_per_um)
             ys.append(growth(pt) if growth is not None and y_name == "growth" else
                       {"preload": pt.max_preload_N, "drag": pt.mean_drag_torque_Nm, "life": pt.life_h}[y_name])

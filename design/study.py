@@ -42,8 +42,8 @@ from piezopreload.models.feed_drive import FeedDrive, PiezoPreload
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["DesignResult", "design_study", "plan_schedule", "read_profile", "check_screw", "FRONT_COLUMNS",
-           "design_spec_from_tables"]
+__all__ = ["DesignResult", "design_study", "plan_schedule", "read_profile", "check_screw", "ScrewCheck",
+           "FRONT_COLUMNS", "design_spec_from_tables"]
 
 #: the columns of a front's CSV
 FRONT_COLUMNS = ("stiffness_N_per_um", "max_preload_N", "mean_drag_torque_Nm", "life_h", "contact_angle_deg", "ball_mm",
@@ -135,18 +135,6 @@ class DesignResult:
     def to_dict(self) -> dict[str, Any]:
         """The design artifact's body (:meth:`record`'s)."""
         return self.record().to_dict()
-
-    def summary(self) -> dict[str, Any]:
-        """What ``piezopreload design --json`` prints: the optimum, each front's span, the schedule's numbers."""
-        o = self.optimum
-        return {
-            "objective": o.objective, "optimum": o.point.to_dict(), "binding": o.binding, "integer_candidates": o.tried,
-            "solve_s": o.solve_s,
-            "fronts": [{"pair": f.pair, "points": len(f.points), "solve_s": f.solve_s, "nlp_solves": f.nlp_solves,
-                        "stiffness_N_per_um": [float(f.x.min()), float(f.x.max())],
-                        f.y_name: [float(f.y.min()), float(f.y.max())]} for f in self.fronts],
-            "schedule": self.schedule.summary(),
-        }
 
     def save(self, path: str | Path, inputs: dict[str, Any]) -> list[Path]:
         """Write the design artifact to ``path`` and each front's CSV beside it; returns the paths written."""
@@ -278,9 +266,54 @@ def natural_frequency(spec: DesignSpec, optimum: DesignOptimum, n: int = 41) -> 
         max_preload_Hz=np.asarray(spec.feed_drive.natural_frequency_Hz(screw, p.max_preload_N, positions), float))
 
 
+@dataclass(frozen=True)
+class ScrewCheck:
+    """One double-nut screw at one preload and one axial load (:func:`check_screw`): its ratings and where they come
+    from, the preload (and as a share of C_dyn), the rigidity with and without the load, the nuts' loads (and the
+    HIWIN formula's), the lift-off, the contact's peak pressure and static safety, the drag and its heat, the life
+    (None at standstill)."""
+
+    screw: BallScrew
+    c_dyn_N: float
+    c_dyn_source: str
+    c0_N: float
+    c0_source: str
+    preload_N: float
+    preload_fraction_of_c_dyn: float
+    axial_load_N: float
+    rigidity_N_per_um: float
+    rigidity_no_load_N_per_um: float
+    contact_rigidity_N_per_um: float
+    deflection_um: float
+    loaded_nut_N: float
+    unloaded_nut_N: float
+    loaded_nut_hiwin_N: float
+    lift_off_load_N: float
+    lifted_off: bool
+    peak_pressure_MPa: float
+    ball_load_N: float
+    static_safety: float
+    drag_torque_Nm: float
+    drag_coefficient: float
+    drag_heat_W: float
+    speed_rpm: float
+    life_revolutions: float | None
+    life_h: float | None
+
+    def to_dict(self) -> dict[str, Any]:
+        """What ``ballscrew --json`` prints: the screw's geometry, then every figure above."""
+        s = self.screw
+        screw = {"nominal_diameter_mm": s.nominal_diameter_mm, "lead_mm": s.lead_mm, "ball_mm": s.ball_mm,
+                 "turns": s.turns, "contact_angle_deg": s.contact_angle_deg, "conformity_screw": s.conformity_screw,
+                 "conformity_nut": s.conformity_nut, "balls_per_turn": s.balls_on_turn,
+                 "balls_per_nut": s.balls_per_nut, "helix_angle_deg": math.degrees(s.helix_rad),
+                 "root_diameter_mm": s.root_diameter_mm}
+        return {"screw": screw, **{f.name: getattr(self, f.name) for f in fields(self) if f.name != "screw"}}
+
+
 def check_screw(screw: BallScrew, preload_N: float | None = None, preload_fraction: float = 0.1,
-                axial_load_N: float = 0.0, speed_rpm: float = 1000.0) -> dict[str, Any]:
-    """Everything a user checks of one screw at one preload and one axial load, as JSON holds it.
+                axial_load_N: float = 0.0, speed_rpm: float = 1000.0) -> ScrewCheck:
+    """Everything a user checks of one screw at one preload and one axial load.
 
     The preload is ``preload_N``, or ``preload_fraction`` of the dynamic rating C_dyn.
     """
@@ -296,31 +329,22 @@ def check_screw(screw: BallScrew, preload_N: float | None = None, preload_fracti
     loads = screw.nut_loads(preload_N, axial_load_N)
     contact = screw.contact(loads.loaded_nut_N)
     life = screw.life(preload_N, [DutyCase(axial_load_N, speed_rpm, 1.0)]) if speed_rpm > 0 else None
-    return {
-        "screw": {"nominal_diameter_mm": screw.nominal_diameter_mm, "lead_mm": screw.lead_mm, "ball_mm": screw.ball_mm,
-                  "turns": screw.turns, "contact_angle_deg": screw.contact_angle_deg,
-                  "conformity_screw": screw.conformity_screw, "conformity_nut": screw.conformity_nut,
-                  "balls_per_turn": screw.balls_on_turn, "balls_per_nut": screw.balls_per_nut,
-                  "helix_angle_deg": math.degrees(screw.helix_rad), "root_diameter_mm": screw.root_diameter_mm},
-        "c_dyn_N": c_dyn, "c_dyn_source": "catalogue" if screw.c_dyn_N is not None else "estimate",
-        "c0_N": screw.static_rating_N, "c0_source": "catalogue" if screw.c0_N is not None else "Hertz at 4200 MPa",
-        "preload_N": float(preload_N), "preload_fraction_of_c_dyn": float(preload_N / c_dyn),
-        "axial_load_N": float(axial_load_N),
-        "rigidity_N_per_um": float(loads.rigidity_N_per_um),
-        "rigidity_no_load_N_per_um": float(screw.rigidity_N_per_um(preload_N)),
-        "contact_rigidity_N_per_um": float(loads.contact_stiffness_N_per_um),
-        "deflection_um": float(loads.deflection_um),
-        "loaded_nut_N": float(loads.loaded_nut_N), "unloaded_nut_N": float(loads.unloaded_nut_N),
-        "loaded_nut_hiwin_N": float(hiwin_loaded_nut_force(preload_N, axial_load_N)),
-        "lift_off_load_N": float(lift_off_load_N(preload_N)), "lifted_off": bool(loads.lifted_off),
-        "peak_pressure_MPa": float(contact.peak_pressure_MPa), "ball_load_N": float(contact.ball_load_N),
-        "static_safety": float(screw.static_rating_N / max(float(loads.loaded_nut_N), 1e-12)),
-        "drag_torque_Nm": float(screw.drag_torque_Nm(preload_N)), "drag_coefficient": screw.drag_K,
-        "drag_heat_W": float(screw.drag_torque_Nm(preload_N) * speed_rpm * 2 * math.pi / 60),
-        "speed_rpm": float(speed_rpm),
-        "life_revolutions": None if life is None else life.revolutions,
-        "life_h": None if life is None else life.hours,
-    }
+    return ScrewCheck(
+        screw=screw, c_dyn_N=c_dyn, c_dyn_source="catalogue" if screw.c_dyn_N is not None else "estimate",
+        c0_N=screw.static_rating_N, c0_source="catalogue" if screw.c0_N is not None else "Hertz at 4200 MPa",
+        preload_N=float(preload_N), preload_fraction_of_c_dyn=float(preload_N / c_dyn),
+        axial_load_N=float(axial_load_N), rigidity_N_per_um=float(loads.rigidity_N_per_um),
+        rigidity_no_load_N_per_um=float(screw.rigidity_N_per_um(preload_N)),
+        contact_rigidity_N_per_um=float(loads.contact_stiffness_N_per_um), deflection_um=float(loads.deflection_um),
+        loaded_nut_N=float(loads.loaded_nut_N), unloaded_nut_N=float(loads.unloaded_nut_N),
+        loaded_nut_hiwin_N=float(hiwin_loaded_nut_force(preload_N, axial_load_N)),
+        lift_off_load_N=float(lift_off_load_N(preload_N)), lifted_off=bool(loads.lifted_off),
+        peak_pressure_MPa=float(contact.peak_pressure_MPa), ball_load_N=float(contact.ball_load_N),
+        static_safety=float(screw.static_rating_N / max(float(loads.loaded_nut_N), 1e-12)),
+        drag_torque_Nm=float(screw.drag_torque_Nm(preload_N)), drag_coefficient=screw.drag_K,
+        drag_heat_W=float(screw.drag_torque_Nm(preload_N) * speed_rpm * 2 * math.pi / 60),
+        speed_rpm=float(speed_rpm), life_revolutions=None if life is None else life.revolutions,
+        life_h=None if life is None else life.hours)
 
 
 def design_spec_from_tables(t: dict[str, Any], fail: Callable[[str, str], Exception]) -> DesignSpec:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypedDict
 
 from piezopreload.artifacts.design import DesignPoint
 from piezopreload.artifacts.plant import DesignedPlant
@@ -27,8 +27,8 @@ from piezopreload.models.controller import Controller
 from piezopreload.models.feed_drive import MOUNTINGS
 from piezopreload.models.thermal import HEAT_MODELS, THERMAL_MOUNTINGS, VG_GRADES
 
-__all__ = ["BallscrewTable", "FeedDriveTable", "DutyTable", "DesignTable", "ScheduleTable", "PlantTable",
-           "ThermalTable", "FEEDBACKS"]
+__all__ = ["BallscrewTable", "FeedDriveTable", "DutyTable", "DesignTable", "ScheduleTable", "ScheduleLimits",
+           "PlantTable", "ThermalTable", "FEEDBACKS"]
 
 _SPEC = DesignSpec()  # the defaults
 
@@ -128,6 +128,14 @@ class DesignTable(Table):
                                      "preload's slew rate; the designed plant's amplifier)", unit="A", gt=0)
 
 
+class ScheduleLimits(TypedDict):
+    """What a preload schedule must keep, as :func:`~piezopreload.design.study.plan_schedule` takes it."""
+
+    stiffness_min_N_per_um: float
+    deflection_max_um: float
+    lift_off_margin: float | None
+
+
 @dataclass(frozen=True)
 class ScheduleTable(Table):
     """[schedule]: the load profile the least-friction preload schedule is planned for and what it must keep."""
@@ -140,11 +148,12 @@ class ScheduleTable(Table):
     lift_off_margin: float | None = key(None, "safety factor on lift-off along the profile (not set: [design]'s)",
                                         gt=0)
 
-    def limits(self) -> dict[str, Any]:
+    def limits(self) -> ScheduleLimits:
         """What the schedule must keep, as :func:`~piezopreload.design.study.plan_schedule` takes it."""
-        return {"stiffness_min_N_per_um": self.stiffness_min_N_per_um,
-                "deflection_max_um": math.inf if self.deflection_max_um is None else self.deflection_max_um,
-                "lift_off_margin": self.lift_off_margin}
+        return ScheduleLimits(
+            stiffness_min_N_per_um=self.stiffness_min_N_per_um,
+            deflection_max_um=math.inf if self.deflection_max_um is None else self.deflection_max_um,
+            lift_off_margin=self.lift_off_margin)
 
 
 @dataclass(frozen=True)

@@ -26,15 +26,20 @@ __all__ = [
     "StudyResult", "SystemRun", "LearningResult", "ValidationResult", "Metrics", "Failure", "Requirement",
     "ComparisonRow", "ActiveBound", "MinimumTimeBound", "TrackingFloor", "TuningSolve", "DesignRecord", "DesignPoint",
     "DesignedPlant", "PreloadSchedule", "SystemRecord", "TrackingNumbers", "FitError", "LearnedSignal", "SweepPoint",
+    "RunSummary", "StudyRef", "StudyReproduction", "ReproductionSummary", "PublishedRow", "SimulationInfo",
+    "FeedforwardInfo",
 ]
 
 #: the module each public name comes from: a name is imported on its first use (a module ``__getattr__``, as numpy
 #: and scipy load their submodules), so ``import piezopreload`` loads no floor and no solver
 _EXPORTS: dict[str, str] = {name: module for module, names in {
     "piezopreload.study": ("load_study", "shipped_studies", "Study"),
-    "piezopreload.results": ("TuningResult", "StudyRun", "ScheduleLearning"),
+    "piezopreload.results": ("TuningResult", "StudyRun", "StudyReproduction", "SimulationInfo"),
+    "piezopreload.schedule": ("ScheduleLearning",),
     "piezopreload.sweep": ("SweepResult",),
-    "piezopreload.outcome": ("StudyResult",),
+    "piezopreload.outcome": ("StudyResult", "RunSummary"),
+    "piezopreload.artifacts.manifest": ("StudyRef",),
+    "piezopreload.tuning.compare": ("ReproductionSummary", "PublishedRow"),
     "piezopreload.core.errors": ("PiezopreloadError", "InputError", "ArtifactError", "InfeasibleError",
                                  "InternalError"),
     "piezopreload.core.tables": ("Record", "read_record"),
@@ -56,7 +61,7 @@ _EXPORTS: dict[str, str] = {name: module for module, names in {
     "piezopreload.artifacts.sweep": ("SweepPoint",),
     "piezopreload.design.study": ("DesignResult",),
     "piezopreload.design.system": ("SystemRun",),
-    "piezopreload.tuning.feedforward": ("IdentifiedFeedforward",),
+    "piezopreload.tuning.feedforward": ("IdentifiedFeedforward", "FeedforwardInfo"),
     "piezopreload.tuning.learning": ("LearningResult",),
     "piezopreload.tuning.identification": ("identify", "Identification", "Window"),
     "piezopreload.tuning.identify": ("PIIdentifier", "NotFittedError"),
@@ -72,6 +77,7 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     from piezopreload.artifacts.gainset import GainSet
     from piezopreload.artifacts.hysteresis import FitError, IdentifiedModel
     from piezopreload.artifacts.learned import LearnedSignal
+    from piezopreload.artifacts.manifest import StudyRef
     from piezopreload.artifacts.plant import DesignedPlant
     from piezopreload.artifacts.requirements import Requirement
     from piezopreload.artifacts.schedule import PreloadSchedule
@@ -87,14 +93,16 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     from piezopreload.models.closedloop import ClosedLoopRun, Reference
     from piezopreload.models.controller import PIDGains
     from piezopreload.models.metrics import StepMetrics
-    from piezopreload.outcome import StudyResult
-    from piezopreload.results import ScheduleLearning, StudyRun, TuningResult
+    from piezopreload.outcome import RunSummary, StudyResult
+    from piezopreload.results import SimulationInfo, StudyReproduction, StudyRun, TuningResult
     from piezopreload.rig.export import export
+    from piezopreload.schedule import ScheduleLearning
     from piezopreload.study import Study, load_study, shipped_studies
     from piezopreload.sweep import SweepResult
     from piezopreload.tuning.autotune import autotune
     from piezopreload.tuning.autotune_result import AutotuneResult
-    from piezopreload.tuning.feedforward import IdentifiedFeedforward
+    from piezopreload.tuning.compare import PublishedRow, ReproductionSummary
+    from piezopreload.tuning.feedforward import FeedforwardInfo, IdentifiedFeedforward
     from piezopreload.tuning.identification import Identification, Window, identify
     from piezopreload.tuning.identify import NotFittedError, PIIdentifier
     from piezopreload.tuning.learning import LearningResult

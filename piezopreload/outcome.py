@@ -9,29 +9,19 @@ stages checked with its verdict; ``exit_code`` is 0 when every requirement is me
 from __future__ import annotations
 
 import html
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from piezopreload.artifacts.requirements import EXIT_REQUIREMENT_MISSED, Requirement, missed
+from piezopreload.artifacts.manifest import StudyRef, StudyRunManifest
+from piezopreload.artifacts.requirements import EXIT_REQUIREMENT_MISSED, Requirement, least_margin, missed
+from piezopreload.artifacts.summaries import RigSummary, SystemSummary, ValidateSummary
+from piezopreload.core.stages import StageOutcome
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["StageOutcome", "Headline", "StudyResult", "summary_of"]
-
-
-@dataclass(frozen=True)
-class StageOutcome:
-    """One stage of a run: whether it ran, its status (``done``, ``up to date``, ``not applicable``), its time."""
-
-    stage: str
-    ran: bool
-    status: str
-    seconds: float
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"stage": self.stage, "ran": self.ran, "status": self.status, "seconds": self.seconds}
+__all__ = ["StageOutcome", "Headline", "RunSummary", "StudyResult"]
 
 
 @dataclass(frozen=True)
@@ -63,25 +53,72 @@ class Headline:
     rig_tracking_rms_N: float | None = None
 
     @classmethod
-    def from_records(cls, records: dict[str, dict[str, Any]]) -> Headline:
-        """The headline from the stages' records of ``pipeline.json``."""
-        system = records.get("system", {})
-        numbers = system.get("summary", {}) if system.get("status") == "done" else {}
-        keys = {f.name for f in fields(cls)} - {"system", "gain_set_status", "rig_tracking_rms_N"}
-        return cls(**{k: numbers.get(k) for k in keys}, system=system.get("status", "not run"),
-                   gain_set_status=records.get("validate", {}).get("summary", {}).get("status"),
-                   rig_tracking_rms_N=records.get("rig", {}).get("summary", {}).get("tracking_rms_N"))
+    def from_manifest(cls, manifest: StudyRunManifest) -> Headline:
+        """The headline from the stages' records of a run's ``pipeline.json``."""
+        system, validate, rig = (manifest.summary(SystemSummary), manifest.summary(ValidateSummary),
+                                 manifest.summary(RigSummary))
+        head = cls(system=manifest.status("system") or "not run",
+                   gain_set_status=None if validate is None else validate.status,
+                   rig_tracking_rms_N=None if rig is None else rig.tracking_rms_N)
+        if system is None:
+            return head
+        n, before = system.numbers, system.before
+        head = replace(
+            head, tracking_rms_pct_of_range=n.tracking_rms_pct_of_range, tracking_rms_N=n.tracking_rms_N,
+            tracking_max_N=n.tracking_max_N, rigidity_min_cutting_N_per_um=n.rigidity_min_cutting_N_per_um,
+            rigidity_required_at_min_N_per_um=n.rigidity_required_at_min_N_per_um,
+            rigidity_ratio_min=n.rigidity_ratio_min,
+            rigidity_at_worst_ratio_N_per_um=n.rigidity_at_worst_ratio_N_per_um,
+            rigidity_required_at_worst_ratio_N_per_um=n.rigidity_required_at_worst_ratio_N_per_um,
+            deflection_max_um=n.deflection_max_um, friction_energy_per_cycle=n.friction_energy_per_cycle,
+            friction_saved_fraction=n.friction_saved_fraction, preload_margin_N=system.preload_margin_N,
+            thermal=system.thermal)
+        if before is None:
+            return head
+        return replace(head, tracking_rms_pct_of_range_before_learning=before.tracking_rms_pct_of_range_before_learning,
+                       tracking_rms_N_before_learning=before.tracking_rms_N_before_learning,
+                       learning_iterations=before.learning_iterations, learning_trials=before.learning_trials)
 
     def to_dict(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
-def summary_of(headline: Headline, requirements: tuple[Requirement, ...]) -> dict[str, Any]:
-    """``run --json``'s ``summary``: the headline figures, whether every requirement is met (None: none checked),
-    the missed ones and every one, each with its margin."""
-    miss = missed(requirements)
-    return {**headline.to_dict(), "requirements_met": None if not requirements else not miss,
-            "requirements_missed": [r.to_dict() for r in miss], "requirements": [r.to_dict() for r in requirements]}
+@dataclass(frozen=True)
+class RunSummary:
+    """A run's headline figures and every requirement its stages checked: ``run --json``'s ``summary``.
+
+    Parameters
+    ----------
+    headline : Headline
+        The run's headline figures.
+    requirements : tuple of Requirement
+        Every requirement the stages checked, in stage order, each with its verdict.
+    """
+
+    headline: Headline
+    requirements: tuple[Requirement, ...]
+
+    @property
+    def missed(self) -> tuple[Requirement, ...]:
+        """The requirements missed, in stage order."""
+        return missed(self.requirements)
+
+    @property
+    def requirements_met(self) -> bool | None:
+        """Whether every requirement the stages checked is met (None: the study checked none)."""
+        return None if not self.requirements else not self.missed
+
+    @property
+    def least_margin(self) -> Requirement | None:
+        """The requirement nearest to being missed (the least margin as a share of its limit), or None."""
+        return least_margin(self.requirements)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The headline figures, whether every requirement is met (None: none checked), the missed ones and every
+        one, each with its margin."""
+        return {**self.headline.to_dict(), "requirements_met": self.requirements_met,
+                "requirements_missed": [r.to_dict() for r in self.missed],
+                "requirements": [r.to_dict() for r in self.requirements]}
 
 
 @dataclass(frozen=True)
@@ -115,7 +152,7 @@ class StudyResult:
     """
 
     out: Path
-    study: dict[str, str]
+    study: StudyRef
     stages: tuple[StageOutcome, ...]
     seconds: float
     headline: Headline
@@ -131,14 +168,19 @@ class StudyResult:
         return tuple(s.stage for s in self.stages if s.ran)
 
     @property
+    def summary(self) -> RunSummary:
+        """The headline figures and the verdicts (``to_dict()["summary"]``)."""
+        return RunSummary(self.headline, self.requirements)
+
+    @property
     def missed(self) -> tuple[Requirement, ...]:
         """The requirements missed, in stage order."""
-        return missed(self.requirements)
+        return self.summary.missed
 
     @property
     def requirements_met(self) -> bool | None:
         """Whether every requirement the stages checked is met (None: the study checked none)."""
-        return None if not self.requirements else not self.missed
+        return self.summary.requirements_met
 
     @property
     def exit_code(self) -> int:
@@ -149,16 +191,15 @@ class StudyResult:
         def path(p: Path | None) -> str | None:
             return None if p is None else str(p)
 
-        summary = summary_of(self.headline, self.requirements)
-        return {"out": str(self.out), "study": dict(self.study), "stages": [s.to_dict() for s in self.stages],
+        return {"out": str(self.out), "study": self.study.to_dict(), "stages": [s.to_dict() for s in self.stages],
                 "ran": list(self.ran), "seconds": self.seconds, "report": path(self.report),
                 "gain_set": path(self.gain_set), "gain_set_sha256": self.gain_set_sha256, "rig_log": path(self.rig_log),
-                "summary": summary, "exit_code": self.exit_code}
+                "summary": self.summary.to_dict(), "exit_code": self.exit_code}
 
     def __repr__(self) -> str:
         verdict = {None: "no requirement checked", True: "every requirement met"}.get(
             self.requirements_met, f"{len(self.missed)} requirement(s) missed")
-        return (f"StudyResult({self.study.get('name')!r}: ran {', '.join(self.ran) or 'nothing'} in "
+        return (f"StudyResult({self.study.name!r}: ran {', '.join(self.ran) or 'nothing'} in "
                 f"{self.seconds:.1f} s; {verdict}; outputs in {self.out})")
 
     def _repr_html_(self) -> str:
@@ -167,7 +208,7 @@ class StudyResult:
         reqs = "".join(f"<tr><td>{html.escape(r.name)}</td><td>{r.value:.4g} {r.unit}</td>"
                        f"<td>{'&ge;' if r.sense == 'min' else '&le;'} {r.limit:.4g} {r.unit}</td>"
                        f"<td>{'met' if r.met else '<b>missed</b>'}</td></tr>" for r in self.requirements)
-        return (f"<p><b>Study {html.escape(str(self.study.get('name')))}</b>: outputs in <code>{self.out}</code>"
+        return (f"<p><b>Study {html.escape(self.study.name)}</b>: outputs in <code>{self.out}</code>"
                 f"{'' if self.report is None else f', report <code>{self.report}</code>'}</p>"
                 f"<table><tr><th>stage</th><th></th></tr>{stages}</table>"
                 + ("" if not reqs else

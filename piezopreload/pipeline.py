@@ -27,11 +27,11 @@ report      figures and the PDF (Typst)                                         
 
 A study without ``[plant] from_design`` (the paper's) runs on its ``[rig]``: plant and system do
 not apply. With it, identify, tune, validate and compare run on the designed plant (``study.plant``
-of the study given the design stage's optimum, :meth:`Study.with_design`: the plant stage writes it
-as ``plant.json``), and their keys include the plant's hash: a changed design makes another plant
+of the study given the design stage's optimum, :meth:`~piezopreload.spec.StudySpec.with_design`: the plant stage
+writes it as ``plant.json``), and their keys include the plant's hash: a changed design makes another plant
 and everything after it runs again. With a ``[learning]``
 table too, the learn stage learns on each margin pass of the schedule and the system stage
-plays each pass's signal (:meth:`Study.track_schedule`'s ``ff_extra_V``): its summary is after
+plays each pass's signal (:meth:`~piezopreload.spec.StudySpec.track_schedule`'s ``ff_extra_V``): its summary is after
 learning, with the error before learning beside it; the rig stage plays the last pass's signal.
 
 Every stage has a key: the SHA-256 of its study tables, of the artifacts it reads, of the
@@ -61,15 +61,30 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from piezopreload import __version__
 from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import GainSet
-from piezopreload.artifacts.requirements import checked_by_stages, missed
+from piezopreload.artifacts.manifest import MANIFEST, STUDY_COPY, StageRecord, StudyRef, StudyRunManifest
+from piezopreload.artifacts.requirements import missed
 from piezopreload.artifacts.responses import RESPONSE_FIGURES, ResponseRun, ResponsesRecord
 from piezopreload.artifacts.rigrun import RigRunRecord
 from piezopreload.artifacts.schedule import PreloadSchedule
+from piezopreload.artifacts.summaries import (
+    BeforeLearning,
+    CompareSummary,
+    DesignSummary,
+    ExportSummary,
+    IdentifySummary,
+    LearnSummary,
+    PlantSummary,
+    RigSummary,
+    RigTrip,
+    StageSummary,
+    SystemSummary,
+    TuneSummary,
+    ValidateSummary,
+)
 from piezopreload.artifacts.system import SystemRecord
-from piezopreload.core.artifacts import atomic_write_bytes, read_artifact, write_artifact
+from piezopreload.core.artifacts import atomic_write_bytes, package_version
 from piezopreload.core.errors import InputError
 from piezopreload.core.stagecache import StageCache
 from piezopreload.core.stages import (
@@ -87,22 +102,22 @@ from piezopreload.core.stages import (
 )
 from piezopreload.core.tables import write_csv
 from piezopreload.design.tables import DesignTable, PlantTable
-from piezopreload.outcome import Headline, StageOutcome, StudyResult, summary_of
+from piezopreload.outcome import Headline, RunSummary, StageOutcome, StudyResult
 from piezopreload.progress import Progress, ProgressLike, as_progress
 from piezopreload.reports.study_report import STAGES_READ, Published, ReportStudy, render_report
-from piezopreload.results import TuningResult
+from piezopreload.results import TuningResult, tune
 from piezopreload.rig.export import write_exports
-from piezopreload.study import Study, load_study
+from piezopreload.spec import StudySpec
 from piezopreload.tuning.compare import creep_effect, reproduction, responses
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.learning import played_passes, save_passes
 
 __all__ = ["Stage", "STAGES", "StageFailed", "StageCrashed", "run_study", "rerender_report", "read_template",
-           "read_manifest", "run_summary", "DEFAULT_OUT"]
+           "run_summary", "DEFAULT_OUT", "Produced"]
 
 DEFAULT_OUT = "piezopreload-out"
-MANIFEST = "pipeline.json"
-STUDY_COPY = "study.toml"
+#: what a stage's body returns: its outputs (label -> path in the folder) and its summary
+Produced = tuple[dict[str, Path], StageSummary]
 
 
 # --------------------------------------------------------------------------------------
@@ -110,20 +125,42 @@ STUDY_COPY = "study.toml"
 # --------------------------------------------------------------------------------------
 @dataclass
 class _Ctx:
-    study: Study
+    study: StudySpec
     out: Path
     progress: Progress
     records: dict[str, dict[str, Any]]
     source: str = ""                         # the study file as the user named it
     template: str | None = None              # a Typst template's text to use instead of the shipped one
     cache: StageCache | None = None          # stage outputs shared with other folders
-    _subject: Study | None = None
+    _subject: StudySpec | None = None
+
+    def record(self, stage: str) -> StageRecord | None:
+        """The record of ``stage`` so far in this run (None: not reached)."""
+        raw = self.records.get(stage)
+        return None if raw is None else StageRecord.read(stage, raw, str(self.out / MANIFEST))
+
+    def done(self, stage: str) -> bool:
+        record = self.record(stage)
+        return record is not None and record.done
+
+    def _output(self, stage: str, label: str) -> tuple[str, str]:
+        record = self.record(stage)
+        o = None if record is None else record.outputs.get(label)
+        if o is None:
+            raise StageFailed(stage, f"it recorded no output '{label}'; run the study again with --force")
+        return o.path, o.sha256
 
     def output(self, stage: str, label: str) -> Path:
-        return self.out / self.records[stage]["outputs"][label]["path"]
+        return self.out / self._output(stage, label)[0]
 
     def sha256(self, stage: str, label: str) -> str:
-        return self.records[stage]["outputs"][label]["sha256"]
+        return self._output(stage, label)[1]
+
+    def manifest(self) -> StudyRunManifest:
+        """The stages' records so far, typed (what ``pipeline.json`` holds)."""
+        return StudyRunManifest.from_records(StudyRef(self.source or self.study.path, self.study.sha256,
+                                                      self.study.name), "", self.records, tuple(_BY_NAME),
+                                             str(self.out / MANIFEST))
 
     def rel(self, path: Path) -> str:
         return Path(path).resolve().relative_to(self.out.resolve()).as_posix()
@@ -139,7 +176,7 @@ class _Ctx:
         """The design's preload schedule, as the design stage recorded it."""
         return self.design().schedule
 
-    def subject(self) -> Study:
+    def subject(self) -> StudySpec:
         """The study the stages after the design run on: where the plant is the design, the study given the design
         stage's optimum (its plant, designed plant and preload schedule are made from it, not solved again)."""
         if not self.study.plant_from_design:
@@ -158,23 +195,22 @@ class Stage:
     tables: tuple[str, ...]
     needs: tuple[str, ...]
     code: tuple[str, ...]
-    run: Callable[[_Ctx], tuple[dict[str, Path], dict[str, Any]]]
+    run: Callable[[_Ctx], Produced]
     files: tuple[str, ...] = ()  # the study's file keys it reads (hashed into its key)
-    applies: Callable[[Study], str | None] = field(default=lambda study: None)  # a reason it does not apply, or None
+    applies: Callable[[StudySpec], str | None] = field(default=lambda study: None)  # why it does not apply, or None
     validated_only: bool = False  # runs only on a validated gain set (export, the rig)
-    reads: Callable[[Study], tuple[str, ...]] = field(default=lambda study: ())  # more tables, as the study asks
+    reads: Callable[[StudySpec], tuple[str, ...]] = field(default=lambda study: ())  # more tables, as the study asks
     shared: bool = True  # its outputs may be restored from a StageCache (False: they record this folder's own run)
 
 
-def _stage_identify(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_identify(ctx: _Ctx) -> Produced:
     ff = ctx.subject().identify_feedforward(progress=ctx.progress.say)
     paths = ff.save(ctx.out / "feedforward", inputs={"study_sha256": ctx.study.sha256})
-    return paths, {"source": ff.record.data.kind, "data_sha256": ff.record.data.sha256,
-                   "operators": ff.model.n_operators, "fit_rms_pct": ff.fit.rms_pct, "fit_max_pct": ff.fit.max_pct,
-                   "compensation_rms_N": None if ff.check is None else ff.check.rms_N}
+    return paths, IdentifySummary(ff.record.data.kind, ff.record.data.sha256, ff.model.n_operators, ff.fit.rms_pct,
+                                  ff.fit.max_pct, None if ff.check is None else ff.check.rms_N)
 
 
-def _stage_design(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_design(ctx: _Ctx) -> Produced:
     d = ctx.out / "design"
     for stale in d.glob("design.pareto-*.csv"):  # a front the study no longer asks for
         stale.unlink()
@@ -182,24 +218,23 @@ def _stage_design(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     written = result.save(d / "design.json", {"study": ctx.study.path, "study_sha256": ctx.study.sha256})
     outputs = {"design": written[0], **{p.stem.rpartition(".")[2]: p for p in written[1:]}}
     s = result.schedule
-    return outputs, {"objective": result.optimum.objective, "stiffness_N_per_um": result.point.stiffness_N_per_um,
-                     "binding": result.optimum.binding, "fronts": [f.pair for f in result.fronts],
-                     "schedule_saving_fraction": s.saving_fraction, "constant_preload_N": s.constant_preload_N,
-                     "constant_friction_energy": s.constant_friction_energy_J, "energy_units": s.energy_units}
+    return outputs, DesignSummary(result.optimum.objective, result.point.stiffness_N_per_um,
+                                  tuple(result.optimum.binding), tuple(f.pair for f in result.fronts),
+                                  s.saving_fraction, s.constant_preload_N, s.constant_friction_energy_J,
+                                  s.energy_units)
 
 
-def _stage_tune(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
-    tuned = ctx.subject().tune(ctx.feedforward(), progress=ctx.progress.say,
-                           iterations=ctx.progress.counter("IPOPT iterations", every=10))
+def _stage_tune(ctx: _Ctx) -> Produced:
+    tuned = tune(ctx.subject(), ctx.feedforward(), progress=ctx.progress.say,
+                 iterations=ctx.progress.counter("IPOPT iterations", every=10))
     g, sched, bound = tuned.gains, tuned.solve.schedule, tuned.minimum_time
-    return {"tuning": tuned.save(ctx.out / "tuning.json")}, {
-        "Kc_V_per_N": g.Kc, "Ti_s": g.Ti_s, "Td_s": g.Td_s, "Tf_s": g.Tf_s, "b": g.b, "form": tuned.solve.form,
-        "ms": tuned.solve.ms, "active_bounds": [b.sentence() for b in tuned.active_bounds],
-        "minimum_time_s": bound.settling_s, "tuned_over_bound_ratio": bound.tuned_over_bound_ratio,
-        "search": tuned.solve.search, **({} if sched is None else {"gain_schedule": sched["choice"]})}
+    return {"tuning": tuned.save(ctx.out / "tuning.json")}, TuneSummary(
+        g.Kc, g.Ti_s, g.Td_s, g.Tf_s, g.b, tuned.solve.form, tuned.solve.ms,
+        tuple(b.sentence() for b in tuned.active_bounds), bound.settling_s, bound.tuned_over_bound_ratio,
+        tuned.solve.search, None if sched is None else sched["choice"])
 
 
-def _stage_validate(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_validate(ctx: _Ctx) -> Produced:
     study = ctx.subject()
     tuned = TuningResult.load(ctx.output("tune", "tuning"), study, ctx.feedforward())
     gain_set, result = tuned.validation(inputs={"tuning_sha256": ctx.sha256("tune", "tuning")},
@@ -211,14 +246,12 @@ def _stage_validate(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
             inputs={"gain_set": "gains.json", "study_sha256": study.sha256}).save(validation_path)
     if not gain_set.validated:  # a verdict, not a failure: the study goes on, export and the rig take validated sets
         ctx.progress.say(f"{gains_path.name} is a {gain_set.verdict()}")
-    h = result.headline()
-    return {"gains": gains_path, "validation": validation_path}, {
-        "status": gain_set.status, "content_sha256": gain_set.content_sha256, "plants": result.n_plants,
-        "worst_settling_s": h["worst_settling_s"], "worst_overshoot_N": h["worst_overshoot_N"],
-        "requirements": [r.to_dict() for r in gain_set.requirements]}
+    return {"gains": gains_path, "validation": validation_path}, ValidateSummary(
+        gain_set.status, gain_set.content_sha256 or "", result.n_plants, result.worst.settling_s,
+        result.worst.overshoot_N, tuple(gain_set.requirements))
 
 
-def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_compare(ctx: _Ctx) -> Produced:
     study, ff = ctx.subject(), ctx.feedforward()
     gain_set = GainSet.load(ctx.output("validate", "gains"))
     runs = responses(study.plant, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model,
@@ -230,7 +263,7 @@ def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     rows = []
     for r in runs:
         path = outputs[r.label] = d / f"{r.label}.csv"
-        write_csv(path, r.run.columns(), f"piezopreload {__version__} run: study {study.name}, {r.gains} gains, "
+        write_csv(path, r.run.columns(), f"piezopreload {package_version()} run: study {study.name}, {r.gains} gains, "
                                          f"{r.controller}, {r.reference}, seed {study.seed}")
         rows.append(ResponseRun(r.gains, r.controller, r.reference, ctx.rel(path),
                                 **{k: r.numbers.get(k) for k in RESPONSE_FIGURES}))
@@ -244,11 +277,10 @@ def _stage_compare(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
         {"gain_set_sha256": gain_set.content_sha256, "study_sha256": study.sha256,
          "feedforward_sha256": ctx.sha256("identify", "model")})
     outputs["responses"] = record.save(d / "responses.json")
-    return outputs, {"tuned_settling_s": record.run("tuned", "ff+pid", "step").settling_s,
-                     "reproduction": [r.to_dict() for r in table]}
+    return outputs, CompareSummary(record.run("tuned", "ff+pid", "step").settling_s, tuple(table))
 
 
-def _stage_plant(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_plant(ctx: _Ctx) -> Produced:
     plant = ctx.subject().designed_plant
     path = plant.save(ctx.out / "plant.json", {"design": ctx.rel(ctx.output("design", "design")),
                                                "design_sha256": plant.design_sha256, "study_sha256": ctx.study.sha256})
@@ -256,11 +288,10 @@ def _stage_plant(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     ctx.progress.say(f"{plant.rig.n_stacks} x {plant.rig.stack.name}, stacks' share 0-{plant.stack_force_max_N:.0f} N, "
                      f"{k['at_bolts']:.0f}-{k['at_max']:.0f} N/um of stroke over the range, "
                      f"slew {float(plant.rig.slew_V_per_s):.0f} V/s")
-    return {"plant": path}, {"design_sha256": plant.design_sha256, "stack_force_max_N": plant.stack_force_max_N,
-                             "local_stiffness_N_per_um": k, "bolt_preload_N": plant.bolt_preload_N}
+    return {"plant": path}, PlantSummary(plant.design_sha256, plant.stack_force_max_N, k, plant.bolt_preload_N)
 
 
-def _stage_learn(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_learn(ctx: _Ctx) -> Produced:
     study, gain_set = ctx.subject(), GainSet.load(ctx.output("validate", "gains"))
     learned = study.learn(gain_set, reference="schedule", progress=ctx.progress.say)
     inputs = {"gain_set_sha256": gain_set.content_sha256, "plant_sha256": ctx.sha256("plant", "plant"),
@@ -271,24 +302,21 @@ def _stage_learn(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
     ctx.progress.say(f"{record.trials} learning trials over {len(record.passes)} pass(es) "
                      f"({', '.join(str(t) for t in record.trials_per_pass)}; each trial {cycles} machining "
                      f"cycle(s)), the last pass within 1.1 x its best from trial {last.trials_to_within_1p1}")
-    return outputs, {"tracking_rms_N": last.tracking_rms_N, "tracking_rms_pct_of_range": last.tracking_rms_pct_of_range,
-                     "before_learning_rms_N": last.before_learning_rms_N,
-                     "before_learning_pct_of_range": last.before_learning_pct_of_range, "iterations": last.trials,
-                     "trials": record.trials, "trials_per_pass": record.trials_per_pass,
-                     "trials_to_within_1p1_per_pass": [p.trials_to_within_1p1 for p in record.passes],
-                     "method": last.method, "converged": last.converged, "passes": len(record.passes),
-                     "contraction_over_range": last.learning.get("contraction_over_range"),
-                     "preload_margin_N": learned.system.margin_N}
+    contraction = last.learning.get("contraction_over_range")
+    return outputs, LearnSummary(
+        last.tracking_rms_N, last.tracking_rms_pct_of_range, last.before_learning_rms_N,
+        last.before_learning_pct_of_range, last.trials, record.trials, tuple(record.trials_per_pass),
+        tuple(p.trials_to_within_1p1 for p in record.passes), last.method, last.converged, len(record.passes),
+        None if contraction is None else float(contraction), learned.system.margin_N)
 
 
-def _stage_system(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_system(ctx: _Ctx) -> Produced:
     study, gain_set = ctx.subject(), GainSet.load(ctx.output("validate", "gains"))
-    extra, before = None, {}
-    if ctx.records.get("learn", {}).get("status") == "done":  # each pass plays the signal learned on its reference
+    extra, before = None, None
+    if ctx.done("learn"):  # each pass plays the signal learned on its reference
         extra, record = played_passes(ctx.output("learn", "learning"), gain_set.content_sha256)
-        before = {"tracking_rms_N_before_learning": record.last.before_learning_rms_N,
-                  "tracking_rms_pct_of_range_before_learning": record.last.before_learning_pct_of_range,
-                  "learning_iterations": record.last.trials, "learning_trials": record.trials}
+        before = BeforeLearning(record.last.before_learning_rms_N, record.last.before_learning_pct_of_range,
+                                record.last.trials, record.trials)
     result = study.track_schedule(gain_set, ff_extra_V=extra, progress=ctx.progress.say)
     paths = result.save(ctx.out / "system", {
         "gain_set_sha256": gain_set.content_sha256, "design_sha256": ctx.sha256("design", "design"),
@@ -299,29 +327,31 @@ def _stage_system(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
         ctx.progress.say(f"requirement missed: {r.sentence()}")
     for b in system.bounds:
         ctx.progress.say(f"what stops it: {b.sentence()}")
-    return paths, {**system.summary(), **before}
+    return paths, SystemSummary(system.numbers, system.requirements, system.bounds, system.pre_cycle,
+                                system.preload_margin_N, system.cycles, system.passes,
+                                None if system.thermal is None else system.thermal.summary(), before)
 
 
-def _stage_export(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_export(ctx: _Ctx) -> Produced:
     formats = list(ctx.study.export.formats)
     outputs = write_exports(GainSet.load(ctx.output("validate", "gains")), ctx.out / "exports", formats)
     for fmt, path in outputs.items():
         ctx.progress.say(f"{fmt}: {ctx.rel(path)}")
-    return {fmt: Path(p) for fmt, p in outputs.items()}, {"formats": formats}
+    return {fmt: Path(p) for fmt, p in outputs.items()}, ExportSummary(tuple(formats))
 
 
-def _stage_rig(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_rig(ctx: _Ctx) -> Produced:
     from piezopreload.rig import session  # with the OPC UA push: loaded when the stage runs, not on every rerun
 
     plan = ctx.study.rig_run
     reference: str | None = str(ctx.study.files().get("rig_run.reference", plan.reference))
     learned = None
     if reference == "schedule":
-        if ctx.records.get("system", {}).get("status") != "done":
+        if not ctx.done("system"):
             raise StageFailed("rig", "[rig_run] reference = 'schedule' needs the system stage (a study whose "
                                      "[plant] is its design's)")
         reference = str(ctx.output("system", "reference"))
-        if ctx.records.get("learn", {}).get("status") == "done":  # the schedule, learned: the signal's own reference
+        if ctx.done("learn"):  # the schedule, learned: the signal's own reference
             learned, reference = ctx.output("learn", "learned"), None
     ctx.progress.say(f"backend '{plan.backend}', reference {Path(reference or learned or '').name}"
                      f"{' (learned)' if learned else ''}, {'real time' if plan.realtime else 'back to back'}")
@@ -336,36 +366,30 @@ def _stage_rig(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
         trip = record.trip
         raise StageFailed("rig", f"the run was stopped by the interlock '{trip.cause}' at t = {trip.t_s:.3f} s with "
                                  f"{trip.voltage_V:.4g} V held: {trip.detail}; the log is {s['log_csv']}",
-                          exit_code=session.EXIT_TRIPPED) from Partial(outputs, summary)
-    ctx.progress.say(f"{record.status}: {summary['cycles']} cycles; log {ctx.rel(outputs['log_csv'])}")
+                          exit_code=session.EXIT_TRIPPED) from Partial(outputs, summary.to_dict())
+    ctx.progress.say(f"{record.status}: {summary.cycles} cycles; log {ctx.rel(outputs['log_csv'])}")
     return outputs, summary
 
 
-def _rig_summary(record: RigRunRecord) -> dict[str, Any]:
+def _rig_summary(record: RigRunRecord) -> RigSummary:
     """The rig stage's summary from the run's sidecar: a tripped run's trip (no step figures), a completed run's
     figures; both with the loop's timing against the stall limit."""
     out = record.summary
     if out is None:
         raise StageFailed("rig", f"the run's sidecar says '{record.status}' and holds no outcome")
-    summary: dict[str, Any] = {"status": record.status, "cycles": out.cycles, "controller_step": out.controller_step,
-                               "missed_deadlines": out.timing.missed_deadlines,
-                               "stalls": out.timing.stalls, "held_max_s": out.timing.held_max_s,
-                               "stall_limit_s": out.timing.stall_limit_s,
-                               "force_max_N": record.safety.get("force_max_N")}
+    head = RigSummary(record.status, out.cycles, out.controller_step, out.timing.missed_deadlines, out.timing.stalls,
+                      out.timing.held_max_s, out.timing.stall_limit_s, record.safety.get("force_max_N"))
     if out.trip is not None:
-        summary["trip"] = {"cause": out.trip.cause, "detail": out.trip.detail, "t_s": out.trip.t_s,
-                           "voltage_V": out.trip.voltage_V}
-        return summary
+        return replace(head, trip=RigTrip(out.trip.cause, out.trip.detail, out.trip.t_s, out.trip.voltage_V))
     m = out.metrics
-    summary.update({"settling_s": None if m is None else m.settling_s,
-                    "overshoot_N": None if m is None else m.overshoot_N,
-                    "tracking_rms_N": None if m is None else m.tracking_rms_N})
     learned = record.learned or {}
-    summary["learned_tracking_rms_measured_N"] = learned.get("tracking_rms_measured_N")
-    return summary
+    return replace(head, settling_s=None if m is None else m.settling_s,
+                   overshoot_N=None if m is None else m.overshoot_N,
+                   tracking_rms_N=None if m is None else m.tracking_rms_N,
+                   learned_tracking_rms_measured_N=learned.get("tracking_rms_measured_N"))
 
 
-def _stage_report(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
+def _stage_report(ctx: _Ctx) -> Produced:
     study = ctx.study
     b, d = study.ballscrew, study.design_spec
     pub = study.published
@@ -374,19 +398,19 @@ def _stage_report(ctx: _Ctx) -> tuple[dict[str, Path], dict[str, Any]]:
                         None if d is None else d.frequency_min_Hz,
                         None if pub is None else Published(pub.source, pub.gains_label, pub.step()),
                         "the study's gains" if pub is None else pub.gains_label)
-    return render_report(ctx.out, ctx.records, facts, say=ctx.progress.say, bar=ctx.progress.bar("figures"),
+    return render_report(ctx.out, ctx.manifest(), facts, say=ctx.progress.say, bar=ctx.progress.bar("figures"),
                          template=ctx.template)
 
 
-def _design_applies(study: Study) -> str | None:
+def _design_applies(study: StudySpec) -> str | None:
     return None if study.design_spec is not None else "the study has no [ballscrew] table"
 
 
-def _plant_applies(study: Study) -> str | None:
+def _plant_applies(study: StudySpec) -> str | None:
     return None if study.plant_from_design else "the study's [rig] is the plant ([plant] from_design is not set)"
 
 
-def _learn_applies(study: Study) -> str | None:
+def _learn_applies(study: StudySpec) -> str | None:
     return _plant_applies(study) or (None if study.learning is not None else "the study has no [learning] table")
 
 
@@ -430,7 +454,7 @@ STAGES: tuple[Stage, ...] = (
 _BY_NAME = {s.name: s for s in STAGES}
 
 
-def _stage_key(stage: Stage, study: Study, records: dict[str, dict[str, Any]]) -> str:
+def _stage_key(stage: Stage, study: StudySpec, records: dict[str, dict[str, Any]]) -> str:
     """The stage's content key. A file the study names enters by its key and its content, not its path: the same
     file in two folders (a sweep's points warm-started from equal tunings) is the same input."""
     files = {}
@@ -445,7 +469,7 @@ def _stage_key(stage: Stage, study: Study, records: dict[str, dict[str, Any]]) -
             except OSError as exc:
                 raise InputError(f"{study.path}: cannot read {path} ({exc.strerror or exc})") from None
     code = code_hash(("piezopreload",) + tuple(f"piezopreload.{p}" for p in stage.code))
-    return content_key({"stage": stage.name, "version": __version__, "code": code,
+    return content_key({"stage": stage.name, "version": package_version(), "code": code,
                         "tables": {t: tables.get(t) for t in stage.tables + stage.reads(study)},
                         "upstream": upstream_hashes(stage.needs, records), "files": files})
 
@@ -453,17 +477,11 @@ def _stage_key(stage: Stage, study: Study, records: dict[str, dict[str, Any]]) -
 # --------------------------------------------------------------------------------------
 # the manifest and the lock
 # --------------------------------------------------------------------------------------
-def read_manifest(out: str | Path) -> dict[str, Any]:
-    """The output folder's ``pipeline.json`` (an artifact of kind ``study-run``)."""
-    return read_artifact(Path(out) / MANIFEST, "study-run")
-
-
-def _write_manifest(out: Path, study: Study, records: dict[str, dict[str, Any]], started: str, source: str) -> None:
-    write_artifact(out / MANIFEST, "study-run", {
-        "study": {"path": source, "sha256": study.sha256, "name": study.name, "copy": STUDY_COPY},
-        "started_utc": started,
-        "stages": {name: records[name] for name in _BY_NAME if name in records},
-    })
+def _write_manifest(out: Path, study: StudySpec, records: dict[str, dict[str, Any]], started: str, source: str) -> None:
+    """``pipeline.json``: the stages' records as :func:`~piezopreload.core.stages.run_stages` keeps them, read into
+    their types (a summary that would not read back fails here, where it is written) and saved."""
+    StudyRunManifest.from_records(StudyRef(source, study.sha256, study.name), started, records, tuple(_BY_NAME),
+                                  str(out / MANIFEST)).save(out)
 
 
 def _locked(out: Path) -> AbstractContextManager[None]:
@@ -479,24 +497,28 @@ def _applies(stage: Stage, ctx: _Ctx) -> str | None:
     """Why ``stage`` does not apply to the study (or to its gain set's verdict), or None."""
     reason = stage.applies(ctx.study)
     if reason is None and stage.validated_only:
-        validate = ctx.records.get("validate", {})
-        if validate.get("status") == "done" and validate.get("summary", {}).get("status") != "validated":
-            names = [r.name for r in missed(checked_by_stages({"validate": validate}))]
+        validate = ctx.manifest().summary(ValidateSummary)
+        if validate is not None and not validate.validated:
+            names = [r.name for r in missed(validate.requirements)]
             reason = f"the gain set is a candidate: it missed the validation's {', '.join(names) or 'limits'}"
     return reason
 
 
-def _execute(stages: list[Stage], ctx: _Ctx, force: bool, started: str) -> list[dict[str, Any]]:
+def _execute(stages: list[Stage], ctx: _Ctx, force: bool, started: str) -> list[StageOutcome]:
     keys: dict[str, str] = {}
 
     def key(stage: Stage) -> str:
         keys[stage.name] = _stage_key(stage, ctx.study, ctx.records)
         return keys[stage.name]
 
+    def body(stage: Stage) -> tuple[dict[str, Path], dict[str, Any]]:
+        outputs, summary = stage.run(ctx)
+        return outputs, summary.to_dict()  # the records (and the store) keep the summary's JSON
+
     def run(stage: Stage) -> tuple[dict[str, Path], dict[str, Any]]:
         if ctx.cache is None or not stage.shared:
-            return stage.run(ctx)
-        return ctx.cache.run(stage.name, keys[stage.name], ctx.out, lambda: stage.run(ctx), say=ctx.progress.say)
+            return body(stage)
+        return ctx.cache.run(stage.name, keys[stage.name], ctx.out, lambda: body(stage), say=ctx.progress.say)
 
     return run_stages(stages, ctx.records, ctx.out, ctx.progress, force=force, key=key,
                       applies=lambda stage: _applies(stage, ctx), run=run,
@@ -507,21 +529,21 @@ def _previous(out: Path, progress: Progress) -> dict[str, dict[str, Any]]:
     if not (out / MANIFEST).exists():
         return {}
     try:
-        return dict(read_manifest(out)["stages"])
+        return {name: record.to_dict() for name, record in StudyRunManifest.load(out).stages.items()}
     except InputError as exc:
         progress.say(f"warning: {exc}; every stage runs again")
         return {}
 
 
-def _outputs_of(out: Path, manifest: dict[str, Any]) -> list[Path]:
+def _outputs_of(out: Path, manifest: StudyRunManifest) -> list[Path]:
     """Every file a study's run wrote into ``out``: its stages' outputs as its manifest records them, the rig's logs
     (one pair per run, the earlier runs' too), the study's copy and the manifest."""
-    files = [out / o["path"] for r in manifest.get("stages", {}).values() for o in r.get("outputs", {}).values()]
+    files = [out / path for path in manifest.files()]
     logs = sorted((out / "runs").glob("run-*.csv")) + sorted((out / "runs").glob("run-*.json"))
     return [*files, *logs, out / STUDY_COPY, out / MANIFEST]
 
 
-def _one_study_per_folder(out: Path, study: Study, overwrite: bool, progress: Progress) -> None:
+def _one_study_per_folder(out: Path, study: StudySpec, overwrite: bool, progress: Progress) -> None:
     """A folder holds one study's outputs: a folder holding another study's (by its ``[study] name``) is refused by
     name, or with ``overwrite`` cleared of them (the files its manifest records, its rig logs, then the folders
     left empty) before this study runs. The same study, changed, runs into its folder as ever (changed stages
@@ -529,14 +551,14 @@ def _one_study_per_folder(out: Path, study: Study, overwrite: bool, progress: Pr
     if not (out / MANIFEST).is_file():
         return
     try:
-        manifest = read_manifest(out)
+        manifest = StudyRunManifest.load(out)
     except InputError:
         return  # unreadable: every stage runs again (_previous says so) and writes over it
-    held = manifest.get("study", {})
-    if held.get("name") == study.name:
+    held = manifest.study
+    if held.name == study.name:
         return
     if not overwrite:
-        raise InputError(f"{out}: holds the outputs of the study '{held.get('name')}' ({held.get('path')}), not of "
+        raise InputError(f"{out}: holds the outputs of the study '{held.name}' ({held.path}), not of "
                          f"'{study.name}'; give another --out (say --out {study.name}-out), or --overwrite to replace "
                          "them (in Python: study.run(out=..., overwrite=True))")
     removed = 0
@@ -547,10 +569,10 @@ def _one_study_per_folder(out: Path, study: Study, overwrite: bool, progress: Pr
     for folder in sorted((p for p in out.rglob("*") if p.is_dir()), key=lambda p: len(p.parts), reverse=True):
         if not any(folder.iterdir()):
             folder.rmdir()
-    progress.say(f"--overwrite: removed the {removed} files of the study '{held.get('name')}' from {out}")
+    progress.say(f"--overwrite: removed the {removed} files of the study '{held.name}' from {out}")
 
 
-def run_study(study: Study | str | Path | None = None, out: str | Path = DEFAULT_OUT, *, force: bool = False,
+def run_study(study: StudySpec | str | Path | None = None, out: str | Path = DEFAULT_OUT, *, force: bool = False,
               progress: ProgressLike | None = None, cache: StageCache | None = None,
               overwrite: bool = False) -> StudyResult:
     """Run a study's stages into ``out``; a stage whose key and outputs are unchanged is not run again.
@@ -563,7 +585,7 @@ def run_study(study: Study | str | Path | None = None, out: str | Path = DEFAULT
     """
     reporter = as_progress(progress)
     t0 = time.perf_counter()
-    study = study if isinstance(study, Study) else load_study(study)
+    study = study if isinstance(study, StudySpec) else StudySpec.load(study)
     study.check_files()
     out = Path(out)
     with _locked(out):
@@ -573,7 +595,7 @@ def run_study(study: Study | str | Path | None = None, out: str | Path = DEFAULT
             atomic_write_bytes(copy, study.source_text)
         ctx = _Ctx(study, out, reporter, _previous(out, reporter), study.path, cache=cache)
         stages = _execute(list(STAGES), ctx, force, utc())
-    ran = [s["stage"] for s in stages if s["ran"]]
+    ran = [s.stage for s in stages if s.ran]
     seconds = time.perf_counter() - t0
     reporter.write(f"{'ran ' + ', '.join(ran) if ran else 'nothing to run: every stage is up to date'} "
                    f"({seconds:.1f} s)\nthe study's outputs are in {out.resolve()}/ (report: {out / 'report.pdf'})\n")
@@ -603,10 +625,10 @@ def rerender_report(out: str | Path, progress: ProgressLike | None = None,
     template_text = read_template(template)
     if not (out / MANIFEST).is_file():
         raise InputError(f"{out}: no {MANIFEST}; this is not a study's output folder (run 'piezopreload run' first)")
-    manifest = read_manifest(out)
-    records = dict(manifest["stages"])
+    manifest = StudyRunManifest.load(out)
+    records = {name: record.to_dict() for name, record in manifest.stages.items()}
     report = _BY_NAME["report"]
-    missing = [name for name in report.needs if records.get(name, {}).get("status") not in ("done", "not applicable")]
+    missing = [name for name in report.needs if manifest.status(name) not in ("done", "not applicable")]
     if missing:
         raise InputError(f"{out}: the stage(s) {', '.join(missing)} have not completed; "
                          f"run 'piezopreload run {out / STUDY_COPY} --out {out}' first")
@@ -614,36 +636,32 @@ def rerender_report(out: str | Path, progress: ProgressLike | None = None,
     if broken:
         raise InputError(f"{out}: the outputs of {', '.join(broken)} changed or went missing since they were written; "
                          f"run 'piezopreload run {out / STUDY_COPY} --out {out}' to make them again")
-    study = load_study(out / STUDY_COPY)
+    study = StudySpec.load(out / STUDY_COPY)
     with _locked(out):
-        ctx = _Ctx(study, out, reporter, records, manifest["study"].get("path", study.path), template_text)
-        stages = _execute([report], ctx, True, manifest.get("started_utc", utc()))
+        ctx = _Ctx(study, out, reporter, records, manifest.study.path, template_text)
+        stages = _execute([report], ctx, True, manifest.started_utc)
     seconds = time.perf_counter() - t0
     reporter.write(f"the report is {out / 'report.pdf'} ({seconds:.1f} s)\n")
     return _result(out, study, stages, seconds)
 
 
-def _result(out: Path, study: Study, stages: list[dict[str, Any]], seconds: float) -> StudyResult:
-    records = read_manifest(out)["stages"]
+def _result(out: Path, study: StudySpec, stages: list[StageOutcome], seconds: float) -> StudyResult:
+    manifest = StudyRunManifest.load(out)
     out = out.resolve()
 
     def existing(path: Path) -> Path | None:
         return path if path.is_file() else None
 
+    validate, log = manifest.summary(ValidateSummary), manifest.output("rig", "log_csv")
     return StudyResult(
-        out=out, study={"path": study.path, "sha256": study.sha256, "name": study.name},
-        stages=tuple(StageOutcome(s["stage"], s["ran"], s["status"], s["seconds"]) for s in stages), seconds=seconds,
-        headline=Headline.from_records(records),
-        requirements=checked_by_stages({name: records[name] for name in _BY_NAME if name in records}),
-        report=existing(out / "report.pdf"), gain_set=existing(out / "gains.json"),
-        gain_set_sha256=records.get("validate", {}).get("summary", {}).get("content_sha256"),
-        rig_log=(out / records["rig"]["outputs"]["log_csv"]["path"]) if records.get("rig", {}).get("status") == "done"
-        else None)
+        out=out, study=study.ref, stages=tuple(stages), seconds=seconds, headline=Headline.from_manifest(manifest),
+        requirements=manifest.requirements, report=existing(out / "report.pdf"),
+        gain_set=existing(out / "gains.json"), gain_set_sha256=None if validate is None else validate.content_sha256,
+        rig_log=None if log is None else out / log.path)
 
 
-def run_summary(out: str | Path) -> dict[str, Any]:
+def run_summary(out: str | Path) -> RunSummary:
     """The headline numbers and the verdicts of the run in ``out`` (``run --json``'s ``summary``), read from its
     ``pipeline.json``: also for a run that stopped at a failing stage (what the stages before it recorded)."""
-    records = dict(read_manifest(out)["stages"])
-    return summary_of(Headline.from_records(records),
-                      checked_by_stages({name: records[name] for name in _BY_NAME if name in records}))
+    manifest = StudyRunManifest.load(out)
+    return RunSummary(Headline.from_manifest(manifest), manifest.requirements)

@@ -1,5 +1,5 @@
-"""What a study's steps return: :class:`TuningResult` (``study.tune()``), :class:`StudyRun` (``study.simulate()``)
-and :class:`ScheduleLearning` (``study.learn(reference="schedule")``).
+"""The steps that take a study, and what they return: :func:`tune` (a :class:`TuningResult`), :func:`simulate`
+(a :class:`StudyRun`) and :func:`reproduce`; :class:`~piezopreload.study.Study`'s methods of those names call them.
 
 Each result carries its numbers, ``to_dict()`` (what ``--json`` prints or the artifact
 holds) and ``plot()`` (a matplotlib Figure, no pyplot state). The domain computations are the
@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from piezopreload.artifacts.gainset import REFERENCES, GainSet, gains_to_dict
-from piezopreload.artifacts.learned import LearnedSignal
+from piezopreload.artifacts.manifest import StudyRef
 from piezopreload.artifacts.tuning import (
     ActiveBound,
     ComparisonRow,
@@ -32,20 +32,24 @@ from piezopreload.artifacts.tuning import (
 from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.parallel import beside
-from piezopreload.design.system import SystemRun
 from piezopreload.models.actuator import Rig
 from piezopreload.models.closedloop import ClosedLoopRun
 from piezopreload.models.closedloop import simulate as simulate_loop
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.metrics import StepMetrics, run_numbers
 from piezopreload.progress import ProgressLike, say_of
-from piezopreload.study import Study
+from piezopreload.spec import StudySpec
 from piezopreload.tuning.bounds import minimum_time, tracking_floor
 from piezopreload.tuning.calibrate import CONTROLLERS
 from piezopreload.tuning.calibrate import reproduce as reproduce_paper
-from piezopreload.tuning.compare import compare_gains, reproduction_summary, tracking_improvement
-from piezopreload.tuning.feedforward import IdentifiedFeedforward
-from piezopreload.tuning.learning import LearningResult, save_passes
+from piezopreload.tuning.compare import (
+    PublishedRow,
+    ReproductionSummary,
+    compare_gains,
+    reproduction_summary,
+    tracking_improvement,
+)
+from piezopreload.tuning.feedforward import FeedforwardInfo, IdentifiedFeedforward
 from piezopreload.tuning.pid import TuningInfeasible, tune_pid
 from piezopreload.tuning.schedule import schedule_levels, tune_schedule
 from piezopreload.tuning.verdict import validate_gain_set
@@ -53,7 +57,7 @@ from piezopreload.tuning.verdict import validate_gain_set
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["TuningResult", "StudyRun", "ScheduleLearning", "tune", "simulate", "reproduce"]
+__all__ = ["TuningResult", "StudyRun", "SimulationInfo", "StudyReproduction", "tune", "simulate", "reproduce"]
 
 _STEP_KEYS = ("rise_s", "peak_s", "settling_s", "overshoot_N")
 _TRACK_KEYS = ("tracking_rms_N", "tracking_max_N")
@@ -79,7 +83,7 @@ class TuningResult:
         The tune stage's artifact.
     """
 
-    study: Study
+    study: StudySpec
     feedforward: IdentifiedFeedforward
     record: TuningRecord
 
@@ -128,7 +132,7 @@ class TuningResult:
         return self.record.save(path)
 
     @classmethod
-    def load(cls, path: str | Path, study: Study, feedforward: IdentifiedFeedforward) -> TuningResult:
+    def load(cls, path: str | Path, study: StudySpec, feedforward: IdentifiedFeedforward) -> TuningResult:
         """A tuning artifact read back, for the study and feedforward it was tuned with."""
         return cls(study, feedforward, TuningRecord.load(path))
 
@@ -184,28 +188,6 @@ class TuningResult:
         a :class:`GainSet`, ``validated`` only if every plant met every criterion. Save it with ``.save()``."""
         return self.validation(plants=plants, seed=seed, workers=workers, scheduler=scheduler, progress=progress)[0]
 
-    def summary(self, gain_set: GainSet, out: str | None = None, seconds: float = 0.0) -> dict[str, Any]:
-        """What ``piezopreload tune`` prints: the tuned row with the feedforward as the headline, and the verdict."""
-        tuned, start = self.row("tuned"), self.row("study")
-        record = self.record.to_dict()
-        return {
-            "settling_s": tuned.settling_s, "settling_measured_s": tuned.settling_measured_s,
-            "overshoot_N": tuned.overshoot_N, "tracking_rms_N": tuned.tracking_rms_N,
-            "tracking_rms_after_change_N": tuned.tracking_rms_after_change_N,
-            "study_tracking_rms_N": start.tracking_rms_N,
-            "study_tracking_rms_after_change_N": start.tracking_rms_after_change_N,
-            "lower_bound_settling_s": self.minimum_time.settling_s,
-            "lower_bound_tracking_rms_N": self.tracking_floor.rms_N,
-            "out": out, "status": gain_set.status, "content_sha256": gain_set.content_sha256,
-            "gains": record["gains"], "simc": record["simc_baseline"], "form": self.solve.form,
-            "tuning": {k: v for k, v in record["tuning"].items() if k != "spec"}, "table": record["table"],
-            "active_bounds": record["active_bounds"], "published": record.get("published"),
-            "minimum_time": record["minimum_time"], "tracking_improvement": self.improvement,
-            "tracking_floor": record["tracking_floor"],
-            "validation": None if gain_set.validation is None else gain_set.validation.to_dict(), "seconds": seconds,
-            "gain_schedule": self.solve.schedule,  # the schedule's entries, figures and choice, or None
-        }
-
     def plot(self) -> Figure:
         """The comparison table as bars (settling time, tracking RMS): a Figure."""
         from piezopreload.reports import figures  # matplotlib only when drawing
@@ -231,12 +213,38 @@ def _minimum_time_bound(bounding: Any, settle: float | None, say: Callable[[str]
                             hold_s=bound["hold_s"], seconds=bound["seconds"])
 
 
-def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None = None,
-         progress: Callable[[str], None] | None = None,
-         iterations: Callable[[int], None] | None = None) -> TuningResult:
-    """The body of :meth:`Study.tune`: tune, bound, compare (``progress`` gets messages,
-    ``iterations`` IPOPT's count)."""
-    say = progress or (lambda _m: None)
+def tune(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,
+         progress: ProgressLike | None = None, iterations: Callable[[int], None] | None = None) -> TuningResult:
+    """Tune the PID around the study's plant compensated by ``feedforward``; compare it with the study's and SIMC's
+    gains and bound it (``study.tune()``).
+
+    Parameters
+    ----------
+    study : StudySpec
+        The study: its plant, its references, its ``[tuning]`` and ``[validation]`` tables.
+    feedforward : IdentifiedFeedforward, optional
+        The feedforward the PID is tuned around (default: the study's, identified); one that does not cover the
+        study's references is refused before the design and the tuning run.
+    seed : int, optional
+        The noise seed of the comparison (default: the study's).
+    progress : ProgressLike, optional
+        Where the steps are said: a function given each line, or a :class:`~piezopreload.progress.Progress`.
+    iterations : callable, optional
+        Given IPOPT's iteration count as it goes.
+
+    Returns
+    -------
+    TuningResult
+        The tuned gains, compared and bounded; ``.validate()`` judges them.
+    """
+    said = say_of(progress)
+    if feedforward is not None:  # refused before the design and the tuning, with both ranges
+        feedforward.covers(*study.reference_range_N, f"the study's references ({study.path})")
+    else:
+        study.measured_loop(said)
+    study.solved_plant(said)
+    feedforward = feedforward or study.identify_feedforward(said)
+    say = said or (lambda _m: None)
     seed = study.seed if seed is None else seed
     spec, criteria, step, trajectory = (study.tuning_spec, study.criteria, study.references["step"],
                                         study.references["trajectory"])
@@ -293,6 +301,53 @@ def tune(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None =
 _STUDY = object()  # step_metrics' default: the study's band and signal
 
 
+@dataclass(frozen=True)
+class SimulationInfo:
+    """What a study's simulation ran: the study, the controller and the reference, the gains and where they came from
+    (``gains_source``; a gain set's ``gains_status``), the feedforward (None: the PID alone), the sample period, and
+    the study's published numbers for this run (``published``: its source and the numbers by name; None where it
+    declares none).
+
+    Parameters
+    ----------
+    study : StudyRef
+        Which study.
+    controller : str
+        ``pid`` or ``ff+pid``.
+    reference : str
+        ``step`` or ``trajectory``.
+    gains : PIDGains
+        The gains that ran.
+    gains_source : str
+        Where they came from, in words (or the gain set's file).
+    sample_period_s : float
+        The loop's sample period (s).
+    feedforward : FeedforwardInfo or None
+        The feedforward (None: the PID alone).
+    gains_status : str or None
+        A gain set's status.
+    published : dict or None
+        The study's published numbers for this run, with their source.
+    """
+
+    study: StudyRef
+    controller: str
+    reference: str
+    gains: PIDGains
+    gains_source: str
+    sample_period_s: float
+    feedforward: FeedforwardInfo | None = None
+    gains_status: str | None = None
+    published: dict[str, Any] | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        source = {"source": self.gains_source, **({} if self.gains_status is None else {"status": self.gains_status})}
+        return {"study": self.study.to_dict(), "controller": self.controller, "reference": self.reference,
+                "gains": {**gains_to_dict(self.gains), **source},
+                "feedforward": None if self.feedforward is None else self.feedforward.to_dict(),
+                "sample_period_s": self.sample_period_s, "published": self.published}
+
+
 @dataclass(frozen=True, eq=False, kw_only=True)
 class StudyRun(ClosedLoopRun):
     """A closed-loop run of one plant, scored as its study says (``band_N``, ``signal``); ``info`` says what ran.
@@ -305,14 +360,14 @@ class StudyRun(ClosedLoopRun):
         The study's error band of the step metrics (N).
     signal : str
         The signal the study scores (the true force or the measured one).
-    info : dict
+    info : SimulationInfo
         What ran: the study, the controller, the reference, the gains, the feedforward, the sample period and the
         study's published numbers for the run.
     """
 
     band_N: float
     signal: str
-    info: dict[str, Any]
+    info: SimulationInfo
 
     def step_metrics(self, band_N: Any = _STUDY, *, which: int = 1, signal: str | None = None) -> StepMetrics:
         """Rise, peak and settling time and overshoot of the reference's ``which``-th change, in the study's band
@@ -325,43 +380,70 @@ class StudyRun(ClosedLoopRun):
     def to_dict(self) -> dict[str, Any]:
         """What ``piezopreload simulate --json`` prints: what ran, the step numbers, tracking, and the study's published
         numbers for this run where it declares them (``published``: None otherwise)."""
-        numbers = run_numbers(self, self.band_N, self.signal)
-        tracking = self.info["reference"] == "trajectory"
         return {
-            **self.info, "reference_levels_N": self.reference.levels_N.tolist(), "band_N": self.band_N,
-            "signal": self.signal, "seed": self.seed, "samples": int(self.t_s.size),
-            **{k: numbers[k] for k in (*_STEP_KEYS, "peak_command_V", *(_TRACK_KEYS if tracking else ()))},
+            **self.info.to_dict(), "reference_levels_N": self.reference.levels_N.tolist(), "band_N": self.band_N,
+            "signal": self.signal, "seed": self.seed, "samples": int(self.t_s.size), **self.numbers(),
         }
+
+    def numbers(self) -> dict[str, float | None]:
+        """The step numbers (rise, peak, settling, overshoot) and the peak command, and over the trajectory the
+        tracking errors, in the study's band on its signal (None: a time never reached)."""
+        numbers = run_numbers(self, self.band_N, self.signal)
+        tracking = self.info.reference == "trajectory"
+        return {k: numbers[k] for k in (*_STEP_KEYS, "peak_command_V", *(_TRACK_KEYS if tracking else ()))}
 
     def plot(self) -> Figure:
         """Reference and force (top), command and amplifier voltage (bottom): a Figure."""
         from piezopreload.reports import figures  # matplotlib only when drawing
 
-        title = (f"{self.info['controller'].replace('ff+pid', 'FF + PID').replace('pid', 'PID')}, "
-                 f"{self.info['reference']}")
+        title = (f"{self.info.controller.replace('ff+pid', 'FF + PID').replace('pid', 'PID')}, "
+                 f"{self.info.reference}")
         return figures.closed_loop(self.columns(), self.band_N, self.signal, title)
 
 
-def simulate(study: Study, gains: GainSet | PIDGains | None, *, controller: str = "ff+pid", reference: str = "step",
-             feedforward: IdentifiedFeedforward | None = None, seed: int | None = None) -> StudyRun:
-    """The body of :meth:`Study.simulate`."""
+def simulate(study: StudySpec, gains: GainSet | PIDGains | None = None, *, controller: str = "ff+pid",
+             reference: str = "step", feedforward: IdentifiedFeedforward | None = None,
+             seed: int | None = None) -> StudyRun:
+    """One controller on the study's plant over one of its references (``study.simulate()``).
+
+    Parameters
+    ----------
+    study : StudySpec
+        The study: its plant, references, band and signal.
+    gains : GainSet or PIDGains, optional
+        A gain set (its feedforward too, unless ``feedforward`` is given), PID gains, or None for the study's
+        ``[controller]``.
+    controller : {"ff+pid", "pid"}
+        With the inverse-P-I feedforward or the PID alone.
+    reference : {"step", "trajectory"}
+        Which of the study's references.
+    feedforward : IdentifiedFeedforward, optional
+        The feedforward to invert (default: the gain set's, else the study's, identified).
+    seed : int, optional
+        The noise seed (default: the study's).
+
+    Returns
+    -------
+    StudyRun
+        The run, scored as the study says (``.step_metrics()``, ``.plot()``, ``.to_dict()``).
+    """
     if controller not in CONTROLLERS:
         raise InputError(f"controller must be one of {', '.join(CONTROLLERS)}, got {controller!r}")
     if reference not in REFERENCES:
         raise InputError(f"reference must be one of {', '.join(REFERENCES)}, got {reference!r}")
+    status = None
     if isinstance(gains, GainSet):
-        pid, source = gains.gains, {"source": f"gain set {(gains.content_sha256 or '')[:12]}", "status": gains.status}
+        pid, source, status = gains.gains, f"gain set {(gains.content_sha256 or '')[:12]}", gains.status
     elif isinstance(gains, PIDGains):
-        pid, source = gains, {"source": "given"}
+        pid, source = gains, "given"
     else:
-        pid, source = study.gains, {"source": f"{study.path} [controller], read as {study.controller.units}"}
+        pid, source = study.gains, f"{study.path} [controller], read as {study.controller.units}"
     rig = Rig(study.plant)
     inverse, ff_info = None, None
     if controller == "ff+pid":
         if feedforward is None and isinstance(gains, GainSet) and gains.feedforward is not None:
             inverse = gains.feedforward.inverse()
-            ff_info = {"source": "the gain set's", "model": gains.feedforward.kind,
-                       "operators": gains.feedforward.n_operators}
+            ff_info = FeedforwardInfo("the gain set's", gains.feedforward.kind, gains.feedforward.n_operators)
         else:
             ff = feedforward or study.identify_feedforward()
             inverse, ff_info = ff.inverse(), ff.describe()
@@ -370,110 +452,101 @@ def simulate(study: Study, gains: GainSet | PIDGains | None, *, controller: str 
     published = None  # the study's published numbers for this run, where it declares them (the step alone)
     if study.published is not None and reference == "step":
         published = {"source": study.published.source, **study.published.step()[controller]}
-    info = {"study": {"path": study.path, "sha256": study.sha256, "name": study.name}, "controller": controller,
-            "reference": reference, "gains": {**gains_to_dict(pid), **source}, "feedforward": ff_info,
-            "sample_period_s": rig.dt_s, "published": published}
+    info = SimulationInfo(study.ref, controller, reference, pid, source, rig.dt_s, ff_info, status, published)
     return StudyRun(**{f.name: getattr(run, f.name) for f in fields(run)}, band_N=study.band_N, signal=study.signal,
                     info=info)
 
 
-def reproduce(study: Study, feedforward: IdentifiedFeedforward, *, seed: int | None = None,
-              repeats: int = 1) -> dict[str, Any]:
+@dataclass(frozen=True)
+class StudyReproduction:
+    """A study's published step numbers beside its simulation's, with the PID alone and with the feedforward
+    (:meth:`Study.reproduce <piezopreload.study.Study.reproduce>`): the study, its gains (and how its
+    ``[controller]`` was read), the step, the band, the signal judged, and the comparison
+    (:class:`~piezopreload.tuning.compare.ReproductionSummary`: one row per controller and metric).
+
+    Parameters
+    ----------
+    study : StudyRef
+        Which study.
+    gains : PIDGains
+        The study's gains.
+    read_as : str
+        How its ``[controller]`` was read (the time unit of Ti and Td).
+    band_N : float
+        The settling band (N).
+    signal : str
+        The signal the step numbers are read on.
+    published : str
+        Where the published numbers come from.
+    step_levels_N : tuple of float
+        The step's levels (N).
+    comparison : ReproductionSummary
+        The published numbers beside the simulated ones.
+    seconds : float
+        The time the simulations took (s).
+    """
+
+    study: StudyRef
+    gains: PIDGains
+    read_as: str
+    band_N: float
+    signal: str
+    published: str
+    step_levels_N: tuple[float, ...]
+    comparison: ReproductionSummary
+    seconds: float
+
+    @property
+    def rows(self) -> tuple[PublishedRow, ...]:
+        return self.comparison.rows
+
+    @property
+    def repeats(self) -> int:
+        return self.comparison.repeats
+
+    @property
+    def feedforward_fit(self) -> dict[str, float]:
+        return self.comparison.feedforward_fit
+
+    @property
+    def all_within_25pct(self) -> bool:
+        return self.comparison.all_within_25pct
+
+    def row(self, controller: str, metric: str) -> PublishedRow:
+        """The row of ``controller`` (``pid``, ``ff+pid``) and ``metric`` (``rise_s``, ``peak_s``, ``settling_s``)."""
+        return self.comparison.row(controller, metric)
+
+    def to_dict(self) -> dict[str, Any]:
+        """What ``reproduce --json`` prints."""
+        return {"study": self.study.to_dict(), "gains": {**gains_to_dict(self.gains), "read_as": self.read_as},
+                "band_N": self.band_N, "signal": self.signal, "published": self.published,
+                "step": " -> ".join(f"{x:g}" for x in self.step_levels_N) + " N", **self.comparison.to_dict(),
+                "seconds": self.seconds}
+
+    def __repr__(self) -> str:
+        within = sum(r.within_25pct for r in self.rows)
+        return (f"StudyReproduction({self.study.name!r}: {within} of {len(self.rows)} step numbers within 25 % of "
+                f"{self.published}; {self.repeats} noise draw(s))")
+
+
+def reproduce(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,
+              repeats: int = 1) -> StudyReproduction:
     """The body of :meth:`Study.reproduce`: the paper's six step numbers beside the simulation's, both controllers.
 
     With ``repeats`` > 1, each number is the median over that many noise realisations, with its range.
     """
-    t0 = time.perf_counter()
     if repeats < 1:
         raise InputError(f"repeats: must be >= 1, got {repeats}")
     if study.published is None:
         raise InputError(f"{study.path}: the study declares no published step numbers (a [published] table, as "
                          "studies/paper2021.toml has); reproduce sets a study's simulation beside published numbers")
+    feedforward = feedforward or study.identify_feedforward()
+    t0 = time.perf_counter()
     rep = reproduce_paper(study.plant, study.gains, step=study.references["step"], excitation=study.excitation,
                           seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
                           repeats=repeats, feedforward=feedforward.model,
                           feedforward_fit=feedforward.fit.to_dict())
-    return {"study": {"path": study.path, "sha256": study.sha256, "name": study.name},
-            "gains": {**gains_to_dict(study.gains), "read_as": study.controller.units}, "band_N": study.band_N,
-            "signal": study.signal, "published": study.published.source,
-            "step": " -> ".join(f"{x:g}" for x in study.references["step"].levels_N) + " N",
-            **reproduction_summary(rep, study.published.step()), "seconds": time.perf_counter() - t0}
-
-
-def _before_learning(result: LearningResult) -> float:
-    """A pass's RMS error before learning: without any learned correction (a warm-started pass's first trial already
-    carries the pass before's)."""
-    return float(result.info.get("before_learning_rms_N", np.max(result.history[0].tracking_rms_N)))
-
-
-@dataclass(frozen=True, eq=False)
-class ScheduleLearning:
-    """Learning along the design's preload schedule (``study.learn(gains, reference="schedule")``): each margin
-    pass of the schedule learned on its own repeated reference (``passes``, one
-    :class:`~piezopreload.tuning.learning.LearningResult` each), and the tracking of the schedule with each pass's
-    learned signal played (``system``, the last pass's :class:`~piezopreload.design.system.SystemRun`).
-
-    Parameters
-    ----------
-    system : SystemRun
-        The schedule tracked with each pass's learned signal played.
-    passes : tuple of LearningResult
-        One learning per margin pass of the schedule, in order.
-    """
-
-    system: SystemRun
-    passes: tuple[LearningResult, ...]
-
-    @property
-    def last(self) -> LearningResult:
-        """The last pass's learning: the signal the schedule is played with."""
-        return self.passes[-1]
-
-    @property
-    def before_learning_rms_N(self) -> float:
-        """The last pass's RMS error before learning (the tuned loop with its feedforward and preview)."""
-        return _before_learning(self.last)
-
-    def save(self, folder: str | Path, gain_set_sha256: str | None,
-             inputs: dict[str, Any] | None = None) -> dict[str, Any]:
-        """Write each pass's learned signal and ``learning.json`` (:func:`~piezopreload.tuning.learning.save_passes`)
-        into ``folder``; returns the last pass's signal (``out``, what the rig plays) and its hash."""
-        paths, _ = save_passes(list(self.passes), folder, gain_set_sha256, dict(inputs or {}))
-        return {"out": str(paths["learned"]), "learning": str(paths["learning"]),
-                "content_sha256": LearnedSignal.load(paths["learned"]).content_sha256}
-
-    def to_dict(self) -> dict[str, Any]:
-        """The last pass's learning (as a :class:`LearningResult`'s), each pass's figures and
-        the schedule's tracking."""
-        return {**self.last.to_dict(), "before_learning_rms_N": self.before_learning_rms_N,
-                "passes": [{"pass": k, "preload_margin_N": None if p is None else p.preload_margin_N,
-                            "tracking_rms_N": r.tracking_rms_N,
-                            "before_learning_rms_N": _before_learning(r)}
-                           for k, (r, p) in enumerate(zip(self.passes, self._pass_records()), start=1)],
-                "system": self.system.summary()}
-
-    def _pass_records(self) -> list[Any]:
-        """The system's record of each learned pass (None for a pass the system did not run again)."""
-        records: list[Any] = list(self.system.passes)
-        return records + [None] * (len(self.passes) - len(records))
-
-    def __repr__(self) -> str:
-        return (f"ScheduleLearning({len(self.passes)} pass{'es' if len(self.passes) > 1 else ''}, margin "
-                f"{self.system.margin_N:.1f} N: tracking RMS {self.last.tracking_rms_N:.2f} N after learning, "
-                f"{self.before_learning_rms_N:.2f} N before; requirements met: {self.system.requirements_met})")
-
-    def plot(self) -> Figure:
-        """The error per iteration of each pass (left) and the schedule's tracking (the system run's figure is
-        ``system.plot()``): a Figure."""
-        from matplotlib.figure import Figure
-
-        fig = Figure(figsize=(5.5, 3.6), layout="constrained")
-        ax = fig.subplots()
-        for k, result in enumerate(self.passes, start=1):
-            ax.semilogy([h.iteration for h in result.history],
-                        [float(np.max(np.atleast_1d(h.tracking_rms_N))) for h in result.history], "o-",
-                        label=f"pass {k}")
-        ax.set(xlabel="iteration", ylabel="RMS error of the true force (N)",
-               title="learning along the preload schedule, each margin pass")
-        ax.legend(fontsize="small")
-        return fig
+    comparison = reproduction_summary(rep, study.published.step())
+    return StudyReproduction(study.ref, study.gains, study.controller.units, study.band_N, study.signal,
+                             study.published.source, tuple(float(x) for x in study.references["step"].levels_N),
+                             comparison, time.perf_counter() - t0)

@@ -1,18 +1,12 @@
-"""The study: a TOML file parsed once into typed tables, its plant, and the steps a design-study script calls on it.
+"""The study a script works on: :class:`Study`, a study file parsed once into typed tables, with the steps that
+take it.
 
-A study names its plant's hardware (``[rig]``), the controller's starting gains, the feedforward's
-identification experiment, the references, the simulation settings, the ball-screw design
-(``[ballscrew]``, ``[feed_drive]``, ``[duty]``, ``[design]``, ``[schedule]``), the plant
-(``[plant]``: the design's, or ``[rig]`` itself), the shift's heat and growth (``[thermal]``) and the
-one-command study's ``[tuning]``, ``[validation]``, ``[learning]``, ``[export]`` and ``[rig_run]``. Every key
-is declared once on its table's dataclass (:mod:`piezopreload.tables`) and checked on load: an unknown key, a
-wrong type or an out-of-range value is an :class:`~piezopreload.core.errors.InputError` naming the file, the
-key's line and its path. A key the designed plant sets is refused where the plant is the
-design: a study never ignores what it is given.
-
-``study.plant`` is the plant every control step (identify, tune, simulate, learn, validate) runs
-on: ``[rig]`` as given, or, where ``[plant] from_design = true``, the plant of the design's
-optimum, solved once (saying so) and kept.
+:class:`Study` is a :class:`~piezopreload.spec.StudySpec` (the typed tables, the plant and what the tables make,
+the design, the feedforward's identification, the schedule's tracking and learning) with the steps of the
+application layer as methods: :meth:`Study.tune`, :meth:`Study.simulate` and :meth:`Study.reproduce`
+(:mod:`piezopreload.results`), :meth:`Study.run` (:mod:`piezopreload.pipeline`) and :meth:`Study.sweep`
+(:mod:`piezopreload.sweep`). Each is a function of its module that takes any study; the pipeline and the sweep
+compose them without this module, which sits above them and which only the CLI imports.
 
 >>> import piezopreload as pp
 >>> study = pp.load_study("paper2021")                 # the paper's study, shipped: its [rig] is the plant
@@ -31,114 +25,28 @@ piezopreload.core.errors.InputError: ...: 'rig.bolt_preload_N' is set by the des
 
 from __future__ import annotations
 
-import copy
-import hashlib
-import sys
-import time
-from collections.abc import Callable
-from dataclasses import dataclass, field
-from dataclasses import replace as _replace
-from importlib import resources
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, overload
 
-from piezopreload.artifacts.design import DesignPoint, DesignRecord
+from piezopreload import pipeline, results
+from piezopreload import sweep as sweeps
 from piezopreload.artifacts.gainset import GainSet
-from piezopreload.artifacts.plant import DesignedPlant
-from piezopreload.artifacts.schedule import PreloadSchedule
-from piezopreload.artifacts.validation import Criteria
-from piezopreload.core.config import Invalid, Lines, Table, read_toml, toml_text
-from piezopreload.core.errors import InfeasibleError, InputError
-from piezopreload.core.tables import Record, read_record
-from piezopreload.design.plant import DESIGNED_FIELDS
-from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignSpec, optimise
-from piezopreload.design.study import DesignResult, design_spec_from_tables, design_study, plan_schedule, read_profile
-from piezopreload.design.system import SystemRun
-from piezopreload.design.tables import (
-    BallscrewTable,
-    DesignTable,
-    DutyTable,
-    FeedDriveTable,
-    PlantTable,
-    ScheduleTable,
-    ThermalTable,
-)
-from piezopreload.design.thermal import duty_growth_um, thermal_budget
-from piezopreload.models.actuator import Plant
-from piezopreload.models.closedloop import Reference
-from piezopreload.models.controller import Controller, PIDGains
-from piezopreload.progress import ProgressLike, say_of
-from piezopreload.rig.tables import ExportTable, RigRunPlan
-from piezopreload.tables import (
-    DESIGN_TABLES,
-    REQUIRED_TABLES,
-    STUDY_TABLES,
-    ControllerTable,
-    FeedforwardTable,
-    PublishedTable,
-    ReferenceTables,
-    RigTable,
-    SimulationTable,
-    StudyTable,
-)
-from piezopreload.tuning.feedforward import IdentifiedFeedforward, LoopExcitation, identify_feedforward, loop_covers
-from piezopreload.tuning.pid import TuningSpec
-from piezopreload.tuning.tables import LearningTable, TuningTable, ValidationTable
-
-if TYPE_CHECKING:  # the results module imports this one
-    from piezopreload.outcome import StudyResult
-    from piezopreload.results import ScheduleLearning, StudyRun, TuningResult
-    from piezopreload.sweep import SweepResult
-    from piezopreload.tuning.learning import LearningResult
+from piezopreload.artifacts.sweep import DEFAULT_SWEEP_OUT, Scalar
+from piezopreload.models.controller import PIDGains
+from piezopreload.outcome import StudyResult
+from piezopreload.pipeline import DEFAULT_OUT
+from piezopreload.progress import ProgressLike
+from piezopreload.results import StudyReproduction, StudyRun, TuningResult
+from piezopreload.spec import DEFAULT_STUDY, PAPER_STUDY, StudySpec, default_study, paper_study, shipped_studies
+from piezopreload.sweep import SweepResult
+from piezopreload.tuning.feedforward import IdentifiedFeedforward
 
 __all__ = ["Study", "load_study", "default_study", "paper_study", "shipped_studies", "DEFAULT_STUDY", "PAPER_STUDY"]
 
-DEFAULT_STUDY = "machine_axis"  # the whole system: the designed preload system is the plant
-PAPER_STUDY = "paper2021"       # the paper's rig and gains
-Say = Callable[[str], None]
 
-
-def _stderr(message: str) -> None:
-    """A study's progress where its caller gives none: a line on standard error."""
-    print(f"piezopreload: {message}", file=sys.stderr, flush=True)
-
-
-@dataclass(frozen=True)
-class _Source:
-    """Where a study came from, for messages: ``fail`` names the file, the line of a key and the key."""
-
-    shown: str
-    lines: Lines
-    folder: Path
-
-    def fail(self, key_path: str, message: str) -> InputError:
-        line = self.lines.of(key_path)
-        return InputError(f"{self.shown}:{line}: '{key_path}' {message}" if line
-                          else f"{self.shown}: '{key_path}' {message}")
-
-
-class _Kept:
-    """What a study derives at a cost and keeps: the design's optimum (solved once, or given by
-    :meth:`Study.with_design`), and from it the designed plant, the plant and the preload schedule."""
-
-    def __init__(self, optimum: DesignOptimum | None = None, point: DesignPoint | None = None,
-                 design_sha256: str = "", plant: Plant | None = None) -> None:
-        self.optimum, self.point, self.design_sha256 = optimum, point, design_sha256
-        self.plant: Plant | None = plant
-        self.designed: DesignedPlant | None = None
-        self.schedule: PreloadSchedule | None = None
-
-    def design_of(self) -> _Kept:
-        """A cache holding only the design (for a study whose tables around the design changed)."""
-        return _Kept(self.optimum, self.point, self.design_sha256)
-
-
-# --------------------------------------------------------------------------------------
-# the study
-# --------------------------------------------------------------------------------------
-@dataclass(frozen=True, eq=False)
-class Study:
-    """A loaded, validated study: its tables (typed, as in the file), its plant and what the tables make.
+class Study(StudySpec):
+    """A loaded, validated study: its tables (typed, as in the file), its plant, what the tables make, and the steps
+    that take it.
 
     Make one with :func:`load_study`, a changed copy with :meth:`replace`. The ``[design]`` table is
     ``design_table`` (``design()`` runs it), the ``[plant]`` table ``plant_table`` (``plant`` is the
@@ -185,641 +93,149 @@ class Study:
         Where the study says what it does when a step is given no progress of its own.
     """
 
-    path: str
-    sha256: str
-    name: str
-    title: str
-    rig: RigTable
-    controller: ControllerTable
-    feedforward: FeedforwardTable
-    reference: ReferenceTables
-    simulation: SimulationTable
-    tuning: TuningTable
-    validation: ValidationTable
-    export: ExportTable
-    rig_run: RigRunPlan
-    ballscrew: BallscrewTable | None
-    feed_drive: FeedDriveTable | None
-    duty: DutyTable | None
-    design_table: DesignTable | None
-    schedule: ScheduleTable | None
-    plant_table: PlantTable | None
-    learning: LearningTable | None
-    published: PublishedTable | None
-    # what the tables make, built and checked on load
-    gains: PIDGains = field(repr=False)
-    references: dict[str, Reference] = field(repr=False)
-    excitation: LoopExcitation = field(repr=False)
-    tuning_spec: TuningSpec = field(repr=False)
-    criteria: Criteria = field(repr=False)
-    design_spec: DesignSpec | None = field(repr=False)
-    where: _Source = field(repr=False)
-    source_text: bytes = field(repr=False)  # the file as read, or as :meth:`replace` wrote it
-    given: dict[str, Any] = field(repr=False)  # the tables and keys the file gives, as it gives them
-    description: str = ""
-    thermal: ThermalTable | None = None  # [thermal]: the shift's heat, temperature and growth (the system stage)
-    say: Say = field(default=_stderr, repr=False, compare=False)  # progress where a step is given none
-    _kept: _Kept = field(default_factory=_Kept, repr=False, compare=False)
-
-    def __repr__(self) -> str:
-        plant = "its design" if self.plant_from_design else "its [rig]"
-        published = "; published numbers: " + self.published.source if self.published is not None else ""
-        return f"Study({self.name!r}: {self.title or 'untitled'}; plant: {plant}{published}; file {self.path})"
-
-    def _repr_html_(self) -> str:
-        import html
-
-        rows = [("name", self.name), ("title", self.title), ("file", self.path),
-                ("plant", "the designed preload system ([plant] from_design)" if self.plant_from_design else "[rig]"),
-                ("step", " -> ".join(f"{x:g}" for x in self.references["step"].levels_N) + " N"),
-                ("trajectory", " -> ".join(f"{x:g}" for x in self.references["trajectory"].levels_N) + " N"),
-                ("published numbers", self.published.source if self.published is not None else "none declared")]
-        body = "".join(f"<tr><td>{k}</td><td>{html.escape(str(v))}</td></tr>" for k, v in rows)
-        return f"<p><b>Study</b></p><table>{body}</table>"
-
-    # ---- the tables --------------------------------------------------------------------------
-    @property
-    def folder(self) -> Path:
-        """The study file's folder: the files it names are relative to it."""
-        return self.where.folder
-
-    @property
-    def seed(self) -> int:
-        return self.simulation.seed
-
-    @property
-    def band_N(self) -> float:
-        return self.simulation.band_N
-
-    @property
-    def signal(self) -> str:
-        return self.simulation.signal
-
-    def resolve(self, relative: str | None) -> Path | None:
-        """A file the study names (``feedforward.data``, ``schedule.profile``,
-        ``rig_run.reference``), from its folder."""
-        return None if relative is None else self.folder / relative
-
-    def files(self) -> dict[str, Path]:
-        """The input files the study names, by key (``feedforward.data``, ``schedule.profile``,
-        ``rig_run.reference``, ``tuning.warm_start``)."""
-        named = {"feedforward.data": self.feedforward.data,
-                 "schedule.profile": None if self.ballscrew is None or self.schedule is None else self.schedule.profile,
-                 "rig_run.reference": (self.rig_run.reference if self.rig_run.reference.lower().endswith(".csv")
-                                       else None),
-                 "tuning.warm_start": self.tuning.warm_start}
-        return {key: self.folder / rel for key, rel in named.items() if rel is not None}
-
-    def check_files(self) -> None:
-        """Refuse a study whose named files are missing, naming the key and its line."""
-        for key, path in self.files().items():
-            if not path.is_file():
-                raise self.where.fail(key, f"names {path}, which is not a file; give a path relative to the study file")
-
-    def tables(self) -> dict[str, Any]:
-        """The study's tables as the file holds them, every key with its value (defaults filled): a stage's key."""
-        out: dict[str, Any] = {"study": {"name": self.name, "title": self.title, "description": self.description}}
-        for table in STUDY_TABLES:
-            value = getattr(self, _ATTRIBUTE.get(table, table), None)
-            if isinstance(value, Table):
-                out[table] = value.to_dict()
-        return out
-
-    def replace(self, **changes: dict[str, Any] | None) -> Study:
-        """A validated copy with some keys changed: ``study.replace(rig={"noise_N": 0.5})``.
-
-        Each argument names a table (``reference={"step": {"final_N": 80.0}}`` for a nested one) and
-        holds the keys to change; a key (or a table) given as None is removed. The copy is checked as a
-        file is: a bad key or value, or a key the designed plant sets where the plant is the design,
-        raises :class:`InputError`. The design solved for this study is kept where the copy's design
-        is the same.
-        """
-        data = copy.deepcopy(self.given)
-        for table, keys in changes.items():
-            if table not in STUDY_TABLES or not (keys is None or isinstance(keys, dict)):
-                raise InputError(f"Study.replace: '{table}' must be a table of the study given as a dict of keys (or "
-                                 f"None to remove it), got {keys!r}; tables: {', '.join(STUDY_TABLES)}")
-            if keys is None:
-                data.pop(table, None)
-            else:
-                _merge(data.setdefault(table, {}), keys)
-        for table, rel in (("feedforward", "data"), ("schedule", "profile"), ("rig_run", "reference"),
-                           ("tuning", "warm_start")):
-            value = data.get(table, {}).get(rel)  # files stay where they were, wherever the copy is written
-            if isinstance(value, str) and (table != "rig_run" or value.lower().endswith(".csv")):
-                data[table][rel] = str(self.folder / value)
-        where = _Source(f"{self.path} (replaced)", Lines(""), self.folder)
-        study = _build(data, where, self.path, toml_text(data).encode("utf-8"), self.say)
-        objective = (study.design_table or DesignTable()).objective == (self.design_table or DesignTable()).objective
-        same = self.design_spec is not None and study.design_spec == self.design_spec and objective
-        if not same:
-            return study
-        kept = self._kept.design_of()
-        kept.plant = study._kept.plant  # [rig]'s plant is the copy's own
-        return _replace(study, _kept=kept)
-
-    def to_toml(self) -> str:
-        """The study as a TOML file (the file itself when it was not changed)."""
-        return self.source_text.decode("utf-8")
-
-    # ---- the plant ---------------------------------------------------------------------------
-    @property
-    def plant_from_design(self) -> bool:
-        """Whether the plant is the designed preload system (``[plant] from_design``) rather than ``[rig]`` itself."""
-        return self.plant_table is not None and self.plant_table.from_design
-
-    @property
-    def plant(self) -> Plant:
-        """The plant every control step runs on: ``[rig]``, or the plant of the design's optimum where
-        ``[plant] from_design = true`` (the design solved once, saying so through the study's progress, and kept)."""
-        return self._plant(None)
-
-    @property
-    def designed_plant(self) -> DesignedPlant:
-        """Where the plant is the design: the designed preload system (its rig, :attr:`plant`; its screw, its
-        preload range and where it comes from, the design's hash)."""
-        if not self.plant_from_design:
-            raise InputError(f"{self.path}: the plant is [rig] ([plant] from_design is not true): there is no "
-                             "designed plant")
-        return self._designed(None)
-
-    @property
-    def preload_schedule(self) -> PreloadSchedule:
-        """The study's least-friction preload schedule (``[schedule]``) on the screw of the design's optimum."""
-        k = self._kept
-        if k.schedule is None:
-            s = self.schedule or ScheduleTable()
-            path = self.resolve(s.profile)
-            k.schedule, _, _ = plan_schedule(self._spec("the preload schedule"), self._point(None),
-                                             None if path is None else read_profile(path), profile_name=str(path),
-                                             **s.limits())
-        return k.schedule
-
-    def with_design(self, design: DesignRecord | DesignResult | DesignOptimum | DesignPoint,
-                    design_sha256: str = "") -> Study:
-        """This study with its design's optimum given (a design artifact, say) instead of solved: its plant,
-        designed plant and preload schedule are made from it; a design artifact's (:class:`DesignRecord`) own
-        schedule is kept as recorded, so the best constant preload has one source. ``design_sha256``: the design
-        artifact's hash, which the designed plant records."""
-        self._spec("a design")
-        point = design.point if isinstance(design, DesignRecord | DesignResult | DesignOptimum) else design
-        optimum = design.optimum if isinstance(design, DesignResult) else design if isinstance(design, DesignOptimum) \
-            else None
-        plant = None if self.plant_from_design else self._kept.plant
-        kept = _Kept(optimum, point, design_sha256, plant)
-        if isinstance(design, DesignRecord):
-            kept.schedule = design.schedule
-        return _replace(self, _kept=kept)
-
-    def _spec(self, what: str) -> DesignSpec:
-        if self.design_spec is None:
-            raise InputError(f"{self.path}: {what} needs the design's tables: the study has no [ballscrew] (see "
-                             "studies/machine_axis.toml)")
-        return self.design_spec
-
-    def _point(self, progress: Say | None) -> DesignPoint:
-        """The design's optimum, solved once (its cost said through ``progress``, or the study's)."""
-        k = self._kept
-        if k.point is None:
-            say = progress or self.say
-            objective = (self.design_table or DesignTable()).objective
-            say(f"solving the design's optimum ({objective}) once, for the plant and the preload schedule; every "
-                "later step keeps it ...")
-            t0 = time.perf_counter()
-            try:
-                k.optimum = optimise(self._spec("the design's optimum"), objective)
-            except DesignInfeasible as exc:
-                raise InfeasibleError(f"{self.path}: {exc}") from exc
-            k.point = k.optimum.point
-            say(f"design optimum in {time.perf_counter() - t0:.1f} s: bolts' preload {k.point.bolt_preload_N:.0f} N, "
-                f"stacks' reach {k.point.max_preload_N:.0f} N, least rigidity {k.point.stiffness_N_per_um:.0f} N/um")
-        return k.point
-
-    def _designed(self, progress: Say | None) -> DesignedPlant:
-        k = self._kept
-        if k.designed is None:
-            table = self.plant_table or PlantTable()
-            k.designed = table.plant(self._spec("the designed plant"), self._point(progress), self.rig.params(),
-                                     k.design_sha256)
-        return k.designed
-
-    def _plant(self, progress: Say | None) -> Plant:
-        k = self._kept
-        if k.plant is None:
-            k.plant = self._designed(progress).rig if self.plant_from_design else self.rig.params()
-        return k.plant
-
-    def _controller(self, gains: GainSet | None, progress: Say | None) -> Controller:
-        """The gain set's controller, or the study's [controller] gains with the identified feedforward."""
-        if gains is not None:
-            return gains.controller()
-        return Controller(self.gains, self._plant(progress).sample_period_s,
-                          self.identify_feedforward(progress).inverse())
-
-    # ---- the steps -----------------------------------------------------------------------------
-    def identify_feedforward(self, progress: ProgressLike | None = None) -> IdentifiedFeedforward:
-        """The feedforward's P-I model: from ``[feedforward] data`` (a measured V -> N loop) when the study names
-        one, else from the loop measurement simulated on :attr:`plant`; with its open-loop compensation check.
-        ``progress``: :data:`~piezopreload.progress.ProgressLike`."""
-        said = say_of(progress)
-        say = said or (lambda _m: None)
-        record = self._measured_loop(say)  # refused before the design if it does not cover the references
-        plant = self._plant(said)
-        ex, (low, high) = self.excitation, self.reference_range_N
-        if record is None:
-            say(f"simulating the {ex.v_max_V:g} V, {ex.frequency_Hz:g} Hz loop measurement on the plant's truth model")
-        ff = identify_feedforward(plant, ex, record, check_range_N=(low, high))
-        say(f"P-I model ({ff.model.kind}): {ff.model.n_operators} operators, fit RMS {ff.fit.rms_pct:.2f} % "
-            f"(max {ff.fit.max_pct:.2f} %) of the force span, identified over {ff.record.output_range[0]:,.4g} to "
-            f"{ff.record.output_range[1]:,.4g} N")
-        ff.covers(low, high, f"the study's references ({self.path})")
-        return ff
-
-    def _measured_loop(self, say: Callable[[str], None]) -> Record | None:
-        """``[feedforward] data`` read, and refused if its forces do not cover the references (before any design
-        or tuning: a measured loop's range is known from the file); None when the loop is simulated."""
-        data = self.resolve(self.feedforward.data)
-        if data is None:
-            return None
-        say(f"reading the measured loop {data}")
-        record = read_record(data)
-        loop_covers(record, *self.reference_range_N, f"the study's references ({self.path})")
-        return record
-
-    @property
-    def reference_range_N(self) -> tuple[float, float]:
-        """The least and the largest force of the study's references (step and trajectory): what the feedforward
-        must have been identified over."""
-        levels = [self.references[k].levels_N for k in ("step", "trajectory")]
-        return float(min(x.min() for x in levels)), float(max(x.max() for x in levels))
-
     def tune(self, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,
              progress: ProgressLike | None = None, iterations: Callable[[int], None] | None = None) -> TuningResult:
         """Tune the PID around :attr:`plant` compensated by ``feedforward`` (default: :meth:`identify_feedforward`);
-        compare it with the study's and SIMC's gains and bound it. Returns a
-        :class:`~piezopreload.results.TuningResult`. ``progress``: :data:`~piezopreload.progress.ProgressLike`."""
-        from piezopreload.results import tune
+        compare it with the study's and SIMC's gains and bound it: :func:`piezopreload.results.tune`.
 
-        said = say_of(progress)
-        if feedforward is not None:  # refused before the design and the tuning, with both ranges
-            feedforward.covers(*self.reference_range_N, f"the study's references ({self.path})")
-        else:
-            self._measured_loop(said or (lambda _m: None))
-        self._plant(said)
-        return tune(self, feedforward or self.identify_feedforward(said), seed=seed, progress=said,
-                    iterations=iterations)
+        Parameters
+        ----------
+        feedforward : IdentifiedFeedforward, optional
+            The feedforward the PID is tuned around (default: the study's, identified).
+        seed : int, optional
+            The comparison's noise seed (default: the study's).
+        progress : ProgressLike, optional
+            Where the steps are said.
+        iterations : callable, optional
+            Given IPOPT's iteration count as it goes.
+
+        Returns
+        -------
+        TuningResult
+            The tuned gains, compared and bounded; ``.validate()`` judges them.
+        """
+        return results.tune(self, feedforward, seed=seed, progress=progress, iterations=iterations)
 
     def simulate(self, gains: GainSet | PIDGains | None = None, *, controller: str = "ff+pid", reference: str = "step",
                  feedforward: IdentifiedFeedforward | None = None, seed: int | None = None) -> StudyRun:
-        """One controller on :attr:`plant` over one of the study's references: a
-        :class:`~piezopreload.results.StudyRun` (``.step_metrics()``, ``.plot()``, ``.to_dict()``).
+        """One controller on :attr:`plant` over one of the study's references: :func:`piezopreload.results.simulate`.
 
-        ``gains``: a gain set (its feedforward too, unless ``feedforward`` is given), PID gains, or
-        None for the study's ``[controller]``; ``controller``: ``pid`` or ``ff+pid``.
+        Parameters
+        ----------
+        gains : GainSet or PIDGains, optional
+            A gain set (its feedforward too, unless ``feedforward`` is given), PID gains, or None for the study's
+            ``[controller]``.
+        controller : {"ff+pid", "pid"}
+            With the feedforward or the PID alone.
+        reference : {"step", "trajectory"}
+            Which of the study's references.
+        feedforward : IdentifiedFeedforward, optional
+            The feedforward to invert.
+        seed : int, optional
+            The noise seed (default: the study's).
+
+        Returns
+        -------
+        StudyRun
+            The run (``.step_metrics()``, ``.plot()``, ``.to_dict()``).
         """
-        from piezopreload.results import simulate
-
-        return simulate(self, gains, controller=controller, reference=reference, feedforward=feedforward, seed=seed)
-
-    # "schedule" is also a str: mypy calls the two overlapping; a str that only holds "schedule" at run time is typed
-    # as the second (write the literal where the schedule is meant)
-    @overload
-    def learn(  # type: ignore[overload-overlap]
-              self, gains: GainSet | None = None, *, reference: Literal["schedule"], iterations: int | None = None,
-              preview_s: float | None = None, method: str | None = None, plants: None = None,
-              seed: int | None = None, after_change_weight: float = 0.0,
-              progress: ProgressLike | None = None) -> ScheduleLearning: ...
-
-    @overload
-    def learn(self, gains: GainSet | None = None, *, reference: str | Reference = "trajectory",
-              iterations: int | None = None, preview_s: float | None = None, method: str | None = None,
-              plants: int | None = None, seed: int | None = None, after_change_weight: float = 0.0,
-              progress: ProgressLike | None = None) -> LearningResult: ...
-
-    def learn(self, gains: GainSet | None = None, *, reference: str | Reference = "trajectory",
-              iterations: int | None = None, preview_s: float | None = None, method: str | None = None,
-              plants: int | None = None, seed: int | None = None, after_change_weight: float = 0.0,
-              progress: ProgressLike | None = None) -> LearningResult | ScheduleLearning:
-        """Preview and iterative learning control over a repeated reference on :attr:`plant`.
-
-        ``gains`` a gain set (its controller) or None (the study's ``[controller]`` with the identified
-        feedforward); ``reference`` a name of :attr:`references`, a ``Reference``, or ``"schedule"``:
-        the design's preload schedule, learned as the pipeline's learn stage does (each margin pass of
-        :meth:`track_schedule` on its own reference; a study whose plant is its design). ``iterations``,
-        ``preview_s`` (0: none) and ``method`` default to the study's ``[learning]``; ``plants`` N learns
-        on N Monte Carlo plants (each its own learning; the result reports the worst); ``iterations`` is the most
-        learning trials (fewer where more no longer pay); ``after_change_weight`` how the plan places each change
-        (:func:`~piezopreload.tuning.learning.learn`).
-
-        Returns a :class:`~piezopreload.tuning.learning.LearningResult` (``.ff_extra_V``, ``.history``,
-        ``.plot()``), for ``"schedule"`` a :class:`~piezopreload.results.ScheduleLearning` (each pass's
-        learning and the last pass's tracking of the schedule).
-        """
-        from piezopreload.models.actuator import Rig
-        from piezopreload.tuning.learning import learn
-
-        table = self.learning or LearningTable()
-        iterations = table.iterations if iterations is None else iterations
-        preview_s = table.preview_s if preview_s is None else preview_s
-        method = table.method if method is None else method
-        seed = self.seed if seed is None else seed
-        if isinstance(reference, str) and reference == "schedule":
-            if plants is not None:
-                raise InputError("Study.learn: plants: the schedule is learned on the designed plant itself (each "
-                                 "margin pass); give plants=None, or learn on a Reference over Monte Carlo plants")
-            return self._learn_schedule(gains, iterations, preview_s, method, seed, say_of(progress))
-        if not isinstance(reference, Reference):
-            if reference not in self.references:
-                raise InputError(f"reference must be one of {', '.join([*self.references, 'schedule'])} or a "
-                                 f"Reference, got {reference!r}")
-            reference = self.references[reference]
-        said = say_of(progress)
-        return learn(self._controller(gains, said), Rig(self._plant(said)), reference, iterations=iterations,
-                     preview_s=preview_s, method=method, plants=plants, seed=seed,
-                     after_change_weight=after_change_weight, progress=said)
-
-    def _learn_schedule(self, gains: GainSet | None, iterations: int, preview_s: float | None, method: str,
-                        seed: int, progress: Say | None) -> ScheduleLearning:
-        from piezopreload.results import ScheduleLearning
-        from piezopreload.tuning.learning import schedule_learner
-
-        designed = self._designed_for("reference 'schedule'", progress)
-        controller = self._controller(gains, progress)
-        learned, passes = schedule_learner(designed.rig, controller, iterations=iterations, preview_s=preview_s,
-                                           method=method, seed=seed, progress=progress)
-        system = (self.plant_table or PlantTable()).track(designed, controller, self.preload_schedule, seed=seed,
-                                                          settle_s=self.criteria.settling_max_s, ff_extra_V=learned,
-                                                          progress=progress)
-        return ScheduleLearning(system, tuple(passes))
-
-    def _designed_for(self, what: str, progress: Say | None) -> DesignedPlant:
-        if not self.plant_from_design:
-            raise InputError(f"{self.path}: {what} needs a study whose plant is its design ([plant] from_design = "
-                             "true, with the design's tables); this study's plant is its [rig]")
-        return self._designed(progress)
-
-    def track_schedule(self, gains: GainSet | None = None, *, ff_extra_V: Any = None,
-                       progress: ProgressLike | None = None) -> SystemRun:
-        """The gains (a gain set, or the study's ``[controller]`` with the identified feedforward) following the
-        preload schedule on the designed plant for ``[plant] cycles`` after a pre-cycle to its first level (held the
-        validated settling time, ``[validation] settling_max_s``), the schedule planned again with local margins while
-        a requirement is missed (:func:`piezopreload.design.system.track_schedule`); ``ff_extra_V`` a correction
-        added to the feedforward (one array, or one per pass's reference: a callable)."""
-        said = say_of(progress)
-        designed = self._designed_for("tracking the schedule", said)
-        controller = self._controller(gains, said)
-        run = (self.plant_table or PlantTable()).track(designed, controller, self.preload_schedule, seed=self.seed,
-                                                       settle_s=self.criteria.settling_max_s, ff_extra_V=ff_extra_V,
-                                                       progress=said)
-        if self.thermal is None:
-            return run
-        budget = thermal_budget(run, self._spec("[thermal]").feed_drive, self.thermal,
-                                command_range_V=(controller.gains.u_min_V, controller.gains.u_max_V))
-        if said is not None:
-            said(f"thermal: {budget.record.sentence()}")
-        return _replace(run, thermal=budget)
+        return results.simulate(self, gains, controller=controller, reference=reference, feedforward=feedforward,
+                                seed=seed)
 
     def reproduce(self, *, seed: int | None = None, repeats: int = 1,
-                  feedforward: IdentifiedFeedforward | None = None) -> dict[str, Any]:
-        """The paper's six step numbers beside the simulation's on :attr:`plant` (medians over
-        ``repeats`` noise draws)."""
-        from piezopreload.results import reproduce
+                  feedforward: IdentifiedFeedforward | None = None) -> StudyReproduction:
+        """The study's published step numbers beside the simulation's on :attr:`plant`:
+        :func:`piezopreload.results.reproduce`.
 
-        return reproduce(self, feedforward or self.identify_feedforward(), seed=seed, repeats=repeats)
+        Parameters
+        ----------
+        seed : int, optional
+            The noise seed (default: the study's).
+        repeats : int
+            Noise draws; each number is the median over them.
+        feedforward : IdentifiedFeedforward, optional
+            The feedforward (default: the study's, identified).
 
-    def design(self, *, objective: str | None = None, pareto: list[str] | None = None, points: int | None = None,
-               schedule: str | Path | None = None, progress: ProgressLike | None = None,
-               bar: Callable[[int, int], None] | None = None) -> DesignResult:
-        """The ball-screw preload design: the optimum for ``objective`` (the study's: solved once and kept, shared
-        with :attr:`plant`), the Pareto fronts ``pareto`` (default: ``[design] pareto``; ``[]`` for none) and the
-        preload schedule for a load profile (``schedule``, a CSV; default: the study's, or a machining cycle)."""
-        spec = self._spec("the design")
-        d, s = self.design_table or DesignTable(), self.schedule or ScheduleTable()
-        objective = objective or d.objective
-        k = self._kept
-        profile_path = Path(schedule) if schedule is not None else self.resolve(s.profile)
-        pairs = list(d.pareto if pareto is None else pareto)
-        if "stiffness:growth" in pairs and self.thermal is None:
-            raise InputError(f"{self.path}: the Pareto front stiffness:growth needs a [thermal] table (the shift the "
-                             "growth is read over)")
-        table = self.thermal
-        try:
-            result = design_study(
-                spec, objective, pairs, d.pareto_points if points is None else points,
-                profile=None if profile_path is None else read_profile(profile_path), profile_name=str(profile_path),
-                **s.limits(), progress=say_of(progress), bar=bar,
-                optimum=k.optimum if objective == d.objective else None,
-                growth=None if table is None else lambda point: duty_growth_um(spec, point, table))
-        except DesignInfeasible as exc:
-            raise InfeasibleError(f"{self.path}: {exc}") from exc
-        if objective == d.objective and k.point is None:
-            k.optimum, k.point = result.optimum, result.point
-        return result
+        Returns
+        -------
+        StudyReproduction
+            One row per controller and metric (published, simulated, their ratio, within 25 % or not, the range over
+            the noise draws) and what ran (``.to_dict()``: what ``reproduce --json`` prints).
+        """
+        return results.reproduce(self, feedforward, seed=seed, repeats=repeats)
 
-    def run(self, out: str | Path = "piezopreload-out", *, force: bool = False,
-            progress: ProgressLike | None = None, overwrite: bool = False) -> StudyResult:
-        """The whole study, as ``piezopreload run``: its stages into ``out``, unchanged ones not run again. A folder
-        holding another study's outputs is refused by name (an :class:`InputError`); ``overwrite=True`` replaces
-        them. ``progress``: :data:`~piezopreload.progress.ProgressLike` (default: stage lines on standard error)."""
-        from piezopreload.pipeline import run_study
+    def run(self, out: str | Path = DEFAULT_OUT, *, force: bool = False, progress: ProgressLike | None = None,
+            overwrite: bool = False) -> StudyResult:
+        """The whole study, as ``piezopreload run``: :func:`piezopreload.pipeline.run_study`.
 
-        return run_study(self, out, force=force, progress=progress, overwrite=overwrite)
+        Parameters
+        ----------
+        out : str or Path
+            The output folder; a folder holding another study's outputs is refused by name.
+        force : bool
+            Run every stage again, changed or not.
+        progress : ProgressLike, optional
+            Where the stage lines go (default: standard error).
+        overwrite : bool
+            Replace another study's outputs in ``out`` instead of refusing them.
 
-    def sweep(self, vary: dict[str, Any], *, mode: str = "grid", out: str | Path = "piezopreload-sweep",
+        Returns
+        -------
+        StudyResult
+            The stages, the headline figures and every requirement's verdict.
+        """
+        return pipeline.run_study(self, out, force=force, progress=progress, overwrite=overwrite)
+
+    def sweep(self, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "grid", out: str | Path = DEFAULT_SWEEP_OUT,
               workers: int | None = None, scheduler: str | None = None, force: bool = False,
-              progress: ProgressLike | None = None,
-              report: bool = True, where: str = "Study.sweep") -> SweepResult:
+              progress: ProgressLike | None = None, report: bool = True, where: str = "Study.sweep") -> SweepResult:
         """The whole study at every point of ``vary`` (``{"rig.bolt_preload_N": [20.0, 25.0, 30.0]}``), as
-        ``piezopreload sweep``: each point :meth:`replace`'d and run into its own folder under ``out``, stages
-        the points share computed once, on ``workers`` local processes or a Dask ``scheduler``. Returns a
-        :class:`~piezopreload.sweep.SweepResult` (``.rows``, ``.plot(x, y)``, ``.to_dataframe()``); see
-        :func:`piezopreload.sweep.sweep`."""
-        from piezopreload.sweep import sweep
+        ``piezopreload sweep``: :func:`piezopreload.sweep.sweep`.
 
-        return sweep(self, vary, mode=mode, out=out, workers=workers, scheduler=scheduler, force=force,
-                     progress=progress, report=report, where=where)
+        Parameters
+        ----------
+        vary : mapping of str to list
+            ``{"TABLE.KEY": [V1, V2, ...]}``.
+        mode : {"grid", "zip"}
+            Every combination, or the i-th values together.
+        out : str or Path
+            The sweep's folder.
+        workers, scheduler : int or str, optional
+            Local worker processes, or a Dask scheduler's address.
+        force : bool
+            Run every stage of every point again.
+        progress : ProgressLike, optional
+            Where each point's line goes.
+        report : bool
+            Typeset the sweep's report at the end.
+        where : str
+            How errors name the caller.
 
-
-#: the attribute of each table whose name is taken (``study.design()`` is a method, ``study.plant`` the plant)
-_ATTRIBUTE = {"design": "design_table", "plant": "plant_table"}
-
-
-def _merge(into: dict[str, Any], changes: dict[str, Any]) -> None:
-    for key, value in changes.items():
-        if value is None:
-            into.pop(key, None)
-        elif isinstance(value, dict) and isinstance(into.get(key), dict):
-            _merge(into[key], value)
-        else:
-            into[key] = list(value) if isinstance(value, tuple) else copy.deepcopy(value)
-
-
-# --------------------------------------------------------------------------------------
-# loading
-# --------------------------------------------------------------------------------------
-def shipped_studies() -> dict[str, Path]:
-    """The studies that ship with the package, by name.
-
-    Returns
-    -------
-    dict of str to Path
-        Each shipped study's name (``paper2021``, ``machine_axis``) and its file.
-    """
-    root = resources.files("piezopreload.studies")
-    return {p.name[:-5]: Path(str(p)) for p in root.iterdir() if p.name.endswith(".toml")}
-
-
-def default_study() -> Path:
-    """The default study's file as shipped with the package (the machine axis, the whole system)."""
-    return shipped_studies()[DEFAULT_STUDY]
-
-
-def paper_study() -> Path:
-    """The paper's study as shipped with the package (the rig and gains of Zhang, Jin, Lin 2021)."""
-    return shipped_studies()[PAPER_STUDY]
+        Returns
+        -------
+        SweepResult
+            One row per point (``.rows``, ``.plot(x, y)``, ``.to_dataframe()``).
+        """
+        return sweeps.sweep(self, vary, mode=mode, out=out, workers=workers, scheduler=scheduler, force=force,
+                            progress=progress, report=report, where=where)
 
 
 def load_study(study: str | Path | None = None, *, progress: ProgressLike | None = None) -> Study:
     """Read and validate a study: None for the default (``machine_axis``), a shipped study's name (``"paper2021"``),
-    or a file. ``progress`` (:data:`~piezopreload.progress.ProgressLike`) gets what the study says where a step is
-    given no progress of its own (solving the design for the plant, say); default: a line on standard error.
+    or a file.
 
     Parameters
     ----------
-    study : str, Path or None
-        A study file, a shipped study's name, or None for the default.
+    study : str or Path, optional
+        The study file, or a shipped study's name; None: the default study.
     progress : ProgressLike, optional
-        Where the study says what it does.
+        What the study says where a step is given no progress of its own (solving the design for the plant,
+        say); default: a line on standard error.
 
     Returns
     -------
     Study
-        The study, every table checked against its declaration.
-
-    Raises
-    ------
-    InputError
-        Naming the file, the line and the key that is wrong, and what was expected.
+        The study, every key checked; an :class:`~piezopreload.core.errors.InputError` names the file, the key's
+        line and the key.
     """
-    if study is None:
-        path = default_study()
-    elif isinstance(study, str) and not study.endswith(".toml") and study in shipped_studies():
-        path = shipped_studies()[study]
-    else:
-        path = Path(study)
-    data, lines, raw = read_toml(path, "study file")
-    shown = str(path)
-    return _build(data, _Source(shown, lines, Path(shown).parent), shown, raw, say_of(progress) or _stderr)
-
-
-def _parse(data: dict[str, Any], where: _Source) -> dict[str, Any]:
-    """Every table of the file checked against its declaration (``None`` for an optional table not given)."""
-    for name, value in data.items():
-        if name not in STUDY_TABLES:
-            raise where.fail(name, f"is an unknown table; a study has: {', '.join(STUDY_TABLES)}")
-        if not isinstance(value, dict):
-            raise where.fail(name, f"must be a table ([{name}]), got {value!r}")
-    for name in REQUIRED_TABLES:
-        if name not in data:
-            raise InputError(f"{where.shown}: the table [{name}] is missing")
-    optional = (*DESIGN_TABLES, "learning", "published")  # None where not given; the others' keys all have defaults
-    return {name: cls.parse(data[name], where.fail, name) if name in data else (None if name in optional else cls())
-            for name, cls in STUDY_TABLES.items()}
-
-
-def _refuse_ignored(data: dict[str, Any], where: _Source) -> None:
-    """No key is ignored: where the plant is the design, the [rig] keys the design sets are refused; where it is
-    [rig], the [plant] keys that only a designed plant uses are, and [thermal]. (Before [rig] is checked: its own
-    rules may involve a refused key.)"""
-    fail = where.fail
-    if "plant" not in data:
-        _refuse_thermal(data, fail)
-        return
-    plant = PlantTable.parse(data["plant"], fail, "plant")
-    if plant.from_design:
-        if "ballscrew" not in data:
-            raise fail("plant.from_design", "= true needs the design's tables ([ballscrew], [design], ...) to make "
-                                            "the plant from")
-        for name in DESIGNED_FIELDS:
-            if name in data.get("rig", {}):
-                raise fail(f"rig.{name}", "is set by the design where [plant] from_design = true (the designed plant "
-                                          f"takes it from the design's optimum): remove {name} from [rig], or set "
-                                          "[plant] from_design = false to make [rig] the plant")
-        return
-    for name in data["plant"]:
-        if name != "from_design":
-            raise fail(f"plant.{name}", "applies to the designed plant only, and [plant] from_design = false makes "
-                                        "[rig] the plant: remove it, or set from_design = true")
-    _refuse_thermal(data, fail)
-
-
-def _refuse_thermal(data: dict[str, Any], fail: Callable[[str, str], InputError]) -> None:
-    """[thermal] is the budget of the designed system along its schedule: refused where [rig] is the plant."""
-    if "thermal" in data:
-        raise fail("thermal", "needs a study whose plant is its design ([plant] from_design = true, with the design's "
-                              "tables): the shift's budget is that of the system along its schedule")
-
-
-def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Say) -> Study:
-    """The typed study from a file's tables; every value checked, errors naming the key and its line."""
-    fail = where.fail
-    _refuse_ignored(data, where)
-    t = _parse(data, where)
-    rig: RigTable = t["rig"]
-    kept = _Kept()
-    if t["plant"] is not None and t["plant"].from_design:  # the design sets these: None, not the model's defaults
-        cleared: dict[str, Any] = dict.fromkeys(DESIGNED_FIELDS)
-        rig = _replace(rig, **cleared)
-    try:
-        hardware = rig.params()
-    except ValueError as exc:  # every key was checked; a rule between them the table misses
-        raise fail("rig", f"does not make a plant: {exc}") from None
-    if t["plant"] is None or not t["plant"].from_design:
-        kept.plant = hardware
-    c: ControllerTable = t["controller"]
-    sim: SimulationTable = t["simulation"]
-    try:
-        gains = PIDGains(Kc=c.Kc, Ti_s=c.seconds * c.Ti, Td_s=c.seconds * c.Td, Tf_s=c.Tf_s, b=c.b, u_min_V=c.u_min_V,
-                         u_max_V=c.u_max_V)
-    except ValueError as exc:  # every key was checked; a rule between them the table misses
-        raise fail("controller", f"does not make PID gains: {exc}") from None
-    try:
-        spec = t["tuning"].spec(band_N=sim.band_N, u_min_V=gains.u_min_V, u_max_V=gains.u_max_V)
-    except Invalid as exc:
-        raise fail(f"tuning.{exc.path}", exc.message) from None
-    except ValueError as exc:  # every key was checked; a rule between them the table misses
-        raise fail("tuning", f"does not make a tuning specification: {exc}") from None
-    validation: ValidationTable = t["validation"]
-    if validation.seed is None:
-        validation = _replace(validation, seed=sim.seed)
-    design_spec = None if t["ballscrew"] is None else design_spec_from_tables(
-        {**t, "design": t["design"] or DesignTable()}, fail)
-    if t["thermal"] is not None and design_spec is not None:
-        t["thermal"].against(design_spec.feed_drive, fail)
-    if t["design"] is not None and "stiffness:growth" in t["design"].pareto and t["thermal"] is None:
-        raise fail("design.pareto", "has stiffness:growth, which needs a [thermal] table (the shift the growth is read "
-                                    "over)")
-    meta: StudyTable = t["study"]
-    return Study(
-        path=path, sha256=hashlib.sha256(text).hexdigest(), name=meta.name or Path(path).stem, title=meta.title,
-        description=meta.description, rig=rig, controller=c, feedforward=t["feedforward"], reference=t["reference"],
-        simulation=sim, tuning=t["tuning"], validation=validation, export=t["export"],
-        rig_run=t["rig_run"].resolved(), ballscrew=t["ballscrew"], feed_drive=t["feed_drive"], duty=t["duty"],
-        design_table=t["design"], schedule=t["schedule"], plant_table=t["plant"], learning=t["learning"],
-        published=t["published"], thermal=t["thermal"], gains=gains,
-        references=_references(t["reference"], fail), excitation=t["feedforward"].excitation(), tuning_spec=spec,
-        criteria=validation.criteria(sim.band_N), design_spec=design_spec, where=where, source_text=text,
-        given=copy.deepcopy(data), say=say, _kept=kept)
-
-
-def _references(tables: ReferenceTables, fail: Callable[[str, str], InputError]) -> dict[str, Reference]:
-    s, tr = tables.step, tables.trajectory
-    try:
-        step = Reference.step(s.initial_N, s.final_N, s.t_step_s, s.duration_s)
-    except ValueError as exc:
-        raise fail("reference.step", f"does not make a step: {exc}") from None
-    try:
-        trajectory = Reference.staircase(tr.initial_N, list(tr.levels_N), tr.hold_s, tr.t_start_s)
-    except ValueError as exc:
-        raise fail("reference.trajectory", f"does not make a staircase: {exc}") from None
-    return {"step": step, "trajectory": trajectory}
+    return Study.load(study, progress=progress)

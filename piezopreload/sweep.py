@@ -3,8 +3,8 @@
 ``piezopreload sweep STUDY --vary TABLE.KEY=V1,V2,... [--vary ...] [--grid|--zip]`` and
 ``study.sweep({"tuning.ms_max": [1.4, 1.6, 1.8], ...})``:
 
-- each point is the study with its values, made by :meth:`Study.replace
-  <piezopreload.study.Study.replace>` (checked as a study file is; a key the designed plant sets
+- each point is the study with its values, made by :meth:`StudySpec.replace
+  <piezopreload.spec.StudySpec.replace>` (checked as a study file is; a key the designed plant sets
   is refused there), and every point is made and checked before any runs;
 - each point runs through :func:`piezopreload.pipeline.run_study` into its own folder,
   ``OUT/points/pNNN/`` (its ``study.toml``, ``pipeline.json``, artifacts, report and
@@ -46,7 +46,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.manifest import StudyRunManifest
 from piezopreload.artifacts.requirements import EXIT_REQUIREMENT_MISSED
+from piezopreload.artifacts.summaries import CompareSummary, DesignSummary, RigSummary, SystemSummary, TuneSummary
 from piezopreload.artifacts.sweep import (
     DEFAULT_SWEEP_OUT,
     EXIT_POINT_FAILED,
@@ -62,18 +64,17 @@ from piezopreload.core.errors import InputError, InternalError, PiezopreloadErro
 from piezopreload.core.parallel import spare_cpus
 from piezopreload.core.stagecache import StageCache
 from piezopreload.core.stages import locked, utc
-from piezopreload.pipeline import read_manifest, read_template, run_study, run_summary
+from piezopreload.outcome import RunSummary
+from piezopreload.pipeline import read_template, run_study, run_summary
 from piezopreload.progress import Progress, ProgressLike, as_progress
-from piezopreload.reports.sweep_figures import sweep_plot
-from piezopreload.reports.sweep_report import render_sweep_report
-from piezopreload.study import Study
+from piezopreload.spec import StudySpec
 from piezopreload.tuning.validate import SchedulerError
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # the sweep's report and figures load matplotlib when they are drawn, not when a study is read
     from matplotlib.figure import Figure
 
-__all__ = ["sweep", "SweepResult", "parse_vary", "plan_points", "headline", "rerender_sweep_report", "is_sweep_folder",
-           "DEFAULT_SWEEP_OUT", "EXIT_POINT_FAILED"]
+__all__ = ["sweep", "SweepResult", "SweepReport", "parse_vary", "plan_points", "headline", "rerender_sweep_report",
+           "is_sweep_folder", "DEFAULT_SWEEP_OUT", "EXIT_POINT_FAILED"]
 
 RECORD, ROWS, CACHE, POINTS, POINT_LOG = "sweep.json", "sweep.csv", "cache", "points", "sweep-point.log"
 
@@ -115,7 +116,7 @@ def _label(values: Mapping[str, Scalar]) -> str:
 
 
 def _changes(values: Mapping[str, Scalar]) -> dict[str, Any]:
-    """``{"reference.step.final_N": 80}`` -> ``{"reference": {"step": {"final_N": 80}}}`` (``Study.replace``'s form)."""
+    """``{"reference.step.final_N": 80}`` -> ``{"reference": {"step": {"final_N": 80}}}`` (``replace``'s form)."""
     changes: dict[str, Any] = {}
     for key, value in values.items():
         *tables, name = key.split(".")
@@ -126,8 +127,8 @@ def _changes(values: Mapping[str, Scalar]) -> dict[str, Any]:
     return changes
 
 
-def plan_points(study: Study, vary: Mapping[str, Sequence[Scalar]], mode: str = "grid",
-                where: str = "Study.sweep") -> tuple[tuple[SweepAxis, ...], list[tuple[dict[str, Scalar], Study]]]:
+def plan_points(study: StudySpec, vary: Mapping[str, Sequence[Scalar]], mode: str = "grid",
+                where: str = "Study.sweep") -> tuple[tuple[SweepAxis, ...], list[tuple[dict[str, Scalar], StudySpec]]]:
     """The axes and, per point, its values and its study (``study.replace`` with them), every point checked.
 
     ``mode``: ``grid`` (every combination, the last axis fastest) or ``zip`` (the i-th value of each
@@ -206,7 +207,7 @@ class _Task:
     index: int
     values: dict[str, Scalar]
     folder: str        # relative to out
-    study: Study
+    study: StudySpec
     out: str           # the sweep's folder, absolute
     force: bool
     one_process: bool  # set PIEZOPRELOAD_WORKERS=1 around the point (a Dask worker; local workers set it at start)
@@ -263,11 +264,11 @@ def run_point(task: _Task) -> SweepPoint:
     status, error, stage = "done", None, None
     code: int | None = None
     ran: tuple[str, ...] = ()
-    summary: dict[str, Any] | None = None
+    summary: RunSummary | None = None
     with _one_process(task.one_process), open(folder / POINT_LOG, "w", encoding="utf-8") as log:
         try:
             result = run_study(task.study, folder, force=task.force, progress=Progress(stream=log), cache=cache)
-            summary, ran = result.to_dict()["summary"], tuple(s for s in result.ran if s not in cache.reused)
+            summary, ran = result.summary, tuple(s for s in result.ran if s not in cache.reused)
         except PiezopreloadError as exc:
             status, error, stage = "failed", str(exc), getattr(exc, "stage", None)
             code = int(getattr(exc, "exit_code", 1 if isinstance(exc, InternalError) else 2))
@@ -280,77 +281,75 @@ def run_point(task: _Task) -> SweepPoint:
                       tuple(cache.reused), headline(folder, summary))
 
 
-def _stage_summary(records: dict[str, Any], name: str) -> dict[str, Any]:
-    rec = records.get(name, {})
-    return rec.get("summary") or {} if rec.get("status") == "done" else {}
-
-
-def _gain_set(folder: Path, records: dict[str, Any]) -> GainSet | None:
+def _gain_set(folder: Path, manifest: StudyRunManifest) -> GainSet | None:
     """The point's gain set: validated, or the candidate a failed validation left (its verdict and worst cases)."""
-    out = records.get("validate", {}).get("outputs", {}).get("gains")
+    record = manifest.record("validate")
+    out = None if record is None else record.outputs.get("gains")
     if out is None:
         return None
     try:
-        return GainSet.load(folder / out["path"])
+        return GainSet.load(folder / out.path)
     except PiezopreloadError:
         return None
 
 
-def _requirements(summary: dict[str, Any], records: dict[str, Any]) -> tuple[bool | None, tuple[dict[str, Any], ...]]:
-    """Met (None where the study sets none) and the missed ones: the run's summary where it says,
-    else the system stage's."""
-    if "requirements_met" in summary:
-        return summary["requirements_met"], tuple(summary.get("requirements_missed") or ())
-    met = _stage_summary(records, "system").get("requirements_met")
-    return (None if met is None else bool(met)), ()
+#: the point's thermal figures (:class:`~piezopreload.artifacts.sweep.PointFigures`' names) by the summary's
+_THERMAL = {"heat_mean_W": ("heat_mean_W", "heat_mean_constant_W"),
+            "temperature_rise_max_K": ("temperature_rise_max_K", "temperature_rise_max_constant_K"),
+            "growth_max_um": ("thermal_growth_max_um", "thermal_growth_max_constant_um"),
+            "positioning_error_max_um": ("positioning_error_max_um", "positioning_error_max_constant_um")}
 
 
-def _thermal_figures(thermal: dict[str, Any] | None) -> dict[str, float | None]:
-    """The shift's figures of a run's summary (``thermal``), for the schedule and the constant preload."""
-    names = {"heat_mean_W": "heat_mean", "temperature_rise_max_K": "temperature_rise_max",
-             "growth_max_um": "thermal_growth_max", "positioning_error_max_um": "positioning_error_max"}
+def _thermal_figures(system: SystemSummary | None) -> dict[str, float | None]:
+    """The shift's figures of the system stage (``thermal``), for the schedule and the constant preload."""
     out: dict[str, float | None] = {}
-    for key, column in names.items():
-        unit = key.rsplit("_", 1)[1]
-        pair = (thermal or {}).get(key) or {}
-        out[f"{column}_{unit}"], out[f"{column}_constant_{unit}"] = pair.get("schedule"), pair.get("constant")
+    for key, (scheduled, constant) in _THERMAL.items():
+        out[scheduled], out[constant] = (None, None) if system is None else system.thermal_figure(key)
     return out
 
 
-def headline(folder: str | Path, summary: dict[str, Any] | None = None) -> PointFigures:
+def headline(folder: str | Path, summary: RunSummary | None = None) -> PointFigures:
     """A point's headline figures from its folder (``pipeline.json``, the gain set) and its run's ``summary``
     (default: :func:`~piezopreload.pipeline.run_summary` of the folder, also for a run that stopped at a stage)."""
     folder = Path(folder)
     try:
-        records = dict(read_manifest(folder)["stages"])
+        manifest = StudyRunManifest.load(folder)
         summary = run_summary(folder) if summary is None else summary
     except PiezopreloadError:  # the point stopped before its first stage was recorded
         return PointFigures()
-    tune, design = _stage_summary(records, "tune"), _stage_summary(records, "design")
-    gain_set = _gain_set(folder, records)
+    tune, design = manifest.summary(TuneSummary), manifest.summary(DesignSummary)
+    compare, rig = manifest.summary(CompareSummary), manifest.summary(RigSummary)
+    system = manifest.summary(SystemSummary)
+    gain_set = _gain_set(folder, manifest)
     validation = None if gain_set is None else gain_set.validation
-    worst = {} if validation is None else {k: v["worst"] for k, v in validation.summary().items()}
-    energy, saved = summary.get("friction_energy_per_cycle"), summary.get("friction_saved_fraction")
-    met, missed = _requirements(summary, records)
+    worst = None if validation is None else validation.worst
+    h = summary.headline
+    energy, saved = h.friction_energy_per_cycle, h.friction_saved_fraction
     return PointFigures(
-        design_stiffness_N_per_um=design.get("stiffness_N_per_um"),
-        **{k: tune.get(k) for k in ("Kc_V_per_N", "Ti_s", "Td_s", "Tf_s", "b", "ms")},
-        gain_schedule=tune.get("gain_schedule"),
+        design_stiffness_N_per_um=None if design is None else design.stiffness_N_per_um,
+        Kc_V_per_N=None if tune is None else tune.Kc_V_per_N, Ti_s=None if tune is None else tune.Ti_s,
+        Td_s=None if tune is None else tune.Td_s, Tf_s=None if tune is None else tune.Tf_s,
+        b=None if tune is None else tune.b, ms=None if tune is None else tune.ms,
+        gain_schedule=None if tune is None else tune.gain_schedule,
         gain_set_status=None if gain_set is None else gain_set.status,
         validation_plants=None if validation is None else validation.n_plants,
         validation_failures=None if validation is None else len(validation.failures),
-        worst_settling_s=worst.get("settling_s"), worst_overshoot_N=worst.get("overshoot_N"),
-        worst_tracking_rms_N=worst.get("tracking_rms_N"), worst_peak_voltage_V=worst.get("peak_voltage_V"),
-        tuned_settling_s=_stage_summary(records, "compare").get("tuned_settling_s"),
-        **{k: summary.get(k) for k in ("tracking_rms_N", "tracking_rms_pct_of_range",
-                                       "tracking_rms_pct_of_range_before_learning", "tracking_max_N",
-                                       "rigidity_min_cutting_N_per_um", "rigidity_required_at_min_N_per_um",
-                                       "rigidity_ratio_min", "deflection_max_um", "rig_tracking_rms_N")},
-        friction_energy_per_cycle=energy, energy_units=summary.get("energy_units"),
-        constant_friction_energy_per_cycle=None if energy is None else design.get("constant_friction_energy"),
-        friction_saving_pct=None if saved is None else 100.0 * saved, **_thermal_figures(summary.get("thermal")),
-        rig_status=_stage_summary(records, "rig").get("status"),
-        requirements_met=met, requirements_missed=missed)
+        worst_settling_s=None if worst is None else worst.settling_s,
+        worst_overshoot_N=None if worst is None else worst.overshoot_N,
+        worst_tracking_rms_N=None if worst is None else worst.tracking_rms_N,
+        worst_peak_voltage_V=None if worst is None else worst.peak_voltage_V,
+        tuned_settling_s=None if compare is None else compare.tuned_settling_s,
+        tracking_rms_N=h.tracking_rms_N, tracking_rms_pct_of_range=h.tracking_rms_pct_of_range,
+        tracking_rms_pct_of_range_before_learning=h.tracking_rms_pct_of_range_before_learning,
+        tracking_max_N=h.tracking_max_N, rigidity_min_cutting_N_per_um=h.rigidity_min_cutting_N_per_um,
+        rigidity_required_at_min_N_per_um=h.rigidity_required_at_min_N_per_um, rigidity_ratio_min=h.rigidity_ratio_min,
+        deflection_max_um=h.deflection_max_um, rig_tracking_rms_N=h.rig_tracking_rms_N,
+        friction_energy_per_cycle=energy, energy_units=None if system is None else system.numbers.energy_units,
+        constant_friction_energy_per_cycle=(None if energy is None or design is None
+                                            else design.constant_friction_energy),
+        friction_saving_pct=None if saved is None else 100.0 * saved, **_thermal_figures(system),
+        rig_status=None if rig is None else rig.status,
+        requirements_met=summary.requirements_met, requirements_missed=tuple(r.to_dict() for r in summary.missed))
 
 
 # --------------------------------------------------------------------------------------
@@ -440,7 +439,7 @@ def _check_where(workers: int | None, scheduler: str | None) -> None:
         raise InputError(f"--scheduler: '{scheduler}' is not a Dask scheduler address tcp://HOST:PORT")
 
 
-def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "grid",
+def sweep(study: StudySpec, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "grid",
           out: str | Path = DEFAULT_SWEEP_OUT, workers: int | None = None, scheduler: str | None = None,
           force: bool = False, progress: ProgressLike | None = None, report: bool = True,
           where: str = "Study.sweep") -> SweepResult:
@@ -448,7 +447,7 @@ def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "gr
 
     Parameters
     ----------
-    study : Study
+    study : StudySpec
         The study swept.
     vary : mapping of str to list
         ``{"TABLE.KEY": [V1, V2, ...]}``: the keys as a study file's tables name them
@@ -519,6 +518,8 @@ def sweep(study: Study, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "gr
         result = SweepResult(out, record, time.perf_counter() - t0)
         atomic_write_text(out / ROWS, result.csv_text())
         if report:
+            from piezopreload.reports.sweep_report import render_sweep_report
+
             render_sweep_report(out, record, say=reporter.say)
     seconds = time.perf_counter() - t0
     failed, missed = len(result.failed), result.missed
@@ -535,20 +536,35 @@ def is_sweep_folder(out: str | Path) -> bool:
     return (Path(out) / RECORD).is_file()
 
 
+@dataclass(frozen=True)
+class SweepReport:
+    """A sweep's report typeset again (:func:`rerender_sweep_report`): the sweep's folder, the PDF, the time taken
+    and the sweep's points."""
+
+    out: Path
+    report: Path
+    seconds: float
+    points: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"out": str(self.out), "report": str(self.report), "seconds": self.seconds, "points": self.points}
+
+
 def rerender_sweep_report(out: str | Path, progress: ProgressLike | None = None,
-                          template: str | Path | None = None) -> dict[str, Any]:
+                          template: str | Path | None = None) -> SweepReport:
     """Typeset a sweep's report again from ``OUT/sweep.json`` (``piezopreload report SWEEP_DIR``); nothing else runs."""
     reporter = as_progress(progress)
     t0 = time.perf_counter()
     out = Path(out)
     text = read_template(template)
     record = SweepRecord.load(out / RECORD)
+    from piezopreload.reports.sweep_report import render_sweep_report
+
     with locked(out, f"{out}: a sweep is writing this folder; wait for it"):
         written = render_sweep_report(out, record, say=reporter.say, template=text)
     seconds = time.perf_counter() - t0
     reporter.write(f"the sweep's report is {written['report']} ({seconds:.1f} s)\n")
-    return {"out": str(out.resolve()), "report": str(written["report"].resolve()), "seconds": seconds,
-            "points": len(record.points)}
+    return SweepReport(out.resolve(), written["report"].resolve(), seconds, len(record.points))
 
 
 # --------------------------------------------------------------------------------------
@@ -656,6 +672,8 @@ class SweepResult:
         unknown = [c for c in (x, *ys, *groups) if c not in columns]
         if unknown:
             raise InputError(f"SweepResult.plot: no column '{unknown[0]}'; the columns are {', '.join(columns)}")
+        from piezopreload.reports.sweep_figures import sweep_plot
+
         return sweep_plot(self.rows, x, ys, groups, title=f"sweep of {self.record.study_name}")
 
     def _table(self) -> tuple[list[str], list[list[str]]]:

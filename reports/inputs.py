@@ -1,31 +1,32 @@
 """What the report reads: the study's facts and its stages' artifacts, each read once.
 
 :class:`ReportStudy` is what the report needs of the study itself (its names, its plant, the
-published numbers it declares); :class:`Artifacts` reads the artifacts the stages wrote,
-named by the stage records of ``pipeline.json``: a stage that did not run has none, and the
+published numbers it declares); :class:`Artifacts` reads the artifacts the stages wrote, each through its
+type's one reader, named by the stage records of the run's manifest
+(:class:`~piezopreload.artifacts.manifest.StudyRunManifest`): a stage that did not run has none, and the
 report leaves its sections out with the stage's reason.
 """
 
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.hysteresis import IdentifiedModel
 from piezopreload.artifacts.learning import LearningRecord
+from piezopreload.artifacts.manifest import StageRecord, StudyRunManifest
 from piezopreload.artifacts.plant import DesignedPlant
-from piezopreload.artifacts.requirements import Requirement, checked_by_stages
+from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.rigrun import RigRunRecord
 from piezopreload.artifacts.system import SystemRecord
 from piezopreload.artifacts.tuning import TuningRecord
 from piezopreload.artifacts.validation import ValidationResult
-from piezopreload.core.artifacts import read_artifact
 from piezopreload.core.errors import InputError
 
 __all__ = ["ReportStudy", "Published", "Artifacts", "read_csv_columns"]
@@ -82,30 +83,29 @@ class Artifacts:
     """The artifacts of a study's output folder, read on first use; ``has(stage)`` says whether a stage ran."""
 
     out: Path
-    records: dict[str, dict[str, Any]]
-    _cache: dict[str, Any] = field(default_factory=dict, repr=False)
+    manifest: StudyRunManifest
 
     def has(self, stage: str) -> bool:
-        return self.records.get(stage, {}).get("status") == "done"
+        return self.manifest.done(stage)
+
+    def record(self, stage: str) -> StageRecord | None:
+        """The stage's record (None: the run never reached it)."""
+        return self.manifest.record(stage)
+
+    def not_applicable(self, stage: str) -> bool:
+        """Whether the stage did not apply to the study."""
+        return self.manifest.status(stage) == "not applicable"
 
     def reason(self, stage: str) -> str:
-        """Why a stage has no artifacts: its recorded reason, or its status."""
-        rec = self.records.get(stage, {})
-        return str(rec.get("reason") or rec.get("message") or rec.get("status", "it did not run"))
+        """Why a stage has no artifacts: its recorded reason, its failure, or its status."""
+        record = self.manifest.record(stage)
+        return "it did not run" if record is None else record.why_not
 
     def path(self, stage: str, label: str) -> Path:
-        rec = self.records.get(stage, {})
-        if rec.get("status") != "done" or label not in rec.get("outputs", {}):
+        output = self.manifest.output(stage, label)
+        if output is None:
             raise InputError(f"{self.out}: the stage '{stage}' has no output '{label}'; run the study again")
-        return self.out / rec["outputs"][label]["path"]
-
-    def summary(self, stage: str) -> dict[str, Any]:
-        return dict(self.records.get(stage, {}).get("summary", {}))
-
-    def _read(self, key: str, stage: str, label: str, kind: str) -> dict[str, Any]:
-        if key not in self._cache:
-            self._cache[key] = read_artifact(self.path(stage, label), kind)
-        return self._cache[key]
+        return self.out / output.path
 
     # ---- the artifacts -----------------------------------------------------------------------------
     @functools.cached_property
@@ -120,9 +120,10 @@ class Artifacts:
     def responses(self) -> ResponsesRecord:
         return ResponsesRecord.load(self.path("compare", "responses"))
 
-    @property
-    def feedforward(self) -> dict[str, Any]:
-        return self._read("feedforward", "identify", "model", "hysteresis-model")
+    @functools.cached_property
+    def feedforward(self) -> IdentifiedModel:
+        """The feedforward's identified model (``feedforward/model.json``)."""
+        return IdentifiedModel.load(self.path("identify", "model"))
 
     @functools.cached_property
     def tuning(self) -> TuningRecord:
@@ -160,4 +161,4 @@ class Artifacts:
 
     def requirements(self) -> tuple[Requirement, ...]:
         """Every requirement the stages checked, in stage order (what ``run`` judges its exit code by)."""
-        return checked_by_stages(self.records)
+        return self.manifest.requirements

@@ -22,6 +22,7 @@ from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.rigrun import RigRunRecord
 from piezopreload.artifacts.system import SystemRecord, TrackingNumbers
 from piezopreload.artifacts.tuning import TuningRecord
+from piezopreload.models.hysteresis import CreepPI
 from piezopreload.reports import figures as F
 from piezopreload.reports.document import Section, Table, fmt, pct
 from piezopreload.reports.inputs import Artifacts, ReportStudy
@@ -108,8 +109,7 @@ def study_section(study: ReportStudy, a: Artifacts, stage_names: tuple[str, ...]
     else:
         paragraphs.append("The plant is the study's [rig] table; every control step (identification, tuning, "
                           "validation) ran on it.")
-    skipped = [f"{name}: {a.reason(name)}" for name in stage_names
-               if a.records.get(name, {}).get("status") == "not applicable"]
+    skipped = [f"{name}: {a.reason(name)}" for name in stage_names if a.not_applicable(name)]
     if skipped:
         paragraphs.append("Stages that did not apply to this study: " + "; ".join(skipped) + ".")
     return Part(Section("The study", tuple(paragraphs)))
@@ -308,27 +308,28 @@ def learning_section(learning: LearningRecord) -> Part:
 # --------------------------------------------------------------------------------------
 def feedforward_section(study: ReportStudy, a: Artifacts) -> Part:
     ff = a.feedforward
-    ident, source = ff["identification"], ff["inputs"]["data"]
-    src = ("simulated on the plant's truth model" if source["kind"] == "simulated"
-           else f"measured, {Path(source['path']).name}")
-    kind = str(ff["model"].get("kind", "classical"))
-    n_ops = len(ff["model"].get("thresholds", []))
-    creep = ff["model"].get("creep")
-    with_creep = "" if not creep else (
-        f", with creep (first-order lags of {', '.join(f'{t:g}' for t in creep['time_constants_s'])} s on the input, "
-        "identified in the same QP)")
-    text = (f"The feedforward inverts {_KIND_NAMES.get(kind.removesuffix('+creep'), kind)} of {n_ops} play operators"
-            f"{with_creep}, its weights identified by a QP with nonnegative weights (cvxpy + Clarabel) from the loop "
-            f"measurement ({src}). The model reproduces the loop within {fmt(ident['fit']['rms_pct'])} % RMS "
-            f"({fmt(ident['fit']['max_pct'])} % at worst) of the force span; the plant driven through its inverse in "
-            f"open loop follows the desired force within {fmt(ident['compensation_rms_N'])} N RMS "
-            f"({fmt(ident['compensation_max_N'])} N at worst).")
-    loop, comp = a.csv("identify", "loop"), a.csv("identify", "compensation")
+    source = ff.data
+    src = ("simulated on the plant's truth model" if source.kind == "simulated"
+           else f"measured, {Path(source.path or '').name}")
+    kind = ff.model.kind
+    with_creep = "" if not isinstance(ff.model, CreepPI) else (
+        f", with creep (first-order lags of {', '.join(f'{t:g}' for t in ff.model.creep.time_constants_s)} s on the "
+        "input, identified in the same QP)")
+    comp = ff.compensation
+    text = (f"The feedforward inverts {_KIND_NAMES.get(kind.removesuffix('+creep'), kind)} of "
+            f"{ff.model.n_operators} play operators{with_creep}, its weights identified by a QP with nonnegative "
+            f"weights (cvxpy + Clarabel) from the loop measurement ({src}). The model reproduces the loop within "
+            f"{fmt(ff.fit.rms_pct)} % RMS ({fmt(ff.fit.max_pct)} % at worst) of the force span"
+            + ("." if comp is None else  # the identify stage always checks it; a model without its check says less
+               f"; the plant driven through its inverse in open loop follows the desired force within "
+               f"{fmt(comp.rms_N)} N RMS ({fmt(comp.max_N)} N at worst)."))
+    loop, comp_run = a.csv("identify", "loop"), a.csv("identify", "compensation")
     figures = (
         ("hysteresis", F.hysteresis_loops(loop["time_s"], loop["voltage_V"], loop["force_N"], loop["model_N"]),
          f"The feedforward's voltage-to-force loop measurement ({src}) and the {kind} P-I model identified from it; "
          "right, the model's error."),
-        ("inverse", F.inverse_model(comp["desired_N"], comp["command_V"], comp["force_N"], comp["time_s"]),
+        ("inverse", F.inverse_model(comp_run["desired_N"], comp_run["command_V"], comp_run["force_N"],
+                                    comp_run["time_s"]),
          "The inverse P-I model (left) and the plant driven through it in open loop (right): what the feedforward "
          "alone delivers."))
     return Part(Section("Hysteresis and the feedforward", (text,), (), ("hysteresis", "inverse")), figures)
@@ -562,7 +563,8 @@ def rig_section(study: ReportStudy, a: Artifacts) -> Part:
     """The exports, and the run on the rig executor: how it ended, its figures, its limits and the host check."""
     paragraphs, omitted = [], []
     if a.has("export"):
-        exports = [Path(o["path"]).name for o in a.records["export"]["outputs"].values()]
+        record = a.record("export")
+        exports = [] if record is None else [Path(o.path).name for o in record.outputs.values()]
         paragraphs.append("The validated gain set was exported as " + ", ".join(exports) + ".")
     else:
         omitted.append(f"The exports: {a.reason('export')}.")
@@ -599,21 +601,20 @@ def rig_section(study: ReportStudy, a: Artifacts) -> Part:
 def provenance_section(study: ReportStudy, a: Artifacts, stage_names: tuple[str, ...], version: str,
                        date: str) -> Part:
     """Where every number came from: the package, the study, the data, the gain set and every artifact's hash."""
-    ff = a.feedforward
-    source = ff["inputs"]["data"]
+    source = a.feedforward.data
+    records = [r for r in (a.record(n) for n in stage_names) if r is not None]
+    times = [(n, r.seconds) for n in stage_names if (r := a.record(n)) is not None and r.done and r.seconds is not None]
     rows = [("package", f"piezopreload {version}"), ("study file", study.source), ("study SHA-256", study.sha256),
-            ("feedforward data", "simulated" if source["kind"] == "simulated" else str(source.get("path"))),
-            ("feedforward data SHA-256", source["sha256"]), ("gain set content hash", a.gain_set.content_sha256 or ""),
-            ("report date (UTC)", date),
-            ("stage times", ", ".join(f"{n} {a.records[n]['seconds']:.1f} s" for n in stage_names
-                                      if a.records.get(n, {}).get("status") == "done" and "seconds" in a.records[n]))]
+            ("feedforward data", "simulated" if source.kind == "simulated" else str(source.path)),
+            ("feedforward data SHA-256", source.sha256), ("gain set content hash", a.gain_set.content_sha256 or ""),
+            ("report date (UTC)", date), ("stage times", ", ".join(f"{n} {t:.1f} s" for n, t in times))]
     seen: set[str] = set()
     artifacts = []
-    for name in stage_names:
-        for o in a.records.get(name, {}).get("outputs", {}).values():
-            if o["path"] not in seen:  # one row per file
-                seen.add(o["path"])
-                artifacts.append((o["path"], o["sha256"][:24]))
+    for record in records:
+        for o in record.outputs.values():
+            if o.path not in seen:  # one row per file
+                seen.add(o.path)
+                artifacts.append((o.path, o.sha256[:24]))
     return Part(Section("Provenance", (), (
         Table(("item", "value"), tuple(rows), "The study's inputs.", "ll"),
         Table(("artifact", "file SHA-256 (first 24 hex digits; all 64 in pipeline.json)"), tuple(artifacts),

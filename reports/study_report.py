@@ -15,6 +15,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from piezopreload.artifacts.manifest import StudyRunManifest
+from piezopreload.artifacts.summaries import ReportSummary
 from piezopreload.core.artifacts import atomic_write_bytes, atomic_write_text, package_version, write_artifact
 from piezopreload.core.errors import InputError
 from piezopreload.reports.document import Report
@@ -73,19 +75,36 @@ def build_report(study: ReportStudy, a: Artifacts, now: _dt.datetime) -> tuple[R
     return report, figures
 
 
-def render_report(out: Path, records: dict[str, dict[str, Any]], study: ReportStudy, *,
+def render_report(out: Path, manifest: StudyRunManifest, study: ReportStudy, *,
                   say: Callable[[str], None], bar: Callable[[int, int], None],
-                  template: str | None = None) -> tuple[dict[str, Path], dict[str, Any]]:
+                  template: str | None = None) -> tuple[dict[str, Path], ReportSummary]:
     """Figures, ``report/report.json``, ``report/report.typ`` and ``report.pdf`` in ``out``.
 
-    ``records`` are the stages' records (their outputs' paths); ``template`` a Typst
-    template's text (default: the shipped one); ``say`` gets messages, ``bar`` the figures drawn.
+    Parameters
+    ----------
+    out : Path
+        The study's output folder.
+    manifest : StudyRunManifest
+        The stages' records (what they wrote, or why they did not run).
+    study : ReportStudy
+        What the report prints of the study itself.
+    say : callable
+        Given each message.
+    bar : callable
+        Given ``(done, total)`` as the figures are drawn.
+    template : str, optional
+        A Typst template's text (default: the shipped one).
+
+    Returns
+    -------
+    (dict of str to Path, ReportSummary)
+        The files written, by label, and what the report stage records: the figures, the PDF's size, the sections.
     """
     from piezopreload.reports import figures as F
 
     folder = out / "report"
     now = _dt.datetime.now(_dt.UTC).replace(microsecond=0)
-    report, figures = build_report(study, Artifacts(out, records), now)
+    report, figures = build_report(study, Artifacts(out, manifest), now)
     written: dict[str, Path] = {f"figure-{name}": folder / "figures" / f"{name}.pdf" for name, _, _ in figures}
     F.save_all([(fig, written[f"figure-{name}"]) for name, fig, _ in figures], progress=bar)
     write_artifact(folder / "report.json", "report", report.to_dict())
@@ -98,7 +117,7 @@ def render_report(out: Path, records: dict[str, dict[str, Any]], study: ReportSt
     written.update({"report": out / "report.pdf", "report_json": folder / "report.json",
                     "template": folder / "report.typ"})
     say(f"wrote {out / 'report.pdf'} ({len(pdf) / 1024:.0f} kB, {len(figures)} figures)")
-    return written, {"figures": [name for name, _, _ in figures], "pdf_bytes": len(pdf),
-                     "sections": [s.title for s in report.sections]}
+    return written, ReportSummary(tuple(name for name, _, _ in figures), len(pdf),
+                                  tuple(s.title for s in report.sections))
 
 

@@ -51,12 +51,12 @@ def report_figures(out) -> list[tuple[str, Figure]]:
     """The figures the report of the study run in ``out`` draws, built from its artifacts as the report stage does."""
     import datetime as dt
 
-    from piezopreload.pipeline import read_manifest
+    from piezopreload.artifacts.manifest import StudyRunManifest
     from piezopreload.reports.inputs import Artifacts, ReportStudy
     from piezopreload.reports.study_report import build_report
 
-    manifest = read_manifest(out)
-    study = ReportStudy(manifest["study"]["name"], "", manifest["study"]["path"], manifest["study"]["sha256"],
-                        manifest["study"]["path"])
-    _, figures = build_report(study, Artifacts(out, dict(manifest["stages"])), dt.datetime.now(dt.UTC))
+    manifest = StudyRunManifest.load(out)
+    ref = manifest.study
+    study = ReportStudy(ref.name, "", ref.path, ref.sha256, ref.path)
+    _, figures = build_report(study, Artifacts(out, manifest), dt.datetime.now(dt.UTC))
     return [(name, fig) for name, fig, _ in figures]

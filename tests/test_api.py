@@ -69,9 +69,12 @@ def test_the_readme_snippet_runs_end_to_end(tmp_path, monkeypatch, capsys):
 def test_the_study_docstring_examples_run():
     import doctest
 
+    import piezopreload.spec
     import piezopreload.study
 
     failed, tried = doctest.testmod(piezopreload.study)
+    assert tried >= 3 and failed == 0
+    failed, tried = doctest.testmod(piezopreload.spec)
     assert tried >= 3 and failed == 0
 
 
@@ -190,7 +193,7 @@ def test_feedforward_data_is_honoured_by_simulate_and_reproduce(measured_study):
     assert f"the measured loop {loop}" in run.to_dict()["feedforward"]["source"]
     ref = study.simulate(controller="ff+pid", feedforward=ff)
     np.testing.assert_array_equal(run.command_V, ref.command_V)
-    assert study.reproduce()["feedforward_fit"] == ff.fit.to_dict()
+    assert study.reproduce().feedforward_fit == ff.fit.to_dict()
 
 
 def test_feedforward_data_is_honoured_by_tune(measured_study, monkeypatch, capsys):
@@ -357,6 +360,7 @@ def test_results_show_themselves_in_a_terminal_and_a_notebook(gain_set):
     """repr fits a line and names what matters; _repr_html_ is a table; plot() is a Figure with something drawn."""
     from matplotlib.figure import Figure
 
+    from piezopreload.artifacts.manifest import StudyRef
     from piezopreload.artifacts.requirements import Requirement
     from piezopreload.artifacts.validation import Criteria, ValidationResult
     from piezopreload.models.actuator import Rig
@@ -379,8 +383,8 @@ def test_results_show_themselves_in_a_terminal_and_a_notebook(gain_set):
     assert not val.passed and val.worst.settling_s is None and "failed on 1 plants" in repr(val)
     assert isinstance(val.plot(), Figure) and "<b>missed</b>" in val._repr_html_()
     missed = Requirement("rigidity while cutting", 761.0, 1000.0, "N/um", "min", "[schedule] stiffness_min_N_per_um")
-    result = StudyResult(Path("out"), {"name": "axis"}, (StageOutcome("design", True, "done", 1.0),), 1.0, Headline(),
-                         (missed,))
+    result = StudyResult(Path("out"), StudyRef("axis.toml", "0" * 64, "axis"),
+                         (StageOutcome("design", True, "done", 1.0),), 1.0, Headline(), (missed,))
     assert (result.exit_code == 4 and "1 requirement(s) missed" in repr(result)
             and "<b>missed</b>" in result._repr_html_())
     fig = result.plot()

@@ -183,7 +183,8 @@ def test_the_command_line_lists_its_subcommands_without_loading_the_floors():
              "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
              "print('loaded:', *sorted(m for m in sys.modules if m.split('.')[0] in ('numpy', 'scipy', 'casadi') "
              "or m.startswith(('piezopreload.models', 'piezopreload.design', 'piezopreload.tuning', "
-             "'piezopreload.rig', 'piezopreload.artifacts', 'piezopreload.reports', 'piezopreload.study'))))")
+             "'piezopreload.rig', 'piezopreload.artifacts', 'piezopreload.reports', 'piezopreload.study', "
+             "'piezopreload.spec'))))")
     done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
     assert "COMMAND" in done.stdout
     assert done.stdout.splitlines()[-1] == "loaded:", done.stdout.splitlines()[-1]

@@ -86,13 +86,13 @@ def test_casadi_and_scipy_slsqp_reach_the_same_optimum(spec, nlp):
     y0 = np.clip(nlp.initial_guess(), lbx, ubx)
     ours = nlp.solve(WEIGHTS["stiffness"], y0, integers=ints)
     f, g = nlp.numpy_functions(WEIGHTS["stiffness"])
-    np.testing.assert_allclose(f(ours["y"]), ours["f"], rtol=1e-10, err_msg="numpy and CasADi objectives differ")
+    np.testing.assert_allclose(f(ours.y), ours.f, rtol=1e-10, err_msg="numpy and CasADi objectives differ")
     peer = minimize(f, y0, method="SLSQP", bounds=list(zip(lbx, np.where(np.isinf(ubx), None, ubx))),
                     constraints=[{"type": "ineq", "fun": lambda y: -g(y)}], options={"maxiter": 500, "ftol": 1e-10})
-    assert ours["success"] and peer.success, peer.message
+    assert ours.success and peer.success, peer.message
     assert np.max(g(peer.x)) < 1e-6
     # neither finds a better point than the other (to the solvers' tolerances)
-    assert abs(ours["f"] - peer.fun) < 1e-6 * abs(ours["f"]), (ours["f"], peer.fun)
+    assert abs(ours.f - peer.fun) < 1e-6 * abs(ours.f), (ours.f, peer.fun)
 
 
 def test_infeasible_request_names_the_constraint_and_the_shortfall(spec):
@@ -216,11 +216,11 @@ def test_sqp_infeasibility_verdicts_agree_with_ipopt(spec, reference_nlp):
 
     nlp.solve = recording
     pareto_front(spec, "stiffness:drag", 20, nlp)
-    verdicts = [(a, k) for a, k, out in calls if out["status"].startswith("Infeasible: least")]
+    verdicts = [(a, k) for a, k, out in calls if out.status.startswith("Infeasible: least")]
     assert verdicts, "the front should meet integer neighbours that cannot be made feasible"
     for args, kwargs in verdicts:
         check = reference_nlp.solve(*args, **kwargs)
-        assert check["status"] == "Infeasible_Problem_Detected", (kwargs["integers"], check["status"])
+        assert check.status == "Infeasible_Problem_Detected", (kwargs["integers"], check.status)
 
 
 def test_integer_neighbours_the_bounds_rule_out_are_not_tried(spec, reference_nlp):
@@ -230,15 +230,15 @@ def test_integer_neighbours_the_bounds_rule_out_are_not_tried(spec, reference_nl
     kept = _integer_candidates(6.0, z + 0.5, spec)
     assert kept == [(6, z)]
     y0 = reference_nlp.initial_guess()
-    assert reference_nlp.solve(WEIGHTS["drag"], y0, integers=(6, z))["feasible"]
-    assert reference_nlp.solve(WEIGHTS["drag"], y0, integers=(6, z + 1))["status"] == "Infeasible_Problem_Detected"
+    assert reference_nlp.solve(WEIGHTS["drag"], y0, integers=(6, z)).feasible
+    assert reference_nlp.solve(WEIGHTS["drag"], y0, integers=(6, z + 1)).status == "Infeasible_Problem_Detected"
     # and turns beyond the nut length (45 mm holds 4.5 turns of a 10 mm lead)
     short = replace(spec, nut_length_max_mm=45.0)
     assert _integer_candidates(4.5, 20.0, short) == [(4, 20)]
     short_nlp = DesignNLP(short, warm="ipopt")
     y0 = short_nlp.initial_guess()
-    assert short_nlp.solve(WEIGHTS["drag"], y0, integers=(4, 20))["feasible"]
-    assert short_nlp.solve(WEIGHTS["drag"], y0, integers=(5, 20))["status"] == "Infeasible_Problem_Detected"
+    assert short_nlp.solve(WEIGHTS["drag"], y0, integers=(4, 20)).feasible
+    assert short_nlp.solve(WEIGHTS["drag"], y0, integers=(5, 20)).status == "Infeasible_Problem_Detected"
 
 
 def test_building_the_design_nlp_prints_nothing(spec, capsys):

@@ -231,7 +231,9 @@ def test_a_feedforward_that_does_not_cover_the_references_is_refused_before_tuni
     small = identify_feedforward(study.plant, LoopExcitation(v_max_V=40.0, n_operators=8, cycles=2), check_range_N=None)
     lo, hi = small.record.output_range
     assert hi < 60.0, "a 40 V loop on the paper's rig stays well below the 100 N the references reach"
-    monkeypatch.setattr(results, "tune", lambda *a, **k: pytest.fail("tuned with a feedforward that does not cover"))
+    # the tuner and the design (results.tune's own steps) fail the test if they run
+    monkeypatch.setattr(results, "tune_pid", lambda *a, **k: pytest.fail("tuned on a feedforward that does not cover"))
+    monkeypatch.setattr(type(study), "solved_plant", lambda *a, **k: pytest.fail("designed before the check"))
     with pytest.raises(pp.InputError) as exc:
         study.tune(feedforward=small)
     message = str(exc.value)

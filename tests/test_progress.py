@@ -101,5 +101,6 @@ def test_the_api_types_every_progress_parameter_alike():
         annotation = inspect.signature(step).parameters["progress"].annotation  # the source's text (PEP 563)
         assert annotation == "ProgressLike | None", f"{step.__qualname__}: progress is {annotation}"
         checked.append(step.__qualname__)
-    assert {"Study.run", "Study.tune", "Study.sweep", "Study.design", "load_study", "TuningResult.validate"} <= set(
-        checked), checked
+    # Study's own steps, and those it has as a StudySpec (the parsed study: design, learn, ...)
+    assert {"Study.run", "Study.tune", "Study.sweep", "StudySpec.design", "StudySpec.learn", "load_study",
+            "TuningResult.validate"} <= set(checked), checked

@@ -599,14 +599,15 @@ def test_the_sidecar_is_one_typed_record_that_names_a_bad_field(gains_path, tmp_
 def test_the_pipelines_rig_stage_reports_a_trip_and_no_step_figures(gains_path, study, tmp_path):
     """The rig stage reads the sidecar typed: a tripped run fails the stage with the trip (cause, time, voltage) and
     a summary without step figures, which the stage runner records."""
-    from piezopreload.core.stages import Partial, StageFailed, run_stages
+    from piezopreload.core.stages import Partial, StageFailed, run_stages, sha256_file
     from piezopreload.pipeline import _Ctx, _stage_rig
     from piezopreload.progress import Progress
 
     out = tmp_path / "out"
     out.mkdir()
     shutil.copy(gains_path, out / "gains.json")
-    records = {"validate": {"status": "done", "outputs": {"gains": {"path": "gains.json"}}}}
+    records = {"validate": {"status": "done", "key": "k",  # a validate stage's record, as pipeline.json holds one
+                            "outputs": {"gains": {"path": "gains.json", "sha256": sha256_file(out / "gains.json")}}}}
     tight = study.replace(rig_run={"force_max_N": 60.5})  # the step's overshoot reads above it
     ctx = _Ctx(tight, out, Progress(stream=io.StringIO()), records)
     with pytest.raises(StageFailed, match="stopped by the interlock 'force_high' at t = .* V held") as failed:

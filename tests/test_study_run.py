@@ -18,11 +18,13 @@ import numpy as np
 import pytest
 
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.manifest import StudyRunManifest
 from piezopreload.artifacts.responses import ResponsesRecord
+from piezopreload.artifacts.summaries import ValidateSummary
 from piezopreload.cli import main
 from piezopreload.core.artifacts import read_artifact
 from piezopreload.core.errors import InputError
-from piezopreload.pipeline import STAGES, read_manifest, run_study
+from piezopreload.pipeline import STAGES, run_study
 from piezopreload.progress import Progress
 from piezopreload.study import load_study
 
@@ -63,8 +65,8 @@ def test_the_small_study_runs_every_stage_and_leaves_its_artifacts(small_run):
     for i, stage in enumerate(STAGES, start=1):
         assert f"[{i}/{len(STAGES)}] {stage.name}:" in log
     assert f"the study's outputs are in {out.resolve()}/" in log
-    manifest = read_manifest(out)
-    assert {name: r["status"] for name, r in manifest["stages"].items()} == {
+    manifest = StudyRunManifest.load(out)
+    assert {name: r.status for name, r in manifest.stages.items()} == {
         s.name: "done" if s.name in applicable else "not applicable" for s in STAGES}
     gains = read_artifact(out / "gains.json", "gain-set")
     assert gains["status"] == "validated" and result.gain_set_sha256 == gains["content_sha256"]
@@ -81,7 +83,7 @@ def test_the_compare_stage_reproduces_what_reproduce_prints(small_run):
     """The paper's gains in the report's table == ``piezopreload reproduce`` (its own feedforward identification)."""
     out = small_run[0]
     rows = ResponsesRecord.load(out / "responses" / "responses.json").reproduction
-    ref = {(r["controller"], r["metric"]): r["simulated"] for r in load_study(SMALL).reproduce()["rows"]}
+    ref = {(r.controller, r.metric): r.simulated for r in load_study(SMALL).reproduce().rows}
     assert len(rows) == len(ref) == 6
     for r in rows:
         assert r.study == pytest.approx(ref[(r.controller, r.metric)], abs=1e-12)
@@ -186,20 +188,22 @@ def test_a_changed_table_reruns_only_the_stages_that_read_it(small_run, tmp_path
 
 def test_a_missed_validation_is_a_verdict_the_study_reports_and_exits_4(small_run, tmp_path, capsys):
     out = _copy(small_run, tmp_path)
-    before = read_manifest(out)["stages"]
+    before = StudyRunManifest.load(out).stages
     study = tmp_path / "study.toml"
     study.write_text(SMALL.read_text().replace("plants = 8", "plants = 8\nsettling_max_s = 0.02"))
     code = main(["run", str(study), "--out", str(out)])
     text = capsys.readouterr().out
     assert code == 4, "a study that ran but missed a requirement exits 4"
     assert "missed: worst settling time over 8 Monte Carlo plants:" in text and "against at most 0.02 s" in text
-    after = read_manifest(out)["stages"]
+    manifest = StudyRunManifest.load(out)
+    after = manifest.stages
     for name in ("identify", "design", "tune"):
         assert after[name] == before[name]
-    assert after["validate"]["status"] == "done" and after["validate"]["summary"]["status"] == "candidate"
+    validate = manifest.summary(ValidateSummary)
+    assert validate is not None and validate.status == "candidate" and not validate.validated
     for name in ("export", "rig"):  # a candidate is never exported nor run, and the record says why
-        assert after[name]["status"] == "not applicable" and "settling" in after[name]["reason"]
-    assert after["report"]["status"] == "done" and (out / "report.pdf").is_file()
+        assert after[name].status == "not applicable" and "settling" in (after[name].reason or "")
+    assert after["report"].done and (out / "report.pdf").is_file()
     assert read_artifact(out / "gains.json", "gain-set")["status"] == "candidate"
     assert main(["export", str(out / "gains.json"), "--format", "labview"]) == 2
     capsys.readouterr()
@@ -223,7 +227,7 @@ def test_an_internal_failure_names_its_stage_and_exits_1(small_run, tmp_path, ca
     code = main(["run", str(SMALL), "--out", str(out)])
     err = capsys.readouterr().err
     assert code == 1 and "stage 'compare' failed: ZeroDivisionError: simulated bug" in err
-    assert read_manifest(out)["stages"]["compare"]["status"] == "failed"
+    assert StudyRunManifest.load(out).status("compare") == "failed"
 
 
 def test_report_renders_again_from_the_artifacts_alone(small_run, tmp_path, capsys, monkeypatch):
@@ -232,7 +236,7 @@ def test_report_renders_again_from_the_artifacts_alone(small_run, tmp_path, caps
     import piezopreload.tuning.feedforward as feedforward
 
     out = _copy(small_run, tmp_path)
-    before = read_manifest(out)["stages"]
+    before = StudyRunManifest.load(out).stages
     (out / "report.pdf").unlink()
     for module, name in ((compare, "simulate"), (results, "simulate_loop"), (feedforward, "identify_feedforward"),
                          (feedforward, "identify"), (feedforward, "simulate_open_loop")):
@@ -240,7 +244,7 @@ def test_report_renders_again_from_the_artifacts_alone(small_run, tmp_path, caps
     assert main(["report", str(out), "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["ran"] == ["report"] and Path(result["report"]).is_file()
-    after = read_manifest(out)["stages"]
+    after = StudyRunManifest.load(out).stages
     assert {k: v for k, v in after.items() if k != "report"} == {k: v for k, v in before.items() if k != "report"}
     assert main(["report", str(tmp_path)]) == 2
     assert "not a study's output folder" in capsys.readouterr().err
@@ -399,7 +403,7 @@ def test_run_prints_the_gain_set_s_content_hash_as_that(small_run, capsys):
     from piezopreload.cli.study import _print_run
 
     out, result, _ = small_run
-    _print_run(result.to_dict())
+    _print_run(result)
     line = [s for s in capsys.readouterr().out.splitlines() if s.startswith("gain set: ")][0]
     content = GainSet.load(out / "gains.json").content_sha256
     assert f"(content hash {content[:12]}..." in line and "sha256 " not in line, line

@@ -26,13 +26,14 @@ import pytest
 from matplotlib.figure import Figure
 
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.manifest import StudyRunManifest
 from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.sweep import EXIT_POINT_FAILED, PointFigures, SweepAxis, SweepPoint, SweepRecord
 from piezopreload.cli import main
 from piezopreload.core.artifacts import read_artifact
 from piezopreload.core.errors import ArtifactError, InputError, PiezopreloadError
 from piezopreload.core.stagecache import StageCache
-from piezopreload.pipeline import read_manifest, run_study
+from piezopreload.pipeline import run_study
 from piezopreload.progress import Progress
 from piezopreload.study import load_study
 from piezopreload.sweep import SweepResult, _waves, headline, parse_vary, plan_points, tighter_neighbours
@@ -399,8 +400,8 @@ def test_each_point_is_the_study_with_its_values_in_its_own_folder(grid_sweep):
         folder = out / p.folder
         copy = load_study(folder / "study.toml")  # the point's study as the pipeline ran it
         assert (copy.tuning.ms_max, copy.validation.plants) == tuple(p.values.values())
-        records = read_manifest(folder)["stages"]
-        assert all(r["status"] in ("done", "not applicable") for r in records.values())
+        records = StudyRunManifest.load(folder).stages
+        assert all(r.status in ("done", "not applicable") for r in records.values())
         assert (folder / "report.pdf").is_file() and (folder / "gains.json").is_file()
         assert f"p{p.index:03d} tuning.ms_max={p.values['tuning.ms_max']}" in log, "a progress line per point"
     assert log.count(": done in") == 4 and "on 2 local worker processes" in log
@@ -423,7 +424,7 @@ def test_stages_the_points_share_are_computed_once(grid_sweep):
         assert len(ran) == computed and len(reused) == 4 - computed, (stage, ran, reused)
     first = (out / result.points[0].folder / "design" / "design.json").read_bytes()
     assert all((out / p.folder / "design" / "design.json").read_bytes() == first for p in result.points)
-    keys = [read_manifest(out / p.folder)["stages"]["tune"]["key"] for p in result.points]
+    keys = [StudyRunManifest.load(out / p.folder).stages["tune"].key for p in result.points]
     assert keys[0] == keys[1] != keys[2] == keys[3]
 
 
@@ -447,7 +448,7 @@ def test_the_rows_hold_each_points_figures_as_its_artifacts_say(grid_sweep, tmp_
     warm = str(out / result.points[1].folder / "tuning.json")
     alone = run_study(load_study(SMALL).replace(tuning={"ms_max": 1.7, "warm_start": warm}, validation={"plants": 8}),
                       tmp_path / "alone", progress=Progress(quiet=True))
-    assert _figures(headline(tmp_path / "alone", alone.to_dict()["summary"]).to_dict()) == \
+    assert _figures(headline(tmp_path / "alone", alone.summary).to_dict()) == \
         {k: v for k, v in result.rows[3].items() if k in PointFigures.names()}
 
 

@@ -10,12 +10,14 @@ from pathlib import Path
 import pytest
 
 from piezopreload.artifacts.design import DesignRecord
+from piezopreload.artifacts.manifest import StudyRunManifest
 from piezopreload.artifacts.plant import DesignedPlant
+from piezopreload.artifacts.summaries import DesignSummary, LearnSummary, RigSummary, SystemSummary
 from piezopreload.artifacts.system import SystemRecord
 from piezopreload.cli import main
 from piezopreload.core.artifacts import read_artifact
 from piezopreload.design.system import RIGIDITY_VERDICT
-from piezopreload.pipeline import STAGES, read_manifest, run_study
+from piezopreload.pipeline import STAGES, run_study
 from piezopreload.progress import Progress
 from piezopreload.study import load_study
 
@@ -33,10 +35,10 @@ def axis_run(tmp_path_factory):
 
 def test_every_stage_runs_and_the_plant_is_the_designs(axis_run, capsys):
     out = axis_run
-    manifest = read_manifest(out)
-    assert {n: r["status"] for n, r in manifest["stages"].items()} == {s.name: "done" for s in STAGES}
+    manifest = StudyRunManifest.load(out)
+    assert {n: r.status for n, r in manifest.stages.items()} == {s.name: "done" for s in STAGES}
     plant = DesignedPlant.load(out / "plant.json")
-    assert plant.design_sha256 == manifest["stages"]["design"]["outputs"]["design"]["sha256"]
+    assert plant.design_sha256 == manifest.stages["design"].outputs["design"].sha256
     assert plant.rig.hertz_um_per_N23 > 0 and plant.rig.bolt_preload_N == 0.0
     gains = read_artifact(out / "gains.json", "gain-set")
     assert gains["plant"]["rig"]["hertz_um_per_N23"] == plant.rig.hertz_um_per_N23, \
@@ -84,9 +86,10 @@ def test_the_best_constant_preload_is_computed_once_and_read_from_the_design(axi
     s = design.schedule
     assert system.numbers.friction_saved_fraction == pytest.approx(
         1.0 - system.numbers.friction_energy_per_cycle / s.constant_friction_energy_J, rel=1e-12)
-    summary = read_manifest(axis_run)["stages"]["design"]["summary"]
-    assert (summary["constant_preload_N"], summary["constant_friction_energy"]) == (s.constant_preload_N,
-                                                                                    s.constant_friction_energy_J)
+    summary = StudyRunManifest.load(axis_run).summary(DesignSummary)
+    assert summary is not None
+    assert (summary.constant_preload_N, summary.constant_friction_energy) == (s.constant_preload_N,
+                                                                              s.constant_friction_energy_J)
     report = read_artifact(axis_run / "report" / "report.json", "report")
     section = next(x for x in report["sections"] if x["title"] == "The designed system along its preload schedule")
     row = next(r for r in section["tables"][0]["rows"] if r[0].startswith("friction energy per cycle, best constant"))
@@ -112,20 +115,22 @@ def test_the_learn_stage_learns_on_each_pass_and_the_system_and_the_rig_play_it(
         # at most [learning] iterations = 3 trials after trial 0, fewer where more no longer paid
         assert len(history) == record["trials"] + 1 <= 4, f"pass {record['pass']}: {record['trials']} trials, {history}"
         assert record["tracking_rms_N"] < 0.5 * record["before_learning_rms_N"], f"pass {record['pass']}: {history}"
-    learn = read_manifest(out)["stages"]["learn"]["summary"]
-    assert learn["trials"] == sum(learn["trials_per_pass"]) == learning["trials"], (
+    manifest = StudyRunManifest.load(out)
+    learn = manifest.summary(LearnSummary)
+    assert learn is not None and learn.trials == sum(learn.trials_per_pass) == learning["trials"], (
         "the learn stage does not count trials")
     # the system stage's last pass plays the last pass's signal on its reference: the learning's best iterate, scored
     # as the system scores it (from t = 0: the start, 0 N against the stacks' contact force, counts), but with the
     # run's own noise draw (the trials draw seed + k)
-    summary = read_manifest(out)["stages"]["system"]["summary"]
-    assert system["tracking_rms_N"] < 0.5 * summary["tracking_rms_N_before_learning"]
-    assert summary["tracking_rms_N_before_learning"] == pytest.approx(learning["before_learning_rms_N"])
+    summary = manifest.summary(SystemSummary)
+    assert summary is not None and summary.before is not None
+    assert system["tracking_rms_N"] < 0.5 * summary.before.tracking_rms_N_before_learning
+    assert summary.before.tracking_rms_N_before_learning == pytest.approx(learning["before_learning_rms_N"])
     last = learning["pass_records"][-1]
     assert system["tracking_rms_N"] == pytest.approx(last["tracking_rms_from_start_N"], rel=0.15), \
         "the system stage's learned run is not the learning's best iterate"
-    rig = read_manifest(out)["stages"]["rig"]
-    assert rig["summary"]["learned_tracking_rms_measured_N"] is not None, (
+    rig = manifest.summary(RigSummary)
+    assert rig is not None and rig.learned_tracking_rms_measured_N is not None, (
         "the rig stage did not play the learned signal back")
 
 
@@ -135,15 +140,15 @@ def test_a_changed_design_rebuilds_the_plant_and_everything_after_it(axis_run, t
     out = tmp_path / "out"
     shutil.copytree(axis_run, out)
     (out / ".lock").unlink(missing_ok=True)
-    before = read_manifest(out)["stages"]
+    before = StudyRunManifest.load(out).stages
     study = load_study(SMALL_AXIS).replace(design={"amp_current_limit_A": 0.08})
     result = run_study(study, out, progress=Progress(stream=io.StringIO()))
     assert set(result.ran) >= {"design", "plant", "identify", "tune", "validate", "compare", "learn", "system",
                                   "rig", "report"}, f"a stage after the changed design was not run again: {result.ran}"
-    after = read_manifest(out)["stages"]
-    assert after["plant"]["outputs"]["plant"]["sha256"] != before["plant"]["outputs"]["plant"]["sha256"]
+    after = StudyRunManifest.load(out).stages
+    assert after["plant"].outputs["plant"].sha256 != before["plant"].outputs["plant"].sha256
     plant = DesignedPlant.load(out / "plant.json")
-    assert plant.design_sha256 == after["design"]["outputs"]["design"]["sha256"]
+    assert plant.design_sha256 == after["design"].outputs["design"].sha256
     assert plant.rig.amp_current_limit_A == pytest.approx(0.08), "the plant does not carry the new amplifier"
 
 
@@ -242,7 +247,7 @@ def test_the_shifts_thermal_budget_is_in_the_system_artifact_the_summary_the_rep
     assert s.heat_mean_W < c.heat_mean_W and s.heat_mean_other_W < c.heat_mean_other_W
     assert s.growth_max_um < c.growth_max_um and s.positioning_error_max_um <= c.positioning_error_max_um
     assert s.positioning_error_max_um >= s.growth_max_um, "the budget holds the growth (a semi-closed loop)"
-    summary = run_summary(axis_run)["thermal"]
+    summary = run_summary(axis_run).to_dict()["thermal"]  # run --json's summary, as a user's script parses it
     for key in ("heat_mean_W", "temperature_rise_max_K", "growth_max_um", "positioning_error_max_um"):
         assert summary[key] == {"schedule": getattr(s, key), "constant": getattr(c, key)}, key
     growth, budget = system.requirements[-2:]

@@ -510,13 +510,12 @@ def test_a_derivative_on_its_lower_bound_makes_the_tuned_controller_a_pi(monkeyp
 
 
 def test_the_tune_output_names_the_bounds(capsys):
+    from piezopreload.artifacts.tuning import MinimumTimeBound, TrackingFloor
     from piezopreload.cli.tune import _print_bounds
 
-    _print_bounds({"settling_s": 0.014, "tuned_over_bound_ratio": 14.9}, {"rms_N": 2.0, "rate_N_per_s": 3.9e5,
-                                                                          "tuned_over_floor_ratio": 1.5}, 0.209)
+    _print_bounds(MinimumTimeBound(0.014, 14.9), TrackingFloor(2.0, 3.9e5, 1.5), 0.209)
     assert "0.014 s beside the tuned settling 0.209 s (14.90 times it)" in capsys.readouterr().out
-    _print_bounds({"settling_s": None, "tuned_over_bound_ratio": None, "reason": "no command"},
-                  {"rms_N": 2.0, "rate_N_per_s": 1.0, "tuned_over_floor_ratio": None}, None)
+    _print_bounds(MinimumTimeBound(None, None, reason="no command"), TrackingFloor(2.0, 1.0, None), None)
     assert "minimum-time bound: none (no command)" in capsys.readouterr().out
 
 

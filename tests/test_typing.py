@@ -120,3 +120,40 @@ def test_the_front_door_exports_every_result_its_steps_give_back():
             missing.add(name)
             frontier.append(obj)
     assert not missing, f"reachable from the front door but not exported: {sorted(missing)}"
+
+
+def _lint_imports(root: Path) -> str:
+    """import-linter's report on the package laid out under ``root`` (pyproject's contracts; the package found there
+    first, before the editable install's)."""
+    import os
+
+    lint = Path(sys.executable).with_name("lint-imports")
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    done = subprocess.run([str(lint)], cwd=root, env=env, capture_output=True, text=True)
+    return done.stdout + done.stderr
+
+
+@pytest.mark.slow
+def test_the_import_contract_orders_the_application_layer_and_keeps_the_front_door_unimported(tmp_path):
+    """The contract CI runs (``.ci/lint_imports.py``) on a copy of the tree: kept as it is; broken by a step of the
+    application layer imported from beneath it (the knot: the study's specification importing the steps that take a
+    study) and by a module importing the front door."""
+    import shutil
+
+    for name in ("pyproject.toml", *sorted({*MAPPING.values(), "piezopreload"})):
+        source = ROOT / name
+        if source.is_dir():
+            shutil.copytree(source, tmp_path / name, symlinks=True,
+                            ignore=shutil.ignore_patterns("__pycache__", "*.so", "build"))
+        else:
+            shutil.copy(source, tmp_path / name)
+    kept = _lint_imports(tmp_path)
+    assert "0 broken" in kept, kept
+    spec, pipeline = tmp_path / "piezopreload" / "spec.py", tmp_path / "piezopreload" / "pipeline.py"
+    spec.write_text(spec.read_text() + "\n\ndef _probe() -> None:\n    from piezopreload.results import tune  # noqa\n")
+    pipeline.write_text(pipeline.read_text() + "\n\ndef _probe() -> str:\n    from piezopreload import __version__\n"
+                                                "    return __version__\n")
+    broken = _lint_imports(tmp_path)
+    assert "2 broken" in broken, broken
+    assert "piezopreload.spec -> piezopreload.results" in broken, broken
+    assert "piezopreload.pipeline -> piezopreload (l." in broken, broken

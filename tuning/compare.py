@@ -27,7 +27,7 @@ from piezopreload.tuning.feedforward import FeedforwardModel
 from piezopreload.tuning.validate import evaluate
 
 __all__ = ["compare_gains", "tracking_improvement", "Response", "responses", "creep_effect", "reproduction",
-           "reproduction_summary"]
+           "reproduction_summary", "PublishedRow", "ReproductionSummary"]
 
 
 def compare_gains(rig: Plant, step: Reference, trajectory: Reference, candidates: dict[str, PIDGains],
@@ -131,15 +131,92 @@ def reproduction(runs: list[Response], published: dict[str, dict[str, float]],
     return rows
 
 
-def reproduction_summary(rep: Reproduction, published: dict[str, dict[str, float]]) -> dict[str, Any]:
+@dataclass(frozen=True)
+class PublishedRow:
+    """One published step number beside the simulation's: their ratio, whether it lies within 25 % of the published
+    one, and the simulated number's range over the noise realisations (a time never reached is None, not within).
+
+    Parameters
+    ----------
+    controller : str
+        ``pid`` or ``ff+pid``.
+    metric : str
+        ``rise_s``, ``peak_s`` or ``settling_s``.
+    paper : float
+        The published number (s).
+    simulated : float or None
+        The simulated one (s; None: never reached).
+    ratio : float or None
+        Simulated over published.
+    within_25pct : bool
+        Whether the ratio lies within 0.75 to 1.25.
+    range : (float or None, float or None)
+        The least and the largest simulated number over the noise realisations (s).
+    """
+
+    controller: str
+    metric: str
+    paper: float
+    simulated: float | None
+    ratio: float | None
+    within_25pct: bool
+    range: tuple[float | None, float | None]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"controller": self.controller, "metric": self.metric, "paper": self.paper,
+                "simulated": self.simulated, "ratio": self.ratio, "within_25pct": self.within_25pct,
+                "range": list(self.range)}
+
+
+@dataclass(frozen=True)
+class ReproductionSummary:
+    """The published step numbers beside a :class:`Reproduction`'s (one :class:`PublishedRow` per controller and
+    metric), the overshoot per controller, the feedforward's fit and the noise realisations behind each number.
+
+    Parameters
+    ----------
+    feedforward_fit : dict of str to float
+        The feedforward's fit to its loop (``rms_pct``, ``max_pct`` of the span).
+    rows : tuple of PublishedRow
+        One row per controller and metric.
+    overshoot_N : dict of str to float
+        The simulated overshoot per controller (N).
+    repeats : int
+        The noise realisations behind each number.
+    """
+
+    feedforward_fit: dict[str, float]
+    rows: tuple[PublishedRow, ...]
+    overshoot_N: dict[str, float]
+    repeats: int
+
+    @property
+    def all_within_25pct(self) -> bool:
+        return all(r.within_25pct for r in self.rows)
+
+    def row(self, controller: str, metric: str) -> PublishedRow:
+        """The row of ``controller`` (``pid``, ``ff+pid``) and ``metric`` (``rise_s``, ``peak_s``, ``settling_s``)."""
+        for r in self.rows:
+            if (r.controller, r.metric) == (controller, metric):
+                return r
+        raise KeyError(f"no row for {controller!r}, {metric!r}: the rows are "
+                       f"{', '.join(f'{r.controller}/{r.metric}' for r in self.rows)}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"feedforward_fit": dict(self.feedforward_fit), "rows": [r.to_dict() for r in self.rows],
+                "overshoot_N": dict(self.overshoot_N), "all_within_25pct": self.all_within_25pct,
+                "repeats": self.repeats}
+
+
+def reproduction_summary(rep: Reproduction, published: dict[str, dict[str, float]]) -> ReproductionSummary:
     """The paper's six step numbers beside a :class:`Reproduction`'s, each judged within 25 % of the paper's,
     with its range over the noise realisations (a time never reached is None and not within)."""
-    rows = [{**r, "within_25pct": bool(abs(r["ratio"] - 1.0) <= 0.25),
-             "range": [finite_or_none(x) for x in rep.spread[r["controller"]][r["metric"]]]}
-            for r in rep.table(published)]
-    for r in rows:
-        if r["simulated"] != r["simulated"]:  # nan: never reached
-            r.update(simulated=None, ratio=None, within_25pct=False)
-    return {"feedforward_fit": rep.feedforward_fit, "rows": rows,
-            "overshoot_N": {c: rep.metrics[c]["overshoot_N"] for c in rep.metrics},
-            "all_within_25pct": all(r["within_25pct"] for r in rows), "repeats": rep.repeats}
+    rows = []
+    for r in rep.table(published):
+        low, high = rep.spread[r["controller"]][r["metric"]]
+        reached = r["simulated"] == r["simulated"]  # nan: never reached
+        rows.append(PublishedRow(r["controller"], r["metric"], r["paper"], r["simulated"] if reached else None,
+                                 r["ratio"] if reached else None, reached and bool(abs(r["ratio"] - 1.0) <= 0.25),
+                                 (finite_or_none(low), finite_or_none(high))))
+    return ReproductionSummary(dict(rep.feedforward_fit), tuple(rows),
+                               {c: rep.metrics[c]["overshoot_N"] for c in rep.metrics}, rep.repeats)

@@ -122,6 +122,36 @@ def compensation_check(rig: Plant, model: FeedforwardModel, low_N: float, high_N
     return CompensationCheck(run["time_s"], desired, command, run["force_N"], run["measured_N"], 1.0 / frequency_Hz)
 
 
+@dataclass(frozen=True)
+class FeedforwardInfo:
+    """Where a feedforward came from (in words), its model and play operators, and, where it was identified for the
+    run, its fit to the loop (in % of the force span).
+
+    Parameters
+    ----------
+    source : str
+        Where the feedforward came from, in words.
+    model : str
+        The P-I model's kind.
+    operators : int
+        Its play operators.
+    fit_rms_pct, fit_max_pct : float or None
+        Its RMS and largest error on its loop, in % of the force span (None: not identified for the run).
+    """
+
+    source: str
+    model: str
+    operators: int
+    fit_rms_pct: float | None = None
+    fit_max_pct: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"source": self.source, "model": self.model, "operators": self.operators}
+        if self.fit_rms_pct is not None:
+            out |= {"fit_rms_pct": self.fit_rms_pct, "fit_max_pct": self.fit_max_pct}
+        return out
+
+
 @dataclass(frozen=True, eq=False)
 class IdentifiedFeedforward:
     """A study's feedforward: its identified P-I model (``record``, as ``model.json`` holds it), and when it was
@@ -174,7 +204,7 @@ class IdentifiedFeedforward:
         """Refuse (an :class:`InputError` naming both ranges) forces outside the range the model was identified over."""
         self.record.covers(low_N, high_N, what)
 
-    def describe(self) -> dict[str, Any]:
+    def describe(self) -> FeedforwardInfo:
         """Where the feedforward came from and how well it fits, in words and numbers (a simulation's record)."""
         src = self.record.data
         if src.kind == "simulated" and src.excitation:
@@ -183,8 +213,7 @@ class IdentifiedFeedforward:
                      f"{ex['frequency_Hz']:g} Hz loop measurement of the rig")
         else:
             where = f"identified from the measured loop {src.path}"
-        return {"source": where, "model": self.model.kind, "operators": self.model.n_operators,
-                "fit_rms_pct": self.fit.rms_pct, "fit_max_pct": self.fit.max_pct}
+        return FeedforwardInfo(where, self.model.kind, self.model.n_operators, self.fit.rms_pct, self.fit.max_pct)
 
     def info(self) -> dict[str, Any]:
         """How the feedforward was identified, as a gain set records it."""

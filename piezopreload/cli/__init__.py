@@ -19,7 +19,7 @@ import traceback
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from piezopreload.cli._common import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, Parser, command_help
+from piezopreload.cli._common import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, Parser, command_help, exit_code_of
 from piezopreload.cli.autotune import register_autotune
 from piezopreload.cli.design import register_ballscrew, register_design
 from piezopreload.cli.export import register_export
@@ -54,9 +54,9 @@ class _Version(argparse.Action):
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
                  option_string: str | None = None) -> None:
-        from piezopreload import __version__
+        from piezopreload.core.artifacts import package_version
 
-        print(f"piezopreload {__version__}")
+        print(f"piezopreload {package_version()}")
         parser.exit()
 
 
@@ -107,8 +107,8 @@ def main(argv: Sequence[str] | None = None) -> int:
               "(set PIEZOPRELOAD_DEBUG=1 for the traceback)", file=sys.stderr)
         return EXIT_INTERNAL
     if args.json:
-        print(json.dumps(result, allow_nan=False))
+        print(json.dumps(result if isinstance(result, dict) else result.to_dict(), allow_nan=False))
     else:
         args.show(result)
-    return int(result.get("exit_code", EXIT_OK))
+    return exit_code_of(result)
 

@@ -6,14 +6,45 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 
 from piezopreload.core.errors import InputError, InternalError
 
 if TYPE_CHECKING:  # the parser is built without the floors; a command loads what it runs
+    from piezopreload.artifacts.validation import ValidationResult
     from piezopreload.tuning.identification import Window
 
 EXIT_OK, EXIT_INTERNAL, EXIT_INPUT = 0, 1, 2
+
+
+class CommandResult(Protocol):
+    """What a subcommand's handler returns: a result object; its printer reads it, ``--json`` prints its
+    ``to_dict()``, and its ``exit_code`` (where it has one) is the command's."""
+
+    def to_dict(self) -> dict[str, Any]: ...
+
+
+R = TypeVar("R", bound=CommandResult)
+
+
+@dataclass(frozen=True)
+class Written(Generic[R]):
+    """A step's result and where the command wrote it (``out``, None: nowhere): ``--json`` prints the result's
+    ``to_dict()`` with ``out`` beside it."""
+
+    result: R
+    out: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**self.result.to_dict(), "out": self.out}
+
+
+def exit_code_of(result: CommandResult | dict[str, Any]) -> int:
+    """A command's exit code: its result's ``exit_code`` (0 where it has none)."""
+    if isinstance(result, dict):
+        return int(result.get("exit_code", EXIT_OK))
+    return int(getattr(result, "exit_code", EXIT_OK))
 PASSWORD_ENV = "PIEZOPRELOAD_RIG_PASSWORD"
 
 
@@ -179,8 +210,8 @@ def say(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
-def print_validation_summary(v: dict[str, Any]) -> None:
-    for key, row in v["summary"].items():
+def print_validation_summary(v: ValidationResult) -> None:
+    for key, row in v.summary().items():
         print(f"  {key:22s} worst {fmt(row['worst'])}  p95 {fmt(row['p95'])}  median {fmt(row['p50'])}")
 
 

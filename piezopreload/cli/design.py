@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from piezopreload.cli._common import (
     json_flag,
@@ -13,6 +16,9 @@ from piezopreload.cli._common import (
     study_of,
 )
 from piezopreload.core.errors import InputError
+
+if TYPE_CHECKING:
+    from piezopreload.design.study import DesignResult, ScrewCheck
 
 
 # --------------------------------------------------------------------------------------
@@ -44,7 +50,7 @@ def register_ballscrew(sub: Any) -> None:
     p.set_defaults(run=_cmd_ballscrew, show=_print_ballscrew)
 
 
-def _cmd_ballscrew(args: argparse.Namespace) -> dict[str, Any]:
+def _cmd_ballscrew(args: argparse.Namespace) -> ScrewCheck:
     from piezopreload.design.study import check_screw
     from piezopreload.models.ballscrew import BallScrew
 
@@ -66,25 +72,25 @@ def _cmd_ballscrew(args: argparse.Namespace) -> dict[str, Any]:
         raise InputError(f"--{option.replace('_', '-')}:{rest}") from exc
 
 
-def _print_ballscrew(r: dict[str, Any]) -> None:
-    s = r["screw"]
-    print(f"screw       {s['nominal_diameter_mm']:g} x {s['lead_mm']:g} mm, ball {s['ball_mm']:g} mm, "
-          f"{s['turns']:g} turns x {s['balls_per_turn']} balls, contact angle {s['contact_angle_deg']:g} deg, "
-          f"helix {s['helix_angle_deg']:.2f} deg")
-    print(f"ratings     C_dyn {r['c_dyn_N']:.0f} N ({r['c_dyn_source']}), C_0 {r['c0_N']:.0f} N ({r['c0_source']})")
-    print(f"preload     {r['preload_N']:.0f} N = {r['preload_fraction_of_c_dyn']:.3f} C_dyn; lift-off at "
-          f"{r['lift_off_load_N']:.0f} N axial")
-    print(f"rigidity    {r['rigidity_N_per_um']:.0f} N/um at {r['axial_load_N']:g} N axial "
-          f"({r['rigidity_no_load_N_per_um']:.0f} N/um without load)")
-    print(f"load        nuts carry {r['loaded_nut_N']:.0f} / {r['unloaded_nut_N']:.0f} N (HIWIN formula "
-          f"{r['loaded_nut_hiwin_N']:.0f} N), deflection {r['deflection_um']:.2f} um"
-          + ("; THE UNLOADED NUT HAS LIFTED OFF" if r["lifted_off"] else ""))
-    print(f"contact     peak pressure {r['peak_pressure_MPa']:.0f} MPa (limit 4200), static safety "
-          f"{r['static_safety']:.1f}")
-    print(f"drag        {r['drag_torque_Nm']:.3f} N m (K_p {r['drag_coefficient']:.3f}), {r['drag_heat_W']:.1f} W at "
-          f"{r['speed_rpm']:g} rpm")
-    if r["life_h"] is not None:
-        print(f"life        L10 {r['life_revolutions']:.3g} rev = {r['life_h']:.0f} h at {r['speed_rpm']:g} rpm")
+def _print_ballscrew(r: ScrewCheck) -> None:
+    s = r.screw
+    print(f"screw       {s.nominal_diameter_mm:g} x {s.lead_mm:g} mm, ball {s.ball_mm:g} mm, "
+          f"{s.turns:g} turns x {s.balls_on_turn} balls, contact angle {s.contact_angle_deg:g} deg, "
+          f"helix {math.degrees(s.helix_rad):.2f} deg")
+    print(f"ratings     C_dyn {r.c_dyn_N:.0f} N ({r.c_dyn_source}), C_0 {r.c0_N:.0f} N ({r.c0_source})")
+    print(f"preload     {r.preload_N:.0f} N = {r.preload_fraction_of_c_dyn:.3f} C_dyn; lift-off at "
+          f"{r.lift_off_load_N:.0f} N axial")
+    print(f"rigidity    {r.rigidity_N_per_um:.0f} N/um at {r.axial_load_N:g} N axial "
+          f"({r.rigidity_no_load_N_per_um:.0f} N/um without load)")
+    print(f"load        nuts carry {r.loaded_nut_N:.0f} / {r.unloaded_nut_N:.0f} N (HIWIN formula "
+          f"{r.loaded_nut_hiwin_N:.0f} N), deflection {r.deflection_um:.2f} um"
+          + ("; THE UNLOADED NUT HAS LIFTED OFF" if r.lifted_off else ""))
+    print(f"contact     peak pressure {r.peak_pressure_MPa:.0f} MPa (limit 4200), static safety "
+          f"{r.static_safety:.1f}")
+    print(f"drag        {r.drag_torque_Nm:.3f} N m (K_p {r.drag_coefficient:.3f}), {r.drag_heat_W:.1f} W at "
+          f"{r.speed_rpm:g} rpm")
+    if r.life_h is not None:
+        print(f"life        L10 {r.life_revolutions:.3g} rev = {r.life_h:.0f} h at {r.speed_rpm:g} rpm")
 
 
 def register_design(sub: Any) -> None:
@@ -111,39 +117,58 @@ def register_design(sub: Any) -> None:
     p.set_defaults(run=_cmd_design, show=_print_design)
 
 
-def _cmd_design(args: argparse.Namespace) -> dict[str, Any]:
+@dataclass(frozen=True)
+class DesignWritten:
+    """``design``'s result: the study it solved, the design and the files written (the artifact, each front's CSV);
+    ``to_dict()`` is what ``design --json`` prints: the optimum, each front's span, the schedule's numbers."""
+
+    study_path: str
+    study_sha256: str
+    result: DesignResult
+    written: tuple[Path, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        o = self.result.optimum
+        fronts = [{"pair": f.pair, "points": len(f.points), "solve_s": f.solve_s, "nlp_solves": f.nlp_solves,
+                   "stiffness_N_per_um": [float(f.x.min()), float(f.x.max())],
+                   f.y_name: [float(f.y.min()), float(f.y.max())]} for f in self.result.fronts]
+        return {"study": {"path": self.study_path, "sha256": self.study_sha256}, "objective": o.objective,
+                "optimum": o.point.to_dict(), "binding": o.binding, "integer_candidates": o.tried,
+                "solve_s": o.solve_s, "fronts": fronts, "schedule": self.result.schedule.summary(),
+                "written": [str(p) for p in self.written]}
+
+
+def _cmd_design(args: argparse.Namespace) -> DesignWritten:
     if args.points is not None and not 2 <= args.points <= 500:
         raise InputError(f"--points: must be in 2..500, got {args.points}")
     study = study_of(args)
     result = study.design(objective=args.objective, pareto=None if args.pareto is None else [args.pareto],
                           points=args.points, schedule=args.schedule, progress=None if args.json else say)
     written = result.save(args.out, {"study": study.path, "study_sha256": study.sha256})
-    return {"study": {"path": study.path, "sha256": study.sha256}, **result.summary(),
-            "written": [str(p) for p in written]}
+    return DesignWritten(study.path, study.sha256, result, tuple(written))
 
 
-def _print_design(r: dict[str, Any]) -> None:
-    p = r["optimum"]
-    print(f"study       {r['study']['path']}")
-    print(f"optimum     objective {r['objective']}: {p['turns']:.0f} turns x {p['balls_per_turn']:.0f} balls of "
-          f"{p['ball_mm']:.3f} mm, contact angle {p['contact_angle_deg']:.1f} deg, conformity {p['conformity']:.3f}")
-    print(f"  preload   bolts {p['bolt_preload_N']:.0f} N, stacks up to {p['max_preload_N']:.0f} N; per duty case "
-          + ", ".join(f"{f:.0f}" for f in p["case_preload_N"]) + " N")
-    print(f"  achieves  rigidity {p['stiffness_N_per_um']:.0f} N/um (least over the duty cases; "
-          f"{p['rigidity_at_max_preload_N_per_um']:.0f} at F_hi), mean drag {p['mean_drag_torque_Nm']:.3f} N m, "
-          f"life {p['life_h']:.0f} h, first axial mode >= {p['frequency_min_Hz']:.0f} Hz")
-    print(f"  ratings   C_dyn {p['c_dyn_N']:.0f} N (estimate), C_0 {p['c0_N']:.0f} N; peak pressure "
-          f"{p['peak_pressure_MPa']:.0f} MPa; stack stroke used {p['stack_stroke_used_um']:.1f} um")
-    print(f"  binding   {', '.join(r['binding']) or 'none'}")
-    for f in r["fronts"]:
-        y = next(k for k in f if k not in ("pair", "points", "solve_s", "nlp_solves", "stiffness_N_per_um"))
-        print(f"front       {f['pair']}: {f['points']} points, rigidity {f['stiffness_N_per_um'][0]:.0f}-"
-              f"{f['stiffness_N_per_um'][1]:.0f} N/um, {y} {f[y][0]:.4g}-{f[y][1]:.4g}, {f['solve_s']:.2f} s")
-    s = r["schedule"]
-    print(f"schedule    {s['samples']} samples: preload {s['preload_min_N']:.0f}-{s['preload_max_N']:.0f} N against a "
-          f"best constant {s['constant_preload_N']:.0f} N; friction {s['friction_energy']:.4g} against "
-          f"{s['constant_friction_energy']:.4g} {s['energy_units']} ({s['saving_fraction']:.0%} saved)")
-    for path in r["written"]:
+def _print_design(w: DesignWritten) -> None:
+    o, s = w.result.optimum, w.result.schedule
+    p = o.point
+    print(f"study       {w.study_path}")
+    print(f"optimum     objective {o.objective}: {p.turns:.0f} turns x {p.balls_per_turn:.0f} balls of "
+          f"{p.ball_mm:.3f} mm, contact angle {p.contact_angle_deg:.1f} deg, conformity {p.conformity:.3f}")
+    print(f"  preload   bolts {p.bolt_preload_N:.0f} N, stacks up to {p.max_preload_N:.0f} N; per duty case "
+          + ", ".join(f"{f:.0f}" for f in p.case_preload_N) + " N")
+    print(f"  achieves  rigidity {p.stiffness_N_per_um:.0f} N/um (least over the duty cases; "
+          f"{p.rigidity_at_max_preload_N_per_um:.0f} at F_hi), mean drag {p.mean_drag_torque_Nm:.3f} N m, "
+          f"life {p.life_h:.0f} h, first axial mode >= {p.frequency_min_Hz:.0f} Hz")
+    print(f"  ratings   C_dyn {p.c_dyn_N:.0f} N (estimate), C_0 {p.c0_N:.0f} N; peak pressure "
+          f"{p.peak_pressure_MPa:.0f} MPa; stack stroke used {p.stack_stroke_used_um:.1f} um")
+    print(f"  binding   {', '.join(o.binding) or 'none'}")
+    for f in w.result.fronts:
+        print(f"front       {f.pair}: {len(f.points)} points, rigidity {float(f.x.min()):.0f}-"
+              f"{float(f.x.max()):.0f} N/um, {f.y_name} {float(f.y.min()):.4g}-{float(f.y.max()):.4g}, "
+              f"{f.solve_s:.2f} s")
+    print(f"schedule    {s.preload_N.size} samples: preload {float(s.preload_N.min()):.0f}-"
+          f"{float(s.preload_N.max()):.0f} N against a best constant {s.constant_preload_N:.0f} N; friction "
+          f"{s.friction_energy_J:.4g} against {s.constant_friction_energy_J:.4g} {s.energy_units} "
+          f"({s.saving_fraction:.0%} saved)")
+    for path in w.written:
         print(f"wrote       {path}")
-
-

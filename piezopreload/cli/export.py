@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import dataclass
 from typing import Any
 
 from piezopreload.cli._common import accept_flag, json_flag
@@ -61,7 +62,25 @@ def _kind(path: str) -> str:
     return "hysteresis-model" if schema == "piezopreload/hysteresis-model/1" else "gain-set"
 
 
-def _cmd_export(args: argparse.Namespace) -> dict[str, Any]:
+@dataclass(frozen=True)
+class Exported:
+    """``export``'s result: the artifact read, its kind, the format, the text and where it was written (None: the text
+    goes to standard output), with the hash that names what was exported."""
+
+    artifact: str
+    kind: str
+    format: str
+    text: str
+    out: str | None
+    sha256: str | None
+
+    def to_dict(self) -> dict[str, Any]:
+        sha = "file_sha256" if self.kind == "hysteresis-model" else "content_sha256"
+        return {"artifact": self.artifact, "kind": self.kind, "format": self.format, "out": self.out,
+                sha: self.sha256, "text": None if self.out else self.text}
+
+
+def _cmd_export(args: argparse.Namespace) -> Exported:
     from piezopreload.artifacts.gainset import GainSet
     from piezopreload.artifacts.hysteresis import IdentifiedModel
     from piezopreload.core.artifacts import atomic_write_text
@@ -78,13 +97,12 @@ def _cmd_export(args: argparse.Namespace) -> dict[str, Any]:
         raise InputError(f"{args.artifact}: {exc}") from exc
     if args.out:
         atomic_write_text(args.out, text)
-    sha = {"file_sha256": obj.file_sha256} if kind == "hysteresis-model" else {"content_sha256": obj.content_sha256}
-    return {"artifact": args.artifact, "kind": kind, "format": args.format, "out": args.out, **sha,
-            "text": None if args.out else text}
+    sha = obj.file_sha256 if kind == "hysteresis-model" else obj.content_sha256
+    return Exported(args.artifact, kind, args.format, text, args.out, sha)
 
 
-def _print_export(s: dict[str, Any]) -> None:
-    if s["out"]:
-        print(f"wrote {s['out']} ({s['format']}) from {s['artifact']} ({s['kind']})")
+def _print_export(e: Exported) -> None:
+    if e.out:
+        print(f"wrote {e.out} ({e.format}) from {e.artifact} ({e.kind})")
     else:
-        print(s["text"], end="")
+        print(e.text, end="")

@@ -3,15 +3,20 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from piezopreload.cli._common import (
+    Written,
     json_flag,
     nonnegative_float,
     positive_int,
     time_constants,
     time_window,
 )
+
+if TYPE_CHECKING:
+    from piezopreload.artifacts.hysteresis import FitError, IdentifiedModel
+    from piezopreload.tuning.identification import Identification
 
 
 # --------------------------------------------------------------------------------------
@@ -56,7 +61,7 @@ def register_identify(sub: Any) -> None:
     p.set_defaults(run=_cmd_identify, show=_print_identify)
 
 
-def _cmd_identify(args: argparse.Namespace) -> dict[str, Any]:
+def _cmd_identify(args: argparse.Namespace) -> Written[Identification]:
     from piezopreload.core.tables import ColumnSpec, parse_columns, read_record
     from piezopreload.data import SHIPPED_COLUMNS, shipped_data
     from piezopreload.tuning.identification import identify
@@ -73,35 +78,47 @@ def _cmd_identify(args: argparse.Namespace) -> dict[str, Any]:
                       creep_time_constants_s=args.creep_time_constants)
     if args.out is not None:
         result.save(args.out)
-    return {**result.to_dict(), "out": args.out}
+    return Written(result, args.out)
 
 
-def _print_identify(s: dict[str, Any]) -> None:
-    d, sv = s["data"], s["solver"]
-    unit = s["output_unit"] or "output units"
-    print(f"data      {d['path']} ({d['samples']} samples; input {d['input']}, output {d['output']})")
-    print(f"model     {s['model']}, {s['operators']} play operators, "
-          f"{'invertible' if s['invertible'] else 'not invertible'}")
-    print(f"solver    {sv['name']}: {sv['status']}{', active set polished' if sv['polished'] else ''}; "
-          f"QP {1e3 * sv['qp_seconds']:.1f} ms, whole fit {1e3 * sv['fit_seconds']:.0f} ms")
-    print(f"errors in % of the output span ({s['output_span']:.4g} {unit}):")
+def _print_identify(w: Written[Identification]) -> None:
+    result = w.result
+    r, d, sv = result.record, result.data, result.record.solver
+    unit = r.units.output or "output units"
+    print(f"data      {d.path} ({d.time_s.size} samples; input {d.input_name}, output {d.output_name})")
+    print(f"model     {r.model.kind}, {r.model.n_operators} play operators, "
+          f"{'invertible' if r.model.invertible else 'not invertible'}")
+    print(f"solver    {sv.name}: {sv.status}{', active set polished' if sv.polished else ''}; "
+          f"QP {1e3 * sv.qp_seconds:.1f} ms, whole fit {1e3 * sv.fit_seconds:.0f} ms")
+    print(f"errors in % of the output span ({r.output_span:.4g} {unit}):")
     print(f"  {'':40s}{'RMS':>8s}{'max':>8s}")
-    rows = [(f"train {s['train']['window_s'][0]:g}-{s['train']['window_s'][1]:g} s", s["train"])]
-    if s["test"] is not None:
-        rows += [(f"test  {s['test']['window_s'][0]:g}-{s['test']['window_s'][1]:g} s", s["test"]),
-                 ("test, best straight line", s["line_test"])]
-    if s["paper_method_test"] is not None:
-        rows.append(("test, the paper's method (eq. 17)", s["paper_method_test"]))
-    if s.get("without_creep") and s["without_creep"]["test"] is not None:
-        rows.append((f"test, {s['without_creep']['model']} without creep", s["without_creep"]["test"]))
-    for label, e in rows:
-        print(f"  {label:40s}{e['rms_pct']:8.3f}{e['max_pct']:8.3f}")
-    if s.get("paper_method_note"):
-        print(f"  the paper's method (eq. 17) could not run: {s['paper_method_note']}")
-    for c in [s["creep"]] if s.get("creep") else []:
-        print("creep     " + ", ".join(f"{w:.4g} at {tau:g} s" for tau, w in zip(c["time_constants_s"], c["weights"]))
+    for label, e in _error_rows(r):
+        print(f"  {label:40s}{e.rms_pct:8.3f}{e.max_pct:8.3f}")
+    if r.paper_method_note:
+        print(f"  the paper's method (eq. 17) could not run: {r.paper_method_note}")
+    from piezopreload.models.hysteresis import CreepPI
+
+    if isinstance(r.model, CreepPI):
+        c = r.model.creep
+        print("creep     " + ", ".join(f"{c_j:.4g} at {tau:g} s" for tau, c_j in zip(c.time_constants_s, c.weights))
               + f" ({unit} per input unit); without creep: refitted, not zeroed")
-    if s["out"]:
-        print(f"wrote     {s['out']}")
+    if w.out:
+        print(f"wrote     {w.out}")
 
 
+def _error_rows(r: IdentifiedModel) -> list[tuple[str, FitError]]:
+    """The printed rows: training, test, the straight line and the paper's method on the test, the model without
+    creep on the test (each where it was fitted)."""
+    def window(e: FitError) -> str:
+        return "" if e.window_s is None else f"{e.window_s[0]:g}-{e.window_s[1]:g} s"
+
+    rows = [(f"train {window(r.fit)}", r.fit)]
+    if r.test is not None:
+        rows.append((f"test  {window(r.test)}", r.test))
+        if r.line is not None:
+            rows.append(("test, best straight line", r.line.test))
+    if r.paper_method_test is not None:
+        rows.append(("test, the paper's method (eq. 17)", r.paper_method_test))
+    if r.without_creep is not None and r.without_creep.test is not None:
+        rows.append((f"test, {r.without_creep.model.kind} without creep", r.without_creep.test))
+    return rows

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from typing import Any, Literal, overload
+from typing import TYPE_CHECKING, Any, Literal, TypedDict, overload
 
 from piezopreload.cli._common import (
     PASSWORD_ENV,
@@ -16,6 +16,9 @@ from piezopreload.cli._common import (
     say,
 )
 from piezopreload.core.errors import InputError
+
+if TYPE_CHECKING:
+    from piezopreload.rig.backends import Fault
 
 
 # --------------------------------------------------------------------------------------
@@ -31,15 +34,30 @@ def _key_values(pairs: list[str] | None, option: str) -> dict[str, str]:
     return out
 
 
-def _rig_common(args: argparse.Namespace) -> dict[str, Any]:
+class RigOptions(TypedDict):
+    """The options ``rig run`` and ``rig serve`` share, as :func:`piezopreload.rig.session.run` and
+    :func:`~piezopreload.rig.session.serve` take them (the reference is each command's own)."""
+
+    backend: str
+    backend_options: dict[str, str]
+    log_dir: str
+    seed: int
+    faults: list[Fault]
+    loop: str
+    safety: dict[str, float | None]
+    host_check_s: float
+    accept_host: bool
+
+
+def _rig_common(args: argparse.Namespace) -> RigOptions:
     from piezopreload.rig.backends import parse_fault
 
-    return {"backend": args.backend, "backend_options": _key_values(args.backend_option, "--backend-option"),
-            "reference": args.reference or "step", "log_dir": args.log_dir, "seed": args.seed,
-            "faults": [parse_fault(f) for f in args.inject or []], "loop": args.loop,
-            "safety": {"force_max_N": args.force_max_N, "force_low_margin_N": args.force_low_margin_N,
-                       "ramp_s": args.ramp_s, "stall_limit_s": args.stall_limit_s},
-            "host_check_s": args.host_check_s, "accept_host": args.accept_host}
+    return RigOptions(backend=args.backend, backend_options=_key_values(args.backend_option, "--backend-option"),
+                      log_dir=args.log_dir, seed=args.seed, faults=[parse_fault(f) for f in args.inject or []],
+                      loop=args.loop, safety={"force_max_N": args.force_max_N,
+                                              "force_low_margin_N": args.force_low_margin_N,
+                                              "ramp_s": args.ramp_s, "stall_limit_s": args.stall_limit_s},
+                      host_check_s=args.host_check_s, accept_host=args.accept_host)
 
 
 def _positive_float(text: str) -> float:
@@ -214,11 +232,10 @@ def register_rig(sub: Any) -> None:
 def _cmd_rig_run(args: argparse.Namespace) -> dict[str, Any]:
     from piezopreload.rig import session
 
-    common = _rig_common(args)
-    if args.learned and args.reference is None:
-        common["reference"] = None  # the learned signal's own
+    # a learned signal without --reference plays on its own reference
+    reference = None if args.learned and args.reference is None else args.reference or "step"
     return session.run(args.gains, rate_Hz=args.rate, realtime=not args.fast, learned=args.learned, say=say,
-                       accepted=tuple(args.accept), **common).to_dict()
+                       accepted=tuple(args.accept), reference=reference, **_rig_common(args)).to_dict()
 
 
 def _cmd_rig_serve(args: argparse.Namespace) -> dict[str, Any]:
@@ -232,7 +249,8 @@ def _cmd_rig_serve(args: argparse.Namespace) -> dict[str, Any]:
     if args.certificate is None:
         say("warning: no --certificate: passwords cross the network unencrypted; keep the endpoint on loopback")
     return session.serve(args.gains, endpoint=args.endpoint, users=users, certificate=args.certificate,
-                         private_key=args.private_key, duration_s=args.duration, say=say, **_rig_common(args)).to_dict()
+                         private_key=args.private_key, duration_s=args.duration, say=say,
+                         reference=args.reference or "step", **_rig_common(args)).to_dict()
 
 
 def _cmd_rig_push(args: argparse.Namespace) -> dict[str, Any]:

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 import time
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 from piezopreload.cli._common import (
     fmt,
@@ -13,6 +14,11 @@ from piezopreload.cli._common import (
     study_of,
 )
 from piezopreload.core.errors import InputError
+
+if TYPE_CHECKING:
+    from piezopreload.outcome import StudyResult
+    from piezopreload.results import StudyReproduction, StudyRun
+    from piezopreload.sweep import SweepReport
 
 
 # --------------------------------------------------------------------------------------
@@ -47,47 +53,44 @@ def register_run(sub: Any) -> None:
     p.set_defaults(run=_cmd_run, show=_print_run)
 
 
-def _cmd_run(args: argparse.Namespace) -> dict[str, Any]:
+def _cmd_run(args: argparse.Namespace) -> StudyResult:
     from piezopreload.progress import Progress
     from piezopreload.study import load_study
 
     return load_study(args.study).run(args.out, force=args.force, progress=Progress(quiet=args.quiet),
-                                      overwrite=args.overwrite).to_dict()
+                                      overwrite=args.overwrite)
 
 
-def _print_run(s: dict[str, Any]) -> None:
-    from piezopreload.artifacts.requirements import Requirement, least_margin
-
-    for st in s["stages"]:
-        state = f"ran in {st['seconds']:.1f} s" if st["ran"] else st["status"]
-        print(f"  {st['stage']:9s} {state}")
-    if s["gain_set"]:
-        print(f"gain set: {s['gain_set']} (content hash {(s['gain_set_sha256'] or '')[:12]}..., the SHA-256 of its "
+def _print_run(s: StudyResult) -> None:
+    for st in s.stages:
+        state = f"ran in {st.seconds:.1f} s" if st.ran else st.status
+        print(f"  {st.stage:9s} {state}")
+    if s.gain_set:
+        print(f"gain set: {s.gain_set} (content hash {(s.gain_set_sha256 or '')[:12]}..., the SHA-256 of its "
               "fields, not of the file)")
-    if s["rig_log"]:
-        print(f"rig run log: {s['rig_log']}")
-    if s["report"]:
-        print(f"report: {s['report']}")
-    print(f"outputs: {s['out']}")
-    met = s["summary"]["requirements_met"]
+    if s.rig_log:
+        print(f"rig run log: {s.rig_log}")
+    if s.report:
+        print(f"report: {s.report}")
+    print(f"outputs: {s.out}")
+    summary = s.summary
+    met, checked = summary.requirements_met, summary.requirements
     if met is None:
         return
-    checked = [Requirement.from_dict(r) for r in s["summary"]["requirements"]]
     print("requirements (achieved against required; the margin, and as a share of the limit):")
     width = max(len(r.key) for r in checked)
     for r in checked:
         pct = "" if r.margin_pct is None else f" ({r.margin_pct:+.1f} %)"
         print(f"  {'met   ' if r.met else 'MISSED'} {r.key:{width}s}  {r.value:,.4g} {r.unit} against "
               f"{'>=' if r.sense == 'min' else '<='} {r.limit:,.4g} {r.unit}, margin {r.margin:,.4g} {r.unit}{pct}")
-    least = least_margin(checked)
-    missed = s["summary"]["requirements_missed"]
+    least = summary.least_margin
     if met:
         print(f"every requirement met; the least margin: {least.margin_pct:.1f} % ({least.name})" if least else
               "every requirement met")
         return
-    print(f"{len(missed)} requirement(s) missed:")
-    for r in missed:
-        print(f"  missed: {Requirement.from_dict(r).sentence()}")
+    print(f"{len(summary.missed)} requirement(s) missed:")
+    for r in summary.missed:
+        print(f"  missed: {r.sentence()}")
 
 
 def register_report(sub: Any) -> None:
@@ -103,17 +106,17 @@ def register_report(sub: Any) -> None:
                         "(start from a copy of DIR/report/report.typ)")
     p.add_argument("--quiet", action="store_true", help="no progress on standard error")
     json_flag(p)
-    p.set_defaults(run=_cmd_report, show=lambda s: print(f"report: {s['report']}"))
+    p.set_defaults(run=_cmd_report, show=lambda s: print(f"report: {s.report}"))
 
 
-def _cmd_report(args: argparse.Namespace) -> dict[str, Any]:
+def _cmd_report(args: argparse.Namespace) -> StudyResult | SweepReport:
     from piezopreload.pipeline import rerender_report
     from piezopreload.progress import Progress
     from piezopreload.sweep import is_sweep_folder, rerender_sweep_report
 
     if is_sweep_folder(args.dir):  # a sweep's folder (piezopreload sweep): the sweep's report
         return rerender_sweep_report(args.dir, progress=Progress(quiet=args.quiet), template=args.template)
-    return rerender_report(args.dir, progress=Progress(quiet=args.quiet), template=args.template).to_dict()
+    return rerender_report(args.dir, progress=Progress(quiet=args.quiet), template=args.template)
 
 
 # --------------------------------------------------------------------------------------
@@ -144,11 +147,25 @@ def register_simulate(sub: Any) -> None:
     p.set_defaults(run=_cmd_simulate, show=_print_simulate)
 
 
-def _cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
-    from piezopreload import __version__
+@dataclass(frozen=True)
+class Simulated:
+    """``simulate``'s result: the run (what ran: ``run.info``), the time taken, and the CSV written (``out``)."""
+
+    run: StudyRun
+    seconds: float
+    out: str | None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**self.run.to_dict(), "seconds": self.seconds, "out": self.out}
+
+
+def _cmd_simulate(args: argparse.Namespace) -> Simulated:
+    from dataclasses import replace
+
     from piezopreload.artifacts.gainset import GainSet
+    from piezopreload.core.artifacts import package_version
     from piezopreload.core.tables import write_csv
-    from piezopreload.tuning.feedforward import IdentifiedFeedforward
+    from piezopreload.tuning.feedforward import FeedforwardInfo, IdentifiedFeedforward
 
     t0 = time.perf_counter()
     gains = None if args.gains is None else GainSet.load(args.gains)
@@ -157,43 +174,46 @@ def _cmd_simulate(args: argparse.Namespace) -> dict[str, Any]:
     if args.controller == "ff+pid":  # the study's feedforward (or the file's), as the paper identified its own
         ff = IdentifiedFeedforward.load(args.feedforward) if args.feedforward else study.identify_feedforward()
     run = study.simulate(gains, controller=args.controller, reference=args.reference, feedforward=ff, seed=args.seed)
-    s = run.to_dict()
-    if gains is not None:
-        s["gains"]["source"] = args.gains
+    info = run.info
+    if gains is not None:  # the files, as the user named them
+        info = replace(info, gains_source=args.gains)
     if args.feedforward and ff is not None:
-        s["feedforward"] = {"source": args.feedforward, "model": ff.model.kind, "operators": ff.model.n_operators}
+        info = replace(info, feedforward=FeedforwardInfo(args.feedforward, ff.model.kind, ff.model.n_operators))
+    run = replace(run, info=info)
     if args.out is not None:
-        write_csv(args.out, run.columns(), f"piezopreload {__version__} simulate: study {study.name} "
+        write_csv(args.out, run.columns(), f"piezopreload {package_version()} simulate: study {study.name} "
                                            f"({study.sha256[:12]}), controller {args.controller}, reference "
                                            f"{args.reference}, seed {run.seed}")
-    return {**s, "seconds": time.perf_counter() - t0, "out": args.out}
+    return Simulated(run, time.perf_counter() - t0, args.out)
 
 
-def _print_simulate(s: dict[str, Any]) -> None:
-    g, ff = s["gains"], s["feedforward"]
-    print(f"study       {s['study']['name']} ({s['study']['path']})")
-    print(f"controller  {s['controller']}: Kc {g['Kc_V_per_N']:g} V/N, Ti {g['Ti_s']:g} s, Td {g['Td_s']:g} s "
-          f"(LabVIEW: Ti {g['labview']['Ti_min']:.4g} min, Td {g['labview']['Td_min']:.4g} min); "
-          f"output {g['u_min_V']:g}..{g['u_max_V']:g} V")
+def _print_simulate(s: Simulated) -> None:
+    run, info = s.run, s.run.info
+    g, ff, published = info.gains, info.feedforward, info.published
+    print(f"study       {info.study.name} ({info.study.path})")
+    print(f"controller  {info.controller}: Kc {g.Kc:g} V/N, Ti {g.Ti_s:g} s, Td {g.Td_s:g} s "
+          f"(LabVIEW: Ti {g.labview()['Ti_min']:.4g} min, Td {g.labview()['Td_min']:.4g} min); "
+          f"output {g.u_min_V:g}..{g.u_max_V:g} V")
     if ff:
-        print(f"feedforward {ff['model']} P-I, {ff['operators']} operators, {ff['source']}")
-    levels = " -> ".join(f"{x:g}" for x in s["reference_levels_N"])
-    print(f"reference   {s['reference']}: {levels} N; band {s['band_N']:g} N on the {s['signal']} signal, "
-          f"seed {s['seed']}")
-    published = s["published"]
+        print(f"feedforward {ff.model} P-I, {ff.operators} operators, {ff.source}")
+    levels = " -> ".join(f"{x:g}" for x in run.reference.levels_N)
+    print(f"reference   {info.reference}: {levels} N; band {run.band_N:g} N on the {run.signal} signal, "
+          f"seed {run.seed}")
     print(f"  {'':22s}{'simulated':>11s}" + ("" if published is None else f"{'published':>11s}"))
+    numbers = run.numbers()
     keys = [("rise_s", "rise time (s)"), ("peak_s", "peak time (s)"), ("settling_s", "settling time (s)"),
             ("overshoot_N", "overshoot (N)")]
-    if "tracking_rms_N" in s:
+    if "tracking_rms_N" in numbers:
         keys += [("tracking_rms_N", "tracking RMS (N)"), ("tracking_max_N", "tracking max (N)")]
     for key, label in keys:
         beside = "" if published is None or key not in published else f"{fmt(published[key]):>11s}"
-        print(f"  {label:22s}{fmt(s[key]):>11s}{beside}")
+        print(f"  {label:22s}{fmt(numbers[key]):>11s}{beside}")
     if published is not None:
         print(f"published: {published['source']}")
-    print(f"peak command {s['peak_command_V']:.1f} V; {s['samples']} samples at {1e3 * s['sample_period_s']:g} ms")
-    if s["out"]:
-        print(f"wrote       {s['out']}")
+    print(f"peak command {numbers['peak_command_V']:.1f} V; {run.t_s.size} samples at "
+          f"{1e3 * info.sample_period_s:g} ms")
+    if s.out:
+        print(f"wrote       {s.out}")
 
 
 def register_reproduce(sub: Any) -> None:
@@ -211,26 +231,25 @@ def register_reproduce(sub: Any) -> None:
     p.set_defaults(run=_cmd_reproduce, show=_print_reproduce)
 
 
-def _cmd_reproduce(args: argparse.Namespace) -> dict[str, Any]:
+def _cmd_reproduce(args: argparse.Namespace) -> StudyReproduction:
     if args.repeats < 1:
         raise InputError(f"--repeats: must be >= 1, got {args.repeats}")
     return study_of(args).reproduce(seed=args.seed, repeats=args.repeats)
 
 
-def _print_reproduce(s: dict[str, Any]) -> None:
-    g = s["gains"]
-    print(f"study {s['study']['name']} ({s['study']['path']}): step {s['step']}, band {s['band_N']:g} N, "
-          f"gains Kc {g['Kc_V_per_N']:g}, Ti {g['Ti_s']:g} s, Td {g['Td_s']:g} s ([controller] read as {g['read_as']})")
-    print(f"published: {s['published']}")
-    print(f"feedforward fit to the simulated loop: RMS {s['feedforward_fit']['rms_pct']:.2f} %, "
-          f"max {s['feedforward_fit']['max_pct']:.2f} % of span")
-    what = "simulated" if s["repeats"] == 1 else f"median of {s['repeats']}"
+def _print_reproduce(s: StudyReproduction) -> None:
+    g = s.gains
+    step = " -> ".join(f"{x:g}" for x in s.step_levels_N)
+    print(f"study {s.study.name} ({s.study.path}): step {step} N, band {s.band_N:g} N, "
+          f"gains Kc {g.Kc:g}, Ti {g.Ti_s:g} s, Td {g.Td_s:g} s ([controller] read as {s.read_as})")
+    print(f"published: {s.published}")
+    print(f"feedforward fit to the simulated loop: RMS {s.feedforward_fit['rms_pct']:.2f} %, "
+          f"max {s.feedforward_fit['max_pct']:.2f} % of span")
+    what = "simulated" if s.repeats == 1 else f"median of {s.repeats}"
     print(f"  {'controller':12s}{'metric':14s}{'published':>10s}{what:>14s}{'ratio':>8s}  within 25 %"
-          + ("" if s["repeats"] == 1 else "  range"))
-    for r in s["rows"]:
-        ratio = "n/a" if r["ratio"] is None else f"{r['ratio']:.2f}"
-        spread = "" if s["repeats"] == 1 else f"  {fmt(r['range'][0])}-{fmt(r['range'][1])}"
-        print(f"  {r['controller']:12s}{r['metric']:14s}{r['paper']:10.2f}{fmt(r['simulated']):>14s}{ratio:>8s}"
-              f"  {'yes' if r['within_25pct'] else 'NO ':11s}{spread}")
-
-
+          + ("" if s.repeats == 1 else "  range"))
+    for r in s.rows:
+        ratio = "n/a" if r.ratio is None else f"{r.ratio:.2f}"
+        spread = "" if s.repeats == 1 else f"  {fmt(r.range[0])}-{fmt(r.range[1])}"
+        print(f"  {r.controller:12s}{r.metric:14s}{r.paper:10.2f}{fmt(r.simulated):>14s}{ratio:>8s}"
+              f"  {'yes' if r.within_25pct else 'NO ':11s}{spread}")

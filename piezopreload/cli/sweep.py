@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from piezopreload.cli._common import json_flag, positive_int
 from piezopreload.core.errors import InputError
+
+if TYPE_CHECKING:
+    from piezopreload.sweep import SweepResult
 
 
 def register_sweep(sub: Any) -> None:
@@ -51,7 +54,7 @@ def register_sweep(sub: Any) -> None:
     p.set_defaults(run=_cmd_sweep, show=_print_sweep, mode="grid")
 
 
-def _cmd_sweep(args: argparse.Namespace) -> dict[str, Any]:
+def _cmd_sweep(args: argparse.Namespace) -> SweepResult:
     from piezopreload.progress import Progress
     from piezopreload.study import load_study
     from piezopreload.sweep import parse_vary
@@ -65,14 +68,13 @@ def _cmd_sweep(args: argparse.Namespace) -> dict[str, Any]:
     study = load_study(args.study)
     result = study.sweep(vary, mode=args.mode, out=args.out, workers=args.workers, scheduler=args.scheduler,
                          force=args.force, progress=Progress(quiet=args.quiet), where="--vary")
-    return result.to_dict()
+    return result
 
 
-def _print_sweep(s: dict[str, Any]) -> None:
-    from piezopreload.sweep import SweepResult
+def _print_sweep(result: SweepResult) -> None:
+    from piezopreload.sweep import ROWS
 
-    result = SweepResult.load(s["out"])
     print(repr(result))
-    print(f"rows: {s['csv']}")
-    if s["report"]:
-        print(f"report: {s['report']}")
+    print(f"rows: {result.out / ROWS}")
+    if (result.out / "report.pdf").is_file():
+        print(f"report: {result.out / 'report.pdf'}")
