@@ -57,10 +57,6 @@ def _screw_from(doc: Any) -> BallScrew:
     return BallScrew(**values)
 
 
-def _plant_to(plant: Plant) -> dict[str, Any]:
-    return plant.to_dict()
-
-
 def _sleeve_from(x: Any) -> float:
     if x is None:
         return math.inf
@@ -82,7 +78,7 @@ class DesignedPlant(Artifact):
     AGAIN: ClassVar[str] = "run the plant stage again"
 
     rig: Plant = entry("The plant (:class:`~piezopreload.models.actuator.Plant`, Hertzian coupling).",
-                       read=Plant.from_dict, write=_plant_to, takes="a rig's parameters")
+                       read=Plant.from_dict, write=Plant.to_dict, takes="a rig's parameters")
     screw: BallScrew = entry("The optimum's double nut.", read=_screw_from, write=_screw_to_dict,
                              takes="an object of the screw's fields")
     bolt_preload_N: float = entry("The bolts' preload: the bottom of the design's preload range.", unit="N")
