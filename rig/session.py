@@ -47,7 +47,7 @@ from piezopreload.rig.executor import Executor
 from piezopreload.rig.export import ExportError, controller_from_gain_set, require_validated
 from piezopreload.rig.hostcheck import check_host
 from piezopreload.rig.limits import RunLimits, check_fit, run_limits
-from piezopreload.rig.opcua import PushRefused, RigServer, feedforward_hash, push_gain_set
+from piezopreload.rig.opcua import PushRefused, PushReply, RigServer, feedforward_hash, push_gain_set
 from piezopreload.rig.outcome import RunResult
 from piezopreload.rig.runlog import RunLog
 
@@ -232,6 +232,11 @@ class RigRun:
     @property
     def ok(self) -> bool:
         return self.summary["status"] == "completed"
+
+    @property
+    def exit_code(self) -> int:
+        """0 for a completed run, the tripped run's code otherwise (what the command exits with)."""
+        return int(self.summary["exit_code"])
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.summary)
@@ -530,9 +535,23 @@ def check(gains_path: str | Path | None = None, *, seconds: float = 10.0, rate_H
                       stall_limit_s=su.limits.safety.stall_limit_s, loop=loop, progress=progress)
 
 
+@dataclass(frozen=True)
+class ServedPush:
+    """``rig push`` to a served rig: the gain set pushed (its file and content hash), where, and the rig's reply."""
+
+    gain_set: str
+    gain_set_sha256: str | None
+    endpoint: str
+    reply: PushReply
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"gain_set": self.gain_set, "gain_set_sha256": self.gain_set_sha256, "endpoint": self.endpoint,
+                **self.reply.to_dict()}
+
+
 def push(gains_path: str | Path, *, endpoint: str, username: str | None, password: str | None,
          certificate: str | None = None, private_key: str | None = None,
-         server_certificate: str | None = None, note: str = "", accepted: tuple[str, ...] = ()) -> dict[str, Any]:
+         server_certificate: str | None = None, note: str = "", accepted: tuple[str, ...] = ()) -> ServedPush:
     """Push a validated gain set to a serving rig (``note``: why, recorded with the push; a candidate only where each
     requirement it missed is ``accepted`` by name, sent with it); refused pushes are bad input (exit 2) with the
     server's reason."""
@@ -544,4 +563,4 @@ def push(gains_path: str | Path, *, endpoint: str, username: str | None, passwor
                                           expect_sha256=gain_set.content_sha256, note=note, accepted=accepted))
     except PushRefused as exc:
         raise InputError(f"{endpoint}: {exc}") from None
-    return {"gain_set": str(gains_path), "gain_set_sha256": gain_set.content_sha256, "endpoint": endpoint, **reply}
+    return ServedPush(str(gains_path), gain_set.content_sha256, endpoint, reply)
