@@ -27,7 +27,7 @@ __all__ = [
     "ComparisonRow", "ActiveBound", "MinimumTimeBound", "TrackingFloor", "TuningSolve", "DesignRecord", "DesignPoint",
     "DesignedPlant", "PreloadSchedule", "SystemRecord", "TrackingNumbers", "FitError", "LearnedSignal", "SweepPoint",
     "RunSummary", "StudyRef", "StudyReproduction", "ReproductionSummary", "PublishedRow", "SimulationInfo",
-    "FeedforwardInfo",
+    "FeedforwardInfo", "LearnedWritten",
 ]
 
 #: the module each public name comes from: a name is imported on its first use (a module ``__getattr__``, as numpy
@@ -62,7 +62,7 @@ _EXPORTS: dict[str, str] = {name: module for module, names in {
     "piezopreload.design.study": ("DesignResult",),
     "piezopreload.design.system": ("SystemRun",),
     "piezopreload.tuning.feedforward": ("IdentifiedFeedforward", "FeedforwardInfo"),
-    "piezopreload.tuning.learning": ("LearningResult",),
+    "piezopreload.tuning.learning": ("LearningResult", "LearnedWritten"),
     "piezopreload.tuning.identification": ("identify", "Identification", "Window"),
     "piezopreload.tuning.identify": ("PIIdentifier", "NotFittedError"),
     "piezopreload.tuning.autotune": ("autotune",),
@@ -105,7 +105,7 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     from piezopreload.tuning.feedforward import FeedforwardInfo, IdentifiedFeedforward
     from piezopreload.tuning.identification import Identification, Window, identify
     from piezopreload.tuning.identify import NotFittedError, PIIdentifier
-    from piezopreload.tuning.learning import LearningResult
+    from piezopreload.tuning.learning import LearnedWritten, LearningResult
     from piezopreload.tuning.plantfit import FittedPlant, fit_plant
 
 

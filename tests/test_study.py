@@ -415,7 +415,7 @@ def test_learning_along_the_schedule_is_one_call_and_plays_what_it_learned(tmp_p
     fig = result.plot()
     assert isinstance(fig, Figure) and len(fig.axes[0].lines) == len(result.passes)
     saved = result.save(tmp_path / "learn", None)
-    assert LearnedSignal.load(saved["out"]).content_sha256 == saved["content_sha256"]
+    assert LearnedSignal.load(saved.out).content_sha256 == saved.content_sha256
     code = main(["learn", "--study", str(AXIS), "--reference", "schedule", "--iterations", "2", "--json"])
     out, err = capsys.readouterr()
     assert code == 0, err

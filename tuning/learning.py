@@ -51,8 +51,8 @@ from piezopreload.tuning.validate import DEFAULT_SPREAD
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["METHODS", "Iteration", "LearningResult", "learn", "law_for", "more_trials_pay", "within_1p1",
-           "schedule_learner", "learn_from_run", "learn_from_log", "save_passes", "played_passes",
+__all__ = ["METHODS", "Iteration", "LearningResult", "LearnedWritten", "learn", "law_for", "more_trials_pay",
+           "within_1p1", "schedule_learner", "learn_from_run", "learn_from_log", "save_passes", "played_passes",
            "learned_by_reference", "STOP_GAIN"]
 
 Law = LearningModel | NormOptimalLaw
@@ -87,6 +87,29 @@ def within_1p1(errors: Array) -> Array:
     """Per plant (columns; one row per trial), the first trial whose error is within 1.1 times the plant's best."""
     rows = np.asarray(errors, float).reshape(len(errors), -1)
     return np.argmax(rows <= 1.1 * np.min(rows, axis=0) + 1e-12, axis=0)
+
+
+@dataclass(frozen=True)
+class LearnedWritten:
+    """Where a learning wrote its signal.
+
+    Parameters
+    ----------
+    out : str
+        The learned signal the rig plays (``learned.json``).
+    content_sha256 : str or None
+        Its content hash.
+    learning : str or None
+        For a schedule's passes, the learning record of every pass (``learning.json``); None for one learning.
+    """
+
+    out: str
+    content_sha256: str | None
+    learning: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"out": self.out, **({} if self.learning is None else {"learning": self.learning}),
+                "content_sha256": self.content_sha256}
 
 
 @dataclass(frozen=True, eq=False)
@@ -203,13 +226,13 @@ class LearningResult:
                              dict(inputs or {}))
 
     def save(self, folder: str | Path, gain_set_sha256: str | None,
-             inputs: dict[str, Any] | None = None) -> dict[str, Any]:
+             inputs: dict[str, Any] | None = None) -> LearnedWritten:
         """Write the learned signal (``learned.json``, :meth:`signal`) and the figure
         (``learning.png``) to ``folder``."""
         folder = Path(folder)
         saved = self.signal(gain_set_sha256, inputs).save(folder / "learned.json")
         self.plot().savefig(folder / "learning.png", dpi=120)
-        return {"out": str(folder / "learned.json"), "content_sha256": saved.content_sha256}
+        return LearnedWritten(str(folder / "learned.json"), saved.content_sha256)
 
     def to_dict(self) -> dict[str, Any]:
         span = float(np.ptp(self.reference.levels_N)) or 1.0
