@@ -206,11 +206,11 @@ def _minimum_time_bound(bounding: Any, settle: float | None, say: Callable[[str]
     except InfeasibleError as exc:  # the bound is a comparison, not a requirement: say why it is missing
         say(f"no minimum-time bound: {exc}")
         return MinimumTimeBound(settling_s=None, tuned_over_bound_ratio=None, reason=str(exc))
-    ratio = None if settle is None else settle / bound["settling_s"]
-    say(f"minimum-time bound: {bound['settling_s']:.4g} s ({bound['seconds']:.1f} s to compute); the tuned settling "
+    ratio = None if settle is None else settle / bound.settling_s
+    say(f"minimum-time bound: {bound.settling_s:.4g} s ({bound.seconds:.1f} s to compute); the tuned settling "
         f"{_fmt(settle)} s is {_fmt(ratio)} times it")
-    return MinimumTimeBound(settling_s=bound["settling_s"], tuned_over_bound_ratio=ratio, samples=bound["samples"],
-                            hold_s=bound["hold_s"], seconds=bound["seconds"])
+    return MinimumTimeBound(settling_s=bound.settling_s, tuned_over_bound_ratio=ratio, samples=bound.samples,
+                            hold_s=bound.hold_s, seconds=bound.seconds)
 
 
 def tune(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,
@@ -289,7 +289,7 @@ def tune(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, 
     record = TuningRecord(
         gains=g, simc_baseline=tuned.baseline, solve=solve, table=table,
         minimum_time=_minimum_time_bound(bounding, row.settling_s, say),
-        tracking_floor=TrackingFloor(floor["rms_N"], floor["rate_N_per_s"], row.tracking_rms_N / floor["rms_N"]),
+        tracking_floor=TrackingFloor(floor.rms_N, floor.rate_N_per_s, row.tracking_rms_N / floor.rms_N),
         active_bounds=tuned.active_bounds,
         # how the table was scored (the validation's limits are the validate step's)
         criteria={k: criteria_doc[k] for k in ("band_N", "signal", "tracking_after_change_s")},
