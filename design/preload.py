@@ -65,7 +65,7 @@ import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import casadi as ca
 import numpy as np
@@ -165,6 +165,25 @@ def _positive(value: Any) -> bool:
     return isinstance(value, (int, float)) and math.isfinite(value) and value > 0
 
 
+class HeatKeywords(TypedDict):
+    """:meth:`BallScrew.friction_heat_W`'s keywords of a :class:`HeatSpec`."""
+
+    model: str
+    lubricant_vg: int
+    sealed: bool
+    temperature_C: float
+
+
+class ElasticArgs(TypedDict):
+    """The arguments of :attr:`DesignNLP.elastic_problem`'s solver: the start and the bounds."""
+
+    x0: np.ndarray
+    lbx: np.ndarray
+    ubx: np.ndarray
+    lbg: float
+    ubg: float
+
+
 @dataclass(frozen=True)
 class HeatSpec:
     """How the design counts the nut's friction heat (:meth:`BallScrew.friction_heat_W`'s keywords): what a
@@ -175,9 +194,9 @@ class HeatSpec:
     sealed: bool = True
     temperature_C: float = 40.0
 
-    def kwargs(self) -> dict[str, Any]:
-        return {"model": self.model, "lubricant_vg": self.lubricant_vg, "sealed": self.sealed,
-                "temperature_C": self.temperature_C}
+    def kwargs(self) -> HeatKeywords:
+        return HeatKeywords(model=self.model, lubricant_vg=self.lubricant_vg, sealed=self.sealed,
+                            temperature_C=self.temperature_C)
 
 
 def _range(value: Any) -> bool:
@@ -641,14 +660,14 @@ class DesignNLP:
                 return verdict
         return self._run(self.warm_solver, args, integers)
 
-    def elastic_args(self, y0: np.ndarray, lbx: np.ndarray, ubx: np.ndarray) -> dict[str, Any]:
+    def elastic_args(self, y0: np.ndarray, lbx: np.ndarray, ubx: np.ndarray) -> ElasticArgs:
         """Arguments of :attr:`elastic_problem` from ``y0`` (clipped to the bounds), each slack
         starting at its row's violation there; the bounds stay hard, the slacks are >= 0."""
         y0 = np.clip(y0, lbx, ubx)
         ns = len(self.row_names)
         s0 = np.maximum(np.asarray(self.constraints(y0)).ravel(), 0.0)
-        return dict(x0=np.concatenate([y0, s0]), lbx=np.concatenate([lbx, np.zeros(ns)]),
-                    ubx=np.concatenate([ubx, np.full(ns, np.inf)]), lbg=-np.inf, ubg=0.0)
+        return ElasticArgs(x0=np.concatenate([y0, s0]), lbx=np.concatenate([lbx, np.zeros(ns)]),
+                           ubx=np.concatenate([ubx, np.full(ns, np.inf)]), lbg=-np.inf, ubg=0.0)
 
     def _infeasible(self, args: dict[str, Any], integers: tuple[int, int] | None) -> NLPSolution | None:
         """The least-violation point from ``args``' start if the SQP converges there with a

@@ -27,7 +27,7 @@ __all__ = [
     "ComparisonRow", "ActiveBound", "MinimumTimeBound", "TrackingFloor", "TuningSolve", "DesignRecord", "DesignPoint",
     "DesignedPlant", "PreloadSchedule", "SystemRecord", "TrackingNumbers", "FitError", "LearnedSignal", "SweepPoint",
     "RunSummary", "StudyRef", "StudyReproduction", "ReproductionSummary", "PublishedRow", "SimulationInfo",
-    "FeedforwardInfo", "LearnedWritten",
+    "FeedforwardInfo", "DataSource", "LearnedWritten",
 ]
 
 #: the module each public name comes from: a name is imported on its first use (a module ``__getattr__``, as numpy
@@ -48,7 +48,7 @@ _EXPORTS: dict[str, str] = {name: module for module, names in {
     "piezopreload.models.controller": ("PIDGains",),
     "piezopreload.models.metrics": ("StepMetrics",),
     "piezopreload.artifacts.gainset": ("GainSet",),
-    "piezopreload.artifacts.hysteresis": ("IdentifiedModel", "FitError"),
+    "piezopreload.artifacts.hysteresis": ("IdentifiedModel", "FitError", "DataSource"),
     "piezopreload.artifacts.validation": ("ValidationResult", "Metrics", "Failure"),
     "piezopreload.artifacts.requirements": ("Requirement",),
     "piezopreload.artifacts.tuning": ("ComparisonRow", "ActiveBound", "MinimumTimeBound", "TrackingFloor",
@@ -75,7 +75,7 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     __version__: str
     from piezopreload.artifacts.design import DesignPoint, DesignRecord
     from piezopreload.artifacts.gainset import GainSet
-    from piezopreload.artifacts.hysteresis import FitError, IdentifiedModel
+    from piezopreload.artifacts.hysteresis import DataSource, FitError, IdentifiedModel
     from piezopreload.artifacts.learned import LearnedSignal
     from piezopreload.artifacts.manifest import StudyRef
     from piezopreload.artifacts.plant import DesignedPlant
