@@ -27,7 +27,7 @@ __all__ = [
     "ComparisonRow", "ActiveBound", "MinimumTimeBound", "TrackingFloor", "TuningSolve", "DesignRecord", "DesignPoint",
     "DesignedPlant", "PreloadSchedule", "SystemRecord", "TrackingNumbers", "FitError", "LearnedSignal", "SweepPoint",
     "RunSummary", "StudyRef", "StudyReproduction", "ReproductionSummary", "PublishedRow", "SimulationInfo",
-    "FeedforwardInfo", "DataSource", "LearnedWritten",
+    "FeedforwardInfo", "SampledCheck", "DataSource", "LearnedWritten",
 ]
 
 #: the module each public name comes from: a name is imported on its first use (a module ``__getattr__``, as numpy
@@ -66,7 +66,7 @@ _EXPORTS: dict[str, str] = {name: module for module, names in {
     "piezopreload.tuning.identification": ("identify", "Identification", "Window"),
     "piezopreload.tuning.identify": ("PIIdentifier", "NotFittedError"),
     "piezopreload.tuning.autotune": ("autotune",),
-    "piezopreload.tuning.autotune_result": ("AutotuneResult",),
+    "piezopreload.tuning.autotune_result": ("AutotuneResult", "SampledCheck"),
     "piezopreload.tuning.plantfit": ("fit_plant", "FittedPlant"),
     "piezopreload.rig.export": ("export",),
 }.items() for name in names}
@@ -100,7 +100,7 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     from piezopreload.study import Study, load_study, shipped_studies
     from piezopreload.sweep import SweepResult
     from piezopreload.tuning.autotune import autotune
-    from piezopreload.tuning.autotune_result import AutotuneResult
+    from piezopreload.tuning.autotune_result import AutotuneResult, SampledCheck
     from piezopreload.tuning.compare import PublishedRow, ReproductionSummary
     from piezopreload.tuning.feedforward import FeedforwardInfo, IdentifiedFeedforward
     from piezopreload.tuning.identification import Identification, Window, identify
