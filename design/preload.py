@@ -73,7 +73,7 @@ import numpy as np
 from piezopreload.artifacts.design import DesignPoint  # the design artifact's record of a design
 from piezopreload.core.checks import FieldRule, check_fields
 from piezopreload.core.errors import InfeasibleError
-from piezopreload.design.shortfall import binding, shortfall_message
+from piezopreload.design.shortfall import Shortfall, binding, shortfall_message
 from piezopreload.models.ballscrew import (
     EFFECTIVE_BALL_SHARE,
     LIFT_OFF_RATIO,
@@ -156,7 +156,7 @@ def _is_banner(line: str) -> bool:
 class DesignInfeasible(InfeasibleError):
     """No design meets the constraints; ``violations`` says which and by how much."""
 
-    def __init__(self, message: str, violations: list[dict[str, Any]]) -> None:
+    def __init__(self, message: str, violations: list[Shortfall]) -> None:
         super().__init__(message)
         self.violations = violations
 
@@ -809,7 +809,7 @@ def _optimise(spec: DesignSpec, objective: str, nlp: DesignNLP | None) -> tuple[
     return result, relaxed
 
 
-def _infeasible_message(misses: list[dict[str, Any]]) -> str:
+def _infeasible_message(misses: list[Shortfall]) -> str:
     if not misses:  # the solvers found no point to read a shortfall at
         return ("no design meets the constraints, and none could be found to say which binds. Relax the limits in "
                 "the study's [design] table or widen the design's bounds.")
