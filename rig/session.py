@@ -49,7 +49,7 @@ from piezopreload.rig.hostcheck import check_host
 from piezopreload.rig.limits import RunLimits, check_fit, run_limits
 from piezopreload.rig.opcua import PushRefused, PushReply, RigServer, feedforward_hash, push_gain_set
 from piezopreload.rig.outcome import RunResult
-from piezopreload.rig.runlog import RunLog
+from piezopreload.rig.runlog import LearnedFigures, RunLog
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -388,18 +388,17 @@ def _summary(result: RunResult, log: RunLog, su: _Setup) -> RigRun:
     return RigRun(summary, columns)
 
 
-def _learned_metrics(columns: dict[str, np.ndarray], signal: LearnedSignal) -> dict[str, Any]:
+def _learned_metrics(columns: dict[str, np.ndarray], signal: LearnedSignal) -> LearnedFigures:
     """A learned run's error against the reference it was learned on (the log's reference_N is the plan)."""
     keep = columns["mode"] == 0
     t, y = columns["time_s"][keep], columns["measured_N"][keep]
     scored = t >= (signal.reference.times_s[1] if signal.reference.times_s.size > 1 else 0.0)
     if not scored.any():
-        return {}
+        return LearnedFigures()
     e = signal.reference.at(t[scored]) - y[scored]
-    return {"tracking_rms_measured_N": float(np.sqrt(np.mean(e**2))),
-            "plan_rms_measured_N": float(np.sqrt(np.mean((np.interp(t[scored], np.arange(signal.setpoint_N.size) *
-                                                                     signal.sample_period_s, signal.setpoint_N)
-                                                           - y[scored]) ** 2)))}
+    plan = np.interp(t[scored], np.arange(signal.setpoint_N.size) * signal.sample_period_s, signal.setpoint_N)
+    return LearnedFigures(tracking_rms_measured_N=float(np.sqrt(np.mean(e**2))),
+                          plan_rms_measured_N=float(np.sqrt(np.mean((plan - y[scored]) ** 2))))
 
 
 def run(gains_path: str | Path, *, backend: str = "sim", backend_options: dict[str, str] | None = None,
