@@ -37,7 +37,7 @@ from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at,
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["GainSet", "GainsTable", "RigInterlocks", "REFERENCES", "STATUSES", "gains_to_dict", "gains_from_dict",
+__all__ = ["GainSet", "GainsTable", "RigInterlocks", "REFERENCES", "STATUSES", "gains_from_dict",
            "schedule_from_dict"]
 
 #: the named references a gain set is validated on (and the rig runs by name)
@@ -128,25 +128,8 @@ class GainsTable(Record):
         return {**super().to_dict(), "form": _FORM_SHORT, "labview": self.to_value().labview()}
 
 
-def gains_to_dict(gains: PIDGains) -> dict[str, Any]:
-    """The gains as a gain set holds them: SI with the controller form stated, LabVIEW's minutes, a schedule's table.
-
-    Parameters
-    ----------
-    gains : PIDGains
-        The gains.
-
-    Returns
-    -------
-    dict
-        ``Kc_V_per_N``, ``Ti_s``, ``Td_s``, ``Tf_s``, ``b``, ``u_min_V``, ``u_max_V``, ``form``, ``labview`` and,
-        for a gain schedule, ``schedule``.
-    """
-    return GainsTable.from_value(gains).to_dict()
-
-
 def gains_from_dict(g: Any, where: str = "gains") -> PIDGains:
-    """The inverse of :func:`gains_to_dict`.
+    """The gains of their object as a gain set holds them (``GainsTable.from_value(gains).to_dict()`` writes it).
 
     Parameters
     ----------
