@@ -217,7 +217,7 @@ def run_metrics(columns: dict[str, np.ndarray], reference: Reference, band_N: fl
         numbers = run_numbers(run, band_N, "measured_N")
     except ValueError:  # no step to read (a schedule: ramps, or a first row that repeats the level)
         te = run.tracking_error(t_from_s=0.0)
-        numbers = {"tracking_rms_N": float(te["rms"]), "tracking_max_N": float(te["max"])}
+        numbers = {"tracking_rms_N": float(te.rms_N), "tracking_max_N": float(te.max_N)}
     keys = ("rise_s", "peak_s", "settling_s", "overshoot_N", "tracking_rms_N", "tracking_max_N")
     return RunMetrics(n, peak, **{k: None if (x := numbers.get(k)) is None else finite_or_none(x) for k in keys})
 

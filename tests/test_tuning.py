@@ -387,7 +387,7 @@ def test_tracking_floor_bounds_the_force_rate_and_every_controller():
     assert 0.5 * floor.rate_N_per_s < rate <= floor.rate_N_per_s
     ref = Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 0.5, t_start_s=0.1)
     for gains in (PIDGains(Kc=0.3, Ti_s=0.08), PIDGains(Kc=4.0, Ti_s=0.01), PIDGains(Kc=2.0, Ti_s=0.07, b=0.25)):
-        rms = simulate(rig, Controller(gains, rig.dt_s), ref).tracking_error()["rms"]
+        rms = simulate(rig, Controller(gains, rig.dt_s), ref).tracking_error().rms_N
         assert rms >= floor.rms_N
 
 
@@ -407,9 +407,9 @@ def test_tracking_error_leaves_out_the_samples_out_of_authority():
     for i in range(2):
         keep = scored & ~saturated[i]
         e = ref.at(run.t_s)[keep] - run.force_N[i, keep]
-        assert te["rms"][i] == pytest.approx(np.sqrt(np.mean(e**2)), rel=1e-12)
-        assert te["saturated_fraction"][i] == pytest.approx((scored & saturated[i]).sum() / scored.sum(), rel=1e-12)
-    assert te["rms"][0] == plain["rms"][0] and te["rms"][1] < plain["rms"][1]
+        assert te.rms_N[i] == pytest.approx(np.sqrt(np.mean(e**2)), rel=1e-12)
+        assert te.saturated_fraction[i] == pytest.approx((scored & saturated[i]).sum() / scored.sum(), rel=1e-12)
+    assert te.rms_N[0] == plain.rms_N[0] and te.rms_N[1] < plain.rms_N[1]
 
 
 def test_tracking_improvement_has_no_ratio_where_the_tuned_loop_has_nothing_to_score():
