@@ -32,13 +32,13 @@ from piezopreload.artifacts.design import CONSTRAINT_WORDS, case_words
 from piezopreload.models.ballscrew import LIFT_OFF_RATIO
 
 if TYPE_CHECKING:  # the NLP's type only: design/preload.py calls this module when it finds no design
-    from piezopreload.design.preload import DesignNLP, DesignSpec
+    from piezopreload.design.preload import DesignNLP, DesignQuantities, DesignSpec
 
 __all__ = ["REQUIREMENTS", "Shortfall", "binding", "shortfall_message"]
 
 _TOL = 1e-6  # a slack (scaled, O(1) rows) below this meets the requirement
 
-Reading = Callable[["DesignSpec", dict[str, Any], int], tuple[float, float]]
+Reading = Callable[["DesignSpec", "DesignQuantities", int], tuple[float, float]]
 def _case(spec: DesignSpec, j: int) -> str:
     return f"{case_words([j + 1])} (axial load {spec.duty[j].axial_load_N:,.0f} N)"
 
@@ -47,25 +47,25 @@ def _case(spec: DesignSpec, j: int) -> str:
 #: unit; its sense, "min" for at least, "max" for at most; its value and its limit at a design, from the design's
 #: expressions and a case index
 REQUIREMENTS: dict[str, tuple[str, str, Reading]] = {
-    "stiffness_min": ("N/um", "min", lambda s, e, j: (min(e["rigidity"]), s.stiffness_min_N_per_um)),
-    "life": ("h", "min", lambda s, e, j: (math.exp(e["log_L"]), s.life_min_h)),
-    "preload_limit": ("N", "max", lambda s, e, j: (e["F_hi"], s.preload_fraction_max * e["c_dyn"])),
+    "stiffness_min": ("N/um", "min", lambda s, e, j: (min(e.rigidity), s.stiffness_min_N_per_um)),
+    "life": ("h", "min", lambda s, e, j: (math.exp(e.log_L), s.life_min_h)),
+    "preload_limit": ("N", "max", lambda s, e, j: (e.F_hi, s.preload_fraction_max * e.c_dyn)),
     # the largest load without lift-off at the highest preload, 2^1.5 F_hi / lift_off_margin
-    "lift_off_max_load": ("N", "min", lambda s, e, j: (LIFT_OFF_RATIO * e["F_hi"] / s.lift_off_margin,
+    "lift_off_max_load": ("N", "min", lambda s, e, j: (LIFT_OFF_RATIO * e.F_hi / s.lift_off_margin,
                                                        s.axial_load_max_N)),
     # the load the bolts alone carry without lift-off, 2^1.5 F_i / lift_off_margin
-    "lift_off_failsafe": ("N", "min", lambda s, e, j: (LIFT_OFF_RATIO * e["F_i"] / s.lift_off_margin,
+    "lift_off_failsafe": ("N", "min", lambda s, e, j: (LIFT_OFF_RATIO * e.F_i / s.lift_off_margin,
                                                        s.failsafe_load_N)),
-    "contact_pressure_screw": ("MPa", "max", lambda s, e, j: (e["p_screw"], s.contact_pressure_max_MPa)),
-    "contact_pressure_nut": ("MPa", "max", lambda s, e, j: (e["p_nut"], s.contact_pressure_max_MPa)),
-    "drag_torque": ("N m", "max", lambda s, e, j: (e["drag_hi"], s.drag_torque_max_Nm)),
-    "stack_stroke": ("um", "max", lambda s, e, j: (e["stroke"], s.actuator.stroke_um)),
-    "stack_force": ("N", "max", lambda s, e, j: (e["F_hi"] - e["F_i"], s.actuator.blocked_force_N)),
-    "ball_lead": ("mm", "max", lambda s, e, j: (e["D_w"], s.ball_lead_ratio_max * s.lead_mm)),
-    "nut_length": ("mm", "max", lambda s, e, j: (e["turns"] * s.lead_mm, s.nut_length_max_mm)),
-    "lift_off_case": ("N", "min", lambda s, e, j: (LIFT_OFF_RATIO * e["F_case"][j] / s.lift_off_margin,
+    "contact_pressure_screw": ("MPa", "max", lambda s, e, j: (e.p_screw, s.contact_pressure_max_MPa)),
+    "contact_pressure_nut": ("MPa", "max", lambda s, e, j: (e.p_nut, s.contact_pressure_max_MPa)),
+    "drag_torque": ("N m", "max", lambda s, e, j: (e.drag_hi, s.drag_torque_max_Nm)),
+    "stack_stroke": ("um", "max", lambda s, e, j: (e.stroke, s.actuator.stroke_um)),
+    "stack_force": ("N", "max", lambda s, e, j: (e.F_hi - e.F_i, s.actuator.blocked_force_N)),
+    "ball_lead": ("mm", "max", lambda s, e, j: (e.D_w, s.ball_lead_ratio_max * s.lead_mm)),
+    "nut_length": ("mm", "max", lambda s, e, j: (e.turns * s.lead_mm, s.nut_length_max_mm)),
+    "lift_off_case": ("N", "min", lambda s, e, j: (LIFT_OFF_RATIO * e.F_case[j] / s.lift_off_margin,
                                                    abs(s.duty[j].axial_load_N))),
-    "frequency_case": ("Hz", "min", lambda s, e, j: (e["freq"][j], s.frequency_min_Hz)),
+    "frequency_case": ("Hz", "min", lambda s, e, j: (e.freq[j], s.frequency_min_Hz)),
 }
 
 
