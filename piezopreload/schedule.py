@@ -73,7 +73,7 @@ class ScheduleLearning:
                             "tracking_rms_N": r.tracking_rms_N,
                             "before_learning_rms_N": _before_learning(r)}
                            for k, (r, p) in enumerate(zip(self.passes, self._pass_records()), start=1)],
-                "system": self.system.summary()}
+                "system": self.system.summary().to_dict()}
 
     def _pass_records(self) -> list[Any]:
         """The system's record of each learned pass (None for a pass the system did not run again)."""
