@@ -27,7 +27,7 @@ __all__ = [
     "ComparisonRow", "ActiveBound", "MinimumTimeBound", "TrackingFloor", "TuningSolve", "DesignRecord", "DesignPoint",
     "DesignedPlant", "PreloadSchedule", "SystemRecord", "TrackingNumbers", "FitError", "LearnedSignal", "SweepPoint",
     "RunSummary", "StudyRef", "StudyReproduction", "ReproductionSummary", "PublishedRow", "SimulationInfo",
-    "FeedforwardInfo", "SystemSummary", "SampledCheck", "DataSource", "LearnedWritten",
+    "FeedforwardInfo", "ScheduleSummary", "SystemSummary", "SampledCheck", "DataSource", "LearnedWritten",
 ]
 
 #: the module each public name comes from: a name is imported on its first use (a module ``__getattr__``, as numpy
@@ -55,7 +55,7 @@ _EXPORTS: dict[str, str] = {name: module for module, names in {
                                       "TuningSolve"),
     "piezopreload.artifacts.design": ("DesignRecord", "DesignPoint"),
     "piezopreload.artifacts.plant": ("DesignedPlant",),
-    "piezopreload.artifacts.schedule": ("PreloadSchedule",),
+    "piezopreload.artifacts.schedule": ("PreloadSchedule", "ScheduleSummary"),
     "piezopreload.artifacts.summaries": ("SystemSummary",),
     "piezopreload.artifacts.system": ("SystemRecord", "TrackingNumbers"),
     "piezopreload.artifacts.learned": ("LearnedSignal",),
@@ -81,7 +81,7 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     from piezopreload.artifacts.manifest import StudyRef
     from piezopreload.artifacts.plant import DesignedPlant
     from piezopreload.artifacts.requirements import Requirement
-    from piezopreload.artifacts.schedule import PreloadSchedule
+    from piezopreload.artifacts.schedule import PreloadSchedule, ScheduleSummary
     from piezopreload.artifacts.summaries import SystemSummary
     from piezopreload.artifacts.sweep import SweepPoint
     from piezopreload.artifacts.system import SystemRecord, TrackingNumbers
