@@ -37,7 +37,7 @@ from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at,
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["GainSet", "GainsTable", "RigInterlocks", "REFERENCES", "STATUSES", "gains_to_dict", "gains_from_dict",
+__all__ = ["GainSet", "GainsTable", "RigInterlocks", "REFERENCES", "STATUSES", "gains_from_dict",
            "schedule_from_dict"]
 
 #: the named references a gain set is validated on (and the rig runs by name)
@@ -128,25 +128,8 @@ class GainsTable(Record):
         return {**super().to_dict(), "form": _FORM_SHORT, "labview": self.to_value().labview()}
 
 
-def gains_to_dict(gains: PIDGains) -> dict[str, Any]:
-    """The gains as a gain set holds them: SI with the controller form stated, LabVIEW's minutes, a schedule's table.
-
-    Parameters
-    ----------
-    gains : PIDGains
-        The gains.
-
-    Returns
-    -------
-    dict
-        ``Kc_V_per_N``, ``Ti_s``, ``Td_s``, ``Tf_s``, ``b``, ``u_min_V``, ``u_max_V``, ``form``, ``labview`` and,
-        for a gain schedule, ``schedule``.
-    """
-    return GainsTable.from_value(gains).to_dict()
-
-
 def gains_from_dict(g: Any, where: str = "gains") -> PIDGains:
-    """The inverse of :func:`gains_to_dict`.
+    """The gains of their object as a gain set holds them (``GainsTable.from_value(gains).to_dict()`` writes it).
 
     Parameters
     ----------
@@ -222,18 +205,6 @@ def _model_from(doc: Any) -> HysteresisModel | CreepPI:
     return model_from_dict(doc, where="feedforward.model")
 
 
-def _model_to(model: HysteresisModel | CreepPI) -> dict[str, Any]:
-    return model.to_dict()
-
-
-def _plant_to(plant: Plant) -> dict[str, Any]:
-    return plant.to_dict()
-
-
-def _reference_to(reference: Reference) -> dict[str, Any]:
-    return reference.to_dict()
-
-
 @record(eq=False)
 class GainSet(Artifact):
     """A gain set (see the module docstring); its dicts are records, read but not changed."""
@@ -250,15 +221,15 @@ class GainSet(Artifact):
     feedforward: HysteresisModel | CreepPI | None = entry(
         "The forward P-I model whose inverse is the feedforward (None: PID alone): classical, modified or the "
         "paper's asymmetric, with or without creep.", at="feedforward", name="model", read=_model_from,
-        write=_model_to, takes="a P-I model", default=None)
+        write=lambda m: m.to_dict(), takes="a P-I model", default=None)
     feedforward_info: dict[str, Any] = entry("How the feedforward was identified (source, fit).", at="feedforward",
                                              name="identification", default={})
     plant: Plant | None = entry("The plant the gains were tuned and validated on; its ``sample_period_s`` is the "
-                                "loop's.", at="plant", name="rig", read=Plant.from_dict, write=_plant_to,
+                                "loop's.", at="plant", name="rig", read=Plant.from_dict, write=Plant.to_dict,
                                 takes="a rig's parameters", default=None)
     preset: str | None = entry("The plant's name (the study's).", at="plant", default=None)
     references: dict[str, Reference] = entry("The references of the validation (``step``, ``trajectory``).",
-                                             read=Reference.from_dict, write=_reference_to, each=True,
+                                             read=Reference.from_dict, write=Reference.to_dict, each=True,
                                              takes="references", default={}, omit=True)
     criteria: Criteria | None = entry("What the validation requires of every plant.", default=None, omit=True)
     validation: ValidationResult | None = entry("The Monte Carlo validation's result (every plant's metrics, the "

@@ -49,10 +49,6 @@ def _model_from(doc: Any) -> HysteresisModel | CreepPI:
     return model_from_dict(doc)
 
 
-def _model_to(model: HysteresisModel | CreepPI) -> dict[str, Any]:
-    return model.to_dict()
-
-
 # --------------------------------------------------------------------------------------
 # the parts
 # --------------------------------------------------------------------------------------
@@ -132,7 +128,7 @@ WITHOUT_CREEP_HOW = ("refit: the same model, operators and windows identified wi
 class Refit(Record):
     """A model with creep refitted without it (:data:`WITHOUT_CREEP_HOW`): the model and its errors."""
 
-    model: HysteresisModel = entry("The model refitted without creep.", read=_model_from, write=_model_to,
+    model: HysteresisModel = entry("The model refitted without creep.", read=_model_from, write=lambda m: m.to_dict(),
                                    takes="a P-I model without creep")
     fit: FitError = entry("Its error on the training window.")
     test: FitError | None = entry("Its error on the test window.", default=None)
@@ -177,7 +173,7 @@ class IdentifiedModel(Artifact):
     NOUN: ClassVar[str] = "the hysteresis model"
     AGAIN: ClassVar[str] = "identify the model again ('piezopreload identify --out')"
 
-    model: HysteresisModel | CreepPI = entry("The identified model.", read=_model_from, write=_model_to,
+    model: HysteresisModel | CreepPI = entry("The identified model.", read=_model_from, write=lambda m: m.to_dict(),
                                              takes="a P-I model")
     data: DataSource = entry("The record it was identified on.", at="inputs")
     units: Units = entry("The model's input and output.")

@@ -36,10 +36,6 @@ def reference_sha256(reference: Reference) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def _reference_to(reference: Reference) -> dict[str, Any]:
-    return reference.to_dict()
-
-
 @record(eq=False)
 class LearnedSignal(Artifact):
     """A learned feedforward correction for one gain set and one reference."""
@@ -56,7 +52,7 @@ class LearnedSignal(Artifact):
     sample_period_s: float = entry("The loop's sample period; the signals have one value per sample of the "
                                    "reference.", unit="s", gt=0)
     reference: Reference = entry("The reference it was learned on (what the tracking error is scored against).",
-                                 read=Reference.from_dict, write=_reference_to, takes="a reference")
+                                 read=Reference.from_dict, write=Reference.to_dict, takes="a reference")
     gain_set_sha256: str | None = entry("The gain set's content hash (None: learned on gains not saved as a gain "
                                         "set).")
     iteration: int = entry("Learning updates behind this signal (0: the preview alone).", ge=0, default=0)

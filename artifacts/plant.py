@@ -9,7 +9,7 @@ stage and the report take the plant from the one file the plant stage wrote.
 from __future__ import annotations
 
 import math
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -17,49 +17,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from piezopreload.core._typing import Array
-from piezopreload.core.config import Invalid
 from piezopreload.core.records import Artifact, entry, record
 from piezopreload.models.actuator import Plant
-from piezopreload.models.ballscrew import BallScrew, Material
+from piezopreload.models.ballscrew import BallScrew
 
 __all__ = ["DesignedPlant", "KIND"]
 
 KIND = "plant"
-
-#: the screw's fields the artifact records (its ``screw`` object), every one BallScrew takes
-_SCREW_FIELDS = tuple(f.name for f in fields(BallScrew) if f.name != "material")
-
-
-def _screw_to_dict(s: BallScrew) -> dict[str, Any]:
-    return {**{name: getattr(s, name) for name in _SCREW_FIELDS}, "balls_per_nut": s.balls_per_nut,
-            "material": {"E_MPa": s.material.E_MPa, "poisson": s.material.poisson}}
-
-
-def _number(doc: dict[str, Any], key: str, integer: bool = False) -> float:
-    x = doc[key]
-    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x) or \
-            (integer and not float(x).is_integer()):
-        raise Invalid(key, f"must be a finite {'whole ' if integer else ''}number, got {x!r}")
-    return int(x) if integer else float(x)
-
-
-def _screw_from(doc: Any) -> BallScrew:
-    """The double nut's screw from its object: each of BallScrew's fields the object gives (null: its default)."""
-    if not isinstance(doc, dict):
-        raise ValueError(f"expected an object of the screw's fields, got {type(doc).__name__}")
-    values: dict[str, Any] = {name: _number(doc, name, integer=name == "balls_per_turn")
-                              for name in _SCREW_FIELDS if doc.get(name) is not None}
-    m = doc.get("material")
-    if m is not None:
-        if not isinstance(m, dict) or "E_MPa" not in m or "poisson" not in m:
-            raise Invalid("material", f"must be an object of E_MPa and poisson, got {m!r}")
-        values["material"] = Material(_number(m, "E_MPa"), _number(m, "poisson"))
-    return BallScrew(**values)
-
-
-def _plant_to(plant: Plant) -> dict[str, Any]:
-    return plant.to_dict()
-
 
 def _sleeve_from(x: Any) -> float:
     if x is None:
@@ -82,8 +46,8 @@ class DesignedPlant(Artifact):
     AGAIN: ClassVar[str] = "run the plant stage again"
 
     rig: Plant = entry("The plant (:class:`~piezopreload.models.actuator.Plant`, Hertzian coupling).",
-                       read=Plant.from_dict, write=_plant_to, takes="a rig's parameters")
-    screw: BallScrew = entry("The optimum's double nut.", read=_screw_from, write=_screw_to_dict,
+                       read=Plant.from_dict, write=Plant.to_dict, takes="a rig's parameters")
+    screw: BallScrew = entry("The optimum's double nut.", read=BallScrew.from_dict, write=BallScrew.to_dict,
                              takes="an object of the screw's fields")
     bolt_preload_N: float = entry("The bolts' preload: the bottom of the design's preload range.", unit="N")
     max_preload_N: float = entry("The top of the design's preload range.", unit="N")

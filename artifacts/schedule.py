@@ -9,6 +9,7 @@ energy are computed once, by the design, and read from this record.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -20,7 +21,7 @@ from piezopreload.core.records import Record, entry, record
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["LoadProfile", "ScheduleSpec", "PreloadSchedule"]
+__all__ = ["LoadProfile", "ScheduleSpec", "PreloadSchedule", "ScheduleSummary"]
 
 
 @record
@@ -109,6 +110,59 @@ _SERIES = ("preload_N", "needed_N", "margin_N", "margin_short_N", "rigidity_N_pe
            "constant_rigidity_N_per_um")
 
 
+@dataclass(frozen=True)
+class ScheduleSummary:
+    """A preload schedule's numbers without its series (:meth:`PreloadSchedule.summary`); :meth:`to_dict` is what
+    ``design --json`` prints as ``schedule``.
+
+    Parameters
+    ----------
+    status : str
+        The schedule's status.
+    friction_energy : float
+        Its friction energy per cycle (in ``energy_units``).
+    constant_friction_energy : float
+        The best constant preload's.
+    energy_units : str
+        The unit of the energies.
+    saving_fraction : float
+        The fraction of the constant preload's energy the schedule saves.
+    constant_preload_N : float
+        The best constant preload, N.
+    preload_min_N, preload_max_N : float
+        The schedule's range, N.
+    stiffness_margin_min_N_per_um : float
+        Its least margin of rigidity over the requirement, N/um.
+    samples : int
+        Its samples.
+    spec : ScheduleSpec
+        What it must keep.
+    local_margin_max_N : float
+        Its largest local margin over the spec's, N.
+    """
+
+    status: str
+    friction_energy: float
+    constant_friction_energy: float
+    energy_units: str
+    saving_fraction: float
+    constant_preload_N: float
+    preload_min_N: float
+    preload_max_N: float
+    stiffness_margin_min_N_per_um: float
+    samples: int
+    spec: ScheduleSpec
+    local_margin_max_N: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"status": self.status, "friction_energy": self.friction_energy,
+                "constant_friction_energy": self.constant_friction_energy, "energy_units": self.energy_units,
+                "saving_fraction": self.saving_fraction, "constant_preload_N": self.constant_preload_N,
+                "preload_min_N": self.preload_min_N, "preload_max_N": self.preload_max_N,
+                "stiffness_margin_min_N_per_um": self.stiffness_margin_min_N_per_um, "samples": self.samples,
+                **self.spec.to_dict(), "local_margin_max_N": self.local_margin_max_N}
+
+
 @record(eq=False)
 class PreloadSchedule(Record):
     """The planned schedule, the best constant preload, and what the schedule saves.
@@ -156,28 +210,28 @@ class PreloadSchedule(Record):
         """The plan's friction energy against the best constant preload's: the fraction it saves."""
         return 1.0 - self.friction_energy_J / self.constant_friction_energy_J
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> ScheduleSummary:
         """The schedule's numbers (no series): what ``design --json`` prints."""
-        return {
-            "status": self.status, "friction_energy": self.friction_energy_J,
-            "constant_friction_energy": self.constant_friction_energy_J, "energy_units": self.energy_units,
-            "saving_fraction": self.saving_fraction, "constant_preload_N": self.constant_preload_N,
-            "preload_min_N": float(self.preload_N.min()), "preload_max_N": float(self.preload_N.max()),
-            "stiffness_margin_min_N_per_um": float(np.min(self.rigidity_N_per_um - self.required_N_per_um)),
-            "samples": int(self.preload_N.size), **self.spec.to_dict(),
-            "local_margin_max_N": (0.0 if self.margin_N is None else
-                                   float(np.max(self.margin_N - self.spec.preload_margin_N, initial=0.0))),
-        }
+        return ScheduleSummary(
+            status=self.status, friction_energy=self.friction_energy_J,
+            constant_friction_energy=self.constant_friction_energy_J, energy_units=self.energy_units,
+            saving_fraction=self.saving_fraction, constant_preload_N=self.constant_preload_N,
+            preload_min_N=float(self.preload_N.min()), preload_max_N=float(self.preload_N.max()),
+            stiffness_margin_min_N_per_um=float(np.min(self.rigidity_N_per_um - self.required_N_per_um)),
+            samples=int(self.preload_N.size), spec=self.spec,
+            local_margin_max_N=(0.0 if self.margin_N is None else
+                                float(np.max(self.margin_N - self.spec.preload_margin_N, initial=0.0))),
+        )
 
     def to_dict(self) -> dict[str, Any]:
-        """:meth:`summary`, the profile and every series: the design artifact's ``schedule``.
+        """:meth:`summary`'s, the profile and every series: the design artifact's ``schedule``.
 
         Returns
         -------
         dict
             Its object.
         """
-        return {**self.summary(), **super().to_dict()}
+        return {**self.summary().to_dict(), **super().to_dict()}
 
     def plot(self) -> Figure:
         """Load profile, the two preloads, and rigidity against the requirement, on three axes: a Figure."""

@@ -247,14 +247,6 @@ class SystemRecord(Artifact):
         """The largest margin the last pass's schedule left the loop (it is local: see ``schedule.margin_N``)."""
         return float(np.max(self.schedule.margin_N))
 
-    def summary(self) -> dict[str, Any]:
-        """The numbers, the verdicts and the passes (no series): what the system stage reports."""
-        return {**self.numbers.to_dict(), "requirements_met": self.requirements_met,
-                "requirements": [r.to_dict() for r in self.requirements], "bounds": [b.to_dict() for b in self.bounds],
-                "pre_cycle": self.pre_cycle.to_dict(), "preload_margin_N": self.preload_margin_N, "cycles": self.cycles,
-                "passes": [p.to_dict() for p in self.passes],
-                **({} if self.thermal is None else {"thermal": self.thermal.summary()})}
-
     def to_dict(self) -> dict[str, Any]:
         """The artifact's body: the fields, the verdict over the requirements and the largest margin.
 

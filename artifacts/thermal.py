@@ -11,6 +11,7 @@ drift, against the command range the force loop has left to hold it.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -18,7 +19,7 @@ from numpy.typing import NDArray
 
 from piezopreload.core.records import Raw, Record, entry, record
 
-__all__ = ["ThermalCase", "PreloadDrift", "ThermalRecord", "CASES"]
+__all__ = ["ThermalCase", "PreloadDrift", "ThermalRecord", "ThermalSummary", "CASES"]
 
 Array = NDArray[np.float64]
 #: the two preloads a budget compares, in the order the report shows them
@@ -152,6 +153,39 @@ class PreloadDrift(Record):
         return {**super().to_dict(), "held": self.held}
 
 
+@dataclass(frozen=True)
+class ThermalSummary:
+    """A shift's thermal budget without its series (:meth:`ThermalRecord.summary`): each figure of a case for the
+    schedule and for the constant preload (``figures[name]`` is ``{"schedule": ..., "constant": ...}``), the settings
+    and the drift; :meth:`to_dict` is what ``system.json``'s summary and ``run --json`` hold as ``thermal``."""
+
+    figures: dict[str, dict[str, float]]
+    heat_model: str
+    other_model: str
+    lubricant_vg: int
+    sealed: bool
+    mounting: str
+    pretension_K: float
+    feedback: str
+    shift_h: float
+    stroke_mm: tuple[float, float]
+    film_mean_W_per_m2K: float
+    screw_time_constant_s: float
+    drift: PreloadDrift
+
+    def figure(self, name: str) -> tuple[float, float]:
+        """A figure (``heat_mean_W``, ``growth_max_um``, ...) for the schedule and for the constant preload."""
+        pair = self.figures[name]
+        return pair["schedule"], pair["constant"]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**self.figures, "heat_model": self.heat_model, "other_model": self.other_model,
+                "lubricant_vg": self.lubricant_vg, "sealed": self.sealed, "mounting": self.mounting,
+                "pretension_K": self.pretension_K, "feedback": self.feedback, "shift_h": self.shift_h,
+                "stroke_mm": list(self.stroke_mm), "film_mean_W_per_m2K": self.film_mean_W_per_m2K,
+                "screw_time_constant_s": self.screw_time_constant_s, "drift": self.drift.to_dict()}
+
+
 @record(eq=False)
 class ThermalRecord(Record):
     """A shift's thermal budget: its settings, the screw's volumes and the table's positions (mm from bearing A),
@@ -186,25 +220,24 @@ class ThermalRecord(Record):
     def case(self, name: str) -> ThermalCase:
         return {"schedule": self.schedule, "constant": self.constant}[name]
 
-    def summary(self) -> dict[str, Any]:
-        """Each figure for the schedule and the constant preload (``heat_mean_W: {schedule, constant}``), the
-        settings and the drift: what ``system.json``'s summary and ``run --json`` hold as ``thermal``."""
-        figures = {name: {c: getattr(self, c).summary()[name] for c in CASES} for name in _FIGURES}
-        return {**figures, "heat_model": self.heat_model, "other_model": self.other_model,
-                "lubricant_vg": self.lubricant_vg, "sealed": self.sealed, "mounting": self.mounting,
-                "pretension_K": self.pretension_K, "feedback": self.feedback, "shift_h": self.shift_h,
-                "stroke_mm": list(self.stroke_mm), "film_mean_W_per_m2K": self.film_mean_W_per_m2K,
-                "screw_time_constant_s": self.screw_time_constant_s, "drift": self.drift.to_dict()}
+    def summary(self) -> ThermalSummary:
+        """Each figure for the schedule and the constant preload, the settings and the drift (no series)."""
+        return ThermalSummary(
+            figures={name: {c: getattr(self, c).summary()[name] for c in CASES} for name in _FIGURES},
+            heat_model=self.heat_model, other_model=self.other_model, lubricant_vg=self.lubricant_vg,
+            sealed=self.sealed, mounting=self.mounting, pretension_K=self.pretension_K, feedback=self.feedback,
+            shift_h=self.shift_h, stroke_mm=self.stroke_mm, film_mean_W_per_m2K=self.film_mean_W_per_m2K,
+            screw_time_constant_s=self.screw_time_constant_s, drift=self.drift)
 
     def to_dict(self) -> dict[str, Any]:
-        """:meth:`summary`, the screw's volumes, the table's positions and both cases whole.
+        """:meth:`summary`'s, the screw's volumes, the table's positions and both cases whole.
 
         Returns
         -------
         dict
             Its object.
         """
-        return {**self.summary(), **super().to_dict()}
+        return {**self.summary().to_dict(), **super().to_dict()}
 
     def _check_document(self, raw: Raw) -> None:
         for name in CASES:

@@ -82,8 +82,8 @@ def paper(args: argparse.Namespace) -> dict:
     controller = Controller(study.gains, rig.dt_s, study.identify_feedforward().inverse())
     ref = study.references["trajectory"]
     peer = simulate(rig, controller, ref, seed=study.seed)
-    out: dict = {"paper_tracking_rms_N": peer.tracking_error()["rms"],
-                 "paper_tracking_rms_after_change_N": peer.tracking_error(after_change_s=AFTER_CHANGE_S)["rms"]}
+    out: dict = {"paper_tracking_rms_N": peer.tracking_error().rms_N,
+                 "paper_tracking_rms_after_change_N": peer.tracking_error(after_change_s=AFTER_CHANGE_S).rms_N}
     t0 = time.perf_counter()
     res = learn(controller, rig, ref, iterations=args.iterations, seed=study.seed)
     d = res.to_dict()
@@ -140,8 +140,8 @@ def monte_carlo(controller, rig, ref, plants: int, iterations: int, seed: int) -
             "mc_worst_tracking_rms_after_change_N": m["tracking_rms_after_change_N"],
             # as the validation scores: leaving out the samples where the command sat at its limit (plants
             # whose stacks cannot reach 100 N within the 110 V the controller may give)
-            "mc_worst_tracking_rms_unsaturated_N": float(np.max(mc.run.tracking_error(u_range=limits)["rms"])),
-            "mc_saturated_plants": int(np.sum(mc.run.tracking_error(u_range=limits)["saturated_fraction"] > 0)),
+            "mc_worst_tracking_rms_unsaturated_N": float(np.max(mc.run.tracking_error(u_range=limits).rms_N)),
+            "mc_saturated_plants": int(np.sum(mc.run.tracking_error(u_range=limits).saturated_fraction > 0)),
             "mc_median_tracking_rms_N": float(np.median(rows[np.asarray(mc.best), np.arange(rows.shape[1])])),
             "mc_noise_floor_N": m["noise_floor_N"], "mc_seconds": time.perf_counter() - t0}
 

@@ -73,8 +73,8 @@ def main() -> None:
         t0 = time.perf_counter()
         b = minimum_time(s.plant, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]), band_N=s.band_N,
                          u_min_V=s.tuning_spec.u_min_V, u_max_V=s.tuning_spec.u_max_V)
-        bounds[name] = (time.perf_counter() - t0, b["settling_s"])
-        print(f"minimum-time bound, {name}: {b['settling_s']:.4g} s in {bounds[name][0]:.2f} s", flush=True)
+        bounds[name] = (time.perf_counter() - t0, b.settling_s)
+        print(f"minimum-time bound, {name}: {b.settling_s:.4g} s in {bounds[name][0]:.2f} s", flush=True)
     figures = {
         "tune_compiled_s": compiled_s, "tune_plain_s": plain_s, "tune_compiled_vs_plain_ratio": compiled_s / plain_s,
         "tune_gains_max_rel_diff": rel, "compile_s": first.compile_s, "tune_compiled_first_s": first_s,

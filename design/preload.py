@@ -65,7 +65,7 @@ import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import casadi as ca
 import numpy as np
@@ -73,7 +73,7 @@ import numpy as np
 from piezopreload.artifacts.design import DesignPoint  # the design artifact's record of a design
 from piezopreload.core.checks import FieldRule, check_fields
 from piezopreload.core.errors import InfeasibleError
-from piezopreload.design.shortfall import binding, shortfall_message
+from piezopreload.design.shortfall import Shortfall, binding, shortfall_message
 from piezopreload.models.ballscrew import (
     EFFECTIVE_BALL_SHARE,
     LIFT_OFF_RATIO,
@@ -156,13 +156,32 @@ def _is_banner(line: str) -> bool:
 class DesignInfeasible(InfeasibleError):
     """No design meets the constraints; ``violations`` says which and by how much."""
 
-    def __init__(self, message: str, violations: list[dict[str, Any]]) -> None:
+    def __init__(self, message: str, violations: list[Shortfall]) -> None:
         super().__init__(message)
         self.violations = violations
 
 
 def _positive(value: Any) -> bool:
     return isinstance(value, (int, float)) and math.isfinite(value) and value > 0
+
+
+class HeatKeywords(TypedDict):
+    """:meth:`BallScrew.friction_heat_W`'s keywords of a :class:`HeatSpec`."""
+
+    model: str
+    lubricant_vg: int
+    sealed: bool
+    temperature_C: float
+
+
+class ElasticArgs(TypedDict):
+    """The arguments of :attr:`DesignNLP.elastic_problem`'s solver: the start and the bounds."""
+
+    x0: np.ndarray
+    lbx: np.ndarray
+    ubx: np.ndarray
+    lbg: float
+    ubg: float
 
 
 @dataclass(frozen=True)
@@ -175,9 +194,9 @@ class HeatSpec:
     sealed: bool = True
     temperature_C: float = 40.0
 
-    def kwargs(self) -> dict[str, Any]:
-        return {"model": self.model, "lubricant_vg": self.lubricant_vg, "sealed": self.sealed,
-                "temperature_C": self.temperature_C}
+    def kwargs(self) -> HeatKeywords:
+        return HeatKeywords(model=self.model, lubricant_vg=self.lubricant_vg, sealed=self.sealed,
+                            temperature_C=self.temperature_C)
 
 
 def _range(value: Any) -> bool:
@@ -371,7 +390,43 @@ _VARIABLES = ("contact_angle_deg", "ball_mm", "conformity", "turns", "balls_per_
               "max_preload_N", "stiffness_min_N_per_um")
 
 
-def _expressions(spec: DesignSpec, ops: Any, x: Any) -> dict[str, Any]:
+@dataclass(frozen=True, eq=False)
+class DesignQuantities:
+    """Every quantity of a design as expressions of its physical variables (numbers with numpy, expressions with
+    CasADi; the lists one per duty case): the variables (``beta``, ``D_w``, ``f``, ``turns``, ``z1``, ``F_i``,
+    ``F_hi``, ``t``, ``F_case``), the nut's constants (``c_h``, ``s``, ``c_dyn``, ``cp_s``, ``cp_n``, ``z``,
+    ``helix``), the drag per case and its time mean, the mean friction heat, the rigidity and natural frequency per
+    case, the log of the rating life, the contact pressures, the stacks' stroke and the drag at the top preload."""
+
+    beta: Any
+    D_w: Any
+    f: Any
+    turns: Any
+    z1: Any
+    F_i: Any
+    F_hi: Any
+    t: Any
+    F_case: list[Any]
+    c_h: Any
+    s: Any
+    c_dyn: Any
+    drag: list[Any]
+    mean_drag: Any
+    mean_heat: Any
+    rigidity: list[Any]
+    freq: list[Any]
+    log_L: Any
+    p_screw: Any
+    p_nut: Any
+    stroke: Any
+    drag_hi: Any
+    cp_s: Any
+    cp_n: Any
+    z: Any
+    helix: float
+
+
+def _expressions(spec: DesignSpec, ops: Any, x: Any) -> DesignQuantities:
     """Every quantity of the design as expressions of the physical variables ``x`` (numbers or
     CasADi): the one implementation the NLP, the scipy peer and the evaluation share."""
     beta, D_w, f, turns, z1, F_i, F_hi, t = (x[k] for k in range(8))
@@ -418,11 +473,12 @@ def _expressions(spec: DesignSpec, ops: Any, x: Any) -> dict[str, Any]:
     f_max, _ = nut_forces(spec.axial_load_max_N / F_hi, sigma(F_hi), ops)
     Q_max = F_hi * f_max / (z * sb * ch)
     stroke = stack_loop_um(c_h, F_i, F_hi, spec.actuator.stiffness_N_per_um, s, acc)
-    return dict(beta=beta, D_w=D_w, f=f, turns=turns, z1=z1, F_i=F_i, F_hi=F_hi, t=t, F_case=F_case, c_h=c_h,
-                s=s, c_dyn=c_dyn, drag=drag, mean_drag=mean_drag, mean_heat=mean_heat, rigidity=rig, freq=freq,
-                log_L=log_L,
-                p_screw=cp_s * Q_max ** (1.0 / 3.0), p_nut=cp_n * Q_max ** (1.0 / 3.0), stroke=stroke,
-                drag_hi=k_p * F_hi * spec.lead_mm / (2000.0 * math.pi), cp_s=cp_s, cp_n=cp_n, z=z, helix=helix)
+    return DesignQuantities(beta=beta, D_w=D_w, f=f, turns=turns, z1=z1, F_i=F_i, F_hi=F_hi, t=t, F_case=F_case,
+                            c_h=c_h, s=s, c_dyn=c_dyn, drag=drag, mean_drag=mean_drag, mean_heat=mean_heat,
+                            rigidity=rig, freq=freq, log_L=log_L, p_screw=cp_s * Q_max ** (1.0 / 3.0),
+                            p_nut=cp_n * Q_max ** (1.0 / 3.0), stroke=stroke,
+                            drag_hi=k_p * F_hi * spec.lead_mm / (2000.0 * math.pi), cp_s=cp_s, cp_n=cp_n, z=z,
+                            helix=helix)
 
 
 def _case_heat(spec: DesignSpec, ops: Any, F_case: list[Any], k_p: Any, z: Any, beta: Any, D_w: Any) -> list[Any]:
@@ -437,40 +493,40 @@ def _case_heat(spec: DesignSpec, ops: Any, F_case: list[Any], k_p: Any, z: Any, 
                            temperature_C=h.temperature_C, sealed=h.sealed) for F, w in zip(F_case, omegas)]
 
 
-def _objective(e: dict[str, Any], w: Any) -> Any:
+def _objective(e: DesignQuantities, w: Any) -> Any:
     """The weighted objective (weights: -stiffness, drag, -log life, preload, the duty cycle's mean nut heat per
     100 W) plus the tie-break towards more stiffness, less drag and a lower bolt preload; numbers or CasADi
     expressions."""
-    return (-w[0] * e["t"] / 1000.0 + w[1] * e["mean_drag"] - w[2] * e["log_L"] + w[3] * e["F_hi"] / 1000.0
-            + w[4] * e["mean_heat"] / 100.0
-            + _TIE_WEIGHT * (e["mean_drag"] + e["drag_hi"] + e["F_i"] / 1000.0 - e["t"] / 1000.0))
+    return (-w[0] * e.t / 1000.0 + w[1] * e.mean_drag - w[2] * e.log_L + w[3] * e.F_hi / 1000.0
+            + w[4] * e.mean_heat / 100.0
+            + _TIE_WEIGHT * (e.mean_drag + e.drag_hi + e.F_i / 1000.0 - e.t / 1000.0))
 
 
-def _constraint_rows(spec: DesignSpec, e: dict[str, Any], ops: Any) -> list[tuple[str, Any, float]]:
+def _constraint_rows(spec: DesignSpec, e: DesignQuantities, ops: Any) -> list[tuple[str, Any, float]]:
     """Rows ``(name, g, scale)`` meaning g <= 0, g in the constraint's units."""
     L = LIFT_OFF_RATIO
     rows = [
-        ("preload_limit", e["F_hi"] - spec.preload_fraction_max * e["c_dyn"], 1000.0),
-        ("lift_off_max_load", spec.lift_off_margin * spec.axial_load_max_N - L * e["F_hi"], 1000.0),
-        ("lift_off_failsafe", spec.lift_off_margin * spec.failsafe_load_N - L * e["F_i"], 1000.0),
-        ("contact_pressure_screw", e["p_screw"] - spec.contact_pressure_max_MPa, 1000.0),
-        ("contact_pressure_nut", e["p_nut"] - spec.contact_pressure_max_MPa, 1000.0),
-        ("life", math.log(spec.life_min_h) - e["log_L"], 1.0),
-        ("drag_torque", e["drag_hi"] - spec.drag_torque_max_Nm, 1.0),
-        ("stack_stroke", e["stroke"] - spec.actuator.stroke_um, 10.0),
-        ("stack_force", e["F_hi"] - e["F_i"] - spec.actuator.blocked_force_N, 1000.0),
-        ("ball_fit", e["z1"] * e["D_w"] - math.pi * spec.nominal_diameter_mm / math.cos(e["helix"]), 10.0),
-        ("ball_lead", e["D_w"] - spec.ball_lead_ratio_max * spec.lead_mm, 1.0),
-        ("nut_length", e["turns"] * spec.lead_mm - spec.nut_length_max_mm, 10.0),
+        ("preload_limit", e.F_hi - spec.preload_fraction_max * e.c_dyn, 1000.0),
+        ("lift_off_max_load", spec.lift_off_margin * spec.axial_load_max_N - L * e.F_hi, 1000.0),
+        ("lift_off_failsafe", spec.lift_off_margin * spec.failsafe_load_N - L * e.F_i, 1000.0),
+        ("contact_pressure_screw", e.p_screw - spec.contact_pressure_max_MPa, 1000.0),
+        ("contact_pressure_nut", e.p_nut - spec.contact_pressure_max_MPa, 1000.0),
+        ("life", math.log(spec.life_min_h) - e.log_L, 1.0),
+        ("drag_torque", e.drag_hi - spec.drag_torque_max_Nm, 1.0),
+        ("stack_stroke", e.stroke - spec.actuator.stroke_um, 10.0),
+        ("stack_force", e.F_hi - e.F_i - spec.actuator.blocked_force_N, 1000.0),
+        ("ball_fit", e.z1 * e.D_w - math.pi * spec.nominal_diameter_mm / math.cos(e.helix), 10.0),
+        ("ball_lead", e.D_w - spec.ball_lead_ratio_max * spec.lead_mm, 1.0),
+        ("nut_length", e.turns * spec.lead_mm - spec.nut_length_max_mm, 10.0),
     ]
     for j, case in enumerate(spec.duty):
-        F = e["F_case"][j]
+        F = e.F_case[j]
         rows += [
             (f"lift_off_case[{j + 1}]", spec.lift_off_margin * abs(case.axial_load_N) - L * F, 1000.0),
-            (f"stiffness_case[{j + 1}]", e["t"] - e["rigidity"][j], 100.0),
-            (f"frequency_case[{j + 1}]", spec.frequency_min_Hz - e["freq"][j], 10.0),
-            (f"preload_order_low[{j + 1}]", e["F_i"] - F, 1000.0),
-            (f"preload_order_high[{j + 1}]", F - e["F_hi"], 1000.0),
+            (f"stiffness_case[{j + 1}]", e.t - e.rigidity[j], 100.0),
+            (f"frequency_case[{j + 1}]", spec.frequency_min_Hz - e.freq[j], 10.0),
+            (f"preload_order_low[{j + 1}]", e.F_i - F, 1000.0),
+            (f"preload_order_high[{j + 1}]", F - e.F_hi, 1000.0),
         ]
     return rows
 
@@ -551,8 +607,8 @@ class DesignNLP:
             self.sqp_solver = ca.nlpsol("design_sqp", "sqpmethod", problem, _SQP)
             self.elastic_sqp = ca.nlpsol("design_elastic_sqp", "sqpmethod", self.elastic_problem, _SQP)
         self._exprs = ca.Function("design_exprs", [y], [
-            e["c_dyn"], ca.vertcat(*e["rigidity"]), ca.vertcat(*e["freq"]), e["p_screw"], e["p_nut"], e["stroke"],
-            e["drag_hi"], e["t"], e["mean_drag"], e["log_L"]])
+            e.c_dyn, ca.vertcat(*e.rigidity), ca.vertcat(*e.freq), e.p_screw, e.p_nut, e.stroke,
+            e.drag_hi, e.t, e.mean_drag, e.log_L])
         self.solves = 0
 
     # ---- bounds ------------------------------------------------------------------------
@@ -594,7 +650,7 @@ class DesignNLP:
         w = np.asarray(list(weights), float)
         spec = self.spec
 
-        def parts(y: np.ndarray) -> tuple[dict[str, Any], list[tuple[str, Any, float]]]:
+        def parts(y: np.ndarray) -> tuple[DesignQuantities, list[tuple[str, Any, float]]]:
             x = self.to_physical(y)
             e = _expressions(spec, NUMPY, list(x))
             return e, _constraint_rows(spec, e, NUMPY)
@@ -612,7 +668,7 @@ class DesignNLP:
     def to_physical(self, y: np.ndarray) -> np.ndarray:
         return self.offset + self.scale * np.asarray(y, float).ravel()
 
-    def evaluate(self, y: np.ndarray) -> dict[str, Any]:
+    def evaluate(self, y: np.ndarray) -> DesignQuantities:
         """Every quantity of the design at the scaled point ``y``, in numbers (numpy)."""
         return _expressions(self.spec, NUMPY, list(self.to_physical(y)))
 
@@ -641,14 +697,14 @@ class DesignNLP:
                 return verdict
         return self._run(self.warm_solver, args, integers)
 
-    def elastic_args(self, y0: np.ndarray, lbx: np.ndarray, ubx: np.ndarray) -> dict[str, Any]:
+    def elastic_args(self, y0: np.ndarray, lbx: np.ndarray, ubx: np.ndarray) -> ElasticArgs:
         """Arguments of :attr:`elastic_problem` from ``y0`` (clipped to the bounds), each slack
         starting at its row's violation there; the bounds stay hard, the slacks are >= 0."""
         y0 = np.clip(y0, lbx, ubx)
         ns = len(self.row_names)
         s0 = np.maximum(np.asarray(self.constraints(y0)).ravel(), 0.0)
-        return dict(x0=np.concatenate([y0, s0]), lbx=np.concatenate([lbx, np.zeros(ns)]),
-                    ubx=np.concatenate([ubx, np.full(ns, np.inf)]), lbg=-np.inf, ubg=0.0)
+        return ElasticArgs(x0=np.concatenate([y0, s0]), lbx=np.concatenate([lbx, np.zeros(ns)]),
+                           ubx=np.concatenate([ubx, np.full(ns, np.inf)]), lbg=-np.inf, ubg=0.0)
 
     def _infeasible(self, args: dict[str, Any], integers: tuple[int, int] | None) -> NLPSolution | None:
         """The least-violation point from ``args``' start if the SQP converges there with a
@@ -790,7 +846,7 @@ def _optimise(spec: DesignSpec, objective: str, nlp: DesignNLP | None) -> tuple[
     return result, relaxed
 
 
-def _infeasible_message(misses: list[dict[str, Any]]) -> str:
+def _infeasible_message(misses: list[Shortfall]) -> str:
     if not misses:  # the solvers found no point to read a shortfall at
         return ("no design meets the constraints, and none could be found to say which binds. Relax the limits in "
                 "the study's [design] table or widen the design's bounds.")

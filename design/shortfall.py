@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import casadi as ca
@@ -31,13 +32,13 @@ from piezopreload.artifacts.design import CONSTRAINT_WORDS, case_words
 from piezopreload.models.ballscrew import LIFT_OFF_RATIO
 
 if TYPE_CHECKING:  # the NLP's type only: design/preload.py calls this module when it finds no design
-    from piezopreload.design.preload import DesignNLP, DesignSpec
+    from piezopreload.design.preload import DesignNLP, DesignQuantities, DesignSpec
 
-__all__ = ["REQUIREMENTS", "binding", "shortfall_message"]
+__all__ = ["REQUIREMENTS", "Shortfall", "binding", "shortfall_message"]
 
 _TOL = 1e-6  # a slack (scaled, O(1) rows) below this meets the requirement
 
-Reading = Callable[["DesignSpec", dict[str, Any], int], tuple[float, float]]
+Reading = Callable[["DesignSpec", "DesignQuantities", int], tuple[float, float]]
 def _case(spec: DesignSpec, j: int) -> str:
     return f"{case_words([j + 1])} (axial load {spec.duty[j].axial_load_N:,.0f} N)"
 
@@ -46,25 +47,25 @@ def _case(spec: DesignSpec, j: int) -> str:
 #: unit; its sense, "min" for at least, "max" for at most; its value and its limit at a design, from the design's
 #: expressions and a case index
 REQUIREMENTS: dict[str, tuple[str, str, Reading]] = {
-    "stiffness_min": ("N/um", "min", lambda s, e, j: (min(e["rigidity"]), s.stiffness_min_N_per_um)),
-    "life": ("h", "min", lambda s, e, j: (math.exp(e["log_L"]), s.life_min_h)),
-    "preload_limit": ("N", "max", lambda s, e, j: (e["F_hi"], s.preload_fraction_max * e["c_dyn"])),
+    "stiffness_min": ("N/um", "min", lambda s, e, j: (min(e.rigidity), s.stiffness_min_N_per_um)),
+    "life": ("h", "min", lambda s, e, j: (math.exp(e.log_L), s.life_min_h)),
+    "preload_limit": ("N", "max", lambda s, e, j: (e.F_hi, s.preload_fraction_max * e.c_dyn)),
     # the largest load without lift-off at the highest preload, 2^1.5 F_hi / lift_off_margin
-    "lift_off_max_load": ("N", "min", lambda s, e, j: (LIFT_OFF_RATIO * e["F_hi"] / s.lift_off_margin,
+    "lift_off_max_load": ("N", "min", lambda s, e, j: (LIFT_OFF_RATIO * e.F_hi / s.lift_off_margin,
                                                        s.axial_load_max_N)),
     # the load the bolts alone carry without lift-off, 2^1.5 F_i / lift_off_margin
-    "lift_off_failsafe": ("N", "min", lambda s, e, j: (LIFT_OFF_RATIO * e["F_i"] / s.lift_off_margin,
+    "lift_off_failsafe": ("N", "min", lambda s, e, j: (LIFT_OFF_RATIO * e.F_i / s.lift_off_margin,
                                                        s.failsafe_load_N)),
-    "contact_pressure_screw": ("MPa", "max", lambda s, e, j: (e["p_screw"], s.contact_pressure_max_MPa)),
-    "contact_pressure_nut": ("MPa", "max", lambda s, e, j: (e["p_nut"], s.contact_pressure_max_MPa)),
-    "drag_torque": ("N m", "max", lambda s, e, j: (e["drag_hi"], s.drag_torque_max_Nm)),
-    "stack_stroke": ("um", "max", lambda s, e, j: (e["stroke"], s.actuator.stroke_um)),
-    "stack_force": ("N", "max", lambda s, e, j: (e["F_hi"] - e["F_i"], s.actuator.blocked_force_N)),
-    "ball_lead": ("mm", "max", lambda s, e, j: (e["D_w"], s.ball_lead_ratio_max * s.lead_mm)),
-    "nut_length": ("mm", "max", lambda s, e, j: (e["turns"] * s.lead_mm, s.nut_length_max_mm)),
-    "lift_off_case": ("N", "min", lambda s, e, j: (LIFT_OFF_RATIO * e["F_case"][j] / s.lift_off_margin,
+    "contact_pressure_screw": ("MPa", "max", lambda s, e, j: (e.p_screw, s.contact_pressure_max_MPa)),
+    "contact_pressure_nut": ("MPa", "max", lambda s, e, j: (e.p_nut, s.contact_pressure_max_MPa)),
+    "drag_torque": ("N m", "max", lambda s, e, j: (e.drag_hi, s.drag_torque_max_Nm)),
+    "stack_stroke": ("um", "max", lambda s, e, j: (e.stroke, s.actuator.stroke_um)),
+    "stack_force": ("N", "max", lambda s, e, j: (e.F_hi - e.F_i, s.actuator.blocked_force_N)),
+    "ball_lead": ("mm", "max", lambda s, e, j: (e.D_w, s.ball_lead_ratio_max * s.lead_mm)),
+    "nut_length": ("mm", "max", lambda s, e, j: (e.turns * s.lead_mm, s.nut_length_max_mm)),
+    "lift_off_case": ("N", "min", lambda s, e, j: (LIFT_OFF_RATIO * e.F_case[j] / s.lift_off_margin,
                                                    abs(s.duty[j].axial_load_N))),
-    "frequency_case": ("Hz", "min", lambda s, e, j: (e["freq"][j], s.frequency_min_Hz)),
+    "frequency_case": ("Hz", "min", lambda s, e, j: (e.freq[j], s.frequency_min_Hz)),
 }
 
 
@@ -106,7 +107,27 @@ def _least_slack(nlp: DesignNLP, solver: Any, rows: list[str], groups: set[str],
     return float(x[-1]), x[:-1]
 
 
-def _reading(nlp: DesignNLP, group: str, y: np.ndarray, turns: tuple[int, int] | None) -> dict[str, Any]:
+@dataclass(frozen=True)
+class Shortfall:
+    """A requirement no design meets, read at its closest design: the constraint's group, the requirement in words
+    and the study key that sets it, how the reading is said, the value reached against the value required (``sense``
+    ``min``: at least, ``max``: at most), the shortfall, in ``units``, and the closest design's turns and balls per
+    turn (None: the relaxed design)."""
+
+    constraint: str
+    requirement: str
+    key: str
+    reading: str
+    reached: float
+    required: float
+    sense: str
+    short_by: float
+    units: str
+    turns: int | None
+    balls_per_turn: int | None
+
+
+def _reading(nlp: DesignNLP, group: str, y: np.ndarray, turns: tuple[int, int] | None) -> Shortfall:
     """What a binding requirement reads at the closest design ``y``: its worst row's value against its limit."""
     unit, sense, read = REQUIREMENTS[group]
     what, key = CONSTRAINT_WORDS[group]
@@ -116,10 +137,10 @@ def _reading(nlp: DesignNLP, group: str, y: np.ndarray, turns: tuple[int, int] |
     reached, required, j = min(values, key=lambda v: (v[0] - v[1]) if sense == "min" else (v[1] - v[0]))
     x = nlp.to_physical(y)
     short = required - reached if sense == "min" else reached - required
-    return {"constraint": group, "requirement": what.format(cases=_case(spec, j)), "key": key,
-            "reading": _READINGS.get(group, "reaches"), "reached": float(reached),
-            "required": float(required), "sense": sense, "short_by": float(short), "units": unit,
-            "turns": int(round(x[3])) if turns else None, "balls_per_turn": int(round(x[4])) if turns else None}
+    return Shortfall(constraint=group, requirement=what.format(cases=_case(spec, j)), key=key,
+                     reading=_READINGS.get(group, "reaches"), reached=float(reached), required=float(required),
+                     sense=sense, short_by=float(short), units=unit, turns=int(round(x[3])) if turns else None,
+                     balls_per_turn=int(round(x[4])) if turns else None)
 
 
 def _closest(nlp: DesignNLP, solver: Any, rows: list[str], groups: set[str], y0: np.ndarray,
@@ -142,11 +163,10 @@ def _closest(nlp: DesignNLP, solver: Any, rows: list[str], groups: set[str], y0:
 
 
 def binding(nlp: DesignNLP, y0: np.ndarray, candidates: Callable[[np.ndarray], list[tuple[int, int]]]
-            ) -> list[dict[str, Any]]:
-    """What no design meets (module docstring), as dicts: ``requirement``, ``key``, ``reached``, ``required``,
-    ``short_by``, ``units``: every requirement that cannot be met with every other kept, each at its closest design;
-    where each can be met alone, every requirement the closest design to all of them at once misses.
-    ``candidates(y)`` gives the integer turns and balls per turn around a relaxed point."""
+            ) -> list[Shortfall]:
+    """What no design meets (module docstring), each a :class:`Shortfall`: every requirement that cannot be met with
+    every other kept, each at its closest design; where each can be met alone, every requirement the closest design to
+    all of them at once misses. ``candidates(y)`` gives the integer turns and balls per turn around a relaxed point."""
     solver, rows = _problem(nlp)
     groups = [g for g in REQUIREMENTS if g != "stiffness_min" or nlp.spec.stiffness_min_N_per_um > 0]
     found = []
@@ -160,20 +180,19 @@ def binding(nlp: DesignNLP, y0: np.ndarray, candidates: Callable[[np.ndarray], l
     if closest is None:
         return []
     readings = [_reading(nlp, group, closest[1], closest[2]) for group in groups]
-    return [r for r in readings if r["short_by"] > _TOL * max(1.0, abs(r["required"]))]
+    return [r for r in readings if r.short_by > _TOL * max(1.0, abs(r.required))]
 
 
 def _number(x: float) -> str:
     return f"{x:,.0f}" if abs(x) >= 100 else f"{x:.3g}"
 
 
-def shortfall_message(misses: list[dict[str, Any]]) -> str:
+def shortfall_message(misses: list[Shortfall]) -> str:
     """The error's words: each binding requirement, the value its closest design reaches and the shortfall."""
     parts = []
     for m in misses:
-        design = ("" if m.get("turns") is None else
-                  f" ({m['turns']} turns of {m['balls_per_turn']} balls per turn)")
-        parts.append(f"{m['requirement']}, set by {m['key']}: the closest design{design} {m.get('reading', 'reaches')} "
-                     f"{_number(m['reached'])} {m['units']} against {'at least' if m['sense'] == 'min' else 'at most'} "
-                     f"{_number(m['required'])} {m['units']}, {_number(m['short_by'])} {m['units']} short")
+        design = "" if m.turns is None else f" ({m.turns} turns of {m.balls_per_turn} balls per turn)"
+        parts.append(f"{m.requirement}, set by {m.key}: the closest design{design} {m.reading} "
+                     f"{_number(m.reached)} {m.units} against {'at least' if m.sense == 'min' else 'at most'} "
+                     f"{_number(m.required)} {m.units}, {_number(m.short_by)} {m.units} short")
     return "; ".join(parts)

@@ -58,6 +58,7 @@ from numpy.typing import NDArray
 from piezopreload.artifacts.plant import DesignedPlant
 from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.schedule import PreloadSchedule
+from piezopreload.artifacts.summaries import SystemSummary
 from piezopreload.artifacts.system import (
     PassRecord,
     PlannedSchedule,
@@ -431,9 +432,9 @@ class SystemRun:
         return SystemRecord(self.numbers, self.requirements, self.bounds, self.pre_cycle, self.passes, plan, series,
                             self.cycles, dict(inputs or {}), None if self.thermal is None else self.thermal.record)
 
-    def summary(self) -> dict[str, Any]:
-        """The run's numbers, verdicts, pre-cycle and passes (the record's summary)."""
-        return self.record().summary()
+    def summary(self) -> SystemSummary:
+        """The run's numbers, verdicts, pre-cycle, passes and thermal figures (no series)."""
+        return SystemSummary.of(self.record())
 
     def save(self, folder: str | Path, inputs: dict[str, Any]) -> dict[str, Path]:
         """Write ``system.json`` (kind ``system``, :meth:`record`) and ``reference.csv`` (the loop's reference at its

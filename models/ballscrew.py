@@ -62,7 +62,7 @@ checked on R32-5T4 (-5 %). A catalogue C_dyn, where known, should be passed inst
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -70,6 +70,7 @@ from numpy.typing import ArrayLike
 
 from piezopreload.core._typing import Array
 from piezopreload.core.checks import FieldRule, check_fields
+from piezopreload.core.config import Invalid
 from piezopreload.core.errors import InputError
 from piezopreload.models.ops import NUMPY
 from piezopreload.models.thermal import HEAT_MODELS, catalogue_heat_W, contact_heat_W
@@ -352,6 +353,15 @@ _SCREW_RULES: tuple[FieldRule, ...] = (
 )
 
 
+def _number(doc: dict[str, Any], key: str, integer: bool = False) -> float:
+    """A document's finite number (a whole one where ``integer``), :class:`Invalid` naming its key otherwise."""
+    x = doc[key]
+    if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x) or \
+            (integer and not float(x).is_integer()):
+        raise Invalid(key, f"must be a finite {'whole ' if integer else ''}number, got {x!r}")
+    return int(x) if integer else float(x)
+
+
 @dataclass(frozen=True)
 class BallScrew:
     """A double-nut ball screw with 2-point (gothic-arch) contact, preloaded between the nuts.
@@ -412,6 +422,26 @@ class BallScrew:
         if self.nut_outer_diameter <= self.pitch_diameter + self.ball_mm:
             raise InputError(f"BallScrew.nut_outer_diameter_mm must exceed D_pw + D_w = "
                              f"{self.pitch_diameter + self.ball_mm} mm, got {self.nut_outer_diameter_mm!r}.")
+
+    # ---- the document (a plant artifact's ``screw`` object) ----------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """The screw as a plant artifact holds it: every field, the balls per nut, the material's constants."""
+        return {**{name: getattr(self, name) for name in _SCREW_FIELDS}, "balls_per_nut": self.balls_per_nut,
+                "material": {"E_MPa": self.material.E_MPa, "poisson": self.material.poisson}}
+
+    @classmethod
+    def from_dict(cls, doc: Any) -> BallScrew:
+        """The screw of its object (:meth:`to_dict`'s): each field the object gives (null: its default)."""
+        if not isinstance(doc, dict):
+            raise ValueError(f"expected an object of the screw's fields, got {type(doc).__name__}")
+        values: dict[str, Any] = {name: _number(doc, name, integer=name == "balls_per_turn")
+                                  for name in _SCREW_FIELDS if doc.get(name) is not None}
+        m = doc.get("material")
+        if m is not None:
+            if not isinstance(m, dict) or "E_MPa" not in m or "poisson" not in m:
+                raise Invalid("material", f"must be an object of E_MPa and poisson, got {m!r}")
+            values["material"] = Material(_number(m, "E_MPa"), _number(m, "poisson"))
+        return cls(**values)
 
     @classmethod
     def from_catalogue(cls, nominal_diameter_mm: float, lead_mm: float, ball_mm: float, turns: float, *,
@@ -688,3 +718,7 @@ class BallScrew:
         return Life(revolutions=float(L), hours=float(L / (60.0 * n_m)), mean_speed_rpm=n_m,
                     nut_A_revolutions=float(L_A), nut_B_revolutions=float(L_B),
                     equivalent_load_A_N=Fm_A, equivalent_load_B_N=Fm_B)
+
+
+#: the screw's fields a plant artifact records (its ``screw`` object), every one BallScrew takes but the material
+_SCREW_FIELDS = tuple(f.name for f in fields(BallScrew) if f.name != "material")

@@ -26,7 +26,7 @@ from piezopreload.models.loop import LOOP_OUTPUTS, OPEN_LOOP_OUTPUTS, LoopModel,
 from piezopreload.models.metrics import StepMetrics, step_metrics
 from piezopreload.models.ops import NUMPY
 
-__all__ = ["Reference", "ClosedLoopRun", "simulate", "simulate_open_loop", "triangle", "PAPER_BAND_N"]
+__all__ = ["Reference", "ClosedLoopRun", "TrackingError", "simulate", "simulate_open_loop", "triangle", "PAPER_BAND_N"]
 
 
 #: how a reference goes between its points: held (steps) or ramped
@@ -143,6 +143,17 @@ class Reference:
 
 
 @dataclass(frozen=True, eq=False)
+class TrackingError:
+    """A run's tracking error (:meth:`ClosedLoopRun.tracking_error`): its RMS and its largest magnitude, and the share
+    of the scored samples left out with the command at a limit of the range given; numbers for one plant, arrays with
+    one per plant for a batch."""
+
+    rms_N: float | Array
+    max_N: float | Array
+    saturated_fraction: float | Array
+
+
+@dataclass(frozen=True, eq=False)
 class ClosedLoopRun:
     """A simulated run: samples with time last, batch (if any) in the leading axes.
 
@@ -235,7 +246,7 @@ class ClosedLoopRun:
                 for row in flat]
 
     def tracking_error(self, t_from_s: float | None = None, *, after_change_s: float = 0.0,
-                       u_range: tuple[float, float] | None = None) -> dict[str, Any]:
+                       u_range: tuple[float, float] | None = None) -> TrackingError:
         """RMS and maximum of reference minus true force from ``t_from_s`` (default the first change).
 
         ``after_change_s`` leaves out that long after every change of the reference: the
@@ -267,8 +278,8 @@ class ClosedLoopRun:
         rms = np.sqrt(np.where(keep, e**2, 0.0).sum(axis=-1) / n)
         peak = np.where(keep, np.abs(e), 0.0).max(axis=-1)
         if self.force_N.ndim == 1:
-            return {"rms": float(rms), "max": float(peak), "saturated_fraction": float(fraction)}
-        return {"rms": rms, "max": peak, "saturated_fraction": fraction}
+            return TrackingError(float(rms), float(peak), float(fraction))
+        return TrackingError(rms, peak, fraction)
 
     def columns(self) -> dict[str, Array]:
         """The run as named columns (one plant), for CSV export."""

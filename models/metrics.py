@@ -189,7 +189,7 @@ def run_numbers(run: Any, band_N: float, signal: str, after_change_s: float | No
     out: dict[str, float | None] = {**step_numbers(run.step_metrics(band_N, signal=signal)),
                                     "peak_command_V": float(np.max(run.command_V))}
     te = run.tracking_error()
-    out.update(tracking_rms_N=float(te["rms"]), tracking_max_N=float(te["max"]))
+    out.update(tracking_rms_N=float(te.rms_N), tracking_max_N=float(te.max_N))
     if after_change_s is not None:
-        out["tracking_rms_after_change_N"] = float(run.tracking_error(after_change_s=after_change_s)["rms"])
+        out["tracking_rms_after_change_N"] = float(run.tracking_error(after_change_s=after_change_s).rms_N)
     return out

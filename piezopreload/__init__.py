@@ -27,7 +27,7 @@ __all__ = [
     "ComparisonRow", "ActiveBound", "MinimumTimeBound", "TrackingFloor", "TuningSolve", "DesignRecord", "DesignPoint",
     "DesignedPlant", "PreloadSchedule", "SystemRecord", "TrackingNumbers", "FitError", "LearnedSignal", "SweepPoint",
     "RunSummary", "StudyRef", "StudyReproduction", "ReproductionSummary", "PublishedRow", "SimulationInfo",
-    "FeedforwardInfo",
+    "FeedforwardInfo", "ScheduleSummary", "SystemSummary", "SampledCheck", "DataSource", "LearnedWritten",
 ]
 
 #: the module each public name comes from: a name is imported on its first use (a module ``__getattr__``, as numpy
@@ -48,25 +48,26 @@ _EXPORTS: dict[str, str] = {name: module for module, names in {
     "piezopreload.models.controller": ("PIDGains",),
     "piezopreload.models.metrics": ("StepMetrics",),
     "piezopreload.artifacts.gainset": ("GainSet",),
-    "piezopreload.artifacts.hysteresis": ("IdentifiedModel", "FitError"),
+    "piezopreload.artifacts.hysteresis": ("IdentifiedModel", "FitError", "DataSource"),
     "piezopreload.artifacts.validation": ("ValidationResult", "Metrics", "Failure"),
     "piezopreload.artifacts.requirements": ("Requirement",),
     "piezopreload.artifacts.tuning": ("ComparisonRow", "ActiveBound", "MinimumTimeBound", "TrackingFloor",
                                       "TuningSolve"),
     "piezopreload.artifacts.design": ("DesignRecord", "DesignPoint"),
     "piezopreload.artifacts.plant": ("DesignedPlant",),
-    "piezopreload.artifacts.schedule": ("PreloadSchedule",),
+    "piezopreload.artifacts.schedule": ("PreloadSchedule", "ScheduleSummary"),
+    "piezopreload.artifacts.summaries": ("SystemSummary",),
     "piezopreload.artifacts.system": ("SystemRecord", "TrackingNumbers"),
     "piezopreload.artifacts.learned": ("LearnedSignal",),
     "piezopreload.artifacts.sweep": ("SweepPoint",),
     "piezopreload.design.study": ("DesignResult",),
     "piezopreload.design.system": ("SystemRun",),
     "piezopreload.tuning.feedforward": ("IdentifiedFeedforward", "FeedforwardInfo"),
-    "piezopreload.tuning.learning": ("LearningResult",),
+    "piezopreload.tuning.learning": ("LearningResult", "LearnedWritten"),
     "piezopreload.tuning.identification": ("identify", "Identification", "Window"),
     "piezopreload.tuning.identify": ("PIIdentifier", "NotFittedError"),
     "piezopreload.tuning.autotune": ("autotune",),
-    "piezopreload.tuning.autotune_result": ("AutotuneResult",),
+    "piezopreload.tuning.autotune_result": ("AutotuneResult", "SampledCheck"),
     "piezopreload.tuning.plantfit": ("fit_plant", "FittedPlant"),
     "piezopreload.rig.export": ("export",),
 }.items() for name in names}
@@ -75,12 +76,13 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     __version__: str
     from piezopreload.artifacts.design import DesignPoint, DesignRecord
     from piezopreload.artifacts.gainset import GainSet
-    from piezopreload.artifacts.hysteresis import FitError, IdentifiedModel
+    from piezopreload.artifacts.hysteresis import DataSource, FitError, IdentifiedModel
     from piezopreload.artifacts.learned import LearnedSignal
     from piezopreload.artifacts.manifest import StudyRef
     from piezopreload.artifacts.plant import DesignedPlant
     from piezopreload.artifacts.requirements import Requirement
-    from piezopreload.artifacts.schedule import PreloadSchedule
+    from piezopreload.artifacts.schedule import PreloadSchedule, ScheduleSummary
+    from piezopreload.artifacts.summaries import SystemSummary
     from piezopreload.artifacts.sweep import SweepPoint
     from piezopreload.artifacts.system import SystemRecord, TrackingNumbers
     from piezopreload.artifacts.tuning import ActiveBound, ComparisonRow, MinimumTimeBound, TrackingFloor, TuningSolve
@@ -100,12 +102,12 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     from piezopreload.study import Study, load_study, shipped_studies
     from piezopreload.sweep import SweepResult
     from piezopreload.tuning.autotune import autotune
-    from piezopreload.tuning.autotune_result import AutotuneResult
+    from piezopreload.tuning.autotune_result import AutotuneResult, SampledCheck
     from piezopreload.tuning.compare import PublishedRow, ReproductionSummary
     from piezopreload.tuning.feedforward import FeedforwardInfo, IdentifiedFeedforward
     from piezopreload.tuning.identification import Identification, Window, identify
     from piezopreload.tuning.identify import NotFittedError, PIIdentifier
-    from piezopreload.tuning.learning import LearningResult
+    from piezopreload.tuning.learning import LearnedWritten, LearningResult
     from piezopreload.tuning.plantfit import FittedPlant, fit_plant
 
 

@@ -327,9 +327,7 @@ def _stage_system(ctx: _Ctx) -> Produced:
         ctx.progress.say(f"requirement missed: {r.sentence()}")
     for b in system.bounds:
         ctx.progress.say(f"what stops it: {b.sentence()}")
-    return paths, SystemSummary(system.numbers, system.requirements, system.bounds, system.pre_cycle,
-                                system.preload_margin_N, system.cycles, system.passes,
-                                None if system.thermal is None else system.thermal.summary(), before)
+    return paths, SystemSummary.of(system, before)
 
 
 def _stage_export(ctx: _Ctx) -> Produced:

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from piezopreload.artifacts.gainset import REFERENCES, GainSet, gains_to_dict
+from piezopreload.artifacts.gainset import REFERENCES, GainSet, GainsTable
 from piezopreload.artifacts.manifest import StudyRef
 from piezopreload.artifacts.tuning import (
     ActiveBound,
@@ -160,7 +160,7 @@ class TuningResult:
         interlock settings of the study's ``[rig_run]``; its tuning record names the gains on their bounds
         (``active_bounds``) and the controller's form."""
         s, ff = self.study, self.feedforward
-        tuning = {**self.solve.to_dict(), "simc_baseline": gains_to_dict(self.simc),
+        tuning = {**self.solve.to_dict(), "simc_baseline": GainsTable.from_value(self.simc).to_dict(),
                   "active_bounds": [b.to_dict() for b in self.active_bounds]}
         return GainSet(gains=self.gains, status="candidate", feedforward=ff.model, feedforward_info=ff.info(),
                        plant=s.plant, preset=s.name, references={k: s.references[k] for k in REFERENCES},
@@ -206,11 +206,11 @@ def _minimum_time_bound(bounding: Any, settle: float | None, say: Callable[[str]
     except InfeasibleError as exc:  # the bound is a comparison, not a requirement: say why it is missing
         say(f"no minimum-time bound: {exc}")
         return MinimumTimeBound(settling_s=None, tuned_over_bound_ratio=None, reason=str(exc))
-    ratio = None if settle is None else settle / bound["settling_s"]
-    say(f"minimum-time bound: {bound['settling_s']:.4g} s ({bound['seconds']:.1f} s to compute); the tuned settling "
+    ratio = None if settle is None else settle / bound.settling_s
+    say(f"minimum-time bound: {bound.settling_s:.4g} s ({bound.seconds:.1f} s to compute); the tuned settling "
         f"{_fmt(settle)} s is {_fmt(ratio)} times it")
-    return MinimumTimeBound(settling_s=bound["settling_s"], tuned_over_bound_ratio=ratio, samples=bound["samples"],
-                            hold_s=bound["hold_s"], seconds=bound["seconds"])
+    return MinimumTimeBound(settling_s=bound.settling_s, tuned_over_bound_ratio=ratio, samples=bound.samples,
+                            hold_s=bound.hold_s, seconds=bound.seconds)
 
 
 def tune(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,
@@ -289,7 +289,7 @@ def tune(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, 
     record = TuningRecord(
         gains=g, simc_baseline=tuned.baseline, solve=solve, table=table,
         minimum_time=_minimum_time_bound(bounding, row.settling_s, say),
-        tracking_floor=TrackingFloor(floor["rms_N"], floor["rate_N_per_s"], row.tracking_rms_N / floor["rms_N"]),
+        tracking_floor=TrackingFloor(floor.rms_N, floor.rate_N_per_s, row.tracking_rms_N / floor.rms_N),
         active_bounds=tuned.active_bounds,
         # how the table was scored (the validation's limits are the validate step's)
         criteria={k: criteria_doc[k] for k in ("band_N", "signal", "tracking_after_change_s")},
@@ -343,7 +343,7 @@ class SimulationInfo:
     def to_dict(self) -> dict[str, Any]:
         source = {"source": self.gains_source, **({} if self.gains_status is None else {"status": self.gains_status})}
         return {"study": self.study.to_dict(), "controller": self.controller, "reference": self.reference,
-                "gains": {**gains_to_dict(self.gains), **source},
+                "gains": {**GainsTable.from_value(self.gains).to_dict(), **source},
                 "feedforward": None if self.feedforward is None else self.feedforward.to_dict(),
                 "sample_period_s": self.sample_period_s, "published": self.published}
 
@@ -518,7 +518,8 @@ class StudyReproduction:
 
     def to_dict(self) -> dict[str, Any]:
         """What ``reproduce --json`` prints."""
-        return {"study": self.study.to_dict(), "gains": {**gains_to_dict(self.gains), "read_as": self.read_as},
+        return {"study": self.study.to_dict(),
+                "gains": {**GainsTable.from_value(self.gains).to_dict(), "read_as": self.read_as},
                 "band_N": self.band_N, "signal": self.signal, "published": self.published,
                 "step": " -> ".join(f"{x:g}" for x in self.step_levels_N) + " N", **self.comparison.to_dict(),
                 "seconds": self.seconds}

@@ -15,7 +15,7 @@ import numpy as np
 
 from piezopreload.artifacts.learned import LearnedSignal
 from piezopreload.design.system import SystemRun
-from piezopreload.tuning.learning import LearningResult, save_passes
+from piezopreload.tuning.learning import LearnedWritten, LearningResult, save_passes
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -58,12 +58,12 @@ class ScheduleLearning:
         return _before_learning(self.last)
 
     def save(self, folder: str | Path, gain_set_sha256: str | None,
-             inputs: dict[str, Any] | None = None) -> dict[str, Any]:
+             inputs: dict[str, Any] | None = None) -> LearnedWritten:
         """Write each pass's learned signal and ``learning.json`` (:func:`~piezopreload.tuning.learning.save_passes`)
         into ``folder``; returns the last pass's signal (``out``, what the rig plays) and its hash."""
         paths, _ = save_passes(list(self.passes), folder, gain_set_sha256, dict(inputs or {}))
-        return {"out": str(paths["learned"]), "learning": str(paths["learning"]),
-                "content_sha256": LearnedSignal.load(paths["learned"]).content_sha256}
+        return LearnedWritten(str(paths["learned"]), LearnedSignal.load(paths["learned"]).content_sha256,
+                              str(paths["learning"]))
 
     def to_dict(self) -> dict[str, Any]:
         """The last pass's learning (as a :class:`LearningResult`'s), each pass's figures and
@@ -73,7 +73,7 @@ class ScheduleLearning:
                             "tracking_rms_N": r.tracking_rms_N,
                             "before_learning_rms_N": _before_learning(r)}
                            for k, (r, p) in enumerate(zip(self.passes, self._pass_records()), start=1)],
-                "system": self.system.summary()}
+                "system": self.system.summary().to_dict()}
 
     def _pass_records(self) -> list[Any]:
         """The system's record of each learned pass (None for a pass the system did not run again)."""

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from dataclasses import replace as _replace
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, Self, TypeVar, overload
+from typing import TYPE_CHECKING, Any, Literal, Self, TypedDict, TypeVar, overload
 
 from piezopreload.artifacts.design import DesignPoint, DesignRecord
 from piezopreload.artifacts.gainset import GainSet
@@ -641,7 +641,32 @@ def paper_study() -> Path:
     return shipped_studies()[PAPER_STUDY]
 
 
-def _parse(data: dict[str, Any], where: _Source) -> dict[str, Any]:
+class _StudyTables(TypedDict):
+    """A study file's tables, each checked against its declaration (:data:`STUDY_TABLES`, in its order); None for
+    an optional table the file does not give."""
+
+    study: StudyTable
+    rig: RigTable
+    plant: PlantTable | None
+    learning: LearningTable | None
+    controller: ControllerTable
+    feedforward: FeedforwardTable
+    reference: ReferenceTables
+    simulation: SimulationTable
+    ballscrew: BallscrewTable | None
+    feed_drive: FeedDriveTable | None
+    duty: DutyTable | None
+    design: DesignTable | None
+    schedule: ScheduleTable | None
+    thermal: ThermalTable | None
+    tuning: TuningTable
+    validation: ValidationTable
+    export: ExportTable
+    rig_run: RigRunPlan
+    published: PublishedTable | None
+
+
+def _parse(data: dict[str, Any], where: _Source) -> _StudyTables:
     """Every table of the file checked against its declaration (``None`` for an optional table not given)."""
     for name, value in data.items():
         if name not in STUDY_TABLES:
@@ -652,8 +677,18 @@ def _parse(data: dict[str, Any], where: _Source) -> dict[str, Any]:
         if name not in data:
             raise InputError(f"{where.shown}: the table [{name}] is missing")
     optional = (*DESIGN_TABLES, "learning", "published")  # None where not given; the others' keys all have defaults
-    return {name: cls.parse(data[name], where.fail, name) if name in data else (None if name in optional else cls())
-            for name, cls in STUDY_TABLES.items()}
+
+    def table(name: str) -> Any:
+        cls = STUDY_TABLES[name]
+        return cls.parse(data[name], where.fail, name) if name in data else (None if name in optional else cls())
+
+    return _StudyTables(
+        study=table("study"), rig=table("rig"), plant=table("plant"), learning=table("learning"),
+        controller=table("controller"), feedforward=table("feedforward"), reference=table("reference"),
+        simulation=table("simulation"), ballscrew=table("ballscrew"), feed_drive=table("feed_drive"),
+        duty=table("duty"), design=table("design"), schedule=table("schedule"), thermal=table("thermal"),
+        tuning=table("tuning"), validation=table("validation"), export=table("export"), rig_run=table("rig_run"),
+        published=table("published"))
 
 
 def _refuse_ignored(data: dict[str, Any], where: _Source) -> None:

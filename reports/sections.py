@@ -16,7 +16,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from piezopreload.artifacts.design import DesignRecord, binding_words
-from piezopreload.artifacts.gainset import GainSet, gains_to_dict
+from piezopreload.artifacts.gainset import GainSet, GainsTable
 from piezopreload.artifacts.learning import LearningRecord
 from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.rigrun import RigRunRecord
@@ -366,7 +366,7 @@ def _bound_text(tuning: TuningRecord) -> tuple[str, tuple[str, ...]]:
 def controller_section(study: ReportStudy, a: Artifacts) -> Part:
     """The tuned gains, the gain schedule (where tuned), and their Monte Carlo validation."""
     gain_set, tuning, val = a.gain_set, a.tuning, a.validation
-    g = gains_to_dict(gain_set.gains)
+    g = GainsTable.from_value(gain_set.gains).to_dict()
     form = "PI" if g["Td_s"] == 0.0 else "PID"
     words, omitted = _bound_text(tuning)
     search = f" The search: {tuning.solve.search}." if tuning.solve.search else ""

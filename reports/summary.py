@@ -11,7 +11,6 @@ from the same artifact field the section that details it reads.
 from __future__ import annotations
 
 from piezopreload.artifacts.design import DesignRecord
-from piezopreload.artifacts.gainset import gains_to_dict
 from piezopreload.artifacts.learning import LearningRecord
 from piezopreload.artifacts.requirements import least_margin, missed
 from piezopreload.artifacts.responses import ResponseRun
@@ -72,15 +71,14 @@ def _system_lines(system: SystemRecord, design: DesignRecord, learning: Learning
 
 def _controller_line(a: Artifacts) -> str:
     gains, val = a.gain_set.gains, a.validation
-    g = gains_to_dict(gains)
     if gains.schedule is not None:
         s = gains.schedule
         form = (f"gain schedule ({s.size} entries on the preload level, {fmt(min(s.levels_N))} to "
                 f"{fmt(max(s.levels_N))} N; Kc {fmt(1e3 * min(s.Kc), 4)} to {fmt(1e3 * max(s.Kc), 4)} mV/N)")
-    elif g["Td_s"] == 0.0:
-        form = f"PI (Kc {fmt(g['Kc_V_per_N'], 4)} V/N, Ti {fmt(g['Ti_s'], 4)} s)"
+    elif gains.Td_s == 0.0:
+        form = f"PI (Kc {fmt(gains.Kc, 4)} V/N, Ti {fmt(gains.Ti_s, 4)} s)"
     else:
-        form = f"PID (Kc {fmt(g['Kc_V_per_N'], 4)} V/N, Ti {fmt(g['Ti_s'], 4)} s, Td {fmt(g['Td_s'], 4)} s)"
+        form = f"PID (Kc {fmt(gains.Kc, 4)} V/N, Ti {fmt(gains.Ti_s, 4)} s, Td {fmt(gains.Td_s, 4)} s)"
     w = val.worst
     settling = ("never settled on one plant at least" if w.settling_s is None
                 else f"worst settling {fmt(w.settling_s)} s")

@@ -13,7 +13,7 @@ from __future__ import annotations
 import datetime as _dt
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 from piezopreload.artifacts.sweep import SweepPoint, SweepRecord
 from piezopreload.core.artifacts import atomic_write_bytes, atomic_write_text, package_version, write_artifact
@@ -105,13 +105,20 @@ def _summary(record: SweepRecord) -> list[str]:
     return lines
 
 
-def _table(record: SweepRecord) -> dict[str, Any]:
+class SweepTable(TypedDict):
+    """The report's table of the points, as its template reads it: the header's cells and each row's."""
+
+    header: list[str]
+    rows: list[list[str]]
+
+
+def _table(record: SweepRecord) -> SweepTable:
     rows = record.rows()
     columns = [c for c in TABLE_COLUMNS if any(r[c[0]] is not None for r in rows)]
     header = ["point", *(k.translate(_BREAK) for k in record.keys), "status", *(label(c[0], rows) for c in columns)]
     body = [[f"p{r['point']:03d}", *(str(r[k]) for k in record.keys), r["status"],
              *(_cell(r[c[0]], c[1]) for c in columns)] for r in rows]
-    return {"header": header, "rows": body}
+    return SweepTable(header=header, rows=body)
 
 
 def _omitted_reason(record: SweepRecord, stage: str) -> str:

@@ -58,7 +58,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from importlib.metadata import EntryPoint, entry_points
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TypedDict
 
 import numpy as np
 
@@ -70,7 +70,7 @@ from piezopreload.rig.watchdog import SharedDAQ
 
 __all__ = ["Reading", "Backend", "SimBackend", "CLibraryBackend", "Fault", "FaultInjector", "FAULT_KINDS",
            "ENTRY_POINT_GROUP", "BackendError", "InjectedFault", "injected_failure", "available_backends",
-           "open_backend", "parse_fault", "native_backend"]
+           "open_backend", "parse_fault", "native_backend", "NativeBackend"]
 
 ENTRY_POINT_GROUP = "piezopreload.rig_backends"
 
@@ -99,7 +99,29 @@ class Backend(Protocol):
     def disarm(self) -> None: ...
 
 
-def native_backend(backend: Backend, n_noise: int) -> dict[str, Any] | None:
+class NativeBackend(TypedDict, total=False):
+    """What the native loop needs to run a backend itself, by the names of its C struct's fields (``kind`` 0: the
+    simulated rig's compiled plant step, its state and parameters, the noise drawn beforehand and the DAQ's shared
+    words; ``kind`` 1: a C library's entry points). ``_keep`` holds the buffers the addresses point into."""
+
+    kind: int
+    plant_read: int | None
+    plant_write: int | None
+    plant_state: int
+    plant_params: int
+    noise: int
+    n_noise: int
+    _keep: Any
+    heartbeat: int
+    daq_V: int
+    hw_arm: int | None
+    hw_read: int | None
+    hw_write: int | None
+    hw_disarm: int | None
+    hw_heartbeat: int | None
+
+
+def native_backend(backend: Backend, n_noise: int) -> NativeBackend | None:
     """What the native loop needs to run ``backend`` itself (its ``native_backend(n_noise)``, which a backend may
     offer: the built-in ones do), or None where it offers none and the loop would call into the interpreter."""
     offer = getattr(backend, "native_backend", None)
@@ -202,19 +224,19 @@ class SimBackend:
             self.daq.set("output_V", 0.0)
             self.daq.set("armed", 0)
 
-    def native_backend(self, n_noise: int) -> dict[str, Any] | None:
+    def native_backend(self, n_noise: int) -> NativeBackend | None:
         """What the native loop needs to run this plant itself: the compiled plant step's entry points,
         its state and parameters, ``n_noise`` draws of the backend's noise (the Python loop's draws) and
         the DAQ's shared words; None where the plant step is not compiled."""
         if self.plant.kind != "c":
             return None
         noise = np.random.default_rng(self.seed).standard_normal(int(n_noise))
-        out: dict[str, Any] = {
-            "kind": 0, "plant_read": ctypes.cast(self.plant._read, ctypes.c_void_p).value,
-            "plant_write": ctypes.cast(self.plant._write, ctypes.c_void_p).value,
-            "plant_state": self.plant._x.ctypes.data, "plant_params": self.plant._p.ctypes.data,
-            "noise": noise.ctypes.data, "n_noise": noise.size, "_keep": noise,
-        }
+        out = NativeBackend(
+            kind=0, plant_read=ctypes.cast(self.plant._read, ctypes.c_void_p).value,
+            plant_write=ctypes.cast(self.plant._write, ctypes.c_void_p).value,
+            plant_state=self.plant._x.ctypes.data, plant_params=self.plant._p.ctypes.data,
+            noise=noise.ctypes.data, n_noise=noise.size, _keep=noise,
+        )
         if self.daq is not None:
             base = ctypes.addressof(ctypes.c_char.from_buffer(self.daq.mm))
             out["heartbeat"] = base + watchdog.FIELDS["heartbeat"][0]
@@ -298,13 +320,13 @@ class CLibraryBackend:
     def disarm(self) -> None:
         self._check(self.lib.disarm(), "disarm")
 
-    def native_backend(self, n_noise: int) -> dict[str, Any]:
+    def native_backend(self, n_noise: int) -> NativeBackend:
         """The library's entry points for the native loop (which calls arm and disarm itself)."""
         def address(fn: Any) -> int | None:
             return None if fn is None else ctypes.cast(fn, ctypes.c_void_p).value
-        return {"kind": 1, "hw_arm": address(self.lib.arm), "hw_read": address(self.lib.read_force),
-                "hw_write": address(self.lib.write_voltage), "hw_disarm": address(self.lib.disarm),
-                "hw_heartbeat": address(self._heartbeat)}
+        return NativeBackend(kind=1, hw_arm=address(self.lib.arm), hw_read=address(self.lib.read_force),
+                             hw_write=address(self.lib.write_voltage), hw_disarm=address(self.lib.disarm),
+                             hw_heartbeat=address(self._heartbeat))
 
 
 class InjectedFault(RuntimeError):

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from piezopreload.artifacts.gainset import GainSet, gains_to_dict
+from piezopreload.artifacts.gainset import GainSet, GainsTable
 from piezopreload.artifacts.hysteresis import IdentifiedModel
 from piezopreload.core.artifacts import atomic_write_text
 from piezopreload.core.errors import InputError
@@ -165,7 +165,8 @@ def validated_gains(gain_set: GainSet, accepted: tuple[str, ...] = ()) -> dict[s
     """The gains every format writes (SI, by name); refuses a gain set that is not validated unless each requirement
     it missed is in ``accepted`` by name (:func:`require_validated`)."""
     require_validated(gain_set, "exported", accepted=accepted)
-    g = {k: float(v) for k, v in gains_to_dict(gain_set.gains).items() if k in _GAIN_KEYS}
+    table = GainsTable.from_value(gain_set.gains)
+    g = {k: float(getattr(table, k)) for k in _GAIN_KEYS}
     bad = [k for k, v in g.items() if not np.isfinite(v)]
     if bad:
         raise ExportError(f"field 'gains.{bad[0]}' is not finite")

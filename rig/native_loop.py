@@ -51,7 +51,7 @@ import numpy as np
 from piezopreload.core import native
 from piezopreload.models.controller import Controller, ControllerModel, controller_functions
 from piezopreload.rig import interlocks
-from piezopreload.rig.backends import FAULT_KINDS
+from piezopreload.rig.backends import FAULT_KINDS, NativeBackend
 from piezopreload.rig.compiled import step_library
 
 __all__ = ["NativeLoop", "loop_library", "start_library", "available", "COLS", "FAULT_CODES", "EXCEPTION_WHERE",
@@ -239,7 +239,8 @@ class NativeLoop:
     ``controller``'s step and start are compiled for its structure; ``reference`` is the
     setpoint per sample; ``safety`` the interlocks' limits (the rows of
     :func:`piezopreload.rig.interlocks.rows` and the command's shaping); ``backend`` a dict
-    made by the backend's ``native_backend()``. ``ring_s`` seconds of samples fit the ring.
+    (:class:`~piezopreload.rig.backends.NativeBackend`) made by the backend's ``native_backend()``. ``ring_s``
+    seconds of samples fit the ring.
     ``step_fn``: the loaded ``pp_rig_step`` of ``controller``'s structure (a
     :class:`~piezopreload.rig.compiled.CompiledStep`'s), else it is loaded here. ``ff_extra``:
     the external feedforward per sample of ``reference`` (a learned signal), read by the loop
@@ -249,7 +250,7 @@ class NativeLoop:
     """
 
     def __init__(self, controller: Controller, reference: np.ndarray, safety: interlocks.Safety,
-                 backend: dict[str, Any],
+                 backend: NativeBackend,
                  *, realtime: bool, hold: bool,
                  faults: list[tuple[int, float, float, float]] = (),  # type: ignore[assignment]
                  ring_s: float = 30.0, fifo_priority: int = 80, spin_us: float = 0.0, step_fn: Any = None,
@@ -318,7 +319,7 @@ class NativeLoop:
             L.interlocks[j] = _Interlock(*row)
         L.n_interlocks = len(table)
 
-    def _set_backend(self, backend: dict[str, Any], faults: Any) -> None:
+    def _set_backend(self, backend: NativeBackend, faults: Any) -> None:
         """The backend's entry points and buffers, and the faults to inject."""
         L = self._L
         L.backend = int(backend["kind"])

@@ -88,8 +88,8 @@ from piezopreload.rig import SECURITY_MODES as MODE_NAMES
 from piezopreload.rig import SECURITY_POLICIES as POLICY_NAMES
 from piezopreload.rig.executor import Executor, RunResult
 
-__all__ = ["RigServer", "push_gain_set", "PushRefused", "NAMESPACE", "DEFAULT_ENDPOINT", "ROOT", "PUSH_INPUTS",
-           "PUSH_OUTPUTS", "Credentials", "connect", "SECURITY_POLICIES", "SECURITY_MODES"]
+__all__ = ["RigServer", "push_gain_set", "PushReply", "PushRefused", "NAMESPACE", "DEFAULT_ENDPOINT", "ROOT",
+           "PUSH_INPUTS", "PUSH_OUTPUTS", "Credentials", "connect", "SECURITY_POLICIES", "SECURITY_MODES"]
 
 NAMESPACE = "urn:piezopreload:rig"
 ROOT = "PreloadRig"
@@ -637,8 +637,8 @@ async def _await_running(running_node: Any, running: str, expect_sha256: str, ti
 
 
 async def _push_and_read(client: Client, document: str, note: str, timeout_s: float,
-                         expect_sha256: str | None, accepted: tuple[str, ...] = ()) -> tuple[bool, str, dict[str, Any],
-                                                                                            str]:
+                         expect_sha256: str | None,
+                         accepted: tuple[str, ...] = ()) -> tuple[bool, str, dict[str, float], str]:
     """Call ``PushGainSet`` on a connected client; the answer, then the parameters and the gain set the server shows."""
     idx = await client.get_namespace_index(NAMESPACE)
     root = await client.nodes.objects.get_child([f"{idx}:{ROOT}"])
@@ -654,17 +654,31 @@ async def _push_and_read(client: Client, document: str, note: str, timeout_s: fl
     if taken and expect_sha256 is not None:
         running = await _await_running(running_node, running, expect_sha256, timeout_s)
     params = await root.get_child([f"{idx}:ControllerParameters"])
-    values = {}
+    values: dict[str, float] = {}
     for name in ("CtrlP", "CtrlTi", "CtrlTd"):
         values[name] = await (await params.get_child([f"{idx}:{name}"])).read_value()
     return taken, message, values, running
+
+
+@dataclass(frozen=True)
+class PushReply:
+    """A served rig's answer to a push it took: its message, the parameters it then shows (``CtrlP``, ``CtrlTi``,
+    ``CtrlTd``) and the content hash of the gain set it runs."""
+
+    message: str
+    server_parameters: dict[str, float]
+    server_gain_set_sha256: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"accepted": True, "message": self.message, "server_parameters": dict(self.server_parameters),
+                "server_gain_set_sha256": self.server_gain_set_sha256}
 
 
 async def push_gain_set(document: str, endpoint: str, *, username: str | None = None, password: str | None = None,
                         certificate: str | Path | None = None, private_key: str | Path | None = None,
                         server_certificate: str | Path | None = None, timeout_s: float = PUSH_TIMEOUT_S,
                         expect_sha256: str | None = None, note: str = "",
-                        accepted: tuple[str, ...] = ()) -> dict[str, Any]:
+                        accepted: tuple[str, ...] = ()) -> PushReply:
     """Push a gain set's JSON ``document`` through ``PushGainSet`` (with ``note``, recorded with it, and the keys of
     the requirements a candidate missed that the pusher ``accepted``); :class:`PushRefused` says why not.
 
@@ -682,4 +696,4 @@ async def push_gain_set(document: str, endpoint: str, *, username: str | None = 
         await client.disconnect()
     if not taken:
         raise PushRefused(message)
-    return {"accepted": True, "message": message, "server_parameters": values, "server_gain_set_sha256": running}
+    return PushReply(message, values, running)

@@ -34,12 +34,13 @@ import numpy as np
 from asyncua import Client, ua
 
 from piezopreload.artifacts.gainset import GainSet
+from piezopreload.artifacts.requirements import Requirement
 from piezopreload.core.errors import InputError
 from piezopreload.rig.controller_code import Parameter, parameters
 from piezopreload.rig.export import controller_from_gain_set, require_validated
 from piezopreload.rig.opcua import Credentials, PushRefused, connect, lost
 
-__all__ = ["NodeMap", "push", "push_to_server", "SHA_NODE", "NUMBER_TYPES"]
+__all__ = ["NodeMap", "NodeWritten", "PlcPush", "push", "push_to_server", "SHA_NODE", "NUMBER_TYPES"]
 
 #: the one node a map may name besides the numbers: a String node the push writes the gain set's hash to
 SHA_NODE = "gain_set_sha256"
@@ -206,21 +207,62 @@ def _as_written(t: _Target) -> Any:
     return x.tolist() if t.array else float(x[0])
 
 
-def _report(t: _Target, read: Any) -> dict[str, Any]:
-    row: dict[str, Any] = {"name": t.name, "node": t.node_id, "type": NUMBER_TYPES.get(t.type_id, "String"),
-                           "before": t.before, "written": t.value if isinstance(t.value, str) else
-                           (list(t.value) if t.array else t.value[0]), "read_back": read}
+@dataclass(frozen=True)
+class NodeWritten:
+    """One node of a push: its name and node id, its type, its value before, the value written and read back, the
+    largest difference between them (absolute and relative; None for a string) and whether it reads as written."""
+
+    name: str
+    node: str
+    type: str
+    before: Any
+    written: Any
+    read_back: Any
+    difference: float | None
+    relative_difference: float | None
+    as_written: bool
+
+    def to_dict(self) -> dict[str, Any]:
+        out = {"name": self.name, "node": self.node, "type": self.type, "before": self.before,
+               "written": self.written, "read_back": self.read_back, "difference": self.difference}
+        if self.relative_difference is not None:
+            out["relative_difference"] = self.relative_difference
+        return {**out, "as_written": self.as_written}
+
+
+def _report(t: _Target, read: Any) -> NodeWritten:
+    kind = NUMBER_TYPES.get(t.type_id, "String")
     if isinstance(t.value, str):
-        row.update(difference=None, as_written=read == t.value)
-        return row
+        return NodeWritten(t.name, t.node_id, kind, t.before, t.value, read, None, None, read == t.value)
     got, want = np.atleast_1d(np.asarray(read, float)), np.asarray(t.value, float)
     diff = float(np.max(np.abs(got - want))) if got.shape == want.shape else float("inf")
-    row.update(difference=diff, relative_difference=float(diff / max(float(np.max(np.abs(want))), 1e-300)),
-               as_written=got.shape == want.shape and bool(np.array_equal(got, np.atleast_1d(_as_written(t)))))
-    return row
+    return NodeWritten(t.name, t.node_id, kind, t.before, list(t.value) if t.array else t.value[0], read, diff,
+                       float(diff / max(float(np.max(np.abs(want))), 1e-300)),
+                       got.shape == want.shape and bool(np.array_equal(got, np.atleast_1d(_as_written(t)))))
 
 
-async def _write_and_read(client: Client, targets: list[_Target]) -> list[dict[str, Any]]:
+@dataclass(frozen=True)
+class PlcPush:
+    """``rig push --to URL --map NODES.toml``'s report: the gain set (file, content hash), the server and the map,
+    each node written, the largest relative difference read back, whether every number read back exactly, and the
+    requirements a candidate missed that the pusher accepted."""
+
+    gain_set: str
+    gain_set_sha256: str | None
+    to: str
+    map: str
+    nodes: tuple[NodeWritten, ...]
+    max_relative_difference: float
+    exact: bool
+    accepted_missed: tuple[Requirement, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"gain_set": self.gain_set, "gain_set_sha256": self.gain_set_sha256, "to": self.to, "map": self.map,
+                "nodes": [n.to_dict() for n in self.nodes], "max_relative_difference": self.max_relative_difference,
+                "exact": self.exact, "accepted_missed": [r.to_dict() for r in self.accepted_missed]}
+
+
+async def _write_and_read(client: Client, targets: list[_Target]) -> list[NodeWritten]:
     """One write request for every node, then each read back."""
     values = [ua.DataValue(ua.Variant(_as_written(t), _VARIANTS[t.type_id or ua.ObjectIds.String])) for t in targets]
     codes = await client.write_values([t.node for t in targets], values, raise_on_partial_error=False)
@@ -242,7 +284,7 @@ def _targets(gain_set: GainSet, node_map: NodeMap, accepted: tuple[str, ...] = (
 
 
 async def push_to_server(gain_set: GainSet, endpoint: str, node_map: NodeMap, who: Credentials,
-                         timeout_s: float = 10.0, accepted: tuple[str, ...] = ()) -> list[dict[str, Any]]:
+                         timeout_s: float = 10.0, accepted: tuple[str, ...] = ()) -> list[NodeWritten]:
     """Write ``gain_set``'s numbers to the nodes of ``node_map`` on ``endpoint`` (see the module docstring); the rows of
     the report, one per node. :class:`PushRefused` says why nothing (or not everything) was written."""
     targets = _targets(gain_set, node_map, accepted)
@@ -257,7 +299,7 @@ async def push_to_server(gain_set: GainSet, endpoint: str, node_map: NodeMap, wh
 
 
 def push(gains_path: str | Path, *, to: str, map_path: str | Path, who: Credentials,
-         timeout_s: float = 10.0, accepted: tuple[str, ...] = ()) -> dict[str, Any]:
+         timeout_s: float = 10.0, accepted: tuple[str, ...] = ()) -> PlcPush:
     """``rig push GAINS --to URL --map NODES.toml``: the report of :func:`push_to_server`, with what it wrote where.
 
     Refusals (the gain set's status, the map, a node missing, of another type or not writable, the session) are bad
@@ -270,13 +312,11 @@ def push(gains_path: str | Path, *, to: str, map_path: str | Path, who: Credenti
         rows = asyncio.run(push_to_server(gain_set, to, node_map, who, timeout_s, accepted))
     except PushRefused as exc:
         raise InputError(f"{to}: {exc}") from None
-    off = [r["name"] for r in rows if not r["as_written"]]
+    off = [r.name for r in rows if not r.as_written]
     if off:
         raise InputError(f"{to}: written, but {', '.join(off)} read back otherwise than written (see the node's "
                          "scaling or limits on the PLC)")
-    numbers = [r for r in rows if r["difference"] is not None]
-    return {"gain_set": str(gains_path), "gain_set_sha256": gain_set.content_sha256, "to": to,
-            "map": node_map.path, "nodes": rows,
-            "max_relative_difference": max((r["relative_difference"] for r in numbers), default=0.0),
-            "exact": all(r["difference"] == 0.0 for r in numbers),
-            "accepted_missed": [r.to_dict() for r in gain_set.missed] if not gain_set.validated else []}
+    numbers = [r for r in rows if r.difference is not None]
+    return PlcPush(str(gains_path), gain_set.content_sha256, to, node_map.path, tuple(rows),
+                   max((r.relative_difference or 0.0 for r in numbers), default=0.0),
+                   all(r.difference == 0.0 for r in numbers), () if gain_set.validated else gain_set.missed)

@@ -25,14 +25,22 @@ import time
 from array import array
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
 from piezopreload.artifacts.rigrun import RigRunRecord, RunMetrics, RunOutcome
 from piezopreload.core.errors import InputError
 
-__all__ = ["RunLog", "COLUMNS", "read_run_log"]
+__all__ = ["RunLog", "COLUMNS", "read_run_log", "LearnedFigures"]
+
+
+class LearnedFigures(TypedDict, total=False):
+    """A learned run's figures, added to the record of the signal it played: its RMS error against the reference the
+    signal was learned on and against the plan (the setpoint) it played."""
+
+    tracking_rms_measured_N: float
+    plan_rms_measured_N: float
 
 #: the CSV's columns, in order
 COLUMNS = ("time_s", "reference_N", "measured_N", "command_V", "voltage_V", "feedforward_V", "p_V", "i_V", "d_V",
@@ -126,7 +134,7 @@ class RunLog:
         """The run was refused after the log was opened (before arming): closed with the reason."""
         self._close(status="not started", reason=reason)
 
-    def record_metrics(self, metrics: RunMetrics, learned: dict[str, float] | None = None) -> None:
+    def record_metrics(self, metrics: RunMetrics, learned: LearnedFigures | None = None) -> None:
         """A completed run's step and tracking figures, added to its outcome (a tripped run has none), and a
         learned signal's figures (``learned``) to the record of the signal."""
         with self._lock:

@@ -47,9 +47,9 @@ from piezopreload.rig.executor import Executor
 from piezopreload.rig.export import ExportError, controller_from_gain_set, require_validated
 from piezopreload.rig.hostcheck import check_host
 from piezopreload.rig.limits import RunLimits, check_fit, run_limits
-from piezopreload.rig.opcua import PushRefused, RigServer, feedforward_hash, push_gain_set
+from piezopreload.rig.opcua import PushRefused, PushReply, RigServer, feedforward_hash, push_gain_set
 from piezopreload.rig.outcome import RunResult
-from piezopreload.rig.runlog import RunLog
+from piezopreload.rig.runlog import LearnedFigures, RunLog
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -217,7 +217,7 @@ def run_metrics(columns: dict[str, np.ndarray], reference: Reference, band_N: fl
         numbers = run_numbers(run, band_N, "measured_N")
     except ValueError:  # no step to read (a schedule: ramps, or a first row that repeats the level)
         te = run.tracking_error(t_from_s=0.0)
-        numbers = {"tracking_rms_N": float(te["rms"]), "tracking_max_N": float(te["max"])}
+        numbers = {"tracking_rms_N": float(te.rms_N), "tracking_max_N": float(te.max_N)}
     keys = ("rise_s", "peak_s", "settling_s", "overshoot_N", "tracking_rms_N", "tracking_max_N")
     return RunMetrics(n, peak, **{k: None if (x := numbers.get(k)) is None else finite_or_none(x) for k in keys})
 
@@ -232,6 +232,11 @@ class RigRun:
     @property
     def ok(self) -> bool:
         return self.summary["status"] == "completed"
+
+    @property
+    def exit_code(self) -> int:
+        """0 for a completed run, the tripped run's code otherwise (what the command exits with)."""
+        return int(self.summary["exit_code"])
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.summary)
@@ -383,18 +388,17 @@ def _summary(result: RunResult, log: RunLog, su: _Setup) -> RigRun:
     return RigRun(summary, columns)
 
 
-def _learned_metrics(columns: dict[str, np.ndarray], signal: LearnedSignal) -> dict[str, Any]:
+def _learned_metrics(columns: dict[str, np.ndarray], signal: LearnedSignal) -> LearnedFigures:
     """A learned run's error against the reference it was learned on (the log's reference_N is the plan)."""
     keep = columns["mode"] == 0
     t, y = columns["time_s"][keep], columns["measured_N"][keep]
     scored = t >= (signal.reference.times_s[1] if signal.reference.times_s.size > 1 else 0.0)
     if not scored.any():
-        return {}
+        return LearnedFigures()
     e = signal.reference.at(t[scored]) - y[scored]
-    return {"tracking_rms_measured_N": float(np.sqrt(np.mean(e**2))),
-            "plan_rms_measured_N": float(np.sqrt(np.mean((np.interp(t[scored], np.arange(signal.setpoint_N.size) *
-                                                                     signal.sample_period_s, signal.setpoint_N)
-                                                           - y[scored]) ** 2)))}
+    plan = np.interp(t[scored], np.arange(signal.setpoint_N.size) * signal.sample_period_s, signal.setpoint_N)
+    return LearnedFigures(tracking_rms_measured_N=float(np.sqrt(np.mean(e**2))),
+                          plan_rms_measured_N=float(np.sqrt(np.mean((plan - y[scored]) ** 2))))
 
 
 def run(gains_path: str | Path, *, backend: str = "sim", backend_options: dict[str, str] | None = None,
@@ -530,9 +534,23 @@ def check(gains_path: str | Path | None = None, *, seconds: float = 10.0, rate_H
                       stall_limit_s=su.limits.safety.stall_limit_s, loop=loop, progress=progress)
 
 
+@dataclass(frozen=True)
+class ServedPush:
+    """``rig push`` to a served rig: the gain set pushed (its file and content hash), where, and the rig's reply."""
+
+    gain_set: str
+    gain_set_sha256: str | None
+    endpoint: str
+    reply: PushReply
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"gain_set": self.gain_set, "gain_set_sha256": self.gain_set_sha256, "endpoint": self.endpoint,
+                **self.reply.to_dict()}
+
+
 def push(gains_path: str | Path, *, endpoint: str, username: str | None, password: str | None,
          certificate: str | None = None, private_key: str | None = None,
-         server_certificate: str | None = None, note: str = "", accepted: tuple[str, ...] = ()) -> dict[str, Any]:
+         server_certificate: str | None = None, note: str = "", accepted: tuple[str, ...] = ()) -> ServedPush:
     """Push a validated gain set to a serving rig (``note``: why, recorded with the push; a candidate only where each
     requirement it missed is ``accepted`` by name, sent with it); refused pushes are bad input (exit 2) with the
     server's reason."""
@@ -544,4 +562,4 @@ def push(gains_path: str | Path, *, endpoint: str, username: str | None, passwor
                                           expect_sha256=gain_set.content_sha256, note=note, accepted=accepted))
     except PushRefused as exc:
         raise InputError(f"{endpoint}: {exc}") from None
-    return {"gain_set": str(gains_path), "gain_set_sha256": gain_set.content_sha256, "endpoint": endpoint, **reply}
+    return ServedPush(str(gains_path), gain_set.content_sha256, endpoint, reply)

@@ -187,7 +187,7 @@ def test_feedforward_data_is_honoured_by_simulate_and_reproduce(measured_study):
     study, loop = measured_study
     ff = study.identify_feedforward()
     plain = pp.load_study(SMALL).identify_feedforward()
-    assert ff.source == {"kind": "measured", "path": str(loop), "sha256": ff.source["sha256"]}
+    assert ff.source.to_dict() == {"kind": "measured", "path": str(loop), "sha256": ff.source.sha256}
     assert not np.allclose(ff.model.weights, plain.model.weights, rtol=0.05)  # a different rig, a different model
     run = study.simulate(controller="ff+pid")
     assert f"the measured loop {loop}" in run.to_dict()["feedforward"]["source"]

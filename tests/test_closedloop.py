@@ -82,8 +82,8 @@ def test_step_metrics_of_a_run_use_the_step_window():
     assert second.initial == 60.0 and second.final == 80.0
     assert 0 < first.rise_s < 3.0 and 0 < second.rise_s < 3.0
     te = run.tracking_error()
-    assert te["max"] == pytest.approx(35.0, abs=0.5)  # the first jump, before the force moves
-    assert 0 < te["rms"] < te["max"]
+    assert te.max_N == pytest.approx(35.0, abs=0.5)  # the first jump, before the force moves
+    assert 0 < te.rms_N < te.max_N
 
 
 def test_references_and_the_open_loop_measurement():

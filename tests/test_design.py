@@ -99,7 +99,7 @@ def test_infeasible_request_names_the_constraint_and_the_shortfall(spec):
     bad = replace(spec, life_min_h=1e12)
     with pytest.raises(DesignInfeasible) as info:
         optimise(bad, "stiffness")
-    names = [v["constraint"] for v in info.value.violations]
+    names = [v.constraint for v in info.value.violations]
     assert "life" in names, names
     assert "[design] life_min_h" in str(info.value) and "short" in str(info.value)
     # a request that is fine except for an impossible frequency
@@ -121,26 +121,26 @@ def test_a_least_rigidity_above_the_optimum_names_it_with_the_rigidity_reached(s
     best = optimise(spec, "stiffness").point.stiffness_N_per_um
     required = round(1.3 * best, -1)
     miss, text = _only_miss(replace(spec, stiffness_min_N_per_um=required))
-    assert miss["constraint"] == "stiffness_min" and miss["units"] == "N/um", miss
-    assert miss["reached"] == pytest.approx(best, rel=1e-3) and miss["required"] == required, miss
-    assert miss["short_by"] == pytest.approx(required - best, rel=1e-2), miss
-    assert "[design] stiffness_min_N_per_um" in text and f"reaches {miss['reached']:,.0f} N/um" in text, text
-    assert f"{required - miss['reached']:,.0f} N/um short" in text and "nan" not in text, text
+    assert miss.constraint == "stiffness_min" and miss.units == "N/um", miss
+    assert miss.reached == pytest.approx(best, rel=1e-3) and miss.required == required, miss
+    assert miss.short_by == pytest.approx(required - best, rel=1e-2), miss
+    assert "[design] stiffness_min_N_per_um" in text and f"reaches {miss.reached:,.0f} N/um" in text, text
+    assert f"{required - miss.reached:,.0f} N/um short" in text and "nan" not in text, text
 
 
 def test_a_life_beyond_reach_names_it_in_hours_with_the_longest_life(spec):
     longest = optimise(spec, "life").point.life_h
     miss, text = _only_miss(replace(spec, life_min_h=100 * longest))
-    assert miss["constraint"] == "life" and miss["units"] == "h", miss
-    assert miss["reached"] == pytest.approx(longest, rel=1e-3), (miss, longest)
-    assert "[design] life_min_h" in text and f"reaches {miss['reached']:,.0f} h" in text, text
+    assert miss.constraint == "life" and miss.units == "h", miss
+    assert miss.reached == pytest.approx(longest, rel=1e-3), (miss, longest)
+    assert "[design] life_min_h" in text and f"reaches {miss.reached:,.0f} h" in text, text
 
 
 def test_a_failsafe_load_beyond_the_bolts_names_the_lift_off(spec):
     miss, text = _only_miss(replace(spec, failsafe_load_N=40000.0))
-    assert miss["constraint"] == "lift_off_failsafe" and miss["units"] == "N", miss
-    assert miss["short_by"] == pytest.approx(40000.0 - miss["reached"]) and miss["short_by"] > 0, miss
-    assert f"without lift-off at most {miss['reached']:,.0f} N against at least 40,000 N" in text, text
+    assert miss.constraint == "lift_off_failsafe" and miss.units == "N", miss
+    assert miss.short_by == pytest.approx(40000.0 - miss.reached) and miss.short_by > 0, miss
+    assert f"without lift-off at most {miss.reached:,.0f} N against at least 40,000 N" in text, text
     assert "[design] failsafe_load_N" in text, text
 
 

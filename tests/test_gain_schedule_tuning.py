@@ -152,10 +152,11 @@ def test_the_setpoint_action_must_rise_with_the_setpoint_and_the_weights_are_rai
 
 
 def test_a_level_the_schedule_misses_says_what_stops_a_pid_entry():
-    from piezopreload.tuning.schedule import _bound
+    from piezopreload.tuning.schedule import WorstCase, _bound
 
     limits = {"settling_s": 0.6, "overshoot_N": 25.0, "tracking_rms_N": 40.0, "peak_voltage_V": 120.0}
-    figures = {"overshoot_N": 28.8, "settling_s": 0.5, "failures": ["overshoot_N"], "passed": False}
+    figures = WorstCase(settling_s=0.5, overshoot_N=28.8, tracking_rms_N=None, peak_voltage_V=None, passed=False,
+                        failures=("overshoot_N",))
     tuned = _bound({"binding": ["Ms <= 1.6, variant 2", "overshoot inside 15 N, step, variant 1"],
                     "overshoot_target_N": 15.0}, figures, limits)
     assert "Ms <= 1.6, variant 2" in tuned and "worst overshoot 28.8 N against 25" in tuned and "15 N" in tuned

@@ -36,7 +36,7 @@ def _simulate_linear(model: I.LearningModel, u: np.ndarray) -> np.ndarray:
 # ---- preview ---------------------------------------------------------------------------------
 def test_preview_floor_without_preview_is_the_causal_floor_and_falls_with_preview():
     params = Plant(amp_current_limit_A=0.0142)  # the paper's slow amplifier: ramps of tens of samples
-    causal = tracking_floor(params, TRAJECTORY)["rms_N"]
+    causal = tracking_floor(params, TRAJECTORY).rms_N
     plan0 = P.preview_plan(params, TRAJECTORY, 0.0)
     assert plan0.rms_N == pytest.approx(causal, rel=1e-12), "with no preview the plan's floor is not tracking_floor's"
     floors = [P.preview_plan(params, TRAJECTORY, p).rms_N for p in (0.0, 0.005, 0.01, 0.2)]
@@ -75,7 +75,7 @@ def test_preview_on_a_pure_delay_removes_it_exactly():
 
 def test_the_rigs_own_branch_is_never_faster_than_the_steepest_slope_and_ends_at_each_level():
     params = Plant(amp_current_limit_A=0.0142)
-    rate = tracking_floor(params, TRAJECTORY)["rate_N_per_s"] * params.sample_period_s
+    rate = tracking_floor(params, TRAJECTORY).rate_N_per_s * params.sample_period_s
     ramps = P.branch_ramps(params, TRAJECTORY.levels_N)
     assert len(ramps) == TRAJECTORY.levels_N.size - 1
     for level, start, ramp in zip(TRAJECTORY.levels_N[1:], TRAJECTORY.levels_N[:-1], ramps):

@@ -152,8 +152,8 @@ def test_serve_push_and_refusals(tmp_path, study, feedforward):
         assert asyncio.run(_read(endpoint, "GainSetSha256")) == sha1
         reply = asyncio.run(push_gain_set(sets["second"].read_text(), endpoint, username=USER, password=PASSWORD,
                                           expect_sha256=sha2))
-        assert reply["server_parameters"] == {"CtrlP": 0.5, "CtrlTi": 0.05, "CtrlTd": 0.001}
-        assert reply["server_gain_set_sha256"] == sha2
+        assert reply.server_parameters == {"CtrlP": 0.5, "CtrlTi": 0.05, "CtrlTd": 0.001}
+        assert reply.server_gain_set_sha256 == sha2
         _refusals(endpoint, sets, tampered)
         assert asyncio.run(_read(endpoint, "GainSetSha256")) == sha2  # nothing the refusals sent changed it
     finally:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from stkit import translate
 
-from piezopreload.artifacts.gainset import GainSet, gains_from_dict, gains_to_dict
+from piezopreload.artifacts.gainset import GainSet, GainsTable, gains_from_dict
 from piezopreload.core.artifacts import write_artifact
 from piezopreload.core.errors import ArtifactError, InputError
 from piezopreload.models.actuator import Plant, Rig
@@ -194,14 +194,14 @@ def test_switching_to_and_from_a_schedule_is_bumpless(table):
     (lambda d: d.update(b="half"), "gains.schedule.b"),
 ])
 def test_a_bad_schedule_is_refused_naming_its_field(mutate, field):
-    doc = gains_to_dict(PIDGains(**BASE, schedule=SCHEDULE_B))
+    doc = GainsTable.from_value(PIDGains(**BASE, schedule=SCHEDULE_B)).to_dict()
     mutate(doc["schedule"])
     with pytest.raises(InputError, match=re.escape(f"'{field}'")):
         gains_from_dict(doc)
 
 
 def _gain_set(tmp_path, schedule=SCHEDULE, name="gains.json"):
-    gains = gains_to_dict(PIDGains(**BASE, schedule=schedule))
+    gains = GainsTable.from_value(PIDGains(**BASE, schedule=schedule)).to_dict()
     path = tmp_path / name
     write_artifact(path, "gain-set", {"status": "validated", "gains": gains, "inputs": {},
                                       "plant": {"rig": Plant(noise_N=0.2).to_dict()}})

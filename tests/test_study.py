@@ -415,7 +415,7 @@ def test_learning_along_the_schedule_is_one_call_and_plays_what_it_learned(tmp_p
     fig = result.plot()
     assert isinstance(fig, Figure) and len(fig.axes[0].lines) == len(result.passes)
     saved = result.save(tmp_path / "learn", None)
-    assert LearnedSignal.load(saved["out"]).content_sha256 == saved["content_sha256"]
+    assert LearnedSignal.load(saved.out).content_sha256 == saved.content_sha256
     code = main(["learn", "--study", str(AXIS), "--reference", "schedule", "--iterations", "2", "--json"])
     out, err = capsys.readouterr()
     assert code == 0, err
@@ -439,3 +439,11 @@ def test_published_numbers_are_a_declared_table_too(tmp_path):
     path.write_text(changed)
     with pytest.raises(pp.InputError, match=rf":{_line(changed, 'ff_pid =')}: 'published.ff_pid' needs 'peak_s'"):
         pp.load_study(path)
+
+
+def test_the_parsed_tables_type_names_every_table_of_a_study_in_order():
+    """The typed form of a file's tables (what the study is built from) has one key per declared table, in order."""
+    from piezopreload.spec import _StudyTables
+    from piezopreload.tables import STUDY_TABLES
+
+    assert list(_StudyTables.__annotations__) == list(STUDY_TABLES)

@@ -120,14 +120,14 @@ def test_minimum_time_is_a_lower_bound_the_rig_reaches():
     # the amplifier cannot beat its slew limit: the voltage for 50 N takes at least this long
     rig = Rig(params)
     v_needed = 25.0 / (float(params.effective_stiffness_N_per_um) * params.stroke_um_per_V * 1.2)
-    assert bound["settling_s"] >= v_needed / float(params.slew_V_per_s)
+    assert bound.settling_s >= v_needed / float(params.slew_V_per_s)
     # and the optimal command, played into the rig itself, does settle there
     state = rig.initial_state()
     f = []
-    for u in bound["command_V"]:
+    for u in bound.command_V:
         f.append(float(rig.force(state)))
         state = rig.step(state, u)
-    k = bound["samples"]
+    k = bound.samples
     assert np.all(np.abs(np.array(f[k:]) - 50.0) <= 1.5 + 0.1)
     assert np.abs(f[k - 3] - 50.0) > 1.5 - 0.1  # a few samples earlier it was still outside
 
@@ -384,11 +384,11 @@ def test_tracking_floor_bounds_the_force_rate_and_every_controller():
         forces.append(float(rig.force(state)))
         state = rig.step(state, u)
     rate = np.max(np.abs(np.diff(forces))) / rig.dt_s
-    assert 0.5 * floor["rate_N_per_s"] < rate <= floor["rate_N_per_s"]
+    assert 0.5 * floor.rate_N_per_s < rate <= floor.rate_N_per_s
     ref = Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 0.5, t_start_s=0.1)
     for gains in (PIDGains(Kc=0.3, Ti_s=0.08), PIDGains(Kc=4.0, Ti_s=0.01), PIDGains(Kc=2.0, Ti_s=0.07, b=0.25)):
-        rms = simulate(rig, Controller(gains, rig.dt_s), ref).tracking_error()["rms"]
-        assert rms >= floor["rms_N"]
+        rms = simulate(rig, Controller(gains, rig.dt_s), ref).tracking_error().rms_N
+        assert rms >= floor.rms_N
 
 
 def test_tracking_error_leaves_out_the_samples_out_of_authority():
@@ -407,9 +407,9 @@ def test_tracking_error_leaves_out_the_samples_out_of_authority():
     for i in range(2):
         keep = scored & ~saturated[i]
         e = ref.at(run.t_s)[keep] - run.force_N[i, keep]
-        assert te["rms"][i] == pytest.approx(np.sqrt(np.mean(e**2)), rel=1e-12)
-        assert te["saturated_fraction"][i] == pytest.approx((scored & saturated[i]).sum() / scored.sum(), rel=1e-12)
-    assert te["rms"][0] == plain["rms"][0] and te["rms"][1] < plain["rms"][1]
+        assert te.rms_N[i] == pytest.approx(np.sqrt(np.mean(e**2)), rel=1e-12)
+        assert te.saturated_fraction[i] == pytest.approx((scored & saturated[i]).sum() / scored.sum(), rel=1e-12)
+    assert te.rms_N[0] == plain.rms_N[0] and te.rms_N[1] < plain.rms_N[1]
 
 
 def test_tracking_improvement_has_no_ratio_where_the_tuned_loop_has_nothing_to_score():
@@ -583,16 +583,16 @@ def test_the_minimum_time_bound_on_the_designed_plant_and_the_pi_it_is_read_agai
     plant = horizon.tuning_loop(study.plant).plant
     theta = plant.parameters(study.plant)
     state, force = plant.rest_state(NUMPY, theta), []
-    for u in bound["command_V"]:
+    for u in bound.command_V:
         force.append(float(plant.force(NUMPY, theta, state)))
         state = plant.step(NUMPY, theta, state, u)
-    k = bound["samples"]
+    k = bound.samples
     err = np.abs(np.array(force) - float(step.levels_N[1]))
     assert np.all(err[k:] <= study.band_N * (1 + 1e-6)) and err[k - 1] > study.band_N * (1 - 1e-6)
     tuned = study.tune()
     assert tuned.gains.Td_s == 0.0 and tuned.solve.form == "PI"
     assert tuned.active_bounds[0].gain == "Td_s"
-    assert tuned.minimum_time.settling_s == pytest.approx(bound["settling_s"])
+    assert tuned.minimum_time.settling_s == pytest.approx(bound.settling_s)
     candidate = tuned.candidate()
     assert candidate.tuning["active_bounds"][0]["gain"] == "Td_s" and candidate.gains.Tf_s == 0.0
 

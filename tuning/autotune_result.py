@@ -33,8 +33,8 @@ from piezopreload.tuning.pidform import PIDController
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["AutotuneResult", "Margins", "StartRecord", "LOOPS", "sensitivity_peaks", "located_peaks", "located",
-           "magnitudes", "margins_of", "achieved"]
+__all__ = ["AutotuneResult", "Margins", "SampledCheck", "StartRecord", "LOOPS", "sensitivity_peaks", "located_peaks",
+           "located", "magnitudes", "margins_of", "achieved"]
 
 _NAMES = {"Ms": "|S|", "Mt": "|T|", "Mks": "|KS|"}
 #: how far (relative) a bound may be exceeded (the autotuner's tolerance)
@@ -224,14 +224,49 @@ def _fmt(x: float | None, unit: str = "", digits: int = 4) -> str:
 LOOPS = ("continuous", "sampled")
 
 
-def _sampled_misses(check: dict[str, Any]) -> str:
-    """What the loop as it will run misses, in words: its instability or each bound over the tolerance, by how much."""
-    if not check["stable"]:
-        return f"the loop as it will run at Ts {check['sample_period_s']:g} s is unstable"
-    over = [f"{k} {check['achieved'][k]:.4g} against {check['bounds'][k]:g} (over by {x:.1%})"
-            for k, x in check["over_by"].items() if x > check["tolerance"]]
-    return (f"the loop as it will run at Ts {check['sample_period_s']:g} s misses its bounds beyond the "
-            f"{check['tolerance']:.1%} tolerance: " + ", ".join(over))
+@dataclass(frozen=True)
+class SampledCheck:
+    """The autotuned loop as it will run at a sample period (:meth:`AutotuneResult.discrete_check`).
+
+    Parameters
+    ----------
+    sample_period_s : float
+        The sample period, s: the controller step behind a zero-order hold.
+    stable : bool
+        Whether the sampled loop is stable.
+    achieved : dict of str to float
+        The largest ``|S|``, ``|T|``, ``|KS|`` reached (``Ms``, ``Mt``, ``Mks``).
+    over_by : dict of str to float
+        How far each bound set is exceeded, as a fraction of it (negative: met with room).
+    tolerance : float
+        The fraction a bound may be exceeded by.
+    passed : bool
+        Whether the loop is stable and every bound holds within the tolerance.
+    bounds : dict of str to float
+        The bounds set.
+    """
+
+    sample_period_s: float
+    stable: bool
+    achieved: dict[str, float]
+    over_by: dict[str, float]
+    tolerance: float
+    passed: bool
+    bounds: dict[str, float]
+
+    def misses(self) -> str:
+        """What the loop misses, in words: its instability or each bound over the tolerance, by how much."""
+        if not self.stable:
+            return f"the loop as it will run at Ts {self.sample_period_s:g} s is unstable"
+        over = [f"{k} {self.achieved[k]:.4g} against {self.bounds[k]:g} (over by {x:.1%})"
+                for k, x in self.over_by.items() if x > self.tolerance]
+        return (f"the loop as it will run at Ts {self.sample_period_s:g} s misses its bounds beyond the "
+                f"{self.tolerance:.1%} tolerance: " + ", ".join(over))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"sample_period_s": self.sample_period_s, "stable": self.stable, "achieved": dict(self.achieved),
+                "over_by": dict(self.over_by), "tolerance": self.tolerance, "passed": self.passed,
+                "bounds": dict(self.bounds)}
 
 
 @dataclass(frozen=True, eq=False)
@@ -471,7 +506,7 @@ class AutotuneResult:
         return draw(self)
 
     # ---- the gain set ----------------------------------------------------------------------------------
-    def discrete_check(self, Ts: float) -> dict[str, Any]:
+    def discrete_check(self, Ts: float) -> SampledCheck:
         """The loop as it will run at sample period ``Ts`` (the controller step, the plant behind a zero-order hold):
         stable?, the largest ``|S|``, ``|T|``, ``|KS|``, and whether every bound holds within the tolerance."""
         c = self.controller_
@@ -482,8 +517,8 @@ class AutotuneResult:
         stable = sampled.closed_loop_stable(ctrl)
         over = {k: peaks[k][0] / v - 1.0 for k, v in self.bounds.items() if v is not None}
         met = stable and all(x <= _TOLERANCE for x in over.values())
-        return {"sample_period_s": float(Ts), "stable": stable, "achieved": {k: v[0] for k, v in peaks.items()},
-                "over_by": over, "tolerance": _TOLERANCE, "passed": met}
+        return SampledCheck(float(Ts), stable, {k: v[0] for k, v in peaks.items()}, over, _TOLERANCE, met,
+                            {k: v for k, v in self.bounds.items() if v is not None})
 
     def to_gain_set(self, sample_period_s: float | None = None, *, u_min_V: float | None = None,
                     u_max_V: float | None = None, b: float = 1.0, name: str | None = None) -> GainSet:
@@ -512,12 +547,11 @@ class AutotuneResult:
         check = self.discrete_check(Ts)
         sampled = {"method": "the autotuned loop at its sample period: the controller step behind a zero-order "
                              "hold, its stability and its largest |S|, |T|, |KS| against the bounds",
-                   **check, "bounds": {k: v for k, v in self.bounds.items() if v is not None}}
-        check["bounds"] = {k: v for k, v in self.bounds.items() if v is not None}
-        validated = check["passed"] and not self.leans_on
+                   **check.to_dict()}
+        validated = check.passed and not self.leans_on
         reason = ("the loop as it will run is stable and meets every bound within the tolerance, all of them set by "
                   "the user" if validated else
-                  "; ".join(([] if check["passed"] else [_sampled_misses(check) + (
+                  "; ".join(([] if check.passed else [check.misses() + (
                       " (the bounds were tuned on the continuous loop: tune with loop='sampled' to hold them on the "
                       "loop as it runs)" if self.loop == "continuous" else "")])
                             + [f"leans on a bound the user did not set: {x}" for x in self.leans_on]))

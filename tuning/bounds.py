@@ -9,7 +9,7 @@ error of any causal controller without preview. The tuned loop is read against b
 from __future__ import annotations
 
 import time
-from typing import Any
+from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
@@ -22,7 +22,30 @@ from piezopreload.models.ops import CASADI, NUMPY
 from piezopreload.tuning.horizon import tuning_loop
 from piezopreload.tuning.linearised import small_signal_gains
 
-__all__ = ["minimum_time", "tracking_floor"]
+__all__ = ["minimum_time", "tracking_floor", "MinimumTime", "CausalFloor"]
+
+
+@dataclass(frozen=True, eq=False)
+class MinimumTime:
+    """The minimum-time bound (:func:`minimum_time`): the shortest settling time, in seconds and in samples, the
+    command that reaches it, the hold it was judged with, the time the search took and the settling time it started
+    from (the first feasible horizon)."""
+
+    settling_s: float
+    samples: int
+    command_V: np.ndarray
+    hold_s: float
+    seconds: float
+    start_settling_s: float
+
+
+@dataclass(frozen=True)
+class CausalFloor:
+    """The floor on a causal controller's RMS tracking error (:func:`tracking_floor`) and the steepest rate the force
+    can move at, on which it rests."""
+
+    rms_N: float
+    rate_N_per_s: float
 
 #: IPOPT iterations a minimum-time candidate gets (from the previous feasible solution the feasible ones
 #: converge in some twenty; one not solved in this many counts as infeasible)
@@ -122,7 +145,7 @@ def minimum_time(
     u_min_V: float = OUTPUT_MIN_V,
     u_max_V: float = OUTPUT_MAX_V,
     horizon_s: float | None = None,
-) -> dict[str, Any]:
+) -> MinimumTime:
     """The shortest settling time any command sequence gives on this plant: an optimal control problem.
 
     The command sequence is free (no controller structure, perfect knowledge of the noise-free
@@ -138,7 +161,7 @@ def minimum_time(
     local solutions: the result is the least settling time it finds a command for. ``horizon_s`` (None: as long as the
     start needs) caps the settling time searched.
 
-    Returns ``{"settling_s", "samples", "command_V", "hold_s", "seconds", "start_settling_s"}``.
+    Returns a :class:`MinimumTime`.
     """
     t0 = time.perf_counter()
     dt = params.sample_period_s
@@ -174,11 +197,11 @@ def minimum_time(
             hi, X_best, U_best = mid, X, U
         else:
             lo, lo_found = mid, True
-    return {"settling_s": hi * dt, "samples": hi, "command_V": U_best, "hold_s": hold_s,
-            "seconds": time.perf_counter() - t0, "start_settling_s": n_start * dt}
+    return MinimumTime(settling_s=hi * dt, samples=hi, command_V=U_best, hold_s=hold_s,
+                       seconds=time.perf_counter() - t0, start_settling_s=n_start * dt)
 
 
-def tracking_floor(params: Plant, reference: Reference) -> dict[str, Any]:
+def tracking_floor(params: Plant, reference: Reference) -> CausalFloor:
     """A lower bound on the RMS tracking error of any causal controller without preview.
 
     After a jump of ``dF`` the force cannot move for ``delay + 1`` samples (the commands that
@@ -188,7 +211,7 @@ def tracking_floor(params: Plant, reference: Reference) -> dict[str, Any]:
     only slow it further). So sample ``m`` after the jump errs by at least
     ``max(dF - (m - delay) rate dt, 0)``. Summed over the reference's jumps and divided by the
     samples :meth:`ClosedLoopRun.tracking_error` scores (from the first change to the end),
-    that is a floor for its RMS. Returns ``{"rms_N", "rate_N_per_s"}``.
+    that is a floor for its RMS. Returns a :class:`CausalFloor`.
     """
     dt, delay = params.sample_period_s, params.delay_samples
     rate = small_signal_gains(params)[1] * float(params.slew_V_per_s)
@@ -202,4 +225,4 @@ def tracking_floor(params: Plant, reference: Reference) -> dict[str, Any]:
         m = np.arange(int(end - k))
         total += float(np.sum(np.maximum(jump - np.maximum(m - delay, 0) * rate * dt, 0.0) ** 2))
     scored = int(np.sum(t >= reference.times_s[1]))
-    return {"rms_N": float(np.sqrt(total / scored)), "rate_N_per_s": rate}
+    return CausalFloor(rms_N=float(np.sqrt(total / scored)), rate_N_per_s=rate)

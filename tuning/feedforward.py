@@ -176,9 +176,9 @@ class IdentifiedFeedforward:
         return self.record.model
 
     @property
-    def source(self) -> dict[str, Any]:
+    def source(self) -> DataSource:
         """Where the loop came from (``kind`` ``simulated`` with the excitation, or ``measured`` with the file)."""
-        return self.record.data.to_dict()
+        return self.record.data
 
     @property
     def fit(self) -> FitError:
@@ -217,12 +217,14 @@ class IdentifiedFeedforward:
 
     def info(self) -> dict[str, Any]:
         """How the feedforward was identified, as a gain set records it."""
-        out = {"source": self.source, "fit": self.fit.to_dict(), "output_range_N": list(self.record.output_range)}
+        out = {"source": self.source.to_dict(), "fit": self.fit.to_dict(),
+               "output_range_N": list(self.record.output_range)}
         return {**out, "model_sha256": self.model_sha256} if self.model_sha256 else out
 
     def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"source": self.source, "operators": self.model.n_operators, "fit": self.fit.to_dict(),
-                               "model": self.model.to_dict(), "output_range_N": list(self.record.output_range)}
+        out: dict[str, Any] = {"source": self.source.to_dict(), "operators": self.model.n_operators,
+                               "fit": self.fit.to_dict(), "model": self.model.to_dict(),
+                               "output_range_N": list(self.record.output_range)}
         if self.check is not None:
             out.update(compensation_rms_N=self.check.rms_N, compensation_max_N=self.check.max_N)
         return out

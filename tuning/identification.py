@@ -15,7 +15,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
@@ -255,15 +255,24 @@ def _check_record(record: Record, rows: NDArray[np.bool_], train: Window) -> flo
     return span
 
 
+class _Baselines(TypedDict, total=False):
+    """The baselines' fields of an :class:`IdentifiedModel` (its keywords): the straight line's errors, the paper's
+    method's held-out error or why it cannot run."""
+
+    line: StraightLine
+    paper_method_test: FitError
+    paper_method_note: str
+
+
 def _baselines(record: Record, est: PIIdentifier, rows: NDArray[np.bool_], test_rows: NDArray[np.bool_] | None,
-               span: float) -> dict[str, Any]:
+               span: float) -> _Baselines:
     """The straight line's and the paper's method's errors on the test window (the paper's: or why it cannot run)."""
     if test_rows is None:
-        return {}
+        return _Baselines()
     v, y = record.input, record.output
     slope, intercept = straight_line(v[rows], y[rows])
-    out: dict[str, Any] = {"line": StraightLine(slope, intercept, fit_error(slope * v[test_rows] + intercept,
-                                                                            y[test_rows], span))}
+    out = _Baselines(line=StraightLine(slope, intercept, fit_error(slope * v[test_rows] + intercept, y[test_rows],
+                                                                  span)))
     try:
         paper = paper_baseline(v, y, est.thresholds_, rows)
         out["paper_method_test"] = fit_error(paper(v)[test_rows], y[test_rows], span)
@@ -336,6 +345,6 @@ def identify(record: Record, *, model: str = "classical", operators: int = 40, t
         without_creep=None if plain is None else Refit(
             plain.model_, errors(plain, rows, train),  # type: ignore[arg-type]
             errors(plain, test_rows, test) if held_out else None),  # type: ignore[arg-type]
-        **(_baselines(record, est, rows, test_rows, span) if baselines else {}))
+        **(_baselines(record, est, rows, test_rows, span) if baselines else _Baselines()))
     return Identification(ident, record, train, test, est, time.perf_counter() - t0)
 

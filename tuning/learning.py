@@ -51,8 +51,8 @@ from piezopreload.tuning.validate import DEFAULT_SPREAD
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["METHODS", "Iteration", "LearningResult", "learn", "law_for", "more_trials_pay", "within_1p1",
-           "schedule_learner", "learn_from_run", "learn_from_log", "save_passes", "played_passes",
+__all__ = ["METHODS", "Iteration", "LearningResult", "LearnedWritten", "learn", "law_for", "more_trials_pay",
+           "within_1p1", "schedule_learner", "learn_from_run", "learn_from_log", "save_passes", "played_passes",
            "learned_by_reference", "STOP_GAIN"]
 
 Law = LearningModel | NormOptimalLaw
@@ -87,6 +87,29 @@ def within_1p1(errors: Array) -> Array:
     """Per plant (columns; one row per trial), the first trial whose error is within 1.1 times the plant's best."""
     rows = np.asarray(errors, float).reshape(len(errors), -1)
     return np.argmax(rows <= 1.1 * np.min(rows, axis=0) + 1e-12, axis=0)
+
+
+@dataclass(frozen=True)
+class LearnedWritten:
+    """Where a learning wrote its signal.
+
+    Parameters
+    ----------
+    out : str
+        The learned signal the rig plays (``learned.json``).
+    content_sha256 : str or None
+        Its content hash.
+    learning : str or None
+        For a schedule's passes, the learning record of every pass (``learning.json``); None for one learning.
+    """
+
+    out: str
+    content_sha256: str | None
+    learning: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"out": self.out, **({} if self.learning is None else {"learning": self.learning}),
+                "content_sha256": self.content_sha256}
 
 
 @dataclass(frozen=True, eq=False)
@@ -203,13 +226,13 @@ class LearningResult:
                              dict(inputs or {}))
 
     def save(self, folder: str | Path, gain_set_sha256: str | None,
-             inputs: dict[str, Any] | None = None) -> dict[str, Any]:
+             inputs: dict[str, Any] | None = None) -> LearnedWritten:
         """Write the learned signal (``learned.json``, :meth:`signal`) and the figure
         (``learning.png``) to ``folder``."""
         folder = Path(folder)
         saved = self.signal(gain_set_sha256, inputs).save(folder / "learned.json")
         self.plot().savefig(folder / "learning.png", dpi=120)
-        return {"out": str(folder / "learned.json"), "content_sha256": saved.content_sha256}
+        return LearnedWritten(str(folder / "learned.json"), saved.content_sha256)
 
     def to_dict(self) -> dict[str, Any]:
         span = float(np.ptp(self.reference.levels_N)) or 1.0
@@ -219,7 +242,7 @@ class LearningResult:
             "tracking_rms_pct_of_range": 100.0 * self.tracking_rms_N / span,
             # the whole trajectory scored from t = 0 (the score above starts at the first change, as the
             # causal floor's; a previewed ramp that starts before it is not counted there)
-            "tracking_rms_from_start_N": float(np.max(self.run.tracking_error(0.0)["rms"])),
+            "tracking_rms_from_start_N": float(np.max(self.run.tracking_error(0.0).rms_N)),
             "causal_floor_N": self.causal_floor_N, "preview_floor_N": floor,
             "over_preview_floor_ratio": self.tracking_rms_N / floor if floor > 0 else None,
             "iterations": len(self.history) - 1, "trials": int(np.max(self.trials)),
@@ -326,8 +349,8 @@ class _Trials:
 
     def record(self, k: int, scored: ClosedLoopRun, measured: Array) -> BoolArray:
         """Book trial ``k``; returns which plants improved on their best."""
-        whole = scored.tracking_error()["rms"]
-        after = scored.tracking_error(after_change_s=AFTER_CHANGE_S)["rms"]
+        whole = scored.tracking_error().rms_N
+        after = scored.tracking_error(after_change_s=AFTER_CHANGE_S).rms_N
         self.history.append(Iteration(k, whole, after, measured))
         self.measured.append(np.where(self.active, measured, np.nan))
         self.trials = np.where(self.active, k, self.trials)
@@ -432,7 +455,7 @@ def learn(controller: Controller, rig: Rig, reference: Reference, *, iterations:
     if initial_V is not None:  # trial 0 carried a correction: the loop without one, run once, is "before learning"
         run = simulate(sim_rig, controller, preview.setpoint, seed=seed,
                        ff_extra_V=np.moveaxis(np.broadcast_to(preview.ff_extra_V, batch + start.shape), -1, 0))
-        result.info["before_learning_rms_N"] = float(np.max(_scored(run, reference).tracking_error()["rms"]))
+        result.info["before_learning_rms_N"] = float(np.max(_scored(run, reference).tracking_error().rms_N))
     return result
 
 
@@ -485,9 +508,9 @@ def _result(book: _Trials, preview: Preview, law: Law, plants: int | None, secon
     # with preview a change starts before its jump: what the after-change score counts of the plan itself, and the
     # score outside whole transitions (from the preview before each jump to 0.1 s after it)
     plan_run = replace(best_run, force_N=preview.target_N, reference=ref, reference_N=ref.at(preview.t_s))
-    plan_after = float(plan_run.tracking_error(after_change_s=AFTER_CHANGE_S)["rms"])
+    plan_after = float(plan_run.tracking_error(after_change_s=AFTER_CHANGE_S).rms_N)
     outside = replace(best_run, reference=preview.shifted_reference()).tracking_error(
-        after_change_s=AFTER_CHANGE_S + preview.preview_s)["rms"]
+        after_change_s=AFTER_CHANGE_S + preview.preview_s).rms_N
     converged = ~book.diverged & book.settled
     monotone = book.monotone()
     method = "p-type" if isinstance(law, LearningModel) else "norm-optimal"

@@ -96,7 +96,7 @@ def default_preview_s(params: Plant, reference: Reference) -> float:
     reference the lead alone."""
     if reference.interpolation != "hold":  # a ramp: the lead alone (ramp_plan follows it exactly then)
         return feedforward_lead(params) * params.sample_period_s
-    rate = tracking_floor(params, reference)["rate_N_per_s"]
+    rate = tracking_floor(params, reference).rate_N_per_s
     jump = float(np.max(np.abs(np.diff(reference.levels_N)))) if reference.levels_N.size > 1 else 0.0
     return feedforward_lead(params) * params.sample_period_s + jump / rate
 
@@ -184,7 +184,7 @@ def preview_plan(params: Plant, reference: Reference, preview_s: float, *, u_max
     for j, k in enumerate(k_jumps):
         old, new = levels[j], levels[j + 1]
         size = abs(new - old)
-        rho = floor["rate_N_per_s"] * dt
+        rho = floor.rate_N_per_s * dt
         path = None if ramps is None else ramps[j]
         if path is None:
             n_ramp = int(np.ceil(size / rho - 1e-12)) if size > 0 else 0
@@ -214,7 +214,7 @@ def preview_plan(params: Plant, reference: Reference, preview_s: float, *, u_max
         prev_end = min(s0 + n_ramp + 1, n)
     scored = t >= reference.times_s[1] if reference.times_s.size > 1 else np.ones(n, bool)
     rms = float(np.sqrt(np.mean((r[scored] - force[scored]) ** 2)))
-    return PreviewPlan(t, force, rms, floor["rate_N_per_s"], float(preview_s), lead, starts, (lo, hi))
+    return PreviewPlan(t, force, rms, floor.rate_N_per_s, float(preview_s), lead, starts, (lo, hi))
 
 
 def ramp_plan(params: Plant, reference: Reference, preview_s: float, *, u_max_V: float = OUTPUT_MAX_V,
@@ -241,7 +241,7 @@ def ramp_plan(params: Plant, reference: Reference, preview_s: float, *, u_max_V:
     t = np.arange(n, dtype=np.float64) * dt
     r = reference.at(t)
     # the steepest rate the force can move (tracking_floor's, which depends on the rig alone; one 1 N step asks it)
-    rate = float(tracking_floor(params, Reference(np.array([0.0, dt]), np.array([0.0, 1.0]), 2 * dt))["rate_N_per_s"])
+    rate = float(tracking_floor(params, Reference(np.array([0.0, dt]), np.array([0.0, 1.0]), 2 * dt)).rate_N_per_s)
     known = np.concatenate([np.full(d, r[0]), r[: n - d]]) if d else r.copy()
     before = np.concatenate([np.full(d + 1, r[0]), r[: n - d - 1]])
     target = known + d * (known - before)
@@ -261,7 +261,7 @@ def causal_floor(params: Plant, reference: Reference) -> float:
     """The causal floor (RMS, N) of ``reference``: :func:`~piezopreload.tuning.bounds.tracking_floor` over a
     held reference's jumps, the extrapolated slope's lag (:func:`ramp_plan` without preview) on a ramped one."""
     if reference.interpolation == "hold":
-        return float(tracking_floor(params, reference)["rms_N"])
+        return float(tracking_floor(params, reference).rms_N)
     return ramp_plan(params, reference, 0.0).rms_N
 
 

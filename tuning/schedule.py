@@ -51,6 +51,7 @@ import numpy as np
 
 from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.validation import Criteria, ValidationResult
+from piezopreload.core.errors import InternalError
 from piezopreload.core.parallel import spare_cpus
 from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
@@ -185,16 +186,39 @@ def level_requirements(schedule: dict[str, Any]) -> tuple[Requirement, ...]:
     return tuple(out)
 
 
-def _worst(result: ValidationResult) -> dict[str, Any]:
+@dataclass(frozen=True)
+class WorstCase:
+    """One set's Monte Carlo worst case of each of :data:`FIGURES` (None: never reached, a settling time) at a level or
+    over the whole range, whether it met the criteria and the metrics it failed."""
+
+    settling_s: float | None
+    overshoot_N: float | None
+    tracking_rms_N: float | None
+    peak_voltage_V: float | None
+    passed: bool
+    failures: tuple[str, ...]
+
+    def figure(self, metric: str) -> float | None:
+        """The worst case of one of :data:`FIGURES`."""
+        value: float | None = getattr(self, metric)
+        return value
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**{k: self.figure(k) for k in FIGURES}, "passed": self.passed, "failures": list(self.failures)}
+
+
+def _worst(result: ValidationResult) -> WorstCase:
     s = result.summary()
-    return {**{k: s[k]["worst"] for k in FIGURES}, "passed": result.passed,
-            "failures": sorted({f.metric for f in result.failures})}
+    worst = {k: s[k]["worst"] for k in FIGURES}
+    return WorstCase(settling_s=worst["settling_s"], overshoot_N=worst["overshoot_N"],
+                     tracking_rms_N=worst["tracking_rms_N"], peak_voltage_V=worst["peak_voltage_V"],
+                     passed=result.passed, failures=tuple(sorted({f.metric for f in result.failures})))
 
 
 _REST_S = 0.25  # the rest at a window's bottom before the tuning's step and staircase
 
 
-def _judge(args: tuple[Any, ...]) -> dict[str, Any]:
+def _judge(args: tuple[Any, ...]) -> WorstCase:
     """One Monte Carlo validation (:func:`~piezopreload.tuning.validate.validate`, inline), its worst cases."""
     gains, feedforward, params, criteria, n_plants, seed, step, trajectory = args
     return _worst(validate(gains, feedforward, params, criteria, n_plants=n_plants, seed=seed, step=step,
@@ -283,18 +307,20 @@ def _rising(levels_N: np.ndarray,
             for (g, r), nb in zip(tuned, b)]
 
 
-def _tighter(spec: TuningSpec, figures: dict[str, Any], criteria: Criteria) -> float | None:
+def _tighter(spec: TuningSpec, figures: WorstCase, criteria: Criteria) -> float | None:
     """The overshoot margin an entry is tuned again with where the Monte Carlo overshoot exceeds its limit: widened by
     the excess (the drawn plants add it to the variants' nominal overshoot); None where it does not exceed it."""
-    excess = figures["overshoot_N"] - criteria.overshoot_max_N
+    if figures.overshoot_N is None:
+        raise InternalError("a Monte Carlo validation gave no worst overshoot")
+    excess = figures.overshoot_N - criteria.overshoot_max_N
     return None if excess <= 0 else spec.overshoot_margin_N + excess
 
 
-def _bound(record: dict[str, Any], figures: dict[str, Any], limits: dict[str, float]) -> str:
+def _bound(record: dict[str, Any], figures: WorstCase, limits: dict[str, float]) -> str:
     """What stops the schedule's entry at a level it misses: the tuning's binding constraints (or the specification no
     entry met) beside the Monte Carlo worst case of each failed metric against its limit."""
-    missed = ", ".join(f"{_LEVEL_LIMITS[m][0]} {figures[m]:.3g} {_LEVEL_LIMITS[m][1]} against {limits[m]:.3g}"
-                       for m in figures["failures"] if m in limits)
+    missed = ", ".join(f"{_LEVEL_LIMITS[m][0]} {figures.figure(m):.3g} {_LEVEL_LIMITS[m][1]} against {limits[m]:.3g}"
+                       for m in figures.failures if m in limits)
     if "infeasible" in record:
         return f"no PID entry meets the window's tuning specification ({record['infeasible']}); Monte Carlo: {missed}"
     binding = "; ".join(record.get("binding", [])) or "none"
@@ -407,9 +433,9 @@ def tune_schedule(
     for level, window, (g, record), rb, sc in zip(lv, plan.windows, tuned, robust_figures, scheduled_figures):
         levels.append({"level_N": float(level), "window_N": list(window),
                        "entry": {"Kc_V_per_N": g.Kc, "Ti_s": g.Ti_s, "Td_s": g.Td_s, "Tf_s": g.Tf_s, "b": g.b},
-                       "tuning": record, "robust": rb, "scheduled": sc,
-                       **({} if sc["passed"] else {"bound": _bound(record, sc, limits)})})
-    whole = {"robust": robust_figures[-1], "scheduled": scheduled_figures[-1]}
+                       "tuning": record, "robust": rb.to_dict(), "scheduled": sc.to_dict(),
+                       **({} if sc.passed else {"bound": _bound(record, sc, limits)})})
+    whole = {"robust": robust_figures[-1].to_dict(), "scheduled": scheduled_figures[-1].to_dict()}
 
     choice, reason = choose(levels, whole)
     say(f"gain schedule: {choice}: {reason}")

@@ -92,10 +92,10 @@ def evaluate(gains: PIDGains, feedforward: HysteresisModel | CreepPI | None, pla
         "settling_s": np.array([m.settling_s for m in ms], float),
         "settling_measured_s": np.array([m.settling_s for m in mm], float),
         "overshoot_N": np.array([max(m.overshoot, 0.0) for m in mt], float),
-        "tracking_rms_N": np.atleast_1d(np.asarray(te_after["rms"], float)),
-        "saturated_fraction": np.atleast_1d(np.asarray(te_after["saturated_fraction"], float)),
-        "tracking_rms_all_N": np.atleast_1d(np.asarray(te["rms"], float)),
-        "tracking_max_N": np.atleast_1d(np.asarray(te["max"], float)),
+        "tracking_rms_N": np.atleast_1d(np.asarray(te_after.rms_N, float)),
+        "saturated_fraction": np.atleast_1d(np.asarray(te_after.saturated_fraction, float)),
+        "tracking_rms_all_N": np.atleast_1d(np.asarray(te.rms_N, float)),
+        "tracking_max_N": np.atleast_1d(np.asarray(te.max_N, float)),
         "peak_voltage_V": np.atleast_1d(peak),
     }
 

@@ -3,10 +3,16 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 from piezopreload.cli._common import json_flag, nonnegative_float, say
 from piezopreload.core.errors import InputError
+
+if TYPE_CHECKING:
+    from piezopreload.artifacts.gainset import GainSet
+    from piezopreload.tuning.autotune_result import AutotuneResult
+    from piezopreload.tuning.plantfit import FittedPlant
 
 
 def _coefficients(text: str, what: str) -> list[float]:
@@ -87,7 +93,7 @@ def register_autotune(sub: Any) -> None:
     p.set_defaults(run=_cmd_autotune, show=_print_autotune)
 
 
-def _plant(args: argparse.Namespace) -> tuple[Any, float, dict[str, Any] | None]:
+def _plant(args: argparse.Namespace) -> tuple[Any, float, FittedPlant | None]:
     """The plant, its delay and (for --step) the fit's record."""
     import control
 
@@ -105,10 +111,30 @@ def _plant(args: argparse.Namespace) -> tuple[Any, float, dict[str, Any] | None]
         return read_frequency_response(args.frd), args.delay_s, None
     fit = fit_plant(args.step, order=args.order or "auto")
     say(repr(fit))
-    return fit.transfer_function(), fit.delay_s + args.delay_s, fit.to_dict()
+    return fit.transfer_function(), fit.delay_s + args.delay_s, fit
 
 
-def _cmd_autotune(args: argparse.Namespace) -> dict[str, Any]:
+@dataclass(frozen=True)
+class Autotuned:
+    """``autotune``'s result: the tuning, the fit of a measured step response (None: the plant was given), and the gain
+    set written with where (None: none); ``--json`` prints the tuning's ``to_dict()`` with the rest beside it."""
+
+    result: AutotuneResult
+    fit: FittedPlant | None
+    gain_set: GainSet | None = None
+    out: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {**self.result.to_dict(), "fit": None if self.fit is None else self.fit.to_dict(),
+                               "out": self.out}
+        if self.gain_set is not None:
+            record = self.gain_set.tuning or {}  # an autotuned set always carries its tuning record
+            out.update(status=self.gain_set.status, content_sha256=self.gain_set.content_sha256,
+                       status_reason=record.get("status_reason"), sampled_loop_check=record.get("sampled_loop_check"))
+        return out
+
+
+def _cmd_autotune(args: argparse.Namespace) -> Autotuned:
     from piezopreload.tuning.autotune import autotune
 
     if args.order is not None and args.step is None:
@@ -125,16 +151,13 @@ def _cmd_autotune(args: argparse.Namespace) -> dict[str, Any]:
     plant, delay, fit = _plant(args)
     result = autotune(plant, Ms=args.Ms, Mt=args.Mt, Mks=args.Mks, metric=args.metric, form=args.form, Ts=args.Ts,
                       loop=args.loop, u_min=args.u_min, u_max=args.u_max, delay_s=delay, w=args.grid)
-    out: dict[str, Any] = {**result.to_dict(), "fit": fit, "out": None}
-    if args.out is not None:
-        gain_set = result.to_gain_set(name="autotune").save(args.out)
-        record = gain_set.tuning or {}  # an autotuned set always carries its tuning record
-        out.update(out=args.out, status=gain_set.status, content_sha256=gain_set.content_sha256,
-                   status_reason=record.get("status_reason"), sampled_loop_check=record.get("sampled_loop_check"))
-    return out
+    if args.out is None:
+        return Autotuned(result, fit)
+    return Autotuned(result, fit, result.to_gain_set(name="autotune").save(args.out), args.out)
 
 
-def _print_autotune(s: dict[str, Any]) -> None:
+def _print_autotune(tuned: Autotuned) -> None:
+    s = tuned.to_dict()
     mg, b = s["margins"], s["bounds"]
     kind = s["form"] if s["form"] == "PI" or s["kd"] == 0 else f"PID, filter order {s['filter_order']}"
     at = "" if s["Ts_s"] is None else f", runs at Ts {s['Ts_s']:g} s"

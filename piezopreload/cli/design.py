@@ -134,7 +134,7 @@ class DesignWritten:
                    f.y_name: [float(f.y.min()), float(f.y.max())]} for f in self.result.fronts]
         return {"study": {"path": self.study_path, "sha256": self.study_sha256}, "objective": o.objective,
                 "optimum": o.point.to_dict(), "binding": o.binding, "integer_candidates": o.tried,
-                "solve_s": o.solve_s, "fronts": fronts, "schedule": self.result.schedule.summary(),
+                "solve_s": o.solve_s, "fronts": fronts, "schedule": self.result.schedule.summary().to_dict(),
                 "written": [str(p) for p in self.written]}
 
 

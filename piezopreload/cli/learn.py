@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from piezopreload.cli._common import (
@@ -18,6 +19,8 @@ from piezopreload.core.errors import InputError
 
 if TYPE_CHECKING:
     from piezopreload.artifacts.gainset import GainSet
+    from piezopreload.schedule import ScheduleLearning
+    from piezopreload.tuning.learning import LearnedWritten, LearningResult
 
 
 def register_learn(sub: Any) -> None:
@@ -57,7 +60,37 @@ def register_learn(sub: Any) -> None:
     p.set_defaults(run=_cmd_learn, show=_print_learn)
 
 
-def _from_run(args: argparse.Namespace, gain_set: GainSet | None) -> dict[str, Any]:
+@dataclass(frozen=True)
+class RunLearned:
+    """``learn --from-run``'s result: the run log learned from, the new signal's iteration and history, where it was
+    written and its content hash."""
+
+    from_run: str
+    iteration: int
+    history: list[dict[str, Any]]
+    out: str
+    content_sha256: str | None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"from_run": self.from_run, "iteration": self.iteration, "history": self.history, "out": self.out,
+                "content_sha256": self.content_sha256}
+
+
+@dataclass(frozen=True)
+class Learned:
+    """``learn``'s result: the learning, the reference as given and where it was written (None: nowhere);
+    ``--json`` prints the learning's ``to_dict()`` with the reference and the files beside it."""
+
+    result: LearningResult | ScheduleLearning
+    reference: str
+    written: LearnedWritten | None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**self.result.to_dict(), "reference": self.reference,
+                **({} if self.written is None else self.written.to_dict())}
+
+
+def _from_run(args: argparse.Namespace, gain_set: GainSet | None) -> RunLearned:
     from pathlib import Path
 
     from piezopreload.artifacts.learned import LearnedSignal
@@ -69,11 +102,10 @@ def _from_run(args: argparse.Namespace, gain_set: GainSet | None) -> dict[str, A
     new = learn_from_log(LearnedSignal.load(args.learned), read_run_log(args.from_run), gain_set, args.learned)
     path = (Path(args.out) if args.out else Path(args.learned).parent) / "learned.json"
     saved = new.save(path)
-    return {"from_run": args.from_run, "iteration": saved.iteration, "history": saved.history, "out": str(path),
-            "content_sha256": saved.content_sha256}
+    return RunLearned(args.from_run, saved.iteration, saved.history, str(path), saved.content_sha256)
 
 
-def _cmd_learn(args: argparse.Namespace) -> dict[str, Any]:
+def _cmd_learn(args: argparse.Namespace) -> Learned | RunLearned:
     from piezopreload.artifacts.gainset import GainSet
     from piezopreload.rig.session import reference_for
 
@@ -87,19 +119,19 @@ def _cmd_learn(args: argparse.Namespace) -> dict[str, Any]:
     result = study.learn(gain_set, reference=reference, iterations=args.iterations, preview_s=args.preview_s,
                          method=args.method, plants=args.plants, seed=args.seed,
                          after_change_weight=args.after_change_weight, progress=say)
-    summary = result.to_dict()
-    summary["reference"] = args.reference
+    written = None
     if args.out is not None:
-        summary.update(result.save(args.out, None if gain_set is None else gain_set.content_sha256,
-                                   {"study": study.path, "study_sha256": study.sha256, "gains": args.gains,
-                                    "reference": args.reference}))
-    return summary
+        written = result.save(args.out, None if gain_set is None else gain_set.content_sha256,
+                              {"study": study.path, "study_sha256": study.sha256, "gains": args.gains,
+                               "reference": args.reference})
+    return Learned(result, args.reference, written)
 
 
-def _print_learn(s: dict[str, Any]) -> None:
-    if "from_run" in s:
-        print(f"one learning update from {s['from_run']}: iteration {s['iteration']}; wrote {s['out']}")
+def _print_learn(learned: Learned | RunLearned) -> None:
+    if isinstance(learned, RunLearned):
+        print(f"one learning update from {learned.from_run}: iteration {learned.iteration}; wrote {learned.out}")
         return
+    s = learned.to_dict()
     print(f"{s['method']} learning on {s['reference']}, preview {s['preview_s'] * 1e3:.0f} ms"
           + (f", worst of {s['plants']} plants" if s["plants"] else "") + ":")
     for h in s["history"]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal, TypedDict, overload
 
 from piezopreload.cli._common import (
@@ -18,7 +19,10 @@ from piezopreload.cli._common import (
 from piezopreload.core.errors import InputError
 
 if TYPE_CHECKING:
+    from piezopreload.artifacts.hostcheck import HostCheck
     from piezopreload.rig.backends import Fault
+    from piezopreload.rig.plc_push import PlcPush
+    from piezopreload.rig.session import RigRun, ServedPush
 
 
 # --------------------------------------------------------------------------------------
@@ -229,16 +233,16 @@ def register_rig(sub: Any) -> None:
     p.set_defaults(run=_cmd_rig_check, show=_print_rig_check)
 
 
-def _cmd_rig_run(args: argparse.Namespace) -> dict[str, Any]:
+def _cmd_rig_run(args: argparse.Namespace) -> RigRun:
     from piezopreload.rig import session
 
     # a learned signal without --reference plays on its own reference
     reference = None if args.learned and args.reference is None else args.reference or "step"
     return session.run(args.gains, rate_Hz=args.rate, realtime=not args.fast, learned=args.learned, say=say,
-                       accepted=tuple(args.accept), reference=reference, **_rig_common(args)).to_dict()
+                       accepted=tuple(args.accept), reference=reference, **_rig_common(args))
 
 
-def _cmd_rig_serve(args: argparse.Namespace) -> dict[str, Any]:
+def _cmd_rig_serve(args: argparse.Namespace) -> RigRun:
     from piezopreload.rig import session
 
     _quiet_asyncua()
@@ -250,10 +254,10 @@ def _cmd_rig_serve(args: argparse.Namespace) -> dict[str, Any]:
         say("warning: no --certificate: passwords cross the network unencrypted; keep the endpoint on loopback")
     return session.serve(args.gains, endpoint=args.endpoint, users=users, certificate=args.certificate,
                          private_key=args.private_key, duration_s=args.duration, say=say,
-                         reference=args.reference or "step", **_rig_common(args)).to_dict()
+                         reference=args.reference or "step", **_rig_common(args))
 
 
-def _cmd_rig_push(args: argparse.Namespace) -> dict[str, Any]:
+def _cmd_rig_push(args: argparse.Namespace) -> ServedPush | PlcPush:
     from piezopreload.rig import DEFAULT_ENDPOINT as DEFAULT_RIG_ENDPOINT
     from piezopreload.rig import plc_push, session
     from piezopreload.rig.opcua import Credentials
@@ -278,7 +282,8 @@ def _cmd_rig_push(args: argparse.Namespace) -> dict[str, Any]:
     return plc_push.push(args.gains, to=args.to, map_path=args.map, who=who, accepted=tuple(args.accept))
 
 
-def _print_rig_run(s: dict[str, Any]) -> None:
+def _print_rig_run(run: RigRun) -> None:
+    s = run.summary
     t = s["timing"]
     print(f"{s['status']}: {s['cycles']} cycles at {s['rate_Hz']:g} Hz on '{s['backend']}' "
           f"({'real time' if s['realtime'] else 'back to back'}), controller step in {s['controller_step']}, "
@@ -312,56 +317,70 @@ def _print_rig_run(s: dict[str, Any]) -> None:
     print(f"run log: {s['log_csv']} and {s['log_json']}")
 
 
-def _cmd_rig_check(args: argparse.Namespace) -> dict[str, Any]:
+@dataclass(frozen=True)
+class HostChecked:
+    """``rig check``'s result: the check and where its figure was written (None: nowhere); ``--json`` prints the
+    check's ``to_dict()`` with its histogram as text and the figure beside it."""
+
+    check: HostCheck
+    figure: str | None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**self.check.to_dict(), "histogram_text": self.check.histogram_text(), "figure": self.figure}
+
+
+def _cmd_rig_check(args: argparse.Namespace) -> HostChecked:
     from pathlib import Path
 
     from piezopreload.rig import session
 
     result = session.check(args.gains, seconds=args.seconds, rate_Hz=args.rate, loop=args.loop, progress=say)
-    out = {**result.to_dict(), "histogram_text": result.histogram_text(), "figure": None}
+    figure = None
     if args.out:
         folder = Path(args.out)
         folder.mkdir(parents=True, exist_ok=True)
-        out["figure"] = str(folder / "host-check.png")
-        result.plot().savefig(out["figure"], dpi=120)
-    return out
+        figure = str(folder / "host-check.png")
+        result.plot().savefig(figure, dpi=120)
+    return HostChecked(result, figure)
 
 
-def _print_rig_check(s: dict[str, Any]) -> None:
-    f = s["facts"]
-    print(f"{s['samples']} wake-ups at {s['rate_Hz']:g} Hz: lateness p50 {s['lateness_p50_s'] * 1e6:.0f} us, p99 "
-          f"{s['lateness_p99_s'] * 1e6:.0f} us, p99.9 {s['lateness_p999_s'] * 1e6:.0f} us, max "
-          f"{s['lateness_max_s'] * 1e3:.2f} ms; {s['missed']} later than the budget; p99 of the wake-ups that "
-          f"waited {s['waited_p99_s'] * 1e6:.0f} us")
-    print(f"budget: the period {s['period_s'] * 1e6:.0f} us less the step's p99 {s['step_p99_s'] * 1e6:.2f} us "
-          f"({s['step_what']})" + (f"; stall limit {s['stall_limit_s'] * 1e3:g} ms" if s["stall_limit_s"] else
-                                   "; no stall limit (give --gains)"))
+def _print_rig_check(checked: HostChecked) -> None:
+    s, f = checked.check, checked.check.facts
+    print(f"{s.samples} wake-ups at {s.rate_Hz:g} Hz: lateness p50 {s.lateness_p50_s * 1e6:.0f} us, p99 "
+          f"{s.lateness_p99_s * 1e6:.0f} us, p99.9 {s.lateness_p999_s * 1e6:.0f} us, max "
+          f"{s.lateness_max_s * 1e3:.2f} ms; {s.missed} later than the budget; p99 of the wake-ups that "
+          f"waited {s.waited_p99_s * 1e6:.0f} us")
+    print(f"budget: the period {s.period_s * 1e6:.0f} us less the step's p99 {s.step_p99_s * 1e6:.2f} us "
+          f"({s.step_what})" + (f"; stall limit {s.stall_limit_s * 1e3:g} ms" if s.stall_limit_s else
+                                "; no stall limit (give --gains)"))
     print("lateness histogram:")
-    print(s["histogram_text"])
-    print(f"host: {f['kernel']} ({'RT kernel' if f['rt_kernel'] else 'not an RT kernel'}, preemption "
-          f"{f['preemption']}), {f['cpus']} CPUs; {f['sched_fifo']}; {f['memory_locked']}; "
-          f"governor: {f['cpu_governor']}; {f['virtualisation']}; isolated CPUs: {f['isolated_cpus']}")
-    for line in s["findings"]:
+    print(s.histogram_text())
+    print(f"host: {f.kernel} ({'RT kernel' if f.rt_kernel else 'not an RT kernel'}, preemption "
+          f"{f.preemption}), {f.cpus} CPUs; {f.sched_fifo}; {f.memory_locked}; "
+          f"governor: {f.cpu_governor}; {f.virtualisation}; isolated CPUs: {f.isolated_cpus}")
+    for line in s.findings:
         print(f"  - {line}")
-    for c in s["criteria"]:
-        print(f"{'pass' if c['passed'] else 'FAIL'} {c['name']}: {c['text']}")
-    print(f"verdict: {s['verdict']}")
-    if s["figure"]:
-        print(f"figure: {s['figure']}")
+    for c in s.criteria:
+        print(f"{'pass' if c.passed else 'FAIL'} {c.name}: {c.text}")
+    print(f"verdict: {s.verdict}")
+    if checked.figure:
+        print(f"figure: {checked.figure}")
 
 
-def _print_rig_push(s: dict[str, Any]) -> None:
-    if "to" in s:
-        for r in s["nodes"]:
-            what = "as written" if r["difference"] is None or r["difference"] == 0.0 else \
-                f"read back {r['relative_difference']:.2g} off (its {r['type']} rounding)"
-            print(f"{r['name']} -> {r['node']}: {what}")
-        print(f"{s['to']}: wrote {len(s['nodes'])} nodes from {s['gain_set']} ({s['gain_set_sha256'][:12]}); "
-              f"largest difference read back {s['max_relative_difference']:.2g} (relative)")
+def _print_rig_push(s: ServedPush | PlcPush) -> None:
+    from piezopreload.rig.plc_push import PlcPush
+
+    if isinstance(s, PlcPush):
+        for r in s.nodes:
+            what = "as written" if r.difference is None or r.difference == 0.0 else \
+                f"read back {r.relative_difference:.2g} off (its {r.type} rounding)"
+            print(f"{r.name} -> {r.node}: {what}")
+        print(f"{s.to}: wrote {len(s.nodes)} nodes from {s.gain_set} ({(s.gain_set_sha256 or '')[:12]}); "
+              f"largest difference read back {s.max_relative_difference:.2g} (relative)")
         return
-    p = s["server_parameters"]
-    print(f"{s['endpoint']}: {s['message']}")
-    print(f"the server now runs {s['server_gain_set_sha256'][:12]}: CtrlP {p['CtrlP']:.6g} V/N, "
+    p = s.reply.server_parameters
+    print(f"{s.endpoint}: {s.reply.message}")
+    print(f"the server now runs {s.reply.server_gain_set_sha256[:12]}: CtrlP {p['CtrlP']:.6g} V/N, "
           f"CtrlTi {p['CtrlTi']:.6g} s, CtrlTd {p['CtrlTd']:.6g} s")
 
 
