@@ -262,11 +262,13 @@ def test_native_loop_falls_back_for_a_python_backend(study):
     assert Executor(_controller(), wrapped, Reference.step(25.0, 40.0, 0.1, 0.2), Safety()).loop == "native"
 
 
+# the watchdog's timeout: long enough that a loaded 2-core host's scheduling (the Python loop late by tens of ms, a
+# real stall the watchdog rightly cuts) does not open the relay before the kill this test is about
 _KILLED = textwrap.dedent("""
     import sys
     from piezopreload.cli import main
     sys.exit(main(["rig", "run", sys.argv[1], "--log-dir", sys.argv[2], "--reference", "step",
-                   "--backend-option", "watchdog_s=0.05", "--backend-option", "daq=" + sys.argv[3],
+                   "--backend-option", "watchdog_s=0.25", "--backend-option", "daq=" + sys.argv[3],
                    "--host-check-s", "0.2", "--accept-host"]))
 """)
 
