@@ -37,7 +37,7 @@ from piezopreload.tuning.identify import IdentificationError, PIIdentifier, fit_
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["Window", "Identification", "identify", "check_operators", "MAX_MATRIX_BYTES"]
+__all__ = ["Window", "Identification", "identify", "check_operators", "error_rows", "MAX_MATRIX_BYTES"]
 
 
 @dataclass(frozen=True)
@@ -153,17 +153,7 @@ class Identification:
         return out
 
     def _rows(self) -> list[tuple[str, FitError]]:
-        r = self.record
-        rows = [(f"train {_window(r.fit)}", r.fit)]
-        if r.test is not None:
-            rows.append((f"test {_window(r.test)}", r.test))
-        if r.line is not None:
-            rows.append(("test, best straight line", r.line.test))
-        if r.paper_method_test is not None:
-            rows.append(("test, the paper's method (eq. 17)", r.paper_method_test))
-        if r.without_creep is not None and r.without_creep.test is not None:
-            rows.append((f"test, {r.without_creep.model.kind} without creep", r.without_creep.test))
-        return rows
+        return error_rows(self.record)
 
     def _title(self) -> str:
         m, d = self.record.model, self.data
@@ -201,6 +191,32 @@ class Identification:
             ax.set(xlabel=d.input_name, ylabel=d.output_name, title=f"{name} {win.t0_s:g}-{win.t1_s:g} s")
             ax.legend(fontsize="small")
         return fig
+
+
+def error_rows(r: IdentifiedModel) -> list[tuple[str, FitError]]:
+    """The fit's errors as a table's rows ``(label, error)``: training, test, the straight line and the paper's
+    method on the test, the model without creep on the test (each where it was fitted).
+
+    Parameters
+    ----------
+    r : IdentifiedModel
+        The identified model's record.
+
+    Returns
+    -------
+    list of (str, FitError)
+        The rows, in that order.
+    """
+    rows = [(f"train {_window(r.fit)}", r.fit)]
+    if r.test is not None:
+        rows.append((f"test {_window(r.test)}", r.test))
+    if r.line is not None:
+        rows.append(("test, best straight line", r.line.test))
+    if r.paper_method_test is not None:
+        rows.append(("test, the paper's method (eq. 17)", r.paper_method_test))
+    if r.without_creep is not None and r.without_creep.test is not None:
+        rows.append((f"test, {r.without_creep.model.kind} without creep", r.without_creep.test))
+    return rows
 
 
 def _window(e: FitError) -> str:

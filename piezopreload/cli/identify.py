@@ -15,7 +15,6 @@ from piezopreload.cli._common import (
 )
 
 if TYPE_CHECKING:
-    from piezopreload.artifacts.hysteresis import FitError, IdentifiedModel
     from piezopreload.tuning.identification import Identification
 
 
@@ -92,7 +91,9 @@ def _print_identify(w: Written[Identification]) -> None:
           f"QP {1e3 * sv.qp_seconds:.1f} ms, whole fit {1e3 * sv.fit_seconds:.0f} ms")
     print(f"errors in % of the output span ({r.output_span:.4g} {unit}):")
     print(f"  {'':40s}{'RMS':>8s}{'max':>8s}")
-    for label, e in _error_rows(r):
+    from piezopreload.tuning.identification import error_rows
+
+    for label, e in error_rows(r):
         print(f"  {label:40s}{e.rms_pct:8.3f}{e.max_pct:8.3f}")
     if r.paper_method_note:
         print(f"  the paper's method (eq. 17) could not run: {r.paper_method_note}")
@@ -104,21 +105,3 @@ def _print_identify(w: Written[Identification]) -> None:
               + f" ({unit} per input unit); without creep: refitted, not zeroed")
     if w.out:
         print(f"wrote     {w.out}")
-
-
-def _error_rows(r: IdentifiedModel) -> list[tuple[str, FitError]]:
-    """The printed rows: training, test, the straight line and the paper's method on the test, the model without
-    creep on the test (each where it was fitted)."""
-    def window(e: FitError) -> str:
-        return "" if e.window_s is None else f"{e.window_s[0]:g}-{e.window_s[1]:g} s"
-
-    rows = [(f"train {window(r.fit)}", r.fit)]
-    if r.test is not None:
-        rows.append((f"test  {window(r.test)}", r.test))
-        if r.line is not None:
-            rows.append(("test, best straight line", r.line.test))
-    if r.paper_method_test is not None:
-        rows.append(("test, the paper's method (eq. 17)", r.paper_method_test))
-    if r.without_creep is not None and r.without_creep.test is not None:
-        rows.append((f"test, {r.without_creep.model.kind} without creep", r.without_creep.test))
-    return rows
