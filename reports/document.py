@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["fmt", "pct", "Table", "Section", "Report"]
+__all__ = ["fmt", "ratio", "pct", "Table", "Section", "Report"]
 
 
 def fmt(x: float, digits: int = 3) -> str:
@@ -28,6 +28,16 @@ def fmt(x: float, digits: int = 3) -> str:
     if abs(rounded) >= 1000:
         return f"{rounded:,.{max(digits - len(str(int(abs(rounded)))), 0)}f}"
     return f"{x:.{digits}g}"
+
+
+def ratio(x: float) -> str:
+    """A ratio against a requirement: three significant digits, or three decimals near 1 so that a ratio just
+    over it does not print as 1.
+
+    >>> ratio(1.0036), ratio(1.408), ratio(0.97)
+    ('1.004', '1.41', '0.970')
+    """
+    return f"{float(x):.3f}" if abs(float(x) - 1.0) < 0.1 else fmt(x)
 
 
 def pct(fraction: float, digits: int = 2) -> str:

@@ -24,7 +24,7 @@ from piezopreload.artifacts.system import SystemRecord, TrackingNumbers
 from piezopreload.artifacts.tuning import TuningRecord
 from piezopreload.models.hysteresis import CreepPI
 from piezopreload.reports import figures as F
-from piezopreload.reports.document import Section, Table, fmt, pct
+from piezopreload.reports.document import Section, Table, fmt, pct, ratio
 from piezopreload.reports.inputs import Artifacts, ReportStudy
 
 __all__ = ["Part", "study_section", "requirements_section", "design_section", "system_section", "learning_section",
@@ -77,7 +77,7 @@ def rigidity_words(n: TrackingNumbers) -> str:
     least ratio to the requirement (the requirement follows the load), with the two figures at that moment."""
     return (f"the least rigidity is {fmt(n.rigidity_min_cutting_N_per_um)} N/um "
             f"({fmt(n.rigidity_required_at_min_N_per_um)} N/um required at that moment) and the rigidity is at least "
-            f"{fmt(n.rigidity_ratio_min)} times its requirement ({fmt(n.rigidity_at_worst_ratio_N_per_um)} against "
+            f"{ratio(n.rigidity_ratio_min)} times its requirement ({fmt(n.rigidity_at_worst_ratio_N_per_um)} against "
             f"{fmt(n.rigidity_required_at_worst_ratio_N_per_um)} N/um at the tightest moment)")
 
 
@@ -220,12 +220,12 @@ def system_section(system: SystemRecord, design: DesignRecord, learning: Learnin
         ("least rigidity while cutting", f"{fmt(n.rigidity_min_cutting_N_per_um)} N/um",
          f"{fmt(n.rigidity_required_at_min_N_per_um)} N/um required at that moment, {fmt(n.rigidity_min_t_s)} s into "
          "the run"),
-        ("least rigidity over its requirement while cutting", f"{fmt(n.rigidity_ratio_min)} times",
+        ("least rigidity over its requirement while cutting", f"{ratio(n.rigidity_ratio_min)} times",
          f"{fmt(n.rigidity_at_worst_ratio_N_per_um)} against {fmt(n.rigidity_required_at_worst_ratio_N_per_um)} N/um "
          f"required, {fmt(n.rigidity_worst_t_s)} s into the run"),
         ("time below the required rigidity", f"{fmt(n.rigidity_below_requirement_s)} s", ""),
         ("largest axial deflection while cutting", f"{fmt(n.deflection_max_um)} um", deflection),
-        ("least preload over the lift-off bound", f"{fmt(n.lift_off_ratio_min)} times",
+        ("least preload over the lift-off bound", f"{ratio(n.lift_off_ratio_min)} times",
          f"the bound with its {fmt(n.lift_off_margin)} margin"),
         ("friction energy per cycle, achieved", f"{fmt(n.friction_energy_per_cycle)} {e}", "the true force"),
         ("friction energy per cycle, the loop's plan", f"{fmt(n.planned_friction_energy_per_cycle)} {e}",

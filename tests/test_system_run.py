@@ -271,7 +271,7 @@ def test_the_report_names_each_figure_apart_and_rounds_it_once(axis_run):
     is named as the design's; the system's tracking and the learning runs' are named apart; the friction energies
     achieved, the loop's plan and the design's plan are named apart; each quantity is printed with one rounding; the
     gain set's hash is called its content hash."""
-    from piezopreload.reports.document import fmt
+    from piezopreload.reports.document import fmt, ratio
 
     report = read_artifact(axis_run / "report" / "report.json", "report")
     words = _report_words(report)
@@ -280,7 +280,7 @@ def test_the_report_names_each_figure_apart_and_rounds_it_once(axis_run):
     rigidity = [s for s in report["summary"] if s.startswith("While cutting")][0]
     assert (f"least rigidity is {fmt(system.rigidity_min_cutting_N_per_um)} N/um "
             f"({fmt(system.rigidity_required_at_min_N_per_um)} N/um required at that moment)") in rigidity, rigidity
-    assert f"at least {fmt(system.rigidity_ratio_min)} times its requirement" in rigidity, rigidity
+    assert f"at least {ratio(system.rigidity_ratio_min)} times its requirement" in rigidity, rigidity
     assert "least rigidity over the duty cycle" not in words and \
         "least rigidity over the duty cases at their design preloads" in words
     assert "over the machining cycles" in report["summary"][0] and "learning runs" in report["summary"][0]
