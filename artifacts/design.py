@@ -15,7 +15,7 @@ from typing import Any, ClassVar
 
 from piezopreload.artifacts.schedule import PreloadSchedule
 from piezopreload.core._typing import Array
-from piezopreload.core.records import Artifact, Record, entry, record
+from piezopreload.core.records import Artifact, Record, entry, object_without, record
 
 __all__ = ["CONSTRAINT_WORDS", "VARIABLE_WORDS", "binding_words", "case_words", "DesignPoint", "Optimum", "Front",
            "PreloadCurve", "DutyCasePoint", "FrequencyCurve", "DesignRecord", "KIND"]
@@ -182,12 +182,6 @@ class FrequencyCurve(Record):
     max_preload_Hz: Array = entry("The frequency at the highest preload.", unit="Hz", size="position_mm")
 
 
-def _other_inputs(doc: Any) -> dict[str, Any]:
-    if not isinstance(doc, dict):
-        raise ValueError(f"expected an object, got {type(doc).__name__}")
-    return {k: v for k, v in doc.items() if k != "profile"}
-
-
 @record(eq=False)
 class DesignRecord(Artifact):
     """The design artifact: the optimum, the fronts, the preload schedule on the optimum's screw, the curves, the
@@ -210,7 +204,7 @@ class DesignRecord(Artifact):
     profile: str = entry("The load profile the schedule was planned for (a file, or ``example``).", at="inputs",
                          default="example")
     units: dict[str, str] = entry("The units of the figures.", default={}, required=True)
-    inputs: dict[str, Any] = entry("The inputs' hashes.", read=_other_inputs, default={}, required=True)
+    inputs: dict[str, Any] = entry("The inputs' hashes.", read=object_without("profile"), default={}, required=True)
 
     @property
     def point(self) -> DesignPoint:

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from piezopreload.core.errors import InputError
-from piezopreload.core.records import Artifact, Record, entry, record
+from piezopreload.core.records import Artifact, Record, entry, object_without, record
 from piezopreload.models.hysteresis import CreepPI, HysteresisModel, model_from_dict
 
 __all__ = ["KIND", "FitError", "DataSource", "Units", "SolverReport", "StraightLine", "Refit", "Compensation",
@@ -156,12 +156,6 @@ class Compensation(Record):
     max_N: float = entry("The largest error.", unit="N", name="compensation_max_N")
 
 
-def _other_inputs(doc: Any) -> dict[str, Any]:
-    if not isinstance(doc, dict):
-        raise ValueError(f"expected an object, got {type(doc).__name__}")
-    return {k: v for k, v in doc.items() if k != "data"}
-
-
 # --------------------------------------------------------------------------------------
 # the record
 # --------------------------------------------------------------------------------------
@@ -194,7 +188,7 @@ class IdentifiedModel(Artifact):
                                         default=None)
     compensation: Compensation | None = entry("The open-loop compensation check (a study's feedforward).",
                                               at="identification", inline=True, default=None)
-    inputs: dict[str, Any] = entry("Hashes of what else it came from (the study, say).", read=_other_inputs,
+    inputs: dict[str, Any] = entry("Hashes of what else it came from (the study, say).", read=object_without("data"),
                                    default={})
     file_sha256: str | None = entry("SHA-256 of the file it was read from or written to.", stored=False,
                                     default=None)

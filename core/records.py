@@ -69,7 +69,7 @@ from piezopreload.core.artifacts import field_message, read_artifact, register_k
 from piezopreload.core.config import Invalid
 from piezopreload.core.errors import ArtifactError
 
-__all__ = ["Entry", "entry", "record", "Record", "Artifact", "Raw", "load_one_of"]
+__all__ = ["Entry", "entry", "record", "Record", "Artifact", "Raw", "load_one_of", "object_without"]
 
 #: the metadata entry of a field declared with :func:`entry`
 ENTRY = "piezopreload.entry"
@@ -353,6 +353,17 @@ def _specs(cls: type) -> tuple[_Spec, ...]:
 # --------------------------------------------------------------------------------------
 # reading: one message format
 # --------------------------------------------------------------------------------------
+def object_without(key: str) -> Callable[[Any], dict[str, Any]]:
+    """A field's reader (``entry(read=...)``) of a JSON object kept as written but for ``key``, which another field
+    of the record reads (an artifact's ``inputs`` beside the one input it declares)."""
+    def read(doc: Any) -> dict[str, Any]:
+        if not isinstance(doc, dict):
+            raise ValueError(f"expected an object, got {type(doc).__name__}")
+        return {k: v for k, v in doc.items() if k != key}
+
+    return read
+
+
 class _Wrong(Exception):
     """A field that is missing or wrong, at ``path`` in the document (made an :class:`ArtifactError` at the top)."""
 
