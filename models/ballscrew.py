@@ -699,6 +699,34 @@ class BallScrew:
                                  ball_mm=self.ball_mm, lubricant_vg=lubricant_vg, temperature_C=temperature_C)
         return nut + seal_heat_W(seals, omega)
 
+    def spacer_preload_N(self, preload_N: float, mismatch_um: ArrayLike,
+                         spacer_stiffness_N_per_um: float = math.inf) -> Array:
+        """The preload of a spacer-preloaded double nut (N) after its spacer's fit grows by ``mismatch_um`` (> 0: the
+        nuts pressed harder, < 0 relieved): the root F >= 0 of 2 delta(F) + F / k_s = 2 delta(F_p) + F_p / k_s + m,
+        delta the nut law :meth:`nut_approach_um` (both nuts carry F; k_s the spacer), 0 where the nuts part.
+
+        The tangent of this at F_p is :func:`~piezopreload.models.thermal.spacer_drift_N_per_K`'s; the law softens
+        as the preload falls (delta ~ F^(2/3)), so a linear extrapolation of the tangent overstates a large loss.
+        """
+        Fp = float(preload_N)
+        if not (math.isfinite(Fp) and Fp > 0):
+            raise InputError(f"preload_N must be a finite number > 0, got {preload_N!r}.")
+        m = np.asarray(mismatch_um, float)
+
+        def fit(F: Array) -> Array:
+            return 2.0 * self.nut_approach_um(F) + F / spacer_stiffness_N_per_um
+
+        target = float(fit(np.asarray(Fp))) + m
+        lo = np.zeros_like(m)
+        hi = np.full_like(m, Fp)
+        while np.any(fit(hi) < target):  # the law grows without bound: widen until the root is inside
+            hi = np.where(fit(hi) < target, 2.0 * hi, hi)
+        for _ in range(80):
+            mid = 0.5 * (lo + hi)
+            below = fit(mid) < target
+            lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+        return np.where(target <= 0.0, 0.0, 0.5 * (lo + hi))
+
     def nut_stiffness_N_per_um(self, nut_force_N: ArrayLike) -> Array:
         """One nut's tangent stiffness dF/d(delta) (N/um) at its force: F^(1/3) / (2/3 c_h + s F^(1/3)), times f_ar."""
         return self.accuracy_factor * _nut_stiffness(NUMPY, self.axial_constant_um, self.structural_compliance_um_per_N,

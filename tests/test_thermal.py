@@ -28,8 +28,11 @@ from piezopreload.models.thermal import (
     FineMarch,
     ScrewBody,
     bearing_torque_Nm,
+    end_force_N,
     growth_m,
     held_force_N,
+    pair_lift_off_N,
+    pair_shift_m,
     nut_coverage,
     pressure_viscosity_per_Pa,
     shaft_film_W_per_m2K,
@@ -383,32 +386,81 @@ def test_an_axis_model_follows_the_screw_and_the_table():
 
 # ---- growth ------------------------------------------------------------------------------------------------------
 def test_growth_for_each_mounting():
-    """fixed-free: alpha int dT; ends held by rigid bearings: alpha (int_0^x dT - x mean dT), the length kept;
-    pretensioned: the length kept until the mean rise passes the pretension's, alpha L (dT - dT_p) beyond; elastic
-    bearings: the force G / (L/EA + 2/k_b) through both, each end moving F / k_b."""
+    """fixed-free: alpha int dT. Held ends (fixed-fixed, pretensioned alike): rigid bearings keep the length,
+    u = alpha (int_0^x dT - x mean dT); linear bearings of stiffness k_b take the force G / (L/EA + 2/k_b), each end
+    moving F / k_b. A pretension is relieved as the screw warms, the ends' force rising by alpha dT E A (rigid ends)
+    from -F_t, and the screw pushes on past it: it does not grow freely once the pretension is used up (the old
+    model let it, alpha L (dT - dT_p), while its fixed-fixed screw held any compression)."""
     n, dx, EA = 40, 0.025, 1.2e8
     L = n * dx
     uniform = np.full(n, 4.0)
     assert growth_m(uniform, dx, "fixed-free", EA_N=EA)[-1] == pytest.approx(EXPANSION_PER_K * L * 4.0, rel=1e-12)
-    assert np.max(np.abs(growth_m(uniform, dx, "fixed-fixed", EA_N=EA))) < 1e-18
     x = np.arange(n + 1) * dx
     local = np.where(np.arange(n) < 10, 6.0, 1.0)
     expected = EXPANSION_PER_K * (np.concatenate([[0.0], np.cumsum(local) * dx]) - x * local.mean())
-    np.testing.assert_allclose(growth_m(local, dx, "fixed-fixed", EA_N=EA), expected, atol=1e-15)
-    below = growth_m(uniform, dx, "pretensioned", EA_N=EA, pretension_K=5.0)
-    above = growth_m(uniform, dx, "pretensioned", EA_N=EA, pretension_K=3.0)
-    assert np.max(np.abs(below)) < 1e-18, "a pretension of 5 K let a 4 K rise grow the screw"
-    assert above[-1] == pytest.approx(EXPANSION_PER_K * L * (4.0 - 3.0), rel=1e-12)
+    for mounting, dT_p in (("fixed-fixed", 0.0), ("pretensioned", 3.0), ("pretensioned", 5.0)):
+        assert np.max(np.abs(growth_m(uniform, dx, mounting, EA_N=EA, pretension_K=dT_p))) < 1e-15, mounting
+        np.testing.assert_allclose(growth_m(local, dx, mounting, EA_N=EA, pretension_K=dT_p), expected, atol=1e-13)
+        # rigid ends: the force rises by alpha dT E A from the pretension's -F_t
+        assert float(end_force_N(uniform, dx, mounting, EA_N=EA, pretension_K=dT_p)) == pytest.approx(
+            EXPANSION_PER_K * (4.0 - dT_p) * EA, rel=1e-9), mounting
+        assert float(held_force_N(uniform, dx, mounting, EA_N=EA, pretension_K=dT_p)) == pytest.approx(
+            EXPANSION_PER_K * 4.0 * EA, rel=1e-9), mounting
     k_b = 1e9
-    u = growth_m(uniform, dx, "fixed-fixed", EA_N=EA, bearing_N_per_m=k_b)
     force = EXPANSION_PER_K * L * 4.0 / (L / EA + 2.0 / k_b)
-    assert (u[0], u[-1]) == pytest.approx((-force / k_b, force / k_b), rel=1e-12)
-    assert float(held_force_N(uniform, dx, "fixed-fixed", EA_N=EA, bearing_N_per_m=k_b)) == pytest.approx(force)
-    assert float(held_force_N(uniform, dx, "pretensioned", EA_N=EA, pretension_K=3.0)) == pytest.approx(
-        EXPANSION_PER_K * 3.0 * EA, rel=1e-12), "a pretensioned screw's ends take up at most the pretension"
+    for mounting, dT_p in (("fixed-fixed", 0.0), ("pretensioned", 3.0)):  # linear ends: the pretension superposes
+        u = growth_m(uniform, dx, mounting, EA_N=EA, bearing_N_per_m=k_b, pretension_K=dT_p)
+        assert (u[0], u[-1]) == pytest.approx((-force / k_b, force / k_b), rel=1e-9)
+        assert float(held_force_N(uniform, dx, mounting, EA_N=EA, bearing_N_per_m=k_b,
+                                  pretension_K=dT_p)) == pytest.approx(force, rel=1e-9)
     assert float(held_force_N(uniform, dx, "fixed-free", EA_N=EA)) == 0.0
     with pytest.raises(InputError, match="mounting must be one of"):
         growth_m(uniform, dx, "floating", EA_N=EA)
+
+
+def test_a_bearing_pair_follows_the_hertz_law_and_lifts_off_at_2_83_times_its_preload():
+    """Two equal Hertz rows preloaded by F_b: with the shift delta = 3 F_b u / k_b they carry F_b (1 + u)^(3/2) and
+    F_b (1 - u)^(3/2); the pair's stiffness at no load is k_b, the second row unloads at u = 1, F = 2^(3/2) F_b
+    (the catalogues' lift-off rule for the same law), and the loaded row alone carries the force beyond."""
+    f_b, k_b = 2000.0, 1e9
+    assert pair_lift_off_N(f_b) == pytest.approx(2.0 ** 1.5 * f_b, rel=1e-15) == pytest.approx(5657, abs=1)
+    for u in (0.0, 0.1, 0.5, 0.9, 1.0, 1.5, 3.0):  # the force from the rows at a known shift, then back
+        force = f_b * ((1 + u) ** 1.5 - max(1 - u, 0.0) ** 1.5)
+        assert float(pair_shift_m(force, f_b, k_b)) == pytest.approx(3 * f_b * u / k_b, rel=1e-9, abs=1e-18), u
+        assert float(pair_shift_m(-force, f_b, k_b)) == pytest.approx(-3 * f_b * u / k_b, rel=1e-9, abs=1e-18)
+    small = 1.0
+    assert small / float(pair_shift_m(small, f_b, k_b)) == pytest.approx(k_b, rel=1e-4)
+    # beyond lift-off the loaded row alone: its tangent there is 2^(1/2) one row's at F_b, 1/sqrt(2) the pair's
+    lift = pair_lift_off_N(f_b)
+    tangent = 1.0 / float(pair_shift_m(lift + 1.0, f_b, k_b) - pair_shift_m(lift, f_b, k_b))
+    assert tangent == pytest.approx(k_b / math.sqrt(2.0), rel=1e-3)
+    assert float(pair_shift_m(3000.0, 0.0, k_b)) == pytest.approx(3000.0 / k_b, rel=1e-15), "no preload: a spring"
+
+
+def test_held_ends_of_preloaded_pairs_share_the_growth_by_their_law():
+    """The ends' force F solves G - (F + F_t) L/EA = 2 (delta(F) - delta(-F_t)): built here backwards from a chosen
+    force (the pair's shift from the rows' closed form, no root-finding) for a fixed-fixed and a pretensioned screw,
+    inside the pairs' lift-off and beyond it; the growth at the far end is then delta(F) - delta(-F_t) outward."""
+    n, dx, EA, k_b, f_b = 40, 0.03, 1.2e8, 1e9, 2000.0
+    L = n * dx
+
+    def shift(u):
+        return 3 * f_b * u / k_b
+
+    def force(u):
+        return math.copysign(f_b * ((1 + abs(u)) ** 1.5 - max(1 - abs(u), 0.0) ** 1.5), u)
+
+    for mounting, dT_p in (("fixed-fixed", 0.0), ("pretensioned", 3.0)):
+        f_t = EXPANSION_PER_K * dT_p * EA
+        start = -float(pair_shift_m(f_t, f_b, k_b))  # delta(-F_t), the pair's law checked on its own above
+        for u in (0.4, 1.0, 2.0):
+            F = force(u)
+            G = (F + f_t) * L / EA + 2.0 * (shift(u) - start)
+            rise = np.full(n, G / (EXPANSION_PER_K * L))
+            kw = {"EA_N": EA, "bearing_N_per_m": k_b, "bearing_preload_N": f_b, "pretension_K": dT_p}
+            assert float(end_force_N(rise, dx, mounting, **kw)) == pytest.approx(F, rel=1e-9), (mounting, u)
+            u_end = growth_m(rise, dx, mounting, **kw)[-1]
+            assert u_end == pytest.approx(shift(u) - start, rel=1e-8), (mounting, u)
 
 
 def test_a_spacer_preloaded_nut_drifts_by_its_stiffness_times_the_spacers_mismatch():
