@@ -134,10 +134,10 @@ class PreloadDrift(Record):
     ``span_mm`` apart (middle to middle), changes its preload by ``passive_N_per_K`` per kelvin of nut over
     screw at first (the tangent); ``passive_max_N`` is its largest change over the shift by the nuts' own law,
     signed (< 0: the screw warmer than the nut, the preload falls), ``passive_left_N`` the preload then left and
-    ``passive_linear_N`` what the tangent extrapolated would say (the law softens as the preload falls). With the stacks in the loop the preload holds; their stroke takes up the spacer's
-    mismatch, ``stroke_max_um`` at most over the schedule's shift, ``voltage_needed_V`` of command (signed: + more
-    voltage, the screw warmer than the nut), against ``headroom_V`` the run left on that side of the command's
-    range.
+    ``passive_linear_N`` what the tangent extrapolated would say (the law softens as the preload falls). With the
+    stacks in the loop the preload holds; their stroke takes up the spacer's mismatch, ``stroke_max_um`` at most
+    over the schedule's shift, ``voltage_needed_V`` of command (signed: + more voltage, the screw warmer than the
+    nut), against ``headroom_V`` the run left on that side of the command's range.
     """
 
     span_mm: float = entry("The nuts' loaded turns apart, middle to middle.", unit="mm")
@@ -171,7 +171,8 @@ class PreloadDrift(Record):
 class ThermalSummary:
     """A shift's thermal budget without its series (:meth:`ThermalRecord.summary`): each figure of a case for the
     schedule and for the constant preload (``figures[name]`` is ``{"schedule": ..., "constant": ...}``), the settings,
-    the drift, and in words per case where the largest rise sits, the nut against the screw and the ends' force; :meth:`to_dict` is what ``system.json``'s summary and ``run --json`` hold as ``thermal``."""
+    the drift, and in words per case where the largest rise sits, the nut against the screw and the ends' force;
+    :meth:`to_dict` is what ``system.json``'s summary and ``run --json`` hold as ``thermal``."""
 
     figures: dict[str, dict[str, float]]
     heat_model: str

@@ -226,7 +226,8 @@ def cycle_sources(screw: BallScrew, drive: FeedDrive, table: ThermalTable, cycle
     stroke = table.stroke_mm or drive.travel_mm
     seals = table.seal_torque(screw.nominal_diameter_mm, screw.lead_mm)
     nut = screw.friction_heat_W(cycle.preload_N, cycle.speed_rpm, model=heat_model, lubricant_vg=table.lubricant_vg,
-                                seal_torque_Nm=seals, temperature_C=table.contact_temperature_C)
+                                seal_torque_Nm=seals, temperature_C=table.contact_temperature_C,
+                                contact_calibration=table.contact_calibration)
     dm = table.bearing_dm_mm or screw.nominal_diameter_mm + 10.0
     nu = 1e6 * float(viscosity_m2_s(table.lubricant_vg, table.contact_temperature_C))
     omega = np.abs(cycle.speed_rpm) * math.pi / 30.0
@@ -338,7 +339,8 @@ def _case(sources: CycleSources, other: CycleSources, mech: _Mechanics, elastic:
         heat_mean_W=float(c.mean(sources.nut_W)), heat_mean_other_W=float(c.mean(other.nut_W)),
         seal_heat_mean_W=float(c.mean(sources.seal_W)),
         bearing_heat_mean_W=float(np.sum(c.mean(sources.bearing_W))), preload_mean_N=float(c.mean(c.preload_N)),
-        temperature_rise_max_K=float(np.max(rises[:, :n])), rise_max_at_mm=1e3 * float(sources.model.centres_m[hottest]),
+        temperature_rise_max_K=float(np.max(rises[:, :n])),
+        rise_max_at_mm=1e3 * float(sources.model.centres_m[hottest]),
         temperature_rise_max_other_K=float(np.max(other_rises[:, :n])),
         nut_rise_max_K=float(np.max(rises[:, n])), nut_over_screw_end_K=float(nut_over[-1]),
         end_force_max_N=float(np.max(np.abs(mech.force_N(rises[:, :n])))),

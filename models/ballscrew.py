@@ -74,6 +74,7 @@ from piezopreload.core.config import Invalid
 from piezopreload.core.errors import InputError
 from piezopreload.models.ops import NUMPY
 from piezopreload.models.thermal import (
+    CONTACT_CALIBRATION,
     HEAT_MODELS,
     catalogue_heat_W,
     contact_heat_W,
@@ -674,15 +675,17 @@ class BallScrew:
         return rexroth_seal_torque_Nm(self.nominal_diameter_mm, self.lead_mm)
 
     def friction_heat_W(self, preload_N: Any, speed_rpm: Any, *, model: str = "catalogue", lubricant_vg: int = 68,
-                        seal_torque_Nm: float | None = None, temperature_C: Any = 40.0, ops: Any = NUMPY) -> Any:
+                        seal_torque_Nm: float | None = None, temperature_C: Any = 40.0,
+                        contact_calibration: float = CONTACT_CALIBRATION, ops: Any = NUMPY) -> Any:
         """The double nut's friction heat (W) at ``preload_N`` and ``speed_rpm`` (broadcast; numpy arrays, or
         CasADi expressions with ``ops=CASADI``): the preload's part plus the seals' T_s omega.
 
         ``model="catalogue"``: the drag torque :meth:`drag_torque_Nm` times the angular speed (linear in the
         preload; the lubricant and the temperature do not enter it); ``"contact"``: Jungnickel's rolling-contact
         loss of the open nut (about F_p^0.48 omega^1.51 nu^0.51, ISO VG ``lubricant_vg`` at the contact's
-        ``temperature_C``). ``seal_torque_Nm``: the seals' torque, the same in both models and independent of the
-        preload (None: :attr:`seal_torque_Nm`, Rexroth's table; 0: an open nut).
+        ``temperature_C``), times ``contact_calibration`` (the measured torques' level,
+        :data:`~piezopreload.models.thermal.CONTACT_CALIBRATION`). ``seal_torque_Nm``: the seals' torque, the same in
+        both models and independent of the preload (None: :attr:`seal_torque_Nm`, Rexroth's table; 0: an open nut).
         """
         if model not in HEAT_MODELS:
             raise InputError(f"model must be one of {', '.join(HEAT_MODELS)}, got {model!r}.")
@@ -696,7 +699,8 @@ class BallScrew:
         else:
             nut = contact_heat_W(ops, preload, omega, balls=self.balls_per_nut, contact_rad=self.contact_rad,
                                  helix_rad=self.helix_rad, pitch_diameter_mm=self.pitch_diameter,
-                                 ball_mm=self.ball_mm, lubricant_vg=lubricant_vg, temperature_C=temperature_C)
+                                 ball_mm=self.ball_mm, lubricant_vg=lubricant_vg, temperature_C=temperature_C,
+                                 calibration=contact_calibration)
         return nut + seal_heat_W(seals, omega)
 
     def spacer_preload_N(self, preload_N: float, mismatch_um: ArrayLike,

@@ -268,7 +268,8 @@ def test_the_shifts_thermal_budget_is_in_the_system_artifact_the_summary_the_rep
     # the heat by source: the bearings' share shown beside the seals' and the preload's, in the record's figures
     assert (f"{s.bearing_heat_mean_W:.0f} W at the support bearings, {s.seal_heat_mean_W:.0f} W at the nut's seals, "
             f"{s.heat_mean_W - s.seal_heat_mean_W:.0f} W of the preload's friction") in lines[0], lines[0]
-    assert s.seal_heat_mean_W == pytest.approx(c.seal_heat_mean_W) > 0, "the seals' heat depends on the preload"
+    assert c.seal_heat_mean_W > 0 and s.seal_heat_mean_W == pytest.approx(c.seal_heat_mean_W, rel=0.01), \
+        "the seals' heat depends on the preload (the same cycle's speeds, the preloads apart)"
     assert f"{s.bearing_heat_mean_W:.0f} W at the support bearings" in thermal.sentence()
     assert summary["bearing_heat_mean_W"]["schedule"] == s.bearing_heat_mean_W
     # the largest rises named by their place, the nut against the screw said with its sign
