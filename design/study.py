@@ -144,10 +144,12 @@ class DesignResult:
             csv = path.with_name(f"{path.stem}.pareto-{front.pair.replace(':', '-')}.csv")
             buf = io.StringIO()
             buf.write(f"# Pareto front {front.pair}: {front.x_name} swept, {front.y_name} optimised\n")
-            buf.write(",".join(FRONT_COLUMNS) + "\n")
-            for p in front.points:
+            # a point's growth is not one of its fields: the front's y is its own column (the shift's largest growth)
+            growth = front.y_name == "growth"
+            buf.write(",".join(FRONT_COLUMNS + (("growth_max_um",) if growth else ())) + "\n")
+            for p, y in zip(front.points, front.y):
                 d = p.to_dict()
-                buf.write(",".join(f"{d[c]:.6g}" for c in FRONT_COLUMNS) + "\n")
+                buf.write(",".join([f"{d[c]:.6g}" for c in FRONT_COLUMNS] + ([f"{y:.6g}"] if growth else [])) + "\n")
             atomic_write_text(csv, buf.getvalue())
             written.append(csv)
         return written

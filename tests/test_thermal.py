@@ -541,3 +541,23 @@ def test_the_growth_front_minimises_the_duty_cycles_heat_and_reports_its_growth(
         "the fronts' designs do not differ"
     with pytest.raises(ValueError, match="stiffness:growth front needs growth"):
         pareto_front(spec, "stiffness:growth", 3)
+
+
+def test_the_growth_fronts_csv_carries_the_growth(tmp_path, capsys):
+    """`design --pareto stiffness:growth` writes the front's y, the shift's largest growth, as its own column beside
+    the points' fields (a point's growth is not one of them): the same numbers as the design artifact's front."""
+    import json
+
+    out = tmp_path / "design.json"
+    study = Path(__file__).resolve().parents[1] / "studies" / "machine_axis.toml"
+    code = main(["design", "--study", str(study), "--pareto", "stiffness:growth", "--points", "3", "--out", str(out)])
+    capsys.readouterr()
+    assert code == 0
+    front = json.loads(out.read_text())["fronts"][0]
+    assert front["pair"] == "stiffness:growth"
+    rows = (tmp_path / "design.pareto-stiffness-growth.csv").read_text().splitlines()
+    header = rows[1].split(",")
+    assert header[-1] == "growth_max_um", header
+    growth = [float(r.split(",")[-1]) for r in rows[2:]]
+    np.testing.assert_allclose(growth, front["y"], rtol=1e-5)
+    assert len(growth) == 3 and all(g > 0 for g in growth)
