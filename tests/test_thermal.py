@@ -467,6 +467,36 @@ def test_held_ends_of_preloaded_pairs_share_the_growth_by_their_law():
             assert u_end == pytest.approx(shift(u) - start, rel=1e-8), (mounting, u)
 
 
+def test_the_passive_nuts_drift_follows_the_nut_law_not_its_tangent_extrapolated():
+    """The machine axis' designed double nut (32 x 10, 6 turns of 15 balls of 6.735 mm, 55 deg, conformity 0.52) at
+    its best constant preload of 1.2 x 4,000 / 2^(3/2) = 1,697 N, spacer and sleeve of 4,000 N/um, its nuts' loaded
+    turns 100 mm apart: 355 N/K at first (the tangent). With the nut 5.1 K colder than the screw the spacer's fit
+    shrinks by alpha L_s dT = 5.9 um; along the nuts' own law (delta ~ F^(2/3) + s F) the preload falls to about
+    213 N (the issue's hand figure; 215 N here), where the tangent extrapolated (1,697 - 355 x 5.1 < 0) says the
+    preload is lost. Each result meets the law's equation 2 delta(F) + F/k_s = 2 delta(F_p) + F_p/k_s + m."""
+    screw = BallScrew(32.0, 10.0, 6.735139990862353, 6, contact_angle_deg=55.0, conformity_screw=0.52,
+                      conformity_nut=0.52, balls_per_turn=15, load_sharing=0.63)
+    preload, sleeve, span = 1.2 * 4000.0 / 2.0 ** 1.5, 4000.0, 100.0
+    per_K = float(spacer_drift_N_per_K(screw.nut_stiffness_N_per_um(preload), span, sleeve))
+    assert per_K == pytest.approx(355.0, abs=1.0)
+    mismatch = -EXPANSION_PER_K * span * 1e3 * 5.1
+    left = float(screw.spacer_preload_N(preload, mismatch, sleeve))
+    assert left == pytest.approx(213.0, abs=5.0), left
+    assert preload - per_K * 5.1 < 0 < left, "the linear extrapolation would have kept it, or the law lost it"
+
+    def fit(force):
+        return 2.0 * float(screw.nut_approach_um(force)) + force / sleeve
+
+    for m in (mismatch, -1.0, 0.5, 3.0):
+        f = float(screw.spacer_preload_N(preload, m, sleeve))
+        assert fit(f) - fit(preload) == pytest.approx(m, abs=1e-9), m
+    # small differences: the tangent is right to first order
+    small = float(screw.spacer_preload_N(preload, 0.01, sleeve)) - preload
+    assert small / (0.01 / (EXPANSION_PER_K * span * 1e3)) == pytest.approx(per_K, rel=1e-3)
+    # far enough, the nuts part: no negative preload
+    assert float(screw.spacer_preload_N(preload, -2.0 * fit(preload), sleeve)) == 0.0
+
+
 def test_a_spacer_preloaded_nut_drifts_by_its_stiffness_times_the_spacers_mismatch():
     """Two nuts of 500 N/um each in series with a 4,000 N/um spacer: 1 / (2/500 + 1/4000) = 235 N/um, times
     alpha L_s = 11.6e-6 x 100 mm = 1.16 um per kelvin."""
