@@ -85,6 +85,40 @@ def test_the_catalogue_heat_is_the_vendors_drag_torque_times_speed(name):
                                screw.friction_heat_W(preload, 1000.0), rtol=1e-15)
 
 
+def test_the_seals_torque_is_rexroths_table_by_size():
+    """Rexroth, "Friction torques of seals" (the two standard lip seals of a nut, single or double alike): 0.25 N m for
+    32 x 5-32, 0.15 for 25 x 10, 0.60-0.70 for 50 x 10-40; between listed leads linear in the lead, between listed
+    diameters linear in the diameter; no figure outside 16-80 mm. The table's key decides: stated, the study's; an
+    open nut (sealed = false), none."""
+    from piezopreload.models.thermal import rexroth_seal_torque_Nm
+
+    assert rexroth_seal_torque_Nm(32.0, 10.0) == pytest.approx(0.25) == rexroth_seal_torque_Nm(32.0, 32.0)
+    assert rexroth_seal_torque_Nm(25.0, 10.0) == pytest.approx(0.15)
+    assert rexroth_seal_torque_Nm(25.0, 7.5) == pytest.approx(0.135)
+    assert rexroth_seal_torque_Nm(50.0, 25.0) == pytest.approx(0.65)
+    assert rexroth_seal_torque_Nm(28.5, 10.0) == pytest.approx(0.5 * (0.15 + 0.25))
+    assert rexroth_seal_torque_Nm(16.0, 40.0) == pytest.approx(0.08), "beyond the listed leads: the last figure"
+    with pytest.raises(InputError, match="16-80 mm"):
+        rexroth_seal_torque_Nm(100.0, 10.0)
+    assert ThermalTable().seal_torque(32.0, 10.0) == pytest.approx(0.25)
+    assert ThermalTable(seal_torque_Nm=0.45).seal_torque(32.0, 10.0) == 0.45
+    assert ThermalTable(sealed=False).seal_torque(32.0, 10.0) == 0.0
+
+
+def test_the_convection_factor_scales_the_air_films():
+    """[thermal] convection_factor multiplies the films the correlations give (the rotating screw's, free convection
+    on the nut), not the heat: the steady rise of a screw losing heat only to the air scales as 1/factor."""
+    screw = BallScrew(32.0, 10.0, 6.35, 4)
+    drive = FeedDrive(350.0, 1200.0, 1000.0, (150.0, 1050.0))
+    cycle = _machining_cycle(1500.0)
+    base = cycle_sources(screw, drive, ThermalTable(volumes=30), cycle)
+    more = cycle_sources(screw, drive, ThermalTable(volumes=30, convection_factor=1.3), cycle)
+    np.testing.assert_allclose(more.film_W_per_m2K, 1.3 * base.film_W_per_m2K, rtol=1e-15)
+    assert more.free_W_per_m2K == pytest.approx(1.3 * 8.0)
+    np.testing.assert_allclose(more.nut_W, base.nut_W, rtol=1e-15)
+    assert np.max(more.shift([8 * 3600.0])) < np.max(base.shift([8 * 3600.0]))
+
+
 def test_the_contact_model_scales_as_its_exponents_say():
     """Jungnickel's loss of a double nut: F_p^(1 - 0.516), omega^(1 + 0.512), viscosity^0.512; halving the preload
     saves 1 - 2^-0.484 = 28.5 % (the source's 'about 29 %', against the catalogue's 50 %). The seals add their own
@@ -519,6 +553,10 @@ PAPER = AXIS.with_name("paper2021.toml")
     (AXIS, "shift_h = 8.0", "shift_h = 8.0\nstroke_mm = [150.0, 1250.0]", "thermal.stroke_mm",
      "must lie inside the screw (end < screw_length_mm = 1200 mm)"),
     (AXIS, "shift_h = 8.0", "shift_h = 8.0\nvolume = 60", "thermal.volume", "is an unknown key; [thermal] has:"),
+    # the seals: Rexroth's table covers 16-80 mm; an open nut has no seal torque
+    (AXIS, "nominal_diameter_mm = 32.0", "nominal_diameter_mm = 100.0", "thermal.seal_torque_Nm",
+     "tabulated (Rexroth) for nominal diameters of 16-80 mm"),
+    (AXIS, "sealed = true", "sealed = false\nseal_torque_Nm = 0.3", "thermal.seal_torque_Nm", "needs seals"),
     (PAPER, "[ballscrew]", "[thermal]\nshift_h = 8.0\n\n[ballscrew]", "thermal",
      "needs a study whose plant is its design"),
 ])
