@@ -172,14 +172,15 @@ def _frame(plant: DesignedPlant, schedule: PreloadSchedule, run: ClosedLoopRun, 
     load = np.where(cycle, np.interp(t_cycle, prof.time_s, prof.axial_load_N), 0.0)
     planned, achieved = plant.preload_N(run.reference_N), plant.preload_N(run.force_N)
     loads = screw.nut_loads(np.maximum(achieved, 1e-3), load)
+    factor = schedule.spec.in_machine_factor  # the nut's table rigidity -> its rigidity mounted in the machine
     speed = np.ones_like(t_cycle) if prof.speed_rpm is None else np.interp(t_cycle, prof.time_s, prof.speed_rpm) * (
         2.0 * np.pi / 60.0)
     return _Frame(
         t_cycle=t_cycle, cycle=cycle, cutting=cycle & (np.abs(load) > 0), load=load, planned=planned,
         achieved=achieved, required=schedule.spec.required_stiffness(load),
-        rigidity=np.asarray(loads.rigidity_N_per_um, float),
-        planned_rigidity=np.asarray(screw.rigidity_N_per_um(np.maximum(planned, 1e-3), load), float),
-        deflection=np.asarray(loads.deflection_um, float),
+        rigidity=factor * np.asarray(loads.rigidity_N_per_um, float),
+        planned_rigidity=factor * np.asarray(screw.rigidity_N_per_um(np.maximum(planned, 1e-3), load), float),
+        deflection=np.asarray(loads.deflection_um, float) / factor,
         lift_bound=schedule.spec.lift_off_margin * np.abs(load) / LIFT_OFF_RATIO,
         weight=np.where(cycle, float(screw.drag_torque_Nm(1.0)) * speed * dt, 0.0))
 
