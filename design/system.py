@@ -172,7 +172,7 @@ def _frame(plant: DesignedPlant, schedule: PreloadSchedule, run: ClosedLoopRun, 
     load = np.where(cycle, np.interp(t_cycle, prof.time_s, prof.axial_load_N), 0.0)
     planned, achieved = plant.preload_N(run.reference_N), plant.preload_N(run.force_N)
     loads = screw.nut_loads(np.maximum(achieved, 1e-3), load)
-    factor = schedule.spec.in_machine_factor  # the nut's table rigidity -> its rigidity mounted in the machine
+    factor = schedule.spec.rigidity_factor  # the nut's table rigidity -> its rigidity mounted in the machine
     speed = np.ones_like(t_cycle) if prof.speed_rpm is None else np.interp(t_cycle, prof.time_s, prof.speed_rpm) * (
         2.0 * np.pi / 60.0)
     return _Frame(

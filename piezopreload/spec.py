@@ -754,6 +754,12 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
     except ValueError as exc:  # every key was checked; a rule between them the table misses
         raise fail("tuning", f"does not make a tuning specification: {exc}") from None
     validation: ValidationTable = t["validation"]
+    if validation.peak_voltage_max_V is not None and validation.peak_voltage_max_V >= c.u_max_V:
+        raise fail("validation.peak_voltage_max_V",
+                   f"= {validation.peak_voltage_max_V:g} V is at or above controller.u_max_V = {c.u_max_V:g} V, the "
+                   "clamp on the command: the highest command cannot exceed the clamp, so this requirement could not "
+                   "fail; set it below controller.u_max_V (the headroom the loop must keep), or leave it out for no "
+                   "such requirement")
     if validation.seed is None:
         validation = _replace(validation, seed=sim.seed)
     design_spec = None if t["ballscrew"] is None else design_spec_from_tables(
