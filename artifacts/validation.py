@@ -20,7 +20,6 @@ from numpy.typing import NDArray
 from piezopreload.artifacts.requirements import Requirement
 from piezopreload.core.records import Artifact, Record, entry, record
 from piezopreload.models.closedloop import PAPER_BAND_N
-from piezopreload.models.controller import OUTPUT_MAX_V
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

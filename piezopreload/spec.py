@@ -724,6 +724,19 @@ def _refuse_thermal(data: dict[str, Any], fail: Callable[[str, str], InputError]
                               "tables): the shift's budget is that of the system along its schedule")
 
 
+def _refuse_unreachable(validation: ValidationTable, controller: ControllerTable,
+                        fail: Callable[[str, str], InputError]) -> None:
+    """A requirement the study's own clamp makes impossible to miss is refused: the controller clamps its command at
+    ``[controller] u_max_V``, so a highest-command limit at or above it could not fail."""
+    limit = validation.peak_voltage_max_V
+    if limit is not None and limit >= controller.u_max_V:
+        raise fail("validation.peak_voltage_max_V",
+                   f"= {limit:g} V is at or above controller.u_max_V = {controller.u_max_V:g} V, the clamp on the "
+                   "command: the highest command cannot exceed the clamp, so this requirement could not fail; set it "
+                   "below controller.u_max_V (the headroom the loop must keep), or leave it out for no such "
+                   "requirement")
+
+
 def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Say, kind: type[S]) -> S:
     """The typed study from a file's tables; every value checked, errors naming the key and its line."""
     fail = where.fail
@@ -754,12 +767,7 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
     except ValueError as exc:  # every key was checked; a rule between them the table misses
         raise fail("tuning", f"does not make a tuning specification: {exc}") from None
     validation: ValidationTable = t["validation"]
-    if validation.peak_voltage_max_V is not None and validation.peak_voltage_max_V >= c.u_max_V:
-        raise fail("validation.peak_voltage_max_V",
-                   f"= {validation.peak_voltage_max_V:g} V is at or above controller.u_max_V = {c.u_max_V:g} V, the "
-                   "clamp on the command: the highest command cannot exceed the clamp, so this requirement could not "
-                   "fail; set it below controller.u_max_V (the headroom the loop must keep), or leave it out for no "
-                   "such requirement")
+    _refuse_unreachable(validation, c, fail)
     if validation.seed is None:
         validation = _replace(validation, seed=sim.seed)
     design_spec = None if t["ballscrew"] is None else design_spec_from_tables(
