@@ -558,11 +558,18 @@ class StudySpec:
         validated settling time, ``[validation] settling_max_s``), the schedule planned again with local margins while
         a requirement is missed (:func:`piezopreload.design.system.track_schedule`); ``ff_extra_V`` a correction
         added to the feedforward (one array, or one per pass's reference: a callable)."""
+        from piezopreload.tuning.validate import DEFAULT_SPREAD
+
         said = say_of(progress)
         designed = self._designed_for("tracking the schedule", said)
         controller = self._controller(gains, said)
+        # the physical lift-off over the validation's Monte Carlo plants (its spread and seed; the nominal is the run)
+        drawn = self.validation.plants - 1
+        seed = self.validation.seed if self.validation.seed is not None else self.seed
+        scatter = designed.rig.vary(drawn, DEFAULT_SPREAD, seed=seed) if drawn > 0 else None
         run = (self.plant_table or PlantTable()).track(designed, controller, self.preload_schedule, seed=self.seed,
                                                        settle_s=self.criteria.settling_max_s, ff_extra_V=ff_extra_V,
+                                                       design=self._spec("tracking the schedule"), scatter=scatter,
                                                        progress=said)
         if self.thermal is None:
             return run
