@@ -391,14 +391,16 @@ def _schedule_part(schedule: dict[str, Any] | None) -> Part | None:
     rows = []
     for r in schedule["levels"]:
         e, rb, sc = r["entry"], r["robust"], r["scheduled"]
+        ms = r.get("ms", {}).get("scheduled")  # over the entry's window (a record written before: not there)
         rows.append((fmt(r["level_N"], 4), f"{fmt(r['window_N'][0], 4)}–{fmt(r['window_N'][1], 4)}",
-                     fmt(1e3 * e["Kc_V_per_N"], 4), fmt(1e3 * e["Ti_s"], 3),
+                     fmt(1e3 * e["Kc_V_per_N"], 4), fmt(1e3 * e["Ti_s"], 3), fmt(e.get("b", 1.0), 2),
+                     "" if ms is None else fmt(ms, 3),
                      *(_when(x[k], "", "never").strip() for x in (rb, sc)
                        for k in ("settling_s", "overshoot_N", "tracking_rms_N")),
                      " / ".join("yes" if x["passed"] else "no" for x in (rb, sc))))
     w = schedule["whole_range"]
     rows.append(("whole range", "", fmt(1e3 * schedule["robust"]["Kc_V_per_N"], 4),
-                 fmt(1e3 * schedule["robust"]["Ti_s"], 3),
+                 fmt(1e3 * schedule["robust"]["Ti_s"], 3), fmt(schedule["robust"].get("b", 1.0), 2), "",
                  *(_when(w[x][k], "", "never").strip() for x in ("robust", "scheduled")
                    for k in ("settling_s", "overshoot_N", "tracking_rms_N")),
                  " / ".join("yes" if w[x]["passed"] else "no" for x in ("robust", "scheduled"))))
@@ -411,12 +413,13 @@ def _schedule_part(schedule: dict[str, Any] | None) -> Part | None:
     if missed_by_both:
         text += (f" Neither set meets the study's limits at {', '.join(missed_by_both)}: the exported gains carry that "
                  "miss, listed in the verdicts above.")
-    table = Table(("level (N)", "window (N)", "Kc (mV/N)", "Ti (ms)", "robust: settling (s)", "overshoot (N)",
-                   "tracking (N)", "schedule: settling (s)", "overshoot (N)", "tracking (N)",
+    table = Table(("level (N)", "window (N)", "Kc (mV/N)", "Ti (ms)", "b", "Ms (window)", "robust: settling (s)",
+                   "overshoot (N)", "tracking (N)", "schedule: settling (s)", "overshoot (N)", "tracking (N)",
                    "meets (robust / schedule)"),
-                  tuple(rows), "Each schedule entry's gains and the worst case over the Monte Carlo plants at its "
-                               "level for the robust set and the schedule (tracking: RMS after the changes).",
-                  "ll" + "r" * 8 + "c", small=True)
+                  tuple(rows), "Each schedule entry's gains, its maximum sensitivity over its own window (the worst "
+                               "plant variant), and the worst case over the Monte Carlo plants at its level for the "
+                               "robust set and the schedule (tracking: RMS after the changes).",
+                  "ll" + "r" * 10 + "c", small=True)
     fig = F.gain_schedule(schedule)
     caption = (f"The gain schedule on the preload level ({len(schedule['levels'])} entries) against the robust set "
                "(dashed), and each set's worst case over the Monte Carlo plants per level, the study's limits in red "
