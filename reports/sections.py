@@ -20,7 +20,7 @@ from piezopreload.artifacts.gainset import GainSet, GainsTable
 from piezopreload.artifacts.learning import LearningRecord
 from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.rigrun import RigRunRecord
-from piezopreload.artifacts.system import SystemRecord, TrackingNumbers
+from piezopreload.artifacts.system import MarginBasis, SystemRecord, TrackingNumbers
 from piezopreload.artifacts.tuning import TuningRecord
 from piezopreload.models.hysteresis import CreepPI
 from piezopreload.reports import figures as F
@@ -225,9 +225,11 @@ def system_section(system: SystemRecord, design: DesignRecord, learning: Learnin
          f"{fmt(n.rigidity_at_worst_ratio_N_per_um)} against {fmt(n.rigidity_required_at_worst_ratio_N_per_um)} N/um "
          f"required, {fmt(n.rigidity_worst_t_s)} s into the run"),
         ("time below the required rigidity", f"{fmt(n.rigidity_below_requirement_s)} s", ""),
-        ("largest axial deflection while cutting", f"{fmt(n.deflection_max_um)} um", deflection),
-        ("least preload over the lift-off bound", f"{ratio(n.lift_off_ratio_min)} times",
-         f"the bound with its {fmt(n.lift_off_margin)} margin"),
+        ("largest nut axial deflection while cutting", f"{fmt(n.deflection_max_um)} um",
+         f"the nut alone, in the machine; {deflection}"),
+        ("least preload over the schedule's lift-off bound", f"{ratio(n.lift_off_ratio_min)} times",
+         f"the bound with its {fmt(n.lift_off_margin)} margin: the design's own constraint, the schedule sits on it"),
+        *_basis_rows(system.basis),
         ("friction energy per cycle, achieved", f"{fmt(n.friction_energy_per_cycle)} {e}", "the true force"),
         ("friction energy per cycle, the loop's plan", f"{fmt(n.planned_friction_energy_per_cycle)} {e}",
          "the last pass's schedule, with its local margins and the stacks' least contact force"),
@@ -362,6 +364,27 @@ def _bound_text(tuning: TuningRecord) -> tuple[str, tuple[str, ...]]:
     ratio = ("" if mt.tuned_over_bound_ratio is None
              else f"; the tuned settling is {fmt(mt.tuned_over_bound_ratio)} times it")
     return words + f" The minimum-time bound on the step's settling is {fmt(mt.settling_s)} s{ratio}.", ()
+
+
+def _basis_rows(b: MarginBasis | None) -> list[tuple[str, str, str]]:
+    """What the margins rest on (:class:`~piezopreload.artifacts.system.MarginBasis`), as the system table's rows."""
+    if b is None:
+        return []
+    over = "the nominal plant" if b.lift_off_plants == 1 else f"the worst of {b.lift_off_plants} Monte Carlo plants"
+    return [
+        ("rigidity in the machine, where least against its requirement", f"{fmt(b.rigidity_in_machine_N_per_um)} N/um",
+         f"the nut's table figure {fmt(b.rigidity_table_N_per_um)} N/um times the vendors' in-machine factor "
+         f"{fmt(b.rigidity_in_machine_factor)}; {fmt(b.rigidity_required_N_per_um)} N/um required"),
+        ("axis stiffness at the table (nut, screw, bearings)",
+         f"{fmt(b.axis_stiffness_min_N_per_um)}-{fmt(b.axis_stiffness_max_N_per_um)} N/um",
+         "at that moment, over the travel"),
+        ("largest axis deflection at the table while cutting", f"{fmt(b.axis_deflection_max_um)} um",
+         "nut, screw and bearings, at the weakest position"),
+        ("physical lift-off margin", f"{fmt(b.lift_off_margin_physical_pct)} %",
+         f"by the nut law (lift-off at {fmt(b.lift_off_ratio)} F_p), {over}; "
+         f"{fmt(b.lift_off_margin_physical_nominal_pct)} % on the nominal plant, "
+         f"{fmt(b.lift_off_margin_catalogue_pct)} % by the catalogues' 2.83 F_p there"),
+    ]
 
 
 def controller_section(study: ReportStudy, a: Artifacts) -> Part:
