@@ -37,8 +37,21 @@ is soft. :func:`tune_schedule`:
    overshoot on the variants), or the specification no entry meets, and the Monte Carlo figure
    against its limit.
 
-The per-level figures (gains, worst-case settling, overshoot and tracking error over the plants,
-both sets) are the report's "gain schedule" table.
+The per-level figures (gains, each entry's Ms over its window, worst-case settling, overshoot and
+tracking error over the plants, both sets) are the report's "gain schedule" table.
+
+**The lowest entry is tuned on a different problem.** Each entry's step and staircase start at its
+window's bottom, and the loop starts from rest (0 V), so every entry's objective but the lowest's also
+counts the rise from rest up to its window (the lowest window starts at rest). On the machine axis
+that rise is almost all of the upper entries' objective (237 and 690 against the lowest entry's 2.6),
+and it keeps their integral action slow (Ti 45 and 46 ms); the lowest entry, judged on its window
+alone, goes to an integral-dominated PI (Ti 3.4 ms, its PI zero above the loop's crossover) with the
+setpoint weight on its lower bound (b = 0: no proportional kick from the setpoint, the feedforward
+follows it). It is robust where it acts: its Ms over its window is at the 1.6 bound, the
+interpolated gains' local Ms stays at or below 1.6 from 0 to 4,000 N, and it passes the Monte Carlo
+validation at its level (overshoot 6.8 N, settling 0.20 s). Leaving the rise out of every entry's
+objective was tried and refused: the upper entries then go as aggressive and miss the Monte Carlo
+overshoot at 2,000 N by an order of magnitude (237 N against 25), so the rise stays counted.
 """
 
 from __future__ import annotations
