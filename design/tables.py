@@ -54,6 +54,13 @@ class BallscrewTable(Table):
     turns: tuple[int, int] = key(_SPEC.turns, "bounds of the loaded turns per nut", ge=1, increasing=True)
     load_sharing: float = key(_SPEC.load_sharing, "effective share of the balls that carry load (the calibrated "
                               "default: docs/ballscrew.md)", gt=0, le=1)
+    rigidity_in_machine_factor: float = key(
+        _SPEC.rigidity_in_machine_factor, "share of the nut's table rigidity it keeps mounted in the machine: HIWIN "
+        "and THK state that their table rigidity leaves out the nut's mounting and that about 80 % of it holds in a "
+        "machine (HIWIN: K_n = 0.8 K (F_p / 0.1 C)^(1/3)); the nut law is calibrated on those tables "
+        "(docs/ballscrew.md). Rexroth's DIN 69051-5 and Steinmeyer's corrected figures carry no such factor: for a "
+        "nut judged by them set 1. The schedule's rigidity and deflection requirements hold in the machine; the "
+        "table figure is reported beside", gt=0, le=1)
 
 
 @dataclass(frozen=True)
@@ -186,13 +193,14 @@ class PlantTable(Table):
         return plant_from_design(spec, point, hardware, design_sha256=design_sha256, sleeve_stiffness_N_per_um=sleeve)
 
     def track(self, plant: DesignedPlant, controller: Controller, schedule: PreloadSchedule, *, seed: int,
-              settle_s: float = 0.5, ff_extra_V: Any = None,
-              progress: Callable[[str], None] | None = None) -> SystemRun:
+              settle_s: float = 0.5, ff_extra_V: Any = None, design: DesignSpec | None = None,
+              scatter: Plant | None = None, progress: Callable[[str], None] | None = None) -> SystemRun:
         """``controller`` following ``schedule`` on ``plant`` for this table's cycles, passes and margin, after a
-        pre-cycle held ``settle_s`` at the first level (:func:`~piezopreload.design.system.track_schedule`)."""
+        pre-cycle held ``settle_s`` at the first level (:func:`~piezopreload.design.system.track_schedule`; with
+        ``design`` and ``scatter`` it says what its margins rest on)."""
         return track_schedule(plant, controller, schedule, cycles=self.cycles, seed=seed, passes=self.passes,
                               margin_factor=self.margin_factor, contact_N=self.stack_contact_N, settle_s=settle_s,
-                              ff_extra_V=ff_extra_V, progress=progress)
+                              ff_extra_V=ff_extra_V, design=design, scatter=scatter, progress=progress)
 
 
 #: how the axis measures the table's position: the motor's encoder, or a linear scale on the table
