@@ -53,7 +53,8 @@ def _rows(t: ThermalRecord) -> tuple[tuple[str, str, str], ...]:
     s, c = t.schedule, t.constant
 
     def row(label: str, a: float, b: float, digits: int = 3) -> tuple[str, str, str]:
-        return label, fmt(a, digits), fmt(b, digits)
+        unit = label.rpartition("(")[2].rstrip(")")  # the unit the label names: one rule per quantity's kind
+        return label, fmt(a, digits, unit), fmt(b, digits, unit)
 
     return (
         row("mean preload (N)", s.preload_mean_N, c.preload_mean_N, 4),
