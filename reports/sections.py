@@ -81,6 +81,12 @@ def rigidity_words(n: TrackingNumbers) -> str:
             f"{q(n.rigidity_required_at_worst_ratio_N_per_um, 'N/um')} at the tightest moment)")
 
 
+def _span(values: Any, unit: str, with_unit: bool = True) -> str:
+    """A range of figures by their unit's rule, ``4,958–5,169 N`` (one figure where they agree)."""
+    lo, hi = fmt(float(np.min(values)), 3, unit), fmt(float(np.max(values)), 3, unit)
+    return (lo if lo == hi else f"{lo}–{hi}") + (f" {unit}" if with_unit else "")
+
+
 def _when(x: float | None, unit: str, never: str) -> str:
     return never if x is None else f"{fmt(x)} {unit}"
 
@@ -137,17 +143,29 @@ def requirements_section(a: Artifacts) -> Part | None:
 def design_section(study: ReportStudy, design: DesignRecord, system_shown: bool = False) -> Part:
     """The design optimum, its fronts, the planned schedule and the axis' natural frequency."""
     p, sch = design.point, design.schedule
+    curve = design.preload_curve
+    cases = f"the duty cases' design preloads, {_span(p.case_preload_N, 'N')}"
+    low, high = float(np.min(sch.preload_N)), float(np.max(sch.preload_N))
+    runs = f"the schedule's least and highest preload, {_span((low, high), 'N')}"
+
+    def at(values: np.ndarray, unit: str) -> str:  # the optimum's curve at the schedule's preloads
+        return _span(np.interp([low, high], curve.preload_N, values), unit, with_unit=False)
+
     rows = (
-        ("contact angle", fmt(p.contact_angle_deg), "°"), ("ball diameter", fmt(p.ball_mm, 4), "mm"),
-        ("conformity", fmt(p.conformity), ""), ("loaded turns per nut", f"{p.turns:.0f}", ""),
-        ("balls per turn", f"{p.balls_per_turn:.0f}", ""), ("bolt preload", fmt(p.bolt_preload_N), "N"),
-        ("highest preload (stacks at full drive)", fmt(p.max_preload_N), "N"),
-        (DESIGN_RIGIDITY, fmt(p.stiffness_N_per_um), "N/um"),
-        ("mean drag torque", fmt(p.mean_drag_torque_Nm), "N m"), ("rating life", fmt(p.life_h), "h"),
-        ("dynamic load rating C_dyn (estimate)", fmt(p.c_dyn_N), "N"),
-        ("peak contact pressure", fmt(p.peak_pressure_MPa), "MPa"),
-        ("lowest axial natural frequency", fmt(p.frequency_min_Hz), "Hz"),
-        ("stack stroke used", fmt(p.stack_stroke_used_um), "um"),
+        ("contact angle", fmt(p.contact_angle_deg), "°", ""), ("ball diameter", fmt(p.ball_mm, 4), "mm", ""),
+        ("conformity", fmt(p.conformity), "", ""), ("loaded turns per nut", f"{p.turns:.0f}", "", ""),
+        ("balls per turn", f"{p.balls_per_turn:.0f}", "", ""), ("bolt preload", fmt(p.bolt_preload_N, 3, "N"), "N", ""),
+        ("highest preload (stacks at full drive)", fmt(p.max_preload_N, 3, "N"), "N", ""),
+        ("rigidity, unloaded, where the axis runs", at(curve.rigidity_N_per_um, "N/um"), "N/um", runs),
+        ("drag torque, unloaded, where the axis runs", at(curve.drag_torque_Nm, "N m"), "N m", runs),
+        (DESIGN_RIGIDITY, fmt(p.stiffness_N_per_um, 3, "N/um"), "N/um", cases),
+        ("mean drag torque over the duty cycle", fmt(p.mean_drag_torque_Nm, 3, "N m"), "N m", cases),
+        ("rating life over the duty cycle", fmt(p.life_h, 3, "h"), "h", cases),
+        ("dynamic load rating C_dyn (estimate)", fmt(p.c_dyn_N, 3, "N"), "N", ""),
+        ("peak contact pressure", fmt(p.peak_pressure_MPa, 3, "MPa"), "MPa", "the largest axial load"),
+        ("lowest axial natural frequency", fmt(p.frequency_min_Hz, 3, "Hz"), "Hz", "over the table's positions"),
+        ("stack stroke used", fmt(p.stack_stroke_used_um, 3, "um"), "um",
+         f"from the bolts' preload to the highest, {_span((p.bolt_preload_N, p.max_preload_N), 'N')}"),
     )
     screw = ("" if study.screw_mm is None
              else f" ({q(study.screw_mm[0], 'mm')} nominal diameter, {q(study.screw_mm[1], 'mm')} lead)")
@@ -186,8 +204,10 @@ def design_section(study: ReportStudy, design: DesignRecord, system_shown: bool 
                                                              study.frequency_min_Hz),
                     "The first axial natural frequency of the table against its position, with the bolts' preload "
                     f"and with the stacks at full drive{limit}."))
-    table = Table(("design variable or result", "optimum", "unit"), rows,
-                  f"The design optimum (objective: {design.optimum.objective}).", "lrl")
+    table = Table(("design variable or result", "optimum", "unit", "at the preload"), rows,
+                  f"The design optimum (objective: {design.optimum.objective}), each figure at the preload it is "
+                  "computed for: the design's requirements at the duty cases' design preloads, and beside them the "
+                  "rigidity and drag torque at the preloads the schedule runs.", "lrll")
     return Part(Section("Ball-screw preload design", tuple(paragraphs), (table,), tuple(n for n, _, _ in figures),
                         tuple(omitted)), tuple(figures))
 
@@ -288,7 +308,8 @@ def learning_section(learning: LearningRecord) -> Part:
             f"On the last pass the learning run's error (from the reference's first change, the pre-cycle's ramp "
             f"included) is {q(last.tracking_rms_N, 'N')} RMS at its best trial "
             f"({q(last.tracking_rms_pct_of_range, '%')} "
-            f"of the pass's {q(last.span_N, 'N')} reference range; the causal floor of the ramped reference is "
+            f"of the pass's {q(last.span_N, 'N')} reference range; the causal floor of the ramped reference, which "
+            f"bounds feedback alone and not a correction learned ahead of each change, is "
             f"{q(last.causal_floor_N, 'N')}), from {q(last.before_learning_rms_N, 'N')} without any learned "
             f"correction{start}. The system's own figure over the machining cycles alone is in the section on the "
             "designed system.")
@@ -300,7 +321,11 @@ def learning_section(learning: LearningRecord) -> Part:
     fig = F.learning_iterations([p.to_dict() for p in learning.passes])
     caption = ("The error per learning trial on the repeated schedule, each margin pass on its own reference (whole "
                "runs, true force, in % of the pass's reference range); dotted: the causal floor of each pass's "
-               "reference.")
+               "reference, the least error of any controller that acts only on what has happened (after each change "
+               "the force waits out the loop's delay and the amplifier's slew). Learning is not bound by it: its "
+               "correction is computed between trials from the whole of the last trial's error, so it moves the "
+               f"command ahead of each change (preview {q(1e3 * last.preview_s, 'ms')}), which no causal controller "
+               f"can (the floor with that preview: {q(last.preview_floor_N, 'N')} on the last pass).")
     return Part(Section("Learning control on the repeated schedule", (text,), (table,), ("learning",)),
                 (("learning", fig, caption),))
 
@@ -353,16 +378,38 @@ def _gains_rows(g: dict[str, Any]) -> tuple[tuple[str, str, str], ...]:
     return tuple(rows)
 
 
+#: IPOPT's return statuses in words (the solver's own names stay in tuning.json)
+_SOLVER_WORDS = {"Solve_Succeeded": "solved to IPOPT's tolerance",
+                 "Solved_To_Acceptable_Level": "solved to IPOPT's acceptable tolerance"}
+
+
+def _capital(text: str) -> str:
+    return text[:1].upper() + text[1:]
+
+
+def _solver_words(text: str) -> str:
+    for status, words in _SOLVER_WORDS.items():
+        text = text.replace(status, words)
+    return text
+
+
 def _bound_text(tuning: TuningRecord) -> tuple[str, tuple[str, ...]]:
     """The tuning's active bounds in words, and what is left out (the minimum-time bound, when it has none)."""
     words = ("" if not tuning.active_bounds else
-             " " + " ".join(b.sentence().rstrip(".") + "." for b in tuning.active_bounds))
+             " " + " ".join(_capital(b.sentence().rstrip(".")) + "." for b in tuning.active_bounds))
     mt = tuning.minimum_time
     if mt.settling_s is None:
         return words, (f"The minimum-time bound on the step's settling: {mt.reason or 'it was not computed'}.",)
-    ratio = ("" if mt.tuned_over_bound_ratio is None
-             else f"; the tuned settling is {fmt(mt.tuned_over_bound_ratio)} times it")
-    return words + f" The minimum-time bound on the step's settling is {q(mt.settling_s, 's')}{ratio}.", ()
+    row = tuning.row("tuned", True)
+    ratio = ""
+    if mt.tuned_over_bound_ratio is not None and row.settling_s is not None:
+        # the bound and the ratio are of the true force; the responses' table reads the measured force
+        measured = ("" if row.settling_measured_s is None else
+                    f" (on the measured force, the sensors' noise included, in {q(row.settling_measured_s, 's')})")
+        ratio = (f"; the tuned gains with the feedforward settle the true force in {q(row.settling_s, 's')}, "
+                 f"{fmt(mt.tuned_over_bound_ratio)} times the bound{measured}")
+    return words + (f" The minimum-time bound on the step's settling (the least settling any command within the "
+                    f"output range gives the noise-free model's force) is {q(mt.settling_s, 's')}{ratio}."), ()
 
 
 def controller_section(study: ReportStudy, a: Artifacts) -> Part:
@@ -373,8 +420,8 @@ def controller_section(study: ReportStudy, a: Artifacts) -> Part:
     words, omitted = _bound_text(tuning)
     search = f" The search: {tuning.solve.search}." if tuning.solve.search else ""
     text = (f"{form} gains tuned with CasADi and IPOPT around the P-I-compensated plant (maximum sensitivity "
-            f"{fmt(tuning.solve.ms)} at worst over the plant variants; solver: {tuning.solve.status}); "
-            f"controller form: {g['form']}.{words}{search}")
+            f"{fmt(tuning.solve.ms)} at worst over the plant variants; solver: {_solver_words(tuning.solve.status)}); "
+            f"controller form: {g['form']}.{words}{_solver_words(search)}")
     scheduled = gain_set.gains.schedule is not None
     caption = (f"The gain set ({gain_set.status}), content hash {gain_set.content_sha256} (the SHA-256 of its fields, "
                "which every artifact that uses it names; not the file's)"
@@ -408,7 +455,8 @@ def _schedule_part(schedule: dict[str, Any] | None) -> Part | None:
     text = (f"A gain schedule on the preload level: {len(schedule['levels'])} entries, each tuned with CasADi on its "
             "window; Kc, Ti and Td linear in the setpoint between them; the schedule and the one robust set each "
             f"validated by Monte Carlo ({schedule['plants']} plants per level, the study's limits) at every level and "
-            f"over the whole range. Chosen: {schedule['choice']} ({schedule['reason']}).")
+            f"over the whole range. Chosen: {_CHOICE_NAMES.get(schedule['choice'], schedule['choice'])}, as "
+            f"{schedule['reason']}.")
     if missed_by_both:
         text += (f" Neither set meets the study's limits at {', '.join(missed_by_both)}: the exported gains carry that "
                  "miss, listed in the verdicts above.")
@@ -424,6 +472,9 @@ def _schedule_part(schedule: dict[str, Any] | None) -> Part | None:
                f"(dashed: tracking RMS, dotted: overshoot); chosen: {schedule['choice']}.")
     return Part(Section("The gain schedule", (text,), (table,), ("gain-schedule",)), (("gain-schedule", fig, caption),))
 
+
+#: the gain schedule's choice as the report names it
+_CHOICE_NAMES = {"robust": "the one robust set", "schedule": "the scheduled gains"}
 
 #: the Monte Carlo spread's parameters as the report names them (a key not here is shown as the study names it)
 _SPREAD_NAMES = {"coupling_stiffness_N_per_um": "coupling stiffness", "amp_bandwidth_Hz": "amplifier bandwidth",
