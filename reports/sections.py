@@ -469,7 +469,8 @@ def _schedule_part(schedule: dict[str, Any] | None) -> Part | None:
     fig = F.gain_schedule(schedule)
     caption = (f"The gain schedule on the preload level ({len(schedule['levels'])} entries) against the robust set "
                "(dashed), and each set's worst case over the Monte Carlo plants per level, the study's limits in red "
-               f"(dashed: tracking RMS, dotted: overshoot); chosen: {schedule['choice']}.")
+               "(dashed: tracking RMS, dotted: overshoot); chosen: "
+               f"{_CHOICE_NAMES.get(schedule['choice'], schedule['choice'])}.")
     return Part(Section("The gain schedule", (text,), (table,), ("gain-schedule",)), (("gain-schedule", fig, caption),))
 
 
