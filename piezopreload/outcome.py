@@ -206,7 +206,8 @@ class StudyResult:
             nearest = "" if least is None or least.margin_pct is None else (
                 f"; the nearest to its limit by {number(least.margin_pct, '%')} %: {least.name}")
             return f"every requirement met ({len(self.requirements)} checked){nearest}"
-        return f"{len(self.missed)} of {len(self.requirements)} requirements missed"
+        n = len(self.requirements)
+        return f"{len(self.missed)} of {n} requirement{'s' if n != 1 else ''} missed"
 
     def __repr__(self) -> str:
         """The run on a screen, as python-control prints a response: the study, where its outputs went, the stages
