@@ -73,9 +73,9 @@ def _design_limits(binding: tuple[str, ...], point: object, objective: str) -> s
         base, _, rest = name.partition("[")
         if " at its " in name:
             var, _, side = name.partition(" at its ")
-            words, unit = VARIABLE_WORDS.get(var, (var.replace("_", " "), ""))
+            name_words, unit = VARIABLE_WORDS.get(var, (var.replace("_", " "), ""))
             value = getattr(point, var, None)
-            variables.append(f"{words} at its {side}" + ("" if value is None else f" ({fmt(value)}{unit})"))
+            variables.append(f"{name_words} at its {side}" + ("" if value is None else f" ({fmt(value)}{unit})"))
         else:
             constraints.setdefault(base, [])
             if rest:
