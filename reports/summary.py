@@ -138,7 +138,9 @@ def _cause(r: Requirement, a: Artifacts) -> str:
     return (f": over the {fmt(t.shift_h)} h shift the nut's friction heat is {q(s.heat_mean_W, 'W')} at a mean "
             f"preload of {q(s.preload_mean_N, 'N')} ({q(c.heat_mean_W, 'W')} at the best constant "
             f"{q(c.preload_mean_N, 'N')}) and the support bearings' {q(s.bearing_heat_mean_W, 'W')}, warming the screw "
-            f"by up to {q(s.temperature_rise_max_K, 'K')}")
+            f"by up to {q(s.temperature_rise_max_K, 'K')}"
+            + (f", of which its pretension takes up the first {q(t.pretension_K, 'K')}" if t.mounting == "pretensioned"
+               else ""))
 
 
 def _robustness(a: Artifacts) -> str:

@@ -163,3 +163,34 @@ def test_print_result_of_a_run_that_met_everything_names_the_nearest():
     text = str(_result(reqs))
     assert "every requirement met (2 checked)" in text and "0.53 %: preload against the lift-off bound" in text
     assert str(_result(())).splitlines()[3].strip() == "verdict: no requirement checked"
+
+
+def test_a_missed_growth_names_its_heat_in_the_verdict():
+    """The stiff variant of the machine axis (rigidity at least 1,000 N/um) misses on growth: the verdict says what
+    heats the screw, from the thermal record (the figures here are that run's)."""
+    growth = Requirement("thermal growth at the table over the shift", 45.3, 25.0, "um", "max",
+                         "[thermal] thermal_growth_max_um")
+    case = SimpleNamespace(heat_mean_W=50.04, preload_mean_N=1070.2, bearing_heat_mean_W=46.1,
+                           temperature_rise_max_K=9.71)
+    thermal = SimpleNamespace(shift_h=8.0, schedule=case, mounting="pretensioned", pretension_K=3.0,
+                              constant=SimpleNamespace(heat_mean_W=107.5, preload_mean_N=1697.1))
+    artifacts = SimpleNamespace(requirements=lambda: (growth,), system=SimpleNamespace(thermal=thermal),
+                                robustness=lambda: (None, ()))
+    (line,) = verdicts(artifacts)
+    assert line.startswith("Requirement missed: thermal growth at the table over the shift: 45.3 um against at most "
+                           "25 um, missed by 20.3 um (81.2 %)"), line
+    assert "the nut's friction heat is 50 W at a mean preload of 1,070 N (108 W at the best constant 1,697 N)" in line
+    assert "the support bearings' 46.1 W" in line and "9.7 K" in line and "first 3 K" in line
+
+
+def test_the_verdict_states_its_robustness_only_where_a_stage_recorded_it():
+    met = Requirement("rigidity while cutting", 1126.2, 800.0, "N/um", "min")
+    rows = ({"assumption": "seal torque", "requirement": "thermal growth at the table over the shift",
+             "flips_at": "0.3 N m"},)
+    absent = verdicts(SimpleNamespace(requirements=lambda: (met,), system=None, robustness=lambda: (None, ())))
+    robust = verdicts(SimpleNamespace(requirements=lambda: (met,), system=None, robustness=lambda: (True, rows)))
+    fragile = verdicts(SimpleNamespace(requirements=lambda: (met,), system=None, robustness=lambda: (False, rows)))
+    assert len(absent) == 1 and "robust" not in absent[0]
+    assert robust[-1].startswith("The verdict is robust")
+    assert "not robust" in fragile[-1] and "seal torque flips thermal growth at the table over the shift at 0.3 N m" \
+        in fragile[-1]

@@ -87,7 +87,7 @@ def _print_run(s: StudyResult) -> None:
         print(f"every requirement met; the least margin: {number(least.margin_pct or 0.0, '%')} % ({least.name})"
               if least else "every requirement met")
         return
-    print(f"{len(summary.missed)} requirement(s) missed:")
+    print(f"{len(summary.missed)} requirement{'s' if len(summary.missed) != 1 else ''} missed:")
     for r in summary.missed:
         print(f"  missed: {r.sentence()}")
 
