@@ -315,8 +315,9 @@ def tracking(runs: Mapping[str, Mapping[str, np.ndarray]], signal: str, labels: 
 
 
 @_styled
-def stiffness_vs_preload(curve: Mapping[str, Any]) -> Figure:
-    """Rigidity (and drag torque) of the optimum's screw against preload; the duty cases marked."""
+def stiffness_vs_preload(curve: Mapping[str, Any], runs_N: tuple[float, float] | None = None) -> Figure:
+    """Rigidity (and drag torque) of the optimum's screw against preload; the duty cases marked; shaded, the
+    preloads the schedule runs (``runs_N``, its least and highest)."""
     fig, ax = _figure(2.6, ncols=2)
     a, b = ax[0]
     fp = np.asarray(curve["preload_N"])
@@ -325,6 +326,8 @@ def stiffness_vs_preload(curve: Mapping[str, Any]) -> Figure:
         a.plot(case["preload_N"], case["rigidity_N_per_um"], "o", ms=4,
                label=f"case {j + 1}: {quantity(case['axial_load_N'], 'N')}")
     for a_ in (a, b):
+        if runs_N is not None:
+            a_.axvspan(*runs_N, color="0.9", lw=0, zorder=0)
         a_.axvline(curve["bolt_preload_N"], color="0.5", ls=":", lw=0.8)
         a_.axvline(curve["max_preload_N"], color="0.3", ls="--", lw=0.8)
         a_.set_xlabel("preload (N)")

@@ -126,9 +126,9 @@ def requirements_section(a: Artifacts) -> Part | None:
     checked = a.requirements()
     if not checked:
         return None
-    rows = tuple((r.name, f"{fmt(r.value)} {r.unit}", f"{'at least' if r.sense == 'min' else 'at most'} "
-                  f"{fmt(r.limit)} {r.unit}", f"{fmt(r.margin)} {r.unit}",
-                  "" if r.margin_pct is None else f"{r.margin_pct:.1f} %", "met" if r.met else "missed", r.source)
+    rows = tuple((r.name, q(r.value, r.unit), f"{'at least' if r.sense == 'min' else 'at most'} "
+                  f"{q(r.limit, r.unit)}", q(r.margin, r.unit),
+                  "" if r.margin_pct is None else q(r.margin_pct, "%"), "met" if r.met else "missed", r.source)
                  for r in checked)
     table = Table(("requirement", "achieved", "required", "margin", "margin (% of limit)", "verdict", "set by"), rows,
                   "The study's requirements, each against the worst case its run reached, with its margin in its "
@@ -182,9 +182,10 @@ def design_section(study: ReportStudy, design: DesignRecord, system_shown: bool 
         + ("; what the controlled system plans and achieves is in the section on the designed system." if system_shown
            else " (this study's plant is not its design: no loop followed the schedule).")]
     figures: list[tuple[str, Figure, str]] = [
-        ("stiffness", F.stiffness_vs_preload(design.preload_curve.to_dict()),
+        ("stiffness", F.stiffness_vs_preload(design.preload_curve.to_dict(), (low, high)),
          "Axial rigidity and preload drag torque of the optimum's double nut against preload; the duty cases at their "
-         "preloads; dotted: the bolts' preload alone, dashed: the stacks at full drive.")]
+         f"design preloads; shaded, the preloads the schedule runs ({_span((low, high), 'N')}); dotted: the bolts' "
+         "preload alone, dashed: the stacks at full drive.")]
     omitted = []
     if design.fronts:
         figures.append(("pareto", F.pareto_fronts([f.to_dict() for f in design.fronts], p.to_dict()),
@@ -593,7 +594,8 @@ def _rig_rows(run: RigRunRecord) -> list[tuple[str, str]]:
             ("controller step", "" if out is None else step.get(out.controller_step, out.controller_step))]
     m = None if out is None else out.metrics
     if out is not None and out.trip is None and m is not None:
-        rows += [(label, fmt(value)) for label, value in (("tracking RMS over the reference (N)", m.tracking_rms_N),
+        rows += [(label, fmt(value, 3, label.rpartition("(")[2].rstrip(")")))
+                 for label, value in (("tracking RMS over the reference (N)", m.tracking_rms_N),
                                                           ("settling time (s)", m.settling_s),
                                                           ("overshoot (N)", m.overshoot_N)) if value is not None]
     if run.stall_limit is not None:
