@@ -52,17 +52,24 @@ def design_lead(study: ReportStudy, a: Artifacts) -> tuple[str, ...]:
         f"The design: a double nut {screw}each nut {p.turns:.0f} loaded turns x {p.balls_per_turn:.0f} balls of "
         f"{fmt(p.ball_mm, 4, 'mm')} mm, contact angle {fmt(p.contact_angle_deg, 3, 'deg')}°, groove conformity "
         f"{fmt(p.conformity)}{stacks}: the preload {q(p.bolt_preload_N, 'N')} from the bolts alone, up to "
-        f"{q(p.max_preload_N, 'N')} with the stacks at full drive. The least-friction preload schedule "
-        f"{'runs the axis' if a.system is not None else 'plans'} from {fmt(float(preload.min()), 3, 'N')} to "
-        f"{q(float(preload.max()), 'N')} over the load profile ({levels} levels), against a best constant preload of "
-        f"{q(sch.constant_preload_N, 'N')}"
-        + ("." if a.system is not None else " (a plan: the study's plant is its [rig] table, and no loop follows "
-                                             "the schedule).")]
+        f"{q(p.max_preload_N, 'N')} with the stacks at full drive. The least-friction preload schedule plans "
+        f"{fmt(float(preload.min()), 3, 'N')} to {q(float(preload.max()), 'N')} over the load profile ({levels} "
+        f"levels), against a best constant preload of {q(sch.constant_preload_N, 'N')}" + _runs(a)]
     limits = _design_limits(design.optimum.binding, p, design.optimum.objective)
     near = _near_limits(a.requirements())
     if limits or near:
         lines.append(" ".join(x for x in (limits, near) if x))
     return tuple(lines)
+
+
+def _runs(a: Artifacts) -> str:
+    """Where the loop runs the axis (the planned preload over the machining cycles, with its margins), or why none."""
+    if a.system is None:
+        return " (a plan: the study's plant is its [rig] table, and no loop follows the schedule)."
+    ser, pre = a.system.series, a.system.pre_cycle.duration_s
+    planned = ser.planned_N[ser.time_s >= pre]
+    return (f"; with the force loop's margins the axis runs at {fmt(float(planned.min()), 3, 'N')} to "
+            f"{q(float(planned.max()), 'N')} over the machining cycles.")
 
 
 def _design_limits(binding: tuple[str, ...], point: object, objective: str) -> str:
