@@ -22,6 +22,7 @@ from collections.abc import Iterable
 from typing import Any, ClassVar
 
 from piezopreload.core.errors import ArtifactError
+from piezopreload.core.quantities import number
 from piezopreload.core.records import Record, entry, record
 
 __all__ = ["Requirement", "AtBound", "OffBounds", "BASES", "EXIT_REQUIREMENT_MISSED", "requirements_from_dict",
@@ -33,8 +34,6 @@ EXIT_REQUIREMENT_MISSED = 4
 _SENSES = ("min", "max")
 
 
-def _number(x: float) -> str:
-    return f"{x:,.0f}" if abs(x) >= 1000 else f"{x:.3g}"
 
 
 #: what a requirement rests on: ``design`` the design's own constraint (the design is built to sit on it: its margin
@@ -113,16 +112,29 @@ class Requirement(Record):
     def met(self) -> bool:
         return self.margin >= 0.0
 
-    def sentence(self) -> str:
-        """The verdict in words: achieved against required, and the margin."""
+    def sentence(self, source: bool = True) -> str:
+        """The verdict in words: achieved against required, and the margin, each figure by the one rule of its
+        unit (:func:`~piezopreload.core.quantities.number`); ``source=False`` leaves out the key that sets it."""
         bound = "at least" if self.sense == "min" else "at most"
-        where = f" ({self.source})" if self.source else ""
-        head = (f"{self.name}: {_number(self.value)} {self.unit} against {bound} "
-                f"{_number(self.limit)} {self.unit}{where}")
-        pct = "" if self.margin_pct is None else f" ({abs(self.margin_pct):.1f} %)"
+        where = f" ({self.source})" if self.source and source else ""
+        u = self.unit
+        head = f"{self.name}: {number(self.value, u)} {u} against {bound} {number(self.limit, u)} {u}{where}"
+        pct = "" if self.margin_pct is None else f" ({number(abs(self.margin_pct), '%')} %)"
         if self.met:
-            return f"{head}, met with {_number(self.margin)} {self.unit} to spare{pct}"
-        return f"{head}, missed by {_number(-self.margin)} {self.unit}{pct}"
+            return f"{head}, met with {number(self.margin, u)} {u} to spare{pct}"
+        return f"{head}, missed by {number(-self.margin, u)} {u}{pct}"
+
+    def figures(self) -> str:
+        """Achieved against required in symbols, each figure by its unit's rule: ``1,126 N/um >= 800 N/um``."""
+        u = self.unit
+        return f"{number(self.value, u)} {u} {'>=' if self.sense == 'min' else '<='} {number(self.limit, u)} {u}"
+
+    def line(self, label: str = "", width: int = 0) -> str:
+        """One line of a table of verdicts: ``met``/``MISSED``, the margin as a share of the limit, the figures
+        (padded to ``width``) and ``label`` (default: the name)."""
+        share = "" if self.margin_pct is None else f"{'+' if self.margin_pct >= 0 else '-'}" \
+                                                   f"{number(abs(self.margin_pct), '%')} %"
+        return f"{'met   ' if self.met else 'MISSED'} {share:>8s}  {self.figures():{width}s}  {label or self.name}"
 
     def to_dict(self) -> dict[str, Any]:
         """The fields, and the verdict they give (``met``, ``margin``, ``margin_pct``), as an artifact holds them.

@@ -24,6 +24,7 @@ from piezopreload.artifacts.design import DesignRecord, DutyCasePoint, Frequency
 from piezopreload.artifacts.schedule import LoadProfile, PreloadSchedule, ScheduleSpec
 from piezopreload.core.artifacts import atomic_write_text
 from piezopreload.core.errors import InputError
+from piezopreload.core.quantities import number, quantity
 from piezopreload.core.tables import read_table
 from piezopreload.design.preload import (
     DesignNLP,
@@ -204,8 +205,9 @@ def design_study(spec: DesignSpec, objective: str, pairs: list[str] | tuple[str,
         raise InputError(f"design_study: the optimum given is for {optimum.objective!r}, not {objective!r}")
     result = optimise(spec, objective, nlp) if optimum is None else optimum
     p = result.point
-    say(f"optimum ({objective}): {p.turns:.0f} turns x {p.balls_per_turn:.0f} balls of {p.ball_mm:.3f} mm, "
-        f"contact angle {p.contact_angle_deg:.1f} deg, preload {p.bolt_preload_N:.0f}-{p.max_preload_N:.0f} N")
+    say(f"optimum ({objective}): {p.turns:.0f} turns x {p.balls_per_turn:.0f} balls of {quantity(p.ball_mm, 'mm', 4)}, "
+        f"contact angle {quantity(p.contact_angle_deg, 'deg')}, conformity {number(p.conformity)}, preload "
+        f"{number(p.bolt_preload_N, 'N')} to {quantity(p.max_preload_N, 'N')}")
     fronts = []
     for j, pair in enumerate(pairs):
         if bar is not None:
@@ -218,8 +220,8 @@ def design_study(spec: DesignSpec, objective: str, pairs: list[str] | tuple[str,
     schedule, max_preload, slew = plan_schedule(spec, p, profile, profile_name=profile_name,
                                                 stiffness_min_N_per_um=stiffness_min_N_per_um,
                                                 deflection_max_um=deflection_max_um, lift_off_margin=lift_off_margin)
-    say(f"schedule: {schedule.saving_fraction:.0%} less friction energy than the best constant preload "
-        f"({schedule.constant_preload_N:.0f} N)")
+    say(f"schedule: {number(100 * schedule.saving_fraction, '%', 2)} % less friction energy than the best constant "
+        f"preload ({quantity(schedule.constant_preload_N, 'N')})")
     return DesignResult(spec, result, fronts, schedule, profile_name if profile is not None else "example", max_preload,
                         slew, preload_curve(spec, result), natural_frequency(spec, result))
 

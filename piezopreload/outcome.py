@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 from piezopreload.artifacts.manifest import StudyRef, StudyRunManifest
 from piezopreload.artifacts.requirements import EXIT_REQUIREMENT_MISSED, Requirement, least_margin, missed
 from piezopreload.artifacts.summaries import RigSummary, SystemSummary, ValidateSummary
+from piezopreload.core.quantities import number
 from piezopreload.core.stages import StageOutcome
 
 if TYPE_CHECKING:
@@ -225,23 +226,49 @@ class StudyResult:
                 "gain_set": path(self.gain_set), "gain_set_sha256": self.gain_set_sha256, "rig_log": path(self.rig_log),
                 "summary": self.summary.to_dict(), "exit_code": self.exit_code}
 
+    def verdict(self) -> str:
+        """The verdict in one line: every requirement met (with the nearest to its limit), or how many missed."""
+        if self.requirements_met is None:
+            return "no requirement checked"
+        if self.requirements_met:
+            least = self.summary.least_margin
+            nearest = "" if least is None or least.margin_pct is None else (
+                f"; the nearest to its limit by {number(least.margin_pct, '%')} %: {least.name}")
+            return f"every requirement met ({len(self.requirements)} checked){nearest}"
+        n = len(self.requirements)
+        return f"{len(self.missed)} of {n} requirement{'s' if n != 1 else ''} missed"
+
     def __repr__(self) -> str:
-        verdict = {None: "no requirement checked", True: "every requirement met"}.get(
-            self.requirements_met, f"{len(self.missed)} requirement(s) missed")
-        return (f"StudyResult({self.study.name!r}: ran {', '.join(self.ran) or 'nothing'} in "
-                f"{self.seconds:.1f} s; {verdict}; outputs in {self.out})")
+        """The run on a screen, as python-control prints a response: the study, where its outputs went, the stages
+        that ran, the verdict and each requirement with its margin (the widest line a requirement's name)."""
+        ran = ", ".join(self.ran) or "nothing (every stage up to date or not applicable)"
+        lines = [f"StudyResult: study {self.study.name!r}, exit code {self.exit_code}",
+                 f"  outputs: {self.out}" + ("" if self.report is None else f" (report {self.report.name})"),
+                 f"  ran: {ran} in {self.seconds:.1f} s",
+                 f"  verdict: {self.verdict()}"]
+        if self.requirements:
+            lines.append("  requirements (margin as a share of the limit; achieved against required):")
+            width = max(len(r.figures()) for r in self.requirements)
+            lines += [f"    {r.line(width=width)}" for r in self.requirements]
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.__repr__()
 
     def _repr_html_(self) -> str:
         stages = "".join(f"<tr><td>{s.stage}</td><td>{f'ran in {s.seconds:.1f} s' if s.ran else s.status}</td></tr>"
                          for s in self.stages)
-        reqs = "".join(f"<tr><td>{html.escape(r.name)}</td><td>{r.value:.4g} {r.unit}</td>"
-                       f"<td>{'&ge;' if r.sense == 'min' else '&le;'} {r.limit:.4g} {r.unit}</td>"
+        reqs = "".join(f"<tr><td>{html.escape(r.name)}</td><td>{number(r.value, r.unit)} {r.unit}</td>"
+                       f"<td>{'&ge;' if r.sense == 'min' else '&le;'} {number(r.limit, r.unit)} {r.unit}</td>"
+                       f"<td>{'' if r.margin_pct is None else number(r.margin_pct, '%') + ' %'}</td>"
                        f"<td>{'met' if r.met else '<b>missed</b>'}</td></tr>" for r in self.requirements)
-        return (f"<p><b>Study {html.escape(self.study.name)}</b>: outputs in <code>{self.out}</code>"
+        return (f"<p><b>Study {html.escape(self.study.name)}</b>: {html.escape(self.verdict())}; outputs in "
+                f"<code>{self.out}</code>"
                 f"{'' if self.report is None else f', report <code>{self.report}</code>'}</p>"
                 f"<table><tr><th>stage</th><th></th></tr>{stages}</table>"
                 + ("" if not reqs else
-                   f"<table><tr><th>requirement</th><th>achieved</th><th>required</th><th></th></tr>{reqs}</table>"))
+                   "<table><tr><th>requirement</th><th>achieved</th><th>required</th><th>margin</th><th></th></tr>"
+                   f"{reqs}</table>"))
 
     def plot(self) -> Figure:
         """A Figure: each requirement's margin as a share of its limit (right of zero: met; left: missed)."""

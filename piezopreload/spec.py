@@ -45,6 +45,7 @@ from piezopreload.artifacts.schedule import PreloadSchedule
 from piezopreload.artifacts.validation import Criteria
 from piezopreload.core.config import Invalid, Lines, Table, read_toml, toml_text
 from piezopreload.core.errors import InfeasibleError, InputError
+from piezopreload.core.quantities import number, quantity
 from piezopreload.core.tables import Record, read_record
 from piezopreload.design.plant import DESIGNED_FIELDS
 from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignSpec, optimise
@@ -439,8 +440,8 @@ class StudySpec:
             say(f"simulating the {ex.v_max_V:g} V, {ex.frequency_Hz:g} Hz loop measurement on the plant's truth model")
         ff = identify_feedforward(plant, ex, record, check_range_N=(low, high))
         say(f"P-I model ({ff.model.kind}): {ff.model.n_operators} operators, fit RMS {ff.fit.rms_pct:.2f} % "
-            f"(max {ff.fit.max_pct:.2f} %) of the force span, identified over {ff.record.output_range[0]:,.4g} to "
-            f"{ff.record.output_range[1]:,.4g} N")
+            f"(max {ff.fit.max_pct:.2f} %) of the force span, identified over {number(ff.record.output_range[0], 'N')} "
+            f"to {quantity(ff.record.output_range[1], 'N')}")
         ff.covers(low, high, f"the study's references ({self.path})")
         return ff
 

@@ -58,7 +58,7 @@ def _parts(study: ReportStudy, a: Artifacts) -> list[S.Part]:
 def build_report(study: ReportStudy, a: Artifacts, now: _dt.datetime) -> tuple[Report, list[tuple[str, Any, str]]]:
     """The report for ``study`` from its artifacts, and the figures it names ``(name, figure, caption)``."""
     from piezopreload.reports import sections as S
-    from piezopreload.reports.summary import summary, verdicts
+    from piezopreload.reports.summary import design_lead, summary, verdicts
 
     version, date = package_version(), now.strftime("%Y-%m-%d %H:%M:%S")
     parts = _parts(study, a)
@@ -67,7 +67,8 @@ def build_report(study: ReportStudy, a: Artifacts, now: _dt.datetime) -> tuple[R
     report = Report(
         title=study.title or f"Study {study.name}",
         subtitle=f"Study {study.name} · {now.strftime('%Y-%m-%d')} · piezopreload {version}",
-        verdicts=verdicts(a), summary=summary(study, a), sections=tuple(p.section for p in parts),
+        lead=design_lead(study, a), verdicts=verdicts(a), summary=summary(study, a),
+        sections=tuple(p.section for p in parts),
         appendix=(appendix.section,),
         figures={name: {"file": f"figures/{name}.pdf", "caption": caption} for name, _, caption in figures},
         meta={"study_name": study.name, "package_version": version,

@@ -57,7 +57,8 @@ def _rows(t: ThermalRecord) -> tuple[tuple[str, str, str], ...]:
     s, c = t.schedule, t.constant
 
     def row(label: str, a: float, b: float, digits: int = 3) -> tuple[str, str, str]:
-        return label, fmt(a, digits), fmt(b, digits)
+        unit = label.rpartition("(")[2].rstrip(")")  # the unit the label names: one rule per quantity's kind
+        return label, fmt(a, digits, unit), fmt(b, digits, unit)
 
     return (
         row("mean preload (N)", s.preload_mean_N, c.preload_mean_N, 4),
@@ -120,12 +121,12 @@ def thermal_section(t: ThermalRecord, requirements: Sequence[Requirement] = ()) 
     limit = next((r.limit for r in requirements if "growth" in r.name), None)
     budget_limit = next((r.limit for r in requirements if "positioning" in r.name), None)
     figures = (
-        ("thermal-temperature", temperature_along_screw(t), "The screw's temperature rise along its length at the end "
-         f"of each hour of the shift (darker: later), the schedule as achieved and the best constant preload; grey, "
-         f"the nut's stroke; {t.heat_model} model."),
-        ("thermal-growth", growth_along_travel(t, limit), "The screw's growth at the table's positions at the end of "
-         f"each hour (darker: later), for its {t.mounting} mounting" + ("" if limit is None else
-                                                                         "; dashed, the study's limit") + "."),
+        ("thermal-temperature", temperature_along_screw(t), "The screw's temperature rise along its length "
+         f"{_times_words(s.times_h)} into the shift (darker: later), the schedule as achieved and the best constant "
+         f"preload; grey, the nut's stroke; {t.heat_model} model."),
+        ("thermal-growth", growth_along_travel(t, limit), "The screw's growth at the table's positions "
+         f"{_times_words(s.times_h)} into the shift (darker: later), for its {t.mounting} mounting"
+         + ("" if limit is None else "; dashed, the study's limit") + "."),
         ("thermal-budget", error_budget(t, budget_limit), "The error budget at the worst table position of each hour: "
          "the deflection under the cycle's worst cut, the thermal growth and the force loop's share, schedule (left) "
          "and best constant preload (right)" + ("" if budget_limit is None else "; dashed, the study's limit") + "."),
@@ -145,6 +146,17 @@ def _assumptions(t: ThermalRecord) -> str:
     return (f"It rests on {seals}; {fmt(t.nut_heat_share)} of the nut's heat entering the screw (an assumption: no "
             f"share is published; measured axes run hottest at the nut); the air's film coefficients times "
             f"{fmt(t.convection_factor)}.{ends} With the schedule, {t.nut_against_screw(t.schedule)}.")
+
+
+def _times_words(times_h: np.ndarray) -> str:
+    """The times the curves are drawn at, in words: ``at 5 min, 10 min, 20 min, 30 min and 1 h to 8 h, hourly``."""
+    times = [float(h) for h in times_h]
+    whole = [h for h in times if h >= 1.0 and abs(h - round(h)) < 1e-9]
+    hourly = len(whole) >= 3 and [round(h) for h in whole] == list(range(round(whole[0]), round(whole[-1]) + 1))
+    early = [_when(h) for h in times if not (hourly and h in whole)]
+    late = [f"{_when(whole[0])} to {_when(whole[-1])}, hourly"] if hourly else []
+    words = early + late
+    return "at " + (words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1])
 
 
 def _when(hours: float) -> str:

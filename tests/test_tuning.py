@@ -514,7 +514,7 @@ def test_the_tune_output_names_the_bounds(capsys):
     from piezopreload.cli.tune import _print_bounds
 
     _print_bounds(MinimumTimeBound(0.014, 14.9), TrackingFloor(2.0, 3.9e5, 1.5), 0.209)
-    assert "0.014 s beside the tuned settling 0.209 s (14.90 times it)" in capsys.readouterr().out
+    assert "0.014 s beside the tuned settling of the true force 0.209 s (14.9 times it)" in capsys.readouterr().out
     _print_bounds(MinimumTimeBound(None, None, reason="no command"), TrackingFloor(2.0, 1.0, None), None)
     assert "minimum-time bound: none (no command)" in capsys.readouterr().out
 

@@ -621,7 +621,7 @@ class _Solvers:
         """How the search ended, in words: the runs, their statuses, where the result came from."""
         limited = sum(r["status"] == "Maximum_Iterations_Exceeded" for r in self.runs)
         stalled = sum(r["status"] == _STALLED for r in self.runs)
-        runs = f"{len(self.runs)} run(s) of IPOPT" + (
+        runs = f"{len(self.runs)} run{'' if len(self.runs) == 1 else 's'} of IPOPT" + (
             f", {limited} stopped on the iteration limit ({self.max_iterations})" if limited else "") + (
             f", {stalled} stopped after {_PATIENCE} iterations without a better point" if stalled else "")
         inc = self.incumbent
@@ -646,7 +646,7 @@ def _check_feasible(margins: dict[str, float], search: str) -> None:
 
 
 def _pi_note(retuned: bool) -> str:
-    return ("the derivative term reached its lower bound: the controller is a PI (Td = 0, no derivative filter), "
+    return ("no derivative action there: the controller is a PI (Td = 0, no derivative filter), "
             + ("tuned again as one" if retuned else "which meets every constraint of the tuning"))
 
 

@@ -76,7 +76,7 @@ from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, plant_variants
 from piezopreload.tuning.validate import executor, validate
 
 __all__ = ["ScheduleResult", "tune_schedule", "window_ms", "level_requirements", "schedule_levels", "level_windows",
-           "choose", "CHOICES", "setpoint_action_rises", "rising_setpoint_weights"]
+           "choose", "CHOICES", "CHOICE_WORDS", "setpoint_action_rises", "rising_setpoint_weights"]
 
 #: what :func:`tune_schedule` may choose
 CHOICES = ("robust", "schedule")
@@ -145,6 +145,10 @@ class ScheduleResult:
                 "figures": list(FIGURES), "limits": dict(self.limits), "seconds": self.seconds}
 
 
+#: what :func:`choose` returns, in words ("schedule: schedule: ..." read as a stutter)
+CHOICE_WORDS = {"robust": "the one robust set", "schedule": "the scheduled gains"}
+
+
 def choose(levels: list[dict[str, Any]], whole: dict[str, Any]) -> tuple[str, str]:
     """The robust set if it meets the specification at every level and over the whole range, else the schedule if it
     does; where neither does, the one that meets it over the whole range (the robust set first). With the reason."""
@@ -155,7 +159,7 @@ def choose(levels: list[dict[str, Any]], whole: dict[str, Any]) -> tuple[str, st
         bad = [f"{r['level_N']:,.0f} N ({_failed_words(r[which])})" for r in levels if not r[which]["passed"]]
         if not whole[which]["passed"]:
             bad.append(f"the whole range ({_failed_words(whole[which])})")
-        return "; ".join(bad)
+        return bad[0] if len(bad) == 1 else ", ".join(bad[:-1]) + " and " + bad[-1]
 
     if passes("robust"):
         return "robust", ("the one robust set meets the specification at every level and over the whole range: it is "
@@ -462,7 +466,7 @@ def tune_schedule(
     whole = {"robust": robust_figures[-1].to_dict(), "scheduled": scheduled_figures[-1].to_dict()}
 
     choice, reason = choose(levels, whole)
-    say(f"gain schedule: {choice}: {reason}")
+    say(f"gain schedule: {CHOICE_WORDS[choice]} chosen: {reason}")
     return ScheduleResult(schedule=schedule, robust=robust, scheduled=replace(robust, schedule=schedule), levels=levels,
                           whole_range=whole, choice=choice, reason=reason, n_plants=n_plants,
                           seconds=time.perf_counter() - t0, limits=limits)
