@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -57,7 +57,7 @@ from numpy.typing import NDArray
 
 from piezopreload.artifacts.plant import DesignedPlant
 from piezopreload.artifacts.requirements import Requirement
-from piezopreload.artifacts.schedule import PreloadSchedule
+from piezopreload.artifacts.schedule import PreloadSchedule, ScheduleSpec
 from piezopreload.artifacts.summaries import SystemSummary
 from piezopreload.artifacts.system import (
     PassRecord,
@@ -73,7 +73,7 @@ from piezopreload.core.errors import InputError
 from piezopreload.core.tables import write_csv
 from piezopreload.design.schedule import least_preload, schedule_preload
 from piezopreload.models.actuator import Rig
-from piezopreload.models.ballscrew import LIFT_OFF_RATIO
+from piezopreload.models.ballscrew import LIFT_OFF_RATIO, BallScrew
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller
 
@@ -83,7 +83,7 @@ if TYPE_CHECKING:  # the thermal budget reads a system run; the plots name their
     from piezopreload.design.thermal import ThermalBudget
 
 __all__ = ["PRE_CYCLE_REST_S", "RIGIDITY_VERDICT", "ROUND_OFF", "SystemRun", "Evaluation", "pre_cycle_for",
-           "schedule_reference", "track_schedule", "evaluate_tracking", "requirements_of", "folded_shortfall",
+           "schedule_reference", "track_schedule", "evaluate_tracking", "requirements_of", "folded_shortfall", "frame_under",
            "binding_stretches", "held_over_stretches", "local_margins"]
 
 
@@ -171,17 +171,29 @@ def _frame(plant: DesignedPlant, schedule: PreloadSchedule, run: ClosedLoopRun, 
     t_cycle = np.where(cycle, np.mod(run.t_s - pre_s + 0.5 * dt, period) - 0.5 * dt, 0.0) + float(prof.time_s[0])
     load = np.where(cycle, np.interp(t_cycle, prof.time_s, prof.axial_load_N), 0.0)
     planned, achieved = plant.preload_N(run.reference_N), plant.preload_N(run.force_N)
-    loads = screw.nut_loads(np.maximum(achieved, 1e-3), load)
     speed = np.ones_like(t_cycle) if prof.speed_rpm is None else np.interp(t_cycle, prof.time_s, prof.speed_rpm) * (
         2.0 * np.pi / 60.0)
     return _Frame(
         t_cycle=t_cycle, cycle=cycle, cutting=cycle & (np.abs(load) > 0), load=load, planned=planned,
-        achieved=achieved, required=schedule.spec.required_stiffness(load),
-        rigidity=np.asarray(loads.rigidity_N_per_um, float),
-        planned_rigidity=np.asarray(screw.rigidity_N_per_um(np.maximum(planned, 1e-3), load), float),
-        deflection=np.asarray(loads.deflection_um, float),
-        lift_bound=schedule.spec.lift_off_margin * np.abs(load) / LIFT_OFF_RATIO,
+        achieved=achieved, **_mechanics(screw, schedule.spec, planned, achieved, load),
         weight=np.where(cycle, float(screw.drag_torque_Nm(1.0)) * speed * dt, 0.0))
+
+
+def _mechanics(screw: BallScrew, spec: ScheduleSpec, planned: Array, achieved: Array, load: Array) -> dict[str, Array]:
+    """The frame's columns the double nut and the requirements set: the requirement, the rigidity at the achieved
+    and the planned preload, the deflection, the lift-off bound."""
+    loads = screw.nut_loads(np.maximum(achieved, 1e-3), load)
+    return dict(required=spec.required_stiffness(load), rigidity=np.asarray(loads.rigidity_N_per_um, float),
+                planned_rigidity=np.asarray(screw.rigidity_N_per_um(np.maximum(planned, 1e-3), load), float),
+                deflection=np.asarray(loads.deflection_um, float),
+                lift_bound=spec.lift_off_margin * np.abs(load) / LIFT_OFF_RATIO)
+
+
+def frame_under(frame: _Frame, screw: BallScrew, spec: ScheduleSpec) -> _Frame:
+    """The same run's frame (the same achieved and planned preloads under the same loads) judged with another double
+    nut ``screw`` and another schedule specification ``spec``: what a modelling assumption changes (design/
+    sensitivity.py)."""
+    return replace(frame, **_mechanics(screw, spec, frame.planned, frame.achieved, frame.load))
 
 
 def _verdict(name: str, value: float, limit: float, unit: str, sense: str, source: str, key: str) -> Requirement:

@@ -59,7 +59,7 @@ from piezopreload.models.thermal import (
 )
 
 __all__ = ["CycleLoad", "CycleSources", "ThermalBudget", "axis_model", "cycle_sources", "nut_centre_m",
-           "shift_hours", "thermal_budget", "mounting_of", "duty_cycle", "duty_growth_um", "POSITIONS"]
+           "shift_hours", "thermal_budget", "schedule_requirements", "mounting_of", "duty_cycle", "duty_growth_um", "POSITIONS"]
 
 Array = NDArray[np.float64]
 #: the table's positions the budget is read at, evenly over the travel
@@ -302,12 +302,15 @@ class ThermalBudget:
     sources: dict[str, CycleSources]
 
 
-def _case(sources: CycleSources, other: CycleSources, mech: _Mechanics, elastic: Array, tracking: float,
+def _case(sources: CycleSources, other: CycleSources | None, mech: _Mechanics, elastic: Array, tracking: float,
           semi_closed: bool, times_h: Array) -> tuple[ThermalCase, Array, Array]:
-    """One preload's shift: the case, and its nut-over-screw rises and times on the grid."""
+    """One preload's shift: the case, and its nut-over-screw rises and times on the grid (``other`` None: the other
+    heat model's figures are this one's, for a caller that reads only the verdicts)."""
     n = sources.model.volumes
     grid = _grid(times_h)
-    rises, other_rises = sources.shift(grid), other.shift(grid)
+    rises = sources.shift(grid)
+    other_rises = rises if other is None else other.shift(grid)
+    other = sources if other is None else other
     at = np.searchsorted(grid, times_h * 3600.0)
     growth, other_growth = mech.growth_um(rises[:, :n]), mech.growth_um(other_rises[:, :n])
     under = rises[:, :n] @ sources.cycle.mean(sources.coverage)
@@ -375,6 +378,34 @@ def _requirements(table: ThermalTable, schedule: ThermalCase) -> tuple[Requireme
     return tuple(out)
 
 
+def _schedule_setup(run: SystemRun, drive: FeedDrive, table: ThermalTable,
+                    screw: BallScrew) -> tuple[AxisModel, CycleLoad, Array, _Mechanics, Array, float]:
+    """What the schedule's shift is computed from, for the double nut ``screw``: the axis' network, the last cycle as
+    the loop achieved it, the table's positions, the mounting's mechanics, the elastic deflection at the planned
+    preload per position and the force loop's tracking share of it."""
+    model = axis_model(screw, drive, table)
+    achieved, planned, load = _last_cycle(run)
+    positions = np.linspace(drive.travel_mm[0], drive.travel_mm[1], POSITIONS)
+    mech = _mechanics(screw, drive, table, model, positions)
+    elastic_planned = _elastic_um(screw, drive, planned, load, positions)
+    tracking = float(np.max(np.maximum(_elastic_um(screw, drive, achieved.preload_N, load, positions)
+                                       - elastic_planned, 0.0)))
+    return model, achieved, positions, mech, elastic_planned, tracking
+
+
+def schedule_requirements(run: SystemRun, drive: FeedDrive, table: ThermalTable, *,
+                          screw: BallScrew | None = None) -> tuple[Requirement, ...]:
+    """The thermal requirements' verdicts of the schedule's shift alone (:func:`thermal_budget`'s, without the
+    constant preload and the other heat model): what :mod:`piezopreload.design.sensitivity` evaluates under each
+    assumption. ``screw``: another double nut judged on the same achieved preload (default: the run's)."""
+    screw = run.plant.screw if screw is None else screw
+    model, achieved, _, mech, elastic, tracking = _schedule_setup(run, drive, table, screw)
+    sources = cycle_sources(screw, drive, table, achieved, model=model)
+    case, _, _ = _case(sources, None, mech, elastic, tracking, table.feedback == "semi-closed",
+                       shift_hours(table.shift_h))
+    return _requirements(table, case)
+
+
 def thermal_budget(run: SystemRun, drive: FeedDrive, table: ThermalTable, *,
                    command_range_V: tuple[float, float]) -> ThermalBudget:
     """The shift's thermal budget of the system run ``run`` on the axis ``drive`` (module docstring).
@@ -382,19 +413,13 @@ def thermal_budget(run: SystemRun, drive: FeedDrive, table: ThermalTable, *,
     ``command_range_V``: the force loop's command limits (the drift's check).
     """
     screw = run.plant.screw
-    model = axis_model(screw, drive, table)
+    model, achieved, positions, mech, elastic_planned, tracking = _schedule_setup(run, drive, table, screw)
     other_model = next(m for m in HEAT_MODELS if m != table.heat_model)
-    achieved, planned, load = _last_cycle(run)
     design = run.design_schedule
     prof = design.profile
     constant = CycleLoad.on_profile(prof.time_s, design.constant_preload_N, prof.speed_rpm, prof.axial_load_N)
     travel = drive.travel_mm
-    positions = np.linspace(travel[0], travel[1], POSITIONS)
-    mech = _mechanics(screw, drive, table, model, positions)
     mounting = mech.mounting
-    elastic_planned = _elastic_um(screw, drive, planned, load, positions)
-    tracking = float(np.max(np.maximum(_elastic_um(screw, drive, achieved.preload_N, load, positions)
-                                       - elastic_planned, 0.0)))
     times = shift_hours(table.shift_h)
     semi = table.feedback == "semi-closed"
     sources, cases, over = {}, {}, {}
