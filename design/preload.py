@@ -92,7 +92,7 @@ from piezopreload.models.ballscrew import (
 )
 from piezopreload.models.feed_drive import FeedDrive, PiezoPreload, stack_loop_um
 from piezopreload.models.ops import CASADI, NUMPY
-from piezopreload.models.thermal import catalogue_heat_W, contact_heat_W
+from piezopreload.models.thermal import catalogue_heat_W, contact_heat_W, rexroth_seal_torque_Nm, seal_heat_W
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -170,7 +170,7 @@ class HeatKeywords(TypedDict):
 
     model: str
     lubricant_vg: int
-    sealed: bool
+    seal_torque_Nm: float | None
     temperature_C: float
 
 
@@ -191,11 +191,11 @@ class HeatSpec:
 
     model: str = "catalogue"
     lubricant_vg: int = 68
-    sealed: bool = True
+    seal_torque_Nm: float | None = None
     temperature_C: float = 40.0
 
     def kwargs(self) -> HeatKeywords:
-        return HeatKeywords(model=self.model, lubricant_vg=self.lubricant_vg, sealed=self.sealed,
+        return HeatKeywords(model=self.model, lubricant_vg=self.lubricant_vg, seal_torque_Nm=self.seal_torque_Nm,
                             temperature_C=self.temperature_C)
 
 
@@ -487,10 +487,14 @@ def _case_heat(spec: DesignSpec, ops: Any, F_case: list[Any], k_p: Any, z: Any, 
     h = spec.heat
     omegas = [abs(c.speed_rpm) * math.pi / 30.0 for c in spec.duty]
     if h.model == "catalogue":
-        return [catalogue_heat_W(ops, k_p, spec.lead_mm, F, w, h.sealed) for F, w in zip(F_case, omegas)]
-    return [contact_heat_W(ops, F, w, balls=z, contact_rad=beta, helix_rad=spec.helix_rad,
-                           pitch_diameter_mm=spec.nominal_diameter_mm, ball_mm=D_w, lubricant_vg=h.lubricant_vg,
-                           temperature_C=h.temperature_C, sealed=h.sealed) for F, w in zip(F_case, omegas)]
+        nut = [catalogue_heat_W(ops, k_p, spec.lead_mm, F, w) for F, w in zip(F_case, omegas)]
+    else:
+        nut = [contact_heat_W(ops, F, w, balls=z, contact_rad=beta, helix_rad=spec.helix_rad,
+                              pitch_diameter_mm=spec.nominal_diameter_mm, ball_mm=D_w, lubricant_vg=h.lubricant_vg,
+                              temperature_C=h.temperature_C) for F, w in zip(F_case, omegas)]
+    seals = (rexroth_seal_torque_Nm(spec.nominal_diameter_mm, spec.lead_mm) if h.seal_torque_Nm is None
+             else h.seal_torque_Nm)
+    return [p + seal_heat_W(seals, w) for p, w in zip(nut, omegas)]
 
 
 def _objective(e: DesignQuantities, w: Any) -> Any:

@@ -156,8 +156,9 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec,
 
     ``heat``: the objective is the nut's friction heat over the cycle instead of the friction energy,
     ``sum_k P(F_p,k, n_k) dt_k`` (J), ``P`` :meth:`BallScrew.friction_heat_W` with these keywords (``model``,
-    ``lubricant_vg``, ``sealed``, ``temperature_C``): the NLP minimises it; the envelope is its optimum too (the heat
-    grows with the preload at every sample, under either model). The schedule still records its friction energy.
+    ``lubricant_vg``, ``seal_torque_Nm``, ``temperature_C``): the NLP minimises it; the envelope is its optimum too
+    (the heat grows with the preload at every sample, under either model; the seals' part does not depend on it). The
+    schedule still records its friction energy.
     """
     if method not in ("envelope", "nlp"):
         raise ValueError(f"method must be 'envelope' or 'nlp', got {method!r}")

@@ -371,8 +371,11 @@ def design_spec_from_tables(t: dict[str, Any], fail: Callable[[str, str], Except
     kwargs.update({k: v for k, v in d.to_dict().items() if k in names})
     thermal = t.get("thermal")
     if thermal is not None:  # how a stiffness:growth front counts the nut's heat
-        kwargs["heat"] = HeatSpec(thermal.heat_model, thermal.lubricant_vg, thermal.sealed,
-                                  thermal.contact_temperature_C)
+        try:
+            seals = thermal.seal_torque(b.nominal_diameter_mm, b.lead_mm)
+        except InputError as exc:
+            raise fail("thermal.seal_torque_Nm", f"is not set and {exc}") from None
+        kwargs["heat"] = HeatSpec(thermal.heat_model, thermal.lubricant_vg, seals, thermal.contact_temperature_C)
     kwargs["actuator"] = PiezoPreload(drive_V=d.stack_drive_V, amp_current_limit_A=d.amp_current_limit_A)
     try:
         return DesignSpec(**kwargs)

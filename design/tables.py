@@ -25,7 +25,7 @@ from piezopreload.design.system import SystemRun, track_schedule
 from piezopreload.models.actuator import Plant
 from piezopreload.models.controller import Controller
 from piezopreload.models.feed_drive import MOUNTINGS
-from piezopreload.models.thermal import HEAT_MODELS, THERMAL_MOUNTINGS, VG_GRADES
+from piezopreload.models.thermal import HEAT_MODELS, THERMAL_MOUNTINGS, VG_GRADES, rexroth_seal_torque_Nm
 
 __all__ = ["BallscrewTable", "FeedDriveTable", "DutyTable", "DesignTable", "ScheduleTable", "ScheduleLimits",
            "PlantTable", "ThermalTable", "FEEDBACKS"]
@@ -204,7 +204,12 @@ class ThermalTable(Table):
                           choices=HEAT_MODELS)
     lubricant_vg: int = key(68, "the lubricant's ISO VG grade (10, 22, 32, 46, 68, 100, 150 or 220): the contact "
                             "model's and the support bearings' viscosity")
-    sealed: bool = key(True, "the nut has seals (a factor 2 on its heat)")
+    sealed: bool = key(True, "the nut has contact (lip) seals: their torque seal_torque_Nm adds T_s omega to the nut's "
+                       "heat in either model (false: an open nut or non-contact seals, no seal torque)")
+    seal_torque_Nm: float | None = key(None, "idle torque of the nut's seals, independent of the preload (not set: "
+                                       "Rexroth's table of the two lip seals of a nut, single or double alike, by "
+                                       "nominal diameter and lead, 0.25 N m for 32 mm: docs/thermal.md; sealed = "
+                                       "false: 0)", unit="N m", ge=0)
     contact_temperature_C: float = key(40.0, "the lubricant's temperature at the contacts (its viscosity)",
                                        unit="degC", ge=-20, le=150)
     ambient_C: float = key(20.0, "the air's temperature around the axis (the rises are above it)", unit="degC",
@@ -222,6 +227,10 @@ class ThermalTable(Table):
                                     "housing)", ge=0, le=1)
     bearing_W_per_K: float = key(1.0, "conductance from each end of the screw into its bearing's housing",
                                  unit="W/K", ge=0)
+    convection_factor: float = key(1.0, "factor on the air's film coefficients the correlations give (the rotating "
+                                   "screw's Nusselt number, free convection on the nut and the screw at rest): the "
+                                   "convection assumption, about 0.6-1.5 by the correlations' scatter "
+                                   "(docs/thermal.md)", gt=0, le=5)
     free_convection_W_per_m2K: float = key(8.0, "free convection's film coefficient: the screw at rest (the "
                                            "rotating shaft's is higher), the nut", unit="W/m^2 K", gt=0)
     flange_mass_kg: float = key(2.0, "the nut's flange and bracket (a lumped body)", unit="kg", gt=0)
@@ -258,10 +267,22 @@ class ThermalTable(Table):
             name = "pretension_K" if self.mounting == "pretensioned" else "mounting"
             raise Invalid(name, "a pretension needs mounting = \"pretensioned\" and pretension_K > 0 together; got "
                                 f"mounting = {self.mounting!r}, pretension_K = {self.pretension_K:g}")
+        if not self.sealed and self.seal_torque_Nm is not None and self.seal_torque_Nm > 0:
+            raise Invalid("seal_torque_Nm", f"= {self.seal_torque_Nm:g} N m needs seals: sealed = false is an open "
+                                            "nut (no seal torque); set sealed = true or leave seal_torque_Nm unset")
         if self.coolant_flow_l_per_min is not None and self.bore_mm is None:
             raise Invalid("coolant_flow_l_per_min", "needs a hollow screw: set bore_mm")
         if self.coolant_C is not None and self.coolant_flow_l_per_min is None:
             raise Invalid("coolant_C", "needs a coolant: set coolant_flow_l_per_min")
+
+    def seal_torque(self, nominal_diameter_mm: float, lead_mm: float) -> float:
+        """The seals' torque (N m) for a screw of this size: the key's, Rexroth's table's where it is unset, 0 for an
+        open nut (:func:`~piezopreload.models.thermal.rexroth_seal_torque_Nm`)."""
+        if not self.sealed:
+            return 0.0
+        if self.seal_torque_Nm is not None:
+            return float(self.seal_torque_Nm)
+        return rexroth_seal_torque_Nm(nominal_diameter_mm, lead_mm)
 
     def against(self, drive: Any, fail: Callable[[str, str], Exception]) -> None:
         """The rules between this table and the axis (:class:`~piezopreload.models.feed_drive.FeedDrive`):

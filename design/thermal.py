@@ -221,7 +221,8 @@ def cycle_sources(screw: BallScrew, drive: FeedDrive, table: ThermalTable, cycle
     model = model or axis_model(screw, drive, table)
     stroke = table.stroke_mm or drive.travel_mm
     nut = screw.friction_heat_W(cycle.preload_N, cycle.speed_rpm, model=heat_model, lubricant_vg=table.lubricant_vg,
-                                sealed=table.sealed, temperature_C=table.contact_temperature_C)
+                                seal_torque_Nm=table.seal_torque(screw.nominal_diameter_mm, screw.lead_mm),
+                                temperature_C=table.contact_temperature_C)
     dm = table.bearing_dm_mm or screw.nominal_diameter_mm + 10.0
     nu = 1e6 * float(viscosity_m2_s(table.lubricant_vg, table.contact_temperature_C))
     omega = np.abs(cycle.speed_rpm) * math.pi / 30.0
@@ -230,11 +231,12 @@ def cycle_sources(screw: BallScrew, drive: FeedDrive, table: ThermalTable, cycle
                         for load in (table.bearing_preload_N, far_preload)], axis=1)
     coolant = model.coolant_W_per_K() * ((table.coolant_C if table.coolant_C is not None else table.ambient_C)
                                         - table.ambient_C)
+    free = table.convection_factor * table.free_convection_W_per_m2K
+    film = table.convection_factor * shaft_film_W_per_m2K(omega, model.screw.outer_diameter_m, table.ambient_C,
+                                                          table.free_convection_W_per_m2K)
     return CycleSources(model, cycle, np.asarray(nut, float), bearing,
-                        nut_coverage(model, nut_centre_m(cycle, stroke), _zones(screw, table)),
-                        shaft_film_W_per_m2K(omega, model.screw.outer_diameter_m, table.ambient_C,
-                                             table.free_convection_W_per_m2K),
-                        table.nut_heat_share, table.bearing_heat_share, coolant, table.free_convection_W_per_m2K)
+                        nut_coverage(model, nut_centre_m(cycle, stroke), _zones(screw, table)), film,
+                        table.nut_heat_share, table.bearing_heat_share, coolant, free)
 
 
 def shift_hours(shift_h: float) -> Array:

@@ -73,7 +73,13 @@ from piezopreload.core.checks import FieldRule, check_fields
 from piezopreload.core.config import Invalid
 from piezopreload.core.errors import InputError
 from piezopreload.models.ops import NUMPY
-from piezopreload.models.thermal import HEAT_MODELS, catalogue_heat_W, contact_heat_W
+from piezopreload.models.thermal import (
+    HEAT_MODELS,
+    catalogue_heat_W,
+    contact_heat_W,
+    rexroth_seal_torque_Nm,
+    seal_heat_W,
+)
 
 __all__ = [
     "Material", "STEEL", "BallScrew", "DutyCase", "ContactState", "NutLoads", "Life",
@@ -661,25 +667,37 @@ class BallScrew:
         """Preload drag torque T_d = K_p F_p P / (2000 pi) (N m)."""
         return self.drag_K * np.asarray(preload_N, float) * self.lead_mm / (2000.0 * math.pi)
 
+    @property
+    def seal_torque_Nm(self) -> float:
+        """The idle torque of the nut's two lip seals (N m) by Rexroth's table for this nominal diameter and lead
+        (:func:`~piezopreload.models.thermal.rexroth_seal_torque_Nm`); independent of the preload."""
+        return rexroth_seal_torque_Nm(self.nominal_diameter_mm, self.lead_mm)
+
     def friction_heat_W(self, preload_N: Any, speed_rpm: Any, *, model: str = "catalogue", lubricant_vg: int = 68,
-                        sealed: bool = True, temperature_C: Any = 40.0, ops: Any = NUMPY) -> Any:
+                        seal_torque_Nm: float | None = None, temperature_C: Any = 40.0, ops: Any = NUMPY) -> Any:
         """The double nut's friction heat (W) at ``preload_N`` and ``speed_rpm`` (broadcast; numpy arrays, or
-        CasADi expressions with ``ops=CASADI``).
+        CasADi expressions with ``ops=CASADI``): the preload's part plus the seals' T_s omega.
 
         ``model="catalogue"``: the drag torque :meth:`drag_torque_Nm` times the angular speed (linear in the
         preload; the lubricant and the temperature do not enter it); ``"contact"``: Jungnickel's rolling-contact
-        loss (about F_p^0.48 omega^1.51 nu^0.51, ISO VG ``lubricant_vg`` at the contact's ``temperature_C``).
-        ``sealed``: the seals' factor 2 in both (:mod:`piezopreload.models.thermal`).
+        loss of the open nut (about F_p^0.48 omega^1.51 nu^0.51, ISO VG ``lubricant_vg`` at the contact's
+        ``temperature_C``). ``seal_torque_Nm``: the seals' torque, the same in both models and independent of the
+        preload (None: :attr:`seal_torque_Nm`, Rexroth's table; 0: an open nut).
         """
         if model not in HEAT_MODELS:
             raise InputError(f"model must be one of {', '.join(HEAT_MODELS)}, got {model!r}.")
+        seals = self.seal_torque_Nm if seal_torque_Nm is None else float(seal_torque_Nm)
+        if not (math.isfinite(seals) and seals >= 0):
+            raise InputError(f"seal_torque_Nm must be a finite number >= 0, got {seal_torque_Nm!r}.")
         omega = (ops.fabs(speed_rpm) if ops.symbolic else np.abs(np.asarray(speed_rpm, float))) * (math.pi / 30.0)
         preload = preload_N if ops.symbolic else np.asarray(preload_N, float)
         if model == "catalogue":
-            return catalogue_heat_W(ops, self.drag_K, self.lead_mm, preload, omega, sealed)
-        return contact_heat_W(ops, preload, omega, balls=self.balls_per_nut, contact_rad=self.contact_rad,
-                              helix_rad=self.helix_rad, pitch_diameter_mm=self.pitch_diameter, ball_mm=self.ball_mm,
-                              lubricant_vg=lubricant_vg, temperature_C=temperature_C, sealed=sealed)
+            nut = catalogue_heat_W(ops, self.drag_K, self.lead_mm, preload, omega)
+        else:
+            nut = contact_heat_W(ops, preload, omega, balls=self.balls_per_nut, contact_rad=self.contact_rad,
+                                 helix_rad=self.helix_rad, pitch_diameter_mm=self.pitch_diameter,
+                                 ball_mm=self.ball_mm, lubricant_vg=lubricant_vg, temperature_C=temperature_C)
+        return nut + seal_heat_W(seals, omega)
 
     def nut_stiffness_N_per_um(self, nut_force_N: ArrayLike) -> Array:
         """One nut's tangent stiffness dF/d(delta) (N/um) at its force: F^(1/3) / (2/3 c_h + s F^(1/3)), times f_ar."""

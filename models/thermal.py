@@ -5,20 +5,24 @@
 **Heat at the nut**, two models (both on the ops table, numpy or CasADi):
 
 * *catalogue*: the preload drag torque T_p = K_p F_p P / (2 pi) (HIWIN, NSK, THK) times the screw's
-  angular speed omega: linear in the preload, no dependence on speed, lubricant or temperature;
+  angular speed omega: linear in the preload, no dependence on speed, lubricant or temperature. The vendors
+  measure it without seals (HIWIN: without wipers, 100 rpm, ISO VG 68) and state it with a band of about
+  +-30-50 %;
 * *contact*: the rolling-contact loss of Jungnickel (2010, eq. 9.49), restated as
-  P = z mu F_c r omega / cos(lambda) s with the rolling friction coefficient
+  P = z mu F_c r omega / cos(lambda) with the rolling friction coefficient
   mu = 9.16 G^-0.2 W^-e U^k2, the load parameter W = F_c / (E' r_b^2), the material parameter
   G = alpha_p E', the speed parameter U = eta(T) omega R / (2 E' cos(lambda)), the contact force
-  F_c = F_p / (z sin(beta) cos(lambda)) of the z loaded balls of one nut, R = r / r_b, and s the seal
-  factor (2 sealed, 1 open). For the double nut with two-point contact k2 = 0.512 and e = 0.516: the loss
-  grows as F_p^0.484, omega^1.512 and the viscosity^0.512.
+  F_c = F_p / (z sin(beta) cos(lambda)) of the z loaded balls of one nut and R = r / r_b. For the double nut
+  with two-point contact k2 = 0.512 and e = 0.516: the loss grows as F_p^0.484, omega^1.512 and the
+  viscosity^0.512.
 
-The lubricant's viscosity follows a Vogel law nu(T) = a exp(b / (T + 95)) (T in deg C) fitted per ISO VG
-grade (:data:`VG_GRADES`); its pressure-viscosity coefficient is alpha_p = 1.29e-7 nu40^0.204 (1/Pa,
-nu40 in m^2/s). The seals are Jungnickel's factor s in both models (a catalogue's drag torque is that of an
-open nut; its seal torque is listed apart, and taking the same factor keeps the two models different only
-in how they scale with the preload, the speed and the viscosity).
+**The seals** are a torque of their own in both models, T_s omega, independent of the preload: the vendors
+list it apart from the preload drag torque (Rexroth, "Friction torques of seals": the idle torque of the two
+lip seals of a nut, single or double alike, by nominal diameter and lead, :func:`rexroth_seal_torque_Nm`;
+THK books it under "other torque" beside the support bearings). Jungnickel's fit carries a factor s = 2 for
+a sealed nut instead; that factor doubles the contacts' loss with the preload, so it is not used: the contact
+model is his open nut (s = 1) plus the same seal torque as the catalogue model, and the seals are counted
+once in either.
 
 **The support bearings** (Palmgren): M = M0 + M1, M0 = 1e-7 f0 max(nu n, 2000)^(2/3) dm^3 (N mm; nu in
 mm^2/s, n in rpm, dm in mm; below nu n = 2000 the constant 160e-7 f0 dm^3), M1 = f1 F dm.
@@ -68,10 +72,10 @@ from piezopreload.models.ops import NUMPY
 
 __all__ = [
     "EXPANSION_PER_K", "STEEL_CONDUCTIVITY_W_PER_MK", "STEEL_HEAT_CAPACITY_J_PER_M3K", "VG_GRADES", "OIL_DENSITY",
-    "HEAT_MODELS", "THERMAL_MOUNTINGS", "viscosity_m2_s", "pressure_viscosity_per_Pa", "seal_factor",
-    "catalogue_heat_W", "contact_heat_W", "bearing_torque_Nm", "shaft_film_W_per_m2K", "pipe_film_W_per_m2K",
-    "ScrewBody", "AxisModel", "Network", "FineMarch", "growth_m", "held_force_N", "spacer_drift_N_per_K",
-    "nut_coverage",
+    "HEAT_MODELS", "THERMAL_MOUNTINGS", "viscosity_m2_s", "pressure_viscosity_per_Pa", "REXROTH_SEAL_TORQUE_NM",
+    "rexroth_seal_torque_Nm", "seal_heat_W", "catalogue_heat_W", "contact_heat_W", "bearing_torque_Nm",
+    "shaft_film_W_per_m2K", "pipe_film_W_per_m2K", "ScrewBody", "AxisModel", "Network", "FineMarch", "growth_m",
+    "held_force_N", "spacer_drift_N_per_K", "nut_coverage",
 ]
 
 Array = NDArray[np.float64]
@@ -113,22 +117,54 @@ def pressure_viscosity_per_Pa(vg: int) -> float:
     return 1.29e-7 * float(viscosity_m2_s(vg, 40.0)) ** 0.204
 
 
-def seal_factor(sealed: bool) -> float:
-    """Jungnickel's s: 2 for a sealed nut, 1 for an open one."""
-    return 2.0 if sealed else 1.0
+#: Rexroth's idle torque (N m) of the two standard lip seals of a nut (one at each end; single or double nut
+#: alike), by nominal diameter (mm): (lead mm, torque) points, the torque linear in the lead between them and
+#: constant beyond (Rexroth, Precision Ball Screw Assemblies, "Friction torques of seals")
+REXROTH_SEAL_TORQUE_NM: dict[float, tuple[tuple[float, float], ...]] = {
+    16.0: ((5.0, 0.08), (16.0, 0.08)), 20.0: ((5.0, 0.10), (20.0, 0.12)),
+    25.0: ((5.0, 0.12), (10.0, 0.15), (25.0, 0.20)), 32.0: ((5.0, 0.25), (32.0, 0.25)),
+    40.0: ((5.0, 0.40), (40.0, 0.40)), 50.0: ((5.0, 0.50), (10.0, 0.60), (40.0, 0.70)),
+    63.0: ((10.0, 1.2), (40.0, 1.2)), 80.0: ((10.0, 1.4), (20.0, 2.2))}
+
+
+def rexroth_seal_torque_Nm(nominal_diameter_mm: float, lead_mm: float) -> float:
+    """The seals' idle torque (N m) of a nut of this size by :data:`REXROTH_SEAL_TORQUE_NM`: at a listed
+    diameter the torque at the lead (linear between the listed leads, constant beyond); between two listed
+    diameters linear in the diameter. Outside 16-80 mm the table says nothing: an :class:`InputError` (state the
+    torque instead)."""
+    d = float(nominal_diameter_mm)
+    sizes = sorted(REXROTH_SEAL_TORQUE_NM)
+    if not (math.isfinite(d) and sizes[0] <= d <= sizes[-1]):
+        raise InputError(f"the seals' torque is tabulated (Rexroth) for nominal diameters of {sizes[0]:g}-"
+                         f"{sizes[-1]:g} mm, not {nominal_diameter_mm!r} mm: state it (seal_torque_Nm).")
+
+    def at(size: float) -> float:
+        leads, torques = zip(*REXROTH_SEAL_TORQUE_NM[size])
+        return float(np.interp(lead_mm, leads, torques))
+
+    above = next(x for x in sizes if x >= d)
+    below = max(x for x in sizes if x <= d)
+    if above == below:
+        return at(above)
+    w = (d - below) / (above - below)
+    return (1.0 - w) * at(below) + w * at(above)
 
 
 # ---- heat at the nut (numpy or CasADi) ------------------------------------------------------------------
-def catalogue_heat_W(ops: Any, drag_coefficient: float, lead_mm: float, preload_N: Any, omega_rad_s: Any,
-                     sealed: bool = True) -> Any:
-    """K_p F_p P / (2000 pi) (N m, P in mm) times omega, times the seal factor."""
-    return seal_factor(sealed) * drag_coefficient * preload_N * lead_mm / (2000.0 * math.pi) * omega_rad_s
+def seal_heat_W(seal_torque_Nm: float, omega_rad_s: Any) -> Any:
+    """The seals' heat T_s omega (W): their torque does not depend on the preload."""
+    return seal_torque_Nm * omega_rad_s
+
+
+def catalogue_heat_W(ops: Any, drag_coefficient: float, lead_mm: float, preload_N: Any, omega_rad_s: Any) -> Any:
+    """The vendors' preload drag torque K_p F_p P / (2000 pi) (N m, P in mm) times omega: an open nut's heat."""
+    return drag_coefficient * preload_N * lead_mm / (2000.0 * math.pi) * omega_rad_s
 
 
 def contact_heat_W(ops: Any, preload_N: Any, omega_rad_s: Any, *, balls: Any, contact_rad: Any,
                    helix_rad: float, pitch_diameter_mm: float, ball_mm: Any, lubricant_vg: int = 68,
-                   temperature_C: Any = 40.0, sealed: bool = True) -> Any:
-    """Jungnickel's rolling-contact loss of a double nut (module docstring), W.
+                   temperature_C: Any = 40.0) -> Any:
+    """Jungnickel's rolling-contact loss of an open double nut (module docstring; s = 1), W.
 
     ``balls``: z, the loaded balls of one nut; ``omega_rad_s`` >= 0 the screw's speed. The geometry may be CasADi
     expressions too (the design's variables).
@@ -141,7 +177,7 @@ def contact_heat_W(ops: Any, preload_N: Any, omega_rad_s: Any, *, balls: Any, co
     eta = OIL_DENSITY * viscosity_m2_s(lubricant_vg, temperature_C, ops)
     speed = eta * omega_rad_s * (r / r_b) / (2.0 * _E_PRIME * cl)
     mu = 9.16 * material ** -0.2 * load ** -_E_LOAD * speed ** _K2
-    return seal_factor(sealed) * balls * mu * f_c * r * omega_rad_s / cl
+    return balls * mu * f_c * r * omega_rad_s / cl
 
 
 # ---- the support bearings ---------------------------------------------------------------------------------
