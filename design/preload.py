@@ -77,6 +77,7 @@ from piezopreload.design.shortfall import Shortfall, binding, shortfall_message
 from piezopreload.models.ballscrew import (
     EFFECTIVE_BALL_SHARE,
     LIFT_OFF_RATIO,
+    RIGIDITY_IN_MACHINE_FACTOR,
     STEEL,
     BallScrew,
     DutyCase,
@@ -209,7 +210,8 @@ _SPEC_RULES: tuple[FieldRule, ...] = (
     *((name, _positive, "must be a finite number > 0")
       for name in ("nominal_diameter_mm", "lead_mm", "axial_load_max_N", "lift_off_margin", "preload_fraction_max",
                    "contact_pressure_max_MPa", "life_min_h", "drag_torque_max_Nm", "frequency_min_Hz",
-                   "nut_length_max_mm", "ball_lead_ratio_max", "load_sharing", "accuracy_factor", "load_factor")),
+                   "nut_length_max_mm", "ball_lead_ratio_max", "load_sharing", "accuracy_factor", "load_factor",
+                   "rigidity_in_machine_factor")),
     *((name, lambda x: math.isfinite(x) and x >= 0, "must be a finite number >= 0")
       for name in ("failsafe_load_N", "stiffness_min_N_per_um")),
     *((name, _range, "must be a range (low, high) with 0 < low <= high")
@@ -217,7 +219,8 @@ _SPEC_RULES: tuple[FieldRule, ...] = (
     ("contact_angle_deg", lambda r: r[0] >= 20 and r[1] <= 70, "must lie in [20, 70]"),
     ("conformity", lambda r: r[0] >= 0.505 and r[1] <= 0.6, "must lie in [0.505, 0.6]"),
     ("turns", lambda r: isinstance(r[0], int) and isinstance(r[1], int) and r[0] >= 1, "must be two integers >= 1"),
-    *((name, lambda x: x <= 1, "must be in (0, 1]") for name in ("load_sharing", "accuracy_factor")),
+    *((name, lambda x: x <= 1, "must be in (0, 1]") for name in ("load_sharing", "accuracy_factor",
+                                                                 "rigidity_in_machine_factor")),
 )
 
 
@@ -255,6 +258,7 @@ class DesignSpec:
     ball_lead_ratio_max: float = 0.7
     load_sharing: float = EFFECTIVE_BALL_SHARE
     accuracy_factor: float = 1.0
+    rigidity_in_machine_factor: float = RIGIDITY_IN_MACHINE_FACTOR
     load_factor: float = 1.2
     heat: HeatSpec = field(default_factory=HeatSpec)
 

@@ -235,7 +235,7 @@ def plan_schedule(spec: DesignSpec, point: DesignPoint, profile: LoadProfile | N
         sspec = ScheduleSpec(bolt_preload_N=point.bolt_preload_N, max_preload_N=max_preload, slew_N_per_s=slew,
                              stiffness_min_N_per_um=stiffness_min_N_per_um, deflection_max_um=deflection_max_um,
                              lift_off_margin=spec.lift_off_margin if lift_off_margin is None else lift_off_margin,
-                             preload_margin_N=preload_margin_N)
+                             preload_margin_N=preload_margin_N, in_machine_factor=spec.rigidity_in_machine_factor)
         schedule = schedule_preload(screw, profile if profile is not None else example_profile(), sspec)
     except ValueError as exc:
         raise InputError(f"{profile_name if profile is not None else 'the example load profile'}: {exc}") from None
@@ -354,7 +354,8 @@ def design_spec_from_tables(t: dict[str, Any], fail: Callable[[str, str], Except
     makes the error naming the file and line."""
     b, d, fd, duty = t["ballscrew"], t["design"], t["feed_drive"], t["duty"]
     kwargs: dict[str, Any] = {k: getattr(b, k) for k in ("nominal_diameter_mm", "lead_mm", "load_sharing",
-                                                          "contact_angle_deg", "ball_mm", "conformity", "turns")}
+                                                          "contact_angle_deg", "ball_mm", "conformity", "turns",
+                                                          "rigidity_in_machine_factor")}
     kwargs["turns"] = tuple(int(x) for x in b.turns)
     if fd is not None:
         kwargs["feed_drive"] = FeedDrive(table_mass_kg=fd.table_mass_kg, screw_length_mm=fd.screw_length_mm,

@@ -183,9 +183,10 @@ def _mechanics(screw: BallScrew, spec: ScheduleSpec, planned: Array, achieved: A
     """The frame's columns the double nut and the requirements set: the requirement, the rigidity at the achieved
     and the planned preload, the deflection, the lift-off bound."""
     loads = screw.nut_loads(np.maximum(achieved, 1e-3), load)
-    return dict(required=spec.required_stiffness(load), rigidity=np.asarray(loads.rigidity_N_per_um, float),
-                planned_rigidity=np.asarray(screw.rigidity_N_per_um(np.maximum(planned, 1e-3), load), float),
-                deflection=np.asarray(loads.deflection_um, float),
+    factor = spec.in_machine_factor  # the nut's table rigidity -> its rigidity mounted in the machine
+    return dict(required=spec.required_stiffness(load), rigidity=factor * np.asarray(loads.rigidity_N_per_um, float),
+                planned_rigidity=factor * np.asarray(screw.rigidity_N_per_um(np.maximum(planned, 1e-3), load), float),
+                deflection=np.asarray(loads.deflection_um, float) / factor,
                 lift_bound=spec.lift_off_margin * np.abs(load) / LIFT_OFF_RATIO)
 
 

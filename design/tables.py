@@ -48,6 +48,13 @@ class BallscrewTable(Table):
     turns: tuple[int, int] = key(_SPEC.turns, "bounds of the loaded turns per nut", ge=1, increasing=True)
     load_sharing: float = key(_SPEC.load_sharing, "effective share of the balls that carry load (the calibrated "
                               "default: docs/ballscrew.md)", gt=0, le=1)
+    rigidity_in_machine_factor: float = key(
+        _SPEC.rigidity_in_machine_factor, "share of the nut's table rigidity it keeps mounted in the machine: HIWIN "
+        "and THK state that their table rigidity leaves out the nut's mounting and that about 80 % of it holds in a "
+        "machine (HIWIN: K_n = 0.8 K (F_p / 0.1 C)^(1/3)); the nut law is calibrated on those tables "
+        "(docs/ballscrew.md). Rexroth's DIN 69051-5 and Steinmeyer's corrected figures carry no such factor: for a "
+        "nut judged by them set 1. The schedule's rigidity and deflection requirements hold in the machine; the "
+        "table figure is reported beside", gt=0, le=1)
 
 
 @dataclass(frozen=True)

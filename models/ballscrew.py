@@ -85,7 +85,7 @@ __all__ = [
     "Material", "STEEL", "BallScrew", "DutyCase", "ContactState", "NutLoads", "Life",
     "nut_forces", "lift_off_ratio", "hiwin_loaded_nut_force", "lift_off_load_N", "nut_outer_diameter_mm",
     "CONTACT_LIMIT_MPA", "RELIABILITY_FACTORS", "LIFT_OFF_RATIO",
-    "EFFECTIVE_BALL_SHARE", "ACCURACY_FACTOR_P5",
+    "EFFECTIVE_BALL_SHARE", "ACCURACY_FACTOR_P5", "RIGIDITY_IN_MACHINE_FACTOR",
 ]
 
 
@@ -103,6 +103,11 @@ EFFECTIVE_BALL_SHARE = 0.63
 #: applies it: the least-squares fit over Rexroth's double nuts, 0.740 (on their 7 % preload
 #: rows alone 0.740, checked on the 10 % rows; ``benchmarks/ballscrew_rigidity.py``).
 ACCURACY_FACTOR_P5 = 0.74
+#: The share of the table rigidity a nut keeps mounted in a machine, as HIWIN and THK state it: their tables leave
+#: out the nut's mounting, and about 80 % of the table figure holds in a machine (HIWIN's selection formula
+#: K_n = 0.8 K (F_p / 0.1 C_dyn)^(1/3)). The nut law is calibrated on those tables (:data:`EFFECTIVE_BALL_SHARE`), so
+#: its rigidity is a table figure. Rexroth's DIN 69051-5 and Steinmeyer's corrected figures carry no such factor.
+RIGIDITY_IN_MACHINE_FACTOR = 0.8
 #: The one constant of the C_dyn estimate (N, mm), calibrated on HIWIN R40-10T4-RDI
 #: (C_dyn 37,890 N); see the module docstring.
 _CDYN_CONSTANT = 70.98
