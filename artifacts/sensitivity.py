@@ -72,15 +72,13 @@ class SensitivityRow(Record):
         return f"{_number(x)} {self.unit}".rstrip()
 
     def flip_sentence(self) -> str:
-        """Where the verdict flips, in words (for a row that does not hold)."""
+        """Where the verdict flips, in words (for a row that does not hold): the assumption, the end of its range
+        that flips it (its margin there) and the value it flips at."""
         met = self.margin_pct_nominal >= 0
         end = self.low if (self.margin_pct_low >= 0) != met else self.high
         pct = self.margin_pct_low if end == self.low else self.margin_pct_high
-        head = (f"{self.requirement_name} is {'missed' if met else 'met'} at {self.assumption} "
-                f"{self.value_text(end)} ({pct:+.1f} %)")
-        if self.flips_at is None or self.labels:
-            return head
-        return f"{head}; it flips at {self.value_text(self.flips_at)}"
+        at = "" if self.flips_at is None or self.labels else f", flips at {self.value_text(self.flips_at)}"
+        return f"{self.assumption} {self.value_text(end)} ({'missed' if met else 'met'}, {pct:+.1f} %{at})"
 
 
 @record
@@ -125,7 +123,11 @@ class SensitivityRecord(Record):
                 f"; least margin at a range's end {min(least.margin_pct_low, least.margin_pct_high):.1f} % "
                 f"({least.requirement_name}, {least.assumption})")
             return f"verdict robust over {n} assumptions' ranges{tail}"
-        return f"verdict not robust over {n} assumptions' ranges: " + "; ".join(r.flip_sentence() for r in flips)
+        by: dict[str, list[SensitivityRow]] = {}
+        for r in flips:
+            by.setdefault(r.requirement_name, []).append(r)
+        return f"verdict not robust over {n} assumptions' ranges: " + "; ".join(
+            f"{name} flips with " + ", ".join(r.flip_sentence() for r in rows) for name, rows in by.items())
 
     def to_dict(self) -> dict[str, Any]:
         """The fields and the verdict they give (``verdict_robust``).

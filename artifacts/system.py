@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezopreload.artifacts.requirements import Requirement
+from piezopreload.artifacts.sensitivity import SensitivityRecord
 from piezopreload.artifacts.thermal import ThermalRecord
 from piezopreload.core._typing import Array
 from piezopreload.core.records import Artifact, Raw, Record, entry, record
@@ -232,6 +233,8 @@ class SystemRecord(Artifact):
     inputs: dict[str, Any] = entry("The inputs' hashes.", default={}, required=True)
     thermal: ThermalRecord | None = entry("The shift's thermal budget, where the study has a ``[thermal]`` table.",
                                           default=None, omit=True)
+    sensitivity: SensitivityRecord | None = entry("The verdicts under the modelling assumptions' ranges.",
+                                                  default=None, omit=True)
 
     @property
     def requirements_met(self) -> bool:

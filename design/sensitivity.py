@@ -42,7 +42,7 @@ from piezopreload.artifacts.sensitivity import SensitivityRecord, SensitivityRow
 from piezopreload.core.errors import InputError
 from piezopreload.design.system import SystemRun, frame_under, requirements_of
 from piezopreload.design.tables import ThermalTable
-from piezopreload.design.thermal import mounting_of, schedule_requirements
+from piezopreload.design.thermal import ShiftBasis, mounting_of, schedule_requirements, shift_basis
 from piezopreload.models.ballscrew import BallScrew
 from piezopreload.models.feed_drive import FeedDrive
 from piezopreload.models.thermal import HEAT_MODELS
@@ -84,8 +84,9 @@ class Assumption:
         Where the assumption is admissible at all: the flip is searched there.
     moves : tuple of str
         What it changes: :data:`MECHANICS` and/or :data:`THERMAL` (the requirements evaluated again).
-    around : bool
-        Whether ``low`` and ``high`` are offsets from the study's value (a tolerance).
+    around : str
+        ``"add"``: ``low`` and ``high`` are offsets added to the study's value (a tolerance); ``"times"``: factors
+        on it; ``""``: the ends themselves.
     labels : tuple of str
         A two-valued assumption's values' names (0: the first, 1: the second); empty: a number.
     """
@@ -98,23 +99,26 @@ class Assumption:
     source: str
     domain: tuple[float, float]
     moves: tuple[str, ...]
-    around: bool = False
+    around: str = ""
     labels: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if not (self.low <= self.high and self.domain[0] < self.domain[1]):
             raise ValueError(f"Assumption {self.key}: needs low <= high and a domain (lo, hi) with lo < hi")
+        if self.around not in ("", "add", "times"):
+            raise ValueError(f"Assumption {self.key}: around must be '', 'add' or 'times', got {self.around!r}")
         if not set(self.moves) <= {MECHANICS, THERMAL} or not self.moves:
             raise ValueError(f"Assumption {self.key}: moves must name {MECHANICS!r} and/or {THERMAL!r}")
 
     def range_for(self, nominal: float) -> tuple[float, float]:
         """The range's ends for a study whose value is ``nominal``, clipped to the domain."""
-        lo, hi = (nominal + self.low, nominal + self.high) if self.around else (self.low, self.high)
+        lo, hi = {"add": (nominal + self.low, nominal + self.high), "times": (nominal * self.low, nominal * self.high),
+                  "": (self.low, self.high)}[self.around]
         return max(lo, self.domain[0]), min(hi, self.domain[1])
 
     def with_range(self, low: float, high: float) -> Assumption:
         """The same assumption with another range (absolute ends)."""
-        return replace(self, low=low, high=high, around=False)
+        return replace(self, low=low, high=high, around="")
 
 
 #: the declared table of the assumptions the default study varies, one row each
@@ -122,6 +126,17 @@ ASSUMPTIONS: tuple[Assumption, ...] = (
     Assumption("thermal.pretension_K", "the screw's pretension", 2.0, 5.0, "K",
                "THK sets the pretension's negative travel for a 2-5 K rise; HIWIN pretensions for about 3 K and only "
                "where the rise stays below 5 K", (0.1, 10.0), (THERMAL,)),
+    Assumption("thermal.seal_torque_Nm", "the seals' torque", 0.0, 2.0, "N m",
+               "from none (THK: non-contact seals and gap wipers add no torque) to twice the study's (Rexroth's "
+               "reinforced seal is 1.8-2.3 times its standard lip seal for the 25-40 mm sizes that list both)",
+               (0.0, 5.0), (THERMAL,), around="times"),
+    Assumption("thermal.convection_factor", "the convection factor", 0.6, 1.5, "",
+               "the film coefficients come from correlations (the rotating shaft's Nusselt number, free convection "
+               "of 5-10 W/m^2 K for the study's 8): a factor 0.6-1.5 on them covers that band and the correlations' "
+               "scatter", (0.1, 5.0), (THERMAL,)),
+    Assumption("ballscrew.rigidity_in_machine_factor", "the in-machine rigidity factor", 0.8, 1.0, "",
+               "HIWIN and THK: about 80 % of the table rigidity holds in a machine; Rexroth's and Steinmeyer's "
+               "figures carry no factor (1.0)", (0.05, 1.0), (MECHANICS,)),
     Assumption("thermal.nut_heat_share", "the nut's heat share into the screw", 0.25, 0.75, "",
                "no published share: half and half is the usual choice, bracketed by a quarter either side (measured "
                "feed drives run hottest at the nut: less into the screw is the likelier side)", (0.0, 1.0),
@@ -136,10 +151,10 @@ ASSUMPTIONS: tuple[Assumption, ...] = (
     Assumption("ballscrew.contact_angle_deg", "the contact angle", -5.0, 5.0, "deg",
                "assumed grinding tolerance of +-5 deg on the design's angle (no vendor publishes one; a few microns "
                "on the groove's radius or the ball's size move a gothic arch's contact angle by degrees)",
-               (20.0, 70.0), (MECHANICS, THERMAL), around=True),
+               (20.0, 70.0), (MECHANICS, THERMAL), around="add"),
     Assumption("ballscrew.conformity", "the groove conformity", -0.01, 0.01, "",
                "assumed grinding tolerance of +-0.01 on the design's conformity, screw and nut alike (no vendor "
-               "publishes one; ISO 3408-5 requires > 0.5)", (0.505, 0.6), (MECHANICS, THERMAL), around=True),
+               "publishes one; ISO 3408-5 requires > 0.5)", (0.505, 0.6), (MECHANICS, THERMAL), around="add"),
 )
 
 
@@ -151,6 +166,12 @@ def _heat_model_value(table: ThermalTable) -> float:
 _ACCESS: dict[str, tuple[Callable[[Setting], float], Callable[[Setting, float], Setting]]] = {
     "thermal.pretension_K": (lambda s: _table(s).pretension_K,
                              lambda s, x: replace(s, table=replace(_table(s), pretension_K=x))),
+    "thermal.seal_torque_Nm": (lambda s: _table(s).seal_torque(s.screw.nominal_diameter_mm, s.screw.lead_mm),
+                               lambda s, x: replace(s, table=replace(_table(s), seal_torque_Nm=x))),
+    "thermal.convection_factor": (lambda s: _table(s).convection_factor,
+                                  lambda s, x: replace(s, table=replace(_table(s), convection_factor=x))),
+    "ballscrew.rigidity_in_machine_factor": (lambda s: s.spec.in_machine_factor,
+                                             lambda s, x: replace(s, spec=replace(s.spec, in_machine_factor=x))),
     "thermal.nut_heat_share": (lambda s: _table(s).nut_heat_share,
                                lambda s, x: replace(s, table=replace(_table(s), nut_heat_share=x))),
     "thermal.heat_model": (lambda s: _heat_model_value(_table(s)),
@@ -183,17 +204,26 @@ def applies(assumption: Assumption, setting: Setting, drive: FeedDrive) -> bool:
             return mounting_of(t, drive) == "pretensioned"
         if assumption.key == "ballscrew.drag_coefficient":
             return t.heat_model == "catalogue"
+        if assumption.key == "thermal.seal_torque_Nm":
+            return t.sealed
     return True
 
 
-def evaluate(run: SystemRun, drive: FeedDrive, setting: Setting, moves: Sequence[str]) -> tuple[Requirement, ...]:
+def evaluate(run: SystemRun, drive: FeedDrive, setting: Setting, moves: Sequence[str],
+             bases: dict[tuple[float, ...], ShiftBasis] | None = None) -> tuple[Requirement, ...]:
     """The requirements of the system run ``run`` (as built) under ``setting``: the mechanics' (where ``moves``
-    names :data:`MECHANICS`) and the shift's (:data:`THERMAL`, where the setting has a thermal table)."""
+    names :data:`MECHANICS`) and the shift's (:data:`THERMAL`, where the setting has a thermal table). ``bases``:
+    the shift's bases already made, by the nut's geometry (filled as it goes)."""
     out: tuple[Requirement, ...] = ()
     if MECHANICS in moves:
         out += requirements_of(frame_under(run.evaluation.frame, setting.screw, setting.spec), run.schedule)
     if THERMAL in moves and setting.table is not None:
-        out += schedule_requirements(run, drive, setting.table, screw=setting.screw)
+        s = setting.screw
+        shape = (s.contact_angle_deg, s.conformity_screw, s.conformity_nut)  # what the assumptions change of the nut
+        bases = {} if bases is None else bases
+        if shape not in bases:
+            bases[shape] = shift_basis(run, drive, setting.table, s)
+        out += schedule_requirements(run, drive, setting.table, screw=s, basis=bases[shape])
     return out
 
 
@@ -216,8 +246,8 @@ def _margin_pct(r: Requirement) -> float:
     return float(r.margin_pct) if r.margin_pct is not None else float(r.margin)
 
 
-def _rows(run: SystemRun, drive: FeedDrive, base: Setting, a: Assumption,
-          nominal: dict[str, Requirement]) -> list[SensitivityRow]:
+def _rows(run: SystemRun, drive: FeedDrive, base: Setting, a: Assumption, nominal: dict[str, Requirement],
+          bases: dict[tuple[float, ...], ShiftBasis]) -> list[SensitivityRow]:
     get, put = _ACCESS[a.key]
     study_value = get(base)
     low, high = a.range_for(study_value)
@@ -225,7 +255,7 @@ def _rows(run: SystemRun, drive: FeedDrive, base: Setting, a: Assumption,
 
     def at(x: float, group: str) -> dict[str, Requirement]:
         if (x, group) not in cache:  # each group apart: a bisection on one requirement evaluates its group alone
-            cache[x, group] = {r.key: r for r in evaluate(run, drive, put(base, x), (group,))}
+            cache[x, group] = {r.key: r for r in evaluate(run, drive, put(base, x), (group,), bases)}
         return cache[x, group]
 
     rows = []
@@ -269,8 +299,9 @@ def sensitivity(run: SystemRun, drive: FeedDrive, table: ThermalTable | None, *,
     base = Setting(run.plant.screw, run.schedule.spec, table)
     nominal = {r.key: r for r in run.requirements}
     rows: list[SensitivityRow] = []
+    bases: dict[tuple[float, ...], ShiftBasis] = {}
     for a in assumptions:
         if applies(a, base, drive):
-            rows += _rows(run, drive, base, a, nominal)
+            rows += _rows(run, drive, base, a, nominal, bases)
     moved = {r.requirement for r in rows}
     return SensitivityRecord(tuple(rows), tuple(r.name for k, r in nominal.items() if k not in moved))

@@ -58,6 +58,7 @@ from numpy.typing import NDArray
 from piezopreload.artifacts.plant import DesignedPlant
 from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.schedule import PreloadSchedule, ScheduleSpec
+from piezopreload.artifacts.sensitivity import SensitivityRecord
 from piezopreload.artifacts.summaries import SystemSummary
 from piezopreload.artifacts.system import (
     PassRecord,
@@ -83,8 +84,8 @@ if TYPE_CHECKING:  # the thermal budget reads a system run; the plots name their
     from piezopreload.design.thermal import ThermalBudget
 
 __all__ = ["PRE_CYCLE_REST_S", "RIGIDITY_VERDICT", "ROUND_OFF", "SystemRun", "Evaluation", "pre_cycle_for",
-           "schedule_reference", "track_schedule", "evaluate_tracking", "requirements_of", "folded_shortfall", "frame_under",
-           "binding_stretches", "held_over_stretches", "local_margins"]
+           "schedule_reference", "track_schedule", "evaluate_tracking", "requirements_of", "folded_shortfall",
+           "frame_under", "binding_stretches", "held_over_stretches", "local_margins"]
 
 
 #: the pre-cycle's rest before its ramp (s): the loop starts bumplessly on its first sample's feedforward, so a
@@ -403,6 +404,8 @@ class SystemRun:
         What stops a requirement the passes could not meet (none: nothing).
     thermal : ThermalBudget or None
         The shift's heat, temperature and growth (None: the study has no thermal model).
+    sensitivity : SensitivityRecord or None
+        The verdicts under the modelling assumptions' ranges (None: not studied).
     """
 
     schedule: PreloadSchedule
@@ -415,6 +418,7 @@ class SystemRun:
     passes: tuple[PassRecord, ...]
     bounds: tuple[ScheduleBound, ...] = ()
     thermal: ThermalBudget | None = None  # the shift's heat, temperature and growth (design/thermal.py)
+    sensitivity: SensitivityRecord | None = None  # the verdicts under the assumptions' ranges (design/sensitivity.py)
 
     @property
     def numbers(self) -> TrackingNumbers:
@@ -443,7 +447,8 @@ class SystemRun:
         plan = PlannedSchedule(s.profile.time_s, s.preload_N, s.margin_N, s.margin_short_N, s.friction_energy_J,
                                s.energy_units, s.status)
         return SystemRecord(self.numbers, self.requirements, self.bounds, self.pre_cycle, self.passes, plan, series,
-                            self.cycles, dict(inputs or {}), None if self.thermal is None else self.thermal.record)
+                            self.cycles, dict(inputs or {}), None if self.thermal is None else self.thermal.record,
+                            self.sensitivity)
 
     def summary(self) -> SystemSummary:
         """The run's numbers, verdicts, pre-cycle, passes and thermal figures (no series)."""

@@ -48,6 +48,7 @@ from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.tables import Record, read_record
 from piezopreload.design.plant import DESIGNED_FIELDS
 from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignSpec, optimise
+from piezopreload.design.sensitivity import sensitivity
 from piezopreload.design.study import DesignResult, design_spec_from_tables, design_study, plan_schedule, read_profile
 from piezopreload.design.system import SystemRun
 from piezopreload.design.tables import (
@@ -564,13 +565,17 @@ class StudySpec:
         run = (self.plant_table or PlantTable()).track(designed, controller, self.preload_schedule, seed=self.seed,
                                                        settle_s=self.criteria.settling_max_s, ff_extra_V=ff_extra_V,
                                                        progress=said)
-        if self.thermal is None:
-            return run
-        budget = thermal_budget(run, self._spec("[thermal]").feed_drive, self.thermal,
-                                command_range_V=(controller.gains.u_min_V, controller.gains.u_max_V))
+        drive = self._spec("the sensitivity study").feed_drive
+        if self.thermal is not None:
+            budget = thermal_budget(run, drive, self.thermal,
+                                    command_range_V=(controller.gains.u_min_V, controller.gains.u_max_V))
+            if said is not None:
+                said(f"thermal: {budget.record.sentence()}")
+            run = _replace(run, thermal=budget)
+        studied = sensitivity(run, drive, self.thermal)
         if said is not None:
-            said(f"thermal: {budget.record.sentence()}")
-        return _replace(run, thermal=budget)
+            said(f"robustness: {studied.sentence()}")
+        return _replace(run, sensitivity=studied)
 
     def design(self, *, objective: str | None = None, pareto: list[str] | None = None, points: int | None = None,
                schedule: str | Path | None = None, progress: ProgressLike | None = None,

@@ -84,13 +84,16 @@ def _print_run(s: StudyResult) -> None:
         print(f"  {'met   ' if r.met else 'MISSED'} {r.key:{width}s}  {r.value:,.4g} {r.unit} against "
               f"{'>=' if r.sense == 'min' else '<='} {r.limit:,.4g} {r.unit}, margin {r.margin:,.4g} {r.unit}{pct}")
     least = summary.least_margin
+    robustness = summary.headline.sensitivity
     if met:
         print(f"every requirement met; the least margin: {least.margin_pct:.1f} % ({least.name})" if least else
               "every requirement met")
-        return
-    print(f"{len(summary.missed)} requirement(s) missed:")
-    for r in summary.missed:
-        print(f"  missed: {r.sentence()}")
+    else:
+        print(f"{len(summary.missed)} requirement(s) missed:")
+        for r in summary.missed:
+            print(f"  missed: {r.sentence()}")
+    if robustness is not None:
+        print(f"robustness: {robustness.sentence()}")
 
 
 def register_report(sub: Any) -> None:
