@@ -93,7 +93,13 @@ from piezopreload.models.ballscrew import (
 )
 from piezopreload.models.feed_drive import FeedDrive, PiezoPreload, stack_loop_um
 from piezopreload.models.ops import CASADI, NUMPY
-from piezopreload.models.thermal import catalogue_heat_W, contact_heat_W, rexroth_seal_torque_Nm, seal_heat_W
+from piezopreload.models.thermal import (
+    CONTACT_CALIBRATION,
+    catalogue_heat_W,
+    contact_heat_W,
+    rexroth_seal_torque_Nm,
+    seal_heat_W,
+)
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -173,6 +179,7 @@ class HeatKeywords(TypedDict):
     lubricant_vg: int
     seal_torque_Nm: float | None
     temperature_C: float
+    contact_calibration: float
 
 
 class ElasticArgs(TypedDict):
@@ -194,10 +201,11 @@ class HeatSpec:
     lubricant_vg: int = 68
     seal_torque_Nm: float | None = None
     temperature_C: float = 40.0
+    contact_calibration: float = CONTACT_CALIBRATION
 
     def kwargs(self) -> HeatKeywords:
         return HeatKeywords(model=self.model, lubricant_vg=self.lubricant_vg, seal_torque_Nm=self.seal_torque_Nm,
-                            temperature_C=self.temperature_C)
+                            temperature_C=self.temperature_C, contact_calibration=self.contact_calibration)
 
 
 def _range(value: Any) -> bool:
@@ -495,7 +503,8 @@ def _case_heat(spec: DesignSpec, ops: Any, F_case: list[Any], k_p: Any, z: Any, 
     else:
         nut = [contact_heat_W(ops, F, w, balls=z, contact_rad=beta, helix_rad=spec.helix_rad,
                               pitch_diameter_mm=spec.nominal_diameter_mm, ball_mm=D_w, lubricant_vg=h.lubricant_vg,
-                              temperature_C=h.temperature_C) for F, w in zip(F_case, omegas)]
+                              temperature_C=h.temperature_C, calibration=h.contact_calibration)
+               for F, w in zip(F_case, omegas)]
     seals = (rexroth_seal_torque_Nm(spec.nominal_diameter_mm, spec.lead_mm) if h.seal_torque_Nm is None
              else h.seal_torque_Nm)
     return [p + seal_heat_W(seals, w) for p, w in zip(nut, omegas)]

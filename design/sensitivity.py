@@ -272,7 +272,7 @@ def _rows(run: SystemRun, drive: FeedDrive, base: Setting, a: Assumption, nomina
             return at(x, group)[key].margin
 
         rows.append(SensitivityRow(
-            a.name, a.key, a.unit, a.source, key, r0.name, study_value, low, high, _margin_pct(r0), _margin_pct(r_low),
+            a.name, a.key, a.unit, a.source, key, min((r0.name, r_low.name, r_high.name), key=len), study_value, low, high, _margin_pct(r0), _margin_pct(r_low),
             _margin_pct(r_high), a.domain, _flip(a, margin, low, high), a.labels))
     return rows
 

@@ -25,7 +25,13 @@ from piezopreload.design.system import SystemRun, track_schedule
 from piezopreload.models.actuator import Plant
 from piezopreload.models.controller import Controller
 from piezopreload.models.feed_drive import MOUNTINGS
-from piezopreload.models.thermal import HEAT_MODELS, THERMAL_MOUNTINGS, VG_GRADES, rexroth_seal_torque_Nm
+from piezopreload.models.thermal import (
+    CONTACT_CALIBRATION,
+    HEAT_MODELS,
+    THERMAL_MOUNTINGS,
+    VG_GRADES,
+    rexroth_seal_torque_Nm,
+)
 
 __all__ = ["BallscrewTable", "FeedDriveTable", "DutyTable", "DesignTable", "ScheduleTable", "ScheduleLimits",
            "PlantTable", "ThermalTable", "FEEDBACKS"]
@@ -217,6 +223,10 @@ class ThermalTable(Table):
                                        "Rexroth's table of the two lip seals of a nut, single or double alike, by "
                                        "nominal diameter and lead, 0.25 N m for 32 mm: docs/thermal.md; sealed = "
                                        "false: 0)", unit="N m", ge=0)
+    contact_calibration: float = key(CONTACT_CALIBRATION, "factor on Jungnickel's rolling-contact loss (the contact "
+                                     "model): the default brings it to published measured drag torques at the "
+                                     "vendors' measuring speed (docs/thermal.md); set your own from a measurement",
+                                     gt=0)
     contact_temperature_C: float = key(40.0, "the lubricant's temperature at the contacts (its viscosity)",
                                        unit="degC", ge=-20, le=150)
     ambient_C: float = key(20.0, "the air's temperature around the axis (the rises are above it)", unit="degC",

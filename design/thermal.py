@@ -49,9 +49,11 @@ from piezopreload.models.thermal import (
     Network,
     ScrewBody,
     bearing_torque_Nm,
+    end_force_N,
     growth_m,
     held_force_N,
     nut_coverage,
+    pair_lift_off_N,
     pipe_film_W_per_m2K,
     shaft_film_W_per_m2K,
     spacer_drift_N_per_K,
@@ -159,14 +161,16 @@ def nut_centre_m(cycle: CycleLoad, stroke_mm: tuple[float, float]) -> Array:
 
 @dataclass(frozen=True, eq=False)
 class CycleSources:
-    """Where a cycle's heat enters the axis, per sample: the nut's friction heat (W), each end bearing's heat
+    """Where a cycle's heat enters the axis, per sample: the nut's friction heat (W; its seals' part apart too), each
+    end bearing's heat
     (W, all of it; its share enters the screw at the end face, :meth:`AxisModel.face_share`), the nut's coverage
     of the screw's volumes (rows sum to 1), the screw's film (W/m^2 K); with the model, the cycle and the table's
     shares, and the coolant's constant heat per node (W)."""
 
     model: AxisModel
     cycle: CycleLoad
-    nut_W: Array
+    nut_W: Array  # the seals' heat included
+    seal_W: Array  # the seals' part of it
     bearing_W: Array  # (samples, 2): ends A and B
     coverage: Array
     film_W_per_m2K: Array
@@ -226,9 +230,10 @@ def cycle_sources(screw: BallScrew, drive: FeedDrive, table: ThermalTable, cycle
     heat_model = heat_model or table.heat_model
     model = model or axis_model(screw, drive, table)
     stroke = table.stroke_mm or drive.travel_mm
+    seals = table.seal_torque(screw.nominal_diameter_mm, screw.lead_mm)
     nut = screw.friction_heat_W(cycle.preload_N, cycle.speed_rpm, model=heat_model, lubricant_vg=table.lubricant_vg,
-                                seal_torque_Nm=table.seal_torque(screw.nominal_diameter_mm, screw.lead_mm),
-                                temperature_C=table.contact_temperature_C)
+                                seal_torque_Nm=seals, temperature_C=table.contact_temperature_C,
+                                contact_calibration=table.contact_calibration)
     dm = table.bearing_dm_mm or screw.nominal_diameter_mm + 10.0
     nu = 1e6 * float(viscosity_m2_s(table.lubricant_vg, table.contact_temperature_C))
     omega = np.abs(cycle.speed_rpm) * math.pi / 30.0
@@ -240,7 +245,7 @@ def cycle_sources(screw: BallScrew, drive: FeedDrive, table: ThermalTable, cycle
     free = table.convection_factor * table.free_convection_W_per_m2K
     film = table.convection_factor * shaft_film_W_per_m2K(omega, model.screw.outer_diameter_m, table.ambient_C,
                                                           table.free_convection_W_per_m2K)
-    return CycleSources(model, cycle, np.asarray(nut, float), bearing,
+    return CycleSources(model, cycle, np.asarray(nut, float), seals * omega, bearing,
                         nut_coverage(model, nut_centre_m(cycle, stroke), _zones(screw, table)) if coverage is None
                         else coverage, film,
                         table.nut_heat_share, table.bearing_heat_share, coolant, free)
@@ -262,19 +267,31 @@ class _Mechanics:
     mounting: str
     EA_N: float
     bearing_N_per_m: float
+    bearing_preload_N: float
     pretension_K: float
     positions_m: Array
     dx_m: float
 
+    def _ends(self) -> dict[str, float]:
+        return {"EA_N": self.EA_N, "bearing_N_per_m": self.bearing_N_per_m, "bearing_preload_N": self.bearing_preload_N,
+                "pretension_K": self.pretension_K}
+
     def force_N(self, rise_screw: Array) -> Array:
-        """The force the held ends take up, for each row of screw rises."""
-        return held_force_N(rise_screw, self.dx_m, self.mounting, EA_N=self.EA_N, bearing_N_per_m=self.bearing_N_per_m,
-                            pretension_K=self.pretension_K)
+        """The force the held ends take up from the growth, for each row of screw rises."""
+        return held_force_N(rise_screw, self.dx_m, self.mounting, **self._ends())
+
+    def end_N(self, rise_screw: Array) -> Array:
+        """The force on each end's bearing pair (the pretension included), for each row of screw rises."""
+        return end_force_N(rise_screw, self.dx_m, self.mounting, **self._ends())
+
+    @property
+    def lift_off_N(self) -> float:
+        """The end pairs' lift-off (0: ends not held, or no pair preload)."""
+        return 0.0 if self.mounting == "fixed-free" else pair_lift_off_N(self.bearing_preload_N)
 
     def growth_um(self, rise_screw: Array) -> Array:
         """The growth (um) at the table's positions for each row of screw rises."""
-        faces = growth_m(rise_screw, self.dx_m, self.mounting, EA_N=self.EA_N, bearing_N_per_m=self.bearing_N_per_m,
-                         pretension_K=self.pretension_K)
+        faces = growth_m(rise_screw, self.dx_m, self.mounting, **self._ends())
         x = np.arange(faces.shape[-1]) * self.dx_m
         return 1e6 * np.stack([np.interp(self.positions_m, x, row) for row in np.atleast_2d(faces)])
 
@@ -283,7 +300,8 @@ def _mechanics(screw: BallScrew, drive: FeedDrive, table: ThermalTable, model: A
                positions_mm: Array) -> _Mechanics:
     area = 0.25 * math.pi * (1e-3 * screw.root_diameter_mm) ** 2
     return _Mechanics(mounting_of(table, drive), screw.material.E_MPa * 1e6 * area,
-                      drive.bearing_stiffness_N_per_um * 1e6, table.pretension_K, 1e-3 * positions_mm, model.dx_m)
+                      drive.bearing_stiffness_N_per_um * 1e6, table.bearing_preload_N, table.pretension_K,
+                      1e-3 * positions_mm, model.dx_m)
 
 
 def _grid(times_h: Array) -> Array:
@@ -326,12 +344,17 @@ def _case(sources: CycleSources, other: CycleSources | None, mech: _Mechanics, e
     nut_over = rises[:, n] - under
     budget = elastic[None, :] + tracking + (np.abs(growth) if semi_closed else np.zeros_like(growth))
     c = sources.cycle
+    hottest = np.unravel_index(int(np.argmax(rises[:, :n])), (rises.shape[0], n))[1]
     case = ThermalCase(
         heat_mean_W=float(c.mean(sources.nut_W)), heat_mean_other_W=float(c.mean(other.nut_W)),
+        seal_heat_mean_W=float(c.mean(sources.seal_W)),
         bearing_heat_mean_W=float(np.sum(c.mean(sources.bearing_W))), preload_mean_N=float(c.mean(c.preload_N)),
         temperature_rise_max_K=float(np.max(rises[:, :n])),
+        rise_max_at_mm=1e3 * float(sources.model.centres_m[hottest]),
         temperature_rise_max_other_K=float(np.max(other_rises[:, :n])),
-        nut_rise_max_K=float(np.max(rises[:, n])), end_force_max_N=float(np.max(np.abs(mech.force_N(rises[:, :n])))),
+        nut_rise_max_K=float(np.max(rises[:, n])), nut_over_screw_end_K=float(nut_over[-1]),
+        end_force_max_N=float(np.max(np.abs(mech.force_N(rises[:, :n])))),
+        bearing_force_max_N=float(np.max(np.abs(mech.end_N(np.vstack([np.zeros(n), rises[:, :n]]))))),
         growth_max_um=float(np.max(np.abs(growth))),
         growth_max_other_um=float(np.max(np.abs(other_growth))), positioning_error_max_um=float(np.max(budget)),
         tracking_um=float(tracking), times_h=times_h, rise_along_K=rises[at, :n], nut_rise_K=rises[at, n],
@@ -355,7 +378,8 @@ def _last_cycle(run: SystemRun) -> tuple[CycleLoad, Array, Array]:
 
 def _drift(run: SystemRun, table: ThermalTable, constant_over: Array, schedule_over: Array,
            command_range_V: tuple[float, float]) -> PreloadDrift:
-    """The passive nut's drift at the best constant preload and the stacks' room to hold the schedule's."""
+    """The passive nut's drift at the best constant preload (the nut law, and its tangent extrapolated for
+    comparison) and the stacks' room to hold the schedule's."""
     screw, plant = run.plant.screw, run.plant
     spacer = screw.nut_length_mm + table.spacer_length_mm  # between the two nuts' loaded turns' middles
     constant = run.design_schedule.constant_preload_N
@@ -368,22 +392,41 @@ def _drift(run: SystemRun, table: ThermalTable, constant_over: Array, schedule_o
     volts = run.run.voltage_V[cycles]
     headroom = command_range_V[1] - float(np.max(volts)) if needed > 0 else float(np.min(volts)) - command_range_V[0]
     k = int(np.argmax(np.abs(constant_over)))
-    return PreloadDrift(spacer, per_K, per_K * float(constant_over[k]), float(constant), abs(stroke), needed, headroom)
+    mismatch = EXPANSION_PER_K * spacer * 1e3 * float(constant_over[k])  # um: the nut warmer presses the nuts
+    left = float(screw.spacer_preload_N(constant, mismatch, plant.sleeve_stiffness_N_per_um))
+    return PreloadDrift(spacer, per_K, left - float(constant), left, per_K * float(constant_over[k]), float(constant),
+                        abs(stroke), needed, headroom)
 
 
 def _pair(x: Any) -> tuple[float, float]:
     return float(x[0]), float(x[1])
 
 
-def _requirements(table: ThermalTable, schedule: ThermalCase) -> tuple[Requirement, ...]:
+def _cause(record: ThermalRecord) -> str:
+    """What drives the schedule's growth, in words: the heat by source and the mounting's share."""
+    s = record.schedule
+    held = ""
+    if record.mounting == "pretensioned":
+        held = f"; the {record.pretension_K:g} K pretension relieved, the ends held by their bearing pairs"
+    elif record.mounting == "fixed-fixed":
+        held = "; the ends held by their bearing pairs"
+    return (f"the schedule's heat: {record.heat_words(s)}; the screw up to {s.temperature_rise_max_K:.1f} K "
+            f"{record.place(s.rise_max_at_mm)}{held}")
+
+
+def _requirements(table: ThermalTable, schedule: ThermalCase, cause: str = "") -> tuple[Requirement, ...]:
+    """The shift's limits as requirements on the schedule's case; a growth or positioning error over its limit names
+    what drives it (``cause``, where given)."""
     out = []
-    if table.thermal_growth_max_um is not None:
-        out.append(Requirement("thermal growth at the table over the shift", schedule.growth_max_um,
-                               table.thermal_growth_max_um, "um", "max", "[thermal] thermal_growth_max_um"))
-    if table.positioning_error_max_um is not None:
-        out.append(Requirement("positioning error over the shift (deflection, growth, tracking)",
-                               schedule.positioning_error_max_um, table.positioning_error_max_um, "um", "max",
-                               "[thermal] positioning_error_max_um"))
+    for value, limit, name, source in (
+            (schedule.growth_max_um, table.thermal_growth_max_um, "thermal growth at the table over the shift",
+             "[thermal] thermal_growth_max_um"),
+            (schedule.positioning_error_max_um, table.positioning_error_max_um,
+             "positioning error over the shift (deflection, growth, tracking)", "[thermal] positioning_error_max_um")):
+        if limit is None:
+            continue
+        out.append(Requirement(name if value <= limit or not cause else f"{name} ({cause})", value, limit, "um", "max",
+                               source))
     return tuple(out)
 
 
@@ -463,11 +506,12 @@ def thermal_budget(run: SystemRun, drive: FeedDrive, table: ThermalTable, *,
         cases[name], over[name], _ = _case(sources[name], other, mech, elastic, share, semi, times)
     film = float(achieved.mean(sources["schedule"].film_W_per_m2K))
     record = ThermalRecord(
-        table.heat_model, other_model, table.lubricant_vg, table.sealed, mounting, table.pretension_K, table.feedback,
-        table.shift_h, _pair(table.stroke_mm or travel), 1e3 * model.centres_m, positions, film,
-        model.screw.time_constant_s(film), cases["schedule"], cases["constant"],
+        table.heat_model, other_model, table.lubricant_vg, table.sealed,
+        table.seal_torque(screw.nominal_diameter_mm, screw.lead_mm), table.nut_heat_share, table.convection_factor,
+        mounting, table.pretension_K, mech.lift_off_N, table.feedback, table.shift_h, _pair(table.stroke_mm or travel),
+        1e3 * model.centres_m, positions, film, model.screw.time_constant_s(film), cases["schedule"], cases["constant"],
         _drift(run, table, over["constant"], over["schedule"], command_range_V))
-    return ThermalBudget(record, _requirements(table, cases["schedule"]), sources)
+    return ThermalBudget(record, _requirements(table, record.schedule, _cause(record)), sources)
 
 
 def duty_cycle(spec: Any, point: Any, samples_per_case: int = 100, period_s: float = 60.0) -> CycleLoad:

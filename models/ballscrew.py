@@ -74,6 +74,7 @@ from piezopreload.core.config import Invalid
 from piezopreload.core.errors import InputError
 from piezopreload.models.ops import NUMPY
 from piezopreload.models.thermal import (
+    CONTACT_CALIBRATION,
     HEAT_MODELS,
     catalogue_heat_W,
     contact_heat_W,
@@ -679,15 +680,17 @@ class BallScrew:
         return rexroth_seal_torque_Nm(self.nominal_diameter_mm, self.lead_mm)
 
     def friction_heat_W(self, preload_N: Any, speed_rpm: Any, *, model: str = "catalogue", lubricant_vg: int = 68,
-                        seal_torque_Nm: float | None = None, temperature_C: Any = 40.0, ops: Any = NUMPY) -> Any:
+                        seal_torque_Nm: float | None = None, temperature_C: Any = 40.0,
+                        contact_calibration: float = CONTACT_CALIBRATION, ops: Any = NUMPY) -> Any:
         """The double nut's friction heat (W) at ``preload_N`` and ``speed_rpm`` (broadcast; numpy arrays, or
         CasADi expressions with ``ops=CASADI``): the preload's part plus the seals' T_s omega.
 
         ``model="catalogue"``: the drag torque :meth:`drag_torque_Nm` times the angular speed (linear in the
         preload; the lubricant and the temperature do not enter it); ``"contact"``: Jungnickel's rolling-contact
         loss of the open nut (about F_p^0.48 omega^1.51 nu^0.51, ISO VG ``lubricant_vg`` at the contact's
-        ``temperature_C``). ``seal_torque_Nm``: the seals' torque, the same in both models and independent of the
-        preload (None: :attr:`seal_torque_Nm`, Rexroth's table; 0: an open nut).
+        ``temperature_C``), times ``contact_calibration`` (the measured torques' level,
+        :data:`~piezopreload.models.thermal.CONTACT_CALIBRATION`). ``seal_torque_Nm``: the seals' torque, the same in
+        both models and independent of the preload (None: :attr:`seal_torque_Nm`, Rexroth's table; 0: an open nut).
         """
         if model not in HEAT_MODELS:
             raise InputError(f"model must be one of {', '.join(HEAT_MODELS)}, got {model!r}.")
@@ -701,8 +704,37 @@ class BallScrew:
         else:
             nut = contact_heat_W(ops, preload, omega, balls=self.balls_per_nut, contact_rad=self.contact_rad,
                                  helix_rad=self.helix_rad, pitch_diameter_mm=self.pitch_diameter,
-                                 ball_mm=self.ball_mm, lubricant_vg=lubricant_vg, temperature_C=temperature_C)
+                                 ball_mm=self.ball_mm, lubricant_vg=lubricant_vg, temperature_C=temperature_C,
+                                 calibration=contact_calibration)
         return nut + seal_heat_W(seals, omega)
+
+    def spacer_preload_N(self, preload_N: float, mismatch_um: ArrayLike,
+                         spacer_stiffness_N_per_um: float = math.inf) -> Array:
+        """The preload of a spacer-preloaded double nut (N) after its spacer's fit grows by ``mismatch_um`` (> 0: the
+        nuts pressed harder, < 0 relieved): the root F >= 0 of 2 delta(F) + F / k_s = 2 delta(F_p) + F_p / k_s + m,
+        delta the nut law :meth:`nut_approach_um` (both nuts carry F; k_s the spacer), 0 where the nuts part.
+
+        The tangent of this at F_p is :func:`~piezopreload.models.thermal.spacer_drift_N_per_K`'s; the law softens
+        as the preload falls (delta ~ F^(2/3)), so a linear extrapolation of the tangent overstates a large loss.
+        """
+        Fp = float(preload_N)
+        if not (math.isfinite(Fp) and Fp > 0):
+            raise InputError(f"preload_N must be a finite number > 0, got {preload_N!r}.")
+        m = np.asarray(mismatch_um, float)
+
+        def fit(F: Array) -> Array:
+            return 2.0 * self.nut_approach_um(F) + F / spacer_stiffness_N_per_um
+
+        target = float(fit(np.asarray(Fp))) + m
+        lo = np.zeros_like(m)
+        hi = np.full_like(m, Fp)
+        while np.any(fit(hi) < target):  # the law grows without bound: widen until the root is inside
+            hi = np.where(fit(hi) < target, 2.0 * hi, hi)
+        for _ in range(80):
+            mid = 0.5 * (lo + hi)
+            below = fit(mid) < target
+            lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+        return np.where(target <= 0.0, 0.0, 0.5 * (lo + hi))
 
     def nut_stiffness_N_per_um(self, nut_force_N: ArrayLike) -> Array:
         """One nut's tangent stiffness dF/d(delta) (N/um) at its force: F^(1/3) / (2/3 c_h + s F^(1/3)), times f_ar."""

@@ -17,6 +17,7 @@ from piezopreload.artifacts.system import SystemRecord
 from piezopreload.cli import main
 from piezopreload.core.artifacts import read_artifact
 from piezopreload.design.system import RIGIDITY_VERDICT
+from piezopreload.models.thermal import EXPANSION_PER_K
 from piezopreload.pipeline import STAGES, run_study
 from piezopreload.progress import Progress
 from piezopreload.study import load_study
@@ -262,7 +263,27 @@ def test_the_shifts_thermal_budget_is_in_the_system_artifact_the_summary_the_rep
     section = next(x for x in report["sections"] if x["title"] == "Heat, temperature and growth over a shift")
     assert section["figures"] == ["thermal-temperature", "thermal-growth", "thermal-budget"]
     assert all((axis_run / "report" / report["figures"][f]["file"]).is_file() for f in section["figures"])
-    assert any(line.startswith("Over the 2.5 h shift, the schedule's") for line in report["summary"])
+    lines = [line for line in report["summary"] if line.startswith("Over the 2.5 h shift the schedule makes")]
+    assert len(lines) == 1, report["summary"]
+    # the heat by source: the bearings' share shown beside the seals' and the preload's, in the record's figures
+    assert (f"{s.bearing_heat_mean_W:.0f} W at the support bearings, {s.seal_heat_mean_W:.0f} W at the nut's seals, "
+            f"{s.heat_mean_W - s.seal_heat_mean_W:.0f} W of the preload's friction") in lines[0], lines[0]
+    assert c.seal_heat_mean_W > 0 and s.seal_heat_mean_W == pytest.approx(c.seal_heat_mean_W, rel=0.01), \
+        "the seals' heat depends on the preload (the same cycle's speeds, the preloads apart)"
+    assert f"{s.bearing_heat_mean_W:.0f} W at the support bearings" in thermal.sentence()
+    assert summary["bearing_heat_mean_W"]["schedule"] == s.bearing_heat_mean_W
+    # the largest rises named by their place, the nut against the screw said with its sign
+    assert summary["rise_max_place"] == {k: thermal.place(thermal.case(k).rise_max_at_mm) for k in ("schedule",
+                                                                                                     "constant")}
+    word = "warmer" if s.nut_over_screw_end_K >= 0 else "colder"
+    assert f"the nut runs {abs(s.nut_over_screw_end_K):.1f} K {word} than the screw" in " ".join(report["summary"])
+    # the passive drift along the nut law, not the tangent extrapolated
+    d, plant = thermal.drift, DesignedPlant.load(axis_run / "plant.json")
+    over = d.passive_linear_N / d.passive_N_per_K  # the nut over the screw (K) the tangent was applied to
+    mismatch = EXPANSION_PER_K * d.span_mm * 1e3 * over
+    left = float(plant.screw.spacer_preload_N(d.passive_preload_N, mismatch, plant.sleeve_stiffness_N_per_um))
+    assert d.passive_left_N == pytest.approx(left, rel=1e-9) and d.passive_max_N == pytest.approx(
+        left - d.passive_preload_N, rel=1e-9)
 
 
 def test_the_report_names_each_figure_apart_and_rounds_it_once(axis_run):
