@@ -87,8 +87,10 @@ class SensitivityRecord(Record):
     no assumption moves."""
 
     rows: tuple[SensitivityRow, ...] = entry("One row per assumption and requirement it moves.")
-    unmoved: tuple[str, ...] = entry("The requirements no assumption of the study moves (their names).",
-                                     default=())
+    unmoved: tuple[str, ...] = entry("The requirements judged again that no assumption of the study moves (their "
+                                     "names).", default=())
+    not_judged: tuple[str, ...] = entry("The run's requirements the study does not judge again (their names): they "
+                                        "rest on other runs (the Monte Carlo plants).", default=())
 
     @property
     def assumptions(self) -> tuple[str, ...]:

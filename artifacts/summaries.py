@@ -18,7 +18,14 @@ from typing import Any, ClassVar
 from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.responses import ReproductionRow
 from piezopreload.artifacts.sensitivity import SensitivityRecord
-from piezopreload.artifacts.system import PassRecord, PreCycle, ScheduleBound, SystemRecord, TrackingNumbers
+from piezopreload.artifacts.system import (
+    MarginBasis,
+    PassRecord,
+    PreCycle,
+    ScheduleBound,
+    SystemRecord,
+    TrackingNumbers,
+)
 from piezopreload.core.errors import ArtifactError
 from piezopreload.core.records import Raw, Record, entry, record
 
@@ -193,6 +200,9 @@ class SystemSummary(StageSummary):
                                            default=None, omit=True)
     before: BeforeLearning | None = entry("Where the schedule was learned: the error before learning.",
                                           default=None, inline=True, omit=True)
+    basis: MarginBasis | None = entry("What the margins rest on: the rigidity in the machine and at the table, the "
+                                      "axis stiffness at the table, the deflections, the physical lift-off.",
+                                      default=None, omit=True)
     sensitivity: SensitivityRecord | None = entry("The verdicts under the modelling assumptions' ranges.",
                                                   default=None, omit=True)
 
@@ -202,7 +212,7 @@ class SystemSummary(StageSummary):
         passes and thermal figures; ``before``: the error before learning, where the schedule was learned."""
         return cls(system.numbers, system.requirements, system.bounds, system.pre_cycle, system.preload_margin_N,
                    system.cycles, system.passes, None if system.thermal is None else system.thermal.summary().to_dict(),
-                   before, system.sensitivity)
+                   before, system.basis, system.sensitivity)
 
     @property
     def requirements(self) -> tuple[Requirement, ...]:

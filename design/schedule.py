@@ -133,7 +133,7 @@ def least_preload(screw: BallScrew, spec: ScheduleSpec, axial_load_N: ArrayLike)
     if Fa.size == 0:
         return np.zeros(0)
     lift = spec.lift_off_margin * np.abs(Fa) / LIFT_OFF_RATIO
-    k_map = _rigidity_function(screw, spec.in_machine_factor).map(Fa.size)
+    k_map = _rigidity_function(screw, spec.rigidity_factor).map(Fa.size)
     floor = np.minimum(np.maximum(spec.bolt_preload_N, lift), spec.max_preload_N)
     return _least_preloads(k_map, Fa, spec.required_stiffness(Fa), floor, spec.max_preload_N)
 
@@ -173,7 +173,7 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec,
     weight, units = _weights(screw, profile)
     required = spec.required_stiffness(Fa)
     lift = spec.lift_off_margin * np.abs(Fa) / LIFT_OFF_RATIO
-    k_map = _rigidity_function(screw, spec.in_machine_factor).map(n)
+    k_map = _rigidity_function(screw, spec.rigidity_factor).map(n)
     _check_reach(k_map, profile, spec, required, lift)
     needed = _least_preloads(k_map, Fa, required, np.maximum(spec.bolt_preload_N, lift), spec.max_preload_N)
     constant = float(needed.max())

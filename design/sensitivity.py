@@ -170,7 +170,7 @@ _ACCESS: dict[str, tuple[Callable[[Setting], float], Callable[[Setting, float], 
                                lambda s, x: replace(s, table=replace(_table(s), seal_torque_Nm=x))),
     "thermal.convection_factor": (lambda s: _table(s).convection_factor,
                                   lambda s, x: replace(s, table=replace(_table(s), convection_factor=x))),
-    "ballscrew.rigidity_in_machine_factor": (lambda s: s.spec.in_machine_factor,
+    "ballscrew.rigidity_in_machine_factor": (lambda s: s.spec.rigidity_factor,
                                              lambda s, x: replace(s, spec=replace(s.spec, in_machine_factor=x))),
     "thermal.nut_heat_share": (lambda s: _table(s).nut_heat_share,
                                lambda s, x: replace(s, table=replace(_table(s), nut_heat_share=x))),
@@ -304,4 +304,6 @@ def sensitivity(run: SystemRun, drive: FeedDrive, table: ThermalTable | None, *,
         if applies(a, base, drive):
             rows += _rows(run, drive, base, a, nominal, bases)
     moved = {r.requirement for r in rows}
-    return SensitivityRecord(tuple(rows), tuple(r.name for k, r in nominal.items() if k not in moved))
+    judged = {r.key for g in (MECHANICS, THERMAL) for r in evaluate(run, drive, base, (g,), bases)}
+    return SensitivityRecord(tuple(rows), tuple(r.name for k, r in nominal.items() if k in judged and k not in moved),
+                             tuple(r.name for k, r in nominal.items() if k not in judged))

@@ -193,13 +193,14 @@ class PlantTable(Table):
         return plant_from_design(spec, point, hardware, design_sha256=design_sha256, sleeve_stiffness_N_per_um=sleeve)
 
     def track(self, plant: DesignedPlant, controller: Controller, schedule: PreloadSchedule, *, seed: int,
-              settle_s: float = 0.5, ff_extra_V: Any = None,
-              progress: Callable[[str], None] | None = None) -> SystemRun:
+              settle_s: float = 0.5, ff_extra_V: Any = None, design: DesignSpec | None = None,
+              scatter: Plant | None = None, progress: Callable[[str], None] | None = None) -> SystemRun:
         """``controller`` following ``schedule`` on ``plant`` for this table's cycles, passes and margin, after a
-        pre-cycle held ``settle_s`` at the first level (:func:`~piezopreload.design.system.track_schedule`)."""
+        pre-cycle held ``settle_s`` at the first level (:func:`~piezopreload.design.system.track_schedule`; with
+        ``design`` and ``scatter`` it says what its margins rest on)."""
         return track_schedule(plant, controller, schedule, cycles=self.cycles, seed=seed, passes=self.passes,
                               margin_factor=self.margin_factor, contact_N=self.stack_contact_N, settle_s=settle_s,
-                              ff_extra_V=ff_extra_V, progress=progress)
+                              ff_extra_V=ff_extra_V, design=design, scatter=scatter, progress=progress)
 
 
 #: how the axis measures the table's position: the motor's encoder, or a linear scale on the table

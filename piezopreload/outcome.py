@@ -27,7 +27,11 @@ __all__ = ["StageOutcome", "Headline", "RunSummary", "StudyResult"]
 
 @dataclass(frozen=True)
 class Headline:
-    """The study's headline figures: the whole system's (None where the study has no system stage; ``thermal``
+    """The study's headline figures: the whole system's (None where the study has no system stage; the rigidity
+    in the machine beside its table-comparable figure and the axis stiffness at the table, the nut axial deflection
+    beside the axis deflection at the table, the lift-off margin against the schedule's bound (the design's own
+    constraint) beside the physical one by the nut law over the Monte Carlo plants: None where the run has no margin
+    basis; ``thermal``
     where it has a ``[thermal]`` table: ``heat_mean_W``, ``temperature_rise_max_K``, ``growth_max_um``,
     ``positioning_error_max_um``, ... each ``{"schedule": ..., "constant": ...}``), the gain set's status and
     the rig run's tracking; ``sensitivity`` the verdicts under the modelling assumptions' ranges (in the document
@@ -45,7 +49,18 @@ class Headline:
     rigidity_ratio_min: float | None = None
     rigidity_at_worst_ratio_N_per_um: float | None = None
     rigidity_required_at_worst_ratio_N_per_um: float | None = None
-    deflection_max_um: float | None = None
+    rigidity_in_machine_N_per_um: float | None = None
+    rigidity_table_N_per_um: float | None = None
+    rigidity_in_machine_factor: float | None = None
+    axis_stiffness_at_table_min_N_per_um: float | None = None
+    axis_stiffness_at_table_max_N_per_um: float | None = None
+    nut_axial_deflection_max_um: float | None = None
+    axis_deflection_at_table_max_um: float | None = None
+    lift_off_margin_pct: float | None = None
+    lift_off_margin_physical_pct: float | None = None
+    lift_off_margin_physical_nominal_pct: float | None = None
+    lift_off_margin_catalogue_pct: float | None = None
+    lift_off_plants: int | None = None
     friction_energy_per_cycle: float | None = None
     friction_saved_fraction: float | None = None
     preload_margin_N: float | None = None
@@ -73,9 +88,23 @@ class Headline:
             rigidity_ratio_min=n.rigidity_ratio_min,
             rigidity_at_worst_ratio_N_per_um=n.rigidity_at_worst_ratio_N_per_um,
             rigidity_required_at_worst_ratio_N_per_um=n.rigidity_required_at_worst_ratio_N_per_um,
-            deflection_max_um=n.deflection_max_um, friction_energy_per_cycle=n.friction_energy_per_cycle,
+            nut_axial_deflection_max_um=n.deflection_max_um, friction_energy_per_cycle=n.friction_energy_per_cycle,
             friction_saved_fraction=n.friction_saved_fraction, preload_margin_N=system.preload_margin_N,
-            thermal=system.thermal, sensitivity=system.sensitivity)
+            thermal=system.thermal, sensitivity=system.sensitivity,
+            lift_off_margin_pct=next((r.margin_pct for r in system.requirements if r.key == "schedule.lift_off_margin"),
+                                     None))
+        b = system.basis
+        if b is not None:
+            head = replace(
+                head, rigidity_in_machine_N_per_um=b.rigidity_in_machine_N_per_um,
+                rigidity_table_N_per_um=b.rigidity_table_N_per_um,
+                rigidity_in_machine_factor=b.rigidity_in_machine_factor,
+                axis_stiffness_at_table_min_N_per_um=b.axis_stiffness_min_N_per_um,
+                axis_stiffness_at_table_max_N_per_um=b.axis_stiffness_max_N_per_um,
+                axis_deflection_at_table_max_um=b.axis_deflection_max_um,
+                lift_off_margin_physical_pct=b.lift_off_margin_physical_pct,
+                lift_off_margin_physical_nominal_pct=b.lift_off_margin_physical_nominal_pct,
+                lift_off_margin_catalogue_pct=b.lift_off_margin_catalogue_pct, lift_off_plants=b.lift_off_plants)
         if before is None:
             return head
         return replace(head, tracking_rms_pct_of_range_before_learning=before.tracking_rms_pct_of_range_before_learning,

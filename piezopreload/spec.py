@@ -559,11 +559,18 @@ class StudySpec:
         validated settling time, ``[validation] settling_max_s``), the schedule planned again with local margins while
         a requirement is missed (:func:`piezopreload.design.system.track_schedule`); ``ff_extra_V`` a correction
         added to the feedforward (one array, or one per pass's reference: a callable)."""
+        from piezopreload.tuning.validate import DEFAULT_SPREAD
+
         said = say_of(progress)
         designed = self._designed_for("tracking the schedule", said)
         controller = self._controller(gains, said)
+        # the physical lift-off over the validation's Monte Carlo plants (its spread and seed; the nominal is the run)
+        drawn = self.validation.plants - 1
+        seed = self.validation.seed if self.validation.seed is not None else self.seed
+        scatter = designed.rig.vary(drawn, DEFAULT_SPREAD, seed=seed) if drawn > 0 else None
         run = (self.plant_table or PlantTable()).track(designed, controller, self.preload_schedule, seed=self.seed,
                                                        settle_s=self.criteria.settling_max_s, ff_extra_V=ff_extra_V,
+                                                       design=self._spec("tracking the schedule"), scatter=scatter,
                                                        progress=said)
         drive = self._spec("the sensitivity study").feed_drive
         if self.thermal is not None:
@@ -729,6 +736,19 @@ def _refuse_thermal(data: dict[str, Any], fail: Callable[[str, str], InputError]
                               "tables): the shift's budget is that of the system along its schedule")
 
 
+def _refuse_unreachable(validation: ValidationTable, controller: ControllerTable,
+                        fail: Callable[[str, str], InputError]) -> None:
+    """A requirement the study's own clamp makes impossible to miss is refused: the controller clamps its command at
+    ``[controller] u_max_V``, so a highest-command limit at or above it could not fail."""
+    limit = validation.peak_voltage_max_V
+    if limit is not None and limit >= controller.u_max_V:
+        raise fail("validation.peak_voltage_max_V",
+                   f"= {limit:g} V is at or above controller.u_max_V = {controller.u_max_V:g} V, the clamp on the "
+                   "command: the highest command cannot exceed the clamp, so this requirement could not fail; set it "
+                   "below controller.u_max_V (the headroom the loop must keep), or leave it out for no such "
+                   "requirement")
+
+
 def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Say, kind: type[S]) -> S:
     """The typed study from a file's tables; every value checked, errors naming the key and its line."""
     fail = where.fail
@@ -759,6 +779,7 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
     except ValueError as exc:  # every key was checked; a rule between them the table misses
         raise fail("tuning", f"does not make a tuning specification: {exc}") from None
     validation: ValidationTable = t["validation"]
+    _refuse_unreachable(validation, c, fail)
     if validation.seed is None:
         validation = _replace(validation, seed=sim.seed)
     design_spec = None if t["ballscrew"] is None else design_spec_from_tables(

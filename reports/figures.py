@@ -361,8 +361,10 @@ def pareto_fronts(fronts: Sequence[Mapping[str, Any]], optimum: Mapping[str, flo
 
 @_styled
 def preload_schedule(time_s: np.ndarray, load_N: np.ndarray, preload_N: np.ndarray, constant_N: float,
-                     lift_off_factor: float = 2.0 ** 1.5) -> Figure:
-    """The load profile and the least-friction preload schedule against the best constant preload."""
+                     lift_off_margin: float) -> Figure:
+    """The load profile and the least-friction preload schedule against the best constant preload, with the
+    schedule's lift-off bound ``lift_off_margin |F_a| / 2^(3/2)`` (the design's own constraint, the one its table
+    states, the safety factor included)."""
     fig, ax = _figure(3.6, nrows=2, sharex=True)
     a, b = ax[0][0], ax[1][0]
     a.plot(time_s, load_N, color=COLOURS["reference"], drawstyle="steps-post")
@@ -370,8 +372,8 @@ def preload_schedule(time_s: np.ndarray, load_N: np.ndarray, preload_N: np.ndarr
     a.set_title("load profile")
     b.plot(time_s, preload_N, color=COLOURS["model"], drawstyle="steps-post", label="schedule")
     b.axhline(constant_N, color=COLOURS["study pid"], ls="--", label="best constant preload")
-    b.plot(time_s, np.abs(load_N) / lift_off_factor, color=COLOURS["limit"], lw=0.6, ls=":",
-           label="lift-off limit |F_a| / 2^1.5")
+    b.plot(time_s, lift_off_margin * np.abs(load_N) / 2.0 ** 1.5, color=COLOURS["limit"], lw=0.6, ls=":",
+           label=f"lift-off bound {lift_off_margin:g} |F_a| / 2^1.5")
     b.set_xlabel("time (s)")
     b.set_ylabel("preload (N)")
     legends(b)

@@ -177,9 +177,10 @@ def design_section(study: ReportStudy, design: DesignRecord, system_shown: bool 
     else:
         omitted.append("Pareto fronts: the study's [design] pareto list is empty.")
     figures.append(("schedule", F.preload_schedule(sch.profile.time_s, sch.profile.axial_load_N, sch.preload_N,
-                                                    sch.constant_preload_N),
+                                                    sch.constant_preload_N, sch.spec.lift_off_margin),
                     f"The load profile and the design's least-friction preload schedule against the best constant "
-                    f"preload ({fmt(sch.constant_preload_N)} N)."))
+                    f"preload ({fmt(sch.constant_preload_N)} N); dotted, the schedule's lift-off bound "
+                    f"{fmt(sch.spec.lift_off_margin)} |F_a| / 2^(3/2), the design's own constraint."))
     nf = design.natural_frequency
     limit = "" if study.frequency_min_Hz is None else f"; dashed, the study's limit {fmt(study.frequency_min_Hz)} Hz"
     figures.append(("natural-frequency", F.natural_frequency(nf.position_mm, nf.bolt_preload_Hz, nf.max_preload_Hz,

@@ -16,7 +16,7 @@ from piezopreload.artifacts.summaries import DesignSummary, LearnSummary, RigSum
 from piezopreload.artifacts.system import SystemRecord
 from piezopreload.cli import main
 from piezopreload.core.artifacts import read_artifact
-from piezopreload.design.system import RIGIDITY_VERDICT
+from piezopreload.design.system import LIFT_OFF_BOUND_VERDICT, RIGIDITY_VERDICT
 from piezopreload.models.thermal import EXPANSION_PER_K
 from piezopreload.pipeline import STAGES, run_study
 from piezopreload.progress import Progress
@@ -49,9 +49,14 @@ def test_every_stage_runs_and_the_plant_is_the_designs(axis_run, capsys):
     assert 0 < system.numbers.tracking_rms_pct_of_range < 100 and system.numbers.rigidity_required_at_min_N_per_um > 0
     # the requirements as verdicts, beside their sum
     names = [r.name for r in system.requirements]
-    assert names == [RIGIDITY_VERDICT, "axial deflection while cutting",
-                     "preload against the lift-off bound while cutting", "thermal growth at the table over the shift",
+    plants = load_study(SMALL_AXIS).validation.plants
+    assert names == [RIGIDITY_VERDICT, "nut axial deflection while cutting", LIFT_OFF_BOUND_VERDICT,
+                     f"lift-off load by the nut law against the cutting load, the worst of {plants} Monte Carlo plants",
+                     "thermal growth at the table over the shift",
                      "positioning error over the shift (deflection, growth, tracking)"], names
+    # what the lift-off margins rest on: the schedule's bound is the design's own, the nut law's is physics
+    assert [r.basis for r in system.requirements[2:4]] == ["design", "physics"]
+    assert system.basis is not None and system.basis.lift_off_plants == plants
     assert system.requirements_met == all(r.met for r in system.requirements)
     rigidity = system.requirements[0]
     assert (rigidity.value, rigidity.limit) == (system.numbers.rigidity_at_worst_ratio_N_per_um,
