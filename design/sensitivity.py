@@ -271,8 +271,9 @@ def _rows(run: SystemRun, drive: FeedDrive, base: Setting, a: Assumption, nomina
         def margin(x: float, key: str = key, group: str = group) -> float:
             return at(x, group)[key].margin
 
+        name = min((r0.name, r_low.name, r_high.name), key=len)  # without a miss's cause, which names one case
         rows.append(SensitivityRow(
-            a.name, a.key, a.unit, a.source, key, min((r0.name, r_low.name, r_high.name), key=len), study_value, low, high, _margin_pct(r0), _margin_pct(r_low),
+            a.name, a.key, a.unit, a.source, key, name, study_value, low, high, _margin_pct(r0), _margin_pct(r_low),
             _margin_pct(r_high), a.domain, _flip(a, margin, low, high), a.labels))
     return rows
 
@@ -305,5 +306,5 @@ def sensitivity(run: SystemRun, drive: FeedDrive, table: ThermalTable | None, *,
             rows += _rows(run, drive, base, a, nominal, bases)
     moved = {r.requirement for r in rows}
     judged = {r.key for g in (MECHANICS, THERMAL) for r in evaluate(run, drive, base, (g,), bases)}
-    return SensitivityRecord(tuple(rows), tuple(r.name for k, r in nominal.items() if k in judged and k not in moved),
-                             tuple(r.name for k, r in nominal.items() if k not in judged))
+    unmoved = tuple(r.name for k, r in nominal.items() if k in judged and k not in moved)
+    return SensitivityRecord(tuple(rows), unmoved, tuple(r.name for k, r in nominal.items() if k not in judged))
