@@ -40,6 +40,7 @@ from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.schedule import ScheduleSpec
 from piezopreload.artifacts.sensitivity import SensitivityRecord, SensitivityRow
 from piezopreload.core.errors import InputError
+from piezopreload.design.preload import WorstCase
 from piezopreload.design.system import SystemRun, frame_under, requirements_of
 from piezopreload.design.tables import ThermalTable
 from piezopreload.design.thermal import ShiftBasis, mounting_of, schedule_requirements, shift_basis
@@ -47,7 +48,7 @@ from piezopreload.models.ballscrew import BallScrew
 from piezopreload.models.feed_drive import FeedDrive
 from piezopreload.models.thermal import HEAT_MODELS
 
-__all__ = ["Assumption", "ASSUMPTIONS", "Setting", "flip_value", "sensitivity", "evaluate"]
+__all__ = ["Assumption", "ASSUMPTIONS", "Setting", "flip_value", "sensitivity", "evaluate", "worst_case"]
 
 #: the bisection stops when the bracket is narrower than this share of the range (at least 8 halvings of it)
 FLIP_TOLERANCE = 1.0 / 256.0
@@ -183,6 +184,17 @@ _ACCESS: dict[str, tuple[Callable[[Setting], float], Callable[[Setting, float], 
     "ballscrew.conformity": (lambda s: s.screw.conformity_screw,
                              lambda s, x: replace(s, screw=replace(s.screw, conformity_screw=x, conformity_nut=x))),
 }
+
+
+def worst_case(assumptions: Sequence[Assumption] = ASSUMPTIONS) -> WorstCase:
+    """The worst case a robust design is made against (``[design] robust``), from the assumptions' table: the
+    contact angle's and the conformity's tolerances (offsets on the design's values) and K_p's high end."""
+    by = {a.key: a for a in assumptions}
+    angle, conformity, drag = (by[k] for k in ("ballscrew.contact_angle_deg", "ballscrew.conformity",
+                                                "ballscrew.drag_coefficient"))
+    if angle.around != "add" or conformity.around != "add":
+        raise ValueError("worst_case: the contact angle's and the conformity's ranges must be tolerances (offsets)")
+    return WorstCase((angle.low, angle.high), (conformity.low, conformity.high), drag.high)
 
 
 def _table(s: Setting) -> ThermalTable:

@@ -164,3 +164,40 @@ def test_the_tornado_draws_each_rows_swing_around_the_nominal_margin(axis):
     for r in study.flipping():
         assert r.assumption in text
     assert ("not robust" in part.section.title) == (not study.verdict_robust)
+
+
+def test_a_robust_design_holds_at_the_worst_case_and_its_cost_is_the_nominal_designs_figure_less_its_own():
+    import math
+    from dataclasses import replace
+
+    from piezopreload.design.preload import misses, objective_figure, optimise, robust_cost
+    from piezopreload.design.sensitivity import worst_case
+    from piezopreload.models.ballscrew import BallScrew
+
+    spec = DesignSpec()
+    worst = worst_case()
+    assert (worst.contact_angle_deg, worst.conformity, worst.drag_coefficient) == ((-5.0, 5.0), (-0.01, 0.01), 0.3)
+    robust_spec = replace(spec, worst=worst)
+    nominal, robust = optimise(spec, "stiffness"), optimise(robust_spec, "stiffness")
+    cost = robust_cost(robust_spec, nominal, robust)
+    # the robust design keeps every constraint at the worst case; the nominal one misses its drag torque there, by
+    # K_p F_hi l / (2000 pi) - the limit with K_p at 0.3 (the formula's is 0.16 for 32 x 10)
+    assert misses(robust_spec, robust.point) == ()
+    drag = 0.3 * nominal.point.max_preload_N * spec.lead_mm / (2000.0 * math.pi) - spec.drag_torque_max_Nm
+    assert dict(cost.nominal_misses) == pytest.approx({"drag_torque": drag}, rel=1e-9)
+    # the worst case's rigidity, by the numpy model of the as-built nut at each corner of the tolerance box
+    p = robust.point
+    corners = [BallScrew(nominal_diameter_mm=spec.nominal_diameter_mm, lead_mm=spec.lead_mm, ball_mm=p.ball_mm,
+                         turns=p.turns, contact_angle_deg=p.contact_angle_deg + da, conformity_screw=p.conformity + df,
+                         conformity_nut=p.conformity + df, balls_per_turn=int(p.balls_per_turn),
+                         load_sharing=spec.load_sharing, accuracy_factor=spec.accuracy_factor)
+               for da in (-5.0, 5.0) for df in (-0.01, 0.01)]
+    by_hand = min(float(s.rigidity_N_per_um(f, c.axial_load_N)) for s in corners
+                  for f, c in zip(p.case_preload_N, spec.duty))
+    assert cost.robust_at_worst == pytest.approx(by_hand, rel=1e-6)
+    assert cost.robust_at_worst == pytest.approx(objective_figure(robust_spec, p, "stiffness"))
+    assert cost.robust_at_worst < cost.robust_at_nominal, "the worst case must cost rigidity"
+    # the robust design's feasible set lies inside the nominal one's: it cannot do better at the study's values
+    assert cost.nominal_at_nominal == pytest.approx(nominal.point.stiffness_N_per_um, rel=1e-9)
+    assert cost.cost == pytest.approx(cost.nominal_at_nominal - cost.robust_at_nominal) and cost.cost >= -1e-6
+    assert "gives up" in cost.sentence() and "misses drag_torque" in cost.sentence()
