@@ -51,7 +51,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from dataclasses import replace as dc_replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
@@ -189,15 +189,26 @@ def _frame(plant: DesignedPlant, schedule: PreloadSchedule, run: ClosedLoopRun, 
         weight=np.where(cycle, float(screw.drag_torque_Nm(1.0)) * speed * dt, 0.0))
 
 
-def _mechanics(screw: BallScrew, spec: ScheduleSpec, planned: Array, achieved: Array, load: Array) -> dict[str, Array]:
+class _Mechanics(TypedDict):
+    """The frame's columns the double nut and the requirements set."""
+
+    required: Array
+    rigidity: Array
+    planned_rigidity: Array
+    deflection: Array
+    lift_bound: Array
+
+
+def _mechanics(screw: BallScrew, spec: ScheduleSpec, planned: Array, achieved: Array, load: Array) -> _Mechanics:
     """The frame's columns the double nut and the requirements set: the requirement, the rigidity at the achieved
     and the planned preload, the deflection, the lift-off bound."""
     loads = screw.nut_loads(np.maximum(achieved, 1e-3), load)
     factor = spec.rigidity_factor  # the nut's table rigidity -> its rigidity mounted in the machine
-    return dict(required=spec.required_stiffness(load), rigidity=factor * np.asarray(loads.rigidity_N_per_um, float),
-                planned_rigidity=factor * np.asarray(screw.rigidity_N_per_um(np.maximum(planned, 1e-3), load), float),
-                deflection=np.asarray(loads.deflection_um, float) / factor,
-                lift_bound=spec.lift_off_margin * np.abs(load) / LIFT_OFF_RATIO)
+    return _Mechanics(
+        required=spec.required_stiffness(load), rigidity=factor * np.asarray(loads.rigidity_N_per_um, float),
+        planned_rigidity=factor * np.asarray(screw.rigidity_N_per_um(np.maximum(planned, 1e-3), load), float),
+        deflection=np.asarray(loads.deflection_um, float) / factor,
+        lift_bound=spec.lift_off_margin * np.abs(load) / LIFT_OFF_RATIO)
 
 
 def frame_under(frame: _Frame, screw: BallScrew, spec: ScheduleSpec) -> _Frame:
