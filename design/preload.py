@@ -589,8 +589,8 @@ def _constraint_rows(spec: DesignSpec, e: DesignQuantities, ops: Any) -> list[tu
     ]
     n = len(spec.duty)
     for k, (r, fr) in enumerate(zip(e.worst_rigidity, e.worst_freq)):  # a robust design's corners
-        rows += [(f"stiffness_worst[{k // n + 1}, case {k % n + 1}]", e.t - r, 100.0),
-                 (f"frequency_worst[{k // n + 1}, case {k % n + 1}]", spec.frequency_min_Hz - fr, 10.0)]
+        rows += [(f"stiffness_worst[{k % n + 1}]", e.t - r, 100.0),  # case k % n + 1 at corner k // n
+                 (f"frequency_worst[{k % n + 1}]", spec.frequency_min_Hz - fr, 10.0)]
     for j, case in enumerate(spec.duty):
         F = e.F_case[j]
         rows += [
