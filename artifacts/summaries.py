@@ -64,10 +64,10 @@ class DesignSummary(StageSummary):
     constant_preload_N: float = entry("The best constant preload.", unit="N")
     constant_friction_energy: float = entry("Its friction energy per cycle (in ``energy_units``).")
     energy_units: str = entry("The unit of the energies.")
-    robust_cost: dict[str, Any] | None = entry("A robust design's cost against the nominal design (``[design] robust``: "
-                                               "the objective's figure of each at the study's assumptions and at the "
-                                               "worst case, the cost, what the nominal design misses at the worst "
-                                               "case).", default=None, omit=True)
+    robust_cost: dict[str, Any] | None = entry(
+        "A robust design's cost against the nominal design (``[design] robust``: the objective's figure of each at the "
+        "study's assumptions and at the worst case, the cost, what the nominal design misses at the worst case).",
+        default=None, omit=True)
 
 
 @record
