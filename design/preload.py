@@ -781,7 +781,8 @@ class DesignNLP:
     def _infeasible(self, args: dict[str, Any], integers: tuple[int, int] | None) -> NLPSolution | None:
         """The least-violation point from ``args``' start if the SQP converges there with a
         violation above the tolerance (a solution marked infeasible), else None."""
-        out = self.elastic_sqp(**self.elastic_args(args["x0"], args["lbx"], args["ubx"]))
+        with contextlib.redirect_stdout(sys.stderr):  # qpOASES' messages (an infeasible QP) stay off stdout
+            out = self.elastic_sqp(**self.elastic_args(args["x0"], args["lbx"], args["ubx"]))
         self.solves += 1
         violation = float(out["f"])
         if not (self.elastic_sqp.stats()["success"] and violation > _INFEASIBLE_VIOLATION):
@@ -792,7 +793,8 @@ class DesignNLP:
                               f"Infeasible: least total scaled violation {violation:.3g}", "sqp")
 
     def _run(self, solver: Any, args: dict[str, Any], integers: tuple[int, int] | None) -> NLPSolution:
-        out = solver(**args)
+        with contextlib.redirect_stdout(sys.stderr):  # a solver's messages (qpOASES' on an infeasible QP) stay off
+            out = solver(**args)                      # stdout: --json prints one object there
         self.solves += 1
         stats = solver.stats()
         return self._solution(np.asarray(out["x"]).ravel(), float(out["f"]), out["lam_g"], out["lam_x"], integers,

@@ -225,3 +225,19 @@ def test_a_verdict_flipped_at_the_high_end_alone_is_not_robust(axis):
                                 command_range_V=(-20.0, 115.0))
         judged = next(r for r in budget.requirements if r.key == "thermal.thermal_growth_max_um")
         assert judged.met is met, (torque, judged.sentence())
+
+
+@pytest.mark.slow  # the design and its three fronts, robust (tens of seconds)
+def test_a_robust_design_keeps_the_json_on_stdout_one_object(tmp_path, capsys):
+    from pathlib import Path
+
+    from piezopreload.cli import main
+
+    text = (Path(__file__).parents[1] / "studies" / "machine_axis.toml").read_text()
+    study = tmp_path / "robust.toml"
+    study.write_text(text.replace("[design]\n", "[design]\nrobust = true\n", 1))
+    code = main(["design", "--study", str(study), "--out", str(tmp_path / "design.json"), "--json"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    doc = json.loads(out)  # the solvers' messages (qpOASES on the robust corners' infeasible QPs) stay off stdout
+    assert doc["objective"] == "stiffness" and doc["optimum"]["max_preload_N"] < 3200.0, "not the robust design"
