@@ -261,7 +261,7 @@ class ThermalRecord(Record):
         if d >= 0:
             return f"the nut runs {d:.1f} K warmer than the screw under it"
         return (f"the nut runs {-d:.1f} K colder than the screw under it, against measured axes (their nut zone runs "
-                f"hottest): the nut keeps {1.0 - self.nut_heat_share:.0%} of its heat (nut_heat_share = "
+                f"hottest): the nut keeps {100.0 * (1.0 - self.nut_heat_share):.0f} % of its heat (nut_heat_share = "
                 f"{self.nut_heat_share:g}, an assumption: no share is published) and loses it through its flange into "
                 "the table faster than the screw loses its share, and the bearings heat the screw too")
 

@@ -237,7 +237,9 @@ class ThermalTable(Table):
     ambient_C: float = key(20.0, "the air's temperature around the axis (the rises are above it)", unit="degC",
                            ge=-20, le=60)
     nut_heat_share: float = key(0.5, "share of the nut's heat that enters the screw under its loaded turns (the "
-                                "rest heats the nut's body)", ge=0, le=1)
+                                "rest heats the nut's body): an assumption, no share is published; measured axes run "
+                                "hottest at the nut, and the record says which runs warmer (docs/thermal.md)", ge=0,
+                                le=1)
     spacer_length_mm: float = key(40.0, "the spacer (the stacks' sleeve) between the two nuts", unit="mm", gt=0)
     bearing_preload_N: float = key(2000.0, "axial preload of each end's support bearing set (a fixed-free screw's "
                                    "far end has none)", unit="N", ge=0)
@@ -251,8 +253,8 @@ class ThermalTable(Table):
                                  unit="W/K", ge=0)
     convection_factor: float = key(1.0, "factor on the air's film coefficients the correlations give (the rotating "
                                    "screw's Nusselt number, free convection on the nut and the screw at rest): the "
-                                   "convection assumption, about 0.6-1.5 by the correlations' scatter "
-                                   "(docs/thermal.md)", gt=0, le=5)
+                                   "convection assumption, about 0.6-1.3 by the free-convection figures' and the "
+                                   "correlations' scatter (docs/thermal.md)", gt=0, le=5)
     free_convection_W_per_m2K: float = key(8.0, "free convection's film coefficient: the screw at rest (the "
                                            "rotating shaft's is higher), the nut", unit="W/m^2 K", gt=0)
     flange_mass_kg: float = key(2.0, "the nut's flange and bracket (a lumped body)", unit="kg", gt=0)

@@ -144,7 +144,7 @@ def _assumptions(t: ThermalRecord) -> str:
             t.bearing_lift_off_N > 0 else " Each end is a spring of the axis' bearing stiffness.")
     return (f"It rests on {seals}; {fmt(t.nut_heat_share)} of the nut's heat entering the screw (an assumption: no "
             f"share is published; measured axes run hottest at the nut); the air's film coefficients times "
-            f"{fmt(t.convection_factor)}.{ends} {t.nut_against_screw(t.schedule).capitalize()}.")
+            f"{fmt(t.convection_factor)}.{ends} With the schedule, {t.nut_against_screw(t.schedule)}.")
 
 
 def _when(hours: float) -> str:

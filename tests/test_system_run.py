@@ -282,6 +282,17 @@ def test_the_shifts_thermal_budget_is_in_the_system_artifact_the_summary_the_rep
                                                                                                      "constant")}
     word = "warmer" if s.nut_over_screw_end_K >= 0 else "colder"
     assert f"the nut runs {abs(s.nut_over_screw_end_K):.1f} K {word} than the screw" in " ".join(report["summary"])
+    # a growth or a budget over its limit names what drives it: the heat by source and the mounting
+    from dataclasses import replace
+
+    from piezopreload.design.tables import ThermalTable
+    from piezopreload.design.thermal import _requirements
+
+    tight = _requirements(replace(ThermalTable(), thermal_growth_max_um=0.5 * s.growth_max_um,
+                                  positioning_error_max_um=2.0 * s.positioning_error_max_um), thermal)
+    assert not tight[0].met and tight[1].met
+    assert thermal.heat_words(s) in tight[0].sentence() and "pretension relieved" in tight[0].sentence()
+    assert tight[1].name == "positioning error over the shift (deflection, growth, tracking)", "a met one explains"
     # the passive drift along the nut law, not the tangent extrapolated
     d, plant = thermal.drift, DesignedPlant.load(axis_run / "plant.json")
     over = d.passive_linear_N / d.passive_N_per_K  # the nut over the screw (K) the tangent was applied to

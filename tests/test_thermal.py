@@ -85,6 +85,40 @@ def test_the_catalogue_heat_is_the_vendors_drag_torque_times_speed(name):
                                screw.friction_heat_W(preload, 1000.0), rtol=1e-15)
 
 
+def test_the_seals_torque_is_rexroths_table_by_size():
+    """Rexroth, "Friction torques of seals" (the two standard lip seals of a nut, single or double alike): 0.25 N m for
+    32 x 5-32, 0.15 for 25 x 10, 0.60-0.70 for 50 x 10-40; between listed leads linear in the lead, between listed
+    diameters linear in the diameter; no figure outside 16-80 mm. The table's key decides: stated, the study's; an
+    open nut (sealed = false), none."""
+    from piezopreload.models.thermal import rexroth_seal_torque_Nm
+
+    assert rexroth_seal_torque_Nm(32.0, 10.0) == pytest.approx(0.25) == rexroth_seal_torque_Nm(32.0, 32.0)
+    assert rexroth_seal_torque_Nm(25.0, 10.0) == pytest.approx(0.15)
+    assert rexroth_seal_torque_Nm(25.0, 7.5) == pytest.approx(0.135)
+    assert rexroth_seal_torque_Nm(50.0, 25.0) == pytest.approx(0.65)
+    assert rexroth_seal_torque_Nm(28.5, 10.0) == pytest.approx(0.5 * (0.15 + 0.25))
+    assert rexroth_seal_torque_Nm(16.0, 40.0) == pytest.approx(0.08), "beyond the listed leads: the last figure"
+    with pytest.raises(InputError, match="16-80 mm"):
+        rexroth_seal_torque_Nm(100.0, 10.0)
+    assert ThermalTable().seal_torque(32.0, 10.0) == pytest.approx(0.25)
+    assert ThermalTable(seal_torque_Nm=0.45).seal_torque(32.0, 10.0) == 0.45
+    assert ThermalTable(sealed=False).seal_torque(32.0, 10.0) == 0.0
+
+
+def test_the_convection_factor_scales_the_air_films():
+    """[thermal] convection_factor multiplies the films the correlations give (the rotating screw's, free convection
+    on the nut), not the heat: the steady rise of a screw losing heat only to the air scales as 1/factor."""
+    screw = BallScrew(32.0, 10.0, 6.35, 4)
+    drive = FeedDrive(350.0, 1200.0, 1000.0, (150.0, 1050.0))
+    cycle = _machining_cycle(1500.0)
+    base = cycle_sources(screw, drive, ThermalTable(volumes=30), cycle)
+    more = cycle_sources(screw, drive, ThermalTable(volumes=30, convection_factor=1.3), cycle)
+    np.testing.assert_allclose(more.film_W_per_m2K, 1.3 * base.film_W_per_m2K, rtol=1e-15)
+    assert more.free_W_per_m2K == pytest.approx(1.3 * 8.0)
+    np.testing.assert_allclose(more.nut_W, base.nut_W, rtol=1e-15)
+    assert np.max(more.shift([8 * 3600.0])) < np.max(base.shift([8 * 3600.0]))
+
+
 def test_the_contact_model_scales_as_its_exponents_say():
     """Jungnickel's loss of a double nut: F_p^(1 - 0.516), omega^(1 + 0.512), viscosity^0.512; halving the preload
     saves 1 - 2^-0.484 = 28.5 % (the source's 'about 29 %', against the catalogue's 50 %). The seals add their own
@@ -467,6 +501,36 @@ def test_held_ends_of_preloaded_pairs_share_the_growth_by_their_law():
             assert u_end == pytest.approx(shift(u) - start, rel=1e-8), (mounting, u)
 
 
+def test_the_passive_nuts_drift_follows_the_nut_law_not_its_tangent_extrapolated():
+    """The machine axis' designed double nut (32 x 10, 6 turns of 15 balls of 6.735 mm, 55 deg, conformity 0.52) at
+    its best constant preload of 1.2 x 4,000 / 2^(3/2) = 1,697 N, spacer and sleeve of 4,000 N/um, its nuts' loaded
+    turns 100 mm apart: 355 N/K at first (the tangent). With the nut 5.1 K colder than the screw the spacer's fit
+    shrinks by alpha L_s dT = 5.9 um; along the nuts' own law (delta ~ F^(2/3) + s F) the preload falls to about
+    213 N (the issue's hand figure; 215 N here), where the tangent extrapolated (1,697 - 355 x 5.1 < 0) says the
+    preload is lost. Each result meets the law's equation 2 delta(F) + F/k_s = 2 delta(F_p) + F_p/k_s + m."""
+    screw = BallScrew(32.0, 10.0, 6.735139990862353, 6, contact_angle_deg=55.0, conformity_screw=0.52,
+                      conformity_nut=0.52, balls_per_turn=15, load_sharing=0.63)
+    preload, sleeve, span = 1.2 * 4000.0 / 2.0 ** 1.5, 4000.0, 100.0
+    per_K = float(spacer_drift_N_per_K(screw.nut_stiffness_N_per_um(preload), span, sleeve))
+    assert per_K == pytest.approx(355.0, abs=1.0)
+    mismatch = -EXPANSION_PER_K * span * 1e3 * 5.1
+    left = float(screw.spacer_preload_N(preload, mismatch, sleeve))
+    assert left == pytest.approx(213.0, abs=5.0), left
+    assert preload - per_K * 5.1 < 0 < left, "the linear extrapolation would have kept it, or the law lost it"
+
+    def fit(force):
+        return 2.0 * float(screw.nut_approach_um(force)) + force / sleeve
+
+    for m in (mismatch, -1.0, 0.5, 3.0):
+        f = float(screw.spacer_preload_N(preload, m, sleeve))
+        assert fit(f) - fit(preload) == pytest.approx(m, abs=1e-9), m
+    # small differences: the tangent is right to first order
+    small = float(screw.spacer_preload_N(preload, 0.01, sleeve)) - preload
+    assert small / (0.01 / (EXPANSION_PER_K * span * 1e3)) == pytest.approx(per_K, rel=1e-3)
+    # far enough, the nuts part: no negative preload
+    assert float(screw.spacer_preload_N(preload, -2.0 * fit(preload), sleeve)) == 0.0
+
+
 def test_a_spacer_preloaded_nut_drifts_by_its_stiffness_times_the_spacers_mismatch():
     """Two nuts of 500 N/um each in series with a 4,000 N/um spacer: 1 / (2/500 + 1/4000) = 235 N/um, times
     alpha L_s = 11.6e-6 x 100 mm = 1.16 um per kelvin."""
@@ -489,6 +553,10 @@ PAPER = AXIS.with_name("paper2021.toml")
     (AXIS, "shift_h = 8.0", "shift_h = 8.0\nstroke_mm = [150.0, 1250.0]", "thermal.stroke_mm",
      "must lie inside the screw (end < screw_length_mm = 1200 mm)"),
     (AXIS, "shift_h = 8.0", "shift_h = 8.0\nvolume = 60", "thermal.volume", "is an unknown key; [thermal] has:"),
+    # the seals: Rexroth's table covers 16-80 mm; an open nut has no seal torque
+    (AXIS, "nominal_diameter_mm = 32.0", "nominal_diameter_mm = 100.0", "thermal.seal_torque_Nm",
+     "tabulated (Rexroth) for nominal diameters of 16-80 mm"),
+    (AXIS, "sealed = true", "sealed = false\nseal_torque_Nm = 0.3", "thermal.seal_torque_Nm", "needs seals"),
     (PAPER, "[ballscrew]", "[thermal]\nshift_h = 8.0\n\n[ballscrew]", "thermal",
      "needs a study whose plant is its design"),
 ])

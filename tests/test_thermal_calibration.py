@@ -90,4 +90,4 @@ def test_the_calibration_is_what_the_sources_allow_and_no_more():
     assert xjtu_range[25.0][0] > thk_range[1], "the sources agree better than this test's account says"
     lo = min(thk_range[0], *(r[0] for r in xjtu_range.values()))
     hi = max(thk_range[1], *(r[1] for r in xjtu_range.values()))
-    assert 0.5 < lo / CONTACT_CALIBRATION and hi / CONTACT_CALIBRATION < 2.6, (lo, hi)
+    assert lo / CONTACT_CALIBRATION > 0.5 and hi / CONTACT_CALIBRATION < 2.6, (lo, hi)
