@@ -16,11 +16,14 @@ begin after it, so no requirement is judged on a start-up transient and no margi
 From the true force over the cycles the run gives (:class:`~piezopreload.artifacts.system.TrackingNumbers`):
 
 * the tracking error, RMS and worst, also in % of the schedule's range;
-* the axial rigidity the double nut has at the achieved preload under each sample's cutting
+* the axial rigidity the double nut has in the machine (its table figure times the in-machine
+  factor, ``ScheduleSpec.in_machine_factor``) at the achieved preload under each sample's cutting
   load (:meth:`BallScrew.nut_loads`) against the requirement the schedule was planned for,
   the achieved preload against the lift-off bound with the schedule's margin
-  (``lift_off_margin |F_a| / 2^(3/2)``), and the axial deflection under the cutting load;
-  these are the requirements, as verdicts (:func:`requirements_of`);
+  (``lift_off_margin |F_a| / 2^(3/2)``: the design's own constraint, which the schedule sits on),
+  and the nut axial deflection under the cutting load; these are the requirements, as verdicts
+  (:func:`requirements_of`); given the design, the physical lift-off by the nut law over the
+  Monte Carlo plants is one more, and :func:`margin_basis` says what each margin rests on;
 * the friction energy of the achieved preload, and the fraction it saves against the design's
   best constant preload (the design's number, not computed again).
 
@@ -564,6 +567,9 @@ def track_schedule(plant: DesignedPlant, controller: Controller, schedule: Prelo
     :class:`SystemRun`; its ``passes`` hold every pass's numbers.
     """
     _check(cycles, passes, margin_factor)
+    if scatter is not None and design is None:
+        raise InputError("scatter: the Monte Carlo plants judge the physical lift-off, which needs the design (its "
+                         "axis and ranges): give design, or no scatter")
     say = progress or (lambda _m: None)
     rig, pre = Rig(plant.rig), pre_cycle_for(plant, schedule, contact_N, settle_s)
     say(f"pre-cycle: the stacks from rest to {pre.level_N:.0f} N at {pre.slew_N_per_s:,.0f} N/s in "

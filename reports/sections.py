@@ -20,7 +20,7 @@ from piezopreload.artifacts.gainset import GainSet, GainsTable
 from piezopreload.artifacts.learning import LearningRecord
 from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.rigrun import RigRunRecord
-from piezopreload.artifacts.system import SystemRecord, TrackingNumbers
+from piezopreload.artifacts.system import MarginBasis, SystemRecord, TrackingNumbers
 from piezopreload.artifacts.tuning import TuningRecord
 from piezopreload.models.hysteresis import CreepPI
 from piezopreload.reports import figures as F
@@ -225,9 +225,11 @@ def system_section(system: SystemRecord, design: DesignRecord, learning: Learnin
          f"{fmt(n.rigidity_at_worst_ratio_N_per_um)} against {fmt(n.rigidity_required_at_worst_ratio_N_per_um)} N/um "
          f"required, {fmt(n.rigidity_worst_t_s)} s into the run"),
         ("time below the required rigidity", f"{fmt(n.rigidity_below_requirement_s)} s", ""),
-        ("largest axial deflection while cutting", f"{fmt(n.deflection_max_um)} um", deflection),
-        ("least preload over the lift-off bound", f"{ratio(n.lift_off_ratio_min)} times",
-         f"the bound with its {fmt(n.lift_off_margin)} margin"),
+        ("largest nut axial deflection while cutting", f"{fmt(n.deflection_max_um)} um",
+         f"the nut alone, in the machine; {deflection}"),
+        ("least preload over the schedule's lift-off bound", f"{ratio(n.lift_off_ratio_min)} times",
+         f"the bound with its {fmt(n.lift_off_margin)} margin: the design's own constraint, the schedule sits on it"),
+        *_basis_rows(system.basis),
         ("friction energy per cycle, achieved", f"{fmt(n.friction_energy_per_cycle)} {e}", "the true force"),
         ("friction energy per cycle, the loop's plan", f"{fmt(n.planned_friction_energy_per_cycle)} {e}",
          "the last pass's schedule, with its local margins and the stacks' least contact force"),
@@ -364,6 +366,27 @@ def _bound_text(tuning: TuningRecord) -> tuple[str, tuple[str, ...]]:
     return words + f" The minimum-time bound on the step's settling is {fmt(mt.settling_s)} s{ratio}.", ()
 
 
+def _basis_rows(b: MarginBasis | None) -> list[tuple[str, str, str]]:
+    """What the margins rest on (:class:`~piezopreload.artifacts.system.MarginBasis`), as the system table's rows."""
+    if b is None:
+        return []
+    over = "the nominal plant" if b.lift_off_plants == 1 else f"the worst of {b.lift_off_plants} Monte Carlo plants"
+    return [
+        ("rigidity in the machine, where least against its requirement", f"{fmt(b.rigidity_in_machine_N_per_um)} N/um",
+         f"the nut's table figure {fmt(b.rigidity_table_N_per_um)} N/um times the vendors' in-machine factor "
+         f"{fmt(b.rigidity_in_machine_factor)}; {fmt(b.rigidity_required_N_per_um)} N/um required"),
+        ("axis stiffness at the table (nut, screw, bearings)",
+         f"{fmt(b.axis_stiffness_min_N_per_um)}-{fmt(b.axis_stiffness_max_N_per_um)} N/um",
+         "at that moment, over the travel"),
+        ("largest axis deflection at the table while cutting", f"{fmt(b.axis_deflection_max_um)} um",
+         "nut, screw and bearings, at the weakest position"),
+        ("physical lift-off margin", f"{fmt(b.lift_off_margin_physical_pct)} %",
+         f"by the nut law (lift-off at {fmt(b.lift_off_ratio)} F_p), {over}; "
+         f"{fmt(b.lift_off_margin_physical_nominal_pct)} % on the nominal plant, "
+         f"{fmt(b.lift_off_margin_catalogue_pct)} % by the catalogues' 2.83 F_p there"),
+    ]
+
+
 def controller_section(study: ReportStudy, a: Artifacts) -> Part:
     """The tuned gains, the gain schedule (where tuned), and their Monte Carlo validation."""
     gain_set, tuning, val = a.gain_set, a.tuning, a.validation
@@ -391,14 +414,16 @@ def _schedule_part(schedule: dict[str, Any] | None) -> Part | None:
     rows = []
     for r in schedule["levels"]:
         e, rb, sc = r["entry"], r["robust"], r["scheduled"]
+        ms = r.get("ms", {}).get("scheduled")  # over the entry's window (a record written before: not there)
         rows.append((fmt(r["level_N"], 4), f"{fmt(r['window_N'][0], 4)}–{fmt(r['window_N'][1], 4)}",
-                     fmt(1e3 * e["Kc_V_per_N"], 4), fmt(1e3 * e["Ti_s"], 3),
+                     fmt(1e3 * e["Kc_V_per_N"], 4), fmt(1e3 * e["Ti_s"], 3), fmt(e.get("b", 1.0), 2),
+                     "" if ms is None else fmt(ms, 3),
                      *(_when(x[k], "", "never").strip() for x in (rb, sc)
                        for k in ("settling_s", "overshoot_N", "tracking_rms_N")),
                      " / ".join("yes" if x["passed"] else "no" for x in (rb, sc))))
     w = schedule["whole_range"]
     rows.append(("whole range", "", fmt(1e3 * schedule["robust"]["Kc_V_per_N"], 4),
-                 fmt(1e3 * schedule["robust"]["Ti_s"], 3),
+                 fmt(1e3 * schedule["robust"]["Ti_s"], 3), fmt(schedule["robust"].get("b", 1.0), 2), "",
                  *(_when(w[x][k], "", "never").strip() for x in ("robust", "scheduled")
                    for k in ("settling_s", "overshoot_N", "tracking_rms_N")),
                  " / ".join("yes" if w[x]["passed"] else "no" for x in ("robust", "scheduled"))))
@@ -411,12 +436,13 @@ def _schedule_part(schedule: dict[str, Any] | None) -> Part | None:
     if missed_by_both:
         text += (f" Neither set meets the study's limits at {', '.join(missed_by_both)}: the exported gains carry that "
                  "miss, listed in the verdicts above.")
-    table = Table(("level (N)", "window (N)", "Kc (mV/N)", "Ti (ms)", "robust: settling (s)", "overshoot (N)",
-                   "tracking (N)", "schedule: settling (s)", "overshoot (N)", "tracking (N)",
+    table = Table(("level (N)", "window (N)", "Kc (mV/N)", "Ti (ms)", "b", "Ms (window)", "robust: settling (s)",
+                   "overshoot (N)", "tracking (N)", "schedule: settling (s)", "overshoot (N)", "tracking (N)",
                    "meets (robust / schedule)"),
-                  tuple(rows), "Each schedule entry's gains and the worst case over the Monte Carlo plants at its "
-                               "level for the robust set and the schedule (tracking: RMS after the changes).",
-                  "ll" + "r" * 8 + "c", small=True)
+                  tuple(rows), "Each schedule entry's gains, its maximum sensitivity over its own window (the worst "
+                               "plant variant), and the worst case over the Monte Carlo plants at its level for the "
+                               "robust set and the schedule (tracking: RMS after the changes).",
+                  "ll" + "r" * 10 + "c", small=True)
     fig = F.gain_schedule(schedule)
     caption = (f"The gain schedule on the preload level ({len(schedule['levels'])} entries) against the robust set "
                "(dashed), and each set's worst case over the Monte Carlo plants per level, the study's limits in red "

@@ -113,6 +113,7 @@ class TuningSpec:
         The measured force range the loop works in, for the linearised loop's slopes (the Ms
         constraints): a gain schedule's entry is tuned for the range around its level, where a
         Hertz coupling's force per volt is what it is there. None: the whole stroke (0-110 V).
+        The tuning's reported Ms (:attr:`TuningResult.ms`) is read over the same range.
     """
 
     band_N: float = PAPER_BAND_N
@@ -789,7 +790,7 @@ def tune_pid(
             if retuned:
                 status, search = pi_solvers.status_of(inc.source), f"{search}; as a PI: {pi_solvers._ending()}"
     binding = sorted(label for label, m in margins.items() if m > -1e-3)
-    ms = max(max_sensitivity(tuned, v) for v in prob.variants)
+    ms = max(max_sensitivity(tuned, v, spec.force_range_N) for v in prob.variants)  # over the range it was tuned for
     return TuningResult(
         gains=tuned, baseline=baseline, fopdt=fopdt, objective=objective, status=status,
         iterations=iterations, seconds=time.perf_counter() - t0, ms=ms, binding=binding,
