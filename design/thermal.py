@@ -329,20 +329,23 @@ class ThermalBudget:
     sources: dict[str, CycleSources]
 
 
-def _case(sources: CycleSources, other: CycleSources | None, mech: _Mechanics, elastic: Array, tracking: float,
+def _budget_um(elastic: Array, tracking: float, growth: Array, semi_closed: bool) -> Array:
+    """The error budget (um) per grid time and table position: the deflection under the worst cut, the force loop's
+    share, and the growth where the position loop does not see it (a semi-closed loop)."""
+    return elastic[None, :] + tracking + (np.abs(growth) if semi_closed else np.zeros_like(growth))
+
+
+def _case(sources: CycleSources, other: CycleSources, mech: _Mechanics, elastic: Array, tracking: float,
           semi_closed: bool, times_h: Array) -> tuple[ThermalCase, Array, Array]:
-    """One preload's shift: the case, and its nut-over-screw rises and times on the grid (``other`` None: the other
-    heat model's figures are this one's, for a caller that reads only the verdicts)."""
+    """One preload's shift: the case, and its nut-over-screw rises and times on the grid."""
     n = sources.model.volumes
     grid = _grid(times_h)
-    rises = sources.shift(grid)
-    other_rises = rises if other is None else other.shift(grid)
-    other = sources if other is None else other
+    rises, other_rises = sources.shift(grid), other.shift(grid)
     at = np.searchsorted(grid, times_h * 3600.0)
     growth, other_growth = mech.growth_um(rises[:, :n]), mech.growth_um(other_rises[:, :n])
     under = rises[:, :n] @ sources.cycle.mean(sources.coverage)
     nut_over = rises[:, n] - under
-    budget = elastic[None, :] + tracking + (np.abs(growth) if semi_closed else np.zeros_like(growth))
+    budget = _budget_um(elastic, tracking, growth, semi_closed)
     c = sources.cycle
     hottest = np.unravel_index(int(np.argmax(rises[:, :n])), (rises.shape[0], n))[1]
     case = ThermalCase(
@@ -414,14 +417,15 @@ def _cause(record: ThermalRecord) -> str:
             f"{record.place(s.rise_max_at_mm)}{held}")
 
 
-def _requirements(table: ThermalTable, schedule: ThermalCase, cause: str = "") -> tuple[Requirement, ...]:
-    """The shift's limits as requirements on the schedule's case; a growth or positioning error over its limit names
-    what drives it (``cause``, where given)."""
+def _requirements(table: ThermalTable, growth_max_um: float, positioning_error_max_um: float,
+                  cause: str = "") -> tuple[Requirement, ...]:
+    """The shift's limits as requirements on the schedule's largest growth and positioning error; one over its limit
+    names what drives it (``cause``, where given)."""
     out = []
     for value, limit, name, source in (
-            (schedule.growth_max_um, table.thermal_growth_max_um, "thermal growth at the table over the shift",
+            (growth_max_um, table.thermal_growth_max_um, "thermal growth at the table over the shift",
              "[thermal] thermal_growth_max_um"),
-            (schedule.positioning_error_max_um, table.positioning_error_max_um,
+            (positioning_error_max_um, table.positioning_error_max_um,
              "positioning error over the shift (deflection, growth, tracking)", "[thermal] positioning_error_max_um")):
         if limit is None:
             continue
@@ -469,9 +473,9 @@ def schedule_requirements(run: SystemRun, drive: FeedDrive, table: ThermalTable,
     model = axis_model(screw, drive, table)
     mech = _mechanics(screw, drive, table, model, basis.positions_mm)
     sources = cycle_sources(screw, drive, table, basis.cycle, model=model, coverage=basis.coverage)
-    case, _, _ = _case(sources, None, mech, basis.elastic_um, basis.tracking_um, table.feedback == "semi-closed",
-                       shift_hours(table.shift_h))
-    return _requirements(table, case)
+    growth = mech.growth_um(sources.shift(_grid(shift_hours(table.shift_h)))[:, :model.volumes])  # as _case has it
+    budget = _budget_um(basis.elastic_um, basis.tracking_um, growth, table.feedback == "semi-closed")
+    return _requirements(table, float(np.max(np.abs(growth))), float(np.max(budget)))
 
 
 def thermal_budget(run: SystemRun, drive: FeedDrive, table: ThermalTable, *,
@@ -511,7 +515,9 @@ def thermal_budget(run: SystemRun, drive: FeedDrive, table: ThermalTable, *,
         mounting, table.pretension_K, mech.lift_off_N, table.feedback, table.shift_h, _pair(table.stroke_mm or travel),
         1e3 * model.centres_m, positions, film, model.screw.time_constant_s(film), cases["schedule"], cases["constant"],
         _drift(run, table, over["constant"], over["schedule"], command_range_V))
-    return ThermalBudget(record, _requirements(table, record.schedule, _cause(record)), sources)
+    s = record.schedule
+    return ThermalBudget(record, _requirements(table, s.growth_max_um, s.positioning_error_max_um, _cause(record)),
+                         sources)
 
 
 def duty_cycle(spec: Any, point: Any, samples_per_case: int = 100, period_s: float = 60.0) -> CycleLoad:
