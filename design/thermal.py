@@ -417,8 +417,14 @@ def _cause(record: ThermalRecord) -> str:
             f"{record.place(s.rise_max_at_mm)}{held}")
 
 
-def _requirements(table: ThermalTable, growth_max_um: float, positioning_error_max_um: float,
-                  cause: str = "") -> tuple[Requirement, ...]:
+def _requirements(table: ThermalTable, record: ThermalRecord) -> tuple[Requirement, ...]:
+    """The shift's limits as requirements; a growth or positioning error over its limit names what drives it."""
+    s = record.schedule
+    return _limits(table, s.growth_max_um, s.positioning_error_max_um, _cause(record))
+
+
+def _limits(table: ThermalTable, growth_max_um: float, positioning_error_max_um: float,
+            cause: str = "") -> tuple[Requirement, ...]:
     """The shift's limits as requirements on the schedule's largest growth and positioning error; one over its limit
     names what drives it (``cause``, where given)."""
     out = []
@@ -475,7 +481,7 @@ def schedule_requirements(run: SystemRun, drive: FeedDrive, table: ThermalTable,
     sources = cycle_sources(screw, drive, table, basis.cycle, model=model, coverage=basis.coverage)
     growth = mech.growth_um(sources.shift(_grid(shift_hours(table.shift_h)))[:, :model.volumes])  # as _case has it
     budget = _budget_um(basis.elastic_um, basis.tracking_um, growth, table.feedback == "semi-closed")
-    return _requirements(table, float(np.max(np.abs(growth))), float(np.max(budget)))
+    return _limits(table, float(np.max(np.abs(growth))), float(np.max(budget)))
 
 
 def thermal_budget(run: SystemRun, drive: FeedDrive, table: ThermalTable, *,
@@ -515,9 +521,7 @@ def thermal_budget(run: SystemRun, drive: FeedDrive, table: ThermalTable, *,
         mounting, table.pretension_K, mech.lift_off_N, table.feedback, table.shift_h, _pair(table.stroke_mm or travel),
         1e3 * model.centres_m, positions, film, model.screw.time_constant_s(film), cases["schedule"], cases["constant"],
         _drift(run, table, over["constant"], over["schedule"], command_range_V))
-    s = record.schedule
-    return ThermalBudget(record, _requirements(table, s.growth_max_um, s.positioning_error_max_um, _cause(record)),
-                         sources)
+    return ThermalBudget(record, _requirements(table, record), sources)
 
 
 def duty_cycle(spec: Any, point: Any, samples_per_case: int = 100, period_s: float = 60.0) -> CycleLoad:
