@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezopreload.artifacts.requirements import Requirement
+from piezopreload.artifacts.sensitivity import SensitivityRecord
 from piezopreload.artifacts.thermal import ThermalRecord
 from piezopreload.core._typing import Array
 from piezopreload.core.records import Artifact, Raw, Record, entry, record
@@ -277,6 +278,8 @@ class SystemRecord(Artifact):
     basis: MarginBasis | None = entry("What the margins rest on (rigidity in the machine and at the table, the axis "
                                       "stiffness, the physical lift-off), where the run was given the design.",
                                       default=None, omit=True)
+    sensitivity: SensitivityRecord | None = entry("The verdicts under the modelling assumptions' ranges.",
+                                                  default=None, omit=True)
 
     @property
     def requirements_met(self) -> bool:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import io
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -27,14 +27,17 @@ from piezopreload.core.errors import InputError
 from piezopreload.core.quantities import number, quantity
 from piezopreload.core.tables import read_table
 from piezopreload.design.preload import (
+    OBJECTIVES,
     DesignNLP,
     DesignOptimum,
     DesignPoint,
     DesignSpec,
     HeatSpec,
     ParetoFront,
+    RobustCost,
     optimise,
     pareto_front,
+    robust_cost,
 )
 from piezopreload.design.schedule import example_profile, schedule_preload
 from piezopreload.models.ballscrew import BallScrew, DutyCase, hiwin_loaded_nut_force, lift_off_load_N
@@ -84,6 +87,8 @@ class DesignResult:
         Rigidity and drag torque of the optimum's double nut against the preload.
     natural_frequency : FrequencyCurve
         The first axial natural frequency along the travel.
+    robust_cost : RobustCost or None
+        Where the spec is robust (``DesignSpec.worst``): what the design gives up against the nominal design.
     """
 
     spec: DesignSpec
@@ -95,6 +100,7 @@ class DesignResult:
     slew_N_per_s: float
     preload_curve: PreloadCurve
     natural_frequency: FrequencyCurve
+    robust_cost: RobustCost | None = None
 
     @property
     def point(self) -> Any:
@@ -205,9 +211,14 @@ def design_study(spec: DesignSpec, objective: str, pairs: list[str] | tuple[str,
         raise InputError(f"design_study: the optimum given is for {optimum.objective!r}, not {objective!r}")
     result = optimise(spec, objective, nlp) if optimum is None else optimum
     p = result.point
-    say(f"optimum ({objective}): {p.turns:.0f} turns x {p.balls_per_turn:.0f} balls of {quantity(p.ball_mm, 'mm', 4)}, "
-        f"contact angle {quantity(p.contact_angle_deg, 'deg')}, conformity {number(p.conformity)}, preload "
+    say(f"optimum ({objective}{', robust' if spec.worst is not None else ''}): {p.turns:.0f} turns x "
+        f"{p.balls_per_turn:.0f} balls of {quantity(p.ball_mm, 'mm', 4)}, contact angle "
+        f"{quantity(p.contact_angle_deg, 'deg')}, conformity {number(p.conformity)}, preload "
         f"{number(p.bolt_preload_N, 'N')} to {quantity(p.max_preload_N, 'N')}")
+    cost = None
+    if spec.worst is not None and objective in OBJECTIVES:  # the nominal design beside it: what robustness costs
+        cost = robust_cost(spec, optimise(replace(spec, worst=None), objective), result)
+        say(f"robust design: {cost.sentence()}")
     fronts = []
     for j, pair in enumerate(pairs):
         if bar is not None:
@@ -223,7 +234,7 @@ def design_study(spec: DesignSpec, objective: str, pairs: list[str] | tuple[str,
     say(f"schedule: {number(100 * schedule.saving_fraction, '%', 2)} % less friction energy than the best constant "
         f"preload ({quantity(schedule.constant_preload_N, 'N')})")
     return DesignResult(spec, result, fronts, schedule, profile_name if profile is not None else "example", max_preload,
-                        slew, preload_curve(spec, result), natural_frequency(spec, result))
+                        slew, preload_curve(spec, result), natural_frequency(spec, result), cost)
 
 
 def plan_schedule(spec: DesignSpec, point: DesignPoint, profile: LoadProfile | None = None, *,
@@ -383,6 +394,10 @@ def design_spec_from_tables(t: dict[str, Any], fail: Callable[[str, str], Except
         kwargs["heat"] = HeatSpec(thermal.heat_model, thermal.lubricant_vg, seals, thermal.contact_temperature_C,
                                   thermal.contact_calibration)
     kwargs["actuator"] = PiezoPreload(drive_V=d.stack_drive_V, amp_current_limit_A=d.amp_current_limit_A)
+    if d.robust:  # the worst case of the assumptions' ranges (design/sensitivity.py's table)
+        from piezopreload.design.sensitivity import worst_case
+
+        kwargs["worst"] = worst_case()
     try:
         return DesignSpec(**kwargs)
     except ValueError as exc:  # every key was checked alone and with the others above: a rule this code misses

@@ -54,14 +54,15 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from dataclasses import replace as dc_replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
 
 from piezopreload.artifacts.plant import DesignedPlant
 from piezopreload.artifacts.requirements import AtBound, OffBounds, Requirement
-from piezopreload.artifacts.schedule import PreloadSchedule
+from piezopreload.artifacts.schedule import PreloadSchedule, ScheduleSpec
+from piezopreload.artifacts.sensitivity import SensitivityRecord
 from piezopreload.artifacts.summaries import SystemSummary
 from piezopreload.artifacts.system import (
     MarginBasis,
@@ -91,7 +92,7 @@ if TYPE_CHECKING:  # the thermal budget reads a system run; the plots name their
 __all__ = ["PRE_CYCLE_REST_S", "RIGIDITY_VERDICT", "LIFT_OFF_BOUND_VERDICT", "LIFT_OFF_LAW", "ROUND_OFF",
            "margin_basis", "off_bounds_screw", "SystemRun", "Evaluation", "pre_cycle_for",
            "schedule_reference", "track_schedule", "evaluate_tracking", "requirements_of", "folded_shortfall",
-           "binding_stretches", "held_over_stretches", "local_margins"]
+           "frame_under", "binding_stretches", "held_over_stretches", "local_margins"]
 
 
 #: the pre-cycle's rest before its ramp (s): the loop starts bumplessly on its first sample's feedforward, so a
@@ -183,18 +184,41 @@ def _frame(plant: DesignedPlant, schedule: PreloadSchedule, run: ClosedLoopRun, 
     t_cycle = np.where(cycle, np.mod(run.t_s - pre_s + 0.5 * dt, period) - 0.5 * dt, 0.0) + float(prof.time_s[0])
     load = np.where(cycle, np.interp(t_cycle, prof.time_s, prof.axial_load_N), 0.0)
     planned, achieved = plant.preload_N(run.reference_N), plant.preload_N(run.force_N)
-    loads = screw.nut_loads(np.maximum(achieved, 1e-3), load)
-    factor = schedule.spec.rigidity_factor  # the nut's table rigidity -> its rigidity mounted in the machine
     speed = np.ones_like(t_cycle) if prof.speed_rpm is None else np.interp(t_cycle, prof.time_s, prof.speed_rpm) * (
         2.0 * np.pi / 60.0)
     return _Frame(
         t_cycle=t_cycle, cycle=cycle, cutting=cycle & (np.abs(load) > 0), load=load, planned=planned,
-        achieved=achieved, required=schedule.spec.required_stiffness(load),
-        rigidity=factor * np.asarray(loads.rigidity_N_per_um, float),
+        achieved=achieved, **_mechanics(screw, schedule.spec, planned, achieved, load),
+        weight=np.where(cycle, float(screw.drag_torque_Nm(1.0)) * speed * dt, 0.0))
+
+
+class _Mechanics(TypedDict):
+    """The frame's columns the double nut and the requirements set."""
+
+    required: Array
+    rigidity: Array
+    planned_rigidity: Array
+    deflection: Array
+    lift_bound: Array
+
+
+def _mechanics(screw: BallScrew, spec: ScheduleSpec, planned: Array, achieved: Array, load: Array) -> _Mechanics:
+    """The frame's columns the double nut and the requirements set: the requirement, the rigidity at the achieved
+    and the planned preload, the deflection, the lift-off bound."""
+    loads = screw.nut_loads(np.maximum(achieved, 1e-3), load)
+    factor = spec.rigidity_factor  # the nut's table rigidity -> its rigidity mounted in the machine
+    return _Mechanics(
+        required=spec.required_stiffness(load), rigidity=factor * np.asarray(loads.rigidity_N_per_um, float),
         planned_rigidity=factor * np.asarray(screw.rigidity_N_per_um(np.maximum(planned, 1e-3), load), float),
         deflection=np.asarray(loads.deflection_um, float) / factor,
-        lift_bound=schedule.spec.lift_off_margin * np.abs(load) / LIFT_OFF_RATIO,
-        weight=np.where(cycle, float(screw.drag_torque_Nm(1.0)) * speed * dt, 0.0))
+        lift_bound=spec.lift_off_margin * np.abs(load) / LIFT_OFF_RATIO)
+
+
+def frame_under(frame: _Frame, screw: BallScrew, spec: ScheduleSpec) -> _Frame:
+    """The same run's frame (the same achieved and planned preloads under the same loads) judged with another double
+    nut ``screw`` and another schedule specification ``spec``: what a modelling assumption changes (design/
+    sensitivity.py)."""
+    return dc_replace(frame, **_mechanics(screw, spec, frame.planned, frame.achieved, frame.load))
 
 
 def _verdict(name: str, value: float, limit: float, unit: str, sense: str, source: str, key: str) -> Requirement:
@@ -407,6 +431,8 @@ class SystemRun:
         What the margins rest on (:func:`margin_basis`; None: the run was not given the design).
     physical_lift_off : Requirement or None
         The nut law's lift-off load against the cutting load, the worst over the plants (:func:`margin_basis`).
+    sensitivity : SensitivityRecord or None
+        The verdicts under the modelling assumptions' ranges (None: not studied).
     """
 
     schedule: PreloadSchedule
@@ -421,6 +447,7 @@ class SystemRun:
     thermal: ThermalBudget | None = None  # the shift's heat, temperature and growth (design/thermal.py)
     basis: MarginBasis | None = None  # what the margins rest on (margin_basis), where the run was given the design
     physical_lift_off: Requirement | None = None  # the nut law's lift-off against the load (margin_basis)
+    sensitivity: SensitivityRecord | None = None  # the verdicts under the assumptions' ranges (design/sensitivity.py)
 
     @property
     def numbers(self) -> TrackingNumbers:
@@ -451,7 +478,7 @@ class SystemRun:
                                s.energy_units, s.status)
         return SystemRecord(self.numbers, self.requirements, self.bounds, self.pre_cycle, self.passes, plan, series,
                             self.cycles, dict(inputs or {}), None if self.thermal is None else self.thermal.record,
-                            self.basis)
+                            self.basis, self.sensitivity)
 
     def summary(self) -> SystemSummary:
         """The run's numbers, verdicts, pre-cycle, passes and thermal figures (no series)."""

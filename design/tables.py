@@ -139,6 +139,10 @@ class DesignTable(Table):
                                gt=0, le=_SPEC.actuator.stack.v_max_V)
     amp_current_limit_A: float = key(_SPEC.actuator.amp_current_limit_A, "the amplifier's current limit (the "
                                      "preload's slew rate; the designed plant's amplifier)", unit="A", gt=0)
+    robust: bool = key(False, "design against the worst case of the modelling assumptions' ranges: the rigidity and "
+                       "the natural frequency at every corner of the contact angle's (+-5 deg) and the conformity's "
+                       "(+-0.01) tolerance box, the drag and the heat at K_p's high end (0.3); the cost against the "
+                       "nominal design is reported (docs/system.md)")
 
 
 class ScheduleLimits(TypedDict):

@@ -61,7 +61,8 @@ from piezopreload.models.thermal import (
 )
 
 __all__ = ["CycleLoad", "CycleSources", "ThermalBudget", "axis_model", "cycle_sources", "nut_centre_m",
-           "shift_hours", "thermal_budget", "mounting_of", "duty_cycle", "duty_growth_um", "POSITIONS"]
+           "shift_hours", "thermal_budget", "schedule_requirements",
+           "ShiftBasis", "shift_basis", "mounting_of", "duty_cycle", "duty_growth_um", "POSITIONS"]
 
 Array = NDArray[np.float64]
 #: the table's positions the budget is read at, evenly over the travel
@@ -96,8 +97,10 @@ class CycleLoad:
         return float(np.sum(self.duration_s))
 
     def mean(self, x: Any) -> Any:
-        """The cycle's time mean of ``x`` (one value, or one row, per sample)."""
-        return np.tensordot(self.duration_s, np.asarray(x, float), axes=(0, 0)) / self.period_s
+        """The cycle's time mean of ``x`` (one value, or one row, per sample). A summation over the samples rather
+        than a BLAS product: on a shared machine a threaded BLAS call on these tall arrays takes tens of times
+        longer, and the sensitivity study makes many of them."""
+        return np.einsum("i,i...->...", self.duration_s, np.asarray(x, float)) / self.period_s
 
     @classmethod
     def on_profile(cls, time_s: Any, preload_N: Any, speed_rpm: Any, axial_load_N: Any) -> CycleLoad:
@@ -219,8 +222,11 @@ class CycleSources:
 
 
 def cycle_sources(screw: BallScrew, drive: FeedDrive, table: ThermalTable, cycle: CycleLoad, *,
-                  heat_model: str | None = None, model: AxisModel | None = None) -> CycleSources:
-    """The cycle's heat and where it enters (module docstring), under ``heat_model`` (default: the table's)."""
+                  heat_model: str | None = None, model: AxisModel | None = None,
+                  coverage: Array | None = None) -> CycleSources:
+    """The cycle's heat and where it enters (module docstring), under ``heat_model`` (default: the table's).
+    ``coverage``: the nut's coverage of the screw's volumes per sample where the caller has it (it depends on the
+    cycle, the nut's and the spacer's lengths, the stroke and the volumes alone)."""
     heat_model = heat_model or table.heat_model
     model = model or axis_model(screw, drive, table)
     stroke = table.stroke_mm or drive.travel_mm
@@ -240,7 +246,8 @@ def cycle_sources(screw: BallScrew, drive: FeedDrive, table: ThermalTable, cycle
     film = table.convection_factor * shaft_film_W_per_m2K(omega, model.screw.outer_diameter_m, table.ambient_C,
                                                           table.free_convection_W_per_m2K)
     return CycleSources(model, cycle, np.asarray(nut, float), seals * omega, bearing,
-                        nut_coverage(model, nut_centre_m(cycle, stroke), _zones(screw, table)), film,
+                        nut_coverage(model, nut_centre_m(cycle, stroke), _zones(screw, table)) if coverage is None
+                        else coverage, film,
                         table.nut_heat_share, table.bearing_heat_share, coolant, free)
 
 
@@ -322,6 +329,12 @@ class ThermalBudget:
     sources: dict[str, CycleSources]
 
 
+def _budget_um(elastic: Array, tracking: float, growth: Array, semi_closed: bool) -> Array:
+    """The error budget (um) per grid time and table position: the deflection under the worst cut, the force loop's
+    share, and the growth where the position loop does not see it (a semi-closed loop)."""
+    return elastic[None, :] + tracking + (np.abs(growth) if semi_closed else np.zeros_like(growth))
+
+
 def _case(sources: CycleSources, other: CycleSources, mech: _Mechanics, elastic: Array, tracking: float,
           semi_closed: bool, times_h: Array) -> tuple[ThermalCase, Array, Array]:
     """One preload's shift: the case, and its nut-over-screw rises and times on the grid."""
@@ -332,7 +345,7 @@ def _case(sources: CycleSources, other: CycleSources, mech: _Mechanics, elastic:
     growth, other_growth = mech.growth_um(rises[:, :n]), mech.growth_um(other_rises[:, :n])
     under = rises[:, :n] @ sources.cycle.mean(sources.coverage)
     nut_over = rises[:, n] - under
-    budget = elastic[None, :] + tracking + (np.abs(growth) if semi_closed else np.zeros_like(growth))
+    budget = _budget_um(elastic, tracking, growth, semi_closed)
     c = sources.cycle
     hottest = np.unravel_index(int(np.argmax(rises[:, :n])), (rises.shape[0], n))[1]
     case = ThermalCase(
@@ -406,17 +419,69 @@ def _cause(record: ThermalRecord) -> str:
 
 def _requirements(table: ThermalTable, record: ThermalRecord) -> tuple[Requirement, ...]:
     """The shift's limits as requirements; a growth or positioning error over its limit names what drives it."""
-    schedule, out = record.schedule, []
-    cause = _cause(record)
+    s = record.schedule
+    return _limits(table, s.growth_max_um, s.positioning_error_max_um, _cause(record))
+
+
+def _limits(table: ThermalTable, growth_max_um: float, positioning_error_max_um: float,
+            cause: str = "") -> tuple[Requirement, ...]:
+    """The shift's limits as requirements on the schedule's largest growth and positioning error; one over its limit
+    names what drives it (``cause``, where given)."""
+    out = []
     for value, limit, name, source in (
-            (schedule.growth_max_um, table.thermal_growth_max_um, "thermal growth at the table over the shift",
+            (growth_max_um, table.thermal_growth_max_um, "thermal growth at the table over the shift",
              "[thermal] thermal_growth_max_um"),
-            (schedule.positioning_error_max_um, table.positioning_error_max_um,
+            (positioning_error_max_um, table.positioning_error_max_um,
              "positioning error over the shift (deflection, growth, tracking)", "[thermal] positioning_error_max_um")):
         if limit is None:
             continue
-        out.append(Requirement(name if value <= limit else f"{name} ({cause})", value, limit, "um", "max", source))
+        out.append(Requirement(name if value <= limit or not cause else f"{name} ({cause})", value, limit, "um", "max",
+                               source))
     return tuple(out)
+
+
+@dataclass(frozen=True, eq=False)
+class ShiftBasis:
+    """What the schedule's shift is computed from that neither the heat nor the film settings change, for one
+    double nut and the table's geometry (its stroke, spacer and volumes): the last cycle as the loop achieved it,
+    the table's positions, the elastic deflection at the planned preload per position (um), the force loop's
+    tracking share of it (um) and the nut's coverage of the screw's volumes per sample."""
+
+    cycle: CycleLoad
+    positions_mm: Array
+    elastic_um: Array
+    tracking_um: float
+    coverage: Array
+
+
+def shift_basis(run: SystemRun, drive: FeedDrive, table: ThermalTable, screw: BallScrew | None = None) -> ShiftBasis:
+    """The :class:`ShiftBasis` of the system run ``run`` on ``drive`` with ``table``'s geometry for the double nut
+    ``screw`` (default: the run's)."""
+    screw = run.plant.screw if screw is None else screw
+    achieved, planned, load = _last_cycle(run)
+    positions = np.linspace(drive.travel_mm[0], drive.travel_mm[1], POSITIONS)
+    elastic_planned = _elastic_um(screw, drive, planned, load, positions)
+    tracking = float(np.max(np.maximum(_elastic_um(screw, drive, achieved.preload_N, load, positions)
+                                       - elastic_planned, 0.0)))
+    coverage = nut_coverage(axis_model(screw, drive, table), nut_centre_m(achieved, table.stroke_mm or drive.travel_mm),
+                            _zones(screw, table))
+    return ShiftBasis(achieved, positions, elastic_planned, tracking, coverage)
+
+
+def schedule_requirements(run: SystemRun, drive: FeedDrive, table: ThermalTable, *, screw: BallScrew | None = None,
+                          basis: ShiftBasis | None = None) -> tuple[Requirement, ...]:
+    """The thermal requirements' verdicts of the schedule's shift alone (:func:`thermal_budget`'s, without the
+    constant preload and the other heat model): what :mod:`piezopreload.design.sensitivity` evaluates under each
+    assumption. ``screw``: another double nut judged on the same achieved preload (default: the run's); ``basis``:
+    its :func:`shift_basis`, where the caller has it."""
+    screw = run.plant.screw if screw is None else screw
+    basis = shift_basis(run, drive, table, screw) if basis is None else basis
+    model = axis_model(screw, drive, table)
+    mech = _mechanics(screw, drive, table, model, basis.positions_mm)
+    sources = cycle_sources(screw, drive, table, basis.cycle, model=model, coverage=basis.coverage)
+    growth = mech.growth_um(sources.shift(_grid(shift_hours(table.shift_h)))[:, :model.volumes])  # as _case has it
+    budget = _budget_um(basis.elastic_um, basis.tracking_um, growth, table.feedback == "semi-closed")
+    return _limits(table, float(np.max(np.abs(growth))), float(np.max(budget)))
 
 
 def thermal_budget(run: SystemRun, drive: FeedDrive, table: ThermalTable, *,
@@ -426,26 +491,26 @@ def thermal_budget(run: SystemRun, drive: FeedDrive, table: ThermalTable, *,
     ``command_range_V``: the force loop's command limits (the drift's check).
     """
     screw = run.plant.screw
+    basis = shift_basis(run, drive, table, screw)
+    achieved, positions = basis.cycle, basis.positions_mm
+    elastic_planned, tracking = basis.elastic_um, basis.tracking_um
     model = axis_model(screw, drive, table)
+    mech = _mechanics(screw, drive, table, model, positions)
     other_model = next(m for m in HEAT_MODELS if m != table.heat_model)
-    achieved, planned, load = _last_cycle(run)
     design = run.design_schedule
     prof = design.profile
     constant = CycleLoad.on_profile(prof.time_s, design.constant_preload_N, prof.speed_rpm, prof.axial_load_N)
     travel = drive.travel_mm
-    positions = np.linspace(travel[0], travel[1], POSITIONS)
-    mech = _mechanics(screw, drive, table, model, positions)
     mounting = mech.mounting
-    elastic_planned = _elastic_um(screw, drive, planned, load, positions)
-    tracking = float(np.max(np.maximum(_elastic_um(screw, drive, achieved.preload_N, load, positions)
-                                       - elastic_planned, 0.0)))
     times = shift_hours(table.shift_h)
     semi = table.feedback == "semi-closed"
     sources, cases, over = {}, {}, {}
     for name, cycle, elastic, share in (("schedule", achieved, elastic_planned, tracking),
                                         ("constant", constant, None, 0.0)):
-        sources[name] = cycle_sources(screw, drive, table, cycle, model=model)
-        other = cycle_sources(screw, drive, table, cycle, heat_model=other_model, model=model)
+        sources[name] = cycle_sources(screw, drive, table, cycle, model=model,
+                                      coverage=basis.coverage if name == "schedule" else None)
+        other = cycle_sources(screw, drive, table, cycle, heat_model=other_model, model=model,
+                              coverage=sources[name].coverage)
         if elastic is None:
             elastic = _elastic_um(screw, drive, cycle.preload_N, cycle.axial_load_N, positions)
         cases[name], over[name], _ = _case(sources[name], other, mech, elastic, share, semi, times)

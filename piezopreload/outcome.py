@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 from piezopreload.artifacts.manifest import StudyRef, StudyRunManifest
 from piezopreload.artifacts.requirements import EXIT_REQUIREMENT_MISSED, Requirement, least_margin, missed
+from piezopreload.artifacts.sensitivity import SensitivityRecord
 from piezopreload.artifacts.summaries import RigSummary, SystemSummary, ValidateSummary
 from piezopreload.core.quantities import number
 from piezopreload.core.stages import StageOutcome
@@ -34,7 +35,8 @@ class Headline:
     basis; ``thermal``
     where it has a ``[thermal]`` table: ``heat_mean_W``, ``temperature_rise_max_K``, ``growth_max_um``,
     ``positioning_error_max_um``, ... each ``{"schedule": ..., "constant": ...}``), the gain set's status and
-    the rig run's tracking."""
+    the rig run's tracking; ``sensitivity`` the verdicts under the modelling assumptions' ranges (in the document
+    its rows, and ``verdict_robust`` beside them)."""
 
     tracking_rms_pct_of_range: float | None = None
     tracking_rms_pct_of_range_before_learning: float | None = None
@@ -64,6 +66,7 @@ class Headline:
     friction_saved_fraction: float | None = None
     preload_margin_N: float | None = None
     thermal: dict[str, Any] | None = None  # the shift's figures, each for the schedule and the constant preload
+    sensitivity: SensitivityRecord | None = None  # the verdicts under the modelling assumptions' ranges
     system: str = "not run"
     gain_set_status: str | None = None
     rig_tracking_rms_N: float | None = None
@@ -88,7 +91,7 @@ class Headline:
             rigidity_required_at_worst_ratio_N_per_um=n.rigidity_required_at_worst_ratio_N_per_um,
             nut_axial_deflection_max_um=n.deflection_max_um, friction_energy_per_cycle=n.friction_energy_per_cycle,
             friction_saved_fraction=n.friction_saved_fraction, preload_margin_N=system.preload_margin_N,
-            thermal=system.thermal,
+            thermal=system.thermal, sensitivity=system.sensitivity,
             lift_off_margin_pct=next((r.margin_pct for r in system.requirements if r.key == "schedule.lift_off_margin"),
                                      None))
         b = system.basis
@@ -109,8 +112,16 @@ class Headline:
                        tracking_rms_N_before_learning=before.tracking_rms_N_before_learning,
                        learning_iterations=before.learning_iterations, learning_trials=before.learning_trials)
 
+    @property
+    def verdict_robust(self) -> bool | None:
+        """Whether every verdict holds over every assumption's range (None: no sensitivity study ran)."""
+        return None if self.sensitivity is None else self.sensitivity.verdict_robust
+
     def to_dict(self) -> dict[str, Any]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        out["sensitivity"] = None if self.sensitivity is None else [r.to_dict() for r in self.sensitivity.rows]
+        out["verdict_robust"] = self.verdict_robust
+        return out
 
 
 @dataclass(frozen=True)

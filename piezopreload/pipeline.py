@@ -221,7 +221,7 @@ def _stage_design(ctx: _Ctx) -> Produced:
     return outputs, DesignSummary(result.optimum.objective, result.point.stiffness_N_per_um,
                                   tuple(result.optimum.binding), tuple(f.pair for f in result.fronts),
                                   s.saving_fraction, s.constant_preload_N, s.constant_friction_energy_J,
-                                  s.energy_units)
+                                  s.energy_units, None if result.robust_cost is None else result.robust_cost.to_dict())
 
 
 def _stage_tune(ctx: _Ctx) -> Produced:

@@ -49,6 +49,7 @@ from piezopreload.core.quantities import number, quantity
 from piezopreload.core.tables import Record, read_record
 from piezopreload.design.plant import DESIGNED_FIELDS
 from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignSpec, optimise
+from piezopreload.design.sensitivity import sensitivity
 from piezopreload.design.study import DesignResult, design_spec_from_tables, design_study, plan_schedule, read_profile
 from piezopreload.design.system import SystemRun
 from piezopreload.design.tables import (
@@ -572,13 +573,17 @@ class StudySpec:
                                                        settle_s=self.criteria.settling_max_s, ff_extra_V=ff_extra_V,
                                                        design=self._spec("tracking the schedule"), scatter=scatter,
                                                        progress=said)
-        if self.thermal is None:
-            return run
-        budget = thermal_budget(run, self._spec("[thermal]").feed_drive, self.thermal,
-                                command_range_V=(controller.gains.u_min_V, controller.gains.u_max_V))
+        drive = self._spec("the sensitivity study").feed_drive
+        if self.thermal is not None:
+            budget = thermal_budget(run, drive, self.thermal,
+                                    command_range_V=(controller.gains.u_min_V, controller.gains.u_max_V))
+            if said is not None:
+                said(f"thermal: {budget.record.sentence()}")
+            run = _replace(run, thermal=budget)
+        studied = sensitivity(run, drive, self.thermal)
         if said is not None:
-            said(f"thermal: {budget.record.sentence()}")
-        return _replace(run, thermal=budget)
+            said(f"robustness: {studied.sentence()}")
+        return _replace(run, sensitivity=studied)
 
     def design(self, *, objective: str | None = None, pareto: list[str] | None = None, points: int | None = None,
                schedule: str | Path | None = None, progress: ProgressLike | None = None,

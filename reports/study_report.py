@@ -35,6 +35,7 @@ STAGES_READ = ("design", "plant", "identify", "tune", "validate", "compare", "le
 def _parts(study: ReportStudy, a: Artifacts) -> list[S.Part]:
     """The sections that apply to the study, in the order its reader asks for them."""
     from piezopreload.reports import sections as S
+    from piezopreload.reports.sensitivity import sensitivity_section
     from piezopreload.reports.thermal import thermal_section
 
     parts = [S.study_section(study, a, STAGES_READ)]
@@ -46,6 +47,8 @@ def _parts(study: ReportStudy, a: Artifacts) -> list[S.Part]:
         if a.system.thermal is not None:
             parts.append(thermal_section(a.system.thermal, [r for r in a.system.requirements if r.source.startswith(
                 "[thermal]")]))
+        if a.system.sensitivity is not None and a.system.sensitivity.rows:
+            parts.append(sensitivity_section(a.system.sensitivity))
     if a.learning is not None:
         parts.append(S.learning_section(a.learning))
     parts += [S.controller_section(study, a), S.responses_section(study, a), S.feedforward_section(study, a)]

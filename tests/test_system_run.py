@@ -343,3 +343,36 @@ def test_no_figure_of_the_report_has_a_legend_over_its_data(axis_run):
 
     covered = {name: found for name, fig in report_figures(axis_run) if (found := legends_over_ink(fig))}
     assert not covered, covered
+
+
+def test_run_json_carries_the_sensitivity_and_the_robustness_and_the_console_says_it(axis_run, capsys):
+    """summary.sensitivity: one row per assumption and requirement it moves (at least 6 assumptions), each with its
+    range, margins and flip; summary.verdict_robust agrees with the rows; the console prints the robustness."""
+    code = main(["run", str(SMALL_AXIS), "--out", str(axis_run), "--json", "--quiet"])
+    assert code == 0
+    summary = json.loads(capsys.readouterr().out)["summary"]
+    rows = summary["sensitivity"]
+    assert isinstance(rows, list) and rows
+    for row in rows:
+        for key in ("assumption", "key", "unit", "source", "requirement", "low", "high", "margin_pct_low",
+                    "margin_pct_high", "flips_at"):
+            assert key in row, f"summary.sensitivity row without '{key}'"
+        assert row["source"], f"{row['key']}: a range without its source"
+    assert len({row["key"] for row in rows}) >= 6
+    moved = {row["requirement"] for row in rows}
+    assert moved <= {r["key"] for r in summary["requirements"]}
+
+    def holds(row: dict) -> bool:  # the same verdict at the study's value and at both ends, no flip inside
+        met = row["margin_pct_nominal"] >= 0
+        inside = row["flips_at"] is not None and row["low"] < row["flips_at"] < row["high"]
+        return (row["margin_pct_low"] >= 0) == met and (row["margin_pct_high"] >= 0) == met and not inside
+
+    assert summary["verdict_robust"] is all(holds(row) for row in rows)
+    system = SystemRecord.load(axis_run / "system" / "system.json")
+    assert [r.to_dict() for r in system.sensitivity.rows] == rows, "summary.sensitivity is not the system stage's"
+    main(["run", str(SMALL_AXIS), "--out", str(axis_run), "--quiet"])
+    said = [line for line in capsys.readouterr().out.splitlines() if line.startswith("robustness: ")]
+    assert said == [f"robustness: {system.sensitivity.sentence()}"], said
+    report = read_artifact(axis_run / "report" / "report.json", "report")
+    section = next(x for x in report["sections"] if x["title"].startswith("The verdicts under the assumptions"))
+    assert section["figures"] == ["sensitivity-tornado"]

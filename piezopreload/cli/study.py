@@ -83,13 +83,16 @@ def _print_run(s: StudyResult) -> None:
     for r in checked:
         print(f"  {r.line(r.key, width)}")
     least = summary.least_margin
+    robustness = summary.headline.sensitivity
     if met:
         print(f"every requirement met; the least margin: {number(least.margin_pct or 0.0, '%')} % ({least.name})"
               if least else "every requirement met")
-        return
-    print(f"{len(summary.missed)} requirement{'s' if len(summary.missed) != 1 else ''} missed:")
-    for r in summary.missed:
-        print(f"  missed: {r.sentence()}")
+    else:
+        print(f"{len(summary.missed)} requirement{'s' if len(summary.missed) != 1 else ''} missed:")
+        for r in summary.missed:
+            print(f"  missed: {r.sentence()}")
+    if robustness is not None:
+        print(f"robustness: {robustness.sentence()}")
 
 
 def register_report(sub: Any) -> None:
