@@ -12,7 +12,6 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -160,22 +159,6 @@ class Artifacts:
         for run in self.responses.runs:
             runs.setdefault(run.reference, {})[f"{run.gains} {run.controller}"] = read_csv_columns(self.out / run.csv)
         return runs
-
-    def robustness(self) -> tuple[bool | None, tuple[dict[str, Any], ...]]:
-        """The verdict's robustness over the modelling assumptions, where a stage recorded it: ``verdict_robust``
-        and the ``sensitivity`` rows (``assumption``, ``low``, ``high``, ``margin_pct_low``, ``margin_pct_high``,
-        ``flips_at``, and the requirement a row is about) of the first done stage whose summary holds them;
-        ``(None, ())`` where no stage did (the report then says nothing of robustness)."""
-        for name in self.manifest.stages:
-            record = self.manifest.record(name)
-            if record is None or not record.done or record.summary is None:
-                continue
-            doc = record.summary.to_dict()
-            if isinstance(doc.get("verdict_robust"), bool):
-                rows = doc.get("sensitivity")
-                return doc["verdict_robust"], tuple(r for r in rows if isinstance(r, dict)) if isinstance(
-                    rows, list) else ()
-        return None, ()
 
     def requirements(self) -> tuple[Requirement, ...]:
         """Every requirement the stages checked, in stage order (what ``run`` judges its exit code by)."""

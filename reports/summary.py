@@ -151,18 +151,12 @@ def _cause(r: Requirement, a: Artifacts) -> str:
 
 
 def _robustness(a: Artifacts) -> str:
-    """The verdict's robustness over the modelling assumptions' ranges, where a stage recorded it; else nothing."""
-    robust, rows = a.robustness()
-    if robust is None:
+    """The verdict's robustness over the modelling assumptions' ranges, where the system stage judged it; else
+    nothing (a study without a system stage has no sensitivity study)."""
+    record = None if a.system is None else a.system.sensitivity
+    if record is None:
         return ""
-    if robust:
-        return ("The verdict is robust: it holds over the stated range of every modelling assumption studied "
-                f"({len({str(r.get('assumption')) for r in rows})} assumptions, in the sensitivity study).")
-    flips = [r for r in rows if r.get("flips_at") is not None]
-    words = [f"{r.get('assumption')} flips {r.get('requirement', r.get('key', 'a requirement'))} at {r.get('flips_at')}"
-             for r in flips[:3]]
-    return ("The verdict is not robust over the modelling assumptions' ranges" +
-            (f": {'; '.join(words)}." if words else "."))
+    return f"Over the modelling assumptions: {record.sentence()} (the section on the verdicts under the assumptions)."
 
 
 def summary(study: ReportStudy, a: Artifacts) -> tuple[str, ...]:

@@ -17,6 +17,7 @@ import pytest
 
 from piezopreload.artifacts.manifest import StudyRef
 from piezopreload.artifacts.requirements import Requirement
+from piezopreload.artifacts.sensitivity import SensitivityRecord, SensitivityRow
 from piezopreload.core.quantities import RESOLUTION, number, quantity
 from piezopreload.core.stages import StageOutcome
 from piezopreload.outcome import Headline, StudyResult
@@ -84,8 +85,7 @@ def test_the_first_page_says_which_requirement_is_nearest_without_config_key_tex
     lift = Requirement("preload against the lift-off bound while cutting", 1706.1, 1697.06, "N", "min",
                        "[schedule] lift_off_margin (lift_off_margin |F_a| / 2^(3/2))")
     rigid = Requirement("rigidity while cutting", 1126.2, 800.0, "N/um", "min", "[schedule] deflection_max_um")
-    artifacts = SimpleNamespace(requirements=lambda: (lift, rigid), system=None,
-                                robustness=lambda: (None, ()))
+    artifacts = SimpleNamespace(requirements=lambda: (lift, rigid), system=None)
     (line,) = verdicts(artifacts)
     assert "lift_off_margin" not in line and "[schedule]" not in line and "2^(3/2)" not in line
     assert "preload against the lift-off bound while cutting: 1,706 N against at least 1,697 N" in line
@@ -174,8 +174,7 @@ def test_a_missed_growth_names_its_heat_in_the_verdict():
                            temperature_rise_max_K=9.71)
     thermal = SimpleNamespace(shift_h=8.0, schedule=case, mounting="pretensioned", pretension_K=3.0,
                               constant=SimpleNamespace(heat_mean_W=107.5, preload_mean_N=1697.1))
-    artifacts = SimpleNamespace(requirements=lambda: (growth,), system=SimpleNamespace(thermal=thermal),
-                                robustness=lambda: (None, ()))
+    artifacts = SimpleNamespace(requirements=lambda: (growth,), system=SimpleNamespace(thermal=thermal, sensitivity=None))
     (line,) = verdicts(artifacts)
     assert line.startswith("Requirement missed: thermal growth at the table over the shift: 45.3 um against at most "
                            "25 um, missed by 20.3 um (81.2 %)"), line
@@ -183,14 +182,23 @@ def test_a_missed_growth_names_its_heat_in_the_verdict():
     assert "the support bearings' 46.1 W" in line and "9.7 K" in line and "first 3 K" in line
 
 
-def test_the_verdict_states_its_robustness_only_where_a_stage_recorded_it():
+def test_the_verdict_states_its_robustness_only_where_the_system_stage_judged_it():
     met = Requirement("rigidity while cutting", 1126.2, 800.0, "N/um", "min")
-    rows = ({"assumption": "seal torque", "requirement": "thermal growth at the table over the shift",
-             "flips_at": "0.3 N m"},)
-    absent = verdicts(SimpleNamespace(requirements=lambda: (met,), system=None, robustness=lambda: (None, ())))
-    robust = verdicts(SimpleNamespace(requirements=lambda: (met,), system=None, robustness=lambda: (True, rows)))
-    fragile = verdicts(SimpleNamespace(requirements=lambda: (met,), system=None, robustness=lambda: (False, rows)))
-    assert len(absent) == 1 and "robust" not in absent[0]
-    assert robust[-1].startswith("The verdict is robust")
-    assert "not robust" in fragile[-1] and "seal torque flips thermal growth at the table over the shift at 0.3 N m" \
-        in fragile[-1]
+
+    def row(low_pct: float, flips_at: float | None) -> SensitivityRow:
+        return SensitivityRow(assumption="the seals' torque", key="thermal.seal_torque_Nm", unit="N m",
+                              source="Rexroth", requirement="thermal.thermal_growth_max_um",
+                              requirement_name="thermal growth at the table over the shift", nominal=0.25, low=0.0,
+                              high=0.5, margin_pct_nominal=37.0, margin_pct_low=89.0, margin_pct_high=low_pct,
+                              domain=(0.0, 2.0), flips_at=flips_at)
+
+    def lead(record: SensitivityRecord | None) -> tuple[str, ...]:
+        return verdicts(SimpleNamespace(requirements=lambda: (met,), system=SimpleNamespace(sensitivity=record,
+                                                                                            thermal=None)))
+
+    absent, robust = lead(None), lead(SensitivityRecord(rows=(row(12.0, 0.8),)))
+    fragile = lead(SensitivityRecord(rows=(row(-4.0, 0.45),)))
+    assert len(absent) == 1 and "robust" not in absent[-1]
+    assert "verdict robust over 1 assumptions' ranges" in robust[-1], robust
+    assert "verdict not robust" in fragile[-1] and "thermal growth at the table over the shift flips with the " \
+        "seals' torque 0.5 N m (missed, -4.0 %, flips at 0.45 N m)" in fragile[-1], fragile
