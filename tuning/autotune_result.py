@@ -491,6 +491,7 @@ class AutotuneResult:
             "grid_points": self.grid_points, "check_points": self.check_points, "refinements": self.refinements,
             "iterations": self.iterations, "seconds": self.seconds, "solver": self.solver,
             "plant": {"source": self.plant.source, "delay_s": self.plant.delay_s, "dt_s": self.plant.dt,
+                      "delay_samples": self.plant.delay_samples,
                       "unstable_poles": self.plant.unstable_poles, "integrators": self.plant.integrators},
         }
         if c.filter_order < 2:
