@@ -37,7 +37,7 @@ from piezopreload.tuning.pidform import PIDController
 from piezopreload.tuning.pidopt import PIDProblem, Scales, Solution
 from piezopreload.tuning.stabset import RELAX, plane_of, stabilising_any, stabilising_starts, unstable_counts
 
-__all__ = ["Search", "Found", "TOLERANCE", "REFINE_TO", "FINISH_TO", "PER_DECADE"]
+__all__ = ["Search", "Found", "bound_reach", "TOLERANCE", "REFINE_TO", "FINISH_TO", "PER_DECADE"]
 
 #: how far (relative) a bound may be exceeded on the check grid
 TOLERANCE = 0.005
@@ -86,10 +86,27 @@ def _far(plant: LinearPlant, omega: np.ndarray, decades: float, points: int) -> 
     return np.unique(np.append(omega, np.logspace(np.log10(omega[-1]), np.log10(omega[-1]) + decades, points)))
 
 
-def design_grid(plant: LinearPlant, per_decade: int = PER_DECADE) -> np.ndarray:
+def design_grid(plant: LinearPlant, per_decade: int = PER_DECADE, upto: float | None = None) -> np.ndarray:
     """The plant's design grid (:meth:`~piezopreload.tuning.lti.LinearPlant.grid`, :data:`PER_DECADE` a decade,
-    clusters at its resonances) and, continuous, two points three decades on."""
-    return _far(plant, plant.grid(per_decade), 3.0, 2)
+    clusters at its resonances, reaching ten times beyond ``upto``: :func:`bound_reach`) and, continuous, two points
+    three decades on."""
+    return _far(plant, plant.grid(per_decade, upto=upto), 3.0, 2)
+
+
+def bound_reach(plant: LinearPlant, bounds: dict[str, float | None]) -> float | None:
+    """The highest frequency where ``Mks |G| >= 1``: the loop's gain crossover lies below it (there ``|KS|`` is about
+    ``|C| >= 1/|G|``), however far above the plant's own poles and zeros (a near-integrating or double-integrating
+    plant's PID crosses over where the bound on ``|KS|`` lets it, decades above its slow poles); None without an
+    ``Mks``, for a measured or discrete plant (their grids end at their data or their Nyquist frequency), or where
+    ``Mks |G|`` stays at least 1 (a biproper plant)."""
+    mks = bounds.get("Mks")
+    if mks is None or not plant.rational or plant.discrete:
+        return None
+    w = plant.grid(10, widen=4.0)
+    above = np.flatnonzero(mks * np.abs(plant.response(w)) >= 1.0)
+    if above.size == 0 or above[-1] == w.size - 1:
+        return None
+    return float(w[above[-1]])
 
 
 def check_grid(plant: LinearPlant, omega: np.ndarray) -> np.ndarray:
@@ -126,7 +143,8 @@ class Search:
         self.count_w = np.concatenate([self.low, grid])
         self.G_count = plant.response(self.count_w)
         # the slices' grid: the design grid at SLICE_PER_DECADE (a given grid: as it is), their starts refined after
-        self.slice_w = design_grid(plant, _SLICE_PER_DECADE) if given is None else omega
+        self.reach = bound_reach(plant, bounds)
+        self.slice_w = design_grid(plant, _SLICE_PER_DECADE, self.reach) if given is None else omega
         self.G_slice = plant.response(self.slice_w)
         f = np.sort(plant.characteristic_frequencies()) if plant.rational else np.zeros(0)
         self.hints = tuple(float(x) for x in np.concatenate([0.2 * f[:1], f]))  # the slices' reference frequencies

@@ -49,7 +49,7 @@ import numpy as np
 
 from piezopreload.artifacts.tuning import ActiveBound
 from piezopreload.core.errors import InfeasibleError, InputError
-from piezopreload.tuning.autosearch import TOLERANCE, Found, Search, design_grid
+from piezopreload.tuning.autosearch import TOLERANCE, Found, Search, bound_reach, design_grid
 from piezopreload.tuning.autotune_result import LOOPS, AutotuneResult, achieved, margins_of
 from piezopreload.tuning.loadstep import iae_function, load_response
 from piezopreload.tuning.lti import LinearPlant, as_plant, nyquist_unstable
@@ -201,9 +201,9 @@ def _dc_gain(P: LinearPlant) -> float:
     return float(np.abs(np.polyval(num, at) / d)) if d != 0 else np.inf
 
 
-def _grid(w: Any, plant: LinearPlant) -> np.ndarray:
+def _grid(w: Any, plant: LinearPlant, bounds: dict[str, float | None]) -> np.ndarray:
     if w is None:
-        return design_grid(plant)
+        return design_grid(plant, upto=bound_reach(plant, bounds))
     w = np.asarray(w, float).ravel()
     if w.size < 8 or not (np.all(np.isfinite(w)) and np.all(w > 0) and np.all(np.diff(w) > 0)):
         raise InputError("w must hold at least 8 finite, positive, strictly increasing frequencies (rad/s)")
@@ -276,7 +276,7 @@ def autotune(plant: Any, *, Ms: float, Mt: float | None = None, Mks: float | Non
                          "has none: fit one to a step response (fit_plant) or give a transfer function")
     _closed_form_limits(P, spec)
     design = P if spec.loop == "continuous" or P.discrete or spec.Ts is None else P.sampled(spec.Ts)
-    search = Search(design, _grid(w, design), spec.bounds, spec.filter_order, spec.dt, spec.Tf_min, spec.solver, w)
+    search = Search(design, _grid(w, design, spec.bounds), spec.bounds, spec.filter_order, spec.dt, spec.Tf_min, spec.solver, w)
     found = search.run()
     iae = None
     if spec.metric == "IAE":

@@ -24,6 +24,7 @@ from typing import Any
 
 import control
 import numpy as np
+from scipy.linalg import eigvals as scipy_eigvals
 from scipy.linalg import expm
 
 from piezopreload.core.errors import InputError, InternalError
@@ -212,17 +213,20 @@ class LinearPlant:
             mags = np.append(mags, 1.0 / delay)
         return mags if mags.size else np.array([1.0])
 
-    def grid(self, per_decade: int = 25, widen: float = 0.0) -> np.ndarray:
+    def grid(self, per_decade: int = 25, widen: float = 0.0, upto: float | None = None) -> np.ndarray:
         """The design grid (rad/s), placed from the plant: log-spaced from a hundredth of its lowest characteristic
         frequency to a hundred times its highest (``widen`` decades more each side), and around each lightly damped
         pole or zero pair ``(w_n, zeta)`` a cluster of ``per_decade`` points over ``w_n e^{+-4 zeta}`` (its peak's
         width is ``2 zeta w_n``: a log grid alone steps over a resonance); a discrete plant's up to just below its
         Nyquist frequency; a measured response's data frequencies (every ``k``-th, for about ``per_decade`` a
-        decade)."""
+        decade). ``upto``: a frequency the grid reaches at least ten times beyond (where the bounds let the loop
+        cross over above the plant's own frequencies)."""
         if not self.rational:
             return self._data_grid(per_decade)
         f = self.characteristic_frequencies()
         lo, hi = np.log10(0.01 * f.min()) - widen, np.log10(100.0 * f.max()) + widen
+        if upto is not None:
+            hi = max(hi, np.log10(10.0 * upto) + widen)
         if self.discrete:
             hi = min(hi, np.log10(0.999 * np.pi / self.sample_period()))
             lo = min(lo, hi - 2.0)
@@ -530,10 +534,54 @@ def as_plant(plant: Any, delay_s: float = 0.0) -> LinearPlant:
         return _from_frd(plant, delay_s)
     if isinstance(plant, control.StateSpace | control.TransferFunction):
         _siso(plant)
-        tf = control.tf(plant) if isinstance(plant, control.StateSpace) else plant
+        tf = _ss_to_tf(plant) if isinstance(plant, control.StateSpace) else plant
         return _from_tf(tf, delay_s, type(plant).__name__)
     raise InputError(f"the plant must be a python-control TransferFunction, StateSpace or FrequencyResponseData, "
                      f"got {type(plant).__name__}")
+
+
+def _ss_to_tf(sys: control.StateSpace) -> control.TransferFunction:
+    """A state space's transfer function from its poles (the eigenvalues of ``A``), its zeros (the finite
+    generalised eigenvalues of the system pencil ``[[A, B], [C, D]]``) and its gain at a frequency away from both:
+    no coefficient of rounding noise. (The characteristic-polynomial route leaves ones of 1e-15 where a coefficient
+    is zero, and they make zeros at 1e14 rad/s and integrators at -1e-14 rad/s that the grid then reaches for.) A root
+    within a billionth of the largest of the origin is at the origin."""
+    A, B, C, D = (np.atleast_2d(np.asarray(m, float)) for m in (sys.A, sys.B, sys.C, sys.D))
+    if not all(np.all(np.isfinite(m)) for m in (A, B, C, D)):
+        raise InputError("the plant's state-space matrices must be finite")
+    n = A.shape[0]
+    dt = _sample_period(sys)
+    if n == 0:
+        return control.tf([float(D[0, 0])], [1.0], 0 if dt is None else dt)
+    poles = np.linalg.eigvals(A)
+    scale = max(1.0, float(np.max(np.abs(poles))))
+    pencil = np.block([[A, B], [C, D]])
+    E = np.zeros((n + 1, n + 1))
+    E[:n, :n] = np.eye(n)
+    with np.errstate(all="ignore"):
+        z = scipy_eigvals(pencil, E)
+    zeros = z[np.isfinite(z) & (np.abs(z) < 1e8 * scale)]
+
+    def snap(r: np.ndarray) -> np.ndarray:
+        at = 1.0 if dt is not None else 0.0
+        r = np.where(np.abs(r - at) <= _ON_AXIS * scale, at, r)
+        return np.where(np.abs(r.imag) <= _ON_AXIS * scale, r.real, r)
+
+    poles, zeros = snap(poles), snap(zeros)
+    roots = np.concatenate([poles, zeros])
+    mags = np.abs(roots[np.abs(roots) > 0])
+    w0 = float(np.exp(np.mean(np.log(mags)))) if mags.size else 1.0
+    for s0 in (1j * w0 * f for f in (1.0, 0.37, 2.9, 0.11, 7.3)):  # a frequency on no root
+        x0 = np.exp(s0 * dt) if dt is not None else s0
+        gain = (C @ np.linalg.solve(x0 * np.eye(n) - A, B))[0, 0] + D[0, 0]
+        shape = np.prod(x0 - zeros) / np.prod(x0 - poles)
+        if np.isfinite(gain) and abs(shape) > 0 and np.isfinite(shape):
+            break
+    k = float(np.real(gain / shape))
+    if k == 0.0 or not np.isfinite(k):
+        raise InputError("the plant's transfer function is zero (its input does not reach its output)")
+    return control.tf(k * np.real(np.poly(zeros)) if zeros.size else np.array([k]), np.real(np.poly(poles)),
+                      0 if dt is None else dt)
 
 
 def _from_tf(tf: control.TransferFunction, delay_s: float, source: str) -> LinearPlant:

@@ -321,6 +321,25 @@ def _pi_slice(plane: Plane, refs: list[tuple[float, float]]) -> tuple[tuple[floa
     return None
 
 
+def _reach_reference(plane: Plane, pi: SliceOptimum | None) -> tuple[float, float] | None:
+    """Where a PID may cross over far above the PI's loop: a third of the highest grid frequency where
+    ``Mks |G| >= 1`` (above it ``|KS|``, about ``|C| >= 1/|G|`` at a crossover, would break its bound) and ``1/|G|``
+    there; None without ``Mks``, where that frequency is the grid's end, or where it lies within a decade of the PI's
+    own scale ``ki/kp`` (the PI's slices cover it). A plant whose phase falls to -180 degrees above a slow pole (a
+    near-integrating one, a double integrator with a resonance) has its PI confined decades below the frequencies a
+    PID's lead reaches: slices about the PI alone never see them."""
+    if plane.Mks is None:
+        return None
+    above = np.flatnonzero(plane.Mks * np.abs(plane.G) >= 1.0)
+    if above.size == 0 or above[-1] >= plane.omega.size - 1:
+        return None
+    w = plane.omega[above[-1]] / 3.0
+    if pi is not None and not pi.capped and w < 10.0 * pi.ki / pi.kp:
+        return None
+    j = int(np.argmin(np.abs(np.log(plane.omega / w))))
+    return float(plane.omega[j]), float(1.0 / np.abs(plane.G[j]))
+
+
 def _distinct(found: list[tuple[str, SliceOptimum]], plane: Plane,
               keep: int) -> list[tuple[str, PIDController, SliceOptimum]]:
     """The first ``keep`` of ``found`` more than 10 % apart from those before in ``kp``, ``kd`` or ``Tf``."""
@@ -348,6 +367,11 @@ def stabilising_starts(plane: Plane, Tf_min: float = 0.0, keep: int = 3,
     if plane.filter_order > 0:
         for w_ref, kp_ref in ([got[0]] if got is not None else refs):
             for row in _pid_slices(plane, pi, w_ref, kp_ref, Tf_min):
+                if row:
+                    found.append(max(row, key=lambda nf: nf[1].ki))
+        reach = _reach_reference(plane, pi)
+        if reach is not None:
+            for row in _pid_slices(plane, None, *reach, Tf_min):
                 if row:
                     found.append(max(row, key=lambda nf: nf[1].ki))
         found.sort(key=lambda nf: -nf[1].ki)
