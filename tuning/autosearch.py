@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from piezopreload.core.errors import InfeasibleError, InternalError
+from piezopreload.core.errors import InfeasibleError
 from piezopreload.tuning.autotune_result import StartRecord, located, magnitudes
 from piezopreload.tuning.lti import LinearPlant
 from piezopreload.tuning.pidform import PIDController
@@ -150,6 +150,7 @@ class Search:
         self.hints = tuple(float(x) for x in np.concatenate([0.2 * f[:1], f]))  # the slices' reference frequencies
         self.w_mid = float(np.sqrt(omega[0] * omega[-1]) if not f.size else np.exp(np.mean(np.log(f))))
         self._stable: dict[tuple[PIDController, float], bool] = {}
+        self._closest: tuple[float, PIDController, float] | None = None  # the stable start closest to the bounds
 
     # ---- the pieces ----------------------------------------------------------------------------------
     def stable(self, c: PIDController, sign: float) -> bool:
@@ -209,6 +210,7 @@ class Search:
                 sign, seeds = self.least()
         sign = self.plant.sign if sign is None else sign
         records: list[StartRecord] = []
+        self._closest = None
         best = self._try(seeds, sign, objective, iae_scale, records)
         if best is None and spare:
             best = self._try(spare, sign, objective, iae_scale, records)
@@ -216,8 +218,7 @@ class Search:
             sign, more = self.least()
             best = self._try(more, sign, objective, iae_scale, records)
         if best is None:
-            raise InternalError(f"none of the {len(records)} starts ended on gains that meet the bounds on the check "
-                                "grid with a stable loop; give a finer grid (w)")
+            self._not_met(len(records))
         found = self.finish(best[1], objective, iae_scale)
         found.records, found.iterations = records, sum(r.iterations for r in records) + found.iterations - \
             best[1].iterations
@@ -237,7 +238,27 @@ class Search:
                                        iterations=found.iterations, seconds=found.seconds))
             if found.ratio <= 1.0 + TOLERANCE and stable and (best is None or value < best[0]):
                 best = (value, found)
+            if stable and (self._closest is None or records[-1].violation < self._closest[0]):
+                self._closest = (records[-1].violation, ctrl, sign)
         return best
+
+    def _not_met(self, starts: int) -> None:
+        """No start ended on gains that meet every bound with a stable loop: the bound the closest stable one misses
+        most, and by how much (an :class:`InfeasibleError`); none stable: say so."""
+        if self._closest is None:
+            raise InfeasibleError(f"none of the {starts} starts of the search ended on a stable loop near the bounds "
+                                  f"({self._bounds_text()}); this is no proof that no {_form(self.filter_order)} "
+                                  "meets them: relax them, or give a grid (w) that resolves the plant")
+        _, c, sign = self._closest
+        peaks = self.worst(c, sign)
+        name, (ratio, w) = max(((k, p[0]) for k, p in peaks.items()), key=lambda kv: kv[1][0])
+        what = {"Ms": "|S|", "Mt": "|T|", "Mks": "|KS|"}[name]
+        raise InfeasibleError(f"{name} <= {self.limits[name]:g} was not met: the least largest {what} the search's "
+                              f"{starts} starts reached with a stable loop is {ratio * self.limits[name]:.4g} (over by "
+                              f"{ratio - 1:.2%}, at {w:.4g} rad/s). Relax that bound, or tune the other form")
+
+    def _bounds_text(self) -> str:
+        return ", ".join(f"{k} <= {v:g}" for k, v in self.limits.items())
 
     def over(self, c: PIDController, sign: float) -> float:
         """The worst bound's ``|X| / M - 1`` on the check grid (its grid points)."""
@@ -385,9 +406,9 @@ class Search:
             if seeds:
                 break
         if not seeds:
-            raise InfeasibleError(f"no {_form(self.filter_order)} stabilises this plant within any bounds on the "
-                                  "grid (the stabilising set of the (kp, ki) plane is empty on every slice searched); "
-                                  "check the plant and its sign")
+            raise InfeasibleError(f"no stabilising {_form(self.filter_order)} was found: the slices searched of the "
+                                  f"(kp, ki) plane hold none with the bounds ({self._bounds_text()}) relaxed up to "
+                                  f"{RELAX[-1]:g} times. A search, no proof: check the plant and its sign")
         best = None
         for _, c in seeds:
             scales = self.scales(c)
@@ -396,8 +417,10 @@ class Search:
             if self.stable(scales.controller(least.x), sign) and (best is None or least.violation < best[1].violation):
                 best = (problem, least)
         if best is None:
-            raise InfeasibleError(f"no {_form(self.filter_order)} was found that stabilises this plant and comes "
-                                  "near the bounds; relax them, or check the plant")
+            raise InfeasibleError(f"no {_form(self.filter_order)} was found that stabilises this plant and meets the "
+                                  f"bounds ({self._bounds_text()}): with them relaxed {factor:g} times a slice "
+                                  "stabilises, but the least violation from there is unstable. A search, no proof: "
+                                  "relax the bounds, or check the plant")
         problem, least = best
         if least.violation <= 0.0:
             return sign, [("least violation", problem.scales.controller(least.x))]

@@ -276,7 +276,8 @@ def autotune(plant: Any, *, Ms: float, Mt: float | None = None, Mks: float | Non
                          "has none: fit one to a step response (fit_plant) or give a transfer function")
     _closed_form_limits(P, spec)
     design = P if spec.loop == "continuous" or P.discrete or spec.Ts is None else P.sampled(spec.Ts)
-    search = Search(design, _grid(w, design, spec.bounds), spec.bounds, spec.filter_order, spec.dt, spec.Tf_min, spec.solver, w)
+    search = Search(design, _grid(w, design, spec.bounds), spec.bounds, spec.filter_order, spec.dt, spec.Tf_min,
+                    spec.solver, w)
     found = search.run()
     iae = None
     if spec.metric == "IAE":

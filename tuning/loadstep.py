@@ -57,7 +57,7 @@ def load_step_function(plant: LinearPlant, sign: float = 1.0) -> ca.Function:
     u, _, integral, _, e, dpv = pid_update(CASADI, gains, (-_OPEN, _OPEN), plant.sample_period(), integral, e_prev,
                                            pv_prev, dpv, 0.0, y, 0.0)
     into = u + 1.0 if N == 0 else line[N - 1]
-    shifted = ca.vertcat(u + 1.0, line[:N - 1]) if N else ca.SX(0, 1)
+    shifted = ca.vertcat(u + 1.0, *ca.vertsplit(line)[:N - 1]) if N else ca.SX(0, 1)
     x_next = ca.vertcat(ca.mtimes(ca.DM(A), xp) + ca.DM(B) * into, integral, e, y, dpv, shifted)
     return ca.Function("load_step", [x, g], [x_next, y], ["x", "gains"], ["x_next", "y"])
 

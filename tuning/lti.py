@@ -39,7 +39,8 @@ LIGHT = 0.3
 def _poly(c: Any, what: str) -> np.ndarray:
     a = np.atleast_1d(np.asarray(c, float)).ravel()
     if not np.all(np.isfinite(a)):
-        raise InputError(f"the plant's {what} coefficients must be finite, got {a.tolist()!r}")
+        raise InputError(f"the plant's {what} coefficients must be finite; {int(np.sum(~np.isfinite(a)))} of "
+                         f"{a.size} are not")
     nz = np.flatnonzero(a)
     if nz.size == 0:
         raise InputError(f"the plant's {what} is zero; expected a nonzero polynomial")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -103,8 +104,15 @@ def _plant(args: argparse.Namespace) -> tuple[Any, float, FittedPlant | None]:
         num, sep, den = args.tf.partition("/")
         if not sep:
             raise InputError(f"--tf: '{args.tf}' is not NUM/DEN (example: --tf 30/0.005,1)")
-        return control.tf(_coefficients(num, "numerator"), _coefficients(den, "denominator"),
-                          0 if args.dt is None else args.dt), args.delay_s, None
+        n, d = _coefficients(num, "numerator"), _coefficients(den, "denominator")
+        for what, c in (("numerator", n), ("denominator", d)):
+            if not all(map(math.isfinite, c)):
+                raise InputError(f"--tf: the {what} has a coefficient that is not finite")
+            if not any(c):
+                given = (num if what == "numerator" else den)[:40]
+                raise InputError(f"--tf: the {what} is zero ('{given}'); expected a nonzero polynomial (example: "
+                                 "--tf 30/0.005,1)")
+        return control.tf(n, d, 0 if args.dt is None else args.dt), args.delay_s, None
     if args.dt is not None:
         raise InputError("--dt belongs to --tf (a discrete transfer function); a measured response carries its own")
     if args.frd is not None:
