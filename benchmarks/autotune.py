@@ -432,8 +432,8 @@ def _sampled_nyquist_stable(case: Case, kp: float, ki: float, kd: float, Tf: flo
     f = 1 + L
     half = np.sum(np.angle(f[1:] * np.conj(f[:-1])))
     poles = Gd.poles()
-    m = int(np.sum(np.abs(poles - 1) < 1e-9)) + 1
-    p = int(np.sum(np.abs(poles) > 1 + 1e-9))
+    m = int(np.sum(np.abs(poles - 1) < 1e-5)) + 1  # a double pole at z = 1 comes out split by about 1e-7
+    p = int(np.sum((np.abs(poles) > 1 + 1e-9) & (np.abs(poles - 1) >= 1e-5)))
     return bool(np.round(p - (2 * half - m * np.pi) / (2 * np.pi)) == 0)
 
 
@@ -452,6 +452,12 @@ def _scales(case: Case) -> list[tuple[float, float]]:
     picks = [float(np.exp(np.mean(np.log(mags)))), 0.2 * float(mags.min())]
     if case.w is not None:  # a grid given: five frequencies across it too (the loop may cross over anywhere on it)
         picks += [float(np.quantile(case.w, q)) for q in (0.1, 0.3, 0.5, 0.7, 0.9)]
+    if case.Mks is not None and not case.measured:  # a third of where Mks |G| falls through 1: the highest crossover
+        lo, hi = _span(case)
+        wk = np.logspace(np.log10(lo), np.log10(hi), 400)
+        above = np.flatnonzero(case.Mks * np.abs(plant_response(case, wk)) >= 1)
+        if above.size and above[-1] < wk.size - 1:
+            picks.append(float(wk[above[-1]]) / 3)
     for w in picks:
         if case.Ts is not None:
             w = min(w, 0.3 / case.Ts)
@@ -576,8 +582,11 @@ def _screen(case: Case, cand: np.ndarray, w: np.ndarray, G: np.ndarray, wl: np.n
         closed = np.abs(Lc[:, -1]) < 1
     G0, _ = case.model if case.measured else (case.G, None)
     m = int(np.sum(np.abs(G0.poles()) < 1e-9)) + 1
-    p = int(np.sum(G0.poles().real > 1e-9)) if case.Ts is None else \
-        int(np.sum(np.abs(control.c2d(G0, case.Ts, "zoh").poles()) > 1 + 1e-9))
+    if case.Ts is None:
+        p = int(np.sum(G0.poles().real > 1e-9))
+    else:  # a double pole at z = 1 comes out of c2d split by about 1e-7 about it: an integrator pair, not unstable
+        zp = control.c2d(G0, case.Ts, "zoh").poles()
+        p = int(np.sum((np.abs(zp) > 1 + 1e-9) & (np.abs(zp - 1) > 1e-5)))
     return worst, closed & (np.round(p - (2 * half - m * np.pi) / (2 * np.pi)) == 0)
 
 
