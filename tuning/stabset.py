@@ -47,6 +47,8 @@ _PID_KP = (-4.0, 1.5)
 #: the largest integral gain a line reports, relative to ``1/|G|`` times the reference frequency (no bound met
 #: before); far above it an integral action's phase lag leaves only unstable loops
 _KI_CAP = 1e3
+#: the fractions of the highest frequency where ``Mks |G| >= 1`` about which a PID's slices are searched too
+_REACH = (3.0, 10.0)
 #: the gaps of each slice whose stability is checked at once, best first
 _CHECK = 4
 
@@ -321,23 +323,25 @@ def _pi_slice(plane: Plane, refs: list[tuple[float, float]]) -> tuple[tuple[floa
     return None
 
 
-def _reach_reference(plane: Plane, pi: SliceOptimum | None) -> tuple[float, float] | None:
-    """Where a PID may cross over far above the PI's loop: a third of the highest grid frequency where
+def _reach_references(plane: Plane, pi: SliceOptimum | None) -> list[tuple[float, float]]:
+    """Where a PID may cross over far above the PI's loop: a third and a tenth of the highest grid frequency where
     ``Mks |G| >= 1`` (above it ``|KS|``, about ``|C| >= 1/|G|`` at a crossover, would break its bound) and ``1/|G|``
-    there; None without ``Mks``, where that frequency is the grid's end, or where it lies within a decade of the PI's
-    own scale ``ki/kp`` (the PI's slices cover it). A plant whose phase falls to -180 degrees above a slow pole (a
+    there; none without ``Mks`` or where that frequency is the grid's end, and not one within a decade of the PI's own
+    scale ``ki/kp`` (the PI's slices cover it). A plant whose phase falls to -180 degrees above a slow pole (a
     near-integrating one, a double integrator with a resonance) has its PI confined decades below the frequencies a
     PID's lead reaches: slices about the PI alone never see them."""
     if plane.Mks is None:
-        return None
+        return []
     above = np.flatnonzero(plane.Mks * np.abs(plane.G) >= 1.0)
     if above.size == 0 or above[-1] >= plane.omega.size - 1:
-        return None
-    w = plane.omega[above[-1]] / 3.0
-    if pi is not None and not pi.capped and w < 10.0 * pi.ki / pi.kp:
-        return None
-    j = int(np.argmin(np.abs(np.log(plane.omega / w))))
-    return float(plane.omega[j]), float(1.0 / np.abs(plane.G[j]))
+        return []
+    out = []
+    for w in plane.omega[above[-1]] / np.array(_REACH):
+        if pi is not None and not pi.capped and w < 10.0 * pi.ki / pi.kp:
+            continue
+        j = int(np.argmin(np.abs(np.log(plane.omega / w))))
+        out.append((float(plane.omega[j]), float(1.0 / np.abs(plane.G[j]))))
+    return out
 
 
 def _distinct(found: list[tuple[str, SliceOptimum]], plane: Plane,
@@ -369,8 +373,7 @@ def stabilising_starts(plane: Plane, Tf_min: float = 0.0, keep: int = 3,
             for row in _pid_slices(plane, pi, w_ref, kp_ref, Tf_min):
                 if row:
                     found.append(max(row, key=lambda nf: nf[1].ki))
-        reach = _reach_reference(plane, pi)
-        if reach is not None:
+        for reach in _reach_references(plane, pi):
             for row in _pid_slices(plane, None, *reach, Tf_min):
                 if row:
                     found.append(max(row, key=lambda nf: nf[1].ki))
