@@ -34,7 +34,8 @@ PEER_GRID = 2 * np.pi * np.logspace(-2, 2, 1000)
 def _two_inertia(JM: float, JL: float, k: float, c: float, cg: float, out: str) -> control.StateSpace:
     """Motor and load inertias on a shaft (stiffness ``k``, damping ``c``), each damped to ground by ``cg``; the
     torque on the motor; the output the motor's or the load's position."""
-    A = [[0, 1, 0, 0], [-k / JM, -(c + cg) / JM, k / JM, c / JM], [0, 0, 0, 1], [k / JL, c / JL, -k / JL, -(c + cg) / JL]]
+    A = [[0, 1, 0, 0], [-k / JM, -(c + cg) / JM, k / JM, c / JM], [0, 0, 0, 1],
+         [k / JL, c / JL, -k / JL, -(c + cg) / JL]]
     C = [[1, 0, 0, 0]] if out == "motor" else [[0, 0, 1, 0]]
     return control.ss(A, [[0], [1 / JM], [0], [0]], C, 0)
 

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from piezopreload.core.errors import InfeasibleError
-from piezopreload.tuning.autotune_result import StartRecord, located, magnitudes
+from piezopreload.tuning.autotune_result import REFINED_TO, StartRecord, located, magnitudes
 from piezopreload.tuning.lti import LinearPlant
 from piezopreload.tuning.pidform import PIDController
 from piezopreload.tuning.pidopt import PIDProblem, Scales, Solution
@@ -43,8 +43,8 @@ __all__ = ["Search", "Found", "bound_reach", "TOLERANCE", "REFINE_TO", "FINISH_T
 TOLERANCE = 0.005
 #: how far the refinement goes (the grid gains the check grid's peaks until they are within this)
 REFINE_TO = 3e-3
-#: how far the best start's solution is refined at the end
-FINISH_TO = 1e-4
+#: how far the best start's solution is refined at the end (the result's ``over_by`` names a bound it misses)
+FINISH_TO = REFINED_TO
 #: the design grid's points a decade (the check grid has ten times as many)
 PER_DECADE = 25
 _ROUNDS = 16  # the exchange's solves from one start
@@ -218,7 +218,7 @@ class Search:
             sign, more = self.least()
             best = self._try(more, sign, objective, iae_scale, records)
         if best is None:
-            self._not_met(len(records))
+            raise self._not_met(len(records))
         found = self.finish(best[1], objective, iae_scale)
         found.records, found.iterations = records, sum(r.iterations for r in records) + found.iterations - \
             best[1].iterations
@@ -242,18 +242,18 @@ class Search:
                 self._closest = (records[-1].violation, ctrl, sign)
         return best
 
-    def _not_met(self, starts: int) -> None:
-        """No start ended on gains that meet every bound with a stable loop: the bound the closest stable one misses
-        most, and by how much (an :class:`InfeasibleError`); none stable: say so."""
+    def _not_met(self, starts: int) -> InfeasibleError:
+        """No start ended on gains that meet every bound with a stable loop: the error that names the bound the
+        closest stable one misses most, and by how much; none stable: says so."""
         if self._closest is None:
-            raise InfeasibleError(f"none of the {starts} starts of the search ended on a stable loop near the bounds "
+            return InfeasibleError(f"none of the {starts} starts of the search ended on a stable loop near the bounds "
                                   f"({self._bounds_text()}); this is no proof that no {_form(self.filter_order)} "
                                   "meets them: relax them, or give a grid (w) that resolves the plant")
         _, c, sign = self._closest
         peaks = self.worst(c, sign)
         name, (ratio, w) = max(((k, p[0]) for k, p in peaks.items()), key=lambda kv: kv[1][0])
         what = {"Ms": "|S|", "Mt": "|T|", "Mks": "|KS|"}[name]
-        raise InfeasibleError(f"{name} <= {self.limits[name]:g} was not met: the least largest {what} the search's "
+        return InfeasibleError(f"{name} <= {self.limits[name]:g} was not met: the least largest {what} the search's "
                               f"{starts} starts reached with a stable loop is {ratio * self.limits[name]:.4g} (over by "
                               f"{ratio - 1:.2%}, at {w:.4g} rad/s). Relax that bound, or tune the other form")
 
