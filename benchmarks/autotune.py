@@ -9,6 +9,14 @@ chosen here, the table says so):
   delay-dominated); P3 ``1/(s + 1)^n`` (n = 3, 4, 8); P4 ``1/((1 + s)(1 + as)(1 + a^2 s)(1 + a^3 s))``;
   P5 ``(1 - as)/(s + 1)^3`` (non-minimum phase); P6 ``e^{-sL}/(s(1 + sT))``, T + L = 1 (integrating);
   P7 ``w0^2/((s + 1)(s^2 + 0.2 w0 s + w0^2))`` (oscillatory, zeta 0.1);
+* the commercial peer's own test plants on its grid ``2 pi logspace(-2, 2, 1000)`` (:func:`peer_plants`): the
+  near-integrating ``11.2/((s + 1e-5)(s + 0.12))`` (Ms = Mt = 1.2, Mks = 100) and the two-inertia plant (unit
+  inertias, shaft 100, dampings 1; Ms 1.3, Mt 1.5, Mks 300) measured on the motor and on the load, the reference
+  there a PID with the peer's second-order filter on the whole controller, ``(kp + ki/s + kd s) / (1 + Tf s +
+  (Tf s)^2 / 2)``; every bound checked on the peer's grid and on one ten times denser;
+* 11 sampled loops with delays of 1 to 10,000 samples at sample periods 1e-4 to 0.1 s (:func:`sampled`), the
+  reference on the exact zero-order-hold loop (``control.c2d`` times ``z^-N``), the stability of a loop whose
+  delay line is longer than 50 samples by the Nyquist criterion on a grid of eight points a sample of delay;
 * 17 more, of the classes the batch above lacks (:func:`practice`):
 
   ==================  ==============================================================  =================================
@@ -78,6 +86,8 @@ Per plant, in the same run:
 
 Figures (the last line of output, one JSON object): ``ki_over_reference_min`` (target >= 0.99),
 ``bound_violation_max`` (``max |X| / M - 1`` over every plant and bound; target <= 0.005), ``all_stable``,
+``sampled_worst_s`` (the slowest of the sampled long-delay loops; target <= 0.5), ``peer_ki_over_reference_min`` and
+``sampled_ki_over_reference_min`` (those groups' least ratio),
 ``median_s_per_plant`` (target <= 0.05), ``worst_s_per_plant`` (<= 0.5), ``autotune_vs_slsqp_time_ratio``
 (our total time over SLSQP's; aim <= 0.5) and ``autotune_vs_slsqp_time_ratio_median`` (the median of the plants'
 own ratios: the sum leans on SLSQP's slowest plants), ``median_cpu_s_per_plant``, ``worst_cpu_s_per_plant`` (this
@@ -764,6 +774,12 @@ def table(f: dict[str, Any]) -> str:
         ("worst bound over its limit on a grid ten times the tuner's (`bound_violation_max`)",
          x(f["bound_violation_max"], ".1e"), "<= 0.005"),
         ("every loop stable, python-control's poles (`all_stable`)", str(f["all_stable"]).lower(), "true"),
+        ("the peer's plants and the sampled long-delay loops: our ki over the reference's, least "
+         "(`peer_ki_over_reference_min`, `sampled_ki_over_reference_min`)",
+         f"{x(f['peer_ki_over_reference_min'], '.4f')}, {x(f['sampled_ki_over_reference_min'], '.4f')}",
+         ">= 0.99"),
+        ("the slowest sampled long-delay loop (`sampled_worst_s`)", x(f["sampled_worst_s"], ".3f") + " s",
+         "<= 0.5 s"),
         ("time per plant, median and worst of the per-plant medians of three (`median_s_per_plant`, "
          "`worst_s_per_plant`)", f"{x(f['median_s_per_plant'], '.3f')} s, {x(f['worst_s_per_plant'], '.3f')} s",
          "<= 0.05 s, <= 0.5 s"),
