@@ -47,8 +47,11 @@ _PID_KP = (-4.0, 1.5)
 #: the largest integral gain a line reports, relative to ``1/|G|`` times the reference frequency (no bound met
 #: before); far above it an integral action's phase lag leaves only unstable loops
 _KI_CAP = 1e3
-#: the fractions of the highest frequency where ``Mks |G| >= 1`` about which a PID's slices are searched too
-_REACH = (3.0, 10.0)
+#: the fractions of the highest frequency where ``Mks |G| >= 1`` about which a PID's slices are searched too, by
+#: filter order: the first order's optima lie about a third of it (a near-integrating plant, a two-inertia plant
+#: measured on its motor), the second order's on a plant measured on its load (the filter rolls the controller off
+#: at the resonance) a decade below it too; each fraction costs a batch of slices, so the first order's one
+_REACH = {1: (3.0,), 2: (3.0, 10.0)}
 #: the gaps of each slice whose stability is checked at once, best first
 _CHECK = 4
 
@@ -324,9 +327,9 @@ def _pi_slice(plane: Plane, refs: list[tuple[float, float]]) -> tuple[tuple[floa
 
 
 def _reach_references(plane: Plane, pi: SliceOptimum | None) -> list[tuple[float, float]]:
-    """Where a PID may cross over far above the PI's loop: a third and a tenth of the highest grid frequency where
-    ``Mks |G| >= 1`` (above it ``|KS|``, about ``|C| >= 1/|G|`` at a crossover, would break its bound) and ``1/|G|``
-    there; none without ``Mks`` or where that frequency is the grid's end, and not one within a decade of the PI's own
+    """Where a PID may cross over far above the PI's loop: the fractions :data:`_REACH` of the highest grid frequency
+    where ``Mks |G| >= 1`` (above it ``|KS|``, about ``|C| >= 1/|G|`` at a crossover, would break its bound) and
+    ``1/|G|`` there; none without ``Mks`` or where that frequency is the grid's end, and not one within a decade of the PI's own
     scale ``ki/kp`` (the PI's slices cover it). A plant whose phase falls to -180 degrees above a slow pole (a
     near-integrating one, a double integrator with a resonance) has its PI confined decades below the frequencies a
     PID's lead reaches: slices about the PI alone never see them."""
@@ -336,7 +339,7 @@ def _reach_references(plane: Plane, pi: SliceOptimum | None) -> list[tuple[float
     if above.size == 0 or above[-1] >= plane.omega.size - 1:
         return []
     out = []
-    for w in plane.omega[above[-1]] / np.array(_REACH):
+    for w in plane.omega[above[-1]] / np.array(_REACH[plane.filter_order]):
         if pi is not None and not pi.capped and w < 10.0 * pi.ki / pi.kp:
             continue
         j = int(np.argmin(np.abs(np.log(plane.omega / w))))
