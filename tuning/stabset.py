@@ -330,9 +330,9 @@ def _reach_references(plane: Plane, pi: SliceOptimum | None) -> list[tuple[float
     """Where a PID may cross over far above the PI's loop: the fractions :data:`_REACH` of the highest grid frequency
     where ``Mks |G| >= 1`` (above it ``|KS|``, about ``|C| >= 1/|G|`` at a crossover, would break its bound) and
     ``1/|G|`` there; none without ``Mks`` or where that frequency is the grid's end, and not one within a decade of
-    the PI's own scale ``ki/kp`` (the PI's slices cover it). A plant whose phase falls to -180 degrees above a slow pole (a
-    near-integrating one, a double integrator with a resonance) has its PI confined decades below the frequencies a
-    PID's lead reaches: slices about the PI alone never see them."""
+    the PI's own scale ``ki/kp`` (the PI's slices cover it). A plant whose phase falls to -180 degrees above a slow
+    pole (a near-integrating one, a double integrator with a resonance) has its PI confined decades below the
+    frequencies a PID's lead reaches: slices about the PI alone never see them."""
     if plane.Mks is None:
         return []
     above = np.flatnonzero(plane.Mks * np.abs(plane.G) >= 1.0)
