@@ -280,7 +280,8 @@ class LinearPlant:
         return np.polyval(num, s) / np.polyval(den, s) * delay
 
     def transfer_function(self) -> control.TransferFunction:
-        """The rational part as a python-control transfer function (the delay is :attr:`delay_s`)."""
+        """The rational part as a python-control transfer function (the delay is :attr:`delay_s`, a discrete plant's
+        :attr:`delay_samples`)."""
         if not self.rational:
             raise InputError("a measured frequency response has no transfer function; fit one (fit_plant)")
         return control.tf(self.num, self.den, 0 if self.dt is None else self.dt)
