@@ -9,6 +9,14 @@ chosen here, the table says so):
   delay-dominated); P3 ``1/(s + 1)^n`` (n = 3, 4, 8); P4 ``1/((1 + s)(1 + as)(1 + a^2 s)(1 + a^3 s))``;
   P5 ``(1 - as)/(s + 1)^3`` (non-minimum phase); P6 ``e^{-sL}/(s(1 + sT))``, T + L = 1 (integrating);
   P7 ``w0^2/((s + 1)(s^2 + 0.2 w0 s + w0^2))`` (oscillatory, zeta 0.1);
+* the commercial peer's own test plants on its grid ``2 pi logspace(-2, 2, 1000)`` (:func:`peer_plants`): the
+  near-integrating ``11.2/((s + 1e-5)(s + 0.12))`` (Ms = Mt = 1.2, Mks = 100) and the two-inertia plant (unit
+  inertias, shaft 100, dampings 1; Ms 1.3, Mt 1.5, Mks 300) measured on the motor and on the load, the reference
+  there a PID with the peer's second-order filter on the whole controller, ``(kp + ki/s + kd s) / (1 + Tf s +
+  (Tf s)^2 / 2)``; every bound checked on the peer's grid and on one ten times denser;
+* 11 sampled loops with delays of 1 to 10,000 samples at sample periods 1e-4 to 0.1 s (:func:`sampled`), the
+  reference on the exact zero-order-hold loop (``control.c2d`` times ``z^-N``), the stability of a loop whose
+  delay line is longer than 50 samples by the Nyquist criterion on a grid of eight points a sample of delay;
 * 17 more, of the classes the batch above lacks (:func:`practice`):
 
   ==================  ==============================================================  =================================
@@ -78,6 +86,8 @@ Per plant, in the same run:
 
 Figures (the last line of output, one JSON object): ``ki_over_reference_min`` (target >= 0.99),
 ``bound_violation_max`` (``max |X| / M - 1`` over every plant and bound; target <= 0.005), ``all_stable``,
+``sampled_worst_s`` (the slowest of the sampled long-delay loops; target <= 0.5), ``peer_ki_over_reference_min`` and
+``sampled_ki_over_reference_min`` (those groups' least ratio),
 ``median_s_per_plant`` (target <= 0.05), ``worst_s_per_plant`` (<= 0.5), ``autotune_vs_slsqp_time_ratio``
 (our total time over SLSQP's; aim <= 0.5) and ``autotune_vs_slsqp_time_ratio_median`` (the median of the plants'
 own ratios: the sum leans on SLSQP's slowest plants), ``median_cpu_s_per_plant``, ``worst_cpu_s_per_plant`` (this
@@ -106,7 +116,7 @@ import argparse
 import json
 import statistics
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import control
@@ -138,6 +148,9 @@ class Case:
     source: str = ""
     model: Any = None  # a measured plant's noise-free model (its stability check)
     extra: dict[str, Any] = field(default_factory=dict)
+    w: Any = None  # a grid given (the peer's): ours and the reference tune on it, the check is ten times denser
+    ref_form: str | None = None  # the reference's own form where it differs ("PID2": the peer's second-order filter)
+    sampled_set: bool = False  # one of the sampled-loop cases with long delays (sampled_worst_s)
 
     @property
     def measured(self) -> bool:
@@ -231,6 +244,53 @@ def practice() -> list[Case]:
     ]
 
 
+PEER_GRID = 2 * np.pi * np.logspace(-2, 2, 1000)
+_TWO_INERTIA_A = [[0, 1, 0, 0], [-100, -2, 100, 1], [0, 0, 0, 1], [100, 1, -100, -2]]
+
+
+def peer_plants() -> list[Case]:
+    """The commercial peer's own test plants the issue names, as state space, on the peer's grid: a near-integrating
+    second-order plant (poles at 1e-5 and 0.12 rad/s) and the two-inertia plant (unit inertias, shaft 100, dampings
+    1) with the output on the motor and on the load; the reference a PID with the peer's second-order filter."""
+    src = "the commercial peer's test plants (issue 43)"
+    near = control.ss([[0, 1], [-1.2e-6, -0.12001]], [[0], [1]], [[11.2, 0]], 0)
+    motor = control.ss(_TWO_INERTIA_A, [[0], [1], [0], [0]], [[1, 0, 0, 0]], 0)
+    load = control.ss(_TWO_INERTIA_A, [[0], [1], [0], [0]], [[0, 0, 1, 0]], 0)
+    return [
+        Case("peer near-integrating", near, 0.0, Ms=1.2, Mt=1.2, Mks=100.0, w=PEER_GRID, ref_form="PID2", source=src),
+        Case("peer two-inertia motor", motor, 0.0, Ms=1.3, Mt=1.5, Mks=300.0, w=PEER_GRID, ref_form="PID2",
+             source=src),
+        Case("peer two-inertia load", load, 0.0, Ms=1.3, Mt=1.5, Mks=300.0, w=PEER_GRID, ref_form="PID2",
+             source=src + ", output on the load"),
+    ]
+
+
+def sampled() -> list[Case]:
+    """Sampled loops with long delays (1 to 10,000 samples, sample periods 1e-4 to 0.1 s), each on the exact
+    zero-order-hold loop; the plants are the classes above (first and second order with delay, integrating, the
+    issue's double integrator with a resonance), their parameters chosen here."""
+    s = control.tf("s")
+    src = "sampled, long delay (chosen here)"
+    dint = 1 / (2.8144773233982723e-05 * s**4 + 0.00021220659078919382 * s**3 + s**2)
+
+    def case(name: str, G: Any, d: int, Ts: float, **kw: Any) -> Case:
+        return Case(name, G, d * Ts, Ts=Ts, sampled_set=True, source=src, **kw)
+
+    return [
+        case("S fopdt 10000 @ 1e-4", 1 / (s + 1), 10000, 1e-4),
+        case("S fopdt 100 @ 1e-4", 1 / (0.1 * s + 1), 100, 1e-4),
+        case("S issue 5000 @ 1e-3", 2 / (50 * s + 1), 5000, 1e-3, Mt=None, Mks=None),
+        case("S issue 100 @ 1e-3", 2 / (10 * s + 1), 100, 1e-3, Mt=None, Mks=100.0),
+        case("S sotd 1 @ 1e-3", 1 / ((0.05 * s + 1) * (0.01 * s + 1)), 1, 1e-3),
+        case("S sotd 1000 @ 1e-2", 1 / ((s + 1) * (0.2 * s + 1)), 1000, 1e-2),
+        case("S lag2 10 @ 0.1", 1 / (5 * s + 1) ** 2, 10, 0.1),
+        case("S fopdt 3 @ 0.1", 1 / (10 * s + 1), 3, 0.1),
+        case("S integrating 2000 @ 1e-3", 1 / (s * (s + 1)), 2000, 1e-3, Mks=20.0),
+        case("S fopdt 10000 @ 1e-3", 1 / (2 * s + 1), 10000, 1e-3),
+        case("S double integrator 3 @ 1e-3", dint, 3, 1e-3, Mt=None, Mks=20.0),
+    ]
+
+
 # --------------------------------------------------------------------------------------
 # the plant and the controller, written here (python-control for the plant)
 # --------------------------------------------------------------------------------------
@@ -255,7 +315,13 @@ def _span(case: Case) -> tuple[float, float]:
 
 
 def grid(case: Case, per_decade: int, cluster: int) -> np.ndarray:
-    """Log-spaced over :func:`_span`, with ``cluster`` points across each lightly damped pole or zero pair."""
+    """Log-spaced over :func:`_span`, with ``cluster`` points across each lightly damped pole or zero pair; a grid
+    given: itself at the reference's density, ten times as many points over its range at the check's."""
+    if case.w is not None:
+        w = np.asarray(case.w, float)
+        if per_decade <= PER_DECADE_REF:
+            return w
+        return np.logspace(np.log10(w[0]), np.log10(w[-1]), 10 * w.size)
     if case.measured:
         return np.asarray(case.G.omega, float)
     lo, hi = _span(case)
@@ -291,6 +357,11 @@ def controller_response(theta: np.ndarray, w: np.ndarray, case: Case) -> tuple[n
         I = 1 / s
         if case.form == "PI":
             return kp + ki * I, [kp + 0 * s, ki * I]
+        if case.form == "PID2":  # (kp + ki/s + kd s) F(s), F = 1 / (1 + Tf s + (Tf s)^2 / 2)
+            kd, Tf = g[2], g[3]
+            F = 1 / (1 + Tf * s + (Tf * s) ** 2 / 2)
+            N = kp + ki * I + kd * s
+            return N * F, [kp * F, ki * I * F, kd * s * F, -N * (Tf * s + (Tf * s) ** 2) * F**2]
         kd, Tf = g[2], g[3]
         D = s / (Tf * s + 1)
         return kp + ki * I + kd * D, [kp + 0 * s, ki * I, kd * D, -kd * Tf * s * D / (Tf * s + 1)]
@@ -334,6 +405,7 @@ def stable(case: Case, kp: float, ki: float, kd: float, Tf: float) -> bool:
     G, delay = (case.model if case.measured else (case.G, case.delay))
     if case.Ts is None:
         C = control.tf([kp * Tf + kd, kp + ki * Tf, ki], [Tf, 1.0, 0.0]) if case.form == "PID" else \
+            control.tf([kd, kp, ki], [Tf**2 / 2, Tf, 1.0, 0.0]) if case.form == "PID2" else \
             control.tf([kp, ki], [1.0, 0.0])
         P = control.ss(G)
         if delay > 0:
@@ -342,6 +414,8 @@ def stable(case: Case, kp: float, ki: float, kd: float, Tf: float) -> bool:
     Ts = case.Ts
     d = int(round(delay / Ts))
     P = control.c2d(control.ss(G), Ts, "zoh")
+    if d > 50:
+        return _sampled_nyquist_stable(case, kp, ki, kd, Tf)
     if d:
         P = P * control.ss(control.tf([1.0], [1.0] + [0.0] * d, Ts))
     a = Tf / (Tf + Ts) if case.form == "PID" else 0.0
@@ -350,6 +424,27 @@ def stable(case: Case, kp: float, ki: float, kd: float, Tf: float) -> bool:
            + gd * np.polymul([1, -1], [1, -1]))
     C = control.ss(control.tf(num, np.polymul([1, -1], [1, -a]), Ts))
     return bool(np.all(np.abs(np.linalg.eigvals(control.feedback(P * C, 1).A)) < 1))
+
+
+def _sampled_nyquist_stable(case: Case, kp: float, ki: float, kd: float, Tf: float) -> bool:
+    """A sampled loop with a long delay (its delay line would be thousands of states): the Nyquist criterion on
+    python-control's zero-order-hold equivalent times ``z^-d``, the unit circle's upper half at 8 points per
+    sample of delay (``z^-d`` turns a sixteenth of a turn between them) and log-spaced below, the integrators
+    (the plant's and the controller's) indented; the open loop's unstable poles from the sampled plant's."""
+    Ts, d = case.Ts, int(round(case.delay / case.Ts))
+    Gd = control.c2d(case.G, Ts, "zoh")
+    top = np.pi / Ts
+    w = np.unique(np.concatenate([np.logspace(np.log10(top) - 12, np.log10(top / (4 * d)), 2000),
+                                  np.linspace(top / (4 * d), top, 8 * d)]))
+    th = np.log([kp, ki] + ([max(kd, 1e-300), Tf] if case.form == "PID" else []))
+    z = np.exp(1j * w * Ts)
+    L = controller_response(th, w, case)[0] * Gd(z) * z ** (-d)
+    f = 1 + L
+    half = np.sum(np.angle(f[1:] * np.conj(f[:-1])))
+    poles = Gd.poles()
+    m = int(np.sum(np.abs(poles - 1) < 1e-5)) + 1  # a double pole at z = 1 comes out split by about 1e-7
+    p = int(np.sum((np.abs(poles) > 1 + 1e-9) & (np.abs(poles - 1) >= 1e-5)))
+    return bool(np.round(p - (2 * half - m * np.pi) / (2 * np.pi)) == 0)
 
 
 # --------------------------------------------------------------------------------------
@@ -364,7 +459,16 @@ def _scales(case: Case) -> list[tuple[float, float]]:
     if delay > 0:
         mags = np.append(mags, 1.0 / delay)
     out = []
-    for w in (float(np.exp(np.mean(np.log(mags)))), 0.2 * float(mags.min())):
+    picks = [float(np.exp(np.mean(np.log(mags)))), 0.2 * float(mags.min())]
+    if case.w is not None:  # a grid given: five frequencies across it too (the loop may cross over anywhere on it)
+        picks += [float(np.quantile(case.w, q)) for q in (0.1, 0.3, 0.5, 0.7, 0.9)]
+    if case.Mks is not None and not case.measured:  # a third of where Mks |G| falls through 1: the highest crossover
+        lo, hi = _span(case)
+        wk = np.logspace(np.log10(lo), np.log10(hi), 400)
+        above = np.flatnonzero(case.Mks * np.abs(plant_response(case, wk)) >= 1)
+        if above.size and above[-1] < wk.size - 1:
+            picks.append(float(wk[above[-1]]) / 3)
+    for w in picks:
         if case.Ts is not None:
             w = min(w, 0.3 / case.Ts)
         if case.measured:  # the nearest measured point
@@ -488,21 +592,26 @@ def _screen(case: Case, cand: np.ndarray, w: np.ndarray, G: np.ndarray, wl: np.n
         closed = np.abs(Lc[:, -1]) < 1
     G0, _ = case.model if case.measured else (case.G, None)
     m = int(np.sum(np.abs(G0.poles()) < 1e-9)) + 1
-    p = int(np.sum(G0.poles().real > 1e-9)) if case.Ts is None else \
-        int(np.sum(np.abs(control.c2d(G0, case.Ts, "zoh").poles()) > 1 + 1e-9))
+    if case.Ts is None:
+        p = int(np.sum(G0.poles().real > 1e-9))
+    else:  # a double pole at z = 1 comes out of c2d split by about 1e-7 about it: an integrator pair, not unstable
+        zp = control.c2d(G0, case.Ts, "zoh").poles()
+        p = int(np.sum((np.abs(zp) > 1 + 1e-9) & (np.abs(zp - 1) > 1e-5)))
     return worst, closed & (np.round(p - (2 * half - m * np.pi) / (2 * np.pi)) == 0)
 
 
 def reference(case: Case, rng: np.random.Generator) -> dict[str, Any]:
-    """The best of :data:`REF_STARTS` SLSQP solves (see the module docstring)."""
+    """The best of :data:`REF_STARTS` SLSQP solves (see the module docstring), in the case's reference form."""
+    if case.ref_form is not None:
+        case = replace(case, form=case.ref_form)
     w = grid(case, PER_DECADE_REF, 400)
     G = plant_response(case, w)
     wl, Gl = _low(case, w[0])
     n = 2 if case.form == "PI" else 4
     boxes = [(np.log([kr * 1e-4, kr * wr * 1e-5, kr / wr * 1e-4, 1e-5 / wr][:n]),
               np.log([kr * 1e3, kr * wr * 1e3, kr / wr * 1e3, 1e2 / wr][:n])) for wr, kr in _scales(case)]
-    lo, hi = np.minimum(*[b[0] for b in boxes]), np.maximum(*[b[1] for b in boxes])
-    cand = np.concatenate([b[0] + qmc.LatinHypercube(d=n, seed=rng).random(REF_CANDIDATES // 2) * (b[1] - b[0])
+    lo, hi = np.min([b[0] for b in boxes], axis=0), np.max([b[1] for b in boxes], axis=0)
+    cand = np.concatenate([b[0] + qmc.LatinHypercube(d=n, seed=rng).random(REF_CANDIDATES // len(boxes)) * (b[1] - b[0])
                            for b in boxes])
     worst_all, stable_all = _screen(case, cand, w, G, wl, Gl)
 
@@ -539,7 +648,7 @@ def reference(case: Case, rng: np.random.Generator) -> dict[str, Any]:
 # --------------------------------------------------------------------------------------
 def tune(case: Case, solver: str) -> Any:
     return autotune(case.G, Ms=case.Ms, Mt=case.Mt, Mks=case.Mks, delay_s=case.delay, form=case.form, Ts=case.Ts,
-                    loop=None if case.Ts is None else "sampled", solver=solver)
+                    loop=None if case.Ts is None else "sampled", solver=solver, w=case.w)
 
 
 def timed(case: Case, solver: str) -> tuple[Any, list[float], list[float]]:
@@ -563,6 +672,8 @@ def check(case: Case, r: Any) -> tuple[float, bool]:
     c = r.controller_
     kp, ki, kd, Tf = c.kp, c.ki, c.kd, c.Tf
     w = grid(case, CHECK_PER_DECADE, 2000)
+    if case.w is not None:  # a grid given: on it and on one ten times denser
+        w = np.union1d(w, case.w)
     th = np.log([kp, ki] + ([max(kd, 1e-300), max(Tf, 1e-300)] if case.form == "PID" else []))
     rows = bound_rows(controller_response(th, w, case)[0], plant_response(case, w), case)[0]
     return float(np.max(rows) - 1.0), stable(case, kp, ki, kd, Tf if case.form == "PID" else 1.0)
@@ -576,7 +687,8 @@ def main() -> None:
     parser.add_argument("--write-docs", action="store_true",
                         help="write the figures' table into docs/autotune.md (between its markers)")
     args = parser.parse_args()
-    cases = [c for c in astrom_hagglund() + practice() if args.only is None or args.only in c.name]
+    cases = [c for c in astrom_hagglund() + practice() + peer_plants() + sampled()
+             if args.only is None or args.only in c.name]
     load = os.getloadavg()[0]
     rng = np.random.default_rng(20240601)
     rows, first = [], None
@@ -588,6 +700,7 @@ def main() -> None:
         first = first if first is not None else t_ours[0]
         peer, t_peer, _ = timed(case, "slsqp")
         row: dict[str, Any] = {"plant": case.name, "source": case.source, "ref_ki": ref["ki"], "ref_s": ref_s,
+                               "sampled_set": case.sampled_set, "peer": case.ref_form is not None,
                                "s": statistics.median(t_ours), "cpu_s": statistics.median(c_ours),
                                "slsqp_s": statistics.median(t_peer), "slsqp_ki": None if peer is None else peer.ki}
         if ours is not None:
@@ -631,6 +744,10 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "all_stable": all(r["stable"] for r in rows),
         "median_s_per_plant": statistics.median(times),
         "worst_s_per_plant": max(times),
+        "sampled_worst_s": max((r["s"] for r in rows if r.get("sampled_set")), default=None),
+        "sampled_ki_over_reference_min": min((r["ratio"] for r in rows if r.get("sampled_set") and r["ratio"]),
+                                             default=None),
+        "peer_ki_over_reference_min": min((r["ratio"] for r in rows if r.get("peer") and r["ratio"]), default=None),
         "median_cpu_s_per_plant": statistics.median(cpu),
         "worst_cpu_s_per_plant": max(cpu),
         "autotune_vs_slsqp_time_ratio": sum(times) / sum(r["slsqp_s"] for r in rows),
@@ -657,6 +774,12 @@ def table(f: dict[str, Any]) -> str:
         ("worst bound over its limit on a grid ten times the tuner's (`bound_violation_max`)",
          x(f["bound_violation_max"], ".1e"), "<= 0.005"),
         ("every loop stable, python-control's poles (`all_stable`)", str(f["all_stable"]).lower(), "true"),
+        ("the peer's plants and the sampled long-delay loops: our ki over the reference's, least "
+         "(`peer_ki_over_reference_min`, `sampled_ki_over_reference_min`)",
+         f"{x(f['peer_ki_over_reference_min'], '.4f')}, {x(f['sampled_ki_over_reference_min'], '.4f')}",
+         ">= 0.99"),
+        ("the slowest sampled long-delay loop (`sampled_worst_s`)", x(f["sampled_worst_s"], ".3f") + " s",
+         "<= 0.5 s"),
         ("time per plant, median and worst of the per-plant medians of three (`median_s_per_plant`, "
          "`worst_s_per_plant`)", f"{x(f['median_s_per_plant'], '.3f')} s, {x(f['worst_s_per_plant'], '.3f')} s",
          "<= 0.05 s, <= 0.5 s"),

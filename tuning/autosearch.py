@@ -30,21 +30,21 @@ from typing import Any
 
 import numpy as np
 
-from piezopreload.core.errors import InfeasibleError, InternalError
-from piezopreload.tuning.autotune_result import StartRecord, located, magnitudes
+from piezopreload.core.errors import InfeasibleError
+from piezopreload.tuning.autotune_result import REFINED_TO, StartRecord, located, magnitudes
 from piezopreload.tuning.lti import LinearPlant
 from piezopreload.tuning.pidform import PIDController
 from piezopreload.tuning.pidopt import PIDProblem, Scales, Solution
 from piezopreload.tuning.stabset import RELAX, plane_of, stabilising_any, stabilising_starts, unstable_counts
 
-__all__ = ["Search", "Found", "TOLERANCE", "REFINE_TO", "FINISH_TO", "PER_DECADE"]
+__all__ = ["Search", "Found", "bound_reach", "TOLERANCE", "REFINE_TO", "FINISH_TO", "PER_DECADE"]
 
 #: how far (relative) a bound may be exceeded on the check grid
 TOLERANCE = 0.005
 #: how far the refinement goes (the grid gains the check grid's peaks until they are within this)
 REFINE_TO = 3e-3
-#: how far the best start's solution is refined at the end
-FINISH_TO = 1e-4
+#: how far the best start's solution is refined at the end (the result's ``over_by`` names a bound it misses)
+FINISH_TO = REFINED_TO
 #: the design grid's points a decade (the check grid has ten times as many)
 PER_DECADE = 25
 _ROUNDS = 16  # the exchange's solves from one start
@@ -86,10 +86,27 @@ def _far(plant: LinearPlant, omega: np.ndarray, decades: float, points: int) -> 
     return np.unique(np.append(omega, np.logspace(np.log10(omega[-1]), np.log10(omega[-1]) + decades, points)))
 
 
-def design_grid(plant: LinearPlant, per_decade: int = PER_DECADE) -> np.ndarray:
+def design_grid(plant: LinearPlant, per_decade: int = PER_DECADE, upto: float | None = None) -> np.ndarray:
     """The plant's design grid (:meth:`~piezopreload.tuning.lti.LinearPlant.grid`, :data:`PER_DECADE` a decade,
-    clusters at its resonances) and, continuous, two points three decades on."""
-    return _far(plant, plant.grid(per_decade), 3.0, 2)
+    clusters at its resonances, reaching ten times beyond ``upto``: :func:`bound_reach`) and, continuous, two points
+    three decades on."""
+    return _far(plant, plant.grid(per_decade, upto=upto), 3.0, 2)
+
+
+def bound_reach(plant: LinearPlant, bounds: dict[str, float | None]) -> float | None:
+    """The highest frequency where ``Mks |G| >= 1``: the loop's gain crossover lies below it (there ``|KS|`` is about
+    ``|C| >= 1/|G|``), however far above the plant's own poles and zeros (a near-integrating or double-integrating
+    plant's PID crosses over where the bound on ``|KS|`` lets it, decades above its slow poles); None without an
+    ``Mks``, for a measured or discrete plant (their grids end at their data or their Nyquist frequency), or where
+    ``Mks |G|`` stays at least 1 (a biproper plant)."""
+    mks = bounds.get("Mks")
+    if mks is None or not plant.rational or plant.discrete:
+        return None
+    w = plant.grid(10, widen=4.0)
+    above = np.flatnonzero(mks * np.abs(plant.response(w)) >= 1.0)
+    if above.size == 0 or above[-1] == w.size - 1:
+        return None
+    return float(w[above[-1]])
 
 
 def check_grid(plant: LinearPlant, omega: np.ndarray) -> np.ndarray:
@@ -126,12 +143,14 @@ class Search:
         self.count_w = np.concatenate([self.low, grid])
         self.G_count = plant.response(self.count_w)
         # the slices' grid: the design grid at SLICE_PER_DECADE (a given grid: as it is), their starts refined after
-        self.slice_w = design_grid(plant, _SLICE_PER_DECADE) if given is None else omega
+        self.reach = bound_reach(plant, bounds)
+        self.slice_w = design_grid(plant, _SLICE_PER_DECADE, self.reach) if given is None else omega
         self.G_slice = plant.response(self.slice_w)
         f = np.sort(plant.characteristic_frequencies()) if plant.rational else np.zeros(0)
         self.hints = tuple(float(x) for x in np.concatenate([0.2 * f[:1], f]))  # the slices' reference frequencies
         self.w_mid = float(np.sqrt(omega[0] * omega[-1]) if not f.size else np.exp(np.mean(np.log(f))))
         self._stable: dict[tuple[PIDController, float], bool] = {}
+        self._closest: tuple[float, PIDController, float] | None = None  # the stable start closest to the bounds
 
     # ---- the pieces ----------------------------------------------------------------------------------
     def stable(self, c: PIDController, sign: float) -> bool:
@@ -191,6 +210,7 @@ class Search:
                 sign, seeds = self.least()
         sign = self.plant.sign if sign is None else sign
         records: list[StartRecord] = []
+        self._closest = None
         best = self._try(seeds, sign, objective, iae_scale, records)
         if best is None and spare:
             best = self._try(spare, sign, objective, iae_scale, records)
@@ -198,8 +218,7 @@ class Search:
             sign, more = self.least()
             best = self._try(more, sign, objective, iae_scale, records)
         if best is None:
-            raise InternalError(f"none of the {len(records)} starts ended on gains that meet the bounds on the check "
-                                "grid with a stable loop; give a finer grid (w)")
+            raise self._not_met(len(records))
         found = self.finish(best[1], objective, iae_scale)
         found.records, found.iterations = records, sum(r.iterations for r in records) + found.iterations - \
             best[1].iterations
@@ -219,7 +238,27 @@ class Search:
                                        iterations=found.iterations, seconds=found.seconds))
             if found.ratio <= 1.0 + TOLERANCE and stable and (best is None or value < best[0]):
                 best = (value, found)
+            if stable and (self._closest is None or records[-1].violation < self._closest[0]):
+                self._closest = (records[-1].violation, ctrl, sign)
         return best
+
+    def _not_met(self, starts: int) -> InfeasibleError:
+        """No start ended on gains that meet every bound with a stable loop: the error that names the bound the
+        closest stable one misses most, and by how much; none stable: says so."""
+        if self._closest is None:
+            return InfeasibleError(f"none of the {starts} starts of the search ended on a stable loop near the bounds "
+                                  f"({self._bounds_text()}); this is no proof that no {_form(self.filter_order)} "
+                                  "meets them: relax them, or give a grid (w) that resolves the plant")
+        _, c, sign = self._closest
+        peaks = self.worst(c, sign)
+        name, (ratio, w) = max(((k, p[0]) for k, p in peaks.items()), key=lambda kv: kv[1][0])
+        what = {"Ms": "|S|", "Mt": "|T|", "Mks": "|KS|"}[name]
+        return InfeasibleError(f"{name} <= {self.limits[name]:g} was not met: the least largest {what} the search's "
+                              f"{starts} starts reached with a stable loop is {ratio * self.limits[name]:.4g} (over by "
+                              f"{ratio - 1:.2%}, at {w:.4g} rad/s). Relax that bound, or tune the other form")
+
+    def _bounds_text(self) -> str:
+        return ", ".join(f"{k} <= {v:g}" for k, v in self.limits.items())
 
     def over(self, c: PIDController, sign: float) -> float:
         """The worst bound's ``|X| / M - 1`` on the check grid (its grid points)."""
@@ -367,9 +406,9 @@ class Search:
             if seeds:
                 break
         if not seeds:
-            raise InfeasibleError(f"no {_form(self.filter_order)} stabilises this plant within any bounds on the "
-                                  "grid (the stabilising set of the (kp, ki) plane is empty on every slice searched); "
-                                  "check the plant and its sign")
+            raise InfeasibleError(f"no stabilising {_form(self.filter_order)} was found: the slices searched of the "
+                                  f"(kp, ki) plane hold none with the bounds ({self._bounds_text()}) relaxed up to "
+                                  f"{RELAX[-1]:g} times. A search, no proof: check the plant and its sign")
         best = None
         for _, c in seeds:
             scales = self.scales(c)
@@ -378,8 +417,10 @@ class Search:
             if self.stable(scales.controller(least.x), sign) and (best is None or least.violation < best[1].violation):
                 best = (problem, least)
         if best is None:
-            raise InfeasibleError(f"no {_form(self.filter_order)} was found that stabilises this plant and comes "
-                                  "near the bounds; relax them, or check the plant")
+            raise InfeasibleError(f"no {_form(self.filter_order)} was found that stabilises this plant and meets the "
+                                  f"bounds ({self._bounds_text()}): with them relaxed {factor:g} times a slice "
+                                  "stabilises, but the least violation from there is unstable. A search, no proof: "
+                                  "relax the bounds, or check the plant")
         problem, least = best
         if least.violation <= 0.0:
             return sign, [("least violation", problem.scales.controller(least.x))]

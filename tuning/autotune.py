@@ -49,7 +49,7 @@ import numpy as np
 
 from piezopreload.artifacts.tuning import ActiveBound
 from piezopreload.core.errors import InfeasibleError, InputError
-from piezopreload.tuning.autosearch import TOLERANCE, Found, Search, design_grid
+from piezopreload.tuning.autosearch import TOLERANCE, Found, Search, bound_reach, design_grid
 from piezopreload.tuning.autotune_result import LOOPS, AutotuneResult, achieved, margins_of
 from piezopreload.tuning.loadstep import iae_function, load_response
 from piezopreload.tuning.lti import LinearPlant, as_plant, nyquist_unstable
@@ -201,9 +201,9 @@ def _dc_gain(P: LinearPlant) -> float:
     return float(np.abs(np.polyval(num, at) / d)) if d != 0 else np.inf
 
 
-def _grid(w: Any, plant: LinearPlant) -> np.ndarray:
+def _grid(w: Any, plant: LinearPlant, bounds: dict[str, float | None]) -> np.ndarray:
     if w is None:
-        return design_grid(plant)
+        return design_grid(plant, upto=bound_reach(plant, bounds))
     w = np.asarray(w, float).ravel()
     if w.size < 8 or not (np.all(np.isfinite(w)) and np.all(w > 0) and np.all(np.diff(w) > 0)):
         raise InputError("w must hold at least 8 finite, positive, strictly increasing frequencies (rad/s)")
@@ -219,7 +219,7 @@ def _grid(w: Any, plant: LinearPlant) -> np.ndarray:
 def autotune(plant: Any, *, Ms: float, Mt: float | None = None, Mks: float | None = None, metric: str = "IE",
              form: str = "PID", Ts: float | None = None, loop: str | None = None, u_min: float | None = None,
              u_max: float | None = None, horizon_s: float | None = None, delay_s: float = 0.0, w: Any = None,
-             filter_order: int | None = None, solver: str = "sqp") -> AutotuneResult:
+             filter_order: int | str | None = None, solver: str = "sqp") -> AutotuneResult:
     """Tune a PI or PID for ``plant`` under ``|S| <= Ms``, ``|T| <= Mt``, ``|KS| <= Mks``; see the module docstring.
 
     Parameters
@@ -249,8 +249,11 @@ def autotune(plant: Any, *, Ms: float, Mt: float | None = None, Mks: float | Non
         An input delay (s), exact in the frequency response.
     w : array_like, optional
         The design grid (rad/s) instead of the plant's.
-    filter_order : {1, 2}, optional
-        A PID's filter: first order on the derivative (1, the default) or second order on the whole controller (2).
+    filter_order : {1, 2, "auto"}, optional
+        A PID's filter: first order on the derivative (1, the default) or second order on the whole controller (2);
+        ``"auto"``: both tuned, the one of larger integral gain kept (the second order gains where the plant's
+        resonance lies above the crossover: a two-inertia plant measured on its load; its gains run in no export
+        yet, the controller step's filter being first order).
     solver : {"sqp", "ipopt", "slsqp", "slsqp-fd"}
         The local solver: the SQP (exact derivatives, DAQP for its QPs), IPOPT (exact derivatives), scipy's SLSQP
         with the same exact first derivatives, or with finite differences (for comparison).
@@ -266,6 +269,21 @@ def autotune(plant: Any, *, Ms: float, Mt: float | None = None, Mks: float | Non
     InfeasibleError
         No gains meet the bounds: the message names the bound and the least value reached.
     """
+    if filter_order == "auto":
+        if form != "PID" or metric != "IE":
+            raise InputError("filter_order='auto' compares a PID's two filters by their integral gain: give "
+                             f"form='PID' and metric='IE' (got form {form!r}, metric {metric!r})")
+        kw = dict(Ms=Ms, Mt=Mt, Mks=Mks, metric=metric, form=form, Ts=Ts, loop=loop, u_min=u_min, u_max=u_max,
+                  horizon_s=horizon_s, delay_s=delay_s, w=w, solver=solver)
+        tuned = []
+        for order in (1, 2):
+            try:
+                tuned.append(autotune(plant, filter_order=order, **kw))
+            except InfeasibleError as exc:
+                last = exc
+        if not tuned:
+            raise last
+        return max(tuned, key=lambda r: r.ki)
     t0 = time.perf_counter()
     if isinstance(plant, FittedPlant):
         plant, delay_s = plant.transfer_function(), plant.delay_s + float(delay_s)
@@ -276,7 +294,8 @@ def autotune(plant: Any, *, Ms: float, Mt: float | None = None, Mks: float | Non
                          "has none: fit one to a step response (fit_plant) or give a transfer function")
     _closed_form_limits(P, spec)
     design = P if spec.loop == "continuous" or P.discrete or spec.Ts is None else P.sampled(spec.Ts)
-    search = Search(design, _grid(w, design), spec.bounds, spec.filter_order, spec.dt, spec.Tf_min, spec.solver, w)
+    search = Search(design, _grid(w, design, spec.bounds), spec.bounds, spec.filter_order, spec.dt, spec.Tf_min,
+                    spec.solver, w)
     found = search.run()
     iae = None
     if spec.metric == "IAE":

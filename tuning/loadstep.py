@@ -26,13 +26,19 @@ __all__ = ["load_step_function", "load_response", "iae_function"]
 _OPEN = 1e12  # the output range of the simulated controller: none
 
 
-def _plant_matrices(plant: LinearPlant) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    A, B, C, D = plant.state_space()
+def _plant_matrices(plant: LinearPlant) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """The plant's rational part ``(A, B, C)`` and its whole samples of delay ``N`` (its input shifted by them, a
+    line of ``N`` values, never an ``N``-by-``N`` matrix); a direct term goes into the line's last value."""
+    A, B, C, D = plant.rational_state_space()
+    N = plant.delay_samples
+    if N and np.any(np.abs(D) > 0):
+        A, B, C, D = plant.state_space()
+        N = 0
     if np.any(np.abs(D) > 0):
         raise InputError("the sampled plant passes its input straight to its output (a biproper plant without "
                          "delay): the A/D reading would depend on this sample's command; give the plant its "
                          "computation delay (delay_s) or a strictly proper model")
-    return A, B, C
+    return A, B, C, N
 
 
 def load_step_function(plant: LinearPlant, sign: float = 1.0) -> ca.Function:
@@ -40,16 +46,19 @@ def load_step_function(plant: LinearPlant, sign: float = 1.0) -> ca.Function:
     of form 0 or 1 (:class:`~piezopreload.tuning.pidform.PIDController`) and ``x`` the plant's state then the
     controller's (integral action, previous error, previous measurement, filtered derivative). ``sign`` multiplies
     the plant (the controller is tuned on the plant of positive gain)."""
-    A, B, C = _plant_matrices(plant)
+    A, B, C, N = _plant_matrices(plant)
     n = A.shape[0]
-    x, g = ca.SX.sym("x", n + 4), ca.SX.sym("g", 4)
+    x, g = ca.SX.sym("x", n + 4 + N), ca.SX.sym("g", 4)
     kp, ki, kd, Tf = g[0], g[1], g[2], g[3]
     xp, integral, e_prev, pv_prev, dpv = x[:n], x[n], x[n + 1], x[n + 2], x[n + 3]
+    line = x[n + 4:]  # u[k-1] .. u[k-N] with the load
     y = sign * ca.mtimes(ca.DM(C), xp)
     gains = (kp, kp / ki, kd / kp, Tf, 1.0)
     u, _, integral, _, e, dpv = pid_update(CASADI, gains, (-_OPEN, _OPEN), plant.sample_period(), integral, e_prev,
                                            pv_prev, dpv, 0.0, y, 0.0)
-    x_next = ca.vertcat(ca.mtimes(ca.DM(A), xp) + ca.DM(B) * (u + 1.0), integral, e, y, dpv)
+    into = u + 1.0 if N == 0 else line[N - 1]
+    shifted = ca.vertcat(u + 1.0, *ca.vertsplit(line)[:N - 1]) if N else ca.SX(0, 1)
+    x_next = ca.vertcat(ca.mtimes(ca.DM(A), xp) + ca.DM(B) * into, integral, e, y, dpv, shifted)
     return ca.Function("load_step", [x, g], [x_next, y], ["x", "gains"], ["x_next", "y"])
 
 
@@ -82,7 +91,8 @@ def _linear_response(plant: LinearPlant, controller: PIDController, n_steps: int
     """The load response with a linear discrete controller (Tustin's map of ``C(s)``)."""
     import control
 
-    A, B, C = _plant_matrices(plant)
+    A, B, C, N = _plant_matrices(plant)
+    line = np.zeros(N + 1)  # u[k] .. u[k-N] with the load, as a ring
     c = PIDController(controller.kp, controller.ki, controller.kd, controller.Tf, controller.filter_order, plant.dt)
     ss = control.tf2ss(*c.num_den(), plant.dt)
     Ac, Bc, Cc, Dc = (np.atleast_2d(np.asarray(m, float)) for m in (ss.A, ss.B, ss.C, ss.D))
@@ -92,5 +102,6 @@ def _linear_response(plant: LinearPlant, controller: PIDController, n_steps: int
         e = -y[k]
         u = (Cc @ xc).item() + float(Dc[0, 0]) * e
         xc = Ac @ xc + Bc * e
-        x = A @ x + B * (u + 1.0)
+        line[k % (N + 1)] = u + 1.0
+        x = A @ x + B * line[(k - N) % (N + 1)]
     return y

@@ -24,6 +24,7 @@ from typing import Any
 
 import control
 import numpy as np
+from scipy.linalg import eigvals as scipy_eigvals
 from scipy.linalg import expm
 
 from piezopreload.core.errors import InputError, InternalError
@@ -38,7 +39,8 @@ LIGHT = 0.3
 def _poly(c: Any, what: str) -> np.ndarray:
     a = np.atleast_1d(np.asarray(c, float)).ravel()
     if not np.all(np.isfinite(a)):
-        raise InputError(f"the plant's {what} coefficients must be finite, got {a.tolist()!r}")
+        raise InputError(f"the plant's {what} coefficients must be finite; {int(np.sum(~np.isfinite(a)))} of "
+                         f"{a.size} are not")
     nz = np.flatnonzero(a)
     if nz.size == 0:
         raise InputError(f"the plant's {what} is zero; expected a nonzero polynomial")
@@ -88,6 +90,10 @@ class LinearPlant:
     continuous_roots : ndarray or None
         A sampled plant's: the poles and zeros of the continuous plant it was sampled from (its grid is placed
         from them).
+    delay_samples : int
+        A sampled plant's whole samples of delay, ``z^-N`` in its response (never a polynomial: ``num``, ``den``,
+        ``ss`` and ``hold`` are its rational part); a line of states only in :meth:`state_space`, for a time
+        response.
     """
 
     num: np.ndarray | None
@@ -100,6 +106,7 @@ class LinearPlant:
     ss: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
     hold: _Hold | None = None
     continuous_roots: np.ndarray | None = None
+    delay_samples: int = 0
 
     # ---- what it is --------------------------------------------------------------------------
     @property
@@ -202,22 +209,25 @@ class LinearPlant:
             omega = self.measured_response()[0]
             return np.array([omega[0], omega[-1]])
         mags = np.abs(self.roots_s)
-        delay = self.delay_s + (self.hold.d * self.sample_period() if self.hold is not None else 0.0)
+        delay = self.delay_s + (self.delay_samples * self.sample_period() if self.discrete else 0.0)
         if delay > 0:
             mags = np.append(mags, 1.0 / delay)
         return mags if mags.size else np.array([1.0])
 
-    def grid(self, per_decade: int = 25, widen: float = 0.0) -> np.ndarray:
+    def grid(self, per_decade: int = 25, widen: float = 0.0, upto: float | None = None) -> np.ndarray:
         """The design grid (rad/s), placed from the plant: log-spaced from a hundredth of its lowest characteristic
         frequency to a hundred times its highest (``widen`` decades more each side), and around each lightly damped
         pole or zero pair ``(w_n, zeta)`` a cluster of ``per_decade`` points over ``w_n e^{+-4 zeta}`` (its peak's
         width is ``2 zeta w_n``: a log grid alone steps over a resonance); a discrete plant's up to just below its
         Nyquist frequency; a measured response's data frequencies (every ``k``-th, for about ``per_decade`` a
-        decade)."""
+        decade). ``upto``: a frequency the grid reaches at least ten times beyond (where the bounds let the loop
+        cross over above the plant's own frequencies)."""
         if not self.rational:
             return self._data_grid(per_decade)
         f = self.characteristic_frequencies()
         lo, hi = np.log10(0.01 * f.min()) - widen, np.log10(100.0 * f.max()) + widen
+        if upto is not None:
+            hi = max(hi, np.log10(10.0 * upto) + widen)
         if self.discrete:
             hi = min(hi, np.log10(0.999 * np.pi / self.sample_period()))
             lo = min(lo, hi - 2.0)
@@ -262,13 +272,16 @@ class LinearPlant:
             below = self.integrators * np.maximum(lw[0] - np.log(np.maximum(w, 1e-300)), 0.0)
             return np.exp(np.interp(x, lw, lg) + below + 1j * np.interp(x, lw, ph)) * delay
         s = np.exp(1j * w * self.sample_period()) if self.discrete else 1j * w
+        if self.delay_samples:  # z^-N, as it is
+            delay = np.exp(-1j * w * (self.delay_samples * self.sample_period()))
         if self.hold is not None:
             return self.hold.response(s) * delay
         num, den = self._tf()
         return np.polyval(num, s) / np.polyval(den, s) * delay
 
     def transfer_function(self) -> control.TransferFunction:
-        """The rational part as a python-control transfer function (the delay is :attr:`delay_s`)."""
+        """The rational part as a python-control transfer function (the delay is :attr:`delay_s`, a discrete plant's
+        :attr:`delay_samples`)."""
         if not self.rational:
             raise InputError("a measured frequency response has no transfer function; fit one (fit_plant)")
         return control.tf(self.num, self.den, 0 if self.dt is None else self.dt)
@@ -295,15 +308,24 @@ class LinearPlant:
             hold = np.where(w * Ts > 0, (1 - np.exp(-1j * w * Ts)) / (1j * w * Ts), 1.0)
             return LinearPlant(None, None, Ts, self.delay_s, w, data[:w.size] * hold,
                                f"{self.source}, held at {Ts:g} s")
-        ss, zoh = _sampled_ss(*self._tf(), self.delay_s, Ts)
+        whole = int(np.floor(self.delay_s / Ts + 1e-9))  # z^-whole: a factor of the response, not states
+        ss, zoh = _sampled_ss(*self._tf(), max(self.delay_s - whole * Ts, 0.0), Ts)
         tf = control.ss2tf(*ss, Ts)
         num, den = _trim(tf.num[0][0]), _trim(tf.den[0][0])
         return LinearPlant(_poly(num, "numerator"), _poly(den, "denominator"), Ts, 0.0,
                            source=f"{self.source}, held at {Ts:g} s", ss=ss, hold=zoh,
-                           continuous_roots=self.roots_s)
+                           continuous_roots=self.roots_s, delay_samples=whole)
 
     def state_space(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(A, B, C, D)`` of a discrete rational plant, its delay as a line of states."""
+        if not (self.rational and self.discrete):
+            raise InputError("a state space is taken of a discrete rational plant; sample it first (sampled(Ts))")
+        A, B, C, D = self.rational_state_space()
+        return _delayed(A, B, C, D, self.delay_samples) if self.delay_samples else (A, B, C, D)
+
+    def rational_state_space(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(A, B, C, D)`` of a discrete rational plant without its whole samples of delay (:attr:`delay_samples`:
+        a simulation shifts its input by them)."""
         if not (self.rational and self.discrete):
             raise InputError("a state space is taken of a discrete rational plant; sample it first (sampled(Ts))")
         if self.ss is not None:
@@ -317,7 +339,8 @@ class LinearPlant:
         are rational and the plant has no delay, else by the Nyquist criterion (:func:`nyquist_unstable`) on a
         grid that resolves the phase of ``1 + L``. ``controller`` gives ``num_den(dt)`` (None where it has no
         rational form), ``response(omega, dt)`` and ``integrators``."""
-        rational = controller.num_den(self.dt) if self.rational and self.delay_s == 0.0 else None
+        exact = self.rational and self.delay_s == 0.0 and self.delay_samples == 0
+        rational = controller.num_den(self.dt) if exact else None
         if rational is not None:
             return bool(np.all(self._boundary(self._closed_loop_eigenvalues(*rational)) < -_ON_AXIS))
         omega, loop = self.resolved_loop(lambda w: controller.response(w, self.dt))
@@ -368,8 +391,11 @@ class LinearPlant:
                 w = np.append(w, np.logspace(np.log10(w[-1]), np.log10(w[-1]) + 1.0, 251)[1:])
         loop = loop_at(w)
         for _ in range(8):
-            turn = np.abs(np.diff(np.unwrap(np.angle(1.0 + loop))))
-            coarse = np.flatnonzero(turn > np.pi / 4)
+            turn = np.abs(np.angle((1.0 + loop[1:]) * np.conj(1.0 + loop[:-1])))
+            # where |L| < 1/2 at both ends 1 + L stays in the right half plane (|L| is smooth on the grid: the
+            # delay turns only its phase), so it cannot circle the origin there however fast the delay turns it
+            near = np.maximum(np.abs(loop[1:]), np.abs(loop[:-1])) >= 0.5
+            coarse = np.flatnonzero((turn > np.pi / 4) & near)
             if coarse.size == 0:
                 break
             mid = np.sqrt(w[coarse] * w[coarse + 1])
@@ -387,6 +413,20 @@ def _down_to_asymptote(w: np.ndarray, loop_at: Any) -> np.ndarray:
             break
         w = np.concatenate([np.logspace(np.log10(w[0]) - 1.0, np.log10(w[0]), 26)[:-1], w])
     return w
+
+
+def _delayed(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray, N: int
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(A, B, C, D)`` with ``N`` samples of input delay as a line of states (``u[k-1] .. u[k-N]``)."""
+    n = A.shape[0]
+    Ad, Bd = np.zeros((n + N, n + N)), np.zeros((n + N, 1))
+    Ad[:n, :n], Ad[:n, n + N - 1:] = A, B
+    Bd[n, 0] = 1.0
+    for i in range(1, N):
+        Ad[n + i, n + i - 1] = 1.0
+    Cd = np.hstack([C, np.zeros((1, N))])
+    Cd[0, n + N - 1] += float(D[0, 0])
+    return Ad, Bd, Cd, np.zeros((1, 1))
 
 
 def _matrices(sys: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -491,15 +531,59 @@ def as_plant(plant: Any, delay_s: float = 0.0) -> LinearPlant:
     if isinstance(plant, LinearPlant):
         return plant if delay_s == 0 else LinearPlant(plant.num, plant.den, plant.dt, plant.delay_s + delay_s,
                                                       plant.omega_data, plant.data, plant.source, plant.ss, plant.hold,
-                                                      plant.continuous_roots)
+                                                      plant.continuous_roots, plant.delay_samples)
     if isinstance(plant, control.FrequencyResponseData):
         return _from_frd(plant, delay_s)
     if isinstance(plant, control.StateSpace | control.TransferFunction):
         _siso(plant)
-        tf = control.tf(plant) if isinstance(plant, control.StateSpace) else plant
+        tf = _ss_to_tf(plant) if isinstance(plant, control.StateSpace) else plant
         return _from_tf(tf, delay_s, type(plant).__name__)
     raise InputError(f"the plant must be a python-control TransferFunction, StateSpace or FrequencyResponseData, "
                      f"got {type(plant).__name__}")
+
+
+def _ss_to_tf(sys: control.StateSpace) -> control.TransferFunction:
+    """A state space's transfer function from its poles (the eigenvalues of ``A``), its zeros (the finite
+    generalised eigenvalues of the system pencil ``[[A, B], [C, D]]``) and its gain at a frequency away from both:
+    no coefficient of rounding noise. (The characteristic-polynomial route leaves ones of 1e-15 where a coefficient
+    is zero, and they make zeros at 1e14 rad/s and integrators at -1e-14 rad/s that the grid then reaches for.) A root
+    within a billionth of the largest of the origin is at the origin."""
+    A, B, C, D = (np.atleast_2d(np.asarray(m, float)) for m in (sys.A, sys.B, sys.C, sys.D))
+    if not all(np.all(np.isfinite(m)) for m in (A, B, C, D)):
+        raise InputError("the plant's state-space matrices must be finite")
+    n = A.shape[0]
+    dt = _sample_period(sys)
+    if n == 0:
+        return control.tf([float(D[0, 0])], [1.0], 0 if dt is None else dt)
+    poles = np.linalg.eigvals(A)
+    scale = max(1.0, float(np.max(np.abs(poles))))
+    pencil = np.block([[A, B], [C, D]])
+    E = np.zeros((n + 1, n + 1))
+    E[:n, :n] = np.eye(n)
+    with np.errstate(all="ignore"):
+        z = scipy_eigvals(pencil, E)
+    zeros = z[np.isfinite(z) & (np.abs(z) < 1e8 * scale)]
+
+    def snap(r: np.ndarray) -> np.ndarray:
+        at = 1.0 if dt is not None else 0.0
+        r = np.where(np.abs(r - at) <= _ON_AXIS * scale, at, r)
+        return np.where(np.abs(r.imag) <= _ON_AXIS * scale, r.real, r)
+
+    poles, zeros = snap(poles), snap(zeros)
+    roots = np.concatenate([poles, zeros])
+    mags = np.abs(roots[np.abs(roots) > 0])
+    w0 = float(np.exp(np.mean(np.log(mags)))) if mags.size else 1.0
+    for s0 in (1j * w0 * f for f in (1.0, 0.37, 2.9, 0.11, 7.3)):  # a frequency on no root
+        x0 = np.exp(s0 * dt) if dt is not None else s0
+        gain = (C @ np.linalg.solve(x0 * np.eye(n) - A, B))[0, 0] + D[0, 0]
+        shape = np.prod(x0 - zeros) / np.prod(x0 - poles)
+        if np.isfinite(gain) and abs(shape) > 0 and np.isfinite(shape):
+            break
+    k = float(np.real(gain / shape))
+    if k == 0.0 or not np.isfinite(k):
+        raise InputError("the plant's transfer function is zero (its input does not reach its output)")
+    return control.tf(k * np.real(np.poly(zeros)) if zeros.size else np.array([k]), np.real(np.poly(poles)),
+                      0 if dt is None else dt)
 
 
 def _from_tf(tf: control.TransferFunction, delay_s: float, source: str) -> LinearPlant:
@@ -508,13 +592,14 @@ def _from_tf(tf: control.TransferFunction, delay_s: float, source: str) -> Linea
     if num.size > den.size:
         raise InputError(f"the plant is improper (numerator degree {num.size - 1} > denominator degree "
                          f"{den.size - 1}); a physical plant's gain falls at high frequency")
-    if dt is not None:  # the delay as poles at the origin: z^-k
+    whole = 0
+    if dt is not None:  # the delay as z^-k in the response (never as k poles at the origin)
         k = delay_s / dt
         if abs(k - round(k)) > 1e-9 * max(1.0, k):
             raise InputError(f"a discrete plant's delay must be a whole number of its samples ({dt:g} s), got "
                              f"{delay_s:g} s ({k:.6g} samples)")
-        den, delay_s = np.concatenate([den, np.zeros(int(round(k)))]), 0.0
-    plant = LinearPlant(num, den, dt, delay_s, source=source)
+        whole, delay_s = int(round(k)), 0.0
+    plant = LinearPlant(num, den, dt, delay_s, source=source, delay_samples=whole)
     poles = np.roots(den)  # plant.poles: it has no state space
     near = np.abs(plant._boundary(poles)) <= _ON_AXIS * max(1.0, float(np.max(np.abs(poles), initial=1.0)))
     at = 1.0 if dt is not None else 0.0

@@ -47,6 +47,11 @@ _PID_KP = (-4.0, 1.5)
 #: the largest integral gain a line reports, relative to ``1/|G|`` times the reference frequency (no bound met
 #: before); far above it an integral action's phase lag leaves only unstable loops
 _KI_CAP = 1e3
+#: the fractions of the highest frequency where ``Mks |G| >= 1`` about which a PID's slices are searched too, by
+#: filter order: the first order's optima lie about a third of it (a near-integrating plant, a two-inertia plant
+#: measured on its motor), the second order's on a plant measured on its load (the filter rolls the controller off
+#: at the resonance) a decade below it too; each fraction costs a batch of slices, so the first order's one
+_REACH = {1: (3.0,), 2: (3.0, 10.0)}
 #: the gaps of each slice whose stability is checked at once, best first
 _CHECK = 4
 
@@ -321,6 +326,27 @@ def _pi_slice(plane: Plane, refs: list[tuple[float, float]]) -> tuple[tuple[floa
     return None
 
 
+def _reach_references(plane: Plane, pi: SliceOptimum | None) -> list[tuple[float, float]]:
+    """Where a PID may cross over far above the PI's loop: the fractions :data:`_REACH` of the highest grid frequency
+    where ``Mks |G| >= 1`` (above it ``|KS|``, about ``|C| >= 1/|G|`` at a crossover, would break its bound) and
+    ``1/|G|`` there; none without ``Mks`` or where that frequency is the grid's end, and not one within a decade of
+    the PI's own scale ``ki/kp`` (the PI's slices cover it). A plant whose phase falls to -180 degrees above a slow
+    pole (a near-integrating one, a double integrator with a resonance) has its PI confined decades below the
+    frequencies a PID's lead reaches: slices about the PI alone never see them."""
+    if plane.Mks is None:
+        return []
+    above = np.flatnonzero(plane.Mks * np.abs(plane.G) >= 1.0)
+    if above.size == 0 or above[-1] >= plane.omega.size - 1:
+        return []
+    out = []
+    for w in plane.omega[above[-1]] / np.array(_REACH[plane.filter_order]):
+        if pi is not None and not pi.capped and w < 10.0 * pi.ki / pi.kp:
+            continue
+        j = int(np.argmin(np.abs(np.log(plane.omega / w))))
+        out.append((float(plane.omega[j]), float(1.0 / np.abs(plane.G[j]))))
+    return out
+
+
 def _distinct(found: list[tuple[str, SliceOptimum]], plane: Plane,
               keep: int) -> list[tuple[str, PIDController, SliceOptimum]]:
     """The first ``keep`` of ``found`` more than 10 % apart from those before in ``kp``, ``kd`` or ``Tf``."""
@@ -348,6 +374,10 @@ def stabilising_starts(plane: Plane, Tf_min: float = 0.0, keep: int = 3,
     if plane.filter_order > 0:
         for w_ref, kp_ref in ([got[0]] if got is not None else refs):
             for row in _pid_slices(plane, pi, w_ref, kp_ref, Tf_min):
+                if row:
+                    found.append(max(row, key=lambda nf: nf[1].ki))
+        for reach in _reach_references(plane, pi):
+            for row in _pid_slices(plane, None, *reach, Tf_min):
                 if row:
                     found.append(max(row, key=lambda nf: nf[1].ki))
         found.sort(key=lambda nf: -nf[1].ki)
