@@ -174,7 +174,8 @@ def test_a_missed_growth_names_its_heat_in_the_verdict():
                            temperature_rise_max_K=9.71)
     thermal = SimpleNamespace(shift_h=8.0, schedule=case, mounting="pretensioned", pretension_K=3.0,
                               constant=SimpleNamespace(heat_mean_W=107.5, preload_mean_N=1697.1))
-    artifacts = SimpleNamespace(requirements=lambda: (growth,), system=SimpleNamespace(thermal=thermal, sensitivity=None))
+    artifacts = SimpleNamespace(requirements=lambda: (growth,),
+                                system=SimpleNamespace(thermal=thermal, sensitivity=None))
     (line,) = verdicts(artifacts)
     assert line.startswith("Requirement missed: thermal growth at the table over the shift: 45.3 um against at most "
                            "25 um, missed by 20.3 um (81.2 %)"), line
