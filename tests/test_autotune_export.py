@@ -9,6 +9,8 @@ the second-order filter on the measurement, whose response is python-control's T
 step does in the Python loop.
 """
 
+import json
+
 import numpy as np
 import pytest
 
@@ -16,7 +18,7 @@ from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
 from piezopreload.rig.backends import SimBackend
 from piezopreload.rig.executor import Executor, Safety
-from piezopreload.rig.export import export
+from piezopreload.rig.export import ExportError, export
 from piezopreload.rig.runlog import RunLog, read_run_log
 from piezopreload.tuning.autotune import autotune
 from piezopreload.tuning.linearised import small_signal_gains
@@ -64,6 +66,10 @@ def test_an_autotuned_second_order_pid_is_a_gain_set_whose_step_is_the_tuned_con
     plc, c = export(gs, "plc"), export(gs, "casadi-c")
     assert "pv_filtered_N" in plc and "PP_CONTROLLER_STATE_SIZE 6" in c
     assert "second-order filter" in plc and "second-order filter" in c
+    assert json.loads(export(gs, "json"))["gains"]["filter_order"] == 2
+    assert "#define PP_FILTER_ORDER 2" in export(gs, "c-header")
+    with pytest.raises(ExportError, match="field 'gains.filter_order' is 2: LabVIEW's PID VIs"):
+        export(gs, "labview")  # its PID VIs have no second-order filter: refused, not written as a first order
 
 
 def test_the_rig_runs_an_autotuned_second_order_gain_set(tuned, tmp_path):
