@@ -321,9 +321,10 @@ class GainSet(Artifact):
         if g.schedule is not None:
             return f"gain schedule of {g.schedule.size} entries on the setpoint, Kc {min(g.schedule.Kc):.4g}-" \
                    f"{max(g.schedule.Kc):.4g} V/N"
+        second = f", second-order filter Tf {g.Tf_s:.4g} s" if g.filter_order == 2 else ""
         if g.Td_s == 0.0:
-            return f"PI Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s"
-        return f"PID Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s, Td {g.Td_s:.4g} s"
+            return f"PI Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s{second}"
+        return f"PID Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s, Td {g.Td_s:.4g} s{second}"
 
     def __repr__(self) -> str:
         ff = "no feedforward" if self.feedforward is None else f"{self.feedforward.kind} P-I feedforward"

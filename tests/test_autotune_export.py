@@ -48,6 +48,7 @@ def test_an_autotuned_second_order_pid_is_a_gain_set_whose_step_is_the_tuned_con
     gs = r.to_gain_set().save(tmp_path / "g.json")
     g = gs.gains
     assert gs.status == "validated" and g.filter_order == 2 and gs.sample_period_s == r.Ts
+    assert "second-order filter" in repr(gs)
     assert (g.Kc, g.Kc / g.Ti_s, g.Kc * g.Td_s, g.Tf_s) == pytest.approx((r.kp, r.ki, r.kd, r.Tf), rel=1e-12)
     ctrl = gs.controller()
     n, dt = 20000, r.Ts
