@@ -21,7 +21,7 @@ from piezopreload.rig.executor import Executor, Safety
 from piezopreload.rig.export import ExportError, export
 from piezopreload.rig.runlog import RunLog, read_run_log
 from piezopreload.tuning.autotune import autotune
-from piezopreload.tuning.linearised import small_signal_gains
+from piezopreload.tuning.linearised import controller_frequency_response, small_signal_gains
 
 control = pytest.importorskip("control", reason="python-control is the independent reference")
 
@@ -64,6 +64,8 @@ def test_an_autotuned_second_order_pid_is_a_gain_set_whose_step_is_the_tuned_con
     got = -(zi @ np.diff(u, prepend=0.0)) / (1 - np.exp(-1j * w * dt))
     want = np.asarray(control.sample_system(r.controller, dt, method="tustin")(np.exp(1j * w * dt))).ravel()
     np.testing.assert_allclose(got, want, rtol=1e-8, err_msg="the gain set's step is not the tuned controller")
+    # the linearised loop's sensitivity (tuning.linearised) reads the same controller off the gains
+    np.testing.assert_allclose(controller_frequency_response(g, dt, w), got, rtol=1e-8)
     plc, c = export(gs, "plc"), export(gs, "casadi-c")
     assert "pv_filtered_N" in plc and "PP_CONTROLLER_STATE_SIZE 6" in c
     assert "second-order filter" in plc and "second-order filter" in c
