@@ -45,6 +45,8 @@ REFERENCES = ("step", "trajectory")
 STATUSES = ("validated", "candidate")
 
 _FORM_SHORT = "ideal/ISA, trapezoidal integral, derivative on measurement, conditional-integration anti-windup"
+_FORM_SHORT_2 = ("ideal/ISA on the measurement through a second-order filter (Tustin), trapezoidal integral, "
+                 "derivative on the filtered measurement, conditional-integration anti-windup")
 _REWRITE = "write the gain set again with 'piezopreload tune'"
 
 
@@ -89,6 +91,10 @@ class GainsTable(Record):
     u_max_V: float = entry("The output range's high end.", unit="V", default=OUTPUT_MAX_V)
     schedule: GainSchedule | None = entry("The gains scheduled on the setpoint (None: one set of gains).",
                                           via=_ScheduleTable, default=None, omit=True)
+    filter_order: int | None = entry("The filter's order: 2, the measurement through ``1/(1 + Tf s + (Tf s)^2/2)`` "
+                                     "(Tustin's rule); absent (None), the first-order filter ``1/(Tf s + 1)`` on the "
+                                     "derivative, as every gain set written before the second order was.",
+                                     default=None, omit=True, ge=2, le=2)
 
     @classmethod
     def from_value(cls, g: PIDGains) -> GainsTable:
@@ -104,7 +110,8 @@ class GainsTable(Record):
         GainsTable
             Their table.
         """
-        return cls(g.Kc, g.Ti_s, g.Td_s, g.Tf_s, g.b, g.u_min_V, g.u_max_V, g.schedule)
+        return cls(g.Kc, g.Ti_s, g.Td_s, g.Tf_s, g.b, g.u_min_V, g.u_max_V, g.schedule,
+                   None if g.filter_order == 1 else g.filter_order)
 
     def to_value(self) -> PIDGains:
         """The gains the table holds.
@@ -115,7 +122,8 @@ class GainsTable(Record):
             The gains, checked by their own rules.
         """
         return PIDGains(Kc=self.Kc_V_per_N, Ti_s=self.Ti_s, Td_s=self.Td_s, Tf_s=self.Tf_s, b=self.b,
-                        u_min_V=self.u_min_V, u_max_V=self.u_max_V, schedule=self.schedule)
+                        u_min_V=self.u_min_V, u_max_V=self.u_max_V, schedule=self.schedule,
+                        filter_order=1 if self.filter_order is None else self.filter_order)
 
     def to_dict(self) -> dict[str, Any]:
         """The table, the controller form in words and LabVIEW's units beside it.
@@ -125,7 +133,8 @@ class GainsTable(Record):
         dict
             The gains' object.
         """
-        return {**super().to_dict(), "form": _FORM_SHORT, "labview": self.to_value().labview()}
+        form = _FORM_SHORT if self.filter_order is None else _FORM_SHORT_2
+        return {**super().to_dict(), "form": form, "labview": self.to_value().labview()}
 
 
 def gains_from_dict(g: Any, where: str = "gains") -> PIDGains:
@@ -312,9 +321,10 @@ class GainSet(Artifact):
         if g.schedule is not None:
             return f"gain schedule of {g.schedule.size} entries on the setpoint, Kc {min(g.schedule.Kc):.4g}-" \
                    f"{max(g.schedule.Kc):.4g} V/N"
+        second = f", second-order filter Tf {g.Tf_s:.4g} s" if g.filter_order == 2 else ""
         if g.Td_s == 0.0:
-            return f"PI Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s"
-        return f"PID Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s, Td {g.Td_s:.4g} s"
+            return f"PI Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s{second}"
+        return f"PID Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s, Td {g.Td_s:.4g} s{second}"
 
     def __repr__(self) -> str:
         ff = "no feedforward" if self.feedforward is None else f"{self.feedforward.kind} P-I feedforward"

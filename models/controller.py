@@ -9,7 +9,12 @@ executor's compiled step and in the exported C code. The PID follows NI's docume
 * proportional action ``Kc (b SP - PV)`` (setpoint weight ``b``, 1 in LabVIEW);
 * trapezoidal integration ``Kc / Ti * sum (e_k + e_{k-1}) / 2 * dt``;
 * derivative on the measurement only (no derivative kick), ``-Kc Td d(PV)/dt``, optionally
-  through a first-order filter of time constant ``Tf``;
+  through a first-order filter of time constant ``Tf`` (``filter_order`` 1, the default);
+* or (``filter_order`` 2) the measurement itself through the second-order filter
+  ``F = 1/(1 + Tf s + (Tf s)^2/2)`` (Garpinger, Hägglund and Åström 2012, as the autotuner tunes it), the
+  proportional, integral and derivative actions all acting on the filtered measurement ``y_f`` and the derivative
+  being the filter's own second state ``d(y_f)/dt`` (:func:`measurement_filter2`): from the measurement to the
+  output this is ``(Kc + Kc/(Ti s) + Kc Td s) F(s)`` mapped by Tustin's rule at the sample period, exactly;
 * output clamped to ``[u_min, u_max]`` with conditional integration as anti-windup (the
   integral does not move in the direction that drives the output further into its limit).
 
@@ -44,7 +49,8 @@ from piezopreload.core.errors import InputError
 from piezopreload.models.ops import CASADI, NUMPY, Layout, Ops
 
 __all__ = ["PIDGains", "GainSchedule", "SCHEDULE_MAX", "Controller", "ControllerState", "ControllerModel", "Terms",
-           "Feedforward", "FeedforwardStep", "pid_update", "controller_functions", "OUTPUT_MIN_V", "OUTPUT_MAX_V"]
+           "Feedforward", "FeedforwardStep", "pid_update", "pid_law", "measurement_filter2", "FILTER_ORDERS",
+           "controller_functions", "OUTPUT_MIN_V", "OUTPUT_MAX_V"]
 
 #: the controller's output range where nothing else sets one (V): the paper's closed loop drives its amplifier over
 #: 0-110 V; the study's ``[controller]``, the tuning, the interlocks and the exports all start from these
@@ -53,21 +59,22 @@ OUTPUT_MIN_V, OUTPUT_MAX_V = 0.0, 110.0
 
 
 
-def pid_update(ops: Any, gains: Any, u_range: tuple[Any, Any], dt: Any, integral: Any, e_prev: Any,
-               pv_prev: Any, dpv: Any, sp: Any, pv: Any, ff: Any) -> tuple[Any, ...]:
-    """One sample of the PID, on numpy arrays or CasADi expressions (``ops``).
+#: the derivative filters the controller step runs: 1, first order on the derivative; 2, second order on the measurement
+FILTER_ORDERS = (1, 2)
 
-    ``gains = (Kc, Ti, Td, Tf, b)``. Returns ``(u, p, i, d, e, dpv)``: the clamped output, its
-    proportional, integral (the new integral action) and derivative parts, this sample's error
-    and filtered derivative of the measurement. See the module docstring for the algorithm.
+
+def pid_law(ops: Any, gains: Any, u_range: tuple[Any, Any], dt: Any, integral: Any, e_prev: Any, sp: Any, y: Any,
+            dy: Any, ff: Any) -> tuple[Any, ...]:
+    """The PID's output from the measurement ``y`` and its derivative ``dy`` as the filter gives them.
+
+    ``gains = (Kc, Ti, Td, Tf, b)`` (``Tf`` unused here). Returns ``(u, p, i, d, e)``: the clamped output, its
+    proportional, integral (the new integral action) and derivative parts, and this sample's error ``sp - y``.
     """
-    Kc, Ti, Td, Tf, b = gains
+    Kc, Ti, Td, _, b = gains
     u_min, u_max = u_range
-    e = sp - pv
-    proportional = Kc * (b * sp - pv)
-    alpha = Tf / (Tf + dt)  # backward-Euler first-order filter; 0 when Tf = 0
-    dpv = alpha * dpv + (1.0 - alpha) * (pv - pv_prev) / dt
-    derivative = -Kc * Td * dpv
+    e = sp - y
+    proportional = Kc * (b * sp - y)
+    derivative = -Kc * Td * dy
     increment = Kc / Ti * 0.5 * (e + e_prev) * dt  # 0 for Ti = inf
     trial = proportional + integral + increment + derivative + ff
     # conditional integration: no integrating further into a limit
@@ -75,7 +82,43 @@ def pid_update(ops: Any, gains: Any, u_range: tuple[Any, Any], dt: Any, integral
                              ops.logical_and(trial < u_min, increment < 0))
     integral = integral + ops.where(winding, 0.0 * increment, increment)
     u = ops.minimum(ops.maximum(proportional + integral + derivative + ff, u_min), u_max)
+    return u, proportional, integral, derivative, e
+
+
+def pid_update(ops: Any, gains: Any, u_range: tuple[Any, Any], dt: Any, integral: Any, e_prev: Any,
+               pv_prev: Any, dpv: Any, sp: Any, pv: Any, ff: Any) -> tuple[Any, ...]:
+    """One sample of the PID with the first-order derivative filter, on numpy arrays or CasADi expressions (``ops``).
+
+    ``gains = (Kc, Ti, Td, Tf, b)``. Returns ``(u, p, i, d, e, dpv)``: the clamped output, its
+    proportional, integral (the new integral action) and derivative parts, this sample's error
+    and filtered derivative of the measurement. See the module docstring for the algorithm.
+    """
+    Tf = gains[3]
+    alpha = Tf / (Tf + dt)  # backward-Euler first-order filter; 0 when Tf = 0
+    dpv = alpha * dpv + (1.0 - alpha) * (pv - pv_prev) / dt
+    u, proportional, integral, derivative, e = pid_law(ops, gains, u_range, dt, integral, e_prev, sp, pv, dpv, ff)
     return u, proportional, integral, derivative, e, dpv
+
+
+def measurement_filter2(Tf: Any, dt: Any, y: Any, dy: Any, pv_prev: Any, pv: Any) -> tuple[Any, Any]:
+    """One sample of the second-order filter ``F = 1/(1 + Tf s + (Tf s)^2/2)`` on the measurement, by Tustin's rule.
+
+    The filter as two states, ``y`` (the filtered measurement) and ``dy = dy/dt``: ``dy/dt = dy``,
+    ``d(dy)/dt = 2 (pv - y - Tf dy) / Tf^2``, advanced by the trapezoidal rule ``x_k = x_{k-1} + dt/2 (f_{k-1} +
+    f_k)``, solved for ``x_k`` (linear, closed form below, written over ``Tf^2`` so a small ``Tf`` stays exact). From
+    ``pv`` to ``y`` it is ``F`` at ``s = 2/dt (z - 1)/(z + 1)``, and to ``dy`` ``s F(s)`` there: each exactly the
+    continuous filter's response at the warped frequency ``2/dt tan(w dt/2)``. Needs ``Tf > 0``.
+
+    Returns
+    -------
+    tuple
+        ``(y, dy)`` after this sample's measurement ``pv`` (``pv_prev`` the last one).
+    """
+    h, T2 = dt, Tf * Tf
+    r1 = y + 0.5 * h * dy  # (I + h/2 A) x_{k-1} + h/2 B (u_{k-1} + u_k), times Tf^2 in its second row
+    r2 = T2 * dy - h * y - h * Tf * dy + h * (pv_prev + pv)
+    D = T2 + h * Tf + 0.5 * h * h  # Tf^2 det(I - h/2 A)
+    return ((T2 + h * Tf) * r1 + 0.5 * h * r2) / D, (r2 - h * r1) / D
 
 
 class FeedforwardStep(Protocol):
@@ -229,7 +272,7 @@ class PIDGains:
     Td_s : float
         Derivative time in s (0: no derivative action).
     Tf_s : float
-        Time constant of the first-order derivative filter in s (0: unfiltered).
+        Time constant of the derivative filter in s (0: unfiltered; > 0 for ``filter_order`` 2).
     b : float
         Setpoint weight of the proportional action (1: error feedback, as LabVIEW).
     u_min_V, u_max_V : float
@@ -238,6 +281,9 @@ class PIDGains:
         ``Kc``, ``Ti`` and ``Td`` scheduled on the setpoint; the step then uses the table, and
         the single ``Kc``, ``Ti_s``, ``Td_s`` are the set it was chosen against (the robust set),
         kept for the record. None: one set.
+    filter_order : int
+        1 (default): the derivative through the first-order filter ``1/(Tf s + 1)``, backward Euler; 2: the
+        measurement through ``1/(1 + Tf s + (Tf s)^2/2)``, Tustin's rule (:func:`measurement_filter2`).
     """
 
     Kc: float
@@ -248,9 +294,15 @@ class PIDGains:
     u_min_V: float = OUTPUT_MIN_V
     u_max_V: float = OUTPUT_MAX_V
     schedule: GainSchedule | None = None
+    filter_order: int = 1
 
     def __post_init__(self) -> None:
         _finite("Kc", self.Kc)
+        if isinstance(self.filter_order, bool) or self.filter_order not in FILTER_ORDERS:
+            raise ValueError(f"filter_order must be 1 (first order on the derivative) or 2 (second order on the "
+                             f"measurement), got {self.filter_order!r}.")
+        if self.filter_order == 2 and not self.Tf_s > 0:
+            raise ValueError(f"filter_order 2 needs a filter time constant Tf_s > 0, got {self.Tf_s!r}.")
         if not (self.Ti_s > 0):
             raise ValueError(f"Ti_s must be > 0 (inf for no integral action), got {self.Ti_s!r}.")
         for name in ("Td_s", "Tf_s"):
@@ -288,7 +340,7 @@ class ControllerState:
 
     ``integral`` is the integral *action* (output units), so a change of ``Kc`` or ``Ti``
     leaves it as it is; ``dpv`` the filtered derivative of the measurement; ``ff`` the state
-    of the feedforward's operators.
+    of the feedforward's operators; ``pv_filtered`` the filtered measurement (second-order filter only, else None).
     """
 
     integral: NDArray[np.float64]
@@ -297,6 +349,7 @@ class ControllerState:
     sp_prev: NDArray[np.float64]
     dpv: NDArray[np.float64]
     ff: NDArray[np.float64] | None
+    pv_filtered: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -318,13 +371,17 @@ class ControllerModel:
     (:attr:`params`, :meth:`Controller.parameter_vector`), so one compiled step serves every
     gain set and every model of the same structure. The state layout (:attr:`state`) is
     ``[integral action (V), previous error (N), previous measurement (N), previous setpoint
-    (N), filtered d(measurement)/dt (N/s), feedforward state...]``.
+    (N), filtered d(measurement)/dt (N/s), feedforward state...]``; with the second-order filter
+    (``filter_order`` 2) the filtered measurement (N) follows the derivative, before the feedforward's state.
     """
 
     feedforward: Any = None  # a FeedforwardStep, or None for the PID alone
     schedule_size: int = 0  # entries of the gain schedule; 0 or 1: none (the single Kc, Ti_s, Td_s)
+    filter_order: int = 1  # 1: first order on the derivative; 2: second order on the measurement
 
     def __post_init__(self) -> None:
+        if isinstance(self.filter_order, bool) or self.filter_order not in FILTER_ORDERS:
+            raise InputError(f"filter_order must be 1 or 2, got {self.filter_order!r}.")
         if int(self.schedule_size) != self.schedule_size or not 0 <= self.schedule_size <= SCHEDULE_MAX:
             raise InputError(f"schedule_size must be a whole number in 0..{SCHEDULE_MAX}, got {self.schedule_size!r}.")
 
@@ -338,8 +395,10 @@ class ControllerModel:
 
     @cached_property
     def state(self) -> Layout:
+        filtered: list[tuple[str, int | None]] = [("pv_filtered_N", None)] if self.filter_order == 2 else []
         return Layout("controller state", [("integral_V", None), ("e_prev_N", None), ("pv_prev_N", None),
-                                           ("sp_prev_N", None), ("dpv_N_per_s", None), ("ff", self.n_ff_states)])
+                                           ("sp_prev_N", None), ("dpv_N_per_s", None), *filtered,
+                                           ("ff", self.n_ff_states)])
 
     @cached_property
     def params(self) -> Layout:
@@ -374,11 +433,18 @@ class ControllerModel:
         """One sample: the next state and the output's :class:`Terms` (``u`` clamped)."""
         p, s = self.params.unpack(params), self.state.unpack(state)
         ff, ff_next = self._feedforward(ops, p, s.ff, setpoint, ff_extra)
-        u, prop, integral, deriv, e, dpv = pid_update(
-            ops, self.gains_at(ops, p, setpoint), (p.u_min_V, p.u_max_V), p.dt_s,
-            s.integral_V, s.e_prev_N, s.pv_prev_N, s.dpv_N_per_s, setpoint, pv, ff)
+        gains, u_range = self.gains_at(ops, p, setpoint), (p.u_min_V, p.u_max_V)
+        filtered: dict[str, Any] = {}
+        if self.filter_order == 2:
+            y, dpv = measurement_filter2(p.Tf_s, p.dt_s, s.pv_filtered_N, s.dpv_N_per_s, s.pv_prev_N, pv)
+            u, prop, integral, deriv, e = pid_law(ops, gains, u_range, p.dt_s, s.integral_V, s.e_prev_N, setpoint, y,
+                                                  dpv, ff)
+            filtered = {"pv_filtered_N": y}
+        else:
+            u, prop, integral, deriv, e, dpv = pid_update(ops, gains, u_range, p.dt_s, s.integral_V, s.e_prev_N,
+                                                          s.pv_prev_N, s.dpv_N_per_s, setpoint, pv, ff)
         nxt = self.state.pack(ops, integral_V=integral, e_prev_N=e, pv_prev_N=pv, sp_prev_N=setpoint, dpv_N_per_s=dpv,
-                              ff=ff_next)
+                              ff=ff_next, **filtered)
         return nxt, Terms(u=u, p=prop, i=integral, d=deriv, ff=ff)
 
     def start(self, ops: Ops, params: Any, setpoint: Any, pv: Any, u0: Any, ff_extra: Any = 0.0) -> Any:
@@ -392,8 +458,9 @@ class ControllerModel:
         ff0, _ = self._feedforward(ops, p, ff_rest, setpoint, ff_extra)
         Kc, _, _, _, b = self.gains_at(ops, p, setpoint)
         integral = u0 - Kc * (b * setpoint - pv) - ff0
+        filtered = {"pv_filtered_N": pv + 0.0 * setpoint} if self.filter_order == 2 else {}
         return self.state.pack(ops, integral_V=integral, e_prev_N=setpoint - pv, pv_prev_N=pv, sp_prev_N=setpoint,
-                               dpv_N_per_s=0.0 * pv, ff=ops.repeat(0.0, 0) if ff_rest is None else ff_rest)
+                               dpv_N_per_s=0.0 * pv, ff=ops.repeat(0.0, 0) if ff_rest is None else ff_rest, **filtered)
 
 
 @dataclass(frozen=True, eq=False)
@@ -422,7 +489,7 @@ class Controller:
         else:
             structure, ff = self.feedforward.realtime()
         sch = g.schedule
-        model = ControllerModel(structure, 0 if sch is None else sch.size)
+        model = ControllerModel(structure, 0 if sch is None else sch.size, g.filter_order)
         table = {} if sch is None else {"schedule_levels_N": np.array(sch.levels_N), "schedule_Kc": np.array(sch.Kc),
                                         "schedule_Ti_s": np.array(sch.Ti_s), "schedule_Td_s": np.array(sch.Td_s),
                                         "schedule_b": np.full(sch.size, g.b) if sch.b is None else np.array(sch.b)}
@@ -446,8 +513,14 @@ class Controller:
     def vector(self, state: ControllerState) -> NDArray[np.float64]:
         """``state`` as the (batched) vector of :attr:`ControllerModel.state`."""
         ff = np.zeros(np.shape(state.integral) + (0,)) if state.ff is None else state.ff
+        filtered: dict[str, Any] = {}
+        if self.model.filter_order == 2:
+            if state.pv_filtered is None:
+                raise InputError("the state holds no filtered measurement (pv_filtered), which the second-order "
+                                 "filter needs; start it with initial_state")
+            filtered = {"pv_filtered_N": state.pv_filtered}
         return self.model.state.numbers(integral_V=state.integral, e_prev_N=state.e_prev, pv_prev_N=state.pv_prev,
-                                        sp_prev_N=state.sp_prev, dpv_N_per_s=state.dpv, ff=ff)
+                                        sp_prev_N=state.sp_prev, dpv_N_per_s=state.dpv, ff=ff, **filtered)
 
     def state_from_vector(self, x: ArrayLike) -> ControllerState:
         """The inverse of :meth:`vector` (a batch, or one loop's flat vector)."""
@@ -456,8 +529,9 @@ class Controller:
             raise InputError(f"expected a state of {self.model.state.size} numbers, got shape {x.shape}.")
         s = self.model.state.unpack(x)
         ff = None if self.feedforward is None else np.array(s.ff)
+        filtered = np.array(s.pv_filtered_N) if self.model.filter_order == 2 else None
         return ControllerState(np.array(s.integral_V), np.array(s.e_prev_N), np.array(s.pv_prev_N),
-                               np.array(s.sp_prev_N), np.array(s.dpv_N_per_s), ff)
+                               np.array(s.sp_prev_N), np.array(s.dpv_N_per_s), ff, filtered)
 
     def state_vector(self, state: ControllerState) -> NDArray[np.float64]:
         """One loop's state as a flat vector (:meth:`vector` of one loop)."""
@@ -512,10 +586,15 @@ class Controller:
         if not np.isclose(new.dt_s, self.dt_s, rtol=1e-12, atol=0.0):
             raise ValueError(f"cannot switch from a {self.dt_s} s controller to a {new.dt_s} s one.")
 
+        # the measurement each acts on: a second-order filter's output (a new one starts where the old one's
+        # measurement was), else the measurement itself
+        measured = state.pv_prev if state.pv_filtered is None else state.pv_filtered
+
         def actions(c: Controller, ff_state: NDArray | None) -> tuple[NDArray, NDArray | None]:
             g = c.gains
             Kc, _, Td = g.at(state.sp_prev)  # a schedule's gains at the last setpoint
-            pd = Kc * (g.b_at(state.sp_prev) * state.sp_prev - state.pv_prev) - Kc * Td * state.dpv
+            y = measured if g.filter_order == 2 else state.pv_prev
+            pd = Kc * (g.b_at(state.sp_prev) * state.sp_prev - y) - Kc * Td * state.dpv
             if c.feedforward is None:
                 return pd, None
             ff, ff_state = c.feedforward.step(ff_state, state.sp_prev)  # play operators: idempotent at equal input
@@ -526,7 +605,9 @@ class Controller:
         after, ff_state = actions(new, state.ff if same_ff else
                                   None if new.feedforward is None
                                   else new.feedforward.initial_state(state.sp_prev.shape))
-        return replace(state, integral=state.integral + before - after, ff=ff_state)
+        y_new = measured if new.gains.filter_order == 2 else state.pv_prev
+        return replace(state, integral=state.integral + before - after, ff=ff_state, e_prev=state.sp_prev - y_new,
+                       pv_filtered=np.array(y_new) if new.gains.filter_order == 2 else None)
 
 
 def controller_functions(model: ControllerModel, params: ArrayLike | None = None,

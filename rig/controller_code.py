@@ -30,7 +30,8 @@ __all__ = ["Parameter", "ControllerCode", "controller_code", "parameters", "stat
 #: what each parameter is, with its unit (a feedforward's: the inverse step's table, docs/exports.md)
 DESCRIPTIONS = {
     "Kc": "controller gain Kc, V/N", "Ti_s": "integral time Ti, s", "Td_s": "derivative time Td, s",
-    "Tf_s": "derivative filter time constant Tf, s (0: unfiltered)",
+    "Tf_s": "filter time constant Tf, s (first order on the derivative, 0: unfiltered; or second order on the "
+            "measurement)",
     "b": "setpoint weight b of the proportional action",
     "u_min_V": "output range, low, V", "u_max_V": "output range, high, V",
     "dt_s": "sample period, s (the task's cycle time)",
@@ -46,6 +47,7 @@ DESCRIPTIONS = {
     "integral_V": "the integral action, V", "e_prev_N": "the previous error, N",
     "pv_prev_N": "the previous measurement, N", "sp_prev_N": "the previous setpoint, N",
     "dpv_N_per_s": "the filtered derivative of the measurement, N/s",
+    "pv_filtered_N": "the measurement through the second-order filter, N",
     "ff_operators": "feedforward: the play operators' outputs, V", "ff_carries": "feedforward: the creep carries, V",
     "ff_v_prev_V": "feedforward: the last command, V",
 }

@@ -38,13 +38,14 @@ from piezopreload.artifacts.hysteresis import IdentifiedModel
 from piezopreload.core.artifacts import atomic_write_text
 from piezopreload.core.errors import InputError
 from piezopreload.core.native import generate
-from piezopreload.models.controller import SCHEDULE_INTERPOLATION, Controller, GainSchedule
+from piezopreload.models.controller import SCHEDULE_INTERPOLATION, Controller, GainSchedule, PIDGains
 from piezopreload.models.hysteresis import CreepPI, HysteresisModel, InverseStep, inverse_at
 from piezopreload.models.ops import CASADI
 from piezopreload.rig.controller_code import ControllerCode, controller_code
 from piezopreload.rig.structured_text import controller_block, function_block, loop_program
 
-__all__ = ["FORMATS", "EXPORT_FILES", "MODEL_FILES", "CONTROLLER_FORM", "INVERSE_STEP_ALGORITHM", "ExportError",
+__all__ = ["FORMATS", "EXPORT_FILES", "MODEL_FILES", "CONTROLLER_FORM", "CONTROLLER_FORM_2", "controller_form",
+           "INVERSE_STEP_ALGORITHM", "ExportError",
            "NotValidated", "FeedforwardTable", "export", "feedforward_table", "write_exports",
            "controller_from_gain_set", "validated_gains", "require_validated"]
 
@@ -67,7 +68,23 @@ CONTROLLER_FORM = {
     "feedforward": "inverse P-I model of the setpoint (classical, modified or the paper's asymmetric, with or without "
                    "creep), added before the clamp",
 }
+#: the form of a gain set with the second-order filter (``filter_order`` 2): what differs from CONTROLLER_FORM
+CONTROLLER_FORM_2 = {
+    **CONTROLLER_FORM,
+    "structure": "ideal/ISA on the filtered measurement y_f: u = Kc (b r - y_f) + Kc/Ti int(r - y_f) dt - Kc Td "
+                 "d(y_f)/dt + u_ff",
+    "derivative": "on the measurement, which passes first through the second-order filter "
+                  "1/(1 + Tf s + (Tf s)^2/2) (two states, Tustin's rule at the sample period; d(y_f)/dt its second "
+                  "state)",
+    "filter_order": 2,
+}
 _GAIN_KEYS = ("Kc_V_per_N", "Ti_s", "Td_s", "Tf_s", "b", "u_min_V", "u_max_V")
+
+
+def controller_form(gains: PIDGains) -> dict[str, Any]:
+    """The controller form a gain set's formats state: :data:`CONTROLLER_FORM`, or :data:`CONTROLLER_FORM_2` for
+    the second-order filter."""
+    return dict(CONTROLLER_FORM_2 if gains.filter_order == 2 else CONTROLLER_FORM)
 
 #: the inverse step, once per sample (models.hysteresis.InverseStep), as the LabVIEW file and the docs state it;
 #: the names are the feedforward table's
@@ -179,8 +196,9 @@ def _header(digest: str, gain_set: GainSet | None = None) -> list[str]:
     accepted = [] if gain_set is None or gain_set.validated else [
         f"NOT VALIDATED: exported because the user accepted by name what it missed: {r.key} "
         f"({r.value:.6g} {r.unit} against {r.limit:.6g} {r.unit})" for r in gain_set.missed]
-    return [f"gain set content sha256 {digest}", *accepted, "controller: " + CONTROLLER_FORM["structure"],
-            "derivative " + CONTROLLER_FORM["derivative"] + "; anti-windup: " + CONTROLLER_FORM["anti_windup"]]
+    form = CONTROLLER_FORM if gain_set is None else controller_form(gain_set.gains)
+    return [f"gain set content sha256 {digest}", *accepted, "controller: " + form["structure"],
+            "derivative " + form["derivative"] + "; anti-windup: " + form["anti_windup"]]
 
 
 def _gain_set_table(gain_set: GainSet) -> FeedforwardTable | None:
@@ -196,9 +214,10 @@ def _gain_set_table(gain_set: GainSet) -> FeedforwardTable | None:
 
 # ---- json ------------------------------------------------------------------------------------
 def _json_text(digest: str, g: dict[str, float], ff: dict[str, Any] | None, schedule: GainSchedule | None,
-               table: FeedforwardTable | None) -> str:
-    body: dict[str, Any] = {"gain_set_sha256": digest, "controller": {**CONTROLLER_FORM},
-                            "gains": {k: g[k] for k in _GAIN_KEYS}, "feedforward_model": ff,
+               table: FeedforwardTable | None, gains: PIDGains) -> str:
+    order = {} if gains.filter_order == 1 else {"filter_order": gains.filter_order}
+    body: dict[str, Any] = {"gain_set_sha256": digest, "controller": controller_form(gains),
+                            "gains": {**{k: g[k] for k in _GAIN_KEYS}, **order}, "feedforward_model": ff,
                             "feedforward_inverse_step": None if table is None else table.to_dict()}
     if schedule is not None:
         body["gain_schedule"] = schedule.to_dict()
@@ -336,7 +355,9 @@ def _casadi_c(doc: GainSet, g: dict[str, float], digest: str, head: list[str], a
     lines += [
         f"/* sample period {controller.dt_s!r} s; output range {g['u_min_V']!r}..{g['u_max_V']!r} V */",
         f"/* state ({n_state} numbers): {fields}: the integral action (V), the previous error (N),",
-        "   measurement (N) and setpoint (N), the filtered d(measurement)/dt (N/s), the feedforward's",
+        "   measurement (N) and setpoint (N), the filtered d(measurement)/dt (N/s), "
+        + ("the measurement through the second-order filter (N), " if model.filter_order == 2 else "")
+        + "the feedforward's",
         f"   state: its forward model's ({ff_state}); start it with pp_controller_initial_state,",
         "   then call pp_controller_step once per sample. */",
         "/* the step's numbers are the array pp_controller_params below (the names of the PLC export's",
@@ -441,7 +462,7 @@ def _c_schedule(schedule: GainSchedule) -> list[str]:
 
 
 def _c_header(digest: str, head: list[str], g: dict[str, float], ff: dict[str, Any] | None,
-              schedule: GainSchedule | None = None) -> str:
+              schedule: GainSchedule | None = None, order: int = 1) -> str:
     lines = ["/* Generated by piezopreload from a validated gain set. */"]
     lines += [f"/* {h} */" for h in head]
     lines += ["#ifndef PIEZOPRELOAD_GAINS_H", "#define PIEZOPRELOAD_GAINS_H", ""]
@@ -449,6 +470,9 @@ def _c_header(digest: str, head: list[str], g: dict[str, float], ff: dict[str, A
               f"#define PP_TI_S {g['Ti_s']!r}", f"#define PP_TD_S {g['Td_s']!r}", f"#define PP_TF_S {g['Tf_s']!r}",
               f"#define PP_SETPOINT_WEIGHT {g['b']!r}", f"#define PP_U_MIN_V {g['u_min_V']!r}",
               f"#define PP_U_MAX_V {g['u_max_V']!r}"]
+    if order == 2:
+        lines += ["/* the filter's order: 2, the measurement through 1/(1 + Tf s + (Tf s)^2/2) by Tustin's rule, as",
+                  "   pp_controller.c (format casadi-c) runs it */", "#define PP_FILTER_ORDER 2"]
     if schedule is not None:
         lines += [""] + _c_schedule(schedule)
     if ff is not None:
@@ -536,12 +560,16 @@ def _export_gain_set(gain_set: GainSet, fmt: str, accepted: tuple[str, ...] = ()
     if fmt == "casadi-c":
         return _casadi_c(gain_set, g, digest, head, accepted)
     if fmt == "c-header":  # the forward model's constants, its creep with the period it was identified at
-        return _c_header(digest, head, g, ff, schedule)
+        return _c_header(digest, head, g, ff, schedule, gain_set.gains.filter_order)
     if fmt == "plc":
         return _plc_text(gain_set, head, accepted)
     table = _gain_set_table(gain_set)
     if fmt == "json":
-        return _json_text(digest, g, ff, schedule, table)
+        return _json_text(digest, g, ff, schedule, table, gain_set.gains)
+    if gain_set.gains.filter_order == 2:
+        raise ExportError("field 'gains.filter_order' is 2: LabVIEW's PID VIs filter the derivative in first order "
+                          "only, so they would not run this controller; export it as 'plc' (Structured Text) or "
+                          "'casadi-c' (the controller step in C), which run its second-order filter")
     return _labview_text(head, g, schedule, table)
 
 

@@ -85,8 +85,11 @@ def _controller(shown: str | Path, gain_set: GainSet, accepted: tuple[str, ...] 
 
 
 def controller_words(controller: Controller) -> str:
-    """The controller's structure in words: "PID", with its feedforward and its gain schedule where it has them."""
+    """The controller's structure in words: "PID", with its feedforward, its gain schedule and its second-order
+    filter where it has them."""
     model, parts = controller.model, ["PID"]
+    if model.filter_order == 2:
+        parts.append("the measurement through a second-order filter")
     if model.feedforward is not None:
         kind = getattr(getattr(controller.feedforward, "forward", None), "kind", "P-I")
         parts.append(f"a {kind} feedforward of {model.feedforward.n_operators} operators")

@@ -9,6 +9,7 @@ sweep``; see the folder's README): they must still read, and write back as they 
 import gzip
 import json
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -242,3 +243,23 @@ def test_a_reader_of_two_kinds_names_both_in_the_one_format():
     assert str(err.value) == (f"{DATA / 'model.json'}: field 'schema' must be the tuning record "
                               "(piezopreload/tuning/1) or the gain set (piezopreload/gain-set/1), got "
                               "'piezopreload/hysteresis-model/1' (a hysteresis-model artifact)")
+
+
+def test_a_gain_set_written_before_the_filter_order_reads_as_first_order(tmp_path):
+    """The stored gain set holds no ``filter_order``: it reads as the first-order filter on the derivative, the
+    controller it describes runs that step, and it writes back without the field (as it was). A second-order set
+    writes ``filter_order: 2`` and reads back as it; any other order is refused by name."""
+    old = GainSet.load(DATA / "gains.json")
+    assert "filter_order" not in _doc("gains.json")["gains"]
+    assert old.gains.filter_order == 1 and old.controller().model.filter_order == 1
+    assert "filter_order" not in old.to_dict()["gains"]
+    second = GainSet(gains=replace(old.gains, filter_order=2), status=old.status, plant=old.plant,
+                     inputs=old.inputs).save(tmp_path / "g2.json")
+    doc = json.loads((tmp_path / "g2.json").read_text())
+    assert doc["gains"]["filter_order"] == 2 and "second-order filter" in doc["gains"]["form"]
+    again = GainSet.load(tmp_path / "g2.json")
+    assert again.gains == second.gains and again.controller().model.filter_order == 2
+    doc["gains"]["filter_order"] = 3
+    path = _write(tmp_path / "g3.json", doc, GainSet)
+    with pytest.raises(ArtifactError, match=re.escape("field 'gains.filter_order'")):
+        GainSet.load(path)

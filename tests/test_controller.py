@@ -115,3 +115,79 @@ def test_feedforward_inverts_the_hysteresis_and_start_is_bumpless():
     state = pid.initial_state(60.0, 58.0, u0=42.0)
     u0, _ = pid.step(state, 60.0, 58.0)
     assert u0 == pytest.approx(42.0 + 0.3 / 4.8 * 2.0 * 1e-3, abs=1e-12)
+
+
+# ---- the second-order filter on the measurement (filter_order 2, as the autotuner tunes it) --------------------
+SECOND = dict(Kc=2.0, Ti_s=0.05, Td_s=0.004, Tf_s=0.002, filter_order=2)
+
+
+def _impulse_response(ctrl, n):
+    """The step's output to a unit impulse of the measurement (setpoint 0, b 0): ``-C`` sampled."""
+    pv = np.zeros(n)
+    pv[0] = 1.0
+    u, _ = run(ctrl, np.zeros(n), pv, ctrl.initial_state(0.0, 0.0))
+    return u
+
+
+def _dtft(h, w, dt):
+    """``sum_k h_k z^-k`` at ``z = e^{j w dt}`` of a response whose tail is a constant (the integrator's): its
+    first difference summed and divided by ``1 - z^-1``."""
+    zi = np.exp(-1j * np.outer(w, np.arange(h.size)) * dt)
+    return (zi @ np.diff(h, prepend=0.0)) / (1 - np.exp(-1j * w * dt))
+
+
+def test_the_second_order_step_is_the_tustin_map_of_the_continuous_controller():
+    """From the measurement to the output the step is ``-(Kc + Kc/(Ti s) + Kc Td s) F(s)``, ``F = 1/(1 + Tf s +
+    (Tf s)^2/2)``, mapped by Tustin's rule: against scipy's bilinear discretisation of that transfer function to
+    rounding, and against the continuous controller within Tustin's error (the frequency warped to
+    ``2/dt tan(w dt/2)``: a relative error below ``(w dt)^2/12`` times the response's log-slope, bounded here by
+    the slope's largest value over the grid)."""
+    from scipy import signal
+
+    dt = 1e-3
+    g = PIDGains(**SECOND, b=0.0, **WIDE)
+    kc, ti, td, tf = g.Kc, g.Ti_s, g.Td_s, g.Tf_s
+    n = 6000  # the filter's and the integrator's transient long over (Tf = 2 samples)
+    w = np.geomspace(1.0, 0.9 * np.pi / dt, 60)
+    got = _dtft(_impulse_response(Controller(g, dt), n), w, dt)
+    num, den = -kc * np.array([td, 1.0, 1.0 / ti]), np.polymul([tf**2 / 2, tf, 1.0], [1.0, 0.0])
+    bz, az, _ = signal.cont2discrete((num, den), dt, method="bilinear")
+    _, want = signal.freqz(bz.ravel(), az, worN=w * dt)
+    np.testing.assert_allclose(got, want, rtol=1e-9, err_msg="the step is not scipy's bilinear map of C F")
+    # against the continuous controller: within Tustin's warping; the same gains with the first-order filter on the
+    # derivative are far from it (the check tells the two filters apart)
+    cont = signal.freqs(num, den, worN=w)[1]
+    low = w * dt <= 0.3
+    slope = np.max(np.abs(np.gradient(np.log(cont), np.log(w))))
+    bound = slope * (w * dt) ** 2 / 12 * 1.1
+    assert np.all(np.abs(got / cont - 1)[low] <= bound[low]), "beyond Tustin's warping error"
+    first = Controller(PIDGains(**{**SECOND, "filter_order": 1}, b=0.0, **WIDE), dt)
+    other = _dtft(_impulse_response(first, n), w, dt)
+    assert np.max(np.abs(other / cont - 1)[low]) > 10 * np.max(np.abs(got / cont - 1)[low])
+
+
+def test_the_second_order_step_starts_and_changes_gains_bumplessly():
+    """A start at rest gives ``u0`` plus the integral's first increment; resting with a 1 N error, a change of gains
+    (within the second order, and from and to the first) moves the output by the new integral increment only, as
+    for the first order (test_bumpless_gain_change)."""
+    dt = 1e-3
+    a = Controller(PIDGains(**SECOND, **WIDE), dt)
+    state = a.initial_state(50.0, 48.0, u0=30.0)
+    assert state.pv_filtered == 48.0
+    u, _ = a.step(state, 50.0, 48.0)
+    assert u == pytest.approx(30.0 + 2.0 / 0.05 * 2.0 * dt, abs=1e-12)
+    new_gains = dict(Kc=0.7, Ti_s=0.1, Td_s=0.01, Tf_s=0.003, **WIDE)
+    for old_order, new_order in ((2, 2), (1, 2), (2, 1)):
+        old = Controller(PIDGains(**{**SECOND, "filter_order": old_order}, **WIDE), dt)
+        u, state = run(old, np.full(3000, 60.0), np.full(3000, 59.0))
+        new, state2 = old.retune(state, PIDGains(**new_gains, filter_order=new_order))
+        assert (state2.pv_filtered is None) == (new_order == 1)
+        u_next, _ = new.step(state2, 60.0, 59.0)
+        assert u_next - u[-1] == pytest.approx(0.7 / 0.1 * 1.0 * dt, abs=1e-9), (old_order, new_order)
+
+
+def test_the_second_order_filter_needs_its_time_constant():
+    with pytest.raises(ValueError, match="Tf_s > 0"):
+        PIDGains(Kc=1.0, Ti_s=1.0, Tf_s=0.0, filter_order=2)
+    with pytest.raises(ValueError, match="filter_order"):
+        PIDGains(Kc=1.0, Ti_s=1.0, Tf_s=0.1, filter_order=3)

@@ -1,6 +1,7 @@
 """The PLC export: PP_CONTROLLER and PP_LOOP, the controller step as the C export and the simulation run it.
 
-For a PID, a PID with the paper's direction-switched feedforward (with creep) and a gain schedule, a
+For a PID, a PID with the paper's direction-switched feedforward (with creep), a gain schedule and a PID
+whose measurement passes through the second-order filter (``filter_order`` 2, as the autotuner tunes it), a
 closed loop on the noisy rig is recorded (setpoint and measured force, 10,000 samples through
 saturation and reversals); the recording is replayed through three implementations of one controller
 step: the numpy step (:meth:`Controller.step`), the C of ``export --format casadi-c`` compiled by the
@@ -33,7 +34,7 @@ ATOL_V = 1e-9
 GAINS = dict(Kc=1.4, Ti_s=0.05, Td_s=0.004, Tf_s=0.02, b=0.3, u_min_V=0.0, u_max_V=110.0)
 SCHEDULE = GainSchedule(levels_N=(30.0, 60.0, 100.0), Kc=(0.9, 1.6, 0.7), Ti_s=(0.08, 0.04, 0.06),
                         Td_s=(0.0, 0.004, 0.002), b=(0.3, 0.8, 0.5))
-KINDS = ("pid", "pid+feedforward", "scheduled")
+KINDS = ("pid", "pid+feedforward", "scheduled", "pid+filter2")
 
 
 def _feedforward():
@@ -45,7 +46,8 @@ def _feedforward():
 
 def gain_set(kind, path):
     """A validated gain set of ``kind`` on a noisy rig sampled at 1 ms, saved at ``path``."""
-    gains = PIDGains(**GAINS, schedule=SCHEDULE if kind == "scheduled" else None)
+    gains = PIDGains(**GAINS, schedule=SCHEDULE if kind == "scheduled" else None,
+                     filter_order=2 if kind == "pid+filter2" else 1)
     ff = _feedforward() if kind == "pid+feedforward" else None
     return GainSet(gains=gains, status="validated", feedforward=ff, plant=Plant(noise_N=0.2), preset="test",
                    inputs={"test": "plc export"}).save(path)

@@ -127,8 +127,8 @@ def _form_spec(metric: str, form: str, filter_order: Any, solver: str) -> int:
         raise InputError("filter_order must be 1 or 2 for a PID (0 is the PI's), "
                          f"got {filter_order!r} with form {form!r}")
     if metric == "IAE" and order == 2:
-        raise InputError("metric='IAE' simulates the load step as the controller step runs it (a first-order filter "
-                         "on the derivative); use filter_order=1")
+        raise InputError("metric='IAE' simulates the load step with the first-order filter on the derivative only; "
+                         "use filter_order=1")
     if solver not in SOLVERS:
         raise InputError(f"solver must be one of {', '.join(SOLVERS)}, got {solver!r}")
     return int(order)
@@ -252,8 +252,9 @@ def autotune(plant: Any, *, Ms: float, Mt: float | None = None, Mks: float | Non
     filter_order : {1, 2, "auto"}, optional
         A PID's filter: first order on the derivative (1, the default) or second order on the whole controller (2);
         ``"auto"``: both tuned, the one of larger integral gain kept (the second order gains where the plant's
-        resonance lies above the crossover: a two-inertia plant measured on its load; its gains run in no export
-        yet, the controller step's filter being first order).
+        resonance lies above the crossover: a two-inertia plant measured on its load). Either exports: the second
+        order as the controller step's second-order filter on the measurement (Tustin's rule, the map its sampled
+        loop is tuned and checked with).
     solver : {"sqp", "ipopt", "slsqp", "slsqp-fd"}
         The local solver: the SQP (exact derivatives, DAQP for its QPs), IPOPT (exact derivatives), scipy's SLSQP
         with the same exact first derivatives, or with finite differences (for comparison).

@@ -394,8 +394,8 @@ class AutotuneResult:
     @property
     def gains(self) -> Any:
         """The ideal/ISA gains ``Kc, Ti, Td, Tf`` the controller step runs
-        (:class:`~piezopreload.models.controller.PIDGains`, no output limit); a second-order filter has none (an
-        :class:`InputError` says so)."""
+        (:class:`~piezopreload.models.controller.PIDGains`, no output limit; a second-order filter's with
+        ``filter_order`` 2, the measurement through it)."""
         return self.controller_.isa()
 
     @property
@@ -464,7 +464,7 @@ class AutotuneResult:
 
     def _repr_html_(self) -> str:
         rows = [("kp, ki, kd, Tf", f"{self.kp:.5g}, {self.ki:.5g}, {self.kd:.5g}, {self.Tf:.5g} s")]
-        if self.controller_.filter_order < 2:
+        if self.kp > 0 and self.ki > 0:
             g = self.gains
             rows.append(("Kc, Ti, Td, Tf (ISA)", f"{g.Kc:.5g}, {g.Ti_s:.5g} s, {g.Td_s:.5g} s, {g.Tf_s:.5g} s"))
         mg = self.margins
@@ -506,9 +506,9 @@ class AutotuneResult:
                       "delay_samples": self.plant.delay_samples,
                       "unstable_poles": self.plant.unstable_poles, "integrators": self.plant.integrators},
         }
-        if c.filter_order < 2:
+        if self.kp > 0 and self.ki > 0:
             g = self.gains
-            out["gains"] = {"Kc": g.Kc, "Ti_s": g.Ti_s, "Td_s": g.Td_s, "Tf_s": g.Tf_s}
+            out["gains"] = {"Kc": g.Kc, "Ti_s": g.Ti_s, "Td_s": g.Td_s, "Tf_s": g.Tf_s, "filter_order": g.filter_order}
         return out
 
     # ---- its picture ---------------------------------------------------------------------------------

@@ -17,9 +17,10 @@ import numpy as np
 from piezopreload.models.actuator import Plant, hertz_force
 from piezopreload.models.controller import OUTPUT_MAX_V, PIDGains
 from piezopreload.models.ops import NUMPY
-from piezopreload.tuning.loopshape import isa_pid_response, omega_terms, peaks
+from piezopreload.tuning.loopshape import continuous_pid_response, isa_pid_response, omega_terms, peaks
 
-__all__ = ["plant_frequency_response", "small_signal_gains", "loop_frequency_response", "omega_grid",
+__all__ = ["plant_frequency_response", "small_signal_gains", "controller_frequency_response", "loop_frequency_response",
+           "omega_grid",
            "max_sensitivity"]
 
 
@@ -59,11 +60,22 @@ def small_signal_gains(params: Plant, force_range_N: tuple[float, float] | None 
     return lo, hi
 
 
+def controller_frequency_response(gains: PIDGains, dt: float, omega: np.ndarray) -> np.ndarray:
+    """The controller step's response from the measurement to the output (sign flipped) at ``omega`` (rad/s):
+    the first-order filter's as the step runs it, or the second-order filter's, which the step runs by Tustin's rule
+    (the continuous controller at the warped frequency ``2/dt tan(w dt/2)``)."""
+    if gains.filter_order == 2:
+        warped = 2.0 / dt * np.tan(np.asarray(omega, float) * dt / 2.0)
+        re, im = continuous_pid_response(gains.Kc, gains.Kc / gains.Ti_s, gains.Kc * gains.Td_s, gains.Tf_s, warped, 2)
+    else:
+        re, im = isa_pid_response([gains.Kc, gains.Ti_s, gains.Td_s, gains.Tf_s], dt, omega_terms(omega, dt))
+    return np.asarray(re) + 1j * np.asarray(im)
+
+
 def loop_frequency_response(gains: PIDGains, params: Plant, omega: np.ndarray, gain_N_per_V: float) -> np.ndarray:
     """The loop transfer ``C G`` at ``omega`` (rad/s), numerically, for reports and checks."""
-    re, im = isa_pid_response([gains.Kc, gains.Ti_s, gains.Td_s, gains.Tf_s], params.sample_period_s,
-                              omega_terms(omega, params.sample_period_s))
-    return (np.asarray(re) + 1j * np.asarray(im)) * plant_frequency_response(params, omega, gain_N_per_V)
+    return (controller_frequency_response(gains, params.sample_period_s, omega)
+            * plant_frequency_response(params, omega, gain_N_per_V))
 
 
 def omega_grid(dt: float, n: int = 160) -> np.ndarray:
@@ -75,7 +87,6 @@ def max_sensitivity(gains: PIDGains, params: Plant, force_range_N: tuple[float, 
     """The largest ``|S|`` of the linearised loop at both ends of the local slope, on a 2,000-point grid."""
     dt = params.sample_period_s
     omega = omega_grid(dt, 2000)
-    re, im = isa_pid_response([gains.Kc, gains.Ti_s, gains.Td_s, gains.Tf_s], dt, omega_terms(omega, dt))
-    c = np.asarray(re) + 1j * np.asarray(im)
+    c = controller_frequency_response(gains, dt, omega)
     return max(peaks(c, plant_frequency_response(params, omega, s))["Ms"]
                for s in small_signal_gains(params, force_range_N))

@@ -11,10 +11,13 @@ the controller step runs it.
   (:meth:`PIDController.parallel`): a first-order filter on the whole controller whose derivative
   gain is at least ``Tf`` times its proportional gain;
 * 2: ``C = (kp + ki/s + kd s) F(s)``, ``F = 1 / (1 + Tf s + (Tf s)^2 / 2)`` (Garpinger, Hägglund and
-  Åström 2012): a second-order filter on the whole controller, which the controller step does not run.
+  Åström 2012): a second-order filter on the whole controller; the controller step runs it as the ideal/ISA gains
+  ``Kc = kp``, ``Ti = kp/ki``, ``Td = kd/kp`` on the measurement through ``F`` (``filter_order`` 2 of
+  :class:`~piezopreload.models.controller.PIDGains`), which from the measurement to the output is ``C``.
 
 With ``dt`` the controller is discrete: forms 0 and 1 as the controller step runs them at ``dt``
-(trapezoidal integral, backward-Euler filtered derivative), form 2 by Tustin's map.
+(trapezoidal integral, backward-Euler filtered derivative), form 2 by Tustin's map, which is how the controller
+step runs it too (:func:`~piezopreload.models.controller.measurement_filter2` and the trapezoidal integral).
 """
 
 from __future__ import annotations
@@ -109,12 +112,15 @@ class PIDController:
         return self.kp, self.ki, self.kd, self.Tf
 
     def isa(self, u_min_V: float = -UNLIMITED_V, u_max_V: float = UNLIMITED_V, b: float = 1.0) -> PIDGains:
-        """The ideal/ISA gains ``Kc, Ti, Td, Tf`` the controller step runs (forms 0 and 1; a PI has ``Td = Tf = 0``),
-        with the output range ``u_min_V..u_max_V`` (default :data:`UNLIMITED_V`: none)."""
+        """The ideal/ISA gains ``Kc, Ti, Td, Tf`` the controller step runs (a PI has ``Td = Tf = 0``; form 2 keeps its
+        filter, ``filter_order`` 2 of the gains: the measurement through ``F``), with the output range
+        ``u_min_V..u_max_V`` (default :data:`UNLIMITED_V`: none)."""
         if self.filter_order == 2:
-            raise InputError("a second-order filter on the whole controller has no ideal/ISA form the controller step "
-                             "runs (its filter is first order, on the derivative): tune with filter_order=1 for gains "
-                             "to export")
+            if not (self.kp > 0 and self.ki > 0 and self.Tf > 0):
+                raise InputError(f"the ideal/ISA form of a second-order filter needs kp > 0, ki > 0 and Tf > 0, got "
+                                 f"kp {self.kp!r}, ki {self.ki!r}, Tf {self.Tf!r}")
+            return PIDGains(Kc=self.kp, Ti_s=self.kp / self.ki, Td_s=self.kd / self.kp, Tf_s=self.Tf, b=b,
+                            u_min_V=u_min_V, u_max_V=u_max_V, filter_order=2)
         if not (self.kp > 0 and self.ki > 0):
             raise InputError(f"the ideal/ISA form needs kp > 0 and ki > 0, got kp {self.kp!r}, ki {self.ki!r}")
         td = self.kd / self.kp if self.filter_order else 0.0

@@ -186,7 +186,8 @@ def _print_autotune(tuned: Autotuned) -> None:
           "(C = (kp + ki/s + kd s) F(s))")
     if "gains" in s:
         g = s["gains"]
-        print(f"ideal/ISA: Kc {g['Kc']:.5g}, Ti {g['Ti_s']:.5g} s, Td {g['Td_s']:.5g} s, Tf {g['Tf_s']:.5g} s")
+        print(f"ideal/ISA: Kc {g['Kc']:.5g}, Ti {g['Ti_s']:.5g} s, Td {g['Td_s']:.5g} s, Tf {g['Tf_s']:.5g} s"
+              + (" (the measurement through the second-order filter)" if g.get("filter_order") == 2 else ""))
     print(f"the bounds hold on {s['bounds_hold_on']}")
     what = f"IE {s['ie']:.5g}" + ("" if s["iae"] is None else f", IAE {s['iae']:.5g}")
     print("unit load step at the plant input: "
