@@ -18,11 +18,11 @@ STRATEGIES = ("simultaneous", "nested")
 
 # --- closed forms against the published numbers ---------------------------------------------------
 def test_tp1_closed_form_is_the_published_optimum():
-    b, K, psi = cp.tp1_closed_form()
+    b, gain, psi = cp.tp1_closed_form()
     # section 5.1: Psi* = sqrt(5.1) at b* = 3.0996520994, K* = 1.3284223283
     assert psi == pytest.approx(math.sqrt(5.1), rel=1e-12)
     assert b == pytest.approx(3.0996520994, rel=1e-9)
-    assert K == pytest.approx(1.3284223283, rel=1e-9)
+    assert gain == pytest.approx(1.3284223283, rel=1e-9)
     # the sequential answer (b = 0, then the best gain sqrt(q/r)) is 40 % worse: a 1 % check tells them apart
     assert cp.TP1().cost(0.0, math.sqrt(10.0)) / psi > 1.39
 
