@@ -45,7 +45,7 @@ import numpy as np
 from piezopreload.artifacts.design import DesignPoint
 from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core.errors import InfeasibleError, InputError
-from piezopreload.design.preload import DesignInfeasible, DesignSpec, optimise
+from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignSpec, optimise
 from piezopreload.design.study import plan_schedule
 from piezopreload.design.tables import DesignTable, PlantTable, ScheduleTable
 from piezopreload.models.actuator import Plant
@@ -57,7 +57,8 @@ from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, tune_pid
 from piezopreload.tuning.validate import validate
 
-__all__ = ["CodesignWeights", "Candidate", "CodesignResult", "codesign", "evaluate_design", "TERMS"]
+__all__ = ["CodesignWeights", "Candidate", "CodesignResult", "codesign", "codesign_optimum", "evaluate_design",
+           "TERMS"]
 
 #: the objective's terms: (name, the candidate's attribute, unit)
 TERMS = (("friction", "friction_energy_J", "J per cycle"), ("tracking", "tracking_rms_N", "N"),
@@ -366,10 +367,28 @@ class CodesignResult:
                 f"{self.evaluations} inner solves, coupling {self.coupling().split(':')[0]})")
 
 
-def _design_at(spec: DesignSpec, objective: str, values: dict[str, float]) -> DesignPoint:
+def _optimum_at(spec: DesignSpec, objective: str, values: dict[str, float]) -> DesignOptimum:
     """The design NLP's optimum with the outer variables fixed at ``values`` (every design requirement inside)."""
     fixed = replace(spec, **{attr: (values[name], values[name]) for name, attr, _ in VARIABLES})
-    return optimise(fixed, objective).point
+    return optimise(fixed, objective)
+
+
+def _design_at(spec: DesignSpec, objective: str, values: dict[str, float]) -> DesignPoint:
+    return _optimum_at(spec, objective, values).point
+
+
+def codesign_optimum(study: StudySpec, progress: ProgressLike | None = None) -> DesignOptimum:
+    """The design optimum a study with ``[design] method = "codesign"`` takes: the co-design's design (its Monte
+    Carlo left to the study's validate stage), as the design NLP's optimum at the co-designed contact angle and
+    conformity; the sequential optimum itself where the co-design kept it."""
+    result = codesign(study, validate_plants=0, progress=progress)
+    spec = study.design_spec
+    objective = (study.design_table or DesignTable()).objective
+    if spec is None:  # codesign refused it already; for the type checker
+        raise InputError(f"{study.path}: co-design needs the design's tables")
+    if result.codesigned is result.sequential:
+        return optimise(spec, objective)
+    return _optimum_at(spec, objective, result.codesigned.variables())
 
 
 def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget: int = 9, step: float = 0.25,

@@ -412,12 +412,22 @@ def _learn_applies(study: StudySpec) -> str | None:
     return _plant_applies(study) or (None if study.learning is not None else "the study has no [learning] table")
 
 
+#: the tables a co-designed design (``[design] method = "codesign"``) reads beyond the design's: the plant, the
+#: feedforward, the tuning and the validation limits it is chosen with
+_CODESIGN_READS = ("rig", "plant", "controller", "feedforward", "reference", "simulation", "tuning", "validation")
+
+
+def _design_reads(study: StudySpec) -> tuple[str, ...]:
+    table = study.design_table or DesignTable()
+    return (("thermal",) if "stiffness:growth" in table.pareto else ()) + (
+        _CODESIGN_READS if table.method == "codesign" else ())
+
+
 STAGES: tuple[Stage, ...] = (
     Stage("design", "ball-screw preload design, Pareto fronts, schedule",
           ("ballscrew", "feed_drive", "duty", "design", "schedule"), (),
           ("models", "artifacts", "design"), _stage_design, files=("schedule.profile",), applies=_design_applies,
-          reads=lambda study: ("thermal",) if "stiffness:growth" in (study.design_table or DesignTable()).pareto
-          else ()),
+          reads=_design_reads),
     Stage("plant", "the designed preload system as the plant", ("rig", "plant"), ("design",),
           ("models", "artifacts", "design"),
           _stage_plant, applies=_plant_applies),

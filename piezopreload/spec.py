@@ -380,7 +380,13 @@ class StudySpec:
                 "later step keeps it ...")
             t0 = time.perf_counter()
             try:
-                k.optimum = optimise(self._spec("the design's optimum"), objective)
+                if (self.design_table or DesignTable()).method == "codesign":  # chosen with its controller
+                    from piezopreload.codesign import codesign_optimum  # it takes a study: the layer above this one
+
+                    say("[design] method = codesign: the design is chosen with its controller (nested co-design) ...")
+                    k.optimum = codesign_optimum(self, progress=say)
+                else:
+                    k.optimum = optimise(self._spec("the design's optimum"), objective)
             except DesignInfeasible as exc:
                 raise InfeasibleError(f"{self.path}: {exc}") from exc
             k.point = k.optimum.point
@@ -588,6 +594,8 @@ class StudySpec:
             raise InputError(f"{self.path}: the Pareto front stiffness:growth needs a [thermal] table (the shift the "
                              "growth is read over)")
         table = self.thermal
+        if objective == d.objective and d.method == "codesign":
+            self._point(say_of(progress))  # the co-designed optimum, solved once and kept
         try:
             result = design_study(
                 spec, objective, pairs, d.pareto_points if points is None else points,

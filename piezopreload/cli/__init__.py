@@ -42,8 +42,8 @@ __all__ = ["main", "build_parser", "COMMANDS", "EXIT_OK", "EXIT_INTERNAL", "EXIT
 #: first line of its docstring is NAME's line in ``--help``; it imports the floors' constants its choices name
 COMMANDS: tuple[Callable[[Any], None], ...] = (
     register_run, register_sweep, register_report, register_identify, register_simulate, register_reproduce,
-    register_tune, register_autotune, register_codesign, register_learn, register_validate, register_ballscrew, register_design,
-    register_export, register_rig,
+    register_tune, register_autotune, register_codesign, register_learn, register_validate, register_ballscrew,
+    register_design, register_export, register_rig,
 )
 
 
