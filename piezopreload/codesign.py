@@ -48,6 +48,7 @@ from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignSpec, optimise
 from piezopreload.design.study import plan_schedule
 from piezopreload.design.tables import DesignTable, PlantTable, ScheduleTable
+from piezopreload.design.thermal import duty_growth_um
 from piezopreload.models.actuator import Plant
 from piezopreload.models.ballscrew import lift_off_load_N
 from piezopreload.models.controller import PIDGains
@@ -61,8 +62,8 @@ __all__ = ["CodesignWeights", "Candidate", "CodesignResult", "codesign", "codesi
            "TERMS"]
 
 #: the objective's terms: (name, the candidate's attribute, unit)
-TERMS = (("friction", "friction_energy_J", "J per cycle"), ("tracking", "tracking_rms_N", "N"),
-         ("voltage", "peak_voltage_V", "V"))
+TERMS = (("growth", "growth_um", "um over the shift"), ("friction", "friction_energy_J", "J per cycle"),
+         ("tracking", "tracking_rms_N", "N"), ("voltage", "peak_voltage_V", "V"))
 #: the outer variables: (name, the design spec's range attribute, unit)
 VARIABLES = (("contact_angle_deg", "contact_angle_deg", "deg"), ("conformity", "conformity", ""))
 STRATEGY = "nested"
@@ -74,6 +75,9 @@ class CodesignWeights:
 
     Parameters
     ----------
+    growth : float
+        On the screw's largest thermal growth over the shift (the study's ``[thermal]``; the y of the design's
+        ``stiffness:growth`` front).
     friction : float
         On the preload schedule's friction energy per machining cycle.
     tracking : float
@@ -82,6 +86,7 @@ class CodesignWeights:
         On the stacks' peak command over the step and the staircase.
     """
 
+    growth: float = 0.0
     friction: float = 1.0
     tracking: float = 1.0
     voltage: float = 0.0
@@ -91,8 +96,16 @@ class CodesignWeights:
             w = getattr(self, name)
             if not (isinstance(w, int | float) and math.isfinite(w) and w >= 0):
                 raise InputError(f"codesign weight '{name}': must be a finite number >= 0, got {w!r}")
-        if self.friction + self.tracking + self.voltage <= 0:
-            raise InputError("codesign weights: at least one of friction, tracking, voltage must be > 0")
+        if self.growth + self.friction + self.tracking + self.voltage <= 0:
+            raise InputError("codesign weights: at least one of growth, friction, tracking, voltage must be > 0")
+
+    @classmethod
+    def of_study(cls, study: StudySpec) -> CodesignWeights:
+        """What the study states: the thermal growth and the tracking alike where it has a ``[thermal]`` table, else
+        the schedule's friction energy and the tracking alike; the voltage not weighted."""
+        if study.thermal is not None:
+            return cls(growth=1.0, friction=0.0, tracking=1.0, voltage=0.0)
+        return cls(growth=0.0, friction=1.0, tracking=1.0, voltage=0.0)
 
     def to_dict(self) -> dict[str, float]:
         return {name: float(getattr(self, name)) for name, _, _ in TERMS}
@@ -121,6 +134,8 @@ class Candidate:
         What it misses ("" where feasible).
     lift_off_N : float
         The lift-off load at the bolts' preload by the catalogue rule ``2^(3/2) F_p`` the design's constraint uses.
+    growth_um : float
+        The screw's largest thermal growth over the shift (NaN: the study has no ``[thermal]`` table).
     """
 
     point: DesignPoint = field(repr=False)
@@ -134,6 +149,7 @@ class Candidate:
     feasible: bool
     why: str = ""
     lift_off_N: float = math.nan
+    growth_um: float = math.nan
 
     def variables(self) -> dict[str, float]:
         """The outer variables' values."""
@@ -142,7 +158,8 @@ class Candidate:
     def objective(self, weights: CodesignWeights, reference: Candidate) -> float:
         """The weighted sum of the terms, each over ``reference``'s (the sequential answer's), over the weights' sum."""
         total = sum(getattr(weights, n) for n, _, _ in TERMS)
-        return sum(getattr(weights, n) * getattr(self, a) / getattr(reference, a) for n, a, _ in TERMS) / total
+        return sum(getattr(weights, n) * getattr(self, a) / getattr(reference, a)
+                   for n, a, _ in TERMS if getattr(weights, n) > 0) / total
 
     def to_dict(self) -> dict[str, Any]:
         p = self.point
@@ -156,6 +173,7 @@ class Candidate:
                 "coupling_stiffness_N_per_um": self.coupling_stiffness_N_per_um, "ms": self.ms,
                 "friction_energy_J": self.friction_energy_J, "tracking_rms_N": self.tracking_rms_N,
                 "peak_voltage_V": self.peak_voltage_V, "settling_s": self.settling_s, "lift_off_N": self.lift_off_N,
+                "growth_um": None if math.isnan(self.growth_um) else self.growth_um,
                 "feasible": self.feasible,
                 "why": self.why}
 
@@ -224,8 +242,8 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
                + "; ".join(misses))
     return Candidate(point, tuned.gains, float(plant.coupling_stiffness_N_per_um), float(tuned.ms),
                      float(schedule.friction_energy_J), nominal["tracking_rms_N"], nominal["peak_voltage_V"],
-                     nominal["settling_s"], not misses, why,
-                     float(lift_off_load_N(point.bolt_preload_N)))
+                     nominal["settling_s"], not misses, why, float(lift_off_load_N(point.bolt_preload_N)),
+                     math.nan if study.thermal is None else float(duty_growth_um(spec, point, study.thermal)))
 
 
 @dataclass(frozen=True)
@@ -298,8 +316,11 @@ class CodesignResult:
         rows = []
         for name, attr, unit in TERMS:
             s, c = getattr(self.sequential, attr), getattr(self.codesigned, attr)
+            if math.isnan(s):  # growth without [thermal]
+                continue
+            w = getattr(self.weights, name)
             rows.append({"term": name, "unit": unit, "sequential": s, "codesigned": c, "change": c - s,
-                         "objective_change": getattr(self.weights, name) * (c / s - 1.0) / total})
+                         "weight": w, "objective_change": w * (c / s - 1.0) / total})
         return rows
 
     def coupling(self) -> str:
@@ -309,7 +330,8 @@ class CodesignResult:
         if best["objective_change"] >= -1e-9:
             return ("none: no candidate the search tried beat the sequential design (every step away from it raised "
                     "the weighted objective or missed a requirement)")
-        how = {"friction": "the schedule's friction (the screw's contact angle and conformity set its drag)",
+        how = {"growth": "the nut's drag heat (the contact angle and conformity set the drag, the drag the growth)",
+               "friction": "the schedule's friction (the screw's contact angle and conformity set its drag)",
                "tracking": "the nut's stiffness against the stacks (the force per volt the loop's Ms limit allows)",
                "voltage": "the stacks' command (the force per volt sets the voltage a force needs)"}[best["term"]]
         return f"{best['term']}: {how}"
@@ -330,6 +352,11 @@ class CodesignResult:
             {"requirement": "nominal tracking RMS, whole range", "unit": "N", "limit": lim.get("tracking_rms_max_N"),
              "kind": "max", "sequential": a.tracking_rms_N, "codesigned": b.tracking_rms_N},
         ]
+        if not math.isnan(a.growth_um):
+            # the design's estimate over the duty cycle (the stiffness:growth front's y); the study's limit
+            # (thermal_growth_max_um) is judged by the system stage along the controlled schedule, not here
+            rows.append({"requirement": "thermal growth over the shift, duty-cycle estimate", "unit": "um",
+                         "limit": None, "kind": "max", "sequential": a.growth_um, "codesigned": b.growth_um})
         vs, vc = self.validation_sequential, self.validation_codesigned
         if vs is not None and vc is not None:
             for metric, unit, limit in (("settling_s", "s", vs.criteria.settling_max_s),
@@ -401,7 +428,7 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
     study : StudySpec
         A study with the design's tables (``[ballscrew]``, ``[design]``).
     weights : CodesignWeights, optional
-        The objective's weights (default: friction and tracking alike, the voltage not weighted).
+        The objective's weights (default: :meth:`CodesignWeights.of_study`, what the study states).
     budget : int
         The most inner problems the outer search solves after the sequential start.
     step, min_step : float
@@ -422,7 +449,10 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
         Both answers, their objective, what changed, what it bought, the Monte Carlo of each.
     """
     say = say_of(progress) or (lambda _m: None)
-    weights = weights or CodesignWeights()
+    weights = weights or CodesignWeights.of_study(study)
+    if weights.growth > 0 and study.thermal is None:
+        raise InputError(f"{study.path}: the co-design's growth weight needs a [thermal] table (the shift the growth "
+                         "is read over); weight friction instead")
     if budget < 0:
         raise InputError(f"codesign budget: must be >= 0 inner solves, got {budget!r}")
     if time_factor is not None and not time_factor > 1:

@@ -27,12 +27,15 @@ def register_codesign(sub: Any) -> None:
                "binding pair named); 1 an internal failure.")
     p.add_argument("study", nargs="?", metavar="STUDY.toml",
                    help="study file, or a shipped study's name (default: the machine axis, machine_axis.toml)")
-    p.add_argument("--friction", type=nonnegative_float, default=1.0, metavar="W",
-                   help="weight on the schedule's friction energy per cycle (default 1)")
-    p.add_argument("--tracking", type=nonnegative_float, default=1.0, metavar="W",
-                   help="weight on the whole-range tracking RMS (default 1)")
-    p.add_argument("--voltage", type=nonnegative_float, default=0.0, metavar="W",
-                   help="weight on the stacks' peak command (default 0)")
+    p.add_argument("--growth", type=nonnegative_float, metavar="W",
+                   help="weight on the screw's thermal growth over the shift (needs [thermal])")
+    p.add_argument("--friction", type=nonnegative_float, metavar="W",
+                   help="weight on the schedule's friction energy per cycle")
+    p.add_argument("--tracking", type=nonnegative_float, metavar="W",
+                   help="weight on the whole-range tracking RMS")
+    p.add_argument("--voltage", type=nonnegative_float, metavar="W",
+                   help="weight on the stacks' peak command (a weight not given is 0 where another is given; with "
+                        "none given: growth and tracking 1 where the study has [thermal], else friction and tracking)")
     p.add_argument("--budget", type=int, default=9, metavar="N", help="most inner solves of the outer search "
                                                                       "(default 9)")
     p.add_argument("--plants", type=int, metavar="N",
@@ -50,7 +53,8 @@ def _cmd_codesign(args: argparse.Namespace) -> CodesignResult:
     if args.plants is not None and args.plants < 0:
         raise InputError(f"--plants: must be >= 0, got {args.plants}")
     study = load_study(args.study, progress=say)
-    weights = CodesignWeights(args.friction, args.tracking, args.voltage)
+    given = (args.growth, args.friction, args.tracking, args.voltage)
+    weights = None if all(w is None for w in given) else CodesignWeights(*(0.0 if w is None else w for w in given))
     return codesign(study, weights, budget=args.budget, validate_plants=args.plants, progress=say)
 
 
