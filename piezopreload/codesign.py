@@ -270,6 +270,9 @@ class CodesignResult:
         Wall time of the sequential design plus tuning, and of the co-design's outer search after it.
     limits : dict
         The requirements' limits (the design's, the tuning's Ms, the validation's tracking RMS).
+    candidates : tuple of Candidate
+        Every feasible design-and-controller pair the search scored, the sequential start first (a co-designed
+        front's points).
     """
 
     study: str
@@ -284,6 +287,7 @@ class CodesignResult:
     sequential_s: float
     codesign_s: float
     limits: dict[str, float] = field(default_factory=dict, repr=False)
+    candidates: tuple[Candidate, ...] = field(default=(), repr=False)
     validation_sequential: ValidationResult | None = field(default=None, repr=False)
     validation_codesigned: ValidationResult | None = field(default=None, repr=False)
 
@@ -500,7 +504,7 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
               "lift_off_min_N": spec.lift_off_margin * spec.failsafe_load_N, "life_min_h": spec.life_min_h,
               "ms_max": study.tuning_spec.ms_max, "tracking_rms_max_N": study.criteria.tracking_rms_max_N}
     return CodesignResult(study.name, STRATEGY, weights, sequential, best, 1.0, best_f, search.evaluations + 1,
-                          tuple(search.refused), sequential_s, codesign_s, limits, v_seq, v_co)
+                          tuple(search.refused), sequential_s, codesign_s, limits, tuple(search.scored), v_seq, v_co)
 
 
 class _Search:
@@ -519,6 +523,7 @@ class _Search:
         self.ranges = [tuple(getattr(spec, attr)) for _, attr, _ in VARIABLES]
         self.evaluations, self.stopped = 0, ""
         self.refused: list[str] = []
+        self.scored: list[Candidate] = [sequential]
         self.t0 = time.perf_counter()
 
     def values(self, z: np.ndarray) -> dict[str, float]:
@@ -546,6 +551,7 @@ class _Search:
             self.refused.append(f"{values}: {cand.why}")
             return cand, math.inf
         f = cand.objective(self.weights, self.sequential)
+        self.scored.append(cand)
         self.say(f"  candidate {', '.join(f'{k} {v:.4g}' for k, v in values.items())}: objective {f:.4f}")
         return cand, f
 
