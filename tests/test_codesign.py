@@ -161,3 +161,13 @@ def test_the_method_key_is_declared_once_and_checked(tmp_path):
     with pytest.raises(InputError, match="method"):
         load_study(path)
     assert replace(load_study(SMALL_AXIS).design_table).method == "sequential"
+
+
+def test_a_growth_weight_needs_the_thermal_table(small):
+    without = small.replace(thermal=None)
+    assert without.thermal is None
+    with pytest.raises(InputError, match=r"growth weight needs a \[thermal\] table"):
+        codesign(without, CodesignWeights(growth=1.0, tracking=1.0), budget=0, validate_plants=0)
+    # what the study states: growth and tracking where it has [thermal], friction and tracking where not
+    assert CodesignWeights.of_study(small) == CodesignWeights(growth=1.0, friction=0.0, tracking=1.0)
+    assert CodesignWeights.of_study(without) == CodesignWeights(growth=0.0, friction=1.0, tracking=1.0)
