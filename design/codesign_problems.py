@@ -31,6 +31,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import lru_cache
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -174,7 +175,7 @@ def hermite_simpson(dynamics: Callable[[ca.SX, ca.SX, ca.SX], ca.SX], nx: int, n
     U = ca.SX.sym("u", nu, 2 * N + 1)
     p = ca.SX.sym("p", n_p)
     defects = []
-    quad = 0
+    quad: ca.SX = ca.SX(0)
     for k in range(N):
         xk, xk1, xm = X[:, k], X[:, k + 1], Xm[:, k]
         uk, um, uk1 = U[:, 2 * k], U[:, 2 * k + 1], U[:, 2 * k + 2]
@@ -185,7 +186,7 @@ def hermite_simpson(dynamics: Callable[[ca.SX, ca.SX, ca.SX], ca.SX], nx: int, n
             quad += h / 6.0 * (running_cost(xk, uk, p) + 4.0 * running_cost(xm, um, p)
                                + running_cost(xk1, uk1, p))
     w = ca.vertcat(ca.vec(X), ca.vec(Xm), ca.vec(U))
-    return _Transcription(w=w, p=p, defects=ca.vertcat(*defects), quadrature=ca.SX(quad), x_nodes=X,
+    return _Transcription(w=w, p=p, defects=ca.vertcat(*defects), quadrature=quad, x_nodes=X,
                           u_all=U, N=N, tf_s=tf_s)
 
 
@@ -241,7 +242,7 @@ class CodesignProblemSolution:
         return self.objective / self.published_objective
 
 
-_IPOPT = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.tol": 1e-10}
+_IPOPT: dict[str, Any] = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.tol": 1e-10}
 
 
 def _check_strategy(strategy: str) -> None:
@@ -310,8 +311,8 @@ def solve_tp1(strategy: str, problem: TP1 = TP1(), start: tuple[float, float] = 
         # lam_p is the multiplier of the parameter: d psi*/d b = -lam_p
         return float(sol["f"]), -float(sol["lam_p"]), np.array([K_last[0]]), bool(inner.stats()["success"])
 
-    b, psi, K, ok, n = _nested_outer(solve_inner, start[0], (0.0, 1e3))
-    return CodesignProblemSolution("TP1", strategy, b, psi, published, (float(K[0]),), ok, n,
+    b, psi, gain, ok, n = _nested_outer(solve_inner, start[0], (0.0, 1e3))
+    return CodesignProblemSolution("TP1", strategy, b, psi, published, (float(gain[0]),), ok, n,
                                    time.perf_counter() - t0)
 
 

@@ -400,7 +400,8 @@ class CodesignResult:
 
 def _optimum_at(spec: DesignSpec, objective: str, values: dict[str, float]) -> DesignOptimum:
     """The design NLP's optimum with the outer variables fixed at ``values`` (every design requirement inside)."""
-    fixed = replace(spec, **{attr: (values[name], values[name]) for name, attr, _ in VARIABLES})
+    changes: dict[str, Any] = {attr: (values[name], values[name]) for name, attr, _ in VARIABLES}
+    fixed = replace(spec, **changes)
     return optimise(fixed, objective)
 
 
@@ -587,5 +588,6 @@ def _monte_carlo(study: StudySpec, cand: Candidate, plants: int) -> ValidationRe
     subject = study.with_design(cand.point)
     ff = subject.identify_feedforward()
     return validate(cand.gains, ff.model, _plant(study, cand.point), study.criteria, n_plants=plants,
-                    seed=study.validation.seed, step=study.references["step"],
+                    seed=study.seed if study.validation.seed is None else study.validation.seed,
+                    step=study.references["step"],
                     trajectory=study.references["trajectory"])

@@ -84,6 +84,7 @@ from piezopreload.artifacts.summaries import (
     ValidateSummary,
 )
 from piezopreload.artifacts.system import SystemRecord
+from piezopreload.codesign import codesign_optimum
 from piezopreload.core.artifacts import atomic_write_bytes, package_version
 from piezopreload.core.errors import InputError
 from piezopreload.core.stagecache import StageCache
@@ -214,7 +215,11 @@ def _stage_design(ctx: _Ctx) -> Produced:
     d = ctx.out / "design"
     for stale in d.glob("design.pareto-*.csv"):  # a front the study no longer asks for
         stale.unlink()
-    result = ctx.study.design(progress=ctx.progress.say, bar=ctx.progress.bar("Pareto fronts"))
+    optimum = None
+    if (ctx.study.design_table or DesignTable()).method == "codesign":  # the design chosen with its controller
+        ctx.progress.say("[design] method = codesign: the design is chosen with its controller (nested co-design)")
+        optimum = codesign_optimum(ctx.study, progress=ctx.progress.say)
+    result = ctx.study.design(progress=ctx.progress.say, bar=ctx.progress.bar("Pareto fronts"), optimum=optimum)
     written = result.save(d / "design.json", {"study": ctx.study.path, "study_sha256": ctx.study.sha256})
     outputs = {"design": written[0], **{p.stem.rpartition(".")[2]: p for p in written[1:]}}
     s = result.schedule

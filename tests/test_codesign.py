@@ -171,3 +171,14 @@ def test_a_growth_weight_needs_the_thermal_table(small):
     # what the study states: growth and tracking where it has [thermal], friction and tracking where not
     assert CodesignWeights.of_study(small) == CodesignWeights(growth=1.0, friction=0.0, tracking=1.0)
     assert CodesignWeights.of_study(without) == CodesignWeights(growth=0.0, friction=1.0, tracking=1.0)
+
+
+def test_a_codesign_study_s_plant_is_never_the_sequential_design_in_its_place(tmp_path):
+    text = SMALL_AXIS.read_text().replace("[design]\n", '[design]\nmethod = "codesign"\n', 1)
+    path = tmp_path / "small_codesign.toml"
+    path.write_text(text)
+    study = load_study(path)
+    with pytest.raises(InputError, match='method = "codesign"'):
+        study.plant  # noqa: B018 - the property solves the design
+    seq = optimise(study.design_spec, study.design_table.objective)
+    assert study.with_design(seq).plant is not None  # a design given is taken as it is
