@@ -3,26 +3,30 @@
 The study is sequential: the design NLP (:func:`~piezopreload.design.preload.optimise`) picks the screw for its
 objective against rigidity, lift-off and life; the tuner (:func:`~piezopreload.tuning.pid.tune_pid`) then picks
 the gains on the plant that design made. :func:`codesign` chooses them together, **nested**: the design's
-continuous variables that shape the plant (the contact angle and the groove conformity) outside, the design NLP
-and the tuning inside.
+continuous variables that shape the plant outside (the least rigidity the design must keep, a floor that moves it
+along the design's least-heat front, and the contact angle and the groove conformity), the design NLP and the tuning
+inside.
 
-For each outer candidate ``(contact angle, conformity)``:
+For each outer candidate ``(rigidity floor, contact angle, conformity)``:
 
-1. the design NLP with those two fixed chooses the rest (balls, turns, the bolts' preload) for the study's design
-   objective under every design requirement (rigidity per duty case, lift-off with its safety factor, life,
-   contact pressure, drag, frequency): a candidate no screw makes meet them is infeasible, not scored;
+1. the design NLP with the angle and conformity fixed chooses the rest (balls, turns, the bolts' preload and so the
+   preload range) for the least nut heat whose least rigidity over the duty is at least the floor, under every
+   design requirement (rigidity per duty case, lift-off with its safety factor, life, contact pressure, drag,
+   frequency): a candidate no screw makes meet them is infeasible, not scored;
 2. its plant is built as the plant stage builds it (``[plant]``'s sleeve, the study's ``[rig]`` hardware), the
    feedforward identified on it as the identify stage does;
 3. the PID is tuned on it by the study's own tuning (Ms on every plant variant and force-per-volt slope over the
    whole stroke inside the NLP, the overshoot margin, the noise gain), started from the sequential gains;
 4. the whole-range tracking (the study's staircase) and the step are run on the nominal plant: the tracking RMS
    and the settling time are constraints of the co-design (the validation's limits), not checked after it;
-5. the objective is the user's weighted sum of the schedule's friction energy per cycle (the least-friction
-   schedule planned on that screw), the tracking RMS and the peak command, each over its sequential value.
+5. the objective is the user's weighted sum of the screw's thermal growth over the shift (the design's duty-cycle
+   estimate), the schedule's friction energy per cycle (the least-friction schedule planned on that screw), the
+   tracking RMS and the peak command, each over its sequential value.
 
-The outer search is a bounded compass (pattern) search on the two variables scaled to ``[0, 1]``, started at the
-sequential design; a candidate replaces the incumbent only when it is feasible and lowers the objective, so the
-answer is never worse than the sequential one (whose objective is 1 by the normalisation). The outer search is
+The outer search is a bounded compass (pattern) search on the three variables scaled to ``[0, 1]`` (the floor from
+the least-heat design's rigidity to the sequential design's), started at the sequential design; a candidate
+replaces the incumbent only when it is feasible and lowers the objective, so the answer is never worse than the
+sequential one (whose objective is 1 by the normalisation). The outer search is
 derivative-free: the tuning NLP does not expose its optimum's sensitivity to the plant (the literature problems of
 :mod:`piezopreload.design.codesign_problems` show the sensitivity-driven nested strategy). The gain schedule over
 the preload level is not a decision of the outer loop: both answers are compared with the one robust gain set the
@@ -65,7 +69,13 @@ __all__ = ["CodesignWeights", "Candidate", "CodesignResult", "codesign", "codesi
 TERMS = (("growth", "growth_um", "um over the shift"), ("friction", "friction_energy_J", "J per cycle"),
          ("tracking", "tracking_rms_N", "N"), ("voltage", "peak_voltage_V", "V"))
 #: the outer variables: (name, the design spec's range attribute, unit)
-VARIABLES = (("contact_angle_deg", "contact_angle_deg", "deg"), ("conformity", "conformity", ""))
+#: the outer variables: (name, the design point's attribute its start is read from, unit); the rigidity floor
+#: makes each candidate a point of the design's least-heat front (``stiffness:growth``): the least nut heat whose
+#: least rigidity over the duty is at least the floor
+VARIABLES = (("stiffness_floor_N_per_um", "stiffness_N_per_um", "N/um"),
+             ("contact_angle_deg", "contact_angle_deg", "deg"), ("conformity", "conformity", ""))
+#: the design NLP's objective for a candidate: the least heat at the candidate's rigidity floor
+CANDIDATE_OBJECTIVE = "heat"
 STRATEGY = "nested"
 
 
@@ -136,6 +146,8 @@ class Candidate:
         The lift-off load at the bolts' preload by the catalogue rule ``2^(3/2) F_p`` the design's constraint uses.
     growth_um : float
         The screw's largest thermal growth over the shift (NaN: the study has no ``[thermal]`` table).
+    at : tuple of (str, float)
+        The outer variables' values it was designed at (empty: the sequential design, read off its point).
     """
 
     point: DesignPoint = field(repr=False)
@@ -150,9 +162,12 @@ class Candidate:
     why: str = ""
     lift_off_N: float = math.nan
     growth_um: float = math.nan
+    at: tuple[tuple[str, float], ...] = ()
 
     def variables(self) -> dict[str, float]:
         """The outer variables' values."""
+        if self.at:
+            return dict(self.at)
         return {name: float(getattr(self.point, attr)) for name, attr, _ in VARIABLES}
 
     def objective(self, weights: CodesignWeights, reference: Candidate) -> float:
@@ -398,15 +413,16 @@ class CodesignResult:
                 f"{self.evaluations} inner solves, coupling {self.coupling().split(':')[0]})")
 
 
-def _optimum_at(spec: DesignSpec, objective: str, values: dict[str, float]) -> DesignOptimum:
-    """The design NLP's optimum with the outer variables fixed at ``values`` (every design requirement inside)."""
-    changes: dict[str, Any] = {attr: (values[name], values[name]) for name, attr, _ in VARIABLES}
-    fixed = replace(spec, **changes)
-    return optimise(fixed, objective)
+def _optimum_at(spec: DesignSpec, values: dict[str, float]) -> DesignOptimum:
+    """The design NLP's least-heat optimum at the outer variables ``values``: the contact angle and conformity fixed,
+    the least rigidity over the duty at least the floor, and every design requirement inside."""
+    a, c = values["contact_angle_deg"], values["conformity"]
+    floor = max(spec.stiffness_min_N_per_um, values["stiffness_floor_N_per_um"] * (1.0 - _FLOOR_TOL))
+    fixed = replace(spec, contact_angle_deg=(a, a), conformity=(c, c), stiffness_min_N_per_um=floor)
+    return optimise(fixed, CANDIDATE_OBJECTIVE)
 
 
-def _design_at(spec: DesignSpec, objective: str, values: dict[str, float]) -> DesignPoint:
-    return _optimum_at(spec, objective, values).point
+_FLOOR_TOL = 1e-6  # the floor at the stiffness optimum's rigidity, less the solver's tolerance
 
 
 def codesign_optimum(study: StudySpec, progress: ProgressLike | None = None) -> DesignOptimum:
@@ -420,7 +436,7 @@ def codesign_optimum(study: StudySpec, progress: ProgressLike | None = None) -> 
         raise InputError(f"{study.path}: co-design needs the design's tables")
     if result.codesigned is result.sequential:
         return optimise(spec, objective)
-    return _optimum_at(spec, objective, result.codesigned.variables())
+    return _optimum_at(spec, result.codesigned.variables())
 
 
 def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget: int = 9, step: float = 0.25,
@@ -521,7 +537,9 @@ class _Search:
         self.study, self.spec, self.objective, self.weights = study, spec, objective, weights
         self.sequential, self.sequential_s = sequential, sequential_s
         self.max_iterations, self.time_factor, self.say = max_iterations, time_factor, say
-        self.ranges = [tuple(getattr(spec, attr)) for _, attr, _ in VARIABLES]
+        least_heat = optimise(spec, CANDIDATE_OBJECTIVE).point.stiffness_N_per_um  # the front's soft end
+        top = sequential.point.stiffness_N_per_um
+        self.ranges = [(min(least_heat, top), top), tuple(spec.contact_angle_deg), tuple(spec.conformity)]
         self.evaluations, self.stopped = 0, ""
         self.refused: list[str] = []
         self.scored: list[Candidate] = [sequential]
@@ -543,8 +561,9 @@ class _Search:
         values = self.values(z)
         self.evaluations += 1
         try:
-            cand = evaluate_design(self.study, _design_at(self.spec, self.objective, values), start=start,
+            cand = evaluate_design(self.study, _optimum_at(self.spec, values).point, start=start,
                                    max_iterations=self.max_iterations)
+            cand = replace(cand, at=tuple(values.items()))
         except InfeasibleError as exc:  # no screw, or no controller, for these values
             self.refused.append(f"{values}: {exc}")
             return None, math.inf
@@ -563,9 +582,11 @@ class _Search:
         best, best_f = self.sequential, self.sequential.objective(self.weights, self.sequential)
         seen = {tuple(np.round(z, 9))}
         h = step
+        # opportunistic polling: the first direction that improves is taken, and tried first at the next poll
+        directions = [(i, sign) for i in range(len(VARIABLES)) for sign in (-1.0, +1.0)]
         while h >= min_step and self.evaluations < budget and not self.stopped:
             improved = False
-            for i, sign in ((i, sign) for i in range(len(VARIABLES)) for sign in (+1.0, -1.0)):
+            for i, sign in list(directions):
                 lo, hi = self.ranges[i]
                 trial = z.copy()
                 trial[i] = min(1.0, max(0.0, trial[i] + sign * h))
@@ -579,6 +600,9 @@ class _Search:
                 cand, f = self.score(trial, best.gains)
                 if cand is not None and f < best_f - 1e-9:
                     best, best_f, z, improved = cand, f, trial, True
+                    directions.remove((i, sign))
+                    directions.insert(0, (i, sign))
+                    break
             if not improved:
                 h /= 2.0
         return best, best_f
