@@ -427,16 +427,17 @@ _FLOOR_TOL = 1e-6  # the floor at the stiffness optimum's rigidity, less the sol
 
 def codesign_optimum(study: StudySpec, progress: ProgressLike | None = None) -> DesignOptimum:
     """The design optimum a study with ``[design] method = "codesign"`` takes: the co-design's design (its Monte
-    Carlo left to the study's validate stage), as the design NLP's optimum at the co-designed contact angle and
-    conformity; the sequential optimum itself where the co-design kept it."""
+    Carlo left to the study's validate stage), as the design NLP's optimum at the co-designed rigidity floor, contact
+    angle and conformity (the sequential optimum itself where the co-design kept it), its objective named
+    ``"codesign"``."""
     result = codesign(study, validate_plants=0, progress=progress)
     spec = study.design_spec
     objective = (study.design_table or DesignTable()).objective
     if spec is None:  # codesign refused it already; for the type checker
         raise InputError(f"{study.path}: co-design needs the design's tables")
-    if result.codesigned is result.sequential:
-        return optimise(spec, objective)
-    return _optimum_at(spec, result.codesigned.variables())
+    chosen = optimise(spec, objective) if result.codesigned is result.sequential else \
+        _optimum_at(spec, result.codesigned.variables())
+    return replace(chosen, objective="codesign")  # what chose it (the design artifact and the report say so)
 
 
 def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget: int = 9, step: float = 0.25,

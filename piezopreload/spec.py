@@ -595,8 +595,8 @@ class StudySpec:
             raise InputError(f"{self.path}: the Pareto front stiffness:growth needs a [thermal] table (the shift the "
                              "growth is read over)")
         table = self.thermal
-        if optimum is not None and optimum.objective != objective:
-            raise InputError(f"{self.path}: the optimum given is for {optimum.objective!r}, not {objective!r}")
+        if optimum is not None:  # chosen already (by the co-design): the record names what chose it
+            objective = optimum.objective
         if optimum is None and objective == d.objective and d.method == "codesign":
             self._point(say_of(progress))  # refused: the co-design is the application layer's (codesign_optimum)
         try:
@@ -608,7 +608,7 @@ class StudySpec:
                 growth=None if table is None else lambda point: duty_growth_um(spec, point, table))
         except DesignInfeasible as exc:
             raise InfeasibleError(f"{self.path}: {exc}") from exc
-        if objective == d.objective and (k.point is None or optimum is not None):
+        if optimum is not None or (objective == d.objective and k.point is None):
             k.optimum, k.point = result.optimum, result.point
         return result
 
