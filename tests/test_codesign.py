@@ -56,6 +56,7 @@ def small_codesign(small):
     return codesign(small, budget=3, validate_plants=3, time_factor=None)
 
 
+@pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
 def test_codesign_is_never_worse_than_its_sequential_start(small, small_codesign):
     r = small_codesign
     assert r.strategy == "nested"
@@ -75,6 +76,7 @@ def test_codesign_is_never_worse_than_its_sequential_start(small, small_codesign
     assert r.objective_codesigned == pytest.approx(r.codesigned.objective(w, r.sequential))
 
 
+@pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
 def test_both_answers_are_validated_by_the_same_monte_carlo(small_codesign):
     r = small_codesign
     assert r.validation_sequential is not None and r.validation_codesigned is not None
@@ -92,6 +94,7 @@ def test_both_answers_are_validated_by_the_same_monte_carlo(small_codesign):
     assert d["strategy"] == "nested" and d["objective_ratio"] <= 1.0
 
 
+@pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
 def test_a_design_no_controller_makes_meet_the_study_is_refused_naming_the_binding_pair(small):
     # at Ms <= 1.6 the best PI the tuning finds tracks the staircase to about 28 N RMS on this plant: a limit of 5 N
     # is out of reach, and the refusal names the pair: the Ms limit (binding) and the tracking limit
@@ -104,6 +107,7 @@ def test_a_design_no_controller_makes_meet_the_study_is_refused_naming_the_bindi
     assert "contact angle" in message
 
 
+@pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
 def test_evaluate_design_starts_from_given_gains_and_keeps_them_where_they_are_best(small, small_codesign):
     seq = small_codesign.sequential
     again = evaluate_design(small, seq.point, start=seq.gains)
@@ -111,6 +115,7 @@ def test_evaluate_design_starts_from_given_gains_and_keeps_them_where_they_are_b
     assert math.isfinite(again.friction_energy_J) and again.friction_energy_J == pytest.approx(seq.friction_energy_J)
 
 
+@pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
 def test_codesign_command_prints_one_json_object(tmp_path, capsys):
     code = main(["codesign", str(SMALL_AXIS), "--budget", "0", "--plants", "2", "--json"])
     out = capsys.readouterr().out
@@ -126,6 +131,7 @@ def test_codesign_command_refuses_bad_input(capsys):
     assert err[-1].startswith("error: --budget")
 
 
+@pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
 def test_codesign_command_exits_2_on_a_design_no_controller_meets(tmp_path, capsys):
     text = SMALL_AXIS.read_text().replace("tracking_rms_max_N = 100.0", "tracking_rms_max_N = 5.0")
     study = tmp_path / "tight.toml"
