@@ -18,7 +18,8 @@ def register_codesign(sub: Any) -> None:
         "codesign",
         description=(
             "Solve the study's design and then tune its controller (the sequential answer, as 'run' does), then "
-            "choose the design's plant-shaping variables (contact angle, conformity) and the PID gains together, "
+            "choose the design's plant-shaping variables (a rigidity floor along the design's least-heat front, the "
+            "contact angle, the conformity) and the PID gains together, "
             "nested: the design outside, the design NLP and the tuning inside (Ms inside the tuning, the whole-range "
             "tracking RMS and the settling time as constraints), started from the sequential answer so it is never "
             "worse. Both are validated by the same Monte Carlo; the result gives, for each requirement and the "
