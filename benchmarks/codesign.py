@@ -85,8 +85,9 @@ def main() -> None:
               f"co-designed {row.get('codesigned')}")
 
     # ---- the two fronts: thermal growth against tracking RMS at the study's Ms ---------------------------
-    spec = study.design_spec
-    table = study.thermal
+    spec, table = study.design_spec, study.thermal
+    if spec is None or table is None:
+        raise SystemExit("the default study has lost its design or [thermal] tables: the fronts need both")
     front = pareto_front(spec, "stiffness:growth", args.front, growth=lambda p: duty_growth_um(spec, p, table))
     sequential_front = []
     for p in front.points:
