@@ -26,7 +26,9 @@ For each outer candidate ``(rigidity floor, contact angle, conformity)``:
 The outer search is a bounded compass (pattern) search on the three variables scaled to ``[0, 1]`` (the floor from
 the least-heat design's rigidity to the sequential design's), started at the sequential design; a candidate
 replaces the incumbent only when it is feasible and lowers the objective, so the answer is never worse than the
-sequential one (whose objective is 1 by the normalisation). The outer search is
+sequential one (whose objective is 1 by the normalisation). A sequential answer that misses the study (no gains the
+tuning finds meet the tracking or settling limit under the Ms limit) is replaced by the first candidate that meets
+it; where none does, the study is refused naming the binding pair. The outer search is
 derivative-free: the tuning NLP does not expose its optimum's sensitivity to the plant (the literature problems of
 :mod:`piezopreload.design.codesign_problems` show the sensitivity-driven nested strategy). The gain schedule over
 the preload level is not a decision of the outer loop: both answers are compared with the one robust gain set the
@@ -398,6 +400,7 @@ class CodesignResult:
         return {"study": self.study, "strategy": self.strategy, "weights": self.weights.to_dict(),
                 "objective_sequential": self.objective_sequential, "objective_codesigned": self.objective_codesigned,
                 "objective_ratio": self.objective_ratio, "evaluations": self.evaluations,
+                "sequential_meets_the_study": self.sequential.feasible,
                 "sequential": self.sequential.to_dict(), "codesigned": self.codesigned.to_dict(),
                 "changed": self.changed(), "bought": self.bought(), "coupling": self.coupling(),
                 "requirements": self.requirements(), "infeasible": list(self.infeasible),
@@ -495,18 +498,20 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
         raise InfeasibleError(f"{study.path}: {exc}") from exc
     sequential = evaluate_design(study, seq_point, max_iterations=max_iterations)
     sequential_s = time.perf_counter() - t0
-    if not sequential.feasible:
-        raise InfeasibleError(f"{study.path}: the sequential design (contact angle {seq_point.contact_angle_deg:.2f} "
-                              f"deg, conformity {seq_point.conformity:.4f}) has no controller that meets the "
-                              f"study: {sequential.why}")
     say(f"sequential: {objective} design, then the tuning ({sequential_s:.1f} s): tracking RMS "
-        f"{sequential.tracking_rms_N:.2f} N, friction {sequential.friction_energy_J:.4g} J per cycle")
+        f"{sequential.tracking_rms_N:.2f} N, friction {sequential.friction_energy_J:.4g} J per cycle"
+        + ("" if sequential.feasible else f"; it misses the study: {sequential.why}"))
 
     # ---- the nested co-design: a compass search over the plant-shaping variables --------------------------
     t1 = time.perf_counter()
     search = _Search(study, spec, objective, weights, sequential, sequential_s, max_iterations, time_factor, say)
     best, best_f = search.run(budget, step, min_step)
     codesign_s = time.perf_counter() - t1
+    if not best.feasible:  # the sequential design has no controller that meets the study, and no candidate had one
+        raise InfeasibleError(f"{study.path}: the sequential design (contact angle {seq_point.contact_angle_deg:.2f} "
+                              f"deg, conformity {seq_point.conformity:.4f}, rigidity "
+                              f"{seq_point.stiffness_N_per_um:.0f} N/um) has no controller that meets the study: "
+                              f"{sequential.why}; nor had any of the {search.evaluations} designs the co-design tried")
     say(f"co-design ({STRATEGY}, {search.evaluations} inner solves{search.stopped}, {codesign_s:.1f} s): objective "
         f"{best_f:.4f} against the sequential 1")
 
@@ -580,7 +585,8 @@ class _Search:
         p = self.sequential.point
         z = np.array([(getattr(p, attr) - lo) / (hi - lo) if hi > lo else 0.0
                       for (_, attr, _), (lo, hi) in zip(VARIABLES, self.ranges)])
-        best, best_f = self.sequential, self.sequential.objective(self.weights, self.sequential)
+        best = self.sequential  # a start that misses the study is replaced by the first candidate that meets it
+        best_f = self.sequential.objective(self.weights, self.sequential) if self.sequential.feasible else math.inf
         seen = {tuple(np.round(z, 9))}
         h = step
         # opportunistic polling: the first direction that improves is taken, and tried first at the next poll

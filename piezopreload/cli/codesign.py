@@ -71,6 +71,8 @@ def _print_codesign(r: CodesignResult) -> None:
     print(f"co-design of {r.study} ({r.strategy}: the design outside, the tuning inside; {r.evaluations} inner solves)")
     print(f"  objective: sequential {r.objective_sequential:.4f}, co-designed {r.objective_codesigned:.4f} "
           f"(ratio {r.objective_ratio:.4f})")
+    if not r.sequential.feasible:
+        print(f"  the sequential answer misses the study: {r.sequential.why}")
     print(f"  time: sequential {r.sequential_s:.1f} s, co-design {r.codesign_s:.1f} s more "
           f"({r.time_ratio:.1f} times the sequential)")
     print(f"  changed: {'; '.join(r.changed()) or 'nothing (the sequential design is kept)'}")
