@@ -50,18 +50,21 @@ def literature() -> dict:
 
 
 def _point(c: Candidate) -> tuple[float, float]:
-    return c.growth_um, c.tracking_rms_N
+    """(growth um, tracking RMS N), to 6 significant digits (the tuning's own tolerance is coarser)."""
+    return float(f"{c.growth_um:.6g}"), float(f"{c.tracking_rms_N:.6g}")
 
 
 def _dominates(a: tuple[float, float], b: tuple[float, float], strict: bool = False) -> bool:
-    weak = a[0] <= b[0] * (1 + 1e-9) and a[1] <= b[1] * (1 + 1e-9)
-    return weak and (a[0] < b[0] and a[1] < b[1]) if strict else weak
+    """``a`` no worse than ``b`` in both (``strict``: better in both); points are compared as rounded."""
+    if strict:
+        return a[0] < b[0] and a[1] < b[1]
+    return a[0] <= b[0] and a[1] <= b[1]
 
 
 def _nondominated(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
-    """The points no other point weakly dominates (each once)."""
+    """The points no other point dominates (no worse in both, better in one), each once."""
     unique = sorted(set(points))
-    return [p for p in unique if not any(_dominates(q, p) for q in unique if q != p)]
+    return [p for p in unique if not any(_dominates(q, p) and q != p for q in unique)]
 
 
 def main() -> None:
