@@ -464,7 +464,7 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
         IPOPT's iteration limit of each inner tuning.
     time_factor : float, optional
         The co-design's time limit as a multiple of the sequential design and tuning: no inner problem is started
-        that the mean inner time so far says would end after it (None: the budget alone limits it).
+        that would end after it were it as slow as the slowest so far (None: the budget alone limits it).
     progress : ProgressLike, optional
         Where the steps are said.
 
@@ -546,7 +546,7 @@ class _Search:
         least_heat = optimise(spec, CANDIDATE_OBJECTIVE).point.stiffness_N_per_um  # the front's soft end
         top = sequential.point.stiffness_N_per_um
         self.ranges = [(min(least_heat, top), top), tuple(spec.contact_angle_deg), tuple(spec.conformity)]
-        self.evaluations, self.stopped = 0, ""
+        self.evaluations, self.stopped, self.slowest = 0, "", 0.0
         self.refused: list[str] = []
         self.scored: list[Candidate] = [sequential]
         self.t0 = time.perf_counter()
@@ -555,17 +555,18 @@ class _Search:
         return {name: float(lo + zi * (hi - lo)) for (name, _, _), (lo, hi), zi in zip(VARIABLES, self.ranges, z)}
 
     def in_time(self) -> bool:
-        """Whether one more inner solve (the mean so far) ends inside the time limit."""
+        """Whether one more inner solve, as slow as the slowest so far, ends inside the time limit."""
         if self.time_factor is None:
             return True
         spent = time.perf_counter() - self.t0
-        mean = spent / self.evaluations if self.evaluations else self.sequential_s
-        return self.sequential_s + spent + mean <= self.time_factor * self.sequential_s
+        return self.sequential_s + spent + max(self.slowest, 0.5 * self.sequential_s) <= \
+            self.time_factor * self.sequential_s
 
     def score(self, z: np.ndarray, start: PIDGains) -> tuple[Candidate | None, float]:
         """One inner problem at ``z``: the candidate and its objective (inf: infeasible, and why is kept)."""
         values = self.values(z)
         self.evaluations += 1
+        t0 = time.perf_counter()
         try:
             cand = evaluate_design(self.study, _optimum_at(self.spec, values).point, start=start,
                                    max_iterations=self.max_iterations)
@@ -573,6 +574,8 @@ class _Search:
         except InfeasibleError as exc:  # no screw, or no controller, for these values
             self.refused.append(f"{values}: {exc}")
             return None, math.inf
+        finally:
+            self.slowest = max(self.slowest, time.perf_counter() - t0)
         if not cand.feasible:
             self.refused.append(f"{values}: {cand.why}")
             return cand, math.inf
