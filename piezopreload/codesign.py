@@ -267,29 +267,39 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
 class CodesignResult:
     """The sequential answer and the co-designed one, each validated by the same Monte Carlo.
 
-    Attributes
+    Parameters
     ----------
+    study : str
+        The study's name.
     strategy : str
         How the co-design was solved (``"nested"``: the design outside, the tuning inside).
     weights : CodesignWeights
         The objective's weights.
-    sequential, codesigned : Candidate
-        The two answers.
-    objective_sequential, objective_codesigned : float
-        The weighted objective of each (the sequential's is 1 by the normalisation).
+    sequential : Candidate
+        The sequential answer: the design NLP's optimum, then the tuning on its plant.
+    codesigned : Candidate
+        The co-designed answer (the sequential one where nothing beat it).
+    objective_sequential : float
+        The sequential answer's weighted objective (1 by the normalisation).
+    objective_codesigned : float
+        The co-designed answer's weighted objective.
     evaluations : int
-        Inner problems solved by the outer search (the sequential start included).
+        Inner problems solved (the sequential start included).
     infeasible : tuple of str
         The outer candidates refused and why.
-    validation_sequential, validation_codesigned : ValidationResult or None
-        The Monte Carlo of each (None where not run).
-    sequential_s, codesign_s : float
-        Wall time of the sequential design plus tuning, and of the co-design's outer search after it.
+    sequential_s : float
+        Wall time of the sequential design plus tuning.
+    codesign_s : float
+        Wall time of the co-design's outer search after it.
     limits : dict
         The requirements' limits (the design's, the tuning's Ms, the validation's tracking RMS).
     candidates : tuple of Candidate
         Every feasible design-and-controller pair the search scored, the sequential start first (a co-designed
         front's points).
+    validation_sequential : ValidationResult or None
+        The sequential answer's Monte Carlo (None where not run).
+    validation_codesigned : ValidationResult or None
+        The co-designed answer's Monte Carlo, on the same plants' draw (None where not run).
     """
 
     study: str
