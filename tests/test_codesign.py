@@ -188,3 +188,23 @@ def test_a_codesign_study_s_plant_is_never_the_sequential_design_in_its_place(tm
         study.plant  # noqa: B018 - the property solves the design
     seq = optimise(study.design_spec, study.design_table.objective)
     assert study.with_design(seq).plant is not None  # a design given is taken as it is
+
+
+def test_a_worse_candidate_never_replaces_the_sequential_answer(small, monkeypatch):
+    # every candidate after the sequential start is made 20 % worse on the tracking: the search must keep the start
+    import piezopreload.codesign as cd
+
+    real, made = cd.evaluate_design, []
+
+    def evaluate(study, point, **kwargs):
+        if not made:
+            made.append(real(study, point, **kwargs))
+            return made[0]
+        return replace(made[0], point=point, tracking_rms_N=made[0].tracking_rms_N * 1.2)
+
+    monkeypatch.setattr(cd, "evaluate_design", evaluate)
+    r = cd.codesign(small, CodesignWeights(growth=0.0, friction=0.0, tracking=1.0), budget=3, validate_plants=0,
+                    time_factor=None)
+    assert r.evaluations == 4  # the start and three candidates scored
+    assert r.codesigned is r.sequential
+    assert r.objective_codesigned == pytest.approx(1.0)
