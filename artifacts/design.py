@@ -74,6 +74,9 @@ CONSTRAINT_WORDS: dict[str, tuple[str, str]] = {
     "lift_off_case": ("no lift-off {cases} at its preload", "[design] lift_off_margin"),
     "stiffness_case": ("the rigidity {cases}, the least over the duty cases", ""),
     "frequency_case": ("the first axial natural frequency {cases}", "[design] frequency_min_Hz"),
+    "stiffness_worst": ("the rigidity {cases} at the worst corner of the as-built tolerances", "[design] robust"),
+    "frequency_worst": ("the first axial natural frequency {cases} at the worst corner of the as-built tolerances",
+                        "[design] frequency_min_Hz, robust"),
     "preload_order_low": ("the preload {cases} down at the bolts' preload", ""),
     "preload_order_high": ("the preload {cases} up at the highest preload", ""),
 }
@@ -106,7 +109,9 @@ def binding_words(binding: tuple[str, ...] | list[str], point: DesignPoint) -> l
         if rest:
             if base not in per_case:
                 out.append((base, ""))
-            per_case.setdefault(base, []).append(int(rest.rstrip("]")))
+            case = int(rest.rstrip("]"))
+            if case not in per_case.setdefault(base, []):  # a robust design's corners share their case's number
+                per_case[base].append(case)
         elif " at its " in name:
             var, _, side = name.partition(" at its ")
             words, unit = VARIABLE_WORDS.get(var, (var, ""))

@@ -22,10 +22,11 @@ from collections.abc import Iterable
 from typing import Any, ClassVar
 
 from piezopreload.core.errors import ArtifactError
+from piezopreload.core.quantities import number
 from piezopreload.core.records import Record, entry, record
 
-__all__ = ["Requirement", "EXIT_REQUIREMENT_MISSED", "requirements_from_dict", "missed",
-           "least_margin", "unaccepted"]
+__all__ = ["Requirement", "AtBound", "OffBounds", "BASES", "EXIT_REQUIREMENT_MISSED", "requirements_from_dict",
+           "missed", "least_margin", "unaccepted"]
 
 #: the exit code of a study that ran but missed a requirement (0 done, 1 internal, 2 bad input, 3 rig stopped)
 EXIT_REQUIREMENT_MISSED = 4
@@ -33,8 +34,34 @@ EXIT_REQUIREMENT_MISSED = 4
 _SENSES = ("min", "max")
 
 
-def _number(x: float) -> str:
-    return f"{x:,.0f}" if abs(x) >= 1000 else f"{x:.3g}"
+
+
+#: what a requirement rests on: ``design`` the design's own constraint (the design is built to sit on it: its margin
+#: is the loop's error, not physics), ``physics`` what the physics grants
+BASES = ("design", "physics")
+
+
+@record
+class AtBound(Record):
+    """A design variable the optimum left at a bound of its range: its study key, its value and which bound, and the
+    value the requirement was judged at without it (the range's middle)."""
+
+    key: str = entry('The variable\'s study key ("ballscrew.contact_angle_deg").')
+    value: float = entry("The design's value, at the bound.")
+    bound: str = entry("``low`` or ``high``.", choices=("low", "high"))
+    instead: float = entry("The value the requirement was judged at without the bound (its range's middle).")
+
+
+@record
+class OffBounds(Record):
+    """A requirement judged again with the design's variables moved off their bounds (each continuous one at a bound
+    to its range's middle, the balls and turns kept): the variables at their bounds, the value and margin it would
+    have without them."""
+
+    at_bounds: tuple[AtBound, ...] = entry("The design variables at a bound of their range.")
+    value: float = entry("The value without them (the variables at their ranges' middles), in the requirement's unit.")
+    margin_pct: float | None = entry("The margin without them, in % of the limit (negative: a miss).", unit="%")
+    met: bool = entry("Whether the requirement holds without them.")
 
 
 @record
@@ -52,6 +79,11 @@ class Requirement(Record):
     key: str = entry("A short name a user gives to accept a missed requirement (``validation.overshoot_max_N@2000N``); "
                      "where not given, the source's table and key (``schedule.stiffness_min_N_per_um``), else the "
                      "name's words.", default="")
+    basis: str | None = entry("What the requirement rests on: ``design`` (the design's own constraint, which the "
+                              "design is built to sit on), ``physics`` (what the physics grants); None where it is "
+                              "simply the study's limit.", choices=BASES, default=None, omit=True)
+    off_bounds: OffBounds | None = entry("Where the design left variables at their bounds: the requirement judged "
+                                         "without them.", default=None, omit=True)
 
     def __post_init__(self) -> None:
         if not self.key:  # the source's table and key: "[schedule] deflection_max_um" -> "schedule.deflection_max_um"
@@ -80,16 +112,29 @@ class Requirement(Record):
     def met(self) -> bool:
         return self.margin >= 0.0
 
-    def sentence(self) -> str:
-        """The verdict in words: achieved against required, and the margin."""
+    def sentence(self, source: bool = True) -> str:
+        """The verdict in words: achieved against required, and the margin, each figure by the one rule of its
+        unit (:func:`~piezopreload.core.quantities.number`); ``source=False`` leaves out the key that sets it."""
         bound = "at least" if self.sense == "min" else "at most"
-        where = f" ({self.source})" if self.source else ""
-        head = (f"{self.name}: {_number(self.value)} {self.unit} against {bound} "
-                f"{_number(self.limit)} {self.unit}{where}")
-        pct = "" if self.margin_pct is None else f" ({abs(self.margin_pct):.1f} %)"
+        where = f" ({self.source})" if self.source and source else ""
+        u = self.unit
+        head = f"{self.name}: {number(self.value, u)} {u} against {bound} {number(self.limit, u)} {u}{where}"
+        pct = "" if self.margin_pct is None else f" ({number(abs(self.margin_pct), '%')} %)"
         if self.met:
-            return f"{head}, met with {_number(self.margin)} {self.unit} to spare{pct}"
-        return f"{head}, missed by {_number(-self.margin)} {self.unit}{pct}"
+            return f"{head}, met with {number(self.margin, u)} {u} to spare{pct}"
+        return f"{head}, missed by {number(-self.margin, u)} {u}{pct}"
+
+    def figures(self) -> str:
+        """Achieved against required in symbols, each figure by its unit's rule: ``1,126 N/um >= 800 N/um``."""
+        u = self.unit
+        return f"{number(self.value, u)} {u} {'>=' if self.sense == 'min' else '<='} {number(self.limit, u)} {u}"
+
+    def line(self, label: str = "", width: int = 0) -> str:
+        """One line of a table of verdicts: ``met``/``MISSED``, the margin as a share of the limit, the figures
+        (padded to ``width``) and ``label`` (default: the name)."""
+        share = "" if self.margin_pct is None else f"{'+' if self.margin_pct >= 0 else '-'}" \
+                                                   f"{number(abs(self.margin_pct), '%')} %"
+        return f"{'met   ' if self.met else 'MISSED'} {share:>8s}  {self.figures():{width}s}  {label or self.name}"
 
     def to_dict(self) -> dict[str, Any]:
         """The fields, and the verdict they give (``met``, ``margin``, ``margin_pct``), as an artifact holds them.

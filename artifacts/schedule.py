@@ -88,6 +88,10 @@ class ScheduleSpec(Record):
     lift_off_margin: float = entry("The least ratio of the preload to the lift-off bound.", default=1.2)
     preload_margin_N: float = entry("The control's room everywhere: every requirement holds at the preload less "
                                     "this.", unit="N", default=0.0)
+    in_machine_factor: float | None = entry("The share of the nut's table rigidity it keeps mounted in a machine "
+                                            "(HIWIN's and THK's 0.8): the rigidity and deflection rows hold in the "
+                                            "machine (None, a document written before it: the table figure, 1).",
+                                            default=None, omit=True)
 
     def __post_init__(self) -> None:
         if not 0 < self.bolt_preload_N < self.max_preload_N < math.inf:
@@ -98,8 +102,16 @@ class ScheduleSpec(Record):
         if not (self.stiffness_min_N_per_um >= 0 and self.deflection_max_um > 0 and self.lift_off_margin >= 1):
             raise ValueError("ScheduleSpec needs stiffness_min_N_per_um >= 0, deflection_max_um > 0 and "
                              "lift_off_margin >= 1.")
+        if not (self.in_machine_factor is None or (math.isfinite(self.in_machine_factor)
+                                                   and 0 < self.in_machine_factor <= 1)):
+            raise ValueError(f"ScheduleSpec.in_machine_factor must be in (0, 1], got {self.in_machine_factor!r}.")
         if not (math.isfinite(self.preload_margin_N) and self.preload_margin_N >= 0):
             raise ValueError(f"ScheduleSpec.preload_margin_N must be finite and >= 0, got {self.preload_margin_N!r}.")
+
+    @property
+    def rigidity_factor(self) -> float:
+        """What the nut's table rigidity is multiplied by for the rows: ``in_machine_factor`` (1 where not set)."""
+        return 1.0 if self.in_machine_factor is None else float(self.in_machine_factor)
 
     def required_stiffness(self, axial_load_N: ArrayLike) -> Array:
         return np.maximum(self.stiffness_min_N_per_um, np.abs(np.asarray(axial_load_N, float)) / self.deflection_max_um)

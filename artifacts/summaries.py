@@ -17,7 +17,15 @@ from typing import Any, ClassVar
 
 from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.responses import ReproductionRow
-from piezopreload.artifacts.system import PassRecord, PreCycle, ScheduleBound, SystemRecord, TrackingNumbers
+from piezopreload.artifacts.sensitivity import SensitivityRecord
+from piezopreload.artifacts.system import (
+    MarginBasis,
+    PassRecord,
+    PreCycle,
+    ScheduleBound,
+    SystemRecord,
+    TrackingNumbers,
+)
 from piezopreload.core.errors import ArtifactError
 from piezopreload.core.records import Raw, Record, entry, record
 
@@ -56,6 +64,10 @@ class DesignSummary(StageSummary):
     constant_preload_N: float = entry("The best constant preload.", unit="N")
     constant_friction_energy: float = entry("Its friction energy per cycle (in ``energy_units``).")
     energy_units: str = entry("The unit of the energies.")
+    robust_cost: dict[str, Any] | None = entry(
+        "A robust design's cost against the nominal design (``[design] robust``: the objective's figure of each at the "
+        "study's assumptions and at the worst case, the cost, what the nominal design misses at the worst case).",
+        default=None, omit=True)
 
 
 @record
@@ -192,6 +204,11 @@ class SystemSummary(StageSummary):
                                            default=None, omit=True)
     before: BeforeLearning | None = entry("Where the schedule was learned: the error before learning.",
                                           default=None, inline=True, omit=True)
+    basis: MarginBasis | None = entry("What the margins rest on: the rigidity in the machine and at the table, the "
+                                      "axis stiffness at the table, the deflections, the physical lift-off.",
+                                      default=None, omit=True)
+    sensitivity: SensitivityRecord | None = entry("The verdicts under the modelling assumptions' ranges.",
+                                                  default=None, omit=True)
 
     @classmethod
     def of(cls, system: SystemRecord, before: BeforeLearning | None = None) -> SystemSummary:
@@ -199,7 +216,7 @@ class SystemSummary(StageSummary):
         passes and thermal figures; ``before``: the error before learning, where the schedule was learned."""
         return cls(system.numbers, system.requirements, system.bounds, system.pre_cycle, system.preload_margin_N,
                    system.cycles, system.passes, None if system.thermal is None else system.thermal.summary().to_dict(),
-                   before)
+                   before, system.basis, system.sensitivity)
 
     @property
     def requirements(self) -> tuple[Requirement, ...]:

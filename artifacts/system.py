@@ -21,12 +21,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezopreload.artifacts.requirements import Requirement
+from piezopreload.artifacts.sensitivity import SensitivityRecord
 from piezopreload.artifacts.thermal import ThermalRecord
 from piezopreload.core._typing import Array
 from piezopreload.core.records import Artifact, Raw, Record, entry, record
 
-__all__ = ["TrackingNumbers", "PreCycle", "PassRecord", "ScheduleBound", "PlannedSchedule", "SystemSeries",
-           "SystemRecord", "KIND"]
+__all__ = ["TrackingNumbers", "MarginBasis", "PreCycle", "PassRecord", "ScheduleBound", "PlannedSchedule",
+           "SystemSeries", "SystemRecord", "KIND"]
 
 KIND = "system"
 
@@ -212,6 +213,48 @@ class SystemSeries(Record):
     cutting: NDArray[np.bool_] = entry("Whether the axis cuts (1) or not (0).", size="time_s")
 
 
+@record
+class MarginBasis(Record):
+    """What the schedule's margins rest on (design/system.py, :func:`~piezopreload.design.system.margin_basis`).
+
+    **Rigidity.** The verdict's rigidity is the nut's in the machine: the nut law's table figure (HIWIN's and THK's
+    tables, on which it is calibrated) times ``rigidity_in_machine_factor``; the table-comparable figure is beside it.
+    The axis stiffness at the table is the nut (in the machine) in series with the screw and the bearings, at the
+    verdict's sample, over the travel. **Deflections**: the nut axial deflection is the nut's alone (the deflection
+    requirement's); the axis deflection at the table adds the screw and the bearings (at the weakest position).
+    **Lift-off**: the schedule's bound (``lift_off_margin |F_a| / 2^(3/2)``) is the design's own constraint; the
+    physical margin is the nut law's lift-off load rho(sigma) F_p at the achieved preload against the cutting load,
+    on the nominal plant and the worst of the Monte Carlo plants (the validation's spread), beside the catalogue
+    rule's 2^(3/2) F_p at the same sample.
+    """
+
+    rigidity_in_machine_factor: float = entry("The share of the table rigidity the nut keeps in the machine.")
+    rigidity_in_machine_N_per_um: float = entry("The nut's rigidity in the machine at the verdict's sample.",
+                                                unit="N/um")
+    rigidity_table_N_per_um: float = entry("The same without the factor: the table-comparable figure.", unit="N/um")
+    rigidity_required_N_per_um: float = entry("The requirement at that sample.", unit="N/um")
+    axis_stiffness_min_N_per_um: float = entry("The axis stiffness at the table (nut in the machine, screw, "
+                                               "bearings in series) at that sample, the least over the travel.",
+                                               unit="N/um")
+    axis_stiffness_max_N_per_um: float = entry("The same, the most over the travel.", unit="N/um")
+    nut_axial_deflection_max_um: float = entry("The nut axial deflection (the nut alone, in the machine), the "
+                                               "largest while cutting.", unit="um")
+    axis_deflection_max_um: float = entry("The axis deflection at the table (nut, screw, bearings) at the weakest "
+                                          "position, the largest while cutting.", unit="um")
+    lift_off_law: str = entry("The law the physical lift-off is judged by.")
+    lift_off_ratio: float = entry("The law's lift-off load over the preload at the worst sample (rho).")
+    lift_off_plants: int = entry("The plants the physical lift-off is judged on (the nominal first).", ge=1)
+    lift_off_worst_plant: int = entry("The worst of them (0: the nominal).", ge=0)
+    lift_off_preload_N: float = entry("The achieved preload at the worst sample of the worst plant.", unit="N")
+    lift_off_axial_load_N: float = entry("The cutting load's size there.", unit="N")
+    lift_off_load_N: float = entry("The law's lift-off load there.", unit="N")
+    lift_off_margin_physical_pct: float = entry("The physical lift-off margin, the worst over the plants: the lift-off "
+                                                "load over the cutting load, less 1.", unit="%")
+    lift_off_margin_physical_nominal_pct: float = entry("The same on the nominal plant.", unit="%")
+    lift_off_margin_catalogue_pct: float = entry("The catalogue rule's (2^(3/2) F_p) margin at the worst sample.",
+                                                 unit="%")
+
+
 @record(eq=False)
 class SystemRecord(Artifact):
     """The system artifact: the numbers, the requirements as verdicts, the bounds, the pre-cycle, the margin passes,
@@ -232,6 +275,11 @@ class SystemRecord(Artifact):
     inputs: dict[str, Any] = entry("The inputs' hashes.", default={}, required=True)
     thermal: ThermalRecord | None = entry("The shift's thermal budget, where the study has a ``[thermal]`` table.",
                                           default=None, omit=True)
+    basis: MarginBasis | None = entry("What the margins rest on (rigidity in the machine and at the table, the axis "
+                                      "stiffness, the physical lift-off), where the run was given the design.",
+                                      default=None, omit=True)
+    sensitivity: SensitivityRecord | None = entry("The verdicts under the modelling assumptions' ranges.",
+                                                  default=None, omit=True)
 
     @property
     def requirements_met(self) -> bool:

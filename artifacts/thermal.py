@@ -25,20 +25,23 @@ Array = NDArray[np.float64]
 #: the two preloads a budget compares, in the order the report shows them
 CASES = ("schedule", "constant")
 #: the scalar figures of a case, in its summary's order
-_FIGURES = ("heat_mean_W", "heat_mean_other_W", "bearing_heat_mean_W", "preload_mean_N", "temperature_rise_max_K",
-            "temperature_rise_max_other_K", "nut_rise_max_K", "end_force_max_N", "growth_max_um",
-            "growth_max_other_um", "positioning_error_max_um", "tracking_um")
+_FIGURES = ("heat_mean_W", "heat_mean_other_W", "seal_heat_mean_W", "bearing_heat_mean_W", "preload_mean_N",
+            "temperature_rise_max_K", "rise_max_at_mm", "temperature_rise_max_other_K", "nut_rise_max_K",
+            "nut_over_screw_end_K", "end_force_max_N", "bearing_force_max_N", "growth_max_um", "growth_max_other_um",
+            "positioning_error_max_um", "tracking_um")
 
 
 @record(eq=False)
 class ThermalCase(Record):
     """One preload over the shift: the schedule's as the loop achieved it, or the best constant.
 
-    Scalars: the nut's friction heat (cycle mean, the study's heat model and the other one), the support
-    bearings' (both ends, all of it), the mean preload, the screw's largest rise over the shift (both heat
-    models), the nut's, the largest force the held ends take up from the growth (compressive, or the pretension's
-    loss; 0 fixed-free), the largest growth at the table's positions (both models), the largest positioning
-    error (the budget's total) and the tracking error's share of the deflection. At each of ``times_h`` (the
+    Scalars: the nut's friction heat (cycle mean, the study's heat model and the other one; both include the
+    seals'), the seals' part of it, the support bearings' (both ends, all of it), the mean preload, the screw's
+    largest rise over the shift and where along the screw it sits (both heat models), the nut's, the nut's rise
+    over the screw's under it at the shift's end (< 0: the nut colder), the largest force the held ends take up
+    from the growth (compressive, or the pretension's loss; 0 fixed-free) and the largest force on each end's
+    bearing pair (the pretension included), the largest growth at the table's positions (both models), the largest
+    positioning error (the budget's total) and the tracking error's share of the deflection. At each of ``times_h`` (the
     warm-up's first minutes, then the end of each hour of the shift): the rise along the screw (``rise_along_K``,
     one row per time, one column per volume), the nut's rise and the nut's over the screw's under it, the growth
     at the table's positions (signed, um), and the budget there (um); ``elastic_um`` the deflection under the
@@ -47,13 +50,20 @@ class ThermalCase(Record):
 
     heat_mean_W: float = entry("The nut's friction heat, cycle mean, under the study's heat model.", unit="W")
     heat_mean_other_W: float = entry("The same under the other heat model.", unit="W")
+    seal_heat_mean_W: float = entry("The nut's seals' part of it (their torque times the speed; either model).",
+                                    unit="W")
     bearing_heat_mean_W: float = entry("The support bearings' heat (both ends).", unit="W")
     preload_mean_N: float = entry("The mean preload.", unit="N")
     temperature_rise_max_K: float = entry("The screw's largest rise over the shift.", unit="K")
+    rise_max_at_mm: float = entry("Where along the screw it sits, from bearing A.", unit="mm")
     temperature_rise_max_other_K: float = entry("The same under the other heat model.", unit="K")
     nut_rise_max_K: float = entry("The nut's largest rise.", unit="K")
+    nut_over_screw_end_K: float = entry("The nut's rise over the screw's under it at the shift's end (< 0: the nut "
+                                        "runs colder than the screw).", unit="K")
     end_force_max_N: float = entry("The largest force the held ends take up from the growth (0 fixed-free).",
                                    unit="N")
+    bearing_force_max_N: float = entry("The largest force on each end's bearing pair over the shift, the "
+                                       "pretension included (0 fixed-free).", unit="N")
     growth_max_um: float = entry("The largest growth at the table's positions.", unit="um")
     growth_max_other_um: float = entry("The same under the other heat model.", unit="um")
     positioning_error_max_um: float = entry("The largest positioning error (the budget's total).", unit="um")
@@ -122,16 +132,20 @@ class PreloadDrift(Record):
 
     A spacer-preloaded double nut of the same design at the best constant preload, its nuts' loaded turns
     ``span_mm`` apart (middle to middle), changes its preload by ``passive_N_per_K`` per kelvin of nut over
-    screw; ``passive_max_N`` is its largest change over the shift, signed (< 0: the screw warmer than the nut,
-    the preload falls). With the stacks in the loop the preload holds; their stroke takes up the spacer's
-    mismatch, ``stroke_max_um`` at most over the schedule's shift, ``voltage_needed_V`` of command (signed: + more
-    voltage, the screw warmer than the nut), against ``headroom_V`` the run left on that side of the command's
-    range.
+    screw at first (the tangent); ``passive_max_N`` is its largest change over the shift by the nuts' own law,
+    signed (< 0: the screw warmer than the nut, the preload falls), ``passive_left_N`` the preload then left and
+    ``passive_linear_N`` what the tangent extrapolated would say (the law softens as the preload falls). With the
+    stacks in the loop the preload holds; their stroke takes up the spacer's mismatch, ``stroke_max_um`` at most
+    over the schedule's shift, ``voltage_needed_V`` of command (signed: + more voltage, the screw warmer than the
+    nut), against ``headroom_V`` the run left on that side of the command's range.
     """
 
     span_mm: float = entry("The nuts' loaded turns apart, middle to middle.", unit="mm")
     passive_N_per_K: float = entry("The passive nut's preload change per kelvin of nut over screw.", unit="N/K")
-    passive_max_N: float = entry("Its largest change over the shift, signed (< 0: the preload falls).", unit="N")
+    passive_max_N: float = entry("Its largest change over the shift by the nut law, signed (< 0: the preload "
+                                 "falls).", unit="N")
+    passive_left_N: float = entry("The preload left then (0: the nuts part).", unit="N")
+    passive_linear_N: float = entry("The tangent's linear extrapolation of that change, for comparison.", unit="N")
     passive_preload_N: float = entry("The best constant preload it holds.", unit="N")
     stroke_max_um: float = entry("The stacks' largest stroke taking up the spacer's mismatch.", unit="um")
     voltage_needed_V: float = entry("The command that needs (signed: + more voltage).", unit="V")
@@ -156,22 +170,30 @@ class PreloadDrift(Record):
 @dataclass(frozen=True)
 class ThermalSummary:
     """A shift's thermal budget without its series (:meth:`ThermalRecord.summary`): each figure of a case for the
-    schedule and for the constant preload (``figures[name]`` is ``{"schedule": ..., "constant": ...}``), the settings
-    and the drift; :meth:`to_dict` is what ``system.json``'s summary and ``run --json`` hold as ``thermal``."""
+    schedule and for the constant preload (``figures[name]`` is ``{"schedule": ..., "constant": ...}``), the settings,
+    the drift, and in words per case where the largest rise sits, the nut against the screw and the ends' force;
+    :meth:`to_dict` is what ``system.json``'s summary and ``run --json`` hold as ``thermal``."""
 
     figures: dict[str, dict[str, float]]
     heat_model: str
     other_model: str
     lubricant_vg: int
     sealed: bool
+    seal_torque_Nm: float
+    nut_heat_share: float
+    convection_factor: float
     mounting: str
     pretension_K: float
+    bearing_lift_off_N: float
     feedback: str
     shift_h: float
     stroke_mm: tuple[float, float]
     film_mean_W_per_m2K: float
     screw_time_constant_s: float
     drift: PreloadDrift
+    rise_max_place: dict[str, str]
+    nut_against_screw: dict[str, str]
+    ends: dict[str, str]
 
     def figure(self, name: str) -> tuple[float, float]:
         """A figure (``heat_mean_W``, ``growth_max_um``, ...) for the schedule and for the constant preload."""
@@ -180,10 +202,14 @@ class ThermalSummary:
 
     def to_dict(self) -> dict[str, Any]:
         return {**self.figures, "heat_model": self.heat_model, "other_model": self.other_model,
-                "lubricant_vg": self.lubricant_vg, "sealed": self.sealed, "mounting": self.mounting,
-                "pretension_K": self.pretension_K, "feedback": self.feedback, "shift_h": self.shift_h,
+                "lubricant_vg": self.lubricant_vg, "sealed": self.sealed, "seal_torque_Nm": self.seal_torque_Nm,
+                "nut_heat_share": self.nut_heat_share, "convection_factor": self.convection_factor,
+                "mounting": self.mounting, "pretension_K": self.pretension_K,
+                "bearing_lift_off_N": self.bearing_lift_off_N, "feedback": self.feedback, "shift_h": self.shift_h,
                 "stroke_mm": list(self.stroke_mm), "film_mean_W_per_m2K": self.film_mean_W_per_m2K,
-                "screw_time_constant_s": self.screw_time_constant_s, "drift": self.drift.to_dict()}
+                "screw_time_constant_s": self.screw_time_constant_s, "drift": self.drift.to_dict(),
+                "rise_max_place": self.rise_max_place, "nut_against_screw": self.nut_against_screw,
+                "ends": self.ends}
 
 
 @record(eq=False)
@@ -196,8 +222,13 @@ class ThermalRecord(Record):
     other_model: str = entry("The other heat model, reported beside it.")
     lubricant_vg: int = entry("The lubricant's viscosity grade (ISO VG).", ge=0)
     sealed: bool = entry("Whether the nut is sealed.")
+    seal_torque_Nm: float = entry("The seals' torque (0: an open nut).", unit="N m")
+    nut_heat_share: float = entry("The share of the nut's heat entering the screw (the rest heats the nut).")
+    convection_factor: float = entry("The factor on the air's film coefficients.")
     mounting: str = entry("How the screw's ends are held.")
     pretension_K: float = entry("The screw's pretension, as a temperature rise it takes up.", unit="K")
+    bearing_lift_off_N: float = entry("Each end's bearing pair's lift-off force, 2^(3/2) its preload (0: ends not "
+                                      "held, or no pair preload stated).", unit="N")
     feedback: str = entry("Where the position loop measures (what growth it sees).")
     shift_h: float = entry("The shift's length.", unit="h")
     stroke_mm: tuple[float, float] = entry("The table's stroke (from, to), from bearing A.", unit="mm")
@@ -209,13 +240,60 @@ class ThermalRecord(Record):
     constant: ThermalCase = entry("The best constant preload.", at="cases")
     drift: PreloadDrift = entry("The passive nut's drift and the force loop's room to hold it.")
 
+    def place(self, x_mm: float) -> str:
+        """Where ``x_mm`` (from bearing A) lies on the screw, in words: at an end's bearing (its first or last 5 %),
+        under the nut's stroke, or between."""
+        dx = float(self.screw_x_mm[1] - self.screw_x_mm[0]) if self.screw_x_mm.size > 1 else 0.0
+        length = float(self.screw_x_mm[-1]) + 0.5 * dx
+        end = max(0.05 * length, dx)
+        if x_mm <= end:
+            return "at bearing A's end"
+        if x_mm >= length - end:
+            return "at bearing B's end"
+        if self.stroke_mm[0] <= x_mm <= self.stroke_mm[1]:
+            return "under the nut's stroke"
+        return f"between the nut's stroke and bearing {'A' if x_mm < self.stroke_mm[0] else 'B'}"
+
+    def nut_against_screw(self, case: ThermalCase) -> str:
+        """Whether the nut runs warmer or colder than the screw under it at the shift's end, and, where colder (what
+        measured axes do not show: their nut zone runs hottest), why the model has it so."""
+        d = case.nut_over_screw_end_K
+        if d >= 0:
+            return f"the nut runs {d:.1f} K warmer than the screw under it"
+        return (f"the nut runs {-d:.1f} K colder than the screw under it, against measured axes (their nut zone runs "
+                f"hottest): the nut keeps {100.0 * (1.0 - self.nut_heat_share):.0f} % of its heat (nut_heat_share = "
+                f"{self.nut_heat_share:g}, an assumption: no share is published) and loses it through its flange into "
+                "the table faster than the screw loses its share, and the bearings heat the screw too")
+
+    def heat_words(self, case: ThermalCase) -> str:
+        """The case's heat by source: the bearings, the seals, the preload's drag (or rolling contacts)."""
+        return (f"{case.bearing_heat_mean_W:.0f} W at the support bearings, {case.seal_heat_mean_W:.0f} W at the "
+                f"nut's seals, {case.heat_mean_W - case.seal_heat_mean_W:.0f} W of the preload's friction at a mean "
+                f"{case.preload_mean_N:,.0f} N")
+
+    def ends_words(self, case: ThermalCase) -> str:
+        """The force on the ends' bearing pairs against their lift-off ('' for a free end)."""
+        if self.mounting == "fixed-free":
+            return ""
+        if self.bearing_lift_off_N <= 0:
+            return f"the ends' bearings carry up to {case.bearing_force_max_N:,.0f} N"
+        ratio = case.bearing_force_max_N / self.bearing_lift_off_N
+        state = ("beyond it: one row of each pair runs unloaded, the other alone holds the screw" if ratio > 1
+                 else "within it")
+        return (f"the ends' bearing pairs carry up to {case.bearing_force_max_N:,.0f} N against their lift-off of "
+                f"{self.bearing_lift_off_N:,.0f} N ({state})")
+
     def sentence(self) -> str:
-        """The shift in one sentence: each preload's heat, rise and growth."""
+        """The shift in one sentence: each preload's heat by source, the largest rise and where it sits, the nut
+        against the screw, the growth and the ends' force."""
         s, c = self.schedule, self.constant
-        return (f"over the {self.shift_h:g} h shift the schedule's {s.heat_mean_W:.1f} W of nut friction warm the "
-                f"screw by up to {s.temperature_rise_max_K:.1f} K and grow it up to {s.growth_max_um:.1f} um at the "
-                f"table; the best constant preload's {c.heat_mean_W:.1f} W: {c.temperature_rise_max_K:.1f} K, "
-                f"{c.growth_max_um:.1f} um ({self.heat_model} model)")
+        ends = self.ends_words(s)
+        return (f"over the {self.shift_h:g} h shift the schedule makes {self.heat_words(s)} ({self.heat_model} model; "
+                f"best constant preload: {c.heat_mean_W - c.seal_heat_mean_W:.0f} W of preload friction); the screw "
+                f"warms by up to {s.temperature_rise_max_K:.1f} K {self.place(s.rise_max_at_mm)} (constant: "
+                f"{c.temperature_rise_max_K:.1f} K {self.place(c.rise_max_at_mm)}), {self.nut_against_screw(s)}; it "
+                f"grows up to {s.growth_max_um:.1f} um at the table (constant: {c.growth_max_um:.1f} um)"
+                + (f"; {ends}" if ends else ""))
 
     def case(self, name: str) -> ThermalCase:
         return {"schedule": self.schedule, "constant": self.constant}[name]
@@ -225,9 +303,14 @@ class ThermalRecord(Record):
         return ThermalSummary(
             figures={name: {c: getattr(self, c).summary()[name] for c in CASES} for name in _FIGURES},
             heat_model=self.heat_model, other_model=self.other_model, lubricant_vg=self.lubricant_vg,
-            sealed=self.sealed, mounting=self.mounting, pretension_K=self.pretension_K, feedback=self.feedback,
+            sealed=self.sealed, seal_torque_Nm=self.seal_torque_Nm, nut_heat_share=self.nut_heat_share,
+            convection_factor=self.convection_factor, mounting=self.mounting, pretension_K=self.pretension_K,
+            bearing_lift_off_N=self.bearing_lift_off_N, feedback=self.feedback,
             shift_h=self.shift_h, stroke_mm=self.stroke_mm, film_mean_W_per_m2K=self.film_mean_W_per_m2K,
-            screw_time_constant_s=self.screw_time_constant_s, drift=self.drift)
+            screw_time_constant_s=self.screw_time_constant_s, drift=self.drift,
+            rise_max_place={c: self.place(self.case(c).rise_max_at_mm) for c in CASES},
+            nut_against_screw={c: self.nut_against_screw(self.case(c)) for c in CASES},
+            ends={c: self.ends_words(self.case(c)) for c in CASES})
 
     def to_dict(self) -> dict[str, Any]:
         """:meth:`summary`'s, the screw's volumes, the table's positions and both cases whole.

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from piezopreload.artifacts.gainset import GainSet, GainsTable
+from piezopreload.core.quantities import number
 from piezopreload.core.records import Artifact, Record, entry, load_one_of, record
 from piezopreload.models.controller import PIDGains
 
@@ -67,7 +68,7 @@ class ActiveBound(Record):
             The sentence.
         """
         words, unit = _GAIN_WORDS.get(self.gain, (self.gain, ""))
-        return f"{words} at its {self.side} bound ({self.bound:.4g}{unit}): {self.note}"
+        return f"{words} at its {self.side} bound ({number(self.bound, '', 4)}{unit}): {self.note}"
 
 
 #: each gain's words and unit, as a sentence names it

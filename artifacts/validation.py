@@ -20,7 +20,6 @@ from numpy.typing import NDArray
 from piezopreload.artifacts.requirements import Requirement
 from piezopreload.core.records import Artifact, Record, entry, record
 from piezopreload.models.closedloop import PAPER_BAND_N
-from piezopreload.models.controller import OUTPUT_MAX_V
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -54,7 +53,9 @@ class Criteria(Record):
       all, which no gains can change. ``saturated_fraction`` reports how much of each trajectory
       that left out, and the RMS over the whole trajectory is reported beside it
       (``tracking_rms_all_N``).
-    * ``peak_voltage_max_V``: the command over both.
+    * ``peak_voltage_max_V``: the command over both: the headroom the loop keeps below the controller's
+      clamp (``u_max_V``). None: no such requirement (a limit at or above the clamp could not fail; a study
+      that sets one is refused).
     """
 
     NOUN: ClassVar[str] = "the criteria"
@@ -64,8 +65,10 @@ class Criteria(Record):
     overshoot_max_N: float = entry("The worst plant's largest overshoot.", unit="N", gt=0, default=PAPER_BAND_N)
     tracking_rms_max_N: float = entry("The worst plant's largest RMS tracking error after the changes.", unit="N",
                                       gt=0, default=1.0)
-    peak_voltage_max_V: float = entry("The highest command over both references.", unit="V", gt=0,
-                                      default=OUTPUT_MAX_V)
+    peak_voltage_max_V: float | None = entry("The highest command over both references: the headroom the loop keeps "
+                                             "below the controller's clamp (None: no such requirement; the clamp "
+                                             "bounds the command, and a limit at or above it could not fail).",
+                                             unit="V", gt=0, default=None)
     band_N: float = entry("The settling band around the step's final level.", unit="N", gt=0, default=PAPER_BAND_N)
     signal: str = entry("The force the step times are read on: the true force or the measured one.",
                         choices=("force_N", "measured_N"), default="force_N")
@@ -77,14 +80,18 @@ class Criteria(Record):
             raise ValueError(f"Criteria.tracking_after_change_s must be >= 0, got {self.tracking_after_change_s!r}.")
         for name in ("settling_max_s", "overshoot_max_N", "tracking_rms_max_N", "peak_voltage_max_V", "band_N"):
             x = getattr(self, name)
+            if x is None and name == "peak_voltage_max_V":
+                continue
             if not (math.isfinite(x) and x > 0):
                 raise ValueError(f"Criteria.{name} must be finite and > 0, got {x!r}.")
         if self.signal not in ("measured_N", "force_N"):
             raise ValueError(f"Criteria.signal must be 'measured_N' or 'force_N', got {self.signal!r}.")
 
     def limits(self) -> dict[str, float]:
-        """Each bounded metric's limit (``{"settling_s": 0.6, ...}``)."""
-        return {metric: float(getattr(self, key)) for key, (metric, _, _) in _LIMITS.items()}
+        """Each bounded metric's limit (``{"settling_s": 0.6, ...}``); a limit not set (the peak command's) is left
+        out."""
+        return {metric: float(getattr(self, key)) for key, (metric, _, _) in _LIMITS.items()
+                if getattr(self, key) is not None}
 
     def failures(self, metrics: dict[str, NDArray[np.float64]]) -> tuple[Failure, ...]:
         """One entry per plant and criterion it misses (a NaN, a step that never settled, misses)."""
@@ -224,6 +231,8 @@ class ValidationResult(Artifact):
         worst = self.worst
         out = []
         for key, (metric, name, unit) in _LIMITS.items():
+            if getattr(self.criteria, key) is None:  # no such requirement (the peak command's headroom, not set)
+                continue
             value = getattr(worst, metric)
             limit = float(getattr(self.criteria, key))
             if value is None:  # never settled, or no finite value: a miss by more than any number

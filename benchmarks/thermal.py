@@ -120,11 +120,13 @@ def _heat_grid() -> dict[str, Any]:
     fractions = np.array([0.02, 0.05, 0.10])
     speeds = np.array([500.0, 1000.0, 2000.0, 3000.0])
     preload = fractions[:, None] * screw.dynamic_rating_N
-    out: dict[str, Any] = {"screw": "HIWIN R40-10T4-RDI", "sealed": True, "lubricant_vg": 68,
+    out: dict[str, Any] = {"screw": "HIWIN R40-10T4-RDI", "seal_torque_Nm": screw.seal_torque_Nm, "lubricant_vg": 68,
                               "temperature_C": 40.0, "preload_fraction_of_c_dyn": fractions.tolist(),
                               "speed_rpm": speeds.tolist()}
-    for model in ("catalogue", "contact"):
-        out[f"{model}_W"] = np.asarray(screw.friction_heat_W(preload, speeds[None, :], model=model), float).tolist()
+    for model in ("catalogue", "contact"):  # the open nut's: the seals' torque is the same in both, apart
+        out[f"{model}_W"] = np.asarray(screw.friction_heat_W(preload, speeds[None, :], model=model, seal_torque_Nm=0.0),
+                                       float).tolist()
+    out["seals_W"] = (screw.seal_torque_Nm * speeds * np.pi / 30.0).tolist()
     return out
 
 
@@ -149,11 +151,13 @@ def main() -> None:
           f"{shift['volumes']} volumes (order {closed['fin_order']:.2f}), energy balance "
           f"{closed['energy_balance_error_rel']:.1e}", flush=True)
     grid = _heat_grid()
-    print(f"heat of {grid['screw']} (W, sealed, VG68 at 40 deg C; rows: preload {grid['preload_fraction_of_c_dyn']} "
-          f"C_dyn, columns: {grid['speed_rpm']} rpm):")
+    print(f"heat of {grid['screw']} (W, the open nut, VG68 at 40 deg C; rows: preload "
+          f"{grid['preload_fraction_of_c_dyn']} C_dyn, columns: {grid['speed_rpm']} rpm):")
     for model in ("catalogue", "contact"):
         rows = "; ".join(" ".join(f"{w:6.1f}" for w in row) for row in grid[f"{model}_W"])
         print(f"  {model:9s} {rows}")
+    print(f"  its seals ({grid['seal_torque_Nm']:g} N m, Rexroth's table) add " + " ".join(f"{w:6.1f}"
+                                                                                    for w in grid["seals_W"]))
     print(json.dumps({
         "shift_vs_fine_ratio": ratio, "temperature_agreement_K": max(shift["agreement_per_hour_K"]),
         "shift_us_per_hour": 1e6 * shift["shift_s_per_hour"], "fine_s_per_hour": shift["fine_s_per_hour"],

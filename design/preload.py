@@ -77,6 +77,7 @@ from piezopreload.design.shortfall import Shortfall, binding, shortfall_message
 from piezopreload.models.ballscrew import (
     EFFECTIVE_BALL_SHARE,
     LIFT_OFF_RATIO,
+    RIGIDITY_IN_MACHINE_FACTOR,
     STEEL,
     BallScrew,
     DutyCase,
@@ -92,7 +93,13 @@ from piezopreload.models.ballscrew import (
 )
 from piezopreload.models.feed_drive import FeedDrive, PiezoPreload, stack_loop_um
 from piezopreload.models.ops import CASADI, NUMPY
-from piezopreload.models.thermal import catalogue_heat_W, contact_heat_W
+from piezopreload.models.thermal import (
+    CONTACT_CALIBRATION,
+    catalogue_heat_W,
+    contact_heat_W,
+    rexroth_seal_torque_Nm,
+    seal_heat_W,
+)
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -100,7 +107,7 @@ if TYPE_CHECKING:
 
 __all__ = ["DesignSpec", "HeatSpec", "DesignOptimum", "DesignInfeasible", "ParetoFront", "OBJECTIVES",
            "PARETO_PAIRS", "CONSTRAINTS", "WEIGHTS", "optimise", "pareto_front", "DesignNLP",
-           "NLPSolution"]
+           "NLPSolution", "WorstCase", "RobustCost", "robust_cost", "objective_figure"]
 
 OBJECTIVES = ("stiffness", "drag", "life")
 #: fronts a user can ask for: x:y, x swept as an epsilon constraint, y optimised (growth: the duty cycle's nut heat
@@ -170,8 +177,9 @@ class HeatKeywords(TypedDict):
 
     model: str
     lubricant_vg: int
-    sealed: bool
+    seal_torque_Nm: float | None
     temperature_C: float
+    contact_calibration: float
 
 
 class ElasticArgs(TypedDict):
@@ -191,12 +199,13 @@ class HeatSpec:
 
     model: str = "catalogue"
     lubricant_vg: int = 68
-    sealed: bool = True
+    seal_torque_Nm: float | None = None
     temperature_C: float = 40.0
+    contact_calibration: float = CONTACT_CALIBRATION
 
     def kwargs(self) -> HeatKeywords:
-        return HeatKeywords(model=self.model, lubricant_vg=self.lubricant_vg, sealed=self.sealed,
-                            temperature_C=self.temperature_C)
+        return HeatKeywords(model=self.model, lubricant_vg=self.lubricant_vg, seal_torque_Nm=self.seal_torque_Nm,
+                            temperature_C=self.temperature_C, contact_calibration=self.contact_calibration)
 
 
 def _range(value: Any) -> bool:
@@ -209,7 +218,8 @@ _SPEC_RULES: tuple[FieldRule, ...] = (
     *((name, _positive, "must be a finite number > 0")
       for name in ("nominal_diameter_mm", "lead_mm", "axial_load_max_N", "lift_off_margin", "preload_fraction_max",
                    "contact_pressure_max_MPa", "life_min_h", "drag_torque_max_Nm", "frequency_min_Hz",
-                   "nut_length_max_mm", "ball_lead_ratio_max", "load_sharing", "accuracy_factor", "load_factor")),
+                   "nut_length_max_mm", "ball_lead_ratio_max", "load_sharing", "accuracy_factor", "load_factor",
+                   "rigidity_in_machine_factor")),
     *((name, lambda x: math.isfinite(x) and x >= 0, "must be a finite number >= 0")
       for name in ("failsafe_load_N", "stiffness_min_N_per_um")),
     *((name, _range, "must be a range (low, high) with 0 < low <= high")
@@ -217,13 +227,39 @@ _SPEC_RULES: tuple[FieldRule, ...] = (
     ("contact_angle_deg", lambda r: r[0] >= 20 and r[1] <= 70, "must lie in [20, 70]"),
     ("conformity", lambda r: r[0] >= 0.505 and r[1] <= 0.6, "must lie in [0.505, 0.6]"),
     ("turns", lambda r: isinstance(r[0], int) and isinstance(r[1], int) and r[0] >= 1, "must be two integers >= 1"),
-    *((name, lambda x: x <= 1, "must be in (0, 1]") for name in ("load_sharing", "accuracy_factor")),
+    *((name, lambda x: x <= 1, "must be in (0, 1]") for name in ("load_sharing", "accuracy_factor",
+                                                                 "rigidity_in_machine_factor")),
 )
 
 
 @dataclass(frozen=True)
+class WorstCase:
+    """The modelling assumptions' unfavourable ends a robust design is made against (``[design] robust``): the
+    contact angle and the conformity as built within these offsets (deg; -) of the design's values, the rigidity and
+    the natural frequency required at every corner of that box, and the drag coefficient K_p at least
+    ``drag_coefficient`` in the drag and the heat (the ranges: :data:`piezopreload.design.sensitivity.ASSUMPTIONS`)."""
+
+    contact_angle_deg: tuple[float, float] = (-5.0, 5.0)
+    conformity: tuple[float, float] = (-0.01, 0.01)
+    drag_coefficient: float = 0.3
+
+    def __post_init__(self) -> None:
+        for name in ("contact_angle_deg", "conformity"):
+            lo, hi = getattr(self, name)
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo <= 0 <= hi):
+                raise ValueError(f"WorstCase.{name} must be offsets (low <= 0 <= high), got {(lo, hi)!r}.")
+        if not (math.isfinite(self.drag_coefficient) and self.drag_coefficient > 0):
+            raise ValueError(f"WorstCase.drag_coefficient must be > 0, got {self.drag_coefficient!r}.")
+
+    def corners(self) -> list[tuple[float, float]]:
+        """The box's corners: (angle offset in rad, conformity offset)."""
+        return [(math.radians(a), f) for a in self.contact_angle_deg for f in self.conformity]
+
+
+@dataclass(frozen=True)
 class DesignSpec:
-    """What the machine fixes, the design's bounds, and the constraints' limits."""
+    """What the machine fixes, the design's bounds, and the constraints' limits; ``worst``: a robust design's
+    worst case (None: the nominal design)."""
 
     nominal_diameter_mm: float = 32.0
     lead_mm: float = 10.0
@@ -255,8 +291,10 @@ class DesignSpec:
     ball_lead_ratio_max: float = 0.7
     load_sharing: float = EFFECTIVE_BALL_SHARE
     accuracy_factor: float = 1.0
+    rigidity_in_machine_factor: float = RIGIDITY_IN_MACHINE_FACTOR
     load_factor: float = 1.2
     heat: HeatSpec = field(default_factory=HeatSpec)
+    worst: WorstCase | None = None
 
     def __post_init__(self) -> None:
         check_fields(self, "DesignSpec", _SPEC_RULES)
@@ -297,6 +335,8 @@ CONSTRAINTS = {
     "nut_length": ("turns * lead <= nut_length_max_mm", "mm"),
     "lift_off_case": ("lift_off_margin * |F_a,j| <= 2^1.5 F_p,j", "N"),
     "stiffness_case": ("t <= rigidity in case j", "N/um"),
+    "stiffness_worst": ("t <= rigidity in case j at a corner of the robust design's box", "N/um"),
+    "frequency_worst": ("first axial mode in case j at a corner of the robust design's box >= frequency_min_Hz", "Hz"),
     "frequency_case": ("first axial mode in case j >= frequency_min_Hz", "Hz"),
     "preload_order_low": ("F_i <= F_p,j", "N"),
     "preload_order_high": ("F_p,j <= F_hi", "N"),
@@ -396,7 +436,8 @@ class DesignQuantities:
     CasADi; the lists one per duty case): the variables (``beta``, ``D_w``, ``f``, ``turns``, ``z1``, ``F_i``,
     ``F_hi``, ``t``, ``F_case``), the nut's constants (``c_h``, ``s``, ``c_dyn``, ``cp_s``, ``cp_n``, ``z``,
     ``helix``), the drag per case and its time mean, the mean friction heat, the rigidity and natural frequency per
-    case, the log of the rating life, the contact pressures, the stacks' stroke and the drag at the top preload."""
+    case (and a robust design's at every corner of its worst case's box, ``worst_rigidity``, ``worst_freq``), the log of
+    the rating life, the contact pressures, the stacks' stroke and the drag at the top preload."""
 
     beta: Any
     D_w: Any
@@ -415,6 +456,8 @@ class DesignQuantities:
     mean_heat: Any
     rigidity: list[Any]
     freq: list[Any]
+    worst_rigidity: list[Any]
+    worst_freq: list[Any]
     log_L: Any
     p_screw: Any
     p_nut: Any
@@ -433,33 +476,23 @@ def _expressions(spec: DesignSpec, ops: Any, x: Any) -> DesignQuantities:
     F_case = [x[8 + j] for j in range(len(spec.duty))]
     D_pw, helix, E_prime = spec.nominal_diameter_mm, spec.helix_rad, spec.material.contact_modulus_MPa
     sb, ch = ops.sin(beta), math.cos(helix)
-    c_delta, cp_s, cp_n = _nut_constants(ops, E_prime, D_pw, D_w, beta, f, f)
+    _, cp_s, cp_n = _nut_constants(ops, E_prime, D_pw, D_w, beta, f, f)
     z = z1 * turns
-    c_h = 1e3 * _axial_constant(ops, c_delta, spec.load_sharing * z, beta, helix)
-    s = 1e3 * _structural_compliance(ops, spec.material.E_MPa, D_pw, D_w, beta, helix, nut_outer_diameter_mm(D_pw, D_w),
-                                     turns * spec.lead_mm)
-    acc = spec.accuracy_factor
-
-    def sigma(F: Any) -> Any:  # the nut body's share of the nut law at preload F
-        return s * ops.cbrt(F) / c_h
+    c_h, s, rig, freq, F_A, F_B, sigma = _nut_rows(spec, ops, beta, f, D_w, turns, z, F_case)
+    worst_rig, worst_freq = [], []
+    for db, df in ([] if spec.worst is None else spec.worst.corners()):  # the robust design's box of the as-built nut
+        _, _, r_c, fr_c, _, _, _ = _nut_rows(spec, ops, beta + db, f + df, D_w, turns, z, F_case)
+        worst_rig += r_c
+        worst_freq += fr_c
 
     c_dyn = _c_dyn(ops, D_pw, D_w, beta, helix, f, f, z1, turns)
     k_p = _drag_coefficient(ops, helix)
+    if spec.worst is not None:  # K_p at its high end where the formula's is below it
+        k_p = max(float(_drag_coefficient(NUMPY, helix)), spec.worst.drag_coefficient)
     drag = [k_p * F * spec.lead_mm / (2000.0 * math.pi) for F in F_case]
     share = [c.time_share for c in spec.duty]
     mean_drag = sum(s * d for s, d in zip(share, drag)) / sum(share)
     mean_heat = sum(s * h for s, h in zip(share, _case_heat(spec, ops, F_case, k_p, z, beta, D_w))) / sum(share)
-    k_side = spec.feed_drive.screw_side_stiffness_N_per_um(D_pw - D_w * ops.cos(beta),
-                                                           spec.feed_drive.weakest_position_mm())
-    rig, freq, F_A, F_B = [], [], [], []
-    for case, F in zip(spec.duty, F_case):
-        f_loaded, f_unloaded = nut_forces(abs(case.axial_load_N) / F, sigma(F), ops)
-        loaded, unloaded = F * f_loaded, F * f_unloaded
-        rig.append(_rigidity(ops, c_h, s, acc, loaded, unloaded))
-        k_chain = 1.0 / (1.0 / _rigidity(ops, c_h, s, acc, F, F) + 1.0 / k_side)
-        freq.append(ops.sqrt(k_chain * 1e6 / spec.feed_drive.table_mass_kg) / (2.0 * math.pi))
-        F_B.append(loaded if case.axial_load_N >= 0 else unloaded)
-        F_A.append(unloaded if case.axial_load_N >= 0 else loaded)
     revs = [c.speed_rpm * c.time_share for c in spec.duty]
     n_m = sum(revs) / sum(share)
 
@@ -472,13 +505,43 @@ def _expressions(spec: DesignSpec, ops: Any, x: Any) -> DesignQuantities:
     log_L = -0.9 * ops.log(ops.exp(-10.0 / 9.0 * log_LA) + ops.exp(-10.0 / 9.0 * log_LB))
     f_max, _ = nut_forces(spec.axial_load_max_N / F_hi, sigma(F_hi), ops)
     Q_max = F_hi * f_max / (z * sb * ch)
-    stroke = stack_loop_um(c_h, F_i, F_hi, spec.actuator.stiffness_N_per_um, s, acc)
+    stroke = stack_loop_um(c_h, F_i, F_hi, spec.actuator.stiffness_N_per_um, s, spec.accuracy_factor)
     return DesignQuantities(beta=beta, D_w=D_w, f=f, turns=turns, z1=z1, F_i=F_i, F_hi=F_hi, t=t, F_case=F_case,
                             c_h=c_h, s=s, c_dyn=c_dyn, drag=drag, mean_drag=mean_drag, mean_heat=mean_heat,
-                            rigidity=rig, freq=freq, log_L=log_L, p_screw=cp_s * Q_max ** (1.0 / 3.0),
+                            rigidity=rig, freq=freq, worst_rigidity=worst_rig, worst_freq=worst_freq, log_L=log_L,
+                            p_screw=cp_s * Q_max ** (1.0 / 3.0),
                             p_nut=cp_n * Q_max ** (1.0 / 3.0), stroke=stroke,
                             drag_hi=k_p * F_hi * spec.lead_mm / (2000.0 * math.pi), cp_s=cp_s, cp_n=cp_n, z=z,
                             helix=helix)
+
+
+def _nut_rows(spec: DesignSpec, ops: Any, beta: Any, f: Any, D_w: Any, turns: Any, z: Any,
+              F_case: list[Any]) -> tuple[Any, Any, list[Any], list[Any], list[Any], list[Any], Callable[[Any], Any]]:
+    """The double nut of contact angle ``beta`` and conformity ``f`` (screw and nut alike): its axial constant and
+    structural compliance, per duty case its rigidity, the natural frequency of the axis at that preload and the two
+    nuts' forces (A, B), and the nut body's share of the nut law as a function of the preload."""
+    D_pw, helix, E_prime = spec.nominal_diameter_mm, spec.helix_rad, spec.material.contact_modulus_MPa
+    c_delta, _, _ = _nut_constants(ops, E_prime, D_pw, D_w, beta, f, f)
+    c_h = 1e3 * _axial_constant(ops, c_delta, spec.load_sharing * z, beta, helix)
+    s = 1e3 * _structural_compliance(ops, spec.material.E_MPa, D_pw, D_w, beta, helix, nut_outer_diameter_mm(D_pw, D_w),
+                                     turns * spec.lead_mm)
+    acc = spec.accuracy_factor
+
+    def sigma(F: Any) -> Any:  # the nut body's share of the nut law at preload F
+        return s * ops.cbrt(F) / c_h
+
+    k_side = spec.feed_drive.screw_side_stiffness_N_per_um(D_pw - D_w * ops.cos(beta),
+                                                           spec.feed_drive.weakest_position_mm())
+    rig, freq, F_A, F_B = [], [], [], []
+    for case, F in zip(spec.duty, F_case):
+        f_loaded, f_unloaded = nut_forces(abs(case.axial_load_N) / F, sigma(F), ops)
+        loaded, unloaded = F * f_loaded, F * f_unloaded
+        rig.append(_rigidity(ops, c_h, s, acc, loaded, unloaded))
+        k_chain = 1.0 / (1.0 / _rigidity(ops, c_h, s, acc, F, F) + 1.0 / k_side)
+        freq.append(ops.sqrt(k_chain * 1e6 / spec.feed_drive.table_mass_kg) / (2.0 * math.pi))
+        F_B.append(loaded if case.axial_load_N >= 0 else unloaded)
+        F_A.append(unloaded if case.axial_load_N >= 0 else loaded)
+    return c_h, s, rig, freq, F_A, F_B, sigma
 
 
 def _case_heat(spec: DesignSpec, ops: Any, F_case: list[Any], k_p: Any, z: Any, beta: Any, D_w: Any) -> list[Any]:
@@ -487,10 +550,15 @@ def _case_heat(spec: DesignSpec, ops: Any, F_case: list[Any], k_p: Any, z: Any, 
     h = spec.heat
     omegas = [abs(c.speed_rpm) * math.pi / 30.0 for c in spec.duty]
     if h.model == "catalogue":
-        return [catalogue_heat_W(ops, k_p, spec.lead_mm, F, w, h.sealed) for F, w in zip(F_case, omegas)]
-    return [contact_heat_W(ops, F, w, balls=z, contact_rad=beta, helix_rad=spec.helix_rad,
-                           pitch_diameter_mm=spec.nominal_diameter_mm, ball_mm=D_w, lubricant_vg=h.lubricant_vg,
-                           temperature_C=h.temperature_C, sealed=h.sealed) for F, w in zip(F_case, omegas)]
+        nut = [catalogue_heat_W(ops, k_p, spec.lead_mm, F, w) for F, w in zip(F_case, omegas)]
+    else:
+        nut = [contact_heat_W(ops, F, w, balls=z, contact_rad=beta, helix_rad=spec.helix_rad,
+                              pitch_diameter_mm=spec.nominal_diameter_mm, ball_mm=D_w, lubricant_vg=h.lubricant_vg,
+                              temperature_C=h.temperature_C, calibration=h.contact_calibration)
+               for F, w in zip(F_case, omegas)]
+    seals = (rexroth_seal_torque_Nm(spec.nominal_diameter_mm, spec.lead_mm) if h.seal_torque_Nm is None
+             else h.seal_torque_Nm)
+    return [p + seal_heat_W(seals, w) for p, w in zip(nut, omegas)]
 
 
 def _objective(e: DesignQuantities, w: Any) -> Any:
@@ -519,6 +587,10 @@ def _constraint_rows(spec: DesignSpec, e: DesignQuantities, ops: Any) -> list[tu
         ("ball_lead", e.D_w - spec.ball_lead_ratio_max * spec.lead_mm, 1.0),
         ("nut_length", e.turns * spec.lead_mm - spec.nut_length_max_mm, 10.0),
     ]
+    n = len(spec.duty)
+    for k, (r, fr) in enumerate(zip(e.worst_rigidity, e.worst_freq)):  # a robust design's corners
+        rows += [(f"stiffness_worst[{k % n + 1}]", e.t - r, 100.0),  # case k % n + 1 at corner k // n
+                 (f"frequency_worst[{k % n + 1}]", spec.frequency_min_Hz - fr, 10.0)]
     for j, case in enumerate(spec.duty):
         F = e.F_case[j]
         rows += [
@@ -709,7 +781,8 @@ class DesignNLP:
     def _infeasible(self, args: dict[str, Any], integers: tuple[int, int] | None) -> NLPSolution | None:
         """The least-violation point from ``args``' start if the SQP converges there with a
         violation above the tolerance (a solution marked infeasible), else None."""
-        out = self.elastic_sqp(**self.elastic_args(args["x0"], args["lbx"], args["ubx"]))
+        with contextlib.redirect_stdout(sys.stderr):  # qpOASES' messages (an infeasible QP) stay off stdout
+            out = self.elastic_sqp(**self.elastic_args(args["x0"], args["lbx"], args["ubx"]))
         self.solves += 1
         violation = float(out["f"])
         if not (self.elastic_sqp.stats()["success"] and violation > _INFEASIBLE_VIOLATION):
@@ -720,7 +793,8 @@ class DesignNLP:
                               f"Infeasible: least total scaled violation {violation:.3g}", "sqp")
 
     def _run(self, solver: Any, args: dict[str, Any], integers: tuple[int, int] | None) -> NLPSolution:
-        out = solver(**args)
+        with contextlib.redirect_stdout(sys.stderr):  # a solver's messages (qpOASES' on an infeasible QP) stay off
+            out = solver(**args)                      # stdout: --json prints one object there
         self.solves += 1
         stats = solver.stats()
         return self._solution(np.asarray(out["x"]).ravel(), float(out["f"]), out["lam_g"], out["lam_x"], integers,
@@ -822,6 +896,88 @@ def _solve_mixed(nlp: DesignNLP, weights: tuple[float, ...], y0: np.ndarray, sti
         if ok and (best is None or sol.f < best.f):
             best = sol
     return best, relaxed, tried
+
+
+#: each objective's figure of merit and its unit, and whether more of it is better
+_MERITS = {"stiffness": ("N/um", True), "drag": ("N m", False), "life": ("h", True)}
+
+
+@dataclass(frozen=True)
+class RobustCost:
+    """What a robust design (``[design] robust``) gives up: the objective's figure (the least rigidity over the duty
+    cycle, the mean drag torque or the rating life) of the nominal design and of the robust one, each at the study's
+    assumptions and at the worst case of their ranges (:class:`WorstCase`); ``nominal_misses``: the constraint rows
+    the nominal design misses at the worst case, each with by how much (in its unit, :data:`CONSTRAINTS`)."""
+
+    objective: str
+    unit: str
+    nominal_at_nominal: float
+    nominal_at_worst: float
+    robust_at_nominal: float
+    robust_at_worst: float
+    nominal_misses: tuple[tuple[str, float], ...] = ()
+
+    @property
+    def cost(self) -> float:
+        """How much worse the robust design's figure is at the study's assumptions, in the objective's unit (> 0: it
+        gives that up)."""
+        more_is_better = _MERITS[self.objective][1]
+        d = self.nominal_at_nominal - self.robust_at_nominal
+        return d if more_is_better else -d
+
+    def sentence(self) -> str:
+        """The cost in one sentence."""
+        return (f"the robust design gives up {self.cost:.4g} {self.unit} of its {self.objective} objective at the "
+                f"study's assumptions ({self.robust_at_nominal:.4g} against the nominal design's "
+                f"{self.nominal_at_nominal:.4g} {self.unit}); at the worst case of the ranges it keeps "
+                f"{self.robust_at_worst:.4g} {self.unit} where the nominal design keeps {self.nominal_at_worst:.4g}"
+                + ("" if not self.nominal_misses else " and misses " + ", ".join(
+                    f"{name} by {excess:.3g} {CONSTRAINTS[name.split('[')[0]][1]}"
+                    for name, excess in self.nominal_misses)))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"objective": self.objective, "unit": self.unit, "nominal_at_nominal": self.nominal_at_nominal,
+                "nominal_at_worst": self.nominal_at_worst, "robust_at_nominal": self.robust_at_nominal,
+                "robust_at_worst": self.robust_at_worst, "cost": self.cost,
+                "nominal_misses": [{"constraint": n, "by": x} for n, x in self.nominal_misses]}
+
+
+def _physical(point: DesignPoint, t: float = 0.0) -> list[float]:
+    """A design point as the NLP's physical variables (the epigraph variable ``t`` as given)."""
+    return [math.radians(point.contact_angle_deg), point.ball_mm, point.conformity, point.turns, point.balls_per_turn,
+            point.bolt_preload_N, point.max_preload_N, t, *point.case_preload_N]
+
+
+def misses(spec: DesignSpec, point: DesignPoint, tol: float = 1e-6) -> tuple[tuple[str, float], ...]:
+    """The constraint rows of ``spec`` a design ``point`` misses, each with by how much (in its unit); the rigidity
+    rows are left out (the point's own objective, not a limit)."""
+    rows = _constraint_rows(spec, _expressions(spec, NUMPY, _physical(point)), NUMPY)
+    return tuple((name, float(g)) for name, g, scale in rows
+                 if not name.startswith("stiffness") and float(g) / scale > tol)
+
+
+def objective_figure(spec: DesignSpec, point: DesignPoint, objective: str) -> float:
+    """The figure ``objective`` judges a design ``point`` by under ``spec`` (with its :class:`WorstCase`: at the
+    worst case, the rigidity the least over the box's corners too): the least rigidity over the duty cycle (N/um), the
+    mean drag torque (N m) or the rating life (h)."""
+    if objective not in _MERITS:
+        raise ValueError(f"objective must be one of {', '.join(_MERITS)}, got {objective!r}.")
+    e = _expressions(spec, NUMPY, _physical(point))
+    if objective == "stiffness":
+        return float(min(float(r) for r in [*e.rigidity, *e.worst_rigidity]))
+    return float(e.mean_drag) if objective == "drag" else float(np.exp(float(e.log_L)))
+
+
+def robust_cost(spec: DesignSpec, nominal: DesignOptimum, robust: DesignOptimum) -> RobustCost:
+    """The :class:`RobustCost` of ``robust`` (designed on ``spec``, whose ``worst`` is set) against ``nominal``
+    (designed on the same spec without it), for the robust optimum's objective."""
+    if spec.worst is None:
+        raise ValueError("robust_cost needs the robust design's spec (DesignSpec.worst set)")
+    plain = replace(spec, worst=None)
+    o = robust.objective
+    return RobustCost(o, _MERITS[o][0], objective_figure(plain, nominal.point, o),
+                      objective_figure(spec, nominal.point, o), objective_figure(plain, robust.point, o),
+                      objective_figure(spec, robust.point, o), misses(spec, nominal.point))
 
 
 def optimise(spec: DesignSpec, objective: str = "stiffness", nlp: DesignNLP | None = None) -> DesignOptimum:

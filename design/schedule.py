@@ -12,7 +12,9 @@ F_a(t) (with the screw speed n(t)), the schedule F_p(t) solves, on the profile's
                 |F_p,k+1 - F_p,k| <= slew dt_k          (the stacks' force slew)
 
 with K the double nut's exact rigidity under load (:meth:`BallScrew.nut_loads`, the same
-formulas on CasADi expressions) and the lift-off row the catalogues' rule, as in the design
+formulas on CasADi expressions) in the machine: the nut law's table rigidity times
+``ScheduleSpec.in_machine_factor`` (the vendors' 0.8 for the nut's mounting, ``[ballscrew]
+rigidity_in_machine_factor``) and the lift-off row the catalogues' rule, as in the design
 (design/preload.py). Where the speed is zero the friction energy is zero; a
 profile without speeds weighs the drag torque by time instead (N m s). The schedule is
 non-causal (it ramps up before a cut begins, as a CNC program knows its next pass); the
@@ -75,11 +77,13 @@ def example_profile(dt_s: float = 0.01) -> LoadProfile:
     return LoadProfile(t, load, speed)
 
 
-def _rigidity_function(screw: BallScrew) -> ca.Function:
+def _rigidity_function(screw: BallScrew, in_machine_factor: float = 1.0) -> ca.Function:
+    """The double nut's rigidity in the machine (its table rigidity times ``in_machine_factor``) as a CasADi
+    function of the preload and the axial load."""
     F, Fa = ca.SX.sym("F"), ca.SX.sym("Fa")
     c_h, s = screw.axial_constant_um, screw.structural_compliance_um_per_N
     f_loaded, f_unloaded = nut_forces(ca.fabs(Fa) / F, s * F ** (1.0 / 3.0) / c_h, CASADI)
-    k = _rigidity(CASADI, c_h, s, screw.accuracy_factor, F * f_loaded, F * f_unloaded)
+    k = in_machine_factor * _rigidity(CASADI, c_h, s, screw.accuracy_factor, F * f_loaded, F * f_unloaded)
     return ca.Function("rigidity", [F, Fa], [k])
 
 
@@ -129,7 +133,7 @@ def least_preload(screw: BallScrew, spec: ScheduleSpec, axial_load_N: ArrayLike)
     if Fa.size == 0:
         return np.zeros(0)
     lift = spec.lift_off_margin * np.abs(Fa) / LIFT_OFF_RATIO
-    k_map = _rigidity_function(screw).map(Fa.size)
+    k_map = _rigidity_function(screw, spec.rigidity_factor).map(Fa.size)
     floor = np.minimum(np.maximum(spec.bolt_preload_N, lift), spec.max_preload_N)
     return _least_preloads(k_map, Fa, spec.required_stiffness(Fa), floor, spec.max_preload_N)
 
@@ -156,8 +160,9 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec,
 
     ``heat``: the objective is the nut's friction heat over the cycle instead of the friction energy,
     ``sum_k P(F_p,k, n_k) dt_k`` (J), ``P`` :meth:`BallScrew.friction_heat_W` with these keywords (``model``,
-    ``lubricant_vg``, ``sealed``, ``temperature_C``): the NLP minimises it; the envelope is its optimum too (the heat
-    grows with the preload at every sample, under either model). The schedule still records its friction energy.
+    ``lubricant_vg``, ``seal_torque_Nm``, ``temperature_C``): the NLP minimises it; the envelope is its optimum too
+    (the heat grows with the preload at every sample, under either model; the seals' part does not depend on it). The
+    schedule still records its friction energy.
     """
     if method not in ("envelope", "nlp"):
         raise ValueError(f"method must be 'envelope' or 'nlp', got {method!r}")
@@ -168,7 +173,7 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec,
     weight, units = _weights(screw, profile)
     required = spec.required_stiffness(Fa)
     lift = spec.lift_off_margin * np.abs(Fa) / LIFT_OFF_RATIO
-    k_map = _rigidity_function(screw).map(n)
+    k_map = _rigidity_function(screw, spec.rigidity_factor).map(n)
     _check_reach(k_map, profile, spec, required, lift)
     needed = _least_preloads(k_map, Fa, required, np.maximum(spec.bolt_preload_N, lift), spec.max_preload_N)
     constant = float(needed.max())

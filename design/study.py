@@ -14,7 +14,7 @@ from __future__ import annotations
 import io
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -24,16 +24,20 @@ from piezopreload.artifacts.design import DesignRecord, DutyCasePoint, Frequency
 from piezopreload.artifacts.schedule import LoadProfile, PreloadSchedule, ScheduleSpec
 from piezopreload.core.artifacts import atomic_write_text
 from piezopreload.core.errors import InputError
+from piezopreload.core.quantities import number, quantity
 from piezopreload.core.tables import read_table
 from piezopreload.design.preload import (
+    OBJECTIVES,
     DesignNLP,
     DesignOptimum,
     DesignPoint,
     DesignSpec,
     HeatSpec,
     ParetoFront,
+    RobustCost,
     optimise,
     pareto_front,
+    robust_cost,
 )
 from piezopreload.design.schedule import example_profile, schedule_preload
 from piezopreload.models.ballscrew import BallScrew, DutyCase, hiwin_loaded_nut_force, lift_off_load_N
@@ -83,6 +87,8 @@ class DesignResult:
         Rigidity and drag torque of the optimum's double nut against the preload.
     natural_frequency : FrequencyCurve
         The first axial natural frequency along the travel.
+    robust_cost : RobustCost or None
+        Where the spec is robust (``DesignSpec.worst``): what the design gives up against the nominal design.
     """
 
     spec: DesignSpec
@@ -94,6 +100,7 @@ class DesignResult:
     slew_N_per_s: float
     preload_curve: PreloadCurve
     natural_frequency: FrequencyCurve
+    robust_cost: RobustCost | None = None
 
     @property
     def point(self) -> Any:
@@ -144,10 +151,12 @@ class DesignResult:
             csv = path.with_name(f"{path.stem}.pareto-{front.pair.replace(':', '-')}.csv")
             buf = io.StringIO()
             buf.write(f"# Pareto front {front.pair}: {front.x_name} swept, {front.y_name} optimised\n")
-            buf.write(",".join(FRONT_COLUMNS) + "\n")
-            for p in front.points:
+            # a point's growth is not one of its fields: the front's y is its own column (the shift's largest growth)
+            growth = front.y_name == "growth"
+            buf.write(",".join(FRONT_COLUMNS + (("growth_max_um",) if growth else ())) + "\n")
+            for p, y in zip(front.points, front.y):
                 d = p.to_dict()
-                buf.write(",".join(f"{d[c]:.6g}" for c in FRONT_COLUMNS) + "\n")
+                buf.write(",".join([f"{d[c]:.6g}" for c in FRONT_COLUMNS] + ([f"{y:.6g}"] if growth else [])) + "\n")
             atomic_write_text(csv, buf.getvalue())
             written.append(csv)
         return written
@@ -202,8 +211,14 @@ def design_study(spec: DesignSpec, objective: str, pairs: list[str] | tuple[str,
         raise InputError(f"design_study: the optimum given is for {optimum.objective!r}, not {objective!r}")
     result = optimise(spec, objective, nlp) if optimum is None else optimum
     p = result.point
-    say(f"optimum ({objective}): {p.turns:.0f} turns x {p.balls_per_turn:.0f} balls of {p.ball_mm:.3f} mm, "
-        f"contact angle {p.contact_angle_deg:.1f} deg, preload {p.bolt_preload_N:.0f}-{p.max_preload_N:.0f} N")
+    say(f"optimum ({objective}{', robust' if spec.worst is not None else ''}): {p.turns:.0f} turns x "
+        f"{p.balls_per_turn:.0f} balls of {quantity(p.ball_mm, 'mm', 4)}, contact angle "
+        f"{quantity(p.contact_angle_deg, 'deg')}, conformity {number(p.conformity)}, preload "
+        f"{number(p.bolt_preload_N, 'N')} to {quantity(p.max_preload_N, 'N')}")
+    cost = None
+    if spec.worst is not None and objective in OBJECTIVES:  # the nominal design beside it: what robustness costs
+        cost = robust_cost(spec, optimise(replace(spec, worst=None), objective), result)
+        say(f"robust design: {cost.sentence()}")
     fronts = []
     for j, pair in enumerate(pairs):
         if bar is not None:
@@ -216,10 +231,10 @@ def design_study(spec: DesignSpec, objective: str, pairs: list[str] | tuple[str,
     schedule, max_preload, slew = plan_schedule(spec, p, profile, profile_name=profile_name,
                                                 stiffness_min_N_per_um=stiffness_min_N_per_um,
                                                 deflection_max_um=deflection_max_um, lift_off_margin=lift_off_margin)
-    say(f"schedule: {schedule.saving_fraction:.0%} less friction energy than the best constant preload "
-        f"({schedule.constant_preload_N:.0f} N)")
+    say(f"schedule: {number(100 * schedule.saving_fraction, '%', 2)} % less friction energy than the best constant "
+        f"preload ({quantity(schedule.constant_preload_N, 'N')})")
     return DesignResult(spec, result, fronts, schedule, profile_name if profile is not None else "example", max_preload,
-                        slew, preload_curve(spec, result), natural_frequency(spec, result))
+                        slew, preload_curve(spec, result), natural_frequency(spec, result), cost)
 
 
 def plan_schedule(spec: DesignSpec, point: DesignPoint, profile: LoadProfile | None = None, *,
@@ -235,7 +250,7 @@ def plan_schedule(spec: DesignSpec, point: DesignPoint, profile: LoadProfile | N
         sspec = ScheduleSpec(bolt_preload_N=point.bolt_preload_N, max_preload_N=max_preload, slew_N_per_s=slew,
                              stiffness_min_N_per_um=stiffness_min_N_per_um, deflection_max_um=deflection_max_um,
                              lift_off_margin=spec.lift_off_margin if lift_off_margin is None else lift_off_margin,
-                             preload_margin_N=preload_margin_N)
+                             preload_margin_N=preload_margin_N, in_machine_factor=spec.rigidity_in_machine_factor)
         schedule = schedule_preload(screw, profile if profile is not None else example_profile(), sspec)
     except ValueError as exc:
         raise InputError(f"{profile_name if profile is not None else 'the example load profile'}: {exc}") from None
@@ -354,7 +369,8 @@ def design_spec_from_tables(t: dict[str, Any], fail: Callable[[str, str], Except
     makes the error naming the file and line."""
     b, d, fd, duty = t["ballscrew"], t["design"], t["feed_drive"], t["duty"]
     kwargs: dict[str, Any] = {k: getattr(b, k) for k in ("nominal_diameter_mm", "lead_mm", "load_sharing",
-                                                          "contact_angle_deg", "ball_mm", "conformity", "turns")}
+                                                          "contact_angle_deg", "ball_mm", "conformity", "turns",
+                                                          "rigidity_in_machine_factor")}
     kwargs["turns"] = tuple(int(x) for x in b.turns)
     if fd is not None:
         kwargs["feed_drive"] = FeedDrive(table_mass_kg=fd.table_mass_kg, screw_length_mm=fd.screw_length_mm,
@@ -371,9 +387,17 @@ def design_spec_from_tables(t: dict[str, Any], fail: Callable[[str, str], Except
     kwargs.update({k: v for k, v in d.to_dict().items() if k in names})
     thermal = t.get("thermal")
     if thermal is not None:  # how a stiffness:growth front counts the nut's heat
-        kwargs["heat"] = HeatSpec(thermal.heat_model, thermal.lubricant_vg, thermal.sealed,
-                                  thermal.contact_temperature_C)
+        try:
+            seals = thermal.seal_torque(b.nominal_diameter_mm, b.lead_mm)
+        except InputError as exc:
+            raise fail("thermal.seal_torque_Nm", f"is not set and {exc}") from None
+        kwargs["heat"] = HeatSpec(thermal.heat_model, thermal.lubricant_vg, seals, thermal.contact_temperature_C,
+                                  thermal.contact_calibration)
     kwargs["actuator"] = PiezoPreload(drive_V=d.stack_drive_V, amp_current_limit_A=d.amp_current_limit_A)
+    if d.robust:  # the worst case of the assumptions' ranges (design/sensitivity.py's table)
+        from piezopreload.design.sensitivity import worst_case
+
+        kwargs["worst"] = worst_case()
     try:
         return DesignSpec(**kwargs)
     except ValueError as exc:  # every key was checked alone and with the others above: a rule this code misses

@@ -16,11 +16,14 @@ begin after it, so no requirement is judged on a start-up transient and no margi
 From the true force over the cycles the run gives (:class:`~piezopreload.artifacts.system.TrackingNumbers`):
 
 * the tracking error, RMS and worst, also in % of the schedule's range;
-* the axial rigidity the double nut has at the achieved preload under each sample's cutting
+* the axial rigidity the double nut has in the machine (its table figure times the in-machine
+  factor, ``ScheduleSpec.in_machine_factor``) at the achieved preload under each sample's cutting
   load (:meth:`BallScrew.nut_loads`) against the requirement the schedule was planned for,
   the achieved preload against the lift-off bound with the schedule's margin
-  (``lift_off_margin |F_a| / 2^(3/2)``), and the axial deflection under the cutting load;
-  these are the requirements, as verdicts (:func:`requirements_of`);
+  (``lift_off_margin |F_a| / 2^(3/2)``: the design's own constraint, which the schedule sits on),
+  and the nut axial deflection under the cutting load; these are the requirements, as verdicts
+  (:func:`requirements_of`); given the design, the physical lift-off by the nut law over the
+  Monte Carlo plants is one more, and :func:`margin_basis` says what each margin rests on;
 * the friction energy of the achieved preload, and the fraction it saves against the design's
   best constant preload (the design's number, not computed again).
 
@@ -49,17 +52,20 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from dataclasses import replace as dc_replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
 
 from piezopreload.artifacts.plant import DesignedPlant
-from piezopreload.artifacts.requirements import Requirement
-from piezopreload.artifacts.schedule import PreloadSchedule
+from piezopreload.artifacts.requirements import AtBound, OffBounds, Requirement
+from piezopreload.artifacts.schedule import PreloadSchedule, ScheduleSpec
+from piezopreload.artifacts.sensitivity import SensitivityRecord
 from piezopreload.artifacts.summaries import SystemSummary
 from piezopreload.artifacts.system import (
+    MarginBasis,
     PassRecord,
     PlannedSchedule,
     PreCycle,
@@ -72,19 +78,21 @@ from piezopreload.core._typing import Array
 from piezopreload.core.errors import InputError
 from piezopreload.core.tables import write_csv
 from piezopreload.design.schedule import least_preload, schedule_preload
-from piezopreload.models.actuator import Rig
-from piezopreload.models.ballscrew import LIFT_OFF_RATIO
+from piezopreload.models.actuator import Plant, Rig
+from piezopreload.models.ballscrew import LIFT_OFF_RATIO, BallScrew
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller
 
 if TYPE_CHECKING:  # the thermal budget reads a system run; the plots name their type
     from matplotlib.figure import Figure
 
+    from piezopreload.design.preload import DesignSpec
     from piezopreload.design.thermal import ThermalBudget
 
-__all__ = ["PRE_CYCLE_REST_S", "RIGIDITY_VERDICT", "ROUND_OFF", "SystemRun", "Evaluation", "pre_cycle_for",
+__all__ = ["PRE_CYCLE_REST_S", "RIGIDITY_VERDICT", "LIFT_OFF_BOUND_VERDICT", "LIFT_OFF_LAW", "ROUND_OFF",
+           "margin_basis", "off_bounds_screw", "SystemRun", "Evaluation", "pre_cycle_for",
            "schedule_reference", "track_schedule", "evaluate_tracking", "requirements_of", "folded_shortfall",
-           "binding_stretches", "held_over_stretches", "local_margins"]
+           "frame_under", "binding_stretches", "held_over_stretches", "local_margins"]
 
 
 #: the pre-cycle's rest before its ramp (s): the loop starts bumplessly on its first sample's feedforward, so a
@@ -96,6 +104,11 @@ ROUND_OFF = 1e-9
 #: the rigidity's verdict: at the sample where the rigidity is least against its requirement (the requirement
 #: follows the load: the least rigidity itself may fall where little is required)
 RIGIDITY_VERDICT = "rigidity while cutting, where least against its requirement"
+#: the lift-off bound's verdict: the design's own constraint, which the schedule is built to sit on
+LIFT_OFF_BOUND_VERDICT = "preload against the schedule's lift-off bound while cutting (the design's own constraint)"
+#: the law the physical lift-off is judged by: the model's own, not the catalogues' 2^(3/2) rule
+LIFT_OFF_LAW = ("the nut law's lift-off load rho(sigma) F_p (the exact two-nut solution with the nut body, "
+                "BallScrew.lift_off_load_N; the catalogues' 2^(3/2) F_p is the Hertz-only nut's)")
 #: the longest lag of the loop behind its reference the margins look back over (s)
 _LAG_MAX_S = 0.25
 #: a local margin holds this long either side of the shortfall it answers (s): one load ramp of the machining cycle
@@ -171,17 +184,41 @@ def _frame(plant: DesignedPlant, schedule: PreloadSchedule, run: ClosedLoopRun, 
     t_cycle = np.where(cycle, np.mod(run.t_s - pre_s + 0.5 * dt, period) - 0.5 * dt, 0.0) + float(prof.time_s[0])
     load = np.where(cycle, np.interp(t_cycle, prof.time_s, prof.axial_load_N), 0.0)
     planned, achieved = plant.preload_N(run.reference_N), plant.preload_N(run.force_N)
-    loads = screw.nut_loads(np.maximum(achieved, 1e-3), load)
     speed = np.ones_like(t_cycle) if prof.speed_rpm is None else np.interp(t_cycle, prof.time_s, prof.speed_rpm) * (
         2.0 * np.pi / 60.0)
     return _Frame(
         t_cycle=t_cycle, cycle=cycle, cutting=cycle & (np.abs(load) > 0), load=load, planned=planned,
-        achieved=achieved, required=schedule.spec.required_stiffness(load),
-        rigidity=np.asarray(loads.rigidity_N_per_um, float),
-        planned_rigidity=np.asarray(screw.rigidity_N_per_um(np.maximum(planned, 1e-3), load), float),
-        deflection=np.asarray(loads.deflection_um, float),
-        lift_bound=schedule.spec.lift_off_margin * np.abs(load) / LIFT_OFF_RATIO,
+        achieved=achieved, **_mechanics(screw, schedule.spec, planned, achieved, load),
         weight=np.where(cycle, float(screw.drag_torque_Nm(1.0)) * speed * dt, 0.0))
+
+
+class _Mechanics(TypedDict):
+    """The frame's columns the double nut and the requirements set."""
+
+    required: Array
+    rigidity: Array
+    planned_rigidity: Array
+    deflection: Array
+    lift_bound: Array
+
+
+def _mechanics(screw: BallScrew, spec: ScheduleSpec, planned: Array, achieved: Array, load: Array) -> _Mechanics:
+    """The frame's columns the double nut and the requirements set: the requirement, the rigidity at the achieved
+    and the planned preload, the deflection, the lift-off bound."""
+    loads = screw.nut_loads(np.maximum(achieved, 1e-3), load)
+    factor = spec.rigidity_factor  # the nut's table rigidity -> its rigidity mounted in the machine
+    return _Mechanics(
+        required=spec.required_stiffness(load), rigidity=factor * np.asarray(loads.rigidity_N_per_um, float),
+        planned_rigidity=factor * np.asarray(screw.rigidity_N_per_um(np.maximum(planned, 1e-3), load), float),
+        deflection=np.asarray(loads.deflection_um, float) / factor,
+        lift_bound=spec.lift_off_margin * np.abs(load) / LIFT_OFF_RATIO)
+
+
+def frame_under(frame: _Frame, screw: BallScrew, spec: ScheduleSpec) -> _Frame:
+    """The same run's frame (the same achieved and planned preloads under the same loads) judged with another double
+    nut ``screw`` and another schedule specification ``spec``: what a modelling assumption changes (design/
+    sensitivity.py)."""
+    return dc_replace(frame, **_mechanics(screw, spec, frame.planned, frame.achieved, frame.load))
 
 
 def _verdict(name: str, value: float, limit: float, unit: str, sense: str, source: str, key: str) -> Requirement:
@@ -202,14 +239,14 @@ def requirements_of(frame: _Frame, schedule: PreloadSchedule) -> tuple[Requireme
                     "[schedule] deflection_max_um (|F_a| / deflection_max_um)" if by_deflection
                     else "[schedule] stiffness_min_N_per_um", "schedule.rigidity_while_cutting")]
     if math.isfinite(spec.deflection_max_um):
-        out.append(_verdict("axial deflection while cutting", float(np.max(np.abs(frame.deflection[c]))),
+        out.append(_verdict("nut axial deflection while cutting", float(np.max(np.abs(frame.deflection[c]))),
                             spec.deflection_max_um, "um", "max", "[schedule] deflection_max_um",
                             "schedule.deflection_max_um"))
     lift = np.where(c, frame.achieved / np.maximum(frame.lift_bound, 1e-9), np.inf)
     j = int(np.argmin(lift))
-    out.append(_verdict("preload against the lift-off bound while cutting", frame.achieved[j], frame.lift_bound[j], "N",
-                        "min", "[schedule] lift_off_margin (lift_off_margin |F_a| / 2^(3/2))",
-                        "schedule.lift_off_margin"))
+    out.append(dc_replace(_verdict(LIFT_OFF_BOUND_VERDICT, frame.achieved[j], frame.lift_bound[j], "N", "min",
+                                   "[schedule] lift_off_margin (lift_off_margin |F_a| / 2^(3/2))",
+                                   "schedule.lift_off_margin"), basis="design"))
     return tuple(out)
 
 
@@ -390,6 +427,12 @@ class SystemRun:
         What stops a requirement the passes could not meet (none: nothing).
     thermal : ThermalBudget or None
         The shift's heat, temperature and growth (None: the study has no thermal model).
+    basis : MarginBasis or None
+        What the margins rest on (:func:`margin_basis`; None: the run was not given the design).
+    physical_lift_off : Requirement or None
+        The nut law's lift-off load against the cutting load, the worst over the plants (:func:`margin_basis`).
+    sensitivity : SensitivityRecord or None
+        The verdicts under the modelling assumptions' ranges (None: not studied).
     """
 
     schedule: PreloadSchedule
@@ -402,6 +445,9 @@ class SystemRun:
     passes: tuple[PassRecord, ...]
     bounds: tuple[ScheduleBound, ...] = ()
     thermal: ThermalBudget | None = None  # the shift's heat, temperature and growth (design/thermal.py)
+    basis: MarginBasis | None = None  # what the margins rest on (margin_basis), where the run was given the design
+    physical_lift_off: Requirement | None = None  # the nut law's lift-off against the load (margin_basis)
+    sensitivity: SensitivityRecord | None = None  # the verdicts under the assumptions' ranges (design/sensitivity.py)
 
     @property
     def numbers(self) -> TrackingNumbers:
@@ -409,7 +455,8 @@ class SystemRun:
 
     @property
     def requirements(self) -> tuple[Requirement, ...]:
-        return self.evaluation.requirements + (() if self.thermal is None else self.thermal.requirements)
+        return (self.evaluation.requirements + (() if self.physical_lift_off is None else (self.physical_lift_off,))
+                + (() if self.thermal is None else self.thermal.requirements))
 
     @property
     def requirements_met(self) -> bool:
@@ -430,7 +477,8 @@ class SystemRun:
         plan = PlannedSchedule(s.profile.time_s, s.preload_N, s.margin_N, s.margin_short_N, s.friction_energy_J,
                                s.energy_units, s.status)
         return SystemRecord(self.numbers, self.requirements, self.bounds, self.pre_cycle, self.passes, plan, series,
-                            self.cycles, dict(inputs or {}), None if self.thermal is None else self.thermal.record)
+                            self.cycles, dict(inputs or {}), None if self.thermal is None else self.thermal.record,
+                            self.basis, self.sensitivity)
 
     def summary(self) -> SystemSummary:
         """The run's numbers, verdicts, pre-cycle, passes and thermal figures (no series)."""
@@ -504,18 +552,24 @@ def _check(cycles: int, passes: int, margin_factor: float) -> None:
 
 def track_schedule(plant: DesignedPlant, controller: Controller, schedule: PreloadSchedule, *, cycles: int = 2,
                    seed: int = 0, passes: int = 3, margin_factor: float = 1.25, contact_N: float = 0.0,
-                   settle_s: float = 0.5, ff_extra_V: Any = None,
-                   progress: Callable[[str], None] | None = None) -> SystemRun:
+                   settle_s: float = 0.5, ff_extra_V: Any = None, design: DesignSpec | None = None,
+                   scatter: Plant | None = None, progress: Callable[[str], None] | None = None) -> SystemRun:
     """Run the loop over the schedule on the designed plant after its pre-cycle; plan again with local margins while
     a requirement is missed (module docstring).
 
     ``contact_N``: the least force the stacks keep (:func:`schedule_reference`). ``settle_s``: the
     pre-cycle's hold at the first level (:func:`pre_cycle_for`). ``ff_extra_V``: a correction added
     to the feedforward, one value per sample of the run (a learned one, say); a callable
-    ``f(reference) -> array`` makes it for each pass's reference. Returns the last pass's
+    ``f(reference) -> array`` makes it for each pass's reference. ``design``: the design's specification (the
+    axis, the design variables' ranges): the run then says what its margins rest on (:func:`margin_basis`), the
+    physical lift-off judged on the nominal plant and on ``scatter`` (a batch of the rig's parameters, the Monte
+    Carlo plants: the last pass's reference and feedforward run on each). Returns the last pass's
     :class:`SystemRun`; its ``passes`` hold every pass's numbers.
     """
     _check(cycles, passes, margin_factor)
+    if scatter is not None and design is None:
+        raise InputError("scatter: the Monte Carlo plants judge the physical lift-off, which needs the design (its "
+                         "axis and ranges): give design, or no scatter")
     say = progress or (lambda _m: None)
     rig, pre = Rig(plant.rig), pre_cycle_for(plant, schedule, contact_N, settle_s)
     say(f"pre-cycle: the stacks from rest to {pre.level_N:.0f} N at {pre.slew_N_per_s:,.0f} N/s in "
@@ -546,5 +600,123 @@ def track_schedule(plant: DesignedPlant, controller: Controller, schedule: Prelo
             break
         before, added = folded, wanted - (current.margin_N - current.spec.preload_margin_N)
         current = schedule_preload(plant.screw, current.profile, current.spec, local_margin_N=wanted)
-    return SystemRun(schedule=current, design_schedule=schedule, plant=plant, cycles=cycles, run=run, pre_cycle=pre,
-                     evaluation=ev, passes=tuple(record), bounds=_bounds(current, ev, wanted))
+    out = SystemRun(schedule=current, design_schedule=schedule, plant=plant, cycles=cycles, run=run, pre_cycle=pre,
+                    evaluation=ev, passes=tuple(record), bounds=_bounds(current, ev, wanted))
+    if design is None:
+        return out
+    if scatter is not None:
+        say(f"the physical lift-off on {scatter.batch_shape[0] + 1} Monte Carlo plants (the last pass's reference) ...")
+    mc = None if scatter is None else simulate(Rig(scatter), controller, run.reference, seed=seed + 1,
+                                               ff_extra_V=extra)
+    ev = dc_replace(ev, requirements=_off_bounds(ev.requirements, ev.frame, current, plant.screw, design))
+    basis, physical = margin_basis(dc_replace(out, evaluation=ev), design, mc)
+    return dc_replace(out, evaluation=ev, basis=basis, physical_lift_off=physical)
+
+
+# ---- what the margins rest on ---------------------------------------------------------------------------------------
+
+def _at_bound(value: float, low: float, high: float) -> str | None:
+    tol = 1e-6 * max(1.0, abs(high))
+    return "low" if abs(value - low) <= tol else "high" if abs(value - high) <= tol else None
+
+
+def off_bounds_screw(screw: BallScrew, design: DesignSpec) -> tuple[BallScrew, tuple[AtBound, ...]]:
+    """The screw with its continuous design variables that sit at a bound of their range (the contact angle, the
+    conformity) moved to the middle of that range, the balls (their diameter and number) and turns kept, and every
+    design variable at a bound (those kept too, with ``instead`` their own value)."""
+    at: list[AtBound] = []
+    changes: dict[str, Any] = {}
+    moved = {"contact_angle_deg": (screw.contact_angle_deg, design.contact_angle_deg),
+             "conformity": (screw.conformity_screw, design.conformity)}
+    for name, (value, (low, high)) in moved.items():
+        side = _at_bound(float(value), float(low), float(high))
+        if side is not None:
+            mid = 0.5 * (float(low) + float(high))
+            at.append(AtBound(f"ballscrew.{name}", float(value), side, mid))
+            changes.update({"contact_angle_deg": mid} if name == "contact_angle_deg"
+                           else {"conformity_screw": mid, "conformity_nut": mid})
+    kept = {"ball_mm": (screw.ball_mm, design.ball_mm), "turns": (screw.turns, design.turns)}
+    for name, (value, (low, high)) in kept.items():
+        side = _at_bound(float(value), float(low), float(high))
+        if side is not None:
+            at.append(AtBound(f"ballscrew.{name}", float(value), side, float(value)))
+    return dc_replace(screw, **changes), tuple(at)
+
+
+def _off_bounds(requirements: tuple[Requirement, ...], frame: _Frame, schedule: PreloadSchedule, screw: BallScrew,
+                design: DesignSpec) -> tuple[Requirement, ...]:
+    """The rigidity and deflection verdicts with their record of the design variables at a bound: each judged again
+    on the screw without them (:func:`off_bounds_screw`) at the same achieved preloads and loads."""
+    other, at = off_bounds_screw(screw, design)
+    if not any(a.instead != a.value for a in at):
+        return requirements
+    c, factor = frame.cutting, schedule.spec.rigidity_factor
+    loads = other.nut_loads(np.maximum(frame.achieved[c], 1e-3), frame.load[c])
+    k = factor * np.asarray(loads.rigidity_N_per_um, float)
+    deflection = np.asarray(loads.deflection_um, float) / factor
+    out = []
+    for r in requirements:
+        if r.name == RIGIDITY_VERDICT:
+            i = int(np.argmin(k / frame.required[c]))
+            value, limit = float(k[i]), float(frame.required[c][i])
+        elif r.key == "schedule.deflection_max_um":
+            value, limit = float(np.max(np.abs(deflection))), r.limit
+        else:
+            out.append(r)
+            continue
+        judged = _verdict(r.name, value, limit, r.unit, r.sense, r.source, r.key)
+        out.append(dc_replace(r, off_bounds=OffBounds(at, judged.value, judged.margin_pct, judged.met)))
+    return tuple(out)
+
+
+def _lift_off_ratios(frame: _Frame, screw: BallScrew, achieved: Array) -> Array:
+    """The nut law's lift-off load over the cutting load at each cutting sample (``achieved``: the preload, the
+    samples last; any leading axes are plants)."""
+    c = frame.cutting & (np.abs(frame.load) > 0)
+    fp = np.maximum(achieved[..., c], 1e-3)
+    return np.asarray(screw.lift_off_load_N(fp), float) / np.abs(frame.load[c])
+
+
+def margin_basis(run: SystemRun, design: DesignSpec,
+                 scatter: ClosedLoopRun | None = None) -> tuple[MarginBasis, Requirement]:
+    """What the run's margins rest on (:class:`~piezopreload.artifacts.system.MarginBasis`) and the physical lift-off
+    requirement: the nut law's lift-off load at the achieved preload against the cutting load, with no safety factor,
+    the worst of the nominal run and ``scatter`` (the same reference and feedforward on the Monte Carlo plants; None:
+    the nominal plant alone)."""
+    f, screw, factor = run.evaluation.frame, run.plant.screw, run.schedule.spec.rigidity_factor
+    n, c = run.numbers, f.cutting
+    # the axis at the table: the nut in the machine at the verdict's sample, the screw and bearings over the travel
+    travel = np.linspace(*design.feed_drive.travel_mm, 41)
+    k_side = np.asarray(design.feed_drive.screw_side_stiffness_N_per_um(screw.root_diameter_mm, travel), float)
+    k_axis = 1.0 / (1.0 / n.rigidity_at_worst_ratio_N_per_um + 1.0 / k_side)
+    weakest = float(design.feed_drive.screw_side_stiffness_N_per_um(screw.root_diameter_mm,
+                                                                   design.feed_drive.weakest_position_mm()))
+    axis_deflection = np.abs(f.load[c]) * (1.0 / f.rigidity[c] + 1.0 / weakest)
+    # the physical lift-off: the nominal run, then the Monte Carlo plants
+    nominal = _lift_off_ratios(f, screw, f.achieved)
+    ratios = nominal[None, :]
+    if scatter is not None:
+        achieved = run.plant.preload_N(np.asarray(scatter.force_N, float).reshape(-1, f.achieved.size))
+        ratios = np.vstack([nominal, _lift_off_ratios(f, screw, achieved)])
+    p, j = np.unravel_index(int(np.argmin(ratios)), ratios.shape)
+    cut = c & (np.abs(f.load) > 0)
+    preload = float(f.achieved[cut][j]) if p == 0 else float(achieved[p - 1][cut][j])
+    load = float(abs(f.load[cut][j]))
+    lift = float(screw.lift_off_load_N(preload))
+    basis = MarginBasis(
+        rigidity_in_machine_factor=factor, rigidity_in_machine_N_per_um=n.rigidity_at_worst_ratio_N_per_um,
+        rigidity_table_N_per_um=n.rigidity_at_worst_ratio_N_per_um / factor,
+        rigidity_required_N_per_um=n.rigidity_required_at_worst_ratio_N_per_um,
+        axis_stiffness_min_N_per_um=float(np.min(k_axis)), axis_stiffness_max_N_per_um=float(np.max(k_axis)),
+        nut_axial_deflection_max_um=n.deflection_max_um, axis_deflection_max_um=float(np.max(axis_deflection)),
+        lift_off_law=LIFT_OFF_LAW, lift_off_ratio=lift / preload, lift_off_plants=int(ratios.shape[0]),
+        lift_off_worst_plant=int(p), lift_off_preload_N=preload,
+        lift_off_axial_load_N=load, lift_off_load_N=lift,
+        lift_off_margin_physical_pct=100.0 * (float(ratios[p, j]) - 1.0),
+        lift_off_margin_physical_nominal_pct=100.0 * (float(np.min(nominal)) - 1.0),
+        lift_off_margin_catalogue_pct=100.0 * (LIFT_OFF_RATIO * preload / load - 1.0))
+    over = "on the nominal plant" if scatter is None else f"the worst of {ratios.shape[0]} Monte Carlo plants"
+    requirement = dc_replace(
+        _verdict(f"lift-off load by the nut law against the cutting load, {over}", lift, load, "N", "min",
+                 f"physics: {LIFT_OFF_LAW}; no safety factor", "schedule.lift_off_physical"), basis="physics")
+    return basis, requirement

@@ -25,7 +25,13 @@ from piezopreload.design.system import SystemRun, track_schedule
 from piezopreload.models.actuator import Plant
 from piezopreload.models.controller import Controller
 from piezopreload.models.feed_drive import MOUNTINGS
-from piezopreload.models.thermal import HEAT_MODELS, THERMAL_MOUNTINGS, VG_GRADES
+from piezopreload.models.thermal import (
+    CONTACT_CALIBRATION,
+    HEAT_MODELS,
+    THERMAL_MOUNTINGS,
+    VG_GRADES,
+    rexroth_seal_torque_Nm,
+)
 
 #: how ``[design] method`` chooses the optimum
 DESIGN_METHODS = ("sequential", "codesign")
@@ -51,6 +57,13 @@ class BallscrewTable(Table):
     turns: tuple[int, int] = key(_SPEC.turns, "bounds of the loaded turns per nut", ge=1, increasing=True)
     load_sharing: float = key(_SPEC.load_sharing, "effective share of the balls that carry load (the calibrated "
                               "default: docs/ballscrew.md)", gt=0, le=1)
+    rigidity_in_machine_factor: float = key(
+        _SPEC.rigidity_in_machine_factor, "share of the nut's table rigidity it keeps mounted in the machine: HIWIN "
+        "and THK state that their table rigidity leaves out the nut's mounting and that about 80 % of it holds in a "
+        "machine (HIWIN: K_n = 0.8 K (F_p / 0.1 C)^(1/3)); the nut law is calibrated on those tables "
+        "(docs/ballscrew.md). Rexroth's DIN 69051-5 and Steinmeyer's corrected figures carry no such factor: for a "
+        "nut judged by them set 1. The schedule's rigidity and deflection requirements hold in the machine; the "
+        "table figure is reported beside", gt=0, le=1)
 
 
 @dataclass(frozen=True)
@@ -132,6 +145,10 @@ class DesignTable(Table):
                                gt=0, le=_SPEC.actuator.stack.v_max_V)
     amp_current_limit_A: float = key(_SPEC.actuator.amp_current_limit_A, "the amplifier's current limit (the "
                                      "preload's slew rate; the designed plant's amplifier)", unit="A", gt=0)
+    robust: bool = key(False, "design against the worst case of the modelling assumptions' ranges: the rigidity and "
+                       "the natural frequency at every corner of the contact angle's (+-5 deg) and the conformity's "
+                       "(+-0.01) tolerance box, the drag and the heat at K_p's high end (0.3); the cost against the "
+                       "nominal design is reported (docs/system.md)")
 
 
 class ScheduleLimits(TypedDict):
@@ -186,13 +203,14 @@ class PlantTable(Table):
         return plant_from_design(spec, point, hardware, design_sha256=design_sha256, sleeve_stiffness_N_per_um=sleeve)
 
     def track(self, plant: DesignedPlant, controller: Controller, schedule: PreloadSchedule, *, seed: int,
-              settle_s: float = 0.5, ff_extra_V: Any = None,
-              progress: Callable[[str], None] | None = None) -> SystemRun:
+              settle_s: float = 0.5, ff_extra_V: Any = None, design: DesignSpec | None = None,
+              scatter: Plant | None = None, progress: Callable[[str], None] | None = None) -> SystemRun:
         """``controller`` following ``schedule`` on ``plant`` for this table's cycles, passes and margin, after a
-        pre-cycle held ``settle_s`` at the first level (:func:`~piezopreload.design.system.track_schedule`)."""
+        pre-cycle held ``settle_s`` at the first level (:func:`~piezopreload.design.system.track_schedule`; with
+        ``design`` and ``scatter`` it says what its margins rest on)."""
         return track_schedule(plant, controller, schedule, cycles=self.cycles, seed=seed, passes=self.passes,
                               margin_factor=self.margin_factor, contact_N=self.stack_contact_N, settle_s=settle_s,
-                              ff_extra_V=ff_extra_V, progress=progress)
+                              ff_extra_V=ff_extra_V, design=design, scatter=scatter, progress=progress)
 
 
 #: how the axis measures the table's position: the motor's encoder, or a linear scale on the table
@@ -210,13 +228,24 @@ class ThermalTable(Table):
                           choices=HEAT_MODELS)
     lubricant_vg: int = key(68, "the lubricant's ISO VG grade (10, 22, 32, 46, 68, 100, 150 or 220): the contact "
                             "model's and the support bearings' viscosity")
-    sealed: bool = key(True, "the nut has seals (a factor 2 on its heat)")
+    sealed: bool = key(True, "the nut has contact (lip) seals: their torque seal_torque_Nm adds T_s omega to the nut's "
+                       "heat in either model (false: an open nut or non-contact seals, no seal torque)")
+    seal_torque_Nm: float | None = key(None, "idle torque of the nut's seals, independent of the preload (not set: "
+                                       "Rexroth's table of the two lip seals of a nut, single or double alike, by "
+                                       "nominal diameter and lead, 0.25 N m for 32 mm: docs/thermal.md; sealed = "
+                                       "false: 0)", unit="N m", ge=0)
+    contact_calibration: float = key(CONTACT_CALIBRATION, "factor on Jungnickel's rolling-contact loss (the contact "
+                                     "model): the default brings it to published measured drag torques at the "
+                                     "vendors' measuring speed (docs/thermal.md); set your own from a measurement",
+                                     gt=0)
     contact_temperature_C: float = key(40.0, "the lubricant's temperature at the contacts (its viscosity)",
                                        unit="degC", ge=-20, le=150)
     ambient_C: float = key(20.0, "the air's temperature around the axis (the rises are above it)", unit="degC",
                            ge=-20, le=60)
     nut_heat_share: float = key(0.5, "share of the nut's heat that enters the screw under its loaded turns (the "
-                                "rest heats the nut's body)", ge=0, le=1)
+                                "rest heats the nut's body): an assumption, no share is published; measured axes run "
+                                "hottest at the nut, and the record says which runs warmer (docs/thermal.md)", ge=0,
+                                le=1)
     spacer_length_mm: float = key(40.0, "the spacer (the stacks' sleeve) between the two nuts", unit="mm", gt=0)
     bearing_preload_N: float = key(2000.0, "axial preload of each end's support bearing set (a fixed-free screw's "
                                    "far end has none)", unit="N", ge=0)
@@ -228,6 +257,10 @@ class ThermalTable(Table):
                                     "housing)", ge=0, le=1)
     bearing_W_per_K: float = key(1.0, "conductance from each end of the screw into its bearing's housing",
                                  unit="W/K", ge=0)
+    convection_factor: float = key(1.0, "factor on the air's film coefficients the correlations give (the rotating "
+                                   "screw's Nusselt number, free convection on the nut and the screw at rest): the "
+                                   "convection assumption, about 0.6-1.3 by the free-convection figures' and the "
+                                   "correlations' scatter (docs/thermal.md)", gt=0, le=5)
     free_convection_W_per_m2K: float = key(8.0, "free convection's film coefficient: the screw at rest (the "
                                            "rotating shaft's is higher), the nut", unit="W/m^2 K", gt=0)
     flange_mass_kg: float = key(2.0, "the nut's flange and bracket (a lumped body)", unit="kg", gt=0)
@@ -264,10 +297,22 @@ class ThermalTable(Table):
             name = "pretension_K" if self.mounting == "pretensioned" else "mounting"
             raise Invalid(name, "a pretension needs mounting = \"pretensioned\" and pretension_K > 0 together; got "
                                 f"mounting = {self.mounting!r}, pretension_K = {self.pretension_K:g}")
+        if not self.sealed and self.seal_torque_Nm is not None and self.seal_torque_Nm > 0:
+            raise Invalid("seal_torque_Nm", f"= {self.seal_torque_Nm:g} N m needs seals: sealed = false is an open "
+                                            "nut (no seal torque); set sealed = true or leave seal_torque_Nm unset")
         if self.coolant_flow_l_per_min is not None and self.bore_mm is None:
             raise Invalid("coolant_flow_l_per_min", "needs a hollow screw: set bore_mm")
         if self.coolant_C is not None and self.coolant_flow_l_per_min is None:
             raise Invalid("coolant_C", "needs a coolant: set coolant_flow_l_per_min")
+
+    def seal_torque(self, nominal_diameter_mm: float, lead_mm: float) -> float:
+        """The seals' torque (N m) for a screw of this size: the key's, Rexroth's table's where it is unset, 0 for an
+        open nut (:func:`~piezopreload.models.thermal.rexroth_seal_torque_Nm`)."""
+        if not self.sealed:
+            return 0.0
+        if self.seal_torque_Nm is not None:
+            return float(self.seal_torque_Nm)
+        return rexroth_seal_torque_Nm(nominal_diameter_mm, lead_mm)
 
     def against(self, drive: Any, fail: Callable[[str, str], Exception]) -> None:
         """The rules between this table and the axis (:class:`~piezopreload.models.feed_drive.FeedDrive`):

@@ -49,9 +49,11 @@ from piezopreload.models.thermal import (
     Network,
     ScrewBody,
     bearing_torque_Nm,
+    end_force_N,
     growth_m,
     held_force_N,
     nut_coverage,
+    pair_lift_off_N,
     pipe_film_W_per_m2K,
     shaft_film_W_per_m2K,
     spacer_drift_N_per_K,
@@ -59,7 +61,8 @@ from piezopreload.models.thermal import (
 )
 
 __all__ = ["CycleLoad", "CycleSources", "ThermalBudget", "axis_model", "cycle_sources", "nut_centre_m",
-           "shift_hours", "thermal_budget", "mounting_of", "duty_cycle", "duty_growth_um", "POSITIONS"]
+           "shift_hours", "thermal_budget", "schedule_requirements",
+           "ShiftBasis", "shift_basis", "mounting_of", "duty_cycle", "duty_growth_um", "POSITIONS"]
 
 Array = NDArray[np.float64]
 #: the table's positions the budget is read at, evenly over the travel
@@ -94,8 +97,10 @@ class CycleLoad:
         return float(np.sum(self.duration_s))
 
     def mean(self, x: Any) -> Any:
-        """The cycle's time mean of ``x`` (one value, or one row, per sample)."""
-        return np.tensordot(self.duration_s, np.asarray(x, float), axes=(0, 0)) / self.period_s
+        """The cycle's time mean of ``x`` (one value, or one row, per sample). A summation over the samples rather
+        than a BLAS product: on a shared machine a threaded BLAS call on these tall arrays takes tens of times
+        longer, and the sensitivity study makes many of them."""
+        return np.einsum("i,i...->...", self.duration_s, np.asarray(x, float)) / self.period_s
 
     @classmethod
     def on_profile(cls, time_s: Any, preload_N: Any, speed_rpm: Any, axial_load_N: Any) -> CycleLoad:
@@ -156,14 +161,16 @@ def nut_centre_m(cycle: CycleLoad, stroke_mm: tuple[float, float]) -> Array:
 
 @dataclass(frozen=True, eq=False)
 class CycleSources:
-    """Where a cycle's heat enters the axis, per sample: the nut's friction heat (W), each end bearing's heat
+    """Where a cycle's heat enters the axis, per sample: the nut's friction heat (W; its seals' part apart too), each
+    end bearing's heat
     (W, all of it; its share enters the screw at the end face, :meth:`AxisModel.face_share`), the nut's coverage
     of the screw's volumes (rows sum to 1), the screw's film (W/m^2 K); with the model, the cycle and the table's
     shares, and the coolant's constant heat per node (W)."""
 
     model: AxisModel
     cycle: CycleLoad
-    nut_W: Array
+    nut_W: Array  # the seals' heat included
+    seal_W: Array  # the seals' part of it
     bearing_W: Array  # (samples, 2): ends A and B
     coverage: Array
     film_W_per_m2K: Array
@@ -215,13 +222,18 @@ class CycleSources:
 
 
 def cycle_sources(screw: BallScrew, drive: FeedDrive, table: ThermalTable, cycle: CycleLoad, *,
-                  heat_model: str | None = None, model: AxisModel | None = None) -> CycleSources:
-    """The cycle's heat and where it enters (module docstring), under ``heat_model`` (default: the table's)."""
+                  heat_model: str | None = None, model: AxisModel | None = None,
+                  coverage: Array | None = None) -> CycleSources:
+    """The cycle's heat and where it enters (module docstring), under ``heat_model`` (default: the table's).
+    ``coverage``: the nut's coverage of the screw's volumes per sample where the caller has it (it depends on the
+    cycle, the nut's and the spacer's lengths, the stroke and the volumes alone)."""
     heat_model = heat_model or table.heat_model
     model = model or axis_model(screw, drive, table)
     stroke = table.stroke_mm or drive.travel_mm
+    seals = table.seal_torque(screw.nominal_diameter_mm, screw.lead_mm)
     nut = screw.friction_heat_W(cycle.preload_N, cycle.speed_rpm, model=heat_model, lubricant_vg=table.lubricant_vg,
-                                sealed=table.sealed, temperature_C=table.contact_temperature_C)
+                                seal_torque_Nm=seals, temperature_C=table.contact_temperature_C,
+                                contact_calibration=table.contact_calibration)
     dm = table.bearing_dm_mm or screw.nominal_diameter_mm + 10.0
     nu = 1e6 * float(viscosity_m2_s(table.lubricant_vg, table.contact_temperature_C))
     omega = np.abs(cycle.speed_rpm) * math.pi / 30.0
@@ -230,11 +242,13 @@ def cycle_sources(screw: BallScrew, drive: FeedDrive, table: ThermalTable, cycle
                         for load in (table.bearing_preload_N, far_preload)], axis=1)
     coolant = model.coolant_W_per_K() * ((table.coolant_C if table.coolant_C is not None else table.ambient_C)
                                         - table.ambient_C)
-    return CycleSources(model, cycle, np.asarray(nut, float), bearing,
-                        nut_coverage(model, nut_centre_m(cycle, stroke), _zones(screw, table)),
-                        shaft_film_W_per_m2K(omega, model.screw.outer_diameter_m, table.ambient_C,
-                                             table.free_convection_W_per_m2K),
-                        table.nut_heat_share, table.bearing_heat_share, coolant, table.free_convection_W_per_m2K)
+    free = table.convection_factor * table.free_convection_W_per_m2K
+    film = table.convection_factor * shaft_film_W_per_m2K(omega, model.screw.outer_diameter_m, table.ambient_C,
+                                                          table.free_convection_W_per_m2K)
+    return CycleSources(model, cycle, np.asarray(nut, float), seals * omega, bearing,
+                        nut_coverage(model, nut_centre_m(cycle, stroke), _zones(screw, table)) if coverage is None
+                        else coverage, film,
+                        table.nut_heat_share, table.bearing_heat_share, coolant, free)
 
 
 def shift_hours(shift_h: float) -> Array:
@@ -253,19 +267,31 @@ class _Mechanics:
     mounting: str
     EA_N: float
     bearing_N_per_m: float
+    bearing_preload_N: float
     pretension_K: float
     positions_m: Array
     dx_m: float
 
+    def _ends(self) -> dict[str, float]:
+        return {"EA_N": self.EA_N, "bearing_N_per_m": self.bearing_N_per_m, "bearing_preload_N": self.bearing_preload_N,
+                "pretension_K": self.pretension_K}
+
     def force_N(self, rise_screw: Array) -> Array:
-        """The force the held ends take up, for each row of screw rises."""
-        return held_force_N(rise_screw, self.dx_m, self.mounting, EA_N=self.EA_N, bearing_N_per_m=self.bearing_N_per_m,
-                            pretension_K=self.pretension_K)
+        """The force the held ends take up from the growth, for each row of screw rises."""
+        return held_force_N(rise_screw, self.dx_m, self.mounting, **self._ends())
+
+    def end_N(self, rise_screw: Array) -> Array:
+        """The force on each end's bearing pair (the pretension included), for each row of screw rises."""
+        return end_force_N(rise_screw, self.dx_m, self.mounting, **self._ends())
+
+    @property
+    def lift_off_N(self) -> float:
+        """The end pairs' lift-off (0: ends not held, or no pair preload)."""
+        return 0.0 if self.mounting == "fixed-free" else pair_lift_off_N(self.bearing_preload_N)
 
     def growth_um(self, rise_screw: Array) -> Array:
         """The growth (um) at the table's positions for each row of screw rises."""
-        faces = growth_m(rise_screw, self.dx_m, self.mounting, EA_N=self.EA_N, bearing_N_per_m=self.bearing_N_per_m,
-                         pretension_K=self.pretension_K)
+        faces = growth_m(rise_screw, self.dx_m, self.mounting, **self._ends())
         x = np.arange(faces.shape[-1]) * self.dx_m
         return 1e6 * np.stack([np.interp(self.positions_m, x, row) for row in np.atleast_2d(faces)])
 
@@ -274,7 +300,8 @@ def _mechanics(screw: BallScrew, drive: FeedDrive, table: ThermalTable, model: A
                positions_mm: Array) -> _Mechanics:
     area = 0.25 * math.pi * (1e-3 * screw.root_diameter_mm) ** 2
     return _Mechanics(mounting_of(table, drive), screw.material.E_MPa * 1e6 * area,
-                      drive.bearing_stiffness_N_per_um * 1e6, table.pretension_K, 1e-3 * positions_mm, model.dx_m)
+                      drive.bearing_stiffness_N_per_um * 1e6, table.bearing_preload_N, table.pretension_K,
+                      1e-3 * positions_mm, model.dx_m)
 
 
 def _grid(times_h: Array) -> Array:
@@ -302,6 +329,12 @@ class ThermalBudget:
     sources: dict[str, CycleSources]
 
 
+def _budget_um(elastic: Array, tracking: float, growth: Array, semi_closed: bool) -> Array:
+    """The error budget (um) per grid time and table position: the deflection under the worst cut, the force loop's
+    share, and the growth where the position loop does not see it (a semi-closed loop)."""
+    return elastic[None, :] + tracking + (np.abs(growth) if semi_closed else np.zeros_like(growth))
+
+
 def _case(sources: CycleSources, other: CycleSources, mech: _Mechanics, elastic: Array, tracking: float,
           semi_closed: bool, times_h: Array) -> tuple[ThermalCase, Array, Array]:
     """One preload's shift: the case, and its nut-over-screw rises and times on the grid."""
@@ -312,14 +345,19 @@ def _case(sources: CycleSources, other: CycleSources, mech: _Mechanics, elastic:
     growth, other_growth = mech.growth_um(rises[:, :n]), mech.growth_um(other_rises[:, :n])
     under = rises[:, :n] @ sources.cycle.mean(sources.coverage)
     nut_over = rises[:, n] - under
-    budget = elastic[None, :] + tracking + (np.abs(growth) if semi_closed else np.zeros_like(growth))
+    budget = _budget_um(elastic, tracking, growth, semi_closed)
     c = sources.cycle
+    hottest = np.unravel_index(int(np.argmax(rises[:, :n])), (rises.shape[0], n))[1]
     case = ThermalCase(
         heat_mean_W=float(c.mean(sources.nut_W)), heat_mean_other_W=float(c.mean(other.nut_W)),
+        seal_heat_mean_W=float(c.mean(sources.seal_W)),
         bearing_heat_mean_W=float(np.sum(c.mean(sources.bearing_W))), preload_mean_N=float(c.mean(c.preload_N)),
         temperature_rise_max_K=float(np.max(rises[:, :n])),
+        rise_max_at_mm=1e3 * float(sources.model.centres_m[hottest]),
         temperature_rise_max_other_K=float(np.max(other_rises[:, :n])),
-        nut_rise_max_K=float(np.max(rises[:, n])), end_force_max_N=float(np.max(np.abs(mech.force_N(rises[:, :n])))),
+        nut_rise_max_K=float(np.max(rises[:, n])), nut_over_screw_end_K=float(nut_over[-1]),
+        end_force_max_N=float(np.max(np.abs(mech.force_N(rises[:, :n])))),
+        bearing_force_max_N=float(np.max(np.abs(mech.end_N(np.vstack([np.zeros(n), rises[:, :n]]))))),
         growth_max_um=float(np.max(np.abs(growth))),
         growth_max_other_um=float(np.max(np.abs(other_growth))), positioning_error_max_um=float(np.max(budget)),
         tracking_um=float(tracking), times_h=times_h, rise_along_K=rises[at, :n], nut_rise_K=rises[at, n],
@@ -343,7 +381,8 @@ def _last_cycle(run: SystemRun) -> tuple[CycleLoad, Array, Array]:
 
 def _drift(run: SystemRun, table: ThermalTable, constant_over: Array, schedule_over: Array,
            command_range_V: tuple[float, float]) -> PreloadDrift:
-    """The passive nut's drift at the best constant preload and the stacks' room to hold the schedule's."""
+    """The passive nut's drift at the best constant preload (the nut law, and its tangent extrapolated for
+    comparison) and the stacks' room to hold the schedule's."""
     screw, plant = run.plant.screw, run.plant
     spacer = screw.nut_length_mm + table.spacer_length_mm  # between the two nuts' loaded turns' middles
     constant = run.design_schedule.constant_preload_N
@@ -356,23 +395,93 @@ def _drift(run: SystemRun, table: ThermalTable, constant_over: Array, schedule_o
     volts = run.run.voltage_V[cycles]
     headroom = command_range_V[1] - float(np.max(volts)) if needed > 0 else float(np.min(volts)) - command_range_V[0]
     k = int(np.argmax(np.abs(constant_over)))
-    return PreloadDrift(spacer, per_K, per_K * float(constant_over[k]), float(constant), abs(stroke), needed, headroom)
+    mismatch = EXPANSION_PER_K * spacer * 1e3 * float(constant_over[k])  # um: the nut warmer presses the nuts
+    left = float(screw.spacer_preload_N(constant, mismatch, plant.sleeve_stiffness_N_per_um))
+    return PreloadDrift(spacer, per_K, left - float(constant), left, per_K * float(constant_over[k]), float(constant),
+                        abs(stroke), needed, headroom)
 
 
 def _pair(x: Any) -> tuple[float, float]:
     return float(x[0]), float(x[1])
 
 
-def _requirements(table: ThermalTable, schedule: ThermalCase) -> tuple[Requirement, ...]:
+def _cause(record: ThermalRecord) -> str:
+    """What drives the schedule's growth, in words: the heat by source and the mounting's share."""
+    s = record.schedule
+    held = ""
+    if record.mounting == "pretensioned":
+        held = f"; the {record.pretension_K:g} K pretension relieved, the ends held by their bearing pairs"
+    elif record.mounting == "fixed-fixed":
+        held = "; the ends held by their bearing pairs"
+    return (f"the schedule's heat: {record.heat_words(s)}; the screw up to {s.temperature_rise_max_K:.1f} K "
+            f"{record.place(s.rise_max_at_mm)}{held}")
+
+
+def _requirements(table: ThermalTable, record: ThermalRecord) -> tuple[Requirement, ...]:
+    """The shift's limits as requirements; a growth or positioning error over its limit names what drives it."""
+    s = record.schedule
+    return _limits(table, s.growth_max_um, s.positioning_error_max_um, _cause(record))
+
+
+def _limits(table: ThermalTable, growth_max_um: float, positioning_error_max_um: float,
+            cause: str = "") -> tuple[Requirement, ...]:
+    """The shift's limits as requirements on the schedule's largest growth and positioning error; one over its limit
+    names what drives it (``cause``, where given)."""
     out = []
-    if table.thermal_growth_max_um is not None:
-        out.append(Requirement("thermal growth at the table over the shift", schedule.growth_max_um,
-                               table.thermal_growth_max_um, "um", "max", "[thermal] thermal_growth_max_um"))
-    if table.positioning_error_max_um is not None:
-        out.append(Requirement("positioning error over the shift (deflection, growth, tracking)",
-                               schedule.positioning_error_max_um, table.positioning_error_max_um, "um", "max",
-                               "[thermal] positioning_error_max_um"))
+    for value, limit, name, source in (
+            (growth_max_um, table.thermal_growth_max_um, "thermal growth at the table over the shift",
+             "[thermal] thermal_growth_max_um"),
+            (positioning_error_max_um, table.positioning_error_max_um,
+             "positioning error over the shift (deflection, growth, tracking)", "[thermal] positioning_error_max_um")):
+        if limit is None:
+            continue
+        out.append(Requirement(name if value <= limit or not cause else f"{name} ({cause})", value, limit, "um", "max",
+                               source))
     return tuple(out)
+
+
+@dataclass(frozen=True, eq=False)
+class ShiftBasis:
+    """What the schedule's shift is computed from that neither the heat nor the film settings change, for one
+    double nut and the table's geometry (its stroke, spacer and volumes): the last cycle as the loop achieved it,
+    the table's positions, the elastic deflection at the planned preload per position (um), the force loop's
+    tracking share of it (um) and the nut's coverage of the screw's volumes per sample."""
+
+    cycle: CycleLoad
+    positions_mm: Array
+    elastic_um: Array
+    tracking_um: float
+    coverage: Array
+
+
+def shift_basis(run: SystemRun, drive: FeedDrive, table: ThermalTable, screw: BallScrew | None = None) -> ShiftBasis:
+    """The :class:`ShiftBasis` of the system run ``run`` on ``drive`` with ``table``'s geometry for the double nut
+    ``screw`` (default: the run's)."""
+    screw = run.plant.screw if screw is None else screw
+    achieved, planned, load = _last_cycle(run)
+    positions = np.linspace(drive.travel_mm[0], drive.travel_mm[1], POSITIONS)
+    elastic_planned = _elastic_um(screw, drive, planned, load, positions)
+    tracking = float(np.max(np.maximum(_elastic_um(screw, drive, achieved.preload_N, load, positions)
+                                       - elastic_planned, 0.0)))
+    coverage = nut_coverage(axis_model(screw, drive, table), nut_centre_m(achieved, table.stroke_mm or drive.travel_mm),
+                            _zones(screw, table))
+    return ShiftBasis(achieved, positions, elastic_planned, tracking, coverage)
+
+
+def schedule_requirements(run: SystemRun, drive: FeedDrive, table: ThermalTable, *, screw: BallScrew | None = None,
+                          basis: ShiftBasis | None = None) -> tuple[Requirement, ...]:
+    """The thermal requirements' verdicts of the schedule's shift alone (:func:`thermal_budget`'s, without the
+    constant preload and the other heat model): what :mod:`piezopreload.design.sensitivity` evaluates under each
+    assumption. ``screw``: another double nut judged on the same achieved preload (default: the run's); ``basis``:
+    its :func:`shift_basis`, where the caller has it."""
+    screw = run.plant.screw if screw is None else screw
+    basis = shift_basis(run, drive, table, screw) if basis is None else basis
+    model = axis_model(screw, drive, table)
+    mech = _mechanics(screw, drive, table, model, basis.positions_mm)
+    sources = cycle_sources(screw, drive, table, basis.cycle, model=model, coverage=basis.coverage)
+    growth = mech.growth_um(sources.shift(_grid(shift_hours(table.shift_h)))[:, :model.volumes])  # as _case has it
+    budget = _budget_um(basis.elastic_um, basis.tracking_um, growth, table.feedback == "semi-closed")
+    return _limits(table, float(np.max(np.abs(growth))), float(np.max(budget)))
 
 
 def thermal_budget(run: SystemRun, drive: FeedDrive, table: ThermalTable, *,
@@ -382,36 +491,37 @@ def thermal_budget(run: SystemRun, drive: FeedDrive, table: ThermalTable, *,
     ``command_range_V``: the force loop's command limits (the drift's check).
     """
     screw = run.plant.screw
+    basis = shift_basis(run, drive, table, screw)
+    achieved, positions = basis.cycle, basis.positions_mm
+    elastic_planned, tracking = basis.elastic_um, basis.tracking_um
     model = axis_model(screw, drive, table)
+    mech = _mechanics(screw, drive, table, model, positions)
     other_model = next(m for m in HEAT_MODELS if m != table.heat_model)
-    achieved, planned, load = _last_cycle(run)
     design = run.design_schedule
     prof = design.profile
     constant = CycleLoad.on_profile(prof.time_s, design.constant_preload_N, prof.speed_rpm, prof.axial_load_N)
     travel = drive.travel_mm
-    positions = np.linspace(travel[0], travel[1], POSITIONS)
-    mech = _mechanics(screw, drive, table, model, positions)
     mounting = mech.mounting
-    elastic_planned = _elastic_um(screw, drive, planned, load, positions)
-    tracking = float(np.max(np.maximum(_elastic_um(screw, drive, achieved.preload_N, load, positions)
-                                       - elastic_planned, 0.0)))
     times = shift_hours(table.shift_h)
     semi = table.feedback == "semi-closed"
     sources, cases, over = {}, {}, {}
     for name, cycle, elastic, share in (("schedule", achieved, elastic_planned, tracking),
                                         ("constant", constant, None, 0.0)):
-        sources[name] = cycle_sources(screw, drive, table, cycle, model=model)
-        other = cycle_sources(screw, drive, table, cycle, heat_model=other_model, model=model)
+        sources[name] = cycle_sources(screw, drive, table, cycle, model=model,
+                                      coverage=basis.coverage if name == "schedule" else None)
+        other = cycle_sources(screw, drive, table, cycle, heat_model=other_model, model=model,
+                              coverage=sources[name].coverage)
         if elastic is None:
             elastic = _elastic_um(screw, drive, cycle.preload_N, cycle.axial_load_N, positions)
         cases[name], over[name], _ = _case(sources[name], other, mech, elastic, share, semi, times)
     film = float(achieved.mean(sources["schedule"].film_W_per_m2K))
     record = ThermalRecord(
-        table.heat_model, other_model, table.lubricant_vg, table.sealed, mounting, table.pretension_K, table.feedback,
-        table.shift_h, _pair(table.stroke_mm or travel), 1e3 * model.centres_m, positions, film,
-        model.screw.time_constant_s(film), cases["schedule"], cases["constant"],
+        table.heat_model, other_model, table.lubricant_vg, table.sealed,
+        table.seal_torque(screw.nominal_diameter_mm, screw.lead_mm), table.nut_heat_share, table.convection_factor,
+        mounting, table.pretension_K, mech.lift_off_N, table.feedback, table.shift_h, _pair(table.stroke_mm or travel),
+        1e3 * model.centres_m, positions, film, model.screw.time_constant_s(film), cases["schedule"], cases["constant"],
         _drift(run, table, over["constant"], over["schedule"], command_range_V))
-    return ThermalBudget(record, _requirements(table, cases["schedule"]), sources)
+    return ThermalBudget(record, _requirements(table, record), sources)
 
 
 def duty_cycle(spec: Any, point: Any, samples_per_case: int = 100, period_s: float = 60.0) -> CycleLoad:

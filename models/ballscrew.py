@@ -73,13 +73,20 @@ from piezopreload.core.checks import FieldRule, check_fields
 from piezopreload.core.config import Invalid
 from piezopreload.core.errors import InputError
 from piezopreload.models.ops import NUMPY
-from piezopreload.models.thermal import HEAT_MODELS, catalogue_heat_W, contact_heat_W
+from piezopreload.models.thermal import (
+    CONTACT_CALIBRATION,
+    HEAT_MODELS,
+    catalogue_heat_W,
+    contact_heat_W,
+    rexroth_seal_torque_Nm,
+    seal_heat_W,
+)
 
 __all__ = [
     "Material", "STEEL", "BallScrew", "DutyCase", "ContactState", "NutLoads", "Life",
     "nut_forces", "lift_off_ratio", "hiwin_loaded_nut_force", "lift_off_load_N", "nut_outer_diameter_mm",
     "CONTACT_LIMIT_MPA", "RELIABILITY_FACTORS", "LIFT_OFF_RATIO",
-    "EFFECTIVE_BALL_SHARE", "ACCURACY_FACTOR_P5",
+    "EFFECTIVE_BALL_SHARE", "ACCURACY_FACTOR_P5", "RIGIDITY_IN_MACHINE_FACTOR",
 ]
 
 
@@ -97,6 +104,11 @@ EFFECTIVE_BALL_SHARE = 0.63
 #: applies it: the least-squares fit over Rexroth's double nuts, 0.740 (on their 7 % preload
 #: rows alone 0.740, checked on the 10 % rows; ``benchmarks/ballscrew_rigidity.py``).
 ACCURACY_FACTOR_P5 = 0.74
+#: The share of the table rigidity a nut keeps mounted in a machine, as HIWIN and THK state it: their tables leave
+#: out the nut's mounting, and about 80 % of the table figure holds in a machine (HIWIN's selection formula
+#: K_n = 0.8 K (F_p / 0.1 C_dyn)^(1/3)). The nut law is calibrated on those tables (:data:`EFFECTIVE_BALL_SHARE`), so
+#: its rigidity is a table figure. Rexroth's DIN 69051-5 and Steinmeyer's corrected figures carry no such factor.
+RIGIDITY_IN_MACHINE_FACTOR = 0.8
 #: The one constant of the C_dyn estimate (N, mm), calibrated on HIWIN R40-10T4-RDI
 #: (C_dyn 37,890 N); see the module docstring.
 _CDYN_CONSTANT = 70.98
@@ -661,25 +673,68 @@ class BallScrew:
         """Preload drag torque T_d = K_p F_p P / (2000 pi) (N m)."""
         return self.drag_K * np.asarray(preload_N, float) * self.lead_mm / (2000.0 * math.pi)
 
+    @property
+    def seal_torque_Nm(self) -> float:
+        """The idle torque of the nut's two lip seals (N m) by Rexroth's table for this nominal diameter and lead
+        (:func:`~piezopreload.models.thermal.rexroth_seal_torque_Nm`); independent of the preload."""
+        return rexroth_seal_torque_Nm(self.nominal_diameter_mm, self.lead_mm)
+
     def friction_heat_W(self, preload_N: Any, speed_rpm: Any, *, model: str = "catalogue", lubricant_vg: int = 68,
-                        sealed: bool = True, temperature_C: Any = 40.0, ops: Any = NUMPY) -> Any:
+                        seal_torque_Nm: float | None = None, temperature_C: Any = 40.0,
+                        contact_calibration: float = CONTACT_CALIBRATION, ops: Any = NUMPY) -> Any:
         """The double nut's friction heat (W) at ``preload_N`` and ``speed_rpm`` (broadcast; numpy arrays, or
-        CasADi expressions with ``ops=CASADI``).
+        CasADi expressions with ``ops=CASADI``): the preload's part plus the seals' T_s omega.
 
         ``model="catalogue"``: the drag torque :meth:`drag_torque_Nm` times the angular speed (linear in the
         preload; the lubricant and the temperature do not enter it); ``"contact"``: Jungnickel's rolling-contact
-        loss (about F_p^0.48 omega^1.51 nu^0.51, ISO VG ``lubricant_vg`` at the contact's ``temperature_C``).
-        ``sealed``: the seals' factor 2 in both (:mod:`piezopreload.models.thermal`).
+        loss of the open nut (about F_p^0.48 omega^1.51 nu^0.51, ISO VG ``lubricant_vg`` at the contact's
+        ``temperature_C``), times ``contact_calibration`` (the measured torques' level,
+        :data:`~piezopreload.models.thermal.CONTACT_CALIBRATION`). ``seal_torque_Nm``: the seals' torque, the same in
+        both models and independent of the preload (None: :attr:`seal_torque_Nm`, Rexroth's table; 0: an open nut).
         """
         if model not in HEAT_MODELS:
             raise InputError(f"model must be one of {', '.join(HEAT_MODELS)}, got {model!r}.")
+        seals = self.seal_torque_Nm if seal_torque_Nm is None else float(seal_torque_Nm)
+        if not (math.isfinite(seals) and seals >= 0):
+            raise InputError(f"seal_torque_Nm must be a finite number >= 0, got {seal_torque_Nm!r}.")
         omega = (ops.fabs(speed_rpm) if ops.symbolic else np.abs(np.asarray(speed_rpm, float))) * (math.pi / 30.0)
         preload = preload_N if ops.symbolic else np.asarray(preload_N, float)
         if model == "catalogue":
-            return catalogue_heat_W(ops, self.drag_K, self.lead_mm, preload, omega, sealed)
-        return contact_heat_W(ops, preload, omega, balls=self.balls_per_nut, contact_rad=self.contact_rad,
-                              helix_rad=self.helix_rad, pitch_diameter_mm=self.pitch_diameter, ball_mm=self.ball_mm,
-                              lubricant_vg=lubricant_vg, temperature_C=temperature_C, sealed=sealed)
+            nut = catalogue_heat_W(ops, self.drag_K, self.lead_mm, preload, omega)
+        else:
+            nut = contact_heat_W(ops, preload, omega, balls=self.balls_per_nut, contact_rad=self.contact_rad,
+                                 helix_rad=self.helix_rad, pitch_diameter_mm=self.pitch_diameter,
+                                 ball_mm=self.ball_mm, lubricant_vg=lubricant_vg, temperature_C=temperature_C,
+                                 calibration=contact_calibration)
+        return nut + seal_heat_W(seals, omega)
+
+    def spacer_preload_N(self, preload_N: float, mismatch_um: ArrayLike,
+                         spacer_stiffness_N_per_um: float = math.inf) -> Array:
+        """The preload of a spacer-preloaded double nut (N) after its spacer's fit grows by ``mismatch_um`` (> 0: the
+        nuts pressed harder, < 0 relieved): the root F >= 0 of 2 delta(F) + F / k_s = 2 delta(F_p) + F_p / k_s + m,
+        delta the nut law :meth:`nut_approach_um` (both nuts carry F; k_s the spacer), 0 where the nuts part.
+
+        The tangent of this at F_p is :func:`~piezopreload.models.thermal.spacer_drift_N_per_K`'s; the law softens
+        as the preload falls (delta ~ F^(2/3)), so a linear extrapolation of the tangent overstates a large loss.
+        """
+        Fp = float(preload_N)
+        if not (math.isfinite(Fp) and Fp > 0):
+            raise InputError(f"preload_N must be a finite number > 0, got {preload_N!r}.")
+        m = np.asarray(mismatch_um, float)
+
+        def fit(F: Array) -> Array:
+            return 2.0 * self.nut_approach_um(F) + F / spacer_stiffness_N_per_um
+
+        target = float(fit(np.asarray(Fp))) + m
+        lo = np.zeros_like(m)
+        hi = np.full_like(m, Fp)
+        while np.any(fit(hi) < target):  # the law grows without bound: widen until the root is inside
+            hi = np.where(fit(hi) < target, 2.0 * hi, hi)
+        for _ in range(80):
+            mid = 0.5 * (lo + hi)
+            below = fit(mid) < target
+            lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+        return np.where(target <= 0.0, 0.0, 0.5 * (lo + hi))
 
     def nut_stiffness_N_per_um(self, nut_force_N: ArrayLike) -> Array:
         """One nut's tangent stiffness dF/d(delta) (N/um) at its force: F^(1/3) / (2/3 c_h + s F^(1/3)), times f_ar."""

@@ -15,7 +15,9 @@ from typing import TYPE_CHECKING, Any
 
 from piezopreload.artifacts.manifest import StudyRef, StudyRunManifest
 from piezopreload.artifacts.requirements import EXIT_REQUIREMENT_MISSED, Requirement, least_margin, missed
+from piezopreload.artifacts.sensitivity import SensitivityRecord
 from piezopreload.artifacts.summaries import RigSummary, SystemSummary, ValidateSummary
+from piezopreload.core.quantities import number
 from piezopreload.core.stages import StageOutcome
 
 if TYPE_CHECKING:
@@ -26,10 +28,15 @@ __all__ = ["StageOutcome", "Headline", "RunSummary", "StudyResult"]
 
 @dataclass(frozen=True)
 class Headline:
-    """The study's headline figures: the whole system's (None where the study has no system stage; ``thermal``
+    """The study's headline figures: the whole system's (None where the study has no system stage; the rigidity
+    in the machine beside its table-comparable figure and the axis stiffness at the table, the nut axial deflection
+    beside the axis deflection at the table, the lift-off margin against the schedule's bound (the design's own
+    constraint) beside the physical one by the nut law over the Monte Carlo plants: None where the run has no margin
+    basis; ``thermal``
     where it has a ``[thermal]`` table: ``heat_mean_W``, ``temperature_rise_max_K``, ``growth_max_um``,
     ``positioning_error_max_um``, ... each ``{"schedule": ..., "constant": ...}``), the gain set's status and
-    the rig run's tracking."""
+    the rig run's tracking; ``sensitivity`` the verdicts under the modelling assumptions' ranges (in the document
+    its rows, and ``verdict_robust`` beside them)."""
 
     tracking_rms_pct_of_range: float | None = None
     tracking_rms_pct_of_range_before_learning: float | None = None
@@ -43,11 +50,23 @@ class Headline:
     rigidity_ratio_min: float | None = None
     rigidity_at_worst_ratio_N_per_um: float | None = None
     rigidity_required_at_worst_ratio_N_per_um: float | None = None
-    deflection_max_um: float | None = None
+    rigidity_in_machine_N_per_um: float | None = None
+    rigidity_table_N_per_um: float | None = None
+    rigidity_in_machine_factor: float | None = None
+    axis_stiffness_at_table_min_N_per_um: float | None = None
+    axis_stiffness_at_table_max_N_per_um: float | None = None
+    nut_axial_deflection_max_um: float | None = None
+    axis_deflection_at_table_max_um: float | None = None
+    lift_off_margin_pct: float | None = None
+    lift_off_margin_physical_pct: float | None = None
+    lift_off_margin_physical_nominal_pct: float | None = None
+    lift_off_margin_catalogue_pct: float | None = None
+    lift_off_plants: int | None = None
     friction_energy_per_cycle: float | None = None
     friction_saved_fraction: float | None = None
     preload_margin_N: float | None = None
     thermal: dict[str, Any] | None = None  # the shift's figures, each for the schedule and the constant preload
+    sensitivity: SensitivityRecord | None = None  # the verdicts under the modelling assumptions' ranges
     system: str = "not run"
     gain_set_status: str | None = None
     rig_tracking_rms_N: float | None = None
@@ -70,17 +89,39 @@ class Headline:
             rigidity_ratio_min=n.rigidity_ratio_min,
             rigidity_at_worst_ratio_N_per_um=n.rigidity_at_worst_ratio_N_per_um,
             rigidity_required_at_worst_ratio_N_per_um=n.rigidity_required_at_worst_ratio_N_per_um,
-            deflection_max_um=n.deflection_max_um, friction_energy_per_cycle=n.friction_energy_per_cycle,
+            nut_axial_deflection_max_um=n.deflection_max_um, friction_energy_per_cycle=n.friction_energy_per_cycle,
             friction_saved_fraction=n.friction_saved_fraction, preload_margin_N=system.preload_margin_N,
-            thermal=system.thermal)
+            thermal=system.thermal, sensitivity=system.sensitivity,
+            lift_off_margin_pct=next((r.margin_pct for r in system.requirements if r.key == "schedule.lift_off_margin"),
+                                     None))
+        b = system.basis
+        if b is not None:
+            head = replace(
+                head, rigidity_in_machine_N_per_um=b.rigidity_in_machine_N_per_um,
+                rigidity_table_N_per_um=b.rigidity_table_N_per_um,
+                rigidity_in_machine_factor=b.rigidity_in_machine_factor,
+                axis_stiffness_at_table_min_N_per_um=b.axis_stiffness_min_N_per_um,
+                axis_stiffness_at_table_max_N_per_um=b.axis_stiffness_max_N_per_um,
+                axis_deflection_at_table_max_um=b.axis_deflection_max_um,
+                lift_off_margin_physical_pct=b.lift_off_margin_physical_pct,
+                lift_off_margin_physical_nominal_pct=b.lift_off_margin_physical_nominal_pct,
+                lift_off_margin_catalogue_pct=b.lift_off_margin_catalogue_pct, lift_off_plants=b.lift_off_plants)
         if before is None:
             return head
         return replace(head, tracking_rms_pct_of_range_before_learning=before.tracking_rms_pct_of_range_before_learning,
                        tracking_rms_N_before_learning=before.tracking_rms_N_before_learning,
                        learning_iterations=before.learning_iterations, learning_trials=before.learning_trials)
 
+    @property
+    def verdict_robust(self) -> bool | None:
+        """Whether every verdict holds over every assumption's range (None: no sensitivity study ran)."""
+        return None if self.sensitivity is None else self.sensitivity.verdict_robust
+
     def to_dict(self) -> dict[str, Any]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        out["sensitivity"] = None if self.sensitivity is None else [r.to_dict() for r in self.sensitivity.rows]
+        out["verdict_robust"] = self.verdict_robust
+        return out
 
 
 @dataclass(frozen=True)
@@ -196,23 +237,49 @@ class StudyResult:
                 "gain_set": path(self.gain_set), "gain_set_sha256": self.gain_set_sha256, "rig_log": path(self.rig_log),
                 "summary": self.summary.to_dict(), "exit_code": self.exit_code}
 
+    def verdict(self) -> str:
+        """The verdict in one line: every requirement met (with the nearest to its limit), or how many missed."""
+        if self.requirements_met is None:
+            return "no requirement checked"
+        if self.requirements_met:
+            least = self.summary.least_margin
+            nearest = "" if least is None or least.margin_pct is None else (
+                f"; the nearest to its limit by {number(least.margin_pct, '%')} %: {least.name}")
+            return f"every requirement met ({len(self.requirements)} checked){nearest}"
+        n = len(self.requirements)
+        return f"{len(self.missed)} of {n} requirement{'s' if n != 1 else ''} missed"
+
     def __repr__(self) -> str:
-        verdict = {None: "no requirement checked", True: "every requirement met"}.get(
-            self.requirements_met, f"{len(self.missed)} requirement(s) missed")
-        return (f"StudyResult({self.study.name!r}: ran {', '.join(self.ran) or 'nothing'} in "
-                f"{self.seconds:.1f} s; {verdict}; outputs in {self.out})")
+        """The run on a screen, as python-control prints a response: the study, where its outputs went, the stages
+        that ran, the verdict and each requirement with its margin (the widest line a requirement's name)."""
+        ran = ", ".join(self.ran) or "nothing (every stage up to date or not applicable)"
+        lines = [f"StudyResult: study {self.study.name!r}, exit code {self.exit_code}",
+                 f"  outputs: {self.out}" + ("" if self.report is None else f" (report {self.report.name})"),
+                 f"  ran: {ran} in {self.seconds:.1f} s",
+                 f"  verdict: {self.verdict()}"]
+        if self.requirements:
+            lines.append("  requirements (margin as a share of the limit; achieved against required):")
+            width = max(len(r.figures()) for r in self.requirements)
+            lines += [f"    {r.line(width=width)}" for r in self.requirements]
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.__repr__()
 
     def _repr_html_(self) -> str:
         stages = "".join(f"<tr><td>{s.stage}</td><td>{f'ran in {s.seconds:.1f} s' if s.ran else s.status}</td></tr>"
                          for s in self.stages)
-        reqs = "".join(f"<tr><td>{html.escape(r.name)}</td><td>{r.value:.4g} {r.unit}</td>"
-                       f"<td>{'&ge;' if r.sense == 'min' else '&le;'} {r.limit:.4g} {r.unit}</td>"
+        reqs = "".join(f"<tr><td>{html.escape(r.name)}</td><td>{number(r.value, r.unit)} {r.unit}</td>"
+                       f"<td>{'&ge;' if r.sense == 'min' else '&le;'} {number(r.limit, r.unit)} {r.unit}</td>"
+                       f"<td>{'' if r.margin_pct is None else number(r.margin_pct, '%') + ' %'}</td>"
                        f"<td>{'met' if r.met else '<b>missed</b>'}</td></tr>" for r in self.requirements)
-        return (f"<p><b>Study {html.escape(self.study.name)}</b>: outputs in <code>{self.out}</code>"
+        return (f"<p><b>Study {html.escape(self.study.name)}</b>: {html.escape(self.verdict())}; outputs in "
+                f"<code>{self.out}</code>"
                 f"{'' if self.report is None else f', report <code>{self.report}</code>'}</p>"
                 f"<table><tr><th>stage</th><th></th></tr>{stages}</table>"
                 + ("" if not reqs else
-                   f"<table><tr><th>requirement</th><th>achieved</th><th>required</th><th></th></tr>{reqs}</table>"))
+                   "<table><tr><th>requirement</th><th>achieved</th><th>required</th><th>margin</th><th></th></tr>"
+                   f"{reqs}</table>"))
 
     def plot(self) -> Figure:
         """A Figure: each requirement's margin as a share of its limit (right of zero: met; left: missed)."""

@@ -226,7 +226,7 @@ def _stage_design(ctx: _Ctx) -> Produced:
     return outputs, DesignSummary(result.optimum.objective, result.point.stiffness_N_per_um,
                                   tuple(result.optimum.binding), tuple(f.pair for f in result.fronts),
                                   s.saving_fraction, s.constant_preload_N, s.constant_friction_energy_J,
-                                  s.energy_units)
+                                  s.energy_units, None if result.robust_cost is None else result.robust_cost.to_dict())
 
 
 def _stage_tune(ctx: _Ctx) -> Produced:
@@ -396,9 +396,10 @@ def _stage_report(ctx: _Ctx) -> Produced:
     study = ctx.study
     b, d = study.ballscrew, study.design_spec
     pub = study.published
+    plant = study.designed_plant.rig if study.plant_from_design else study.plant  # the design is kept: not solved again
     facts = ReportStudy(study.name, study.title, study.path, study.sha256, ctx.source or study.path, study.description,
                         None if b is None or d is None else (d.nominal_diameter_mm, d.lead_mm),
-                        None if d is None else d.frequency_min_Hz,
+                        (plant.n_stacks, plant.stack.name), None if d is None else d.frequency_min_Hz,
                         None if pub is None else Published(pub.source, pub.gains_label, pub.step()),
                         "the study's gains" if pub is None else pub.gains_label)
     return render_report(ctx.out, ctx.manifest(), facts, say=ctx.progress.say, bar=ctx.progress.bar("figures"),

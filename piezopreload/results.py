@@ -32,6 +32,7 @@ from piezopreload.artifacts.tuning import (
 from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.parallel import beside
+from piezopreload.core.quantities import number, quantity
 from piezopreload.models.actuator import Rig
 from piezopreload.models.closedloop import ClosedLoopRun
 from piezopreload.models.closedloop import simulate as simulate_loop
@@ -207,8 +208,9 @@ def _minimum_time_bound(bounding: Any, settle: float | None, say: Callable[[str]
         say(f"no minimum-time bound: {exc}")
         return MinimumTimeBound(settling_s=None, tuned_over_bound_ratio=None, reason=str(exc))
     ratio = None if settle is None else settle / bound.settling_s
-    say(f"minimum-time bound: {bound.settling_s:.4g} s ({bound.seconds:.1f} s to compute); the tuned settling "
-        f"{_fmt(settle)} s is {_fmt(ratio)} times it")
+    tuned = ("the tuned gains' true force does not settle" if settle is None or ratio is None else
+             f"the tuned gains settle the true force in {quantity(settle, 's')}, {number(ratio)} times it")
+    say(f"minimum-time bound: {quantity(bound.settling_s, 's')} ({bound.seconds:.1f} s to compute); {tuned}")
     return MinimumTimeBound(settling_s=bound.settling_s, tuned_over_bound_ratio=ratio, samples=bound.samples,
                             hold_s=bound.hold_s, seconds=bound.seconds)
 

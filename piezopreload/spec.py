@@ -45,9 +45,11 @@ from piezopreload.artifacts.schedule import PreloadSchedule
 from piezopreload.artifacts.validation import Criteria
 from piezopreload.core.config import Invalid, Lines, Table, read_toml, toml_text
 from piezopreload.core.errors import InfeasibleError, InputError
+from piezopreload.core.quantities import number, quantity
 from piezopreload.core.tables import Record, read_record
 from piezopreload.design.plant import DESIGNED_FIELDS
 from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignSpec, optimise
+from piezopreload.design.sensitivity import sensitivity
 from piezopreload.design.study import DesignResult, design_spec_from_tables, design_study, plan_schedule, read_profile
 from piezopreload.design.system import SystemRun
 from piezopreload.design.tables import (
@@ -444,8 +446,8 @@ class StudySpec:
             say(f"simulating the {ex.v_max_V:g} V, {ex.frequency_Hz:g} Hz loop measurement on the plant's truth model")
         ff = identify_feedforward(plant, ex, record, check_range_N=(low, high))
         say(f"P-I model ({ff.model.kind}): {ff.model.n_operators} operators, fit RMS {ff.fit.rms_pct:.2f} % "
-            f"(max {ff.fit.max_pct:.2f} %) of the force span, identified over {ff.record.output_range[0]:,.4g} to "
-            f"{ff.record.output_range[1]:,.4g} N")
+            f"(max {ff.fit.max_pct:.2f} %) of the force span, identified over {number(ff.record.output_range[0], 'N')} "
+            f"to {quantity(ff.record.output_range[1], 'N')}")
         ff.covers(low, high, f"the study's references ({self.path})")
         return ff
 
@@ -563,19 +565,30 @@ class StudySpec:
         validated settling time, ``[validation] settling_max_s``), the schedule planned again with local margins while
         a requirement is missed (:func:`piezopreload.design.system.track_schedule`); ``ff_extra_V`` a correction
         added to the feedforward (one array, or one per pass's reference: a callable)."""
+        from piezopreload.tuning.validate import DEFAULT_SPREAD
+
         said = say_of(progress)
         designed = self._designed_for("tracking the schedule", said)
         controller = self._controller(gains, said)
+        # the physical lift-off over the validation's Monte Carlo plants (its spread and seed; the nominal is the run)
+        drawn = self.validation.plants - 1
+        seed = self.validation.seed if self.validation.seed is not None else self.seed
+        scatter = designed.rig.vary(drawn, DEFAULT_SPREAD, seed=seed) if drawn > 0 else None
         run = (self.plant_table or PlantTable()).track(designed, controller, self.preload_schedule, seed=self.seed,
                                                        settle_s=self.criteria.settling_max_s, ff_extra_V=ff_extra_V,
+                                                       design=self._spec("tracking the schedule"), scatter=scatter,
                                                        progress=said)
-        if self.thermal is None:
-            return run
-        budget = thermal_budget(run, self._spec("[thermal]").feed_drive, self.thermal,
-                                command_range_V=(controller.gains.u_min_V, controller.gains.u_max_V))
+        drive = self._spec("the sensitivity study").feed_drive
+        if self.thermal is not None:
+            budget = thermal_budget(run, drive, self.thermal,
+                                    command_range_V=(controller.gains.u_min_V, controller.gains.u_max_V))
+            if said is not None:
+                said(f"thermal: {budget.record.sentence()}")
+            run = _replace(run, thermal=budget)
+        studied = sensitivity(run, drive, self.thermal)
         if said is not None:
-            said(f"thermal: {budget.record.sentence()}")
-        return _replace(run, thermal=budget)
+            said(f"robustness: {studied.sentence()}")
+        return _replace(run, sensitivity=studied)
 
     def design(self, *, objective: str | None = None, pareto: list[str] | None = None, points: int | None = None,
                schedule: str | Path | None = None, progress: ProgressLike | None = None,
@@ -735,6 +748,19 @@ def _refuse_thermal(data: dict[str, Any], fail: Callable[[str, str], InputError]
                               "tables): the shift's budget is that of the system along its schedule")
 
 
+def _refuse_unreachable(validation: ValidationTable, controller: ControllerTable,
+                        fail: Callable[[str, str], InputError]) -> None:
+    """A requirement the study's own clamp makes impossible to miss is refused: the controller clamps its command at
+    ``[controller] u_max_V``, so a highest-command limit at or above it could not fail."""
+    limit = validation.peak_voltage_max_V
+    if limit is not None and limit >= controller.u_max_V:
+        raise fail("validation.peak_voltage_max_V",
+                   f"= {limit:g} V is at or above controller.u_max_V = {controller.u_max_V:g} V, the clamp on the "
+                   "command: the highest command cannot exceed the clamp, so this requirement could not fail; set it "
+                   "below controller.u_max_V (the headroom the loop must keep), or leave it out for no such "
+                   "requirement")
+
+
 def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Say, kind: type[S]) -> S:
     """The typed study from a file's tables; every value checked, errors naming the key and its line."""
     fail = where.fail
@@ -765,6 +791,7 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
     except ValueError as exc:  # every key was checked; a rule between them the table misses
         raise fail("tuning", f"does not make a tuning specification: {exc}") from None
     validation: ValidationTable = t["validation"]
+    _refuse_unreachable(validation, c, fail)
     if validation.seed is None:
         validation = _replace(validation, seed=sim.seed)
     design_spec = None if t["ballscrew"] is None else design_spec_from_tables(

@@ -343,7 +343,7 @@ def headline(folder: str | Path, summary: RunSummary | None = None) -> PointFigu
         tracking_rms_pct_of_range_before_learning=h.tracking_rms_pct_of_range_before_learning,
         tracking_max_N=h.tracking_max_N, rigidity_min_cutting_N_per_um=h.rigidity_min_cutting_N_per_um,
         rigidity_required_at_min_N_per_um=h.rigidity_required_at_min_N_per_um, rigidity_ratio_min=h.rigidity_ratio_min,
-        deflection_max_um=h.deflection_max_um, rig_tracking_rms_N=h.rig_tracking_rms_N,
+        deflection_max_um=h.nut_axial_deflection_max_um, rig_tracking_rms_N=h.rig_tracking_rms_N,
         friction_energy_per_cycle=energy, energy_units=None if system is None else system.numbers.energy_units,
         constant_friction_energy_per_cycle=(None if energy is None or design is None
                                             else design.constant_friction_energy),

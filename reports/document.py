@@ -12,22 +12,23 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["fmt", "ratio", "pct", "Table", "Section", "Report"]
+from piezopreload.core.quantities import number, quantity
+
+__all__ = ["fmt", "q", "ratio", "pct", "Table", "Section", "Report"]
 
 
-def fmt(x: float, digits: int = 3) -> str:
-    """A number as the report prints it: ``digits`` significant digits, whole numbers with thousands
-    separators from ``10**digits`` up (13,236 rather than 1.32e+04), and thousands separated from 1,000
-    up whatever the digits (1,697.3 rather than 1697.3)."""
+def fmt(x: float, digits: int = 3, unit: str = "") -> str:
+    """A number as the report prints it: the one rule of :func:`piezopreload.core.quantities.number` (``digits``
+    significant digits, never finer than ``unit``'s resolution, whole numbers kept whole with thousands separated:
+    13,236 and 1,697 rather than 1.32e+04 and 1697.3), which the console and the messages use too."""
     if x is None:  # a report never shows a dash for a missing number: the caller leaves it out with a reason
         raise ValueError("fmt: a missing number cannot be printed; leave the figure out and say why")
-    x = float(x)
-    if abs(x) >= 10 ** digits:
-        return f"{x:,.0f}"
-    rounded = float(f"{x:.{digits}g}")  # 999.96 to 3 digits is 1,000
-    if abs(rounded) >= 1000:
-        return f"{rounded:,.{max(digits - len(str(int(abs(rounded)))), 0)}f}"
-    return f"{x:.{digits}g}"
+    return number(x, unit, digits)
+
+
+def q(x: float, unit: str, digits: int = 3) -> str:
+    """A quantity with its unit, by the same rule (``0.4 N``, ``1,126 N/um``, ``0.322 s``)."""
+    return quantity(x, unit, digits)
 
 
 def ratio(x: float) -> str:
@@ -42,7 +43,7 @@ def ratio(x: float) -> str:
 
 def pct(fraction: float, digits: int = 2) -> str:
     """A fraction as a percentage (0.724 -> ``72 %``, 0.0115 -> ``1.2 %``)."""
-    return f"{fmt(100.0 * fraction, digits)} %"
+    return f"{fmt(100.0 * fraction, digits, '%')} %"
 
 
 @dataclass(frozen=True)
@@ -86,7 +87,8 @@ class Section:
 
 @dataclass(frozen=True)
 class Report:
-    """The whole report: title, the study's line, the verdicts, the summary, the sections, the appendix."""
+    """The whole report: title, the study's line, the verdicts, the summary, the sections, the appendix; ``lead``,
+    the design and what limits it, opens the first page where the study designs its screw."""
 
     title: str
     subtitle: str
@@ -96,8 +98,10 @@ class Report:
     appendix: tuple[Section, ...]
     figures: dict[str, dict[str, str]] = field(default_factory=dict)
     meta: dict[str, Any] = field(default_factory=dict)
+    lead: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
-        return {"title": self.title, "subtitle": self.subtitle, "verdicts": list(self.verdicts),
+        return {"title": self.title, "subtitle": self.subtitle, "lead": list(self.lead),
+                "verdicts": list(self.verdicts),
                 "summary": list(self.summary), "sections": [s.to_dict() for s in self.sections],
                 "appendix": [s.to_dict() for s in self.appendix], "figures": self.figures, **self.meta}

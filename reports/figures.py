@@ -24,6 +24,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from piezopreload.core.parallel import fork_pool, spare_cpus
+from piezopreload.core.quantities import quantity
 
 if TYPE_CHECKING:
     from matplotlib.typing import RcKeyType
@@ -232,7 +233,8 @@ def hysteresis_loops(time_s: np.ndarray, voltage_V: np.ndarray, measured_N: np.n
     b.plot(time_s, err, color=COLOURS["model"], lw=0.6)
     b.set_xlabel("time (s)")
     b.set_ylabel("model - measured (N)")
-    b.set_title(f"model error: RMS {np.sqrt(np.mean(err ** 2)):.3g} N, largest {np.max(np.abs(err)):.3g} N")
+    b.set_title(f"model error: RMS {quantity(float(np.sqrt(np.mean(err ** 2))), 'N')}, "
+                f"largest {quantity(float(np.max(np.abs(err))), 'N')}")
     legends(a)
     return fig
 
@@ -313,16 +315,19 @@ def tracking(runs: Mapping[str, Mapping[str, np.ndarray]], signal: str, labels: 
 
 
 @_styled
-def stiffness_vs_preload(curve: Mapping[str, Any]) -> Figure:
-    """Rigidity (and drag torque) of the optimum's screw against preload; the duty cases marked."""
+def stiffness_vs_preload(curve: Mapping[str, Any], runs_N: tuple[float, float] | None = None) -> Figure:
+    """Rigidity (and drag torque) of the optimum's screw against preload; the duty cases marked; shaded, the
+    preloads the schedule runs (``runs_N``, its least and highest)."""
     fig, ax = _figure(2.6, ncols=2)
     a, b = ax[0]
     fp = np.asarray(curve["preload_N"])
     a.plot(fp, curve["rigidity_N_per_um"], color=COLOURS["model"], label="no axial load")
     for j, case in enumerate(curve["cases"]):
         a.plot(case["preload_N"], case["rigidity_N_per_um"], "o", ms=4,
-               label=f"case {j + 1}: {case['axial_load_N']:g} N")
+               label=f"case {j + 1}: {quantity(case['axial_load_N'], 'N')}")
     for a_ in (a, b):
+        if runs_N is not None:
+            a_.axvspan(*runs_N, color="0.9", lw=0, zorder=0)
         a_.axvline(curve["bolt_preload_N"], color="0.5", ls=":", lw=0.8)
         a_.axvline(curve["max_preload_N"], color="0.3", ls="--", lw=0.8)
         a_.set_xlabel("preload (N)")
@@ -361,8 +366,10 @@ def pareto_fronts(fronts: Sequence[Mapping[str, Any]], optimum: Mapping[str, flo
 
 @_styled
 def preload_schedule(time_s: np.ndarray, load_N: np.ndarray, preload_N: np.ndarray, constant_N: float,
-                     lift_off_factor: float = 2.0 ** 1.5) -> Figure:
-    """The load profile and the least-friction preload schedule against the best constant preload."""
+                     lift_off_margin: float) -> Figure:
+    """The load profile and the least-friction preload schedule against the best constant preload, with the
+    schedule's lift-off bound ``lift_off_margin |F_a| / 2^(3/2)`` (the design's own constraint, the one its table
+    states, the safety factor included)."""
     fig, ax = _figure(3.6, nrows=2, sharex=True)
     a, b = ax[0][0], ax[1][0]
     a.plot(time_s, load_N, color=COLOURS["reference"], drawstyle="steps-post")
@@ -370,8 +377,8 @@ def preload_schedule(time_s: np.ndarray, load_N: np.ndarray, preload_N: np.ndarr
     a.set_title("load profile")
     b.plot(time_s, preload_N, color=COLOURS["model"], drawstyle="steps-post", label="schedule")
     b.axhline(constant_N, color=COLOURS["study pid"], ls="--", label="best constant preload")
-    b.plot(time_s, np.abs(load_N) / lift_off_factor, color=COLOURS["limit"], lw=0.6, ls=":",
-           label="lift-off limit |F_a| / 2^1.5")
+    b.plot(time_s, lift_off_margin * np.abs(load_N) / 2.0 ** 1.5, color=COLOURS["limit"], lw=0.6, ls=":",
+           label=f"lift-off bound {lift_off_margin:g} |F_a| / 2^1.5")
     b.set_xlabel("time (s)")
     b.set_ylabel("preload (N)")
     legends(b)
@@ -441,7 +448,8 @@ def gain_schedule(schedule: Mapping[str, Any]) -> Figure:
             a.axhline(schedule["limits"][key], color=COLOURS["limit"], ls=ls, lw=0.8)
     a.set_xlabel("preload level (N)")
     a.set_ylabel("worst case over the plants (N)")
-    fig.suptitle(f"chosen: {schedule['choice']}", fontsize=8)
+    chosen = "the one robust set" if schedule["choice"] == "robust" else "the scheduled gains"
+    fig.suptitle(f"chosen: {chosen}", fontsize=8)
     legends(ax[0][0], (a, {"fontsize": 6}))
     return fig
 

@@ -56,6 +56,7 @@ class ReportStudy:
     source: str  # the study file as the user named it
     description: str = ""
     screw_mm: tuple[float, float] | None = None  # the design's nominal diameter and lead
+    stacks: tuple[int, str] | None = None  # the plant's stacks: how many, and their type
     frequency_min_Hz: float | None = None  # the design's limit on the first axial mode
     published: Published | None = None
     gains_label: str = "the study's gains"  # its [controller] gains, as the report names them

@@ -20,11 +20,11 @@ from piezopreload.artifacts.gainset import GainSet, GainsTable
 from piezopreload.artifacts.learning import LearningRecord
 from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.rigrun import RigRunRecord
-from piezopreload.artifacts.system import SystemRecord, TrackingNumbers
+from piezopreload.artifacts.system import MarginBasis, SystemRecord, TrackingNumbers
 from piezopreload.artifacts.tuning import TuningRecord
 from piezopreload.models.hysteresis import CreepPI
 from piezopreload.reports import figures as F
-from piezopreload.reports.document import Section, Table, fmt, pct, ratio
+from piezopreload.reports.document import Section, Table, fmt, pct, q, ratio
 from piezopreload.reports.inputs import Artifacts, ReportStudy
 
 __all__ = ["Part", "study_section", "requirements_section", "design_section", "system_section", "learning_section",
@@ -68,7 +68,7 @@ def levels_text(reference_N: np.ndarray) -> str:
     ``60-80-100-80-60 N`` for a staircase."""
     levels = [float(reference_N[0])] + [float(b) for a, b in zip(reference_N[:-1], reference_N[1:]) if b != a]
     if len(levels) > 12:  # a ramped reference: its range
-        return f"{fmt(min(levels))} to {fmt(max(levels))} N"
+        return f"{fmt(min(levels))} to {q(max(levels), 'N')}"
     sep = " → " if len(levels) == 2 else "-"
     return sep.join(fmt(x) for x in levels) + " N"
 
@@ -76,10 +76,16 @@ def levels_text(reference_N: np.ndarray) -> str:
 def rigidity_words(n: TrackingNumbers) -> str:
     """The rigidity while cutting in words: its least, with the requirement at that moment, and apart from it its
     least ratio to the requirement (the requirement follows the load), with the two figures at that moment."""
-    return (f"the least rigidity is {fmt(n.rigidity_min_cutting_N_per_um)} N/um "
-            f"({fmt(n.rigidity_required_at_min_N_per_um)} N/um required at that moment) and the rigidity is at least "
+    return (f"the least rigidity is {q(n.rigidity_min_cutting_N_per_um, 'N/um')} "
+            f"({q(n.rigidity_required_at_min_N_per_um, 'N/um')} required at that moment) and the rigidity is at least "
             f"{ratio(n.rigidity_ratio_min)} times its requirement ({fmt(n.rigidity_at_worst_ratio_N_per_um)} against "
-            f"{fmt(n.rigidity_required_at_worst_ratio_N_per_um)} N/um at the tightest moment)")
+            f"{q(n.rigidity_required_at_worst_ratio_N_per_um, 'N/um')} at the tightest moment)")
+
+
+def _span(values: Any, unit: str, with_unit: bool = True) -> str:
+    """A range of figures by their unit's rule, ``4,958–5,169 N`` (one figure where they agree)."""
+    lo, hi = fmt(float(np.min(values)), 3, unit), fmt(float(np.max(values)), 3, unit)
+    return (lo if lo == hi else f"{lo}–{hi}") + (f" {unit}" if with_unit else "")
 
 
 def _when(x: float | None, unit: str, never: str) -> str:
@@ -103,7 +109,7 @@ def study_section(study: ReportStudy, a: Artifacts, stage_names: tuple[str, ...]
         paragraphs.append(
             f"The plant is the designed preload system ([plant] from_design): {plant.rig.n_stacks} x "
             f"{plant.rig.stack.name} stacks between the two nuts, the stacks' share of the preload "
-            f"0-{fmt(plant.stack_force_max_N)} N on top of {fmt(plant.bolt_preload_N)} N from the bolts. "
+            f"0-{q(plant.stack_force_max_N, 'N')} on top of {q(plant.bolt_preload_N, 'N')} from the bolts. "
             f"The nuts' Hertz contacts make the force per volt {fmt(k['at_max'] / k['at_bolts'])} times higher "
             "at the stacks' full force than at the bolts' preload. Every control step (identification, tuning, "
             "validation, learning) ran on it.")
@@ -121,9 +127,9 @@ def requirements_section(a: Artifacts) -> Part | None:
     checked = a.requirements()
     if not checked:
         return None
-    rows = tuple((r.name, f"{fmt(r.value)} {r.unit}", f"{'at least' if r.sense == 'min' else 'at most'} "
-                  f"{fmt(r.limit)} {r.unit}", f"{fmt(r.margin)} {r.unit}",
-                  "" if r.margin_pct is None else f"{r.margin_pct:.1f} %", "met" if r.met else "missed", r.source)
+    rows = tuple((r.name, q(r.value, r.unit), f"{'at least' if r.sense == 'min' else 'at most'} "
+                  f"{q(r.limit, r.unit)}", q(r.margin, r.unit),
+                  "" if r.margin_pct is None else q(r.margin_pct, "%"), "met" if r.met else "missed", r.source)
                  for r in checked)
     table = Table(("requirement", "achieved", "required", "margin", "margin (% of limit)", "verdict", "set by"), rows,
                   "The study's requirements, each against the worst case its run reached, with its margin in its "
@@ -138,20 +144,32 @@ def requirements_section(a: Artifacts) -> Part | None:
 def design_section(study: ReportStudy, design: DesignRecord, system_shown: bool = False) -> Part:
     """The design optimum, its fronts, the planned schedule and the axis' natural frequency."""
     p, sch = design.point, design.schedule
+    curve = design.preload_curve
+    cases = f"the duty cases' design preloads, {_span(p.case_preload_N, 'N')}"
+    low, high = float(np.min(sch.preload_N)), float(np.max(sch.preload_N))
+    runs = f"the schedule's least and highest preload, {_span((low, high), 'N')}"
+
+    def at(values: np.ndarray, unit: str) -> str:  # the optimum's curve at the schedule's preloads
+        return _span(np.interp([low, high], curve.preload_N, values), unit, with_unit=False)
+
     rows = (
-        ("contact angle", fmt(p.contact_angle_deg), "°"), ("ball diameter", fmt(p.ball_mm, 4), "mm"),
-        ("conformity", fmt(p.conformity), ""), ("loaded turns per nut", f"{p.turns:.0f}", ""),
-        ("balls per turn", f"{p.balls_per_turn:.0f}", ""), ("bolt preload", fmt(p.bolt_preload_N), "N"),
-        ("highest preload (stacks at full drive)", fmt(p.max_preload_N), "N"),
-        (DESIGN_RIGIDITY, fmt(p.stiffness_N_per_um), "N/um"),
-        ("mean drag torque", fmt(p.mean_drag_torque_Nm), "N m"), ("rating life", fmt(p.life_h), "h"),
-        ("dynamic load rating C_dyn (estimate)", fmt(p.c_dyn_N), "N"),
-        ("peak contact pressure", fmt(p.peak_pressure_MPa), "MPa"),
-        ("lowest axial natural frequency", fmt(p.frequency_min_Hz), "Hz"),
-        ("stack stroke used", fmt(p.stack_stroke_used_um), "um"),
+        ("contact angle", fmt(p.contact_angle_deg), "°", ""), ("ball diameter", fmt(p.ball_mm, 4), "mm", ""),
+        ("conformity", fmt(p.conformity), "", ""), ("loaded turns per nut", f"{p.turns:.0f}", "", ""),
+        ("balls per turn", f"{p.balls_per_turn:.0f}", "", ""), ("bolt preload", fmt(p.bolt_preload_N, 3, "N"), "N", ""),
+        ("highest preload (stacks at full drive)", fmt(p.max_preload_N, 3, "N"), "N", ""),
+        ("rigidity, unloaded, where the axis runs", at(curve.rigidity_N_per_um, "N/um"), "N/um", runs),
+        ("drag torque, unloaded, where the axis runs", at(curve.drag_torque_Nm, "N m"), "N m", runs),
+        (DESIGN_RIGIDITY, fmt(p.stiffness_N_per_um, 3, "N/um"), "N/um", cases),
+        ("mean drag torque over the duty cycle", fmt(p.mean_drag_torque_Nm, 3, "N m"), "N m", cases),
+        ("rating life over the duty cycle", fmt(p.life_h, 3, "h"), "h", cases),
+        ("dynamic load rating C_dyn (estimate)", fmt(p.c_dyn_N, 3, "N"), "N", ""),
+        ("peak contact pressure", fmt(p.peak_pressure_MPa, 3, "MPa"), "MPa", "the largest axial load"),
+        ("lowest axial natural frequency", fmt(p.frequency_min_Hz, 3, "Hz"), "Hz", "over the table's positions"),
+        ("stack stroke used", fmt(p.stack_stroke_used_um, 3, "um"), "um",
+         f"from the bolts' preload to the highest, {_span((p.bolt_preload_N, p.max_preload_N), 'N')}"),
     )
     screw = ("" if study.screw_mm is None
-             else f" ({fmt(study.screw_mm[0])} mm nominal diameter, {fmt(study.screw_mm[1])} mm lead)")
+             else f" ({q(study.screw_mm[0], 'mm')} nominal diameter, {q(study.screw_mm[1], 'mm')} lead)")
     binding = design.optimum.binding
     e = sch.energy_units
     paragraphs = [
@@ -160,14 +178,15 @@ def design_section(study: ReportStudy, design: DesignRecord, system_shown: bool 
         f" Constraints that bind at the optimum: {'; '.join(binding_words(binding, p)) if binding else 'none'}.",
         f"The design's least-friction preload schedule over the study's load profile ({sch.preload_N.size} samples) "
         f"keeps the requirements with {fmt(sch.friction_energy_J)} {e} of friction energy per cycle, against "
-        f"{fmt(sch.constant_friction_energy_J)} {e} at the best constant preload ({fmt(sch.constant_preload_N)} N): "
+        f"{fmt(sch.constant_friction_energy_J)} {e} at the best constant preload ({q(sch.constant_preload_N, 'N')}): "
         f"{pct(sch.saving_fraction)} less. That is the design's plan, before any margin a controlled loop adds"
         + ("; what the controlled system plans and achieves is in the section on the designed system." if system_shown
            else " (this study's plant is not its design: no loop followed the schedule).")]
     figures: list[tuple[str, Figure, str]] = [
-        ("stiffness", F.stiffness_vs_preload(design.preload_curve.to_dict()),
+        ("stiffness", F.stiffness_vs_preload(design.preload_curve.to_dict(), (low, high)),
          "Axial rigidity and preload drag torque of the optimum's double nut against preload; the duty cases at their "
-         "preloads; dotted: the bolts' preload alone, dashed: the stacks at full drive.")]
+         f"design preloads; shaded, the preloads the schedule runs ({_span((low, high), 'N')}); dotted: the bolts' "
+         "preload alone, dashed: the stacks at full drive.")]
     omitted = []
     if design.fronts:
         figures.append(("pareto", F.pareto_fronts([f.to_dict() for f in design.fronts], p.to_dict()),
@@ -178,17 +197,20 @@ def design_section(study: ReportStudy, design: DesignRecord, system_shown: bool 
     else:
         omitted.append("Pareto fronts: the study's [design] pareto list is empty.")
     figures.append(("schedule", F.preload_schedule(sch.profile.time_s, sch.profile.axial_load_N, sch.preload_N,
-                                                    sch.constant_preload_N),
+                                                    sch.constant_preload_N, sch.spec.lift_off_margin),
                     f"The load profile and the design's least-friction preload schedule against the best constant "
-                    f"preload ({fmt(sch.constant_preload_N)} N)."))
+                    f"preload ({q(sch.constant_preload_N, 'N')}); dotted, the schedule's lift-off bound "
+                    f"{fmt(sch.spec.lift_off_margin)} |F_a| / 2^(3/2), the design's own constraint."))
     nf = design.natural_frequency
-    limit = "" if study.frequency_min_Hz is None else f"; dashed, the study's limit {fmt(study.frequency_min_Hz)} Hz"
+    limit = "" if study.frequency_min_Hz is None else f"; dashed, the study's limit {q(study.frequency_min_Hz, 'Hz')}"
     figures.append(("natural-frequency", F.natural_frequency(nf.position_mm, nf.bolt_preload_Hz, nf.max_preload_Hz,
                                                              study.frequency_min_Hz),
                     "The first axial natural frequency of the table against its position, with the bolts' preload "
                     f"and with the stacks at full drive{limit}."))
-    table = Table(("design variable or result", "optimum", "unit"), rows,
-                  f"The design optimum (objective: {design.optimum.objective}).", "lrl")
+    table = Table(("design variable or result", "optimum", "unit", "at the preload"), rows,
+                  f"The design optimum (objective: {design.optimum.objective}), each figure at the preload it is "
+                  "computed for: the design's requirements at the duty cases' design preloads, and beside them the "
+                  "rigidity and drag torque at the preloads the schedule runs.", "lrll")
     return Part(Section("Ball-screw preload design", tuple(paragraphs), (table,), tuple(n for n, _, _ in figures),
                         tuple(omitted)), tuple(figures))
 
@@ -202,49 +224,51 @@ def system_section(system: SystemRecord, design: DesignRecord, learning: Learnin
     e = n.energy_units
     rows: list[tuple[str, str, str]] = [
         ("tracking RMS over the machining cycles" + ("" if learning is None else ", learned"),
-         f"{fmt(n.tracking_rms_N)} N", f"{fmt(n.tracking_rms_pct_of_range)} % of the schedule's "
-                                       f"{fmt(n.schedule_range_N)} N range; true force, pre-cycle left out")]
+         f"{q(n.tracking_rms_N, 'N')}", f"{q(n.tracking_rms_pct_of_range, '%')} of the schedule's "
+                                       f"{q(n.schedule_range_N, 'N')} range; true force, pre-cycle left out")]
     if learning is not None:
         last = learning.last
-        rows += [("learning runs' tracking RMS, before learning", f"{fmt(last.before_learning_rms_N)} N",
-                  f"{fmt(last.before_learning_pct_of_range)} % of the last pass's {fmt(last.span_N)} N reference "
+        rows += [("learning runs' tracking RMS, before learning", f"{q(last.before_learning_rms_N, 'N')}",
+                  f"{q(last.before_learning_pct_of_range, '%')} of the last pass's {q(last.span_N, 'N')} reference "
                   "range, from its first change"),
-                 ("learning runs' tracking RMS, last pass's best trial", f"{fmt(last.tracking_rms_N)} N",
-                  f"{fmt(last.tracking_rms_pct_of_range)} % of that range (the section on learning)"),
+                 ("learning runs' tracking RMS, last pass's best trial", f"{q(last.tracking_rms_N, 'N')}",
+                  f"{q(last.tracking_rms_pct_of_range, '%')} of that range (the section on learning)"),
                  ("learning trials (machining cycles' runs)", str(learning.trials),
                   ", ".join(f"pass {i}: {k}" for i, k in enumerate(learning.trials_per_pass, 1)))]
-    deflection = ("no limit set" if n.deflection_limit_um is None else f"limit {fmt(n.deflection_limit_um)} um")
+    deflection = ("no limit set" if n.deflection_limit_um is None else f"limit {q(n.deflection_limit_um, 'um')}")
     rows += [
-        ("largest tracking error", f"{fmt(n.tracking_max_N)} N", ""),
-        ("error when the first cut begins", f"{fmt(n.cycle_start_error_N)} N",
-         f"after a {fmt(system.pre_cycle.duration_s)} s pre-cycle to the first level"),
-        ("least rigidity while cutting", f"{fmt(n.rigidity_min_cutting_N_per_um)} N/um",
-         f"{fmt(n.rigidity_required_at_min_N_per_um)} N/um required at that moment, {fmt(n.rigidity_min_t_s)} s into "
+        ("largest tracking error", f"{q(n.tracking_max_N, 'N')}", ""),
+        ("error when the first cut begins", f"{q(n.cycle_start_error_N, 'N')}",
+         f"after a {q(system.pre_cycle.duration_s, 's')} pre-cycle to the first level"),
+        ("least rigidity while cutting", f"{q(n.rigidity_min_cutting_N_per_um, 'N/um')}",
+         f"{q(n.rigidity_required_at_min_N_per_um, 'N/um')} required at that moment, {q(n.rigidity_min_t_s, 's')} into "
          "the run"),
         ("least rigidity over its requirement while cutting", f"{ratio(n.rigidity_ratio_min)} times",
-         f"{fmt(n.rigidity_at_worst_ratio_N_per_um)} against {fmt(n.rigidity_required_at_worst_ratio_N_per_um)} N/um "
-         f"required, {fmt(n.rigidity_worst_t_s)} s into the run"),
-        ("time below the required rigidity", f"{fmt(n.rigidity_below_requirement_s)} s", ""),
-        ("largest axial deflection while cutting", f"{fmt(n.deflection_max_um)} um", deflection),
-        ("least preload over the lift-off bound", f"{ratio(n.lift_off_ratio_min)} times",
-         f"the bound with its {fmt(n.lift_off_margin)} margin"),
+         f"{fmt(n.rigidity_at_worst_ratio_N_per_um)} against {q(n.rigidity_required_at_worst_ratio_N_per_um, 'N/um')} "
+         f"required, {q(n.rigidity_worst_t_s, 's')} into the run"),
+        ("time below the required rigidity", f"{q(n.rigidity_below_requirement_s, 's')}", ""),
+        ("largest nut axial deflection while cutting", f"{q(n.deflection_max_um, 'um')}",
+         f"the nut alone, in the machine; {deflection}"),
+        ("least preload over the schedule's lift-off bound", f"{ratio(n.lift_off_ratio_min)} times",
+         f"the bound with its {fmt(n.lift_off_margin)} margin: the design's own constraint, the schedule sits on it"),
+        *_basis_rows(system.basis),
         ("friction energy per cycle, achieved", f"{fmt(n.friction_energy_per_cycle)} {e}", "the true force"),
         ("friction energy per cycle, the loop's plan", f"{fmt(n.planned_friction_energy_per_cycle)} {e}",
          "the last pass's schedule, with its local margins and the stacks' least contact force"),
         ("friction energy per cycle, the design's plan", f"{fmt(sch.friction_energy_J)} {e}",
          "the design's least-friction schedule, before the margins"),
         ("friction energy per cycle, best constant preload", f"{fmt(sch.constant_friction_energy_J)} {e}",
-         f"at {fmt(sch.constant_preload_N)} N (the design's)"),
-        ("largest local preload margin for the loop's error", f"{fmt(system.preload_margin_N)} N",
+         f"at {q(sch.constant_preload_N, 'N')} (the design's)"),
+        ("largest local preload margin for the loop's error", f"{q(system.preload_margin_N, 'N')}",
          f"{len(system.passes)} planning pass(es)"),
     ]
     follow = ("the tuned gains with the inverse-P-I feedforward follow it" if learning is None else
               "the tuned gains with the inverse-P-I feedforward and the correction learned on each pass follow it")
     text = (f"The design's preload schedule is the reference of the force loop on the designed plant: the stacks' "
-            f"share of it, over {system.cycles} machining cycles, after a {fmt(system.pre_cycle.duration_s)} s "
+            f"share of it, over {system.cycles} machining cycles, after a {q(system.pre_cycle.duration_s, 's')} "
             f"pre-cycle that brings the stacks to the first level at the slew limit before the first cut. "
-            f"Over the machining cycles {follow} within {fmt(n.tracking_rms_N)} N RMS, "
-            f"{fmt(n.tracking_rms_pct_of_range)} % of the schedule's range. While cutting, {rigidity_words(n)}. The "
+            f"Over the machining cycles {follow} within {q(n.tracking_rms_N, 'N')} RMS, "
+            f"{q(n.tracking_rms_pct_of_range, '%')} of the schedule's range. While cutting, {rigidity_words(n)}. The "
             f"achieved preload needs {pct(n.friction_saved_fraction)} less friction energy than the design's best "
             f"constant preload ({fmt(n.friction_energy_per_cycle)} against {fmt(sch.constant_friction_energy_J)} {e} "
             "per cycle).")
@@ -253,7 +277,7 @@ def system_section(system: SystemRecord, design: DesignRecord, learning: Learnin
     fig = F.system_tracking(ser.time_s, ser.planned_N, ser.achieved_N, ser.rigidity_N_per_um, ser.required_N_per_um,
                             ser.cutting, ser.deflection_um, n.deflection_limit_um)
     caption = (f"The designed system over the pre-cycle and {system.cycles} machining cycles: the planned preload (the "
-               f"schedule, local margins up to {fmt(system.preload_margin_N)} N) and the preload the loop achieves "
+               f"schedule, local margins up to {q(system.preload_margin_N, 'N')}) and the preload the loop achieves "
                "(true force); the axial rigidity at the achieved preload under the cutting load against the "
                "requirement (dashed); the axial deflection under the load against its limit (dashed).")
     table = Table(("quantity", "value", "against"), tuple(rows),
@@ -269,12 +293,13 @@ def learning_section(learning: LearningRecord) -> Part:
         best = int(np.max(p.best_iteration))
         for h in p.history:
             rms = h.worst_tracking_rms_N
-            rows.append((str(p.pass_number), str(h.iteration) + (" (best)" if h.iteration == best else ""), fmt(rms),
-                         fmt(100.0 * rms / p.span_N), fmt(float(np.max(h.measured_rms_N)))))
+            rows.append((str(p.pass_number), str(h.iteration) + (" (best)" if h.iteration == best else ""),
+                         fmt(rms, 3, "N"), fmt(100.0 * rms / p.span_N, 3, "%"),
+                         fmt(float(np.max(h.measured_rms_N)), 3, "N")))
     last = learning.last
     per_pass = ", ".join(f"pass {p.pass_number}: {p.trials} (within 1.1 x its best from trial "
                          f"{p.trials_to_within_1p1}; stopped: {p.stop_reason})" for p in learning.passes)
-    start = (f" and {fmt(last.history[0].worst_tracking_rms_N)} N at its trial 0, which starts from the pass "
+    start = (f" and {q(last.history[0].worst_tracking_rms_N, 'N')} at its trial 0, which starts from the pass "
              "before's correction" if last.warm_start else "")
     contraction = last.learning.get("contraction_over_range")
     law = ("" if contraction is None else
@@ -286,9 +311,11 @@ def learning_section(learning: LearningRecord) -> Part:
             f"pays. {learning.trials} learning trials in all ({per_pass}).{law} Each margin pass of the schedule "
             f"learns on its own reference{', starting from what the pass before learned' if last.warm_start else ''}. "
             f"On the last pass the learning run's error (from the reference's first change, the pre-cycle's ramp "
-            f"included) is {fmt(last.tracking_rms_N)} N RMS at its best trial ({fmt(last.tracking_rms_pct_of_range)} % "
-            f"of the pass's {fmt(last.span_N)} N reference range; the causal floor of the ramped reference is "
-            f"{fmt(last.causal_floor_N)} N), from {fmt(last.before_learning_rms_N)} N without any learned "
+            f"included) is {q(last.tracking_rms_N, 'N')} RMS at its best trial "
+            f"({q(last.tracking_rms_pct_of_range, '%')} "
+            f"of the pass's {q(last.span_N, 'N')} reference range; the causal floor of the ramped reference, which "
+            f"bounds feedback alone and not a correction learned ahead of each change, is "
+            f"{q(last.causal_floor_N, 'N')}), from {q(last.before_learning_rms_N, 'N')} without any learned "
             f"correction{start}. The system's own figure over the machining cycles alone is in the section on the "
             "designed system.")
     table = Table(("pass", "trial", "RMS (N)", "% of range", "measured (N)"), tuple(rows),
@@ -299,7 +326,11 @@ def learning_section(learning: LearningRecord) -> Part:
     fig = F.learning_iterations([p.to_dict() for p in learning.passes])
     caption = ("The error per learning trial on the repeated schedule, each margin pass on its own reference (whole "
                "runs, true force, in % of the pass's reference range); dotted: the causal floor of each pass's "
-               "reference.")
+               "reference, the least error of any controller that acts only on what has happened (after each change "
+               "the force waits out the loop's delay and the amplifier's slew). Learning is not bound by it: its "
+               "correction is computed between trials from the whole of the last trial's error, so it moves the "
+               f"command ahead of each change (preview {q(1e3 * last.preview_s, 'ms')}), which no causal controller "
+               f"can (the floor with that preview: {q(last.preview_floor_N, 'N')} on the last pass).")
     return Part(Section("Learning control on the repeated schedule", (text,), (table,), ("learning",)),
                 (("learning", fig, caption),))
 
@@ -320,10 +351,10 @@ def feedforward_section(study: ReportStudy, a: Artifacts) -> Part:
     text = (f"The feedforward inverts {_KIND_NAMES.get(kind.removesuffix('+creep'), kind)} of "
             f"{ff.model.n_operators} play operators{with_creep}, its weights identified by a QP with nonnegative "
             f"weights (cvxpy + Clarabel) from the loop measurement ({src}). The model reproduces the loop within "
-            f"{fmt(ff.fit.rms_pct)} % RMS ({fmt(ff.fit.max_pct)} % at worst) of the force span"
+            f"{q(ff.fit.rms_pct, '%')} RMS ({q(ff.fit.max_pct, '%')} at worst) of the force span"
             + ("." if comp is None else  # the identify stage always checks it; a model without its check says less
                f"; the plant driven through its inverse in open loop follows the desired force within "
-               f"{fmt(comp.rms_N)} N RMS ({fmt(comp.max_N)} N at worst)."))
+               f"{q(comp.rms_N, 'N')} RMS ({q(comp.max_N, 'N')} at worst)."))
     loop, comp_run = a.csv("identify", "loop"), a.csv("identify", "compensation")
     figures = (
         ("hysteresis", F.hysteresis_loops(loop["time_s"], loop["voltage_V"], loop["force_N"], loop["model_N"]),
@@ -347,21 +378,64 @@ def _gains_rows(g: dict[str, Any]) -> tuple[tuple[str, str, str], ...]:
         rows += [("derivative time Td", f"{fmt(g['Td_s'], 4)} s", f"{fmt(lv['Td_min'], 4)} min"),
                  ("derivative filter Tf", f"{fmt(g['Tf_s'], 4)} s", "not in the PID VI: filter the measurement")]
     rows += [("setpoint weight b", fmt(g["b"], 4), "not in the PID VI: weight the setpoint"),
-             ("output range", f"{fmt(g['u_min_V'])} to {fmt(g['u_max_V'])} V",
+             ("output range", f"{fmt(g['u_min_V'])} to {q(g['u_max_V'], 'V')}",
               f"{fmt(g['u_min_V'])} to {fmt(g['u_max_V'])}")]
     return tuple(rows)
+
+
+#: IPOPT's return statuses in words (the solver's own names stay in tuning.json)
+_SOLVER_WORDS = {"Solve_Succeeded": "solved to IPOPT's tolerance",
+                 "Solved_To_Acceptable_Level": "solved to IPOPT's acceptable tolerance"}
+
+
+def _capital(text: str) -> str:
+    return text[:1].upper() + text[1:]
+
+
+def _solver_words(text: str) -> str:
+    for status, words in _SOLVER_WORDS.items():
+        text = text.replace(status, words)
+    return text
 
 
 def _bound_text(tuning: TuningRecord) -> tuple[str, tuple[str, ...]]:
     """The tuning's active bounds in words, and what is left out (the minimum-time bound, when it has none)."""
     words = ("" if not tuning.active_bounds else
-             " " + " ".join(b.sentence().rstrip(".") + "." for b in tuning.active_bounds))
+             " " + " ".join(_capital(b.sentence().rstrip(".")) + "." for b in tuning.active_bounds))
     mt = tuning.minimum_time
     if mt.settling_s is None:
         return words, (f"The minimum-time bound on the step's settling: {mt.reason or 'it was not computed'}.",)
-    ratio = ("" if mt.tuned_over_bound_ratio is None
-             else f"; the tuned settling is {fmt(mt.tuned_over_bound_ratio)} times it")
-    return words + f" The minimum-time bound on the step's settling is {fmt(mt.settling_s)} s{ratio}.", ()
+    row = tuning.row("tuned", True)
+    ratio = ""
+    if mt.tuned_over_bound_ratio is not None and row.settling_s is not None:
+        # the bound and the ratio are of the true force; the responses' table reads the measured force
+        measured = ("" if row.settling_measured_s is None else
+                    f" (on the measured force, the sensors' noise included, in {q(row.settling_measured_s, 's')})")
+        ratio = (f"; the tuned gains with the feedforward settle the true force in {q(row.settling_s, 's')}, "
+                 f"{fmt(mt.tuned_over_bound_ratio)} times the bound{measured}")
+    return words + (f" The minimum-time bound on the step's settling (the least settling any command within the "
+                    f"output range gives the noise-free model's force) is {q(mt.settling_s, 's')}{ratio}."), ()
+
+
+def _basis_rows(b: MarginBasis | None) -> list[tuple[str, str, str]]:
+    """What the margins rest on (:class:`~piezopreload.artifacts.system.MarginBasis`), as the system table's rows."""
+    if b is None:
+        return []
+    over = "the nominal plant" if b.lift_off_plants == 1 else f"the worst of {b.lift_off_plants} Monte Carlo plants"
+    return [
+        ("rigidity in the machine, where least against its requirement", q(b.rigidity_in_machine_N_per_um, "N/um"),
+         f"the nut's table figure {q(b.rigidity_table_N_per_um, 'N/um')} times the vendors' in-machine factor "
+         f"{fmt(b.rigidity_in_machine_factor)}; {q(b.rigidity_required_N_per_um, 'N/um')} required"),
+        ("axis stiffness at the table (nut, screw, bearings)",
+         f"{fmt(b.axis_stiffness_min_N_per_um)}-{q(b.axis_stiffness_max_N_per_um, 'N/um')}",
+         "at that moment, over the travel"),
+        ("largest axis deflection at the table while cutting", q(b.axis_deflection_max_um, "um"),
+         "nut, screw and bearings, at the weakest position"),
+        ("physical lift-off margin", q(b.lift_off_margin_physical_pct, "%"),
+         f"by the nut law (lift-off at {fmt(b.lift_off_ratio)} F_p), {over}; "
+         f"{q(b.lift_off_margin_physical_nominal_pct, '%')} on the nominal plant, "
+         f"{q(b.lift_off_margin_catalogue_pct, '%')} by the catalogues' 2.83 F_p there"),
+    ]
 
 
 def controller_section(study: ReportStudy, a: Artifacts) -> Part:
@@ -372,8 +446,8 @@ def controller_section(study: ReportStudy, a: Artifacts) -> Part:
     words, omitted = _bound_text(tuning)
     search = f" The search: {tuning.solve.search}." if tuning.solve.search else ""
     text = (f"{form} gains tuned with CasADi and IPOPT around the P-I-compensated plant (maximum sensitivity "
-            f"{fmt(tuning.solve.ms)} at worst over the plant variants; solver: {tuning.solve.status}); "
-            f"controller form: {g['form']}.{words}{search}")
+            f"{fmt(tuning.solve.ms)} at worst over the plant variants; solver: {_solver_words(tuning.solve.status)}); "
+            f"controller form: {g['form']}.{words}{_solver_words(search)}")
     scheduled = gain_set.gains.schedule is not None
     caption = (f"The gain set ({gain_set.status}), content hash {gain_set.content_sha256} (the SHA-256 of its fields, "
                "which every artifact that uses it names; not the file's)"
@@ -391,14 +465,16 @@ def _schedule_part(schedule: dict[str, Any] | None) -> Part | None:
     rows = []
     for r in schedule["levels"]:
         e, rb, sc = r["entry"], r["robust"], r["scheduled"]
+        ms = r.get("ms", {}).get("scheduled")  # over the entry's window (a record written before: not there)
         rows.append((fmt(r["level_N"], 4), f"{fmt(r['window_N'][0], 4)}–{fmt(r['window_N'][1], 4)}",
-                     fmt(1e3 * e["Kc_V_per_N"], 4), fmt(1e3 * e["Ti_s"], 3),
+                     fmt(1e3 * e["Kc_V_per_N"], 4), fmt(1e3 * e["Ti_s"], 3), fmt(e.get("b", 1.0), 2),
+                     "" if ms is None else fmt(ms, 3),
                      *(_when(x[k], "", "never").strip() for x in (rb, sc)
                        for k in ("settling_s", "overshoot_N", "tracking_rms_N")),
                      " / ".join("yes" if x["passed"] else "no" for x in (rb, sc))))
     w = schedule["whole_range"]
     rows.append(("whole range", "", fmt(1e3 * schedule["robust"]["Kc_V_per_N"], 4),
-                 fmt(1e3 * schedule["robust"]["Ti_s"], 3),
+                 fmt(1e3 * schedule["robust"]["Ti_s"], 3), fmt(schedule["robust"].get("b", 1.0), 2), "",
                  *(_when(w[x][k], "", "never").strip() for x in ("robust", "scheduled")
                    for k in ("settling_s", "overshoot_N", "tracking_rms_N")),
                  " / ".join("yes" if w[x]["passed"] else "no" for x in ("robust", "scheduled"))))
@@ -407,22 +483,28 @@ def _schedule_part(schedule: dict[str, Any] | None) -> Part | None:
     text = (f"A gain schedule on the preload level: {len(schedule['levels'])} entries, each tuned with CasADi on its "
             "window; Kc, Ti and Td linear in the setpoint between them; the schedule and the one robust set each "
             f"validated by Monte Carlo ({schedule['plants']} plants per level, the study's limits) at every level and "
-            f"over the whole range. Chosen: {schedule['choice']} ({schedule['reason']}).")
+            f"over the whole range. Chosen: {_CHOICE_NAMES.get(schedule['choice'], schedule['choice'])}, as "
+            f"{schedule['reason']}.")
     if missed_by_both:
         text += (f" Neither set meets the study's limits at {', '.join(missed_by_both)}: the exported gains carry that "
                  "miss, listed in the verdicts above.")
-    table = Table(("level (N)", "window (N)", "Kc (mV/N)", "Ti (ms)", "robust: settling (s)", "overshoot (N)",
-                   "tracking (N)", "schedule: settling (s)", "overshoot (N)", "tracking (N)",
+    table = Table(("level (N)", "window (N)", "Kc (mV/N)", "Ti (ms)", "b", "Ms (window)", "robust: settling (s)",
+                   "overshoot (N)", "tracking (N)", "schedule: settling (s)", "overshoot (N)", "tracking (N)",
                    "meets (robust / schedule)"),
-                  tuple(rows), "Each schedule entry's gains and the worst case over the Monte Carlo plants at its "
-                               "level for the robust set and the schedule (tracking: RMS after the changes).",
-                  "ll" + "r" * 8 + "c", small=True)
+                  tuple(rows), "Each schedule entry's gains, its maximum sensitivity over its own window (the worst "
+                               "plant variant), and the worst case over the Monte Carlo plants at its level for the "
+                               "robust set and the schedule (tracking: RMS after the changes).",
+                  "ll" + "r" * 10 + "c", small=True)
     fig = F.gain_schedule(schedule)
     caption = (f"The gain schedule on the preload level ({len(schedule['levels'])} entries) against the robust set "
                "(dashed), and each set's worst case over the Monte Carlo plants per level, the study's limits in red "
-               f"(dashed: tracking RMS, dotted: overshoot); chosen: {schedule['choice']}.")
+               "(dashed: tracking RMS, dotted: overshoot); chosen: "
+               f"{_CHOICE_NAMES.get(schedule['choice'], schedule['choice'])}.")
     return Part(Section("The gain schedule", (text,), (table,), ("gain-schedule",)), (("gain-schedule", fig, caption),))
 
+
+#: the gain schedule's choice as the report names it
+_CHOICE_NAMES = {"robust": "the one robust set", "schedule": "the scheduled gains"}
 
 #: the Monte Carlo spread's parameters as the report names them (a key not here is shown as the study names it)
 _SPREAD_NAMES = {"coupling_stiffness_N_per_um": "coupling stiffness", "amp_bandwidth_Hz": "amplifier bandwidth",
@@ -454,7 +536,7 @@ def _validation_part(val: Any, gain_set: GainSet) -> Part:
                   "The tuned gains over the Monte Carlo set of nonlinear plants.", "lrrrr")
     fig = F.monte_carlo({k: list(v) for k, v in val.metrics.items()}, limits)
     caption = (f"The tuned gains with the feedforward over {val.n_plants} Monte Carlo plants (seed {val.seed}): "
-               f"settling time into ±{fmt(val.criteria.band_N)} N and overshoot of the true "
+               f"settling time into ±{q(val.criteria.band_N, 'N')} and overshoot of the true "
                "force, and the trajectory's tracking RMS; dashed, the study's limits.")
     return Part(Section("Validation", (text,), (table,), ("monte-carlo",)), (("monte-carlo", fig, caption),))
 
@@ -471,7 +553,7 @@ def responses_section(study: ReportStudy, a: Artifacts) -> Part:
     labels = {"study": study.gains_label, "tuned": "the tuned gains"}
     text = (f"The study's {step} step and its {traj} trajectory, each with {study.gains_label} and with the tuned "
             "gains, PID alone and with the inverse-P-I feedforward. Step times are read on the "
-            f"{signal_name(signal)} against a ±{fmt(band)} N band; tracking errors are those of the true force.")
+            f"{signal_name(signal)} against a ±{q(band, 'N')} band; tracking errors are those of the true force.")
     tables = [_responses_table(responses, labels)]
     paragraphs = [text]
     if study.published is not None and responses.reproduction:
@@ -489,7 +571,7 @@ def responses_section(study: ReportStudy, a: Artifacts) -> Part:
     figures = (
         ("step", F.step_responses(runs["step"], band, signal, labels, t_max_s=step_t),
          f"The {step} step with {study.gains_label} (left) and the tuned gains (right), PID alone and with the "
-         f"feedforward, {signal_name(signal)}; dashed: the ±{fmt(band)} N band."),
+         f"feedforward, {signal_name(signal)}; dashed: the ±{q(band, 'N')} band."),
         ("tracking", F.tracking(runs["trajectory"], signal, labels),
          f"The {traj} trajectory with {study.gains_label} (left) and the tuned gains (right); below, the error of the "
          "true force."))
@@ -540,7 +622,8 @@ def _rig_rows(run: RigRunRecord) -> list[tuple[str, str]]:
             ("controller step", "" if out is None else step.get(out.controller_step, out.controller_step))]
     m = None if out is None else out.metrics
     if out is not None and out.trip is None and m is not None:
-        rows += [(label, fmt(value)) for label, value in (("tracking RMS over the reference (N)", m.tracking_rms_N),
+        rows += [(label, fmt(value, 3, label.rpartition("(")[2].rstrip(")")))
+                 for label, value in (("tracking RMS over the reference (N)", m.tracking_rms_N),
                                                           ("settling time (s)", m.settling_s),
                                                           ("overshoot (N)", m.overshoot_N)) if value is not None]
     if run.stall_limit is not None:
@@ -575,17 +658,18 @@ def rig_section(study: ReportStudy, a: Artifacts) -> Part:
         return Part(Section("Exports and the rig run", tuple(paragraphs), (), (), tuple(omitted)))
     mode = "real time" if run.realtime else "back to back"
     head = (f"The validated gains ran on the rig executor at {run.rate_Hz:g} Hz ({mode}) against the "
-            f"'{run.backend}' backend behind its interlocks (force limit {fmt(run.safety.get('force_max_N', 0.0))} N), "
+            f"'{run.backend}' backend behind its interlocks (force limit "
+            f"{q(run.safety.get('force_max_N', 0.0), 'N')}), "
             f"reference {run.reference}: ")
     trip = run.trip
     if trip is not None:
-        paragraphs.append(head + f"it was stopped by the interlock '{trip.cause}' at t = {fmt(trip.t_s)} s with "
-                                 f"{fmt(trip.voltage_V)} V held ({trip.detail}); the figures of a completed run do "
+        paragraphs.append(head + f"it was stopped by the interlock '{trip.cause}' at t = {q(trip.t_s, 's')} with "
+                                 f"{q(trip.voltage_V, 'V')} held ({trip.detail}); the figures of a completed run do "
                                  "not apply." + _host_text(run))
     else:
         m = None if run.summary is None else run.summary.metrics
         tracking = "" if m is None or m.tracking_rms_N is None else \
-            f"; the force read tracked the reference within {fmt(m.tracking_rms_N)} N RMS"
+            f"; the force read tracked the reference within {q(m.tracking_rms_N, 'N')} RMS"
         paragraphs.append(head + f"it completed{tracking}." + _host_text(run))
     log = a.csv("rig", "log_csv")
     fig = F.rig_run(log["time_s"], log["reference_N"], log["measured_N"], log["voltage_V"], log["mode"])

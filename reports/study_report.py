@@ -35,6 +35,7 @@ STAGES_READ = ("design", "plant", "identify", "tune", "validate", "compare", "le
 def _parts(study: ReportStudy, a: Artifacts) -> list[S.Part]:
     """The sections that apply to the study, in the order its reader asks for them."""
     from piezopreload.reports import sections as S
+    from piezopreload.reports.sensitivity import sensitivity_section
     from piezopreload.reports.thermal import thermal_section
 
     parts = [S.study_section(study, a, STAGES_READ)]
@@ -46,6 +47,8 @@ def _parts(study: ReportStudy, a: Artifacts) -> list[S.Part]:
         if a.system.thermal is not None:
             parts.append(thermal_section(a.system.thermal, [r for r in a.system.requirements if r.source.startswith(
                 "[thermal]")]))
+        if a.system.sensitivity is not None and a.system.sensitivity.rows:
+            parts.append(sensitivity_section(a.system.sensitivity))
     if a.learning is not None:
         parts.append(S.learning_section(a.learning))
     parts += [S.controller_section(study, a), S.responses_section(study, a), S.feedforward_section(study, a)]
@@ -58,7 +61,7 @@ def _parts(study: ReportStudy, a: Artifacts) -> list[S.Part]:
 def build_report(study: ReportStudy, a: Artifacts, now: _dt.datetime) -> tuple[Report, list[tuple[str, Any, str]]]:
     """The report for ``study`` from its artifacts, and the figures it names ``(name, figure, caption)``."""
     from piezopreload.reports import sections as S
-    from piezopreload.reports.summary import summary, verdicts
+    from piezopreload.reports.summary import design_lead, summary, verdicts
 
     version, date = package_version(), now.strftime("%Y-%m-%d %H:%M:%S")
     parts = _parts(study, a)
@@ -67,7 +70,8 @@ def build_report(study: ReportStudy, a: Artifacts, now: _dt.datetime) -> tuple[R
     report = Report(
         title=study.title or f"Study {study.name}",
         subtitle=f"Study {study.name} · {now.strftime('%Y-%m-%d')} · piezopreload {version}",
-        verdicts=verdicts(a), summary=summary(study, a), sections=tuple(p.section for p in parts),
+        lead=design_lead(study, a), verdicts=verdicts(a), summary=summary(study, a),
+        sections=tuple(p.section for p in parts),
         appendix=(appendix.section,),
         figures={name: {"file": f"figures/{name}.pdf", "caption": caption} for name, _, caption in figures},
         meta={"study_name": study.name, "package_version": version,

@@ -34,18 +34,22 @@ def _saving(s: float, c: float) -> str:
 
 
 def thermal_lines(t: ThermalRecord) -> list[str]:
-    """The summary's sentences: each preload's heat, rise, growth and positioning error, and the saving's bounds."""
+    """The summary's sentences: each preload's heat by source, rise (and where), growth and positioning error, the
+    nut against the screw, and the saving's bounds."""
     s, c = t.schedule, t.constant
+    ends = t.ends_words(s)
     return [
-        f"Over the {fmt(t.shift_h)} h shift, the schedule's {fmt(s.heat_mean_W)} W of nut friction "
-        f"({_MODELS[t.heat_model]}) and the support bearings' {fmt(s.bearing_heat_mean_W)} W warm the screw by at "
-        f"most {fmt(s.temperature_rise_max_K)} K and grow it "
+        f"Over the {fmt(t.shift_h)} h shift the schedule makes {t.heat_words(s)} ({_MODELS[t.heat_model]}): the "
+        f"screw warms by at most {fmt(s.temperature_rise_max_K)} K {t.place(s.rise_max_at_mm)} and grows "
         f"{fmt(s.growth_max_um)} um at the table, for a positioning error of up to {fmt(s.positioning_error_max_um)} "
-        f"um; the best constant preload's {fmt(c.heat_mean_W)} W: {fmt(c.temperature_rise_max_K)} K, "
-        f"{fmt(c.growth_max_um)} um, {fmt(c.positioning_error_max_um)} um.",
-        f"The schedule saves {_saving(s.heat_mean_W, c.heat_mean_W)} of the nut's heat by the {_MODELS[t.heat_model]} "
-        f"and {_saving(s.heat_mean_other_W, c.heat_mean_other_W)} by the {_MODELS[t.other_model]} (the bounds; "
-        f"growth {fmt(s.growth_max_other_um)} against {fmt(c.growth_max_other_um)} um by the latter).",
+        f"um; the best constant preload's {fmt(c.heat_mean_W - c.seal_heat_mean_W)} W of preload friction: "
+        f"{fmt(c.temperature_rise_max_K)} K {t.place(c.rise_max_at_mm)}, {fmt(c.growth_max_um)} um, "
+        f"{fmt(c.positioning_error_max_um)} um.",
+        f"With the schedule {t.nut_against_screw(s)}" + (f"; {ends}." if ends else "."),
+        f"The schedule saves {_saving(s.heat_mean_W, c.heat_mean_W)} of the nut's heat (its seals' "
+        f"{fmt(s.seal_heat_mean_W)} W included, which no preload saves) by the {_MODELS[t.heat_model]} and "
+        f"{_saving(s.heat_mean_other_W, c.heat_mean_other_W)} by the {_MODELS[t.other_model]} (the bounds; growth "
+        f"{fmt(s.growth_max_other_um)} against {fmt(c.growth_max_other_um)} um by the latter).",
     ]
 
 
@@ -53,18 +57,23 @@ def _rows(t: ThermalRecord) -> tuple[tuple[str, str, str], ...]:
     s, c = t.schedule, t.constant
 
     def row(label: str, a: float, b: float, digits: int = 3) -> tuple[str, str, str]:
-        return label, fmt(a, digits), fmt(b, digits)
+        unit = label.rpartition("(")[2].rstrip(")")  # the unit the label names: one rule per quantity's kind
+        return label, fmt(a, digits, unit), fmt(b, digits, unit)
 
     return (
         row("mean preload (N)", s.preload_mean_N, c.preload_mean_N, 4),
         row(f"nut friction heat, {_MODELS[t.heat_model]} (W)", s.heat_mean_W, c.heat_mean_W),
         row(f"nut friction heat, {_MODELS[t.other_model]} (W)", s.heat_mean_other_W, c.heat_mean_other_W),
+        row("of which the seals' (W)", s.seal_heat_mean_W, c.seal_heat_mean_W),
         row("support bearings' heat, both ends (W)", s.bearing_heat_mean_W, c.bearing_heat_mean_W),
         row("largest rise of the screw (K)", s.temperature_rise_max_K, c.temperature_rise_max_K),
+        ("where it sits", t.place(s.rise_max_at_mm), t.place(c.rise_max_at_mm)),
         row(f"largest rise of the screw, {_MODELS[t.other_model]} (K)", s.temperature_rise_max_other_K,
             c.temperature_rise_max_other_K),
         row("rise of the nut (K)", s.nut_rise_max_K, c.nut_rise_max_K),
+        row("nut over the screw under it, shift's end (K)", s.nut_over_screw_end_K, c.nut_over_screw_end_K),
         row("force the held ends take up from the growth (N)", s.end_force_max_N, c.end_force_max_N, 4),
+        row("largest force on each end's bearing pair (N)", s.bearing_force_max_N, c.bearing_force_max_N, 4),
         row("largest growth at the table (um)", s.growth_max_um, c.growth_max_um),
         row(f"largest growth at the table, {_MODELS[t.other_model]} (um)", s.growth_max_other_um,
             c.growth_max_other_um),
@@ -88,6 +97,7 @@ def thermal_section(t: ThermalRecord, requirements: Sequence[Requirement] = ()) 
         f"({fmt(t.film_mean_W_per_m2K)} W/m^2 K, a time constant of {fmt(t.screw_time_constant_s / 60.0)} min) drive "
         f"the screw's temperature along its length; the growth follows from its mounting, {mounting}, and the "
         f"position loop is {_FEEDBACK[t.feedback]}.",
+        _assumptions(t),
         f"The schedule the force loop achieved makes {fmt(s.heat_mean_W)} W against the best constant preload's "
         f"{fmt(c.heat_mean_W)} W ({_saving(s.heat_mean_W, c.heat_mean_W)} less; "
         f"{_saving(s.heat_mean_other_W, c.heat_mean_other_W)} by the {_MODELS[t.other_model]}): the screw warms by "
@@ -111,18 +121,42 @@ def thermal_section(t: ThermalRecord, requirements: Sequence[Requirement] = ()) 
     limit = next((r.limit for r in requirements if "growth" in r.name), None)
     budget_limit = next((r.limit for r in requirements if "positioning" in r.name), None)
     figures = (
-        ("thermal-temperature", temperature_along_screw(t), "The screw's temperature rise along its length at the end "
-         f"of each hour of the shift (darker: later), the schedule as achieved and the best constant preload; grey, "
-         f"the nut's stroke; {t.heat_model} model."),
-        ("thermal-growth", growth_along_travel(t, limit), "The screw's growth at the table's positions at the end of "
-         f"each hour (darker: later), for its {t.mounting} mounting" + ("" if limit is None else
-                                                                         "; dashed, the study's limit") + "."),
+        ("thermal-temperature", temperature_along_screw(t), "The screw's temperature rise along its length "
+         f"{_times_words(s.times_h)} into the shift (darker: later), the schedule as achieved and the best constant "
+         f"preload; grey, the nut's stroke; {t.heat_model} model."),
+        ("thermal-growth", growth_along_travel(t, limit), "The screw's growth at the table's positions "
+         f"{_times_words(s.times_h)} into the shift (darker: later), for its {t.mounting} mounting"
+         + ("" if limit is None else "; dashed, the study's limit") + "."),
         ("thermal-budget", error_budget(t, budget_limit), "The error budget at the worst table position of each hour: "
          "the deflection under the cycle's worst cut, the thermal growth and the force loop's share, schedule (left) "
          "and best constant preload (right)" + ("" if budget_limit is None else "; dashed, the study's limit") + "."),
     )
     return Part(Section("Heat, temperature and growth over a shift", tuple(paragraphs), (table,),
                         tuple(n for n, _, _ in figures)), figures)
+
+
+def _assumptions(t: ThermalRecord) -> str:
+    """What the figures rest on: the seals, the heat split, the convection, the ends."""
+    seals = (f"the seals' torque {fmt(t.seal_torque_Nm)} N m, apart from the preload's" if t.sealed else
+             "no seal torque (an open nut)")
+    ends = ("" if t.mounting == "fixed-free" else
+            f" Each end is a preloaded bearing pair of the axis' bearing stiffness, lifting off at "
+            f"{fmt(t.bearing_lift_off_N, 4)} N; the pretension, where set, is relieved as the screw warms." if
+            t.bearing_lift_off_N > 0 else " Each end is a spring of the axis' bearing stiffness.")
+    return (f"It rests on {seals}; {fmt(t.nut_heat_share)} of the nut's heat entering the screw (an assumption: no "
+            f"share is published; measured axes run hottest at the nut); the air's film coefficients times "
+            f"{fmt(t.convection_factor)}.{ends} With the schedule, {t.nut_against_screw(t.schedule)}.")
+
+
+def _times_words(times_h: np.ndarray) -> str:
+    """The times the curves are drawn at, in words: ``at 5 min, 10 min, 20 min, 30 min and 1 h to 8 h, hourly``."""
+    times = [float(h) for h in times_h]
+    whole = [h for h in times if h >= 1.0 and abs(h - round(h)) < 1e-9]
+    hourly = len(whole) >= 3 and [round(h) for h in whole] == list(range(round(whole[0]), round(whole[-1]) + 1))
+    early = [_when(h) for h in times if not (hourly and h in whole)]
+    late = [f"{_when(whole[0])} to {_when(whole[-1])}, hourly"] if hourly else []
+    words = early + late
+    return "at " + (words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1])
 
 
 def _when(hours: float) -> str:
@@ -137,16 +171,18 @@ def _settled(case: ThermalCase) -> str:
 
 def _drift_text(d: PreloadDrift) -> str:
     change = "fall" if d.passive_max_N < 0 else "rise"
-    lost = " (more than the preload: it would lose it)" if -d.passive_max_N >= d.passive_preload_N else ""
+    lost = (" (it would lose it: the nuts part)" if d.passive_left_N <= 0 else
+            f", leaving {fmt(d.passive_left_N, 3)} N")
     held = (f"within the {fmt(d.headroom_V)} V the command's range leaves on that side." if d.held else
             f"beyond the {fmt(d.headroom_V)} V the command's range leaves on that side: the loop could not hold it.")
     return (f"A passive double nut of the same design, preloaded by a spacer at the best constant preload "
             f"({fmt(d.passive_preload_N, 4)} N; its nuts' loaded turns {fmt(d.span_mm)} mm apart), changes its "
-            f"preload by {fmt(d.passive_N_per_K)} N per kelvin of nut over screw: over the shift it would {change} by "
-            f"up to {fmt(abs(d.passive_max_N), 4)} N{lost}. The force loop holds the piezo preload: the stacks take up "
-            f"the spacer's mismatch ({fmt(d.stroke_max_um)} um at most over the schedule's shift), "
-            f"{fmt(abs(d.voltage_needed_V))} V of command {'more' if d.voltage_needed_V > 0 else 'less'} than the run "
-            f"used, " + held)
+            f"preload by {fmt(d.passive_N_per_K)} N per kelvin of nut over screw at first: over the shift, along the "
+            f"nuts' own law, it would {change} by up to {fmt(abs(d.passive_max_N), 3)} N{lost} (the first kelvin's "
+            f"rate extrapolated would say {fmt(abs(d.passive_linear_N), 3)} N). The force loop holds the piezo "
+            f"preload: the stacks take up the spacer's mismatch ({fmt(d.stroke_max_um)} um at most over the "
+            f"schedule's shift), {fmt(abs(d.voltage_needed_V))} V of command "
+            f"{'more' if d.voltage_needed_V > 0 else 'less'} than the run used, " + held)
 
 
 def _hour_colours(n: int, name: str) -> list[tuple[float, ...]]:

@@ -56,7 +56,9 @@ def test_the_readme_snippet_runs_end_to_end(tmp_path, monkeypatch, capsys):
     assert "FUNCTION_BLOCK PP_CONTROLLER" in plc and plc == pp.export(gain_set, "plc")
     assert list(result.ran) == [s.name for s in __import__("piezopreload.pipeline").pipeline.STAGES
                                 if s.applies(study) is None]
-    assert printed[1] == repr(result) and result.requirements_met is True and result.exit_code == 0
+    shown = repr(result).splitlines()  # the verdict and each requirement with its margin, a line each
+    assert printed[1:1 + len(shown)] == shown and len(shown) == 5 + len(result.requirements)
+    assert result.requirements_met is True and result.exit_code == 0
     assert (tmp_path / "paper2021-out" / "report.pdf").read_bytes().startswith(b"%PDF"), "not where it says"
     assert not (tmp_path / "piezopreload-out").exists(), "the paper's study wrote into the main job's folder"
     for fig in (tuned.plot(), run.plot(), gain_set.plot()):
@@ -385,7 +387,8 @@ def test_results_show_themselves_in_a_terminal_and_a_notebook(gain_set):
     missed = Requirement("rigidity while cutting", 761.0, 1000.0, "N/um", "min", "[schedule] stiffness_min_N_per_um")
     result = StudyResult(Path("out"), StudyRef("axis.toml", "0" * 64, "axis"),
                          (StageOutcome("design", True, "done", 1.0),), 1.0, Headline(), (missed,))
-    assert (result.exit_code == 4 and "1 requirement(s) missed" in repr(result)
+    assert (result.exit_code == 4 and "1 of 1 requirement missed" in repr(result)
+            and "-23.9 %  761 N/um >= 1,000 N/um" in repr(result)
             and "<b>missed</b>" in result._repr_html_())
     fig = result.plot()
     assert isinstance(fig, Figure) and fig.axes[0].patches, "the margin bars are drawn"

@@ -308,7 +308,7 @@ def test_the_least_friction_schedule_is_the_least_heat_one_under_either_model(sp
     sspec = ScheduleSpec(p.bolt_preload_N, f_max, slew_N_per_s=20000.0, stiffness_min_N_per_um=300.0,
                          deflection_max_um=5.0)
     profile = example_profile(0.05)
-    heat = {"model": model, "lubricant_vg": 68, "sealed": True, "temperature_C": 40.0}
+    heat = {"model": model, "lubricant_vg": 68, "seal_torque_Nm": 0.25, "temperature_C": 40.0}
     exact = schedule_preload(screw, profile, sspec)
     nlp = schedule_preload(screw, profile, sspec, method="nlp", heat=heat)
     assert nlp.status == "Solve_Succeeded"

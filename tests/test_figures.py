@@ -89,7 +89,7 @@ def _drawn(name):
     t = np.linspace(0.0, 14.5, 1451)
     if name == "schedule":
         load = np.where(t < 1.5, 600.0, np.where(t < 6.5, 4000.0, np.where(t < 8, -600.0, -1500.0)))
-        return F.preload_schedule(t, load, np.maximum(np.abs(load) / 2.83 * 1.2, 255.0), 1697.0)
+        return F.preload_schedule(t, load, np.maximum(np.abs(load) / 2.83 * 1.2, 255.0), 1697.0, 1.2)
     t = np.linspace(0.0, 30.5, 3051)
     ref = np.where((t % 15) < 2, 50.0, np.where((t % 15) < 7, 1450.0, 380.0))
     return F.rig_run(t, ref, ref + 0.5, 0.02 * ref, (t > 29.9).astype(int))
@@ -135,3 +135,17 @@ def test_every_plot_method_is_typed_to_return_a_figure_and_nothing_uses_pyplot()
     assert len(plots) >= 19
     assert [p for p in plots if p[1] != "Figure"] == []
     assert pyplot == []
+
+
+def test_the_schedule_figure_draws_the_lift_off_bound_its_table_states():
+    """The design's table states the schedule's lift-off bound with its safety factor, lift_off_margin |F_a| / 2^1.5
+    (1,697 N at the machining cycle's 4,000 N with the factor 1.2); the figure's dotted line is that bound, not the
+    bare |F_a| / 2^1.5 (1,414 N)."""
+    t = np.linspace(0.0, 14.5, 1451)
+    load = np.where(t < 1.5, 600.0, np.where(t < 6.5, 4000.0, np.where(t < 8, -600.0, -1500.0)))
+    fig = F.preload_schedule(t, load, np.maximum(np.abs(load) / 2.83 * 1.2, 255.0), 1706.0, 1.2)
+    lines = [line for line in fig.axes[1].get_lines() if "lift-off" in str(line.get_label())]
+    assert len(lines) == 1, [line.get_label() for line in fig.axes[1].get_lines()]
+    drawn = np.asarray(lines[0].get_ydata(), float)
+    np.testing.assert_allclose(drawn, 1.2 * np.abs(load) / 2.0 ** 1.5, rtol=1e-12)
+    assert float(drawn.max()) == pytest.approx(1697.06, abs=0.01)

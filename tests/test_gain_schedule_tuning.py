@@ -20,6 +20,7 @@ from piezopreload.tuning.schedule import (
     schedule_levels,
     setpoint_action_rises,
     tune_schedule,
+    window_ms,
 )
 from piezopreload.tuning.validate import validate
 
@@ -73,6 +74,25 @@ def test_a_window_s_slopes_are_the_hertz_coupling_s_there():
     assert whole[0] < lo < hi < whole[1], "a window's slopes are not inside the whole stroke's"
 
 
+def test_an_entry_s_maximum_sensitivity_is_read_over_its_own_window():
+    """An entry's Ms is the peak of |1 / (1 + C G)| over the plant variants at both ends of its window's slope, not of
+    the whole stroke's (whose stiffer end, on a Hertz coupling, gives a higher peak): checked against the loop's
+    frequency response on a fine grid, computed here from the loop transfer."""
+    from piezopreload.tuning.linearised import loop_frequency_response
+    from piezopreload.tuning.pid import plant_variants
+
+    rig = _hertz_rig()
+    gains = PIDGains(Kc=3.0, Ti_s=0.01, Td_s=0.0, Tf_s=0.0)
+    window = replace(TuningSpec(band_N=1.5), force_range_N=(30.0, 45.0))
+    omega = np.linspace(1e-2, np.pi / rig.sample_period_s, 20001)
+    ours = window_ms(gains, rig, window)
+    peak = max(float(np.max(np.abs(1.0 / (1.0 + loop_frequency_response(gains, v, omega, slope)))))
+               for v in plant_variants(rig, window.variants) for slope in small_signal_gains(v, window.force_range_N))
+    assert ours == pytest.approx(peak, rel=2e-3), (ours, peak)
+    whole = window_ms(gains, rig, replace(window, force_range_N=None))
+    assert ours < whole - 0.05, f"the low window's Ms {ours:.3f} is not below the whole stroke's {whole:.3f}"
+
+
 @pytest.mark.slow  # four tunings and eight Monte Carlo validations (about 8 s under load)
 def test_tune_schedule_records_both_sets_per_level_and_chooses_by_them():
     rig = _hertz_rig()
@@ -104,6 +124,10 @@ def test_tune_schedule_records_both_sets_per_level_and_chooses_by_them():
         assert 0.0 <= b <= 1.0, f"the setpoint weight {b} is outside the tuning's box"
         if "infeasible" in r["tuning"]:
             assert kc == robust.Kc
+        else:  # the tuning's Ms and the record's are the entry's over its own window
+            entry = PIDGains(Kc=kc, Ti_s=r["entry"]["Ti_s"], Td_s=r["entry"]["Td_s"], Tf_s=r["entry"]["Tf_s"])
+            own = window_ms(entry, rig, replace(spec, force_range_N=tuple(r["window_N"])))
+            assert r["tuning"]["ms"] == pytest.approx(own, rel=1e-9) and r["ms"]["scheduled"] == pytest.approx(own)
         assert ("bound" in r) == (not r["scheduled"]["passed"]), (
             "a level the schedule misses does not say what stops it")
     assert setpoint_action_rises(res.schedule.levels_N, res.schedule.Kc, res.schedule.b)

@@ -70,7 +70,7 @@ def test_the_typed_summaries_hold_the_numbers_the_json_holds():
     expected = [r["name"] for name in ("validate", "system") for r in stages[name]["summary"]["requirements"]]
     assert [r.name for r in manifest.requirements] == expected
     headline = Headline.from_manifest(manifest)
-    assert headline.deflection_max_um == stages["system"]["summary"]["deflection_max_um"]
+    assert headline.nut_axial_deflection_max_um == stages["system"]["summary"]["deflection_max_um"]
     assert headline.learning_trials == stages["system"]["summary"]["learning_trials"]
     assert headline.rig_tracking_rms_N == stages["rig"]["summary"]["tracking_rms_N"]
     assert headline.gain_set_status == stages["validate"]["summary"]["status"]

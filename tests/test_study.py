@@ -447,3 +447,30 @@ def test_the_parsed_tables_type_names_every_table_of_a_study_in_order():
     from piezopreload.tables import STUDY_TABLES
 
     assert list(_StudyTables.__annotations__) == list(STUDY_TABLES)
+
+
+@pytest.mark.parametrize("limit", ["200", "115", "115.0"])
+def test_a_peak_voltage_limit_the_commands_clamp_makes_unreachable_is_refused(capsys, tmp_path, limit):
+    """The controller clamps its command at [controller] u_max_V (115 V in the machine axis): a highest-command limit
+    at or above it could never be missed, so the study is refused (exit 2, one error line naming both keys) rather
+    than reporting a requirement that cannot fail."""
+    text = AXIS.read_text()
+    assert re.search(r"^peak_voltage_max_V = ", text, re.M) and re.search(r"^u_max_V = 115\.0", text, re.M)
+    study = tmp_path / "axis.toml"
+    study.write_text(re.sub(r"^peak_voltage_max_V = .*$", f"peak_voltage_max_V = {limit}", text, flags=re.M))
+    code = main(["run", str(study), "--out", str(tmp_path / "out"), "--json"])
+    out, err = capsys.readouterr()
+    assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, err
+    assert "validation.peak_voltage_max_V" in err and "controller.u_max_V = 115 V" in err, err
+    with pytest.raises(pp.InputError, match="controller.u_max_V"):
+        pp.Study.load(study)
+
+
+def test_the_shipped_studies_set_a_peak_voltage_limit_that_can_fail_or_none():
+    """Each shipped study's highest-command limit lies below its controller's clamp (headroom the loop keeps), or is
+    left out (no such requirement), never at or above it."""
+    for path in (AXIS, PAPER):
+        s = pp.Study.load(path)
+        limit = s.criteria.peak_voltage_max_V
+        assert limit is None or limit < s.gains.u_max_V, (path.name, limit, s.gains.u_max_V)
+    assert pp.Study.load(AXIS).criteria.peak_voltage_max_V == 110.0

@@ -408,3 +408,21 @@ def test_run_prints_the_gain_set_s_content_hash_as_that(small_run, capsys):
     content = GainSet.load(out / "gains.json").content_sha256
     assert f"(content hash {content[:12]}..." in line and "sha256 " not in line, line
     assert hashlib.sha256((out / "gains.json").read_bytes()).hexdigest()[:12] not in line
+
+
+def test_the_first_page_leads_with_the_designed_screw(small_run):
+    """Page 1 of the run's own report names the screw's size and lead, the nuts and the contact angle, from the
+    design stage's record, before the headline figures; the verdicts carry no config-key text."""
+    out = small_run[0]
+    pages, _ = _pdf_text(out / "report.pdf")
+    first = " ".join(pages[0].split())
+    study = load_study(SMALL)
+    point = read_artifact(out / "design" / "design.json", "design")["optimum"]["point"]
+    spec = study.design_spec
+    screw = f"{spec.nominal_diameter_mm:g} x {spec.lead_mm:g} mm"
+    assert f"{screw} screw" in first, first[:500]
+    assert f"contact angle {point['contact_angle_deg']:.3g}°" in first
+    assert f"{point['turns']:.0f} loaded turns x {point['balls_per_turn']:.0f} balls" in first
+    report = read_artifact(out / "report" / "report.json", "report")
+    assert report["lead"] and not any("[validation]" in v for v in report["verdicts"])
+    assert first.index(screw) < first.index(" settle in ")  # the design before the step's headline

@@ -3,6 +3,9 @@ the schedule's margin."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from scipy.optimize import brentq
@@ -106,10 +109,11 @@ def test_a_preload_margin_keeps_every_requirement_at_the_preload_less_the_margin
     plain, _, _ = plan_schedule(spec, opt.point, stiffness_min_N_per_um=1200.0, deflection_max_um=5.0)
     with_margin, _, _ = plan_schedule(spec, opt.point, stiffness_min_N_per_um=1200.0, deflection_max_um=5.0,
                                       preload_margin_N=m)
-    assert np.min(plant.screw.rigidity_N_per_um(plain.preload_N - m, plain.profile.axial_load_N)
+    factor = spec.rigidity_in_machine_factor  # the requirement holds in the machine
+    assert np.min(factor * plant.screw.rigidity_N_per_um(plain.preload_N - m, plain.profile.axial_load_N)
                   - plain.required_N_per_um) < 0, "without a margin the preload less m would fall short somewhere"
     load = with_margin.profile.axial_load_N
-    k_less = plant.screw.rigidity_N_per_um(with_margin.preload_N - m, load)
+    k_less = factor * plant.screw.rigidity_N_per_um(with_margin.preload_N - m, load)
     short = with_margin.required_N_per_um - k_less
     assert np.max(short) <= 1e-3 * np.max(with_margin.required_N_per_um), \
         f"the rigidity at the preload less {m} N falls {np.max(short):.2f} N/um below the requirement"
@@ -160,7 +164,9 @@ def test_the_least_rigidity_while_cutting_is_the_least_over_the_cutting_samples(
     ev = evaluate_tracking(plant, schedule, run, cycles=1, pre_cycle_s=pre.duration_s)
     n, f = ev.numbers, ev.frame
     cut = f.cutting
-    rigidity = np.asarray(plant.screw.rigidity_N_per_um(f.planned[cut], f.load[cut]), float)  # the numpy model
+    # the numpy model's table rigidity, in the machine
+    rigidity = spec.rigidity_in_machine_factor * np.asarray(plant.screw.rigidity_N_per_um(f.planned[cut], f.load[cut]),
+                                                            float)
     assert n.rigidity_min_cutting_N_per_um == pytest.approx(float(np.min(rigidity)), rel=1e-9)
     m = int(np.argmin(np.where(cut, f.rigidity, np.inf)))
     assert n.rigidity_required_at_min_N_per_um == f.required[m] and n.rigidity_min_t_s == run.t_s[m]
@@ -378,3 +384,143 @@ def test_the_pre_cycle_brings_the_stacks_to_the_first_level_before_the_first_cut
     (at_once, err_at_once, level), (settled, err_settled, _) = first[0.0], first[0.5]
     assert err_settled < 0.1 * level < err_at_once, first
     assert at_once < 0.85 and settled > at_once + 0.1, f"least rigidity / requirement over the first 0.1 s: {first}"
+
+
+def test_the_rigidity_requirement_holds_in_the_machine_with_the_vendors_factor(axis):
+    """HIWIN and THK state that their table rigidity leaves out the nut's mounting and that about 80 % of it holds in
+    a machine; the nut law is calibrated on their tables, so the schedule's rigidity rows hold at 0.8 times it (the
+    study key ``[ballscrew] rigidity_in_machine_factor``, default 0.8), and the run's verdict reads the same figure:
+    the schedule needs more preload where the rigidity binds than the table figure would ask for."""
+    from dataclasses import replace as dc_replace
+
+    from piezopreload.design.study import plan_schedule
+    from piezopreload.design.tables import BallscrewTable
+
+    spec, opt, plant, schedule = axis
+    assert BallscrewTable().rigidity_in_machine_factor == 0.8 and spec.rigidity_in_machine_factor == 0.8
+    assert schedule.spec.in_machine_factor == 0.8
+    load = schedule.profile.axial_load_N
+    table = np.asarray(plant.screw.rigidity_N_per_um(schedule.preload_N, load), float)
+    np.testing.assert_allclose(schedule.rigidity_N_per_um, 0.8 * table, rtol=1e-9,
+                               err_msg="the schedule's rigidity is not 0.8 times the nut law's table figure")
+    assert np.all(schedule.rigidity_N_per_um >= schedule.required_N_per_um * (1 - 1e-9))
+    # where the rigidity binds (a floor above what the lift-off bound's preload gives), the in-machine plan needs the
+    # table rigidity at required / 0.8, the table-figure plan (factor 1) only at required
+    machine, _, _ = plan_schedule(spec, opt.point, stiffness_min_N_per_um=1100.0, deflection_max_um=5.0)
+    bare, _, _ = plan_schedule(dc_replace(spec, rigidity_in_machine_factor=1.0), opt.point,
+                               stiffness_min_N_per_um=1100.0, deflection_max_um=5.0)
+    k_machine = np.asarray(plant.screw.rigidity_N_per_um(machine.needed_N, machine.profile.axial_load_N), float)
+    k_bare = np.asarray(plant.screw.rigidity_N_per_um(bare.needed_N, bare.profile.axial_load_N), float)
+    assert np.min(k_machine) == pytest.approx(1100.0 / 0.8, rel=1e-6), np.min(k_machine)
+    assert np.min(k_bare) == pytest.approx(1100.0, rel=1e-6), np.min(k_bare)
+    assert machine.friction_energy_J > bare.friction_energy_J
+    # the run's verdict: the nut's rigidity under load in the machine, its deflection the load over it
+    from piezopreload.design.system import evaluate_tracking, pre_cycle_for, schedule_reference
+    from piezopreload.models.closedloop import simulate
+    from piezopreload.models.controller import Controller, PIDGains
+
+    pre = pre_cycle_for(plant, schedule, settle_s=0.2)
+    run = _perfect(simulate(Rig(plant.rig), Controller(PIDGains(0.001, 0.05), 1e-3),
+                            schedule_reference(plant, schedule, cycles=1, pre_cycle=pre)))
+    f = evaluate_tracking(plant, schedule, run, cycles=1, pre_cycle_s=pre.duration_s).frame
+    loads = plant.screw.nut_loads(f.achieved[f.cutting], f.load[f.cutting])
+    np.testing.assert_allclose(f.rigidity[f.cutting], 0.8 * np.asarray(loads.rigidity_N_per_um), rtol=1e-12)
+    np.testing.assert_allclose(f.deflection[f.cutting], np.asarray(loads.deflection_um) / 0.8, rtol=1e-12)
+
+
+def _judged(axis, scatter=None):
+    """The perfect run over the schedule (the force its reference) judged with the design: what the margins rest
+    on."""
+    from piezopreload.design.system import (
+        SystemRun,
+        _off_bounds,
+        evaluate_tracking,
+        margin_basis,
+        pre_cycle_for,
+        schedule_reference,
+    )
+    from piezopreload.models.closedloop import simulate
+    from piezopreload.models.controller import Controller, PIDGains
+
+    spec, opt, plant, schedule = axis
+    pre = pre_cycle_for(plant, schedule, settle_s=0.2)
+    run = _perfect(simulate(Rig(plant.rig), Controller(PIDGains(0.001, 0.05), 1e-3),
+                            schedule_reference(plant, schedule, cycles=1, pre_cycle=pre)))
+    ev = evaluate_tracking(plant, schedule, run, cycles=1, pre_cycle_s=pre.duration_s)
+    ev = replace(ev, requirements=_off_bounds(ev.requirements, ev.frame, schedule, plant.screw, spec))
+    sysrun = SystemRun(schedule=schedule, design_schedule=schedule, plant=plant, cycles=1, run=run, pre_cycle=pre,
+                       evaluation=ev, passes=())
+    return ev, margin_basis(sysrun, spec, scatter)
+
+
+def test_the_physical_lift_off_is_the_nut_law_s_own_against_the_load(axis):
+    """The physical lift-off margin: the nut law's lift-off load rho F_p at the achieved preload against the cutting
+    load, rho the root of rho^(2/3) + sigma rho = 2 + 2 sigma (sigma = s F_p^(1/3) / c_h; found here by brentq),
+    at the sample where it is least, no safety factor; beside it the catalogues' 2^(3/2) F_p there. The schedule's
+    own bound (its design constraint) is the lift-off requirement's with basis 'design'."""
+    spec, opt, plant, schedule = axis
+    ev, (basis, physical) = _judged(axis)
+    f, screw = ev.frame, plant.screw
+    cut = f.cutting & (np.abs(f.load) > 0)
+
+    def rho(fp):
+        sigma = screw.structural_compliance_um_per_N * fp ** (1 / 3) / screw.axial_constant_um
+        return brentq(lambda r: r ** (2 / 3) + sigma * r - 2 - 2 * sigma, 1.5, 3.0, xtol=1e-14)
+
+    # the least ratio over the cutting samples, by brentq at each (the preloads repeat: a few hundred distinct)
+    fps, loads = f.achieved[cut], np.abs(f.load[cut])
+    distinct = {fp: rho(fp) for fp in np.unique(fps)}
+    ratios = np.array([distinct[fp] * fp / a for fp, a in zip(fps, loads)])
+    j = int(np.argmin(ratios))
+    assert basis.lift_off_margin_physical_nominal_pct == pytest.approx(100 * (ratios[j] - 1), rel=1e-9, abs=1e-9)
+    assert basis.lift_off_plants == 1 and basis.lift_off_worst_plant == 0
+    assert (basis.lift_off_preload_N, basis.lift_off_axial_load_N) == (fps[j], loads[j])
+    assert basis.lift_off_ratio == pytest.approx(distinct[fps[j]], rel=1e-9) and 2.0 < basis.lift_off_ratio < 2.0 ** 1.5
+    assert basis.lift_off_margin_catalogue_pct == pytest.approx(100 * (2 ** 1.5 * fps[j] / loads[j] - 1), rel=1e-12)
+    assert physical.basis == "physics" and physical.limit == loads[j] and physical.value == pytest.approx(
+        distinct[fps[j]] * fps[j], rel=1e-9)
+    bound = next(r for r in ev.requirements if r.key == "schedule.lift_off_margin")
+    assert bound.basis == "design" and "design's own constraint" in bound.name
+    # the scatter (the plants' runs, their true forces): the nominal's force again and one 5 % below it; the second
+    # is the worst, and the nominal's own figure is kept beside
+    run_force = plant.stack_force_N(f.achieved)
+    scatter = SimpleNamespace(force_N=np.vstack([run_force, 0.95 * run_force]))
+    _, (worse, named) = _judged(axis, scatter)
+    assert worse.lift_off_plants == 3 and worse.lift_off_worst_plant == 2
+    assert worse.lift_off_margin_physical_pct < basis.lift_off_margin_physical_nominal_pct
+    assert worse.lift_off_margin_physical_nominal_pct == basis.lift_off_margin_physical_nominal_pct
+    assert "worst of 3 Monte Carlo plants" in named.name
+
+
+def test_the_axis_at_the_table_and_the_verdicts_off_the_design_s_bounds(axis):
+    """The axis stiffness at the table: the nut in the machine in series with the screw's two segments and their
+    bearings (fixed-fixed: k_b and the segment in series, the two sides in parallel), over the travel; the rigidity
+    verdict off the bounds: the contact angle and the conformity at their ranges' middles (45 deg, 0.54) with the
+    same balls and turns, judged at the same preloads and loads."""
+    from piezopreload.models.ballscrew import BallScrew
+
+    spec, opt, plant, schedule = axis
+    ev, (basis, _) = _judged(axis)
+    fd, screw = spec.feed_drive, plant.screw
+    EA = fd.E_MPa * np.pi * screw.root_diameter_mm ** 2 / 4 * 1e-3
+    x = np.linspace(*fd.travel_mm, 41)
+    side = 1 / (1 / fd.bearing_stiffness_N_per_um + x / EA) + 1 / (1 / fd.bearing_stiffness_N_per_um
+                                                                  + (fd.screw_length_mm - x) / EA)
+    k_nut = ev.numbers.rigidity_at_worst_ratio_N_per_um
+    assert basis.axis_stiffness_min_N_per_um == pytest.approx(float(np.min(1 / (1 / k_nut + 1 / side))), rel=1e-12)
+    assert basis.axis_stiffness_max_N_per_um == pytest.approx(float(np.max(1 / (1 / k_nut + 1 / side))), rel=1e-12)
+    assert basis.rigidity_table_N_per_um == pytest.approx(k_nut / 0.8) and basis.rigidity_in_machine_factor == 0.8
+    assert basis.axis_deflection_max_um > basis.nut_axial_deflection_max_um
+    # the design sits on 55 deg and f 0.52 (and six turns): the verdict without them, by a screw built here
+    rigidity = ev.requirements[0]
+    keys = [(a.key, a.bound) for a in rigidity.off_bounds.at_bounds]
+    assert keys == [("ballscrew.contact_angle_deg", "high"), ("ballscrew.conformity", "low"),
+                    ("ballscrew.turns", "high")], keys
+    other = BallScrew(nominal_diameter_mm=screw.nominal_diameter_mm, lead_mm=screw.lead_mm, ball_mm=screw.ball_mm,
+                      turns=screw.turns, contact_angle_deg=45.0, conformity_screw=0.54, conformity_nut=0.54,
+                      balls_per_turn=screw.balls_per_turn, load_sharing=screw.load_sharing)
+    f = ev.frame
+    k = 0.8 * np.asarray(other.nut_loads(f.achieved[f.cutting], f.load[f.cutting]).rigidity_N_per_um)
+    i = int(np.argmin(k / f.required[f.cutting]))
+    assert rigidity.off_bounds.value == pytest.approx(float(k[i]), rel=1e-9)
+    assert rigidity.off_bounds.met == (k[i] >= f.required[f.cutting][i]) and rigidity.value > rigidity.off_bounds.value

@@ -16,7 +16,8 @@ from piezopreload.artifacts.summaries import DesignSummary, LearnSummary, RigSum
 from piezopreload.artifacts.system import SystemRecord
 from piezopreload.cli import main
 from piezopreload.core.artifacts import read_artifact
-from piezopreload.design.system import RIGIDITY_VERDICT
+from piezopreload.design.system import LIFT_OFF_BOUND_VERDICT, RIGIDITY_VERDICT
+from piezopreload.models.thermal import EXPANSION_PER_K
 from piezopreload.pipeline import STAGES, run_study
 from piezopreload.progress import Progress
 from piezopreload.study import load_study
@@ -48,9 +49,14 @@ def test_every_stage_runs_and_the_plant_is_the_designs(axis_run, capsys):
     assert 0 < system.numbers.tracking_rms_pct_of_range < 100 and system.numbers.rigidity_required_at_min_N_per_um > 0
     # the requirements as verdicts, beside their sum
     names = [r.name for r in system.requirements]
-    assert names == [RIGIDITY_VERDICT, "axial deflection while cutting",
-                     "preload against the lift-off bound while cutting", "thermal growth at the table over the shift",
+    plants = load_study(SMALL_AXIS).validation.plants
+    assert names == [RIGIDITY_VERDICT, "nut axial deflection while cutting", LIFT_OFF_BOUND_VERDICT,
+                     f"lift-off load by the nut law against the cutting load, the worst of {plants} Monte Carlo plants",
+                     "thermal growth at the table over the shift",
                      "positioning error over the shift (deflection, growth, tracking)"], names
+    # what the lift-off margins rest on: the schedule's bound is the design's own, the nut law's is physics
+    assert [r.basis for r in system.requirements[2:4]] == ["design", "physics"]
+    assert system.basis is not None and system.basis.lift_off_plants == plants
     assert system.requirements_met == all(r.met for r in system.requirements)
     rigidity = system.requirements[0]
     assert (rigidity.value, rigidity.limit) == (system.numbers.rigidity_at_worst_ratio_N_per_um,
@@ -177,7 +183,8 @@ def test_the_tune_stage_chooses_between_the_schedule_and_the_robust_set_and_the_
     report = read_artifact(axis_run / "report" / "report.json", "report")
     controller = next(s for s in report["sections"] if s["title"] == "The tuned controller")
     schedule = next(s for s in controller["subsections"] if s["title"] == "The gain schedule")
-    assert f"Chosen: {sched['choice']}" in schedule["paragraphs"][0]
+    chosen = {"robust": "the one robust set", "schedule": "the scheduled gains"}[sched["choice"]]
+    assert f"Chosen: {chosen}, as " in schedule["paragraphs"][0]
     assert len(schedule["tables"][0]["rows"]) == len(sched["levels"]) + 1, "one row per level and the whole range"
     assert (axis_run / "report" / "figures" / "gain-schedule.pdf").stat().st_size > 1000
 
@@ -222,8 +229,12 @@ def test_the_report_speaks_of_its_own_study_and_leads_with_its_figures(axis_run)
     assert " – " not in words and " - " not in words.replace(" - force", ""), "a dash stands where a number should"
     system = read_artifact(axis_run / "system" / "system.json", "system")
     first = report["summary"][0]
-    assert first.startswith("The designed axis follows its preload schedule") and \
-        f"{system['tracking_rms_N']:.3g} N RMS" in first
+    from piezopreload.reports.document import q
+
+    # the measured figure first where the study learns, then the true force, named as the one no sensor reads
+    assert first.startswith(("The force sensors read the preload within", "The designed axis: the true preload")), first
+    assert f"which no sensor reads, follows the schedule over the machining cycles within " \
+           f"{q(system['tracking_rms_N'], 'N')} RMS" in first, first
     design = read_artifact(axis_run / "design" / "design.json", "design")
     friction = [s for s in report["summary"] if "friction energy" in s][0]
     assert f"{100 * system['friction_saved_fraction']:.2g} %" in friction, "the saving is not the system artifact's"
@@ -262,7 +273,38 @@ def test_the_shifts_thermal_budget_is_in_the_system_artifact_the_summary_the_rep
     section = next(x for x in report["sections"] if x["title"] == "Heat, temperature and growth over a shift")
     assert section["figures"] == ["thermal-temperature", "thermal-growth", "thermal-budget"]
     assert all((axis_run / "report" / report["figures"][f]["file"]).is_file() for f in section["figures"])
-    assert any(line.startswith("Over the 2.5 h shift, the schedule's") for line in report["summary"])
+    lines = [line for line in report["summary"] if line.startswith("Over the 2.5 h shift the schedule makes")]
+    assert len(lines) == 1, report["summary"]
+    # the heat by source: the bearings' share shown beside the seals' and the preload's, in the record's figures
+    assert (f"{s.bearing_heat_mean_W:.0f} W at the support bearings, {s.seal_heat_mean_W:.0f} W at the nut's seals, "
+            f"{s.heat_mean_W - s.seal_heat_mean_W:.0f} W of the preload's friction") in lines[0], lines[0]
+    assert c.seal_heat_mean_W > 0 and s.seal_heat_mean_W == pytest.approx(c.seal_heat_mean_W, rel=0.01), \
+        "the seals' heat depends on the preload (the same cycle's speeds, the preloads apart)"
+    assert f"{s.bearing_heat_mean_W:.0f} W at the support bearings" in thermal.sentence()
+    assert summary["bearing_heat_mean_W"]["schedule"] == s.bearing_heat_mean_W
+    # the largest rises named by their place, the nut against the screw said with its sign
+    assert summary["rise_max_place"] == {k: thermal.place(thermal.case(k).rise_max_at_mm) for k in ("schedule",
+                                                                                                     "constant")}
+    word = "warmer" if s.nut_over_screw_end_K >= 0 else "colder"
+    assert f"the nut runs {abs(s.nut_over_screw_end_K):.1f} K {word} than the screw" in " ".join(report["summary"])
+    # a growth or a budget over its limit names what drives it: the heat by source and the mounting
+    from dataclasses import replace
+
+    from piezopreload.design.tables import ThermalTable
+    from piezopreload.design.thermal import _requirements
+
+    tight = _requirements(replace(ThermalTable(), thermal_growth_max_um=0.5 * s.growth_max_um,
+                                  positioning_error_max_um=2.0 * s.positioning_error_max_um), thermal)
+    assert not tight[0].met and tight[1].met
+    assert thermal.heat_words(s) in tight[0].sentence() and "pretension relieved" in tight[0].sentence()
+    assert tight[1].name == "positioning error over the shift (deflection, growth, tracking)", "a met one explains"
+    # the passive drift along the nut law, not the tangent extrapolated
+    d, plant = thermal.drift, DesignedPlant.load(axis_run / "plant.json")
+    over = d.passive_linear_N / d.passive_N_per_K  # the nut over the screw (K) the tangent was applied to
+    mismatch = EXPANSION_PER_K * d.span_mm * 1e3 * over
+    left = float(plant.screw.spacer_preload_N(d.passive_preload_N, mismatch, plant.sleeve_stiffness_N_per_um))
+    assert d.passive_left_N == pytest.approx(left, rel=1e-9) and d.passive_max_N == pytest.approx(
+        left - d.passive_preload_N, rel=1e-9)
 
 
 def test_the_report_names_each_figure_apart_and_rounds_it_once(axis_run):
@@ -278,8 +320,9 @@ def test_the_report_names_each_figure_apart_and_rounds_it_once(axis_run):
     system = SystemRecord.load(axis_run / "system" / "system.json").numbers
     design = DesignRecord.load(axis_run / "design" / "design.json")
     rigidity = [s for s in report["summary"] if s.startswith("While cutting")][0]
-    assert (f"least rigidity is {fmt(system.rigidity_min_cutting_N_per_um)} N/um "
-            f"({fmt(system.rigidity_required_at_min_N_per_um)} N/um required at that moment)") in rigidity, rigidity
+    assert (f"least rigidity is {fmt(system.rigidity_min_cutting_N_per_um, 3, 'N/um')} N/um "
+            f"({fmt(system.rigidity_required_at_min_N_per_um, 3, 'N/um')} N/um required at that moment)") in rigidity, \
+        rigidity
     assert f"at least {ratio(system.rigidity_ratio_min)} times its requirement" in rigidity, rigidity
     assert "least rigidity over the duty cycle" not in words and \
         "least rigidity over the duty cases at their design preloads" in words
@@ -300,3 +343,36 @@ def test_no_figure_of_the_report_has_a_legend_over_its_data(axis_run):
 
     covered = {name: found for name, fig in report_figures(axis_run) if (found := legends_over_ink(fig))}
     assert not covered, covered
+
+
+def test_run_json_carries_the_sensitivity_and_the_robustness_and_the_console_says_it(axis_run, capsys):
+    """summary.sensitivity: one row per assumption and requirement it moves (at least 6 assumptions), each with its
+    range, margins and flip; summary.verdict_robust agrees with the rows; the console prints the robustness."""
+    code = main(["run", str(SMALL_AXIS), "--out", str(axis_run), "--json", "--quiet"])
+    assert code == 0
+    summary = json.loads(capsys.readouterr().out)["summary"]
+    rows = summary["sensitivity"]
+    assert isinstance(rows, list) and rows
+    for row in rows:
+        for key in ("assumption", "key", "unit", "source", "requirement", "low", "high", "margin_pct_low",
+                    "margin_pct_high", "flips_at"):
+            assert key in row, f"summary.sensitivity row without '{key}'"
+        assert row["source"], f"{row['key']}: a range without its source"
+    assert len({row["key"] for row in rows}) >= 6
+    moved = {row["requirement"] for row in rows}
+    assert moved <= {r["key"] for r in summary["requirements"]}
+
+    def holds(row: dict) -> bool:  # the same verdict at the study's value and at both ends, no flip inside
+        met = row["margin_pct_nominal"] >= 0
+        inside = row["flips_at"] is not None and row["low"] < row["flips_at"] < row["high"]
+        return (row["margin_pct_low"] >= 0) == met and (row["margin_pct_high"] >= 0) == met and not inside
+
+    assert summary["verdict_robust"] is all(holds(row) for row in rows)
+    system = SystemRecord.load(axis_run / "system" / "system.json")
+    assert [r.to_dict() for r in system.sensitivity.rows] == rows, "summary.sensitivity is not the system stage's"
+    main(["run", str(SMALL_AXIS), "--out", str(axis_run), "--quiet"])
+    said = [line for line in capsys.readouterr().out.splitlines() if line.startswith("robustness: ")]
+    assert said == [f"robustness: {system.sensitivity.sentence()}"], said
+    report = read_artifact(axis_run / "report" / "report.json", "report")
+    section = next(x for x in report["sections"] if x["title"].startswith("The verdicts under the assumptions"))
+    assert section["figures"] == ["sensitivity-tornado"]

@@ -514,7 +514,7 @@ def test_the_tune_output_names_the_bounds(capsys):
     from piezopreload.cli.tune import _print_bounds
 
     _print_bounds(MinimumTimeBound(0.014, 14.9), TrackingFloor(2.0, 3.9e5, 1.5), 0.209)
-    assert "0.014 s beside the tuned settling 0.209 s (14.90 times it)" in capsys.readouterr().out
+    assert "0.014 s beside the tuned settling of the true force 0.209 s (14.9 times it)" in capsys.readouterr().out
     _print_bounds(MinimumTimeBound(None, None, reason="no command"), TrackingFloor(2.0, 1.0, None), None)
     assert "minimum-time bound: none (no command)" in capsys.readouterr().out
 
@@ -649,8 +649,7 @@ def _judged_gain_set(tmp_path, level_overshoot_N):
                 "levels": [{"level_N": 0.0, "robust": ok, "scheduled": ok},
                            {"level_N": 2000.0, "robust": {**ok, "overshoot_N": level_overshoot_N}, "scheduled": ok}]}
     candidate = GainSet(gains=PIDGains(Kc=0.5, Ti_s=0.05, b=0.3), plant=Plant(noise_N=0.1, amp_current_limit_A=0.02),
-                        criteria=Criteria(settling_max_s=5.0, overshoot_max_N=50.0, tracking_rms_max_N=50.0,
-                                          peak_voltage_max_V=200.0),
+                        criteria=Criteria(settling_max_s=5.0, overshoot_max_N=50.0, tracking_rms_max_N=50.0),
                         references={"step": Reference.step(25.0, 50.0, 0.05, 0.6),
                                     "trajectory": Reference.staircase(25.0, [50.0, 40.0], 0.3, t_start_s=0.05)},
                         tuning={"schedule": schedule})
@@ -678,7 +677,8 @@ def test_a_gain_set_that_misses_a_level_is_a_candidate_naming_it_and_is_used_onl
                  "--out", str(out)]) == 0
     assert "NOT VALIDATED" in out.read_text() and "validation.overshoot_max_N@2000N" in out.read_text()
     met, _ = _judged_gain_set(tmp_path / "met", 20.0)
-    assert met.status == "validated" and len(met.requirements) == 12 and not met.missed
+    # three whole-range limits (no peak command: none set, the clamp bounds it) and four at each of two levels
+    assert met.status == "validated" and len(met.requirements) == 11 and not met.missed
 
 
 def test_a_validated_status_beside_a_missed_requirement_is_refused(tmp_path):

@@ -113,6 +113,7 @@ class TuningSpec:
         The measured force range the loop works in, for the linearised loop's slopes (the Ms
         constraints): a gain schedule's entry is tuned for the range around its level, where a
         Hertz coupling's force per volt is what it is there. None: the whole stroke (0-110 V).
+        The tuning's reported Ms (:attr:`TuningResult.ms`) is read over the same range.
     """
 
     band_N: float = PAPER_BAND_N
@@ -620,7 +621,7 @@ class _Solvers:
         """How the search ended, in words: the runs, their statuses, where the result came from."""
         limited = sum(r["status"] == "Maximum_Iterations_Exceeded" for r in self.runs)
         stalled = sum(r["status"] == _STALLED for r in self.runs)
-        runs = f"{len(self.runs)} run(s) of IPOPT" + (
+        runs = f"{len(self.runs)} run{'' if len(self.runs) == 1 else 's'} of IPOPT" + (
             f", {limited} stopped on the iteration limit ({self.max_iterations})" if limited else "") + (
             f", {stalled} stopped after {_PATIENCE} iterations without a better point" if stalled else "")
         inc = self.incumbent
@@ -645,7 +646,7 @@ def _check_feasible(margins: dict[str, float], search: str) -> None:
 
 
 def _pi_note(retuned: bool) -> str:
-    return ("the derivative term reached its lower bound: the controller is a PI (Td = 0, no derivative filter), "
+    return ("no derivative action there: the controller is a PI (Td = 0, no derivative filter), "
             + ("tuned again as one" if retuned else "which meets every constraint of the tuning"))
 
 
@@ -789,7 +790,7 @@ def tune_pid(
             if retuned:
                 status, search = pi_solvers.status_of(inc.source), f"{search}; as a PI: {pi_solvers._ending()}"
     binding = sorted(label for label, m in margins.items() if m > -1e-3)
-    ms = max(max_sensitivity(tuned, v) for v in prob.variants)
+    ms = max(max_sensitivity(tuned, v, spec.force_range_N) for v in prob.variants)  # over the range it was tuned for
     return TuningResult(
         gains=tuned, baseline=baseline, fopdt=fopdt, objective=objective, status=status,
         iterations=iterations, seconds=time.perf_counter() - t0, ms=ms, binding=binding,

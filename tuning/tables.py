@@ -72,11 +72,15 @@ class ValidationTable(Table):
     overshoot_max_N: float = key(Criteria.overshoot_max_N, "largest overshoot", unit="N", gt=0)
     tracking_rms_max_N: float = key(Criteria.tracking_rms_max_N, "largest RMS tracking error on the trajectory "
                                     "(outside 0.1 s after each jump and the saturated samples)", unit="N", gt=0)
-    peak_voltage_max_V: float = key(Criteria.peak_voltage_max_V, "highest command voltage", unit="V", gt=0)
+    peak_voltage_max_V: float | None = key(None, "highest command voltage: the headroom the loop must keep below "
+                                           "the clamp on its command, [controller] u_max_V, so it must be below it "
+                                           "(not set: no such requirement; the clamp bounds the command)", unit="V",
+                                           gt=0)
 
     def criteria(self, band_N: float) -> Criteria:
         """The limits every plant must meet, in the study's error band."""
-        limits: dict[str, Any] = {k: float(getattr(self, k)) for k in CRITERIA_LIMITS}
+        limits: dict[str, Any] = {k: None if getattr(self, k) is None else float(getattr(self, k))
+                                  for k in CRITERIA_LIMITS}
         return Criteria(band_N=band_N, **limits)
 
 

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from piezopreload.artifacts.validation import METRICS, Criteria, ValidationResult
-from piezopreload.core.errors import PiezopreloadError
+from piezopreload.core.errors import InputError, PiezopreloadError
 from piezopreload.core.parallel import spare_cpus
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import Reference, simulate
@@ -178,6 +178,11 @@ def validate(
         raise ValueError("validate takes one nominal plant; the batch is drawn from it.")
     spread = dict(DEFAULT_SPREAD if spread is None else spread)
     criteria = criteria or Criteria()
+    if criteria.peak_voltage_max_V is not None and criteria.peak_voltage_max_V >= gains.u_max_V:
+        raise InputError(f"criteria.peak_voltage_max_V = {criteria.peak_voltage_max_V:g} V is at or above the clamp on "
+                         f"the command, gains.u_max_V = {gains.u_max_V:g} V: the highest command cannot exceed it, so "
+                         "the requirement could not fail; set it below the clamp (the headroom the loop keeps), or "
+                         "None for no such requirement")
     step = step or Reference.step(25.0, 60.0, 0.5, 3.0)
     trajectory = trajectory or Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 2.0, t_start_s=0.5)
     t0 = time.perf_counter()

@@ -14,6 +14,7 @@ from piezopreload.cli._common import (
     study_of,
 )
 from piezopreload.core.errors import InputError
+from piezopreload.core.quantities import number
 
 if TYPE_CHECKING:
     from piezopreload.outcome import StudyResult
@@ -77,20 +78,21 @@ def _print_run(s: StudyResult) -> None:
     met, checked = summary.requirements_met, summary.requirements
     if met is None:
         return
-    print("requirements (achieved against required; the margin, and as a share of the limit):")
-    width = max(len(r.key) for r in checked)
+    print("requirements (the margin as a share of the limit; achieved against required; the key that sets it):")
+    width = max(len(r.figures()) for r in checked)
     for r in checked:
-        pct = "" if r.margin_pct is None else f" ({r.margin_pct:+.1f} %)"
-        print(f"  {'met   ' if r.met else 'MISSED'} {r.key:{width}s}  {r.value:,.4g} {r.unit} against "
-              f"{'>=' if r.sense == 'min' else '<='} {r.limit:,.4g} {r.unit}, margin {r.margin:,.4g} {r.unit}{pct}")
+        print(f"  {r.line(r.key, width)}")
     least = summary.least_margin
+    robustness = summary.headline.sensitivity
     if met:
-        print(f"every requirement met; the least margin: {least.margin_pct:.1f} % ({least.name})" if least else
-              "every requirement met")
-        return
-    print(f"{len(summary.missed)} requirement(s) missed:")
-    for r in summary.missed:
-        print(f"  missed: {r.sentence()}")
+        print(f"every requirement met; the least margin: {number(least.margin_pct or 0.0, '%')} % ({least.name})"
+              if least else "every requirement met")
+    else:
+        print(f"{len(summary.missed)} requirement{'s' if len(summary.missed) != 1 else ''} missed:")
+        for r in summary.missed:
+            print(f"  missed: {r.sentence()}")
+    if robustness is not None:
+        print(f"robustness: {robustness.sentence()}")
 
 
 def register_report(sub: Any) -> None:

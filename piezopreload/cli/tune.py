@@ -18,6 +18,7 @@ from piezopreload.cli._common import (
     study_of,
 )
 from piezopreload.core.errors import InputError
+from piezopreload.core.quantities import number, quantity
 
 if TYPE_CHECKING:
     from piezopreload.artifacts.gainset import GainSet
@@ -118,13 +119,13 @@ def _print_bounds(mt: MinimumTimeBound, tf: TrackingFloor, settling_s: float | N
     if mt.settling_s is None:
         print(f"minimum-time bound: none ({mt.reason})")
     elif settling_s is None:
-        print(f"minimum-time bound: {mt.settling_s:.4g} s; the tuned step does not settle in the band")
+        print(f"minimum-time bound: {quantity(mt.settling_s, 's')}; the tuned step does not settle in the band")
     else:
-        print(f"minimum-time bound: {mt.settling_s:.4g} s beside the tuned settling {settling_s:.4g} s "
-              f"({mt.tuned_over_bound_ratio:.2f} times it)")
+        print(f"minimum-time bound: {quantity(mt.settling_s, 's')} beside the tuned settling of the true force "
+              f"{quantity(settling_s, 's')} ({number(mt.tuned_over_bound_ratio or 0.0)} times it)")
     ratio = "" if tf.tuned_over_floor_ratio is None else f"; tuned / floor = {tf.tuned_over_floor_ratio:.2f}"
-    print(f"tracking RMS floor of any causal controller (slew {tf.rate_N_per_s:.0f} N/s at best): "
-          f"{tf.rms_N:.2f} N{ratio}")
+    print(f"tracking RMS floor of any causal controller (slew {quantity(tf.rate_N_per_s, 'N/s')} at best): "
+          f"{quantity(tf.rms_N, 'N')}{ratio}")
 
 
 def register_validate(sub: Any) -> None:
