@@ -33,6 +33,9 @@ from piezopreload.models.thermal import (
     rexroth_seal_torque_Nm,
 )
 
+#: how ``[design] method`` chooses the optimum
+DESIGN_METHODS = ("sequential", "codesign")
+
 __all__ = ["BallscrewTable", "FeedDriveTable", "DutyTable", "DesignTable", "ScheduleTable", "ScheduleLimits",
            "PlantTable", "ThermalTable", "FEEDBACKS"]
 
@@ -117,6 +120,9 @@ class DesignTable(Table):
                                   "trace (none is traced to make the plant; stiffness:growth, the least heat's growth "
                                   "over the shift, needs [thermal])", choices=PARETO_PAIRS)
     pareto_points: int = key(50, "points on each front", ge=2, le=500)
+    method: str = key("sequential", "how the optimum is chosen: sequential (the design NLP alone; the tuning after it "
+                      "on its plant) or codesign (the contact angle and conformity chosen with the PID gains, "
+                      "nested: ``piezopreload codesign``, docs/codesign.md)", choices=DESIGN_METHODS)
     axial_load_max_N: float = key(_SPEC.axial_load_max_N, "largest axial load: no lift-off up to it at the highest "
                                   "preload, the contact pressure at it", unit="N", gt=0)
     failsafe_load_N: float = key(_SPEC.failsafe_load_N, "load the bolts alone hold without lift-off with the stacks "

@@ -28,6 +28,7 @@ __all__ = [
     "DesignedPlant", "PreloadSchedule", "SystemRecord", "TrackingNumbers", "FitError", "LearnedSignal", "SweepPoint",
     "RunSummary", "StudyRef", "StudyReproduction", "ReproductionSummary", "PublishedRow", "SimulationInfo",
     "FeedforwardInfo", "ScheduleSummary", "SystemSummary", "SampledCheck", "DataSource", "LearnedWritten",
+    "CodesignResult", "CodesignWeights",
 ]
 
 #: the module each public name comes from: a name is imported on its first use (a module ``__getattr__``, as numpy
@@ -37,6 +38,7 @@ _EXPORTS: dict[str, str] = {name: module for module, names in {
     "piezopreload.results": ("TuningResult", "StudyRun", "StudyReproduction", "SimulationInfo"),
     "piezopreload.schedule": ("ScheduleLearning",),
     "piezopreload.sweep": ("SweepResult",),
+    "piezopreload.codesign": ("CodesignResult", "CodesignWeights"),
     "piezopreload.outcome": ("StudyResult", "RunSummary"),
     "piezopreload.artifacts.manifest": ("StudyRef",),
     "piezopreload.tuning.compare": ("ReproductionSummary", "PublishedRow"),
@@ -87,6 +89,7 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     from piezopreload.artifacts.system import SystemRecord, TrackingNumbers
     from piezopreload.artifacts.tuning import ActiveBound, ComparisonRow, MinimumTimeBound, TrackingFloor, TuningSolve
     from piezopreload.artifacts.validation import Failure, Metrics, ValidationResult
+    from piezopreload.codesign import CodesignResult, CodesignWeights
     from piezopreload.core.errors import ArtifactError, InfeasibleError, InputError, InternalError, PiezopreloadError
     from piezopreload.core.tables import Record, read_record
     from piezopreload.design.study import DesignResult

@@ -84,6 +84,7 @@ from piezopreload.artifacts.summaries import (
     ValidateSummary,
 )
 from piezopreload.artifacts.system import SystemRecord
+from piezopreload.codesign import codesign_optimum
 from piezopreload.core.artifacts import atomic_write_bytes, package_version
 from piezopreload.core.errors import InputError
 from piezopreload.core.stagecache import StageCache
@@ -214,7 +215,11 @@ def _stage_design(ctx: _Ctx) -> Produced:
     d = ctx.out / "design"
     for stale in d.glob("design.pareto-*.csv"):  # a front the study no longer asks for
         stale.unlink()
-    result = ctx.study.design(progress=ctx.progress.say, bar=ctx.progress.bar("Pareto fronts"))
+    optimum = None
+    if (ctx.study.design_table or DesignTable()).method == "codesign":  # the design chosen with its controller
+        ctx.progress.say("[design] method = codesign: the design is chosen with its controller (nested co-design)")
+        optimum = codesign_optimum(ctx.study, progress=ctx.progress.say)
+    result = ctx.study.design(progress=ctx.progress.say, bar=ctx.progress.bar("Pareto fronts"), optimum=optimum)
     written = result.save(d / "design.json", {"study": ctx.study.path, "study_sha256": ctx.study.sha256})
     outputs = {"design": written[0], **{p.stem.rpartition(".")[2]: p for p in written[1:]}}
     s = result.schedule
@@ -413,12 +418,22 @@ def _learn_applies(study: StudySpec) -> str | None:
     return _plant_applies(study) or (None if study.learning is not None else "the study has no [learning] table")
 
 
+#: the tables a co-designed design (``[design] method = "codesign"``) reads beyond the design's: the plant, the
+#: feedforward, the tuning and the validation limits it is chosen with
+_CODESIGN_READS = ("rig", "plant", "controller", "feedforward", "reference", "simulation", "tuning", "validation")
+
+
+def _design_reads(study: StudySpec) -> tuple[str, ...]:
+    table = study.design_table or DesignTable()
+    return (("thermal",) if "stiffness:growth" in table.pareto else ()) + (
+        _CODESIGN_READS if table.method == "codesign" else ())
+
+
 STAGES: tuple[Stage, ...] = (
     Stage("design", "ball-screw preload design, Pareto fronts, schedule",
           ("ballscrew", "feed_drive", "duty", "design", "schedule"), (),
           ("models", "artifacts", "design"), _stage_design, files=("schedule.profile",), applies=_design_applies,
-          reads=lambda study: ("thermal",) if "stiffness:growth" in (study.design_table or DesignTable()).pareto
-          else ()),
+          reads=_design_reads),
     Stage("plant", "the designed preload system as the plant", ("rig", "plant"), ("design",),
           ("models", "artifacts", "design"),
           _stage_plant, applies=_plant_applies),

@@ -378,6 +378,11 @@ class StudySpec:
         if k.point is None:
             say = progress or self.say
             objective = (self.design_table or DesignTable()).objective
+            if (self.design_table or DesignTable()).method == "codesign":  # never the sequential design in its place
+                raise InputError(f"{self.path}: [design] method = \"codesign\": the design is chosen with its "
+                                 "controller by the co-design, which this step does not run; run the study "
+                                 "('piezopreload run', whose design stage runs it), or give it the co-designed design: "
+                                 "study.with_design(piezopreload.codesign.codesign_optimum(study))")
             say(f"solving the design's optimum ({objective}) once, for the plant and the preload schedule; every "
                 "later step keeps it ...")
             t0 = time.perf_counter()
@@ -587,10 +592,12 @@ class StudySpec:
 
     def design(self, *, objective: str | None = None, pareto: list[str] | None = None, points: int | None = None,
                schedule: str | Path | None = None, progress: ProgressLike | None = None,
-               bar: Callable[[int, int], None] | None = None) -> DesignResult:
+               bar: Callable[[int, int], None] | None = None, optimum: DesignOptimum | None = None) -> DesignResult:
         """The ball-screw preload design: the optimum for ``objective`` (the study's: solved once and kept, shared
         with :attr:`plant`), the Pareto fronts ``pareto`` (default: ``[design] pareto``; ``[]`` for none) and the
-        preload schedule for a load profile (``schedule``, a CSV; default: the study's, or a machining cycle)."""
+        preload schedule for a load profile (``schedule``, a CSV; default: the study's, or a machining cycle).
+        ``optimum``: the optimum already chosen (a co-design's, where ``[design] method = "codesign"``: the
+        design stage gives it), kept as the study's."""
         spec = self._spec("the design")
         d, s = self.design_table or DesignTable(), self.schedule or ScheduleTable()
         objective = objective or d.objective
@@ -601,16 +608,20 @@ class StudySpec:
             raise InputError(f"{self.path}: the Pareto front stiffness:growth needs a [thermal] table (the shift the "
                              "growth is read over)")
         table = self.thermal
+        if optimum is not None:  # chosen already (by the co-design): the record names what chose it
+            objective = optimum.objective
+        if optimum is None and objective == d.objective and d.method == "codesign":
+            self._point(say_of(progress))  # refused: the co-design is the application layer's (codesign_optimum)
         try:
             result = design_study(
                 spec, objective, pairs, d.pareto_points if points is None else points,
                 profile=None if profile_path is None else read_profile(profile_path), profile_name=str(profile_path),
                 **s.limits(), progress=say_of(progress), bar=bar,
-                optimum=k.optimum if objective == d.objective else None,
+                optimum=optimum if optimum is not None else k.optimum if objective == d.objective else None,
                 growth=None if table is None else lambda point: duty_growth_um(spec, point, table))
         except DesignInfeasible as exc:
             raise InfeasibleError(f"{self.path}: {exc}") from exc
-        if objective == d.objective and k.point is None:
+        if optimum is not None or (objective == d.objective and k.point is None):
             k.optimum, k.point = result.optimum, result.point
         return result
 

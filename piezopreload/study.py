@@ -4,8 +4,9 @@ take it.
 :class:`Study` is a :class:`~piezopreload.spec.StudySpec` (the typed tables, the plant and what the tables make,
 the design, the feedforward's identification, the schedule's tracking and learning) with the steps of the
 application layer as methods: :meth:`Study.tune`, :meth:`Study.simulate` and :meth:`Study.reproduce`
-(:mod:`piezopreload.results`), :meth:`Study.run` (:mod:`piezopreload.pipeline`) and :meth:`Study.sweep`
-(:mod:`piezopreload.sweep`). Each is a function of its module that takes any study; the pipeline and the sweep
+(:mod:`piezopreload.results`), :meth:`Study.run` (:mod:`piezopreload.pipeline`), :meth:`Study.codesign`
+(:mod:`piezopreload.codesign`) and :meth:`Study.sweep` (:mod:`piezopreload.sweep`). Each is a function of its
+module that takes any study; the pipeline and the sweep
 compose them without this module, which sits above them and which only the CLI imports.
 
 >>> import piezopreload as pp
@@ -28,10 +29,12 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
+from piezopreload import codesign as codesigns
 from piezopreload import pipeline, results
 from piezopreload import sweep as sweeps
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.sweep import DEFAULT_SWEEP_OUT, Scalar
+from piezopreload.codesign import CodesignResult, CodesignWeights
 from piezopreload.models.controller import PIDGains
 from piezopreload.outcome import StudyResult
 from piezopreload.pipeline import DEFAULT_OUT
@@ -185,6 +188,29 @@ class Study(StudySpec):
             The stages, the headline figures and every requirement's verdict.
         """
         return pipeline.run_study(self, out, force=force, progress=progress, overwrite=overwrite)
+
+    def codesign(self, weights: CodesignWeights | None = None, *, budget: int = 9, plants: int | None = None,
+                 progress: ProgressLike | None = None) -> CodesignResult:
+        """The sequential design and tuning, then the design and the PID chosen together (nested), both validated by
+        the same Monte Carlo, as ``piezopreload codesign``: :func:`piezopreload.codesign.codesign`.
+
+        Parameters
+        ----------
+        weights : CodesignWeights, optional
+            The objective's weights (default: what the study states, :meth:`CodesignWeights.of_study`).
+        budget : int
+            The most inner solves (a design, its plant and its tuning) of the outer search.
+        plants : int, optional
+            Monte Carlo plants for each answer (default: the study's ``[validation] plants``; 0: none).
+        progress : ProgressLike, optional
+            Where the steps are said.
+
+        Returns
+        -------
+        CodesignResult
+            Both answers, the objective of each, what changed and what it bought, the requirements side by side.
+        """
+        return codesigns.codesign(self, weights, budget=budget, validate_plants=plants, progress=progress)
 
     def sweep(self, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "grid", out: str | Path = DEFAULT_SWEEP_OUT,
               workers: int | None = None, scheduler: str | None = None, force: bool = False,

@@ -43,7 +43,8 @@ def _and(words: Any) -> str:
 #: the design's figure of rigidity, named apart from the controlled system's while cutting
 DESIGN_RIGIDITY = "least rigidity over the duty cases at their design preloads"
 _OBJECTIVE_NAMES = {"stiffness": "the least rigidity over the duty cases, maximised",
-                    "drag": "the time-mean drag torque, minimised", "life": "the rating life, maximised"}
+                    "drag": "the time-mean drag torque, minimised", "life": "the rating life, maximised",
+                    "codesign": "chosen with its controller by the nested co-design (docs/codesign.md)"}
 _METRIC_NAMES = {"rise_s": "rise time (s)", "peak_s": "peak time (s)", "settling_s": "settling time (s)"}
 _KIND_NAMES = {"classical": "a classical Prandtl-Ishlinskii model (the paper's eq. 15)",
                "paper-asymmetric": "the asymmetric Prandtl-Ishlinskii model of the paper's eq. 18",

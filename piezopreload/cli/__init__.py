@@ -21,6 +21,7 @@ from typing import Any
 
 from piezopreload.cli._common import EXIT_INPUT, EXIT_INTERNAL, EXIT_OK, Parser, command_help, exit_code_of
 from piezopreload.cli.autotune import register_autotune
+from piezopreload.cli.codesign import register_codesign
 from piezopreload.cli.design import register_ballscrew, register_design
 from piezopreload.cli.export import register_export
 from piezopreload.cli.identify import register_identify
@@ -41,8 +42,8 @@ __all__ = ["main", "build_parser", "COMMANDS", "EXIT_OK", "EXIT_INTERNAL", "EXIT
 #: first line of its docstring is NAME's line in ``--help``; it imports the floors' constants its choices name
 COMMANDS: tuple[Callable[[Any], None], ...] = (
     register_run, register_sweep, register_report, register_identify, register_simulate, register_reproduce,
-    register_tune, register_autotune, register_learn, register_validate, register_ballscrew, register_design,
-    register_export, register_rig,
+    register_tune, register_autotune, register_codesign, register_learn, register_validate, register_ballscrew,
+    register_design, register_export, register_rig,
 )
 
 

@@ -1,0 +1,637 @@
+"""Co-design of the preload system and its force controller, beside the sequential answer.
+
+The study is sequential: the design NLP (:func:`~piezopreload.design.preload.optimise`) picks the screw for its
+objective against rigidity, lift-off and life; the tuner (:func:`~piezopreload.tuning.pid.tune_pid`) then picks
+the gains on the plant that design made. :func:`codesign` chooses them together, **nested**: the design's
+continuous variables that shape the plant outside (the least rigidity the design must keep, a floor that moves it
+along the design's least-heat front, and the contact angle and the groove conformity), the design NLP and the tuning
+inside.
+
+For each outer candidate ``(rigidity floor, contact angle, conformity)``:
+
+1. the design NLP with the angle and conformity fixed chooses the rest (balls, turns, the bolts' preload and so the
+   preload range) for the least nut heat whose least rigidity over the duty is at least the floor, under every
+   design requirement (rigidity per duty case, lift-off with its safety factor, life, contact pressure, drag,
+   frequency): a candidate no screw makes meet them is infeasible, not scored;
+2. its plant is built as the plant stage builds it (``[plant]``'s sleeve, the study's ``[rig]`` hardware), the
+   feedforward identified on it as the identify stage does;
+3. the PID is tuned on it by the study's own tuning (Ms on every plant variant and force-per-volt slope over the
+   whole stroke inside the NLP, the overshoot margin, the noise gain), started from the sequential gains;
+4. the whole-range tracking (the study's staircase) and the step are run on the nominal plant: the tracking RMS
+   and the settling time are constraints of the co-design (the validation's limits), not checked after it;
+5. the objective is the user's weighted sum of the screw's thermal growth over the shift (the design's duty-cycle
+   estimate), the schedule's friction energy per cycle (the least-friction schedule planned on that screw), the
+   tracking RMS and the peak command, each over its sequential value.
+
+The outer search is a bounded compass (pattern) search on the three variables scaled to ``[0, 1]`` (the floor from
+the least-heat design's rigidity to the sequential design's), started at the sequential design; a candidate
+replaces the incumbent only when it is feasible and lowers the objective, so the answer is never worse than the
+sequential one (whose objective is 1 by the normalisation). A sequential answer that misses the study (no gains the
+tuning finds meet the tracking or settling limit under the Ms limit) is replaced by the first candidate that meets
+it; where none does, the study is refused naming the binding pair. The outer search is
+derivative-free: the tuning NLP does not expose its optimum's sensitivity to the plant (the literature problems of
+:mod:`piezopreload.design.codesign_problems` show the sensitivity-driven nested strategy). The gain schedule over
+the preload level is not a decision of the outer loop: both answers are compared with the one robust gain set the
+tuning makes (the set ``piezopreload run`` keeps where it meets the specification at every level).
+
+Both answers are then validated by the same Monte Carlo (:func:`~piezopreload.tuning.validate.validate`, the
+study's ``[validation]`` plants, seed and limits).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from piezopreload.artifacts.design import DesignPoint
+from piezopreload.artifacts.validation import ValidationResult
+from piezopreload.core.errors import InfeasibleError, InputError
+from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignSpec, optimise
+from piezopreload.design.study import plan_schedule
+from piezopreload.design.tables import DesignTable, PlantTable, ScheduleTable
+from piezopreload.design.thermal import duty_growth_um
+from piezopreload.models.actuator import Plant
+from piezopreload.models.ballscrew import lift_off_load_N
+from piezopreload.models.controller import PIDGains
+from piezopreload.progress import ProgressLike, say_of
+from piezopreload.spec import StudySpec
+from piezopreload.tuning.feedforward import IdentifiedFeedforward
+from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, tune_pid
+from piezopreload.tuning.validate import validate
+
+__all__ = ["CodesignWeights", "Candidate", "CodesignResult", "codesign", "codesign_optimum", "evaluate_design",
+           "TERMS"]
+
+#: the objective's terms: (name, the candidate's attribute, unit)
+TERMS = (("growth", "growth_um", "um over the shift"), ("friction", "friction_energy_J", "J per cycle"),
+         ("tracking", "tracking_rms_N", "N"), ("voltage", "peak_voltage_V", "V"))
+#: the outer variables: (name, the design spec's range attribute, unit)
+#: the outer variables: (name, the design point's attribute its start is read from, unit); the rigidity floor
+#: makes each candidate a point of the design's least-heat front (``stiffness:growth``): the least nut heat whose
+#: least rigidity over the duty is at least the floor
+VARIABLES = (("stiffness_floor_N_per_um", "stiffness_N_per_um", "N/um"),
+             ("contact_angle_deg", "contact_angle_deg", "deg"), ("conformity", "conformity", ""))
+#: the design NLP's objective for a candidate: the least heat at the candidate's rigidity floor
+CANDIDATE_OBJECTIVE = "heat"
+STRATEGY = "nested"
+
+
+@dataclass(frozen=True)
+class CodesignWeights:
+    """The user's weights on the objective's terms (each term over its sequential value).
+
+    Parameters
+    ----------
+    growth : float
+        On the screw's largest thermal growth over the shift (the study's ``[thermal]``; the y of the design's
+        ``stiffness:growth`` front).
+    friction : float
+        On the preload schedule's friction energy per machining cycle.
+    tracking : float
+        On the nominal plant's RMS tracking error over the whole-range staircase.
+    voltage : float
+        On the stacks' peak command over the step and the staircase.
+    """
+
+    growth: float = 0.0
+    friction: float = 1.0
+    tracking: float = 1.0
+    voltage: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name, _, _ in TERMS:
+            w = getattr(self, name)
+            if not (isinstance(w, int | float) and math.isfinite(w) and w >= 0):
+                raise InputError(f"codesign weight '{name}': must be a finite number >= 0, got {w!r}")
+        if self.growth + self.friction + self.tracking + self.voltage <= 0:
+            raise InputError("codesign weights: at least one of growth, friction, tracking, voltage must be > 0")
+
+    @classmethod
+    def of_study(cls, study: StudySpec) -> CodesignWeights:
+        """What the study states: the thermal growth and the tracking alike where it has a ``[thermal]`` table, else
+        the schedule's friction energy and the tracking alike; the voltage not weighted."""
+        if study.thermal is not None:
+            return cls(growth=1.0, friction=0.0, tracking=1.0, voltage=0.0)
+        return cls(growth=0.0, friction=1.0, tracking=1.0, voltage=0.0)
+
+    def to_dict(self) -> dict[str, float]:
+        return {name: float(getattr(self, name)) for name, _, _ in TERMS}
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One design with its tuned controller: the design point, the gains and what they achieve on the nominal plant.
+
+    Attributes
+    ----------
+    point : DesignPoint
+        The design (its rigidity, life, preload range ...).
+    gains : PIDGains
+        The gains tuned on its plant.
+    coupling_stiffness_N_per_um : float
+        The nut's stiffness in series with the stacks that the plant sees.
+    ms : float
+        The tuned loop's largest sensitivity peak over the variants and slopes.
+    friction_energy_J, tracking_rms_N, peak_voltage_V, settling_s : float
+        The schedule's friction energy per cycle; the nominal tracking RMS over the staircase, the peak command and
+        the step's settling time.
+    feasible : bool
+        Whether it meets the co-design's constraints (the tracking RMS and settling limits).
+    why : str
+        What it misses ("" where feasible).
+    lift_off_N : float
+        The lift-off load at the bolts' preload by the catalogue rule ``2^(3/2) F_p`` the design's constraint uses.
+    growth_um : float
+        The screw's largest thermal growth over the shift (NaN: the study has no ``[thermal]`` table).
+    at : tuple of (str, float)
+        The outer variables' values it was designed at (empty: the sequential design, read off its point).
+    """
+
+    point: DesignPoint = field(repr=False)
+    gains: PIDGains
+    coupling_stiffness_N_per_um: float
+    ms: float
+    friction_energy_J: float
+    tracking_rms_N: float
+    peak_voltage_V: float
+    settling_s: float
+    feasible: bool
+    why: str = ""
+    lift_off_N: float = math.nan
+    growth_um: float = math.nan
+    at: tuple[tuple[str, float], ...] = ()
+
+    def variables(self) -> dict[str, float]:
+        """The outer variables' values."""
+        if self.at:
+            return dict(self.at)
+        return {name: float(getattr(self.point, attr)) for name, attr, _ in VARIABLES}
+
+    def objective(self, weights: CodesignWeights, reference: Candidate) -> float:
+        """The weighted sum of the terms, each over ``reference``'s (the sequential answer's), over the weights' sum."""
+        total = sum(getattr(weights, n) for n, _, _ in TERMS)
+        return sum(getattr(weights, n) * getattr(self, a) / getattr(reference, a)
+                   for n, a, _ in TERMS if getattr(weights, n) > 0) / total
+
+    def to_dict(self) -> dict[str, Any]:
+        p = self.point
+        return {"design": {"contact_angle_deg": p.contact_angle_deg, "conformity": p.conformity,
+                           "ball_mm": p.ball_mm, "turns": p.turns, "balls_per_turn": p.balls_per_turn,
+                           "bolt_preload_N": p.bolt_preload_N, "max_preload_N": p.max_preload_N,
+                           "stiffness_N_per_um": p.stiffness_N_per_um, "life_h": p.life_h,
+                           "mean_drag_torque_Nm": p.mean_drag_torque_Nm},
+                "gains": {"Kc_V_per_N": self.gains.Kc, "Ti_s": self.gains.Ti_s, "Td_s": self.gains.Td_s,
+                          "Tf_s": self.gains.Tf_s, "b": self.gains.b},
+                "coupling_stiffness_N_per_um": self.coupling_stiffness_N_per_um, "ms": self.ms,
+                "friction_energy_J": self.friction_energy_J, "tracking_rms_N": self.tracking_rms_N,
+                "peak_voltage_V": self.peak_voltage_V, "settling_s": self.settling_s, "lift_off_N": self.lift_off_N,
+                "growth_um": None if math.isnan(self.growth_um) else self.growth_um,
+                "feasible": self.feasible,
+                "why": self.why}
+
+
+@dataclass(frozen=True)
+class _Inner:
+    """What the inner problems share: the study's pieces read once."""
+
+    study: StudySpec
+    spec: DesignSpec
+    objective: str
+    tuning: TuningSpec
+    schedule_limits: dict[str, float]
+    max_iterations: int
+    say: Callable[[str], None]
+
+
+def _plant(study: StudySpec, point: DesignPoint) -> Plant:
+    table = study.plant_table or PlantTable()
+    return table.plant(study.design_spec, point, study.rig.params()).rig  # type: ignore[arg-type]
+
+
+def _nominal(study: StudySpec, plant: Plant, gains: PIDGains, ff: IdentifiedFeedforward) -> dict[str, float]:
+    """The gains on the nominal plant over the study's step and staircase (the validation's first plant)."""
+    r = validate(gains, ff.model, plant, study.criteria, n_plants=1, seed=study.seed,
+                 step=study.references["step"], trajectory=study.references["trajectory"])
+    return {k: float(r.metrics[k][0]) for k in ("tracking_rms_N", "peak_voltage_V", "settling_s", "overshoot_N")}
+
+
+def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | None = None,
+                    tuning: TuningSpec | None = None, max_iterations: int = 60,
+                    feedforward: IdentifiedFeedforward | None = None) -> Candidate:
+    """The inner problem for one design: its plant, the feedforward identified on it, the PID tuned on it (Ms inside),
+    and what the pair achieves on the nominal plant (the whole-range tracking and the step, the schedule's friction).
+
+    Raises :class:`~piezopreload.core.errors.InfeasibleError` naming the binding pair where no gains the tuning
+    finds meet the study's Ms limit together with the tracking RMS or settling limit.
+    """
+    spec = study.design_spec
+    if spec is None:
+        raise InputError(f"{study.path}: co-design needs the design's tables ([ballscrew], [design])")
+    tuning = tuning or study.tuning_spec
+    plant = _plant(study, point)
+    subject = study.with_design(point)
+    ff = feedforward or subject.identify_feedforward()
+    known = None if start is None else {"the sequential gains": start}
+    try:
+        tuned = tune_pid(plant, ff.inverse(), tuning, starts=1, max_iterations=max_iterations, known=known)
+    except TuningInfeasible as exc:
+        raise InfeasibleError(f"{study.path}: the design (contact angle {point.contact_angle_deg:.2f} deg, conformity "
+                              f"{point.conformity:.4f}) has no controller: {exc}") from exc
+    nominal = _nominal(study, plant, tuned.gains, ff)
+    sched = study.schedule or ScheduleTable()
+    schedule, _, _ = plan_schedule(spec, point, None, **sched.limits())
+    c = study.criteria
+    misses = []
+    if nominal["tracking_rms_N"] > c.tracking_rms_max_N:
+        misses.append(f"tracking RMS {nominal['tracking_rms_N']:.1f} N > {c.tracking_rms_max_N:g} N "
+                      "([validation] tracking_rms_max_N)")
+    if not nominal["settling_s"] <= c.settling_max_s:  # NaN: never settled
+        misses.append(f"settling {nominal['settling_s']:.3f} s > {c.settling_max_s:g} s ([validation] settling_max_s)")
+    why = ""
+    if misses:
+        binding = ", ".join(tuned.binding) or "none"
+        why = (f"with Ms <= {tuning.ms_max:g} ([tuning] ms_max; binding: {binding}) the best gains miss "
+               + "; ".join(misses))
+    return Candidate(point, tuned.gains, float(plant.coupling_stiffness_N_per_um), float(tuned.ms),
+                     float(schedule.friction_energy_J), nominal["tracking_rms_N"], nominal["peak_voltage_V"],
+                     nominal["settling_s"], not misses, why, float(lift_off_load_N(point.bolt_preload_N)),
+                     math.nan if study.thermal is None else float(duty_growth_um(spec, point, study.thermal)))
+
+
+@dataclass(frozen=True)
+class CodesignResult:
+    """The sequential answer and the co-designed one, each validated by the same Monte Carlo.
+
+    Parameters
+    ----------
+    study : str
+        The study's name.
+    strategy : str
+        How the co-design was solved (``"nested"``: the design outside, the tuning inside).
+    weights : CodesignWeights
+        The objective's weights.
+    sequential : Candidate
+        The sequential answer: the design NLP's optimum, then the tuning on its plant.
+    codesigned : Candidate
+        The co-designed answer (the sequential one where nothing beat it).
+    objective_sequential : float
+        The sequential answer's weighted objective (1 by the normalisation).
+    objective_codesigned : float
+        The co-designed answer's weighted objective.
+    evaluations : int
+        Inner problems solved (the sequential start included).
+    infeasible : tuple of str
+        The outer candidates refused and why.
+    sequential_s : float
+        Wall time of the sequential design plus tuning.
+    codesign_s : float
+        Wall time of the co-design's outer search after it.
+    limits : dict
+        The requirements' limits (the design's, the tuning's Ms, the validation's tracking RMS).
+    candidates : tuple of Candidate
+        Every feasible design-and-controller pair the search scored, the sequential start first (a co-designed
+        front's points).
+    validation_sequential : ValidationResult or None
+        The sequential answer's Monte Carlo (None where not run).
+    validation_codesigned : ValidationResult or None
+        The co-designed answer's Monte Carlo, on the same plants' draw (None where not run).
+    """
+
+    study: str
+    strategy: str
+    weights: CodesignWeights
+    sequential: Candidate
+    codesigned: Candidate
+    objective_sequential: float
+    objective_codesigned: float
+    evaluations: int
+    infeasible: tuple[str, ...]
+    sequential_s: float
+    codesign_s: float
+    limits: dict[str, float] = field(default_factory=dict, repr=False)
+    candidates: tuple[Candidate, ...] = field(default=(), repr=False)
+    validation_sequential: ValidationResult | None = field(default=None, repr=False)
+    validation_codesigned: ValidationResult | None = field(default=None, repr=False)
+
+    @property
+    def objective_ratio(self) -> float:
+        """Co-designed over sequential objective (<= 1 by construction)."""
+        return self.objective_codesigned / self.objective_sequential
+
+    @property
+    def time_ratio(self) -> float:
+        """The whole co-design's time (the sequential start included) over the sequential design and tuning."""
+        return (self.sequential_s + self.codesign_s) / self.sequential_s
+
+    def changed(self) -> list[str]:
+        """What the co-design changed in the design, in the design's units."""
+        a, b = self.sequential.point, self.codesigned.point
+        rows = []
+        for name, unit in (("contact_angle_deg", "deg"), ("conformity", ""), ("ball_mm", "mm"), ("turns", ""),
+                           ("balls_per_turn", ""), ("bolt_preload_N", "N"), ("stiffness_N_per_um", "N/um"),
+                           ("life_h", "h")):
+            x, y = float(getattr(a, name)), float(getattr(b, name))
+            if not math.isclose(x, y, rel_tol=1e-6, abs_tol=1e-9):
+                rows.append(f"{name} {x:.4g} -> {y:.4g}{' ' + unit if unit else ''}")
+        return rows
+
+    def bought(self) -> list[dict[str, Any]]:
+        """Each objective term: sequential, co-designed, the change, and its weighted share of the objective's
+        change."""
+        total = sum(getattr(self.weights, n) for n, _, _ in TERMS)
+        rows = []
+        for name, attr, unit in TERMS:
+            s, c = getattr(self.sequential, attr), getattr(self.codesigned, attr)
+            if math.isnan(s):  # growth without [thermal]
+                continue
+            w = getattr(self.weights, name)
+            rows.append({"term": name, "unit": unit, "sequential": s, "codesigned": c, "change": c - s,
+                         "weight": w, "objective_change": w * (c / s - 1.0) / total})
+        return rows
+
+    def coupling(self) -> str:
+        """Which coupling bought the difference: the term whose weighted change is the largest fall."""
+        rows = self.bought()
+        best = min(rows, key=lambda r: r["objective_change"])
+        if best["objective_change"] >= -1e-9:
+            return ("none: no candidate the search tried beat the sequential design (every step away from it raised "
+                    "the weighted objective or missed a requirement)")
+        how = {"growth": "the nut's drag heat (the contact angle and conformity set the drag, the drag the growth)",
+               "friction": "the schedule's friction (the screw's contact angle and conformity set its drag)",
+               "tracking": "the nut's stiffness against the stacks (the force per volt the loop's Ms limit allows)",
+               "voltage": "the stacks' command (the force per volt sets the voltage a force needs)"}[best["term"]]
+        return f"{best['term']}: {how}"
+
+    def requirements(self) -> list[dict[str, Any]]:
+        """Each requirement: its limit, the sequential's and the co-designed figure, in the requirement's units."""
+        a, b = self.sequential, self.codesigned
+        lim = self.limits
+        rows: list[dict[str, Any]] = [
+            {"requirement": "least rigidity over the duty", "unit": "N/um", "limit": lim.get("stiffness_min_N_per_um"),
+             "kind": "min", "sequential": a.point.stiffness_N_per_um, "codesigned": b.point.stiffness_N_per_um},
+            {"requirement": "lift-off load at the bolts' preload", "unit": "N", "limit": lim.get("lift_off_min_N"),
+             "kind": "min", "sequential": a.lift_off_N, "codesigned": b.lift_off_N},
+            {"requirement": "rating life", "unit": "h", "limit": lim.get("life_min_h"), "kind": "min",
+             "sequential": a.point.life_h, "codesigned": b.point.life_h},
+            {"requirement": "Ms over the tuning's variants", "unit": "", "limit": lim.get("ms_max"), "kind": "max",
+             "sequential": a.ms, "codesigned": b.ms},
+            {"requirement": "nominal tracking RMS, whole range", "unit": "N", "limit": lim.get("tracking_rms_max_N"),
+             "kind": "max", "sequential": a.tracking_rms_N, "codesigned": b.tracking_rms_N},
+        ]
+        if not math.isnan(a.growth_um):
+            # the design's estimate over the duty cycle (the stiffness:growth front's y); the study's limit
+            # (thermal_growth_max_um) is judged by the system stage along the controlled schedule, not here
+            rows.append({"requirement": "thermal growth over the shift, duty-cycle estimate", "unit": "um",
+                         "limit": None, "kind": "max", "sequential": a.growth_um, "codesigned": b.growth_um})
+        vs, vc = self.validation_sequential, self.validation_codesigned
+        if vs is not None and vc is not None:
+            for metric, unit, limit in (("settling_s", "s", vs.criteria.settling_max_s),
+                                        ("overshoot_N", "N", vs.criteria.overshoot_max_N),
+                                        ("tracking_rms_N", "N", vs.criteria.tracking_rms_max_N),
+                                        ("peak_voltage_V", "V", vs.criteria.peak_voltage_max_V)):
+                rows.append({"requirement": f"Monte Carlo worst {metric}", "unit": unit, "limit": limit, "kind": "max",
+                             "sequential": float(getattr(vs.worst, metric)),
+                             "codesigned": float(getattr(vc.worst, metric))})
+            rows.append({"requirement": f"Monte Carlo ({vs.n_plants} plants) passed", "unit": "", "limit": None,
+                         "kind": "verdict", "sequential": bool(vs.passed), "codesigned": bool(vc.passed)})
+        for row in rows:
+            if row["kind"] in ("min", "max") and row["limit"] is not None:
+                for which in ("sequential", "codesigned"):
+                    ok = row[which] >= row["limit"] if row["kind"] == "min" else row[which] <= row["limit"]
+                    row[f"{which}_met"] = bool(ok)
+        return rows
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"study": self.study, "strategy": self.strategy, "weights": self.weights.to_dict(),
+                "objective_sequential": self.objective_sequential, "objective_codesigned": self.objective_codesigned,
+                "objective_ratio": self.objective_ratio, "evaluations": self.evaluations,
+                "sequential_meets_the_study": self.sequential.feasible,
+                "sequential": self.sequential.to_dict(), "codesigned": self.codesigned.to_dict(),
+                "changed": self.changed(), "bought": self.bought(), "coupling": self.coupling(),
+                "requirements": self.requirements(), "infeasible": list(self.infeasible),
+                "sequential_s": self.sequential_s, "codesign_s": self.codesign_s, "time_ratio": self.time_ratio,
+                "validated": {"sequential": None if self.validation_sequential is None
+                              else bool(self.validation_sequential.passed),
+                              "codesigned": None if self.validation_codesigned is None
+                              else bool(self.validation_codesigned.passed)}}
+
+    def __repr__(self) -> str:
+        return (f"CodesignResult({self.study}, {self.strategy}: objective {self.objective_codesigned:.4f} against the "
+                f"sequential {self.objective_sequential:.4f} (ratio {self.objective_ratio:.4f}), "
+                f"{self.evaluations} inner solves, coupling {self.coupling().split(':')[0]})")
+
+
+def _optimum_at(spec: DesignSpec, values: dict[str, float]) -> DesignOptimum:
+    """The design NLP's least-heat optimum at the outer variables ``values``: the contact angle and conformity fixed,
+    the least rigidity over the duty at least the floor, and every design requirement inside."""
+    a, c = values["contact_angle_deg"], values["conformity"]
+    floor = max(spec.stiffness_min_N_per_um, values["stiffness_floor_N_per_um"] * (1.0 - _FLOOR_TOL))
+    fixed = replace(spec, contact_angle_deg=(a, a), conformity=(c, c), stiffness_min_N_per_um=floor)
+    return optimise(fixed, CANDIDATE_OBJECTIVE)
+
+
+_FLOOR_TOL = 1e-6  # the floor at the stiffness optimum's rigidity, less the solver's tolerance
+
+
+def codesign_optimum(study: StudySpec, progress: ProgressLike | None = None) -> DesignOptimum:
+    """The design optimum a study with ``[design] method = "codesign"`` takes: the co-design's design (its Monte
+    Carlo left to the study's validate stage), as the design NLP's optimum at the co-designed rigidity floor, contact
+    angle and conformity (the sequential optimum itself where the co-design kept it), its objective named
+    ``"codesign"``."""
+    result = codesign(study, validate_plants=0, progress=progress)
+    spec = study.design_spec
+    objective = (study.design_table or DesignTable()).objective
+    if spec is None:  # codesign refused it already; for the type checker
+        raise InputError(f"{study.path}: co-design needs the design's tables")
+    chosen = optimise(spec, objective) if result.codesigned is result.sequential else \
+        _optimum_at(spec, result.codesigned.variables())
+    return replace(chosen, objective="codesign")  # what chose it (the design artifact and the report say so)
+
+
+def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget: int = 9, step: float = 0.25,
+             min_step: float = 0.0625, validate_plants: int | None = None, max_iterations: int = 60,
+             time_factor: float | None = 10.0, progress: ProgressLike | None = None) -> CodesignResult:
+    """The sequential design and tuning, then the nested co-design started from it; both validated alike.
+
+    Parameters
+    ----------
+    study : StudySpec
+        A study with the design's tables (``[ballscrew]``, ``[design]``).
+    weights : CodesignWeights, optional
+        The objective's weights (default: :meth:`CodesignWeights.of_study`, what the study states).
+    budget : int
+        The most inner problems the outer search solves after the sequential start.
+    step, min_step : float
+        The compass search's first and last step on the variables scaled to their ranges.
+    validate_plants : int, optional
+        Monte Carlo plants for each answer (default: the study's ``[validation] plants``; 0: none).
+    max_iterations : int
+        IPOPT's iteration limit of each inner tuning.
+    time_factor : float, optional
+        The co-design's time limit as a multiple of the sequential design and tuning: no inner problem is started
+        that would end after it were it as slow as the slowest so far (None: the budget alone limits it).
+    progress : ProgressLike, optional
+        Where the steps are said.
+
+    Returns
+    -------
+    CodesignResult
+        Both answers, their objective, what changed, what it bought, the Monte Carlo of each.
+    """
+    say = say_of(progress) or (lambda _m: None)
+    weights = weights or CodesignWeights.of_study(study)
+    if weights.growth > 0 and study.thermal is None:
+        raise InputError(f"{study.path}: the co-design's growth weight needs a [thermal] table (the shift the growth "
+                         "is read over); weight friction instead")
+    if budget < 0:
+        raise InputError(f"codesign budget: must be >= 0 inner solves, got {budget!r}")
+    if time_factor is not None and not time_factor > 1:
+        raise InputError(f"codesign time_factor: must be > 1 (a multiple of the sequential time), got {time_factor!r}")
+    if not 0 < min_step <= step <= 1:
+        raise InputError(f"codesign steps: need 0 < min_step <= step <= 1, got {min_step!r}, {step!r}")
+    spec = study.design_spec
+    if spec is None:
+        raise InputError(f"{study.path}: co-design needs the design's tables ([ballscrew], [design]); see "
+                         "studies/machine_axis.toml")
+    objective = (study.design_table or DesignTable()).objective
+
+    # ---- the sequential answer: the design, then the tuning on its plant ----------------------------------
+    t0 = time.perf_counter()
+    try:
+        seq_point = optimise(spec, objective).point
+    except DesignInfeasible as exc:
+        raise InfeasibleError(f"{study.path}: {exc}") from exc
+    sequential = evaluate_design(study, seq_point, max_iterations=max_iterations)
+    sequential_s = time.perf_counter() - t0
+    say(f"sequential: {objective} design, then the tuning ({sequential_s:.1f} s): tracking RMS "
+        f"{sequential.tracking_rms_N:.2f} N, friction {sequential.friction_energy_J:.4g} J per cycle"
+        + ("" if sequential.feasible else f"; it misses the study: {sequential.why}"))
+
+    # ---- the nested co-design: a compass search over the plant-shaping variables --------------------------
+    t1 = time.perf_counter()
+    search = _Search(study, spec, objective, weights, sequential, sequential_s, max_iterations, time_factor, say)
+    best, best_f = search.run(budget, step, min_step)
+    codesign_s = time.perf_counter() - t1
+    if not best.feasible:  # the sequential design has no controller that meets the study, and no candidate had one
+        raise InfeasibleError(f"{study.path}: the sequential design (contact angle {seq_point.contact_angle_deg:.2f} "
+                              f"deg, conformity {seq_point.conformity:.4f}, rigidity "
+                              f"{seq_point.stiffness_N_per_um:.0f} N/um) has no controller that meets the study: "
+                              f"{sequential.why}; nor had any of the {search.evaluations} designs the co-design tried")
+    say(f"co-design ({STRATEGY}, {search.evaluations} inner solves{search.stopped}, {codesign_s:.1f} s): objective "
+        f"{best_f:.4f} against the sequential 1")
+
+    # ---- the same Monte Carlo for both ---------------------------------------------------------------------
+    plants = study.validation.plants if validate_plants is None else int(validate_plants)
+    v_seq = v_co = None
+    if plants > 0:
+        v_seq = _monte_carlo(study, sequential, plants)
+        v_co = v_seq if best is sequential else _monte_carlo(study, best, plants)
+        say(f"Monte Carlo ({plants} plants): sequential {'passed' if v_seq.passed else 'failed'}, co-designed "
+            f"{'passed' if v_co.passed else 'failed'}")
+    limits = {"stiffness_min_N_per_um": spec.stiffness_min_N_per_um,
+              "lift_off_min_N": spec.lift_off_margin * spec.failsafe_load_N, "life_min_h": spec.life_min_h,
+              "ms_max": study.tuning_spec.ms_max, "tracking_rms_max_N": study.criteria.tracking_rms_max_N}
+    return CodesignResult(study.name, STRATEGY, weights, sequential, best, 1.0, best_f, search.evaluations + 1,
+                          tuple(search.refused), sequential_s, codesign_s, limits, tuple(search.scored), v_seq, v_co)
+
+
+class _Search:
+    """The outer compass search over :data:`VARIABLES` scaled to ``[0, 1]``, from the sequential design.
+
+    A candidate replaces the incumbent only when it is feasible and lowers the objective, so the answer is never
+    worse than the start; each inner tuning starts from the incumbent's gains.
+    """
+
+    def __init__(self, study: StudySpec, spec: DesignSpec, objective: str, weights: CodesignWeights,
+                 sequential: Candidate, sequential_s: float, max_iterations: int, time_factor: float | None,
+                 say: Callable[[str], None]) -> None:
+        self.study, self.spec, self.objective, self.weights = study, spec, objective, weights
+        self.sequential, self.sequential_s = sequential, sequential_s
+        self.max_iterations, self.time_factor, self.say = max_iterations, time_factor, say
+        least_heat = optimise(spec, CANDIDATE_OBJECTIVE).point.stiffness_N_per_um  # the front's soft end
+        top = sequential.point.stiffness_N_per_um
+        self.ranges = [(min(least_heat, top), top), tuple(spec.contact_angle_deg), tuple(spec.conformity)]
+        self.evaluations, self.stopped, self.slowest = 0, "", 0.0
+        self.refused: list[str] = []
+        self.scored: list[Candidate] = [sequential]
+        self.t0 = time.perf_counter()
+
+    def values(self, z: np.ndarray) -> dict[str, float]:
+        return {name: float(lo + zi * (hi - lo)) for (name, _, _), (lo, hi), zi in zip(VARIABLES, self.ranges, z)}
+
+    def in_time(self) -> bool:
+        """Whether one more inner solve, as slow as the slowest so far, ends inside the time limit."""
+        if self.time_factor is None:
+            return True
+        spent = time.perf_counter() - self.t0
+        return self.sequential_s + spent + max(self.slowest, 0.5 * self.sequential_s) <= \
+            self.time_factor * self.sequential_s
+
+    def score(self, z: np.ndarray, start: PIDGains) -> tuple[Candidate | None, float]:
+        """One inner problem at ``z``: the candidate and its objective (inf: infeasible, and why is kept)."""
+        values = self.values(z)
+        self.evaluations += 1
+        t0 = time.perf_counter()
+        try:
+            cand = evaluate_design(self.study, _optimum_at(self.spec, values).point, start=start,
+                                   max_iterations=self.max_iterations)
+            cand = replace(cand, at=tuple(values.items()))
+        except InfeasibleError as exc:  # no screw, or no controller, for these values
+            self.refused.append(f"{values}: {exc}")
+            return None, math.inf
+        finally:
+            self.slowest = max(self.slowest, time.perf_counter() - t0)
+        if not cand.feasible:
+            self.refused.append(f"{values}: {cand.why}")
+            return cand, math.inf
+        f = cand.objective(self.weights, self.sequential)
+        self.scored.append(cand)
+        self.say(f"  candidate {', '.join(f'{k} {v:.4g}' for k, v in values.items())}: objective {f:.4f}")
+        return cand, f
+
+    def run(self, budget: int, step: float, min_step: float) -> tuple[Candidate, float]:
+        p = self.sequential.point
+        z = np.array([(getattr(p, attr) - lo) / (hi - lo) if hi > lo else 0.0
+                      for (_, attr, _), (lo, hi) in zip(VARIABLES, self.ranges)])
+        best = self.sequential  # a start that misses the study is replaced by the first candidate that meets it
+        best_f = self.sequential.objective(self.weights, self.sequential) if self.sequential.feasible else math.inf
+        seen = {tuple(np.round(z, 9))}
+        h = step
+        # opportunistic polling: the first direction that improves is taken, and tried first at the next poll
+        directions = [(i, sign) for i in range(len(VARIABLES)) for sign in (-1.0, +1.0)]
+        while h >= min_step and self.evaluations < budget and not self.stopped:
+            improved = False
+            for i, sign in list(directions):
+                lo, hi = self.ranges[i]
+                trial = z.copy()
+                trial[i] = min(1.0, max(0.0, trial[i] + sign * h))
+                key = tuple(np.round(trial, 9))
+                if hi <= lo or key in seen or self.evaluations >= budget or self.stopped:
+                    continue
+                if not self.in_time():
+                    self.stopped = f" (stopped at {self.time_factor:g} times the sequential time)"
+                    continue
+                seen.add(key)
+                cand, f = self.score(trial, best.gains)
+                if cand is not None and f < best_f - 1e-9:
+                    best, best_f, z, improved = cand, f, trial, True
+                    directions.remove((i, sign))
+                    directions.insert(0, (i, sign))
+                    break
+            if not improved:
+                h /= 2.0
+        return best, best_f
+
+
+def _monte_carlo(study: StudySpec, cand: Candidate, plants: int) -> ValidationResult:
+    subject = study.with_design(cand.point)
+    ff = subject.identify_feedforward()
+    return validate(cand.gains, ff.model, _plant(study, cand.point), study.criteria, n_plants=plants,
+                    seed=study.seed if study.validation.seed is None else study.validation.seed,
+                    step=study.references["step"],
+                    trajectory=study.references["trajectory"])

@@ -1,0 +1,210 @@
+"""The study's co-design (piezopreload/codesign.py): never worse than its sequential start, a design no controller
+makes meet the study refused by its binding pair, the objective's normalisation, the command line, and a study whose
+design step is the co-design (``[design] method = "codesign"``) run end to end."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from piezopreload.cli import main
+from piezopreload.codesign import Candidate, CodesignWeights, codesign, codesign_optimum, evaluate_design
+from piezopreload.core.errors import InfeasibleError, InputError
+from piezopreload.design.preload import optimise
+from piezopreload.models.controller import PIDGains
+from piezopreload.study import load_study
+
+SMALL_AXIS = Path(__file__).parent / "data" / "small_axis.toml"
+
+
+def _candidate(friction: float, tracking: float, voltage: float) -> Candidate:
+    return Candidate(point=None, gains=PIDGains(Kc=0.01, Ti_s=0.05), coupling_stiffness_N_per_um=1000.0,  # type: ignore[arg-type]
+                     ms=1.5, friction_energy_J=friction, tracking_rms_N=tracking, peak_voltage_V=voltage,
+                     settling_s=0.2, feasible=True)
+
+
+def test_the_objective_is_the_weighted_sum_over_the_sequential_values():
+    seq = _candidate(200.0, 30.0, 100.0)
+    half_tracking = _candidate(200.0, 15.0, 100.0)
+    w = CodesignWeights(friction=1.0, tracking=1.0, voltage=0.0)
+    assert seq.objective(w, seq) == pytest.approx(1.0)
+    # (1 * 200/200 + 1 * 15/30 + 0) / 2 = 0.75
+    assert half_tracking.objective(w, seq) == pytest.approx(0.75)
+    w3 = CodesignWeights(friction=2.0, tracking=1.0, voltage=1.0)
+    # (2 * 1 + 1 * 0.5 + 1 * 1) / 4 = 0.875
+    assert half_tracking.objective(w3, seq) == pytest.approx(0.875)
+
+
+def test_bad_weights_are_refused_by_name():
+    with pytest.raises(InputError, match="'tracking'"):
+        CodesignWeights(tracking=-1.0)
+    with pytest.raises(InputError, match="at least one"):
+        CodesignWeights(0.0, 0.0, 0.0)
+
+
+@pytest.fixture(scope="module")
+def small():
+    return load_study(SMALL_AXIS)
+
+
+@pytest.fixture(scope="module")
+def small_codesign(small):
+    return codesign(small, budget=3, validate_plants=3, time_factor=None)
+
+
+@pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
+def test_codesign_is_never_worse_than_its_sequential_start(small, small_codesign):
+    r = small_codesign
+    assert r.strategy == "nested"
+    assert r.objective_codesigned <= r.objective_sequential + 1e-12
+    assert r.objective_sequential == pytest.approx(1.0)
+    # the sequential answer is the design NLP's optimum for the study's objective, then the tuning on its plant
+    seq = optimise(small.design_spec, small.design_table.objective).point
+    assert r.sequential.point.contact_angle_deg == pytest.approx(seq.contact_angle_deg)
+    assert r.sequential.point.conformity == pytest.approx(seq.conformity)
+    # every inner solve but the start is counted, and the answer meets the co-design's constraints
+    assert 1 <= r.evaluations <= 4
+    assert r.codesigned.feasible
+    assert r.codesigned.ms <= small.tuning_spec.ms_max + 1e-3
+    assert r.codesigned.tracking_rms_N <= small.criteria.tracking_rms_max_N
+    # the objective reported is the candidate's, recomputed
+    w = r.weights
+    assert r.objective_codesigned == pytest.approx(r.codesigned.objective(w, r.sequential))
+
+
+@pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
+def test_both_answers_are_validated_by_the_same_monte_carlo(small_codesign):
+    r = small_codesign
+    assert r.validation_sequential is not None and r.validation_codesigned is not None
+    assert r.validation_sequential.n_plants == r.validation_codesigned.n_plants == 3
+    assert r.validation_sequential.seed == r.validation_codesigned.seed
+    rows = {row["requirement"]: row for row in r.requirements()}
+    assert rows["Ms over the tuning's variants"]["limit"] == pytest.approx(1.6)
+    # the lift-off requirement: the design NLP keeps 2^(3/2) F_bolt above lift_off_margin x failsafe_load_N
+    lift = rows["lift-off load at the bolts' preload"]
+    assert lift["limit"] == pytest.approx(1.2 * 600.0)
+    assert lift["sequential"] == pytest.approx(2 ** 1.5 * r.sequential.point.bolt_preload_N)
+    assert lift["sequential"] >= lift["limit"] * (1 - 1e-6)
+    d = r.to_dict()
+    json.dumps(d, allow_nan=False)
+    assert d["strategy"] == "nested" and d["objective_ratio"] <= 1.0
+
+
+@pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
+def test_a_design_no_controller_makes_meet_the_study_is_refused_naming_the_binding_pair(small):
+    # at Ms <= 1.6 the best PI the tuning finds tracks the staircase to about 28 N RMS on this plant: a limit of 5 N
+    # is out of reach, and the refusal names the pair: the Ms limit (binding) and the tracking limit
+    tight = small.replace(validation={"tracking_rms_max_N": 5.0})
+    with pytest.raises(InfeasibleError) as err:
+        codesign(tight, budget=0, validate_plants=0)
+    message = str(err.value)
+    assert "Ms <= 1.6" in message and "binding" in message
+    assert "tracking RMS" in message and "> 5 N" in message and "tracking_rms_max_N" in message
+    assert "contact angle" in message
+
+
+@pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
+def test_evaluate_design_starts_from_given_gains_and_keeps_them_where_they_are_best(small, small_codesign):
+    seq = small_codesign.sequential
+    again = evaluate_design(small, seq.point, start=seq.gains)
+    assert again.tracking_rms_N <= seq.tracking_rms_N * 1.05
+    assert math.isfinite(again.friction_energy_J) and again.friction_energy_J == pytest.approx(seq.friction_energy_J)
+
+
+@pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
+def test_codesign_command_prints_one_json_object(tmp_path, capsys):
+    code = main(["codesign", str(SMALL_AXIS), "--budget", "0", "--plants", "2", "--json"])
+    out = capsys.readouterr().out
+    assert code == 0
+    doc = json.loads(out)
+    assert doc["strategy"] == "nested" and doc["objective_ratio"] == pytest.approx(1.0)
+    assert doc["validated"]["sequential"] is not None
+
+
+def test_codesign_command_refuses_bad_input(capsys):
+    assert main(["codesign", str(SMALL_AXIS), "--budget", "-1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("error: --budget")
+
+
+@pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
+def test_codesign_command_exits_2_on_a_design_no_controller_meets(tmp_path, capsys):
+    text = SMALL_AXIS.read_text().replace("tracking_rms_max_N = 100.0", "tracking_rms_max_N = 5.0")
+    study = tmp_path / "tight.toml"
+    study.write_text(text)
+    assert main(["codesign", str(study), "--budget", "0", "--plants", "0"]) == 2
+    assert "error:" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_a_study_with_method_codesign_runs_end_to_end(tmp_path):
+    text = SMALL_AXIS.read_text().replace("[design]\n", '[design]\nmethod = "codesign"\n', 1)
+    path = tmp_path / "small_codesign.toml"
+    path.write_text(text)
+    study = load_study(path)
+    assert study.design_table.method == "codesign"
+    out = tmp_path / "out"
+    code = main(["run", str(path), "--out", str(out), "--json", "--quiet"])
+    assert code == 0, "the co-designed small study failed"
+    from piezopreload.artifacts.design import DesignRecord
+
+    record = DesignRecord.load(out / "design" / "design.json")
+    expected = codesign_optimum(load_study(path)).point
+    assert record.optimum.point.contact_angle_deg == pytest.approx(expected.contact_angle_deg, rel=1e-6)
+    assert record.optimum.point.conformity == pytest.approx(expected.conformity, rel=1e-6)
+    plant = json.loads((out / "plant.json").read_text())
+    assert plant  # the plant stage ran on the co-designed design
+
+
+def test_the_method_key_is_declared_once_and_checked(tmp_path):
+    text = SMALL_AXIS.read_text().replace("[design]\n", '[design]\nmethod = "both"\n', 1)
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(InputError, match="method"):
+        load_study(path)
+    assert replace(load_study(SMALL_AXIS).design_table).method == "sequential"
+
+
+def test_a_growth_weight_needs_the_thermal_table(small):
+    without = small.replace(thermal=None)
+    assert without.thermal is None
+    with pytest.raises(InputError, match=r"growth weight needs a \[thermal\] table"):
+        codesign(without, CodesignWeights(growth=1.0, tracking=1.0), budget=0, validate_plants=0)
+    # what the study states: growth and tracking where it has [thermal], friction and tracking where not
+    assert CodesignWeights.of_study(small) == CodesignWeights(growth=1.0, friction=0.0, tracking=1.0)
+    assert CodesignWeights.of_study(without) == CodesignWeights(growth=0.0, friction=1.0, tracking=1.0)
+
+
+def test_a_codesign_study_s_plant_is_never_the_sequential_design_in_its_place(tmp_path):
+    text = SMALL_AXIS.read_text().replace("[design]\n", '[design]\nmethod = "codesign"\n', 1)
+    path = tmp_path / "small_codesign.toml"
+    path.write_text(text)
+    study = load_study(path)
+    with pytest.raises(InputError, match='method = "codesign"'):
+        study.plant  # noqa: B018 - the property solves the design
+    seq = optimise(study.design_spec, study.design_table.objective)
+    assert study.with_design(seq).plant is not None  # a design given is taken as it is
+
+
+def test_a_worse_candidate_never_replaces_the_sequential_answer(small, monkeypatch):
+    # every candidate after the sequential start is made 20 % worse on the tracking: the search must keep the start
+    import piezopreload.codesign as cd
+
+    real, made = cd.evaluate_design, []
+
+    def evaluate(study, point, **kwargs):
+        if not made:
+            made.append(real(study, point, **kwargs))
+            return made[0]
+        return replace(made[0], point=point, tracking_rms_N=made[0].tracking_rms_N * 1.2)
+
+    monkeypatch.setattr(cd, "evaluate_design", evaluate)
+    r = cd.codesign(small, CodesignWeights(growth=0.0, friction=0.0, tracking=1.0), budget=3, validate_plants=0,
+                    time_factor=None)
+    assert r.evaluations == 4  # the start and three candidates scored
+    assert r.codesigned is r.sequential
+    assert r.objective_codesigned == pytest.approx(1.0)
