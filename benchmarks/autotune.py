@@ -431,7 +431,10 @@ def _sampled_nyquist_stable(case: Case, kp: float, ki: float, kd: float, Tf: flo
     python-control's zero-order-hold equivalent times ``z^-d``, the unit circle's upper half at 8 points per
     sample of delay (``z^-d`` turns a sixteenth of a turn between them) and log-spaced below, the integrators
     (the plant's and the controller's) indented; the open loop's unstable poles from the sampled plant's."""
-    Ts, d = case.Ts, int(round(case.delay / case.Ts))
+    Ts = case.Ts
+    if Ts is None:
+        raise ValueError(f"{case.name}: the Nyquist check is for a sampled loop, and the case has no sample period")
+    d = int(round(case.delay / Ts))
     Gd = control.c2d(case.G, Ts, "zoh")
     top = np.pi / Ts
     w = np.unique(np.concatenate([np.logspace(np.log10(top) - 12, np.log10(top / (4 * d)), 2000),
