@@ -26,7 +26,7 @@ from piezopreload.core.quantities import number
 from piezopreload.core.records import Record, entry, record
 
 __all__ = ["Requirement", "AtBound", "OffBounds", "BASES", "EXIT_REQUIREMENT_MISSED", "requirements_from_dict",
-           "missed", "least_margin", "unaccepted"]
+           "missed", "least_margin", "own_constraints", "unaccepted"]
 
 #: the exit code of a study that ran but missed a requirement (0 done, 1 internal, 2 bad input, 3 rig stopped)
 EXIT_REQUIREMENT_MISSED = 4
@@ -178,9 +178,19 @@ def missed(requirements: Iterable[Requirement]) -> tuple[Requirement, ...]:
 
 
 def least_margin(requirements: Iterable[Requirement]) -> Requirement | None:
-    """The requirement with the least margin as a share of its limit (the one nearest to being missed), or None."""
+    """The requirement with the least margin as a share of its limit (the one nearest to being missed), or None.
+
+    The design's own constraints (``basis == "design"``: a bound the design is built to sit on, so its margin is
+    small by construction and says nothing of what the physics grants) are left aside where any other requirement
+    has a margin; :func:`own_constraints` lists them."""
     rs = [r for r in requirements if r.margin_pct is not None]
-    return min(rs, key=lambda r: r.margin_pct or 0.0) if rs else None
+    granted = [r for r in rs if r.basis != "design"] or rs
+    return min(granted, key=lambda r: r.margin_pct or 0.0) if granted else None
+
+
+def own_constraints(requirements: Iterable[Requirement]) -> tuple[Requirement, ...]:
+    """The design's own constraints among ``requirements`` (``basis == "design"``), in order."""
+    return tuple(r for r in requirements if r.basis == "design")
 
 
 def unaccepted(missed_ones: Iterable[Requirement], accepted: Iterable[str]) -> tuple[Requirement, ...]:

@@ -19,7 +19,7 @@ import numpy as np
 
 from piezopreload.artifacts.design import CONSTRAINT_WORDS, VARIABLE_WORDS, DesignRecord, case_words
 from piezopreload.artifacts.learning import LearningRecord
-from piezopreload.artifacts.requirements import Requirement, least_margin, missed
+from piezopreload.artifacts.requirements import Requirement, least_margin, missed, own_constraints
 from piezopreload.artifacts.responses import ResponseRun
 from piezopreload.artifacts.system import SystemRecord
 from piezopreload.reports.document import fmt, pct, q
@@ -128,6 +128,11 @@ def verdicts(a: Artifacts) -> tuple[str, ...]:
     if not miss:
         least = least_margin(checked)
         nearest = "" if least is None else f"; the nearest to its limit: {least.sentence(source=False)}"
+        own = own_constraints(checked)
+        if own and least is not None and least.basis != "design":
+            nearest += ("; apart from " + ", ".join(r.sentence(source=False) for r in own) +
+                        (", the design's own constraint" if len(own) == 1 else ", the design's own constraints") +
+                        ", which it is built to sit on")
         lines = [f"Every requirement the study sets is met: {len(checked)} checked, each with its margin and the key "
                  f"that sets it in the section on the requirements{nearest}."]
     else:

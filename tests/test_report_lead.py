@@ -16,7 +16,7 @@ from types import SimpleNamespace
 import pytest
 
 from piezopreload.artifacts.manifest import StudyRef
-from piezopreload.artifacts.requirements import Requirement
+from piezopreload.artifacts.requirements import Requirement, least_margin, own_constraints
 from piezopreload.artifacts.sensitivity import SensitivityRecord, SensitivityRow
 from piezopreload.core.quantities import RESOLUTION, number, quantity
 from piezopreload.core.stages import StageOutcome
@@ -155,6 +155,23 @@ def test_print_result_shows_the_verdict_and_each_requirement_with_its_margin():
         assert f"{number(r.value, r.unit)} {r.unit}" in row and f"{number(r.limit, r.unit)} {r.unit}" in row
     html = _result(reqs)._repr_html_()
     assert all(r.name in html for r in reqs) and "40.8 %" in html and "missed" in html
+
+
+def test_the_least_margin_leaves_the_designs_own_constraint_aside():
+    """The schedule is built to sit on its lift-off bound (its margin is small by construction): the least margin
+    a user reads is the least of what the physics grants, the design's own constraint named apart."""
+    own = Requirement("preload against the schedule's lift-off bound while cutting", 1706.1, 1697.06, "N", "min",
+                      basis="design")
+    physical = Requirement("lift-off load by the nut law against the cutting load", 1263.0, 1240.0, "N", "min",
+                           basis="physics")
+    rigid = Requirement("rigidity while cutting", 901.1, 800.0, "N/um", "min")
+    assert least_margin((own, physical, rigid)) is physical
+    assert own_constraints((rigid, own, physical)) == (own,)
+    assert least_margin((own,)) is own  # nothing else has a margin: the constraint is the least there is
+    (line,) = verdicts(SimpleNamespace(requirements=lambda: (own, physical, rigid), system=None))
+    assert "the nearest to its limit: lift-off load by the nut law against the cutting load: 1,263 N" in line, line
+    assert "apart from preload against the schedule's lift-off bound while cutting: 1,706 N" in line, line
+    assert "the design's own constraint, which it is built to sit on" in line, line
 
 
 def test_print_result_of_a_run_that_met_everything_names_the_nearest():

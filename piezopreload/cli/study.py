@@ -7,6 +7,7 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from piezopreload.artifacts.requirements import own_constraints
 from piezopreload.cli._common import (
     fmt,
     json_flag,
@@ -17,7 +18,7 @@ from piezopreload.core.errors import InputError
 from piezopreload.core.quantities import number
 
 if TYPE_CHECKING:
-    from piezopreload.outcome import StudyResult
+    from piezopreload.outcome import RunSummary, StudyResult
     from piezopreload.results import StudyReproduction, StudyRun
     from piezopreload.sweep import SweepReport
 
@@ -74,7 +75,12 @@ def _print_run(s: StudyResult) -> None:
     if s.report:
         print(f"report: {s.report}")
     print(f"outputs: {s.out}")
-    summary = s.summary
+    _print_verdict(s.summary)
+
+
+def _print_verdict(summary: RunSummary) -> None:
+    """Every requirement with its margin, the least (the design's own constraints apart), the missed ones and the
+    verdict's robustness over the modelling assumptions."""
     met, checked = summary.requirements_met, summary.requirements
     if met is None:
         return
@@ -83,16 +89,18 @@ def _print_run(s: StudyResult) -> None:
     for r in checked:
         print(f"  {r.line(r.key, width)}")
     least = summary.least_margin
-    robustness = summary.headline.sensitivity
     if met:
         print(f"every requirement met; the least margin: {number(least.margin_pct or 0.0, '%')} % ({least.name})"
               if least else "every requirement met")
+        for r in own_constraints(checked):
+            print(f"  apart from it, the design's own constraint, which it is built to sit on: {r.name}, "
+                  f"{number(r.margin_pct or 0.0, '%')} %")
     else:
         print(f"{len(summary.missed)} requirement{'s' if len(summary.missed) != 1 else ''} missed:")
         for r in summary.missed:
             print(f"  missed: {r.sentence()}")
-    if robustness is not None:
-        print(f"robustness: {robustness.sentence()}")
+    if summary.headline.sensitivity is not None:
+        print(f"robustness: {summary.headline.sensitivity.sentence()}")
 
 
 def register_report(sub: Any) -> None:
