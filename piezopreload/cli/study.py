@@ -7,7 +7,6 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from piezopreload.artifacts.requirements import own_constraints
 from piezopreload.cli._common import (
     fmt,
     json_flag,
@@ -81,6 +80,8 @@ def _print_run(s: StudyResult) -> None:
 def _print_verdict(summary: RunSummary) -> None:
     """Every requirement with its margin, the least (the design's own constraints apart), the missed ones and the
     verdict's robustness over the modelling assumptions."""
+    from piezopreload.artifacts.requirements import own_constraints  # not at import: --help loads no floor
+
     met, checked = summary.requirements_met, summary.requirements
     if met is None:
         return
