@@ -130,9 +130,9 @@ def verdicts(a: Artifacts) -> tuple[str, ...]:
         nearest = "" if least is None else f"; the nearest to its limit: {least.sentence(source=False)}"
         own = own_constraints(checked)
         if own and least is not None and least.basis != "design":
-            nearest += ("; apart from " + ", ".join(r.sentence(source=False) for r in own) +
-                        (", the design's own constraint" if len(own) == 1 else ", the design's own constraints") +
-                        ", which it is built to sit on")
+            nearest += ("; apart from " + "; ".join(r.sentence(source=False) for r in own) +
+                        (": a bound the design is built to sit on" if len(own) == 1 else
+                         ": bounds the design is built to sit on"))
         lines = [f"Every requirement the study sets is met: {len(checked)} checked, each with its margin and the key "
                  f"that sets it in the section on the requirements{nearest}."]
     else:

@@ -94,8 +94,8 @@ def _print_verdict(summary: RunSummary) -> None:
         print(f"every requirement met; the least margin: {number(least.margin_pct or 0.0, '%')} % ({least.name})"
               if least else "every requirement met")
         for r in own_constraints(checked):
-            print(f"  apart from it, the design's own constraint, which it is built to sit on: {r.name}, "
-                  f"{number(r.margin_pct or 0.0, '%')} %")
+            print(f"  apart from {r.name}, {number(r.margin_pct or 0.0, '%')} %: a bound the design is built to "
+                  "sit on")
     else:
         print(f"{len(summary.missed)} requirement{'s' if len(summary.missed) != 1 else ''} missed:")
         for r in summary.missed:
