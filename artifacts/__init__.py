@@ -14,6 +14,7 @@ Importing this package imports every record, so every kind is known to
 """
 
 from piezopreload.artifacts import (  # noqa: F401 (each registers its kinds)
+    codesign,
     design,
     gainset,
     hostcheck,

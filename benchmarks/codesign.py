@@ -8,15 +8,18 @@
   (<= 1 by construction) and ``codesign_vs_sequential_time_ratio`` (the whole co-design, the sequential start
   included, over the sequential design and tuning; the sequential tuning here is the robust set, not the gain
   schedule ``piezopreload run`` also tunes, so the ratio is the stricter one).
-* The two fronts of thermal growth (the design's duty-cycle estimate) against the tracking RMS at the study's Ms:
-  the sequential front is the design's ``stiffness:growth`` front (the design alone trading rigidity for heat),
-  each point then tuned; the co-designed front is the non-dominated set of those points and every pair the
-  co-design scored. ``front_dominates``: every sequential point is weakly dominated by a co-designed one (true by
-  that construction: the co-design starts from the sequential answer); ``front_strictly_dominated`` counts the
-  sequential points a co-designed pair beats in both.
+* The two fronts of thermal growth (the design's duty-cycle estimate) against the tracking RMS at the study's Ms
+  (:func:`piezopreload.codesign.codesign_fronts`), each a sweep: the sequential one the design alone along its
+  ``stiffness:growth`` front, each point then tuned; the co-designed one the co-design at ``--front`` weights of the
+  growth against the tracking. ``front_dominates``: every sequential point is weakly dominated by a co-designed
+  one at the same Ms (:meth:`~piezopreload.artifacts.codesign.CodesignRecord.front_dominates`, computed from the two
+  sweeps: false where a sequential point beats every co-designed one in growth or tracking);
+  ``front_strictly_dominated`` counts the sequential points a co-designed pair beats in both.
+* Where the coupling is strong: the study co-designed again at a tighter settling limit (``--settling``, default
+  0.2 s), both answers through the same Monte Carlo plants, requirement by requirement (``strong_coupling``).
 
-Run: ``python benchmarks/codesign.py [--budget N] [--plants N] [--front N]``. The last line printed is one JSON
-object.
+Run: ``python benchmarks/codesign.py [--budget N] [--plants N] [--front N] [--settling S]``. The last line printed
+is one JSON object.
 """
 
 from __future__ import annotations
@@ -25,10 +28,9 @@ import argparse
 import json
 import time
 
-from piezopreload.codesign import Candidate, codesign, evaluate_design
+from piezopreload.artifacts.codesign import nondominated
+from piezopreload.codesign import codesign, codesign_fronts, codesign_record
 from piezopreload.design import codesign_problems as cp
-from piezopreload.design.preload import pareto_front
-from piezopreload.design.thermal import duty_growth_um
 from piezopreload.study import load_study
 
 
@@ -49,29 +51,13 @@ def literature() -> dict:
     return {"rows": rows, "worst_ratio": worst["ratio"]}
 
 
-def _point(c: Candidate) -> tuple[float, float]:
-    """(growth um, tracking RMS N), to 6 significant digits (the tuning's own tolerance is coarser)."""
-    return float(f"{c.growth_um:.6g}"), float(f"{c.tracking_rms_N:.6g}")
-
-
-def _dominates(a: tuple[float, float], b: tuple[float, float], strict: bool = False) -> bool:
-    """``a`` no worse than ``b`` in both (``strict``: better in both); points are compared as rounded."""
-    if strict:
-        return a[0] < b[0] and a[1] < b[1]
-    return a[0] <= b[0] and a[1] <= b[1]
-
-
-def _nondominated(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
-    """The points no other point dominates (no worse in both, better in one), each once."""
-    unique = sorted(set(points))
-    return [p for p in unique if not any(_dominates(q, p) and q != p for q in unique)]
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--budget", type=int, default=9, help="the co-design's inner solves (default 9)")
     ap.add_argument("--plants", type=int, help="Monte Carlo plants (default: the study's)")
-    ap.add_argument("--front", type=int, default=4, help="points of the sequential front (default 4)")
+    ap.add_argument("--front", type=int, default=3, help="points of each front's sweep (default 3)")
+    ap.add_argument("--settling", type=float, default=0.2,
+                    help="a tighter settling limit (s) both answers are co-designed and validated at (default 0.2)")
     args = ap.parse_args()
 
     lit = literature()
@@ -88,29 +74,38 @@ def main() -> None:
               f"co-designed {row.get('codesigned')}")
 
     # ---- the two fronts: thermal growth against tracking RMS at the study's Ms ---------------------------
-    spec, table = study.design_spec, study.thermal
-    if spec is None or table is None:
+    if study.design_spec is None or study.thermal is None:
         raise SystemExit("the default study has lost its design or [thermal] tables: the fronts need both")
-    front = pareto_front(spec, "stiffness:growth", args.front, growth=lambda p: duty_growth_um(spec, p, table))
-    sequential_front = []
-    for p in front.points:
-        c = evaluate_design(study, p, start=r.sequential.gains)
-        if c.feasible:
-            sequential_front.append(_point(c))
-        why = "" if c.feasible else " " + c.why
-        print(f"  sequential front: rigidity {p.stiffness_N_per_um:.0f} N/um, contact angle {p.contact_angle_deg:.1f} "
-              f"deg: growth {c.growth_um:.1f} um, tracking RMS {c.tracking_rms_N:.2f} N{why}")
-    sequential_front.append(_point(r.sequential))
-    codesigned_front = _nondominated(sequential_front + [_point(c) for c in r.candidates])
-    dominates = all(any(_dominates(q, p) for q in codesigned_front) for p in sequential_front)
-    strictly = sum(any(_dominates(_point(c), p, strict=True) for c in r.candidates) for p in sequential_front)
-    shown = [(round(a, 1), round(b, 2)) for a, b in sorted(sequential_front)]
-    print(f"  sequential front (growth um, tracking N): {shown}")
-    print(f"  co-designed front: {[(round(a, 1), round(b, 2)) for a, b in codesigned_front]}")
+    t_front = time.perf_counter()
+    fronts = codesign_fronts(study, r, points=args.front, progress=print)
+    rec = codesign_record(study, r, fronts)
+    dominates, strictly = rec.front_dominates(), rec.strictly_dominated()
+    for name, points in (("sequential", rec.sequential_front), ("co-designed", rec.codesigned_front)):
+        front = [(round(p.growth_um, 2), round(p.tracking_rms_N, 2)) for p in nondominated(points)]
+        print(f"  {name} front (growth um, tracking N), non-dominated of {len(points)} swept: {front}")
+    print(f"  fronts: {time.perf_counter() - t_front:.1f} s; the co-designed front "
+          f"{'is nowhere worse' if dominates else 'is somewhere worse'} at Ms <= {rec.ms_max:g}; it beats "
+          f"{strictly} of {len(rec.sequential_front)} sequential points in both")
     tracking_only = r.sequential.tracking_rms_N
-    best_tracking = min(c.tracking_rms_N for c in r.candidates)
-    print(f"  the controller's share: the best tracking RMS over the pairs scored {best_tracking:.2f} N against the "
-          f"sequential {tracking_only:.2f} N (a tracking-only objective's ratio {best_tracking / tracking_only:.3f})")
+    best_tracking = min(p.tracking_rms_N for p in rec.codesigned_front if p.feasible)
+    print(f"  the controller's share: the best tracking RMS on the co-designed front {best_tracking:.2f} N against "
+          f"the sequential {tracking_only:.2f} N (ratio {best_tracking / tracking_only:.3f})")
+
+    # ---- where the coupling is strong: a tighter settling limit, both through the same Monte Carlo plants --------
+    strong = None
+    if args.settling is not None:
+        tight = study.replace(validation={"settling_max_s": args.settling})
+        rs = codesign(tight, budget=args.budget, validate_plants=args.plants, time_factor=None, progress=print)
+        print(f"  settling at most {args.settling:g} s: {rs!r}")
+        if not rs.sequential.feasible:
+            print(f"  the sequential answer misses it on the nominal plant: {rs.sequential.why}")
+        for row in rs.requirements():
+            print(f"  {row['requirement']:45s} limit {row['limit']}  sequential {row.get('sequential')}  "
+                  f"co-designed {row.get('codesigned')}")
+        strong = {"settling_max_s": args.settling, "objective_ratio": rs.objective_ratio,
+                  "sequential_meets_nominal": rs.sequential.feasible, "changed": rs.changed(),
+                  "requirements": [{k: v for k, v in row.items()} for row in rs.requirements()],
+                  "validated": rs.to_dict()["validated"]}
 
     print(json.dumps({
         "codesign_vs_sequential_objective_ratio": r.objective_ratio,
@@ -118,8 +113,12 @@ def main() -> None:
         "literature_objective_ratio": lit["worst_ratio"],
         "codesign_vs_sequential_time_ratio": r.time_ratio,
         "front_strictly_dominated": int(strictly),
-        "front_points": {"sequential": len(sequential_front), "codesigned": len(codesigned_front)},
+        "front_points": {"sequential": len(rec.sequential_front), "codesigned": len(rec.codesigned_front)},
+        "front_nondominated": {"sequential": len(nondominated(rec.sequential_front)),
+                               "codesigned": len(nondominated(rec.codesigned_front))},
+        "strong_coupling": strong,
         "tracking_only_ratio": best_tracking / tracking_only,
+        "strategy_why": r.strategy_why,
         "strategy": r.strategy,
         "weights": r.weights.to_dict(),
         "changed": r.changed(),

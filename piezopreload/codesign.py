@@ -36,6 +36,12 @@ tuning makes (the set ``piezopreload run`` keeps where it meets the specificatio
 
 Both answers are then validated by the same Monte Carlo (:func:`~piezopreload.tuning.validate.validate`, the
 study's ``[validation]`` plants, seed and limits).
+
+:func:`codesign_fronts` sweeps both answers into fronts of thermal growth against tracking RMS at the study's Ms:
+the design alone along its least-heat front, each point then tuned (sequential), and the co-design at several
+weights of the growth against the tracking (co-designed); :func:`codesign_record` makes the artifact the report's
+co-design section reads (:class:`~piezopreload.artifacts.codesign.CodesignRecord`, whose ``front_dominates`` judges
+the fronts as computed).
 """
 
 from __future__ import annotations
@@ -48,10 +54,11 @@ from typing import Any
 
 import numpy as np
 
+from piezopreload.artifacts.codesign import FRONT_RTOL, CodesignRecord, FrontPoint, RequirementRow
 from piezopreload.artifacts.design import DesignPoint
-from piezopreload.artifacts.validation import ValidationResult
+from piezopreload.artifacts.validation import Criteria, ValidationResult
 from piezopreload.core.errors import InfeasibleError, InputError
-from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignSpec, optimise
+from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignSpec, optimise, pareto_front
 from piezopreload.design.study import plan_schedule
 from piezopreload.design.tables import DesignTable, PlantTable, ScheduleTable
 from piezopreload.design.thermal import duty_growth_um
@@ -62,10 +69,11 @@ from piezopreload.progress import ProgressLike, say_of
 from piezopreload.spec import StudySpec
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, tune_pid
+from piezopreload.tuning.schedule import schedule_levels, tune_entries
 from piezopreload.tuning.validate import validate
 
-__all__ = ["CodesignWeights", "Candidate", "CodesignResult", "codesign", "codesign_optimum", "evaluate_design",
-           "TERMS"]
+__all__ = ["CodesignWeights", "Candidate", "CodesignResult", "codesign", "codesign_optimum", "codesign_design",
+           "codesign_fronts", "codesign_record", "front_weights", "evaluate_design", "TERMS", "STRATEGY_WHY"]
 
 #: the objective's terms: (name, the candidate's attribute, unit)
 TERMS = (("growth", "growth_um", "um over the shift"), ("friction", "friction_energy_J", "J per cycle"),
@@ -79,6 +87,11 @@ VARIABLES = (("stiffness_floor_N_per_um", "stiffness_N_per_um", "N/um"),
 #: the design NLP's objective for a candidate: the least heat at the candidate's rigidity floor
 CANDIDATE_OBJECTIVE = "heat"
 STRATEGY = "nested"
+#: why the study's co-design is nested (the result and the artifact say so)
+STRATEGY_WHY = ("nested, not simultaneous: the study's tuning NLP (tuning/pid.py: the closed loop's compiled "
+                "simulation over the plant variants, Ms at every slope) exposes no sensitivity of its optimum to the "
+                "plant, so the design cannot be solved in one NLP with the gains nor differentiated through the "
+                "tuning; the design outside is searched derivative-free, the design NLP and the tuning inside")
 
 
 @dataclass(frozen=True)
@@ -150,6 +163,11 @@ class Candidate:
         The screw's largest thermal growth over the shift (NaN: the study has no ``[thermal]`` table).
     at : tuple of (str, float)
         The outer variables' values it was designed at (empty: the sequential design, read off its point).
+    controller : str
+        ``"robust"``: the one robust set; ``"schedule"``: the robust set with the gain schedule's entries, each tuned
+        on its window (``ms`` is then the largest of ``entry_ms``, each entry's Ms over its window).
+    entry_ms : tuple of float
+        The schedule's entries' Ms, each over its window (empty: the robust set).
     """
 
     point: DesignPoint = field(repr=False)
@@ -165,6 +183,8 @@ class Candidate:
     lift_off_N: float = math.nan
     growth_um: float = math.nan
     at: tuple[tuple[str, float], ...] = ()
+    controller: str = "robust"
+    entry_ms: tuple[float, ...] = ()
 
     def variables(self) -> dict[str, float]:
         """The outer variables' values."""
@@ -187,6 +207,11 @@ class Candidate:
                            "mean_drag_torque_Nm": p.mean_drag_torque_Nm},
                 "gains": {"Kc_V_per_N": self.gains.Kc, "Ti_s": self.gains.Ti_s, "Td_s": self.gains.Td_s,
                           "Tf_s": self.gains.Tf_s, "b": self.gains.b},
+                "controller": self.controller, "entry_ms": list(self.entry_ms),
+                "schedule": None if self.gains.schedule is None else {
+                    "levels_N": list(self.gains.schedule.levels_N), "Kc_V_per_N": list(self.gains.schedule.Kc),
+                    "Ti_s": list(self.gains.schedule.Ti_s), "Td_s": list(self.gains.schedule.Td_s),
+                    "b": None if self.gains.schedule.b is None else list(self.gains.schedule.b)},
                 "coupling_stiffness_N_per_um": self.coupling_stiffness_N_per_um, "ms": self.ms,
                 "friction_energy_J": self.friction_energy_J, "tracking_rms_N": self.tracking_rms_N,
                 "peak_voltage_V": self.peak_voltage_V, "settling_s": self.settling_s, "lift_off_N": self.lift_off_N,
@@ -220,14 +245,40 @@ def _nominal(study: StudySpec, plant: Plant, gains: PIDGains, ff: IdentifiedFeed
     return {k: float(r.metrics[k][0]) for k in ("tracking_rms_N", "peak_voltage_V", "settling_s", "overshoot_N")}
 
 
+def _levels(study: StudySpec) -> np.ndarray | None:
+    """The gain schedule's levels the study tunes (``[tuning] schedule_levels``; None: one robust set)."""
+    n = study.tuning.schedule_levels
+    if n < 2:
+        return None
+    span = np.concatenate([study.references[k].levels_N for k in ("step", "trajectory")])
+    return schedule_levels(float(span.min()), float(span.max()), n)
+
+
+def _misses(nominal: dict[str, float], c: Criteria) -> list[str]:
+    out = []
+    if nominal["tracking_rms_N"] > c.tracking_rms_max_N:
+        out.append(f"tracking RMS {nominal['tracking_rms_N']:.1f} N > {c.tracking_rms_max_N:g} N "
+                   "([validation] tracking_rms_max_N)")
+    if not nominal["settling_s"] <= c.settling_max_s:  # NaN: never settled
+        out.append(f"settling {nominal['settling_s']:.3f} s > {c.settling_max_s:g} s ([validation] settling_max_s)")
+    return out
+
+
 def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | None = None,
                     tuning: TuningSpec | None = None, max_iterations: int = 60,
-                    feedforward: IdentifiedFeedforward | None = None) -> Candidate:
+                    feedforward: IdentifiedFeedforward | None = None, schedule: bool | None = None) -> Candidate:
     """The inner problem for one design: its plant, the feedforward identified on it, the PID tuned on it (Ms inside),
-    and what the pair achieves on the nominal plant (the whole-range tracking and the step, the schedule's friction).
+    the gain schedule's entries tuned on it (each at Ms over its own window) where the study tunes a schedule, and
+    what the better controller achieves on the nominal plant (the whole-range tracking and the step, the schedule's
+    friction).
+
+    The controller is part of the inner problem's decisions: the robust set, or the robust set with the schedule's
+    entries (Kc, Ti, Td and b each, tuned on its window by :func:`~piezopreload.tuning.schedule.tune_entries`),
+    whichever meets the tracking and settling limits with the lower tracking RMS. ``schedule``: tune the entries
+    (default: where ``[tuning] schedule_levels`` is at least 2).
 
     Raises :class:`~piezopreload.core.errors.InfeasibleError` naming the binding pair where no gains the tuning
-    finds meet the study's Ms limit together with the tracking RMS or settling limit.
+    finds meet the study's Ms limit together with the tuning's other constraints.
     """
     spec = study.design_spec
     if spec is None:
@@ -236,31 +287,45 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
     plant = _plant(study, point)
     subject = study.with_design(point)
     ff = feedforward or subject.identify_feedforward()
-    known = None if start is None else {"the sequential gains": start}
+    known = None if start is None else {"the sequential gains": replace(start, schedule=None)}
     try:
         tuned = tune_pid(plant, ff.inverse(), tuning, starts=1, max_iterations=max_iterations, known=known)
     except TuningInfeasible as exc:
         raise InfeasibleError(f"{study.path}: the design (contact angle {point.contact_angle_deg:.2f} deg, conformity "
-                              f"{point.conformity:.4f}) has no controller: {exc}") from exc
-    nominal = _nominal(study, plant, tuned.gains, ff)
-    sched = study.schedule or ScheduleTable()
-    schedule, _, _ = plan_schedule(spec, point, None, **sched.limits())
+                              f"{point.conformity:.4f}, rigidity {point.stiffness_N_per_um:.0f} N/um) has no "
+                              f"controller that meets Ms <= {tuning.ms_max:g} ([tuning] ms_max) with the tuning's "
+                              f"other constraints: {exc}") from exc
     c = study.criteria
-    misses = []
-    if nominal["tracking_rms_N"] > c.tracking_rms_max_N:
-        misses.append(f"tracking RMS {nominal['tracking_rms_N']:.1f} N > {c.tracking_rms_max_N:g} N "
-                      "([validation] tracking_rms_max_N)")
-    if not nominal["settling_s"] <= c.settling_max_s:  # NaN: never settled
-        misses.append(f"settling {nominal['settling_s']:.3f} s > {c.settling_max_s:g} s ([validation] settling_max_s)")
+    gains, ms, controller, entry_ms = tuned.gains, float(tuned.ms), "robust", ()
+    nominal = _nominal(study, plant, gains, ff)
+    misses = _misses(nominal, c)
+    levels = _levels(study) if schedule else None
+    if schedule and levels is None:
+        raise InputError(f"{study.path}: a schedule's entries in the co-design need [tuning] schedule_levels >= 2")
+    if levels is not None:
+        entries, records = tune_entries(plant, ff.model, tuning, tuned.gains, levels_N=levels,
+                                        step=study.references["step"], trajectory=study.references["trajectory"],
+                                        starts=1, max_iterations=max_iterations)
+        scheduled = replace(tuned.gains, schedule=entries)
+        nominal_s = _nominal(study, plant, scheduled, ff)
+        misses_s = _misses(nominal_s, c)
+        # the schedule where it meets the limits the robust set misses, or meets them too and tracks better
+        if not misses_s and (misses or nominal_s["tracking_rms_N"] < nominal["tracking_rms_N"]):
+            gains, nominal, misses, controller = scheduled, nominal_s, misses_s, "schedule"
+            entry_ms = tuple(float(r["ms"]) for r in records)
+            ms = max(entry_ms)
+    sched = study.schedule or ScheduleTable()
+    plan, _, _ = plan_schedule(spec, point, None, **sched.limits())
     why = ""
     if misses:
         binding = ", ".join(tuned.binding) or "none"
         why = (f"with Ms <= {tuning.ms_max:g} ([tuning] ms_max; binding: {binding}) the best gains miss "
                + "; ".join(misses))
-    return Candidate(point, tuned.gains, float(plant.coupling_stiffness_N_per_um), float(tuned.ms),
-                     float(schedule.friction_energy_J), nominal["tracking_rms_N"], nominal["peak_voltage_V"],
+    return Candidate(point, gains, float(plant.coupling_stiffness_N_per_um), ms,
+                     float(plan.friction_energy_J), nominal["tracking_rms_N"], nominal["peak_voltage_V"],
                      nominal["settling_s"], not misses, why, float(lift_off_load_N(point.bolt_preload_N)),
-                     math.nan if study.thermal is None else float(duty_growth_um(spec, point, study.thermal)))
+                     math.nan if study.thermal is None else float(duty_growth_um(spec, point, study.thermal)),
+                     controller=controller, entry_ms=entry_ms)
 
 
 @dataclass(frozen=True)
@@ -317,6 +382,11 @@ class CodesignResult:
     candidates: tuple[Candidate, ...] = field(default=(), repr=False)
     validation_sequential: ValidationResult | None = field(default=None, repr=False)
     validation_codesigned: ValidationResult | None = field(default=None, repr=False)
+    strategy_why: str = field(default=STRATEGY_WHY, repr=False)
+    #: the inner problems solved, by the outer variables (a front's sweep starts from them)
+    evaluated: dict[tuple[float, ...], tuple[Candidate | None, str]] = field(default_factory=dict, repr=False,
+                                                                             compare=False)
+    least_heat_N_per_um: float = field(default=math.nan, repr=False)
 
     @property
     def objective_ratio(self) -> float:
@@ -327,6 +397,22 @@ class CodesignResult:
     def time_ratio(self) -> float:
         """The whole co-design's time (the sequential start included) over the sequential design and tuning."""
         return (self.sequential_s + self.codesign_s) / self.sequential_s
+
+    def controller_words(self) -> str:
+        """What the co-design chose of the controller, in words: the robust set or the gain schedule, its gains and
+        the Ms each was tuned under."""
+        c, ms_max = self.codesigned, self.limits.get("ms_max", math.nan)
+        g = c.gains
+        robust = f"Kc {g.Kc:.4g} V/N, Ti {g.Ti_s * 1e3:.3g} ms, Td {g.Td_s * 1e3:.3g} ms, b {g.b:.3g}"
+        if c.controller == "schedule" and g.schedule is not None:
+            s = g.schedule
+            entries = "; ".join(f"{lv:,.0f} N: Kc {kc:.4g} V/N, Ti {ti * 1e3:.3g} ms, Ms {ms:.3f}"
+                                for lv, kc, ti, ms in zip(s.levels_N, s.Kc, s.Ti_s, c.entry_ms))
+            return (f"the gain schedule, each entry tuned on the candidate's plant at Ms <= {ms_max:g} over its "
+                    f"window ({entries}), around the robust set ({robust})")
+        why = (" (the schedule's entries, tuned too, tracked no better)" if self.limits.get("schedule_levels", 0) >= 2
+               else "")
+        return f"one robust PID set tuned on the candidate's plant at Ms <= {ms_max:g} ({robust}){why}"
 
     def changed(self) -> list[str]:
         """What the co-design changed in the design, in the design's units."""
@@ -407,12 +493,14 @@ class CodesignResult:
         return rows
 
     def to_dict(self) -> dict[str, Any]:
-        return {"study": self.study, "strategy": self.strategy, "weights": self.weights.to_dict(),
+        return {"study": self.study, "strategy": self.strategy, "strategy_why": self.strategy_why,
+                "weights": self.weights.to_dict(),
                 "objective_sequential": self.objective_sequential, "objective_codesigned": self.objective_codesigned,
                 "objective_ratio": self.objective_ratio, "evaluations": self.evaluations,
                 "sequential_meets_the_study": self.sequential.feasible,
                 "sequential": self.sequential.to_dict(), "codesigned": self.codesigned.to_dict(),
                 "changed": self.changed(), "bought": self.bought(), "coupling": self.coupling(),
+                "controller": self.controller_words(),
                 "requirements": self.requirements(), "infeasible": list(self.infeasible),
                 "sequential_s": self.sequential_s, "codesign_s": self.codesign_s, "time_ratio": self.time_ratio,
                 "validated": {"sequential": None if self.validation_sequential is None
@@ -443,7 +531,10 @@ def codesign_optimum(study: StudySpec, progress: ProgressLike | None = None) -> 
     Carlo left to the study's validate stage), as the design NLP's optimum at the co-designed rigidity floor, contact
     angle and conformity (the sequential optimum itself where the co-design kept it), its objective named
     ``"codesign"``."""
-    result = codesign(study, validate_plants=0, progress=progress)
+    return _chosen(study, codesign(study, validate_plants=0, progress=progress))
+
+
+def _chosen(study: StudySpec, result: CodesignResult) -> DesignOptimum:
     spec = study.design_spec
     objective = (study.design_table or DesignTable()).objective
     if spec is None:  # codesign refused it already; for the type checker
@@ -451,6 +542,36 @@ def codesign_optimum(study: StudySpec, progress: ProgressLike | None = None) -> 
     chosen = optimise(spec, objective) if result.codesigned is result.sequential else \
         _optimum_at(spec, result.codesigned.variables())
     return replace(chosen, objective="codesign")  # what chose it (the design artifact and the report say so)
+
+
+def codesign_design(study: StudySpec, *, points: int = 3, progress: ProgressLike | None = None,
+                    inputs: dict[str, Any] | None = None) -> tuple[DesignOptimum, CodesignRecord]:
+    """The design stage of a study with ``[design] method = "codesign"``: the co-designed optimum
+    (:func:`codesign_optimum`'s) and the co-design's artifact for the report: both answers validated by the same
+    Monte Carlo (the study's ``[validation]`` plants) and, where the study has ``[thermal]``, the two fronts of
+    ``points`` each (:func:`codesign_fronts`).
+
+    Parameters
+    ----------
+    study : StudySpec
+        The study.
+    points : int
+        Points of each front's sweep.
+    progress : ProgressLike, optional
+        Where the steps are said.
+    inputs : dict, optional
+        The hashes the artifact records.
+
+    Returns
+    -------
+    (DesignOptimum, CodesignRecord)
+        The design the study's later stages take, and the artifact.
+    """
+    result = codesign(study, progress=progress)
+    fronts: tuple[tuple[FrontPoint, ...], tuple[FrontPoint, ...]] = ((), ())
+    if study.thermal is not None:
+        fronts = codesign_fronts(study, result, points=points, progress=progress)
+    return _chosen(study, result), codesign_record(study, result, fronts, inputs)
 
 
 def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget: int = 9, step: float = 0.25,
@@ -535,9 +656,11 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
             f"{'passed' if v_co.passed else 'failed'}")
     limits = {"stiffness_min_N_per_um": spec.stiffness_min_N_per_um,
               "lift_off_min_N": spec.lift_off_margin * spec.failsafe_load_N, "life_min_h": spec.life_min_h,
-              "ms_max": study.tuning_spec.ms_max, "tracking_rms_max_N": study.criteria.tracking_rms_max_N}
+              "ms_max": study.tuning_spec.ms_max, "tracking_rms_max_N": study.criteria.tracking_rms_max_N,
+              "schedule_levels": float(study.tuning.schedule_levels)}
     return CodesignResult(study.name, STRATEGY, weights, sequential, best, 1.0, best_f, search.evaluations + 1,
-                          tuple(search.refused), sequential_s, codesign_s, limits, tuple(search.scored), v_seq, v_co)
+                          tuple(search.refused), sequential_s, codesign_s, limits, tuple(search.scored), v_seq, v_co,
+                          STRATEGY_WHY, search.cache, search.least_heat)
 
 
 class _Search:
@@ -549,11 +672,16 @@ class _Search:
 
     def __init__(self, study: StudySpec, spec: DesignSpec, objective: str, weights: CodesignWeights,
                  sequential: Candidate, sequential_s: float, max_iterations: int, time_factor: float | None,
-                 say: Callable[[str], None]) -> None:
+                 say: Callable[[str], None], cache: dict[tuple[float, ...], tuple[Candidate | None, str]] | None = None,
+                 least_heat: float | None = None) -> None:
         self.study, self.spec, self.objective, self.weights = study, spec, objective, weights
         self.sequential, self.sequential_s = sequential, sequential_s
         self.max_iterations, self.time_factor, self.say = max_iterations, time_factor, say
-        least_heat = optimise(spec, CANDIDATE_OBJECTIVE).point.stiffness_N_per_um  # the front's soft end
+        # the inner problems solved, by the outer variables (the weights do not enter them: a sweep shares them)
+        self.cache = {} if cache is None else cache
+        if least_heat is None:
+            least_heat = optimise(spec, CANDIDATE_OBJECTIVE).point.stiffness_N_per_um  # the front's soft end
+        self.least_heat = least_heat
         top = sequential.point.stiffness_N_per_um
         self.ranges = [(min(least_heat, top), top), tuple(spec.contact_angle_deg), tuple(spec.conformity)]
         self.evaluations, self.stopped, self.slowest = 0, "", 0.0
@@ -575,17 +703,24 @@ class _Search:
     def score(self, z: np.ndarray, start: PIDGains) -> tuple[Candidate | None, float]:
         """One inner problem at ``z``: the candidate and its objective (inf: infeasible, and why is kept)."""
         values = self.values(z)
-        self.evaluations += 1
-        t0 = time.perf_counter()
-        try:
-            cand = evaluate_design(self.study, _optimum_at(self.spec, values).point, start=start,
-                                   max_iterations=self.max_iterations)
-            cand = replace(cand, at=tuple(values.items()))
-        except InfeasibleError as exc:  # no screw, or no controller, for these values
-            self.refused.append(f"{values}: {exc}")
+        key = tuple(round(v, 9) for v in values.values())
+        if key in self.cache:  # solved already for another weight of a sweep
+            cand, refused = self.cache[key]
+        else:
+            self.evaluations += 1
+            t0 = time.perf_counter()
+            try:
+                cand = evaluate_design(self.study, _optimum_at(self.spec, values).point, start=start,
+                                       max_iterations=self.max_iterations)
+                cand, refused = replace(cand, at=tuple(values.items())), ""
+            except InfeasibleError as exc:  # no screw, or no controller, for these values
+                cand, refused = None, str(exc)
+            finally:
+                self.slowest = max(self.slowest, time.perf_counter() - t0)
+            self.cache[key] = (cand, refused)
+        if cand is None:
+            self.refused.append(f"{values}: {refused}")
             return None, math.inf
-        finally:
-            self.slowest = max(self.slowest, time.perf_counter() - t0)
         if not cand.feasible:
             self.refused.append(f"{values}: {cand.why}")
             return cand, math.inf
@@ -635,3 +770,115 @@ def _monte_carlo(study: StudySpec, cand: Candidate, plants: int) -> ValidationRe
                     seed=study.seed if study.validation.seed is None else study.validation.seed,
                     step=study.references["step"],
                     trajectory=study.references["trajectory"])
+
+
+# ---- the two fronts: thermal growth against tracking RMS at the study's Ms ----------------------------------------
+def _front_point(c: Candidate, label: str, swept: float) -> FrontPoint:
+    return FrontPoint(label, float(swept), float(c.growth_um), float(c.tracking_rms_N), float(c.ms),
+                      float(c.peak_voltage_V), float(c.point.stiffness_N_per_um), float(c.point.contact_angle_deg),
+                      bool(c.feasible), None if not math.isfinite(c.settling_s) else float(c.settling_s), c.why)
+
+
+def front_weights(points: int) -> list[float]:
+    """The growth's weights of the co-designed front's sweep: ``points`` from 1 (the growth alone) to 0 (the tracking
+    alone), the tracking's weight one less the growth's."""
+    if not (isinstance(points, int) and points >= 2):
+        raise InputError(f"codesign front points: must be a whole number >= 2, got {points!r}")
+    return [float(w) for w in np.linspace(1.0, 0.0, points)]
+
+
+def codesign_fronts(study: StudySpec, result: CodesignResult, *, points: int = 3, budget: int | None = None,
+                    progress: ProgressLike | None = None) -> tuple[tuple[FrontPoint, ...], tuple[FrontPoint, ...]]:
+    """The two fronts of thermal growth against the nominal tracking RMS, every pair tuned at the study's Ms.
+
+    Parameters
+    ----------
+    study : StudySpec
+        The study ``result`` co-designed (it needs ``[thermal]``: the growth).
+    result : CodesignResult
+        Its co-design (the sequential answer, its gains, the inner problems solved: the sweeps start from them).
+    points : int
+        Points of each sweep (at least 2).
+    budget : int, optional
+        The most inner problems each weight's search solves (default: the co-design's own budget, 9).
+    progress : ProgressLike, optional
+        Where the steps are said.
+
+    Returns
+    -------
+    (tuple of FrontPoint, tuple of FrontPoint)
+        The sequential front's sweep: the design NLP alone along its ``stiffness:growth`` front (the least heat at
+        ``points`` least rigidities from the least-heat design's to the sequential optimum's), each design then
+        tuned, the sequential answer last (unless the front's stiff end is it); the co-designed front's sweep: the
+        co-design (the same nested search, from the same sequential answer) for each growth weight of
+        :func:`front_weights`, the tracking weighted by the rest.
+    """
+    say = say_of(progress) or (lambda _m: None)
+    spec, table = study.design_spec, study.thermal
+    if spec is None or table is None:
+        raise InputError(f"{study.path}: the fronts of thermal growth against tracking need the design's tables and "
+                         "a [thermal] table (the shift the growth is read over)")
+    weights = front_weights(points)
+    budget = 9 if budget is None else budget
+    seq = result.sequential
+    front = pareto_front(spec, "stiffness:growth", points, growth=lambda p: duty_growth_um(spec, p, table))
+    sequential = []
+    for p in front.points:
+        c = evaluate_design(study, p, start=seq.gains)
+        sequential.append(_front_point(c, f"rigidity at least {p.stiffness_N_per_um:,.0f} N/um",
+                                       p.stiffness_N_per_um))
+        say(f"  sequential front: rigidity {p.stiffness_N_per_um:,.0f} N/um: growth {c.growth_um:.2f} um, tracking "
+            f"RMS {c.tracking_rms_N:.2f} N, Ms {c.ms:.3f}{'' if c.feasible else ' (' + c.why + ')'}")
+    if not any(math.isclose(p.stiffness_N_per_um, seq.point.stiffness_N_per_um, rel_tol=FRONT_RTOL)
+               and math.isclose(p.growth_um, seq.growth_um, rel_tol=FRONT_RTOL) for p in sequential):
+        sequential.append(_front_point(seq, "the sequential answer", seq.point.stiffness_N_per_um))
+    codesigned = []
+    objective = (study.design_table or DesignTable()).objective
+    least_heat = result.least_heat_N_per_um if math.isfinite(result.least_heat_N_per_um) else None
+    for w in weights:
+        search = _Search(study, spec, objective, CodesignWeights(growth=w, friction=0.0, tracking=1.0 - w), seq,
+                         result.sequential_s, 60, None, lambda _m: None, cache=result.evaluated,
+                         least_heat=least_heat)
+        best, _ = search.run(budget, 0.25, 0.0625)
+        least_heat = search.least_heat
+        codesigned.append(_front_point(best, f"growth weight {w:.2g}, tracking {1 - w:.2g}", w))
+        say(f"  co-designed front: growth weight {w:.2g}: growth {best.growth_um:.2f} um, tracking RMS "
+            f"{best.tracking_rms_N:.2f} N, Ms {best.ms:.3f} ({search.evaluations} new inner solves)")
+    return tuple(sequential), tuple(codesigned)
+
+
+def codesign_record(study: StudySpec, result: CodesignResult, fronts: tuple[tuple[FrontPoint, ...],
+                    tuple[FrontPoint, ...]] = ((), ()), inputs: dict[str, Any] | None = None) -> CodesignRecord:
+    """The co-design artifact of ``result``: both answers requirement by requirement and the two fronts.
+
+    Parameters
+    ----------
+    study : StudySpec
+        The study.
+    result : CodesignResult
+        Its co-design.
+    fronts : (tuple of FrontPoint, tuple of FrontPoint)
+        :func:`codesign_fronts`'s sweeps (empty: not computed).
+    inputs : dict, optional
+        The hashes it came from.
+
+    Returns
+    -------
+    CodesignRecord
+        The record.
+    """
+    rows = []
+    for row in result.requirements():
+        if row["kind"] not in ("min", "max"):
+            continue
+        a, b = row["sequential"], row["codesigned"]
+        if not (math.isfinite(a) and math.isfinite(b)):
+            continue
+        rows.append(RequirementRow(row["requirement"], row["unit"], row["kind"], float(a), float(b),
+                                   None if row["limit"] is None else float(row["limit"])))
+    vs, vc = result.validation_sequential, result.validation_codesigned
+    return CodesignRecord(result.study, result.strategy, result.strategy_why, result.weights.to_dict(),
+                          float(study.tuning_spec.ms_max), float(result.objective_ratio), tuple(result.changed()),
+                          result.coupling(), result.controller_words(), tuple(rows), 0 if vs is None else vs.n_plants,
+                          fronts[0], fronts[1], None if vs is None else bool(vs.passed),
+                          None if vc is None else bool(vc.passed), dict(inputs or {}))

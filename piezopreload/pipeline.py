@@ -84,7 +84,7 @@ from piezopreload.artifacts.summaries import (
     ValidateSummary,
 )
 from piezopreload.artifacts.system import SystemRecord
-from piezopreload.codesign import codesign_optimum
+from piezopreload.codesign import codesign_design
 from piezopreload.core.artifacts import atomic_write_bytes, package_version
 from piezopreload.core.errors import InputError
 from piezopreload.core.stagecache import StageCache
@@ -215,13 +215,17 @@ def _stage_design(ctx: _Ctx) -> Produced:
     d = ctx.out / "design"
     for stale in d.glob("design.pareto-*.csv"):  # a front the study no longer asks for
         stale.unlink()
-    optimum = None
+    optimum, codesigned = None, None
+    inputs = {"study": ctx.study.path, "study_sha256": ctx.study.sha256}
+    (d / "codesign.json").unlink(missing_ok=True)  # a co-design the study no longer asks for
     if (ctx.study.design_table or DesignTable()).method == "codesign":  # the design chosen with its controller
         ctx.progress.say("[design] method = codesign: the design is chosen with its controller (nested co-design)")
-        optimum = codesign_optimum(ctx.study, progress=ctx.progress.say)
+        optimum, codesigned = codesign_design(ctx.study, progress=ctx.progress.say, inputs=inputs)
     result = ctx.study.design(progress=ctx.progress.say, bar=ctx.progress.bar("Pareto fronts"), optimum=optimum)
-    written = result.save(d / "design.json", {"study": ctx.study.path, "study_sha256": ctx.study.sha256})
+    written = result.save(d / "design.json", inputs)
     outputs = {"design": written[0], **{p.stem.rpartition(".")[2]: p for p in written[1:]}}
+    if codesigned is not None:
+        outputs["codesign"] = codesigned.save(d / "codesign.json")
     s = result.schedule
     return outputs, DesignSummary(result.optimum.objective, result.point.stiffness_N_per_um,
                                   tuple(result.optimum.binding), tuple(f.pair for f in result.fronts),

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from piezopreload.artifacts.codesign import CodesignRecord
 from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.hysteresis import IdentifiedModel
@@ -133,6 +134,12 @@ class Artifacts:
     @functools.cached_property
     def design(self) -> DesignRecord | None:
         return DesignRecord.load(self.path("design", "design")) if self.has("design") else None
+
+    @functools.cached_property
+    def codesign(self) -> CodesignRecord | None:
+        """The design stage's co-design (``design/codesign.json``; None: the study's design is sequential)."""
+        ran = self.has("design") and self.manifest.output("design", "codesign") is not None
+        return CodesignRecord.load(self.path("design", "codesign")) if ran else None
 
     @functools.cached_property
     def plant(self) -> DesignedPlant | None:

@@ -35,6 +35,7 @@ STAGES_READ = ("design", "plant", "identify", "tune", "validate", "compare", "le
 def _parts(study: ReportStudy, a: Artifacts) -> list[S.Part]:
     """The sections that apply to the study, in the order its reader asks for them."""
     from piezopreload.reports import sections as S
+    from piezopreload.reports.codesign import codesign_section
     from piezopreload.reports.sensitivity import sensitivity_section
     from piezopreload.reports.thermal import thermal_section
 
@@ -54,6 +55,8 @@ def _parts(study: ReportStudy, a: Artifacts) -> list[S.Part]:
     parts += [S.controller_section(study, a), S.responses_section(study, a), S.feedforward_section(study, a)]
     if a.design is not None:
         parts.append(S.design_section(study, a.design, a.system is not None))
+    if a.codesign is not None:
+        parts.append(codesign_section(a.codesign))
     parts.append(S.rig_section(study, a))
     return parts
 

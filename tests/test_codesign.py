@@ -158,6 +158,19 @@ def test_a_study_with_method_codesign_runs_end_to_end(tmp_path):
     assert record.optimum.point.conformity == pytest.approx(expected.conformity, rel=1e-6)
     plant = json.loads((out / "plant.json").read_text())
     assert plant  # the plant stage ran on the co-designed design
+    # the design stage wrote the co-design beside the design, both fronts swept; the report has its section
+    from piezopreload.artifacts.codesign import CodesignRecord
+
+    co = CodesignRecord.load(out / "design" / "codesign.json")
+    assert co.strategy == "nested" and "sensitivit" in co.strategy_why
+    assert len(co.sequential_front) >= 3 and len(co.codesigned_front) == 3
+    assert {p.label for p in co.codesigned_front} == {"growth weight 1, tracking 0", "growth weight 0.5, tracking 0.5",
+                                                      "growth weight 0, tracking 1"}
+    assert all(p.ms <= co.ms_max * 1.001 for p in co.codesigned_front if p.feasible)
+    report = json.loads((out / "report" / "report.json").read_text())
+    section = next(s for s in report["sections"] if s["title"].startswith("Co-design"))
+    assert "codesign-fronts" in section["figures"]
+    assert ("nowhere worse" in " ".join(section["paragraphs"])) == co.front_dominates()
 
 
 def test_the_method_key_is_declared_once_and_checked(tmp_path):

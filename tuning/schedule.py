@@ -75,8 +75,8 @@ from piezopreload.tuning.linearised import max_sensitivity
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, plant_variants, tune_pid
 from piezopreload.tuning.validate import executor, validate
 
-__all__ = ["ScheduleResult", "tune_schedule", "window_ms", "level_requirements", "schedule_levels", "level_windows",
-           "choose", "CHOICES", "CHOICE_WORDS", "setpoint_action_rises", "rising_setpoint_weights"]
+__all__ = ["ScheduleResult", "tune_schedule", "tune_entries", "window_ms", "level_requirements", "schedule_levels",
+           "level_windows", "choose", "CHOICES", "CHOICE_WORDS", "setpoint_action_rises", "rising_setpoint_weights"]
 
 #: what :func:`tune_schedule` may choose
 CHOICES = ("robust", "schedule")
@@ -390,6 +390,52 @@ def _plan(spec: TuningSpec, robust: PIDGains, levels_N: Any, step: Reference, tr
                Reference.staircase(lo, _path(lo, float(level), hi), hold, t_start_s=float(trajectory.times_s[1])))
               for level, (lo, hi) in zip(lv, windows)] + [(step, trajectory)]
     return _Plan(lv, windows, [_entry_spec(spec, robust, lo, float(x), hi) for x, (lo, hi) in zip(lv, windows)], checks)
+
+
+def tune_entries(params: Plant, feedforward: HysteresisModel | CreepPI | None, spec: TuningSpec, robust: PIDGains, *,
+                 levels_N: Any, step: Reference, trajectory: Reference, starts: int = 3,
+                 max_iterations: int = 150) -> tuple[GainSchedule, list[dict[str, Any]]]:
+    """Each entry of a gain schedule at ``levels_N`` tuned on its window, as :func:`tune_schedule`'s step 2 tunes it
+    (the Ms constraints on the window's force per volt, warm-started from ``robust``, the setpoint weights kept
+    rising), without its Monte Carlo: the inner problem of a co-design that takes the entries as its decisions.
+
+    Parameters
+    ----------
+    params : Plant
+        The nominal plant.
+    feedforward : HysteresisModel or CreepPI or None
+        The forward P-I model the controller inverts.
+    spec : TuningSpec
+        The tuning's specification (its references and Ms range are replaced per entry).
+    robust : PIDGains
+        The robust set each entry starts from (and keeps where no gains meet its window's specification).
+    levels_N : array_like
+        The entries' levels (measured force, N).
+    step, trajectory : Reference
+        The study's references (each window is tuned on a step and a staircase with their timing).
+    starts, max_iterations : int
+        Each entry's tuning's starts and IPOPT iteration limit (:func:`~piezopreload.tuning.pid.tune_pid`'s).
+
+    Returns
+    -------
+    (GainSchedule, list of dict)
+        The schedule, and per entry its level, window, Ms over its window and tuning record (``infeasible`` and
+        ``kept`` where it kept the robust set's gains).
+    """
+    plan = _plan(spec, robust, levels_N, step, trajectory)
+    inverse = None if feedforward is None else inverse_at(feedforward, params.sample_period_s)
+    tuned = []
+    for sp in plan.specs:
+        try:
+            t = tune_pid(params, inverse, sp, start=robust, known={"the robust set": robust}, starts=starts,
+                         max_iterations=max_iterations)
+            tuned.append((t.gains, {"ms": t.ms, "binding": t.binding, "objective": t.objective}))
+        except TuningInfeasible as exc:  # no gains meet the window's specification: the entry keeps the robust set's
+            tuned.append((robust, {"infeasible": str(exc), "kept": "the robust set"}))
+    tuned = _rising(plan.levels_N, tuned)
+    records = [{"level_N": float(level), "window_N": list(window), "ms": window_ms(g, params, sp), "tuning": record}
+               for level, window, sp, (g, record) in zip(plan.levels_N, plan.windows, plan.specs, tuned)]
+    return _schedule_of(plan.levels_N, [g for g, _ in tuned]), records
 
 
 def tune_schedule(

@@ -69,6 +69,7 @@ def _fmt(x: Any) -> str:
 
 def _print_codesign(r: CodesignResult) -> None:
     print(f"co-design of {r.study} ({r.strategy}: the design outside, the tuning inside; {r.evaluations} inner solves)")
+    print(f"  strategy: {r.strategy_why}")
     print(f"  objective: sequential {r.objective_sequential:.4f}, co-designed {r.objective_codesigned:.4f} "
           f"(ratio {r.objective_ratio:.4f})")
     if not r.sequential.feasible:
@@ -76,6 +77,7 @@ def _print_codesign(r: CodesignResult) -> None:
     print(f"  time: sequential {r.sequential_s:.1f} s, co-design {r.codesign_s:.1f} s more "
           f"({r.time_ratio:.1f} times the sequential)")
     print(f"  changed: {'; '.join(r.changed()) or 'nothing (the sequential design is kept)'}")
+    print(f"  controller: {r.controller_words()}")
     print(f"  coupling: {r.coupling()}")
     print(f"  {'term':10s} {'sequential':>12s} {'co-designed':>12s}  unit")
     for row in r.bought():
