@@ -18,7 +18,10 @@
 * Where the coupling is strong: the study co-designed again at a tighter settling limit (``--settling``, default
   0.2 s), both answers through the same Monte Carlo plants, requirement by requirement (``strong_coupling``).
 
-Run: ``python benchmarks/codesign.py [--budget N] [--plants N] [--front N] [--settling S]``. The last line printed
+* More of the controller inside: the default study co-designed with the gain schedule's entries as inner decisions
+  (``--schedule N`` inner solves; ``schedule_inside``).
+
+Run: ``python benchmarks/codesign.py [--budget N] [--plants N] [--front N] [--settling S] [--schedule N]``. The last line printed
 is one JSON object.
 """
 
@@ -56,6 +59,9 @@ def main() -> None:
     ap.add_argument("--budget", type=int, default=9, help="the co-design's inner solves (default 9)")
     ap.add_argument("--plants", type=int, help="Monte Carlo plants (default: the study's)")
     ap.add_argument("--front", type=int, default=3, help="points of each front's sweep (default 3)")
+    ap.add_argument("--schedule", type=int, default=2, metavar="N",
+                    help="also co-design with the gain schedule's entries inside, N inner solves after the start (no "
+                         "fronts; reported apart; default 2, 0: not run): each inner problem tunes one PID per entry")
     ap.add_argument("--settling", type=float, default=0.2,
                     help="a tighter settling limit (s) both answers are co-designed and validated at (default 0.2)")
     args = ap.parse_args()
@@ -95,7 +101,7 @@ def main() -> None:
     strong = None
     if args.settling is not None:
         tight = study.replace(validation={"settling_max_s": args.settling})
-        rs = codesign(tight, budget=args.budget, validate_plants=args.plants, time_factor=None, progress=print)
+        rs = codesign(tight, budget=args.budget, validate_plants=args.plants, progress=print)
         print(f"  settling at most {args.settling:g} s: {rs!r}")
         if not rs.sequential.feasible:
             print(f"  the sequential answer misses it on the nominal plant: {rs.sequential.why}")
@@ -107,6 +113,22 @@ def main() -> None:
                   "requirements": [{k: v for k, v in row.items()} for row in rs.requirements()],
                   "validated": rs.to_dict()["validated"]}
 
+    # ---- more of the controller inside: the schedule's entries as inner decisions -------------------------------
+    scheduled = None
+    if args.schedule > 0:
+        t_sched = time.perf_counter()
+        rc = codesign(study, budget=args.schedule, validate_plants=args.plants, schedule=True, progress=print)
+        print(f"  with the schedule's entries inside ({time.perf_counter() - t_sched:.1f} s): {rc!r}")
+        print(f"  controller: {rc.controller_words()}")
+        for row in rc.requirements():
+            print(f"  {row['requirement']:45s} limit {row['limit']}  sequential {row.get('sequential')}  "
+                  f"co-designed {row.get('codesigned')}")
+        scheduled = {"objective_ratio": rc.objective_ratio, "time_ratio": rc.time_ratio, "changed": rc.changed(),
+                     "controller": rc.controller_words(), "sequential_controller": rc.sequential.controller,
+                     "tracking_rms_N": {"sequential": rc.sequential.tracking_rms_N,
+                                        "codesigned": rc.codesigned.tracking_rms_N},
+                     "validated": rc.to_dict()["validated"]}
+
     print(json.dumps({
         "codesign_vs_sequential_objective_ratio": r.objective_ratio,
         "front_dominates": bool(dominates),
@@ -117,6 +139,7 @@ def main() -> None:
         "front_nondominated": {"sequential": len(nondominated(rec.sequential_front)),
                                "codesigned": len(nondominated(rec.codesigned_front))},
         "strong_coupling": strong,
+        "schedule_inside": scheduled,
         "tracking_only_ratio": best_tracking / tracking_only,
         "strategy_why": r.strategy_why,
         "strategy": r.strategy,

@@ -266,7 +266,7 @@ def _misses(nominal: dict[str, float], c: Criteria) -> list[str]:
 
 def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | None = None,
                     tuning: TuningSpec | None = None, max_iterations: int = 60,
-                    feedforward: IdentifiedFeedforward | None = None, schedule: bool | None = None) -> Candidate:
+                    feedforward: IdentifiedFeedforward | None = None, schedule: bool = False) -> Candidate:
     """The inner problem for one design: its plant, the feedforward identified on it, the PID tuned on it (Ms inside),
     the gain schedule's entries tuned on it (each at Ms over its own window) where the study tunes a schedule, and
     what the better controller achieves on the nominal plant (the whole-range tracking and the step, the schedule's
@@ -275,7 +275,7 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
     The controller is part of the inner problem's decisions: the robust set, or the robust set with the schedule's
     entries (Kc, Ti, Td and b each, tuned on its window by :func:`~piezopreload.tuning.schedule.tune_entries`),
     whichever meets the tracking and settling limits with the lower tracking RMS. ``schedule``: tune the entries
-    (default: where ``[tuning] schedule_levels`` is at least 2).
+    (the study's ``[tuning] schedule_levels``, at least 2); False: the one robust set.
 
     Raises :class:`~piezopreload.core.errors.InfeasibleError` naming the binding pair where no gains the tuning
     finds meet the study's Ms limit together with the tuning's other constraints.
@@ -300,7 +300,7 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
     nominal = _nominal(study, plant, gains, ff)
     misses = _misses(nominal, c)
     levels = _levels(study) if schedule else None
-    if schedule and levels is None:
+    if schedule and levels is None:  # said before any tuning by codesign()
         raise InputError(f"{study.path}: a schedule's entries in the co-design need [tuning] schedule_levels >= 2")
     if levels is not None:
         entries, records = tune_entries(plant, ff.model, tuning, tuned.gains, levels_N=levels,
@@ -387,6 +387,8 @@ class CodesignResult:
     evaluated: dict[tuple[float, ...], tuple[Candidate | None, str]] = field(default_factory=dict, repr=False,
                                                                              compare=False)
     least_heat_N_per_um: float = field(default=math.nan, repr=False)
+    #: whether the gain schedule's entries were decisions of the inner problem (``codesign(schedule=True)``)
+    schedule: bool = field(default=False, repr=False)
 
     @property
     def objective_ratio(self) -> float:
@@ -410,8 +412,7 @@ class CodesignResult:
                                 for lv, kc, ti, ms in zip(s.levels_N, s.Kc, s.Ti_s, c.entry_ms))
             return (f"the gain schedule, each entry tuned on the candidate's plant at Ms <= {ms_max:g} over its "
                     f"window ({entries}), around the robust set ({robust})")
-        why = (" (the schedule's entries, tuned too, tracked no better)" if self.limits.get("schedule_levels", 0) >= 2
-               else "")
+        why = " (the schedule's entries, tuned too, tracked no better)" if self.schedule else ""
         return f"one robust PID set tuned on the candidate's plant at Ms <= {ms_max:g} ({robust}){why}"
 
     def changed(self) -> list[str]:
@@ -497,6 +498,7 @@ class CodesignResult:
                 "weights": self.weights.to_dict(),
                 "objective_sequential": self.objective_sequential, "objective_codesigned": self.objective_codesigned,
                 "objective_ratio": self.objective_ratio, "evaluations": self.evaluations,
+                "schedule_inside": self.schedule,
                 "sequential_meets_the_study": self.sequential.feasible,
                 "sequential": self.sequential.to_dict(), "codesigned": self.codesigned.to_dict(),
                 "changed": self.changed(), "bought": self.bought(), "coupling": self.coupling(),
@@ -576,7 +578,8 @@ def codesign_design(study: StudySpec, *, points: int = 3, progress: ProgressLike
 
 def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget: int = 9, step: float = 0.25,
              min_step: float = 0.0625, validate_plants: int | None = None, max_iterations: int = 60,
-             time_factor: float | None = 10.0, progress: ProgressLike | None = None) -> CodesignResult:
+             time_factor: float | None = 10.0, schedule: bool = False,
+             progress: ProgressLike | None = None) -> CodesignResult:
     """The sequential design and tuning, then the nested co-design started from it; both validated alike.
 
     Parameters
@@ -596,6 +599,10 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
     time_factor : float, optional
         The co-design's time limit as a multiple of the sequential design and tuning: no inner problem is started
         that would end after it were it as slow as the slowest so far (None: the budget alone limits it).
+    schedule : bool
+        Take the gain schedule's entries (``[tuning] schedule_levels``) as decisions of the inner problem, each tuned
+        at Ms over its window, for both answers (:func:`evaluate_design`); False: the one robust set. Each inner
+        problem then tunes one more PID per entry.
     progress : ProgressLike, optional
         Where the steps are said.
 
@@ -627,7 +634,10 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
         seq_point = optimise(spec, objective).point
     except DesignInfeasible as exc:
         raise InfeasibleError(f"{study.path}: {exc}") from exc
-    sequential = evaluate_design(study, seq_point, max_iterations=max_iterations)
+    if schedule and study.tuning.schedule_levels < 2:
+        raise InputError(f"{study.path}: the co-design's schedule entries need [tuning] schedule_levels >= 2, got "
+                         f"{study.tuning.schedule_levels}")
+    sequential = evaluate_design(study, seq_point, max_iterations=max_iterations, schedule=schedule)
     sequential_s = time.perf_counter() - t0
     say(f"sequential: {objective} design, then the tuning ({sequential_s:.1f} s): tracking RMS "
         f"{sequential.tracking_rms_N:.2f} N, friction {sequential.friction_energy_J:.4g} J per cycle"
@@ -635,7 +645,8 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
 
     # ---- the nested co-design: a compass search over the plant-shaping variables --------------------------
     t1 = time.perf_counter()
-    search = _Search(study, spec, objective, weights, sequential, sequential_s, max_iterations, time_factor, say)
+    search = _Search(study, spec, objective, weights, sequential, sequential_s, max_iterations, time_factor, say,
+                     schedule=schedule)
     best, best_f = search.run(budget, step, min_step)
     codesign_s = time.perf_counter() - t1
     if not best.feasible:  # the sequential design has no controller that meets the study, and no candidate had one
@@ -656,11 +667,10 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
             f"{'passed' if v_co.passed else 'failed'}")
     limits = {"stiffness_min_N_per_um": spec.stiffness_min_N_per_um,
               "lift_off_min_N": spec.lift_off_margin * spec.failsafe_load_N, "life_min_h": spec.life_min_h,
-              "ms_max": study.tuning_spec.ms_max, "tracking_rms_max_N": study.criteria.tracking_rms_max_N,
-              "schedule_levels": float(study.tuning.schedule_levels)}
+              "ms_max": study.tuning_spec.ms_max, "tracking_rms_max_N": study.criteria.tracking_rms_max_N}
     return CodesignResult(study.name, STRATEGY, weights, sequential, best, 1.0, best_f, search.evaluations + 1,
                           tuple(search.refused), sequential_s, codesign_s, limits, tuple(search.scored), v_seq, v_co,
-                          STRATEGY_WHY, search.cache, search.least_heat)
+                          STRATEGY_WHY, search.cache, search.least_heat, schedule)
 
 
 class _Search:
@@ -673,7 +683,7 @@ class _Search:
     def __init__(self, study: StudySpec, spec: DesignSpec, objective: str, weights: CodesignWeights,
                  sequential: Candidate, sequential_s: float, max_iterations: int, time_factor: float | None,
                  say: Callable[[str], None], cache: dict[tuple[float, ...], tuple[Candidate | None, str]] | None = None,
-                 least_heat: float | None = None) -> None:
+                 least_heat: float | None = None, schedule: bool = False) -> None:
         self.study, self.spec, self.objective, self.weights = study, spec, objective, weights
         self.sequential, self.sequential_s = sequential, sequential_s
         self.max_iterations, self.time_factor, self.say = max_iterations, time_factor, say
@@ -681,7 +691,7 @@ class _Search:
         self.cache = {} if cache is None else cache
         if least_heat is None:
             least_heat = optimise(spec, CANDIDATE_OBJECTIVE).point.stiffness_N_per_um  # the front's soft end
-        self.least_heat = least_heat
+        self.least_heat, self.schedule = least_heat, schedule
         top = sequential.point.stiffness_N_per_um
         self.ranges = [(min(least_heat, top), top), tuple(spec.contact_angle_deg), tuple(spec.conformity)]
         self.evaluations, self.stopped, self.slowest = 0, "", 0.0
@@ -711,7 +721,7 @@ class _Search:
             t0 = time.perf_counter()
             try:
                 cand = evaluate_design(self.study, _optimum_at(self.spec, values).point, start=start,
-                                       max_iterations=self.max_iterations)
+                                       max_iterations=self.max_iterations, schedule=self.schedule)
                 cand, refused = replace(cand, at=tuple(values.items())), ""
             except InfeasibleError as exc:  # no screw, or no controller, for these values
                 cand, refused = None, str(exc)
@@ -824,7 +834,7 @@ def codesign_fronts(study: StudySpec, result: CodesignResult, *, points: int = 3
     front = pareto_front(spec, "stiffness:growth", points, growth=lambda p: duty_growth_um(spec, p, table))
     sequential = []
     for p in front.points:
-        c = evaluate_design(study, p, start=seq.gains)
+        c = evaluate_design(study, p, start=seq.gains, schedule=result.schedule)
         sequential.append(_front_point(c, f"rigidity at least {p.stiffness_N_per_um:,.0f} N/um",
                                        p.stiffness_N_per_um))
         say(f"  sequential front: rigidity {p.stiffness_N_per_um:,.0f} N/um: growth {c.growth_um:.2f} um, tracking "
@@ -838,7 +848,7 @@ def codesign_fronts(study: StudySpec, result: CodesignResult, *, points: int = 3
     for w in weights:
         search = _Search(study, spec, objective, CodesignWeights(growth=w, friction=0.0, tracking=1.0 - w), seq,
                          result.sequential_s, 60, None, lambda _m: None, cache=result.evaluated,
-                         least_heat=least_heat)
+                         least_heat=least_heat, schedule=result.schedule)
         best, _ = search.run(budget, 0.25, 0.0625)
         least_heat = search.least_heat
         codesigned.append(_front_point(best, f"growth weight {w:.2g}, tracking {1 - w:.2g}", w))

@@ -92,6 +92,9 @@ def test_both_answers_are_validated_by_the_same_monte_carlo(small_codesign):
     d = r.to_dict()
     json.dumps(d, allow_nan=False)
     assert d["strategy"] == "nested" and d["objective_ratio"] <= 1.0
+    # which strategy, and why: the study's tuning exposes no sensitivity of its optimum to the plant
+    assert "sensitivity" in d["strategy_why"] and "nested" in d["strategy_why"]
+    assert d["schedule_inside"] is False and d["controller"].startswith("one robust PID set")
 
 
 @pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
@@ -221,3 +224,30 @@ def test_a_worse_candidate_never_replaces_the_sequential_answer(small, monkeypat
     assert r.evaluations == 4  # the start and three candidates scored
     assert r.codesigned is r.sequential
     assert r.objective_codesigned == pytest.approx(1.0)
+
+
+@pytest.mark.slow  # one design's tuning and its schedule's entries (a minute or more)
+def test_the_schedule_s_entries_are_inner_decisions_each_at_its_window_s_ms(small, small_codesign):
+    from piezopreload.codesign import _plant
+    from piezopreload.tuning.linearised import max_sensitivity
+    from piezopreload.tuning.pid import plant_variants
+    from piezopreload.tuning.schedule import level_windows
+
+    seq = small_codesign.sequential
+    assert seq.controller == "robust" and seq.gains.schedule is None and not small_codesign.schedule
+    c = evaluate_design(small, seq.point, start=seq.gains, schedule=True)
+    s = c.gains.schedule
+    assert c.controller == "schedule" and s is not None and len(s.levels_N) == small.tuning.schedule_levels
+    # each entry's Ms over its own window, recomputed from the linearised loop at both ends of the window's slope on
+    # every variant the tuning bounds: at most the study's limit (the tuner's constraint), as the candidate says
+    plant, spec = _plant(small, seq.point), small.tuning_spec
+    for i, (lo, hi) in enumerate(level_windows(s.levels_N)):
+        entry = replace(c.gains, Kc=s.Kc[i], Ti_s=s.Ti_s[i], Td_s=s.Td_s[i], b=s.b[i] if s.b else c.gains.b,
+                        schedule=None)
+        ms = max(max_sensitivity(entry, v, (lo, hi)) for v in plant_variants(plant, spec.variants))
+        assert ms == pytest.approx(c.entry_ms[i], rel=1e-6)
+        assert ms <= spec.ms_max * (1 + 1e-3), f"entry {i} at {s.levels_N[i]} N: Ms {ms}"
+    assert c.ms == pytest.approx(max(c.entry_ms))
+    # the inner problem keeps the schedule only where it tracks better than the robust set on the nominal plant
+    assert c.tracking_rms_N < seq.tracking_rms_N
+    assert c.feasible and c.to_dict()["schedule"]["levels_N"] == list(s.levels_N)

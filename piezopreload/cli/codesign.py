@@ -39,6 +39,9 @@ def register_codesign(sub: Any) -> None:
                         "none given: growth and tracking 1 where the study has [thermal], else friction and tracking)")
     p.add_argument("--budget", type=int, default=9, metavar="N", help="most inner solves of the outer search "
                                                                       "(default 9)")
+    p.add_argument("--schedule", action="store_true",
+                   help="take the gain schedule's entries ([tuning] schedule_levels, at least 2) as decisions of the "
+                        "inner problem too, each tuned at Ms over its window (default: the one robust set)")
     p.add_argument("--plants", type=int, metavar="N",
                    help="Monte Carlo plants for each answer (default: the study's [validation] plants; 0: none)")
     json_flag(p)
@@ -56,7 +59,8 @@ def _cmd_codesign(args: argparse.Namespace) -> CodesignResult:
     study = load_study(args.study, progress=say)
     given = (args.growth, args.friction, args.tracking, args.voltage)
     weights = None if all(w is None for w in given) else CodesignWeights(*(0.0 if w is None else w for w in given))
-    return codesign(study, weights, budget=args.budget, validate_plants=args.plants, progress=say)
+    return codesign(study, weights, budget=args.budget, validate_plants=args.plants, schedule=args.schedule,
+                    progress=say)
 
 
 def _fmt(x: Any) -> str:
