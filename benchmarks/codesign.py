@@ -21,8 +21,8 @@
 * More of the controller inside: the default study co-designed with the gain schedule's entries as inner decisions
   (``--schedule N`` inner solves; ``schedule_inside``).
 
-Run: ``python benchmarks/codesign.py [--budget N] [--plants N] [--front N] [--settling S] [--schedule N]``. The last line printed
-is one JSON object.
+Run: ``python benchmarks/codesign.py [--budget N] [--plants N] [--front N] [--settling S] [--schedule N]``. The last
+line printed is one JSON object.
 """
 
 from __future__ import annotations
