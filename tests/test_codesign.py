@@ -251,3 +251,28 @@ def test_the_schedule_s_entries_are_inner_decisions_each_at_its_window_s_ms(smal
     # the inner problem keeps the schedule only where it tracks better than the robust set on the nominal plant
     assert c.tracking_rms_N < seq.tracking_rms_N
     assert c.feasible and c.to_dict()["schedule"]["levels_N"] == list(s.levels_N)
+
+
+def test_a_design_no_controller_makes_meet_ms_is_refused_naming_the_design_and_the_binding_pair(small, monkeypatch):
+    # the tuning finds no gains that meet Ms with its other constraints (its own message names the violated ones):
+    # the co-design's inner problem refuses the design by its variables, the Ms limit and its key, and the pair
+    import piezopreload.codesign as cd
+    from piezopreload.tuning.pid import TuningInfeasible
+
+    def infeasible(*args, **kwargs):
+        raise TuningInfeasible("PID tuning found no gains that meet the specification (1 start); not met: Ms <= 1.6, "
+                               "variant 2, slope 71.993 N/V (by 0.04); overshoot on variant 1 (by 2.1)")
+
+    class Feedforward:
+        def inverse(self):
+            return None
+
+    monkeypatch.setattr(cd, "tune_pid", infeasible)
+    point = optimise(small.design_spec, small.design_table.objective).point
+    with pytest.raises(InfeasibleError) as err:
+        cd.evaluate_design(small, point, feedforward=Feedforward())
+    message = str(err.value)
+    assert f"contact angle {point.contact_angle_deg:.2f} deg" in message
+    assert f"rigidity {point.stiffness_N_per_um:.0f} N/um" in message
+    assert "has no controller that meets Ms <= 1.6 ([tuning] ms_max)" in message
+    assert "Ms <= 1.6, variant 2, slope 71.993 N/V (by 0.04)" in message and "overshoot on variant 1" in message
