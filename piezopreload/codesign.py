@@ -296,7 +296,8 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
                               f"controller that meets Ms <= {tuning.ms_max:g} ([tuning] ms_max) with the tuning's "
                               f"other constraints: {exc}") from exc
     c = study.criteria
-    gains, ms, controller, entry_ms = tuned.gains, float(tuned.ms), "robust", ()
+    gains, ms, controller = tuned.gains, float(tuned.ms), "robust"
+    entry_ms: tuple[float, ...] = ()
     nominal = _nominal(study, plant, gains, ff)
     misses = _misses(nominal, c)
     levels = _levels(study) if schedule else None
@@ -365,6 +366,15 @@ class CodesignResult:
         The sequential answer's Monte Carlo (None where not run).
     validation_codesigned : ValidationResult or None
         The co-designed answer's Monte Carlo, on the same plants' draw (None where not run).
+    strategy_why : str
+        Why that strategy, in words (:data:`STRATEGY_WHY`).
+    evaluated : dict
+        The inner problems solved, by the outer variables' values: the candidate (None: refused) and why refused (a
+        front's sweep starts from them).
+    least_heat_N_per_um : float
+        The least-heat design's least rigidity, the outer floor's low end (NaN: not computed).
+    schedule : bool
+        Whether the gain schedule's entries were decisions of the inner problem.
     """
 
     study: str
