@@ -35,13 +35,15 @@ def codesign_fronts_figure(r: CodesignRecord) -> Figure:
     joined (filled), the two answers marked."""
     fig, ax = _figure(2.8)
     a = ax[0][0]
-    for name, points, marker in (("sequential", r.sequential_front, "o"), ("co-designed", r.codesigned_front, "s")):
+    # the sequential front's markers larger, so a co-designed point on top of one leaves it visible
+    for name, points, marker, size in (("sequential", r.sequential_front, "o", 7.0),
+                                       ("co-designed", r.codesigned_front, "s", 3.5)):
         colour = _FRONT_COLOURS[name]
         swept = [p for p in points if p.feasible]
-        a.plot([p.growth_um for p in swept], [p.tracking_rms_N for p in swept], marker, mfc="none", ms=6,
+        a.plot([p.growth_um for p in swept], [p.tracking_rms_N for p in swept], marker, mfc="none", ms=size + 3,
                color=colour, label=f"{name} sweep ({len(swept)} points)")
         front = nondominated(points)
-        a.plot([p.growth_um for p in front], [p.tracking_rms_N for p in front], marker + "-", ms=3.5, color=colour,
+        a.plot([p.growth_um for p in front], [p.tracking_rms_N for p in front], marker + "-", ms=size, color=colour,
                label=f"{name} front")
     a.set_xlabel("thermal growth over the shift, duty-cycle estimate (um)")
     a.set_ylabel("nominal tracking RMS, whole range (N)")
@@ -70,7 +72,7 @@ def codesign_section(r: CodesignRecord) -> Part:
     """
     changed = "; ".join(r.changed) if r.changed else "nothing: the sequential design is kept"
     paragraphs = [
-        f"The design was chosen with its controller by a {r.strategy} co-design, {r.strategy_why.split(': ', 1)[-1]}. "
+        f"The design was chosen with its controller by a {r.strategy} co-design ({r.strategy_why}). "
         f"Its objective weighs {', '.join(f'{k} {fmt(w)}' for k, w in r.weights.items() if w > 0)} (each over the "
         f"sequential answer's value); the co-designed answer's objective is {fmt(r.objective_ratio, 4)} of the "
         f"sequential one's.",
