@@ -79,6 +79,17 @@ def codesign_section(r: CodesignRecord) -> Part:
         f"What it changed in the design: {changed}. Of the controller: {r.controller}. What bought the difference: "
         f"{r.coupling}.",
     ]
+    moved = []
+    for row in r.requirements:
+        if abs(row.codesigned - row.sequential) <= 1e-3 * max(abs(row.sequential), 1e-12):
+            continue
+        flip = ""
+        if row.met("sequential") is not None and row.met("sequential") != row.met("codesigned"):
+            flip = ", now met" if row.met("codesigned") else ", now missed"
+        moved.append(f"{row.requirement} {_cell(row.sequential, row.unit)} to {_cell(row.codesigned, row.unit)}"
+                     f"{' ' + row.unit if row.unit else ''}{flip}")
+    paragraphs.append("In the requirements' units, the co-design moved " + "; ".join(moved) + "." if moved else
+                      "The co-design moved no requirement's figure: it kept the sequential answer.")
     if r.plants:
         verdict = {True: "passed", False: "failed", None: "was not run"}
         paragraphs.append(f"Both answers ran through the same {r.plants} Monte Carlo plants: the sequential answer "
