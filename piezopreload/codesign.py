@@ -412,7 +412,14 @@ class CodesignResult:
 
     def controller_words(self) -> str:
         """What the co-design chose of the controller, in words: the robust set or the gain schedule, its gains and
-        the Ms each was tuned under."""
+        the Ms each was tuned under.
+
+        Returns
+        -------
+        str
+            ``one robust PID set ...`` with its gains, or ``the gain schedule ...`` with each entry's level, gains
+            and Ms over its window.
+        """
         c, ms_max = self.codesigned, self.limits.get("ms_max", math.nan)
         g = c.gains
         robust = f"Kc {g.Kc:.4g} V/N, Ti {g.Ti_s * 1e3:.3g} ms, Td {g.Td_s * 1e3:.3g} ms, b {g.b:.3g}"
