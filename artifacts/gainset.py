@@ -388,7 +388,7 @@ class GainSet(Artifact):
         GainSet
             The gain set, its hash checked.
         """
-        return cls.from_dict(parse_artifact(text, cls.KIND, shown, fields=False), shown)
+        return cls.from_dict(parse_artifact(text, cls.declared_kind(), shown, fields=False), shown)
 
     def save(self, path: str | Path) -> GainSet:
         """Write the gain set atomically as a content-hashed artifact.

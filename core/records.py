@@ -23,7 +23,7 @@ From that one declaration come
 * the writer, :meth:`Record.to_dict` (a record that writes more, a figure derived from its fields,
   adds it to this one's);
 * the fields a document of an artifact's kind must hold, :meth:`Artifact.required`, from which
-  :data:`piezopreload.core.artifacts.KINDS` is made;
+  :data:`piezopreload.artifacts.registry.KINDS` is made;
 * the record's numpydoc ``Parameters`` section: its fields, their types, units and docs.
 
 >>> @record
@@ -65,7 +65,7 @@ from typing import (
 
 import numpy as np
 
-from piezopreload.core.artifacts import field_message, read_artifact, register_kind, write_artifact
+from piezopreload.core.artifacts import ArtifactKind, field_message, read_artifact, write_artifact
 from piezopreload.core.config import Invalid
 from piezopreload.core.errors import ArtifactError
 
@@ -758,7 +758,7 @@ class Record:
         Returns
         -------
         tuple of str
-            The keys; for an :class:`Artifact`, what :data:`piezopreload.core.artifacts.KINDS` lists for its kind.
+            The keys; for an :class:`Artifact`, what :data:`piezopreload.artifacts.registry.KINDS` lists for its kind.
         """
         out: list[str] = []
         for spec in _specs(cls):
@@ -781,6 +781,18 @@ class Artifact(Record):
     HASHED: ClassVar[bool] = False
 
     @classmethod
+    def declared_kind(cls) -> ArtifactKind:
+        """Its kind as its declaration makes it: the name, the required fields, the hash, what writes it again
+        (listed with every other kind in :data:`piezopreload.artifacts.registry.KINDS`).
+
+        Returns
+        -------
+        ArtifactKind
+            The kind.
+        """
+        return ArtifactKind(cls.KIND, cls.required, cls.HASHED, cls.AGAIN, f"{cls.__module__}.{cls.__qualname__}")
+
+    @classmethod
     def load(cls, path: str | Path) -> Self:
         """Read the artifact at ``path``: its envelope (schema, kind, finite numbers, a hashed kind's hash), then
         every field by the declaration.
@@ -795,11 +807,11 @@ class Artifact(Record):
         Artifact
             The record.
         """
-        return cls.from_dict(read_artifact(path, cls.KIND, fields=False), str(path))
+        return cls.from_dict(read_artifact(path, cls.declared_kind(), fields=False), str(path))
 
     def _write(self, path: str | Path) -> dict[str, Any]:
         """Write the artifact atomically at ``path``; returns the whole document (envelope and hash)."""
-        return write_artifact(path, self.KIND, self.to_dict())
+        return write_artifact(path, self.declared_kind(), self.to_dict())
 
 
 # --------------------------------------------------------------------------------------
@@ -817,8 +829,8 @@ def record(*, eq: bool = True) -> Callable[[type[_R]], type[_R]]: ...
 def record(cls: Any = None, /, *, eq: bool = True) -> Any:
     """Make ``cls`` (a :class:`Record`) a frozen dataclass of its declared fields.
 
-    Its docstring gains a ``Parameters`` section from the declarations, and an :class:`Artifact`'s
-    kind is registered (:data:`piezopreload.core.artifacts.KINDS`).
+    Its docstring gains a ``Parameters`` section from the declarations (an :class:`Artifact`'s kind is
+    listed in :data:`piezopreload.artifacts.registry.KINDS`, not registered here).
 
     Parameters
     ----------
@@ -837,9 +849,6 @@ def record(cls: Any = None, /, *, eq: bool = True) -> Any:
             raise TypeError(f"@record makes a Record's subclass, not {c!r}")
         made = dataclass(frozen=True, eq=eq)(c)
         made.__doc__ = _with_parameters(made)
-        if issubclass(made, Artifact) and made.KIND:
-            register_kind(made.KIND, made.required, hashed=made.HASHED, again=made.AGAIN,
-                          owner=f"{made.__module__}.{made.__qualname__}")
         return made
 
     return make if cls is None else make(cls)

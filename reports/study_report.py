@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 from piezopreload.artifacts.manifest import StudyRunManifest
 from piezopreload.artifacts.summaries import ReportSummary
-from piezopreload.core.artifacts import atomic_write_bytes, atomic_write_text, package_version, write_artifact
+from piezopreload.core.artifacts import REPORT, atomic_write_bytes, atomic_write_text, package_version, write_artifact
 from piezopreload.core.errors import InputError
 from piezopreload.core.parallel import Pool
 from piezopreload.reports.document import Report
@@ -114,7 +114,7 @@ def render_report(out: Path, manifest: StudyRunManifest, study: ReportStudy, *,
     report, figures = build_report(study, Artifacts(out, manifest), now)
     written: dict[str, Path] = {f"figure-{name}": folder / "figures" / f"{name}.pdf" for name, _, _ in figures}
     F.save_all([(fig, written[f"figure-{name}"]) for name, fig, _ in figures], pool=pool, progress=bar)
-    write_artifact(folder / "report.json", "report", report.to_dict())
+    write_artifact(folder / "report.json", REPORT, report.to_dict())
     atomic_write_text(folder / "report.typ", template if template is not None else template_text())
     try:
         pdf = compile_pdf(folder / "report.typ", date=now)

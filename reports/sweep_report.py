@@ -16,7 +16,13 @@ from pathlib import Path
 from typing import Any, TypedDict
 
 from piezopreload.artifacts.sweep import SweepPoint, SweepRecord
-from piezopreload.core.artifacts import atomic_write_bytes, atomic_write_text, package_version, write_artifact
+from piezopreload.core.artifacts import (
+    SWEEP_REPORT,
+    atomic_write_bytes,
+    atomic_write_text,
+    package_version,
+    write_artifact,
+)
 from piezopreload.core.errors import InputError
 from piezopreload.core.parallel import Pool
 from piezopreload.reports import figures as F
@@ -181,7 +187,7 @@ def render_sweep_report(out: Path, record: SweepRecord, *, say: Callable[[str], 
              f"{record.points[0].folder} to {record.points[-1].folder}" if record.points else "none"],
             ["rows", "sweep.csv, sweep.json"]]},
     }
-    write_artifact(folder / "report.json", "sweep-report", data)
+    write_artifact(folder / "report.json", SWEEP_REPORT, data)
     atomic_write_text(folder / "report.typ", template if template is not None else template_text(SWEEP_TEMPLATE))
     try:
         pdf = compile_pdf(folder / "report.typ", date=now)

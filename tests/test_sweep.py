@@ -27,10 +27,10 @@ from matplotlib.figure import Figure
 
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.manifest import StudyRunManifest
+from piezopreload.artifacts.registry import read_artifact
 from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.sweep import EXIT_POINT_FAILED, PointFigures, SweepAxis, SweepPoint, SweepRecord
 from piezopreload.cli import main
-from piezopreload.core.artifacts import read_artifact
 from piezopreload.core.errors import ArtifactError, InputError, PiezopreloadError
 from piezopreload.core.stagecache import StageCache
 from piezopreload.pipeline import run_study

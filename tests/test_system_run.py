@@ -12,10 +12,10 @@ import pytest
 from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.manifest import StudyRunManifest
 from piezopreload.artifacts.plant import DesignedPlant
+from piezopreload.artifacts.registry import read_artifact
 from piezopreload.artifacts.summaries import DesignSummary, LearnSummary, RigSummary, SystemSummary
 from piezopreload.artifacts.system import SystemRecord
 from piezopreload.cli import main
-from piezopreload.core.artifacts import read_artifact
 from piezopreload.design.system import LIFT_OFF_BOUND_VERDICT, RIGIDITY_VERDICT
 from piezopreload.models.thermal import EXPANSION_PER_K
 from piezopreload.pipeline import STAGES, run_study
