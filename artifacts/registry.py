@@ -1,7 +1,7 @@
 """Every kind of artifact the tool writes, listed once: :data:`KINDS`.
 
-Each record of :mod:`piezopreload.artifacts` declares its own kind (:meth:`~piezopreload.core.records.Artifact.
-declared_kind`: its name, the fields its documents must hold, its hash, what writes it again), and its one
+Each record of :mod:`piezopreload.artifacts` declares its own kind (:func:`~piezopreload.core.records.kind_of`
+the record: its name, the fields its documents must hold, its hash, what writes it again), and its one
 reader and writer take that declaration; the three documents no record declares yet are
 :data:`piezopreload.core.artifacts.DOCUMENTS`. :data:`KINDS` is made here, from this list, when this module is
 read: nothing is added to it as modules are imported, and a kind named twice is refused here.
@@ -27,7 +27,7 @@ from piezopreload.artifacts.tuning import TuningRecord
 from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core import artifacts as envelope
 from piezopreload.core.artifacts import DOCUMENTS, Kinds
-from piezopreload.core.records import Artifact
+from piezopreload.core.records import Artifact, kind_of
 from piezopreload.core.stagecache import CacheEntry
 
 __all__ = ["ARTIFACTS", "KINDS", "read_artifact", "write_artifact"]
@@ -39,7 +39,7 @@ ARTIFACTS: tuple[type[Artifact], ...] = (
 )
 
 #: each artifact kind by name, to the fields its documents must hold (``KINDS.kind(name)``: its declaration)
-KINDS = Kinds([*(cls.declared_kind() for cls in ARTIFACTS), *DOCUMENTS])
+KINDS = Kinds([*(kind_of(cls) for cls in ARTIFACTS), *DOCUMENTS])
 
 
 def read_artifact(path: str | Path, kind: str, *, fields: bool = True) -> dict[str, Any]:

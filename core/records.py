@@ -69,7 +69,7 @@ from piezopreload.core.artifacts import ArtifactKind, field_message, read_artifa
 from piezopreload.core.config import Invalid
 from piezopreload.core.errors import ArtifactError
 
-__all__ = ["Entry", "entry", "record", "Record", "Artifact", "Raw", "load_one_of", "object_without"]
+__all__ = ["Entry", "entry", "record", "Record", "Artifact", "Raw", "load_one_of", "object_without", "kind_of"]
 
 #: the metadata entry of a field declared with :func:`entry`
 ENTRY = "piezopreload.entry"
@@ -781,18 +781,6 @@ class Artifact(Record):
     HASHED: ClassVar[bool] = False
 
     @classmethod
-    def declared_kind(cls) -> ArtifactKind:
-        """Its kind as its declaration makes it: the name, the required fields, the hash, what writes it again
-        (listed with every other kind in :data:`piezopreload.artifacts.registry.KINDS`).
-
-        Returns
-        -------
-        ArtifactKind
-            The kind.
-        """
-        return ArtifactKind(cls.KIND, cls.required, cls.HASHED, cls.AGAIN, f"{cls.__module__}.{cls.__qualname__}")
-
-    @classmethod
     def load(cls, path: str | Path) -> Self:
         """Read the artifact at ``path``: its envelope (schema, kind, finite numbers, a hashed kind's hash), then
         every field by the declaration.
@@ -807,11 +795,28 @@ class Artifact(Record):
         Artifact
             The record.
         """
-        return cls.from_dict(read_artifact(path, cls.declared_kind(), fields=False), str(path))
+        return cls.from_dict(read_artifact(path, kind_of(cls), fields=False), str(path))
 
     def _write(self, path: str | Path) -> dict[str, Any]:
         """Write the artifact atomically at ``path``; returns the whole document (envelope and hash)."""
-        return write_artifact(path, self.declared_kind(), self.to_dict())
+        return write_artifact(path, kind_of(type(self)), self.to_dict())
+
+
+def kind_of(cls: type[Artifact]) -> ArtifactKind:
+    """An artifact record's kind as its declaration makes it: the name, the required fields, the hash, what writes
+    it again (listed with every other kind in :data:`piezopreload.artifacts.registry.KINDS`).
+
+    Parameters
+    ----------
+    cls : type of Artifact
+        The record.
+
+    Returns
+    -------
+    ArtifactKind
+        Its kind, which its reader and writer take.
+    """
+    return ArtifactKind(cls.KIND, cls.required, cls.HASHED, cls.AGAIN, f"{cls.__module__}.{cls.__qualname__}")
 
 
 # --------------------------------------------------------------------------------------

@@ -11,7 +11,7 @@ from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.registry import ARTIFACTS, KINDS, read_artifact
 from piezopreload.core import artifacts as envelope
 from piezopreload.core.artifacts import ArtifactError, ArtifactKind, Kinds
-from piezopreload.core.records import Artifact, entry, record
+from piezopreload.core.records import Artifact, entry, kind_of, record
 
 
 def test_a_record_made_after_the_list_is_not_added_to_it_and_still_reads_itself(tmp_path):
@@ -30,24 +30,25 @@ def test_a_record_made_after_the_list_is_not_added_to_it_and_still_reads_itself(
     assert Note.load(path).text == "hello"
     with pytest.raises(ValueError, match="unknown artifact kind 'test-note'; the kinds known are"):
         read_artifact(path, "test-note")
-    assert envelope.read_artifact(path, Note.declared_kind())["text"] == "hello"
+    assert envelope.read_artifact(path, kind_of(Note))["text"] == "hello"
 
 
 def test_the_list_is_the_records_and_the_documents_and_a_kind_named_twice_is_refused():
     assert set(KINDS) == {cls.KIND for cls in ARTIFACTS} | {k.name for k in envelope.DOCUMENTS}
     assert len(KINDS) == len(ARTIFACTS) + len(envelope.DOCUMENTS), "a kind named twice"
-    assert KINDS.kind("gain-set") == GainSet.declared_kind() and KINDS.kind("gain-set").hashed
+    assert KINDS.kind("gain-set") == kind_of(GainSet) and KINDS.kind("gain-set").hashed
     twice = ArtifactKind("gain-set", tuple, owner="another record")
     with pytest.raises(ValueError, match="artifact kind 'gain-set' is declared twice: by "
                                          "piezopreload.artifacts.gainset.GainSet and by another record"):
-        Kinds([GainSet.declared_kind(), twice])
+        Kinds([kind_of(GainSet), twice])
 
 
 def test_the_kinds_a_program_knows_do_not_depend_on_what_it_imported_first():
     """One record's module imported alone reads and writes its kind; the core keeps no table of kinds to fill."""
-    code = ("import piezopreload.core.artifacts as a, piezopreload.artifacts.learned as m, sys; "
+    code = ("import piezopreload.core.artifacts as a, piezopreload.core.records as r, "
+            "piezopreload.artifacts.learned as m, sys; "
             "print(sorted(n for n in vars(a) if n.isupper() and isinstance(getattr(a, n), dict)), "
-            "m.LearnedSignal.declared_kind().name, 'piezopreload.artifacts.registry' in sys.modules)")
+            "r.kind_of(m.LearnedSignal).name, 'piezopreload.artifacts.registry' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
     assert out == ["[]", "learned-signal", "False"], out
 
