@@ -139,3 +139,45 @@ def test_no_module_of_the_package_writes_the_environment():
             if found:
                 writes[str(path.relative_to(ROOT))] = found
     assert not writes, f"os.environ written at {writes}"
+
+
+def _numbers(doc):
+    """A document without what a run's timing, its worker count or its files' hashes decide."""
+    if isinstance(doc, dict):
+        return {k: _numbers(v) for k, v in doc.items()
+                if k not in ("created_utc", "started_utc", "finished_utc", "seconds", "workers", "key", "path",
+                             "pdf_bytes") and not k.endswith("sha256")}
+    if isinstance(doc, list):
+        return [_numbers(v) for v in doc]
+    return doc
+
+
+@pytest.mark.slow
+def test_a_run_makes_one_pool_and_gives_the_same_numbers_on_one_worker_or_two(tmp_path, monkeypatch):
+    """The small study run end to end with ``workers=1`` (no process) and ``workers=2`` (one pool of two for the whole
+    run: the bound beside the tuning, the Monte Carlo chunks and the figures share it): the same gains, tuning,
+    validation and stage summaries."""
+    import json
+
+    from piezopreload.pipeline import run_study
+    from piezopreload.progress import Progress
+
+    made = []
+    init = cf.ProcessPoolExecutor.__init__
+
+    def counting(self, *args, **kwargs):
+        made.append(kwargs.get("max_workers"))
+        init(self, *args, **kwargs)
+
+    monkeypatch.setattr(cf.ProcessPoolExecutor, "__init__", counting)
+    docs = {}
+    for workers in (1, 2):
+        made.clear()
+        out = tmp_path / f"w{workers}"
+        run_study(ROOT / "tests" / "data" / "small_study.toml", out, workers=workers, progress=Progress(quiet=True))
+        assert made == ([] if workers == 1 else [2]), f"workers={workers}: process pools made {made}"
+        docs[workers] = {name: _numbers(json.loads((out / name).read_text()))
+                         for name in ("gains.json", "tuning.json", "validation.json", "pipeline.json")}
+    for name in docs[1]:
+        assert docs[1][name] == docs[2][name], f"{name} differs between one worker and two"
+    assert docs[1]["validation.json"]["metrics"] and docs[1]["tuning.json"]["gains"], "nothing compared"
