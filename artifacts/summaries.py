@@ -226,12 +226,6 @@ class SystemSummary(StageSummary):
     def requirements_met(self) -> bool:
         return all(r.met for r in self.checked)
 
-    def thermal_figure(self, name: str) -> tuple[float | None, float | None]:
-        """A thermal figure (``heat_mean_W``, ``growth_max_um``, ...) for the schedule and for the constant preload;
-        (None, None) where the study has no ``[thermal]`` table."""
-        pair = (self.thermal or {}).get(name) or {}
-        return pair.get("schedule"), pair.get("constant")
-
     def to_dict(self) -> dict[str, Any]:
         """The declared fields, with ``requirements_met`` (derived from the requirements) before them."""
         out: dict[str, Any] = {}

@@ -558,10 +558,18 @@ def _read_inline(spec: _Spec, holder: Any, path: str) -> Any:
     return _read_record(spec.record, holder, path)
 
 
+def _renamed(cls: Any, obj: dict[str, Any]) -> dict[str, Any]:
+    """``obj`` with the keys an older version wrote (``cls.RENAMED``) under their names now."""
+    if not any(k in obj for k in cls.RENAMED):
+        return obj
+    return {cls.RENAMED.get(k, k): v for k, v in obj.items()}
+
+
 def _read_record(cls: Any, obj: Any, path: str) -> Any:
     """A record of ``cls`` from the document's object ``obj`` at ``path``."""
     if not isinstance(obj, dict):
         raise _Wrong(path, f"must be an object, got {_got(obj)}")
+    obj = _renamed(cls, obj)
     if cls.CLOSED:
         known = {s.key for s in _specs(cls) if not s.at}
         unknown = sorted(k for k in obj if k not in known)
@@ -696,12 +704,14 @@ class Record:
     Class attributes: ``NOUN`` names the record in messages ("the gain set"); ``AGAIN`` says what
     writes its document again, the end of every message about it ("run the tune stage again");
     ``CLOSED`` refuses a key of its object that is no field (a table of settings, where a misspelt
-    key would otherwise be lost).
+    key would otherwise be lost); ``RENAMED`` maps a key an older version wrote to the field's key now
+    (read under its old name, written under the new one only).
     """
 
     NOUN: ClassVar[str] = ""
     AGAIN: ClassVar[str] = ""
     CLOSED: ClassVar[bool] = False
+    RENAMED: ClassVar[dict[str, str]] = {}
 
     @classmethod
     def from_dict(cls, doc: Any, shown: str = "", *, path: str = "") -> Self:

@@ -57,6 +57,8 @@ from piezopreload.artifacts.sweep import (
     SweepPoint,
     SweepRecord,
 )
+from piezopreload.artifacts.system import SystemRecord
+from piezopreload.artifacts.thermal import ThermalRecord
 from piezopreload.core.artifacts import atomic_write_text
 from piezopreload.core.errors import InputError, InternalError, PiezopreloadError
 from piezopreload.core.parallel import Pool, default_workers
@@ -250,19 +252,31 @@ def _gain_set(folder: Path, manifest: StudyRunManifest) -> GainSet | None:
         return None
 
 
-#: the point's thermal figures (:class:`~piezopreload.artifacts.sweep.PointFigures`' names) by the summary's
-_THERMAL = {"heat_mean_W": ("heat_mean_W", "heat_mean_constant_W"),
-            "temperature_rise_max_K": ("temperature_rise_max_K", "temperature_rise_max_constant_K"),
-            "growth_max_um": ("thermal_growth_max_um", "thermal_growth_max_constant_um"),
-            "positioning_error_max_um": ("positioning_error_max_um", "positioning_error_max_constant_um")}
+def _thermal(folder: Path, manifest: StudyRunManifest) -> ThermalRecord | None:
+    """The shift's thermal budget as the point's system artifact records it (None: no system stage, or no
+    ``[thermal]`` table)."""
+    record = manifest.record("system")
+    out = None if record is None or not record.done else record.outputs.get("system")
+    if out is None:
+        return None
+    try:
+        return SystemRecord.load(folder / out.path).thermal
+    except PiezopreloadError:
+        return None
 
 
-def _thermal_figures(system: SystemSummary | None) -> dict[str, float | None]:
-    """The shift's figures of the system stage (``thermal``), for the schedule and the constant preload."""
-    out: dict[str, float | None] = {}
-    for key, (scheduled, constant) in _THERMAL.items():
-        out[scheduled], out[constant] = (None, None) if system is None else system.thermal_figure(key)
-    return out
+def _thermal_figures(thermal: ThermalRecord | None) -> dict[str, float | None]:
+    """The shift's figures for the schedule and (``constant_``) the best constant preload, each under its name in
+    :class:`~piezopreload.artifacts.thermal.ThermalCase`."""
+    if thermal is None:
+        return {}
+    s, c = thermal.schedule, thermal.constant
+    return {"heat_mean_W": s.heat_mean_W, "constant_heat_mean_W": c.heat_mean_W,
+            "temperature_rise_max_K": s.temperature_rise_max_K,
+            "constant_temperature_rise_max_K": c.temperature_rise_max_K,
+            "growth_max_um": s.growth_max_um, "constant_growth_max_um": c.growth_max_um,
+            "positioning_error_max_um": s.positioning_error_max_um,
+            "constant_positioning_error_max_um": c.positioning_error_max_um}
 
 
 def headline(folder: str | Path, summary: RunSummary | None = None) -> PointFigures:
@@ -304,7 +318,7 @@ def headline(folder: str | Path, summary: RunSummary | None = None) -> PointFigu
         friction_energy_per_cycle=energy, energy_units=None if system is None else system.numbers.energy_units,
         constant_friction_energy_per_cycle=(None if energy is None or design is None
                                             else design.constant_friction_energy),
-        friction_saving_pct=None if saved is None else 100.0 * saved, **_thermal_figures(system),
+        friction_saving_pct=None if saved is None else 100.0 * saved, **_thermal_figures(_thermal(folder, manifest)),
         rig_status=None if rig is None else rig.status,
         requirements_met=summary.requirements_met, requirements_missed=tuple(r.to_dict() for r in summary.missed))
 
