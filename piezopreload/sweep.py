@@ -265,20 +265,6 @@ def _thermal(folder: Path, manifest: StudyRunManifest) -> ThermalRecord | None:
         return None
 
 
-def _thermal_figures(thermal: ThermalRecord | None) -> dict[str, float | None]:
-    """The shift's figures for the schedule and (``constant_``) the best constant preload, each under its name in
-    :class:`~piezopreload.artifacts.thermal.ThermalCase`."""
-    if thermal is None:
-        return {}
-    s, c = thermal.schedule, thermal.constant
-    return {"heat_mean_W": s.heat_mean_W, "constant_heat_mean_W": c.heat_mean_W,
-            "temperature_rise_max_K": s.temperature_rise_max_K,
-            "constant_temperature_rise_max_K": c.temperature_rise_max_K,
-            "growth_max_um": s.growth_max_um, "constant_growth_max_um": c.growth_max_um,
-            "positioning_error_max_um": s.positioning_error_max_um,
-            "constant_positioning_error_max_um": c.positioning_error_max_um}
-
-
 def headline(folder: str | Path, summary: RunSummary | None = None) -> PointFigures:
     """A point's headline figures from its folder (``pipeline.json``, the gain set) and its run's ``summary``
     (default: :func:`~piezopreload.pipeline.run_summary` of the folder, also for a run that stopped at a stage)."""
@@ -293,6 +279,8 @@ def headline(folder: str | Path, summary: RunSummary | None = None) -> PointFigu
     system = manifest.summary(SystemSummary)
     gain_set = _gain_set(folder, manifest)
     validation = None if gain_set is None else gain_set.validation
+    thermal = _thermal(folder, manifest)  # the shift, for the schedule (s) and the best constant preload (c)
+    s, c = (None, None) if thermal is None else (thermal.schedule, thermal.constant)
     worst = None if validation is None else validation.worst
     h = summary.headline
     energy, saved = h.friction_energy_per_cycle, h.friction_saved_fraction
@@ -318,7 +306,14 @@ def headline(folder: str | Path, summary: RunSummary | None = None) -> PointFigu
         friction_energy_per_cycle=energy, energy_units=None if system is None else system.numbers.energy_units,
         constant_friction_energy_per_cycle=(None if energy is None or design is None
                                             else design.constant_friction_energy),
-        friction_saving_pct=None if saved is None else 100.0 * saved, **_thermal_figures(_thermal(folder, manifest)),
+        friction_saving_pct=None if saved is None else 100.0 * saved,
+        heat_mean_W=None if s is None else s.heat_mean_W, constant_heat_mean_W=None if c is None else c.heat_mean_W,
+        temperature_rise_max_K=None if s is None else s.temperature_rise_max_K,
+        constant_temperature_rise_max_K=None if c is None else c.temperature_rise_max_K,
+        growth_max_um=None if s is None else s.growth_max_um,
+        constant_growth_max_um=None if c is None else c.growth_max_um,
+        positioning_error_max_um=None if s is None else s.positioning_error_max_um,
+        constant_positioning_error_max_um=None if c is None else c.positioning_error_max_um,
         rig_status=None if rig is None else rig.status,
         requirements_met=summary.requirements_met, requirements_missed=tuple(r.to_dict() for r in summary.missed))
 
