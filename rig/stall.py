@@ -59,7 +59,7 @@ def _nominal(plant: Plant, controller: Controller, reference: Reference, v_range
     step.reset(0.0)
     states = np.empty((u.size, step.model.state.size))
     for k, command in enumerate(u.tolist()):
-        states[k] = step._x
+        states[k] = step.state
         step.write(command)
     return u, states
 
