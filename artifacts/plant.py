@@ -131,6 +131,7 @@ class DesignedPlant(Artifact):
         Path
             The file written.
         """
-        record = self if inputs is None else replace(self, inputs=dict(inputs))
-        record._write(path)
+        if inputs is not None:  # the same plant with the inputs given: that record writes itself
+            return replace(self, inputs=dict(inputs)).save(path)
+        self._write(path)
         return Path(path)

@@ -114,14 +114,14 @@ class _Key:
     def __init__(self, parts: tuple[Plant, Controller, Reference]) -> None:
         self.parts = parts
         plant, controller, reference = parts
-        self._id = (repr(sorted(plant.to_dict().items())), controller.parameter_vector().tobytes(),
+        self.identity = (repr(sorted(plant.to_dict().items())), controller.parameter_vector().tobytes(),
                     repr(controller.model), repr(reference.to_dict()), controller.dt_s)
 
     def __hash__(self) -> int:
-        return hash(self._id)
+        return hash(self.identity)
 
     def __eq__(self, other: object) -> bool:
-        return isinstance(other, _Key) and other._id == self._id
+        return isinstance(other, _Key) and other.identity == self.identity
 
 
 @lru_cache(maxsize=32)
