@@ -177,7 +177,7 @@ def loop(ex, point, result):
     os._exit(0)
     return ex.__class__, step, html, point
 '''
-    found = problems(source, "rig/example.py")
+    found = problems(source, "<example>")
     assert sorted(f.split(": ", 1)[1] for f in found) == sorted([
         "from piezopreload.models.ballscrew import _rigidity",
         "from .figures import _figure",
@@ -187,5 +187,5 @@ def loop(ex, point, result):
     ]), found
     # a name the module gives its own objects (self._pending) is the module's own, read on another of them too
     own = "class Ex:\n    def __init__(self):\n        self._pending = 1\n\ndef f(ex):\n    return ex._pending\n"
-    assert not problems(own, "rig/x.py")
-    assert problems("def f(ex):\n    return ex._pending\n", "rig/x.py") == ["rig/x.py:2: ex._pending"]
+    assert not problems(own, "<example>")
+    assert problems("def f(ex):\n    return ex._pending\n", "<example>") == ["<example>:2: ex._pending"]
