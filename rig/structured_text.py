@@ -41,7 +41,7 @@ from piezopreload.rig.casadi_st import real, statements
 from piezopreload.rig.controller_code import DESCRIPTIONS, ControllerCode, state_fields
 
 if TYPE_CHECKING:
-    from piezopreload.rig.export import FeedforwardTable
+    from piezopreload.rig.export import InverseStepTable
 
 __all__ = ["function_block", "controller_block", "loop_program", "real", "CONTROLLER_BLOCK", "LOOP_PROGRAM"]
 
@@ -67,7 +67,7 @@ def _array(name: str, values: np.ndarray, what: str) -> list[str]:
     return [f"    (* {what} *)", f"    {name} : ARRAY[1..{len(items)}] OF LREAL := [", f"        {body}];"]
 
 
-def _constants(t: FeedforwardTable) -> list[str]:
+def _constants(t: InverseStepTable) -> list[str]:
     lines = ["VAR CONSTANT", f"    OFFSET_N : LREAL := {real(t.scalar('offset_N'))};",
              f"    BIAS_N : LREAL := {real(t.scalar('bias'))};"]
     for key, name, what in _ARRAYS:
@@ -79,7 +79,7 @@ def _constants(t: FeedforwardTable) -> list[str]:
     return lines + ["END_VAR"]
 
 
-def _variables(t: FeedforwardTable) -> list[str]:
+def _variables(t: InverseStepTable) -> list[str]:
     s = t.structure
     lines = ["VAR_INPUT", "    target_N : LREAL; (* the desired force, N *)",
              "    reset : BOOL; (* TRUE: the step starts from rest at 0 V this sample *)", "END_VAR",
@@ -94,7 +94,7 @@ def _variables(t: FeedforwardTable) -> list[str]:
     return lines + ["    k : DINT;", "END_VAR"]
 
 
-def _reset(t: FeedforwardTable) -> list[str]:
+def _reset(t: InverseStepTable) -> list[str]:
     s = t.structure
     lines = ["IF reset THEN", f"    FOR k := 1 TO {s.n_operators} DO", "        y[k] := 0.0;", "    END_FOR;"]
     if s.n_lags:
@@ -104,7 +104,7 @@ def _reset(t: FeedforwardTable) -> list[str]:
     return lines + ["END_IF;"]
 
 
-def _shaper_and_creep(t: FeedforwardTable) -> list[str]:
+def _shaper_and_creep(t: InverseStepTable) -> list[str]:
     s = t.structure
     lines = ["(* 1. the target less the offset *)", "x := target_N - OFFSET_N;"]
     if s.n_shaper:
@@ -120,7 +120,7 @@ def _shaper_and_creep(t: FeedforwardTable) -> list[str]:
     return lines
 
 
-def _direction(t: FeedforwardTable, d: str, out: str) -> list[str]:
+def _direction(t: InverseStepTable, d: str, out: str) -> list[str]:
     n, D = t.structure.n_operators, d.upper()
     return [f"(* 4. the inverse operators on the {d} weights, eqs. (19)-(20) *)", "total := 0.0;",
             f"FOR k := 1 TO {n} DO", f"    total := total + WEIGHT_{D}[k] * y[k];", "END_FOR;",
@@ -137,7 +137,7 @@ _SWITCH = ["(* 5. the direction the weights used agree with; the one nearer the 
            "    v := v_fall;", "ELSIF NOT rise_ok THEN", "    v := v_prev;", "END_IF;", "v_prev := v;"]
 
 
-def _update(t: FeedforwardTable) -> list[str]:
+def _update(t: InverseStepTable) -> list[str]:
     s = t.structure
     lines = ["(* 6. the forward model's state moves with the command *)", f"FOR k := 1 TO {s.n_operators} DO",
              "    y[k] := MAX(v - THRESHOLD_V[k], MIN(v + THRESHOLD_V[k], y[k]));", "END_FOR;"]
@@ -147,9 +147,9 @@ def _update(t: FeedforwardTable) -> list[str]:
     return lines + ["command_V := v;"]
 
 
-def function_block(t: FeedforwardTable, name: str = "PP_FEEDFORWARD") -> str:
+def function_block(t: InverseStepTable, name: str = "PP_FEEDFORWARD") -> str:
     """The Structured Text source of the inverse step of ``t`` (a
-    :class:`~piezopreload.rig.export.FeedforwardTable`)."""
+    :class:`~piezopreload.rig.export.InverseStepTable`)."""
     period = "any period (no creep)" if t.sample_period_s is None else f"a sample period of {t.sample_period_s!r} s"
     body = _reset(t) + _shaper_and_creep(t) + _direction(t, "rising", "v")
     if t.structure.asymmetric:
