@@ -25,7 +25,8 @@ from piezopreload.core.errors import InputError
 from piezopreload.models.controller import Controller, ControllerModel, controller_functions
 from piezopreload.models.ops import Layout
 
-__all__ = ["Parameter", "ControllerCode", "controller_code", "parameters", "state_fields", "DESCRIPTIONS"]
+__all__ = ["Parameter", "ControllerCode", "controller_code", "parameters", "state_fields", "read_elements",
+           "DESCRIPTIONS", "GAIN_NAMES"]
 
 #: what each parameter is, with its unit (a feedforward's: the inverse step's table, docs/exports.md)
 DESCRIPTIONS = {
@@ -56,6 +57,12 @@ for _d in ("rising", "falling"):
                          f"ff_partial_{_d}": f"feedforward: partial sums W of the weights, {_d}, N/V",
                          f"ff_inverse_thresholds_{_d}": f"feedforward: inverse thresholds, {_d}, N",
                          f"ff_inverse_weights_{_d}": f"feedforward: inverse weights, {_d}, V/N"})
+
+
+#: the parameters a user tunes, by name: the single set's gains and the schedule's arrays (what a PLC block's header
+#: says to change); the others are the output range, the task's period and the feedforward's table
+GAIN_NAMES = ("Kc", "Ti_s", "Td_s", "Tf_s", "b", "schedule_levels_N", "schedule_Kc", "schedule_Ti_s", "schedule_Td_s",
+              "schedule_b")
 
 
 @dataclass(frozen=True)
@@ -102,6 +109,14 @@ def state_fields(model: ControllerModel) -> tuple[tuple[str, int, int | None], .
     return tuple(_fields(model.state, ff, "ff"))
 
 
+def read_elements(fn: ca.Function, name: str) -> frozenset[int]:
+    """The elements of ``fn``'s input ``name`` that its algorithm reads (an input element no instruction reads is dead
+    in the code generated from it)."""
+    index = fn.index_in(name)
+    return frozenset(int(fn.instruction_input(k)[1]) for k in range(fn.n_instructions())
+                     if fn.instruction_id(k) == ca.OP_INPUT and int(fn.instruction_input(k)[0]) == index)
+
+
 @dataclass(frozen=True, eq=False)
 class ControllerCode:
     """A controller's step as code: ``start(setpoint, pv, u0, params) -> state`` and ``step(state, setpoint, pv,
@@ -119,6 +134,13 @@ class ControllerCode:
     @property
     def vector(self) -> np.ndarray:
         return self.controller.parameter_vector()
+
+    @property
+    def read(self) -> tuple[Parameter, ...]:
+        """The parameters the start or the step reads: a scheduled set's step runs on the schedule's arrays, so its
+        single ``Kc``, ``Ti_s``, ``Td_s`` and ``b`` are not among them (the vector keeps their places)."""
+        used = read_elements(self.start, "params") | read_elements(self.step, "params")
+        return tuple(p for p in self.parameters if any(p.start + j in used for j in range(p.size)))
 
 
 def controller_code(controller: Controller, prefix: str = "pp_controller") -> ControllerCode:

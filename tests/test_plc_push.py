@@ -120,8 +120,11 @@ class AsyncuaPlc:
             vtype = _VTYPES[n["type"]]
             node = await plc.add_variable(ua.NodeId(n["id"], idx), n["id"], ua.Variant(n["value"], vtype),
                                           datatype=ua.NodeId(vtype.value))
+            if n["length"] is not None or "rank" in n:  # the ValueRank the spec gives, else 1 for an array
+                rank = n.get("rank", 1)
+                await node.write_attribute(ua.AttributeIds.ValueRank,
+                                           ua.DataValue(ua.Variant(rank, ua.VariantType.Int32)))
             if n["length"] is not None:
-                await node.write_attribute(ua.AttributeIds.ValueRank, ua.DataValue(ua.Variant(1, ua.VariantType.Int32)))
                 await node.write_attribute(ua.AttributeIds.ArrayDimensions,
                                            ua.DataValue(ua.Variant([n["length"]], ua.VariantType.UInt32)))
             if n["writable"]:
