@@ -37,14 +37,15 @@ async function main() {
     const folder = ns.addFolder(server.engine.addressSpace.rootFolder.objects, { browseName: "PLC" });
     for (const node of spec.nodes) {
         const array = node.length !== undefined && node.length !== null;
+        const rank = node.rank ?? (array ? 1 : -1);
         let current = variant(node.type, node.length, node.value);
         ns.addVariable({
             componentOf: folder,
             nodeId: `s=${node.id}`,
             browseName: node.id,
             dataType: node.type,
-            valueRank: node.rank ?? (array ? 1 : -1),
-            arrayDimensions: array ? [node.length] : null,
+            valueRank: rank,
+            arrayDimensions: array && rank > 0 ? [node.length] : null,  // node-opcua: none for a ValueRank <= 0
             accessLevel: node.writable ? "CurrentRead | CurrentWrite" : "CurrentRead",
             userAccessLevel: node.writable ? "CurrentRead | CurrentWrite" : "CurrentRead",
             value: {
