@@ -34,10 +34,12 @@ point and 17 significant digits, so every number is the double the gain set hold
 from __future__ import annotations
 
 import textwrap
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from piezopreload.core.errors import InputError
 from piezopreload.rig.casadi_st import real, statements
 from piezopreload.rig.controller_code import DESCRIPTIONS, GAIN_NAMES, ControllerCode, read_elements, state_fields
 
@@ -214,10 +216,11 @@ def _parameter_refs(code: ControllerCode) -> list[str]:
 def _comment(text: str) -> list[str]:
     """``text`` as an ST comment of lines of at most 110 characters."""
     lines = textwrap.wrap(text, 104)
-    return [("(* " if i == 0 else "   ") + line + (" *)" if i == len(lines) - 1 else "") for i, line in enumerate(lines)]
+    last = len(lines) - 1
+    return [("(* " if i == 0 else "   ") + line + (" *)" if i == last else "") for i, line in enumerate(lines)]
 
 
-def _names(names: list[str]) -> str:
+def _names(names: Sequence[str]) -> str:
     return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
 
 
@@ -234,7 +237,8 @@ def _numbers_to_change(code: ControllerCode) -> str:
     ff = (" The ff_ numbers are the feedforward's inverse step, derived from its model: export again to change "
           "them." if any(n.startswith("ff_") for n in read) else "")
     return (f"To retune, change {what}" + (f", and the output range {_names(rng)}" if rng else "")
-            + " in the VAR section of the gain set's numbers below (or write them with 'piezopreload rig push --to'); dt_s must stay the "
+            + " in the VAR section of the gain set's numbers below (or write them with 'piezopreload rig push --to'); "
+            "dt_s must stay the "
             "task's cycle time." + ff)
 
 
@@ -245,7 +249,14 @@ def controller_block(code: ControllerCode, head: list[str] | tuple[str, ...] = (
     n_state = code.model.state.size
     start = statements(code.start, [lambda k: "setpoint_N", lambda k: "pv_N", lambda k: "track_V",
                                     lambda k: params[k]], [lambda k: state[k]], prefix="s")
-    step = statements(code.step, [lambda k: state[k], lambda k: "setpoint_N", lambda k: "pv_N", lambda k: params[k]],
+
+    def state_in(k: int) -> str:  # the step reads only the fields that are variables (_state)
+        ref = state[k]
+        if ref is None:
+            raise InputError(f"the step reads element {k} of its state, which the block does not hold")
+        return ref
+
+    step = statements(code.step, [state_in, lambda k: "setpoint_N", lambda k: "pv_N", lambda k: params[k]],
                       [lambda k: "u_V", lambda k: "p_V", lambda k: "i_V", lambda k: "d_V", lambda k: "ff_V",
                        lambda k: f"state_next[{k + 1}]"], prefix="t")
     work = {**start.variables, **step.variables}
@@ -269,7 +280,8 @@ def controller_block(code: ControllerCode, head: list[str] | tuple[str, ...] = (
         lines += _declaration(p.name, p.values, p.array, p.description)
     lines += ["END_VAR", "VAR (* the step's state *)", *decls, "END_VAR",
               "VAR (* the algorithm's work variables *)",
-              f"    state_next : ARRAY[1..{n_state}] OF LREAL;", *(["    k : DINT;"] if any("FOR" in c for c in copy) else []),
+              f"    state_next : ARRAY[1..{n_state}] OF LREAL;",
+              *(["    k : DINT;"] if any("FOR" in c for c in copy) else []),
               *(f"    {name} : {work[name]};" for name in sorted(work, key=lambda x: (x[0], int(x[1:])))),
               "END_VAR",
               "IF enable AND NOT active THEN",
