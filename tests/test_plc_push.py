@@ -316,6 +316,8 @@ def test_the_status_the_map_and_the_session_are_checked_first(tmp_path, capsys, 
                               "scheduled set's step runs on the schedule's arrays)") in err, err
         code, err = _push(capsys, gains, plc.endpoint, _map(tmp_path, 'Kp = "ns=2;s=x"\n'))
         assert code == 2 and "field 'nodes.Kp' names no number of this gain set's controller" in err
+        code, err = _push(capsys, gains, plc.endpoint, _map(tmp_path), "--note", "retuned")
+        assert code == 2 and "a push to a PLC (--to) keeps no note" in err, "an option the push would drop"
         code, err = _push(capsys, gains, plc.endpoint, _map(tmp_path), user=None)
         assert code == 2 and "refused the session" in err, "an anonymous session"
         monkeypatch.setenv("PIEZOPRELOAD_RIG_PASSWORD", "wrong")

@@ -270,6 +270,9 @@ def _cmd_rig_push(args: argparse.Namespace) -> ServedPush | PlcPush:
                          "are); without them the gain set goes to a served rig (--endpoint)")
     if args.to is not None and args.endpoint is not None:
         raise InputError("rig push: --endpoint is the served rig's, --to a PLC's: give one")
+    if args.to is not None and args.note:
+        raise InputError("rig push: --note is recorded by a served rig (--endpoint); a push to a PLC (--to) keeps no "
+                         "note: leave it out")
     password = _password(args, args.user is not None) if args.user else None
     try:
         who = Credentials(args.user, password, args.certificate, args.private_key, args.server_certificate,
