@@ -334,8 +334,9 @@ def _schedule_comment(doc: GainSet) -> list[str]:
 
 def _c_params(code: ControllerCode) -> str:
     """The parameter vector as a C array, each part named in a comment."""
-    rows = [f"  /* {p.name}: {p.description} */ " + ", ".join(repr(x) for x in p.values) + ","
-            for p in code.parameters]
+    read = code.read
+    rows = [f"  /* {p.name}: {p.description}{'' if p in read else '; not read by the step (it keeps its place)'} */ "
+            + ", ".join(repr(x) for x in p.values) + "," for p in code.parameters]
     return ("static const double pp_controller_params[PP_CONTROLLER_PARAMS_SIZE] = {\n" + "\n".join(rows)
             + "\n};\n")
 
