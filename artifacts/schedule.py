@@ -167,6 +167,13 @@ class ScheduleSummary:
     local_margin_max_N: float
 
     def to_dict(self) -> dict[str, Any]:
+        """The summary as ``design --json`` prints it.
+
+        Returns
+        -------
+        dict
+            Its numbers by name, the schedule spec's keys (:meth:`ScheduleSpec.to_dict`) among them.
+        """
         return {"status": self.status, "friction_energy": self.friction_energy,
                 "constant_friction_energy": self.constant_friction_energy, "energy_units": self.energy_units,
                 "saving_fraction": self.saving_fraction, "constant_preload_N": self.constant_preload_N,
@@ -223,7 +230,14 @@ class PreloadSchedule(Record):
         return 1.0 - self.friction_energy_J / self.constant_friction_energy_J
 
     def summary(self) -> ScheduleSummary:
-        """The schedule's numbers (no series): what ``design --json`` prints."""
+        """The schedule's numbers (no series): what ``design --json`` prints.
+
+        Returns
+        -------
+        ScheduleSummary
+            The status, the friction energies of the schedule and of the best constant preload, the saving, the range of
+            the preload (N), the least rigidity margin (N/um), the samples and the spec.
+        """
         return ScheduleSummary(
             status=self.status, friction_energy=self.friction_energy_J,
             constant_friction_energy=self.constant_friction_energy_J, energy_units=self.energy_units,
@@ -246,7 +260,14 @@ class PreloadSchedule(Record):
         return {**self.summary().to_dict(), **super().to_dict()}
 
     def plot(self) -> Figure:
-        """Load profile, the two preloads, and rigidity against the requirement, on three axes: a Figure."""
+        """Load profile, the two preloads, and rigidity against the requirement, on three axes: a Figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            Three axes against time: the axial load (N); the scheduled and the best constant preload (N); the rigidity
+            of each and the required rigidity (N/um).
+        """
         from matplotlib.figure import Figure
 
         fig = Figure(figsize=(6.0, 6.0), layout="constrained")
