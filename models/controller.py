@@ -315,22 +315,68 @@ class PIDGains:
             raise ValueError(f"schedule must be a GainSchedule or None, got {type(self.schedule).__name__}.")
 
     def at(self, setpoint_N: ArrayLike) -> tuple[Any, Any, Any]:
-        """``(Kc, Ti_s, Td_s)`` the step uses at ``setpoint_N``: the schedule's, or the single set."""
+        """``(Kc, Ti_s, Td_s)`` the step uses at ``setpoint_N``: the schedule's, or the single set.
+
+        Parameters
+        ----------
+        setpoint_N : array_like
+            The setpoint, in N.
+
+        Returns
+        -------
+        tuple
+            The gain ``Kc`` (V/N), ``Ti_s`` and ``Td_s`` (s) at each setpoint: the schedule's, interpolated, or the
+            single set's numbers.
+        """
         if self.schedule is None:
             return self.Kc, self.Ti_s, self.Td_s
         return self.schedule.at(setpoint_N)
 
     def b_at(self, setpoint_N: ArrayLike) -> Any:
-        """The setpoint weight the step uses at ``setpoint_N``: the schedule's column, or the single ``b``."""
+        """The setpoint weight the step uses at ``setpoint_N``: the schedule's column, or the single ``b``.
+
+        Parameters
+        ----------
+        setpoint_N : array_like
+            The setpoint, in N.
+
+        Returns
+        -------
+        float or ndarray
+            The setpoint weight of the proportional part (no unit) at each setpoint.
+        """
         return self.b if self.schedule is None else self.schedule.b_at(setpoint_N, self.b)
 
     @classmethod
     def from_labview(cls, Kc: float, Ti_min: float, Td_min: float, **kwargs: Any) -> PIDGains:
-        """Gains as entered in LabVIEW's PID VIs, whose Ti and Td are in minutes."""
+        """Gains as entered in LabVIEW's PID VIs, whose Ti and Td are in minutes.
+
+        Parameters
+        ----------
+        Kc : float
+            The proportional gain, in V/N.
+        Ti_min : float
+            The integral time, in minutes.
+        Td_min : float
+            The derivative time, in minutes.
+        **kwargs
+            The other fields of :class:`PIDGains` (``b``, ``N``, ...).
+
+        Returns
+        -------
+        PIDGains
+            The gains, their times in s.
+        """
         return cls(Kc=Kc, Ti_s=60.0 * Ti_min, Td_s=60.0 * Td_min, **kwargs)
 
     def labview(self) -> dict[str, float]:
-        """Kc, Ti and Td (minutes) for LabVIEW's PID VIs."""
+        """Kc, Ti and Td (minutes) for LabVIEW's PID VIs.
+
+        Returns
+        -------
+        dict of str to float
+            ``Kc`` (V/N), ``Ti_min`` and ``Td_min`` (minutes).
+        """
         return {"Kc": self.Kc, "Ti_min": self.Ti_s / 60.0, "Td_min": self.Td_s / 60.0}
 
 
