@@ -58,9 +58,10 @@ def _members():
         for owner in getattr(piezopreload, name).__mro__:
             if not _ours(owner):
                 continue
+            fields = {f.name for f in dataclasses.fields(owner)} if dataclasses.is_dataclass(owner) else set()
             for mname, raw in vars(owner).items():
                 key = f"{owner.__module__}.{owner.__qualname__}.{mname}"
-                if mname.startswith("_") or key in out:
+                if mname.startswith("_") or key in out or mname in fields:  # a field's default is no method
                     continue
                 if isinstance(raw, property | cached_property):
                     out[key] = ("property", raw)
@@ -216,6 +217,33 @@ def _shown_words(documented, cls):
     return shown
 
 
+def _field_problems(cls, f, p, hint):
+    """Where the section's entry ``p`` of field ``f`` (None: there is none) differs from its declaration."""
+    name = cls.__name__
+    e = f.metadata.get(ENTRY)
+    if e is None:
+        return [f"{name}.{f.name}: declared without entry(...), so without a doc"]
+    out = [] if e.doc.strip() else [f"{name}.{f.name}: its entry(...) has no doc"]
+    if p is None:
+        return out + [f"{name}.{f.name}: not in the Parameters section"]
+    text = " ".join(" ".join(p.desc).split())
+    if " ".join(e.doc.split()) not in text:
+        out.append(f"{name}.{f.name}: the section says {text!r}, its declaration {e.doc!r}")
+    if e.unit and f"Unit: {e.unit}." not in text:
+        out.append(f"{name}.{f.name}: its unit {e.unit!r} is not in the section")
+    defaulted = f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
+    if defaulted != p.type.endswith(", optional"):
+        out.append(f"{name}.{f.name}: has {'a' if defaulted else 'no'} default, the section says {p.type!r}")
+    if e.choices:
+        missing = [c for c in e.choices if f"'{c}'" not in p.type]
+    else:
+        shown = _shown_words(p.type, cls)
+        missing = sorted(w for w in _type_words(hint) if w not in shown)
+    if missing:
+        out.append(f"{name}.{f.name}: declared {hint}, the section says {p.type!r} (no {missing})")
+    return out
+
+
 def _record_problems(cls):
     """Where the ``Parameters`` section of record ``cls`` differs from its fields' declarations.
 
@@ -234,34 +262,10 @@ def _record_problems(cls):
     doc = NumpyDocString(inspect.getdoc(cls) or "")
     section = {n.strip(): p for p in doc["Parameters"] for n in p.name.split(",") if n.strip()}
     hints = typing.get_type_hints(cls)
-    out = []
     declared = [f for f in dataclasses.fields(cls) if f.init]
+    out = []
     for f in declared:
-        e = f.metadata.get(ENTRY)
-        if e is None:
-            out.append(f"{name}.{f.name}: declared without entry(...), so without a doc")
-            continue
-        if not e.doc.strip():
-            out.append(f"{name}.{f.name}: its entry(...) has no doc")
-        p = section.get(f.name)
-        if p is None:
-            out.append(f"{name}.{f.name}: not in the Parameters section")
-            continue
-        text = " ".join(" ".join(p.desc).split())
-        if " ".join(e.doc.split()) not in text:
-            out.append(f"{name}.{f.name}: the section says {text!r}, its declaration {e.doc!r}")
-        if e.unit and f"Unit: {e.unit}." not in text:
-            out.append(f"{name}.{f.name}: its unit {e.unit!r} is not in the section")
-        defaulted = f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
-        if defaulted != p.type.endswith(", optional"):
-            out.append(f"{name}.{f.name}: has {'a' if defaulted else 'no'} default, the section says {p.type!r}")
-        if e.choices:
-            missing = [c for c in e.choices if f"'{c}'" not in p.type]
-        else:
-            shown = _shown_words(p.type, cls)
-            missing = sorted(w for w in _type_words(hints[f.name]) if w not in shown)
-        if missing:
-            out.append(f"{name}.{f.name}: declared {hints[f.name]}, the section says {p.type!r} (no {missing})")
+        out += _field_problems(cls, f, section.get(f.name), hints[f.name])
     extra = sorted(set(section) - {f.name for f in declared})
     if extra:
         out.append(f"{name}: the section names what is no field: {extra}")
