@@ -96,7 +96,13 @@ S = TypeVar("S", bound="StudySpec")
 
 
 def _stderr(message: str) -> None:
-    """A study's progress where its caller gives none: a line on standard error."""
+    """A study's progress where its caller gives none: a line on standard error.
+
+    Parameters
+    ----------
+    message : str
+        The progress line, printed after ``piezopreload:``.
+    """
     print(f"piezopreload: {message}", file=sys.stderr, flush=True)
 
 
