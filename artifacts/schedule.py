@@ -54,12 +54,13 @@ class LoadProfile(Record):
         """Each sample's share of time (half the gaps to its neighbours)."""
         t = np.asarray(self.time_s, float)
         gaps = np.diff(t)
-        return 0.5 * (np.concatenate([[0.0], gaps]) + np.concatenate([gaps, [0.0]]))
+        return np.asarray(0.5 * (np.concatenate([[0.0], gaps]) + np.concatenate([gaps, [0.0]])), np.float64)
 
     @property
     def cutting(self) -> NDArray[np.bool_]:
         """The samples under load (where the schedule's requirements are judged)."""
-        return np.abs(np.asarray(self.axial_load_N, float)) > 0
+        loaded: NDArray[np.bool_] = np.abs(np.asarray(self.axial_load_N, float)) > 0
+        return loaded
 
 
 def _limit_from(x: Any) -> float:
@@ -114,7 +115,9 @@ class ScheduleSpec(Record):
         return 1.0 if self.in_machine_factor is None else float(self.in_machine_factor)
 
     def required_stiffness(self, axial_load_N: ArrayLike) -> Array:
-        return np.maximum(self.stiffness_min_N_per_um, np.abs(np.asarray(axial_load_N, float)) / self.deflection_max_um)
+        required: Array = np.maximum(self.stiffness_min_N_per_um,
+                                     np.abs(np.asarray(axial_load_N, float)) / self.deflection_max_um)
+        return required
 
 
 #: the per-sample series a schedule records (beside the profile's time, load and speed)

@@ -340,7 +340,8 @@ class Plant:
         f = np.asarray(stack_force_N, float)
         k = np.asarray(self.effective_stiffness_N_per_um, float)
         c, f0 = np.asarray(self.hertz_um_per_N23, float), np.asarray(self.hertz_preload_N, float)
-        return f / k + c * (np.cbrt(np.maximum(f0 + f, 0.0)) ** 2 - np.cbrt(f0) ** 2)
+        stroke: Array = f / k + c * (np.cbrt(np.maximum(f0 + f, 0.0)) ** 2 - np.cbrt(f0) ** 2)
+        return stroke
 
     def local_stiffness_N_per_um(self, stack_force_N: ArrayLike) -> Array:
         """dF_E/dx (N/um) at the stacks' force ``stack_force_N``: ``k_eff`` for a linear coupling,
@@ -376,7 +377,7 @@ class Plant:
     def adc_lsb_N(self) -> float:
         """The force sensor's ADC step, in N: the bipolar full scale (twice ``adc_full_scale_N``) over
         ``2**adc_bits``."""
-        return 2.0 * self.adc_full_scale_N / 2**self.adc_bits
+        return float(2.0 * self.adc_full_scale_N / 2**self.adc_bits)
 
     def to_dict(self) -> dict[str, Any]:
         """The plant as its document holds it.
@@ -760,7 +761,8 @@ def loop_width(rig: Rig, v_max_V: float = 100.0, points: int = 1001) -> Array:
     second = f[..., cycle.size - 1 :]
     rise, fall = second[..., :points], second[..., points - 1 :][..., ::-1]
     span = np.max(second, axis=-1) - np.min(second, axis=-1)
-    return np.max(fall - rise, axis=-1) / span
+    width: Array = np.max(fall - rise, axis=-1) / span
+    return width
 
 
 def reach_N(rig: Rig, v_V: float) -> Array:

@@ -188,7 +188,8 @@ class Reference:
         """
         t = np.asarray(t, float)
         if self.interpolation == "linear":
-            return np.interp(t, self.times_s, self.levels_N)
+            level: Array = np.interp(t, self.times_s, self.levels_N)
+            return level
         idx = np.searchsorted(self.times_s, t, side="right") - 1
         return self.levels_N[np.clip(idx, 0, None)]
 
@@ -325,7 +326,7 @@ class ClosedLoopRun:
         return f"<p><b>{type(self).__name__}</b></p><table>{body}</table>"
 
     def step_metrics(self, band_N: float | None = PAPER_BAND_N, *, which: int = 1,
-                     signal: str = "force_N") -> StepMetrics | list:
+                     signal: str = "force_N") -> StepMetrics | list[StepMetrics]:
         """Metrics of the reference's ``which``-th change (1: the first step), per plant.
 
         The window runs from that change to the next (or to the end); ``band_N=None`` gives the

@@ -147,11 +147,11 @@ class Feedforward(Protocol):
     """An inverse hysteresis model: ``step(state, target) -> (input, state)`` on numpy, and
     ``realtime() -> (FeedforwardStep, parameter vector)`` for the controller step."""
 
-    def step(self, state: Any, target: ArrayLike) -> tuple[NDArray, NDArray]: ...
+    def step(self, state: Any, target: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
 
-    def initial_state(self, batch: tuple[int, ...] = ()) -> NDArray: ...
+    def initial_state(self, batch: tuple[int, ...] = ()) -> NDArray[np.float64]: ...
 
-    def realtime(self) -> tuple[Any, NDArray]: ...
+    def realtime(self) -> tuple[Any, NDArray[np.float64]]: ...
 
 
 
@@ -233,18 +233,19 @@ class GainSchedule:
     def size(self) -> int:
         return len(self.levels_N)
 
-    def at(self, setpoint_N: ArrayLike) -> tuple[NDArray, NDArray, NDArray]:
+    def at(self, setpoint_N: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """``(Kc, Ti_s, Td_s)`` at ``setpoint_N`` (numpy), the step's interpolation."""
         x = np.asarray(setpoint_N, float)
         lv = np.asarray(self.levels_N)
-        return tuple(np.asarray(_interpolate(NUMPY, lv, np.asarray(v), self.size, x))  # type: ignore[return-value]
-                     for v in (self.Kc, self.Ti_s, self.Td_s))
+        Kc, Ti, Td = (np.asarray(_interpolate(NUMPY, lv, np.asarray(v), self.size, x), np.float64)
+                      for v in (self.Kc, self.Ti_s, self.Td_s))
+        return Kc, Ti, Td
 
-    def b_at(self, setpoint_N: ArrayLike, single: float) -> NDArray:
+    def b_at(self, setpoint_N: ArrayLike, single: float) -> NDArray[np.float64]:
         """The setpoint weight at ``setpoint_N`` (numpy): the table's column interpolated, or ``single`` without one."""
         x = np.asarray(setpoint_N, float)
         column = np.full(self.size, float(single)) if self.b is None else np.asarray(self.b)
-        return np.asarray(_interpolate(NUMPY, np.asarray(self.levels_N), column, self.size, x))
+        return np.asarray(_interpolate(NUMPY, np.asarray(self.levels_N), column, self.size, x), np.float64)
 
     def to_dict(self) -> dict[str, Any]:
         return {"levels_N": list(self.levels_N), "Kc_V_per_N": list(self.Kc), "Ti_s": list(self.Ti_s),
@@ -636,7 +637,8 @@ class Controller:
         # measurement was), else the measurement itself
         measured = state.pv_prev if state.pv_filtered is None else state.pv_filtered
 
-        def actions(c: Controller, ff_state: NDArray | None) -> tuple[NDArray, NDArray | None]:
+        def actions(c: Controller,
+                    ff_state: NDArray[np.float64] | None) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
             g = c.gains
             Kc, _, Td = g.at(state.sp_prev)  # a schedule's gains at the last setpoint
             y = measured if g.filter_order == 2 else state.pv_prev
