@@ -451,8 +451,8 @@ class SystemRun:
 
     @property
     def numbers(self) -> TrackingNumbers:
-        """The run's figures over the schedule's cycles: tracking error, least rigidity, deflection, friction energy, peak
-        voltage."""
+        """The run's figures over the schedule's cycles: tracking error, least rigidity, deflection, friction
+        energy, peak voltage."""
         return self.evaluation.numbers
 
     @property
