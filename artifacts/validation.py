@@ -212,9 +212,7 @@ class ValidationResult(Artifact):
 
     @property
     def worst(self) -> Metrics:
-        """Each metric's worst value over the plants (the largest; a step that never settled counts as infinite, so
-        None).
-        """
+        """Each metric's worst value over the plants, the largest (None where a step never settled: it ranks worst)."""
         return _statistic(self.metrics, "worst")
 
     @property

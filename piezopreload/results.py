@@ -115,14 +115,12 @@ class TuningResult:
 
     @property
     def minimum_time(self) -> MinimumTimeBound:
-        """The least settling time any controller can reach within the voltage range, the bound the tuning is judged
-        by.
-        """
+        """The least settling time any command reaches on the tuning model, beside the tuned loop's."""
         return self.record.minimum_time
 
     @property
     def tracking_floor(self) -> TrackingFloor:
-        """The least tracking error the loop's transport and the sensor's noise leave to any controller."""
+        """The least RMS tracking error of any causal controller without preview, beside the tuned loop's."""
         return self.record.tracking_floor
 
     @property
@@ -188,7 +186,7 @@ class TuningResult:
         Returns
         -------
         TuningResult
-            The tuning's result, as :meth:`StudySpec.tune` returned it.
+            The tuning's result, as :meth:`Study.tune` returned it.
         """
         return cls(study, feedforward, TuningRecord.load(path))
 
@@ -250,7 +248,7 @@ class TuningResult:
         workers : int or None
             How many processes share the plants (None: ``[validation] workers``).
         scheduler : str or None
-            How the plants are shared out among the workers (None: the default).
+            A Dask scheduler's address (``tcp://HOST:PORT``) to run the plants on a cluster (None: local processes).
         progress : ProgressLike or None
             Where progress lines go (None: nowhere).
         bar : callable or None
@@ -288,7 +286,7 @@ class TuningResult:
         workers : int or None
             How many processes share the plants (None: ``[validation] workers``).
         scheduler : str or None
-            How the plants are shared out among the workers (None: the default).
+            A Dask scheduler's address (``tcp://HOST:PORT``) to run the plants on a cluster (None: local processes).
         progress : ProgressLike or None
             Where progress lines go (None: nowhere).
 

@@ -401,7 +401,7 @@ class AutotuneResult:
 
     @property
     def filter_order(self) -> int:
-        """The order of the controller's low-pass filter (1 or 2)."""
+        """The controller's form: 0 a PI, 1 the derivative filtered, 2 a second-order filter on the whole controller."""
         return self.controller_.filter_order
 
     @property

@@ -242,7 +242,7 @@ class LearningResult:
         inputs : dict or None
             The hashes of the files the learning came from, by name (None: none).
         plant : int
-            Which plant of a batch (ignored for one plant).
+            Which plant of a batch (0 for one plant).
 
         Returns
         -------
