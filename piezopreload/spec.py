@@ -286,7 +286,7 @@ class StudySpec:
         -------
         dict of str to Path
             Each input file the study names, by its key, resolved from the study's folder; a key the study leaves unset
-            is left out.
+            (or a rig run's reference that is no CSV file) is left out.
         """
         named = {"feedforward.data": self.feedforward.data,
                  "schedule.profile": None if self.ballscrew is None or self.schedule is None else self.schedule.profile,
