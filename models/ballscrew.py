@@ -390,7 +390,8 @@ def hiwin_loaded_nut_force(preload_N: ArrayLike, axial_load_N: ArrayLike) -> Arr
     two-nut solution of Hertz-only nuts (:func:`nut_forces` with sigma = 0).
     """
     fp, fa = np.asarray(preload_N, float), np.abs(np.asarray(axial_load_N, float))
-    return np.where(fa < LIFT_OFF_RATIO * fp, (1.0 + fa / (LIFT_OFF_RATIO * fp)) ** 1.5 * fp, fa)
+    loaded: Array = np.where(fa < LIFT_OFF_RATIO * fp, (1.0 + fa / (LIFT_OFF_RATIO * fp)) ** 1.5 * fp, fa)
+    return loaded
 
 
 # ---- results --------------------------------------------------------------------------------
@@ -653,17 +654,21 @@ class BallScrew:
     def nut_approach_um(self, nut_force_N: ArrayLike) -> Array:
         """delta(F) = (c_h F^(2/3) + s F) / f_ar (um): one nut's axial shift on the screw under F."""
         F = np.asarray(nut_force_N, float)
-        return (self.axial_constant_um * np.cbrt(F) ** 2
-                + self.structural_compliance_um_per_N * F) / self.accuracy_factor
+        approach: Array = (self.axial_constant_um * np.cbrt(F) ** 2
+                           + self.structural_compliance_um_per_N * F) / self.accuracy_factor
+        return approach
 
     def sigma(self, preload_N: ArrayLike) -> Array:
         """sigma = s F_p^(1/3) / c_h: the body's share of the nut law at the preload."""
-        return self.structural_compliance_um_per_N * np.cbrt(np.asarray(preload_N, float)) / self.axial_constant_um
+        sigma: Array = (self.structural_compliance_um_per_N * np.cbrt(np.asarray(preload_N, float))
+                        / self.axial_constant_um)
+        return sigma
 
     def lift_off_load_N(self, preload_N: ArrayLike) -> Array:
         """The axial load at which the unloaded nut lifts off: rho(sigma) F_p (:func:`lift_off_ratio`)."""
         Fp = np.asarray(preload_N, float)
-        return lift_off_ratio(self.sigma(Fp)) * Fp
+        load: Array = lift_off_ratio(self.sigma(Fp)) * Fp
+        return load
 
     def preload_for_lift_off_N(self, axial_load_N: ArrayLike) -> Array:
         """The least preload that keeps both nuts loaded up to |F_a|: the F_p with
@@ -676,7 +681,8 @@ class BallScrew:
         t = np.sqrt(target / c_h)
         for _ in range(3 * _NEWTON_STEPS):
             t = t - (c_h * t ** 2 + s * t ** 3 - target) / np.maximum(2.0 * c_h * t + 3.0 * s * t ** 2, 1e-300)
-        return t ** 3
+        preload: Array = t ** 3
+        return preload
 
     def turn_loads(self, nut_force_N: float) -> Array:
         """Each loaded turn's share of one nut's load F (sums to 1), the exact elastic load
@@ -694,8 +700,8 @@ class BallScrew:
         L, lam = self.nut_length_mm, self.load_distribution_lambda_per_mm(F)
         x = np.minimum(np.arange(math.ceil(self.turns) + 1) * self.lead_mm, L)
         if lam * L < 1e-8:
-            return np.diff(x) / L
-        return -np.diff(np.sinh(lam * (L - x))) / math.sinh(lam * L)
+            return np.asarray(np.diff(x) / L, np.float64)
+        return np.asarray(-np.diff(np.sinh(lam * (L - x))) / math.sinh(lam * L), np.float64)
 
     def load_distribution_lambda_per_mm(self, nut_force_N: float) -> float:
         """lambda (1/mm) of :meth:`turn_loads` at one nut's force F; lambda L small means nearly
@@ -775,7 +781,8 @@ class BallScrew:
         balls equally loaded, rigid nut and screw: 3 F_p^(1/3) / c_h with eta = 1."""
         c_delta = self._constants()[0]
         c_h = 1e3 * float(axial_contact_constant(NUMPY, c_delta, self.balls_per_nut, self.contact_rad, self.helix_rad))
-        return 3.0 * np.cbrt(np.asarray(preload_N, float)) / c_h
+        rigidity: Array = 3.0 * np.cbrt(np.asarray(preload_N, float)) / c_h
+        return rigidity
 
     def drag_torque_Nm(self, preload_N: ArrayLike) -> Array:
         """Preload drag torque T_d = K_p F_p P / (2000 pi) (N m)."""
@@ -846,8 +853,9 @@ class BallScrew:
 
     def nut_stiffness_N_per_um(self, nut_force_N: ArrayLike) -> Array:
         """One nut's tangent stiffness dF/d(delta) (N/um) at its force: F^(1/3) / (2/3 c_h + s F^(1/3)), times f_ar."""
-        return self.accuracy_factor * _nut_stiffness(NUMPY, self.axial_constant_um, self.structural_compliance_um_per_N,
-                                                     np.asarray(nut_force_N, float))
+        stiffness: Array = self.accuracy_factor * _nut_stiffness(
+            NUMPY, self.axial_constant_um, self.structural_compliance_um_per_N, np.asarray(nut_force_N, float))
+        return stiffness
 
     def life(self, preload_N: float, cases: list[DutyCase] | tuple[DutyCase, ...], load_factor: float = 1.2,
              reliability: float = 0.90) -> Life:
