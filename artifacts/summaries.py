@@ -213,7 +213,20 @@ class SystemSummary(StageSummary):
     @classmethod
     def of(cls, system: SystemRecord, before: BeforeLearning | None = None) -> SystemSummary:
         """The summary of a system artifact (no series): its numbers, verdicts, bounds, pre-cycle, margin, cycles,
-        passes and thermal figures; ``before``: the error before learning, where the schedule was learned."""
+        passes and thermal figures; ``before``: the error before learning, where the schedule was learned.
+
+        Parameters
+        ----------
+        system : SystemRecord
+            The system artifact.
+        before : BeforeLearning or None
+            The tracking error before learning and the trials, where the schedule was learned; None otherwise.
+
+        Returns
+        -------
+        SystemSummary
+            The system's numbers, requirements and thermal figures, without the time series.
+        """
         return cls(system.numbers, system.requirements, system.bounds, system.pre_cycle, system.preload_margin_N,
                    system.cycles, system.passes, None if system.thermal is None else system.thermal.summary().to_dict(),
                    before, system.basis, system.sensitivity)
@@ -224,10 +237,17 @@ class SystemSummary(StageSummary):
 
     @property
     def requirements_met(self) -> bool:
+        """Whether every requirement the system stage checked is met."""
         return all(r.met for r in self.checked)
 
     def to_dict(self) -> dict[str, Any]:
-        """The declared fields, with ``requirements_met`` (derived from the requirements) before them."""
+        """The declared fields, with ``requirements_met`` (derived from the requirements) before them.
+
+        Returns
+        -------
+        dict
+            The document's object: the declared fields, ``requirements_met`` just before ``requirements``.
+        """
         out: dict[str, Any] = {}
         for key, value in super().to_dict().items():
             if key == "requirements":
