@@ -29,6 +29,8 @@ from piezopreload.core.quantities import quantity
 if TYPE_CHECKING:
     from matplotlib.typing import RcKeyType
 
+    from piezopreload.artifacts.validation import ValidationResult
+
 __all__ = [
     "STYLE", "COLOURS", "legends", "save", "save_all", "hysteresis_loops", "inverse_model", "step_responses",
     "tracking",
@@ -402,25 +404,11 @@ def natural_frequency(position_mm: np.ndarray, low_Hz: np.ndarray, high_Hz: np.n
 
 
 @_styled
-def monte_carlo(metrics: Mapping[str, Sequence[float | None]], limits: Mapping[str, float]) -> Figure:
-    """Distributions of settling time and overshoot over the Monte Carlo plants, limits marked."""
-    panels = (("settling_s", "settling time (s)"), ("overshoot_N", "overshoot (N)"),
-              ("tracking_rms_N", "tracking RMS after changes (N)"))
-    fig, ax = _figure(2.4, ncols=len(panels))
-    marked = []
-    for a, (key, label) in zip(ax[0], panels):
-        raw = [x for x in metrics[key]]
-        values = np.array([x for x in raw if x is not None], float)
-        never = len(raw) - values.size
-        a.hist(values, bins=min(30, max(5, values.size // 5)), color=COLOURS["model"], alpha=0.8)
-        if key in limits:
-            a.axvline(limits[key], color=COLOURS["limit"], ls="--", lw=0.9, label="limit")
-            marked.append(a)
-        a.set_xlabel(label)
-        a.set_ylabel("plants")
-        a.yaxis.set_major_locator(MaxNLocator(integer=True))  # a count of plants
-        a.set_title(f"{values.size} plants" + (f", {never} never settled" if never else ""))
-    legends(*marked)
+def monte_carlo(validation: ValidationResult) -> Figure:
+    """The validation's distributions over the Monte Carlo plants, limits marked (drawn by
+    :meth:`~piezopreload.artifacts.validation.ValidationResult.draw_histograms`)."""
+    fig, ax = _figure(2.4, ncols=len(validation.histogram_metrics()))
+    legends(*validation.draw_histograms(ax[0], colour=COLOURS["model"], limit_colour=COLOURS["limit"]))
     return fig
 
 

@@ -534,7 +534,7 @@ def _validation_part(val: Any, gain_set: GainSet) -> Part:
             f"{levels}): {gain_set.verdict()}.")
     table = Table(("metric", "worst", "95th percentile", "median", "limit"), tuple(rows),
                   "The tuned gains over the Monte Carlo set of nonlinear plants.", "lrrrr")
-    fig = F.monte_carlo({k: list(v) for k, v in val.metrics.items()}, limits)
+    fig = F.monte_carlo(val)
     caption = (f"The tuned gains with the feedforward over {val.n_plants} Monte Carlo plants (seed {val.seed}): "
                f"settling time into ±{q(val.criteria.band_N, 'N')} and overshoot of the true "
                "force, and the trajectory's tracking RMS; dashed, the study's limits.")

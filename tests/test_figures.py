@@ -107,12 +107,36 @@ def test_no_legend_covers_the_data_or_a_tick_label(name):
 def test_counts_are_ticked_in_whole_numbers():
     """A learning trial and a number of plants are counts: no tick at 0.5 or 2.5."""
     learning = F.learning_iterations(_passes()).axes[0]
+    validation = _validation()
+    for hist in (F.monte_carlo(validation), validation.plot()):
+        for ticks, what in ((learning.get_xticks(), "learning trials"),
+                            *((a.get_yticks(), "plants") for a in hist.axes)):
+            assert np.allclose(ticks, np.round(ticks)), f"{what}: ticks at {ticks}"
+
+
+def _validation(n=200, never=3):
+    """A validation over ``n`` plants of which ``never`` did not settle (NaN)."""
+    from piezopreload.artifacts.validation import METRICS, Criteria, ValidationResult
+
     rng = np.random.default_rng(0)
-    hist = F.monte_carlo({"settling_s": list(0.3 + 0.02 * rng.random(200)), "overshoot_N": list(rng.random(200)),
-                          "tracking_rms_N": list(rng.random(200))}, {"settling_s": 0.6})
-    for ticks, what in ((learning.get_xticks(), "learning trials"),
-                        *((a.get_yticks(), "plants") for a in hist.axes)):
-        assert np.allclose(ticks, np.round(ticks)), f"{what}: ticks at {ticks}"
+    metrics = {k: rng.random(n) for k in METRICS}
+    metrics["settling_s"] = 0.3 + 0.02 * rng.random(n)
+    metrics["settling_s"][:never] = np.nan
+    return ValidationResult(metrics, Criteria(), n, 0, {})
+
+
+def test_the_monte_carlo_histogram_is_drawn_once_for_the_report_and_the_result():
+    """The report's figure and ``ValidationResult.plot()`` are one drawing: the same panels, bars and titles, a
+    plant that never settled counted in the title and left out of the bars (the report's copy looked for None,
+    which the result never holds, so it counted a NaN as a plant and never said "never settled")."""
+    validation = _validation()
+    report, own = F.monte_carlo(validation), validation.plot()
+    assert [a.get_title() for a in report.axes] == [a.get_title() for a in own.axes]
+    assert report.axes[0].get_title() == "197 plants, 3 never settled"
+    for a, b in zip(report.axes, own.axes):
+        assert a.get_xlabel() == b.get_xlabel()
+        assert [p.get_height() for p in a.patches] == [p.get_height() for p in b.patches]
+    assert sum(p.get_height() for p in report.axes[0].patches) == 197
 def test_every_plot_method_is_typed_to_return_a_figure_and_nothing_uses_pyplot():
     """Every result's ``plot()`` returns a matplotlib Figure made without pyplot (no global figure state): its
     annotation says so (a type checker then holds each body to it), and no module of the package imports pyplot."""
