@@ -12,14 +12,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from piezopreload.artifacts.requirements import Requirement
-from piezopreload.core.records import Artifact, Record, entry, record
+from piezopreload.core.records import Record, SavedArtifact, entry, record
 from piezopreload.models.closedloop import PAPER_BAND_N
 
 if TYPE_CHECKING:
@@ -167,7 +166,7 @@ def _metrics_to(metrics: dict[str, NDArray[np.float64]]) -> dict[str, list[float
 
 
 @record(eq=False)
-class ValidationResult(Artifact):
+class ValidationResult(SavedArtifact):
     """The gains run on a Monte Carlo set of nonlinear plants: every plant's metrics and the verdict."""
 
     KIND: ClassVar[str] = "validation"
@@ -273,22 +272,6 @@ class ValidationResult(Artifact):
         failures = self.failures
         return {**super().to_dict(), "passed": self.passed, "summary": self.summary(),
                 "failures": [f.to_dict() for f in failures[:50]], "n_failures": len(failures)}
-
-    def save(self, path: str | Path) -> Path:
-        """Write ``validation.json`` atomically (kind ``validation``).
-
-        Parameters
-        ----------
-        path : str or Path
-            The file.
-
-        Returns
-        -------
-        Path
-            The file written.
-        """
-        self._write(path)
-        return Path(path)
 
     def __repr__(self) -> str:
         verdict = "passed" if self.passed else f"failed on {self.failed_plant_count} plants"

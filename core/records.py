@@ -69,7 +69,7 @@ from piezopreload.core.artifacts import field_message, read_artifact, register_k
 from piezopreload.core.config import Invalid
 from piezopreload.core.errors import ArtifactError
 
-__all__ = ["Entry", "entry", "record", "Record", "Artifact", "Raw", "load_one_of", "object_without"]
+__all__ = ["Entry", "entry", "record", "Record", "Artifact", "SavedArtifact", "Raw", "load_one_of", "object_without"]
 
 #: the metadata entry of a field declared with :func:`entry`
 ENTRY = "piezopreload.entry"
@@ -800,6 +800,31 @@ class Artifact(Record):
     def _write(self, path: str | Path) -> dict[str, Any]:
         """Write the artifact atomically at ``path``; returns the whole document (envelope and hash)."""
         return write_artifact(path, self.KIND, self.to_dict())
+
+
+class SavedArtifact(Artifact):
+    """An artifact whose :meth:`save` is the write and nothing more: it returns the file written.
+
+    (A content-hashed record whose ``save`` returns itself with the hash, such as a gain set, defines its own on
+    :meth:`Artifact._write`.)
+    """
+
+    def save(self, path: str | Path) -> Path:
+        """Write the artifact atomically at ``path``: the envelope (``"schema": "piezopreload/<KIND>/1"``, the
+        package version) around :meth:`~Record.to_dict`; a reader sees the previous file or this one, never a part.
+
+        Parameters
+        ----------
+        path : str or Path
+            The file.
+
+        Returns
+        -------
+        Path
+            The file written.
+        """
+        self._write(path)
+        return Path(path)
 
 
 # --------------------------------------------------------------------------------------
