@@ -25,7 +25,7 @@ from piezopreload.artifacts.thermal import ThermalRecord
 from piezopreload.core._typing import Array
 from piezopreload.core.records import Raw, Record, SavedArtifact, entry, record
 
-__all__ = ["TrackingNumbers", "MarginBasis", "PreCycle", "PassRecord", "ScheduleBound", "PlannedSchedule",
+__all__ = ["TrackingNumbers", "MarginBasis", "PreCycle", "MarginPass", "ScheduleBound", "PlannedSchedule",
            "SystemSeries", "SystemRecord", "KIND"]
 
 KIND = "system"
@@ -111,7 +111,7 @@ class PreCycle(Record):
 
 
 @record
-class PassRecord(Record):
+class MarginPass(Record):
     """One margin pass: the largest local margin it planned with and what the loop achieved on it."""
 
     number: int = entry("The pass's number (from 1).", name="pass", ge=0)
@@ -267,7 +267,7 @@ class SystemRecord(SavedArtifact):
     requirements: tuple[Requirement, ...] = entry("The requirements as verdicts.")
     bounds: tuple[ScheduleBound, ...] = entry("What stops a requirement no schedule within the stacks' force meets.")
     pre_cycle: PreCycle = entry("Before the first cut.")
-    passes: tuple[PassRecord, ...] = entry("The margin passes.")
+    passes: tuple[MarginPass, ...] = entry("The margin passes.")
     schedule: PlannedSchedule = entry("The schedule the last pass planned.")
     series: SystemSeries = entry("The run's time series.")
     cycles: int = entry("The machining cycles run.", ge=0)

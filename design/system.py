@@ -66,7 +66,7 @@ from piezopreload.artifacts.sensitivity import SensitivityRecord
 from piezopreload.artifacts.summaries import SystemSummary
 from piezopreload.artifacts.system import (
     MarginBasis,
-    PassRecord,
+    MarginPass,
     PlannedSchedule,
     PreCycle,
     ScheduleBound,
@@ -421,7 +421,7 @@ class SystemRun:
         The rest and the ramp before the first cut.
     evaluation : Evaluation
         The last pass's run judged: its numbers, its requirements as verdicts, its shortfall per sample.
-    passes : tuple of PassRecord
+    passes : tuple of MarginPass
         Every pass's record, in order.
     bounds : tuple of ScheduleBound
         What stops a requirement the passes could not meet (none: nothing).
@@ -442,7 +442,7 @@ class SystemRun:
     run: ClosedLoopRun
     pre_cycle: PreCycle
     evaluation: Evaluation
-    passes: tuple[PassRecord, ...]
+    passes: tuple[MarginPass, ...]
     bounds: tuple[ScheduleBound, ...] = ()
     thermal: ThermalBudget | None = None  # the shift's heat, temperature and growth (design/thermal.py)
     basis: MarginBasis | None = None  # what the margins rest on (margin_basis), where the run was given the design
@@ -534,9 +534,9 @@ def _bounds(schedule: PreloadSchedule, ev: Evaluation, wanted: Array) -> tuple[S
                           float(reach), "reach" if np.max(short) > 0 else "passes"),)
 
 
-def _pass_record(k: int, schedule: PreloadSchedule, ev: Evaluation) -> PassRecord:
+def _pass_record(k: int, schedule: PreloadSchedule, ev: Evaluation) -> MarginPass:
     n = ev.numbers
-    return PassRecord(k, float(np.max(schedule.margin_N)), n.tracking_rms_N, n.tracking_rms_pct_of_range,
+    return MarginPass(k, float(np.max(schedule.margin_N)), n.tracking_rms_N, n.tracking_rms_pct_of_range,
                       n.rigidity_ratio_min, n.lift_off_ratio_min, ev.met, n.preload_shortfall_max_N,
                       n.friction_energy_per_cycle)
 
@@ -574,7 +574,7 @@ def track_schedule(plant: DesignedPlant, controller: Controller, schedule: Prelo
     rig, pre = Rig(plant.rig), pre_cycle_for(plant, schedule, contact_N, settle_s)
     say(f"pre-cycle: the stacks from rest to {pre.level_N:.0f} N at {pre.slew_N_per_s:,.0f} N/s in "
         f"{1e3 * pre.ramp_s:.1f} ms, held {pre.settle_s:.3f} s: the first cut {pre.duration_s:.3f} s after the start")
-    record: list[PassRecord] = []
+    record: list[MarginPass] = []
     dt = float(plant.rig.sample_period_s)
     current, lag, hold = schedule, int(round(_LAG_MAX_S / dt)), int(round(_HOLD_S / dt))
     stretches = binding_stretches(schedule)  # the design's: where its requirements bind, whatever the margins

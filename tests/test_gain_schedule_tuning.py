@@ -176,10 +176,10 @@ def test_the_setpoint_action_must_rise_with_the_setpoint_and_the_weights_are_rai
 
 
 def test_a_level_the_schedule_misses_says_what_stops_a_pid_entry():
-    from piezopreload.tuning.schedule import WorstCase, _bound
+    from piezopreload.tuning.schedule import WorstFigures, _bound
 
     limits = {"settling_s": 0.6, "overshoot_N": 25.0, "tracking_rms_N": 40.0, "peak_voltage_V": 120.0}
-    figures = WorstCase(settling_s=0.5, overshoot_N=28.8, tracking_rms_N=None, peak_voltage_V=None, passed=False,
+    figures = WorstFigures(settling_s=0.5, overshoot_N=28.8, tracking_rms_N=None, peak_voltage_V=None, passed=False,
                         failures=("overshoot_N",))
     tuned = _bound({"binding": ["Ms <= 1.6, variant 2", "overshoot inside 15 N, step, variant 1"],
                     "overshoot_target_N": 15.0}, figures, limits)

@@ -208,7 +208,7 @@ def level_requirements(schedule: dict[str, Any]) -> tuple[Requirement, ...]:
 
 
 @dataclass(frozen=True)
-class WorstCase:
+class WorstFigures:
     """One set's Monte Carlo worst case of each of :data:`FIGURES` (None: never reached, a settling time) at a level or
     over the whole range, whether it met the criteria and the metrics it failed."""
 
@@ -228,10 +228,10 @@ class WorstCase:
         return {**{k: self.figure(k) for k in FIGURES}, "passed": self.passed, "failures": list(self.failures)}
 
 
-def _worst(result: ValidationResult) -> WorstCase:
+def _worst(result: ValidationResult) -> WorstFigures:
     s = result.summary()
     worst = {k: s[k]["worst"] for k in FIGURES}
-    return WorstCase(settling_s=worst["settling_s"], overshoot_N=worst["overshoot_N"],
+    return WorstFigures(settling_s=worst["settling_s"], overshoot_N=worst["overshoot_N"],
                      tracking_rms_N=worst["tracking_rms_N"], peak_voltage_V=worst["peak_voltage_V"],
                      passed=result.passed, failures=tuple(sorted({f.metric for f in result.failures})))
 
@@ -239,7 +239,7 @@ def _worst(result: ValidationResult) -> WorstCase:
 _REST_S = 0.25  # the rest at a window's bottom before the tuning's step and staircase
 
 
-def _judge(args: tuple[Any, ...]) -> WorstCase:
+def _judge(args: tuple[Any, ...]) -> WorstFigures:
     """One Monte Carlo validation (:func:`~piezopreload.tuning.validate.validate`, inline), its worst cases."""
     gains, feedforward, params, criteria, n_plants, seed, step, trajectory = args
     return _worst(validate(gains, feedforward, params, criteria, n_plants=n_plants, seed=seed, step=step,
@@ -334,7 +334,7 @@ def _rising(levels_N: np.ndarray,
             for (g, r), nb in zip(tuned, b)]
 
 
-def _tighter(spec: TuningSpec, figures: WorstCase, criteria: Criteria) -> float | None:
+def _tighter(spec: TuningSpec, figures: WorstFigures, criteria: Criteria) -> float | None:
     """The overshoot margin an entry is tuned again with where the Monte Carlo overshoot exceeds its limit: widened by
     the excess (the drawn plants add it to the variants' nominal overshoot); None where it does not exceed it."""
     if figures.overshoot_N is None:
@@ -343,7 +343,7 @@ def _tighter(spec: TuningSpec, figures: WorstCase, criteria: Criteria) -> float 
     return None if excess <= 0 else spec.overshoot_margin_N + excess
 
 
-def _bound(record: dict[str, Any], figures: WorstCase, limits: dict[str, float]) -> str:
+def _bound(record: dict[str, Any], figures: WorstFigures, limits: dict[str, float]) -> str:
     """What stops the schedule's entry at a level it misses: the tuning's binding constraints (or the specification no
     entry met) beside the Monte Carlo worst case of each failed metric against its limit."""
     missed = ", ".join(f"{_LEVEL_LIMITS[m][0]} {figures.figure(m):.3g} {_LEVEL_LIMITS[m][1]} against {limits[m]:.3g}"
