@@ -50,7 +50,6 @@ by how much.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from dataclasses import replace as dc_replace
 from pathlib import Path
@@ -76,6 +75,7 @@ from piezopreload.artifacts.system import (
 )
 from piezopreload.core._typing import Array
 from piezopreload.core.errors import InputError
+from piezopreload.core.progress import ProgressLike, say_of
 from piezopreload.core.tables import write_csv
 from piezopreload.design.schedule import least_preload, schedule_preload
 from piezopreload.models.actuator import Plant, Rig
@@ -553,7 +553,7 @@ def _check(cycles: int, passes: int, margin_factor: float) -> None:
 def track_schedule(plant: DesignedPlant, controller: Controller, schedule: PreloadSchedule, *, cycles: int = 2,
                    seed: int = 0, passes: int = 3, margin_factor: float = 1.25, contact_N: float = 0.0,
                    settle_s: float = 0.5, ff_extra_V: Any = None, design: DesignSpec | None = None,
-                   scatter: Plant | None = None, progress: Callable[[str], None] | None = None) -> SystemRun:
+                   scatter: Plant | None = None, progress: ProgressLike | None = None) -> SystemRun:
     """Run the loop over the schedule on the designed plant after its pre-cycle; plan again with local margins while
     a requirement is missed (module docstring).
 
@@ -570,7 +570,7 @@ def track_schedule(plant: DesignedPlant, controller: Controller, schedule: Prelo
     if scatter is not None and design is None:
         raise InputError("scatter: the Monte Carlo plants judge the physical lift-off, which needs the design (its "
                          "axis and ranges): give design, or no scatter")
-    say = progress or (lambda _m: None)
+    say = say_of(progress) or (lambda _m: None)
     rig, pre = Rig(plant.rig), pre_cycle_for(plant, schedule, contact_N, settle_s)
     say(f"pre-cycle: the stacks from rest to {pre.level_N:.0f} N at {pre.slew_N_per_s:,.0f} N/s in "
         f"{1e3 * pre.ramp_s:.1f} ms, held {pre.settle_s:.3f} s: the first cut {pre.duration_s:.3f} s after the start")

@@ -181,7 +181,7 @@ class TuningResult:
         return validate_gain_set(self.candidate(inputs), n_plants=plants,
                                  seed=(self.study.seed if v.seed is None else v.seed) if seed is None else seed,
                                  workers=v.workers if workers is None else workers, scheduler=scheduler,
-                                 progress=bar or (lambda i, n: say(f"  chunk {i}/{n}")))
+                                 bar=bar or (lambda i, n: say(f"  chunk {i}/{n}")))
 
     def validate(self, plants: int | None = None, seed: int | None = None, *, workers: int | None = None,
                  scheduler: str | None = None, progress: ProgressLike | None = None) -> GainSet:
@@ -259,7 +259,7 @@ def tune(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, 
     if warm is not None and warm_gains is not None:
         known[f"the warm start ({warm.name})"] = warm_gains
     try:
-        tuned = tune_pid(study.plant, feedforward.inverse(), spec, progress=iterations, known=known)
+        tuned = tune_pid(study.plant, feedforward.inverse(), spec, counter=iterations, known=known)
     except TuningInfeasible as exc:
         bounding.discard()
         raise InfeasibleError(f"{study.path}: {exc}") from exc

@@ -12,7 +12,7 @@ import functools
 import os
 import pickle
 import tempfile
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import as_completed
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -24,6 +24,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from piezopreload.core.parallel import fork_pool, spare_cpus
+from piezopreload.core.progress import Bar
 from piezopreload.core.quantities import quantity
 
 if TYPE_CHECKING:
@@ -186,16 +187,16 @@ def _save_pickled(blob: bytes, path: str) -> str:
 
 
 def save_all(figures: Sequence[tuple[Figure, str | Path]], *, workers: int | None = None,
-             progress: Callable[[int, int], None] | None = None) -> list[Path]:
+             bar: Bar | None = None) -> list[Path]:
     """Write each ``(figure, path)`` as :func:`save` does, drawn by ``workers`` processes at once.
 
     Drawing is most of a report's time and the figures are independent: by default one worker
     per CPU (at most four, ``PIEZOPRELOAD_WORKERS`` if set); ``workers=1``, or a platform without ``fork``, draws them
-    here, one after the other. ``progress(done, total)`` is called as each file is written.
+    here, one after the other. ``bar(done, total)`` is called as each file is written.
     """
     total = len(figures)
     n = min(total, spare_cpus(), 4) if workers is None else max(1, min(workers, total))
-    say = progress or (lambda _i, _n: None)
+    say = bar or (lambda _i, _n: None)
     pool = fork_pool(n) if n > 1 else None
     if pool is None:
         written = []

@@ -19,6 +19,7 @@ from piezopreload.artifacts.manifest import StudyRunManifest
 from piezopreload.artifacts.summaries import ReportSummary
 from piezopreload.core.artifacts import atomic_write_bytes, atomic_write_text, package_version, write_artifact
 from piezopreload.core.errors import InputError
+from piezopreload.core.progress import Bar
 from piezopreload.reports.document import Report
 from piezopreload.reports.inputs import Artifacts, Published, ReportStudy
 from piezopreload.reports.typeset import ReportError, compile_pdf, template_text
@@ -80,7 +81,7 @@ def build_report(study: ReportStudy, a: Artifacts, now: _dt.datetime) -> tuple[R
 
 
 def render_report(out: Path, manifest: StudyRunManifest, study: ReportStudy, *,
-                  say: Callable[[str], None], bar: Callable[[int, int], None],
+                  say: Callable[[str], None], bar: Bar,
                   template: str | None = None) -> tuple[dict[str, Path], ReportSummary]:
     """Figures, ``report/report.json``, ``report/report.typ`` and ``report.pdf`` in ``out``.
 
@@ -110,7 +111,7 @@ def render_report(out: Path, manifest: StudyRunManifest, study: ReportStudy, *,
     now = _dt.datetime.now(_dt.UTC).replace(microsecond=0)
     report, figures = build_report(study, Artifacts(out, manifest), now)
     written: dict[str, Path] = {f"figure-{name}": folder / "figures" / f"{name}.pdf" for name, _, _ in figures}
-    F.save_all([(fig, written[f"figure-{name}"]) for name, fig, _ in figures], progress=bar)
+    F.save_all([(fig, written[f"figure-{name}"]) for name, fig, _ in figures], bar=bar)
     write_artifact(folder / "report.json", "report", report.to_dict())
     atomic_write_text(folder / "report.typ", template if template is not None else template_text())
     try:

@@ -14,7 +14,7 @@ def _figures(tmp_path, folder):
 def test_save_all_in_workers_writes_what_saving_here_writes(tmp_path):
     here = F.save_all(_figures(tmp_path, "here"), workers=1)
     seen = []
-    pooled = F.save_all(_figures(tmp_path, "pool"), workers=2, progress=lambda i, n: seen.append((i, n)))
+    pooled = F.save_all(_figures(tmp_path, "pool"), workers=2, bar=lambda i, n: seen.append((i, n)))
     assert [p.name for p in pooled] == [p.name for p in here]
     for a, b in zip(here, pooled, strict=True):
         assert a.read_bytes() == b.read_bytes(), f"{b} differs from {a}"

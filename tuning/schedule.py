@@ -57,7 +57,6 @@ overshoot at 2,000 N by an order of magnitude (237 N against 25), so the rise st
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -67,6 +66,7 @@ from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.validation import Criteria, ValidationResult
 from piezopreload.core.errors import InternalError
 from piezopreload.core.parallel import spare_cpus
+from piezopreload.core.progress import ProgressLike, say_of
 from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import GainSchedule, PIDGains
@@ -405,7 +405,7 @@ def tune_schedule(
     n_plants: int = 50,
     seed: int = 0,
     workers: int | None = None,
-    progress: Callable[[str], None] | None = None,
+    progress: ProgressLike | None = None,
     known: GainSchedule | None = None,
 ) -> ScheduleResult:
     """Tune a gain schedule at ``levels_N`` (measured force, N) around the robust set; validate both; choose.
@@ -421,7 +421,7 @@ def tune_schedule(
     entries at the same levels each entry's tuning is given as a known point (a warm start's). See
     the module docstring.
     """
-    say = progress or (lambda _m: None)
+    say = say_of(progress) or (lambda _m: None)
     t0 = time.perf_counter()
     plan = _plan(spec, robust, levels_N, step, trajectory)
     lv, inverse = plan.levels_N, None if feedforward is None else inverse_at(feedforward, params.sample_period_s)
