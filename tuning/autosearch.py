@@ -31,7 +31,8 @@ from typing import Any
 import numpy as np
 
 from piezopreload.core.errors import InfeasibleError
-from piezopreload.tuning.autotune_result import REFINED_TO, StartRecord, located, magnitudes
+from piezopreload.tuning.autotune_result import REFINED_TO, StartRecord, located
+from piezopreload.tuning.loopshape import Bound
 from piezopreload.tuning.lti import LinearPlant
 from piezopreload.tuning.pidform import PIDController
 from piezopreload.tuning.pidopt import PIDProblem, Scales, Solution
@@ -99,7 +100,7 @@ def bound_reach(plant: LinearPlant, bounds: dict[str, float | None]) -> float | 
     plant's PID crosses over where the bound on ``|KS|`` lets it, decades above its slow poles); None without an
     ``Mks``, for a measured or discrete plant (their grids end at their data or their Nyquist frequency), or where
     ``Mks |G|`` stays at least 1 (a biproper plant)."""
-    mks = bounds.get("Mks")
+    mks = bounds.get(Bound.MKS)
     if mks is None or not plant.rational or plant.discrete:
         return None
     w = plant.grid(10, widen=4.0)
@@ -132,7 +133,7 @@ class Search:
                  dt: float | None, Tf_min: float, method: str, given: Any = None) -> None:
         self.plant, self.omega, self.bounds = plant, omega, bounds
         self.filter_order, self.dt, self.Tf_min, self.method = filter_order, dt, Tf_min, method
-        self.limits = {k: m for k, m in bounds.items() if m is not None}  # the bounds set, by name
+        self.limits = {Bound(k): m for k, m in bounds.items() if m is not None}  # the bounds set, by name
         self.names = tuple(self.limits)
         self.G = plant.response(omega)
         self.check = check_grid(plant, omega)
@@ -252,7 +253,7 @@ class Search:
         _, c, sign = self._closest
         peaks = self.worst(c, sign)
         name, (ratio, w) = max(((k, p[0]) for k, p in peaks.items()), key=lambda kv: kv[1][0])
-        what = {"Ms": "|S|", "Mt": "|T|", "Mks": "|KS|"}[name]
+        what = Bound(name).symbol
         return InfeasibleError(f"{name} <= {self.limits[name]:g} was not met: the least largest {what} the search's "
                               f"{starts} starts reached with a stable loop is {ratio * self.limits[name]:.4g} (over by "
                               f"{ratio - 1:.2%}, at {w:.4g} rad/s). Relax that bound, or tune the other form")
@@ -265,8 +266,7 @@ class Search:
         C = c.response(self.check)
         L = C * (sign * self.G_check)
         d = np.abs(1 + L)  # |S|, |T|, |KS| share it
-        return max(float(np.max((1.0 / d) if k == "Ms" else np.abs(L if k == "Mt" else C) / d)) / self.limits[k]
-                   for k in self.names) - 1.0
+        return max(float(np.max(k.numerator(C, L) / d)) / self.limits[k] for k in self.names) - 1.0
 
     def _near(self, c: PIDController, sign: float, above: float) -> dict[str, np.ndarray]:
         """Per bound, the design grid's frequencies at and beside each local maximum of its ``|X| / M`` above
@@ -274,7 +274,7 @@ class Search:
         C, G = c.response(self.omega), sign * self.G
         out = {}
         for k in self.names:
-            r = magnitudes(k, C, G) / self.limits[k]
+            r = k.magnitude(C, G) / self.limits[k]
             peak = np.zeros(r.size, bool)
             peak[1:-1] = (r[1:-1] > r[:-2]) & (r[1:-1] >= r[2:])
             peak[0], peak[-1] = r[0] >= r[1], r[-1] > r[-2]
@@ -366,7 +366,7 @@ class Search:
         d = np.abs(1 + L)  # |S|, |T|, |KS| share it
         picked: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         for name in self.names:
-            r = ((1.0 / d) if name == "Ms" else np.abs(L if name == "Mt" else C) / d) / self.limits[name]
+            r = name.numerator(C, L) / d / self.limits[name]
             top = np.zeros(r.size, bool)
             top[1:-1] = (r[1:-1] >= r[:-2]) & (r[1:-1] >= r[2:]) & (r[1:-1] > 1.0)
             top[int(np.argmax(r))] = True
@@ -430,7 +430,7 @@ class Search:
     def _infeasible(self, problem: PIDProblem, least: Solution) -> None:
         worst = problem.worst_by_bound(least.x)
         name, (ratio, w) = max(worst.items(), key=lambda kv: kv[1][0])
-        what = {"Ms": "|S|", "Mt": "|T|", "Mks": "|KS|"}[name]
+        what = Bound(name).symbol
         others = "; ".join(f"{k} <= {self.limits[k]:g} at {v[0] * self.limits[k]:.4g}"
                            for k, v in worst.items() if k != name)
         raise InfeasibleError(
@@ -488,7 +488,7 @@ class _Rows:
         ratio = np.zeros(self.omega.size)
         for name in self.names:
             mine = self.which == name
-            ratio[mine] = magnitudes(name, C[mine], G[mine]) / search.bounds[name]
+            ratio[mine] = Bound(name).magnitude(C[mine], G[mine]) / search.bounds[name]
         keep = ratio >= _KEEP
         if keep.all():
             return False
