@@ -55,7 +55,7 @@ from piezopreload.tuning.loadstep import iae_function, load_response
 from piezopreload.tuning.loopshape import Bound
 from piezopreload.tuning.lti import LinearPlant, as_plant, nyquist_unstable
 from piezopreload.tuning.pidform import PIDController
-from piezopreload.tuning.pidopt import METHODS, TF_RANGE, X_MAX, Scales
+from piezopreload.tuning.pidopt import METHODS, TF_RANGE, X_MAX, LoadStepIAE, Scales
 from piezopreload.tuning.plantfit import FittedPlant
 
 __all__ = ["autotune", "default_mks", "METRICS", "FORMS", "SOLVERS", "LOOPS", "TOLERANCE", "TF_FLOOR_PER_TS"]
@@ -163,7 +163,7 @@ def _spec(P: LinearPlant, Ms: Any, Mt: Any, Mks: Any, metric: str, form: str, Ts
     if (lo is None) != (hi is None) or (lo is not None and hi is not None and not lo < hi):
         raise InputError(f"the actuator's range needs u_min < u_max, both given; got u_min {u_min!r}, u_max {u_max!r}")
     u_range = None if lo is None or hi is None else (lo, hi)
-    bounds, defaults = dict(user), {}
+    bounds, defaults = dict(user), dict[str, dict[str, Any]]()
     if user[Bound.MKS] is None and u_range is not None:
         bounds[Bound.MKS], reason = default_mks(*u_range)
         defaults[Bound.MKS] = {"value": bounds[Bound.MKS], "reason": reason}
@@ -179,8 +179,9 @@ def _closed_form_limits(P: LinearPlant, spec: _Spec) -> None:
     """The bounds no controller with integral action meets, in closed form: ``T(0) = 1``, so ``|T| >= 1``; and
     ``KS(0) = 1/G(0)``, so ``|KS| >= 1/|G(0)|`` for a plant without integrators (its static gain, which a zero-order
     hold keeps)."""
-    if spec.bounds[Bound.MT] is not None and spec.bounds[Bound.MT] < 1.0:
-        raise InfeasibleError(f"Mt <= {spec.bounds['Mt']:g} cannot be met with a {spec.form}: with integral action "
+    mt = spec.bounds[Bound.MT]
+    if mt is not None and mt < 1.0:
+        raise InfeasibleError(f"Mt <= {mt:g} cannot be met with a {spec.form}: with integral action "
                               "T = 1 at zero frequency, so the least largest |T| any such controller reaches is 1 "
                               "(give Mt >= 1)")
     mks = spec.bounds[Bound.MKS]
@@ -311,7 +312,7 @@ def _iae(P: LinearPlant, design: LinearPlant, search: Search, found: Found, spec
     sim, n = _iae_setup(P, design, ie.scaled(found.sign), spec)
     fn = iae_function(sim, n, found.sign)
     scale = float(fn(np.array([ie.kp, ie.ki, ie.kd, ie.Tf])))
-    iae_found = search.run("IAE", scale, seeds=[("IE optimum", ie)], sign=found.sign)
+    iae_found = search.run(LoadStepIAE(fn, scale), seeds=[("IE optimum", ie)], sign=found.sign)
     iae_found.records = found.records + iae_found.records
     best = iae_found.controller
     return iae_found, (float(fn(np.array([best.kp, best.ki, best.kd, best.Tf]))), sim.dt, n)

@@ -487,6 +487,9 @@ _CONVERGED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 #: with kinks an interior-point method may wander without end around the best point it has seen
 _PATIENCE = 50
 _STALLED = "User_Requested_Stop"
+#: the status a result records when its gains came from no run of IPOPT but from a known point offered before any
+#: (the study's, a tighter problem's, the last run's), none of the runs found better
+KNOWN_POINT = "a known point"
 
 
 @dataclass
@@ -612,11 +615,17 @@ class _Solvers:
         if inc.z is not None and self.status_of(inc.source) == "Maximum_Iterations_Exceeded":
             # the best point came from a run stopped on its limit: go on from it (IPOPT's barrier starts afresh)
             self.solve(inc.z, inc.violation, f"{inc.source}, continued")
-        return self.status_of(self.incumbent.source), self._ending()
+        return self.status_word(self.incumbent.source), self._ending()
 
-    def status_of(self, run: str) -> str:
-        """IPOPT's status at the end of the run named ``run`` (``a known point`` where no run is named so)."""
-        return next((r["status"] for r in self.runs if r["run"] == run), "a known point")
+    def status_of(self, run: str) -> str | None:
+        """IPOPT's status at the end of the run named ``run``; None where no run is named so (a known point, offered
+        before any run)."""
+        return next((r["status"] for r in self.runs if r["run"] == run), None)
+
+    def status_word(self, run: str) -> str:
+        """:meth:`status_of` as the result records it: a known point's is :data:`KNOWN_POINT`."""
+        status = self.status_of(run)
+        return KNOWN_POINT if status is None else status
 
     def _ending(self) -> str:
         """How the search ended, in words: the runs, their statuses, where the result came from."""
@@ -627,7 +636,7 @@ class _Solvers:
             f", {stalled} stopped after {_PATIENCE} iterations without a better point" if stalled else "")
         inc = self.incumbent
         status = self.status_of(inc.source)
-        if status == "a known point":
+        if status is None:
             where = f"{inc.source} (no run found better)"
         elif status in _CONVERGED:
             where = f"{inc.source}, converged ({status})"
@@ -789,7 +798,7 @@ def tune_pid(
             on_bounds = on_bounds + pi_solvers.prob.scaling.on_bounds(z_pi)
             iterations += pi_solvers.iterations
             if retuned:
-                status, search = pi_solvers.status_of(inc.source), f"{search}; as a PI: {pi_solvers._ending()}"
+                status, search = pi_solvers.status_word(inc.source), f"{search}; as a PI: {pi_solvers._ending()}"
     binding = sorted(label for label, m in margins.items() if m > -1e-3)
     ms = max(max_sensitivity(tuned, v, spec.force_range_N) for v in prob.variants)  # over the range it was tuned for
     return TuningResult(
