@@ -55,16 +55,16 @@ from piezopreload.tuning.loadstep import iae_function, load_response
 from piezopreload.tuning.loopshape import Bound
 from piezopreload.tuning.lti import LinearPlant, as_plant, nyquist_unstable
 from piezopreload.tuning.pidform import PIDController
-from piezopreload.tuning.pidopt import METHODS, TF_RANGE, X_MAX, LoadStepIAE, Scales
+from piezopreload.tuning.pidopt import METHODS, TF_RANGE, X_MAX, Form, LoadStepIAE, Metric, Scales
 from piezopreload.tuning.plantfit import FittedPlant
 
 __all__ = ["autotune", "default_mks", "METRICS", "FORMS", "SOLVERS", "LOOPS", "TOLERANCE", "TF_FLOOR_PER_TS"]
 
-METRICS = ("IE", "IAE")
+METRICS = tuple(Metric)
 #: the SQP (default), IPOPT (both exact derivatives); scipy's SLSQP with exact first derivatives, or with finite
 #: differences
 SOLVERS = METHODS
-FORMS = ("PI", "PID")
+FORMS = tuple(Form)
 #: the derivative filter's least time constant, in sample periods
 TF_FLOOR_PER_TS = 1.0
 
@@ -78,8 +78,8 @@ class _Spec:
     bounds: dict[str, float | None]
     user_bounds: dict[str, float | None]
     defaults: dict[str, dict[str, Any]]
-    metric: str
-    form: str
+    metric: Metric
+    form: Form
     filter_order: int
     loop: str
     Ts: float | None
@@ -171,7 +171,7 @@ def _spec(P: LinearPlant, Ms: Any, Mt: Any, Mks: Any, metric: str, form: str, Ts
     if Tf_min > 0:
         defaults["Tf_min_s"] = {"value": Tf_min, "reason": f"the derivative filter's floor at Ts {dt:g} s: a faster "
                                 "filter does not filter in the controller step (its pole below z = 1/2)"}
-    return _Spec(bounds, user, defaults, metric, form, order, loop, dt, _positive("horizon_s", horizon_s),
+    return _Spec(bounds, user, defaults, Metric(metric), Form(form), order, loop, dt, _positive("horizon_s", horizon_s),
                  solver, u_range, Tf_min)
 
 
@@ -292,7 +292,7 @@ def autotune(plant: Any, *, Ms: float, Mt: float | None = None, Mks: float | Non
         plant, delay_s = plant.transfer_function(), plant.delay_s + float(delay_s)
     P = as_plant(plant, delay_s)
     spec = _spec(P, Ms, Mt, Mks, metric, form, Ts, loop, horizon_s, filter_order, solver, u_min, u_max)
-    if spec.metric == "IAE" and not P.rational:
+    if spec.metric is Metric.IAE and not P.rational:
         raise InputError("metric='IAE' simulates the load step on a time-domain model; a measured frequency response "
                          "has none: fit one to a step response (fit_plant) or give a transfer function")
     _closed_form_limits(P, spec)
@@ -301,7 +301,7 @@ def autotune(plant: Any, *, Ms: float, Mt: float | None = None, Mks: float | Non
                     spec.solver, w)
     found = search.run()
     iae = None
-    if spec.metric == "IAE":
+    if spec.metric is Metric.IAE:
         found, iae = _iae(P, design, search, found, spec)
     return _result(P, design, search, found, spec, iae, t0)
 

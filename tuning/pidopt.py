@@ -44,8 +44,8 @@ from piezopreload.tuning.loopshape import (
 )
 from piezopreload.tuning.pidform import PIDController
 
-__all__ = ["Form", "Scales", "PIDProblem", "Solution", "Objective", "IntegratedError", "LoadStepIAE", "IE", "TF_RANGE",
-           "X_MAX", "METHODS"]
+__all__ = ["Form", "Metric", "Scales", "PIDProblem", "Solution", "Objective", "IntegratedError", "LoadStepIAE",
+           "IE", "TF_RANGE", "X_MAX", "METHODS"]
 
 #: the derivative filter's range relative to its scale (``Tf = s_f exp(x3)``)
 TF_RANGE = (1e-4, 1e4)
@@ -266,6 +266,14 @@ class LoadStepIAE:
     def value(self, solved: float, ki: float) -> float:
         """What is minimised: the scaled IAE ``solved`` itself."""
         return float(solved)
+
+
+class Metric(StrEnum):
+    """What the autotuner is asked to minimise, by its name (as the command line and the results' JSON write it):
+    the integrated error of a unit load step (:class:`IntegratedError`) or its IAE (:class:`LoadStepIAE`)."""
+
+    IE = "IE"
+    IAE = "IAE"
 
 
 #: what the autotuner minimises: the integrated error or the load step's IAE
