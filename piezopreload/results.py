@@ -193,7 +193,7 @@ class TuningResult:
         """The comparison table as bars (settling time, tracking RMS): a Figure."""
         from piezopreload.reports import figures  # matplotlib only when drawing
 
-        return figures.gains_comparison([r.to_dict() for r in self.table])
+        return figures.gains_comparison(self.table)
 
 
 def _fmt(x: float | None) -> str:

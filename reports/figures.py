@@ -30,6 +30,9 @@ from piezopreload.core.quantities import quantity
 if TYPE_CHECKING:
     from matplotlib.typing import RcKeyType
 
+    from piezopreload.artifacts.design import DesignPoint, Front, PreloadCurve
+    from piezopreload.artifacts.learning import PassRecord
+    from piezopreload.artifacts.tuning import ComparisonRow
     from piezopreload.artifacts.validation import ValidationResult
 
 __all__ = [
@@ -318,25 +321,25 @@ def tracking(runs: Mapping[str, Mapping[str, np.ndarray]], signal: str, labels: 
 
 
 @_styled
-def stiffness_vs_preload(curve: Mapping[str, Any], runs_N: tuple[float, float] | None = None) -> Figure:
+def stiffness_vs_preload(curve: PreloadCurve, runs_N: tuple[float, float] | None = None) -> Figure:
     """Rigidity (and drag torque) of the optimum's screw against preload; the duty cases marked; shaded, the
     preloads the schedule runs (``runs_N``, its least and highest)."""
     fig, ax = _figure(2.6, ncols=2)
     a, b = ax[0]
-    fp = np.asarray(curve["preload_N"])
-    a.plot(fp, curve["rigidity_N_per_um"], color=COLOURS["model"], label="no axial load")
-    for j, case in enumerate(curve["cases"]):
-        a.plot(case["preload_N"], case["rigidity_N_per_um"], "o", ms=4,
-               label=f"case {j + 1}: {quantity(case['axial_load_N'], 'N')}")
+    fp = np.asarray(curve.preload_N)
+    a.plot(fp, curve.rigidity_N_per_um, color=COLOURS["model"], label="no axial load")
+    for j, case in enumerate(curve.cases):
+        a.plot(case.preload_N, case.rigidity_N_per_um, "o", ms=4,
+               label=f"case {j + 1}: {quantity(case.axial_load_N, 'N')}")
     for a_ in (a, b):
         if runs_N is not None:
             a_.axvspan(*runs_N, color="0.9", lw=0, zorder=0)
-        a_.axvline(curve["bolt_preload_N"], color="0.5", ls=":", lw=0.8)
-        a_.axvline(curve["max_preload_N"], color="0.3", ls="--", lw=0.8)
+        a_.axvline(curve.bolt_preload_N, color="0.5", ls=":", lw=0.8)
+        a_.axvline(curve.max_preload_N, color="0.3", ls="--", lw=0.8)
         a_.set_xlabel("preload (N)")
     a.set_ylabel("axial rigidity (N/um)")
     a.set_title("axial rigidity")
-    b.plot(fp, curve["drag_torque_Nm"], color=COLOURS["study pid"])
+    b.plot(fp, curve.drag_torque_Nm, color=COLOURS["study pid"])
     b.set_ylabel("drag torque (N m)")
     b.set_title("preload drag torque")
     legends(a)
@@ -348,20 +351,20 @@ _FRONT_LABELS = {"stiffness": "least rigidity (N/um)", "preload": "highest prelo
 
 
 @_styled
-def pareto_fronts(fronts: Sequence[Mapping[str, Any]], optimum: Mapping[str, float] | None = None) -> Figure:
+def pareto_fronts(fronts: Sequence[Front], optimum: DesignPoint | None = None) -> Figure:
     """The epsilon-constraint Pareto fronts, one panel each, the design optimum marked."""
     n = max(len(fronts), 1)
     fig, ax = _figure(2.4, ncols=n)
     keys = {"stiffness": "stiffness_N_per_um", "preload": "max_preload_N",
             "drag": "mean_drag_torque_Nm", "life": "life_h"}
     for a, f in zip(ax[0], fronts):
-        a.plot(f["x"], f["y"], "o-", ms=2.5, color=COLOURS["model"], label="front")
-        if optimum is not None and f["y_name"] in keys:  # a point's growth is not one of its fields
-            a.plot(optimum[keys[f["x_name"]]], optimum[keys[f["y_name"]]], "*", ms=8, color=COLOURS["limit"],
-                   label="the design optimum")
-        a.set_xlabel(_FRONT_LABELS[f["x_name"]])
-        a.set_ylabel(_FRONT_LABELS[f["y_name"]])
-        if f["y_name"] == "life":
+        a.plot(f.x, f.y, "o-", ms=2.5, color=COLOURS["model"], label="front")
+        if optimum is not None and f.y_name in keys:  # a point's growth is not one of its fields
+            a.plot(getattr(optimum, keys[f.x_name]), getattr(optimum, keys[f.y_name]), "*", ms=8,
+                   color=COLOURS["limit"], label="the design optimum")
+        a.set_xlabel(_FRONT_LABELS[f.x_name])
+        a.set_ylabel(_FRONT_LABELS[f.y_name])
+        if f.y_name == "life":
             a.set_yscale("log")
     legends(ax[0][0])
     return fig
@@ -487,16 +490,16 @@ def closed_loop(run: Mapping[str, np.ndarray], band_N: float | None, signal: str
 
 
 @_styled
-def gains_comparison(table: Sequence[Mapping[str, Any]]) -> Figure:
+def gains_comparison(table: Sequence[ComparisonRow]) -> Figure:
     """The tuning's comparison table as bars: settling time and tracking RMS of each gain set, PID alone and
     with the feedforward."""
     fig, ax = _figure(2.6, ncols=2)
-    labels = [f"{r['gains']}{' + FF' if r['feedforward'] else ''}" for r in table]
+    labels = [f"{r.gains}{' + FF' if r.feedforward else ''}" for r in table]
     x = np.arange(len(labels))
-    settling = [np.nan if r["settling_s"] is None else r["settling_s"] for r in table]
-    colours = [COLOURS["tuned ff+pid"] if r["feedforward"] else COLOURS["study pid"] for r in table]
+    settling = [np.nan if r.settling_s is None else r.settling_s for r in table]
+    colours = [COLOURS["tuned ff+pid"] if r.feedforward else COLOURS["study pid"] for r in table]
     for a, values, label in ((ax[0][0], settling, "settling time (s)"),
-                             (ax[0][1], [r["tracking_rms_N"] for r in table], "tracking RMS (N)")):
+                             (ax[0][1], [r.tracking_rms_N for r in table], "tracking RMS (N)")):
         a.bar(x, values, color=colours)
         a.set_xticks(x, labels, rotation=30, ha="right")
         a.set_ylabel(label)
@@ -530,18 +533,18 @@ def system_tracking(time_s: np.ndarray, planned_N: np.ndarray, achieved_N: np.nd
 
 
 @_styled
-def learning_iterations(passes: list[dict[str, Any]]) -> Figure:
+def learning_iterations(passes: Sequence[PassRecord]) -> Figure:
     """The error per learning iteration on the repeated schedule, one line per margin pass (the whole trajectory's RMS
     of the true force in % of the schedule's range), the causal floor beside it."""
     fig, ax = _figure(2.8)
     a = ax[0][0]
     for k, p in enumerate(passes):
-        span = p["tracking_rms_N"] / p["tracking_rms_pct_of_range"] * 100.0 if p["tracking_rms_pct_of_range"] else 1.0
-        it = [h["iteration"] for h in p["history"]]
-        pct = [100.0 * float(np.max(h["tracking_rms_N"])) / span for h in p["history"]]
+        span = p.tracking_rms_N / p.tracking_rms_pct_of_range * 100.0 if p.tracking_rms_pct_of_range else 1.0
+        it = [h.iteration for h in p.history]
+        pct = [100.0 * h.worst_tracking_rms_N / span for h in p.history]
         a.semilogy(it, pct, "o-", ms=3, lw=0.9, color=f"C{k}",
-                   label=f"pass {p['pass']} (best: trial {int(np.max(p['best_iteration']))})")
-        a.axhline(100.0 * p["causal_floor_N"] / span, color=f"C{k}", ls=":", lw=0.7)
+                   label=f"pass {p.pass_number} (best: trial {int(np.max(p.best_iteration))})")
+        a.axhline(100.0 * p.causal_floor_N / span, color=f"C{k}", ls=":", lw=0.7)
     a.set_xlabel("learning trial (0: before the pass learns)")
     a.set_ylabel("tracking RMS (% of the pass's range)")
     a.xaxis.set_major_locator(MaxNLocator(integer=True))  # trials are counted

@@ -184,13 +184,13 @@ def design_section(study: ReportStudy, design: DesignRecord, system_shown: bool 
         + ("; what the controlled system plans and achieves is in the section on the designed system." if system_shown
            else " (this study's plant is not its design: no loop followed the schedule).")]
     figures: list[tuple[str, Figure, str]] = [
-        ("stiffness", F.stiffness_vs_preload(design.preload_curve.to_dict(), (low, high)),
+        ("stiffness", F.stiffness_vs_preload(design.preload_curve, (low, high)),
          "Axial rigidity and preload drag torque of the optimum's double nut against preload; the duty cases at their "
          f"design preloads; shaded, the preloads the schedule runs ({_span((low, high), 'N')}); dotted: the bolts' "
          "preload alone, dashed: the stacks at full drive.")]
     omitted = []
     if design.fronts:
-        figures.append(("pareto", F.pareto_fronts([f.to_dict() for f in design.fronts], p.to_dict()),
+        figures.append(("pareto", F.pareto_fronts(design.fronts, p),
                         "Pareto fronts by the epsilon-constraint method (each point an optimal design): the "
                         f"{_and(_FRONT_WORDS[f.y_name] for f in design.fronts)} against the least rigidity over the "
                         "duty cases, swept up to the optimum's; star: the design optimum (objective "
@@ -324,7 +324,7 @@ def learning_section(learning: LearningRecord) -> Part:
                   "before learned where it starts from it): whole runs from the reference's first change, true force, "
                   "in % of the pass's reference range; measured: the sensor's force against the plan, what the law "
                   "learns from.", "rlrrr")
-    fig = F.learning_iterations([p.to_dict() for p in learning.passes])
+    fig = F.learning_iterations(learning.passes)
     caption = ("The error per learning trial on the repeated schedule, each margin pass on its own reference (whole "
                "runs, true force, in % of the pass's reference range); dotted: the causal floor of each pass's "
                "reference, the least error of any controller that acts only on what has happened (after each change "

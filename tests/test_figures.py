@@ -59,11 +59,18 @@ def _system(limit_um=5.0):
 
 
 def _passes():
-    history = [{"iteration": i, "tracking_rms_N": [20.0 / 8 ** i]} for i in range(3)]
-    return [{"pass": 1, "tracking_rms_N": 0.75, "tracking_rms_pct_of_range": 0.052, "history": history,
-             "best_iteration": [2], "causal_floor_N": 0.68},
-            {"pass": 2, "tracking_rms_N": 0.43, "tracking_rms_pct_of_range": 0.0296, "history": history[:2],
-             "best_iteration": [1], "causal_floor_N": 0.68}]
+    """Two margin passes of a learning record (the stored one's, their numbers set here)."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    from piezopreload.artifacts.learning import LearningRecord, TrialRecord
+
+    stored = LearningRecord.load(Path(__file__).parent / "data" / "artifacts" / "learning.json").passes[0]
+    history = [TrialRecord(i, [20.0 / 8 ** i], [20.0 / 8 ** i], [20.0 / 8 ** i]) for i in range(3)]
+    return [replace(stored, pass_number=1, tracking_rms_N=0.75, tracking_rms_pct_of_range=0.052, history=history,
+                    trials=2, best_iteration=[2], causal_floor_N=0.68),
+            replace(stored, pass_number=2, tracking_rms_N=0.43, tracking_rms_pct_of_range=0.0296,
+                    history=history[:2], trials=1, best_iteration=[1], causal_floor_N=0.68)]
 
 
 def _schedule():
