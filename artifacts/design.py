@@ -212,4 +212,5 @@ class DesignRecord(SavedArtifact):
 
     @property
     def point(self) -> DesignPoint:
+        """The optimum's design point (the optimum's :attr:`Optimum.point`)."""
         return self.optimum.point

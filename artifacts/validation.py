@@ -208,22 +208,27 @@ class ValidationResult(SavedArtifact):
 
     @property
     def failed_plant_count(self) -> int:
+        """How many plants failed at least one criterion."""
         return len({f.plant for f in self.failures})
 
     @property
     def worst(self) -> Metrics:
+        """Each metric's worst value over the plants, the largest (None where a step never settled: it ranks worst)."""
         return _statistic(self.metrics, "worst")
 
     @property
     def p95(self) -> Metrics:
+        """Each metric's 95th percentile over the plants (a step that never settled counts as infinite)."""
         return _statistic(self.metrics, "p95")
 
     @property
     def median(self) -> Metrics:
+        """Each metric's median over the plants (a step that never settled counts as infinite)."""
         return _statistic(self.metrics, "p50")
 
     @property
     def best(self) -> Metrics:
+        """Each metric's best value over the plants (the smallest)."""
         return _statistic(self.metrics, "best")
 
     @property
@@ -243,19 +248,44 @@ class ValidationResult(SavedArtifact):
         return tuple(out)
 
     def failed_plants(self, shown: int = 3) -> str:
-        """``failed on N of M plants (the first failures)``: what a refusal says."""
+        """``failed on N of M plants (the first failures)``: what a refusal says.
+
+        Parameters
+        ----------
+        shown : int
+            How many failures to quote (plant, metric, value and limit).
+
+        Returns
+        -------
+        str
+            ``failed on N of M plants (plant I: METRIC VALUE > LIMIT; ...)``.
+        """
         first = "; ".join(f"plant {f.plant}: {f.metric} {f.value} > {f.limit:g}" for f in self.failures[:shown])
         return f"failed on {self.failed_plant_count} of {self.n_plants} plants ({first})"
 
     def headline(self) -> dict[str, float | None]:
-        """The worst plant's settling time (and the 95th percentile's), overshoot, tracking error and voltage."""
+        """The worst plant's settling time (and the 95th percentile's), overshoot, tracking error and voltage.
+
+        Returns
+        -------
+        dict of str to float or None
+            ``worst_settling_s`` and ``p95_settling_s`` (s), ``worst_overshoot_N`` and ``worst_tracking_rms_N`` (N),
+            ``worst_peak_voltage_V`` (V); None where no plant's value is finite.
+        """
         w = self.worst
         return {"worst_settling_s": w.settling_s, "p95_settling_s": self.p95.settling_s,
                 "worst_overshoot_N": w.overshoot_N, "worst_tracking_rms_N": w.tracking_rms_N,
                 "worst_peak_voltage_V": w.peak_voltage_V}
 
     def summary(self) -> dict[str, dict[str, float | None]]:
-        """Every metric's worst, median, 95th percentile and best, by metric (as ``to_dict`` writes them)."""
+        """Every metric's worst, median, 95th percentile and best, by metric (as ``to_dict`` writes them).
+
+        Returns
+        -------
+        dict of str to dict
+            By metric (``settling_s``, ``overshoot_N``, ...), its ``worst``, ``p50``, ``p95`` and ``best`` over the
+            plants, in the unit its name carries (None where not finite).
+        """
         stats = {"worst": self.worst, "p50": self.median, "p95": self.p95, "best": self.best}
         return {k: {s: getattr(m, k) for s, m in stats.items()} for k in METRICS}
 
@@ -290,7 +320,14 @@ class ValidationResult(SavedArtifact):
                 f"<table><tr><th>limit</th><th>worst plant</th><th>limit</th><th>verdict</th></tr>{rows}</table>")
 
     def plot(self) -> Figure:
-        """A Figure: the distributions of :meth:`draw_histograms`, one panel each."""
+        """A Figure: the distributions of :meth:`draw_histograms`, one panel each.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            One histogram per metric of :meth:`histogram_metrics` over the plants (finite values), its limit dashed
+            where the criteria set one.
+        """
         from matplotlib.figure import Figure
 
         fig = Figure(figsize=(10, 3), layout="constrained")
@@ -298,8 +335,14 @@ class ValidationResult(SavedArtifact):
         return fig
 
     def histogram_metrics(self) -> tuple[str, ...]:
-        """The metrics :meth:`draw_histograms` draws: settling time, overshoot and tracking RMS, and every other
-        metric the criteria bound (the peak command when a limit is set)."""
+        """The metrics :meth:`draw_histograms` draws.
+
+        Returns
+        -------
+        tuple of str
+            Settling time, overshoot and tracking RMS, and every other metric the criteria bound (the peak command
+            when a limit is set).
+        """
         bounded = tuple(m for m in self.criteria.limits() if m not in _HISTOGRAMS)
         return _HISTOGRAMS + bounded
 
