@@ -538,7 +538,9 @@ def _validation_part(val: Any, gain_set: GainSet) -> Part:
     fig = F.monte_carlo(val)
     caption = (f"The tuned gains with the feedforward over {val.n_plants} Monte Carlo plants (seed {val.seed}): "
                f"settling time into ±{q(val.criteria.band_N, 'N')} and overshoot of the true "
-               "force, and the trajectory's tracking RMS; dashed, the study's limits.")
+               "force, and the trajectory's tracking RMS"
+               + (", and the highest command over both" if "peak_voltage_V" in val.histogram_metrics() else "")
+               + "; dashed, the study's limits.")
     return Part(Section("Validation", (text,), (table,), ("monte-carlo",)), (("monte-carlo", fig, caption),))
 
 
