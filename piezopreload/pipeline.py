@@ -265,7 +265,7 @@ def _stage_compare(ctx: _Ctx) -> Produced:
     runs = responses(study.plant, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model,
                      seed=study.seed, band_N=study.band_N, signal=study.signal,
                      after_change_s=study.criteria.tracking_after_change_s,
-                     progress=ctx.progress.bar("closed-loop runs"))
+                     bar=ctx.progress.bar("closed-loop runs"))
     d = ctx.out / "responses"
     outputs: dict[str, Path] = {}
     rows = []

@@ -278,7 +278,7 @@ class TuningResult:
                                  seed=(self.study.seed if v.seed is None else v.seed) if seed is None else seed,
                                  workers=workers if workers is not None else 1 if pool is not None
                                  else default_workers(), scheduler=scheduler, pool=pool,
-                                 progress=bar or (lambda i, n: say(f"  chunk {i}/{n}")))
+                                 bar=bar or (lambda i, n: say(f"  chunk {i}/{n}")))
 
     def validate(self, plants: int | None = None, seed: int | None = None, *, workers: int | None = None,
                  scheduler: str | None = None, progress: ProgressLike | None = None) -> GainSet:
@@ -315,7 +315,7 @@ class TuningResult:
         """
         from piezopreload.reports import figures  # matplotlib only when drawing
 
-        return figures.gains_comparison([r.to_dict() for r in self.table])
+        return figures.gains_comparison(self.table)
 
 
 def _fmt(x: float | None) -> str:
@@ -389,7 +389,7 @@ def tune(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, 
     if warm is not None and warm_gains is not None:
         known[f"the warm start ({warm.name})"] = warm_gains
     try:
-        tuned = tune_pid(study.plant, feedforward.inverse(), spec, progress=iterations, known=known)
+        tuned = tune_pid(study.plant, feedforward.inverse(), spec, counter=iterations, known=known)
     except TuningInfeasible as exc:
         bounding.discard()
         raise InfeasibleError(f"{study.path}: {exc}") from exc

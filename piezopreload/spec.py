@@ -46,7 +46,7 @@ from piezopreload.artifacts.validation import Criteria
 from piezopreload.core.config import Invalid, Lines, Table, read_toml, toml_text
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.quantities import number, quantity
-from piezopreload.core.tables import Record, read_record
+from piezopreload.core.tables import MeasuredRecord, read_record
 from piezopreload.design.plant import DESIGNED_FIELDS
 from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignSpec, optimise
 from piezopreload.design.sensitivity import sensitivity
@@ -537,7 +537,7 @@ class StudySpec:
         ff.covers(low, high, f"the study's references ({self.path})")
         return ff
 
-    def measured_loop(self, progress: ProgressLike | None = None) -> Record | None:
+    def measured_loop(self, progress: ProgressLike | None = None) -> MeasuredRecord | None:
         """``[feedforward] data`` read, and refused if its forces do not cover the references (before any design
         or tuning: a measured loop's range is known from the file).
 
@@ -548,7 +548,7 @@ class StudySpec:
 
         Returns
         -------
-        Record or None
+        MeasuredRecord or None
             The measured loop; None where the study simulates it.
         """
         data = self.resolve(self.feedforward.data)
