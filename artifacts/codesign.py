@@ -18,10 +18,9 @@ weakly dominated (no worse in growth and in tracking, within a relative toleranc
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Any, ClassVar
 
-from piezopreload.core.records import Artifact, Record, entry, record
+from piezopreload.core.records import Record, SavedArtifact, entry, record
 
 __all__ = ["FrontPoint", "RequirementRow", "CodesignRecord", "KIND", "FRONT_RTOL", "nondominated"]
 
@@ -121,7 +120,7 @@ def nondominated(points: tuple[FrontPoint, ...] | list[FrontPoint], rtol: float 
 
 
 @record
-class CodesignRecord(Artifact):
+class CodesignRecord(SavedArtifact):
     """The co-design of a study beside its sequential answer: the two answers requirement by requirement, what
     changed, and the two fronts of thermal growth against tracking RMS at the study's Ms."""
 
@@ -203,19 +202,3 @@ class CodesignRecord(Artifact):
         co = self.at_ms(self.codesigned_front, rtol)
         return sum(any(q.growth_um < p.growth_um * (1 - rtol) and q.tracking_rms_N < p.tracking_rms_N * (1 - rtol)
                        for q in co) for p in self.at_ms(self.sequential_front, rtol))
-
-    def save(self, path: str | Path) -> Path:
-        """Write the co-design artifact (kind ``codesign``) atomically.
-
-        Parameters
-        ----------
-        path : str or Path
-            The file.
-
-        Returns
-        -------
-        Path
-            The file written.
-        """
-        self._write(path)
-        return Path(path)

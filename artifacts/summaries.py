@@ -20,7 +20,7 @@ from piezopreload.artifacts.responses import ReproductionRow
 from piezopreload.artifacts.sensitivity import SensitivityRecord
 from piezopreload.artifacts.system import (
     MarginBasis,
-    PassRecord,
+    MarginPass,
     PreCycle,
     ScheduleBound,
     SystemRecord,
@@ -199,7 +199,7 @@ class SystemSummary(StageSummary):
     pre_cycle: PreCycle = entry("The pre-cycle.")
     preload_margin_N: float = entry("The margin the schedule was planned with.", unit="N")
     cycles: int = entry("The machining cycles run.", ge=0)
-    passes: tuple[PassRecord, ...] = entry("The margin passes.")
+    passes: tuple[MarginPass, ...] = entry("The margin passes.")
     thermal: dict[str, Any] | None = entry("The shift's thermal figures (schedule and constant preload).",
                                            default=None, omit=True)
     before: BeforeLearning | None = entry("Where the schedule was learned: the error before learning.",
@@ -213,7 +213,20 @@ class SystemSummary(StageSummary):
     @classmethod
     def of(cls, system: SystemRecord, before: BeforeLearning | None = None) -> SystemSummary:
         """The summary of a system artifact (no series): its numbers, verdicts, bounds, pre-cycle, margin, cycles,
-        passes and thermal figures; ``before``: the error before learning, where the schedule was learned."""
+        passes and thermal figures; ``before``: the error before learning, where the schedule was learned.
+
+        Parameters
+        ----------
+        system : SystemRecord
+            The system artifact.
+        before : BeforeLearning or None
+            The tracking error before learning and the trials, where the schedule was learned; None otherwise.
+
+        Returns
+        -------
+        SystemSummary
+            The system's numbers, requirements and thermal figures, without the time series.
+        """
         return cls(system.numbers, system.requirements, system.bounds, system.pre_cycle, system.preload_margin_N,
                    system.cycles, system.passes, None if system.thermal is None else system.thermal.summary().to_dict(),
                    before, system.basis, system.sensitivity)
@@ -224,16 +237,17 @@ class SystemSummary(StageSummary):
 
     @property
     def requirements_met(self) -> bool:
+        """Whether every requirement the system stage checked is met."""
         return all(r.met for r in self.checked)
 
-    def thermal_figure(self, name: str) -> tuple[float | None, float | None]:
-        """A thermal figure (``heat_mean_W``, ``growth_max_um``, ...) for the schedule and for the constant preload;
-        (None, None) where the study has no ``[thermal]`` table."""
-        pair = (self.thermal or {}).get(name) or {}
-        return pair.get("schedule"), pair.get("constant")
-
     def to_dict(self) -> dict[str, Any]:
-        """The declared fields, with ``requirements_met`` (derived from the requirements) before them."""
+        """The declared fields, with ``requirements_met`` (derived from the requirements) before them.
+
+        Returns
+        -------
+        dict
+            The document's object: the declared fields, ``requirements_met`` just before ``requirements``.
+        """
         out: dict[str, Any] = {}
         for key, value in super().to_dict().items():
             if key == "requirements":

@@ -12,6 +12,7 @@ drift, against the command range the force loop has left to hold it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
@@ -19,11 +20,21 @@ from numpy.typing import NDArray
 
 from piezopreload.core.records import Raw, Record, entry, record
 
-__all__ = ["ThermalCase", "PreloadDrift", "ThermalRecord", "ThermalSummary", "CASES"]
+__all__ = ["ThermalCase", "PreloadDrift", "ThermalRecord", "ThermalSummary", "PreloadCase", "CASES"]
 
 Array = NDArray[np.float64]
+
+
+class PreloadCase(StrEnum):
+    """The two preloads a budget compares, by their names in the record's JSON: the schedule as the force loop
+    achieved it, and the design's best constant preload."""
+
+    SCHEDULE = "schedule"
+    CONSTANT = "constant"
+
+
 #: the two preloads a budget compares, in the order the report shows them
-CASES = ("schedule", "constant")
+CASES = tuple(PreloadCase)
 #: the scalar figures of a case, in its summary's order
 _FIGURES = ("heat_mean_W", "heat_mean_other_W", "seal_heat_mean_W", "bearing_heat_mean_W", "preload_mean_N",
             "temperature_rise_max_K", "rise_max_at_mm", "temperature_rise_max_other_K", "nut_rise_max_K",
@@ -169,12 +180,13 @@ class PreloadDrift(Record):
 
 @dataclass(frozen=True)
 class ThermalSummary:
-    """A shift's thermal budget without its series (:meth:`ThermalRecord.summary`): each figure of a case for the
-    schedule and for the constant preload (``figures[name]`` is ``{"schedule": ..., "constant": ...}``), the settings,
-    the drift, and in words per case where the largest rise sits, the nut against the screw and the ends' force;
-    :meth:`to_dict` is what ``system.json``'s summary and ``run --json`` hold as ``thermal``."""
+    """A shift's thermal budget without its series (:meth:`ThermalRecord.summary`): the two cases (``schedule``,
+    ``constant``: their figures under their own names), the settings, the drift, and in words per case where the
+    largest rise sits, the nut against the screw and the ends' force; :meth:`to_dict` is what ``system.json``'s
+    summary and ``run --json`` hold as ``thermal`` (each scalar figure as ``{"schedule": ..., "constant": ...}``)."""
 
-    figures: dict[str, dict[str, float]]
+    schedule: ThermalCase
+    constant: ThermalCase
     heat_model: str
     other_model: str
     lubricant_vg: int
@@ -195,13 +207,17 @@ class ThermalSummary:
     nut_against_screw: dict[str, str]
     ends: dict[str, str]
 
-    def figure(self, name: str) -> tuple[float, float]:
-        """A figure (``heat_mean_W``, ``growth_max_um``, ...) for the schedule and for the constant preload."""
-        pair = self.figures[name]
-        return pair["schedule"], pair["constant"]
-
     def to_dict(self) -> dict[str, Any]:
-        return {**self.figures, "heat_model": self.heat_model, "other_model": self.other_model,
+        """Each scalar figure for both cases, the settings, the drift and the words (no series).
+
+        Returns
+        -------
+        dict
+            Its object.
+        """
+        cases = {"schedule": self.schedule.summary(), "constant": self.constant.summary()}
+        figures = {name: {c: cases[c][name] for c in CASES} for name in _FIGURES}
+        return {**figures, "heat_model": self.heat_model, "other_model": self.other_model,
                 "lubricant_vg": self.lubricant_vg, "sealed": self.sealed, "seal_torque_Nm": self.seal_torque_Nm,
                 "nut_heat_share": self.nut_heat_share, "convection_factor": self.convection_factor,
                 "mounting": self.mounting, "pretension_K": self.pretension_K,
@@ -296,13 +312,14 @@ class ThermalRecord(Record):
                 + (f"; {ends}" if ends else ""))
 
     def case(self, name: str) -> ThermalCase:
-        return {"schedule": self.schedule, "constant": self.constant}[name]
+        """The figures of the preload ``name`` (a :class:`PreloadCase` or its name)."""
+        return self.schedule if PreloadCase(name) is PreloadCase.SCHEDULE else self.constant
 
     def summary(self) -> ThermalSummary:
         """Each figure for the schedule and the constant preload, the settings and the drift (no series)."""
         return ThermalSummary(
-            figures={name: {c: getattr(self, c).summary()[name] for c in CASES} for name in _FIGURES},
-            heat_model=self.heat_model, other_model=self.other_model, lubricant_vg=self.lubricant_vg,
+            schedule=self.schedule, constant=self.constant, heat_model=self.heat_model,
+            other_model=self.other_model, lubricant_vg=self.lubricant_vg,
             sealed=self.sealed, seal_torque_Nm=self.seal_torque_Nm, nut_heat_share=self.nut_heat_share,
             convection_factor=self.convection_factor, mounting=self.mounting, pretension_K=self.pretension_K,
             bearing_lift_off_N=self.bearing_lift_off_N, feedback=self.feedback,

@@ -25,7 +25,7 @@ from typing import Any, ClassVar
 
 from piezopreload.artifacts.gainset import GainSet, GainsTable
 from piezopreload.core.quantities import number
-from piezopreload.core.records import Artifact, Record, entry, load_one_of, record
+from piezopreload.core.records import Record, SavedArtifact, entry, load_one_of, record
 from piezopreload.models.controller import PIDGains
 
 __all__ = ["KIND", "ActiveBound", "ComparisonRow", "MinimumTimeBound", "TrackingFloor", "TuningSolve", "TuningRecord",
@@ -165,7 +165,7 @@ class TuningSolve(Record):
 
 
 @record
-class TuningRecord(Artifact):
+class TuningRecord(SavedArtifact):
     """The tune stage's artifact (see the module docstring)."""
 
     KIND: ClassVar[str] = KIND
@@ -218,22 +218,6 @@ class TuningRecord(Artifact):
                 return r
         raise KeyError(f"no row ({gains!r}, feedforward={feedforward}) in the table; it holds "
                        + ", ".join(f"({r.gains!r}, {r.feedforward})" for r in self.table))
-
-    def save(self, path: str | Path) -> Path:
-        """Write atomically (:func:`~piezopreload.core.artifacts.write_artifact`).
-
-        Parameters
-        ----------
-        path : str or Path
-            The file.
-
-        Returns
-        -------
-        Path
-            The file written.
-        """
-        self._write(path)
-        return Path(path)
 
 
 def warm_start_gains(path: str | Path) -> PIDGains:

@@ -11,17 +11,18 @@ values (``result.requirements``).
 from __future__ import annotations
 
 import math
-from pathlib import Path
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from piezopreload.artifacts.requirements import Requirement
-from piezopreload.core.records import Artifact, Record, entry, record
+from piezopreload.core.records import Record, SavedArtifact, entry, record
 from piezopreload.models.closedloop import PAPER_BAND_N
 
 if TYPE_CHECKING:
+    from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
 __all__ = ["Criteria", "Metrics", "Failure", "ValidationResult", "METRICS"]
@@ -165,7 +166,7 @@ def _metrics_to(metrics: dict[str, NDArray[np.float64]]) -> dict[str, list[float
 
 
 @record(eq=False)
-class ValidationResult(Artifact):
+class ValidationResult(SavedArtifact):
     """The gains run on a Monte Carlo set of nonlinear plants: every plant's metrics and the verdict."""
 
     KIND: ClassVar[str] = "validation"
@@ -207,22 +208,27 @@ class ValidationResult(Artifact):
 
     @property
     def failed_plant_count(self) -> int:
+        """How many plants failed at least one criterion."""
         return len({f.plant for f in self.failures})
 
     @property
     def worst(self) -> Metrics:
+        """Each metric's worst value over the plants, the largest (None where a step never settled: it ranks worst)."""
         return _statistic(self.metrics, "worst")
 
     @property
     def p95(self) -> Metrics:
+        """Each metric's 95th percentile over the plants (a step that never settled counts as infinite)."""
         return _statistic(self.metrics, "p95")
 
     @property
     def median(self) -> Metrics:
+        """Each metric's median over the plants (a step that never settled counts as infinite)."""
         return _statistic(self.metrics, "p50")
 
     @property
     def best(self) -> Metrics:
+        """Each metric's best value over the plants (the smallest)."""
         return _statistic(self.metrics, "best")
 
     @property
@@ -242,19 +248,44 @@ class ValidationResult(Artifact):
         return tuple(out)
 
     def failed_plants(self, shown: int = 3) -> str:
-        """``failed on N of M plants (the first failures)``: what a refusal says."""
+        """``failed on N of M plants (the first failures)``: what a refusal says.
+
+        Parameters
+        ----------
+        shown : int
+            How many failures to quote (plant, metric, value and limit).
+
+        Returns
+        -------
+        str
+            ``failed on N of M plants (plant I: METRIC VALUE > LIMIT; ...)``.
+        """
         first = "; ".join(f"plant {f.plant}: {f.metric} {f.value} > {f.limit:g}" for f in self.failures[:shown])
         return f"failed on {self.failed_plant_count} of {self.n_plants} plants ({first})"
 
     def headline(self) -> dict[str, float | None]:
-        """The worst plant's settling time (and the 95th percentile's), overshoot, tracking error and voltage."""
+        """The worst plant's settling time (and the 95th percentile's), overshoot, tracking error and voltage.
+
+        Returns
+        -------
+        dict of str to float or None
+            ``worst_settling_s`` and ``p95_settling_s`` (s), ``worst_overshoot_N`` and ``worst_tracking_rms_N`` (N),
+            ``worst_peak_voltage_V`` (V); None where no plant's value is finite.
+        """
         w = self.worst
         return {"worst_settling_s": w.settling_s, "p95_settling_s": self.p95.settling_s,
                 "worst_overshoot_N": w.overshoot_N, "worst_tracking_rms_N": w.tracking_rms_N,
                 "worst_peak_voltage_V": w.peak_voltage_V}
 
     def summary(self) -> dict[str, dict[str, float | None]]:
-        """Every metric's worst, median, 95th percentile and best, by metric (as ``to_dict`` writes them)."""
+        """Every metric's worst, median, 95th percentile and best, by metric (as ``to_dict`` writes them).
+
+        Returns
+        -------
+        dict of str to dict
+            By metric (``settling_s``, ``overshoot_N``, ...), its ``worst``, ``p50``, ``p95`` and ``best`` over the
+            plants, in the unit its name carries (None where not finite).
+        """
         stats = {"worst": self.worst, "p50": self.median, "p95": self.p95, "best": self.best}
         return {k: {s: getattr(m, k) for s, m in stats.items()} for k in METRICS}
 
@@ -271,22 +302,6 @@ class ValidationResult(Artifact):
         failures = self.failures
         return {**super().to_dict(), "passed": self.passed, "summary": self.summary(),
                 "failures": [f.to_dict() for f in failures[:50]], "n_failures": len(failures)}
-
-    def save(self, path: str | Path) -> Path:
-        """Write ``validation.json`` atomically (kind ``validation``).
-
-        Parameters
-        ----------
-        path : str or Path
-            The file.
-
-        Returns
-        -------
-        Path
-            The file written.
-        """
-        self._write(path)
-        return Path(path)
 
     def __repr__(self) -> str:
         verdict = "passed" if self.passed else f"failed on {self.failed_plant_count} plants"
@@ -305,24 +320,76 @@ class ValidationResult(Artifact):
                 f"<table><tr><th>limit</th><th>worst plant</th><th>limit</th><th>verdict</th></tr>{rows}</table>")
 
     def plot(self) -> Figure:
-        """A Figure: each bounded metric's distribution over the plants, with its limit dashed."""
+        """A Figure: the distributions of :meth:`draw_histograms`, one panel each.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            One histogram per metric of :meth:`histogram_metrics` over the plants (finite values), its limit dashed
+            where the criteria set one.
+        """
         from matplotlib.figure import Figure
 
-        limits = self.criteria.limits()
-        fig = Figure(figsize=(10, 3))
-        axes = fig.subplots(1, len(limits))
-        for ax, (metric, limit) in zip(axes, limits.items()):
-            values = self.metrics[metric][np.isfinite(self.metrics[metric])]
-            ax.hist(values, bins=20, color="tab:blue", alpha=0.8)
-            ax.axvline(limit, color="tab:red", linestyle="--", label="limit")
-            ax.set_xlabel(_AXIS_LABELS.get(metric, metric))
-        axes[0].set_ylabel("plants")
-        fig.tight_layout()
+        fig = Figure(figsize=(10, 3), layout="constrained")
+        self.draw_histograms(fig.subplots(1, len(self.histogram_metrics()), squeeze=False)[0])
         return fig
 
+    def histogram_metrics(self) -> tuple[str, ...]:
+        """The metrics :meth:`draw_histograms` draws.
 
+        Returns
+        -------
+        tuple of str
+            Settling time, overshoot and tracking RMS, and every other metric the criteria bound (the peak command
+            when a limit is set).
+        """
+        bounded = tuple(m for m in self.criteria.limits() if m not in _HISTOGRAMS)
+        return _HISTOGRAMS + bounded
+
+    def draw_histograms(self, axes: Sequence[Axes], *, colour: str = "tab:blue",
+                        limit_colour: str = "tab:red") -> list[Axes]:
+        """Draw each metric of :meth:`histogram_metrics` over the plants on one of ``axes``: its limit dashed where
+        the criteria set one, the count of plants ticked in whole numbers, and in each title how many plants it
+        counts and how many never settled (a NaN, left out of the histogram).
+
+        Parameters
+        ----------
+        axes : sequence of matplotlib Axes
+            One per metric of :meth:`histogram_metrics`, in its order.
+        colour, limit_colour : str
+            The bars' colour and the limit's.
+
+        Returns
+        -------
+        list of Axes
+            The axes on which a limit is marked (each has a line labelled "limit", for a legend).
+        """
+        from matplotlib.ticker import MaxNLocator
+
+        metrics = self.histogram_metrics()
+        if len(axes) != len(metrics):
+            raise ValueError(f"draw_histograms needs one axes per metric ({', '.join(metrics)}), got {len(axes)}")
+        limits = self.criteria.limits()
+        marked = []
+        for ax, metric in zip(axes, metrics):
+            raw = np.asarray(self.metrics[metric], float)
+            values = raw[np.isfinite(raw)]
+            never = raw.size - values.size
+            ax.hist(values, bins=min(30, max(5, values.size // 5)), color=colour, alpha=0.8)
+            if metric in limits:
+                ax.axvline(limits[metric], color=limit_colour, ls="--", lw=0.9, label="limit")
+                marked.append(ax)
+            ax.set_xlabel(_AXIS_LABELS.get(metric, metric))
+            ax.set_ylabel("plants")
+            ax.yaxis.set_major_locator(MaxNLocator(integer=True))  # a count of plants
+            ax.set_title(f"{values.size} plants" + (f", {never} never settled" if never else ""))
+        return marked
+
+
+#: the metrics every validation figure shows, bounded or not
+_HISTOGRAMS = ("settling_s", "overshoot_N", "tracking_rms_N")
 _AXIS_LABELS = {"settling_s": "settling time (s)", "overshoot_N": "overshoot (N)",
-                "tracking_rms_N": "tracking RMS after the changes (N)", "peak_voltage_V": "peak command (V)"}
+                "tracking_rms_N": "tracking RMS after changes (N)", "peak_voltage_V": "peak command (V)"}
 
 
 def _show(x: float | None, unit: str) -> str:

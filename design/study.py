@@ -24,6 +24,7 @@ from piezopreload.artifacts.design import DesignRecord, DutyCasePoint, Frequency
 from piezopreload.artifacts.schedule import LoadProfile, PreloadSchedule, ScheduleSpec
 from piezopreload.core.artifacts import atomic_write_text
 from piezopreload.core.errors import InputError
+from piezopreload.core.progress import Bar, ProgressLike, say_of
 from piezopreload.core.quantities import number, quantity
 from piezopreload.core.tables import read_table
 from piezopreload.design.preload import (
@@ -104,6 +105,7 @@ class DesignResult:
 
     @property
     def point(self) -> Any:
+        """The optimum's design point: the screw's geometry, preload, stiffness, drag and life."""
         return self.optimum.point
 
     def __repr__(self) -> str:
@@ -127,7 +129,18 @@ class DesignResult:
 
     def record(self, inputs: dict[str, Any] | None = None) -> DesignRecord:
         """The design artifact's record (:class:`~piezopreload.artifacts.design.DesignRecord`): the optimum, every
-        front's points, the schedule with its samples, the curves; ``inputs`` the hashes it came from."""
+        front's points, the schedule with its samples, the curves; ``inputs`` the hashes it came from.
+
+        Parameters
+        ----------
+        inputs : dict or None
+            The hashes of the files the design came from, by name (None: none).
+
+        Returns
+        -------
+        DesignRecord
+            The record the design artifact is written from.
+        """
         o = self.optimum
         return DesignRecord(
             optimum=Optimum(o.objective, o.point, tuple(o.binding), tuple(dict(t) for t in o.tried), o.solve_s,
@@ -140,11 +153,31 @@ class DesignResult:
             inputs=dict(inputs or {}))
 
     def to_dict(self) -> dict[str, Any]:
-        """The design artifact's body (:meth:`record`'s)."""
+        """The design artifact's body (:meth:`record`'s).
+
+        Returns
+        -------
+        dict
+            The design artifact's document, without its envelope (the record's :meth:`~DesignRecord.to_dict`).
+        """
         return self.record().to_dict()
 
     def save(self, path: str | Path, inputs: dict[str, Any]) -> list[Path]:
-        """Write the design artifact to ``path`` and each front's CSV beside it; returns the paths written."""
+        """Write the design artifact to ``path`` and each front's CSV beside it; returns the paths written.
+
+        Parameters
+        ----------
+        path : str or Path
+            The design artifact's file (``design.json``); the fronts' CSV files are written beside it as
+            ``<stem>.pareto-<pair>.csv``.
+        inputs : dict
+            The hashes of the files the design came from, by name.
+
+        Returns
+        -------
+        list of Path
+            The artifact's path first, then each front's CSV.
+        """
         path = self.record(inputs).save(path)
         written = [path]
         for front in self.fronts:
@@ -162,7 +195,14 @@ class DesignResult:
         return written
 
     def plot(self) -> Figure:
-        """The Pareto fronts (optimum marked), rigidity against preload, and the schedule: a Figure."""
+        """The Pareto fronts (optimum marked), rigidity against preload, and the schedule: a Figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            A row of Pareto fronts with the optimum starred, the optimum's rigidity against preload, and the axial load
+            with the scheduled and the best constant preload against time.
+        """
         from matplotlib.figure import Figure
 
         n = len(self.fronts)
@@ -192,8 +232,8 @@ class DesignResult:
 def design_study(spec: DesignSpec, objective: str, pairs: list[str] | tuple[str, ...], points: int, *,
                  profile: LoadProfile | None = None, profile_name: str = "example", stiffness_min_N_per_um: float = 0.0,
                  deflection_max_um: float = math.inf, lift_off_margin: float | None = None,
-                 progress: Callable[[str], None] | None = None,
-                 bar: Callable[[int, int], None] | None = None, optimum: DesignOptimum | None = None,
+                 progress: ProgressLike | None = None,
+                 bar: Bar | None = None, optimum: DesignOptimum | None = None,
                  growth: Callable[[DesignPoint], float] | None = None) -> DesignResult:
     """Optimum for ``objective``, the fronts of ``pairs`` (``points`` each) and the schedule for ``profile``.
 
@@ -205,7 +245,7 @@ def design_study(spec: DesignSpec, objective: str, pairs: list[str] | tuple[str,
     point's growth over a shift, the y of a ``stiffness:growth`` front
     (:func:`~piezopreload.design.thermal.duty_growth_um` with the study's ``[thermal]`` table).
     """
-    say = progress or (lambda _msg: None)
+    say = say_of(progress) or (lambda _msg: None)
     nlp = DesignNLP(spec) if optimum is None or pairs else None
     if optimum is not None and optimum.objective != objective:
         raise InputError(f"design_study: the optimum given is for {optimum.objective!r}, not {objective!r}")
@@ -225,7 +265,7 @@ def design_study(spec: DesignSpec, objective: str, pairs: list[str] | tuple[str,
             report = lambda i, n, j=j: bar(j * n + i, len(pairs) * n)  # noqa: E731
         else:
             report = lambda i, n, pair=pair: say(f"front {pair}: {i}/{n}") if i in (n // 2, n) else None  # noqa: E731
-        fronts.append(pareto_front(spec, pair, points, nlp, progress=report, growth=growth))
+        fronts.append(pareto_front(spec, pair, points, nlp, bar=report, growth=growth))
 
     # ---- the schedule on the optimum's screw -------------------------------------------------
     schedule, max_preload, slew = plan_schedule(spec, p, profile, profile_name=profile_name,

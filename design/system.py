@@ -50,7 +50,6 @@ by how much.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from dataclasses import replace as dc_replace
 from pathlib import Path
@@ -66,7 +65,7 @@ from piezopreload.artifacts.sensitivity import SensitivityRecord
 from piezopreload.artifacts.summaries import SystemSummary
 from piezopreload.artifacts.system import (
     MarginBasis,
-    PassRecord,
+    MarginPass,
     PlannedSchedule,
     PreCycle,
     ScheduleBound,
@@ -76,6 +75,7 @@ from piezopreload.artifacts.system import (
 )
 from piezopreload.core._typing import Array
 from piezopreload.core.errors import InputError
+from piezopreload.core.progress import ProgressLike, say_of
 from piezopreload.core.tables import write_csv
 from piezopreload.design.schedule import least_preload, schedule_preload
 from piezopreload.models.actuator import Plant, Rig
@@ -421,7 +421,7 @@ class SystemRun:
         The rest and the ramp before the first cut.
     evaluation : Evaluation
         The last pass's run judged: its numbers, its requirements as verdicts, its shortfall per sample.
-    passes : tuple of PassRecord
+    passes : tuple of MarginPass
         Every pass's record, in order.
     bounds : tuple of ScheduleBound
         What stops a requirement the passes could not meet (none: nothing).
@@ -442,7 +442,7 @@ class SystemRun:
     run: ClosedLoopRun
     pre_cycle: PreCycle
     evaluation: Evaluation
-    passes: tuple[PassRecord, ...]
+    passes: tuple[MarginPass, ...]
     bounds: tuple[ScheduleBound, ...] = ()
     thermal: ThermalBudget | None = None  # the shift's heat, temperature and growth (design/thermal.py)
     basis: MarginBasis | None = None  # what the margins rest on (margin_basis), where the run was given the design
@@ -451,15 +451,22 @@ class SystemRun:
 
     @property
     def numbers(self) -> TrackingNumbers:
+        """The run's figures over the schedule's cycles: tracking error, least rigidity, deflection, friction
+        energy, peak voltage."""
         return self.evaluation.numbers
 
     @property
     def requirements(self) -> tuple[Requirement, ...]:
+        """Every requirement the run is judged against: the evaluation's, the nut law's lift-off over the plants where
+        it
+        was checked, and the thermal ones where the study has a ``[thermal]`` table.
+        """
         return (self.evaluation.requirements + (() if self.physical_lift_off is None else (self.physical_lift_off,))
                 + (() if self.thermal is None else self.thermal.requirements))
 
     @property
     def requirements_met(self) -> bool:
+        """Whether every one of :attr:`requirements` is met."""
         return all(r.met for r in self.requirements)
 
     @property
@@ -469,7 +476,20 @@ class SystemRun:
 
     def record(self, inputs: dict[str, Any] | None = None, every: int = 10) -> SystemRecord:
         """The system artifact's record (:class:`~piezopreload.artifacts.system.SystemRecord`), the series every
-        ``every``-th sample."""
+        ``every``-th sample.
+
+        Parameters
+        ----------
+        inputs : dict or None
+            The hashes of the files the run came from, by name (None: none).
+        every : int
+            The series' decimation: every ``every``-th sample is kept.
+
+        Returns
+        -------
+        SystemRecord
+            The record the system artifact is written from.
+        """
         f, s, sl = self.evaluation.frame, self.schedule, slice(None, None, every)
         series = SystemSeries(self.run.t_s[sl], f.planned[sl], f.achieved[sl], f.load[sl], f.rigidity[sl],
                               f.required[sl], f.planned_rigidity[sl], f.deflection[sl], self.run.voltage_V[sl],
@@ -481,12 +501,31 @@ class SystemRun:
                             self.basis, self.sensitivity)
 
     def summary(self) -> SystemSummary:
-        """The run's numbers, verdicts, pre-cycle, passes and thermal figures (no series)."""
+        """The run's numbers, verdicts, pre-cycle, passes and thermal figures (no series).
+
+        Returns
+        -------
+        SystemSummary
+            The figures of :meth:`record` without the series.
+        """
         return SystemSummary.of(self.record())
 
     def save(self, folder: str | Path, inputs: dict[str, Any]) -> dict[str, Path]:
         """Write ``system.json`` (kind ``system``, :meth:`record`) and ``reference.csv`` (the loop's reference at its
-        rate, ``time_s,force_N``, the pre-cycle first: what the rig executor plays) into ``folder``."""
+        rate, ``time_s,force_N``, the pre-cycle first: what the rig executor plays) into ``folder``.
+
+        Parameters
+        ----------
+        folder : str or Path
+            The folder the two files are written into.
+        inputs : dict
+            The hashes of the files the run came from, by name.
+
+        Returns
+        -------
+        dict of str to Path
+            ``system``: the artifact's path; ``reference``: the reference CSV's.
+        """
         folder = Path(folder)
         paths = {"system": self.record(inputs).save(folder / "system.json"), "reference": folder / "reference.csv"}
         write_csv(paths["reference"], {"time_s": self.run.t_s, "force_N": self.run.reference_N},
@@ -496,7 +535,14 @@ class SystemRun:
         return paths
 
     def plot(self) -> Figure:
-        """Planned against achieved preload, rigidity against the requirement, deflection: a Figure."""
+        """Planned against achieved preload, rigidity against the requirement, deflection: a Figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            Three axes against time: planned and achieved preload (N), the pre-cycle's end dotted; achieved and required
+            rigidity while cutting (N/um); the axial deflection (um).
+        """
         from matplotlib.figure import Figure
 
         f, t = self.evaluation.frame, self.run.t_s
@@ -534,9 +580,9 @@ def _bounds(schedule: PreloadSchedule, ev: Evaluation, wanted: Array) -> tuple[S
                           float(reach), "reach" if np.max(short) > 0 else "passes"),)
 
 
-def _pass_record(k: int, schedule: PreloadSchedule, ev: Evaluation) -> PassRecord:
+def _pass_record(k: int, schedule: PreloadSchedule, ev: Evaluation) -> MarginPass:
     n = ev.numbers
-    return PassRecord(k, float(np.max(schedule.margin_N)), n.tracking_rms_N, n.tracking_rms_pct_of_range,
+    return MarginPass(k, float(np.max(schedule.margin_N)), n.tracking_rms_N, n.tracking_rms_pct_of_range,
                       n.rigidity_ratio_min, n.lift_off_ratio_min, ev.met, n.preload_shortfall_max_N,
                       n.friction_energy_per_cycle)
 
@@ -553,7 +599,7 @@ def _check(cycles: int, passes: int, margin_factor: float) -> None:
 def track_schedule(plant: DesignedPlant, controller: Controller, schedule: PreloadSchedule, *, cycles: int = 2,
                    seed: int = 0, passes: int = 3, margin_factor: float = 1.25, contact_N: float = 0.0,
                    settle_s: float = 0.5, ff_extra_V: Any = None, design: DesignSpec | None = None,
-                   scatter: Plant | None = None, progress: Callable[[str], None] | None = None) -> SystemRun:
+                   scatter: Plant | None = None, progress: ProgressLike | None = None) -> SystemRun:
     """Run the loop over the schedule on the designed plant after its pre-cycle; plan again with local margins while
     a requirement is missed (module docstring).
 
@@ -570,11 +616,11 @@ def track_schedule(plant: DesignedPlant, controller: Controller, schedule: Prelo
     if scatter is not None and design is None:
         raise InputError("scatter: the Monte Carlo plants judge the physical lift-off, which needs the design (its "
                          "axis and ranges): give design, or no scatter")
-    say = progress or (lambda _m: None)
+    say = say_of(progress) or (lambda _m: None)
     rig, pre = Rig(plant.rig), pre_cycle_for(plant, schedule, contact_N, settle_s)
     say(f"pre-cycle: the stacks from rest to {pre.level_N:.0f} N at {pre.slew_N_per_s:,.0f} N/s in "
         f"{1e3 * pre.ramp_s:.1f} ms, held {pre.settle_s:.3f} s: the first cut {pre.duration_s:.3f} s after the start")
-    record: list[PassRecord] = []
+    record: list[MarginPass] = []
     dt = float(plant.rig.sample_period_s)
     current, lag, hold = schedule, int(round(_LAG_MAX_S / dt)), int(round(_HOLD_S / dt))
     stretches = binding_stretches(schedule)  # the design's: where its requirements bind, whatever the margins

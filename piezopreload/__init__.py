@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 __all__ = [
     "__version__", "load_study", "shipped_studies", "Study", "GainSet", "TuningResult", "StudyRun", "ScheduleLearning",
     "ClosedLoopRun", "Plant",
-    "DesignResult", "IdentifiedFeedforward", "PIDGains", "Reference", "StepMetrics", "Record", "read_record",
+    "DesignResult", "IdentifiedFeedforward", "PIDGains", "Reference", "StepMetrics", "MeasuredRecord", "read_record",
     "export", "identify", "Identification", "PIIdentifier", "NotFittedError", "IdentifiedModel", "Window",
     "autotune", "AutotuneResult", "fit_plant", "FittedPlant", "PiezopreloadError", "InputError", "ArtifactError",
     "InfeasibleError", "InternalError", "SweepResult",
@@ -44,7 +44,7 @@ _EXPORTS: dict[str, str] = {name: module for module, names in {
     "piezopreload.tuning.compare": ("ReproductionSummary", "PublishedRow"),
     "piezopreload.core.errors": ("PiezopreloadError", "InputError", "ArtifactError", "InfeasibleError",
                                  "InternalError"),
-    "piezopreload.core.tables": ("Record", "read_record"),
+    "piezopreload.core.tables": ("MeasuredRecord", "read_record"),
     "piezopreload.models.actuator": ("Plant",),
     "piezopreload.models.closedloop": ("ClosedLoopRun", "Reference"),
     "piezopreload.models.controller": ("PIDGains",),
@@ -91,7 +91,7 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     from piezopreload.artifacts.validation import Failure, Metrics, ValidationResult
     from piezopreload.codesign import CodesignResult, CodesignWeights
     from piezopreload.core.errors import ArtifactError, InfeasibleError, InputError, InternalError, PiezopreloadError
-    from piezopreload.core.tables import Record, read_record
+    from piezopreload.core.tables import MeasuredRecord, read_record
     from piezopreload.design.study import DesignResult
     from piezopreload.design.system import SystemRun
     from piezopreload.models.actuator import Plant
@@ -123,6 +123,10 @@ def _version() -> str:
         return "0+unknown"
 
 
+#: names exported before under another name: the measured record was ``Record``, the name of every artifact
+#: record's base class (:class:`piezopreload.core.records.Record`)
+_FORMER = {"Record": "MeasuredRecord"}
+
 if not TYPE_CHECKING:  # hidden from type checkers, which would otherwise take any name as defined here
 
     def __getattr__(name: str) -> Any:
@@ -130,6 +134,8 @@ if not TYPE_CHECKING:  # hidden from type checkers, which would otherwise take a
             value = _version()
         elif name in _EXPORTS:
             value = getattr(importlib.import_module(_EXPORTS[name]), name)
+        elif name in _FORMER:  # a name this module exported before, kept so that existing scripts run
+            value = getattr(importlib.import_module(_EXPORTS[_FORMER[name]]), _FORMER[name])
         else:
             raise AttributeError(f"module 'piezopreload' has no attribute '{name}'")
         globals()[name] = value  # the next use is a plain attribute

@@ -12,7 +12,7 @@ import functools
 import os
 import pickle
 import tempfile
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import as_completed
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -23,15 +23,21 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from piezopreload.core.parallel import fork_pool, spare_cpus
+from piezopreload.core.parallel import Pool
+from piezopreload.core.progress import Bar
 from piezopreload.core.quantities import quantity
 
 if TYPE_CHECKING:
     from matplotlib.typing import RcKeyType
 
+    from piezopreload.artifacts.design import DesignPoint, Front, PreloadCurve
+    from piezopreload.artifacts.learning import PassRecord
+    from piezopreload.artifacts.tuning import ComparisonRow
+    from piezopreload.artifacts.validation import ValidationResult
+
 __all__ = [
-    "STYLE", "COLOURS", "legends", "save", "save_all", "hysteresis_loops", "inverse_model", "step_responses",
-    "tracking",
+    "STYLE", "COLOURS", "legends", "page_figure", "styled", "save", "save_all", "hysteresis_loops", "inverse_model",
+    "step_responses", "tracking",
     "stiffness_vs_preload", "pareto_fronts", "preload_schedule", "natural_frequency", "monte_carlo",
     "rig_run", "closed_loop", "gains_comparison",
 ]
@@ -48,8 +54,23 @@ COLOURS = {"reference": "0.35", "study pid": "#d95f02", "study ff+pid": "#7570b3
 _WIDTH = 6.3  # inches: the text width of an A4 page with 2 cm margins
 
 
-def _figure(height: float, ncols: int = 1, nrows: int = 1, **kw: Any) -> tuple[Figure, Any]:
-    """A page-wide figure and its axes (called inside :func:`_styled`, under :data:`STYLE`)."""
+def page_figure(height: float, ncols: int = 1, nrows: int = 1, **kw: Any) -> tuple[Figure, Any]:
+    """A page-wide figure and its axes, for a figure function under :func:`styled` (:data:`STYLE`).
+
+    Parameters
+    ----------
+    height
+        The figure's height (inches); its width is the page's.
+    ncols, nrows
+        The grid of axes.
+    **kw
+        Passed to :meth:`matplotlib.figure.Figure.subplots` (``sharex``, ``gridspec_kw``...).
+
+    Returns
+    -------
+    tuple
+        The figure and its axes, a 2-D array (``squeeze=False``).
+    """
     fig = Figure(figsize=(_WIDTH, height), layout="constrained")
     return fig, fig.subplots(nrows, ncols, squeeze=False, **kw)
 
@@ -183,33 +204,42 @@ def _save_pickled(blob: bytes, path: str) -> str:
     return str(save(pickle.loads(blob), path))
 
 
-def save_all(figures: Sequence[tuple[Figure, str | Path]], *, workers: int | None = None,
-             progress: Callable[[int, int], None] | None = None) -> list[Path]:
-    """Write each ``(figure, path)`` as :func:`save` does, drawn by ``workers`` processes at once.
+def save_all(figures: Sequence[tuple[Figure, str | Path]], *, pool: Pool | None = None,
+             bar: Bar | None = None) -> list[Path]:
+    """Write each ``(figure, path)`` as :func:`save` does, drawn by the run's worker processes at once.
 
-    Drawing is most of a report's time and the figures are independent: by default one worker
-    per CPU (at most four, ``PIEZOPRELOAD_WORKERS`` if set); ``workers=1``, or a platform without ``fork``, draws them
-    here, one after the other. ``progress(done, total)`` is called as each file is written.
+    Drawing is most of a report's time and the figures are independent: each is drawn by a process of
+    ``pool`` (the run's :class:`~piezopreload.core.parallel.Pool`); without one, or with one worker, they are
+    drawn here, one after the other. ``bar(done, total)`` is called as each file is written.
     """
     total = len(figures)
-    n = min(total, spare_cpus(), 4) if workers is None else max(1, min(workers, total))
-    say = progress or (lambda _i, _n: None)
-    pool = fork_pool(n) if n > 1 else None
-    if pool is None:
+    say = bar or (lambda _i, _n: None)
+    if pool is None or not pool.parallel or total <= 1:
         written = []
         for i, (fig, path) in enumerate(figures, start=1):
             written.append(save(fig, path))
             say(i, total)
         return written
-    with pool:
-        futures = [pool.submit(_save_pickled, pickle.dumps(fig), str(path)) for fig, path in figures]
-        for i, _ in enumerate(as_completed(futures), start=1):
-            say(i, total)
-        return [Path(f.result()) for f in futures]
+    futures = [pool.submit(_save_pickled, pickle.dumps(fig), str(path)) for fig, path in figures]
+    for i, _ in enumerate(as_completed(futures), start=1):
+        say(i, total)
+    return [Path(f.result()) for f in futures]
 
 
-def _styled(fn: Any) -> Any:
-    """Run a figure function under :data:`STYLE` (artists take rcParams when created)."""
+def styled(fn: Any) -> Any:
+    """A figure function that runs under :data:`STYLE` (artists take rcParams when created): the decorator of every
+    figure of the report.
+
+    Parameters
+    ----------
+    fn
+        A function that returns a :class:`~matplotlib.figure.Figure`.
+
+    Returns
+    -------
+    Callable
+        ``fn`` run inside ``matplotlib.rc_context(STYLE)``.
+    """
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Figure:
         with mpl.rc_context(STYLE):
@@ -217,12 +247,12 @@ def _styled(fn: Any) -> Any:
     return wrapper
 
 
-@_styled
+@styled
 def hysteresis_loops(time_s: np.ndarray, voltage_V: np.ndarray, measured_N: np.ndarray,
                      model_N: np.ndarray) -> Figure:
     """Measured and modelled voltage -> force loops, and the model's error over the record (where the measurement
     came from is the caption's)."""
-    fig, ax = _figure(2.6, ncols=2)
+    fig, ax = page_figure(2.6, ncols=2)
     a, b = ax[0]
     a.plot(voltage_V, measured_N, color=COLOURS["measured"], lw=0.8, label="measured")
     a.plot(voltage_V, model_N, color=COLOURS["model"], lw=1.0, ls="--", label="P-I model")
@@ -239,10 +269,10 @@ def hysteresis_loops(time_s: np.ndarray, voltage_V: np.ndarray, measured_N: np.n
     return fig
 
 
-@_styled
+@styled
 def inverse_model(desired_N: np.ndarray, command_V: np.ndarray, force_N: np.ndarray, time_s: np.ndarray) -> Figure:
     """The inverse P-I model (desired force -> voltage) and the compensated rig in open loop."""
-    fig, ax = _figure(2.6, ncols=2)
+    fig, ax = page_figure(2.6, ncols=2)
     a, b = ax[0]
     a.plot(desired_N, command_V, color=COLOURS["model"])
     a.set_xlabel("desired force (N)")
@@ -273,12 +303,12 @@ def _runs_axes(ax: Any, runs: Mapping[str, Mapping[str, np.ndarray]], keys: Sequ
     ax.set_ylabel("force (N)")
 
 
-@_styled
+@styled
 def step_responses(runs: Mapping[str, Mapping[str, np.ndarray]], band_N: float, signal: str,
                    labels: Mapping[str, str], t_max_s: float | None = None) -> Figure:
     """The step with the study's gains (left) and the tuned gains (right), PID alone and with FF; ``labels`` names
     the two gain sets (``{"study": ..., "tuned": ...}``) as the study does."""
-    fig, ax = _figure(2.7, ncols=2, sharey=True)
+    fig, ax = page_figure(2.7, ncols=2, sharey=True)
     for a, who in zip(ax[0], ("study", "tuned")):
         keys = [f"{who} pid", f"{who} ff+pid"]
         _runs_axes(a, runs, keys, signal, t_max_s)
@@ -291,11 +321,11 @@ def step_responses(runs: Mapping[str, Mapping[str, np.ndarray]], band_N: float, 
     return fig
 
 
-@_styled
+@styled
 def tracking(runs: Mapping[str, Mapping[str, np.ndarray]], signal: str, labels: Mapping[str, str]) -> Figure:
     """The trajectory: the four controllers, and the tracking error of each (its scale from the errors after the
     first moments of each change, so the transients do not hide them)."""
-    fig, ax = _figure(4.4, ncols=2, nrows=2, sharex=True)
+    fig, ax = page_figure(4.4, ncols=2, nrows=2, sharex=True)
     errors = np.concatenate([r["reference_N"] - r["force_N"] for r in runs.values()])
     scale = float(np.percentile(np.abs(errors), 98)) * 1.5 or 1.0
     for j, who in enumerate(("study", "tuned")):
@@ -314,26 +344,26 @@ def tracking(runs: Mapping[str, Mapping[str, np.ndarray]], signal: str, labels: 
     return fig
 
 
-@_styled
-def stiffness_vs_preload(curve: Mapping[str, Any], runs_N: tuple[float, float] | None = None) -> Figure:
+@styled
+def stiffness_vs_preload(curve: PreloadCurve, runs_N: tuple[float, float] | None = None) -> Figure:
     """Rigidity (and drag torque) of the optimum's screw against preload; the duty cases marked; shaded, the
     preloads the schedule runs (``runs_N``, its least and highest)."""
-    fig, ax = _figure(2.6, ncols=2)
+    fig, ax = page_figure(2.6, ncols=2)
     a, b = ax[0]
-    fp = np.asarray(curve["preload_N"])
-    a.plot(fp, curve["rigidity_N_per_um"], color=COLOURS["model"], label="no axial load")
-    for j, case in enumerate(curve["cases"]):
-        a.plot(case["preload_N"], case["rigidity_N_per_um"], "o", ms=4,
-               label=f"case {j + 1}: {quantity(case['axial_load_N'], 'N')}")
+    fp = np.asarray(curve.preload_N)
+    a.plot(fp, curve.rigidity_N_per_um, color=COLOURS["model"], label="no axial load")
+    for j, case in enumerate(curve.cases):
+        a.plot(case.preload_N, case.rigidity_N_per_um, "o", ms=4,
+               label=f"case {j + 1}: {quantity(case.axial_load_N, 'N')}")
     for a_ in (a, b):
         if runs_N is not None:
             a_.axvspan(*runs_N, color="0.9", lw=0, zorder=0)
-        a_.axvline(curve["bolt_preload_N"], color="0.5", ls=":", lw=0.8)
-        a_.axvline(curve["max_preload_N"], color="0.3", ls="--", lw=0.8)
+        a_.axvline(curve.bolt_preload_N, color="0.5", ls=":", lw=0.8)
+        a_.axvline(curve.max_preload_N, color="0.3", ls="--", lw=0.8)
         a_.set_xlabel("preload (N)")
     a.set_ylabel("axial rigidity (N/um)")
     a.set_title("axial rigidity")
-    b.plot(fp, curve["drag_torque_Nm"], color=COLOURS["study pid"])
+    b.plot(fp, curve.drag_torque_Nm, color=COLOURS["study pid"])
     b.set_ylabel("drag torque (N m)")
     b.set_title("preload drag torque")
     legends(a)
@@ -344,33 +374,33 @@ _FRONT_LABELS = {"stiffness": "least rigidity (N/um)", "preload": "highest prelo
                  "drag": "mean drag torque (N m)", "life": "rating life (h)", "growth": "growth over the shift (um)"}
 
 
-@_styled
-def pareto_fronts(fronts: Sequence[Mapping[str, Any]], optimum: Mapping[str, float] | None = None) -> Figure:
+@styled
+def pareto_fronts(fronts: Sequence[Front], optimum: DesignPoint | None = None) -> Figure:
     """The epsilon-constraint Pareto fronts, one panel each, the design optimum marked."""
     n = max(len(fronts), 1)
-    fig, ax = _figure(2.4, ncols=n)
+    fig, ax = page_figure(2.4, ncols=n)
     keys = {"stiffness": "stiffness_N_per_um", "preload": "max_preload_N",
             "drag": "mean_drag_torque_Nm", "life": "life_h"}
     for a, f in zip(ax[0], fronts):
-        a.plot(f["x"], f["y"], "o-", ms=2.5, color=COLOURS["model"], label="front")
-        if optimum is not None and f["y_name"] in keys:  # a point's growth is not one of its fields
-            a.plot(optimum[keys[f["x_name"]]], optimum[keys[f["y_name"]]], "*", ms=8, color=COLOURS["limit"],
-                   label="the design optimum")
-        a.set_xlabel(_FRONT_LABELS[f["x_name"]])
-        a.set_ylabel(_FRONT_LABELS[f["y_name"]])
-        if f["y_name"] == "life":
+        a.plot(f.x, f.y, "o-", ms=2.5, color=COLOURS["model"], label="front")
+        if optimum is not None and f.y_name in keys:  # a point's growth is not one of its fields
+            a.plot(getattr(optimum, keys[f.x_name]), getattr(optimum, keys[f.y_name]), "*", ms=8,
+                   color=COLOURS["limit"], label="the design optimum")
+        a.set_xlabel(_FRONT_LABELS[f.x_name])
+        a.set_ylabel(_FRONT_LABELS[f.y_name])
+        if f.y_name == "life":
             a.set_yscale("log")
     legends(ax[0][0])
     return fig
 
 
-@_styled
+@styled
 def preload_schedule(time_s: np.ndarray, load_N: np.ndarray, preload_N: np.ndarray, constant_N: float,
                      lift_off_margin: float) -> Figure:
     """The load profile and the least-friction preload schedule against the best constant preload, with the
     schedule's lift-off bound ``lift_off_margin |F_a| / 2^(3/2)`` (the design's own constraint, the one its table
     states, the safety factor included)."""
-    fig, ax = _figure(3.6, nrows=2, sharex=True)
+    fig, ax = page_figure(3.6, nrows=2, sharex=True)
     a, b = ax[0][0], ax[1][0]
     a.plot(time_s, load_N, color=COLOURS["reference"], drawstyle="steps-post")
     a.set_ylabel("axial load (N)")
@@ -385,11 +415,11 @@ def preload_schedule(time_s: np.ndarray, load_N: np.ndarray, preload_N: np.ndarr
     return fig
 
 
-@_styled
+@styled
 def natural_frequency(position_mm: np.ndarray, low_Hz: np.ndarray, high_Hz: np.ndarray,
                       frequency_min_Hz: float | None) -> Figure:
     """The axial natural frequency against table position at the bolts' and the full preload."""
-    fig, ax = _figure(2.4)
+    fig, ax = page_figure(2.4)
     a = ax[0][0]
     a.plot(position_mm, low_Hz, color=COLOURS["study pid"], label="bolt preload (stacks off)")
     a.plot(position_mm, high_Hz, color=COLOURS["model"], label="maximum preload (stacks at full drive)")
@@ -401,37 +431,23 @@ def natural_frequency(position_mm: np.ndarray, low_Hz: np.ndarray, high_Hz: np.n
     return fig
 
 
-@_styled
-def monte_carlo(metrics: Mapping[str, Sequence[float | None]], limits: Mapping[str, float]) -> Figure:
-    """Distributions of settling time and overshoot over the Monte Carlo plants, limits marked."""
-    panels = (("settling_s", "settling time (s)"), ("overshoot_N", "overshoot (N)"),
-              ("tracking_rms_N", "tracking RMS after changes (N)"))
-    fig, ax = _figure(2.4, ncols=len(panels))
-    marked = []
-    for a, (key, label) in zip(ax[0], panels):
-        raw = [x for x in metrics[key]]
-        values = np.array([x for x in raw if x is not None], float)
-        never = len(raw) - values.size
-        a.hist(values, bins=min(30, max(5, values.size // 5)), color=COLOURS["model"], alpha=0.8)
-        if key in limits:
-            a.axvline(limits[key], color=COLOURS["limit"], ls="--", lw=0.9, label="limit")
-            marked.append(a)
-        a.set_xlabel(label)
-        a.set_ylabel("plants")
-        a.yaxis.set_major_locator(MaxNLocator(integer=True))  # a count of plants
-        a.set_title(f"{values.size} plants" + (f", {never} never settled" if never else ""))
-    legends(*marked)
+@styled
+def monte_carlo(validation: ValidationResult) -> Figure:
+    """The validation's distributions over the Monte Carlo plants, limits marked (drawn by
+    :meth:`~piezopreload.artifacts.validation.ValidationResult.draw_histograms`)."""
+    fig, ax = page_figure(2.4, ncols=len(validation.histogram_metrics()))
+    legends(*validation.draw_histograms(ax[0], colour=COLOURS["model"], limit_colour=COLOURS["limit"]))
     return fig
 
 
-@_styled
+@styled
 def gain_schedule(schedule: Mapping[str, Any]) -> Figure:
     """The gain schedule against the preload (Kc and Ti, the entries marked, the robust set dashed) and each
     set's worst-case settling time and tracking RMS over the Monte Carlo plants at each level."""
     table, robust, levels = schedule["table"], schedule["robust"], schedule["levels"]
     lv = np.asarray(table["levels_N"], float)
     x = np.linspace(lv[0], lv[-1], 200)
-    fig, ax = _figure(2.6, ncols=3)
+    fig, ax = page_figure(2.6, ncols=3)
     for a, key, label, scale in ((ax[0][0], "Kc_V_per_N", "Kc (mV/N)", 1e3), (ax[0][1], "Ti_s", "Ti (ms)", 1e3)):
         a.plot(x, scale * np.interp(x, lv, table[key]), color=COLOURS["model"], label="schedule")
         a.plot(lv, scale * np.asarray(table[key], float), "o", color=COLOURS["model"], ms=4)
@@ -454,11 +470,11 @@ def gain_schedule(schedule: Mapping[str, Any]) -> Figure:
     return fig
 
 
-@_styled
+@styled
 def rig_run(time_s: np.ndarray, reference_N: np.ndarray, force_N: np.ndarray, voltage_V: np.ndarray,
             mode: np.ndarray) -> Figure:
     """The rig executor's run from its log: force against the reference, and the stack voltage."""
-    fig, ax = _figure(3.4, nrows=2, sharex=True)
+    fig, ax = page_figure(3.4, nrows=2, sharex=True)
     a, b = ax[0][0], ax[1][0]
     control = mode == 0
     a.plot(time_s, reference_N, color=COLOURS["reference"], ls=":", label="reference")
@@ -473,11 +489,11 @@ def rig_run(time_s: np.ndarray, reference_N: np.ndarray, force_N: np.ndarray, vo
     return fig
 
 
-@_styled
+@styled
 def closed_loop(run: Mapping[str, np.ndarray], band_N: float | None, signal: str, title: str = "") -> Figure:
     """One closed-loop run: reference, true and measured force (top; the band about the last level dashed),
     the controller's command and the amplifier's voltage (bottom)."""
-    fig, ax = _figure(3.6, nrows=2, sharex=True)
+    fig, ax = page_figure(3.6, nrows=2, sharex=True)
     a, b = ax[0][0], ax[1][0]
     t = run["time_s"]
     a.plot(t, run["reference_N"], color=COLOURS["reference"], ls=":", lw=0.9, label="reference")
@@ -497,17 +513,17 @@ def closed_loop(run: Mapping[str, np.ndarray], band_N: float | None, signal: str
     return fig
 
 
-@_styled
-def gains_comparison(table: Sequence[Mapping[str, Any]]) -> Figure:
+@styled
+def gains_comparison(table: Sequence[ComparisonRow]) -> Figure:
     """The tuning's comparison table as bars: settling time and tracking RMS of each gain set, PID alone and
     with the feedforward."""
-    fig, ax = _figure(2.6, ncols=2)
-    labels = [f"{r['gains']}{' + FF' if r['feedforward'] else ''}" for r in table]
+    fig, ax = page_figure(2.6, ncols=2)
+    labels = [f"{r.gains}{' + FF' if r.feedforward else ''}" for r in table]
     x = np.arange(len(labels))
-    settling = [np.nan if r["settling_s"] is None else r["settling_s"] for r in table]
-    colours = [COLOURS["tuned ff+pid"] if r["feedforward"] else COLOURS["study pid"] for r in table]
+    settling = [np.nan if r.settling_s is None else r.settling_s for r in table]
+    colours = [COLOURS["tuned ff+pid"] if r.feedforward else COLOURS["study pid"] for r in table]
     for a, values, label in ((ax[0][0], settling, "settling time (s)"),
-                             (ax[0][1], [r["tracking_rms_N"] for r in table], "tracking RMS (N)")):
+                             (ax[0][1], [r.tracking_rms_N for r in table], "tracking RMS (N)")):
         a.bar(x, values, color=colours)
         a.set_xticks(x, labels, rotation=30, ha="right")
         a.set_ylabel(label)
@@ -515,13 +531,13 @@ def gains_comparison(table: Sequence[Mapping[str, Any]]) -> Figure:
     return fig
 
 
-@_styled
+@styled
 def system_tracking(time_s: np.ndarray, planned_N: np.ndarray, achieved_N: np.ndarray, rigidity_N_per_um: np.ndarray,
                     required_N_per_um: np.ndarray, cutting: np.ndarray, deflection_um: np.ndarray,
                     deflection_limit_um: float | None) -> Figure:
     """The whole system over the cycles: planned and achieved preload, rigidity against the requirement
     while cutting, and the axial deflection under the cutting load."""
-    fig, ax = _figure(6.0, nrows=3, sharex=True)
+    fig, ax = page_figure(6.0, nrows=3, sharex=True)
     a, b, c = ax[0][0], ax[1][0], ax[2][0]
     a.plot(time_s, planned_N, color=COLOURS["reference"], lw=0.9, label="planned (schedule)")
     a.plot(time_s, achieved_N, color=COLOURS["model"], lw=0.7, label="achieved (true force)")
@@ -540,19 +556,19 @@ def system_tracking(time_s: np.ndarray, planned_N: np.ndarray, achieved_N: np.nd
     return fig
 
 
-@_styled
-def learning_iterations(passes: list[dict[str, Any]]) -> Figure:
+@styled
+def learning_iterations(passes: Sequence[PassRecord]) -> Figure:
     """The error per learning iteration on the repeated schedule, one line per margin pass (the whole trajectory's RMS
     of the true force in % of the schedule's range), the causal floor beside it."""
-    fig, ax = _figure(2.8)
+    fig, ax = page_figure(2.8)
     a = ax[0][0]
     for k, p in enumerate(passes):
-        span = p["tracking_rms_N"] / p["tracking_rms_pct_of_range"] * 100.0 if p["tracking_rms_pct_of_range"] else 1.0
-        it = [h["iteration"] for h in p["history"]]
-        pct = [100.0 * float(np.max(h["tracking_rms_N"])) / span for h in p["history"]]
+        span = p.tracking_rms_N / p.tracking_rms_pct_of_range * 100.0 if p.tracking_rms_pct_of_range else 1.0
+        it = [h.iteration for h in p.history]
+        pct = [100.0 * h.worst_tracking_rms_N / span for h in p.history]
         a.semilogy(it, pct, "o-", ms=3, lw=0.9, color=f"C{k}",
-                   label=f"pass {p['pass']} (best: trial {int(np.max(p['best_iteration']))})")
-        a.axhline(100.0 * p["causal_floor_N"] / span, color=f"C{k}", ls=":", lw=0.7)
+                   label=f"pass {p.pass_number} (best: trial {int(np.max(p.best_iteration))})")
+        a.axhline(100.0 * p.causal_floor_N / span, color=f"C{k}", ls=":", lw=0.7)
     a.set_xlabel("learning trial (0: before the pass learns)")
     a.set_ylabel("tracking RMS (% of the pass's range)")
     a.xaxis.set_major_locator(MaxNLocator(integer=True))  # trials are counted

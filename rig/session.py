@@ -36,6 +36,7 @@ from piezopreload.artifacts.rigrun import RigRunRecord, RunMetrics
 from piezopreload.core import native
 from piezopreload.core.artifacts import finite_or_none
 from piezopreload.core.errors import InputError
+from piezopreload.core.progress import ProgressLike
 from piezopreload.core.tables import read_table
 from piezopreload.models.closedloop import PAPER_BAND_N, ClosedLoopRun, Reference
 from piezopreload.models.controller import Controller, ControllerModel
@@ -47,7 +48,7 @@ from piezopreload.rig.executor import Executor
 from piezopreload.rig.export import ExportError, controller_from_gain_set, require_validated
 from piezopreload.rig.hostcheck import check_host
 from piezopreload.rig.limits import RunLimits, check_fit, run_limits
-from piezopreload.rig.opcua import PushRefused, PushReply, RigServer, feedforward_hash, push_gain_set
+from piezopreload.rig.opcua import Credentials, PushRefused, PushReply, RigServer, feedforward_hash, push_gain_set
 from piezopreload.rig.outcome import RunResult
 from piezopreload.rig.runlog import LearnedFigures, RunLog
 
@@ -227,10 +228,16 @@ def run_metrics(columns: dict[str, np.ndarray], reference: Reference, band_N: fl
 
 @dataclass(frozen=True, eq=False)
 class RigRun:
-    """A rig session's outcome: ``summary`` (what ``--json`` prints) and the run's samples as kept in memory."""
+    """A rig session's outcome: ``summary`` (what ``--json`` prints), the run's samples as kept in memory, its
+    sidecar as the run ended (``record``: what the run printed is read from it), the log's files and, for a served
+    rig, the pushes it took or refused."""
 
     summary: dict[str, Any]
     columns: dict[str, np.ndarray]
+    record: RigRunRecord
+    log_csv: str | None
+    log_json: str | None
+    pushes: tuple[dict[str, Any], ...] = ()
 
     @property
     def ok(self) -> bool:
@@ -388,7 +395,7 @@ def _summary(result: RunResult, log: RunLog, su: _Setup) -> RigRun:
     }
     if su.learned is not None:
         summary["learned"] = dict(rec.learned or {})
-    return RigRun(summary, columns)
+    return RigRun(summary, columns, rec, result.csv_path, result.json_path)
 
 
 def _learned_metrics(columns: dict[str, np.ndarray], signal: LearnedSignal) -> LearnedFigures:
@@ -502,7 +509,7 @@ def serve(gains_path: str | Path, *, endpoint: str, users: dict[str, str], certi
     finally:
         _close(su.backend)
     out.summary["pushes"] = server.pushes
-    return out
+    return replace(out, pushes=tuple(server.pushes))
 
 
 async def _serve(server: RigServer, executor: Executor, duration_s: float | None, ready: Any, stop: Any) -> RunResult:
@@ -521,7 +528,7 @@ async def _serve(server: RigServer, executor: Executor, duration_s: float | None
 
 
 def check(gains_path: str | Path | None = None, *, seconds: float = 10.0, rate_Hz: float | None = None,
-          loop: str = "native", progress: Callable[[str], None] | None = None) -> HostCheck:
+          loop: str = "native", progress: ProgressLike | None = None) -> HostCheck:
     """``piezopreload rig check``: this host against a loop's budget (see :mod:`piezopreload.rig.hostcheck`).
 
     With a gain set: its rate (``rate_Hz`` must agree), its compiled step and the stall limit
@@ -551,18 +558,16 @@ class ServedPush:
                 **self.reply.to_dict()}
 
 
-def push(gains_path: str | Path, *, endpoint: str, username: str | None, password: str | None,
-         certificate: str | None = None, private_key: str | None = None,
-         server_certificate: str | None = None, note: str = "", accepted: tuple[str, ...] = ()) -> ServedPush:
-    """Push a validated gain set to a serving rig (``note``: why, recorded with the push; a candidate only where each
-    requirement it missed is ``accepted`` by name, sent with it); refused pushes are bad input (exit 2) with the
-    server's reason."""
+def push(gains_path: str | Path, *, endpoint: str, who: Credentials, note: str = "",
+         accepted: tuple[str, ...] = ()) -> ServedPush:
+    """Push a validated gain set to a serving rig in the session ``who`` opens (``note``: why, recorded with the push;
+    a candidate only where each requirement it missed is ``accepted`` by name, sent with it); refused pushes are bad
+    input (exit 2) with the server's reason."""
     gain_set = load_validated(gains_path, "pushed", accepted)  # refuse locally first: nothing sent the server refuses
     text = Path(gains_path).read_text(encoding="utf-8")
     try:
-        reply = asyncio.run(push_gain_set(text, endpoint, username=username, password=password, certificate=certificate,
-                                          private_key=private_key, server_certificate=server_certificate,
-                                          expect_sha256=gain_set.content_sha256, note=note, accepted=accepted))
+        reply = asyncio.run(push_gain_set(text, endpoint, who, expect_sha256=gain_set.content_sha256, note=note,
+                                          accepted=accepted))
     except PushRefused as exc:
         raise InputError(f"{endpoint}: {exc}") from None
     return ServedPush(str(gains_path), gain_set.content_sha256, endpoint, reply)

@@ -26,7 +26,8 @@ import numpy as np
 
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.tuning import ActiveBound
-from piezopreload.core.errors import InputError, InternalError
+from piezopreload.core.errors import InputError
+from piezopreload.tuning.loopshape import BOUNDS, Bound
 from piezopreload.tuning.lti import LinearPlant
 from piezopreload.tuning.pidform import PIDController
 
@@ -34,23 +35,12 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 __all__ = ["AutotuneResult", "Margins", "SampledCheck", "StartRecord", "LOOPS", "sensitivity_peaks", "located_peaks",
-           "located", "magnitudes", "margins_of", "achieved"]
+           "located", "margins_of", "achieved"]
 
-_NAMES = {"Ms": "|S|", "Mt": "|T|", "Mks": "|KS|"}
 #: how far (relative) a bound may be exceeded (the autotuner's tolerance)
 _TOLERANCE = 0.005
 #: how far the refinement aims to hold every bound; a result over it says by how much (``over_by``)
 REFINED_TO = 1e-4
-
-
-def magnitudes(name: str, C: np.ndarray, G: np.ndarray) -> np.ndarray:
-    """``|S|`` (``Ms``), ``|T|`` (``Mt``) or ``|KS|`` (``Mks``) of the responses ``C`` and ``G``."""
-    L = C * G
-    if name == "Ms":
-        return 1.0 / np.abs(1 + L)
-    if name not in ("Mt", "Mks"):
-        raise InternalError(f"no bound named {name!r}: Ms, Mt or Mks")
-    return np.abs(L if name == "Mt" else C) / np.abs(1 + L)
 
 
 def located(plant: LinearPlant, controller: PIDController, names: np.ndarray, omega: np.ndarray, idx: np.ndarray,
@@ -61,7 +51,7 @@ def located(plant: LinearPlant, controller: PIDController, names: np.ndarray, om
     the bracket always shrinks: ``steps`` steps, all peaks at once): values and frequencies in the order given; a
     measured response's, and a grid end's, are the grid's own. ``sign`` multiplies the plant."""
     idx, names = np.asarray(idx, int), np.asarray(names, dtype=object)
-    kinds = (names == "Ms", names == "Mt")  # |S|, |T|, else |KS|: compared once, not at every step
+    kinds = (names == Bound.MS, names == Bound.MT)  # |S|, |T|, else |KS|: compared once, not at every step
 
     def at(x: np.ndarray, which: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
         w = np.exp(x)
@@ -112,7 +102,7 @@ def located_peaks(plant: LinearPlant, controller: PIDController, name: str, omeg
 
 
 def sensitivity_peaks(plant: LinearPlant, controller: PIDController, omega: np.ndarray,
-                      names: tuple[str, ...] = ("Ms", "Mt", "Mks"), most: int = 3,
+                      names: tuple[str, ...] = BOUNDS, most: int = 3,
                       G: np.ndarray | None = None) -> dict[str, list[tuple[float, float]]]:
     """Per name (``Ms``: ``|S|``, ``Mt``: ``|T|``, ``Mks``: ``|KS|``) the ``most`` largest local peaks ``(value,
     frequency)`` on ``omega``, each located between its neighbours (:func:`located`, every name's at once), largest
@@ -121,7 +111,7 @@ def sensitivity_peaks(plant: LinearPlant, controller: PIDController, omega: np.n
     C = controller.response(omega)
     picked = []
     for name in names:
-        r = magnitudes(name, C, G)
+        r = Bound(name).magnitude(C, G)
         top = np.zeros(r.size, bool)
         top[1:-1] = (r[1:-1] >= r[:-2]) & (r[1:-1] >= r[2:])
         top[int(np.argmax(r))] = True
@@ -190,8 +180,9 @@ def margins_of(plant: LinearPlant, controller: PIDController, peaks: dict[str, t
     m = np.exp(np.log(mag[k]) + f * (np.log(mag[k + 1]) - np.log(mag[k])))
     if np.any(m < 1.0):
         gm = float(1.0 / np.max(m[m < 1.0]))
-    return Margins(Ms=peaks["Ms"][0], Mt=peaks["Mt"][0], Mks=peaks["Mks"][0], Ms_rad_per_s=peaks["Ms"][1],
-                   Mt_rad_per_s=peaks["Mt"][1], Mks_rad_per_s=peaks["Mks"][1], gain_margin=gm,
+    return Margins(Ms=peaks[Bound.MS][0], Mt=peaks[Bound.MT][0], Mks=peaks[Bound.MKS][0],
+                   Ms_rad_per_s=peaks[Bound.MS][1], Mt_rad_per_s=peaks[Bound.MT][1], Mks_rad_per_s=peaks[Bound.MKS][1],
+                   gain_margin=gm,
                    phase_margin_deg=None if pm is None else float(np.degrees(pm)),
                    delay_margin_s=None if dm is None else float(dm), crossover_rad_per_s=wc)
 
@@ -257,7 +248,14 @@ class SampledCheck:
     bounds: dict[str, float]
 
     def misses(self) -> str:
-        """What the loop misses, in words: its instability or each bound over the tolerance, by how much."""
+        """What the loop misses, in words: its instability or each bound over the tolerance, by how much.
+
+        Returns
+        -------
+        str
+            That the sampled loop is unstable, or each bound it exceeds beyond the tolerance, with the achieved peak and
+            the share it is over by.
+        """
         if not self.stable:
             return f"the loop as it will run at Ts {self.sample_period_s:g} s is unstable"
         over = [f"{k} {self.achieved[k]:.4g} against {self.bounds[k]:g} (over by {x:.1%})"
@@ -266,6 +264,14 @@ class SampledCheck:
                 f"{self.tolerance:.1%} tolerance: " + ", ".join(over))
 
     def to_dict(self) -> dict[str, Any]:
+        """The check as ``autotune --json`` prints it.
+
+        Returns
+        -------
+        dict
+            ``sample_period_s`` (s), ``stable``, ``achieved`` (each peak), ``over_by`` (each bound's excess as a share),
+            ``tolerance``, ``passed`` and ``bounds``.
+        """
         return {"sample_period_s": self.sample_period_s, "stable": self.stable, "achieved": dict(self.achieved),
                 "over_by": dict(self.over_by), "tolerance": self.tolerance, "passed": self.passed,
                 "bounds": dict(self.bounds)}
@@ -371,10 +377,12 @@ class AutotuneResult:
 
     @property
     def ki(self) -> float:
+        """The integral gain of the parallel form ``kp + ki/s + kd s`` (the filter on the whole controller)."""
         return self.controller_.parallel()[1]
 
     @property
     def kd(self) -> float:
+        """The derivative gain of the parallel form ``kp + ki/s + kd s`` (the filter on the whole controller)."""
         return self.controller_.parallel()[2]
 
     @property
@@ -384,6 +392,7 @@ class AutotuneResult:
 
     @property
     def filter_order(self) -> int:
+        """The controller's form: 0 a PI, 1 the derivative filtered, 2 a second-order filter on the whole controller."""
         return self.controller_.filter_order
 
     @property
@@ -419,7 +428,25 @@ class AutotuneResult:
     def discrete(self, Ts: float, method: str | None = None) -> control.TransferFunction:
         """The controller at sample period ``Ts``: by default as the controller step runs it (trapezoidal integral,
         backward-Euler filtered derivative; Tustin's map for a second-order filter); or by python-control's
-        ``sample_system`` with ``method`` (``"tustin"``, ``"zoh"``, ...)."""
+        ``sample_system`` with ``method`` (``"tustin"``, ``"zoh"``, ...).
+
+        Parameters
+        ----------
+        Ts : float
+            The sample period, in s.
+        method : str or None
+            python-control's discretisation (``"tustin"``, ``"zoh"``, ...); None: as the controller step runs it.
+
+        Returns
+        -------
+        control.TransferFunction
+            The discrete controller, at sample period ``Ts``.
+
+        Raises
+        ------
+        InputError
+            Where ``Ts`` is not a finite number > 0.
+        """
         if not (isinstance(Ts, int | float) and math.isfinite(Ts) and Ts > 0):
             raise InputError(f"Ts must be a finite number > 0, got {Ts!r}")
         c = self.controller_
@@ -429,7 +456,14 @@ class AutotuneResult:
 
     # ---- what it is in words ----------------------------------------------------------------------
     def loop_text(self) -> str:
-        """Which loop the bounds hold on, in words."""
+        """Which loop the bounds hold on, in words.
+
+        Returns
+        -------
+        str
+            The sampled loop at its period (the controller step, the plant behind a zero-order hold), or the continuous
+            loop.
+        """
         if self.loop == "sampled":
             return (f"the sampled loop at Ts {self.sample_period_s:g} s (the controller step, the plant behind a "
                     "zero-order hold)")
@@ -487,7 +521,15 @@ class AutotuneResult:
         return f"<table><caption>AutotuneResult ({html.escape(self.form)})</caption>{body}</table>"
 
     def to_dict(self) -> dict[str, Any]:
-        """Everything as JSON-ready numbers (what ``piezopreload autotune --json`` prints)."""
+        """Everything as JSON-ready numbers (what ``piezopreload autotune --json`` prints).
+
+        Returns
+        -------
+        dict
+            The form, the loop, the gains (parallel, and ideal/ISA where kp and ki are positive), the bounds the user
+            set and the defaults, what it leans on, the margins, the active bounds, the starts, the solver's counts and
+            time, and the plant's delay, sample period and poles.
+        """
         c = self.controller_
         out: dict[str, Any] = {
             "form": self.form, "filter_order": c.filter_order, "metric": self.metric, "loop": self.loop,
@@ -513,7 +555,13 @@ class AutotuneResult:
 
     # ---- its picture ---------------------------------------------------------------------------------
     def plot(self) -> Figure:
-        """The gang of four (``|S|``, ``|T|``, ``|PS|``, ``|CS|``) with the bounds, and the load step: a Figure."""
+        """The gang of four (``|S|``, ``|T|``, ``|PS|``, ``|CS|``) with the bounds, and the load step: a Figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            The gang of four's magnitudes with their bounds, and the response to a load step.
+        """
         from piezopreload.tuning.autotune_plot import draw
 
         return draw(self)
@@ -521,7 +569,19 @@ class AutotuneResult:
     # ---- the gain set ----------------------------------------------------------------------------------
     def discrete_check(self, Ts: float) -> SampledCheck:
         """The loop as it will run at sample period ``Ts`` (the controller step, the plant behind a zero-order hold):
-        stable?, the largest ``|S|``, ``|T|``, ``|KS|``, and whether every bound holds within the tolerance."""
+        stable?, the largest ``|S|``, ``|T|``, ``|KS|``, and whether every bound holds within the tolerance.
+
+        Parameters
+        ----------
+        Ts : float
+            The sample period, in s.
+
+        Returns
+        -------
+        SampledCheck
+            Whether the sampled loop is stable, its peaks of ``|S|``, ``|T|`` and ``|KS|``, each bound's excess and
+            whether every bound holds within the tolerance.
+        """
         c = self.controller_
         sampled = self.plant.sampled(Ts)
         ctrl = PIDController(c.kp, c.ki, c.kd, c.Tf, c.filter_order, float(Ts))
@@ -542,7 +602,29 @@ class AutotuneResult:
         It is ``validated`` when the loop as it will run at that period is stable and meets every bound within the
         tolerance (:meth:`discrete_check`) and the result leans on no bound the user did not set
         (:attr:`leans_on`), else a ``candidate``, which export refuses; its tuning record says which loop the bounds
-        were tuned on, the defaults, what it leans on and why it has its status."""
+        were tuned on, the defaults, what it leans on and why it has its status.
+
+        Parameters
+        ----------
+        sample_period_s : float or None
+            The controller's sample period, in s (None: the ``Ts`` it was tuned with).
+        u_min_V, u_max_V : float or None
+            The controller's output range, in V (None: the actuator's range the tuning was given).
+        b : float
+            The setpoint weight of the proportional part (no unit).
+        name : str or None
+            The gain set's preset name (None: none).
+
+        Returns
+        -------
+        GainSet
+            ``validated`` or ``candidate``, with its tuning record.
+
+        Raises
+        ------
+        InputError
+            Where no sample period or output range is known, or a sampled loop's gains are asked for at another period.
+        """
         Ts = self.sample_period_s if sample_period_s is None else float(sample_period_s)
         if Ts is None:
             raise InputError("to_gain_set needs the controller's sample period (sample_period_s, or Ts when tuning): "

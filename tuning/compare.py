@@ -9,7 +9,7 @@ and trajectory for its starting and its tuned gains, PID alone and with the feed
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -17,6 +17,7 @@ from piezopreload.artifacts.responses import CreepRow, ReproductionRow
 from piezopreload.artifacts.tuning import ComparisonRow
 from piezopreload.artifacts.validation import Criteria
 from piezopreload.core.artifacts import finite_or_none
+from piezopreload.core.progress import Bar
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
@@ -83,7 +84,7 @@ class Response:
 
 def responses(rig: Plant, references: dict[str, Reference], candidates: dict[str, PIDGains],
               feedforward: FeedforwardModel, *, seed: int, band_N: float, signal: str, after_change_s: float,
-              progress: Callable[[int, int], None] | None = None,
+              bar: Bar | None = None,
               controllers: tuple[str, ...] = CONTROLLERS) -> list[Response]:
     """Every candidate, PID alone and with the feedforward (``controllers``), over every reference (noise ``seed``)."""
     plant = Rig(rig)
@@ -95,8 +96,8 @@ def responses(rig: Plant, references: dict[str, Reference], candidates: dict[str
             for ref_name, ref in references.items():
                 run = simulate(plant, Controller(gains, plant.dt_s, ff), ref, seed=seed)
                 out.append(Response(name, controller, ref_name, run, run_numbers(run, band_N, signal, after_change_s)))
-                if progress is not None:
-                    progress(len(out), total)
+                if bar is not None:
+                    bar(len(out), total)
     return out
 
 
@@ -163,6 +164,13 @@ class PublishedRow:
     range: tuple[float | None, float | None]
 
     def to_dict(self) -> dict[str, Any]:
+        """The row as ``reproduce --json`` prints it.
+
+        Returns
+        -------
+        dict
+            ``controller``, ``metric``, ``paper`` and ``simulated`` (s), ``ratio``, ``within_25pct`` and ``range`` (s).
+        """
         return {"controller": self.controller, "metric": self.metric, "paper": self.paper,
                 "simulated": self.simulated, "ratio": self.ratio, "within_25pct": self.within_25pct,
                 "range": list(self.range)}
@@ -192,10 +200,29 @@ class ReproductionSummary:
 
     @property
     def all_within_25pct(self) -> bool:
+        """Whether every simulated number lies within 25 % of the published one."""
         return all(r.within_25pct for r in self.rows)
 
     def row(self, controller: str, metric: str) -> PublishedRow:
-        """The row of ``controller`` (``pid``, ``ff+pid``) and ``metric`` (``rise_s``, ``peak_s``, ``settling_s``)."""
+        """The row of ``controller`` (``pid``, ``ff+pid``) and ``metric`` (``rise_s``, ``peak_s``, ``settling_s``).
+
+        Parameters
+        ----------
+        controller : str
+            ``pid`` or ``ff+pid``.
+        metric : str
+            ``rise_s``, ``peak_s`` or ``settling_s``.
+
+        Returns
+        -------
+        PublishedRow
+            The published and the simulated number, their ratio and the range over the noise realisations.
+
+        Raises
+        ------
+        KeyError
+            Where no row has that controller and metric; the message lists the rows.
+        """
         for r in self.rows:
             if (r.controller, r.metric) == (controller, metric):
                 return r
@@ -203,6 +230,14 @@ class ReproductionSummary:
                        f"{', '.join(f'{r.controller}/{r.metric}' for r in self.rows)}")
 
     def to_dict(self) -> dict[str, Any]:
+        """The summary as ``reproduce --json`` prints it.
+
+        Returns
+        -------
+        dict
+            ``feedforward_fit`` (% of the span), ``rows``, ``overshoot_N`` (N, per controller), ``all_within_25pct``,
+            ``repeats``.
+        """
         return {"feedforward_fit": dict(self.feedforward_fit), "rows": [r.to_dict() for r in self.rows],
                 "overshoot_N": dict(self.overshoot_N), "all_within_25pct": self.all_within_25pct,
                 "repeats": self.repeats}

@@ -47,6 +47,7 @@ import numpy as np
 from piezopreload.artifacts.tuning import ActiveBound
 from piezopreload.core import native
 from piezopreload.core.errors import InfeasibleError, InputError
+from piezopreload.core.progress import Count
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import PAPER_BAND_N, Reference
 from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V, PIDGains
@@ -486,6 +487,9 @@ _CONVERGED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 #: with kinks an interior-point method may wander without end around the best point it has seen
 _PATIENCE = 50
 _STALLED = "User_Requested_Stop"
+#: the status a result records when its gains came from no run of IPOPT but from a known point offered before any
+#: (the study's, a tighter problem's, the last run's), none of the runs found better
+KNOWN_POINT = "a known point"
 
 
 @dataclass
@@ -521,7 +525,7 @@ class _Solvers:
     incumbent every iterate of the tuning is offered to (:class:`_Incumbent`)."""
 
     def __init__(self, prob: _Problem, max_iterations: int, verbose: bool,
-                 progress: Callable[[], None] | None) -> None:
+                 tick: Callable[[], None] | None) -> None:
         self.prob = prob
         self.max_iterations = max_iterations
         nlp = prob.nlp()
@@ -536,8 +540,8 @@ class _Solvers:
         self._run = ""  # the run the tuning solver's iterates belong to (the incumbent's source)
         self._idle = 0  # the run's iterations since it last improved the incumbent
         n_x, n_g = prob.x.numel(), prob.g.numel()
-        self.watch = _Watch(n_x, n_g, self._iterate, progress)  # every iterate of the tuning
-        self.counter = _Watch(n_x, n_g, None, progress)  # the least violation's: counted, not offered
+        self.watch = _Watch(n_x, n_g, self._iterate, tick)  # every iterate of the tuning
+        self.counter = _Watch(n_x, n_g, None, tick)  # the least violation's: counted, not offered
         self.solver = ca.nlpsol("tune", "ipopt", nlp, {**options, "iteration_callback": self.watch})
         self.phase_one = ca.nlpsol("tune_phase_one", "ipopt", nlp, {
             **options, "ipopt.tol": 1e-8, "iteration_callback": self.counter})
@@ -611,13 +615,19 @@ class _Solvers:
         if inc.z is not None and self.status_of(inc.source) == "Maximum_Iterations_Exceeded":
             # the best point came from a run stopped on its limit: go on from it (IPOPT's barrier starts afresh)
             self.solve(inc.z, inc.violation, f"{inc.source}, continued")
-        return self.status_of(self.incumbent.source), self._ending()
+        return self.status_word(self.incumbent.source), self.ending()
 
-    def status_of(self, run: str) -> str:
-        """IPOPT's status at the end of the run named ``run`` (``a known point`` where no run is named so)."""
-        return next((r["status"] for r in self.runs if r["run"] == run), "a known point")
+    def status_of(self, run: str) -> str | None:
+        """IPOPT's status at the end of the run named ``run``; None where no run is named so (a known point, offered
+        before any run)."""
+        return next((r["status"] for r in self.runs if r["run"] == run), None)
 
-    def _ending(self) -> str:
+    def status_word(self, run: str) -> str:
+        """:meth:`status_of` as the result records it: a known point's is :data:`KNOWN_POINT`."""
+        status = self.status_of(run)
+        return KNOWN_POINT if status is None else status
+
+    def ending(self) -> str:
         """How the search ended, in words: the runs, their statuses, where the result came from."""
         limited = sum(r["status"] == "Maximum_Iterations_Exceeded" for r in self.runs)
         stalled = sum(r["status"] == _STALLED for r in self.runs)
@@ -626,7 +636,7 @@ class _Solvers:
             f", {stalled} stopped after {_PATIENCE} iterations without a better point" if stalled else "")
         inc = self.incumbent
         status = self.status_of(inc.source)
-        if status == "a known point":
+        if status is None:
             where = f"{inc.source} (no run found better)"
         elif status in _CONVERGED:
             where = f"{inc.source}, converged ({status})"
@@ -683,14 +693,14 @@ def _engine(params: Plant, feedforward: InverseModel | None, spec: TuningSpec,
 
 
 def _as_pi(params: Plant, feedforward: InverseModel | None, spec: TuningSpec, engine: str,
-           pid: PIDGains, max_iterations: int, progress: Callable[[], None] | None
+           pid: PIDGains, max_iterations: int, tick: Callable[[], None] | None
            ) -> tuple[PIDGains, _Solvers, np.ndarray, bool] | None:
     """The PI of ``pid`` (its derivative on its lower bound): ``pid`` without its derivative and filter where that
     meets every constraint of the tuning, else the PI tuned from its Kc, Ti (and b); with its solvers (their
     incumbent is the PI), its point and whether it was tuned again. None if no PI is feasible."""
     spec_pi = replace(spec, filter_s=0.0)
     prob, _, _ = _engine(params, feedforward, spec_pi, engine)
-    solvers = _Solvers(prob, max_iterations, False, progress)
+    solvers = _Solvers(prob, max_iterations, False, tick)
     seed = _z_of(prob.names, prob.scaling, pid)
     if solvers.offer(seed, "the PID without its derivative")[0] <= _FEASIBLE:
         return replace(pid, Td_s=0.0, Tf_s=0.0), solvers, seed, False
@@ -709,7 +719,7 @@ def tune_pid(
     max_iterations: int = 150,
     starts: int = 3,
     verbose: bool = False,
-    progress: Callable[[int], None] | None = None,
+    counter: Count | None = None,
     engine: str = "auto",
     start: PIDGains | None = None,
     known: Mapping[str, PIDGains] | None = None,
@@ -727,9 +737,9 @@ def tune_pid(
     loses nothing it found; a start that converges to a feasible point ends the search, one
     stopped on its limit does not, and the search goes on once from an incumbent such a run
     found. :attr:`TuningResult.search` says how it ended. Raises :class:`TuningInfeasible`
-    naming the violated constraints when no feasible point was seen. ``progress``, if given,
-    is called with the count of IPOPT iterations so far (all starts and phases) at every
-    iteration.
+    naming the violated constraints when no feasible point was seen. ``counter``, if given
+    (:meth:`Progress.counter <piezopreload.core.progress.Progress.counter>`), is called with the count of IPOPT
+    iterations so far (all starts and phases) at every iteration.
 
     ``engine``: ``"compiled"`` runs the loop with its derivatives as C (built once and cached,
     :mod:`piezopreload.core.native`), ``"plain"`` in CasADi's virtual machine, ``"auto"``
@@ -759,11 +769,11 @@ def tune_pid(
 
     def tick() -> None:
         total[0] += 1
-        if progress is not None:
-            progress(total[0])
+        if counter is not None:
+            counter(total[0])
 
     known = dict(known or {})
-    solvers = _Solvers(prob, max_iterations, verbose, tick if progress is not None else None)
+    solvers = _Solvers(prob, max_iterations, verbose, tick if counter is not None else None)
     status, search = solvers.best_of(
         _seeds(prob.names, prob.scaling, baseline, list(dict.fromkeys(g for g in (start, *known.values()) if g))),
         starts,
@@ -778,7 +788,7 @@ def tune_pid(
     made_pi = any(name == "Td" and side == "lower" for name, side, _ in on_bounds)
     retuned = False
     if made_pi:
-        pi = _as_pi(params, feedforward, spec, engine, tuned, max_iterations, tick if progress is not None else None)
+        pi = _as_pi(params, feedforward, spec, engine, tuned, max_iterations, tick if counter is not None else None)
         if pi is None:  # no PI meets the specification: keep the PID with its derivative on the bound
             made_pi = False
         else:
@@ -788,7 +798,7 @@ def tune_pid(
             on_bounds = on_bounds + pi_solvers.prob.scaling.on_bounds(z_pi)
             iterations += pi_solvers.iterations
             if retuned:
-                status, search = pi_solvers.status_of(inc.source), f"{search}; as a PI: {pi_solvers._ending()}"
+                status, search = pi_solvers.status_word(inc.source), f"{search}; as a PI: {pi_solvers.ending()}"
     binding = sorted(label for label, m in margins.items() if m > -1e-3)
     ms = max(max_sensitivity(tuned, v, spec.force_range_N) for v in prob.variants)  # over the range it was tuned for
     return TuningResult(

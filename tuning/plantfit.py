@@ -21,7 +21,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from piezopreload.core.errors import InputError
-from piezopreload.core.tables import Record, read_record
+from piezopreload.core.tables import MeasuredRecord, read_record
 from piezopreload.tuning.fopdt import fit_first_order
 
 if TYPE_CHECKING:
@@ -69,17 +69,35 @@ class FittedPlant:
 
     @property
     def order(self) -> int:
+        """The model's order: the number of time constants."""
         return len(self.T_s)
 
     def transfer_function(self) -> control.TransferFunction:
-        """``K / prod(T s + 1)``; the delay is :attr:`delay_s`."""
+        """``K / prod(T s + 1)``; the delay is :attr:`delay_s`.
+
+        Returns
+        -------
+        control.TransferFunction
+            The model without its delay, ``K / prod(T_i s + 1)``.
+        """
         den = np.array([1.0])
         for T in self.T_s:
             den = np.polymul(den, [T, 1.0])
         return control.tf([self.K], den)
 
     def model_response(self, t_s: np.ndarray) -> np.ndarray:
-        """The fitted model's response to the measured input step at ``t_s`` (from the step)."""
+        """The fitted model's response to the measured input step at ``t_s`` (from the step).
+
+        Parameters
+        ----------
+        t_s : ndarray
+            Times from the step, in s.
+
+        Returns
+        -------
+        ndarray
+            The model's output change at each time, in the output's unit (0 before the delay).
+        """
         return self.K * self.step * _unit_response(np.asarray(t_s, float), self.delay_s, self.T_s)
 
     def __repr__(self) -> str:
@@ -88,11 +106,25 @@ class FittedPlant:
                 f"{self.t_s.size} samples of {self.source})")
 
     def to_dict(self) -> dict[str, Any]:
+        """The fit, as ``autotune --json`` prints it under ``fit``.
+
+        Returns
+        -------
+        dict
+            ``K``, ``T_s`` (s), ``delay_s`` (s), ``order``, ``rms`` (the output's unit), ``step``, ``samples`` and
+            ``source``.
+        """
         return {"K": self.K, "T_s": list(self.T_s), "delay_s": self.delay_s, "order": self.order, "rms": self.rms,
                 "step": self.step, "samples": int(self.t_s.size), "source": self.source}
 
     def plot(self) -> Figure:
-        """The measured response and the fit over it: a Figure."""
+        """The measured response and the fit over it: a Figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            The measured response and the model's against the time from the step.
+        """
         from matplotlib.figure import Figure
 
         fig = Figure(figsize=(6.0, 3.4), layout="constrained")
@@ -117,7 +149,7 @@ def _unit_response(t: np.ndarray, L: float, T: tuple[float, ...]) -> np.ndarray:
     return 1.0 - (T1 * np.exp(-tau / T1) - T2 * np.exp(-tau / T2)) / (T1 - T2)
 
 
-def _step_of(record: Record) -> tuple[np.ndarray, np.ndarray, float]:
+def _step_of(record: MeasuredRecord) -> tuple[np.ndarray, np.ndarray, float]:
     """The response from the input's step on (time from the step, output change) and the step's size."""
     u, y, t = record.input, record.output, record.time_s
     du = float(u[-1] - u[0])
@@ -132,12 +164,13 @@ def _step_of(record: Record) -> tuple[np.ndarray, np.ndarray, float]:
     return t_rel, resp, du
 
 
-def fit_plant(source: str | Path | Record, *, order: int | str = "auto") -> FittedPlant:
-    """Fit a step response (a CSV path or a :class:`~piezopreload.core.tables.Record`); see the module docstring.
+def fit_plant(source: str | Path | MeasuredRecord, *, order: int | str = "auto") -> FittedPlant:
+    """Fit a step response (a CSV path or a :class:`~piezopreload.core.tables.MeasuredRecord`); see the module
+    docstring.
 
     Parameters
     ----------
-    source : str, Path or Record
+    source : str, Path or MeasuredRecord
         The step test: a CSV of time, input and output (the input steps once), or its record.
     order : {1, 2, 'auto'}
         The model's order: first or second order plus dead time, or the second where it halves the first's
@@ -155,7 +188,7 @@ def fit_plant(source: str | Path | Record, *, order: int | str = "auto") -> Fitt
     """
     if order not in (1, 2, "auto"):
         raise InputError(f"order must be 1, 2 or 'auto', got {order!r}")
-    record = source if isinstance(source, Record) else read_record(source, min_samples=12)
+    record = source if isinstance(source, MeasuredRecord) else read_record(source, min_samples=12)
     t, y, du = _step_of(record)
     span = float(t[-1])
     dt = float(np.min(np.diff(t)))
@@ -169,7 +202,7 @@ def fit_plant(source: str | Path | Record, *, order: int | str = "auto") -> Fitt
     return fits[-1]
 
 
-def _second_order(t: np.ndarray, y: np.ndarray, du: float, first: FittedPlant, record: Record) -> FittedPlant:
+def _second_order(t: np.ndarray, y: np.ndarray, du: float, first: FittedPlant, record: MeasuredRecord) -> FittedPlant:
     span = float(t[-1])
 
     def residual(p: np.ndarray) -> np.ndarray:

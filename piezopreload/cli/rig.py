@@ -16,7 +16,7 @@ from piezopreload.cli._common import (
     json_flag,
     say,
 )
-from piezopreload.core.errors import InputError
+from piezopreload.core.errors import InputError, InternalError
 
 if TYPE_CHECKING:
     from piezopreload.artifacts.hostcheck import HostCheck
@@ -170,7 +170,8 @@ def register_rig(sub: Any) -> None:
         description=(
             "Run a validated gain set in real time like 'rig run' (the reference's last level held after its end) and "
             "serve it over OPC UA: CtrlP, CtrlTi, CtrlTd (LADS names), the gain set's and the feedforward's hashes, "
-            "setpoint, force, voltage, state, last event, and the method PushGainSet(GainSetDocument, Note), which "
+            "setpoint, force, voltage, state, last event, and the method PushGainSetWithNote(GainSetDocument, Note, "
+            "AcceptedMisses) (and PushGainSet(GainSetDocument), its first form, for the clients written then), which "
             "takes any validated gain set of this rig's plant whose limits fit the interlocks the rig was armed with. "
             "Anonymous sessions are refused: --user is required. The host is checked first ('rig check'). Ends on "
             "SIGINT/SIGTERM (exit 3) or after --duration (exit 0)."),
@@ -186,14 +187,15 @@ def register_rig(sub: Any) -> None:
 
     p = rig_sub.add_parser(
         "push", help="push a validated gain set to a serving rig, or to a PLC's own OPC UA server",
-        description=("Push a validated gain set to 'rig serve' through the OPC UA method PushGainSet; the served rig "
-                     "checks it again (its plant, its status, its limits against the armed interlocks) and switches "
-                     "bumplessly at its next cycle, also to another structure (a gain schedule where there was none). "
-                     "With --to and --map, write its numbers (the gains, the feedforward's table, the schedule's, by "
-                     "the names of the PLC export's PP_CONTROLLER) to the nodes the map names on any OPC UA server, "
-                     "read them back and report the difference; a node missing, of another type or not writable is "
-                     "refused by name and nothing is written. Candidates, tampered files, gain sets of another plant "
-                     "or with stricter limits, wrong passwords and refused calls exit 2 with the reason."),
+        description=("Push a validated gain set to 'rig serve' through the OPC UA method PushGainSetWithNote; the "
+                     "served rig checks it again (its plant, its status, its limits against the armed interlocks) and "
+                     "switches bumplessly at its next cycle, also to another structure (a gain schedule where there "
+                     "was none). With --to and --map, write the numbers its PLC block reads (the gains or the "
+                     "schedule's arrays, the output range, the feedforward's table, by the names of the PLC export's "
+                     "PP_CONTROLLER) to the nodes the map names on any OPC UA server, read them back and report the "
+                     "difference; a node missing, of another type or shape or not writable is refused by name and "
+                     "nothing is written. Candidates, tampered files, gain sets of another plant or with stricter "
+                     "limits, wrong passwords and refused calls exit 2 with the reason."),
         epilog=f"The password of --user is read from ${PASSWORD_ENV} (or asked for on a terminal).")
     p.add_argument("gains", metavar="gains.json", help="a validated gain set")
     p.add_argument("--endpoint", metavar="URL", help=f"the served rig (default {DEFAULT_RIG_ENDPOINT})")
@@ -205,10 +207,10 @@ def register_rig(sub: Any) -> None:
     p.add_argument("--private-key", metavar="KEY", help="the client certificate's private key")
     p.add_argument("--server-certificate", metavar="CERT", help="the server's certificate, to trust it")
     p.add_argument("--security-policy", default="Basic256Sha256", choices=list(SECURITY_POLICIES),
-                   help="with --to and a certificate: the secure channel's policy (default Basic256Sha256; the rig's "
-                        "server offers that one)")
+                   help="with a certificate: the secure channel's policy (default Basic256Sha256; a served rig offers "
+                        "that one only)")
     p.add_argument("--security-mode", default="SignAndEncrypt", choices=list(SECURITY_MODES),
-                   help="with --to and a certificate: sign, or sign and encrypt (default)")
+                   help="with a certificate: sign, or sign and encrypt (default; a served rig offers that one only)")
     p.add_argument("--note", default="", metavar="TEXT", help="why it is pushed, recorded with the push in the run log")
     accept_flag(p, "pushed (sent with the push and recorded with it)")
     json_flag(p)
@@ -268,53 +270,58 @@ def _cmd_rig_push(args: argparse.Namespace) -> ServedPush | PlcPush:
                          "are); without them the gain set goes to a served rig (--endpoint)")
     if args.to is not None and args.endpoint is not None:
         raise InputError("rig push: --endpoint is the served rig's, --to a PLC's: give one")
+    if args.to is not None and args.note:
+        raise InputError("rig push: --note is recorded by a served rig (--endpoint); a push to a PLC (--to) keeps no "
+                         "note: leave it out")
     password = _password(args, args.user is not None) if args.user else None
-    if args.to is None:
-        return session.push(args.gains, endpoint=args.endpoint or DEFAULT_RIG_ENDPOINT, username=args.user,
-                            password=password, certificate=args.certificate, private_key=args.private_key,
-                            server_certificate=args.server_certificate, note=args.note,
-                            accepted=tuple(args.accept))
     try:
         who = Credentials(args.user, password, args.certificate, args.private_key, args.server_certificate,
                           args.security_policy, args.security_mode)
     except ValueError as exc:
         raise InputError(f"rig push: {exc}") from None
+    if args.to is None:
+        return session.push(args.gains, endpoint=args.endpoint or DEFAULT_RIG_ENDPOINT, who=who, note=args.note,
+                            accepted=tuple(args.accept))
     return plc_push.push(args.gains, to=args.to, map_path=args.map, who=who, accepted=tuple(args.accept))
 
 
 def _print_rig_run(run: RigRun) -> None:
-    s = run.summary
-    t = s["timing"]
-    print(f"{s['status']}: {s['cycles']} cycles at {s['rate_Hz']:g} Hz on '{s['backend']}' "
-          f"({'real time' if s['realtime'] else 'back to back'}), controller step in {s['controller_step']}, "
-          f"{s.get('loop') or 'python'} loop")
-    if s["trip"]:
-        trip = s["trip"]
-        print(f"stopped by interlock '{trip['cause']}' at t = {trip['t_s']:.3f} s with {trip['voltage_V']:.4g} V held: "
-              f"{trip['detail']}")
-    m = s["metrics"]
-    if m is not None and m.get("settling_s") is not None:
-        print(f"step: rise {fmt(m['rise_s'], ' s')}, peak {fmt(m['peak_s'], ' s')}, "
-              f"settling {fmt(m['settling_s'], ' s')}, overshoot {fmt(m['overshoot_N'], ' N')}; "
-              f"tracking RMS {m['tracking_rms_N']:.3g} N")
-    elif m is not None and m.get("tracking_rms_N") is not None:
-        print(f"tracking RMS {m['tracking_rms_N']:.3g} N, largest error {m['tracking_max_N']:.3g} N")
-    lim, src = s["interlocks"], s["interlock_sources"]
+    """The run as its sidecar records it (``run.record``): how it ended, its figures, its limits and its timing."""
+    r = run.record
+    o = r.summary
+    if o is None:  # a run ends with its outcome recorded; the summary is what --json prints of it
+        raise InternalError(f"{run.log_json}: the run ended without its outcome in the sidecar")
+    t = o.timing
+    print(f"{r.status}: {o.cycles} cycles at {r.rate_Hz:g} Hz on '{r.backend}' "
+          f"({'real time' if r.realtime else 'back to back'}), controller step in {o.controller_step}, "
+          f"{t.loop or 'python'} loop")
+    if o.trip is not None:
+        trip = o.trip
+        print(f"stopped by interlock '{trip.cause}' at t = {trip.t_s:.3f} s with {trip.voltage_V:.4g} V held: "
+              f"{trip.detail}")
+    m = o.metrics
+    if m is not None and m.settling_s is not None:
+        print(f"step: rise {fmt(m.rise_s, ' s')}, peak {fmt(m.peak_s, ' s')}, "
+              f"settling {fmt(m.settling_s, ' s')}, overshoot {fmt(m.overshoot_N, ' N')}; "
+              f"tracking RMS {m.tracking_rms_N:.3g} N")
+    elif m is not None and m.tracking_rms_N is not None:
+        print(f"tracking RMS {m.tracking_rms_N:.3g} N, largest error {m.tracking_max_N:.3g} N")
+    lim, src = r.safety, r.safety_sources
     print(f"interlocks: force {lim['bolt_preload_N'] - lim['force_low_margin_N']:g}..{lim['force_max_N']:g} N "
           f"(force_max_N from {src['force_max_N']}); stall limit {lim['stall_limit_s'] * 1e3:g} ms "
           f"(from {src['stall_limit_s']})")
-    print(f"timing: {t['missed_deadlines']} missed deadlines, {t['stalls']} stalls (longest hold "
-          f"{t['held_max_s'] * 1e3:.2f} ms), lateness p99 {t['lateness_p99_s'] * 1e6:.0f} us, max "
-          f"{t['lateness_max_s'] * 1e3:.2f} ms, {t.get('lost_samples', 0)} samples lost"
-          + (f"; {t['sched_fifo']}; {t['memory_locked']}" if t.get("sched_fifo") else ""))
-    if s.get("host_check"):
-        h = s["host_check"]
-        print(f"host check: {h['verdict']}{' (run anyway: --accept-host)' if h['verdict'] == 'fail' else ''}; "
-              f"lateness p99 {h['lateness_p99_s'] * 1e6:.0f} us, max {h['lateness_max_s'] * 1e3:.2f} ms")
-    for p in s.get("pushes", []):
+    print(f"timing: {t.missed_deadlines} missed deadlines, {t.stalls} stalls (longest hold "
+          f"{t.held_max_s * 1e3:.2f} ms), lateness p99 {t.lateness_p99_s * 1e6:.0f} us, max "
+          f"{t.lateness_max_s * 1e3:.2f} ms, {t.lost_samples} samples lost"
+          + (f"; {t.sched_fifo}; {t.memory_locked}" if t.sched_fifo else ""))
+    if r.host_check is not None:
+        h = r.host_check
+        print(f"host check: {h.verdict}{' (run anyway: --accept-host)' if h.verdict == 'fail' else ''}; "
+              f"lateness p99 {h.lateness_p99_s * 1e6:.0f} us, max {h.lateness_max_s * 1e3:.2f} ms")
+    for p in run.pushes:
         print(f"push by {p['user']}: {'accepted' if p['accepted'] else 'refused'} "
               f"{p.get('gain_set_sha256', '')[:12]} {p.get('reason', '')}")
-    print(f"run log: {s['log_csv']} and {s['log_json']}")
+    print(f"run log: {run.log_csv} and {run.log_json}")
 
 
 @dataclass(frozen=True)

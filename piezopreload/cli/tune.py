@@ -174,7 +174,7 @@ def _cmd_validate(args: argparse.Namespace) -> ValidateWritten:
     say(f"validating {args.gains} on {plants} plants ...")
     try:
         after, result = validate_gain_set(before, n_plants=plants, seed=seed, workers=args.workers,
-                                          scheduler=args.scheduler, progress=lambda i, n: say(f"  chunk {i}/{n}"),
+                                          scheduler=args.scheduler, bar=lambda i, n: say(f"  chunk {i}/{n}"),
                                           inputs={"revalidated_from_sha256": before.content_sha256})
     except InputError as exc:
         raise InputError(f"{args.gains}: {exc}") from exc
