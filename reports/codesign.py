@@ -12,8 +12,8 @@ from __future__ import annotations
 from matplotlib.figure import Figure
 
 from piezopreload.artifacts.codesign import CodesignRecord, FrontPoint, nondominated
-from piezopreload.reports.document import Section, Table, fmt
-from piezopreload.reports.figures import COLOURS, _figure, _styled, legends
+from piezopreload.reports.document import ReportTable, Section, fmt
+from piezopreload.reports.figures import COLOURS, legends, page_figure, styled
 from piezopreload.reports.sections import Part
 
 __all__ = ["codesign_section", "codesign_fronts_figure"]
@@ -29,11 +29,11 @@ def _cell(x: float, unit: str) -> str:
     return fmt(x, 4, unit)
 
 
-@_styled
+@styled
 def codesign_fronts_figure(r: CodesignRecord) -> Figure:
     """Thermal growth against tracking RMS: every point of each sweep (open), each front's non-dominated points
     joined (filled), the two answers marked."""
-    fig, ax = _figure(2.8)
+    fig, ax = page_figure(2.8)
     a = ax[0][0]
     # the sequential front's markers larger, so a co-designed point on top of one leaves it visible
     for name, points, marker, size in (("sequential", r.sequential_front, "o", 7.0),
@@ -99,7 +99,7 @@ def codesign_section(r: CodesignRecord) -> Part:
                   _cell(row.sequential, row.unit) + _verdict(row.met("sequential")),
                   _cell(row.codesigned, row.unit) + _verdict(row.met("codesigned")))
                  for row in r.requirements)
-    tables = [Table(("requirement", "limit", "sequential", "co-designed"), rows,
+    tables = [ReportTable(("requirement", "limit", "sequential", "co-designed"), rows,
                     "Each requirement, the sequential answer against the co-designed one, in its unit.", "lrrr")]
     figures: tuple[tuple[str, Figure, str], ...] = ()
     omitted: list[str] = []
@@ -120,7 +120,7 @@ def codesign_section(r: CodesignRecord) -> Part:
                "not trade against each other (the design that grows least also tracks best), so the coupling "
                "between the design and the controller is weak here." if len(seq_front) == 1 and len(co_front) == 1
                else ""))
-        tables.append(Table(("front", "swept", "rigidity", "growth", "tracking RMS", "Ms", "feasible"),
+        tables.append(ReportTable(("front", "swept", "rigidity", "growth", "tracking RMS", "Ms", "feasible"),
                             tuple(_point_row("sequential", p) for p in r.sequential_front)
                             + tuple(_point_row("co-designed", p) for p in r.codesigned_front),
                             "The fronts' sweeps: each design-and-controller pair, at the study's Ms.", "llrrrrl",
