@@ -60,6 +60,7 @@ from piezopreload.models.ballscrew import lift_off_load_N
 from piezopreload.models.controller import PIDGains
 from piezopreload.progress import ProgressLike, say_of
 from piezopreload.spec import StudySpec
+from piezopreload.steps import Solved, identify
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, tune_pid
 from piezopreload.tuning.validate import validate
@@ -234,8 +235,7 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
         raise InputError(f"{study.path}: co-design needs the design's tables ([ballscrew], [design])")
     tuning = tuning or study.tuning_spec
     plant = _plant(study, point)
-    subject = study.with_design(point)
-    ff = feedforward or subject.identify_feedforward()
+    ff = feedforward or identify(study, Solved(study, point))
     known = None if start is None else {"the sequential gains": start}
     try:
         tuned = tune_pid(plant, ff.inverse(), tuning, starts=1, max_iterations=max_iterations, known=known)
@@ -629,8 +629,7 @@ class _Search:
 
 
 def _monte_carlo(study: StudySpec, cand: Candidate, plants: int) -> ValidationResult:
-    subject = study.with_design(cand.point)
-    ff = subject.identify_feedforward()
+    ff = identify(study, Solved(study, cand.point))
     return validate(cand.gains, ff.model, _plant(study, cand.point), study.criteria, n_plants=plants,
                     seed=study.seed if study.validation.seed is None else study.validation.seed,
                     step=study.references["step"],

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from piezopreload import steps
 from piezopreload.artifacts.gainset import REFERENCES, GainSet, GainsTable
 from piezopreload.artifacts.manifest import StudyRef
 from piezopreload.artifacts.tuning import (
@@ -33,13 +34,14 @@ from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.parallel import beside
 from piezopreload.core.quantities import number, quantity
-from piezopreload.models.actuator import Rig
+from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import ClosedLoopRun
 from piezopreload.models.closedloop import simulate as simulate_loop
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.metrics import StepMetrics, run_numbers
 from piezopreload.progress import ProgressLike, say_of
 from piezopreload.spec import StudySpec
+from piezopreload.steps import Solved
 from piezopreload.tuning.bounds import minimum_time, tracking_floor
 from piezopreload.tuning.calibrate import CONTROLLERS
 from piezopreload.tuning.calibrate import reproduce as reproduce_paper
@@ -76,8 +78,10 @@ class TuningResult:
 
     Parameters
     ----------
-    study : Study
+    study : StudySpec
         The study the gains were tuned for.
+    plant : Plant
+        The plant they were tuned on.
     feedforward : IdentifiedFeedforward
         The feedforward the gains were tuned with.
     record : TuningRecord
@@ -85,6 +89,7 @@ class TuningResult:
     """
 
     study: StudySpec
+    plant: Plant
     feedforward: IdentifiedFeedforward
     record: TuningRecord
 
@@ -133,9 +138,9 @@ class TuningResult:
         return self.record.save(path)
 
     @classmethod
-    def load(cls, path: str | Path, study: StudySpec, feedforward: IdentifiedFeedforward) -> TuningResult:
-        """A tuning artifact read back, for the study and feedforward it was tuned with."""
-        return cls(study, feedforward, TuningRecord.load(path))
+    def load(cls, path: str | Path, study: StudySpec, plant: Plant, feedforward: IdentifiedFeedforward) -> TuningResult:
+        """A tuning artifact read back, for the study, plant and feedforward it was tuned with."""
+        return cls(study, plant, feedforward, TuningRecord.load(path))
 
     def __repr__(self) -> str:
         g, m = self.gains, self.minimum_time
@@ -164,10 +169,10 @@ class TuningResult:
         tuning = {**self.solve.to_dict(), "simc_baseline": GainsTable.from_value(self.simc).to_dict(),
                   "active_bounds": [b.to_dict() for b in self.active_bounds]}
         return GainSet(gains=self.gains, status="candidate", feedforward=ff.model, feedforward_info=ff.info(),
-                       plant=s.plant, preset=s.name, references={k: s.references[k] for k in REFERENCES},
+                       plant=self.plant, preset=s.name, references={k: s.references[k] for k in REFERENCES},
                        criteria=s.criteria, tuning=tuning,
                        inputs={"study": s.path, "study_sha256": s.sha256, **(inputs or {})},
-                       rig_interlocks=s.rig_run.interlocks(s.plant, s.path))
+                       rig_interlocks=s.rig_run.interlocks(self.plant, s.path))
 
     def validation(self, *, plants: int | None = None, seed: int | None = None, workers: int | None = None,
                    scheduler: str | None = None, progress: ProgressLike | None = None,
@@ -215,15 +220,18 @@ def _minimum_time_bound(bounding: Any, settle: float | None, say: Callable[[str]
                             hold_s=bound.hold_s, seconds=bound.seconds)
 
 
-def tune(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,
-         progress: ProgressLike | None = None, iterations: Callable[[int], None] | None = None) -> TuningResult:
+def tune(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforward | None = None, *,
+         seed: int | None = None, progress: ProgressLike | None = None,
+         iterations: Callable[[int], None] | None = None) -> TuningResult:
     """Tune the PID around the study's plant compensated by ``feedforward``; compare it with the study's and SIMC's
     gains and bound it (``study.tune()``).
 
     Parameters
     ----------
     study : StudySpec
-        The study: its plant, its references, its ``[tuning]`` and ``[validation]`` tables.
+        The study: its references, its ``[tuning]`` and ``[validation]`` tables.
+    solved : Solved
+        What its steps solved: its plant (the design solved first where the plant is the design and was not).
     feedforward : IdentifiedFeedforward, optional
         The feedforward the PID is tuned around (default: the study's, identified); one that does not cover the
         study's references is refused before the design and the tuning run.
@@ -243,15 +251,15 @@ def tune(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, 
     if feedforward is not None:  # refused before the design and the tuning, with both ranges
         feedforward.covers(*study.reference_range_N, f"the study's references ({study.path})")
     else:
-        study.measured_loop(said)
-    study.solved_plant(said)
-    feedforward = feedforward or study.identify_feedforward(said)
+        steps.measured_loop(study, said)
+    plant = solved.plant(said)
+    feedforward = feedforward or steps.identify(study, solved, said)
     say = said or (lambda _m: None)
     seed = study.seed if seed is None else seed
     spec, criteria, step, trajectory = (study.tuning_spec, study.criteria, study.references["step"],
                                         study.references["trajectory"])
     say("tuning the PID around the compensated plant (CasADi + IPOPT), the minimum-time bound beside it ...")
-    bounding = beside(minimum_time, study.plant, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]),
+    bounding = beside(minimum_time, plant, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]),
                       band_N=study.band_N, u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
     known = {"the study's [controller] gains": study.gains}
     warm = study.files().get("tuning.warm_start")
@@ -259,7 +267,7 @@ def tune(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, 
     if warm is not None and warm_gains is not None:
         known[f"the warm start ({warm.name})"] = warm_gains
     try:
-        tuned = tune_pid(study.plant, feedforward.inverse(), spec, progress=iterations, known=known)
+        tuned = tune_pid(plant, feedforward.inverse(), spec, progress=iterations, known=known)
     except TuningInfeasible as exc:
         bounding.discard()
         raise InfeasibleError(f"{study.path}: {exc}") from exc
@@ -273,14 +281,14 @@ def tune(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, 
     schedule = None
     if study.tuning.schedule_levels >= 2:  # a gain schedule on the preload level, or the robust set if it does as well
         span = np.concatenate([study.references[k].levels_N for k in ("step", "trajectory")])
-        sched = tune_schedule(study.plant, feedforward.model, spec, criteria, g, step=step, trajectory=trajectory,
+        sched = tune_schedule(plant, feedforward.model, spec, criteria, g, step=step, trajectory=trajectory,
                               levels_N=schedule_levels(span.min(), span.max(), study.tuning.schedule_levels),
                               n_plants=study.tuning.schedule_plants, seed=seed, progress=say,
                               known=None if warm_gains is None else warm_gains.schedule)
         g, schedule = sched.gains, sched.to_dict()
-    floor = tracking_floor(study.plant, trajectory)
+    floor = tracking_floor(plant, trajectory)
     say("comparing the study's, SIMC's and the tuned gains on the nominal plant ...")
-    table = compare_gains(study.plant, step, trajectory, {"study": study.gains, "simc": tuned.baseline, "tuned": g},
+    table = compare_gains(plant, step, trajectory, {"study": study.gains, "simc": tuned.baseline, "tuned": g},
                           feedforward.model, criteria, seed)
     row = next(r for r in table if r.gains == "tuned" and r.feedforward)
     inputs = {"study": study.path, "study_sha256": study.sha256, "seed": seed}
@@ -297,7 +305,7 @@ def tune(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, 
         criteria={k: criteria_doc[k] for k in ("band_N", "signal", "tracking_after_change_s")},
         tracking_improvement=tracking_improvement(table), inputs=inputs,
         published=None if study.published is None else {"ff+pid": study.published.step()["ff+pid"]})
-    return TuningResult(study, feedforward, record)
+    return TuningResult(study, plant, feedforward, record)
 
 
 _STUDY = object()  # step_metrics' default: the study's band and signal
@@ -403,7 +411,7 @@ class StudyRun(ClosedLoopRun):
         return figures.closed_loop(self.columns(), self.band_N, self.signal, title)
 
 
-def simulate(study: StudySpec, gains: GainSet | PIDGains | None = None, *, controller: str = "ff+pid",
+def simulate(study: StudySpec, solved: Solved, gains: GainSet | PIDGains | None = None, *, controller: str = "ff+pid",
              reference: str = "step", feedforward: IdentifiedFeedforward | None = None,
              seed: int | None = None) -> StudyRun:
     """One controller on the study's plant over one of its references (``study.simulate()``).
@@ -411,7 +419,9 @@ def simulate(study: StudySpec, gains: GainSet | PIDGains | None = None, *, contr
     Parameters
     ----------
     study : StudySpec
-        The study: its plant, references, band and signal.
+        The study: its references, band and signal.
+    solved : Solved
+        What its steps solved: its plant.
     gains : GainSet or PIDGains, optional
         A gain set (its feedforward too, unless ``feedforward`` is given), PID gains, or None for the study's
         ``[controller]``.
@@ -440,14 +450,14 @@ def simulate(study: StudySpec, gains: GainSet | PIDGains | None = None, *, contr
         pid, source = gains, "given"
     else:
         pid, source = study.gains, f"{study.path} [controller], read as {study.controller.units}"
-    rig = Rig(study.plant)
+    rig = Rig(solved.plant())
     inverse, ff_info = None, None
     if controller == "ff+pid":
         if feedforward is None and isinstance(gains, GainSet) and gains.feedforward is not None:
             inverse = gains.feedforward.inverse()
             ff_info = FeedforwardInfo("the gain set's", gains.feedforward.kind, gains.feedforward.n_operators)
         else:
-            ff = feedforward or study.identify_feedforward()
+            ff = feedforward or steps.identify(study, solved)
             inverse, ff_info = ff.inverse(), ff.describe()
     seed = study.seed if seed is None else seed
     run = simulate_loop(rig, Controller(pid, rig.dt_s, inverse), study.references[reference], seed=seed)
@@ -532,8 +542,8 @@ class StudyReproduction:
                 f"{self.published}; {self.repeats} noise draw(s))")
 
 
-def reproduce(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,
-              repeats: int = 1) -> StudyReproduction:
+def reproduce(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforward | None = None, *,
+              seed: int | None = None, repeats: int = 1) -> StudyReproduction:
     """The body of :meth:`Study.reproduce`: the paper's six step numbers beside the simulation's, both controllers.
 
     With ``repeats`` > 1, each number is the median over that many noise realisations, with its range.
@@ -543,9 +553,9 @@ def reproduce(study: StudySpec, feedforward: IdentifiedFeedforward | None = None
     if study.published is None:
         raise InputError(f"{study.path}: the study declares no published step numbers (a [published] table, as "
                          "studies/paper2021.toml has); reproduce sets a study's simulation beside published numbers")
-    feedforward = feedforward or study.identify_feedforward()
+    feedforward = feedforward or steps.identify(study, solved)
     t0 = time.perf_counter()
-    rep = reproduce_paper(study.plant, study.gains, step=study.references["step"], excitation=study.excitation,
+    rep = reproduce_paper(solved.plant(), study.gains, step=study.references["step"], excitation=study.excitation,
                           seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
                           repeats=repeats, feedforward=feedforward.model,
                           feedforward_fit=feedforward.fit.to_dict())

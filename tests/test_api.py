@@ -311,9 +311,9 @@ def test_example_identify_and_export_on_its_default_path(tmp_path, capsys):
 def test_example_refuses_a_loop_that_does_not_cover_the_studys_references(measured_study, tmp_path, monkeypatch):
     """The paper rig's loop (25-110 N) for the machine axis (references 0-4,000 N): refused before the design and
     the tuning run, with both ranges in the message."""
-    import piezopreload.study as study_module
+    from piezopreload.steps import Solved
 
-    monkeypatch.setattr(study_module.Study, "_designed", lambda *a, **k: pytest.fail("the design ran first"))
+    monkeypatch.setattr(Solved, "designed", lambda *a, **k: pytest.fail("the design ran first"))
     _, loop = measured_study
     with pytest.raises(pp.InputError) as exc:
         _example("identify_and_export").main([str(loop), "--study", "machine_axis", "--operators", "20",

@@ -237,7 +237,7 @@ def test_the_machine_axis_verdict_does_not_hang_on_the_last_digits(monkeypatch, 
         return np.clip(points + 1e-9 * rng.standard_normal(points.shape), 0.0, 1.0)
 
     monkeypatch.setattr(pid, "_seeds", moved)
-    schedule = results.tune(study, feedforward).solve.schedule
+    schedule = results.tune(study, study.solved, feedforward).solve.schedule
     assert schedule is not None and schedule["choice"] == "schedule", schedule and schedule["reason"]
     kept = [lv["level_N"] for lv in schedule["levels"] if "infeasible" in lv["tuning"]]
     assert not kept, f"the entries at {kept} N kept the robust set"

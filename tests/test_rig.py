@@ -453,7 +453,7 @@ def test_a_candidate_carries_its_studys_rig_run_limits_through_validation(study,
     solve = TuningSolve("given", 0, 0.0, "none", 0.0, 0.0, 1.0, (), {}, {})  # the study's gains, not tuned here
     record = TuningRecord(study.gains, study.gains, solve, (), MinimumTimeBound(None, None, reason="not computed"),
                           TrackingFloor(1.0, 1.0, None))
-    tuned = TuningResult(changed, changed.identify_feedforward(), record)
+    tuned = TuningResult(changed, changed.plant, changed.identify_feedforward(), record)
     carried = tuned.candidate().rig_interlocks
     assert (carried.force_max_N, carried.ramp_s, carried.force_low_margin_N) == (130.0, 0.3, 10.0)
     assert carried.sources["force_max_N"] == f"{changed.path} [rig_run] force_max_N"
