@@ -106,7 +106,7 @@ from piezopreload.design.tables import DesignTable, PlantTable
 from piezopreload.outcome import Headline, RunSummary, StageOutcome, StudyResult
 from piezopreload.progress import Progress, ProgressLike, as_progress
 from piezopreload.reports.study_report import STAGES_READ, Published, ReportStudy, render_report
-from piezopreload.results import TuningResult, tune
+from piezopreload.results import TuningResult
 from piezopreload.rig.export import write_exports
 from piezopreload.spec import StudySpec
 from piezopreload.steps import Solved
@@ -231,7 +231,7 @@ def _stage_design(ctx: _Ctx) -> Produced:
 
 
 def _stage_tune(ctx: _Ctx) -> Produced:
-    tuned = tune(ctx.study, ctx.solved(), ctx.feedforward(), progress=ctx.progress.say,
+    tuned = steps.tune(ctx.study, ctx.solved(), ctx.feedforward(), progress=ctx.progress.say,
                  iterations=ctx.progress.counter("IPOPT iterations", every=10))
     g, sched, bound = tuned.gains, tuned.solve.schedule, tuned.minimum_time
     return {"tuning": tuned.save(ctx.out / "tuning.json")}, TuneSummary(

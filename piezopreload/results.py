@@ -1,5 +1,5 @@
-"""The steps that take a study, and what they return: :func:`tune` (a :class:`TuningResult`), :func:`simulate`
-(a :class:`StudyRun`) and :func:`reproduce`; :class:`~piezopreload.study.Study`'s methods of those names call them.
+"""What the study's steps return: :class:`TuningResult` (:func:`piezopreload.steps.tune`), :class:`StudyRun`
+(:func:`piezopreload.steps.simulate`) and :class:`StudyReproduction` (:func:`piezopreload.steps.reproduce`).
 
 Each result carries its numbers, ``to_dict()`` (what ``--json`` prints or the artifact
 holds) and ``plot()`` (a matplotlib Figure, no pyplot state). The domain computations are the
@@ -10,15 +10,11 @@ floors': the tuning (:mod:`piezopreload.tuning.pid`, its record :mod:`piezoprelo
 from __future__ import annotations
 
 import html
-import time
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
-from piezopreload import steps
 from piezopreload.artifacts.gainset import REFERENCES, GainSet, GainsTable
 from piezopreload.artifacts.manifest import StudyRef
 from piezopreload.artifacts.tuning import (
@@ -28,39 +24,26 @@ from piezopreload.artifacts.tuning import (
     TrackingFloor,
     TuningRecord,
     TuningSolve,
-    warm_start_gains,
 )
 from piezopreload.artifacts.validation import ValidationResult
-from piezopreload.core.errors import InfeasibleError, InputError
-from piezopreload.core.parallel import beside
-from piezopreload.core.quantities import number, quantity
-from piezopreload.models.actuator import Plant, Rig
+from piezopreload.core.errors import InputError
+from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import ClosedLoopRun
-from piezopreload.models.closedloop import simulate as simulate_loop
-from piezopreload.models.controller import Controller, PIDGains
+from piezopreload.models.controller import PIDGains
 from piezopreload.models.metrics import StepMetrics, run_numbers
 from piezopreload.progress import ProgressLike, say_of
 from piezopreload.spec import StudySpec
-from piezopreload.steps import Solved
-from piezopreload.tuning.bounds import minimum_time, tracking_floor
-from piezopreload.tuning.calibrate import CONTROLLERS
-from piezopreload.tuning.calibrate import reproduce as reproduce_paper
 from piezopreload.tuning.compare import (
     PublishedRow,
     ReproductionSummary,
-    compare_gains,
-    reproduction_summary,
-    tracking_improvement,
 )
 from piezopreload.tuning.feedforward import FeedforwardInfo, IdentifiedFeedforward
-from piezopreload.tuning.pid import TuningInfeasible, tune_pid
-from piezopreload.tuning.schedule import schedule_levels, tune_schedule
 from piezopreload.tuning.verdict import validate_gain_set
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["TuningResult", "StudyRun", "SimulationInfo", "StudyReproduction", "tune", "simulate", "reproduce"]
+__all__ = ["TuningResult", "StudyRun", "SimulationInfo", "StudyReproduction"]
 
 _STEP_KEYS = ("rise_s", "peak_s", "settling_s", "overshoot_N")
 _TRACK_KEYS = ("tracking_rms_N", "tracking_max_N")
@@ -205,109 +188,6 @@ def _fmt(x: float | None) -> str:
     return "none" if x is None else f"{x:.4g}"
 
 
-def _minimum_time_bound(bounding: Any, settle: float | None, say: Callable[[str], None]) -> MinimumTimeBound:
-    """The minimum-time bound from its worker, beside the tuned settling (a missing bound says why)."""
-    try:
-        bound = bounding.result()
-    except InfeasibleError as exc:  # the bound is a comparison, not a requirement: say why it is missing
-        say(f"no minimum-time bound: {exc}")
-        return MinimumTimeBound(settling_s=None, tuned_over_bound_ratio=None, reason=str(exc))
-    ratio = None if settle is None else settle / bound.settling_s
-    tuned = ("the tuned gains' true force does not settle" if settle is None or ratio is None else
-             f"the tuned gains settle the true force in {quantity(settle, 's')}, {number(ratio)} times it")
-    say(f"minimum-time bound: {quantity(bound.settling_s, 's')} ({bound.seconds:.1f} s to compute); {tuned}")
-    return MinimumTimeBound(settling_s=bound.settling_s, tuned_over_bound_ratio=ratio, samples=bound.samples,
-                            hold_s=bound.hold_s, seconds=bound.seconds)
-
-
-def tune(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforward | None = None, *,
-         seed: int | None = None, progress: ProgressLike | None = None,
-         iterations: Callable[[int], None] | None = None) -> TuningResult:
-    """Tune the PID around the study's plant compensated by ``feedforward``; compare it with the study's and SIMC's
-    gains and bound it (``study.tune()``).
-
-    Parameters
-    ----------
-    study : StudySpec
-        The study: its references, its ``[tuning]`` and ``[validation]`` tables.
-    solved : Solved
-        What its steps solved: its plant (the design solved first where the plant is the design and was not).
-    feedforward : IdentifiedFeedforward, optional
-        The feedforward the PID is tuned around (default: the study's, identified); one that does not cover the
-        study's references is refused before the design and the tuning run.
-    seed : int, optional
-        The noise seed of the comparison (default: the study's).
-    progress : ProgressLike, optional
-        Where the steps are said: a function given each line, or a :class:`~piezopreload.progress.Progress`.
-    iterations : callable, optional
-        Given IPOPT's iteration count as it goes.
-
-    Returns
-    -------
-    TuningResult
-        The tuned gains, compared and bounded; ``.validate()`` judges them.
-    """
-    said = say_of(progress)
-    if feedforward is not None:  # refused before the design and the tuning, with both ranges
-        feedforward.covers(*study.reference_range_N, f"the study's references ({study.path})")
-    else:
-        steps.measured_loop(study, said)
-    plant = solved.plant(said)
-    feedforward = feedforward or steps.identify(study, solved, said)
-    say = said or (lambda _m: None)
-    seed = study.seed if seed is None else seed
-    spec, criteria, step, trajectory = (study.tuning_spec, study.criteria, study.references["step"],
-                                        study.references["trajectory"])
-    say("tuning the PID around the compensated plant (CasADi + IPOPT), the minimum-time bound beside it ...")
-    bounding = beside(minimum_time, plant, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]),
-                      band_N=study.band_N, u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
-    known = {"the study's [controller] gains": study.gains}
-    warm = study.files().get("tuning.warm_start")
-    warm_gains = None if warm is None else warm_start_gains(warm)
-    if warm is not None and warm_gains is not None:
-        known[f"the warm start ({warm.name})"] = warm_gains
-    try:
-        tuned = tune_pid(plant, feedforward.inverse(), spec, progress=iterations, known=known)
-    except TuningInfeasible as exc:
-        bounding.discard()
-        raise InfeasibleError(f"{study.path}: {exc}") from exc
-    g = tuned.gains
-    say(f"tuned in {tuned.seconds:.0f} s: {tuned.form} Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s, Td {g.Td_s:.4g} s, "
-        f"Tf {g.Tf_s:.4g} s, b {g.b:.3g}")
-    if tuned.stopped_on_limit:
-        say(f"  the search stopped on IPOPT's iteration limit: {tuned.search}")
-    for b in tuned.active_bounds:
-        say(f"  {b.sentence()}")
-    schedule = None
-    if study.tuning.schedule_levels >= 2:  # a gain schedule on the preload level, or the robust set if it does as well
-        span = np.concatenate([study.references[k].levels_N for k in ("step", "trajectory")])
-        sched = tune_schedule(plant, feedforward.model, spec, criteria, g, step=step, trajectory=trajectory,
-                              levels_N=schedule_levels(span.min(), span.max(), study.tuning.schedule_levels),
-                              n_plants=study.tuning.schedule_plants, seed=seed, progress=say,
-                              known=None if warm_gains is None else warm_gains.schedule)
-        g, schedule = sched.gains, sched.to_dict()
-    floor = tracking_floor(plant, trajectory)
-    say("comparing the study's, SIMC's and the tuned gains on the nominal plant ...")
-    table = compare_gains(plant, step, trajectory, {"study": study.gains, "simc": tuned.baseline, "tuned": g},
-                          feedforward.model, criteria, seed)
-    row = next(r for r in table if r.gains == "tuned" and r.feedforward)
-    inputs = {"study": study.path, "study_sha256": study.sha256, "seed": seed}
-    if feedforward.model_sha256:
-        inputs["feedforward_sha256"] = feedforward.model_sha256
-    solve = TuningSolve.from_dict({**tuned.to_dict(), "spec": spec.to_dict(), "schedule": schedule})
-    criteria_doc = criteria.to_dict()
-    record = TuningRecord(
-        gains=g, simc_baseline=tuned.baseline, solve=solve, table=table,
-        minimum_time=_minimum_time_bound(bounding, row.settling_s, say),
-        tracking_floor=TrackingFloor(floor.rms_N, floor.rate_N_per_s, row.tracking_rms_N / floor.rms_N),
-        active_bounds=tuned.active_bounds,
-        # how the table was scored (the validation's limits are the validate step's)
-        criteria={k: criteria_doc[k] for k in ("band_N", "signal", "tracking_after_change_s")},
-        tracking_improvement=tracking_improvement(table), inputs=inputs,
-        published=None if study.published is None else {"ff+pid": study.published.step()["ff+pid"]})
-    return TuningResult(study, plant, feedforward, record)
-
-
 _STUDY = object()  # step_metrics' default: the study's band and signal
 
 
@@ -411,64 +291,6 @@ class StudyRun(ClosedLoopRun):
         return figures.closed_loop(self.columns(), self.band_N, self.signal, title)
 
 
-def simulate(study: StudySpec, solved: Solved, gains: GainSet | PIDGains | None = None, *, controller: str = "ff+pid",
-             reference: str = "step", feedforward: IdentifiedFeedforward | None = None,
-             seed: int | None = None) -> StudyRun:
-    """One controller on the study's plant over one of its references (``study.simulate()``).
-
-    Parameters
-    ----------
-    study : StudySpec
-        The study: its references, band and signal.
-    solved : Solved
-        What its steps solved: its plant.
-    gains : GainSet or PIDGains, optional
-        A gain set (its feedforward too, unless ``feedforward`` is given), PID gains, or None for the study's
-        ``[controller]``.
-    controller : {"ff+pid", "pid"}
-        With the inverse-P-I feedforward or the PID alone.
-    reference : {"step", "trajectory"}
-        Which of the study's references.
-    feedforward : IdentifiedFeedforward, optional
-        The feedforward to invert (default: the gain set's, else the study's, identified).
-    seed : int, optional
-        The noise seed (default: the study's).
-
-    Returns
-    -------
-    StudyRun
-        The run, scored as the study says (``.step_metrics()``, ``.plot()``, ``.to_dict()``).
-    """
-    if controller not in CONTROLLERS:
-        raise InputError(f"controller must be one of {', '.join(CONTROLLERS)}, got {controller!r}")
-    if reference not in REFERENCES:
-        raise InputError(f"reference must be one of {', '.join(REFERENCES)}, got {reference!r}")
-    status = None
-    if isinstance(gains, GainSet):
-        pid, source, status = gains.gains, f"gain set {(gains.content_sha256 or '')[:12]}", gains.status
-    elif isinstance(gains, PIDGains):
-        pid, source = gains, "given"
-    else:
-        pid, source = study.gains, f"{study.path} [controller], read as {study.controller.units}"
-    rig = Rig(solved.plant())
-    inverse, ff_info = None, None
-    if controller == "ff+pid":
-        if feedforward is None and isinstance(gains, GainSet) and gains.feedforward is not None:
-            inverse = gains.feedforward.inverse()
-            ff_info = FeedforwardInfo("the gain set's", gains.feedforward.kind, gains.feedforward.n_operators)
-        else:
-            ff = feedforward or steps.identify(study, solved)
-            inverse, ff_info = ff.inverse(), ff.describe()
-    seed = study.seed if seed is None else seed
-    run = simulate_loop(rig, Controller(pid, rig.dt_s, inverse), study.references[reference], seed=seed)
-    published = None  # the study's published numbers for this run, where it declares them (the step alone)
-    if study.published is not None and reference == "step":
-        published = {"source": study.published.source, **study.published.step()[controller]}
-    info = SimulationInfo(study.ref, controller, reference, pid, source, rig.dt_s, ff_info, status, published)
-    return StudyRun(**{f.name: getattr(run, f.name) for f in fields(run)}, band_N=study.band_N, signal=study.signal,
-                    info=info)
-
-
 @dataclass(frozen=True)
 class StudyReproduction:
     """A study's published step numbers beside its simulation's, with the PID alone and with the feedforward
@@ -540,26 +362,3 @@ class StudyReproduction:
         within = sum(r.within_25pct for r in self.rows)
         return (f"StudyReproduction({self.study.name!r}: {within} of {len(self.rows)} step numbers within 25 % of "
                 f"{self.published}; {self.repeats} noise draw(s))")
-
-
-def reproduce(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforward | None = None, *,
-              seed: int | None = None, repeats: int = 1) -> StudyReproduction:
-    """The body of :meth:`Study.reproduce`: the paper's six step numbers beside the simulation's, both controllers.
-
-    With ``repeats`` > 1, each number is the median over that many noise realisations, with its range.
-    """
-    if repeats < 1:
-        raise InputError(f"repeats: must be >= 1, got {repeats}")
-    if study.published is None:
-        raise InputError(f"{study.path}: the study declares no published step numbers (a [published] table, as "
-                         "studies/paper2021.toml has); reproduce sets a study's simulation beside published numbers")
-    feedforward = feedforward or steps.identify(study, solved)
-    t0 = time.perf_counter()
-    rep = reproduce_paper(solved.plant(), study.gains, step=study.references["step"], excitation=study.excitation,
-                          seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
-                          repeats=repeats, feedforward=feedforward.model,
-                          feedforward_fit=feedforward.fit.to_dict())
-    comparison = reproduction_summary(rep, study.published.step())
-    return StudyReproduction(study.ref, study.gains, study.controller.units, study.band_N, study.signal,
-                             study.published.source, tuple(float(x) for x in study.references["step"].levels_N),
-                             comparison, time.perf_counter() - t0)

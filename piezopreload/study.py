@@ -1,13 +1,15 @@
 """The study a script works on: :class:`Study`, a study file parsed once into typed tables, with the steps that
 take it.
 
-:class:`Study` is a :class:`~piezopreload.spec.StudySpec` (the typed tables, the plant and what the tables make,
-the design, the feedforward's identification, the schedule's tracking and learning) with the steps of the
-application layer as methods: :meth:`Study.tune`, :meth:`Study.simulate` and :meth:`Study.reproduce`
-(:mod:`piezopreload.results`), :meth:`Study.run` (:mod:`piezopreload.pipeline`), :meth:`Study.codesign`
-(:mod:`piezopreload.codesign`) and :meth:`Study.sweep` (:mod:`piezopreload.sweep`). Each is a function of its
-module that takes any study; the pipeline and the sweep
-compose them without this module, which sits above them and which only the CLI imports.
+:class:`Study` is a :class:`~piezopreload.spec.StudySpec` (the typed tables and what the tables make) with the steps
+that take it as methods, each one call of a function: :meth:`Study.design`, :meth:`Study.identify_feedforward`,
+:meth:`Study.tune`, :meth:`Study.validate`, :meth:`Study.learn`, :meth:`Study.learn_schedule`,
+:meth:`Study.track_schedule`, :meth:`Study.simulate` and :meth:`Study.reproduce` (:mod:`piezopreload.steps`),
+:meth:`Study.run` (:mod:`piezopreload.pipeline`), :meth:`Study.codesign` (:mod:`piezopreload.codesign`) and
+:meth:`Study.sweep` (:mod:`piezopreload.sweep`). It holds what its steps solved (:attr:`Study.solved`, a
+:class:`~piezopreload.steps.Solved`: the design's optimum solved once, :attr:`Study.plant`); the spec holds nothing
+solved. The pipeline and the sweep compose the steps without this module, which sits above them and which only the
+CLI imports.
 
 >>> import piezopreload as pp
 >>> study = pp.load_study("paper2021")                 # the paper's study, shipped: its [rig] is the plant
@@ -33,7 +35,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Self
 
 from piezopreload import codesign as codesigns
-from piezopreload import pipeline, results, steps
+from piezopreload import pipeline, steps
 from piezopreload import sweep as sweeps
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.sweep import DEFAULT_SWEEP_OUT, Scalar
@@ -340,7 +342,7 @@ class Study(StudySpec):
     def tune(self, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,
              progress: ProgressLike | None = None, iterations: Callable[[int], None] | None = None) -> TuningResult:
         """Tune the PID around :attr:`plant` compensated by ``feedforward`` (default: :meth:`identify_feedforward`);
-        compare it with the study's and SIMC's gains and bound it: :func:`piezopreload.results.tune`.
+        compare it with the study's and SIMC's gains and bound it: :func:`piezopreload.steps.tune`.
 
         Parameters
         ----------
@@ -358,11 +360,11 @@ class Study(StudySpec):
         TuningResult
             The tuned gains, compared and bounded; ``.validate()`` judges them.
         """
-        return results.tune(self, self.solved, feedforward, seed=seed, progress=progress, iterations=iterations)
+        return steps.tune(self, self.solved, feedforward, seed=seed, progress=progress, iterations=iterations)
 
     def simulate(self, gains: GainSet | PIDGains | None = None, *, controller: str = "ff+pid", reference: str = "step",
                  feedforward: IdentifiedFeedforward | None = None, seed: int | None = None) -> StudyRun:
-        """One controller on :attr:`plant` over one of the study's references: :func:`piezopreload.results.simulate`.
+        """One controller on :attr:`plant` over one of the study's references: :func:`piezopreload.steps.simulate`.
 
         Parameters
         ----------
@@ -383,13 +385,13 @@ class Study(StudySpec):
         StudyRun
             The run (``.step_metrics()``, ``.plot()``, ``.to_dict()``).
         """
-        return results.simulate(self, self.solved, gains, controller=controller, reference=reference,
+        return steps.simulate(self, self.solved, gains, controller=controller, reference=reference,
                                 feedforward=feedforward, seed=seed)
 
     def reproduce(self, *, seed: int | None = None, repeats: int = 1,
                   feedforward: IdentifiedFeedforward | None = None) -> StudyReproduction:
         """The study's published step numbers beside the simulation's on :attr:`plant`:
-        :func:`piezopreload.results.reproduce`.
+        :func:`piezopreload.steps.reproduce`.
 
         Parameters
         ----------
@@ -406,7 +408,7 @@ class Study(StudySpec):
             One row per controller and metric (published, simulated, their ratio, within 25 % or not, the range over
             the noise draws) and what ran (``.to_dict()``: what ``reproduce --json`` prints).
         """
-        return results.reproduce(self, self.solved, feedforward, seed=seed, repeats=repeats)
+        return steps.reproduce(self, self.solved, feedforward, seed=seed, repeats=repeats)
 
     def run(self, out: str | Path = DEFAULT_OUT, *, force: bool = False, progress: ProgressLike | None = None,
             overwrite: bool = False) -> StudyResult:

@@ -200,7 +200,7 @@ def test_feedforward_data_is_honoured_by_simulate_and_reproduce(measured_study):
 
 def test_feedforward_data_is_honoured_by_tune(measured_study, monkeypatch, capsys):
     """``piezopreload tune`` hands the tuner the inverse of the model identified from the study's data."""
-    import piezopreload.results as results
+    import piezopreload.steps as steps
 
     study, _ = measured_study
     expected = study.identify_feedforward().model
@@ -213,7 +213,7 @@ def test_feedforward_data_is_honoured_by_tune(measured_study, monkeypatch, capsy
         seen["feedforward"] = feedforward
         raise Stop
 
-    monkeypatch.setattr(results, "tune_pid", tuner)
+    monkeypatch.setattr(steps, "tune_pid", tuner)
     assert main(["tune", "--study", study.path, "--plants", "2"]) == 1  # the stand-in stops it there
     assert "Stop" in capsys.readouterr().err
     np.testing.assert_allclose(seen["feedforward"].forward.weights, expected.weights, rtol=1e-12)

@@ -224,15 +224,15 @@ def test_the_studys_feedforward_writes_the_same_model_json(tmp_path):
 def test_a_feedforward_that_does_not_cover_the_references_is_refused_before_tuning(monkeypatch):
     """Both ranges in the message; refused before the design and the tuning run."""
     import piezopreload as pp
-    import piezopreload.results as results
+    import piezopreload.steps as steps
     from piezopreload.tuning.feedforward import LoopExcitation, identify_feedforward
 
     study = pp.load_study("paper2021")
     small = identify_feedforward(study.plant, LoopExcitation(v_max_V=40.0, n_operators=8, cycles=2), check_range_N=None)
     lo, hi = small.record.output_range
     assert hi < 60.0, "a 40 V loop on the paper's rig stays well below the 100 N the references reach"
-    # the tuner and the design (results.tune's own steps) fail the test if they run
-    monkeypatch.setattr(results, "tune_pid", lambda *a, **k: pytest.fail("tuned on a feedforward that does not cover"))
+    # the tuner and the design (steps.tune's own steps) fail the test if they run
+    monkeypatch.setattr(steps, "tune_pid", lambda *a, **k: pytest.fail("tuned on a feedforward that does not cover"))
     monkeypatch.setattr(type(study), "solved_plant", lambda *a, **k: pytest.fail("designed before the check"))
     with pytest.raises(pp.InputError) as exc:
         study.tune(feedforward=small)

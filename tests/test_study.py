@@ -343,7 +343,7 @@ def test_the_design_is_solved_once_kept_and_fronts_traced_only_when_asked(monkey
 
 def test_tune_on_the_default_study_says_what_it_pays_for_the_plant(monkeypatch):
     """``pp.load_study().tune()``: the design's optimum, said through the step's progress, and no Pareto front."""
-    import piezopreload.results as results
+    import piezopreload.steps as steps
 
     fronts = []
     monkeypatch.setattr(design_study_module, "pareto_front", lambda *a, **k: fronts.append(a))
@@ -356,7 +356,7 @@ def test_tune_on_the_default_study_says_what_it_pays_for_the_plant(monkeypatch):
         seen["plant"] = plant
         raise Tuning
 
-    monkeypatch.setattr(results, "beside", bound)
+    monkeypatch.setattr(steps, "beside", bound)
     said: list[str] = []
     axis = pp.load_study(**QUIET)
     with pytest.raises(Tuning):
