@@ -242,7 +242,7 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
     except TuningInfeasible as exc:
         raise InfeasibleError(f"{study.path}: the design (contact angle {point.contact_angle_deg:.2f} deg, conformity "
                               f"{point.conformity:.4f}) has no controller: {exc}") from exc
-    nominal = _nominal(study, plant, tuned.gains, ff)
+    nominal = _nominal(study, plant, tuned.found(), ff)
     sched = study.schedule or ScheduleTable()
     schedule, _, _ = plan_schedule(spec, point, None, **sched.limits())
     c = study.criteria
@@ -257,7 +257,7 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
         binding = ", ".join(tuned.binding) or "none"
         why = (f"with Ms <= {tuning.ms_max:g} ([tuning] ms_max; binding: {binding}) the best gains miss "
                + "; ".join(misses))
-    return Candidate(point, tuned.gains, float(plant.coupling_stiffness_N_per_um), float(tuned.ms),
+    return Candidate(point, tuned.found(), float(plant.coupling_stiffness_N_per_um), float(tuned.ms),
                      float(schedule.friction_energy_J), nominal["tracking_rms_N"], nominal["peak_voltage_V"],
                      nominal["settling_s"], not misses, why, float(lift_off_load_N(point.bolt_preload_N)),
                      math.nan if study.thermal is None else float(duty_growth_um(spec, point, study.thermal)))

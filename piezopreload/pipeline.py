@@ -84,6 +84,7 @@ from piezopreload.artifacts.summaries import (
     ValidateSummary,
 )
 from piezopreload.artifacts.system import SystemRecord
+from piezopreload.artifacts.tuning import TuningResult
 from piezopreload.codesign import codesign_optimum
 from piezopreload.core.artifacts import atomic_write_bytes, package_version
 from piezopreload.core.errors import InputError
@@ -106,7 +107,6 @@ from piezopreload.design.tables import DesignTable, PlantTable
 from piezopreload.outcome import Headline, RunSummary, StageOutcome, StudyResult
 from piezopreload.progress import Progress, ProgressLike, as_progress
 from piezopreload.reports.study_report import STAGES_READ, Published, ReportStudy, render_report
-from piezopreload.results import TuningResult
 from piezopreload.rig.export import write_exports
 from piezopreload.spec import StudySpec
 from piezopreload.steps import Solved
@@ -242,10 +242,12 @@ def _stage_tune(ctx: _Ctx) -> Produced:
 
 def _stage_validate(ctx: _Ctx) -> Produced:
     study = ctx.study
-    tuned = TuningResult.load(ctx.output("tune", "tuning"), study, ctx.solved().plant(), ctx.feedforward())
-    gain_set, result = tuned.validation(inputs={"tuning_sha256": ctx.sha256("tune", "tuning")},
-                                        progress=ctx.progress.say,
-                                        bar=ctx.progress.bar(f"Monte Carlo, {study.validation.plants} plants"))
+    gain_set = steps.validate(study, ctx.solved(), TuningResult.load(ctx.output("tune", "tuning")), ctx.feedforward(),
+                              inputs={"tuning_sha256": ctx.sha256("tune", "tuning")}, progress=ctx.progress.say,
+                              bar=ctx.progress.bar(f"Monte Carlo, {study.validation.plants} plants"))
+    result = gain_set.validation
+    if result is None:  # pragma: no cover - a validation always judges the set it returns
+        raise StageFailed("validate", "the validation returned a gain set without its verdict")
     gains_path, validation_path = ctx.out / "gains.json", ctx.out / "validation.json"
     gain_set = gain_set.save(gains_path)
     replace(result, gain_set_sha256=gain_set.content_sha256,

@@ -1,5 +1,6 @@
-"""What the study's steps return: :class:`TuningResult` (:func:`piezopreload.steps.tune`), :class:`StudyRun`
-(:func:`piezopreload.steps.simulate`) and :class:`StudyReproduction` (:func:`piezopreload.steps.reproduce`).
+"""What the study's simulating steps return: :class:`StudyRun` (:func:`piezopreload.steps.simulate`) and
+:class:`StudyReproduction` (:func:`piezopreload.steps.reproduce`). The tune step returns the tuning artifact itself,
+:class:`~piezopreload.artifacts.tuning.TuningResult`.
 
 Each result carries its numbers, ``to_dict()`` (what ``--json`` prints or the artifact
 holds) and ``plot()`` (a matplotlib Figure, no pyplot state). The domain computations are the
@@ -9,183 +10,28 @@ floors': the tuning (:mod:`piezopreload.tuning.pid`, its record :mod:`piezoprelo
 
 from __future__ import annotations
 
-import html
-from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from piezopreload.artifacts.gainset import REFERENCES, GainSet, GainsTable
+from piezopreload.artifacts.gainset import GainsTable
 from piezopreload.artifacts.manifest import StudyRef
-from piezopreload.artifacts.tuning import (
-    ActiveBound,
-    ComparisonRow,
-    MinimumTimeBound,
-    TrackingFloor,
-    TuningRecord,
-    TuningSolve,
-)
-from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core.errors import InputError
-from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import ClosedLoopRun
 from piezopreload.models.controller import PIDGains
 from piezopreload.models.metrics import StepMetrics, run_numbers
-from piezopreload.progress import ProgressLike, say_of
-from piezopreload.spec import StudySpec
 from piezopreload.tuning.compare import (
     PublishedRow,
     ReproductionSummary,
 )
-from piezopreload.tuning.feedforward import FeedforwardInfo, IdentifiedFeedforward
-from piezopreload.tuning.verdict import validate_gain_set
+from piezopreload.tuning.feedforward import FeedforwardInfo
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["TuningResult", "StudyRun", "SimulationInfo", "StudyReproduction"]
+__all__ = ["StudyRun", "SimulationInfo", "StudyReproduction"]
 
 _STEP_KEYS = ("rise_s", "peak_s", "settling_s", "overshoot_N")
 _TRACK_KEYS = ("tracking_rms_N", "tracking_max_N")
-
-
-@dataclass(frozen=True, eq=False)
-class TuningResult:
-    """Tuned PID gains around a study's compensated rig, compared and bounded; :meth:`validate` judges them.
-
-    ``record`` is the tune stage's artifact (:class:`~piezopreload.artifacts.tuning.TuningRecord`): the
-    study's ``[controller]``, SIMC's and the tuned gains on the nominal plant, PID alone and with the feedforward
-    (``table``), the gains on the ends of their search range (``active_bounds``), the least settling time any command
-    reaches (``minimum_time``, the tuned over it ``tuned_over_bound_ratio``) and the trajectory's least RMS error any
-    causal controller reaches (``tracking_floor``).
-
-    Parameters
-    ----------
-    study : StudySpec
-        The study the gains were tuned for.
-    plant : Plant
-        The plant they were tuned on.
-    feedforward : IdentifiedFeedforward
-        The feedforward the gains were tuned with.
-    record : TuningRecord
-        The tune stage's artifact.
-    """
-
-    study: StudySpec
-    plant: Plant
-    feedforward: IdentifiedFeedforward
-    record: TuningRecord
-
-    @property
-    def gains(self) -> PIDGains:
-        return self.record.gains
-
-    @property
-    def simc(self) -> PIDGains:
-        return self.record.simc_baseline
-
-    @property
-    def solve(self) -> TuningSolve:
-        """What the NLP did (status, iterations, Ms reached, binding constraints, the gain schedule's record)."""
-        return self.record.solve
-
-    @property
-    def table(self) -> tuple[ComparisonRow, ...]:
-        return self.record.table
-
-    @property
-    def active_bounds(self) -> tuple[ActiveBound, ...]:
-        return self.record.active_bounds
-
-    @property
-    def minimum_time(self) -> MinimumTimeBound:
-        return self.record.minimum_time
-
-    @property
-    def tracking_floor(self) -> TrackingFloor:
-        return self.record.tracking_floor
-
-    @property
-    def improvement(self) -> dict[str, float | None]:
-        return self.record.tracking_improvement
-
-    def row(self, gains: str = "tuned", feedforward: bool = True) -> ComparisonRow:
-        """One row of the comparison table."""
-        return self.record.row(gains, feedforward)
-
-    def to_dict(self) -> dict[str, Any]:
-        """The tuning artifact's body."""
-        return self.record.to_dict()
-
-    def save(self, path: str | Path) -> Path:
-        return self.record.save(path)
-
-    @classmethod
-    def load(cls, path: str | Path, study: StudySpec, plant: Plant, feedforward: IdentifiedFeedforward) -> TuningResult:
-        """A tuning artifact read back, for the study, plant and feedforward it was tuned with."""
-        return cls(study, plant, feedforward, TuningRecord.load(path))
-
-    def __repr__(self) -> str:
-        g, m = self.gains, self.minimum_time
-        bound = "none" if m.settling_s is None else f"{m.settling_s:.4g} s"
-        return (f"TuningResult({self.study.name}: {self.solve.form} Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s, "
-                f"Td {g.Td_s:.4g} s, Tf {g.Tf_s:.4g} s, b {g.b:.3g}; Ms {self.solve.ms:.3g}; tuned settling "
-                f"{_fmt(self.row().settling_s)} s, minimum-time bound {bound}; "
-                f"{len(self.active_bounds)} gain(s) on a bound)")
-
-    def _repr_html_(self) -> str:
-        head = "".join(f"<th>{h}</th>" for h in ("gains", "feedforward", "settling (s)", "overshoot (N)",
-                                                 "tracking RMS (N)", "peak command (V)"))
-        rows = "".join(f"<tr><td>{r.gains}</td><td>{'yes' if r.feedforward else 'no'}</td>"
-                       f"<td>{_fmt(r.settling_s)}</td><td>{r.overshoot_N:.3g}</td><td>{r.tracking_rms_N:.3g}</td>"
-                       f"<td>{r.peak_command_V:.3g}</td></tr>" for r in self.table)
-        bounds = "".join(f"<li>{html.escape(b.sentence())}</li>" for b in self.active_bounds)
-        return (f"<p><b>Tuned {self.solve.form}</b> for study {html.escape(self.study.name)}: "
-                f"<code>{html.escape(repr(self))}</code></p><table><tr>{head}</tr>{rows}</table>"
-                + (f"<p>Gains on a bound:</p><ul>{bounds}</ul>" if bounds else ""))
-
-    def candidate(self, inputs: dict[str, Any] | None = None) -> GainSet:
-        """The tuned gains as a gain set not yet validated: feedforward, plant, references, criteria, the rig's
-        interlock settings of the study's ``[rig_run]``; its tuning record names the gains on their bounds
-        (``active_bounds``) and the controller's form."""
-        s, ff = self.study, self.feedforward
-        tuning = {**self.solve.to_dict(), "simc_baseline": GainsTable.from_value(self.simc).to_dict(),
-                  "active_bounds": [b.to_dict() for b in self.active_bounds]}
-        return GainSet(gains=self.gains, status="candidate", feedforward=ff.model, feedforward_info=ff.info(),
-                       plant=self.plant, preset=s.name, references={k: s.references[k] for k in REFERENCES},
-                       criteria=s.criteria, tuning=tuning,
-                       inputs={"study": s.path, "study_sha256": s.sha256, **(inputs or {})},
-                       rig_interlocks=s.rig_run.interlocks(self.plant, s.path))
-
-    def validation(self, *, plants: int | None = None, seed: int | None = None, workers: int | None = None,
-                   scheduler: str | None = None, progress: ProgressLike | None = None,
-                   bar: Callable[[int, int], None] | None = None,
-                   inputs: dict[str, Any] | None = None) -> tuple[GainSet, ValidationResult]:
-        """:meth:`validate`, also returning the per-plant result."""
-        v = self.study.validation
-        plants = v.plants if plants is None else plants
-        say = say_of(progress) or (lambda _m: None)
-        say(f"validating on {plants} plants ...")
-        return validate_gain_set(self.candidate(inputs), n_plants=plants,
-                                 seed=(self.study.seed if v.seed is None else v.seed) if seed is None else seed,
-                                 workers=v.workers if workers is None else workers, scheduler=scheduler,
-                                 progress=bar or (lambda i, n: say(f"  chunk {i}/{n}")))
-
-    def validate(self, plants: int | None = None, seed: int | None = None, *, workers: int | None = None,
-                 scheduler: str | None = None, progress: ProgressLike | None = None) -> GainSet:
-        """Validate the tuned gains by Monte Carlo on the study's nonlinear rig (``[validation]`` by default):
-        a :class:`GainSet`, ``validated`` only if every plant met every criterion. Save it with ``.save()``."""
-        return self.validation(plants=plants, seed=seed, workers=workers, scheduler=scheduler, progress=progress)[0]
-
-    def plot(self) -> Figure:
-        """The comparison table as bars (settling time, tracking RMS): a Figure."""
-        from piezopreload.reports import figures  # matplotlib only when drawing
-
-        return figures.gains_comparison([r.to_dict() for r in self.table])
-
-
-def _fmt(x: float | None) -> str:
-    return "none" if x is None else f"{x:.4g}"
 
 
 _STUDY = object()  # step_metrics' default: the study's band and signal

@@ -8,10 +8,13 @@ control step runs on and the preload schedule. A :class:`~piezopreload.study.Stu
 design stage's record. The spec itself holds nothing solved.
 
 The steps: :func:`design` (the ball-screw preload design, its optimum kept), :func:`measured_loop` and
-:func:`identify` (the feedforward's P-I model), :func:`learn` (over one of the study's references) and
-:func:`learn_schedule` (along the preload schedule, each margin pass), :func:`track_schedule` (the controlled
-preload along the schedule, the shift's thermal budget and the robustness study). Each is called once, by
-:class:`~piezopreload.study.Study`'s method of that name or by the pipeline's stage.
+:func:`identify` (the feedforward's P-I model), :func:`tune` (the PID, compared and bounded: a
+:class:`~piezopreload.artifacts.tuning.TuningResult`), :func:`validate` (the Monte Carlo verdict on a
+:func:`candidate` gain set), :func:`learn` (over one of the study's references) and :func:`learn_schedule` (along
+the preload schedule, each margin pass), :func:`track_schedule` (the controlled preload along the schedule, the
+shift's thermal budget and the robustness study), :func:`simulate` and :func:`reproduce`. Each is called once, by
+:class:`~piezopreload.study.Study`'s method of that name or by the pipeline's stage; the domain computations are
+the floors' (:mod:`piezopreload.design`, :mod:`piezopreload.tuning`).
 
 >>> from piezopreload.spec import StudySpec
 >>> spec = StudySpec.load("paper2021")
@@ -29,10 +32,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from piezopreload.artifacts.design import DesignPoint, DesignRecord
-from piezopreload.artifacts.gainset import REFERENCES, GainSet
+from piezopreload.artifacts.gainset import REFERENCES, GainSet, GainsTable
 from piezopreload.artifacts.plant import DesignedPlant
 from piezopreload.artifacts.schedule import PreloadSchedule
-from piezopreload.artifacts.tuning import MinimumTimeBound, TrackingFloor, TuningRecord, TuningSolve, warm_start_gains
+from piezopreload.artifacts.tuning import MinimumTimeBound, TrackingFloor, TuningResult, warm_start_gains
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.parallel import beside
 from piezopreload.core.quantities import number, quantity
@@ -48,7 +51,7 @@ from piezopreload.models.closedloop import Reference
 from piezopreload.models.closedloop import simulate as simulate_loop
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.progress import ProgressLike, say_of
-from piezopreload.results import SimulationInfo, StudyReproduction, StudyRun, TuningResult
+from piezopreload.results import SimulationInfo, StudyReproduction, StudyRun
 from piezopreload.spec import Say, StudySpec
 from piezopreload.tuning.bounds import minimum_time, tracking_floor
 from piezopreload.tuning.calibrate import CONTROLLERS
@@ -58,6 +61,7 @@ from piezopreload.tuning.feedforward import FeedforwardInfo, IdentifiedFeedforwa
 from piezopreload.tuning.pid import TuningInfeasible, tune_pid
 from piezopreload.tuning.schedule import schedule_levels, tune_schedule
 from piezopreload.tuning.tables import LearningTable
+from piezopreload.tuning.verdict import validate_gain_set
 
 if TYPE_CHECKING:  # learning loads its solvers when a study learns, not when one is read
     from collections.abc import Callable
@@ -65,8 +69,8 @@ if TYPE_CHECKING:  # learning loads its solvers when a study learns, not when on
     from piezopreload.schedule import ScheduleLearning
     from piezopreload.tuning.learning import LearningResult
 
-__all__ = ["Solved", "design", "measured_loop", "identify", "learn", "learn_schedule", "track_schedule",
-           "design_spec_of"]
+__all__ = ["Solved", "design", "measured_loop", "identify", "tune", "candidate", "validate", "learn", "learn_schedule",
+           "track_schedule", "simulate", "reproduce", "design_spec_of"]
 
 
 def design_spec_of(spec: StudySpec, what: str) -> DesignSpec:
@@ -122,6 +126,7 @@ class Solved:
         self._designed: DesignedPlant | None = None
         self._plant: Plant | None = None
         self._schedule: PreloadSchedule | None = None
+        self._feedforward: IdentifiedFeedforward | None = None
         if design is not None:
             design_spec_of(spec, "a design")
             self.point = design.point if isinstance(design, DesignRecord | DesignResult | DesignOptimum) else design
@@ -132,7 +137,8 @@ class Solved:
 
     def __repr__(self) -> str:
         held = [name for name, value in (("design", self.point), ("designed plant", self._designed),
-                                         ("plant", self._plant), ("schedule", self._schedule)) if value is not None]
+                                         ("plant", self._plant), ("schedule", self._schedule),
+                                         ("feedforward", self._feedforward)) if value is not None]
         return f"Solved({self.spec.name!r}: {', '.join(held) or 'nothing yet'})"
 
     def keeping_design(self, spec: StudySpec) -> Solved:
@@ -174,6 +180,12 @@ class Solved:
                                                  None if path is None else read_profile(path), profile_name=str(path),
                                                  **s.limits())
         return self._schedule
+
+    def feedforward(self, progress: Say | None = None) -> IdentifiedFeedforward:
+        """The study's feedforward, identified once (:func:`identify`) where a step needs it and none is given."""
+        if self._feedforward is None:
+            self._feedforward = identify(self.spec, self, progress)
+        return self._feedforward
 
     def designed_for(self, what: str, progress: Say | None) -> DesignedPlant:
         """The designed plant, or an error saying ``what`` needs a study whose plant is its design."""
@@ -313,7 +325,7 @@ def _controller(spec: StudySpec, solved: Solved, gains: GainSet | None, progress
     """The gain set's controller, or the study's [controller] gains with the identified feedforward."""
     if gains is not None:
         return gains.controller()
-    return Controller(spec.gains, solved.plant(progress).sample_period_s, identify(spec, solved, progress).inverse())
+    return Controller(spec.gains, solved.plant(progress).sample_period_s, solved.feedforward(progress).inverse())
 
 
 # --------------------------------------------------------------------------------------
@@ -522,7 +534,7 @@ def tune(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforward | 
     else:
         measured_loop(study, said)
     plant = solved.plant(said)
-    feedforward = feedforward or identify(study, solved, said)
+    feedforward = feedforward or solved.feedforward(said)
     say = said or (lambda _m: None)
     seed = study.seed if seed is None else seed
     spec, criteria, step, trajectory = (study.tuning_spec, study.criteria, study.references["step"],
@@ -540,7 +552,7 @@ def tune(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforward | 
     except TuningInfeasible as exc:
         bounding.discard()
         raise InfeasibleError(f"{study.path}: {exc}") from exc
-    g = tuned.gains
+    g, baseline = tuned.found(), tuned.start()
     say(f"tuned in {tuned.seconds:.0f} s: {tuned.form} Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s, Td {g.Td_s:.4g} s, "
         f"Tf {g.Tf_s:.4g} s, b {g.b:.3g}")
     if tuned.stopped_on_limit:
@@ -557,16 +569,16 @@ def tune(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforward | 
         g, schedule = sched.gains, sched.to_dict()
     floor = tracking_floor(plant, trajectory)
     say("comparing the study's, SIMC's and the tuned gains on the nominal plant ...")
-    table = compare_gains(plant, step, trajectory, {"study": study.gains, "simc": tuned.baseline, "tuned": g},
+    table = compare_gains(plant, step, trajectory, {"study": study.gains, "simc": baseline, "tuned": g},
                           feedforward.model, criteria, seed)
     row = next(r for r in table if r.gains == "tuned" and r.feedforward)
     inputs = {"study": study.path, "study_sha256": study.sha256, "seed": seed}
     if feedforward.model_sha256:
         inputs["feedforward_sha256"] = feedforward.model_sha256
-    solve = TuningSolve.from_dict({**tuned.to_dict(), "spec": spec.to_dict(), "schedule": schedule})
+    solve = replace(tuned, schedule=schedule)
     criteria_doc = criteria.to_dict()
-    record = TuningRecord(
-        gains=g, simc_baseline=tuned.baseline, solve=solve, table=table,
+    return TuningResult(
+        gains=g, simc_baseline=baseline, solve=solve, table=table,
         minimum_time=_minimum_time_bound(bounding, row.settling_s, say),
         tracking_floor=TrackingFloor(floor.rms_N, floor.rate_N_per_s, row.tracking_rms_N / floor.rms_N),
         active_bounds=tuned.active_bounds,
@@ -574,8 +586,90 @@ def tune(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforward | 
         criteria={k: criteria_doc[k] for k in ("band_N", "signal", "tracking_after_change_s")},
         tracking_improvement=tracking_improvement(table), inputs=inputs,
         published=None if study.published is None else {"ff+pid": study.published.step()["ff+pid"]})
-    return TuningResult(study, plant, feedforward, record)
 
+
+
+def candidate(spec: StudySpec, solved: Solved, tuned: TuningResult, feedforward: IdentifiedFeedforward | None = None,
+              inputs: dict[str, Any] | None = None) -> GainSet:
+    """The tuned gains as a gain set not yet validated: the feedforward, the plant, the references, the criteria and
+    the rig's interlock settings of the study's ``[rig_run]``; its tuning record names the gains on their bounds
+    (``active_bounds``) and the controller's form.
+
+    Parameters
+    ----------
+    spec : StudySpec
+        The study the gains were tuned for.
+    solved : Solved
+        What its steps solved (the plant the gains were tuned on).
+    tuned : TuningResult
+        The tune step's result.
+    feedforward : IdentifiedFeedforward, optional
+        The feedforward the gains were tuned with (default: the study's, identified once).
+    inputs : dict, optional
+        More of the inputs' names and hashes to record.
+
+    Returns
+    -------
+    GainSet
+        A ``candidate`` gain set.
+    """
+    ff, plant = feedforward or solved.feedforward(), solved.plant()
+    tuning = {**tuned.solve.to_dict(), "simc_baseline": GainsTable.from_value(tuned.simc_baseline).to_dict(),
+              "active_bounds": [b.to_dict() for b in tuned.active_bounds]}
+    return GainSet(gains=tuned.gains, status="candidate", feedforward=ff.model, feedforward_info=ff.info(),
+                   plant=plant, preset=spec.name, references={k: spec.references[k] for k in REFERENCES},
+                   criteria=spec.criteria, tuning=tuning,
+                   inputs={"study": spec.path, "study_sha256": spec.sha256, **(inputs or {})},
+                   rig_interlocks=spec.rig_run.interlocks(plant, spec.path))
+
+
+def validate(spec: StudySpec, solved: Solved, tuned: TuningResult, feedforward: IdentifiedFeedforward | None = None,
+             *, plants: int | None = None, seed: int | None = None, workers: int | None = None,
+             scheduler: str | None = None, progress: ProgressLike | None = None,
+             bar: Callable[[int, int], None] | None = None, inputs: dict[str, Any] | None = None) -> GainSet:
+    """Validate the tuned gains by Monte Carlo on the study's nonlinear rig (``[validation]`` by default).
+
+    Parameters
+    ----------
+    spec : StudySpec
+        The study the gains were tuned for.
+    solved : Solved
+        What its steps solved (the plant).
+    tuned : TuningResult
+        The tune step's result.
+    feedforward : IdentifiedFeedforward, optional
+        The feedforward the gains were tuned with (default: the study's, identified once).
+    plants : int, optional
+        Monte Carlo plants (default: ``[validation] plants``).
+    seed : int, optional
+        Their seed (default: ``[validation] seed``, else the study's).
+    workers : int, optional
+        Local worker processes (default: ``[validation] workers``).
+    scheduler : str, optional
+        A Dask scheduler's address.
+    progress : ProgressLike, optional
+        Where the steps are said.
+    bar : callable, optional
+        Given (done, total) as the chunks of plants are run.
+    inputs : dict, optional
+        More of the inputs' names and hashes the gain set records.
+
+    Returns
+    -------
+    GainSet
+        ``validated`` only if every plant met every criterion, else ``candidate``; its ``validation`` holds the
+        per-plant result. Save it with ``.save()``.
+    """
+    v = spec.validation
+    plants = v.plants if plants is None else plants
+    say = say_of(progress) or (lambda _m: None)
+    gain_set = candidate(spec, solved, tuned, feedforward, inputs)
+    say(f"validating on {plants} plants ...")
+    judged, _ = validate_gain_set(gain_set, n_plants=plants,
+                                  seed=(spec.seed if v.seed is None else v.seed) if seed is None else seed,
+                                  workers=v.workers if workers is None else workers, scheduler=scheduler,
+                                  progress=bar or (lambda i, n: say(f"  chunk {i}/{n}")))
+    return judged
 
 
 def simulate(study: StudySpec, solved: Solved, gains: GainSet | PIDGains | None = None, *, controller: str = "ff+pid",
@@ -624,7 +718,7 @@ def simulate(study: StudySpec, solved: Solved, gains: GainSet | PIDGains | None 
             inverse = gains.feedforward.inverse()
             ff_info = FeedforwardInfo("the gain set's", gains.feedforward.kind, gains.feedforward.n_operators)
         else:
-            ff = feedforward or identify(study, solved)
+            ff = feedforward or solved.feedforward()
             inverse, ff_info = ff.inverse(), ff.describe()
     seed = study.seed if seed is None else seed
     run = simulate_loop(rig, Controller(pid, rig.dt_s, inverse), study.references[reference], seed=seed)
@@ -648,7 +742,7 @@ def reproduce(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforwa
     if study.published is None:
         raise InputError(f"{study.path}: the study declares no published step numbers (a [published] table, as "
                          "studies/paper2021.toml has); reproduce sets a study's simulation beside published numbers")
-    feedforward = feedforward or identify(study, solved)
+    feedforward = feedforward or solved.feedforward()
     t0 = time.perf_counter()
     rep = reproduce_paper(solved.plant(), study.gains, step=study.references["step"], excitation=study.excitation,
                           seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,

@@ -39,12 +39,13 @@ from piezopreload import pipeline, steps
 from piezopreload import sweep as sweeps
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.sweep import DEFAULT_SWEEP_OUT, Scalar
+from piezopreload.artifacts.tuning import TuningResult
 from piezopreload.codesign import CodesignResult, CodesignWeights
 from piezopreload.models.controller import PIDGains
 from piezopreload.outcome import StudyResult
 from piezopreload.pipeline import DEFAULT_OUT
 from piezopreload.progress import ProgressLike, say_of
-from piezopreload.results import StudyReproduction, StudyRun, TuningResult
+from piezopreload.results import StudyReproduction, StudyRun
 from piezopreload.spec import DEFAULT_STUDY, PAPER_STUDY, StudySpec, default_study, paper_study, shipped_studies
 from piezopreload.steps import Solved
 from piezopreload.sweep import SweepResult
@@ -358,9 +359,40 @@ class Study(StudySpec):
         Returns
         -------
         TuningResult
-            The tuned gains, compared and bounded; ``.validate()`` judges them.
+            The tuned gains, compared and bounded (the tune stage's artifact); :meth:`validate` judges them.
         """
         return steps.tune(self, self.solved, feedforward, seed=seed, progress=progress, iterations=iterations)
+
+    def validate(self, tuned: TuningResult, feedforward: IdentifiedFeedforward | None = None, *,
+                 plants: int | None = None, seed: int | None = None, workers: int | None = None,
+                 scheduler: str | None = None, progress: ProgressLike | None = None) -> GainSet:
+        """Validate tuned gains by Monte Carlo on the study's nonlinear rig (``[validation]`` by default):
+        :func:`piezopreload.steps.validate`.
+
+        Parameters
+        ----------
+        tuned : TuningResult
+            What :meth:`tune` returned.
+        feedforward : IdentifiedFeedforward, optional
+            The feedforward the gains were tuned with (default: the study's, identified once, as :meth:`tune`'s).
+        plants : int, optional
+            Monte Carlo plants (default: ``[validation] plants``).
+        seed : int, optional
+            Their seed (default: ``[validation] seed``).
+        workers : int, optional
+            Local worker processes.
+        scheduler : str, optional
+            A Dask scheduler's address.
+        progress : ProgressLike, optional
+            Where the steps are said.
+
+        Returns
+        -------
+        GainSet
+            ``validated`` only if every plant met every criterion; save it with ``.save()``.
+        """
+        return steps.validate(self, self.solved, tuned, feedforward, plants=plants, seed=seed, workers=workers,
+                              scheduler=scheduler, progress=progress)
 
     def simulate(self, gains: GainSet | PIDGains | None = None, *, controller: str = "ff+pid", reference: str = "step",
                  feedforward: IdentifiedFeedforward | None = None, seed: int | None = None) -> StudyRun:

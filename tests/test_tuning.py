@@ -593,7 +593,9 @@ def test_the_minimum_time_bound_on_the_designed_plant_and_the_pi_it_is_read_agai
     assert tuned.gains.Td_s == 0.0 and tuned.solve.form == "PI"
     assert tuned.active_bounds[0].gain == "Td_s"
     assert tuned.minimum_time.settling_s == pytest.approx(bound.settling_s)
-    candidate = tuned.candidate()
+    from piezopreload import steps
+
+    candidate = steps.candidate(study, study.solved, tuned)
     assert candidate.tuning["active_bounds"][0]["gain"] == "Td_s" and candidate.gains.Tf_s == 0.0
 
 
