@@ -77,6 +77,14 @@ class SimulationInfo:
     published: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
+        """What ran, as ``simulate --json`` prints it.
+
+        Returns
+        -------
+        dict
+            ``study``, ``controller``, ``reference``, ``gains`` (the gains' table with their source and status),
+            ``feedforward`` (None without one), ``sample_period_s`` (s) and ``published``.
+        """
         source = {"source": self.gains_source, **({} if self.gains_status is None else {"status": self.gains_status})}
         return {"study": self.study.to_dict(), "controller": self.controller, "reference": self.reference,
                 "gains": {**GainsTable.from_value(self.gains).to_dict(), **source},
@@ -107,7 +115,22 @@ class StudyRun(ClosedLoopRun):
 
     def step_metrics(self, band_N: Any = _STUDY, *, which: int = 1, signal: str | None = None) -> StepMetrics:
         """Rise, peak and settling time and overshoot of the reference's ``which``-th change, in the study's band
-        on the study's signal unless given (``band_N=None``: the 10-90 % / 2 % definitions)."""
+        on the study's signal unless given (``band_N=None``: the 10-90 % / 2 % definitions).
+
+        Parameters
+        ----------
+        band_N : float or None
+            The settling band, in N (default: the study's); None: the conventional 2 % band and 10-90 % rise.
+        which : int
+            Which change of the reference, from 1.
+        signal : str or None
+            The signal scored, ``force_N`` or ``measured_N`` (None: the study's).
+
+        Returns
+        -------
+        StepMetrics
+            The step's rise, peak and settling times (s) and overshoot (N).
+        """
         m = super().step_metrics(self.band_N if band_N is _STUDY else band_N, which=which, signal=signal or self.signal)
         if not isinstance(m, StepMetrics):  # pragma: no cover - a study's run is one plant
             raise InputError("step_metrics of a batch: index the batch first")
@@ -115,7 +138,14 @@ class StudyRun(ClosedLoopRun):
 
     def to_dict(self) -> dict[str, Any]:
         """What ``piezopreload simulate --json`` prints: what ran, the step numbers, tracking, and the study's published
-        numbers for this run where it declares them (``published``: None otherwise)."""
+        numbers for this run where it declares them (``published``: None otherwise).
+
+        Returns
+        -------
+        dict
+            :meth:`SimulationInfo.to_dict`'s keys, ``reference_levels_N``, ``band_N``, ``signal``, ``seed``, ``samples``
+            and :meth:`numbers`.
+        """
         return {
             **self.info.to_dict(), "reference_levels_N": self.reference.levels_N.tolist(), "band_N": self.band_N,
             "signal": self.signal, "seed": self.seed, "samples": int(self.t_s.size), **self.numbers(),
@@ -123,13 +153,26 @@ class StudyRun(ClosedLoopRun):
 
     def numbers(self) -> dict[str, float | None]:
         """The step numbers (rise, peak, settling, overshoot) and the peak command, and over the trajectory the
-        tracking errors, in the study's band on its signal (None: a time never reached)."""
+        tracking errors, in the study's band on its signal (None: a time never reached).
+
+        Returns
+        -------
+        dict of str to float or None
+            The step's times (s) and overshoot (N), ``peak_command_V`` (V) and, over a trajectory, the tracking errors
+            (N).
+        """
         numbers = run_numbers(self, self.band_N, self.signal)
         tracking = self.info.reference == "trajectory"
         return {k: numbers[k] for k in (*_STEP_KEYS, "peak_command_V", *(_TRACK_KEYS if tracking else ()))}
 
     def plot(self) -> Figure:
-        """Reference and force (top), command and amplifier voltage (bottom): a Figure."""
+        """Reference and force (top), command and amplifier voltage (bottom): a Figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            The reference and the force (N) above, the command and the amplifier's voltage (V) below, against time.
+        """
         from piezopreload.reports import figures  # matplotlib only when drawing
 
         title = (f"{self.info.controller.replace('ff+pid', 'FF + PID').replace('pid', 'PID')}, "
@@ -178,26 +221,51 @@ class StudyReproduction:
 
     @property
     def rows(self) -> tuple[PublishedRow, ...]:
+        """Each published figure against the reproduced one."""
         return self.comparison.rows
 
     @property
     def repeats(self) -> int:
+        """Over how many noise realisations each simulated number is the median."""
         return self.comparison.repeats
 
     @property
     def feedforward_fit(self) -> dict[str, float]:
+        """The identified P-I model's fit error, in % of the force span (``rms_pct``, ``max_pct``)."""
         return self.comparison.feedforward_fit
 
     @property
     def all_within_25pct(self) -> bool:
+        """Whether every reproduced figure is within 25 % of the published one."""
         return self.comparison.all_within_25pct
 
     def row(self, controller: str, metric: str) -> PublishedRow:
-        """The row of ``controller`` (``pid``, ``ff+pid``) and ``metric`` (``rise_s``, ``peak_s``, ``settling_s``)."""
+        """The row of ``controller`` (``pid``, ``ff+pid``) and ``metric`` (``rise_s``, ``peak_s``, ``settling_s``).
+
+        Parameters
+        ----------
+        controller : str
+            ``pid`` or ``ff+pid``.
+        metric : str
+            ``rise_s``, ``peak_s`` or ``settling_s``.
+
+        Returns
+        -------
+        PublishedRow
+            The published and the simulated number (s; None: never reached), their ratio, whether it lies within
+            25 % of the published one, and its range over the noise realisations.
+        """
         return self.comparison.row(controller, metric)
 
     def to_dict(self) -> dict[str, Any]:
-        """What ``reproduce --json`` prints."""
+        """What ``reproduce --json`` prints.
+
+        Returns
+        -------
+        dict
+            ``study``, ``gains`` (and how they were read), ``band_N``, ``signal``, ``published``, ``step``, the
+            comparison's rows and fit, and ``seconds``.
+        """
         return {"study": self.study.to_dict(),
                 "gains": {**GainsTable.from_value(self.gains).to_dict(), "read_as": self.read_as},
                 "band_N": self.band_N, "signal": self.signal, "published": self.published,

@@ -83,7 +83,13 @@ S = TypeVar("S", bound="StudySpec")
 
 
 def _stderr(message: str) -> None:
-    """A study's progress where its caller gives none: a line on standard error."""
+    """A study's progress where its caller gives none: a line on standard error.
+
+    Parameters
+    ----------
+    message : str
+        The progress line, printed after ``piezopreload:``.
+    """
     print(f"piezopreload: {message}", file=sys.stderr, flush=True)
 
 
@@ -209,24 +215,48 @@ class StudySpec:
 
     @property
     def seed(self) -> int:
+        """The noise seed of the study's simulations (``[simulation] seed``)."""
         return self.simulation.seed
 
     @property
     def band_N(self) -> float:
+        """The error band settling is read in, in N (``[simulation] band_N``)."""
         return self.simulation.band_N
 
     @property
     def signal(self) -> str:
+        """What the step numbers are read on (``[simulation] signal``): ``measured_N``, the sensor's reading, or
+        ``force_N``,
+        the true force.
+        """
         return self.simulation.signal
 
     def resolve(self, relative: str | None) -> Path | None:
         """A file the study names (``feedforward.data``, ``schedule.profile``,
-        ``rig_run.reference``), from its folder."""
+        ``rig_run.reference``), from its folder.
+
+        Parameters
+        ----------
+        relative : str or None
+            The file's path as the study names it, relative to the study's folder (an absolute path stays as it is).
+
+        Returns
+        -------
+        Path or None
+            The file's path from the study's folder; None where ``relative`` is None.
+        """
         return None if relative is None else self.folder / relative
 
     def files(self) -> dict[str, Path]:
         """The input files the study names, by key (``feedforward.data``, ``schedule.profile``,
-        ``rig_run.reference``, ``tuning.warm_start``)."""
+        ``rig_run.reference``, ``tuning.warm_start``).
+
+        Returns
+        -------
+        dict of str to Path
+            Each input file the study names, by its key, resolved from the study's folder; a key the study leaves unset
+            (or a rig run's reference that is no CSV file) is left out.
+        """
         named = {"feedforward.data": self.feedforward.data,
                  "schedule.profile": None if self.ballscrew is None or self.schedule is None else self.schedule.profile,
                  "rig_run.reference": (self.rig_run.reference if self.rig_run.reference.lower().endswith(".csv")
@@ -241,7 +271,13 @@ class StudySpec:
                 raise self.where.fail(key, f"names {path}, which is not a file; give a path relative to the study file")
 
     def tables(self) -> dict[str, Any]:
-        """The study's tables as the file holds them, every key with its value (defaults filled): a stage's key."""
+        """The study's tables as the file holds them, every key with its value (defaults filled): a stage's key.
+
+        Returns
+        -------
+        dict
+            ``study`` (name, title, description) and each table the study has, by name, as the file would hold it.
+        """
         out: dict[str, Any] = {"study": {"name": self.name, "title": self.title, "description": self.description}}
         for table in STUDY_TABLES:
             value = getattr(self, _ATTRIBUTE.get(table, table), None)
@@ -256,6 +292,21 @@ class StudySpec:
         holds the keys to change; a key (or a table) given as None is removed. The copy is checked as a
         file is: a bad key or value, or a key the designed plant sets where the plant is the design,
         raises :class:`InputError`.
+
+        Parameters
+        ----------
+        **changes : dict or None
+            By table's name, the keys to change (a dict, nested for a nested table), or None to remove the table.
+
+        Returns
+        -------
+        StudySpec
+            The changed study, checked as a file is.
+
+        Raises
+        ------
+        InputError
+            Where a name is not a table of the study, or a key or a value is refused.
         """
         data = copy.deepcopy(self.given)
         for table, keys in changes.items():
@@ -291,7 +342,13 @@ class StudySpec:
         return self.design_spec is not None and other.design_spec == self.design_spec and objective
 
     def to_toml(self) -> str:
-        """The study as a TOML file (the file itself when it was not changed)."""
+        """The study as a TOML file (the file itself when it was not changed).
+
+        Returns
+        -------
+        str
+            The study's TOML text.
+        """
         return self.source_text.decode("utf-8")
 
     # ---- the plant ---------------------------------------------------------------------------
