@@ -35,7 +35,7 @@ __all__ = [
 #: and scipy load their submodules), so ``import piezopreload`` loads no floor and no solver
 _EXPORTS: dict[str, str] = {name: module for module, names in {
     "piezopreload.study": ("load_study", "shipped_studies", "Study"),
-    "piezopreload.results": ("TuningResult", "StudyRun", "StudyReproduction", "SimulationInfo"),
+    "piezopreload.results": ("StudyRun", "StudyReproduction", "SimulationInfo"),
     "piezopreload.schedule": ("ScheduleLearning",),
     "piezopreload.sweep": ("SweepResult",),
     "piezopreload.codesign": ("CodesignResult", "CodesignWeights"),
@@ -53,8 +53,8 @@ _EXPORTS: dict[str, str] = {name: module for module, names in {
     "piezopreload.artifacts.hysteresis": ("IdentifiedModel", "FitError", "DataSource"),
     "piezopreload.artifacts.validation": ("ValidationResult", "Metrics", "Failure"),
     "piezopreload.artifacts.requirements": ("Requirement",),
-    "piezopreload.artifacts.tuning": ("ComparisonRow", "ActiveBound", "MinimumTimeBound", "TrackingFloor",
-                                      "TuningSolve"),
+    "piezopreload.artifacts.tuning": ("TuningResult", "ComparisonRow", "ActiveBound", "MinimumTimeBound",
+                                      "TrackingFloor", "TuningSolve"),
     "piezopreload.artifacts.design": ("DesignRecord", "DesignPoint"),
     "piezopreload.artifacts.plant": ("DesignedPlant",),
     "piezopreload.artifacts.schedule": ("PreloadSchedule", "ScheduleSummary"),
@@ -87,7 +87,14 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     from piezopreload.artifacts.summaries import SystemSummary
     from piezopreload.artifacts.sweep import SweepPoint
     from piezopreload.artifacts.system import SystemRecord, TrackingNumbers
-    from piezopreload.artifacts.tuning import ActiveBound, ComparisonRow, MinimumTimeBound, TrackingFloor, TuningSolve
+    from piezopreload.artifacts.tuning import (
+        ActiveBound,
+        ComparisonRow,
+        MinimumTimeBound,
+        TrackingFloor,
+        TuningResult,
+        TuningSolve,
+    )
     from piezopreload.artifacts.validation import Failure, Metrics, ValidationResult
     from piezopreload.codesign import CodesignResult, CodesignWeights
     from piezopreload.core.errors import ArtifactError, InfeasibleError, InputError, InternalError, PiezopreloadError
@@ -99,7 +106,7 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     from piezopreload.models.controller import PIDGains
     from piezopreload.models.metrics import StepMetrics
     from piezopreload.outcome import RunSummary, StudyResult
-    from piezopreload.results import SimulationInfo, StudyReproduction, StudyRun, TuningResult
+    from piezopreload.results import SimulationInfo, StudyReproduction, StudyRun
     from piezopreload.rig.export import export
     from piezopreload.schedule import ScheduleLearning
     from piezopreload.study import Study, load_study, shipped_studies

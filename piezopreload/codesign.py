@@ -67,6 +67,7 @@ from piezopreload.models.ballscrew import lift_off_load_N
 from piezopreload.models.controller import PIDGains
 from piezopreload.progress import ProgressLike, say_of
 from piezopreload.spec import StudySpec
+from piezopreload.steps import Solved, identify
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, tune_pid
 from piezopreload.tuning.schedule import schedule_levels, tune_entries
@@ -304,8 +305,7 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
         raise InputError(f"{study.path}: co-design needs the design's tables ([ballscrew], [design])")
     tuning = tuning or study.tuning_spec
     plant = _plant(study, point)
-    subject = study.with_design(point)
-    ff = feedforward or subject.identify_feedforward()
+    ff = feedforward or identify(study, Solved(study, point))
     known = None if start is None else {"the sequential gains": replace(start, schedule=None)}
     try:
         tuned = tune_pid(plant, ff.inverse(), tuning, starts=1, max_iterations=max_iterations, known=known)
@@ -315,7 +315,8 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
                               f"controller that meets Ms <= {tuning.ms_max:g} ([tuning] ms_max) with the tuning's "
                               f"other constraints: {exc}") from exc
     c = study.criteria
-    gains, ms, controller = tuned.gains, float(tuned.ms), "robust"
+    robust = tuned.found()
+    gains, ms, controller = robust, float(tuned.ms), "robust"
     entry_ms: tuple[float, ...] = ()
     nominal = _nominal(study, plant, gains, ff)
     misses = _misses(nominal, c)
@@ -323,10 +324,10 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
     if schedule and levels is None:  # said before any tuning by codesign()
         raise InputError(f"{study.path}: a schedule's entries in the co-design need [tuning] schedule_levels >= 2")
     if levels is not None:
-        entries, records = tune_entries(plant, ff.model, tuning, tuned.gains, levels_N=levels,
+        entries, records = tune_entries(plant, ff.model, tuning, robust, levels_N=levels,
                                         step=study.references["step"], trajectory=study.references["trajectory"],
                                         starts=1, max_iterations=max_iterations)
-        scheduled = replace(tuned.gains, schedule=entries)
+        scheduled = replace(robust, schedule=entries)
         nominal_s = _nominal(study, plant, scheduled, ff)
         misses_s = _misses(nominal_s, c)
         # the schedule where it meets the limits the robust set misses, or meets them too and tracks better
@@ -851,8 +852,7 @@ class _Search:
 
 
 def _monte_carlo(study: StudySpec, cand: Candidate, plants: int) -> ValidationResult:
-    subject = study.with_design(cand.point)
-    ff = subject.identify_feedforward()
+    ff = identify(study, Solved(study, cand.point))
     return validate(cand.gains, ff.model, _plant(study, cand.point), study.criteria, n_plants=plants,
                     seed=study.seed if study.validation.seed is None else study.validation.seed,
                     step=study.references["step"],

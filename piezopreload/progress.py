@@ -1,7 +1,7 @@
 """Progress of a long command: stage lines, messages and progress bars, and the one type every step takes for it.
 
 Every step of the API that reports progress (``load_study``, ``Study.design``, ``.tune``, ``.learn``,
-``.track_schedule``, ``.run``, ``.sweep``, ``TuningResult.validate``, ...) takes ``progress`` of one type,
+``.track_schedule``, ``.run``, ``.sweep``, ``Study.validate``, ...) takes ``progress`` of one type,
 :data:`ProgressLike`: a function given each line (``print``, a logger's ``info``), or a :class:`Progress`
 (stage lines, indented messages and bars on a stream); None is the step's default (a study's run and
 sweep: a :class:`Progress` on standard error; a single step: the study's own, see ``load_study``).

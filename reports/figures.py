@@ -32,14 +32,13 @@ if TYPE_CHECKING:
 
     from piezopreload.artifacts.design import DesignPoint, Front, PreloadCurve
     from piezopreload.artifacts.learning import PassRecord
-    from piezopreload.artifacts.tuning import ComparisonRow
     from piezopreload.artifacts.validation import ValidationResult
 
 __all__ = [
     "STYLE", "COLOURS", "legends", "page_figure", "styled", "save", "save_all", "hysteresis_loops", "inverse_model",
     "step_responses", "tracking",
     "stiffness_vs_preload", "pareto_fronts", "preload_schedule", "natural_frequency", "monte_carlo",
-    "rig_run", "closed_loop", "gains_comparison",
+    "rig_run", "closed_loop",
 ]
 
 STYLE: dict[RcKeyType, Any] = {
@@ -510,24 +509,6 @@ def closed_loop(run: Mapping[str, np.ndarray], band_N: float | None, signal: str
     b.set_xlabel("time (s)")
     b.set_ylabel("voltage (V)")
     legends(a, b)
-    return fig
-
-
-@styled
-def gains_comparison(table: Sequence[ComparisonRow]) -> Figure:
-    """The tuning's comparison table as bars: settling time and tracking RMS of each gain set, PID alone and
-    with the feedforward."""
-    fig, ax = page_figure(2.6, ncols=2)
-    labels = [f"{r.gains}{' + FF' if r.feedforward else ''}" for r in table]
-    x = np.arange(len(labels))
-    settling = [np.nan if r.settling_s is None else r.settling_s for r in table]
-    colours = [COLOURS["tuned ff+pid"] if r.feedforward else COLOURS["study pid"] for r in table]
-    for a, values, label in ((ax[0][0], settling, "settling time (s)"),
-                             (ax[0][1], [r.tracking_rms_N for r in table], "tracking RMS (N)")):
-        a.bar(x, values, color=colours)
-        a.set_xticks(x, labels, rotation=30, ha="right")
-        a.set_ylabel(label)
-        a.set_yscale("log")
     return fig
 
 

@@ -21,7 +21,7 @@ from piezopreload.artifacts.learning import LearningRecord
 from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.rigrun import RigRunRecord
 from piezopreload.artifacts.system import MarginBasis, SystemRecord, TrackingNumbers
-from piezopreload.artifacts.tuning import TuningRecord
+from piezopreload.artifacts.tuning import TuningResult
 from piezopreload.models.hysteresis import CreepPI
 from piezopreload.reports import figures as F
 from piezopreload.reports.document import ReportTable, Section, fmt, pct, q, ratio
@@ -399,7 +399,7 @@ def _solver_words(text: str) -> str:
     return text
 
 
-def _bound_text(tuning: TuningRecord) -> tuple[str, tuple[str, ...]]:
+def _bound_text(tuning: TuningResult) -> tuple[str, tuple[str, ...]]:
     """The tuning's active bounds in words, and what is left out (the minimum-time bound, when it has none)."""
     words = ("" if not tuning.active_bounds else
              " " + " ".join(_capital(b.sentence().rstrip(".")) + "." for b in tuning.active_bounds))

@@ -231,7 +231,7 @@ def test_the_machine_axis_verdict_does_not_hang_on_the_last_digits(monkeypatch, 
     from its one start, the entry kept the robust set, the schedule missed the whole range and the robust set (28.9
     N overshoot at 2,000 N against 25 N) was kept: the default study exited 4. Now every draw tunes every entry and
     the schedule meets each level's Monte Carlo limits with at least 5 % to spare."""
-    from piezopreload import results
+    from piezopreload import steps
     from piezopreload.study import load_study
     from piezopreload.tuning import pid
     from piezopreload.tuning.schedule import level_requirements
@@ -245,7 +245,7 @@ def test_the_machine_axis_verdict_does_not_hang_on_the_last_digits(monkeypatch, 
         return np.clip(points + 1e-9 * rng.standard_normal(points.shape), 0.0, 1.0)
 
     monkeypatch.setattr(pid, "_seeds", moved)
-    schedule = results.tune(study, feedforward).solve.schedule
+    schedule = steps.tune(study, study.solved, feedforward).solve.schedule
     assert schedule is not None and schedule["choice"] == "schedule", schedule and schedule["reason"]
     kept = [lv["level_N"] for lv in schedule["levels"] if "infeasible" in lv["tuning"]]
     assert not kept, f"the entries at {kept} N kept the robust set"

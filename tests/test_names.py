@@ -8,8 +8,6 @@ import piezopreload as pp
 
 ROOT = Path(__file__).resolve().parents[1]
 FLOORS = ("core", "models", "artifacts", "design", "tuning", "rig", "reports", "piezopreload")
-#: pairs renamed on other branches of the same change (each has its owner); remove a name when its rename is in
-_RENAMED_ELSEWHERE = {"TuningResult"}
 
 
 def _public_classes() -> dict[str, list[str]]:
@@ -28,8 +26,7 @@ def test_no_two_public_classes_share_a_name():
     """A reader who meets ``Record``, ``Table``, ``PassRecord`` or ``WorstCase`` meets one class (there were two of
     each: the measured record and the records' base, the study file's table and the report's, a learning pass and a
     margin pass, the robust design's corners and a gain set's Monte Carlo worst case)."""
-    twice = {name: where for name, where in _public_classes().items()
-             if len(where) > 1 and name not in _RENAMED_ELSEWHERE}
+    twice = {name: where for name, where in _public_classes().items() if len(where) > 1}
     assert twice == {}, f"public classes defined more than once: {twice}"
 
 

@@ -90,8 +90,10 @@ def test_the_api_types_every_progress_parameter_alike():
 
     import piezopreload as pp
     from piezopreload import pipeline, sweep
+    from piezopreload import steps as study_steps
 
     steps = [getattr(pp.Study, name) for name in dir(pp.Study) if not name.startswith("_")]
+    steps += [getattr(study_steps, name) for name in study_steps.__all__]
     steps += [getattr(pp.TuningResult, name) for name in dir(pp.TuningResult) if not name.startswith("_")]
     steps += [pp.load_study, pipeline.run_study, pipeline.rerender_report, sweep.sweep, sweep.rerender_sweep_report]
     checked = []
@@ -101,9 +103,8 @@ def test_the_api_types_every_progress_parameter_alike():
         annotation = inspect.signature(step).parameters["progress"].annotation  # the source's text (PEP 563)
         assert annotation == "ProgressLike | None", f"{step.__qualname__}: progress is {annotation}"
         checked.append(step.__qualname__)
-    # Study's own steps, and those it has as a StudySpec (the parsed study: design, learn, ...)
-    assert {"Study.run", "Study.tune", "Study.sweep", "StudySpec.design", "StudySpec.learn", "load_study",
-            "TuningResult.validate"} <= set(checked), checked
+    assert {"Study.run", "Study.tune", "Study.validate", "Study.sweep", "Study.design", "Study.learn",
+            "Study.learn_schedule", "load_study", "tune", "validate", "learn_schedule"} <= set(checked), checked
 
 
 def test_every_floor_types_its_progress_parameter_alike():

@@ -28,7 +28,7 @@ The starting point and the baseline is SIMC (Skogestad 2003) on a first-order-pl
 fit of the compensated plant's response to a voltage step (:mod:`piezopreload.tuning.fopdt`).
 
 A derivative time on the lower end of its search range is no derivative action: the result is
-then tuned again as a PI (``Td = 0``, no filter; :attr:`TuningResult.active_bounds` says so), so
+then tuned again as a PI (``Td = 0``, no filter; the result's ``active_bounds`` says so), so
 the gain set and every export hold the PI the loop is. ``TuningSpec.filter_s = 0`` tunes a PI
 from the start. The lower bounds the tuned loop is read against (the minimum-time step, the
 tracking floor) are :mod:`piezopreload.tuning.bounds`.
@@ -44,7 +44,7 @@ from typing import Any, TypedDict
 import casadi as ca
 import numpy as np
 
-from piezopreload.artifacts.tuning import ActiveBound
+from piezopreload.artifacts.tuning import ActiveBound, TuningSolve
 from piezopreload.core import native
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.progress import Count
@@ -53,7 +53,7 @@ from piezopreload.models.closedloop import PAPER_BAND_N, Reference
 from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V, PIDGains
 from piezopreload.models.hysteresis import InverseModel
 from piezopreload.models.ops import Layout
-from piezopreload.tuning.fopdt import FOPDT, fit_fopdt, simc
+from piezopreload.tuning.fopdt import fit_fopdt, simc
 from piezopreload.tuning.horizon import ROWS, Horizon, TimeDomain, feedforward_sequence, loop_rows, tuning_loop
 from piezopreload.tuning.linearised import max_sensitivity, omega_grid, plant_frequency_response, small_signal_gains
 from piezopreload.tuning.loopshape import bound_rows, isa_pid_response, omega_terms, smooth_max
@@ -62,7 +62,6 @@ __all__ = [
     "TuningSpec",
     "scaled_references",
     "plant_variants",
-    "TuningResult",
     "TuningInfeasible",
     "tune_pid",
     "ENGINES",
@@ -114,7 +113,7 @@ class TuningSpec:
         The measured force range the loop works in, for the linearised loop's slopes (the Ms
         constraints): a gain schedule's entry is tuned for the range around its level, where a
         Hertz coupling's force per volt is what it is there. None: the whole stroke (0-110 V).
-        The tuning's reported Ms (:attr:`TuningResult.ms`) is read over the same range.
+        The tuning's reported Ms (``TuningSolve.ms``) is read over the same range.
     """
 
     band_N: float = PAPER_BAND_N
@@ -226,50 +225,6 @@ def plant_variants(params: Plant, spread: dict[str, float]) -> list[Plant]:
         corner(-1, +1, +1, -1, +1),
     ]
 
-
-
-# --------------------------------------------------------------------------------------
-# the result
-# --------------------------------------------------------------------------------------
-@dataclass(frozen=True, eq=False)
-class TuningResult:
-    """What :func:`tune_pid` found: the gains, the SIMC baseline on the FOPDT fit, IPOPT's status, the Ms reached,
-    the binding constraints, every constraint's margin (``g <= 0`` met) and the gains on their bounds."""
-
-    gains: PIDGains
-    baseline: PIDGains
-    fopdt: FOPDT
-    objective: float
-    status: str
-    iterations: int
-    seconds: float
-    ms: float
-    binding: list[str]
-    constraint_margins: dict[str, float]
-    engine: str = "plain"
-    compile_s: float = 0.0
-    active_bounds: tuple[ActiveBound, ...] = ()
-    search: str = ""
-
-    @property
-    def stopped_on_limit(self) -> bool:
-        """Whether the result came from a run of IPOPT stopped on its iteration limit (its best iterate)."""
-        return self.status == "Maximum_Iterations_Exceeded"
-
-    @property
-    def form(self) -> str:
-        """``PI`` where the tuned controller has no derivative action, else ``PID``."""
-        return "PI" if self.gains.Td_s == 0.0 else "PID"
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "status": self.status, "iterations": self.iterations, "seconds": self.seconds,
-            "engine": self.engine, "compile_s": self.compile_s,
-            "objective": self.objective, "ms": self.ms, "binding": self.binding, "search": self.search,
-            "constraint_margins": self.constraint_margins, "form": self.form,
-            "fopdt": {"K_N_per_V": self.fopdt.K, "T_s": self.fopdt.T_s, "theta_s": self.fopdt.theta_s,
-                      "rms_N": self.fopdt.rms_N},
-        }
 
 
 # --------------------------------------------------------------------------------------
@@ -723,7 +678,7 @@ def tune_pid(
     engine: str = "auto",
     start: PIDGains | None = None,
     known: Mapping[str, PIDGains] | None = None,
-) -> TuningResult:
+) -> TuningSolve:
     """Tune ``Kc, Ti, Td, Tf`` (and ``b``) on the compensated plant; see the module docstring.
 
     Every constraint family is one smooth maximum (per reference and variant for the
@@ -736,7 +691,7 @@ def tune_pid(
     iteration limit, or wanders off as an interior-point method may on a loop with kinks,
     loses nothing it found; a start that converges to a feasible point ends the search, one
     stopped on its limit does not, and the search goes on once from an incumbent such a run
-    found. :attr:`TuningResult.search` says how it ended. Raises :class:`TuningInfeasible`
+    found. ``TuningSolve.search`` says how it ended. Raises :class:`TuningInfeasible`
     naming the violated constraints when no feasible point was seen. ``counter``, if given
     (:meth:`Progress.counter <piezopreload.core.progress.Progress.counter>`), is called with the count of IPOPT
     iterations so far (all starts and phases) at every iteration.
@@ -754,7 +709,7 @@ def tune_pid(
     it is given).
 
     A derivative time that ends on the lower end of its range makes the result a PI: tuned again
-    without the derivative and its filter from the PID's Kc and Ti (:attr:`TuningResult.active_bounds`
+    without the derivative and its filter from the PID's Kc and Ti (``TuningSolve.active_bounds``
     says so); the gains on an end of their range are named there too.
     """
     if engine not in ENGINES:
@@ -801,11 +756,12 @@ def tune_pid(
                 status, search = pi_solvers.status_word(inc.source), f"{search}; as a PI: {pi_solvers.ending()}"
     binding = sorted(label for label, m in margins.items() if m > -1e-3)
     ms = max(max_sensitivity(tuned, v, spec.force_range_N) for v in prob.variants)  # over the range it was tuned for
-    return TuningResult(
-        gains=tuned, baseline=baseline, fopdt=fopdt, objective=objective, status=status,
-        iterations=iterations, seconds=time.perf_counter() - t0, ms=ms, binding=binding,
-        constraint_margins=margins, engine=used, compile_s=compile_s,
-        active_bounds=_active_bounds(sorted(set(on_bounds)), made_pi, retuned), search=search,
+    return TuningSolve(
+        status=status, iterations=iterations, seconds=time.perf_counter() - t0, engine=used, compile_s=compile_s,
+        objective=objective, ms=ms, binding=tuple(binding), constraint_margins=margins,
+        fopdt={"K_N_per_V": fopdt.K, "T_s": fopdt.T_s, "theta_s": fopdt.theta_s, "rms_N": fopdt.rms_N},
+        form="PI" if tuned.Td_s == 0.0 else "PID", spec=spec.to_dict(), search=search, gains=tuned, baseline=baseline,
+        active_bounds=_active_bounds(sorted(set(on_bounds)), made_pi, retuned),
     )
 
 

@@ -287,10 +287,10 @@ def _tune_entry(args: tuple[Plant, Any, TuningSpec, PIDGains, PIDGains | None]) 
     except TuningInfeasible as exc:  # no gains meet the window's specification: the entry keeps the robust set's
         return start, {"infeasible": str(exc), "kept": "the robust set",
                        "overshoot_target_N": spec.band_N - spec.overshoot_margin_N}
-    return tuned.gains, {"iterations": tuned.iterations, "seconds": tuned.seconds, "ms": tuned.ms,
-                         "objective": tuned.objective, "binding": tuned.binding, "engine": tuned.engine,
-                         "status": tuned.status, "search": tuned.search,
-                         "overshoot_target_N": spec.band_N - spec.overshoot_margin_N}
+    return tuned.found(), {"iterations": tuned.iterations, "seconds": tuned.seconds, "ms": tuned.ms,
+                           "objective": tuned.objective, "binding": list(tuned.binding), "engine": tuned.engine,
+                           "status": tuned.status, "search": tuned.search,
+                           "overshoot_target_N": spec.band_N - spec.overshoot_margin_N}
 
 
 def window_ms(gains: PIDGains, params: Plant, spec: TuningSpec) -> float:
@@ -460,7 +460,7 @@ def tune_entries(params: Plant, feedforward: HysteresisModel | CreepPI | None, s
         try:
             t = tune_pid(params, inverse, sp, start=robust, known={"the robust set": robust}, starts=starts,
                          max_iterations=max_iterations)
-            tuned.append((t.gains, {"ms": t.ms, "binding": t.binding, "objective": t.objective}))
+            tuned.append((t.found(), {"ms": t.ms, "binding": t.binding, "objective": t.objective}))
         except TuningInfeasible as exc:  # no gains meet the window's specification: the entry keeps the robust set's
             tuned.append((robust, {"infeasible": str(exc), "kept": "the robust set"}))
     tuned = _rising(plan.levels_N, tuned)
