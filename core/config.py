@@ -52,8 +52,8 @@ Fail = Callable[[str, str], Exception]
 class Invalid(ValueError):
     """A value of a table that is not valid, with the path of its key inside the table (``ball_mm``)."""
 
-    def __init__(self, path: str, message: str) -> None:
-        super().__init__(f"'{path}' {message}")
+    def __init__(self, path: str, message: str, owner: str = "") -> None:
+        super().__init__(f"'{owner}.{path}' {message}" if owner else f"'{path}' {message}")
         self.path = path
         self.message = message
 
@@ -296,7 +296,7 @@ def _plain(x: Any) -> Any:
 # --------------------------------------------------------------------------------------
 # the documentation's table of keys
 # --------------------------------------------------------------------------------------
-def keys_markdown(tables: Mapping[str, type[Table]], notes: Mapping[str, str] | None = None) -> str:
+def keys_markdown(tables: Mapping[str, Any], notes: Mapping[str, str] | None = None) -> str:
     """The keys of ``tables`` (a file's table names and their types) as Markdown: one section per table (its
     docstring's first paragraph), one row per key: type, default, unit, what it takes and its doc.
 
@@ -308,10 +308,17 @@ def keys_markdown(tables: Mapping[str, type[Table]], notes: Mapping[str, str] | 
     return "\n".join(out).rstrip() + "\n"
 
 
-def _table_markdown(name: str, cls: type[Table], notes: Mapping[str, str]) -> list[str]:
-    doc = " ".join((cls.__doc__ or "").strip().split("\n\n")[0].split()).removeprefix(f"[{name}]: ")
+def _table_markdown(name: str, cls: Any, notes: Mapping[str, str]) -> list[str]:
+    text = cls.doc if hasattr(cls, "rows") else (cls.__doc__ or "")
+    doc = " ".join(text.strip().split("\n\n")[0].split()).removeprefix(f"[{name}]: ")
     lines = [f"### `[{name}]`", "", _cell(doc[:1].upper() + doc[1:]), "",
              "| key | takes | default | unit | description |", "|---|---|---|---|---|"]
+    if hasattr(cls, "rows"):  # a domain type read straight from the table (piezopreload.core.records.TableOf)
+        for key_name, want, default, unit, about in cls.rows():
+            note = notes.get(f"{name}.{key_name}")
+            about = about + (f"; {note}" if note else "")
+            lines.append(f"| `{key_name}` | {_cell(want)} | {_cell(default)} | {_cell(unit)} | {_cell(about)} |")
+        return [*lines, ""]
     nested = []
     for spec in cls.declared():
         if spec.kind == "table" and spec.table is not None:

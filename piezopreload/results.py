@@ -165,7 +165,7 @@ class TuningResult:
                   "active_bounds": [b.to_dict() for b in self.active_bounds]}
         return GainSet(gains=self.gains, status="candidate", feedforward=ff.model, feedforward_info=ff.info(),
                        plant=s.plant, preset=s.name, references={k: s.references[k] for k in REFERENCES},
-                       criteria=s.criteria, tuning=tuning,
+                       criteria=s.validation, tuning=tuning,
                        inputs={"study": s.path, "study_sha256": s.sha256, **(inputs or {})},
                        rig_interlocks=s.rig_run.interlocks(s.plant, s.path))
 
@@ -248,7 +248,7 @@ def tune(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, 
     feedforward = feedforward or study.identify_feedforward(said)
     say = said or (lambda _m: None)
     seed = study.seed if seed is None else seed
-    spec, criteria, step, trajectory = (study.tuning_spec, study.criteria, study.references["step"],
+    spec, criteria, step, trajectory = (study.tuning, study.validation, study.references["step"],
                                         study.references["trajectory"])
     say("tuning the PID around the compensated plant (CasADi + IPOPT), the minimum-time bound beside it ...")
     bounding = beside(minimum_time, study.plant, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]),

@@ -63,8 +63,12 @@ class Study(StudySpec):
         The SHA-256 of the file as read.
     name, title : str
         The study's name and title (its ``[study]`` table).
-    rig, controller, feedforward, reference, simulation, tuning, validation, export : table
+    rig, controller, feedforward, reference, simulation, export : table
         The tables of those names, typed as the file gives them (defaults where it gives none).
+    tuning : TuningSpec
+        ``[tuning]``: what the tuning requires (with ``[simulation]``'s band and ``[controller]``'s output range).
+    validation : Criteria
+        ``[validation]``: what the validation requires of every plant, over how many plants.
     rig_run : RigRunPlan
         The ``[rig_run]`` table: the rig stage's plan.
     ballscrew, feed_drive, duty, design_table, schedule, plant_table, learning, published : table or None
@@ -76,10 +80,6 @@ class Study(StudySpec):
         The step and the trajectory the tables make.
     excitation : LoopExcitation
         The loop the feedforward is identified on.
-    tuning_spec : TuningSpec
-        What the tuning requires.
-    criteria : Criteria
-        What the validation requires of every plant.
     design_spec : DesignSpec or None
         The preload design the tables make (None: the study has no design).
     where : object

@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 
 from piezopreload.core.config import Invalid, Table, key, keys_markdown
+from piezopreload.core.records import TableOf
 from piezopreload.design.plant import DESIGNED_FIELDS
 from piezopreload.design.tables import (
     BallscrewTable,
@@ -30,7 +31,7 @@ from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V
 from piezopreload.rig.tables import ExportTable, RigRunPlan
 from piezopreload.tuning.calibrate import LoopExcitation
 from piezopreload.tuning.identify import MODELS
-from piezopreload.tuning.tables import LearningTable, TuningTable, ValidationTable
+from piezopreload.tuning.tables import TUNING, VALIDATION, LearningTable
 
 __all__ = ["StudyTable", "StackTable", "RigTable", "ControllerTable", "FeedforwardTable", "StepTable",
            "TrajectoryTable", "ReferenceTables", "SimulationTable", "StepNumbers", "PublishedTable", "STUDY_TABLES",
@@ -243,12 +244,12 @@ class PublishedTable(Table):
 
 
 #: the study file's tables, by name, in the order a file has them
-STUDY_TABLES: dict[str, type[Table]] = {
+STUDY_TABLES: dict[str, type[Table] | TableOf] = {
     "study": StudyTable, "rig": RigTable, "plant": PlantTable, "learning": LearningTable,
     "controller": ControllerTable, "feedforward": FeedforwardTable, "reference": ReferenceTables,
     "simulation": SimulationTable, "ballscrew": BallscrewTable, "feed_drive": FeedDriveTable, "duty": DutyTable,
-    "design": DesignTable, "schedule": ScheduleTable, "thermal": ThermalTable, "tuning": TuningTable,
-    "validation": ValidationTable, "export": ExportTable, "rig_run": RigRunPlan, "published": PublishedTable,
+    "design": DesignTable, "schedule": ScheduleTable, "thermal": ThermalTable, "tuning": TUNING,
+    "validation": VALIDATION, "export": ExportTable, "rig_run": RigRunPlan, "published": PublishedTable,
 }
 #: the tables every study has
 REQUIRED_TABLES = ("rig", "controller")

@@ -115,7 +115,7 @@ def gain_set(tmp_path_factory):
     ff = study.identify_feedforward()
     gs = pp.GainSet(gains=study.gains, status="validated", feedforward=ff.model, feedforward_info=ff.info(),
                     plant=study.plant, preset=study.name, references=dict(study.references),
-                    criteria=study.criteria, inputs={"study_sha256": study.sha256})
+                    criteria=study.validation, inputs={"study_sha256": study.sha256})
     return gs.save(tmp_path_factory.mktemp("gs") / "gains.json"), tmp_path_factory.getbasetemp()
 
 

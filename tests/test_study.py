@@ -17,6 +17,7 @@ import piezopreload.design.study as design_study_module
 import piezopreload.spec as study_module
 from piezopreload.cli import main
 from piezopreload.core.config import Invalid, Table, key, keys_markdown
+from piezopreload.core.records import TableOf
 from piezopreload.design.plant import DESIGNED_FIELDS, plant_from_design
 from piezopreload.design.preload import optimise
 from piezopreload.design.tables import DesignTable, PlantTable
@@ -36,12 +37,20 @@ def _line(text: str, start: str) -> int:
 
 
 def _all_tables():
-    """Every table class of the schema with its path, nested ones too."""
+    """Every table of the schema with its path, nested ones too."""
     todo = list(STUDY_TABLES.items())
     while todo:
         name, cls = todo.pop(0)
         yield name, cls
-        todo += [(f"{name}.{s.name}", s.table) for s in cls.declared() if s.kind == "table"]
+        if not isinstance(cls, TableOf):
+            todo += [(f"{name}.{s.name}", s.table) for s in cls.declared() if s.kind == "table"]
+
+
+def _keys(cls):
+    """A table's doc and its keys: (key, doc, unit, whether it is a nested table)."""
+    if isinstance(cls, TableOf):  # a domain type read straight from the table
+        return cls.doc, [(k, doc, unit, False) for k, _, _, unit, doc in cls.rows()]
+    return cls.__doc__, [(s.name, s.key.doc, s.key.unit, s.kind == "table") for s in cls.declared()]
 
 
 # ---- the schema: one declaration per key -------------------------------------------------------------
@@ -54,14 +63,14 @@ _SUFFIX_UNITS = {"_N_per_um": "N/um", "_V_per_N": "V/N", "_um_per_V": "um/V", "_
 def test_every_key_is_declared_once_with_a_doc_and_the_unit_its_name_spells():
     seen = 0
     for path, cls in _all_tables():
-        assert cls.__doc__ and f"[{path}]" in cls.__doc__.split(": ")[0], (
-            f"{cls.__name__}'s doc does not open with [{path}]")
-        for spec in cls.declared():
+        doc, keys = _keys(cls)
+        assert doc and f"[{path}]" in doc.split(": ")[0], f"{cls!r}'s doc does not open with [{path}]"
+        for name, about, unit, nested in keys:
             seen += 1
-            assert spec.key.doc.strip(), f"{path}.{spec.name} has no doc"
-            suffix = next((s for s in sorted(_SUFFIX_UNITS, key=len, reverse=True) if spec.name.endswith(s)), None)
-            if suffix and spec.kind != "table":
-                assert spec.key.unit == _SUFFIX_UNITS[suffix], f"{path}.{spec.name}: unit {spec.key.unit!r}"
+            assert about.strip(), f"{path}.{name} has no doc"
+            suffix = next((s for s in sorted(_SUFFIX_UNITS, key=len, reverse=True) if name.endswith(s)), None)
+            if suffix and not nested:
+                assert unit == _SUFFIX_UNITS[suffix], f"{path}.{name}: unit {unit!r}"
     assert seen > 120, "the schema lost tables"
 
 
@@ -201,8 +210,8 @@ def test_the_docs_hold_the_generated_table_of_every_key():
     assert held == study_keys_markdown(), "docs/study.md's table of keys is stale: paste study_keys_markdown()"
     for path, cls in _all_tables():
         assert f"### `[{path}]`" in held
-        for spec in cls.declared():
-            assert f"| `{spec.name}` |" in held, f"{path}.{spec.name} is not in the docs"
+        for name, *_ in _keys(cls)[1]:
+            assert f"| `{name}` |" in held, f"{path}.{name} is not in the docs"
     for name in DESIGNED_FIELDS:  # the keys a designed plant refuses say so
         row = next(line for line in held.split("### `[rig]`")[1].splitlines() if line.startswith(f"| `{name}` |"))
         assert "refused there" in row, row
@@ -471,6 +480,6 @@ def test_the_shipped_studies_set_a_peak_voltage_limit_that_can_fail_or_none():
     left out (no such requirement), never at or above it."""
     for path in (AXIS, PAPER):
         s = pp.Study.load(path)
-        limit = s.criteria.peak_voltage_max_V
+        limit = s.validation.peak_voltage_max_V
         assert limit is None or limit < s.gains.u_max_V, (path.name, limit, s.gains.u_max_V)
-    assert pp.Study.load(AXIS).criteria.peak_voltage_max_V == 110.0
+    assert pp.Study.load(AXIS).validation.peak_voltage_max_V == 110.0
