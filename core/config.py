@@ -316,9 +316,14 @@ def _table_markdown(name: str, cls: Any, notes: Mapping[str, str]) -> list[str]:
     if hasattr(cls, "rows"):  # a domain type read straight from the table (piezopreload.core.records.TableOf)
         for key_name, want, default, unit, about in cls.rows():
             note = notes.get(f"{name}.{key_name}")
-            about = about + (f"; {note}" if note else "")
+            about = about.rstrip(".") + f"; {note}." if note else about
+            if want == "the table":
+                want = f"the table `[{name}.{key_name}]`"
             lines.append(f"| `{key_name}` | {_cell(want)} | {_cell(default)} | {_cell(unit)} | {_cell(about)} |")
-        return [*lines, ""]
+        lines.append("")
+        for sub, table in cls.nested:
+            lines += _table_markdown(f"{name}.{sub}", table, notes)
+        return lines
     nested = []
     for spec in cls.declared():
         if spec.kind == "table" and spec.table is not None:

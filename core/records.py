@@ -43,6 +43,7 @@ piezopreload.core.errors.ArtifactError: fit.json: field 'rms_pct' must be a fini
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import textwrap
@@ -70,7 +71,7 @@ from piezopreload.core.config import Invalid
 from piezopreload.core.errors import ArtifactError
 
 __all__ = ["Entry", "entry", "record", "Record", "Artifact", "Raw", "load_one_of", "object_without", "Checked",
-           "check_entries", "read_table", "table_values", "TableOf", "takes"]
+           "checked", "check_entries", "read_table", "table_values", "TableOf", "takes"]
 
 #: the metadata entry of a field declared with :func:`entry`
 ENTRY = "piezopreload.entry"
@@ -310,6 +311,8 @@ def _spec(owner: type, f: Field[Any], hint: Any) -> _Spec:
             else base
     if e.inline and not is_record:
         raise TypeError(f"{owner.__name__}.{f.name}: only a record is inline")
+    if isinstance(inner, type) and issubclass(inner, Checked) and not is_record:  # its table or constructor reads it
+        return replace(base, record=inner)
     if inner in _SCALARS or is_record:
         return replace(base, kind="inline" if e.inline else "record", record=inner) if is_record else \
             replace(base, kind=_SCALARS[inner])
@@ -1006,6 +1009,8 @@ def _fits(spec: _Spec, value: Any) -> bool:  # noqa: C901 (one branch per kind)
         return isinstance(value, str) and (not e.choices or value in e.choices)
     if kind == "list":
         item = spec.item.removesuffix("|null")
+        if isinstance(value, np.ndarray) and value.ndim == 1:
+            value = value.tolist()
         if not isinstance(value, list | tuple):
             return False
         one = _Spec(spec.name, spec.key, (), item, "", spec.item.endswith("|null"), MISSING, MISSING, tuple, None,
@@ -1018,6 +1023,8 @@ def _fits(spec: _Spec, value: Any) -> bool:  # noqa: C901 (one branch per kind)
         one = _Spec(spec.name, spec.key, (), spec.item, "", False, MISSING, MISSING, tuple, None, spec.record, e)
         return isinstance(value, dict) and all(_fits(one, v) for v in value.values())
     if kind in ("record", "inline"):
+        return isinstance(value, spec.record)
+    if isinstance(spec.record, type) and issubclass(spec.record, Checked):
         return isinstance(value, spec.record)
     return True  # a type the declaration does not know: its own constructor checks it
 
@@ -1044,7 +1051,10 @@ def check_entries(obj: Any) -> None:
 class Checked:
     """A frozen dataclass whose fields are declared with :func:`entry`, each value checked against its declaration
     when it is made (:func:`check_entries`), then against the rules between its fields (:meth:`check`): each rule is
-    stated once, on the type, whether the values come from code, a study's table or a document."""
+    stated once, on the type, whether the values come from code, a study's table or a document.
+
+    Made with :func:`checked` (a frozen dataclass whose docstring gains its ``Parameters`` from the declarations).
+    """
 
     def __post_init__(self) -> None:
         check_entries(self)
@@ -1052,6 +1062,41 @@ class Checked:
 
     def check(self) -> None:
         """The rules between fields (each field has been checked alone); raise :class:`Invalid` naming the field."""
+
+
+@overload
+def checked(cls: type[_R], /) -> type[_R]: ...
+
+
+@overload
+def checked(*, eq: bool = True) -> Callable[[type[_R]], type[_R]]: ...
+
+
+@dataclass_transform(frozen_default=True, field_specifiers=(entry,))
+def checked(cls: Any = None, /, *, eq: bool = True) -> Any:
+    """Make ``cls`` (a :class:`Checked`) a frozen dataclass of its declared fields, its docstring's ``Parameters``
+    section made from their declarations.
+
+    Parameters
+    ----------
+    cls : type
+        The class (``@checked``), or None for ``@checked(eq=False)``.
+    eq : bool
+        Whether values compare equal field by field (False for a type whose fields may be arrays).
+
+    Returns
+    -------
+    type
+        The dataclass (or, given ``eq`` alone, the decorator that makes it).
+    """
+    def make(c: Any) -> Any:
+        if not (isinstance(c, type) and issubclass(c, Checked)):
+            raise TypeError(f"@checked makes a Checked's subclass, not {c!r}")
+        made = dataclass(frozen=True, eq=eq)(c)
+        made.__doc__ = _with_parameters(made)
+        return made
+
+    return make if cls is None else make(cls)
 
 
 #: ``fail(path, message)``: the error for the key at ``path`` of a file (the caller adds the file and the line)
@@ -1100,7 +1145,7 @@ def table_keys(cls: type, keys: tuple[str, ...] | None = None) -> tuple[_Spec, .
 
 
 def read_table(cls: type[_R], data: Any, fail: Fail, path: str, *, keys: tuple[str, ...] | None = None,
-               given: dict[str, Any] | None = None) -> _R:
+               given: dict[str, Any] | None = None, nested: dict[str, TableOf] | None = None) -> _R:
     """Make ``cls`` from a table of a file: each key checked against its field's declaration, then the type's own
     checks (:class:`Checked`); every error is ``fail(path of the key, message)``.
 
@@ -1118,6 +1163,8 @@ def read_table(cls: type[_R], data: Any, fail: Fail, path: str, *, keys: tuple[s
         The fields the table may give, by name (None: every field); the others take their defaults or ``given``.
     given : dict, optional
         Fields set from elsewhere (another table's value), by name.
+    nested : dict of str to TableOf, optional
+        The fields that are tables of their own (``[rig.stack]``), by name.
 
     Returns
     -------
@@ -1132,7 +1179,9 @@ def read_table(cls: type[_R], data: Any, fail: Fail, path: str, *, keys: tuple[s
         spec = specs.get(key)
         if spec is None:
             raise fail(f"{path}.{key}", f"is an unknown key; [{path}] has: {', '.join(specs)}")
-        values[spec.name] = _from_file(spec, value, f"{path}.{key}", fail)
+        inner = (nested or {}).get(spec.name)
+        values[spec.name] = inner.parse(value, fail, f"{path}.{key}") if inner is not None else \
+            _from_file(spec, value, f"{path}.{key}", fail)
     for spec in specs.values():
         if spec.name not in values and spec.default is MISSING and spec.factory is MISSING:
             raise fail(path, f"needs '{spec.key}' ({takes(spec)})")
@@ -1151,6 +1200,8 @@ def table_values(obj: Any, keys: tuple[str, ...] | None = None) -> dict[str, Any
     out: dict[str, Any] = {}
     for spec in table_keys(type(obj), keys):
         value = getattr(obj, spec.name)
+        if dataclasses.is_dataclass(value):  # a table of its own: its TableOf writes it
+            continue
         if spec.entry.write is not None and value is not None:
             value = spec.entry.write(value)
         if value is not None:
@@ -1171,11 +1222,14 @@ class TableOf:
         The table's sentence (``[tuning]: the PID tuning's specification``).
     keys : tuple of str or None
         The fields the file gives, by name (None: every field).
+    nested : tuple of (str, TableOf)
+        The fields that are tables of their own (``[rig.stack]``): each field's name and its table.
     """
 
     type: type
     doc: str
     keys: tuple[str, ...] | None = None
+    nested: tuple[tuple[str, TableOf], ...] = ()
 
     def parse(self, data: Any, fail: Fail, path: str, given: dict[str, Any] | None = None) -> Any:
         """The type from the file's table (see :func:`read_table`).
@@ -1196,7 +1250,7 @@ class TableOf:
         object
             The value.
         """
-        return read_table(self.type, data, fail, path, keys=self.keys, given=given)
+        return read_table(self.type, data, fail, path, keys=self.keys, given=given, nested=dict(self.nested))
 
     def values(self, obj: Any) -> dict[str, Any]:
         """The table's keys of ``obj`` as a file holds them (:func:`table_values`).
@@ -1211,7 +1265,11 @@ class TableOf:
         dict
             Key to value.
         """
-        return table_values(obj, self.keys)
+        out = table_values(obj, self.keys)
+        for name, table in self.nested:
+            if getattr(obj, name) is not None:
+                out[name] = table.values(getattr(obj, name))
+        return out
 
     def rows(self) -> list[tuple[str, str, str, str, str]]:
         """The documentation's rows: each key, what it takes, its default, its unit and its doc.
@@ -1222,7 +1280,11 @@ class TableOf:
             One row per key, in the order of the fields.
         """
         out = []
+        inner = dict(self.nested)
         for spec in table_keys(self.type, self.keys):
+            if spec.name in inner:
+                out.append((spec.key, "the table", "", "", spec.entry.doc))
+                continue
             default = spec.factory() if spec.factory is not MISSING else spec.default
             if spec.entry.write is not None and default is not None and default is not MISSING:
                 default = spec.entry.write(default)

@@ -210,7 +210,7 @@ class _Inner:
 
 def _plant(study: StudySpec, point: DesignPoint) -> Plant:
     table = study.plant_table or PlantTable()
-    return table.plant(study.design_spec, point, study.rig.params()).rig  # type: ignore[arg-type]
+    return table.plant(study.design_spec, point, study.rig).rig  # type: ignore[arg-type]
 
 
 def _nominal(study: StudySpec, plant: Plant, gains: PIDGains, ff: IdentifiedFeedforward) -> dict[str, float]:

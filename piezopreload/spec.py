@@ -71,12 +71,12 @@ from piezopreload.rig.tables import ExportTable, RigRunPlan
 from piezopreload.tables import (
     DESIGN_TABLES,
     REQUIRED_TABLES,
+    RIG,
     STUDY_TABLES,
     ControllerTable,
     FeedforwardTable,
     PublishedTable,
     ReferenceTables,
-    RigTable,
     SimulationTable,
     StudyTable,
 )
@@ -150,7 +150,7 @@ class StudySpec:
     sha256: str
     name: str
     title: str
-    rig: RigTable
+    rig: Plant
     controller: ControllerTable
     feedforward: FeedforwardTable
     reference: ReferenceTables
@@ -279,6 +279,8 @@ class StudySpec:
                 out[table] = value.to_dict()
             elif isinstance(declared, TableOf) and value is not None:
                 out[table] = declared.values(value)
+        if self.plant_from_design:  # the design sets these: the plant's own, not [rig]'s
+            out["rig"] = {k: v for k, v in out["rig"].items() if k not in DESIGNED_FIELDS}
         return out
 
     def replace(self, **changes: dict[str, Any] | None) -> Self:
@@ -400,14 +402,14 @@ class StudySpec:
         k = self._kept
         if k.designed is None:
             table = self.plant_table or PlantTable()
-            k.designed = table.plant(self._spec("the designed plant"), self._point(progress), self.rig.params(),
+            k.designed = table.plant(self._spec("the designed plant"), self._point(progress), self.rig,
                                      k.design_sha256)
         return k.designed
 
     def _plant(self, progress: Say | None) -> Plant:
         k = self._kept
         if k.plant is None:
-            k.plant = self._designed(progress).rig if self.plant_from_design else self.rig.params()
+            k.plant = self._designed(progress).rig if self.plant_from_design else self.rig
         return k.plant
 
     def solved_plant(self, progress: ProgressLike | None = None) -> Plant:
@@ -671,7 +673,7 @@ class _StudyTables(TypedDict):
     an optional table the file does not give."""
 
     study: StudyTable
-    rig: RigTable
+    rig: Plant
     plant: PlantTable | None
     learning: LearningTable | None
     controller: ControllerTable
@@ -707,7 +709,8 @@ def _parse(data: dict[str, Any], where: _Source) -> _StudyTables:
         cls: Any = STUDY_TABLES[name]  # a Table's class (the tables read into domain types are read below)
         return cls.parse(data[name], where.fail, name) if name in data else (None if name in optional else cls())
 
-    study, rig, plant, learning = table("study"), table("rig"), table("plant"), table("learning")
+    rig = RIG.parse(data["rig"], where.fail, "rig")  # [rig] read straight into the plant
+    study, plant, learning = table("study"), table("plant"), table("learning")
     controller, feedforward, reference = table("controller"), table("feedforward"), table("reference")
     simulation: SimulationTable = table("simulation")
     ballscrew, feed_drive, duty, design = table("ballscrew"), table("feed_drive"), table("duty"), table("design")
@@ -776,17 +779,10 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
     fail = where.fail
     _refuse_ignored(data, where)
     t = _parse(data, where)
-    rig: RigTable = t["rig"]
+    rig: Plant = t["rig"]
     kept = _Kept()
-    if t["plant"] is not None and t["plant"].from_design:  # the design sets these: None, not the model's defaults
-        cleared: dict[str, Any] = dict.fromkeys(DESIGNED_FIELDS)
-        rig = _replace(rig, **cleared)
-    try:
-        hardware = rig.params()
-    except ValueError as exc:  # every key was checked; a rule between them the table misses
-        raise fail("rig", f"does not make a plant: {exc}") from None
     if t["plant"] is None or not t["plant"].from_design:
-        kept.plant = hardware
+        kept.plant = rig
     c: ControllerTable = t["controller"]
     sim: SimulationTable = t["simulation"]
     try:

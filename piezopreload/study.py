@@ -16,8 +16,8 @@ compose them without this module, which sits above them and which only the CLI i
 >>> study.replace(rig={"bolt_preload_N": 30.0}).plant.bolt_preload_N
 30.0
 >>> axis = pp.load_study()                             # the machine axis: its plant is its design
->>> axis.rig.bolt_preload_N is None                    # the design sets it; [rig] may not
-True
+>>> "bolt_preload_N" in axis.tables()["rig"]           # the design sets it; [rig] may not
+False
 >>> axis.replace(rig={"bolt_preload_N": 30.0})  # doctest: +ELLIPSIS
 Traceback (most recent call last):
 ...

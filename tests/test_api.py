@@ -165,7 +165,8 @@ def test_gain_set_and_reference_documents_are_checked_naming_the_field():
                                 ("gains", {"Kc_V_per_N": 0.5}, r"field 'gains.Ti_s' is missing"),
                                 ("references", {"step": {"times_s": [0.0]}},
                                  r"field 'references.step' is not valid"),
-                                ("plant", {"rig": {"noise_N": -1.0}}, r"field 'plant.rig' is not valid")):
+                                ("plant", {"rig": {"noise_N": -1.0}},
+                                 r"field 'plant.rig.noise_N' must be a number >= 0, got -1.0")):
         with pytest.raises(pp.ArtifactError, match=match):
             pp.GainSet.from_dict({**doc, field: value}, "g.json")
     with pytest.raises(pp.InputError, match="GainSet.status"):

@@ -48,7 +48,7 @@ from piezopreload.artifacts.tuning import ActiveBound
 from piezopreload.core import native
 from piezopreload.core.config import Invalid
 from piezopreload.core.errors import InfeasibleError, InputError
-from piezopreload.core.records import Checked, entry
+from piezopreload.core.records import Checked, checked, entry
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import PAPER_BAND_N, Reference
 from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V, SCHEDULE_MAX, PIDGains
@@ -100,7 +100,7 @@ def _levels_of(reference: Reference) -> list[float]:
     return [float(x) for x in reference.levels_N]
 
 
-@dataclass(frozen=True)
+@checked
 class TuningSpec(Checked):
     """What the tuned loop must do: a study's ``[tuning]`` table (its keys, below), with the error band and the
     output range from its ``[simulation]`` and ``[controller]``.
@@ -185,6 +185,9 @@ class TuningSpec(Checked):
                 **({} if self.filter_s is None else {"filter_s": self.filter_s}),
                 **({} if self.force_range_N is None else {"force_range_N": list(self.force_range_N)})}
 
+
+#: the paper's specification (what :func:`tune_pid` tunes for where it is given none)
+_PAPER_SPEC = TuningSpec()
 
 #: the keys of a study's [tuning] table, by field name (the others come from [simulation], [controller] or code)
 TUNING_KEYS = ("overshoot_margin_N", "ms_max", "noise_gain_max_V_per_N", "tune_setpoint_weight", "step",
@@ -704,7 +707,7 @@ def _as_pi(params: Plant, feedforward: InverseModel | None, spec: TuningSpec, en
 def tune_pid(
     params: Plant,
     feedforward: InverseModel | None,
-    spec: TuningSpec = TuningSpec(),
+    spec: TuningSpec = _PAPER_SPEC,
     *,
     max_iterations: int = 150,
     starts: int = 3,
