@@ -67,14 +67,32 @@ from typing import (
 import numpy as np
 
 from piezopreload.core.artifacts import field_message, read_artifact, register_kind, write_artifact
-from piezopreload.core.config import Invalid
-from piezopreload.core.errors import ArtifactError
+from piezopreload.core.errors import ArtifactError, InputError
 
 __all__ = ["Entry", "entry", "record", "Record", "Artifact", "Raw", "load_one_of", "object_without", "Checked",
-           "checked", "check_entries", "read_table", "table_values", "TableOf", "takes"]
+           "checked", "check_entries", "read_table", "Invalid", "MANY", "table_values", "TableOf", "takes"]
 
 #: the metadata entry of a field declared with :func:`entry`
 ENTRY = "piezopreload.entry"
+
+
+class Invalid(InputError):
+    """A value that is not what its field declares, with the field's key (``ball_mm``) and, made in code, its type.
+
+    Parameters
+    ----------
+    path : str
+        The key (or its path inside the value: ``rig.noise_N``).
+    message : str
+        What is wrong, as a predicate: ``must be a number > 0, got -1.0``.
+    owner : str
+        The type's name where it was made in code ("": the key alone).
+    """
+
+    def __init__(self, path: str, message: str, owner: str = "") -> None:
+        super().__init__(f"'{owner}.{path}' {message}" if owner else f"'{path}' {message}")
+        self.path = path
+        self.message = message
 
 
 class _Nothing:
@@ -319,6 +337,8 @@ def _spec(owner: type, f: Field[Any], hint: Any) -> _Spec:
     try:
         return _container_spec(base, inner)
     except TypeError:
+        if not issubclass(owner, Record):  # a domain type's field of a type the declaration does not know: its own
+            return base                    # constructor checks it
         raise TypeError(f"{owner.__name__}.{f.name}: a field holds float, int, bool, str, an array, a record, a tuple, "
                         f"list or dict of them, not {hint!r}; declare how to read it (entry(..., read=...))") from None
 
@@ -948,7 +968,7 @@ def load_one_of(path: str | Path, *kinds: type[Artifact]) -> Artifact:
 _TABLE_A = {"number": "a number", "integer": "an integer", "flag": "true or false", "text": "a string"}
 _TABLE_PLURAL = {"number": "numbers", "integer": "integers", "flag": "booleans", "text": "strings"}
 _LARGEST = 1.7976931348623157e308  # TOML integers are unbounded: one a float cannot hold is not a number
-_MANY = 1_000_000  # a size (least, most) whose most is this or more has no most
+MANY = 1_000_000  # a size (least, most) whose most is this or more has no most
 
 
 def takes(spec: _Spec) -> str:
@@ -963,7 +983,7 @@ def takes(spec: _Spec) -> str:
     if spec.kind == "list" and spec.item in _TABLE_PLURAL:
         size = e.size
         count = (f"{spec.length} " if spec.length else f"{size} " if isinstance(size, int)
-                 else (f"{size[0]} or more " if size[1] >= _MANY else f"{size[0]} to {size[1]} ")
+                 else (f"{size[0]} or more " if size[1] >= MANY else f"{size[0]} to {size[1]} ")
                  if isinstance(size, tuple) else "")
         text = f"a list of {count}{_TABLE_PLURAL[spec.item]}" + (f" {bounds}" if bounds else "")
         if e.choices:

@@ -42,15 +42,13 @@ def _all_tables():
     while todo:
         name, cls = todo.pop(0)
         yield name, cls
-        if not isinstance(cls, TableOf):
-            todo += [(f"{name}.{s.name}", s.table) for s in cls.declared() if s.kind == "table"]
+        todo += [(f"{name}.{sub}", inner) for sub, inner in (cls if isinstance(cls, TableOf) else cls.table()).nested]
 
 
 def _keys(cls):
     """A table's doc and its keys: (key, doc, unit, whether it is a nested table)."""
-    if isinstance(cls, TableOf):  # a domain type read straight from the table
-        return cls.doc, [(k, doc, unit, False) for k, _, _, unit, doc in cls.rows()]
-    return cls.__doc__, [(s.name, s.key.doc, s.key.unit, s.kind == "table") for s in cls.declared()]
+    table = cls if isinstance(cls, TableOf) else cls.table()
+    return table.doc, [(k, doc, unit, want == "the table") for k, want, _, unit, doc in table.rows()]
 
 
 # ---- the schema: one declaration per key -------------------------------------------------------------
@@ -81,7 +79,7 @@ def test_a_key_without_a_declaration_is_refused_when_the_table_is_made():
 
         mass_kg: float = 1.0
 
-    with pytest.raises(TypeError, match=r"Loose.mass_kg: declare the key"):
+    with pytest.raises(TypeError, match=r"Loose.mass_kg: declare the field with records.entry"):
         Loose()
 
 
@@ -172,9 +170,9 @@ def test_a_copy_is_checked_as_a_file_is_and_names_the_key():
 
 
 def test_a_table_checks_itself_when_made_in_code():
-    with pytest.raises(Invalid, match=r"'pareto_points' must be an integer >= 2 and <= 500, got 1"):
+    with pytest.raises(Invalid, match=r"'DesignTable.pareto_points' must be an integer >= 2 and <= 500, got 1"):
         DesignTable(pareto_points=1)
-    with pytest.raises(Invalid, match=r"'cycles' must be an integer >= 1"):
+    with pytest.raises(Invalid, match=r"'PlantTable.cycles' must be an integer >= 1, got 0"):
         PlantTable(cycles=0)
     with pytest.raises(Invalid, match=r"'Plant.stack' must be a valid value, got dict \{'name': 'x'\}"):
         Plant(stack={"name": "x"})  # type: ignore[arg-type]
