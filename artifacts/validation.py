@@ -60,6 +60,8 @@ class Criteria(Checked, Record):
 
     NOUN: ClassVar[str] = "the criteria"
     CLOSED: ClassVar[bool] = True
+    #: the fields that are limits on a metric (a study's [validation] gives them)
+    LIMITS: ClassVar[tuple[str, ...]] = tuple(_LIMITS)
 
     settling_max_s: float = entry("The worst plant's longest settling time.", unit="s", gt=0, default=0.60)
     overshoot_max_N: float = entry("The worst plant's largest overshoot.", unit="N", gt=0, default=PAPER_BAND_N)

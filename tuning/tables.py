@@ -14,10 +14,7 @@ from piezopreload.core.records import TableOf
 from piezopreload.tuning.ilc import METHODS
 from piezopreload.tuning.pid import TUNING_KEYS, TuningSpec
 
-__all__ = ["TUNING", "VALIDATION", "LearningTable", "CRITERIA_LIMITS"]
-
-#: the [validation] keys that are :class:`Criteria`'s limits
-CRITERIA_LIMITS = ("settling_max_s", "overshoot_max_N", "tracking_rms_max_N", "peak_voltage_max_V")
+__all__ = ["TUNING", "VALIDATION", "LearningTable"]
 
 #: [tuning]: the PID tuning's specification, the error band and the output range from [simulation] and [controller]
 TUNING = TableOf(TuningSpec, "[tuning]: the PID tuning's specification (tuning/pid.py, ``TuningSpec``) and the gain "
@@ -26,7 +23,7 @@ TUNING = TableOf(TuningSpec, "[tuning]: the PID tuning's specification (tuning/p
 #: [validation]: the Monte Carlo set and the limits every plant must meet, the error band from [simulation]
 VALIDATION = TableOf(Criteria, "[validation]: the Monte Carlo set and the limits every plant must meet for the gain "
                                "set to be validated (artifacts/validation.py, ``Criteria``).",
-                     ("plants", "seed", "workers", *CRITERIA_LIMITS))
+                     ("plants", "seed", "workers", *Criteria.LIMITS))
 
 
 @dataclass(frozen=True)
