@@ -3,7 +3,8 @@
 A record of an artifact is a frozen dataclass made with :func:`record` from :class:`Record` (or, for a
 whole document of one kind, :class:`Artifact`), each of its fields declared with :func:`entry`: its
 documentation, its unit and its range (the one schema dialect: a study's tables are declared the same way,
-:func:`piezopreload.core.config.key` writing an entry in a table's order), and, where it does not sit at the top of its object under its own name, its place in the document. Its
+:func:`piezopreload.core.config.key` writing an entry in a table's order), and, where it does not sit at the
+top of its object under its own name, its place in the document. Its
 type is the field's annotation: ``float`` (a finite number), ``int``, ``bool``, ``str``, a tuple or a list
 of them, a float array (``Array``), another record, a tuple or a list of records, a dict of numbers,
 strings or records, a dict of anything (an object kept as it is), with ``| None`` where null stands for
