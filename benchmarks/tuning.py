@@ -38,7 +38,7 @@ def main() -> None:
     cache = tempfile.TemporaryDirectory()
     os.environ["XDG_CACHE_HOME"] = cache.name  # an empty build cache: the first compiled tuning builds
     study = load_study(paper_study())
-    ff = identify_feedforward(study.plant, study.excitation, check_range_N=None).model
+    ff = identify_feedforward(study.plant, study.feedforward, check_range_N=None).model
     spec = study.tuning
 
     t0 = time.perf_counter()

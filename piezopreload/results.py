@@ -545,7 +545,7 @@ def reproduce(study: StudySpec, feedforward: IdentifiedFeedforward | None = None
                          "studies/paper2021.toml has); reproduce sets a study's simulation beside published numbers")
     feedforward = feedforward or study.identify_feedforward()
     t0 = time.perf_counter()
-    rep = reproduce_paper(study.plant, study.gains, step=study.references["step"], excitation=study.excitation,
+    rep = reproduce_paper(study.plant, study.gains, step=study.references["step"], excitation=study.feedforward,
                           seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
                           repeats=repeats, feedforward=feedforward.model,
                           feedforward_fit=feedforward.fit.to_dict())

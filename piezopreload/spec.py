@@ -70,11 +70,11 @@ from piezopreload.progress import ProgressLike, say_of
 from piezopreload.rig.tables import ExportTable, RigRunPlan
 from piezopreload.tables import (
     DESIGN_TABLES,
+    FEEDFORWARD,
     REQUIRED_TABLES,
     RIG,
     STUDY_TABLES,
     ControllerTable,
-    FeedforwardTable,
     PublishedTable,
     ReferenceTables,
     SimulationTable,
@@ -152,7 +152,7 @@ class StudySpec:
     title: str
     rig: Plant
     controller: ControllerTable
-    feedforward: FeedforwardTable
+    feedforward: LoopExcitation
     reference: ReferenceTables
     simulation: SimulationTable
     tuning: TuningSpec
@@ -170,7 +170,6 @@ class StudySpec:
     # what the tables make, built and checked on load
     gains: PIDGains = field(repr=False)
     references: dict[str, Reference] = field(repr=False)
-    excitation: LoopExcitation = field(repr=False)
     design_spec: DesignSpec | None = field(repr=False)
     where: _Source = field(repr=False)
     source_text: bytes = field(repr=False)  # the file as read, or as :meth:`replace` wrote it
@@ -444,7 +443,7 @@ class StudySpec:
         say = said or (lambda _m: None)
         record = self.measured_loop(said)  # refused before the design if it does not cover the references
         plant = self._plant(said)
-        ex, (low, high) = self.excitation, self.reference_range_N
+        ex, (low, high) = self.feedforward, self.reference_range_N
         if record is None:
             say(f"simulating the {ex.v_max_V:g} V, {ex.frequency_Hz:g} Hz loop measurement on the plant's truth model")
         ff = identify_feedforward(plant, ex, record, check_range_N=(low, high))
@@ -677,7 +676,7 @@ class _StudyTables(TypedDict):
     plant: PlantTable | None
     learning: LearningTable | None
     controller: ControllerTable
-    feedforward: FeedforwardTable
+    feedforward: LoopExcitation
     reference: ReferenceTables
     simulation: SimulationTable
     ballscrew: BallscrewTable | None
@@ -711,7 +710,8 @@ def _parse(data: dict[str, Any], where: _Source) -> _StudyTables:
 
     rig = RIG.parse(data["rig"], where.fail, "rig")  # [rig] read straight into the plant
     study, plant, learning = table("study"), table("plant"), table("learning")
-    controller, feedforward, reference = table("controller"), table("feedforward"), table("reference")
+    controller, reference = table("controller"), table("reference")
+    feedforward = FEEDFORWARD.parse(data.get("feedforward", {}), where.fail, "feedforward")
     simulation: SimulationTable = table("simulation")
     ballscrew, feed_drive, duty, design = table("ballscrew"), table("feed_drive"), table("duty"), table("design")
     schedule, thermal = table("schedule"), table("thermal")
@@ -807,7 +807,7 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
         rig_run=t["rig_run"].resolved(), ballscrew=t["ballscrew"], feed_drive=t["feed_drive"], duty=t["duty"],
         design_table=t["design"], schedule=t["schedule"], plant_table=t["plant"], learning=t["learning"],
         published=t["published"], thermal=t["thermal"], gains=gains,
-        references=_references(t["reference"], fail), excitation=t["feedforward"].excitation(),
+        references=_references(t["reference"], fail),
         design_spec=design_spec, where=where, source_text=text,
         given=copy.deepcopy(data), say=say, _kept=kept)
 

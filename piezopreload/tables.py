@@ -12,7 +12,7 @@ Where the plant is the design (``[plant] from_design = true``) the design sets t
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 from piezopreload.core.config import Invalid, Table, key, keys_markdown
 from piezopreload.core.records import TableOf
@@ -29,11 +29,10 @@ from piezopreload.design.tables import (
 from piezopreload.models.actuator import Plant, StackData
 from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V
 from piezopreload.rig.tables import ExportTable, RigRunPlan
-from piezopreload.tuning.calibrate import LoopExcitation
-from piezopreload.tuning.identify import MODELS
+from piezopreload.tuning.feedforward import LoopExcitation
 from piezopreload.tuning.tables import TUNING, VALIDATION, LearningTable
 
-__all__ = ["StudyTable", "STACK", "RIG", "ControllerTable", "FeedforwardTable", "StepTable",
+__all__ = ["StudyTable", "STACK", "RIG", "ControllerTable", "FEEDFORWARD", "StepTable",
            "TrajectoryTable", "ReferenceTables", "SimulationTable", "StepNumbers", "PublishedTable", "STUDY_TABLES",
            "REQUIRED_TABLES",
            "study_keys_markdown"]
@@ -82,23 +81,8 @@ class ControllerTable(Table):
         return 60.0 if self.units == "minutes" else 1.0
 
 
-@dataclass(frozen=True)
-class FeedforwardTable(Table):
-    """[feedforward]: the loop measurement the feedforward's P-I model is identified from (simulated on the plant's
-    truth model, or ``data``, a measured one), the model's kind and whether it compensates creep too."""
-
-    v_max_V: float = key(LoopExcitation.v_max_V, "the triangle's peak voltage", unit="V", gt=0)
-    frequency_Hz: float = key(LoopExcitation.frequency_Hz, "the triangle's frequency", unit="Hz", gt=0)
-    cycles: int = key(LoopExcitation.cycles, "cycles of the triangle", ge=1)
-    n_operators: int = key(LoopExcitation.n_operators, "play operators of the P-I model", ge=1)
-    seed: int = key(LoopExcitation.seed, "noise seed of the simulated measurement", ge=0)
-    data: str | None = key(None, "a measured time_s,voltage_V,force_N loop, relative to the study file (not set: "
-                           "the loop simulated on the plant)")
-    kind: str = key(LoopExcitation.kind, "the P-I model", choices=MODELS)
-    creep: bool = key(LoopExcitation.creep, "identify and compensate creep lags too")
-
-    def excitation(self) -> LoopExcitation:
-        return LoopExcitation(**{f.name: getattr(self, f.name) for f in fields(self) if f.name != "data"})
+#: [feedforward]: the loop measurement, read straight into :class:`~piezopreload.tuning.feedforward.LoopExcitation`
+FEEDFORWARD = TableOf(LoopExcitation, LoopExcitation.__doc__ or "")
 
 
 @dataclass(frozen=True)
@@ -172,7 +156,7 @@ class PublishedTable(Table):
 #: the study file's tables, by name, in the order a file has them
 STUDY_TABLES: dict[str, type[Table] | TableOf] = {
     "study": StudyTable, "rig": RIG, "plant": PlantTable, "learning": LearningTable,
-    "controller": ControllerTable, "feedforward": FeedforwardTable, "reference": ReferenceTables,
+    "controller": ControllerTable, "feedforward": FEEDFORWARD, "reference": ReferenceTables,
     "simulation": SimulationTable, "ballscrew": BallscrewTable, "feed_drive": FeedDriveTable, "duty": DutyTable,
     "design": DesignTable, "schedule": ScheduleTable, "thermal": ThermalTable, "tuning": TUNING,
     "validation": VALIDATION, "export": ExportTable, "rig_run": RigRunPlan, "published": PublishedTable,
