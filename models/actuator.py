@@ -121,7 +121,8 @@ class Plant(Checked):
     stroke_um_per_V: float = entry("The stacks' anhysteretic free stroke per volt (d of the Bouc-Wen model).",
                                    unit="um/V", gt=0, default=0.35)
     bw_alpha: float = entry("Bouc-Wen hysteresis: alpha (the loop's width).", gt=0, default=0.25)
-    bw_beta_per_V: float = entry("Bouc-Wen hysteresis: beta (the loop's shape; above |gamma|).", unit="1/V", ge=0,
+    bw_beta_per_V: float = entry("Bouc-Wen hysteresis: beta (the loop's shape; above the magnitude of gamma).",
+                                 unit="1/V", ge=0,
                                  default=0.02)
     bw_gamma_per_V: float = entry("Bouc-Wen hysteresis: gamma.", unit="1/V", default=0.0)
     bw_kappa: float = entry("The loop's asymmetry: a term kappa v^2 / 100 V in the stroke, so the loop is not "
