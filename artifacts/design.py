@@ -213,6 +213,7 @@ class DesignRecord(Artifact):
 
     @property
     def point(self) -> DesignPoint:
+        """The optimum's design point (the optimum's :attr:`Optimum.point`)."""
         return self.optimum.point
 
     def save(self, path: str | Path) -> Path:

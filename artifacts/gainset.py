@@ -286,7 +286,27 @@ class GainSet(Artifact):
         """Refuse a gain set that is not validated unless the user accepts each requirement it missed by name
         (:attr:`Requirement.key`, ``--accept KEY``); returns the missed requirements so accepted (none for a
         validated set), for the caller to record. :class:`InputError` names what was missed and the way to accept
-        it, or that the set was never validated (nothing to accept by name then)."""
+        it, or that the set was never validated (nothing to accept by name then).
+
+        Parameters
+        ----------
+        accepted : iterable of str
+            The keys (:attr:`Requirement.key`) of the missed requirements the user accepts by name (``--accept KEY``).
+        shown : str
+            What the error message calls the gain set (its file, or "the gain set").
+        use : str
+            What the gains are about to be ("used", "pushed"), for the message.
+
+        Returns
+        -------
+        tuple of Requirement
+            The missed requirements the user accepted, each with its value and margin; empty for a validated set.
+
+        Raises
+        ------
+        InputError
+            Where the set was never validated, or missed a requirement that ``accepted`` does not name.
+        """
         if self.validated:
             return ()
         miss = self.missed
@@ -305,7 +325,14 @@ class GainSet(Artifact):
         return miss
 
     def verdict(self) -> str:
-        """The status in words: what it was validated against, or what it missed by how much."""
+        """The status in words: what it was validated against, or what it missed by how much.
+
+        Returns
+        -------
+        str
+            ``validated: ...`` with the number of requirements met, ``<status>: not validated``, or the status and each
+            missed requirement's key and sentence (achieved, limit, margin).
+        """
         if self.validation is None:
             return f"{self.status}: not validated"
         if self.validated:
@@ -343,7 +370,18 @@ class GainSet(Artifact):
         return f"<p><b>Gain set</b></p><table>{body}</table>{validation}"
 
     def plot(self) -> Figure:
-        """The Monte Carlo validation it carries, each bounded metric over the plants against its limit: a Figure."""
+        """The Monte Carlo validation it carries, each bounded metric over the plants against its limit: a Figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            One histogram per bounded metric over the Monte Carlo plants, its limit dashed.
+
+        Raises
+        ------
+        InputError
+            Where the gain set carries no validation.
+        """
         if self.validation is None:
             raise InputError("the gain set carries no validation to plot; validate it first")
         return self.validation.plot()
@@ -408,7 +446,23 @@ class GainSet(Artifact):
 
     # ---- what it drives -------------------------------------------------------------------------
     def reference(self, name: str) -> Reference:
-        """The named reference of the validation; an error names what the gain set holds."""
+        """The named reference of the validation; an error names what the gain set holds.
+
+        Parameters
+        ----------
+        name : str
+            The reference's name among :attr:`references` (``step``, ``trajectory``).
+
+        Returns
+        -------
+        Reference
+            The reference the gains were validated on.
+
+        Raises
+        ------
+        InputError
+            Where the gain set holds no reference of that name; the message lists those it holds.
+        """
         if name not in self.references:
             raise InputError(f"the gain set has no reference '{name}' (it holds "
                              f"{', '.join(self.references) or 'none'}); {_REWRITE}")
@@ -421,7 +475,20 @@ class GainSet(Artifact):
         return None if self.plant is None else content_hash(self.plant.to_dict())
 
     def controller(self) -> Controller:
-        """The controller the gain set describes: its gains, the plant's sample period, the feedforward's inverse."""
+        """The controller the gain set describes: its gains, the plant's sample period, the feedforward's inverse.
+
+        Returns
+        -------
+        Controller
+            The discrete controller of :attr:`gains` at the plant's sample period (or the gain set's own
+            :attr:`sample_period_s`), with the feedforward's inverse resampled at that period (None without a
+            feedforward).
+
+        Raises
+        ------
+        InputError
+            Where the gain set names neither a plant nor a sample period.
+        """
         if self.plant is not None:
             dt = float(self.plant.sample_period_s)
         elif self.sample_period_s is not None:

@@ -100,6 +100,7 @@ class LearnedSignal(Artifact):
 
     @property
     def reference_sha256(self) -> str:
+        """The hash of the reference the signal was learned on (:func:`reference_sha256` of :attr:`reference`)."""
         return reference_sha256(self.reference)
 
     @property
@@ -110,7 +111,22 @@ class LearnedSignal(Artifact):
 
     def check(self, gain_set_sha256: str | None, reference: Reference | None = None,
               shown: str = "the learned signal") -> None:
-        """Refuse playing this signal with another gain set or on another reference (an :class:`InputError`)."""
+        """Refuse playing this signal with another gain set or on another reference (an :class:`InputError`).
+
+        Parameters
+        ----------
+        gain_set_sha256 : str or None
+            The hash of the gain set it is about to be played with (None: unsaved gains, which never match).
+        reference : Reference or None
+            The reference it is about to be played on; None leaves the reference unchecked.
+        shown : str
+            What the error message calls the signal (its file, or "the learned signal").
+
+        Raises
+        ------
+        InputError
+            Where the gain set or the reference is not the one the signal was learned with.
+        """
         if self.gain_set_sha256 is None or gain_set_sha256 != self.gain_set_sha256:
             raise InputError(f"{shown} was learned with gain set {self.gain_set_sha256 or 'none (unsaved gains)'}, "
                              f"not with gain set {gain_set_sha256 or 'none'}: learn it again with that gain set "

@@ -76,11 +76,33 @@ class DesignedPlant(Artifact):
         return self.max_preload_N - self.bolt_preload_N
 
     def stack_force_N(self, preload_N: ArrayLike) -> Array:
-        """The stacks' share of a preload: the preload less the bolts'."""
+        """The stacks' share of a preload: the preload less the bolts'.
+
+        Parameters
+        ----------
+        preload_N : array_like
+            The nut's preload, in N.
+
+        Returns
+        -------
+        ndarray
+            The force the stacks carry, in N: ``preload_N`` less :attr:`bolt_preload_N` (same shape).
+        """
         return np.asarray(preload_N, float) - self.bolt_preload_N
 
     def preload_N(self, stack_force_N: ArrayLike) -> Array:
-        """The preload for the stacks' force ``stack_force_N``."""
+        """The preload for the stacks' force ``stack_force_N``.
+
+        Parameters
+        ----------
+        stack_force_N : array_like
+            The force the stacks carry, in N.
+
+        Returns
+        -------
+        ndarray
+            The nut's preload, in N: ``stack_force_N`` plus :attr:`bolt_preload_N` (same shape).
+        """
         return np.asarray(stack_force_N, float) + self.bolt_preload_N
 
     def nut_rigidity_N_per_um(self, preload_N: ArrayLike, step_N: float = 1e-3) -> Array:
@@ -90,6 +112,18 @@ class DesignedPlant(Artifact):
         :meth:`Plant.stroke_for_force_um`) less the stacks' and the sleeve's compliance is the
         two nuts in series, ``2 delta'(F)``; an external load meets them in parallel, so the
         rigidity is ``2 / delta'(F) = 4 / (2 delta'(F))``.
+
+        Parameters
+        ----------
+        preload_N : array_like
+            The nut's preload, in N.
+        step_N : float
+            The half step of the central difference of the stroke, in N.
+
+        Returns
+        -------
+        ndarray
+            The double nut's axial rigidity at each preload, in N/um (same shape as ``preload_N``).
         """
         f = self.stack_force_N(preload_N)
         dx = (self.rig.stroke_for_force_um(f + step_N) - self.rig.stroke_for_force_um(f - step_N)) / (2.0 * step_N)
@@ -97,7 +131,14 @@ class DesignedPlant(Artifact):
         return 4.0 / nuts
 
     def local_stiffness_N_per_um(self) -> dict[str, float]:
-        """The coupling's local stiffness the stacks push against, at the bolts' preload and at the top."""
+        """The coupling's local stiffness the stacks push against, at the bolts' preload and at the top.
+
+        Returns
+        -------
+        dict of str to float
+            ``at_bolts``: the local stiffness at the bolts' preload alone (no stack force); ``at_max``: at the stacks'
+            largest force :attr:`stack_force_max_N`; both in N/um.
+        """
         return {"at_bolts": float(self.rig.local_stiffness_N_per_um(0.0)),
                 "at_max": float(self.rig.local_stiffness_N_per_um(self.stack_force_max_N))}
 
@@ -131,6 +172,7 @@ class DesignedPlant(Artifact):
         Path
             The file written.
         """
-        record = self if inputs is None else replace(self, inputs=dict(inputs))
-        record._write(path)
+        if inputs is not None:  # the same plant with the inputs given: that record writes itself
+            return replace(self, inputs=dict(inputs)).save(path)
+        self._write(path)
         return Path(path)

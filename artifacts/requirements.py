@@ -110,11 +110,24 @@ class Requirement(Record):
 
     @property
     def met(self) -> bool:
+        """Whether the requirement is met: its :attr:`margin` is zero or more."""
         return self.margin >= 0.0
 
     def sentence(self, source: bool = True) -> str:
         """The verdict in words: achieved against required, and the margin, each figure by the one rule of its
-        unit (:func:`~piezopreload.core.quantities.number`); ``source=False`` leaves out the key that sets it."""
+        unit (:func:`~piezopreload.core.quantities.number`); ``source=False`` leaves out the key that sets it.
+
+        Parameters
+        ----------
+        source : bool
+            Whether to name the study key that sets the limit, in parentheses.
+
+        Returns
+        -------
+        str
+            ``NAME: VALUE UNIT against at least|at most LIMIT UNIT (SOURCE), met with M UNIT to spare (P %)``, or
+            ``missed by M UNIT`` where the margin is negative.
+        """
         bound = "at least" if self.sense == "min" else "at most"
         where = f" ({self.source})" if self.source and source else ""
         u = self.unit
@@ -125,13 +138,32 @@ class Requirement(Record):
         return f"{head}, missed by {number(-self.margin, u)} {u}{pct}"
 
     def figures(self) -> str:
-        """Achieved against required in symbols, each figure by its unit's rule: ``1,126 N/um >= 800 N/um``."""
+        """Achieved against required in symbols, each figure by its unit's rule: ``1,126 N/um >= 800 N/um``.
+
+        Returns
+        -------
+        str
+            The achieved value, ``>=`` or ``<=`` by :attr:`sense`, and the limit, each with its unit.
+        """
         u = self.unit
         return f"{number(self.value, u)} {u} {'>=' if self.sense == 'min' else '<='} {number(self.limit, u)} {u}"
 
     def line(self, label: str = "", width: int = 0) -> str:
         """One line of a table of verdicts: ``met``/``MISSED``, the margin as a share of the limit, the figures
-        (padded to ``width``) and ``label`` (default: the name)."""
+        (padded to ``width``) and ``label`` (default: the name).
+
+        Parameters
+        ----------
+        label : str
+            The line's label ("": the requirement's :attr:`name`).
+        width : int
+            The width the figures are padded to, in characters, so that a table's labels align (0: unpadded).
+
+        Returns
+        -------
+        str
+            ``met`` or ``MISSED``, the signed margin in % of the limit, the figures (:meth:`figures`) and the label.
+        """
         share = "" if self.margin_pct is None else f"{'+' if self.margin_pct >= 0 else '-'}" \
                                                    f"{number(abs(self.margin_pct), '%')} %"
         return f"{'met   ' if self.met else 'MISSED'} {share:>8s}  {self.figures():{width}s}  {label or self.name}"

@@ -54,12 +54,13 @@ class LoadProfile(Record):
         """Each sample's share of time (half the gaps to its neighbours)."""
         t = np.asarray(self.time_s, float)
         gaps = np.diff(t)
-        return 0.5 * (np.concatenate([[0.0], gaps]) + np.concatenate([gaps, [0.0]]))
+        return np.asarray(0.5 * (np.concatenate([[0.0], gaps]) + np.concatenate([gaps, [0.0]])), np.float64)
 
     @property
     def cutting(self) -> NDArray[np.bool_]:
         """The samples under load (where the schedule's requirements are judged)."""
-        return np.abs(np.asarray(self.axial_load_N, float)) > 0
+        loaded: NDArray[np.bool_] = np.abs(np.asarray(self.axial_load_N, float)) > 0
+        return loaded
 
 
 def _limit_from(x: Any) -> float:
@@ -114,7 +115,9 @@ class ScheduleSpec(Record):
         return 1.0 if self.in_machine_factor is None else float(self.in_machine_factor)
 
     def required_stiffness(self, axial_load_N: ArrayLike) -> Array:
-        return np.maximum(self.stiffness_min_N_per_um, np.abs(np.asarray(axial_load_N, float)) / self.deflection_max_um)
+        required: Array = np.maximum(self.stiffness_min_N_per_um,
+                                     np.abs(np.asarray(axial_load_N, float)) / self.deflection_max_um)
+        return required
 
 
 #: the per-sample series a schedule records (beside the profile's time, load and speed)
@@ -167,6 +170,13 @@ class ScheduleSummary:
     local_margin_max_N: float
 
     def to_dict(self) -> dict[str, Any]:
+        """The summary as ``design --json`` prints it.
+
+        Returns
+        -------
+        dict
+            Its numbers by name, the schedule spec's keys (:meth:`ScheduleSpec.to_dict`) among them.
+        """
         return {"status": self.status, "friction_energy": self.friction_energy,
                 "constant_friction_energy": self.constant_friction_energy, "energy_units": self.energy_units,
                 "saving_fraction": self.saving_fraction, "constant_preload_N": self.constant_preload_N,
@@ -223,7 +233,14 @@ class PreloadSchedule(Record):
         return 1.0 - self.friction_energy_J / self.constant_friction_energy_J
 
     def summary(self) -> ScheduleSummary:
-        """The schedule's numbers (no series): what ``design --json`` prints."""
+        """The schedule's numbers (no series): what ``design --json`` prints.
+
+        Returns
+        -------
+        ScheduleSummary
+            The status, the friction energies of the schedule and of the best constant preload, the saving, the range of
+            the preload (N), the least rigidity margin (N/um), the samples and the spec.
+        """
         return ScheduleSummary(
             status=self.status, friction_energy=self.friction_energy_J,
             constant_friction_energy=self.constant_friction_energy_J, energy_units=self.energy_units,
@@ -246,7 +263,14 @@ class PreloadSchedule(Record):
         return {**self.summary().to_dict(), **super().to_dict()}
 
     def plot(self) -> Figure:
-        """Load profile, the two preloads, and rigidity against the requirement, on three axes: a Figure."""
+        """Load profile, the two preloads, and rigidity against the requirement, on three axes: a Figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            Three axes against time: the axial load (N); the scheduled and the best constant preload (N); the rigidity
+            of each and the required rigidity (N/um).
+        """
         from matplotlib.figure import Figure
 
         fig = Figure(figsize=(6.0, 6.0), layout="constrained")

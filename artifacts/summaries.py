@@ -213,7 +213,20 @@ class SystemSummary(StageSummary):
     @classmethod
     def of(cls, system: SystemRecord, before: BeforeLearning | None = None) -> SystemSummary:
         """The summary of a system artifact (no series): its numbers, verdicts, bounds, pre-cycle, margin, cycles,
-        passes and thermal figures; ``before``: the error before learning, where the schedule was learned."""
+        passes and thermal figures; ``before``: the error before learning, where the schedule was learned.
+
+        Parameters
+        ----------
+        system : SystemRecord
+            The system artifact.
+        before : BeforeLearning or None
+            The tracking error before learning and the trials, where the schedule was learned; None otherwise.
+
+        Returns
+        -------
+        SystemSummary
+            The system's numbers, requirements and thermal figures, without the time series.
+        """
         return cls(system.numbers, system.requirements, system.bounds, system.pre_cycle, system.preload_margin_N,
                    system.cycles, system.passes, None if system.thermal is None else system.thermal.summary().to_dict(),
                    before, system.basis, system.sensitivity)
@@ -224,16 +237,35 @@ class SystemSummary(StageSummary):
 
     @property
     def requirements_met(self) -> bool:
+        """Whether every requirement the system stage checked is met."""
         return all(r.met for r in self.checked)
 
     def thermal_figure(self, name: str) -> tuple[float | None, float | None]:
         """A thermal figure (``heat_mean_W``, ``growth_max_um``, ...) for the schedule and for the constant preload;
-        (None, None) where the study has no ``[thermal]`` table."""
+        (None, None) where the study has no ``[thermal]`` table.
+
+        Parameters
+        ----------
+        name : str
+            The thermal figure's name (``heat_mean_W``, ``growth_max_um``, ...).
+
+        Returns
+        -------
+        tuple of (float or None, float or None)
+            The figure for the preload schedule and for the constant preload, in the unit its name carries; (None, None)
+            where the study has no ``[thermal]`` table or the figure is not among them.
+        """
         pair = (self.thermal or {}).get(name) or {}
         return pair.get("schedule"), pair.get("constant")
 
     def to_dict(self) -> dict[str, Any]:
-        """The declared fields, with ``requirements_met`` (derived from the requirements) before them."""
+        """The declared fields, with ``requirements_met`` (derived from the requirements) before them.
+
+        Returns
+        -------
+        dict
+            The document's object: the declared fields, ``requirements_met`` just before ``requirements``.
+        """
         out: dict[str, Any] = {}
         for key, value in super().to_dict().items():
             if key == "requirements":

@@ -196,7 +196,14 @@ class SweepPoint(Record):
             raise ValueError(f"SweepPoint.folder must be relative to the sweep's folder, got {self.folder!r}")
 
     def row(self) -> dict[str, Any]:
-        """The point as a row: index, folder, values, status, error and figures (nothing that varies between runs)."""
+        """The point as a row: index, folder, values, status, error and figures (nothing that varies between runs).
+
+        Returns
+        -------
+        dict
+            ``point`` (the index), ``folder``, each swept key's value, ``status``, ``error`` and each figure by name:
+            one row of the sweep's table.
+        """
         return {"point": self.index, "folder": self.folder, **self.values, "status": self.status, "error": self.error,
                 **self.figures.to_dict()}
 

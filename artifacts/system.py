@@ -288,6 +288,7 @@ class SystemRecord(Artifact):
 
     @property
     def missed(self) -> tuple[Requirement, ...]:
+        """The requirements the system missed (a negative margin), in the order of :attr:`requirements`."""
         return tuple(r for r in self.requirements if not r.met)
 
     @property

@@ -204,22 +204,27 @@ class ValidationResult(Artifact):
 
     @property
     def failed_plant_count(self) -> int:
+        """How many plants failed at least one criterion."""
         return len({f.plant for f in self.failures})
 
     @property
     def worst(self) -> Metrics:
+        """Each metric's worst value over the plants, the largest (None where a step never settled: it ranks worst)."""
         return _statistic(self.metrics, "worst")
 
     @property
     def p95(self) -> Metrics:
+        """Each metric's 95th percentile over the plants (a step that never settled counts as infinite)."""
         return _statistic(self.metrics, "p95")
 
     @property
     def median(self) -> Metrics:
+        """Each metric's median over the plants (a step that never settled counts as infinite)."""
         return _statistic(self.metrics, "p50")
 
     @property
     def best(self) -> Metrics:
+        """Each metric's best value over the plants (the smallest)."""
         return _statistic(self.metrics, "best")
 
     @property
@@ -239,19 +244,44 @@ class ValidationResult(Artifact):
         return tuple(out)
 
     def failed_plants(self, shown: int = 3) -> str:
-        """``failed on N of M plants (the first failures)``: what a refusal says."""
+        """``failed on N of M plants (the first failures)``: what a refusal says.
+
+        Parameters
+        ----------
+        shown : int
+            How many failures to quote (plant, metric, value and limit).
+
+        Returns
+        -------
+        str
+            ``failed on N of M plants (plant I: METRIC VALUE > LIMIT; ...)``.
+        """
         first = "; ".join(f"plant {f.plant}: {f.metric} {f.value} > {f.limit:g}" for f in self.failures[:shown])
         return f"failed on {self.failed_plant_count} of {self.n_plants} plants ({first})"
 
     def headline(self) -> dict[str, float | None]:
-        """The worst plant's settling time (and the 95th percentile's), overshoot, tracking error and voltage."""
+        """The worst plant's settling time (and the 95th percentile's), overshoot, tracking error and voltage.
+
+        Returns
+        -------
+        dict of str to float or None
+            ``worst_settling_s`` and ``p95_settling_s`` (s), ``worst_overshoot_N`` and ``worst_tracking_rms_N`` (N),
+            ``worst_peak_voltage_V`` (V); None where no plant's value is finite.
+        """
         w = self.worst
         return {"worst_settling_s": w.settling_s, "p95_settling_s": self.p95.settling_s,
                 "worst_overshoot_N": w.overshoot_N, "worst_tracking_rms_N": w.tracking_rms_N,
                 "worst_peak_voltage_V": w.peak_voltage_V}
 
     def summary(self) -> dict[str, dict[str, float | None]]:
-        """Every metric's worst, median, 95th percentile and best, by metric (as ``to_dict`` writes them)."""
+        """Every metric's worst, median, 95th percentile and best, by metric (as ``to_dict`` writes them).
+
+        Returns
+        -------
+        dict of str to dict
+            By metric (``settling_s``, ``overshoot_N``, ...), its ``worst``, ``p50``, ``p95`` and ``best`` over the
+            plants, in the unit its name carries (None where not finite).
+        """
         stats = {"worst": self.worst, "p50": self.median, "p95": self.p95, "best": self.best}
         return {k: {s: getattr(m, k) for s, m in stats.items()} for k in METRICS}
 
@@ -302,7 +332,13 @@ class ValidationResult(Artifact):
                 f"<table><tr><th>limit</th><th>worst plant</th><th>limit</th><th>verdict</th></tr>{rows}</table>")
 
     def plot(self) -> Figure:
-        """A Figure: each bounded metric's distribution over the plants, with its limit dashed."""
+        """A Figure: each bounded metric's distribution over the plants, with its limit dashed.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            One histogram per bounded metric over the plants (finite values), its limit dashed.
+        """
         from matplotlib.figure import Figure
 
         limits = self.criteria.limits()

@@ -68,7 +68,7 @@ def bare_timer(seconds: float, priority: int = 80) -> dict:
 _CLIENT = r"""
 import asyncio, json, sys, time
 from asyncua import Client
-from piezopreload.rig.opcua import NAMESPACE, ROOT, push_gain_set
+from piezopreload.rig.opcua import NAMESPACE, ROOT, Credentials, push_gain_set
 endpoint, seconds, docs, shas = sys.argv[1], float(sys.argv[2]), sys.argv[3:5], sys.argv[5:7]
 docs = [open(p).read() for p in docs]
 
@@ -92,8 +92,7 @@ async def main():
     while time.monotonic() + 2.0 < t_end:
         await asyncio.sleep(2.0)
         t0 = time.monotonic()
-        await push_gain_set(docs[k % 2], endpoint, username="bench", password="bench-password",
-                            expect_sha256=shas[k % 2])
+        await push_gain_set(docs[k % 2], endpoint, Credentials("bench", "bench-password"), expect_sha256=shas[k % 2])
         switch.append(time.monotonic() - t0)
         k += 1
     stop.set()

@@ -13,7 +13,7 @@ import multiprocessing
 import os
 from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor
-from typing import Any, Generic, TypeVar
+from typing import Any, Generic, TypeVar, cast
 
 from piezopreload.core.errors import InputError
 
@@ -39,9 +39,10 @@ def spare_cpus() -> int:
 class Beside(Generic[T]):
     """A computation started by :func:`beside`; :meth:`result` waits for it and returns (or raises) its outcome."""
 
-    def __init__(self, future: Future[T] | None, value: Any = None, error: BaseException | None = None,
+    def __init__(self, future: Future[T] | None, value: T | None = None, error: BaseException | None = None,
                  pool: ProcessPoolExecutor | None = None) -> None:
-        self._future, self._value, self._error, self._pool = future, value, error, pool
+        self._future, self._error, self._pool = future, error, pool
+        self._value: T | None = value
 
     @property
     def in_worker(self) -> bool:
@@ -64,7 +65,8 @@ class Beside(Generic[T]):
                 self._future = None
         if self._error is not None:
             raise self._error
-        return self._value
+        # without an error the value is the function's (None only where the function returned None)
+        return cast(T, self._value)
 
 
 def fork_pool(workers: int) -> ProcessPoolExecutor | None:

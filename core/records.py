@@ -614,7 +614,7 @@ def _read_record(cls: Any, obj: Any, path: str) -> Any:
         made = cls(**values)
     except (ValueError, TypeError) as exc:
         raise _Wrong(path, f"is not valid: {exc}") from None
-    made._check_document(Raw(obj, path))
+    cls._check_document(made, Raw(obj, path))  # the record class's own hook (overridden by the artifacts' records)
     return made
 
 

@@ -102,14 +102,27 @@ class Record:
 
     @property
     def input_unit(self) -> str:
+        """The input's unit, read from its name (``voltage_V`` gives ``V``)."""
         return unit_of(self.input_name)
 
     @property
     def output_unit(self) -> str:
+        """The output's unit, read from its name (``force_N`` gives ``N``)."""
         return unit_of(self.output_name)
 
     def window(self, t0: float, t1: float) -> NDArray[np.bool_]:
-        """Samples with ``t0 <= t <= t1``."""
+        """Samples with ``t0 <= t <= t1``.
+
+        Parameters
+        ----------
+        t0, t1 : float
+            The window's first and last time, in s (both included).
+
+        Returns
+        -------
+        ndarray of bool
+            True for each sample whose time lies in the window, one per sample of :attr:`time_s`.
+        """
         return (self.time_s >= t0) & (self.time_s <= t1)
 
 

@@ -82,14 +82,14 @@ from piezopreload.models.ballscrew import (
     BallScrew,
     DutyCase,
     Material,
-    _axial_constant,
-    _c_dyn,
-    _drag_coefficient,
-    _nut_constants,
-    _rigidity,
-    _structural_compliance,
+    axial_contact_constant,
+    double_nut_rigidity,
+    drag_torque_coefficient,
+    dynamic_load_rating,
+    nut_contact_constants,
     nut_forces,
     nut_outer_diameter_mm,
+    structural_compliance,
 )
 from piezopreload.models.feed_drive import FeedDrive, PiezoPreload, stack_loop_um
 from piezopreload.models.ops import CASADI, NUMPY
@@ -456,7 +456,7 @@ def _expressions(spec: DesignSpec, ops: Any, x: Any) -> DesignQuantities:
     F_case = [x[8 + j] for j in range(len(spec.duty))]
     D_pw, helix, E_prime = spec.nominal_diameter_mm, spec.helix_rad, spec.material.contact_modulus_MPa
     sb, ch = ops.sin(beta), math.cos(helix)
-    _, cp_s, cp_n = _nut_constants(ops, E_prime, D_pw, D_w, beta, f, f)
+    _, cp_s, cp_n = nut_contact_constants(ops, E_prime, D_pw, D_w, beta, f, f)
     z = z1 * turns
     c_h, s, rig, freq, F_A, F_B, sigma = _nut_rows(spec, ops, beta, f, D_w, turns, z, F_case)
     worst_rig, worst_freq = [], []
@@ -465,10 +465,10 @@ def _expressions(spec: DesignSpec, ops: Any, x: Any) -> DesignQuantities:
         worst_rig += r_c
         worst_freq += fr_c
 
-    c_dyn = _c_dyn(ops, D_pw, D_w, beta, helix, f, f, z1, turns)
-    k_p = _drag_coefficient(ops, helix)
+    c_dyn = dynamic_load_rating(ops, D_pw, D_w, beta, helix, f, f, z1, turns)
+    k_p = drag_torque_coefficient(ops, helix)
     if spec.worst is not None:  # K_p at its high end where the formula's is below it
-        k_p = max(float(_drag_coefficient(NUMPY, helix)), spec.worst.drag_coefficient)
+        k_p = max(float(drag_torque_coefficient(NUMPY, helix)), spec.worst.drag_coefficient)
     drag = [k_p * F * spec.lead_mm / (2000.0 * math.pi) for F in F_case]
     share = [c.time_share for c in spec.duty]
     mean_drag = sum(s * d for s, d in zip(share, drag)) / sum(share)
@@ -501,10 +501,10 @@ def _nut_rows(spec: DesignSpec, ops: Any, beta: Any, f: Any, D_w: Any, turns: An
     structural compliance, per duty case its rigidity, the natural frequency of the axis at that preload and the two
     nuts' forces (A, B), and the nut body's share of the nut law as a function of the preload."""
     D_pw, helix, E_prime = spec.nominal_diameter_mm, spec.helix_rad, spec.material.contact_modulus_MPa
-    c_delta, _, _ = _nut_constants(ops, E_prime, D_pw, D_w, beta, f, f)
-    c_h = 1e3 * _axial_constant(ops, c_delta, spec.load_sharing * z, beta, helix)
-    s = 1e3 * _structural_compliance(ops, spec.material.E_MPa, D_pw, D_w, beta, helix, nut_outer_diameter_mm(D_pw, D_w),
-                                     turns * spec.lead_mm)
+    c_delta, _, _ = nut_contact_constants(ops, E_prime, D_pw, D_w, beta, f, f)
+    c_h = 1e3 * axial_contact_constant(ops, c_delta, spec.load_sharing * z, beta, helix)
+    s = 1e3 * structural_compliance(ops, spec.material.E_MPa, D_pw, D_w, beta, helix, nut_outer_diameter_mm(D_pw, D_w),
+                                    turns * spec.lead_mm)
     acc = spec.accuracy_factor
 
     def sigma(F: Any) -> Any:  # the nut body's share of the nut law at preload F
@@ -516,8 +516,8 @@ def _nut_rows(spec: DesignSpec, ops: Any, beta: Any, f: Any, D_w: Any, turns: An
     for case, F in zip(spec.duty, F_case):
         f_loaded, f_unloaded = nut_forces(abs(case.axial_load_N) / F, sigma(F), ops)
         loaded, unloaded = F * f_loaded, F * f_unloaded
-        rig.append(_rigidity(ops, c_h, s, acc, loaded, unloaded))
-        k_chain = 1.0 / (1.0 / _rigidity(ops, c_h, s, acc, F, F) + 1.0 / k_side)
+        rig.append(double_nut_rigidity(ops, c_h, s, acc, loaded, unloaded))
+        k_chain = 1.0 / (1.0 / double_nut_rigidity(ops, c_h, s, acc, F, F) + 1.0 / k_side)
         freq.append(ops.sqrt(k_chain * 1e6 / spec.feed_drive.table_mass_kg) / (2.0 * math.pi))
         F_B.append(loaded if case.axial_load_N >= 0 else unloaded)
         F_A.append(unloaded if case.axial_load_N >= 0 else loaded)

@@ -51,7 +51,7 @@ from numpy.typing import ArrayLike
 
 from piezopreload.artifacts.schedule import LoadProfile, PreloadSchedule, ScheduleSpec
 from piezopreload.core._typing import Array
-from piezopreload.models.ballscrew import LIFT_OFF_RATIO, BallScrew, _rigidity, nut_forces
+from piezopreload.models.ballscrew import LIFT_OFF_RATIO, BallScrew, double_nut_rigidity, nut_forces
 from piezopreload.models.ops import CASADI
 
 __all__ = ["schedule_preload", "least_preload", "example_profile"]
@@ -83,7 +83,7 @@ def _rigidity_function(screw: BallScrew, in_machine_factor: float = 1.0) -> ca.F
     F, Fa = ca.SX.sym("F"), ca.SX.sym("Fa")
     c_h, s = screw.axial_constant_um, screw.structural_compliance_um_per_N
     f_loaded, f_unloaded = nut_forces(ca.fabs(Fa) / F, s * F ** (1.0 / 3.0) / c_h, CASADI)
-    k = in_machine_factor * _rigidity(CASADI, c_h, s, screw.accuracy_factor, F * f_loaded, F * f_unloaded)
+    k = in_machine_factor * double_nut_rigidity(CASADI, c_h, s, screw.accuracy_factor, F * f_loaded, F * f_unloaded)
     return ca.Function("rigidity", [F, Fa], [k])
 
 

@@ -104,6 +104,7 @@ class DesignResult:
 
     @property
     def point(self) -> Any:
+        """The optimum's design point: the screw's geometry, preload, stiffness, drag and life."""
         return self.optimum.point
 
     def __repr__(self) -> str:
@@ -127,7 +128,18 @@ class DesignResult:
 
     def record(self, inputs: dict[str, Any] | None = None) -> DesignRecord:
         """The design artifact's record (:class:`~piezopreload.artifacts.design.DesignRecord`): the optimum, every
-        front's points, the schedule with its samples, the curves; ``inputs`` the hashes it came from."""
+        front's points, the schedule with its samples, the curves; ``inputs`` the hashes it came from.
+
+        Parameters
+        ----------
+        inputs : dict or None
+            The hashes of the files the design came from, by name (None: none).
+
+        Returns
+        -------
+        DesignRecord
+            The record the design artifact is written from.
+        """
         o = self.optimum
         return DesignRecord(
             optimum=Optimum(o.objective, o.point, tuple(o.binding), tuple(dict(t) for t in o.tried), o.solve_s,
@@ -140,11 +152,31 @@ class DesignResult:
             inputs=dict(inputs or {}))
 
     def to_dict(self) -> dict[str, Any]:
-        """The design artifact's body (:meth:`record`'s)."""
+        """The design artifact's body (:meth:`record`'s).
+
+        Returns
+        -------
+        dict
+            The design artifact's document, without its envelope (the record's :meth:`~DesignRecord.to_dict`).
+        """
         return self.record().to_dict()
 
     def save(self, path: str | Path, inputs: dict[str, Any]) -> list[Path]:
-        """Write the design artifact to ``path`` and each front's CSV beside it; returns the paths written."""
+        """Write the design artifact to ``path`` and each front's CSV beside it; returns the paths written.
+
+        Parameters
+        ----------
+        path : str or Path
+            The design artifact's file (``design.json``); the fronts' CSV files are written beside it as
+            ``<stem>.pareto-<pair>.csv``.
+        inputs : dict
+            The hashes of the files the design came from, by name.
+
+        Returns
+        -------
+        list of Path
+            The artifact's path first, then each front's CSV.
+        """
         path = self.record(inputs).save(path)
         written = [path]
         for front in self.fronts:
@@ -162,7 +194,14 @@ class DesignResult:
         return written
 
     def plot(self) -> Figure:
-        """The Pareto fronts (optimum marked), rigidity against preload, and the schedule: a Figure."""
+        """The Pareto fronts (optimum marked), rigidity against preload, and the schedule: a Figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            A row of Pareto fronts with the optimum starred, the optimum's rigidity against preload, and the axial load
+            with the scheduled and the best constant preload against time.
+        """
         from matplotlib.figure import Figure
 
         n = len(self.fronts)

@@ -451,15 +451,22 @@ class SystemRun:
 
     @property
     def numbers(self) -> TrackingNumbers:
+        """The run's figures over the schedule's cycles: tracking error, least rigidity, deflection, friction
+        energy, peak voltage."""
         return self.evaluation.numbers
 
     @property
     def requirements(self) -> tuple[Requirement, ...]:
+        """Every requirement the run is judged against: the evaluation's, the nut law's lift-off over the plants where
+        it
+        was checked, and the thermal ones where the study has a ``[thermal]`` table.
+        """
         return (self.evaluation.requirements + (() if self.physical_lift_off is None else (self.physical_lift_off,))
                 + (() if self.thermal is None else self.thermal.requirements))
 
     @property
     def requirements_met(self) -> bool:
+        """Whether every one of :attr:`requirements` is met."""
         return all(r.met for r in self.requirements)
 
     @property
@@ -469,7 +476,20 @@ class SystemRun:
 
     def record(self, inputs: dict[str, Any] | None = None, every: int = 10) -> SystemRecord:
         """The system artifact's record (:class:`~piezopreload.artifacts.system.SystemRecord`), the series every
-        ``every``-th sample."""
+        ``every``-th sample.
+
+        Parameters
+        ----------
+        inputs : dict or None
+            The hashes of the files the run came from, by name (None: none).
+        every : int
+            The series' decimation: every ``every``-th sample is kept.
+
+        Returns
+        -------
+        SystemRecord
+            The record the system artifact is written from.
+        """
         f, s, sl = self.evaluation.frame, self.schedule, slice(None, None, every)
         series = SystemSeries(self.run.t_s[sl], f.planned[sl], f.achieved[sl], f.load[sl], f.rigidity[sl],
                               f.required[sl], f.planned_rigidity[sl], f.deflection[sl], self.run.voltage_V[sl],
@@ -481,12 +501,31 @@ class SystemRun:
                             self.basis, self.sensitivity)
 
     def summary(self) -> SystemSummary:
-        """The run's numbers, verdicts, pre-cycle, passes and thermal figures (no series)."""
+        """The run's numbers, verdicts, pre-cycle, passes and thermal figures (no series).
+
+        Returns
+        -------
+        SystemSummary
+            The figures of :meth:`record` without the series.
+        """
         return SystemSummary.of(self.record())
 
     def save(self, folder: str | Path, inputs: dict[str, Any]) -> dict[str, Path]:
         """Write ``system.json`` (kind ``system``, :meth:`record`) and ``reference.csv`` (the loop's reference at its
-        rate, ``time_s,force_N``, the pre-cycle first: what the rig executor plays) into ``folder``."""
+        rate, ``time_s,force_N``, the pre-cycle first: what the rig executor plays) into ``folder``.
+
+        Parameters
+        ----------
+        folder : str or Path
+            The folder the two files are written into.
+        inputs : dict
+            The hashes of the files the run came from, by name.
+
+        Returns
+        -------
+        dict of str to Path
+            ``system``: the artifact's path; ``reference``: the reference CSV's.
+        """
         folder = Path(folder)
         paths = {"system": self.record(inputs).save(folder / "system.json"), "reference": folder / "reference.csv"}
         write_csv(paths["reference"], {"time_s": self.run.t_s, "force_N": self.run.reference_N},
@@ -496,7 +535,14 @@ class SystemRun:
         return paths
 
     def plot(self) -> Figure:
-        """Planned against achieved preload, rigidity against the requirement, deflection: a Figure."""
+        """Planned against achieved preload, rigidity against the requirement, deflection: a Figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            Three axes against time: planned and achieved preload (N), the pre-cycle's end dotted; achieved and required
+            rigidity while cutting (N/um); the axial deflection (um).
+        """
         from matplotlib.figure import Figure
 
         f, t = self.evaluation.frame, self.run.t_s

@@ -158,11 +158,18 @@ class Plant(Checked):
     # ---- batches -----------------------------------------------------------------------
     @staticmethod
     def batch_fields() -> tuple[str, ...]:
-        """The numeric fields that may vary across a batch of plants."""
+        """The numeric fields that may vary across a batch of plants.
+
+        Returns
+        -------
+        tuple of str
+            The names of the numeric fields that may hold one value per plant.
+        """
         return _BATCH
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
+        """The shape of the batch the fields broadcast to: ``()`` for one plant, ``(n,)`` for ``n`` plants."""
         return np.broadcast_shapes(*(np.shape(getattr(self, n)) for n in self.batch_fields()))
 
     def vary(self, n: int, spread: dict[str, float], seed: int | np.random.Generator = 0) -> Plant:
@@ -171,6 +178,25 @@ class Plant(Checked):
         ``spread`` maps a field name to a relative standard deviation; each plant's value is
         the nominal times a factor drawn from a normal distribution truncated to +/-2 sigma
         (and to positive factors), so no plant is absurd. Deterministic for a given seed.
+
+        Parameters
+        ----------
+        n : int
+            How many plants.
+        spread : dict of str to float
+            Each field to vary (one of :meth:`batch_fields`) and its relative standard deviation (0.1: 10 %).
+        seed : int or numpy.random.Generator
+            The seed of the draws, or the generator to draw from.
+
+        Returns
+        -------
+        Plant
+            A batch of ``n`` plants: each varied field an array of ``n`` values, the others as they are.
+
+        Raises
+        ------
+        ValueError
+            Where ``spread`` names a field that may not vary, or a spread that is negative or not finite.
         """
         rng = np.random.default_rng(seed)
         unknown = sorted(set(spread) - set(self.batch_fields()))
@@ -187,7 +213,18 @@ class Plant(Checked):
         return replace(self, **changes)
 
     def take(self, index: int | slice) -> Plant:
-        """One plant (or a sub-batch) of a batch."""
+        """One plant (or a sub-batch) of a batch.
+
+        Parameters
+        ----------
+        index : int or slice
+            The plant (or the plants) of the batch to take.
+
+        Returns
+        -------
+        Plant
+            One plant (each field a number) for an integer, a smaller batch for a slice.
+        """
         shape = self.batch_shape
         changes: dict[str, Any] = {}
         for name in self.batch_fields():
@@ -200,6 +237,7 @@ class Plant(Checked):
     # ---- derived quantities ------------------------------------------------------------
     @property
     def stack_stiffness_N_per_um(self) -> float:
+        """The stacks' stiffness together, in N/um: the number of stacks times one stack's."""
         return self.n_stacks * self.stack.stiffness_N_per_um
 
     @property
@@ -214,15 +252,39 @@ class Plant(Checked):
         return bool(np.any(np.asarray(self.hertz_um_per_N23, float) > 0))
 
     def stroke_for_force_um(self, stack_force_N: ArrayLike) -> Array:
-        """The free stroke (um) that makes the stacks push ``stack_force_N`` (the inverse of :func:`hertz_force`)."""
+        """The free stroke (um) that makes the stacks push ``stack_force_N`` (the inverse of :func:`hertz_force`).
+
+        Parameters
+        ----------
+        stack_force_N : array_like
+            The force the stacks push, in N.
+
+        Returns
+        -------
+        ndarray
+            The free stroke, in um: the linear coupling's ``F / k_eff`` plus the nuts' Hertz deflection from the
+            contacts' preload to ``F``.
+        """
         f = np.asarray(stack_force_N, float)
         k = np.asarray(self.effective_stiffness_N_per_um, float)
         c, f0 = np.asarray(self.hertz_um_per_N23, float), np.asarray(self.hertz_preload_N, float)
-        return f / k + c * (np.cbrt(np.maximum(f0 + f, 0.0)) ** 2 - np.cbrt(f0) ** 2)
+        stroke: Array = f / k + c * (np.cbrt(np.maximum(f0 + f, 0.0)) ** 2 - np.cbrt(f0) ** 2)
+        return stroke
 
     def local_stiffness_N_per_um(self, stack_force_N: ArrayLike) -> Array:
         """dF_E/dx (N/um) at the stacks' force ``stack_force_N``: ``k_eff`` for a linear coupling,
-        less where the nuts' Hertz contacts are soft (low preload)."""
+        less where the nuts' Hertz contacts are soft (low preload).
+
+        Parameters
+        ----------
+        stack_force_N : array_like
+            The force the stacks push, in N.
+
+        Returns
+        -------
+        ndarray
+            The coupling's local stiffness ``dF/dx`` at that force, in N/um (same shape).
+        """
         f = np.asarray(stack_force_N, float)
         k = np.asarray(self.effective_stiffness_N_per_um, float)
         c, f0 = np.asarray(self.hertz_um_per_N23, float), np.asarray(self.hertz_preload_N, float)
@@ -231,6 +293,7 @@ class Plant(Checked):
 
     @property
     def capacitance_F(self) -> float:
+        """The stacks' capacitance together, in F: the number of stacks times one stack's (given in uF)."""
         return self.n_stacks * self.stack.capacitance_uF * 1e-6
 
     @property
@@ -240,9 +303,19 @@ class Plant(Checked):
 
     @property
     def adc_lsb_N(self) -> float:
-        return 2.0 * self.adc_full_scale_N / 2**self.adc_bits
+        """The force sensor's ADC step, in N: the bipolar full scale (twice ``adc_full_scale_N``) over
+        ``2**adc_bits``."""
+        return float(2.0 * self.adc_full_scale_N / 2**self.adc_bits)
 
     def to_dict(self) -> dict[str, Any]:
+        """The plant as its document holds it.
+
+        Returns
+        -------
+        dict
+            Every field by name (the stack's data as an object, a batch's fields as lists); a linear coupling leaves out
+            the Hertz fields, as plants were written before the Hertz law.
+        """
         out: dict[str, Any] = {}
         for f in fields(self):
             x = getattr(self, f.name)
@@ -260,6 +333,23 @@ class Plant(Checked):
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Plant:
+        """The inverse of :meth:`to_dict`.
+
+        Parameters
+        ----------
+        data : dict
+            The plant's fields by name, the stack's data as an object.
+
+        Returns
+        -------
+        Plant
+            The plant, checked by its own rules.
+
+        Raises
+        ------
+        ValueError
+            Where ``data`` names a field the plant does not have, or a value its rules refuse.
+        """
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
@@ -604,7 +694,8 @@ def loop_width(rig: Rig, v_max_V: float = 100.0, points: int = 1001) -> Array:
     second = f[..., cycle.size - 1 :]
     rise, fall = second[..., :points], second[..., points - 1 :][..., ::-1]
     span = np.max(second, axis=-1) - np.min(second, axis=-1)
-    return np.max(fall - rise, axis=-1) / span
+    width: Array = np.max(fall - rise, axis=-1) / span
+    return width
 
 
 def reach_N(rig: Rig, v_V: float) -> Array:

@@ -84,6 +84,8 @@ from piezopreload.models.thermal import (
 __all__ = [
     "Material", "STEEL", "BallScrew", "DutyCase", "ContactState", "NutLoads", "Life",
     "nut_forces", "lift_off_ratio", "hiwin_loaded_nut_force", "lift_off_load_N", "nut_outer_diameter_mm",
+    "nut_contact_constants", "axial_contact_constant", "structural_compliance", "double_nut_rigidity",
+    "dynamic_load_rating", "drag_torque_coefficient",
     "CONTACT_LIMIT_MPA", "RELIABILITY_FACTORS", "LIFT_OFF_RATIO",
     "EFFECTIVE_BALL_SHARE", "ACCURACY_FACTOR_P5", "RIGIDITY_IN_MACHINE_FACTOR",
 ]
@@ -153,10 +155,29 @@ def _contact_constants(ops: Any, E_prime: Any, inv_Rx: Any, inv_Ry: Any) -> tupl
     return c_delta, 3.0 / (2.0 * math.pi * a1 * b1)
 
 
-def _nut_constants(ops: Any, E_prime: float, D_pw: Any, D_w: Any, beta: Any, f_screw: Any, f_nut: Any
-                   ) -> tuple[Any, Any, Any]:
-    """``(c_delta, c_p_screw, c_p_nut)``: the summed normal approach of screw and nut
-    contacts per Q^(2/3), and the peak-pressure constants of each contact."""
+def nut_contact_constants(ops: Any, E_prime: float, D_pw: Any, D_w: Any, beta: Any, f_screw: Any, f_nut: Any
+                          ) -> tuple[Any, Any, Any]:
+    """A ball's two Hertz contacts, in the screw's and the nut's groove (module docstring).
+
+    Parameters
+    ----------
+    ops
+        The operations: :data:`~piezopreload.models.ops.NUMPY` on numbers, ``CASADI`` on expressions.
+    E_prime
+        The contact modulus (MPa), :attr:`Material.contact_modulus_MPa`.
+    D_pw, D_w
+        The pitch and the ball diameter (mm).
+    beta
+        The contact angle (rad).
+    f_screw, f_nut
+        The groove conformities of screw and nut.
+
+    Returns
+    -------
+    tuple
+        ``(c_delta, c_p_screw, c_p_nut)``: the summed normal approach of both contacts per
+        Q^(2/3) (mm, Q in N), and each contact's peak pressure per Q^(1/3) (MPa).
+    """
     cb = ops.cos(beta)
     inv_Ry_s = (2.0 - 1.0 / f_screw) / D_w
     inv_Ry_n = (2.0 - 1.0 / f_nut) / D_w
@@ -167,8 +188,25 @@ def _nut_constants(ops: Any, E_prime: float, D_pw: Any, D_w: Any, beta: Any, f_s
     return cd_s + cd_n, cp_s, cp_n
 
 
-def _axial_constant(ops: Any, c_delta: Any, z: Any, beta: Any, helix: Any) -> Any:
-    """c_h (mm per N^(2/3)): one nut's contact approach c_h F^(2/3) under F (N), z balls."""
+def axial_contact_constant(ops: Any, c_delta: Any, z: Any, beta: Any, helix: Any) -> Any:
+    """c_h of one nut: its balls' contacts shift it axially by c_h F^(2/3) under F (N).
+
+    Parameters
+    ----------
+    ops
+        The operations (NUMPY or CASADI).
+    c_delta
+        The summed normal approach per Q^(2/3) (:func:`nut_contact_constants`).
+    z
+        The balls carrying the load (the effective share of them, module docstring).
+    beta, helix
+        The contact and the helix angle (rad).
+
+    Returns
+    -------
+    Any
+        c_h in mm per N^(2/3).
+    """
     s = ops.sin(beta) * ops.cos(helix)
     return c_delta / ((z * s) ** (2.0 / 3.0) * s)
 
@@ -197,9 +235,30 @@ def _structural_parts(ops: Any, E: float, D_pw: Any, D_w: Any, beta: Any, helix:
     return radial, bars
 
 
-def _structural_compliance(ops: Any, E: float, D_pw: Any, D_w: Any, beta: Any, helix: Any, d_out: Any,
-                           length: Any) -> Any:
-    """s (mm/N): :func:`_structural_parts` summed."""
+def structural_compliance(ops: Any, E: float, D_pw: Any, D_w: Any, beta: Any, helix: Any, d_out: Any,
+                          length: Any) -> Any:
+    """s of one nut: the nut body and the screw under it shift it axially by s F (module docstring).
+
+    Parameters
+    ----------
+    ops
+        The operations (NUMPY or CASADI).
+    E
+        Young's modulus (MPa).
+    D_pw, D_w
+        The pitch and the ball diameter (mm).
+    beta, helix
+        The contact and the helix angle (rad).
+    d_out
+        The nut body's outer diameter (mm).
+    length
+        The nut's loaded length (mm).
+
+    Returns
+    -------
+    Any
+        s in mm/N: the ring's widening and the core's squeeze turned axial, plus the two bars along the nut.
+    """
     radial, bars = _structural_parts(ops, E, D_pw, D_w, beta, helix, d_out, length)
     return radial + bars
 
@@ -243,14 +302,50 @@ def _nut_stiffness(ops: Any, c_h_um: Any, s_um: Any, force_N: Any) -> Any:
     return t / (2.0 / 3.0 * c_h_um + s_um * t)
 
 
-def _rigidity(ops: Any, c_h_um: Any, s_um: Any, accuracy: Any, loaded_N: Any, unloaded_N: Any) -> Any:
-    """Rigidity (N/um) of the double nut: both nuts' tangent stiffnesses in parallel, times f_ar."""
+def double_nut_rigidity(ops: Any, c_h_um: Any, s_um: Any, accuracy: Any, loaded_N: Any, unloaded_N: Any) -> Any:
+    """The double nut's rigidity dF_a/dx: both nuts' tangent stiffnesses in parallel, times f_ar.
+
+    Parameters
+    ----------
+    ops
+        The operations (NUMPY or CASADI).
+    c_h_um, s_um
+        One nut's contact constant (um per N^(2/3)) and structural compliance (um/N).
+    accuracy
+        ISO 3408-4's accuracy factor f_ar.
+    loaded_N, unloaded_N
+        The two nuts' forces (N), :func:`nut_forces` times the preload.
+
+    Returns
+    -------
+    Any
+        The rigidity in N/um.
+    """
     return accuracy * (_nut_stiffness(ops, c_h_um, s_um, loaded_N) + _nut_stiffness(ops, c_h_um, s_um, unloaded_N))
 
 
-def _c_dyn(ops: Any, D_pw: Any, D_w: Any, beta: Any, helix: Any, f_screw: Any, f_nut: Any,
-           balls_per_turn: Any, turns: Any) -> Any:
-    """Dynamic axial load rating estimate (N): the Lundberg-Palmgren form, see the module."""
+def dynamic_load_rating(ops: Any, D_pw: Any, D_w: Any, beta: Any, helix: Any, f_screw: Any, f_nut: Any,
+                        balls_per_turn: Any, turns: Any) -> Any:
+    """The dynamic axial load rating C_dyn estimated by the Lundberg-Palmgren form (module docstring).
+
+    Parameters
+    ----------
+    ops
+        The operations (NUMPY or CASADI).
+    D_pw, D_w
+        The pitch and the ball diameter (mm).
+    beta, helix
+        The contact and the helix angle (rad).
+    f_screw, f_nut
+        The groove conformities of screw and nut.
+    balls_per_turn, turns
+        Z_1 and the loaded turns i of one nut.
+
+    Returns
+    -------
+    Any
+        C_dyn in N.
+    """
     gamma = D_w * ops.cos(beta) / D_pw
     q = (1.04 * ((1.0 - gamma) / (1.0 + gamma)) ** 1.72
          * (f_screw * (2.0 * f_nut - 1.0) / (f_nut * (2.0 * f_screw - 1.0))) ** 0.41)
@@ -260,8 +355,21 @@ def _c_dyn(ops: Any, D_pw: Any, D_w: Any, beta: Any, helix: Any, f_screw: Any, f
             * balls_per_turn ** (2.0 / 3.0) * D_w ** 1.8 * turns ** 0.86)
 
 
-def _drag_coefficient(ops: Any, helix: Any) -> Any:
-    """K_p of the preload drag torque, HIWIN's 0.05 / sqrt(tan(helix)) (0.1-0.3 in use)."""
+def drag_torque_coefficient(ops: Any, helix: Any) -> Any:
+    """K_p of the preload drag torque, HIWIN's 0.05 / sqrt(tan(helix)) (0.1-0.3 in use).
+
+    Parameters
+    ----------
+    ops
+        The operations (NUMPY or CASADI).
+    helix
+        The helix angle (rad).
+
+    Returns
+    -------
+    Any
+        K_p, dimensionless.
+    """
     return 0.05 / ops.sqrt(ops.tan(helix))
 
 
@@ -281,7 +389,8 @@ def hiwin_loaded_nut_force(preload_N: ArrayLike, axial_load_N: ArrayLike) -> Arr
     two-nut solution of Hertz-only nuts (:func:`nut_forces` with sigma = 0).
     """
     fp, fa = np.asarray(preload_N, float), np.abs(np.asarray(axial_load_N, float))
-    return np.where(fa < LIFT_OFF_RATIO * fp, (1.0 + fa / (LIFT_OFF_RATIO * fp)) ** 1.5 * fp, fa)
+    loaded: Array = np.where(fa < LIFT_OFF_RATIO * fp, (1.0 + fa / (LIFT_OFF_RATIO * fp)) ** 1.5 * fp, fa)
+    return loaded
 
 
 # ---- results --------------------------------------------------------------------------------
@@ -514,37 +623,41 @@ class BallScrew(Checked):
 
     # ---- Hertz and the nut law -------------------------------------------------------------
     def _constants(self) -> tuple[float, float, float]:
-        return _nut_constants(NUMPY, self.material.contact_modulus_MPa, self.pitch_diameter, self.ball_mm,
+        return nut_contact_constants(NUMPY, self.material.contact_modulus_MPa, self.pitch_diameter, self.ball_mm,
                               self.contact_rad, self.conformity_screw, self.conformity_nut)
 
     @property
     def axial_constant_um(self) -> float:
         """c_h (um per N^(2/3)): one nut's contact approach c_h F^(2/3), eta of the balls counted."""
         c_delta = self._constants()[0]
-        return 1e3 * float(_axial_constant(NUMPY, c_delta, self.load_sharing * self.balls_per_nut,
+        return 1e3 * float(axial_contact_constant(NUMPY, c_delta, self.load_sharing * self.balls_per_nut,
                                            self.contact_rad, self.helix_rad))
 
     @property
     def structural_compliance_um_per_N(self) -> float:
         """s (um/N): one nut's body and the screw under it (module docstring)."""
-        return 1e3 * float(_structural_compliance(NUMPY, self.material.E_MPa, self.pitch_diameter, self.ball_mm,
+        return 1e3 * float(structural_compliance(NUMPY, self.material.E_MPa, self.pitch_diameter, self.ball_mm,
                                                   self.contact_rad, self.helix_rad, self.nut_outer_diameter,
                                                   self.nut_length_mm))
 
     def nut_approach_um(self, nut_force_N: ArrayLike) -> Array:
         """delta(F) = (c_h F^(2/3) + s F) / f_ar (um): one nut's axial shift on the screw under F."""
         F = np.asarray(nut_force_N, float)
-        return (self.axial_constant_um * np.cbrt(F) ** 2
-                + self.structural_compliance_um_per_N * F) / self.accuracy_factor
+        approach: Array = (self.axial_constant_um * np.cbrt(F) ** 2
+                           + self.structural_compliance_um_per_N * F) / self.accuracy_factor
+        return approach
 
     def sigma(self, preload_N: ArrayLike) -> Array:
         """sigma = s F_p^(1/3) / c_h: the body's share of the nut law at the preload."""
-        return self.structural_compliance_um_per_N * np.cbrt(np.asarray(preload_N, float)) / self.axial_constant_um
+        sigma: Array = (self.structural_compliance_um_per_N * np.cbrt(np.asarray(preload_N, float))
+                        / self.axial_constant_um)
+        return sigma
 
     def lift_off_load_N(self, preload_N: ArrayLike) -> Array:
         """The axial load at which the unloaded nut lifts off: rho(sigma) F_p (:func:`lift_off_ratio`)."""
         Fp = np.asarray(preload_N, float)
-        return lift_off_ratio(self.sigma(Fp)) * Fp
+        load: Array = lift_off_ratio(self.sigma(Fp)) * Fp
+        return load
 
     def preload_for_lift_off_N(self, axial_load_N: ArrayLike) -> Array:
         """The least preload that keeps both nuts loaded up to |F_a|: the F_p with
@@ -557,7 +670,8 @@ class BallScrew(Checked):
         t = np.sqrt(target / c_h)
         for _ in range(3 * _NEWTON_STEPS):
             t = t - (c_h * t ** 2 + s * t ** 3 - target) / np.maximum(2.0 * c_h * t + 3.0 * s * t ** 2, 1e-300)
-        return t ** 3
+        preload: Array = t ** 3
+        return preload
 
     def turn_loads(self, nut_force_N: float) -> Array:
         """Each loaded turn's share of one nut's load F (sums to 1), the exact elastic load
@@ -575,8 +689,8 @@ class BallScrew(Checked):
         L, lam = self.nut_length_mm, self.load_distribution_lambda_per_mm(F)
         x = np.minimum(np.arange(math.ceil(self.turns) + 1) * self.lead_mm, L)
         if lam * L < 1e-8:
-            return np.diff(x) / L
-        return -np.diff(np.sinh(lam * (L - x))) / math.sinh(lam * L)
+            return np.asarray(np.diff(x) / L, np.float64)
+        return np.asarray(-np.diff(np.sinh(lam * (L - x))) / math.sinh(lam * L), np.float64)
 
     def load_distribution_lambda_per_mm(self, nut_force_N: float) -> float:
         """lambda (1/mm) of :meth:`turn_loads` at one nut's force F; lambda L small means nearly
@@ -612,13 +726,13 @@ class BallScrew(Checked):
         """C_dyn: catalogue value, or the Lundberg-Palmgren estimate of the module docstring."""
         if self.c_dyn_N is not None:
             return float(self.c_dyn_N)
-        return float(_c_dyn(NUMPY, self.pitch_diameter, self.ball_mm, self.contact_rad, self.helix_rad,
+        return float(dynamic_load_rating(NUMPY, self.pitch_diameter, self.ball_mm, self.contact_rad, self.helix_rad,
                             self.conformity_screw, self.conformity_nut, self.balls_on_turn, self.turns))
 
     @property
     def drag_K(self) -> float:
         return float(self.drag_coefficient if self.drag_coefficient is not None
-                     else _drag_coefficient(NUMPY, self.helix_rad))
+                     else drag_torque_coefficient(NUMPY, self.helix_rad))
 
     # ---- the double nut -------------------------------------------------------------------
     def nut_loads(self, preload_N: ArrayLike, axial_load_N: ArrayLike = 0.0) -> NutLoads:
@@ -641,7 +755,7 @@ class BallScrew(Checked):
         loaded = Fp * np.where(lifted, ratio, f_loaded)
         unloaded = Fp * np.where(lifted, 0.0, f_unloaded)
         k_contact = 1.5 * (np.cbrt(loaded) + np.cbrt(unloaded)) / c_h
-        k = _rigidity(NUMPY, c_h, s, self.accuracy_factor, loaded, unloaded)
+        k = double_nut_rigidity(NUMPY, c_h, s, self.accuracy_factor, loaded, unloaded)
         shift = self.nut_approach_um(loaded) - self.nut_approach_um(Fp)
         return NutLoads(preload_N=Fp, axial_load_N=Fa, loaded_nut_N=loaded, unloaded_nut_N=unloaded,
                         deflection_um=np.sign(Fa) * shift, contact_stiffness_N_per_um=k_contact,
@@ -655,8 +769,9 @@ class BallScrew(Checked):
         """Eq. (13) of the paper: the double nut's Hertz contact stiffness at no load, all
         balls equally loaded, rigid nut and screw: 3 F_p^(1/3) / c_h with eta = 1."""
         c_delta = self._constants()[0]
-        c_h = 1e3 * float(_axial_constant(NUMPY, c_delta, self.balls_per_nut, self.contact_rad, self.helix_rad))
-        return 3.0 * np.cbrt(np.asarray(preload_N, float)) / c_h
+        c_h = 1e3 * float(axial_contact_constant(NUMPY, c_delta, self.balls_per_nut, self.contact_rad, self.helix_rad))
+        rigidity: Array = 3.0 * np.cbrt(np.asarray(preload_N, float)) / c_h
+        return rigidity
 
     def drag_torque_Nm(self, preload_N: ArrayLike) -> Array:
         """Preload drag torque T_d = K_p F_p P / (2000 pi) (N m)."""
@@ -727,8 +842,9 @@ class BallScrew(Checked):
 
     def nut_stiffness_N_per_um(self, nut_force_N: ArrayLike) -> Array:
         """One nut's tangent stiffness dF/d(delta) (N/um) at its force: F^(1/3) / (2/3 c_h + s F^(1/3)), times f_ar."""
-        return self.accuracy_factor * _nut_stiffness(NUMPY, self.axial_constant_um, self.structural_compliance_um_per_N,
-                                                     np.asarray(nut_force_N, float))
+        stiffness: Array = self.accuracy_factor * _nut_stiffness(
+            NUMPY, self.axial_constant_um, self.structural_compliance_um_per_N, np.asarray(nut_force_N, float))
+        return stiffness
 
     def life(self, preload_N: float, cases: list[DutyCase] | tuple[DutyCase, ...], load_factor: float = 1.2,
              reliability: float = 0.90) -> Life:

@@ -79,13 +79,48 @@ class Reference:
 
     @classmethod
     def step(cls, initial_N: float, final_N: float, t_step_s: float = 0.5, duration_s: float = 10.0) -> Reference:
+        """A step from ``initial_N`` to ``final_N`` at ``t_step_s``.
+
+        Parameters
+        ----------
+        initial_N : float
+            The force before the step, in N.
+        final_N : float
+            The force after it, in N.
+        t_step_s : float
+            When it steps, in s.
+        duration_s : float
+            The reference's length, in s.
+
+        Returns
+        -------
+        Reference
+            A held (piecewise constant) reference of two levels.
+        """
         return cls(np.array([0.0, t_step_s]), np.array([initial_N, final_N]), duration_s)
 
     @classmethod
     def staircase(
         cls, initial_N: float, levels_N: ArrayLike, hold_s: float, t_start_s: float = 0.5
     ) -> Reference:
-        """Rest at ``initial_N``, then each of ``levels_N`` for ``hold_s``."""
+        """Rest at ``initial_N``, then each of ``levels_N`` for ``hold_s``.
+
+        Parameters
+        ----------
+        initial_N : float
+            The force before the first level, in N.
+        levels_N : array_like
+            The levels, in N, in order.
+        hold_s : float
+            How long each level is held, in s.
+        t_start_s : float
+            When the first level begins, in s.
+
+        Returns
+        -------
+        Reference
+            A held reference, ``t_start_s + hold_s * len(levels_N)`` long.
+        """
         levels = np.asarray(levels_N, float)
         times = np.concatenate([[0.0], t_start_s + hold_s * np.arange(levels.size)])
         return cls(times, np.concatenate([[initial_N], levels]), t_start_s + hold_s * levels.size)
@@ -93,28 +128,74 @@ class Reference:
     @classmethod
     def ramps(cls, times_s: ArrayLike, levels_N: ArrayLike, duration_s: float | None = None) -> Reference:
         """Piecewise linear through the points ``(times_s[i], levels_N[i])``; the last level held until
-        ``duration_s`` (default: one more interval of the last)."""
+        ``duration_s`` (default: one more interval of the last).
+
+        Parameters
+        ----------
+        times_s : array_like
+            The points' times, in s, increasing.
+        levels_N : array_like
+            The force at each time, in N.
+        duration_s : float or None
+            The reference's length, in s (None: the last interval once more, or 1 s after a single point).
+
+        Returns
+        -------
+        Reference
+            A linearly interpolated reference.
+        """
         t = np.asarray(times_s, float)
         if duration_s is None:
             duration_s = float(t[-1] + (t[-1] - t[-2])) if t.size > 1 else float(t[-1] + 1.0)
         return cls(t, np.asarray(levels_N, float), float(duration_s), "linear")
 
     def repeat(self, cycles: int) -> Reference:
-        """The reference ``cycles`` times in a row (a machining cycle run again and again)."""
+        """The reference ``cycles`` times in a row (a machining cycle run again and again).
+
+        Parameters
+        ----------
+        cycles : int
+            How many times, at least 1.
+
+        Returns
+        -------
+        Reference
+            The reference repeated, ``cycles`` times as long, its interpolation kept.
+
+        Raises
+        ------
+        InputError
+            Where ``cycles`` is not an integer of at least 1.
+        """
         if not (isinstance(cycles, int | np.integer) and cycles >= 1):
             raise InputError(f"cycles must be an integer >= 1, got {cycles!r}")
         t = np.concatenate([self.times_s + k * self.duration_s for k in range(cycles)])
         return Reference(t, np.tile(self.levels_N, cycles), self.duration_s * cycles, self.interpolation)
 
     def at(self, t: ArrayLike) -> Array:
+        """The reference's force at the times ``t``.
+
+        Parameters
+        ----------
+        t : array_like
+            The times, in s.
+
+        Returns
+        -------
+        ndarray
+            The force at each time, in N: the level last reached for a held reference (the first before it begins),
+            interpolated for a linear one.
+        """
         t = np.asarray(t, float)
         if self.interpolation == "linear":
-            return np.interp(t, self.times_s, self.levels_N)
+            level: Array = np.interp(t, self.times_s, self.levels_N)
+            return level
         idx = np.searchsorted(self.times_s, t, side="right") - 1
         return self.levels_N[np.clip(idx, 0, None)]
 
     @property
     def is_step(self) -> bool:
+        """Whether the reference is one held step (two levels)."""
         return self.times_s.size == 2 and self.interpolation == "hold"
 
     @property
@@ -123,12 +204,35 @@ class Reference:
         return float(self.levels_N.max() - self.levels_N.min())
 
     def to_dict(self) -> dict[str, Any]:
+        """The reference as its document holds it.
+
+        Returns
+        -------
+        dict
+            ``times_s``, ``levels_N``, ``duration_s``, and ``interpolation`` where it is not ``hold``.
+        """
         out = {"times_s": self.times_s.tolist(), "levels_N": self.levels_N.tolist(), "duration_s": self.duration_s}
         return out if self.interpolation == "hold" else {**out, "interpolation": self.interpolation}
 
     @classmethod
     def from_dict(cls, data: Any) -> Reference:
-        """The inverse of :meth:`to_dict`; an :class:`InputError` (a ValueError) names what is missing or wrong."""
+        """The inverse of :meth:`to_dict`; an :class:`InputError` (a ValueError) names what is missing or wrong.
+
+        Parameters
+        ----------
+        data : dict
+            The document's object: ``times_s``, ``levels_N``, ``duration_s`` and, optionally, ``interpolation``.
+
+        Returns
+        -------
+        Reference
+            The reference.
+
+        Raises
+        ------
+        InputError
+            Where a key is missing or a value is wrong.
+        """
         if not isinstance(data, dict):
             raise InputError("a reference is an object with times_s, levels_N and duration_s, "
                              f"got {type(data).__name__}")
@@ -202,6 +306,7 @@ class ClosedLoopRun:
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
+        """The shape of the batch of plants the run simulated: ``()`` for one plant."""
         return self.force_N.shape[:-1]
 
     def __repr__(self) -> str:
@@ -221,12 +326,32 @@ class ClosedLoopRun:
         return f"<p><b>{type(self).__name__}</b></p><table>{body}</table>"
 
     def step_metrics(self, band_N: float | None = PAPER_BAND_N, *, which: int = 1,
-                     signal: str = "force_N") -> StepMetrics | list:
+                     signal: str = "force_N") -> StepMetrics | list[StepMetrics]:
         """Metrics of the reference's ``which``-th change (1: the first step), per plant.
 
         The window runs from that change to the next (or to the end); ``band_N=None`` gives the
         conventional 10-90 % / 2 % definitions. ``signal`` picks the true force (default) or
         what the sensor read (``"measured_N"``).
+
+        Parameters
+        ----------
+        band_N : float or None
+            The settling band, in N (the paper's by default); None: the conventional 2 % band and 10-90 % rise.
+        which : int
+            Which change of the reference, from 1.
+        signal : str
+            The signal scored: ``"force_N"`` (the true force) or ``"measured_N"`` (what the sensor read).
+
+        Returns
+        -------
+        StepMetrics or list of StepMetrics
+            The step's rise, settling, overshoot and the like: one for a single plant, one per plant (the batch
+            flattened) for a batch.
+
+        Raises
+        ------
+        ValueError
+            Where ``which`` names no change of the reference.
         """
         ref = self.reference
         if not 1 <= which < ref.times_s.size:
@@ -255,6 +380,25 @@ class ClosedLoopRun:
         ``u_range`` leaves out, per plant, the samples whose command sits at a limit of that
         range: there the plant is out of the controller's authority (a reference it cannot
         reach within the voltage range); ``saturated_fraction`` says how much that removed.
+
+        Parameters
+        ----------
+        t_from_s : float or None
+            The time scoring begins, in s (None: the reference's first change).
+        after_change_s : float
+            How long after every change of a held reference to leave out, in s.
+        u_range : (float, float) or None
+            The command's range, in V: samples whose command sits at either end are left out (None: none left out).
+
+        Returns
+        -------
+        TrackingError
+            The RMS and the largest error, in N, and the fraction of the samples left out as saturated, per plant.
+
+        Raises
+        ------
+        ValueError
+            Where no samples are left to score.
         """
         t_from = (self.reference.times_s[1] if t_from_s is None and self.reference.times_s.size > 1
                   else (t_from_s or 0.0))
@@ -282,7 +426,19 @@ class ClosedLoopRun:
         return TrackingError(rms, peak, fraction)
 
     def columns(self) -> dict[str, Array]:
-        """The run as named columns (one plant), for CSV export."""
+        """The run as named columns (one plant), for CSV export.
+
+        Returns
+        -------
+        dict of str to ndarray
+            ``time_s``, the reference, true and measured force (N), the command and the voltage (V), and the P, I, D and
+            feedforward parts of the command (V), one value per sample.
+
+        Raises
+        ------
+        ValueError
+            Where the run is a batch of plants.
+        """
         if self.force_N.ndim != 1:
             raise ValueError("columns() needs a single-plant run; index the batch first.")
         return {

@@ -147,11 +147,11 @@ class Feedforward(Protocol):
     """An inverse hysteresis model: ``step(state, target) -> (input, state)`` on numpy, and
     ``realtime() -> (FeedforwardStep, parameter vector)`` for the controller step."""
 
-    def step(self, state: Any, target: ArrayLike) -> tuple[NDArray, NDArray]: ...
+    def step(self, state: Any, target: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
 
-    def initial_state(self, batch: tuple[int, ...] = ()) -> NDArray: ...
+    def initial_state(self, batch: tuple[int, ...] = ()) -> NDArray[np.float64]: ...
 
-    def realtime(self) -> tuple[Any, NDArray]: ...
+    def realtime(self) -> tuple[Any, NDArray[np.float64]]: ...
 
 
 
@@ -233,18 +233,19 @@ class GainSchedule:
     def size(self) -> int:
         return len(self.levels_N)
 
-    def at(self, setpoint_N: ArrayLike) -> tuple[NDArray, NDArray, NDArray]:
+    def at(self, setpoint_N: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """``(Kc, Ti_s, Td_s)`` at ``setpoint_N`` (numpy), the step's interpolation."""
         x = np.asarray(setpoint_N, float)
         lv = np.asarray(self.levels_N)
-        return tuple(np.asarray(_interpolate(NUMPY, lv, np.asarray(v), self.size, x))  # type: ignore[return-value]
-                     for v in (self.Kc, self.Ti_s, self.Td_s))
+        Kc, Ti, Td = (np.asarray(_interpolate(NUMPY, lv, np.asarray(v), self.size, x), np.float64)
+                      for v in (self.Kc, self.Ti_s, self.Td_s))
+        return Kc, Ti, Td
 
-    def b_at(self, setpoint_N: ArrayLike, single: float) -> NDArray:
+    def b_at(self, setpoint_N: ArrayLike, single: float) -> NDArray[np.float64]:
         """The setpoint weight at ``setpoint_N`` (numpy): the table's column interpolated, or ``single`` without one."""
         x = np.asarray(setpoint_N, float)
         column = np.full(self.size, float(single)) if self.b is None else np.asarray(self.b)
-        return np.asarray(_interpolate(NUMPY, np.asarray(self.levels_N), column, self.size, x))
+        return np.asarray(_interpolate(NUMPY, np.asarray(self.levels_N), column, self.size, x), np.float64)
 
     def to_dict(self) -> dict[str, Any]:
         return {"levels_N": list(self.levels_N), "Kc_V_per_N": list(self.Kc), "Ti_s": list(self.Ti_s),
@@ -315,22 +316,68 @@ class PIDGains:
             raise ValueError(f"schedule must be a GainSchedule or None, got {type(self.schedule).__name__}.")
 
     def at(self, setpoint_N: ArrayLike) -> tuple[Any, Any, Any]:
-        """``(Kc, Ti_s, Td_s)`` the step uses at ``setpoint_N``: the schedule's, or the single set."""
+        """``(Kc, Ti_s, Td_s)`` the step uses at ``setpoint_N``: the schedule's, or the single set.
+
+        Parameters
+        ----------
+        setpoint_N : array_like
+            The setpoint, in N.
+
+        Returns
+        -------
+        tuple
+            The gain ``Kc`` (V/N), ``Ti_s`` and ``Td_s`` (s) at each setpoint: the schedule's, interpolated, or the
+            single set's numbers.
+        """
         if self.schedule is None:
             return self.Kc, self.Ti_s, self.Td_s
         return self.schedule.at(setpoint_N)
 
     def b_at(self, setpoint_N: ArrayLike) -> Any:
-        """The setpoint weight the step uses at ``setpoint_N``: the schedule's column, or the single ``b``."""
+        """The setpoint weight the step uses at ``setpoint_N``: the schedule's column, or the single ``b``.
+
+        Parameters
+        ----------
+        setpoint_N : array_like
+            The setpoint, in N.
+
+        Returns
+        -------
+        float or ndarray
+            The setpoint weight of the proportional part (no unit) at each setpoint.
+        """
         return self.b if self.schedule is None else self.schedule.b_at(setpoint_N, self.b)
 
     @classmethod
     def from_labview(cls, Kc: float, Ti_min: float, Td_min: float, **kwargs: Any) -> PIDGains:
-        """Gains as entered in LabVIEW's PID VIs, whose Ti and Td are in minutes."""
+        """Gains as entered in LabVIEW's PID VIs, whose Ti and Td are in minutes.
+
+        Parameters
+        ----------
+        Kc : float
+            The proportional gain, in V/N.
+        Ti_min : float
+            The integral time, in minutes.
+        Td_min : float
+            The derivative time, in minutes.
+        **kwargs
+            The other fields of :class:`PIDGains` (``b``, ``N``, ...).
+
+        Returns
+        -------
+        PIDGains
+            The gains, their times in s.
+        """
         return cls(Kc=Kc, Ti_s=60.0 * Ti_min, Td_s=60.0 * Td_min, **kwargs)
 
     def labview(self) -> dict[str, float]:
-        """Kc, Ti and Td (minutes) for LabVIEW's PID VIs."""
+        """Kc, Ti and Td (minutes) for LabVIEW's PID VIs.
+
+        Returns
+        -------
+        dict of str to float
+            ``Kc`` (V/N), ``Ti_min`` and ``Td_min`` (minutes).
+        """
         return {"Kc": self.Kc, "Ti_min": self.Ti_s / 60.0, "Td_min": self.Td_s / 60.0}
 
 
@@ -590,7 +637,8 @@ class Controller:
         # measurement was), else the measurement itself
         measured = state.pv_prev if state.pv_filtered is None else state.pv_filtered
 
-        def actions(c: Controller, ff_state: NDArray | None) -> tuple[NDArray, NDArray | None]:
+        def actions(c: Controller,
+                    ff_state: NDArray[np.float64] | None) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
             g = c.gains
             Kc, _, Td = g.at(state.sp_prev)  # a schedule's gains at the last setpoint
             y = measured if g.filter_order == 2 else state.pv_prev

@@ -86,7 +86,8 @@ class FeedDrive:
         """The chain's axial stiffness at the table (N/um)."""
         k_nut = screw.rigidity_N_per_um(preload_N, axial_load_N)
         k_side = self.screw_side_stiffness_N_per_um(screw.root_diameter_mm, position_mm)
-        return 1.0 / (1.0 / k_nut + 1.0 / k_side)
+        stiffness: Array = 1.0 / (1.0 / k_nut + 1.0 / k_side)
+        return stiffness
 
     def natural_frequency_Hz(self, screw: BallScrew, preload_N: ArrayLike, position_mm: ArrayLike) -> Array:
         """First axial mode of the table on the chain, eq. (1) of the paper: sqrt(k/m)/(2 pi)."""
@@ -158,7 +159,7 @@ class PiezoPreload:
         c_h, s, k = screw.axial_constant_um, screw.structural_compliance_um_per_N, self.stiffness_N_per_um
 
         def gap(fp: float) -> float:
-            return stack_loop_um(c_h, bolt_preload_N, fp, k, s, screw.accuracy_factor) - self.stroke_um
+            return float(stack_loop_um(c_h, bolt_preload_N, fp, k, s, screw.accuracy_factor) - self.stroke_um)
 
         hi = bolt_preload_N + self.blocked_force_N * 1.01
         from scipy.optimize import brentq  # scipy.optimize loads on first use, not on import

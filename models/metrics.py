@@ -61,6 +61,13 @@ class StepMetrics:
     undershoot_pct: float
 
     def to_dict(self) -> dict[str, float]:
+        """The metrics by name.
+
+        Returns
+        -------
+        dict of str to float
+            Each field by name, in the unit its name carries.
+        """
         return asdict(self)
 
 

@@ -27,6 +27,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from piezopreload.core._typing import Array
 from piezopreload.core.errors import InputError
 
 __all__ = ["Ops", "NUMPY", "CASADI", "Layout", "clip", "absolute", "softplus"]
@@ -213,6 +214,6 @@ class Layout:
             out[key] = a
         return out
 
-    def numbers(self, **values: Any) -> np.ndarray:
+    def numbers(self, **values: Any) -> Array:
         """A numeric vector (numpy, batched) from named values: :meth:`pack` on :data:`NUMPY`."""
-        return self.pack(NUMPY, **values)
+        return np.asarray(self.pack(NUMPY, **values), dtype=np.float64)  # numpy's pack fills a float array

@@ -136,7 +136,7 @@ def viscosity_m2_s(vg: int, temperature_C: Any, ops: Any = NUMPY) -> Any:
 
 def pressure_viscosity_per_Pa(vg: int) -> float:
     """alpha_p = 1.29e-7 nu40^0.204 (1/Pa, nu40 in m^2/s): about 1.8e-8 for VG68."""
-    return 1.29e-7 * float(viscosity_m2_s(vg, 40.0)) ** 0.204
+    return float(1.29e-7 * float(viscosity_m2_s(vg, 40.0)) ** 0.204)
 
 
 #: Rexroth's idle torque (N m) of the two standard lip seals of a nut (one at each end; single or double nut
@@ -226,7 +226,8 @@ def shaft_film_W_per_m2K(omega_rad_s: ArrayLike, diameter_m: float, ambient_C: f
     and no less than free convection's ``free_W_per_m2K``."""
     k, nu, pr = _air(ambient_C)
     re = np.abs(np.asarray(omega_rad_s, float)) * diameter_m ** 2 / nu
-    return np.maximum(0.133 * re ** (2.0 / 3.0) * pr ** (1.0 / 3.0) * k / diameter_m, free_W_per_m2K)
+    film: Array = np.maximum(0.133 * re ** (2.0 / 3.0) * pr ** (1.0 / 3.0) * k / diameter_m, free_W_per_m2K)
+    return film
 
 
 def pipe_film_W_per_m2K(flow_l_per_min: float, bore_m: float) -> float:
@@ -402,9 +403,9 @@ class Network:
     """
 
     def __init__(self, capacities: ArrayLike, coupling: ArrayLike, ambient: ArrayLike) -> None:
-        self.C = np.asarray(capacities, float)
-        self.coupling = np.asarray(coupling, float)
-        self.ambient = np.asarray(ambient, float)
+        self.C: Array = np.asarray(capacities, np.float64)
+        self.coupling: Array = np.asarray(coupling, np.float64)
+        self.ambient: Array = np.asarray(ambient, np.float64)
         n = self.C.size
         if self.coupling.shape != (n - 1,) or self.ambient.shape != (n,):
             raise InputError(f"Network: {n} capacities need {n - 1} couplings and {n} ambient conductances.")
@@ -416,9 +417,9 @@ class Network:
         lam, V = eigh(s[:, None] * self.K * s[None, :])
         if lam[0] <= 1e-12 * max(lam[-1], 1e-300):
             raise InputError("Network: a body loses no heat to the ambient (every path to it is 0): no steady state.")
-        self.rates_per_s = lam
-        self._left = s[:, None] * V           # C^(-1/2) V
-        self._right = V.T * np.sqrt(self.C)   # V' C^(1/2)
+        self.rates_per_s: Array = np.asarray(lam, np.float64)
+        self._left: Array = np.asarray(s[:, None] * V, np.float64)  # C^(-1/2) V
+        self._right: Array = np.asarray(V.T * np.sqrt(self.C), np.float64)  # V' C^(1/2)
 
     @property
     def time_constants_s(self) -> Array:
@@ -501,7 +502,7 @@ class FineMarch:
     def _couple(self, T: Array) -> Array:
         """The coupling's part of K T."""
         flow = self.coupling * (T[:-1] - T[1:])
-        return np.concatenate([flow, [0.0]]) - np.concatenate([[0.0], flow])
+        return np.asarray(np.concatenate([flow, [0.0]]) - np.concatenate([[0.0], flow]), np.float64)
 
 
 # ---- growth ------------------------------------------------------------------------------------------------
@@ -536,7 +537,8 @@ def pair_shift_m(force_N: ArrayLike, preload_N: float, stiffness_N_per_m: float)
         low = (1.0 + mid) ** 1.5 - (1.0 - mid) ** 1.5 < r
         lo, hi = np.where(low, mid, lo), np.where(low, hi, mid)
     u = np.where(r >= PAIR_LIFT_OFF_RATIO, np.cbrt(r) ** 2 - 1.0, 0.5 * (lo + hi))
-    return np.sign(F) * 3.0 * preload_N * u / stiffness_N_per_m
+    shift: Array = np.sign(F) * 3.0 * preload_N * u / stiffness_N_per_m
+    return shift
 
 
 def _mounted(mounting: str) -> None:
@@ -566,7 +568,8 @@ def end_force_N(rise_K: ArrayLike, dx_m: float, mounting: str, *, EA_N: float, b
         short = grown - (mid + f_t) * length / EA_N - 2.0 * (pair_shift_m(mid, bearing_preload_N,
                                                                           bearing_N_per_m) - start) > 0
         lo, hi = np.where(short, mid, lo), np.where(short, hi, mid)
-    return 0.5 * (lo + hi)
+    force: Array = 0.5 * (lo + hi)
+    return force
 
 
 def held_force_N(rise_K: ArrayLike, dx_m: float, mounting: str, *, EA_N: float, bearing_N_per_m: float = math.inf,

@@ -114,12 +114,31 @@ class CodesignWeights:
     @classmethod
     def of_study(cls, study: StudySpec) -> CodesignWeights:
         """What the study states: the thermal growth and the tracking alike where it has a ``[thermal]`` table, else
-        the schedule's friction energy and the tracking alike; the voltage not weighted."""
+        the schedule's friction energy and the tracking alike; the voltage not weighted.
+
+        Parameters
+        ----------
+        study : StudySpec
+            The parsed study; only whether it has a ``[thermal]`` table is read.
+
+        Returns
+        -------
+        CodesignWeights
+            growth 1 and friction 0 with a ``[thermal]`` table, growth 0 and friction 1 without; tracking 1 and voltage
+            0 either way.
+        """
         if study.thermal is not None:
             return cls(growth=1.0, friction=0.0, tracking=1.0, voltage=0.0)
         return cls(growth=0.0, friction=1.0, tracking=1.0, voltage=0.0)
 
     def to_dict(self) -> dict[str, float]:
+        """The weights by term.
+
+        Returns
+        -------
+        dict of str to float
+            Each objective term's weight (``growth``, ``friction``, ``tracking``, ``voltage``).
+        """
         return {name: float(getattr(self, name)) for name, _, _ in TERMS}
 
 
@@ -329,7 +348,15 @@ class CodesignResult:
         return (self.sequential_s + self.codesign_s) / self.sequential_s
 
     def changed(self) -> list[str]:
-        """What the co-design changed in the design, in the design's units."""
+        """What the co-design changed in the design, in the design's units.
+
+        Returns
+        -------
+        list of str
+            One line per design variable that differs, ``NAME OLD -> NEW UNIT`` (the contact angle in deg, the ball in
+            mm, the bolts' preload in N, the stiffness in N/um, the life in h); empty where the co-design kept the
+            sequential design.
+        """
         a, b = self.sequential.point, self.codesigned.point
         rows = []
         for name, unit in (("contact_angle_deg", "deg"), ("conformity", ""), ("ball_mm", "mm"), ("turns", ""),
@@ -342,7 +369,15 @@ class CodesignResult:
 
     def bought(self) -> list[dict[str, Any]]:
         """Each objective term: sequential, co-designed, the change, and its weighted share of the objective's
-        change."""
+        change.
+
+        Returns
+        -------
+        list of dict
+            One row per objective term the study has (growth left out without ``[thermal]``): ``term``, ``unit``, the
+            ``sequential`` and the ``codesigned`` value, their ``change``, the term's ``weight``, and
+            ``objective_change``, the weighted relative change as a share of the weights' sum (negative: the term fell).
+        """
         total = sum(getattr(self.weights, n) for n, _, _ in TERMS)
         rows = []
         for name, attr, unit in TERMS:
@@ -355,7 +390,14 @@ class CodesignResult:
         return rows
 
     def coupling(self) -> str:
-        """Which coupling bought the difference: the term whose weighted change is the largest fall."""
+        """Which coupling bought the difference: the term whose weighted change is the largest fall.
+
+        Returns
+        -------
+        str
+            ``TERM: how the design reaches it`` for the term of :meth:`bought` with the largest weighted fall, or a
+            sentence starting ``none:`` where no term fell.
+        """
         rows = self.bought()
         best = min(rows, key=lambda r: r["objective_change"])
         if best["objective_change"] >= -1e-9:
@@ -368,7 +410,15 @@ class CodesignResult:
         return f"{best['term']}: {how}"
 
     def requirements(self) -> list[dict[str, Any]]:
-        """Each requirement: its limit, the sequential's and the co-designed figure, in the requirement's units."""
+        """Each requirement: its limit, the sequential's and the co-designed figure, in the requirement's units.
+
+        Returns
+        -------
+        list of dict
+            One row per requirement: ``requirement`` (in words), ``unit``, ``limit`` (None where the study sets none),
+            ``kind`` (``min`` or ``max``), and the ``sequential`` and the ``codesigned`` design's figure; the Monte
+            Carlo validation's rows where both designs were validated.
+        """
         a, b = self.sequential, self.codesigned
         lim = self.limits
         rows: list[dict[str, Any]] = [
@@ -407,6 +457,15 @@ class CodesignResult:
         return rows
 
     def to_dict(self) -> dict[str, Any]:
+        """The co-design's result as ``codesign --json`` prints it.
+
+        Returns
+        -------
+        dict
+            The study, the strategy, the weights, both objectives and their ratio, both designs, :meth:`changed`,
+            :meth:`bought`, :meth:`coupling`, :meth:`requirements`, the infeasible candidates, the times (s) and each
+            design's Monte Carlo verdict (None where not validated).
+        """
         return {"study": self.study, "strategy": self.strategy, "weights": self.weights.to_dict(),
                 "objective_sequential": self.objective_sequential, "objective_codesigned": self.objective_codesigned,
                 "objective_ratio": self.objective_ratio, "evaluations": self.evaluations,

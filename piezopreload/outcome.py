@@ -156,7 +156,14 @@ class RunSummary:
 
     def to_dict(self) -> dict[str, Any]:
         """The headline figures, whether every requirement is met (None: none checked), the missed ones and every
-        one, each with its margin."""
+        one, each with its margin.
+
+        Returns
+        -------
+        dict
+            The headline's figures by name, ``requirements_met`` (True, False, or None where none was checked), and
+            ``requirements_missed`` and ``requirements``, each requirement as its record's document.
+        """
         return {**self.headline.to_dict(), "requirements_met": self.requirements_met,
                 "requirements_missed": [r.to_dict() for r in self.missed],
                 "requirements": [r.to_dict() for r in self.requirements]}
@@ -225,10 +232,19 @@ class StudyResult:
 
     @property
     def exit_code(self) -> int:
+        """The run's exit status: ``EXIT_REQUIREMENT_MISSED`` where a requirement was missed, else 0."""
         return EXIT_REQUIREMENT_MISSED if self.requirements_met is False else 0
 
     def to_dict(self) -> dict[str, Any]:
-        """What ``run --json`` prints: the outputs, the stages, ``summary`` (the headline and the verdicts)."""
+        """What ``run --json`` prints: the outputs, the stages, ``summary`` (the headline and the verdicts).
+
+        Returns
+        -------
+        dict
+            ``out``, ``study``, ``stages``, ``ran``, ``seconds``, the written files' paths (``report``, ``gain_set``,
+            ``rig_log``; None where not written), ``gain_set_sha256``, ``summary`` (:meth:`RunSummary.to_dict`) and
+            ``exit_code``.
+        """
         def path(p: Path | None) -> str | None:
             return None if p is None else str(p)
 
@@ -238,7 +254,14 @@ class StudyResult:
                 "summary": self.summary.to_dict(), "exit_code": self.exit_code}
 
     def verdict(self) -> str:
-        """The verdict in one line: every requirement met (with the nearest to its limit), or how many missed."""
+        """The verdict in one line: every requirement met (with the nearest to its limit), or how many missed.
+
+        Returns
+        -------
+        str
+            ``every requirement met (N checked)`` with the requirement nearest to its limit and its margin in %, ``M of
+            N requirements missed``, or ``no requirement checked``.
+        """
         if self.requirements_met is None:
             return "no requirement checked"
         if self.requirements_met:
@@ -282,7 +305,14 @@ class StudyResult:
                    f"{reqs}</table>"))
 
     def plot(self) -> Figure:
-        """A Figure: each requirement's margin as a share of its limit (right of zero: met; left: missed)."""
+        """A Figure: each requirement's margin as a share of its limit (right of zero: met; left: missed).
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            One horizontal bar per requirement: its margin over its limit's magnitude (the margin itself where the limit
+            is 0), green where met, red where missed.
+        """
         from matplotlib.figure import Figure
 
         fig = Figure(figsize=(7, 0.5 + 0.35 * max(len(self.requirements), 1)))

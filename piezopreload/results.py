@@ -90,10 +90,12 @@ class TuningResult:
 
     @property
     def gains(self) -> PIDGains:
+        """The tuned PID gains."""
         return self.record.gains
 
     @property
     def simc(self) -> PIDGains:
+        """SIMC's gains on the FOPDT fit: the baseline the tuned gains are compared with."""
         return self.record.simc_baseline
 
     @property
@@ -103,38 +105,89 @@ class TuningResult:
 
     @property
     def table(self) -> tuple[ComparisonRow, ...]:
+        """The comparison table: each gain set, with and without feedforward, and its step and tracking figures."""
         return self.record.table
 
     @property
     def active_bounds(self) -> tuple[ActiveBound, ...]:
+        """The gains that ended on a bound of the search, each with its bound."""
         return self.record.active_bounds
 
     @property
     def minimum_time(self) -> MinimumTimeBound:
+        """The least settling time any command reaches on the tuning model, beside the tuned loop's."""
         return self.record.minimum_time
 
     @property
     def tracking_floor(self) -> TrackingFloor:
+        """The least RMS tracking error of any causal controller without preview, beside the tuned loop's."""
         return self.record.tracking_floor
 
     @property
     def improvement(self) -> dict[str, float | None]:
+        """The study's starting gains' tracking RMS over the tuned gains', by reference (None where not measured)."""
         return self.record.tracking_improvement
 
     def row(self, gains: str = "tuned", feedforward: bool = True) -> ComparisonRow:
-        """One row of the comparison table."""
+        """One row of the comparison table.
+
+        Parameters
+        ----------
+        gains : str
+            Which gain set: ``tuned``, or another of the table's (``simc``, ``study``).
+        feedforward : bool
+            The row with the feedforward (True) or without it.
+
+        Returns
+        -------
+        ComparisonRow
+            That row of :attr:`table`.
+        """
         return self.record.row(gains, feedforward)
 
     def to_dict(self) -> dict[str, Any]:
-        """The tuning artifact's body."""
+        """The tuning artifact's body.
+
+        Returns
+        -------
+        dict
+            The tuning artifact's document, without its envelope.
+        """
         return self.record.to_dict()
 
     def save(self, path: str | Path) -> Path:
+        """Write the tuning artifact.
+
+        Parameters
+        ----------
+        path : str or Path
+            The file (``tuning.json``).
+
+        Returns
+        -------
+        Path
+            The path written.
+        """
         return self.record.save(path)
 
     @classmethod
     def load(cls, path: str | Path, study: StudySpec, feedforward: IdentifiedFeedforward) -> TuningResult:
-        """A tuning artifact read back, for the study and feedforward it was tuned with."""
+        """A tuning artifact read back, for the study and feedforward it was tuned with.
+
+        Parameters
+        ----------
+        path : str or Path
+            The tuning artifact's file.
+        study : StudySpec
+            The study the gains were tuned for.
+        feedforward : IdentifiedFeedforward
+            The feedforward they were tuned with.
+
+        Returns
+        -------
+        TuningResult
+            The tuning's result, as :meth:`Study.tune` returned it.
+        """
         return cls(study, feedforward, TuningRecord.load(path))
 
     def __repr__(self) -> str:
@@ -159,7 +212,18 @@ class TuningResult:
     def candidate(self, inputs: dict[str, Any] | None = None) -> GainSet:
         """The tuned gains as a gain set not yet validated: feedforward, plant, references, criteria, the rig's
         interlock settings of the study's ``[rig_run]``; its tuning record names the gains on their bounds
-        (``active_bounds``) and the controller's form."""
+        (``active_bounds``) and the controller's form.
+
+        Parameters
+        ----------
+        inputs : dict or None
+            The hashes of the files the gains came from, by name, added to the study's path and hash.
+
+        Returns
+        -------
+        GainSet
+            A gain set of status ``candidate``.
+        """
         s, ff = self.study, self.feedforward
         tuning = {**self.solve.to_dict(), "simc_baseline": GainsTable.from_value(self.simc).to_dict(),
                   "active_bounds": [b.to_dict() for b in self.active_bounds]}
@@ -173,7 +237,32 @@ class TuningResult:
                    scheduler: str | None = None, progress: ProgressLike | None = None,
                    bar: Callable[[int, int], None] | None = None,
                    inputs: dict[str, Any] | None = None) -> tuple[GainSet, ValidationResult]:
-        """:meth:`validate`, also returning the per-plant result."""
+        """:meth:`validate`, also returning the per-plant result.
+
+        Parameters
+        ----------
+        plants : int or None
+            How many Monte Carlo plants (None: ``[validation] plants``).
+        seed : int or None
+            The seed of the plants' draw (None: ``[validation] seed``, else the study's).
+        workers : int or None
+            How many processes share the plants (None: ``[validation] workers``).
+        scheduler : str or None
+            A Dask scheduler's address (``tcp://HOST:PORT``) to run the plants on a cluster (None: local processes).
+        progress : ProgressLike or None
+            Where progress lines go (None: nowhere).
+        bar : callable or None
+            Called with (chunk, chunks) as each chunk of plants is done; None: a progress line per chunk.
+        inputs : dict or None
+            The hashes of the files the gains came from, by name.
+
+        Returns
+        -------
+        gain_set : GainSet
+            The gain set, ``validated`` only where every plant met every criterion.
+        result : ValidationResult
+            Every plant's metrics, the failures and the verdict.
+        """
         v = self.study.validation
         plants = v.plants if plants is None else plants
         say = say_of(progress) or (lambda _m: None)
@@ -186,11 +275,36 @@ class TuningResult:
     def validate(self, plants: int | None = None, seed: int | None = None, *, workers: int | None = None,
                  scheduler: str | None = None, progress: ProgressLike | None = None) -> GainSet:
         """Validate the tuned gains by Monte Carlo on the study's nonlinear rig (``[validation]`` by default):
-        a :class:`GainSet`, ``validated`` only if every plant met every criterion. Save it with ``.save()``."""
+        a :class:`GainSet`, ``validated`` only if every plant met every criterion. Save it with ``.save()``.
+
+        Parameters
+        ----------
+        plants : int or None
+            How many Monte Carlo plants (None: ``[validation] plants``).
+        seed : int or None
+            The seed of the plants' draw (None: ``[validation] seed``, else the study's).
+        workers : int or None
+            How many processes share the plants (None: ``[validation] workers``).
+        scheduler : str or None
+            A Dask scheduler's address (``tcp://HOST:PORT``) to run the plants on a cluster (None: local processes).
+        progress : ProgressLike or None
+            Where progress lines go (None: nowhere).
+
+        Returns
+        -------
+        GainSet
+            The gain set with its validation (:meth:`validation`'s first item).
+        """
         return self.validation(plants=plants, seed=seed, workers=workers, scheduler=scheduler, progress=progress)[0]
 
     def plot(self) -> Figure:
-        """The comparison table as bars (settling time, tracking RMS): a Figure."""
+        """The comparison table as bars (settling time, tracking RMS): a Figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            Bars of each row of :attr:`table`: settling time (s) and tracking RMS (N).
+        """
         from piezopreload.reports import figures  # matplotlib only when drawing
 
         return figures.gains_comparison([r.to_dict() for r in self.table])
@@ -343,6 +457,14 @@ class SimulationInfo:
     published: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
+        """What ran, as ``simulate --json`` prints it.
+
+        Returns
+        -------
+        dict
+            ``study``, ``controller``, ``reference``, ``gains`` (the gains' table with their source and status),
+            ``feedforward`` (None without one), ``sample_period_s`` (s) and ``published``.
+        """
         source = {"source": self.gains_source, **({} if self.gains_status is None else {"status": self.gains_status})}
         return {"study": self.study.to_dict(), "controller": self.controller, "reference": self.reference,
                 "gains": {**GainsTable.from_value(self.gains).to_dict(), **source},
@@ -373,7 +495,22 @@ class StudyRun(ClosedLoopRun):
 
     def step_metrics(self, band_N: Any = _STUDY, *, which: int = 1, signal: str | None = None) -> StepMetrics:
         """Rise, peak and settling time and overshoot of the reference's ``which``-th change, in the study's band
-        on the study's signal unless given (``band_N=None``: the 10-90 % / 2 % definitions)."""
+        on the study's signal unless given (``band_N=None``: the 10-90 % / 2 % definitions).
+
+        Parameters
+        ----------
+        band_N : float or None
+            The settling band, in N (default: the study's); None: the conventional 2 % band and 10-90 % rise.
+        which : int
+            Which change of the reference, from 1.
+        signal : str or None
+            The signal scored, ``force_N`` or ``measured_N`` (None: the study's).
+
+        Returns
+        -------
+        StepMetrics
+            The step's rise, peak and settling times (s) and overshoot (N).
+        """
         m = super().step_metrics(self.band_N if band_N is _STUDY else band_N, which=which, signal=signal or self.signal)
         if not isinstance(m, StepMetrics):  # pragma: no cover - a study's run is one plant
             raise InputError("step_metrics of a batch: index the batch first")
@@ -381,7 +518,14 @@ class StudyRun(ClosedLoopRun):
 
     def to_dict(self) -> dict[str, Any]:
         """What ``piezopreload simulate --json`` prints: what ran, the step numbers, tracking, and the study's published
-        numbers for this run where it declares them (``published``: None otherwise)."""
+        numbers for this run where it declares them (``published``: None otherwise).
+
+        Returns
+        -------
+        dict
+            :meth:`SimulationInfo.to_dict`'s keys, ``reference_levels_N``, ``band_N``, ``signal``, ``seed``, ``samples``
+            and :meth:`numbers`.
+        """
         return {
             **self.info.to_dict(), "reference_levels_N": self.reference.levels_N.tolist(), "band_N": self.band_N,
             "signal": self.signal, "seed": self.seed, "samples": int(self.t_s.size), **self.numbers(),
@@ -389,13 +533,26 @@ class StudyRun(ClosedLoopRun):
 
     def numbers(self) -> dict[str, float | None]:
         """The step numbers (rise, peak, settling, overshoot) and the peak command, and over the trajectory the
-        tracking errors, in the study's band on its signal (None: a time never reached)."""
+        tracking errors, in the study's band on its signal (None: a time never reached).
+
+        Returns
+        -------
+        dict of str to float or None
+            The step's times (s) and overshoot (N), ``peak_command_V`` (V) and, over a trajectory, the tracking errors
+            (N).
+        """
         numbers = run_numbers(self, self.band_N, self.signal)
         tracking = self.info.reference == "trajectory"
         return {k: numbers[k] for k in (*_STEP_KEYS, "peak_command_V", *(_TRACK_KEYS if tracking else ()))}
 
     def plot(self) -> Figure:
-        """Reference and force (top), command and amplifier voltage (bottom): a Figure."""
+        """Reference and force (top), command and amplifier voltage (bottom): a Figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            The reference and the force (N) above, the command and the amplifier's voltage (V) below, against time.
+        """
         from piezopreload.reports import figures  # matplotlib only when drawing
 
         title = (f"{self.info.controller.replace('ff+pid', 'FF + PID').replace('pid', 'PID')}, "
@@ -500,26 +657,51 @@ class StudyReproduction:
 
     @property
     def rows(self) -> tuple[PublishedRow, ...]:
+        """Each published figure against the reproduced one."""
         return self.comparison.rows
 
     @property
     def repeats(self) -> int:
+        """Over how many noise realisations each simulated number is the median."""
         return self.comparison.repeats
 
     @property
     def feedforward_fit(self) -> dict[str, float]:
+        """The identified P-I model's fit error, in % of the force span (``rms_pct``, ``max_pct``)."""
         return self.comparison.feedforward_fit
 
     @property
     def all_within_25pct(self) -> bool:
+        """Whether every reproduced figure is within 25 % of the published one."""
         return self.comparison.all_within_25pct
 
     def row(self, controller: str, metric: str) -> PublishedRow:
-        """The row of ``controller`` (``pid``, ``ff+pid``) and ``metric`` (``rise_s``, ``peak_s``, ``settling_s``)."""
+        """The row of ``controller`` (``pid``, ``ff+pid``) and ``metric`` (``rise_s``, ``peak_s``, ``settling_s``).
+
+        Parameters
+        ----------
+        controller : str
+            ``pid`` or ``ff+pid``.
+        metric : str
+            ``rise_s``, ``peak_s`` or ``settling_s``.
+
+        Returns
+        -------
+        PublishedRow
+            The published and the simulated number (s; None: never reached), their ratio, whether it lies within
+            25 % of the published one, and its range over the noise realisations.
+        """
         return self.comparison.row(controller, metric)
 
     def to_dict(self) -> dict[str, Any]:
-        """What ``reproduce --json`` prints."""
+        """What ``reproduce --json`` prints.
+
+        Returns
+        -------
+        dict
+            ``study``, ``gains`` (and how they were read), ``band_N``, ``signal``, ``published``, ``step``, the
+            comparison's rows and fit, and ``seconds``.
+        """
         return {"study": self.study.to_dict(),
                 "gains": {**GainsTable.from_value(self.gains).to_dict(), "read_as": self.read_as},
                 "band_N": self.band_N, "signal": self.signal, "published": self.published,

@@ -60,14 +60,37 @@ class ScheduleLearning:
     def save(self, folder: str | Path, gain_set_sha256: str | None,
              inputs: dict[str, Any] | None = None) -> LearnedWritten:
         """Write each pass's learned signal and ``learning.json`` (:func:`~piezopreload.tuning.learning.save_passes`)
-        into ``folder``; returns the last pass's signal (``out``, what the rig plays) and its hash."""
+        into ``folder``; returns the last pass's signal (``out``, what the rig plays) and its hash.
+
+        Parameters
+        ----------
+        folder : str or Path
+            The folder the files are written into.
+        gain_set_sha256 : str or None
+            The hash of the gain set the signals were learned with (None: unsaved gains).
+        inputs : dict or None
+            The hashes of the files the learning came from, by name (None: none).
+
+        Returns
+        -------
+        LearnedWritten
+            The last pass's learned signal's path and hash, and the path of ``learning.json``.
+        """
         paths, _ = save_passes(list(self.passes), folder, gain_set_sha256, dict(inputs or {}))
         return LearnedWritten(str(paths["learned"]), LearnedSignal.load(paths["learned"]).content_sha256,
                               str(paths["learning"]))
 
     def to_dict(self) -> dict[str, Any]:
         """The last pass's learning (as a :class:`LearningResult`'s), each pass's figures and
-        the schedule's tracking."""
+        the schedule's tracking.
+
+        Returns
+        -------
+        dict
+            The last pass's :meth:`LearningResult.to_dict`, ``before_learning_rms_N`` (N), ``passes`` (each pass's
+            margin in N and its RMS error before and after learning in N) and ``system``, the schedule's tracking
+            (:meth:`SystemSummary.to_dict`).
+        """
         return {**self.last.to_dict(), "before_learning_rms_N": self.before_learning_rms_N,
                 "passes": [{"pass": k, "preload_margin_N": None if p is None else p.preload_margin_N,
                             "tracking_rms_N": r.tracking_rms_N,
@@ -87,7 +110,13 @@ class ScheduleLearning:
 
     def plot(self) -> Figure:
         """The error per iteration of each pass (left) and the schedule's tracking (the system run's figure is
-        ``system.plot()``): a Figure."""
+        ``system.plot()``): a Figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            The worst plant's RMS error of the true force (N, log scale) against the iteration, one line per pass.
+        """
         from matplotlib.figure import Figure
 
         fig = Figure(figsize=(5.5, 3.6), layout="constrained")

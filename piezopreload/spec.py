@@ -97,7 +97,13 @@ S = TypeVar("S", bound="StudySpec")
 
 
 def _stderr(message: str) -> None:
-    """A study's progress where its caller gives none: a line on standard error."""
+    """A study's progress where its caller gives none: a line on standard error.
+
+    Parameters
+    ----------
+    message : str
+        The progress line, printed after ``piezopreload:``.
+    """
     print(f"piezopreload: {message}", file=sys.stderr, flush=True)
 
 
@@ -238,24 +244,48 @@ class StudySpec:
 
     @property
     def seed(self) -> int:
+        """The noise seed of the study's simulations (``[simulation] seed``)."""
         return self.simulation.seed
 
     @property
     def band_N(self) -> float:
+        """The error band settling is read in, in N (``[simulation] band_N``)."""
         return self.simulation.band_N
 
     @property
     def signal(self) -> str:
+        """What the step numbers are read on (``[simulation] signal``): ``measured_N``, the sensor's reading, or
+        ``force_N``,
+        the true force.
+        """
         return self.simulation.signal
 
     def resolve(self, relative: str | None) -> Path | None:
         """A file the study names (``feedforward.data``, ``schedule.profile``,
-        ``rig_run.reference``), from its folder."""
+        ``rig_run.reference``), from its folder.
+
+        Parameters
+        ----------
+        relative : str or None
+            The file's path as the study names it, relative to the study's folder (an absolute path stays as it is).
+
+        Returns
+        -------
+        Path or None
+            The file's path from the study's folder; None where ``relative`` is None.
+        """
         return None if relative is None else self.folder / relative
 
     def files(self) -> dict[str, Path]:
         """The input files the study names, by key (``feedforward.data``, ``schedule.profile``,
-        ``rig_run.reference``, ``tuning.warm_start``)."""
+        ``rig_run.reference``, ``tuning.warm_start``).
+
+        Returns
+        -------
+        dict of str to Path
+            Each input file the study names, by its key, resolved from the study's folder; a key the study leaves unset
+            (or a rig run's reference that is no CSV file) is left out.
+        """
         named = {"feedforward.data": self.feedforward.data,
                  "schedule.profile": None if self.ballscrew is None or self.schedule is None else self.schedule.profile,
                  "rig_run.reference": (self.rig_run.reference if self.rig_run.reference.lower().endswith(".csv")
@@ -270,7 +300,13 @@ class StudySpec:
                 raise self.where.fail(key, f"names {path}, which is not a file; give a path relative to the study file")
 
     def tables(self) -> dict[str, Any]:
-        """The study's tables as the file holds them, every key with its value (defaults filled): a stage's key."""
+        """The study's tables as the file holds them, every key with its value (defaults filled): a stage's key.
+
+        Returns
+        -------
+        dict
+            ``study`` (name, title, description) and each table the study has, by name, as the file would hold it.
+        """
         out: dict[str, Any] = {"study": {"name": self.name, "title": self.title, "description": self.description}}
         for table in STUDY_TABLES:
             value, declared = getattr(self, _ATTRIBUTE.get(table, table), None), STUDY_TABLES[table]
@@ -290,6 +326,21 @@ class StudySpec:
         file is: a bad key or value, or a key the designed plant sets where the plant is the design,
         raises :class:`InputError`. The design solved for this study is kept where the copy's design
         is the same.
+
+        Parameters
+        ----------
+        **changes : dict or None
+            By table's name, the keys to change (a dict, nested for a nested table), or None to remove the table.
+
+        Returns
+        -------
+        StudySpec
+            The changed study, checked as a file is.
+
+        Raises
+        ------
+        InputError
+            Where a name is not a table of the study, or a key or a value is refused.
         """
         data = copy.deepcopy(self.given)
         for table, keys in changes.items():
@@ -316,7 +367,13 @@ class StudySpec:
         return _replace(study, _kept=kept)
 
     def to_toml(self) -> str:
-        """The study as a TOML file (the file itself when it was not changed)."""
+        """The study as a TOML file (the file itself when it was not changed).
+
+        Returns
+        -------
+        str
+            The study's TOML text.
+        """
         return self.source_text.decode("utf-8")
 
     # ---- the plant ---------------------------------------------------------------------------
@@ -357,7 +414,20 @@ class StudySpec:
         """This study with its design's optimum given (a design artifact, say) instead of solved: its plant,
         designed plant and preload schedule are made from it; a design artifact's (:class:`DesignRecord`) own
         schedule is kept as recorded, so the best constant preload has one source. ``design_sha256``: the design
-        artifact's hash, which the designed plant records."""
+        artifact's hash, which the designed plant records.
+
+        Parameters
+        ----------
+        design : DesignRecord, DesignResult, DesignOptimum or DesignPoint
+            The design whose optimum (or point) the study takes.
+        design_sha256 : str
+            The design artifact's hash ("": none), recorded by the designed plant.
+
+        Returns
+        -------
+        StudySpec
+            The study with the design given, its other fields as they are.
+        """
         self._spec("a design")
         point = design.point if isinstance(design, DesignRecord | DesignResult | DesignOptimum) else design
         optimum = design.optimum if isinstance(design, DesignResult) else design if isinstance(design, DesignOptimum) \
@@ -438,7 +508,23 @@ class StudySpec:
     def identify_feedforward(self, progress: ProgressLike | None = None) -> IdentifiedFeedforward:
         """The feedforward's P-I model: from ``[feedforward] data`` (a measured V -> N loop) when the study names
         one, else from the loop measurement simulated on :attr:`plant`; with its open-loop compensation check.
-        ``progress``: :data:`~piezopreload.progress.ProgressLike`."""
+        ``progress``: :data:`~piezopreload.progress.ProgressLike`.
+
+        Parameters
+        ----------
+        progress : ProgressLike or None
+            Where progress lines go (None: nowhere).
+
+        Returns
+        -------
+        IdentifiedFeedforward
+            The P-I model, its fit, the loop record and the open-loop compensation check.
+
+        Raises
+        ------
+        InputError
+            Where the model's range does not cover the study's references.
+        """
         said = say_of(progress)
         say = said or (lambda _m: None)
         record = self.measured_loop(said)  # refused before the design if it does not cover the references
@@ -513,9 +599,33 @@ class StudySpec:
         learning trials (fewer where more no longer pay); ``after_change_weight`` how the plan places each change
         (:func:`~piezopreload.tuning.learning.learn`).
 
-        Returns a :class:`~piezopreload.tuning.learning.LearningResult` (``.ff_extra_V``, ``.history``,
-        ``.plot()``), for ``"schedule"`` a :class:`~piezopreload.schedule.ScheduleLearning` (each pass's
-        learning and the last pass's tracking of the schedule).
+        Parameters
+        ----------
+        gains : GainSet or None
+            The gain set whose controller runs (None: the study's ``[controller]`` with the identified feedforward).
+        reference : str or Reference
+            A name of :attr:`references`, a :class:`Reference`, or ``"schedule"``.
+        iterations : int or None
+            The most learning trials (None: ``[learning] iterations``).
+        preview_s : float or None
+            How far ahead the feedforward reads the reference, in s (0: no preview; None: ``[learning] preview_s``).
+        method : str or None
+            The learning law, ``norm-optimal`` or ``p-type`` (None: ``[learning] method``).
+        plants : int or None
+            How many Monte Carlo plants to learn on, each its own learning (None: the study's plant alone).
+        seed : int or None
+            The seed of the plants' draw (None: the study's).
+        after_change_weight : float
+            The weight ``w`` the plan gives the error outside the time just after each jump (each ramp placed to least
+            ``whole + w * outside``; 0: the whole-trajectory floor).
+        progress : ProgressLike or None
+            Where progress lines go (None: nowhere).
+
+        Returns
+        -------
+        LearningResult or ScheduleLearning
+            A :class:`LearningResult` (``.ff_extra_V``, ``.history``, ``.plot()``); for ``"schedule"`` a
+            :class:`ScheduleLearning` (each pass's learning and the last pass's tracking of the schedule).
         """
         from piezopreload.models.actuator import Rig
         from piezopreload.tuning.learning import learn
@@ -566,7 +676,24 @@ class StudySpec:
         preload schedule on the designed plant for ``[plant] cycles`` after a pre-cycle to its first level (held the
         validated settling time, ``[validation] settling_max_s``), the schedule planned again with local margins while
         a requirement is missed (:func:`piezopreload.design.system.track_schedule`); ``ff_extra_V`` a correction
-        added to the feedforward (one array, or one per pass's reference: a callable)."""
+        added to the feedforward (one array, or one per pass's reference: a callable).
+
+        Parameters
+        ----------
+        gains : GainSet or None
+            The gain set whose controller runs (None: the study's ``[controller]`` with the identified feedforward).
+        ff_extra_V : ndarray, callable or None
+            A correction added to the feedforward, in V: one value per sample, or a callable giving one per pass's
+            reference (None: none).
+        progress : ProgressLike or None
+            Where progress lines go (None: nowhere).
+
+        Returns
+        -------
+        SystemRun
+            The run: its tracking, the requirements with their verdicts, the passes, and the thermal budget and the
+            sensitivity study.
+        """
         from piezopreload.tuning.validate import DEFAULT_SPREAD
 
         said = say_of(progress)
@@ -599,7 +726,35 @@ class StudySpec:
         with :attr:`plant`), the Pareto fronts ``pareto`` (default: ``[design] pareto``; ``[]`` for none) and the
         preload schedule for a load profile (``schedule``, a CSV; default: the study's, or a machining cycle).
         ``optimum``: the optimum already chosen (a co-design's, where ``[design] method = "codesign"``: the
-        design stage gives it), kept as the study's."""
+        design stage gives it), kept as the study's.
+
+        Parameters
+        ----------
+        objective : str or None
+            The design's objective (None: ``[design] objective``).
+        pareto : list of str or None
+            The Pareto fronts, each ``x:y`` (None: ``[design] pareto``; ``[]``: none).
+        points : int or None
+            The points of each front (None: ``[design] pareto_points``).
+        schedule : str, Path or None
+            A load profile's CSV for the preload schedule (None: ``[schedule] profile``, or a machining cycle).
+        progress : ProgressLike or None
+            Where progress lines go (None: nowhere).
+        bar : callable or None
+            Called with (done, total) as the fronts' points are solved (None: no bar).
+        optimum : DesignOptimum or None
+            The optimum already chosen, kept as the study's (None: solved).
+
+        Returns
+        -------
+        DesignResult
+            The optimum, the fronts, the preload schedule and the curves.
+
+        Raises
+        ------
+        InfeasibleError
+            Where no design meets the study's requirements.
+        """
         spec = self._spec("the design")
         d, s = self.design_table or DesignTable(), self.schedule or ScheduleTable()
         objective = objective or d.objective

@@ -591,11 +591,23 @@ class SweepResult:
 
     @classmethod
     def load(cls, out: str | Path) -> SweepResult:
-        """The sweep in ``out`` as its ``sweep.json`` records it."""
+        """The sweep in ``out`` as its ``sweep.json`` records it.
+
+        Parameters
+        ----------
+        out : str or Path
+            The sweep's folder (the one holding ``sweep.json``).
+
+        Returns
+        -------
+        SweepResult
+            The sweep as recorded: its axes, points and figures.
+        """
         return cls(Path(out), SweepRecord.load(Path(out) / RECORD))
 
     @property
     def rows(self) -> list[dict[str, Any]]:
+        """One row per point: index, folder, swept values, status, error and figures (:meth:`SweepPoint.row`)."""
         return self.record.rows()
 
     @property
@@ -605,10 +617,12 @@ class SweepResult:
 
     @property
     def points(self) -> tuple[SweepPoint, ...]:
+        """Every point of the sweep, in order."""
         return self.record.points
 
     @property
     def failed(self) -> list[SweepPoint]:
+        """The points whose run failed (status ``failed``)."""
         return [p for p in self.record.points if p.status == "failed"]
 
     @property
@@ -622,12 +636,29 @@ class SweepResult:
         return EXIT_POINT_FAILED if self.failed else EXIT_REQUIREMENT_MISSED if self.missed else 0
 
     def folder(self, index: int) -> Path:
-        """The folder of point ``index`` (its study outputs)."""
+        """The folder of point ``index`` (its study outputs).
+
+        Parameters
+        ----------
+        index : int
+            The point's index, from 0.
+
+        Returns
+        -------
+        Path
+            The point's folder under the sweep's.
+        """
         return self.out / self.record.points[index].folder
 
     def csv_text(self) -> str:
         """The rows as CSV (a list of missed requirements as their names separated by semicolons; None as an empty
-        cell)."""
+        cell).
+
+        Returns
+        -------
+        str
+            A header of the columns and one line per point.
+        """
         buf = io.StringIO()
         writer = csv.writer(buf, lineterminator="\n")
         columns = self.record.columns()
@@ -639,6 +670,15 @@ class SweepResult:
         return buf.getvalue()
 
     def to_dict(self) -> dict[str, Any]:
+        """What ``sweep --json`` prints.
+
+        Returns
+        -------
+        dict
+            ``out``, ``study`` (name, path, hash), ``mode``, ``axes``, the counts of ``points``, ``done``, ``failed``
+            and ``missed_requirements``, ``columns``, ``rows``, the CSV's and the report's paths (None where no report),
+            ``seconds`` (the total and each point's) and ``exit_code``.
+        """
         r = self.record
         return {"out": str(self.out), "study": {"name": r.study_name, "path": r.study_path, "sha256": r.study_sha256},
                 "mode": r.mode, "axes": [a.to_dict() for a in r.axes], "points": len(r.points),
@@ -650,7 +690,18 @@ class SweepResult:
                 "exit_code": self.exit_code}
 
     def to_dataframe(self) -> Any:
-        """The rows as a :class:`pandas.DataFrame` (pandas is not a dependency: install it to use this)."""
+        """The rows as a :class:`pandas.DataFrame` (pandas is not a dependency: install it to use this).
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per point, the columns in the sweep's order.
+
+        Raises
+        ------
+        InputError
+            Where pandas is not installed.
+        """
         try:
             import pandas as pd
         except ImportError:
@@ -661,7 +712,27 @@ class SweepResult:
     def plot(self, x: str | None = None, y: str | Sequence[str] = "worst_settling_s", *,
              by: str | Sequence[str] | None = None) -> Figure:
         """A figure of ``y`` (a column, or several: one panel each) against ``x`` (default: the first swept key),
-        one line per value of ``by`` (default: the other swept keys of a grid); failed points marked."""
+        one line per value of ``by`` (default: the other swept keys of a grid); failed points marked.
+
+        Parameters
+        ----------
+        x : str or None
+            The column on the horizontal axis (None: the first swept key).
+        y : str or sequence of str
+            The column (or columns, one panel each) on the vertical axis.
+        by : str, sequence of str or None
+            The columns whose values each get a line (None: a grid's other swept keys; a list sweep's none).
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            The figure.
+
+        Raises
+        ------
+        InputError
+            Where a column named is not one of the sweep's.
+        """
         x = x or self.keys[0]
         ys = [y] if isinstance(y, str) else list(y)
         if by is None:

@@ -30,8 +30,8 @@ if TYPE_CHECKING:
     from matplotlib.typing import RcKeyType
 
 __all__ = [
-    "STYLE", "COLOURS", "legends", "save", "save_all", "hysteresis_loops", "inverse_model", "step_responses",
-    "tracking",
+    "STYLE", "COLOURS", "legends", "page_figure", "styled", "save", "save_all", "hysteresis_loops", "inverse_model",
+    "step_responses", "tracking",
     "stiffness_vs_preload", "pareto_fronts", "preload_schedule", "natural_frequency", "monte_carlo",
     "rig_run", "closed_loop", "gains_comparison",
 ]
@@ -48,8 +48,23 @@ COLOURS = {"reference": "0.35", "study pid": "#d95f02", "study ff+pid": "#7570b3
 _WIDTH = 6.3  # inches: the text width of an A4 page with 2 cm margins
 
 
-def _figure(height: float, ncols: int = 1, nrows: int = 1, **kw: Any) -> tuple[Figure, Any]:
-    """A page-wide figure and its axes (called inside :func:`_styled`, under :data:`STYLE`)."""
+def page_figure(height: float, ncols: int = 1, nrows: int = 1, **kw: Any) -> tuple[Figure, Any]:
+    """A page-wide figure and its axes, for a figure function under :func:`styled` (:data:`STYLE`).
+
+    Parameters
+    ----------
+    height
+        The figure's height (inches); its width is the page's.
+    ncols, nrows
+        The grid of axes.
+    **kw
+        Passed to :meth:`matplotlib.figure.Figure.subplots` (``sharex``, ``gridspec_kw``...).
+
+    Returns
+    -------
+    tuple
+        The figure and its axes, a 2-D array (``squeeze=False``).
+    """
     fig = Figure(figsize=(_WIDTH, height), layout="constrained")
     return fig, fig.subplots(nrows, ncols, squeeze=False, **kw)
 
@@ -208,8 +223,20 @@ def save_all(figures: Sequence[tuple[Figure, str | Path]], *, workers: int | Non
         return [Path(f.result()) for f in futures]
 
 
-def _styled(fn: Any) -> Any:
-    """Run a figure function under :data:`STYLE` (artists take rcParams when created)."""
+def styled(fn: Any) -> Any:
+    """A figure function that runs under :data:`STYLE` (artists take rcParams when created): the decorator of every
+    figure of the report.
+
+    Parameters
+    ----------
+    fn
+        A function that returns a :class:`~matplotlib.figure.Figure`.
+
+    Returns
+    -------
+    Callable
+        ``fn`` run inside ``matplotlib.rc_context(STYLE)``.
+    """
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Figure:
         with mpl.rc_context(STYLE):
@@ -217,12 +244,12 @@ def _styled(fn: Any) -> Any:
     return wrapper
 
 
-@_styled
+@styled
 def hysteresis_loops(time_s: np.ndarray, voltage_V: np.ndarray, measured_N: np.ndarray,
                      model_N: np.ndarray) -> Figure:
     """Measured and modelled voltage -> force loops, and the model's error over the record (where the measurement
     came from is the caption's)."""
-    fig, ax = _figure(2.6, ncols=2)
+    fig, ax = page_figure(2.6, ncols=2)
     a, b = ax[0]
     a.plot(voltage_V, measured_N, color=COLOURS["measured"], lw=0.8, label="measured")
     a.plot(voltage_V, model_N, color=COLOURS["model"], lw=1.0, ls="--", label="P-I model")
@@ -239,10 +266,10 @@ def hysteresis_loops(time_s: np.ndarray, voltage_V: np.ndarray, measured_N: np.n
     return fig
 
 
-@_styled
+@styled
 def inverse_model(desired_N: np.ndarray, command_V: np.ndarray, force_N: np.ndarray, time_s: np.ndarray) -> Figure:
     """The inverse P-I model (desired force -> voltage) and the compensated rig in open loop."""
-    fig, ax = _figure(2.6, ncols=2)
+    fig, ax = page_figure(2.6, ncols=2)
     a, b = ax[0]
     a.plot(desired_N, command_V, color=COLOURS["model"])
     a.set_xlabel("desired force (N)")
@@ -273,12 +300,12 @@ def _runs_axes(ax: Any, runs: Mapping[str, Mapping[str, np.ndarray]], keys: Sequ
     ax.set_ylabel("force (N)")
 
 
-@_styled
+@styled
 def step_responses(runs: Mapping[str, Mapping[str, np.ndarray]], band_N: float, signal: str,
                    labels: Mapping[str, str], t_max_s: float | None = None) -> Figure:
     """The step with the study's gains (left) and the tuned gains (right), PID alone and with FF; ``labels`` names
     the two gain sets (``{"study": ..., "tuned": ...}``) as the study does."""
-    fig, ax = _figure(2.7, ncols=2, sharey=True)
+    fig, ax = page_figure(2.7, ncols=2, sharey=True)
     for a, who in zip(ax[0], ("study", "tuned")):
         keys = [f"{who} pid", f"{who} ff+pid"]
         _runs_axes(a, runs, keys, signal, t_max_s)
@@ -291,11 +318,11 @@ def step_responses(runs: Mapping[str, Mapping[str, np.ndarray]], band_N: float, 
     return fig
 
 
-@_styled
+@styled
 def tracking(runs: Mapping[str, Mapping[str, np.ndarray]], signal: str, labels: Mapping[str, str]) -> Figure:
     """The trajectory: the four controllers, and the tracking error of each (its scale from the errors after the
     first moments of each change, so the transients do not hide them)."""
-    fig, ax = _figure(4.4, ncols=2, nrows=2, sharex=True)
+    fig, ax = page_figure(4.4, ncols=2, nrows=2, sharex=True)
     errors = np.concatenate([r["reference_N"] - r["force_N"] for r in runs.values()])
     scale = float(np.percentile(np.abs(errors), 98)) * 1.5 or 1.0
     for j, who in enumerate(("study", "tuned")):
@@ -314,11 +341,11 @@ def tracking(runs: Mapping[str, Mapping[str, np.ndarray]], signal: str, labels: 
     return fig
 
 
-@_styled
+@styled
 def stiffness_vs_preload(curve: Mapping[str, Any], runs_N: tuple[float, float] | None = None) -> Figure:
     """Rigidity (and drag torque) of the optimum's screw against preload; the duty cases marked; shaded, the
     preloads the schedule runs (``runs_N``, its least and highest)."""
-    fig, ax = _figure(2.6, ncols=2)
+    fig, ax = page_figure(2.6, ncols=2)
     a, b = ax[0]
     fp = np.asarray(curve["preload_N"])
     a.plot(fp, curve["rigidity_N_per_um"], color=COLOURS["model"], label="no axial load")
@@ -344,11 +371,11 @@ _FRONT_LABELS = {"stiffness": "least rigidity (N/um)", "preload": "highest prelo
                  "drag": "mean drag torque (N m)", "life": "rating life (h)", "growth": "growth over the shift (um)"}
 
 
-@_styled
+@styled
 def pareto_fronts(fronts: Sequence[Mapping[str, Any]], optimum: Mapping[str, float] | None = None) -> Figure:
     """The epsilon-constraint Pareto fronts, one panel each, the design optimum marked."""
     n = max(len(fronts), 1)
-    fig, ax = _figure(2.4, ncols=n)
+    fig, ax = page_figure(2.4, ncols=n)
     keys = {"stiffness": "stiffness_N_per_um", "preload": "max_preload_N",
             "drag": "mean_drag_torque_Nm", "life": "life_h"}
     for a, f in zip(ax[0], fronts):
@@ -364,13 +391,13 @@ def pareto_fronts(fronts: Sequence[Mapping[str, Any]], optimum: Mapping[str, flo
     return fig
 
 
-@_styled
+@styled
 def preload_schedule(time_s: np.ndarray, load_N: np.ndarray, preload_N: np.ndarray, constant_N: float,
                      lift_off_margin: float) -> Figure:
     """The load profile and the least-friction preload schedule against the best constant preload, with the
     schedule's lift-off bound ``lift_off_margin |F_a| / 2^(3/2)`` (the design's own constraint, the one its table
     states, the safety factor included)."""
-    fig, ax = _figure(3.6, nrows=2, sharex=True)
+    fig, ax = page_figure(3.6, nrows=2, sharex=True)
     a, b = ax[0][0], ax[1][0]
     a.plot(time_s, load_N, color=COLOURS["reference"], drawstyle="steps-post")
     a.set_ylabel("axial load (N)")
@@ -385,11 +412,11 @@ def preload_schedule(time_s: np.ndarray, load_N: np.ndarray, preload_N: np.ndarr
     return fig
 
 
-@_styled
+@styled
 def natural_frequency(position_mm: np.ndarray, low_Hz: np.ndarray, high_Hz: np.ndarray,
                       frequency_min_Hz: float | None) -> Figure:
     """The axial natural frequency against table position at the bolts' and the full preload."""
-    fig, ax = _figure(2.4)
+    fig, ax = page_figure(2.4)
     a = ax[0][0]
     a.plot(position_mm, low_Hz, color=COLOURS["study pid"], label="bolt preload (stacks off)")
     a.plot(position_mm, high_Hz, color=COLOURS["model"], label="maximum preload (stacks at full drive)")
@@ -401,12 +428,12 @@ def natural_frequency(position_mm: np.ndarray, low_Hz: np.ndarray, high_Hz: np.n
     return fig
 
 
-@_styled
+@styled
 def monte_carlo(metrics: Mapping[str, Sequence[float | None]], limits: Mapping[str, float]) -> Figure:
     """Distributions of settling time and overshoot over the Monte Carlo plants, limits marked."""
     panels = (("settling_s", "settling time (s)"), ("overshoot_N", "overshoot (N)"),
               ("tracking_rms_N", "tracking RMS after changes (N)"))
-    fig, ax = _figure(2.4, ncols=len(panels))
+    fig, ax = page_figure(2.4, ncols=len(panels))
     marked = []
     for a, (key, label) in zip(ax[0], panels):
         raw = [x for x in metrics[key]]
@@ -424,14 +451,14 @@ def monte_carlo(metrics: Mapping[str, Sequence[float | None]], limits: Mapping[s
     return fig
 
 
-@_styled
+@styled
 def gain_schedule(schedule: Mapping[str, Any]) -> Figure:
     """The gain schedule against the preload (Kc and Ti, the entries marked, the robust set dashed) and each
     set's worst-case settling time and tracking RMS over the Monte Carlo plants at each level."""
     table, robust, levels = schedule["table"], schedule["robust"], schedule["levels"]
     lv = np.asarray(table["levels_N"], float)
     x = np.linspace(lv[0], lv[-1], 200)
-    fig, ax = _figure(2.6, ncols=3)
+    fig, ax = page_figure(2.6, ncols=3)
     for a, key, label, scale in ((ax[0][0], "Kc_V_per_N", "Kc (mV/N)", 1e3), (ax[0][1], "Ti_s", "Ti (ms)", 1e3)):
         a.plot(x, scale * np.interp(x, lv, table[key]), color=COLOURS["model"], label="schedule")
         a.plot(lv, scale * np.asarray(table[key], float), "o", color=COLOURS["model"], ms=4)
@@ -454,11 +481,11 @@ def gain_schedule(schedule: Mapping[str, Any]) -> Figure:
     return fig
 
 
-@_styled
+@styled
 def rig_run(time_s: np.ndarray, reference_N: np.ndarray, force_N: np.ndarray, voltage_V: np.ndarray,
             mode: np.ndarray) -> Figure:
     """The rig executor's run from its log: force against the reference, and the stack voltage."""
-    fig, ax = _figure(3.4, nrows=2, sharex=True)
+    fig, ax = page_figure(3.4, nrows=2, sharex=True)
     a, b = ax[0][0], ax[1][0]
     control = mode == 0
     a.plot(time_s, reference_N, color=COLOURS["reference"], ls=":", label="reference")
@@ -473,11 +500,11 @@ def rig_run(time_s: np.ndarray, reference_N: np.ndarray, force_N: np.ndarray, vo
     return fig
 
 
-@_styled
+@styled
 def closed_loop(run: Mapping[str, np.ndarray], band_N: float | None, signal: str, title: str = "") -> Figure:
     """One closed-loop run: reference, true and measured force (top; the band about the last level dashed),
     the controller's command and the amplifier's voltage (bottom)."""
-    fig, ax = _figure(3.6, nrows=2, sharex=True)
+    fig, ax = page_figure(3.6, nrows=2, sharex=True)
     a, b = ax[0][0], ax[1][0]
     t = run["time_s"]
     a.plot(t, run["reference_N"], color=COLOURS["reference"], ls=":", lw=0.9, label="reference")
@@ -497,11 +524,11 @@ def closed_loop(run: Mapping[str, np.ndarray], band_N: float | None, signal: str
     return fig
 
 
-@_styled
+@styled
 def gains_comparison(table: Sequence[Mapping[str, Any]]) -> Figure:
     """The tuning's comparison table as bars: settling time and tracking RMS of each gain set, PID alone and
     with the feedforward."""
-    fig, ax = _figure(2.6, ncols=2)
+    fig, ax = page_figure(2.6, ncols=2)
     labels = [f"{r['gains']}{' + FF' if r['feedforward'] else ''}" for r in table]
     x = np.arange(len(labels))
     settling = [np.nan if r["settling_s"] is None else r["settling_s"] for r in table]
@@ -515,13 +542,13 @@ def gains_comparison(table: Sequence[Mapping[str, Any]]) -> Figure:
     return fig
 
 
-@_styled
+@styled
 def system_tracking(time_s: np.ndarray, planned_N: np.ndarray, achieved_N: np.ndarray, rigidity_N_per_um: np.ndarray,
                     required_N_per_um: np.ndarray, cutting: np.ndarray, deflection_um: np.ndarray,
                     deflection_limit_um: float | None) -> Figure:
     """The whole system over the cycles: planned and achieved preload, rigidity against the requirement
     while cutting, and the axial deflection under the cutting load."""
-    fig, ax = _figure(6.0, nrows=3, sharex=True)
+    fig, ax = page_figure(6.0, nrows=3, sharex=True)
     a, b, c = ax[0][0], ax[1][0], ax[2][0]
     a.plot(time_s, planned_N, color=COLOURS["reference"], lw=0.9, label="planned (schedule)")
     a.plot(time_s, achieved_N, color=COLOURS["model"], lw=0.7, label="achieved (true force)")
@@ -540,11 +567,11 @@ def system_tracking(time_s: np.ndarray, planned_N: np.ndarray, achieved_N: np.nd
     return fig
 
 
-@_styled
+@styled
 def learning_iterations(passes: list[dict[str, Any]]) -> Figure:
     """The error per learning iteration on the repeated schedule, one line per margin pass (the whole trajectory's RMS
     of the true force in % of the schedule's range), the causal floor beside it."""
-    fig, ax = _figure(2.8)
+    fig, ax = page_figure(2.8)
     a = ax[0][0]
     for k, p in enumerate(passes):
         span = p["tracking_rms_N"] / p["tracking_rms_pct_of_range"] * 100.0 if p["tracking_rms_pct_of_range"] else 1.0

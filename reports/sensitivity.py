@@ -14,7 +14,7 @@ from matplotlib.figure import Figure
 
 from piezopreload.artifacts.sensitivity import SensitivityRecord, SensitivityRow
 from piezopreload.reports.document import Section, Table, fmt
-from piezopreload.reports.figures import COLOURS, _figure, _styled, legends
+from piezopreload.reports.figures import COLOURS, legends, page_figure, styled
 from piezopreload.reports.sections import Part
 
 __all__ = ["sensitivity_section", "tornado", "range_text"]
@@ -36,14 +36,14 @@ def _by_requirement(s: SensitivityRecord) -> dict[str, list[SensitivityRow]]:
     return out
 
 
-@_styled
+@styled
 def tornado(s: SensitivityRecord) -> Figure:
     """Per requirement, the margin (% of its limit) at each assumption's low and high end, drawn from the margin at
     the study's values; the assumptions sorted by the swing, the largest on top; the zero line, where the verdict
     flips."""
     groups = _by_requirement(s)
     heights = [len(rows) for rows in groups.values()]
-    fig, ax = _figure(0.7 + 0.28 * sum(heights) + 0.35 * len(groups), nrows=len(groups),
+    fig, ax = page_figure(0.7 + 0.28 * sum(heights) + 0.35 * len(groups), nrows=len(groups),
                       gridspec_kw={"height_ratios": [h + 1.2 for h in heights]})
     for j, (a, rows) in enumerate(zip(ax[:, 0], groups.values())):
         rows = sorted(rows, key=lambda r: r.swing_pct)

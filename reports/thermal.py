@@ -17,7 +17,7 @@ from matplotlib.figure import Figure
 from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.thermal import PreloadDrift, ThermalCase, ThermalRecord
 from piezopreload.reports.document import Section, Table, fmt, pct
-from piezopreload.reports.figures import COLOURS, _figure, _styled, legends
+from piezopreload.reports.figures import COLOURS, legends, page_figure, styled
 from piezopreload.reports.sections import Part
 
 __all__ = ["thermal_lines", "thermal_section", "temperature_along_screw", "growth_along_travel", "error_budget"]
@@ -190,10 +190,10 @@ def _hour_colours(n: int, name: str) -> list[tuple[float, ...]]:
     return [cmap(0.35 + 0.6 * k / max(n - 1, 1)) for k in range(n)]
 
 
-@_styled
+@styled
 def temperature_along_screw(t: ThermalRecord) -> Figure:
     """The rise along the screw at the end of each hour, one panel per preload, the stroke shaded."""
-    fig, ax = _figure(2.7, ncols=2, sharey=True)
+    fig, ax = page_figure(2.7, ncols=2, sharey=True)
     for a, (name, cmap) in zip(ax[0], (("schedule", "Blues"), ("constant", "Oranges"))):
         case: ThermalCase = t.case(name)
         a.axvspan(*t.stroke_mm, color="0.92", lw=0)
@@ -208,10 +208,10 @@ def temperature_along_screw(t: ThermalRecord) -> Figure:
     return fig
 
 
-@_styled
+@styled
 def growth_along_travel(t: ThermalRecord, limit_um: float | None = None) -> Figure:
     """The growth at the table's positions at the end of each hour, one panel per preload."""
-    fig, ax = _figure(2.7, ncols=2, sharey=True)
+    fig, ax = page_figure(2.7, ncols=2, sharey=True)
     for a, (name, cmap) in zip(ax[0], (("schedule", "Blues"), ("constant", "Oranges"))):
         case = t.case(name)
         n = case.times_h.size
@@ -228,10 +228,10 @@ def growth_along_travel(t: ThermalRecord, limit_um: float | None = None) -> Figu
     return fig
 
 
-@_styled
+@styled
 def error_budget(t: ThermalRecord, limit_um: float | None = None) -> Figure:
     """Stacked bars per hour, schedule beside constant: elastic, thermal and the loop's share at the worst position."""
-    fig, ax = _figure(2.7)
+    fig, ax = page_figure(2.7)
     a = ax[0][0]
     width = 0.38
     semi = t.feedback == "semi-closed"

@@ -231,12 +231,9 @@ class SimBackend:
         if self.plant.kind != "c":
             return None
         noise = np.random.default_rng(self.seed).standard_normal(int(n_noise))
-        out = NativeBackend(
-            kind=0, plant_read=ctypes.cast(self.plant._read, ctypes.c_void_p).value,
-            plant_write=ctypes.cast(self.plant._write, ctypes.c_void_p).value,
-            plant_state=self.plant._x.ctypes.data, plant_params=self.plant._p.ctypes.data,
-            noise=noise.ctypes.data, n_noise=noise.size, _keep=noise,
-        )
+        read, write, state, params = self.plant.native_addresses()
+        out = NativeBackend(kind=0, plant_read=read, plant_write=write, plant_state=state, plant_params=params,
+                            noise=noise.ctypes.data, n_noise=noise.size, _keep=noise)
         if self.daq is not None:
             base = ctypes.addressof(ctypes.c_char.from_buffer(self.daq.mm))
             out["heartbeat"] = base + watchdog.FIELDS["heartbeat"][0]

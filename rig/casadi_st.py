@@ -182,12 +182,12 @@ def _algorithm(fn: ca.Function, inputs: Sequence[Callable[[int], str] | None]) -
 
 
 def statements(fn: ca.Function, inputs: Sequence[Callable[[int], str] | None],
-               outputs: Sequence[Callable[[int], str] | None], prefix: str = "t") -> Translation:
+               outputs: Sequence[Callable[[int], str | None] | None], prefix: str = "t") -> Translation:
     """``fn``'s algorithm as ST assignments.
 
     ``inputs[i](k)`` is the ST expression (``LREAL``) of element ``k`` of input ``i``;
-    ``outputs[j](k)`` the variable element ``k`` of output ``j`` is written to (None: the output
-    is not needed). A value used more than once, or longer than :data:`INLINE_MAX` characters,
+    ``outputs[j](k)`` the variable element ``k`` of output ``j`` is written to (None, for the output
+    or for the element: not needed). A value used more than once, or longer than :data:`INLINE_MAX` characters,
     gets a variable ``<prefix><n>`` of its own; the others are written where they are used.
     Reading a value later than the instruction that made it computes the same number: the
     algorithm's inputs are variables that it does not write.
@@ -198,8 +198,9 @@ def statements(fn: ca.Function, inputs: Sequence[Callable[[int], str] | None],
     for step in _algorithm(fn, inputs):
         if isinstance(step, _Write):
             target = outputs[step.output]
-            if target is not None:
-                out.lines.append(f"{target(step.element)} := {_operand(step.value, 'LREAL', 0)};")
+            name = None if target is None else target(step.element)
+            if name is not None:
+                out.lines.append(f"{name} := {_operand(step.value, 'LREAL', 0)};")
             continue
         v = step.value
         made = _operation(step.op, step.operands)

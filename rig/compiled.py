@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -123,6 +124,11 @@ class PythonStep:
     def state(self) -> ControllerState | None:
         return None if self._x is None else self.controller.state_from_vector(self._x)
 
+    @property
+    def entry_point(self) -> None:
+        """No compiled function: the native loop loads its own (:attr:`CompiledStep.entry_point`)."""
+        return None
+
     def switch(self, new: Controller) -> None:
         """Take ``new`` over between two samples without a jump of the output."""
         state = self.state
@@ -171,6 +177,11 @@ class CompiledStep:
     @property
     def state(self) -> ControllerState:
         return self.controller.state_from_vector(self._x)
+
+    @property
+    def entry_point(self) -> Any:
+        """The loaded ``pp_rig_step`` of this controller's structure (ctypes), which the native loop calls as well."""
+        return self._fn
 
     def switch(self, new: Controller) -> None:
         state = self.controller.switch(self.state, new)
@@ -303,6 +314,28 @@ class PlantStep:
     def state(self) -> np.ndarray:
         """The state vector (:attr:`PlantModel.state`), a copy."""
         return self._x.copy()
+
+    def native_addresses(self) -> tuple[int, int, int, int]:
+        """Where the native loop steps this plant itself: the compiled read and write functions and the state and
+        parameter vectors they work on (this object's own, so that the loop's steps are this plant's).
+
+        Returns
+        -------
+        tuple of int
+            ``(read, write, state, params)``, addresses.
+
+        Raises
+        ------
+        RuntimeError
+            The plant step is not compiled (``kind == "numpy"``).
+        """
+        if self.kind != "c":
+            raise RuntimeError("the plant step is not compiled: the native loop cannot step it")
+        read = ctypes.cast(self._read, ctypes.c_void_p).value
+        write = ctypes.cast(self._write, ctypes.c_void_p).value
+        if read is None or write is None:
+            raise RuntimeError("the compiled plant step has no address")
+        return read, write, int(self._x.ctypes.data), int(self._p.ctypes.data)
 
     @property
     def amplifier_V(self) -> float:

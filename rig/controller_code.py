@@ -1,4 +1,5 @@
-"""A controller as code: the one controller step's CasADi functions and its numbers and state, by name.
+"""A controller as code: the one controller step's CasADi functions and its numbers and state, by name; and a
+feedforward's inverse step alone the same way.
 
 Every generated controller (the C of ``export --format casadi-c``, the PLC's function block
 ``PP_CONTROLLER`` of ``--format plc``) is written from :func:`controller_code`: the start and the
@@ -12,6 +13,11 @@ The names (:class:`Parameter`, :func:`state_fields`) are the layouts' own
 (:attr:`ControllerModel.params`, :attr:`ControllerModel.state`), the feedforward's parameters and
 state prefixed ``ff_`` (the inverse step's, :class:`~piezopreload.models.hysteresis.InverseStep`);
 a field of no numbers (no creep, no dead zones) has no name.
+
+A hysteresis model exported alone is its inverse step (:func:`feedforward_code`): the CasADi
+function of :class:`~piezopreload.models.hysteresis.InverseStep` with its parameter vector an
+input, from which both its C (``pp_feedforward.c``) and its PLC block (``PP_FEEDFORWARD``) are
+written, its numbers and state named as ``PP_CONTROLLER`` names a gain set's feedforward (``ff_``).
 """
 
 from __future__ import annotations
@@ -23,9 +29,11 @@ import numpy as np
 
 from piezopreload.core.errors import InputError
 from piezopreload.models.controller import Controller, ControllerModel, controller_functions
-from piezopreload.models.ops import Layout
+from piezopreload.models.hysteresis import InverseStep
+from piezopreload.models.ops import CASADI, Layout
 
-__all__ = ["Parameter", "ControllerCode", "controller_code", "parameters", "state_fields", "DESCRIPTIONS"]
+__all__ = ["Parameter", "ControllerCode", "controller_code", "FeedforwardCode", "feedforward_code", "parameters",
+           "state_fields", "read_elements", "DESCRIPTIONS", "GAIN_NAMES"]
 
 #: what each parameter is, with its unit (a feedforward's: the inverse step's table, docs/exports.md)
 DESCRIPTIONS = {
@@ -56,6 +64,12 @@ for _d in ("rising", "falling"):
                          f"ff_partial_{_d}": f"feedforward: partial sums W of the weights, {_d}, N/V",
                          f"ff_inverse_thresholds_{_d}": f"feedforward: inverse thresholds, {_d}, N",
                          f"ff_inverse_weights_{_d}": f"feedforward: inverse weights, {_d}, V/N"})
+
+
+#: the parameters a user tunes, by name: the single set's gains and the schedule's arrays (what a PLC block's header
+#: says to change); the others are the output range, the task's period and the feedforward's table
+GAIN_NAMES = ("Kc", "Ti_s", "Td_s", "Tf_s", "b", "schedule_levels_N", "schedule_Kc", "schedule_Ti_s", "schedule_Td_s",
+              "schedule_b")
 
 
 @dataclass(frozen=True)
@@ -102,6 +116,14 @@ def state_fields(model: ControllerModel) -> tuple[tuple[str, int, int | None], .
     return tuple(_fields(model.state, ff, "ff"))
 
 
+def read_elements(fn: ca.Function, name: str) -> frozenset[int]:
+    """The elements of ``fn``'s input ``name`` that its algorithm reads (an input element no instruction reads is dead
+    in the code generated from it)."""
+    index = fn.index_in(name)
+    return frozenset(int(fn.instruction_input(k)[1]) for k in range(fn.n_instructions())
+                     if fn.instruction_id(k) == ca.OP_INPUT and int(fn.instruction_input(k)[0]) == index)
+
+
 @dataclass(frozen=True, eq=False)
 class ControllerCode:
     """A controller's step as code: ``start(setpoint, pv, u0, params) -> state`` and ``step(state, setpoint, pv,
@@ -120,6 +142,13 @@ class ControllerCode:
     def vector(self) -> np.ndarray:
         return self.controller.parameter_vector()
 
+    @property
+    def read(self) -> tuple[Parameter, ...]:
+        """The parameters the start or the step reads: a scheduled set's step runs on the schedule's arrays, so its
+        single ``Kc``, ``Ti_s``, ``Td_s`` and ``b`` are not among them (the vector keeps their places)."""
+        used = read_elements(self.start, "params") | read_elements(self.step, "params")
+        return tuple(p for p in self.parameters if any(p.start + j in used for j in range(p.size)))
+
 
 def controller_code(controller: Controller, prefix: str = "pp_controller") -> ControllerCode:
     """:class:`ControllerCode` of ``controller``; refuses a parameter that is not finite (no code can hold it)."""
@@ -131,3 +160,49 @@ def controller_code(controller: Controller, prefix: str = "pp_controller") -> Co
                          "numbers only")
     start, step = controller_functions(model, prefix=prefix)
     return ControllerCode(controller, start, step, params)
+
+
+@dataclass(frozen=True, eq=False)
+class FeedforwardCode:
+    """A feedforward's inverse step alone as code: ``rest(params) -> state`` (at rest at 0 V) and ``step(state,
+    target, params) -> (command, state_next)``, its :class:`Parameter` list and state fields, named ``ff_...`` as
+    :func:`parameters` and :func:`state_fields` name a controller's feedforward."""
+
+    structure: InverseStep
+    rest: ca.Function
+    step: ca.Function
+    parameters: tuple[Parameter, ...]
+    state: tuple[tuple[str, int, int | None], ...]
+
+    @property
+    def vector(self) -> np.ndarray:
+        return np.array([x for p in self.parameters for x in p.values], float)
+
+    @property
+    def read(self) -> tuple[Parameter, ...]:
+        """The parameters the step reads."""
+        used = read_elements(self.step, "params")
+        return tuple(p for p in self.parameters if any(p.start + j in used for j in range(p.size)))
+
+
+def feedforward_code(structure: InverseStep, vector: np.ndarray, prefix: str = "pp_feedforward") -> FeedforwardCode:
+    """:class:`FeedforwardCode` of the inverse step ``structure`` with the numbers ``vector`` (its
+    :attr:`~piezopreload.models.hysteresis.InverseStep.params`); refuses a number that is not finite."""
+    vector = np.asarray(vector, float)
+    if vector.shape != (structure.params.size,):
+        raise InputError(f"the inverse step's parameter vector must be {structure.params.size} numbers, got shape "
+                         f"{vector.shape}")
+    params = tuple(Parameter(f"ff_{name}", start, tuple(float(x) for x in vector[start:start + (size or 1)]),
+                             size is not None) for name, start, size in _fields(structure.params, None, ""))
+    bad = next((p for p in params if not all(np.isfinite(p.values))), None)
+    if bad is not None:
+        raise InputError(f"the feedforward's parameter {bad.name} is {list(bad.values)!r}: generated code holds finite "
+                         "numbers only")
+    x, target = ca.SX.sym("state", structure.n_states), ca.SX.sym("target")
+    p = ca.SX.sym("params", structure.params.size)
+    command, nxt = structure.step(CASADI, p, x, target)
+    step = ca.Function(f"{prefix}_step_fn", [x, target, p], [command, nxt], ["state", "target", "params"],
+                       ["command", "state_next"])
+    rest = ca.Function(f"{prefix}_rest_fn", [p], [ca.SX(structure.rest_state(CASADI, p))], ["params"], ["state"])
+    state = tuple((f"ff_{name}", start, size) for name, start, size in _fields(structure.state, None, ""))
+    return FeedforwardCode(structure, rest, step, params, state)

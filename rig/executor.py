@@ -19,7 +19,9 @@ thread with absolute deadlines, the interlocks and the ramp down inside the thre
 Python supervises (starts, switches gain sets, drains the samples to the log, stops). The
 Python loop (:mod:`piezopreload.rig.pyloop`) runs it in the interpreter. :class:`Executor`
 holds what both share (the controller, the backend, the reference, the limits, the events and
-the log, the requests from other threads) and takes the native loop where it can
+the log, the requests from other threads), and the loops reach it through its methods only (a
+switch taken, a sample or an event logged, the stop asked for read, the run closed); it takes
+the native loop where it can
 (``loop="auto"``: a C compiler, the compiled step, a backend the loop can call directly: the
 simulated rig or a :class:`~piezopreload.rig.backends.CLibraryBackend`) and the Python loop
 otherwise (a Python plug-in backend, ``step="numpy"``). For a simulated run both give the same
@@ -37,10 +39,13 @@ reference ramps down the same way and ends ``completed``.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import signal
 import threading
 import time
+from collections.abc import Iterator
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -57,7 +62,15 @@ from piezopreload.rig.outcome import RunResult, StallLog
 from piezopreload.rig.pyloop import PythonLoop
 from piezopreload.rig.runlog import RunLog
 
-__all__ = ["Safety", "Executor", "RunResult", "Trip", "TRIP_CAUSES", "trip_detail"]
+__all__ = ["Safety", "Executor", "RunResult", "StopRequest", "Trip", "TRIP_CAUSES", "trip_detail"]
+
+
+@dataclass(frozen=True)
+class StopRequest:
+    """A stop asked of a run (:meth:`Executor.stop`): the reason in words, and whether it ends the run tripped."""
+
+    reason: str
+    trip: bool
 
 
 class Executor:
@@ -86,21 +99,20 @@ class Executor:
         self.log = log
         self.dt = float(controller.dt_s)
         n = int(round(reference.duration_s / self.dt)) + 1
-        self._ref = reference.at(np.arange(n) * self.dt).tolist()
-        self._extra: list[float] | None = None
+        self._ref: tuple[float, ...] = tuple(reference.at(np.arange(n) * self.dt).tolist())
+        self._extra: tuple[float, ...] | None = None
         if ff_extra_V is not None:  # a learned or previewed feedforward, added by the step itself
             extra = np.asarray(ff_extra_V, float)
             if extra.shape != (n,) or not np.all(np.isfinite(extra)):
                 raise ValueError(f"ff_extra_V needs one finite value per sample of the reference ({n}), got shape "
                                  f"{extra.shape}")
-            self._extra = extra.tolist()
+            self._extra = tuple(extra.tolist())
         self.step = controller_step(controller, prefer=step)
         self._pending: tuple[Controller, dict[str, Any]] | None = None
-        self._stop: str | None = None
-        self._stop_trips = True
+        self._stop: StopRequest | None = None
         self._rows = 0  # samples logged in this run: the ramp down follows the last
         self.events: list[dict[str, Any]] = []
-        self.stalls = StallLog(lambda t_s, held_s: self._event("stall", t_s, persist=False, held_s=held_s))
+        self.stalls = StallLog(lambda t_s, held_s: self.log_event("stall", t_s, persist=False, held_s=held_s))
         #: the latest cycle: (t_s, setpoint_N, force_N, voltage_V, state) for a server to show
         self.latest: tuple[float, float, float, float, str] = (0.0, reference.levels_N[0], math.nan, 0.0, "idle")
         self._native: Any = None
@@ -186,8 +198,7 @@ class Executor:
         ``trip=True`` (a signal, an operator's stop) ends the run ``tripped`` with cause
         ``signal``; ``trip=False`` (a served run's set duration) ends it ``completed``.
         """
-        self._stop_trips = trip
-        self._stop = reason
+        self._stop = StopRequest(reason, trip)  # one assignment: a loop reads the reason and the trip together
         if self._native is not None:
             self._native.stop(trip)
 
@@ -200,29 +211,177 @@ class Executor:
 
     def record(self, kind: str, **detail: Any) -> None:
         """An event from outside the loop (a refused push, an operator's note), at the loop's last time."""
-        self._event(kind, self.latest[0], **detail)
+        self.log_event(kind, self.latest[0], **detail)
 
     def run(self) -> RunResult:
         """The run, start to end; never raises for what happens on the rig (that is a trip)."""
         return NativeRun(self).run() if self.loop == "native" else PythonLoop(self).run()
 
-    # ---- what the loops share -------------------------------------------------------------------
-    def _event(self, kind: str, t_s: float, persist: bool = True, **detail: Any) -> None:
+    # ---- what the loops call (rig/pyloop.py, rig/native_run.py): the run's state stays here ---------------
+    @property
+    def setpoints_N(self) -> tuple[float, ...]:
+        """The reference at each sample of the run (a held run keeps the last after the end)."""
+        return self._ref
+
+    @property
+    def ff_extra_V(self) -> tuple[float, ...] | None:
+        """The external feedforward at each sample (a learned signal played back); None: there is none."""
+        return self._extra
+
+    @property
+    def stop_request(self) -> StopRequest | None:
+        """The stop asked for by :meth:`stop` (its reason and whether it trips); None while the run may go on."""
+        return self._stop
+
+    @property
+    def samples_logged(self) -> int:
+        """How many samples this run has logged: a ramp down's samples follow the last of them."""
+        return self._rows
+
+    @contextlib.contextmanager
+    def signal_handlers(self) -> Iterator[bool]:
+        """A run's span: SIGINT and SIGTERM stop it (:meth:`stop`, the signal's name as the reason), and the handlers
+        found before come back at its end.
+
+        Yields
+        ------
+        bool
+            Whether the handlers were set: only the main thread can set them, a run in another thread leaves them.
+        """
+        previous: dict[signal.Signals, Any] = {}
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                previous[sig] = signal.signal(sig, lambda signum, frame: self.stop(signal.Signals(signum).name))
+        try:
+            yield bool(previous)
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+    def take_switch(self, t_s: float, cycle: int) -> None:
+        """The Python loop between two cycles: the switch asked for (:meth:`request_switch`), if any, taken now.
+
+        The step takes the new controller over bumplessly; the event is recorded for the serving thread to write
+        (:meth:`save_events`), not written here: a sidecar's rewrite has no place inside a cycle.
+
+        Parameters
+        ----------
+        t_s, cycle
+            The loop's time and the cycle about to run.
+        """
+        if self._pending is None:
+            return
+        new, info = self._pending
+        self.step.switch(new)
+        self.controller = new  # before the switch stops pending: a server shows the new hash with the new gains
+        self._pending = None
+        self.log_event("gains_switched", t_s, persist=False, cycle=cycle, **info)
+        self._unsaved = True
+
+    def attach_native(self, loop: native_loop.NativeLoop) -> None:
+        """The native loop about to start: switches and stops go to it from now on, and a switch asked for before
+        goes in with its start.
+
+        Parameters
+        ----------
+        loop
+            The configured loop, not started yet.
+        """
+        with self._switch_lock:
+            self._native = loop
+            if self._pending is not None:
+                new, info = self._pending
+                self._pending = None
+                self._switch_info.append(info)
+                loop.switch(new)
+
+    def detach_native(self) -> None:
+        """The native loop has ended: a switch asked for now waits for a run that takes it."""
+        with self._switch_lock:
+            self._native = None
+
+    def native_switched(self, t_s: float) -> None:
+        """The native loop took the oldest switch asked of it at ``t_s``: its event, with what it was asked with.
+
+        Parameters
+        ----------
+        t_s
+            The loop's time at the switch.
+        """
+        with self._switch_lock:
+            info = self._switch_info.pop(0) if self._switch_info else {}
+        self.log_event("gains_switched", t_s, cycle=round(t_s / self.dt), **info)
+
+    def log_event(self, kind: str, t_s: float, *, persist: bool = True, **detail: Any) -> None:
+        """An event of the run at the loop's time ``t_s``, kept in :attr:`events` and written to the log.
+
+        Parameters
+        ----------
+        kind
+            What happened (``armed``, ``interlock``, ``ramped_down``...).
+        t_s
+            When, on the run's timeline.
+        persist
+            Write the log's sidecar now (False inside a cycle: the next write takes it along).
+        **detail
+            The event's fields.
+        """
         ev = {"event": kind, "t_s": round(t_s, 9), **detail}
         self.events.append(ev)
         if self.log is not None:
             self.log.event(ev, write=persist)
 
-    def _log_row(self, row: tuple) -> None:
+    def log_sample(self, row: tuple) -> None:
+        """One sample of the Python loop, written to the run log as it goes.
+
+        Parameters
+        ----------
+        row
+            The log's columns (:mod:`piezopreload.rig.runlog`).
+        """
         self._rows += 1
         if self.log is not None:
             self.log.sample(row, time.monotonic())
 
-    def _trip_event(self, trip: Trip) -> None:
-        self._event("interlock", trip.t_s, cause=trip.cause, detail=trip.detail, voltage_V=trip.voltage_V)
+    def log_samples(self, rows: np.ndarray) -> None:
+        """The samples the native loop's ring held, written to the run log with one time of writing.
 
-    def _finish(self, trip: Trip | None, cycles: int, timing: RunTiming, clamped: int) -> RunResult:
-        """The run's result, also closing its log with the same numbers (both loops end here)."""
+        Parameters
+        ----------
+        rows
+            One row of the log's columns per sample.
+        """
+        self._rows += rows.shape[0]
+        if self.log is not None:
+            now = time.monotonic()
+            for row in rows.tolist():
+                self.log.sample(tuple(row), now)
+
+    def record_trip(self, trip: Trip) -> None:
+        """The interlock event of ``trip``: its cause, its words and the voltage held.
+
+        Parameters
+        ----------
+        trip
+            What stopped the run.
+        """
+        self.log_event("interlock", trip.t_s, cause=trip.cause, detail=trip.detail, voltage_V=trip.voltage_V)
+
+    def finish(self, trip: Trip | None, cycles: int, timing: RunTiming, clamped: int) -> RunResult:
+        """The run's result, also closing its log with the same numbers (both loops end here).
+
+        Parameters
+        ----------
+        trip
+            What stopped the run; None: it completed.
+        cycles, timing, clamped
+            The cycles run, their timing and how many were clamped.
+
+        Returns
+        -------
+        RunResult
+            The run's outcome, events included.
+        """
         result = RunResult("tripped" if trip else "completed", trip, cycles, timing, clamped, self.step.kind,
                            None if self.log is None else str(self.log.csv_path),
                            None if self.log is None else str(self.log.json_path), list(self.events))
@@ -230,16 +389,3 @@ class Executor:
             record = None if trip is None else TripRecord(trip.cause, trip.detail, trip.t_s, trip.voltage_V)
             self.log.close(result.status, RunOutcome(cycles, timing, clamped, record, controller_step=self.step.kind))
         return result
-
-    def _install_signal_handlers(self) -> dict[signal.Signals, Any]:
-        if threading.current_thread() is not threading.main_thread():
-            return {}
-        previous: dict[signal.Signals, Any] = {}
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, lambda signum, frame: self.stop(signal.Signals(signum).name))
-        return previous
-
-    @staticmethod
-    def _restore_signal_handlers(previous: dict[signal.Signals, Any]) -> None:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)

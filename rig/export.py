@@ -14,7 +14,8 @@ into a folder (the files :data:`EXPORT_FILES` names). What each format holds, ex
 * ``plc``: an IEC 61131-3 Structured Text source: a gain set's whole controller step as the
   function block ``PP_CONTROLLER`` and the program ``PP_LOOP`` that calls it, written from the
   algorithm the ``casadi-c`` code is generated from; a model alone's inverse step as the function
-  block ``PP_FEEDFORWARD`` (:mod:`piezopreload.rig.structured_text`);
+  block ``PP_FEEDFORWARD``, generated the same way from the CasADi function its ``casadi-c`` code is
+  (:mod:`piezopreload.rig.structured_text`); each block declares only what its body reads;
 * ``c-header``: constants (SI) of the gains, the schedule and the forward P-I model;
 * ``casadi-c``: the whole controller step (feedforward and PID with its state) as C code from
   CasADi's code generator, from the one controller step the simulation runs, its numbers a
@@ -40,13 +41,12 @@ from piezopreload.core.errors import InputError
 from piezopreload.core.native import generate
 from piezopreload.models.controller import SCHEDULE_INTERPOLATION, Controller, GainSchedule, PIDGains
 from piezopreload.models.hysteresis import CreepPI, HysteresisModel, InverseStep, inverse_at
-from piezopreload.models.ops import CASADI
-from piezopreload.rig.controller_code import ControllerCode, controller_code
+from piezopreload.rig.controller_code import ControllerCode, controller_code, feedforward_code
 from piezopreload.rig.structured_text import controller_block, function_block, loop_program
 
 __all__ = ["FORMATS", "EXPORT_FILES", "MODEL_FILES", "CONTROLLER_FORM", "CONTROLLER_FORM_2", "controller_form",
            "INVERSE_STEP_ALGORITHM", "ExportError",
-           "NotValidated", "FeedforwardTable", "export", "feedforward_table", "write_exports",
+           "NotValidated", "InverseStepTable", "export", "inverse_step_table", "write_exports",
            "controller_from_gain_set", "validated_gains", "require_validated"]
 
 #: the formats a gain set or a hysteresis model is exported to
@@ -117,8 +117,9 @@ class NotValidated(ExportError):
 # --------------------------------------------------------------------------------------
 # the feedforward's table: the inverse step's structure and numbers at one sample period
 # --------------------------------------------------------------------------------------
-class FeedforwardTable:
-    """The inverse step of a P-I model at a sample period: its structure and its parameters by name.
+class InverseStepTable:
+    """The inverse P-I step of a model at a sample period: its structure and its parameters by name (the table every
+    format's feedforward is written from; not the study file's ``[feedforward]`` table).
 
     ``params`` maps each field of :attr:`InverseStep.params` (``offset_N``, ``thresholds``,
     ``weights_rising``, ...) to its numbers; ``kind`` and ``sample_period_s`` say what it is.
@@ -157,9 +158,9 @@ class FeedforwardTable:
                 "algorithm": list(INVERSE_STEP_ALGORITHM)}
 
 
-def feedforward_table(model: HysteresisModel | CreepPI, sample_period_s: float | None = None) -> FeedforwardTable:
+def inverse_step_table(model: HysteresisModel | CreepPI, sample_period_s: float | None = None) -> InverseStepTable:
     """The inverse step's table of ``model`` at ``sample_period_s`` (a creep model's own period by default)."""
-    return FeedforwardTable(model, sample_period_s)
+    return InverseStepTable(model, sample_period_s)
 
 
 # --------------------------------------------------------------------------------------
@@ -201,20 +202,20 @@ def _header(digest: str, gain_set: GainSet | None = None) -> list[str]:
             "derivative " + form["derivative"] + "; anti-windup: " + form["anti_windup"]]
 
 
-def _gain_set_table(gain_set: GainSet) -> FeedforwardTable | None:
+def _gain_set_table(gain_set: GainSet) -> InverseStepTable | None:
     if gain_set.feedforward is None:
         return None
     if gain_set.plant is not None:
-        return feedforward_table(gain_set.feedforward, float(gain_set.plant.sample_period_s))
+        return inverse_step_table(gain_set.feedforward, float(gain_set.plant.sample_period_s))
     if isinstance(gain_set.feedforward, CreepPI):
         raise ExportError("field 'plant.rig' is missing: the gain set does not name its plant, whose sample period "
                           "the feedforward's creep lags are discretised at")
-    return feedforward_table(gain_set.feedforward, None)  # without creep the step does not depend on the period
+    return inverse_step_table(gain_set.feedforward, None)  # without creep the step does not depend on the period
 
 
 # ---- json ------------------------------------------------------------------------------------
 def _json_text(digest: str, g: dict[str, float], ff: dict[str, Any] | None, schedule: GainSchedule | None,
-               table: FeedforwardTable | None, gains: PIDGains) -> str:
+               table: InverseStepTable | None, gains: PIDGains) -> str:
     order = {} if gains.filter_order == 1 else {"filter_order": gains.filter_order}
     body: dict[str, Any] = {"gain_set_sha256": digest, "controller": controller_form(gains),
                             "gains": {**{k: g[k] for k in _GAIN_KEYS}, **order}, "feedforward_model": ff,
@@ -243,7 +244,7 @@ def _row(values: np.ndarray) -> str:
     return ", ".join(repr(float(x)) for x in values)
 
 
-def _labview_feedforward(t: FeedforwardTable) -> list[str]:
+def _labview_feedforward(t: InverseStepTable) -> list[str]:
     """The feedforward as INI sections: scalars, then one comma-separated row per parameter, the algorithm above."""
     s = t.structure
     lines = ["[feedforward]",
@@ -271,7 +272,7 @@ def _labview_feedforward(t: FeedforwardTable) -> list[str]:
 
 
 def _labview_text(head: list[str], g: dict[str, float], schedule: GainSchedule | None,
-                  table: FeedforwardTable | None) -> str:
+                  table: InverseStepTable | None) -> str:
     lines = ["; " + h for h in head] + [
         "; LabVIEW PID VIs take Ti and Td in minutes", "[PID gains]",
         f"Kc = {g['Kc_V_per_N']:.12g}", f"Ti (min) = {g['Ti_s'] / 60.0:.12g}", f"Td (min) = {g['Td_s'] / 60.0:.12g}",
@@ -333,8 +334,9 @@ def _schedule_comment(doc: GainSet) -> list[str]:
 
 def _c_params(code: ControllerCode) -> str:
     """The parameter vector as a C array, each part named in a comment."""
-    rows = [f"  /* {p.name}: {p.description} */ " + ", ".join(repr(x) for x in p.values) + ","
-            for p in code.parameters]
+    read = code.read
+    rows = [f"  /* {p.name}: {p.description}{'' if p in read else '; not read by the step (it keeps its place)'} */ "
+            + ", ".join(repr(x) for x in p.values) + "," for p in code.parameters]
     return ("static const double pp_controller_params[PP_CONTROLLER_PARAMS_SIZE] = {\n" + "\n".join(rows)
             + "\n};\n")
 
@@ -484,7 +486,7 @@ def _c_header(digest: str, head: list[str], g: dict[str, float], ff: dict[str, A
 # --------------------------------------------------------------------------------------
 # a hysteresis model alone
 # --------------------------------------------------------------------------------------
-def _model_head(record: IdentifiedModel | None, t: FeedforwardTable) -> list[str]:
+def _model_head(record: IdentifiedModel | None, t: InverseStepTable) -> list[str]:
     period = "any (no creep)" if t.sample_period_s is None else f"{t.sample_period_s!r} s"
     head = [f"piezopreload: the feedforward of a {t.kind} P-I model alone (no PID gains), its inverse step at the "
             f"sample period {period}"]
@@ -495,29 +497,34 @@ def _model_head(record: IdentifiedModel | None, t: FeedforwardTable) -> list[str
     return head
 
 
-def _model_casadi_c(t: FeedforwardTable, head: list[str]) -> str:
-    import casadi as ca
-
-    s = t.structure
-    x, target = ca.SX.sym("x", s.n_states), ca.SX.sym("target")
-    v, nxt = s.step(CASADI, ca.DM(t.vector), x, target)
-    fn = ca.Function("pp_feedforward_step_fn", [x, target], [v, nxt])
+def _model_casadi_c(t: InverseStepTable, head: list[str]) -> str:
+    code = feedforward_code(t.structure, t.vector)
+    s, fn = t.structure, code.step
     body = generate([fn], "pp_feedforward", inline_minmax=False)
+    rows = [f"  /* {p.name}: {p.description} */ " + ", ".join(repr(x) for x in p.values) + ","
+            for p in code.parameters]
     lines = ["/* Generated by piezopreload with CasADi's code generator. */", *(f"/* {h} */" for h in head),
              f"/* state ({s.n_states} numbers): {', '.join(n for n in s.state.names if s.state.field_size(n))}; 0 at",
-             "   rest at 0 V. int pp_feedforward_step(double target, double* state, double* command); */", ""]
+             "   rest at 0 V. int pp_feedforward_step(double target, double* state, double* command); */",
+             "/* the step's numbers are the array pp_feedforward_params below (the names of the PLC export's",
+             "   PP_FEEDFORWARD); the code is the algorithm the PLC export writes in Structured Text */", ""]
     wrapper = f"""
 #define PP_FEEDFORWARD_STATE_SIZE {s.n_states}
+#define PP_FEEDFORWARD_PARAMS_SIZE {s.params.size}
+
+static const double pp_feedforward_params[PP_FEEDFORWARD_PARAMS_SIZE] = {{
+{chr(10).join(rows)}
+}};
 
 /* One sample: the command (V) that makes the model give the force target (N); the state is updated in place. */
 int pp_feedforward_step(double target, double state[PP_FEEDFORWARD_STATE_SIZE], double* command) {{
-  const double* arg[{max(int(fn.sz_arg()), 2)}];
+  const double* arg[{max(int(fn.sz_arg()), 3)}];
   double* res[{max(int(fn.sz_res()), 2)}];
   double next[PP_FEEDFORWARD_STATE_SIZE];
   casadi_int iw[{max(int(fn.sz_iw()), 1)}];
   double w[{max(int(fn.sz_w()), 1)}];
   int i, flag;
-  arg[0] = state; arg[1] = &target;
+  arg[0] = state; arg[1] = &target; arg[2] = pp_feedforward_params;
   res[0] = command; res[1] = next;
   flag = {fn.name()}(arg, res, iw, w, 0);
   if (flag) return flag;
@@ -531,7 +538,7 @@ int pp_feedforward_step(double target, double state[PP_FEEDFORWARD_STATE_SIZE], 
 def _export_model(obj: IdentifiedModel | HysteresisModel | CreepPI, fmt: str, sample_period_s: float | None) -> str:
     record = obj if isinstance(obj, IdentifiedModel) else None
     model = obj.model if isinstance(obj, IdentifiedModel) else obj
-    t = feedforward_table(model, sample_period_s)
+    t = inverse_step_table(model, sample_period_s)
     head = _model_head(record, t)
     if fmt == "json":
         body = {"feedforward_model": model.to_dict(), "feedforward_inverse_step": t.to_dict(),

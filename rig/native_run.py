@@ -52,65 +52,57 @@ class NativeRun:
             faults = [(native_loop.FAULT_CODES[f.kind], f.at_s, f.value, f.duration_s) for f in inner.faults]
             inner = inner.inner
         # noise draws for the whole finite run (control, stop, ramp); a held run reuses them cyclically
-        n_noise = len(ex._ref) + int(np.ceil(s.ramp_s / dt)) + 16
+        n_noise = len(ex.setpoints_N) + int(np.ceil(s.ramp_s / dt)) + 16
         if ex.hold:
             n_noise = max(n_noise, 1 << 18)
         backend = native_backend(inner, n_noise)
         if backend is None:  # the executor chose the native loop because the backend offers one
             raise InternalError(f"the backend '{inner.name}' offers no native loop")
-        return NativeLoop(ex.controller, np.asarray(ex._ref), s, backend, realtime=ex.realtime, hold=ex.hold,
-                          faults=faults, step_fn=getattr(ex.step, "_fn", None),
-                          ff_extra=None if ex._extra is None else np.asarray(ex._extra))
+        extra = ex.ff_extra_V
+        return NativeLoop(ex.controller, np.asarray(ex.setpoints_N), s, backend, realtime=ex.realtime, hold=ex.hold,
+                          faults=faults, step_fn=ex.step.entry_point,
+                          ff_extra=None if extra is None else np.asarray(extra))
 
     def run(self) -> RunResult:
         ex = self.ex
-        handlers = ex._install_signal_handlers()
         trip: Trip | None = None
         status: LoopStatus | None = None
         loop: NativeLoop | None = None
         armed_here = False
-        try:
-            loop = self._setup()
-            loop.lock_memory()
-            if loop.backend_kind == 0:  # the simulated rig is armed here; a C library's arm runs in the loop's thread
-                ex.backend.arm()
-                armed_here = True
-            self._start(loop, bool(handlers))
-            while not self._poll(loop):
-                time.sleep(POLL_S)
-            status = self._collect(loop)
-            trip = self._trip(loop, status)
-        except Exception as exc:  # the loop never started (or the supervisor failed): the rig is safe, say why
-            if loop is not None:
-                loop.stop(True)
-                status = self._collect(loop)
-            trip = Trip("exception", f"{type(exc).__name__}: {exc}", self.t_last,
-                        status.trip_v if status is not None else ex.safety.safe_V)
-            ex._event("traceback", self.t_last, text="".join(traceback.format_exception(exc))[-4000:])
-        finally:
-            with ex._switch_lock:
-                ex._native = None
+        with ex.signal_handlers() as catching:
             try:
+                loop = self._setup()
+                loop.lock_memory()
+                if loop.backend_kind == 0:  # the simulated rig is armed here; a C library's arm runs in the loop's
+                    ex.backend.arm()        # thread
+                    armed_here = True
+                self._start(loop, catching)
+                while not self._poll(loop):
+                    time.sleep(POLL_S)
+                status = self._collect(loop)
+                trip = self._trip(loop, status)
+            except Exception as exc:  # the loop never started (or the supervisor failed): the rig is safe, say why
+                if loop is not None:
+                    loop.stop(True)
+                    status = self._collect(loop)
+                trip = Trip("exception", f"{type(exc).__name__}: {exc}", self.t_last,
+                            status.trip_v if status is not None else ex.safety.safe_V)
+                ex.log_event("traceback", self.t_last, text="".join(traceback.format_exception(exc))[-4000:])
+            finally:
+                ex.detach_native()
                 if armed_here:
                     ex.backend.disarm()
-            finally:
-                ex._restore_signal_handlers(handlers)
         return self._end(trip, status, loop)
 
     def _start(self, loop: NativeLoop, catch_signals: bool) -> None:
         ex = self.ex
-        with ex._switch_lock:
-            ex._native = loop
-            if ex._pending is not None:  # asked for before the start: the start takes it
-                new, info = ex._pending
-                ex._pending = None
-                ex._switch_info.append(info)
-                loop.switch(new)
+        ex.attach_native(loop)  # a switch asked for before the start goes in with it
         loop.start(catch_signals=catch_signals)
-        ex._event("armed", 0.0, True, backend=ex.backend.name, controller_step=ex.step.kind, loop="native",
-                  **loop.realtime_report)
-        if ex._stop is not None:
-            loop.stop(ex._stop_trips)
+        ex.log_event("armed", 0.0, persist=True, backend=ex.backend.name, controller_step=ex.step.kind, loop="native",
+                     **loop.realtime_report)
+        stop = ex.stop_request  # asked for before the loop could take it
+        if stop is not None:
+            loop.stop(stop.trip)
 
     def _poll(self, loop: NativeLoop) -> bool:
         """Drain samples, stalls and switches; publish the latest cycle. True once the loop has finished."""
@@ -120,9 +112,7 @@ class NativeRun:
         n_sw = loop.switches
         while self.switches_seen < n_sw:
             self.switches_seen += 1
-            with ex._switch_lock:
-                info = ex._switch_info.pop(0) if ex._switch_info else {}
-            ex._event("gains_switched", loop.switch_t, cycle=round(loop.switch_t / ex.dt), **info)
+            ex.native_switched(loop.switch_t)
         t, sp, y, v, mode = loop.latest
         ex.latest = (t, sp, y, v, "running" if mode == 0 else "ramping down")
         return finished
@@ -134,11 +124,7 @@ class NativeRun:
             control = rows[:, 13] == 0
             self.lateness.extend(rows[control, 10].tolist())
             self.periods.extend(rows[control, 9].tolist())
-            ex._rows += rows.shape[0]
-            if ex.log is not None:
-                now = time.monotonic()
-                for row in rows.tolist():
-                    ex.log.sample(tuple(row), now)
+            ex.log_samples(rows)
             self.t_last = float(rows[-1, 0])
         stalls, lost = loop.stalls()
         self.stalls_lost += lost
@@ -153,13 +139,14 @@ class NativeRun:
 
     def _trip(self, loop: NativeLoop, status: LoopStatus) -> Trip | None:
         ex = self.ex
+        asked = None if ex.stop_request is None else ex.stop_request.reason
         if not status.trip_cause:
             if loop.stop_requested == 2:
-                ex._event("stopped", status.trip_t, reason=ex._stop)
+                ex.log_event("stopped", status.trip_t, reason=asked)
             return None
         cause = TRIP_CAUSES[status.trip_cause - 1]
         if cause == "signal":
-            detail = ex._stop or signal.Signals(loop.stop_signal).name
+            detail = asked or signal.Signals(loop.stop_signal).name
         elif cause == "exception":
             where = native_loop.EXCEPTION_WHERE.get(status.trip_where, "the loop")
             detail = (injected_failure(status.trip_t) if status.trip_value == -1000
@@ -174,11 +161,11 @@ class NativeRun:
         t_end = status.t_end if status is not None else self.t_last
         v_end = status.v_end if status is not None else s.safe_V
         if trip is not None:
-            ex._trip_event(trip)
+            ex.record_trip(trip)
         if status is not None and status.ramp_failed:
-            ex._event("ramp_failed", status.ramp_failed_t, detail="the backend's write_voltage failed in the ramp")
-        ex._event("ramped_down", t_end, voltage_V=v_end)
-        ex._event("disarmed", t_end)
+            ex.log_event("ramp_failed", status.ramp_failed_t, detail="the backend's write_voltage failed in the ramp")
+        ex.log_event("ramped_down", t_end, voltage_V=v_end)
+        ex.log_event("disarmed", t_end)
         ex.latest = (t_end, ex.latest[1], ex.latest[2], s.safe_V, "tripped" if trip else "completed")
         report: dict[str, Any] = loop.realtime_report if loop is not None else {}
         timing = timing_summary(self.lateness, self.periods, missed=status.missed if status else 0, dt=ex.dt,
@@ -186,4 +173,4 @@ class NativeRun:
                                 stall_count=status.stalls if status else 0,
                                 held_max_s=status.held_max_s if status else 0.0, stall_limit_s=s.stall_limit_s,
                                 lost=status.lost if status else 0, report=report)
-        return ex._finish(trip, status.cycles if status else 0, timing, status.clamped if status else 0)
+        return ex.finish(trip, status.cycles if status else 0, timing, status.clamped if status else 0)

@@ -8,8 +8,13 @@ Address space (namespace ``urn:piezopreload:rig``), under ``Objects/PreloadRig``
 * ``GainSetSha256`` and ``FeedforwardSha256``: which gain set runs, and which hysteresis model
   its feedforward inverts (the hash of the model's JSON);
 * ``SetPoint`` (N), ``MeasuredForce`` (N), ``CommandVoltage`` (V), ``State`` and ``LastEvent``;
-* the method ``PushGainSet(GainSetDocument: String, Note: String, AcceptedMisses: String) -> (Accepted:
-  Boolean, Message: String)`` (:data:`PUSH_INPUTS`, :data:`PUSH_OUTPUTS`).
+* the method ``PushGainSetWithNote(GainSetDocument: String, Note: String, AcceptedMisses: String) ->
+  (Accepted: Boolean, Message: String)`` (:data:`PUSH_METHOD`, :data:`PUSH_INPUTS`, :data:`PUSH_OUTPUTS`), and
+  beside it ``PushGainSet(GainSetDocument: String) -> (Accepted, Message)``, the method's first form
+  (:data:`PUSH_METHOD_V1`), kept so that a client written against it goes on working: a method's
+  arguments are its contract with the clients that call it, so the form with more arguments got a
+  name of its own. ``PushGainSet`` also takes the Note and AcceptedMisses after the document, as
+  it did between the two forms, for the clients written then.
 
 Every variable is read-only to clients; the one way to change the controller is the method,
 which checks the document again (its hash, its status, the rig's plant, the limits it would be
@@ -89,7 +94,8 @@ from piezopreload.rig import SECURITY_POLICIES as POLICY_NAMES
 from piezopreload.rig.executor import Executor, RunResult
 
 __all__ = ["RigServer", "push_gain_set", "PushReply", "PushRefused", "NAMESPACE", "DEFAULT_ENDPOINT", "ROOT",
-           "PUSH_INPUTS", "PUSH_OUTPUTS", "Credentials", "connect", "SECURITY_POLICIES", "SECURITY_MODES"]
+           "PUSH_METHOD", "PUSH_METHOD_V1", "PUSH_INPUTS", "PUSH_INPUTS_V1", "PUSH_OUTPUTS", "Credentials", "connect",
+           "SECURITY_POLICIES", "SECURITY_MODES"]
 
 NAMESPACE = "urn:piezopreload:rig"
 ROOT = "PreloadRig"
@@ -386,7 +392,9 @@ def _serve_process(fd: int) -> None:
             conn.send(("failed", f"the OPC UA server could not start: {type(exc).__name__}: {exc}"))
 
 
-#: PushGainSet's input arguments: name, type, what
+#: the push method's name, and the name of its first form (one argument, the document), kept beside it
+PUSH_METHOD, PUSH_METHOD_V1 = "PushGainSetWithNote", "PushGainSet"
+#: PushGainSetWithNote's input arguments: name, type, what
 PUSH_INPUTS = (
     ("GainSetDocument", ua.VariantType.String,
      "the gain set file's text, its JSON document as 'piezopreload tune' wrote it (not a path to it)"),
@@ -395,7 +403,9 @@ PUSH_INPUTS = (
      "a gain set that is not validated: the keys of the requirements it missed that the pusher accepts, separated by "
      "commas (empty for a validated one); recorded with the push"),
 )
-#: PushGainSet's output arguments
+#: PushGainSet's input argument (its first form's): the document alone
+PUSH_INPUTS_V1 = PUSH_INPUTS[:1]
+#: the output arguments of both forms
 PUSH_OUTPUTS = (
     ("Accepted", ua.VariantType.Boolean, "TRUE: the rig switches to it at its next cycle"),
     ("Message", ua.VariantType.String, "what the rig did, or why it refused, in a sentence"),
@@ -409,13 +419,20 @@ def _argument(name: str, vtype: ua.VariantType, what: str) -> ua.Argument:
     return arg
 
 
-def _push_arguments(args: tuple) -> tuple[str, str, tuple[str, ...]]:
-    """PushGainSet's arguments, checked: ``(document, note, accepted)``; a ValueError says what was expected."""
+def _push_arguments(args: tuple, method: str = PUSH_METHOD) -> tuple[str, str, tuple[str, ...]]:
+    """A push's arguments, checked: ``(document, note, accepted)``; a ValueError says what was expected.
+
+    ``PushGainSetWithNote`` takes its three; ``PushGainSet``, the first form, the document alone, or with the Note
+    (and the AcceptedMisses) after it, as the clients written between the two forms send them."""
     names = " and ".join(f"{name} ({what})" for name, _, what in PUSH_INPUTS)
-    if len(args) not in (2, len(PUSH_INPUTS)) or not all(isinstance(a.Value, str) for a in args):
-        raise ValueError(f"PushGainSet takes {len(PUSH_INPUTS)} String arguments: {names}; got "
-                         f"{len(args)} of {', '.join(type(a.Value).__name__ for a in args) or 'none'}")
-    document, note, accepted = (*(a.Value for a in args), "")[:3]  # AcceptedMisses may be left out (none)
+    counts = (len(PUSH_INPUTS),) if method == PUSH_METHOD else (1, 2, len(PUSH_INPUTS))
+    if len(args) not in counts or not all(isinstance(a.Value, str) for a in args):
+        got = f"got {len(args)} of {', '.join(type(a.Value).__name__ for a in args) or 'none'}"
+        if method == PUSH_METHOD:
+            raise ValueError(f"{PUSH_METHOD} takes {len(PUSH_INPUTS)} String arguments: {names}; {got}")
+        raise ValueError(f"{PUSH_METHOD_V1} takes one String argument, GainSetDocument ({PUSH_INPUTS[0][2]}), "
+                         f"optionally followed by Note and AcceptedMisses as {PUSH_METHOD} takes them; {got}")
+    document, note, accepted = (*(a.Value for a in args), "", "")[:3]  # Note, AcceptedMisses left out: none
     if not document.lstrip().startswith("{"):
         shown = document if len(document) <= 60 else document[:57] + "..."
         raise ValueError(f"GainSetDocument must be the gain set file's text (its JSON document), not a path or a "
@@ -471,21 +488,31 @@ class _ServerProcess:
             state=await var(root, "State", "idle, running, ramping down, completed or tripped"),
             last_event=await var(root, "LastEvent", "the executor's last event as JSON"),
         )
-        method = await root.add_method(idx, "PushGainSet", self._push_callback,
-                                       [_argument(name, vtype, what) for name, vtype, what in PUSH_INPUTS],
-                                       [_argument(name, vtype, what) for name, vtype, what in PUSH_OUTPUTS])
-        await method.write_attribute(ua.AttributeIds.Description, ua.DataValue(ua.Variant(ua.LocalizedText(
-            "push a validated gain set of this rig's plant; it runs from the next cycle on, switched bumplessly"))))
+        for name, inputs, callback, what in (
+                (PUSH_METHOD, PUSH_INPUTS, self._push_callback, "with a note and the misses accepted by name"),
+                (PUSH_METHOD_V1, PUSH_INPUTS_V1, self._push_callback_v1,
+                 f"the first form of {PUSH_METHOD}: the document alone")):
+            method = await root.add_method(idx, name, callback,
+                                           [_argument(a, vtype, w) for a, vtype, w in inputs],
+                                           [_argument(a, vtype, w) for a, vtype, w in PUSH_OUTPUTS])
+            await method.write_attribute(ua.AttributeIds.Description, ua.DataValue(ua.Variant(ua.LocalizedText(
+                "push a validated gain set of this rig's plant; it runs from the next cycle on, switched bumplessly "
+                f"({what})"))))
         return server, nodes
 
     async def _push_callback(self, parent: Any, *args: Any) -> list[ua.Variant]:
         user = self._ruleset.caller or "unknown"  # read before the first await (see the module docstring)
-        accepted, message = await self._push(args, user)
+        accepted, message = await self._push(args, user, PUSH_METHOD)
         return [ua.Variant(accepted, ua.VariantType.Boolean), ua.Variant(message, ua.VariantType.String)]
 
-    async def _push(self, args: tuple, user: str) -> tuple[bool, str]:
+    async def _push_callback_v1(self, parent: Any, *args: Any) -> list[ua.Variant]:
+        user = self._ruleset.caller or "unknown"  # read before the first await (see the module docstring)
+        accepted, message = await self._push(args, user, PUSH_METHOD_V1)
+        return [ua.Variant(accepted, ua.VariantType.Boolean), ua.Variant(message, ua.VariantType.String)]
+
+    async def _push(self, args: tuple, user: str, method: str) -> tuple[bool, str]:
         try:
-            document, note, accepted = _push_arguments(args)
+            document, note, accepted = _push_arguments(args, method)
             # in a thread: the check derives the limits on a simulation and may compile a new structure's step, and
             # the server answers its other sessions (their keep-alive reads) meanwhile
             controller, identity = await asyncio.get_running_loop().run_in_executor(
@@ -639,10 +666,14 @@ async def _await_running(running_node: Any, running: str, expect_sha256: str, ti
 async def _push_and_read(client: Client, document: str, note: str, timeout_s: float,
                          expect_sha256: str | None,
                          accepted: tuple[str, ...] = ()) -> tuple[bool, str, dict[str, float], str]:
-    """Call ``PushGainSet`` on a connected client; the answer, then the parameters and the gain set the server shows."""
+    """Call :data:`PUSH_METHOD` on a connected client; the answer, then the parameters and the gain set the server
+    shows."""
     idx = await client.get_namespace_index(NAMESPACE)
     root = await client.nodes.objects.get_child([f"{idx}:{ROOT}"])
-    method = await root.get_child([f"{idx}:PushGainSet"])
+    try:
+        method = await root.get_child([f"{idx}:{PUSH_METHOD}"])
+    except ua.UaStatusCodeError:  # a rig served before the form got its name: its PushGainSet takes the three
+        method = await root.get_child([f"{idx}:{PUSH_METHOD_V1}"])
     try:
         taken, message = await root.call_method(method.nodeid, ua.Variant(document, ua.VariantType.String),
                                                 ua.Variant(note, ua.VariantType.String),
@@ -674,18 +705,17 @@ class PushReply:
                 "server_gain_set_sha256": self.server_gain_set_sha256}
 
 
-async def push_gain_set(document: str, endpoint: str, *, username: str | None = None, password: str | None = None,
-                        certificate: str | Path | None = None, private_key: str | Path | None = None,
-                        server_certificate: str | Path | None = None, timeout_s: float = PUSH_TIMEOUT_S,
+async def push_gain_set(document: str, endpoint: str, who: Credentials, *, timeout_s: float = PUSH_TIMEOUT_S,
                         expect_sha256: str | None = None, note: str = "",
                         accepted: tuple[str, ...] = ()) -> PushReply:
-    """Push a gain set's JSON ``document`` through ``PushGainSet`` (with ``note``, recorded with it, and the keys of
-    the requirements a candidate missed that the pusher ``accepted``); :class:`PushRefused` says why not.
+    """Push a gain set's JSON ``document`` through :data:`PUSH_METHOD` (with ``note``, recorded with it, and the keys
+    of the requirements a candidate missed that the pusher ``accepted``), in the session ``who`` opens (its user and
+    password, and its certificate, policy and mode where it gives them; the one way every push here is given them, as
+    :func:`piezopreload.rig.plc_push.push_to_server` is); :class:`PushRefused` says why not.
 
     With ``expect_sha256``, waits (up to ``timeout_s``) until the server shows that gain set
     running and returns the parameters it then shows.
     """
-    who = Credentials(username, password, certificate, private_key, server_certificate)
     client = await connect(endpoint, who, timeout_s)
     try:
         taken, message, values, running = await _push_and_read(client, document, note, timeout_s, expect_sha256,

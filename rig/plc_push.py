@@ -1,19 +1,24 @@
 """A validated gain set written to a PLC's own OPC UA server: the nodes a map names, checked, written, read back.
 
 ``piezopreload rig push GAINS --to opc.tcp://HOST:PORT --map NODES.toml`` (:func:`push`) writes the
-numbers of the gain set's controller (:func:`~piezopreload.rig.controller_code.parameters`: the
-gains, the output range, the sample period, the feedforward's table and the gain schedule's,
-by the names of the PLC export's ``PP_CONTROLLER``) to the nodes the map names, on any OPC UA
+numbers of the gain set's controller that its step reads
+(:attr:`~piezopreload.rig.controller_code.ControllerCode.read`: the gains, or a scheduled set's
+schedule arrays, the output range, the sample period and the feedforward's table, by the names
+of the PLC export's ``PP_CONTROLLER``, which declares those and no others) to the nodes the map names, on any OPC UA
 server, in the user's session (user name and password, a secure channel of the policy and mode
 asked for). In order:
 
 1. the gain set: its status (:func:`~piezopreload.rig.export.require_validated`), its controller;
-2. the map (:class:`NodeMap`): a node for every number the controller has (a feedforward's and
-   a schedule's too), no name it does not know;
+2. the map (:class:`NodeMap`): a node for every number the controller reads (a feedforward's and
+   a schedule's too), no name it does not know or does not read (a scheduled set's single ``Kc``,
+   ``Ti_s``, ``Td_s`` and ``b``);
 3. every node, read before anything is written: it exists, it is a variable of a type the number
-   fits (``Float``, a PLC's ``REAL``, or ``Double``, ``LREAL``; an array of the table's length for
-   a table; ``String`` for ``gain_set_sha256``) and this user may write it. Anything wrong is
-   refused by its name and nothing is written;
+   fits (``Float``, a PLC's ``REAL``, or ``Double``, ``LREAL``; ``String`` for ``gain_set_sha256``),
+   of the shape the server states by its ``ValueRank`` and ``ArrayDimensions`` (a table: a node that
+   may hold a one-dimensional array, ValueRank 1, or 0, -2, -3, of the table's length; a number: a
+   node that may hold a scalar, ValueRank -1, -2 or -3), and this user may write it. Anything wrong
+   is refused by its name, saying what the server states and what the number needs, and nothing is
+   written;
 4. one write request for every node, then every node read back: the report holds each number
    before, as written and as read back, and the difference (a ``REAL`` holds the number rounded
    to single precision; anything more is refused after the write, naming the nodes).
@@ -36,7 +41,7 @@ from asyncua import Client, ua
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.requirements import Requirement
 from piezopreload.core.errors import InputError
-from piezopreload.rig.controller_code import Parameter, parameters
+from piezopreload.rig.controller_code import Parameter, controller_code
 from piezopreload.rig.export import controller_from_gain_set, require_validated
 from piezopreload.rig.opcua import Credentials, PushRefused, connect, lost
 
@@ -84,10 +89,16 @@ class NodeMap:
             raise InputError(f"{shown}: field 'nodes.{bad}' must be a node id such as \"ns=4;s=PLC.Kc\"")
         return cls(shown, dict(nodes), prefix)
 
-    def node_ids(self, names: list[str]) -> dict[str, str]:
+    def node_ids(self, names: list[str], unread: dict[str, str] | None = None) -> dict[str, str]:
         """The node id of every name of ``names`` (and of :data:`SHA_NODE` where the map names it); a name the map
-        cannot place, or one it names that the gain set does not have, is refused."""
+        cannot place, or one it names that the gain set does not have, is refused. ``unread`` maps the names of the
+        controller's parameters that its step does not read to the reason (a scheduled set's single gains): a map that
+        names one is refused with that reason."""
         extra = sorted(set(self.nodes) - set(names) - {SHA_NODE})
+        dead = [n for n in extra if n in (unread or {})]
+        if dead:
+            raise InputError(f"{self.path}: field 'nodes.{dead[0]}' names a number this gain set's controller does not "
+                             f"read ({(unread or {})[dead[0]]}); remove it: the push writes {', '.join(names)}")
         if extra:
             raise InputError(f"{self.path}: field 'nodes.{extra[0]}' names no number of this gain set's controller; "
                              f"it has {', '.join(names)}")
@@ -137,13 +148,44 @@ def _value(dv: ua.DataValue) -> Any:
     return dv.Value.Value if _good(dv) and dv.Value is not None else None
 
 
-def _length(values: list[ua.DataValue]) -> int | None:
-    """An array node's length: its ArrayDimensions, else its value's."""
-    dims = _value(values[3])
-    if dims and dims[0]:
-        return int(dims[0])
-    value = _value(values[5])
-    return len(value) if isinstance(value, list) else None
+#: what each ValueRank states (OPC UA Part 3, the VariableType's ValueRank attribute); n > 1: n dimensions
+_RANKS = {-3: "a scalar or a one-dimensional array", -2: "any value, scalar or array", -1: "a scalar",
+          0: "an array of one or more dimensions", 1: "a one-dimensional array"}
+
+
+def _rank_words(rank: Any, dims: Any) -> str:
+    """What the server states of a node's shape: its ValueRank in words, and its ArrayDimensions where it gives them."""
+    if not isinstance(rank, int):
+        return "no ValueRank this session can read"
+    words = _RANKS.get(rank, f"an array of {rank} dimensions")
+    given = [int(d) for d in dims or []]
+    return f"ValueRank {rank} ({words}" + (f", ArrayDimensions {given}" if any(given) else "") + ")"
+
+
+def _shape_problem(t: _Target, rank: Any, dims: Any, value: Any) -> str | None:
+    """What differs between the shape the server states for ``t``'s node (its ValueRank and ArrayDimensions; the
+    length of its value where it states none) and the number's, or None: a table needs a node that may hold a
+    one-dimensional array (ValueRank 1, or 0, -2 or -3, which allow one) of its length, a scalar a node that may hold
+    a scalar (ValueRank -1, -2 or -3)."""
+    stated = f"has {_rank_words(rank, dims)} on the server"
+    n = len(t.value)
+    if not t.array:
+        if rank in (-1, -2, -3, None):
+            return None
+        return f"{stated}; the gain set's {t.name} is a scalar (ValueRank -1)"
+    need = f"the gain set's {t.name} needs a one-dimensional array (ValueRank 1) of {n}"
+    if rank not in (1, 0, -2, -3):
+        return f"{stated}; {need}"
+    given = [int(d) for d in dims or []]
+    if len(given) > 1 and rank != 1:
+        return f"{stated}: {len(given)} dimensions; {need}"
+    if given and given[0]:
+        length, held = given[0], ""
+    elif isinstance(value, list):
+        length, held = len(value), f" and its value holds {len(value)}"
+    else:
+        return f"{stated}, and neither its ArrayDimensions nor its value give a length; {need}"
+    return None if length == n else f"{stated}{held}; {need}"
 
 
 def _type_id(dtype: Any) -> int | None:
@@ -167,14 +209,9 @@ def _problem(t: _Target, values: list[ua.DataValue], user: str) -> str | None:
     if type_id not in want:
         name = str(dtype) if type_id is None else ua.ObjectIdNames.get(type_id, str(dtype))
         return f"{where} is of type {name}; expected {' or '.join(want.values())}"
-    rank = _value(values[2])
-    if t.array:
-        n = _length(values)
-        if rank != 1 or n != len(t.value):
-            shape = "a scalar" if rank == -1 else f"an array of {n}"
-            return f"{where} is {shape}; expected an array of {len(t.value)}"
-    elif rank not in (-1, None):
-        return f"{where} is an array; expected a scalar"
+    shape = _shape_problem(t, _value(values[2]), _value(values[3]), _value(values[5]))
+    if shape is not None:
+        return f"{where} {shape}"
     if not int(_value(values[4]) or 0) & ua.AccessLevel.CurrentWrite.mask:
         return f"{where} is not writable for {user}"
     t.type_id = int(type_id)
@@ -274,9 +311,13 @@ async def _write_and_read(client: Client, targets: list[_Target]) -> list[NodeWr
 
 
 def _targets(gain_set: GainSet, node_map: NodeMap, accepted: tuple[str, ...] = ()) -> list[_Target]:
-    controller = controller_from_gain_set(gain_set, accepted)
-    params: tuple[Parameter, ...] = parameters(controller.model, controller.parameter_vector())
-    ids = node_map.node_ids([p.name for p in params])
+    """The nodes to write: the numbers the exported ``PP_CONTROLLER`` declares (those its step reads), and the hash."""
+    code = controller_code(controller_from_gain_set(gain_set, accepted))
+    params: tuple[Parameter, ...] = code.read
+    why = ("a scheduled set's step runs on the schedule's arrays" if code.model.scheduled else
+           "its step does not use it")
+    unread = {p.name: why for p in code.parameters if p not in params}
+    ids = node_map.node_ids([p.name for p in params], unread)
     out = [_Target(p.name, ids[p.name], p.values, p.array) for p in params]
     if SHA_NODE in ids:
         out.append(_Target(SHA_NODE, ids[SHA_NODE], gain_set.content_sha256 or "", False))

@@ -41,6 +41,7 @@ class PythonLoop:
         self.dt_ns = to_ns(executor.dt)
         self.slew_V = executor.safety.slew_V_per_s * executor.dt
         self.heartbeat = getattr(executor.backend, "heartbeat", None)
+        self.setpoints, self.ff_extra = executor.setpoints_N, executor.ff_extra_V
         self.lateness, self.periods = array("d"), array("d")
         self.k = self.missed = self.clamped = 0
         self.t = 0.0
@@ -50,83 +51,70 @@ class PythonLoop:
 
     def run(self) -> RunResult:
         ex = self.ex
-        handlers = ex._install_signal_handlers()
-        gc_was_enabled = gc.isenabled()
-        gc.collect()
-        gc.disable()
-        if isinstance(ex.backend, FaultInjector):  # an injected delay stalls this run's clock
-            ex.backend.stall = self.clock.stall
         trip: Trip | None = None
         t_end = 0.0
-        try:
-            ex.backend.arm()
-            ex._event("armed", 0.0, backend=ex.backend.name, controller_step=ex.step.kind, loop="python",
-                      loop_reason=ex.loop_reason)
-            self.t0 = self.wake_prev = self.last_write = self.clock.now()
-            done = False
-            while not done and (self.k < len(ex._ref) or ex.hold):
-                done, trip = self._cycle()
-        except Exception as exc:  # anything in the loop: stop the rig first, explain after
-            trip = self._exception(exc)
-        finally:
+        with ex.signal_handlers():
+            gc_was_enabled = gc.isenabled()
+            gc.collect()
+            gc.disable()
+            if isinstance(ex.backend, FaultInjector):  # an injected delay stalls this run's clock
+                ex.backend.stall = self.clock.stall
             try:
-                if trip is not None:
-                    ex._trip_event(trip)
-                v_end, t_end = self._ramp_down()
-                ex._event("ramped_down", t_end, voltage_V=v_end)
+                ex.backend.arm()
+                ex.log_event("armed", 0.0, backend=ex.backend.name, controller_step=ex.step.kind, loop="python",
+                             loop_reason=ex.loop_reason)
+                self.t0 = self.wake_prev = self.last_write = self.clock.now()
+                n_ref, done = len(self.setpoints), False
+                while not done and (self.k < n_ref or ex.hold):
+                    done, trip = self._cycle()
+            except Exception as exc:  # anything in the loop: stop the rig first, explain after
+                trip = self._exception(exc)
             finally:
                 try:
-                    ex.backend.disarm()
+                    if trip is not None:
+                        ex.record_trip(trip)
+                    v_end, t_end = self._ramp_down()
+                    ex.log_event("ramped_down", t_end, voltage_V=v_end)
                 finally:
-                    ex._restore_signal_handlers(handlers)
-                    if gc_was_enabled:
-                        gc.enable()
+                    try:
+                        ex.backend.disarm()
+                    finally:
+                        if gc_was_enabled:
+                            gc.enable()
         ex.latest = (self.t, ex.latest[1], ex.latest[2], ex.safety.safe_V, "tripped" if trip else "completed")
-        ex._event("disarmed", t_end)
+        ex.log_event("disarmed", t_end)
         timing = timing_summary(self.lateness, self.periods, missed=self.missed, dt=ex.dt, realtime=ex.realtime,
                                 loop="python", stalls=ex.stalls, stall_count=ex.stalls.count, held_max_s=self.held_max,
                                 stall_limit_s=ex.safety.stall_limit_s)
-        return ex._finish(trip, self.k, timing, self.clamped)
+        return ex.finish(trip, self.k, timing, self.clamped)
 
     def _exception(self, exc: Exception) -> Trip:
         ex = self.ex
-        ex._log_row((self.t, math.nan, math.nan, math.nan, self.v_last, *_NANS, 0.0, 0.0, 0.0, 0, 2))
+        ex.log_sample((self.t, math.nan, math.nan, math.nan, self.v_last, *_NANS, 0.0, 0.0, 0.0, 0, 2))
         if isinstance(exc, InjectedFault):  # a fire drill: its words, as the native loop says them
             return Trip("exception", str(exc), self.t, self.v_last)
-        ex._event("traceback", self.t, text="".join(traceback.format_exception(exc))[-4000:])
+        ex.log_event("traceback", self.t, text="".join(traceback.format_exception(exc))[-4000:])
         return Trip("exception", f"{type(exc).__name__}: {exc}", self.t, self.v_last)
 
     def _trip(self, hit: tuple[int, float]) -> Trip:
         cause = TRIP_CAUSES[hit[0] - 1]
         return Trip(cause, trip_detail(cause, hit[1], self.ex.safety), self.t, self.v_last)
 
-    def _take_switch(self) -> None:
-        ex = self.ex
-        if ex._pending is not None:
-            new, info = ex._pending
-            ex.step.switch(new)
-            ex.controller = new  # before the switch stops pending: a server shows the new hash with the new gains
-            ex._pending = None
-            # recorded now, written to the sidecar by the server's thread (Executor.save_events): a sidecar's
-            # rewrite (its fsync) has no place inside a cycle
-            ex._event("gains_switched", self.t, persist=False, cycle=self.k, **info)
-            ex._unsaved = True
-
     def _cycle(self) -> tuple[bool, Trip | None]:
         """One cycle: ``(stop, trip)``; a stop without a trip is a run ended by :meth:`Executor.stop`."""
-        ex, k = self.ex, self.k
-        n_ref = len(ex._ref)
+        ex, k, ref = self.ex, self.k, self.setpoints
         self.t = t = k * ex.dt
-        sp = ex._ref[min(k, n_ref - 1)]
+        sp = ref[min(k, len(ref) - 1)]
         deadline = self.t0 + k * self.dt_ns
         wake = self.clock.wait(deadline)
-        self._take_switch()
+        ex.take_switch(t, k)
         late, period = (wake - deadline) * 1e-9, (wake - self.wake_prev) * 1e-9
-        if ex._stop is not None:  # this cycle is the stop's: logged, no reading, no command
-            ex._log_row((t, sp, math.nan, math.nan, self.v_last, *_NANS, period, late, 0.0, 0, 2))
-            if ex._stop_trips:
-                return True, Trip("signal", ex._stop, t, self.v_last)
-            ex._event("stopped", t, reason=ex._stop)
+        stop = ex.stop_request
+        if stop is not None:  # this cycle is the stop's: logged, no reading, no command
+            ex.log_sample((t, sp, math.nan, math.nan, self.v_last, *_NANS, period, late, 0.0, 0, 2))
+            if stop.trip:
+                return True, Trip("signal", stop.reason, t, self.v_last)
+            ex.log_event("stopped", t, reason=stop.reason)
             return True, None
         reading = ex.backend.read_force(t)
         y, age = float(reading.force_N), t - reading.t_s
@@ -136,12 +124,12 @@ class PythonLoop:
             ex.stalls.add(t, held)
         hit = first_trip(self.table, _READING, (y, age, held, math.nan))
         if hit is not None:
-            ex._log_row((t, sp, y, math.nan, self.v_last, *_NANS, period, late, 0.0, 0, 2))
+            ex.log_sample((t, sp, y, math.nan, self.v_last, *_NANS, period, late, 0.0, 0, 2))
             return True, self._trip(hit)
         u, p, i, d, ff = self._step(sp, y)
         hit = first_trip(self.table, _COMMAND, (y, age, held, u))
         if hit is not None:
-            ex._log_row((t, sp, y, u, self.v_last, ff, p, i, d, period, late, 0.0, 0, 2))
+            ex.log_sample((t, sp, y, u, self.v_last, ff, p, i, d, period, late, 0.0, 0, 2))
             return True, self._trip(hit)
         v = self._write(u)
         done = self.clock.now()
@@ -149,22 +137,22 @@ class PythonLoop:
         self.missed += miss
         self.lateness.append(late)
         self.periods.append(period)
-        ex._log_row((t, sp, y, u, v, ff, p, i, d, period, late, (done - wake) * 1e-9, miss, 0))
+        ex.log_sample((t, sp, y, u, v, ff, p, i, d, period, late, (done - wake) * 1e-9, miss, 0))
         self.wake_prev = wake
         ex.latest = (t, sp, y, v, "running")
         self.k += 1
         return False, None
 
     def _step(self, sp: float, y: float) -> tuple[float, float, float, float, float]:
-        ex, k = self.ex, self.k
-        if ex._extra is None:
+        step, k, extra = self.ex.step, self.k, self.ff_extra
+        if extra is None:
             if k == 0:  # bumpless start on the first reading: the first command is the safe level
-                ex.step.start(sp, y, self.v_last)
-            return ex.step.step(sp, y)
-        fx = ex._extra[min(k, len(ex._extra) - 1)]
+                step.start(sp, y, self.v_last)
+            return step.step(sp, y)
+        fx = extra[min(k, len(extra) - 1)]
         if k == 0:
-            ex.step.start(sp, y, self.v_last, ex._extra[0])
-        return ex.step.step(sp, y, fx)
+            step.start(sp, y, self.v_last, extra[0])
+        return step.step(sp, y, fx)
 
     def _write(self, u: float) -> float:
         s = self.ex.safety
@@ -188,8 +176,9 @@ class PythonLoop:
         ex = self.ex
         s, dt, v_from = ex.safety, ex.dt, self.v_last
         n = 0 if v_from == s.safe_V else max(1, int(math.ceil(s.ramp_s / dt)))
-        k0 = ex._rows - 1  # the last sample logged
-        t0 = self.t0 if ex._rows else self.clock.now()
+        logged = ex.samples_logged
+        k0 = logged - 1  # the last sample logged
+        t0 = self.t0 if logged else self.clock.now()
         v, t = v_from, max(k0, 0) * dt
         for j in range(1, n + 1):
             t = (k0 + j) * dt
@@ -202,7 +191,7 @@ class PythonLoop:
             try:
                 ex.backend.write_voltage(v)
             except Exception as exc:  # the backend is gone: one last try at the safe level, then disarm
-                ex._event("ramp_failed", t, detail=f"{type(exc).__name__}: {exc}")
+                ex.log_event("ramp_failed", t, detail=f"{type(exc).__name__}: {exc}")
                 try:
                     ex.backend.write_voltage(s.safe_V)
                     v = s.safe_V
@@ -211,6 +200,6 @@ class PythonLoop:
                 return v, t
             if self.heartbeat is not None:
                 self.heartbeat()
-            ex._log_row((t, math.nan, y, math.nan, v, *_NANS, dt, 0.0, 0.0, 0, 1))
+            ex.log_sample((t, math.nan, y, math.nan, v, *_NANS, dt, 0.0, 0.0, 0, 1))
             ex.latest = (t, math.nan, y, v, "ramping down")
         return v, t

@@ -47,7 +47,7 @@ from piezopreload.rig.executor import Executor
 from piezopreload.rig.export import ExportError, controller_from_gain_set, require_validated
 from piezopreload.rig.hostcheck import check_host
 from piezopreload.rig.limits import RunLimits, check_fit, run_limits
-from piezopreload.rig.opcua import PushRefused, PushReply, RigServer, feedforward_hash, push_gain_set
+from piezopreload.rig.opcua import Credentials, PushRefused, PushReply, RigServer, feedforward_hash, push_gain_set
 from piezopreload.rig.outcome import RunResult
 from piezopreload.rig.runlog import LearnedFigures, RunLog
 
@@ -551,18 +551,16 @@ class ServedPush:
                 **self.reply.to_dict()}
 
 
-def push(gains_path: str | Path, *, endpoint: str, username: str | None, password: str | None,
-         certificate: str | None = None, private_key: str | None = None,
-         server_certificate: str | None = None, note: str = "", accepted: tuple[str, ...] = ()) -> ServedPush:
-    """Push a validated gain set to a serving rig (``note``: why, recorded with the push; a candidate only where each
-    requirement it missed is ``accepted`` by name, sent with it); refused pushes are bad input (exit 2) with the
-    server's reason."""
+def push(gains_path: str | Path, *, endpoint: str, who: Credentials, note: str = "",
+         accepted: tuple[str, ...] = ()) -> ServedPush:
+    """Push a validated gain set to a serving rig in the session ``who`` opens (``note``: why, recorded with the push;
+    a candidate only where each requirement it missed is ``accepted`` by name, sent with it); refused pushes are bad
+    input (exit 2) with the server's reason."""
     gain_set = load_validated(gains_path, "pushed", accepted)  # refuse locally first: nothing sent the server refuses
     text = Path(gains_path).read_text(encoding="utf-8")
     try:
-        reply = asyncio.run(push_gain_set(text, endpoint, username=username, password=password, certificate=certificate,
-                                          private_key=private_key, server_certificate=server_certificate,
-                                          expect_sha256=gain_set.content_sha256, note=note, accepted=accepted))
+        reply = asyncio.run(push_gain_set(text, endpoint, who, expect_sha256=gain_set.content_sha256, note=note,
+                                          accepted=accepted))
     except PushRefused as exc:
         raise InputError(f"{endpoint}: {exc}") from None
     return ServedPush(str(gains_path), gain_set.content_sha256, endpoint, reply)

@@ -59,7 +59,7 @@ def _nominal(plant: Plant, controller: Controller, reference: Reference, v_range
     step.reset(0.0)
     states = np.empty((u.size, step.model.state.size))
     for k, command in enumerate(u.tolist()):
-        states[k] = step._x
+        states[k] = step.state
         step.write(command)
     return u, states
 
@@ -114,14 +114,14 @@ class _Key:
     def __init__(self, parts: tuple[Plant, Controller, Reference]) -> None:
         self.parts = parts
         plant, controller, reference = parts
-        self._id = (repr(sorted(plant.to_dict().items())), controller.parameter_vector().tobytes(),
+        self.identity = (repr(sorted(plant.to_dict().items())), controller.parameter_vector().tobytes(),
                     repr(controller.model), repr(reference.to_dict()), controller.dt_s)
 
     def __hash__(self) -> int:
-        return hash(self._id)
+        return hash(self.identity)
 
     def __eq__(self, other: object) -> bool:
-        return isinstance(other, _Key) and other._id == self._id
+        return isinstance(other, _Key) and other.identity == self.identity
 
 
 @lru_cache(maxsize=32)

@@ -2,7 +2,8 @@
 //
 // node node_opcua_plc.js SPEC.json: SPEC holds {"port", "user", "password", "nodes": [{"id", "type", "length",
 // "value", "writable"}]}: each node a variable of the type a PLC's REAL, LREAL, STRING or INT publishes ("Float",
-// "Double", "String", "Int16"), an array of "length" elements where that is given (ValueRank 1), under the namespace
+// "Double", "String", "Int16"), an array of "length" elements where that is given (ValueRank 1, or the node's "rank"
+// where it gives one: a PLC may state 0, "one or more dimensions", for an array), under the namespace
 // "urn:piezopreload:test-plc" with the string node id "id". Sessions need the user and password (anonymous ones are
 // refused). The script prints "listening <endpoint>" once it serves, and ends on SIGTERM or when its input closes.
 "use strict";
@@ -36,14 +37,15 @@ async function main() {
     const folder = ns.addFolder(server.engine.addressSpace.rootFolder.objects, { browseName: "PLC" });
     for (const node of spec.nodes) {
         const array = node.length !== undefined && node.length !== null;
+        const rank = node.rank ?? (array ? 1 : -1);
         let current = variant(node.type, node.length, node.value);
         ns.addVariable({
             componentOf: folder,
             nodeId: `s=${node.id}`,
             browseName: node.id,
             dataType: node.type,
-            valueRank: array ? 1 : -1,
-            arrayDimensions: array ? [node.length] : null,
+            valueRank: rank,
+            arrayDimensions: array && rank > 0 ? [node.length] : null,  // node-opcua: none for a ValueRank <= 0
             accessLevel: node.writable ? "CurrentRead | CurrentWrite" : "CurrentRead",
             userAccessLevel: node.writable ? "CurrentRead | CurrentWrite" : "CurrentRead",
             value: {

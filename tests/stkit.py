@@ -27,6 +27,10 @@ it. Each construct maps to the Python one with the same meaning:
   its body once; ``inst.out`` reads an output (or an input) of the instance;
 * the instance's variables keep their values between calls (a function block's memory), and
   start at their initial values (0.0, FALSE, 0 where none is given).
+
+:attr:`FunctionBlock.read` holds the names the body reads (in an expression, an index or a call's
+argument; the target of an assignment is not a read), so a test can tell a declared variable the
+body never reads.
 """
 
 from __future__ import annotations
@@ -90,6 +94,7 @@ class _Pou:
     kind: str
     variables: dict[str, _Var]
     body: str
+    read: frozenset[str] = frozenset()
 
 
 class _Parser:
@@ -98,6 +103,7 @@ class _Parser:
         self.vars: dict[str, _Var] = {}
         self.lines: list[str] = []
         self.blocks: dict[str, _Pou] = {}
+        self.read: set[str] = set()
 
     # ---- tokens ----------------------------------------------------------------------------------
     def peek(self) -> tuple[str, str]:
@@ -259,11 +265,13 @@ class _Parser:
             raise STError(f"SEL takes a BOOL and two inputs of one type, got {gt}, {t0} and {t1}")
         return f"({in1} if {g} else {in0})", t0
 
-    def reference(self) -> tuple[str, str]:
+    def reference(self, read: bool = True) -> tuple[str, str]:
         name = self.take(kind="name").lower()
         var = self.vars.get(name)
         if var is None:
             raise STError(f"'{name}' is not declared")
+        if read:
+            self.read.add(name)
         if var.type in self.blocks:
             self.take(".")
             field = self.take(kind="name").lower()
@@ -354,7 +362,7 @@ class _Parser:
         var = self.vars.get(name)
         if var is not None and var.section in ("CONSTANT", "VAR_INPUT"):
             raise STError(f"assignment to {var.section} '{name}'")
-        target, t = self.reference()
+        target, t = self.reference(read=False)
         self.take(":=")
         code, et = self.expr()
         if et != t:
@@ -366,11 +374,11 @@ class _Parser:
         if kind not in ("FUNCTION_BLOCK", "PROGRAM"):
             raise STError(f"expected FUNCTION_BLOCK or PROGRAM, got {kind!r}")
         name = self.take(kind="name").upper()
-        self.vars, self.lines = {}, []
+        self.vars, self.lines, self.read = {}, [], set()
         self.declarations()
         self.statements(1, (f"END_{kind}",))
         self.take(f"END_{kind}")
-        pou = _Pou(name, kind, self.vars, "def _step(m):\n" + "\n".join(self.lines) + "\n")
+        pou = _Pou(name, kind, self.vars, "def _step(m):\n" + "\n".join(self.lines) + "\n", frozenset(self.read))
         if name in self.blocks:
             raise STError(f"'{name}' is declared twice")
         self.blocks[name] = pou
@@ -399,7 +407,7 @@ class FunctionBlock:
     none: set its variables in :attr:`memory`), read its outputs."""
 
     def __init__(self, pou: _Pou, pous: dict[str, _Pou]) -> None:
-        self.name, self.variables = pou.name, pou.variables
+        self.name, self.variables, self.read = pou.name, pou.variables, pou.read
         self.memory: dict[str, Any] = {}
         for n, v in pou.variables.items():
             if v.type in pous:

@@ -84,6 +84,48 @@ def test_the_structured_text_block_runs_the_numpy_inverse_step(kind, creep):
     np.testing.assert_allclose(again, expected[:50], rtol=0, atol=ATOL_V, err_msg="after reset")
 
 
+_C_FEEDFORWARD_MAIN = """#include <stdio.h>
+int pp_feedforward_step(double target, double* state, double* command);
+int main(void) {
+  double state[256] = {0}, target, command;
+  while (scanf("%lf", &target) == 1) {
+    if (pp_feedforward_step(target, state, &command)) return 1;
+    printf("%.17g\\n", command);
+  }
+  return 0;
+}
+"""
+
+
+@pytest.mark.skipif(shutil.which(os.environ.get("CC", "cc")) is None,
+                    reason="no C compiler to build the generated code")
+@pytest.mark.parametrize("kind", KINDS)
+def test_the_structured_text_block_and_the_c_are_one_generated_step(kind, tmp_path):
+    """PP_FEEDFORWARD and pp_feedforward.c are written from one CasADi function of the inverse step: the ST (run by
+    tests/stkit.py) and the compiled C give the same doubles, to the last bit, on a sweep of targets through
+    reversals and holds, and both the library's inverse within 1e-9 V; every variable the block declares its body
+    reads (the dead-zone numbers of a modified model only where it has dead zones, the falling weights only where
+    the direction switches)."""
+    model, dt, targets = _model(kind, True), 0.001, _targets(800)
+    text = export(model, "plc", sample_period_s=dt)
+    block = translate(text)
+    st = np.array([block(target_N=f, reset=(i == 0))["command_v"] for i, f in enumerate(targets)])
+    (tmp_path / "ff.c").write_text(export(model, "casadi-c", sample_period_s=dt))
+    (tmp_path / "main.c").write_text(_C_FEEDFORWARD_MAIN)
+    cc = shutil.which(os.environ.get("CC", "cc"))
+    subprocess.run([cc, "-std=c99", "-O2", "-o", str(tmp_path / "ff"), str(tmp_path / "main.c"), str(tmp_path / "ff.c"),
+                    "-lm"], check=True)
+    run = subprocess.run([str(tmp_path / "ff")], input="\n".join(repr(float(f)) for f in targets) + "\n",
+                         capture_output=True, text=True, check=True)
+    c = np.array(run.stdout.split(), float)
+    expected = _numpy(model, dt, targets)
+    np.testing.assert_allclose(st, expected, rtol=0, atol=ATOL_V, err_msg=f"{kind}: the ST block")
+    np.testing.assert_allclose(c, expected, rtol=0, atol=ATOL_V, err_msg=f"{kind}: the C")
+    assert np.array_equal(st, c), f"{kind}: the ST and the C are not one algorithm ({np.sum(st != c)} samples differ)"
+    unread = sorted(n for n, v in block.variables.items() if v.section != "VAR_OUTPUT" and n not in block.read)
+    assert not unread, f"{kind}: declared but never read by the body: {unread}"
+
+
 def test_the_gain_sets_plc_block_runs_its_feedforward_at_the_plants_period(gain_set_with_creep):
     """The gain set's PP_CONTROLLER: its feedforward (creep identified at 1 ms) discretised at the plant's 2 ms, as
     the controller step runs it (tests/test_plc_export.py holds the whole step to the C and the numpy step)."""

@@ -22,7 +22,7 @@ from piezopreload.artifacts.rigrun import RigRunRecord
 from piezopreload.cli import main
 from piezopreload.core.artifacts import read_artifact
 from piezopreload.models.controller import GainSchedule, PIDGains
-from piezopreload.rig.opcua import NAMESPACE, ROOT, PushRefused, push_gain_set
+from piezopreload.rig.opcua import NAMESPACE, ROOT, Credentials, PushRefused, push_gain_set
 from piezopreload.rig.runlog import read_run_log
 from piezopreload.rig.session import serve as serve_rig
 
@@ -49,11 +49,19 @@ async def _on_root(endpoint, action):
         return await action(await client.nodes.objects.get_child([f"{idx}:{ROOT}"]), idx)
 
 
-async def _call_raw(endpoint, *args):
-    """PushGainSet called with whatever arguments, as a malformed client would."""
+async def _call_raw(endpoint, *args, method="PushGainSet"):
+    """``method`` called with whatever arguments, as a client of its own (or a malformed one) would."""
     async def call(root, idx):
-        return await root.call_method(await root.get_child([f"{idx}:PushGainSet"]), *args)
+        return await root.call_method(await root.get_child([f"{idx}:{method}"]), *args)
     return await _on_root(endpoint, call)
+
+
+async def _input_arguments(endpoint, method):
+    """The names of ``method``'s input arguments, as the server declares them (its InputArguments property)."""
+    async def read(root, idx):
+        node = await root.get_child([f"{idx}:{method}"])
+        return [a.Name for a in await (await node.get_child(["0:InputArguments"])).read_value()]
+    return await _on_root(endpoint, read)
 
 
 async def _read(endpoint, name):
@@ -86,18 +94,21 @@ def _gain_sets(tmp_path, study, feedforward):
 
 def _refusals(endpoint, sets, tampered):
     with pytest.raises(PushRefused, match="candidate"):
-        asyncio.run(push_gain_set(sets["candidate"].read_text(), endpoint, username=USER, password=PASSWORD))
+        asyncio.run(push_gain_set(sets["candidate"].read_text(), endpoint, Credentials(USER, PASSWORD)))
     with pytest.raises(PushRefused, match="content_sha256"):
-        asyncio.run(push_gain_set(tampered, endpoint, username=USER, password=PASSWORD))
+        asyncio.run(push_gain_set(tampered, endpoint, Credentials(USER, PASSWORD)))
     with pytest.raises(PushRefused, match=r"limits trip the force above 130 N \(the gain set: other.toml "
                                           r"\[rig_run\]\), this rig trips only above 143"):
-        asyncio.run(push_gain_set(sets["other"].read_text(), endpoint, username=USER, password=PASSWORD))
+        asyncio.run(push_gain_set(sets["other"].read_text(), endpoint, Credentials(USER, PASSWORD)))
     with pytest.raises(PushRefused, match="refused the session"):
-        asyncio.run(push_gain_set(sets["first"].read_text(), endpoint, username=USER, password="wrong"))
+        asyncio.run(push_gain_set(sets["first"].read_text(), endpoint, Credentials(USER, "wrong")))
     with pytest.raises(PushRefused, match="refused the session"):  # anonymous
-        asyncio.run(push_gain_set(sets["first"].read_text(), endpoint))
+        asyncio.run(push_gain_set(sets["first"].read_text(), endpoint, Credentials()))
     accepted, message = asyncio.run(_call_raw(endpoint, ua.Variant(7, ua.VariantType.Int32)))
-    assert accepted is False and "PushGainSet takes 3 String arguments: GainSetDocument" in message
+    assert accepted is False and "PushGainSet takes one String argument, GainSetDocument" in message, message
+    accepted, message = asyncio.run(_call_raw(endpoint, ua.Variant(7, ua.VariantType.Int32),
+                                              method="PushGainSetWithNote"))
+    assert accepted is False and "PushGainSetWithNote takes 3 String arguments: GainSetDocument" in message
     # the command line: a candidate is refused before anything is sent, a wrong password by the server
     assert main(["rig", "push", str(sets["candidate"]), "--endpoint", endpoint, "--user", USER]) == 2
 
@@ -105,13 +116,13 @@ def _refusals(endpoint, sets, tampered):
 def _switched_bumplessly(s, sha2):
     """The push's record and event, and the command at the switch: no jump, the new gains running after it."""
     pushes = s["pushes"]
-    assert [p["accepted"] for p in pushes] == [True, False, False, False, False]
+    assert [p["accepted"] for p in pushes] == [True, False, False, False, False, False, True]
     assert pushes[0]["user"] == USER and pushes[0]["gain_set_sha256"] == sha2
     assert all(p["user"] == USER for p in pushes)
     side = RigRunRecord.load(s["log_json"])
     switch = next(e for e in side.events if e["event"] == "gains_switched")
     assert switch["pushed_by"] == USER and switch["gain_set_sha256"] == sha2 and "utc" in switch
-    assert sum(e["event"] == "push_refused" for e in side.events) == 4
+    assert sum(e["event"] == "push_refused" for e in side.events) == 5
     log = read_run_log(s["log_csv"])
     k = int(np.searchsorted(log["time_s"], switch["t_s"]))
     u = log["command_V"]
@@ -150,12 +161,23 @@ def test_serve_push_and_refusals(tmp_path, study, feedforward):
         assert ready.wait(120)  # liveness on a loaded host, not a timing bound
         _wait_for_the_loop(endpoint, 1.0)  # past the step (at 0.5 s), holding 60 N
         assert asyncio.run(_read(endpoint, "GainSetSha256")) == sha1
-        reply = asyncio.run(push_gain_set(sets["second"].read_text(), endpoint, username=USER, password=PASSWORD,
+        reply = asyncio.run(push_gain_set(sets["second"].read_text(), endpoint, Credentials(USER, PASSWORD),
                                           expect_sha256=sha2))
         assert reply.server_parameters == {"CtrlP": 0.5, "CtrlTi": 0.05, "CtrlTd": 0.001}
         assert reply.server_gain_set_sha256 == sha2
         _refusals(endpoint, sets, tampered)
         assert asyncio.run(_read(endpoint, "GainSetSha256")) == sha2  # nothing the refusals sent changed it
+        # a client written against the method's first form: PushGainSet with the document alone, as it declares
+        assert asyncio.run(_input_arguments(endpoint, "PushGainSet")) == ["GainSetDocument"]
+        assert asyncio.run(_input_arguments(endpoint, "PushGainSetWithNote")) == ["GainSetDocument", "Note",
+                                                                                   "AcceptedMisses"]
+        accepted, message = asyncio.run(_call_raw(endpoint, ua.Variant(sets["first"].read_text(),
+                                                                       ua.VariantType.String)))
+        assert accepted is True and f"accepted gain set {sha1[:12]}" in message, message
+        t_end = time.monotonic() + 60.0
+        while asyncio.run(_read(endpoint, "GainSetSha256")) != sha1:
+            assert time.monotonic() < t_end, "the one-argument push never ran"
+            time.sleep(0.05)
     finally:
         stop.set()
         server.join(60)

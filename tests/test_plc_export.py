@@ -16,6 +16,7 @@ fails here.
 """
 
 import os
+import re
 import shutil
 import subprocess
 
@@ -131,14 +132,47 @@ def test_the_c_and_the_structured_text_run_the_python_step(kind, tmp_path):
 
 
 def test_the_block_holds_the_gain_sets_numbers_by_the_c_arrays_names(tmp_path):
-    """Each parameter is a variable of the block with the gain set's number, the C array's entry of that name."""
+    """Each parameter the step reads is a variable of the block with the gain set's number, the C array's entry of that
+    name."""
     gs = gain_set("scheduled", tmp_path / "gains.json")
     block = translate(export(gs, "plc"), "PP_CONTROLLER")
     m = block.memory
-    assert (m["kc"], m["ti_s"], m["tf_s"], m["dt_s"]) == (1.4, 0.05, 0.02, gs.plant.sample_period_s)
+    assert (m["tf_s"], m["u_max_v"], m["dt_s"]) == (0.02, 110.0, gs.plant.sample_period_s)
     assert m["schedule_levels_n"] == [30.0, 60.0, 100.0] and m["schedule_b"] == [0.3, 0.8, 0.5]
     c = export(gs, "casadi-c")
     assert "/* schedule_Kc: gain schedule: Kc, V/N */ 0.9, 1.6, 0.7," in c
+    single = translate(export(gain_set("pid", tmp_path / "pid.json"), "plc"), "PP_CONTROLLER").memory
+    assert (single["kc"], single["ti_s"], single["b"]) == (1.4, 0.05, 0.3)
+
+
+#: what a PLC engineer retunes, by the gain set's structure: the single gains, or the schedule's arrays and the
+#: single Tf; and the output range (the issue's words: the header says which numbers to change)
+TUNED = {"single": {"kc", "ti_s", "td_s", "tf_s", "b", "u_min_v", "u_max_v"},
+         "scheduled": {"schedule_levels_n", "schedule_kc", "schedule_ti_s", "schedule_td_s", "schedule_b", "tf_s",
+                       "u_min_v", "u_max_v"}}
+
+
+def _header_names(text):
+    """The names in the header's sentence on which numbers to change (an identifier with an underscore, Kc or b)."""
+    words = " ".join(text.split())
+    assert "To retune, change " in words, "the header must say which numbers to change"
+    sentence = words.split("To retune, change ", 1)[1].split(" in the VAR section")[0]
+    return {n.lower() for n in re.findall(r"\b(?:[A-Za-z]\w*_\w+|Kc|b)\b", sentence)}
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_the_block_declares_only_what_its_body_reads_and_its_header_names_the_numbers_to_change(kind, tmp_path):
+    """Every variable PP_CONTROLLER declares (inputs, numbers, state, work variables) is read by its body: a scheduled
+    set runs on the schedule's arrays, so its single Kc, Ti_s, Td_s and b are not declared; the header's sentence on
+    what to change names those numbers, each a variable of the block, and no other."""
+    text = export(gain_set(kind, tmp_path / "gains.json"), "plc")
+    block = translate(text, "PP_CONTROLLER")
+    unread = sorted(n for n, v in block.variables.items() if v.section != "VAR_OUTPUT" and n not in block.read)
+    assert not unread, f"{kind}: declared but never read by the body: {unread}"
+    named = _header_names(text)
+    assert named <= set(block.variables), f"{kind}: the header names {sorted(named - set(block.variables))}, " \
+                                          "which the block does not declare"
+    assert named == TUNED["scheduled" if kind == "scheduled" else "single"], f"{kind}: the header names {named}"
 
 
 def _loop(program, sp, pv, automatic, manual_V):

@@ -27,7 +27,7 @@ from piezopreload.cli import main
 from piezopreload.models.actuator import Plant
 from piezopreload.models.controller import GainSchedule, PIDGains
 from piezopreload.models.hysteresis import ClassicalPI
-from piezopreload.rig.controller_code import parameters
+from piezopreload.rig.controller_code import controller_code
 
 pytestmark = pytest.mark.slow
 
@@ -49,17 +49,19 @@ def _gain_set(path, status="validated"):
     return path
 
 
-def _parameters(path):
-    controller = GainSet.load(path).controller()
-    return {p.name: p for p in parameters(controller.model, controller.parameter_vector())}
+def _parameters(path, every=False):
+    """The numbers a push writes: those the controller's step reads (``every``: the whole parameter vector's, as a
+    block exported before the export declared only what its step reads)."""
+    code = controller_code(GainSet.load(path).controller())
+    return {p.name: p for p in (code.parameters if every else code.read)}
 
 
 def _spec(path, **changes):
-    """The PLC's variables for the gain set at ``path``: zeros before the push; ``changes`` replaces a node's entry
-    (None: the PLC has no such variable)."""
+    """The PLC's variables for the gain set at ``path`` (every parameter's, a scheduled set's unread single gains too):
+    zeros before the push; ``changes`` replaces a node's entry (None: the PLC has no such variable)."""
     nodes = {name: {"id": PREFIX + name, "type": "Float" if name in REALS else "Double",
                     "length": p.size if p.array else None, "value": [0.0] * p.size if p.array else 0.0,
-                    "writable": True} for name, p in _parameters(path).items()}
+                    "writable": True} for name, p in _parameters(path, every=True).items()}
     nodes["gain_set_sha256"] = {"id": "PLC.PP_LOOP.gain_set_sha256", "type": "String", "length": None, "value": "",
                                 "writable": True}
     for name, entry in changes.items():
@@ -120,8 +122,11 @@ class AsyncuaPlc:
             vtype = _VTYPES[n["type"]]
             node = await plc.add_variable(ua.NodeId(n["id"], idx), n["id"], ua.Variant(n["value"], vtype),
                                           datatype=ua.NodeId(vtype.value))
-            if n["length"] is not None:
-                await node.write_attribute(ua.AttributeIds.ValueRank, ua.DataValue(ua.Variant(1, ua.VariantType.Int32)))
+            if n["length"] is not None or "rank" in n:  # the ValueRank the spec gives, else 1 for an array
+                rank = n.get("rank", 1)
+                await node.write_attribute(ua.AttributeIds.ValueRank,
+                                           ua.DataValue(ua.Variant(rank, ua.VariantType.Int32)))
+            if n["length"] is not None and n.get("rank", 1) > 0:  # as node-opcua: no dimensions for a ValueRank <= 0
                 await node.write_attribute(ua.AttributeIds.ArrayDimensions,
                                            ua.DataValue(ua.Variant([n["length"]], ua.VariantType.UInt32)))
             if n["writable"]:
@@ -238,8 +243,11 @@ def _password(monkeypatch):
 
 @SERVERS
 def test_every_value_round_trips(kind, tmp_path, capsys):
+    """Every number the step reads, to nodes as a PLC states them: a table's node of ValueRank 1 or 0 ("one or more
+    dimensions", which holds a one-dimensional array: OPC UA Part 3, ValueRank). The scheduled set's single Kc, Ti_s,
+    Td_s and b, which its step does not read, are not written though the PLC has nodes of those names."""
     gains = _gain_set(tmp_path / "gains.json")
-    spec = _spec(gains)
+    spec = _spec(gains, schedule_Kc={"rank": 0})
     with _server(kind, spec, tmp_path) as plc:
         code, report = _push(capsys, gains, plc.endpoint, _map(tmp_path))
         assert code == 0, report
@@ -251,11 +259,13 @@ def test_every_value_round_trips(kind, tmp_path, capsys):
         got = np.atleast_1d(np.asarray(held[PREFIX + name], float))
         assert np.array_equal(got, want.astype(float)), f"{name}: the PLC holds {got}, the gain set {p.values}"
     rows = {r["name"]: r for r in report["nodes"]}
-    assert all(r["as_written"] for r in rows.values()) and len(rows) == len(spec)
-    assert rows["Kc"]["type"] == "Float (REAL)" and rows["Kc"]["relative_difference"] == pytest.approx(
-        abs(float(np.float32(1.4)) - 1.4) / 1.4)
+    assert all(r["as_written"] for r in rows.values()) and set(rows) == {*_parameters(gains), "gain_set_sha256"}
+    assert not {"Kc", "Ti_s", "Td_s", "b"} & set(rows), "a scheduled set's step does not read its single gains"
+    assert all(held[PREFIX + n] == 0.0 for n in ("Kc", "Ti_s", "Td_s", "b")), "a node the step does not read written"
+    assert rows["Tf_s"]["type"] == "Float (REAL)" and rows["Tf_s"]["relative_difference"] == pytest.approx(
+        abs(float(np.float32(0.02)) - 0.02) / 0.02)
     assert rows["schedule_Kc"]["difference"] == 0.0 and rows["dt_s"]["type"] == "Double (LREAL)"
-    assert rows["Kc"]["before"] == 0.0 and report["exact"] is False
+    assert rows["Tf_s"]["before"] == 0.0 and report["exact"] is False
     assert 0 < report["max_relative_difference"] < 2 ** -23
 
 
@@ -269,16 +279,24 @@ def _nothing_written(plc, spec):
 def test_a_node_missing_of_another_type_or_length_or_read_only_is_refused_and_nothing_written(kind, tmp_path,
                                                                                               capsys):
     gains = _gain_set(tmp_path / "gains.json")
-    spec = _spec(gains, Kc={"type": "Int16", "value": 0}, ff_thresholds={"length": 3, "value": [0.0] * 3},
-                 dt_s={"writable": False}, b=None)
+    spec = _spec(gains, Tf_s={"type": "Int16", "value": 0}, ff_thresholds={"length": 3, "value": [0.0] * 3},
+                 dt_s={"writable": False}, u_min_V=None, schedule_Ti_s={"rank": -1, "length": None, "value": 0.0},
+                 u_max_V={"rank": 1, "length": 2, "value": [0.0, 0.0]})
     with _server(kind, spec, tmp_path) as plc:
         code, err = _push(capsys, gains, plc.endpoint, _map(tmp_path))
         assert code == 2 and err.startswith("error: ") and err.count("\n") == 1, err
         assert "nothing was written" in err
-        assert f"node 'nsu={NAMESPACE};s={PREFIX}Kc' for Kc is of type Int16; expected Float (REAL) or Double" in err
-        assert "for ff_thresholds is an array of 3; expected an array of 4" in err
+        assert f"node 'nsu={NAMESPACE};s={PREFIX}Tf_s' for Tf_s is of type Int16; expected Float (REAL) or Double" \
+            in err
+        # the shapes, by what the server states (ValueRank, ArrayDimensions) against what the number needs
+        assert ("for ff_thresholds has ValueRank 1 (a one-dimensional array, ArrayDimensions [3]) on the server; the "
+                "gain set's ff_thresholds needs a one-dimensional array (ValueRank 1) of 4") in err
+        assert ("for schedule_Ti_s has ValueRank -1 (a scalar) on the server; the gain set's schedule_Ti_s needs a "
+                "one-dimensional array (ValueRank 1) of 3") in err
+        assert ("for u_max_V has ValueRank 1 (a one-dimensional array, ArrayDimensions [2]) on the server; the gain "
+                "set's u_max_V is a scalar (ValueRank -1)") in err
         assert f"for dt_s is not writable for {USER}" in err
-        assert "for b does not exist on the server (BadNodeIdUnknown)" in err
+        assert "for u_min_V does not exist on the server (BadNodeIdUnknown)" in err
         _nothing_written(plc, spec)
 
 
@@ -290,11 +308,16 @@ def test_the_status_the_map_and_the_session_are_checked_first(tmp_path, capsys, 
         assert code == 2 and "cand.json is a 'candidate', not 'validated'" in err, err
         assert "only validated gains are pushed" in err, err
         partial = tmp_path / "partial.toml"
-        partial.write_text('[nodes]\nKc = "ns=2;s=PLC.PP_LOOP.ctrl.Kc"\n')
+        partial.write_text('[nodes]\nTf_s = "ns=2;s=PLC.PP_LOOP.ctrl.Tf_s"\n')
         code, err = _push(capsys, gains, plc.endpoint, partial)
-        assert code == 2 and "no node for Ti_s, Td_s" in err and "schedule_Kc" in err
+        assert code == 2 and "no node for u_min_V, u_max_V, dt_s" in err and "schedule_Kc" in err
+        code, err = _push(capsys, gains, plc.endpoint, _map(tmp_path, 'Kc = "ns=2;s=PLC.PP_LOOP.ctrl.Kc"\n'))
+        assert code == 2 and ("field 'nodes.Kc' names a number this gain set's controller does not read (a "
+                              "scheduled set's step runs on the schedule's arrays)") in err, err
         code, err = _push(capsys, gains, plc.endpoint, _map(tmp_path, 'Kp = "ns=2;s=x"\n'))
         assert code == 2 and "field 'nodes.Kp' names no number of this gain set's controller" in err
+        code, err = _push(capsys, gains, plc.endpoint, _map(tmp_path), "--note", "retuned")
+        assert code == 2 and "a push to a PLC (--to) keeps no note" in err, "an option the push would drop"
         code, err = _push(capsys, gains, plc.endpoint, _map(tmp_path), user=None)
         assert code == 2 and "refused the session" in err, "an anonymous session"
         monkeypatch.setenv("PIEZOPRELOAD_RIG_PASSWORD", "wrong")

@@ -257,7 +257,14 @@ class SampledCheck:
     bounds: dict[str, float]
 
     def misses(self) -> str:
-        """What the loop misses, in words: its instability or each bound over the tolerance, by how much."""
+        """What the loop misses, in words: its instability or each bound over the tolerance, by how much.
+
+        Returns
+        -------
+        str
+            That the sampled loop is unstable, or each bound it exceeds beyond the tolerance, with the achieved peak and
+            the share it is over by.
+        """
         if not self.stable:
             return f"the loop as it will run at Ts {self.sample_period_s:g} s is unstable"
         over = [f"{k} {self.achieved[k]:.4g} against {self.bounds[k]:g} (over by {x:.1%})"
@@ -266,6 +273,14 @@ class SampledCheck:
                 f"{self.tolerance:.1%} tolerance: " + ", ".join(over))
 
     def to_dict(self) -> dict[str, Any]:
+        """The check as ``autotune --json`` prints it.
+
+        Returns
+        -------
+        dict
+            ``sample_period_s`` (s), ``stable``, ``achieved`` (each peak), ``over_by`` (each bound's excess as a share),
+            ``tolerance``, ``passed`` and ``bounds``.
+        """
         return {"sample_period_s": self.sample_period_s, "stable": self.stable, "achieved": dict(self.achieved),
                 "over_by": dict(self.over_by), "tolerance": self.tolerance, "passed": self.passed,
                 "bounds": dict(self.bounds)}
@@ -371,10 +386,12 @@ class AutotuneResult:
 
     @property
     def ki(self) -> float:
+        """The integral gain of the parallel form ``kp + ki/s + kd s`` (the filter on the whole controller)."""
         return self.controller_.parallel()[1]
 
     @property
     def kd(self) -> float:
+        """The derivative gain of the parallel form ``kp + ki/s + kd s`` (the filter on the whole controller)."""
         return self.controller_.parallel()[2]
 
     @property
@@ -384,6 +401,7 @@ class AutotuneResult:
 
     @property
     def filter_order(self) -> int:
+        """The controller's form: 0 a PI, 1 the derivative filtered, 2 a second-order filter on the whole controller."""
         return self.controller_.filter_order
 
     @property
@@ -419,7 +437,25 @@ class AutotuneResult:
     def discrete(self, Ts: float, method: str | None = None) -> control.TransferFunction:
         """The controller at sample period ``Ts``: by default as the controller step runs it (trapezoidal integral,
         backward-Euler filtered derivative; Tustin's map for a second-order filter); or by python-control's
-        ``sample_system`` with ``method`` (``"tustin"``, ``"zoh"``, ...)."""
+        ``sample_system`` with ``method`` (``"tustin"``, ``"zoh"``, ...).
+
+        Parameters
+        ----------
+        Ts : float
+            The sample period, in s.
+        method : str or None
+            python-control's discretisation (``"tustin"``, ``"zoh"``, ...); None: as the controller step runs it.
+
+        Returns
+        -------
+        control.TransferFunction
+            The discrete controller, at sample period ``Ts``.
+
+        Raises
+        ------
+        InputError
+            Where ``Ts`` is not a finite number > 0.
+        """
         if not (isinstance(Ts, int | float) and math.isfinite(Ts) and Ts > 0):
             raise InputError(f"Ts must be a finite number > 0, got {Ts!r}")
         c = self.controller_
@@ -429,7 +465,14 @@ class AutotuneResult:
 
     # ---- what it is in words ----------------------------------------------------------------------
     def loop_text(self) -> str:
-        """Which loop the bounds hold on, in words."""
+        """Which loop the bounds hold on, in words.
+
+        Returns
+        -------
+        str
+            The sampled loop at its period (the controller step, the plant behind a zero-order hold), or the continuous
+            loop.
+        """
         if self.loop == "sampled":
             return (f"the sampled loop at Ts {self.sample_period_s:g} s (the controller step, the plant behind a "
                     "zero-order hold)")
@@ -487,7 +530,15 @@ class AutotuneResult:
         return f"<table><caption>AutotuneResult ({html.escape(self.form)})</caption>{body}</table>"
 
     def to_dict(self) -> dict[str, Any]:
-        """Everything as JSON-ready numbers (what ``piezopreload autotune --json`` prints)."""
+        """Everything as JSON-ready numbers (what ``piezopreload autotune --json`` prints).
+
+        Returns
+        -------
+        dict
+            The form, the loop, the gains (parallel, and ideal/ISA where kp and ki are positive), the bounds the user
+            set and the defaults, what it leans on, the margins, the active bounds, the starts, the solver's counts and
+            time, and the plant's delay, sample period and poles.
+        """
         c = self.controller_
         out: dict[str, Any] = {
             "form": self.form, "filter_order": c.filter_order, "metric": self.metric, "loop": self.loop,
@@ -513,7 +564,13 @@ class AutotuneResult:
 
     # ---- its picture ---------------------------------------------------------------------------------
     def plot(self) -> Figure:
-        """The gang of four (``|S|``, ``|T|``, ``|PS|``, ``|CS|``) with the bounds, and the load step: a Figure."""
+        """The gang of four (``|S|``, ``|T|``, ``|PS|``, ``|CS|``) with the bounds, and the load step: a Figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            The gang of four's magnitudes with their bounds, and the response to a load step.
+        """
         from piezopreload.tuning.autotune_plot import draw
 
         return draw(self)
@@ -521,7 +578,19 @@ class AutotuneResult:
     # ---- the gain set ----------------------------------------------------------------------------------
     def discrete_check(self, Ts: float) -> SampledCheck:
         """The loop as it will run at sample period ``Ts`` (the controller step, the plant behind a zero-order hold):
-        stable?, the largest ``|S|``, ``|T|``, ``|KS|``, and whether every bound holds within the tolerance."""
+        stable?, the largest ``|S|``, ``|T|``, ``|KS|``, and whether every bound holds within the tolerance.
+
+        Parameters
+        ----------
+        Ts : float
+            The sample period, in s.
+
+        Returns
+        -------
+        SampledCheck
+            Whether the sampled loop is stable, its peaks of ``|S|``, ``|T|`` and ``|KS|``, each bound's excess and
+            whether every bound holds within the tolerance.
+        """
         c = self.controller_
         sampled = self.plant.sampled(Ts)
         ctrl = PIDController(c.kp, c.ki, c.kd, c.Tf, c.filter_order, float(Ts))
@@ -542,7 +611,29 @@ class AutotuneResult:
         It is ``validated`` when the loop as it will run at that period is stable and meets every bound within the
         tolerance (:meth:`discrete_check`) and the result leans on no bound the user did not set
         (:attr:`leans_on`), else a ``candidate``, which export refuses; its tuning record says which loop the bounds
-        were tuned on, the defaults, what it leans on and why it has its status."""
+        were tuned on, the defaults, what it leans on and why it has its status.
+
+        Parameters
+        ----------
+        sample_period_s : float or None
+            The controller's sample period, in s (None: the ``Ts`` it was tuned with).
+        u_min_V, u_max_V : float or None
+            The controller's output range, in V (None: the actuator's range the tuning was given).
+        b : float
+            The setpoint weight of the proportional part (no unit).
+        name : str or None
+            The gain set's preset name (None: none).
+
+        Returns
+        -------
+        GainSet
+            ``validated`` or ``candidate``, with its tuning record.
+
+        Raises
+        ------
+        InputError
+            Where no sample period or output range is known, or a sampled loop's gains are asked for at another period.
+        """
         Ts = self.sample_period_s if sample_period_s is None else float(sample_period_s)
         if Ts is None:
             raise InputError("to_gain_set needs the controller's sample period (sample_period_s, or Ts when tuning): "

@@ -163,6 +163,13 @@ class PublishedRow:
     range: tuple[float | None, float | None]
 
     def to_dict(self) -> dict[str, Any]:
+        """The row as ``reproduce --json`` prints it.
+
+        Returns
+        -------
+        dict
+            ``controller``, ``metric``, ``paper`` and ``simulated`` (s), ``ratio``, ``within_25pct`` and ``range`` (s).
+        """
         return {"controller": self.controller, "metric": self.metric, "paper": self.paper,
                 "simulated": self.simulated, "ratio": self.ratio, "within_25pct": self.within_25pct,
                 "range": list(self.range)}
@@ -192,10 +199,29 @@ class ReproductionSummary:
 
     @property
     def all_within_25pct(self) -> bool:
+        """Whether every simulated number lies within 25 % of the published one."""
         return all(r.within_25pct for r in self.rows)
 
     def row(self, controller: str, metric: str) -> PublishedRow:
-        """The row of ``controller`` (``pid``, ``ff+pid``) and ``metric`` (``rise_s``, ``peak_s``, ``settling_s``)."""
+        """The row of ``controller`` (``pid``, ``ff+pid``) and ``metric`` (``rise_s``, ``peak_s``, ``settling_s``).
+
+        Parameters
+        ----------
+        controller : str
+            ``pid`` or ``ff+pid``.
+        metric : str
+            ``rise_s``, ``peak_s`` or ``settling_s``.
+
+        Returns
+        -------
+        PublishedRow
+            The published and the simulated number, their ratio and the range over the noise realisations.
+
+        Raises
+        ------
+        KeyError
+            Where no row has that controller and metric; the message lists the rows.
+        """
         for r in self.rows:
             if (r.controller, r.metric) == (controller, metric):
                 return r
@@ -203,6 +229,14 @@ class ReproductionSummary:
                        f"{', '.join(f'{r.controller}/{r.metric}' for r in self.rows)}")
 
     def to_dict(self) -> dict[str, Any]:
+        """The summary as ``reproduce --json`` prints it.
+
+        Returns
+        -------
+        dict
+            ``feedforward_fit`` (% of the span), ``rows``, ``overshoot_N`` (N, per controller), ``all_within_25pct``,
+            ``repeats``.
+        """
         return {"feedforward_fit": dict(self.feedforward_fit), "rows": [r.to_dict() for r in self.rows],
                 "overshoot_N": dict(self.overshoot_N), "all_within_25pct": self.all_within_25pct,
                 "repeats": self.repeats}

@@ -148,6 +148,14 @@ class FeedforwardInfo:
     fit_max_pct: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
+        """Where the feedforward came from, as a simulation's record holds it.
+
+        Returns
+        -------
+        dict
+            ``source`` (in words), ``model`` (its kind), ``operators`` and, where a fit was measured, ``fit_rms_pct``
+            and ``fit_max_pct`` (% of the force span).
+        """
         out: dict[str, Any] = {"source": self.source, "model": self.model, "operators": self.operators}
         if self.fit_rms_pct is not None:
             out |= {"fit_rms_pct": self.fit_rms_pct, "fit_max_pct": self.fit_max_pct}
@@ -175,6 +183,7 @@ class IdentifiedFeedforward:
 
     @property
     def model(self) -> FeedforwardModel:
+        """The identified P-I model (voltage in V to force in N)."""
         return self.record.model
 
     @property
@@ -199,15 +208,40 @@ class IdentifiedFeedforward:
 
     def inverse(self) -> Any:
         """The feedforward itself: desired force -> command voltage, eqs. (19)-(20) (with creep:
-        :class:`InverseStep`)."""
+        :class:`InverseStep`).
+
+        Returns
+        -------
+        InverseClassicalPI, InverseAsymmetricPI, InverseModifiedPI or InverseCreepPI
+            The model's inverse, a callable from the desired force (N) to the command voltage (V).
+        """
         return self.model.inverse()
 
     def covers(self, low_N: float, high_N: float, what: str = "the references") -> None:
-        """Refuse (an :class:`InputError` naming both ranges) forces outside the range the model was identified over."""
+        """Refuse (an :class:`InputError` naming both ranges) forces outside the range the model was identified over.
+
+        Parameters
+        ----------
+        low_N, high_N : float
+            The least and the largest force the feedforward will be asked for, in N.
+        what : str
+            What asks for them, for the message ("the references").
+
+        Raises
+        ------
+        InputError
+            Where the range lies outside the range the model was identified over.
+        """
         self.record.covers(low_N, high_N, what)
 
     def describe(self) -> FeedforwardInfo:
-        """Where the feedforward came from and how well it fits, in words and numbers (a simulation's record)."""
+        """Where the feedforward came from and how well it fits, in words and numbers (a simulation's record).
+
+        Returns
+        -------
+        FeedforwardInfo
+            The source in words, the model's kind and operators, and its fit error (% of the force span).
+        """
         src = self.record.data
         if src.kind == "simulated" and src.excitation:
             ex = src.excitation
@@ -218,12 +252,26 @@ class IdentifiedFeedforward:
         return FeedforwardInfo(where, self.model.kind, self.model.n_operators, self.fit.rms_pct, self.fit.max_pct)
 
     def info(self) -> dict[str, Any]:
-        """How the feedforward was identified, as a gain set records it."""
+        """How the feedforward was identified, as a gain set records it.
+
+        Returns
+        -------
+        dict
+            ``source``, ``fit`` (% of the force span), ``output_range_N`` (N) and, where known, ``model_sha256``.
+        """
         out = {"source": self.source.to_dict(), "fit": self.fit.to_dict(),
                "output_range_N": list(self.record.output_range)}
         return {**out, "model_sha256": self.model_sha256} if self.model_sha256 else out
 
     def to_dict(self) -> dict[str, Any]:
+        """What ``identify-feedforward --json`` prints (and a simulation's record holds).
+
+        Returns
+        -------
+        dict
+            ``source``, ``operators``, ``fit`` (% of the force span), ``model`` (its document), ``output_range_N`` (N)
+            and, where the open-loop check ran, ``compensation_rms_N`` and ``compensation_max_N`` (N).
+        """
         out: dict[str, Any] = {"source": self.source.to_dict(), "operators": self.model.n_operators,
                                "fit": self.fit.to_dict(), "model": self.model.to_dict(),
                                "output_range_N": list(self.record.output_range)}
@@ -233,7 +281,25 @@ class IdentifiedFeedforward:
 
     def save(self, folder: str | Path, inputs: dict[str, Any] | None = None) -> dict[str, Path]:
         """Write ``model.json`` (the hysteresis-model artifact), ``loop.csv`` and
-        ``compensation.csv`` into ``folder``."""
+        ``compensation.csv`` into ``folder``.
+
+        Parameters
+        ----------
+        folder : str or Path
+            The folder the three files are written into.
+        inputs : dict or None
+            The hashes of the files the model came from, by name, added to those it records.
+
+        Returns
+        -------
+        dict of str to Path
+            ``model``, ``loop`` and ``compensation``: each file's path.
+
+        Raises
+        ------
+        InputError
+            Where the feedforward was read from its artifact (there is no loop record to write).
+        """
         if self.loop is None or self.check is None:
             raise InputError("this feedforward was read from its artifact: there is no loop record to write again")
         d = Path(folder)
@@ -253,7 +319,27 @@ class IdentifiedFeedforward:
     @classmethod
     def load(cls, path: str | Path, *, classical: bool = False) -> IdentifiedFeedforward:
         """A feedforward from a hysteresis-model artifact; refuses a model without an inverse (or, with
-        ``classical``, one that is not the classical P-I model that tuning and validation run)."""
+        ``classical``, one that is not the classical P-I model that tuning and validation run).
+
+        Parameters
+        ----------
+        path : str or Path
+            The hysteresis-model artifact.
+        classical : bool
+            Whether to refuse every model but the classical P-I model.
+
+        Returns
+        -------
+        IdentifiedFeedforward
+            The feedforward, without the loop record and the open-loop check.
+
+        Raises
+        ------
+        ArtifactError
+            Where the file is not a hysteresis-model artifact, or, with ``classical``, not a classical P-I model.
+        InputError
+            Where the model has no inverse.
+        """
         record = IdentifiedModel.load(path)
         if classical and not isinstance(record.model, ClassicalPI):
             raise ArtifactError(f"{path}: field 'model.kind': the feedforward is a classical P-I model, not "
@@ -265,7 +351,14 @@ class IdentifiedFeedforward:
         return cls(record)
 
     def plot(self) -> Figure:
-        """The loop measurement and the model (left), the rig through the inverse in open loop (right)."""
+        """The loop measurement and the model (left), the rig through the inverse in open loop (right).
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            The loop measurement and the model's force (N) against the voltage (V); the rig's force through the inverse
+            against the desired force (N), where the check ran.
+        """
         from matplotlib.figure import Figure
 
         fig = Figure(figsize=(8.0, 3.2), layout="constrained")

@@ -58,6 +58,13 @@ class Window:
             raise InputError(f"a window needs finite t0_s < t1_s, got {self.t0_s!r} and {self.t1_s!r}")
 
     def as_tuple(self) -> tuple[float, float]:
+        """The window as a pair.
+
+        Returns
+        -------
+        (float, float)
+            Its first and last time, in s.
+        """
         return (float(self.t0_s), float(self.t1_s))
 
 
@@ -119,18 +126,44 @@ class Identification:
 
     @property
     def model(self) -> HysteresisModel | CreepPI:
+        """The identified model (input to output)."""
         return self.record.model
 
     def inverse(self) -> Any:
-        """The model's inverse: the feedforward (output -> input)."""
+        """The model's inverse: the feedforward (output -> input).
+
+        Returns
+        -------
+        InverseClassicalPI, InverseAsymmetricPI, InverseModifiedPI or InverseCreepPI
+            A callable from the output to the input.
+        """
         return self.record.model.inverse()
 
     def save(self, path: str | Path) -> IdentifiedModel:
-        """Write the model as a ``hysteresis-model`` artifact (the one writer: :meth:`IdentifiedModel.save`)."""
+        """Write the model as a ``hysteresis-model`` artifact (the one writer: :meth:`IdentifiedModel.save`).
+
+        Parameters
+        ----------
+        path : str or Path
+            The artifact's file.
+
+        Returns
+        -------
+        IdentifiedModel
+            The record written, its hash set.
+        """
         return self.record.save(path)
 
     def to_dict(self) -> dict[str, Any]:
-        """What ``piezopreload identify --json`` prints."""
+        """What ``piezopreload identify --json`` prints.
+
+        Returns
+        -------
+        dict
+            ``data`` (path, hash, samples, columns), the model's kind and operators, whether it is invertible, the
+            output's span, range and unit, the fit on the ``train`` and the ``test`` window, the solver's figures,
+            ``seconds``, and the creep's lags and the fit without creep where they apply.
+        """
         r, d, sv = self.record, self.data, self.record.solver
         out: dict[str, Any] = {
             "data": {"path": d.path, "sha256": d.sha256, "samples": int(d.time_s.size), "input": d.input_name,
@@ -176,7 +209,13 @@ class Identification:
                 f"</tr></thead><tbody>{rows}</tbody></table>")
 
     def plot(self) -> Figure:
-        """The record and the model's output against the input, on the training and the test window: a Figure."""
+        """The record and the model's output against the input, on the training and the test window: a Figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            One panel per window (training, test): the record's and the model's output against the input.
+        """
         from matplotlib.figure import Figure
 
         d = self.data

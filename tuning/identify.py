@@ -355,6 +355,30 @@ class PIIdentifier:
         With ``creep``, ``sample_period_s`` is the record's sample period and ``state`` may
         hold the play operators' states (the lags then start at rest at 0) or a whole
         :class:`~piezopreload.models.hysteresis.CreepPI` state.
+
+        Parameters
+        ----------
+        v : array_like
+            The record's input (V for a stack), one value per sample.
+        y : array_like
+            The measured output (N), one value per sample.
+        train : array_like, slice or None
+            The samples that enter the fit: a boolean mask or a slice (None: all).
+        state : array_like or None
+            The operators' state at the first sample (None: at rest).
+        sample_period_s : float or None
+            The record's sample period, in s: needed with ``creep``.
+
+        Returns
+        -------
+        PIIdentifier
+            The estimator itself, fitted (its ``model_`` set).
+
+        Raises
+        ------
+        IdentificationError
+            Where the input is constant over the window, the window has too few samples for the weights, or
+            the QP solver fails.
         """
         t0 = time.perf_counter()
         v, y, rows = _record(v, y, train)
@@ -423,6 +447,23 @@ class PIIdentifier:
 
         With creep, ``state`` is the play operators' states (lags at rest at 0) or a whole
         :class:`~piezopreload.models.hysteresis.CreepPI` state, as in :meth:`fit`.
+
+        Parameters
+        ----------
+        v : array_like
+            The input, one value per sample.
+        state : array_like or None
+            The operators' state at the first sample (None: at rest).
+
+        Returns
+        -------
+        ndarray
+            The model's output, one value per sample.
+
+        Raises
+        ------
+        NotFittedError
+            Before :meth:`fit`.
         """
         model = self._check_fitted()
         if isinstance(model, CreepPI) and state is not None and np.shape(state)[-1] == model.n_operators:
@@ -435,6 +476,25 @@ class PIIdentifier:
         The model runs over the whole record (its operators need the history); ``rows`` (a
         boolean mask or slice, all by default) selects the samples scored, as ``train`` does in
         :meth:`fit`. 1 is a perfect fit; a model no better than the mean scores 0.
+
+        Parameters
+        ----------
+        v : array_like
+            The input, one value per sample.
+        y : array_like
+            The measured output, one value per sample.
+        rows : array_like, slice or None
+            The samples scored: a boolean mask or a slice (None: all).
+
+        Returns
+        -------
+        float
+            ``R^2`` on the rows scored: 1 for a perfect fit, 0 for the mean's.
+
+        Raises
+        ------
+        InputError
+            Where the output is constant over the rows scored.
         """
         v, y, keep = _record(v, y, rows)
         e = (self.predict(v) - y)[keep]
@@ -445,7 +505,18 @@ class PIIdentifier:
 
     def inverse(self) -> Any:
         """The fitted model's inverse: the feedforward (output -> input, eqs. (19)-(20); with creep,
-        one sample at a time)."""
+        one sample at a time).
+
+        Returns
+        -------
+        InverseClassicalPI, InverseAsymmetricPI, InverseModifiedPI or InverseCreepPI
+            A callable from the output to the input.
+
+        Raises
+        ------
+        NotFittedError
+            Before :meth:`fit`.
+        """
         return self._check_fitted().inverse()
 
 

@@ -108,6 +108,13 @@ class LearnedWritten:
     learning: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
+        """Where the learning wrote its signal, as ``learn --json`` prints it.
+
+        Returns
+        -------
+        dict
+            ``out``, ``learning`` (only for a schedule's passes) and ``content_sha256``.
+        """
         return {"out": self.out, **({} if self.learning is None else {"learning": self.learning}),
                 "content_sha256": self.content_sha256}
 
@@ -177,22 +184,27 @@ class LearningResult:
 
     @property
     def reference(self) -> Reference:
+        """The reference the signal was learned on."""
         return self.preview.reference
 
     @property
     def setpoint_N(self) -> Array:
+        """The force per sample the learning aims at, in N (the preview's plan)."""
         return self.preview.target_N
 
     @property
     def causal_floor_N(self) -> float:
+        """The least RMS error a loop without preview can reach on the reference, in N."""
         return self.preview.causal_floor_N
 
     @property
     def preview_floor_N(self) -> float:
+        """The least RMS error a loop with preview can reach on the reference (set by its steepest slope), in N."""
         return self.preview.floor_N
 
     @property
     def preview_s(self) -> float:
+        """How far ahead the feedforward reads the reference, in s (0: no preview)."""
         return self.preview.preview_s
 
     def _rows(self, key: str) -> Array:
@@ -209,6 +221,9 @@ class LearningResult:
 
     @property
     def tracking_rms_after_change_N(self) -> float:
+        """The worst plant's RMS of the true force at its best trial, leaving out the time just after each jump, in
+        N.
+        """
         return float(np.max(self._best("tracking_rms_after_change_N")))
 
     @property
@@ -218,7 +233,22 @@ class LearningResult:
 
     def signal(self, gain_set_sha256: str | None, inputs: dict[str, Any] | None = None,
                plant: int = 0) -> LearnedSignal:
-        """The learned signal as an artifact (of plant ``plant`` for a batch)."""
+        """The learned signal as an artifact (of plant ``plant`` for a batch).
+
+        Parameters
+        ----------
+        gain_set_sha256 : str or None
+            The hash of the gain set the signal was learned with (None: unsaved gains).
+        inputs : dict or None
+            The hashes of the files the learning came from, by name (None: none).
+        plant : int
+            Which plant of a batch (0 for one plant).
+
+        Returns
+        -------
+        LearnedSignal
+            The learned feedforward correction (V), its setpoint (N), sample period, reference and best trial.
+        """
         u = self.ff_extra_V if self.ff_extra_V.ndim == 1 else self.ff_extra_V[plant]
         best = int(np.asarray(self.best).reshape(-1)[plant])
         return LearnedSignal(u, self.setpoint_N, float(self.run.t_s[1] - self.run.t_s[0]), self.reference,
@@ -228,13 +258,38 @@ class LearningResult:
     def save(self, folder: str | Path, gain_set_sha256: str | None,
              inputs: dict[str, Any] | None = None) -> LearnedWritten:
         """Write the learned signal (``learned.json``, :meth:`signal`) and the figure
-        (``learning.png``) to ``folder``."""
+        (``learning.png``) to ``folder``.
+
+        Parameters
+        ----------
+        folder : str or Path
+            The folder the files are written into.
+        gain_set_sha256 : str or None
+            The hash of the gain set the signal was learned with (None: unsaved gains).
+        inputs : dict or None
+            The hashes of the files the learning came from, by name (None: none).
+
+        Returns
+        -------
+        LearnedWritten
+            The learned signal's path and its hash.
+        """
         folder = Path(folder)
         saved = self.signal(gain_set_sha256, inputs).save(folder / "learned.json")
         self.plot().savefig(folder / "learning.png", dpi=120)
         return LearnedWritten(str(folder / "learned.json"), saved.content_sha256)
 
     def to_dict(self) -> dict[str, Any]:
+        """What ``learn --json`` prints.
+
+        Returns
+        -------
+        dict
+            The tracking RMS (N, and in % of the reference's range), the causal and preview floors (N), the trials and
+            how the learning stopped, how many plants converged, diverged or fell monotonically, the best trial per
+            plant, the preview, the learning law, every trial's history, ``seconds``, and the preview's and the run's
+            information.
+        """
         span = float(np.ptp(self.reference.levels_N)) or 1.0
         floor = self.preview_floor_N
         return {
@@ -258,7 +313,14 @@ class LearningResult:
         }
 
     def plot(self) -> Figure:
-        """The error per trial (left) and the best trial's force against the reference (right): a Figure."""
+        """The error per trial (left) and the best trial's force against the reference (right): a Figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            The worst plant's RMS error per trial (N, log scale) with both floors; the best trial's force, the plan and
+            the reference against time.
+        """
         from matplotlib.figure import Figure
 
         fig = Figure(figsize=(9.0, 3.6), layout="constrained")

@@ -32,6 +32,13 @@ from piezopreload.core.errors import InputError, InternalError
 __all__ = ["LinearPlant", "as_plant", "encirclements", "nyquist_unstable"]
 
 _ON_AXIS = 1e-9  # a pole this close to the stability boundary (relative) is on it
+
+
+def _past_boundary(p: np.ndarray, discrete: bool) -> np.ndarray:
+    """The poles' distance past the stability boundary (> 0 unstable): Re p, or |p| - 1 when discrete."""
+    return np.abs(p) - 1.0 if discrete else p.real
+
+
 #: a pole or zero pair damped less than this is a resonance (or an anti-resonance) the grid resolves
 LIGHT = 0.3
 
@@ -141,10 +148,6 @@ class LinearPlant:
             return np.linalg.eigvals(self.ss[0])
         return None if self.den is None else np.roots(self.den)
 
-    def _boundary(self, p: np.ndarray) -> np.ndarray:
-        """The poles' distance past the stability boundary (> 0 unstable): Re p, or |p| - 1 when discrete."""
-        return np.abs(p) - 1.0 if self.discrete else p.real
-
     @cached_property
     def integrators(self) -> int:
         """Poles at ``s = 0`` (``z = 1``); for measured data, the low-frequency slope of the magnitude in decades,
@@ -166,7 +169,7 @@ class LinearPlant:
         poles = self.poles
         if poles is None:
             return 0
-        return int(np.sum(self._boundary(poles) > _ON_AXIS))
+        return int(np.sum(_past_boundary(poles, self.discrete) > _ON_AXIS))
 
     @property
     def sign(self) -> float:
@@ -342,7 +345,7 @@ class LinearPlant:
         exact = self.rational and self.delay_s == 0.0 and self.delay_samples == 0
         rational = controller.num_den(self.dt) if exact else None
         if rational is not None:
-            return bool(np.all(self._boundary(self._closed_loop_eigenvalues(*rational)) < -_ON_AXIS))
+            return bool(np.all(_past_boundary(self._closed_loop_eigenvalues(*rational), self.discrete) < -_ON_AXIS))
         omega, loop = self.resolved_loop(lambda w: controller.response(w, self.dt))
         return nyquist_unstable(omega, loop, self.unstable_poles, self.integrators + controller.integrators,
                                 self.dt) == 0
@@ -601,7 +604,8 @@ def _from_tf(tf: control.TransferFunction, delay_s: float, source: str) -> Linea
         whole, delay_s = int(round(k)), 0.0
     plant = LinearPlant(num, den, dt, delay_s, source=source, delay_samples=whole)
     poles = np.roots(den)  # plant.poles: it has no state space
-    near = np.abs(plant._boundary(poles)) <= _ON_AXIS * max(1.0, float(np.max(np.abs(poles), initial=1.0)))
+    scale = max(1.0, float(np.max(np.abs(poles), initial=1.0)))
+    near = np.abs(_past_boundary(poles, plant.discrete)) <= _ON_AXIS * scale
     at = 1.0 if dt is not None else 0.0
     odd = poles[near & (np.abs(poles - at) > _ON_AXIS)]
     if odd.size:

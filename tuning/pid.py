@@ -614,13 +614,13 @@ class _Solvers:
         if inc.z is not None and self.status_of(inc.source) == "Maximum_Iterations_Exceeded":
             # the best point came from a run stopped on its limit: go on from it (IPOPT's barrier starts afresh)
             self.solve(inc.z, inc.violation, f"{inc.source}, continued")
-        return self.status_of(self.incumbent.source), self._ending()
+        return self.status_of(self.incumbent.source), self.ending()
 
     def status_of(self, run: str) -> str:
         """IPOPT's status at the end of the run named ``run`` (``a known point`` where no run is named so)."""
         return next((r["status"] for r in self.runs if r["run"] == run), "a known point")
 
-    def _ending(self) -> str:
+    def ending(self) -> str:
         """How the search ended, in words: the runs, their statuses, where the result came from."""
         limited = sum(r["status"] == "Maximum_Iterations_Exceeded" for r in self.runs)
         stalled = sum(r["status"] == _STALLED for r in self.runs)
@@ -791,7 +791,7 @@ def tune_pid(
             on_bounds = on_bounds + pi_solvers.prob.scaling.on_bounds(z_pi)
             iterations += pi_solvers.iterations
             if retuned:
-                status, search = pi_solvers.status_of(inc.source), f"{search}; as a PI: {pi_solvers._ending()}"
+                status, search = pi_solvers.status_of(inc.source), f"{search}; as a PI: {pi_solvers.ending()}"
     binding = sorted(label for label, m in margins.items() if m > -1e-3)
     ms = max(max_sensitivity(tuned, v, spec.force_range_N) for v in prob.variants)  # over the range it was tuned for
     return TuningResult(

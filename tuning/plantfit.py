@@ -69,17 +69,35 @@ class FittedPlant:
 
     @property
     def order(self) -> int:
+        """The model's order: the number of time constants."""
         return len(self.T_s)
 
     def transfer_function(self) -> control.TransferFunction:
-        """``K / prod(T s + 1)``; the delay is :attr:`delay_s`."""
+        """``K / prod(T s + 1)``; the delay is :attr:`delay_s`.
+
+        Returns
+        -------
+        control.TransferFunction
+            The model without its delay, ``K / prod(T_i s + 1)``.
+        """
         den = np.array([1.0])
         for T in self.T_s:
             den = np.polymul(den, [T, 1.0])
         return control.tf([self.K], den)
 
     def model_response(self, t_s: np.ndarray) -> np.ndarray:
-        """The fitted model's response to the measured input step at ``t_s`` (from the step)."""
+        """The fitted model's response to the measured input step at ``t_s`` (from the step).
+
+        Parameters
+        ----------
+        t_s : ndarray
+            Times from the step, in s.
+
+        Returns
+        -------
+        ndarray
+            The model's output change at each time, in the output's unit (0 before the delay).
+        """
         return self.K * self.step * _unit_response(np.asarray(t_s, float), self.delay_s, self.T_s)
 
     def __repr__(self) -> str:
@@ -88,11 +106,25 @@ class FittedPlant:
                 f"{self.t_s.size} samples of {self.source})")
 
     def to_dict(self) -> dict[str, Any]:
+        """The fit, as ``autotune --json`` prints it under ``fit``.
+
+        Returns
+        -------
+        dict
+            ``K``, ``T_s`` (s), ``delay_s`` (s), ``order``, ``rms`` (the output's unit), ``step``, ``samples`` and
+            ``source``.
+        """
         return {"K": self.K, "T_s": list(self.T_s), "delay_s": self.delay_s, "order": self.order, "rms": self.rms,
                 "step": self.step, "samples": int(self.t_s.size), "source": self.source}
 
     def plot(self) -> Figure:
-        """The measured response and the fit over it: a Figure."""
+        """The measured response and the fit over it: a Figure.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            The measured response and the model's against the time from the step.
+        """
         from matplotlib.figure import Figure
 
         fig = Figure(figsize=(6.0, 3.4), layout="constrained")

@@ -175,7 +175,7 @@ class Creep:
     def initial_state(self, batch: tuple[int, ...] = (), v0: ArrayLike = 0.0) -> NDArray[np.float64]:
         """Carries of lags at rest at input ``v0``, shape ``batch + (m,)``."""
         v0 = np.broadcast_to(np.asarray(v0, float), batch)
-        return (1.0 - self.coefficients.b0) * v0[..., None]
+        return np.asarray((1.0 - self.coefficients.b0) * v0[..., None], np.float64)  # batch + (m,): an array
 
     def lags(self, v: ArrayLike, state: ArrayLike | None = None) -> NDArray[np.float64]:
         """The lag outputs ``L_j[v]``, shape ``(..., N, m)`` (see :func:`creep_lags`)."""
@@ -184,7 +184,7 @@ class Creep:
     def carry(self, lags: ArrayLike, v: ArrayLike) -> NDArray[np.float64]:
         """The state after a sample whose lag outputs are ``lags`` (..., m) and input ``v`` (...)."""
         k = self.coefficients
-        return k.a * np.asarray(lags, float) + k.b1 * np.asarray(v, float)[..., None]
+        return np.asarray(k.a * np.asarray(lags, float) + k.b1 * np.asarray(v, float)[..., None], np.float64)
 
     def __call__(self, v: ArrayLike, state: ArrayLike | None = None) -> NDArray[np.float64]:
         """``C[v]``, shape (..., N)."""
@@ -284,7 +284,8 @@ class CreepPI:
         """At rest at 0 V: zeros of shape ``batch + (n + m,)``."""
         return np.zeros(batch + (self.n_operators + self.n_lags,))
 
-    def _split(self, state: ArrayLike | None, batch: tuple[int, ...]) -> tuple[NDArray, NDArray]:
+    def _split(self, state: ArrayLike | None,
+               batch: tuple[int, ...]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         n, m = self.n_operators, self.n_lags
         if state is None:
             return np.zeros(batch + (n,)), np.zeros(batch + (m,))
@@ -296,15 +297,18 @@ class CreepPI:
             )
         return x[..., :n], x[..., n:]
 
-    def _pre(self, ops: NDArray, creep: NDArray, v: NDArray, v_prev: ArrayLike) -> NDArray:
+    def _pre(self, ops: NDArray[np.float64], creep: NDArray[np.float64], v: NDArray[np.float64],
+             v_prev: ArrayLike) -> NDArray[np.float64]:
         h = self.hysteresis
+        pre: NDArray[np.float64]
         if isinstance(h, AsymmetricPI):
             p = rising(v, v_prev)
-            return np.where(p, ops @ h.weights_rising, ops @ h.weights_falling) + creep
-        bias = h.bias if isinstance(h, ModifiedPI) else 0.0
-        return ops @ h.weights + creep + bias
+            pre = np.where(p, ops @ h.weights_rising, ops @ h.weights_falling) + creep
+        else:
+            pre = ops @ h.weights + creep + (h.bias if isinstance(h, ModifiedPI) else 0.0)
+        return pre
 
-    def _out(self, pre: NDArray) -> NDArray:
+    def _out(self, pre: NDArray[np.float64]) -> NDArray[np.float64]:
         h = self.hysteresis
         return (h.shaper(pre) if isinstance(h, ModifiedPI) else pre) + h.offset
 

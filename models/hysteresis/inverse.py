@@ -276,7 +276,7 @@ class InverseClassicalPI(_RealTimeInverse):
         partial = np.cumsum(w)
         weighted = y * w
         tail = np.cumsum(weighted[..., ::-1], axis=-1)[..., ::-1]  # sum_{i>=k} w_i y_i
-        return partial * y + tail - weighted
+        return np.asarray(partial * y + tail - weighted, np.float64)  # (..., n): an array
 
     def initial_state(self, batch: tuple[int, ...] = ()) -> NDArray[np.float64]:
         return np.zeros(batch + (self.thresholds.size,))

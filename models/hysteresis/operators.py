@@ -89,10 +89,11 @@ def play_step(y_prev: ArrayLike, v: ArrayLike, thresholds: ArrayLike) -> NDArray
     """
     r = np.asarray(thresholds, dtype=float)
     v = np.asarray(v, dtype=float)[..., None]
-    return np.maximum(v - r, np.minimum(v + r, y_prev))
+    return np.asarray(np.maximum(v - r, np.minimum(v + r, y_prev)), np.float64)  # (..., n): an array
 
 
-def _play_1d(v: NDArray, r: NDArray, y0: NDArray, out: NDArray) -> None:
+def _play_1d(v: NDArray[np.float64], r: NDArray[np.float64], y0: NDArray[np.float64],
+             out: NDArray[np.float64]) -> None:
     """Play-operator bank on one signal, by monotone segments.
 
     On a segment where the input does not fall, eq. (14) reduces to ``y_i = max(y_s, v_i - r)``

@@ -88,7 +88,7 @@ class ClassicalPI:
         """Output for input ``v`` of shape (..., N), from ``state`` (at rest by default)."""
         return play(v, self.thresholds, state) @ self.weights + self.offset
 
-    def step(self, state: NDArray, v: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def step(self, state: NDArray[np.float64], v: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """One sample: returns ``(output, new_state)``; state shape (..., n)."""
         y = play_step(state, v, self.thresholds)
         return y @ self.weights + self.offset, y
@@ -242,7 +242,7 @@ class ModifiedPI:
     def __call__(self, v: ArrayLike, state: ArrayLike | None = None) -> NDArray[np.float64]:
         return self.shaper(self.play_model(v, state)) + self.offset
 
-    def step(self, state: NDArray, v: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def step(self, state: NDArray[np.float64], v: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         z, y = self.play_model.step(state, v)
         return self.shaper(z) + self.offset, y
 

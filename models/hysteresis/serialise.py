@@ -10,7 +10,7 @@ from piezopreload.models.hysteresis.pi import AsymmetricPI, ClassicalPI, Hystere
 
 __all__ = ["model_from_dict", "MODEL_KINDS"]
 
-_FIELDS = {
+_FIELDS: dict[str, tuple[type[HysteresisModel], tuple[str, ...]]] = {
     "classical": (ClassicalPI, ("thresholds", "weights", "offset")),
     "paper-asymmetric": (AsymmetricPI, ("thresholds", "weights_rising", "weights_falling", "offset")),
     "modified": (

@@ -170,7 +170,8 @@ def register_rig(sub: Any) -> None:
         description=(
             "Run a validated gain set in real time like 'rig run' (the reference's last level held after its end) and "
             "serve it over OPC UA: CtrlP, CtrlTi, CtrlTd (LADS names), the gain set's and the feedforward's hashes, "
-            "setpoint, force, voltage, state, last event, and the method PushGainSet(GainSetDocument, Note), which "
+            "setpoint, force, voltage, state, last event, and the method PushGainSetWithNote(GainSetDocument, Note, "
+            "AcceptedMisses) (and PushGainSet(GainSetDocument), its first form, for the clients written then), which "
             "takes any validated gain set of this rig's plant whose limits fit the interlocks the rig was armed with. "
             "Anonymous sessions are refused: --user is required. The host is checked first ('rig check'). Ends on "
             "SIGINT/SIGTERM (exit 3) or after --duration (exit 0)."),
@@ -186,14 +187,15 @@ def register_rig(sub: Any) -> None:
 
     p = rig_sub.add_parser(
         "push", help="push a validated gain set to a serving rig, or to a PLC's own OPC UA server",
-        description=("Push a validated gain set to 'rig serve' through the OPC UA method PushGainSet; the served rig "
-                     "checks it again (its plant, its status, its limits against the armed interlocks) and switches "
-                     "bumplessly at its next cycle, also to another structure (a gain schedule where there was none). "
-                     "With --to and --map, write its numbers (the gains, the feedforward's table, the schedule's, by "
-                     "the names of the PLC export's PP_CONTROLLER) to the nodes the map names on any OPC UA server, "
-                     "read them back and report the difference; a node missing, of another type or not writable is "
-                     "refused by name and nothing is written. Candidates, tampered files, gain sets of another plant "
-                     "or with stricter limits, wrong passwords and refused calls exit 2 with the reason."),
+        description=("Push a validated gain set to 'rig serve' through the OPC UA method PushGainSetWithNote; the "
+                     "served rig checks it again (its plant, its status, its limits against the armed interlocks) and "
+                     "switches bumplessly at its next cycle, also to another structure (a gain schedule where there "
+                     "was none). With --to and --map, write the numbers its PLC block reads (the gains or the "
+                     "schedule's arrays, the output range, the feedforward's table, by the names of the PLC export's "
+                     "PP_CONTROLLER) to the nodes the map names on any OPC UA server, read them back and report the "
+                     "difference; a node missing, of another type or shape or not writable is refused by name and "
+                     "nothing is written. Candidates, tampered files, gain sets of another plant or with stricter "
+                     "limits, wrong passwords and refused calls exit 2 with the reason."),
         epilog=f"The password of --user is read from ${PASSWORD_ENV} (or asked for on a terminal).")
     p.add_argument("gains", metavar="gains.json", help="a validated gain set")
     p.add_argument("--endpoint", metavar="URL", help=f"the served rig (default {DEFAULT_RIG_ENDPOINT})")
@@ -205,10 +207,10 @@ def register_rig(sub: Any) -> None:
     p.add_argument("--private-key", metavar="KEY", help="the client certificate's private key")
     p.add_argument("--server-certificate", metavar="CERT", help="the server's certificate, to trust it")
     p.add_argument("--security-policy", default="Basic256Sha256", choices=list(SECURITY_POLICIES),
-                   help="with --to and a certificate: the secure channel's policy (default Basic256Sha256; the rig's "
-                        "server offers that one)")
+                   help="with a certificate: the secure channel's policy (default Basic256Sha256; a served rig offers "
+                        "that one only)")
     p.add_argument("--security-mode", default="SignAndEncrypt", choices=list(SECURITY_MODES),
-                   help="with --to and a certificate: sign, or sign and encrypt (default)")
+                   help="with a certificate: sign, or sign and encrypt (default; a served rig offers that one only)")
     p.add_argument("--note", default="", metavar="TEXT", help="why it is pushed, recorded with the push in the run log")
     accept_flag(p, "pushed (sent with the push and recorded with it)")
     json_flag(p)
@@ -268,17 +270,18 @@ def _cmd_rig_push(args: argparse.Namespace) -> ServedPush | PlcPush:
                          "are); without them the gain set goes to a served rig (--endpoint)")
     if args.to is not None and args.endpoint is not None:
         raise InputError("rig push: --endpoint is the served rig's, --to a PLC's: give one")
+    if args.to is not None and args.note:
+        raise InputError("rig push: --note is recorded by a served rig (--endpoint); a push to a PLC (--to) keeps no "
+                         "note: leave it out")
     password = _password(args, args.user is not None) if args.user else None
-    if args.to is None:
-        return session.push(args.gains, endpoint=args.endpoint or DEFAULT_RIG_ENDPOINT, username=args.user,
-                            password=password, certificate=args.certificate, private_key=args.private_key,
-                            server_certificate=args.server_certificate, note=args.note,
-                            accepted=tuple(args.accept))
     try:
         who = Credentials(args.user, password, args.certificate, args.private_key, args.server_certificate,
                           args.security_policy, args.security_mode)
     except ValueError as exc:
         raise InputError(f"rig push: {exc}") from None
+    if args.to is None:
+        return session.push(args.gains, endpoint=args.endpoint or DEFAULT_RIG_ENDPOINT, who=who, note=args.note,
+                            accepted=tuple(args.accept))
     return plc_push.push(args.gains, to=args.to, map_path=args.map, who=who, accepted=tuple(args.accept))
 
 
