@@ -63,7 +63,11 @@ class Study(StudySpec):
         The SHA-256 of the file as read.
     name, title : str
         The study's name and title (its ``[study]`` table).
-    rig, controller, feedforward, reference, simulation, export : table
+    rig : Plant
+        ``[rig]``: the plant's hardware, read into the plant itself (the model's defaults where it gives none).
+    feedforward : LoopExcitation
+        ``[feedforward]``: the loop the feedforward is identified on.
+    controller, reference, simulation, export : table
         The tables of those names, typed as the file gives them (defaults where it gives none).
     tuning : TuningSpec
         ``[tuning]``: what the tuning requires (with ``[simulation]``'s band and ``[controller]``'s output range).
@@ -78,8 +82,6 @@ class Study(StudySpec):
         The starting gains the tables make.
     references : dict of str to Reference
         The step and the trajectory the tables make.
-    excitation : LoopExcitation
-        The loop the feedforward is identified on.
     design_spec : DesignSpec or None
         The preload design the tables make (None: the study has no design).
     where : object
