@@ -6,14 +6,15 @@ record is written by the floor that computes it and read, typed, by every floor 
 report never reads a raw dict. Each record is a frozen dataclass whose fields are declared once
 (:func:`piezopreload.core.records.entry`); its ``from_dict()`` (every field checked, a missing,
 wrong or non-finite one named in one message format), ``to_dict()``, the fields its kind requires
-(:data:`piezopreload.core.artifacts.KINDS`) and its docstring's ``Parameters`` come from that
-declaration; an artifact's ``save(path)`` writes it atomically and ``load(path)`` is its one reader.
+(:data:`piezopreload.artifacts.registry.KINDS`, the one list of the kinds) and its docstring's
+``Parameters`` come from that declaration; an artifact's ``save(path)`` writes it atomically and
+``load(path)`` is its one reader.
 
-Importing this package imports every record, so every kind is known to
-:mod:`piezopreload.core.artifacts` whichever record a program reads first.
+Importing this package imports every record's module (nothing is registered by it: a record's reader
+and writer take its own declaration of its kind).
 """
 
-from piezopreload.artifacts import (  # noqa: F401 (each registers its kinds)
+from piezopreload.artifacts import (  # noqa: F401 (the records' modules, as attributes of the package)
     design,
     gainset,
     hostcheck,

@@ -28,7 +28,7 @@ from piezopreload.artifacts.requirements import Requirement, unaccepted
 from piezopreload.artifacts.validation import Criteria, ValidationResult
 from piezopreload.core.artifacts import content_hash, parse_artifact
 from piezopreload.core.errors import InputError
-from piezopreload.core.records import Artifact, Raw, Record, entry, record
+from piezopreload.core.records import Artifact, Raw, Record, entry, kind_of, record
 from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V, SCHEDULE_MAX, Controller, GainSchedule, PIDGains
@@ -426,7 +426,7 @@ class GainSet(Artifact):
         GainSet
             The gain set, its hash checked.
         """
-        return cls.from_dict(parse_artifact(text, cls.KIND, shown, fields=False), shown)
+        return cls.from_dict(parse_artifact(text, kind_of(cls), shown, fields=False), shown)
 
     def save(self, path: str | Path) -> GainSet:
         """Write the gain set atomically as a content-hashed artifact.

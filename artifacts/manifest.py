@@ -17,14 +17,14 @@ from typing import Any, ClassVar, Self, TypeVar
 
 from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.summaries import StageSummary, read_summary
-from piezopreload.core.artifacts import read_artifact, write_artifact
+from piezopreload.core.artifacts import STUDY_RUN, read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError
 from piezopreload.core.records import Record, entry, record
 
 __all__ = ["StudyRef", "OutputRecord", "StageRecord", "StudyRunManifest", "MANIFEST", "STUDY_COPY", "KIND",
            "STATUSES"]
 
-KIND = "study-run"
+KIND = STUDY_RUN.name
 #: the manifest's file in an output folder, and the study's copy beside it
 MANIFEST, STUDY_COPY = "pipeline.json", "study.toml"
 STATUSES = ("done", "failed", "not applicable")
@@ -198,11 +198,11 @@ class StudyRunManifest:
     def save(self, out: str | Path) -> Path:
         """Write ``out/pipeline.json`` atomically."""
         path = Path(out) / MANIFEST
-        write_artifact(path, KIND, self.to_dict())
+        write_artifact(path, STUDY_RUN, self.to_dict())
         return path
 
     @classmethod
     def load(cls, out: str | Path) -> StudyRunManifest:
         """Read the output folder ``out``'s ``pipeline.json``: its schema and every field checked."""
         path = Path(out) / MANIFEST
-        return cls.from_dict(read_artifact(path, KIND), str(path))
+        return cls.from_dict(read_artifact(path, STUDY_RUN), str(path))

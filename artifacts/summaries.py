@@ -240,24 +240,6 @@ class SystemSummary(StageSummary):
         """Whether every requirement the system stage checked is met."""
         return all(r.met for r in self.checked)
 
-    def thermal_figure(self, name: str) -> tuple[float | None, float | None]:
-        """A thermal figure (``heat_mean_W``, ``growth_max_um``, ...) for the schedule and for the constant preload;
-        (None, None) where the study has no ``[thermal]`` table.
-
-        Parameters
-        ----------
-        name : str
-            The thermal figure's name (``heat_mean_W``, ``growth_max_um``, ...).
-
-        Returns
-        -------
-        tuple of (float or None, float or None)
-            The figure for the preload schedule and for the constant preload, in the unit its name carries; (None, None)
-            where the study has no ``[thermal]`` table or the figure is not among them.
-        """
-        pair = (self.thermal or {}).get(name) or {}
-        return pair.get("schedule"), pair.get("constant")
-
     def to_dict(self) -> dict[str, Any]:
         """The declared fields, with ``requirements_met`` (derived from the requirements) before them.
 

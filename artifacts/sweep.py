@@ -98,11 +98,18 @@ class PointFigures(Record):
     (the gain set), the tuned FF + PID step's settling on the nominal plant (compare), the whole
     system along its schedule (tracking, rigidity and deflection while cutting, friction energy: the
     system stage; where the study has a ``[thermal]`` table, the shift's nut heat, screw rise, growth and positioning
-    error for the schedule and, ``_constant``, the best constant preload), the rig run and the requirements
+    error for the schedule and, ``constant_``, the best constant preload, each under its name in the thermal
+    budget's :class:`~piezopreload.artifacts.thermal.ThermalCase`), the rig run and the requirements
     (``requirements_missed``: each missed one's ``Requirement.to_dict()``).
     """
 
     NOUN: ClassVar[str] = "the point's figures"
+    #: the thermal columns as sweeps before the names were unified wrote them
+    RENAMED: ClassVar[dict[str, str]] = {
+        "heat_mean_constant_W": "constant_heat_mean_W",
+        "temperature_rise_max_constant_K": "constant_temperature_rise_max_K",
+        "thermal_growth_max_um": "growth_max_um", "thermal_growth_max_constant_um": "constant_growth_max_um",
+        "positioning_error_max_constant_um": "constant_positioning_error_max_um"}
 
     design_stiffness_N_per_um: float | None = _figure("The design optimum's least rigidity.", "N/um")
     Kc_V_per_N: float | None = _figure("The tuned controller gain.", "V/N")
@@ -134,13 +141,13 @@ class PointFigures(Record):
                                                                "cycle.")
     friction_saving_pct: float | None = _figure("The friction energy the schedule saves against it.", "%")
     heat_mean_W: float | None = _figure("The nut's mean friction heat along the schedule.", "W")
-    heat_mean_constant_W: float | None = _figure("The same at the best constant preload.", "W")
+    constant_heat_mean_W: float | None = _figure("The same at the best constant preload.", "W")
     temperature_rise_max_K: float | None = _figure("The screw's largest rise over the shift.", "K")
-    temperature_rise_max_constant_K: float | None = _figure("The same at the best constant preload.", "K")
-    thermal_growth_max_um: float | None = _figure("The screw's largest growth at the table.", "um")
-    thermal_growth_max_constant_um: float | None = _figure("The same at the best constant preload.", "um")
+    constant_temperature_rise_max_K: float | None = _figure("The same at the best constant preload.", "K")
+    growth_max_um: float | None = _figure("The screw's largest growth at the table.", "um")
+    constant_growth_max_um: float | None = _figure("The same at the best constant preload.", "um")
     positioning_error_max_um: float | None = _figure("The largest positioning error of the budget.", "um")
-    positioning_error_max_constant_um: float | None = _figure("The same at the best constant preload.", "um")
+    constant_positioning_error_max_um: float | None = _figure("The same at the best constant preload.", "um")
     rig_status: str | None = _figure("How the rig run ended.")
     rig_tracking_rms_N: float | None = _figure("The rig run's RMS tracking error.", "N")
     requirements_met: bool | None = _figure("Whether every requirement held.")

@@ -169,12 +169,13 @@ class PreloadDrift(Record):
 
 @dataclass(frozen=True)
 class ThermalSummary:
-    """A shift's thermal budget without its series (:meth:`ThermalRecord.summary`): each figure of a case for the
-    schedule and for the constant preload (``figures[name]`` is ``{"schedule": ..., "constant": ...}``), the settings,
-    the drift, and in words per case where the largest rise sits, the nut against the screw and the ends' force;
-    :meth:`to_dict` is what ``system.json``'s summary and ``run --json`` hold as ``thermal``."""
+    """A shift's thermal budget without its series (:meth:`ThermalRecord.summary`): the two cases (``schedule``,
+    ``constant``: their figures under their own names), the settings, the drift, and in words per case where the
+    largest rise sits, the nut against the screw and the ends' force; :meth:`to_dict` is what ``system.json``'s
+    summary and ``run --json`` hold as ``thermal`` (each scalar figure as ``{"schedule": ..., "constant": ...}``)."""
 
-    figures: dict[str, dict[str, float]]
+    schedule: ThermalCase
+    constant: ThermalCase
     heat_model: str
     other_model: str
     lubricant_vg: int
@@ -195,13 +196,17 @@ class ThermalSummary:
     nut_against_screw: dict[str, str]
     ends: dict[str, str]
 
-    def figure(self, name: str) -> tuple[float, float]:
-        """A figure (``heat_mean_W``, ``growth_max_um``, ...) for the schedule and for the constant preload."""
-        pair = self.figures[name]
-        return pair["schedule"], pair["constant"]
-
     def to_dict(self) -> dict[str, Any]:
-        return {**self.figures, "heat_model": self.heat_model, "other_model": self.other_model,
+        """Each scalar figure for both cases, the settings, the drift and the words (no series).
+
+        Returns
+        -------
+        dict
+            Its object.
+        """
+        cases = {"schedule": self.schedule.summary(), "constant": self.constant.summary()}
+        figures = {name: {c: cases[c][name] for c in CASES} for name in _FIGURES}
+        return {**figures, "heat_model": self.heat_model, "other_model": self.other_model,
                 "lubricant_vg": self.lubricant_vg, "sealed": self.sealed, "seal_torque_Nm": self.seal_torque_Nm,
                 "nut_heat_share": self.nut_heat_share, "convection_factor": self.convection_factor,
                 "mounting": self.mounting, "pretension_K": self.pretension_K,
@@ -301,8 +306,8 @@ class ThermalRecord(Record):
     def summary(self) -> ThermalSummary:
         """Each figure for the schedule and the constant preload, the settings and the drift (no series)."""
         return ThermalSummary(
-            figures={name: {c: getattr(self, c).summary()[name] for c in CASES} for name in _FIGURES},
-            heat_model=self.heat_model, other_model=self.other_model, lubricant_vg=self.lubricant_vg,
+            schedule=self.schedule, constant=self.constant, heat_model=self.heat_model,
+            other_model=self.other_model, lubricant_vg=self.lubricant_vg,
             sealed=self.sealed, seal_torque_Nm=self.seal_torque_Nm, nut_heat_share=self.nut_heat_share,
             convection_factor=self.convection_factor, mounting=self.mounting, pretension_K=self.pretension_K,
             bearing_lift_off_N=self.bearing_lift_off_N, feedback=self.feedback,

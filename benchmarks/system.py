@@ -30,8 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from piezopreload.artifacts.design import DesignRecord
+from piezopreload.artifacts.registry import read_artifact
 from piezopreload.artifacts.system import SystemRecord
-from piezopreload.core.artifacts import read_artifact
 from piezopreload.design.schedule import schedule_preload
 from piezopreload.pipeline import run_study
 from piezopreload.progress import Progress

@@ -15,7 +15,7 @@ import math
 import os
 import re
 import tempfile
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -23,89 +23,121 @@ from typing import Any
 
 from piezopreload.core.errors import ArtifactError
 
-__all__ = ["ArtifactError", "KINDS", "schema_name", "write_artifact", "read_artifact", "atomic_write_text",
-           "atomic_write_bytes", "content_hash", "parse_artifact", "package_version", "read_bytes", "finite_or_none",
-           "artifact_kind", "register_kind"]
+__all__ = ["ArtifactError", "ArtifactKind", "Kinds", "DOCUMENTS", "STUDY_RUN", "REPORT", "SWEEP_REPORT",
+           "schema_name", "write_artifact", "read_artifact", "atomic_write_text", "atomic_write_bytes", "content_hash",
+           "parse_artifact", "package_version", "read_bytes", "finite_or_none", "artifact_kind"]
 
 VERSION = 1
 HASH_FIELD = "content_sha256"
 
 
 @dataclass(frozen=True)
-class _Kind:
-    """A kind of artifact as its record declares it: its required fields (computed when first asked, when every
-    type they name exists), whether it carries its content's hash, what writes it again."""
+class ArtifactKind:
+    """A kind of artifact: its name, the fields its documents hold at their top level, whether they carry their
+    content's hash, what writes one again.
 
-    required: Callable[[], tuple[str, ...]]
-    hashed: bool
-    again: str
-    owner: str
-
-
-_REGISTERED: dict[str, _Kind] = {}
-
-
-def register_kind(kind: str, required: Callable[[], tuple[str, ...]], *, hashed: bool = False, again: str = "",
-                  owner: str = "") -> None:
-    """Make ``kind`` an artifact kind: what :func:`piezopreload.core.records.record` does for each
-    :class:`~piezopreload.core.records.Artifact`.
+    A record declares its own (:meth:`piezopreload.core.records.Artifact.kind`); the documents no record
+    declares yet are the constants below. Readers and writers take the kind itself, so nothing here is looked up in
+    a table filled as modules are imported; the one list of every kind is
+    :data:`piezopreload.artifacts.registry.KINDS`.
 
     Parameters
     ----------
-    kind : str
+    name : str
         The kind (``gain-set``), the middle of its schema's name.
-    required : callable
-        ``required()``: the fields a document of the kind must hold at its top level.
+    fields : callable
+        ``fields()``: the fields a document of the kind must hold at its top level (computed when asked, when
+        every type they name exists).
     hashed : bool
         Whether its documents carry their content's hash (``content_sha256``), checked on every read.
     again : str
         What writes a document of the kind again, the end of every message about one.
     owner : str
-        The type that declares it (a second type declaring the same kind is refused).
+        The type or document that declares it.
     """
-    known = _REGISTERED.get(kind)
-    if known is not None and known.owner != owner:
-        raise ValueError(f"artifact kind '{kind}' is declared twice: by {known.owner} and by {owner}")
-    _REGISTERED[kind] = _Kind(required, hashed, again, owner)
+
+    name: str
+    fields: Callable[[], tuple[str, ...]]
+    hashed: bool = False
+    again: str = ""
+    owner: str = ""
+
+    def required(self) -> tuple[str, ...]:
+        """The fields a document of the kind must hold at its top level.
+
+        Returns
+        -------
+        tuple of str
+            Their names.
+        """
+        return tuple(self.fields())
 
 
-class _Kinds(Mapping[str, tuple[str, ...]]):
-    """Each artifact kind and the fields its documents must hold, derived from the records that declare them."""
+def _undeclared(name: str, *fields: str) -> ArtifactKind:
+    return ArtifactKind(name, functools.partial(tuple, fields), owner=f"the {name} document")
 
-    def __getitem__(self, kind: str) -> tuple[str, ...]:
-        return _REGISTERED[kind].required()
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(sorted(_REGISTERED))
-
-    def __len__(self) -> int:
-        return len(_REGISTERED)
-
-    def __repr__(self) -> str:
-        return "KINDS(" + ", ".join(f"{k}: {self[k]}" for k in self) + ")"
-
-
-#: each artifact kind and its documents' required top-level fields, from the declaration of its record
-#: (:class:`piezopreload.core.records.Artifact`); a kind's record registers it when its module is imported,
-#: and ``import piezopreload.artifacts`` imports every one
-KINDS: Mapping[str, tuple[str, ...]] = _Kinds()
 
 # The documents whose writers do not declare them on a record yet (the study run's manifest, the two
 # reports): their required fields, here until a record declares each.
-_UNDECLARED: dict[str, tuple[str, ...]] = {
-    "study-run": ("study", "stages"),
-    "report": ("title", "verdicts", "summary", "sections", "appendix", "figures"),
-    "sweep-report": ("title", "summary", "table", "figures", "provenance"),
-}
-for _name, _required in _UNDECLARED.items():
-    register_kind(_name, functools.partial(tuple, _required), owner=f"the {_name} document")
+STUDY_RUN = _undeclared("study-run", "study", "stages")
+REPORT = _undeclared("report", "title", "verdicts", "summary", "sections", "appendix", "figures")
+SWEEP_REPORT = _undeclared("sweep-report", "title", "summary", "table", "figures", "provenance")
+#: the kinds declared here rather than by a record
+DOCUMENTS = (STUDY_RUN, REPORT, SWEEP_REPORT)
 
 
-def _kind(kind: str) -> _Kind:
-    if kind not in _REGISTERED:
-        raise ValueError(f"unknown artifact kind {kind!r}; the kinds known are {', '.join(KINDS)} (a kind is known "
-                         "once the module of its record is imported: import piezopreload.artifacts)")
-    return _REGISTERED[kind]
+class Kinds(Mapping[str, tuple[str, ...]]):
+    """Artifact kinds by name, each to the fields its documents must hold: made once from a list of kinds (a name
+    given twice is refused), never added to.
+
+    Parameters
+    ----------
+    kinds : iterable of ArtifactKind
+        The kinds.
+    """
+
+    def __init__(self, kinds: Iterable[ArtifactKind]) -> None:
+        known: dict[str, ArtifactKind] = {}
+        for kind in kinds:
+            if kind.name in known:
+                raise ValueError(f"artifact kind '{kind.name}' is declared twice: by {known[kind.name].owner} and by "
+                                 f"{kind.owner}")
+            known[kind.name] = kind
+        self._kinds = known
+
+    def kind(self, name: str) -> ArtifactKind:
+        """The kind called ``name``.
+
+        Parameters
+        ----------
+        name : str
+            Its name (``gain-set``).
+
+        Returns
+        -------
+        ArtifactKind
+            Its declaration.
+
+        Raises
+        ------
+        ValueError
+            Where no kind has that name, naming the kinds there are.
+        """
+        if name not in self._kinds:
+            raise ValueError(f"unknown artifact kind {name!r}; the kinds known are {', '.join(self)}")
+        return self._kinds[name]
+
+    def __getitem__(self, name: str) -> tuple[str, ...]:
+        return self._kinds[name].required()
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(sorted(self._kinds))
+
+    def __len__(self) -> int:
+        return len(self._kinds)
+
+    def __repr__(self) -> str:
+        return "Kinds(" + ", ".join(f"{k}: {self[k]}" for k in self) + ")"
 
 
 def package_version() -> str:
@@ -182,9 +214,9 @@ def _first_non_finite(value: Any, where: str) -> str | None:
     return None
 
 
-def write_artifact(path: str | Path, kind: str, body: dict[str, Any]) -> dict[str, Any]:
-    """Write a ``kind`` artifact holding ``body`` atomically; returns the whole document."""
-    declared = _kind(kind)
+def write_artifact(path: str | Path, declared: ArtifactKind, body: dict[str, Any]) -> dict[str, Any]:
+    """Write an artifact of the kind ``declared`` holding ``body`` atomically; returns the whole document."""
+    kind = declared.name
     doc = {
         "schema": schema_name(kind),
         "package_version": package_version(),
@@ -233,12 +265,7 @@ def field_message(shown: str, path: str, problem: str, again: str = "") -> str:
     return head + (f"; {again}" if again else "")
 
 
-def _again(kind: str) -> str:
-    known = _REGISTERED.get(kind)
-    return known.again if known is not None else ""
-
-
-def read_artifact(path: str | Path, kind: str, *, fields: bool = True) -> dict[str, Any]:
+def read_artifact(path: str | Path, kind: ArtifactKind, *, fields: bool = True) -> dict[str, Any]:
     """Read and check a ``kind`` artifact: its JSON, schema, finite numbers, a hashed kind's hash and, where
     ``fields``, the fields its kind requires.
 
@@ -246,8 +273,8 @@ def read_artifact(path: str | Path, kind: str, *, fields: bool = True) -> dict[s
     ----------
     path : str or Path
         The file.
-    kind : str
-        The kind it must be (a key of :data:`KINDS`).
+    kind : ArtifactKind
+        The kind it must be.
     fields : bool
         Whether to check its kind's required fields (a record's own reader, which checks every field, passes
         False).
@@ -296,10 +323,9 @@ def artifact_kind(path: str | Path) -> str:
         raise ArtifactError(f"{shown}: cannot read ({exc})") from None
     schema = _json_object(text, shown).get("schema")
     kind = schema.split("/")[1] if isinstance(schema, str) and schema.count("/") == 2 else None
-    if not (isinstance(schema, str) and schema.startswith("piezopreload/") and kind in KINDS):
+    if not (isinstance(schema, str) and schema.startswith("piezopreload/") and kind):
         raise ArtifactError(field_message(shown, "schema", f"must name a piezopreload artifact (piezopreload/KIND/"
-                                                           f"{VERSION}, KIND one of {', '.join(KINDS)}), got "
-                                                           f"{schema!r}"))
+                                                           f"{VERSION}), got {schema!r}"))
     return str(kind)
 
 
@@ -314,8 +340,9 @@ def _json_object(text: str, shown: str) -> dict[str, Any]:
     return doc
 
 
-def _check_schema(doc: dict[str, Any], kind: str, shown: str) -> None:
-    """The document's ``schema`` must be this version's schema of ``kind``."""
+def _check_schema(doc: dict[str, Any], declared: ArtifactKind, shown: str) -> None:
+    """The document's ``schema`` must be this version's schema of ``declared``."""
+    kind = declared.name
     schema = doc.get("schema")
     expected = schema_name(kind)
     if schema == expected:
@@ -324,21 +351,22 @@ def _check_schema(doc: dict[str, Any], kind: str, shown: str) -> None:
     why = ("" if not isinstance(schema, str) or not schema.startswith("piezopreload/") or got_kind is None
            else f" (a '{got_kind}' artifact)" if got_kind != kind
            else " (a version of the kind this version of the package does not read)")
-    raise ArtifactError(field_message(shown, "schema", f"must be '{expected}', got {schema!r}{why}", _again(kind)))
+    raise ArtifactError(field_message(shown, "schema", f"must be '{expected}', got {schema!r}{why}", declared.again))
 
 
-def _check_fields(doc: dict[str, Any], kind: str, shown: str, fields: bool) -> None:
-    """Every field a ``kind`` needs is there (where ``fields``), and every number is finite."""
-    required = _kind(kind).required() if fields else ()
+def _check_fields(doc: dict[str, Any], declared: ArtifactKind, shown: str, fields: bool) -> None:
+    """Every field a ``declared`` kind needs is there (where ``fields``), and every number is finite."""
+    kind, again = declared.name, declared.again
+    required = declared.required() if fields else ()
     for name in required:
         if name not in doc:
             raise ArtifactError(field_message(shown, name, f"is missing; a {kind} artifact holds "
-                                                           f"{', '.join(required)}", _again(kind)))
+                                                           f"{', '.join(required)}", again))
     bad = _first_non_finite(doc, "")
     if bad is not None:
         value = _value_at(doc, bad)
         raise ArtifactError(field_message(shown, bad.lstrip("."), f"must be a finite number, got {value!r}",
-                                          _again(kind)))
+                                          again))
 
 
 def _value_at(doc: Any, path: str) -> Any:
@@ -347,25 +375,27 @@ def _value_at(doc: Any, path: str) -> Any:
     return doc
 
 
-def _check_hash(doc: dict[str, Any], kind: str, shown: str) -> None:
-    """A hashed ``kind`` carries the hash of its content as it was written."""
+def _check_hash(doc: dict[str, Any], declared: ArtifactKind, shown: str) -> None:
+    """A hashed kind carries the hash of its content as it was written."""
+    kind, again = declared.name, declared.again
     stored = doc.get(HASH_FIELD)
     if not isinstance(stored, str):
         raise ArtifactError(field_message(shown, HASH_FIELD, f"is missing; expected the hash a {kind} artifact is "
-                                                             "written with", _again(kind)))
+                                                             "written with", again))
     if stored != content_hash(doc):
         raise ArtifactError(field_message(shown, HASH_FIELD, "does not match the content: the file was changed after "
-                                                             "it was written", _again(kind)))
+                                                             "it was written", again))
 
 
-def parse_artifact(text: str, kind: str, shown: str = "the document", *, fields: bool = True) -> dict[str, Any]:
+def parse_artifact(text: str, kind: ArtifactKind, shown: str = "the document", *,
+                   fields: bool = True) -> dict[str, Any]:
     """:func:`read_artifact` on a document's text (pushed over a network, say).
 
     Parameters
     ----------
     text : str
         The document's text.
-    kind : str
+    kind : ArtifactKind
         The kind it must be.
     shown : str
         What the messages call it.
@@ -380,7 +410,7 @@ def parse_artifact(text: str, kind: str, shown: str = "the document", *, fields:
     doc = _json_object(text, shown)
     _check_schema(doc, kind, shown)
     _check_fields(doc, kind, shown, fields)
-    if _kind(kind).hashed:
+    if kind.hashed:
         _check_hash(doc, kind, shown)
     return doc
 

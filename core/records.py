@@ -24,7 +24,7 @@ From that one declaration come
 * the writer, :meth:`Record.to_dict` (a record that writes more, a figure derived from its fields,
   adds it to this one's);
 * the fields a document of an artifact's kind must hold, :meth:`Artifact.required`, from which
-  :data:`piezopreload.core.artifacts.KINDS` is made;
+  :data:`piezopreload.artifacts.registry.KINDS` is made;
 * the record's numpydoc ``Parameters`` section: its fields, their types, units and docs.
 
 >>> @record
@@ -67,11 +67,11 @@ from typing import (
 
 import numpy as np
 
-from piezopreload.core.artifacts import field_message, read_artifact, register_kind, write_artifact
+from piezopreload.core.artifacts import ArtifactKind, field_message, read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError, InputError
 
-__all__ = ["Entry", "entry", "record", "Record", "Artifact", "Raw", "load_one_of", "object_without", "Checked",
-           "checked", "check_entries", "read_table", "Invalid", "MANY", "table_values", "TableOf", "takes"]
+__all__ = ["Entry", "entry", "record", "Record", "Artifact", "Raw", "load_one_of", "object_without", "kind_of",
+           "Checked", "checked", "check_entries", "read_table", "Invalid", "MANY", "table_values", "TableOf", "takes"]
 
 #: the metadata entry of a field declared with :func:`entry`
 ENTRY = "piezopreload.entry"
@@ -585,10 +585,18 @@ def _read_inline(spec: _Spec, holder: Any, path: str) -> Any:
     return _read_record(spec.record, holder, path)
 
 
+def _renamed(cls: Any, obj: dict[str, Any]) -> dict[str, Any]:
+    """``obj`` with the keys an older version wrote (``cls.RENAMED``) under their names now."""
+    if not any(k in obj for k in cls.RENAMED):
+        return obj
+    return {cls.RENAMED.get(k, k): v for k, v in obj.items()}
+
+
 def _read_record(cls: Any, obj: Any, path: str) -> Any:
     """A record of ``cls`` from the document's object ``obj`` at ``path``."""
     if not isinstance(obj, dict):
         raise _Wrong(path, f"must be an object, got {_got(obj)}")
+    obj = _renamed(cls, obj)
     if cls.CLOSED:
         known = {s.key for s in _specs(cls) if not s.at}
         unknown = sorted(k for k in obj if k not in known)
@@ -723,12 +731,14 @@ class Record:
     Class attributes: ``NOUN`` names the record in messages ("the gain set"); ``AGAIN`` says what
     writes its document again, the end of every message about it ("run the tune stage again");
     ``CLOSED`` refuses a key of its object that is no field (a table of settings, where a misspelt
-    key would otherwise be lost).
+    key would otherwise be lost); ``RENAMED`` maps a key an older version wrote to the field's key now
+    (read under its old name, written under the new one only).
     """
 
     NOUN: ClassVar[str] = ""
     AGAIN: ClassVar[str] = ""
     CLOSED: ClassVar[bool] = False
+    RENAMED: ClassVar[dict[str, str]] = {}
 
     @classmethod
     def from_dict(cls, doc: Any, shown: str = "", *, path: str = "") -> Self:
@@ -785,7 +795,7 @@ class Record:
         Returns
         -------
         tuple of str
-            The keys; for an :class:`Artifact`, what :data:`piezopreload.core.artifacts.KINDS` lists for its kind.
+            The keys; for an :class:`Artifact`, what :data:`piezopreload.artifacts.registry.KINDS` lists for its kind.
         """
         out: list[str] = []
         for spec in _specs(cls):
@@ -822,11 +832,28 @@ class Artifact(Record):
         Artifact
             The record.
         """
-        return cls.from_dict(read_artifact(path, cls.KIND, fields=False), str(path))
+        return cls.from_dict(read_artifact(path, kind_of(cls), fields=False), str(path))
 
     def _write(self, path: str | Path) -> dict[str, Any]:
         """Write the artifact atomically at ``path``; returns the whole document (envelope and hash)."""
-        return write_artifact(path, self.KIND, self.to_dict())
+        return write_artifact(path, kind_of(type(self)), self.to_dict())
+
+
+def kind_of(cls: type[Artifact]) -> ArtifactKind:
+    """An artifact record's kind as its declaration makes it: the name, the required fields, the hash, what writes
+    it again (listed with every other kind in :data:`piezopreload.artifacts.registry.KINDS`).
+
+    Parameters
+    ----------
+    cls : type of Artifact
+        The record.
+
+    Returns
+    -------
+    ArtifactKind
+        Its kind, which its reader and writer take.
+    """
+    return ArtifactKind(cls.KIND, cls.required, cls.HASHED, cls.AGAIN, f"{cls.__module__}.{cls.__qualname__}")
 
 
 # --------------------------------------------------------------------------------------
@@ -844,8 +871,8 @@ def record(*, eq: bool = True) -> Callable[[type[_R]], type[_R]]: ...
 def record(cls: Any = None, /, *, eq: bool = True) -> Any:
     """Make ``cls`` (a :class:`Record`) a frozen dataclass of its declared fields.
 
-    Its docstring gains a ``Parameters`` section from the declarations, and an :class:`Artifact`'s
-    kind is registered (:data:`piezopreload.core.artifacts.KINDS`).
+    Its docstring gains a ``Parameters`` section from the declarations (an :class:`Artifact`'s kind is
+    listed in :data:`piezopreload.artifacts.registry.KINDS`, not registered here).
 
     Parameters
     ----------
@@ -864,9 +891,6 @@ def record(cls: Any = None, /, *, eq: bool = True) -> Any:
             raise TypeError(f"@record makes a Record's subclass, not {c!r}")
         made = dataclass(frozen=True, eq=eq)(c)
         made.__doc__ = _with_parameters(made)
-        if issubclass(made, Artifact) and made.KIND:
-            register_kind(made.KIND, made.required, hashed=made.HASHED, again=made.AGAIN,
-                          owner=f"{made.__module__}.{made.__qualname__}")
         return made
 
     return make if cls is None else make(cls)

@@ -40,9 +40,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from piezopreload.core._typing import Array
-from piezopreload.core.config import Invalid
 from piezopreload.core.errors import InputError
-from piezopreload.core.records import Checked, checked, entry
+from piezopreload.core.records import Checked, Invalid, checked, entry
 from piezopreload.models.ops import NUMPY, Layout, Ops, absolute, clip
 
 __all__ = ["StackData", "P888_91", "Plant", "RigState", "Rig", "PlantModel", "bouc_wen_step", "bouc_wen_increment",

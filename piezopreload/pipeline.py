@@ -87,6 +87,7 @@ from piezopreload.artifacts.system import SystemRecord
 from piezopreload.codesign import codesign_optimum
 from piezopreload.core.artifacts import atomic_write_bytes, package_version
 from piezopreload.core.errors import InputError
+from piezopreload.core.parallel import Pool, default_workers
 from piezopreload.core.stagecache import StageCache
 from piezopreload.core.stages import (
     Partial,
@@ -133,6 +134,7 @@ class _Ctx:
     source: str = ""                         # the study file as the user named it
     template: str | None = None              # a Typst template's text to use instead of the shipped one
     cache: StageCache | None = None          # stage outputs shared with other folders
+    pool: Pool = field(default_factory=Pool)  # the run's worker processes (one: none, each job here)
     _subject: StudySpec | None = None
 
     def record(self, stage: str) -> StageRecord | None:
@@ -231,7 +233,7 @@ def _stage_design(ctx: _Ctx) -> Produced:
 
 def _stage_tune(ctx: _Ctx) -> Produced:
     tuned = tune(ctx.subject(), ctx.feedforward(), progress=ctx.progress.say,
-                 iterations=ctx.progress.counter("IPOPT iterations", every=10))
+                 iterations=ctx.progress.counter("IPOPT iterations", every=10), pool=ctx.pool)
     g, sched, bound = tuned.gains, tuned.solve.schedule, tuned.minimum_time
     return {"tuning": tuned.save(ctx.out / "tuning.json")}, TuneSummary(
         g.Kc, g.Ti_s, g.Td_s, g.Tf_s, g.b, tuned.solve.form, tuned.solve.ms,
@@ -244,7 +246,8 @@ def _stage_validate(ctx: _Ctx) -> Produced:
     tuned = TuningResult.load(ctx.output("tune", "tuning"), study, ctx.feedforward())
     gain_set, result = tuned.validation(inputs={"tuning_sha256": ctx.sha256("tune", "tuning")},
                                         progress=ctx.progress.say,
-                                        bar=ctx.progress.bar(f"Monte Carlo, {study.validation.plants} plants"))
+                                        bar=ctx.progress.bar(f"Monte Carlo, {study.validation.plants} plants"),
+                                        pool=ctx.pool)
     gains_path, validation_path = ctx.out / "gains.json", ctx.out / "validation.json"
     gain_set = gain_set.save(gains_path)
     replace(result, gain_set_sha256=gain_set.content_sha256,
@@ -403,7 +406,7 @@ def _stage_report(ctx: _Ctx) -> Produced:
                         None if pub is None else Published(pub.source, pub.gains_label, pub.step()),
                         "the study's gains" if pub is None else pub.gains_label)
     return render_report(ctx.out, ctx.manifest(), facts, say=ctx.progress.say, bar=ctx.progress.bar("figures"),
-                         template=ctx.template)
+                         template=ctx.template, pool=ctx.pool)
 
 
 def _design_applies(study: StudySpec) -> str | None:
@@ -588,26 +591,29 @@ def _one_study_per_folder(out: Path, study: StudySpec, overwrite: bool, progress
 
 def run_study(study: StudySpec | str | Path | None = None, out: str | Path = DEFAULT_OUT, *, force: bool = False,
               progress: ProgressLike | None = None, cache: StageCache | None = None,
-              overwrite: bool = False) -> StudyResult:
+              overwrite: bool = False, workers: int | None = None) -> StudyResult:
     """Run a study's stages into ``out``; a stage whose key and outputs are unchanged is not run again.
 
     ``cache``: a store of stage outputs shared with other folders (see the module docstring); with ``force``
     the stages run again but a shared one is restored where the store holds its key (empty the store to
     compute those again too). A folder holding another study's outputs is refused by name; ``overwrite`` clears
     them first (:func:`_one_study_per_folder`): one folder never mixes two studies. ``progress``:
-    :data:`~piezopreload.progress.ProgressLike`.
+    :data:`~piezopreload.progress.ProgressLike`. ``workers``: the run's worker processes, one pool made here,
+    handed to the stages and shut at the end (default: :func:`~piezopreload.core.parallel.default_workers`; 1:
+    every stage's work here, one job after another).
     """
     reporter = as_progress(progress)
     t0 = time.perf_counter()
     study = study if isinstance(study, StudySpec) else StudySpec.load(study)
     study.check_files()
     out = Path(out)
-    with _locked(out):
+    pool = Pool(default_workers() if workers is None else workers)
+    with _locked(out), pool:
         _one_study_per_folder(out, study, overwrite, reporter)
         copy = out / STUDY_COPY
         if not copy.is_file() or copy.read_bytes() != study.source_text:
             atomic_write_bytes(copy, study.source_text)
-        ctx = _Ctx(study, out, reporter, _previous(out, reporter), study.path, cache=cache)
+        ctx = _Ctx(study, out, reporter, _previous(out, reporter), study.path, cache=cache, pool=pool)
         stages = _execute(list(STAGES), ctx, force, utc())
     ran = [s.stage for s in stages if s.ran]
     seconds = time.perf_counter() - t0
@@ -627,11 +633,12 @@ def read_template(template: str | Path | None) -> str | None:
 
 
 def rerender_report(out: str | Path, progress: ProgressLike | None = None,
-                    template: str | Path | None = None) -> StudyResult:
+                    template: str | Path | None = None, workers: int | None = None) -> StudyResult:
     """Render the report again from the artifacts in ``out`` (``piezopreload report DIR``); nothing else runs.
 
     ``template``: a Typst file to typeset instead of the shipped template (a copy of
     ``DIR/report/report.typ``, edited); it reads ``report.json`` and ``figures/`` as the shipped one does.
+    ``workers``: the processes that draw the figures (default: :func:`~piezopreload.core.parallel.default_workers`).
     """
     reporter = as_progress(progress)
     t0 = time.perf_counter()
@@ -651,8 +658,8 @@ def rerender_report(out: str | Path, progress: ProgressLike | None = None,
         raise InputError(f"{out}: the outputs of {', '.join(broken)} changed or went missing since they were written; "
                          f"run 'piezopreload run {out / STUDY_COPY} --out {out}' to make them again")
     study = StudySpec.load(out / STUDY_COPY)
-    with _locked(out):
-        ctx = _Ctx(study, out, reporter, records, manifest.study.path, template_text)
+    with _locked(out), Pool(default_workers() if workers is None else workers) as pool:
+        ctx = _Ctx(study, out, reporter, records, manifest.study.path, template_text, pool=pool)
         stages = _execute([report], ctx, True, manifest.started_utc)
     seconds = time.perf_counter() - t0
     reporter.write(f"the report is {out / 'report.pdf'} ({seconds:.1f} s)\n")

@@ -31,7 +31,7 @@ from piezopreload.artifacts.tuning import (
 )
 from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core.errors import InfeasibleError, InputError
-from piezopreload.core.parallel import beside
+from piezopreload.core.parallel import Pool, default_workers
 from piezopreload.core.quantities import number, quantity
 from piezopreload.models.actuator import Rig
 from piezopreload.models.closedloop import ClosedLoopRun
@@ -235,8 +235,8 @@ class TuningResult:
 
     def validation(self, *, plants: int | None = None, seed: int | None = None, workers: int | None = None,
                    scheduler: str | None = None, progress: ProgressLike | None = None,
-                   bar: Callable[[int, int], None] | None = None,
-                   inputs: dict[str, Any] | None = None) -> tuple[GainSet, ValidationResult]:
+                   bar: Callable[[int, int], None] | None = None, inputs: dict[str, Any] | None = None,
+                   pool: Pool | None = None) -> tuple[GainSet, ValidationResult]:
         """:meth:`validate`, also returning the per-plant result.
 
         Parameters
@@ -246,7 +246,8 @@ class TuningResult:
         seed : int or None
             The seed of the plants' draw (None: ``[validation] seed``, else the study's).
         workers : int or None
-            How many processes share the plants (None: ``[validation] workers``).
+            How many processes share the plants (None: ``[validation] workers``, else the run's ``pool``, else
+            :func:`~piezopreload.core.parallel.default_workers`).
         scheduler : str or None
             A Dask scheduler's address (``tcp://HOST:PORT``) to run the plants on a cluster (None: local processes).
         progress : ProgressLike or None
@@ -255,6 +256,9 @@ class TuningResult:
             Called with (chunk, chunks) as each chunk of plants is done; None: a progress line per chunk.
         inputs : dict or None
             The hashes of the files the gains came from, by name.
+        pool : Pool or None
+            The run's worker processes, used where neither ``workers`` nor the study's ``[validation] workers`` asks
+            for another count (None: processes of this call's own).
 
         Returns
         -------
@@ -264,12 +268,16 @@ class TuningResult:
             Every plant's metrics, the failures and the verdict.
         """
         v = self.study.validation
+        workers = v.workers if workers is None else workers
+        if pool is not None and workers is not None and workers != pool.workers:
+            pool = None  # a count of its own: processes of its own, for the validation alone
         plants = v.plants if plants is None else plants
         say = say_of(progress) or (lambda _m: None)
         say(f"validating on {plants} plants ...")
         return validate_gain_set(self.candidate(inputs), n_plants=plants,
                                  seed=(self.study.seed if v.seed is None else v.seed) if seed is None else seed,
-                                 workers=v.workers if workers is None else workers, scheduler=scheduler,
+                                 workers=workers if workers is not None else 1 if pool is not None
+                                 else default_workers(), scheduler=scheduler, pool=pool,
                                  progress=bar or (lambda i, n: say(f"  chunk {i}/{n}")))
 
     def validate(self, plants: int | None = None, seed: int | None = None, *, workers: int | None = None,
@@ -330,7 +338,8 @@ def _minimum_time_bound(bounding: Any, settle: float | None, say: Callable[[str]
 
 
 def tune(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,
-         progress: ProgressLike | None = None, iterations: Callable[[int], None] | None = None) -> TuningResult:
+         progress: ProgressLike | None = None, iterations: Callable[[int], None] | None = None,
+         pool: Pool | None = None) -> TuningResult:
     """Tune the PID around the study's plant compensated by ``feedforward``; compare it with the study's and SIMC's
     gains and bound it (``study.tune()``).
 
@@ -347,12 +356,18 @@ def tune(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, 
         Where the steps are said: a function given each line, or a :class:`~piezopreload.progress.Progress`.
     iterations : callable, optional
         Given IPOPT's iteration count as it goes.
+    pool : Pool, optional
+        The run's worker processes (the bound and the gain schedule's work go to them); default: a pool of
+        this call's own, of :func:`~piezopreload.core.parallel.default_workers` processes.
 
     Returns
     -------
     TuningResult
         The tuned gains, compared and bounded; ``.validate()`` judges them.
     """
+    if pool is None:  # called on its own: this call is the run, with processes of its own
+        with Pool(default_workers()) as own:
+            return tune(study, feedforward, seed=seed, progress=progress, iterations=iterations, pool=own)
     said = say_of(progress)
     if feedforward is not None:  # refused before the design and the tuning, with both ranges
         feedforward.covers(*study.reference_range_N, f"the study's references ({study.path})")
@@ -365,8 +380,9 @@ def tune(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, 
     spec, criteria, step, trajectory = (study.tuning, study.validation, study.references["step"],
                                         study.references["trajectory"])
     say("tuning the PID around the compensated plant (CasADi + IPOPT), the minimum-time bound beside it ...")
-    bounding = beside(minimum_time, study.plant, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]),
-                      band_N=study.band_N, u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
+    bounding = pool.beside(minimum_time, study.plant, initial_N=float(step.levels_N[0]),
+                           final_N=float(step.levels_N[1]), band_N=study.band_N, u_min_V=spec.u_min_V,
+                           u_max_V=spec.u_max_V)
     known = {"the study's [controller] gains": study.gains}
     warm = study.files().get("tuning.warm_start")
     warm_gains = None if warm is None else warm_start_gains(warm)
@@ -389,7 +405,7 @@ def tune(study: StudySpec, feedforward: IdentifiedFeedforward | None = None, *, 
         span = np.concatenate([study.references[k].levels_N for k in ("step", "trajectory")])
         sched = tune_schedule(study.plant, feedforward.model, spec, criteria, g, step=step, trajectory=trajectory,
                               levels_N=schedule_levels(span.min(), span.max(), study.tuning.schedule_levels),
-                              n_plants=study.tuning.schedule_plants, seed=seed, progress=say,
+                              n_plants=study.tuning.schedule_plants, seed=seed, progress=say, pool=pool,
                               known=None if warm_gains is None else warm_gains.schedule)
         g, schedule = sched.gains, sched.to_dict()
     floor = tracking_floor(study.plant, trajectory)

@@ -12,8 +12,8 @@
   :class:`~piezopreload.core.stagecache.StageCache` (``OUT/cache/``), so a stage whose content key
   two points share is computed once and restored into the other's folder;
 - the points run in local worker processes (``workers``, default one per CPU) or on a Dask
-  cluster (``scheduler``, the ``dask`` extra); each process runs its point's stages one at a time
-  (``PIEZOPRELOAD_WORKERS=1``), so the points are the parallel work. A point that fails is
+  cluster (``scheduler``, the ``dask`` extra); each process runs its point's stages with one worker
+  (``run_study(..., workers=1)``), so the points are the parallel work. A point that fails is
   recorded with its error and the stage that failed, and the others go on;
 - ``OUT/sweep.json`` (:class:`~piezopreload.artifacts.sweep.SweepRecord`) is written before the
   first point and again as each one ends; ``OUT/sweep.csv`` holds the rows, and ``OUT/report.pdf``
@@ -34,13 +34,11 @@ import itertools
 import multiprocessing
 import os
 import re
-import threading
 import time
 import tomllib
 import uuid
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -59,9 +57,11 @@ from piezopreload.artifacts.sweep import (
     SweepPoint,
     SweepRecord,
 )
+from piezopreload.artifacts.system import SystemRecord
+from piezopreload.artifacts.thermal import ThermalRecord
 from piezopreload.core.artifacts import atomic_write_text
 from piezopreload.core.errors import InputError, InternalError, PiezopreloadError
-from piezopreload.core.parallel import spare_cpus
+from piezopreload.core.parallel import Pool, default_workers
 from piezopreload.core.stagecache import StageCache
 from piezopreload.core.stages import locked, utc
 from piezopreload.outcome import RunSummary
@@ -210,49 +210,7 @@ class _Task:
     study: StudySpec
     out: str           # the sweep's folder, absolute
     force: bool
-    one_process: bool  # set PIEZOPRELOAD_WORKERS=1 around the point (a Dask worker; local workers set it at start)
-
-
-_ENV = "PIEZOPRELOAD_WORKERS"
-_env_lock = threading.Lock()
-
-
-@dataclass
-class _Borrowers:
-    """The points running with one process here, and the value of the setting to restore after the last."""
-
-    users: int = 0
-    saved: str | None = None
-
-
-_env_users = _Borrowers()
-
-
-@contextmanager
-def _one_process(on: bool) -> Iterator[None]:
-    """``PIEZOPRELOAD_WORKERS=1`` while points run here (threads of one Dask worker share the count)."""
-    if not on:
-        yield
-        return
-    with _env_lock:
-        if _env_users.users == 0:
-            _env_users.saved = os.environ.get(_ENV)
-            os.environ[_ENV] = "1"
-        _env_users.users += 1
-    try:
-        yield
-    finally:
-        with _env_lock:
-            _env_users.users -= 1
-            if _env_users.users == 0:
-                if _env_users.saved is None:
-                    os.environ.pop(_ENV, None)
-                else:
-                    os.environ[_ENV] = _env_users.saved
-
-
-def _worker_init() -> None:
-    os.environ[_ENV] = "1"  # a sweep's worker process: the points are the parallel work
+    workers: int       # the point's run's worker processes (1 where the points are the parallel work)
 
 
 def run_point(task: _Task) -> SweepPoint:
@@ -265,9 +223,10 @@ def run_point(task: _Task) -> SweepPoint:
     code: int | None = None
     ran: tuple[str, ...] = ()
     summary: RunSummary | None = None
-    with _one_process(task.one_process), open(folder / POINT_LOG, "w", encoding="utf-8") as log:
+    with open(folder / POINT_LOG, "w", encoding="utf-8") as log:
         try:
-            result = run_study(task.study, folder, force=task.force, progress=Progress(stream=log), cache=cache)
+            result = run_study(task.study, folder, force=task.force, progress=Progress(stream=log), cache=cache,
+                               workers=task.workers)
             summary, ran = result.summary, tuple(s for s in result.ran if s not in cache.reused)
         except PiezopreloadError as exc:
             status, error, stage = "failed", str(exc), getattr(exc, "stage", None)
@@ -293,19 +252,17 @@ def _gain_set(folder: Path, manifest: StudyRunManifest) -> GainSet | None:
         return None
 
 
-#: the point's thermal figures (:class:`~piezopreload.artifacts.sweep.PointFigures`' names) by the summary's
-_THERMAL = {"heat_mean_W": ("heat_mean_W", "heat_mean_constant_W"),
-            "temperature_rise_max_K": ("temperature_rise_max_K", "temperature_rise_max_constant_K"),
-            "growth_max_um": ("thermal_growth_max_um", "thermal_growth_max_constant_um"),
-            "positioning_error_max_um": ("positioning_error_max_um", "positioning_error_max_constant_um")}
-
-
-def _thermal_figures(system: SystemSummary | None) -> dict[str, float | None]:
-    """The shift's figures of the system stage (``thermal``), for the schedule and the constant preload."""
-    out: dict[str, float | None] = {}
-    for key, (scheduled, constant) in _THERMAL.items():
-        out[scheduled], out[constant] = (None, None) if system is None else system.thermal_figure(key)
-    return out
+def _thermal(folder: Path, manifest: StudyRunManifest) -> ThermalRecord | None:
+    """The shift's thermal budget as the point's system artifact records it (None: no system stage, or no
+    ``[thermal]`` table)."""
+    record = manifest.record("system")
+    out = None if record is None or not record.done else record.outputs.get("system")
+    if out is None:
+        return None
+    try:
+        return SystemRecord.load(folder / out.path).thermal
+    except PiezopreloadError:
+        return None
 
 
 def headline(folder: str | Path, summary: RunSummary | None = None) -> PointFigures:
@@ -322,6 +279,8 @@ def headline(folder: str | Path, summary: RunSummary | None = None) -> PointFigu
     system = manifest.summary(SystemSummary)
     gain_set = _gain_set(folder, manifest)
     validation = None if gain_set is None else gain_set.validation
+    thermal = _thermal(folder, manifest)  # the shift, for the schedule (s) and the best constant preload (c)
+    s, c = (None, None) if thermal is None else (thermal.schedule, thermal.constant)
     worst = None if validation is None else validation.worst
     h = summary.headline
     energy, saved = h.friction_energy_per_cycle, h.friction_saved_fraction
@@ -347,7 +306,14 @@ def headline(folder: str | Path, summary: RunSummary | None = None) -> PointFigu
         friction_energy_per_cycle=energy, energy_units=None if system is None else system.numbers.energy_units,
         constant_friction_energy_per_cycle=(None if energy is None or design is None
                                             else design.constant_friction_energy),
-        friction_saving_pct=None if saved is None else 100.0 * saved, **_thermal_figures(system),
+        friction_saving_pct=None if saved is None else 100.0 * saved,
+        heat_mean_W=None if s is None else s.heat_mean_W, constant_heat_mean_W=None if c is None else c.heat_mean_W,
+        temperature_rise_max_K=None if s is None else s.temperature_rise_max_K,
+        constant_temperature_rise_max_K=None if c is None else c.temperature_rise_max_K,
+        growth_max_um=None if s is None else s.growth_max_um,
+        constant_growth_max_um=None if c is None else c.growth_max_um,
+        positioning_error_max_um=None if s is None else s.positioning_error_max_um,
+        constant_positioning_error_max_um=None if c is None else c.positioning_error_max_um,
         rig_status=None if rig is None else rig.status,
         requirements_met=summary.requirements_met, requirements_missed=tuple(r.to_dict() for r in summary.missed))
 
@@ -365,8 +331,7 @@ def _lost(task: _Task, exc: BaseException) -> SweepPoint:
 def _run_local(tasks: list[_Task], workers: int, done: Callable[[SweepPoint], None]) -> None:
     # fresh processes: a forked one inherits the threads' locks of whatever ran here before (Typst's compiler
     # threads, after a report: a forked point then hangs in its own report); they import the package once each
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_worker_init)
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
     try:
         futures = {pool.submit(run_point, t): t for t in tasks}
         for fut in as_completed(futures):
@@ -488,14 +453,16 @@ def sweep(study: StudySpec, vary: Mapping[str, Sequence[Scalar]], *, mode: str =
                                    for i, (values, _) in enumerate(planned)),
                              utc())
         record.save(out / RECORD)
-        n = min(workers or spare_cpus(), len(planned))
+        here = default_workers()  # the one read of the user's setting: a point run in this process has this many
+        n = min(workers or here, len(planned))
         reporter.write(f"sweep of {study.name}: {len(planned)} points ({mode}: "
                        + " x ".join(f"{a.key} {len(a.values)}" for a in axes) + "), on "
                        + (f"the Dask cluster {scheduler}" if scheduler else
                           f"{n} local worker processes" if n > 1 else "this process, one after another")
                        + f"; outputs in {out}/\n")
-        tasks = [_Task(i, values, f"{POINTS}/p{i:03d}", s, str(out), force, scheduler is not None)
-                 for i, (values, s) in enumerate(planned)]
+        # a point in a worker runs its stages one job after another (the points are the parallel work); one run
+        # here has the processes a study run has
+        tasks = [_Task(i, values, f"{POINTS}/p{i:03d}", s, str(out), force, 1) for i, (values, s) in enumerate(planned)]
         count = 0
 
         def done(point: SweepPoint) -> None:
@@ -512,7 +479,7 @@ def sweep(study: StudySpec, vary: Mapping[str, Sequence[Scalar]], *, mode: str =
                 _run_dask(batch, scheduler, done)
             elif n <= 1 or len(batch) == 1:
                 for task in batch:
-                    done(run_point(task))
+                    done(run_point(replace(task, workers=here)))
             else:
                 _run_local(batch, min(n, len(batch)), done)
         result = SweepResult(out, record, time.perf_counter() - t0)
@@ -520,7 +487,8 @@ def sweep(study: StudySpec, vary: Mapping[str, Sequence[Scalar]], *, mode: str =
         if report:
             from piezopreload.reports.sweep_report import render_sweep_report
 
-            render_sweep_report(out, record, say=reporter.say)
+            with Pool(here) as pool:
+                render_sweep_report(out, record, say=reporter.say, pool=pool)
     seconds = time.perf_counter() - t0
     failed, missed = len(result.failed), result.missed
     missing = (f", {len(missed)} of them missed a requirement ({', '.join(Path(p.folder).name for p in missed)}: "
@@ -551,8 +519,9 @@ class SweepReport:
 
 
 def rerender_sweep_report(out: str | Path, progress: ProgressLike | None = None,
-                          template: str | Path | None = None) -> SweepReport:
-    """Typeset a sweep's report again from ``OUT/sweep.json`` (``piezopreload report SWEEP_DIR``); nothing else runs."""
+                          template: str | Path | None = None, workers: int | None = None) -> SweepReport:
+    """Typeset a sweep's report again from ``OUT/sweep.json`` (``piezopreload report SWEEP_DIR``); nothing else runs.
+    ``workers``: the processes that draw the figures (default: :func:`~piezopreload.core.parallel.default_workers`)."""
     reporter = as_progress(progress)
     t0 = time.perf_counter()
     out = Path(out)
@@ -560,8 +529,9 @@ def rerender_sweep_report(out: str | Path, progress: ProgressLike | None = None,
     record = SweepRecord.load(out / RECORD)
     from piezopreload.reports.sweep_report import render_sweep_report
 
-    with locked(out, f"{out}: a sweep is writing this folder; wait for it"):
-        written = render_sweep_report(out, record, say=reporter.say, template=text)
+    with locked(out, f"{out}: a sweep is writing this folder; wait for it"), \
+            Pool(default_workers() if workers is None else workers) as pool:
+        written = render_sweep_report(out, record, say=reporter.say, template=text, pool=pool)
     seconds = time.perf_counter() - t0
     reporter.write(f"the sweep's report is {written['report']} ({seconds:.1f} s)\n")
     return SweepReport(out.resolve(), written["report"].resolve(), seconds, len(record.points))

@@ -23,7 +23,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from piezopreload.core.parallel import fork_pool, spare_cpus
+from piezopreload.core.parallel import Pool
 from piezopreload.core.quantities import quantity
 
 if TYPE_CHECKING:
@@ -198,29 +198,26 @@ def _save_pickled(blob: bytes, path: str) -> str:
     return str(save(pickle.loads(blob), path))
 
 
-def save_all(figures: Sequence[tuple[Figure, str | Path]], *, workers: int | None = None,
+def save_all(figures: Sequence[tuple[Figure, str | Path]], *, pool: Pool | None = None,
              progress: Callable[[int, int], None] | None = None) -> list[Path]:
-    """Write each ``(figure, path)`` as :func:`save` does, drawn by ``workers`` processes at once.
+    """Write each ``(figure, path)`` as :func:`save` does, drawn by the run's worker processes at once.
 
-    Drawing is most of a report's time and the figures are independent: by default one worker
-    per CPU (at most four, ``PIEZOPRELOAD_WORKERS`` if set); ``workers=1``, or a platform without ``fork``, draws them
-    here, one after the other. ``progress(done, total)`` is called as each file is written.
+    Drawing is most of a report's time and the figures are independent: each is drawn by a process of
+    ``pool`` (the run's :class:`~piezopreload.core.parallel.Pool`); without one, or with one worker, they are
+    drawn here, one after the other. ``progress(done, total)`` is called as each file is written.
     """
     total = len(figures)
-    n = min(total, spare_cpus(), 4) if workers is None else max(1, min(workers, total))
     say = progress or (lambda _i, _n: None)
-    pool = fork_pool(n) if n > 1 else None
-    if pool is None:
+    if pool is None or not pool.parallel or total <= 1:
         written = []
         for i, (fig, path) in enumerate(figures, start=1):
             written.append(save(fig, path))
             say(i, total)
         return written
-    with pool:
-        futures = [pool.submit(_save_pickled, pickle.dumps(fig), str(path)) for fig, path in figures]
-        for i, _ in enumerate(as_completed(futures), start=1):
-            say(i, total)
-        return [Path(f.result()) for f in futures]
+    futures = [pool.submit(_save_pickled, pickle.dumps(fig), str(path)) for fig, path in figures]
+    for i, _ in enumerate(as_completed(futures), start=1):
+        say(i, total)
+    return [Path(f.result()) for f in futures]
 
 
 def styled(fn: Any) -> Any:

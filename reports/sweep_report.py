@@ -16,8 +16,15 @@ from pathlib import Path
 from typing import Any, TypedDict
 
 from piezopreload.artifacts.sweep import SweepPoint, SweepRecord
-from piezopreload.core.artifacts import atomic_write_bytes, atomic_write_text, package_version, write_artifact
+from piezopreload.core.artifacts import (
+    SWEEP_REPORT,
+    atomic_write_bytes,
+    atomic_write_text,
+    package_version,
+    write_artifact,
+)
 from piezopreload.core.errors import InputError
+from piezopreload.core.parallel import Pool
 from piezopreload.reports import figures as F
 from piezopreload.reports.document import fmt
 from piezopreload.reports.sweep_figures import label, numeric, sweep_plot
@@ -129,7 +136,7 @@ def _omitted_reason(record: SweepRecord, stage: str) -> str:
     return f"no point has these figures: none reached the {stage} stage"
 
 
-def _figures(record: SweepRecord, figdir: Path, bar: Callable[[int, int], None] | None) -> tuple[
+def _figures(record: SweepRecord, figdir: Path, bar: Callable[[int, int], None] | None, pool: Pool | None) -> tuple[
         dict[str, dict[str, str]], list[dict[str, str]], dict[str, Path]]:
     rows, keys = record.rows(), record.keys
     x, by = keys[0], (list(keys[1:]) if record.mode == "grid" else [])
@@ -147,22 +154,23 @@ def _figures(record: SweepRecord, figdir: Path, bar: Callable[[int, int], None] 
                        "caption": f"{what}, against {x}{lines}"
                        + ("; red crosses: points that failed" if failed else "")
                                   + "."}
-    F.save_all(pending, progress=bar)
+    F.save_all(pending, pool=pool, progress=bar)
     return shown, omitted, written
 
 
 def render_sweep_report(out: Path, record: SweepRecord, *, say: Callable[[str], None],
                         bar: Callable[[int, int], None] | None = None, template: str | None = None,
-                        now: _dt.datetime | None = None) -> dict[str, Path]:
+                        now: _dt.datetime | None = None, pool: Pool | None = None) -> dict[str, Path]:
     """The figures, ``report/report.json``, ``report/report.typ`` and ``report.pdf`` of the sweep in ``out``.
 
-    ``template``: a Typst template's text (default: the shipped ``sweep.typ``); ``say`` gets messages.
+    ``template``: a Typst template's text (default: the shipped ``sweep.typ``); ``say`` gets messages; ``pool``:
+    the worker processes that draw the figures (default: drawn here, one after another).
     Returns what it wrote: ``report``, ``report_json``, ``template`` and ``figure-NAME``.
     """
     out = Path(out)
     folder = out / "report"
     now = now or _dt.datetime.now(_dt.UTC).replace(microsecond=0)
-    shown, omitted, written = _figures(record, folder / "figures", bar)
+    shown, omitted, written = _figures(record, folder / "figures", bar, pool)
     version = package_version()
     data = {
         "title": f"Sweep of the study {record.study_name}",
@@ -179,7 +187,7 @@ def render_sweep_report(out: Path, record: SweepRecord, *, say: Callable[[str], 
              f"{record.points[0].folder} to {record.points[-1].folder}" if record.points else "none"],
             ["rows", "sweep.csv, sweep.json"]]},
     }
-    write_artifact(folder / "report.json", "sweep-report", data)
+    write_artifact(folder / "report.json", SWEEP_REPORT, data)
     atomic_write_text(folder / "report.typ", template if template is not None else template_text(SWEEP_TEMPLATE))
     try:
         pdf = compile_pdf(folder / "report.typ", date=now)

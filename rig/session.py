@@ -227,10 +227,16 @@ def run_metrics(columns: dict[str, np.ndarray], reference: Reference, band_N: fl
 
 @dataclass(frozen=True, eq=False)
 class RigRun:
-    """A rig session's outcome: ``summary`` (what ``--json`` prints) and the run's samples as kept in memory."""
+    """A rig session's outcome: ``summary`` (what ``--json`` prints), the run's samples as kept in memory, its
+    sidecar as the run ended (``record``: what the run printed is read from it), the log's files and, for a served
+    rig, the pushes it took or refused."""
 
     summary: dict[str, Any]
     columns: dict[str, np.ndarray]
+    record: RigRunRecord
+    log_csv: str | None
+    log_json: str | None
+    pushes: tuple[dict[str, Any], ...] = ()
 
     @property
     def ok(self) -> bool:
@@ -388,7 +394,7 @@ def _summary(result: RunResult, log: RunLog, su: _Setup) -> RigRun:
     }
     if su.learned is not None:
         summary["learned"] = dict(rec.learned or {})
-    return RigRun(summary, columns)
+    return RigRun(summary, columns, rec, result.csv_path, result.json_path)
 
 
 def _learned_metrics(columns: dict[str, np.ndarray], signal: LearnedSignal) -> LearnedFigures:
@@ -502,7 +508,7 @@ def serve(gains_path: str | Path, *, endpoint: str, users: dict[str, str], certi
     finally:
         _close(su.backend)
     out.summary["pushes"] = server.pushes
-    return out
+    return replace(out, pushes=tuple(server.pushes))
 
 
 async def _serve(server: RigServer, executor: Executor, duration_s: float | None, ready: Any, stop: Any) -> RunResult:

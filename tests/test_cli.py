@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 
 from piezopreload.artifacts.hysteresis import DataSource, FitError, IdentifiedModel, SolverReport, Units
+from piezopreload.artifacts.registry import read_artifact, write_artifact
 from piezopreload.cli import COMMANDS, build_parser, main
-from piezopreload.core.artifacts import ArtifactError, read_artifact, write_artifact
+from piezopreload.core.artifacts import ArtifactError
 from piezopreload.models.hysteresis import ClassicalPI, uniform_thresholds
 
 ROOT = Path(__file__).resolve().parents[1]

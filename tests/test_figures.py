@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from piezopreload.core.parallel import Pool
 from piezopreload.reports import figures as F
 
 
@@ -12,9 +13,10 @@ def _figures(tmp_path, folder):
 
 
 def test_save_all_in_workers_writes_what_saving_here_writes(tmp_path):
-    here = F.save_all(_figures(tmp_path, "here"), workers=1)
+    here = F.save_all(_figures(tmp_path, "here"), pool=Pool(1))
     seen = []
-    pooled = F.save_all(_figures(tmp_path, "pool"), workers=2, progress=lambda i, n: seen.append((i, n)))
+    with Pool(2) as pool:  # the run's processes draw them
+        pooled = F.save_all(_figures(tmp_path, "pool"), pool=pool, progress=lambda i, n: seen.append((i, n)))
     assert [p.name for p in pooled] == [p.name for p in here]
     for a, b in zip(here, pooled, strict=True):
         assert a.read_bytes() == b.read_bytes(), f"{b} differs from {a}"

@@ -102,7 +102,7 @@ def test_tune_schedule_records_both_sets_per_level_and_chooses_by_them():
     step = Reference.step(25.0, 60.0, 0.3, 1.2)
     trajectory = Reference.staircase(25.0, [45.0, 65.0, 45.0], 0.6, t_start_s=0.3)
     res = tune_schedule(rig, None, spec, criteria, robust, levels_N=[30.0, 60.0], step=step, trajectory=trajectory,
-                        n_plants=3, seed=1, workers=1)
+                        n_plants=3, seed=1)  # no pool: here, one job after another
     assert res.schedule.levels_N == (30.0, 60.0)
     assert res.scheduled.schedule is res.schedule and res.scheduled.Tf_s == robust.Tf_s
     d = res.to_dict()

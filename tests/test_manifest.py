@@ -60,8 +60,7 @@ def test_the_typed_summaries_hold_the_numbers_the_json_holds():
     system = manifest.summary(SystemSummary)
     assert system is not None and system.before is not None
     assert system.numbers.tracking_rms_N == stages["system"]["summary"]["tracking_rms_N"]
-    assert system.thermal_figure("growth_max_um") == tuple(
-        stages["system"]["summary"]["thermal"]["growth_max_um"][c] for c in ("schedule", "constant"))
+    assert system.thermal == stages["system"]["summary"]["thermal"]
     learn = manifest.summary(LearnSummary)
     assert learn is not None and list(learn.trials_per_pass) == stages["learn"]["summary"]["trials_per_pass"]
     rig = manifest.summary(RigSummary)

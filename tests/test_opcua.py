@@ -18,9 +18,9 @@ from asyncua import Client, ua
 from rigkit import write_gain_set
 
 from piezopreload.artifacts.gainset import RigInterlocks
+from piezopreload.artifacts.registry import read_artifact
 from piezopreload.artifacts.rigrun import RigRunRecord
 from piezopreload.cli import main
-from piezopreload.core.artifacts import read_artifact
 from piezopreload.models.controller import GainSchedule, PIDGains
 from piezopreload.rig.opcua import NAMESPACE, ROOT, Credentials, PushRefused, push_gain_set
 from piezopreload.rig.runlog import read_run_log

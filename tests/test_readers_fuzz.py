@@ -20,9 +20,9 @@ from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.hysteresis import DataSource, FitError, IdentifiedModel, SolverReport, Units
 from piezopreload.artifacts.learned import KIND as LEARNED
 from piezopreload.artifacts.learned import LearnedSignal
+from piezopreload.artifacts.registry import write_artifact
 from piezopreload.artifacts.responses import CreepRow, ReproductionRow, ResponseRun, ResponsesRecord
 from piezopreload.cli import main
-from piezopreload.core.artifacts import write_artifact
 from piezopreload.core.errors import ArtifactError, PiezopreloadError
 from piezopreload.core.tables import read_record
 from piezopreload.data import __file__ as data_init

@@ -19,10 +19,10 @@ import pytest
 from rigkit import INTERLOCK_FAULTS, STALL_LIMIT_S, write_gain_set
 
 from piezopreload.artifacts.gainset import GainSet, RigInterlocks
+from piezopreload.artifacts.registry import read_artifact
 from piezopreload.artifacts.rigrun import RigRunRecord
 from piezopreload.artifacts.validation import Criteria
 from piezopreload.cli import main
-from piezopreload.core.artifacts import read_artifact
 from piezopreload.core.errors import ArtifactError, InputError
 from piezopreload.models.actuator import Rig
 from piezopreload.models.controller import Controller, PIDGains

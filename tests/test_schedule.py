@@ -11,7 +11,7 @@ import pytest
 from stkit import translate
 
 from piezopreload.artifacts.gainset import GainSet, GainsTable, gains_from_dict
-from piezopreload.core.artifacts import write_artifact
+from piezopreload.artifacts.registry import write_artifact
 from piezopreload.core.errors import ArtifactError, InputError
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import Reference, simulate

@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from piezopreload.artifacts.registry import write_artifact
 from piezopreload.cli import main
-from piezopreload.core.artifacts import write_artifact
 from piezopreload.core.errors import InputError
 from piezopreload.study import load_study, paper_study
 from piezopreload.tuning.calibrate import PAPER_RESULTS

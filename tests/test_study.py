@@ -352,7 +352,7 @@ def test_the_design_is_solved_once_kept_and_fronts_traced_only_when_asked(monkey
 
 def test_tune_on_the_default_study_says_what_it_pays_for_the_plant(monkeypatch):
     """``pp.load_study().tune()``: the design's optimum, said through the step's progress, and no Pareto front."""
-    import piezopreload.results as results
+    from piezopreload.core.parallel import Pool
 
     fronts = []
     monkeypatch.setattr(design_study_module, "pareto_front", lambda *a, **k: fronts.append(a))
@@ -361,11 +361,11 @@ def test_tune_on_the_default_study_says_what_it_pays_for_the_plant(monkeypatch):
     class Tuning(Exception):
         """Where the tuning itself would start (its minimum-time bound first): what came before is the plant's."""
 
-    def bound(function, plant, **kwargs):
+    def bound(pool, function, plant, **kwargs):
         seen["plant"] = plant
         raise Tuning
 
-    monkeypatch.setattr(results, "beside", bound)
+    monkeypatch.setattr(Pool, "beside", bound)
     said: list[str] = []
     axis = pp.load_study(**QUIET)
     with pytest.raises(Tuning):

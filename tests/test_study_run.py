@@ -19,10 +19,10 @@ import pytest
 
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.manifest import StudyRunManifest
+from piezopreload.artifacts.registry import read_artifact
 from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.summaries import ValidateSummary
 from piezopreload.cli import main
-from piezopreload.core.artifacts import read_artifact
 from piezopreload.core.errors import InputError
 from piezopreload.pipeline import STAGES, run_study
 from piezopreload.progress import Progress

@@ -27,10 +27,10 @@ from matplotlib.figure import Figure
 
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.manifest import StudyRunManifest
+from piezopreload.artifacts.registry import read_artifact
 from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.sweep import EXIT_POINT_FAILED, PointFigures, SweepAxis, SweepPoint, SweepRecord
 from piezopreload.cli import main
-from piezopreload.core.artifacts import read_artifact
 from piezopreload.core.errors import ArtifactError, InputError, PiezopreloadError
 from piezopreload.core.stagecache import StageCache
 from piezopreload.pipeline import run_study
@@ -227,6 +227,31 @@ def _record() -> SweepRecord:
                                               if i == 2 else [])))
     return SweepRecord("small", "tests/data/small_study.toml", "0" * 64, "grid", axes, tuple(points),
                        "2026-01-01T00:00:00Z")
+
+
+def test_a_sweep_written_before_the_thermal_names_were_unified_reads_under_the_budget_s_names(tmp_path):
+    """The thermal columns carry the thermal budget's own names (``growth_max_um``, and ``constant_growth_max_um``
+    for the best constant preload), as ``run --json``'s summary and the system artifact do; a sweep.json written with
+    the former names (``thermal_growth_max_um``, ``heat_mean_constant_W``, ...) reads, its figures under the new."""
+    import json
+
+    doc = json.loads((DATA / "artifacts" / "sweep.json").read_text())
+    old = {"heat_mean_W": 310.0, "heat_mean_constant_W": 420.0, "temperature_rise_max_K": 3.5,
+           "temperature_rise_max_constant_K": 4.75, "thermal_growth_max_um": 41.0,
+           "thermal_growth_max_constant_um": 55.5, "positioning_error_max_um": 60.25,
+           "positioning_error_max_constant_um": 71.0}
+    assert set(old) <= set(doc["points"][0]["figures"]), "the data no longer holds the former names"
+    doc["points"][0]["figures"].update(old)
+    (tmp_path / "sweep.json").write_text(json.dumps(doc))
+    record = SweepRecord.load(tmp_path / "sweep.json")
+    f = record.points[0].figures
+    assert (f.heat_mean_W, f.constant_heat_mean_W, f.temperature_rise_max_K, f.constant_temperature_rise_max_K,
+            f.growth_max_um, f.constant_growth_max_um, f.positioning_error_max_um,
+            f.constant_positioning_error_max_um) == tuple(old.values())
+    columns = record.columns()
+    assert {"growth_max_um", "constant_growth_max_um", "constant_heat_mean_W"} <= set(columns)
+    assert not set(columns) & set(PointFigures.RENAMED), "a former name is still written"
+    assert SweepResult(tmp_path, record).csv_text().splitlines()[0].split(",") == list(columns)
 
 
 def test_the_record_round_trips_and_names_a_bad_field(tmp_path):

@@ -9,10 +9,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from piezopreload.artifacts.registry import write_artifact
 from piezopreload.artifacts.validation import Criteria
 from piezopreload.cli import main
 from piezopreload.core import native
-from piezopreload.core.artifacts import write_artifact
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains

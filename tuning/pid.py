@@ -46,9 +46,8 @@ import numpy as np
 
 from piezopreload.artifacts.tuning import ActiveBound
 from piezopreload.core import native
-from piezopreload.core.config import Invalid
 from piezopreload.core.errors import InfeasibleError, InputError
-from piezopreload.core.records import Checked, checked, entry
+from piezopreload.core.records import Checked, Invalid, checked, entry
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import PAPER_BAND_N, Reference
 from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V, SCHEDULE_MAX, PIDGains

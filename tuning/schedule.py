@@ -66,7 +66,7 @@ import numpy as np
 from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.validation import Criteria, ValidationResult
 from piezopreload.core.errors import InternalError
-from piezopreload.core.parallel import spare_cpus
+from piezopreload.core.parallel import Pool
 from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import GainSchedule, PIDGains
@@ -404,7 +404,7 @@ def tune_schedule(
     trajectory: Reference,
     n_plants: int = 50,
     seed: int = 0,
-    workers: int | None = None,
+    pool: Pool | None = None,
     progress: Callable[[str], None] | None = None,
     known: GainSchedule | None = None,
 ) -> ScheduleResult:
@@ -416,10 +416,10 @@ def tune_schedule(
     ``criteria`` the limits every Monte Carlo plant must meet, ``robust`` the one set tuned over
     the whole range. ``step`` and ``trajectory`` are the study's references (the whole range);
     each window is validated on a step and a staircase with their timing. ``n_plants`` Monte
-    Carlo plants per validation (noise and draws from ``seed``); ``workers`` processes for the
-    entries' tunings and the validations (default: the spare CPUs). ``known``: a schedule whose
-    entries at the same levels each entry's tuning is given as a known point (a warm start's). See
-    the module docstring.
+    Carlo plants per validation (noise and draws from ``seed``); ``pool``: the run's worker processes the
+    entries' tunings and the validations are submitted to (default: none, one after another here).
+    ``known``: a schedule whose entries at the same levels each entry's tuning is given as a known point
+    (a warm start's). See the module docstring.
     """
     say = progress or (lambda _m: None)
     t0 = time.perf_counter()
@@ -430,29 +430,28 @@ def tune_schedule(
     def judging(gains: PIDGains) -> list[tuple[Any, ...]]:
         return [(gains, feedforward, params, criteria, n_plants, seed, s, t) for s, t in plan.checks]
 
-    n_workers = max(1, min(2 * len(plan.checks), spare_cpus() if workers is None else workers))
-    with executor(n_workers) as (pool, pool_name):
+    with executor(1, pool=pool) as (run, pool_name):
         say(f"tuning {lv.size} entries of the gain schedule at {', '.join(f'{x:g}' for x in lv)} N (Kc, Ti, Td and b "
             f"each), validating the robust set at each level and over the whole range beside them ({n_plants} plants "
             f"each; {pool_name}) ...")
         warm = _warm_entries(known, lv, robust)
-        tuning_futures = [pool.submit(_tune_entry, (params, inverse, sp, robust, w)) for sp, w in zip(plan.specs, warm)]
-        robust_futures = [pool.submit(_judge, j) for j in judging(robust)]  # needs nothing the tuning gives
+        tuning_futures = [run.submit(_tune_entry, (params, inverse, sp, robust, w)) for sp, w in zip(plan.specs, warm)]
+        robust_futures = [run.submit(_judge, j) for j in judging(robust)]  # needs nothing the tuning gives
         tuned = _rising(lv, [f.result() for f in tuning_futures])
         say("validating the schedule at each level and over the whole range ...")
         scheduled_set = replace(robust, schedule=_schedule_of(lv, [g for g, _ in tuned]))
-        scheduled_figures = [f.result() for f in [pool.submit(_judge, j) for j in judging(scheduled_set)]]
+        scheduled_figures = [f.result() for f in [run.submit(_judge, j) for j in judging(scheduled_set)]]
         again = {i: m for i, (fig, sp) in enumerate(zip(scheduled_figures, plan.specs))
                  if (m := _tighter(sp, fig, criteria)) is not None and m < sp.band_N}
         if again:
             say(f"tuning again the entries at {', '.join(f'{lv[i]:g}' for i in again)} N with their overshoot margin "
                 "widened by the Monte Carlo excess, and validating the schedule again ...")
-            retuned = {i: pool.submit(_tune_entry, (params, inverse, replace(plan.specs[i], overshoot_margin_N=m),
+            retuned = {i: run.submit(_tune_entry, (params, inverse, replace(plan.specs[i], overshoot_margin_N=m),
                                                     robust, warm[i]))
                        for i, m in again.items()}
             tuned = _rising(lv, [retuned[i].result() if i in retuned else t for i, t in enumerate(tuned)])
             scheduled_set = replace(robust, schedule=_schedule_of(lv, [g for g, _ in tuned]))
-            scheduled_figures = [f.result() for f in [pool.submit(_judge, j) for j in judging(scheduled_set)]]
+            scheduled_figures = [f.result() for f in [run.submit(_judge, j) for j in judging(scheduled_set)]]
         robust_figures = [f.result() for f in robust_futures]
     schedule = _schedule_of(lv, [g for g, _ in tuned])
     levels = []

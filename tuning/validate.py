@@ -30,7 +30,7 @@ import numpy as np
 
 from piezopreload.artifacts.validation import METRICS, Criteria, ValidationResult
 from piezopreload.core.errors import InputError, PiezopreloadError
-from piezopreload.core.parallel import spare_cpus
+from piezopreload.core.parallel import Pool
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
@@ -106,25 +106,15 @@ def run_chunk(chunk: _Chunk) -> dict[str, np.ndarray]:
                     chunk.seed)
 
 
-class _Inline(cf.Executor):
-    """Runs each job at submission: the executor for one worker."""
-
-    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> cf.Future:
-        future: cf.Future = cf.Future()
-        try:
-            future.set_result(fn(*args, **kwargs))
-        except BaseException as exc:  # handed to the caller through the future
-            future.set_exception(exc)
-        return future
-
-
 @contextlib.contextmanager
-def executor(workers: int | None = None, scheduler: str | None = None) -> Iterator[tuple[cf.Executor, str]]:
+def executor(workers: int = 1, scheduler: str | None = None,
+             pool: Pool | None = None) -> Iterator[tuple[cf.Executor, str]]:
     """A ``concurrent.futures`` executor and its description.
 
     ``scheduler`` (``tcp://HOST:PORT``) uses a Dask distributed cluster (the optional ``dask``
-    extra); otherwise ``workers`` local processes (default: the CPU count, or ``PIEZOPRELOAD_WORKERS`` where set:
-    :func:`piezopreload.core.parallel.spare_cpus`; 1 runs inline).
+    extra); else ``pool``, the run's worker processes, where given (left open: the run shuts it);
+    else a :class:`~piezopreload.core.parallel.Pool` of ``workers`` local processes for this
+    block alone (1 runs inline).
     """
     if scheduler is not None:
         try:
@@ -142,12 +132,11 @@ def executor(workers: int | None = None, scheduler: str | None = None) -> Iterat
         finally:
             client.close()
         return
-    n = workers if workers is not None else spare_cpus()
-    if n <= 1:
-        yield _Inline(), "inline"
+    if pool is not None:
+        yield pool, pool.description
         return
-    with cf.ProcessPoolExecutor(max_workers=n) as pool:
-        yield pool, f"{n} local processes"
+    with Pool(workers) as own:
+        yield own, own.description
 
 
 def validate(
@@ -196,7 +185,7 @@ def validate(
     for c, start in enumerate(range(0, n_plants, chunk_size)):
         sub = plants.take(slice(start, min(start + chunk_size, n_plants)))
         chunks.append(_Chunk(gains, feedforward, sub, step, trajectory, criteria, seed * 1000 + 2 * c))
-    run = pool or _Inline()
+    run = pool or Pool(1)
     futures = [run.submit(run_chunk, ch) for ch in chunks]
     results = []
     for i, fut in enumerate(futures):

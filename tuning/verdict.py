@@ -19,17 +19,21 @@ from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core.errors import InputError
+from piezopreload.core.parallel import Pool
 from piezopreload.tuning.schedule import level_requirements
 from piezopreload.tuning.validate import SchedulerError, executor, validate
 
 __all__ = ["validate_gain_set", "level_requirements_of"]
 
 
-def validate_gain_set(gain_set: GainSet, *, n_plants: int, seed: int, workers: int | None = None,
-                      scheduler: str | None = None, progress: Callable[[int, int], None] | None = None,
+def validate_gain_set(gain_set: GainSet, *, n_plants: int, seed: int, workers: int = 1,
+                      scheduler: str | None = None, pool: Pool | None = None,
+                      progress: Callable[[int, int], None] | None = None,
                       inputs: dict[str, Any] | None = None) -> tuple[GainSet, ValidationResult]:
     """Validate ``gain_set`` on ``n_plants`` plants drawn around its plant (noise and draw ``seed``).
 
+    The plants run on the Dask cluster at ``scheduler`` where given, else on ``pool`` (the run's worker
+    processes) where given, else on ``workers`` local processes of this call's own.
     Returns the gain set with this validation, its status and ``inputs`` added (not yet
     saved: its ``content_sha256`` is None), and the per-plant result.
     """
@@ -42,9 +46,9 @@ def validate_gain_set(gain_set: GainSet, *, n_plants: int, seed: int, workers: i
     criteria = gain_set.criteria
     step, trajectory = gain_set.reference("step"), gain_set.reference("trajectory")
     try:
-        with executor(workers, scheduler) as (pool, pool_name):
+        with executor(workers, scheduler, pool) as (run, pool_name):
             result = validate(gain_set.gains, gain_set.feedforward, gain_set.plant, criteria, n_plants=n_plants,
-                              seed=seed, step=step, trajectory=trajectory, pool=pool, pool_name=pool_name,
+                              seed=seed, step=step, trajectory=trajectory, pool=run, pool_name=pool_name,
                               progress=progress)
     except SchedulerError as exc:
         raise InputError(f"--scheduler: {exc}") from None

@@ -16,7 +16,7 @@ from piezopreload.cli._common import (
     json_flag,
     say,
 )
-from piezopreload.core.errors import InputError
+from piezopreload.core.errors import InputError, InternalError
 
 if TYPE_CHECKING:
     from piezopreload.artifacts.hostcheck import HostCheck
@@ -286,38 +286,42 @@ def _cmd_rig_push(args: argparse.Namespace) -> ServedPush | PlcPush:
 
 
 def _print_rig_run(run: RigRun) -> None:
-    s = run.summary
-    t = s["timing"]
-    print(f"{s['status']}: {s['cycles']} cycles at {s['rate_Hz']:g} Hz on '{s['backend']}' "
-          f"({'real time' if s['realtime'] else 'back to back'}), controller step in {s['controller_step']}, "
-          f"{s.get('loop') or 'python'} loop")
-    if s["trip"]:
-        trip = s["trip"]
-        print(f"stopped by interlock '{trip['cause']}' at t = {trip['t_s']:.3f} s with {trip['voltage_V']:.4g} V held: "
-              f"{trip['detail']}")
-    m = s["metrics"]
-    if m is not None and m.get("settling_s") is not None:
-        print(f"step: rise {fmt(m['rise_s'], ' s')}, peak {fmt(m['peak_s'], ' s')}, "
-              f"settling {fmt(m['settling_s'], ' s')}, overshoot {fmt(m['overshoot_N'], ' N')}; "
-              f"tracking RMS {m['tracking_rms_N']:.3g} N")
-    elif m is not None and m.get("tracking_rms_N") is not None:
-        print(f"tracking RMS {m['tracking_rms_N']:.3g} N, largest error {m['tracking_max_N']:.3g} N")
-    lim, src = s["interlocks"], s["interlock_sources"]
+    """The run as its sidecar records it (``run.record``): how it ended, its figures, its limits and its timing."""
+    r = run.record
+    o = r.summary
+    if o is None:  # a run ends with its outcome recorded; the summary is what --json prints of it
+        raise InternalError(f"{run.log_json}: the run ended without its outcome in the sidecar")
+    t = o.timing
+    print(f"{r.status}: {o.cycles} cycles at {r.rate_Hz:g} Hz on '{r.backend}' "
+          f"({'real time' if r.realtime else 'back to back'}), controller step in {o.controller_step}, "
+          f"{t.loop or 'python'} loop")
+    if o.trip is not None:
+        trip = o.trip
+        print(f"stopped by interlock '{trip.cause}' at t = {trip.t_s:.3f} s with {trip.voltage_V:.4g} V held: "
+              f"{trip.detail}")
+    m = o.metrics
+    if m is not None and m.settling_s is not None:
+        print(f"step: rise {fmt(m.rise_s, ' s')}, peak {fmt(m.peak_s, ' s')}, "
+              f"settling {fmt(m.settling_s, ' s')}, overshoot {fmt(m.overshoot_N, ' N')}; "
+              f"tracking RMS {m.tracking_rms_N:.3g} N")
+    elif m is not None and m.tracking_rms_N is not None:
+        print(f"tracking RMS {m.tracking_rms_N:.3g} N, largest error {m.tracking_max_N:.3g} N")
+    lim, src = r.safety, r.safety_sources
     print(f"interlocks: force {lim['bolt_preload_N'] - lim['force_low_margin_N']:g}..{lim['force_max_N']:g} N "
           f"(force_max_N from {src['force_max_N']}); stall limit {lim['stall_limit_s'] * 1e3:g} ms "
           f"(from {src['stall_limit_s']})")
-    print(f"timing: {t['missed_deadlines']} missed deadlines, {t['stalls']} stalls (longest hold "
-          f"{t['held_max_s'] * 1e3:.2f} ms), lateness p99 {t['lateness_p99_s'] * 1e6:.0f} us, max "
-          f"{t['lateness_max_s'] * 1e3:.2f} ms, {t.get('lost_samples', 0)} samples lost"
-          + (f"; {t['sched_fifo']}; {t['memory_locked']}" if t.get("sched_fifo") else ""))
-    if s.get("host_check"):
-        h = s["host_check"]
-        print(f"host check: {h['verdict']}{' (run anyway: --accept-host)' if h['verdict'] == 'fail' else ''}; "
-              f"lateness p99 {h['lateness_p99_s'] * 1e6:.0f} us, max {h['lateness_max_s'] * 1e3:.2f} ms")
-    for p in s.get("pushes", []):
+    print(f"timing: {t.missed_deadlines} missed deadlines, {t.stalls} stalls (longest hold "
+          f"{t.held_max_s * 1e3:.2f} ms), lateness p99 {t.lateness_p99_s * 1e6:.0f} us, max "
+          f"{t.lateness_max_s * 1e3:.2f} ms, {t.lost_samples} samples lost"
+          + (f"; {t.sched_fifo}; {t.memory_locked}" if t.sched_fifo else ""))
+    if r.host_check is not None:
+        h = r.host_check
+        print(f"host check: {h.verdict}{' (run anyway: --accept-host)' if h.verdict == 'fail' else ''}; "
+              f"lateness p99 {h.lateness_p99_s * 1e6:.0f} us, max {h.lateness_max_s * 1e3:.2f} ms")
+    for p in run.pushes:
         print(f"push by {p['user']}: {'accepted' if p['accepted'] else 'refused'} "
               f"{p.get('gain_set_sha256', '')[:12]} {p.get('reason', '')}")
-    print(f"run log: {s['log_csv']} and {s['log_json']}")
+    print(f"run log: {run.log_csv} and {run.log_json}")
 
 
 @dataclass(frozen=True)
