@@ -10,12 +10,11 @@ preload, its friction energy and the plan's saving.
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any, ClassVar
 
 from piezopreload.artifacts.schedule import PreloadSchedule
 from piezopreload.core._typing import Array
-from piezopreload.core.records import Artifact, Record, entry, object_without, record
+from piezopreload.core.records import Record, SavedArtifact, entry, object_without, record
 
 __all__ = ["CONSTRAINT_WORDS", "VARIABLE_WORDS", "binding_words", "case_words", "DesignPoint", "Optimum", "Front",
            "PreloadCurve", "DutyCasePoint", "FrequencyCurve", "DesignRecord", "KIND"]
@@ -188,7 +187,7 @@ class FrequencyCurve(Record):
 
 
 @record(eq=False)
-class DesignRecord(Artifact):
+class DesignRecord(SavedArtifact):
     """The design artifact: the optimum, the fronts, the preload schedule on the optimum's screw, the curves, the
     units and the inputs.
 
@@ -215,19 +214,3 @@ class DesignRecord(Artifact):
     def point(self) -> DesignPoint:
         """The optimum's design point (the optimum's :attr:`Optimum.point`)."""
         return self.optimum.point
-
-    def save(self, path: str | Path) -> Path:
-        """Write the artifact atomically (kind ``design``).
-
-        Parameters
-        ----------
-        path : str or Path
-            The file.
-
-        Returns
-        -------
-        Path
-            The file written.
-        """
-        self._write(path)
-        return Path(path)

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from piezopreload.core.errors import ArtifactError
-from piezopreload.core.records import Artifact, Raw, Record, entry, record
+from piezopreload.core.records import Raw, Record, SavedArtifact, entry, record
 
 __all__ = ["KIND", "TrialRecord", "PassRecord", "LearningRecord"]
 
@@ -137,7 +137,7 @@ class PassRecord(Record):
 
 
 @record
-class LearningRecord(Artifact):
+class LearningRecord(SavedArtifact):
     """The learning of every pass of a schedule (module docstring); the top-level figures are the last pass's."""
 
     KIND: ClassVar[str] = KIND
@@ -196,19 +196,3 @@ class LearningRecord(Artifact):
         if self.passes[-1].signal != self.learned:
             raise raw.fail("learned", f"must be the last pass's signal ({self.passes[-1].signal}), got "
                                       f"{self.learned!r}")
-
-    def save(self, path: str | Path) -> Path:
-        """Write atomically (the one writer).
-
-        Parameters
-        ----------
-        path : str or Path
-            The file.
-
-        Returns
-        -------
-        Path
-            The file written.
-        """
-        self._write(path)
-        return Path(path)

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from piezopreload.core._typing import Array
-from piezopreload.core.records import Artifact, entry, record
+from piezopreload.core.records import SavedArtifact, entry, record
 from piezopreload.models.actuator import Plant
 from piezopreload.models.ballscrew import BallScrew
 
@@ -38,7 +38,7 @@ def _sleeve_to(x: float) -> float | None:
 
 
 @record(eq=False)
-class DesignedPlant(Artifact):
+class DesignedPlant(SavedArtifact):
     """The rig of a designed preload system and where its numbers come from."""
 
     KIND: ClassVar[str] = KIND
@@ -172,7 +172,4 @@ class DesignedPlant(Artifact):
         Path
             The file written.
         """
-        if inputs is not None:  # the same plant with the inputs given: that record writes itself
-            return replace(self, inputs=dict(inputs)).save(path)
-        self._write(path)
-        return Path(path)
+        return super().save(path) if inputs is None else replace(self, inputs=dict(inputs)).save(path)

@@ -23,7 +23,7 @@ from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.rigrun import RigRunRecord
 from piezopreload.artifacts.sweep import SweepRecord
 from piezopreload.artifacts.system import SystemRecord
-from piezopreload.artifacts.tuning import TuningRecord
+from piezopreload.artifacts.tuning import TuningResult
 from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core import artifacts as envelope
 from piezopreload.core.artifacts import DOCUMENTS, Kinds
@@ -34,7 +34,7 @@ __all__ = ["ARTIFACTS", "KINDS", "read_artifact", "write_artifact"]
 
 #: the records that are whole artifacts, one per kind (the stage store's entry is the core's own)
 ARTIFACTS: tuple[type[Artifact], ...] = (
-    IdentifiedModel, DesignRecord, DesignedPlant, TuningRecord, ValidationResult, GainSet, ResponsesRecord,
+    IdentifiedModel, DesignRecord, DesignedPlant, TuningResult, ValidationResult, GainSet, ResponsesRecord,
     LearningRecord, LearnedSignal, SystemRecord, RigRunRecord, SweepRecord, CacheEntry,
 )
 

@@ -9,11 +9,10 @@ and, where the feedforward compensates creep, FF + PID with the same model refit
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any, ClassVar
 
 from piezopreload.core.errors import ArtifactError
-from piezopreload.core.records import Artifact, Record, entry, record
+from piezopreload.core.records import Record, SavedArtifact, entry, record
 
 __all__ = ["ResponseRun", "ReproductionRow", "CreepRow", "ResponsesRecord", "RESPONSE_FIGURES"]
 
@@ -73,7 +72,7 @@ def _rows_or_null(rows: tuple[Record, ...]) -> list[dict[str, Any]] | None:
 
 
 @record
-class ResponsesRecord(Artifact):
+class ResponsesRecord(SavedArtifact):
     """The compare stage's artifact (see the module docstring)."""
 
     KIND: ClassVar[str] = KIND
@@ -114,19 +113,3 @@ class ResponsesRecord(Artifact):
             if (r.gains, r.controller, r.reference) == (gains, controller, reference):
                 return r
         raise ArtifactError(f"the responses hold no run of {gains} {controller} on the {reference}")
-
-    def save(self, path: str | Path) -> Path:
-        """Write ``responses.json`` atomically.
-
-        Parameters
-        ----------
-        path : str or Path
-            The file.
-
-        Returns
-        -------
-        Path
-            The file written.
-        """
-        self._write(path)
-        return Path(path)

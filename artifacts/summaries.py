@@ -20,7 +20,7 @@ from piezopreload.artifacts.responses import ReproductionRow
 from piezopreload.artifacts.sensitivity import SensitivityRecord
 from piezopreload.artifacts.system import (
     MarginBasis,
-    PassRecord,
+    MarginPass,
     PreCycle,
     ScheduleBound,
     SystemRecord,
@@ -199,7 +199,7 @@ class SystemSummary(StageSummary):
     pre_cycle: PreCycle = entry("The pre-cycle.")
     preload_margin_N: float = entry("The margin the schedule was planned with.", unit="N")
     cycles: int = entry("The machining cycles run.", ge=0)
-    passes: tuple[PassRecord, ...] = entry("The margin passes.")
+    passes: tuple[MarginPass, ...] = entry("The margin passes.")
     thermal: dict[str, Any] | None = entry("The shift's thermal figures (schedule and constant preload).",
                                            default=None, omit=True)
     before: BeforeLearning | None = entry("Where the schedule was learned: the error before learning.",

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from piezopreload.core.errors import ArtifactError
-from piezopreload.core.records import Artifact, Record, entry, record
+from piezopreload.core.records import Record, SavedArtifact, entry, record
 
 __all__ = ["SweepAxis", "PointFigures", "SweepPoint", "SweepRecord", "STATUSES", "MODES", "KIND", "Scalar",
            "DEFAULT_SWEEP_OUT", "EXIT_POINT_FAILED"]
@@ -217,7 +217,7 @@ class SweepPoint(Record):
 
 
 @record
-class SweepRecord(Artifact):
+class SweepRecord(SavedArtifact):
     """The sweep: the study it swept, how, its axes and its points."""
 
     KIND: ClassVar[str] = KIND
@@ -269,13 +269,3 @@ class SweepRecord(Artifact):
             The document's body.
         """
         return {**super().to_dict(), "columns": list(self.columns())}
-
-    def save(self, path: str | Path) -> None:
-        """Write the record atomically (kind ``sweep``).
-
-        Parameters
-        ----------
-        path : str or Path
-            The file.
-        """
-        self._write(path)

@@ -14,7 +14,6 @@ not here: it is the design's (:class:`~piezopreload.artifacts.design.DesignRecor
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
@@ -24,9 +23,9 @@ from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.sensitivity import SensitivityRecord
 from piezopreload.artifacts.thermal import ThermalRecord
 from piezopreload.core._typing import Array
-from piezopreload.core.records import Artifact, Raw, Record, entry, record
+from piezopreload.core.records import Raw, Record, SavedArtifact, entry, record
 
-__all__ = ["TrackingNumbers", "MarginBasis", "PreCycle", "PassRecord", "ScheduleBound", "PlannedSchedule",
+__all__ = ["TrackingNumbers", "MarginBasis", "PreCycle", "MarginPass", "ScheduleBound", "PlannedSchedule",
            "SystemSeries", "SystemRecord", "KIND"]
 
 KIND = "system"
@@ -112,7 +111,7 @@ class PreCycle(Record):
 
 
 @record
-class PassRecord(Record):
+class MarginPass(Record):
     """One margin pass: the largest local margin it planned with and what the loop achieved on it."""
 
     number: int = entry("The pass's number (from 1).", name="pass", ge=0)
@@ -256,7 +255,7 @@ class MarginBasis(Record):
 
 
 @record(eq=False)
-class SystemRecord(Artifact):
+class SystemRecord(SavedArtifact):
     """The system artifact: the numbers, the requirements as verdicts, the bounds, the pre-cycle, the margin passes,
     the schedule the last pass planned, the series, the cycles run and the inputs' hashes."""
 
@@ -268,7 +267,7 @@ class SystemRecord(Artifact):
     requirements: tuple[Requirement, ...] = entry("The requirements as verdicts.")
     bounds: tuple[ScheduleBound, ...] = entry("What stops a requirement no schedule within the stacks' force meets.")
     pre_cycle: PreCycle = entry("Before the first cut.")
-    passes: tuple[PassRecord, ...] = entry("The margin passes.")
+    passes: tuple[MarginPass, ...] = entry("The margin passes.")
     schedule: PlannedSchedule = entry("The schedule the last pass planned.")
     series: SystemSeries = entry("The run's time series.")
     cycles: int = entry("The machining cycles run.", ge=0)
@@ -313,19 +312,3 @@ class SystemRecord(Artifact):
             raise raw.fail("requirements_met", f"must be true or false, got {said!r}")
         if said != self.requirements_met:
             raise raw.fail("requirements_met", "does not agree with its 'requirements'")
-
-    def save(self, path: str | Path) -> Path:
-        """Write the artifact atomically (kind ``system``).
-
-        Parameters
-        ----------
-        path : str or Path
-            The file.
-
-        Returns
-        -------
-        Path
-            The file written.
-        """
-        self._write(path)
-        return Path(path)

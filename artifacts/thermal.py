@@ -12,6 +12,7 @@ drift, against the command range the force loop has left to hold it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
@@ -19,11 +20,21 @@ from numpy.typing import NDArray
 
 from piezopreload.core.records import Raw, Record, entry, record
 
-__all__ = ["ThermalCase", "PreloadDrift", "ThermalRecord", "ThermalSummary", "CASES"]
+__all__ = ["ThermalCase", "PreloadDrift", "ThermalRecord", "ThermalSummary", "PreloadCase", "CASES"]
 
 Array = NDArray[np.float64]
+
+
+class PreloadCase(StrEnum):
+    """The two preloads a budget compares, by their names in the record's JSON: the schedule as the force loop
+    achieved it, and the design's best constant preload."""
+
+    SCHEDULE = "schedule"
+    CONSTANT = "constant"
+
+
 #: the two preloads a budget compares, in the order the report shows them
-CASES = ("schedule", "constant")
+CASES = tuple(PreloadCase)
 #: the scalar figures of a case, in its summary's order
 _FIGURES = ("heat_mean_W", "heat_mean_other_W", "seal_heat_mean_W", "bearing_heat_mean_W", "preload_mean_N",
             "temperature_rise_max_K", "rise_max_at_mm", "temperature_rise_max_other_K", "nut_rise_max_K",
@@ -301,7 +312,8 @@ class ThermalRecord(Record):
                 + (f"; {ends}" if ends else ""))
 
     def case(self, name: str) -> ThermalCase:
-        return {"schedule": self.schedule, "constant": self.constant}[name]
+        """The figures of the preload ``name`` (a :class:`PreloadCase` or its name)."""
+        return self.schedule if PreloadCase(name) is PreloadCase.SCHEDULE else self.constant
 
     def summary(self) -> ThermalSummary:
         """Each figure for the schedule and the constant preload, the settings and the drift (no series)."""

@@ -3,13 +3,13 @@ report and validate stage read.
 
 One frozen dataclass per part, each with ``to_dict``/``from_dict``:
 
-* :class:`TuningRecord`: the tuned gains, the SIMC baseline, what the NLP did
-  (:class:`TuningSolve`), the comparison table (:class:`ComparisonRow`, one per gain set with and
-  without the feedforward), the gains on the ends of their search range (:class:`ActiveBound`),
-  the minimum-time bound (:class:`MinimumTimeBound`) and the tracking floor
-  (:class:`TrackingFloor`), the criteria the table was scored with and the inputs' hashes;
-* :meth:`TuningRecord.save` writes it through :func:`piezopreload.core.artifacts.write_artifact`,
-  :meth:`TuningRecord.load` reads it through :func:`~piezopreload.core.artifacts.read_artifact`
+* :class:`TuningResult` (``TuningResult``, its former name, is the same class): the tuned gains, the SIMC
+  baseline, what the NLP did (:class:`TuningSolve`, what :func:`~piezopreload.tuning.pid.tune_pid` returns), the
+  comparison table (:class:`ComparisonRow`, one per gain set with and without the feedforward), the gains on the
+  ends of their search range (:class:`ActiveBound`), the minimum-time bound (:class:`MinimumTimeBound`) and the
+  tracking floor (:class:`TrackingFloor`), the criteria the table was scored with and the inputs' hashes;
+* :meth:`TuningResult.save` writes it through :func:`piezopreload.core.artifacts.write_artifact`,
+  :meth:`TuningResult.load` reads it through :func:`~piezopreload.core.artifacts.read_artifact`
   (schema, kind and content hash checked); a missing or non-finite field is named.
 
 The JSON layout is the one the tune stage wrote before the record was typed, with
@@ -18,17 +18,21 @@ The JSON layout is the one the tune stage wrote before the record was typed, wit
 
 from __future__ import annotations
 
+import html
 import math
 from dataclasses import fields
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from piezopreload.artifacts.gainset import GainSet, GainsTable
 from piezopreload.core.quantities import number
-from piezopreload.core.records import Artifact, Record, entry, load_one_of, record
+from piezopreload.core.records import Record, SavedArtifact, entry, load_one_of, record
 from piezopreload.models.controller import PIDGains
 
-__all__ = ["KIND", "ActiveBound", "ComparisonRow", "MinimumTimeBound", "TrackingFloor", "TuningSolve", "TuningRecord",
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+__all__ = ["KIND", "ActiveBound", "ComparisonRow", "MinimumTimeBound", "TrackingFloor", "TuningSolve", "TuningResult",
            "SIDES", "warm_start_gains"]
 
 KIND = "tuning"
@@ -157,16 +161,74 @@ class TuningSolve(Record):
                                             omit=True)
     search: str = entry("How the search ended: its runs, those stopped on the iteration limit, where the result "
                         "came from.", default="")
+    # what the solve found that the tuning record stores once, at its own top (``gains``, ``simc_baseline``,
+    # ``active_bounds``): held where the solver returns it, None in a solve read back from a file
+    gains: PIDGains | None = entry("The gains the NLP found (before a gain schedule, where one is tuned, replaces "
+                                   "them in the record's ``gains``); None read back.", default=None, stored=False)
+    baseline: PIDGains | None = entry("SIMC's gains on the FOPDT fit, the search's start; None read back.",
+                                      default=None, stored=False)
+    active_bounds: tuple[ActiveBound, ...] = entry("The found gains on an end of their search range; empty read "
+                                                   "back.", default=(), stored=False)
 
     def __post_init__(self) -> None:
         _check_finite(self, ("iterations", "seconds", "compile_s", "objective", "ms"))
         if self.form not in ("PI", "PID"):
             raise ValueError(f"TuningSolve.form must be 'PI' or 'PID', got {self.form!r}")
+        object.__setattr__(self, "active_bounds", tuple(self.active_bounds))
+
+    @property
+    def stopped_on_limit(self) -> bool:
+        """Whether the result came from a run of IPOPT stopped on its iteration limit (its best iterate)."""
+        return self.status == "Maximum_Iterations_Exceeded"
+
+    def found(self) -> PIDGains:
+        """The gains the NLP found, where this solve is the solver's own result.
+
+        Returns
+        -------
+        PIDGains
+            :attr:`gains`.
+
+        Raises
+        ------
+        ValueError
+            Where the solve was read back from a file (its record's ``gains`` are the tuned ones).
+        """
+        if self.gains is None:
+            raise ValueError("this tuning solve was read back from a file and holds no gains of its own; the "
+                             "record's gains (TuningResult.gains) are the tuned ones")
+        return self.gains
+
+    def start(self) -> PIDGains:
+        """SIMC's gains the search started from, where this solve is the solver's own result.
+
+        Returns
+        -------
+        PIDGains
+            :attr:`baseline`.
+
+        Raises
+        ------
+        ValueError
+            Where the solve was read back from a file (its record's ``simc_baseline`` holds them).
+        """
+        if self.baseline is None:
+            raise ValueError("this tuning solve was read back from a file and holds no baseline of its own; the "
+                             "record's simc_baseline holds it")
+        return self.baseline
 
 
 @record
-class TuningRecord(Artifact):
-    """The tune stage's artifact (see the module docstring)."""
+class TuningResult(SavedArtifact):
+    """Tuned PID gains around a study's compensated rig, compared and bounded: the tune step's result and the tune
+    stage's artifact (``tuning.json``), one type.
+
+    The study's ``[controller]``, SIMC's and the tuned gains on the nominal plant, PID alone and with the
+    feedforward (``table``), the gains on the ends of their search range (``active_bounds``), the least settling
+    time any command reaches (``minimum_time``, the tuned over it ``tuned_over_bound_ratio``) and the trajectory's
+    least RMS error any causal controller reaches (``tracking_floor``). The study validates it
+    (:meth:`Study.validate <piezopreload.study.Study.validate>`).
+    """
 
     KIND: ClassVar[str] = KIND
     NOUN: ClassVar[str] = "the tuning record"
@@ -189,7 +251,7 @@ class TuningRecord(Artifact):
     def __post_init__(self) -> None:
         for name in ("gains", "simc_baseline"):
             if not isinstance(getattr(self, name), PIDGains):
-                raise ValueError(f"TuningRecord.{name} must be PIDGains, got {type(getattr(self, name)).__name__}")
+                raise ValueError(f"TuningResult.{name} must be PIDGains, got {type(getattr(self, name)).__name__}")
         object.__setattr__(self, "table", tuple(self.table))
         object.__setattr__(self, "active_bounds", tuple(self.active_bounds))
 
@@ -219,21 +281,58 @@ class TuningRecord(Artifact):
         raise KeyError(f"no row ({gains!r}, feedforward={feedforward}) in the table; it holds "
                        + ", ".join(f"({r.gains!r}, {r.feedforward})" for r in self.table))
 
-    def save(self, path: str | Path) -> Path:
-        """Write atomically (:func:`~piezopreload.core.artifacts.write_artifact`).
+    def __repr__(self) -> str:
+        g, m, s = self.gains, self.minimum_time, self.solve
+        bound = "none" if m.settling_s is None else f"{m.settling_s:.4g} s"
+        study = f"{self.inputs['study']}: " if self.inputs.get("study") else ""
+        try:
+            settling = _fmt(self.row().settling_s)
+        except KeyError:  # a record without the comparison
+            settling = "not compared"
+        return (f"TuningResult({study}{s.form} Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s, Td {g.Td_s:.4g} s, "
+                f"Tf {g.Tf_s:.4g} s, b {g.b:.3g}; Ms {s.ms:.3g}; tuned settling {settling} s, minimum-time bound "
+                f"{bound}; {len(self.active_bounds)} gain(s) on a bound)")
 
-        Parameters
-        ----------
-        path : str or Path
-            The file.
+    def _repr_html_(self) -> str:
+        head = "".join(f"<th>{h}</th>" for h in ("gains", "feedforward", "settling (s)", "overshoot (N)",
+                                                 "tracking RMS (N)", "peak command (V)"))
+        rows = "".join(f"<tr><td>{r.gains}</td><td>{'yes' if r.feedforward else 'no'}</td>"
+                       f"<td>{_fmt(r.settling_s)}</td><td>{r.overshoot_N:.3g}</td><td>{r.tracking_rms_N:.3g}</td>"
+                       f"<td>{r.peak_command_V:.3g}</td></tr>" for r in self.table)
+        bounds = "".join(f"<li>{html.escape(b.sentence())}</li>" for b in self.active_bounds)
+        return (f"<p><b>Tuned {self.solve.form}</b>: <code>{html.escape(repr(self))}</code></p>"
+                f"<table><tr>{head}</tr>{rows}</table>"
+                + (f"<p>Gains on a bound:</p><ul>{bounds}</ul>" if bounds else ""))
+
+    def plot(self) -> Figure:
+        """The comparison table as bars: the settling time and the tracking RMS of each gain set, PID alone and with
+        the feedforward (log scale).
 
         Returns
         -------
-        Path
-            The file written.
+        Figure
+            A matplotlib Figure (no pyplot state).
         """
-        self._write(path)
-        return Path(path)
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(7.0, 2.6))
+        axes = fig.subplots(1, 2)
+        labels = [f"{r.gains}{' + FF' if r.feedforward else ''}" for r in self.table]
+        colours = ["tab:blue" if r.feedforward else "tab:gray" for r in self.table]
+        settling = [math.nan if r.settling_s is None else r.settling_s for r in self.table]
+        for ax, values, label in ((axes[0], settling, "settling time (s)"),
+                                  (axes[1], [r.tracking_rms_N for r in self.table], "tracking RMS (N)")):
+            ax.bar(range(len(labels)), values, color=colours)
+            ax.set_xticks(range(len(labels)), labels, rotation=30, ha="right")
+            ax.set_ylabel(label)
+            ax.set_yscale("log")
+        fig.tight_layout()
+        return fig
+
+
+
+def _fmt(x: float | None) -> str:
+    return "none" if x is None else f"{x:.4g}"
 
 
 def warm_start_gains(path: str | Path) -> PIDGains:
@@ -255,4 +354,4 @@ def warm_start_gains(path: str | Path) -> PIDGains:
     ArtifactError
         Naming the file where it is neither.
     """
-    return load_one_of(path, TuningRecord, GainSet).gains
+    return load_one_of(path, TuningResult, GainSet).gains

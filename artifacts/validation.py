@@ -10,17 +10,18 @@ values (``result.requirements``).
 
 from __future__ import annotations
 
-from pathlib import Path
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from piezopreload.artifacts.requirements import Requirement
-from piezopreload.core.records import Artifact, Checked, Record, entry, record
+from piezopreload.core.records import Checked, Record, SavedArtifact, entry, record
 from piezopreload.models.closedloop import PAPER_BAND_N
 
 if TYPE_CHECKING:
+    from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
 __all__ = ["Criteria", "Metrics", "Failure", "ValidationResult", "METRICS"]
@@ -162,7 +163,7 @@ def _metrics_to(metrics: dict[str, NDArray[np.float64]]) -> dict[str, list[float
 
 
 @record(eq=False)
-class ValidationResult(Artifact):
+class ValidationResult(SavedArtifact):
     """The gains run on a Monte Carlo set of nonlinear plants: every plant's metrics and the verdict."""
 
     KIND: ClassVar[str] = "validation"
@@ -299,22 +300,6 @@ class ValidationResult(Artifact):
         return {**super().to_dict(), "passed": self.passed, "summary": self.summary(),
                 "failures": [f.to_dict() for f in failures[:50]], "n_failures": len(failures)}
 
-    def save(self, path: str | Path) -> Path:
-        """Write ``validation.json`` atomically (kind ``validation``).
-
-        Parameters
-        ----------
-        path : str or Path
-            The file.
-
-        Returns
-        -------
-        Path
-            The file written.
-        """
-        self._write(path)
-        return Path(path)
-
     def __repr__(self) -> str:
         verdict = "passed" if self.passed else f"failed on {self.failed_plant_count} plants"
         w = self.worst
@@ -332,30 +317,76 @@ class ValidationResult(Artifact):
                 f"<table><tr><th>limit</th><th>worst plant</th><th>limit</th><th>verdict</th></tr>{rows}</table>")
 
     def plot(self) -> Figure:
-        """A Figure: each bounded metric's distribution over the plants, with its limit dashed.
+        """A Figure: the distributions of :meth:`draw_histograms`, one panel each.
 
         Returns
         -------
         matplotlib.figure.Figure
-            One histogram per bounded metric over the plants (finite values), its limit dashed.
+            One histogram per metric of :meth:`histogram_metrics` over the plants (finite values), its limit dashed
+            where the criteria set one.
         """
         from matplotlib.figure import Figure
 
-        limits = self.criteria.limits()
-        fig = Figure(figsize=(10, 3))
-        axes = fig.subplots(1, len(limits))
-        for ax, (metric, limit) in zip(axes, limits.items()):
-            values = self.metrics[metric][np.isfinite(self.metrics[metric])]
-            ax.hist(values, bins=20, color="tab:blue", alpha=0.8)
-            ax.axvline(limit, color="tab:red", linestyle="--", label="limit")
-            ax.set_xlabel(_AXIS_LABELS.get(metric, metric))
-        axes[0].set_ylabel("plants")
-        fig.tight_layout()
+        fig = Figure(figsize=(10, 3), layout="constrained")
+        self.draw_histograms(fig.subplots(1, len(self.histogram_metrics()), squeeze=False)[0])
         return fig
 
+    def histogram_metrics(self) -> tuple[str, ...]:
+        """The metrics :meth:`draw_histograms` draws.
 
+        Returns
+        -------
+        tuple of str
+            Settling time, overshoot and tracking RMS, and every other metric the criteria bound (the peak command
+            when a limit is set).
+        """
+        bounded = tuple(m for m in self.criteria.limits() if m not in _HISTOGRAMS)
+        return _HISTOGRAMS + bounded
+
+    def draw_histograms(self, axes: Sequence[Axes], *, colour: str = "tab:blue",
+                        limit_colour: str = "tab:red") -> list[Axes]:
+        """Draw each metric of :meth:`histogram_metrics` over the plants on one of ``axes``: its limit dashed where
+        the criteria set one, the count of plants ticked in whole numbers, and in each title how many plants it
+        counts and how many never settled (a NaN, left out of the histogram).
+
+        Parameters
+        ----------
+        axes : sequence of matplotlib Axes
+            One per metric of :meth:`histogram_metrics`, in its order.
+        colour, limit_colour : str
+            The bars' colour and the limit's.
+
+        Returns
+        -------
+        list of Axes
+            The axes on which a limit is marked (each has a line labelled "limit", for a legend).
+        """
+        from matplotlib.ticker import MaxNLocator
+
+        metrics = self.histogram_metrics()
+        if len(axes) != len(metrics):
+            raise ValueError(f"draw_histograms needs one axes per metric ({', '.join(metrics)}), got {len(axes)}")
+        limits = self.criteria.limits()
+        marked = []
+        for ax, metric in zip(axes, metrics):
+            raw = np.asarray(self.metrics[metric], float)
+            values = raw[np.isfinite(raw)]
+            never = raw.size - values.size
+            ax.hist(values, bins=min(30, max(5, values.size // 5)), color=colour, alpha=0.8)
+            if metric in limits:
+                ax.axvline(limits[metric], color=limit_colour, ls="--", lw=0.9, label="limit")
+                marked.append(ax)
+            ax.set_xlabel(_AXIS_LABELS.get(metric, metric))
+            ax.set_ylabel("plants")
+            ax.yaxis.set_major_locator(MaxNLocator(integer=True))  # a count of plants
+            ax.set_title(f"{values.size} plants" + (f", {never} never settled" if never else ""))
+        return marked
+
+
+#: the metrics every validation figure shows, bounded or not
+_HISTOGRAMS = ("settling_s", "overshoot_N", "tracking_rms_N")
 _AXIS_LABELS = {"settling_s": "settling time (s)", "overshoot_N": "overshoot (N)",
-                "tracking_rms_N": "tracking RMS after the changes (N)", "peak_voltage_V": "peak command (V)"}
+                "tracking_rms_N": "tracking RMS after changes (N)", "peak_voltage_V": "peak command (V)"}
 
 
 def _show(x: float | None, unit: str) -> str:

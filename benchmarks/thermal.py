@@ -50,7 +50,7 @@ def _median_time(fn, repeats: int = REPEATS):
 def _shift(study):
     """The slow model against the stepped network over the study's shift."""
     schedule, table = study.preload_schedule, study.thermal
-    screw, drive = study.design_spec.screw(study._point(None)), study.design_spec.feed_drive
+    screw, drive = study.design_spec.screw(study.solved.design_point()), study.design_spec.feed_drive
     prof = schedule.profile
     cycle = CycleLoad.on_profile(prof.time_s, schedule.preload_N, prof.speed_rpm, prof.axial_load_N)
     sources_s, sources = _median_time(lambda: cycle_sources(screw, drive, table, cycle))

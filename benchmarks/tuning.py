@@ -53,7 +53,7 @@ def main() -> None:
     plain = tune_pid(study.plant, ff.inverse(), spec, engine="plain")
     plain_s = time.perf_counter() - t0
     print(f"tuning, plain: {plain_s:.1f} s ({plain.status}, {plain.iterations} IPOPT iterations)", flush=True)
-    rel = max(abs(getattr(compiled.gains, k) - getattr(plain.gains, k)) / abs(getattr(plain.gains, k))
+    rel = max(abs(getattr(compiled.found(), k) - getattr(plain.found(), k)) / abs(getattr(plain.found(), k))
               for k in ("Kc", "Ti_s", "Td_s", "Tf_s", "b"))
 
     seed = study.seed if study.validation.seed is None else study.validation.seed
@@ -61,7 +61,7 @@ def main() -> None:
     for workers in (1, 2):
         with executor(workers) as (pool, name):
             t0 = time.perf_counter()
-            results[workers] = validate(compiled.gains, ff, study.plant, study.validation, pool=pool,
+            results[workers] = validate(compiled.found(), ff, study.plant, study.validation, pool=pool,
                                         pool_name=name, n_plants=N_PLANTS, seed=seed, step=study.references["step"],
                                         trajectory=study.references["trajectory"])
             seconds[workers] = time.perf_counter() - t0

@@ -70,8 +70,9 @@ import numpy as np
 from piezopreload.core.artifacts import ArtifactKind, field_message, read_artifact, write_artifact
 from piezopreload.core.errors import ArtifactError, InputError
 
-__all__ = ["Entry", "entry", "record", "Record", "Artifact", "Raw", "load_one_of", "object_without", "kind_of",
-           "Checked", "checked", "check_entries", "read_table", "Invalid", "MANY", "table_values", "TableOf", "takes"]
+__all__ = ["Entry", "entry", "record", "Record", "Artifact", "SavedArtifact", "Raw", "load_one_of", "object_without",
+           "kind_of", "Checked", "checked", "check_entries", "read_table", "Invalid", "MANY", "table_values", "TableOf",
+           "takes"]
 
 #: the metadata entry of a field declared with :func:`entry`
 ENTRY = "piezopreload.entry"
@@ -854,6 +855,31 @@ def kind_of(cls: type[Artifact]) -> ArtifactKind:
         Its kind, which its reader and writer take.
     """
     return ArtifactKind(cls.KIND, cls.required, cls.HASHED, cls.AGAIN, f"{cls.__module__}.{cls.__qualname__}")
+
+
+class SavedArtifact(Artifact):
+    """An artifact whose :meth:`save` is the write and nothing more: it returns the file written.
+
+    (A content-hashed record whose ``save`` returns itself with the hash, such as a gain set, defines its own on
+    :meth:`Artifact._write`.)
+    """
+
+    def save(self, path: str | Path) -> Path:
+        """Write the artifact atomically at ``path``: the envelope (``"schema": "piezopreload/<KIND>/1"``, the
+        package version) around :meth:`~Record.to_dict`; a reader sees the previous file or this one, never a part.
+
+        Parameters
+        ----------
+        path : str or Path
+            The file.
+
+        Returns
+        -------
+        Path
+            The file written.
+        """
+        self._write(path)
+        return Path(path)
 
 
 # --------------------------------------------------------------------------------------

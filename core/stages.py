@@ -25,8 +25,9 @@ from pathlib import Path
 from typing import Any, Protocol, TypeVar
 
 from piezopreload.core.errors import InputError, InternalError
+from piezopreload.core.progress import ProgressLike, as_progress
 
-__all__ = ["StageFailed", "StageCrashed", "Partial", "StageLike", "Reporter", "StageOutcome", "sha256_file",
+__all__ = ["StageFailed", "StageCrashed", "Partial", "StageLike", "StageOutcome", "sha256_file",
            "code_hash", "content_key", "upstream_hashes", "outputs_intact", "record_outputs", "utc", "locked",
            "run_stages"]
 
@@ -62,14 +63,6 @@ class StageLike(Protocol):
 
     @property
     def what(self) -> str: ...
-
-
-class Reporter(Protocol):
-    """Where the runner reports: a header per stage and indented messages."""
-
-    def stage(self, index: int, total: int, name: str, what: str) -> None: ...
-
-    def say(self, message: str) -> None: ...
 
 
 S = TypeVar("S", bound=StageLike)
@@ -177,7 +170,7 @@ def locked(out: Path, busy: str) -> Iterator[None]:
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
-def run_stages(stages: Sequence[S], records: dict[str, dict[str, Any]], out: Path, progress: Reporter, *,
+def run_stages(stages: Sequence[S], records: dict[str, dict[str, Any]], out: Path, progress: ProgressLike, *,
                force: bool, key: Callable[[S], str], applies: Callable[[S], str | None],
                run: Callable[[S], tuple[dict[str, Path], dict[str, Any]]],
                save: Callable[[], None]) -> list[StageOutcome]:
@@ -189,6 +182,7 @@ def run_stages(stages: Sequence[S], records: dict[str, dict[str, Any]], out: Pat
     :class:`InputError` as a :class:`StageFailed` naming it, anything else as a :class:`StageCrashed`.
     Returns one :class:`StageOutcome` per stage.
     """
+    progress = as_progress(progress)
     done: list[StageOutcome] = []
     for i, stage in enumerate(stages, start=1):
         reason = applies(stage)

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from piezopreload.core.artifacts import atomic_write_text, read_bytes
 from piezopreload.core.errors import InputError
 
-__all__ = ["Record", "ColumnSpec", "parse_columns", "read_input", "read_record", "read_table", "write_csv"]
+__all__ = ["MeasuredRecord", "ColumnSpec", "parse_columns", "read_input", "read_record", "read_table", "write_csv"]
 
 
 ROLES = ("time", "input", "output")
@@ -74,7 +74,7 @@ def unit_of(name: str) -> str:
 
 
 @dataclass(frozen=True, eq=False)
-class Record:
+class MeasuredRecord:
     """A measured record: strictly increasing time, one input and one output, all finite.
 
     Parameters
@@ -243,7 +243,7 @@ def read_record(
     columns: dict[str, ColumnSpec] | None = None,
     header: bool = True,
     min_samples: int = 2,
-) -> Record:
+) -> MeasuredRecord:
     """Read a CSV record; every problem raises :class:`InputError` naming the file and line.
 
     Lines that are blank or start with ``#`` are skipped. With ``header=True`` the first other
@@ -264,7 +264,7 @@ def read_record(
 
     Returns
     -------
-    Record
+    MeasuredRecord
         The record, its file's SHA-256 with it.
 
     Raises
@@ -292,7 +292,7 @@ def read_record(
     if len(t) < min_samples:
         raise InputError(f"{shown}: {len(t)} data rows, need at least {min_samples}")
     labels = {r: (columns[r].name or f"column{columns[r].index}") for r in ROLES}
-    return Record(
+    return MeasuredRecord(
         path=shown,
         sha256=hashlib.sha256(raw).hexdigest(),
         time_s=t.copy(),

@@ -72,6 +72,7 @@ import numpy as np
 
 from piezopreload.artifacts.design import DesignPoint  # the design artifact's record of a design
 from piezopreload.core.errors import InfeasibleError
+from piezopreload.core.progress import Bar
 from piezopreload.core.records import Checked, entry
 from piezopreload.design.shortfall import Shortfall, binding, shortfall_message
 from piezopreload.models.ballscrew import (
@@ -991,7 +992,7 @@ def _infeasible_message(misses: list[Shortfall]) -> str:
 
 
 def pareto_front(spec: DesignSpec, pair: str, n_points: int = 50, nlp: DesignNLP | None = None,
-                 progress: Callable[[int, int], None] | None = None,
+                 bar: Bar | None = None,
                  growth: Callable[[DesignPoint], float] | None = None) -> ParetoFront:
     """The epsilon-constraint front of ``pair`` ("stiffness:drag" and so on).
 
@@ -1042,7 +1043,7 @@ def pareto_front(spec: DesignSpec, pair: str, n_points: int = 50, nlp: DesignNLP
             ys.append(growth(pt) if growth is not None and y_name == "growth" else
                       {"preload": pt.max_preload_N, "drag": pt.mean_drag_torque_Nm, "life": pt.life_h}[y_name])
             points.append(pt)
-        if progress:
-            progress(i + 1, n_points)
+        if bar is not None:
+            bar(i + 1, n_points)
     return ParetoFront(pair=pair, x_name="stiffness", y_name=y_name, x=np.array(xs), y=np.array(ys), points=points,
                        solve_s=time.perf_counter() - t0, nlp_solves=nlp.solves - start_solves)

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from enum import Enum
 
 from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.schedule import ScheduleSpec
@@ -48,12 +49,39 @@ from piezopreload.models.ballscrew import BallScrew
 from piezopreload.models.feed_drive import FeedDrive
 from piezopreload.models.thermal import HEAT_MODELS
 
-__all__ = ["Assumption", "ASSUMPTIONS", "Setting", "flip_value", "sensitivity", "evaluate", "worst_case"]
+__all__ = ["Assumption", "ASSUMPTIONS", "Effect", "Around", "MECHANICS", "THERMAL", "Setting", "flip_value",
+           "sensitivity", "evaluate", "worst_case"]
 
 #: the bisection stops when the bracket is narrower than this share of the range (at least 8 halvings of it)
 FLIP_TOLERANCE = 1.0 / 256.0
-#: what an assumption changes: the double nut's mechanics (rigidity, deflection, lift-off) or the shift's heat
-MECHANICS, THERMAL = "mechanics", "thermal"
+
+
+class Effect(Enum):
+    """What an assumption changes: the double nut's mechanics (rigidity, deflection, lift-off) or the shift's heat
+    (the requirements evaluated again under it, :func:`evaluate`)."""
+
+    MECHANICS = "mechanics"
+    THERMAL = "thermal"
+
+
+MECHANICS, THERMAL = Effect.MECHANICS, Effect.THERMAL
+
+
+class Around(Enum):
+    """How an assumption's range stands to the study's value: the ends themselves, offsets added to it (a
+    tolerance), or factors on it."""
+
+    ENDS = "ends"
+    ADD = "add"
+    TIMES = "times"
+
+    def ends(self, nominal: float, low: float, high: float) -> tuple[float, float]:
+        """The range's ends for a study whose value is ``nominal``."""
+        if self is Around.ADD:
+            return nominal + low, nominal + high
+        if self is Around.TIMES:
+            return nominal * low, nominal * high
+        return low, high
 
 
 @dataclass(frozen=True)
@@ -83,11 +111,11 @@ class Assumption:
         Where the range comes from, in words.
     domain : tuple of float
         Where the assumption is admissible at all: the flip is searched there.
-    moves : tuple of str
+    moves : tuple of Effect
         What it changes: :data:`MECHANICS` and/or :data:`THERMAL` (the requirements evaluated again).
-    around : str
-        ``"add"``: ``low`` and ``high`` are offsets added to the study's value (a tolerance); ``"times"``: factors
-        on it; ``""``: the ends themselves.
+    around : Around
+        ``Around.ADD``: ``low`` and ``high`` are offsets added to the study's value (a tolerance); ``Around.TIMES``:
+        factors on it; ``Around.ENDS``: the ends themselves.
     labels : tuple of str
         A two-valued assumption's values' names (0: the first, 1: the second); empty: a number.
     """
@@ -99,27 +127,26 @@ class Assumption:
     unit: str
     source: str
     domain: tuple[float, float]
-    moves: tuple[str, ...]
-    around: str = ""
+    moves: tuple[Effect, ...]
+    around: Around = Around.ENDS
     labels: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if not (self.low <= self.high and self.domain[0] < self.domain[1]):
             raise ValueError(f"Assumption {self.key}: needs low <= high and a domain (lo, hi) with lo < hi")
-        if self.around not in ("", "add", "times"):
-            raise ValueError(f"Assumption {self.key}: around must be '', 'add' or 'times', got {self.around!r}")
-        if not set(self.moves) <= {MECHANICS, THERMAL} or not self.moves:
-            raise ValueError(f"Assumption {self.key}: moves must name {MECHANICS!r} and/or {THERMAL!r}")
+        if not isinstance(self.around, Around):
+            raise ValueError(f"Assumption {self.key}: around must be an Around, got {self.around!r}")
+        if not self.moves or not all(isinstance(m, Effect) for m in self.moves):
+            raise ValueError(f"Assumption {self.key}: moves must name {MECHANICS} and/or {THERMAL}, got {self.moves!r}")
 
     def range_for(self, nominal: float) -> tuple[float, float]:
         """The range's ends for a study whose value is ``nominal``, clipped to the domain."""
-        lo, hi = {"add": (nominal + self.low, nominal + self.high), "times": (nominal * self.low, nominal * self.high),
-                  "": (self.low, self.high)}[self.around]
+        lo, hi = self.around.ends(nominal, self.low, self.high)
         return max(lo, self.domain[0]), min(hi, self.domain[1])
 
     def with_range(self, low: float, high: float) -> Assumption:
         """The same assumption with another range (absolute ends)."""
-        return replace(self, low=low, high=high, around="")
+        return replace(self, low=low, high=high, around=Around.ENDS)
 
 
 #: the declared table of the assumptions the default study varies, one row each
@@ -130,7 +157,7 @@ ASSUMPTIONS: tuple[Assumption, ...] = (
     Assumption("thermal.seal_torque_Nm", "the seals' torque", 0.0, 2.0, "N m",
                "from none (THK: non-contact seals and gap wipers add no torque) to twice the study's (Rexroth's "
                "reinforced seal is 1.8-2.3 times its standard lip seal for the 25-40 mm sizes that list both)",
-               (0.0, 5.0), (THERMAL,), around="times"),
+               (0.0, 5.0), (THERMAL,), around=Around.TIMES),
     Assumption("thermal.convection_factor", "the convection factor", 0.6, 1.5, "",
                "the film coefficients come from correlations (the rotating shaft's Nusselt number, free convection "
                "of 5-10 W/m^2 K for the study's 8): a factor 0.6-1.5 on them covers that band and the correlations' "
@@ -152,10 +179,10 @@ ASSUMPTIONS: tuple[Assumption, ...] = (
     Assumption("ballscrew.contact_angle_deg", "the contact angle", -5.0, 5.0, "deg",
                "assumed grinding tolerance of +-5 deg on the design's angle (no vendor publishes one; a few microns "
                "on the groove's radius or the ball's size move a gothic arch's contact angle by degrees)",
-               (20.0, 70.0), (MECHANICS, THERMAL), around="add"),
+               (20.0, 70.0), (MECHANICS, THERMAL), around=Around.ADD),
     Assumption("ballscrew.conformity", "the groove conformity", -0.01, 0.01, "",
                "assumed grinding tolerance of +-0.01 on the design's conformity, screw and nut alike (no vendor "
-               "publishes one; ISO 3408-5 requires > 0.5)", (0.505, 0.6), (MECHANICS, THERMAL), around="add"),
+               "publishes one; ISO 3408-5 requires > 0.5)", (0.505, 0.6), (MECHANICS, THERMAL), around=Around.ADD),
 )
 
 
@@ -192,7 +219,7 @@ def worst_case(assumptions: Sequence[Assumption] = ASSUMPTIONS) -> WorstCase:
     by = {a.key: a for a in assumptions}
     angle, conformity, drag = (by[k] for k in ("ballscrew.contact_angle_deg", "ballscrew.conformity",
                                                 "ballscrew.drag_coefficient"))
-    if angle.around != "add" or conformity.around != "add":
+    if angle.around is not Around.ADD or conformity.around is not Around.ADD:
         raise ValueError("worst_case: the contact angle's and the conformity's ranges must be tolerances (offsets)")
     return WorstCase((angle.low, angle.high), (conformity.low, conformity.high), drag.high)
 
@@ -221,7 +248,7 @@ def applies(assumption: Assumption, setting: Setting, drive: FeedDrive) -> bool:
     return True
 
 
-def evaluate(run: SystemRun, drive: FeedDrive, setting: Setting, moves: Sequence[str],
+def evaluate(run: SystemRun, drive: FeedDrive, setting: Setting, moves: Sequence[Effect],
              bases: dict[tuple[float, ...], ShiftBasis] | None = None) -> tuple[Requirement, ...]:
     """The requirements of the system run ``run`` (as built) under ``setting``: the mechanics' (where ``moves``
     names :data:`MECHANICS`) and the shift's (:data:`THERMAL`, where the setting has a thermal table). ``bases``:
@@ -263,9 +290,9 @@ def _rows(run: SystemRun, drive: FeedDrive, base: Setting, a: Assumption, nomina
     get, put = _ACCESS[a.key]
     study_value = get(base)
     low, high = a.range_for(study_value)
-    cache: dict[tuple[float, str], dict[str, Requirement]] = {}
+    cache: dict[tuple[float, Effect], dict[str, Requirement]] = {}
 
-    def at(x: float, group: str) -> dict[str, Requirement]:
+    def at(x: float, group: Effect) -> dict[str, Requirement]:
         if (x, group) not in cache:  # each group apart: a bisection on one requirement evaluates its group alone
             cache[x, group] = {r.key: r for r in evaluate(run, drive, put(base, x), (group,), bases)}
         return cache[x, group]
@@ -280,7 +307,7 @@ def _rows(run: SystemRun, drive: FeedDrive, base: Setting, a: Assumption, nomina
         if moved <= 1e-9 * max(abs(r0.limit), 1.0):
             continue
 
-        def margin(x: float, key: str = key, group: str = group) -> float:
+        def margin(x: float, key: str = key, group: Effect = group) -> float:
             return at(x, group)[key].margin
 
         name = min((r0.name, r_low.name, r_high.name), key=len)  # without a miss's cause, which names one case

@@ -24,6 +24,7 @@ from piezopreload.artifacts.design import DesignRecord, DutyCasePoint, Frequency
 from piezopreload.artifacts.schedule import LoadProfile, PreloadSchedule, ScheduleSpec
 from piezopreload.core.artifacts import atomic_write_text
 from piezopreload.core.errors import InputError
+from piezopreload.core.progress import Bar, ProgressLike, say_of
 from piezopreload.core.quantities import number, quantity
 from piezopreload.core.tables import read_table
 from piezopreload.design.preload import (
@@ -231,8 +232,8 @@ class DesignResult:
 def design_study(spec: DesignSpec, objective: str, pairs: list[str] | tuple[str, ...], points: int, *,
                  profile: LoadProfile | None = None, profile_name: str = "example", stiffness_min_N_per_um: float = 0.0,
                  deflection_max_um: float = math.inf, lift_off_margin: float | None = None,
-                 progress: Callable[[str], None] | None = None,
-                 bar: Callable[[int, int], None] | None = None, optimum: DesignOptimum | None = None,
+                 progress: ProgressLike | None = None,
+                 bar: Bar | None = None, optimum: DesignOptimum | None = None,
                  growth: Callable[[DesignPoint], float] | None = None) -> DesignResult:
     """Optimum for ``objective``, the fronts of ``pairs`` (``points`` each) and the schedule for ``profile``.
 
@@ -244,7 +245,7 @@ def design_study(spec: DesignSpec, objective: str, pairs: list[str] | tuple[str,
     point's growth over a shift, the y of a ``stiffness:growth`` front
     (:func:`~piezopreload.design.thermal.duty_growth_um` with the study's ``[thermal]`` table).
     """
-    say = progress or (lambda _msg: None)
+    say = say_of(progress) or (lambda _msg: None)
     nlp = DesignNLP(spec) if optimum is None or pairs else None
     if optimum is not None and optimum.objective != objective:
         raise InputError(f"design_study: the optimum given is for {optimum.objective!r}, not {objective!r}")
@@ -264,7 +265,7 @@ def design_study(spec: DesignSpec, objective: str, pairs: list[str] | tuple[str,
             report = lambda i, n, j=j: bar(j * n + i, len(pairs) * n)  # noqa: E731
         else:
             report = lambda i, n, pair=pair: say(f"front {pair}: {i}/{n}") if i in (n // 2, n) else None  # noqa: E731
-        fronts.append(pareto_front(spec, pair, points, nlp, progress=report, growth=growth))
+        fronts.append(pareto_front(spec, pair, points, nlp, bar=report, growth=growth))
 
     # ---- the schedule on the optimum's screw -------------------------------------------------
     schedule, max_preload, slew = plan_schedule(spec, p, profile, profile_name=profile_name,

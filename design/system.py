@@ -50,7 +50,6 @@ by how much.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from dataclasses import replace as dc_replace
 from pathlib import Path
@@ -66,7 +65,7 @@ from piezopreload.artifacts.sensitivity import SensitivityRecord
 from piezopreload.artifacts.summaries import SystemSummary
 from piezopreload.artifacts.system import (
     MarginBasis,
-    PassRecord,
+    MarginPass,
     PlannedSchedule,
     PreCycle,
     ScheduleBound,
@@ -76,6 +75,7 @@ from piezopreload.artifacts.system import (
 )
 from piezopreload.core._typing import Array
 from piezopreload.core.errors import InputError
+from piezopreload.core.progress import ProgressLike, say_of
 from piezopreload.core.tables import write_csv
 from piezopreload.design.schedule import least_preload, schedule_preload
 from piezopreload.models.actuator import Plant, Rig
@@ -421,7 +421,7 @@ class SystemRun:
         The rest and the ramp before the first cut.
     evaluation : Evaluation
         The last pass's run judged: its numbers, its requirements as verdicts, its shortfall per sample.
-    passes : tuple of PassRecord
+    passes : tuple of MarginPass
         Every pass's record, in order.
     bounds : tuple of ScheduleBound
         What stops a requirement the passes could not meet (none: nothing).
@@ -442,7 +442,7 @@ class SystemRun:
     run: ClosedLoopRun
     pre_cycle: PreCycle
     evaluation: Evaluation
-    passes: tuple[PassRecord, ...]
+    passes: tuple[MarginPass, ...]
     bounds: tuple[ScheduleBound, ...] = ()
     thermal: ThermalBudget | None = None  # the shift's heat, temperature and growth (design/thermal.py)
     basis: MarginBasis | None = None  # what the margins rest on (margin_basis), where the run was given the design
@@ -580,9 +580,9 @@ def _bounds(schedule: PreloadSchedule, ev: Evaluation, wanted: Array) -> tuple[S
                           float(reach), "reach" if np.max(short) > 0 else "passes"),)
 
 
-def _pass_record(k: int, schedule: PreloadSchedule, ev: Evaluation) -> PassRecord:
+def _pass_record(k: int, schedule: PreloadSchedule, ev: Evaluation) -> MarginPass:
     n = ev.numbers
-    return PassRecord(k, float(np.max(schedule.margin_N)), n.tracking_rms_N, n.tracking_rms_pct_of_range,
+    return MarginPass(k, float(np.max(schedule.margin_N)), n.tracking_rms_N, n.tracking_rms_pct_of_range,
                       n.rigidity_ratio_min, n.lift_off_ratio_min, ev.met, n.preload_shortfall_max_N,
                       n.friction_energy_per_cycle)
 
@@ -599,7 +599,7 @@ def _check(cycles: int, passes: int, margin_factor: float) -> None:
 def track_schedule(plant: DesignedPlant, controller: Controller, schedule: PreloadSchedule, *, cycles: int = 2,
                    seed: int = 0, passes: int = 3, margin_factor: float = 1.25, contact_N: float = 0.0,
                    settle_s: float = 0.5, ff_extra_V: Any = None, design: DesignSpec | None = None,
-                   scatter: Plant | None = None, progress: Callable[[str], None] | None = None) -> SystemRun:
+                   scatter: Plant | None = None, progress: ProgressLike | None = None) -> SystemRun:
     """Run the loop over the schedule on the designed plant after its pre-cycle; plan again with local margins while
     a requirement is missed (module docstring).
 
@@ -616,11 +616,11 @@ def track_schedule(plant: DesignedPlant, controller: Controller, schedule: Prelo
     if scatter is not None and design is None:
         raise InputError("scatter: the Monte Carlo plants judge the physical lift-off, which needs the design (its "
                          "axis and ranges): give design, or no scatter")
-    say = progress or (lambda _m: None)
+    say = say_of(progress) or (lambda _m: None)
     rig, pre = Rig(plant.rig), pre_cycle_for(plant, schedule, contact_N, settle_s)
     say(f"pre-cycle: the stacks from rest to {pre.level_N:.0f} N at {pre.slew_N_per_s:,.0f} N/s in "
         f"{1e3 * pre.ramp_s:.1f} ms, held {pre.settle_s:.3f} s: the first cut {pre.duration_s:.3f} s after the start")
-    record: list[PassRecord] = []
+    record: list[MarginPass] = []
     dt = float(plant.rig.sample_period_s)
     current, lag, hold = schedule, int(round(_LAG_MAX_S / dt)), int(round(_HOLD_S / dt))
     stretches = binding_stretches(schedule)  # the design's: where its requirements bind, whatever the margins

@@ -19,6 +19,7 @@ from piezopreload.artifacts.design import DesignPoint
 from piezopreload.artifacts.plant import DesignedPlant
 from piezopreload.artifacts.schedule import PreloadSchedule
 from piezopreload.core.config import Invalid, Table, key
+from piezopreload.core.progress import ProgressLike
 from piezopreload.design.plant import plant_from_design
 from piezopreload.design.preload import OBJECTIVES, PARETO_PAIRS, DesignSpec
 from piezopreload.design.system import SystemRun, track_schedule
@@ -204,7 +205,7 @@ class PlantTable(Table):
 
     def track(self, plant: DesignedPlant, controller: Controller, schedule: PreloadSchedule, *, seed: int,
               settle_s: float = 0.5, ff_extra_V: Any = None, design: DesignSpec | None = None,
-              scatter: Plant | None = None, progress: Callable[[str], None] | None = None) -> SystemRun:
+              scatter: Plant | None = None, progress: ProgressLike | None = None) -> SystemRun:
         """``controller`` following ``schedule`` on ``plant`` for this table's cycles, passes and margin, after a
         pre-cycle held ``settle_s`` at the first level (:func:`~piezopreload.design.system.track_schedule`; with
         ``design`` and ``scatter`` it says what its margins rest on)."""

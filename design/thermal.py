@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezopreload.artifacts.requirements import Requirement
-from piezopreload.artifacts.thermal import PreloadDrift, ThermalCase, ThermalRecord
+from piezopreload.artifacts.thermal import PreloadCase, PreloadDrift, ThermalCase, ThermalRecord
 from piezopreload.core.errors import InputError
 from piezopreload.design.system import SystemRun
 from piezopreload.design.tables import ThermalTable
@@ -504,23 +504,24 @@ def thermal_budget(run: SystemRun, drive: FeedDrive, table: ThermalTable, *,
     mounting = mech.mounting
     times = shift_hours(table.shift_h)
     semi = table.feedback == "semi-closed"
-    sources, cases, over = {}, {}, {}
-    for name, cycle, elastic, share in (("schedule", achieved, elastic_planned, tracking),
-                                        ("constant", constant, None, 0.0)):
+    sources: dict[str, CycleSources] = {}
+    cases, over = {}, {}
+    schedule, best = PreloadCase.SCHEDULE, PreloadCase.CONSTANT
+    for name, cycle, elastic, share in ((schedule, achieved, elastic_planned, tracking), (best, constant, None, 0.0)):
         sources[name] = cycle_sources(screw, drive, table, cycle, model=model,
-                                      coverage=basis.coverage if name == "schedule" else None)
+                                      coverage=basis.coverage if name is schedule else None)
         other = cycle_sources(screw, drive, table, cycle, heat_model=other_model, model=model,
                               coverage=sources[name].coverage)
         if elastic is None:
             elastic = _elastic_um(screw, drive, cycle.preload_N, cycle.axial_load_N, positions)
         cases[name], over[name], _ = _case(sources[name], other, mech, elastic, share, semi, times)
-    film = float(achieved.mean(sources["schedule"].film_W_per_m2K))
+    film = float(achieved.mean(sources[schedule].film_W_per_m2K))
     record = ThermalRecord(
         table.heat_model, other_model, table.lubricant_vg, table.sealed,
         table.seal_torque(screw.nominal_diameter_mm, screw.lead_mm), table.nut_heat_share, table.convection_factor,
         mounting, table.pretension_K, mech.lift_off_N, table.feedback, table.shift_h, _pair(table.stroke_mm or travel),
-        1e3 * model.centres_m, positions, film, model.screw.time_constant_s(film), cases["schedule"], cases["constant"],
-        _drift(run, table, over["constant"], over["schedule"], command_range_V))
+        1e3 * model.centres_m, positions, film, model.screw.time_constant_s(film), cases[schedule], cases[best],
+        _drift(run, table, over[best], over[schedule], command_range_V))
     return ThermalBudget(record, _requirements(table, record), sources)
 
 

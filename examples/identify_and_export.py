@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> dict:
     # validate, export
     study = study.replace(feedforward={"data": str(loop), "n_operators": args.operators})
     tuned = study.tune()
-    gain_set = tuned.validate(plants=args.plants, seed=0).save(out / "gains.json")
+    gain_set = study.validate(tuned, plants=args.plants, seed=0).save(out / "gains.json")
     g = gain_set.gains
     print(f"gains Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s, Td {g.Td_s:.4g} s: {gain_set.status} on "
           f"{gain_set.validation.n_plants} plants of study {study.name}")

@@ -56,8 +56,9 @@ def sweep(study: pp.Study, preloads_N: list[float], plants: int) -> list[dict]:
     for preload in preloads_N:
         s = with_bolt_preload(study, preload)
         plant = s.plant
-        tuned = s.tune(feedforward=s.identify_feedforward())
-        gain_set = tuned.validate(plants=plants, seed=0)
+        feedforward = s.identify_feedforward()
+        tuned = s.tune(feedforward=feedforward)
+        gain_set = s.validate(tuned, feedforward, plants=plants, seed=0)
         worst = gain_set.validation.worst.settling_s
         rows.append({"asked_N": preload, "bolt_preload_N": bolt_preload_N(s),
                      "stiffness_at_bolts_N_per_um": float(plant.local_stiffness_N_per_um(0.0)),

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 __all__ = [
     "__version__", "load_study", "shipped_studies", "Study", "GainSet", "TuningResult", "StudyRun", "ScheduleLearning",
     "ClosedLoopRun", "Plant",
-    "DesignResult", "IdentifiedFeedforward", "PIDGains", "Reference", "StepMetrics", "Record", "read_record",
+    "DesignResult", "IdentifiedFeedforward", "PIDGains", "Reference", "StepMetrics", "MeasuredRecord", "read_record",
     "export", "identify", "Identification", "PIIdentifier", "NotFittedError", "IdentifiedModel", "Window",
     "autotune", "AutotuneResult", "fit_plant", "FittedPlant", "PiezopreloadError", "InputError", "ArtifactError",
     "InfeasibleError", "InternalError", "SweepResult",
@@ -35,7 +35,7 @@ __all__ = [
 #: and scipy load their submodules), so ``import piezopreload`` loads no floor and no solver
 _EXPORTS: dict[str, str] = {name: module for module, names in {
     "piezopreload.study": ("load_study", "shipped_studies", "Study"),
-    "piezopreload.results": ("TuningResult", "StudyRun", "StudyReproduction", "SimulationInfo"),
+    "piezopreload.results": ("StudyRun", "StudyReproduction", "SimulationInfo"),
     "piezopreload.schedule": ("ScheduleLearning",),
     "piezopreload.sweep": ("SweepResult",),
     "piezopreload.codesign": ("CodesignResult", "CodesignWeights"),
@@ -44,7 +44,7 @@ _EXPORTS: dict[str, str] = {name: module for module, names in {
     "piezopreload.tuning.compare": ("ReproductionSummary", "PublishedRow"),
     "piezopreload.core.errors": ("PiezopreloadError", "InputError", "ArtifactError", "InfeasibleError",
                                  "InternalError"),
-    "piezopreload.core.tables": ("Record", "read_record"),
+    "piezopreload.core.tables": ("MeasuredRecord", "read_record"),
     "piezopreload.models.actuator": ("Plant",),
     "piezopreload.models.closedloop": ("ClosedLoopRun", "Reference"),
     "piezopreload.models.controller": ("PIDGains",),
@@ -53,8 +53,8 @@ _EXPORTS: dict[str, str] = {name: module for module, names in {
     "piezopreload.artifacts.hysteresis": ("IdentifiedModel", "FitError", "DataSource"),
     "piezopreload.artifacts.validation": ("ValidationResult", "Metrics", "Failure"),
     "piezopreload.artifacts.requirements": ("Requirement",),
-    "piezopreload.artifacts.tuning": ("ComparisonRow", "ActiveBound", "MinimumTimeBound", "TrackingFloor",
-                                      "TuningSolve"),
+    "piezopreload.artifacts.tuning": ("TuningResult", "ComparisonRow", "ActiveBound", "MinimumTimeBound",
+                                      "TrackingFloor", "TuningSolve"),
     "piezopreload.artifacts.design": ("DesignRecord", "DesignPoint"),
     "piezopreload.artifacts.plant": ("DesignedPlant",),
     "piezopreload.artifacts.schedule": ("PreloadSchedule", "ScheduleSummary"),
@@ -87,11 +87,18 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     from piezopreload.artifacts.summaries import SystemSummary
     from piezopreload.artifacts.sweep import SweepPoint
     from piezopreload.artifacts.system import SystemRecord, TrackingNumbers
-    from piezopreload.artifacts.tuning import ActiveBound, ComparisonRow, MinimumTimeBound, TrackingFloor, TuningSolve
+    from piezopreload.artifacts.tuning import (
+        ActiveBound,
+        ComparisonRow,
+        MinimumTimeBound,
+        TrackingFloor,
+        TuningResult,
+        TuningSolve,
+    )
     from piezopreload.artifacts.validation import Failure, Metrics, ValidationResult
     from piezopreload.codesign import CodesignResult, CodesignWeights
     from piezopreload.core.errors import ArtifactError, InfeasibleError, InputError, InternalError, PiezopreloadError
-    from piezopreload.core.tables import Record, read_record
+    from piezopreload.core.tables import MeasuredRecord, read_record
     from piezopreload.design.study import DesignResult
     from piezopreload.design.system import SystemRun
     from piezopreload.models.actuator import Plant
@@ -99,7 +106,7 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     from piezopreload.models.controller import PIDGains
     from piezopreload.models.metrics import StepMetrics
     from piezopreload.outcome import RunSummary, StudyResult
-    from piezopreload.results import SimulationInfo, StudyReproduction, StudyRun, TuningResult
+    from piezopreload.results import SimulationInfo, StudyReproduction, StudyRun
     from piezopreload.rig.export import export
     from piezopreload.schedule import ScheduleLearning
     from piezopreload.study import Study, load_study, shipped_studies
@@ -123,6 +130,10 @@ def _version() -> str:
         return "0+unknown"
 
 
+#: names exported before under another name: the measured record was ``Record``, the name of every artifact
+#: record's base class (:class:`piezopreload.core.records.Record`)
+_FORMER = {"Record": "MeasuredRecord"}
+
 if not TYPE_CHECKING:  # hidden from type checkers, which would otherwise take any name as defined here
 
     def __getattr__(name: str) -> Any:
@@ -130,6 +141,8 @@ if not TYPE_CHECKING:  # hidden from type checkers, which would otherwise take a
             value = _version()
         elif name in _EXPORTS:
             value = getattr(importlib.import_module(_EXPORTS[name]), name)
+        elif name in _FORMER:  # a name this module exported before, kept so that existing scripts run
+            value = getattr(importlib.import_module(_EXPORTS[_FORMER[name]]), _FORMER[name])
         else:
             raise AttributeError(f"module 'piezopreload' has no attribute '{name}'")
         globals()[name] = value  # the next use is a plain attribute

@@ -60,6 +60,7 @@ from piezopreload.models.ballscrew import lift_off_load_N
 from piezopreload.models.controller import PIDGains
 from piezopreload.progress import ProgressLike, say_of
 from piezopreload.spec import StudySpec
+from piezopreload.steps import Solved, identify
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, tune_pid
 from piezopreload.tuning.validate import validate
@@ -253,15 +254,14 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
         raise InputError(f"{study.path}: co-design needs the design's tables ([ballscrew], [design])")
     tuning = tuning or study.tuning
     plant = _plant(study, point)
-    subject = study.with_design(point)
-    ff = feedforward or subject.identify_feedforward()
+    ff = feedforward or identify(study, Solved(study, point))
     known = None if start is None else {"the sequential gains": start}
     try:
         tuned = tune_pid(plant, ff.inverse(), tuning, starts=1, max_iterations=max_iterations, known=known)
     except TuningInfeasible as exc:
         raise InfeasibleError(f"{study.path}: the design (contact angle {point.contact_angle_deg:.2f} deg, conformity "
                               f"{point.conformity:.4f}) has no controller: {exc}") from exc
-    nominal = _nominal(study, plant, tuned.gains, ff)
+    nominal = _nominal(study, plant, tuned.found(), ff)
     sched = study.schedule or ScheduleTable()
     schedule, _, _ = plan_schedule(spec, point, None, **sched.limits())
     c = study.validation
@@ -276,7 +276,7 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
         binding = ", ".join(tuned.binding) or "none"
         why = (f"with Ms <= {tuning.ms_max:g} ([tuning] ms_max; binding: {binding}) the best gains miss "
                + "; ".join(misses))
-    return Candidate(point, tuned.gains, float(plant.coupling_stiffness_N_per_um), float(tuned.ms),
+    return Candidate(point, tuned.found(), float(plant.coupling_stiffness_N_per_um), float(tuned.ms),
                      float(schedule.friction_energy_J), nominal["tracking_rms_N"], nominal["peak_voltage_V"],
                      nominal["settling_s"], not misses, why, float(lift_off_load_N(point.bolt_preload_N)),
                      math.nan if study.thermal is None else float(duty_growth_um(spec, point, study.thermal)))
@@ -688,8 +688,7 @@ class _Search:
 
 
 def _monte_carlo(study: StudySpec, cand: Candidate, plants: int) -> ValidationResult:
-    subject = study.with_design(cand.point)
-    ff = subject.identify_feedforward()
+    ff = identify(study, Solved(study, cand.point))
     return validate(cand.gains, ff.model, _plant(study, cand.point), study.validation, n_plants=plants,
                     seed=study.seed if study.validation.seed is None else study.validation.seed,
                     step=study.references["step"],

@@ -1,6 +1,6 @@
 """The one-command study: ``piezopreload run [STUDY.toml] [--out DIR] [--force]``, ``study.run(out=...)``.
 
-A study goes through its stages (:data:`STAGES`), each a call of the study's API writing
+A study goes through its stages (:data:`STAGES`), each a call of one of the study's steps writing
 versioned artifacts into the output folder:
 
 ==========  ==================================================================  ==========================
@@ -26,12 +26,11 @@ report      figures and the PDF (Typst)                                         
 ==========  ==================================================================  ==========================
 
 A study without ``[plant] from_design`` (the paper's) runs on its ``[rig]``: plant and system do
-not apply. With it, identify, tune, validate and compare run on the designed plant (``study.plant``
-of the study given the design stage's optimum, :meth:`~piezopreload.spec.StudySpec.with_design`: the plant stage
-writes it as ``plant.json``), and their keys include the plant's hash: a changed design makes another plant
-and everything after it runs again. With a ``[learning]``
-table too, the learn stage learns on each margin pass of the schedule and the system stage
-plays each pass's signal (:meth:`~piezopreload.spec.StudySpec.track_schedule`'s ``ff_extra_V``): its summary is after
+not apply. With it, identify, tune, validate and compare run on the designed plant (the plant of the design stage's
+optimum, held by the run's :class:`~piezopreload.steps.Solved`: the plant stage writes it as ``plant.json``), and
+their keys include the plant's hash: a changed design makes another plant and everything after it runs again. With
+a ``[learning]`` table too, the learn stage learns on each margin pass of the schedule and the system stage
+plays each pass's signal (:func:`~piezopreload.steps.track_schedule`'s ``ff_extra_V``): its summary is after
 learning, with the error before learning beside it; the rig stage plays the last pass's signal.
 
 Every stage has a key: the SHA-256 of its study tables, of the artifacts it reads, of the
@@ -61,6 +60,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from piezopreload import steps
 from piezopreload.artifacts.design import DesignRecord
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.manifest import MANIFEST, STUDY_COPY, StageRecord, StudyRef, StudyRunManifest
@@ -84,6 +84,7 @@ from piezopreload.artifacts.summaries import (
     ValidateSummary,
 )
 from piezopreload.artifacts.system import SystemRecord
+from piezopreload.artifacts.tuning import TuningResult
 from piezopreload.codesign import codesign_optimum
 from piezopreload.core.artifacts import atomic_write_bytes, package_version
 from piezopreload.core.errors import InputError
@@ -107,9 +108,9 @@ from piezopreload.design.tables import DesignTable, PlantTable
 from piezopreload.outcome import Headline, RunSummary, StageOutcome, StudyResult
 from piezopreload.progress import Progress, ProgressLike, as_progress
 from piezopreload.reports.study_report import STAGES_READ, Published, ReportStudy, render_report
-from piezopreload.results import TuningResult, tune
 from piezopreload.rig.export import write_exports
 from piezopreload.spec import StudySpec
+from piezopreload.steps import Solved
 from piezopreload.tuning.compare import creep_effect, reproduction, responses
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.learning import played_passes, save_passes
@@ -135,7 +136,7 @@ class _Ctx:
     template: str | None = None              # a Typst template's text to use instead of the shipped one
     cache: StageCache | None = None          # stage outputs shared with other folders
     pool: Pool = field(default_factory=Pool)  # the run's worker processes (one: none, each job here)
-    _subject: StudySpec | None = None
+    _solved: Solved | None = None
 
     def record(self, stage: str) -> StageRecord | None:
         """The record of ``stage`` so far in this run (None: not reached)."""
@@ -179,14 +180,13 @@ class _Ctx:
         """The design's preload schedule, as the design stage recorded it."""
         return self.design().schedule
 
-    def subject(self) -> StudySpec:
-        """The study the stages after the design run on: where the plant is the design, the study given the design
-        stage's optimum (its plant, designed plant and preload schedule are made from it, not solved again)."""
-        if not self.study.plant_from_design:
-            return self.study
-        if self._subject is None:
-            self._subject = self.study.with_design(self.design(), self.sha256("design", "design"))
-        return self._subject
+    def solved(self) -> Solved:
+        """What the stages after the design run on: where the plant is the design, the design stage's optimum given
+        (the plant, the designed plant and the preload schedule are made from it, not solved again)."""
+        if self._solved is None:
+            self._solved = (Solved(self.study, self.design(), self.sha256("design", "design"))
+                            if self.study.plant_from_design else Solved(self.study))
+        return self._solved
 
 
 @dataclass(frozen=True)
@@ -207,7 +207,7 @@ class Stage:
 
 
 def _stage_identify(ctx: _Ctx) -> Produced:
-    ff = ctx.subject().identify_feedforward(progress=ctx.progress.say)
+    ff = steps.identify(ctx.study, ctx.solved(), progress=ctx.progress.say)
     paths = ff.save(ctx.out / "feedforward", inputs={"study_sha256": ctx.study.sha256})
     return paths, IdentifySummary(ff.record.data.kind, ff.record.data.sha256, ff.model.n_operators, ff.fit.rms_pct,
                                   ff.fit.max_pct, None if ff.check is None else ff.check.rms_N)
@@ -221,7 +221,8 @@ def _stage_design(ctx: _Ctx) -> Produced:
     if (ctx.study.design_table or DesignTable()).method == "codesign":  # the design chosen with its controller
         ctx.progress.say("[design] method = codesign: the design is chosen with its controller (nested co-design)")
         optimum = codesign_optimum(ctx.study, progress=ctx.progress.say)
-    result = ctx.study.design(progress=ctx.progress.say, bar=ctx.progress.bar("Pareto fronts"), optimum=optimum)
+    result = steps.design(ctx.study, Solved(ctx.study), progress=ctx.progress.say,
+                          bar=ctx.progress.bar("Pareto fronts"), optimum=optimum)
     written = result.save(d / "design.json", {"study": ctx.study.path, "study_sha256": ctx.study.sha256})
     outputs = {"design": written[0], **{p.stem.rpartition(".")[2]: p for p in written[1:]}}
     s = result.schedule
@@ -232,8 +233,9 @@ def _stage_design(ctx: _Ctx) -> Produced:
 
 
 def _stage_tune(ctx: _Ctx) -> Produced:
-    tuned = tune(ctx.subject(), ctx.feedforward(), progress=ctx.progress.say,
-                 iterations=ctx.progress.counter("IPOPT iterations", every=10), pool=ctx.pool)
+    tuned = steps.tune(ctx.study, ctx.solved(), ctx.feedforward(), progress=ctx.progress.say,
+                 iterations=ctx.progress.counter("IPOPT iterations", every=10),
+                       pool=ctx.pool)
     g, sched, bound = tuned.gains, tuned.solve.schedule, tuned.minimum_time
     return {"tuning": tuned.save(ctx.out / "tuning.json")}, TuneSummary(
         g.Kc, g.Ti_s, g.Td_s, g.Tf_s, g.b, tuned.solve.form, tuned.solve.ms,
@@ -242,12 +244,14 @@ def _stage_tune(ctx: _Ctx) -> Produced:
 
 
 def _stage_validate(ctx: _Ctx) -> Produced:
-    study = ctx.subject()
-    tuned = TuningResult.load(ctx.output("tune", "tuning"), study, ctx.feedforward())
-    gain_set, result = tuned.validation(inputs={"tuning_sha256": ctx.sha256("tune", "tuning")},
-                                        progress=ctx.progress.say,
-                                        bar=ctx.progress.bar(f"Monte Carlo, {study.validation.plants} plants"),
-                                        pool=ctx.pool)
+    study = ctx.study
+    gain_set = steps.validate(study, ctx.solved(), TuningResult.load(ctx.output("tune", "tuning")), ctx.feedforward(),
+                              inputs={"tuning_sha256": ctx.sha256("tune", "tuning")}, progress=ctx.progress.say,
+                              bar=ctx.progress.bar(f"Monte Carlo, {study.validation.plants} plants"),
+                              pool=ctx.pool)
+    result = gain_set.validation
+    if result is None:  # pragma: no cover - a validation always judges the set it returns
+        raise StageFailed("validate", "the validation returned a gain set without its verdict")
     gains_path, validation_path = ctx.out / "gains.json", ctx.out / "validation.json"
     gain_set = gain_set.save(gains_path)
     replace(result, gain_set_sha256=gain_set.content_sha256,
@@ -260,12 +264,12 @@ def _stage_validate(ctx: _Ctx) -> Produced:
 
 
 def _stage_compare(ctx: _Ctx) -> Produced:
-    study, ff = ctx.subject(), ctx.feedforward()
+    study, ff, plant = ctx.study, ctx.feedforward(), ctx.solved().plant()
     gain_set = GainSet.load(ctx.output("validate", "gains"))
-    runs = responses(study.plant, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model,
+    runs = responses(plant, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model,
                      seed=study.seed, band_N=study.band_N, signal=study.signal,
                      after_change_s=study.validation.tracking_after_change_s,
-                     progress=ctx.progress.bar("closed-loop runs"))
+                     bar=ctx.progress.bar("closed-loop runs"))
     d = ctx.out / "responses"
     outputs: dict[str, Path] = {}
     rows = []
@@ -277,7 +281,7 @@ def _stage_compare(ctx: _Ctx) -> Produced:
                                 **{k: r.numbers.get(k) for k in RESPONSE_FIGURES}))
     table = [] if study.published is None else reproduction(runs, study.published.step())
     creep = None if ff.without_creep is None else creep_effect(  # FF + PID with and without creep compensation
-        study.plant, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model, ff.without_creep,
+        plant, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model, ff.without_creep,
         seed=study.seed, band_N=study.band_N, signal=study.signal,
         after_change_s=study.validation.tracking_after_change_s)
     record = ResponsesRecord(
@@ -289,7 +293,7 @@ def _stage_compare(ctx: _Ctx) -> Produced:
 
 
 def _stage_plant(ctx: _Ctx) -> Produced:
-    plant = ctx.subject().designed_plant
+    plant = ctx.solved().designed()
     path = plant.save(ctx.out / "plant.json", {"design": ctx.rel(ctx.output("design", "design")),
                                                "design_sha256": plant.design_sha256, "study_sha256": ctx.study.sha256})
     k = plant.local_stiffness_N_per_um()
@@ -300,8 +304,8 @@ def _stage_plant(ctx: _Ctx) -> Produced:
 
 
 def _stage_learn(ctx: _Ctx) -> Produced:
-    study, gain_set = ctx.subject(), GainSet.load(ctx.output("validate", "gains"))
-    learned = study.learn(gain_set, reference="schedule", progress=ctx.progress.say)
+    study, gain_set = ctx.study, GainSet.load(ctx.output("validate", "gains"))
+    learned = steps.learn_schedule(study, ctx.solved(), gain_set, progress=ctx.progress.say)
     inputs = {"gain_set_sha256": gain_set.content_sha256, "plant_sha256": ctx.sha256("plant", "plant"),
               "study_sha256": study.sha256}
     outputs, record = save_passes(list(learned.passes), ctx.out / "learn", gain_set.content_sha256, inputs)
@@ -319,13 +323,13 @@ def _stage_learn(ctx: _Ctx) -> Produced:
 
 
 def _stage_system(ctx: _Ctx) -> Produced:
-    study, gain_set = ctx.subject(), GainSet.load(ctx.output("validate", "gains"))
+    study, gain_set = ctx.study, GainSet.load(ctx.output("validate", "gains"))
     extra, before = None, None
     if ctx.done("learn"):  # each pass plays the signal learned on its reference
         extra, record = played_passes(ctx.output("learn", "learning"), gain_set.content_sha256)
         before = BeforeLearning(record.last.before_learning_rms_N, record.last.before_learning_pct_of_range,
                                 record.last.trials, record.trials)
-    result = study.track_schedule(gain_set, ff_extra_V=extra, progress=ctx.progress.say)
+    result = steps.track_schedule(study, ctx.solved(), gain_set, ff_extra_V=extra, progress=ctx.progress.say)
     paths = result.save(ctx.out / "system", {
         "gain_set_sha256": gain_set.content_sha256, "design_sha256": ctx.sha256("design", "design"),
         "plant_sha256": ctx.sha256("plant", "plant"), "study_sha256": study.sha256,
@@ -399,7 +403,7 @@ def _stage_report(ctx: _Ctx) -> Produced:
     study = ctx.study
     b, d = study.ballscrew, study.design_spec
     pub = study.published
-    plant = study.designed_plant.rig if study.plant_from_design else study.plant  # the design is kept: not solved again
+    plant = ctx.solved().plant()  # the design stage's: not solved again
     facts = ReportStudy(study.name, study.title, study.path, study.sha256, ctx.source or study.path, study.description,
                         None if b is None or d is None else (d.nominal_diameter_mm, d.lead_mm),
                         (plant.n_stacks, plant.stack.name), None if d is None else d.frequency_min_Hz,

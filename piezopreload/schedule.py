@@ -1,6 +1,6 @@
-"""Learning along a study's preload schedule: :class:`ScheduleLearning` (``study.learn(gains, reference="schedule")``).
+"""Learning along a study's preload schedule: :class:`ScheduleLearning` (``study.learn_schedule(gains)``).
 
-Each margin pass of the schedule (:meth:`~piezopreload.spec.StudySpec.track_schedule`) learned on its own repeated
+Each margin pass of the schedule (:func:`~piezopreload.steps.track_schedule`) learned on its own repeated
 reference, and the schedule tracked with each pass's learned signal played. The pipeline's learn stage writes it
 (:func:`~piezopreload.tuning.learning.save_passes`).
 """
@@ -31,7 +31,7 @@ def _before_learning(result: LearningResult) -> float:
 
 @dataclass(frozen=True, eq=False)
 class ScheduleLearning:
-    """Learning along the design's preload schedule (``study.learn(gains, reference="schedule")``): each margin
+    """Learning along the design's preload schedule (``study.learn_schedule(gains)``): each margin
     pass of the schedule learned on its own repeated reference (``passes``, one
     :class:`~piezopreload.tuning.learning.LearningResult` each), and the tracking of the schedule with each pass's
     learned signal played (``system``, the last pass's :class:`~piezopreload.design.system.SystemRun`).

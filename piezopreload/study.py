@@ -1,13 +1,15 @@
 """The study a script works on: :class:`Study`, a study file parsed once into typed tables, with the steps that
 take it.
 
-:class:`Study` is a :class:`~piezopreload.spec.StudySpec` (the typed tables, the plant and what the tables make,
-the design, the feedforward's identification, the schedule's tracking and learning) with the steps of the
-application layer as methods: :meth:`Study.tune`, :meth:`Study.simulate` and :meth:`Study.reproduce`
-(:mod:`piezopreload.results`), :meth:`Study.run` (:mod:`piezopreload.pipeline`), :meth:`Study.codesign`
-(:mod:`piezopreload.codesign`) and :meth:`Study.sweep` (:mod:`piezopreload.sweep`). Each is a function of its
-module that takes any study; the pipeline and the sweep
-compose them without this module, which sits above them and which only the CLI imports.
+:class:`Study` is a :class:`~piezopreload.spec.StudySpec` (the typed tables and what the tables make) with the steps
+that take it as methods, each one call of a function: :meth:`Study.design`, :meth:`Study.identify_feedforward`,
+:meth:`Study.tune`, :meth:`Study.validate`, :meth:`Study.learn`, :meth:`Study.learn_schedule`,
+:meth:`Study.track_schedule`, :meth:`Study.simulate` and :meth:`Study.reproduce` (:mod:`piezopreload.steps`),
+:meth:`Study.run` (:mod:`piezopreload.pipeline`), :meth:`Study.codesign` (:mod:`piezopreload.codesign`) and
+:meth:`Study.sweep` (:mod:`piezopreload.sweep`). It holds what its steps solved (:attr:`Study.solved`, a
+:class:`~piezopreload.steps.Solved`: the design's optimum solved once, :attr:`Study.plant`); the spec holds nothing
+solved. The pipeline and the sweep compose the steps without this module, which sits above them and which only the
+CLI imports.
 
 >>> import piezopreload as pp
 >>> study = pp.load_study("paper2021")                 # the paper's study, shipped: its [rig] is the plant
@@ -27,22 +29,40 @@ piezopreload.core.errors.InputError: ...: 'rig.bolt_preload_N' is set by the des
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace as _replace
+from functools import cached_property
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Self
 
 from piezopreload import codesign as codesigns
-from piezopreload import pipeline, results
+from piezopreload import pipeline, steps
 from piezopreload import sweep as sweeps
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.sweep import DEFAULT_SWEEP_OUT, Scalar
+from piezopreload.artifacts.tuning import TuningResult
 from piezopreload.codesign import CodesignResult, CodesignWeights
 from piezopreload.models.controller import PIDGains
 from piezopreload.outcome import StudyResult
 from piezopreload.pipeline import DEFAULT_OUT
-from piezopreload.progress import ProgressLike
-from piezopreload.results import StudyReproduction, StudyRun, TuningResult
+from piezopreload.progress import ProgressLike, say_of
+from piezopreload.results import StudyReproduction, StudyRun
 from piezopreload.spec import DEFAULT_STUDY, PAPER_STUDY, StudySpec, default_study, paper_study, shipped_studies
+from piezopreload.steps import Solved
 from piezopreload.sweep import SweepResult
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
+
+if TYPE_CHECKING:
+    from piezopreload.artifacts.design import DesignPoint, DesignRecord
+    from piezopreload.artifacts.plant import DesignedPlant
+    from piezopreload.artifacts.schedule import PreloadSchedule
+    from piezopreload.core.tables import MeasuredRecord
+    from piezopreload.design.preload import DesignOptimum
+    from piezopreload.design.study import DesignResult
+    from piezopreload.design.system import SystemRun
+    from piezopreload.models.actuator import Plant
+    from piezopreload.models.closedloop import Reference
+    from piezopreload.schedule import ScheduleLearning
+    from piezopreload.tuning.learning import LearningResult
 
 __all__ = ["Study", "load_study", "default_study", "paper_study", "shipped_studies", "DEFAULT_STUDY", "PAPER_STUDY"]
 
@@ -98,10 +118,234 @@ class Study(StudySpec):
         Where the study says what it does when a step is given no progress of its own.
     """
 
+    # ---- what its steps solved ---------------------------------------------------------------------
+    @cached_property
+    def solved(self) -> Solved:
+        """What this study's steps have solved and keep (:class:`~piezopreload.steps.Solved`): the design's optimum,
+        solved once where a step needs it (saying so), the designed plant, the plant and the preload schedule."""
+        return Solved(self)
+
+    @property
+    def plant(self) -> Plant:
+        """The plant every control step runs on: ``[rig]``, or the plant of the design's optimum where
+        ``[plant] from_design = true`` (the design solved once, saying so through the study's progress, and kept)."""
+        return self.solved.plant()
+
+    @property
+    def designed_plant(self) -> DesignedPlant:
+        """Where the plant is the design: the designed preload system (its rig, :attr:`plant`; its screw, its
+        preload range and where it comes from, the design's hash)."""
+        return self.solved.designed()
+
+    @property
+    def preload_schedule(self) -> PreloadSchedule:
+        """The study's least-friction preload schedule (``[schedule]``) on the screw of the design's optimum."""
+        return self.solved.schedule()
+
+    def solved_plant(self, progress: ProgressLike | None = None) -> Plant:
+        """:attr:`plant`, its design solved first where the plant is the design and it has not been, saying so
+        through ``progress`` (default: the study's own).
+
+        Parameters
+        ----------
+        progress : ProgressLike, optional
+            Where the design's solve is said.
+
+        Returns
+        -------
+        Plant
+            The plant every control step runs on.
+        """
+        return self.solved.plant(say_of(progress))
+
+    def with_design(self, design: DesignRecord | DesignResult | DesignOptimum | DesignPoint,
+                    design_sha256: str = "") -> Self:
+        """This study with its design's optimum given (a design artifact, say) instead of solved.
+
+        Parameters
+        ----------
+        design : DesignRecord, DesignResult, DesignOptimum or DesignPoint
+            The design: its plant, designed plant and preload schedule are made from it; a design artifact's own
+            schedule is kept as recorded, so the best constant preload has one source.
+        design_sha256 : str
+            The design artifact's hash, which the designed plant records.
+
+        Returns
+        -------
+        Study
+            A copy holding the design.
+        """
+        study = _replace(self)
+        study.__dict__["solved"] = Solved(study, design, design_sha256)  # the copy's own context, given its design
+        return study
+
+    def replace(self, **changes: dict[str, Any] | None) -> Self:
+        """A validated copy with some keys changed (:meth:`StudySpec.replace
+        <piezopreload.spec.StudySpec.replace>`); the design solved for this study is kept where the copy's design
+        is the same.
+
+        Parameters
+        ----------
+        **changes : dict or None
+            Each table's keys to change (None: remove).
+
+        Returns
+        -------
+        Study
+            The copy.
+        """
+        study = super().replace(**changes)
+        if "solved" in self.__dict__ and self.same_design(study):
+            study.__dict__["solved"] = self.solved.keeping_design(study)
+        return study
+
+    # ---- the steps ---------------------------------------------------------------------------------
+    def design(self, *, objective: str | None = None, pareto: list[str] | None = None, points: int | None = None,
+               schedule: str | Path | None = None, progress: ProgressLike | None = None,
+               bar: Callable[[int, int], None] | None = None, optimum: DesignOptimum | None = None) -> DesignResult:
+        """The ball-screw preload design, its optimum kept for :attr:`plant`: :func:`piezopreload.steps.design`.
+
+        Parameters
+        ----------
+        objective : str, optional
+            The optimum's objective (default: ``[design] objective``).
+        pareto : list of str, optional
+            The Pareto fronts to trace (default: ``[design] pareto``; ``[]`` for none).
+        points : int, optional
+            Points per front.
+        schedule : str or Path, optional
+            A load profile (CSV) for the preload schedule (default: the study's).
+        progress : ProgressLike, optional
+            Where the steps are said.
+        bar : callable, optional
+            Given (done, total) as the fronts are traced.
+        optimum : DesignOptimum, optional
+            The optimum already chosen (a co-design's), kept as the study's.
+
+        Returns
+        -------
+        DesignResult
+            The optimum, the fronts and the schedule.
+        """
+        return steps.design(self, self.solved, objective=objective, pareto=pareto, points=points, schedule=schedule,
+                            progress=progress, bar=bar, optimum=optimum)
+
+    def measured_loop(self, progress: ProgressLike | None = None) -> MeasuredRecord | None:
+        """``[feedforward] data`` read and checked against the references: :func:`piezopreload.steps.measured_loop`.
+
+        Parameters
+        ----------
+        progress : ProgressLike, optional
+            Where reading the file is said.
+
+        Returns
+        -------
+        MeasuredRecord or None
+            The measured loop; None where the study simulates it.
+        """
+        return steps.measured_loop(self, progress)
+
+    def identify_feedforward(self, progress: ProgressLike | None = None) -> IdentifiedFeedforward:
+        """The feedforward's P-I model on :attr:`plant`: :func:`piezopreload.steps.identify`.
+
+        Parameters
+        ----------
+        progress : ProgressLike, optional
+            Where the steps are said.
+
+        Returns
+        -------
+        IdentifiedFeedforward
+            The model, its fit and its check.
+        """
+        return steps.identify(self, self.solved, progress)
+
+    def learn(self, gains: GainSet | None = None, *, reference: str | Reference = "trajectory",
+              iterations: int | None = None, preview_s: float | None = None, method: str | None = None,
+              plants: int | None = None, seed: int | None = None, after_change_weight: float = 0.0,
+              progress: ProgressLike | None = None) -> LearningResult:
+        """Preview and iterative learning control over a repeated reference on :attr:`plant`:
+        :func:`piezopreload.steps.learn` (along the preload schedule: :meth:`learn_schedule`).
+
+        Parameters
+        ----------
+        gains : GainSet, optional
+            A gain set, or None: the study's ``[controller]`` with the identified feedforward.
+        reference : str or Reference
+            A name of :attr:`references`, or a Reference.
+        iterations : int, optional
+            The most learning trials (default: ``[learning]``).
+        preview_s : float, optional
+            The preview (default: ``[learning]``; 0: none).
+        method : str, optional
+            The learning law (default: ``[learning]``).
+        plants : int, optional
+            Learn on N Monte Carlo plants (the result reports the worst).
+        seed : int, optional
+            The noise seed (default: the study's).
+        after_change_weight : float
+            How the plan places each change.
+        progress : ProgressLike, optional
+            Where the trials are said.
+
+        Returns
+        -------
+        LearningResult
+            ``.ff_extra_V``, ``.history``, ``.plot()``.
+        """
+        return steps.learn(self, self.solved, gains, reference=reference, iterations=iterations, preview_s=preview_s,
+                           method=method, plants=plants, seed=seed, after_change_weight=after_change_weight,
+                           progress=progress)
+
+    def learn_schedule(self, gains: GainSet | None = None, *, iterations: int | None = None,
+                       preview_s: float | None = None, method: str | None = None, seed: int | None = None,
+                       progress: ProgressLike | None = None) -> ScheduleLearning:
+        """Learning along the design's preload schedule, each margin pass on its own reference, as the pipeline's
+        learn stage: :func:`piezopreload.steps.learn_schedule`.
+
+        Parameters
+        ----------
+        gains : GainSet, optional
+            A gain set, or None: the study's ``[controller]`` with the identified feedforward.
+        iterations, preview_s, method : optional
+            As :meth:`learn` has them.
+        seed : int, optional
+            The noise seed (default: the study's).
+        progress : ProgressLike, optional
+            Where the passes are said.
+
+        Returns
+        -------
+        ScheduleLearning
+            Each pass's learning (``.passes``) and the last pass's tracking of the schedule (``.system``).
+        """
+        return steps.learn_schedule(self, self.solved, gains, iterations=iterations, preview_s=preview_s,
+                                    method=method, seed=seed, progress=progress)
+
+    def track_schedule(self, gains: GainSet | None = None, *, ff_extra_V: Any = None,
+                       progress: ProgressLike | None = None) -> SystemRun:
+        """The gains following the preload schedule on the designed plant: :func:`piezopreload.steps.track_schedule`.
+
+        Parameters
+        ----------
+        gains : GainSet, optional
+            A gain set, or None: the study's ``[controller]`` with the identified feedforward.
+        ff_extra_V : array or callable, optional
+            A correction added to the feedforward (one array, or one per pass's reference: a callable).
+        progress : ProgressLike, optional
+            Where the steps are said.
+
+        Returns
+        -------
+        SystemRun
+            The run along the schedule, its thermal budget and its sensitivity.
+        """
+        return steps.track_schedule(self, self.solved, gains, ff_extra_V=ff_extra_V, progress=progress)
+
     def tune(self, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,
              progress: ProgressLike | None = None, iterations: Callable[[int], None] | None = None) -> TuningResult:
         """Tune the PID around :attr:`plant` compensated by ``feedforward`` (default: :meth:`identify_feedforward`);
-        compare it with the study's and SIMC's gains and bound it: :func:`piezopreload.results.tune`.
+        compare it with the study's and SIMC's gains and bound it: :func:`piezopreload.steps.tune`.
 
         Parameters
         ----------
@@ -117,13 +361,44 @@ class Study(StudySpec):
         Returns
         -------
         TuningResult
-            The tuned gains, compared and bounded; ``.validate()`` judges them.
+            The tuned gains, compared and bounded (the tune stage's artifact); :meth:`validate` judges them.
         """
-        return results.tune(self, feedforward, seed=seed, progress=progress, iterations=iterations)
+        return steps.tune(self, self.solved, feedforward, seed=seed, progress=progress, iterations=iterations)
+
+    def validate(self, tuned: TuningResult, feedforward: IdentifiedFeedforward | None = None, *,
+                 plants: int | None = None, seed: int | None = None, workers: int | None = None,
+                 scheduler: str | None = None, progress: ProgressLike | None = None) -> GainSet:
+        """Validate tuned gains by Monte Carlo on the study's nonlinear rig (``[validation]`` by default):
+        :func:`piezopreload.steps.validate`.
+
+        Parameters
+        ----------
+        tuned : TuningResult
+            What :meth:`tune` returned.
+        feedforward : IdentifiedFeedforward, optional
+            The feedforward the gains were tuned with (default: the study's, identified once, as :meth:`tune`'s).
+        plants : int, optional
+            Monte Carlo plants (default: ``[validation] plants``).
+        seed : int, optional
+            Their seed (default: ``[validation] seed``).
+        workers : int, optional
+            Local worker processes.
+        scheduler : str, optional
+            A Dask scheduler's address.
+        progress : ProgressLike, optional
+            Where the steps are said.
+
+        Returns
+        -------
+        GainSet
+            ``validated`` only if every plant met every criterion; save it with ``.save()``.
+        """
+        return steps.validate(self, self.solved, tuned, feedforward, plants=plants, seed=seed, workers=workers,
+                              scheduler=scheduler, progress=progress)
 
     def simulate(self, gains: GainSet | PIDGains | None = None, *, controller: str = "ff+pid", reference: str = "step",
                  feedforward: IdentifiedFeedforward | None = None, seed: int | None = None) -> StudyRun:
-        """One controller on :attr:`plant` over one of the study's references: :func:`piezopreload.results.simulate`.
+        """One controller on :attr:`plant` over one of the study's references: :func:`piezopreload.steps.simulate`.
 
         Parameters
         ----------
@@ -144,13 +419,13 @@ class Study(StudySpec):
         StudyRun
             The run (``.step_metrics()``, ``.plot()``, ``.to_dict()``).
         """
-        return results.simulate(self, gains, controller=controller, reference=reference, feedforward=feedforward,
-                                seed=seed)
+        return steps.simulate(self, self.solved, gains, controller=controller, reference=reference,
+                                feedforward=feedforward, seed=seed)
 
     def reproduce(self, *, seed: int | None = None, repeats: int = 1,
                   feedforward: IdentifiedFeedforward | None = None) -> StudyReproduction:
         """The study's published step numbers beside the simulation's on :attr:`plant`:
-        :func:`piezopreload.results.reproduce`.
+        :func:`piezopreload.steps.reproduce`.
 
         Parameters
         ----------
@@ -167,7 +442,7 @@ class Study(StudySpec):
             One row per controller and metric (published, simulated, their ratio, within 25 % or not, the range over
             the noise draws) and what ran (``.to_dict()``: what ``reproduce --json`` prints).
         """
-        return results.reproduce(self, feedforward, seed=seed, repeats=repeats)
+        return steps.reproduce(self, self.solved, feedforward, seed=seed, repeats=repeats)
 
     def run(self, out: str | Path = DEFAULT_OUT, *, force: bool = False, progress: ProgressLike | None = None,
             overwrite: bool = False) -> StudyResult:

@@ -14,7 +14,7 @@ from typing import Any
 
 from piezopreload.core.quantities import number, quantity
 
-__all__ = ["fmt", "q", "ratio", "pct", "Table", "Section", "Report"]
+__all__ = ["fmt", "q", "ratio", "pct", "ReportTable", "Section", "Report"]
 
 
 def fmt(x: float, digits: int = 3, unit: str = "") -> str:
@@ -47,7 +47,7 @@ def pct(fraction: float, digits: int = 2) -> str:
 
 
 @dataclass(frozen=True)
-class Table:
+class ReportTable:
     """A table: a header of strings, rows of strings, a caption and the columns' alignment (``l``, ``r``, ``c``)."""
 
     header: tuple[str, ...]
@@ -74,7 +74,7 @@ class Section:
 
     title: str
     paragraphs: tuple[str, ...] = ()
-    tables: tuple[Table, ...] = ()
+    tables: tuple[ReportTable, ...] = ()
     figures: tuple[str, ...] = ()
     omitted: tuple[str, ...] = ()
     subsections: tuple[Section, ...] = ()

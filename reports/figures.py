@@ -12,7 +12,7 @@ import functools
 import os
 import pickle
 import tempfile
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import as_completed
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -24,16 +24,21 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from piezopreload.core.parallel import Pool
+from piezopreload.core.progress import Bar
 from piezopreload.core.quantities import quantity
 
 if TYPE_CHECKING:
     from matplotlib.typing import RcKeyType
 
+    from piezopreload.artifacts.design import DesignPoint, Front, PreloadCurve
+    from piezopreload.artifacts.learning import PassRecord
+    from piezopreload.artifacts.validation import ValidationResult
+
 __all__ = [
     "STYLE", "COLOURS", "legends", "page_figure", "styled", "save", "save_all", "hysteresis_loops", "inverse_model",
     "step_responses", "tracking",
     "stiffness_vs_preload", "pareto_fronts", "preload_schedule", "natural_frequency", "monte_carlo",
-    "rig_run", "closed_loop", "gains_comparison",
+    "rig_run", "closed_loop",
 ]
 
 STYLE: dict[RcKeyType, Any] = {
@@ -199,15 +204,15 @@ def _save_pickled(blob: bytes, path: str) -> str:
 
 
 def save_all(figures: Sequence[tuple[Figure, str | Path]], *, pool: Pool | None = None,
-             progress: Callable[[int, int], None] | None = None) -> list[Path]:
+             bar: Bar | None = None) -> list[Path]:
     """Write each ``(figure, path)`` as :func:`save` does, drawn by the run's worker processes at once.
 
     Drawing is most of a report's time and the figures are independent: each is drawn by a process of
     ``pool`` (the run's :class:`~piezopreload.core.parallel.Pool`); without one, or with one worker, they are
-    drawn here, one after the other. ``progress(done, total)`` is called as each file is written.
+    drawn here, one after the other. ``bar(done, total)`` is called as each file is written.
     """
     total = len(figures)
-    say = progress or (lambda _i, _n: None)
+    say = bar or (lambda _i, _n: None)
     if pool is None or not pool.parallel or total <= 1:
         written = []
         for i, (fig, path) in enumerate(figures, start=1):
@@ -339,25 +344,25 @@ def tracking(runs: Mapping[str, Mapping[str, np.ndarray]], signal: str, labels: 
 
 
 @styled
-def stiffness_vs_preload(curve: Mapping[str, Any], runs_N: tuple[float, float] | None = None) -> Figure:
+def stiffness_vs_preload(curve: PreloadCurve, runs_N: tuple[float, float] | None = None) -> Figure:
     """Rigidity (and drag torque) of the optimum's screw against preload; the duty cases marked; shaded, the
     preloads the schedule runs (``runs_N``, its least and highest)."""
     fig, ax = page_figure(2.6, ncols=2)
     a, b = ax[0]
-    fp = np.asarray(curve["preload_N"])
-    a.plot(fp, curve["rigidity_N_per_um"], color=COLOURS["model"], label="no axial load")
-    for j, case in enumerate(curve["cases"]):
-        a.plot(case["preload_N"], case["rigidity_N_per_um"], "o", ms=4,
-               label=f"case {j + 1}: {quantity(case['axial_load_N'], 'N')}")
+    fp = np.asarray(curve.preload_N)
+    a.plot(fp, curve.rigidity_N_per_um, color=COLOURS["model"], label="no axial load")
+    for j, case in enumerate(curve.cases):
+        a.plot(case.preload_N, case.rigidity_N_per_um, "o", ms=4,
+               label=f"case {j + 1}: {quantity(case.axial_load_N, 'N')}")
     for a_ in (a, b):
         if runs_N is not None:
             a_.axvspan(*runs_N, color="0.9", lw=0, zorder=0)
-        a_.axvline(curve["bolt_preload_N"], color="0.5", ls=":", lw=0.8)
-        a_.axvline(curve["max_preload_N"], color="0.3", ls="--", lw=0.8)
+        a_.axvline(curve.bolt_preload_N, color="0.5", ls=":", lw=0.8)
+        a_.axvline(curve.max_preload_N, color="0.3", ls="--", lw=0.8)
         a_.set_xlabel("preload (N)")
     a.set_ylabel("axial rigidity (N/um)")
     a.set_title("axial rigidity")
-    b.plot(fp, curve["drag_torque_Nm"], color=COLOURS["study pid"])
+    b.plot(fp, curve.drag_torque_Nm, color=COLOURS["study pid"])
     b.set_ylabel("drag torque (N m)")
     b.set_title("preload drag torque")
     legends(a)
@@ -369,20 +374,20 @@ _FRONT_LABELS = {"stiffness": "least rigidity (N/um)", "preload": "highest prelo
 
 
 @styled
-def pareto_fronts(fronts: Sequence[Mapping[str, Any]], optimum: Mapping[str, float] | None = None) -> Figure:
+def pareto_fronts(fronts: Sequence[Front], optimum: DesignPoint | None = None) -> Figure:
     """The epsilon-constraint Pareto fronts, one panel each, the design optimum marked."""
     n = max(len(fronts), 1)
     fig, ax = page_figure(2.4, ncols=n)
     keys = {"stiffness": "stiffness_N_per_um", "preload": "max_preload_N",
             "drag": "mean_drag_torque_Nm", "life": "life_h"}
     for a, f in zip(ax[0], fronts):
-        a.plot(f["x"], f["y"], "o-", ms=2.5, color=COLOURS["model"], label="front")
-        if optimum is not None and f["y_name"] in keys:  # a point's growth is not one of its fields
-            a.plot(optimum[keys[f["x_name"]]], optimum[keys[f["y_name"]]], "*", ms=8, color=COLOURS["limit"],
-                   label="the design optimum")
-        a.set_xlabel(_FRONT_LABELS[f["x_name"]])
-        a.set_ylabel(_FRONT_LABELS[f["y_name"]])
-        if f["y_name"] == "life":
+        a.plot(f.x, f.y, "o-", ms=2.5, color=COLOURS["model"], label="front")
+        if optimum is not None and f.y_name in keys:  # a point's growth is not one of its fields
+            a.plot(getattr(optimum, keys[f.x_name]), getattr(optimum, keys[f.y_name]), "*", ms=8,
+                   color=COLOURS["limit"], label="the design optimum")
+        a.set_xlabel(_FRONT_LABELS[f.x_name])
+        a.set_ylabel(_FRONT_LABELS[f.y_name])
+        if f.y_name == "life":
             a.set_yscale("log")
     legends(ax[0][0])
     return fig
@@ -426,25 +431,11 @@ def natural_frequency(position_mm: np.ndarray, low_Hz: np.ndarray, high_Hz: np.n
 
 
 @styled
-def monte_carlo(metrics: Mapping[str, Sequence[float | None]], limits: Mapping[str, float]) -> Figure:
-    """Distributions of settling time and overshoot over the Monte Carlo plants, limits marked."""
-    panels = (("settling_s", "settling time (s)"), ("overshoot_N", "overshoot (N)"),
-              ("tracking_rms_N", "tracking RMS after changes (N)"))
-    fig, ax = page_figure(2.4, ncols=len(panels))
-    marked = []
-    for a, (key, label) in zip(ax[0], panels):
-        raw = [x for x in metrics[key]]
-        values = np.array([x for x in raw if x is not None], float)
-        never = len(raw) - values.size
-        a.hist(values, bins=min(30, max(5, values.size // 5)), color=COLOURS["model"], alpha=0.8)
-        if key in limits:
-            a.axvline(limits[key], color=COLOURS["limit"], ls="--", lw=0.9, label="limit")
-            marked.append(a)
-        a.set_xlabel(label)
-        a.set_ylabel("plants")
-        a.yaxis.set_major_locator(MaxNLocator(integer=True))  # a count of plants
-        a.set_title(f"{values.size} plants" + (f", {never} never settled" if never else ""))
-    legends(*marked)
+def monte_carlo(validation: ValidationResult) -> Figure:
+    """The validation's distributions over the Monte Carlo plants, limits marked (drawn by
+    :meth:`~piezopreload.artifacts.validation.ValidationResult.draw_histograms`)."""
+    fig, ax = page_figure(2.4, ncols=len(validation.histogram_metrics()))
+    legends(*validation.draw_histograms(ax[0], colour=COLOURS["model"], limit_colour=COLOURS["limit"]))
     return fig
 
 
@@ -522,24 +513,6 @@ def closed_loop(run: Mapping[str, np.ndarray], band_N: float | None, signal: str
 
 
 @styled
-def gains_comparison(table: Sequence[Mapping[str, Any]]) -> Figure:
-    """The tuning's comparison table as bars: settling time and tracking RMS of each gain set, PID alone and
-    with the feedforward."""
-    fig, ax = page_figure(2.6, ncols=2)
-    labels = [f"{r['gains']}{' + FF' if r['feedforward'] else ''}" for r in table]
-    x = np.arange(len(labels))
-    settling = [np.nan if r["settling_s"] is None else r["settling_s"] for r in table]
-    colours = [COLOURS["tuned ff+pid"] if r["feedforward"] else COLOURS["study pid"] for r in table]
-    for a, values, label in ((ax[0][0], settling, "settling time (s)"),
-                             (ax[0][1], [r["tracking_rms_N"] for r in table], "tracking RMS (N)")):
-        a.bar(x, values, color=colours)
-        a.set_xticks(x, labels, rotation=30, ha="right")
-        a.set_ylabel(label)
-        a.set_yscale("log")
-    return fig
-
-
-@styled
 def system_tracking(time_s: np.ndarray, planned_N: np.ndarray, achieved_N: np.ndarray, rigidity_N_per_um: np.ndarray,
                     required_N_per_um: np.ndarray, cutting: np.ndarray, deflection_um: np.ndarray,
                     deflection_limit_um: float | None) -> Figure:
@@ -565,18 +538,18 @@ def system_tracking(time_s: np.ndarray, planned_N: np.ndarray, achieved_N: np.nd
 
 
 @styled
-def learning_iterations(passes: list[dict[str, Any]]) -> Figure:
+def learning_iterations(passes: Sequence[PassRecord]) -> Figure:
     """The error per learning iteration on the repeated schedule, one line per margin pass (the whole trajectory's RMS
     of the true force in % of the schedule's range), the causal floor beside it."""
     fig, ax = page_figure(2.8)
     a = ax[0][0]
     for k, p in enumerate(passes):
-        span = p["tracking_rms_N"] / p["tracking_rms_pct_of_range"] * 100.0 if p["tracking_rms_pct_of_range"] else 1.0
-        it = [h["iteration"] for h in p["history"]]
-        pct = [100.0 * float(np.max(h["tracking_rms_N"])) / span for h in p["history"]]
+        span = p.tracking_rms_N / p.tracking_rms_pct_of_range * 100.0 if p.tracking_rms_pct_of_range else 1.0
+        it = [h.iteration for h in p.history]
+        pct = [100.0 * h.worst_tracking_rms_N / span for h in p.history]
         a.semilogy(it, pct, "o-", ms=3, lw=0.9, color=f"C{k}",
-                   label=f"pass {p['pass']} (best: trial {int(np.max(p['best_iteration']))})")
-        a.axhline(100.0 * p["causal_floor_N"] / span, color=f"C{k}", ls=":", lw=0.7)
+                   label=f"pass {p.pass_number} (best: trial {int(np.max(p.best_iteration))})")
+        a.axhline(100.0 * p.causal_floor_N / span, color=f"C{k}", ls=":", lw=0.7)
     a.set_xlabel("learning trial (0: before the pass learns)")
     a.set_ylabel("tracking RMS (% of the pass's range)")
     a.xaxis.set_major_locator(MaxNLocator(integer=True))  # trials are counted

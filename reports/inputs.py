@@ -25,7 +25,7 @@ from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.rigrun import RigRunRecord
 from piezopreload.artifacts.system import SystemRecord
-from piezopreload.artifacts.tuning import TuningRecord
+from piezopreload.artifacts.tuning import TuningResult
 from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core.errors import InputError
 
@@ -127,8 +127,8 @@ class Artifacts:
         return IdentifiedModel.load(self.path("identify", "model"))
 
     @functools.cached_property
-    def tuning(self) -> TuningRecord:
-        return TuningRecord.load(self.path("tune", "tuning"))
+    def tuning(self) -> TuningResult:
+        return TuningResult.load(self.path("tune", "tuning"))
 
     @functools.cached_property
     def design(self) -> DesignRecord | None:

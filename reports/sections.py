@@ -21,10 +21,10 @@ from piezopreload.artifacts.learning import LearningRecord
 from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.rigrun import RigRunRecord
 from piezopreload.artifacts.system import MarginBasis, SystemRecord, TrackingNumbers
-from piezopreload.artifacts.tuning import TuningRecord
+from piezopreload.artifacts.tuning import TuningResult
 from piezopreload.models.hysteresis import CreepPI
 from piezopreload.reports import figures as F
-from piezopreload.reports.document import Section, Table, fmt, pct, q, ratio
+from piezopreload.reports.document import ReportTable, Section, fmt, pct, q, ratio
 from piezopreload.reports.inputs import Artifacts, ReportStudy
 
 __all__ = ["Part", "study_section", "requirements_section", "design_section", "system_section", "learning_section",
@@ -131,10 +131,11 @@ def requirements_section(a: Artifacts) -> Part | None:
                   f"{q(r.limit, r.unit)}", q(r.margin, r.unit),
                   "" if r.margin_pct is None else q(r.margin_pct, "%"), "met" if r.met else "missed", r.source)
                  for r in checked)
-    table = Table(("requirement", "achieved", "required", "margin", "margin (% of limit)", "verdict", "set by"), rows,
-                  "The study's requirements, each against the worst case its run reached, with its margin in its "
-                  "unit and as a share of the limit (a verdict met by a hair is missed on the next machine).",
-                  "lrrrrcl", small=True)
+    table = ReportTable(("requirement", "achieved", "required", "margin", "margin (% of limit)", "verdict", "set by"),
+                        rows,
+                        "The study's requirements, each against the worst case its run reached, with its margin in "
+                        "its unit and as a share of the limit (a verdict met by a hair is missed on the next machine).",
+                        "lrrrrcl", small=True)
     return Part(Section("The requirements", (), (table,)))
 
 
@@ -183,13 +184,13 @@ def design_section(study: ReportStudy, design: DesignRecord, system_shown: bool 
         + ("; what the controlled system plans and achieves is in the section on the designed system." if system_shown
            else " (this study's plant is not its design: no loop followed the schedule).")]
     figures: list[tuple[str, Figure, str]] = [
-        ("stiffness", F.stiffness_vs_preload(design.preload_curve.to_dict(), (low, high)),
+        ("stiffness", F.stiffness_vs_preload(design.preload_curve, (low, high)),
          "Axial rigidity and preload drag torque of the optimum's double nut against preload; the duty cases at their "
          f"design preloads; shaded, the preloads the schedule runs ({_span((low, high), 'N')}); dotted: the bolts' "
          "preload alone, dashed: the stacks at full drive.")]
     omitted = []
     if design.fronts:
-        figures.append(("pareto", F.pareto_fronts([f.to_dict() for f in design.fronts], p.to_dict()),
+        figures.append(("pareto", F.pareto_fronts(design.fronts, p),
                         "Pareto fronts by the epsilon-constraint method (each point an optimal design): the "
                         f"{_and(_FRONT_WORDS[f.y_name] for f in design.fronts)} against the least rigidity over the "
                         "duty cases, swept up to the optimum's; star: the design optimum (objective "
@@ -207,7 +208,7 @@ def design_section(study: ReportStudy, design: DesignRecord, system_shown: bool 
                                                              study.frequency_min_Hz),
                     "The first axial natural frequency of the table against its position, with the bolts' preload "
                     f"and with the stacks at full drive{limit}."))
-    table = Table(("design variable or result", "optimum", "unit", "at the preload"), rows,
+    table = ReportTable(("design variable or result", "optimum", "unit", "at the preload"), rows,
                   f"The design optimum (objective: {design.optimum.objective}), each figure at the preload it is "
                   "computed for: the design's requirements at the duty cases' design preloads, and beside them the "
                   "rigidity and drag torque at the preloads the schedule runs.", "lrll")
@@ -280,7 +281,7 @@ def system_section(system: SystemRecord, design: DesignRecord, learning: Learnin
                f"schedule, local margins up to {q(system.preload_margin_N, 'N')}) and the preload the loop achieves "
                "(true force); the axial rigidity at the achieved preload under the cutting load against the "
                "requirement (dashed); the axial deflection under the load against its limit (dashed).")
-    table = Table(("quantity", "value", "against"), tuple(rows),
+    table = ReportTable(("quantity", "value", "against"), tuple(rows),
                   "The controlled preload of the designed system over the machining cycles.", "lrl")
     return Part(Section("The designed system along its preload schedule", tuple(paragraphs), (table,), ("system",)),
                 (("system", fig, caption),))
@@ -318,12 +319,12 @@ def learning_section(learning: LearningRecord) -> Part:
             f"{q(last.causal_floor_N, 'N')}), from {q(last.before_learning_rms_N, 'N')} without any learned "
             f"correction{start}. The system's own figure over the machining cycles alone is in the section on the "
             "designed system.")
-    table = Table(("pass", "trial", "RMS (N)", "% of range", "measured (N)"), tuple(rows),
+    table = ReportTable(("pass", "trial", "RMS (N)", "% of range", "measured (N)"), tuple(rows),
                   "The error per learning trial (trial 0: before the pass learns, with the correction the pass "
                   "before learned where it starts from it): whole runs from the reference's first change, true force, "
                   "in % of the pass's reference range; measured: the sensor's force against the plan, what the law "
                   "learns from.", "rlrrr")
-    fig = F.learning_iterations([p.to_dict() for p in learning.passes])
+    fig = F.learning_iterations(learning.passes)
     caption = ("The error per learning trial on the repeated schedule, each margin pass on its own reference (whole "
                "runs, true force, in % of the pass's reference range); dotted: the causal floor of each pass's "
                "reference, the least error of any controller that acts only on what has happened (after each change "
@@ -398,7 +399,7 @@ def _solver_words(text: str) -> str:
     return text
 
 
-def _bound_text(tuning: TuningRecord) -> tuple[str, tuple[str, ...]]:
+def _bound_text(tuning: TuningResult) -> tuple[str, tuple[str, ...]]:
     """The tuning's active bounds in words, and what is left out (the minimum-time bound, when it has none)."""
     words = ("" if not tuning.active_bounds else
              " " + " ".join(_capital(b.sentence().rstrip(".")) + "." for b in tuning.active_bounds))
@@ -453,7 +454,7 @@ def controller_section(study: ReportStudy, a: Artifacts) -> Part:
                "which every artifact that uses it names; not the file's)"
                + (": the robust set, kept in it for the record; the gain schedule below is what runs." if scheduled
                   else "."))
-    table = Table(("parameter", "SI", "LabVIEW PID VI"), _gains_rows(g), caption, "lrr")
+    table = ReportTable(("parameter", "SI", "LabVIEW PID VI"), _gains_rows(g), caption, "lrr")
     parts = [s for s in (_schedule_part(tuning.solve.schedule), _validation_part(val, gain_set)) if s is not None]
     return Part(Section("The tuned controller", (text,), (table,), (), omitted, tuple(p.section for p in parts)),
                 tuple(f for p in parts for f in p.figures))
@@ -488,7 +489,7 @@ def _schedule_part(schedule: dict[str, Any] | None) -> Part | None:
     if missed_by_both:
         text += (f" Neither set meets the study's limits at {', '.join(missed_by_both)}: the exported gains carry that "
                  "miss, listed in the verdicts above.")
-    table = Table(("level (N)", "window (N)", "Kc (mV/N)", "Ti (ms)", "b", "Ms (window)", "robust: settling (s)",
+    table = ReportTable(("level (N)", "window (N)", "Kc (mV/N)", "Ti (ms)", "b", "Ms (window)", "robust: settling (s)",
                    "overshoot (N)", "tracking (N)", "schedule: settling (s)", "overshoot (N)", "tracking (N)",
                    "meets (robust / schedule)"),
                   tuple(rows), "Each schedule entry's gains, its maximum sensitivity over its own window (the worst "
@@ -532,12 +533,14 @@ def _validation_part(val: Any, gain_set: GainSet) -> Part:
             f"through the study's step and trajectory with the tuned gains and the feedforward: {verdict}. "
             f"The gain set's status, from every Monte Carlo requirement of the study (the whole range's"
             f"{levels}): {gain_set.verdict()}.")
-    table = Table(("metric", "worst", "95th percentile", "median", "limit"), tuple(rows),
+    table = ReportTable(("metric", "worst", "95th percentile", "median", "limit"), tuple(rows),
                   "The tuned gains over the Monte Carlo set of nonlinear plants.", "lrrrr")
-    fig = F.monte_carlo({k: list(v) for k, v in val.metrics.items()}, limits)
+    fig = F.monte_carlo(val)
     caption = (f"The tuned gains with the feedforward over {val.n_plants} Monte Carlo plants (seed {val.seed}): "
                f"settling time into ±{q(val.criteria.band_N, 'N')} and overshoot of the true "
-               "force, and the trajectory's tracking RMS; dashed, the study's limits.")
+               "force, and the trajectory's tracking RMS"
+               + (", and the highest command over both" if "peak_voltage_V" in val.histogram_metrics() else "")
+               + "; dashed, the study's limits.")
     return Part(Section("Validation", (text,), (table,), ("monte-carlo",)), (("monte-carlo", fig, caption),))
 
 
@@ -559,7 +562,7 @@ def responses_section(study: ReportStudy, a: Artifacts) -> Part:
     if study.published is not None and responses.reproduction:
         paragraphs.append(f"The study declares published step numbers ({study.published.source}); they stand beside "
                           f"the same controllers on this plant.")
-        tables.insert(0, Table(("controller", "metric", "published", study.gains_label, "tuned gains"),
+        tables.insert(0, ReportTable(("controller", "metric", "published", study.gains_label, "tuned gains"),
                                tuple((CONTROLLER_NAMES[r.controller], _METRIC_NAMES[r.metric], fmt(r.published),
                                       _when(r.study, "", "never").strip(), _when(r.tuned, "", "never").strip())
                                      for r in responses.reproduction),
@@ -579,7 +582,7 @@ def responses_section(study: ReportStudy, a: Artifacts) -> Part:
                 figures)
 
 
-def _responses_table(responses: ResponsesRecord, labels: dict[str, str]) -> Table:
+def _responses_table(responses: ResponsesRecord, labels: dict[str, str]) -> ReportTable:
     rows = []
     for run in responses.runs:
         if run.reference != "step":
@@ -588,14 +591,14 @@ def _responses_table(responses: ResponsesRecord, labels: dict[str, str]) -> Tabl
         rows.append((labels.get(run.gains, run.gains), CONTROLLER_NAMES[run.controller],
                      _when(run.settling_s, "", "never").strip(), *(_recorded(x) for x in (
                          run.overshoot_N, traj.tracking_rms_N, traj.tracking_rms_after_change_N, run.peak_command_V))))
-    return Table(("gains", "controller", "settling (s)", "overshoot (N)", "RMS (N)", "RMS after changes (N)",
+    return ReportTable(("gains", "controller", "settling (s)", "overshoot (N)", "RMS (N)", "RMS after changes (N)",
                   "peak (V)"), tuple(rows),
                  "Each controller on the study's step (settling time, overshoot) and trajectory (RMS error of the true "
                  "force over the whole trajectory and outside the first moments after each change), and the peak "
                  "command.", "llrrrrr")
 
 
-def _creep_table(responses: ResponsesRecord, labels: dict[str, str]) -> Table | None:
+def _creep_table(responses: ResponsesRecord, labels: dict[str, str]) -> ReportTable | None:
     rows_in = responses.creep_effect
     if not rows_in:
         return None
@@ -607,7 +610,7 @@ def _creep_table(responses: ResponsesRecord, labels: dict[str, str]) -> Table | 
             rows.append((labels.get(gains, gains), s.feedforward + (" with creep" if creep else " without creep"),
                          _when(s.settling_s, "", "never").strip(),
                          *(_recorded(x) for x in (s.overshoot_N, t.tracking_rms_N, t.tracking_rms_after_change_N))))
-    return Table(("gains", "feedforward", "settling (s)", "overshoot (N)", "RMS (N)", "RMS after changes (N)"),
+    return ReportTable(("gains", "feedforward", "settling (s)", "overshoot (N)", "RMS (N)", "RMS after changes (N)"),
                  tuple(rows), "FF + PID with the feedforward's creep compensation and with the same P-I model refitted "
                               "without creep, on the same noise.", "llrrrr")
 
@@ -675,7 +678,7 @@ def rig_section(study: ReportStudy, a: Artifacts) -> Part:
     fig = F.rig_run(log["time_s"], log["reference_N"], log["measured_N"], log["voltage_V"], log["mode"])
     caption = (f"The validated gains on the rig executor (backend '{run.backend}', {run.rate_Hz:g} Hz, {mode}), from "
                "its run log; grey, the ramp down to the safe voltage and disarm.")
-    table = Table(("quantity", "value"), tuple(_rig_rows(run)), f"The rig run (log {run.csv}).", "lr")
+    table = ReportTable(("quantity", "value"), tuple(_rig_rows(run)), f"The rig run (log {run.csv}).", "lr")
     return Part(Section("Exports and the rig run", tuple(paragraphs), (table,), ("rig-run",), tuple(omitted)),
                 (("rig-run", fig, caption),))
 
@@ -701,7 +704,7 @@ def provenance_section(study: ReportStudy, a: Artifacts, stage_names: tuple[str,
                 seen.add(o.path)
                 artifacts.append((o.path, o.sha256[:24]))
     return Part(Section("Provenance", (), (
-        Table(("item", "value"), tuple(rows), "The study's inputs.", "ll"),
-        Table(("artifact", "file SHA-256 (first 24 hex digits; all 64 in pipeline.json)"), tuple(artifacts),
+        ReportTable(("item", "value"), tuple(rows), "The study's inputs.", "ll"),
+        ReportTable(("artifact", "file SHA-256 (first 24 hex digits; all 64 in pipeline.json)"), tuple(artifacts),
               "Every artifact the report read, the SHA-256 of each file as written.", "ll", small=True))))
 

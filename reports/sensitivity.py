@@ -13,7 +13,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from piezopreload.artifacts.sensitivity import SensitivityRecord, SensitivityRow
-from piezopreload.reports.document import Section, Table, fmt
+from piezopreload.reports.document import ReportTable, Section, fmt
 from piezopreload.reports.figures import COLOURS, legends, page_figure, styled
 from piezopreload.reports.sections import Part
 
@@ -102,7 +102,7 @@ def sensitivity_section(s: SensitivityRecord) -> Part:
     seen: dict[str, SensitivityRow] = {}
     for r in s.rows:
         seen.setdefault(r.key, r)
-    table = Table(("assumption", "study's value", "range", "why this range"),
+    table = ReportTable(("assumption", "study's value", "range", "why this range"),
                   tuple((r.assumption, r.value_text(r.nominal) if not r.labels else r.labels[int(r.nominal)],
                          range_text(r), r.source) for r in seen.values()),
                   "The assumptions the verdicts were judged under: the study's value, the range and its source.",

@@ -20,6 +20,7 @@ from piezopreload.artifacts.summaries import ReportSummary
 from piezopreload.core.artifacts import REPORT, atomic_write_bytes, atomic_write_text, package_version, write_artifact
 from piezopreload.core.errors import InputError
 from piezopreload.core.parallel import Pool
+from piezopreload.core.progress import Bar
 from piezopreload.reports.document import Report
 from piezopreload.reports.inputs import Artifacts, Published, ReportStudy
 from piezopreload.reports.typeset import ReportError, compile_pdf, template_text
@@ -81,7 +82,7 @@ def build_report(study: ReportStudy, a: Artifacts, now: _dt.datetime) -> tuple[R
 
 
 def render_report(out: Path, manifest: StudyRunManifest, study: ReportStudy, *,
-                  say: Callable[[str], None], bar: Callable[[int, int], None],
+                  say: Callable[[str], None], bar: Bar,
                   template: str | None = None, pool: Pool | None = None) -> tuple[dict[str, Path], ReportSummary]:
     """Figures, ``report/report.json``, ``report/report.typ`` and ``report.pdf`` in ``out``.
 
@@ -113,7 +114,7 @@ def render_report(out: Path, manifest: StudyRunManifest, study: ReportStudy, *,
     now = _dt.datetime.now(_dt.UTC).replace(microsecond=0)
     report, figures = build_report(study, Artifacts(out, manifest), now)
     written: dict[str, Path] = {f"figure-{name}": folder / "figures" / f"{name}.pdf" for name, _, _ in figures}
-    F.save_all([(fig, written[f"figure-{name}"]) for name, fig, _ in figures], pool=pool, progress=bar)
+    F.save_all([(fig, written[f"figure-{name}"]) for name, fig, _ in figures], pool=pool, bar=bar)
     write_artifact(folder / "report.json", REPORT, report.to_dict())
     atomic_write_text(folder / "report.typ", template if template is not None else template_text())
     try:

@@ -154,7 +154,7 @@ def _figures(record: SweepRecord, figdir: Path, bar: Callable[[int, int], None] 
                        "caption": f"{what}, against {x}{lines}"
                        + ("; red crosses: points that failed" if failed else "")
                                   + "."}
-    F.save_all(pending, pool=pool, progress=bar)
+    F.save_all(pending, pool=pool, bar=bar)
     return shown, omitted, written
 
 

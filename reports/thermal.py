@@ -16,7 +16,7 @@ from matplotlib.figure import Figure
 
 from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.thermal import PreloadDrift, ThermalCase, ThermalRecord
-from piezopreload.reports.document import Section, Table, fmt, pct
+from piezopreload.reports.document import ReportTable, Section, fmt, pct
 from piezopreload.reports.figures import COLOURS, legends, page_figure, styled
 from piezopreload.reports.sections import Part
 
@@ -115,7 +115,7 @@ def thermal_section(t: ThermalRecord, requirements: Sequence[Requirement] = ()) 
     if names:
         paragraphs.append("The study's limits on them are requirements (" + "; ".join(names) + "), judged on the "
                           "schedule: see the requirements' table.")
-    table = Table(("over the shift", _NAMES["schedule"], _NAMES["constant"]), _rows(t),
+    table = ReportTable(("over the shift", _NAMES["schedule"], _NAMES["constant"]), _rows(t),
                   f"The shift's heat, temperature, growth and positioning error ({t.heat_model} model unless named).",
                   "lrr")
     limit = next((r.limit for r in requirements if "growth" in r.name), None)

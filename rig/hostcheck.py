@@ -31,12 +31,12 @@ import os
 import platform
 import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from piezopreload.artifacts.hostcheck import BIN_EDGES_S, Criterion, HostCheck, HostFacts
+from piezopreload.core.progress import ProgressLike, say_of
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.rig import native_loop
 from piezopreload.rig.clock import MonotonicClock, to_ns
@@ -174,7 +174,7 @@ def judge(late: np.ndarray, step: np.ndarray, period_s: float, stall_limit_s: fl
 
 def check_host(*, rate_Hz: float, seconds: float, controller: Controller | None = None,
                stall_limit_s: float | None = None, loop: str = "native", priority: int = 80,
-               progress: Callable[[str], None] | None = None) -> HostCheck:
+               progress: ProgressLike | None = None) -> HostCheck:
     """Measure this host's wake-up lateness for ``seconds`` at ``rate_Hz`` and judge it (see the module docstring).
 
     ``controller``: the step whose compute time is the budget's other part (None: a PID step
@@ -191,8 +191,8 @@ def check_host(*, rate_Hz: float, seconds: float, controller: Controller | None 
         controller = Controller(PIDGains(Kc=1.0, Ti_s=0.1, Td_s=1e-3, Tf_s=1e-2), dt, None)
         what = "a PID step without feedforward (no gain set given)"
     n = max(10, int(round(seconds * rate_Hz)))
-    if progress is not None:
-        progress(f"checking this host: {n} wake-ups at {rate_Hz:g} Hz on the {loop} loop's wait ...")
+    if (say := say_of(progress)) is not None:
+        say(f"checking this host: {n} wake-ups at {rate_Hz:g} Hz on the {loop} loop's wait ...")
     if loop == "native":
         late, report = native_loop.probe(dt, n, fifo_priority=priority)
     else:

@@ -36,6 +36,7 @@ from piezopreload.artifacts.rigrun import RigRunRecord, RunMetrics
 from piezopreload.core import native
 from piezopreload.core.artifacts import finite_or_none
 from piezopreload.core.errors import InputError
+from piezopreload.core.progress import ProgressLike
 from piezopreload.core.tables import read_table
 from piezopreload.models.closedloop import PAPER_BAND_N, ClosedLoopRun, Reference
 from piezopreload.models.controller import Controller, ControllerModel
@@ -527,7 +528,7 @@ async def _serve(server: RigServer, executor: Executor, duration_s: float | None
 
 
 def check(gains_path: str | Path | None = None, *, seconds: float = 10.0, rate_Hz: float | None = None,
-          loop: str = "native", progress: Callable[[str], None] | None = None) -> HostCheck:
+          loop: str = "native", progress: ProgressLike | None = None) -> HostCheck:
     """``piezopreload rig check``: this host against a loop's budget (see :mod:`piezopreload.rig.hostcheck`).
 
     With a gain set: its rate (``rate_Hz`` must agree), its compiled step and the stall limit

@@ -201,7 +201,7 @@ def test_feedforward_data_is_honoured_by_simulate_and_reproduce(measured_study):
 
 def test_feedforward_data_is_honoured_by_tune(measured_study, monkeypatch, capsys):
     """``piezopreload tune`` hands the tuner the inverse of the model identified from the study's data."""
-    import piezopreload.results as results
+    import piezopreload.steps as steps
 
     study, _ = measured_study
     expected = study.identify_feedforward().model
@@ -214,7 +214,7 @@ def test_feedforward_data_is_honoured_by_tune(measured_study, monkeypatch, capsy
         seen["feedforward"] = feedforward
         raise Stop
 
-    monkeypatch.setattr(results, "tune_pid", tuner)
+    monkeypatch.setattr(steps, "tune_pid", tuner)
     assert main(["tune", "--study", study.path, "--plants", "2"]) == 1  # the stand-in stops it there
     assert "Stop" in capsys.readouterr().err
     np.testing.assert_allclose(seen["feedforward"].forward.weights, expected.weights, rtol=1e-12)
@@ -312,9 +312,9 @@ def test_example_identify_and_export_on_its_default_path(tmp_path, capsys):
 def test_example_refuses_a_loop_that_does_not_cover_the_studys_references(measured_study, tmp_path, monkeypatch):
     """The paper rig's loop (25-110 N) for the machine axis (references 0-4,000 N): refused before the design and
     the tuning run, with both ranges in the message."""
-    import piezopreload.study as study_module
+    from piezopreload.steps import Solved
 
-    monkeypatch.setattr(study_module.Study, "_designed", lambda *a, **k: pytest.fail("the design ran first"))
+    monkeypatch.setattr(Solved, "designed", lambda *a, **k: pytest.fail("the design ran first"))
     _, loop = measured_study
     with pytest.raises(pp.InputError) as exc:
         _example("identify_and_export").main([str(loop), "--study", "machine_axis", "--operators", "20",

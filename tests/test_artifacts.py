@@ -24,7 +24,7 @@ from piezopreload.artifacts.registry import KINDS, read_artifact
 from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.rigrun import RigRunRecord
 from piezopreload.artifacts.sweep import PointFigures, SweepRecord
-from piezopreload.artifacts.tuning import TuningRecord
+from piezopreload.artifacts.tuning import TuningResult
 from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core.artifacts import HASH_FIELD, content_hash
 from piezopreload.core.errors import ArtifactError
@@ -32,7 +32,7 @@ from piezopreload.core.records import Artifact, Record, entry, record
 from piezopreload.core.stagecache import CacheEntry
 
 DATA = Path(__file__).parent / "data" / "artifacts"
-FILES = {"gains.json": GainSet, "model.json": IdentifiedModel, "tuning.json": TuningRecord,
+FILES = {"gains.json": GainSet, "model.json": IdentifiedModel, "tuning.json": TuningResult,
          "validation.json": ValidationResult, "responses.json": ResponsesRecord, "run.json": RigRunRecord,
          "plant.json": DesignedPlant, "learning.json": LearningRecord, "sweep.json": SweepRecord,
          "cache-entry.json": CacheEntry, "design.json.gz": DesignRecord}
@@ -251,7 +251,7 @@ def test_a_declared_record_round_trips_and_documents_its_fields():
 def test_a_reader_of_two_kinds_names_both_in_the_one_format():
     from piezopreload.artifacts.tuning import warm_start_gains
 
-    assert warm_start_gains(DATA / "tuning.json") == TuningRecord.load(DATA / "tuning.json").gains
+    assert warm_start_gains(DATA / "tuning.json") == TuningResult.load(DATA / "tuning.json").gains
     assert warm_start_gains(DATA / "gains.json") == GainSet.load(DATA / "gains.json").gains
     with pytest.raises(ArtifactError) as err:
         warm_start_gains(DATA / "model.json")

@@ -16,7 +16,7 @@ def test_save_all_in_workers_writes_what_saving_here_writes(tmp_path):
     here = F.save_all(_figures(tmp_path, "here"), pool=Pool(1))
     seen = []
     with Pool(2) as pool:  # the run's processes draw them
-        pooled = F.save_all(_figures(tmp_path, "pool"), pool=pool, progress=lambda i, n: seen.append((i, n)))
+        pooled = F.save_all(_figures(tmp_path, "pool"), pool=pool, bar=lambda i, n: seen.append((i, n)))
     assert [p.name for p in pooled] == [p.name for p in here]
     for a, b in zip(here, pooled, strict=True):
         assert a.read_bytes() == b.read_bytes(), f"{b} differs from {a}"
@@ -61,11 +61,18 @@ def _system(limit_um=5.0):
 
 
 def _passes():
-    history = [{"iteration": i, "tracking_rms_N": [20.0 / 8 ** i]} for i in range(3)]
-    return [{"pass": 1, "tracking_rms_N": 0.75, "tracking_rms_pct_of_range": 0.052, "history": history,
-             "best_iteration": [2], "causal_floor_N": 0.68},
-            {"pass": 2, "tracking_rms_N": 0.43, "tracking_rms_pct_of_range": 0.0296, "history": history[:2],
-             "best_iteration": [1], "causal_floor_N": 0.68}]
+    """Two margin passes of a learning record (the stored one's, their numbers set here)."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    from piezopreload.artifacts.learning import LearningRecord, TrialRecord
+
+    stored = LearningRecord.load(Path(__file__).parent / "data" / "artifacts" / "learning.json").passes[0]
+    history = [TrialRecord(i, [20.0 / 8 ** i], [20.0 / 8 ** i], [20.0 / 8 ** i]) for i in range(3)]
+    return [replace(stored, pass_number=1, tracking_rms_N=0.75, tracking_rms_pct_of_range=0.052, history=history,
+                    trials=2, best_iteration=[2], causal_floor_N=0.68),
+            replace(stored, pass_number=2, tracking_rms_N=0.43, tracking_rms_pct_of_range=0.0296,
+                    history=history[:2], trials=1, best_iteration=[1], causal_floor_N=0.68)]
 
 
 def _schedule():
@@ -109,12 +116,36 @@ def test_no_legend_covers_the_data_or_a_tick_label(name):
 def test_counts_are_ticked_in_whole_numbers():
     """A learning trial and a number of plants are counts: no tick at 0.5 or 2.5."""
     learning = F.learning_iterations(_passes()).axes[0]
+    validation = _validation()
+    for hist in (F.monte_carlo(validation), validation.plot()):
+        for ticks, what in ((learning.get_xticks(), "learning trials"),
+                            *((a.get_yticks(), "plants") for a in hist.axes)):
+            assert np.allclose(ticks, np.round(ticks)), f"{what}: ticks at {ticks}"
+
+
+def _validation(n=200, never=3):
+    """A validation over ``n`` plants of which ``never`` did not settle (NaN)."""
+    from piezopreload.artifacts.validation import METRICS, Criteria, ValidationResult
+
     rng = np.random.default_rng(0)
-    hist = F.monte_carlo({"settling_s": list(0.3 + 0.02 * rng.random(200)), "overshoot_N": list(rng.random(200)),
-                          "tracking_rms_N": list(rng.random(200))}, {"settling_s": 0.6})
-    for ticks, what in ((learning.get_xticks(), "learning trials"),
-                        *((a.get_yticks(), "plants") for a in hist.axes)):
-        assert np.allclose(ticks, np.round(ticks)), f"{what}: ticks at {ticks}"
+    metrics = {k: rng.random(n) for k in METRICS}
+    metrics["settling_s"] = 0.3 + 0.02 * rng.random(n)
+    metrics["settling_s"][:never] = np.nan
+    return ValidationResult(metrics, Criteria(), n, 0, {})
+
+
+def test_the_monte_carlo_histogram_is_drawn_once_for_the_report_and_the_result():
+    """The report's figure and ``ValidationResult.plot()`` are one drawing: the same panels, bars and titles, a
+    plant that never settled counted in the title and left out of the bars (the report's copy looked for None,
+    which the result never holds, so it counted a NaN as a plant and never said "never settled")."""
+    validation = _validation()
+    report, own = F.monte_carlo(validation), validation.plot()
+    assert [a.get_title() for a in report.axes] == [a.get_title() for a in own.axes]
+    assert report.axes[0].get_title() == "197 plants, 3 never settled"
+    for a, b in zip(report.axes, own.axes):
+        assert a.get_xlabel() == b.get_xlabel()
+        assert [p.get_height() for p in a.patches] == [p.get_height() for p in b.patches]
+    assert sum(p.get_height() for p in report.axes[0].patches) == 197
 def test_every_plot_method_is_typed_to_return_a_figure_and_nothing_uses_pyplot():
     """Every result's ``plot()`` returns a matplotlib Figure made without pyplot (no global figure state): its
     annotation says so (a type checker then holds each body to it), and no module of the package imports pyplot."""

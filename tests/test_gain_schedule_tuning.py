@@ -14,6 +14,7 @@ from piezopreload.models.controller import PIDGains
 from piezopreload.tuning.linearised import small_signal_gains
 from piezopreload.tuning.pid import TuningSpec
 from piezopreload.tuning.schedule import (
+    LevelFigures,
     choose,
     level_windows,
     rising_setpoint_weights,
@@ -34,7 +35,14 @@ def test_levels_and_windows_tile_the_range():
 
 
 def _figures(passed, failures=()):
-    return {"passed": passed, "failures": list(failures)}
+    """A set's figures at a level as the schedule's record writes them (the worst cases never reached)."""
+    return {"settling_s": None, "overshoot_N": None, "tracking_rms_N": None, "peak_voltage_V": None, "passed": passed,
+            "failures": list(failures)}
+
+
+def _choose(levels, whole):
+    """:func:`choose` on a schedule record's levels and whole range (as its JSON has them)."""
+    return choose([LevelFigures.from_dict(r) for r in levels], LevelFigures.from_dict(whole))
 
 
 @pytest.mark.parametrize(("robust", "scheduled", "whole", "expected"), [
@@ -49,7 +57,7 @@ def test_the_choice_follows_the_figures(robust, scheduled, whole, expected):
                "scheduled": _figures(s, () if s else ("settling_s",))}
               for i, (r, s) in enumerate(zip(robust, scheduled))]
     w = {"robust": _figures(whole[0], () if whole[0] else ("tracking_rms_N",)), "scheduled": _figures(whole[1])}
-    choice, reason = choose(levels, w)
+    choice, reason = _choose(levels, w)
     assert choice == expected, reason
     if not all(robust) or not whole[0]:
         assert "worst overshoot" in reason or "worst tracking RMS" in reason, (
@@ -108,7 +116,7 @@ def test_tune_schedule_records_both_sets_per_level_and_chooses_by_them():
     d = res.to_dict()
     assert (d["choice"] in ("robust", "schedule")
             and res.gains is (res.robust if d["choice"] == "robust" else res.scheduled))
-    assert (d["choice"], d["reason"]) == choose(d["levels"], d["whole_range"])
+    assert (d["choice"], d["reason"]) == _choose(d["levels"], d["whole_range"])
     # the figures are the validation's own: the first level's robust worst case again, independently
     r0 = d["levels"][0]
     lo, hi = r0["window_N"]
@@ -176,10 +184,10 @@ def test_the_setpoint_action_must_rise_with_the_setpoint_and_the_weights_are_rai
 
 
 def test_a_level_the_schedule_misses_says_what_stops_a_pid_entry():
-    from piezopreload.tuning.schedule import WorstCase, _bound
+    from piezopreload.tuning.schedule import WorstFigures, _bound
 
     limits = {"settling_s": 0.6, "overshoot_N": 25.0, "tracking_rms_N": 40.0, "peak_voltage_V": 120.0}
-    figures = WorstCase(settling_s=0.5, overshoot_N=28.8, tracking_rms_N=None, peak_voltage_V=None, passed=False,
+    figures = WorstFigures(settling_s=0.5, overshoot_N=28.8, tracking_rms_N=None, peak_voltage_V=None, passed=False,
                         failures=("overshoot_N",))
     tuned = _bound({"binding": ["Ms <= 1.6, variant 2", "overshoot inside 15 N, step, variant 1"],
                     "overshoot_target_N": 15.0}, figures, limits)
@@ -189,7 +197,7 @@ def test_a_level_the_schedule_misses_says_what_stops_a_pid_entry():
     levels = [{"level_N": 2000.0, "robust": _figures(False, ("overshoot_N",)),
                "scheduled": _figures(False, ("overshoot_N",)), "bound": tuned}]
     whole = {"robust": _figures(True), "scheduled": _figures(True)}
-    choice, reason = choose(levels, whole)
+    choice, reason = _choose(levels, whole)
     assert choice == "robust" and "What stops a PID entry: at 2000 N" in reason and "Ms <= 1.6" in reason
     assert "misses it at 2,000 N (worst overshoot)" in reason, reason
 
@@ -223,7 +231,7 @@ def test_the_machine_axis_verdict_does_not_hang_on_the_last_digits(monkeypatch, 
     from its one start, the entry kept the robust set, the schedule missed the whole range and the robust set (28.9
     N overshoot at 2,000 N against 25 N) was kept: the default study exited 4. Now every draw tunes every entry and
     the schedule meets each level's Monte Carlo limits with at least 5 % to spare."""
-    from piezopreload import results
+    from piezopreload import steps
     from piezopreload.study import load_study
     from piezopreload.tuning import pid
     from piezopreload.tuning.schedule import level_requirements
@@ -237,7 +245,7 @@ def test_the_machine_axis_verdict_does_not_hang_on_the_last_digits(monkeypatch, 
         return np.clip(points + 1e-9 * rng.standard_normal(points.shape), 0.0, 1.0)
 
     monkeypatch.setattr(pid, "_seeds", moved)
-    schedule = results.tune(study, feedforward).solve.schedule
+    schedule = steps.tune(study, study.solved, feedforward).solve.schedule
     assert schedule is not None and schedule["choice"] == "schedule", schedule and schedule["reason"]
     kept = [lv["level_N"] for lv in schedule["levels"] if "infeasible" in lv["tuning"]]
     assert not kept, f"the entries at {kept} N kept the robust set"

@@ -224,21 +224,22 @@ def test_the_studys_feedforward_writes_the_same_model_json(tmp_path):
 def test_a_feedforward_that_does_not_cover_the_references_is_refused_before_tuning(monkeypatch):
     """Both ranges in the message; refused before the design and the tuning run."""
     import piezopreload as pp
-    import piezopreload.results as results
+    import piezopreload.steps as steps
     from piezopreload.tuning.feedforward import LoopExcitation, identify_feedforward
 
     study = pp.load_study("paper2021")
-    small = identify_feedforward(study.plant, LoopExcitation(v_max_V=40.0, n_operators=8, cycles=2), check_range_N=None)
+    plant = study.plant
+    small = identify_feedforward(plant, LoopExcitation(v_max_V=40.0, n_operators=8, cycles=2), check_range_N=None)
     lo, hi = small.record.output_range
     assert hi < 60.0, "a 40 V loop on the paper's rig stays well below the 100 N the references reach"
-    # the tuner and the design (results.tune's own steps) fail the test if they run
-    monkeypatch.setattr(results, "tune_pid", lambda *a, **k: pytest.fail("tuned on a feedforward that does not cover"))
-    monkeypatch.setattr(type(study), "solved_plant", lambda *a, **k: pytest.fail("designed before the check"))
+    # the tuner and the design (steps.tune's own steps) fail the test if they run
+    monkeypatch.setattr(steps, "tune_pid", lambda *a, **k: pytest.fail("tuned on a feedforward that does not cover"))
+    monkeypatch.setattr(steps.Solved, "plant", lambda *a, **k: pytest.fail("the plant made before the check"))
     with pytest.raises(pp.InputError) as exc:
         study.tune(feedforward=small)
     message = str(exc.value)
     assert f"identified over {lo:,.4g} to {hi:,.4g} N" in message and "span 25 to 100 N" in message, message
-    wide = identify_feedforward(study.plant, LoopExcitation(n_operators=8, cycles=2), check_range_N=None)
+    wide = identify_feedforward(plant, LoopExcitation(n_operators=8, cycles=2), check_range_N=None)
     wide.covers(25.0, 100.0)  # the paper's own loop: 0-100 V reaches 91 N; 100 N is within its margin
     with pytest.raises(pp.InputError, match="span 0 to 4,000 N"):
         wide.covers(0.0, 4000.0)

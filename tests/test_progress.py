@@ -90,8 +90,10 @@ def test_the_api_types_every_progress_parameter_alike():
 
     import piezopreload as pp
     from piezopreload import pipeline, sweep
+    from piezopreload import steps as study_steps
 
     steps = [getattr(pp.Study, name) for name in dir(pp.Study) if not name.startswith("_")]
+    steps += [getattr(study_steps, name) for name in study_steps.__all__]
     steps += [getattr(pp.TuningResult, name) for name in dir(pp.TuningResult) if not name.startswith("_")]
     steps += [pp.load_study, pipeline.run_study, pipeline.rerender_report, sweep.sweep, sweep.rerender_sweep_report]
     checked = []
@@ -101,6 +103,50 @@ def test_the_api_types_every_progress_parameter_alike():
         annotation = inspect.signature(step).parameters["progress"].annotation  # the source's text (PEP 563)
         assert annotation == "ProgressLike | None", f"{step.__qualname__}: progress is {annotation}"
         checked.append(step.__qualname__)
-    # Study's own steps, and those it has as a StudySpec (the parsed study: design, learn, ...)
-    assert {"Study.run", "Study.tune", "Study.sweep", "StudySpec.design", "StudySpec.learn", "load_study",
-            "TuningResult.validate"} <= set(checked), checked
+    assert {"Study.run", "Study.tune", "Study.validate", "Study.sweep", "Study.design", "Study.learn",
+            "Study.learn_schedule", "load_study", "tune", "validate", "learn_schedule"} <= set(checked), checked
+
+
+def test_every_floor_types_its_progress_parameter_alike():
+    """Below the application layer too, a parameter named ``progress`` is the one type (defined on the ground
+    floor, :mod:`piezopreload.core.progress`): it had five signatures there (a line, ``(done, total)``, a count, a
+    tick, an optimiser's ``(k, cost, params)``) and the stage runner's own protocol. A bar's callback is ``bar``
+    and a counter's ``counter``, each given by a :class:`Progress`."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    found, other = [], []
+    for folder in ("core", "models", "artifacts", "design", "tuning", "rig", "reports"):
+        for path in sorted((root / folder).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    continue
+                for arg in (*node.args.posonlyargs, *node.args.args, *node.args.kwonlyargs):
+                    if arg.arg == "progress":
+                        where = f"{path.relative_to(root)}:{node.lineno} {node.name}"
+                        found.append(where)
+                        text = ast.unparse(arg.annotation) if arg.annotation is not None else "(none)"
+                        if text not in ("ProgressLike", "ProgressLike | None"):
+                            other.append(f"{where}: {text}")
+    assert len(found) >= 10, found
+    assert other == [], "progress parameters of another type:\n" + "\n".join(other)
+
+
+def test_a_lower_floor_step_takes_a_progress_or_a_function():
+    """The host check (the rig's floor) says its line to a function and to a :class:`Progress` alike: it took only
+    a function, and a Progress given to it was called (a TypeError); a bar for a function gives a line a quarter."""
+    from piezopreload.core.progress import bar_of
+    from piezopreload.rig.hostcheck import check_host
+
+    seen, out = [], io.StringIO()
+    check_host(rate_Hz=1000.0, seconds=0.02, loop="python", progress=seen.append)
+    check_host(rate_Hz=1000.0, seconds=0.02, loop="python", progress=Progress(out))
+    assert seen[0].startswith("checking this host: 20 wake-ups at 1000 Hz")
+    assert out.getvalue() == f"      {seen[0]}\n"
+    lines = []
+    bar = bar_of(lines.append, "plants")
+    for i in range(1, 9):
+        bar(i, 8)
+    assert [line.split(":")[0].strip() for line in lines] == ["plants"] * 5  # at 0, 1/4, 1/2, 3/4 and 4/4
+    assert bar_of(None, "plants") is None

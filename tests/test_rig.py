@@ -443,22 +443,22 @@ def test_a_gain_set_without_study_limits_gets_them_from_its_plant_not_the_paper_
 
 
 def test_a_candidate_carries_its_studys_rig_run_limits_through_validation(study, feedforward, tmp_path):
-    """TuningResult.candidate puts the study's [rig_run] interlock keys into the gain set (the others derived, named
-    as such); the verdict keeps them and the saved gain set reads them back."""
-    from piezopreload.artifacts.tuning import MinimumTimeBound, TrackingFloor, TuningRecord, TuningSolve
-    from piezopreload.results import TuningResult
+    """The candidate gain set (piezopreload.steps.candidate) puts the study's [rig_run] interlock keys into the gain
+    set (the others derived, named as such); the verdict keeps them and the saved gain set reads them back."""
+    from piezopreload import steps
+    from piezopreload.artifacts.tuning import MinimumTimeBound, TrackingFloor, TuningResult, TuningSolve
     from piezopreload.tuning.verdict import validate_gain_set
 
     changed = study.replace(rig_run={"force_max_N": 130.0, "ramp_s": 0.3})
     solve = TuningSolve("given", 0, 0.0, "none", 0.0, 0.0, 1.0, (), {}, {})  # the study's gains, not tuned here
-    record = TuningRecord(study.gains, study.gains, solve, (), MinimumTimeBound(None, None, reason="not computed"),
-                          TrackingFloor(1.0, 1.0, None))
-    tuned = TuningResult(changed, changed.identify_feedforward(), record)
-    carried = tuned.candidate().rig_interlocks
+    tuned = TuningResult(study.gains, study.gains, solve, (), MinimumTimeBound(None, None, reason="not computed"),
+                         TrackingFloor(1.0, 1.0, None))
+    candidate = steps.candidate(changed, changed.solved, tuned, changed.identify_feedforward())
+    carried = candidate.rig_interlocks
     assert (carried.force_max_N, carried.ramp_s, carried.force_low_margin_N) == (130.0, 0.3, 10.0)
     assert carried.sources["force_max_N"] == f"{changed.path} [rig_run] force_max_N"
     assert carried.sources["force_low_margin_N"] == "the executor's default" and carried.stall_limit_s is None
-    judged, _ = validate_gain_set(tuned.candidate(), n_plants=2, seed=0, workers=1)
+    judged, _ = validate_gain_set(candidate, n_plants=2, seed=0, workers=1)
     back = judged.save(tmp_path / "g.json")
     assert GainSet.load(tmp_path / "g.json").rig_interlocks == carried == back.rig_interlocks
 

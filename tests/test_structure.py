@@ -41,11 +41,7 @@ ALLOWED_ON = {("os", "_exit")}
 DISPLAY_PROTOCOL = re.compile(r"^_repr_[a-z]+_$")
 
 #: (module, name) reads still to remove, each with its reason
-KNOWN = {
-    # StudySpec's cache, read by a function of the same file on another StudySpec; it goes with the cache when
-    # StudySpec becomes the parsed study and nothing else (issue 42, item 3)
-    ("piezopreload/spec.py", "_kept"),
-}
+KNOWN: set[tuple[str, str]] = set()
 
 
 def _private(name: str) -> bool:

@@ -14,7 +14,7 @@ import pytest
 
 import piezopreload as pp
 import piezopreload.design.study as design_study_module
-import piezopreload.spec as study_module
+import piezopreload.steps as study_module
 from piezopreload.cli import main
 from piezopreload.core.config import Invalid, Table, key, keys_markdown
 from piezopreload.core.records import TableOf
@@ -385,16 +385,18 @@ def test_with_design_gives_the_optimum_instead_of_solving_it(monkeypatch):
     assert math.isclose(given.designed_plant.max_preload_N, other.point.max_preload_N)
 
 
-def test_learning_on_the_schedule_needs_the_designed_plant_and_one_plant():
-    with pytest.raises(pp.InputError, match=r"reference 'schedule' needs a study whose plant is its design"):
-        pp.load_study(PAPER).learn(reference="schedule")
-    with pytest.raises(pp.InputError, match="plants: the schedule is learned on the designed plant itself"):
-        pp.load_study(**QUIET).learn(reference="schedule", plants=4)
+def test_learning_on_the_schedule_needs_the_designed_plant_and_its_own_step():
+    with pytest.raises(pp.InputError, match=r"along the preload schedule needs a study whose plant is its design"):
+        pp.load_study(PAPER).learn_schedule()
+    with pytest.raises(pp.InputError, match=r"the preload schedule is learned by learn_schedule"):
+        pp.load_study(**QUIET).learn(reference="schedule")  # a name of no reference: the schedule has its own step
+    with pytest.raises(TypeError, match="plants"):
+        pp.load_study(**QUIET).learn_schedule(plants=4)  # type: ignore[call-arg]
 
 
 @pytest.mark.slow
 def test_learning_along_the_schedule_is_one_call_and_plays_what_it_learned(tmp_path, capsys):
-    """``axis.learn(reference="schedule")``: each margin pass learned on the reference that pass tracks, the
+    """``axis.learn_schedule()``: each margin pass learned on the reference that pass tracks, the
     schedule tracked with it (the system run is the loop with the last pass's signal, simulated here again), the
     error smaller after learning; its figure, its JSON, its artifacts; the command line's learn does the same."""
     import json
@@ -405,7 +407,7 @@ def test_learning_along_the_schedule_is_one_call_and_plays_what_it_learned(tmp_p
     from piezopreload.design.system import schedule_reference
 
     axis = pp.load_study(**QUIET)
-    result = axis.learn(reference="schedule", iterations=2)
+    result = axis.learn_schedule(iterations=2)
     system, designed, table = result.system, axis.designed_plant, axis.plant_table
     assert len(result.passes) == len(system.passes) >= 1
     reference = schedule_reference(designed, system.schedule, table.cycles, table.stack_contact_N, system.pre_cycle)

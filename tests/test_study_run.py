@@ -231,14 +231,15 @@ def test_an_internal_failure_names_its_stage_and_exits_1(small_run, tmp_path, ca
 
 
 def test_report_renders_again_from_the_artifacts_alone(small_run, tmp_path, capsys, monkeypatch):
-    import piezopreload.results as results
+    import piezopreload.steps as steps
     import piezopreload.tuning.compare as compare
     import piezopreload.tuning.feedforward as feedforward
 
     out = _copy(small_run, tmp_path)
     before = StudyRunManifest.load(out).stages
     (out / "report.pdf").unlink()
-    for module, name in ((compare, "simulate"), (results, "simulate_loop"), (feedforward, "identify_feedforward"),
+    for module, name in ((compare, "simulate"), (steps, "simulate_loop"), (steps, "identify_feedforward"),
+                         (steps, "optimise"), (feedforward, "identify_feedforward"),
                          (feedforward, "identify"), (feedforward, "simulate_open_loop")):
         monkeypatch.setattr(module, name, lambda *a, **k: pytest.fail("report recomputed a stage"))
     assert main(["report", str(out), "--json"]) == 0

@@ -161,7 +161,7 @@ def test_a_changed_design_rebuilds_the_plant_and_everything_after_it(axis_run, t
 def test_the_tune_stage_chooses_between_the_schedule_and_the_robust_set_and_the_report_shows_it(axis_run):
     """[tuning] schedule_levels: the tuning records both sets' worst cases per level, the gain set is the chosen
     one (a schedule's table in its gains and exports), and the report carries the gain schedule's table and figure."""
-    from piezopreload.tuning.schedule import choose
+    from piezopreload.tuning.schedule import LevelFigures, choose
 
     tuning = read_artifact(axis_run / "tuning.json", "tuning")
     sched = tuning["tuning"]["schedule"]
@@ -169,7 +169,8 @@ def test_the_tune_stage_chooses_between_the_schedule_and_the_robust_set_and_the_
     span = [min(float(refs[k].levels_N.min()) for k in ("step", "trajectory")),
             max(float(refs[k].levels_N.max()) for k in ("step", "trajectory"))]
     assert sched["levels_N"] == span, "the schedule's entries do not span the study's references"
-    assert (sched["choice"], sched["reason"]) == choose(sched["levels"], sched["whole_range"])
+    assert (sched["choice"], sched["reason"]) == choose([LevelFigures.from_dict(r) for r in sched["levels"]],
+                                                        LevelFigures.from_dict(sched["whole_range"]))
     for r in sched["levels"]:
         for which in ("robust", "scheduled"):
             assert set(r[which]) >= {"settling_s", "overshoot_N", "tracking_rms_N", "passed"}, r

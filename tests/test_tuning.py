@@ -525,14 +525,14 @@ def _record():
         ComparisonRow,
         MinimumTimeBound,
         TrackingFloor,
-        TuningRecord,
+        TuningResult,
         TuningSolve,
     )
 
     row = ComparisonRow("tuned", True, 0.01, 0.2, 0.21, 3.0, 5.0, 2.0, 60.0)
     solve = TuningSolve("Solve_Succeeded", 40, 6.0, "compiled", 0.0, 64.9, 1.6, ("Ms <= 1.6",), {"Ms <= 1.6": -1e-8},
                         {"K_N_per_V": 29.0, "T_s": 0.0014, "theta_s": 0.0015, "rms_N": 3.0}, "PI", {"ms_max": 1.6})
-    return TuningRecord(PIDGains(Kc=0.01, Ti_s=0.05, b=0.9, u_min_V=-20.0, u_max_V=115.0),
+    return TuningResult(PIDGains(Kc=0.01, Ti_s=0.05, b=0.9, u_min_V=-20.0, u_max_V=115.0),
                         PIDGains(Kc=0.02, Ti_s=0.002),
                         solve, (row, replace(row, gains="simc")), MinimumTimeBound(0.014, 14.3, 14, 0.3, 2.0),
                         TrackingFloor(2.0, 3.9e5, 1.4), (ActiveBound("Td_s", "lower", 1e-5, "a PI"),),
@@ -540,12 +540,12 @@ def _record():
 
 
 def test_the_tuning_record_reads_back_and_names_a_bad_field(tmp_path):
-    from piezopreload.artifacts.tuning import TuningRecord
+    from piezopreload.artifacts.tuning import TuningResult
     from piezopreload.core.errors import ArtifactError
 
     record = _record()
     path = record.save(tmp_path / "tuning.json")
-    back = TuningRecord.load(path)
+    back = TuningResult.load(path)
     assert back.to_dict() == record.to_dict()
     assert back.row("tuned").settling_s == 0.2 and back.row("tuned")["settling_s"] == 0.2
     assert back.active_bounds[0].sentence().startswith("the derivative time Td at its lower bound")
@@ -556,15 +556,15 @@ def test_the_tuning_record_reads_back_and_names_a_bad_field(tmp_path):
                                  "tracking_floor.rms_N")):
         bad = {**doc, field: value}
         with pytest.raises(ArtifactError, match=re.escape(words)):
-            TuningRecord.from_dict(bad)
+            TuningResult.from_dict(bad)
     del doc["tuning"]
     with pytest.raises(ArtifactError, match="the tuning record: field 'tuning' is missing"):
-        TuningRecord.from_dict(doc)
+        TuningResult.from_dict(doc)
     # the layout the tune stage wrote before the record was typed (no active_bounds, no minimum-time samples) reads
     old = record.to_dict()
     del old["active_bounds"]
     old["minimum_time"] = {"settling_s": None, "reason": "no command reaches 2500 N", "tuned_over_bound_ratio": None}
-    assert TuningRecord.from_dict(old).active_bounds == ()
+    assert TuningResult.from_dict(old).active_bounds == ()
 
 
 @pytest.mark.slow
@@ -593,7 +593,9 @@ def test_the_minimum_time_bound_on_the_designed_plant_and_the_pi_it_is_read_agai
     assert tuned.gains.Td_s == 0.0 and tuned.solve.form == "PI"
     assert tuned.active_bounds[0].gain == "Td_s"
     assert tuned.minimum_time.settling_s == pytest.approx(bound.settling_s)
-    candidate = tuned.candidate()
+    from piezopreload import steps
+
+    candidate = steps.candidate(study, study.solved, tuned)
     assert candidate.tuning["active_bounds"][0]["gain"] == "Td_s" and candidate.gains.Tf_s == 0.0
 
 

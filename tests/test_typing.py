@@ -150,10 +150,10 @@ def test_the_import_contract_orders_the_application_layer_and_keeps_the_front_do
     kept = _lint_imports(tmp_path)
     assert "0 broken" in kept, kept
     spec, pipeline = tmp_path / "piezopreload" / "spec.py", tmp_path / "piezopreload" / "pipeline.py"
-    spec.write_text(spec.read_text() + "\n\ndef _probe() -> None:\n    from piezopreload.results import tune  # noqa\n")
+    spec.write_text(spec.read_text() + "\n\ndef _probe() -> None:\n    from piezopreload.steps import tune  # noqa\n")
     pipeline.write_text(pipeline.read_text() + "\n\ndef _probe() -> str:\n    from piezopreload import __version__\n"
                                                 "    return __version__\n")
     broken = _lint_imports(tmp_path)
     assert "2 broken" in broken, broken
-    assert "piezopreload.spec -> piezopreload.results" in broken, broken
+    assert "piezopreload.spec -> piezopreload.steps" in broken, broken
     assert "piezopreload.pipeline -> piezopreload (l." in broken, broken

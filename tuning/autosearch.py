@@ -26,15 +26,17 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from enum import Enum
+from typing import Any, NoReturn
 
 import numpy as np
 
-from piezopreload.core.errors import InfeasibleError
-from piezopreload.tuning.autotune_result import REFINED_TO, StartRecord, located, magnitudes
+from piezopreload.core.errors import InfeasibleError, InternalError
+from piezopreload.tuning.autotune_result import REFINED_TO, StartRecord, located
+from piezopreload.tuning.loopshape import Bound
 from piezopreload.tuning.lti import LinearPlant
 from piezopreload.tuning.pidform import PIDController
-from piezopreload.tuning.pidopt import PIDProblem, Scales, Solution
+from piezopreload.tuning.pidopt import IE, Form, Objective, PIDProblem, Scales, Solution
 from piezopreload.tuning.stabset import RELAX, plane_of, stabilising_any, stabilising_starts, unstable_counts
 
 __all__ = ["Search", "Found", "bound_reach", "TOLERANCE", "REFINE_TO", "FINISH_TO", "PER_DECADE"]
@@ -99,7 +101,7 @@ def bound_reach(plant: LinearPlant, bounds: dict[str, float | None]) -> float | 
     plant's PID crosses over where the bound on ``|KS|`` lets it, decades above its slow poles); None without an
     ``Mks``, for a measured or discrete plant (their grids end at their data or their Nyquist frequency), or where
     ``Mks |G|`` stays at least 1 (a biproper plant)."""
-    mks = bounds.get("Mks")
+    mks = bounds.get(Bound.MKS)
     if mks is None or not plant.rational or plant.discrete:
         return None
     w = plant.grid(10, widen=4.0)
@@ -132,7 +134,7 @@ class Search:
                  dt: float | None, Tf_min: float, method: str, given: Any = None) -> None:
         self.plant, self.omega, self.bounds = plant, omega, bounds
         self.filter_order, self.dt, self.Tf_min, self.method = filter_order, dt, Tf_min, method
-        self.limits = {k: m for k, m in bounds.items() if m is not None}  # the bounds set, by name
+        self.limits = {Bound(k): m for k, m in bounds.items() if m is not None}  # the bounds set, by name
         self.names = tuple(self.limits)
         self.G = plant.response(omega)
         self.check = check_grid(plant, omega)
@@ -163,9 +165,9 @@ class Search:
                                                      self.plant.integrators + c.integrators, self.dt)[0] == 0)
         return self._stable[key]
 
-    def problem(self, omega: np.ndarray, G: np.ndarray, sign: float, scales: Scales, objective: Any = "IE",
-                iae_scale: float = 1.0, which: Any = None) -> PIDProblem:
-        return PIDProblem(omega, sign * G, self.bounds, scales, objective, iae_scale, which=which)
+    def problem(self, omega: np.ndarray, G: np.ndarray, sign: float, scales: Scales, objective: Objective = IE,
+                which: Any = None) -> PIDProblem:
+        return PIDProblem(omega, sign * G, self.bounds, scales, objective, which=which)
 
     def scales(self, c: PIDController) -> Scales:
         """Scales from a start: its gains (``kp`` at least a tenth of the derivative's high-frequency gain, ``ki`` at
@@ -195,7 +197,7 @@ class Search:
         return plant.sign, []
 
     # ---- the search ----------------------------------------------------------------------------------
-    def run(self, objective: Any = "IE", iae_scale: float = 1.0,
+    def run(self, objective: Objective = IE,
             seeds: list[tuple[str, PIDController]] | None = None, sign: float | None = None) -> Found:
         """The search (see the module docstring); ``seeds`` and ``sign``: starts given (the IAE's, from the IE
         optimum) instead of the slices. Where none of the first :data:`_STARTS` starts ends on gains that meet the
@@ -211,25 +213,25 @@ class Search:
         sign = self.plant.sign if sign is None else sign
         records: list[StartRecord] = []
         self._closest = None
-        best = self._try(seeds, sign, objective, iae_scale, records)
+        best = self._try(seeds, sign, objective, records)
         if best is None and spare:
-            best = self._try(spare, sign, objective, iae_scale, records)
+            best = self._try(spare, sign, objective, records)
         if best is None and sliced:  # the slices' starts all failed: from relaxed bounds
             sign, more = self.least()
-            best = self._try(more, sign, objective, iae_scale, records)
+            best = self._try(more, sign, objective, records)
         if best is None:
             raise self._not_met(len(records))
-        found = self.finish(best[1], objective, iae_scale)
+        found = self.finish(best[1], objective)
         found.records, found.iterations = records, sum(r.iterations for r in records) + found.iterations - \
             best[1].iterations
         return found
 
-    def _try(self, seeds: list[tuple[str, PIDController]], sign: float, objective: Any, iae_scale: float,
+    def _try(self, seeds: list[tuple[str, PIDController]], sign: float, objective: Objective,
              records: list[StartRecord]) -> tuple[float, Found] | None:
         """The local solve from each seed, each recorded; the best that meets the bounds with a stable loop."""
         best: tuple[float, Found] | None = None
         for name, c in seeds:
-            found = self.local(c, sign, objective, iae_scale, None if best is None else best[0])
+            found = self.local(c, sign, objective, None if best is None else best[0])
             ctrl, sol = found.controller, found.solution
             stable = self.stable(ctrl, sign)
             value = _value(sol, ctrl, objective)
@@ -252,7 +254,7 @@ class Search:
         _, c, sign = self._closest
         peaks = self.worst(c, sign)
         name, (ratio, w) = max(((k, p[0]) for k, p in peaks.items()), key=lambda kv: kv[1][0])
-        what = {"Ms": "|S|", "Mt": "|T|", "Mks": "|KS|"}[name]
+        what = name.symbol
         return InfeasibleError(f"{name} <= {self.limits[name]:g} was not met: the least largest {what} the search's "
                               f"{starts} starts reached with a stable loop is {ratio * self.limits[name]:.4g} (over by "
                               f"{ratio - 1:.2%}, at {w:.4g} rad/s). Relax that bound, or tune the other form")
@@ -265,16 +267,15 @@ class Search:
         C = c.response(self.check)
         L = C * (sign * self.G_check)
         d = np.abs(1 + L)  # |S|, |T|, |KS| share it
-        return max(float(np.max((1.0 / d) if k == "Ms" else np.abs(L if k == "Mt" else C) / d)) / self.limits[k]
-                   for k in self.names) - 1.0
+        return max(float(np.max(k.numerator(C, L) / d)) / self.limits[k] for k in self.names) - 1.0
 
-    def _near(self, c: PIDController, sign: float, above: float) -> dict[str, np.ndarray]:
+    def _near(self, c: PIDController, sign: float, above: float) -> dict[Bound, np.ndarray]:
         """Per bound, the design grid's frequencies at and beside each local maximum of its ``|X| / M`` above
         ``above`` (a plateau's first point; the :data:`_PEAKS` largest) and its largest value's."""
         C, G = c.response(self.omega), sign * self.G
         out = {}
         for k in self.names:
-            r = magnitudes(k, C, G) / self.limits[k]
+            r = k.magnitude(C, G) / self.limits[k]
             peak = np.zeros(r.size, bool)
             peak[1:-1] = (r[1:-1] > r[:-2]) & (r[1:-1] >= r[2:])
             peak[0], peak[-1] = r[0] >= r[1], r[-1] > r[-2]
@@ -288,7 +289,7 @@ class Search:
             out[k] = self.omega[beside]
         return out
 
-    def local(self, c: PIDController, sign: float, objective: Any = "IE", iae_scale: float = 1.0,
+    def local(self, c: PIDController, sign: float, objective: Objective = IE,
               best: float | None = None) -> Found:
         """The local solve from ``c`` by exchange (see the module docstring): the problem holds, per bound, the
         design grid's frequencies about its peaks above 0.8 of it, in a trust region (:func:`_region`); after each
@@ -299,14 +300,14 @@ class Search:
         scales = self.scales(c)
         rows = _Rows(self.names)
         rows.add(self._near(c, sign, 0.8))
-        return self._exchange(scales, rows, scales.x(c), None, sign, objective, iae_scale, REFINE_TO, best)
+        return self._exchange(scales, rows, scales.x(c), None, sign, objective, REFINE_TO, best)
 
-    def finish(self, found: Found, objective: Any = "IE", iae_scale: float = 1.0) -> Found:
+    def finish(self, found: Found, objective: Objective = IE) -> Found:
         """The best start's solution refined further, until every bound holds within :data:`FINISH_TO`."""
         if found.ratio <= 1.0 + FINISH_TO:
             return found
         more = self._exchange(found.problem.scales, found.rows, found.solution.x, found.solution, found.sign,
-                              objective, iae_scale, FINISH_TO, None, reach=0.5)
+                              objective, FINISH_TO, None, reach=0.5)
         worse = more.ratio > found.ratio or more.solution.violation > _FEASIBLE
         if worse or not self.stable(more.controller, found.sign):
             return found
@@ -315,22 +316,22 @@ class Search:
         return more
 
     def _exchange(self, scales: Scales, rows: _Rows, x0: np.ndarray, warm: Solution | None, sign: float,
-                  objective: Any, iae_scale: float, refine_to: float, best: float | None, reach: float = 1.0) -> Found:
+                  objective: Objective, refine_to: float, best: float | None, reach: float = 1.0) -> Found:
         t0 = time.perf_counter()
         walk = _Walk(x0, x0, reach, warm)
         iterations = 0
         good: Found | None = None
         for k in range(_ROUNDS):
-            problem = self.problem(rows.omega, self.plant.response(rows.omega), sign, scales, objective, iae_scale,
+            problem = self.problem(rows.omega, self.plant.response(rows.omega), sign, scales, objective,
                                    rows.which)
-            region = _region(walk.centre, walk.reach)
+            region = _region(walk.centre, scales.form, walk.reach)
             sol = problem.solve(walk.x0, self.method, box=region, warm=walk.warm)
             iterations += sol.iterations
             ctrl = scales.controller(sol.x)
             verdict = walk.judge(sol, self.stable(ctrl, sign) if sol.violation <= _FEASIBLE else False)
-            if verdict == "stop":
+            if verdict is _Next.STOP:
                 break
-            if verdict == "again":
+            if verdict is _Next.AGAIN:
                 continue
             peaks = self.worst(ctrl, sign, fine=refine_to <= FINISH_TO)
             good = Found(problem, sol, ctrl, sign, refinements=k, ratio=max(p[0][0] for p in peaks.values()),
@@ -352,7 +353,7 @@ class Search:
         good.iterations, good.seconds = iterations, time.perf_counter() - t0
         return good
 
-    def worst(self, c: PIDController, sign: float, fine: bool = True) -> dict[str, list[tuple[float, float]]]:
+    def worst(self, c: PIDController, sign: float, fine: bool = True) -> dict[Bound, list[tuple[float, float]]]:
         """Per bound, its largest ``|X| / M`` on the check grid and every other peak above 1 (at most
         :data:`_PEAKS`, largest first), ``(|X| / M, w)``; a peak from :data:`_LOCATE` under the bound to
         :data:`_LOCATE_OVER` over it located between its grid points (successive parabolas, every bound's at once),
@@ -366,7 +367,7 @@ class Search:
         d = np.abs(1 + L)  # |S|, |T|, |KS| share it
         picked: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         for name in self.names:
-            r = ((1.0 / d) if name == "Ms" else np.abs(L if name == "Mt" else C) / d) / self.limits[name]
+            r = name.numerator(C, L) / d / self.limits[name]
             top = np.zeros(r.size, bool)
             top[1:-1] = (r[1:-1] >= r[:-2]) & (r[1:-1] >= r[2:]) & (r[1:-1] > 1.0)
             top[int(np.argmax(r))] = True
@@ -425,18 +426,26 @@ class Search:
         if least.violation <= 0.0:
             return sign, [("least violation", problem.scales.controller(least.x))]
         self._infeasible(problem, least)
-        return sign, []
 
-    def _infeasible(self, problem: PIDProblem, least: Solution) -> None:
-        worst = problem.worst_by_bound(least.x)
+    def _infeasible(self, problem: PIDProblem, least: Solution) -> NoReturn:
+        worst = {Bound(k): v for k, v in problem.worst_by_bound(least.x).items()}
         name, (ratio, w) = max(worst.items(), key=lambda kv: kv[1][0])
-        what = {"Ms": "|S|", "Mt": "|T|", "Mks": "|KS|"}[name]
+        what = name.symbol
         others = "; ".join(f"{k} <= {self.limits[k]:g} at {v[0] * self.limits[k]:.4g}"
                            for k, v in worst.items() if k != name)
         raise InfeasibleError(
             f"{name} <= {self.limits[name]:g} cannot be met with a {_form(self.filter_order)} on this plant: the least "
             f"largest {what} the search reached is {ratio * self.limits[name]:.4g} (over by {ratio - 1:.1%}, at "
             f"{w:.4g} rad/s)" + (f"; there, {others}" if others else "") + ". Relax that bound, or tune the other form")
+
+
+class _Next(Enum):
+    """What the exchange does after a solve (:meth:`_Walk.judge`): go on with it, solve again in the changed region,
+    or stop this start."""
+
+    OK = "ok"
+    AGAIN = "again"
+    STOP = "stop"
 
 
 @dataclass
@@ -448,20 +457,20 @@ class _Walk:
     reach: float
     warm: Solution | None
 
-    def judge(self, sol: Solution, stable: bool) -> str:
-        """``"ok"``, or ``"again"`` with the region changed, or ``"stop"``: a solution off its own rows (no gains in
+    def judge(self, sol: Solution, stable: bool) -> _Next:
+        """``OK``, or ``AGAIN`` with the region changed, or ``STOP``: a solution off its own rows (no gains in
         the region meet them) widens the region, up to eight times; one that left the stable loops between the rows
         shortens it, down to a sixteenth."""
         if sol.violation > _FEASIBLE:
             if self.reach >= 8.0:
-                return "stop"
+                return _Next.STOP
             self.reach, self.warm = min(2.0 * self.reach, 8.0), None
-            return "again"
+            return _Next.AGAIN
         if not stable:
             self.reach /= 2.0
             self.warm = None
-            return "stop" if self.reach < 1.0 / 16.0 else "again"
-        return "ok"
+            return _Next.STOP if self.reach < 1.0 / 16.0 else _Next.AGAIN
+        return _Next.OK
 
     def accepted(self, sol: Solution, moved: bool, keep_multipliers: bool) -> None:
         """The next solve starts from ``sol`` (warm where its rows stayed); ``moved``: it held every bound on the
@@ -476,11 +485,11 @@ class _Rows:
     """The problem's rows: ``(frequency, bound)`` pairs, in the order they were added (a warm start's multipliers
     stay with their rows)."""
 
-    def __init__(self, names: tuple[str, ...]) -> None:
+    def __init__(self, names: tuple[Bound, ...]) -> None:
         self.names = names
         self.omega = np.zeros(0)
         self.which = np.zeros(0, dtype=object)
-        self._held: dict[str, set[float]] = {name: set() for name in names}  # each bound's frequencies, to add once
+        self._held: dict[Bound, set[float]] = {name: set() for name in names}  # each bound's frequencies, to add once
 
     def prune(self, c: PIDController, sign: float, search: Search) -> bool:
         """Drop the rows whose ``|X| / M`` is below :data:`_KEEP` at ``c``; whether any were."""
@@ -488,7 +497,7 @@ class _Rows:
         ratio = np.zeros(self.omega.size)
         for name in self.names:
             mine = self.which == name
-            ratio[mine] = magnitudes(name, C[mine], G[mine]) / search.bounds[name]
+            ratio[mine] = Bound(name).magnitude(C[mine], G[mine]) / search.bounds[name]
         keep = ratio >= _KEEP
         if keep.all():
             return False
@@ -496,7 +505,7 @@ class _Rows:
         self._held = {name: set(self.omega[self.which == name].tolist()) for name in self.names}
         return True
 
-    def add(self, per_bound: dict[str, np.ndarray]) -> None:
+    def add(self, per_bound: dict[Bound, np.ndarray]) -> None:
         """Each bound's frequencies it does not hold yet, in increasing order."""
         for name, w in per_bound.items():
             held = self._held[name]
@@ -506,7 +515,7 @@ class _Rows:
             self.which = np.concatenate([self.which, np.full(new.size, name, dtype=object)])
 
 
-def _region(x: np.ndarray, reach: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+def _region(x: np.ndarray, form: Form, reach: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """The trust region about ``x`` (scaled gains, O(1) at the start): ``kp`` and ``ki`` within a factor
     ``1 + reach / 2`` (never to zero: an unstable plant's loop needs its proportional gain; from zero up by a quarter
     of ``reach``), the derivative within
@@ -515,7 +524,9 @@ def _region(x: np.ndarray, reach: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     ``reach``."""
     f = 1.0 + 0.5 * reach
     lo, hi = x / f, np.maximum(x * f, x + 0.25 * reach)  # a gain at zero may grow by a quarter of its scale
-    if x.size == 4:
+    if x.size != form.variables:
+        raise InternalError(f"a {form}'s trust region needs {form.variables} variables, got {x.size}")
+    if form is Form.PID:
         lo[2:], hi[2:] = x[2:] - 0.5 * reach * np.array([max(abs(x[2]), 0.1), 1.0]), \
             x[2:] + 0.5 * reach * np.array([max(abs(x[2]), 0.1), 1.0])
     return lo, hi
@@ -534,10 +545,10 @@ def _behind(value: float, best: float) -> bool:
     return value > best * (_BEHIND if best < 0 else 1.0 / _BEHIND)
 
 
-def _form(filter_order: int) -> str:
-    return "PI" if filter_order == 0 else "PID"
+def _form(filter_order: int) -> Form:
+    return Form.of(filter_order)
 
 
-def _value(sol: Solution, c: PIDController, objective: Any) -> float:
+def _value(sol: Solution, c: PIDController, objective: Objective) -> float:
     """What is minimised, unscaled: ``-ki`` (IE) or the scaled IAE."""
-    return -c.ki if isinstance(objective, str) else float(sol.objective)
+    return objective.value(sol.objective, c.ki)

@@ -52,21 +52,21 @@ from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.tuning.autosearch import TOLERANCE, Found, Search, bound_reach, design_grid
 from piezopreload.tuning.autotune_result import LOOPS, AutotuneResult, achieved, margins_of
 from piezopreload.tuning.loadstep import iae_function, load_response
+from piezopreload.tuning.loopshape import Bound
 from piezopreload.tuning.lti import LinearPlant, as_plant, nyquist_unstable
 from piezopreload.tuning.pidform import PIDController
-from piezopreload.tuning.pidopt import METHODS, TF_RANGE, X_MAX, Scales
+from piezopreload.tuning.pidopt import METHODS, TF_RANGE, X_MAX, Form, LoadStepIAE, Metric, Scales
 from piezopreload.tuning.plantfit import FittedPlant
 
 __all__ = ["autotune", "default_mks", "METRICS", "FORMS", "SOLVERS", "LOOPS", "TOLERANCE", "TF_FLOOR_PER_TS"]
 
-METRICS = ("IE", "IAE")
+METRICS = tuple(Metric)
 #: the SQP (default), IPOPT (both exact derivatives); scipy's SLSQP with exact first derivatives, or with finite
 #: differences
 SOLVERS = METHODS
-FORMS = ("PI", "PID")
+FORMS = tuple(Form)
 #: the derivative filter's least time constant, in sample periods
 TF_FLOOR_PER_TS = 1.0
-_NAMES = {"Ms": "|S|", "Mt": "|T|", "Mks": "|KS|"}
 
 
 @dataclass(frozen=True)
@@ -78,8 +78,8 @@ class _Spec:
     bounds: dict[str, float | None]
     user_bounds: dict[str, float | None]
     defaults: dict[str, dict[str, Any]]
-    metric: str
-    form: str
+    metric: Metric
+    form: Form
     filter_order: int
     loop: str
     Ts: float | None
@@ -153,8 +153,9 @@ def _loop_spec(loop: Any, Ts: float | None, plant: LinearPlant) -> tuple[str, fl
 
 def _spec(P: LinearPlant, Ms: Any, Mt: Any, Mks: Any, metric: str, form: str, Ts: Any, loop: Any, horizon_s: Any,
           filter_order: Any, solver: str, u_min: Any, u_max: Any) -> _Spec:
-    user = {"Ms": _positive("Ms", Ms, 1.0), "Mt": _positive("Mt", Mt, 0.0), "Mks": _positive("Mks", Mks, 0.0)}
-    if user["Ms"] is None:
+    user: dict[str, float | None] = {Bound.MS: _positive("Ms", Ms, 1.0), Bound.MT: _positive("Mt", Mt, 0.0),
+                                     Bound.MKS: _positive("Mks", Mks, 0.0)}
+    if user[Bound.MS] is None:
         raise InputError("Ms is required: the largest |S| the loop may have (1.2 to 2; 1.4 is a common choice)")
     order = _form_spec(metric, form, filter_order, solver)
     loop, dt = _loop_spec(loop, _positive("Ts", Ts), P)
@@ -162,15 +163,15 @@ def _spec(P: LinearPlant, Ms: Any, Mt: Any, Mks: Any, metric: str, form: str, Ts
     if (lo is None) != (hi is None) or (lo is not None and hi is not None and not lo < hi):
         raise InputError(f"the actuator's range needs u_min < u_max, both given; got u_min {u_min!r}, u_max {u_max!r}")
     u_range = None if lo is None or hi is None else (lo, hi)
-    bounds, defaults = dict(user), {}
-    if user["Mks"] is None and u_range is not None:
-        bounds["Mks"], reason = default_mks(*u_range)
-        defaults["Mks"] = {"value": bounds["Mks"], "reason": reason}
+    bounds, defaults = dict(user), dict[str, dict[str, Any]]()
+    if user[Bound.MKS] is None and u_range is not None:
+        bounds[Bound.MKS], reason = default_mks(*u_range)
+        defaults[Bound.MKS] = {"value": bounds[Bound.MKS], "reason": reason}
     Tf_min = TF_FLOOR_PER_TS * dt if dt is not None and order > 0 else 0.0
     if Tf_min > 0:
         defaults["Tf_min_s"] = {"value": Tf_min, "reason": f"the derivative filter's floor at Ts {dt:g} s: a faster "
                                 "filter does not filter in the controller step (its pole below z = 1/2)"}
-    return _Spec(bounds, user, defaults, metric, form, order, loop, dt, _positive("horizon_s", horizon_s),
+    return _Spec(bounds, user, defaults, Metric(metric), Form(form), order, loop, dt, _positive("horizon_s", horizon_s),
                  solver, u_range, Tf_min)
 
 
@@ -178,17 +179,18 @@ def _closed_form_limits(P: LinearPlant, spec: _Spec) -> None:
     """The bounds no controller with integral action meets, in closed form: ``T(0) = 1``, so ``|T| >= 1``; and
     ``KS(0) = 1/G(0)``, so ``|KS| >= 1/|G(0)|`` for a plant without integrators (its static gain, which a zero-order
     hold keeps)."""
-    if spec.bounds["Mt"] is not None and spec.bounds["Mt"] < 1.0:
-        raise InfeasibleError(f"Mt <= {spec.bounds['Mt']:g} cannot be met with a {spec.form}: with integral action "
+    mt = spec.bounds[Bound.MT]
+    if mt is not None and mt < 1.0:
+        raise InfeasibleError(f"Mt <= {mt:g} cannot be met with a {spec.form}: with integral action "
                               "T = 1 at zero frequency, so the least largest |T| any such controller reaches is 1 "
                               "(give Mt >= 1)")
-    mks = spec.bounds["Mks"]
+    mks = spec.bounds[Bound.MKS]
     if mks is None or P.integrators > 0 or P.unstable_poles:
         return
     g0 = _dc_gain(P) if P.rational else float(np.abs(P.measured_response()[1][0]))
     least = 1.0 / g0 if g0 > 0 else np.inf
     if mks < least * (1.0 - 1e-9):
-        who = "the default bound " if "Mks" in spec.defaults else ""
+        who = "the default bound " if Bound.MKS in spec.defaults else ""
         raise InfeasibleError(f"Mks <= {mks:g} ({who}|KS|) cannot be met with a {spec.form}: with integral action "
                               f"KS = 1/G(0) at zero frequency, so the least largest |KS| any such controller reaches "
                               f"is at least 1/|G(0)| = {least:.4g} (give Mks >= {least:.4g})")
@@ -290,7 +292,7 @@ def autotune(plant: Any, *, Ms: float, Mt: float | None = None, Mks: float | Non
         plant, delay_s = plant.transfer_function(), plant.delay_s + float(delay_s)
     P = as_plant(plant, delay_s)
     spec = _spec(P, Ms, Mt, Mks, metric, form, Ts, loop, horizon_s, filter_order, solver, u_min, u_max)
-    if spec.metric == "IAE" and not P.rational:
+    if spec.metric is Metric.IAE and not P.rational:
         raise InputError("metric='IAE' simulates the load step on a time-domain model; a measured frequency response "
                          "has none: fit one to a step response (fit_plant) or give a transfer function")
     _closed_form_limits(P, spec)
@@ -299,7 +301,7 @@ def autotune(plant: Any, *, Ms: float, Mt: float | None = None, Mks: float | Non
                     spec.solver, w)
     found = search.run()
     iae = None
-    if spec.metric == "IAE":
+    if spec.metric is Metric.IAE:
         found, iae = _iae(P, design, search, found, spec)
     return _result(P, design, search, found, spec, iae, t0)
 
@@ -310,7 +312,7 @@ def _iae(P: LinearPlant, design: LinearPlant, search: Search, found: Found, spec
     sim, n = _iae_setup(P, design, ie.scaled(found.sign), spec)
     fn = iae_function(sim, n, found.sign)
     scale = float(fn(np.array([ie.kp, ie.ki, ie.kd, ie.Tf])))
-    iae_found = search.run("IAE", scale, seeds=[("IE optimum", ie)], sign=found.sign)
+    iae_found = search.run(LoadStepIAE(fn, scale), seeds=[("IE optimum", ie)], sign=found.sign)
     iae_found.records = found.records + iae_found.records
     best = iae_found.controller
     return iae_found, (float(fn(np.array([best.kp, best.ki, best.kd, best.Tf]))), sim.dt, n)
@@ -361,11 +363,11 @@ def _active_bounds(x: np.ndarray, scales: Scales) -> tuple[ActiveBound, ...]:
 def _leans_on(spec: _Spec, peaks: dict[str, tuple[float, float]], active: tuple[ActiveBound, ...]) -> tuple[str, ...]:
     """The bounds the user did not set that the result sits on, in sentences."""
     out = []
-    mks = spec.bounds["Mks"]
-    if "Mks" in spec.defaults and mks is not None and peaks["Mks"][0] >= mks * (1.0 - 1e-3):
+    mks = spec.bounds[Bound.MKS]
+    if Bound.MKS in spec.defaults and mks is not None and peaks[Bound.MKS][0] >= mks * (1.0 - 1e-3):
         out.append(f"|KS| reaches the default Mks {spec.bounds['Mks']:g} ({spec.defaults['Mks']['reason']})")
     for b in active:
-        if b.gain == "Tf" and b.side == "lower" and spec.user_bounds["Mks"] is None:
+        if b.gain == "Tf" and b.side == "lower" and spec.user_bounds[Bound.MKS] is None:
             out.append(f"the filter sits at its least time constant {b.bound:.4g} s ({b.note}) and no Mks of yours "
                        "bounds the noise gain: give Mks")
         elif b.side == "upper" and b.gain != "Tf":

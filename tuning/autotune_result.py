@@ -26,7 +26,8 @@ import numpy as np
 
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.tuning import ActiveBound
-from piezopreload.core.errors import InputError, InternalError
+from piezopreload.core.errors import InputError
+from piezopreload.tuning.loopshape import BOUNDS, Bound
 from piezopreload.tuning.lti import LinearPlant
 from piezopreload.tuning.pidform import PIDController
 
@@ -34,23 +35,12 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 __all__ = ["AutotuneResult", "Margins", "SampledCheck", "StartRecord", "LOOPS", "sensitivity_peaks", "located_peaks",
-           "located", "magnitudes", "margins_of", "achieved"]
+           "located", "margins_of", "achieved"]
 
-_NAMES = {"Ms": "|S|", "Mt": "|T|", "Mks": "|KS|"}
 #: how far (relative) a bound may be exceeded (the autotuner's tolerance)
 _TOLERANCE = 0.005
 #: how far the refinement aims to hold every bound; a result over it says by how much (``over_by``)
 REFINED_TO = 1e-4
-
-
-def magnitudes(name: str, C: np.ndarray, G: np.ndarray) -> np.ndarray:
-    """``|S|`` (``Ms``), ``|T|`` (``Mt``) or ``|KS|`` (``Mks``) of the responses ``C`` and ``G``."""
-    L = C * G
-    if name == "Ms":
-        return 1.0 / np.abs(1 + L)
-    if name not in ("Mt", "Mks"):
-        raise InternalError(f"no bound named {name!r}: Ms, Mt or Mks")
-    return np.abs(L if name == "Mt" else C) / np.abs(1 + L)
 
 
 def located(plant: LinearPlant, controller: PIDController, names: np.ndarray, omega: np.ndarray, idx: np.ndarray,
@@ -61,7 +51,7 @@ def located(plant: LinearPlant, controller: PIDController, names: np.ndarray, om
     the bracket always shrinks: ``steps`` steps, all peaks at once): values and frequencies in the order given; a
     measured response's, and a grid end's, are the grid's own. ``sign`` multiplies the plant."""
     idx, names = np.asarray(idx, int), np.asarray(names, dtype=object)
-    kinds = (names == "Ms", names == "Mt")  # |S|, |T|, else |KS|: compared once, not at every step
+    kinds = (names == Bound.MS, names == Bound.MT)  # |S|, |T|, else |KS|: compared once, not at every step
 
     def at(x: np.ndarray, which: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
         w = np.exp(x)
@@ -112,7 +102,7 @@ def located_peaks(plant: LinearPlant, controller: PIDController, name: str, omeg
 
 
 def sensitivity_peaks(plant: LinearPlant, controller: PIDController, omega: np.ndarray,
-                      names: tuple[str, ...] = ("Ms", "Mt", "Mks"), most: int = 3,
+                      names: tuple[str, ...] = BOUNDS, most: int = 3,
                       G: np.ndarray | None = None) -> dict[str, list[tuple[float, float]]]:
     """Per name (``Ms``: ``|S|``, ``Mt``: ``|T|``, ``Mks``: ``|KS|``) the ``most`` largest local peaks ``(value,
     frequency)`` on ``omega``, each located between its neighbours (:func:`located`, every name's at once), largest
@@ -121,7 +111,7 @@ def sensitivity_peaks(plant: LinearPlant, controller: PIDController, omega: np.n
     C = controller.response(omega)
     picked = []
     for name in names:
-        r = magnitudes(name, C, G)
+        r = Bound(name).magnitude(C, G)
         top = np.zeros(r.size, bool)
         top[1:-1] = (r[1:-1] >= r[:-2]) & (r[1:-1] >= r[2:])
         top[int(np.argmax(r))] = True
@@ -190,8 +180,9 @@ def margins_of(plant: LinearPlant, controller: PIDController, peaks: dict[str, t
     m = np.exp(np.log(mag[k]) + f * (np.log(mag[k + 1]) - np.log(mag[k])))
     if np.any(m < 1.0):
         gm = float(1.0 / np.max(m[m < 1.0]))
-    return Margins(Ms=peaks["Ms"][0], Mt=peaks["Mt"][0], Mks=peaks["Mks"][0], Ms_rad_per_s=peaks["Ms"][1],
-                   Mt_rad_per_s=peaks["Mt"][1], Mks_rad_per_s=peaks["Mks"][1], gain_margin=gm,
+    return Margins(Ms=peaks[Bound.MS][0], Mt=peaks[Bound.MT][0], Mks=peaks[Bound.MKS][0],
+                   Ms_rad_per_s=peaks[Bound.MS][1], Mt_rad_per_s=peaks[Bound.MT][1], Mks_rad_per_s=peaks[Bound.MKS][1],
+                   gain_margin=gm,
                    phase_margin_deg=None if pm is None else float(np.degrees(pm)),
                    delay_margin_s=None if dm is None else float(dm), crossover_rad_per_s=wc)
 

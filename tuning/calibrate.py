@@ -18,12 +18,12 @@ noise is part of what the paper's numbers describe.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
+from piezopreload.core.progress import ProgressLike, say_of
 from piezopreload.models.actuator import Plant, Rig, loop_width, reach_N
 from piezopreload.models.closedloop import (
     PAPER_BAND_N,
@@ -180,7 +180,7 @@ def calibrate(
     skip: tuple[tuple[str, str], ...] = (),
     require_force_N: float = 105.0,
     width_range: tuple[float, float] = (0.10, 0.15),
-    progress: Callable[[int, float, dict[str, float]], None] | None = None,
+    progress: ProgressLike | None = None,
 ) -> CalibrationResult:
     """Fit the rig's ``free`` parameters (name -> (lower, upper) bounds) to the paper's six numbers.
 
@@ -196,7 +196,8 @@ def calibrate(
     The objective is the sum of squared log-ratios, or with ``worst_case`` the largest one (the
     "each within 25 %" criterion) over the metrics not in ``skip`` (``(controller, metric)``
     pairs shown to be out of reach, which would otherwise dominate it). ``repeats`` noise
-    realisations per evaluation, metrics their medians (see :func:`reproduce`).
+    realisations per evaluation, metrics their medians (see :func:`reproduce`). ``progress`` is given a line per
+    evaluation: its number, the objective and the parameters tried.
     """
     names = sorted(free)
     bad = sorted(set(names) - set(Plant.batch_fields()))
@@ -208,6 +209,7 @@ def calibrate(
         raise ValueError("every free parameter needs 0 < lower < upper.")
     x0 = np.clip((np.log([float(getattr(base, n)) for n in names]) - lo) / (hi - lo), 0.0, 1.0)
     history: list[dict[str, Any]] = []
+    say = say_of(progress)
     t0 = time.perf_counter()
 
     def to_params(z: np.ndarray) -> Plant:
@@ -227,8 +229,9 @@ def calibrate(
         rep = reproduce(p, gains, excitation=excitation, seed=seed, repeats=repeats)
         f = (_worst_mismatch(rep.metrics, skip) if worst_case else _mismatch(rep.metrics)) + penalty
         history.append({"objective": f, "reach_N": reach, "width": width, **{n: float(getattr(p, n)) for n in names}})
-        if progress is not None:
-            progress(len(history), f, history[-1])
+        if say is not None:
+            say(f"evaluation {len(history)}: objective {f:.4g} ("
+                + ", ".join(f"{n} {history[-1][n]:.4g}" for n in names) + ")")
         return f
 
     from scipy.optimize import minimize  # scipy.optimize loads on first use, not on import

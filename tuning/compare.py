@@ -9,7 +9,7 @@ and trajectory for its starting and its tuned gains, PID alone and with the feed
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -17,6 +17,7 @@ from piezopreload.artifacts.responses import CreepRow, ReproductionRow
 from piezopreload.artifacts.tuning import ComparisonRow
 from piezopreload.artifacts.validation import Criteria
 from piezopreload.core.artifacts import finite_or_none
+from piezopreload.core.progress import Bar
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
@@ -83,7 +84,7 @@ class Response:
 
 def responses(rig: Plant, references: dict[str, Reference], candidates: dict[str, PIDGains],
               feedforward: FeedforwardModel, *, seed: int, band_N: float, signal: str, after_change_s: float,
-              progress: Callable[[int, int], None] | None = None,
+              bar: Bar | None = None,
               controllers: tuple[str, ...] = CONTROLLERS) -> list[Response]:
     """Every candidate, PID alone and with the feedforward (``controllers``), over every reference (noise ``seed``)."""
     plant = Rig(rig)
@@ -95,8 +96,8 @@ def responses(rig: Plant, references: dict[str, Reference], candidates: dict[str
             for ref_name, ref in references.items():
                 run = simulate(plant, Controller(gains, plant.dt_s, ff), ref, seed=seed)
                 out.append(Response(name, controller, ref_name, run, run_numbers(run, band_N, signal, after_change_s)))
-                if progress is not None:
-                    progress(len(out), total)
+                if bar is not None:
+                    bar(len(out), total)
     return out
 
 

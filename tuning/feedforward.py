@@ -25,7 +25,7 @@ from piezopreload.core._typing import Array
 from piezopreload.core.artifacts import ArtifactError, package_version
 from piezopreload.core.errors import InputError
 from piezopreload.core.records import Checked, checked, entry
-from piezopreload.core.tables import Record, write_csv
+from piezopreload.core.tables import MeasuredRecord, write_csv
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import simulate_open_loop, triangle
 from piezopreload.models.hysteresis import ClassicalPI, CreepPI, HysteresisModel, NotInvertibleError, inverse_at
@@ -69,8 +69,9 @@ def _simulated(excitation: LoopExcitation) -> dict[str, Any]:
     return {k: v for k, v in asdict(excitation).items() if k != "data"}
 
 
-def simulate_loop(rig: Plant, excitation: LoopExcitation) -> Record:
-    """The 0..v_max V triangle loop measured on the rig's truth model (sensor noise included): a :class:`Record`.
+def simulate_loop(rig: Plant, excitation: LoopExcitation) -> MeasuredRecord:
+    """The 0..v_max V triangle loop measured on the rig's truth model (sensor noise included): a
+    :class:`MeasuredRecord`.
 
     Its ``sha256`` is that of its samples (float64: time, voltage, force one after the other).
     """
@@ -79,10 +80,10 @@ def simulate_loop(rig: Plant, excitation: LoopExcitation) -> Record:
     rec = simulate_open_loop(plant, command, seed=excitation.seed)
     t, v, y = (np.asarray(rec[k], float) for k in ("time_s", "command_V", "measured_N"))
     digest = hashlib.sha256(np.concatenate([t, v, y]).tobytes()).hexdigest()
-    return Record("", digest, t, v, y, "voltage_V", "force_N")
+    return MeasuredRecord("", digest, t, v, y, "voltage_V", "force_N")
 
 
-def loop_covers(loop: Record, low_N: float, high_N: float, what: str) -> None:
+def loop_covers(loop: MeasuredRecord, low_N: float, high_N: float, what: str) -> None:
     """Refuse, before identifying anything, a loop whose forces do not cover ``[low_N, high_N]``: the range a
     model identified on the whole loop would have (:func:`~piezopreload.artifacts.hysteresis.require_coverage`)."""
     require_coverage((float(np.min(loop.output)), float(np.max(loop.output))), (low_N, high_N), what,
@@ -171,14 +172,14 @@ class IdentifiedFeedforward:
     ----------
     record : IdentifiedModel
         The identified model, its errors and where it came from.
-    loop : Record or None
+    loop : MeasuredRecord or None
         The hysteresis loop it was fitted to (None: read back from ``model.json``).
     check : CompensationCheck or None
         The open-loop check of its inverse on the plant (None: read back).
     """
 
     record: IdentifiedModel
-    loop: Record | None = None
+    loop: MeasuredRecord | None = None
     check: CompensationCheck | None = None
 
     @property
@@ -381,7 +382,7 @@ class IdentifiedFeedforward:
         return fig
 
 
-def identify_feedforward(rig: Plant, excitation: LoopExcitation, record: Record | None = None, *,
+def identify_feedforward(rig: Plant, excitation: LoopExcitation, record: MeasuredRecord | None = None, *,
                          check_range_N: tuple[float, float] | None = (25.0, 100.0)) -> IdentifiedFeedforward:
     """The feedforward's model from the loop simulated on ``rig`` (``record`` None) or a measured V -> N record.
 

@@ -30,7 +30,7 @@ from piezopreload.artifacts.hysteresis import (
     Units,
 )
 from piezopreload.core.errors import InputError
-from piezopreload.core.tables import Record
+from piezopreload.core.tables import MeasuredRecord
 from piezopreload.models.hysteresis import CREEP_SUFFIX, CreepPI, HysteresisModel
 from piezopreload.tuning.identify import IdentificationError, PIIdentifier, fit_error, paper_baseline, straight_line
 
@@ -105,7 +105,7 @@ class Identification:
     ----------
     record : IdentifiedModel
         The artifact's record: the model, its errors on the windows, the data and the solver.
-    data : Record
+    data : MeasuredRecord
         The measured record it was identified on.
     train : Window
         The window the weights were fitted on.
@@ -118,7 +118,7 @@ class Identification:
     """
 
     record: IdentifiedModel
-    data: Record
+    data: MeasuredRecord
     train: Window
     test: Window | None
     estimator: PIIdentifier
@@ -265,7 +265,7 @@ def _window(e: FitError) -> str:
 # --------------------------------------------------------------------------------------
 # the entry point
 # --------------------------------------------------------------------------------------
-def _windows(record: Record, train: Window | None, test: Window | None
+def _windows(record: MeasuredRecord, train: Window | None, test: Window | None
              ) -> tuple[Window, NDArray[np.bool_], Window | None, NDArray[np.bool_] | None]:
     """The training and test windows and their samples; without a test window, the samples after training."""
     t = record.time_s
@@ -286,7 +286,7 @@ def _windows(record: Record, train: Window | None, test: Window | None
     return train, rows, Window(train.t1_s, max(float(t[-1]), train.t1_s + 1.0)), after
 
 
-def _sample_period(record: Record) -> float:
+def _sample_period(record: MeasuredRecord) -> float:
     """The record's sample period; creep's lags need a uniformly sampled record."""
     t = record.time_s
     if t.size < 3:
@@ -299,7 +299,7 @@ def _sample_period(record: Record) -> float:
     return dt
 
 
-def _check_record(record: Record, rows: NDArray[np.bool_], train: Window) -> float:
+def _check_record(record: MeasuredRecord, rows: NDArray[np.bool_], train: Window) -> float:
     """The record's output span; refuses a constant input over the training window or a constant output."""
     if np.ptp(record.input[rows]) == 0:
         raise InputError(f"{record.path}: the input '{record.input_name}' is constant over the training window "
@@ -319,7 +319,7 @@ class _Baselines(TypedDict, total=False):
     paper_method_note: str
 
 
-def _baselines(record: Record, est: PIIdentifier, rows: NDArray[np.bool_], test_rows: NDArray[np.bool_] | None,
+def _baselines(record: MeasuredRecord, est: PIIdentifier, rows: NDArray[np.bool_], test_rows: NDArray[np.bool_] | None,
                span: float) -> _Baselines:
     """The straight line's and the paper's method's errors on the test window (the paper's: or why it cannot run)."""
     if test_rows is None:
@@ -336,7 +336,7 @@ def _baselines(record: Record, est: PIIdentifier, rows: NDArray[np.bool_], test_
     return out
 
 
-def identify(record: Record, *, model: str = "classical", operators: int = 40, thresholds: Any = "range",
+def identify(record: MeasuredRecord, *, model: str = "classical", operators: int = 40, thresholds: Any = "range",
              train: Window | None = None, test: Window | None = None, ridge: float = 0.0, creep: bool = False,
              creep_time_constants_s: Any = None, invertible: bool = False, baselines: bool = True,
              source: DataSource | None = None) -> Identification:
@@ -344,7 +344,7 @@ def identify(record: Record, *, model: str = "classical", operators: int = 40, t
 
     Parameters
     ----------
-    record : Record
+    record : MeasuredRecord
         The input/output record (:func:`piezopreload.read_record`).
     model : str
         ``classical``, ``paper-asymmetric`` or ``modified``; a name ending in ``+creep`` is ``creep=True``.

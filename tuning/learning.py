@@ -33,6 +33,7 @@ from piezopreload.artifacts.learned import LearnedSignal, reference_sha256
 from piezopreload.artifacts.learning import LearningRecord, PassRecord, TrialRecord
 from piezopreload.core._typing import Array, BoolArray, IntArray
 from piezopreload.core.errors import InputError, InternalError
+from piezopreload.core.progress import ProgressLike, say_of
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller
@@ -463,7 +464,7 @@ def learn(controller: Controller, rig: Rig, reference: Reference, *, iterations:
           spread: dict[str, float] | None = None, law: Law | None = None, grow_tol: float = 0.05,
           stop_gain: float | None = STOP_GAIN, after_change_weight: float = 0.0,
           slew_fraction: float = PLAN_SLEW_FRACTION, initial_V: Array | None = None,
-          progress: Callable[[str], None] | None = None) -> LearningResult:
+          progress: ProgressLike | None = None) -> LearningResult:
     """Learn a feedforward correction for ``controller`` on ``rig`` over ``reference``, with preview.
 
     Parameters
@@ -498,7 +499,7 @@ def learn(controller: Controller, rig: Rig, reference: Reference, *, iterations:
         A correction learned before (on a pass of a schedule close to this one, say), added to trial 0's signal.
     """
     t0 = time.perf_counter()
-    say = progress or (lambda _m: None)
+    say = say_of(progress) or (lambda _m: None)
     if not (isinstance(iterations, int | np.integer) and iterations >= 0):
         raise InputError(f"iterations must be an integer >= 0, got {iterations!r}")
     if plants is not None and not (isinstance(plants, int | np.integer) and plants >= 1):
@@ -644,7 +645,7 @@ def learn_from_run(signal: LearnedSignal, measured_N: Array, command_V: Array, l
 # learning over a schedule's passes (the whole system's learn stage)
 # --------------------------------------------------------------------------------------
 def schedule_learner(params: Plant, controller: Controller, *, iterations: int, preview_s: float | None,
-                     method: str, seed: int, progress: Callable[[str], None] | None = None,
+                     method: str, seed: int, progress: ProgressLike | None = None,
                      warm_start: bool = True, stop_gain: float | None = STOP_GAIN
                      ) -> tuple[Callable[[Reference], Array], list[LearningResult]]:
     """A learner for each pass of a schedule on one plant (``params``): called with a pass's repeated

@@ -23,16 +23,48 @@ the bound holds.
 
 from __future__ import annotations
 
+from enum import StrEnum
 from typing import Any
 
 import casadi as ca
 import numpy as np
 
-__all__ = ["BOUNDS", "omega_terms", "discrete_pid_response", "isa_pid_response", "continuous_pid_response",
+__all__ = ["Bound", "BOUNDS", "omega_terms", "discrete_pid_response", "isa_pid_response", "continuous_pid_response",
            "loop_terms", "bound_rows", "bound_numerators", "peaks", "smooth_max"]
 
-#: the bounds a loop may carry, by name: maximum sensitivity, complementary sensitivity, noise sensitivity
-BOUNDS = ("Ms", "Mt", "Mks")
+class Bound(StrEnum):
+    """A bound a loop may carry, by its name (its value, as the results and their JSON write it): ``Ms`` on the
+    sensitivity ``|S| = 1/|1 + L|``, ``Mt`` on the complementary sensitivity ``|T| = |L|/|1 + L|``, ``Mks`` on the
+    noise sensitivity ``|KS| = |C|/|1 + L|``. Each member knows its magnitude and its numerator."""
+
+    MS = "Ms"
+    MT = "Mt"
+    MKS = "Mks"
+
+    @property
+    def symbol(self) -> str:
+        """The magnitude it bounds, as a message writes it: ``|S|``, ``|T|`` or ``|KS|``."""
+        return {Bound.MS: "|S|", Bound.MT: "|T|", Bound.MKS: "|KS|"}[self]
+
+    def numerator(self, C: Any, L: Any) -> Any:
+        """``|N_X|``: 1 for ``S``, ``|L|`` for ``T``, ``|C|`` for ``KS`` (complex arrays)."""
+        return {Bound.MS: 1.0, Bound.MT: np.abs(L), Bound.MKS: np.abs(C)}[self]
+
+    def numerator_squared(self, c_re: Any, c_im: Any, l_re: Any, l_im: Any) -> Any:
+        """``|N_X|^2`` from the parts of ``C`` and ``L`` (numbers or CasADi expressions)."""
+        if self is Bound.MS:
+            return 1.0
+        return l_re**2 + l_im**2 if self is Bound.MT else c_re**2 + c_im**2
+
+    def magnitude(self, C: np.ndarray, G: np.ndarray, d: np.ndarray | None = None) -> np.ndarray:
+        """``|X|`` of the controller's and the plant's responses ``C`` and ``G``; ``d``: ``|1 + C G|`` where it is
+        at hand (the three bounds share it)."""
+        L = C * G
+        return self.numerator(C, L) / (np.abs(1 + L) if d is None else d)
+
+
+#: the bounds a loop may carry: maximum sensitivity, complementary sensitivity, noise sensitivity
+BOUNDS = tuple(Bound)
 
 
 def omega_terms(omega: np.ndarray, dt: float) -> np.ndarray:
@@ -115,7 +147,7 @@ def bound_rows(c_re: Any, c_im: Any, g_re: Any, g_im: Any, bounds: dict[str, Any
 def bound_numerators(c_re: Any, c_im: Any, l_re: Any, l_im: Any) -> dict[str, Any]:
     """``|N_X|^2`` of each bound (:data:`BOUNDS`), ``|X| = |N_X| / |1 + L|``: 1 for ``S``, ``|L|^2`` for ``T``,
     ``|C|^2`` for ``KS``, from the parts of ``C`` and ``L``."""
-    return {"Ms": 1.0, "Mt": l_re**2 + l_im**2, "Mks": c_re**2 + c_im**2}
+    return {b: b.numerator_squared(c_re, c_im, l_re, l_im) for b in Bound}
 
 
 def peaks(c: np.ndarray, g: np.ndarray) -> dict[str, float]:
@@ -124,7 +156,7 @@ def peaks(c: np.ndarray, g: np.ndarray) -> dict[str, float]:
     loop = c * g
     d = np.abs(1 + loop)
     with np.errstate(divide="ignore"):
-        return {"Ms": float(np.max(1 / d)), "Mt": float(np.max(np.abs(loop) / d)), "Mks": float(np.max(np.abs(c) / d))}
+        return {b: float(np.max(b.numerator(c, loop) / d)) for b in Bound}
 
 
 def smooth_max(g: Any, rho: float) -> Any:

@@ -28,7 +28,7 @@ The starting point and the baseline is SIMC (Skogestad 2003) on a first-order-pl
 fit of the compensated plant's response to a voltage step (:mod:`piezopreload.tuning.fopdt`).
 
 A derivative time on the lower end of its search range is no derivative action: the result is
-then tuned again as a PI (``Td = 0``, no filter; :attr:`TuningResult.active_bounds` says so), so
+then tuned again as a PI (``Td = 0``, no filter; the result's ``active_bounds`` says so), so
 the gain set and every export hold the PI the loop is. ``TuningSpec.filter_s = 0`` tunes a PI
 from the start. The lower bounds the tuned loop is read against (the minimum-time step, the
 tracking floor) are :mod:`piezopreload.tuning.bounds`.
@@ -44,16 +44,17 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from piezopreload.artifacts.tuning import ActiveBound
+from piezopreload.artifacts.tuning import ActiveBound, TuningSolve
 from piezopreload.core import native
 from piezopreload.core.errors import InfeasibleError, InputError
+from piezopreload.core.progress import Count
 from piezopreload.core.records import Checked, Invalid, checked, entry
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import PAPER_BAND_N, Reference
 from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V, SCHEDULE_MAX, PIDGains
 from piezopreload.models.hysteresis import InverseModel
 from piezopreload.models.ops import Layout
-from piezopreload.tuning.fopdt import FOPDT, fit_fopdt, simc
+from piezopreload.tuning.fopdt import fit_fopdt, simc
 from piezopreload.tuning.horizon import ROWS, Horizon, TimeDomain, feedforward_sequence, loop_rows, tuning_loop
 from piezopreload.tuning.linearised import max_sensitivity, omega_grid, plant_frequency_response, small_signal_gains
 from piezopreload.tuning.loopshape import bound_rows, isa_pid_response, omega_terms, smooth_max
@@ -62,7 +63,6 @@ __all__ = [
     "TuningSpec",
     "TUNING_KEYS",
     "plant_variants",
-    "TuningResult",
     "TuningInfeasible",
     "tune_pid",
     "ENGINES",
@@ -114,7 +114,7 @@ class TuningSpec(Checked):
     ``Tf`` (a gain schedule's entries share the robust set's derivative filter); None tunes it; 0 means no
     derivative filter and so no derivative action: a PI. ``force_range_N`` is the measured force range the loop
     works in, for the linearised loop's slopes (the Ms constraints; None: the whole stroke, 0-110 V); the
-    tuning's reported Ms (:attr:`TuningResult.ms`) is read over the same range.
+    tuning's reported Ms (``TuningSolve.ms``) is read over the same range.
     """
 
     band_N: float = entry("The error band of the settling time (a study's [simulation] band_N).", unit="N", gt=0,
@@ -227,50 +227,6 @@ def plant_variants(params: Plant, spread: dict[str, float]) -> list[Plant]:
         corner(-1, +1, +1, -1, +1),
     ]
 
-
-
-# --------------------------------------------------------------------------------------
-# the result
-# --------------------------------------------------------------------------------------
-@dataclass(frozen=True, eq=False)
-class TuningResult:
-    """What :func:`tune_pid` found: the gains, the SIMC baseline on the FOPDT fit, IPOPT's status, the Ms reached,
-    the binding constraints, every constraint's margin (``g <= 0`` met) and the gains on their bounds."""
-
-    gains: PIDGains
-    baseline: PIDGains
-    fopdt: FOPDT
-    objective: float
-    status: str
-    iterations: int
-    seconds: float
-    ms: float
-    binding: list[str]
-    constraint_margins: dict[str, float]
-    engine: str = "plain"
-    compile_s: float = 0.0
-    active_bounds: tuple[ActiveBound, ...] = ()
-    search: str = ""
-
-    @property
-    def stopped_on_limit(self) -> bool:
-        """Whether the result came from a run of IPOPT stopped on its iteration limit (its best iterate)."""
-        return self.status == "Maximum_Iterations_Exceeded"
-
-    @property
-    def form(self) -> str:
-        """``PI`` where the tuned controller has no derivative action, else ``PID``."""
-        return "PI" if self.gains.Td_s == 0.0 else "PID"
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "status": self.status, "iterations": self.iterations, "seconds": self.seconds,
-            "engine": self.engine, "compile_s": self.compile_s,
-            "objective": self.objective, "ms": self.ms, "binding": self.binding, "search": self.search,
-            "constraint_margins": self.constraint_margins, "form": self.form,
-            "fopdt": {"K_N_per_V": self.fopdt.K, "T_s": self.fopdt.T_s, "theta_s": self.fopdt.theta_s,
-                      "rms_N": self.fopdt.rms_N},
-        }
 
 
 # --------------------------------------------------------------------------------------
@@ -488,6 +444,9 @@ _CONVERGED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 #: with kinks an interior-point method may wander without end around the best point it has seen
 _PATIENCE = 50
 _STALLED = "User_Requested_Stop"
+#: the status a result records when its gains came from no run of IPOPT but from a known point offered before any
+#: (the study's, a tighter problem's, the last run's), none of the runs found better
+KNOWN_POINT = "a known point"
 
 
 @dataclass
@@ -523,7 +482,7 @@ class _Solvers:
     incumbent every iterate of the tuning is offered to (:class:`_Incumbent`)."""
 
     def __init__(self, prob: _Problem, max_iterations: int, verbose: bool,
-                 progress: Callable[[], None] | None) -> None:
+                 tick: Callable[[], None] | None) -> None:
         self.prob = prob
         self.max_iterations = max_iterations
         nlp = prob.nlp()
@@ -538,8 +497,8 @@ class _Solvers:
         self._run = ""  # the run the tuning solver's iterates belong to (the incumbent's source)
         self._idle = 0  # the run's iterations since it last improved the incumbent
         n_x, n_g = prob.x.numel(), prob.g.numel()
-        self.watch = _Watch(n_x, n_g, self._iterate, progress)  # every iterate of the tuning
-        self.counter = _Watch(n_x, n_g, None, progress)  # the least violation's: counted, not offered
+        self.watch = _Watch(n_x, n_g, self._iterate, tick)  # every iterate of the tuning
+        self.counter = _Watch(n_x, n_g, None, tick)  # the least violation's: counted, not offered
         self.solver = ca.nlpsol("tune", "ipopt", nlp, {**options, "iteration_callback": self.watch})
         self.phase_one = ca.nlpsol("tune_phase_one", "ipopt", nlp, {
             **options, "ipopt.tol": 1e-8, "iteration_callback": self.counter})
@@ -613,11 +572,17 @@ class _Solvers:
         if inc.z is not None and self.status_of(inc.source) == "Maximum_Iterations_Exceeded":
             # the best point came from a run stopped on its limit: go on from it (IPOPT's barrier starts afresh)
             self.solve(inc.z, inc.violation, f"{inc.source}, continued")
-        return self.status_of(self.incumbent.source), self.ending()
+        return self.status_word(self.incumbent.source), self.ending()
 
-    def status_of(self, run: str) -> str:
-        """IPOPT's status at the end of the run named ``run`` (``a known point`` where no run is named so)."""
-        return next((r["status"] for r in self.runs if r["run"] == run), "a known point")
+    def status_of(self, run: str) -> str | None:
+        """IPOPT's status at the end of the run named ``run``; None where no run is named so (a known point, offered
+        before any run)."""
+        return next((r["status"] for r in self.runs if r["run"] == run), None)
+
+    def status_word(self, run: str) -> str:
+        """:meth:`status_of` as the result records it: a known point's is :data:`KNOWN_POINT`."""
+        status = self.status_of(run)
+        return KNOWN_POINT if status is None else status
 
     def ending(self) -> str:
         """How the search ended, in words: the runs, their statuses, where the result came from."""
@@ -628,7 +593,7 @@ class _Solvers:
             f", {stalled} stopped after {_PATIENCE} iterations without a better point" if stalled else "")
         inc = self.incumbent
         status = self.status_of(inc.source)
-        if status == "a known point":
+        if status is None:
             where = f"{inc.source} (no run found better)"
         elif status in _CONVERGED:
             where = f"{inc.source}, converged ({status})"
@@ -685,14 +650,14 @@ def _engine(params: Plant, feedforward: InverseModel | None, spec: TuningSpec,
 
 
 def _as_pi(params: Plant, feedforward: InverseModel | None, spec: TuningSpec, engine: str,
-           pid: PIDGains, max_iterations: int, progress: Callable[[], None] | None
+           pid: PIDGains, max_iterations: int, tick: Callable[[], None] | None
            ) -> tuple[PIDGains, _Solvers, np.ndarray, bool] | None:
     """The PI of ``pid`` (its derivative on its lower bound): ``pid`` without its derivative and filter where that
     meets every constraint of the tuning, else the PI tuned from its Kc, Ti (and b); with its solvers (their
     incumbent is the PI), its point and whether it was tuned again. None if no PI is feasible."""
     spec_pi = replace(spec, filter_s=0.0)
     prob, _, _ = _engine(params, feedforward, spec_pi, engine)
-    solvers = _Solvers(prob, max_iterations, False, progress)
+    solvers = _Solvers(prob, max_iterations, False, tick)
     seed = _z_of(prob.names, prob.scaling, pid)
     if solvers.offer(seed, "the PID without its derivative")[0] <= _FEASIBLE:
         return replace(pid, Td_s=0.0, Tf_s=0.0), solvers, seed, False
@@ -711,11 +676,11 @@ def tune_pid(
     max_iterations: int = 150,
     starts: int = 3,
     verbose: bool = False,
-    progress: Callable[[int], None] | None = None,
+    counter: Count | None = None,
     engine: str = "auto",
     start: PIDGains | None = None,
     known: Mapping[str, PIDGains] | None = None,
-) -> TuningResult:
+) -> TuningSolve:
     """Tune ``Kc, Ti, Td, Tf`` (and ``b``) on the compensated plant; see the module docstring.
 
     Every constraint family is one smooth maximum (per reference and variant for the
@@ -728,10 +693,10 @@ def tune_pid(
     iteration limit, or wanders off as an interior-point method may on a loop with kinks,
     loses nothing it found; a start that converges to a feasible point ends the search, one
     stopped on its limit does not, and the search goes on once from an incumbent such a run
-    found. :attr:`TuningResult.search` says how it ended. Raises :class:`TuningInfeasible`
-    naming the violated constraints when no feasible point was seen. ``progress``, if given,
-    is called with the count of IPOPT iterations so far (all starts and phases) at every
-    iteration.
+    found. ``TuningSolve.search`` says how it ended. Raises :class:`TuningInfeasible`
+    naming the violated constraints when no feasible point was seen. ``counter``, if given
+    (:meth:`Progress.counter <piezopreload.core.progress.Progress.counter>`), is called with the count of IPOPT
+    iterations so far (all starts and phases) at every iteration.
 
     ``engine``: ``"compiled"`` runs the loop with its derivatives as C (built once and cached,
     :mod:`piezopreload.core.native`), ``"plain"`` in CasADi's virtual machine, ``"auto"``
@@ -746,7 +711,7 @@ def tune_pid(
     it is given).
 
     A derivative time that ends on the lower end of its range makes the result a PI: tuned again
-    without the derivative and its filter from the PID's Kc and Ti (:attr:`TuningResult.active_bounds`
+    without the derivative and its filter from the PID's Kc and Ti (``TuningSolve.active_bounds``
     says so); the gains on an end of their range are named there too.
     """
     if engine not in ENGINES:
@@ -761,11 +726,11 @@ def tune_pid(
 
     def tick() -> None:
         total[0] += 1
-        if progress is not None:
-            progress(total[0])
+        if counter is not None:
+            counter(total[0])
 
     known = dict(known or {})
-    solvers = _Solvers(prob, max_iterations, verbose, tick if progress is not None else None)
+    solvers = _Solvers(prob, max_iterations, verbose, tick if counter is not None else None)
     status, search = solvers.best_of(
         _seeds(prob.names, prob.scaling, baseline, list(dict.fromkeys(g for g in (start, *known.values()) if g))),
         starts,
@@ -780,7 +745,7 @@ def tune_pid(
     made_pi = any(name == "Td" and side == "lower" for name, side, _ in on_bounds)
     retuned = False
     if made_pi:
-        pi = _as_pi(params, feedforward, spec, engine, tuned, max_iterations, tick if progress is not None else None)
+        pi = _as_pi(params, feedforward, spec, engine, tuned, max_iterations, tick if counter is not None else None)
         if pi is None:  # no PI meets the specification: keep the PID with its derivative on the bound
             made_pi = False
         else:
@@ -790,14 +755,15 @@ def tune_pid(
             on_bounds = on_bounds + pi_solvers.prob.scaling.on_bounds(z_pi)
             iterations += pi_solvers.iterations
             if retuned:
-                status, search = pi_solvers.status_of(inc.source), f"{search}; as a PI: {pi_solvers.ending()}"
+                status, search = pi_solvers.status_word(inc.source), f"{search}; as a PI: {pi_solvers.ending()}"
     binding = sorted(label for label, m in margins.items() if m > -1e-3)
     ms = max(max_sensitivity(tuned, v, spec.force_range_N) for v in prob.variants)  # over the range it was tuned for
-    return TuningResult(
-        gains=tuned, baseline=baseline, fopdt=fopdt, objective=objective, status=status,
-        iterations=iterations, seconds=time.perf_counter() - t0, ms=ms, binding=binding,
-        constraint_margins=margins, engine=used, compile_s=compile_s,
-        active_bounds=_active_bounds(sorted(set(on_bounds)), made_pi, retuned), search=search,
+    return TuningSolve(
+        status=status, iterations=iterations, seconds=time.perf_counter() - t0, engine=used, compile_s=compile_s,
+        objective=objective, ms=ms, binding=tuple(binding), constraint_margins=margins,
+        fopdt={"K_N_per_V": fopdt.K, "T_s": fopdt.T_s, "theta_s": fopdt.theta_s, "rms_N": fopdt.rms_N},
+        form="PI" if tuned.Td_s == 0.0 else "PID", spec=spec.to_dict(), search=search, gains=tuned, baseline=baseline,
+        active_bounds=_active_bounds(sorted(set(on_bounds)), made_pi, retuned),
     )
 
 

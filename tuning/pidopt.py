@@ -27,7 +27,8 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from enum import StrEnum
+from typing import Any, TypeAlias, TypeVar
 
 import casadi as ca
 import numpy as np
@@ -43,7 +44,8 @@ from piezopreload.tuning.loopshape import (
 )
 from piezopreload.tuning.pidform import PIDController
 
-__all__ = ["Scales", "PIDProblem", "Solution", "TF_RANGE", "X_MAX", "METHODS"]
+__all__ = ["Form", "Metric", "Scales", "PIDProblem", "Solution", "Objective", "IntegratedError", "LoadStepIAE",
+           "IE", "TF_RANGE", "X_MAX", "METHODS"]
 
 #: the derivative filter's range relative to its scale (``Tf = s_f exp(x3)``)
 TF_RANGE = (1e-4, 1e4)
@@ -62,6 +64,24 @@ SQP_OPTIONS: dict[str, Any] = {"qpsol": "daqp", "qpsol_options": {"error_on_fail
 #: the SQP's iterations before IPOPT takes over from the same start (a start near the optimum needs a handful)
 _SQP_ITERATIONS = 30
 _SQP_DONE = ("Solve_Succeeded", "Search_Direction_Becomes_Too_Small")
+
+
+class Form(StrEnum):
+    """The controller's form (its value as the results and their JSON write it): a PI, two variables ``(kp, ki)``;
+    a PID with its filter, four ``(kp, ki, kd, log Tf)``."""
+
+    PI = "PI"
+    PID = "PID"
+
+    @classmethod
+    def of(cls, filter_order: int) -> Form:
+        """The form of a controller with filter order ``filter_order`` (0: no derivative, a PI)."""
+        return cls.PI if filter_order == 0 else cls.PID
+
+    @property
+    def variables(self) -> int:
+        """How many decision variables the form has."""
+        return 2 if self is Form.PI else 4
 
 
 @dataclass(frozen=True)
@@ -85,8 +105,14 @@ class Scales:
                 raise InputError(f"Scales.{name} must be finite and > 0, got {value!r}")
 
     @property
+    def form(self) -> Form:
+        """The controller's form."""
+        return Form.of(self.filter_order)
+
+    @property
     def n(self) -> int:
-        return 2 if self.filter_order == 0 else 4
+        """How many decision variables."""
+        return self.form.variables
 
     def gains(self, x: Any) -> tuple[Any, Any, Any, Any]:
         """``(kp, ki, kd, Tf)`` of the scaled variables (numbers or CasADi expressions)."""
@@ -197,19 +223,78 @@ def _set(bounds: dict[str, float | None], name: str) -> float:
     return m
 
 
-def _compile(n: int, names: tuple[str, ...], filter_order: int, discrete: bool, objective: Any) -> _Compiled:
+@dataclass(frozen=True)
+class IntegratedError:
+    """The IE objective: ``-ki / s_i``, the scaled integral gain negated (a unit load step at the plant input
+    integrates to an error of ``1/ki``). Its problem's functions are the same for every plant: built once."""
+
+    #: a plain expression of the variables: CasADi's SX expands it
+    expands = True
+
+    def expression(self, x: Any, gains: Any) -> Any:
+        """The objective's expression in the scaled variables ``x`` (``gains``: ``(kp, ki, kd, Tf)``)."""
+        return -x[1]
+
+    def value(self, solved: float, ki: float) -> float:
+        """What is minimised, unscaled, at a solution whose objective is ``solved`` and integral gain ``ki``."""
+        return -ki
+
+
+@dataclass(frozen=True)
+class LoadStepIAE:
+    """The IAE of the load step: ``function``, a CasADi function ``(kp, ki, kd, Tf) -> IAE``
+    (:func:`~piezopreload.tuning.loadstep.iae_function`), divided by ``scale``, its typical size (the IE optimum's)."""
+
+    function: Any
+    scale: float = 1.0
+    #: a simulation: it stays a call in CasADi's MX, not an expansion
+    expands = False
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.scale) and self.scale > 0):
+            raise InternalError(f"LoadStepIAE.scale must be a positive number, got {self.scale!r}")
+
+    def scaled(self) -> LoadStepIAE:
+        """The function divided by its scale, as one CasADi function (the problem's objective)."""
+        g4 = ca.MX.sym("g4", 4)
+        return LoadStepIAE(ca.Function("iae_scaled", [g4], [self.function(g4) / self.scale]))
+
+    def expression(self, x: Any, gains: Any) -> Any:
+        """The objective's expression: the function of the unscaled ``gains`` ``(kp, ki, kd, Tf)``."""
+        return self.function(gains)
+
+    def value(self, solved: float, ki: float) -> float:
+        """What is minimised: the scaled IAE ``solved`` itself."""
+        return float(solved)
+
+
+class Metric(StrEnum):
+    """What the autotuner is asked to minimise, by its name (as the command line and the results' JSON write it):
+    the integrated error of a unit load step (:class:`IntegratedError`) or its IAE (:class:`LoadStepIAE`)."""
+
+    IE = "IE"
+    IAE = "IAE"
+
+
+#: what the autotuner minimises: the integrated error or the load step's IAE
+Objective: TypeAlias = IntegratedError | LoadStepIAE
+#: the integrated error, the default objective
+IE = IntegratedError()
+
+
+def _compile(n: int, names: tuple[str, ...], filter_order: int, discrete: bool, objective: Objective) -> _Compiled:
     """The NLP for ``n`` slots, each one row: the bound its weights select (one of ``names``) at its frequency,
     ``|X|^2 / M^2 - 1`` (:func:`~piezopreload.tuning.loopshape.bound_rows` over ``|1 + L|^2``); a slot whose weights
     are all zero is a free row."""
-    if isinstance(objective, str):
+    if objective.expands:
         return _build(ca.SX, n, names, filter_order, discrete, objective)
     return _build(ca.MX, n, names, filter_order, discrete, objective)  # the simulation stays a call, not an expansion
 
 
 def _build(sym: type[_Sym], n: int, names: tuple[str, ...], filter_order: int, discrete: bool,
-           objective: Any) -> _Compiled:
+           objective: Objective) -> _Compiled:
     nf = 6 if discrete and filter_order < 2 else 1
-    nx = 2 if filter_order == 0 else 4
+    nx = Form.of(filter_order).variables
     nb = len(names)
     x = sym.sym("x", nx)
     p = sym.sym("p", 5 + n * (nf + 2 + nb))
@@ -227,7 +312,7 @@ def _build(sym: type[_Sym], n: int, names: tuple[str, ...], filter_order: int, d
     # |X|^2 / M^2 - 1 of the bound the slot holds (its weight 1/M^2, the others' 0): bound_rows' row over |1 + L|^2
     g = sum((grid[nf + 2 + i, :] * numerators[name] for i, name in enumerate(names)), 0.0 * d) / d - 1.0 if nb \
         else sym(1, 0)
-    f = -x[1] if isinstance(objective, str) else objective(ca.vertcat(kp, ki, kd, Tf))
+    f = objective.expression(x, ca.vertcat(kp, ki, kd, Tf))
     g = ca.cse(g.T) if sym is ca.SX else g.T  # the slots' shared subexpressions once: a quarter fewer operations
     return _Compiled(x, p, f, g, ca.Function("fg", [x, p], [f, g]),
                      ca.Function("dfg", [x, p], [ca.gradient(f, x), ca.jacobian(g, x)]), nf)
@@ -237,15 +322,15 @@ class PIDProblem:
     """The problem on the frequencies ``omega`` with the plant's response ``G`` there (see the module docstring).
 
     ``bounds`` maps ``Ms``, ``Mt``, ``Mks`` to limits (None: unbounded); ``which`` names the bound each entry of
-    ``omega`` holds (None: every bound at every frequency, the entries repeated per bound); ``objective`` is ``"IE"``
-    or a CasADi function ``(kp, ki, kd, Tf) -> IAE`` with ``iae_scale`` its typical size. Each row is a slot of a
-    compiled problem of :func:`_slots` slots (:data:`_BLOCK` times a power of two, or one and a half times that; the
-    spare ones free rows), at least ``spare`` spare, so the IE problem's CasADi functions and solvers are built once
-    per structure and size and kept.
+    ``omega`` holds (None: every bound at every frequency, the entries repeated per bound); ``objective`` is
+    :data:`IE` (None) or a :class:`LoadStepIAE` (a CasADi function ``(kp, ki, kd, Tf) -> IAE`` and its typical size).
+    Each row is a slot of a compiled problem of :func:`_slots` slots (:data:`_BLOCK` times a power of two, or one and
+    a half times that; the spare ones free rows), at least ``spare`` spare, so the IE problem's CasADi functions and
+    solvers are built once per structure and size and kept.
     """
 
     def __init__(self, omega: np.ndarray, G: np.ndarray, bounds: dict[str, float | None], scales: Scales,
-                 objective: Any = "IE", iae_scale: float = 1.0, max_iterations: int = 100, spare: int = 0,
+                 objective: Objective | None = None, max_iterations: int = 100, spare: int = 0,
                  which: Any = None) -> None:
         self.scales, self.bounds = scales, bounds
         self.names = tuple(name for name, m in bounds.items() if m is not None)
@@ -257,15 +342,14 @@ class PIDProblem:
         n = self.omega.size
         cap = _slots(n + spare)
         key = (cap, self.names, scales.filter_order, scales.dt is not None, max_iterations)
-        if isinstance(objective, str):
+        objective = IE if objective is None else objective
+        if isinstance(objective, IntegratedError):  # the same functions for every plant: built once, kept
             if key not in _CACHE:
-                _CACHE[key] = _compile(cap, self.names, scales.filter_order, scales.dt is not None, "IE")
+                _CACHE[key] = _compile(cap, self.names, scales.filter_order, scales.dt is not None, objective)
             self.compiled = _CACHE[key]
             self._solvers = _SOLVERS.setdefault(key, {})
         else:  # the IAE: a function of this plant's, not kept
-            g4 = ca.MX.sym("g4", 4)
-            fn = ca.Function("iae_scaled", [g4], [objective(g4) / iae_scale])
-            self.compiled = _compile(cap, self.names, scales.filter_order, scales.dt is not None, fn)
+            self.compiled = _compile(cap, self.names, scales.filter_order, scales.dt is not None, objective.scaled())
             self._solvers = {}
         feats = _features(self.omega, scales.filter_order, scales.dt) if n else np.zeros((self.compiled.features, 0))
         select = np.array([(self.which == name) / float(_set(bounds, name)) ** 2 for name in self.names],

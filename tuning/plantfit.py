@@ -21,7 +21,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from piezopreload.core.errors import InputError
-from piezopreload.core.tables import Record, read_record
+from piezopreload.core.tables import MeasuredRecord, read_record
 from piezopreload.tuning.fopdt import fit_first_order
 
 if TYPE_CHECKING:
@@ -149,7 +149,7 @@ def _unit_response(t: np.ndarray, L: float, T: tuple[float, ...]) -> np.ndarray:
     return 1.0 - (T1 * np.exp(-tau / T1) - T2 * np.exp(-tau / T2)) / (T1 - T2)
 
 
-def _step_of(record: Record) -> tuple[np.ndarray, np.ndarray, float]:
+def _step_of(record: MeasuredRecord) -> tuple[np.ndarray, np.ndarray, float]:
     """The response from the input's step on (time from the step, output change) and the step's size."""
     u, y, t = record.input, record.output, record.time_s
     du = float(u[-1] - u[0])
@@ -164,12 +164,13 @@ def _step_of(record: Record) -> tuple[np.ndarray, np.ndarray, float]:
     return t_rel, resp, du
 
 
-def fit_plant(source: str | Path | Record, *, order: int | str = "auto") -> FittedPlant:
-    """Fit a step response (a CSV path or a :class:`~piezopreload.core.tables.Record`); see the module docstring.
+def fit_plant(source: str | Path | MeasuredRecord, *, order: int | str = "auto") -> FittedPlant:
+    """Fit a step response (a CSV path or a :class:`~piezopreload.core.tables.MeasuredRecord`); see the module
+    docstring.
 
     Parameters
     ----------
-    source : str, Path or Record
+    source : str, Path or MeasuredRecord
         The step test: a CSV of time, input and output (the input steps once), or its record.
     order : {1, 2, 'auto'}
         The model's order: first or second order plus dead time, or the second where it halves the first's
@@ -187,7 +188,7 @@ def fit_plant(source: str | Path | Record, *, order: int | str = "auto") -> Fitt
     """
     if order not in (1, 2, "auto"):
         raise InputError(f"order must be 1, 2 or 'auto', got {order!r}")
-    record = source if isinstance(source, Record) else read_record(source, min_samples=12)
+    record = source if isinstance(source, MeasuredRecord) else read_record(source, min_samples=12)
     t, y, du = _step_of(record)
     span = float(t[-1])
     dt = float(np.min(np.diff(t)))
@@ -201,7 +202,7 @@ def fit_plant(source: str | Path | Record, *, order: int | str = "auto") -> Fitt
     return fits[-1]
 
 
-def _second_order(t: np.ndarray, y: np.ndarray, du: float, first: FittedPlant, record: Record) -> FittedPlant:
+def _second_order(t: np.ndarray, y: np.ndarray, du: float, first: FittedPlant, record: MeasuredRecord) -> FittedPlant:
     span = float(t[-1])
 
     def residual(p: np.ndarray) -> np.ndarray:

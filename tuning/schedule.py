@@ -57,7 +57,7 @@ overshoot at 2,000 N by an order of magnitude (237 N against 25), so the rise st
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -67,6 +67,7 @@ from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.validation import Criteria, ValidationResult
 from piezopreload.core.errors import InternalError
 from piezopreload.core.parallel import Pool
+from piezopreload.core.progress import ProgressLike, say_of
 from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import GainSchedule, PIDGains
@@ -75,8 +76,9 @@ from piezopreload.tuning.linearised import max_sensitivity
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, plant_variants, tune_pid
 from piezopreload.tuning.validate import executor, validate
 
-__all__ = ["ScheduleResult", "tune_schedule", "window_ms", "level_requirements", "schedule_levels", "level_windows",
-           "choose", "CHOICES", "CHOICE_WORDS", "setpoint_action_rises", "rising_setpoint_weights"]
+__all__ = ["ScheduleResult", "LevelFigures", "WorstFigures", "tune_schedule", "window_ms", "level_requirements",
+           "schedule_levels", "level_windows", "choose", "CHOICES", "CHOICE_WORDS", "setpoint_action_rises",
+           "rising_setpoint_weights"]
 
 #: what :func:`tune_schedule` may choose
 CHOICES = ("robust", "schedule")
@@ -149,16 +151,16 @@ class ScheduleResult:
 CHOICE_WORDS = {"robust": "the one robust set", "schedule": "the scheduled gains"}
 
 
-def choose(levels: list[dict[str, Any]], whole: dict[str, Any]) -> tuple[str, str]:
+def choose(levels: Sequence[LevelFigures], whole: LevelFigures) -> tuple[str, str]:
     """The robust set if it meets the specification at every level and over the whole range, else the schedule if it
     does; where neither does, the one that meets it over the whole range (the robust set first). With the reason."""
     def passes(which: str) -> bool:
-        return whole[which]["passed"] and all(r[which]["passed"] for r in levels)
+        return whole.of(which).passed and all(r.of(which).passed for r in levels)
 
     def where(which: str) -> str:
-        bad = [f"{r['level_N']:,.0f} N ({_failed_words(r[which])})" for r in levels if not r[which]["passed"]]
-        if not whole[which]["passed"]:
-            bad.append(f"the whole range ({_failed_words(whole[which])})")
+        bad = [f"{r.level_N:,.0f} N ({_failed_words(r.of(which))})" for r in levels if not r.of(which).passed]
+        if not whole.of(which).passed:
+            bad.append(f"the whole range ({_failed_words(whole.of(which))})")
         return bad[0] if len(bad) == 1 else ", ".join(bad[:-1]) + " and " + bad[-1]
 
     if passes("robust"):
@@ -167,9 +169,9 @@ def choose(levels: list[dict[str, Any]], whole: dict[str, Any]) -> tuple[str, st
     if passes("scheduled"):
         return "schedule", f"the robust set misses the specification at {where('robust')}; the schedule meets it"
     # the validation stage judges the whole range as always: keep the set that meets it there
-    choice = "schedule" if whole["scheduled"]["passed"] and not whole["robust"]["passed"] else "robust"
-    kept = whole["robust" if choice == "robust" else "scheduled"]["passed"]
-    bounds = "; ".join(f"at {r['level_N']:g} N {r['bound']}" for r in levels if r.get("bound"))
+    choice = "schedule" if whole.scheduled.passed and not whole.robust.passed else "robust"
+    kept = (whole.robust if choice == "robust" else whole.scheduled).passed
+    bounds = "; ".join(f"at {r.level_N:g} N {r.bound}" for r in levels if r.bound)
     return choice, (f"neither meets the specification at every level (the robust set misses it at {where('robust')}, "
                     f"the schedule at {where('scheduled')}); the {choice} set is kept"
                     + (", as it meets it over the whole range" if kept else "")
@@ -183,9 +185,9 @@ _LEVEL_LIMITS = {"settling_s": ("worst settling time", "s", "settling_max_s"),
                  "peak_voltage_V": ("highest command", "V", "peak_voltage_max_V")}
 
 
-def _failed_words(figures: dict[str, Any]) -> str:
+def _failed_words(figures: WorstFigures) -> str:
     """The metrics a set failed at a level, in words."""
-    return ", ".join(_LEVEL_LIMITS[m][0] if m in _LEVEL_LIMITS else m for m in figures["failures"])
+    return ", ".join(_LEVEL_LIMITS[m][0] if m in _LEVEL_LIMITS else m for m in figures.failures)
 
 
 def level_requirements(schedule: dict[str, Any]) -> tuple[Requirement, ...]:
@@ -208,7 +210,7 @@ def level_requirements(schedule: dict[str, Any]) -> tuple[Requirement, ...]:
 
 
 @dataclass(frozen=True)
-class WorstCase:
+class WorstFigures:
     """One set's Monte Carlo worst case of each of :data:`FIGURES` (None: never reached, a settling time) at a level or
     over the whole range, whether it met the criteria and the metrics it failed."""
 
@@ -227,11 +229,40 @@ class WorstCase:
     def to_dict(self) -> dict[str, Any]:
         return {**{k: self.figure(k) for k in FIGURES}, "passed": self.passed, "failures": list(self.failures)}
 
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> WorstFigures:
+        """The figures as :meth:`to_dict` writes them (a schedule record's ``levels[i].robust``, ...)."""
+        return cls(**{k: d[k] for k in FIGURES}, passed=bool(d["passed"]), failures=tuple(d["failures"]))
 
-def _worst(result: ValidationResult) -> WorstCase:
+
+@dataclass(frozen=True)
+class LevelFigures:
+    """What the choice between the robust set and the schedule reads at one preload level (``level_N``; None: over
+    the whole range): each set's worst cases and verdict there, and what stops the schedule's entry where it misses
+    (``bound``)."""
+
+    level_N: float | None
+    robust: WorstFigures
+    scheduled: WorstFigures
+    bound: str | None = None
+
+    def of(self, which: str) -> WorstFigures:
+        """The figures of the set ``which`` (``"robust"`` or ``"scheduled"``, the record's keys)."""
+        if which not in ("robust", "scheduled"):
+            raise ValueError(f"LevelFigures.of: which must be 'robust' or 'scheduled', got {which!r}")
+        return self.robust if which == "robust" else self.scheduled
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> LevelFigures:
+        """One entry of a schedule record's ``levels`` (or its ``whole_range``, which has no ``level_N``)."""
+        return cls(None if d.get("level_N") is None else float(d["level_N"]), WorstFigures.from_dict(d["robust"]),
+                   WorstFigures.from_dict(d["scheduled"]), d.get("bound"))
+
+
+def _worst(result: ValidationResult) -> WorstFigures:
     s = result.summary()
     worst = {k: s[k]["worst"] for k in FIGURES}
-    return WorstCase(settling_s=worst["settling_s"], overshoot_N=worst["overshoot_N"],
+    return WorstFigures(settling_s=worst["settling_s"], overshoot_N=worst["overshoot_N"],
                      tracking_rms_N=worst["tracking_rms_N"], peak_voltage_V=worst["peak_voltage_V"],
                      passed=result.passed, failures=tuple(sorted({f.metric for f in result.failures})))
 
@@ -239,7 +270,7 @@ def _worst(result: ValidationResult) -> WorstCase:
 _REST_S = 0.25  # the rest at a window's bottom before the tuning's step and staircase
 
 
-def _judge(args: tuple[Any, ...]) -> WorstCase:
+def _judge(args: tuple[Any, ...]) -> WorstFigures:
     """One Monte Carlo validation (:func:`~piezopreload.tuning.validate.validate`, inline), its worst cases."""
     gains, feedforward, params, criteria, n_plants, seed, step, trajectory = args
     return _worst(validate(gains, feedforward, params, criteria, n_plants=n_plants, seed=seed, step=step,
@@ -256,10 +287,10 @@ def _tune_entry(args: tuple[Plant, Any, TuningSpec, PIDGains, PIDGains | None]) 
     except TuningInfeasible as exc:  # no gains meet the window's specification: the entry keeps the robust set's
         return start, {"infeasible": str(exc), "kept": "the robust set",
                        "overshoot_target_N": spec.band_N - spec.overshoot_margin_N}
-    return tuned.gains, {"iterations": tuned.iterations, "seconds": tuned.seconds, "ms": tuned.ms,
-                         "objective": tuned.objective, "binding": tuned.binding, "engine": tuned.engine,
-                         "status": tuned.status, "search": tuned.search,
-                         "overshoot_target_N": spec.band_N - spec.overshoot_margin_N}
+    return tuned.found(), {"iterations": tuned.iterations, "seconds": tuned.seconds, "ms": tuned.ms,
+                           "objective": tuned.objective, "binding": list(tuned.binding), "engine": tuned.engine,
+                           "status": tuned.status, "search": tuned.search,
+                           "overshoot_target_N": spec.band_N - spec.overshoot_margin_N}
 
 
 def window_ms(gains: PIDGains, params: Plant, spec: TuningSpec) -> float:
@@ -334,7 +365,7 @@ def _rising(levels_N: np.ndarray,
             for (g, r), nb in zip(tuned, b)]
 
 
-def _tighter(spec: TuningSpec, figures: WorstCase, criteria: Criteria) -> float | None:
+def _tighter(spec: TuningSpec, figures: WorstFigures, criteria: Criteria) -> float | None:
     """The overshoot margin an entry is tuned again with where the Monte Carlo overshoot exceeds its limit: widened by
     the excess (the drawn plants add it to the variants' nominal overshoot); None where it does not exceed it."""
     if figures.overshoot_N is None:
@@ -343,7 +374,7 @@ def _tighter(spec: TuningSpec, figures: WorstCase, criteria: Criteria) -> float 
     return None if excess <= 0 else spec.overshoot_margin_N + excess
 
 
-def _bound(record: dict[str, Any], figures: WorstCase, limits: dict[str, float]) -> str:
+def _bound(record: dict[str, Any], figures: WorstFigures, limits: dict[str, float]) -> str:
     """What stops the schedule's entry at a level it misses: the tuning's binding constraints (or the specification no
     entry met) beside the Monte Carlo worst case of each failed metric against its limit."""
     missed = ", ".join(f"{_LEVEL_LIMITS[m][0]} {figures.figure(m):.3g} {_LEVEL_LIMITS[m][1]} against {limits[m]:.3g}"
@@ -405,7 +436,7 @@ def tune_schedule(
     n_plants: int = 50,
     seed: int = 0,
     pool: Pool | None = None,
-    progress: Callable[[str], None] | None = None,
+    progress: ProgressLike | None = None,
     known: GainSchedule | None = None,
 ) -> ScheduleResult:
     """Tune a gain schedule at ``levels_N`` (measured force, N) around the robust set; validate both; choose.
@@ -421,7 +452,7 @@ def tune_schedule(
     ``known``: a schedule whose entries at the same levels each entry's tuning is given as a known point
     (a warm start's). See the module docstring.
     """
-    say = progress or (lambda _m: None)
+    say = say_of(progress) or (lambda _m: None)
     t0 = time.perf_counter()
     plan = _plan(spec, robust, levels_N, step, trajectory)
     lv, inverse = plan.levels_N, None if feedforward is None else inverse_at(feedforward, params.sample_period_s)
@@ -454,17 +485,19 @@ def tune_schedule(
             scheduled_figures = [f.result() for f in [run.submit(_judge, j) for j in judging(scheduled_set)]]
         robust_figures = [f.result() for f in robust_futures]
     schedule = _schedule_of(lv, [g for g, _ in tuned])
+    at = [LevelFigures(float(level), rb, sc, None if sc.passed else _bound(record, sc, limits))
+          for level, (_, record), rb, sc in zip(lv, tuned, robust_figures, scheduled_figures)]
+    over_all = LevelFigures(None, robust_figures[-1], scheduled_figures[-1])
     levels = []
-    for level, window, sp, (g, record), rb, sc in zip(lv, plan.windows, plan.specs, tuned, robust_figures,
-                                                      scheduled_figures):
-        levels.append({"level_N": float(level), "window_N": list(window),
+    for f, window, sp, (g, record) in zip(at, plan.windows, plan.specs, tuned):
+        levels.append({"level_N": f.level_N, "window_N": list(window),
                        "entry": {"Kc_V_per_N": g.Kc, "Ti_s": g.Ti_s, "Td_s": g.Td_s, "Tf_s": g.Tf_s, "b": g.b},
                        "ms": {"scheduled": window_ms(g, params, sp), "robust": window_ms(robust, params, sp)},
-                       "tuning": record, "robust": rb.to_dict(), "scheduled": sc.to_dict(),
-                       **({} if sc.passed else {"bound": _bound(record, sc, limits)})})
-    whole = {"robust": robust_figures[-1].to_dict(), "scheduled": scheduled_figures[-1].to_dict()}
+                       "tuning": record, "robust": f.robust.to_dict(), "scheduled": f.scheduled.to_dict(),
+                       **({} if f.bound is None else {"bound": f.bound})})
+    whole = {"robust": over_all.robust.to_dict(), "scheduled": over_all.scheduled.to_dict()}
 
-    choice, reason = choose(levels, whole)
+    choice, reason = choose(at, over_all)
     say(f"gain schedule: {CHOICE_WORDS[choice]} chosen: {reason}")
     return ScheduleResult(schedule=schedule, robust=robust, scheduled=replace(robust, schedule=schedule), levels=levels,
                           whole_range=whole, choice=choice, reason=reason, n_plants=n_plants,

@@ -35,6 +35,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from piezopreload.tuning.loopshape import Bound
 from piezopreload.tuning.pidform import PIDController, controller_response
 
 __all__ = ["SliceOptimum", "Plane", "plane_of", "bound_discs", "line_gaps", "unstable_counts", "slice_optima",
@@ -80,18 +81,18 @@ def bound_discs(G: np.ndarray, bounds: dict[str, float | None]) -> tuple[np.ndar
     aG = np.abs(G)
     p = -1.0 / G
     centres, radii2, forbidden = [], [], []
-    if bounds.get("Ms") is not None:
+    if bounds.get(Bound.MS) is not None:
         centres.append(p)
-        radii2.append((1.0 / (bounds["Ms"] * aG)) ** 2)
+        radii2.append((1.0 / (bounds[Bound.MS] * aG)) ** 2)
         forbidden.append(np.ones(G.size, bool))
-    mt = bounds.get("Mt")
+    mt = bounds.get(Bound.MT)
     if mt is not None:
         m2 = max(float(mt), 1.0 + 1e-6) ** 2  # Mt = 1: the half plane Re L >= -1/2, as a large disc
         centres.append(-m2 / (m2 - 1.0) / G)
         radii2.append((np.sqrt(m2) / (m2 - 1.0) / aG) ** 2)
         forbidden.append(np.ones(G.size, bool))
-    if bounds.get("Mks") is not None:
-        k = bounds["Mks"] * aG
+    if bounds.get(Bound.MKS) is not None:
+        k = bounds[Bound.MKS] * aG
         k = np.where(np.abs(k - 1.0) < 1e-9, 1.0 + 1e-9, k)  # k = 1: a half plane, as a large disc
         k2 = k * k
         centres.append(k2 * p / (k2 - 1.0))
@@ -200,7 +201,7 @@ def plane_of(omega: np.ndarray, G: np.ndarray, count_w: np.ndarray, count_G: np.
              dt: float | None) -> Plane:
     """The :class:`Plane` of the grid ``omega`` (``G`` there) with the Nyquist count's grid ``count_w``."""
     return Plane(omega, G, bound_discs(G, bounds), count_w, count_G, unstable, integrators, filter_order, dt,
-                 bounds.get("Mks"))
+                 bounds.get(Bound.MKS))
 
 
 def _tops(plane: Plane, kp: np.ndarray, basis: tuple[np.ndarray, ...], count: tuple[np.ndarray, ...],
@@ -397,7 +398,7 @@ def stabilising_any(plane: Plane, bounds: dict[str, float | None], Tf_min: float
     turn until a slice has a stabilising line that meets them."""
     for factor in factors:
         relaxed = {k: (None if m is None else m * factor) for k, m in bounds.items()}
-        starts = stabilising_starts(replace(plane, discs=bound_discs(plane.G, relaxed), Mks=relaxed.get("Mks")),
+        starts = stabilising_starts(replace(plane, discs=bound_discs(plane.G, relaxed), Mks=relaxed.get(Bound.MKS)),
                                     Tf_min, keep=2, hints=hints)
         if starts:
             return starts

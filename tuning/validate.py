@@ -22,7 +22,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import contextlib
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -31,6 +31,7 @@ import numpy as np
 from piezopreload.artifacts.validation import METRICS, Criteria, ValidationResult
 from piezopreload.core.errors import InputError, PiezopreloadError
 from piezopreload.core.parallel import Pool
+from piezopreload.core.progress import Bar
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
@@ -153,7 +154,7 @@ def validate(
     chunk_size: int = 50,
     pool: cf.Executor | None = None,
     pool_name: str = "inline",
-    progress: Callable[[int, int], None] | None = None,
+    bar: Bar | None = None,
 ) -> ValidationResult:
     """Run the gains on ``n_plants`` plants around ``plant``; see the module docstring.
 
@@ -190,8 +191,8 @@ def validate(
     results = []
     for i, fut in enumerate(futures):
         results.append(fut.result())
-        if progress is not None:
-            progress(i + 1, len(futures))
+        if bar is not None:
+            bar(i + 1, len(futures))
     metrics = {k: np.concatenate([r[k] for r in results]) for k in METRICS}
     return ValidationResult(metrics=metrics, criteria=criteria, n_plants=n_plants, seed=seed, spread=spread,
                             seconds=time.perf_counter() - t0, workers=pool_name)

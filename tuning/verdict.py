@@ -11,7 +11,6 @@ requirements with their margins (``GainSet.requirements``).
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
@@ -20,6 +19,7 @@ from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core.errors import InputError
 from piezopreload.core.parallel import Pool
+from piezopreload.core.progress import Bar
 from piezopreload.tuning.schedule import level_requirements
 from piezopreload.tuning.validate import SchedulerError, executor, validate
 
@@ -28,7 +28,7 @@ __all__ = ["validate_gain_set", "level_requirements_of"]
 
 def validate_gain_set(gain_set: GainSet, *, n_plants: int, seed: int, workers: int = 1,
                       scheduler: str | None = None, pool: Pool | None = None,
-                      progress: Callable[[int, int], None] | None = None,
+                      bar: Bar | None = None,
                       inputs: dict[str, Any] | None = None) -> tuple[GainSet, ValidationResult]:
     """Validate ``gain_set`` on ``n_plants`` plants drawn around its plant (noise and draw ``seed``).
 
@@ -49,7 +49,7 @@ def validate_gain_set(gain_set: GainSet, *, n_plants: int, seed: int, workers: i
         with executor(workers, scheduler, pool) as (run, pool_name):
             result = validate(gain_set.gains, gain_set.feedforward, gain_set.plant, criteria, n_plants=n_plants,
                               seed=seed, step=step, trajectory=trajectory, pool=run, pool_name=pool_name,
-                              progress=progress)
+                              bar=bar)
     except SchedulerError as exc:
         raise InputError(f"--scheduler: {exc}") from None
     requirements = result.requirements + level_requirements_of(gain_set)

@@ -7,7 +7,7 @@ import argparse
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, NoReturn, Protocol, TypeVar
 
 from piezopreload.core.errors import InputError, InternalError
 
@@ -58,7 +58,7 @@ class Parser(argparse.ArgumentParser):
 
     deferred: Callable[[Any], None] | None = None
 
-    def error(self, message: str) -> None:  # type: ignore[override]
+    def error(self, message: str) -> NoReturn:
         raise InputError(f"{self.prog}: {message} (see --help)")
 
     def _register(self) -> None:

@@ -116,9 +116,16 @@ def _cmd_learn(args: argparse.Namespace) -> Learned | RunLearned:
     reference: Any = args.reference
     if reference not in (*study.references, "schedule"):
         reference = reference_for(reference, gain_set or GainSet(gains=study.gains), "--reference")[0]
-    result = study.learn(gain_set, reference=reference, iterations=args.iterations, preview_s=args.preview_s,
-                         method=args.method, plants=args.plants, seed=args.seed,
-                         after_change_weight=args.after_change_weight, progress=say)
+    if reference == "schedule":  # along the preload schedule, each margin pass on its own reference
+        if args.plants is not None:
+            raise InputError("--plants: the schedule is learned on the designed plant itself (each margin pass); "
+                             "leave --plants out, or learn on a reference over Monte Carlo plants")
+        result: Any = study.learn_schedule(gain_set, iterations=args.iterations, preview_s=args.preview_s,
+                                           method=args.method, seed=args.seed, progress=say)
+    else:
+        result = study.learn(gain_set, reference=reference, iterations=args.iterations, preview_s=args.preview_s,
+                             method=args.method, plants=args.plants, seed=args.seed,
+                             after_change_weight=args.after_change_weight, progress=say)
     written = None
     if args.out is not None:
         written = result.save(args.out, None if gain_set is None else gain_set.content_sha256,

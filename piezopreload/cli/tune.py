@@ -22,9 +22,8 @@ from piezopreload.core.quantities import number, quantity
 
 if TYPE_CHECKING:
     from piezopreload.artifacts.gainset import GainSet
-    from piezopreload.artifacts.tuning import MinimumTimeBound, TrackingFloor
+    from piezopreload.artifacts.tuning import MinimumTimeBound, TrackingFloor, TuningResult
     from piezopreload.artifacts.validation import ValidationResult
-    from piezopreload.results import TuningResult
 
 
 def register_tune(sub: Any) -> None:
@@ -59,7 +58,7 @@ class TuneWritten:
     def to_dict(self) -> dict[str, Any]:
         t, gain_set = self.tuned, self.gain_set
         row, start = t.row("tuned"), t.row("study")
-        record = t.record.to_dict()
+        record = t.to_dict()
         return {
             "settling_s": row.settling_s, "settling_measured_s": row.settling_measured_s,
             "overshoot_N": row.overshoot_N, "tracking_rms_N": row.tracking_rms_N,
@@ -71,7 +70,7 @@ class TuneWritten:
             "gains": record["gains"], "simc": record["simc_baseline"], "form": t.solve.form,
             "tuning": {k: v for k, v in record["tuning"].items() if k != "spec"}, "table": record["table"],
             "active_bounds": record["active_bounds"], "published": record.get("published"),
-            "minimum_time": record["minimum_time"], "tracking_improvement": t.improvement,
+            "minimum_time": record["minimum_time"], "tracking_improvement": t.tracking_improvement,
             "tracking_floor": record["tracking_floor"],
             "validation": None if gain_set.validation is None else gain_set.validation.to_dict(),
             "seconds": self.seconds,
@@ -83,15 +82,16 @@ def _cmd_tune(args: argparse.Namespace) -> TuneWritten:
     t0 = time.perf_counter()
     check_monte_carlo(args)
     study = study_of(args)
-    tuned = study.tune(study.identify_feedforward(say), seed=args.seed, progress=say)
-    gain_set = tuned.validate(args.plants, args.seed, workers=args.workers, scheduler=args.scheduler,
-                              progress=say).save(args.out)
+    feedforward = study.identify_feedforward(say)
+    tuned = study.tune(feedforward, seed=args.seed, progress=say)
+    gain_set = study.validate(tuned, feedforward, plants=args.plants, seed=args.seed, workers=args.workers,
+                              scheduler=args.scheduler, progress=say).save(args.out)
     return TuneWritten(tuned, gain_set, str(args.out), time.perf_counter() - t0)
 
 
 def _print_tune(w: TuneWritten) -> None:
     t = w.tuned
-    g, b = t.gains, t.simc
+    g, b = t.gains, t.simc_baseline
     print(f"tuned gains ({t.solve.form}): Kc {g.Kc:.4g} V/N, Ti {g.Ti_s:.4g} s, Td {g.Td_s:.4g} s, "
           f"Tf {g.Tf_s:.4g} s, b {g.b:.3g} (LabVIEW: Ti {g.labview()['Ti_min']:.4g} min, "
           f"Td {g.labview()['Td_min']:.4g} min); Ms {t.solve.ms:.2f}")
@@ -174,7 +174,7 @@ def _cmd_validate(args: argparse.Namespace) -> ValidateWritten:
     say(f"validating {args.gains} on {plants} plants ...")
     try:
         after, result = validate_gain_set(before, n_plants=plants, seed=seed, workers=args.workers,
-                                          scheduler=args.scheduler, progress=lambda i, n: say(f"  chunk {i}/{n}"),
+                                          scheduler=args.scheduler, bar=lambda i, n: say(f"  chunk {i}/{n}"),
                                           inputs={"revalidated_from_sha256": before.content_sha256})
     except InputError as exc:
         raise InputError(f"{args.gains}: {exc}") from exc
