@@ -230,12 +230,12 @@ class _Inner:
 
 def _plant(study: StudySpec, point: DesignPoint) -> Plant:
     table = study.plant_table or PlantTable()
-    return table.plant(study.design_spec, point, study.rig.params()).rig  # type: ignore[arg-type]
+    return table.plant(study.design_spec, point, study.rig).rig  # type: ignore[arg-type]
 
 
 def _nominal(study: StudySpec, plant: Plant, gains: PIDGains, ff: IdentifiedFeedforward) -> dict[str, float]:
     """The gains on the nominal plant over the study's step and staircase (the validation's first plant)."""
-    r = validate(gains, ff.model, plant, study.criteria, n_plants=1, seed=study.seed,
+    r = validate(gains, ff.model, plant, study.validation, n_plants=1, seed=study.seed,
                  step=study.references["step"], trajectory=study.references["trajectory"])
     return {k: float(r.metrics[k][0]) for k in ("tracking_rms_N", "peak_voltage_V", "settling_s", "overshoot_N")}
 
@@ -252,7 +252,7 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
     spec = study.design_spec
     if spec is None:
         raise InputError(f"{study.path}: co-design needs the design's tables ([ballscrew], [design])")
-    tuning = tuning or study.tuning_spec
+    tuning = tuning or study.tuning
     plant = _plant(study, point)
     ff = feedforward or identify(study, Solved(study, point))
     known = None if start is None else {"the sequential gains": start}
@@ -264,7 +264,7 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
     nominal = _nominal(study, plant, tuned.found(), ff)
     sched = study.schedule or ScheduleTable()
     schedule, _, _ = plan_schedule(spec, point, None, **sched.limits())
-    c = study.criteria
+    c = study.validation
     misses = []
     if nominal["tracking_rms_N"] > c.tracking_rms_max_N:
         misses.append(f"tracking RMS {nominal['tracking_rms_N']:.1f} N > {c.tracking_rms_max_N:g} N "
@@ -594,7 +594,7 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
             f"{'passed' if v_co.passed else 'failed'}")
     limits = {"stiffness_min_N_per_um": spec.stiffness_min_N_per_um,
               "lift_off_min_N": spec.lift_off_margin * spec.failsafe_load_N, "life_min_h": spec.life_min_h,
-              "ms_max": study.tuning_spec.ms_max, "tracking_rms_max_N": study.criteria.tracking_rms_max_N}
+              "ms_max": study.tuning.ms_max, "tracking_rms_max_N": study.validation.tracking_rms_max_N}
     return CodesignResult(study.name, STRATEGY, weights, sequential, best, 1.0, best_f, search.evaluations + 1,
                           tuple(search.refused), sequential_s, codesign_s, limits, tuple(search.scored), v_seq, v_co)
 
@@ -689,7 +689,7 @@ class _Search:
 
 def _monte_carlo(study: StudySpec, cand: Candidate, plants: int) -> ValidationResult:
     ff = identify(study, Solved(study, cand.point))
-    return validate(cand.gains, ff.model, _plant(study, cand.point), study.criteria, n_plants=plants,
+    return validate(cand.gains, ff.model, _plant(study, cand.point), study.validation, n_plants=plants,
                     seed=study.seed if study.validation.seed is None else study.validation.seed,
                     step=study.references["step"],
                     trajectory=study.references["trajectory"])

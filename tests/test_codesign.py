@@ -69,8 +69,8 @@ def test_codesign_is_never_worse_than_its_sequential_start(small, small_codesign
     # every inner solve but the start is counted, and the answer meets the co-design's constraints
     assert 1 <= r.evaluations <= 4
     assert r.codesigned.feasible
-    assert r.codesigned.ms <= small.tuning_spec.ms_max + 1e-3
-    assert r.codesigned.tracking_rms_N <= small.criteria.tracking_rms_max_N
+    assert r.codesigned.ms <= small.tuning.ms_max + 1e-3
+    assert r.codesigned.tracking_rms_N <= small.validation.tracking_rms_max_N
     # the objective reported is the candidate's, recomputed
     w = r.weights
     assert r.objective_codesigned == pytest.approx(r.codesigned.objective(w, r.sequential))
