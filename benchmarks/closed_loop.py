@@ -82,7 +82,7 @@ def main() -> None:
         raise SystemExit("no working C compiler here (or PIEZOPRELOAD_ENGINE=numpy): nothing compiled to time")
     study = load_study(paper_study())
     rig = Rig(study.plant)
-    ff = identify_feedforward(study.plant, study.excitation, check_range_N=None).model
+    ff = identify_feedforward(study.plant, study.feedforward, check_range_N=None).model
     controller = Controller(study.gains, rig.dt_s, ff.inverse())
     ref = Reference.step(25.0, 60.0, 0.5, SIM_S)
     batch = Rig(study.plant.vary(BATCH, SPREAD, seed=0))

@@ -36,7 +36,7 @@ def per_call(fn, repeat: int = 5) -> float:
 
 def main() -> dict:
     study = load_study(paper_study())
-    model = identify_feedforward(study.plant, study.excitation, check_range_N=None).model
+    model = identify_feedforward(study.plant, study.feedforward, check_range_N=None).model
     assert model.n_operators == 40
     gains = PIDGains(Kc=0.5, Ti_s=0.05, Td_s=0.001, Tf_s=0.01, b=0.3)
     controller = Controller(gains, 1e-3, model.inverse())

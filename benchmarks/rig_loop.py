@@ -225,7 +225,7 @@ def main() -> dict:
         return {"mode": "runs", "gain_sets": out, "load_avg_before": list(load_before),
                 "load_avg_after": list(os.getloadavg())}
     study = load_study(paper_study())  # the paper's rig: the default study is now the machine axis
-    ff = identify_feedforward(study.plant, study.excitation, check_range_N=None).model
+    ff = identify_feedforward(study.plant, study.feedforward, check_range_N=None).model
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)

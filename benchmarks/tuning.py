@@ -38,8 +38,8 @@ def main() -> None:
     cache = tempfile.TemporaryDirectory()
     os.environ["XDG_CACHE_HOME"] = cache.name  # an empty build cache: the first compiled tuning builds
     study = load_study(paper_study())
-    ff = identify_feedforward(study.plant, study.excitation, check_range_N=None).model
-    spec = study.tuning_spec
+    ff = identify_feedforward(study.plant, study.feedforward, check_range_N=None).model
+    spec = study.tuning
 
     t0 = time.perf_counter()
     first = tune_pid(study.plant, ff.inverse(), spec, engine="compiled")
@@ -61,7 +61,7 @@ def main() -> None:
     for workers in (1, 2):
         with executor(workers) as (pool, name):
             t0 = time.perf_counter()
-            results[workers] = validate(compiled.found(), ff, study.plant, study.criteria, pool=pool,
+            results[workers] = validate(compiled.found(), ff, study.plant, study.validation, pool=pool,
                                         pool_name=name, n_plants=N_PLANTS, seed=seed, step=study.references["step"],
                                         trajectory=study.references["trajectory"])
             seconds[workers] = time.perf_counter() - t0
@@ -72,7 +72,7 @@ def main() -> None:
         step = s.references["step"]
         t0 = time.perf_counter()
         b = minimum_time(s.plant, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]), band_N=s.band_N,
-                         u_min_V=s.tuning_spec.u_min_V, u_max_V=s.tuning_spec.u_max_V)
+                         u_min_V=s.tuning.u_min_V, u_max_V=s.tuning.u_max_V)
         bounds[name] = (time.perf_counter() - t0, b.settling_s)
         print(f"minimum-time bound, {name}: {b.settling_s:.4g} s in {bounds[name][0]:.2f} s", flush=True)
     figures = {

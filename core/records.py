@@ -2,8 +2,9 @@
 
 A record of an artifact is a frozen dataclass made with :func:`record` from :class:`Record` (or, for a
 whole document of one kind, :class:`Artifact`), each of its fields declared with :func:`entry`: its
-documentation, its unit and its range, as :func:`piezopreload.core.config.key` declares a study's key,
-and, where it does not sit at the top of its object under its own name, its place in the document. Its
+documentation, its unit and its range (the one schema dialect: a study's tables are declared the same way,
+:func:`piezopreload.core.config.key` writing an entry in a table's order), and, where it does not sit at the
+top of its object under its own name, its place in the document. Its
 type is the field's annotation: ``float`` (a finite number), ``int``, ``bool``, ``str``, a tuple or a list
 of them, a float array (``Array``), another record, a tuple or a list of records, a dict of numbers,
 strings or records, a dict of anything (an object kept as it is), with ``| None`` where null stands for
@@ -43,6 +44,7 @@ piezopreload.core.errors.ArtifactError: fit.json: field 'rms_pct' must be a fini
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import textwrap
@@ -66,14 +68,33 @@ from typing import (
 import numpy as np
 
 from piezopreload.core.artifacts import ArtifactKind, field_message, read_artifact, write_artifact
-from piezopreload.core.config import Invalid
-from piezopreload.core.errors import ArtifactError
+from piezopreload.core.errors import ArtifactError, InputError
 
 __all__ = ["Entry", "entry", "record", "Record", "Artifact", "SavedArtifact", "Raw", "load_one_of", "object_without",
-           "kind_of"]
+           "kind_of", "Checked", "checked", "check_entries", "read_table", "Invalid", "MANY", "table_values", "TableOf",
+           "takes"]
 
 #: the metadata entry of a field declared with :func:`entry`
 ENTRY = "piezopreload.entry"
+
+
+class Invalid(InputError):
+    """A value that is not what its field declares, with the field's key (``ball_mm``) and, made in code, its type.
+
+    Parameters
+    ----------
+    path : str
+        The key (or its path inside the value: ``rig.noise_N``).
+    message : str
+        What is wrong, as a predicate: ``must be a number > 0, got -1.0``.
+    owner : str
+        The type's name where it was made in code ("": the key alone).
+    """
+
+    def __init__(self, path: str, message: str, owner: str = "") -> None:
+        super().__init__(f"'{owner}.{path}' {message}" if owner else f"'{path}' {message}")
+        self.path = path
+        self.message = message
 
 
 class _Nothing:
@@ -303,17 +324,23 @@ def _spec(owner: type, f: Field[Any], hint: Any) -> _Spec:
     is_record = isinstance(inner, type) and issubclass(inner, Record)
     if e.via is not None:
         return replace(base, kind="via", record=e.via)
+    if not e.stored and e.read is None and inner in _SCALARS:  # set by the code, never the document: still checked
+        return replace(base, kind=_SCALARS[inner])
     if e.read is not None or not e.stored:
         return replace(base, container=dict if origin is dict else tuple if origin is tuple else list) if e.each \
             else base
     if e.inline and not is_record:
         raise TypeError(f"{owner.__name__}.{f.name}: only a record is inline")
+    if isinstance(inner, type) and issubclass(inner, Checked) and not is_record:  # its table or constructor reads it
+        return replace(base, record=inner)
     if inner in _SCALARS or is_record:
         return replace(base, kind="inline" if e.inline else "record", record=inner) if is_record else \
             replace(base, kind=_SCALARS[inner])
     try:
         return _container_spec(base, inner)
     except TypeError:
+        if not issubclass(owner, Record):  # a domain type's field of a type the declaration does not know: its own
+            return base                    # constructor checks it
         raise TypeError(f"{owner.__name__}.{f.name}: a field holds float, int, bool, str, an array, a record, a tuple, "
                         f"list or dict of them, not {hint!r}; declare how to read it (entry(..., read=...))") from None
 
@@ -984,3 +1011,368 @@ def load_one_of(path: str | Path, *kinds: type[Artifact]) -> Artifact:
     expected = " or ".join(f"{k.NOUN or k.__name__} ({schema_name(k.KIND)})" for k in kinds)
     raise ArtifactError(field_message(str(path), "schema", f"must be {expected}, got {schema_name(kind)!r} (a {kind} "
                                                            "artifact)"))
+
+
+# --------------------------------------------------------------------------------------
+# a type as a table of a configuration file: read, checked on construction, documented
+# --------------------------------------------------------------------------------------
+_TABLE_A = {"number": "a number", "integer": "an integer", "flag": "true or false", "text": "a string"}
+_TABLE_PLURAL = {"number": "numbers", "integer": "integers", "flag": "booleans", "text": "strings"}
+_LARGEST = 1.7976931348623157e308  # TOML integers are unbounded: one a float cannot hold is not a number
+MANY = 1_000_000  # a size (least, most) whose most is this or more has no most
+
+
+def takes(spec: _Spec) -> str:
+    """What a field takes, in a table's words: ``a number > 0``, ``a list of 2 integers >= 1``, ``one of a, b``."""
+    e = spec.entry
+    bounds = " and ".join(f"{op} {v:g}" for op, v in ((">=", e.ge), (">", e.gt), ("<=", e.le), ("<", e.lt))
+                          if v is not None)
+    if spec.kind in _TABLE_A:
+        if e.choices:
+            return "one of " + ", ".join(e.choices)
+        return _TABLE_A[spec.kind] + (f" {bounds}" if bounds else "")
+    if spec.kind == "list" and spec.item in _TABLE_PLURAL:
+        size = e.size
+        count = (f"{spec.length} " if spec.length else f"{size} " if isinstance(size, int)
+                 else (f"{size[0]} or more " if size[1] >= MANY else f"{size[0]} to {size[1]} ")
+                 if isinstance(size, tuple) else "")
+        text = f"a list of {count}{_TABLE_PLURAL[spec.item]}" + (f" {bounds}" if bounds else "")
+        if e.choices:
+            text += " from " + ", ".join(e.choices)
+        return text + (", increasing" if e.increasing else "")
+    return e.takes or spec.want()
+
+
+def _shown(value: Any) -> str:
+    """A value as a table's message shows it."""
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if isinstance(value, tuple):
+        value = list(value)
+    return f"{value!r}" if isinstance(value, int | float | str | list) and not isinstance(value, bool) else \
+        f"{type(value).__name__} {value!r}"
+
+
+def _all_in_range(e: Entry, x: Any) -> bool:
+    """Whether a number, or every number of an array (a batch), lies in the declared range."""
+    return bool((e.ge is None or np.all(x >= e.ge)) and (e.gt is None or np.all(x > e.gt))
+                and (e.le is None or np.all(x <= e.le)) and (e.lt is None or np.all(x < e.lt)))
+
+
+def _fits(spec: _Spec, value: Any) -> bool:  # noqa: C901 (one branch per kind)
+    """Whether a value is what the field declares (a number field may hold an array of them: a batch)."""
+    if value is None:
+        return spec.optional
+    e, kind = spec.entry, spec.kind
+    if kind == "number":
+        if isinstance(value, bool | str | dict):
+            return False
+        try:
+            x = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            return False
+        return bool(np.all(np.isfinite(x))) and _all_in_range(e, x)
+    if kind == "integer":
+        return isinstance(value, int | np.integer) and not isinstance(value, bool) and _all_in_range(e, value)
+    if kind == "flag":
+        return isinstance(value, bool | np.bool_)
+    if kind == "text":
+        return isinstance(value, str) and (not e.choices or value in e.choices)
+    if kind == "list":
+        item = spec.item.removesuffix("|null")
+        if isinstance(value, np.ndarray) and value.ndim == 1:
+            value = value.tolist()
+        if not isinstance(value, list | tuple):
+            return False
+        one = _Spec(spec.name, spec.key, (), item, "", spec.item.endswith("|null"), MISSING, MISSING, tuple, None,
+                    None, e)
+        sized = (spec.length is None or len(value) == spec.length) and (
+            not isinstance(e.size, int | tuple) or _sized(spec, len(value), {}))
+        return sized and all(_fits(one, v) for v in value) and \
+            not (e.increasing and any(b < a for a, b in zip(value, value[1:])))
+    if kind == "map":
+        one = _Spec(spec.name, spec.key, (), spec.item, "", False, MISSING, MISSING, tuple, None, spec.record, e)
+        return isinstance(value, dict) and all(_fits(one, v) for v in value.values())
+    if kind in ("record", "inline"):
+        return isinstance(value, spec.record)
+    if isinstance(spec.record, type) and issubclass(spec.record, Checked):
+        return isinstance(value, spec.record)
+    return True  # a type the declaration does not know: its own constructor checks it
+
+
+def check_entries(obj: Any) -> None:
+    """Check every field of ``obj`` (a dataclass declared with :func:`entry`) against its declaration.
+
+    Parameters
+    ----------
+    obj : dataclass
+        The object, as made.
+
+    Raises
+    ------
+    Invalid
+        For the first field that is not what it declares: ``'Owner.key' must be WHAT, got VALUE``.
+    """
+    for spec in _specs(type(obj)):
+        value = getattr(obj, spec.name)
+        if not _fits(spec, value):
+            raise Invalid(spec.key, f"must be {takes(spec)}, got {_shown(value)}", type(obj).__name__)
+
+
+class Checked:
+    """A frozen dataclass whose fields are declared with :func:`entry`, each value checked against its declaration
+    when it is made (:func:`check_entries`), then against the rules between its fields (:meth:`check`): each rule is
+    stated once, on the type, whether the values come from code, a study's table or a document.
+
+    Made with :func:`checked` (a frozen dataclass whose docstring gains its ``Parameters`` from the declarations).
+    """
+
+    def __post_init__(self) -> None:
+        check_entries(self)
+        self.check()
+
+    def check(self) -> None:
+        """The rules between fields (each field has been checked alone); raise :class:`Invalid` naming the field."""
+
+
+@overload
+def checked(cls: type[_R], /) -> type[_R]: ...
+
+
+@overload
+def checked(*, eq: bool = True) -> Callable[[type[_R]], type[_R]]: ...
+
+
+@dataclass_transform(frozen_default=True, field_specifiers=(entry,))
+def checked(cls: Any = None, /, *, eq: bool = True) -> Any:
+    """Make ``cls`` (a :class:`Checked`) a frozen dataclass of its declared fields, its docstring's ``Parameters``
+    section made from their declarations.
+
+    Parameters
+    ----------
+    cls : type
+        The class (``@checked``), or None for ``@checked(eq=False)``.
+    eq : bool
+        Whether values compare equal field by field (False for a type whose fields may be arrays).
+
+    Returns
+    -------
+    type
+        The dataclass (or, given ``eq`` alone, the decorator that makes it).
+    """
+    def make(c: Any) -> Any:
+        if not (isinstance(c, type) and issubclass(c, Checked)):
+            raise TypeError(f"@checked makes a Checked's subclass, not {c!r}")
+        made = dataclass(frozen=True, eq=eq)(c)
+        made.__doc__ = _with_parameters(made)
+        return made
+
+    return make if cls is None else make(cls)
+
+
+#: ``fail(path, message)``: the error for the key at ``path`` of a file (the caller adds the file and the line)
+Fail = Callable[[str, str], Exception]
+
+
+def _from_file(spec: _Spec, value: Any, at: str, fail: Fail) -> Any:  # noqa: C901 (one branch per kind)
+    """A table's value as the field holds it (TOML's integer for a number as a float, a list as a tuple), checked."""
+    def wrong() -> Exception:
+        return fail(at, f"must be {takes(spec)}, got {_shown(value)}")
+
+    kind = spec.kind
+    if kind == "custom":
+        if spec.entry.read is None:
+            return value
+        try:
+            return spec.entry.read(value)
+        except (ValueError, TypeError, KeyError):
+            raise wrong() from None
+    if kind == "number":
+        if isinstance(value, bool) or not isinstance(value, int | float) or (isinstance(value, int)
+                                                                             and abs(value) > _LARGEST):
+            raise wrong()
+        made: Any = float(value)
+    elif kind == "integer":
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise wrong()
+        made = value
+    elif kind == "list":
+        if not isinstance(value, list) or not all(
+                (isinstance(v, int | float) and not isinstance(v, bool)) if spec.item == "number"
+                else _is(v, spec.item) and not isinstance(v, float) if spec.item == "integer"
+                else _is(v, spec.item) for v in value):
+            raise wrong()
+        made = spec.container(float(v) if spec.item == "number" else v for v in value)
+    else:
+        made = value
+    if not _fits(spec, made):
+        raise wrong()
+    return made
+
+
+def table_keys(cls: type, keys: tuple[str, ...] | None = None) -> tuple[_Spec, ...]:
+    """The declared fields of ``cls`` a table of a file gives (``keys``, by field name; None: every field)."""
+    return tuple(s for s in _specs(cls) if keys is None or s.name in keys)
+
+
+def read_table(cls: type[_R], data: Any, fail: Fail, path: str, *, keys: tuple[str, ...] | None = None,
+               given: dict[str, Any] | None = None, nested: dict[str, TableOf] | None = None) -> _R:
+    """Make ``cls`` from a table of a file: each key checked against its field's declaration, then the type's own
+    checks (:class:`Checked`); every error is ``fail(path of the key, message)``.
+
+    Parameters
+    ----------
+    cls : type
+        A dataclass declared with :func:`entry` (a :class:`Checked` one checks its rules when made).
+    data : dict
+        The table, as TOML gives it.
+    fail : callable
+        ``fail(key path, message)``: the error to raise (the caller adds the file and the key's line).
+    path : str
+        The table's path in the file (``tuning``).
+    keys : tuple of str, optional
+        The fields the table may give, by name (None: every field); the others take their defaults or ``given``.
+    given : dict, optional
+        Fields set from elsewhere (another table's value), by name.
+    nested : dict of str to TableOf, optional
+        The fields that are tables of their own (``[rig.stack]``), by name.
+
+    Returns
+    -------
+    object
+        The value of ``cls``.
+    """
+    if not isinstance(data, dict):
+        raise fail(path, f"must be a table ([{path}]), got {_shown(data)}")
+    specs = {s.key: s for s in table_keys(cls, keys)}
+    values: dict[str, Any] = dict(given or {})
+    for key, value in data.items():
+        spec = specs.get(key)
+        if spec is None:
+            raise fail(f"{path}.{key}", f"is an unknown key; [{path}] has: {', '.join(specs)}")
+        inner = (nested or {}).get(spec.name)
+        values[spec.name] = inner.parse(value, fail, f"{path}.{key}") if inner is not None else \
+            _from_file(spec, value, f"{path}.{key}", fail)
+    for spec in specs.values():
+        if spec.name not in values and spec.default is MISSING and spec.factory is MISSING:
+            raise fail(path, f"needs '{spec.key}' ({takes(spec)})")
+    by_name = {s.name: s.key for s in _specs(cls)}
+    try:
+        return cls(**values)
+    except Invalid as exc:
+        name = next((n for n, k in by_name.items() if k == exc.path), exc.path)
+        raise fail(f"{path}.{by_name.get(name, exc.path)}", exc.message) from None
+    except (ValueError, TypeError) as exc:
+        raise fail(path, f"is not valid: {exc}") from None
+
+
+def table_values(obj: Any, keys: tuple[str, ...] | None = None) -> dict[str, Any]:
+    """The keys of a table ``obj`` was read from, as the file would hold them (None left out, tuples as lists)."""
+    out: dict[str, Any] = {}
+    for spec in table_keys(type(obj), keys):
+        value = getattr(obj, spec.name)
+        if dataclasses.is_dataclass(value):  # a table of its own: its TableOf writes it
+            continue
+        if spec.entry.write is not None and value is not None:
+            value = spec.entry.write(value)
+        if value is not None:
+            out[spec.key] = list(value) if isinstance(value, tuple) else value
+    return out
+
+
+@dataclass(frozen=True)
+class TableOf:
+    """A table of a configuration file read straight into a domain type: the type, the fields the file gives and the
+    table's sentence for the documentation.
+
+    Parameters
+    ----------
+    type : type
+        The domain type (a dataclass declared with :func:`entry`).
+    doc : str
+        The table's sentence (``[tuning]: the PID tuning's specification``).
+    keys : tuple of str or None
+        The fields the file gives, by name (None: every field).
+    nested : tuple of (str, TableOf)
+        The fields that are tables of their own (``[rig.stack]``): each field's name and its table.
+    """
+
+    type: type
+    doc: str
+    keys: tuple[str, ...] | None = None
+    nested: tuple[tuple[str, TableOf], ...] = ()
+
+    def parse(self, data: Any, fail: Fail, path: str, given: dict[str, Any] | None = None) -> Any:
+        """The type from the file's table (see :func:`read_table`).
+
+        Parameters
+        ----------
+        data : dict
+            The table.
+        fail : callable
+            ``fail(key path, message)``.
+        path : str
+            The table's path.
+        given : dict, optional
+            Fields set from elsewhere.
+
+        Returns
+        -------
+        object
+            The value.
+        """
+        return read_table(self.type, data, fail, path, keys=self.keys, given=given, nested=dict(self.nested))
+
+    def values(self, obj: Any) -> dict[str, Any]:
+        """The table's keys of ``obj`` as a file holds them (:func:`table_values`).
+
+        Parameters
+        ----------
+        obj : object
+            A value of the type.
+
+        Returns
+        -------
+        dict
+            Key to value.
+        """
+        out = table_values(obj, self.keys)
+        for name, table in self.nested:
+            if getattr(obj, name) is not None:
+                out[name] = table.values(getattr(obj, name))
+        return out
+
+    def rows(self) -> list[tuple[str, str, str, str, str]]:
+        """The documentation's rows: each key, what it takes, its default, its unit and its doc.
+
+        Returns
+        -------
+        list of (str, str, str, str, str)
+            One row per key, in the order of the fields.
+        """
+        out = []
+        inner = dict(self.nested)
+        for spec in table_keys(self.type, self.keys):
+            if spec.name in inner:
+                out.append((spec.key, "the table", "", "", spec.entry.doc))
+                continue
+            default = spec.factory() if spec.factory is not MISSING else spec.default
+            if spec.entry.write is not None and default is not None and default is not MISSING:
+                default = spec.entry.write(default)
+            shown = "required" if default is MISSING else _default_shown(default)
+            out.append((spec.key, takes(spec), shown, spec.entry.unit, spec.entry.doc))
+        return out
+
+
+def _default_shown(value: Any) -> str:
+    if value is None:
+        return "not set"
+    if isinstance(value, bool):
+        return "`true`" if value else "`false`"
+    if isinstance(value, tuple | list):
+        return "`[" + ", ".join(_default_shown(v).strip("`") for v in value) + "]`"
+    if isinstance(value, str):
+        return f'`"{value}"`'
+    if isinstance(value, float):
+        return f"`{value:g}`"
+    return f"`{value}`"

@@ -28,8 +28,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from piezopreload.core.artifacts import ArtifactError, atomic_write_bytes
-from piezopreload.core.config import Invalid
-from piezopreload.core.records import Artifact, entry, record
+from piezopreload.core.records import Artifact, Invalid, entry, record
 from piezopreload.core.stages import sha256_file
 
 __all__ = ["StageCache", "CacheEntry", "KIND"]

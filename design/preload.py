@@ -64,16 +64,16 @@ import math
 import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, TypedDict
 
 import casadi as ca
 import numpy as np
 
 from piezopreload.artifacts.design import DesignPoint  # the design artifact's record of a design
-from piezopreload.core.checks import FieldRule, check_fields
 from piezopreload.core.errors import InfeasibleError
 from piezopreload.core.progress import Bar
+from piezopreload.core.records import Checked, entry
 from piezopreload.design.shortfall import Shortfall, binding, shortfall_message
 from piezopreload.models.ballscrew import (
     EFFECTIVE_BALL_SHARE,
@@ -209,30 +209,6 @@ class HeatSpec:
                             temperature_C=self.temperature_C, contact_calibration=self.contact_calibration)
 
 
-def _range(value: Any) -> bool:
-    lo, hi = value
-    return math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi
-
-
-#: DesignSpec's fields: (field, test, requirement), checked in order
-_SPEC_RULES: tuple[FieldRule, ...] = (
-    *((name, _positive, "must be a finite number > 0")
-      for name in ("nominal_diameter_mm", "lead_mm", "axial_load_max_N", "lift_off_margin", "preload_fraction_max",
-                   "contact_pressure_max_MPa", "life_min_h", "drag_torque_max_Nm", "frequency_min_Hz",
-                   "nut_length_max_mm", "ball_lead_ratio_max", "load_sharing", "accuracy_factor", "load_factor",
-                   "rigidity_in_machine_factor")),
-    *((name, lambda x: math.isfinite(x) and x >= 0, "must be a finite number >= 0")
-      for name in ("failsafe_load_N", "stiffness_min_N_per_um")),
-    *((name, _range, "must be a range (low, high) with 0 < low <= high")
-      for name in ("contact_angle_deg", "ball_mm", "conformity", "turns")),
-    ("contact_angle_deg", lambda r: r[0] >= 20 and r[1] <= 70, "must lie in [20, 70]"),
-    ("conformity", lambda r: r[0] >= 0.505 and r[1] <= 0.6, "must lie in [0.505, 0.6]"),
-    ("turns", lambda r: isinstance(r[0], int) and isinstance(r[1], int) and r[0] >= 1, "must be two integers >= 1"),
-    *((name, lambda x: x <= 1, "must be in (0, 1]") for name in ("load_sharing", "accuracy_factor",
-                                                                 "rigidity_in_machine_factor")),
-)
-
-
 @dataclass(frozen=True)
 class WorstCase:
     """The modelling assumptions' unfavourable ends a robust design is made against (``[design] robust``): the
@@ -258,47 +234,51 @@ class WorstCase:
 
 
 @dataclass(frozen=True)
-class DesignSpec:
+class DesignSpec(Checked):
     """What the machine fixes, the design's bounds, and the constraints' limits; ``worst``: a robust design's
     worst case (None: the nominal design)."""
 
-    nominal_diameter_mm: float = 32.0
-    lead_mm: float = 10.0
-    feed_drive: FeedDrive = field(default_factory=lambda: FeedDrive(
+    nominal_diameter_mm: float = entry("The screw's nominal diameter, fixed by the machine.", unit="mm", gt=0,
+                                       default=32.0)
+    lead_mm: float = entry("The screw's lead.", unit="mm", gt=0, default=10.0)
+    feed_drive: FeedDrive = entry("The axis: table, screw, bearings, travel.", default_factory=lambda: FeedDrive(
         table_mass_kg=350.0, screw_length_mm=1200.0, bearing_stiffness_N_per_um=1000.0, travel_mm=(150.0, 1050.0)))
-    duty: tuple[DutyCase, ...] = (
+    duty: tuple[DutyCase, ...] = entry("The duty cycle's cases.", default=(
         DutyCase(axial_load_N=4000.0, speed_rpm=300.0, time_share=0.3),   # roughing, +x
         DutyCase(axial_load_N=-1500.0, speed_rpm=600.0, time_share=0.3),  # finishing, -x
         DutyCase(axial_load_N=600.0, speed_rpm=3000.0, time_share=0.4),   # rapid traverse
-    )
-    actuator: PiezoPreload = field(default_factory=PiezoPreload)
-    material: Material = STEEL
+    ))
+    actuator: PiezoPreload = entry("The piezo stacks and their amplifier.", default_factory=PiezoPreload)
+    material: Material = entry("The balls' and the grooves' material.", default=STEEL)
     # bounds of the design variables
-    contact_angle_deg: tuple[float, float] = (35.0, 55.0)
-    ball_mm: tuple[float, float] = (3.0, 7.5)
-    conformity: tuple[float, float] = (0.52, 0.56)
-    turns: tuple[int, int] = (2, 6)
+    contact_angle_deg: tuple[float, float] = entry("The contact angle's bounds.", unit="deg", ge=20, le=70,
+                                                   increasing=True, default=(35.0, 55.0))
+    ball_mm: tuple[float, float] = entry("The ball diameter's bounds.", unit="mm", gt=0, increasing=True,
+                                         default=(3.0, 7.5))
+    conformity: tuple[float, float] = entry("The conformity's bounds.", ge=0.505, le=0.6, increasing=True,
+                                            default=(0.52, 0.56))
+    turns: tuple[int, int] = entry("The loaded turns' bounds.", ge=1, increasing=True, default=(2, 6))
     # constraints
-    axial_load_max_N: float = 6000.0
-    failsafe_load_N: float = 600.0
-    lift_off_margin: float = 1.2
-    preload_fraction_max: float = 0.10
-    contact_pressure_max_MPa: float = 3500.0
-    life_min_h: float = 20000.0
-    drag_torque_max_Nm: float = 1.5
-    frequency_min_Hz: float = 100.0
-    stiffness_min_N_per_um: float = 0.0
-    nut_length_max_mm: float = 60.0
-    ball_lead_ratio_max: float = 0.7
-    load_sharing: float = EFFECTIVE_BALL_SHARE
-    accuracy_factor: float = 1.0
-    rigidity_in_machine_factor: float = RIGIDITY_IN_MACHINE_FACTOR
-    load_factor: float = 1.2
-    heat: HeatSpec = field(default_factory=HeatSpec)
-    worst: WorstCase | None = None
+    axial_load_max_N: float = entry("The largest axial load the nut sees.", unit="N", gt=0, default=6000.0)
+    failsafe_load_N: float = entry("The load the bolts' preload alone must carry.", unit="N", ge=0, default=600.0)
+    lift_off_margin: float = entry("The margin on the lift-off load.", gt=0, default=1.2)
+    preload_fraction_max: float = entry("The largest preload as a share of the dynamic rating.", gt=0, default=0.10)
+    contact_pressure_max_MPa: float = entry("The largest Hertz contact pressure.", unit="MPa", gt=0, default=3500.0)
+    life_min_h: float = entry("The least rating life.", unit="h", gt=0, default=20000.0)
+    drag_torque_max_Nm: float = entry("The largest drag torque.", unit="N m", gt=0, default=1.5)
+    frequency_min_Hz: float = entry("The least axial natural frequency.", unit="Hz", gt=0, default=100.0)
+    stiffness_min_N_per_um: float = entry("The least axial rigidity.", unit="N/um", ge=0, default=0.0)
+    nut_length_max_mm: float = entry("The longest nut.", unit="mm", gt=0, default=60.0)
+    ball_lead_ratio_max: float = entry("The largest ball diameter over the lead.", gt=0, default=0.7)
+    load_sharing: float = entry("eta, the effective share of the balls.", gt=0, le=1, default=EFFECTIVE_BALL_SHARE)
+    accuracy_factor: float = entry("f_ar of ISO 3408-4.", gt=0, le=1, default=1.0)
+    rigidity_in_machine_factor: float = entry("The rigidity in the machine over the nut's own.", gt=0, le=1,
+                                              default=RIGIDITY_IN_MACHINE_FACTOR)
+    load_factor: float = entry("The load factor on the duty cycle.", gt=0, default=1.2)
+    heat: HeatSpec = entry("The drag's heat model.", default_factory=HeatSpec)
+    worst: WorstCase | None = entry("A robust design's worst case (None: the nominal design).", default=None)
 
-    def __post_init__(self) -> None:
-        check_fields(self, "DesignSpec", _SPEC_RULES)
+    def check(self) -> None:
         if not self.duty:
             raise ValueError("DesignSpec.duty needs at least one duty case.")
         if max(abs(c.axial_load_N) for c in self.duty) > self.axial_load_max_N:

@@ -40,38 +40,30 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from piezopreload.core._typing import Array
-from piezopreload.core.checks import FieldRule, check_fields
 from piezopreload.core.errors import InputError
+from piezopreload.core.records import Checked, Invalid, checked, entry
 from piezopreload.models.ops import NUMPY, Layout, Ops, absolute, clip
 
 __all__ = ["StackData", "P888_91", "Plant", "RigState", "Rig", "PlantModel", "bouc_wen_step", "bouc_wen_increment",
            "loop_width", "reach_N", "ABS_SCALE_V", "hertz_force"]
 
 
-@dataclass(frozen=True)
-class StackData:
-    """One piezo stack actuator, catalogue values."""
+@checked
+class StackData(Checked):
+    """[rig.stack]: one piezo stack actuator, its data sheet's values (the defaults: PI P-888.91)."""
 
-    name: str
-    nominal_travel_um: float  # at 0..100 V
-    max_travel_um: float  # at v_min_V..v_max_V
-    blocked_force_N: float
-    stiffness_N_per_um: float
-    capacitance_uF: float
-    v_min_V: float
-    v_max_V: float
+    name: str = entry("The stack type.", default="PI P-888.91")
+    nominal_travel_um: float = entry("Free stroke at 0..100 V.", unit="um", gt=0, default=32.0)
+    max_travel_um: float = entry("Free stroke over v_min_V..v_max_V.", unit="um", gt=0, default=38.0)
+    blocked_force_N: float = entry("Blocked force.", unit="N", gt=0, default=3600.0)
+    stiffness_N_per_um: float = entry("Axial stiffness.", unit="N/um", gt=0, default=100.0)
+    capacitance_uF: float = entry("Electrical capacitance.", unit="uF", gt=0, default=6.0)
+    v_min_V: float = entry("Lowest operating voltage.", unit="V", default=-20.0)
+    v_max_V: float = entry("Highest operating voltage.", unit="V", default=120.0)
 
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            if f.name == "name":
-                continue
-            if not np.isfinite(getattr(self, f.name)):
-                raise ValueError(f"StackData.{f.name} must be finite, got {getattr(self, f.name)!r}.")
-        for name in ("nominal_travel_um", "max_travel_um", "blocked_force_N", "stiffness_N_per_um", "capacitance_uF"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"StackData.{name} must be > 0, got {getattr(self, name)!r}.")
+    def check(self) -> None:
         if not self.v_min_V < self.v_max_V:
-            raise ValueError(f"StackData needs v_min_V < v_max_V, got {self.v_min_V} and {self.v_max_V}.")
+            raise Invalid("v_max_V", f"must be above v_min_V ({self.v_min_V:g} V), got {self.v_max_V:g}", "StackData")
 
 
 #: PI P-888.91 PICMA stack (data sheet row; see the module docstring).
@@ -86,145 +78,80 @@ P888_91 = StackData(
     v_max_V=120.0,
 )
 
-# numeric fields that may hold a batch, with their admissible range (closed unless noted)
-_POSITIVE = (
-    "coupling_stiffness_N_per_um",
-    "amp_bandwidth_Hz",
-    "amp_current_limit_A",
-    "bw_alpha",
-    "sample_period_s",
-)
-_NONNEGATIVE = ("bolt_preload_N", "noise_N", "creep_per_decade", "bw_beta_per_V", "hertz_um_per_N23", "hertz_preload_N")
-_FINITE = ("stroke_um_per_V", "bw_gamma_per_V", "bw_kappa", "amp_v_min_V", "amp_v_max_V")
+#: the numeric fields that may hold a batch (an array of plants' values)
+_BATCH = ("coupling_stiffness_N_per_um", "amp_bandwidth_Hz", "amp_current_limit_A", "bw_alpha", "sample_period_s",
+          "bolt_preload_N", "noise_N", "creep_per_decade", "bw_beta_per_V", "hertz_um_per_N23", "hertz_preload_N",
+          "stroke_um_per_V", "bw_gamma_per_V", "bw_kappa", "amp_v_min_V", "amp_v_max_V")
 
 
-def _all_positive(value: Any) -> bool:
-    x = np.asarray(value, float)
-    return bool(np.all(np.isfinite(x)) and np.all(x > 0))
+@checked(eq=False)
+class Plant(Checked):
+    """[rig]: the plant every control step runs on: the stacks, the amplifier, the coupling and the sensor.
 
+    One plant, or a batch when the numeric fields are arrays (the Monte Carlo plants, :meth:`vary`). A study's
+    plant is its ``[rig]`` table, read straight into this type (a key not given takes the default here), or the
+    designed preload system's (``[plant] from_design``, :func:`piezopreload.design.plant.plant_from_design`),
+    where the design sets the stacks, their count, the amplifier's current limit, the stroke per volt and the
+    coupling, and those keys are refused in ``[rig]``. :class:`Rig` simulates it.
 
-def _all_nonnegative(value: Any) -> bool:
-    x = np.asarray(value, float)
-    return bool(np.all(np.isfinite(x)) and np.all(x >= 0))
-
-
-def _time_constants(value: Any) -> bool:
-    taus = np.asarray(value, float)
-    return bool(taus.ndim == 1 and np.all(np.isfinite(taus) & (taus > 0)))
-
-
-#: Plant' fields: (field, test, requirement), checked in order; the rules between fields follow in code
-_RIG_RULES: tuple[FieldRule, ...] = (
-    *((name, _all_positive, "must be finite and > 0") for name in _POSITIVE),
-    *((name, _all_nonnegative, "must be finite and >= 0") for name in _NONNEGATIVE),
-    *((name, lambda v: np.all(np.isfinite(np.asarray(v, float))), "must be finite") for name in _FINITE),
-    ("stroke_um_per_V", lambda v: np.all(np.asarray(v) > 0), "must be > 0"),
-    ("n_stacks", lambda n: isinstance(n, int | np.integer) and n >= 1, "must be a positive integer"),
-    ("adc_bits", lambda b: isinstance(b, int | np.integer) and 2 <= b <= 32, "must be an integer in 2..32"),
-    ("delay_samples", lambda d: isinstance(d, int | np.integer) and d >= 0, "must be an integer >= 0"),
-    ("adc_full_scale_N", lambda x: np.isfinite(x) and x > 0, "must be > 0"),
-    ("creep_tau_s", _time_constants, "must be positive time constants"),
-)
-
-
-@dataclass(frozen=True, eq=False)
-class Plant:
-    """The plant every control step runs on: the stacks, the amplifier, the coupling and the sensor.
-
-    One plant, or a batch when fields are arrays (the Monte Carlo plants, :meth:`vary`). A study's
-    plant is its ``[rig]`` table, or the designed preload system's (``[plant] from_design``,
-    :func:`piezopreload.design.plant.plant_from_design`); :class:`Rig` simulates it.
-
-    Parameters
-    ----------
-    stack : StackData
-        The stack type; ``n_stacks`` of them act in parallel.
-    n_stacks : int
-        How many stacks push in parallel (three in the paper).
-    bolt_preload_N : float
-        Preload set by the adjusting bolts at 0 V (25 N in the paper).
-    coupling_stiffness_N_per_um : float
-        Stiffness the stacks push against (nuts, balls, bolts and sleeve in series).
-    amp_bandwidth_Hz : float
-        Small-signal -3 dB bandwidth of the amplifier driving the stacks (first order).
-    amp_current_limit_A : float
-        Output current limit; the slew rate is this over the stacks' total capacitance.
-    amp_v_min_V, amp_v_max_V : float
-        Amplifier output range.
-    stroke_um_per_V : float
-        Free stroke per volt of the anhysteretic part (``d`` of the Bouc-Wen model).
-    bw_alpha, bw_beta_per_V, bw_gamma_per_V : float
-        Bouc-Wen hysteresis ``dh/dv = alpha - beta sgn(dv) h - gamma |h|`` with ``h`` in volts;
-        the loop's width grows with ``alpha`` and its shape with ``beta`` and ``gamma``
-        (``beta > |gamma|`` keeps ``h`` bounded).
-    bw_kappa : float
-        Asymmetry: a quadratic term ``kappa v^2 / 100 V`` in the stroke, so the loop is not
-        point-symmetric as P-I loops are.
-    creep_per_decade : float
-        Creep as a fraction of the stroke per decade of time.
-    creep_tau_s : tuple of float
-        Time constants of the creep chain (one per decade covered).
-    noise_N : float
-        RMS white noise of the force measurement.
-    adc_bits : int
-        A/D resolution (the PCI-1716 is a 16-bit card).
-    adc_full_scale_N : float
-        Force at the A/D's full scale (the charge amplifier's range); the A/D reads
-        ``-full_scale .. +full_scale``.
-    sample_period_s : float
-        Period of the control loop.
-    delay_samples : int
-        Samples between reading the force and the amplifier receiving the command computed
-        from it (1: the D/A is written at the next tick).
-    hertz_um_per_N23 : float
-        The two nuts' Hertz contacts between the stacks, ``2 c_h / f_ar`` of the nut law
-        ``delta(F) = (c_h F^(2/3) + s F) / f_ar`` (:meth:`BallScrew.nut_approach_um`): 0 (the
-        default, the paper's rig) keeps the coupling linear; above 0 the stacks' free stroke
-        ``x`` and their force ``F_E`` obey ``x = F_E / k_eff + hertz ((F_0 + F_E)^(2/3) -
-        F_0^(2/3))`` (:func:`hertz_force`), so the force per volt grows with the preload.
-        ``coupling_stiffness_N_per_um`` is then the linear rest: the nut bodies, the screw
-        under them, the sleeve and the bolts.
-    hertz_preload_N : float
-        ``F_0``: the preload the nuts carry when the stacks push nothing (the bolts'). The
-        force read is ``bolt_preload_N + F_E``: a designed system whose sensors sit in series
-        with the stacks reads the stacks' share alone, with ``bolt_preload_N = 0``.
+    The hysteresis is Bouc-Wen's ``dh/dv = alpha - beta sgn(dv) h - gamma |h|`` with ``h`` in volts: the loop's
+    width grows with ``alpha`` and its shape with ``beta`` and ``gamma`` (``beta > |gamma|`` keeps ``h``
+    bounded). With ``hertz_um_per_N23 > 0`` (``2 c_h / f_ar`` of the nut law ``delta(F) = (c_h F^(2/3) + s F) /
+    f_ar``, :meth:`BallScrew.nut_approach_um`) the stacks' free stroke ``x`` and their force ``F_E`` obey ``x =
+    F_E / k_eff + hertz ((F_0 + F_E)^(2/3) - F_0^(2/3))`` (:func:`hertz_force`), so the force per volt grows with
+    the preload, and ``coupling_stiffness_N_per_um`` is the linear rest (the nut bodies, the screw under them,
+    the sleeve and the bolts). The force read is ``bolt_preload_N + F_E``: a designed system whose sensors sit in
+    series with the stacks reads the stacks' share alone, with ``bolt_preload_N = 0``.
     """
 
-    stack: StackData = P888_91
-    n_stacks: int = 3
-    bolt_preload_N: Any = 25.0
-    coupling_stiffness_N_per_um: Any = 3.0
-    amp_bandwidth_Hz: Any = 20.0
-    amp_current_limit_A: Any = 0.1
-    amp_v_min_V: Any = -20.0
-    amp_v_max_V: Any = 120.0
-    stroke_um_per_V: Any = 0.35
-    bw_alpha: Any = 0.25
-    bw_beta_per_V: Any = 0.02
-    bw_gamma_per_V: Any = 0.0
-    bw_kappa: Any = 0.0
-    creep_per_decade: Any = 0.01
-    creep_tau_s: tuple[float, ...] = (0.1, 1.0, 10.0, 100.0)
-    noise_N: Any = 0.05
-    adc_bits: int = 16
-    adc_full_scale_N: float = 1000.0
-    sample_period_s: float = 1e-3
-    delay_samples: int = 1
-    hertz_um_per_N23: Any = 0.0
-    hertz_preload_N: Any = 0.0
+    stack: StackData = entry("The stack type; n_stacks of them act in parallel (default: PI P-888.91).",
+                             default=P888_91)
+    n_stacks: int = entry("Stacks acting in parallel (three in the paper).", ge=1, default=3)
+    bolt_preload_N: float = entry("Preload the adjusting bolts set at 0 V (25 N in the paper).", unit="N", ge=0,
+                                  default=25.0)
+    coupling_stiffness_N_per_um: float = entry("Stiffness the stacks push against (nuts, balls, bolts and sleeve in "
+                                               "series).", unit="N/um", gt=0, default=3.0)
+    amp_bandwidth_Hz: float = entry("The amplifier's small-signal -3 dB bandwidth (first order).", unit="Hz", gt=0,
+                                    default=20.0)
+    amp_current_limit_A: float = entry("The amplifier's current limit: its slew rate into the stacks' capacitance.",
+                                       unit="A", gt=0, default=0.1)
+    amp_v_min_V: float = entry("The amplifier's lowest output.", unit="V", default=-20.0)
+    amp_v_max_V: float = entry("The amplifier's highest output.", unit="V", default=120.0)
+    stroke_um_per_V: float = entry("The stacks' anhysteretic free stroke per volt (d of the Bouc-Wen model).",
+                                   unit="um/V", gt=0, default=0.35)
+    bw_alpha: float = entry("Bouc-Wen hysteresis: alpha (the loop's width).", gt=0, default=0.25)
+    bw_beta_per_V: float = entry("Bouc-Wen hysteresis: beta (the loop's shape; above the magnitude of gamma).",
+                                 unit="1/V", ge=0,
+                                 default=0.02)
+    bw_gamma_per_V: float = entry("Bouc-Wen hysteresis: gamma.", unit="1/V", default=0.0)
+    bw_kappa: float = entry("The loop's asymmetry: a term kappa v^2 / 100 V in the stroke, so the loop is not "
+                            "point-symmetric as P-I loops are.", default=0.0)
+    creep_per_decade: float = entry("Creep as a fraction of the stroke per decade of time.", ge=0, default=0.01)
+    creep_tau_s: tuple[float, ...] = entry("Time constants of the creep chain (one per decade covered).", unit="s",
+                                           gt=0, size=(1, 1_000_000), default=(0.1, 1.0, 10.0, 100.0))
+    noise_N: float = entry("RMS white noise of the force measurement.", unit="N", ge=0, default=0.05)
+    adc_bits: int = entry("The A/D's resolution (the PCI-1716 is a 16-bit card).", unit="bit", ge=2, le=32,
+                          default=16)
+    adc_full_scale_N: float = entry("Force at the A/D's full scale (the charge amplifier's range; it reads +/- "
+                                    "this).", unit="N", gt=0, default=1000.0)
+    sample_period_s: float = entry("The control loop's period.", unit="s", gt=0, default=1e-3)
+    delay_samples: int = entry("Samples between reading the force and the amplifier receiving the command computed "
+                               "from it (1: the D/A is written at the next tick).", ge=0, default=1)
+    hertz_um_per_N23: float = entry("The nuts' Hertz contacts in the coupling, 2 c_h / f_ar (0: a linear coupling, "
+                                    "the paper's rig).", unit="um/N^(2/3)", ge=0, default=0.0)
+    hertz_preload_N: float = entry("F_0: the preload on the nuts when the stacks push nothing (the bolts'; above 0 "
+                                   "with a Hertz coupling).", unit="N", ge=0, default=0.0)
 
-    def __post_init__(self) -> None:
-        check_fields(self, "Plant", _RIG_RULES)
-        if not np.all(np.asarray(self.bw_beta_per_V) > np.abs(np.asarray(self.bw_gamma_per_V))):
-            raise ValueError(
-                "Plant needs bw_beta_per_V > |bw_gamma_per_V| for a bounded Bouc-Wen loop, "
-                f"got beta={self.bw_beta_per_V!r}, gamma={self.bw_gamma_per_V!r}."
-            )
+    def check(self) -> None:
         if not np.all(np.asarray(self.amp_v_min_V) < np.asarray(self.amp_v_max_V)):
-            raise ValueError("Plant needs amp_v_min_V < amp_v_max_V.")
+            raise Invalid("amp_v_max_V", f"must be above amp_v_min_V ({_shown(self.amp_v_min_V)} V), got "
+                                         f"{_shown(self.amp_v_max_V)}", "Plant")
+        if not np.all(np.asarray(self.bw_beta_per_V) > np.abs(np.asarray(self.bw_gamma_per_V))):
+            raise Invalid("bw_beta_per_V", f"must be above |bw_gamma_per_V| ({_shown(np.abs(self.bw_gamma_per_V))}) "
+                                           f"for a bounded loop, got {_shown(self.bw_beta_per_V)}", "Plant")
         if np.any(np.asarray(self.hertz_um_per_N23, float) > 0) and not np.all(np.asarray(self.hertz_preload_N) > 0):
-            raise ValueError("Plant.hertz_preload_N must be > 0 (the bolts' preload on the nuts) when "
-                             f"hertz_um_per_N23 > 0, got {self.hertz_preload_N!r}.")
+            raise Invalid("hertz_preload_N", "must be > 0 (the bolts' preload on the nuts) where hertz_um_per_N23 > 0, "
+                                             f"got {_shown(self.hertz_preload_N)}", "Plant")
         np.broadcast_shapes(*(np.shape(getattr(self, n)) for n in self.batch_fields()))
 
     # ---- batches -----------------------------------------------------------------------
@@ -235,9 +162,9 @@ class Plant:
         Returns
         -------
         tuple of str
-            The names of the numeric fields (positive, non-negative and finite ones) that may hold one value per plant.
+            The names of the numeric fields that may hold one value per plant.
         """
-        return _POSITIVE + _NONNEGATIVE + _FINITE
+        return _BATCH
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -438,6 +365,11 @@ class Plant:
 
 
 _HERTZ = ("hertz_um_per_N23", "hertz_preload_N")
+
+
+def _shown(x: Any) -> str:
+    """A plant's value (a number, or a batch's array) as a message shows it."""
+    return f"{float(x):g}" if np.ndim(x) == 0 else repr(np.asarray(x, float).tolist())
 
 #: Newton steps of :func:`hertz_force` from an upper bound of the root: 5 leave under 1e-11 N on a designed
 #: system (4 leave 1e-8 N, 3 leave 2e-3 N; quadratic convergence)

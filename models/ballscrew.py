@@ -62,16 +62,15 @@ checked on R32-5T4 (-5 %). A catalogue C_dyn, where known, should be passed inst
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from piezopreload.core._typing import Array
-from piezopreload.core.checks import FieldRule, check_fields
-from piezopreload.core.config import Invalid
 from piezopreload.core.errors import InputError
+from piezopreload.core.records import Checked, Invalid, entry
 from piezopreload.models.ops import NUMPY
 from piezopreload.models.thermal import (
     CONTACT_CALIBRATION,
@@ -458,22 +457,6 @@ class Life:
 # ---- the screw ------------------------------------------------------------------------------
 
 
-def _positive_or_none(value: Any) -> bool:
-    return value is None or (isinstance(value, (int, float)) and math.isfinite(value) and value > 0)
-
-
-#: BallScrew's fields: (field, test, requirement), checked in order; the rules between fields follow in code
-_SCREW_RULES: tuple[FieldRule, ...] = (
-    *((name, _positive_or_none, "must be a finite number > 0")
-      for name in ("nominal_diameter_mm", "lead_mm", "ball_mm", "turns", "pitch_diameter_mm",
-                   "nut_outer_diameter_mm", "c_dyn_N", "c0_N", "drag_coefficient", "balls_per_turn")),
-    ("contact_angle_deg", lambda x: 20.0 <= x <= 70.0, "must be in [20, 70]"),
-    *((name, lambda x: 0.505 <= x <= 0.6, "must be in [0.505, 0.6] (ISO 3408-5 needs > 0.5; 0.52-0.56 is usual)")
-      for name in ("conformity_screw", "conformity_nut")),
-    *((name, lambda x: 0 < x <= 1, "must be in (0, 1]") for name in ("load_sharing", "accuracy_factor")),
-)
-
-
 def _number(doc: dict[str, Any], key: str, integer: bool = False) -> float:
     """A document's finite number (a whole one where ``integer``), :class:`Invalid` naming its key otherwise."""
     x = doc[key]
@@ -484,7 +467,7 @@ def _number(doc: dict[str, Any], key: str, integer: bool = False) -> float:
 
 
 @dataclass(frozen=True)
-class BallScrew:
+class BallScrew(Checked):
     """A double-nut ball screw with 2-point (gothic-arch) contact, preloaded between the nuts.
 
     Parameters
@@ -515,25 +498,31 @@ class BallScrew:
         K_p of the drag torque; HIWIN's 0.05 / sqrt(tan(helix)) when not given.
     """
 
-    nominal_diameter_mm: float
-    lead_mm: float
-    ball_mm: float
-    turns: float
-    contact_angle_deg: float = 45.0
-    conformity_screw: float = 0.55
-    conformity_nut: float = 0.55
-    pitch_diameter_mm: float | None = None
-    balls_per_turn: int | None = None
-    load_sharing: float = EFFECTIVE_BALL_SHARE
-    nut_outer_diameter_mm: float | None = None
-    accuracy_factor: float = 1.0
-    c_dyn_N: float | None = None
-    c0_N: float | None = None
-    drag_coefficient: float | None = None
-    material: Material = field(default=STEEL)
+    nominal_diameter_mm: float = entry("Nominal diameter d_0.", unit="mm", gt=0)
+    lead_mm: float = entry("Lead P.", unit="mm", gt=0)
+    ball_mm: float = entry("Ball diameter D_w.", unit="mm", gt=0)
+    turns: float = entry("Loaded turns per nut (all circuits together).", gt=0)
+    contact_angle_deg: float = entry("beta (45: the optimum of a gothic arch).", unit="deg", ge=20, le=70,
+                                     default=45.0)
+    conformity_screw: float = entry("The screw's groove radius over the ball diameter (ISO 3408-5 needs > 0.5; "
+                                    "0.52-0.56 is usual).", ge=0.505, le=0.6, default=0.55)
+    conformity_nut: float = entry("The nut's groove radius over the ball diameter.", ge=0.505, le=0.6, default=0.55)
+    pitch_diameter_mm: float | None = entry("D_pw (None: the nominal diameter).", unit="mm", gt=0, default=None)
+    balls_per_turn: int | None = entry("Z_1 (None: as many as fit on a turn of the helix).", gt=0, default=None)
+    load_sharing: float = entry("eta, the effective share of the balls in the contact compliance.", gt=0, le=1,
+                                default=EFFECTIVE_BALL_SHARE)
+    nut_outer_diameter_mm: float | None = entry("D, the nut body's outer diameter (None: nut_outer_diameter_mm()).",
+                                                unit="mm", gt=0, default=None)
+    accuracy_factor: float = entry("f_ar of ISO 3408-4 (1: the theoretical rigidity).", gt=0, le=1, default=1.0)
+    c_dyn_N: float | None = entry("The dynamic load rating (None: estimated from the geometry).", unit="N", gt=0,
+                                  default=None)
+    c0_N: float | None = entry("The static load rating (None: estimated from the geometry).", unit="N", gt=0,
+                               default=None)
+    drag_coefficient: float | None = entry("K_p of the drag torque (None: HIWIN's 0.05 / sqrt(tan(helix))).", gt=0,
+                                           default=None)
+    material: Material = entry("The balls' and the grooves' material.", default=STEEL)
 
-    def __post_init__(self) -> None:
-        check_fields(self, "BallScrew", _SCREW_RULES, InputError)
+    def check(self) -> None:
         if not self.ball_mm < 0.25 * self.pitch_diameter:
             raise InputError(f"BallScrew.ball_mm = {self.ball_mm} is too large for a pitch diameter of "
                              f"{self.pitch_diameter} mm (needs < 0.25 D_pw).")

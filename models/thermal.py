@@ -82,8 +82,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import eigh, solve_banded
 
-from piezopreload.core.checks import FieldRule, check_fields
 from piezopreload.core.errors import InputError
+from piezopreload.core.records import Checked, Invalid, entry
 from piezopreload.models.ops import NUMPY
 
 __all__ = [
@@ -247,32 +247,21 @@ def pipe_film_W_per_m2K(flow_l_per_min: float, bore_m: float) -> float:
 
 
 # ---- the network -----------------------------------------------------------------------------------------
-def _finite_positive(x: Any) -> bool:
-    return isinstance(x, int | float) and math.isfinite(x) and x > 0
-
-
-_BODY_RULES: tuple[FieldRule, ...] = (
-    *((name, _finite_positive, "must be a finite number > 0")
-      for name in ("length_m", "outer_diameter_m", "core_diameter_m", "conductivity_W_per_mK",
-                   "heat_capacity_J_per_m3K")),
-    ("bore_m", lambda x: math.isfinite(x) and x >= 0, "must be a finite number >= 0"),
-)
-
-
 @dataclass(frozen=True)
-class ScrewBody:
+class ScrewBody(Checked):
     """The screw between its bearings: its length, the outer diameter its surface loses heat through, the core
     (root) diameter that conducts and stores heat, a bore (0: solid), and the steel's properties."""
 
-    length_m: float
-    outer_diameter_m: float
-    core_diameter_m: float
-    bore_m: float = 0.0
-    conductivity_W_per_mK: float = STEEL_CONDUCTIVITY_W_PER_MK
-    heat_capacity_J_per_m3K: float = STEEL_HEAT_CAPACITY_J_PER_M3K
+    length_m: float = entry("The screw's length between its bearings.", unit="m", gt=0)
+    outer_diameter_m: float = entry("The outer diameter its surface loses heat through.", unit="m", gt=0)
+    core_diameter_m: float = entry("The core (root) diameter that conducts and stores heat.", unit="m", gt=0)
+    bore_m: float = entry("The bore (0: solid).", unit="m", ge=0, default=0.0)
+    conductivity_W_per_mK: float = entry("The steel's conductivity.", unit="W/(m K)", gt=0,
+                                         default=STEEL_CONDUCTIVITY_W_PER_MK)
+    heat_capacity_J_per_m3K: float = entry("The steel's heat capacity per volume.", unit="J/(m^3 K)", gt=0,
+                                           default=STEEL_HEAT_CAPACITY_J_PER_M3K)
 
-    def __post_init__(self) -> None:
-        check_fields(self, "ScrewBody", _BODY_RULES, InputError)
+    def check(self) -> None:
         if not self.bore_m < self.core_diameter_m <= self.outer_diameter_m:
             raise InputError(f"ScrewBody needs bore < core diameter <= outer diameter, got {self.bore_m}, "
                              f"{self.core_diameter_m} and {self.outer_diameter_m} m.")
@@ -288,19 +277,13 @@ class ScrewBody:
         return self.heat_capacity_J_per_m3K * self.area_m2 / (film_W_per_m2K * math.pi * self.outer_diameter_m)
 
 
-_AXIS_RULES: tuple[FieldRule, ...] = (
-    ("volumes", lambda n: isinstance(n, int) and n >= 1, "must be an integer >= 1"),
-    ("bearing_W_per_K", lambda g: len(g) == 2 and all(x >= 0 for x in g), "must be two conductances >= 0 (inf: "
-                                                                          "the end held at the ambient)"),
-    *((name, lambda x: math.isfinite(x) and x >= 0, "must be a finite number >= 0")
-      for name in ("nut_area_m2", "nut_flange_W_per_K", "flange_table_W_per_K", "coolant_W_per_m2K")),
-    *((name, _finite_positive, "must be a finite number > 0")
-      for name in ("nut_capacity_J_per_K", "flange_capacity_J_per_K")),
-)
+def _conductances(value: Any) -> tuple[float, float]:
+    """Two bearings' conductances (inf allowed: an end held at the ambient); checked by :meth:`AxisModel.check`."""
+    return (float(value[0]), float(value[1]))
 
 
 @dataclass(frozen=True)
-class AxisModel:
+class AxisModel(Checked):
     """The axis as a network: the screw in ``volumes`` equal volumes (nodes 0..N-1 from bearing A), the nut
     (node N) and its flange (node N+1).
 
@@ -309,18 +292,21 @@ class AxisModel:
     (``flange_table_W_per_K``, the table at the ambient); ``coolant_W_per_m2K`` the film in the bore (0: none).
     """
 
-    screw: ScrewBody
-    volumes: int
-    bearing_W_per_K: tuple[float, float]
-    nut_capacity_J_per_K: float
-    nut_area_m2: float
-    flange_capacity_J_per_K: float
-    nut_flange_W_per_K: float
-    flange_table_W_per_K: float
-    coolant_W_per_m2K: float = 0.0
+    screw: ScrewBody = entry("The screw between its bearings.")
+    volumes: int = entry("The screw's equal volumes.", ge=1)
+    bearing_W_per_K: tuple[float, float] = entry("Each end bearing's conductance to its housing, A and B (inf: the "
+                                                 "end held at the ambient).", unit="W/K", ge=0, read=_conductances)
+    nut_capacity_J_per_K: float = entry("The nut's heat capacity.", unit="J/K", gt=0)
+    nut_area_m2: float = entry("The nut's surface in air.", unit="m^2", ge=0)
+    flange_capacity_J_per_K: float = entry("The flange's heat capacity.", unit="J/K", gt=0)
+    nut_flange_W_per_K: float = entry("The nut's conductance to its flange.", unit="W/K", ge=0)
+    flange_table_W_per_K: float = entry("The flange's conductance to the table (at the ambient).", unit="W/K", ge=0)
+    coolant_W_per_m2K: float = entry("The film in the bore (0: none).", unit="W/(m^2 K)", ge=0, default=0.0)
 
-    def __post_init__(self) -> None:
-        check_fields(self, "AxisModel", _AXIS_RULES, InputError)
+    def check(self) -> None:
+        if not (len(self.bearing_W_per_K) == 2 and all(x >= 0 for x in self.bearing_W_per_K)):
+            raise Invalid("bearing_W_per_K", "must be two conductances >= 0 (inf: the end held at the ambient), got "
+                                             f"{list(self.bearing_W_per_K)!r}", "AxisModel")
         if self.coolant_W_per_m2K > 0 and self.screw.bore_m <= 0:
             raise InputError("AxisModel: a coolant needs a hollow screw (ScrewBody.bore_m > 0).")
 

@@ -255,12 +255,12 @@ class _Inner:
 
 def _plant(study: StudySpec, point: DesignPoint) -> Plant:
     table = study.plant_table or PlantTable()
-    return table.plant(study.design_spec, point, study.rig.params()).rig  # type: ignore[arg-type]
+    return table.plant(study.design_spec, point, study.rig).rig  # type: ignore[arg-type]
 
 
 def _nominal(study: StudySpec, plant: Plant, gains: PIDGains, ff: IdentifiedFeedforward) -> dict[str, float]:
     """The gains on the nominal plant over the study's step and staircase (the validation's first plant)."""
-    r = validate(gains, ff.model, plant, study.criteria, n_plants=1, seed=study.seed,
+    r = validate(gains, ff.model, plant, study.validation, n_plants=1, seed=study.seed,
                  step=study.references["step"], trajectory=study.references["trajectory"])
     return {k: float(r.metrics[k][0]) for k in ("tracking_rms_N", "peak_voltage_V", "settling_s", "overshoot_N")}
 
@@ -303,7 +303,7 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
     spec = study.design_spec
     if spec is None:
         raise InputError(f"{study.path}: co-design needs the design's tables ([ballscrew], [design])")
-    tuning = tuning or study.tuning_spec
+    tuning = tuning or study.tuning
     plant = _plant(study, point)
     ff = feedforward or identify(study, Solved(study, point))
     known = None if start is None else {"the sequential gains": replace(start, schedule=None)}
@@ -314,7 +314,7 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
                               f"{point.conformity:.4f}, rigidity {point.stiffness_N_per_um:.0f} N/um) has no "
                               f"controller that meets Ms <= {tuning.ms_max:g} ([tuning] ms_max) with the tuning's "
                               f"other constraints: {exc}") from exc
-    c = study.criteria
+    c = study.validation
     robust = tuned.found()
     gains, ms, controller = robust, float(tuned.ms), "robust"
     entry_ms: tuple[float, ...] = ()
@@ -745,7 +745,7 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
             f"{'passed' if v_co.passed else 'failed'}")
     limits = {"stiffness_min_N_per_um": spec.stiffness_min_N_per_um,
               "lift_off_min_N": spec.lift_off_margin * spec.failsafe_load_N, "life_min_h": spec.life_min_h,
-              "ms_max": study.tuning_spec.ms_max, "tracking_rms_max_N": study.criteria.tracking_rms_max_N}
+              "ms_max": study.tuning.ms_max, "tracking_rms_max_N": study.validation.tracking_rms_max_N}
     return CodesignResult(study.name, STRATEGY, weights, sequential, best, 1.0, best_f, search.evaluations + 1,
                           tuple(search.refused), sequential_s, codesign_s, limits, tuple(search.scored), v_seq, v_co,
                           STRATEGY_WHY, search.cache, search.least_heat, schedule)
@@ -853,7 +853,7 @@ class _Search:
 
 def _monte_carlo(study: StudySpec, cand: Candidate, plants: int) -> ValidationResult:
     ff = identify(study, Solved(study, cand.point))
-    return validate(cand.gains, ff.model, _plant(study, cand.point), study.criteria, n_plants=plants,
+    return validate(cand.gains, ff.model, _plant(study, cand.point), study.validation, n_plants=plants,
                     seed=study.seed if study.validation.seed is None else study.validation.seed,
                     step=study.references["step"],
                     trajectory=study.references["trajectory"])
@@ -965,7 +965,7 @@ def codesign_record(study: StudySpec, result: CodesignResult, fronts: tuple[tupl
                                    None if row["limit"] is None else float(row["limit"])))
     vs, vc = result.validation_sequential, result.validation_codesigned
     return CodesignRecord(result.study, result.strategy, result.strategy_why, result.weights.to_dict(),
-                          float(study.tuning_spec.ms_max), float(result.objective_ratio), tuple(result.changed()),
+                          float(study.tuning.ms_max), float(result.objective_ratio), tuple(result.changed()),
                           result.coupling(), result.controller_words(), tuple(rows), 0 if vs is None else vs.n_plants,
                           fronts[0], fronts[1], None if vs is None else bool(vs.passed),
                           None if vc is None else bool(vc.passed), dict(inputs or {}))

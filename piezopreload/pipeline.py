@@ -272,7 +272,7 @@ def _stage_compare(ctx: _Ctx) -> Produced:
     gain_set = GainSet.load(ctx.output("validate", "gains"))
     runs = responses(plant, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model,
                      seed=study.seed, band_N=study.band_N, signal=study.signal,
-                     after_change_s=study.criteria.tracking_after_change_s,
+                     after_change_s=study.validation.tracking_after_change_s,
                      bar=ctx.progress.bar("closed-loop runs"))
     d = ctx.out / "responses"
     outputs: dict[str, Path] = {}
@@ -287,7 +287,7 @@ def _stage_compare(ctx: _Ctx) -> Produced:
     creep = None if ff.without_creep is None else creep_effect(  # FF + PID with and without creep compensation
         plant, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model, ff.without_creep,
         seed=study.seed, band_N=study.band_N, signal=study.signal,
-        after_change_s=study.criteria.tracking_after_change_s)
+        after_change_s=study.validation.tracking_after_change_s)
     record = ResponsesRecord(
         tuple(rows), study.band_N, study.signal, study.seed, tuple(table), tuple(creep or ()),
         {"gain_set_sha256": gain_set.content_sha256, "study_sha256": study.sha256,

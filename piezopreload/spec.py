@@ -30,15 +30,15 @@ import hashlib
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from dataclasses import replace as _replace
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Self, TypedDict, TypeVar
 
 from piezopreload.artifacts.manifest import StudyRef
 from piezopreload.artifacts.validation import Criteria
-from piezopreload.core.config import Invalid, Lines, Table, read_toml, toml_text
+from piezopreload.core.config import Lines, Table, read_toml, toml_text
 from piezopreload.core.errors import InputError
+from piezopreload.core.records import TableOf
 from piezopreload.design.plant import DESIGNED_FIELDS
 from piezopreload.design.preload import DesignSpec
 from piezopreload.design.study import design_spec_from_tables
@@ -51,25 +51,26 @@ from piezopreload.design.tables import (
     ScheduleTable,
     ThermalTable,
 )
+from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import PIDGains
 from piezopreload.progress import ProgressLike, say_of
 from piezopreload.rig.tables import ExportTable, RigRunPlan
 from piezopreload.tables import (
     DESIGN_TABLES,
+    FEEDFORWARD,
     REQUIRED_TABLES,
+    RIG,
     STUDY_TABLES,
     ControllerTable,
-    FeedforwardTable,
     PublishedTable,
     ReferenceTables,
-    RigTable,
     SimulationTable,
     StudyTable,
 )
 from piezopreload.tuning.feedforward import LoopExcitation
 from piezopreload.tuning.pid import TuningSpec
-from piezopreload.tuning.tables import LearningTable, TuningTable, ValidationTable
+from piezopreload.tuning.tables import TUNING, VALIDATION, LearningTable
 
 if TYPE_CHECKING:  # learning loads its solvers when a study learns, not when one is read
     pass
@@ -125,13 +126,13 @@ class StudySpec:
     sha256: str
     name: str
     title: str
-    rig: RigTable
+    rig: Plant
     controller: ControllerTable
-    feedforward: FeedforwardTable
+    feedforward: LoopExcitation
     reference: ReferenceTables
     simulation: SimulationTable
-    tuning: TuningTable
-    validation: ValidationTable
+    tuning: TuningSpec
+    validation: Criteria
     export: ExportTable
     rig_run: RigRunPlan
     ballscrew: BallscrewTable | None
@@ -145,9 +146,6 @@ class StudySpec:
     # what the tables make, built and checked on load
     gains: PIDGains = field(repr=False)
     references: dict[str, Reference] = field(repr=False)
-    excitation: LoopExcitation = field(repr=False)
-    tuning_spec: TuningSpec = field(repr=False)
-    criteria: Criteria = field(repr=False)
     design_spec: DesignSpec | None = field(repr=False)
     where: _Source = field(repr=False)
     source_text: bytes = field(repr=False)  # the file as read, or as :meth:`replace` wrote it
@@ -280,9 +278,13 @@ class StudySpec:
         """
         out: dict[str, Any] = {"study": {"name": self.name, "title": self.title, "description": self.description}}
         for table in STUDY_TABLES:
-            value = getattr(self, _ATTRIBUTE.get(table, table), None)
+            value, declared = getattr(self, _ATTRIBUTE.get(table, table), None), STUDY_TABLES[table]
             if isinstance(value, Table):
                 out[table] = value.to_dict()
+            elif isinstance(declared, TableOf) and value is not None:
+                out[table] = declared.values(value)
+        if self.plant_from_design:  # the design sets these: the plant's own, not [rig]'s
+            out["rig"] = {k: v for k, v in out["rig"].items() if k not in DESIGNED_FIELDS}
         return out
 
     def replace(self, **changes: dict[str, Any] | None) -> Self:
@@ -408,11 +410,11 @@ class _StudyTables(TypedDict):
     an optional table the file does not give."""
 
     study: StudyTable
-    rig: RigTable
+    rig: Plant
     plant: PlantTable | None
     learning: LearningTable | None
     controller: ControllerTable
-    feedforward: FeedforwardTable
+    feedforward: LoopExcitation
     reference: ReferenceTables
     simulation: SimulationTable
     ballscrew: BallscrewTable | None
@@ -421,8 +423,8 @@ class _StudyTables(TypedDict):
     design: DesignTable | None
     schedule: ScheduleTable | None
     thermal: ThermalTable | None
-    tuning: TuningTable
-    validation: ValidationTable
+    tuning: TuningSpec
+    validation: Criteria
     export: ExportTable
     rig_run: RigRunPlan
     published: PublishedTable | None
@@ -441,16 +443,27 @@ def _parse(data: dict[str, Any], where: _Source) -> _StudyTables:
     optional = (*DESIGN_TABLES, "learning", "published")  # None where not given; the others' keys all have defaults
 
     def table(name: str) -> Any:
-        cls = STUDY_TABLES[name]
+        cls: Any = STUDY_TABLES[name]  # a Table's class (the tables read into domain types are read below)
         return cls.parse(data[name], where.fail, name) if name in data else (None if name in optional else cls())
 
+    rig = RIG.parse(data["rig"], where.fail, "rig")  # [rig] read straight into the plant
+    study, plant, learning = table("study"), table("plant"), table("learning")
+    controller, reference = table("controller"), table("reference")
+    feedforward = FEEDFORWARD.parse(data.get("feedforward", {}), where.fail, "feedforward")
+    simulation: SimulationTable = table("simulation")
+    ballscrew, feed_drive, duty, design = table("ballscrew"), table("feed_drive"), table("duty"), table("design")
+    schedule, thermal = table("schedule"), table("thermal")
+    # [tuning] and [validation] read straight into the tuning's and the validation's types, with the error band,
+    # the output range and the seed the study's other tables give
+    tuning = TUNING.parse(data.get("tuning", {}), where.fail, "tuning",
+                          {"band_N": simulation.band_N, "u_min_V": controller.u_min_V, "u_max_V": controller.u_max_V})
+    validation = VALIDATION.parse(data.get("validation", {}), where.fail, "validation",
+                                  {"band_N": simulation.band_N, "seed": simulation.seed})
     return _StudyTables(
-        study=table("study"), rig=table("rig"), plant=table("plant"), learning=table("learning"),
-        controller=table("controller"), feedforward=table("feedforward"), reference=table("reference"),
-        simulation=table("simulation"), ballscrew=table("ballscrew"), feed_drive=table("feed_drive"),
-        duty=table("duty"), design=table("design"), schedule=table("schedule"), thermal=table("thermal"),
-        tuning=table("tuning"), validation=table("validation"), export=table("export"), rig_run=table("rig_run"),
-        published=table("published"))
+        study=study, rig=rig, plant=plant, learning=learning, controller=controller, feedforward=feedforward,
+        reference=reference, simulation=simulation, ballscrew=ballscrew, feed_drive=feed_drive, duty=duty,
+        design=design, schedule=schedule, thermal=thermal, tuning=tuning, validation=validation,
+        export=table("export"), rig_run=table("rig_run"), published=table("published"))
 
 
 def _refuse_ignored(data: dict[str, Any], where: _Source) -> None:
@@ -486,7 +499,7 @@ def _refuse_thermal(data: dict[str, Any], fail: Callable[[str, str], InputError]
                               "tables): the shift's budget is that of the system along its schedule")
 
 
-def _refuse_unreachable(validation: ValidationTable, controller: ControllerTable,
+def _refuse_unreachable(validation: Criteria, controller: ControllerTable,
                         fail: Callable[[str, str], InputError]) -> None:
     """A requirement the study's own clamp makes impossible to miss is refused: the controller clamps its command at
     ``[controller] u_max_V``, so a highest-command limit at or above it could not fail."""
@@ -504,14 +517,7 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
     fail = where.fail
     _refuse_ignored(data, where)
     t = _parse(data, where)
-    rig: RigTable = t["rig"]
-    if t["plant"] is not None and t["plant"].from_design:  # the design sets these: None, not the model's defaults
-        cleared: dict[str, Any] = dict.fromkeys(DESIGNED_FIELDS)
-        rig = _replace(rig, **cleared)
-    try:
-        rig.params()
-    except ValueError as exc:  # every key was checked; a rule between them the table misses
-        raise fail("rig", f"does not make a plant: {exc}") from None
+    rig: Plant = t["rig"]
     c: ControllerTable = t["controller"]
     sim: SimulationTable = t["simulation"]
     try:
@@ -519,16 +525,8 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
                          u_max_V=c.u_max_V)
     except ValueError as exc:  # every key was checked; a rule between them the table misses
         raise fail("controller", f"does not make PID gains: {exc}") from None
-    try:
-        spec = t["tuning"].spec(band_N=sim.band_N, u_min_V=gains.u_min_V, u_max_V=gains.u_max_V)
-    except Invalid as exc:
-        raise fail(f"tuning.{exc.path}", exc.message) from None
-    except ValueError as exc:  # every key was checked; a rule between them the table misses
-        raise fail("tuning", f"does not make a tuning specification: {exc}") from None
-    validation: ValidationTable = t["validation"]
+    validation = t["validation"]
     _refuse_unreachable(validation, c, fail)
-    if validation.seed is None:
-        validation = _replace(validation, seed=sim.seed)
     design_spec = None if t["ballscrew"] is None else design_spec_from_tables(
         {**t, "design": t["design"] or DesignTable()}, fail)
     if t["thermal"] is not None and design_spec is not None:
@@ -544,8 +542,8 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
         rig_run=t["rig_run"].resolved(), ballscrew=t["ballscrew"], feed_drive=t["feed_drive"], duty=t["duty"],
         design_table=t["design"], schedule=t["schedule"], plant_table=t["plant"], learning=t["learning"],
         published=t["published"], thermal=t["thermal"], gains=gains,
-        references=_references(t["reference"], fail), excitation=t["feedforward"].excitation(), tuning_spec=spec,
-        criteria=validation.criteria(sim.band_N), design_spec=design_spec, where=where, source_text=text,
+        references=_references(t["reference"], fail),
+        design_spec=design_spec, where=where, source_text=text,
         given=copy.deepcopy(data), say=say)
 
 

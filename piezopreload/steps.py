@@ -163,13 +163,13 @@ class Solved:
         if self._designed is None:
             table = self.spec.plant_table or PlantTable()
             self._designed = table.plant(design_spec_of(self.spec, "the designed plant"), self.design_point(progress),
-                                         self.spec.rig.params(), self.design_sha256)
+                                         self.spec.rig, self.design_sha256)
         return self._designed
 
     def plant(self, progress: Say | None = None) -> Plant:
         """The plant every control step runs on: ``[rig]``, or the designed plant's rig."""
         if self._plant is None:
-            self._plant = self.designed(progress).rig if self.spec.plant_from_design else self.spec.rig.params()
+            self._plant = self.designed(progress).rig if self.spec.plant_from_design else self.spec.rig
         return self._plant
 
     def schedule(self) -> PreloadSchedule:
@@ -311,7 +311,7 @@ def identify(spec: StudySpec, solved: Solved, progress: ProgressLike | None = No
     say = said or (lambda _m: None)
     record = measured_loop(spec, said)  # refused before the design if it does not cover the references
     plant = solved.plant(said)
-    ex, (low, high) = spec.excitation, spec.reference_range_N
+    ex, (low, high) = spec.feedforward, spec.reference_range_N
     if record is None:
         say(f"simulating the {ex.v_max_V:g} V, {ex.frequency_Hz:g} Hz loop measurement on the plant's truth model")
     ff = identify_feedforward(plant, ex, record, check_range_N=(low, high))
@@ -429,7 +429,7 @@ def learn_schedule(spec: StudySpec, solved: Solved, gains: GainSet | None = None
                                        preview_s=table.preview_s if preview_s is None else preview_s,
                                        method=table.method if method is None else method, seed=seed, progress=said)
     system = (spec.plant_table or PlantTable()).track(designed, controller, solved.schedule(), seed=seed,
-                                                      settle_s=spec.criteria.settling_max_s, ff_extra_V=learned,
+                                                      settle_s=spec.validation.settling_max_s, ff_extra_V=learned,
                                                       progress=said)
     return ScheduleLearning(system, tuple(passes))
 
@@ -470,7 +470,7 @@ def track_schedule(spec: StudySpec, solved: Solved, gains: GainSet | None = None
     scatter = designed.rig.vary(drawn, DEFAULT_SPREAD, seed=seed) if drawn > 0 else None
     dspec = design_spec_of(spec, "tracking the schedule")
     run = (spec.plant_table or PlantTable()).track(designed, controller, solved.schedule(), seed=spec.seed,
-                                                   settle_s=spec.criteria.settling_max_s, ff_extra_V=ff_extra_V,
+                                                   settle_s=spec.validation.settling_max_s, ff_extra_V=ff_extra_V,
                                                    design=dspec, scatter=scatter, progress=said)
     if spec.thermal is not None:
         budget = thermal_budget(run, dspec.feed_drive, spec.thermal,
@@ -544,7 +544,7 @@ def tune(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforward | 
     feedforward = feedforward or solved.feedforward(said)
     say = said or (lambda _m: None)
     seed = study.seed if seed is None else seed
-    spec, criteria, step, trajectory = (study.tuning_spec, study.criteria, study.references["step"],
+    spec, criteria, step, trajectory = (study.tuning, study.validation, study.references["step"],
                                         study.references["trajectory"])
     say("tuning the PID around the compensated plant (CasADi + IPOPT), the minimum-time bound beside it ...")
     bounding = pool.beside(minimum_time, plant, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]),
@@ -625,7 +625,7 @@ def candidate(spec: StudySpec, solved: Solved, tuned: TuningResult, feedforward:
               "active_bounds": [b.to_dict() for b in tuned.active_bounds]}
     return GainSet(gains=tuned.gains, status="candidate", feedforward=ff.model, feedforward_info=ff.info(),
                    plant=plant, preset=spec.name, references={k: spec.references[k] for k in REFERENCES},
-                   criteria=spec.criteria, tuning=tuning,
+                   criteria=spec.validation, tuning=tuning,
                    inputs={"study": spec.path, "study_sha256": spec.sha256, **(inputs or {})},
                    rig_interlocks=spec.rig_run.interlocks(plant, spec.path))
 
@@ -759,7 +759,7 @@ def reproduce(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforwa
                          "studies/paper2021.toml has); reproduce sets a study's simulation beside published numbers")
     feedforward = feedforward or solved.feedforward()
     t0 = time.perf_counter()
-    rep = reproduce_paper(solved.plant(), study.gains, step=study.references["step"], excitation=study.excitation,
+    rep = reproduce_paper(solved.plant(), study.gains, step=study.references["step"], excitation=study.feedforward,
                           seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
                           repeats=repeats, feedforward=feedforward.model,
                           feedforward_fit=feedforward.fit.to_dict())

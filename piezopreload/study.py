@@ -18,8 +18,8 @@ CLI imports.
 >>> study.replace(rig={"bolt_preload_N": 30.0}).plant.bolt_preload_N
 30.0
 >>> axis = pp.load_study()                             # the machine axis: its plant is its design
->>> axis.rig.bolt_preload_N is None                    # the design sets it; [rig] may not
-True
+>>> "bolt_preload_N" in axis.tables()["rig"]           # the design sets it; [rig] may not
+False
 >>> axis.replace(rig={"bolt_preload_N": 30.0})  # doctest: +ELLIPSIS
 Traceback (most recent call last):
 ...
@@ -83,8 +83,16 @@ class Study(StudySpec):
         The SHA-256 of the file as read.
     name, title : str
         The study's name and title (its ``[study]`` table).
-    rig, controller, feedforward, reference, simulation, tuning, validation, export : table
+    rig : Plant
+        ``[rig]``: the plant's hardware, read into the plant itself (the model's defaults where it gives none).
+    feedforward : LoopExcitation
+        ``[feedforward]``: the loop the feedforward is identified on.
+    controller, reference, simulation, export : table
         The tables of those names, typed as the file gives them (defaults where it gives none).
+    tuning : TuningSpec
+        ``[tuning]``: what the tuning requires (with ``[simulation]``'s band and ``[controller]``'s output range).
+    validation : Criteria
+        ``[validation]``: what the validation requires of every plant, over how many plants.
     rig_run : RigRunPlan
         The ``[rig_run]`` table: the rig stage's plan.
     ballscrew, feed_drive, duty, design_table, schedule, plant_table, learning, published : table or None
@@ -94,12 +102,6 @@ class Study(StudySpec):
         The starting gains the tables make.
     references : dict of str to Reference
         The step and the trajectory the tables make.
-    excitation : LoopExcitation
-        The loop the feedforward is identified on.
-    tuning_spec : TuningSpec
-        What the tuning requires.
-    criteria : Criteria
-        What the validation requires of every plant.
     design_spec : DesignSpec or None
         The preload design the tables make (None: the study has no design).
     where : object

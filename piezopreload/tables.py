@@ -12,9 +12,10 @@ Where the plant is the design (``[plant] from_design = true``) the design sets t
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 from piezopreload.core.config import Invalid, Table, key, keys_markdown
+from piezopreload.core.records import TableOf
 from piezopreload.design.plant import DESIGNED_FIELDS
 from piezopreload.design.tables import (
     BallscrewTable,
@@ -25,21 +26,19 @@ from piezopreload.design.tables import (
     ScheduleTable,
     ThermalTable,
 )
-from piezopreload.models.actuator import P888_91, Plant, StackData
+from piezopreload.models.actuator import Plant, StackData
 from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V
 from piezopreload.rig.tables import ExportTable, RigRunPlan
-from piezopreload.tuning.calibrate import LoopExcitation
-from piezopreload.tuning.identify import MODELS
-from piezopreload.tuning.tables import LearningTable, TuningTable, ValidationTable
+from piezopreload.tuning.feedforward import LoopExcitation
+from piezopreload.tuning.tables import TUNING, VALIDATION, LearningTable
 
-__all__ = ["StudyTable", "StackTable", "RigTable", "ControllerTable", "FeedforwardTable", "StepTable",
+__all__ = ["StudyTable", "STACK", "RIG", "ControllerTable", "FEEDFORWARD", "StepTable",
            "TrajectoryTable", "ReferenceTables", "SimulationTable", "StepNumbers", "PublishedTable", "STUDY_TABLES",
            "REQUIRED_TABLES",
            "study_keys_markdown"]
 
 UNITS = ("seconds", "minutes")
 SIGNALS = ("measured_N", "force_N")
-_RIG = Plant()
 
 
 @dataclass(frozen=True)
@@ -51,85 +50,12 @@ class StudyTable(Table):
     description: str = key("", "a paragraph on what the study is for")
 
 
-@dataclass(frozen=True)
-class StackTable(Table):
-    """[rig.stack]: one piezo stack actuator, its data sheet's values (the defaults: PI P-888.91)."""
+#: [rig.stack]: the stack type, read straight into :class:`~piezopreload.models.actuator.StackData`
+STACK = TableOf(StackData, StackData.__doc__ or "")
 
-    name: str = key(P888_91.name, "the stack type")
-    nominal_travel_um: float = key(P888_91.nominal_travel_um, "free stroke at 0..100 V", unit="um", gt=0)
-    max_travel_um: float = key(P888_91.max_travel_um, "free stroke over v_min_V..v_max_V", unit="um", gt=0)
-    blocked_force_N: float = key(P888_91.blocked_force_N, "blocked force", unit="N", gt=0)
-    stiffness_N_per_um: float = key(P888_91.stiffness_N_per_um, "axial stiffness", unit="N/um", gt=0)
-    capacitance_uF: float = key(P888_91.capacitance_uF, "electrical capacitance", unit="uF", gt=0)
-    v_min_V: float = key(P888_91.v_min_V, "lowest operating voltage", unit="V")
-    v_max_V: float = key(P888_91.v_max_V, "highest operating voltage", unit="V")
-
-    def check(self) -> None:
-        if not self.v_min_V < self.v_max_V:
-            raise Invalid("v_max_V", f"must be above v_min_V ({self.v_min_V:g} V), got {self.v_max_V:g}")
-
-    def data(self) -> StackData:
-        return StackData(**{f.name: getattr(self, f.name) for f in fields(self)})
-
-
-@dataclass(frozen=True)
-class RigTable(Table):
-    """[rig]: the plant's hardware, from the command voltage to the measured force (models/actuator.py). Where
-    ``[plant] from_design = true`` the design sets the stacks, their count, the amplifier's current limit, the
-    stroke per volt and the coupling, and those keys are refused here; the others are the designed plant's
-    hardware. A key not given takes the model's default."""
-
-    stack: StackTable | None = key(None, "the stack type (not set: PI P-888.91)")
-    n_stacks: int | None = key(_RIG.n_stacks, "stacks acting in parallel", ge=1)
-    bolt_preload_N: float | None = key(_RIG.bolt_preload_N, "preload the adjusting bolts set at 0 V", unit="N", ge=0)
-    coupling_stiffness_N_per_um: float | None = key(_RIG.coupling_stiffness_N_per_um, "stiffness the stacks push "
-                                                    "against (nuts, balls, bolts and sleeve in series)", unit="N/um",
-                                                    gt=0)
-    amp_bandwidth_Hz: float = key(_RIG.amp_bandwidth_Hz, "the amplifier's small-signal bandwidth (first order)",
-                                  unit="Hz", gt=0)
-    amp_current_limit_A: float | None = key(_RIG.amp_current_limit_A, "the amplifier's current limit: its slew rate "
-                                            "into the stacks' capacitance", unit="A", gt=0)
-    amp_v_min_V: float = key(_RIG.amp_v_min_V, "the amplifier's lowest output", unit="V")
-    amp_v_max_V: float = key(_RIG.amp_v_max_V, "the amplifier's highest output", unit="V")
-    stroke_um_per_V: float | None = key(_RIG.stroke_um_per_V, "the stacks' anhysteretic free stroke per volt",
-                                        unit="um/V", gt=0)
-    bw_alpha: float = key(_RIG.bw_alpha, "Bouc-Wen hysteresis: alpha (the loop's width)", gt=0)
-    bw_beta_per_V: float = key(_RIG.bw_beta_per_V, "Bouc-Wen hysteresis: beta (the loop's shape; above |gamma|)",
-                               unit="1/V", ge=0)
-    bw_gamma_per_V: float = key(_RIG.bw_gamma_per_V, "Bouc-Wen hysteresis: gamma", unit="1/V")
-    bw_kappa: float = key(_RIG.bw_kappa, "the loop's asymmetry: kappa v^2 / 100 V in the stroke")
-    creep_per_decade: float = key(_RIG.creep_per_decade, "creep as a fraction of the stroke per decade of time", ge=0)
-    creep_tau_s: tuple[float, ...] = key(_RIG.creep_tau_s, "time constants of the creep chain", unit="s", gt=0,
-                                         min_length=1)
-    noise_N: float = key(_RIG.noise_N, "RMS white noise of the force measurement", unit="N", ge=0)
-    adc_bits: int = key(_RIG.adc_bits, "the A/D's resolution", unit="bit", ge=2, le=32)
-    adc_full_scale_N: float = key(_RIG.adc_full_scale_N, "force at the A/D's full scale (it reads +/- this)",
-                                  unit="N", gt=0)
-    sample_period_s: float = key(_RIG.sample_period_s, "the control loop's period", unit="s", gt=0)
-    delay_samples: int = key(_RIG.delay_samples, "samples between reading the force and the amplifier receiving "
-                             "the command", ge=0)
-    hertz_um_per_N23: float | None = key(_RIG.hertz_um_per_N23, "the nuts' Hertz contacts in the coupling, 2 c_h / "
-                                         "f_ar (0: a linear coupling)", unit="um/N^(2/3)", ge=0)
-    hertz_preload_N: float | None = key(_RIG.hertz_preload_N, "the preload on the nuts when the stacks push "
-                                        "nothing (above 0 with a Hertz coupling)", unit="N", ge=0)
-
-    def check(self) -> None:
-        if not self.amp_v_min_V < self.amp_v_max_V:
-            raise Invalid("amp_v_max_V",
-                          f"must be above amp_v_min_V ({self.amp_v_min_V:g} V), got {self.amp_v_max_V:g}")
-        if not self.bw_beta_per_V > abs(self.bw_gamma_per_V):
-            raise Invalid("bw_beta_per_V", f"must be above |bw_gamma_per_V| ({abs(self.bw_gamma_per_V):g}) for a "
-                                           f"bounded loop, got {self.bw_beta_per_V:g}")
-        if (self.hertz_um_per_N23 or 0.0) > 0 and not (self.hertz_preload_N or 0.0) > 0:
-            raise Invalid("hertz_preload_N", f"must be > 0 (the bolts' preload on the nuts) where hertz_um_per_N23 "
-                                             f"> 0, got {self.hertz_preload_N!r}")
-
-    def params(self) -> Plant:
-        """The rig the table describes (a key not set: the model's default)."""
-        given = {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}
-        if "stack" in given:
-            given["stack"] = given["stack"].data()
-        return Plant(**given)
+#: [rig]: the plant's hardware, read straight into :class:`~piezopreload.models.actuator.Plant` (a key not given takes
+#: the model's default; where the plant is the design, the keys the design sets are refused)
+RIG = TableOf(Plant, Plant.__doc__ or "", nested=(("stack", STACK),))
 
 
 @dataclass(frozen=True)
@@ -155,23 +81,8 @@ class ControllerTable(Table):
         return 60.0 if self.units == "minutes" else 1.0
 
 
-@dataclass(frozen=True)
-class FeedforwardTable(Table):
-    """[feedforward]: the loop measurement the feedforward's P-I model is identified from (simulated on the plant's
-    truth model, or ``data``, a measured one), the model's kind and whether it compensates creep too."""
-
-    v_max_V: float = key(LoopExcitation.v_max_V, "the triangle's peak voltage", unit="V", gt=0)
-    frequency_Hz: float = key(LoopExcitation.frequency_Hz, "the triangle's frequency", unit="Hz", gt=0)
-    cycles: int = key(LoopExcitation.cycles, "cycles of the triangle", ge=1)
-    n_operators: int = key(LoopExcitation.n_operators, "play operators of the P-I model", ge=1)
-    seed: int = key(LoopExcitation.seed, "noise seed of the simulated measurement", ge=0)
-    data: str | None = key(None, "a measured time_s,voltage_V,force_N loop, relative to the study file (not set: "
-                           "the loop simulated on the plant)")
-    kind: str = key(LoopExcitation.kind, "the P-I model", choices=MODELS)
-    creep: bool = key(LoopExcitation.creep, "identify and compensate creep lags too")
-
-    def excitation(self) -> LoopExcitation:
-        return LoopExcitation(**{f.name: getattr(self, f.name) for f in fields(self) if f.name != "data"})
+#: [feedforward]: the loop measurement, read straight into :class:`~piezopreload.tuning.feedforward.LoopExcitation`
+FEEDFORWARD = TableOf(LoopExcitation, LoopExcitation.__doc__ or "")
 
 
 @dataclass(frozen=True)
@@ -243,12 +154,12 @@ class PublishedTable(Table):
 
 
 #: the study file's tables, by name, in the order a file has them
-STUDY_TABLES: dict[str, type[Table]] = {
-    "study": StudyTable, "rig": RigTable, "plant": PlantTable, "learning": LearningTable,
-    "controller": ControllerTable, "feedforward": FeedforwardTable, "reference": ReferenceTables,
+STUDY_TABLES: dict[str, type[Table] | TableOf] = {
+    "study": StudyTable, "rig": RIG, "plant": PlantTable, "learning": LearningTable,
+    "controller": ControllerTable, "feedforward": FEEDFORWARD, "reference": ReferenceTables,
     "simulation": SimulationTable, "ballscrew": BallscrewTable, "feed_drive": FeedDriveTable, "duty": DutyTable,
-    "design": DesignTable, "schedule": ScheduleTable, "thermal": ThermalTable, "tuning": TuningTable,
-    "validation": ValidationTable, "export": ExportTable, "rig_run": RigRunPlan, "published": PublishedTable,
+    "design": DesignTable, "schedule": ScheduleTable, "thermal": ThermalTable, "tuning": TUNING,
+    "validation": VALIDATION, "export": ExportTable, "rig_run": RigRunPlan, "published": PublishedTable,
 }
 #: the tables every study has
 REQUIRED_TABLES = ("rig", "controller")

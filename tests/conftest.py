@@ -13,5 +13,5 @@ def study():
 
 @pytest.fixture(scope="session")
 def feedforward(study):
-    return identify_feedforward(study.plant, study.excitation, check_range_N=None).model
+    return identify_feedforward(study.plant, study.feedforward, check_range_N=None).model
 

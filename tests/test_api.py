@@ -115,7 +115,7 @@ def gain_set(tmp_path_factory):
     ff = study.identify_feedforward()
     gs = pp.GainSet(gains=study.gains, status="validated", feedforward=ff.model, feedforward_info=ff.info(),
                     plant=study.plant, preset=study.name, references=dict(study.references),
-                    criteria=study.criteria, inputs={"study_sha256": study.sha256})
+                    criteria=study.validation, inputs={"study_sha256": study.sha256})
     return gs.save(tmp_path_factory.mktemp("gs") / "gains.json"), tmp_path_factory.getbasetemp()
 
 
@@ -165,7 +165,8 @@ def test_gain_set_and_reference_documents_are_checked_naming_the_field():
                                 ("gains", {"Kc_V_per_N": 0.5}, r"field 'gains.Ti_s' is missing"),
                                 ("references", {"step": {"times_s": [0.0]}},
                                  r"field 'references.step' is not valid"),
-                                ("plant", {"rig": {"noise_N": -1.0}}, r"field 'plant.rig' is not valid")):
+                                ("plant", {"rig": {"noise_N": -1.0}},
+                                 r"field 'plant.rig.noise_N' must be a number >= 0, got -1.0")):
         with pytest.raises(pp.ArtifactError, match=match):
             pp.GainSet.from_dict({**doc, field: value}, "g.json")
     with pytest.raises(pp.InputError, match="GainSet.status"):

@@ -69,8 +69,8 @@ def test_codesign_is_never_worse_than_its_sequential_start(small, small_codesign
     # every inner solve but the start is counted, and the answer meets the co-design's constraints
     assert 1 <= r.evaluations <= 4
     assert r.codesigned.feasible
-    assert r.codesigned.ms <= small.tuning_spec.ms_max + 1e-3
-    assert r.codesigned.tracking_rms_N <= small.criteria.tracking_rms_max_N
+    assert r.codesigned.ms <= small.tuning.ms_max + 1e-3
+    assert r.codesigned.tracking_rms_N <= small.validation.tracking_rms_max_N
     # the objective reported is the candidate's, recomputed
     w = r.weights
     assert r.objective_codesigned == pytest.approx(r.codesigned.objective(w, r.sequential))
@@ -240,7 +240,7 @@ def test_the_schedule_s_entries_are_inner_decisions_each_at_its_window_s_ms(smal
     assert c.controller == "schedule" and s is not None and len(s.levels_N) == small.tuning.schedule_levels
     # each entry's Ms over its own window, recomputed from the linearised loop at both ends of the window's slope on
     # every variant the tuning bounds: at most the study's limit (the tuner's constraint), as the candidate says
-    plant, spec = _plant(small, seq.point), small.tuning_spec
+    plant, spec = _plant(small, seq.point), small.tuning
     for i, (lo, hi) in enumerate(level_windows(s.levels_N)):
         entry = replace(c.gains, Kc=s.Kc[i], Ti_s=s.Ti_s[i], Td_s=s.Td_s[i], b=s.b[i] if s.b else c.gains.b,
                         schedule=None)

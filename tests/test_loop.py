@@ -235,7 +235,7 @@ def test_two_processes_building_the_same_library_at_once(tmp_path):
 def test_the_papers_six_numbers_as_before(study):
     """``piezopreload reproduce``'s simulation (now on the compiled loop where it builds) gives the numbers the
     numpy loop gave, to the sample."""
-    rep = reproduce(study.plant, study.gains, step=study.references["step"], excitation=study.excitation,
+    rep = reproduce(study.plant, study.gains, step=study.references["step"], excitation=study.feedforward,
                     seed=study.seed, band_N=study.band_N, signal=study.signal)
     for controller, metrics in BEFORE["reproduce"].items():
         for key, value in metrics.items():
@@ -247,11 +247,11 @@ def test_the_papers_six_numbers_as_before(study):
 def test_the_tuned_gains_and_the_validation_verdict_as_before(study, feedforward):
     """The paper's study tuned on the one (smooth) loop gives the gains the separate tuning model gave, and the
     200-plant Monte Carlo validation of them (compiled loop, per-chunk seeds) the same worst cases and verdict."""
-    res = tune_pid(study.plant, feedforward.inverse(), study.tuning_spec)
+    res = tune_pid(study.plant, feedforward.inverse(), study.tuning)
     for key, value in BEFORE["gains"].items():
         assert getattr(res.gains, key) == pytest.approx(value, rel=1e-6), key
     assert res.engine == ("compiled" if native.enabled() else "plain")
-    v = validate(res.gains, feedforward, study.plant, study.criteria, n_plants=study.validation.plants,
+    v = validate(res.gains, feedforward, study.plant, study.validation, n_plants=study.validation.plants,
                  seed=study.validation.seed, step=study.references["step"], trajectory=study.references["trajectory"])
     assert v.passed
     summary = v.summary()

@@ -29,7 +29,7 @@ def test_the_shipped_study_is_the_repository_one():
     assert study.rig.bolt_preload_N == 25.0
     assert study.references["step"].levels_N.tolist() == [25.0, 60.0]
     assert study.references["trajectory"].levels_N.tolist() == [25.0, 60.0, 80.0, 100.0, 80.0, 60.0]
-    assert study.excitation.n_operators == 40 and study.excitation.v_max_V == 100.0
+    assert study.feedforward.n_operators == 40 and study.feedforward.v_max_V == 100.0
 
 
 def test_minutes_are_converted_at_the_edge(tmp_path):

@@ -17,13 +17,14 @@ import piezopreload.design.study as design_study_module
 import piezopreload.steps as study_module
 from piezopreload.cli import main
 from piezopreload.core.config import Invalid, Table, key, keys_markdown
+from piezopreload.core.records import TableOf
 from piezopreload.design.plant import DESIGNED_FIELDS, plant_from_design
 from piezopreload.design.preload import optimise
 from piezopreload.design.tables import DesignTable, PlantTable
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import simulate as simulate_loop
 from piezopreload.models.controller import Controller
-from piezopreload.tables import STUDY_TABLES, RigTable, study_keys_markdown
+from piezopreload.tables import RIG, STUDY_TABLES, study_keys_markdown
 
 ROOT = Path(__file__).resolve().parents[1]
 AXIS = ROOT / "studies" / "machine_axis.toml"
@@ -36,12 +37,18 @@ def _line(text: str, start: str) -> int:
 
 
 def _all_tables():
-    """Every table class of the schema with its path, nested ones too."""
+    """Every table of the schema with its path, nested ones too."""
     todo = list(STUDY_TABLES.items())
     while todo:
         name, cls = todo.pop(0)
         yield name, cls
-        todo += [(f"{name}.{s.name}", s.table) for s in cls.declared() if s.kind == "table"]
+        todo += [(f"{name}.{sub}", inner) for sub, inner in (cls if isinstance(cls, TableOf) else cls.table()).nested]
+
+
+def _keys(cls):
+    """A table's doc and its keys: (key, doc, unit, whether it is a nested table)."""
+    table = cls if isinstance(cls, TableOf) else cls.table()
+    return table.doc, [(k, doc, unit, want == "the table") for k, want, _, unit, doc in table.rows()]
 
 
 # ---- the schema: one declaration per key -------------------------------------------------------------
@@ -54,14 +61,14 @@ _SUFFIX_UNITS = {"_N_per_um": "N/um", "_V_per_N": "V/N", "_um_per_V": "um/V", "_
 def test_every_key_is_declared_once_with_a_doc_and_the_unit_its_name_spells():
     seen = 0
     for path, cls in _all_tables():
-        assert cls.__doc__ and f"[{path}]" in cls.__doc__.split(": ")[0], (
-            f"{cls.__name__}'s doc does not open with [{path}]")
-        for spec in cls.declared():
+        doc, keys = _keys(cls)
+        assert doc and f"[{path}]" in doc.split(": ")[0], f"{cls!r}'s doc does not open with [{path}]"
+        for name, about, unit, nested in keys:
             seen += 1
-            assert spec.key.doc.strip(), f"{path}.{spec.name} has no doc"
-            suffix = next((s for s in sorted(_SUFFIX_UNITS, key=len, reverse=True) if spec.name.endswith(s)), None)
-            if suffix and spec.kind != "table":
-                assert spec.key.unit == _SUFFIX_UNITS[suffix], f"{path}.{spec.name}: unit {spec.key.unit!r}"
+            assert about.strip(), f"{path}.{name} has no doc"
+            suffix = next((s for s in sorted(_SUFFIX_UNITS, key=len, reverse=True) if name.endswith(s)), None)
+            if suffix and not nested:
+                assert unit == _SUFFIX_UNITS[suffix], f"{path}.{name}: unit {unit!r}"
     assert seen > 120, "the schema lost tables"
 
 
@@ -72,7 +79,7 @@ def test_a_key_without_a_declaration_is_refused_when_the_table_is_made():
 
         mass_kg: float = 1.0
 
-    with pytest.raises(TypeError, match=r"Loose.mass_kg: declare the key"):
+    with pytest.raises(TypeError, match=r"Loose.mass_kg: declare the field with records.entry"):
         Loose()
 
 
@@ -163,13 +170,13 @@ def test_a_copy_is_checked_as_a_file_is_and_names_the_key():
 
 
 def test_a_table_checks_itself_when_made_in_code():
-    with pytest.raises(Invalid, match=r"'pareto_points' must be an integer >= 2 and <= 500, got 1"):
+    with pytest.raises(Invalid, match=r"'DesignTable.pareto_points' must be an integer >= 2 and <= 500, got 1"):
         DesignTable(pareto_points=1)
-    with pytest.raises(Invalid, match=r"'cycles' must be an integer >= 1"):
+    with pytest.raises(Invalid, match=r"'PlantTable.cycles' must be an integer >= 1, got 0"):
         PlantTable(cycles=0)
-    with pytest.raises(Invalid, match="'stack' must be a StackTable"):
-        RigTable(stack={"name": "x"})  # type: ignore[arg-type]
-    assert DesignTable().pareto_points == 50 and RigTable().params().to_dict() == Plant().to_dict()
+    with pytest.raises(Invalid, match=r"'Plant.stack' must be a valid value, got dict \{'name': 'x'\}"):
+        Plant(stack={"name": "x"})  # type: ignore[arg-type]
+    assert DesignTable().pareto_points == 50
 
 
 def test_the_key_table_is_rendered_from_the_declarations():
@@ -201,8 +208,8 @@ def test_the_docs_hold_the_generated_table_of_every_key():
     assert held == study_keys_markdown(), "docs/study.md's table of keys is stale: paste study_keys_markdown()"
     for path, cls in _all_tables():
         assert f"### `[{path}]`" in held
-        for spec in cls.declared():
-            assert f"| `{spec.name}` |" in held, f"{path}.{spec.name} is not in the docs"
+        for name, *_ in _keys(cls)[1]:
+            assert f"| `{name}` |" in held, f"{path}.{name} is not in the docs"
     for name in DESIGNED_FIELDS:  # the keys a designed plant refuses say so
         row = next(line for line in held.split("### `[rig]`")[1].splitlines() if line.startswith(f"| `{name}` |"))
         assert "refused there" in row, row
@@ -260,7 +267,7 @@ def test_the_design_sets_exactly_the_rig_keys_it_refuses():
             assert not moved, f"[rig] {f.name} is refused as set by the design, but it changes the designed plant"
         else:
             assert moved, f"[rig] {f.name} is taken beside the design, but the designed plant ignores it"
-    assert set(DESIGNED_FIELDS) <= set(RigTable.__dataclass_fields__), "a designed field is not a [rig] key"
+    assert set(DESIGNED_FIELDS) <= {k for k, *_ in RIG.rows()}, "a designed field is not a [rig] key"
 
 
 def test_plant_keys_of_a_designed_plant_are_refused_where_rig_is_the_plant(tmp_path):
@@ -272,7 +279,7 @@ def test_plant_keys_of_a_designed_plant_are_refused_where_rig_is_the_plant(tmp_p
                             "stack_contact_N": None})
     rig_plant = axis.replace(plant={"from_design": False, "sleeve_stiffness_N_per_um": None, "cycles": None,
                                     "passes": None, "stack_contact_N": None}, thermal=None)
-    assert not rig_plant.plant_from_design and rig_plant.plant.to_dict() == rig_plant.rig.params().to_dict()
+    assert not rig_plant.plant_from_design and rig_plant.plant.to_dict() == rig_plant.rig.to_dict()
     text = PAPER.read_text() + "\n[plant]\nfrom_design = true\n"
     path = tmp_path / "study.toml"
     path.write_text(text.replace("[ballscrew]", "[ballscrews]").split("[ballscrews]")[0]
@@ -295,7 +302,9 @@ def test_study_plant_is_the_designed_plant_and_what_the_control_steps_run_on():
     # the issue's numbers: the plant has no bolt preload of its own, a 1,370 N/um coupling, a 255 N Hertz preload
     assert plant.bolt_preload_N == 0.0 and plant.hertz_preload_N == pytest.approx(600 * 1.2 / 2**1.5)
     assert plant.coupling_stiffness_N_per_um == pytest.approx(1370, rel=1e-3)
-    assert axis.rig.bolt_preload_N is None and axis.rig.coupling_stiffness_N_per_um is None, "[rig] shows unused values"
+    # [rig] is the hardware the design completes: the keys the design sets are not [rig]'s to show
+    shown = set(axis.tables()["rig"])
+    assert not {"bolt_preload_N", "coupling_stiffness_N_per_um"} & shown, "[rig] shows unused values"
     assert axis.plant is plant and axis.designed_plant.rig is plant and len(said) == 2, "the plant was made again"
     # a control step runs on it: the study's simulation is the loop on Rig(plant)
     run = axis.simulate(axis.gains, controller="pid", reference="step")
@@ -303,7 +312,7 @@ def test_study_plant_is_the_designed_plant_and_what_the_control_steps_run_on():
                           seed=axis.seed)
     np.testing.assert_array_equal(run.force_N, alone.force_N, err_msg="Study.simulate did not run on study.plant")
     paper = pp.load_study(PAPER)
-    assert paper.plant.to_dict() == paper.rig.params().to_dict() and paper.plant.bolt_preload_N == 25.0
+    assert paper.plant.to_dict() == paper.rig.to_dict() and paper.plant.bolt_preload_N == 25.0
     assert "plant: its design;" in repr(axis) and "plant: its [rig];" in repr(paper)
     with pytest.raises(pp.InputError, match="there is no designed plant"):
         _ = paper.designed_plant
@@ -473,6 +482,6 @@ def test_the_shipped_studies_set_a_peak_voltage_limit_that_can_fail_or_none():
     left out (no such requirement), never at or above it."""
     for path in (AXIS, PAPER):
         s = pp.Study.load(path)
-        limit = s.criteria.peak_voltage_max_V
+        limit = s.validation.peak_voltage_max_V
         assert limit is None or limit < s.gains.u_max_V, (path.name, limit, s.gains.u_max_V)
-    assert pp.Study.load(AXIS).criteria.peak_voltage_max_V == 110.0
+    assert pp.Study.load(AXIS).validation.peak_voltage_max_V == 110.0

@@ -68,7 +68,7 @@ def test_every_stage_runs_and_the_plant_is_the_designs(axis_run, capsys):
     design = DesignRecord.load(out / "design" / "design.json")
     pre = system.pre_cycle
     assert pre.slew_N_per_s == design.schedule.spec.slew_N_per_s and pre.level_N >= 50.0
-    assert pre.settle_s >= load_study(SMALL_AXIS).criteria.settling_max_s
+    assert pre.settle_s >= load_study(SMALL_AXIS).validation.settling_max_s
 
 
 def test_run_json_summary_names_the_whole_systems_numbers(axis_run, capsys):

@@ -576,7 +576,7 @@ def test_the_minimum_time_bound_on_the_designed_plant_and_the_pi_it_is_read_agai
 
     study = pp.load_study()
     step = study.references["step"]
-    spec = study.tuning_spec
+    spec = study.tuning
     bound = minimum_time(study.plant, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]),
                          band_N=study.band_N, u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
     # the bound is the tuning model's (the rig with its corners rounded): its numpy step, fed the command
@@ -607,7 +607,7 @@ _TUNED_AT_MS_1P4 = PIDGains(Kc=1.5444370296285501, Ti_s=0.053605887904364664, Td
 def _relaxed(study):
     """The paper's tuning at Ms <= 1.8 with its overshoot limit 0.1 N wider: the Ms <= 1.4 optimum meets it with room
     (its overshoot constraints bind at 0.9 N), so the test does not sit on a constraint's edge."""
-    return replace(study.tuning_spec, ms_max=1.8, overshoot_margin_N=0.5)
+    return replace(study.tuning, ms_max=1.8, overshoot_margin_N=0.5)
 
 
 @pytest.mark.slow

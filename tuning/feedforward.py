@@ -24,6 +24,7 @@ from piezopreload.artifacts.hysteresis import Compensation, DataSource, FitError
 from piezopreload.core._typing import Array
 from piezopreload.core.artifacts import ArtifactError, package_version
 from piezopreload.core.errors import InputError
+from piezopreload.core.records import Checked, checked, entry
 from piezopreload.core.tables import MeasuredRecord, write_csv
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import simulate_open_loop, triangle
@@ -42,29 +43,30 @@ __all__ = ["LoopExcitation", "FeedforwardModel", "IdentifiedFeedforward", "Compe
 FeedforwardModel = HysteresisModel | CreepPI
 
 
-@dataclass(frozen=True)
-class LoopExcitation:
-    """The open-loop hysteresis measurement the feedforward is identified from, and the model identified.
+@checked
+class LoopExcitation(Checked):
+    """[feedforward]: the loop measurement the feedforward's P-I model is identified from (simulated on the plant's
+    truth model, or ``data``, a measured one), the model's kind and whether it compensates creep too.
 
     ``kind`` is the P-I model (``classical``, ``modified``, ``paper-asymmetric``); ``creep`` adds
     a bank of creep lags (one per decade from 10 ms to the record's length) identified with it.
     """
 
-    v_max_V: float = 100.0
-    frequency_Hz: float = 0.5
-    cycles: int = 3
-    n_operators: int = 40
-    seed: int = 1
-    kind: str = "classical"
-    creep: bool = False
+    v_max_V: float = entry("The triangle's peak voltage.", unit="V", gt=0, default=100.0)
+    frequency_Hz: float = entry("The triangle's frequency.", unit="Hz", gt=0, default=0.5)
+    cycles: int = entry("Cycles of the triangle.", ge=1, default=3)
+    n_operators: int = entry("Play operators of the P-I model.", ge=1, default=40)
+    seed: int = entry("Noise seed of the simulated measurement.", ge=0, default=1)
+    data: str | None = entry("A measured time_s,voltage_V,force_N loop, relative to the study file (None: the loop "
+                             "simulated on the plant).", default=None)
+    kind: str = entry("The P-I model.", choices=MODELS, default="classical")
+    creep: bool = entry("Identify and compensate creep lags too.", default=False)
 
-    def __post_init__(self) -> None:
-        if not (self.v_max_V > 0 and self.frequency_Hz > 0 and self.cycles >= 1 and self.n_operators >= 1):
-            raise ValueError("LoopExcitation needs v_max_V > 0, frequency_Hz > 0, cycles >= 1, n_operators >= 1.")
-        if self.kind not in MODELS:
-            raise ValueError(f"kind must be one of {', '.join(MODELS)}, got {self.kind!r}.")
-        if not isinstance(self.creep, bool):
-            raise ValueError(f"creep must be true or false, got {self.creep!r}.")
+
+def _simulated(excitation: LoopExcitation) -> dict[str, Any]:
+    """The simulated measurement's settings as the identified model's source records them (a measured loop's file,
+    ``data``, is no setting of a simulation)."""
+    return {k: v for k, v in asdict(excitation).items() if k != "data"}
 
 
 def simulate_loop(rig: Plant, excitation: LoopExcitation) -> MeasuredRecord:
@@ -392,7 +394,7 @@ def identify_feedforward(rig: Plant, excitation: LoopExcitation, record: Measure
     """
     if record is None:
         loop = simulate_loop(rig, excitation)
-        source = DataSource("simulated", loop.sha256, None, asdict(excitation))
+        source = DataSource("simulated", loop.sha256, None, _simulated(excitation))
     else:
         if record.output_unit != "N" or record.input_unit != "V":
             raise InputError(f"{record.path}: the feedforward needs a voltage (V) -> force (N) loop; "

@@ -38,8 +38,8 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
-from typing import Any, TypedDict
+from dataclasses import dataclass, replace
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -48,9 +48,10 @@ from piezopreload.artifacts.tuning import ActiveBound, TuningSolve
 from piezopreload.core import native
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.core.progress import Count
+from piezopreload.core.records import Checked, Invalid, checked, entry
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import PAPER_BAND_N, Reference
-from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V, PIDGains
+from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V, SCHEDULE_MAX, PIDGains
 from piezopreload.models.hysteresis import InverseModel
 from piezopreload.models.ops import Layout
 from piezopreload.tuning.fopdt import fit_fopdt, simc
@@ -60,7 +61,7 @@ from piezopreload.tuning.loopshape import bound_rows, isa_pid_response, omega_te
 
 __all__ = [
     "TuningSpec",
-    "scaled_references",
+    "TUNING_KEYS",
     "plant_variants",
     "TuningInfeasible",
     "tune_pid",
@@ -72,71 +73,110 @@ class TuningInfeasible(InfeasibleError):
     """The specification cannot be met; the message names the binding constraints."""
 
 
-@dataclass(frozen=True)
-class TuningSpec:
-    """What the tuned loop must do.
+def _levels(value: Any, least: int, what: str) -> list[float]:
+    """A study's list of forces (``[tuning] step_N``): ``least`` or more numbers; ValueError naming ``what``."""
+    if not (isinstance(value, list | tuple) and len(value) >= least
+            and all(isinstance(x, int | float) and not isinstance(x, bool) and np.isfinite(x) for x in value)):
+        raise ValueError(f"{what} must be {least} or more finite numbers, got {value!r}")
+    return [float(x) for x in value]
 
-    Parameters
-    ----------
-    band_N : float
-        Error band of the settling time (the paper's 1.5 N).
-    overshoot_margin_N : float
-        The noise-free response stays this far inside the band (the sensor noise needs room).
-    ms_max : float
-        Maximum sensitivity of the linearised loop.
-    noise_gain_max_V_per_N : float
-        Bound on the controller's gain at the Nyquist frequency: sensor noise of ``s`` N rms
-        reaches the command as at most ``s * bound`` V rms at high frequency.
-    u_min_V, u_max_V : float
-        Output range of the controller.
-    step, trajectory : Reference
-        The references the loop is tuned over (short holds: the settling happens early).
-    tune_setpoint_weight : bool
-        Whether ``b`` is a decision variable in ``[0, 1]`` (else ``setpoint_weight``, 1 as LabVIEW). With the
-        feedforward following the setpoint, a small ``b`` keeps the proportional action from
-        kicking the command into its limit at a step.
-    Tf_ratio_min : float
-        Lower bound on ``Tf / Td`` (a derivative filter no faster than ``Td / 20`` by default).
-    ramp_s : float
-        The error's weight in the objective ramps from 0 at each change of the reference to 1
-        after ``ramp_s``: the transport right after a jump (which no gains remove, see
-        :func:`minimum_time`) counts little, the error the loop leaves after it counts fully.
-    variants : dict
-        Relative spread of the plant variants (see :func:`plant_variants`).
-    setpoint_weight : float
-        ``b`` where it is not tuned (a gain schedule's entries share the robust set's).
-    filter_s : float or None
-        ``Tf`` held, not tuned (a gain schedule's entries share the robust set's derivative
-        filter); None tunes it; 0 means no derivative filter and so no derivative action: a PI
-        (``Td = 0``; a robust set that came out a PI gives its schedule's entries this).
-    force_range_N : (float, float) or None
-        The measured force range the loop works in, for the linearised loop's slopes (the Ms
-        constraints): a gain schedule's entry is tuned for the range around its level, where a
-        Hertz coupling's force per volt is what it is there. None: the whole stroke (0-110 V).
-        The tuning's reported Ms (``TuningSolve.ms``) is read over the same range.
+
+def _step_of(step_N: Any) -> Reference:
+    """The tuning's short step ``(from, to)`` (0.6 s, the step at 0.02 s)."""
+    levels = _levels(step_N, 2, "the tuning's step")
+    if len(levels) != 2:
+        raise ValueError(f"the tuning's step must be (from, to), got {list(step_N)!r}")
+    return Reference.step(levels[0], levels[1], 0.02, 0.6)
+
+
+def _trajectory_of(trajectory_N: Any) -> Reference:
+    """The tuning's short staircase: its rest level, then its levels, each held 0.4 s from 0.02 s."""
+    levels = _levels(trajectory_N, 2, "the tuning's staircase")
+    return Reference.staircase(levels[0], levels[1:], 0.4, t_start_s=0.02)
+
+
+def _levels_of(reference: Reference) -> list[float]:
+    return [float(x) for x in reference.levels_N]
+
+
+@checked
+class TuningSpec(Checked):
+    """What the tuned loop must do: a study's ``[tuning]`` table (its keys, below), with the error band and the
+    output range from its ``[simulation]`` and ``[controller]``.
+
+    ``step`` and ``trajectory`` are the references the loop is tuned over (short holds: the settling happens
+    early); a study gives them as ``step_N = [from, to]`` and ``trajectory_N = [rest, level, ...]``.
+    ``tune_setpoint_weight`` makes ``b`` a decision variable in ``[0, 1]`` (else ``setpoint_weight``, 1 as
+    LabVIEW): with the feedforward following the setpoint, a small ``b`` keeps the proportional action from
+    kicking the command into its limit at a step. The error's weight in the objective ramps from 0 at each
+    change of the reference to 1 after ``ramp_s``: the transport right after a jump (which no gains remove, see
+    :func:`minimum_time`) counts little, the error the loop leaves after it counts fully. ``filter_s`` holds
+    ``Tf`` (a gain schedule's entries share the robust set's derivative filter); None tunes it; 0 means no
+    derivative filter and so no derivative action: a PI. ``force_range_N`` is the measured force range the loop
+    works in, for the linearised loop's slopes (the Ms constraints; None: the whole stroke, 0-110 V); the
+    tuning's reported Ms (``TuningSolve.ms``) is read over the same range.
     """
 
-    band_N: float = PAPER_BAND_N
-    overshoot_margin_N: float = 0.6
-    ms_max: float = 1.6
-    noise_gain_max_V_per_N: float = 8.0
-    u_min_V: float = OUTPUT_MIN_V
-    u_max_V: float = OUTPUT_MAX_V
-    step: Reference = field(default_factory=lambda: Reference.step(25.0, 60.0, 0.02, 0.6))
-    trajectory: Reference = field(
-        default_factory=lambda: Reference.staircase(25.0, [60.0, 80.0, 100.0, 80.0, 60.0], 0.4, t_start_s=0.02)
-    )
-    tune_setpoint_weight: bool = True
-    Tf_ratio_min: float = 0.05
-    ramp_s: float = 0.1
-    variants: dict[str, float] = field(
-        default_factory=lambda: {"gain": 0.15, "amp_bandwidth_Hz": 0.2, "slew": 0.2, "hysteresis": 0.2, "creep": 0.3}
-    )
-    setpoint_weight: float = 1.0
-    filter_s: float | None = None
-    force_range_N: tuple[float, float] | None = None
+    band_N: float = entry("The error band of the settling time (a study's [simulation] band_N).", unit="N", gt=0,
+                          default=PAPER_BAND_N)
+    overshoot_margin_N: float = entry("The noise-free step stays this far inside the error band ([simulation] band_N, "
+                                      "which it must be below).", unit="N", gt=0, default=0.6)
+    ms_max: float = entry("The largest maximum sensitivity over the plant variants.", gt=1, default=1.6)
+    noise_gain_max_V_per_N: float = entry("The controller's largest gain at the Nyquist frequency (sensor noise into "
+                                          "the command).", unit="V/N", gt=0, default=8.0)
+    u_min_V: float = entry("The controller's lowest output (a study's [controller] u_min_V).", unit="V",
+                           default=OUTPUT_MIN_V)
+    u_max_V: float = entry("The controller's highest output (a study's [controller] u_max_V).", unit="V",
+                           default=OUTPUT_MAX_V)
+    step: Reference = entry("The tuning's step (from, to), held 0.6 s (the paper's 25 -> 60 N by default).",
+                            name="step_N", unit="N", read=_step_of, write=_levels_of, takes="a list of 2 numbers",
+                            default_factory=lambda: _step_of([25.0, 60.0]))
+    trajectory: Reference = entry("The tuning's staircase: its rest level, then its levels, each held 0.4 s (the "
+                                  "paper's by default).", name="trajectory_N", unit="N", read=_trajectory_of,
+                                  write=_levels_of, takes="a list of 2 or more numbers",
+                                  default_factory=lambda: _trajectory_of([25.0, 60.0, 80.0, 100.0, 80.0, 60.0]))
+    tune_setpoint_weight: bool = entry("Tune the setpoint weight b too (false: [controller] b).", default=True)
+    Tf_ratio_min: float = entry("The least Tf / Td (a derivative filter no faster than Td / 20 by default).", gt=0,
+                                default=0.05)
+    ramp_s: float = entry("The time over which the error's weight ramps up after each change of the reference.",
+                          unit="s", gt=0, default=0.1)
+    variants: dict[str, float] = entry("The relative spread of the plant variants (see plant_variants).", ge=0,
+                                       default_factory=lambda: {"gain": 0.15, "amp_bandwidth_Hz": 0.2, "slew": 0.2,
+                                                                "hysteresis": 0.2, "creep": 0.3})
+    setpoint_weight: float = entry("b where it is not tuned (a gain schedule's entries share the robust set's).", ge=0,
+                                   le=1, default=1.0)
+    filter_s: float | None = entry("Tf held, not tuned (None: tuned; 0: no derivative action, a PI).", unit="s", ge=0,
+                                   default=None)
+    force_range_N: tuple[float, float] | None = entry("The measured force range the loop works in, for the "
+                                                      "linearised loop's slopes (None: the whole stroke).", unit="N",
+                                                      increasing=True, default=None)
+    schedule_levels: int = entry(f"Entries of a gain schedule on the preload level (0: one gain set; else "
+                                 f"2..{SCHEDULE_MAX}).", ge=0, le=SCHEDULE_MAX, default=0)
+    schedule_plants: int = entry("Monte Carlo plants per level and gain set when choosing between the schedule and "
+                                 "the robust set.", ge=1, le=100_000, default=50)
+    warm_start: str | None = entry("A tuning record or gain set (JSON, relative to the study file) whose gains the "
+                                   "tuning starts from and keeps unless it finds better: a tighter problem's, the "
+                                   "last run's (not set: the study's [controller] gains and SIMC's only).",
+                                   default=None)
+
+    def check(self) -> None:
+        if not self.overshoot_margin_N < self.band_N:
+            raise Invalid("overshoot_margin_N", f"must be below [simulation] band_N ({self.band_N:g} N), the error "
+                                                f"band, got {self.overshoot_margin_N:g}", "TuningSpec")
+        if not self.u_min_V < self.u_max_V:
+            raise Invalid("u_max_V", f"must be above u_min_V ({self.u_min_V:g} V), got {self.u_max_V:g}",
+                          "TuningSpec")
+        if self.schedule_levels == 1:
+            raise Invalid("schedule_levels", f"must be 0 (one gain set) or 2..{SCHEDULE_MAX}, got 1", "TuningSpec")
 
     def to_dict(self) -> dict[str, Any]:
+        """The specification as the tuning record holds it (its numbers, not its references).
+
+        Returns
+        -------
+        dict
+            ``band_N``, ``overshoot_margin_N``, ``ms_max``, ... (``b``, ``filter_s``, ``force_range_N`` where set).
+        """
         return {"band_N": self.band_N, "overshoot_margin_N": self.overshoot_margin_N, "ms_max": self.ms_max,
                 "noise_gain_max_V_per_N": self.noise_gain_max_V_per_N, "u_min_V": self.u_min_V, "u_max_V": self.u_max_V,
                 "tune_setpoint_weight": self.tune_setpoint_weight, "variants": dict(self.variants),
@@ -144,51 +184,13 @@ class TuningSpec:
                 **({} if self.filter_s is None else {"filter_s": self.filter_s}),
                 **({} if self.force_range_N is None else {"force_range_N": list(self.force_range_N)})}
 
-    def __post_init__(self) -> None:
-        if not (0 < self.overshoot_margin_N < self.band_N):
-            raise ValueError("TuningSpec needs 0 < overshoot_margin_N < band_N.")
-        if not self.ms_max > 1.0:
-            raise ValueError("TuningSpec.ms_max must be > 1.")
-        if not self.noise_gain_max_V_per_N > 0:
-            raise ValueError("TuningSpec.noise_gain_max_V_per_N must be > 0.")
-        if not self.u_min_V < self.u_max_V:
-            raise ValueError("TuningSpec needs u_min_V < u_max_V.")
-        if not self.ramp_s > 0:
-            raise ValueError("TuningSpec.ramp_s must be > 0.")
-        if self.filter_s is not None and not (np.isfinite(self.filter_s) and self.filter_s >= 0):
-            raise ValueError(f"TuningSpec.filter_s must be finite and >= 0, got {self.filter_s!r}.")
-        if not 0.0 <= self.setpoint_weight <= 1.0:
-            raise ValueError(f"TuningSpec.setpoint_weight must be in [0, 1], got {self.setpoint_weight!r}.")
-        if self.force_range_N is not None and not (len(self.force_range_N) == 2
-                                                   and np.all(np.isfinite(self.force_range_N))
-                                                   and self.force_range_N[0] <= self.force_range_N[1]):
-            raise ValueError("TuningSpec.force_range_N must be (low, high) with low <= high, "
-                             f"got {self.force_range_N!r}.")
 
+#: the paper's specification (what :func:`tune_pid` tunes for where it is given none)
+_PAPER_SPEC = TuningSpec()
 
-class ScaledReferences(TypedDict, total=False):
-    """:func:`scaled_references`: the ones a study sets, as :class:`TuningSpec`'s keywords."""
-
-    step: Reference
-    trajectory: Reference
-
-
-def scaled_references(step_N: Any = None, trajectory_N: Any = None) -> ScaledReferences:
-    """The tuning's short step and staircase at a study's force scale (``TuningSpec``'s time scale:
-    0.6 s for the step, 0.4 s per level): ``step_N = (from, to)``, ``trajectory_N = (rest, levels...)``;
-    None keeps the paper's."""
-    out: ScaledReferences = {}
-    if step_N is not None:
-        if len(step_N) != 2:
-            raise ValueError(f"tuning.step_N must be (from, to), got {list(step_N)!r}")
-        out["step"] = Reference.step(float(step_N[0]), float(step_N[1]), 0.02, 0.6)
-    if trajectory_N is not None:
-        if len(trajectory_N) < 2:
-            raise ValueError("tuning.trajectory_N must be the rest level and at least one level, "
-                             f"got {list(trajectory_N)!r}")
-        out["trajectory"] = Reference.staircase(float(trajectory_N[0]), [float(x) for x in trajectory_N[1:]], 0.4,
-                                                t_start_s=0.02)
-    return out
+#: the keys of a study's [tuning] table, by field name (the others come from [simulation], [controller] or code)
+TUNING_KEYS = ("overshoot_margin_N", "ms_max", "noise_gain_max_V_per_N", "tune_setpoint_weight", "step",
+               "trajectory", "schedule_levels", "schedule_plants", "warm_start")
 
 
 # --------------------------------------------------------------------------------------
@@ -669,7 +671,7 @@ def _as_pi(params: Plant, feedforward: InverseModel | None, spec: TuningSpec, en
 def tune_pid(
     params: Plant,
     feedforward: InverseModel | None,
-    spec: TuningSpec = TuningSpec(),
+    spec: TuningSpec = _PAPER_SPEC,
     *,
     max_iterations: int = 150,
     starts: int = 3,
