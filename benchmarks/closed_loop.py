@@ -83,7 +83,7 @@ def main() -> None:
     study = load_study(paper_study())
     rig = Rig(study.plant)
     ff = identify_feedforward(study.plant, study.feedforward, check_range_N=None).model
-    controller = Controller(study.gains, rig.dt_s, ff.inverse())
+    controller = Controller(study.controller, rig.dt_s, ff.inverse())
     ref = Reference.step(25.0, 60.0, 0.5, SIM_S)
     batch = Rig(study.plant.vary(BATCH, SPREAD, seed=0))
     n = int(round(SIM_S / rig.dt_s)) + 1

@@ -79,7 +79,7 @@ def plan_front(params, ref, weights, preview_s: float = 0.3) -> list[dict]:
 def paper(args: argparse.Namespace) -> dict:
     study = load_study("paper2021")
     rig = Rig(study.plant)
-    controller = Controller(study.gains, rig.dt_s, study.identify_feedforward().inverse())
+    controller = Controller(study.controller, rig.dt_s, study.identify_feedforward().inverse())
     ref = study.references["trajectory"]
     peer = simulate(rig, controller, ref, seed=study.seed)
     out: dict = {"paper_tracking_rms_N": peer.tracking_error().rms_N,

@@ -41,6 +41,7 @@ import subprocess
 import sys
 import tempfile
 import threading
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +49,6 @@ import numpy as np
 
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.validation import Criteria
-from piezopreload.models.controller import PIDGains
 from piezopreload.rig import native_loop
 from piezopreload.rig.runlog import read_run_log
 from piezopreload.rig.session import serve
@@ -230,10 +230,8 @@ def main() -> dict:
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         paths, shas = [], []
-        for j, gains in enumerate((study.gains, PIDGains(Kc=study.gains.Kc * 0.8, Ti_s=study.gains.Ti_s * 1.2,
-                                                         Td_s=study.gains.Td_s, Tf_s=study.gains.Tf_s,
-                                                         b=study.gains.b, u_min_V=study.gains.u_min_V,
-                                                         u_max_V=study.gains.u_max_V))):
+        start = study.controller
+        for j, gains in enumerate((start, replace(start, Kc=start.Kc * 0.8, Ti_s=start.Ti_s * 1.2))):
             g = GainSet(gains=gains, status="validated", feedforward=ff, plant=study.plant, preset=study.name,
                         references={k: study.references[k] for k in ("step", "trajectory")},
                         criteria=Criteria(band_N=study.band_N))

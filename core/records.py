@@ -72,6 +72,7 @@ from piezopreload.core.errors import ArtifactError, InputError
 
 __all__ = ["Entry", "entry", "record", "Record", "Artifact", "SavedArtifact", "Raw", "load_one_of", "object_without",
            "kind_of", "Checked", "checked", "check_entries", "read_table", "Invalid", "MANY", "table_values", "TableOf",
+           "UnitKey",
            "takes"]
 
 #: the metadata entry of a field declared with :func:`entry`
@@ -1111,12 +1112,12 @@ def check_entries(obj: Any) -> None:
     Raises
     ------
     Invalid
-        For the first field that is not what it declares: ``'Owner.key' must be WHAT, got VALUE``.
+        For the first field that is not what it declares: ``'Owner.field' must be WHAT, got VALUE``.
     """
     for spec in _specs(type(obj)):
         value = getattr(obj, spec.name)
-        if not _fits(spec, value):
-            raise Invalid(spec.key, f"must be {takes(spec)}, got {_shown(value)}", type(obj).__name__)
+        if not _fits(spec, value):  # by the field's name: a file's reader names its key (read_table)
+            raise Invalid(spec.name, f"must be {takes(spec)}, got {_shown(value)}", type(obj).__name__)
 
 
 class Checked:
@@ -1216,7 +1217,8 @@ def table_keys(cls: type, keys: tuple[str, ...] | None = None) -> tuple[_Spec, .
 
 
 def read_table(cls: type[_R], data: Any, fail: Fail, path: str, *, keys: tuple[str, ...] | None = None,
-               given: dict[str, Any] | None = None, nested: dict[str, TableOf] | None = None) -> _R:
+               given: dict[str, Any] | None = None, nested: dict[str, TableOf] | None = None,
+               unit: UnitKey | None = None) -> _R:
     """Make ``cls`` from a table of a file: each key checked against its field's declaration, then the type's own
     checks (:class:`Checked`); every error is ``fail(path of the key, message)``.
 
@@ -1236,6 +1238,8 @@ def read_table(cls: type[_R], data: Any, fail: Fail, path: str, *, keys: tuple[s
         Fields set from elsewhere (another table's value), by name.
     nested : dict of str to TableOf, optional
         The fields that are tables of their own (``[rig.stack]``), by name.
+    unit : UnitKey, optional
+        A key of the table that is no field: the unit some of its numbers are entered in, converted here.
 
     Returns
     -------
@@ -1245,16 +1249,23 @@ def read_table(cls: type[_R], data: Any, fail: Fail, path: str, *, keys: tuple[s
     if not isinstance(data, dict):
         raise fail(path, f"must be a table ([{path}]), got {_shown(data)}")
     specs = {s.key: s for s in table_keys(cls, keys)}
+    factor = 1.0 if unit is None else unit.factor(data.get(unit.key, unit.default), fail, f"{path}.{unit.key}")
     values: dict[str, Any] = dict(given or {})
     for key, value in data.items():
+        if unit is not None and key == unit.key:
+            continue
         spec = specs.get(key)
         if spec is None:
-            raise fail(f"{path}.{key}", f"is an unknown key; [{path}] has: {', '.join(specs)}")
+            known = [*specs, *([] if unit is None else [unit.key])]
+            raise fail(f"{path}.{key}", f"is an unknown key; [{path}] has: {', '.join(known)}")
         inner = (nested or {}).get(spec.name)
         values[spec.name] = inner.parse(value, fail, f"{path}.{key}") if inner is not None else \
             _from_file(spec, value, f"{path}.{key}", fail)
+        if unit is not None and spec.name in unit.fields:  # checked as entered, held in the field's unit
+            values[spec.name] = factor * values[spec.name]
     for spec in specs.values():
-        if spec.name not in values and spec.default is MISSING and spec.factory is MISSING:
+        if spec.name not in values and ((spec.default is MISSING and spec.factory is MISSING)
+                                        or spec.entry.required):
             raise fail(path, f"needs '{spec.key}' ({takes(spec)})")
     by_name = {s.name: s.key for s in _specs(cls)}
     try:
@@ -1281,6 +1292,73 @@ def table_values(obj: Any, keys: tuple[str, ...] | None = None) -> dict[str, Any
 
 
 @dataclass(frozen=True)
+class UnitKey:
+    """A key of a table that is no field of its type: the unit some of the table's numbers are entered in, each
+    converted to its field's unit as the table is read (``[controller] units = "minutes"``: ``Ti`` and ``Td`` as
+    LabVIEW enters them).
+
+    Parameters
+    ----------
+    key : str
+        The key (``units``).
+    doc : str
+        What it says, for the documentation's table of keys.
+    factors : tuple of (str, float)
+        Each unit the key may name and what a number entered in it is multiplied by; the first is the default.
+    fields : tuple of str
+        The fields, by name, entered in that unit.
+    """
+
+    key: str
+    doc: str
+    factors: tuple[tuple[str, float], ...]
+    fields: tuple[str, ...]
+
+    @property
+    def default(self) -> str:
+        """The unit where the table does not name one.
+
+        Returns
+        -------
+        str
+            The first of :attr:`factors`.
+        """
+        return self.factors[0][0]
+
+    def takes(self) -> str:
+        """What the key takes, in a table's words.
+
+        Returns
+        -------
+        str
+            ``one of seconds, minutes``.
+        """
+        return "one of " + ", ".join(name for name, _ in self.factors)
+
+    def factor(self, value: Any, fail: Fail, at: str) -> float:
+        """The factor of the unit ``value`` names.
+
+        Parameters
+        ----------
+        value : object
+            The key's value in the file.
+        fail : callable
+            ``fail(key path, message)``.
+        at : str
+            The key's path.
+
+        Returns
+        -------
+        float
+            What a number entered in that unit is multiplied by.
+        """
+        factors = dict(self.factors)
+        if not isinstance(value, str) or value not in factors:
+            raise fail(at, f"must be {self.takes()}, got {_shown(value)}")
+        return factors[value]
+
+
+@dataclass(frozen=True)
 class TableOf:
     """A table of a configuration file read straight into a domain type: the type, the fields the file gives and the
     table's sentence for the documentation.
@@ -1295,12 +1373,15 @@ class TableOf:
         The fields the file gives, by name (None: every field).
     nested : tuple of (str, TableOf)
         The fields that are tables of their own (``[rig.stack]``): each field's name and its table.
+    unit : UnitKey or None
+        A key naming the unit some of the table's numbers are entered in (None: each in its field's unit).
     """
 
     type: type
     doc: str
     keys: tuple[str, ...] | None = None
     nested: tuple[tuple[str, TableOf], ...] = ()
+    unit: UnitKey | None = None
 
     def parse(self, data: Any, fail: Fail, path: str, given: dict[str, Any] | None = None) -> Any:
         """The type from the file's table (see :func:`read_table`).
@@ -1321,7 +1402,8 @@ class TableOf:
         object
             The value.
         """
-        return read_table(self.type, data, fail, path, keys=self.keys, given=given, nested=dict(self.nested))
+        return read_table(self.type, data, fail, path, keys=self.keys, given=given, nested=dict(self.nested),
+                          unit=self.unit)
 
     def values(self, obj: Any) -> dict[str, Any]:
         """The table's keys of ``obj`` as a file holds them (:func:`table_values`).
@@ -1359,8 +1441,10 @@ class TableOf:
             default = spec.factory() if spec.factory is not MISSING else spec.default
             if spec.entry.write is not None and default is not None and default is not MISSING:
                 default = spec.entry.write(default)
-            shown = "required" if default is MISSING else _default_shown(default)
+            shown = "required" if default is MISSING or spec.entry.required else _default_shown(default)
             out.append((spec.key, takes(spec), shown, spec.entry.unit, spec.entry.doc))
+        if self.unit is not None:
+            out.append((self.unit.key, self.unit.takes(), _default_shown(self.unit.default), "", self.unit.doc))
         return out
 
 

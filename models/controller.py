@@ -46,11 +46,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from piezopreload.core.errors import InputError
+from piezopreload.core.records import Checked, Invalid, UnitKey, checked, entry
 from piezopreload.models.ops import CASADI, NUMPY, Layout, Ops
 
 __all__ = ["PIDGains", "GainSchedule", "SCHEDULE_MAX", "Controller", "ControllerState", "ControllerModel", "Terms",
            "Feedforward", "FeedforwardStep", "pid_update", "pid_law", "measurement_filter2", "FILTER_ORDERS",
-           "controller_functions", "OUTPUT_MIN_V", "OUTPUT_MAX_V"]
+           "controller_functions", "OUTPUT_MIN_V", "OUTPUT_MAX_V", "INTEGRAL_TIME", "TIME_UNITS"]
 
 #: the controller's output range where nothing else sets one (V): the paper's closed loop drives its amplifier over
 #: 0-110 V; the study's ``[controller]``, the tuning, the interlocks and the exports all start from these
@@ -260,60 +261,69 @@ SCHEDULE_INTERPOLATION = ("Kc, Ti, Td and the setpoint weight b linear in the se
                           "jump the output")
 
 
-@dataclass(frozen=True)
-class PIDGains:
-    """PID gains and output range, SI units.
+#: what an integral time takes (its rule is :meth:`PIDGains.check`'s)
+INTEGRAL_TIME = "a number > 0, or inf for no integral action"
 
-    Parameters
-    ----------
-    Kc : float
-        Controller gain, output units per measured unit (V/N for the preload loop).
-    Ti_s : float
-        Integral time in s; ``inf`` switches integral action off.
-    Td_s : float
-        Derivative time in s (0: no derivative action).
-    Tf_s : float
-        Time constant of the derivative filter in s (0: unfiltered; > 0 for ``filter_order`` 2).
-    b : float
-        Setpoint weight of the proportional action (1: error feedback, as LabVIEW).
-    u_min_V, u_max_V : float
-        Output range (V); default :data:`OUTPUT_MIN_V` .. :data:`OUTPUT_MAX_V`, the paper's 0-110 V.
-    schedule : GainSchedule or None
-        ``Kc``, ``Ti`` and ``Td`` scheduled on the setpoint; the step then uses the table, and
-        the single ``Kc``, ``Ti_s``, ``Td_s`` are the set it was chosen against (the robust set),
-        kept for the record. None: one set.
-    filter_order : int
-        1 (default): the derivative through the first-order filter ``1/(Tf s + 1)``, backward Euler; 2: the
-        measurement through ``1/(1 + Tf s + (Tf s)^2/2)``, Tustin's rule (:func:`measurement_filter2`).
-    """
 
-    Kc: float
-    Ti_s: float
-    Td_s: float = 0.0
-    Tf_s: float = 0.0
-    b: float = 1.0
-    u_min_V: float = OUTPUT_MIN_V
-    u_max_V: float = OUTPUT_MAX_V
-    schedule: GainSchedule | None = None
-    filter_order: int = 1
+def _integral_time(value: Any) -> float:
+    """An integral time as a study's table enters it: a finite number > 0 (a ``ValueError`` otherwise). A study's
+    gains go into JSON records and exports, which hold no infinity: no integral action is for gains made in code."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not 0 < float(value) < np.inf:
+        raise ValueError(value)
+    return float(value)
 
-    def __post_init__(self) -> None:
-        _finite("Kc", self.Kc)
-        if isinstance(self.filter_order, bool) or self.filter_order not in FILTER_ORDERS:
-            raise ValueError(f"filter_order must be 1 (first order on the derivative) or 2 (second order on the "
-                             f"measurement), got {self.filter_order!r}.")
+
+#: the unit ``[controller]`` enters ``Ti`` and ``Td`` in: seconds, or LabVIEW's minutes
+TIME_UNITS = UnitKey("units", "the unit Ti and Td are entered in (LabVIEW's PID takes minutes); minutes are "
+                     "converted to seconds as the file is read",
+                     (("seconds", 1.0), ("minutes", 60.0)), ("Ti_s", "Td_s"))
+
+
+@checked
+class PIDGains(Checked):
+    """PID gains and output range, SI units: the study's ``[controller]`` table is read straight into them, its
+    ``Ti`` and ``Td`` entered in ``units`` (seconds, or LabVIEW's minutes) and held in seconds."""
+
+    Kc: float = entry("Controller gain, output units per measured unit (V/N for the preload loop).", unit="V/N")
+    Ti_s: float = entry("Integral time in s; inf for no integral action, in code (a study's [controller] enters it "
+                        "as Ti, in its units, finite).", name="Ti", read=_integral_time, takes="a number > 0")
+    Td_s: float = entry("Derivative time in s, 0 for no derivative action (a study's [controller] enters it as Td, "
+                        "in its units).", name="Td",
+                        default=0.0, ge=0, required=True)
+    Tf_s: float = entry("Time constant of the derivative filter (0: unfiltered; > 0 for filter_order 2).",
+                        default=0.0, unit="s", ge=0)
+    b: float = entry("Setpoint weight of the proportional action (1: error feedback, as LabVIEW).", default=1.0)
+    u_min_V: float = entry("The controller's lowest output (default: the paper's 0 V).", default=OUTPUT_MIN_V,
+                           unit="V")
+    u_max_V: float = entry("The controller's highest output (default: the paper's 110 V).", default=OUTPUT_MAX_V,
+                           unit="V")
+    schedule: GainSchedule | None = entry("Kc, Ti and Td scheduled on the setpoint; the step then uses the table, and "
+                                          "the single Kc, Ti_s, Td_s are the set it was chosen against (the robust "
+                                          "set), kept for the record. None: one set.", default=None)
+    filter_order: int = entry("1: the derivative through the first-order filter 1/(Tf s + 1), backward Euler; 2: "
+                              "the measurement through 1/(1 + Tf s + (Tf s)^2/2), Tustin's rule "
+                              "(measurement_filter2).", default=1, ge=1, le=2)
+
+    #: the fields a study's ``[controller]`` table gives
+    TABLE_KEYS = ("Kc", "Ti_s", "Td_s", "Tf_s", "b", "u_min_V", "u_max_V")
+
+    def check(self) -> None:
+        """The rules between fields: an integral time > 0 (inf: none), the output range's order, the second-order
+        filter's time constant, a schedule's type."""
+        try:
+            integral_time = float(self.Ti_s)
+        except (TypeError, ValueError):
+            integral_time = float("nan")
+        if isinstance(self.Ti_s, bool | str) or not integral_time > 0:
+            raise Invalid("Ti_s", f"must be {INTEGRAL_TIME}, got {self.Ti_s!r}", "PIDGains")
+        if not self.u_min_V < self.u_max_V:
+            raise Invalid("u_max_V", f"must be above u_min_V ({self.u_min_V:g} V), got {self.u_max_V:g}", "PIDGains")
         if self.filter_order == 2 and not self.Tf_s > 0:
-            raise ValueError(f"filter_order 2 needs a filter time constant Tf_s > 0, got {self.Tf_s!r}.")
-        if not (self.Ti_s > 0):
-            raise ValueError(f"Ti_s must be > 0 (inf for no integral action), got {self.Ti_s!r}.")
-        for name in ("Td_s", "Tf_s"):
-            if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
-                raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}.")
-        _finite("b", self.b)
-        if not (np.isfinite(self.u_min_V) and np.isfinite(self.u_max_V) and self.u_min_V < self.u_max_V):
-            raise ValueError(f"need finite u_min_V < u_max_V, got {self.u_min_V!r} and {self.u_max_V!r}.")
+            raise Invalid("Tf_s", f"must be > 0 for filter_order 2 (the second-order filter), got {self.Tf_s!r}",
+                          "PIDGains")
         if self.schedule is not None and not isinstance(self.schedule, GainSchedule):
-            raise ValueError(f"schedule must be a GainSchedule or None, got {type(self.schedule).__name__}.")
+            raise Invalid("schedule", f"must be a GainSchedule or None, got {type(self.schedule).__name__}",
+                          "PIDGains")
 
     def at(self, setpoint_N: ArrayLike) -> tuple[Any, Any, Any]:
         """``(Kc, Ti_s, Td_s)`` the step uses at ``setpoint_N``: the schedule's, or the single set.

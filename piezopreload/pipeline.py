@@ -270,7 +270,7 @@ def _stage_validate(ctx: _Ctx) -> Produced:
 def _stage_compare(ctx: _Ctx) -> Produced:
     study, ff, plant = ctx.study, ctx.feedforward(), ctx.solved().plant()
     gain_set = GainSet.load(ctx.output("validate", "gains"))
-    runs = responses(plant, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model,
+    runs = responses(plant, study.references, {"study": study.controller, "tuned": gain_set.gains}, ff.model,
                      seed=study.seed, band_N=study.band_N, signal=study.signal,
                      after_change_s=study.validation.tracking_after_change_s,
                      bar=ctx.progress.bar("closed-loop runs"))
@@ -285,7 +285,7 @@ def _stage_compare(ctx: _Ctx) -> Produced:
                                 **{k: r.numbers.get(k) for k in RESPONSE_FIGURES}))
     table = [] if study.published is None else reproduction(runs, study.published.step())
     creep = None if ff.without_creep is None else creep_effect(  # FF + PID with and without creep compensation
-        plant, study.references, {"study": study.gains, "tuned": gain_set.gains}, ff.model, ff.without_creep,
+        plant, study.references, {"study": study.controller, "tuned": gain_set.gains}, ff.model, ff.without_creep,
         seed=study.seed, band_N=study.band_N, signal=study.signal,
         after_change_s=study.validation.tracking_after_change_s)
     record = ResponsesRecord(

@@ -53,16 +53,16 @@ from piezopreload.design.tables import (
 )
 from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
-from piezopreload.models.controller import PIDGains
+from piezopreload.models.controller import TIME_UNITS, PIDGains
 from piezopreload.progress import ProgressLike, say_of
 from piezopreload.rig.tables import ExportTable, RigRunPlan
 from piezopreload.tables import (
+    CONTROLLER,
     DESIGN_TABLES,
     FEEDFORWARD,
     REQUIRED_TABLES,
     RIG,
     STUDY_TABLES,
-    ControllerTable,
     PublishedTable,
     ReferenceTables,
     SimulationTable,
@@ -127,7 +127,7 @@ class StudySpec:
     name: str
     title: str
     rig: Plant
-    controller: ControllerTable
+    controller: PIDGains
     feedforward: LoopExcitation
     reference: ReferenceTables
     simulation: SimulationTable
@@ -144,7 +144,6 @@ class StudySpec:
     learning: LearningTable | None
     published: PublishedTable | None
     # what the tables make, built and checked on load
-    gains: PIDGains = field(repr=False)
     references: dict[str, Reference] = field(repr=False)
     design_spec: DesignSpec | None = field(repr=False)
     where: _Source = field(repr=False)
@@ -353,6 +352,19 @@ class StudySpec:
         """
         return self.source_text.decode("utf-8")
 
+    @property
+    def controller_units(self) -> str:
+        """The unit the file entered ``[controller]`` ``Ti`` and ``Td`` in (:attr:`controller` holds them in seconds).
+
+        Returns
+        -------
+        str
+            ``"seconds"`` or ``"minutes"`` (LabVIEW's), as the file's ``units`` says (``"seconds"`` where it says
+            nothing).
+        """
+        entered = self.given.get("controller", {}).get(TIME_UNITS.key, TIME_UNITS.default)
+        return str(entered)
+
     # ---- the plant ---------------------------------------------------------------------------
     @property
     def plant_from_design(self) -> bool:
@@ -413,7 +425,7 @@ class _StudyTables(TypedDict):
     rig: Plant
     plant: PlantTable | None
     learning: LearningTable | None
-    controller: ControllerTable
+    controller: PIDGains
     feedforward: LoopExcitation
     reference: ReferenceTables
     simulation: SimulationTable
@@ -448,7 +460,8 @@ def _parse(data: dict[str, Any], where: _Source) -> _StudyTables:
 
     rig = RIG.parse(data["rig"], where.fail, "rig")  # [rig] read straight into the plant
     study, plant, learning = table("study"), table("plant"), table("learning")
-    controller, reference = table("controller"), table("reference")
+    controller = CONTROLLER.parse(data["controller"], where.fail, "controller")  # [controller] into the gains
+    reference = table("reference")
     feedforward = FEEDFORWARD.parse(data.get("feedforward", {}), where.fail, "feedforward")
     simulation: SimulationTable = table("simulation")
     ballscrew, feed_drive, duty, design = table("ballscrew"), table("feed_drive"), table("duty"), table("design")
@@ -499,7 +512,7 @@ def _refuse_thermal(data: dict[str, Any], fail: Callable[[str, str], InputError]
                               "tables): the shift's budget is that of the system along its schedule")
 
 
-def _refuse_unreachable(validation: Criteria, controller: ControllerTable,
+def _refuse_unreachable(validation: Criteria, controller: PIDGains,
                         fail: Callable[[str, str], InputError]) -> None:
     """A requirement the study's own clamp makes impossible to miss is refused: the controller clamps its command at
     ``[controller] u_max_V``, so a highest-command limit at or above it could not fail."""
@@ -518,13 +531,8 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
     _refuse_ignored(data, where)
     t = _parse(data, where)
     rig: Plant = t["rig"]
-    c: ControllerTable = t["controller"]
+    c: PIDGains = t["controller"]
     sim: SimulationTable = t["simulation"]
-    try:
-        gains = PIDGains(Kc=c.Kc, Ti_s=c.seconds * c.Ti, Td_s=c.seconds * c.Td, Tf_s=c.Tf_s, b=c.b, u_min_V=c.u_min_V,
-                         u_max_V=c.u_max_V)
-    except ValueError as exc:  # every key was checked; a rule between them the table misses
-        raise fail("controller", f"does not make PID gains: {exc}") from None
     validation = t["validation"]
     _refuse_unreachable(validation, c, fail)
     design_spec = None if t["ballscrew"] is None else design_spec_from_tables(
@@ -541,7 +549,7 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
         simulation=sim, tuning=t["tuning"], validation=validation, export=t["export"],
         rig_run=t["rig_run"].resolved(), ballscrew=t["ballscrew"], feed_drive=t["feed_drive"], duty=t["duty"],
         design_table=t["design"], schedule=t["schedule"], plant_table=t["plant"], learning=t["learning"],
-        published=t["published"], thermal=t["thermal"], gains=gains,
+        published=t["published"], thermal=t["thermal"],
         references=_references(t["reference"], fail),
         design_spec=design_spec, where=where, source_text=text,
         given=copy.deepcopy(data), say=say)

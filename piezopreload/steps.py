@@ -326,7 +326,7 @@ def _controller(spec: StudySpec, solved: Solved, gains: GainSet | None, progress
     """The gain set's controller, or the study's [controller] gains with the identified feedforward."""
     if gains is not None:
         return gains.controller()
-    return Controller(spec.gains, solved.plant(progress).sample_period_s, solved.feedforward(progress).inverse())
+    return Controller(spec.controller, solved.plant(progress).sample_period_s, solved.feedforward(progress).inverse())
 
 
 # --------------------------------------------------------------------------------------
@@ -549,7 +549,7 @@ def tune(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforward | 
     say("tuning the PID around the compensated plant (CasADi + IPOPT), the minimum-time bound beside it ...")
     bounding = pool.beside(minimum_time, plant, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]),
                       band_N=study.band_N, u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
-    known = {"the study's [controller] gains": study.gains}
+    known = {"the study's [controller] gains": study.controller}
     warm = study.files().get("tuning.warm_start")
     warm_gains = None if warm is None else warm_start_gains(warm)
     if warm is not None and warm_gains is not None:
@@ -576,7 +576,7 @@ def tune(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforward | 
         g, schedule = sched.gains, sched.to_dict()
     floor = tracking_floor(plant, trajectory)
     say("comparing the study's, SIMC's and the tuned gains on the nominal plant ...")
-    table = compare_gains(plant, step, trajectory, {"study": study.gains, "simc": baseline, "tuned": g},
+    table = compare_gains(plant, step, trajectory, {"study": study.controller, "simc": baseline, "tuned": g},
                           feedforward.model, criteria, seed)
     row = next(r for r in table if r.gains == "tuned" and r.feedforward)
     inputs = {"study": study.path, "study_sha256": study.sha256, "seed": seed}
@@ -725,7 +725,7 @@ def simulate(study: StudySpec, solved: Solved, gains: GainSet | PIDGains | None 
     elif isinstance(gains, PIDGains):
         pid, source = gains, "given"
     else:
-        pid, source = study.gains, f"{study.path} [controller], read as {study.controller.units}"
+        pid, source = study.controller, f"{study.path} [controller], read as {study.controller_units}"
     rig = Rig(solved.plant())
     inverse, ff_info = None, None
     if controller == "ff+pid":
@@ -759,11 +759,11 @@ def reproduce(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforwa
                          "studies/paper2021.toml has); reproduce sets a study's simulation beside published numbers")
     feedforward = feedforward or solved.feedforward()
     t0 = time.perf_counter()
-    rep = reproduce_paper(solved.plant(), study.gains, step=study.references["step"], excitation=study.feedforward,
+    rep = reproduce_paper(solved.plant(), study.controller, step=study.references["step"], excitation=study.feedforward,
                           seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
                           repeats=repeats, feedforward=feedforward.model,
                           feedforward_fit=feedforward.fit.to_dict())
     comparison = reproduction_summary(rep, study.published.step())
-    return StudyReproduction(study.ref, study.gains, study.controller.units, study.band_N, study.signal,
+    return StudyReproduction(study.ref, study.controller, study.controller_units, study.band_N, study.signal,
                              study.published.source, tuple(float(x) for x in study.references["step"].levels_N),
                              comparison, time.perf_counter() - t0)

@@ -87,7 +87,10 @@ class Study(StudySpec):
         ``[rig]``: the plant's hardware, read into the plant itself (the model's defaults where it gives none).
     feedforward : LoopExcitation
         ``[feedforward]``: the loop the feedforward is identified on.
-    controller, reference, simulation, export : table
+    controller : PIDGains
+        ``[controller]``: the starting gains, read straight into them (``Ti`` and ``Td`` held in seconds, whatever
+        the file's ``units``: :attr:`controller_units` says which it entered).
+    reference, simulation, export : table
         The tables of those names, typed as the file gives them (defaults where it gives none).
     tuning : TuningSpec
         ``[tuning]``: what the tuning requires (with ``[simulation]``'s band and ``[controller]``'s output range).
@@ -98,8 +101,6 @@ class Study(StudySpec):
     ballscrew, feed_drive, duty, design_table, schedule, plant_table, learning, published : table or None
         The optional tables (``[design]`` is ``design_table``, ``[plant]`` ``plant_table``); None where the file
         has none.
-    gains : PIDGains
-        The starting gains the tables make.
     references : dict of str to Reference
         The step and the trajectory the tables make.
     design_spec : DesignSpec or None

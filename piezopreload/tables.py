@@ -27,17 +27,16 @@ from piezopreload.design.tables import (
     ThermalTable,
 )
 from piezopreload.models.actuator import Plant, StackData
-from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V
+from piezopreload.models.controller import TIME_UNITS, PIDGains
 from piezopreload.rig.tables import ExportTable, RigRunPlan
 from piezopreload.tuning.feedforward import LoopExcitation
 from piezopreload.tuning.tables import TUNING, VALIDATION, LearningTable
 
-__all__ = ["StudyTable", "STACK", "RIG", "ControllerTable", "FEEDFORWARD", "StepTable",
+__all__ = ["StudyTable", "STACK", "RIG", "CONTROLLER", "FEEDFORWARD", "StepTable",
            "TrajectoryTable", "ReferenceTables", "SimulationTable", "StepNumbers", "PublishedTable", "STUDY_TABLES",
            "REQUIRED_TABLES",
            "study_keys_markdown"]
 
-UNITS = ("seconds", "minutes")
 SIGNALS = ("measured_N", "force_N")
 
 
@@ -58,27 +57,11 @@ STACK = TableOf(StackData, StackData.__doc__ or "")
 RIG = TableOf(Plant, Plant.__doc__ or "", nested=(("stack", STACK),))
 
 
-@dataclass(frozen=True)
-class ControllerTable(Table):
-    """[controller]: the study's starting gains as entered (``Ti`` and ``Td`` in ``units``) and the output range."""
-
-    Kc: float = key(None, "proportional gain", unit="V/N", required=True)
-    Ti: float = key(None, "integral time, in units", gt=0, required=True)
-    Td: float = key(None, "derivative time, in units", ge=0, required=True)
-    Tf_s: float = key(0.0, "derivative filter time constant", unit="s", ge=0)
-    b: float = key(1.0, "setpoint weight of the proportional term")
-    units: str = key("seconds", "the unit of Ti and Td as entered (LabVIEW's PID takes minutes)", choices=UNITS)
-    u_min_V: float = key(OUTPUT_MIN_V, "the controller's lowest output", unit="V")
-    u_max_V: float = key(OUTPUT_MAX_V, "the controller's highest output", unit="V")
-
-    def check(self) -> None:
-        if not self.u_min_V < self.u_max_V:
-            raise Invalid("u_max_V", f"must be above u_min_V ({self.u_min_V:g} V), got {self.u_max_V:g}")
-
-    @property
-    def seconds(self) -> float:
-        """Seconds per unit of ``Ti`` and ``Td``."""
-        return 60.0 if self.units == "minutes" else 1.0
+#: [controller]: the study's starting gains, read straight into :class:`~piezopreload.models.controller.PIDGains`
+#: (``Ti`` and ``Td`` entered in ``units``, held in seconds)
+CONTROLLER = TableOf(PIDGains, "[controller]: the study's starting gains and the output range, read straight into "
+                               "`PIDGains`: `Ti` and `Td` are entered in `units` (seconds, or LabVIEW's minutes, "
+                               "converted to seconds as the file is read).", PIDGains.TABLE_KEYS, unit=TIME_UNITS)
 
 
 #: [feedforward]: the loop measurement, read straight into :class:`~piezopreload.tuning.feedforward.LoopExcitation`
@@ -156,7 +139,7 @@ class PublishedTable(Table):
 #: the study file's tables, by name, in the order a file has them
 STUDY_TABLES: dict[str, type[Table] | TableOf] = {
     "study": StudyTable, "rig": RIG, "plant": PlantTable, "learning": LearningTable,
-    "controller": ControllerTable, "feedforward": FEEDFORWARD, "reference": ReferenceTables,
+    "controller": CONTROLLER, "feedforward": FEEDFORWARD, "reference": ReferenceTables,
     "simulation": SimulationTable, "ballscrew": BallscrewTable, "feed_drive": FeedDriveTable, "duty": DutyTable,
     "design": DesignTable, "schedule": ScheduleTable, "thermal": ThermalTable, "tuning": TUNING,
     "validation": VALIDATION, "export": ExportTable, "rig_run": RigRunPlan, "published": PublishedTable,

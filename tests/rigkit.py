@@ -38,7 +38,7 @@ def events(sidecar) -> list[dict]:
 
 def write_gain_set(path, study, feedforward, gains=None, status="validated", plant=None, rig_interlocks=None):
     """A gain set as 'tune' writes it (the paper's gains unless given), on the study's plant unless given."""
-    GainSet(gains=gains or study.gains, status=status, feedforward=feedforward, plant=plant or study.plant,
+    GainSet(gains=gains or study.controller, status=status, feedforward=feedforward, plant=plant or study.plant,
             preset=study.name, references={k: study.references[k] for k in ("step", "trajectory")},
             criteria=Criteria(band_N=study.band_N), rig_interlocks=rig_interlocks).save(path)
     return path

@@ -113,7 +113,7 @@ def gain_set(tmp_path_factory):
     """A validated gain set with the small study's own feedforward (the paper's gains: no tuning needed)."""
     study = pp.load_study(SMALL)
     ff = study.identify_feedforward()
-    gs = pp.GainSet(gains=study.gains, status="validated", feedforward=ff.model, feedforward_info=ff.info(),
+    gs = pp.GainSet(gains=study.controller, status="validated", feedforward=ff.model, feedforward_info=ff.info(),
                     plant=study.plant, preset=study.name, references=dict(study.references),
                     criteria=study.validation, inputs={"study_sha256": study.sha256})
     return gs.save(tmp_path_factory.mktemp("gs") / "gains.json"), tmp_path_factory.getbasetemp()
@@ -376,7 +376,8 @@ def test_results_show_themselves_in_a_terminal_and_a_notebook(gain_set):
     assert text.startswith("GainSet(validated: PID Kc") and gs.content_sha256[:12] in text and "\n" not in text
     assert "<table>" in gs._repr_html_() and gs.status in gs._repr_html_()
     study = pp.load_study(SMALL)
-    run = simulate(Rig(study.plant), Controller(study.gains, study.plant.sample_period_s), study.references["step"])
+    run = simulate(Rig(study.plant), Controller(study.controller, study.plant.sample_period_s),
+                   study.references["step"])
     assert repr(run).startswith("ClosedLoopRun(") and "25 -> 60 N" in repr(run) and "<table>" in run._repr_html_()
     metrics = {k: np.array([0.1, 0.2]) for k in ("rise_s", "settling_s", "settling_measured_s", "overshoot_N",
                                                  "tracking_rms_N", "saturated_fraction", "tracking_rms_all_N",

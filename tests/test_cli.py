@@ -338,7 +338,7 @@ def test_a_gain_set_of_another_study_is_not_run_on_the_default_plant(tmp_path, c
     from piezopreload.study import load_study
 
     paper = load_study("paper2021")
-    gains = GainSet(gains=paper.gains, inputs={"study": paper.path, "study_sha256": paper.sha256}).save(
+    gains = GainSet(gains=paper.controller, inputs={"study": paper.path, "study_sha256": paper.sha256}).save(
         tmp_path / "gains.json")
     assert main(["simulate", "--gains", str(tmp_path / "gains.json"), "--controller", "pid"]) == 2
     err = capsys.readouterr().err

@@ -98,9 +98,10 @@ def test_labview_minutes():
     g = PIDGains.from_labview(0.3, 0.08, 0.001)  # the paper's gains as entered in LabVIEW
     assert g.Ti_s == pytest.approx(4.8) and g.Td_s == pytest.approx(0.06)
     assert g.labview() == pytest.approx({"Kc": 0.3, "Ti_min": 0.08, "Td_min": 0.001})
-    with pytest.raises(ValueError, match="Ti_s must be > 0"):
+    with pytest.raises(ValueError, match=r"'PIDGains.Ti_s' must be a number > 0, or inf for no integral action, "
+                                         r"got 0.0"):
         PIDGains(Kc=1.0, Ti_s=0.0)
-    with pytest.raises(ValueError, match="u_min_V < u_max_V"):
+    with pytest.raises(ValueError, match=r"'PIDGains.u_max_V' must be above u_min_V \(5 V\), got 5"):
         PIDGains(Kc=1.0, Ti_s=1.0, u_min_V=5.0, u_max_V=5.0)
 
 
@@ -187,7 +188,8 @@ def test_the_second_order_step_starts_and_changes_gains_bumplessly():
 
 
 def test_the_second_order_filter_needs_its_time_constant():
-    with pytest.raises(ValueError, match="Tf_s > 0"):
+    with pytest.raises(ValueError, match=r"'PIDGains.Tf_s' must be > 0 for filter_order 2 \(the second-order "
+                                         r"filter\), got 0.0"):
         PIDGains(Kc=1.0, Ti_s=1.0, Tf_s=0.0, filter_order=2)
     with pytest.raises(ValueError, match="filter_order"):
         PIDGains(Kc=1.0, Ti_s=1.0, Tf_s=0.1, filter_order=3)

@@ -265,8 +265,8 @@ def gain_set_with_creep(identified, tmp_path_factory):
     study = pp.load_study("paper2021")
     record, _ = identified
     plant = dataclasses.replace(study.plant, sample_period_s=0.002)
-    gs = pp.GainSet(gains=study.gains, status="validated", feedforward=record.model, plant=plant, preset="paper2021",
-                    inputs={"test": "exports"})
+    gs = pp.GainSet(gains=study.controller, status="validated", feedforward=record.model, plant=plant,
+                    preset="paper2021", inputs={"test": "exports"})
     return gs.save(tmp_path_factory.mktemp("gs") / "gains.json")
 
 

@@ -439,7 +439,7 @@ def test_on_the_papers_rig_with_its_feedforward_one_trial_comes_within_1p1_of_th
 
     study = load_study("paper2021")
     rig = Rig(study.plant)
-    c = Controller(study.gains, rig.dt_s, study.identify_feedforward().inverse())
+    c = Controller(study.controller, rig.dt_s, study.identify_feedforward().inverse())
     full = L.learn(c, rig, TRAJECTORY, iterations=6, seed=study.seed, stop_gain=None)
     whole = [float(h.tracking_rms_N) for h in full.history]
     assert full.trials_to_within_1p1 <= 2, f"more than two trials to within 1.1 x the best: {whole}"

@@ -235,7 +235,7 @@ def test_two_processes_building_the_same_library_at_once(tmp_path):
 def test_the_papers_six_numbers_as_before(study):
     """``piezopreload reproduce``'s simulation (now on the compiled loop where it builds) gives the numbers the
     numpy loop gave, to the sample."""
-    rep = reproduce(study.plant, study.gains, step=study.references["step"], excitation=study.feedforward,
+    rep = reproduce(study.plant, study.controller, step=study.references["step"], excitation=study.feedforward,
                     seed=study.seed, band_N=study.band_N, signal=study.signal)
     for controller, metrics in BEFORE["reproduce"].items():
         for key, value in metrics.items():

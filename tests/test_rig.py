@@ -170,7 +170,7 @@ def test_a_tripped_run_prints_its_trip_and_no_step_metrics(gains_path, tmp_path,
 
 def test_clamp_and_slew_limit_shape_every_command(study, feedforward, tmp_path):
     log = RunLog(tmp_path, "clamp")
-    c = Controller(study.gains, DT, feedforward.inverse())
+    c = Controller(study.controller, DT, feedforward.inverse())
     ex = Executor(c, SimBackend(study.plant), study.references["step"], Safety(v_max_V=40.0, slew_V_per_s=2000.0),
                   realtime=False, log=log)
     r = ex.run()
@@ -191,7 +191,7 @@ def test_sim_backend_is_the_closed_loop_simulation(study, feedforward):
     """
     from piezopreload.models.closedloop import simulate
 
-    c = Controller(study.gains, DT, feedforward.inverse())
+    c = Controller(study.controller, DT, feedforward.inverse())
     ref = study.references["step"]
     sim = simulate(Rig(study.plant), c, ref, seed=7)
     backend = SimBackend(study.plant, seed=7)
@@ -425,7 +425,7 @@ def test_a_gain_set_without_study_limits_gets_them_from_its_plant_not_the_paper_
 
     stiff = replace(study.plant, coupling_stiffness_N_per_um=60.0, adc_full_scale_N=5000.0)
     reach = float(reach_N(Rig(stiff), stiff.stack.v_max_V))
-    GainSet(gains=replace(study.gains, Kc=0.05), status="validated", feedforward=None, plant=stiff, preset="stiff",
+    GainSet(gains=replace(study.controller, Kc=0.05), status="validated", feedforward=None, plant=stiff, preset="stiff",
                 references={"step": Reference.step(25.0, 1500.0, 0.5, 1.5),
                             "trajectory": study.references["trajectory"]},
                 criteria=Criteria(band_N=study.band_N)).save(tmp_path / "stiff.json")
@@ -451,8 +451,8 @@ def test_a_candidate_carries_its_studys_rig_run_limits_through_validation(study,
 
     changed = study.replace(rig_run={"force_max_N": 130.0, "ramp_s": 0.3})
     solve = TuningSolve("given", 0, 0.0, "none", 0.0, 0.0, 1.0, (), {}, {})  # the study's gains, not tuned here
-    tuned = TuningResult(study.gains, study.gains, solve, (), MinimumTimeBound(None, None, reason="not computed"),
-                         TrackingFloor(1.0, 1.0, None))
+    tuned = TuningResult(study.controller, study.controller, solve, (),
+                         MinimumTimeBound(None, None, reason="not computed"), TrackingFloor(1.0, 1.0, None))
     candidate = steps.candidate(changed, changed.solved, tuned, changed.identify_feedforward())
     carried = candidate.rig_interlocks
     assert (carried.force_max_N, carried.ramp_s, carried.force_low_margin_N) == (130.0, 0.3, 10.0)
@@ -487,7 +487,7 @@ def test_the_stall_limit_is_the_held_forces_first_exit_from_the_margin(study, fe
     from piezopreload.models.closedloop import simulate
     from piezopreload.rig.stall import HORIZON_S, SIGMAS, derive_stall_limit
 
-    c = Controller(study.gains, DT, feedforward.inverse())
+    c = Controller(study.controller, DT, feedforward.inverse())
     ref = study.references["step"]
     limits = {}
     for force_max in (150.0, 72.0, 68.0):

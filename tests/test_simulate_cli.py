@@ -24,8 +24,8 @@ def run_cli(capsys, *argv):
 def test_the_shipped_study_is_the_repository_one():
     assert paper_study().read_bytes() == (REPO / "studies" / "paper2021.toml").read_bytes()
     study = load_study(paper_study())
-    assert study.gains.Kc == 0.3 and study.gains.Ti_s == 0.08 and study.gains.Td_s == 0.001
-    assert study.gains.u_min_V == 0.0 and study.gains.u_max_V == 110.0
+    assert study.controller.Kc == 0.3 and study.controller.Ti_s == 0.08 and study.controller.Td_s == 0.001
+    assert study.controller.u_min_V == 0.0 and study.controller.u_max_V == 110.0
     assert study.rig.bolt_preload_N == 25.0
     assert study.references["step"].levels_N.tolist() == [25.0, 60.0]
     assert study.references["trajectory"].levels_N.tolist() == [25.0, 60.0, 80.0, 100.0, 80.0, 60.0]
@@ -37,7 +37,7 @@ def test_minutes_are_converted_at_the_edge(tmp_path):
     path = tmp_path / "s.toml"
     path.write_text(text)
     study = load_study(path)
-    assert study.gains.Ti_s == pytest.approx(4.8) and study.gains.Td_s == pytest.approx(0.06)
+    assert study.controller.Ti_s == pytest.approx(4.8) and study.controller.Td_s == pytest.approx(0.06)
 
 
 @pytest.mark.parametrize(
@@ -162,7 +162,8 @@ def test_simulate_bad_input_exits_2(capsys, argv_tail, needle):
     "gains,needle",
     [
         ({"Kc_V_per_N": 0.5, "Td_s": 0.0}, "field 'gains.Ti_s' is missing"),
-        ({"Kc_V_per_N": 0.5, "Ti_s": -1.0, "Td_s": 0.0}, "Ti_s must be > 0"),
+        ({"Kc_V_per_N": 0.5, "Ti_s": -1.0, "Td_s": 0.0}, "'PIDGains.Ti_s' must be a number > 0, or inf for no integral "
+                                                     "action, got -1.0"),
         ({"Kc_V_per_N": float("nan"), "Ti_s": 1.0, "Td_s": 0.0}, "'gains.Kc_V_per_N' must be a finite number"),
     ],
 )

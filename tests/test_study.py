@@ -307,8 +307,8 @@ def test_study_plant_is_the_designed_plant_and_what_the_control_steps_run_on():
     assert not {"bolt_preload_N", "coupling_stiffness_N_per_um"} & shown, "[rig] shows unused values"
     assert axis.plant is plant and axis.designed_plant.rig is plant and len(said) == 2, "the plant was made again"
     # a control step runs on it: the study's simulation is the loop on Rig(plant)
-    run = axis.simulate(axis.gains, controller="pid", reference="step")
-    alone = simulate_loop(Rig(plant), Controller(axis.gains, plant.sample_period_s), axis.references["step"],
+    run = axis.simulate(axis.controller, controller="pid", reference="step")
+    alone = simulate_loop(Rig(plant), Controller(axis.controller, plant.sample_period_s), axis.references["step"],
                           seed=axis.seed)
     np.testing.assert_array_equal(run.force_N, alone.force_N, err_msg="Study.simulate did not run on study.plant")
     paper = pp.load_study(PAPER)
@@ -412,7 +412,7 @@ def test_learning_along_the_schedule_is_one_call_and_plays_what_it_learned(tmp_p
     assert len(result.passes) == len(system.passes) >= 1
     reference = schedule_reference(designed, system.schedule, table.cycles, table.stack_contact_N, system.pre_cycle)
     assert reference_sha256(result.last.reference) == reference_sha256(reference), "learned on another reference"
-    controller = Controller(axis.gains, axis.plant.sample_period_s, axis.identify_feedforward().inverse())
+    controller = Controller(axis.controller, axis.plant.sample_period_s, axis.identify_feedforward().inverse())
     again = simulate_loop(Rig(designed.rig), controller, reference, seed=axis.seed, ff_extra_V=result.last.ff_extra_V)
     np.testing.assert_array_equal(system.run.force_N, again.force_N, err_msg="the schedule was not played with the "
                                                                              "last pass's learned signal")
@@ -483,5 +483,5 @@ def test_the_shipped_studies_set_a_peak_voltage_limit_that_can_fail_or_none():
     for path in (AXIS, PAPER):
         s = pp.Study.load(path)
         limit = s.validation.peak_voltage_max_V
-        assert limit is None or limit < s.gains.u_max_V, (path.name, limit, s.gains.u_max_V)
+        assert limit is None or limit < s.controller.u_max_V, (path.name, limit, s.controller.u_max_V)
     assert pp.Study.load(AXIS).validation.peak_voltage_max_V == 110.0

@@ -115,7 +115,7 @@ def _cmd_learn(args: argparse.Namespace) -> Learned | RunLearned:
     study = study_of(args, gain_set)
     reference: Any = args.reference
     if reference not in (*study.references, "schedule"):
-        reference = reference_for(reference, gain_set or GainSet(gains=study.gains), "--reference")[0]
+        reference = reference_for(reference, gain_set or GainSet(gains=study.controller), "--reference")[0]
     if reference == "schedule":  # along the preload schedule, each margin pass on its own reference
         if args.plants is not None:
             raise InputError("--plants: the schedule is learned on the designed plant itself (each margin pass); "
