@@ -43,6 +43,7 @@ schedule's is the saving. The types (:class:`LoadProfile`, :class:`ScheduleSpec`
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 
 import casadi as ca
@@ -54,7 +55,7 @@ from piezopreload.core._typing import Array
 from piezopreload.models.ballscrew import LIFT_OFF_RATIO, BallScrew, double_nut_rigidity, nut_forces
 from piezopreload.models.ops import CASADI
 
-__all__ = ["schedule_preload", "least_preload", "example_profile"]
+__all__ = ["schedule_preload", "least_preload", "example_profile", "headroom_schedule"]
 
 
 def example_profile(dt_s: float = 0.01) -> LoadProfile:
@@ -182,11 +183,7 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec,
     low = _least_preloads(k_map, Fa, required, F_lo, spec.max_preload_N, margin)
     slew_step = spec.slew_N_per_s * np.diff(profile.time_s)
     if method == "envelope":
-        F_opt = low.copy()
-        for k in range(1, n):  # forward: the cones of the samples before
-            F_opt[k] = max(F_opt[k], F_opt[k - 1] - slew_step[k - 1])
-        for k in range(n - 2, -1, -1):  # backward: and of those after
-            F_opt[k] = max(F_opt[k], F_opt[k + 1] - slew_step[k])
+        F_opt = _slew_envelope(low, slew_step)
         status = "Solve_Succeeded (exact: the envelope of the slew cones)"
     else:
         objective = None if heat is None else _heat_objective(screw, profile, heat)
@@ -200,6 +197,46 @@ def schedule_preload(screw: BallScrew, profile: LoadProfile, spec: ScheduleSpec,
         energy_units=units, status=status, needed_N=needed, margin_N=margin, margin_short_N=short,
     )
 
+
+def _slew_envelope(low: Array, slew_step: Array) -> Array:
+    """The least schedule at or above ``low`` whose steps are within ``slew_step``: the upper envelope of the slew
+    cones on ``low``, in two passes (forward: the cones of the samples before; backward: of those after)."""
+    F = np.array(low, float)
+    for k in range(1, F.size):
+        F[k] = max(F[k], F[k - 1] - slew_step[k - 1])
+    for k in range(F.size - 2, -1, -1):
+        F[k] = max(F[k], F[k + 1] - slew_step[k])
+    return F
+
+
+def headroom_schedule(screw: BallScrew, plan: PreloadSchedule, factor: float) -> PreloadSchedule:
+    """``plan`` with headroom: every sample the stacks drive above the bolts' preload at least ``factor`` times its
+    planned level, the samples at the bolts' preload kept there (the stacks off), and the least such schedule within
+    the stacks' slew (the envelope of the slew cones on those levels, as :func:`schedule_preload`'s): its plateaus
+    are exactly ``factor`` times the plan's, its ramps start earlier. ``factor = 1`` gives ``plan`` back.
+
+    The rigidity and the friction energy are those of the raised levels; the best constant preload, the
+    requirements and the margins stay the plan's (the headroom is room above them). Raises ``ValueError`` where
+    ``factor`` is below 1 or the raised levels pass the stacks' reach (``plan.spec.max_preload_N``).
+    """
+    if not (math.isfinite(factor) and factor >= 1.0):
+        raise ValueError(f"a schedule's headroom must be a finite factor >= 1, got {factor!r}")
+    if factor == 1.0:
+        return plan
+    spec, profile = plan.spec, plan.profile
+    F = np.asarray(plan.preload_N, float)
+    driven = spec.bolt_preload_N * (1.0 + 1e-9) < F
+    raised = _slew_envelope(np.where(driven, factor * F, F), spec.slew_N_per_s * np.diff(profile.time_s))
+    top = float(raised.max())
+    if top > spec.max_preload_N * (1.0 + 1e-9):
+        raise ValueError(f"a headroom of {factor:g} raises the schedule's top level to {top:.0f} N, above the "
+                         f"stacks' reach of {spec.max_preload_N:.0f} N")
+    Fa = np.asarray(profile.axial_load_N, float)
+    k_map = _rigidity_function(screw, spec.rigidity_factor).map(Fa.size)
+    weight, _ = _weights(screw, profile)
+    return replace(plan, preload_N=raised, rigidity_N_per_um=np.asarray(k_map(raised, Fa)).ravel(),
+                   friction_energy_J=float(np.dot(weight, raised)),
+                   status=f"{plan.status}; headroom {factor:g} on the levels above the bolts' preload")
 
 
 def _heat_objective(screw: BallScrew, profile: LoadProfile, heat: dict[str, Any]) -> ca.Function:

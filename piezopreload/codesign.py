@@ -4,8 +4,9 @@ The study is sequential: the design NLP (:func:`~piezopreload.design.preload.opt
 objective against rigidity, lift-off and life; the tuner (:func:`~piezopreload.tuning.pid.tune_pid`) then picks
 the gains on the plant that design made. :func:`codesign` chooses them together, **nested**: the design's
 continuous variables that shape the plant outside (the least rigidity the design must keep, a floor that moves it
-along the design's least-heat front, and the contact angle and the groove conformity), the design NLP and the tuning
-inside.
+along the design's least-heat front, and the contact angle and the groove conformity) with the preload schedule's
+headroom (a factor >= 1 on the least-friction schedule's levels above the bolts' preload), the design NLP and the
+tuning inside.
 
 For each outer candidate ``(rigidity floor, contact angle, conformity)``:
 
@@ -19,12 +20,18 @@ For each outer candidate ``(rigidity floor, contact angle, conformity)``:
    whole stroke inside the NLP, the overshoot margin, the noise gain), started from the sequential gains;
 4. the whole-range tracking (the study's staircase) and the step are run on the nominal plant: the tracking RMS
    and the settling time are constraints of the co-design (the validation's limits), not checked after it;
-5. the objective is the user's weighted sum of the screw's thermal growth over the shift (the design's duty-cycle
-   estimate), the schedule's friction energy per cycle (the least-friction schedule planned on that screw), the
-   tracking RMS and the peak command, each over its sequential value.
+5. the least-friction schedule is planned on that screw and its levels above the bolts' preload raised by the
+   candidate's headroom (:func:`~piezopreload.design.schedule.headroom_schedule`; refused past the stacks' reach):
+   more friction for more rigidity over the cycle's requirement. The tuning, the tracking and the step are judged on
+   the design's plant over the study's references, not along the schedule, so the headroom is applied after the
+   inner problem, to its answer, with no new tuning;
+6. the objective is the user's weighted sum of the screw's thermal growth over the shift (the design's duty-cycle
+   estimate), the schedule's friction energy per cycle, the tracking RMS and the peak command, each over its
+   sequential value.
 
-The outer search is a bounded compass (pattern) search on the three variables scaled to ``[0, 1]`` (the floor from
-the least-heat design's rigidity to the sequential design's), started at the sequential design; a candidate
+The outer search is a bounded compass (pattern) search on the four variables scaled to ``[0, 1]`` (the floor from
+the least-heat design's rigidity to the sequential design's, the headroom from 1 to :data:`HEADROOM_MAX`), started
+at the sequential design with the headroom at 1 (the least-friction schedule); a candidate
 replaces the incumbent only when it is feasible and lowers the objective, so the answer is never worse than the
 sequential one (whose objective is 1 by the normalisation). A sequential answer that misses the study (no gains the
 tuning finds meet the tracking or settling limit under the Ms limit) is replaced by the first candidate that meets
@@ -56,9 +63,11 @@ import numpy as np
 
 from piezopreload.artifacts.codesign import FRONT_RTOL, CodesignRecord, FrontPoint, RequirementRow
 from piezopreload.artifacts.design import DesignPoint
+from piezopreload.artifacts.schedule import PreloadSchedule
 from piezopreload.artifacts.validation import Criteria, ValidationResult
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignSpec, optimise, pareto_front
+from piezopreload.design.schedule import headroom_schedule
 from piezopreload.design.study import plan_schedule
 from piezopreload.design.tables import DesignTable, PlantTable, ScheduleTable
 from piezopreload.design.thermal import duty_growth_um
@@ -84,7 +93,14 @@ TERMS = (("growth", "growth_um", "um over the shift"), ("friction", "friction_en
 #: makes each candidate a point of the design's least-heat front (``stiffness:growth``): the least nut heat whose
 #: least rigidity over the duty is at least the floor
 VARIABLES = (("stiffness_floor_N_per_um", "stiffness_N_per_um", "N/um"),
-             ("contact_angle_deg", "contact_angle_deg", "deg"), ("conformity", "conformity", ""))
+             ("contact_angle_deg", "contact_angle_deg", "deg"), ("conformity", "conformity", ""),
+             ("schedule_headroom", "schedule_headroom", ""))
+#: the outer variables that shape the design (the inner problem's plant and tuning); the rest (the schedule's
+#: headroom) is applied to the planned schedule alone, on the inner problem's answer
+DESIGN_VARIABLES = 3
+#: the headroom's range: from the least-friction levels (1, the sequential answer's) to half as much again; a
+#: candidate whose raised levels pass its stacks' reach is refused
+HEADROOM_MAX = 1.5
 #: the design NLP's objective for a candidate: the least heat at the candidate's rigidity floor
 CANDIDATE_OBJECTIVE = "heat"
 STRATEGY = "nested"
@@ -188,6 +204,13 @@ class Candidate:
         on its window (``ms`` is then the largest of ``entry_ms``, each entry's Ms over its window).
     entry_ms : tuple of float
         The schedule's entries' Ms, each over its window (empty: the robust set).
+    schedule_headroom : float
+        The preload schedule's headroom: its levels above the bolts' preload are this factor times the least-friction
+        schedule's (1: the least-friction schedule itself; :func:`~piezopreload.design.schedule.headroom_schedule`).
+    schedule_top_N : float
+        The schedule's highest level over the machining cycle.
+    schedule_stiffness_margin_N_per_um : float
+        The schedule's least rigidity over its requirement along the cycle (what the headroom buys).
     """
 
     point: DesignPoint = field(repr=False)
@@ -205,12 +228,16 @@ class Candidate:
     at: tuple[tuple[str, float], ...] = ()
     controller: str = "robust"
     entry_ms: tuple[float, ...] = ()
+    schedule_headroom: float = 1.0
+    schedule_top_N: float = math.nan
+    schedule_stiffness_margin_N_per_um: float = math.nan
 
     def variables(self) -> dict[str, float]:
-        """The outer variables' values."""
+        """The outer variables' values (the design's read off its point where it was not designed at them)."""
         if self.at:
             return dict(self.at)
-        return {name: float(getattr(self.point, attr)) for name, attr, _ in VARIABLES}
+        out = {name: float(getattr(self.point, attr)) for name, attr, _ in VARIABLES[:DESIGN_VARIABLES]}
+        return {**out, "schedule_headroom": float(self.schedule_headroom)}
 
     def objective(self, weights: CodesignWeights, reference: Candidate) -> float:
         """The weighted sum of the terms, each over ``reference``'s (the sequential answer's), over the weights' sum."""
@@ -228,6 +255,8 @@ class Candidate:
                 "gains": {"Kc_V_per_N": self.gains.Kc, "Ti_s": self.gains.Ti_s, "Td_s": self.gains.Td_s,
                           "Tf_s": self.gains.Tf_s, "b": self.gains.b},
                 "controller": self.controller, "entry_ms": list(self.entry_ms),
+                "preload_schedule": {"headroom": self.schedule_headroom, "top_N": self.schedule_top_N,
+                                     "stiffness_margin_min_N_per_um": self.schedule_stiffness_margin_N_per_um},
                 "schedule": None if self.gains.schedule is None else {
                     "levels_N": list(self.gains.schedule.levels_N), "Kc_V_per_N": list(self.gains.schedule.Kc),
                     "Ti_s": list(self.gains.schedule.Ti_s), "Td_s": list(self.gains.schedule.Td_s),
@@ -286,7 +315,8 @@ def _misses(nominal: dict[str, float], c: Criteria) -> list[str]:
 
 def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | None = None,
                     tuning: TuningSpec | None = None, max_iterations: int = 60,
-                    feedforward: IdentifiedFeedforward | None = None, schedule: bool = False) -> Candidate:
+                    feedforward: IdentifiedFeedforward | None = None, schedule: bool = False,
+                    headroom: float = 1.0) -> Candidate:
     """The inner problem for one design: its plant, the feedforward identified on it, the PID tuned on it (Ms inside),
     the gain schedule's entries tuned on it (each at Ms over its own window) where the study tunes a schedule, and
     what the better controller achieves on the nominal plant (the whole-range tracking and the step, the schedule's
@@ -295,7 +325,8 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
     The controller is part of the inner problem's decisions: the robust set, or the robust set with the schedule's
     entries (Kc, Ti, Td and b each, tuned on its window by :func:`~piezopreload.tuning.schedule.tune_entries`),
     whichever meets the tracking and settling limits with the lower tracking RMS. ``schedule``: tune the entries
-    (the study's ``[tuning] schedule_levels``, at least 2); False: the one robust set.
+    (the study's ``[tuning] schedule_levels``, at least 2); False: the one robust set. ``headroom``: the preload
+    schedule's factor on its least-friction levels (:func:`with_headroom`; 1: the least-friction schedule).
 
     Raises :class:`~piezopreload.core.errors.InfeasibleError` naming the binding pair where no gains the tuning
     finds meet the study's Ms limit together with the tuning's other constraints.
@@ -335,18 +366,45 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
             gains, nominal, misses, controller = scheduled, nominal_s, misses_s, "schedule"
             entry_ms = tuple(float(r["ms"]) for r in records)
             ms = max(entry_ms)
-    sched = study.schedule or ScheduleTable()
-    plan, _, _ = plan_schedule(spec, point, None, **sched.limits())
     why = ""
     if misses:
         binding = ", ".join(tuned.binding) or "none"
         why = (f"with Ms <= {tuning.ms_max:g} ([tuning] ms_max; binding: {binding}) the best gains miss "
                + "; ".join(misses))
-    return Candidate(point, gains, float(plant.coupling_stiffness_N_per_um), ms,
-                     float(plan.friction_energy_J), nominal["tracking_rms_N"], nominal["peak_voltage_V"],
-                     nominal["settling_s"], not misses, why, float(lift_off_load_N(point.bolt_preload_N)),
+    cand = Candidate(point, gains, float(plant.coupling_stiffness_N_per_um), ms, math.nan,
+                     nominal["tracking_rms_N"], nominal["peak_voltage_V"], nominal["settling_s"], not misses, why,
+                     float(lift_off_load_N(point.bolt_preload_N)),
                      math.nan if study.thermal is None else float(duty_growth_um(spec, point, study.thermal)),
                      controller=controller, entry_ms=entry_ms)
+    return with_headroom(study, cand, headroom)
+
+
+def planned_schedule(study: StudySpec, point: DesignPoint, headroom: float = 1.0) -> PreloadSchedule:
+    """The preload schedule a candidate runs: the least-friction schedule on the screw of ``point`` (the study's
+    ``[schedule]`` limits, the machining cycle), its levels above the bolts' preload raised by ``headroom``
+    (:func:`~piezopreload.design.schedule.headroom_schedule`).
+
+    Raises :class:`~piezopreload.core.errors.InfeasibleError` where the raised levels pass the stacks' reach.
+    """
+    spec = study.design_spec
+    if spec is None:
+        raise InputError(f"{study.path}: co-design needs the design's tables ([ballscrew], [design])")
+    plan, _, _ = plan_schedule(spec, point, None, **(study.schedule or ScheduleTable()).limits())
+    try:
+        return headroom_schedule(spec.screw(point), plan, headroom)
+    except ValueError as exc:
+        raise InfeasibleError(f"{study.path}: the design (rigidity {point.stiffness_N_per_um:.0f} N/um): {exc}") \
+            from None
+
+
+def with_headroom(study: StudySpec, cand: Candidate, headroom: float) -> Candidate:
+    """``cand`` running the schedule with ``headroom`` (:func:`planned_schedule`): its friction energy, top level
+    and rigidity margin; the design and the controller are the same (the tuning and the tracking are judged over the
+    study's references, not along the schedule)."""
+    plan = planned_schedule(study, cand.point, headroom)
+    return replace(cand, friction_energy_J=float(plan.friction_energy_J), schedule_headroom=float(headroom),
+                   schedule_top_N=float(np.max(plan.preload_N)),
+                   schedule_stiffness_margin_N_per_um=float(np.min(plan.rigidity_N_per_um - plan.required_N_per_um)))
 
 
 @dataclass(frozen=True)
@@ -389,8 +447,8 @@ class CodesignResult:
     strategy_why : str
         Why that strategy, in words (:data:`STRATEGY_WHY`).
     evaluated : dict
-        The inner problems solved, by the outer variables' values: the candidate (None: refused) and why refused (a
-        front's sweep starts from them).
+        The inner problems solved, by the design variables' values (the headroom applied after them): the candidate
+        at headroom 1 (None: refused) and why refused (a front's sweep starts from them).
     least_heat_N_per_um : float
         The least-heat design's least rigidity, the outer floor's low end (NaN: not computed).
     schedule : bool
@@ -459,8 +517,9 @@ class CodesignResult:
         -------
         list of str
             One line per design variable that differs, ``NAME OLD -> NEW UNIT`` (the contact angle in deg, the ball in
-            mm, the bolts' preload in N, the stiffness in N/um, the life in h); empty where the co-design kept the
-            sequential design.
+            mm, the bolts' preload in N, the stiffness in N/um, the life in h), and the preload schedule's headroom
+            where it differs (its top level in N and its least rigidity margin over the cycle's requirement in N/um,
+            what the headroom bought); empty where the co-design kept the sequential design and schedule.
         """
         a, b = self.sequential.point, self.codesigned.point
         rows = []
@@ -470,6 +529,12 @@ class CodesignResult:
             x, y = float(getattr(a, name)), float(getattr(b, name))
             if not math.isclose(x, y, rel_tol=1e-6, abs_tol=1e-9):
                 rows.append(f"{name} {x:.4g} -> {y:.4g}{' ' + unit if unit else ''}")
+        s, c = self.sequential, self.codesigned
+        if not math.isclose(s.schedule_headroom, c.schedule_headroom, rel_tol=1e-9):
+            rows.append(f"schedule_headroom {s.schedule_headroom:.4g} -> {c.schedule_headroom:.4g} (the schedule's top "
+                        f"level {s.schedule_top_N:,.0f} -> {c.schedule_top_N:,.0f} N; its least rigidity margin over "
+                        f"the cycle's requirement {s.schedule_stiffness_margin_N_per_um:,.0f} -> "
+                        f"{c.schedule_stiffness_margin_N_per_um:,.0f} N/um)")
         return rows
 
     def bought(self) -> list[dict[str, Any]]:
@@ -537,6 +602,11 @@ class CodesignResult:
              "sequential": a.ms, "codesigned": b.ms},
             {"requirement": "nominal tracking RMS, whole range", "unit": "N", "limit": lim.get("tracking_rms_max_N"),
              "kind": "max", "sequential": a.tracking_rms_N, "codesigned": b.tracking_rms_N},
+            # what the schedule's headroom buys: rigidity above the cycle's requirement (the planned schedule's
+            # least margin; 0 is the requirement met exactly)
+            {"requirement": "preload schedule's least rigidity over the cycle's requirement", "unit": "N/um",
+             "limit": 0.0, "kind": "min", "sequential": a.schedule_stiffness_margin_N_per_um,
+             "codesigned": b.schedule_stiffness_margin_N_per_um},
         ]
         if not math.isnan(a.growth_um):
             # the design's estimate over the duty cycle (the stiffness:growth front's y); the study's limit
@@ -619,6 +689,10 @@ def _chosen(study: StudySpec, result: CodesignResult) -> DesignOptimum:
     objective = (study.design_table or DesignTable()).objective
     if spec is None:  # codesign refused it already; for the type checker
         raise InputError(f"{study.path}: co-design needs the design's tables")
+    if result.codesigned.schedule_headroom != 1.0:  # the later stages plan the least-friction schedule
+        raise InfeasibleError(f"{study.path}: the co-design chose a preload schedule headroom of "
+                              f"{result.codesigned.schedule_headroom:g}, which the study's schedule stage does not "
+                              "plan (it plans the least-friction schedule); run `piezopreload codesign` instead")
     chosen = optimise(spec, objective) if result.codesigned is result.sequential else \
         _optimum_at(spec, result.codesigned.variables())
     return replace(chosen, objective="codesign")  # what chose it (the design artifact and the report say so)
@@ -771,11 +845,19 @@ class _Search:
             least_heat = optimise(spec, CANDIDATE_OBJECTIVE).point.stiffness_N_per_um  # the front's soft end
         self.least_heat, self.schedule = least_heat, schedule
         top = sequential.point.stiffness_N_per_um
-        self.ranges = [(min(least_heat, top), top), tuple(spec.contact_angle_deg), tuple(spec.conformity)]
+        self.ranges = [(min(least_heat, top), top), tuple(spec.contact_angle_deg), tuple(spec.conformity),
+                       (1.0, HEADROOM_MAX)]
+        # the start's design is the sequential one: a headroom move from it raises the sequential answer's schedule
+        self.cache.setdefault(self.design_key(self.values(self.start())), (sequential, ""))
         self.evaluations, self.stopped, self.slowest = 0, "", 0.0
         self.refused: list[str] = []
         self.scored: list[Candidate] = [sequential]
         self.t0 = time.perf_counter()
+
+    @staticmethod
+    def design_key(values: dict[str, float]) -> tuple[float, ...]:
+        """The inner problem's key: the design variables' values (the headroom is applied after it)."""
+        return tuple(round(v, 9) for v in list(values.values())[:DESIGN_VARIABLES])
 
     def values(self, z: np.ndarray) -> dict[str, float]:
         return {name: float(lo + zi * (hi - lo)) for (name, _, _), (lo, hi), zi in zip(VARIABLES, self.ranges, z)}
@@ -791,8 +873,9 @@ class _Search:
     def score(self, z: np.ndarray, start: PIDGains) -> tuple[Candidate | None, float]:
         """One inner problem at ``z``: the candidate and its objective (inf: infeasible, and why is kept)."""
         values = self.values(z)
-        key = tuple(round(v, 9) for v in values.values())
-        if key in self.cache:  # solved already for another weight of a sweep
+        # the inner problem is the design's: the headroom is applied to its schedule after it (no new tuning)
+        key = self.design_key(values)
+        if key in self.cache:  # solved already (another headroom, or another weight of a sweep)
             cand, refused = self.cache[key]
         else:
             self.evaluations += 1
@@ -800,12 +883,17 @@ class _Search:
             try:
                 cand = evaluate_design(self.study, _optimum_at(self.spec, values).point, start=start,
                                        max_iterations=self.max_iterations, schedule=self.schedule)
-                cand, refused = replace(cand, at=tuple(values.items())), ""
+                refused = ""
             except InfeasibleError as exc:  # no screw, or no controller, for these values
                 cand, refused = None, str(exc)
             finally:
                 self.slowest = max(self.slowest, time.perf_counter() - t0)
             self.cache[key] = (cand, refused)
+        if cand is not None:
+            try:
+                cand = replace(with_headroom(self.study, cand, values["schedule_headroom"]), at=tuple(values.items()))
+            except InfeasibleError as exc:  # the raised levels pass the stacks' reach
+                cand, refused = None, str(exc)
         if cand is None:
             self.refused.append(f"{values}: {refused}")
             return None, math.inf
@@ -817,10 +905,14 @@ class _Search:
         self.say(f"  candidate {', '.join(f'{k} {v:.4g}' for k, v in values.items())}: objective {f:.4f}")
         return cand, f
 
+    def start(self) -> np.ndarray:
+        """The sequential answer scaled: its design, and the headroom at 1 (the least-friction schedule)."""
+        at = self.sequential.variables()
+        return np.array([(at[name] - lo) / (hi - lo) if hi > lo else 0.0
+                         for (name, _, _), (lo, hi) in zip(VARIABLES, self.ranges)])
+
     def run(self, budget: int, step: float, min_step: float) -> tuple[Candidate, float]:
-        p = self.sequential.point
-        z = np.array([(getattr(p, attr) - lo) / (hi - lo) if hi > lo else 0.0
-                      for (_, attr, _), (lo, hi) in zip(VARIABLES, self.ranges)])
+        z = self.start()
         best = self.sequential  # a start that misses the study is replaced by the first candidate that meets it
         best_f = self.sequential.objective(self.weights, self.sequential) if self.sequential.feasible else math.inf
         seen = {tuple(np.round(z, 9))}
