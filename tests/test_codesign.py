@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from piezopreload.cli import main
-from piezopreload.codesign import Candidate, CodesignWeights, codesign, codesign_optimum, evaluate_design
+from piezopreload.codesign import Candidate, CodesignWeights, codesign, evaluate_design
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.design.preload import optimise
 from piezopreload.models.controller import PIDGains
@@ -144,21 +144,27 @@ def test_codesign_command_exits_2_on_a_design_no_controller_meets(tmp_path, caps
 
 
 @pytest.mark.slow
-def test_a_study_with_method_codesign_runs_end_to_end(tmp_path):
+def test_a_study_with_method_codesign_runs_end_to_end(tmp_path, monkeypatch):
     text = SMALL_AXIS.read_text().replace("[design]\n", '[design]\nmethod = "codesign"\n', 1)
     path = tmp_path / "small_codesign.toml"
     path.write_text(text)
     study = load_study(path)
     assert study.design_table.method == "codesign"
+    import piezopreload.codesign as codesign_module
+
+    answers = []  # the co-design the design stage ran (not solved a second time here: it is the test's cost)
+    solve = codesign_module.codesign
+    monkeypatch.setattr(codesign_module, "codesign", lambda *a, **k: answers.append(solve(*a, **k)) or answers[-1])
     out = tmp_path / "out"
     code = main(["run", str(path), "--out", str(out), "--json", "--quiet"])
     assert code == 0, "the co-designed small study failed"
     from piezopreload.artifacts.design import DesignRecord
 
     record = DesignRecord.load(out / "design" / "design.json")
-    expected = codesign_optimum(load_study(path)).point
-    assert record.optimum.point.contact_angle_deg == pytest.approx(expected.contact_angle_deg, rel=1e-6)
-    assert record.optimum.point.conformity == pytest.approx(expected.conformity, rel=1e-6)
+    chosen = answers[0].codesigned.variables()  # the co-design's own answer, as the design stage got it
+    assert record.optimum.objective == "codesign"
+    assert record.optimum.point.contact_angle_deg == pytest.approx(chosen["contact_angle_deg"], rel=1e-6)
+    assert record.optimum.point.conformity == pytest.approx(chosen["conformity"], rel=1e-6)
     plant = json.loads((out / "plant.json").read_text())
     assert plant  # the plant stage ran on the co-designed design
     # the design stage wrote the co-design beside the design, both fronts swept; the report has its section
