@@ -886,6 +886,20 @@ class SavedArtifact(Artifact):
 # --------------------------------------------------------------------------------------
 # the decorator
 # --------------------------------------------------------------------------------------
+def _declared(base: type, name: str, cls: Any, eq: bool) -> Any:
+    """What ``@record`` and ``@checked`` do alike: ``cls`` (a subclass of ``base``) as a frozen dataclass of its
+    declared fields, its docstring's ``Parameters`` section made from the declarations; given ``eq`` alone (``cls``
+    None), the decorator that does it."""
+    def make(c: Any) -> Any:
+        if not (isinstance(c, type) and issubclass(c, base)):
+            raise TypeError(f"@{name} makes a {base.__name__}'s subclass, not {c!r}")
+        made = dataclass(frozen=True, eq=eq)(c)
+        made.__doc__ = _with_parameters(made)
+        return made
+
+    return make if cls is None else make(cls)
+
+
 @overload
 def record(cls: type[_R], /) -> type[_R]: ...
 
@@ -913,14 +927,7 @@ def record(cls: Any = None, /, *, eq: bool = True) -> Any:
     type
         The dataclass (or, given ``eq`` alone, the decorator that makes it).
     """
-    def make(c: Any) -> Any:
-        if not (isinstance(c, type) and issubclass(c, Record)):
-            raise TypeError(f"@record makes a Record's subclass, not {c!r}")
-        made = dataclass(frozen=True, eq=eq)(c)
-        made.__doc__ = _with_parameters(made)
-        return made
-
-    return make if cls is None else make(cls)
+    return _declared(Record, "record", cls, eq)
 
 
 def _words(annotation: str) -> str:
@@ -1161,14 +1168,7 @@ def checked(cls: Any = None, /, *, eq: bool = True) -> Any:
     type
         The dataclass (or, given ``eq`` alone, the decorator that makes it).
     """
-    def make(c: Any) -> Any:
-        if not (isinstance(c, type) and issubclass(c, Checked)):
-            raise TypeError(f"@checked makes a Checked's subclass, not {c!r}")
-        made = dataclass(frozen=True, eq=eq)(c)
-        made.__doc__ = _with_parameters(made)
-        return made
-
-    return make if cls is None else make(cls)
+    return _declared(Checked, "checked", cls, eq)
 
 
 #: ``fail(path, message)``: the error for the key at ``path`` of a file (the caller adds the file and the line)
