@@ -17,11 +17,22 @@ from numpy.typing import ArrayLike, NDArray
 
 from piezopreload.core._typing import Array
 from piezopreload.core.records import Record, entry, record
+from piezopreload.models.ballscrew import LIFT_OFF_RATIO
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["LoadProfile", "ScheduleSpec", "PreloadSchedule", "ScheduleSummary"]
+__all__ = ["LoadProfile", "ScheduleSpec", "PreloadSchedule", "ScheduleSummary", "RIGIDITY_KEY", "LIFT_OFF_KEY",
+           "BINDS_WITHIN"]
+
+#: the key of the requirement the schedule's rigidity row keeps (the least rigidity and the deflection's share of it)
+RIGIDITY_KEY = "schedule.rigidity_while_cutting"
+#: the key of the requirement the schedule's lift-off row keeps (``lift_off_margin |F_a| / 2^(3/2)``)
+LIFT_OFF_KEY = "schedule.lift_off_margin"
+#: a row binds the plan where the plan less its margin lies within this share of the least preload the row sets: the
+#: envelope's plan is that preload to round-off (1e-13 of it), IPOPT's (``ipopt.tol`` 1e-9 on rows scaled to O(1))
+#: within 1e-8 of it, and a margin a report states is 1e-4 of the limit at the finest
+BINDS_WITHIN = 1e-6
 
 
 @record
@@ -114,7 +125,15 @@ class ScheduleSpec(Record):
         """What the nut's table rigidity is multiplied by for the rows: ``in_machine_factor`` (1 where not set)."""
         return 1.0 if self.in_machine_factor is None else float(self.in_machine_factor)
 
+    def lift_off_bound_N(self, axial_load_N: ArrayLike) -> Array:
+        """The lift-off row's least preload under each load: ``lift_off_margin |F_a| / 2^(3/2)`` (the catalogues'
+        rule, the safety factor included)."""
+        bound: Array = self.lift_off_margin * np.abs(np.asarray(axial_load_N, float)) / LIFT_OFF_RATIO
+        return bound
+
     def required_stiffness(self, axial_load_N: ArrayLike) -> Array:
+        """The rigidity row's requirement under each load: the least rigidity, or ``|F_a| / deflection_max_um``
+        where that is more."""
         required: Array = np.maximum(self.stiffness_min_N_per_um,
                                      np.abs(np.asarray(axial_load_N, float)) / self.deflection_max_um)
         return required
@@ -226,6 +245,37 @@ class PreloadSchedule(Record):
         for name in ("constant_preload_N", "friction_energy_J", "constant_friction_energy_J"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"PreloadSchedule.{name} must be finite, got {getattr(self, name)!r}.")
+
+    def binding_samples(self) -> dict[str, NDArray[np.bool_]]:
+        """Where each of the plan's rows binds it, by the key of the requirement it keeps (:data:`RIGIDITY_KEY`,
+        :data:`LIFT_OFF_KEY`): the samples under load where the plan less its margin sits on the least preload its
+        requirements need (within :data:`BINDS_WITHIN`; not on a slew cone nor above it) and that row sets that
+        preload.
+
+        The least preload of a sample is the lift-off row's bound or the bolts' preload, whichever is more, where
+        that already gives the rigidity, else the rigidity row's own (``design.schedule``'s bisection returns the
+        floor itself where it suffices): the lift-off row binds where the need is its bound, the rigidity row where
+        the need lies above both. Where both rows need the same preload to within :data:`BINDS_WITHIN` the lift-off
+        row is named. Where the need is the bolts' preload alone, no row binds (the bolts do).
+
+        Returns
+        -------
+        dict of str to ndarray of bool
+            One mask over the profile's samples per key, both keys always present.
+        """
+        load = np.asarray(self.profile.axial_load_N, float)
+        lift, need = self.spec.lift_off_bound_N(load), np.asarray(self.needed_N, float)
+        sits = (self.profile.cutting & (need > 0)
+                & (np.asarray(self.preload_N, float) - np.asarray(self.margin_N, float) <= need * (1.0 + BINDS_WITHIN)))
+        return {RIGIDITY_KEY: sits & (need > np.maximum(self.spec.bolt_preload_N, lift) * (1.0 + BINDS_WITHIN)),
+                LIFT_OFF_KEY: sits & (lift >= need * (1.0 - BINDS_WITHIN))}
+
+    @property
+    def binding(self) -> tuple[str, ...]:
+        """The keys of the requirements whose rows bind the plan somewhere (:meth:`binding_samples`): the design's own
+        constraints, whose margin in a run is the force loop's error, not what the physics grants. Empty where the
+        bolts' preload alone holds every sample under load."""
+        return tuple(key for key, where in self.binding_samples().items() if bool(np.any(where)))
 
     @property
     def saving_fraction(self) -> float:

@@ -255,7 +255,8 @@ def evaluate(run: SystemRun, drive: FeedDrive, setting: Setting, moves: Sequence
     the shift's bases already made, by the nut's geometry (filled as it goes)."""
     out: tuple[Requirement, ...] = ()
     if MECHANICS in moves:
-        out += requirements_of(frame_under(run.evaluation.frame, setting.screw, setting.spec), run.schedule)
+        out += requirements_of(frame_under(run.evaluation.frame, setting.screw, setting.spec), run.schedule,
+                               run.design_schedule.binding)  # the design's own constraints, as built
     if THERMAL in moves and setting.table is not None:
         s = setting.screw
         shape = (s.contact_angle_deg, s.conformity_screw, s.conformity_nut)  # what the assumptions change of the nut

@@ -20,9 +20,12 @@ From the true force over the cycles the run gives (:class:`~piezopreload.artifac
   factor, ``ScheduleSpec.in_machine_factor``) at the achieved preload under each sample's cutting
   load (:meth:`BallScrew.nut_loads`) against the requirement the schedule was planned for,
   the achieved preload against the lift-off bound with the schedule's margin
-  (``lift_off_margin |F_a| / 2^(3/2)``: the design's own constraint, which the schedule sits on),
-  and the nut axial deflection under the cutting load; these are the requirements, as verdicts
-  (:func:`requirements_of`); given the design, the physical lift-off by the nut law over the
+  (``lift_off_margin |F_a| / 2^(3/2)``), and the nut axial deflection under the cutting load; these are the
+  requirements, as verdicts (:func:`requirements_of`). The one or two whose rows bind the design's schedule
+  (:attr:`PreloadSchedule.binding <piezopreload.artifacts.schedule.PreloadSchedule.binding>`: the lift-off row
+  where the plan sits on its bound, the rigidity row where the plan sits on the rigidity it needs) are the design's
+  own constraints (``basis="design"``): the schedule is built to sit on them, so their margin in the run is the
+  loop's error, not what the physics grants. Given the design, the physical lift-off by the nut law over the
   Monte Carlo plants is one more, and :func:`margin_basis` says what each margin rests on;
 * the friction energy of the achieved preload, and the fraction it saves against the design's
   best constant preload (the design's number, not computed again).
@@ -50,6 +53,7 @@ by how much.
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 from dataclasses import dataclass
 from dataclasses import replace as dc_replace
 from pathlib import Path
@@ -60,7 +64,7 @@ from numpy.typing import NDArray
 
 from piezopreload.artifacts.plant import DesignedPlant
 from piezopreload.artifacts.requirements import AtBound, OffBounds, Requirement
-from piezopreload.artifacts.schedule import PreloadSchedule, ScheduleSpec
+from piezopreload.artifacts.schedule import LIFT_OFF_KEY, RIGIDITY_KEY, PreloadSchedule, ScheduleSpec
 from piezopreload.artifacts.sensitivity import SensitivityRecord
 from piezopreload.artifacts.summaries import SystemSummary
 from piezopreload.artifacts.system import (
@@ -89,7 +93,8 @@ if TYPE_CHECKING:  # the thermal budget reads a system run; the plots name their
     from piezopreload.design.preload import DesignSpec
     from piezopreload.design.thermal import ThermalBudget
 
-__all__ = ["PRE_CYCLE_REST_S", "RIGIDITY_VERDICT", "LIFT_OFF_BOUND_VERDICT", "LIFT_OFF_LAW", "ROUND_OFF",
+__all__ = ["PRE_CYCLE_REST_S", "RIGIDITY_VERDICT", "LIFT_OFF_BOUND_VERDICT", "OWN_CONSTRAINT", "LIFT_OFF_LAW",
+           "ROUND_OFF",
            "margin_basis", "off_bounds_screw", "SystemRun", "Evaluation", "pre_cycle_for",
            "schedule_reference", "track_schedule", "evaluate_tracking", "requirements_of", "folded_shortfall",
            "frame_under", "binding_stretches", "held_over_stretches", "local_margins"]
@@ -104,8 +109,10 @@ ROUND_OFF = 1e-9
 #: the rigidity's verdict: at the sample where the rigidity is least against its requirement (the requirement
 #: follows the load: the least rigidity itself may fall where little is required)
 RIGIDITY_VERDICT = "rigidity while cutting, where least against its requirement"
-#: the lift-off bound's verdict: the design's own constraint, which the schedule is built to sit on
-LIFT_OFF_BOUND_VERDICT = "preload against the schedule's lift-off bound while cutting (the design's own constraint)"
+#: the lift-off bound's verdict: the achieved preload against ``lift_off_margin |F_a| / 2^(3/2)``
+LIFT_OFF_BOUND_VERDICT = "preload against the schedule's lift-off bound while cutting"
+#: what a verdict's name carries where its row binds the design's schedule (``basis="design"``)
+OWN_CONSTRAINT = " (the design's own constraint)"
 #: the law the physical lift-off is judged by: the model's own, not the catalogues' 2^(3/2) rule
 LIFT_OFF_LAW = ("the nut law's lift-off load rho(sigma) F_p (the exact two-nut solution with the nut body, "
                 "BallScrew.lift_off_load_N; the catalogues' 2^(3/2) F_p is the Hertz-only nut's)")
@@ -211,7 +218,7 @@ def _mechanics(screw: BallScrew, spec: ScheduleSpec, planned: Array, achieved: A
         required=spec.required_stiffness(load), rigidity=factor * np.asarray(loads.rigidity_N_per_um, float),
         planned_rigidity=factor * np.asarray(screw.rigidity_N_per_um(np.maximum(planned, 1e-3), load), float),
         deflection=np.asarray(loads.deflection_um, float) / factor,
-        lift_bound=spec.lift_off_margin * np.abs(load) / LIFT_OFF_RATIO)
+        lift_bound=spec.lift_off_bound_N(load))
 
 
 def frame_under(frame: _Frame, screw: BallScrew, spec: ScheduleSpec) -> _Frame:
@@ -227,27 +234,32 @@ def _verdict(name: str, value: float, limit: float, unit: str, sense: str, sourc
     return Requirement(name, float(value), float(limit), unit, sense, source, key)
 
 
-def requirements_of(frame: _Frame, schedule: PreloadSchedule) -> tuple[Requirement, ...]:
+def requirements_of(frame: _Frame, schedule: PreloadSchedule,
+                    own: Collection[str] | None = None) -> tuple[Requirement, ...]:
     """The schedule's requirements as verdicts on the achieved preload while cutting: the rigidity (at the sample
     where it is least against its requirement), the deflection (where the study limits it) and the lift-off bound
-    (at the sample where the preload is least against it)."""
+    (at the sample where the preload is least against it).
+
+    ``own``: the keys of the requirements whose rows bind the design's schedule (default: ``schedule.binding``,
+    :attr:`~piezopreload.artifacts.schedule.PreloadSchedule.binding`); each of those is the design's own
+    constraint (``basis="design"``, its name ending in :data:`OWN_CONSTRAINT`)."""
+    own = schedule.binding if own is None else tuple(own)
     spec, c = schedule.spec, frame.cutting
     ratio = np.where(c, frame.rigidity / frame.required, np.inf)
     k = int(np.argmin(ratio))
     by_deflection = frame.required[k] > spec.stiffness_min_N_per_um
     out = [_verdict(RIGIDITY_VERDICT, frame.rigidity[k], frame.required[k], "N/um", "min",
                     "[schedule] deflection_max_um (|F_a| / deflection_max_um)" if by_deflection
-                    else "[schedule] stiffness_min_N_per_um", "schedule.rigidity_while_cutting")]
+                    else "[schedule] stiffness_min_N_per_um", RIGIDITY_KEY)]
     if math.isfinite(spec.deflection_max_um):
         out.append(_verdict("nut axial deflection while cutting", float(np.max(np.abs(frame.deflection[c]))),
                             spec.deflection_max_um, "um", "max", "[schedule] deflection_max_um",
                             "schedule.deflection_max_um"))
     lift = np.where(c, frame.achieved / np.maximum(frame.lift_bound, 1e-9), np.inf)
     j = int(np.argmin(lift))
-    out.append(dc_replace(_verdict(LIFT_OFF_BOUND_VERDICT, frame.achieved[j], frame.lift_bound[j], "N", "min",
-                                   "[schedule] lift_off_margin (lift_off_margin |F_a| / 2^(3/2))",
-                                   "schedule.lift_off_margin"), basis="design"))
-    return tuple(out)
+    out.append(_verdict(LIFT_OFF_BOUND_VERDICT, frame.achieved[j], frame.lift_bound[j], "N", "min",
+                        "[schedule] lift_off_margin (lift_off_margin |F_a| / 2^(3/2))", LIFT_OFF_KEY))
+    return tuple(dc_replace(r, name=r.name + OWN_CONSTRAINT, basis="design") if r.key in own else r for r in out)
 
 
 def _needed_at(schedule: PreloadSchedule, t_cycle: Array) -> tuple[Array, NDArray[np.intp]]:
@@ -383,12 +395,14 @@ class Evaluation:
 
 
 def evaluate_tracking(plant: DesignedPlant, schedule: PreloadSchedule, run: ClosedLoopRun, cycles: int, *,
-                      pre_cycle_s: float = 0.0, constant_energy: float | None = None) -> Evaluation:
+                      pre_cycle_s: float = 0.0, constant_energy: float | None = None,
+                      own: Collection[str] | None = None) -> Evaluation:
     """Judge one run over the schedule (module docstring): tracking, rigidity, deflection, lift-off, energy.
 
     ``pre_cycle_s``: the pre-cycle before the first cut (left out). ``constant_energy``: the best
     constant preload's friction energy per cycle the saving is read against (default: the
-    schedule's own record of it, the design's).
+    schedule's own record of it, the design's). ``own``: the keys of the design's own constraints
+    (:func:`requirements_of`; default: those whose rows bind ``schedule``).
     """
     frame = _frame(plant, schedule, run, cycles, pre_cycle_s)
     if not frame.cutting.any():
@@ -396,7 +410,7 @@ def evaluate_tracking(plant: DesignedPlant, schedule: PreloadSchedule, run: Clos
     energy = schedule.constant_friction_energy_J if constant_energy is None else constant_energy
     shortfall = _shortfall(frame, schedule, plant.screw)
     return Evaluation(frame, _numbers(frame, schedule, run, cycles, energy, shortfall),
-                      requirements_of(frame, schedule), shortfall)
+                      requirements_of(frame, schedule, own), shortfall)
 
 
 @dataclass(frozen=True, eq=False)
@@ -631,7 +645,7 @@ def track_schedule(plant: DesignedPlant, controller: Controller, schedule: Prelo
         extra = ff_extra_V(reference) if callable(ff_extra_V) else ff_extra_V
         run = simulate(rig, controller, reference, seed=seed, ff_extra_V=extra)
         ev = evaluate_tracking(plant, current, run, cycles, pre_cycle_s=pre.duration_s,
-                               constant_energy=schedule.constant_friction_energy_J)
+                               constant_energy=schedule.constant_friction_energy_J, own=schedule.binding)
         record.append(_pass_record(k, current, ev))
         n = ev.numbers
         say(f"pass {k}: local margins up to {record[-1].preload_margin_N:.1f} N, tracking RMS {n.tracking_rms_N:.2f} N "
@@ -702,7 +716,7 @@ def _off_bounds(requirements: tuple[Requirement, ...], frame: _Frame, schedule: 
     deflection = np.asarray(loads.deflection_um, float) / factor
     out = []
     for r in requirements:
-        if r.name == RIGIDITY_VERDICT:
+        if r.key == RIGIDITY_KEY:
             i = int(np.argmin(k / frame.required[c]))
             value, limit = float(k[i]), float(frame.required[c][i])
         elif r.key == "schedule.deflection_max_um":

@@ -397,8 +397,8 @@ def pareto_fronts(fronts: Sequence[Front], optimum: DesignPoint | None = None) -
 def preload_schedule(time_s: np.ndarray, load_N: np.ndarray, preload_N: np.ndarray, constant_N: float,
                      lift_off_margin: float) -> Figure:
     """The load profile and the least-friction preload schedule against the best constant preload, with the
-    schedule's lift-off bound ``lift_off_margin |F_a| / 2^(3/2)`` (the design's own constraint, the one its table
-    states, the safety factor included)."""
+    schedule's lift-off bound ``lift_off_margin |F_a| / 2^(3/2)`` (the catalogues' rule, the safety factor
+    included; the caption says whether the schedule sits on it)."""
     fig, ax = page_figure(3.6, nrows=2, sharex=True)
     a, b = ax[0][0], ax[1][0]
     a.plot(time_s, load_N, color=COLOURS["reference"], drawstyle="steps-post")

@@ -20,6 +20,7 @@ from piezopreload.artifacts.gainset import GainSet, GainsTable
 from piezopreload.artifacts.learning import LearningRecord
 from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.rigrun import RigRunRecord
+from piezopreload.artifacts.schedule import LIFT_OFF_KEY, RIGIDITY_KEY, PreloadSchedule
 from piezopreload.artifacts.system import MarginBasis, SystemRecord, TrackingNumbers
 from piezopreload.artifacts.tuning import TuningResult
 from piezopreload.models.hysteresis import CreepPI
@@ -80,6 +81,18 @@ def rigidity_words(n: TrackingNumbers) -> str:
             f"({q(n.rigidity_required_at_min_N_per_um, 'N/um')} required at that moment) and the rigidity is at least "
             f"{ratio(n.rigidity_ratio_min)} times its requirement ({fmt(n.rigidity_at_worst_ratio_N_per_um)} against "
             f"{q(n.rigidity_required_at_worst_ratio_N_per_um, 'N/um')} at the tightest moment)")
+
+
+def _bound_words(schedule: PreloadSchedule) -> str:
+    """What the schedule's lift-off bound is to the design, for a caption: its own constraint where the lift-off row
+    binds the plan, else what sets the preload above it (:attr:`PreloadSchedule.binding`)."""
+    binding = schedule.binding
+    if LIFT_OFF_KEY in binding:
+        return ", the design's own constraint"
+    if RIGIDITY_KEY in binding:
+        return (", under the schedule wherever it cuts: the rigidity required sets the preload there, the design's "
+                "own constraint")
+    return ", under the schedule wherever it cuts: the bolts' preload alone holds every requirement there"
 
 
 def _span(values: Any, unit: str, with_unit: bool = True) -> str:
@@ -201,7 +214,7 @@ def design_section(study: ReportStudy, design: DesignRecord, system_shown: bool 
                                                     sch.constant_preload_N, sch.spec.lift_off_margin),
                     f"The load profile and the design's least-friction preload schedule against the best constant "
                     f"preload ({q(sch.constant_preload_N, 'N')}); dotted, the schedule's lift-off bound "
-                    f"{fmt(sch.spec.lift_off_margin)} |F_a| / 2^(3/2), the design's own constraint."))
+                    f"{fmt(sch.spec.lift_off_margin)} |F_a| / 2^(3/2){_bound_words(sch)}."))
     nf = design.natural_frequency
     limit = "" if study.frequency_min_Hz is None else f"; dashed, the study's limit {q(study.frequency_min_Hz, 'Hz')}"
     figures.append(("natural-frequency", F.natural_frequency(nf.position_mm, nf.bolt_preload_Hz, nf.max_preload_Hz,
@@ -246,12 +259,15 @@ def system_section(system: SystemRecord, design: DesignRecord, learning: Learnin
          "the run"),
         ("least rigidity over its requirement while cutting", f"{ratio(n.rigidity_ratio_min)} times",
          f"{fmt(n.rigidity_at_worst_ratio_N_per_um)} against {q(n.rigidity_required_at_worst_ratio_N_per_um, 'N/um')} "
-         f"required, {q(n.rigidity_worst_t_s, 's')} into the run"),
+         f"required, {q(n.rigidity_worst_t_s, 's')} into the run"
+         + ("; the design's own constraint, the schedule sits on it" if RIGIDITY_KEY in sch.binding else "")),
         ("time below the required rigidity", f"{q(n.rigidity_below_requirement_s, 's')}", ""),
         ("largest nut axial deflection while cutting", f"{q(n.deflection_max_um, 'um')}",
          f"the nut alone, in the machine; {deflection}"),
         ("least preload over the schedule's lift-off bound", f"{ratio(n.lift_off_ratio_min)} times",
-         f"the bound with its {fmt(n.lift_off_margin)} margin: the design's own constraint, the schedule sits on it"),
+         f"the bound with its {fmt(n.lift_off_margin)} margin"
+         + (": the design's own constraint, the schedule sits on it" if LIFT_OFF_KEY in sch.binding else
+            ": a margin, the schedule is not built to sit on it")),
         *_basis_rows(system.basis),
         ("friction energy per cycle, achieved", f"{fmt(n.friction_energy_per_cycle)} {e}", "the true force"),
         ("friction energy per cycle, the loop's plan", f"{fmt(n.planned_friction_energy_per_cycle)} {e}",

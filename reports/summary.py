@@ -107,8 +107,8 @@ def _near_limits(checked: tuple[Requirement, ...]) -> str:
     if not near:
         return ""
     words = [f"{r.name}, met by {q(r.margin_pct or 0.0, '%')}"
-             + (" (a bound the least-friction schedule is planned to sit on)" if r.source.startswith("[schedule]")
-                else "") for r in near]
+             + (" (a bound the least-friction schedule is planned to sit on)" if r.basis == "design" else "")
+             for r in near]
     head = ("The requirement nearest its limit" if len(near) == 1 else
             f"The requirements within {q(NEAR_LIMIT_PCT, '%')} of their limits")
     return f"{head}: {'; '.join(words)}."

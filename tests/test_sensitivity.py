@@ -104,9 +104,9 @@ def test_the_study_reuses_the_systems_own_requirements_and_names_every_assumptio
     assert set(study.assumptions) == {a.key for a in ASSUMPTIONS}, "an assumption that applies gave no row"
     assert len(study.assumptions) >= 6
     # the lift-off bound is the design's own construction: no assumption moves it, and the record says so
-    from piezopreload.design.system import LIFT_OFF_BOUND_VERDICT
+    from piezopreload.design.system import LIFT_OFF_BOUND_VERDICT, OWN_CONSTRAINT
 
-    assert study.unmoved == (LIFT_OFF_BOUND_VERDICT,), study.unmoved
+    assert study.unmoved == (LIFT_OFF_BOUND_VERDICT + OWN_CONSTRAINT,), study.unmoved
     # the pretension's growth row is the thermal budget's at those pretensions
     row = next(r for r in study.rows if r.key == "thermal.pretension_K" and r.requirement.endswith("growth_max_um"))
     from dataclasses import replace

@@ -1,0 +1,160 @@
+"""The design's own constraint is whichever requirement binds the schedule the design solved, on any study.
+
+The least-friction schedule sits on the rows that set each sample's least preload: on the machine axis the lift-off
+bound ``lift_off_margin |F_a| / 2^(3/2)`` under every cut; with ``[schedule] stiffness_min_N_per_um = 1000`` (the
+stiff edit) the rigidity instead, the plan holding the preload above the lift-off bound. The design's own constraint
+(``basis="design"``, named apart from the least margin by the console and the report) is the one that binds, read
+from the solved schedule, never a requirement by name; the other is judged as a margin. Each binding is checked here
+against the closed forms: the lift-off bound itself, and the nut's rigidity by the numpy nut law
+(``BallScrew.nut_loads``, not the CasADi function the schedule was solved with).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from piezopreload.artifacts.requirements import least_margin, own_constraints
+from piezopreload.artifacts.schedule import LIFT_OFF_KEY, RIGIDITY_KEY, PreloadSchedule
+from piezopreload.cli.study import _print_verdict
+from piezopreload.design.system import (
+    LIFT_OFF_BOUND_VERDICT,
+    OWN_CONSTRAINT,
+    RIGIDITY_VERDICT,
+    _Frame,
+    frame_under,
+    requirements_of,
+)
+from piezopreload.reports.sections import _bound_words
+from piezopreload.reports.summary import verdicts
+from piezopreload.study import load_study
+
+STUDY = Path(__file__).parents[1] / "studies" / "machine_axis.toml"
+
+
+def _stiff(tmp_path: Path) -> Path:
+    """The machine axis with the least rigidity while cutting raised from 300 to 1,000 N/um (its one edit)."""
+    text = STUDY.read_text()
+    old = "stiffness_min_N_per_um = 300.0"
+    assert text.count(old) == 1, f"the machine axis' study no longer holds '{old}' once"
+    path = tmp_path / "stiff.toml"
+    path.write_text(text.replace(old, "stiffness_min_N_per_um = 1000.0"))
+    return path
+
+
+@pytest.fixture(scope="module")
+def designs(tmp_path_factory):
+    """The default study's and the stiff edit's solved schedules, with their screws."""
+    out = {}
+    for name, path in (("default", STUDY), ("stiff", _stiff(tmp_path_factory.mktemp("stiff")))):
+        study = load_study(path)
+        out[name] = (study.preload_schedule, study.designed_plant.screw)
+    return out
+
+
+def _rigidity(schedule: PreloadSchedule, screw, preload_N: np.ndarray) -> np.ndarray:
+    """The nut's rigidity in the machine by the numpy nut law at ``preload_N`` under the profile's loads."""
+    loads = screw.nut_loads(preload_N, schedule.profile.axial_load_N)
+    return schedule.spec.rigidity_factor * np.asarray(loads.rigidity_N_per_um, float)
+
+
+def test_the_default_schedule_sits_on_its_lift_off_bound_and_keeps_its_rigidity_with_room(designs):
+    schedule, screw = designs["default"]
+    assert schedule.binding == (LIFT_OFF_KEY,)
+    where = schedule.binding_samples()[LIFT_OFF_KEY]
+    load = schedule.profile.axial_load_N
+    # the closed form: the plan is the lift-off bound itself where it binds, the heaviest cut (4,000 N) among them
+    bound = 1.2 * np.abs(load) / 2.0 ** 1.5
+    np.testing.assert_allclose(schedule.preload_N[where], bound[where], rtol=1e-9,
+                               err_msg="the plan does not sit on the lift-off bound where it is said to bind")
+    assert np.any(where & (load == 4000.0)), "the roughing cut's samples do not bind"
+    cut = schedule.profile.cutting
+    k = _rigidity(schedule, screw, schedule.preload_N)
+    assert np.all(k[cut] > schedule.required_N_per_um[cut] * 1.05), "the rigidity binds somewhere under load"
+
+
+def test_the_stiff_edit_sits_on_its_rigidity_and_holds_the_preload_above_the_lift_off_bound(designs):
+    schedule, screw = designs["stiff"]
+    assert schedule.binding == (RIGIDITY_KEY,)
+    where = schedule.binding_samples()[RIGIDITY_KEY]
+    cut = schedule.profile.cutting
+    assert np.array_equal(where, cut), "the rigidity of 1,000 N/um does not bind under every cut"
+    # the nut law's rigidity at the plan is the 1,000 N/um required, to the bisection's round-off
+    np.testing.assert_allclose(_rigidity(schedule, screw, schedule.preload_N)[cut], 1000.0, rtol=1e-9,
+                               err_msg="the rigidity at the plan is not the requirement where it binds")
+    lift = 1.2 * np.abs(schedule.profile.axial_load_N) / 2.0 ** 1.5
+    assert np.min(schedule.preload_N[cut] / lift[cut]) > 1.15, "the plan comes near the lift-off bound"
+
+
+def _ideal(schedule: PreloadSchedule, screw) -> _Frame:
+    """A run that follows the plan exactly over one cycle: the achieved preload is the planned one."""
+    t, load = schedule.profile.time_s, schedule.profile.axial_load_N
+    plan = np.asarray(schedule.preload_N, float)
+    zero = np.zeros_like(plan)
+    frame = _Frame(t_cycle=t, cycle=np.ones(t.size, bool), cutting=schedule.profile.cutting, load=load,
+                   planned=plan, achieved=plan, required=zero, rigidity=zero, planned_rigidity=zero,
+                   deflection=zero, lift_bound=zero, weight=zero)
+    return frame_under(frame, screw, schedule.spec)
+
+
+def test_the_verdicts_name_the_binding_requirement_as_the_designs_own(designs):
+    """On a loop that follows the plan exactly the binding requirement is met with nothing to spare: it is named
+    apart as the design's own; the other is a margin (the lift-off bound's 16 % on the stiff edit)."""
+    default = requirements_of(_ideal(*designs["default"]), designs["default"][0])
+    assert [(r.key, r.basis) for r in default] == [(RIGIDITY_KEY, None), ("schedule.deflection_max_um", None),
+                                                   (LIFT_OFF_KEY, "design")]
+    assert default[2].name == LIFT_OFF_BOUND_VERDICT + OWN_CONSTRAINT and default[2].margin == 0.0
+    assert default[0].name == RIGIDITY_VERDICT and default[0].margin_pct > 5.0
+    stiff = requirements_of(_ideal(*designs["stiff"]), designs["stiff"][0])
+    assert [(r.key, r.basis) for r in stiff] == [(RIGIDITY_KEY, "design"), ("schedule.deflection_max_um", None),
+                                                 (LIFT_OFF_KEY, None)]
+    rigid, deflection, lift = stiff
+    assert rigid.name == RIGIDITY_VERDICT + OWN_CONSTRAINT and lift.name == LIFT_OFF_BOUND_VERDICT
+    assert rigid.margin_pct == pytest.approx(0.0, abs=1e-6)
+    # the lift-off bound's margin is the plan's at the roughing cut over the closed-form bound 1.2 x 4,000 / 2^1.5
+    schedule = designs["stiff"][0]
+    plan_4000 = float(np.min(schedule.preload_N[schedule.profile.axial_load_N == 4000.0]))
+    assert lift.margin_pct == pytest.approx(100.0 * (plan_4000 / (1.2 * 4000.0 / 2.0 ** 1.5) - 1.0), rel=1e-9)
+    assert 15.0 < lift.margin_pct < 20.0
+    assert own_constraints(stiff) == (rigid,) and least_margin(stiff) is min((deflection, lift),
+                                                                             key=lambda r: r.margin_pct)
+
+
+def _console(requirements) -> str:
+    summary = SimpleNamespace(requirements_met=all(r.met for r in requirements), requirements=requirements,
+                              least_margin=least_margin(requirements), missed=(),
+                              headline=SimpleNamespace(sensitivity=None))
+    buffer = io.StringIO()
+    with contextlib.redirect_stdout(buffer):
+        _print_verdict(summary)
+    return buffer.getvalue()
+
+
+def test_the_console_and_the_report_set_the_binding_requirement_apart_on_either_study(designs):
+    default = requirements_of(_ideal(*designs["default"]), designs["default"][0])
+    text = _console(default)
+    assert ("apart from preload against the schedule's lift-off bound while cutting (the design's own constraint), "
+            "0 %: a bound the design is built to sit on") in text, text
+    (line,) = verdicts(SimpleNamespace(requirements=lambda: default, system=None))
+    assert "apart from preload against the schedule's lift-off bound while cutting (the design's own constraint)" \
+           in line and line.endswith(": a bound the design is built to sit on."), line
+    assert _bound_words(designs["default"][0]) == ", the design's own constraint"
+
+    stiff = requirements_of(_ideal(*designs["stiff"]), designs["stiff"][0])
+    text = _console(stiff)
+    assert ("apart from rigidity while cutting, where least against its requirement (the design's own constraint), "
+            "0 %: a bound the design is built to sit on") in text, text
+    assert "apart from preload against the schedule's lift-off bound" not in text, text
+    least = least_margin(stiff)
+    assert "the least margin: " in text and f"({least.name})" in text and least.basis is None, text
+    (line,) = verdicts(SimpleNamespace(requirements=lambda: stiff, system=None))
+    assert "apart from rigidity while cutting, where least against its requirement (the design's own constraint)" \
+           in line, line
+    assert "apart from preload against the schedule's lift-off bound" not in line, line
+    words = _bound_words(designs["stiff"][0])
+    assert "own constraint" in words and "rigidity required sets the preload" in words, words
