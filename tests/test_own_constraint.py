@@ -158,3 +158,19 @@ def test_the_console_and_the_report_set_the_binding_requirement_apart_on_either_
     assert "apart from preload against the schedule's lift-off bound" not in line, line
     words = _bound_words(designs["stiff"][0])
     assert "own constraint" in words and "rigidity required sets the preload" in words, words
+
+
+def test_the_first_page_says_planned_to_sit_on_only_of_the_binding_requirement(designs):
+    """The first page's requirements nearest their limits: the one the schedule binds on is 'a bound the least-friction
+    schedule is planned to sit on', one the study's [schedule] table sets but the plan does not sit on is not (the
+    stiff edit's lift-off bound, here brought within 5 % of its limit)."""
+    from dataclasses import replace
+
+    from piezopreload.reports.summary import _near_limits
+
+    rigid, deflection, lift = requirements_of(_ideal(*designs["stiff"]), designs["stiff"][0])
+    near_lift = replace(lift, value=1.05 * lift.limit)
+    text = _near_limits((rigid, deflection, near_lift))
+    assert text.count("(a bound the least-friction schedule is planned to sit on)") == 1, text
+    assert f"{rigid.name}, met by 0 % (a bound the least-friction schedule is planned to sit on)" in text, text
+    assert text.endswith(f"{near_lift.name}, met by 5 %."), text
