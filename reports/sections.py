@@ -30,7 +30,7 @@ from piezopreload.reports.inputs import Artifacts, ReportStudy
 
 __all__ = ["Part", "study_section", "requirements_section", "design_section", "system_section", "learning_section",
            "feedforward_section", "controller_section", "responses_section", "rig_section",
-           "provenance_section", "levels_text", "signal_name", "rigidity_words", "CONTROLLER_NAMES"]
+           "provenance_section", "levels_text", "signal_name", "rigidity_words", "profile_words", "CONTROLLER_NAMES"]
 
 CONTROLLER_NAMES = {"pid": "PID", "ff+pid": "FF + PID"}
 _FRONT_WORDS = {"preload": "highest preload", "drag": "time-mean drag torque", "life": "rating life"}
@@ -81,6 +81,17 @@ def rigidity_words(n: TrackingNumbers) -> str:
             f"({q(n.rigidity_required_at_min_N_per_um, 'N/um')} required at that moment) and the rigidity is at least "
             f"{ratio(n.rigidity_ratio_min)} times its requirement ({fmt(n.rigidity_at_worst_ratio_N_per_um)} against "
             f"{q(n.rigidity_required_at_worst_ratio_N_per_um, 'N/um')} at the tightest moment)")
+
+
+def profile_words(design: DesignRecord) -> str:
+    """The load profile the design's schedule was planned for, in words: the study's file, or the built-in machining
+    cycle where the study names none (its loads are its own, not the ``[duty]`` table's), with its range of loads."""
+    load = np.asarray(design.schedule.profile.axial_load_N, float)
+    span = f"axial loads {fmt(float(load.min()))} to {q(float(load.max()), 'N')}"
+    if design.profile == "example":
+        return (f"the built-in machining cycle ({span}; the study names no [schedule] profile, and the cycle's loads "
+                "are not the [duty] table's)")
+    return f"the study's load profile {Path(design.profile).name} ({span})"
 
 
 def _bound_words(schedule: PreloadSchedule) -> str:
@@ -190,7 +201,7 @@ def design_section(study: ReportStudy, design: DesignRecord, system_shown: bool 
         f"The preload design for the study's screw{screw}, solved with CasADi and IPOPT over the integer turns and "
         f"balls per turn, objective {design.optimum.objective} ({_OBJECTIVE_NAMES.get(design.optimum.objective, '')})."
         f" Constraints that bind at the optimum: {'; '.join(binding_words(binding, p)) if binding else 'none'}.",
-        f"The design's least-friction preload schedule over the study's load profile ({sch.preload_N.size} samples) "
+        f"The design's least-friction preload schedule over {profile_words(design)}, {sch.preload_N.size} samples, "
         f"keeps the requirements with {fmt(sch.friction_energy_J)} {e} of friction energy per cycle, against "
         f"{fmt(sch.constant_friction_energy_J)} {e} at the best constant preload ({q(sch.constant_preload_N, 'N')}): "
         f"{pct(sch.saving_fraction)} less. That is the design's plan, before any margin a controlled loop adds"

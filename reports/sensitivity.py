@@ -94,8 +94,9 @@ def sensitivity_section(s: SensitivityRecord) -> Part:
             paragraphs.append(f"Not robust: {rows[0].requirement_name} ({verdict(rows)} at the study's values, margin "
                               f"{rows[0].margin_pct_nominal:+.1f} %) flips with {_flip_words(flips)}.")
     if s.unmoved:
-        paragraphs.append("No assumption of the study moves: " + "; ".join(s.unmoved) + " (none of these assumptions "
-                          "enters " + ("its value or its limit)." if len(s.unmoved) == 1 else "their values or limits)."))
+        enters = "its value or its limit" if len(s.unmoved) == 1 else "their values or their limits"
+        paragraphs.append(f"No assumption of the study moves: {'; '.join(s.unmoved)} (none of these assumptions "
+                          f"enters {enters}).")
     if s.not_judged:
         paragraphs.append("Not judged again under the assumptions: " + "; ".join(s.not_judged) + " (their verdicts "
                           "come from the Monte Carlo plants, which the study does not run again).")

@@ -24,7 +24,7 @@ from piezopreload.artifacts.responses import ResponseRun
 from piezopreload.artifacts.system import SystemRecord
 from piezopreload.reports.document import fmt, pct, q
 from piezopreload.reports.inputs import Artifacts, Published, ReportStudy
-from piezopreload.reports.sections import levels_text, rigidity_words, signal_name
+from piezopreload.reports.sections import levels_text, profile_words, rigidity_words, signal_name
 from piezopreload.reports.thermal import thermal_lines
 
 __all__ = ["design_lead", "verdicts", "summary"]
@@ -53,8 +53,8 @@ def design_lead(study: ReportStudy, a: Artifacts) -> tuple[str, ...]:
         f"{fmt(p.ball_mm, 4, 'mm')} mm, contact angle {fmt(p.contact_angle_deg, 3, 'deg')}°, groove conformity "
         f"{fmt(p.conformity)}{stacks}: the preload {q(p.bolt_preload_N, 'N')} from the bolts alone, up to "
         f"{q(p.max_preload_N, 'N')} with the stacks at full drive. The least-friction preload schedule plans "
-        f"{fmt(float(preload.min()), 3, 'N')} to {q(float(preload.max()), 'N')} over the load profile ({levels} "
-        f"levels), against a best constant preload of {q(sch.constant_preload_N, 'N')}" + _runs(a)]
+        f"{fmt(float(preload.min()), 3, 'N')} to {q(float(preload.max()), 'N')} ({levels} levels) over "
+        f"{profile_words(design)}, against a best constant preload of {q(sch.constant_preload_N, 'N')}" + _runs(a)]
     limits = _design_limits(design.optimum.binding, p, design.optimum.objective)
     near = _near_limits(a.requirements())
     if limits or near:

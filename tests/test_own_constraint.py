@@ -174,3 +174,39 @@ def test_the_first_page_says_planned_to_sit_on_only_of_the_binding_requirement(d
     assert text.count("(a bound the least-friction schedule is planned to sit on)") == 1, text
     assert f"{rigid.name}, met by 0 % (a bound the least-friction schedule is planned to sit on)" in text, text
     assert text.endswith(f"{near_lift.name}, met by 5 %."), text
+
+
+def _lead_and_design_section(path: Path) -> tuple[str, str]:
+    """The first page's design lead and the design section's paragraphs of a study's solved design."""
+    from piezopreload.reports.inputs import ReportStudy
+    from piezopreload.reports.sections import design_section
+    from piezopreload.reports.summary import design_lead
+
+    study = load_study(path)
+    record = study.design(pareto=[]).record({"study": study.path})
+    facts = ReportStudy(study.name, study.title, study.path, study.sha256, study.path)
+    lead = " ".join(design_lead(facts, SimpleNamespace(design=record, system=None, requirements=lambda: ())))
+    return lead, " ".join(design_section(facts, record).section.paragraphs)
+
+
+def test_the_report_names_the_load_profile_the_schedule_was_planned_for(tmp_path):
+    """The machine axis names no [schedule] profile: its schedule is planned over the built-in machining cycle, whose
+    loads are not the [duty] table's, and the report says so rather than 'the study's load profile'; a study that
+    names a profile file is planned over it, and the report names the file and its loads."""
+    lead, section = _lead_and_design_section(STUDY)
+    for text in (lead, section):
+        assert "the built-in machining cycle (axial loads -1,500 to 4,000 N; the study names no [schedule] profile" \
+               in text, text
+        assert "the study's load profile" not in text, text
+    t = np.arange(0.0, 4.0, 0.01)
+    load = np.where(t < 2.0, 2500.0, -800.0)
+    csv = tmp_path / "cycle.csv"
+    csv.write_text("time_s,axial_load_N,speed_rpm\n" + "".join(f"{a:.2f},{b:.1f},500\n" for a, b in zip(t, load)))
+    text = STUDY.read_text()
+    assert text.count("[schedule]\n") == 1
+    edited = tmp_path / "profiled.toml"
+    edited.write_text(text.replace("[schedule]\n", f"[schedule]\nprofile = \"{csv.name}\"\n"))
+    lead, section = _lead_and_design_section(edited)
+    for text in (lead, section):
+        assert "the study's load profile cycle.csv (axial loads -800 to 2,500 N)" in text, text
+        assert "built-in" not in text, text
