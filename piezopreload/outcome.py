@@ -31,8 +31,8 @@ class Headline:
     """The study's headline figures: the whole system's (None where the study has no system stage; the rigidity
     in the machine beside its table-comparable figure and the axis stiffness at the table, the nut axial deflection
     beside the axis deflection at the table, the lift-off margin against the schedule's bound (the design's own
-    constraint) beside the physical one by the nut law over the Monte Carlo plants: None where the run has no margin
-    basis; ``thermal``
+    constraint where that row binds the schedule: the requirement's ``basis`` says) beside the physical one by the nut
+    law over the Monte Carlo plants: None where the run has no margin basis; ``thermal``
     where it has a ``[thermal]`` table: ``heat_mean_W``, ``temperature_rise_max_K``, ``growth_max_um``,
     ``positioning_error_max_um``, ... each ``{"schedule": ..., "constant": ...}``), the gain set's status and
     the rig run's tracking; ``sensitivity`` the verdicts under the modelling assumptions' ranges (in the document
