@@ -22,6 +22,7 @@ import pytest
 from piezopreload.artifacts.requirements import least_margin, own_constraints
 from piezopreload.artifacts.schedule import LIFT_OFF_KEY, RIGIDITY_KEY, PreloadSchedule
 from piezopreload.cli.study import _print_verdict
+from piezopreload.core.quantities import number
 from piezopreload.design.system import (
     LIFT_OFF_BOUND_VERDICT,
     OWN_CONSTRAINT,
@@ -210,3 +211,38 @@ def test_the_report_names_the_load_profile_the_schedule_was_planned_for(tmp_path
     for text in (lead, section):
         assert "the study's load profile cycle.csv (axial loads -800 to 2,500 N)" in text, text
         assert "built-in" not in text, text
+
+
+@pytest.mark.slow  # the small whole-system study runs end to end (about a minute)
+def test_the_stiff_small_axis_run_names_its_rigidity_as_the_designs_own_and_judges_the_lift_off_bound(tmp_path,
+                                                                                                      capsys):
+    """The small whole-system study with the least rigidity at 1,000 N/um, end to end: the system artifact, the
+    console and the report call the rigidity the design's own constraint and the lift-off bound a margin, the least
+    margin the console leads with being the least among the requirements the design does not sit on."""
+    from piezopreload.artifacts.registry import read_artifact
+    from piezopreload.artifacts.system import SystemRecord
+    from piezopreload.cli import main
+
+    text = (Path(__file__).parent / "data" / "small_axis.toml").read_text()
+    assert text.count("stiffness_min_N_per_um = 300.0") == 1
+    study = tmp_path / "stiff_small.toml"
+    study.write_text(text.replace("stiffness_min_N_per_um = 300.0", "stiffness_min_N_per_um = 1000.0"))
+    out = tmp_path / "out"
+    assert main(["run", str(study), "--out", str(out), "--quiet"]) == 0
+    console = capsys.readouterr().out
+    system = SystemRecord.load(out / "system" / "system.json")
+    by_key = {r.key: r for r in system.requirements}
+    rigid, lift = by_key[RIGIDITY_KEY], by_key[LIFT_OFF_KEY]
+    assert (rigid.basis, lift.basis) == ("design", None) and rigid.name == RIGIDITY_VERDICT + OWN_CONSTRAINT
+    assert 0.0 <= rigid.margin_pct < 1.0 and lift.margin_pct > 10.0, (rigid.margin_pct, lift.margin_pct)
+    least = min((r for r in system.requirements if r.basis != "design" and r.margin_pct is not None),
+                key=lambda r: r.margin_pct)
+    assert f"every requirement met; the least margin: {number(least.margin_pct, '%')} % ({least.name})" in console
+    assert (f"  apart from {rigid.name}, {number(rigid.margin_pct, '%')} %: a bound the design is built to sit on"
+            in console), console
+    assert "apart from preload against the schedule's lift-off bound" not in console, console
+    report = str(read_artifact(out / "report" / "report.json", "report"))
+    assert "the bound with its 1.2 margin: a margin, the schedule is not built to sit on it" in report
+    assert "the rigidity required sets the preload there, the design's own constraint" in report
+    assert "lift-off bound while cutting (the design's own constraint)" not in report
+    assert "the design's own constraint, the schedule sits on it" in report  # the rigidity's row of the table
