@@ -98,6 +98,9 @@ def _bound_words(schedule: PreloadSchedule) -> str:
     """What the schedule's lift-off bound is to the design, for a caption: its own constraint where the lift-off row
     binds the plan, else what sets the preload above it (:attr:`PreloadSchedule.binding`)."""
     binding = schedule.binding
+    if LIFT_OFF_KEY in binding and RIGIDITY_KEY in binding:
+        return (", the design's own constraint where the plan sits on it; under the loads where the rigidity required "
+                "needs more preload, the rigidity is the design's own constraint")
     if LIFT_OFF_KEY in binding:
         return ", the design's own constraint"
     if RIGIDITY_KEY in binding:

@@ -246,3 +246,30 @@ def test_the_stiff_small_axis_run_names_its_rigidity_as_the_designs_own_and_judg
     assert "the rigidity required sets the preload there, the design's own constraint" in report
     assert "lift-off bound while cutting (the design's own constraint)" not in report
     assert "the design's own constraint, the schedule sits on it" in report  # the rigidity's row of the table
+
+
+def test_with_a_lower_deflection_limit_both_rows_bind_each_at_its_own_loads(tmp_path):
+    """``[schedule] deflection_max_um = 4``: the roughing cut (4,000 N) needs 1,000 N/um, more preload than its
+    lift-off bound, while the lighter loads still sit on their lift-off bound: both requirements are the design's own,
+    each where it sets the plan, and the schedule figure's caption says both."""
+    text = STUDY.read_text()
+    old = "deflection_max_um = 5.0 "
+    assert text.count(old) == 1
+    path = tmp_path / "defl4.toml"
+    path.write_text(text.replace(old, "deflection_max_um = 4.0 "))
+    study = load_study(path)
+    schedule, screw = study.preload_schedule, study.designed_plant.screw
+    assert schedule.binding == (RIGIDITY_KEY, LIFT_OFF_KEY)
+    where, load = schedule.binding_samples(), schedule.profile.axial_load_N
+    assert set(np.unique(load[where[RIGIDITY_KEY]])) == {4000.0}
+    assert {-1500.0, 600.0} <= set(np.unique(load[where[LIFT_OFF_KEY]]))
+    np.testing.assert_allclose(_rigidity(schedule, screw, schedule.preload_N)[where[RIGIDITY_KEY]], 4000.0 / 4.0,
+                               rtol=1e-9, err_msg="the rigidity at the roughing cut is not |F_a| / deflection_max")
+    np.testing.assert_allclose(schedule.preload_N[where[LIFT_OFF_KEY]],
+                               1.2 * np.abs(load[where[LIFT_OFF_KEY]]) / 2.0 ** 1.5, rtol=1e-9)
+    reqs = requirements_of(_ideal(schedule, screw), schedule)
+    assert [r.key for r in own_constraints(reqs)] == [RIGIDITY_KEY, LIFT_OFF_KEY]
+    text = _console(reqs)
+    assert text.count("a bound the design is built to sit on") == 2, text
+    words = _bound_words(schedule)
+    assert words.count("the design's own constraint") == 2, words
