@@ -273,3 +273,17 @@ def test_with_a_lower_deflection_limit_both_rows_bind_each_at_its_own_loads(tmp_
     assert text.count("a bound the design is built to sit on") == 2, text
     words = _bound_words(schedule)
     assert words.count("the design's own constraint") == 2, words
+
+
+@pytest.mark.parametrize("name", ["default", "stiff"])
+def test_ipopts_schedule_binds_on_the_same_rows_at_the_same_samples(designs, name):
+    """The schedule solved as an NLP by IPOPT (``method="nlp"``), an independent solver of the same problem, binds on
+    the same rows at the same samples as the exact envelope: the tolerance BINDS_WITHIN (1e-6) is above IPOPT's
+    optimum's distance from the need (about 1e-8) and below any margin a report states."""
+    from piezopreload.design.schedule import schedule_preload
+
+    envelope, screw = designs[name]
+    nlp = schedule_preload(screw, envelope.profile, envelope.spec, method="nlp")
+    assert nlp.binding == envelope.binding
+    for key, where in envelope.binding_samples().items():
+        assert np.array_equal(nlp.binding_samples()[key], where), f"{key}: IPOPT binds at other samples"
