@@ -310,7 +310,9 @@ def system_section(system: SystemRecord, design: DesignRecord, learning: Learnin
     caption = (f"The designed system over the pre-cycle and {system.cycles} machining cycles: the planned preload (the "
                f"schedule, local margins up to {q(system.preload_margin_N, 'N')}) and the preload the loop achieves "
                "(true force); the axial rigidity at the achieved preload under the cutting load against the "
-               "requirement (dashed); the axial deflection under the load against its limit (dashed).")
+               "requirement (dashed); the nut's axial deflection under the load"
+               + (" (the study sets no limit on it)." if n.deflection_limit_um is None else
+                  f" against its limit {q(n.deflection_limit_um, 'um')} (dashed)."))
     table = ReportTable(("quantity", "value", "against"), tuple(rows),
                   "The controlled preload of the designed system over the machining cycles.", "lrl")
     return Part(Section("The designed system along its preload schedule", tuple(paragraphs), (table,), ("system",)),

@@ -246,6 +246,18 @@ def test_the_stiff_small_axis_run_names_its_rigidity_as_the_designs_own_and_judg
     assert "the rigidity required sets the preload there, the design's own constraint" in report
     assert "lift-off bound while cutting (the design's own constraint)" not in report
     assert "the design's own constraint, the schedule sits on it" in report  # the rigidity's row of the table
+    # the system figure's caption names the deflection limit the study sets, and says so where it sets none
+    from dataclasses import replace
+
+    from piezopreload.artifacts.design import DesignRecord
+    from piezopreload.reports.sections import system_section
+
+    design = DesignRecord.load(out / "design" / "design.json")
+    (_, _, caption), = system_section(system, design, None).figures
+    assert caption.endswith("the nut's axial deflection under the load against its limit 5 um (dashed)."), caption
+    unlimited = replace(system, numbers=replace(system.numbers, deflection_limit_um=None))
+    (_, _, caption), = system_section(unlimited, design, None).figures
+    assert caption.endswith("the nut's axial deflection under the load (the study sets no limit on it)."), caption
 
 
 def test_with_a_lower_deflection_limit_both_rows_bind_each_at_its_own_loads(tmp_path):
