@@ -57,7 +57,7 @@ from piezopreload.spec import Say, StudySpec
 from piezopreload.tuning.bounds import minimum_time, tracking_floor
 from piezopreload.tuning.calibrate import CONTROLLERS
 from piezopreload.tuning.calibrate import reproduce as reproduce_paper
-from piezopreload.tuning.compare import compare_gains, reproduction_summary, tracking_improvement
+from piezopreload.tuning.compare import compare_gains, published_rows, tracking_improvement
 from piezopreload.tuning.feedforward import FeedforwardInfo, IdentifiedFeedforward, identify_feedforward, loop_covers
 from piezopreload.tuning.pid import TuningInfeasible, tune_pid
 from piezopreload.tuning.schedule import schedule_levels, tune_schedule
@@ -763,7 +763,8 @@ def reproduce(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforwa
                           seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
                           repeats=repeats, feedforward=feedforward.model,
                           feedforward_fit=feedforward.fit.to_dict())
-    comparison = reproduction_summary(rep, study.published.step())
     return StudyReproduction(study.ref, study.controller, study.controller_units, study.band_N, study.signal,
                              study.published.source, tuple(float(x) for x in study.references["step"].levels_N),
-                             comparison, time.perf_counter() - t0)
+                             published_rows(rep, study.published.step()),
+                             {c: rep.metrics[c]["overshoot_N"] for c in rep.metrics}, dict(rep.feedforward_fit),
+                             rep.repeats, time.perf_counter() - t0)
