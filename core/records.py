@@ -151,6 +151,9 @@ class Entry:
     via : type or None
         A record that is the document's form of the field's type: the field is read as that record and made
         with its ``to_value()``, and written as ``via.from_value(value)``.
+    spread : tuple of str
+        For a dict field: the keys its entries may have, each entry sitting at the top of the record's own object
+        beside its other fields (not in an object of its own); a document lacking one of them lacks that entry.
     absent : object
         What a document without the key (or with null there) reads as, for a field the constructor requires (files
         written before the field was recorded); none: such a document is refused.
@@ -182,6 +185,7 @@ class Entry:
     each: bool = False
     via: Any = None
     absent: Any = NOTHING
+    spread: tuple[str, ...] = ()
 
 
 def entry(doc: str, *, default: Any = MISSING, default_factory: Any = MISSING, unit: str = "", name: str = "",
@@ -190,7 +194,7 @@ def entry(doc: str, *, default: Any = MISSING, default_factory: Any = MISSING, u
           choices: tuple[str, ...] | list[str] = (), size: str | int | tuple[int, int] | None = None,
           increasing: bool = False, rows: bool = False, read: Callable[[Any], Any] | None = None,
           write: Callable[[Any], Any] | None = None, takes: str = "", each: bool = False, via: Any = None,
-          absent: Any = NOTHING) -> Any:
+          absent: Any = NOTHING, spread: tuple[str, ...] = ()) -> Any:
     """Declare a field of a :class:`Record`: see :class:`Entry` for what each argument declares.
 
     Parameters
@@ -200,7 +204,7 @@ def entry(doc: str, *, default: Any = MISSING, default_factory: Any = MISSING, u
     default, default_factory : object, optional
         The field's default (a dict or a list default is copied for each record); none: the field is required.
     unit, name, at, required, omit, inline, stored, ge, gt, le, lt, choices, size, increasing, rows, read, write,
-    takes, each, via, absent
+    takes, each, via, absent, spread
         As :class:`Entry` has them.
 
     Returns
@@ -209,7 +213,7 @@ def entry(doc: str, *, default: Any = MISSING, default_factory: Any = MISSING, u
         The dataclass field, its declaration in its metadata.
     """
     meta = {ENTRY: Entry(doc, unit, name, at, required, omit, inline, stored, ge, gt, le, lt, tuple(choices), size,
-                         increasing, rows, read, write, takes, each, via, absent)}
+                         increasing, rows, read, write, takes, each, via, absent, tuple(spread))}
     if default_factory is not MISSING:
         return field(default_factory=default_factory, metadata=meta)
     if isinstance(default, dict | list):
@@ -594,6 +598,23 @@ def _renamed(cls: Any, obj: dict[str, Any]) -> dict[str, Any]:
     return {cls.RENAMED.get(k, k): v for k, v in obj.items()}
 
 
+def _read_field(spec: _Spec, obj: dict[str, Any], path: str, values: dict[str, Any]) -> Any:
+    """The value of the field ``spec`` from the record's object ``obj`` at ``path`` (``values``: the fields read so
+    far)."""
+    holder, where = _holder(obj, spec, path)
+    if spec.kind == "inline":
+        return _read_inline(spec, holder, where)
+    if spec.entry.spread:  # a dict whose entries sit beside the record's fields, under their own keys
+        spread = {} if holder is MISSING else {k: v for k, v in holder.items() if k in spec.entry.spread}
+        return _read_value(spec, spread, where, values)
+    here = _join(where, spec.key)
+    if holder is MISSING or spec.key not in holder:
+        if spec.in_document or not spec.has_default:
+            raise _Wrong(here, f"is missing; expected {spec.want()}")
+        return spec.fallback()
+    return _read_value(spec, holder[spec.key], here, values)
+
+
 def _read_record(cls: Any, obj: Any, path: str) -> Any:
     """A record of ``cls`` from the document's object ``obj`` at ``path``."""
     if not isinstance(obj, dict):
@@ -607,19 +628,8 @@ def _read_record(cls: Any, obj: Any, path: str) -> Any:
                                                   + ", ".join(sorted(known)))
     values: dict[str, Any] = {}
     for spec in _specs(cls):
-        if not spec.entry.stored:
-            continue
-        holder, where = _holder(obj, spec, path)
-        if spec.kind == "inline":
-            values[spec.name] = _read_inline(spec, holder, where)
-            continue
-        here = _join(where, spec.key)
-        if holder is MISSING or spec.key not in holder:
-            if spec.in_document or not spec.has_default:
-                raise _Wrong(here, f"is missing; expected {spec.want()}")
-            values[spec.name] = spec.fallback()
-            continue
-        values[spec.name] = _read_value(spec, holder[spec.key], here, values)
+        if spec.entry.stored:
+            values[spec.name] = _read_field(spec, obj, path, values)
     try:
         made = cls(**values)
     except (ValueError, TypeError) as exc:
@@ -718,6 +728,8 @@ def _put(out: dict[str, Any], spec: _Spec, value: Any) -> None:
         out = out.setdefault(part, {})
     if spec.kind == "inline":
         out.update(value if value is not None else {s.key: None for s in _specs(spec.record) if s.entry.stored})
+    elif spec.entry.spread:
+        out.update(value or {})
     elif isinstance(out.get(spec.key), dict) and isinstance(value, dict):
         out[spec.key] = {**value, **out[spec.key]}
     else:
@@ -801,9 +813,12 @@ class Record:
         """
         out: list[str] = []
         for spec in _specs(cls):
-            if spec.kind == "inline":
+            keys: tuple[str, ...]
+            if spec.entry.spread:
+                keys = ()
+            elif spec.kind == "inline":
                 inner = () if spec.optional or spec.has_default else spec.record.required()
-                keys: tuple[str, ...] = ((spec.at[0],) if inner else ()) if spec.at else inner
+                keys = ((spec.at[0],) if inner else ()) if spec.at else inner
             else:
                 keys = ((spec.at or (spec.key,))[0],) if spec.in_document else ()
             out += [k for k in keys if k not in out]

@@ -5,8 +5,10 @@ in the study's tables, and the study's verbs documented once."""
 from __future__ import annotations
 
 import ast
+import dataclasses
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from piezopreload.artifacts.manifest import StudyRef
@@ -72,3 +74,65 @@ def test_a_reproduction_holds_its_rows_and_prints_the_same_keys():
     assert rep.row("pid", "peak_s").ratio == 1.5 and rep.repeats == 3
     with pytest.raises(KeyError, match="pid/rise_s, pid/peak_s, pid/settling_s"):
         rep.row("ff+pid", "rise_s")
+
+
+# --- the thermal figures: one record from the system artifact to run --json --------------------------------------
+def _case(scale: float):
+    from piezopreload.artifacts.thermal import FIGURES, ThermalCase
+
+    times = np.array([0.5, 1.0])
+    return ThermalCase(**{name: scale * (i + 1) for i, name in enumerate(FIGURES)}, times_h=times,
+                       rise_along_K=np.ones((2, 3)), nut_rise_K=times, nut_over_screw_K=-times,
+                       growth_um=np.ones((2, 2)), elastic_um=np.ones(2), budget_um=np.ones((2, 2)))
+
+
+def _budget():
+    from piezopreload.artifacts.thermal import PreloadDrift, ThermalRecord
+
+    drift = PreloadDrift(100.0, 350.0, -500.0, 1200.0, -520.0, 1700.0, 3.0, 9.0, 70.0)
+    return ThermalRecord("contact", "viscous", 68, True, 0.2, 0.5, 1.0, "pretensioned", 3.0, 2000.0, "rotary", 2.5,
+                         (100.0, 500.0), np.array([0.0, 300.0, 600.0]), np.array([100.0, 500.0]), 20.0, 900.0,
+                         _case(1.0), _case(2.0), drift)
+
+
+def test_the_figures_are_the_thermal_cases_own_scalar_fields():
+    """The summary's and the sweep's figure names are the case's fields, in their order (as they were listed)."""
+    from piezopreload.artifacts.thermal import FIGURES
+
+    assert FIGURES == ("heat_mean_W", "heat_mean_other_W", "seal_heat_mean_W", "bearing_heat_mean_W",
+                       "preload_mean_N", "temperature_rise_max_K", "rise_max_at_mm", "temperature_rise_max_other_K",
+                       "nut_rise_max_K", "nut_over_screw_end_K", "end_force_max_N", "bearing_force_max_N",
+                       "growth_max_um", "growth_max_other_um", "positioning_error_max_um", "tracking_um")
+
+
+def test_the_system_summarys_thermal_figures_are_a_record_that_writes_the_same_document():
+    from piezopreload.artifacts.summaries import SystemSummary
+    from piezopreload.artifacts.thermal import FIGURES, ThermalSummary
+
+    budget = _budget()
+    summary = budget.summary()
+    doc = summary.to_dict()
+    # run --json's and system.json's keys: each figure as {"schedule", "constant"}, then the settings and the words
+    assert list(doc)[:len(FIGURES)] == list(FIGURES)
+    assert all(doc[name] == {"schedule": 1.0 * (i + 1), "constant": 2.0 * (i + 1)} for i, name in enumerate(FIGURES))
+    assert list(doc)[len(FIGURES):] == ["heat_model", "other_model", "lubricant_vg", "sealed", "seal_torque_Nm",
+                                        "nut_heat_share", "convection_factor", "mounting", "pretension_K",
+                                        "bearing_lift_off_N", "feedback", "shift_h", "stroke_mm",
+                                        "film_mean_W_per_m2K", "screw_time_constant_s", "drift", "rise_max_place",
+                                        "nut_against_screw", "ends"]
+    assert doc["drift"]["held"] is True and doc["ends"]["schedule"] == budget.ends_words(budget.schedule)
+    back = ThermalSummary.from_dict(doc)
+    assert back == summary and back.figure("growth_max_um", "constant") == budget.constant.growth_max_um
+    assert {f.name: f.type for f in dataclasses.fields(SystemSummary)}["thermal"] == "ThermalSummary | None"
+
+
+def test_a_thermal_summary_names_a_wrong_figure_where_the_document_holds_it():
+    from piezopreload.artifacts.thermal import FigurePair, ThermalSummary
+    from piezopreload.core.errors import ArtifactError
+
+    doc = _budget().summary().to_dict()
+    doc["growth_max_um"] = {"schedule": 1.0}
+    with pytest.raises(ArtifactError, match=r"s\.json: field 'thermal\.growth_max_um\.constant' is missing"):
+        ThermalSummary.from_dict(doc, "s.json", path="thermal")
+    with pytest.raises(ValueError, match="growth_um is no figure of a thermal case"):
+        dataclasses.replace(_budget().summary(), figures={"growth_um": FigurePair(1.0, 2.0)})
