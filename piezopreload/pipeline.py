@@ -244,7 +244,7 @@ def _stage_tune(ctx: _Ctx) -> Produced:
     return {"tuning": tuned.save(ctx.out / "tuning.json")}, TuneSummary(
         g.Kc, g.Ti_s, g.Td_s, g.Tf_s, g.b, tuned.solve.form, tuned.solve.ms,
         tuple(b.sentence() for b in tuned.active_bounds), bound.settling_s, bound.tuned_over_bound_ratio,
-        tuned.solve.search, None if sched is None else sched["choice"])
+        tuned.solve.search, None if sched is None else sched.choice)
 
 
 def _stage_validate(ctx: _Ctx) -> Produced:

@@ -573,7 +573,7 @@ def tune(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforward | 
                               levels_N=schedule_levels(span.min(), span.max(), study.tuning.schedule_levels),
                               n_plants=study.tuning.schedule_plants, seed=seed, progress=say, pool=pool,
                               known=None if warm_gains is None else warm_gains.schedule)
-        g, schedule = sched.gains, sched.to_dict()
+        g, schedule = sched.chosen(g), sched
     floor = tracking_floor(plant, trajectory)
     say("comparing the study's, SIMC's and the tuned gains on the nominal plant ...")
     table = compare_gains(plant, step, trajectory, {"study": study.controller, "simc": baseline, "tuned": g},

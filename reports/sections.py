@@ -21,7 +21,7 @@ from piezopreload.artifacts.learning import LearningRecord
 from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.rigrun import RigRunRecord
 from piezopreload.artifacts.system import MarginBasis, SystemRecord, TrackingNumbers
-from piezopreload.artifacts.tuning import TuningResult
+from piezopreload.artifacts.tuning import GainScheduleRecord, TuningResult
 from piezopreload.models.hysteresis import CreepPI
 from piezopreload.reports import figures as F
 from piezopreload.reports.document import ReportTable, Section, fmt, pct, q, ratio
@@ -460,32 +460,31 @@ def controller_section(study: ReportStudy, a: Artifacts) -> Part:
                 tuple(f for p in parts for f in p.figures))
 
 
-def _schedule_part(schedule: dict[str, Any] | None) -> Part | None:
+def _schedule_part(schedule: GainScheduleRecord | None) -> Part | None:
     if schedule is None:
         return None
     rows = []
-    for r in schedule["levels"]:
-        e, rb, sc = r["entry"], r["robust"], r["scheduled"]
-        ms = r.get("ms", {}).get("scheduled")  # over the entry's window (a record written before: not there)
-        rows.append((fmt(r["level_N"], 4), f"{fmt(r['window_N'][0], 4)}–{fmt(r['window_N'][1], 4)}",
-                     fmt(1e3 * e["Kc_V_per_N"], 4), fmt(1e3 * e["Ti_s"], 3), fmt(e.get("b", 1.0), 2),
+    worst = ("settling_s", "overshoot_N", "tracking_rms_N")
+    for r in schedule.levels:
+        e, rb, sc = r.entry_gains, r.robust, r.scheduled
+        ms = None if r.ms is None else r.ms.get("scheduled")  # over the entry's window (a record written before: none)
+        rows.append((fmt(r.level_N, 4), f"{fmt(r.window_N[0], 4)}–{fmt(r.window_N[1], 4)}",
+                     fmt(1e3 * e.Kc_V_per_N, 4), fmt(1e3 * e.Ti_s, 3), fmt(e.b, 2),
                      "" if ms is None else fmt(ms, 3),
-                     *(_when(x[k], "", "never").strip() for x in (rb, sc)
-                       for k in ("settling_s", "overshoot_N", "tracking_rms_N")),
-                     " / ".join("yes" if x["passed"] else "no" for x in (rb, sc))))
-    w = schedule["whole_range"]
-    rows.append(("whole range", "", fmt(1e3 * schedule["robust"]["Kc_V_per_N"], 4),
-                 fmt(1e3 * schedule["robust"]["Ti_s"], 3), fmt(schedule["robust"].get("b", 1.0), 2), "",
-                 *(_when(w[x][k], "", "never").strip() for x in ("robust", "scheduled")
-                   for k in ("settling_s", "overshoot_N", "tracking_rms_N")),
-                 " / ".join("yes" if w[x]["passed"] else "no" for x in ("robust", "scheduled"))))
-    missed_by_both = [f"{fmt(r['level_N'], 4)} N" for r in schedule["levels"]
-                      if not r["robust"]["passed"] and not r["scheduled"]["passed"]]
-    text = (f"A gain schedule on the preload level: {len(schedule['levels'])} entries, each tuned with CasADi on its "
+                     *(_when(x.figure(k), "", "never").strip() for x in (rb, sc) for k in worst),
+                     " / ".join("yes" if x.passed else "no" for x in (rb, sc))))
+    w = schedule.whole_range
+    rows.append(("whole range", "", fmt(1e3 * schedule.robust.Kc_V_per_N, 4),
+                 fmt(1e3 * schedule.robust.Ti_s, 3), fmt(schedule.robust.b, 2), "",
+                 *(_when(x.figure(k), "", "never").strip() for x in (w.robust, w.scheduled) for k in worst),
+                 " / ".join("yes" if x.passed else "no" for x in (w.robust, w.scheduled))))
+    missed_by_both = [f"{fmt(r.level_N, 4)} N" for r in schedule.levels
+                      if not r.robust.passed and not r.scheduled.passed]
+    text = (f"A gain schedule on the preload level: {len(schedule.levels)} entries, each tuned with CasADi on its "
             "window; Kc, Ti and Td linear in the setpoint between them; the schedule and the one robust set each "
-            f"validated by Monte Carlo ({schedule['plants']} plants per level, the study's limits) at every level and "
-            f"over the whole range. Chosen: {_CHOICE_NAMES.get(schedule['choice'], schedule['choice'])}, as "
-            f"{schedule['reason']}.")
+            f"validated by Monte Carlo ({schedule.plants} plants per level, the study's limits) at every level and "
+            f"over the whole range. Chosen: {_CHOICE_NAMES.get(schedule.choice, schedule.choice)}, as "
+            f"{schedule.reason}.")
     if missed_by_both:
         text += (f" Neither set meets the study's limits at {', '.join(missed_by_both)}: the exported gains carry that "
                  "miss, listed in the verdicts above.")
@@ -497,10 +496,10 @@ def _schedule_part(schedule: dict[str, Any] | None) -> Part | None:
                                "robust set and the schedule (tracking: RMS after the changes).",
                   "ll" + "r" * 10 + "c", small=True)
     fig = F.gain_schedule(schedule)
-    caption = (f"The gain schedule on the preload level ({len(schedule['levels'])} entries) against the robust set "
+    caption = (f"The gain schedule on the preload level ({len(schedule.levels)} entries) against the robust set "
                "(dashed), and each set's worst case over the Monte Carlo plants per level, the study's limits in red "
                "(dashed: tracking RMS, dotted: overshoot); chosen: "
-               f"{_CHOICE_NAMES.get(schedule['choice'], schedule['choice'])}.")
+               f"{_CHOICE_NAMES.get(schedule.choice, schedule.choice)}.")
     return Part(Section("The gain schedule", (text,), (table,), ("gain-schedule",)), (("gain-schedule", fig, caption),))
 
 

@@ -136,3 +136,59 @@ def test_a_thermal_summary_names_a_wrong_figure_where_the_document_holds_it():
         ThermalSummary.from_dict(doc, "s.json", path="thermal")
     with pytest.raises(ValueError, match="growth_um is no figure of a thermal case"):
         dataclasses.replace(_budget().summary(), figures={"growth_um": FigurePair(1.0, 2.0)})
+
+
+# --- the gain schedule: one record from the tuning to the report's figure -----------------------------------------
+def _schedule_doc():
+    """A gain schedule's record as the tune stage first wrote it (no per-level Ms, no bound), the figures rounded."""
+    def worst(tracking, passed=True):
+        return {"settling_s": 0.2, "overshoot_N": 10.0, "tracking_rms_N": tracking, "peak_voltage_V": None,
+                "passed": passed, "failures": [] if passed else ["tracking_rms_N"]}
+
+    gains = [{"Kc_V_per_N": kc, "Ti_s": ti, "Td_s": 0.0, "Tf_s": 0.0005, "b": 0.5}
+             for kc, ti in ((0.012, 0.0034), (0.0115, 0.0447))]
+    return {"choice": "schedule", "reason": "the robust set misses the specification at 2,000 N",
+            "levels_N": [0.0, 2000.0],
+            "table": {"levels_N": [0.0, 2000.0], "Kc_V_per_N": [0.012, 0.0115], "Ti_s": [0.0034, 0.0447],
+                      "Td_s": [0.0, 0.0], "interpolation": "linear"},
+            "Tf_s": 0.0005, "b": 0.5, "robust": {"Kc_V_per_N": 0.0108, "Ti_s": 0.0486, "Td_s": 0.0, "Tf_s": 0.0005,
+                                                 "b": 0.5},
+            "levels": [{"level_N": lv, "window_N": [lo, hi], "entry": g, "tuning": {"ms": 1.6}, "robust": worst(r, ok),
+                        "scheduled": worst(s)}
+                       for lv, (lo, hi), g, r, ok, s in zip((0.0, 2000.0), ((0.0, 1000.0), (1000.0, 2000.0)), gains,
+                                                            (30.0, 45.0), (True, False), (15.9, 17.4))],
+            "whole_range": {"robust": worst(31.0), "scheduled": worst(20.0)}, "plants": 50,
+            "figures": ["settling_s", "overshoot_N", "tracking_rms_N", "peak_voltage_V"],
+            "limits": {"tracking_rms_N": 40.0, "overshoot_N": 25.0}, "seconds": 12.0}
+
+
+def test_a_gain_schedule_written_before_reads_into_its_record_and_writes_back():
+    from piezopreload.artifacts.tuning import GainScheduleRecord, TuningSolve
+
+    doc = _schedule_doc()
+    sched = GainScheduleRecord.from_dict(doc, "tuning.json", path="solve.schedule")
+    back = sched.to_dict()
+    back["table"]["interpolation"] = "linear"  # the table states the interpolation as the model writes it now
+    assert back == doc
+    assert sched.levels[1].of("robust").tracking_rms_N == 45.0 and sched.levels[1].ms is None
+    assert sched.chosen_set == "scheduled" and sched.table.Ti_s == (0.0034, 0.0447)
+    assert {f.name: f.type for f in dataclasses.fields(TuningSolve)}["schedule"] == "GainScheduleRecord | None"
+    with pytest.raises(ValueError, match=r"tuning\.json: field 'solve\.schedule\.levels\[1\]\.robust\.passed' is "
+                                         r"missing"):
+        bad = _schedule_doc()
+        del bad["levels"][1]["robust"]["passed"]
+        GainScheduleRecord.from_dict(bad, "tuning.json", path="solve.schedule")
+
+
+def test_the_gain_schedules_figure_draws_its_record():
+    from piezopreload.artifacts.tuning import GainScheduleRecord
+    from piezopreload.reports import figures
+
+    sched = GainScheduleRecord.from_dict(_schedule_doc())
+    fig = figures.gain_schedule(sched)
+    kc = fig.axes[0].lines
+    np.testing.assert_allclose(kc[1].get_ydata(), [12.0, 11.5], err_msg="the entries' Kc (mV/N) are not the table's")
+    np.testing.assert_allclose(kc[2].get_ydata(), [10.8, 10.8], err_msg="the robust set's Kc is not the record's")
+    worst = fig.axes[2].lines
+    np.testing.assert_allclose(worst[0].get_ydata(), [30.0, 45.0], err_msg="the robust set's tracking RMS per level")
+    assert fig._suptitle.get_text() == "chosen: the scheduled gains"
