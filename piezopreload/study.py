@@ -101,10 +101,6 @@ class Study(StudySpec):
     ballscrew, feed_drive, duty, design_table, schedule, plant_table, learning, published : table or None
         The optional tables (``[design]`` is ``design_table``, ``[plant]`` ``plant_table``); None where the file
         has none.
-    references : dict of str to Reference
-        The step and the trajectory the tables make.
-    design_spec : DesignSpec or None
-        The preload design the tables make (None: the study has no design).
     where : object
         The file and its lines, for the messages.
     source_text : bytes

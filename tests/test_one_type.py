@@ -192,3 +192,22 @@ def test_the_gain_schedules_figure_draws_its_record():
     worst = fig.axes[2].lines
     np.testing.assert_allclose(worst[0].get_ydata(), [30.0, 45.0], err_msg="the robust set's tracking RMS per level")
     assert fig._suptitle.get_text() == "chosen: the scheduled gains"
+
+
+# --- the study: the parsed tables and nothing derived kept beside them ---------------------------------------------
+def test_the_study_keeps_no_twin_of_its_reference_and_design_tables():
+    """``references`` and ``design_spec`` are made from the tables when asked: a study whose tables change (a copy
+    with another step, another screw) cannot hold the old ones beside them."""
+    from piezopreload.spec import StudySpec
+    from piezopreload.study import load_study
+    from piezopreload.tables import StepTable
+
+    assert {"references", "design_spec"}.isdisjoint(f.name for f in dataclasses.fields(StudySpec))
+    study = load_study("machine_axis")
+    step = dataclasses.replace(study.reference.step, final_N=study.reference.step.final_N + 100.0)
+    changed = dataclasses.replace(study, reference=dataclasses.replace(study.reference, step=step),
+                                  ballscrew=dataclasses.replace(study.ballscrew, lead_mm=study.ballscrew.lead_mm * 2))
+    assert changed.references["step"].levels_N[-1] == study.references["step"].levels_N[-1] + 100.0
+    assert changed.references["step"].levels_N[-1] == StepTable.reference(step).levels_N[-1]
+    assert changed.design_spec.lead_mm == 2 * study.design_spec.lead_mm
+    assert not study.same_design(changed)
