@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from piezopreload.core.records import Raw, Record, entry, record
+from piezopreload.core.records import Raw, Record, as_members, entry, record
+from piezopreload.models.thermal import Feedback, HeatModel, ThermalMounting
 
 __all__ = ["ThermalCase", "PreloadDrift", "ThermalRecord", "ThermalSummary", "PreloadCase", "CASES", "FIGURES",
            "FigurePair"]
@@ -221,18 +222,18 @@ class ThermalSummary(Record):
 
     figures: dict[str, FigurePair] = entry("Each scalar figure for both preloads, by its name (:data:`FIGURES`), at "
                                            "the top of the document's object.", spread=FIGURES)
-    heat_model: str = entry("The study's heat model of the nut's friction.")
-    other_model: str = entry("The other heat model, reported beside it.")
+    heat_model: HeatModel = entry("The study's heat model of the nut's friction.")
+    other_model: HeatModel = entry("The other heat model, reported beside it.")
     lubricant_vg: int = entry("The lubricant's viscosity grade (ISO VG).", ge=0)
     sealed: bool = entry("Whether the nut is sealed.")
     seal_torque_Nm: float | None = entry("The seals' torque (0: an open nut).", unit="N m", absent=None, omit=True)
     nut_heat_share: float | None = entry("The share of the nut's heat entering the screw.", absent=None, omit=True)
     convection_factor: float | None = entry("The factor on the air's film coefficients.", absent=None, omit=True)
-    mounting: str = entry("How the screw's ends are held.")
+    mounting: ThermalMounting = entry("How the screw's ends are held.")
     pretension_K: float = entry("The screw's pretension, as a temperature rise it takes up.", unit="K")
     bearing_lift_off_N: float | None = entry("Each end's bearing pair's lift-off force.", unit="N", absent=None,
                                              omit=True)
-    feedback: str = entry("Where the position loop measures.")
+    feedback: Feedback = entry("Where the position loop measures.")
     shift_h: float = entry("The shift's length.", unit="h")
     stroke_mm: tuple[float, float] = entry("The table's stroke (from, to), from bearing A.", unit="mm")
     film_mean_W_per_m2K: float = entry("The cycle's mean film coefficient on the screw.", unit="W/(m^2 K)")
@@ -245,6 +246,7 @@ class ThermalSummary(Record):
                                  absent={}, omit=True)
 
     def __post_init__(self) -> None:
+        as_members(self)
         unknown = [name for name in self.figures if name not in FIGURES]
         if unknown:
             raise ValueError(f"{', '.join(unknown)} is no figure of a thermal case; they are {', '.join(FIGURES)}")
@@ -280,18 +282,18 @@ class ThermalRecord(Record):
     the cycle's mean film coefficient on the screw and the screw's lumped time constant under it, the two cases
     and the drift."""
 
-    heat_model: str = entry("The study's heat model of the nut's friction.")
-    other_model: str = entry("The other heat model, reported beside it.")
+    heat_model: HeatModel = entry("The study's heat model of the nut's friction.")
+    other_model: HeatModel = entry("The other heat model, reported beside it.")
     lubricant_vg: int = entry("The lubricant's viscosity grade (ISO VG).", ge=0)
     sealed: bool = entry("Whether the nut is sealed.")
     seal_torque_Nm: float = entry("The seals' torque (0: an open nut).", unit="N m")
     nut_heat_share: float = entry("The share of the nut's heat entering the screw (the rest heats the nut).")
     convection_factor: float = entry("The factor on the air's film coefficients.")
-    mounting: str = entry("How the screw's ends are held.")
+    mounting: ThermalMounting = entry("How the screw's ends are held.")
     pretension_K: float = entry("The screw's pretension, as a temperature rise it takes up.", unit="K")
     bearing_lift_off_N: float = entry("Each end's bearing pair's lift-off force, 2^(3/2) its preload (0: ends not "
                                       "held, or no pair preload stated).", unit="N")
-    feedback: str = entry("Where the position loop measures (what growth it sees).")
+    feedback: Feedback = entry("Where the position loop measures (what growth it sees).")
     shift_h: float = entry("The shift's length.", unit="h")
     stroke_mm: tuple[float, float] = entry("The table's stroke (from, to), from bearing A.", unit="mm")
     screw_x_mm: Array = entry("The screw's volumes' positions, from bearing A.", unit="mm")
@@ -301,6 +303,9 @@ class ThermalRecord(Record):
     schedule: ThermalCase = entry("The schedule's preload as the loop achieved it.", at="cases")
     constant: ThermalCase = entry("The best constant preload.", at="cases")
     drift: PreloadDrift = entry("The passive nut's drift and the force loop's room to hold it.")
+
+    def __post_init__(self) -> None:
+        as_members(self)
 
     def place(self, x_mm: float) -> str:
         """Where ``x_mm`` (from bearing A) lies on the screw, in words: at an end's bearing (its first or last 5 %),
@@ -335,7 +340,7 @@ class ThermalRecord(Record):
 
     def ends_words(self, case: ThermalCase) -> str:
         """The force on the ends' bearing pairs against their lift-off ('' for a free end)."""
-        if self.mounting == "fixed-free":
+        if self.mounting is ThermalMounting.FIXED_FREE:
             return ""
         if self.bearing_lift_off_N <= 0:
             return f"the ends' bearings carry up to {case.bearing_force_max_N:,.0f} N"

@@ -21,12 +21,13 @@ from __future__ import annotations
 import html
 import math
 from dataclasses import fields, replace
+from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from piezopreload.artifacts.gainset import GainSet, GainsTable, schedule_from_dict
 from piezopreload.core.quantities import number
-from piezopreload.core.records import Record, SavedArtifact, entry, load_one_of, record
+from piezopreload.core.records import Record, SavedArtifact, as_members, entry, load_one_of, record
 from piezopreload.models.controller import GainSchedule, PIDGains
 
 if TYPE_CHECKING:
@@ -34,7 +35,7 @@ if TYPE_CHECKING:
 
 __all__ = ["KIND", "ActiveBound", "ComparisonRow", "MinimumTimeBound", "TrackingFloor", "TuningSolve", "TuningResult",
            "SIDES", "warm_start_gains", "GainScheduleRecord", "ScheduleLevel", "SetFigures", "SetGains", "WorstFigures",
-           "CHOICES", "LEVEL_FIGURES", "SETS"]
+           "CHOICES", "LEVEL_FIGURES", "SETS", "ScheduleChoice"]
 
 KIND = "tuning"
 SIDES = ("lower", "upper")
@@ -142,8 +143,26 @@ class TrackingFloor(Record):
         _check_finite(self, ("rms_N", "rate_N_per_s"), ("tuned_over_floor_ratio",))
 
 
-#: what a gain schedule's tuning may choose: the one robust set, or the schedule
-CHOICES = ("robust", "schedule")
+class ScheduleChoice(StrEnum):
+    """What a gain schedule's tuning chose: the one robust set, or the schedule (its value is what the record and
+    ``tune --json`` write)."""
+
+    ROBUST = "robust"
+    SCHEDULE = "schedule"
+
+    @property
+    def words(self) -> str:
+        """The choice in words, as the console and the report say it."""
+        return "the one robust set" if self is ScheduleChoice.ROBUST else "the scheduled gains"
+
+    @property
+    def set_key(self) -> str:
+        """The chosen set's key in a level's and the whole range's figures (``robust`` or ``scheduled``)."""
+        return "robust" if self is ScheduleChoice.ROBUST else "scheduled"
+
+
+#: what a gain schedule's tuning may choose, in its order
+CHOICES = tuple(ScheduleChoice)
 #: the worst-case figures a gain schedule's record holds per set and level (the validation's metric names)
 LEVEL_FIGURES = ("settling_s", "overshoot_N", "tracking_rms_N", "peak_voltage_V")
 #: the two sets a gain schedule's record judges, by their keys in it
@@ -279,7 +298,7 @@ class GainScheduleRecord(Record):
 
     NOUN: ClassVar[str] = "the gain schedule's record"
 
-    choice: str = entry("What was chosen.", choices=CHOICES)
+    choice: ScheduleChoice = entry("What was chosen.")
     reason: str = entry("Why.")
     levels_N: tuple[float, ...] = entry("The entries' levels.", unit="N")
     table: GainSchedule = entry("The schedule's table.", read=lambda d: schedule_from_dict(d, "table"),
@@ -294,10 +313,15 @@ class GainScheduleRecord(Record):
     limits: dict[str, float] = entry("The limits the sets were judged against, by figure.")
     seconds: float = entry("The time it took.", unit="s")
 
+    def __post_init__(self) -> None:
+        as_members(self)
+        if not isinstance(self.choice, ScheduleChoice):
+            raise ValueError(f"choice must be one of {', '.join(CHOICES)}, got {self.choice!r}")
+
     @property
     def chosen_set(self) -> str:
         """The key of the chosen set in :attr:`levels` and :attr:`whole_range` (``robust`` or ``scheduled``)."""
-        return "robust" if self.choice == "robust" else "scheduled"
+        return self.choice.set_key
 
     def chosen(self, robust: PIDGains) -> PIDGains:
         """The chosen gains: ``robust`` (the one set the schedule was tuned around), or the same with the schedule.
@@ -312,7 +336,7 @@ class GainScheduleRecord(Record):
         PIDGains
             The gains that run.
         """
-        return robust if self.choice == "robust" else replace(robust, schedule=self.table)
+        return robust if self.choice is ScheduleChoice.ROBUST else replace(robust, schedule=self.table)
 
 
 @record

@@ -45,6 +45,7 @@ piezopreload.core.errors.ArtifactError: fit.json: field 'rms_pct' must be a fini
 from __future__ import annotations
 
 import dataclasses
+import enum
 import math
 import re
 import textwrap
@@ -71,7 +72,8 @@ from piezopreload.core.artifacts import ArtifactKind, field_message, read_artifa
 from piezopreload.core.errors import ArtifactError, InputError
 
 __all__ = ["Entry", "entry", "record", "Record", "Artifact", "SavedArtifact", "Raw", "load_one_of", "object_without",
-           "kind_of", "Checked", "checked", "check_entries", "read_table", "Invalid", "MANY", "table_values", "TableOf",
+           "kind_of", "Checked", "checked", "check_entries", "as_members", "read_table", "Invalid", "MANY",
+           "table_values", "TableOf",
            "UnitKey",
            "takes"]
 
@@ -272,7 +274,9 @@ class _Spec:
         e = self.entry
         bounds = " and ".join(f"{op} {v:g}" for op, v in ((">=", e.ge), (">", e.gt), ("<=", e.le), ("<", e.lt))
                               if v is not None)
-        if self.kind in ("number", "integer", "flag", "text", "object"):
+        if self.kind == "enum":
+            text = "one of " + ", ".join(_values(self.record))
+        elif self.kind in ("number", "integer", "flag", "text", "object"):
             text = ("one of " + ", ".join(e.choices)) if e.choices else _A[self.kind] + (f" {bounds}" if bounds else "")
         elif self.kind in ("list", "array"):
             size = e.size
@@ -294,6 +298,21 @@ class _Spec:
         else:
             text = e.takes or "a valid value"
         return f"null or {text}" if self.optional else text
+
+
+def _values(members: Any) -> tuple[str, ...]:
+    """The values an enum's members are written as, in its order."""
+    return tuple(str(m.value) for m in members)
+
+
+def _member(members: Any, x: Any) -> Any:
+    """The member of the enum ``members`` that ``x`` (a member, or its value as a document or a file writes it) names;
+    None where it names none."""
+    if isinstance(x, members):
+        return x
+    if isinstance(x, str) and x in _values(members):
+        return members(x)
+    return None
 
 
 def _optional(hint: Any) -> tuple[bool, Any]:
@@ -336,8 +355,9 @@ def _spec(owner: type, f: Field[Any], hint: Any) -> _Spec:
             else base
     if e.inline and not is_record:
         raise TypeError(f"{owner.__name__}.{f.name}: only a record is inline")
-    if isinstance(inner, type) and issubclass(inner, Checked) and not is_record:  # its table or constructor reads it
-        return replace(base, record=inner)
+    if isinstance(inner, type) and issubclass(inner, Checked | enum.Enum) and not is_record:
+        # a Checked type: its table or constructor reads it; an enum: one of its values, held as its member
+        return replace(base, kind="enum" if issubclass(inner, enum.Enum) else base.kind, record=inner)
     if inner in _SCALARS or is_record:
         return replace(base, kind="inline" if e.inline else "record", record=inner) if is_record else \
             replace(base, kind=_SCALARS[inner])
@@ -525,6 +545,10 @@ def _read_value(spec: _Spec, x: Any, path: str, values: dict[str, Any]) -> Any: 
 
     if kind == "custom":
         return _custom(spec, x, path)
+    if kind == "enum":
+        if not isinstance(x, str) or _member(spec.record, x) is None:
+            raise wrong()
+        return spec.record(x)
     if kind == "via":
         made = _read_record(spec.record, x, path)
         try:
@@ -701,6 +725,11 @@ def _plain(spec: _Spec, value: Any) -> Any:  # noqa: C901 (one branch per kind)
         if e.write is None:
             return value
         return {k: e.write(v) for k, v in value.items()} if spec.container is dict else [e.write(v) for v in value]
+    if spec.kind == "enum":
+        member = _member(spec.record, value)
+        if member is None:
+            raise ValueError(f"{spec.name} must be one of {', '.join(_values(spec.record))}, got {value!r}")
+        return str(member.value)
     if spec.kind == "via":
         return spec.record.from_value(value).to_dict()
     if spec.kind in ("record", "inline"):
@@ -1050,6 +1079,8 @@ def takes(spec: _Spec) -> str:
     e = spec.entry
     bounds = " and ".join(f"{op} {v:g}" for op, v in ((">=", e.ge), (">", e.gt), ("<=", e.le), ("<", e.lt))
                           if v is not None)
+    if spec.kind == "enum":
+        return "one of " + ", ".join(_values(spec.record))
     if spec.kind in _TABLE_A:
         if e.choices:
             return "one of " + ", ".join(e.choices)
@@ -1101,6 +1132,8 @@ def _fits(spec: _Spec, value: Any) -> bool:  # noqa: C901 (one branch per kind)
         return isinstance(value, bool | np.bool_)
     if kind == "text":
         return isinstance(value, str) and (not e.choices or value in e.choices)
+    if kind == "enum":
+        return isinstance(value, spec.record)
     if kind == "list":
         item = spec.item.removesuffix("|null")
         if isinstance(value, np.ndarray) and value.ndim == 1:
@@ -1121,6 +1154,23 @@ def _fits(spec: _Spec, value: Any) -> bool:  # noqa: C901 (one branch per kind)
     if isinstance(spec.record, type) and issubclass(spec.record, Checked):
         return isinstance(value, spec.record)
     return True  # a type the declaration does not know: its own constructor checks it
+
+
+def as_members(obj: Any) -> None:
+    """Hold each enum field of ``obj`` (a dataclass declared with :func:`entry`) that was given its value as a string
+    (in code, or a copy) as the enum's member; a string that names no member is left for the checks to refuse.
+
+    Parameters
+    ----------
+    obj : dataclass
+        The object, as made (frozen: set in place, as its ``__post_init__`` may).
+    """
+    for spec in _specs(type(obj)):
+        if spec.kind == "enum":
+            value = getattr(obj, spec.name)
+            member = _member(spec.record, value)
+            if member is not None and member is not value:
+                object.__setattr__(obj, spec.name, member)
 
 
 def check_entries(obj: Any) -> None:
@@ -1151,6 +1201,7 @@ class Checked:
     """
 
     def __post_init__(self) -> None:
+        as_members(self)
         check_entries(self)
         self.check()
 
@@ -1212,6 +1263,10 @@ def _from_file(spec: _Spec, value: Any, at: str, fail: Fail) -> Any:  # noqa: C9
         if isinstance(value, bool) or not isinstance(value, int):
             raise wrong()
         made = value
+    elif kind == "enum":
+        made = _member(spec.record, value) if isinstance(value, str) else None
+        if made is None:
+            raise wrong()
     elif kind == "list":
         if not isinstance(value, list) or not all(
                 (isinstance(v, int | float) and not isinstance(v, bool)) if spec.item == "number"
@@ -1301,6 +1356,8 @@ def table_values(obj: Any, keys: tuple[str, ...] | None = None) -> dict[str, Any
             continue
         if spec.entry.write is not None and value is not None:
             value = spec.entry.write(value)
+        if isinstance(value, enum.Enum):
+            value = value.value
         if value is not None:
             out[spec.key] = list(value) if isinstance(value, tuple) else value
     return out

@@ -478,8 +478,7 @@ def gain_schedule(schedule: GainScheduleRecord) -> Figure:
             a.axhline(schedule.limits[key], color=COLOURS["limit"], ls=ls, lw=0.8)
     a.set_xlabel("preload level (N)")
     a.set_ylabel("worst case over the plants (N)")
-    chosen = "the one robust set" if schedule.choice == "robust" else "the scheduled gains"
-    fig.suptitle(f"chosen: {chosen}", fontsize=8)
+    fig.suptitle(f"chosen: {schedule.choice.words}", fontsize=8)
     legends(ax[0][0], (a, {"fontsize": 6}))
     return fig
 

@@ -483,7 +483,7 @@ def _schedule_part(schedule: GainScheduleRecord | None) -> Part | None:
     text = (f"A gain schedule on the preload level: {len(schedule.levels)} entries, each tuned with CasADi on its "
             "window; Kc, Ti and Td linear in the setpoint between them; the schedule and the one robust set each "
             f"validated by Monte Carlo ({schedule.plants} plants per level, the study's limits) at every level and "
-            f"over the whole range. Chosen: {_CHOICE_NAMES.get(schedule.choice, schedule.choice)}, as "
+            f"over the whole range. Chosen: {schedule.choice.words}, as "
             f"{schedule.reason}.")
     if missed_by_both:
         text += (f" Neither set meets the study's limits at {', '.join(missed_by_both)}: the exported gains carry that "
@@ -499,12 +499,11 @@ def _schedule_part(schedule: GainScheduleRecord | None) -> Part | None:
     caption = (f"The gain schedule on the preload level ({len(schedule.levels)} entries) against the robust set "
                "(dashed), and each set's worst case over the Monte Carlo plants per level, the study's limits in red "
                "(dashed: tracking RMS, dotted: overshoot); chosen: "
-               f"{_CHOICE_NAMES.get(schedule.choice, schedule.choice)}.")
+               f"{schedule.choice.words}.")
     return Part(Section("The gain schedule", (text,), (table,), ("gain-schedule",)), (("gain-schedule", fig, caption),))
 
 
 #: the gain schedule's choice as the report names it
-_CHOICE_NAMES = {"robust": "the one robust set", "schedule": "the scheduled gains"}
 
 #: the Monte Carlo spread's parameters as the report names them (a key not here is shown as the study names it)
 _SPREAD_NAMES = {"coupling_stiffness_N_per_um": "coupling stiffness", "amp_bandwidth_Hz": "amplifier bandwidth",

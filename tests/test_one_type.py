@@ -90,7 +90,7 @@ def _budget():
     from piezopreload.artifacts.thermal import PreloadDrift, ThermalRecord
 
     drift = PreloadDrift(100.0, 350.0, -500.0, 1200.0, -520.0, 1700.0, 3.0, 9.0, 70.0)
-    return ThermalRecord("contact", "viscous", 68, True, 0.2, 0.5, 1.0, "pretensioned", 3.0, 2000.0, "rotary", 2.5,
+    return ThermalRecord("contact", "catalogue", 68, True, 0.2, 0.5, 1.0, "pretensioned", 3.0, 2000.0, "linear-scale", 2.5,
                          (100.0, 500.0), np.array([0.0, 300.0, 600.0]), np.array([100.0, 500.0]), 20.0, 900.0,
                          _case(1.0), _case(2.0), drift)
 
@@ -211,3 +211,86 @@ def test_the_study_keeps_no_twin_of_its_reference_and_design_tables():
     assert changed.references["step"].levels_N[-1] == StepTable.reference(step).levels_N[-1]
     assert changed.design_spec.lead_mm == 2 * study.design_spec.lead_mm
     assert not study.same_design(changed)
+
+
+# --- enums where strings chose behaviour ---------------------------------------------------------------------------
+MACHINE_AXIS = ROOT / "studies" / "machine_axis.toml"
+
+
+def _axis_with(tmp_path, line_start: str, value: str) -> Path:
+    """The machine axis' study with the key on the line starting ``line_start`` set to ``value``."""
+    lines = MACHINE_AXIS.read_text(encoding="utf-8").splitlines()
+    at = next(i for i, line in enumerate(lines) if line.startswith(line_start))
+    lines[at] = f'{line_start.split("=")[0].strip()} = "{value}"'
+    path = tmp_path / "axis.toml"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+ENUM_KEYS = [("mounting = \"fixed-fixed\"", "feed_drive.mounting", "fixed-fixed, fixed-supported"),
+             ("heat_model = ", "thermal.heat_model", "catalogue, contact"),
+             ("mounting = \"pretensioned\"", "thermal.mounting", "fixed-free, fixed-fixed, pretensioned"),
+             ("feedback = ", "thermal.feedback", "semi-closed, linear-scale")]
+
+
+@pytest.mark.parametrize(("line_start", "key", "allowed"), ENUM_KEYS, ids=[k for _, k, _ in ENUM_KEYS])
+def test_a_study_key_that_chooses_behaviour_refuses_a_value_it_does_not_know_in_one_line(tmp_path, line_start, key,
+                                                                                           allowed):
+    from piezopreload.core.errors import InputError
+    from piezopreload.study import load_study
+
+    path = _axis_with(tmp_path, line_start, "sideways")
+    line = next(i for i, text in enumerate(path.read_text().splitlines(), 1) if text.endswith('= "sideways"'))
+    with pytest.raises(InputError) as err:
+        load_study(path)
+    assert str(err.value) == f"{path}:{line}: '{key}' must be one of {allowed}, got 'sideways'"
+
+
+def test_the_study_keys_that_choose_behaviour_are_read_into_their_enums_and_written_as_their_strings(tmp_path):
+    from piezopreload.core.config import toml_text
+    from piezopreload.models.feed_drive import Mounting
+    from piezopreload.models.thermal import Feedback, HeatModel, ThermalMounting
+    from piezopreload.study import load_study
+
+    study = load_study(_axis_with(tmp_path, "heat_model = ", "contact"))
+    t = study.thermal
+    assert (t.heat_model, t.mounting, t.feedback) == (HeatModel.CONTACT, ThermalMounting.PRETENSIONED,
+                                                      Feedback.SEMI_CLOSED)
+    assert all(type(x) is cls for x, cls in ((t.heat_model, HeatModel), (t.mounting, ThermalMounting),
+                                             (t.feedback, Feedback), (study.feed_drive.mounting, Mounting)))
+    assert study.design_spec.feed_drive.mounting is Mounting.FIXED_FIXED
+    assert t.heat_model.other is HeatModel.CATALOGUE
+    written = t.to_dict()
+    assert type(written["heat_model"]) is str and written["heat_model"] == "contact"
+    assert 'heat_model = "contact"' in toml_text({"thermal": written})
+
+
+def test_the_thermal_record_writes_and_reads_its_enums_as_the_same_strings():
+    from piezopreload.artifacts.thermal import ThermalRecord, ThermalSummary
+    from piezopreload.core.errors import ArtifactError
+    from piezopreload.models.thermal import Feedback, HeatModel, ThermalMounting
+
+    budget = _budget()
+    assert (budget.heat_model, budget.other_model, budget.mounting, budget.feedback) == (
+        HeatModel.CONTACT, HeatModel.CATALOGUE, ThermalMounting.PRETENSIONED, Feedback.LINEAR_SCALE)
+    doc = budget.to_dict()
+    assert [type(doc[k]) for k in ("heat_model", "mounting", "feedback")] == [str, str, str]
+    assert (doc["heat_model"], doc["mounting"], doc["feedback"]) == ("contact", "pretensioned", "linear-scale")
+    back = ThermalRecord.from_dict(doc)
+    assert back.mounting is ThermalMounting.PRETENSIONED and back.feedback is Feedback.LINEAR_SCALE
+    with pytest.raises(ArtifactError, match=r"s\.json: field 'mounting' must be one of fixed-free, fixed-fixed, "
+                                            r"pretensioned, got 'sideways'"):
+        ThermalSummary.from_dict({**budget.summary().to_dict(), "mounting": "sideways"}, "s.json")
+
+
+def test_the_gain_schedules_choice_is_an_enum_read_and_written_as_its_string():
+    from piezopreload.artifacts.tuning import GainScheduleRecord, ScheduleChoice
+    from piezopreload.core.errors import ArtifactError
+
+    sched = GainScheduleRecord.from_dict(_schedule_doc())
+    assert sched.choice is ScheduleChoice.SCHEDULE and sched.choice.words == "the scheduled gains"
+    assert type(sched.to_dict()["choice"]) is str and sched.to_dict()["choice"] == "schedule"
+    with pytest.raises(ArtifactError, match=r"field 'choice' must be one of robust, schedule, got 'both'"):
+        GainScheduleRecord.from_dict({**_schedule_doc(), "choice": "both"})
+    with pytest.raises(ValueError, match="choice must be one of robust, schedule, got 'both'"):
+        dataclasses.replace(sched, choice="both")

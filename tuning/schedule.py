@@ -68,6 +68,7 @@ from piezopreload.artifacts.tuning import (
     CHOICES,
     LEVEL_FIGURES,
     GainScheduleRecord,
+    ScheduleChoice,
     ScheduleLevel,
     SetFigures,
     SetGains,
@@ -120,10 +121,10 @@ def _path(a: float, level: float, b: float) -> list[float]:
 
 
 #: what :func:`choose` returns, in words ("schedule: schedule: ..." read as a stutter)
-CHOICE_WORDS = {"robust": "the one robust set", "schedule": "the scheduled gains"}
+CHOICE_WORDS = {c: c.words for c in ScheduleChoice}
 
 
-def choose(levels: Sequence[LevelFigures], whole: LevelFigures) -> tuple[str, str]:
+def choose(levels: Sequence[LevelFigures], whole: LevelFigures) -> tuple[ScheduleChoice, str]:
     """The robust set if it meets the specification at every level and over the whole range, else the schedule if it
     does; where neither does, the one that meets it over the whole range (the robust set first). With the reason."""
     def passes(which: str) -> bool:
@@ -136,13 +137,14 @@ def choose(levels: Sequence[LevelFigures], whole: LevelFigures) -> tuple[str, st
         return bad[0] if len(bad) == 1 else ", ".join(bad[:-1]) + " and " + bad[-1]
 
     if passes("robust"):
-        return "robust", ("the one robust set meets the specification at every level and over the whole range: it is "
-                          "used (one set, nothing to switch)")
+        return ScheduleChoice.ROBUST, ("the one robust set meets the specification at every level and over the whole "
+                                       "range: it is used (one set, nothing to switch)")
     if passes("scheduled"):
-        return "schedule", f"the robust set misses the specification at {where('robust')}; the schedule meets it"
+        return ScheduleChoice.SCHEDULE, (f"the robust set misses the specification at {where('robust')}; the schedule "
+                                         "meets it")
     # the validation stage judges the whole range as always: keep the set that meets it there
-    choice = "schedule" if whole.scheduled.passed and not whole.robust.passed else "robust"
-    kept = (whole.robust if choice == "robust" else whole.scheduled).passed
+    choice = ScheduleChoice.SCHEDULE if whole.scheduled.passed and not whole.robust.passed else ScheduleChoice.ROBUST
+    kept = whole.of(choice.set_key).passed
     bounds = "; ".join(f"at {r.level_N:g} N {r.bound}" for r in levels if r.bound)
     return choice, (f"neither meets the specification at every level (the robust set misses it at {where('robust')}, "
                     f"the schedule at {where('scheduled')}); the {choice} set is kept"
@@ -485,7 +487,7 @@ def tune_schedule(
                    for level, f, window, sp, (g, record) in zip(lv, at, plan.windows, plan.specs, tuned))
 
     choice, reason = choose(at, over_all)
-    say(f"gain schedule: {CHOICE_WORDS[choice]} chosen: {reason}")
+    say(f"gain schedule: {choice.words} chosen: {reason}")
     return GainScheduleRecord(choice, reason, tuple(float(x) for x in schedule.levels_N), schedule, robust.Tf_s,
                               robust.b, SetGains.of(robust), levels, SetFigures(over_all.robust, over_all.scheduled),
                               n_plants, FIGURES, dict(limits), time.perf_counter() - t0)
