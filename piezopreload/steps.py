@@ -752,6 +752,30 @@ def reproduce(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforwa
     """The body of :meth:`Study.reproduce`: the paper's six step numbers beside the simulation's, both controllers.
 
     With ``repeats`` > 1, each number is the median over that many noise realisations, with its range.
+
+    Parameters
+    ----------
+    study : StudySpec
+        The study (its ``[published]`` numbers, its step, its ``[controller]`` gains).
+    solved : Solved
+        What its steps solved (the plant).
+    feedforward : IdentifiedFeedforward, optional
+        The feedforward (default: the study's, identified).
+    seed : int, optional
+        The noise seed (default: the study's).
+    repeats : int
+        Noise draws; each number is the median over them.
+
+    Returns
+    -------
+    StudyReproduction
+        One row per controller and metric (published, simulated, their ratio, within 25 % or not, the range over
+        the noise draws) and what ran (``.to_dict()``: what ``reproduce --json`` prints).
+
+    Raises
+    ------
+    InputError
+        Where ``repeats`` < 1, or the study declares no published numbers.
     """
     if repeats < 1:
         raise InputError(f"repeats: must be >= 1, got {repeats}")

@@ -90,8 +90,8 @@ def _budget():
     from piezopreload.artifacts.thermal import PreloadDrift, ThermalRecord
 
     drift = PreloadDrift(100.0, 350.0, -500.0, 1200.0, -520.0, 1700.0, 3.0, 9.0, 70.0)
-    return ThermalRecord("contact", "catalogue", 68, True, 0.2, 0.5, 1.0, "pretensioned", 3.0, 2000.0, "linear-scale", 2.5,
-                         (100.0, 500.0), np.array([0.0, 300.0, 600.0]), np.array([100.0, 500.0]), 20.0, 900.0,
+    return ThermalRecord("contact", "catalogue", 68, True, 0.2, 0.5, 1.0, "pretensioned", 3.0, 2000.0, "linear-scale",
+                         2.5, (100.0, 500.0), np.array([0.0, 300.0, 600.0]), np.array([100.0, 500.0]), 20.0, 900.0,
                          _case(1.0), _case(2.0), drift)
 
 
@@ -294,3 +294,64 @@ def test_the_gain_schedules_choice_is_an_enum_read_and_written_as_its_string():
         GainScheduleRecord.from_dict({**_schedule_doc(), "choice": "both"})
     with pytest.raises(ValueError, match="choice must be one of robust, schedule, got 'both'"):
         dataclasses.replace(sched, choice="both")
+
+
+# --- the study's verbs: each parameter documented once, on the steps function --------------------------------------
+STEP_METHODS = {"design": "design", "measured_loop": "measured_loop", "identify_feedforward": "identify",
+                "learn": "learn", "learn_schedule": "learn_schedule", "track_schedule": "track_schedule",
+                "tune": "tune", "validate": "validate", "simulate": "simulate", "reproduce": "reproduce"}
+
+
+@pytest.mark.parametrize("method", list(STEP_METHODS))
+def test_a_study_method_documents_its_parameters_in_the_words_of_the_step_it_calls(method):
+    """Each parameter of ``Study.<method>`` is documented by the very entry of the steps function it calls (one text,
+    so they cannot drift)."""
+    import inspect
+
+    from numpydoc.docscrape import NumpyDocString
+
+    from piezopreload import steps
+    from piezopreload.study import Study
+
+    def entries(fn):
+        return {name.strip(): (p.type, p.desc) for p in NumpyDocString(inspect.getdoc(fn))["Parameters"]
+                for name in p.name.split(",")}
+
+    mine, step = entries(getattr(Study, method)), entries(getattr(steps, STEP_METHODS[method]))
+    params = [n for n in inspect.signature(getattr(Study, method)).parameters if n != "self"]
+    assert sorted(mine) == sorted(params), f"Study.{method} documents {sorted(mine)}, takes {params}"
+    for name in params:
+        assert mine[name] == step[name], f"Study.{method}'s {name} is not documented as steps.{STEP_METHODS[method]}"
+
+
+def test_the_shared_parameters_refuse_a_method_they_cannot_document():
+    from piezopreload import study
+
+    def step(spec, solved, seed=None):
+        """A step.
+
+        Parameters
+        ----------
+        spec, solved : object
+            The study and what it solved.
+        seed : int, optional
+            The seed.
+        """
+
+    def method(self, seed=None, plants=None):
+        """A verb."""
+
+    with pytest.raises(TypeError, match="documents no plants; document it there, once"):
+        study._parameters_of(step)(method)
+
+    def own(self, seed=None):
+        """A verb.
+
+        Parameters
+        ----------
+        seed : int
+            Its own words.
+        """
+
+    with pytest.raises(TypeError, match="write none of its own"):
+        study._parameters_of(step)(own)
