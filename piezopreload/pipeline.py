@@ -393,7 +393,7 @@ def _rig_summary(record: RigRunRecord) -> RigSummary:
     if out is None:
         raise StageFailed("rig", f"the run's sidecar says '{record.status}' and holds no outcome")
     head = RigSummary(record.status, out.cycles, out.controller_step, out.timing.missed_deadlines, out.timing.stalls,
-                      out.timing.held_max_s, out.timing.stall_limit_s, record.safety.get("force_max_N"))
+                      out.timing.held_max_s, out.timing.stall_limit_s, record.safety.force_max_N)
     if out.trip is not None:
         return replace(head, trip=RigTrip(out.trip.cause, out.trip.detail, out.trip.t_s, out.trip.voltage_V))
     m = out.metrics

@@ -660,7 +660,7 @@ def rig_section(study: ReportStudy, a: Artifacts) -> Part:
     mode = "real time" if run.realtime else "back to back"
     head = (f"The validated gains ran on the rig executor at {run.rate_Hz:g} Hz ({mode}) against the "
             f"'{run.backend}' backend behind its interlocks (force limit "
-            f"{q(run.safety.get('force_max_N', 0.0), 'N')}), "
+            f"{q(run.safety.force_max_N, 'N')}), "
             f"reference {run.reference}: ")
     trip = run.trip
     if trip is not None:

@@ -355,3 +355,40 @@ def test_the_shared_parameters_refuse_a_method_they_cannot_document():
 
     with pytest.raises(TypeError, match="write none of its own"):
         study._parameters_of(step)(own)
+
+
+# --- the rig run: its limits and its served pushes as records ------------------------------------------------------
+RUN_JSON = ROOT / "tests" / "data" / "artifacts" / "run.json"
+
+
+def test_a_sidecar_written_before_reads_its_limits_into_the_safety_record_and_writes_them_back():
+    import json
+
+    from piezopreload.artifacts.rigrun import RigRunRecord, Safety
+    from piezopreload.core.errors import ArtifactError
+
+    written = json.loads(RUN_JSON.read_text())
+    record = RigRunRecord.load(RUN_JSON)
+    assert isinstance(record.safety, Safety) and record.safety.force_max_N == written["safety"]["force_max_N"]
+    assert record.safety.force_low_N == written["safety"]["bolt_preload_N"] - written["safety"]["force_low_margin_N"]
+    assert record.to_dict()["safety"] == written["safety"]
+    body = {k: v for k, v in written.items() if k not in ("schema", "package_version", "sha256")}
+    body["safety"] = {k: v for k, v in written["safety"].items() if k != "stall_limit_s"}
+    with pytest.raises(ArtifactError, match=r"field 'safety\.stall_limit_s' is missing"):
+        RigRunRecord.from_dict(body)  # a limit the run used is never taken from the defaults
+
+
+def test_a_served_rigs_pushes_are_records_that_write_the_keys_the_summary_had():
+    from piezopreload.rig.opcua import PushTaken
+
+    identity = {"gain_set_sha256": "ab" * 32, "feedforward_sha256": "cd" * 32, "controller": "PID",
+                "interlocks_kept": ["force_max_N 130 N (the pushed set's 150 N)"], "note": "night shift"}
+    taken = PushTaken.of("ops", identity, accepted=True)
+    assert taken.to_dict() == {"user": "ops", **identity, "accepted": True}
+    assert list(taken.to_dict()) == ["user", *identity, "accepted"]
+    refused = PushTaken.of("ops", identity, accepted=False, reason="its plant is not this rig's")
+    assert refused.to_dict() == {"user": "ops", **identity, "accepted": False, "reason": "its plant is not this rig's"}
+    assert PushTaken("guest", reason="no such user").to_dict() == {"user": "guest", "accepted": False,
+                                                                   "reason": "no such user"}
+    with pytest.raises(ValueError, match="'operator' is not a field"):
+        PushTaken.of("ops", {**identity, "operator": "x"}, accepted=True)  # never dropped silently
