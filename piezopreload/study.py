@@ -125,7 +125,7 @@ def _parameters_of(step: Callable[..., Any]) -> Callable[[_M], _M]:
                     (f"\n{rest}" if rest else "")
             lines.append(text)
         own = inspect.cleandoc(method.__doc__ or "")
-        if _HEADING.search(own + "\n") and any(h.group(1) == "Parameters" for h in _HEADING.finditer(own + "\n")):
+        if any(h.group(1) == "Parameters" for h in _HEADING.finditer(own + "\n")):
             raise TypeError(f"{method.__qualname__}: its Parameters come from {step.__qualname__}; write none of its "
                             "own")
         section = "Parameters\n----------\n" + "\n".join(lines) + "\n\n"
