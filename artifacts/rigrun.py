@@ -11,15 +11,18 @@ interlocks' sources, the stall limit's derivation and the host check added.
 
 from __future__ import annotations
 
-from dataclasses import replace
+import math
+from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any, ClassVar
 
 from piezopreload.artifacts.hostcheck import HostCheck
 from piezopreload.core.errors import ArtifactError
 from piezopreload.core.records import Artifact, Raw, Record, entry, record
+from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V
 
-__all__ = ["RigRunRecord", "RunOutcome", "RunTiming", "RunMetrics", "TripRecord", "StallLimit", "KIND", "STATUSES"]
+__all__ = ["Safety", "RigRunRecord", "RunOutcome", "RunTiming", "RunMetrics", "TripRecord", "StallLimit", "KIND",
+           "STATUSES"]
 
 KIND = "rig-run"
 #: ``running`` until the run ends (a killed run stays so), ``not started`` when refused after its log was opened
@@ -130,6 +133,56 @@ class StallLimit(Record):
 
 
 @record
+class Safety(Record):
+    """The interlocks' limits and the command's shaping; the defaults suit the paper's rig.
+
+    A session (:func:`piezopreload.rig.session.interlocks`) builds it from the gain set: its study's ``[rig_run]``
+    limits, its plant (bolt preload, the A/D's range, the stall limit) and its gains (the command range), and records
+    where each value came from. A run's sidecar holds it (``safety``, every limit the run used): a document must
+    give every limit, none is taken from these defaults.
+    """
+
+    v_min_V: float = entry("The command's low end.", unit="V", default=OUTPUT_MIN_V, required=True)
+    v_max_V: float = entry("The command's high end.", unit="V", default=OUTPUT_MAX_V, required=True)
+    slew_V_per_s: float = entry("The command's largest slew.", unit="V/s", default=20_000.0, required=True)
+    force_max_N: float = entry("The highest force.", unit="N", default=150.0, required=True)
+    bolt_preload_N: float = entry("The bolts' preload (the force's floor lies a margin below it).", unit="N",
+                                  default=25.0, required=True)
+    force_low_margin_N: float = entry("The margin below the bolts' preload the force may fall to.", unit="N",
+                                      default=10.0, required=True)
+    sensor_min_N: float = entry("The sensor's lowest reading.", unit="N", default=-1000.0, required=True)
+    sensor_max_N: float = entry("The sensor's highest reading.", unit="N", default=1000.0, required=True)
+    stale_after_s: float = entry("How old a reading may be.", unit="s", default=0.01, required=True)
+    stall_limit_s: float = entry("The longest the output may be held without an update (a stall longer than this "
+                                 "trips).", unit="s", default=0.05, required=True)
+    ramp_s: float = entry("The ramp down's length.", unit="s", default=0.5, required=True)
+    safe_V: float = entry("The command the ramp ends on.", unit="V", default=0.0, required=True)
+
+    def __post_init__(self) -> None:
+        for name in (f.name for f in fields(self)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not (isinstance(value, int | float) and math.isfinite(value)):
+                raise ValueError(f"safety.{name} must be a finite number, got {value!r}")
+        if not self.v_min_V < self.v_max_V:
+            raise ValueError(f"safety needs v_min_V < v_max_V, got {self.v_min_V} and {self.v_max_V}")
+        if not self.v_min_V <= self.safe_V <= self.v_max_V:
+            raise ValueError(f"safety.safe_V must lie in {self.v_min_V}..{self.v_max_V} V, got {self.safe_V}")
+        for name in ("slew_V_per_s", "stale_after_s", "ramp_s", "force_low_margin_N", "stall_limit_s"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"safety.{name} must be > 0, got {getattr(self, name)}")
+        low_N = self.bolt_preload_N - self.force_low_margin_N
+        if not self.sensor_min_N < low_N < self.force_max_N <= self.sensor_max_N:
+            raise ValueError(f"safety needs sensor_min_N < bolt_preload_N - force_low_margin_N < force_max_N <= "
+                             f"sensor_max_N, got {self.sensor_min_N:g} < {self.force_low_N:g} "
+                             f"< {self.force_max_N:g} <= {self.sensor_max_N:g}")
+
+    @property
+    def force_low_N(self) -> float:
+        """The force below which ``force_low`` trips: the bolt preload less the margin."""
+        return self.bolt_preload_N - self.force_low_margin_N
+
+
+@record
 class RigRunRecord(Artifact):
     """A rig run's sidecar (see the module docstring).
 
@@ -163,7 +216,7 @@ class RigRunRecord(Artifact):
     rate_Hz: float = entry("The loop's rate.", unit="Hz", default=1000.0, required=True)
     realtime: bool = entry("Whether it ran on the wall clock.", default=False, required=True)
     seed: int = entry("The simulated backend's noise seed.", ge=0, default=0, required=True)
-    safety: dict[str, float] = entry("Every limit the run used.", default={}, required=True)
+    safety: Safety = entry("Every limit the run used.", default=Safety(), required=True)
     safety_sources: dict[str, str] = entry("Where each limit came from.", default={})
     stall_limit: StallLimit | None = entry("How the stall limit was derived.", default=None, omit=True)
     host_check: HostCheck | None = entry("The host check made before arming.", default=None, omit=True)

@@ -26,6 +26,7 @@ from piezopreload.artifacts.system import (
     SystemRecord,
     TrackingNumbers,
 )
+from piezopreload.artifacts.thermal import ThermalSummary
 from piezopreload.core.errors import ArtifactError
 from piezopreload.core.records import Raw, Record, entry, record
 
@@ -200,7 +201,7 @@ class SystemSummary(StageSummary):
     preload_margin_N: float = entry("The margin the schedule was planned with.", unit="N")
     cycles: int = entry("The machining cycles run.", ge=0)
     passes: tuple[MarginPass, ...] = entry("The margin passes.")
-    thermal: dict[str, Any] | None = entry("The shift's thermal figures (schedule and constant preload).",
+    thermal: ThermalSummary | None = entry("The shift's thermal figures (schedule and constant preload).",
                                            default=None, omit=True)
     before: BeforeLearning | None = entry("Where the schedule was learned: the error before learning.",
                                           default=None, inline=True, omit=True)
@@ -228,7 +229,7 @@ class SystemSummary(StageSummary):
             The system's numbers, requirements and thermal figures, without the time series.
         """
         return cls(system.numbers, system.requirements, system.bounds, system.pre_cycle, system.preload_margin_N,
-                   system.cycles, system.passes, None if system.thermal is None else system.thermal.summary().to_dict(),
+                   system.cycles, system.passes, None if system.thermal is None else system.thermal.summary(),
                    before, system.basis, system.sensitivity)
 
     @property

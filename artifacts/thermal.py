@@ -11,16 +11,18 @@ drift, against the command range the force loop has left to hold it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import fields
 from enum import StrEnum
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from piezopreload.core.records import Raw, Record, entry, record
+from piezopreload.core.records import Raw, Record, as_members, entry, record
+from piezopreload.models.thermal import Feedback, HeatModel, ThermalMounting
 
-__all__ = ["ThermalCase", "PreloadDrift", "ThermalRecord", "ThermalSummary", "PreloadCase", "CASES"]
+__all__ = ["ThermalCase", "PreloadDrift", "ThermalRecord", "ThermalSummary", "PreloadCase", "CASES", "FIGURES",
+           "FigurePair"]
 
 Array = NDArray[np.float64]
 
@@ -35,13 +37,6 @@ class PreloadCase(StrEnum):
 
 #: the two preloads a budget compares, in the order the report shows them
 CASES = tuple(PreloadCase)
-#: the scalar figures of a case, in its summary's order
-_FIGURES = ("heat_mean_W", "heat_mean_other_W", "seal_heat_mean_W", "bearing_heat_mean_W", "preload_mean_N",
-            "temperature_rise_max_K", "rise_max_at_mm", "temperature_rise_max_other_K", "nut_rise_max_K",
-            "nut_over_screw_end_K", "end_force_max_N", "bearing_force_max_N", "growth_max_um", "growth_max_other_um",
-            "positioning_error_max_um", "tracking_um")
-
-
 @record(eq=False)
 class ThermalCase(Record):
     """One preload over the shift: the schedule's as the loop achieved it, or the best constant.
@@ -92,7 +87,14 @@ class ThermalCase(Record):
                              size="times_h")
 
     def summary(self) -> dict[str, float]:
-        return {name: float(getattr(self, name)) for name in _FIGURES}
+        """Its scalar figures by name (:data:`FIGURES`).
+
+        Returns
+        -------
+        dict of str to float
+            Each figure under its field's name.
+        """
+        return {name: float(getattr(self, name)) for name in FIGURES}
 
     @property
     def hourly(self) -> NDArray[np.bool_]:
@@ -137,6 +139,34 @@ class ThermalCase(Record):
         return None
 
 
+#: the scalar figures of a case (its fields that are one number), in their order: the one name each has from the
+#: model to the sweep's column
+FIGURES = tuple(f.name for f in fields(ThermalCase) if f.type in (float, "float"))
+
+
+@record
+class FigurePair(Record):
+    """One scalar figure of a shift (a :data:`FIGURES` name of :class:`ThermalCase`) for both preloads."""
+
+    schedule: float = entry("The schedule's preload as the force loop achieved it.")
+    constant: float = entry("The design's best constant preload.")
+
+    def of(self, case: PreloadCase | str) -> float:
+        """The figure of one preload.
+
+        Parameters
+        ----------
+        case : PreloadCase or str
+            ``schedule`` or ``constant``.
+
+        Returns
+        -------
+        float
+            Its value.
+        """
+        return self.schedule if PreloadCase(case) is PreloadCase.SCHEDULE else self.constant
+
+
 @record
 class PreloadDrift(Record):
     """The passive nut's drift and the force loop's room to hold it.
@@ -155,8 +185,11 @@ class PreloadDrift(Record):
     passive_N_per_K: float = entry("The passive nut's preload change per kelvin of nut over screw.", unit="N/K")
     passive_max_N: float = entry("Its largest change over the shift by the nut law, signed (< 0: the preload "
                                  "falls).", unit="N")
-    passive_left_N: float = entry("The preload left then (0: the nuts part).", unit="N")
-    passive_linear_N: float = entry("The tangent's linear extrapolation of that change, for comparison.", unit="N")
+    passive_left_N: float | None = entry("The preload left then (0: the nuts part); None in a summary written "
+                                         "before it was recorded.", unit="N", absent=None, omit=True)
+    passive_linear_N: float | None = entry("The tangent's linear extrapolation of that change, for comparison; None "
+                                           "in a summary written before it was recorded.", unit="N", absent=None,
+                                           omit=True)
     passive_preload_N: float = entry("The best constant preload it holds.", unit="N")
     stroke_max_um: float = entry("The stacks' largest stroke taking up the spacer's mismatch.", unit="um")
     voltage_needed_V: float = entry("The command that needs (signed: + more voltage).", unit="V")
@@ -178,54 +211,69 @@ class PreloadDrift(Record):
         return {**super().to_dict(), "held": self.held}
 
 
-@dataclass(frozen=True)
-class ThermalSummary:
-    """A shift's thermal budget without its series (:meth:`ThermalRecord.summary`): the two cases (``schedule``,
-    ``constant``: their figures under their own names), the settings, the drift, and in words per case where the
-    largest rise sits, the nut against the screw and the ends' force; :meth:`to_dict` is what ``system.json``'s
-    summary and ``run --json`` hold as ``thermal`` (each scalar figure as ``{"schedule": ..., "constant": ...}``)."""
+@record
+class ThermalSummary(Record):
+    """A shift's thermal budget without its series (:meth:`ThermalRecord.summary`): each scalar figure of the two
+    cases (``schedule``, ``constant``) under its :class:`ThermalCase` name, the settings, the drift, and in words per
+    case where the largest rise sits, the nut against the screw and the ends' force. Its document (``system.json``'s
+    summary and ``run --json``'s ``thermal``) holds each figure as ``{"schedule": ..., "constant": ...}`` beside the
+    settings; a summary written before a figure, a setting or the words were recorded lacks them, and is read and
+    written back so."""
 
-    schedule: ThermalCase
-    constant: ThermalCase
-    heat_model: str
-    other_model: str
-    lubricant_vg: int
-    sealed: bool
-    seal_torque_Nm: float
-    nut_heat_share: float
-    convection_factor: float
-    mounting: str
-    pretension_K: float
-    bearing_lift_off_N: float
-    feedback: str
-    shift_h: float
-    stroke_mm: tuple[float, float]
-    film_mean_W_per_m2K: float
-    screw_time_constant_s: float
-    drift: PreloadDrift
-    rise_max_place: dict[str, str]
-    nut_against_screw: dict[str, str]
-    ends: dict[str, str]
+    figures: dict[str, FigurePair] = entry("Each scalar figure for both preloads, by its name (:data:`FIGURES`), at "
+                                           "the top of the document's object.", spread=FIGURES)
+    heat_model: HeatModel = entry("The study's heat model of the nut's friction.")
+    other_model: HeatModel = entry("The other heat model, reported beside it.")
+    lubricant_vg: int = entry("The lubricant's viscosity grade (ISO VG).", ge=0)
+    sealed: bool = entry("Whether the nut is sealed.")
+    seal_torque_Nm: float | None = entry("The seals' torque (0: an open nut).", unit="N m", absent=None, omit=True)
+    nut_heat_share: float | None = entry("The share of the nut's heat entering the screw.", absent=None, omit=True)
+    convection_factor: float | None = entry("The factor on the air's film coefficients.", absent=None, omit=True)
+    mounting: ThermalMounting = entry("How the screw's ends are held.")
+    pretension_K: float = entry("The screw's pretension, as a temperature rise it takes up.", unit="K")
+    bearing_lift_off_N: float | None = entry("Each end's bearing pair's lift-off force.", unit="N", absent=None,
+                                             omit=True)
+    feedback: Feedback = entry("Where the position loop measures.")
+    shift_h: float = entry("The shift's length.", unit="h")
+    stroke_mm: tuple[float, float] = entry("The table's stroke (from, to), from bearing A.", unit="mm")
+    film_mean_W_per_m2K: float = entry("The cycle's mean film coefficient on the screw.", unit="W/(m^2 K)")
+    screw_time_constant_s: float = entry("The screw's lumped time constant under it.", unit="s")
+    drift: PreloadDrift = entry("The passive nut's drift and the force loop's room to hold it.")
+    rise_max_place: dict[str, str] = entry("Per case, where the largest rise sits, in words.", absent={}, omit=True)
+    nut_against_screw: dict[str, str] = entry("Per case, the nut against the screw, in words.", absent={},
+                                              omit=True)
+    ends: dict[str, str] = entry("Per case, the ends' bearing pairs' force against their lift-off, in words.",
+                                 absent={}, omit=True)
 
-    def to_dict(self) -> dict[str, Any]:
-        """Each scalar figure for both cases, the settings, the drift and the words (no series).
+    def __post_init__(self) -> None:
+        as_members(self)
+        unknown = [name for name in self.figures if name not in FIGURES]
+        if unknown:
+            raise ValueError(f"{', '.join(unknown)} is no figure of a thermal case; they are {', '.join(FIGURES)}")
+
+    def figure(self, name: str, case: PreloadCase | str) -> float:
+        """One figure of one preload.
+
+        Parameters
+        ----------
+        name : str
+            The figure's name (:data:`FIGURES`).
+        case : PreloadCase or str
+            ``schedule`` or ``constant``.
 
         Returns
         -------
-        dict
-            Its object.
+        float
+            Its value.
+
+        Raises
+        ------
+        KeyError
+            Where the summary does not hold that figure (written before it was recorded, or no figure of that name).
         """
-        cases = {"schedule": self.schedule.summary(), "constant": self.constant.summary()}
-        figures = {name: {c: cases[c][name] for c in CASES} for name in _FIGURES}
-        return {**figures, "heat_model": self.heat_model, "other_model": self.other_model,
-                "lubricant_vg": self.lubricant_vg, "sealed": self.sealed, "seal_torque_Nm": self.seal_torque_Nm,
-                "nut_heat_share": self.nut_heat_share, "convection_factor": self.convection_factor,
-                "mounting": self.mounting, "pretension_K": self.pretension_K,
-                "bearing_lift_off_N": self.bearing_lift_off_N, "feedback": self.feedback, "shift_h": self.shift_h,
-                "stroke_mm": list(self.stroke_mm), "film_mean_W_per_m2K": self.film_mean_W_per_m2K,
-                "screw_time_constant_s": self.screw_time_constant_s, "drift": self.drift.to_dict(),
-                "rise_max_place": self.rise_max_place, "nut_against_screw": self.nut_against_screw,
-                "ends": self.ends}
+        if name not in self.figures:
+            raise KeyError(f"{name!r}: the summary holds {', '.join(self.figures)}")
+        return self.figures[name].of(case)
 
 
 @record(eq=False)
@@ -234,18 +282,18 @@ class ThermalRecord(Record):
     the cycle's mean film coefficient on the screw and the screw's lumped time constant under it, the two cases
     and the drift."""
 
-    heat_model: str = entry("The study's heat model of the nut's friction.")
-    other_model: str = entry("The other heat model, reported beside it.")
+    heat_model: HeatModel = entry("The study's heat model of the nut's friction.")
+    other_model: HeatModel = entry("The other heat model, reported beside it.")
     lubricant_vg: int = entry("The lubricant's viscosity grade (ISO VG).", ge=0)
     sealed: bool = entry("Whether the nut is sealed.")
     seal_torque_Nm: float = entry("The seals' torque (0: an open nut).", unit="N m")
     nut_heat_share: float = entry("The share of the nut's heat entering the screw (the rest heats the nut).")
     convection_factor: float = entry("The factor on the air's film coefficients.")
-    mounting: str = entry("How the screw's ends are held.")
+    mounting: ThermalMounting = entry("How the screw's ends are held.")
     pretension_K: float = entry("The screw's pretension, as a temperature rise it takes up.", unit="K")
     bearing_lift_off_N: float = entry("Each end's bearing pair's lift-off force, 2^(3/2) its preload (0: ends not "
                                       "held, or no pair preload stated).", unit="N")
-    feedback: str = entry("Where the position loop measures (what growth it sees).")
+    feedback: Feedback = entry("Where the position loop measures (what growth it sees).")
     shift_h: float = entry("The shift's length.", unit="h")
     stroke_mm: tuple[float, float] = entry("The table's stroke (from, to), from bearing A.", unit="mm")
     screw_x_mm: Array = entry("The screw's volumes' positions, from bearing A.", unit="mm")
@@ -255,6 +303,9 @@ class ThermalRecord(Record):
     schedule: ThermalCase = entry("The schedule's preload as the loop achieved it.", at="cases")
     constant: ThermalCase = entry("The best constant preload.", at="cases")
     drift: PreloadDrift = entry("The passive nut's drift and the force loop's room to hold it.")
+
+    def __post_init__(self) -> None:
+        as_members(self)
 
     def place(self, x_mm: float) -> str:
         """Where ``x_mm`` (from bearing A) lies on the screw, in words: at an end's bearing (its first or last 5 %),
@@ -289,7 +340,7 @@ class ThermalRecord(Record):
 
     def ends_words(self, case: ThermalCase) -> str:
         """The force on the ends' bearing pairs against their lift-off ('' for a free end)."""
-        if self.mounting == "fixed-free":
+        if self.mounting is ThermalMounting.FIXED_FREE:
             return ""
         if self.bearing_lift_off_N <= 0:
             return f"the ends' bearings carry up to {case.bearing_force_max_N:,.0f} N"
@@ -317,8 +368,9 @@ class ThermalRecord(Record):
 
     def summary(self) -> ThermalSummary:
         """Each figure for the schedule and the constant preload, the settings and the drift (no series)."""
+        figures = {name: FigurePair(getattr(self.schedule, name), getattr(self.constant, name)) for name in FIGURES}
         return ThermalSummary(
-            schedule=self.schedule, constant=self.constant, heat_model=self.heat_model,
+            figures=figures, heat_model=self.heat_model,
             other_model=self.other_model, lubricant_vg=self.lubricant_vg,
             sealed=self.sealed, seal_torque_Nm=self.seal_torque_Nm, nut_heat_share=self.nut_heat_share,
             convection_factor=self.convection_factor, mounting=self.mounting, pretension_K=self.pretension_K,

@@ -20,20 +20,22 @@ from __future__ import annotations
 
 import html
 import math
-from dataclasses import fields
+from dataclasses import fields, replace
+from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
-from piezopreload.artifacts.gainset import GainSet, GainsTable
+from piezopreload.artifacts.gainset import GainSet, GainsTable, schedule_from_dict
 from piezopreload.core.quantities import number
-from piezopreload.core.records import Record, SavedArtifact, entry, load_one_of, record
-from piezopreload.models.controller import PIDGains
+from piezopreload.core.records import Record, SavedArtifact, as_members, entry, load_one_of, record
+from piezopreload.models.controller import GainSchedule, PIDGains
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 __all__ = ["KIND", "ActiveBound", "ComparisonRow", "MinimumTimeBound", "TrackingFloor", "TuningSolve", "TuningResult",
-           "SIDES", "warm_start_gains"]
+           "SIDES", "warm_start_gains", "GainScheduleRecord", "ScheduleLevel", "SetFigures", "SetGains", "WorstFigures",
+           "CHOICES", "LEVEL_FIGURES", "SETS", "ScheduleChoice"]
 
 KIND = "tuning"
 SIDES = ("lower", "upper")
@@ -141,6 +143,202 @@ class TrackingFloor(Record):
         _check_finite(self, ("rms_N", "rate_N_per_s"), ("tuned_over_floor_ratio",))
 
 
+class ScheduleChoice(StrEnum):
+    """What a gain schedule's tuning chose: the one robust set, or the schedule (its value is what the record and
+    ``tune --json`` write)."""
+
+    ROBUST = "robust"
+    SCHEDULE = "schedule"
+
+    @property
+    def words(self) -> str:
+        """The choice in words, as the console and the report say it."""
+        return "the one robust set" if self is ScheduleChoice.ROBUST else "the scheduled gains"
+
+    @property
+    def set_key(self) -> str:
+        """The chosen set's key in a level's and the whole range's figures (``robust`` or ``scheduled``)."""
+        return "robust" if self is ScheduleChoice.ROBUST else "scheduled"
+
+
+#: what a gain schedule's tuning may choose, in its order
+CHOICES = tuple(ScheduleChoice)
+#: the worst-case figures a gain schedule's record holds per set and level (the validation's metric names)
+LEVEL_FIGURES = ("settling_s", "overshoot_N", "tracking_rms_N", "peak_voltage_V")
+#: the two sets a gain schedule's record judges, by their keys in it
+SETS = ("robust", "scheduled")
+
+
+def _set_of(obj: Any, which: str) -> WorstFigures:
+    if which not in SETS:
+        raise ValueError(f"which must be 'robust' or 'scheduled', got {which!r}")
+    figures: WorstFigures = getattr(obj, which)
+    return figures
+
+
+@record
+class WorstFigures(Record):
+    """One set's Monte Carlo worst case of each of :data:`LEVEL_FIGURES` (None: never reached, a settling time) at a
+    level or over the whole range, whether it met the criteria and the metrics it failed."""
+
+    settling_s: float | None = entry("The worst settling time (None: never settled).", unit="s")
+    overshoot_N: float | None = entry("The worst overshoot.", unit="N")
+    tracking_rms_N: float | None = entry("The worst tracking RMS after the changes.", unit="N")
+    peak_voltage_V: float | None = entry("The highest command.", unit="V")
+    passed: bool = entry("Whether every plant met the criteria.")
+    failures: tuple[str, ...] = entry("The metrics it failed.")
+
+    def figure(self, metric: str) -> float | None:
+        """The worst case of one of :data:`LEVEL_FIGURES`.
+
+        Parameters
+        ----------
+        metric : str
+            One of :data:`LEVEL_FIGURES`.
+
+        Returns
+        -------
+        float or None
+            Its worst case (None: never reached).
+        """
+        if metric not in LEVEL_FIGURES:
+            raise KeyError(f"{metric!r} is none of the figures {', '.join(LEVEL_FIGURES)}")
+        value: float | None = getattr(self, metric)
+        return value
+
+
+@record
+class SetGains(Record):
+    """A set's gains as a gain schedule's record writes them (an entry's, or the robust set's)."""
+
+    Kc_V_per_N: float = entry("The controller gain.", unit="V/N")
+    Ti_s: float = entry("The integral time.", unit="s")
+    Td_s: float = entry("The derivative time.", unit="s")
+    Tf_s: float = entry("The derivative filter's time constant.", unit="s")
+    b: float = entry("The setpoint weight.", absent=1.0)
+
+    @classmethod
+    def of(cls, g: PIDGains) -> SetGains:
+        """The record of gains ``g``.
+
+        Parameters
+        ----------
+        g : PIDGains
+            The gains.
+
+        Returns
+        -------
+        SetGains
+            Their Kc, Ti, Td, Tf and b.
+        """
+        return cls(g.Kc, g.Ti_s, g.Td_s, g.Tf_s, g.b)
+
+
+@record
+class SetFigures(Record):
+    """Both sets' worst cases over the whole range (the study's own references)."""
+
+    robust: WorstFigures = entry("The robust set's.")
+    scheduled: WorstFigures = entry("The schedule's.")
+
+    def of(self, which: str) -> WorstFigures:
+        """The figures of one set.
+
+        Parameters
+        ----------
+        which : str
+            ``robust`` or ``scheduled``.
+
+        Returns
+        -------
+        WorstFigures
+            Its worst cases.
+        """
+        return _set_of(self, which)
+
+
+@record
+class ScheduleLevel(Record):
+    """One entry of a gain schedule: its level and window, its gains, its Ms over its window (the robust set's beside
+    it), its tuning's record, both sets' Monte Carlo worst cases there and, where the schedule misses the level, what
+    stops its entry."""
+
+    level_N: float = entry("The entry's level.", unit="N")
+    window_N: tuple[float, float] = entry("The window it was tuned on.", unit="N")
+    entry_gains: SetGains = entry("The entry's gains.", name="entry")
+    ms: dict[str, float] | None = entry("The maximum sensitivity over the window, per set (None: a record written "
+                                        "before it was recorded).", absent=None, omit=True)
+    tuning: dict[str, Any] = entry("The entry's tuning: its Ms, the constraints that bind and its objective, or why "
+                                   "no gains met the window's specification.")
+    robust: WorstFigures = entry("The robust set's worst cases at the level.")
+    scheduled: WorstFigures = entry("The schedule's.")
+    bound: str | None = entry("What stops the schedule's entry where it misses the level.", default=None, omit=True)
+
+    def of(self, which: str) -> WorstFigures:
+        """The figures of one set at the level.
+
+        Parameters
+        ----------
+        which : str
+            ``robust`` or ``scheduled``.
+
+        Returns
+        -------
+        WorstFigures
+            Its worst cases.
+        """
+        return _set_of(self, which)
+
+
+@record
+class GainScheduleRecord(Record):
+    """A gain schedule's tuning on the preload level (:func:`piezopreload.tuning.schedule.tune_schedule`): the
+    choice between the schedule and the one robust set and why, the schedule's table, both sets' gains, each entry's
+    level with both sets' Monte Carlo worst cases there, the same over the whole range, and the limits."""
+
+    NOUN: ClassVar[str] = "the gain schedule's record"
+
+    choice: ScheduleChoice = entry("What was chosen.")
+    reason: str = entry("Why.")
+    levels_N: tuple[float, ...] = entry("The entries' levels.", unit="N")
+    table: GainSchedule = entry("The schedule's table.", read=lambda d: schedule_from_dict(d, "table"),
+                                write=lambda s: s.to_dict(), takes="a gain schedule's table")
+    Tf_s: float = entry("The derivative filter's time constant (the robust set's, held).", unit="s")
+    b: float = entry("The robust set's setpoint weight, which the scheduled set carries.")
+    robust: SetGains = entry("The one robust set's gains.")
+    levels: tuple[ScheduleLevel, ...] = entry("One record per entry.")
+    whole_range: SetFigures = entry("Both sets' worst cases over the whole range.")
+    plants: int = entry("The Monte Carlo plants per validation.", ge=1)
+    figures: tuple[str, ...] = entry("The worst-case figures per set (:data:`LEVEL_FIGURES`).")
+    limits: dict[str, float] = entry("The limits the sets were judged against, by figure.")
+    seconds: float = entry("The time it took.", unit="s")
+
+    def __post_init__(self) -> None:
+        as_members(self)
+        if not isinstance(self.choice, ScheduleChoice):
+            raise ValueError(f"choice must be one of {', '.join(CHOICES)}, got {self.choice!r}")
+
+    @property
+    def chosen_set(self) -> str:
+        """The key of the chosen set in :attr:`levels` and :attr:`whole_range` (``robust`` or ``scheduled``)."""
+        return self.choice.set_key
+
+    def chosen(self, robust: PIDGains) -> PIDGains:
+        """The chosen gains: ``robust`` (the one set the schedule was tuned around), or the same with the schedule.
+
+        Parameters
+        ----------
+        robust : PIDGains
+            The robust set (its output range and filter carried by the schedule).
+
+        Returns
+        -------
+        PIDGains
+            The gains that run.
+        """
+        return robust if self.choice is ScheduleChoice.ROBUST else replace(robust, schedule=self.table)
+
+
 @record
 class TuningSolve(Record):
     """What the tuning NLP did, the start it came from and how the search ended."""
@@ -157,8 +355,8 @@ class TuningSolve(Record):
     fopdt: dict[str, float] = entry("The FOPDT fit the start came from.")
     form: str = entry("The controller's form.", choices=("PI", "PID"), default="PID")
     spec: dict[str, Any] = entry("The tuning's specification.", default={})
-    schedule: dict[str, Any] | None = entry("The gain schedule's record, where one was tuned.", default=None,
-                                            omit=True)
+    schedule: GainScheduleRecord | None = entry("The gain schedule's record, where one was tuned.", default=None,
+                                                omit=True)
     search: str = entry("How the search ended: its runs, those stopped on the iteration limit, where the result "
                         "came from.", default="")
     # what the solve found that the tuning record stores once, at its own top (``gains``, ``simc_baseline``,

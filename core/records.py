@@ -45,6 +45,7 @@ piezopreload.core.errors.ArtifactError: fit.json: field 'rms_pct' must be a fini
 from __future__ import annotations
 
 import dataclasses
+import enum
 import math
 import re
 import textwrap
@@ -71,7 +72,8 @@ from piezopreload.core.artifacts import ArtifactKind, field_message, read_artifa
 from piezopreload.core.errors import ArtifactError, InputError
 
 __all__ = ["Entry", "entry", "record", "Record", "Artifact", "SavedArtifact", "Raw", "load_one_of", "object_without",
-           "kind_of", "Checked", "checked", "check_entries", "read_table", "Invalid", "MANY", "table_values", "TableOf",
+           "kind_of", "Checked", "checked", "check_entries", "as_members", "read_table", "Invalid", "MANY",
+           "table_values", "TableOf",
            "UnitKey",
            "takes"]
 
@@ -151,6 +153,9 @@ class Entry:
     via : type or None
         A record that is the document's form of the field's type: the field is read as that record and made
         with its ``to_value()``, and written as ``via.from_value(value)``.
+    spread : tuple of str
+        For a dict field: the keys its entries may have, each entry sitting at the top of the record's own object
+        beside its other fields (not in an object of its own); a document lacking one of them lacks that entry.
     absent : object
         What a document without the key (or with null there) reads as, for a field the constructor requires (files
         written before the field was recorded); none: such a document is refused.
@@ -182,6 +187,7 @@ class Entry:
     each: bool = False
     via: Any = None
     absent: Any = NOTHING
+    spread: tuple[str, ...] = ()
 
 
 def entry(doc: str, *, default: Any = MISSING, default_factory: Any = MISSING, unit: str = "", name: str = "",
@@ -190,7 +196,7 @@ def entry(doc: str, *, default: Any = MISSING, default_factory: Any = MISSING, u
           choices: tuple[str, ...] | list[str] = (), size: str | int | tuple[int, int] | None = None,
           increasing: bool = False, rows: bool = False, read: Callable[[Any], Any] | None = None,
           write: Callable[[Any], Any] | None = None, takes: str = "", each: bool = False, via: Any = None,
-          absent: Any = NOTHING) -> Any:
+          absent: Any = NOTHING, spread: tuple[str, ...] = ()) -> Any:
     """Declare a field of a :class:`Record`: see :class:`Entry` for what each argument declares.
 
     Parameters
@@ -200,7 +206,7 @@ def entry(doc: str, *, default: Any = MISSING, default_factory: Any = MISSING, u
     default, default_factory : object, optional
         The field's default (a dict or a list default is copied for each record); none: the field is required.
     unit, name, at, required, omit, inline, stored, ge, gt, le, lt, choices, size, increasing, rows, read, write,
-    takes, each, via, absent
+    takes, each, via, absent, spread
         As :class:`Entry` has them.
 
     Returns
@@ -209,7 +215,7 @@ def entry(doc: str, *, default: Any = MISSING, default_factory: Any = MISSING, u
         The dataclass field, its declaration in its metadata.
     """
     meta = {ENTRY: Entry(doc, unit, name, at, required, omit, inline, stored, ge, gt, le, lt, tuple(choices), size,
-                         increasing, rows, read, write, takes, each, via, absent)}
+                         increasing, rows, read, write, takes, each, via, absent, tuple(spread))}
     if default_factory is not MISSING:
         return field(default_factory=default_factory, metadata=meta)
     if isinstance(default, dict | list):
@@ -268,7 +274,9 @@ class _Spec:
         e = self.entry
         bounds = " and ".join(f"{op} {v:g}" for op, v in ((">=", e.ge), (">", e.gt), ("<=", e.le), ("<", e.lt))
                               if v is not None)
-        if self.kind in ("number", "integer", "flag", "text", "object"):
+        if self.kind == "enum":
+            text = "one of " + ", ".join(_values(self.record))
+        elif self.kind in ("number", "integer", "flag", "text", "object"):
             text = ("one of " + ", ".join(e.choices)) if e.choices else _A[self.kind] + (f" {bounds}" if bounds else "")
         elif self.kind in ("list", "array"):
             size = e.size
@@ -290,6 +298,21 @@ class _Spec:
         else:
             text = e.takes or "a valid value"
         return f"null or {text}" if self.optional else text
+
+
+def _values(members: Any) -> tuple[str, ...]:
+    """The values an enum's members are written as, in its order."""
+    return tuple(str(m.value) for m in members)
+
+
+def _member(members: Any, x: Any) -> Any:
+    """The member of the enum ``members`` that ``x`` (a member, or its value as a document or a file writes it) names;
+    None where it names none."""
+    if isinstance(x, members):
+        return x
+    if isinstance(x, str) and x in _values(members):
+        return members(x)
+    return None
 
 
 def _optional(hint: Any) -> tuple[bool, Any]:
@@ -332,8 +355,9 @@ def _spec(owner: type, f: Field[Any], hint: Any) -> _Spec:
             else base
     if e.inline and not is_record:
         raise TypeError(f"{owner.__name__}.{f.name}: only a record is inline")
-    if isinstance(inner, type) and issubclass(inner, Checked) and not is_record:  # its table or constructor reads it
-        return replace(base, record=inner)
+    if isinstance(inner, type) and issubclass(inner, Checked | enum.Enum) and not is_record:
+        # a Checked type: its table or constructor reads it; an enum: one of its values, held as its member
+        return replace(base, kind="enum" if issubclass(inner, enum.Enum) else base.kind, record=inner)
     if inner in _SCALARS or is_record:
         return replace(base, kind="inline" if e.inline else "record", record=inner) if is_record else \
             replace(base, kind=_SCALARS[inner])
@@ -521,6 +545,10 @@ def _read_value(spec: _Spec, x: Any, path: str, values: dict[str, Any]) -> Any: 
 
     if kind == "custom":
         return _custom(spec, x, path)
+    if kind == "enum":
+        if not isinstance(x, str) or _member(spec.record, x) is None:
+            raise wrong()
+        return spec.record(x)
     if kind == "via":
         made = _read_record(spec.record, x, path)
         try:
@@ -594,6 +622,23 @@ def _renamed(cls: Any, obj: dict[str, Any]) -> dict[str, Any]:
     return {cls.RENAMED.get(k, k): v for k, v in obj.items()}
 
 
+def _read_field(spec: _Spec, obj: dict[str, Any], path: str, values: dict[str, Any]) -> Any:
+    """The value of the field ``spec`` from the record's object ``obj`` at ``path`` (``values``: the fields read so
+    far)."""
+    holder, where = _holder(obj, spec, path)
+    if spec.kind == "inline":
+        return _read_inline(spec, holder, where)
+    if spec.entry.spread:  # a dict whose entries sit beside the record's fields, under their own keys
+        spread = {} if holder is MISSING else {k: v for k, v in holder.items() if k in spec.entry.spread}
+        return _read_value(spec, spread, where, values)
+    here = _join(where, spec.key)
+    if holder is MISSING or spec.key not in holder:
+        if spec.in_document or not spec.has_default:
+            raise _Wrong(here, f"is missing; expected {spec.want()}")
+        return spec.fallback()
+    return _read_value(spec, holder[spec.key], here, values)
+
+
 def _read_record(cls: Any, obj: Any, path: str) -> Any:
     """A record of ``cls`` from the document's object ``obj`` at ``path``."""
     if not isinstance(obj, dict):
@@ -607,19 +652,8 @@ def _read_record(cls: Any, obj: Any, path: str) -> Any:
                                                   + ", ".join(sorted(known)))
     values: dict[str, Any] = {}
     for spec in _specs(cls):
-        if not spec.entry.stored:
-            continue
-        holder, where = _holder(obj, spec, path)
-        if spec.kind == "inline":
-            values[spec.name] = _read_inline(spec, holder, where)
-            continue
-        here = _join(where, spec.key)
-        if holder is MISSING or spec.key not in holder:
-            if spec.in_document or not spec.has_default:
-                raise _Wrong(here, f"is missing; expected {spec.want()}")
-            values[spec.name] = spec.fallback()
-            continue
-        values[spec.name] = _read_value(spec, holder[spec.key], here, values)
+        if spec.entry.stored:
+            values[spec.name] = _read_field(spec, obj, path, values)
     try:
         made = cls(**values)
     except (ValueError, TypeError) as exc:
@@ -691,6 +725,11 @@ def _plain(spec: _Spec, value: Any) -> Any:  # noqa: C901 (one branch per kind)
         if e.write is None:
             return value
         return {k: e.write(v) for k, v in value.items()} if spec.container is dict else [e.write(v) for v in value]
+    if spec.kind == "enum":
+        member = _member(spec.record, value)
+        if member is None:
+            raise ValueError(f"{spec.name} must be one of {', '.join(_values(spec.record))}, got {value!r}")
+        return str(member.value)
     if spec.kind == "via":
         return spec.record.from_value(value).to_dict()
     if spec.kind in ("record", "inline"):
@@ -718,6 +757,8 @@ def _put(out: dict[str, Any], spec: _Spec, value: Any) -> None:
         out = out.setdefault(part, {})
     if spec.kind == "inline":
         out.update(value if value is not None else {s.key: None for s in _specs(spec.record) if s.entry.stored})
+    elif spec.entry.spread:
+        out.update(value or {})
     elif isinstance(out.get(spec.key), dict) and isinstance(value, dict):
         out[spec.key] = {**value, **out[spec.key]}
     else:
@@ -801,9 +842,12 @@ class Record:
         """
         out: list[str] = []
         for spec in _specs(cls):
-            if spec.kind == "inline":
+            keys: tuple[str, ...]
+            if spec.entry.spread:
+                keys = ()
+            elif spec.kind == "inline":
                 inner = () if spec.optional or spec.has_default else spec.record.required()
-                keys: tuple[str, ...] = ((spec.at[0],) if inner else ()) if spec.at else inner
+                keys = ((spec.at[0],) if inner else ()) if spec.at else inner
             else:
                 keys = ((spec.at or (spec.key,))[0],) if spec.in_document else ()
             out += [k for k in keys if k not in out]
@@ -1035,6 +1079,8 @@ def takes(spec: _Spec) -> str:
     e = spec.entry
     bounds = " and ".join(f"{op} {v:g}" for op, v in ((">=", e.ge), (">", e.gt), ("<=", e.le), ("<", e.lt))
                           if v is not None)
+    if spec.kind == "enum":
+        return "one of " + ", ".join(_values(spec.record))
     if spec.kind in _TABLE_A:
         if e.choices:
             return "one of " + ", ".join(e.choices)
@@ -1086,6 +1132,8 @@ def _fits(spec: _Spec, value: Any) -> bool:  # noqa: C901 (one branch per kind)
         return isinstance(value, bool | np.bool_)
     if kind == "text":
         return isinstance(value, str) and (not e.choices or value in e.choices)
+    if kind == "enum":
+        return isinstance(value, spec.record)
     if kind == "list":
         item = spec.item.removesuffix("|null")
         if isinstance(value, np.ndarray) and value.ndim == 1:
@@ -1106,6 +1154,23 @@ def _fits(spec: _Spec, value: Any) -> bool:  # noqa: C901 (one branch per kind)
     if isinstance(spec.record, type) and issubclass(spec.record, Checked):
         return isinstance(value, spec.record)
     return True  # a type the declaration does not know: its own constructor checks it
+
+
+def as_members(obj: Any) -> None:
+    """Hold each enum field of ``obj`` (a dataclass declared with :func:`entry`) that was given its value as a string
+    (in code, or a copy) as the enum's member; a string that names no member is left for the checks to refuse.
+
+    Parameters
+    ----------
+    obj : dataclass
+        The object, as made (frozen: set in place, as its ``__post_init__`` may).
+    """
+    for spec in _specs(type(obj)):
+        if spec.kind == "enum":
+            value = getattr(obj, spec.name)
+            member = _member(spec.record, value)
+            if member is not None and member is not value:
+                object.__setattr__(obj, spec.name, member)
 
 
 def check_entries(obj: Any) -> None:
@@ -1136,6 +1201,7 @@ class Checked:
     """
 
     def __post_init__(self) -> None:
+        as_members(self)
         check_entries(self)
         self.check()
 
@@ -1197,6 +1263,10 @@ def _from_file(spec: _Spec, value: Any, at: str, fail: Fail) -> Any:  # noqa: C9
         if isinstance(value, bool) or not isinstance(value, int):
             raise wrong()
         made = value
+    elif kind == "enum":
+        made = _member(spec.record, value) if isinstance(value, str) else None
+        if made is None:
+            raise wrong()
     elif kind == "list":
         if not isinstance(value, list) or not all(
                 (isinstance(v, int | float) and not isinstance(v, bool)) if spec.item == "number"
@@ -1286,6 +1356,8 @@ def table_values(obj: Any, keys: tuple[str, ...] | None = None) -> dict[str, Any
             continue
         if spec.entry.write is not None and value is not None:
             value = spec.entry.write(value)
+        if isinstance(value, enum.Enum):
+            value = value.value
         if value is not None:
             out[spec.key] = list(value) if isinstance(value, tuple) else value
     return out

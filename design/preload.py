@@ -96,6 +96,7 @@ from piezopreload.models.feed_drive import FeedDrive, PiezoPreload, stack_loop_u
 from piezopreload.models.ops import CASADI, NUMPY
 from piezopreload.models.thermal import (
     CONTACT_CALIBRATION,
+    HeatModel,
     catalogue_heat_W,
     contact_heat_W,
     rexroth_seal_torque_Nm,
@@ -198,7 +199,7 @@ class HeatSpec:
     """How the design counts the nut's friction heat (:meth:`BallScrew.friction_heat_W`'s keywords): what a
     ``stiffness:growth`` front minimises."""
 
-    model: str = "catalogue"
+    model: HeatModel = HeatModel.CATALOGUE
     lubricant_vg: int = 68
     seal_torque_Nm: float | None = None
     temperature_C: float = 40.0
@@ -530,7 +531,7 @@ def _case_heat(spec: DesignSpec, ops: Any, F_case: list[Any], k_p: Any, z: Any, 
     (:meth:`BallScrew.friction_heat_W`'s formulas on the design's variables)."""
     h = spec.heat
     omegas = [abs(c.speed_rpm) * math.pi / 30.0 for c in spec.duty]
-    if h.model == "catalogue":
+    if h.model == HeatModel.CATALOGUE:
         nut = [catalogue_heat_W(ops, k_p, spec.lead_mm, F, w) for F, w in zip(F_case, omegas)]
     else:
         nut = [contact_heat_W(ops, F, w, balls=z, contact_rad=beta, helix_rad=spec.helix_rad,

@@ -47,7 +47,7 @@ from piezopreload.design.tables import ThermalTable
 from piezopreload.design.thermal import ShiftBasis, mounting_of, schedule_requirements, shift_basis
 from piezopreload.models.ballscrew import BallScrew
 from piezopreload.models.feed_drive import FeedDrive
-from piezopreload.models.thermal import HEAT_MODELS
+from piezopreload.models.thermal import HEAT_MODELS, HeatModel, ThermalMounting
 
 __all__ = ["Assumption", "ASSUMPTIONS", "Effect", "Around", "MECHANICS", "THERMAL", "Setting", "flip_value",
            "sensitivity", "evaluate", "worst_case"]
@@ -240,9 +240,9 @@ def applies(assumption: Assumption, setting: Setting, drive: FeedDrive) -> bool:
         if t is None or (t.thermal_growth_max_um is None and t.positioning_error_max_um is None):
             return False
         if assumption.key == "thermal.pretension_K":
-            return mounting_of(t, drive) == "pretensioned"
+            return mounting_of(t, drive) is ThermalMounting.PRETENSIONED
         if assumption.key == "ballscrew.drag_coefficient":
-            return t.heat_model == "catalogue"
+            return t.heat_model is HeatModel.CATALOGUE
         if assumption.key == "thermal.seal_torque_Nm":
             return t.sealed
     return True

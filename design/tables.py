@@ -25,12 +25,14 @@ from piezopreload.design.preload import OBJECTIVES, PARETO_PAIRS, DesignSpec
 from piezopreload.design.system import SystemRun, track_schedule
 from piezopreload.models.actuator import Plant
 from piezopreload.models.controller import Controller
-from piezopreload.models.feed_drive import MOUNTINGS
+from piezopreload.models.feed_drive import Mounting
 from piezopreload.models.thermal import (
     CONTACT_CALIBRATION,
-    HEAT_MODELS,
-    THERMAL_MOUNTINGS,
+    FEEDBACKS,
     VG_GRADES,
+    Feedback,
+    HeatModel,
+    ThermalMounting,
     rexroth_seal_torque_Nm,
 )
 
@@ -78,7 +80,7 @@ class FeedDriveTable(Table):
                                             "end bearing", unit="N/um", gt=0)
     travel_mm: tuple[float, float] = key(_SPEC.feed_drive.travel_mm, "the nut centre's travel from bearing A (start, "
                                          "end), inside the screw length", unit="mm", gt=0, increasing=True)
-    mounting: str = key(_SPEC.feed_drive.mounting, "how the screw's ends are held", choices=MOUNTINGS)
+    mounting: Mounting = key(_SPEC.feed_drive.mounting, "how the screw's ends are held")
 
     def check(self) -> None:
         if not self.travel_mm[0] < self.travel_mm[1] < self.screw_length_mm:
@@ -214,19 +216,15 @@ class PlantTable(Table):
                               ff_extra_V=ff_extra_V, design=design, scatter=scatter, progress=progress)
 
 
-#: how the axis measures the table's position: the motor's encoder, or a linear scale on the table
-FEEDBACKS = ("semi-closed", "linear-scale")
-
-
 @dataclass(frozen=True)
 class ThermalTable(Table):
     """[thermal]: the heat the preload makes over a shift, the axis' temperature and the screw's growth, and the
     limits on growth and on the positioning error (design/thermal.py; the model and its sources: docs/thermal.md).
     Every key has a default; the limits are requirements only where set."""
 
-    heat_model: str = key("catalogue", "the nut's heat the verdicts use: catalogue (drag torque times speed) or "
-                          "contact (Jungnickel's rolling-contact loss); the other is shown beside it as a bound",
-                          choices=HEAT_MODELS)
+    heat_model: HeatModel = key(HeatModel.CATALOGUE, "the nut's heat the verdicts use: catalogue (drag torque times "
+                                "speed) or contact (Jungnickel's rolling-contact loss); the other is shown beside it "
+                                "as a bound")
     lubricant_vg: int = key(68, "the lubricant's ISO VG grade (10, 22, 32, 46, 68, 100, 150 or 220): the contact "
                             "model's and the support bearings' viscosity")
     sealed: bool = key(True, "the nut has contact (lip) seals: their torque seal_torque_Nm adds T_s omega to the nut's "
@@ -273,13 +271,13 @@ class ThermalTable(Table):
                                                "bore_mm)", unit="l/min", gt=0)
     coolant_C: float | None = key(None, "the coolant's temperature (not set: the ambient)", unit="degC", ge=-20,
                                   le=60)
-    mounting: str | None = key(None, "how the screw's ends hold its growth (not set: [feed_drive] mounting's, "
-                               "fixed-supported being fixed-free); pretensioned needs pretension_K",
-                               choices=THERMAL_MOUNTINGS)
+    mounting: ThermalMounting | None = key(None, "how the screw's ends hold its growth (not set: [feed_drive] "
+                                           "mounting's, fixed-supported being fixed-free); pretensioned needs "
+                                           "pretension_K")
     pretension_K: float = key(0.0, "the temperature rise the pretension takes up (mounting = pretensioned)",
                               unit="K", ge=0)
-    feedback: str = key("semi-closed", "the position loop's feedback: semi-closed (the motor's encoder: the "
-                        "growth is a positioning error) or linear-scale (the growth is not)", choices=FEEDBACKS)
+    feedback: Feedback = key(Feedback.SEMI_CLOSED, "the position loop's feedback: semi-closed (the motor's encoder: "
+                             "the growth is a positioning error) or linear-scale (the growth is not)")
     stroke_mm: tuple[float, float] | None = key(None, "the nut's stroke in a cycle, from bearing A (not set: "
                                                 "[feed_drive] travel_mm)", unit="mm", gt=0, increasing=True)
     shift_h: float = key(8.0, "the shift: the cycle repeated from a cold axis", unit="h", gt=0, le=24)
@@ -294,10 +292,12 @@ class ThermalTable(Table):
         if self.lubricant_vg not in VG_GRADES:
             raise Invalid("lubricant_vg", f"must be an ISO VG grade, one of {', '.join(map(str, VG_GRADES))}; got "
                                           f"{self.lubricant_vg!r}")
-        if (self.mounting == "pretensioned") != (self.pretension_K > 0):
-            name = "pretension_K" if self.mounting == "pretensioned" else "mounting"
+        pretensioned = self.mounting is ThermalMounting.PRETENSIONED
+        if pretensioned != (self.pretension_K > 0):
+            name = "pretension_K" if pretensioned else "mounting"
             raise Invalid(name, "a pretension needs mounting = \"pretensioned\" and pretension_K > 0 together; got "
-                                f"mounting = {self.mounting!r}, pretension_K = {self.pretension_K:g}")
+                                f"mounting = {None if self.mounting is None else str(self.mounting)!r}, "
+                                f"pretension_K = {self.pretension_K:g}")
         if not self.sealed and self.seal_torque_Nm is not None and self.seal_torque_Nm > 0:
             raise Invalid("seal_torque_Nm", f"= {self.seal_torque_Nm:g} N m needs seals: sealed = false is an open "
                                             "nut (no seal torque); set sealed = true or leave seal_torque_Nm unset")
@@ -318,10 +318,11 @@ class ThermalTable(Table):
     def against(self, drive: Any, fail: Callable[[str, str], Exception]) -> None:
         """The rules between this table and the axis (:class:`~piezopreload.models.feed_drive.FeedDrive`):
         the mounting agrees with the axis' ends, the stroke lies inside the screw."""
-        if self.mounting is not None and (self.mounting == "fixed-free") != (drive.mounting == "fixed-supported"):
-            raise fail("thermal.mounting", f"= {self.mounting!r} does not hold the ends [feed_drive] mounting = "
-                                           f"{drive.mounting!r} gives (fixed-supported floats: fixed-free; fixed-fixed "
-                                           "holds both: fixed-fixed or pretensioned)")
+        if self.mounting is not None and (self.mounting is ThermalMounting.FIXED_FREE) != (
+                drive.mounting is Mounting.FIXED_SUPPORTED):
+            raise fail("thermal.mounting", f"= {str(self.mounting)!r} does not hold the ends [feed_drive] mounting = "
+                                           f"{str(drive.mounting)!r} gives (fixed-supported floats: fixed-free; "
+                                           "fixed-fixed holds both: fixed-fixed or pretensioned)")
         if self.stroke_mm is not None and not self.stroke_mm[1] < drive.screw_length_mm:
             raise fail("thermal.stroke_mm", f"must lie inside the screw (end < screw_length_mm = "
                                             f"{drive.screw_length_mm:g} mm), got {list(self.stroke_mm)!r}")

@@ -39,15 +39,16 @@ from piezopreload.core.errors import InputError
 from piezopreload.design.system import SystemRun
 from piezopreload.design.tables import ThermalTable
 from piezopreload.models.ballscrew import BallScrew
-from piezopreload.models.feed_drive import FeedDrive
+from piezopreload.models.feed_drive import FeedDrive, Mounting
 from piezopreload.models.thermal import (
     EXPANSION_PER_K,
-    HEAT_MODELS,
     STEEL_HEAT_CAPACITY_J_PER_M3K,
     AxisModel,
+    Feedback,
     FineMarch,
     Network,
     ScrewBody,
+    ThermalMounting,
     bearing_torque_Nm,
     end_force_N,
     growth_m,
@@ -112,11 +113,11 @@ class CycleLoad:
                    speed_rpm, axial_load_N)
 
 
-def mounting_of(table: ThermalTable, drive: FeedDrive) -> str:
+def mounting_of(table: ThermalTable, drive: FeedDrive) -> ThermalMounting:
     """The mounting the growth is computed for: the table's, or the axis' (fixed-supported floats: fixed-free)."""
     if table.mounting is not None:
         return table.mounting
-    return "fixed-free" if drive.mounting == "fixed-supported" else "fixed-fixed"
+    return ThermalMounting.FIXED_FREE if drive.mounting is Mounting.FIXED_SUPPORTED else ThermalMounting.FIXED_FIXED
 
 
 def _zones(screw: BallScrew, table: ThermalTable) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -264,7 +265,7 @@ def shift_hours(shift_h: float) -> Array:
 class _Mechanics:
     """What turns the screw's rises into growth at the table's positions: the mounting and its numbers."""
 
-    mounting: str
+    mounting: ThermalMounting
     EA_N: float
     bearing_N_per_m: float
     bearing_preload_N: float
@@ -287,7 +288,7 @@ class _Mechanics:
     @property
     def lift_off_N(self) -> float:
         """The end pairs' lift-off (0: ends not held, or no pair preload)."""
-        return 0.0 if self.mounting == "fixed-free" else pair_lift_off_N(self.bearing_preload_N)
+        return 0.0 if self.mounting is ThermalMounting.FIXED_FREE else pair_lift_off_N(self.bearing_preload_N)
 
     def growth_um(self, rise_screw: Array) -> Array:
         """The growth (um) at the table's positions for each row of screw rises."""
@@ -409,9 +410,9 @@ def _cause(record: ThermalRecord) -> str:
     """What drives the schedule's growth, in words: the heat by source and the mounting's share."""
     s = record.schedule
     held = ""
-    if record.mounting == "pretensioned":
+    if record.mounting is ThermalMounting.PRETENSIONED:
         held = f"; the {record.pretension_K:g} K pretension relieved, the ends held by their bearing pairs"
-    elif record.mounting == "fixed-fixed":
+    elif record.mounting is ThermalMounting.FIXED_FIXED:
         held = "; the ends held by their bearing pairs"
     return (f"the schedule's heat: {record.heat_words(s)}; the screw up to {s.temperature_rise_max_K:.1f} K "
             f"{record.place(s.rise_max_at_mm)}{held}")
@@ -480,7 +481,7 @@ def schedule_requirements(run: SystemRun, drive: FeedDrive, table: ThermalTable,
     mech = _mechanics(screw, drive, table, model, basis.positions_mm)
     sources = cycle_sources(screw, drive, table, basis.cycle, model=model, coverage=basis.coverage)
     growth = mech.growth_um(sources.shift(_grid(shift_hours(table.shift_h)))[:, :model.volumes])  # as _case has it
-    budget = _budget_um(basis.elastic_um, basis.tracking_um, growth, table.feedback == "semi-closed")
+    budget = _budget_um(basis.elastic_um, basis.tracking_um, growth, table.feedback is Feedback.SEMI_CLOSED)
     return _limits(table, float(np.max(np.abs(growth))), float(np.max(budget)))
 
 
@@ -496,14 +497,14 @@ def thermal_budget(run: SystemRun, drive: FeedDrive, table: ThermalTable, *,
     elastic_planned, tracking = basis.elastic_um, basis.tracking_um
     model = axis_model(screw, drive, table)
     mech = _mechanics(screw, drive, table, model, positions)
-    other_model = next(m for m in HEAT_MODELS if m != table.heat_model)
+    other_model = table.heat_model.other
     design = run.design_schedule
     prof = design.profile
     constant = CycleLoad.on_profile(prof.time_s, design.constant_preload_N, prof.speed_rpm, prof.axial_load_N)
     travel = drive.travel_mm
     mounting = mech.mounting
     times = shift_hours(table.shift_h)
-    semi = table.feedback == "semi-closed"
+    semi = table.feedback is Feedback.SEMI_CLOSED
     sources: dict[str, CycleSources] = {}
     cases, over = {}, {}
     schedule, best = PreloadCase.SCHEDULE, PreloadCase.CONSTANT

@@ -75,6 +75,7 @@ from piezopreload.models.ops import NUMPY
 from piezopreload.models.thermal import (
     CONTACT_CALIBRATION,
     HEAT_MODELS,
+    HeatModel,
     catalogue_heat_W,
     contact_heat_W,
     rexroth_seal_torque_Nm,
@@ -803,7 +804,7 @@ class BallScrew(Checked):
             raise InputError(f"seal_torque_Nm must be a finite number >= 0, got {seal_torque_Nm!r}.")
         omega = (ops.fabs(speed_rpm) if ops.symbolic else np.abs(np.asarray(speed_rpm, float))) * (math.pi / 30.0)
         preload = preload_N if ops.symbolic else np.asarray(preload_N, float)
-        if model == "catalogue":
+        if model == HeatModel.CATALOGUE:
             nut = catalogue_heat_W(ops, self.drag_K, self.lead_mm, preload, omega)
         else:
             nut = contact_heat_W(ops, preload, omega, balls=self.balls_per_nut, contact_rad=self.contact_rad,

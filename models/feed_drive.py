@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
@@ -36,9 +37,19 @@ from piezopreload.core._typing import Array
 from piezopreload.models.actuator import P888_91, StackData
 from piezopreload.models.ballscrew import BallScrew
 
-__all__ = ["FeedDrive", "PiezoPreload", "MOUNTINGS", "stack_loop_um"]
+__all__ = ["FeedDrive", "PiezoPreload", "Mounting", "MOUNTINGS", "stack_loop_um"]
 
-MOUNTINGS = ("fixed-fixed", "fixed-supported")
+
+class Mounting(StrEnum):
+    """How a feed drive's screw ends are held axially: both fixed, or one fixed and the other floating (its value is
+    what a study file and an artifact write)."""
+
+    FIXED_FIXED = "fixed-fixed"
+    FIXED_SUPPORTED = "fixed-supported"
+
+
+#: the mountings, in their order
+MOUNTINGS = tuple(Mounting)
 
 
 @dataclass(frozen=True)
@@ -52,7 +63,7 @@ class FeedDrive:
     screw_length_mm: float
     bearing_stiffness_N_per_um: float
     travel_mm: tuple[float, float]
-    mounting: str = "fixed-fixed"
+    mounting: Mounting = Mounting.FIXED_FIXED
     E_MPa: float = 206e3
 
     def __post_init__(self) -> None:
@@ -62,6 +73,7 @@ class FeedDrive:
                 raise ValueError(f"FeedDrive.{name} must be a finite number > 0, got {value!r}.")
         if self.mounting not in MOUNTINGS:
             raise ValueError(f"FeedDrive.mounting must be one of {', '.join(MOUNTINGS)}, got {self.mounting!r}.")
+        object.__setattr__(self, "mounting", Mounting(self.mounting))  # given as its string: held as the member
         lo, hi = self.travel_mm
         if not 0 < lo < hi < self.screw_length_mm:
             raise ValueError(f"FeedDrive.travel_mm must satisfy 0 < start < end < screw_length_mm "
@@ -76,7 +88,7 @@ class FeedDrive:
         EA = self.E_MPa * math.pi * root_diameter_mm ** 2 / 4.0 * 1e-3  # N/um * mm
         kb = self.bearing_stiffness_N_per_um
         left = 1.0 / (1.0 / kb + x / EA)
-        if self.mounting == "fixed-supported":
+        if self.mounting is Mounting.FIXED_SUPPORTED:
             return left
         right = 1.0 / (1.0 / kb + (self.screw_length_mm - x) / EA)
         return left + right
@@ -96,7 +108,7 @@ class FeedDrive:
 
     def weakest_position_mm(self) -> float:
         """Where in the travel the screw side is softest (the end farthest from both bearings)."""
-        if self.mounting == "fixed-supported":
+        if self.mounting is Mounting.FIXED_SUPPORTED:
             return float(self.travel_mm[1])
         lo, hi = self.travel_mm
         mid = 0.5 * self.screw_length_mm

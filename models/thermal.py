@@ -76,6 +76,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
@@ -88,7 +89,8 @@ from piezopreload.models.ops import NUMPY
 
 __all__ = [
     "EXPANSION_PER_K", "STEEL_CONDUCTIVITY_W_PER_MK", "STEEL_HEAT_CAPACITY_J_PER_M3K", "VG_GRADES", "OIL_DENSITY",
-    "HEAT_MODELS", "CONTACT_CALIBRATION", "MEASURING_SPEED_RPM", "MEASURING_TEMPERATURE_C", "THERMAL_MOUNTINGS",
+    "HeatModel", "ThermalMounting", "Feedback", "FEEDBACKS", "HEAT_MODELS",
+    "CONTACT_CALIBRATION", "MEASURING_SPEED_RPM", "MEASURING_TEMPERATURE_C", "THERMAL_MOUNTINGS",
     "viscosity_m2_s", "pressure_viscosity_per_Pa", "REXROTH_SEAL_TORQUE_NM", "rexroth_seal_torque_Nm", "seal_heat_W",
     "catalogue_heat_W", "contact_heat_W", "bearing_torque_Nm", "shaft_film_W_per_m2K", "pipe_film_W_per_m2K",
     "ScrewBody", "AxisModel", "Network", "FineMarch", "growth_m", "held_force_N", "end_force_N", "pair_shift_m",
@@ -117,8 +119,41 @@ CONTACT_CALIBRATION = 6.0
 MEASURING_SPEED_RPM, MEASURING_TEMPERATURE_C = 100.0, 20.0
 #: Jungnickel's exponents for a double nut with two-point contact: speed parameter k2, load parameter e
 _K2, _E_LOAD = 0.512, 0.516
-HEAT_MODELS = ("catalogue", "contact")
-THERMAL_MOUNTINGS = ("fixed-free", "fixed-fixed", "pretensioned")
+
+
+class HeatModel(StrEnum):
+    """The nut's friction heat: the catalogue drag torque times the speed, or Jungnickel's rolling-contact loss (its
+    value is what a study file and an artifact write)."""
+
+    CATALOGUE = "catalogue"
+    CONTACT = "contact"
+
+    @property
+    def other(self) -> HeatModel:
+        """The other model (the budget shows it beside the study's as a bound)."""
+        return HeatModel.CONTACT if self is HeatModel.CATALOGUE else HeatModel.CATALOGUE
+
+
+class ThermalMounting(StrEnum):
+    """How the screw's ends hold its growth: one end free, both held, or both held with a pretension."""
+
+    FIXED_FREE = "fixed-free"
+    FIXED_FIXED = "fixed-fixed"
+    PRETENSIONED = "pretensioned"
+
+
+class Feedback(StrEnum):
+    """Where the position loop measures: the motor's encoder (semi-closed: the growth is a positioning error) or a
+    linear scale on the table (the growth is not)."""
+
+    SEMI_CLOSED = "semi-closed"
+    LINEAR_SCALE = "linear-scale"
+
+
+#: the heat models, the thermal mountings and the feedbacks, each in its order
+HEAT_MODELS = tuple(HeatModel)
+THERMAL_MOUNTINGS = tuple(ThermalMounting)
+FEEDBACKS = tuple(Feedback)
 
 
 # ---- the lubricant -------------------------------------------------------------------------------------
@@ -555,10 +590,10 @@ def end_force_N(rise_K: ArrayLike, dx_m: float, mounting: str, *, EA_N: float, b
     right rises with F."""
     _mounted(mounting)
     rise = np.asarray(rise_K, float)
-    if mounting == "fixed-free":
+    if mounting == ThermalMounting.FIXED_FREE:
         return np.zeros(rise.shape[:-1])
     length = rise.shape[-1] * dx_m
-    f_t = expansion_per_K * pretension_K * EA_N if mounting == "pretensioned" else 0.0
+    f_t = expansion_per_K * pretension_K * EA_N if mounting == ThermalMounting.PRETENSIONED else 0.0
     grown = expansion_per_K * dx_m * np.sum(rise, axis=-1)
     start = float(pair_shift_m(-f_t, bearing_preload_N, bearing_N_per_m))
     held = grown * EA_N / length  # the force that keeps the length
@@ -577,7 +612,7 @@ def held_force_N(rise_K: ArrayLike, dx_m: float, mounting: str, *, EA_N: float, 
                  expansion_per_K: float = EXPANSION_PER_K) -> Array:
     """The force (N) the held ends take up from the growth: the change of :func:`end_force_N` from assembly (the
     compression added, and the pretension's loss); 0 fixed-free."""
-    f_t = expansion_per_K * pretension_K * EA_N if mounting == "pretensioned" else 0.0
+    f_t = expansion_per_K * pretension_K * EA_N if mounting == ThermalMounting.PRETENSIONED else 0.0
     return end_force_N(rise_K, dx_m, mounting, EA_N=EA_N, bearing_N_per_m=bearing_N_per_m,
                        bearing_preload_N=bearing_preload_N, pretension_K=pretension_K,
                        expansion_per_K=expansion_per_K) + f_t
@@ -596,9 +631,9 @@ def growth_m(rise_K: ArrayLike, dx_m: float, mounting: str, *, EA_N: float, bear
     rise = np.asarray(rise_K, float)
     g = expansion_per_K * dx_m * np.concatenate([np.zeros(rise.shape[:-1] + (1,)), np.cumsum(rise, axis=-1)], axis=-1)
     _mounted(mounting)
-    if mounting == "fixed-free":
+    if mounting == ThermalMounting.FIXED_FREE:
         return g
-    f_t = expansion_per_K * pretension_K * EA_N if mounting == "pretensioned" else 0.0
+    f_t = expansion_per_K * pretension_K * EA_N if mounting == ThermalMounting.PRETENSIONED else 0.0
     force = end_force_N(rise, dx_m, mounting, EA_N=EA_N, bearing_N_per_m=bearing_N_per_m,
                         bearing_preload_N=bearing_preload_N, pretension_K=pretension_K,
                         expansion_per_K=expansion_per_K)

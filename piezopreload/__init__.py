@@ -26,7 +26,7 @@ __all__ = [
     "StudyResult", "SystemRun", "LearningResult", "ValidationResult", "Metrics", "Failure", "Requirement",
     "ComparisonRow", "ActiveBound", "MinimumTimeBound", "TrackingFloor", "TuningSolve", "DesignRecord", "DesignPoint",
     "DesignedPlant", "PreloadSchedule", "SystemRecord", "TrackingNumbers", "FitError", "LearnedSignal", "SweepPoint",
-    "RunSummary", "StudyRef", "StudyReproduction", "ReproductionSummary", "PublishedRow", "SimulationInfo",
+    "RunSummary", "StudyRef", "StudyReproduction", "PublishedRow", "SimulationInfo",
     "FeedforwardInfo", "ScheduleSummary", "SystemSummary", "SampledCheck", "DataSource", "LearnedWritten",
     "CodesignResult", "CodesignWeights",
 ]
@@ -41,7 +41,7 @@ _EXPORTS: dict[str, str] = {name: module for module, names in {
     "piezopreload.codesign": ("CodesignResult", "CodesignWeights"),
     "piezopreload.outcome": ("StudyResult", "RunSummary"),
     "piezopreload.artifacts.manifest": ("StudyRef",),
-    "piezopreload.tuning.compare": ("ReproductionSummary", "PublishedRow"),
+    "piezopreload.tuning.compare": ("PublishedRow",),
     "piezopreload.core.errors": ("PiezopreloadError", "InputError", "ArtifactError", "InfeasibleError",
                                  "InternalError"),
     "piezopreload.core.tables": ("MeasuredRecord", "read_record"),
@@ -113,7 +113,7 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     from piezopreload.sweep import SweepResult
     from piezopreload.tuning.autotune import autotune
     from piezopreload.tuning.autotune_result import AutotuneResult, SampledCheck
-    from piezopreload.tuning.compare import PublishedRow, ReproductionSummary
+    from piezopreload.tuning.compare import PublishedRow
     from piezopreload.tuning.feedforward import FeedforwardInfo, IdentifiedFeedforward
     from piezopreload.tuning.identification import Identification, Window, identify
     from piezopreload.tuning.identify import NotFittedError, PIIdentifier

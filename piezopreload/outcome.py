@@ -17,6 +17,7 @@ from piezopreload.artifacts.manifest import StudyRef, StudyRunManifest
 from piezopreload.artifacts.requirements import EXIT_REQUIREMENT_MISSED, Requirement, least_margin, missed
 from piezopreload.artifacts.sensitivity import SensitivityRecord
 from piezopreload.artifacts.summaries import RigSummary, SystemSummary, ValidateSummary
+from piezopreload.artifacts.thermal import ThermalSummary
 from piezopreload.core.quantities import number
 from piezopreload.core.stages import StageOutcome
 
@@ -34,7 +35,8 @@ class Headline:
     constraint where that row binds the schedule: the requirement's ``basis`` says) beside the physical one by the nut
     law over the Monte Carlo plants: None where the run has no margin basis; ``thermal``
     where it has a ``[thermal]`` table: ``heat_mean_W``, ``temperature_rise_max_K``, ``growth_max_um``,
-    ``positioning_error_max_um``, ... each ``{"schedule": ..., "constant": ...}``), the gain set's status and
+    ``positioning_error_max_um``, ... each ``{"schedule": ..., "constant": ...}`` in the document: a
+    :class:`~piezopreload.artifacts.thermal.ThermalSummary`), the gain set's status and
     the rig run's tracking; ``sensitivity`` the verdicts under the modelling assumptions' ranges (in the document
     its rows, and ``verdict_robust`` beside them)."""
 
@@ -65,7 +67,7 @@ class Headline:
     friction_energy_per_cycle: float | None = None
     friction_saved_fraction: float | None = None
     preload_margin_N: float | None = None
-    thermal: dict[str, Any] | None = None  # the shift's figures, each for the schedule and the constant preload
+    thermal: ThermalSummary | None = None  # the shift's figures, each for the schedule and the constant preload
     sensitivity: SensitivityRecord | None = None  # the verdicts under the modelling assumptions' ranges
     system: str = "not run"
     gain_set_status: str | None = None
@@ -119,6 +121,7 @@ class Headline:
 
     def to_dict(self) -> dict[str, Any]:
         out = {f.name: getattr(self, f.name) for f in fields(self)}
+        out["thermal"] = None if self.thermal is None else self.thermal.to_dict()
         out["sensitivity"] = None if self.sensitivity is None else [r.to_dict() for r in self.sensitivity.rows]
         out["verdict_robust"] = self.verdict_robust
         return out

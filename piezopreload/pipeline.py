@@ -109,7 +109,7 @@ from piezopreload.outcome import Headline, RunSummary, StageOutcome, StudyResult
 from piezopreload.progress import Progress, ProgressLike, as_progress
 from piezopreload.reports.study_report import STAGES_READ, Published, ReportStudy, render_report
 from piezopreload.rig.export import write_exports
-from piezopreload.spec import StudySpec
+from piezopreload.spec import StudySpec, design_spec_of_tables
 from piezopreload.steps import Solved
 from piezopreload.tuning.compare import creep_effect, reproduction, responses
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
@@ -244,7 +244,7 @@ def _stage_tune(ctx: _Ctx) -> Produced:
     return {"tuning": tuned.save(ctx.out / "tuning.json")}, TuneSummary(
         g.Kc, g.Ti_s, g.Td_s, g.Tf_s, g.b, tuned.solve.form, tuned.solve.ms,
         tuple(b.sentence() for b in tuned.active_bounds), bound.settling_s, bound.tuned_over_bound_ratio,
-        tuned.solve.search, None if sched is None else sched["choice"])
+        tuned.solve.search, None if sched is None else sched.choice)
 
 
 def _stage_validate(ctx: _Ctx) -> Produced:
@@ -270,7 +270,8 @@ def _stage_validate(ctx: _Ctx) -> Produced:
 def _stage_compare(ctx: _Ctx) -> Produced:
     study, ff, plant = ctx.study, ctx.feedforward(), ctx.solved().plant()
     gain_set = GainSet.load(ctx.output("validate", "gains"))
-    runs = responses(plant, study.references, {"study": study.controller, "tuned": gain_set.gains}, ff.model,
+    references, gains = study.reference.references(), {"study": study.controller, "tuned": gain_set.gains}
+    runs = responses(plant, references, gains, ff.model,
                      seed=study.seed, band_N=study.band_N, signal=study.signal,
                      after_change_s=study.validation.tracking_after_change_s,
                      bar=ctx.progress.bar("closed-loop runs"))
@@ -285,7 +286,7 @@ def _stage_compare(ctx: _Ctx) -> Produced:
                                 **{k: r.numbers.get(k) for k in RESPONSE_FIGURES}))
     table = [] if study.published is None else reproduction(runs, study.published.step())
     creep = None if ff.without_creep is None else creep_effect(  # FF + PID with and without creep compensation
-        plant, study.references, {"study": study.controller, "tuned": gain_set.gains}, ff.model, ff.without_creep,
+        plant, references, gains, ff.model, ff.without_creep,
         seed=study.seed, band_N=study.band_N, signal=study.signal,
         after_change_s=study.validation.tracking_after_change_s)
     record = ResponsesRecord(
@@ -392,7 +393,7 @@ def _rig_summary(record: RigRunRecord) -> RigSummary:
     if out is None:
         raise StageFailed("rig", f"the run's sidecar says '{record.status}' and holds no outcome")
     head = RigSummary(record.status, out.cycles, out.controller_step, out.timing.missed_deadlines, out.timing.stalls,
-                      out.timing.held_max_s, out.timing.stall_limit_s, record.safety.get("force_max_N"))
+                      out.timing.held_max_s, out.timing.stall_limit_s, record.safety.force_max_N)
     if out.trip is not None:
         return replace(head, trip=RigTrip(out.trip.cause, out.trip.detail, out.trip.t_s, out.trip.voltage_V))
     m = out.metrics
@@ -405,7 +406,7 @@ def _rig_summary(record: RigRunRecord) -> RigSummary:
 
 def _stage_report(ctx: _Ctx) -> Produced:
     study = ctx.study
-    b, d = study.ballscrew, study.design_spec
+    b, d = study.ballscrew, design_spec_of_tables(study)
     pub = study.published
     plant = ctx.solved().plant()  # the design stage's: not solved again
     facts = ReportStudy(study.name, study.title, study.path, study.sha256, ctx.source or study.path, study.description,
@@ -418,7 +419,7 @@ def _stage_report(ctx: _Ctx) -> Produced:
 
 
 def _design_applies(study: StudySpec) -> str | None:
-    return None if study.design_spec is not None else "the study has no [ballscrew] table"
+    return None if study.ballscrew is not None else "the study has no [ballscrew] table"
 
 
 def _plant_applies(study: StudySpec) -> str | None:

@@ -19,10 +19,7 @@ from piezopreload.core.errors import InputError
 from piezopreload.models.closedloop import ClosedLoopRun
 from piezopreload.models.controller import PIDGains
 from piezopreload.models.metrics import StepMetrics, run_numbers
-from piezopreload.tuning.compare import (
-    PublishedRow,
-    ReproductionSummary,
-)
+from piezopreload.tuning.compare import PublishedRow
 from piezopreload.tuning.feedforward import FeedforwardInfo
 
 if TYPE_CHECKING:
@@ -184,8 +181,9 @@ class StudyRun(ClosedLoopRun):
 class StudyReproduction:
     """A study's published step numbers beside its simulation's, with the PID alone and with the feedforward
     (:meth:`Study.reproduce <piezopreload.study.Study.reproduce>`): the study, its gains (and how its
-    ``[controller]`` was read), the step, the band, the signal judged, and the comparison
-    (:class:`~piezopreload.tuning.compare.ReproductionSummary`: one row per controller and metric).
+    ``[controller]`` was read), the step, the band, the signal judged, one
+    :class:`~piezopreload.tuning.compare.PublishedRow` per controller and
+    metric, the overshoot per controller, the feedforward's fit and the noise realisations behind each number.
 
     Parameters
     ----------
@@ -203,8 +201,14 @@ class StudyReproduction:
         Where the published numbers come from.
     step_levels_N : tuple of float
         The step's levels (N).
-    comparison : ReproductionSummary
-        The published numbers beside the simulated ones.
+    rows : tuple of PublishedRow
+        Each published number beside the simulated one, one row per controller and metric.
+    overshoot_N : dict of str to float
+        The simulated overshoot per controller (N).
+    feedforward_fit : dict of str to float
+        The identified P-I model's fit error, in % of the force span (``rms_pct``, ``max_pct``).
+    repeats : int
+        Over how many noise realisations each simulated number is the median.
     seconds : float
         The time the simulations took (s).
     """
@@ -216,28 +220,16 @@ class StudyReproduction:
     signal: str
     published: str
     step_levels_N: tuple[float, ...]
-    comparison: ReproductionSummary
+    rows: tuple[PublishedRow, ...]
+    overshoot_N: dict[str, float]
+    feedforward_fit: dict[str, float]
+    repeats: int
     seconds: float
-
-    @property
-    def rows(self) -> tuple[PublishedRow, ...]:
-        """Each published figure against the reproduced one."""
-        return self.comparison.rows
-
-    @property
-    def repeats(self) -> int:
-        """Over how many noise realisations each simulated number is the median."""
-        return self.comparison.repeats
-
-    @property
-    def feedforward_fit(self) -> dict[str, float]:
-        """The identified P-I model's fit error, in % of the force span (``rms_pct``, ``max_pct``)."""
-        return self.comparison.feedforward_fit
 
     @property
     def all_within_25pct(self) -> bool:
         """Whether every reproduced figure is within 25 % of the published one."""
-        return self.comparison.all_within_25pct
+        return all(r.within_25pct for r in self.rows)
 
     def row(self, controller: str, metric: str) -> PublishedRow:
         """The row of ``controller`` (``pid``, ``ff+pid``) and ``metric`` (``rise_s``, ``peak_s``, ``settling_s``).
@@ -254,8 +246,17 @@ class StudyReproduction:
         PublishedRow
             The published and the simulated number (s; None: never reached), their ratio, whether it lies within
             25 % of the published one, and its range over the noise realisations.
+
+        Raises
+        ------
+        KeyError
+            Where no row has that controller and metric; the message lists the rows.
         """
-        return self.comparison.row(controller, metric)
+        for r in self.rows:
+            if (r.controller, r.metric) == (controller, metric):
+                return r
+        raise KeyError(f"no row for {controller!r}, {metric!r}: the rows are "
+                       f"{', '.join(f'{r.controller}/{r.metric}' for r in self.rows)}")
 
     def to_dict(self) -> dict[str, Any]:
         """What ``reproduce --json`` prints.
@@ -263,14 +264,17 @@ class StudyReproduction:
         Returns
         -------
         dict
-            ``study``, ``gains`` (and how they were read), ``band_N``, ``signal``, ``published``, ``step``, the
-            comparison's rows and fit, and ``seconds``.
+            ``study``, ``gains`` (and how they were read), ``band_N``, ``signal``, ``published``, ``step``,
+            ``feedforward_fit`` (% of the span), ``rows``, ``overshoot_N`` (N, per controller),
+            ``all_within_25pct``, ``repeats`` and ``seconds``.
         """
         return {"study": self.study.to_dict(),
                 "gains": {**GainsTable.from_value(self.gains).to_dict(), "read_as": self.read_as},
                 "band_N": self.band_N, "signal": self.signal, "published": self.published,
-                "step": " -> ".join(f"{x:g}" for x in self.step_levels_N) + " N", **self.comparison.to_dict(),
-                "seconds": self.seconds}
+                "step": " -> ".join(f"{x:g}" for x in self.step_levels_N) + " N",
+                "feedforward_fit": dict(self.feedforward_fit), "rows": [r.to_dict() for r in self.rows],
+                "overshoot_N": dict(self.overshoot_N), "all_within_25pct": self.all_within_25pct,
+                "repeats": self.repeats, "seconds": self.seconds}
 
     def __repr__(self) -> str:
         within = sum(r.within_25pct for r in self.rows)

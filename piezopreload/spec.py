@@ -143,9 +143,6 @@ class StudySpec:
     plant_table: PlantTable | None
     learning: LearningTable | None
     published: PublishedTable | None
-    # what the tables make, built and checked on load
-    references: dict[str, Reference] = field(repr=False)
-    design_spec: DesignSpec | None = field(repr=False)
     where: _Source = field(repr=False)
     source_text: bytes = field(repr=False)  # the file as read, or as :meth:`replace` wrote it
     given: dict[str, Any] = field(repr=False)  # the tables and keys the file gives, as it gives them
@@ -182,6 +179,18 @@ class StudySpec:
         data, lines, raw = read_toml(path, "study file")
         shown = str(path)
         return _build(data, _Source(shown, lines, Path(shown).parent), shown, raw, say_of(progress) or _stderr, cls)
+
+    @property
+    def references(self) -> dict[str, Reference]:
+        """The step and the staircase its ``[reference]`` tables make (:meth:`ReferenceTables.references
+        <piezopreload.tables.ReferenceTables.references>`), made each time: nothing is kept beside the tables."""
+        return self.reference.references()
+
+    @property
+    def design_spec(self) -> DesignSpec | None:
+        """The design its ``[ballscrew]``, ``[design]``, ``[feed_drive]``, ``[duty]`` and ``[thermal]`` tables make
+        (None: no ``[ballscrew]``), made each time from the tables (checked when the study was read)."""
+        return design_spec_of_tables(self)
 
     def __repr__(self) -> str:
         plant = "its design" if self.plant_from_design else "its [rig]"
@@ -340,7 +349,8 @@ class StudySpec:
             True where a design solved for one is the other's.
         """
         objective = (other.design_table or DesignTable()).objective == (self.design_table or DesignTable()).objective
-        return self.design_spec is not None and other.design_spec == self.design_spec and objective
+        mine = design_spec_of_tables(self)
+        return mine is not None and design_spec_of_tables(other) == mine and objective
 
     def to_toml(self) -> str:
         """The study as a TOML file (the file itself when it was not changed).
@@ -535,6 +545,7 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
     sim: SimulationTable = t["simulation"]
     validation = t["validation"]
     _refuse_unreachable(validation, c, fail)
+    _check_references(t["reference"], fail)
     design_spec = None if t["ballscrew"] is None else design_spec_from_tables(
         {**t, "design": t["design"] or DesignTable()}, fail)
     if t["thermal"] is not None and design_spec is not None:
@@ -550,19 +561,38 @@ def _build(data: dict[str, Any], where: _Source, path: str, text: bytes, say: Sa
         rig_run=t["rig_run"].resolved(), ballscrew=t["ballscrew"], feed_drive=t["feed_drive"], duty=t["duty"],
         design_table=t["design"], schedule=t["schedule"], plant_table=t["plant"], learning=t["learning"],
         published=t["published"], thermal=t["thermal"],
-        references=_references(t["reference"], fail),
-        design_spec=design_spec, where=where, source_text=text,
+        where=where, source_text=text,
         given=copy.deepcopy(data), say=say)
 
 
-def _references(tables: ReferenceTables, fail: Callable[[str, str], InputError]) -> dict[str, Reference]:
-    s, tr = tables.step, tables.trajectory
+def design_spec_of_tables(spec: StudySpec) -> DesignSpec | None:
+    """The design a study's tables make (its ``[ballscrew]``, ``[design]``, ``[feed_drive]``, ``[duty]`` and
+    ``[thermal]``); None where it has no ``[ballscrew]``.
+
+    Parameters
+    ----------
+    spec : StudySpec
+        The study.
+
+    Returns
+    -------
+    DesignSpec or None
+        Its design's specification.
+    """
+    if spec.ballscrew is None:
+        return None
+    return design_spec_from_tables({"ballscrew": spec.ballscrew, "design": spec.design_table or DesignTable(),
+                                    "feed_drive": spec.feed_drive, "duty": spec.duty, "thermal": spec.thermal},
+                                   spec.where.fail)
+
+
+def _check_references(tables: ReferenceTables, fail: Callable[[str, str], InputError]) -> None:
+    """Refuse reference tables that make no step or no staircase, naming the table."""
     try:
-        step = Reference.step(s.initial_N, s.final_N, s.t_step_s, s.duration_s)
+        tables.step.reference()
     except ValueError as exc:
         raise fail("reference.step", f"does not make a step: {exc}") from None
     try:
-        trajectory = Reference.staircase(tr.initial_N, list(tr.levels_N), tr.hold_s, tr.t_start_s)
+        tables.trajectory.reference()
     except ValueError as exc:
         raise fail("reference.trajectory", f"does not make a staircase: {exc}") from None
-    return {"step": step, "trajectory": trajectory}

@@ -53,11 +53,11 @@ from piezopreload.models.closedloop import simulate as simulate_loop
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.progress import ProgressLike, say_of
 from piezopreload.results import SimulationInfo, StudyReproduction, StudyRun
-from piezopreload.spec import Say, StudySpec
+from piezopreload.spec import Say, StudySpec, design_spec_of_tables
 from piezopreload.tuning.bounds import minimum_time, tracking_floor
 from piezopreload.tuning.calibrate import CONTROLLERS
 from piezopreload.tuning.calibrate import reproduce as reproduce_paper
-from piezopreload.tuning.compare import compare_gains, reproduction_summary, tracking_improvement
+from piezopreload.tuning.compare import compare_gains, published_rows, tracking_improvement
 from piezopreload.tuning.feedforward import FeedforwardInfo, IdentifiedFeedforward, identify_feedforward, loop_covers
 from piezopreload.tuning.pid import TuningInfeasible, tune_pid
 from piezopreload.tuning.schedule import schedule_levels, tune_schedule
@@ -76,10 +76,11 @@ __all__ = ["Solved", "design", "measured_loop", "identify", "tune", "candidate",
 
 def design_spec_of(spec: StudySpec, what: str) -> DesignSpec:
     """The study's design (its ``[ballscrew]`` and the tables around it), or an error saying ``what`` needs it."""
-    if spec.design_spec is None:
+    design = design_spec_of_tables(spec)
+    if design is None:
         raise InputError(f"{spec.path}: {what} needs the design's tables: the study has no [ballscrew] (see "
                          "studies/machine_axis.toml)")
-    return spec.design_spec
+    return design
 
 
 def _solve_point(spec: StudySpec, say: Say) -> DesignOptimum:
@@ -377,11 +378,11 @@ def learn(spec: StudySpec, solved: Solved, gains: GainSet | None = None, *, refe
         if reference == "schedule":
             raise InputError("learn: the preload schedule is learned by learn_schedule (study.learn_schedule(gains)),"
                              " each margin pass on its own reference; learn takes one of the study's references ("
-                             f"{', '.join(spec.references)}) or a Reference")
-        if reference not in spec.references:
-            raise InputError(f"reference must be one of {', '.join(spec.references)} or a Reference, got "
+                             f"{', '.join(REFERENCES)}) or a Reference")
+        if reference not in REFERENCES:
+            raise InputError(f"reference must be one of {', '.join(REFERENCES)} or a Reference, got "
                              f"{reference!r} (along the preload schedule: learn_schedule)")
-        reference = spec.references[reference]
+        reference = spec.reference.references()[reference]
     said = say_of(progress)
     return learn_loop(_controller(spec, solved, gains, said), Rig(solved.plant(said)), reference,
                       iterations=table.iterations if iterations is None else iterations,
@@ -544,8 +545,8 @@ def tune(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforward | 
     feedforward = feedforward or solved.feedforward(said)
     say = said or (lambda _m: None)
     seed = study.seed if seed is None else seed
-    spec, criteria, step, trajectory = (study.tuning, study.validation, study.references["step"],
-                                        study.references["trajectory"])
+    spec, criteria, step, trajectory = (study.tuning, study.validation, study.reference.step.reference(),
+                                        study.reference.trajectory.reference())
     say("tuning the PID around the compensated plant (CasADi + IPOPT), the minimum-time bound beside it ...")
     bounding = pool.beside(minimum_time, plant, initial_N=float(step.levels_N[0]), final_N=float(step.levels_N[1]),
                       band_N=study.band_N, u_min_V=spec.u_min_V, u_max_V=spec.u_max_V)
@@ -568,12 +569,12 @@ def tune(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforward | 
         say(f"  {b.sentence()}")
     schedule = None
     if study.tuning.schedule_levels >= 2:  # a gain schedule on the preload level, or the robust set if it does as well
-        span = np.concatenate([study.references[k].levels_N for k in ("step", "trajectory")])
+        span = np.concatenate([step.levels_N, trajectory.levels_N])
         sched = tune_schedule(plant, feedforward.model, spec, criteria, g, step=step, trajectory=trajectory,
                               levels_N=schedule_levels(span.min(), span.max(), study.tuning.schedule_levels),
                               n_plants=study.tuning.schedule_plants, seed=seed, progress=say, pool=pool,
                               known=None if warm_gains is None else warm_gains.schedule)
-        g, schedule = sched.gains, sched.to_dict()
+        g, schedule = sched.chosen(g), sched
     floor = tracking_floor(plant, trajectory)
     say("comparing the study's, SIMC's and the tuned gains on the nominal plant ...")
     table = compare_gains(plant, step, trajectory, {"study": study.controller, "simc": baseline, "tuned": g},
@@ -624,7 +625,7 @@ def candidate(spec: StudySpec, solved: Solved, tuned: TuningResult, feedforward:
     tuning = {**tuned.solve.to_dict(), "simc_baseline": GainsTable.from_value(tuned.simc_baseline).to_dict(),
               "active_bounds": [b.to_dict() for b in tuned.active_bounds]}
     return GainSet(gains=tuned.gains, status="candidate", feedforward=ff.model, feedforward_info=ff.info(),
-                   plant=plant, preset=spec.name, references={k: spec.references[k] for k in REFERENCES},
+                   plant=plant, preset=spec.name, references=spec.reference.references(),
                    criteria=spec.validation, tuning=tuning,
                    inputs={"study": spec.path, "study_sha256": spec.sha256, **(inputs or {})},
                    rig_interlocks=spec.rig_run.interlocks(plant, spec.path))
@@ -736,7 +737,7 @@ def simulate(study: StudySpec, solved: Solved, gains: GainSet | PIDGains | None 
             ff = feedforward or solved.feedforward()
             inverse, ff_info = ff.inverse(), ff.describe()
     seed = study.seed if seed is None else seed
-    run = simulate_loop(rig, Controller(pid, rig.dt_s, inverse), study.references[reference], seed=seed)
+    run = simulate_loop(rig, Controller(pid, rig.dt_s, inverse), study.reference.references()[reference], seed=seed)
     published = None  # the study's published numbers for this run, where it declares them (the step alone)
     if study.published is not None and reference == "step":
         published = {"source": study.published.source, **study.published.step()[controller]}
@@ -751,6 +752,30 @@ def reproduce(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforwa
     """The body of :meth:`Study.reproduce`: the paper's six step numbers beside the simulation's, both controllers.
 
     With ``repeats`` > 1, each number is the median over that many noise realisations, with its range.
+
+    Parameters
+    ----------
+    study : StudySpec
+        The study (its ``[published]`` numbers, its step, its ``[controller]`` gains).
+    solved : Solved
+        What its steps solved (the plant).
+    feedforward : IdentifiedFeedforward, optional
+        The feedforward (default: the study's, identified).
+    seed : int, optional
+        The noise seed (default: the study's).
+    repeats : int
+        Noise draws; each number is the median over them.
+
+    Returns
+    -------
+    StudyReproduction
+        One row per controller and metric (published, simulated, their ratio, within 25 % or not, the range over
+        the noise draws) and what ran (``.to_dict()``: what ``reproduce --json`` prints).
+
+    Raises
+    ------
+    InputError
+        Where ``repeats`` < 1, or the study declares no published numbers.
     """
     if repeats < 1:
         raise InputError(f"repeats: must be >= 1, got {repeats}")
@@ -759,11 +784,13 @@ def reproduce(study: StudySpec, solved: Solved, feedforward: IdentifiedFeedforwa
                          "studies/paper2021.toml has); reproduce sets a study's simulation beside published numbers")
     feedforward = feedforward or solved.feedforward()
     t0 = time.perf_counter()
-    rep = reproduce_paper(solved.plant(), study.controller, step=study.references["step"], excitation=study.feedforward,
+    step = study.reference.step.reference()
+    rep = reproduce_paper(solved.plant(), study.controller, step=step, excitation=study.feedforward,
                           seed=study.seed if seed is None else seed, band_N=study.band_N, signal=study.signal,
                           repeats=repeats, feedforward=feedforward.model,
                           feedforward_fit=feedforward.fit.to_dict())
-    comparison = reproduction_summary(rep, study.published.step())
     return StudyReproduction(study.ref, study.controller, study.controller_units, study.band_N, study.signal,
-                             study.published.source, tuple(float(x) for x in study.references["step"].levels_N),
-                             comparison, time.perf_counter() - t0)
+                             study.published.source, tuple(float(x) for x in step.levels_N),
+                             published_rows(rep, study.published.step()),
+                             {c: rep.metrics[c]["overshoot_N"] for c in rep.metrics}, dict(rep.feedforward_fit),
+                             rep.repeats, time.perf_counter() - t0)

@@ -28,11 +28,13 @@ piezopreload.core.errors.InputError: ...: 'rig.bolt_preload_N' is set by the des
 
 from __future__ import annotations
 
+import inspect
+import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace as _replace
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Self
+from typing import TYPE_CHECKING, Any, Self, TypeVar
 
 from piezopreload import codesign as codesigns
 from piezopreload import pipeline, steps
@@ -65,6 +67,73 @@ if TYPE_CHECKING:
     from piezopreload.tuning.learning import LearningResult
 
 __all__ = ["Study", "load_study", "default_study", "paper_study", "shipped_studies", "DEFAULT_STUDY", "PAPER_STUDY"]
+
+
+_M = TypeVar("_M", bound=Callable[..., Any])
+#: a numpydoc section's heading: its name on one line, dashes under it
+_HEADING = re.compile(r"^(\w[\w ]*)\n-+\n", re.MULTILINE)
+
+
+def _parameter_entries(doc: str) -> dict[str, tuple[tuple[str, ...], str]]:
+    """A numpydoc docstring's ``Parameters`` entries by each name they document: (the entry's names, its text)."""
+    headings = list(_HEADING.finditer(doc))
+    start = next((h for h in headings if h.group(1) == "Parameters"), None)
+    if start is None:
+        return {}
+    end = next((h.start() for h in headings if h.start() > start.start()), len(doc))
+    out: dict[str, tuple[tuple[str, ...], str]] = {}
+    entries = re.split(r"\n(?=\S)", doc[start.end():end].strip("\n"))
+    for text in entries:
+        names = tuple(n.strip().lstrip("*") for n in text.split("\n")[0].split(" : ")[0].split(","))
+        for name in names:
+            out[name] = (names, text.rstrip())
+    return out
+
+
+def _parameters_of(step: Callable[..., Any]) -> Callable[[_M], _M]:
+    """Give the decorated method of :class:`Study` the ``Parameters`` section of ``step``, the function of
+    :mod:`piezopreload.steps` it calls: the entries of the method's own parameters, in the method's order, written
+    once, on the function, so that the two cannot drift. The method's docstring keeps its summary and its
+    ``Returns``; a parameter of the method the function does not document is refused when the module is imported.
+
+    Parameters
+    ----------
+    step : callable
+        The steps function whose ``Parameters`` section documents the method's parameters.
+
+    Returns
+    -------
+    callable
+        The decorator.
+    """
+    entries = _parameter_entries(inspect.getdoc(step) or "")
+
+    def give(method: _M) -> _M:
+        names = [n for n in inspect.signature(method).parameters if n != "self"]
+        missing = [n for n in names if n not in entries]
+        if missing:
+            raise TypeError(f"{method.__qualname__}: {step.__module__}.{step.__qualname__} documents no "
+                            f"{', '.join(missing)}; document it there, once")
+        lines: list[str] = []
+        for name in names:
+            grouped, text = entries[name]
+            if len(grouped) > 1:  # "a, b : type": the names this method takes, written once
+                if name != next(n for n in grouped if n in names):
+                    continue
+                header, _, rest = text.partition("\n")
+                text = ", ".join(n for n in grouped if n in names) + " : " + header.split(" : ", 1)[1] + \
+                    (f"\n{rest}" if rest else "")
+            lines.append(text)
+        own = inspect.cleandoc(method.__doc__ or "")
+        if any(h.group(1) == "Parameters" for h in _HEADING.finditer(own + "\n")):
+            raise TypeError(f"{method.__qualname__}: its Parameters come from {step.__qualname__}; write none of its "
+                            "own")
+        section = "Parameters\n----------\n" + "\n".join(lines) + "\n\n"
+        at = own.find("Returns\n-------")
+        method.__doc__ = (own[:at] + section + own[at:]) if at >= 0 else (own + "\n\n" + section).rstrip() + "\n"
+        return method
+
+    return give
 
 
 class Study(StudySpec):
@@ -101,10 +170,6 @@ class Study(StudySpec):
     ballscrew, feed_drive, duty, design_table, schedule, plant_table, learning, published : table or None
         The optional tables (``[design]`` is ``design_table``, ``[plant]`` ``plant_table``); None where the file
         has none.
-    references : dict of str to Reference
-        The step and the trajectory the tables make.
-    design_spec : DesignSpec or None
-        The preload design the tables make (None: the study has no design).
     where : object
         The file and its lines, for the messages.
     source_text : bytes
@@ -201,27 +266,11 @@ class Study(StudySpec):
         return study
 
     # ---- the steps ---------------------------------------------------------------------------------
+    @_parameters_of(steps.design)
     def design(self, *, objective: str | None = None, pareto: list[str] | None = None, points: int | None = None,
                schedule: str | Path | None = None, progress: ProgressLike | None = None,
                bar: Callable[[int, int], None] | None = None, optimum: DesignOptimum | None = None) -> DesignResult:
         """The ball-screw preload design, its optimum kept for :attr:`plant`: :func:`piezopreload.steps.design`.
-
-        Parameters
-        ----------
-        objective : str, optional
-            The optimum's objective (default: ``[design] objective``).
-        pareto : list of str, optional
-            The Pareto fronts to trace (default: ``[design] pareto``; ``[]`` for none).
-        points : int, optional
-            Points per front.
-        schedule : str or Path, optional
-            A load profile (CSV) for the preload schedule (default: the study's).
-        progress : ProgressLike, optional
-            Where the steps are said.
-        bar : callable, optional
-            Given (done, total) as the fronts are traced.
-        optimum : DesignOptimum, optional
-            The optimum already chosen (a co-design's), kept as the study's.
 
         Returns
         -------
@@ -231,13 +280,9 @@ class Study(StudySpec):
         return steps.design(self, self.solved, objective=objective, pareto=pareto, points=points, schedule=schedule,
                             progress=progress, bar=bar, optimum=optimum)
 
+    @_parameters_of(steps.measured_loop)
     def measured_loop(self, progress: ProgressLike | None = None) -> MeasuredRecord | None:
         """``[feedforward] data`` read and checked against the references: :func:`piezopreload.steps.measured_loop`.
-
-        Parameters
-        ----------
-        progress : ProgressLike, optional
-            Where reading the file is said.
 
         Returns
         -------
@@ -246,13 +291,9 @@ class Study(StudySpec):
         """
         return steps.measured_loop(self, progress)
 
+    @_parameters_of(steps.identify)
     def identify_feedforward(self, progress: ProgressLike | None = None) -> IdentifiedFeedforward:
         """The feedforward's P-I model on :attr:`plant`: :func:`piezopreload.steps.identify`.
-
-        Parameters
-        ----------
-        progress : ProgressLike, optional
-            Where the steps are said.
 
         Returns
         -------
@@ -261,33 +302,13 @@ class Study(StudySpec):
         """
         return steps.identify(self, self.solved, progress)
 
+    @_parameters_of(steps.learn)
     def learn(self, gains: GainSet | None = None, *, reference: str | Reference = "trajectory",
               iterations: int | None = None, preview_s: float | None = None, method: str | None = None,
               plants: int | None = None, seed: int | None = None, after_change_weight: float = 0.0,
               progress: ProgressLike | None = None) -> LearningResult:
         """Preview and iterative learning control over a repeated reference on :attr:`plant`:
         :func:`piezopreload.steps.learn` (along the preload schedule: :meth:`learn_schedule`).
-
-        Parameters
-        ----------
-        gains : GainSet, optional
-            A gain set, or None: the study's ``[controller]`` with the identified feedforward.
-        reference : str or Reference
-            A name of :attr:`references`, or a Reference.
-        iterations : int, optional
-            The most learning trials (default: ``[learning]``).
-        preview_s : float, optional
-            The preview (default: ``[learning]``; 0: none).
-        method : str, optional
-            The learning law (default: ``[learning]``).
-        plants : int, optional
-            Learn on N Monte Carlo plants (the result reports the worst).
-        seed : int, optional
-            The noise seed (default: the study's).
-        after_change_weight : float
-            How the plan places each change.
-        progress : ProgressLike, optional
-            Where the trials are said.
 
         Returns
         -------
@@ -298,22 +319,12 @@ class Study(StudySpec):
                            method=method, plants=plants, seed=seed, after_change_weight=after_change_weight,
                            progress=progress)
 
+    @_parameters_of(steps.learn_schedule)
     def learn_schedule(self, gains: GainSet | None = None, *, iterations: int | None = None,
                        preview_s: float | None = None, method: str | None = None, seed: int | None = None,
                        progress: ProgressLike | None = None) -> ScheduleLearning:
         """Learning along the design's preload schedule, each margin pass on its own reference, as the pipeline's
         learn stage: :func:`piezopreload.steps.learn_schedule`.
-
-        Parameters
-        ----------
-        gains : GainSet, optional
-            A gain set, or None: the study's ``[controller]`` with the identified feedforward.
-        iterations, preview_s, method : optional
-            As :meth:`learn` has them.
-        seed : int, optional
-            The noise seed (default: the study's).
-        progress : ProgressLike, optional
-            Where the passes are said.
 
         Returns
         -------
@@ -323,18 +334,10 @@ class Study(StudySpec):
         return steps.learn_schedule(self, self.solved, gains, iterations=iterations, preview_s=preview_s,
                                     method=method, seed=seed, progress=progress)
 
+    @_parameters_of(steps.track_schedule)
     def track_schedule(self, gains: GainSet | None = None, *, ff_extra_V: Any = None,
                        progress: ProgressLike | None = None) -> SystemRun:
         """The gains following the preload schedule on the designed plant: :func:`piezopreload.steps.track_schedule`.
-
-        Parameters
-        ----------
-        gains : GainSet, optional
-            A gain set, or None: the study's ``[controller]`` with the identified feedforward.
-        ff_extra_V : array or callable, optional
-            A correction added to the feedforward (one array, or one per pass's reference: a callable).
-        progress : ProgressLike, optional
-            Where the steps are said.
 
         Returns
         -------
@@ -343,21 +346,11 @@ class Study(StudySpec):
         """
         return steps.track_schedule(self, self.solved, gains, ff_extra_V=ff_extra_V, progress=progress)
 
+    @_parameters_of(steps.tune)
     def tune(self, feedforward: IdentifiedFeedforward | None = None, *, seed: int | None = None,
              progress: ProgressLike | None = None, iterations: Callable[[int], None] | None = None) -> TuningResult:
         """Tune the PID around :attr:`plant` compensated by ``feedforward`` (default: :meth:`identify_feedforward`);
         compare it with the study's and SIMC's gains and bound it: :func:`piezopreload.steps.tune`.
-
-        Parameters
-        ----------
-        feedforward : IdentifiedFeedforward, optional
-            The feedforward the PID is tuned around (default: the study's, identified).
-        seed : int, optional
-            The comparison's noise seed (default: the study's).
-        progress : ProgressLike, optional
-            Where the steps are said.
-        iterations : callable, optional
-            Given IPOPT's iteration count as it goes.
 
         Returns
         -------
@@ -366,28 +359,12 @@ class Study(StudySpec):
         """
         return steps.tune(self, self.solved, feedforward, seed=seed, progress=progress, iterations=iterations)
 
+    @_parameters_of(steps.validate)
     def validate(self, tuned: TuningResult, feedforward: IdentifiedFeedforward | None = None, *,
                  plants: int | None = None, seed: int | None = None, workers: int | None = None,
                  scheduler: str | None = None, progress: ProgressLike | None = None) -> GainSet:
         """Validate tuned gains by Monte Carlo on the study's nonlinear rig (``[validation]`` by default):
         :func:`piezopreload.steps.validate`.
-
-        Parameters
-        ----------
-        tuned : TuningResult
-            What :meth:`tune` returned.
-        feedforward : IdentifiedFeedforward, optional
-            The feedforward the gains were tuned with (default: the study's, identified once, as :meth:`tune`'s).
-        plants : int, optional
-            Monte Carlo plants (default: ``[validation] plants``).
-        seed : int, optional
-            Their seed (default: ``[validation] seed``).
-        workers : int, optional
-            Local worker processes.
-        scheduler : str, optional
-            A Dask scheduler's address.
-        progress : ProgressLike, optional
-            Where the steps are said.
 
         Returns
         -------
@@ -397,23 +374,10 @@ class Study(StudySpec):
         return steps.validate(self, self.solved, tuned, feedforward, plants=plants, seed=seed, workers=workers,
                               scheduler=scheduler, progress=progress)
 
+    @_parameters_of(steps.simulate)
     def simulate(self, gains: GainSet | PIDGains | None = None, *, controller: str = "ff+pid", reference: str = "step",
                  feedforward: IdentifiedFeedforward | None = None, seed: int | None = None) -> StudyRun:
         """One controller on :attr:`plant` over one of the study's references: :func:`piezopreload.steps.simulate`.
-
-        Parameters
-        ----------
-        gains : GainSet or PIDGains, optional
-            A gain set (its feedforward too, unless ``feedforward`` is given), PID gains, or None for the study's
-            ``[controller]``.
-        controller : {"ff+pid", "pid"}
-            With the feedforward or the PID alone.
-        reference : {"step", "trajectory"}
-            Which of the study's references.
-        feedforward : IdentifiedFeedforward, optional
-            The feedforward to invert.
-        seed : int, optional
-            The noise seed (default: the study's).
 
         Returns
         -------
@@ -423,19 +387,11 @@ class Study(StudySpec):
         return steps.simulate(self, self.solved, gains, controller=controller, reference=reference,
                                 feedforward=feedforward, seed=seed)
 
+    @_parameters_of(steps.reproduce)
     def reproduce(self, *, seed: int | None = None, repeats: int = 1,
                   feedforward: IdentifiedFeedforward | None = None) -> StudyReproduction:
         """The study's published step numbers beside the simulation's on :attr:`plant`:
         :func:`piezopreload.steps.reproduce`.
-
-        Parameters
-        ----------
-        seed : int, optional
-            The noise seed (default: the study's).
-        repeats : int
-            Noise draws; each number is the median over them.
-        feedforward : IdentifiedFeedforward, optional
-            The feedforward (default: the study's, identified).
 
         Returns
         -------

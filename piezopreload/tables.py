@@ -27,6 +27,7 @@ from piezopreload.design.tables import (
     ThermalTable,
 )
 from piezopreload.models.actuator import Plant, StackData
+from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import TIME_UNITS, PIDGains
 from piezopreload.rig.tables import ExportTable, RigRunPlan
 from piezopreload.tuning.feedforward import LoopExcitation
@@ -82,6 +83,16 @@ class StepTable(Table):
             raise Invalid("duration_s",
                           f"must be after the step (t_step_s = {self.t_step_s:g} s), got {self.duration_s:g}")
 
+    def reference(self) -> Reference:
+        """The step this table describes.
+
+        Returns
+        -------
+        Reference
+            From ``initial_N`` to ``final_N`` at ``t_step_s``, ``duration_s`` long.
+        """
+        return Reference.step(self.initial_N, self.final_N, self.t_step_s, self.duration_s)
+
 
 @dataclass(frozen=True)
 class TrajectoryTable(Table):
@@ -93,6 +104,16 @@ class TrajectoryTable(Table):
     hold_s: float = key(5.0, "how long each level is held", unit="s", gt=0)
     t_start_s: float = key(0.5, "when the first level starts", unit="s", gt=0)
 
+    def reference(self) -> Reference:
+        """The staircase this table describes.
+
+        Returns
+        -------
+        Reference
+            From ``initial_N`` through ``levels_N``, each held ``hold_s``, the first at ``t_start_s``.
+        """
+        return Reference.staircase(self.initial_N, list(self.levels_N), self.hold_s, self.t_start_s)
+
 
 @dataclass(frozen=True)
 class ReferenceTables(Table):
@@ -100,6 +121,16 @@ class ReferenceTables(Table):
 
     step: StepTable = key(StepTable(), "the step")
     trajectory: TrajectoryTable = key(TrajectoryTable(), "the staircase")
+
+    def references(self) -> dict[str, Reference]:
+        """The study's references, made from the tables each time they are asked for (nothing kept beside them).
+
+        Returns
+        -------
+        dict of str to Reference
+            ``step`` and ``trajectory``.
+        """
+        return {"step": self.step.reference(), "trajectory": self.trajectory.reference()}
 
 
 @dataclass(frozen=True)

@@ -32,6 +32,7 @@ if TYPE_CHECKING:
 
     from piezopreload.artifacts.design import DesignPoint, Front, PreloadCurve
     from piezopreload.artifacts.learning import PassRecord
+    from piezopreload.artifacts.tuning import GainScheduleRecord
     from piezopreload.artifacts.validation import ValidationResult
 
 __all__ = [
@@ -440,31 +441,44 @@ def monte_carlo(validation: ValidationResult) -> Figure:
 
 
 @styled
-def gain_schedule(schedule: Mapping[str, Any]) -> Figure:
+def gain_schedule(schedule: GainScheduleRecord) -> Figure:
     """The gain schedule against the preload (Kc and Ti, the entries marked, the robust set dashed) and each
-    set's worst-case settling time and tracking RMS over the Monte Carlo plants at each level."""
-    table, robust, levels = schedule["table"], schedule["robust"], schedule["levels"]
-    lv = np.asarray(table["levels_N"], float)
+    set's worst-case settling time and tracking RMS over the Monte Carlo plants at each level.
+
+    Parameters
+    ----------
+    schedule : GainScheduleRecord
+        The gain schedule's record (a tuning's ``solve.schedule``).
+
+    Returns
+    -------
+    Figure
+        Kc, Ti and the worst cases against the preload level, the choice in the title.
+    """
+    table, robust = schedule.table, schedule.robust
+    lv = np.asarray(table.levels_N, float)
     x = np.linspace(lv[0], lv[-1], 200)
     fig, ax = page_figure(2.6, ncols=3)
-    for a, key, label, scale in ((ax[0][0], "Kc_V_per_N", "Kc (mV/N)", 1e3), (ax[0][1], "Ti_s", "Ti (ms)", 1e3)):
-        a.plot(x, scale * np.interp(x, lv, table[key]), color=COLOURS["model"], label="schedule")
-        a.plot(lv, scale * np.asarray(table[key], float), "o", color=COLOURS["model"], ms=4)
-        a.axhline(scale * robust[key], color=COLOURS["limit"], ls="--", lw=0.9, label="robust set")
+    for a, column, at_robust, label in ((ax[0][0], table.Kc, robust.Kc_V_per_N, "Kc (mV/N)"),
+                                        (ax[0][1], table.Ti_s, robust.Ti_s, "Ti (ms)")):
+        a.plot(x, 1e3 * np.interp(x, lv, column), color=COLOURS["model"], label="schedule")
+        a.plot(lv, 1e3 * np.asarray(column, float), "o", color=COLOURS["model"], ms=4)
+        a.axhline(1e3 * at_robust, color=COLOURS["limit"], ls="--", lw=0.9, label="robust set")
         a.set_xlabel("preload setpoint (N)")
         a.set_ylabel(label)
     a = ax[0][2]
-    at = np.array([r["level_N"] for r in levels])
+    at = np.array([r.level_N for r in schedule.levels])
     for which, marker, name in (("robust", "s", "robust set"), ("scheduled", "o", "schedule")):
-        a.plot(at, [r[which]["tracking_rms_N"] for r in levels], marker=marker, ls="-", label=f"{name}: tracking RMS")
-        a.plot(at, [r[which]["overshoot_N"] for r in levels], marker=marker, ls=":", label=f"{name}: overshoot")
+        a.plot(at, [r.of(which).tracking_rms_N for r in schedule.levels], marker=marker, ls="-",
+               label=f"{name}: tracking RMS")
+        a.plot(at, [r.of(which).overshoot_N for r in schedule.levels], marker=marker, ls=":",
+               label=f"{name}: overshoot")
     for key, ls in (("tracking_rms_N", "--"), ("overshoot_N", ":")):
-        if key in schedule.get("limits", {}):
-            a.axhline(schedule["limits"][key], color=COLOURS["limit"], ls=ls, lw=0.8)
+        if key in schedule.limits:
+            a.axhline(schedule.limits[key], color=COLOURS["limit"], ls=ls, lw=0.8)
     a.set_xlabel("preload level (N)")
     a.set_ylabel("worst case over the plants (N)")
-    chosen = "the one robust set" if schedule["choice"] == "robust" else "the scheduled gains"
-    fig.suptitle(f"chosen: {chosen}", fontsize=8)
+    fig.suptitle(f"chosen: {schedule.choice.words}", fontsize=8)
     legends(ax[0][0], (a, {"fontsize": 6}))
     return fig
 

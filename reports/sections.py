@@ -22,7 +22,7 @@ from piezopreload.artifacts.responses import ResponsesRecord
 from piezopreload.artifacts.rigrun import RigRunRecord
 from piezopreload.artifacts.schedule import LIFT_OFF_KEY, RIGIDITY_KEY, PreloadSchedule
 from piezopreload.artifacts.system import MarginBasis, SystemRecord, TrackingNumbers
-from piezopreload.artifacts.tuning import TuningResult
+from piezopreload.artifacts.tuning import GainScheduleRecord, TuningResult
 from piezopreload.models.hysteresis import CreepPI
 from piezopreload.reports import figures as F
 from piezopreload.reports.document import ReportTable, Section, fmt, pct, q, ratio
@@ -492,32 +492,31 @@ def controller_section(study: ReportStudy, a: Artifacts) -> Part:
                 tuple(f for p in parts for f in p.figures))
 
 
-def _schedule_part(schedule: dict[str, Any] | None) -> Part | None:
+def _schedule_part(schedule: GainScheduleRecord | None) -> Part | None:
     if schedule is None:
         return None
     rows = []
-    for r in schedule["levels"]:
-        e, rb, sc = r["entry"], r["robust"], r["scheduled"]
-        ms = r.get("ms", {}).get("scheduled")  # over the entry's window (a record written before: not there)
-        rows.append((fmt(r["level_N"], 4), f"{fmt(r['window_N'][0], 4)}–{fmt(r['window_N'][1], 4)}",
-                     fmt(1e3 * e["Kc_V_per_N"], 4), fmt(1e3 * e["Ti_s"], 3), fmt(e.get("b", 1.0), 2),
+    worst = ("settling_s", "overshoot_N", "tracking_rms_N")
+    for r in schedule.levels:
+        e, rb, sc = r.entry_gains, r.robust, r.scheduled
+        ms = None if r.ms is None else r.ms.get("scheduled")  # over the entry's window (a record written before: none)
+        rows.append((fmt(r.level_N, 4), f"{fmt(r.window_N[0], 4)}–{fmt(r.window_N[1], 4)}",
+                     fmt(1e3 * e.Kc_V_per_N, 4), fmt(1e3 * e.Ti_s, 3), fmt(e.b, 2),
                      "" if ms is None else fmt(ms, 3),
-                     *(_when(x[k], "", "never").strip() for x in (rb, sc)
-                       for k in ("settling_s", "overshoot_N", "tracking_rms_N")),
-                     " / ".join("yes" if x["passed"] else "no" for x in (rb, sc))))
-    w = schedule["whole_range"]
-    rows.append(("whole range", "", fmt(1e3 * schedule["robust"]["Kc_V_per_N"], 4),
-                 fmt(1e3 * schedule["robust"]["Ti_s"], 3), fmt(schedule["robust"].get("b", 1.0), 2), "",
-                 *(_when(w[x][k], "", "never").strip() for x in ("robust", "scheduled")
-                   for k in ("settling_s", "overshoot_N", "tracking_rms_N")),
-                 " / ".join("yes" if w[x]["passed"] else "no" for x in ("robust", "scheduled"))))
-    missed_by_both = [f"{fmt(r['level_N'], 4)} N" for r in schedule["levels"]
-                      if not r["robust"]["passed"] and not r["scheduled"]["passed"]]
-    text = (f"A gain schedule on the preload level: {len(schedule['levels'])} entries, each tuned with CasADi on its "
+                     *(_when(x.figure(k), "", "never").strip() for x in (rb, sc) for k in worst),
+                     " / ".join("yes" if x.passed else "no" for x in (rb, sc))))
+    w = schedule.whole_range
+    rows.append(("whole range", "", fmt(1e3 * schedule.robust.Kc_V_per_N, 4),
+                 fmt(1e3 * schedule.robust.Ti_s, 3), fmt(schedule.robust.b, 2), "",
+                 *(_when(x.figure(k), "", "never").strip() for x in (w.robust, w.scheduled) for k in worst),
+                 " / ".join("yes" if x.passed else "no" for x in (w.robust, w.scheduled))))
+    missed_by_both = [f"{fmt(r.level_N, 4)} N" for r in schedule.levels
+                      if not r.robust.passed and not r.scheduled.passed]
+    text = (f"A gain schedule on the preload level: {len(schedule.levels)} entries, each tuned with CasADi on its "
             "window; Kc, Ti and Td linear in the setpoint between them; the schedule and the one robust set each "
-            f"validated by Monte Carlo ({schedule['plants']} plants per level, the study's limits) at every level and "
-            f"over the whole range. Chosen: {_CHOICE_NAMES.get(schedule['choice'], schedule['choice'])}, as "
-            f"{schedule['reason']}.")
+            f"validated by Monte Carlo ({schedule.plants} plants per level, the study's limits) at every level and "
+            f"over the whole range. Chosen: {schedule.choice.words}, as "
+            f"{schedule.reason}.")
     if missed_by_both:
         text += (f" Neither set meets the study's limits at {', '.join(missed_by_both)}: the exported gains carry that "
                  "miss, listed in the verdicts above.")
@@ -529,15 +528,14 @@ def _schedule_part(schedule: dict[str, Any] | None) -> Part | None:
                                "robust set and the schedule (tracking: RMS after the changes).",
                   "ll" + "r" * 10 + "c", small=True)
     fig = F.gain_schedule(schedule)
-    caption = (f"The gain schedule on the preload level ({len(schedule['levels'])} entries) against the robust set "
+    caption = (f"The gain schedule on the preload level ({len(schedule.levels)} entries) against the robust set "
                "(dashed), and each set's worst case over the Monte Carlo plants per level, the study's limits in red "
                "(dashed: tracking RMS, dotted: overshoot); chosen: "
-               f"{_CHOICE_NAMES.get(schedule['choice'], schedule['choice'])}.")
+               f"{schedule.choice.words}.")
     return Part(Section("The gain schedule", (text,), (table,), ("gain-schedule",)), (("gain-schedule", fig, caption),))
 
 
 #: the gain schedule's choice as the report names it
-_CHOICE_NAMES = {"robust": "the one robust set", "schedule": "the scheduled gains"}
 
 #: the Monte Carlo spread's parameters as the report names them (a key not here is shown as the study names it)
 _SPREAD_NAMES = {"coupling_stiffness_N_per_um": "coupling stiffness", "amp_bandwidth_Hz": "amplifier bandwidth",
@@ -694,7 +692,7 @@ def rig_section(study: ReportStudy, a: Artifacts) -> Part:
     mode = "real time" if run.realtime else "back to back"
     head = (f"The validated gains ran on the rig executor at {run.rate_Hz:g} Hz ({mode}) against the "
             f"'{run.backend}' backend behind its interlocks (force limit "
-            f"{q(run.safety.get('force_max_N', 0.0), 'N')}), "
+            f"{q(run.safety.force_max_N, 'N')}), "
             f"reference {run.reference}: ")
     trip = run.trip
     if trip is not None:

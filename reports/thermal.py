@@ -171,15 +171,17 @@ def _settled(case: ThermalCase) -> str:
 
 def _drift_text(d: PreloadDrift) -> str:
     change = "fall" if d.passive_max_N < 0 else "rise"
-    lost = (" (it would lose it: the nuts part)" if d.passive_left_N <= 0 else
+    lost = ("" if d.passive_left_N is None else " (it would lose it: the nuts part)" if d.passive_left_N <= 0 else
             f", leaving {fmt(d.passive_left_N, 3)} N")
+    linear = ("" if d.passive_linear_N is None else
+              f" (the first kelvin's rate extrapolated would say {fmt(abs(d.passive_linear_N), 3)} N)")
     held = (f"within the {fmt(d.headroom_V)} V the command's range leaves on that side." if d.held else
             f"beyond the {fmt(d.headroom_V)} V the command's range leaves on that side: the loop could not hold it.")
     return (f"A passive double nut of the same design, preloaded by a spacer at the best constant preload "
             f"({fmt(d.passive_preload_N, 4)} N; its nuts' loaded turns {fmt(d.span_mm)} mm apart), changes its "
             f"preload by {fmt(d.passive_N_per_K)} N per kelvin of nut over screw at first: over the shift, along the "
-            f"nuts' own law, it would {change} by up to {fmt(abs(d.passive_max_N), 3)} N{lost} (the first kelvin's "
-            f"rate extrapolated would say {fmt(abs(d.passive_linear_N), 3)} N). The force loop holds the piezo "
+            f"nuts' own law, it would {change} by up to {fmt(abs(d.passive_max_N), 3)} N{lost}{linear}. The force "
+            "loop holds the piezo "
             f"preload: the stacks take up the spacer's mismatch ({fmt(d.stroke_max_um)} um at most over the "
             f"schedule's shift), {fmt(abs(d.voltage_needed_V))} V of command "
             f"{'more' if d.voltage_needed_V > 0 else 'less'} than the run used, " + held)

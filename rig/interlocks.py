@@ -28,9 +28,9 @@ periods (an update missed) is a *stall*: counted, logged and reported, not tripp
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
-from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V
+from piezopreload.artifacts.rigrun import Safety
 
 __all__ = ["Safety", "Interlock", "INTERLOCKS", "TRIP_CAUSES", "QUANTITIES", "TESTS", "STAGES", "Trip", "Row", "rows",
            "first_trip", "trip_detail", "c_defines", "STALL_REPORT_PERIODS", "cause_code"]
@@ -43,55 +43,6 @@ TESTS = ("nan", "above", "below", "outside", "not_finite")
 STAGES = ("reading", "command")
 #: a hold longer than this many periods is a stall (an update missed): counted and logged
 STALL_REPORT_PERIODS = 2.0
-
-
-@dataclass(frozen=True)
-class Safety:
-    """The interlocks' limits and the command's shaping; the defaults suit the paper's rig.
-
-    A session (:func:`piezopreload.rig.session.interlocks`) builds it from the gain set: its
-    study's ``[rig_run]`` limits, its plant (bolt preload, the A/D's range, the stall limit)
-    and its gains (the command range), and records where each value came from.
-    """
-
-    v_min_V: float = OUTPUT_MIN_V
-    v_max_V: float = OUTPUT_MAX_V
-    slew_V_per_s: float = 20_000.0
-    force_max_N: float = 150.0
-    bolt_preload_N: float = 25.0
-    force_low_margin_N: float = 10.0
-    sensor_min_N: float = -1000.0
-    sensor_max_N: float = 1000.0
-    stale_after_s: float = 0.01
-    #: the longest the output may be held without an update (a stall longer than this trips)
-    stall_limit_s: float = 0.05
-    ramp_s: float = 0.5
-    safe_V: float = 0.0
-
-    def __post_init__(self) -> None:
-        for name, value in asdict(self).items():
-            if isinstance(value, bool) or not (isinstance(value, int | float) and math.isfinite(value)):
-                raise ValueError(f"safety.{name} must be a finite number, got {value!r}")
-        if not self.v_min_V < self.v_max_V:
-            raise ValueError(f"safety needs v_min_V < v_max_V, got {self.v_min_V} and {self.v_max_V}")
-        if not self.v_min_V <= self.safe_V <= self.v_max_V:
-            raise ValueError(f"safety.safe_V must lie in {self.v_min_V}..{self.v_max_V} V, got {self.safe_V}")
-        for name in ("slew_V_per_s", "stale_after_s", "ramp_s", "force_low_margin_N", "stall_limit_s"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"safety.{name} must be > 0, got {getattr(self, name)}")
-        low_N = self.bolt_preload_N - self.force_low_margin_N
-        if not self.sensor_min_N < low_N < self.force_max_N <= self.sensor_max_N:
-            raise ValueError(f"safety needs sensor_min_N < bolt_preload_N - force_low_margin_N < force_max_N <= "
-                             f"sensor_max_N, got {self.sensor_min_N:g} < {self.force_low_N:g} "
-                             f"< {self.force_max_N:g} <= {self.sensor_max_N:g}")
-
-    def to_dict(self) -> dict[str, float]:
-        return asdict(self)
-
-    @property
-    def force_low_N(self) -> float:
-        """The force below which ``force_low`` trips: the bolt preload less the margin."""
-        return self.bolt_preload_N - self.force_low_margin_N
 
 
 @dataclass(frozen=True)

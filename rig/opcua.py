@@ -73,9 +73,9 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, ClassVar, Protocol
 
 from asyncua import Client, Server, ua
 from asyncua.crypto.permission_rules import SimpleRoleRuleset, User, UserRole
@@ -87,6 +87,7 @@ from asyncua.crypto.security_policies import (
 from asyncua.server.user_managers import UserManager
 
 from piezopreload.core.errors import PiezopreloadError
+from piezopreload.core.records import Record, entry, record
 from piezopreload.models.controller import Controller
 from piezopreload.rig import DEFAULT_ENDPOINT
 from piezopreload.rig import SECURITY_MODES as MODE_NAMES
@@ -95,7 +96,7 @@ from piezopreload.rig.executor import Executor, RunResult
 
 __all__ = ["RigServer", "push_gain_set", "PushReply", "PushRefused", "NAMESPACE", "DEFAULT_ENDPOINT", "ROOT",
            "PUSH_METHOD", "PUSH_METHOD_V1", "PUSH_INPUTS", "PUSH_INPUTS_V1", "PUSH_OUTPUTS", "Credentials", "connect",
-           "SECURITY_POLICIES", "SECURITY_MODES"]
+           "SECURITY_POLICIES", "SECURITY_MODES", "PushTaken"]
 
 NAMESPACE = "urn:piezopreload:rig"
 ROOT = "PreloadRig"
@@ -200,6 +201,52 @@ class _Config:
     log_level: int  # the supervisor's level for asyncua's logger (the CLI quiets it)
 
 
+@record
+class PushTaken(Record):
+    """A push a served rig took or refused, as its run records it (``rig serve --json``'s ``pushes``): who pushed,
+    the gain set's identity where the push got as far as its check, whether it was accepted and why not, and how long
+    the supervisor took to show an accepted one running."""
+
+    CLOSED: ClassVar[bool] = True  # an identity key it does not declare is refused, not dropped
+    user: str = entry("Who pushed.")
+    gain_set_sha256: str | None = entry("The pushed gain set's content hash.", default=None, omit=True)
+    feedforward_sha256: str | None = entry("Its feedforward's hash.", default=None, omit=True)
+    controller: str | None = entry("Its controller, in words.", default=None, omit=True)
+    interlocks_kept: tuple[str, ...] | None = entry("The running rig's limits it keeps that are stricter than its "
+                                                    "own.", default=None, omit=True)
+    accepted_missed: tuple[dict[str, Any], ...] | None = entry("The requirements it missed and the pusher accepted by "
+                                                               "name.", default=None, omit=True)
+    note: str | None = entry("The pusher's note.", default=None, omit=True)
+    accepted: bool = entry("Whether the rig took it.", default=False)
+    reason: str | None = entry("Why it was refused.", default=None, omit=True)
+    switch_shown_ms: float | None = entry("From the push to the supervisor showing it running.", unit="ms",
+                                          default=None, omit=True)
+
+    @classmethod
+    def of(cls, user: str, identity: dict[str, Any], *, accepted: bool, reason: str | None = None) -> PushTaken:
+        """The record of a push from its identity (as the check gives it).
+
+        Parameters
+        ----------
+        user : str
+            Who pushed.
+        identity : dict
+            The gain set's identity as the check gives it (its hashes, its controller, the limits kept, the
+            requirements accepted, the note).
+        accepted : bool
+            Whether the rig took it.
+        reason : str, optional
+            Why it was refused.
+
+        Returns
+        -------
+        PushTaken
+            The record (a key of the identity it does not declare refused).
+        """
+        return cls.from_dict({"user": user, **identity, "accepted": accepted,
+                              **({} if reason is None else {"reason": reason})}, "the push's record")
+
+
 class RigServer:
     """Serve ``executor`` over OPC UA from a process of its own while it runs; see the module docstring.
 
@@ -222,14 +269,14 @@ class RigServer:
         self.certificate, self.private_key = certificate, private_key
         self._passwords = dict(users)
         self.update_s = float(update_s)
-        self.pushes: list[dict[str, Any]] = []
+        self.pushes: list[PushTaken] = []
         self.server_pid: int | None = None
         self._shown: dict[str, Any] = {}  # node key -> the value last published
         self._events_shown = 0
         self._conn: Any = None
         self._wake: asyncio.Event | None = None
         self._ready: asyncio.Future[int] | None = None
-        self._showing: tuple[dict[str, Any], float] | None = None  # an accepted push until its hash is shown
+        self._showing: tuple[int, float] | None = None  # an accepted push (its index) until its hash is shown
 
     # ---- the supervisor's side -------------------------------------------------------------------
     def _values(self) -> dict[str, Any]:
@@ -281,31 +328,28 @@ class RigServer:
                 self._ready.set_exception(OSError(msg[1]))
         elif kind == "refused":  # the server process refused it (document, hash, status) and answered the client
             _, user, reason = msg
-            self.pushes.append({"user": user, "accepted": False, "reason": reason})
+            self.pushes.append(PushTaken(user, accepted=False, reason=reason))
             self.executor.record("push_refused", user=user, reason=reason)
         elif kind == "push":  # a checked gain set: switch (a buffer flip), answer, show it once it runs
             _, request, user, controller, identity = msg
             t0 = time.monotonic()
             accepted, message = self.push(controller, identity, user)
             if accepted:
-                self._showing = (self.pushes[-1], t0)
+                self._showing = (len(self.pushes) - 1, t0)
             self._conn.send(("answer", request, accepted, message))
             if self._wake is not None:
                 self._wake.set()
 
     def push(self, controller: Controller, identity: dict[str, Any], user: str) -> tuple[bool, str]:
         """Hand a checked gain set to the executor; ``(accepted, message)``. Changes nothing if refused."""
-        record: dict[str, Any] = {"user": user, **identity}
         try:
             self.executor.request_switch(controller, {"pushed_by": user, **identity})
         except ValueError as exc:
-            record.update(accepted=False, reason=str(exc))
-            self.pushes.append(record)
+            self.pushes.append(PushTaken.of(user, identity, accepted=False, reason=str(exc)))
             self.executor.record("push_refused", user=user, reason=str(exc))
             return False, f"refused: {exc}"
         self.identity = {**self.identity, **identity}
-        record.update(accepted=True)
-        self.pushes.append(record)
+        self.pushes.append(PushTaken.of(user, identity, accepted=True))
         return True, f"accepted gain set {identity.get('gain_set_sha256', '')[:12]}; it runs from the next cycle"
 
     def _config(self) -> _Config:
@@ -344,8 +388,9 @@ class RigServer:
                 self._publish()
                 self.executor.save_events()
                 if self._showing is not None and not self.executor.switch_pending:
-                    record, t0 = self._showing  # the supervisor's share of push-to-switch: taken and shown
-                    record["switch_shown_ms"] = round((time.monotonic() - t0) * 1e3, 3)
+                    at, t0 = self._showing  # the supervisor's share of push-to-switch: taken and shown
+                    self.pushes[at] = replace(self.pushes[at],
+                                              switch_shown_ms=round((time.monotonic() - t0) * 1e3, 3))
                     self._showing = None
                 if self.executor.switch_pending:  # a push: shown once the loop takes it (at its next cycle)
                     await asyncio.sleep(0.001)

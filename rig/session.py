@@ -48,7 +48,15 @@ from piezopreload.rig.executor import Executor
 from piezopreload.rig.export import ExportError, controller_from_gain_set, require_validated
 from piezopreload.rig.hostcheck import check_host
 from piezopreload.rig.limits import RunLimits, check_fit, run_limits
-from piezopreload.rig.opcua import Credentials, PushRefused, PushReply, RigServer, feedforward_hash, push_gain_set
+from piezopreload.rig.opcua import (
+    Credentials,
+    PushRefused,
+    PushReply,
+    PushTaken,
+    RigServer,
+    feedforward_hash,
+    push_gain_set,
+)
 from piezopreload.rig.outcome import RunResult
 from piezopreload.rig.runlog import LearnedFigures, RunLog
 
@@ -237,7 +245,7 @@ class RigRun:
     record: RigRunRecord
     log_csv: str | None
     log_json: str | None
-    pushes: tuple[dict[str, Any], ...] = ()
+    pushes: tuple[PushTaken, ...] = ()
 
     @property
     def ok(self) -> bool:
@@ -343,7 +351,7 @@ def _setup(gains_path: str | Path, backend: str, backend_options: dict[str, str]
     record = RigRunRecord(
         gain_set=str(gains_path), backend=rig.name, rig_preset=gain_set.preset, reference=ref_name,
         reference_levels_N=tuple(ref.levels_N.tolist()), rate_Hz=1.0 / controller.dt_s, realtime=realtime,
-        safety=limits.safety.to_dict(), safety_sources=dict(limits.sources), stall_limit=limits.stall, seed=seed,
+        safety=limits.safety, safety_sources=dict(limits.sources), stall_limit=limits.stall, seed=seed,
         faults_injected=tuple({**f.__dict__, "duration_s": f.duration_s if math.isfinite(f.duration_s) else None}
                               for f in faults or []), gain_set_sha256=identity["gain_set_sha256"],
         feedforward_sha256=identity["feedforward_sha256"],
@@ -388,7 +396,7 @@ def _summary(result: RunResult, log: RunLog, su: _Setup) -> RigRun:
         "log_csv": result.csv_path, "log_json": result.json_path,
         "gain_set": rec.gain_set, "gain_set_sha256": rec.gain_set_sha256, "feedforward_sha256": rec.feedforward_sha256,
         "backend": rec.backend, "reference": rec.reference, "rate_Hz": rec.rate_Hz, "realtime": rec.realtime,
-        "interlocks": dict(rec.safety), "interlock_sources": dict(rec.safety_sources),
+        "interlocks": rec.safety.to_dict(), "interlock_sources": dict(rec.safety_sources),
         "stall_limit": None if rec.stall_limit is None else asdict(rec.stall_limit),
         "host_check": None if rec.host_check is None else rec.host_check.to_dict(), "host_accepted": rec.host_accepted,
         "events": [e["event"] for e in result.events],
@@ -508,7 +516,7 @@ def serve(gains_path: str | Path, *, endpoint: str, users: dict[str, str], certi
             raise InputError(f"rig serve: {exc}") from None
     finally:
         _close(su.backend)
-    out.summary["pushes"] = server.pushes
+    out.summary["pushes"] = [p.to_dict() for p in server.pushes]
     return replace(out, pushes=tuple(server.pushes))
 
 

@@ -76,14 +76,24 @@ def _passes():
 
 
 def _schedule():
-    levels = [{"level_N": lv, "robust": {"tracking_rms_N": tr, "overshoot_N": os_},
-               "scheduled": {"tracking_rms_N": ts, "overshoot_N": oss}}
-              for lv, tr, os_, ts, oss in ((0.0, 30.0, 10.1, 15.9, 6.8), (2000.0, 23.7, 28.9, 17.4, 19.3),
-                                            (4000.0, 31.6, 26.1, 34.2, 20.2))]
-    return {"table": {"levels_N": [0.0, 2000.0, 4000.0], "Kc_V_per_N": [0.01195, 0.01152, 0.01119],
-                      "Ti_s": [0.0034, 0.0447, 0.0461]},
-            "robust": {"Kc_V_per_N": 0.01077, "Ti_s": 0.0486}, "levels": levels, "choice": "schedule",
-            "limits": {"tracking_rms_N": 40.0, "overshoot_N": 25.0}}
+    """A gain schedule's record of three entries (the machine axis's figures, rounded)."""
+    from piezopreload.artifacts.tuning import GainScheduleRecord, ScheduleLevel, SetFigures, SetGains, WorstFigures
+    from piezopreload.models.controller import GainSchedule
+
+    def worst(tracking, overshoot):
+        return WorstFigures(0.2, overshoot, tracking, None, True, ())
+
+    table = GainSchedule((0.0, 2000.0, 4000.0), (0.01195, 0.01152, 0.01119), (0.0034, 0.0447, 0.0461),
+                         (0.0, 0.0, 0.0))
+    robust = SetGains(0.01077, 0.0486, 0.0, 0.0005, 0.5)
+    levels = tuple(ScheduleLevel(lv, (lv - 1000.0, lv + 1000.0), SetGains(kc, ti, 0.0, 0.0005, 0.5), None, {},
+                                 worst(tr, os_), worst(ts, oss))
+                   for lv, kc, ti, tr, os_, ts, oss in zip(table.levels_N, table.Kc, table.Ti_s, (30.0, 23.7, 31.6),
+                                                          (10.1, 28.9, 26.1), (15.9, 17.4, 34.2), (6.8, 19.3, 20.2)))
+    return GainScheduleRecord("schedule", "the robust set misses a level", table.levels_N, table, 0.0005, 0.5, robust,
+                              levels, SetFigures(worst(30.0, 20.0), worst(20.0, 15.0)), 50,
+                              ("settling_s", "overshoot_N", "tracking_rms_N", "peak_voltage_V"),
+                              {"tracking_rms_N": 40.0, "overshoot_N": 25.0}, 1.0)
 
 
 def _drawn(name):

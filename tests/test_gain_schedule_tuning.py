@@ -111,11 +111,11 @@ def test_tune_schedule_records_both_sets_per_level_and_chooses_by_them():
     trajectory = Reference.staircase(25.0, [45.0, 65.0, 45.0], 0.6, t_start_s=0.3)
     res = tune_schedule(rig, None, spec, criteria, robust, levels_N=[30.0, 60.0], step=step, trajectory=trajectory,
                         n_plants=3, seed=1)  # no pool: here, one job after another
-    assert res.schedule.levels_N == (30.0, 60.0)
-    assert res.scheduled.schedule is res.schedule and res.scheduled.Tf_s == robust.Tf_s
+    assert res.table.levels_N == (30.0, 60.0)
+    chosen = res.chosen(robust)
+    assert chosen is robust if res.choice == "robust" else (chosen.schedule is res.table and chosen.Tf_s == robust.Tf_s)
     d = res.to_dict()
-    assert (d["choice"] in ("robust", "schedule")
-            and res.gains is (res.robust if d["choice"] == "robust" else res.scheduled))
+    assert d["choice"] in ("robust", "schedule") and type(res).from_dict(d) == res
     assert (d["choice"], d["reason"]) == _choose(d["levels"], d["whole_range"])
     # the figures are the validation's own: the first level's robust worst case again, independently
     r0 = d["levels"][0]
@@ -126,8 +126,8 @@ def test_tune_schedule_records_both_sets_per_level_and_chooses_by_them():
         assert r0["robust"][k] == again.summary()[k]["worst"], f"level 30 N, robust, {k} is not the validation's"
     # each entry has its own b (the table's column, tuned with the entry) and the robust set's Tf; an entry whose
     # tuning was infeasible keeps the robust set's gains, and says so
-    assert res.schedule.b is not None and d["table"]["b"] == list(res.schedule.b)
-    for r, kc, b in zip(d["levels"], res.schedule.Kc, res.schedule.b):
+    assert res.table.b is not None and d["table"]["b"] == list(res.table.b)
+    for r, kc, b in zip(d["levels"], res.table.Kc, res.table.b):
         assert r["entry"]["Kc_V_per_N"] == kc and r["entry"]["b"] == b and r["entry"]["Tf_s"] == robust.Tf_s
         assert 0.0 <= b <= 1.0, f"the setpoint weight {b} is outside the tuning's box"
         if "infeasible" in r["tuning"]:
@@ -138,7 +138,7 @@ def test_tune_schedule_records_both_sets_per_level_and_chooses_by_them():
             assert r["tuning"]["ms"] == pytest.approx(own, rel=1e-9) and r["ms"]["scheduled"] == pytest.approx(own)
         assert ("bound" in r) == (not r["scheduled"]["passed"]), (
             "a level the schedule misses does not say what stops it")
-    assert setpoint_action_rises(res.schedule.levels_N, res.schedule.Kc, res.schedule.b)
+    assert setpoint_action_rises(res.table.levels_N, res.table.Kc, res.table.b)
 
 
 def test_a_flat_schedule_validates_as_the_robust_set():
@@ -210,17 +210,32 @@ def test_the_chosen_sets_verdict_at_each_level_is_a_requirement():
     limits = {"settling_s": 0.6, "overshoot_N": 25.0, "tracking_rms_N": 40.0, "peak_voltage_V": 120.0}
     ok = {"settling_s": 0.3, "overshoot_N": 20.0, "tracking_rms_N": 30.0, "peak_voltage_V": 100.0}
     over = {**ok, "overshoot_N": 28.8}
-    record = {"choice": "robust", "plants": 50, "limits": limits,
-              "levels": [{"level_N": 0.0, "robust": ok, "scheduled": ok},
-                         {"level_N": 2000.0, "robust": over, "scheduled": ok}]}
+    record = _record("robust", limits, [(0.0, ok, ok), (2000.0, over, ok)])
     reqs = level_requirements(record)
     assert len(reqs) == 8 and [r.met for r in reqs].count(False) == 1
     missed = next(r for r in reqs if not r.met)
     assert missed.name == "worst overshoot at the 2,000 N level over 50 Monte Carlo plants (robust)"
     assert missed.value == 28.8 and missed.limit == 25.0 and missed.source == "[validation] overshoot_max_N"
-    assert all(r.met for r in level_requirements({**record, "choice": "schedule"})), "the schedule meets every level"
-    never = {**record, "levels": [{"level_N": 0.0, "robust": {**ok, "settling_s": None}, "scheduled": ok}]}
+    assert all(r.met for r in level_requirements(replace(record, choice="schedule"))), "the schedule meets every level"
+    never = _record("robust", limits, [(0.0, {**ok, "settling_s": None}, ok)])
     assert not level_requirements(never)[0].met, "a step that never settles misses the settling limit"
+
+
+def _record(choice, limits, levels):
+    """A gain schedule's record with these levels' figures ((level, robust, scheduled) each) and the rest filler."""
+    from piezopreload.artifacts.tuning import GainScheduleRecord, ScheduleLevel, SetFigures, SetGains, WorstFigures
+    from piezopreload.models.controller import GainSchedule
+
+    def worst(f):
+        return WorstFigures(**f, passed=True, failures=())
+
+    gains = SetGains(0.01, 0.05, 0.0, 0.001, 0.5)
+    table = GainSchedule((0.0, 2000.0), (0.01, 0.01), (0.05, 0.05), (0.0, 0.0))
+    return GainScheduleRecord(choice, "", table.levels_N, table, 0.001, 0.5, gains,
+                              tuple(ScheduleLevel(x, (x, x), gains, None, {}, worst(r), worst(s))
+                                    for x, r, s in levels),
+                              SetFigures(worst(levels[0][1]), worst(levels[0][2])), 50,
+                              ("settling_s", "overshoot_N", "tracking_rms_N", "peak_voltage_V"), limits, 0.0)
 
 
 @pytest.mark.slow
@@ -246,8 +261,8 @@ def test_the_machine_axis_verdict_does_not_hang_on_the_last_digits(monkeypatch, 
 
     monkeypatch.setattr(pid, "_seeds", moved)
     schedule = steps.tune(study, study.solved, feedforward).solve.schedule
-    assert schedule is not None and schedule["choice"] == "schedule", schedule and schedule["reason"]
-    kept = [lv["level_N"] for lv in schedule["levels"] if "infeasible" in lv["tuning"]]
+    assert schedule is not None and schedule.choice == "schedule", schedule and schedule.reason
+    kept = [lv.level_N for lv in schedule.levels if "infeasible" in lv.tuning]
     assert not kept, f"the entries at {kept} N kept the robust set"
     least = min((r for r in level_requirements(schedule)), key=lambda r: r.margin_pct)
     assert least.margin_pct >= 5.0, least.sentence()

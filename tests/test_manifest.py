@@ -60,7 +60,10 @@ def test_the_typed_summaries_hold_the_numbers_the_json_holds():
     system = manifest.summary(SystemSummary)
     assert system is not None and system.before is not None
     assert system.numbers.tracking_rms_N == stages["system"]["summary"]["tracking_rms_N"]
-    assert system.thermal == stages["system"]["summary"]["thermal"]
+    written = stages["system"]["summary"]["thermal"]  # a summary written before the words and four figures
+    assert system.thermal is not None and system.thermal.to_dict() == written
+    assert system.thermal.figure("growth_max_um", "constant") == written["growth_max_um"]["constant"]
+    assert system.thermal.drift.passive_left_N is None and system.thermal.ends == {}
     learn = manifest.summary(LearnSummary)
     assert learn is not None and list(learn.trials_per_pass) == stages["learn"]["summary"]["trials_per_pass"]
     rig = manifest.summary(RigSummary)

@@ -401,8 +401,8 @@ def test_the_rig_takes_its_limits_from_the_gain_sets_study_and_the_command_line_
     gains = write_gain_set(tmp_path / "g.json", study, feedforward, rig_interlocks=_STUDY_INTERLOCKS)
     r = _run(gains, tmp_path / "a", [Fault("offset", 1.0, 80.0)])
     side = RigRunRecord.load(r["log_json"])
-    assert side.safety["force_max_N"] == 130.0 and side.safety["force_low_margin_N"] == 12.0
-    assert side.safety["ramp_s"] == 0.3
+    assert side.safety.force_max_N == 130.0 and side.safety.force_low_margin_N == 12.0
+    assert side.safety.ramp_s == 0.3
     assert side.safety_sources["force_max_N"] == "the gain set: study.toml [rig_run] force_max_N"
     assert side.safety_sources["bolt_preload_N"] == "the gain set's plant"
     assert r["trip"]["cause"] == "force_high" and "above the limit 130 N" in r["trip"]["detail"]
@@ -470,7 +470,7 @@ def test_a_study_sets_a_stall_limit_only_below_the_plants(study, feedforward, tm
                       sources={**_STUDY_INTERLOCKS.sources, "stall_limit_s": "study.toml [rig_run] stall_limit_s"})
     gains = write_gain_set(tmp_path / "g.json", study, feedforward, rig_interlocks=carried)
     side = RigRunRecord.load(_run(gains, tmp_path / "a", [])["log_json"])
-    assert side.safety["stall_limit_s"] == 0.05 and side.stall_limit.limit_s == 0.05
+    assert side.safety.stall_limit_s == 0.05 and side.stall_limit.limit_s == 0.05
     assert side.stall_limit.source == "the gain set: study.toml [rig_run] stall_limit_s"
     assert side.stall_limit.plant_limit_s is None and side.stall_limit.horizon_s == pytest.approx(1.0)
     with pytest.raises(InputError, match="exceeds what the plant tolerates"):

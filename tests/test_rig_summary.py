@@ -81,9 +81,11 @@ def test_the_record_prints_what_the_summary_printed_on_the_same_run(gains_path, 
     assert ("step: rise" in lines[1]) == (fault is None) and any(("stopped by interlock" in x) for x in lines) == bool(
         fault), lines
     # a served rig's pushes: the record's run with the pushes it took, beside the summary that printed them
-    pushes = ({"user": "ops", "accepted": True, "gain_set_sha256": "ab" * 32},
-              {"user": "guest", "accepted": False, "reason": "not a validated gain set"})
-    served = replace(run, summary={**run.summary, "pushes": list(pushes)}, pushes=pushes)
+    from piezopreload.rig.opcua import PushTaken
+
+    pushes = (PushTaken("ops", gain_set_sha256="ab" * 32, accepted=True),
+              PushTaken("guest", accepted=False, reason="not a validated gain set"))
+    served = replace(run, summary={**run.summary, "pushes": [p.to_dict() for p in pushes]}, pushes=pushes)
     assert _printed(_print_rig_run, served) == _printed(_summary_printer, served.summary)
     assert _printed(_print_rig_run, served)[-3:-1] == [f"push by ops: accepted {'ab' * 6} ",
                                                        "push by guest: refused  not a validated gain set"]
@@ -98,4 +100,4 @@ def test_rig_run_json_keeps_its_keys_and_agrees_with_the_record(gains_path, tmp_
     record = RigRunRecord.load(doc["log_json"])
     assert (doc["status"], doc["cycles"], doc["rate_Hz"], doc["backend"]) == (
         record.status, record.summary.cycles, record.rate_Hz, record.backend)
-    assert doc["metrics"] == record.summary.metrics.to_dict() and doc["interlocks"] == record.safety
+    assert doc["metrics"] == record.summary.metrics.to_dict() and doc["interlocks"] == record.safety.to_dict()

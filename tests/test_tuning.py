@@ -643,13 +643,20 @@ def _judged_gain_set(tmp_path, level_overshoot_N):
     """A gain set validated on a small Monte Carlo set that it passes over the whole range, whose tuning chose the
     robust set beside a gain schedule with the robust set's worst overshoot ``level_overshoot_N`` at 2,000 N."""
     from piezopreload.artifacts.gainset import GainSet
+    from piezopreload.artifacts.tuning import GainScheduleRecord, ScheduleLevel, SetFigures, SetGains, WorstFigures
+    from piezopreload.models.controller import GainSchedule
     from piezopreload.tuning.verdict import validate_gain_set
 
     limits = {"settling_s": 0.6, "overshoot_N": 25.0, "tracking_rms_N": 40.0, "peak_voltage_V": 120.0}
-    ok = {"settling_s": 0.3, "overshoot_N": 20.0, "tracking_rms_N": 30.0, "peak_voltage_V": 100.0}
-    schedule = {"choice": "robust", "plants": 50, "limits": limits,
-                "levels": [{"level_N": 0.0, "robust": ok, "scheduled": ok},
-                           {"level_N": 2000.0, "robust": {**ok, "overshoot_N": level_overshoot_N}, "scheduled": ok}]}
+    ok = WorstFigures(0.3, 20.0, 30.0, 100.0, True, ())
+    over = replace(ok, overshoot_N=level_overshoot_N)
+    gains, table = SetGains(0.5, 0.05, 0.0, 0.0, 0.3), GainSchedule((0.0, 2000.0), (0.5, 0.5), (0.05, 0.05), (0.0, 0.0))
+    schedule = GainScheduleRecord(
+        "robust", "", table.levels_N, table, 0.0, 0.3, gains,
+        (ScheduleLevel(0.0, (0.0, 1000.0), gains, None, {}, ok, ok),
+         ScheduleLevel(2000.0, (1000.0, 2000.0), gains, None, {}, over, ok)),
+        SetFigures(ok, ok), 50, ("settling_s", "overshoot_N", "tracking_rms_N", "peak_voltage_V"), limits,
+        0.0).to_dict()
     candidate = GainSet(gains=PIDGains(Kc=0.5, Ti_s=0.05, b=0.3), plant=Plant(noise_N=0.1, amp_current_limit_A=0.02),
                         criteria=Criteria(settling_max_s=5.0, overshoot_max_N=50.0, tracking_rms_max_N=50.0),
                         references={"step": Reference.step(25.0, 50.0, 0.05, 0.6),

@@ -28,7 +28,7 @@ from piezopreload.tuning.feedforward import FeedforwardModel
 from piezopreload.tuning.validate import evaluate
 
 __all__ = ["compare_gains", "tracking_improvement", "Response", "responses", "creep_effect", "reproduction",
-           "reproduction_summary", "PublishedRow", "ReproductionSummary"]
+           "published_rows", "PublishedRow"]
 
 
 def compare_gains(rig: Plant, step: Reference, trajectory: Reference, candidates: dict[str, PIDGains],
@@ -176,76 +176,23 @@ class PublishedRow:
                 "range": list(self.range)}
 
 
-@dataclass(frozen=True)
-class ReproductionSummary:
-    """The published step numbers beside a :class:`Reproduction`'s (one :class:`PublishedRow` per controller and
-    metric), the overshoot per controller, the feedforward's fit and the noise realisations behind each number.
+def published_rows(rep: Reproduction, published: dict[str, dict[str, float]]) -> tuple[PublishedRow, ...]:
+    """The paper's six step numbers beside a :class:`Reproduction`'s, each judged within 25 % of the paper's,
+    with its range over the noise realisations (a time never reached is None and not within).
 
     Parameters
     ----------
-    feedforward_fit : dict of str to float
-        The feedforward's fit to its loop (``rms_pct``, ``max_pct`` of the span).
-    rows : tuple of PublishedRow
+    rep : Reproduction
+        The simulated step numbers, both controllers, with their range over the noise realisations.
+    published : dict of str to dict of str to float
+        The published numbers by controller (``pid``, ``ff+pid``) and metric (``rise_s``, ``peak_s``,
+        ``settling_s``), in s.
+
+    Returns
+    -------
+    tuple of PublishedRow
         One row per controller and metric.
-    overshoot_N : dict of str to float
-        The simulated overshoot per controller (N).
-    repeats : int
-        The noise realisations behind each number.
     """
-
-    feedforward_fit: dict[str, float]
-    rows: tuple[PublishedRow, ...]
-    overshoot_N: dict[str, float]
-    repeats: int
-
-    @property
-    def all_within_25pct(self) -> bool:
-        """Whether every simulated number lies within 25 % of the published one."""
-        return all(r.within_25pct for r in self.rows)
-
-    def row(self, controller: str, metric: str) -> PublishedRow:
-        """The row of ``controller`` (``pid``, ``ff+pid``) and ``metric`` (``rise_s``, ``peak_s``, ``settling_s``).
-
-        Parameters
-        ----------
-        controller : str
-            ``pid`` or ``ff+pid``.
-        metric : str
-            ``rise_s``, ``peak_s`` or ``settling_s``.
-
-        Returns
-        -------
-        PublishedRow
-            The published and the simulated number, their ratio and the range over the noise realisations.
-
-        Raises
-        ------
-        KeyError
-            Where no row has that controller and metric; the message lists the rows.
-        """
-        for r in self.rows:
-            if (r.controller, r.metric) == (controller, metric):
-                return r
-        raise KeyError(f"no row for {controller!r}, {metric!r}: the rows are "
-                       f"{', '.join(f'{r.controller}/{r.metric}' for r in self.rows)}")
-
-    def to_dict(self) -> dict[str, Any]:
-        """The summary as ``reproduce --json`` prints it.
-
-        Returns
-        -------
-        dict
-            ``feedforward_fit`` (% of the span), ``rows``, ``overshoot_N`` (N, per controller), ``all_within_25pct``,
-            ``repeats``.
-        """
-        return {"feedforward_fit": dict(self.feedforward_fit), "rows": [r.to_dict() for r in self.rows],
-                "overshoot_N": dict(self.overshoot_N), "all_within_25pct": self.all_within_25pct,
-                "repeats": self.repeats}
-
-
-def reproduction_summary(rep: Reproduction, published: dict[str, dict[str, float]]) -> ReproductionSummary:
-    """The paper's six step numbers beside a :class:`Reproduction`'s, each judged within 25 % of the paper's,
-    with its range over the noise realisations (a time never reached is None and not within)."""
     rows = []
     for r in rep.table(published):
         low, high = rep.spread[r["controller"]][r["metric"]]
@@ -253,5 +200,4 @@ def reproduction_summary(rep: Reproduction, published: dict[str, dict[str, float
         rows.append(PublishedRow(r["controller"], r["metric"], r["paper"], r["simulated"] if reached else None,
                                  r["ratio"] if reached else None, reached and bool(abs(r["ratio"] - 1.0) <= 0.25),
                                  (finite_or_none(low), finite_or_none(high))))
-    return ReproductionSummary(dict(rep.feedforward_fit), tuple(rows),
-                               {c: rep.metrics[c]["overshoot_N"] for c in rep.metrics}, rep.repeats)
+    return tuple(rows)

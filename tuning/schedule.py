@@ -64,6 +64,16 @@ from typing import Any
 import numpy as np
 
 from piezopreload.artifacts.requirements import Requirement
+from piezopreload.artifacts.tuning import (
+    CHOICES,
+    LEVEL_FIGURES,
+    GainScheduleRecord,
+    ScheduleChoice,
+    ScheduleLevel,
+    SetFigures,
+    SetGains,
+    WorstFigures,
+)
 from piezopreload.artifacts.validation import Criteria, ValidationResult
 from piezopreload.core.errors import InternalError
 from piezopreload.core.parallel import Pool
@@ -76,14 +86,12 @@ from piezopreload.tuning.linearised import max_sensitivity
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, plant_variants, tune_pid
 from piezopreload.tuning.validate import executor, validate
 
-__all__ = ["ScheduleResult", "LevelFigures", "WorstFigures", "tune_schedule", "tune_entries", "window_ms",
+__all__ = ["LevelFigures", "WorstFigures", "tune_schedule", "tune_entries", "window_ms",
            "level_requirements", "schedule_levels", "level_windows", "choose", "CHOICES", "CHOICE_WORDS",
            "setpoint_action_rises", "rising_setpoint_weights"]
 
-#: what :func:`tune_schedule` may choose
-CHOICES = ("robust", "schedule")
 #: the worst-case figures the table shows per level (the validation's metric names)
-FIGURES = ("settling_s", "overshoot_N", "tracking_rms_N", "peak_voltage_V")
+FIGURES = LEVEL_FIGURES
 
 
 def schedule_levels(low_N: float, high_N: float, n: int) -> np.ndarray:
@@ -112,46 +120,11 @@ def _path(a: float, level: float, b: float) -> list[float]:
     return out or [b]
 
 
-@dataclass(frozen=True, eq=False)
-class ScheduleResult:
-    """The schedule's entries, the robust set and the Monte Carlo figures of both at every level; the choice.
-
-    ``levels`` holds one record per entry: its level and window, the entry's gains, the tuning's
-    record, and per set (``robust``, ``scheduled``) the worst case over the plants of each figure
-    of :data:`FIGURES` and whether it met the criteria; ``whole_range`` the same over the study's
-    own references. ``choice`` is one of :data:`CHOICES`, ``reason`` says why.
-    """
-
-    schedule: GainSchedule
-    robust: PIDGains
-    scheduled: PIDGains
-    levels: list[dict[str, Any]]
-    whole_range: dict[str, Any]
-    choice: str
-    reason: str
-    n_plants: int
-    seconds: float
-    limits: dict[str, float]
-
-    @property
-    def gains(self) -> PIDGains:
-        """The chosen set: the robust one, or the scheduled one (with its table)."""
-        return self.robust if self.choice == "robust" else self.scheduled
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"choice": self.choice, "reason": self.reason, "levels_N": list(self.schedule.levels_N),
-                "table": self.schedule.to_dict(), "Tf_s": self.scheduled.Tf_s, "b": self.scheduled.b,
-                "robust": {"Kc_V_per_N": self.robust.Kc, "Ti_s": self.robust.Ti_s, "Td_s": self.robust.Td_s,
-                           "Tf_s": self.robust.Tf_s, "b": self.robust.b},
-                "levels": self.levels, "whole_range": self.whole_range, "plants": self.n_plants,
-                "figures": list(FIGURES), "limits": dict(self.limits), "seconds": self.seconds}
-
-
 #: what :func:`choose` returns, in words ("schedule: schedule: ..." read as a stutter)
-CHOICE_WORDS = {"robust": "the one robust set", "schedule": "the scheduled gains"}
+CHOICE_WORDS = {c: c.words for c in ScheduleChoice}
 
 
-def choose(levels: Sequence[LevelFigures], whole: LevelFigures) -> tuple[str, str]:
+def choose(levels: Sequence[LevelFigures], whole: LevelFigures) -> tuple[ScheduleChoice, str]:
     """The robust set if it meets the specification at every level and over the whole range, else the schedule if it
     does; where neither does, the one that meets it over the whole range (the robust set first). With the reason."""
     def passes(which: str) -> bool:
@@ -164,13 +137,14 @@ def choose(levels: Sequence[LevelFigures], whole: LevelFigures) -> tuple[str, st
         return bad[0] if len(bad) == 1 else ", ".join(bad[:-1]) + " and " + bad[-1]
 
     if passes("robust"):
-        return "robust", ("the one robust set meets the specification at every level and over the whole range: it is "
-                          "used (one set, nothing to switch)")
+        return ScheduleChoice.ROBUST, ("the one robust set meets the specification at every level and over the whole "
+                                       "range: it is used (one set, nothing to switch)")
     if passes("scheduled"):
-        return "schedule", f"the robust set misses the specification at {where('robust')}; the schedule meets it"
+        return ScheduleChoice.SCHEDULE, (f"the robust set misses the specification at {where('robust')}; the schedule "
+                                         "meets it")
     # the validation stage judges the whole range as always: keep the set that meets it there
-    choice = "schedule" if whole.scheduled.passed and not whole.robust.passed else "robust"
-    kept = (whole.robust if choice == "robust" else whole.scheduled).passed
+    choice = ScheduleChoice.SCHEDULE if whole.scheduled.passed and not whole.robust.passed else ScheduleChoice.ROBUST
+    kept = whole.of(choice.set_key).passed
     bounds = "; ".join(f"at {r.level_N:g} N {r.bound}" for r in levels if r.bound)
     return choice, (f"neither meets the specification at every level (the robust set misses it at {where('robust')}, "
                     f"the schedule at {where('scheduled')}); the {choice} set is kept"
@@ -190,49 +164,22 @@ def _failed_words(figures: WorstFigures) -> str:
     return ", ".join(_LEVEL_LIMITS[m][0] if m in _LEVEL_LIMITS else m for m in figures.failures)
 
 
-def level_requirements(schedule: dict[str, Any]) -> tuple[Requirement, ...]:
-    """The chosen set's verdict at each preload level of a gain schedule's record (:meth:`ScheduleResult.to_dict`):
-    its worst case over the level's Monte Carlo plants against each limit of the study's ``[validation]``."""
-    chosen = "scheduled" if schedule["choice"] == "schedule" else "robust"
+def level_requirements(schedule: GainScheduleRecord) -> tuple[Requirement, ...]:
+    """The chosen set's verdict at each preload level of a gain schedule's record: its worst case over the level's
+    Monte Carlo plants against each limit of the study's ``[validation]``."""
     out = []
-    for level in schedule["levels"]:
-        figures = level[chosen]
+    for level in schedule.levels:
+        figures = level.of(schedule.chosen_set)
         for metric, (words, unit, key) in _LEVEL_LIMITS.items():
-            if schedule["limits"].get(metric) is None:  # not a requirement of this study (the peak command's)
+            if schedule.limits.get(metric) is None:  # not a requirement of this study (the peak command's)
                 continue
-            value = figures.get(metric)
-            limit = schedule["limits"][metric]
+            value = figures.figure(metric)
+            limit = schedule.limits[metric]
             value = 1e9 * max(abs(limit), 1.0) if value is None else float(value)  # never settled: missed by far
-            out.append(Requirement(f"{words} at the {level['level_N']:,.0f} N level over {schedule['plants']} "
-                                   f"Monte Carlo plants ({schedule['choice']})", value, float(limit), unit, "max",
-                                   f"[validation] {key}", f"validation.{key}@{level['level_N']:g}N"))
+            out.append(Requirement(f"{words} at the {level.level_N:,.0f} N level over {schedule.plants} "
+                                   f"Monte Carlo plants ({schedule.choice})", value, float(limit), unit, "max",
+                                   f"[validation] {key}", f"validation.{key}@{level.level_N:g}N"))
     return tuple(out)
-
-
-@dataclass(frozen=True)
-class WorstFigures:
-    """One set's Monte Carlo worst case of each of :data:`FIGURES` (None: never reached, a settling time) at a level or
-    over the whole range, whether it met the criteria and the metrics it failed."""
-
-    settling_s: float | None
-    overshoot_N: float | None
-    tracking_rms_N: float | None
-    peak_voltage_V: float | None
-    passed: bool
-    failures: tuple[str, ...]
-
-    def figure(self, metric: str) -> float | None:
-        """The worst case of one of :data:`FIGURES`."""
-        value: float | None = getattr(self, metric)
-        return value
-
-    def to_dict(self) -> dict[str, Any]:
-        return {**{k: self.figure(k) for k in FIGURES}, "passed": self.passed, "failures": list(self.failures)}
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> WorstFigures:
-        """The figures as :meth:`to_dict` writes them (a schedule record's ``levels[i].robust``, ...)."""
-        return cls(**{k: d[k] for k in FIGURES}, passed=bool(d["passed"]), failures=tuple(d["failures"]))
 
 
 @dataclass(frozen=True)
@@ -484,7 +431,7 @@ def tune_schedule(
     pool: Pool | None = None,
     progress: ProgressLike | None = None,
     known: GainSchedule | None = None,
-) -> ScheduleResult:
+) -> GainScheduleRecord:
     """Tune a gain schedule at ``levels_N`` (measured force, N) around the robust set; validate both; choose.
 
     ``params`` is the nominal plant, ``feedforward`` the forward P-I model the controller inverts,
@@ -534,17 +481,13 @@ def tune_schedule(
     at = [LevelFigures(float(level), rb, sc, None if sc.passed else _bound(record, sc, limits))
           for level, (_, record), rb, sc in zip(lv, tuned, robust_figures, scheduled_figures)]
     over_all = LevelFigures(None, robust_figures[-1], scheduled_figures[-1])
-    levels = []
-    for f, window, sp, (g, record) in zip(at, plan.windows, plan.specs, tuned):
-        levels.append({"level_N": f.level_N, "window_N": list(window),
-                       "entry": {"Kc_V_per_N": g.Kc, "Ti_s": g.Ti_s, "Td_s": g.Td_s, "Tf_s": g.Tf_s, "b": g.b},
-                       "ms": {"scheduled": window_ms(g, params, sp), "robust": window_ms(robust, params, sp)},
-                       "tuning": record, "robust": f.robust.to_dict(), "scheduled": f.scheduled.to_dict(),
-                       **({} if f.bound is None else {"bound": f.bound})})
-    whole = {"robust": over_all.robust.to_dict(), "scheduled": over_all.scheduled.to_dict()}
+    levels = tuple(ScheduleLevel(float(level), (float(window[0]), float(window[1])), SetGains.of(g),
+                                 {"scheduled": window_ms(g, params, sp), "robust": window_ms(robust, params, sp)},
+                                 record, f.robust, f.scheduled, f.bound)
+                   for level, f, window, sp, (g, record) in zip(lv, at, plan.windows, plan.specs, tuned))
 
     choice, reason = choose(at, over_all)
-    say(f"gain schedule: {CHOICE_WORDS[choice]} chosen: {reason}")
-    return ScheduleResult(schedule=schedule, robust=robust, scheduled=replace(robust, schedule=schedule), levels=levels,
-                          whole_range=whole, choice=choice, reason=reason, n_plants=n_plants,
-                          seconds=time.perf_counter() - t0, limits=limits)
+    say(f"gain schedule: {choice.words} chosen: {reason}")
+    return GainScheduleRecord(choice, reason, tuple(float(x) for x in schedule.levels_N), schedule, robust.Tf_s,
+                              robust.b, SetGains.of(robust), levels, SetFigures(over_all.robust, over_all.scheduled),
+                              n_plants, FIGURES, dict(limits), time.perf_counter() - t0)

@@ -16,6 +16,7 @@ from typing import Any
 
 from piezopreload.artifacts.gainset import GainSet
 from piezopreload.artifacts.requirements import Requirement
+from piezopreload.artifacts.tuning import GainScheduleRecord
 from piezopreload.artifacts.validation import ValidationResult
 from piezopreload.core.errors import InputError
 from piezopreload.core.parallel import Pool
@@ -64,4 +65,6 @@ def level_requirements_of(gain_set: GainSet) -> tuple[Requirement, ...]:
     """A gain schedule's Monte Carlo requirements at each preload level, as its tuning judged the chosen set there
     (:func:`~piezopreload.tuning.schedule.level_requirements`); none where the tuning chose between no sets."""
     schedule = (gain_set.tuning or {}).get("schedule")
-    return level_requirements(schedule) if isinstance(schedule, dict) else ()
+    if not isinstance(schedule, dict):
+        return ()
+    return level_requirements(GainScheduleRecord.from_dict(schedule, "the gain set's tuning", path="tuning.schedule"))

@@ -114,7 +114,7 @@ def _cmd_learn(args: argparse.Namespace) -> Learned | RunLearned:
         return _from_run(args, gain_set)
     study = study_of(args, gain_set)
     reference: Any = args.reference
-    if reference not in (*study.references, "schedule"):
+    if reference not in (*study.reference.references(), "schedule"):
         reference = reference_for(reference, gain_set or GainSet(gains=study.controller), "--reference")[0]
     if reference == "schedule":  # along the preload schedule, each margin pass on its own reference
         if args.plants is not None:

@@ -307,8 +307,8 @@ def _print_rig_run(run: RigRun) -> None:
     elif m is not None and m.tracking_rms_N is not None:
         print(f"tracking RMS {m.tracking_rms_N:.3g} N, largest error {m.tracking_max_N:.3g} N")
     lim, src = r.safety, r.safety_sources
-    print(f"interlocks: force {lim['bolt_preload_N'] - lim['force_low_margin_N']:g}..{lim['force_max_N']:g} N "
-          f"(force_max_N from {src['force_max_N']}); stall limit {lim['stall_limit_s'] * 1e3:g} ms "
+    print(f"interlocks: force {lim.force_low_N:g}..{lim.force_max_N:g} N "
+          f"(force_max_N from {src['force_max_N']}); stall limit {lim.stall_limit_s * 1e3:g} ms "
           f"(from {src['stall_limit_s']})")
     print(f"timing: {t.missed_deadlines} missed deadlines, {t.stalls} stalls (longest hold "
           f"{t.held_max_s * 1e3:.2f} ms), lateness p99 {t.lateness_p99_s * 1e6:.0f} us, max "
@@ -319,8 +319,8 @@ def _print_rig_run(run: RigRun) -> None:
         print(f"host check: {h.verdict}{' (run anyway: --accept-host)' if h.verdict == 'fail' else ''}; "
               f"lateness p99 {h.lateness_p99_s * 1e6:.0f} us, max {h.lateness_max_s * 1e3:.2f} ms")
     for p in run.pushes:
-        print(f"push by {p['user']}: {'accepted' if p['accepted'] else 'refused'} "
-              f"{p.get('gain_set_sha256', '')[:12]} {p.get('reason', '')}")
+        print(f"push by {p.user}: {'accepted' if p.accepted else 'refused'} "
+              f"{(p.gain_set_sha256 or '')[:12]} {p.reason or ''}")
     print(f"run log: {run.log_csv} and {run.log_json}")
 
 

@@ -74,7 +74,7 @@ class TuneWritten:
             "tracking_floor": record["tracking_floor"],
             "validation": None if gain_set.validation is None else gain_set.validation.to_dict(),
             "seconds": self.seconds,
-            "gain_schedule": t.solve.schedule,  # the schedule's entries, figures and choice, or None
+            "gain_schedule": None if t.solve.schedule is None else t.solve.schedule.to_dict(),  # entries, choice
         }
 
 

@@ -1,0 +1,394 @@
+"""One declared type per concept (issue 42's leftovers): no result forwards another's fields, the records that
+carry the thermal figures, the gain schedule and the rig run's safety and pushes, the enums that choose behaviour
+in the study's tables, and the study's verbs documented once."""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from piezopreload.artifacts.manifest import StudyRef
+from piezopreload.models.controller import PIDGains
+from piezopreload.results import StudyReproduction
+from piezopreload.tuning.compare import PublishedRow
+
+ROOT = Path(__file__).parents[1]
+
+
+def _forwarders(source: str) -> list[str]:
+    """The properties whose body (past a docstring) only returns an attribute of one of the object's own fields
+    (``return self.field.attr``): a result that forwards what another result holds."""
+    found = []
+    for cls in (n for n in ast.walk(ast.parse(source)) if isinstance(n, ast.ClassDef)):
+        for fn in cls.body:
+            if not (isinstance(fn, ast.FunctionDef)
+                    and any(isinstance(d, ast.Name) and d.id == "property" for d in fn.decorator_list)):
+                continue
+            body = [s for s in fn.body if not (isinstance(s, ast.Expr) and isinstance(s.value, ast.Constant))]
+            value = body[0].value if len(body) == 1 and isinstance(body[0], ast.Return) else None
+            if (isinstance(value, ast.Attribute) and isinstance(value.value, ast.Attribute)
+                    and isinstance(value.value.value, ast.Name) and value.value.value.id == "self"):
+                found.append(f"{cls.name}.{fn.name} -> {ast.unparse(value)}")
+    return found
+
+
+def test_the_forwarder_check_can_fail():
+    source = '''
+class Outer:
+    @property
+    def rows(self):
+        """The rows."""
+        return self.comparison.rows
+
+    @property
+    def within(self):
+        return all(r.ok for r in self.rows)
+'''
+    assert _forwarders(source) == ["Outer.rows -> self.comparison.rows"]
+
+
+def test_the_study_results_forward_nothing():
+    """What the study's simulating steps return holds its own numbers: no property hands on another result's."""
+    found = _forwarders((ROOT / "piezopreload" / "results.py").read_text(encoding="utf-8"))
+    assert not found, "forwarding properties:\n" + "\n".join(found)
+
+
+def _reproduction(within: tuple[bool, ...]) -> StudyReproduction:
+    rows = tuple(PublishedRow("pid", m, 0.1, 0.1 * (1.1 if ok else 1.5), 1.1 if ok else 1.5, ok, (0.1, 0.2))
+                 for m, ok in zip(("rise_s", "peak_s", "settling_s"), within, strict=True))
+    return StudyReproduction(StudyRef("s.toml", "0" * 64, "s"), PIDGains(Kc=0.1, Ti_s=0.08, Td_s=0.0), "s", 0.5,
+                             "force", "paper", (0.0, 100.0), rows, {"pid": 1.5}, {"rms_pct": 1.0, "max_pct": 2.0},
+                             3, 0.25)
+
+
+def test_a_reproduction_holds_its_rows_and_prints_the_same_keys():
+    """``reproduce --json`` prints the keys it printed when the comparison was a record of its own."""
+    rep = _reproduction((True, False, True))
+    assert list(rep.to_dict()) == ["study", "gains", "band_N", "signal", "published", "step", "feedforward_fit",
+                                   "rows", "overshoot_N", "all_within_25pct", "repeats", "seconds"]
+    assert rep.to_dict()["all_within_25pct"] is False and _reproduction((True,) * 3).all_within_25pct
+    assert rep.row("pid", "peak_s").ratio == 1.5 and rep.repeats == 3
+    with pytest.raises(KeyError, match="pid/rise_s, pid/peak_s, pid/settling_s"):
+        rep.row("ff+pid", "rise_s")
+
+
+# --- the thermal figures: one record from the system artifact to run --json --------------------------------------
+def _case(scale: float):
+    from piezopreload.artifacts.thermal import FIGURES, ThermalCase
+
+    times = np.array([0.5, 1.0])
+    return ThermalCase(**{name: scale * (i + 1) for i, name in enumerate(FIGURES)}, times_h=times,
+                       rise_along_K=np.ones((2, 3)), nut_rise_K=times, nut_over_screw_K=-times,
+                       growth_um=np.ones((2, 2)), elastic_um=np.ones(2), budget_um=np.ones((2, 2)))
+
+
+def _budget():
+    from piezopreload.artifacts.thermal import PreloadDrift, ThermalRecord
+
+    drift = PreloadDrift(100.0, 350.0, -500.0, 1200.0, -520.0, 1700.0, 3.0, 9.0, 70.0)
+    return ThermalRecord("contact", "catalogue", 68, True, 0.2, 0.5, 1.0, "pretensioned", 3.0, 2000.0, "linear-scale",
+                         2.5, (100.0, 500.0), np.array([0.0, 300.0, 600.0]), np.array([100.0, 500.0]), 20.0, 900.0,
+                         _case(1.0), _case(2.0), drift)
+
+
+def test_the_figures_are_the_thermal_cases_own_scalar_fields():
+    """The summary's and the sweep's figure names are the case's fields, in their order (as they were listed)."""
+    from piezopreload.artifacts.thermal import FIGURES
+
+    assert FIGURES == ("heat_mean_W", "heat_mean_other_W", "seal_heat_mean_W", "bearing_heat_mean_W",
+                       "preload_mean_N", "temperature_rise_max_K", "rise_max_at_mm", "temperature_rise_max_other_K",
+                       "nut_rise_max_K", "nut_over_screw_end_K", "end_force_max_N", "bearing_force_max_N",
+                       "growth_max_um", "growth_max_other_um", "positioning_error_max_um", "tracking_um")
+
+
+def test_the_system_summarys_thermal_figures_are_a_record_that_writes_the_same_document():
+    from piezopreload.artifacts.summaries import SystemSummary
+    from piezopreload.artifacts.thermal import FIGURES, ThermalSummary
+
+    budget = _budget()
+    summary = budget.summary()
+    doc = summary.to_dict()
+    # run --json's and system.json's keys: each figure as {"schedule", "constant"}, then the settings and the words
+    assert list(doc)[:len(FIGURES)] == list(FIGURES)
+    assert all(doc[name] == {"schedule": 1.0 * (i + 1), "constant": 2.0 * (i + 1)} for i, name in enumerate(FIGURES))
+    assert list(doc)[len(FIGURES):] == ["heat_model", "other_model", "lubricant_vg", "sealed", "seal_torque_Nm",
+                                        "nut_heat_share", "convection_factor", "mounting", "pretension_K",
+                                        "bearing_lift_off_N", "feedback", "shift_h", "stroke_mm",
+                                        "film_mean_W_per_m2K", "screw_time_constant_s", "drift", "rise_max_place",
+                                        "nut_against_screw", "ends"]
+    assert doc["drift"]["held"] is True and doc["ends"]["schedule"] == budget.ends_words(budget.schedule)
+    back = ThermalSummary.from_dict(doc)
+    assert back == summary and back.figure("growth_max_um", "constant") == budget.constant.growth_max_um
+    assert {f.name: f.type for f in dataclasses.fields(SystemSummary)}["thermal"] == "ThermalSummary | None"
+
+
+def test_a_thermal_summary_names_a_wrong_figure_where_the_document_holds_it():
+    from piezopreload.artifacts.thermal import FigurePair, ThermalSummary
+    from piezopreload.core.errors import ArtifactError
+
+    doc = _budget().summary().to_dict()
+    doc["growth_max_um"] = {"schedule": 1.0}
+    with pytest.raises(ArtifactError, match=r"s\.json: field 'thermal\.growth_max_um\.constant' is missing"):
+        ThermalSummary.from_dict(doc, "s.json", path="thermal")
+    with pytest.raises(ValueError, match="growth_um is no figure of a thermal case"):
+        dataclasses.replace(_budget().summary(), figures={"growth_um": FigurePair(1.0, 2.0)})
+
+
+# --- the gain schedule: one record from the tuning to the report's figure -----------------------------------------
+def _schedule_doc():
+    """A gain schedule's record as the tune stage first wrote it (no per-level Ms, no bound), the figures rounded."""
+    def worst(tracking, passed=True):
+        return {"settling_s": 0.2, "overshoot_N": 10.0, "tracking_rms_N": tracking, "peak_voltage_V": None,
+                "passed": passed, "failures": [] if passed else ["tracking_rms_N"]}
+
+    gains = [{"Kc_V_per_N": kc, "Ti_s": ti, "Td_s": 0.0, "Tf_s": 0.0005, "b": 0.5}
+             for kc, ti in ((0.012, 0.0034), (0.0115, 0.0447))]
+    return {"choice": "schedule", "reason": "the robust set misses the specification at 2,000 N",
+            "levels_N": [0.0, 2000.0],
+            "table": {"levels_N": [0.0, 2000.0], "Kc_V_per_N": [0.012, 0.0115], "Ti_s": [0.0034, 0.0447],
+                      "Td_s": [0.0, 0.0], "interpolation": "linear"},
+            "Tf_s": 0.0005, "b": 0.5, "robust": {"Kc_V_per_N": 0.0108, "Ti_s": 0.0486, "Td_s": 0.0, "Tf_s": 0.0005,
+                                                 "b": 0.5},
+            "levels": [{"level_N": lv, "window_N": [lo, hi], "entry": g, "tuning": {"ms": 1.6}, "robust": worst(r, ok),
+                        "scheduled": worst(s)}
+                       for lv, (lo, hi), g, r, ok, s in zip((0.0, 2000.0), ((0.0, 1000.0), (1000.0, 2000.0)), gains,
+                                                            (30.0, 45.0), (True, False), (15.9, 17.4))],
+            "whole_range": {"robust": worst(31.0), "scheduled": worst(20.0)}, "plants": 50,
+            "figures": ["settling_s", "overshoot_N", "tracking_rms_N", "peak_voltage_V"],
+            "limits": {"tracking_rms_N": 40.0, "overshoot_N": 25.0}, "seconds": 12.0}
+
+
+def test_a_gain_schedule_written_before_reads_into_its_record_and_writes_back():
+    from piezopreload.artifacts.tuning import GainScheduleRecord, TuningSolve
+
+    doc = _schedule_doc()
+    sched = GainScheduleRecord.from_dict(doc, "tuning.json", path="solve.schedule")
+    back = sched.to_dict()
+    back["table"]["interpolation"] = "linear"  # the table states the interpolation as the model writes it now
+    assert back == doc
+    assert sched.levels[1].of("robust").tracking_rms_N == 45.0 and sched.levels[1].ms is None
+    assert sched.chosen_set == "scheduled" and sched.table.Ti_s == (0.0034, 0.0447)
+    assert {f.name: f.type for f in dataclasses.fields(TuningSolve)}["schedule"] == "GainScheduleRecord | None"
+    with pytest.raises(ValueError, match=r"tuning\.json: field 'solve\.schedule\.levels\[1\]\.robust\.passed' is "
+                                         r"missing"):
+        bad = _schedule_doc()
+        del bad["levels"][1]["robust"]["passed"]
+        GainScheduleRecord.from_dict(bad, "tuning.json", path="solve.schedule")
+
+
+def test_the_gain_schedules_figure_draws_its_record():
+    from piezopreload.artifacts.tuning import GainScheduleRecord
+    from piezopreload.reports import figures
+
+    sched = GainScheduleRecord.from_dict(_schedule_doc())
+    fig = figures.gain_schedule(sched)
+    kc = fig.axes[0].lines
+    np.testing.assert_allclose(kc[1].get_ydata(), [12.0, 11.5], err_msg="the entries' Kc (mV/N) are not the table's")
+    np.testing.assert_allclose(kc[2].get_ydata(), [10.8, 10.8], err_msg="the robust set's Kc is not the record's")
+    worst = fig.axes[2].lines
+    np.testing.assert_allclose(worst[0].get_ydata(), [30.0, 45.0], err_msg="the robust set's tracking RMS per level")
+    assert fig._suptitle.get_text() == "chosen: the scheduled gains"
+
+
+# --- the study: the parsed tables and nothing derived kept beside them ---------------------------------------------
+def test_the_study_keeps_no_twin_of_its_reference_and_design_tables():
+    """``references`` and ``design_spec`` are made from the tables when asked: a study whose tables change (a copy
+    with another step, another screw) cannot hold the old ones beside them."""
+    from piezopreload.spec import StudySpec
+    from piezopreload.study import load_study
+    from piezopreload.tables import StepTable
+
+    assert {"references", "design_spec"}.isdisjoint(f.name for f in dataclasses.fields(StudySpec))
+    study = load_study("machine_axis")
+    step = dataclasses.replace(study.reference.step, final_N=study.reference.step.final_N + 100.0)
+    changed = dataclasses.replace(study, reference=dataclasses.replace(study.reference, step=step),
+                                  ballscrew=dataclasses.replace(study.ballscrew, lead_mm=study.ballscrew.lead_mm * 2))
+    assert changed.references["step"].levels_N[-1] == study.references["step"].levels_N[-1] + 100.0
+    assert changed.references["step"].levels_N[-1] == StepTable.reference(step).levels_N[-1]
+    assert changed.design_spec.lead_mm == 2 * study.design_spec.lead_mm
+    assert not study.same_design(changed)
+
+
+# --- enums where strings chose behaviour ---------------------------------------------------------------------------
+MACHINE_AXIS = ROOT / "studies" / "machine_axis.toml"
+
+
+def _axis_with(tmp_path, line_start: str, value: str) -> Path:
+    """The machine axis' study with the key on the line starting ``line_start`` set to ``value``."""
+    lines = MACHINE_AXIS.read_text(encoding="utf-8").splitlines()
+    at = next(i for i, line in enumerate(lines) if line.startswith(line_start))
+    lines[at] = f'{line_start.split("=")[0].strip()} = "{value}"'
+    path = tmp_path / "axis.toml"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+ENUM_KEYS = [("mounting = \"fixed-fixed\"", "feed_drive.mounting", "fixed-fixed, fixed-supported"),
+             ("heat_model = ", "thermal.heat_model", "catalogue, contact"),
+             ("mounting = \"pretensioned\"", "thermal.mounting", "fixed-free, fixed-fixed, pretensioned"),
+             ("feedback = ", "thermal.feedback", "semi-closed, linear-scale")]
+
+
+@pytest.mark.parametrize(("line_start", "key", "allowed"), ENUM_KEYS, ids=[k for _, k, _ in ENUM_KEYS])
+def test_a_study_key_that_chooses_behaviour_refuses_a_value_it_does_not_know_in_one_line(tmp_path, line_start, key,
+                                                                                           allowed):
+    from piezopreload.core.errors import InputError
+    from piezopreload.study import load_study
+
+    path = _axis_with(tmp_path, line_start, "sideways")
+    line = next(i for i, text in enumerate(path.read_text().splitlines(), 1) if text.endswith('= "sideways"'))
+    with pytest.raises(InputError) as err:
+        load_study(path)
+    assert str(err.value) == f"{path}:{line}: '{key}' must be one of {allowed}, got 'sideways'"
+
+
+def test_the_study_keys_that_choose_behaviour_are_read_into_their_enums_and_written_as_their_strings(tmp_path):
+    from piezopreload.core.config import toml_text
+    from piezopreload.models.feed_drive import Mounting
+    from piezopreload.models.thermal import Feedback, HeatModel, ThermalMounting
+    from piezopreload.study import load_study
+
+    study = load_study(_axis_with(tmp_path, "heat_model = ", "contact"))
+    t = study.thermal
+    assert (t.heat_model, t.mounting, t.feedback) == (HeatModel.CONTACT, ThermalMounting.PRETENSIONED,
+                                                      Feedback.SEMI_CLOSED)
+    assert all(type(x) is cls for x, cls in ((t.heat_model, HeatModel), (t.mounting, ThermalMounting),
+                                             (t.feedback, Feedback), (study.feed_drive.mounting, Mounting)))
+    assert study.design_spec.feed_drive.mounting is Mounting.FIXED_FIXED
+    assert t.heat_model.other is HeatModel.CATALOGUE
+    written = t.to_dict()
+    assert type(written["heat_model"]) is str and written["heat_model"] == "contact"
+    assert 'heat_model = "contact"' in toml_text({"thermal": written})
+
+
+def test_the_thermal_record_writes_and_reads_its_enums_as_the_same_strings():
+    from piezopreload.artifacts.thermal import ThermalRecord, ThermalSummary
+    from piezopreload.core.errors import ArtifactError
+    from piezopreload.models.thermal import Feedback, HeatModel, ThermalMounting
+
+    budget = _budget()
+    assert (budget.heat_model, budget.other_model, budget.mounting, budget.feedback) == (
+        HeatModel.CONTACT, HeatModel.CATALOGUE, ThermalMounting.PRETENSIONED, Feedback.LINEAR_SCALE)
+    doc = budget.to_dict()
+    assert [type(doc[k]) for k in ("heat_model", "mounting", "feedback")] == [str, str, str]
+    assert (doc["heat_model"], doc["mounting"], doc["feedback"]) == ("contact", "pretensioned", "linear-scale")
+    back = ThermalRecord.from_dict(doc)
+    assert back.mounting is ThermalMounting.PRETENSIONED and back.feedback is Feedback.LINEAR_SCALE
+    with pytest.raises(ArtifactError, match=r"s\.json: field 'mounting' must be one of fixed-free, fixed-fixed, "
+                                            r"pretensioned, got 'sideways'"):
+        ThermalSummary.from_dict({**budget.summary().to_dict(), "mounting": "sideways"}, "s.json")
+
+
+def test_the_gain_schedules_choice_is_an_enum_read_and_written_as_its_string():
+    from piezopreload.artifacts.tuning import GainScheduleRecord, ScheduleChoice
+    from piezopreload.core.errors import ArtifactError
+
+    sched = GainScheduleRecord.from_dict(_schedule_doc())
+    assert sched.choice is ScheduleChoice.SCHEDULE and sched.choice.words == "the scheduled gains"
+    assert type(sched.to_dict()["choice"]) is str and sched.to_dict()["choice"] == "schedule"
+    with pytest.raises(ArtifactError, match=r"field 'choice' must be one of robust, schedule, got 'both'"):
+        GainScheduleRecord.from_dict({**_schedule_doc(), "choice": "both"})
+    with pytest.raises(ValueError, match="choice must be one of robust, schedule, got 'both'"):
+        dataclasses.replace(sched, choice="both")
+
+
+# --- the study's verbs: each parameter documented once, on the steps function --------------------------------------
+STEP_METHODS = {"design": "design", "measured_loop": "measured_loop", "identify_feedforward": "identify",
+                "learn": "learn", "learn_schedule": "learn_schedule", "track_schedule": "track_schedule",
+                "tune": "tune", "validate": "validate", "simulate": "simulate", "reproduce": "reproduce"}
+
+
+@pytest.mark.parametrize("method", list(STEP_METHODS))
+def test_a_study_method_documents_its_parameters_in_the_words_of_the_step_it_calls(method):
+    """Each parameter of ``Study.<method>`` is documented by the very entry of the steps function it calls (one text,
+    so they cannot drift)."""
+    import inspect
+
+    from numpydoc.docscrape import NumpyDocString
+
+    from piezopreload import steps
+    from piezopreload.study import Study
+
+    def entries(fn):
+        return {name.strip(): (p.type, p.desc) for p in NumpyDocString(inspect.getdoc(fn))["Parameters"]
+                for name in p.name.split(",")}
+
+    mine, step = entries(getattr(Study, method)), entries(getattr(steps, STEP_METHODS[method]))
+    params = [n for n in inspect.signature(getattr(Study, method)).parameters if n != "self"]
+    assert sorted(mine) == sorted(params), f"Study.{method} documents {sorted(mine)}, takes {params}"
+    for name in params:
+        assert mine[name] == step[name], f"Study.{method}'s {name} is not documented as steps.{STEP_METHODS[method]}"
+
+
+def test_the_shared_parameters_refuse_a_method_they_cannot_document():
+    from piezopreload import study
+
+    def step(spec, solved, seed=None):
+        """A step.
+
+        Parameters
+        ----------
+        spec, solved : object
+            The study and what it solved.
+        seed : int, optional
+            The seed.
+        """
+
+    def method(self, seed=None, plants=None):
+        """A verb."""
+
+    with pytest.raises(TypeError, match="documents no plants; document it there, once"):
+        study._parameters_of(step)(method)
+
+    def own(self, seed=None):
+        """A verb.
+
+        Parameters
+        ----------
+        seed : int
+            Its own words.
+        """
+
+    with pytest.raises(TypeError, match="write none of its own"):
+        study._parameters_of(step)(own)
+
+
+# --- the rig run: its limits and its served pushes as records ------------------------------------------------------
+RUN_JSON = ROOT / "tests" / "data" / "artifacts" / "run.json"
+
+
+def test_a_sidecar_written_before_reads_its_limits_into_the_safety_record_and_writes_them_back():
+    import json
+
+    from piezopreload.artifacts.rigrun import RigRunRecord, Safety
+    from piezopreload.core.errors import ArtifactError
+
+    written = json.loads(RUN_JSON.read_text())
+    record = RigRunRecord.load(RUN_JSON)
+    assert isinstance(record.safety, Safety) and record.safety.force_max_N == written["safety"]["force_max_N"]
+    assert record.safety.force_low_N == written["safety"]["bolt_preload_N"] - written["safety"]["force_low_margin_N"]
+    assert record.to_dict()["safety"] == written["safety"]
+    body = {k: v for k, v in written.items() if k not in ("schema", "package_version", "sha256")}
+    body["safety"] = {k: v for k, v in written["safety"].items() if k != "stall_limit_s"}
+    with pytest.raises(ArtifactError, match=r"field 'safety\.stall_limit_s' is missing"):
+        RigRunRecord.from_dict(body)  # a limit the run used is never taken from the defaults
+
+
+def test_a_served_rigs_pushes_are_records_that_write_the_keys_the_summary_had():
+    from piezopreload.rig.opcua import PushTaken
+
+    identity = {"gain_set_sha256": "ab" * 32, "feedforward_sha256": "cd" * 32, "controller": "PID",
+                "interlocks_kept": ["force_max_N 130 N (the pushed set's 150 N)"], "note": "night shift"}
+    taken = PushTaken.of("ops", identity, accepted=True)
+    assert taken.to_dict() == {"user": "ops", **identity, "accepted": True}
+    assert list(taken.to_dict()) == ["user", *identity, "accepted"]
+    refused = PushTaken.of("ops", identity, accepted=False, reason="its plant is not this rig's")
+    assert refused.to_dict() == {"user": "ops", **identity, "accepted": False, "reason": "its plant is not this rig's"}
+    assert PushTaken("guest", reason="no such user").to_dict() == {"user": "guest", "accepted": False,
+                                                                   "reason": "no such user"}
+    with pytest.raises(ValueError, match="'operator' is not a field"):
+        PushTaken.of("ops", {**identity, "operator": "x"}, accepted=True)  # never dropped silently
