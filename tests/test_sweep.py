@@ -295,6 +295,28 @@ def test_the_rows_as_csv_repr_html_and_data_frame(tmp_path, monkeypatch):
         result.to_dataframe()
 
 
+def test_a_sweep_whose_points_ran_but_one_missed_a_requirement_exits_4_and_says_which(tmp_path):
+    """The rule ``sweep`` exits by, on a record made here (the slow test of a real sweep with a missed point runs it
+    end to end): a point that missed a requirement, none failed, is exit 4 (as ``run``), counted apart from the failed
+    ones and named by its folder in the closing line; a failed point as well is exit 5."""
+    from piezopreload.sweep import _closing_line
+
+    record = _record()
+    ran = SweepRecord(record.study_name, record.study_path, record.study_sha256, record.mode, record.axes,
+                      record.points[:3], record.started_utc)
+    result = SweepResult(tmp_path, ran, 3.0)
+    assert [p.index for p in result.missed] == [2] and result.failed == [] and result.exit_code == 4
+    doc = result.to_dict()
+    assert (doc["exit_code"], doc["done"], doc["failed"], doc["missed_requirements"]) == (4, 3, 0, 1), doc
+    assert [r["requirements_met"] for r in doc["rows"]] == [None, True, False]
+    line = _closing_line(result, 3.0, report=False)
+    assert line == (f"3 of 3 points done in 3.0 s, 1 of them missed a requirement (p002: see requirements_missed in "
+                    f"its row); rows in {tmp_path / 'sweep.csv'}"), line
+    both = SweepResult(tmp_path, record, 4.0)  # p002 missed a requirement, p003 failed: the failure decides
+    assert both.exit_code == EXIT_POINT_FAILED == 5
+    assert _closing_line(both, 4.0, report=True).startswith("3 of 4 points done in 4.0 s, 1 failed, 1 of them missed")
+
+
 def test_the_data_frame_holds_the_rows(tmp_path):
     pytest.importorskip("pandas", reason="pandas is optional (SweepResult.to_dataframe); not installed here")
     frame = SweepResult(tmp_path, _record()).to_dataframe()
@@ -553,6 +575,10 @@ def test_a_failing_point_is_recorded_and_the_others_go_on(tmp_path, capsys):
     assert (out / "report.pdf").is_file() and "rig" in (out / "sweep.csv").read_text()
 
 
+# two real points (about 20 s): slow, as the failing point's run above is; the quick check holds the sweep's rule on
+# a record (test_a_sweep_whose_points_ran_but_one_missed_a_requirement_exits_4_and_says_which) and a study's exit 4
+# on a missed requirement (tests/test_api.py::test_results_show_themselves_in_a_terminal_and_a_notebook)
+@pytest.mark.slow
 def test_a_point_that_misses_a_requirement_runs_through_and_the_sweep_exits_4(tmp_path, capsys):
     out = tmp_path / "sweep"
     code = main(["sweep", str(SMALL), "--vary", "validation.overshoot_max_N=1.5,0.01", "--workers", "1",
