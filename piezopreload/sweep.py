@@ -490,13 +490,20 @@ def sweep(study: StudySpec, vary: Mapping[str, Sequence[Scalar]], *, mode: str =
             with Pool(here) as pool:
                 render_sweep_report(out, record, say=reporter.say, pool=pool)
     seconds = time.perf_counter() - t0
-    failed, missed = len(result.failed), result.missed
+    result = SweepResult(out, record, seconds)
+    reporter.write(_closing_line(result, seconds, report) + "\n")
+    return result
+
+
+def _closing_line(result: SweepResult, seconds: float, report: bool) -> str:
+    """The sweep's last line on the console: the points done of all, the ``seconds`` taken, the failed ones, the ones
+    that missed a requirement (by folder), where the rows are and, where ``report``, the report."""
+    total, failed, missed = len(result.points), len(result.failed), result.missed
     missing = (f", {len(missed)} of them missed a requirement ({', '.join(Path(p.folder).name for p in missed)}: "
                "see requirements_missed in its row)" if missed else "")
-    reporter.write(f"{len(tasks) - failed} of {len(tasks)} points done in {seconds:.1f} s"
-                   f"{f', {failed} failed' if failed else ''}{missing}; rows in {out / ROWS}"
-                   + (f", report {out / 'report.pdf'}" if report else "") + "\n")
-    return SweepResult(out, record, seconds)
+    return (f"{total - failed} of {total} points done in {seconds:.1f} s"
+            f"{f', {failed} failed' if failed else ''}{missing}; rows in {result.out / ROWS}"
+            + (f", report {result.out / 'report.pdf'}" if report else ""))
 
 
 def is_sweep_folder(out: str | Path) -> bool:

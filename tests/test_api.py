@@ -228,11 +228,17 @@ def _example(name: str):
     return module
 
 
-@pytest.mark.slow  # two tunings and validations
+@pytest.mark.slow  # a tuning and a validation
 def test_example_sweep_of_the_bolt_preload(tmp_path):
-    rows = _example("sweep_bolt_preload").main(["--study", str(SMALL), "--preloads", "22", "28", "--plants", "4",
+    """The example on a study whose plant is its ``[rig]`` (the small study), with the options a user gives: one
+    preload, not the study's own, is enough to show ``[rig] bolt_preload_N`` set from ``--preloads`` and the figure
+    written to ``--out``; a sweep over several preloads, each another plant, is the next test's (the machine axis's
+    three). The preload is 28 N: at 22 N, which this test also ran, the PID tuning alone took half a minute (about a
+    thousand IPOPT evaluations a start), a cost of the tuner at that plant and not of what is checked here."""
+    rows = _example("sweep_bolt_preload").main(["--study", str(SMALL), "--preloads", "28", "--plants", "4",
                                                 "--out", str(tmp_path)])
-    assert [r["bolt_preload_N"] for r in rows] == [22.0, 28.0]
+    assert [r["bolt_preload_N"] for r in rows] == [28.0]
+    assert pp.load_study(SMALL).plant.bolt_preload_N != 28.0, "the preload asked for is the study's own"
     for r in rows:  # settled inside the 3 s step, on the nominal rig and on every Monte Carlo plant
         assert 0 < r["settling_s"] < 3.0 and 0 < r["worst_settling_s"] < 3.0, r
     assert (tmp_path / "settling_vs_bolt_preload.png").stat().st_size > 0

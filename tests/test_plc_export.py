@@ -220,15 +220,13 @@ def test_the_program_switches_between_manual_and_automatic_bumplessly(tmp_path):
 
 @pytest.mark.slow
 def test_blark_parses_every_plc_export_and_refuses_a_broken_one(tmp_path):
-    """The gain sets' sources (the one with a feedforward in the test above) and a model alone's PP_FEEDFORWARD of
-    every kind, with and without creep (tests/test_exports.py runs them), parse; a source with a statement cut
-    short does not (the check can fail)."""
+    """A model alone's PP_FEEDFORWARD of every kind, with and without creep (tests/test_exports.py runs them), parses;
+    a source with a statement cut short does not (the check can fail). The gain sets' sources of every kind are
+    parsed by the test above, each once (blark's Earley parser takes seconds a source)."""
     from test_exports import KINDS as MODEL_KINDS
     from test_exports import _model
 
-    for kind in ("pid", "scheduled"):
-        text = export(gain_set(kind, tmp_path / f"{kind}.json"), "plc")
-        assert parse_iec(text) is None, f"{kind}: blark does not parse the export"
+    assert set(KINDS) >= {"pid", "scheduled"}, "the test above no longer parses these gain sets' sources"
     for kind in MODEL_KINDS:
         for creep in (False, True):
             alone = export(_model(kind, creep), "plc", sample_period_s=0.001)

@@ -53,6 +53,14 @@ def axis():
     return spec, replace(run, thermal=budget), table
 
 
+@pytest.fixture(scope="module")
+def every_assumption(axis):
+    """The sensitivity over every assumption at its default range, on the fixture's run: computed once, read by the
+    tests of the study's rows, its record and its report (a frozen record: no test can change it for another)."""
+    spec, run, table = axis
+    return sensitivity(run, spec.feed_drive, table)
+
+
 def test_the_in_machine_factors_flip_is_the_requirement_over_the_table_rigidity(axis):
     spec, run, table = axis
     factor = _BY_KEY["ballscrew.rigidity_in_machine_factor"]
@@ -95,9 +103,9 @@ def test_a_narrow_range_keeps_the_verdict_and_a_wide_one_flips_it(axis):
     assert rows and all(r.margin_pct_low < 0 and r.margin_pct_high < 0 for r in rows)
 
 
-def test_the_study_reuses_the_systems_own_requirements_and_names_every_assumption(axis):
+def test_the_study_reuses_the_systems_own_requirements_and_names_every_assumption(axis, every_assumption):
     spec, run, table = axis
-    study = sensitivity(run, spec.feed_drive, table)
+    study = every_assumption
     by_key = {r.key: r for r in run.requirements}
     for row in study.rows:  # at the study's values each row's margin is the run's own
         assert row.margin_pct_nominal == pytest.approx(by_key[row.requirement].margin_pct, rel=1e-9, abs=1e-9), row.key
@@ -119,11 +127,12 @@ def test_the_study_reuses_the_systems_own_requirements_and_names_every_assumptio
             assert r.domain[0] <= r.flips_at <= r.domain[1]
 
 
-def test_the_sensitivity_round_trips_in_the_system_record_and_a_wrong_verdict_is_refused(axis, tmp_path):
+def test_the_sensitivity_round_trips_in_the_system_record_and_a_wrong_verdict_is_refused(axis, every_assumption,
+                                                                                         tmp_path):
     spec, run, table = axis
     from dataclasses import replace
 
-    study = sensitivity(run, spec.feed_drive, table)
+    study = every_assumption
     run = replace(run, sensitivity=study)
     paths = run.save(tmp_path / "system", {"gain_set_sha256": "c" * 64})
     record = SystemRecord.load(paths["system"])
@@ -138,13 +147,13 @@ def test_the_sensitivity_round_trips_in_the_system_record_and_a_wrong_verdict_is
         SensitivityRecord.from_dict(doc)
 
 
-def test_the_tornado_draws_each_rows_swing_around_the_nominal_margin(axis):
+def test_the_tornado_draws_each_rows_swing_around_the_nominal_margin(axis, every_assumption):
     from figkit import legends_over_ink
 
     from piezopreload.reports.sensitivity import sensitivity_section, tornado
 
     spec, run, table = axis
-    study = sensitivity(run, spec.feed_drive, table)
+    study = every_assumption
     fig = tornado(study)
     groups = {r.requirement_name for r in study.rows}
     assert [ax.get_title() for ax in fig.axes] == list(dict.fromkeys(r.requirement_name for r in study.rows))

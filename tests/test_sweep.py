@@ -295,6 +295,28 @@ def test_the_rows_as_csv_repr_html_and_data_frame(tmp_path, monkeypatch):
         result.to_dataframe()
 
 
+def test_a_sweep_whose_points_ran_but_one_missed_a_requirement_exits_4_and_says_which(tmp_path):
+    """The rule ``sweep`` exits by, on a record made here (the slow test of a real sweep with a missed point runs it
+    end to end): a point that missed a requirement, none failed, is exit 4 (as ``run``), counted apart from the failed
+    ones and named by its folder in the closing line; a failed point as well is exit 5."""
+    from piezopreload.sweep import _closing_line
+
+    record = _record()
+    ran = SweepRecord(record.study_name, record.study_path, record.study_sha256, record.mode, record.axes,
+                      record.points[:3], record.started_utc)
+    result = SweepResult(tmp_path, ran, 3.0)
+    assert [p.index for p in result.missed] == [2] and result.failed == [] and result.exit_code == 4
+    doc = result.to_dict()
+    assert (doc["exit_code"], doc["done"], doc["failed"], doc["missed_requirements"]) == (4, 3, 0, 1), doc
+    assert [r["requirements_met"] for r in doc["rows"]] == [None, True, False]
+    line = _closing_line(result, 3.0, report=False)
+    assert line == (f"3 of 3 points done in 3.0 s, 1 of them missed a requirement (p002: see requirements_missed in "
+                    f"its row); rows in {tmp_path / 'sweep.csv'}"), line
+    both = SweepResult(tmp_path, record, 4.0)  # p002 missed a requirement, p003 failed: the failure decides
+    assert both.exit_code == EXIT_POINT_FAILED == 5
+    assert _closing_line(both, 4.0, report=True).startswith("3 of 4 points done in 4.0 s, 1 failed, 1 of them missed")
+
+
 def test_the_data_frame_holds_the_rows(tmp_path):
     pytest.importorskip("pandas", reason="pandas is optional (SweepResult.to_dataframe); not installed here")
     frame = SweepResult(tmp_path, _record()).to_dataframe()
@@ -516,7 +538,7 @@ out = Path(sys.argv[1])
 out.mkdir()
 (out / "page.typ").write_text("= A page")
 compile_pdf(out / "page.typ")  # Typst's compiler threads now run in this process
-result = load_study(sys.argv[2]).sweep({"tuning.ms_max": [1.5, 1.7], "validation.plants": [4]}, out=out / "sweep",
+result = load_study(sys.argv[2]).sweep({"tuning.ms_max": [1.5], "validation.plants": [4, 8]}, out=out / "sweep",
                                        workers=2, progress=Progress(quiet=True), report=False)
 print(json.dumps(result.rows))
 """
@@ -525,13 +547,16 @@ print(json.dumps(result.rows))
 @pytest.mark.slow
 def test_worker_processes_started_after_a_report_in_the_same_process_run_their_points(grid_sweep, tmp_path):
     """A forked worker inherits the locks of the compiler's threads and hangs in its own report: the workers are fresh
-    processes. The timeout guards against that hang; it is not a bound on the time."""
+    processes. The timeout guards against that hang; it is not a bound on the time.
+
+    The two points differ in their plants alone, so neither waits for the other's tuning: they run at once, each in a
+    worker process (a point whose tuning starts from another's runs in a later wave, alone, in this process)."""
     _, grid, _ = grid_sweep
     done = subprocess.run([sys.executable, "-c", _AFTER_A_REPORT, str(tmp_path / "run"), str(SMALL)],
                           capture_output=True, text=True, timeout=900, check=False)
     assert done.returncode == 0, done.stderr[-2000:]
     rows = json.loads(done.stdout.splitlines()[-1])
-    assert [_figures(r) for r in rows] == [_figures(r) for r in grid.rows if r["validation.plants"] == 4]
+    assert [_figures(r) for r in rows] == [_figures(r) for r in grid.rows if r["tuning.ms_max"] == 1.5]
 
 
 @pytest.mark.slow
@@ -553,6 +578,10 @@ def test_a_failing_point_is_recorded_and_the_others_go_on(tmp_path, capsys):
     assert (out / "report.pdf").is_file() and "rig" in (out / "sweep.csv").read_text()
 
 
+# two real points (about 20 s): slow, as the failing point's run above is; the quick check holds the sweep's rule on
+# a record (test_a_sweep_whose_points_ran_but_one_missed_a_requirement_exits_4_and_says_which) and a study's exit 4
+# on a missed requirement (tests/test_api.py::test_results_show_themselves_in_a_terminal_and_a_notebook)
+@pytest.mark.slow
 def test_a_point_that_misses_a_requirement_runs_through_and_the_sweep_exits_4(tmp_path, capsys):
     out = tmp_path / "sweep"
     code = main(["sweep", str(SMALL), "--vary", "validation.overshoot_max_N=1.5,0.01", "--workers", "1",
@@ -602,8 +631,11 @@ def test_a_killed_sweep_resumes_where_it_stopped(tmp_path):
 def test_the_points_on_a_dask_cluster_give_the_same_rows(grid_sweep, tmp_path):
     distributed = pytest.importorskip("distributed", reason="the dask extra (distributed) runs sweeps on a cluster")
     _, grid, _ = grid_sweep
+    # two points that differ in their plants alone: they run at once, on the cluster's two workers, and share their
+    # tuning through the store (a warm start is set on a point before it is sent, alike for every executor: the grid
+    # above checks it)
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-        result = load_study(SMALL).sweep({"tuning.ms_max": [1.5, 1.7], "validation.plants": [4]},
+        result = load_study(SMALL).sweep({"tuning.ms_max": [1.5], "validation.plants": [4, 8]},
                                          out=tmp_path / "dask", scheduler=cluster.scheduler_address,
                                          progress=Progress(quiet=True), report=False)
-    assert [_figures(r) for r in result.rows] == [_figures(r) for r in grid.rows if r["validation.plants"] == 4]
+    assert [_figures(r) for r in result.rows] == [_figures(r) for r in grid.rows if r["tuning.ms_max"] == 1.5]
