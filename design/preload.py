@@ -73,7 +73,7 @@ import numpy as np
 from piezopreload.artifacts.design import DesignPoint  # the design artifact's record of a design
 from piezopreload.core.errors import InfeasibleError
 from piezopreload.core.progress import Bar
-from piezopreload.core.records import Checked, entry
+from piezopreload.core.records import Checked, checked, entry
 from piezopreload.design.shortfall import Shortfall, binding, shortfall_message
 from piezopreload.models.ballscrew import (
     EFFECTIVE_BALL_SHARE,
@@ -234,7 +234,7 @@ class WorstCase:
         return [(math.radians(a), f) for a in self.contact_angle_deg for f in self.conformity]
 
 
-@dataclass(frozen=True)
+@checked
 class DesignSpec(Checked):
     """What the machine fixes, the design's bounds, and the constraints' limits; ``worst``: a robust design's
     worst case (None: the nominal design)."""
@@ -288,10 +288,28 @@ class DesignSpec(Checked):
 
     @property
     def helix_rad(self) -> float:
+        """The screw's helix angle from its lead and nominal diameter.
+
+        Returns
+        -------
+        float
+            ``atan(lead / (pi d_0))`` in radians.
+        """
         return math.atan(self.lead_mm / (math.pi * self.nominal_diameter_mm))
 
     def screw(self, point: DesignPoint) -> BallScrew:
-        """The ball screw of a design point, for the numpy model (evaluation, plots)."""
+        """The ball screw of a design point, for the numpy model (evaluation, plots).
+
+        Parameters
+        ----------
+        point : DesignPoint
+            The design's variables (balls, turns, contact angle, conformity).
+
+        Returns
+        -------
+        BallScrew
+            The screw of this spec's diameter, lead, material and factors with the point's nut.
+        """
         return BallScrew(
             nominal_diameter_mm=self.nominal_diameter_mm, lead_mm=self.lead_mm, ball_mm=point.ball_mm,
             turns=point.turns, contact_angle_deg=point.contact_angle_deg, conformity_screw=point.conformity,

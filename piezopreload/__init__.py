@@ -28,7 +28,7 @@ __all__ = [
     "DesignedPlant", "PreloadSchedule", "SystemRecord", "TrackingNumbers", "FitError", "LearnedSignal", "SweepPoint",
     "RunSummary", "StudyRef", "StudyReproduction", "PublishedRow", "SimulationInfo",
     "FeedforwardInfo", "ScheduleSummary", "SystemSummary", "SampledCheck", "DataSource", "LearnedWritten",
-    "CodesignResult", "CodesignWeights",
+    "CodesignResult", "CodesignWeights", "DesignSpec",
 ]
 
 #: the module each public name comes from: a name is imported on its first use (a module ``__getattr__``, as numpy
@@ -62,6 +62,7 @@ _EXPORTS: dict[str, str] = {name: module for module, names in {
     "piezopreload.artifacts.system": ("SystemRecord", "TrackingNumbers"),
     "piezopreload.artifacts.learned": ("LearnedSignal",),
     "piezopreload.artifacts.sweep": ("SweepPoint",),
+    "piezopreload.design.preload": ("DesignSpec",),
     "piezopreload.design.study": ("DesignResult",),
     "piezopreload.design.system": ("SystemRun",),
     "piezopreload.tuning.feedforward": ("IdentifiedFeedforward", "FeedforwardInfo"),
@@ -99,6 +100,7 @@ if TYPE_CHECKING:  # the same names, imported, for type checkers and IDEs (tests
     from piezopreload.codesign import CodesignResult, CodesignWeights
     from piezopreload.core.errors import ArtifactError, InfeasibleError, InputError, InternalError, PiezopreloadError
     from piezopreload.core.tables import MeasuredRecord, read_record
+    from piezopreload.design.preload import DesignSpec
     from piezopreload.design.study import DesignResult
     from piezopreload.design.system import SystemRun
     from piezopreload.models.actuator import Plant
