@@ -22,9 +22,10 @@ SMALL_AXIS = Path(__file__).parent / "data" / "small_axis.toml"
 
 
 def _candidate(friction: float, tracking: float, voltage: float) -> Candidate:
+    # the objective's tracking term is the RMS along the preload schedule; the staircase's (a constraint) differs
     return Candidate(point=None, gains=PIDGains(Kc=0.01, Ti_s=0.05), coupling_stiffness_N_per_um=1000.0,  # type: ignore[arg-type]
-                     ms=1.5, friction_energy_J=friction, tracking_rms_N=tracking, peak_voltage_V=voltage,
-                     settling_s=0.2, feasible=True)
+                     ms=1.5, friction_energy_J=friction, tracking_rms_N=3.0 * tracking, peak_voltage_V=voltage,
+                     settling_s=0.2, feasible=True, cycle_tracking_rms_N=tracking)
 
 
 def test_the_objective_is_the_weighted_sum_over_the_sequential_values():
@@ -222,11 +223,12 @@ def test_a_worse_candidate_never_replaces_the_sequential_answer(small, monkeypat
         if not made:
             made.append(real(study, point, **kwargs))
             return made[0]
-        return replace(made[0], point=point, tracking_rms_N=made[0].tracking_rms_N * 1.2)
+        return replace(made[0], point=point, cycle_tracking_rms_N=made[0].cycle_tracking_rms_N * 1.2)
 
     monkeypatch.setattr(cd, "evaluate_design", evaluate)
+    # the schedule's shape held at the least-friction one: every candidate but the start is the worse one
     r = cd.codesign(small, CodesignWeights(growth=0.0, friction=0.0, tracking=1.0), budget=3, validate_plants=0,
-                    time_factor=None)
+                    time_factor=None, shape=False)
     assert r.evaluations == 4  # the start and three candidates scored
     assert r.codesigned is r.sequential
     assert r.objective_codesigned == pytest.approx(1.0)
