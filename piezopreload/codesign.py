@@ -239,6 +239,8 @@ class Candidate:
         What the achieved preload misses of the schedule's requirements along the cycle ("" where it meets them).
     feedforward : IdentifiedFeedforward or None
         The feedforward identified on the candidate's plant (the cycle's run reuses it).
+    least_plan : PreloadSchedule or None
+        The least-friction schedule on its screw (each shape of the schedule starts from it).
     """
 
     point: DesignPoint = field(repr=False)
@@ -268,6 +270,7 @@ class Candidate:
     loop_why: str = ""
     cycle_why: str = ""
     feedforward: IdentifiedFeedforward | None = field(default=None, repr=False, compare=False)
+    least_plan: PreloadSchedule | None = field(default=None, repr=False, compare=False)
 
     def variables(self) -> dict[str, float]:
         """The outer variables' values (the design's read off its point where it was not designed at them) and the
@@ -437,18 +440,19 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
     return with_headroom(study, cand, headroom, lead_s, binding=cycle_binding)
 
 
-def planned_schedule(study: StudySpec, point: DesignPoint, headroom: float = 1.0,
-                     lead_s: float = 0.0) -> PreloadSchedule:
+def planned_schedule(study: StudySpec, point: DesignPoint, headroom: float = 1.0, lead_s: float = 0.0,
+                     least: PreloadSchedule | None = None) -> PreloadSchedule:
     """The preload schedule a candidate plans: the least-friction schedule on the screw of ``point`` (the study's
     ``[schedule]`` limits, the machining cycle), its levels above the bolts' preload raised by ``headroom`` and its
-    transitions advanced by ``lead_s`` (:func:`~piezopreload.design.schedule.headroom_schedule`).
+    transitions advanced by ``lead_s`` (:func:`~piezopreload.design.schedule.headroom_schedule`); ``least``: that
+    least-friction schedule, planned already.
 
     Raises :class:`~piezopreload.core.errors.InfeasibleError` where the raised levels pass the stacks' reach.
     """
     spec = study.design_spec
     if spec is None:
         raise InputError(f"{study.path}: co-design needs the design's tables ([ballscrew], [design])")
-    plan, _, _ = plan_schedule(spec, point, None, **(study.schedule or ScheduleTable()).limits())
+    plan = least or plan_schedule(spec, point, None, **(study.schedule or ScheduleTable()).limits())[0]
     try:
         return headroom_schedule(spec.screw(point), plan, headroom, lead_s)
     except ValueError as exc:
@@ -487,7 +491,9 @@ def with_headroom(study: StudySpec, cand: Candidate, headroom: float, lead_s: fl
     to judge with its learned feedforward). The design and the controller are the same (their tuning is judged over
     the study's references; the schedule's shape is applied to its answer).
     """
-    plan = planned_schedule(study, cand.point, headroom, lead_s)
+    if cand.least_plan is None:  # planned once, kept for the candidate's other shapes
+        cand = replace(cand, least_plan=planned_schedule(study, cand.point))
+    plan = planned_schedule(study, cand.point, headroom, lead_s, cand.least_plan)
     if cand.feedforward is None:  # identified once, kept for the candidate's other schedules
         cand = replace(cand, feedforward=identify(study, Solved(study, cand.point)))
     loop_ok = cand.feasible if cand.loop_feasible is None else cand.loop_feasible
@@ -880,7 +886,8 @@ def codesign_optimum(study: StudySpec, progress: ProgressLike | None = None) -> 
     Carlo left to the study's validate stage), as the design NLP's optimum at the co-designed rigidity floor, contact
     angle and conformity (the sequential optimum itself where the co-design kept it), its objective named
     ``"codesign"``."""
-    return _chosen(study, codesign(study, validate_plants=0, shape=False, progress=progress))
+    budget = (study.design_table or DesignTable()).codesign_budget
+    return _chosen(study, codesign(study, budget=budget, validate_plants=0, shape=False, progress=progress))
 
 
 def _chosen(study: StudySpec, result: CodesignResult) -> DesignOptimum:
@@ -922,10 +929,12 @@ def codesign_design(study: StudySpec, *, points: int = 3, progress: ProgressLike
     (DesignOptimum, CodesignRecord)
         The design the study's later stages take, and the artifact.
     """
-    result = codesign(study, shape=False, progress=progress)  # the later stages plan the least-friction schedule
+    budget = (study.design_table or DesignTable()).codesign_budget
+    # the later stages plan the least-friction schedule
+    result = codesign(study, budget=budget, shape=False, progress=progress)
     fronts: tuple[tuple[FrontPoint, ...], tuple[FrontPoint, ...]] = ((), ())
     if study.thermal is not None:
-        fronts = codesign_fronts(study, result, points=points, progress=progress)
+        fronts = codesign_fronts(study, result, points=points, budget=budget, progress=progress)
     return _chosen(study, result), codesign_record(study, result, fronts, inputs)
 
 
