@@ -2,11 +2,11 @@
 
 The study is sequential: the design NLP (:func:`~piezopreload.design.preload.optimise`) picks the screw for its
 objective against rigidity, lift-off and life; the tuner (:func:`~piezopreload.tuning.pid.tune_pid`) then picks
-the gains on the plant that design made. :func:`codesign` chooses them together, **nested**: the design's
-continuous variables that shape the plant outside (the least rigidity the design must keep, a floor that moves it
-along the design's least-heat front, and the contact angle and the groove conformity) with the preload schedule's
-headroom (a factor >= 1 on the least-friction schedule's levels above the bolts' preload), the design NLP and the
-tuning inside.
+the gains on the plant that design made; the schedule stage plans the least-friction preload schedule and the
+system stage runs the loop along it, planning it again with local margins where the loop's lag left a requirement
+short. :func:`codesign` chooses them together, **nested**: the design's continuous variables that shape the plant
+outside (the least rigidity the design must keep, a floor that moves it along the design's least-heat front, and the
+contact angle and the groove conformity), the design NLP, the tuning and the schedule's shape inside.
 
 For each outer candidate ``(rigidity floor, contact angle, conformity)``:
 
@@ -20,26 +20,30 @@ For each outer candidate ``(rigidity floor, contact angle, conformity)``:
    whole stroke inside the NLP, the overshoot margin, the noise gain), started from the sequential gains;
 4. the whole-range tracking (the study's staircase) and the step are run on the nominal plant: the tracking RMS
    and the settling time are constraints of the co-design (the validation's limits), not checked after it;
-5. the least-friction schedule is planned on that screw and its levels above the bolts' preload raised by the
-   candidate's headroom (:func:`~piezopreload.design.schedule.headroom_schedule`; refused past the stacks' reach):
-   more friction for more rigidity over the cycle's requirement. The tuning, the tracking and the step are judged on
-   the design's plant over the study's references, not along the schedule, so the headroom is applied after the
-   inner problem, to its answer, with no new tuning;
+5. the loop runs along the preload schedule (:func:`with_headroom`: the machining cycle's reference the rig follows,
+   ``[plant] cycles`` of it after the pre-cycle, the system stage's own run): its tracking RMS there is the
+   objective's tracking term, and the schedule's requirements on the achieved preload while cutting (the rigidity,
+   the deflection, the lift-off bound) are constraints. The schedule is the inner problem's too
+   (:func:`shape_schedule`): the least friction per cycle that meets them, from the least-friction schedule with
+   the system stage's margin passes (the sequential way) and, for each lead of :data:`LEADS_S` (every rise that much
+   earlier), the least headroom (a factor on the levels the stacks drive) the loop meets them with. The loop's lag
+   sets what each needs, so the gains, the levels and their transitions trade;
 6. the objective is the user's weighted sum of the screw's thermal growth over the shift (the design's duty-cycle
-   estimate), the schedule's friction energy per cycle, the tracking RMS and the peak command, each over its
-   sequential value.
+   estimate), the schedule's friction energy per cycle, the tracking RMS along the schedule and the peak command,
+   each over its sequential value.
 
-The outer search is a bounded compass (pattern) search on the four variables scaled to ``[0, 1]`` (the floor from
-the least-heat design's rigidity to the sequential design's, the headroom from 1 to :data:`HEADROOM_MAX`), started
-at the sequential design with the headroom at 1 (the least-friction schedule); a candidate
-replaces the incumbent only when it is feasible and lowers the objective, so the answer is never worse than the
-sequential one (whose objective is 1 by the normalisation). A sequential answer that misses the study (no gains the
-tuning finds meet the tracking or settling limit under the Ms limit) is replaced by the first candidate that meets
-it; where none does, the study is refused naming the binding pair. The outer search is
-derivative-free: the tuning NLP does not expose its optimum's sensitivity to the plant (the literature problems of
-:mod:`piezopreload.design.codesign_problems` show the sensitivity-driven nested strategy). The gain schedule over
-the preload level is not a decision of the outer loop: both answers are compared with the one robust gain set the
-tuning makes (the set ``piezopreload run`` keeps where it meets the specification at every level).
+The outer search is a bounded compass (pattern) search on the three variables scaled to ``[0, 1]`` (the floor from
+the least-heat design's rigidity to the sequential design's), started at the sequential design, whose schedule the
+inner problem shapes first; a candidate replaces the incumbent only when it is feasible and lowers the objective, so
+the answer is never worse than the sequential one (whose objective is 1 by the normalisation). A sequential answer
+that misses the study (no gains the tuning finds meet the tracking or settling limit under the Ms limit, or the
+schedule's requirements along the cycle) is replaced by the first candidate that meets it; where none does, the study
+is refused naming the binding pair. The outer search is derivative-free, and why is :data:`STRATEGY_WHY` (the
+literature problems of :mod:`piezopreload.design.codesign_problems` show the sensitivity-driven nested strategy where
+the inner problem is one smooth parametric NLP). The gain schedule over the preload level is not a decision of the
+outer loop: both answers are compared with the one robust gain set the tuning makes (the set ``piezopreload run``
+keeps where it meets the specification at every level), or with the schedule's entries inside
+(``codesign(schedule=True)``).
 
 Both answers are then validated by the same Monte Carlo (:func:`~piezopreload.tuning.validate.validate`, the
 study's ``[validation]`` plants, seed and limits).
@@ -85,7 +89,8 @@ from piezopreload.tuning.schedule import schedule_levels, tune_entries
 from piezopreload.tuning.validate import validate
 
 __all__ = ["CodesignWeights", "Candidate", "CodesignResult", "codesign", "codesign_optimum", "codesign_design",
-           "codesign_fronts", "codesign_record", "front_weights", "evaluate_design", "TERMS", "STRATEGY_WHY"]
+           "codesign_fronts", "codesign_record", "front_weights", "evaluate_design", "shape_schedule", "TERMS",
+           "STRATEGY_WHY"]
 
 #: the objective's terms: (name, the candidate's attribute, unit)
 TERMS = (("growth", "growth_um", "um over the shift"), ("friction", "friction_energy_J", "J per cycle"),
@@ -111,10 +116,15 @@ SHAPE_STEPS = 3
 CANDIDATE_OBJECTIVE = "heat"
 STRATEGY = "nested"
 #: why the study's co-design is nested (the result and the artifact say so)
-STRATEGY_WHY = ("nested, not simultaneous: the study's tuning NLP (tuning/pid.py: the closed loop's compiled "
-                "simulation over the plant variants, Ms at every slope) exposes no sensitivity of its optimum to the "
-                "plant, so the design cannot be solved in one NLP with the gains nor differentiated through the "
-                "tuning; the design outside is searched derivative-free, the design NLP and the tuning inside")
+STRATEGY_WHY = ("nested, not simultaneous, and derivative-free outside: the inner problem is no smooth function of the "
+                "design variables, so no parametric sensitivity of its optimum (IPOPT's parameter multipliers or the "
+                "implicit function theorem on its KKT system) can guide the outer search: the design NLP rounds the "
+                "balls and turns to integers (along the rigidity floor the ball count jumps, 15 to 30 to 33 on the "
+                "default study), the feedforward is identified by a QP on a simulated loop, the schedule's shape is a "
+                "discrete choice with the system stage's margin passes, and in the tuning NLP (tuning/pid.py) only "
+                "the Ms constraints' frequency-response data are parameters, its time-domain objective a callback "
+                "over the compiled simulation whose plant enters as constants; the design outside is searched by a "
+                "compass search, the design NLP, the tuning and the schedule inside")
 
 
 @dataclass(frozen=True)
