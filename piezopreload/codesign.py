@@ -817,11 +817,11 @@ class CodesignResult:
         ]
         # the schedule's requirements on the achieved preload while cutting, judged along the cycle: each as the
         # achieved over the required (the sample each is judged at, and so its limit, is each run's own)
-        theirs = {name: value / limit for name, value, limit, _, _ in b.cycle_requirements if limit > 0}
-        for name, value, limit, _, sense in a.cycle_requirements:
-            if name in theirs and limit > 0:
+        theirs = {name: value / bound for name, value, bound, _, _ in b.cycle_requirements if bound > 0}
+        for name, value, bound, _, sense in a.cycle_requirements:
+            if name in theirs and bound > 0:
                 rows.append({"requirement": f"along the preload schedule: {name}, achieved over required",
-                             "unit": "", "limit": 1.0, "kind": sense, "sequential": value / limit,
+                             "unit": "", "limit": 1.0, "kind": sense, "sequential": value / bound,
                              "codesigned": theirs[name]})
         if not math.isnan(a.growth_um):
             # the design's estimate over the duty cycle (the stiffness:growth front's y); the study's limit
