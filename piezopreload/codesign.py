@@ -89,7 +89,8 @@ from piezopreload.tuning.schedule import schedule_levels, tune_entries
 from piezopreload.tuning.validate import validate
 
 __all__ = ["CodesignWeights", "Candidate", "CodesignResult", "codesign", "codesign_optimum", "codesign_design",
-           "codesign_fronts", "codesign_record", "front_weights", "evaluate_design", "shape_schedule", "TERMS",
+           "codesign_fronts", "codesign_record", "front_weights", "evaluate_design", "schedule_shapes",
+           "shape_schedule", "TERMS",
            "STRATEGY_WHY"]
 
 #: the objective's terms: (name, the candidate's attribute, unit)
@@ -251,6 +252,8 @@ class Candidate:
         The feedforward identified on the candidate's plant (the cycle's run reuses it).
     least_plan : PreloadSchedule or None
         The least-friction schedule on its screw (each shape of the schedule starts from it).
+    shapes : tuple of Candidate
+        The schedules the inner problem chose this one from (:func:`schedule_shapes`; empty: not shaped).
     """
 
     point: DesignPoint = field(repr=False)
@@ -281,6 +284,7 @@ class Candidate:
     cycle_why: str = ""
     feedforward: IdentifiedFeedforward | None = field(default=None, repr=False, compare=False)
     least_plan: PreloadSchedule | None = field(default=None, repr=False, compare=False)
+    shapes: tuple[Candidate, ...] = field(default=(), repr=False, compare=False)
 
     def variables(self) -> dict[str, float]:
         """The outer variables' values (the design's read off its point where it was not designed at them) and the
@@ -307,7 +311,12 @@ class Candidate:
                 "controller": self.controller, "entry_ms": list(self.entry_ms),
                 "preload_schedule": {"headroom": self.schedule_headroom, "lead_s": self.schedule_lead_s,
                                      "top_N": self.schedule_top_N,
-                                     "stiffness_margin_min_N_per_um": self.schedule_stiffness_margin_N_per_um},
+                                     "stiffness_margin_min_N_per_um": self.schedule_stiffness_margin_N_per_um,
+                                     "shapes_tried": [{"headroom": c.schedule_headroom, "lead_s": c.schedule_lead_s,
+                                                       "margin_passes": c.cycle_passes,
+                                                       "friction_energy_J": c.friction_energy_J,
+                                                       "tracking_rms_N": _finite(c.cycle_tracking_rms_N),
+                                                       "meets": c.feasible} for c in self.shapes]},
                 "cycle": {"tracking_rms_N": _finite(self.cycle_tracking_rms_N),
                           "peak_voltage_V": _finite(self.cycle_peak_voltage_V), "margin_passes": self.cycle_passes,
                           "requirements": [{"requirement": n, "value": v, "limit": lim, "unit": u, "sense": sense,
@@ -566,39 +575,72 @@ def _least_headroom(study: StudySpec, cand: Candidate, lead_s: float) -> Candida
     return high
 
 
-def shape_schedule(study: StudySpec, cand: Candidate) -> Candidate:
-    """The inner problem's preload schedule for ``cand``'s design and controller: the least friction per cycle that
-    meets the schedule's requirements on the achieved preload along the cycle.
-
-    The shapes tried: the least-friction schedule with the system stage's margin passes (headroom 1, lead 0: the
-    sequential answer's way), and for each lead of :data:`LEADS_S` the least headroom that meets them in one pass
-    (:func:`with_headroom`). The loop's lag sets what each needs, so the gains and the schedule trade: a loop that
-    lags less needs less headroom and lead, and so less friction. ``cand`` itself where its controller misses the
-    study's step and staircase limits (no schedule mends those).
+def schedule_shapes(study: StudySpec, cand: Candidate) -> tuple[Candidate, ...]:
+    """The preload schedules the inner problem chooses from for ``cand``'s design and controller, each judged along
+    the cycle: the least-friction schedule with the system stage's margin passes (headroom 1, lead 0: the sequential
+    answer's way) first, then for each lead of :data:`LEADS_S` the least headroom with which the loop meets the
+    schedule's requirements in one pass (:func:`with_headroom`), where one does. Only the first where ``cand``'s
+    controller misses the study's step or staircase limits (no schedule mends those).
 
     Parameters
     ----------
     study : StudySpec
         The study.
     cand : Candidate
-        The inner problem's candidate (its design, its controller, judged along the least-friction schedule).
+        The inner problem's candidate (its design and its controller).
 
     Returns
     -------
-    Candidate
-        ``cand`` on the chosen schedule, judged along it.
+    tuple of Candidate
+        ``cand`` on each schedule; the least-friction one with the margin passes first.
     """
     loop_ok = cand.feasible if cand.loop_feasible is None else cand.loop_feasible
     base = cand if cand.loop_feasible is not None and cand.schedule_headroom == 1.0 and cand.schedule_lead_s == 0.0 \
         else with_headroom(study, cand, 1.0, 0.0)
-    best = base
+    base = replace(base, shapes=())
     if not loop_ok:
-        return best
-    for lead in LEADS_S:
-        found = _least_headroom(study, base, lead)
-        if found is not None and (not best.feasible or found.friction_energy_J < best.friction_energy_J):
-            best = found
-    return best
+        return (base,)
+    found = [_least_headroom(study, base, lead) for lead in LEADS_S]
+    return (base, *(c for c in found if c is not None))
+
+
+def shape_schedule(study: StudySpec, cand: Candidate, weights: CodesignWeights | None = None,
+                   reference: Candidate | None = None) -> Candidate:
+    """The inner problem's preload schedule for ``cand``'s design and controller: of :func:`schedule_shapes` (kept on
+    the answer, ``shapes``, and reused from ``cand`` where it has them), the one that meets the schedule's
+    requirements along the cycle with the least objective.
+
+    The loop's lag sets what each shape needs, so the gains and the schedule trade: a loop that lags less needs less
+    headroom and lead, and so less friction, and follows the lower levels more closely.
+
+    Parameters
+    ----------
+    study : StudySpec
+        The study.
+    cand : Candidate
+        The inner problem's candidate (its design, its controller).
+    weights : CodesignWeights, optional
+        The objective's weights (None: the least friction per cycle alone, the schedule stage's own objective).
+    reference : Candidate, optional
+        The candidate the objective's terms are read over (the sequential answer; needed with ``weights``).
+
+    Returns
+    -------
+    Candidate
+        ``cand`` on the chosen schedule, judged along it (the least-friction schedule with the margin passes where
+        no shape meets the requirements, or where it is as good).
+    """
+    shapes = cand.shapes or schedule_shapes(study, cand)
+    if weights is not None and reference is None:
+        raise InputError("shape_schedule: weights need the reference candidate their terms are read over")
+    met = [c for c in shapes if c.feasible]
+    if not met:
+        return replace(shapes[0], shapes=shapes)
+
+    def key(c: Candidate) -> float:
+        return c.friction_energy_J if weights is None else c.objective(weights, reference)  # type: ignore[arg-type]
+
+    return replace(min(met, key=key), shapes=shapes)  # the first of equals: the least-friction plan with its margins
 
 
 @dataclass(frozen=True)
@@ -1102,8 +1144,10 @@ class _Search:
         """One inner problem at ``z``: the candidate and its objective (inf: infeasible, and why is kept)."""
         values = self.values(z)
         key = self.design_key(values)
-        if key in self.cache:  # solved already (another weight of a sweep)
+        if key in self.cache:  # solved already (another weight of a sweep: its schedule chosen for these weights)
             cand, refused = self.cache[key]
+            if cand is not None and self.shape and cand.shapes:
+                cand = shape_schedule(self.study, cand, self.weights, self.sequential)
         else:
             self.evaluations += 1
             t0 = time.perf_counter()
@@ -1111,8 +1155,8 @@ class _Search:
                 cand = evaluate_design(self.study, _optimum_at(self.spec, values).point, start=start,
                                        max_iterations=self.max_iterations, schedule=self.schedule,
                                        cycle_binding=self.shape)
-                if self.shape:  # the schedule's headroom and lead for this loop
-                    cand = shape_schedule(self.study, cand)
+                if self.shape:  # the schedule's headroom and lead for this loop, by the objective
+                    cand = shape_schedule(self.study, cand, self.weights, self.sequential)
                 refused = ""
             except InfeasibleError as exc:  # no screw, or no controller, for these values
                 cand, refused = None, str(exc)
@@ -1144,12 +1188,13 @@ class _Search:
         best_f = self.sequential.objective(self.weights, self.sequential) if self.sequential.feasible else math.inf
         seen = {tuple(np.round(z, 9))}
         key = self.design_key(self.values(z))
-        if self.shape and self.cache[key][0] is self.sequential:  # the sequential design, its schedule shaped
+        start = self.cache[key][0]
+        if self.shape and start is not None:  # the sequential design, its schedule shaped (the shapes kept)
             t0 = time.perf_counter()
-            shaped = shape_schedule(self.study, self.sequential)
+            shaped = shape_schedule(self.study, start, self.weights, self.sequential)
             self.slowest = max(self.slowest, time.perf_counter() - t0)
             self.cache[key] = (shaped, "")
-            if shaped is not self.sequential and shaped.feasible:
+            if (shaped.schedule_headroom, shaped.schedule_lead_s) != (1.0, 0.0) and shaped.feasible:
                 f = shaped.objective(self.weights, self.sequential)
                 self.scored.append(shaped)
                 self.say(f"  the sequential design, its schedule shaped (headroom {shaped.schedule_headroom:.4g}, lead "

@@ -18,6 +18,7 @@ from piezopreload.codesign import (
     TERMS,
     VARIABLES,
     Candidate,
+    CodesignWeights,
     along_schedule,
     planned_schedule,
     shape_schedule,
@@ -166,5 +167,18 @@ def test_the_schedule_s_shape_is_the_inner_problem_s_least_friction_that_meets_a
     assert run.evaluation.met
     assert c.friction_energy_J == pytest.approx(plan.friction_energy_J, rel=1e-12) and c.cycle_passes == 1
     # a loop that misses the study's step or staircase limits is not shaped (no schedule mends those)
-    missed = replace(base, loop_feasible=False, loop_why="tracking RMS 200 N > 100 N", feasible=False)
-    assert shape_schedule(small, missed) is missed
+    missed = with_headroom(small, replace(base, loop_feasible=None, feasible=False, why="tracking RMS 200 N > 100 N"),
+                           1.0)
+    assert missed.loop_feasible is False
+    kept = shape_schedule(small, missed)
+    assert len(kept.shapes) == 1 and (kept.schedule_headroom, kept.schedule_lead_s) == (1.0, 0.0)
+    assert not kept.feasible and kept.why.startswith("tracking RMS 200 N")
+    # by the study's objective instead of the friction alone (the tracking along the schedule, each over the
+    # reference's): the shape among those tried that meets the requirements with the least objective; its shapes are
+    # reused, no run again
+    assert c.shapes[0].cycle_passes >= 1 and len(c.shapes) >= 2
+    tracking = CodesignWeights(growth=0.0, friction=0.0, tracking=1.0)
+    best = shape_schedule(small, c, tracking, base)
+    met = [s for s in c.shapes if s.feasible]
+    assert best.cycle_tracking_rms_N == pytest.approx(min(s.cycle_tracking_rms_N for s in met))
+    assert c.friction_energy_J == pytest.approx(min(s.friction_energy_J for s in met))
