@@ -24,9 +24,10 @@ For each outer candidate ``(rigidity floor, contact angle, conformity)``:
    ``[plant] cycles`` of it after the pre-cycle, the system stage's own run): its tracking RMS there is the
    objective's tracking term, and the schedule's requirements on the achieved preload while cutting (the rigidity,
    the deflection, the lift-off bound) are constraints. The schedule is the inner problem's too
-   (:func:`shape_schedule`): the least friction per cycle that meets them, from the least-friction schedule with
+   (:func:`shape_schedule`): the one that meets them with the least objective, of the least-friction schedule with
    the system stage's margin passes (the sequential way) and, for each lead of :data:`LEADS_S` (every rise that much
-   earlier), the least headroom (a factor on the levels the stacks drive) the loop meets them with. The loop's lag
+   earlier), the least headroom (a factor on the levels the stacks drive) the loop meets them with
+   (:func:`schedule_shapes`). The loop's lag
    sets what each needs, so the gains, the levels and their transitions trade;
 6. the objective is the user's weighted sum of the screw's thermal growth over the shift (the design's duty-cycle
    estimate), the schedule's friction energy per cycle, the tracking RMS along the schedule and the peak command,
