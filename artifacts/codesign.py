@@ -4,7 +4,7 @@
 (``[design] method = "codesign"``; the design stage writes ``design/codesign.json``) and the benchmark prints it;
 the report's co-design section reads it. Each front is a sweep of design-and-controller pairs, every one tuned at
 the study's Ms limit, in thermal growth over the shift (the design's duty-cycle estimate) against the nominal
-tracking RMS over the whole-range staircase:
+tracking RMS along the preload schedule (the machining cycle's reference the loop follows):
 
 * the **sequential** front: the design NLP alone trading its objective for heat (its ``stiffness:growth`` front,
   swept over the least rigidity), each point then tuned;
@@ -38,12 +38,13 @@ class FrontPoint(Record):
     swept: float = entry("The swept value (the least rigidity in N/um, or the growth's weight).")
     growth_um: float = entry("The screw's largest thermal growth over the shift, the design's duty-cycle estimate.",
                              unit="um")
-    tracking_rms_N: float = entry("The nominal plant's RMS tracking error over the whole-range staircase.", unit="N")
+    tracking_rms_N: float = entry("The nominal plant's RMS tracking error along the preload schedule.", unit="N")
     ms: float = entry("The tuned loop's largest sensitivity peak over the tuning's variants and slopes.")
     peak_voltage_V: float = entry("The stacks' peak command over the step and the staircase.", unit="V")
     stiffness_N_per_um: float = entry("The design's least rigidity over the duty.", unit="N/um")
     contact_angle_deg: float = entry("The design's contact angle.", unit="deg")
-    feasible: bool = entry("Whether the pair meets the co-design's constraints (tracking RMS, settling).")
+    feasible: bool = entry("Whether the pair meets the co-design's constraints (the staircase's tracking RMS, the "
+                           "settling, the schedule's requirements along the cycle).")
     settling_s: float | None = entry("The nominal step's settling time (null: it never settled).", unit="s",
                                      default=None, required=True)
     why: str = entry("What it misses (empty where feasible).", default="")

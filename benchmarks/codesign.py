@@ -16,13 +16,17 @@
   sweeps: false where a sequential point beats every co-designed one in growth or tracking);
   ``front_strictly_dominated`` counts the sequential points a co-designed pair beats in both.
 * Where the coupling is strong: the study co-designed again at a tighter settling limit (``--settling``, default
-  0.2 s), both answers through the same Monte Carlo plants, requirement by requirement (``strong_coupling``).
+  0.2 s), at a stiffer rigidity requirement on the schedule (``--stiffness``, ``[schedule] stiffness_min_N_per_um``,
+  default 1000 N/um against the study's 300: the rigidity, not the lift-off bound, then sets the schedule's levels)
+  and at a hotter duty (``--hotter``, the duty's speeds times 1.5 by default), each with both answers through the same
+  Monte Carlo plants, requirement by requirement, and its two fronts (``--case-front`` points each;
+  ``strong_coupling``).
 
 * More of the controller inside: the default study co-designed with the gain schedule's entries as inner decisions
   (``--schedule N`` inner solves; ``schedule_inside``).
 
-Run: ``python benchmarks/codesign.py [--budget N] [--plants N] [--front N] [--settling S] [--schedule N]``. The last
-line printed is one JSON object.
+Run: ``python benchmarks/codesign.py [--budget N] [--plants N] [--front N] [--settling S] [--stiffness K] [--hotter F]
+[--case-front N] [--case-budget N] [--schedule N]``. The last line printed is one JSON object.
 """
 
 from __future__ import annotations
@@ -54,6 +58,42 @@ def literature() -> dict:
     return {"rows": rows, "worst_ratio": worst["ratio"]}
 
 
+def coupling_case(words: str, variant, args) -> dict:
+    """The study co-designed again at ``variant``: both answers through the same Monte Carlo plants, requirement by
+    requirement, what changed and bought it, and the two fronts (``--case-front`` points each)."""
+    t0 = time.perf_counter()
+    rs = codesign(variant, budget=args.budget, validate_plants=args.plants, progress=print)
+    print(f"  {words}: {rs!r} ({time.perf_counter() - t0:.1f} s)")
+    if not rs.sequential.feasible:
+        print(f"  the sequential answer misses it on the nominal plant: {rs.sequential.why}")
+    print(f"  changed: {'; '.join(rs.changed()) or 'nothing'}; coupling: {rs.coupling()}")
+    for row in rs.bought():
+        print(f"  {row['term']:9s} sequential {row['sequential']:.4g}  co-designed {row['codesigned']:.4g} "
+              f"{row['unit']} (weight {row['weight']:g})")
+    for row in rs.requirements():
+        print(f"  {row['requirement']:45s} limit {row['limit']}  sequential {row.get('sequential')}  "
+              f"co-designed {row.get('codesigned')}")
+    out = {"case": words, "objective_ratio": rs.objective_ratio, "time_ratio": rs.time_ratio,
+           "sequential_meets_nominal": rs.sequential.feasible, "changed": rs.changed(),
+           "coupling": rs.coupling().split(":")[0], "bought": rs.bought(),
+           "requirements": [{k: v for k, v in row.items()} for row in rs.requirements()],
+           "validated": rs.to_dict()["validated"], "fronts": None}
+    if args.case_front >= 2 and variant.thermal is not None:
+        rec = codesign_record(variant, rs, codesign_fronts(variant, rs, points=args.case_front,
+                                                           budget=args.case_budget, progress=print))
+        fronts = {}
+        for name, points in (("sequential", rec.sequential_front), ("codesigned", rec.codesigned_front)):
+            fronts[name] = [(round(p.growth_um, 2), round(p.tracking_rms_N, 2)) for p in nondominated(points)]
+            print(f"  {words}: {name} front (growth um, tracking N along the schedule), non-dominated of "
+                  f"{len(points)}: {fronts[name]}")
+        out["fronts"] = {**fronts, "front_dominates": bool(rec.front_dominates()),
+                         "strictly_dominated": int(rec.strictly_dominated())}
+        verdict = "is nowhere worse" if rec.front_dominates() else "is somewhere worse"
+        print(f"  {words}: the co-designed front {verdict}; it beats {rec.strictly_dominated()} of "
+              f"{len(rec.sequential_front)} sequential points in both")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--budget", type=int, default=9, help="the co-design's inner solves (default 9)")
@@ -64,6 +104,15 @@ def main() -> None:
                          "fronts; reported apart; default 2, 0: not run): each inner problem tunes one PID per entry")
     ap.add_argument("--settling", type=float, default=0.2,
                     help="a tighter settling limit (s) both answers are co-designed and validated at (default 0.2)")
+    ap.add_argument("--stiffness", type=float, default=1000.0,
+                    help="a stiffer rigidity requirement on the schedule, [schedule] stiffness_min_N_per_um (N/um; "
+                         "default 1000)")
+    ap.add_argument("--hotter", type=float, default=1.5,
+                    help="a hotter duty: the duty's speeds times this (default 1.5)")
+    ap.add_argument("--case-front", type=int, default=2,
+                    help="points of each front's sweep in the coupling cases (default 2; 0: no fronts there)")
+    ap.add_argument("--case-budget", type=int, default=3,
+                    help="inner solves of each co-designed front weight's search in the coupling cases (default 3)")
     args = ap.parse_args()
 
     lit = literature()
@@ -92,26 +141,24 @@ def main() -> None:
     print(f"  fronts: {time.perf_counter() - t_front:.1f} s; the co-designed front "
           f"{'is nowhere worse' if dominates else 'is somewhere worse'} at Ms <= {rec.ms_max:g}; it beats "
           f"{strictly} of {len(rec.sequential_front)} sequential points in both")
-    tracking_only = r.sequential.tracking_rms_N
+    tracking_only = r.sequential.cycle_tracking_rms_N  # the fronts' tracking: along the preload schedule
     best_tracking = min(p.tracking_rms_N for p in rec.codesigned_front if p.feasible)
     print(f"  the controller's share: the best tracking RMS on the co-designed front {best_tracking:.2f} N against "
           f"the sequential {tracking_only:.2f} N (ratio {best_tracking / tracking_only:.3f})")
 
-    # ---- where the coupling is strong: a tighter settling limit, both through the same Monte Carlo plants --------
-    strong = None
+    # ---- where the coupling is strong: a tighter settling limit, a stiffer rigidity, a hotter duty ------------------
+    cases = {}
     if args.settling is not None:
-        tight = study.replace(validation={"settling_max_s": args.settling})
-        rs = codesign(tight, budget=args.budget, validate_plants=args.plants, progress=print)
-        print(f"  settling at most {args.settling:g} s: {rs!r}")
-        if not rs.sequential.feasible:
-            print(f"  the sequential answer misses it on the nominal plant: {rs.sequential.why}")
-        for row in rs.requirements():
-            print(f"  {row['requirement']:45s} limit {row['limit']}  sequential {row.get('sequential')}  "
-                  f"co-designed {row.get('codesigned')}")
-        strong = {"settling_max_s": args.settling, "objective_ratio": rs.objective_ratio,
-                  "sequential_meets_nominal": rs.sequential.feasible, "changed": rs.changed(),
-                  "requirements": [{k: v for k, v in row.items()} for row in rs.requirements()],
-                  "validated": rs.to_dict()["validated"]}
+        cases["settling"] = (f"settling at most {args.settling:g} s",
+                             study.replace(validation={"settling_max_s": args.settling}))
+    if args.stiffness is not None:
+        cases["stiffness"] = (f"the schedule's rigidity at least {args.stiffness:g} N/um",
+                              study.replace(schedule={"stiffness_min_N_per_um": args.stiffness}))
+    if args.hotter is not None and study.duty is not None:
+        speeds = [args.hotter * float(v) for v in study.given["duty"]["speed_rpm"]]
+        cases["hotter"] = (f"the duty's speeds times {args.hotter:g} ({', '.join(f'{v:g}' for v in speeds)} rpm)",
+                           study.replace(duty={"speed_rpm": speeds}))
+    strong = {name: coupling_case(words, variant, args) for name, (words, variant) in cases.items()}
 
     # ---- more of the controller inside: the schedule's entries as inner decisions -------------------------------
     scheduled = None
@@ -125,8 +172,8 @@ def main() -> None:
                   f"co-designed {row.get('codesigned')}")
         scheduled = {"objective_ratio": rc.objective_ratio, "time_ratio": rc.time_ratio, "changed": rc.changed(),
                      "controller": rc.controller_words(), "sequential_controller": rc.sequential.controller,
-                     "tracking_rms_N": {"sequential": rc.sequential.tracking_rms_N,
-                                        "codesigned": rc.codesigned.tracking_rms_N},
+                     "tracking_rms_N": {"sequential": rc.sequential.cycle_tracking_rms_N,
+                                        "codesigned": rc.codesigned.cycle_tracking_rms_N},
                      "validated": rc.to_dict()["validated"]}
 
     print(json.dumps({

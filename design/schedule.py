@@ -209,24 +209,35 @@ def _slew_envelope(low: Array, slew_step: Array) -> Array:
     return F
 
 
-def headroom_schedule(screw: BallScrew, plan: PreloadSchedule, factor: float) -> PreloadSchedule:
+def headroom_schedule(screw: BallScrew, plan: PreloadSchedule, factor: float, lead_s: float = 0.0) -> PreloadSchedule:
     """``plan`` with headroom: every sample the stacks drive above the bolts' preload at least ``factor`` times its
     planned level, the samples at the bolts' preload kept there (the stacks off), and the least such schedule within
     the stacks' slew (the envelope of the slew cones on those levels, as :func:`schedule_preload`'s): its plateaus
     are exactly ``factor`` times the plan's, its ramps start earlier. ``factor = 1`` gives ``plan`` back.
 
+    ``lead_s``: the transitions advanced by this time: each sample takes the most of the raised levels over the
+    next ``lead_s`` (a forward running maximum), so every rise begins ``lead_s`` earlier and every fall stays where
+    it was: the room a force loop that lags its reference needs at the load's steps. A running maximum of a
+    schedule within the slew is within it on uniform samples; the slew envelope is taken again for any other.
+
     The rigidity and the friction energy are those of the raised levels; the best constant preload, the
     requirements and the margins stay the plan's (the headroom is room above them). Raises ``ValueError`` where
-    ``factor`` is below 1 or the raised levels pass the stacks' reach (``plan.spec.max_preload_N``).
+    ``factor`` is below 1, ``lead_s`` below 0 or the raised levels pass the stacks' reach
+    (``plan.spec.max_preload_N``).
     """
     if not (math.isfinite(factor) and factor >= 1.0):
         raise ValueError(f"a schedule's headroom must be a finite factor >= 1, got {factor!r}")
-    if factor == 1.0:
+    if not (math.isfinite(lead_s) and lead_s >= 0.0):
+        raise ValueError(f"a schedule's lead must be a finite time >= 0 s, got {lead_s!r}")
+    if factor == 1.0 and lead_s == 0.0:
         return plan
     spec, profile = plan.spec, plan.profile
     F = np.asarray(plan.preload_N, float)
+    slew_step = spec.slew_N_per_s * np.diff(profile.time_s)
     driven = spec.bolt_preload_N * (1.0 + 1e-9) < F
-    raised = _slew_envelope(np.where(driven, factor * F, F), spec.slew_N_per_s * np.diff(profile.time_s))
+    raised = _slew_envelope(np.where(driven, factor * F, F), slew_step)
+    if lead_s > 0.0:
+        raised = _slew_envelope(_running_max_ahead(raised, np.asarray(profile.time_s, float), lead_s), slew_step)
     top = float(raised.max())
     if top > spec.max_preload_N * (1.0 + 1e-9):
         raise ValueError(f"a headroom of {factor:g} raises the schedule's top level to {top:.0f} N, above the "
@@ -234,9 +245,16 @@ def headroom_schedule(screw: BallScrew, plan: PreloadSchedule, factor: float) ->
     Fa = np.asarray(profile.axial_load_N, float)
     k_map = _rigidity_function(screw, spec.rigidity_factor).map(Fa.size)
     weight, _ = _weights(screw, profile)
+    lead = f", its transitions {1e3 * lead_s:.3g} ms earlier" if lead_s > 0.0 else ""
     return replace(plan, preload_N=raised, rigidity_N_per_um=np.asarray(k_map(raised, Fa)).ravel(),
                    friction_energy_J=float(np.dot(weight, raised)),
-                   status=f"{plan.status}; headroom {factor:g} on the levels above the bolts' preload")
+                   status=f"{plan.status}; headroom {factor:g} on the levels above the bolts' preload{lead}")
+
+
+def _running_max_ahead(F: Array, t: Array, lead_s: float) -> Array:
+    """Each sample's most of ``F`` over the samples from it to ``lead_s`` later (the last sample's own at the end)."""
+    end = np.searchsorted(t, t + lead_s * (1.0 + 1e-12), side="right")
+    return np.array([F[k:e].max() for k, e in enumerate(end)])
 
 
 def _heat_objective(screw: BallScrew, profile: LoadProfile, heat: dict[str, Any]) -> ca.Function:

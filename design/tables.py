@@ -126,6 +126,9 @@ class DesignTable(Table):
     method: str = key("sequential", "how the optimum is chosen: sequential (the design NLP alone; the tuning after it "
                       "on its plant) or codesign (the contact angle and conformity chosen with the PID gains, "
                       "nested: ``piezopreload codesign``, docs/codesign.md)", choices=DESIGN_METHODS)
+    codesign_budget: int = key(9, "with method = codesign: the most inner problems (a design with its tuning) the "
+                               "co-design's outer search solves after the sequential start, and each weight of its "
+                               "front's sweep", ge=0)
     axial_load_max_N: float = key(_SPEC.axial_load_max_N, "largest axial load: no lift-off up to it at the highest "
                                   "preload, the contact pressure at it", unit="N", gt=0)
     failsafe_load_N: float = key(_SPEC.failsafe_load_N, "load the bolts alone hold without lift-off with the stacks "

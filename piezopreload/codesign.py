@@ -2,11 +2,11 @@
 
 The study is sequential: the design NLP (:func:`~piezopreload.design.preload.optimise`) picks the screw for its
 objective against rigidity, lift-off and life; the tuner (:func:`~piezopreload.tuning.pid.tune_pid`) then picks
-the gains on the plant that design made. :func:`codesign` chooses them together, **nested**: the design's
-continuous variables that shape the plant outside (the least rigidity the design must keep, a floor that moves it
-along the design's least-heat front, and the contact angle and the groove conformity) with the preload schedule's
-headroom (a factor >= 1 on the least-friction schedule's levels above the bolts' preload), the design NLP and the
-tuning inside.
+the gains on the plant that design made; the schedule stage plans the least-friction preload schedule and the
+system stage runs the loop along it, planning it again with local margins where the loop's lag left a requirement
+short. :func:`codesign` chooses them together, **nested**: the design's continuous variables that shape the plant
+outside (the least rigidity the design must keep, a floor that moves it along the design's least-heat front, and the
+contact angle and the groove conformity), the design NLP, the tuning and the schedule's shape inside.
 
 For each outer candidate ``(rigidity floor, contact angle, conformity)``:
 
@@ -20,26 +20,31 @@ For each outer candidate ``(rigidity floor, contact angle, conformity)``:
    whole stroke inside the NLP, the overshoot margin, the noise gain), started from the sequential gains;
 4. the whole-range tracking (the study's staircase) and the step are run on the nominal plant: the tracking RMS
    and the settling time are constraints of the co-design (the validation's limits), not checked after it;
-5. the least-friction schedule is planned on that screw and its levels above the bolts' preload raised by the
-   candidate's headroom (:func:`~piezopreload.design.schedule.headroom_schedule`; refused past the stacks' reach):
-   more friction for more rigidity over the cycle's requirement. The tuning, the tracking and the step are judged on
-   the design's plant over the study's references, not along the schedule, so the headroom is applied after the
-   inner problem, to its answer, with no new tuning;
+5. the loop runs along the preload schedule (:func:`with_headroom`: the machining cycle's reference the rig follows,
+   ``[plant] cycles`` of it after the pre-cycle, the system stage's own run): its tracking RMS there is the
+   objective's tracking term, and the schedule's requirements on the achieved preload while cutting (the rigidity,
+   the deflection, the lift-off bound) are constraints. The schedule is the inner problem's too
+   (:func:`shape_schedule`): the one that meets them with the least objective, of the least-friction schedule with
+   the system stage's margin passes (the sequential way) and, for each lead of :data:`LEADS_S` (every rise that much
+   earlier), the least headroom (a factor on the levels the stacks drive) the loop meets them with
+   (:func:`schedule_shapes`). The loop's lag
+   sets what each needs, so the gains, the levels and their transitions trade;
 6. the objective is the user's weighted sum of the screw's thermal growth over the shift (the design's duty-cycle
-   estimate), the schedule's friction energy per cycle, the tracking RMS and the peak command, each over its
-   sequential value.
+   estimate), the schedule's friction energy per cycle, the tracking RMS along the schedule and the peak command,
+   each over its sequential value.
 
-The outer search is a bounded compass (pattern) search on the four variables scaled to ``[0, 1]`` (the floor from
-the least-heat design's rigidity to the sequential design's, the headroom from 1 to :data:`HEADROOM_MAX`), started
-at the sequential design with the headroom at 1 (the least-friction schedule); a candidate
-replaces the incumbent only when it is feasible and lowers the objective, so the answer is never worse than the
-sequential one (whose objective is 1 by the normalisation). A sequential answer that misses the study (no gains the
-tuning finds meet the tracking or settling limit under the Ms limit) is replaced by the first candidate that meets
-it; where none does, the study is refused naming the binding pair. The outer search is
-derivative-free: the tuning NLP does not expose its optimum's sensitivity to the plant (the literature problems of
-:mod:`piezopreload.design.codesign_problems` show the sensitivity-driven nested strategy). The gain schedule over
-the preload level is not a decision of the outer loop: both answers are compared with the one robust gain set the
-tuning makes (the set ``piezopreload run`` keeps where it meets the specification at every level).
+The outer search is a bounded compass (pattern) search on the three variables scaled to ``[0, 1]`` (the floor from
+the least-heat design's rigidity to the sequential design's), started at the sequential design, whose schedule the
+inner problem shapes first; a candidate replaces the incumbent only when it is feasible and lowers the objective, so
+the answer is never worse than the sequential one (whose objective is 1 by the normalisation). A sequential answer
+that misses the study (no gains the tuning finds meet the tracking or settling limit under the Ms limit, or the
+schedule's requirements along the cycle) is replaced by the first candidate that meets it; where none does, the study
+is refused naming the binding pair. The outer search is derivative-free, and why is :data:`STRATEGY_WHY` (the
+literature problems of :mod:`piezopreload.design.codesign_problems` show the sensitivity-driven nested strategy where
+the inner problem is one smooth parametric NLP). The gain schedule over the preload level is not a decision of the
+outer loop: both answers are compared with the one robust gain set the tuning makes (the set ``piezopreload run``
+keeps where it meets the specification at every level), or with the schedule's entries inside
+(``codesign(schedule=True)``).
 
 Both answers are then validated by the same Monte Carlo (:func:`~piezopreload.tuning.validate.validate`, the
 study's ``[validation]`` plants, seed and limits).
@@ -63,17 +68,19 @@ import numpy as np
 
 from piezopreload.artifacts.codesign import FRONT_RTOL, CodesignRecord, FrontPoint, RequirementRow
 from piezopreload.artifacts.design import DesignPoint
+from piezopreload.artifacts.plant import DesignedPlant
 from piezopreload.artifacts.schedule import PreloadSchedule
 from piezopreload.artifacts.validation import Criteria, ValidationResult
 from piezopreload.core.errors import InfeasibleError, InputError
 from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignSpec, optimise, pareto_front
 from piezopreload.design.schedule import headroom_schedule
 from piezopreload.design.study import plan_schedule
+from piezopreload.design.system import SystemRun
 from piezopreload.design.tables import DesignTable, PlantTable, ScheduleTable
 from piezopreload.design.thermal import duty_growth_um
 from piezopreload.models.actuator import Plant
 from piezopreload.models.ballscrew import lift_off_load_N
-from piezopreload.models.controller import PIDGains
+from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.progress import ProgressLike, say_of
 from piezopreload.spec import StudySpec
 from piezopreload.steps import Solved, identify
@@ -83,32 +90,43 @@ from piezopreload.tuning.schedule import schedule_levels, tune_entries
 from piezopreload.tuning.validate import validate
 
 __all__ = ["CodesignWeights", "Candidate", "CodesignResult", "codesign", "codesign_optimum", "codesign_design",
-           "codesign_fronts", "codesign_record", "front_weights", "evaluate_design", "TERMS", "STRATEGY_WHY"]
+           "codesign_fronts", "codesign_record", "front_weights", "evaluate_design", "schedule_shapes",
+           "shape_schedule", "TERMS",
+           "STRATEGY_WHY"]
 
 #: the objective's terms: (name, the candidate's attribute, unit)
 TERMS = (("growth", "growth_um", "um over the shift"), ("friction", "friction_energy_J", "J per cycle"),
-         ("tracking", "tracking_rms_N", "N"), ("voltage", "peak_voltage_V", "V"))
-#: the outer variables: (name, the design spec's range attribute, unit)
+         ("tracking", "cycle_tracking_rms_N", "N along the schedule"), ("voltage", "peak_voltage_V", "V"))
 #: the outer variables: (name, the design point's attribute its start is read from, unit); the rigidity floor
 #: makes each candidate a point of the design's least-heat front (``stiffness:growth``): the least nut heat whose
 #: least rigidity over the duty is at least the floor
 VARIABLES = (("stiffness_floor_N_per_um", "stiffness_N_per_um", "N/um"),
-             ("contact_angle_deg", "contact_angle_deg", "deg"), ("conformity", "conformity", ""),
-             ("schedule_headroom", "schedule_headroom", ""))
-#: the outer variables that shape the design (the inner problem's plant and tuning); the rest (the schedule's
-#: headroom) is applied to the planned schedule alone, on the inner problem's answer
+             ("contact_angle_deg", "contact_angle_deg", "deg"), ("conformity", "conformity", ""))
+#: the outer variables that shape the design (all of them: the schedule's shape is the inner problem's)
 DESIGN_VARIABLES = 3
+#: the inner problem's preload schedule shape: (name, unit); 1 and 0 are the least-friction schedule
+SHAPE = (("schedule_headroom", ""), ("schedule_lead_s", "s"))
 #: the headroom's range: from the least-friction levels (1, the sequential answer's) to half as much again; a
-#: candidate whose raised levels pass its stacks' reach is refused
+#: headroom whose raised levels pass the stacks' reach is not taken
 HEADROOM_MAX = 1.5
+#: the leads the inner problem tries (s): the transitions 25, 50 and 100 ms earlier, about one to several times the
+#: tuned loops' lag behind a load step at the rig's 1 ms sample
+LEADS_S = (0.025, 0.05, 0.1)
+#: the regula falsi steps on the headroom for each lead (after its two ends)
+SHAPE_STEPS = 3
 #: the design NLP's objective for a candidate: the least heat at the candidate's rigidity floor
 CANDIDATE_OBJECTIVE = "heat"
 STRATEGY = "nested"
 #: why the study's co-design is nested (the result and the artifact say so)
-STRATEGY_WHY = ("nested, not simultaneous: the study's tuning NLP (tuning/pid.py: the closed loop's compiled "
-                "simulation over the plant variants, Ms at every slope) exposes no sensitivity of its optimum to the "
-                "plant, so the design cannot be solved in one NLP with the gains nor differentiated through the "
-                "tuning; the design outside is searched derivative-free, the design NLP and the tuning inside")
+STRATEGY_WHY = ("nested, not simultaneous, and derivative-free outside: the inner problem is no smooth function of the "
+                "design variables, so no parametric sensitivity of its optimum (IPOPT's parameter multipliers or the "
+                "implicit function theorem on its KKT system) can guide the outer search: the design NLP rounds the "
+                "balls and turns to integers (along the rigidity floor the ball count jumps, 15 to 30 to 33 on the "
+                "default study), the feedforward is identified by a QP on a simulated loop, the schedule's shape is a "
+                "discrete choice with the system stage's margin passes, and in the tuning NLP (tuning/pid.py) only "
+                "the Ms constraints' frequency-response data are parameters, its time-domain objective a callback "
+                "over the compiled simulation whose plant enters as constants; the design outside is searched by a "
+                "compass search, the design NLP, the tuning and the schedule inside")
 
 
 @dataclass(frozen=True)
@@ -211,6 +229,32 @@ class Candidate:
         The schedule's highest level over the machining cycle.
     schedule_stiffness_margin_N_per_um : float
         The schedule's least rigidity over its requirement along the cycle (what the headroom buys).
+    schedule_lead_s : float
+        The schedule's transitions advanced by this time (s; 0: the least-friction transitions).
+    cycle_tracking_rms_N : float
+        The tracking RMS along the preload schedule: the candidate's controller (its gains, the feedforward's
+        inverse) following the schedule it runs (with its headroom, lead and the margin passes) on the designed
+        plant for ``[plant] cycles`` machining cycles (NaN: not judged along the cycle).
+    cycle_peak_voltage_V : float
+        The stacks' peak command along the schedule.
+    cycle_passes : int
+        The schedule's margin passes the run took (1: the schedule met its requirements as planned).
+    cycle_requirements : tuple of (str, float, float, str, str)
+        The schedule's requirements judged on the achieved preload while cutting, each ``(name, value, limit, unit,
+        sense)`` (:func:`~piezopreload.design.system.requirements_of`).
+    loop_feasible : bool or None
+        Whether the controller meets the study's step and staircase limits (None: not judged along the cycle yet,
+        ``feasible`` says it); ``feasible`` is this and the schedule's requirements met along the cycle.
+    loop_why : str
+        What the controller misses on the step and staircase ("" where it meets them).
+    cycle_why : str
+        What the achieved preload misses of the schedule's requirements along the cycle ("" where it meets them).
+    feedforward : IdentifiedFeedforward or None
+        The feedforward identified on the candidate's plant (the cycle's run reuses it).
+    least_plan : PreloadSchedule or None
+        The least-friction schedule on its screw (each shape of the schedule starts from it).
+    shapes : tuple of Candidate
+        The schedules the inner problem chose this one from (:func:`schedule_shapes`; empty: not shaped).
     """
 
     point: DesignPoint = field(repr=False)
@@ -231,13 +275,24 @@ class Candidate:
     schedule_headroom: float = 1.0
     schedule_top_N: float = math.nan
     schedule_stiffness_margin_N_per_um: float = math.nan
+    schedule_lead_s: float = 0.0
+    cycle_tracking_rms_N: float = math.nan
+    cycle_peak_voltage_V: float = math.nan
+    cycle_passes: int = 0
+    cycle_requirements: tuple[tuple[str, float, float, str, str], ...] = ()
+    loop_feasible: bool | None = None
+    loop_why: str = ""
+    cycle_why: str = ""
+    feedforward: IdentifiedFeedforward | None = field(default=None, repr=False, compare=False)
+    least_plan: PreloadSchedule | None = field(default=None, repr=False, compare=False)
+    shapes: tuple[Candidate, ...] = field(default=(), repr=False, compare=False)
 
     def variables(self) -> dict[str, float]:
-        """The outer variables' values (the design's read off its point where it was not designed at them)."""
-        if self.at:
-            return dict(self.at)
-        out = {name: float(getattr(self.point, attr)) for name, attr, _ in VARIABLES[:DESIGN_VARIABLES]}
-        return {**out, "schedule_headroom": float(self.schedule_headroom)}
+        """The outer variables' values (the design's read off its point where it was not designed at them) and the
+        schedule's shape the inner problem chose."""
+        out = dict(self.at) if self.at else {name: float(getattr(self.point, attr)) for name, attr, _ in VARIABLES}
+        return {**out, "schedule_headroom": float(self.schedule_headroom),
+                "schedule_lead_s": float(self.schedule_lead_s)}
 
     def objective(self, weights: CodesignWeights, reference: Candidate) -> float:
         """The weighted sum of the terms, each over ``reference``'s (the sequential answer's), over the weights' sum."""
@@ -255,8 +310,19 @@ class Candidate:
                 "gains": {"Kc_V_per_N": self.gains.Kc, "Ti_s": self.gains.Ti_s, "Td_s": self.gains.Td_s,
                           "Tf_s": self.gains.Tf_s, "b": self.gains.b},
                 "controller": self.controller, "entry_ms": list(self.entry_ms),
-                "preload_schedule": {"headroom": self.schedule_headroom, "top_N": self.schedule_top_N,
-                                     "stiffness_margin_min_N_per_um": self.schedule_stiffness_margin_N_per_um},
+                "preload_schedule": {"headroom": self.schedule_headroom, "lead_s": self.schedule_lead_s,
+                                     "top_N": self.schedule_top_N,
+                                     "stiffness_margin_min_N_per_um": self.schedule_stiffness_margin_N_per_um,
+                                     "shapes_tried": [{"headroom": c.schedule_headroom, "lead_s": c.schedule_lead_s,
+                                                       "margin_passes": c.cycle_passes,
+                                                       "friction_energy_J": c.friction_energy_J,
+                                                       "tracking_rms_N": _finite(c.cycle_tracking_rms_N),
+                                                       "meets": c.feasible} for c in self.shapes]},
+                "cycle": {"tracking_rms_N": _finite(self.cycle_tracking_rms_N),
+                          "peak_voltage_V": _finite(self.cycle_peak_voltage_V), "margin_passes": self.cycle_passes,
+                          "requirements": [{"requirement": n, "value": v, "limit": lim, "unit": u, "sense": sense,
+                                            "met": _met(v, lim, sense)}
+                                           for n, v, lim, u, sense in self.cycle_requirements]},
                 "schedule": None if self.gains.schedule is None else {
                     "levels_N": list(self.gains.schedule.levels_N), "Kc_V_per_N": list(self.gains.schedule.Kc),
                     "Ti_s": list(self.gains.schedule.Ti_s), "Td_s": list(self.gains.schedule.Td_s),
@@ -267,6 +333,15 @@ class Candidate:
                 "growth_um": None if math.isnan(self.growth_um) else self.growth_um,
                 "feasible": self.feasible,
                 "why": self.why}
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def _met(value: float, limit: float, sense: str) -> bool:
+    """A requirement's verdict as the system stage judges it (``Requirement.met``: its margin >= 0)."""
+    return bool(value >= limit if sense == "min" else value <= limit)
 
 
 @dataclass(frozen=True)
@@ -282,9 +357,13 @@ class _Inner:
     say: Callable[[str], None]
 
 
-def _plant(study: StudySpec, point: DesignPoint) -> Plant:
+def _designed(study: StudySpec, point: DesignPoint) -> DesignedPlant:
     table = study.plant_table or PlantTable()
-    return table.plant(study.design_spec, point, study.rig).rig  # type: ignore[arg-type]
+    return table.plant(study.design_spec, point, study.rig)  # type: ignore[arg-type]
+
+
+def _plant(study: StudySpec, point: DesignPoint) -> Plant:
+    return _designed(study, point).rig
 
 
 def _nominal(study: StudySpec, plant: Plant, gains: PIDGains, ff: IdentifiedFeedforward) -> dict[str, float]:
@@ -316,7 +395,7 @@ def _misses(nominal: dict[str, float], c: Criteria) -> list[str]:
 def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | None = None,
                     tuning: TuningSpec | None = None, max_iterations: int = 60,
                     feedforward: IdentifiedFeedforward | None = None, schedule: bool = False,
-                    headroom: float = 1.0) -> Candidate:
+                    headroom: float = 1.0, lead_s: float = 0.0, cycle_binding: bool = True) -> Candidate:
     """The inner problem for one design: its plant, the feedforward identified on it, the PID tuned on it (Ms inside),
     the gain schedule's entries tuned on it (each at Ms over its own window) where the study tunes a schedule, and
     what the better controller achieves on the nominal plant (the whole-range tracking and the step, the schedule's
@@ -325,8 +404,10 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
     The controller is part of the inner problem's decisions: the robust set, or the robust set with the schedule's
     entries (Kc, Ti, Td and b each, tuned on its window by :func:`~piezopreload.tuning.schedule.tune_entries`),
     whichever meets the tracking and settling limits with the lower tracking RMS. ``schedule``: tune the entries
-    (the study's ``[tuning] schedule_levels``, at least 2); False: the one robust set. ``headroom``: the preload
-    schedule's factor on its least-friction levels (:func:`with_headroom`; 1: the least-friction schedule).
+    (the study's ``[tuning] schedule_levels``, at least 2); False: the one robust set. ``headroom``, ``lead_s``: the
+    preload schedule's factor on its least-friction levels and its transitions' lead (:func:`with_headroom`, which
+    then runs the controller along that schedule; 1 and 0: the least-friction schedule); ``cycle_binding``: whether
+    the schedule's requirements along the cycle are constraints (:func:`with_headroom`'s ``binding``).
 
     Raises :class:`~piezopreload.core.errors.InfeasibleError` naming the binding pair where no gains the tuning
     finds meet the study's Ms limit together with the tuning's other constraints.
@@ -375,36 +456,192 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
                      nominal["tracking_rms_N"], nominal["peak_voltage_V"], nominal["settling_s"], not misses, why,
                      float(lift_off_load_N(point.bolt_preload_N)),
                      math.nan if study.thermal is None else float(duty_growth_um(spec, point, study.thermal)),
-                     controller=controller, entry_ms=entry_ms)
-    return with_headroom(study, cand, headroom)
+                     controller=controller, entry_ms=entry_ms, feedforward=ff)
+    return with_headroom(study, cand, headroom, lead_s, binding=cycle_binding)
 
 
-def planned_schedule(study: StudySpec, point: DesignPoint, headroom: float = 1.0) -> PreloadSchedule:
-    """The preload schedule a candidate runs: the least-friction schedule on the screw of ``point`` (the study's
-    ``[schedule]`` limits, the machining cycle), its levels above the bolts' preload raised by ``headroom``
-    (:func:`~piezopreload.design.schedule.headroom_schedule`).
+def planned_schedule(study: StudySpec, point: DesignPoint, headroom: float = 1.0, lead_s: float = 0.0,
+                     least: PreloadSchedule | None = None) -> PreloadSchedule:
+    """The preload schedule a candidate plans: the least-friction schedule on the screw of ``point`` (the study's
+    ``[schedule]`` limits, the machining cycle), its levels above the bolts' preload raised by ``headroom`` and its
+    transitions advanced by ``lead_s`` (:func:`~piezopreload.design.schedule.headroom_schedule`); ``least``: that
+    least-friction schedule, planned already.
 
     Raises :class:`~piezopreload.core.errors.InfeasibleError` where the raised levels pass the stacks' reach.
     """
     spec = study.design_spec
     if spec is None:
         raise InputError(f"{study.path}: co-design needs the design's tables ([ballscrew], [design])")
-    plan, _, _ = plan_schedule(spec, point, None, **(study.schedule or ScheduleTable()).limits())
+    plan = least or plan_schedule(spec, point, None, **(study.schedule or ScheduleTable()).limits())[0]
     try:
-        return headroom_schedule(spec.screw(point), plan, headroom)
+        return headroom_schedule(spec.screw(point), plan, headroom, lead_s)
     except ValueError as exc:
         raise InfeasibleError(f"{study.path}: the design (rigidity {point.stiffness_N_per_um:.0f} N/um): {exc}") \
             from None
 
 
-def with_headroom(study: StudySpec, cand: Candidate, headroom: float) -> Candidate:
-    """``cand`` running the schedule with ``headroom`` (:func:`planned_schedule`): its friction energy, top level
-    and rigidity margin; the design and the controller are the same (the tuning and the tracking are judged over the
-    study's references, not along the schedule)."""
-    plan = planned_schedule(study, cand.point, headroom)
-    return replace(cand, friction_energy_J=float(plan.friction_energy_J), schedule_headroom=float(headroom),
-                   schedule_top_N=float(np.max(plan.preload_N)),
-                   schedule_stiffness_margin_N_per_um=float(np.min(plan.rigidity_N_per_um - plan.required_N_per_um)))
+def along_schedule(study: StudySpec, cand: Candidate, plan: PreloadSchedule, passes: int | None = None) -> SystemRun:
+    """``cand``'s controller (its gains with the inverse of the feedforward identified on its plant) following
+    ``plan`` on the designed plant, as the study's system stage runs it: the pre-cycle held the settling limit, then
+    ``[plant] cycles`` machining cycles, the schedule planned again with local margins while a requirement is missed
+    (``passes`` at most; None: ``[plant] passes``; :func:`~piezopreload.design.system.track_schedule`), without the
+    learned correction."""
+    designed = _designed(study, cand.point)
+    ff = cand.feedforward or identify(study, Solved(study, cand.point))
+    controller = Controller(cand.gains, designed.rig.sample_period_s, ff.inverse())
+    table = study.plant_table or PlantTable()
+    if passes is not None:
+        table = replace(table, passes=int(passes))
+    return table.track(designed, controller, plan, seed=study.seed, settle_s=study.validation.settling_max_s)
+
+
+def with_headroom(study: StudySpec, cand: Candidate, headroom: float, lead_s: float = 0.0, *,
+                  binding: bool = True) -> Candidate:
+    """``cand`` running the schedule with ``headroom`` and ``lead_s`` (:func:`planned_schedule`), judged along it.
+
+    The controller follows the schedule (:func:`along_schedule`). Two ways give the loop the room its lag needs: at
+    headroom 1 and lead 0 (the least-friction schedule, as the study's schedule stage plans it) the system stage's
+    margin passes (the plan again with local margins where the loop's achieved preload fell short, ``[plant]
+    passes`` at most); with a headroom or a lead the shaped plan is the room, run in one pass (a margin pass plans
+    the least-friction schedule again, which would undo the shape). The candidate's friction energy, top level and
+    rigidity margin are those of the schedule the loop ends on, its tracking RMS along the cycle and the schedule's
+    requirements on the achieved preload while cutting are its own. It is feasible where the controller meets the
+    study's step and staircase limits and the achieved preload meets every requirement of the schedule (``binding``
+    False: the controller's limits alone, the schedule's verdicts kept in ``cycle_why`` for the study's system stage
+    to judge with its learned feedforward). The design and the controller are the same (their tuning is judged over
+    the study's references; the schedule's shape is applied to its answer).
+    """
+    if cand.least_plan is None:  # planned once, kept for the candidate's other shapes
+        cand = replace(cand, least_plan=planned_schedule(study, cand.point))
+    plan = planned_schedule(study, cand.point, headroom, lead_s, cand.least_plan)
+    if cand.feedforward is None:  # identified once, kept for the candidate's other schedules
+        cand = replace(cand, feedforward=identify(study, Solved(study, cand.point)))
+    loop_ok = cand.feasible if cand.loop_feasible is None else cand.loop_feasible
+    loop_why = cand.why if cand.loop_feasible is None else cand.loop_why
+    run = along_schedule(study, cand, plan, None if headroom == 1.0 and lead_s == 0.0 else 1)
+    ev, final = run.evaluation, run.schedule
+    missed = [f"{r.name} {r.value:.4g} {r.unit} against {'at least' if r.sense == 'min' else 'at most'} "
+              f"{r.limit:.4g} {r.unit}" for r in ev.requirements if not r.met]
+    cycle_why = (f"along the preload schedule (after {len(run.passes)} margin passes) the achieved preload misses "
+                 + "; ".join(missed)) if missed else ""
+    return replace(cand, friction_energy_J=float(final.friction_energy_J), schedule_headroom=float(headroom),
+                   schedule_lead_s=float(lead_s), schedule_top_N=float(np.max(final.preload_N)),
+                   schedule_stiffness_margin_N_per_um=float(np.min(final.rigidity_N_per_um - final.required_N_per_um)),
+                   cycle_tracking_rms_N=float(ev.numbers.tracking_rms_N),
+                   cycle_peak_voltage_V=float(ev.numbers.peak_voltage_V), cycle_passes=len(run.passes),
+                   cycle_requirements=tuple((r.name, float(r.value), float(r.limit), r.unit, r.sense)
+                                            for r in ev.requirements),
+                   loop_feasible=bool(loop_ok), loop_why=loop_why, cycle_why=cycle_why,
+                   feasible=bool(loop_ok) and not (missed and binding),
+                   why="; ".join(w for w in (loop_why, cycle_why if binding else "") if w))
+
+
+def _slack(cand: Candidate) -> float:
+    """The least margin of the schedule's requirements along the cycle, each over its limit (>= 0: all met)."""
+    return min((v / lim - 1.0 if sense == "min" else 1.0 - v / lim)
+               for _, v, lim, _, sense in cand.cycle_requirements if lim > 0)
+
+
+def _least_headroom(study: StudySpec, cand: Candidate, lead_s: float) -> Candidate | None:
+    """The least headroom (to the regula falsi's tolerance, feasible side) with which ``cand``'s loop meets the
+    schedule's requirements along the cycle on the schedule led by ``lead_s``; None where even the most the stacks'
+    reach and :data:`HEADROOM_MAX` allow does not."""
+    def run(h: float) -> Candidate | None:
+        try:
+            return with_headroom(study, cand, h, lead_s)
+        except InfeasibleError:  # past the stacks' reach
+            return None
+
+    low = run(1.0)
+    if low is None or low.feasible:
+        return low
+    hi_h = HEADROOM_MAX
+    high = run(hi_h)
+    while high is None and hi_h > 1.01:  # the stacks' reach: less headroom
+        hi_h = 1.0 + 0.5 * (hi_h - 1.0)
+        high = run(hi_h)
+    if high is None or not high.feasible:
+        return None
+    lo_h, g_lo, g_hi = 1.0, _slack(low), _slack(high)
+    for _ in range(SHAPE_STEPS):
+        span = hi_h - lo_h
+        h = lo_h + span * min(0.9, max(0.1, -g_lo / (g_hi - g_lo)))  # kept inside the bracket
+        c = run(h)
+        if c is None:
+            break
+        if c.feasible:
+            hi_h, high, g_hi = h, c, _slack(c)
+        else:
+            lo_h, g_lo = h, _slack(c)
+    return high
+
+
+def schedule_shapes(study: StudySpec, cand: Candidate) -> tuple[Candidate, ...]:
+    """The preload schedules the inner problem chooses from for ``cand``'s design and controller, each judged along
+    the cycle: the least-friction schedule with the system stage's margin passes (headroom 1, lead 0: the sequential
+    answer's way) first, then for each lead of :data:`LEADS_S` the least headroom with which the loop meets the
+    schedule's requirements in one pass (:func:`with_headroom`), where one does. Only the first where ``cand``'s
+    controller misses the study's step or staircase limits (no schedule mends those).
+
+    Parameters
+    ----------
+    study : StudySpec
+        The study.
+    cand : Candidate
+        The inner problem's candidate (its design and its controller).
+
+    Returns
+    -------
+    tuple of Candidate
+        ``cand`` on each schedule; the least-friction one with the margin passes first.
+    """
+    loop_ok = cand.feasible if cand.loop_feasible is None else cand.loop_feasible
+    base = cand if cand.loop_feasible is not None and cand.schedule_headroom == 1.0 and cand.schedule_lead_s == 0.0 \
+        else with_headroom(study, cand, 1.0, 0.0)
+    base = replace(base, shapes=())
+    if not loop_ok:
+        return (base,)
+    found = [_least_headroom(study, base, lead) for lead in LEADS_S]
+    return (base, *(c for c in found if c is not None))
+
+
+def shape_schedule(study: StudySpec, cand: Candidate, weights: CodesignWeights | None = None,
+                   reference: Candidate | None = None) -> Candidate:
+    """The inner problem's preload schedule for ``cand``'s design and controller: of :func:`schedule_shapes` (kept on
+    the answer, ``shapes``, and reused from ``cand`` where it has them), the one that meets the schedule's
+    requirements along the cycle with the least objective.
+
+    The loop's lag sets what each shape needs, so the gains and the schedule trade: a loop that lags less needs less
+    headroom and lead, and so less friction, and follows the lower levels more closely.
+
+    Parameters
+    ----------
+    study : StudySpec
+        The study.
+    cand : Candidate
+        The inner problem's candidate (its design, its controller).
+    weights : CodesignWeights, optional
+        The objective's weights (None: the least friction per cycle alone, the schedule stage's own objective).
+    reference : Candidate, optional
+        The candidate the objective's terms are read over (the sequential answer; needed with ``weights``).
+
+    Returns
+    -------
+    Candidate
+        ``cand`` on the chosen schedule, judged along it (the least-friction schedule with the margin passes where
+        no shape meets the requirements, or where it is as good).
+    """
+    shapes = cand.shapes or schedule_shapes(study, cand)
+    if weights is not None and reference is None:
+        raise InputError("shape_schedule: weights need the reference candidate their terms are read over")
+    met = [c for c in shapes if c.feasible]
+    if not met:
+        return replace(shapes[0], shapes=shapes)
+
+    def key(c: Candidate) -> float:
+        return c.friction_energy_J if weights is None else c.objective(weights, reference)  # type: ignore[arg-type]
+
+    return replace(min(met, key=key), shapes=shapes)  # the first of equals: the least-friction plan with its margins
 
 
 @dataclass(frozen=True)
@@ -453,6 +690,8 @@ class CodesignResult:
         The least-heat design's least rigidity, the outer floor's low end (NaN: not computed).
     schedule : bool
         Whether the gain schedule's entries were decisions of the inner problem.
+    shape : bool
+        Whether the preload schedule's headroom and lead were outer variables (False: the least-friction schedule).
     """
 
     study: str
@@ -477,6 +716,8 @@ class CodesignResult:
     least_heat_N_per_um: float = field(default=math.nan, repr=False)
     #: whether the gain schedule's entries were decisions of the inner problem (``codesign(schedule=True)``)
     schedule: bool = field(default=False, repr=False)
+    #: whether the preload schedule's headroom and lead were searched (``codesign(shape=True)``)
+    shape: bool = field(default=True, repr=False)
 
     @property
     def objective_ratio(self) -> float:
@@ -535,6 +776,12 @@ class CodesignResult:
                         f"level {s.schedule_top_N:,.0f} -> {c.schedule_top_N:,.0f} N; its least rigidity margin over "
                         f"the cycle's requirement {s.schedule_stiffness_margin_N_per_um:,.0f} -> "
                         f"{c.schedule_stiffness_margin_N_per_um:,.0f} N/um)")
+        if not math.isclose(s.schedule_lead_s, c.schedule_lead_s, rel_tol=1e-9, abs_tol=1e-12):
+            rows.append(f"schedule_lead_s {s.schedule_lead_s:.4g} -> {c.schedule_lead_s:.4g} s (the schedule's rises "
+                        f"{1e3 * c.schedule_lead_s:.3g} ms before the loads that need them)")
+        if s.cycle_passes != c.cycle_passes:
+            rows.append(f"margin passes along the schedule {s.cycle_passes} -> {c.cycle_passes} (passes the loop's "
+                        "shortfall asked the schedule to be planned again with local margins)")
         return rows
 
     def bought(self) -> list[dict[str, Any]]:
@@ -575,7 +822,8 @@ class CodesignResult:
                     "the weighted objective or missed a requirement)")
         how = {"growth": "the nut's drag heat (the contact angle and conformity set the drag, the drag the growth)",
                "friction": "the schedule's friction (the screw's contact angle and conformity set its drag)",
-               "tracking": "the nut's stiffness against the stacks (the force per volt the loop's Ms limit allows)",
+               "tracking": "the loop along the schedule (the nut's stiffness against the stacks sets the force per "
+                           "volt the loop's Ms limit allows; the schedule's levels and transitions what it follows)",
                "voltage": "the stacks' command (the force per volt sets the voltage a force needs)"}[best["term"]]
         return f"{best['term']}: {how}"
 
@@ -602,12 +850,22 @@ class CodesignResult:
              "sequential": a.ms, "codesigned": b.ms},
             {"requirement": "nominal tracking RMS, whole range", "unit": "N", "limit": lim.get("tracking_rms_max_N"),
              "kind": "max", "sequential": a.tracking_rms_N, "codesigned": b.tracking_rms_N},
+            {"requirement": "nominal tracking RMS along the preload schedule", "unit": "N", "limit": None,
+             "kind": "max", "sequential": a.cycle_tracking_rms_N, "codesigned": b.cycle_tracking_rms_N},
             # what the schedule's headroom buys: rigidity above the cycle's requirement (the planned schedule's
             # least margin; 0 is the requirement met exactly)
             {"requirement": "preload schedule's least rigidity over the cycle's requirement", "unit": "N/um",
              "limit": 0.0, "kind": "min", "sequential": a.schedule_stiffness_margin_N_per_um,
              "codesigned": b.schedule_stiffness_margin_N_per_um},
         ]
+        # the schedule's requirements on the achieved preload while cutting, judged along the cycle: each as the
+        # achieved over the required (the sample each is judged at, and so its limit, is each run's own)
+        theirs = {name: value / bound for name, value, bound, _, _ in b.cycle_requirements if bound > 0}
+        for name, value, bound, _, sense in a.cycle_requirements:
+            if name in theirs and bound > 0:
+                rows.append({"requirement": f"along the preload schedule: {name}, achieved over required",
+                             "unit": "", "limit": 1.0, "kind": sense, "sequential": value / bound,
+                             "codesigned": theirs[name]})
         if not math.isnan(a.growth_um):
             # the design's estimate over the duty cycle (the stiffness:growth front's y); the study's limit
             # (thermal_growth_max_um) is judged by the system stage along the controlled schedule, not here
@@ -681,7 +939,8 @@ def codesign_optimum(study: StudySpec, progress: ProgressLike | None = None) -> 
     Carlo left to the study's validate stage), as the design NLP's optimum at the co-designed rigidity floor, contact
     angle and conformity (the sequential optimum itself where the co-design kept it), its objective named
     ``"codesign"``."""
-    return _chosen(study, codesign(study, validate_plants=0, progress=progress))
+    budget = (study.design_table or DesignTable()).codesign_budget
+    return _chosen(study, codesign(study, budget=budget, validate_plants=0, shape=False, progress=progress))
 
 
 def _chosen(study: StudySpec, result: CodesignResult) -> DesignOptimum:
@@ -689,10 +948,12 @@ def _chosen(study: StudySpec, result: CodesignResult) -> DesignOptimum:
     objective = (study.design_table or DesignTable()).objective
     if spec is None:  # codesign refused it already; for the type checker
         raise InputError(f"{study.path}: co-design needs the design's tables")
-    if result.codesigned.schedule_headroom != 1.0:  # the later stages plan the least-friction schedule
+    c = result.codesigned
+    if c.schedule_headroom != 1.0 or c.schedule_lead_s != 0.0:  # the later stages plan the least-friction schedule
         raise InfeasibleError(f"{study.path}: the co-design chose a preload schedule headroom of "
-                              f"{result.codesigned.schedule_headroom:g}, which the study's schedule stage does not "
-                              "plan (it plans the least-friction schedule); run `piezopreload codesign` instead")
+                              f"{c.schedule_headroom:g} and lead of {c.schedule_lead_s:g} s, which the study's "
+                              "schedule stage does not plan (it plans the least-friction schedule); run "
+                              "`piezopreload codesign` instead")
     chosen = optimise(spec, objective) if result.codesigned is result.sequential else \
         _optimum_at(spec, result.codesigned.variables())
     return replace(chosen, objective="codesign")  # what chose it (the design artifact and the report say so)
@@ -721,16 +982,18 @@ def codesign_design(study: StudySpec, *, points: int = 3, progress: ProgressLike
     (DesignOptimum, CodesignRecord)
         The design the study's later stages take, and the artifact.
     """
-    result = codesign(study, progress=progress)
+    budget = (study.design_table or DesignTable()).codesign_budget
+    # the later stages plan the least-friction schedule
+    result = codesign(study, budget=budget, shape=False, progress=progress)
     fronts: tuple[tuple[FrontPoint, ...], tuple[FrontPoint, ...]] = ((), ())
     if study.thermal is not None:
-        fronts = codesign_fronts(study, result, points=points, progress=progress)
+        fronts = codesign_fronts(study, result, points=points, budget=budget, progress=progress)
     return _chosen(study, result), codesign_record(study, result, fronts, inputs)
 
 
 def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget: int = 9, step: float = 0.25,
              min_step: float = 0.0625, validate_plants: int | None = None, max_iterations: int = 60,
-             time_factor: float | None = 10.0, schedule: bool = False,
+             time_factor: float | None = 10.0, schedule: bool = False, shape: bool = True,
              progress: ProgressLike | None = None) -> CodesignResult:
     """The sequential design and tuning, then the nested co-design started from it; both validated alike.
 
@@ -755,6 +1018,12 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
         Take the gain schedule's entries (``[tuning] schedule_levels``) as decisions of the inner problem, each tuned
         at Ms over its window, for both answers (:func:`evaluate_design`); False: the one robust set. Each inner
         problem then tunes one more PID per entry.
+    shape : bool
+        The preload schedule's headroom and lead are the inner problem's (:func:`shape_schedule`) and the schedule's
+        requirements along the cycle its constraints; False: every candidate runs the least-friction schedule (with
+        the margin passes the loop asks for), as the study's schedule and system stages plan it, and the schedule's
+        requirements along it are reported, not constraints (those stages judge them with the learned feedforward,
+        which the co-design does not learn); the tracking RMS along it is the objective's term either way.
     progress : ProgressLike, optional
         Where the steps are said.
 
@@ -789,16 +1058,18 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
     if schedule and study.tuning.schedule_levels < 2:
         raise InputError(f"{study.path}: the co-design's schedule entries need [tuning] schedule_levels >= 2, got "
                          f"{study.tuning.schedule_levels}")
-    sequential = evaluate_design(study, seq_point, max_iterations=max_iterations, schedule=schedule)
+    sequential = evaluate_design(study, seq_point, max_iterations=max_iterations, schedule=schedule,
+                                 cycle_binding=shape)
     sequential_s = time.perf_counter() - t0
     say(f"sequential: {objective} design, then the tuning ({sequential_s:.1f} s): tracking RMS "
-        f"{sequential.tracking_rms_N:.2f} N, friction {sequential.friction_energy_J:.4g} J per cycle"
+        f"{sequential.tracking_rms_N:.2f} N (staircase), {sequential.cycle_tracking_rms_N:.2f} N along the schedule "
+        f"({sequential.cycle_passes} margin passes), friction {sequential.friction_energy_J:.4g} J per cycle"
         + ("" if sequential.feasible else f"; it misses the study: {sequential.why}"))
 
     # ---- the nested co-design: a compass search over the plant-shaping variables --------------------------
     t1 = time.perf_counter()
     search = _Search(study, spec, objective, weights, sequential, sequential_s, max_iterations, time_factor, say,
-                     schedule=schedule)
+                     schedule=schedule, shape=shape)
     best, best_f = search.run(budget, step, min_step)
     codesign_s = time.perf_counter() - t1
     if not best.feasible:  # the sequential design has no controller that meets the study, and no candidate had one
@@ -822,7 +1093,7 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
               "ms_max": study.tuning.ms_max, "tracking_rms_max_N": study.validation.tracking_rms_max_N}
     return CodesignResult(study.name, STRATEGY, weights, sequential, best, 1.0, best_f, search.evaluations + 1,
                           tuple(search.refused), sequential_s, codesign_s, limits, tuple(search.scored), v_seq, v_co,
-                          STRATEGY_WHY, search.cache, search.least_heat, schedule)
+                          STRATEGY_WHY, search.cache, search.least_heat, schedule, shape)
 
 
 class _Search:
@@ -835,7 +1106,7 @@ class _Search:
     def __init__(self, study: StudySpec, spec: DesignSpec, objective: str, weights: CodesignWeights,
                  sequential: Candidate, sequential_s: float, max_iterations: int, time_factor: float | None,
                  say: Callable[[str], None], cache: dict[tuple[float, ...], tuple[Candidate | None, str]] | None = None,
-                 least_heat: float | None = None, schedule: bool = False) -> None:
+                 least_heat: float | None = None, schedule: bool = False, shape: bool = True) -> None:
         self.study, self.spec, self.objective, self.weights = study, spec, objective, weights
         self.sequential, self.sequential_s = sequential, sequential_s
         self.max_iterations, self.time_factor, self.say = max_iterations, time_factor, say
@@ -845,9 +1116,9 @@ class _Search:
             least_heat = optimise(spec, CANDIDATE_OBJECTIVE).point.stiffness_N_per_um  # the front's soft end
         self.least_heat, self.schedule = least_heat, schedule
         top = sequential.point.stiffness_N_per_um
-        self.ranges = [(min(least_heat, top), top), tuple(spec.contact_angle_deg), tuple(spec.conformity),
-                       (1.0, HEADROOM_MAX)]
-        # the start's design is the sequential one: a headroom move from it raises the sequential answer's schedule
+        self.shape = shape
+        self.ranges = [(min(least_heat, top), top), tuple(spec.contact_angle_deg), tuple(spec.conformity)]
+        # the start's design is the sequential one (its schedule shaped by the inner problem in run())
         self.cache.setdefault(self.design_key(self.values(self.start())), (sequential, ""))
         self.evaluations, self.stopped, self.slowest = 0, "", 0.0
         self.refused: list[str] = []
@@ -856,7 +1127,7 @@ class _Search:
 
     @staticmethod
     def design_key(values: dict[str, float]) -> tuple[float, ...]:
-        """The inner problem's key: the design variables' values (the headroom is applied after it)."""
+        """The inner problem's key: the design variables' values."""
         return tuple(round(v, 9) for v in list(values.values())[:DESIGN_VARIABLES])
 
     def values(self, z: np.ndarray) -> dict[str, float]:
@@ -873,16 +1144,20 @@ class _Search:
     def score(self, z: np.ndarray, start: PIDGains) -> tuple[Candidate | None, float]:
         """One inner problem at ``z``: the candidate and its objective (inf: infeasible, and why is kept)."""
         values = self.values(z)
-        # the inner problem is the design's: the headroom is applied to its schedule after it (no new tuning)
         key = self.design_key(values)
-        if key in self.cache:  # solved already (another headroom, or another weight of a sweep)
+        if key in self.cache:  # solved already (another weight of a sweep: its schedule chosen for these weights)
             cand, refused = self.cache[key]
+            if cand is not None and self.shape and cand.shapes:
+                cand = shape_schedule(self.study, cand, self.weights, self.sequential)
         else:
             self.evaluations += 1
             t0 = time.perf_counter()
             try:
                 cand = evaluate_design(self.study, _optimum_at(self.spec, values).point, start=start,
-                                       max_iterations=self.max_iterations, schedule=self.schedule)
+                                       max_iterations=self.max_iterations, schedule=self.schedule,
+                                       cycle_binding=self.shape)
+                if self.shape:  # the schedule's headroom and lead for this loop, by the objective
+                    cand = shape_schedule(self.study, cand, self.weights, self.sequential)
                 refused = ""
             except InfeasibleError as exc:  # no screw, or no controller, for these values
                 cand, refused = None, str(exc)
@@ -890,10 +1165,7 @@ class _Search:
                 self.slowest = max(self.slowest, time.perf_counter() - t0)
             self.cache[key] = (cand, refused)
         if cand is not None:
-            try:
-                cand = replace(with_headroom(self.study, cand, values["schedule_headroom"]), at=tuple(values.items()))
-            except InfeasibleError as exc:  # the raised levels pass the stacks' reach
-                cand, refused = None, str(exc)
+            cand = replace(cand, at=tuple(values.items()))
         if cand is None:
             self.refused.append(f"{values}: {refused}")
             return None, math.inf
@@ -906,7 +1178,7 @@ class _Search:
         return cand, f
 
     def start(self) -> np.ndarray:
-        """The sequential answer scaled: its design, and the headroom at 1 (the least-friction schedule)."""
+        """The sequential answer's design, scaled."""
         at = self.sequential.variables()
         return np.array([(at[name] - lo) / (hi - lo) if hi > lo else 0.0
                          for (name, _, _), (lo, hi) in zip(VARIABLES, self.ranges)])
@@ -916,6 +1188,20 @@ class _Search:
         best = self.sequential  # a start that misses the study is replaced by the first candidate that meets it
         best_f = self.sequential.objective(self.weights, self.sequential) if self.sequential.feasible else math.inf
         seen = {tuple(np.round(z, 9))}
+        key = self.design_key(self.values(z))
+        start = self.cache[key][0]
+        if self.shape and start is not None:  # the sequential design, its schedule shaped (the shapes kept)
+            t0 = time.perf_counter()
+            shaped = shape_schedule(self.study, start, self.weights, self.sequential)
+            self.slowest = max(self.slowest, time.perf_counter() - t0)
+            self.cache[key] = (shaped, "")
+            if (shaped.schedule_headroom, shaped.schedule_lead_s) != (1.0, 0.0) and shaped.feasible:
+                f = shaped.objective(self.weights, self.sequential)
+                self.scored.append(shaped)
+                self.say(f"  the sequential design, its schedule shaped (headroom {shaped.schedule_headroom:.4g}, lead "
+                         f"{1e3 * shaped.schedule_lead_s:.3g} ms): objective {f:.4f}")
+                if f < best_f - 1e-9:
+                    best, best_f = shaped, f
         h = step
         # opportunistic polling: the first direction that improves is taken, and tried first at the next poll
         directions = [(i, sign) for i in range(len(VARIABLES)) for sign in (-1.0, +1.0)]
@@ -953,7 +1239,7 @@ def _monte_carlo(study: StudySpec, cand: Candidate, plants: int) -> ValidationRe
 
 # ---- the two fronts: thermal growth against tracking RMS at the study's Ms ----------------------------------------
 def _front_point(c: Candidate, label: str, swept: float) -> FrontPoint:
-    return FrontPoint(label, float(swept), float(c.growth_um), float(c.tracking_rms_N), float(c.ms),
+    return FrontPoint(label, float(swept), float(c.growth_um), float(c.cycle_tracking_rms_N), float(c.ms),
                       float(c.peak_voltage_V), float(c.point.stiffness_N_per_um), float(c.point.contact_angle_deg),
                       bool(c.feasible), None if not math.isfinite(c.settling_s) else float(c.settling_s), c.why)
 
@@ -1003,11 +1289,12 @@ def codesign_fronts(study: StudySpec, result: CodesignResult, *, points: int = 3
     front = pareto_front(spec, "stiffness:growth", points, growth=lambda p: duty_growth_um(spec, p, table))
     sequential = []
     for p in front.points:
-        c = evaluate_design(study, p, start=seq.gains, schedule=result.schedule)
+        c = evaluate_design(study, p, start=seq.gains, schedule=result.schedule, cycle_binding=result.shape)
         sequential.append(_front_point(c, f"rigidity at least {p.stiffness_N_per_um:,.0f} N/um",
                                        p.stiffness_N_per_um))
         say(f"  sequential front: rigidity {p.stiffness_N_per_um:,.0f} N/um: growth {c.growth_um:.2f} um, tracking "
-            f"RMS {c.tracking_rms_N:.2f} N, Ms {c.ms:.3f}{'' if c.feasible else ' (' + c.why + ')'}")
+            f"RMS along the schedule {c.cycle_tracking_rms_N:.2f} N, Ms {c.ms:.3f}"
+            f"{'' if c.feasible else ' (' + c.why + ')'}")
     if not any(math.isclose(p.stiffness_N_per_um, seq.point.stiffness_N_per_um, rel_tol=FRONT_RTOL)
                and math.isclose(p.growth_um, seq.growth_um, rel_tol=FRONT_RTOL) for p in sequential):
         sequential.append(_front_point(seq, "the sequential answer", seq.point.stiffness_N_per_um))
@@ -1017,12 +1304,13 @@ def codesign_fronts(study: StudySpec, result: CodesignResult, *, points: int = 3
     for w in weights:
         search = _Search(study, spec, objective, CodesignWeights(growth=w, friction=0.0, tracking=1.0 - w), seq,
                          result.sequential_s, 60, None, lambda _m: None, cache=result.evaluated,
-                         least_heat=least_heat, schedule=result.schedule)
+                         least_heat=least_heat, schedule=result.schedule, shape=result.shape)
         best, _ = search.run(budget, 0.25, 0.0625)
         least_heat = search.least_heat
         codesigned.append(_front_point(best, f"growth weight {w:.2g}, tracking {1 - w:.2g}", w))
         say(f"  co-designed front: growth weight {w:.2g}: growth {best.growth_um:.2f} um, tracking RMS "
-            f"{best.tracking_rms_N:.2f} N, Ms {best.ms:.3f} ({search.evaluations} new inner solves)")
+            f"{best.cycle_tracking_rms_N:.2f} N along the schedule, Ms {best.ms:.3f} ({search.evaluations} new inner "
+            "solves)")
     return tuple(sequential), tuple(codesigned)
 
 

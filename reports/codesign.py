@@ -46,7 +46,7 @@ def codesign_fronts_figure(r: CodesignRecord) -> Figure:
         a.plot([p.growth_um for p in front], [p.tracking_rms_N for p in front], marker + "-", ms=size, color=colour,
                label=f"{name} front")
     a.set_xlabel("thermal growth over the shift, duty-cycle estimate (um)")
-    a.set_ylabel("nominal tracking RMS, whole range (N)")
+    a.set_ylabel("nominal tracking RMS along the preload schedule (N)")
     a.set_title(f"both at Ms <= {fmt(r.ms_max)}")
     legends(a)
     return fig
@@ -107,7 +107,8 @@ def codesign_section(r: CodesignRecord) -> Part:
         dominates, strictly = r.front_dominates(), r.strictly_dominated()
         seq_front, co_front = nondominated(r.sequential_front), nondominated(r.codesigned_front)
         paragraphs.append(
-            f"The two fronts of thermal growth against tracking RMS, every pair tuned at Ms <= {fmt(r.ms_max)}: the "
+            f"The two fronts of thermal growth against tracking RMS along the preload schedule, every pair tuned at "
+            f"Ms <= {fmt(r.ms_max)}: the "
             f"sequential sweep is the design alone along its least-heat front ({len(r.sequential_front)} designs, "
             f"each then tuned), the co-designed sweep the co-design at {len(r.codesigned_front)} weights of the "
             f"growth against the tracking. Their non-dominated points: {len(seq_front)} sequential, {len(co_front)} "
