@@ -692,6 +692,9 @@ class CodesignResult:
         Whether the gain schedule's entries were decisions of the inner problem.
     shape : bool
         Whether the preload schedule's headroom and lead were outer variables (False: the least-friction schedule).
+    study_levels : int
+        The gain schedule's entries the study's own tune stage makes (``[tuning] schedule_levels``; below 2: one
+        robust set), so that words on a co-design of the robust set alone say what the study runs instead.
     """
 
     study: str
@@ -718,6 +721,8 @@ class CodesignResult:
     schedule: bool = field(default=False, repr=False)
     #: whether the preload schedule's headroom and lead were searched (``codesign(shape=True)``)
     shape: bool = field(default=True, repr=False)
+    #: the gain schedule's entries the study's tune stage makes (``[tuning] schedule_levels``)
+    study_levels: int = field(default=0, repr=False)
 
     @property
     def objective_ratio(self) -> float:
@@ -749,6 +754,9 @@ class CodesignResult:
             return (f"the gain schedule, each entry tuned on the candidate's plant at Ms <= {ms_max:g} over its "
                     f"window ({entries}), around the robust set ({robust})")
         why = " (the schedule's entries, tuned too, tracked no better)" if self.schedule else ""
+        if not self.schedule and self.study_levels >= 2:  # what the study itself runs is not what was compared
+            why = (f" (the study's tune stage makes a {self.study_levels}-entry gain schedule, not tuned here: both "
+                   f"answers are compared with one robust set; codesign --schedule tunes the entries inside)")
         return f"one robust PID set tuned on the candidate's plant at Ms <= {ms_max:g} ({robust}){why}"
 
     def changed(self) -> list[str]:
@@ -1093,7 +1101,8 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
               "ms_max": study.tuning.ms_max, "tracking_rms_max_N": study.validation.tracking_rms_max_N}
     return CodesignResult(study.name, STRATEGY, weights, sequential, best, 1.0, best_f, search.evaluations + 1,
                           tuple(search.refused), sequential_s, codesign_s, limits, tuple(search.scored), v_seq, v_co,
-                          STRATEGY_WHY, search.cache, search.least_heat, schedule, shape)
+                          STRATEGY_WHY, search.cache, search.least_heat, schedule, shape,
+                          study.tuning.schedule_levels)
 
 
 class _Search:
