@@ -169,11 +169,26 @@ LEVEL_FIGURES = ("settling_s", "overshoot_N", "tracking_rms_N", "peak_voltage_V"
 SETS = ("robust", "scheduled")
 
 
-def _set_of(obj: Any, which: str) -> WorstFigures:
-    if which not in SETS:
-        raise ValueError(f"which must be 'robust' or 'scheduled', got {which!r}")
-    figures: WorstFigures = getattr(obj, which)
-    return figures
+class _EitherSet:
+    """What a record holding both sets' figures under ``robust`` and ``scheduled`` reads them by."""
+
+    def of(self, which: str) -> WorstFigures:
+        """The figures of one set.
+
+        Parameters
+        ----------
+        which : str
+            ``robust`` or ``scheduled``.
+
+        Returns
+        -------
+        WorstFigures
+            Its worst cases.
+        """
+        if which not in SETS:
+            raise ValueError(f"which must be 'robust' or 'scheduled', got {which!r}")
+        figures: WorstFigures = getattr(self, which)
+        return figures
 
 
 @record
@@ -235,30 +250,15 @@ class SetGains(Record):
 
 
 @record
-class SetFigures(Record):
+class SetFigures(_EitherSet, Record):
     """Both sets' worst cases over the whole range (the study's own references)."""
 
     robust: WorstFigures = entry("The robust set's.")
     scheduled: WorstFigures = entry("The schedule's.")
 
-    def of(self, which: str) -> WorstFigures:
-        """The figures of one set.
-
-        Parameters
-        ----------
-        which : str
-            ``robust`` or ``scheduled``.
-
-        Returns
-        -------
-        WorstFigures
-            Its worst cases.
-        """
-        return _set_of(self, which)
-
 
 @record
-class ScheduleLevel(Record):
+class ScheduleLevel(_EitherSet, Record):
     """One entry of a gain schedule: its level and window, its gains, its Ms over its window (the robust set's beside
     it), its tuning's record, both sets' Monte Carlo worst cases there and, where the schedule misses the level, what
     stops its entry."""
@@ -273,21 +273,6 @@ class ScheduleLevel(Record):
     robust: WorstFigures = entry("The robust set's worst cases at the level.")
     scheduled: WorstFigures = entry("The schedule's.")
     bound: str | None = entry("What stops the schedule's entry where it misses the level.", default=None, omit=True)
-
-    def of(self, which: str) -> WorstFigures:
-        """The figures of one set at the level.
-
-        Parameters
-        ----------
-        which : str
-            ``robust`` or ``scheduled``.
-
-        Returns
-        -------
-        WorstFigures
-            Its worst cases.
-        """
-        return _set_of(self, which)
 
 
 @record
