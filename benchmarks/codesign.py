@@ -58,6 +58,16 @@ def literature() -> dict:
     return {"rows": rows, "worst_ratio": worst["ratio"]}
 
 
+def print_terms(r) -> None:
+    """Each objective term and each requirement of a co-design, sequential beside co-designed."""
+    for row in r.bought():
+        print(f"  {row['term']:9s} sequential {row['sequential']:.4g}  co-designed {row['codesigned']:.4g} "
+              f"{row['unit']} (weight {row['weight']:g})")
+    for row in r.requirements():
+        print(f"  {row['requirement']:45s} limit {row['limit']}  sequential {row.get('sequential')}  "
+              f"co-designed {row.get('codesigned')}")
+
+
 def coupling_case(words: str, variant, args) -> dict:
     """The study co-designed again at ``variant``: both answers through the same Monte Carlo plants, requirement by
     requirement, what changed and bought it, and the two fronts (``--case-front`` points each)."""
@@ -67,12 +77,7 @@ def coupling_case(words: str, variant, args) -> dict:
     if not rs.sequential.feasible:
         print(f"  the sequential answer misses it on the nominal plant: {rs.sequential.why}")
     print(f"  changed: {'; '.join(rs.changed()) or 'nothing'}; coupling: {rs.coupling()}")
-    for row in rs.bought():
-        print(f"  {row['term']:9s} sequential {row['sequential']:.4g}  co-designed {row['codesigned']:.4g} "
-              f"{row['unit']} (weight {row['weight']:g})")
-    for row in rs.requirements():
-        print(f"  {row['requirement']:45s} limit {row['limit']}  sequential {row.get('sequential')}  "
-              f"co-designed {row.get('codesigned')}")
+    print_terms(rs)
     out = {"case": words, "objective_ratio": rs.objective_ratio, "time_ratio": rs.time_ratio,
            "sequential_meets_nominal": rs.sequential.feasible, "changed": rs.changed(),
            "coupling": rs.coupling().split(":")[0], "bought": rs.bought(),
@@ -121,12 +126,7 @@ def main() -> None:
     r = codesign(study, budget=args.budget, validate_plants=args.plants, progress=print)
     print(f"co-design of the default study: {time.perf_counter() - t0:.1f} s; {r!r}")
     print(f"  changed: {'; '.join(r.changed()) or 'nothing'}; coupling: {r.coupling()}")
-    for row in r.bought():
-        print(f"  {row['term']:9s} sequential {row['sequential']:.4g}  co-designed {row['codesigned']:.4g} "
-              f"{row['unit']} (weight {row['weight']:g})")
-    for row in r.requirements():
-        print(f"  {row['requirement']:45s} limit {row['limit']}  sequential {row.get('sequential')}  "
-              f"co-designed {row.get('codesigned')}")
+    print_terms(r)
 
     # ---- the two fronts: thermal growth against tracking RMS at the study's Ms ---------------------------
     if study.design_spec is None or study.thermal is None:
