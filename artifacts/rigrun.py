@@ -21,8 +21,8 @@ from piezopreload.core.errors import ArtifactError
 from piezopreload.core.records import Artifact, Raw, Record, entry, record
 from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V
 
-__all__ = ["Safety", "RigRunRecord", "RunOutcome", "RunTiming", "RunMetrics", "TripRecord", "StallLimit", "KIND",
-           "STATUSES"]
+__all__ = ["Safety", "SafetySources", "RigRunRecord", "RunOutcome", "RunTiming", "RunMetrics", "TripRecord",
+           "StallLimit", "KIND", "STATUSES"]
 
 KIND = "rig-run"
 #: ``running`` until the run ends (a killed run stays so), ``not started`` when refused after its log was opened
@@ -183,6 +183,29 @@ class Safety(Record):
 
 
 @record
+class SafetySources(Record):
+    """Where each of a run's limits came from, in words (the command line, the gain set's study, its plant, its gains
+    or the executor's default): one field for each field of :class:`Safety`, under the same name. The session that
+    works out the limits (:func:`piezopreload.rig.limits.run_limits`) sets every one; a sidecar's ``safety_sources``
+    must give every one. The fields stand in the order the session works the limits out in (the executor's, the
+    plant's and the gains', then the study's), the order sidecars have always written them in.
+    """
+
+    slew_V_per_s: str = entry("Where the command's largest slew came from.")
+    stale_after_s: str = entry("Where the oldest a reading may be came from.")
+    v_min_V: str = entry("Where the command's low end came from.")
+    v_max_V: str = entry("Where the command's high end came from.")
+    safe_V: str = entry("Where the command the ramp ends on came from.")
+    bolt_preload_N: str = entry("Where the bolts' preload came from.")
+    sensor_min_N: str = entry("Where the sensor's lowest reading came from.")
+    sensor_max_N: str = entry("Where the sensor's highest reading came from.")
+    force_max_N: str = entry("Where the highest force came from.")
+    force_low_margin_N: str = entry("Where the margin below the bolts' preload came from.")
+    ramp_s: str = entry("Where the ramp down's length came from.")
+    stall_limit_s: str = entry("Where the stall limit came from.")
+
+
+@record
 class RigRunRecord(Artifact):
     """A rig run's sidecar (see the module docstring).
 
@@ -217,7 +240,8 @@ class RigRunRecord(Artifact):
     realtime: bool = entry("Whether it ran on the wall clock.", default=False, required=True)
     seed: int = entry("The simulated backend's noise seed.", ge=0, default=0, required=True)
     safety: Safety = entry("Every limit the run used.", default=Safety(), required=True)
-    safety_sources: dict[str, str] = entry("Where each limit came from.", default={})
+    safety_sources: SafetySources | None = entry("Where each limit came from (None: a sidecar that does not say).",
+                                                 default=None, omit=True)
     stall_limit: StallLimit | None = entry("How the stall limit was derived.", default=None, omit=True)
     host_check: HostCheck | None = entry("The host check made before arming.", default=None, omit=True)
     host_accepted: bool = entry("Whether a failing host was run anyway (``--accept-host``).", default=False)

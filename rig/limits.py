@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from piezopreload.artifacts.gainset import GainSet
-from piezopreload.artifacts.rigrun import StallLimit
+from piezopreload.artifacts.rigrun import SafetySources, StallLimit
 from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Plant, Rig, reach_N
 from piezopreload.models.closedloop import Reference
@@ -49,7 +49,7 @@ class RunLimits:
     """The limits a run uses (``safety``), where each came from (``sources``) and how the stall limit was derived."""
 
     safety: Safety
-    sources: dict[str, str]
+    sources: SafetySources
     stall: StallLimit
 
 
@@ -144,7 +144,7 @@ def run_limits(gain_set: GainSet, controller: Controller, reference: Reference, 
         asked, asked_source = study["stall_limit_s"], study_sources["stall_limit_s"]
     stall = _stall(plant_stall, asked, asked_source, watchdog_s)
     sources["stall_limit_s"] = stall.source
-    return RunLimits(replace(safety, stall_limit_s=stall.limit_s), sources, stall)
+    return RunLimits(replace(safety, stall_limit_s=stall.limit_s), SafetySources(**sources), stall)
 
 
 def check_reference(reference: Reference, shown: str, limits: Safety, gain_set: GainSet) -> None:
@@ -186,9 +186,9 @@ FIT_TOLERANCE = 1e-3
 _SAME = ("bolt_preload_N", "sensor_min_N", "sensor_max_N", "slew_V_per_s", "stale_after_s")
 
 
-def _misfit(key: str, a: Safety, p: RunLimits, armed_sources: dict[str, str]) -> str:
+def _misfit(key: str, a: Safety, p: RunLimits, armed_sources: SafetySources) -> str:
     """The sentence that says why the armed limit ``key`` does not fit the pushed one."""
-    pa, pp, src_a, src_p = getattr(a, key), getattr(p.safety, key), armed_sources.get(key, "?"), p.sources.get(key, "?")
+    pa, pp, src_a, src_p = getattr(a, key), getattr(p.safety, key), getattr(armed_sources, key), getattr(p.sources, key)
     if key == "force_max_N":
         return (f"the pushed gain set's limits trip the force above {pp:g} N ({src_p}), this rig trips only above "
                 f"{pa:g} N ({src_a})")
@@ -203,7 +203,7 @@ def _misfit(key: str, a: Safety, p: RunLimits, armed_sources: dict[str, str]) ->
             f"({src_a})")
 
 
-def check_fit(armed: Safety, armed_sources: dict[str, str], pushed: RunLimits,
+def check_fit(armed: Safety, armed_sources: SafetySources, pushed: RunLimits,
               tol: float = FIT_TOLERANCE) -> list[str]:
     """Refuse a pushed gain set whose limits a running rig armed with ``armed`` cannot keep; the notes of the limits
     it keeps that are stricter than the pushed set's.
@@ -238,6 +238,6 @@ def check_fit(armed: Safety, armed_sources: dict[str, str], pushed: RunLimits,
             raise InputError(f"{_misfit(key, armed, pushed, armed_sources)}. A running rig's interlocks stay as it "
                              f"was armed: serve the rig with this gain set, or start it with {option} {b:g}")
         if not math.isclose(a, b, rel_tol=tol):
-            notes.append(f"{key}: the rig keeps {a:g} ({armed_sources.get(key, '?')}), stricter than the pushed gain "
-                         f"set's {b:g} ({pushed.sources.get(key, '?')})")
+            notes.append(f"{key}: the rig keeps {a:g} ({getattr(armed_sources, key)}), stricter than the pushed gain "
+                         f"set's {b:g} ({getattr(pushed.sources, key)})")
     return notes

@@ -351,7 +351,7 @@ def _setup(gains_path: str | Path, backend: str, backend_options: dict[str, str]
     record = RigRunRecord(
         gain_set=str(gains_path), backend=rig.name, rig_preset=gain_set.preset, reference=ref_name,
         reference_levels_N=tuple(ref.levels_N.tolist()), rate_Hz=1.0 / controller.dt_s, realtime=realtime,
-        safety=limits.safety, safety_sources=dict(limits.sources), stall_limit=limits.stall, seed=seed,
+        safety=limits.safety, safety_sources=limits.sources, stall_limit=limits.stall, seed=seed,
         faults_injected=tuple({**f.__dict__, "duration_s": f.duration_s if math.isfinite(f.duration_s) else None}
                               for f in faults or []), gain_set_sha256=identity["gain_set_sha256"],
         feedforward_sha256=identity["feedforward_sha256"],
@@ -396,7 +396,7 @@ def _summary(result: RunResult, log: RunLog, su: _Setup) -> RigRun:
         "log_csv": result.csv_path, "log_json": result.json_path,
         "gain_set": rec.gain_set, "gain_set_sha256": rec.gain_set_sha256, "feedforward_sha256": rec.feedforward_sha256,
         "backend": rec.backend, "reference": rec.reference, "rate_Hz": rec.rate_Hz, "realtime": rec.realtime,
-        "interlocks": rec.safety.to_dict(), "interlock_sources": dict(rec.safety_sources),
+        "interlocks": rec.safety.to_dict(), "interlock_sources": su.limits.sources.to_dict(),
         "stall_limit": None if rec.stall_limit is None else asdict(rec.stall_limit),
         "host_check": None if rec.host_check is None else rec.host_check.to_dict(), "host_accepted": rec.host_accepted,
         "events": [e["event"] for e in result.events],

@@ -378,6 +378,24 @@ def test_a_sidecar_written_before_reads_its_limits_into_the_safety_record_and_wr
         RigRunRecord.from_dict(body)  # a limit the run used is never taken from the defaults
 
 
+def test_a_sidecars_limit_sources_are_a_record_with_one_field_per_limit_written_back_key_for_key():
+    import json
+
+    from piezopreload.artifacts.rigrun import RigRunRecord, Safety, SafetySources
+    from piezopreload.core.errors import ArtifactError
+
+    assert {f.name for f in dataclasses.fields(SafetySources)} == {f.name for f in dataclasses.fields(Safety)}
+    written = json.loads(RUN_JSON.read_text())
+    sources = RigRunRecord.load(RUN_JSON).safety_sources
+    assert isinstance(sources, SafetySources)
+    assert (sources.force_max_N, sources.stall_limit_s) == (written["safety_sources"]["force_max_N"], "the plant")
+    assert list(sources.to_dict().items()) == list(written["safety_sources"].items())  # the same keys, in order
+    body = {k: v for k, v in written.items() if k not in ("schema", "package_version", "sha256")}
+    body["safety_sources"] = {k: v for k, v in written["safety_sources"].items() if k != "ramp_s"}
+    with pytest.raises(ArtifactError, match=r"field 'safety_sources\.ramp_s' is missing"):
+        RigRunRecord.from_dict(body)  # a limit whose source the sidecar does not say is not read as said
+
+
 def test_a_served_rigs_pushes_are_records_that_write_the_keys_the_summary_had():
     from piezopreload.rig.opcua import PushTaken
 

@@ -403,8 +403,8 @@ def test_the_rig_takes_its_limits_from_the_gain_sets_study_and_the_command_line_
     side = RigRunRecord.load(r["log_json"])
     assert side.safety.force_max_N == 130.0 and side.safety.force_low_margin_N == 12.0
     assert side.safety.ramp_s == 0.3
-    assert side.safety_sources["force_max_N"] == "the gain set: study.toml [rig_run] force_max_N"
-    assert side.safety_sources["bolt_preload_N"] == "the gain set's plant"
+    assert side.safety_sources.force_max_N == "the gain set: study.toml [rig_run] force_max_N"
+    assert side.safety_sources.bolt_preload_N == "the gain set's plant"
     assert r["trip"]["cause"] == "force_high" and "above the limit 130 N" in r["trip"]["detail"]
     log = read_run_log(r["log_csv"])
     assert log["time_s"][-1] - r["trip"]["t_s"] == pytest.approx(0.3, abs=1.5 * DT), "the study's ramp time"

@@ -66,7 +66,7 @@ def test_looser_limits_are_kept_as_the_rig_was_armed_and_said_so(tmp_path, study
     armed = served.limits.safety.force_max_N
     _, info = _push(tmp_path, study, feedforward, served, gains=RETUNED,
                     rig_interlocks=RigInterlocks(armed + 40.0, 10.0, 0.5, None, {"force_max_N": "other.toml"}))
-    source = served.limits.sources["force_max_N"]
+    source = served.limits.sources.force_max_N
     assert info["interlocks_kept"] == [f"force_max_N: the rig keeps {armed:g} ({source}), stricter than the pushed "
                                        f"gain set's {armed + 40.0:g} (the gain set: other.toml)"]
     # within the tolerance: the same limit (a value written to four digits)

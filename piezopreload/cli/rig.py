@@ -307,9 +307,11 @@ def _print_rig_run(run: RigRun) -> None:
     elif m is not None and m.tracking_rms_N is not None:
         print(f"tracking RMS {m.tracking_rms_N:.3g} N, largest error {m.tracking_max_N:.3g} N")
     lim, src = r.safety, r.safety_sources
+    if src is None:  # a run's sidecar names every limit's source (the session writes them as it arms)
+        raise InternalError(f"{run.log_json}: the run's sidecar does not say where its limits came from")
     print(f"interlocks: force {lim.force_low_N:g}..{lim.force_max_N:g} N "
-          f"(force_max_N from {src['force_max_N']}); stall limit {lim.stall_limit_s * 1e3:g} ms "
-          f"(from {src['stall_limit_s']})")
+          f"(force_max_N from {src.force_max_N}); stall limit {lim.stall_limit_s * 1e3:g} ms "
+          f"(from {src.stall_limit_s})")
     print(f"timing: {t.missed_deadlines} missed deadlines, {t.stalls} stalls (longest hold "
           f"{t.held_max_s * 1e3:.2f} ms), lateness p99 {t.lateness_p99_s * 1e6:.0f} us, max "
           f"{t.lateness_max_s * 1e3:.2f} ms, {t.lost_samples} samples lost"
