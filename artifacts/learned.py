@@ -15,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import replace
+from enum import StrEnum
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -25,7 +26,16 @@ from piezopreload.core.errors import InputError
 from piezopreload.core.records import Artifact, Raw, entry, record
 from piezopreload.models.closedloop import Reference
 
-__all__ = ["LearnedSignal", "reference_sha256", "KIND"]
+__all__ = ["LearnedSignal", "LearningMethod", "reference_sha256", "KIND"]
+
+class LearningMethod(StrEnum):
+    """The learning law: the norm-optimal law (the default; the Riccati form, a sparse QP where the limits bind) or
+    the P-type law (Q-filtered, with lead: the model-free option). Its value is what a study's ``[learning] method``
+    and the learning's artifacts write."""
+
+    NORM_OPTIMAL = "norm-optimal"
+    P_TYPE = "p-type"
+
 
 KIND = "learned-signal"
 
@@ -57,7 +67,7 @@ class LearnedSignal(Artifact):
                                         "set).")
     iteration: int = entry("Learning updates behind this signal (0: the preview alone).", ge=0, default=0)
     preview_s: float = entry("The preview horizon.", unit="s", ge=0, default=0.0)
-    method: str = entry("The learning law.", default="p-type")
+    method: LearningMethod = entry("The learning law.", default=LearningMethod.P_TYPE)
     history: list[dict[str, Any]] = entry("The error per iteration as it was learned.", default=[])
     inputs: dict[str, Any] = entry("Where it came from (study, seed, run logs).", default={}, required=True)
     content_sha256: str | None = entry("Set by :meth:`load` and :meth:`save`.", default=None)

@@ -16,6 +16,7 @@ import math
 from pathlib import Path
 from typing import Any, ClassVar
 
+from piezopreload.artifacts.learned import LearningMethod
 from piezopreload.core.errors import ArtifactError
 from piezopreload.core.records import Raw, Record, SavedArtifact, entry, record
 
@@ -102,7 +103,7 @@ class PassRecord(Record):
     noise_floor_N: float | None = entry("The RMS difference of the true force between two runs of the same signal "
                                         "under other sensor noise.", unit="N", absent=None)
     preview_s: float = entry("The preview horizon.", unit="s")
-    method: str = entry("The learning law.")
+    method: LearningMethod = entry("The learning law.")
     warm_start: bool = entry("Whether trial 0 carried the correction learned on the pass before.", absent=False)
     learning: dict[str, Any] = entry("The law's settings.")
     history: list[TrialRecord] = entry("The error per trial (trial 0 first).")

@@ -13,6 +13,7 @@ from typing import Any, ClassVar
 
 from piezopreload.core.errors import ArtifactError
 from piezopreload.core.records import Record, SavedArtifact, entry, record
+from piezopreload.models.metrics import Signal
 
 __all__ = ["ResponseRun", "ReproductionRow", "CreepRow", "ResponsesRecord", "RESPONSE_FIGURES"]
 
@@ -81,7 +82,7 @@ class ResponsesRecord(SavedArtifact):
 
     runs: tuple[ResponseRun, ...] = entry("Every run: each gain set, controller and reference.")
     band_N: float = entry("The band the step times were read in.", unit="N", gt=0)
-    signal: str = entry("The force the step times were read on.")
+    signal: Signal = entry("The force the step times were read on.")
     seed: int = entry("The sensor noise's seed.")
     reproduction: tuple[ReproductionRow, ...] = entry("The published step numbers beside the simulated ones, where "
                                                       "the study declares them (null: none).", default=(),

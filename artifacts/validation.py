@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from piezopreload.artifacts.requirements import Requirement
 from piezopreload.core.records import Checked, Record, SavedArtifact, entry, record
 from piezopreload.models.closedloop import PAPER_BAND_N
+from piezopreload.models.metrics import Signal
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -73,8 +74,8 @@ class Criteria(Checked, Record):
                                              "bounds the command, and a limit at or above it could not fail).",
                                              unit="V", gt=0, default=None)
     band_N: float = entry("The settling band around the step's final level.", unit="N", gt=0, default=PAPER_BAND_N)
-    signal: str = entry("The force the step times are read on: the true force or the measured one.",
-                        choices=("force_N", "measured_N"), default="force_N")
+    signal: Signal = entry("The force the step times are read on: the true force or the measured one.",
+                           default=Signal.FORCE)
     tracking_after_change_s: float = entry("The time after each jump of the trajectory its RMS leaves out.",
                                            unit="s", ge=0, default=0.1)
 

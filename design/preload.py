@@ -65,6 +65,7 @@ import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, replace
+from enum import StrEnum
 from typing import TYPE_CHECKING, Any, TypedDict
 
 import casadi as ca
@@ -107,11 +108,21 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-__all__ = ["DesignSpec", "HeatSpec", "DesignOptimum", "DesignInfeasible", "ParetoFront", "OBJECTIVES",
+__all__ = ["DesignSpec", "HeatSpec", "DesignOptimum", "DesignInfeasible", "ParetoFront", "Objective", "OBJECTIVES",
            "PARETO_PAIRS", "CONSTRAINTS", "WEIGHTS", "optimise", "pareto_front", "DesignNLP",
            "NLPSolution", "WorstCase", "RobustCost", "robust_cost", "objective_figure"]
 
-OBJECTIVES = ("stiffness", "drag", "life")
+class Objective(StrEnum):
+    """What a design's optimum maximises (the least rigidity over the duty cycle, the rating life) or minimises (the
+    time-mean drag torque): a study's ``[design] objective`` (its value is what the study file writes)."""
+
+    STIFFNESS = "stiffness"
+    DRAG = "drag"
+    LIFE = "life"
+
+
+#: the objectives, in their order
+OBJECTIVES = tuple(Objective)
 #: fronts a user can ask for: x:y, x swept as an epsilon constraint, y optimised (growth: the duty cycle's nut heat
 #: minimised, the shift's growth it makes reported, design/thermal.py)
 PARETO_PAIRS = ("stiffness:preload", "stiffness:drag", "stiffness:life", "stiffness:growth")
@@ -899,7 +910,7 @@ def _solve_mixed(nlp: DesignNLP, weights: tuple[float, ...], y0: np.ndarray, sti
 
 
 #: each objective's figure of merit and its unit, and whether more of it is better
-_MERITS = {"stiffness": ("N/um", True), "drag": ("N m", False), "life": ("h", True)}
+_MERITS = {Objective.STIFFNESS: ("N/um", True), Objective.DRAG: ("N m", False), Objective.LIFE: ("h", True)}
 
 
 @dataclass(frozen=True)
@@ -909,7 +920,7 @@ class RobustCost:
     assumptions and at the worst case of their ranges (:class:`WorstCase`); ``nominal_misses``: the constraint rows
     the nominal design misses at the worst case, each with by how much (in its unit, :data:`CONSTRAINTS`)."""
 
-    objective: str
+    objective: Objective
     unit: str
     nominal_at_nominal: float
     nominal_at_worst: float
@@ -936,7 +947,7 @@ class RobustCost:
                     for name, excess in self.nominal_misses)))
 
     def to_dict(self) -> dict[str, Any]:
-        return {"objective": self.objective, "unit": self.unit, "nominal_at_nominal": self.nominal_at_nominal,
+        return {"objective": str(self.objective), "unit": self.unit, "nominal_at_nominal": self.nominal_at_nominal,
                 "nominal_at_worst": self.nominal_at_worst, "robust_at_nominal": self.robust_at_nominal,
                 "robust_at_worst": self.robust_at_worst, "cost": self.cost,
                 "nominal_misses": [{"constraint": n, "by": x} for n, x in self.nominal_misses]}
@@ -956,16 +967,17 @@ def misses(spec: DesignSpec, point: DesignPoint, tol: float = 1e-6) -> tuple[tup
                  if not name.startswith("stiffness") and float(g) / scale > tol)
 
 
-def objective_figure(spec: DesignSpec, point: DesignPoint, objective: str) -> float:
+def objective_figure(spec: DesignSpec, point: DesignPoint, objective: Objective | str) -> float:
     """The figure ``objective`` judges a design ``point`` by under ``spec`` (with its :class:`WorstCase`: at the
     worst case, the rigidity the least over the box's corners too): the least rigidity over the duty cycle (N/um), the
     mean drag torque (N m) or the rating life (h)."""
-    if objective not in _MERITS:
-        raise ValueError(f"objective must be one of {', '.join(_MERITS)}, got {objective!r}.")
+    if objective not in OBJECTIVES:
+        raise ValueError(f"objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}.")
     e = _expressions(spec, NUMPY, _physical(point))
-    if objective == "stiffness":
+    judged = Objective(objective)
+    if judged is Objective.STIFFNESS:
         return float(min(float(r) for r in [*e.rigidity, *e.worst_rigidity]))
-    return float(e.mean_drag) if objective == "drag" else float(np.exp(float(e.log_L)))
+    return float(e.mean_drag) if judged is Objective.DRAG else float(np.exp(float(e.log_L)))
 
 
 def robust_cost(spec: DesignSpec, nominal: DesignOptimum, robust: DesignOptimum) -> RobustCost:
@@ -974,7 +986,7 @@ def robust_cost(spec: DesignSpec, nominal: DesignOptimum, robust: DesignOptimum)
     if spec.worst is None:
         raise ValueError("robust_cost needs the robust design's spec (DesignSpec.worst set)")
     plain = replace(spec, worst=None)
-    o = robust.objective
+    o = Objective(robust.objective)
     return RobustCost(o, _MERITS[o][0], objective_figure(plain, nominal.point, o),
                       objective_figure(spec, nominal.point, o), objective_figure(plain, robust.point, o),
                       objective_figure(spec, robust.point, o), misses(spec, nominal.point))

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Any, TypedDict
 
 from piezopreload.artifacts.design import DesignPoint
@@ -21,7 +22,7 @@ from piezopreload.artifacts.schedule import PreloadSchedule
 from piezopreload.core.config import Invalid, Table, key
 from piezopreload.core.progress import ProgressLike
 from piezopreload.design.plant import plant_from_design
-from piezopreload.design.preload import OBJECTIVES, PARETO_PAIRS, DesignSpec
+from piezopreload.design.preload import PARETO_PAIRS, DesignSpec, Objective
 from piezopreload.design.system import SystemRun, track_schedule
 from piezopreload.models.actuator import Plant
 from piezopreload.models.controller import Controller
@@ -36,8 +37,17 @@ from piezopreload.models.thermal import (
     rexroth_seal_torque_Nm,
 )
 
-#: how ``[design] method`` chooses the optimum
-DESIGN_METHODS = ("sequential", "codesign")
+
+class DesignMethod(StrEnum):
+    """How ``[design] method`` chooses the optimum: the design NLP alone, the tuning after it on its plant, or with
+    its controller by the nested co-design (its value is what a study file writes)."""
+
+    SEQUENTIAL = "sequential"
+    CODESIGN = "codesign"
+
+
+#: how ``[design] method`` chooses the optimum, in its order
+DESIGN_METHODS = tuple(DesignMethod)
 
 __all__ = ["BallscrewTable", "FeedDriveTable", "DutyTable", "DesignTable", "ScheduleTable", "ScheduleLimits",
            "PlantTable", "ThermalTable", "FEEDBACKS"]
@@ -117,15 +127,15 @@ class DutyTable(Table):
 class DesignTable(Table):
     """[design]: the objective, the Pareto fronts the design stage traces, and the constraints' limits."""
 
-    objective: str = key("stiffness", "what the optimum maximises (stiffness: the least rigidity over the duty "
-                         "cycle) or minimises (drag: the mean drag torque; life: as rating life)", choices=OBJECTIVES)
+    objective: Objective = key(Objective.STIFFNESS, "what the optimum maximises (stiffness: the least rigidity over "
+                               "the duty cycle) or minimises (drag: the mean drag torque; life: as rating life)")
     pareto: tuple[str, ...] = key(PARETO_PAIRS[:3], "the Pareto fronts ``piezopreload design`` and the design stage "
                                   "trace (none is traced to make the plant; stiffness:growth, the least heat's growth "
                                   "over the shift, needs [thermal])", choices=PARETO_PAIRS)
     pareto_points: int = key(50, "points on each front", ge=2, le=500)
-    method: str = key("sequential", "how the optimum is chosen: sequential (the design NLP alone; the tuning after it "
-                      "on its plant) or codesign (the contact angle and conformity chosen with the PID gains, "
-                      "nested: ``piezopreload codesign``, docs/codesign.md)", choices=DESIGN_METHODS)
+    method: DesignMethod = key(DesignMethod.SEQUENTIAL, "how the optimum is chosen: sequential (the design NLP alone; "
+                               "the tuning after it on its plant) or codesign (the contact angle and conformity "
+                               "chosen with the PID gains, nested: ``piezopreload codesign``, docs/codesign.md)")
     codesign_budget: int = key(9, "with method = codesign: the most inner problems (a design with its tuning) the "
                                "co-design's outer search solves after the sequential start, and each weight of its "
                                "front's sweep", ge=0)

@@ -23,7 +23,7 @@ from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Rig
 from piezopreload.models.controller import Controller
 from piezopreload.models.loop import LOOP_OUTPUTS, OPEN_LOOP_OUTPUTS, LoopModel, OpenLoopModel, run
-from piezopreload.models.metrics import StepMetrics, step_metrics
+from piezopreload.models.metrics import Signal, StepMetrics, step_metrics
 from piezopreload.models.ops import NUMPY
 
 __all__ = ["Reference", "ClosedLoopRun", "TrackingError", "simulate", "simulate_open_loop", "triangle", "PAPER_BAND_N"]
@@ -326,7 +326,7 @@ class ClosedLoopRun:
         return f"<p><b>{type(self).__name__}</b></p><table>{body}</table>"
 
     def step_metrics(self, band_N: float | None = PAPER_BAND_N, *, which: int = 1,
-                     signal: str = "force_N") -> StepMetrics | list[StepMetrics]:
+                     signal: Signal | str = "force_N") -> StepMetrics | list[StepMetrics]:
         """Metrics of the reference's ``which``-th change (1: the first step), per plant.
 
         The window runs from that change to the next (or to the end); ``band_N=None`` gives the
@@ -339,8 +339,9 @@ class ClosedLoopRun:
             The settling band, in N (the paper's by default); None: the conventional 2 % band and 10-90 % rise.
         which : int
             Which change of the reference, from 1.
-        signal : str
-            The signal scored: ``"force_N"`` (the true force) or ``"measured_N"`` (what the sensor read).
+        signal : Signal or str
+            The signal scored: :attr:`Signal.FORCE` (``"force_N"``, the true force) or :attr:`Signal.MEASURED`
+            (``"measured_N"``, what the sensor read).
 
         Returns
         -------
@@ -351,8 +352,9 @@ class ClosedLoopRun:
         Raises
         ------
         ValueError
-            Where ``which`` names no change of the reference.
+            Where ``which`` names no change of the reference, or ``signal`` no :class:`Signal`.
         """
+        scored = Signal(signal)
         ref = self.reference
         if not 1 <= which < ref.times_s.size:
             raise ValueError(f"which must be 1..{ref.times_s.size - 1}, got {which}.")
@@ -362,7 +364,7 @@ class ClosedLoopRun:
         mask = (self.t_s >= self.t_s[k0]) & (self.t_s < t1)
         if np.count_nonzero(mask) < 2:  # the next change within a sample (a ramp, sampled): to the end
             mask = self.t_s >= self.t_s[k0]
-        y = getattr(self, signal)
+        y = self.measured_N if scored is Signal.MEASURED else self.force_N
         initial, t_step, final = float(ref.levels_N[which - 1]), float(self.t_s[k0]), float(ref.levels_N[which])
         if y.ndim == 1:
             return step_metrics(self.t_s[mask], y[mask], final, initial=initial, t_step=t_step, band=band_N)

@@ -15,12 +15,30 @@ to one sample period.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["StepMetrics", "step_metrics", "step_numbers", "run_numbers", "tracking_error"]
+__all__ = ["Signal", "SIGNALS", "StepMetrics", "step_metrics", "step_numbers", "run_numbers", "tracking_error"]
+
+
+class Signal(StrEnum):
+    """The force a step's numbers are read on: what the sensor read, or the true force (its value is the run's column
+    of it, and what a study file's ``[simulation] signal`` and an artifact write)."""
+
+    MEASURED = "measured_N"
+    FORCE = "force_N"
+
+    @property
+    def words(self) -> str:
+        """The signal in words, as the report and the console say it."""
+        return "measured force" if self is Signal.MEASURED else "true force"
+
+
+#: the signals, in their order
+SIGNALS = tuple(Signal)
 
 
 @dataclass(frozen=True)
@@ -186,7 +204,8 @@ def step_numbers(m: StepMetrics) -> dict[str, float | None]:
     return {k: (float(v) if np.isfinite(v) else None) for k, v in values.items()}
 
 
-def run_numbers(run: Any, band_N: float, signal: str, after_change_s: float | None = None) -> dict[str, float | None]:
+def run_numbers(run: Any, band_N: float, signal: Signal,
+                after_change_s: float | None = None) -> dict[str, float | None]:
     """The numbers a single-plant :class:`~piezopreload.models.closedloop.ClosedLoopRun` is scored by.
 
     The step numbers of the reference's first change (band ``band_N`` on ``signal``), the peak

@@ -104,7 +104,7 @@ from piezopreload.core.stages import (
     utc,
 )
 from piezopreload.core.tables import write_csv
-from piezopreload.design.tables import DesignTable, PlantTable
+from piezopreload.design.tables import DesignMethod, DesignTable, PlantTable
 from piezopreload.outcome import Headline, RunSummary, StageOutcome, StudyResult
 from piezopreload.progress import Progress, ProgressLike, as_progress
 from piezopreload.reports.study_report import STAGES_READ, Published, ReportStudy, render_report
@@ -220,7 +220,7 @@ def _stage_design(ctx: _Ctx) -> Produced:
     optimum, codesigned = None, None
     inputs = {"study": ctx.study.path, "study_sha256": ctx.study.sha256}
     (d / "codesign.json").unlink(missing_ok=True)  # a co-design the study no longer asks for
-    if (ctx.study.design_table or DesignTable()).method == "codesign":  # the design chosen with its controller
+    if (ctx.study.design_table or DesignTable()).method is DesignMethod.CODESIGN:  # chosen with its controller
         ctx.progress.say("[design] method = codesign: the design is chosen with its controller (nested co-design)")
         optimum, codesigned = codesign_design(ctx.study, progress=ctx.progress.say, inputs=inputs)
     result = steps.design(ctx.study, Solved(ctx.study), progress=ctx.progress.say,
@@ -438,7 +438,7 @@ _CODESIGN_READS = ("rig", "plant", "controller", "feedforward", "reference", "si
 def _design_reads(study: StudySpec) -> tuple[str, ...]:
     table = study.design_table or DesignTable()
     return (("thermal",) if "stiffness:growth" in table.pareto else ()) + (
-        _CODESIGN_READS if table.method == "codesign" else ())
+        _CODESIGN_READS if table.method is DesignMethod.CODESIGN else ())
 
 
 STAGES: tuple[Stage, ...] = (

@@ -18,7 +18,7 @@ from piezopreload.artifacts.manifest import StudyRef
 from piezopreload.core.errors import InputError
 from piezopreload.models.closedloop import ClosedLoopRun
 from piezopreload.models.controller import PIDGains
-from piezopreload.models.metrics import StepMetrics, run_numbers
+from piezopreload.models.metrics import Signal, StepMetrics, run_numbers
 from piezopreload.tuning.compare import PublishedRow
 from piezopreload.tuning.feedforward import FeedforwardInfo
 
@@ -99,7 +99,7 @@ class StudyRun(ClosedLoopRun):
         As :class:`~piezopreload.models.closedloop.ClosedLoopRun` has them.
     band_N : float
         The study's error band of the step metrics (N).
-    signal : str
+    signal : Signal
         The signal the study scores (the true force or the measured one).
     info : SimulationInfo
         What ran: the study, the controller, the reference, the gains, the feedforward, the sample period and the
@@ -107,10 +107,10 @@ class StudyRun(ClosedLoopRun):
     """
 
     band_N: float
-    signal: str
+    signal: Signal
     info: SimulationInfo
 
-    def step_metrics(self, band_N: Any = _STUDY, *, which: int = 1, signal: str | None = None) -> StepMetrics:
+    def step_metrics(self, band_N: Any = _STUDY, *, which: int = 1, signal: Signal | str | None = None) -> StepMetrics:
         """Rise, peak and settling time and overshoot of the reference's ``which``-th change, in the study's band
         on the study's signal unless given (``band_N=None``: the 10-90 % / 2 % definitions).
 
@@ -120,7 +120,7 @@ class StudyRun(ClosedLoopRun):
             The settling band, in N (default: the study's); None: the conventional 2 % band and 10-90 % rise.
         which : int
             Which change of the reference, from 1.
-        signal : str or None
+        signal : Signal, str or None
             The signal scored, ``force_N`` or ``measured_N`` (None: the study's).
 
         Returns
@@ -145,7 +145,7 @@ class StudyRun(ClosedLoopRun):
         """
         return {
             **self.info.to_dict(), "reference_levels_N": self.reference.levels_N.tolist(), "band_N": self.band_N,
-            "signal": self.signal, "seed": self.seed, "samples": int(self.t_s.size), **self.numbers(),
+            "signal": str(self.signal), "seed": self.seed, "samples": int(self.t_s.size), **self.numbers(),
         }
 
     def numbers(self) -> dict[str, float | None]:
@@ -195,7 +195,7 @@ class StudyReproduction:
         How its ``[controller]`` was read (the time unit of Ti and Td).
     band_N : float
         The settling band (N).
-    signal : str
+    signal : Signal
         The signal the step numbers are read on.
     published : str
         Where the published numbers come from.
@@ -217,7 +217,7 @@ class StudyReproduction:
     gains: PIDGains
     read_as: str
     band_N: float
-    signal: str
+    signal: Signal
     published: str
     step_levels_N: tuple[float, ...]
     rows: tuple[PublishedRow, ...]
@@ -270,7 +270,7 @@ class StudyReproduction:
         """
         return {"study": self.study.to_dict(),
                 "gains": {**GainsTable.from_value(self.gains).to_dict(), "read_as": self.read_as},
-                "band_N": self.band_N, "signal": self.signal, "published": self.published,
+                "band_N": self.band_N, "signal": str(self.signal), "published": self.published,
                 "step": " -> ".join(f"{x:g}" for x in self.step_levels_N) + " N",
                 "feedforward_fit": dict(self.feedforward_fit), "rows": [r.to_dict() for r in self.rows],
                 "overshoot_N": dict(self.overshoot_N), "all_within_25pct": self.all_within_25pct,

@@ -54,6 +54,7 @@ from piezopreload.design.tables import (
 from piezopreload.models.actuator import Plant
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import TIME_UNITS, PIDGains
+from piezopreload.models.metrics import Signal
 from piezopreload.progress import ProgressLike, say_of
 from piezopreload.rig.tables import ExportTable, RigRunPlan
 from piezopreload.tables import (
@@ -230,10 +231,9 @@ class StudySpec:
         return self.simulation.band_N
 
     @property
-    def signal(self) -> str:
+    def signal(self) -> Signal:
         """What the step numbers are read on (``[simulation] signal``): ``measured_N``, the sensor's reading, or
-        ``force_N``,
-        the true force.
+        ``force_N``, the true force.
         """
         return self.simulation.signal
 

@@ -45,7 +45,7 @@ from piezopreload.design.preload import DesignInfeasible, DesignOptimum, DesignS
 from piezopreload.design.sensitivity import sensitivity
 from piezopreload.design.study import DesignResult, design_study, plan_schedule, read_profile
 from piezopreload.design.system import SystemRun
-from piezopreload.design.tables import DesignTable, PlantTable, ScheduleTable
+from piezopreload.design.tables import DesignMethod, DesignTable, PlantTable, ScheduleTable
 from piezopreload.design.thermal import duty_growth_um, thermal_budget
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import Reference
@@ -86,7 +86,7 @@ def design_spec_of(spec: StudySpec, what: str) -> DesignSpec:
 def _solve_point(spec: StudySpec, say: Say) -> DesignOptimum:
     """The design's optimum of the study's own objective, solved (its cost said)."""
     table = spec.design_table or DesignTable()
-    if table.method == "codesign":  # never the sequential design in its place
+    if table.method is DesignMethod.CODESIGN:  # never the sequential design in its place
         raise InputError(f"{spec.path}: [design] method = \"codesign\": the design is chosen with its "
                          "controller by the co-design, which this step does not run; run the study "
                          "('piezopreload run', whose design stage runs it), or give it the co-designed design: "
@@ -245,7 +245,7 @@ def design(spec: StudySpec, solved: Solved, *, objective: str | None = None, par
     table = spec.thermal
     if optimum is not None:  # chosen already (by the co-design): the record names what chose it
         objective = optimum.objective
-    if optimum is None and objective == d.objective and d.method == "codesign":
+    if optimum is None and objective == d.objective and d.method is DesignMethod.CODESIGN:
         solved.design_point(say_of(progress))  # refused: the co-design is the application layer's (codesign_optimum)
     try:
         result = design_study(

@@ -29,6 +29,7 @@ from piezopreload.design.tables import (
 from piezopreload.models.actuator import Plant, StackData
 from piezopreload.models.closedloop import Reference
 from piezopreload.models.controller import TIME_UNITS, PIDGains
+from piezopreload.models.metrics import Signal
 from piezopreload.rig.tables import ExportTable, RigRunPlan
 from piezopreload.tuning.feedforward import LoopExcitation
 from piezopreload.tuning.tables import TUNING, VALIDATION, LearningTable
@@ -37,9 +38,6 @@ __all__ = ["StudyTable", "STACK", "RIG", "CONTROLLER", "FEEDFORWARD", "StepTable
            "TrajectoryTable", "ReferenceTables", "SimulationTable", "StepNumbers", "PublishedTable", "STUDY_TABLES",
            "REQUIRED_TABLES",
            "study_keys_markdown"]
-
-SIGNALS = ("measured_N", "force_N")
-
 
 @dataclass(frozen=True)
 class StudyTable(Table):
@@ -139,8 +137,7 @@ class SimulationTable(Table):
 
     seed: int = key(0, "noise seed of the simulations", ge=0)
     band_N: float = key(1.5, "the error band settling is read in", unit="N", gt=0)
-    signal: str = key("measured_N", "what the numbers are read on: the sensor's reading or the true force",
-                      choices=SIGNALS)
+    signal: Signal = key(Signal.MEASURED, "what the numbers are read on: the sensor's reading or the true force")
 
 
 @dataclass(frozen=True)

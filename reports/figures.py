@@ -26,6 +26,7 @@ from matplotlib.ticker import MaxNLocator
 from piezopreload.core.parallel import Pool
 from piezopreload.core.progress import Bar
 from piezopreload.core.quantities import quantity
+from piezopreload.models.metrics import Signal
 
 if TYPE_CHECKING:
     from matplotlib.typing import RcKeyType
@@ -503,14 +504,14 @@ def rig_run(time_s: np.ndarray, reference_N: np.ndarray, force_N: np.ndarray, vo
 
 
 @styled
-def closed_loop(run: Mapping[str, np.ndarray], band_N: float | None, signal: str, title: str = "") -> Figure:
+def closed_loop(run: Mapping[str, np.ndarray], band_N: float | None, signal: Signal, title: str = "") -> Figure:
     """One closed-loop run: reference, true and measured force (top; the band about the last level dashed),
     the controller's command and the amplifier's voltage (bottom)."""
     fig, ax = page_figure(3.6, nrows=2, sharex=True)
     a, b = ax[0][0], ax[1][0]
     t = run["time_s"]
     a.plot(t, run["reference_N"], color=COLOURS["reference"], ls=":", lw=0.9, label="reference")
-    if signal == "measured_N":
+    if Signal(signal) is Signal.MEASURED:
         a.plot(t, run["measured_N"], color=COLOURS["measured"], lw=0.5, label="measured force")
     a.plot(t, run["force_N"], color=COLOURS["tuned ff+pid"], lw=0.9, label="true force")
     if band_N is not None:

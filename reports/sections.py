@@ -24,6 +24,7 @@ from piezopreload.artifacts.schedule import LIFT_OFF_KEY, RIGIDITY_KEY, PreloadS
 from piezopreload.artifacts.system import MarginBasis, SystemRecord, TrackingNumbers
 from piezopreload.artifacts.tuning import GainScheduleRecord, TuningResult
 from piezopreload.models.hysteresis import CreepPI
+from piezopreload.models.metrics import Signal
 from piezopreload.reports import figures as F
 from piezopreload.reports.document import ReportTable, Section, fmt, pct, q, ratio
 from piezopreload.reports.inputs import Artifacts, ReportStudy
@@ -60,8 +61,8 @@ class Part:
     figures: tuple[tuple[str, Figure, str], ...] = field(default=())
 
 
-def signal_name(signal: str) -> str:
-    return {"measured_N": "measured force", "force_N": "true force"}.get(signal, signal)
+def signal_name(signal: Signal) -> str:
+    return Signal(signal).words
 
 
 def levels_text(reference_N: np.ndarray) -> str:

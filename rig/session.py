@@ -40,7 +40,7 @@ from piezopreload.core.progress import ProgressLike
 from piezopreload.core.tables import read_table
 from piezopreload.models.closedloop import PAPER_BAND_N, ClosedLoopRun, Reference
 from piezopreload.models.controller import Controller, ControllerModel
-from piezopreload.models.metrics import run_numbers
+from piezopreload.models.metrics import Signal, run_numbers
 from piezopreload.rig import native_loop
 from piezopreload.rig.backends import BackendError, Fault, FaultInjector, open_backend
 from piezopreload.rig.compiled import step_library
@@ -226,7 +226,7 @@ def run_metrics(columns: dict[str, np.ndarray], reference: Reference, band_N: fl
                         measured_N=c["measured_N"], command_V=c["command_V"], voltage_V=c["voltage_V"],
                         p_V=c["p_V"], i_V=c["i_V"], d_V=c["d_V"], ff_V=c["feedforward_V"], reference=reference, seed=0)
     try:
-        numbers = run_numbers(run, band_N, "measured_N")
+        numbers = run_numbers(run, band_N, Signal.MEASURED)
     except ValueError:  # no step to read (a schedule: ramps, or a first row that repeats the level)
         te = run.tracking_error(t_from_s=0.0)
         numbers = {"tracking_rms_N": float(te.rms_N), "tracking_max_N": float(te.max_N)}

@@ -230,7 +230,9 @@ def _axis_with(tmp_path, line_start: str, value: str) -> Path:
 ENUM_KEYS = [("mounting = \"fixed-fixed\"", "feed_drive.mounting", "fixed-fixed, fixed-supported"),
              ("heat_model = ", "thermal.heat_model", "catalogue, contact"),
              ("mounting = \"pretensioned\"", "thermal.mounting", "fixed-free, fixed-fixed, pretensioned"),
-             ("feedback = ", "thermal.feedback", "semi-closed, linear-scale")]
+             ("feedback = ", "thermal.feedback", "semi-closed, linear-scale"),
+             ("signal = ", "simulation.signal", "measured_N, force_N"),
+             ("objective = ", "design.objective", "stiffness, drag, life")]
 
 
 @pytest.mark.parametrize(("line_start", "key", "allowed"), ENUM_KEYS, ids=[k for _, k, _ in ENUM_KEYS])
@@ -281,6 +283,98 @@ def test_the_thermal_record_writes_and_reads_its_enums_as_the_same_strings():
     with pytest.raises(ArtifactError, match=r"s\.json: field 'mounting' must be one of fixed-free, fixed-fixed, "
                                             r"pretensioned, got 'sideways'"):
         ThermalSummary.from_dict({**budget.summary().to_dict(), "mounting": "sideways"}, "s.json")
+
+
+def _axis_adding(tmp_path, table: str, line: str) -> Path:
+    """The machine axis' study with ``line`` added at the top of ``[table]`` (a key the study does not set)."""
+    lines = MACHINE_AXIS.read_text(encoding="utf-8").splitlines()
+    at = lines.index(f"[{table}]")
+    path = tmp_path / "axis.toml"
+    path.write_text("\n".join([*lines[:at + 1], line, *lines[at + 1:]]) + "\n", encoding="utf-8")
+    return path
+
+
+#: the keys the machine axis leaves at their defaults: (table, key, what a study may give)
+ADDED_ENUM_KEYS = [("design", "method", "sequential, codesign"), ("learning", "method", "norm-optimal, p-type")]
+
+
+@pytest.mark.parametrize(("table", "name", "allowed"), ADDED_ENUM_KEYS, ids=[f"{t}.{k}" for t, k, _ in ADDED_ENUM_KEYS])
+def test_a_method_that_chooses_behaviour_refuses_a_value_it_does_not_know_in_one_line(tmp_path, table, name, allowed):
+    from piezopreload.core.errors import InputError
+    from piezopreload.study import load_study
+
+    path = _axis_adding(tmp_path, table, f'{name} = "sideways"')
+    line = path.read_text().splitlines().index(f"[{table}]") + 2
+    with pytest.raises(InputError) as err:
+        load_study(path)
+    assert str(err.value) == f"{path}:{line}: '{table}.{name}' must be one of {allowed}, got 'sideways'"
+
+
+def test_the_signal_objective_and_methods_are_read_into_their_enums_and_written_as_their_strings(tmp_path):
+    from piezopreload.artifacts.learned import LearningMethod
+    from piezopreload.core.config import toml_text
+    from piezopreload.design.preload import Objective
+    from piezopreload.design.tables import DesignMethod
+    from piezopreload.models.metrics import Signal
+    from piezopreload.study import load_study
+
+    path = _axis_with(tmp_path, "objective = ", "drag")
+    text = path.read_text().replace("[learning]\n", '[learning]\nmethod = "p-type"\n')
+    path.write_text(text.replace("[design]\n", '[design]\nmethod = "codesign"\n'))
+    study = load_study(path)
+    got = (study.simulation.signal, study.design_table.objective, study.design_table.method, study.learning.method)
+    assert got == (Signal.MEASURED, Objective.DRAG, DesignMethod.CODESIGN, LearningMethod.P_TYPE)
+    assert [type(x) for x in got] == [Signal, Objective, DesignMethod, LearningMethod]
+    assert study.signal is Signal.MEASURED and Signal.MEASURED.words == "measured force"
+    for table, key, value in ((study.simulation, "signal", "measured_N"), (study.design_table, "objective", "drag"),
+                              (study.design_table, "method", "codesign"), (study.learning, "method", "p-type")):
+        written = table.to_dict()[key]
+        assert type(written) is str and written == value, key
+        assert f'{key} = "{value}"' in toml_text({"t": table.to_dict()})
+
+
+def test_the_artifacts_written_before_read_their_signal_and_learning_law_into_the_enums_and_write_them_back():
+    import json
+
+    from piezopreload.artifacts.gainset import GainSet
+    from piezopreload.artifacts.learned import LearningMethod
+    from piezopreload.artifacts.learning import LearningRecord
+    from piezopreload.artifacts.responses import ResponsesRecord
+    from piezopreload.core.errors import ArtifactError
+    from piezopreload.models.metrics import Signal
+
+    data = ROOT / "tests" / "data" / "artifacts"
+    gains = GainSet.load(data / "gains.json")
+    assert gains.criteria.signal is Signal.FORCE
+    assert gains.to_dict()["criteria"]["signal"] == json.loads((data / "gains.json").read_text())["criteria"]["signal"]
+    responses = ResponsesRecord.load(data / "responses.json")
+    assert responses.signal is Signal.MEASURED and type(responses.to_dict()["signal"]) is str
+    learning = LearningRecord.load(data / "learning.json")
+    assert {p.method for p in learning.passes} == {LearningMethod.NORM_OPTIMAL}
+    assert [type(p.to_dict()["method"]) for p in learning.passes] == [str] * len(learning.passes)
+    doc = json.loads((data / "responses.json").read_text())
+    body = {k: v for k, v in doc.items() if k not in ("schema", "package_version", "sha256")}
+    with pytest.raises(ArtifactError, match=r"field 'signal' must be one of measured_N, force_N, got 'force'"):
+        ResponsesRecord.from_dict({**body, "signal": "force"})  # the old record took any string
+
+
+def test_a_run_scores_the_signal_it_is_given_and_refuses_one_it_does_not_know():
+    from piezopreload.models.actuator import Plant, Rig
+    from piezopreload.models.closedloop import Reference, simulate
+    from piezopreload.models.controller import Controller
+    from piezopreload.models.metrics import Signal, step_metrics
+
+    rig = Rig(Plant())
+    gains = PIDGains(Kc=0.3, Ti_s=0.08, Td_s=0.001)  # the paper's (tuning.calibrate.PAPER_GAINS)
+    run = simulate(rig, Controller(gains, rig.dt_s), Reference.step(25.0, 60.0, 0.5, 5.0), seed=3)
+    k = run.t_s >= 0.5
+    for signal, y in ((Signal.MEASURED, run.measured_N), (Signal.FORCE, run.force_N)):
+        expected = step_metrics(run.t_s[k], y[k], 60.0, initial=25.0, t_step=float(run.t_s[k][0]), band=1.5)
+        assert run.step_metrics(1.5, signal=signal) == expected == run.step_metrics(1.5, signal=str(signal))
+    assert np.isfinite(expected.settling_s)  # the step settles: the numbers compared are numbers
+    assert run.step_metrics(1.5, signal=Signal.MEASURED) != run.step_metrics(1.5, signal=Signal.FORCE)
+    with pytest.raises(ValueError, match="'force' is not a valid Signal"):
+        run.step_metrics(1.5, signal="force")
 
 
 def test_the_gain_schedules_choice_is_an_enum_read_and_written_as_its_string():

@@ -33,6 +33,7 @@ from piezopreload.models.closedloop import (
 )
 from piezopreload.models.controller import OUTPUT_MAX_V, OUTPUT_MIN_V, Controller, PIDGains
 from piezopreload.models.hysteresis import inverse_at
+from piezopreload.models.metrics import Signal
 from piezopreload.tuning.feedforward import FeedforwardModel, LoopExcitation, identify_feedforward
 
 __all__ = [
@@ -88,7 +89,7 @@ def reproduce(
     excitation: LoopExcitation = PAPER_EXCITATION,
     seed: int = 0,
     band_N: float = PAPER_BAND_N,
-    signal: str = "measured_N",
+    signal: Signal = Signal.MEASURED,
     repeats: int = 1,
     feedforward: FeedforwardModel | None = None,
     feedforward_fit: dict[str, float] | None = None,

@@ -22,7 +22,7 @@ from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.hysteresis import inverse_at
-from piezopreload.models.metrics import run_numbers
+from piezopreload.models.metrics import Signal, run_numbers
 from piezopreload.tuning.calibrate import CONTROLLERS, Reproduction
 from piezopreload.tuning.feedforward import FeedforwardModel
 from piezopreload.tuning.validate import evaluate
@@ -83,7 +83,7 @@ class Response:
 
 
 def responses(rig: Plant, references: dict[str, Reference], candidates: dict[str, PIDGains],
-              feedforward: FeedforwardModel, *, seed: int, band_N: float, signal: str, after_change_s: float,
+              feedforward: FeedforwardModel, *, seed: int, band_N: float, signal: Signal, after_change_s: float,
               bar: Bar | None = None,
               controllers: tuple[str, ...] = CONTROLLERS) -> list[Response]:
     """Every candidate, PID alone and with the feedforward (``controllers``), over every reference (noise ``seed``)."""
@@ -103,7 +103,7 @@ def responses(rig: Plant, references: dict[str, Reference], candidates: dict[str
 
 def creep_effect(rig: Plant, references: dict[str, Reference], candidates: dict[str, PIDGains],
                  with_creep: FeedforwardModel, without_creep: FeedforwardModel, *, seed: int, band_N: float,
-                 signal: str, after_change_s: float) -> list[CreepRow]:
+                 signal: Signal, after_change_s: float) -> list[CreepRow]:
     """FF + PID with the feedforward's creep compensation and with the same model refitted without creep.
 
     One row per gains, feedforward and reference, on one noise draw (``seed``, the same for both):

@@ -27,6 +27,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from piezopreload.artifacts.learned import LearningMethod
 from piezopreload.core._typing import Array
 from piezopreload.core.errors import InputError, InternalError
 from piezopreload.models.actuator import Plant
@@ -40,8 +41,8 @@ __all__ = ["METHODS", "LoopLinearisation", "linearise_loop", "LearningModel", "l
            "tune_laws", "zero_phase_lowpass", "p_type_update"]
 
 
-#: the learning laws; the first is the default
-METHODS = ("norm-optimal", "p-type")
+#: the learning laws (:class:`~piezopreload.artifacts.learned.LearningMethod`); the first is the default
+METHODS = tuple(LearningMethod)
 
 
 def zero_phase_lowpass(x: Array, cutoff_Hz: float, dt_s: float, order: int = 2) -> Array:

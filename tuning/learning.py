@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from piezopreload.artifacts.gainset import GainSet
-from piezopreload.artifacts.learned import LearnedSignal, reference_sha256
+from piezopreload.artifacts.learned import LearnedSignal, LearningMethod, reference_sha256
 from piezopreload.artifacts.learning import LearningRecord, PassRecord, TrialRecord
 from piezopreload.core._typing import Array, BoolArray, IntArray
 from piezopreload.core.errors import InputError, InternalError
@@ -151,7 +151,7 @@ class LearningResult:
         The best trial's run, scored against the reference.
     preview : Preview
         The previewed plan: the reference, the setpoint the loop follows, its floors.
-    method : str
+    method : LearningMethod
         The learning method (one of :data:`METHODS`).
     law : object
         The learning law it ran.
@@ -176,7 +176,7 @@ class LearningResult:
     monotone: BoolArray
     run: ClosedLoopRun
     preview: Preview
-    method: str
+    method: LearningMethod
     law: Any
     plants: int | None
     noise_floor_N: float
@@ -308,7 +308,7 @@ class LearningResult:
             "diverged_plants": int(np.sum(self.diverged)), "monotone_plants": int(np.sum(self.monotone)),
             "plants": self.plants, "noise_floor_N": self.noise_floor_N,
             "best_iteration": np.asarray(self.best).reshape(-1).tolist(),
-            "preview_s": self.preview_s, "method": self.method, "learning": self.law.to_dict(),
+            "preview_s": self.preview_s, "method": str(self.method), "learning": self.law.to_dict(),
             "history": [h.to_dict() for h in self.history], "seconds": self.seconds,
             **self.preview.to_dict(), **self.info,
         }
@@ -377,12 +377,18 @@ def more_trials_pay(measured: Array, floor_N: Any = 0.0, stop_gain: float = STOP
 # --------------------------------------------------------------------------------------
 # the trials
 # --------------------------------------------------------------------------------------
-def law_for(method: str, params: Plant, controller: Controller, preview: Preview, *, seed: int = 0,
-            spread: dict[str, float] | None = None) -> Law:
-    """The learning law ``method`` for ``controller`` on the nominal plant ``params`` along ``preview``'s plan."""
+def _method(method: LearningMethod | str) -> LearningMethod:
+    """The learning law ``method`` names (a member, or its value as a caller writes it); an :class:`InputError`
+    where it names none."""
     if method not in METHODS:
         raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-    if method == "p-type":
+    return LearningMethod(method)
+
+
+def law_for(method: LearningMethod | str, params: Plant, controller: Controller, preview: Preview, *, seed: int = 0,
+            spread: dict[str, float] | None = None) -> Law:
+    """The learning law ``method`` for ``controller`` on the nominal plant ``params`` along ``preview``'s plan."""
+    if _method(method) is LearningMethod.P_TYPE:
         return learning_model_over(params, controller)
     return norm_optimal_law(params, controller, preview.target_N, preview.ff_extra_V, spread=spread, seed=seed)
 
@@ -460,7 +466,8 @@ def _noise_floor(rig: Rig, controller: Controller, setpoint: Reference, u: Array
 
 
 def learn(controller: Controller, rig: Rig, reference: Reference, *, iterations: int = 10,
-          preview_s: float | None = None, method: str = METHODS[0], plants: int | None = None, seed: int = 0,
+          preview_s: float | None = None, method: LearningMethod | str = METHODS[0], plants: int | None = None,
+          seed: int = 0,
           spread: dict[str, float] | None = None, law: Law | None = None, grow_tol: float = 0.05,
           stop_gain: float | None = STOP_GAIN, after_change_weight: float = 0.0,
           slew_fraction: float = PLAN_SLEW_FRACTION, initial_V: Array | None = None,
@@ -475,7 +482,7 @@ def learn(controller: Controller, rig: Rig, reference: Reference, *, iterations:
         The most learning trials after trial 0 (the preview alone); fewer where more no longer pay.
     preview_s : float or None
         The preview horizon; None for :func:`~piezopreload.tuning.preview.default_preview_s`, 0 for none.
-    method : str
+    method : LearningMethod or str
         ``"norm-optimal"`` (the default: the Riccati form, a sparse QP where the limits bind) or
         ``"p-type"`` (Q-filtered, with lead: the model-free option).
     plants : int or None
@@ -576,7 +583,7 @@ def _result(book: _Trials, preview: Preview, law: Law, plants: int | None, secon
         after_change_s=AFTER_CHANGE_S + preview.preview_s).rms_N
     converged = ~book.diverged & book.settled
     monotone = book.monotone()
-    method = "p-type" if isinstance(law, LearningModel) else "norm-optimal"
+    method = LearningMethod.P_TYPE if isinstance(law, LearningModel) else LearningMethod.NORM_OPTIMAL
     return LearningResult(book.best_u, book.history, book.best_it, book.trials, book.reasons(iterations),
                           converged & monotone, book.diverged, monotone, best_run, preview, method, law, plants,
                           float(np.max(book.noise_floor_N)), seconds,
@@ -612,7 +619,7 @@ def learn_from_log(signal: LearnedSignal, log: dict[str, Array], gain_set: GainS
         raise InputError("the gain set names no plant to build the learning law on; write it again with 'tune'")
     keep = log["mode"] == 0
     controller = gain_set.controller()
-    if signal.method == "p-type":
+    if signal.method is LearningMethod.P_TYPE:
         law: Law = learning_model_over(gain_set.plant, controller)  # the law learn() uses
     else:  # learning started from the previewed feedforward of the signal's plan
         lead = feedforward_lead(gain_set.plant) if signal.preview_s > 0 else 0
@@ -645,7 +652,7 @@ def learn_from_run(signal: LearnedSignal, measured_N: Array, command_V: Array, l
 # learning over a schedule's passes (the whole system's learn stage)
 # --------------------------------------------------------------------------------------
 def schedule_learner(params: Plant, controller: Controller, *, iterations: int, preview_s: float | None,
-                     method: str, seed: int, progress: ProgressLike | None = None,
+                     method: LearningMethod | str, seed: int, progress: ProgressLike | None = None,
                      warm_start: bool = True, stop_gain: float | None = STOP_GAIN
                      ) -> tuple[Callable[[Reference], Array], list[LearningResult]]:
     """A learner for each pass of a schedule on one plant (``params``): called with a pass's repeated
@@ -654,7 +661,7 @@ def schedule_learner(params: Plant, controller: Controller, *, iterations: int, 
     (where the references have as many samples: a pass is the schedule planned again with a margin);
     ``stop_gain`` as :func:`learn`'s."""
     results: list[LearningResult] = []
-    p_type = learning_model_over(params, controller) if method == "p-type" else None  # one law for every pass
+    p_type = learning_model_over(params, controller) if _method(method) is LearningMethod.P_TYPE else None  # one law
 
     def learned(reference: Reference) -> Array:
         before = results[-1] if results and warm_start else None

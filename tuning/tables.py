@@ -8,10 +8,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from piezopreload.artifacts.learned import LearningMethod
 from piezopreload.artifacts.validation import Criteria
 from piezopreload.core.config import Table, key
 from piezopreload.core.records import TableOf
-from piezopreload.tuning.ilc import METHODS
 from piezopreload.tuning.pid import TUNING_KEYS, TuningSpec
 
 __all__ = ["TUNING", "VALIDATION", "LearningTable"]
@@ -37,4 +37,4 @@ class LearningTable(Table):
                           ge=0, le=100)
     preview_s: float | None = key(None, "how far the learning reads the reference ahead (not set: the delay, the "
                                   "amplifier's lag and the largest change's slew time; 0: no preview)", unit="s", ge=0)
-    method: str = key(METHODS[0], "the learning law: norm-optimal, or p-type (model-free)", choices=METHODS)
+    method: LearningMethod = key(LearningMethod.NORM_OPTIMAL, "the learning law: norm-optimal, or p-type (model-free)")

@@ -36,6 +36,7 @@ from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.closedloop import Reference, simulate
 from piezopreload.models.controller import Controller, PIDGains
 from piezopreload.models.hysteresis import CreepPI, HysteresisModel, inverse_at
+from piezopreload.models.metrics import Signal
 
 __all__ = ["DEFAULT_SPREAD", "evaluate", "validate", "executor", "SchedulerError"]
 
@@ -79,10 +80,10 @@ def evaluate(gains: PIDGains, feedforward: HysteresisModel | CreepPI | None, pla
     step = simulate(rig, controller, step_ref, seed=seed)
     band, signal = criteria.band_N, criteria.signal
     by_signal = {}
-    for name in ("force_N", "measured_N"):
+    for name in Signal:
         m = step.step_metrics(band, signal=name)
         by_signal[name] = m if isinstance(m, list) else [m]
-    ms, mt, mm = by_signal[signal], by_signal["force_N"], by_signal["measured_N"]
+    ms, mt, mm = by_signal[signal], by_signal[Signal.FORCE], by_signal[Signal.MEASURED]
     traj = simulate(rig, controller, trajectory, seed=seed + 1)
     te = traj.tracking_error()
     te_after = traj.tracking_error(after_change_s=criteria.tracking_after_change_s,
