@@ -238,7 +238,7 @@ def cycle_sources(screw: BallScrew, drive: FeedDrive, table: ThermalTable, cycle
     dm = table.bearing_dm_mm or screw.nominal_diameter_mm + 10.0
     nu = 1e6 * float(viscosity_m2_s(table.lubricant_vg, table.contact_temperature_C))
     omega = np.abs(cycle.speed_rpm) * math.pi / 30.0
-    far_preload = 0.0 if mounting_of(table, drive) == "fixed-free" else table.bearing_preload_N
+    far_preload = 0.0 if mounting_of(table, drive) is ThermalMounting.FIXED_FREE else table.bearing_preload_N
     bearing = np.stack([bearing_torque_Nm(cycle.speed_rpm, nu, dm, load, table.bearing_f0, table.bearing_f1) * omega
                         for load in (table.bearing_preload_N, far_preload)], axis=1)
     coolant = model.coolant_W_per_K() * ((table.coolant_C if table.coolant_C is not None else table.ambient_C)

@@ -22,6 +22,7 @@ from piezopreload.artifacts.learning import LearningRecord
 from piezopreload.artifacts.requirements import Requirement, least_margin, missed, own_constraints
 from piezopreload.artifacts.responses import ResponseRun
 from piezopreload.artifacts.system import SystemRecord
+from piezopreload.models.thermal import ThermalMounting
 from piezopreload.reports.document import fmt, pct, q
 from piezopreload.reports.inputs import Artifacts, Published, ReportStudy
 from piezopreload.reports.sections import levels_text, profile_words, rigidity_words, signal_name
@@ -151,8 +152,8 @@ def _cause(r: Requirement, a: Artifacts) -> str:
             f"preload of {q(s.preload_mean_N, 'N')} ({q(c.heat_mean_W, 'W')} at the best constant "
             f"{q(c.preload_mean_N, 'N')}) and the support bearings' {q(s.bearing_heat_mean_W, 'W')}, warming the screw "
             f"by up to {q(s.temperature_rise_max_K, 'K')}"
-            + (f", of which its pretension takes up the first {q(t.pretension_K, 'K')}" if t.mounting == "pretensioned"
-               else ""))
+            + (f", of which its pretension takes up the first {q(t.pretension_K, 'K')}"
+               if t.mounting is ThermalMounting.PRETENSIONED else ""))
 
 
 def _robustness(a: Artifacts) -> str:

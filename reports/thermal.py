@@ -16,6 +16,7 @@ from matplotlib.figure import Figure
 
 from piezopreload.artifacts.requirements import Requirement
 from piezopreload.artifacts.thermal import PreloadDrift, ThermalCase, ThermalRecord
+from piezopreload.models.thermal import Feedback, ThermalMounting
 from piezopreload.reports.document import ReportTable, Section, fmt, pct
 from piezopreload.reports.figures import COLOURS, legends, page_figure, styled
 from piezopreload.reports.sections import Part
@@ -86,7 +87,8 @@ def thermal_section(t: ThermalRecord, requirements: Sequence[Requirement] = ()) 
     """The section: what was modelled, the two preloads' shifts, the budget, the passive nut's drift."""
     s, c, d = t.schedule, t.constant, t.drift
     _, p = s.worst()
-    mounting = t.mounting + (f" ({fmt(t.pretension_K)} K of pretension)" if t.mounting == "pretensioned" else "")
+    pretensioned = t.mounting is ThermalMounting.PRETENSIONED
+    mounting = t.mounting + (f" ({fmt(t.pretension_K)} K of pretension)" if pretensioned else "")
     paragraphs = [
         f"The preload's friction heat over a shift of {fmt(t.shift_h)} h of the machining cycle from a cold axis: the "
         f"nut's heat by the {_MODELS[t.heat_model]} (ISO VG{t.lubricant_vg}, "
@@ -139,7 +141,7 @@ def _assumptions(t: ThermalRecord) -> str:
     """What the figures rest on: the seals, the heat split, the convection, the ends."""
     seals = (f"the seals' torque {fmt(t.seal_torque_Nm)} N m, apart from the preload's" if t.sealed else
              "no seal torque (an open nut)")
-    ends = ("" if t.mounting == "fixed-free" else
+    ends = ("" if t.mounting is ThermalMounting.FIXED_FREE else
             f" Each end is a preloaded bearing pair of the axis' bearing stiffness, lifting off at "
             f"{fmt(t.bearing_lift_off_N, 4)} N; the pretension, where set, is relieved as the screw warms." if
             t.bearing_lift_off_N > 0 else " Each end is a spring of the axis' bearing stiffness.")
@@ -236,7 +238,7 @@ def error_budget(t: ThermalRecord, limit_um: float | None = None) -> Figure:
     fig, ax = page_figure(2.7)
     a = ax[0][0]
     width = 0.38
-    semi = t.feedback == "semi-closed"
+    semi = t.feedback is Feedback.SEMI_CLOSED
     for j, name in enumerate(("schedule", "constant")):
         case = t.case(name)
         budget, growth = case.budget_um[case.hourly], case.growth_um[case.hourly]

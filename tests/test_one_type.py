@@ -377,6 +377,19 @@ def test_a_run_scores_the_signal_it_is_given_and_refuses_one_it_does_not_know():
         run.step_metrics(1.5, signal="force")
 
 
+def test_the_thermal_section_words_follow_the_records_enums_given_as_strings():
+    """A record given its enums as strings (as a document or a caller writes them) holds the members, so the report's
+    words that the members choose follow them: the pretension named, the ends' bearings described."""
+    from piezopreload.reports.thermal import thermal_section
+
+    budget = _budget()  # made with "pretensioned" and "linear-scale" as strings
+    text = " ".join(p for p in thermal_section(budget).section.paragraphs if isinstance(p, str))
+    assert "pretensioned (3 K of pretension)" in text and "Each end is a preloaded bearing pair" in text
+    free = dataclasses.replace(budget, mounting="fixed-free")
+    text = " ".join(p for p in thermal_section(free).section.paragraphs if isinstance(p, str))
+    assert "K of pretension" not in text and "Each end is a preloaded bearing pair" not in text
+
+
 def test_the_gain_schedules_choice_is_an_enum_read_and_written_as_its_string():
     from piezopreload.artifacts.tuning import GainScheduleRecord, ScheduleChoice
     from piezopreload.core.errors import ArtifactError
