@@ -390,6 +390,17 @@ def test_the_thermal_section_words_follow_the_records_enums_given_as_strings():
     assert "K of pretension" not in text and "Each end is a preloaded bearing pair" not in text
 
 
+@pytest.mark.parametrize(("command", "option", "allowed"), [("design", "--objective", "'stiffness', 'drag', 'life'"),
+                                                          ("learn", "--method", "'norm-optimal', 'p-type'")])
+def test_the_command_line_names_an_enums_values_as_the_strings_it_takes(capsys, command, option, allowed):
+    from piezopreload.cli import main
+
+    assert main([command, option, "sideways"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"invalid choice: 'sideways' (choose from {allowed})" in err[0], err
+    assert err[0].startswith("error: ")
+
+
 def test_the_gain_schedules_choice_is_an_enum_read_and_written_as_its_string():
     from piezopreload.artifacts.tuning import GainScheduleRecord, ScheduleChoice
     from piezopreload.core.errors import ArtifactError

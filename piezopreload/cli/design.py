@@ -105,7 +105,7 @@ def register_design(sub: Any) -> None:
             "epsilon-constraint method, and plan the least-friction preload schedule for a load profile against "
             "the best constant preload. Infeasible requests name the constraints that cannot be met."))
     study_arguments(p, seed=False)
-    p.add_argument("--objective", choices=OBJECTIVES, help="default: the study's [design] objective")
+    p.add_argument("--objective", choices=[o.value for o in OBJECTIVES], help="default: the study's [design] objective")
     p.add_argument("--pareto", choices=PARETO_PAIRS, help="trace this front only (default: the study's list)")
     p.add_argument("--points", type=int, help="points per front (default: the study's, 50)")
     p.add_argument("--schedule", metavar="LOADS.csv",

@@ -50,8 +50,8 @@ def register_learn(sub: Any) -> None:
     p.add_argument("--after-change-weight", type=nonnegative_float, default=0.0, metavar="W",
                    help="place each planned change to least (whole-trajectory error + W x the error outside 0.1 s "
                         "after the changes); 0, the default, for the least whole-trajectory error")
-    p.add_argument("--method", choices=METHODS, help=f"the learning law (default: the study's [learning] method, "
-                                                     f"else {METHODS[0]})")
+    p.add_argument("--method", choices=[m.value for m in METHODS],
+                   help=f"the learning law (default: the study's [learning] method, else {METHODS[0]})")
     p.add_argument("--plants", type=positive_int, help="learn on N Monte Carlo plants and report the worst")
     p.add_argument("--out", metavar="DIR", help="write learned.json (and learning.png) here")
     p.add_argument("--from-run", metavar="LOG.csv", help="a rig run log of --learned FILE: one learning update")
