@@ -356,6 +356,13 @@ def test_the_artifacts_written_before_read_their_signal_and_learning_law_into_th
     body = {k: v for k, v in doc.items() if k not in ("schema", "package_version", "sha256")}
     with pytest.raises(ArtifactError, match=r"field 'signal' must be one of measured_N, force_N, got 'force'"):
         ResponsesRecord.from_dict({**body, "signal": "force"})  # the old record took any string
+    # made in code from the strings, as a caller writes them: the members, and a string that names none refused
+    assert dataclasses.replace(responses, signal="force_N").signal is Signal.FORCE
+    assert dataclasses.replace(learning.passes[0], method="p-type").method is LearningMethod.P_TYPE
+    with pytest.raises(ValueError, match="signal must be one of measured_N, force_N, got 'force'"):
+        dataclasses.replace(responses, signal="force")
+    with pytest.raises(ValueError, match="method must be one of norm-optimal, p-type, got 'p'"):
+        dataclasses.replace(learning.passes[0], method="p")
 
 
 def test_a_run_scores_the_signal_it_is_given_and_refuses_one_it_does_not_know():
