@@ -84,7 +84,7 @@ from piezopreload.core.tables import write_csv
 from piezopreload.design.schedule import least_preload, schedule_preload
 from piezopreload.models.actuator import Plant, Rig
 from piezopreload.models.ballscrew import LIFT_OFF_RATIO, BallScrew
-from piezopreload.models.closedloop import ClosedLoopRun, Reference, simulate
+from piezopreload.models.closedloop import ClosedLoopRun, Interpolation, Reference, simulate
 from piezopreload.models.controller import Controller
 
 if TYPE_CHECKING:  # the thermal budget reads a system run; the plots name their type
@@ -160,7 +160,8 @@ def schedule_reference(plant: DesignedPlant, schedule: PreloadSchedule, cycles: 
     head_t = [0.0] + ([rest] if rest > 0 else []) + ([rest + ramp] if ramp > 0 else [])
     head_f = [0.0] * (len(head_t) - (ramp > 0)) + ([share[0]] if ramp > 0 else [])
     return Reference(np.concatenate([head_t, cycle.times_s + pre_cycle.duration_s]),
-                     np.concatenate([head_f, cycle.levels_N]), cycle.duration_s + pre_cycle.duration_s, "linear")
+                     np.concatenate([head_f, cycle.levels_N]), cycle.duration_s + pre_cycle.duration_s,
+                     Interpolation.LINEAR)
 
 
 @dataclass(frozen=True, eq=False)

@@ -13,6 +13,7 @@ with array fields): every array carries the batch in its leading axes and time l
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
@@ -26,11 +27,20 @@ from piezopreload.models.loop import LOOP_OUTPUTS, OPEN_LOOP_OUTPUTS, LoopModel,
 from piezopreload.models.metrics import Signal, StepMetrics, step_metrics
 from piezopreload.models.ops import NUMPY
 
-__all__ = ["Reference", "ClosedLoopRun", "TrackingError", "simulate", "simulate_open_loop", "triangle", "PAPER_BAND_N"]
+__all__ = ["Interpolation", "INTERPOLATIONS", "Reference", "ClosedLoopRun", "TrackingError", "simulate",
+           "simulate_open_loop", "triangle", "PAPER_BAND_N"]
 
 
-#: how a reference goes between its points: held (steps) or ramped
-INTERPOLATIONS = ("hold", "linear")
+class Interpolation(StrEnum):
+    """How a reference goes between its points: each level held (steps) or ramped linearly to the next (its value is
+    what a reference's document writes)."""
+
+    HOLD = "hold"
+    LINEAR = "linear"
+
+
+#: how a reference goes between its points, in its order
+INTERPOLATIONS = tuple(Interpolation)
 
 #: The paper's error band for rise, peak and settling time (Section 4.2).
 PAPER_BAND_N = 1.5
@@ -52,14 +62,15 @@ class Reference:
         The force at each point (N).
     duration_s : float
         The reference's length, beyond its last point (s).
-    interpolation : {'hold', 'linear'}
-        Between points: hold each level, or ramp linearly to the next.
+    interpolation : Interpolation
+        Between points: hold each level, or ramp linearly to the next (given as its string, ``"hold"`` or
+        ``"linear"``, it is held as the member).
     """
 
     times_s: Array
     levels_N: Array
     duration_s: float
-    interpolation: str = "hold"
+    interpolation: Interpolation = Interpolation.HOLD
 
     def __post_init__(self) -> None:
         t = np.asarray(self.times_s, float)
@@ -72,8 +83,9 @@ class Reference:
             raise ValueError(f"times_s must start at 0 and increase, got {t.tolist()}.")
         if not (np.isfinite(self.duration_s) and self.duration_s > t[-1]):
             raise ValueError(f"duration_s must be after the last change ({t[-1]} s), got {self.duration_s!r}.")
-        if self.interpolation not in INTERPOLATIONS:
-            raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, got {self.interpolation!r}.")
+        if not isinstance(self.interpolation, str) or self.interpolation not in INTERPOLATIONS:
+            raise ValueError(f"interpolation must be one of {', '.join(INTERPOLATIONS)}, got {self.interpolation!r}.")
+        object.__setattr__(self, "interpolation", Interpolation(self.interpolation))
         object.__setattr__(self, "times_s", t)
         object.__setattr__(self, "levels_N", lv)
 
@@ -147,7 +159,7 @@ class Reference:
         t = np.asarray(times_s, float)
         if duration_s is None:
             duration_s = float(t[-1] + (t[-1] - t[-2])) if t.size > 1 else float(t[-1] + 1.0)
-        return cls(t, np.asarray(levels_N, float), float(duration_s), "linear")
+        return cls(t, np.asarray(levels_N, float), float(duration_s), Interpolation.LINEAR)
 
     def repeat(self, cycles: int) -> Reference:
         """The reference ``cycles`` times in a row (a machining cycle run again and again).
@@ -187,7 +199,7 @@ class Reference:
             interpolated for a linear one.
         """
         t = np.asarray(t, float)
-        if self.interpolation == "linear":
+        if self.interpolation is Interpolation.LINEAR:
             level: Array = np.interp(t, self.times_s, self.levels_N)
             return level
         idx = np.searchsorted(self.times_s, t, side="right") - 1
@@ -196,7 +208,7 @@ class Reference:
     @property
     def is_step(self) -> bool:
         """Whether the reference is one held step (two levels)."""
-        return self.times_s.size == 2 and self.interpolation == "hold"
+        return self.times_s.size == 2 and self.interpolation is Interpolation.HOLD
 
     @property
     def range_N(self) -> float:
@@ -212,7 +224,7 @@ class Reference:
             ``times_s``, ``levels_N``, ``duration_s``, and ``interpolation`` where it is not ``hold``.
         """
         out = {"times_s": self.times_s.tolist(), "levels_N": self.levels_N.tolist(), "duration_s": self.duration_s}
-        return out if self.interpolation == "hold" else {**out, "interpolation": self.interpolation}
+        return out if self.interpolation is Interpolation.HOLD else {**out, "interpolation": str(self.interpolation)}
 
     @classmethod
     def from_dict(cls, data: Any) -> Reference:
@@ -241,7 +253,7 @@ class Reference:
             raise InputError(f"{missing[0]} is missing (a reference has times_s, levels_N and duration_s)")
         try:
             return cls(np.asarray(data["times_s"], float), np.asarray(data["levels_N"], float),
-                       float(data["duration_s"]), str(data.get("interpolation", "hold")))
+                       float(data["duration_s"]), data.get("interpolation", Interpolation.HOLD))
         except (TypeError, ValueError) as exc:
             raise InputError(str(exc)) from exc
 
@@ -405,7 +417,7 @@ class ClosedLoopRun:
         t_from = (self.reference.times_s[1] if t_from_s is None and self.reference.times_s.size > 1
                   else (t_from_s or 0.0))
         mask = self.t_s >= t_from
-        if after_change_s > 0 and self.reference.interpolation == "hold":  # a ramped reference has no jumps
+        if after_change_s > 0 and self.reference.interpolation is Interpolation.HOLD:  # a ramped reference has no jumps
             changes = self.reference.times_s[1:]
             last = changes[np.maximum(np.searchsorted(changes, self.t_s, side="right") - 1, 0)]
             mask &= ~((self.t_s >= last) & (self.t_s < last + after_change_s))

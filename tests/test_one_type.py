@@ -408,6 +408,22 @@ def test_the_command_line_names_an_enums_values_as_the_strings_it_takes(capsys, 
     assert err[0].startswith("error: ")
 
 
+def test_a_references_interpolation_is_an_enum_read_and_written_as_its_string():
+    from piezopreload.core.errors import InputError
+    from piezopreload.models.closedloop import Interpolation, Reference
+
+    ramp = Reference(np.array([0.0, 1.0]), np.array([10.0, 30.0]), 2.0, "linear")  # given as a caller writes it
+    assert ramp.interpolation is Interpolation.LINEAR and not ramp.is_step
+    np.testing.assert_allclose(ramp.at(np.array([0.25, 0.5, 1.5])), [15.0, 20.0, 30.0], rtol=0, atol=1e-12)
+    doc = ramp.to_dict()
+    assert type(doc["interpolation"]) is str and doc["interpolation"] == "linear"
+    assert Reference.from_dict(doc).interpolation is Interpolation.LINEAR
+    held = Reference.step(25.0, 60.0, 0.5, 1.0)
+    assert held.interpolation is Interpolation.HOLD and held.is_step and "interpolation" not in held.to_dict()
+    with pytest.raises(InputError, match="interpolation must be one of hold, linear, got 'ramp'"):
+        Reference.from_dict({**doc, "interpolation": "ramp"})
+
+
 def test_the_gain_schedules_choice_is_an_enum_read_and_written_as_its_string():
     from piezopreload.artifacts.tuning import GainScheduleRecord, ScheduleChoice
     from piezopreload.core.errors import ArtifactError

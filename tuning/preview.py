@@ -32,7 +32,7 @@ import numpy as np
 from piezopreload.core._typing import Array, IntArray
 from piezopreload.core.errors import InputError
 from piezopreload.models.actuator import Plant, Rig, reach_N
-from piezopreload.models.closedloop import Reference
+from piezopreload.models.closedloop import Interpolation, Reference
 from piezopreload.models.controller import OUTPUT_MAX_V, Controller
 from piezopreload.tuning.bounds import tracking_floor
 
@@ -77,7 +77,7 @@ class PreviewPlan:
     lead_samples: int
     starts: list[int]
     reach_N: tuple[float, float]
-    interpolation: str = "hold"
+    interpolation: Interpolation = Interpolation.HOLD
 
     @property
     def setpoint(self) -> Reference:
@@ -94,7 +94,7 @@ def default_preview_s(params: Plant, reference: Reference) -> float:
     """The preview that plans every jump as well as any preview could: the delay and the amplifier's lag
     (the feedforward's lead, :func:`feedforward_lead`) plus the slew time of the largest jump; for a ramped
     reference the lead alone."""
-    if reference.interpolation != "hold":  # a ramp: the lead alone (ramp_plan follows it exactly then)
+    if reference.interpolation is not Interpolation.HOLD:  # a ramp: the lead alone (ramp_plan follows it exactly then)
         return feedforward_lead(params) * params.sample_period_s
     rate = tracking_floor(params, reference).rate_N_per_s
     jump = float(np.max(np.abs(np.diff(reference.levels_N)))) if reference.levels_N.size > 1 else 0.0
@@ -165,7 +165,7 @@ def preview_plan(params: Plant, reference: Reference, preview_s: float, *, u_max
         raise InputError(f"preview_s must be a finite number >= 0, got {preview_s!r}")
     if not (np.isfinite(after_change_weight) and after_change_weight >= 0):
         raise InputError(f"after_change_weight must be a finite number >= 0, got {after_change_weight!r}")
-    if reference.interpolation != "hold":
+    if reference.interpolation is not Interpolation.HOLD:
         return ramp_plan(params, reference, preview_s, u_max_V=u_max_V, lead_samples=lead_samples)
     dt = params.sample_period_s
     lead = int(params.delay_samples) if lead_samples is None else int(lead_samples)
@@ -254,13 +254,13 @@ def ramp_plan(params: Plant, reference: Reference, preview_s: float, *, u_max_V:
             force[k] = force[k - 1] + np.clip(target[k] - force[k - 1], -step, step)
     scored = t >= reference.times_s[1] if reference.times_s.size > 1 else np.ones(n, bool)
     rms = float(np.sqrt(np.mean((r[scored] - force[scored]) ** 2)))
-    return PreviewPlan(t, force, rms, rate, float(preview_s), lead, [], (lo, hi), interpolation="linear")
+    return PreviewPlan(t, force, rms, rate, float(preview_s), lead, [], (lo, hi), interpolation=Interpolation.LINEAR)
 
 
 def causal_floor(params: Plant, reference: Reference) -> float:
     """The causal floor (RMS, N) of ``reference``: :func:`~piezopreload.tuning.bounds.tracking_floor` over a
     held reference's jumps, the extrapolated slope's lag (:func:`ramp_plan` without preview) on a ramped one."""
-    if reference.interpolation == "hold":
+    if reference.interpolation is Interpolation.HOLD:
         return float(tracking_floor(params, reference).rms_N)
     return ramp_plan(params, reference, 0.0).rms_N
 
@@ -318,7 +318,7 @@ class Preview:
         """The reference with each jump moved ahead by the preview: scored from there, a change's whole transition
         (from the preview before the jump to :data:`AFTER_CHANGE_S` after it) is left out."""
         ref = self.reference
-        if not (self.preview_s > 0 and ref.interpolation == "hold"):
+        if not (self.preview_s > 0 and ref.interpolation is Interpolation.HOLD):
             return ref
         return Reference(np.concatenate([[0.0], np.maximum(ref.times_s[1:] - self.preview_s, 1e-9)]), ref.levels_N,
                          ref.duration_s)
@@ -346,7 +346,7 @@ def plan_preview(params: Plant, controller: Controller, reference: Reference, pr
     u_max = controller.gains.u_max_V
     floor = preview_plan(params, reference, preview, u_max_V=u_max)
     lead = feedforward_lead(params) if preview > 0 else 0
-    held = reference.interpolation == "hold"  # a ramped reference has no jumps to slew across
+    held = reference.interpolation is Interpolation.HOLD  # a ramped reference has no jumps to slew across
     branch = preview_plan(params, reference, preview, u_max_V=u_max,
                           ramps=branch_ramps(params, reference.levels_N, u_max)
                           ) if held else floor
