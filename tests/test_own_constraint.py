@@ -213,27 +213,57 @@ def test_the_report_names_the_load_profile_the_schedule_was_planned_for(tmp_path
         assert "built-in" not in text, text
 
 
+def _assert_rebuilt_from_the_design(before, out, amp_current_limit_A):
+    """A changed design rebuilt the plant and every stage after it (each stage's content key changed), and the plant
+    is the new design's, with its amplifier."""
+    from piezopreload.artifacts.manifest import StudyRunManifest
+    from piezopreload.artifacts.plant import DesignedPlant
+    from piezopreload.pipeline import STAGES
+
+    after = StudyRunManifest.load(out).stages
+    assert STAGES[0].name == "design"
+    rebuilt = [s.name for s in STAGES if after[s.name].status == "done" and after[s.name].key != before[s.name].key]
+    assert rebuilt == [s.name for s in STAGES], f"a stage after the changed design was not run again: {rebuilt}"
+    assert after["plant"].outputs["plant"].sha256 != before["plant"].outputs["plant"].sha256
+    plant = DesignedPlant.load(out / "plant.json")
+    assert plant.design_sha256 == after["design"].outputs["design"].sha256
+    assert plant.rig.amp_current_limit_A == pytest.approx(amp_current_limit_A), "the plant lacks the new amplifier"
+
+
 @pytest.mark.slow  # the small whole-system study runs end to end (about a minute)
-def test_the_stiff_small_axis_run_names_its_rigidity_as_the_designs_own_and_judges_the_lift_off_bound(tmp_path,
-                                                                                                      capsys):
+def test_the_stiff_small_axis_run_names_its_rigidity_as_the_designs_own_and_judges_the_lift_off_bound(
+        small_axis_run, tmp_path, capsys):
     """The small whole-system study with the least rigidity at 1,000 N/um, end to end: the system artifact, the
     console and the report call the rigidity the design's own constraint and the lift-off bound a margin, the least
-    margin the console leads with being the least among the requirements the design does not sit on."""
+    margin the console leads with being the least among the requirements the design does not sit on.
+
+    It runs in a copy of the small study's own run (tests/conftest.py) with a smaller amplifier too, so that the same
+    run shows a changed design rebuilding the plant and every stage after it (one run where two would ask the same of
+    the pipeline)."""
+    import shutil
+
+    from piezopreload.artifacts.manifest import StudyRunManifest
     from piezopreload.artifacts.registry import read_artifact
     from piezopreload.artifacts.system import SystemRecord
     from piezopreload.cli import main
 
     text = (Path(__file__).parent / "data" / "small_axis.toml").read_text()
-    assert text.count("stiffness_min_N_per_um = 300.0") == 1
+    assert text.count("stiffness_min_N_per_um = 300.0") == 1 and text.count("[design]\n") == 1
+    assert "amp_current_limit_A" not in text  # the small study's amplifier is the default one
     study = tmp_path / "stiff_small.toml"
     # one robust gain set, no gain schedule's entries to tune (20 s of the run's 35): what binds the schedule, and
     # what the console and the report call it, is the design's and the wording's, not the loop's form
     assert text.count("schedule_levels = 2\n") == 1
     study.write_text(text.replace("stiffness_min_N_per_um = 300.0", "stiffness_min_N_per_um = 1000.0")
-                     .replace("schedule_levels = 2\n", "schedule_levels = 0\n"))
+                     .replace("schedule_levels = 2\n", "schedule_levels = 0\n")
+                     .replace("[design]\n", "[design]\namp_current_limit_A = 0.08\n"))
     out = tmp_path / "out"
+    shutil.copytree(small_axis_run, out)
+    (out / ".lock").unlink(missing_ok=True)
+    before = StudyRunManifest.load(out).stages
     assert main(["run", str(study), "--out", str(out), "--quiet"]) == 0
     console = capsys.readouterr().out
+    _assert_rebuilt_from_the_design(before, out, amp_current_limit_A=0.08)
     system = SystemRecord.load(out / "system" / "system.json")
     by_key = {r.key: r for r in system.requirements}
     rigid, lift = by_key[RIGIDITY_KEY], by_key[LIFT_OFF_KEY]

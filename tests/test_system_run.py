@@ -3,7 +3,6 @@ schedule tracked, the summary of ``run --json``, and a changed design rebuilding
 
 from __future__ import annotations
 
-import io
 import json
 from pathlib import Path
 
@@ -18,20 +17,17 @@ from piezopreload.artifacts.system import SystemRecord
 from piezopreload.cli import main
 from piezopreload.design.system import LIFT_OFF_BOUND_VERDICT, OWN_CONSTRAINT, RIGIDITY_VERDICT
 from piezopreload.models.thermal import EXPANSION_PER_K
-from piezopreload.pipeline import STAGES, run_study
-from piezopreload.progress import Progress
+from piezopreload.pipeline import STAGES
 from piezopreload.study import load_study
 
 SMALL_AXIS = Path(__file__).parent / "data" / "small_axis.toml"
 pytestmark = pytest.mark.slow  # the whole small study runs (tens of seconds)
 
 
-@pytest.fixture(scope="module")
-def axis_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("axis") / "out"
-    code = main(["run", str(SMALL_AXIS), "--out", str(out), "--json", "--quiet"])
-    assert code == 0, "the small whole-system study failed"
-    return out
+@pytest.fixture
+def axis_run(small_axis_run):
+    """The small study's run, shared with tests/test_own_constraint.py (tests/conftest.py)."""
+    return small_axis_run
 
 
 def test_every_stage_runs_and_the_plant_is_the_designs(axis_run, capsys):
@@ -138,24 +134,6 @@ def test_the_learn_stage_learns_on_each_pass_and_the_system_and_the_rig_play_it(
     rig = manifest.summary(RigSummary)
     assert rig is not None and rig.learned_tracking_rms_measured_N is not None, (
         "the rig stage did not play the learned signal back")
-
-
-def test_a_changed_design_rebuilds_the_plant_and_everything_after_it(axis_run, tmp_path):
-    import shutil
-
-    out = tmp_path / "out"
-    shutil.copytree(axis_run, out)
-    (out / ".lock").unlink(missing_ok=True)
-    before = StudyRunManifest.load(out).stages
-    study = load_study(SMALL_AXIS).replace(design={"amp_current_limit_A": 0.08})
-    result = run_study(study, out, progress=Progress(stream=io.StringIO()))
-    assert set(result.ran) >= {"design", "plant", "identify", "tune", "validate", "compare", "learn", "system",
-                                  "rig", "report"}, f"a stage after the changed design was not run again: {result.ran}"
-    after = StudyRunManifest.load(out).stages
-    assert after["plant"].outputs["plant"].sha256 != before["plant"].outputs["plant"].sha256
-    plant = DesignedPlant.load(out / "plant.json")
-    assert plant.design_sha256 == after["design"].outputs["design"].sha256
-    assert plant.rig.amp_current_limit_A == pytest.approx(0.08), "the plant does not carry the new amplifier"
 
 
 def test_the_tune_stage_chooses_between_the_schedule_and_the_robust_set_and_the_report_shows_it(axis_run):
