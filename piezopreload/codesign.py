@@ -120,8 +120,8 @@ SHAPE_STEPS = 3
 #: the amplifier's lag (:func:`~piezopreload.tuning.preview.feedforward_lead`: 3 ms on the default study) and about
 #: the tuned loops' lag behind a load step
 FF_LEAD_MAX_S = 0.05
-#: the bounded scalar search's tolerance on the lead, in samples (the lead is a whole number of samples)
-FF_LEAD_XTOL = 0.5
+#: the golden ratio's conjugate: the share of the bracket at which the lead's golden-section search probes
+_GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 #: the design NLP's objective for a candidate: the least heat at the candidate's rigidity floor
 CANDIDATE_OBJECTIVE = "heat"
 STRATEGY = "nested"
@@ -541,8 +541,11 @@ def along_schedule(study: StudySpec, cand: Candidate, plan: PreloadSchedule, pas
 def choose_ff_lead(study: StudySpec, cand: Candidate) -> Candidate:
     """The inner problem's feedforward lead for ``cand``'s design and controller: the preview lead in ``[0,``
     :data:`FF_LEAD_MAX_S` ``]`` (whole samples) with the least tracking RMS along the least-friction schedule, run
-    once (no margin pass) as :func:`along_schedule` runs it; a bounded scalar search (Brent's, to
-    :data:`FF_LEAD_XTOL` samples), the lead 0 tried first and kept unless a lead tracks better.
+    once (no margin pass) as :func:`along_schedule` runs it.
+
+    A bounded scalar search: golden sections of the bracket on whole samples until it spans at most 3, then every
+    lead left in it (the least of a unimodal RMS exactly, either bound included, in about 10 runs for 50 samples);
+    the lead 0 is tried first and kept unless a lead tracks better (of equal RMS, the shorter lead).
 
     Parameters
     ----------
@@ -556,8 +559,6 @@ def choose_ff_lead(study: StudySpec, cand: Candidate) -> Candidate:
     Candidate
         ``cand`` with ``ff_lead_s`` chosen and ``ff_leads_tried`` (each lead tried with its tracking RMS, N).
     """
-    from scipy.optimize import minimize_scalar  # loads on first use, not on import
-
     if cand.least_plan is None:
         cand = replace(cand, least_plan=planned_schedule(study, cand.point))
     if cand.feedforward is None:
@@ -566,16 +567,23 @@ def choose_ff_lead(study: StudySpec, cand: Candidate) -> Candidate:
     top = int(math.floor(FF_LEAD_MAX_S / dt + 1e-9))
     tried: dict[int, float] = {}
 
-    def rms(samples: float) -> float:
-        k = int(min(top, max(0, round(samples))))
+    def rms(k: int) -> float:
         if k not in tried:
             run = along_schedule(study, cand, cand.least_plan, 1, k * dt)  # type: ignore[arg-type]
             tried[k] = float(run.evaluation.numbers.tracking_rms_N)
         return tried[k]
 
     rms(0)
-    if top >= 1:
-        minimize_scalar(rms, bounds=(0.0, float(top)), method="bounded", options={"xatol": FF_LEAD_XTOL})
+    lo, hi = 0, top
+    while hi - lo > 3:
+        low = hi - round(_GOLDEN * (hi - lo))
+        high = max(lo + round(_GOLDEN * (hi - lo)), low + 1)  # two probes, however the rounding falls
+        if rms(low) <= rms(high):  # the least lies at or below the upper probe
+            hi = high
+        else:
+            lo = low
+    for k in range(lo, hi + 1):
+        rms(k)
     best = min(tried, key=lambda k: (tried[k], k))  # the least RMS; of equals, the shorter lead
     return replace(cand, ff_lead_s=best * dt, ff_leads_tried=tuple((k * dt, tried[k]) for k in tried))
 

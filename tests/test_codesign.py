@@ -55,7 +55,10 @@ def small():
 
 @pytest.fixture(scope="module")
 def small_codesign(small):
-    return codesign(small, budget=3, validate_plants=3, time_factor=None)
+    # the one robust set asked for: what these tests hold (never worse, the same Monte Carlo, the words, the entries
+    # tuned apart below) does not need the small study's 2 schedule entries, which would tune two more PIDs in every
+    # inner problem; test_the_default_controller_follows_the_study holds the default
+    return codesign(small, budget=3, validate_plants=3, time_factor=None, schedule=False)
 
 
 @pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
@@ -97,8 +100,11 @@ def test_both_answers_are_validated_by_the_same_monte_carlo(small_codesign):
     # which strategy, and why: the study's tuning exposes no sensitivity of its optimum to the plant
     assert "sensitivity" in d["strategy_why"] and "nested" in d["strategy_why"]
     assert d["schedule_inside"] is False and d["controller"].startswith("one robust PID set")
-    # the small study's tune stage makes a 2-entry gain schedule: the words say the comparison is not of what it runs
-    assert "a 2-entry gain schedule, not tuned here" in d["controller"], d["controller"]
+    # the small study's tune stage makes a 2-entry gain schedule: the words say the robust set was asked for and is
+    # not what the study runs
+    assert d["controller_follows_study"] is False
+    assert "asked for: the study's tune stage makes a 2-entry gain schedule, not tuned here" in d["controller"], \
+        d["controller"]
 
 
 @pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
@@ -106,8 +112,8 @@ def test_a_design_no_controller_makes_meet_the_study_is_refused_naming_the_bindi
     # at Ms <= 1.6 the best PI the tuning finds tracks the staircase to about 28 N RMS on this plant: a limit of 5 N
     # is out of reach, and the refusal names the pair: the Ms limit (binding) and the tracking limit
     tight = small.replace(validation={"tracking_rms_max_N": 5.0})
-    with pytest.raises(InfeasibleError) as err:
-        codesign(tight, budget=0, validate_plants=0)
+    with pytest.raises(InfeasibleError) as err:  # the robust set: the refusal's words do not need the entries
+        codesign(tight, budget=0, validate_plants=0, schedule=False)
     message = str(err.value)
     assert "Ms <= 1.6" in message and "binding" in message
     assert "tracking RMS" in message and "> 5 N" in message and "tracking_rms_max_N" in message
@@ -117,14 +123,15 @@ def test_a_design_no_controller_makes_meet_the_study_is_refused_naming_the_bindi
 @pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
 def test_evaluate_design_starts_from_given_gains_and_keeps_them_where_they_are_best(small, small_codesign):
     seq = small_codesign.sequential
-    again = evaluate_design(small, seq.point, start=seq.gains)
+    again = evaluate_design(small, seq.point, start=seq.gains, ff_lead=False)  # as the sequential: no lead
     assert again.tracking_rms_N <= seq.tracking_rms_N * 1.05
     assert math.isfinite(again.friction_energy_J) and again.friction_energy_J == pytest.approx(seq.friction_energy_J)
 
 
 @pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
 def test_codesign_command_prints_one_json_object(tmp_path, capsys):
-    code = main(["codesign", str(SMALL_AXIS), "--budget", "0", "--plants", "2", "--json"])
+    # the robust set asked for (the point is the one JSON object, not the entries)
+    code = main(["codesign", str(SMALL_AXIS), "--budget", "0", "--plants", "2", "--robust-set", "--json"])
     out = capsys.readouterr().out
     assert code == 0
     doc = json.loads(out)
@@ -134,12 +141,36 @@ def test_codesign_command_prints_one_json_object(tmp_path, capsys):
     assert doc["codesigned"]["design"] == doc["sequential"]["design"]
     assert doc["codesigned"]["gains"] == doc["sequential"]["gains"]
     assert doc["validated"]["sequential"] is not None
+    assert doc["schedule_inside"] is False and doc["controller_follows_study"] is False
+    # the feedforward's lead: none on the sequential answer (the study's controller); the co-designed one's chosen in
+    # its bounds, each lead tried with its tracking RMS, the chosen one the least of them
+    assert doc["sequential"]["feedforward"]["lead_s"] == 0.0 and doc["sequential"]["feedforward"]["leads_tried"] == []
+    ff = doc["codesigned"]["feedforward"]
+    if ff["leads_tried"]:
+        lo, hi = ff["lead_bounds_s"]
+        assert all(lo <= t["lead_s"] <= hi for t in ff["leads_tried"])
+        assert ff["tracking_rms_with_lead_N"] == min(t["tracking_rms_N"] for t in ff["leads_tried"])
+        assert ff["tracking_rms_with_lead_N"] <= ff["tracking_rms_without_lead_N"]
+    assert isinstance(doc["feedforward"], str) and doc["feedforward_lead_inside"] is True
 
 
 def test_codesign_command_refuses_bad_input(capsys):
     assert main(["codesign", str(SMALL_AXIS), "--budget", "-1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("error: --budget")
+    # the controller is the study's, the schedule's entries or the robust set: not two of them
+    assert main(["codesign", str(SMALL_AXIS), "--schedule", "--robust-set"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error:") and "--robust-set" in err[0] and "--schedule" in err[0]
+
+
+def test_the_schedule_s_entries_asked_of_a_study_without_a_schedule_are_refused_by_key(tmp_path, capsys):
+    text = SMALL_AXIS.read_text().replace("schedule_levels = 2\n", "schedule_levels = 0\n", 1)
+    path = tmp_path / "one_set.toml"
+    path.write_text(text)
+    assert main(["codesign", str(path), "--schedule", "--budget", "0", "--plants", "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("error:") and "[tuning] schedule_levels >= 2" in err[-1] and "--robust-set" in err[-1]
 
 
 @pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
@@ -147,7 +178,8 @@ def test_codesign_command_exits_2_on_a_design_no_controller_meets(tmp_path, caps
     text = SMALL_AXIS.read_text().replace("tracking_rms_max_N = 100.0", "tracking_rms_max_N = 5.0")
     study = tmp_path / "tight.toml"
     study.write_text(text)
-    assert main(["codesign", str(study), "--budget", "0", "--plants", "0"]) == 2
+    # the robust set asked for: the exit code does not need the entries
+    assert main(["codesign", str(study), "--budget", "0", "--plants", "0", "--robust-set"]) == 2
     assert "error:" in capsys.readouterr().err
 
 
@@ -240,8 +272,10 @@ def test_a_worse_candidate_never_replaces_the_sequential_answer(small, monkeypat
 
     monkeypatch.setattr(cd, "evaluate_design", evaluate)
     # the schedule's shape held at the least-friction one: every candidate but the start is the worse one
+    # the robust set and no feedforward lead: the point is the outer search's acceptance, with nothing but the design
+    # moving (a lead chosen on the start's loop would be a better start)
     r = cd.codesign(small, CodesignWeights(growth=0.0, friction=0.0, tracking=1.0), budget=3, validate_plants=0,
-                    time_factor=None, shape=False)
+                    time_factor=None, shape=False, schedule=False, ff_lead=False)
     assert r.evaluations == 4  # the start and three candidates scored
     assert r.codesigned is r.sequential
     assert r.objective_codesigned == pytest.approx(1.0)
@@ -256,7 +290,7 @@ def test_the_schedule_s_entries_are_inner_decisions_each_at_its_window_s_ms(smal
 
     seq = small_codesign.sequential
     assert seq.controller == "robust" and seq.gains.schedule is None and not small_codesign.schedule
-    c = evaluate_design(small, seq.point, start=seq.gains, schedule=True)
+    c = evaluate_design(small, seq.point, start=seq.gains, schedule=True, ff_lead=False)  # the entries alone
     s = c.gains.schedule
     assert c.controller == "schedule" and s is not None and len(s.levels_N) == small.tuning.schedule_levels
     # each entry's Ms over its own window, recomputed from the linearised loop at both ends of the window's slope on
