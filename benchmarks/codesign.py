@@ -104,7 +104,7 @@ def coupling_case(words: str, variant, args) -> dict:
 
 def cases_of(study, args) -> dict:
     """The coupling cases asked for: a tighter settling limit, a stiffer rigidity, a hotter duty (none: --no-cases)."""
-    cases = {}
+    cases: dict[str, tuple] = {}
     if args.no_cases:
         print("  the coupling cases left out (--no-cases)")
         return cases

@@ -17,7 +17,12 @@ For each outer candidate ``(rigidity floor, contact angle, conformity)``:
 2. its plant is built as the plant stage builds it (``[plant]``'s sleeve, the study's ``[rig]`` hardware), the
    feedforward identified on it as the identify stage does;
 3. the PID is tuned on it by the study's own tuning (Ms on every plant variant and force-per-volt slope over the
-   whole stroke inside the NLP, the overshoot margin, the noise gain), started from the sequential gains;
+   whole stroke inside the NLP, the overshoot margin, the noise gain), started from the sequential gains, and where
+   the study tunes a gain schedule (``[tuning] schedule_levels`` at least 2) each entry on its window at Ms over it:
+   the controller compared is the study's own unless the robust set or the entries are asked for
+   (:func:`follows_study`); the feedforward's preview lead along the schedule is chosen for that loop
+   (:func:`choose_ff_lead`: a bounded scalar search of the lead with which the inverse P-I feedforward reads the
+   schedule's reference ahead, for the least tracking RMS along it);
 4. the whole-range tracking (the study's staircase) and the step are run on the nominal plant: the tracking RMS
    and the settling time are constraints of the co-design (the validation's limits), not checked after it;
 5. the loop runs along the preload schedule (:func:`with_headroom`: the machining cycle's reference the rig follows,
@@ -41,10 +46,10 @@ that misses the study (no gains the tuning finds meet the tracking or settling l
 schedule's requirements along the cycle) is replaced by the first candidate that meets it; where none does, the study
 is refused naming the binding pair. The outer search is derivative-free, and why is :data:`STRATEGY_WHY` (the
 literature problems of :mod:`piezopreload.design.codesign_problems` show the sensitivity-driven nested strategy where
-the inner problem is one smooth parametric NLP). The gain schedule over the preload level is not a decision of the
-outer loop: both answers are compared with the one robust gain set the tuning makes (the set ``piezopreload run``
-keeps where it meets the specification at every level), or with the schedule's entries inside
-(``codesign(schedule=True)``).
+the inner problem is one smooth parametric NLP). The gain schedule's levels are the study's, not decisions of the
+outer loop; its entries' gains are the inner problem's where the study tunes a schedule (``codesign(schedule=None)``,
+the default; ``schedule=False`` asks for the one robust set, ``True`` for the entries). The sequential answer runs
+the study's controller without a feedforward lead, as the study's stages run it.
 
 Both answers are then validated by the same Monte Carlo (:func:`~piezopreload.tuning.validate.validate`, the
 study's ``[validation]`` plants, seed and limits).
@@ -881,6 +886,12 @@ class CodesignResult:
         if bought is None:  # no search: the sequential answer kept as the study runs it
             return "no feedforward lead (the sequential answer kept: the study's controller, without one)"
         tried = len(c.ff_leads_tried)
+        if c.ff_lead_s == 0.0:
+            lead, rms = min(((lead, rms) for lead, rms in c.ff_leads_tried if lead > 0), key=lambda t: (t[1], t[0]),
+                            default=(math.nan, math.nan))
+            return (f"no feedforward lead: of the leads in [0, {1e3 * FF_LEAD_MAX_S:.3g}] ms the bounded scalar search "
+                    f"tried ({tried}), none tracked the least-friction schedule (one pass) better than none "
+                    f"({bought[0]:.2f} N; the best lead, {1e3 * lead:.3g} ms, {rms:.2f} N)")
         return (f"the inverse P-I feedforward reads the schedule's reference {1e3 * c.ff_lead_s:.3g} ms ahead, chosen "
                 f"in [0, {1e3 * FF_LEAD_MAX_S:.3g}] ms by a bounded scalar search ({tried} leads tried): tracking RMS "
                 f"along the least-friction schedule (one pass) {bought[0]:.2f} N without a lead, {bought[1]:.2f} N "

@@ -218,6 +218,9 @@ def test_a_study_with_method_codesign_runs_end_to_end(tmp_path, monkeypatch):
 
     co = CodesignRecord.load(out / "design" / "codesign.json")
     assert co.strategy == "nested" and "sensitivit" in co.strategy_why
+    # the study's stages run the learned feedforward: the design step chose no feedforward lead, and says so
+    assert answers[0].ff_lead is False and answers[0].codesigned.ff_lead_s == 0.0
+    assert "feedforward: no feedforward lead" in co.controller, co.controller
     assert len(co.sequential_front) >= 3 and len(co.codesigned_front) == 3
     assert {p.label for p in co.codesigned_front} == {"growth weight 1, tracking 0", "growth weight 0.5, tracking 0.5",
                                                       "growth weight 0, tracking 1"}
@@ -364,3 +367,122 @@ def test_each_design_s_schedule_friction_is_its_own_and_equal_where_the_lift_off
     bound_by_rigidity = [planned_schedule(stiff, p).friction_energy_J for p in points]
     assert min(bound_by_rigidity) > max(energies)
     assert len({round(e, 3) for e in bound_by_rigidity}) == 3, bound_by_rigidity
+
+
+# ---- the controller compared follows the study's own; the feedforward's lead an inner decision -------------------
+def test_the_default_controller_follows_the_study(small, monkeypatch):
+    # the study's tune stage makes a gain schedule where [tuning] schedule_levels >= 2 (the small axis: 2): by default
+    # the co-design compares both answers with the schedule's entries inside; with fewer, the one robust set; either
+    # when asked. The sequential answer's inner problem is stopped at once: what it was asked is the point.
+    import piezopreload.codesign as cd
+
+    asked: list[bool] = []
+
+    class Stop(Exception):
+        pass
+
+    def evaluate(study, point, **kwargs):
+        asked.append(kwargs["schedule"])
+        raise Stop
+
+    monkeypatch.setattr(cd, "evaluate_design", evaluate)
+    monkeypatch.setattr(cd, "optimise", lambda spec, objective: type("Optimum", (), {"point": None})())
+    one_set = small.replace(tuning={"schedule_levels": 0})
+    assert small.tuning.schedule_levels == 2 and one_set.tuning.schedule_levels == 0
+    for study, kwargs, want in ((small, {}, True), (small, {"schedule": False}, False),
+                                (small, {"schedule": True}, True), (one_set, {}, False),
+                                (one_set, {"schedule": False}, False)):
+        with pytest.raises(Stop):
+            cd.codesign(study, budget=0, validate_plants=0, **kwargs)
+        assert asked[-1] is want, f"{study.tuning.schedule_levels} levels, {kwargs}: schedule {asked[-1]}"
+    with pytest.raises(Stop):  # the Study's own method passes the choice on, following the study by default
+        small.codesign(budget=0, plants=0)
+    assert asked[-1] is True
+    with pytest.raises(Stop):
+        small.codesign(budget=0, plants=0, schedule=False)
+    assert asked[-1] is False
+    # the entries asked of a study that tunes none are refused by key before any solve
+    n = len(asked)
+    with pytest.raises(InputError, match=r"\[tuning\] schedule_levels >= 2"):
+        cd.codesign(one_set, budget=0, validate_plants=0, schedule=True)
+    assert len(asked) == n
+
+
+@pytest.fixture(scope="module")
+def small_point(small):
+    return optimise(small.design_spec, small.design_table.objective).point
+
+
+def _fixed(small, point) -> Candidate:
+    """The design's candidate with gains near the ones the study's tuning finds on it (Kc 0.0108 V/N, Ti 48.6 ms,
+    b 0.91; the inner tuning stood in for), its feedforward identified and its least-friction schedule planned."""
+    import piezopreload.codesign as cd
+
+    gains = replace(small.controller, Kc=0.0108, Ti_s=0.0486, Td_s=0.0, b=0.91)
+    return cd.with_headroom(small, Candidate(point, gains, 1000.0, 1.5, math.nan, 20.0, 50.0, 0.1, True), 1.0)
+
+
+def test_the_feedforward_reads_the_schedule_s_reference_ahead_by_its_lead(small, small_point):
+    # the loop's feedforward along the schedule is the inverse P-I of the reference read the lead ahead (the last
+    # level held past the end), recomputed here from the run's own reference by the identified inverse: to round-off
+    import piezopreload.codesign as cd
+
+    c = _fixed(small, small_point)
+    inverse = c.feedforward.inverse()
+    for lead in (0, 3, 12):
+        run = cd.along_schedule(small, replace(c, ff_lead_s=lead * 1e-3), c.least_plan, 1).run
+        r = run.reference_N
+        ahead = np.concatenate([r[lead:], np.full(lead, r[-1])])
+        want = np.asarray(inverse(ahead, inverse.initial_state()), float)
+        np.testing.assert_allclose(run.ff_V, want, rtol=0, atol=1e-9 * np.max(np.abs(want)),
+                                   err_msg=f"the feedforward at a {lead} ms lead is not the inverse read ahead")
+    # the lead given to the run overrides the candidate's
+    a = cd.along_schedule(small, c, c.least_plan, 1, 0.003).run.ff_V
+    np.testing.assert_array_equal(a, cd.along_schedule(small, replace(c, ff_lead_s=0.003), c.least_plan, 1).run.ff_V)
+
+
+def test_the_feedforward_lead_is_a_bounded_search_for_the_least_tracking_rms(small, small_point, monkeypatch):
+    # the run along the schedule stood in for by a closed form of the lead: a valley at 7 ms, a valley at the upper
+    # bound, and a rise from 0 (no lead kept); the search must land on each exactly, inside its bounds, in few runs
+    from types import SimpleNamespace
+
+    import piezopreload.codesign as cd
+
+    c = _fixed(small, small_point)
+    top = round(cd.FF_LEAD_MAX_S / 1e-3)
+    for name, rms, want in (("7 ms", lambda k: 10.0 + 0.01 * (k - 7) ** 2, 7),
+                            ("the bound", lambda k: 10.0 + 0.01 * (k - top) ** 2, top),
+                            ("none", lambda k: 10.0 + 0.1 * k, 0)):
+        calls: list[int] = []
+
+        def run(study, cand, plan, passes=None, lead_s=None, rms=rms, calls=calls):
+            k = round(lead_s / 1e-3)
+            calls.append(k)
+            return SimpleNamespace(evaluation=SimpleNamespace(numbers=SimpleNamespace(tracking_rms_N=rms(k))))
+
+        monkeypatch.setattr(cd, "along_schedule", run)
+        out = cd.choose_ff_lead(small, c)
+        assert out.ff_lead_s == pytest.approx(want * 1e-3, abs=1e-12), f"{name}: chose {out.ff_lead_s} s"
+        assert calls[0] == 0 and all(0 <= k <= top for k in calls) and len(calls) == len(set(calls)) <= 12, calls
+        assert dict(out.ff_leads_tried) == {k * 1e-3: rms(k) for k in calls}
+        assert out.ff_lead_bought() == (rms(0), rms(want))
+
+
+def test_a_feedforward_lead_the_study_s_stages_cannot_run_is_not_handed_to_them(small, small_point):
+    # a study with [design] method = "codesign" runs the learned feedforward along the schedule: a co-design that
+    # chose a lead is refused as its design step rather than handed on as if the study ran it
+    import piezopreload.codesign as cd
+
+    seq = replace(_candidate(200.0, 30.0, 100.0), point=small_point)
+    led = replace(seq, ff_lead_s=0.002, ff_leads_tried=((0.0, 30.0), (0.002, 29.0)))
+    result = cd.CodesignResult(small.name, "nested", CodesignWeights(), seq, led, 1.0, 0.98, 2, (), 1.0, 1.0)
+    with pytest.raises(InfeasibleError, match="feedforward lead of 0.002 s"):
+        cd._chosen(small, result)
+    assert "reads the schedule's reference 2 ms ahead" in result.feedforward_words()
+    assert "30.00 N without a lead, 29.00 N with it" in result.feedforward_words()
+    assert any(line.startswith("feedforward_lead_s 0 -> 0.002 s") for line in result.changed())
+    kept = replace(result, codesigned=replace(led, ff_lead_s=0.0, ff_leads_tried=((0.0, 30.0), (0.002, 31.0))))
+    assert "none tracked the least-friction schedule (one pass) better than none (30.00 N; the best lead, 2 ms, " \
+           "31.00 N)" in kept.feedforward_words(), kept.feedforward_words()
+    none = replace(result, ff_lead=False, codesigned=seq)
+    assert none.feedforward_words().startswith("no feedforward lead: the inverse P-I feedforward reads the reference")
