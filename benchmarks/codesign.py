@@ -213,6 +213,7 @@ def main() -> None:
         "changed": r.changed(),
         "coupling": r.coupling().split(":")[0],
         "validated": r.to_dict()["validated"],
+        "requirements": r.requirements(),
         "inner_solves": r.evaluations,
         "sequential_s": r.sequential_s,
         "codesign_s": r.codesign_s,
