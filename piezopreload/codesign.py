@@ -156,7 +156,7 @@ class CodesignWeights:
     friction : float
         On the preload schedule's friction energy per machining cycle.
     tracking : float
-        On the nominal plant's RMS tracking error over the whole-range staircase.
+        On the nominal plant's RMS tracking error along the preload schedule (the machining cycle's reference).
     voltage : float
         On the stacks' peak command over the step and the staircase.
     """

@@ -19,7 +19,8 @@ def register_codesign(sub: Any) -> None:
         description=(
             "Solve the study's design and then tune its controller (the sequential answer, as 'run' does), then "
             "choose the design's plant-shaping variables (a rigidity floor along the design's least-heat front, the "
-            "contact angle, the conformity) and the PID gains together, "
+            "contact angle, the conformity), the PID gains (the gain schedule's entries where the study tunes "
+            "them) and the feedforward's preview lead along the preload schedule together, "
             "nested: the design outside, the design NLP and the tuning inside (Ms inside the tuning, the whole-range "
             "tracking RMS and the settling time as constraints), started from the sequential answer so it is never "
             "worse. Both are validated by the same Monte Carlo; the result gives, for each requirement and the "
@@ -33,7 +34,7 @@ def register_codesign(sub: Any) -> None:
     p.add_argument("--friction", type=nonnegative_float, metavar="W",
                    help="weight on the schedule's friction energy per cycle")
     p.add_argument("--tracking", type=nonnegative_float, metavar="W",
-                   help="weight on the whole-range tracking RMS")
+                   help="weight on the tracking RMS along the preload schedule")
     p.add_argument("--voltage", type=nonnegative_float, metavar="W",
                    help="weight on the stacks' peak command (a weight not given is 0 where another is given; with "
                         "none given: growth and tracking 1 where the study has [thermal], else friction and tracking)")
