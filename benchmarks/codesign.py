@@ -6,8 +6,10 @@
 * The default study's nested co-design (:func:`piezopreload.codesign.codesign`, the weights the study states)
   beside its sequential answer, both validated by the same Monte Carlo: ``codesign_vs_sequential_objective_ratio``
   (<= 1 by construction) and ``codesign_vs_sequential_time_ratio`` (the whole co-design, the sequential start
-  included, over the sequential design and tuning; the sequential tuning here is the robust set, not the gain
-  schedule ``piezopreload run`` also tunes, so the ratio is the stricter one).
+  included, over the sequential design and tuning). Both answers are compared with the controller the study's tune
+  stage makes (``schedule_inside``: the gain schedule's entries as inner decisions where ``[tuning] schedule_levels``
+  is at least 2); the feedforward's preview lead along the schedule is the inner problem's too
+  (``feedforward_lead_s``, what it bought in ``feedforward``).
 * The two fronts of thermal growth (the design's duty-cycle estimate) against the tracking RMS at the study's Ms
   (:func:`piezopreload.codesign.codesign_fronts`), each a sweep: the sequential one the design alone along its
   ``stiffness:growth`` front, each point then tuned; the co-designed one the co-design at ``--front`` weights of the
@@ -22,11 +24,12 @@
   Monte Carlo plants, requirement by requirement, and its two fronts (``--case-front`` points each;
   ``strong_coupling``).
 
-* More of the controller inside: the default study co-designed with the gain schedule's entries as inner decisions
-  (``--schedule N`` inner solves; ``schedule_inside``).
+* Less of the controller inside: the default study co-designed with the one robust set asked for
+  (``--robust N`` inner solves; ``robust_set``), the comparison the co-design made by default before it followed the
+  study's controller.
 
 Run: ``python benchmarks/codesign.py [--budget N] [--plants N] [--front N] [--settling S] [--stiffness K] [--hotter F]
-[--case-front N] [--case-budget N] [--schedule N]``. The last line printed is one JSON object.
+[--case-front N] [--case-budget N] [--no-cases] [--robust N]``. The last line printed is one JSON object.
 """
 
 from __future__ import annotations
@@ -99,14 +102,33 @@ def coupling_case(words: str, variant, args) -> dict:
     return out
 
 
+def cases_of(study, args) -> dict:
+    """The coupling cases asked for: a tighter settling limit, a stiffer rigidity, a hotter duty (none: --no-cases)."""
+    cases: dict[str, tuple] = {}
+    if args.no_cases:
+        print("  the coupling cases left out (--no-cases)")
+        return cases
+    if args.settling is not None:
+        cases["settling"] = (f"settling at most {args.settling:g} s",
+                             study.replace(validation={"settling_max_s": args.settling}))
+    if args.stiffness is not None:
+        cases["stiffness"] = (f"the schedule's rigidity at least {args.stiffness:g} N/um",
+                              study.replace(schedule={"stiffness_min_N_per_um": args.stiffness}))
+    if args.hotter is not None and study.duty is not None:
+        speeds = [args.hotter * float(v) for v in study.given["duty"]["speed_rpm"]]
+        cases["hotter"] = (f"the duty's speeds times {args.hotter:g} ({', '.join(f'{v:g}' for v in speeds)} rpm)",
+                           study.replace(duty={"speed_rpm": speeds}))
+    return cases
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--budget", type=int, default=9, help="the co-design's inner solves (default 9)")
     ap.add_argument("--plants", type=int, help="Monte Carlo plants (default: the study's)")
     ap.add_argument("--front", type=int, default=3, help="points of each front's sweep (default 3)")
-    ap.add_argument("--schedule", type=int, default=2, metavar="N",
-                    help="also co-design with the gain schedule's entries inside, N inner solves after the start (no "
-                         "fronts; reported apart; default 2, 0: not run): each inner problem tunes one PID per entry")
+    ap.add_argument("--robust", type=int, default=2, metavar="N",
+                    help="also co-design with the one robust set asked for (schedule=False), N inner solves after the "
+                         "start (no fronts; reported apart; default 2, 0: not run)")
     ap.add_argument("--settling", type=float, default=0.2,
                     help="a tighter settling limit (s) both answers are co-designed and validated at (default 0.2)")
     ap.add_argument("--stiffness", type=float, default=1000.0,
@@ -116,6 +138,8 @@ def main() -> None:
                     help="a hotter duty: the duty's speeds times this (default 1.5)")
     ap.add_argument("--case-front", type=int, default=2,
                     help="points of each front's sweep in the coupling cases (default 2; 0: no fronts there)")
+    ap.add_argument("--no-cases", action="store_true",
+                    help="leave the three coupling cases out (each is a co-design of its own with its fronts)")
     ap.add_argument("--case-budget", type=int, default=3,
                     help="inner solves of each co-designed front weight's search in the coupling cases (default 3)")
     args = ap.parse_args()
@@ -126,6 +150,8 @@ def main() -> None:
     r = codesign(study, budget=args.budget, validate_plants=args.plants, progress=print)
     print(f"co-design of the default study: {time.perf_counter() - t0:.1f} s; {r!r}")
     print(f"  changed: {'; '.join(r.changed()) or 'nothing'}; coupling: {r.coupling()}")
+    print(f"  controller: {r.controller_words()}")
+    print(f"  feedforward: {r.feedforward_words()}")
     print_terms(r)
 
     # ---- the two fronts: thermal growth against tracking RMS at the study's Ms ---------------------------
@@ -147,34 +173,23 @@ def main() -> None:
           f"the sequential {tracking_only:.2f} N (ratio {best_tracking / tracking_only:.3f})")
 
     # ---- where the coupling is strong: a tighter settling limit, a stiffer rigidity, a hotter duty ------------------
-    cases = {}
-    if args.settling is not None:
-        cases["settling"] = (f"settling at most {args.settling:g} s",
-                             study.replace(validation={"settling_max_s": args.settling}))
-    if args.stiffness is not None:
-        cases["stiffness"] = (f"the schedule's rigidity at least {args.stiffness:g} N/um",
-                              study.replace(schedule={"stiffness_min_N_per_um": args.stiffness}))
-    if args.hotter is not None and study.duty is not None:
-        speeds = [args.hotter * float(v) for v in study.given["duty"]["speed_rpm"]]
-        cases["hotter"] = (f"the duty's speeds times {args.hotter:g} ({', '.join(f'{v:g}' for v in speeds)} rpm)",
-                           study.replace(duty={"speed_rpm": speeds}))
-    strong = {name: coupling_case(words, variant, args) for name, (words, variant) in cases.items()}
+    strong = {name: coupling_case(words, variant, args) for name, (words, variant) in cases_of(study, args).items()}
 
-    # ---- more of the controller inside: the schedule's entries as inner decisions -------------------------------
-    scheduled = None
-    if args.schedule > 0:
-        t_sched = time.perf_counter()
-        rc = codesign(study, budget=args.schedule, validate_plants=args.plants, schedule=True, progress=print)
-        print(f"  with the schedule's entries inside ({time.perf_counter() - t_sched:.1f} s): {rc!r}")
+    # ---- less of the controller inside: the one robust set asked for -------------------------------------------
+    robust = None
+    if args.robust > 0:
+        t_robust = time.perf_counter()
+        rc = codesign(study, budget=args.robust, validate_plants=args.plants, schedule=False, progress=print)
+        print(f"  with the one robust set asked for ({time.perf_counter() - t_robust:.1f} s): {rc!r}")
         print(f"  controller: {rc.controller_words()}")
         for row in rc.requirements():
             print(f"  {row['requirement']:45s} limit {row['limit']}  sequential {row.get('sequential')}  "
                   f"co-designed {row.get('codesigned')}")
-        scheduled = {"objective_ratio": rc.objective_ratio, "time_ratio": rc.time_ratio, "changed": rc.changed(),
-                     "controller": rc.controller_words(), "sequential_controller": rc.sequential.controller,
-                     "tracking_rms_N": {"sequential": rc.sequential.cycle_tracking_rms_N,
-                                        "codesigned": rc.codesigned.cycle_tracking_rms_N},
-                     "validated": rc.to_dict()["validated"]}
+        robust = {"objective_ratio": rc.objective_ratio, "time_ratio": rc.time_ratio, "changed": rc.changed(),
+                  "controller": rc.controller_words(), "sequential_controller": rc.sequential.controller,
+                  "tracking_rms_N": {"sequential": rc.sequential.cycle_tracking_rms_N,
+                                     "codesigned": rc.codesigned.cycle_tracking_rms_N},
+                  "validated": rc.to_dict()["validated"]}
 
     print(json.dumps({
         "codesign_vs_sequential_objective_ratio": r.objective_ratio,
@@ -186,7 +201,11 @@ def main() -> None:
         "front_nondominated": {"sequential": len(nondominated(rec.sequential_front)),
                                "codesigned": len(nondominated(rec.codesigned_front))},
         "strong_coupling": strong,
-        "schedule_inside": scheduled,
+        "schedule_inside": r.schedule,
+        "controller": r.controller_words(),
+        "feedforward_lead_s": r.codesigned.ff_lead_s,
+        "feedforward": r.codesigned.to_dict()["feedforward"],
+        "robust_set": robust,
         "tracking_only_ratio": best_tracking / tracking_only,
         "strategy_why": r.strategy_why,
         "strategy": r.strategy,
@@ -194,6 +213,7 @@ def main() -> None:
         "changed": r.changed(),
         "coupling": r.coupling().split(":")[0],
         "validated": r.to_dict()["validated"],
+        "requirements": r.requirements(),
         "inner_solves": r.evaluations,
         "sequential_s": r.sequential_s,
         "codesign_s": r.codesign_s,

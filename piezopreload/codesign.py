@@ -17,7 +17,12 @@ For each outer candidate ``(rigidity floor, contact angle, conformity)``:
 2. its plant is built as the plant stage builds it (``[plant]``'s sleeve, the study's ``[rig]`` hardware), the
    feedforward identified on it as the identify stage does;
 3. the PID is tuned on it by the study's own tuning (Ms on every plant variant and force-per-volt slope over the
-   whole stroke inside the NLP, the overshoot margin, the noise gain), started from the sequential gains;
+   whole stroke inside the NLP, the overshoot margin, the noise gain), started from the sequential gains, and where
+   the study tunes a gain schedule (``[tuning] schedule_levels`` at least 2) each entry on its window at Ms over it:
+   the controller compared is the study's own unless the robust set or the entries are asked for
+   (:func:`follows_study`); the feedforward's preview lead along the schedule is chosen for that loop
+   (:func:`choose_ff_lead`: a bounded scalar search of the lead with which the inverse P-I feedforward reads the
+   schedule's reference ahead, for the least tracking RMS along it);
 4. the whole-range tracking (the study's staircase) and the step are run on the nominal plant: the tracking RMS
    and the settling time are constraints of the co-design (the validation's limits), not checked after it;
 5. the loop runs along the preload schedule (:func:`with_headroom`: the machining cycle's reference the rig follows,
@@ -41,10 +46,10 @@ that misses the study (no gains the tuning finds meet the tracking or settling l
 schedule's requirements along the cycle) is replaced by the first candidate that meets it; where none does, the study
 is refused naming the binding pair. The outer search is derivative-free, and why is :data:`STRATEGY_WHY` (the
 literature problems of :mod:`piezopreload.design.codesign_problems` show the sensitivity-driven nested strategy where
-the inner problem is one smooth parametric NLP). The gain schedule over the preload level is not a decision of the
-outer loop: both answers are compared with the one robust gain set the tuning makes (the set ``piezopreload run``
-keeps where it meets the specification at every level), or with the schedule's entries inside
-(``codesign(schedule=True)``).
+the inner problem is one smooth parametric NLP). The gain schedule's levels are the study's, not decisions of the
+outer loop; its entries' gains are the inner problem's where the study tunes a schedule (``codesign(schedule=None)``,
+the default; ``schedule=False`` asks for the one robust set, ``True`` for the entries). The sequential answer runs
+the study's controller without a feedforward lead, as the study's stages run it.
 
 Both answers are then validated by the same Monte Carlo (:func:`~piezopreload.tuning.validate.validate`, the
 study's ``[validation]`` plants, seed and limits).
@@ -86,12 +91,13 @@ from piezopreload.spec import StudySpec
 from piezopreload.steps import Solved, identify
 from piezopreload.tuning.feedforward import IdentifiedFeedforward
 from piezopreload.tuning.pid import TuningInfeasible, TuningSpec, tune_pid
+from piezopreload.tuning.preview import preview_feedforward
 from piezopreload.tuning.schedule import schedule_levels, tune_entries
 from piezopreload.tuning.validate import validate
 
 __all__ = ["CodesignWeights", "Candidate", "CodesignResult", "codesign", "codesign_optimum", "codesign_design",
            "codesign_fronts", "codesign_record", "front_weights", "evaluate_design", "schedule_shapes",
-           "shape_schedule", "TERMS",
+           "shape_schedule", "follows_study", "choose_ff_lead", "TERMS",
            "STRATEGY_WHY"]
 
 #: the objective's terms: (name, the candidate's attribute, unit)
@@ -114,6 +120,13 @@ HEADROOM_MAX = 1.5
 LEADS_S = (0.025, 0.05, 0.1)
 #: the regula falsi steps on the headroom for each lead (after its two ends)
 SHAPE_STEPS = 3
+#: the feedforward's preview lead's range (s): how far ahead of the reference the inverse P-I feedforward reads it,
+#: from none (the study's controller as its stages run it) to 50 ms, several times the delay line's, the D/A's and
+#: the amplifier's lag (:func:`~piezopreload.tuning.preview.feedforward_lead`: 3 ms on the default study) and about
+#: the tuned loops' lag behind a load step
+FF_LEAD_MAX_S = 0.05
+#: the golden ratio's conjugate: the share of the bracket at which the lead's golden-section search probes
+_GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 #: the design NLP's objective for a candidate: the least heat at the candidate's rigidity floor
 CANDIDATE_OBJECTIVE = "heat"
 STRATEGY = "nested"
@@ -126,7 +139,9 @@ STRATEGY_WHY = ("nested, not simultaneous, and derivative-free outside: the inne
                 "discrete choice with the system stage's margin passes, and in the tuning NLP (tuning/pid.py) only "
                 "the Ms constraints' frequency-response data are parameters, its time-domain objective a callback "
                 "over the compiled simulation whose plant enters as constants; the design outside is searched by a "
-                "compass search, the design NLP, the tuning and the schedule inside")
+                "compass search, the design NLP, the tuning (the gain schedule's entries too where the study tunes "
+                "them), the feedforward's preview lead (a bounded scalar search on the loop's run along the schedule) "
+                "and the schedule's shape inside")
 
 
 @dataclass(frozen=True)
@@ -141,7 +156,7 @@ class CodesignWeights:
     friction : float
         On the preload schedule's friction energy per machining cycle.
     tracking : float
-        On the nominal plant's RMS tracking error over the whole-range staircase.
+        On the nominal plant's RMS tracking error along the preload schedule (the machining cycle's reference).
     voltage : float
         On the stacks' peak command over the step and the staircase.
     """
@@ -249,6 +264,14 @@ class Candidate:
         What the controller misses on the step and staircase ("" where it meets them).
     cycle_why : str
         What the achieved preload misses of the schedule's requirements along the cycle ("" where it meets them).
+    ff_lead_s : float
+        The feedforward's preview lead along the schedule (s; 0: none): the inverse P-I feedforward reads the
+        schedule's reference this far ahead (:func:`~piezopreload.tuning.preview.preview_feedforward`, added to the
+        controller's own feedforward as a per-sample correction, the channel the learned feedforward takes), chosen
+        by the inner problem (:func:`choose_ff_lead`).
+    ff_leads_tried : tuple of (float, float)
+        The leads the inner problem's search tried, each ``(lead_s, tracking RMS along the least-friction schedule in
+        one pass, N)``, the lead 0 first (empty: not searched).
     feedforward : IdentifiedFeedforward or None
         The feedforward identified on the candidate's plant (the cycle's run reuses it).
     least_plan : PreloadSchedule or None
@@ -283,6 +306,8 @@ class Candidate:
     loop_feasible: bool | None = None
     loop_why: str = ""
     cycle_why: str = ""
+    ff_lead_s: float = 0.0
+    ff_leads_tried: tuple[tuple[float, float], ...] = ()
     feedforward: IdentifiedFeedforward | None = field(default=None, repr=False, compare=False)
     least_plan: PreloadSchedule | None = field(default=None, repr=False, compare=False)
     shapes: tuple[Candidate, ...] = field(default=(), repr=False, compare=False)
@@ -292,7 +317,15 @@ class Candidate:
         schedule's shape the inner problem chose."""
         out = dict(self.at) if self.at else {name: float(getattr(self.point, attr)) for name, attr, _ in VARIABLES}
         return {**out, "schedule_headroom": float(self.schedule_headroom),
-                "schedule_lead_s": float(self.schedule_lead_s)}
+                "schedule_lead_s": float(self.schedule_lead_s), "feedforward_lead_s": float(self.ff_lead_s)}
+
+    def ff_lead_bought(self) -> tuple[float, float] | None:
+        """The tracking RMS along the least-friction schedule (one pass) without the feedforward's lead and with the
+        chosen one (N), as the inner problem's search measured them; None where it did not search."""
+        tried = dict(self.ff_leads_tried)
+        if 0.0 not in tried or self.ff_lead_s not in tried:
+            return None
+        return tried[0.0], tried[self.ff_lead_s]
 
     def objective(self, weights: CodesignWeights, reference: Candidate) -> float:
         """The weighted sum of the terms, each over ``reference``'s (the sequential answer's), over the weights' sum."""
@@ -301,7 +334,7 @@ class Candidate:
                    for n, a, _ in TERMS if getattr(weights, n) > 0) / total
 
     def to_dict(self) -> dict[str, Any]:
-        p = self.point
+        p, bought = self.point, self.ff_lead_bought()
         return {"design": {"contact_angle_deg": p.contact_angle_deg, "conformity": p.conformity,
                            "ball_mm": p.ball_mm, "turns": p.turns, "balls_per_turn": p.balls_per_turn,
                            "bolt_preload_N": p.bolt_preload_N, "max_preload_N": p.max_preload_N,
@@ -310,6 +343,11 @@ class Candidate:
                 "gains": {"Kc_V_per_N": self.gains.Kc, "Ti_s": self.gains.Ti_s, "Td_s": self.gains.Td_s,
                           "Tf_s": self.gains.Tf_s, "b": self.gains.b},
                 "controller": self.controller, "entry_ms": list(self.entry_ms),
+                "feedforward": {"lead_s": self.ff_lead_s, "lead_bounds_s": [0.0, FF_LEAD_MAX_S],
+                                "tracking_rms_without_lead_N": None if bought is None else bought[0],
+                                "tracking_rms_with_lead_N": None if bought is None else bought[1],
+                                "leads_tried": [{"lead_s": lead, "tracking_rms_N": rms}
+                                                for lead, rms in self.ff_leads_tried]},
                 "preload_schedule": {"headroom": self.schedule_headroom, "lead_s": self.schedule_lead_s,
                                      "top_N": self.schedule_top_N,
                                      "stiffness_margin_min_N_per_um": self.schedule_stiffness_margin_N_per_um,
@@ -395,7 +433,8 @@ def _misses(nominal: dict[str, float], c: Criteria) -> list[str]:
 def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | None = None,
                     tuning: TuningSpec | None = None, max_iterations: int = 60,
                     feedforward: IdentifiedFeedforward | None = None, schedule: bool = False,
-                    headroom: float = 1.0, lead_s: float = 0.0, cycle_binding: bool = True) -> Candidate:
+                    headroom: float = 1.0, lead_s: float = 0.0, cycle_binding: bool = True,
+                    ff_lead: bool = True) -> Candidate:
     """The inner problem for one design: its plant, the feedforward identified on it, the PID tuned on it (Ms inside),
     the gain schedule's entries tuned on it (each at Ms over its own window) where the study tunes a schedule, and
     what the better controller achieves on the nominal plant (the whole-range tracking and the step, the schedule's
@@ -407,7 +446,8 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
     (the study's ``[tuning] schedule_levels``, at least 2); False: the one robust set. ``headroom``, ``lead_s``: the
     preload schedule's factor on its least-friction levels and its transitions' lead (:func:`with_headroom`, which
     then runs the controller along that schedule; 1 and 0: the least-friction schedule); ``cycle_binding``: whether
-    the schedule's requirements along the cycle are constraints (:func:`with_headroom`'s ``binding``).
+    the schedule's requirements along the cycle are constraints (:func:`with_headroom`'s ``binding``); ``ff_lead``:
+    choose the feedforward's preview lead along the schedule (:func:`choose_ff_lead`; False: none, 0 s).
 
     Raises :class:`~piezopreload.core.errors.InfeasibleError` naming the binding pair where no gains the tuning
     finds meet the study's Ms limit together with the tuning's other constraints.
@@ -457,6 +497,8 @@ def evaluate_design(study: StudySpec, point: DesignPoint, *, start: PIDGains | N
                      float(lift_off_load_N(point.bolt_preload_N)),
                      math.nan if study.thermal is None else float(duty_growth_um(spec, point, study.thermal)),
                      controller=controller, entry_ms=entry_ms, feedforward=ff)
+    if ff_lead and not misses:  # the feedforward's lead for this loop (none mends a loop the step or staircase fail)
+        cand = choose_ff_lead(study, cand)
     return with_headroom(study, cand, headroom, lead_s, binding=cycle_binding)
 
 
@@ -480,19 +522,75 @@ def planned_schedule(study: StudySpec, point: DesignPoint, headroom: float = 1.0
             from None
 
 
-def along_schedule(study: StudySpec, cand: Candidate, plan: PreloadSchedule, passes: int | None = None) -> SystemRun:
-    """``cand``'s controller (its gains with the inverse of the feedforward identified on its plant) following
-    ``plan`` on the designed plant, as the study's system stage runs it: the pre-cycle held the settling limit, then
-    ``[plant] cycles`` machining cycles, the schedule planned again with local margins while a requirement is missed
-    (``passes`` at most; None: ``[plant] passes``; :func:`~piezopreload.design.system.track_schedule`), without the
-    learned correction."""
+def along_schedule(study: StudySpec, cand: Candidate, plan: PreloadSchedule, passes: int | None = None,
+                   lead_s: float | None = None) -> SystemRun:
+    """``cand``'s controller (its gains with the inverse of the feedforward identified on its plant, read ahead by
+    its feedforward's lead, ``cand.ff_lead_s``, or ``lead_s`` where given) following ``plan`` on the designed plant,
+    as the study's system stage runs it: the pre-cycle held the settling limit, then ``[plant] cycles`` machining
+    cycles, the schedule planned again with local margins while a requirement is missed (``passes`` at most; None:
+    ``[plant] passes``; :func:`~piezopreload.design.system.track_schedule`), without the learned correction."""
     designed = _designed(study, cand.point)
     ff = cand.feedforward or identify(study, Solved(study, cand.point))
-    controller = Controller(cand.gains, designed.rig.sample_period_s, ff.inverse())
+    dt = float(designed.rig.sample_period_s)
+    controller = Controller(cand.gains, dt, ff.inverse())
     table = study.plant_table or PlantTable()
     if passes is not None:
         table = replace(table, passes=int(passes))
-    return table.track(designed, controller, plan, seed=study.seed, settle_s=study.validation.settling_max_s)
+    lead = int(round(lead_s / dt)) if lead_s is not None else int(round(cand.ff_lead_s / dt))
+    ahead = None if lead == 0 else lambda r: preview_feedforward(
+        controller, r.at(np.arange(int(round(r.duration_s / dt)) + 1) * dt), lead)
+    return table.track(designed, controller, plan, seed=study.seed, settle_s=study.validation.settling_max_s,
+                       ff_extra_V=ahead)
+
+
+def choose_ff_lead(study: StudySpec, cand: Candidate) -> Candidate:
+    """The inner problem's feedforward lead for ``cand``'s design and controller: the preview lead in ``[0,``
+    :data:`FF_LEAD_MAX_S` ``]`` (whole samples) with the least tracking RMS along the least-friction schedule, run
+    once (no margin pass) as :func:`along_schedule` runs it.
+
+    A bounded scalar search: golden sections of the bracket on whole samples until it spans at most 3, then every
+    lead left in it (the least of a unimodal RMS exactly, either bound included, in about 10 runs for 50 samples);
+    the lead 0 is tried first and kept unless a lead tracks better (of equal RMS, the shorter lead).
+
+    Parameters
+    ----------
+    study : StudySpec
+        The study.
+    cand : Candidate
+        The inner problem's candidate (its design and its controller).
+
+    Returns
+    -------
+    Candidate
+        ``cand`` with ``ff_lead_s`` chosen and ``ff_leads_tried`` (each lead tried with its tracking RMS, N).
+    """
+    if cand.least_plan is None:
+        cand = replace(cand, least_plan=planned_schedule(study, cand.point))
+    if cand.feedforward is None:
+        cand = replace(cand, feedforward=identify(study, Solved(study, cand.point)))
+    dt = float(_plant(study, cand.point).sample_period_s)
+    top = int(math.floor(FF_LEAD_MAX_S / dt + 1e-9))
+    tried: dict[int, float] = {}
+
+    def rms(k: int) -> float:
+        if k not in tried:
+            run = along_schedule(study, cand, cand.least_plan, 1, k * dt)  # type: ignore[arg-type]
+            tried[k] = float(run.evaluation.numbers.tracking_rms_N)
+        return tried[k]
+
+    rms(0)
+    lo, hi = 0, top
+    while hi - lo > 3:
+        low = hi - round(_GOLDEN * (hi - lo))
+        high = max(lo + round(_GOLDEN * (hi - lo)), low + 1)  # two probes, however the rounding falls
+        if rms(low) <= rms(high):  # the least lies at or below the upper probe
+            hi = high
+        else:
+            lo = low
+    for k in range(lo, hi + 1):
+        rms(k)
+    best = min(tried, key=lambda k: (tried[k], k))  # the least RMS; of equals, the shorter lead
+    return replace(cand, ff_lead_s=best * dt, ff_leads_tried=tuple((k * dt, tried[k]) for k in tried))
 
 
 def with_headroom(study: StudySpec, cand: Candidate, headroom: float, lead_s: float = 0.0, *,
@@ -695,6 +793,11 @@ class CodesignResult:
     study_levels : int
         The gain schedule's entries the study's own tune stage makes (``[tuning] schedule_levels``; below 2: one
         robust set), so that words on a co-design of the robust set alone say what the study runs instead.
+    follows_study : bool
+        Whether the controller compared was the study's own choice (``schedule=None``, the default) rather than asked
+        for (``schedule`` True or False).
+    ff_lead : bool
+        Whether the feedforward's preview lead along the schedule was a decision of the inner problem.
     """
 
     study: str
@@ -723,6 +826,10 @@ class CodesignResult:
     shape: bool = field(default=True, repr=False)
     #: the gain schedule's entries the study's tune stage makes (``[tuning] schedule_levels``)
     study_levels: int = field(default=0, repr=False)
+    #: whether the controller followed the study (``codesign(schedule=None)``) rather than being asked for
+    follows_study: bool = field(default=True, repr=False)
+    #: whether the feedforward's preview lead was the inner problem's (``codesign(ff_lead=True)``)
+    ff_lead: bool = field(default=True, repr=False)
 
     @property
     def objective_ratio(self) -> float:
@@ -755,9 +862,42 @@ class CodesignResult:
                     f"window ({entries}), around the robust set ({robust})")
         why = " (the schedule's entries, tuned too, tracked no better)" if self.schedule else ""
         if not self.schedule and self.study_levels >= 2:  # what the study itself runs is not what was compared
-            why = (f" (the study's tune stage makes a {self.study_levels}-entry gain schedule, not tuned here: both "
-                   f"answers are compared with one robust set; codesign --schedule tunes the entries inside)")
+            why = (f" (asked for: the study's tune stage makes a {self.study_levels}-entry gain schedule, not tuned "
+                   "here: both answers are compared with one robust set; by default the co-design follows the "
+                   "study and tunes the entries inside)")
         return f"one robust PID set tuned on the candidate's plant at Ms <= {ms_max:g} ({robust}){why}"
+
+    def feedforward_words(self) -> str:
+        """What the co-design chose of the feedforward's settings, and what it bought, in words.
+
+        Returns
+        -------
+        str
+            The preview lead chosen (the inverse P-I feedforward reading the schedule's reference that far ahead),
+            its bounds, the tracking RMS along the least-friction schedule without and with it, and where the study's
+            own stages and the Monte Carlo run without it; or why no lead was chosen.
+        """
+        c = self.codesigned
+        if not self.ff_lead:
+            return ("no feedforward lead: the inverse P-I feedforward reads the reference as it comes, as the study's "
+                    "own stages run it (their feedforward along the schedule is the learned one, which carries no "
+                    "lead; codesign without [design] method = \"codesign\" chooses one)")
+        bought = c.ff_lead_bought()
+        if bought is None:  # no search: the sequential answer kept as the study runs it
+            return "no feedforward lead (the sequential answer kept: the study's controller, without one)"
+        tried = len(c.ff_leads_tried)
+        if c.ff_lead_s == 0.0:
+            lead, rms = min(((lead, rms) for lead, rms in c.ff_leads_tried if lead > 0), key=lambda t: (t[1], t[0]),
+                            default=(math.nan, math.nan))
+            return (f"no feedforward lead: of the leads in [0, {1e3 * FF_LEAD_MAX_S:.3g}] ms the bounded scalar search "
+                    f"tried ({tried}), none tracked the least-friction schedule (one pass) better than none "
+                    f"({bought[0]:.2f} N; the best lead, {1e3 * lead:.3g} ms, {rms:.2f} N)")
+        return (f"the inverse P-I feedforward reads the schedule's reference {1e3 * c.ff_lead_s:.3g} ms ahead, chosen "
+                f"in [0, {1e3 * FF_LEAD_MAX_S:.3g}] ms by a bounded scalar search ({tried} leads tried): tracking RMS "
+                f"along the least-friction schedule (one pass) {bought[0]:.2f} N without a lead, {bought[1]:.2f} N "
+                "with it; the step, the staircase and the Monte Carlo run the feedforward without it, as the study's "
+                "validate stage does, and the study's own stages cannot carry it (they run the learned feedforward "
+                "along the schedule)")
 
     def changed(self) -> list[str]:
         """What the co-design changed in the design, in the design's units.
@@ -787,6 +927,8 @@ class CodesignResult:
         if not math.isclose(s.schedule_lead_s, c.schedule_lead_s, rel_tol=1e-9, abs_tol=1e-12):
             rows.append(f"schedule_lead_s {s.schedule_lead_s:.4g} -> {c.schedule_lead_s:.4g} s (the schedule's rises "
                         f"{1e3 * c.schedule_lead_s:.3g} ms before the loads that need them)")
+        if not math.isclose(s.ff_lead_s, c.ff_lead_s, rel_tol=1e-9, abs_tol=1e-12):
+            rows.append(f"feedforward_lead_s {s.ff_lead_s:.4g} -> {c.ff_lead_s:.4g} s ({self.feedforward_words()})")
         if s.cycle_passes != c.cycle_passes:
             rows.append(f"margin passes along the schedule {s.cycle_passes} -> {c.cycle_passes} (passes the loop's "
                         "shortfall asked the schedule to be planned again with local margins)")
@@ -912,11 +1054,12 @@ class CodesignResult:
                 "weights": self.weights.to_dict(),
                 "objective_sequential": self.objective_sequential, "objective_codesigned": self.objective_codesigned,
                 "objective_ratio": self.objective_ratio, "evaluations": self.evaluations,
-                "schedule_inside": self.schedule,
+                "schedule_inside": self.schedule, "controller_follows_study": self.follows_study,
                 "sequential_meets_the_study": self.sequential.feasible,
                 "sequential": self.sequential.to_dict(), "codesigned": self.codesigned.to_dict(),
                 "changed": self.changed(), "bought": self.bought(), "coupling": self.coupling(),
-                "controller": self.controller_words(),
+                "controller": self.controller_words(), "feedforward": self.feedforward_words(),
+                "feedforward_lead_inside": self.ff_lead,
                 "requirements": self.requirements(), "infeasible": list(self.infeasible),
                 "sequential_s": self.sequential_s, "codesign_s": self.codesign_s, "time_ratio": self.time_ratio,
                 "validated": {"sequential": None if self.validation_sequential is None
@@ -948,7 +1091,8 @@ def codesign_optimum(study: StudySpec, progress: ProgressLike | None = None) -> 
     angle and conformity (the sequential optimum itself where the co-design kept it), its objective named
     ``"codesign"``."""
     budget = (study.design_table or DesignTable()).codesign_budget
-    return _chosen(study, codesign(study, budget=budget, validate_plants=0, shape=False, progress=progress))
+    return _chosen(study, codesign(study, budget=budget, validate_plants=0, shape=False, ff_lead=False,
+                                   progress=progress))
 
 
 def _chosen(study: StudySpec, result: CodesignResult) -> DesignOptimum:
@@ -957,6 +1101,10 @@ def _chosen(study: StudySpec, result: CodesignResult) -> DesignOptimum:
     if spec is None:  # codesign refused it already; for the type checker
         raise InputError(f"{study.path}: co-design needs the design's tables")
     c = result.codesigned
+    if c.ff_lead_s != 0.0:  # the later stages run the learned feedforward: they carry no preview lead
+        raise InfeasibleError(f"{study.path}: the co-design chose a feedforward lead of {c.ff_lead_s:g} s, which the "
+                              "study's later stages do not run (their feedforward along the schedule is the learned "
+                              "one); run `piezopreload codesign` instead")
     if c.schedule_headroom != 1.0 or c.schedule_lead_s != 0.0:  # the later stages plan the least-friction schedule
         raise InfeasibleError(f"{study.path}: the co-design chose a preload schedule headroom of "
                               f"{c.schedule_headroom:g} and lead of {c.schedule_lead_s:g} s, which the study's "
@@ -991,18 +1139,49 @@ def codesign_design(study: StudySpec, *, points: int = 3, progress: ProgressLike
         The design the study's later stages take, and the artifact.
     """
     budget = (study.design_table or DesignTable()).codesign_budget
-    # the later stages plan the least-friction schedule
-    result = codesign(study, budget=budget, shape=False, progress=progress)
+    # the later stages plan the least-friction schedule and run the learned feedforward, which no lead can be given
+    result = codesign(study, budget=budget, shape=False, ff_lead=False, progress=progress)
     fronts: tuple[tuple[FrontPoint, ...], tuple[FrontPoint, ...]] = ((), ())
     if study.thermal is not None:
         fronts = codesign_fronts(study, result, points=points, budget=budget, progress=progress)
     return _chosen(study, result), codesign_record(study, result, fronts, inputs)
 
 
+def follows_study(study: StudySpec, schedule: bool | None = None) -> bool:
+    """Whether the co-design's controller is the gain schedule's entries (True) or the one robust set (False).
+
+    Parameters
+    ----------
+    study : StudySpec
+        The study (its ``[tuning] schedule_levels``).
+    schedule : bool, optional
+        None: as the study's own tune stage makes it (the entries where it tunes at least 2, else the robust set);
+        True or False: asked for.
+
+    Returns
+    -------
+    bool
+        Whether the entries are inner decisions.
+
+    Raises
+    ------
+    InputError
+        Where the entries are asked for but the study tunes fewer than 2.
+    """
+    levels = study.tuning.schedule_levels
+    if schedule is None:
+        return levels >= 2
+    if schedule and levels < 2:
+        raise InputError(f"{study.path}: the co-design's schedule entries need [tuning] schedule_levels >= 2, got "
+                         f"{levels}; compare with the one robust set instead (codesign --robust-set, "
+                         "schedule=False)")
+    return bool(schedule)
+
+
 def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget: int = 9, step: float = 0.25,
              min_step: float = 0.0625, validate_plants: int | None = None, max_iterations: int = 60,
-             time_factor: float | None = 10.0, schedule: bool = False, shape: bool = True,
-             progress: ProgressLike | None = None) -> CodesignResult:
+             time_factor: float | None = 10.0, schedule: bool | None = None, shape: bool = True,
+             ff_lead: bool = True, progress: ProgressLike | None = None) -> CodesignResult:
     """The sequential design and tuning, then the nested co-design started from it; both validated alike.
 
     Parameters
@@ -1022,16 +1201,24 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
     time_factor : float, optional
         The co-design's time limit as a multiple of the sequential design and tuning: no inner problem is started
         that would end after it were it as slow as the slowest so far (None: the budget alone limits it).
-    schedule : bool
-        Take the gain schedule's entries (``[tuning] schedule_levels``) as decisions of the inner problem, each tuned
-        at Ms over its window, for both answers (:func:`evaluate_design`); False: the one robust set. Each inner
-        problem then tunes one more PID per entry.
+    schedule : bool, optional
+        The controller both answers are compared with. None (the default): as the study's own tune stage makes it
+        (:func:`follows_study`): the gain schedule's entries (``[tuning] schedule_levels``) as decisions of the inner
+        problem, each tuned at Ms over its window (:func:`evaluate_design`), where the study tunes a schedule (at
+        least 2 entries), else the one robust set; True: the entries, asked for (the study must tune at least 2);
+        False: the one robust set, asked for (one tuning per inner problem, where the point does not need the
+        entries). Each entry costs every inner problem one more PID tuning.
     shape : bool
         The preload schedule's headroom and lead are the inner problem's (:func:`shape_schedule`) and the schedule's
         requirements along the cycle its constraints; False: every candidate runs the least-friction schedule (with
         the margin passes the loop asks for), as the study's schedule and system stages plan it, and the schedule's
         requirements along it are reported, not constraints (those stages judge them with the learned feedforward,
         which the co-design does not learn); the tracking RMS along it is the objective's term either way.
+    ff_lead : bool
+        The feedforward's preview lead along the schedule is the inner problem's (:func:`choose_ff_lead`) for every
+        candidate but the sequential answer (whose controller is the study's, without a lead); False: no lead, as
+        the study's own stages run the controller (they cannot carry one: their feedforward along the schedule is
+        the learned one).
     progress : ProgressLike, optional
         Where the steps are said.
 
@@ -1051,6 +1238,7 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
         raise InputError(f"codesign time_factor: must be > 1 (a multiple of the sequential time), got {time_factor!r}")
     if not 0 < min_step <= step <= 1:
         raise InputError(f"codesign steps: need 0 < min_step <= step <= 1, got {min_step!r}, {step!r}")
+    asked, schedule = schedule, follows_study(study, schedule)  # the controller compared: the study's unless asked
     spec = study.design_spec
     if spec is None:
         raise InputError(f"{study.path}: co-design needs the design's tables ([ballscrew], [design]); see "
@@ -1063,11 +1251,8 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
         seq_point = optimise(spec, objective).point
     except DesignInfeasible as exc:
         raise InfeasibleError(f"{study.path}: {exc}") from exc
-    if schedule and study.tuning.schedule_levels < 2:
-        raise InputError(f"{study.path}: the co-design's schedule entries need [tuning] schedule_levels >= 2, got "
-                         f"{study.tuning.schedule_levels}")
     sequential = evaluate_design(study, seq_point, max_iterations=max_iterations, schedule=schedule,
-                                 cycle_binding=shape)
+                                 cycle_binding=shape, ff_lead=False)  # the study's controller: no feedforward lead
     sequential_s = time.perf_counter() - t0
     say(f"sequential: {objective} design, then the tuning ({sequential_s:.1f} s): tracking RMS "
         f"{sequential.tracking_rms_N:.2f} N (staircase), {sequential.cycle_tracking_rms_N:.2f} N along the schedule "
@@ -1077,7 +1262,7 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
     # ---- the nested co-design: a compass search over the plant-shaping variables --------------------------
     t1 = time.perf_counter()
     search = _Search(study, spec, objective, weights, sequential, sequential_s, max_iterations, time_factor, say,
-                     schedule=schedule, shape=shape)
+                     schedule=schedule, shape=shape, ff_lead=ff_lead)
     best, best_f = search.run(budget, step, min_step)
     codesign_s = time.perf_counter() - t1
     if not best.feasible:  # the sequential design has no controller that meets the study, and no candidate had one
@@ -1102,7 +1287,7 @@ def codesign(study: StudySpec, weights: CodesignWeights | None = None, *, budget
     return CodesignResult(study.name, STRATEGY, weights, sequential, best, 1.0, best_f, search.evaluations + 1,
                           tuple(search.refused), sequential_s, codesign_s, limits, tuple(search.scored), v_seq, v_co,
                           STRATEGY_WHY, search.cache, search.least_heat, schedule, shape,
-                          study.tuning.schedule_levels)
+                          study.tuning.schedule_levels, asked is None, ff_lead)
 
 
 class _Search:
@@ -1115,7 +1300,8 @@ class _Search:
     def __init__(self, study: StudySpec, spec: DesignSpec, objective: str, weights: CodesignWeights,
                  sequential: Candidate, sequential_s: float, max_iterations: int, time_factor: float | None,
                  say: Callable[[str], None], cache: dict[tuple[float, ...], tuple[Candidate | None, str]] | None = None,
-                 least_heat: float | None = None, schedule: bool = False, shape: bool = True) -> None:
+                 least_heat: float | None = None, schedule: bool = False, shape: bool = True,
+                 ff_lead: bool = True) -> None:
         self.study, self.spec, self.objective, self.weights = study, spec, objective, weights
         self.sequential, self.sequential_s = sequential, sequential_s
         self.max_iterations, self.time_factor, self.say = max_iterations, time_factor, say
@@ -1125,7 +1311,7 @@ class _Search:
             least_heat = optimise(spec, CANDIDATE_OBJECTIVE).point.stiffness_N_per_um  # the front's soft end
         self.least_heat, self.schedule = least_heat, schedule
         top = sequential.point.stiffness_N_per_um
-        self.shape = shape
+        self.shape, self.ff_lead = shape, ff_lead
         self.ranges = [(min(least_heat, top), top), tuple(spec.contact_angle_deg), tuple(spec.conformity)]
         # the start's design is the sequential one (its schedule shaped by the inner problem in run())
         self.cache.setdefault(self.design_key(self.values(self.start())), (sequential, ""))
@@ -1164,7 +1350,7 @@ class _Search:
             try:
                 cand = evaluate_design(self.study, _optimum_at(self.spec, values).point, start=start,
                                        max_iterations=self.max_iterations, schedule=self.schedule,
-                                       cycle_binding=self.shape)
+                                       cycle_binding=self.shape, ff_lead=self.ff_lead)
                 if self.shape:  # the schedule's headroom and lead for this loop, by the objective
                     cand = shape_schedule(self.study, cand, self.weights, self.sequential)
                 refused = ""
@@ -1192,25 +1378,41 @@ class _Search:
         return np.array([(at[name] - lo) / (hi - lo) if hi > lo else 0.0
                          for (name, _, _), (lo, hi) in zip(VARIABLES, self.ranges)])
 
+    def shape_start(self, key: tuple[float, ...]) -> Candidate | None:
+        """The sequential design and controller with the feedforward's lead chosen and the schedule shaped for its
+        loop (the inner problem's decisions that keep the design and the gains), kept in the cache under ``key``;
+        None where that is the sequential answer itself or misses the study."""
+        start = self.cache[key][0]
+        if not (self.shape or self.ff_lead) or start is None:
+            return None
+        t0 = time.perf_counter()
+        shaped = start
+        loop_ok = start.feasible if start.loop_feasible is None else start.loop_feasible
+        if self.ff_lead and loop_ok and not start.ff_leads_tried:
+            shaped = with_headroom(self.study, choose_ff_lead(self.study, start), 1.0, 0.0, binding=self.shape)
+        if self.shape:
+            shaped = shape_schedule(self.study, shaped, self.weights, self.sequential)
+        self.slowest = max(self.slowest, time.perf_counter() - t0)
+        self.cache[key] = (shaped, "")
+        if (shaped.schedule_headroom, shaped.schedule_lead_s, shaped.ff_lead_s) == (1.0, 0.0, 0.0) \
+                or not shaped.feasible:
+            return None
+        self.scored.append(shaped)
+        self.say(f"  the sequential design, its feedforward led {1e3 * shaped.ff_lead_s:.3g} ms and its schedule "
+                 f"shaped (headroom {shaped.schedule_headroom:.4g}, lead {1e3 * shaped.schedule_lead_s:.3g} ms): "
+                 f"objective {shaped.objective(self.weights, self.sequential):.4f}")
+        return shaped
+
     def run(self, budget: int, step: float, min_step: float) -> tuple[Candidate, float]:
         z = self.start()
         best = self.sequential  # a start that misses the study is replaced by the first candidate that meets it
         best_f = self.sequential.objective(self.weights, self.sequential) if self.sequential.feasible else math.inf
         seen = {tuple(np.round(z, 9))}
-        key = self.design_key(self.values(z))
-        start = self.cache[key][0]
-        if self.shape and start is not None:  # the sequential design, its schedule shaped (the shapes kept)
-            t0 = time.perf_counter()
-            shaped = shape_schedule(self.study, start, self.weights, self.sequential)
-            self.slowest = max(self.slowest, time.perf_counter() - t0)
-            self.cache[key] = (shaped, "")
-            if (shaped.schedule_headroom, shaped.schedule_lead_s) != (1.0, 0.0) and shaped.feasible:
-                f = shaped.objective(self.weights, self.sequential)
-                self.scored.append(shaped)
-                self.say(f"  the sequential design, its schedule shaped (headroom {shaped.schedule_headroom:.4g}, lead "
-                         f"{1e3 * shaped.schedule_lead_s:.3g} ms): objective {f:.4f}")
-                if f < best_f - 1e-9:
-                    best, best_f = shaped, f
+        shaped = self.shape_start(self.design_key(self.values(z)))
+        if shaped is not None:
+            f = shaped.objective(self.weights, self.sequential)
+            if f < best_f - 1e-9:
+                best, best_f = shaped, f
         h = step
         # opportunistic polling: the first direction that improves is taken, and tried first at the next poll
         directions = [(i, sign) for i in range(len(VARIABLES)) for sign in (-1.0, +1.0)]
@@ -1298,7 +1500,8 @@ def codesign_fronts(study: StudySpec, result: CodesignResult, *, points: int = 3
     front = pareto_front(spec, "stiffness:growth", points, growth=lambda p: duty_growth_um(spec, p, table))
     sequential = []
     for p in front.points:
-        c = evaluate_design(study, p, start=seq.gains, schedule=result.schedule, cycle_binding=result.shape)
+        c = evaluate_design(study, p, start=seq.gains, schedule=result.schedule, cycle_binding=result.shape,
+                            ff_lead=False)  # the sequential way: the study's controller, no feedforward lead
         sequential.append(_front_point(c, f"rigidity at least {p.stiffness_N_per_um:,.0f} N/um",
                                        p.stiffness_N_per_um))
         say(f"  sequential front: rigidity {p.stiffness_N_per_um:,.0f} N/um: growth {c.growth_um:.2f} um, tracking "
@@ -1313,7 +1516,8 @@ def codesign_fronts(study: StudySpec, result: CodesignResult, *, points: int = 3
     for w in weights:
         search = _Search(study, spec, objective, CodesignWeights(growth=w, friction=0.0, tracking=1.0 - w), seq,
                          result.sequential_s, 60, None, lambda _m: None, cache=result.evaluated,
-                         least_heat=least_heat, schedule=result.schedule, shape=result.shape)
+                         least_heat=least_heat, schedule=result.schedule, shape=result.shape,
+                         ff_lead=result.ff_lead)
         best, _ = search.run(budget, 0.25, 0.0625)
         least_heat = search.least_heat
         codesigned.append(_front_point(best, f"growth weight {w:.2g}, tracking {1 - w:.2g}", w))
@@ -1355,6 +1559,7 @@ def codesign_record(study: StudySpec, result: CodesignResult, fronts: tuple[tupl
     vs, vc = result.validation_sequential, result.validation_codesigned
     return CodesignRecord(result.study, result.strategy, result.strategy_why, result.weights.to_dict(),
                           float(study.tuning.ms_max), float(result.objective_ratio), tuple(result.changed()),
-                          result.coupling(), result.controller_words(), tuple(rows), 0 if vs is None else vs.n_plants,
+                          result.coupling(), f"{result.controller_words()}; feedforward: {result.feedforward_words()}",
+                          tuple(rows), 0 if vs is None else vs.n_plants,
                           fronts[0], fronts[1], None if vs is None else bool(vs.passed),
                           None if vc is None else bool(vc.passed), dict(inputs or {}))

@@ -424,7 +424,7 @@ class Study(StudySpec):
         return pipeline.run_study(self, out, force=force, progress=progress, overwrite=overwrite)
 
     def codesign(self, weights: CodesignWeights | None = None, *, budget: int = 9, plants: int | None = None,
-                 progress: ProgressLike | None = None) -> CodesignResult:
+                 schedule: bool | None = None, progress: ProgressLike | None = None) -> CodesignResult:
         """The sequential design and tuning, then the design and the PID chosen together (nested), both validated by
         the same Monte Carlo, as ``piezopreload codesign``: :func:`piezopreload.codesign.codesign`.
 
@@ -436,6 +436,10 @@ class Study(StudySpec):
             The most inner solves (a design, its plant and its tuning) of the outer search.
         plants : int, optional
             Monte Carlo plants for each answer (default: the study's ``[validation] plants``; 0: none).
+        schedule : bool, optional
+            The controller compared: None (default) as the study's tune stage makes it (the gain schedule's entries
+            where ``[tuning] schedule_levels`` is at least 2, else one robust set); True the entries; False one robust
+            set.
         progress : ProgressLike, optional
             Where the steps are said.
 
@@ -444,7 +448,8 @@ class Study(StudySpec):
         CodesignResult
             Both answers, the objective of each, what changed and what it bought, the requirements side by side.
         """
-        return codesigns.codesign(self, weights, budget=budget, validate_plants=plants, progress=progress)
+        return codesigns.codesign(self, weights, budget=budget, validate_plants=plants, schedule=schedule,
+                                  progress=progress)
 
     def sweep(self, vary: Mapping[str, Sequence[Scalar]], *, mode: str = "grid", out: str | Path = DEFAULT_SWEEP_OUT,
               workers: int | None = None, scheduler: str | None = None, force: bool = False,

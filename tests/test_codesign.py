@@ -55,7 +55,10 @@ def small():
 
 @pytest.fixture(scope="module")
 def small_codesign(small):
-    return codesign(small, budget=3, validate_plants=3, time_factor=None)
+    # the one robust set asked for: what these tests hold (never worse, the same Monte Carlo, the words, the entries
+    # tuned apart below) does not need the small study's 2 schedule entries, which would tune two more PIDs in every
+    # inner problem; test_the_default_controller_follows_the_study holds the default
+    return codesign(small, budget=3, validate_plants=3, time_factor=None, schedule=False)
 
 
 @pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
@@ -97,8 +100,11 @@ def test_both_answers_are_validated_by_the_same_monte_carlo(small_codesign):
     # which strategy, and why: the study's tuning exposes no sensitivity of its optimum to the plant
     assert "sensitivity" in d["strategy_why"] and "nested" in d["strategy_why"]
     assert d["schedule_inside"] is False and d["controller"].startswith("one robust PID set")
-    # the small study's tune stage makes a 2-entry gain schedule: the words say the comparison is not of what it runs
-    assert "a 2-entry gain schedule, not tuned here" in d["controller"], d["controller"]
+    # the small study's tune stage makes a 2-entry gain schedule: the words say the robust set was asked for and is
+    # not what the study runs
+    assert d["controller_follows_study"] is False
+    assert "asked for: the study's tune stage makes a 2-entry gain schedule, not tuned here" in d["controller"], \
+        d["controller"]
 
 
 @pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
@@ -106,8 +112,8 @@ def test_a_design_no_controller_makes_meet_the_study_is_refused_naming_the_bindi
     # at Ms <= 1.6 the best PI the tuning finds tracks the staircase to about 28 N RMS on this plant: a limit of 5 N
     # is out of reach, and the refusal names the pair: the Ms limit (binding) and the tracking limit
     tight = small.replace(validation={"tracking_rms_max_N": 5.0})
-    with pytest.raises(InfeasibleError) as err:
-        codesign(tight, budget=0, validate_plants=0)
+    with pytest.raises(InfeasibleError) as err:  # the robust set: the refusal's words do not need the entries
+        codesign(tight, budget=0, validate_plants=0, schedule=False)
     message = str(err.value)
     assert "Ms <= 1.6" in message and "binding" in message
     assert "tracking RMS" in message and "> 5 N" in message and "tracking_rms_max_N" in message
@@ -117,14 +123,15 @@ def test_a_design_no_controller_makes_meet_the_study_is_refused_naming_the_bindi
 @pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
 def test_evaluate_design_starts_from_given_gains_and_keeps_them_where_they_are_best(small, small_codesign):
     seq = small_codesign.sequential
-    again = evaluate_design(small, seq.point, start=seq.gains)
+    again = evaluate_design(small, seq.point, start=seq.gains, ff_lead=False)  # as the sequential: no lead
     assert again.tracking_rms_N <= seq.tracking_rms_N * 1.05
     assert math.isfinite(again.friction_energy_J) and again.friction_energy_J == pytest.approx(seq.friction_energy_J)
 
 
 @pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
 def test_codesign_command_prints_one_json_object(tmp_path, capsys):
-    code = main(["codesign", str(SMALL_AXIS), "--budget", "0", "--plants", "2", "--json"])
+    # the robust set asked for (the point is the one JSON object, not the entries)
+    code = main(["codesign", str(SMALL_AXIS), "--budget", "0", "--plants", "2", "--robust-set", "--json"])
     out = capsys.readouterr().out
     assert code == 0
     doc = json.loads(out)
@@ -134,12 +141,36 @@ def test_codesign_command_prints_one_json_object(tmp_path, capsys):
     assert doc["codesigned"]["design"] == doc["sequential"]["design"]
     assert doc["codesigned"]["gains"] == doc["sequential"]["gains"]
     assert doc["validated"]["sequential"] is not None
+    assert doc["schedule_inside"] is False and doc["controller_follows_study"] is False
+    # the feedforward's lead: none on the sequential answer (the study's controller); the co-designed one's chosen in
+    # its bounds, each lead tried with its tracking RMS, the chosen one the least of them
+    assert doc["sequential"]["feedforward"]["lead_s"] == 0.0 and doc["sequential"]["feedforward"]["leads_tried"] == []
+    ff = doc["codesigned"]["feedforward"]
+    if ff["leads_tried"]:
+        lo, hi = ff["lead_bounds_s"]
+        assert all(lo <= t["lead_s"] <= hi for t in ff["leads_tried"])
+        assert ff["tracking_rms_with_lead_N"] == min(t["tracking_rms_N"] for t in ff["leads_tried"])
+        assert ff["tracking_rms_with_lead_N"] <= ff["tracking_rms_without_lead_N"]
+    assert isinstance(doc["feedforward"], str) and doc["feedforward_lead_inside"] is True
 
 
 def test_codesign_command_refuses_bad_input(capsys):
     assert main(["codesign", str(SMALL_AXIS), "--budget", "-1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("error: --budget")
+    # the controller is the study's, the schedule's entries or the robust set: not two of them
+    assert main(["codesign", str(SMALL_AXIS), "--schedule", "--robust-set"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error:") and "--robust-set" in err[0] and "--schedule" in err[0]
+
+
+def test_the_schedule_s_entries_asked_of_a_study_without_a_schedule_are_refused_by_key(tmp_path, capsys):
+    text = SMALL_AXIS.read_text().replace("schedule_levels = 2\n", "schedule_levels = 0\n", 1)
+    path = tmp_path / "one_set.toml"
+    path.write_text(text)
+    assert main(["codesign", str(path), "--schedule", "--budget", "0", "--plants", "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("error:") and "[tuning] schedule_levels >= 2" in err[-1] and "--robust-set" in err[-1]
 
 
 @pytest.mark.slow  # a sequential design and tuning at least (tens of seconds)
@@ -147,7 +178,8 @@ def test_codesign_command_exits_2_on_a_design_no_controller_meets(tmp_path, caps
     text = SMALL_AXIS.read_text().replace("tracking_rms_max_N = 100.0", "tracking_rms_max_N = 5.0")
     study = tmp_path / "tight.toml"
     study.write_text(text)
-    assert main(["codesign", str(study), "--budget", "0", "--plants", "0"]) == 2
+    # the robust set asked for: the exit code does not need the entries
+    assert main(["codesign", str(study), "--budget", "0", "--plants", "0", "--robust-set"]) == 2
     assert "error:" in capsys.readouterr().err
 
 
@@ -186,6 +218,9 @@ def test_a_study_with_method_codesign_runs_end_to_end(tmp_path, monkeypatch):
 
     co = CodesignRecord.load(out / "design" / "codesign.json")
     assert co.strategy == "nested" and "sensitivit" in co.strategy_why
+    # the study's stages run the learned feedforward: the design step chose no feedforward lead, and says so
+    assert answers[0].ff_lead is False and answers[0].codesigned.ff_lead_s == 0.0
+    assert "feedforward: no feedforward lead" in co.controller, co.controller
     assert len(co.sequential_front) >= 3 and len(co.codesigned_front) == 3
     assert {p.label for p in co.codesigned_front} == {"growth weight 1, tracking 0", "growth weight 0.5, tracking 0.5",
                                                       "growth weight 0, tracking 1"}
@@ -240,8 +275,10 @@ def test_a_worse_candidate_never_replaces_the_sequential_answer(small, monkeypat
 
     monkeypatch.setattr(cd, "evaluate_design", evaluate)
     # the schedule's shape held at the least-friction one: every candidate but the start is the worse one
+    # the robust set and no feedforward lead: the point is the outer search's acceptance, with nothing but the design
+    # moving (a lead chosen on the start's loop would be a better start)
     r = cd.codesign(small, CodesignWeights(growth=0.0, friction=0.0, tracking=1.0), budget=3, validate_plants=0,
-                    time_factor=None, shape=False)
+                    time_factor=None, shape=False, schedule=False, ff_lead=False)
     assert r.evaluations == 4  # the start and three candidates scored
     assert r.codesigned is r.sequential
     assert r.objective_codesigned == pytest.approx(1.0)
@@ -256,7 +293,7 @@ def test_the_schedule_s_entries_are_inner_decisions_each_at_its_window_s_ms(smal
 
     seq = small_codesign.sequential
     assert seq.controller == "robust" and seq.gains.schedule is None and not small_codesign.schedule
-    c = evaluate_design(small, seq.point, start=seq.gains, schedule=True)
+    c = evaluate_design(small, seq.point, start=seq.gains, schedule=True, ff_lead=False)  # the entries alone
     s = c.gains.schedule
     assert c.controller == "schedule" and s is not None and len(s.levels_N) == small.tuning.schedule_levels
     # each entry's Ms over its own window, recomputed from the linearised loop at both ends of the window's slope on
@@ -330,3 +367,122 @@ def test_each_design_s_schedule_friction_is_its_own_and_equal_where_the_lift_off
     bound_by_rigidity = [planned_schedule(stiff, p).friction_energy_J for p in points]
     assert min(bound_by_rigidity) > max(energies)
     assert len({round(e, 3) for e in bound_by_rigidity}) == 3, bound_by_rigidity
+
+
+# ---- the controller compared follows the study's own; the feedforward's lead an inner decision -------------------
+def test_the_default_controller_follows_the_study(small, monkeypatch):
+    # the study's tune stage makes a gain schedule where [tuning] schedule_levels >= 2 (the small axis: 2): by default
+    # the co-design compares both answers with the schedule's entries inside; with fewer, the one robust set; either
+    # when asked. The sequential answer's inner problem is stopped at once: what it was asked is the point.
+    import piezopreload.codesign as cd
+
+    asked: list[bool] = []
+
+    class Stop(Exception):
+        pass
+
+    def evaluate(study, point, **kwargs):
+        asked.append(kwargs["schedule"])
+        raise Stop
+
+    monkeypatch.setattr(cd, "evaluate_design", evaluate)
+    monkeypatch.setattr(cd, "optimise", lambda spec, objective: type("Optimum", (), {"point": None})())
+    one_set = small.replace(tuning={"schedule_levels": 0})
+    assert small.tuning.schedule_levels == 2 and one_set.tuning.schedule_levels == 0
+    for study, kwargs, want in ((small, {}, True), (small, {"schedule": False}, False),
+                                (small, {"schedule": True}, True), (one_set, {}, False),
+                                (one_set, {"schedule": False}, False)):
+        with pytest.raises(Stop):
+            cd.codesign(study, budget=0, validate_plants=0, **kwargs)
+        assert asked[-1] is want, f"{study.tuning.schedule_levels} levels, {kwargs}: schedule {asked[-1]}"
+    with pytest.raises(Stop):  # the Study's own method passes the choice on, following the study by default
+        small.codesign(budget=0, plants=0)
+    assert asked[-1] is True
+    with pytest.raises(Stop):
+        small.codesign(budget=0, plants=0, schedule=False)
+    assert asked[-1] is False
+    # the entries asked of a study that tunes none are refused by key before any solve
+    n = len(asked)
+    with pytest.raises(InputError, match=r"\[tuning\] schedule_levels >= 2"):
+        cd.codesign(one_set, budget=0, validate_plants=0, schedule=True)
+    assert len(asked) == n
+
+
+@pytest.fixture(scope="module")
+def small_point(small):
+    return optimise(small.design_spec, small.design_table.objective).point
+
+
+def _fixed(small, point) -> Candidate:
+    """The design's candidate with gains near the ones the study's tuning finds on it (Kc 0.0108 V/N, Ti 48.6 ms,
+    b 0.91; the inner tuning stood in for), its feedforward identified and its least-friction schedule planned."""
+    import piezopreload.codesign as cd
+
+    gains = replace(small.controller, Kc=0.0108, Ti_s=0.0486, Td_s=0.0, b=0.91)
+    return cd.with_headroom(small, Candidate(point, gains, 1000.0, 1.5, math.nan, 20.0, 50.0, 0.1, True), 1.0)
+
+
+def test_the_feedforward_reads_the_schedule_s_reference_ahead_by_its_lead(small, small_point):
+    # the loop's feedforward along the schedule is the inverse P-I of the reference read the lead ahead (the last
+    # level held past the end), recomputed here from the run's own reference by the identified inverse: to round-off
+    import piezopreload.codesign as cd
+
+    c = _fixed(small, small_point)
+    inverse = c.feedforward.inverse()
+    for lead in (0, 3, 12):
+        run = cd.along_schedule(small, replace(c, ff_lead_s=lead * 1e-3), c.least_plan, 1).run
+        r = run.reference_N
+        ahead = np.concatenate([r[lead:], np.full(lead, r[-1])])
+        want = np.asarray(inverse(ahead, inverse.initial_state()), float)
+        np.testing.assert_allclose(run.ff_V, want, rtol=0, atol=1e-9 * np.max(np.abs(want)),
+                                   err_msg=f"the feedforward at a {lead} ms lead is not the inverse read ahead")
+    # the lead given to the run overrides the candidate's
+    a = cd.along_schedule(small, c, c.least_plan, 1, 0.003).run.ff_V
+    np.testing.assert_array_equal(a, cd.along_schedule(small, replace(c, ff_lead_s=0.003), c.least_plan, 1).run.ff_V)
+
+
+def test_the_feedforward_lead_is_a_bounded_search_for_the_least_tracking_rms(small, small_point, monkeypatch):
+    # the run along the schedule stood in for by a closed form of the lead: a valley at 7 ms, a valley at the upper
+    # bound, and a rise from 0 (no lead kept); the search must land on each exactly, inside its bounds, in few runs
+    from types import SimpleNamespace
+
+    import piezopreload.codesign as cd
+
+    c = _fixed(small, small_point)
+    top = round(cd.FF_LEAD_MAX_S / 1e-3)
+    for name, rms, want in (("7 ms", lambda k: 10.0 + 0.01 * (k - 7) ** 2, 7),
+                            ("the bound", lambda k: 10.0 + 0.01 * (k - top) ** 2, top),
+                            ("none", lambda k: 10.0 + 0.1 * k, 0)):
+        calls: list[int] = []
+
+        def run(study, cand, plan, passes=None, lead_s=None, rms=rms, calls=calls):
+            k = round(lead_s / 1e-3)
+            calls.append(k)
+            return SimpleNamespace(evaluation=SimpleNamespace(numbers=SimpleNamespace(tracking_rms_N=rms(k))))
+
+        monkeypatch.setattr(cd, "along_schedule", run)
+        out = cd.choose_ff_lead(small, c)
+        assert out.ff_lead_s == pytest.approx(want * 1e-3, abs=1e-12), f"{name}: chose {out.ff_lead_s} s"
+        assert calls[0] == 0 and all(0 <= k <= top for k in calls) and len(calls) == len(set(calls)) <= 12, calls
+        assert dict(out.ff_leads_tried) == {k * 1e-3: rms(k) for k in calls}
+        assert out.ff_lead_bought() == (rms(0), rms(want))
+
+
+def test_a_feedforward_lead_the_study_s_stages_cannot_run_is_not_handed_to_them(small, small_point):
+    # a study with [design] method = "codesign" runs the learned feedforward along the schedule: a co-design that
+    # chose a lead is refused as its design step rather than handed on as if the study ran it
+    import piezopreload.codesign as cd
+
+    seq = replace(_candidate(200.0, 30.0, 100.0), point=small_point)
+    led = replace(seq, ff_lead_s=0.002, ff_leads_tried=((0.0, 30.0), (0.002, 29.0)))
+    result = cd.CodesignResult(small.name, "nested", CodesignWeights(), seq, led, 1.0, 0.98, 2, (), 1.0, 1.0)
+    with pytest.raises(InfeasibleError, match="feedforward lead of 0.002 s"):
+        cd._chosen(small, result)
+    assert "reads the schedule's reference 2 ms ahead" in result.feedforward_words()
+    assert "30.00 N without a lead, 29.00 N with it" in result.feedforward_words()
+    assert any(line.startswith("feedforward_lead_s 0 -> 0.002 s") for line in result.changed())
+    kept = replace(result, codesigned=replace(led, ff_lead_s=0.0, ff_leads_tried=((0.0, 30.0), (0.002, 31.0))))
+    assert "none tracked the least-friction schedule (one pass) better than none (30.00 N; the best lead, 2 ms, " \
+           "31.00 N)" in kept.feedforward_words(), kept.feedforward_words()
+    none = replace(result, ff_lead=False, codesigned=seq)
+    assert none.feedforward_words().startswith("no feedforward lead: the inverse P-I feedforward reads the reference")

@@ -19,7 +19,8 @@ def register_codesign(sub: Any) -> None:
         description=(
             "Solve the study's design and then tune its controller (the sequential answer, as 'run' does), then "
             "choose the design's plant-shaping variables (a rigidity floor along the design's least-heat front, the "
-            "contact angle, the conformity) and the PID gains together, "
+            "contact angle, the conformity), the PID gains (the gain schedule's entries where the study tunes "
+            "them) and the feedforward's preview lead along the preload schedule together, "
             "nested: the design outside, the design NLP and the tuning inside (Ms inside the tuning, the whole-range "
             "tracking RMS and the settling time as constraints), started from the sequential answer so it is never "
             "worse. Both are validated by the same Monte Carlo; the result gives, for each requirement and the "
@@ -33,15 +34,21 @@ def register_codesign(sub: Any) -> None:
     p.add_argument("--friction", type=nonnegative_float, metavar="W",
                    help="weight on the schedule's friction energy per cycle")
     p.add_argument("--tracking", type=nonnegative_float, metavar="W",
-                   help="weight on the whole-range tracking RMS")
+                   help="weight on the tracking RMS along the preload schedule")
     p.add_argument("--voltage", type=nonnegative_float, metavar="W",
                    help="weight on the stacks' peak command (a weight not given is 0 where another is given; with "
                         "none given: growth and tracking 1 where the study has [thermal], else friction and tracking)")
     p.add_argument("--budget", type=int, default=9, metavar="N", help="most inner solves of the outer search "
                                                                       "(default 9)")
-    p.add_argument("--schedule", action="store_true",
-                   help="take the gain schedule's entries ([tuning] schedule_levels, at least 2) as decisions of the "
-                        "inner problem too, each tuned at Ms over its window (default: the one robust set)")
+    form = p.add_mutually_exclusive_group()
+    form.add_argument("--schedule", dest="controller", action="store_const", const=True, default=None,
+                      help="compare with the gain schedule's entries ([tuning] schedule_levels, at least 2) as "
+                           "decisions of the inner problem, each tuned at Ms over its window (default: as the "
+                           "study's tune stage makes it: the entries where [tuning] schedule_levels >= 2, else one "
+                           "robust set)")
+    form.add_argument("--robust-set", dest="controller", action="store_const", const=False,
+                      help="compare with one robust PID set, even where the study tunes a gain schedule (one tuning "
+                           "per inner problem; the words then say the study runs the schedule)")
     p.add_argument("--plants", type=int, metavar="N",
                    help="Monte Carlo plants for each answer (default: the study's [validation] plants; 0: none)")
     json_flag(p)
@@ -59,7 +66,7 @@ def _cmd_codesign(args: argparse.Namespace) -> CodesignResult:
     study = load_study(args.study, progress=say)
     given = (args.growth, args.friction, args.tracking, args.voltage)
     weights = None if all(w is None for w in given) else CodesignWeights(*(0.0 if w is None else w for w in given))
-    return codesign(study, weights, budget=args.budget, validate_plants=args.plants, schedule=args.schedule,
+    return codesign(study, weights, budget=args.budget, validate_plants=args.plants, schedule=args.controller,
                     progress=say)
 
 
@@ -82,6 +89,7 @@ def _print_codesign(r: CodesignResult) -> None:
           f"({r.time_ratio:.1f} times the sequential)")
     print(f"  changed: {'; '.join(r.changed()) or 'nothing (the sequential design is kept)'}")
     print(f"  controller: {r.controller_words()}")
+    print(f"  feedforward: {r.feedforward_words()}")
     print(f"  coupling: {r.coupling()}")
     print(f"  {'term':10s} {'sequential':>12s} {'co-designed':>12s}  unit")
     for row in r.bought():
