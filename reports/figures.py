@@ -83,14 +83,21 @@ _INSIDE = ("upper right", "upper left", "lower right", "lower left", "center rig
            "lower center", "center")
 
 
-#: how near a legend's box a line may pass and still be on it (points: 2 pixels of a 100 dpi screen)
-_GRAZE_PT = 1.44
+#: the placement's margins, in points (2, 12 and 4 pixels of the 100 dpi screen they were chosen on): how near a
+#: legend's box a line may pass and still be on it, the pad of the band raised above the data for a legend, and the
+#: gap between the axes' label and a legend below it
+_GRAZE_PT, _BAND_PAD_PT, _BELOW_PT = 1.44, 8.64, 2.88
+
+
+def _display(ax: Any, points: float) -> float:
+    """``points`` in the display units of the axes' figure (pixels at its dpi; points where it is measured as PDF)."""
+    return points * ax.get_figure().dpi / 72.0
 
 
 def _covers(box: Any, ax: Any) -> bool:
     """Whether the display box ``box`` covers any of the axes' data: a line's path or markers, a patch (bars,
     spans), a collection's points, a text drawn in the axes."""
-    pad = _GRAZE_PT * ax.get_figure().dpi / 72.0  # in display units: a line grazing the box's edge is on it
+    pad = _display(ax, _GRAZE_PT)  # a line grazing the box's edge is on it
     grown = box.expanded(1.0, 1.0).padded(pad)
     for line in ax.get_lines():
         if not line.get_visible():
@@ -133,7 +140,7 @@ def _headroom(ax: Any, renderer: Any) -> tuple[float, float]:
     scale (linear or log); returns the limits before."""
     before = ax.get_ylim()
     box, frame = ax.get_legend().get_window_extent(renderer), ax.get_window_extent(renderer)
-    share = min((box.height + 12.0) / frame.height, 0.6)
+    share = min((box.height + _display(ax, _BAND_PAD_PT)) / frame.height, 0.6)
     scale = ax.yaxis.get_transform()  # the data's scale: linear, or log
     lo, hi = np.ravel(scale.transform(np.array(before, float)))
     top = lo + (hi - lo) / (1.0 - share)
@@ -147,7 +154,7 @@ def _outside(ax: Any, renderer: Any, kw: dict[str, Any]) -> None:
     if _fits(ax, renderer):
         return
     frame, tight = ax.get_window_extent(renderer), ax.get_tightbbox(renderer, bbox_extra_artists=[])
-    below = (frame.y0 - tight.y0 + 4.0) / frame.height
+    below = (frame.y0 - tight.y0 + _display(ax, _BELOW_PT)) / frame.height
     entries = len(ax.get_legend_handles_labels()[0])
     for ncols in (entries, 2, 1):  # one row where the figure is wide enough
         ax.legend(loc="upper center", bbox_to_anchor=(0.5, -below), borderaxespad=0.0, ncols=ncols, **kw)
