@@ -83,10 +83,11 @@ _INSIDE = ("upper right", "upper left", "lower right", "lower left", "center rig
            "lower center", "center")
 
 
-#: the placement's margins, in points (2, 12 and 4 pixels of the 100 dpi screen they were chosen on): how near a
-#: legend's box a line may pass and still be on it, the pad of the band raised above the data for a legend, and the
-#: gap between the axes' label and a legend below it
-_GRAZE_PT, _BAND_PAD_PT, _BELOW_PT = 1.44, 8.64, 2.88
+#: the placement's margins, in points: how near a legend's box a line may pass and still be on it, and the pad of the
+#: band raised above the data for a legend (2 and 12 pixels of the 100 dpi screen they were chosen on); the gap
+#: between the axes' label and a legend below it (4 pt: a screen, which hints text at its pixels, draws the label a
+#: pixel or two lower than the PDF's measure puts it)
+_GRAZE_PT, _BAND_PAD_PT, _BELOW_PT = 1.44, 8.64, 4.0
 
 
 def _display(ax: Any, points: float) -> float:
