@@ -4,6 +4,10 @@ Every function takes the numbers it plots (read from the study's artifacts by th
 returns a :class:`matplotlib.figure.Figure` built without pyplot, so no global figure state is
 touched and any backend works. One style (:data:`STYLE`) for all: vector output, units on
 every axis, the same colour for the same controller in every figure.
+
+A figure is laid out once, as its PDF is measured (points, text at its unhinted widths), when
+:func:`legends` places its legends off the data; that layout is then its own, and :func:`save`
+draws it once into the PDF, cropped on it.
 """
 
 from __future__ import annotations
