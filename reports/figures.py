@@ -216,6 +216,13 @@ def _as_pdf(fig: Figure) -> Iterator[RendererPdf]:
         fig.set_canvas(canvas)
 
 
+def _set_layout_engine(fig: Figure, engine: Any) -> None:
+    """``fig``'s layout engine set to ``engine``; None is none (matplotlib reads None as the rc's
+    ``figure.constrained_layout.use`` or ``figure.autolayout``, which a user's matplotlibrc may set)."""
+    with mpl.rc_context({"figure.autolayout": False, "figure.constrained_layout.use": False}):
+        fig.set_layout_engine(engine)
+
+
 def legends(*placed: Any, **kw: Any) -> None:
     """Legends off the data: each axes' legend at the first place of :data:`_INSIDE` where it stays inside the axes
     and covers none of their data (:func:`_covers`), or outside the axes at their right where there is none. Called
@@ -240,7 +247,7 @@ def legends(*placed: Any, **kw: Any) -> None:
                 break  # every legend fits the layout as it stands
         else:
             lay_out(fig)  # the last round's places, laid out
-    fig.set_layout_engine(None)
+    _set_layout_engine(fig, None)
 
 
 def save(fig: Figure, path: str | Path) -> Path:
@@ -262,14 +269,14 @@ def save(fig: Figure, path: str | Path) -> Path:
                 if engine is not None:
                     engine.execute(fig)
                 crop = fig.get_tightbbox(renderer).padded(float(mpl.rcParams["savefig.pad_inches"]))
-            fig.set_layout_engine(None)
+            _set_layout_engine(fig, None)
             fig.savefig(fh, format="pdf", bbox_inches=crop, metadata={"CreationDate": None, "ModDate": None})
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
     finally:
-        fig.set_layout_engine(engine)
+        _set_layout_engine(fig, engine)
     return path
 
 

@@ -226,19 +226,24 @@ def test_the_legends_are_placed_in_the_layout_matplotlib_writes_the_pdf_in(tmp_p
     np.testing.assert_allclose(box, expected, atol=1e-3, err_msg="the crop is not matplotlib's tight crop")
 
 
-def test_saving_a_figure_draws_it_once_and_does_not_lay_it_out_again(tmp_path, monkeypatch):
+@pytest.mark.parametrize("rc", [{}, {"figure.constrained_layout.use": True}], ids=["default", "user-rc-constrained"])
+def test_saving_a_figure_draws_it_once_and_does_not_lay_it_out_again(tmp_path, monkeypatch, rc):
     """Saving a report figure draws it once, in the layout its legends were placed in: no layout again, no draw to
-    find the crop (savefig drew each figure twice and laid it out a third time, a fifth of the report's time)."""
+    find the crop (savefig drew each figure twice and laid it out a third time, a fifth of the report's time); a
+    user's matplotlibrc asking for a layout engine does not give the figure one back."""
+    import matplotlib as mpl
     from matplotlib.figure import Figure
     from matplotlib.layout_engine import ConstrainedLayoutEngine
 
-    fig = F.gain_schedule(_schedule())
+    with mpl.rc_context(rc):
+        fig = F.gain_schedule(_schedule())
     frames = _frames(fig)
     draws, layouts = [], []
     draw, execute = Figure.draw, ConstrainedLayoutEngine.execute
     monkeypatch.setattr(Figure, "draw", lambda self, renderer: (draws.append(renderer), draw(self, renderer))[1])
     monkeypatch.setattr(ConstrainedLayoutEngine, "execute", lambda self, f: (layouts.append(f), execute(self, f))[1])
-    path = F.save(fig, tmp_path / "g.pdf")
+    with mpl.rc_context(rc):
+        path = F.save(fig, tmp_path / "g.pdf")
     assert path.read_bytes().startswith(b"%PDF")
     assert (len(draws), len(layouts)) == (1, 0), f"saving drew it {len(draws)} times, laid it out {len(layouts)}"
     np.testing.assert_array_equal(_frames(fig), frames, err_msg="saving moved the axes the legends were placed in")
