@@ -4,22 +4,29 @@ Every function takes the numbers it plots (read from the study's artifacts by th
 returns a :class:`matplotlib.figure.Figure` built without pyplot, so no global figure state is
 touched and any backend works. One style (:data:`STYLE`) for all: vector output, units on
 every axis, the same colour for the same controller in every figure.
+
+A figure is laid out once, as its PDF is measured (points, text at its unhinted widths), when
+:func:`legends` places its legends off the data; that layout is then its own, and :func:`save`
+draws it once into the PDF, cropped on it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import io
 import os
 import pickle
 import tempfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from concurrent.futures import as_completed
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import matplotlib as mpl
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.backend_bases import FigureCanvasBase
+from matplotlib.backends.backend_pdf import PdfFile, RendererPdf
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
@@ -81,10 +88,22 @@ _INSIDE = ("upper right", "upper left", "lower right", "lower left", "center rig
            "lower center", "center")
 
 
+#: the placement's margins, in points: how near a legend's box a line may pass and still be on it, and the pad of the
+#: band raised above the data for a legend (2 and 12 pixels of the 100 dpi screen they were chosen on); the gap
+#: between the axes' label and a legend below it (4 pt: a screen, which hints text at its pixels, draws the label a
+#: pixel or two lower than the PDF's measure puts it)
+_GRAZE_PT, _BAND_PAD_PT, _BELOW_PT = 1.44, 8.64, 4.0
+
+
+def _display(ax: Any, points: float) -> float:
+    """``points`` in the display units of the axes' figure (pixels at its dpi; points where it is measured as PDF)."""
+    return points * ax.get_figure().dpi / 72.0
+
+
 def _covers(box: Any, ax: Any) -> bool:
     """Whether the display box ``box`` covers any of the axes' data: a line's path or markers, a patch (bars,
     spans), a collection's points, a text drawn in the axes."""
-    pad = 2.0  # display units (pixels at the figure's dpi): a line grazing the box's edge is on it
+    pad = _display(ax, _GRAZE_PT)  # a line grazing the box's edge is on it
     grown = box.expanded(1.0, 1.0).padded(pad)
     for line in ax.get_lines():
         if not line.get_visible():
@@ -127,7 +146,7 @@ def _headroom(ax: Any, renderer: Any) -> tuple[float, float]:
     scale (linear or log); returns the limits before."""
     before = ax.get_ylim()
     box, frame = ax.get_legend().get_window_extent(renderer), ax.get_window_extent(renderer)
-    share = min((box.height + 12.0) / frame.height, 0.6)
+    share = min((box.height + _display(ax, _BAND_PAD_PT)) / frame.height, 0.6)
     scale = ax.yaxis.get_transform()  # the data's scale: linear, or log
     lo, hi = np.ravel(scale.transform(np.array(before, float)))
     top = lo + (hi - lo) / (1.0 - share)
@@ -141,7 +160,7 @@ def _outside(ax: Any, renderer: Any, kw: dict[str, Any]) -> None:
     if _fits(ax, renderer):
         return
     frame, tight = ax.get_window_extent(renderer), ax.get_tightbbox(renderer, bbox_extra_artists=[])
-    below = (frame.y0 - tight.y0 + 4.0) / frame.height
+    below = (frame.y0 - tight.y0 + _display(ax, _BELOW_PT)) / frame.height
     entries = len(ax.get_legend_handles_labels()[0])
     for ncols in (entries, 2, 1):  # one row where the figure is wide enough
         ax.legend(loc="upper center", bbox_to_anchor=(0.5, -below), borderaxespad=0.0, ncols=ncols, **kw)
@@ -150,54 +169,115 @@ def _outside(ax: Any, renderer: Any, kw: dict[str, Any]) -> None:
             return
 
 
-def _place(ax: Any, renderer: Any, kw: dict[str, Any]) -> None:
+def _place(ax: Any, renderer: Any, kw: dict[str, Any]) -> bool:
+    """The axes' legend at the first free place; whether the figure's layout may have moved (the legend outside the
+    axes, or their top raised: a tick label that changes width moves the axes). A legend inside its axes does not
+    move them: the layout reads the axes' extent, which holds it."""
+    legend = ax.legend(loc=_INSIDE[0], **kw)  # made once, then moved from place to place
     for loc in _INSIDE:
-        ax.legend(loc=loc, **kw)
+        legend.set_loc(loc)
         if _fits(ax, renderer):
-            return
+            return False
     before = _headroom(ax, renderer)  # no free place: a band above the data, the legend in it
     for loc in ("upper right", "upper left", "upper center"):
-        ax.legend(loc=loc, **kw)
+        legend.set_loc(loc)
         if _fits(ax, renderer):
-            return
+            return True
     ax.set_ylim(before)  # the band did not free a place (lines across the whole height): outside
     _outside(ax, renderer, kw)
+    return True
+
+
+class _PdfMeasure(FigureCanvasBase):
+    """A canvas whose renderer measures as the PDF writer does: in points (72 to the inch), text at its unhinted
+    widths. The screen's renderer hints text at its pixels and measures it a few % narrower, which moves a layout by
+    up to 2 pt and lets a long tick label's end fall outside the crop."""
+
+    def __init__(self, figure: Figure, image_dpi: float) -> None:
+        super().__init__(figure)
+        width, height = figure.get_size_inches()
+        self.renderer = RendererPdf(PdfFile(io.BytesIO()), image_dpi, height, width)
+
+    def get_renderer(self) -> RendererPdf:
+        """The renderer the figure's layout and extents are measured with."""
+        return self.renderer
+
+
+@contextlib.contextmanager
+def _as_pdf(fig: Figure) -> Iterator[RendererPdf]:
+    """The figure measured as the PDF writer measures it (:class:`_PdfMeasure`, its dpi the PDF's 72), then given
+    back its canvas and dpi."""
+    canvas, dpi = fig.canvas, fig.dpi
+    measure = _PdfMeasure(fig, dpi)
+    fig.dpi = 72.0
+    try:
+        yield measure.get_renderer()
+    finally:
+        fig.dpi = dpi
+        fig.set_canvas(canvas)
+
+
+def _set_layout_engine(fig: Figure, engine: Any) -> None:
+    """``fig``'s layout engine set to ``engine``; None is none (matplotlib reads None as the rc's
+    ``figure.constrained_layout.use`` or ``figure.autolayout``, which a user's matplotlibrc may set)."""
+    with mpl.rc_context({"figure.autolayout": False, "figure.constrained_layout.use": False}):
+        fig.set_layout_engine(engine)
 
 
 def legends(*placed: Any, **kw: Any) -> None:
     """Legends off the data: each axes' legend at the first place of :data:`_INSIDE` where it stays inside the axes
     and covers none of their data (:func:`_covers`), or outside the axes at their right where there is none. Called
-    once a figure's artists are all drawn; ``placed`` are axes, or ``(axes, legend keywords)`` pairs. The figure is
-    laid out again after each round (a legend moved outside narrows the axes) until every legend fits."""
+    once a figure's artists are all drawn; ``placed`` are axes, or ``(axes, legend keywords)`` pairs.
+
+    The figure is laid out as its PDF is (:func:`save`), the legends placed, and laid out again only where a place
+    moved the axes (a legend outside them, or their top raised), until every legend fits. That layout is then the
+    figure's own (its layout engine removed): saving neither lays the figure out again nor moves the data under a
+    legend.
+    """
     pairs = [(p, dict(kw)) if not isinstance(p, tuple) else (p[0], {**kw, **p[1]}) for p in placed]
     if not pairs:
         return
     fig = pairs[0][0].get_figure()
-    canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
-    for _ in range(3):
-        fig.draw_without_rendering()
-        renderer = canvas.get_renderer()
-        unfit = [(ax, k) for ax, k in pairs if not _fits(ax, renderer)]
-        if not unfit:
-            return
-        for ax, k in unfit:
-            _place(ax, renderer, k)
+    engine = fig.get_layout_engine()
+    lay_out = engine.execute if engine is not None else (lambda _fig: None)
+    with _as_pdf(fig) as renderer:
+        for _ in range(3):
+            lay_out(fig)
+            unfit = [(ax, k) for ax, k in pairs if not _fits(ax, renderer)]
+            if not unfit or not any([_place(ax, renderer, k) for ax, k in unfit]):
+                break  # every legend fits the layout as it stands
+        else:
+            lay_out(fig)  # the last round's places, laid out
+    _set_layout_engine(fig, None)
 
 
 def save(fig: Figure, path: str | Path) -> Path:
     """Write ``fig`` as PDF (vector; the text stays text, in Type 3 fonts: matplotlib's default, written
-    without the font subsetting TrueType embedding runs per file, which took half the report's time).
-    The file is written whole or not at all (a temporary file renamed over it)."""
+    without the font subsetting TrueType embedding runs per file, which took half the report's time),
+    cropped to what it draws and a pad of ``savefig.pad_inches`` (:data:`STYLE`).
+
+    The figure is drawn once: it is laid out here only if :func:`legends` has not laid it out (it keeps its layout
+    engine then), and the crop is measured on that layout, so the PDF writer neither lays it out again nor draws it
+    a first time to find its extent. The file is written whole or not at all (a temporary file renamed over it).
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    engine = fig.get_layout_engine()
     try:
         with os.fdopen(fd, "wb") as fh, mpl.rc_context(STYLE):
-            fig.savefig(fh, format="pdf", metadata={"CreationDate": None, "ModDate": None})
+            with _as_pdf(fig) as renderer:
+                if engine is not None:
+                    engine.execute(fig)
+                crop = fig.get_tightbbox(renderer).padded(float(mpl.rcParams["savefig.pad_inches"]))
+            _set_layout_engine(fig, None)
+            fig.savefig(fh, format="pdf", bbox_inches=crop, metadata={"CreationDate": None, "ModDate": None})
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    finally:
+        _set_layout_engine(fig, engine)
     return path
 
 

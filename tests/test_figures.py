@@ -192,3 +192,86 @@ def test_the_schedule_figure_draws_the_lift_off_bound_its_table_states():
     drawn = np.asarray(lines[0].get_ydata(), float)
     np.testing.assert_allclose(drawn, 1.2 * np.abs(load) / 2.0 ** 1.5, rtol=1e-12)
     assert float(drawn.max()) == pytest.approx(1697.06, abs=0.01)
+
+
+# --------------------------------------------------------------------------------------
+# one layout, one draw: the layout the legends are placed in is the PDF's
+# --------------------------------------------------------------------------------------
+def _frames(fig):
+    return np.array([ax.get_position().bounds for ax in fig.axes])
+
+
+def test_the_legends_are_placed_in_the_layout_matplotlib_writes_the_pdf_in(tmp_path):
+    """legends() lays a figure out as matplotlib's own PDF writer does (savefig lays a figure out again in the PDF's
+    measure: points, text at its unhinted widths): the axes stand where savefig would put them, and save() crops
+    the page as savefig's tight crop does. Placed in the screen's measure, they stood up to 2 pt away (11 pt on the
+    sensitivity figure's long labels), so the PDF was laid out anew and its legends were checked in another layout
+    than the one written."""
+    import io
+
+    import matplotlib as mpl
+    import pypdf
+
+    ours = F.hysteresis_loops(*_loops())
+    frames = _frames(ours)
+    reference = F.hysteresis_loops(*_loops())
+    reference.set_layout_engine("constrained")  # matplotlib's writer: it lays the figure out in the PDF's measure
+    written = io.BytesIO()
+    with mpl.rc_context(F.STYLE):
+        reference.savefig(written, format="pdf")
+    np.testing.assert_allclose(frames, _frames(reference), rtol=0, atol=1e-9,
+                               err_msg="the axes are not where matplotlib's PDF writer lays them out")
+    box = [float(v) for v in pypdf.PdfReader(F.save(ours, tmp_path / "h.pdf")).pages[0].mediabox]
+    expected = [float(v) for v in pypdf.PdfReader(written).pages[0].mediabox]
+    np.testing.assert_allclose(box, expected, atol=1e-3, err_msg="the crop is not matplotlib's tight crop")
+
+
+@pytest.mark.parametrize("rc", [{}, {"figure.constrained_layout.use": True}], ids=["default", "user-rc-constrained"])
+def test_saving_a_figure_draws_it_once_and_does_not_lay_it_out_again(tmp_path, monkeypatch, rc):
+    """Saving a report figure draws it once, in the layout its legends were placed in: no layout again, no draw to
+    find the crop (savefig drew each figure twice and laid it out a third time, a fifth of the report's time); a
+    user's matplotlibrc asking for a layout engine does not give the figure one back."""
+    import matplotlib as mpl
+    from matplotlib.figure import Figure
+    from matplotlib.layout_engine import ConstrainedLayoutEngine
+
+    with mpl.rc_context(rc):
+        fig = F.gain_schedule(_schedule())
+    frames = _frames(fig)
+    draws, layouts = [], []
+    draw, execute = Figure.draw, ConstrainedLayoutEngine.execute
+    monkeypatch.setattr(Figure, "draw", lambda self, renderer: (draws.append(renderer), draw(self, renderer))[1])
+    monkeypatch.setattr(ConstrainedLayoutEngine, "execute", lambda self, f: (layouts.append(f), execute(self, f))[1])
+    with mpl.rc_context(rc):
+        path = F.save(fig, tmp_path / "g.pdf")
+    assert path.read_bytes().startswith(b"%PDF")
+    assert (len(draws), len(layouts)) == (1, 0), f"saving drew it {len(draws)} times, laid it out {len(layouts)}"
+    np.testing.assert_array_equal(_frames(fig), frames, err_msg="saving moved the axes the legends were placed in")
+
+
+def test_a_figure_without_legends_is_laid_out_once_when_saved(tmp_path):
+    """A figure whose legends() had nothing to place keeps its layout engine: save() lays it out, in the PDF's
+    measure, and gives the engine back; the file crops what matplotlib's own tight crop does."""
+    import io
+
+    import matplotlib as mpl
+    import pypdf
+
+    def drawn():
+        fig, ax = F.page_figure(2.0)
+        ax[0][0].plot([0.0, 1.0], [0.0, 1.0e4])
+        ax[0][0].set_ylabel("a long label of the force over the run (N)")
+        F.legends()
+        return fig
+
+    ours, reference = drawn(), drawn()
+    engine = ours.get_layout_engine()
+    F.save(ours, tmp_path / "f.pdf")
+    assert ours.get_layout_engine() is engine
+    written = io.BytesIO()
+    with mpl.rc_context(F.STYLE):
+        reference.savefig(written, format="pdf")
+    np.testing.assert_allclose(_frames(ours), _frames(reference), rtol=0, atol=1e-9)
+    box = [float(v) for v in pypdf.PdfReader(tmp_path / "f.pdf").pages[0].mediabox]
+    expected = [float(v) for v in pypdf.PdfReader(written).pages[0].mediabox]
+    np.testing.assert_allclose(box, expected, atol=1e-3, err_msg="the crop is not matplotlib's tight crop")
