@@ -96,6 +96,35 @@ def test_the_tuning_horizon_derivatives_are_the_loops(study, feedforward):
                                        err_msg=f"d2 {key}/dg dg{i}")
 
 
+@pytest.mark.parametrize("engine", ["compiled", "plain"])
+def test_the_values_alone_run_the_loop_without_its_derivatives_and_are_the_same_numbers(study, feedforward, engine,
+                                                                                     monkeypatch):
+    """A point whose values alone IPOPT asks for (a line-search trial, a start scored) runs the loop without its
+    derivatives (``value_step``): its force, objective and overshoots are the derivative run's to the last bit (the
+    same expression), and the derivative run is made only where a Jacobian or a Hessian is asked for."""
+    if engine == "compiled" and not native.enabled():
+        pytest.skip("no C compiler here")
+    spec = pid.TuningSpec(step=Reference.step(25.0, 50.0, 0.02, 0.2),
+                          trajectory=Reference.staircase(25.0, [50.0, 40.0], 0.1, t_start_s=0.02),
+                          variants={"gain": 0.1})
+    prob = pid._build_problem(study.plant, feedforward.inverse(), spec, engine)
+    h, time_domain = prob.horizon, prob.callbacks[0]
+    with_derivatives = []
+    forces = h.forces
+    monkeypatch.setattr(h, "forces", lambda g: with_derivatives.append(np.array(g)) or forces(g))
+    g = np.array([1.6, 0.06, 0.004, 0.02, 0.4])
+    objective, overshoot = (np.asarray(x, float).ravel() for x in time_domain(ca.DM(g)))
+    assert with_derivatives == [], "a value alone ran the loop with its derivatives"
+    full = h.evaluate(g)
+    assert len(with_derivatives) == 1
+    np.testing.assert_array_equal(objective, [np.sum(full["objective"])], err_msg="objective")
+    np.testing.assert_array_equal(overshoot, full["overshoot"], err_msg="overshoot per variant")
+    np.testing.assert_array_equal(h.force(g), forces(g)[:, 0, :], err_msg="force")
+    time_domain(ca.DM(g))  # the values of a point evaluated with its derivatives: nothing runs again
+    time_domain.jacobian()(ca.DM(g), 0.0, np.zeros(len(prob.variants)))
+    assert len(with_derivatives) == 1, "the same point ran again"
+
+
 def test_smooth_clip_is_the_clip_away_from_its_corners():
     x = np.linspace(-3.0, 3.0, 601)
     X = ca.SX.sym("x")
