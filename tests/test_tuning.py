@@ -125,6 +125,36 @@ def test_the_values_alone_run_the_loop_without_its_derivatives_and_are_the_same_
     assert len(with_derivatives) == 1, "the same point ran again"
 
 
+@pytest.mark.parametrize("held", [{"filter_s": 0.02}, {"filter_s": 0.0}], ids=["Tf held", "a PI"])
+def test_a_held_gain_is_left_out_of_the_derivatives_and_changes_none_of_the_others(study, feedforward, held):
+    """Where the tuning holds a gain (a schedule's entry holds the robust set's Tf; a PI has no Td and Tf), the horizon
+    carries no derivatives by it (15 or 10 columns instead of 21) and every force, first and second derivative it does
+    carry is the whole run's to the last bit; those by the held gains are not run and read 0."""
+    engine = "compiled" if native.enabled() else "plain"
+    short = dict(step=Reference.step(25.0, 50.0, 0.02, 0.2),
+                 trajectory=Reference.staircase(25.0, [50.0, 40.0], 0.1, t_start_s=0.02), variants={"gain": 0.1})
+    whole = pid._build_problem(study.plant, feedforward.inverse(), pid.TuningSpec(**short), engine).horizon
+    part = pid._build_problem(study.plant, feedforward.inverse(), pid.TuningSpec(**short, **held), engine).horizon
+    free = (0, 1, 2, 4) if held["filter_s"] > 0 else (0, 1, 4)
+    assert whole.free == (0, 1, 2, 3, 4) and part.free == free
+    pairs = [(i, j) for i, j in horizon.PAIRS if i in free and j in free]
+    assert part.size_x == whole.size_x // 21 * (1 + len(free) + len(pairs))
+    g = np.array([1.6, 0.06, 0.004 if held["filter_s"] > 0 else 0.0, held["filter_s"], 0.4])
+    a, b = whole.forces(g), part.forces(g)
+    carried = [0] + [1 + i for i in free] + [1 + horizon.N_GAINS + horizon.PAIRS.index(ij) for ij in pairs]
+    np.testing.assert_array_equal(b[:, carried], a[:, carried], err_msg="a carried row differs")
+    assert not np.any(np.delete(b, carried, axis=1)), "a held gain's derivative was run"
+    for key, value in whole.evaluate(g).items():
+        if key.endswith("_g"):
+            value = value[:, list(free)]
+        elif key.endswith("_h"):
+            value = value[:, list(free)][:, :, list(free)]
+        mine = part.evaluate(g)[key]
+        mine = mine[:, list(free)] if key.endswith("_g") else mine[:, list(free)][:, :, list(free)] if key.endswith(
+            "_h") else mine
+        np.testing.assert_array_equal(mine, value, err_msg=key)
+
+
 def test_smooth_clip_is_the_clip_away_from_its_corners():
     x = np.linspace(-3.0, 3.0, 601)
     X = ca.SX.sym("x")

@@ -104,12 +104,18 @@ def value_step(loop: LoopModel) -> ca.Function:
                        ["x", "p", "r", "ff", "restart"], ["x_next", "force_N"])
 
 
-def sensitivity_step(loop: LoopModel) -> ca.Function:
+def _pairs(free: Sequence[int]) -> list[tuple[int, int]]:
+    """The pairs ``i <= j`` of the gains ``free`` (indices into the gains), in :data:`PAIRS`' order."""
+    return [(i, j) for i, j in PAIRS if i in free and j in free]
+
+
+def sensitivity_step(loop: LoopModel, free: Sequence[int] = tuple(range(N_GAINS))) -> ca.Function:
     """One sample of the tuning loop with its derivatives by the gains carried along.
 
     ``(xa, p, r, ff, restart) -> (xa_next, out)``: ``xa`` holds the loop's state ``x``, its
     first derivatives ``S = dx/dg`` (by the gains ``g = (Kc, Ti, Td, Tf, b)``, the first five
-    controller parameters) and its second derivatives ``T`` (one column per pair ``i <= j``);
+    controller parameters; by those of them ``free`` names, by index, where the tuning holds the
+    others) and its second derivatives ``T`` (one column per pair ``i <= j`` of them);
     ``p`` the loop's parameters; ``out`` the force, its gradient and its second derivatives.
     Where ``restart`` is 1 the loop first starts afresh (the rig at rest at 0 V, the controller
     bumpless at 0 V with the reference and feedforward of this sample: :meth:`LoopModel.start`),
@@ -118,18 +124,24 @@ def sensitivity_step(loop: LoopModel) -> ca.Function:
     Forward sensitivities, by CasADi's directional derivatives of the one loop step: with
     ``w = (x, g)`` and directions ``d_i = (S_i, e_i)``, ``S_i+ = F' d_i`` and
     ``T_ij+ = d_j' F'' d_i + F_x T_ij``. Five gains make this one small function that a C loop
-    runs over the horizon: the whole NLP's derivatives in one pass, exact.
+    runs over the horizon: the whole NLP's derivatives in one pass, exact. Each direction is its
+    own expression, so a held gain left out changes none of the others' numbers; four gains carry
+    15 columns instead of 21, three 10.
     """
+    free = tuple(int(i) for i in free)
+    if not free or list(free) != sorted(set(free)) or not set(free) <= set(range(N_GAINS)):
+        raise ValueError(f"free must name gains by increasing index in 0..{N_GAINS - 1}, got {free!r}")
+    pairs = _pairs(free)
     nx, n_plant = loop.state.size, loop.plant.params.size
     x, p, r, ff, restart, out = _sample(loop)
     gains = p[n_plant:n_plant + N_GAINS]
-    S, T = ca.SX.sym("S", nx, N_GAINS), ca.SX.sym("T", nx, len(PAIRS))
+    S, T = ca.SX.sym("S", nx, len(free)), ca.SX.sym("T", nx, len(pairs))
     w = ca.vertcat(x, gains)
-    directions = ca.vertcat(S, ca.DM.eye(N_GAINS))
+    directions = ca.vertcat(S, ca.DM.eye(N_GAINS)[:, list(free)])
     first = ca.jtimes(out, w, directions)
-    along = [ca.jtimes(out, w, directions[:, i]) for i in range(N_GAINS)]
-    second = ca.horzcat(*[ca.jtimes(along[i], w, directions[:, j]) + ca.jtimes(out, x, T[:, k])
-                          for k, (i, j) in enumerate(PAIRS)])
+    along = [ca.jtimes(out, w, directions[:, a]) for a in range(len(free))]
+    second = ca.horzcat(*[ca.jtimes(along[free.index(i)], w, directions[:, free.index(j)]) + ca.jtimes(out, x, T[:, k])
+                          for k, (i, j) in enumerate(pairs)])
     xa = ca.vertcat(x, ca.vec(S), ca.vec(T))
     xa_next = ca.vertcat(out[:nx], ca.vec(first[:nx, :]), ca.vec(second[:nx, :]))
     result = ca.vertcat(out[nx], first[nx, :].T, second[nx, :].T)
@@ -149,19 +161,22 @@ class Horizon:
     """
 
     def __init__(self, loop: LoopModel, variants: list[Plant], rows: np.ndarray, tail: np.ndarray,
-                 engine: str) -> None:
+                 engine: str, free: Sequence[int] | None = None) -> None:
         self.loop, self.rows, self.tail = loop, rows, tail  # tail: the controller's parameters after the gains
         self.plants = np.array([loop.plant.parameters(v) for v in variants])
         self.n_variants, self.n = len(variants), rows.shape[1]
-        self.fn = sensitivity_step(loop)
+        self.free = tuple(range(N_GAINS)) if free is None else tuple(int(i) for i in free)
+        self.fn = sensitivity_step(loop, self.free)
         self.fn_value = value_step(loop)
         self.size_x = int(self.fn.numel_in(0))
         self.engine = engine
         self.runner: native.StepRunner | None = None
         self.value_runner: native.StepRunner | None = None
         if engine == "compiled":
-            self.runner = native.step_runner(("tuning", loop), lambda: self.fn, "pp_tuning_sensitivity",
-                                             native.FLAGS_LARGE)
+            whole = len(self.free) == N_GAINS
+            self.runner = native.step_runner(("tuning", loop) + (() if whole else (self.free,)), lambda: self.fn,
+                                             "pp_tuning_sensitivity" + ("" if whole else "_" + "".join(
+                                                 str(i) for i in self.free)), native.FLAGS_LARGE)
             self.value_runner = native.step_runner(("tuning value", loop), lambda: self.fn_value, "pp_tuning_value")
         self._key: bytes | None = None
         self._value: dict[str, np.ndarray] = {}
@@ -184,8 +199,15 @@ class Horizon:
                          .reshape(-1, self.n) for v in range(self.n_variants)])
 
     def forces(self, gains: np.ndarray) -> np.ndarray:
-        """``(variants, 1 + 5 + 15, samples)``: the force, its gradient and its second derivatives."""
-        return self._run(self.fn, self.runner, np.asarray(gains, float))
+        """``(variants, 1 + 5 + 15, samples)``: the force, its gradient and its second derivatives (in :data:`PAIRS`'
+        order); those by a gain the tuning holds (not in ``free``) are not run and hold 0."""
+        ran = self._run(self.fn, self.runner, np.asarray(gains, float))
+        if len(self.free) == N_GAINS:
+            return ran
+        out = np.zeros((self.n_variants, 1 + N_GAINS + len(PAIRS), self.n))
+        rows = [0] + [1 + i for i in self.free] + [1 + N_GAINS + PAIRS.index(pair) for pair in _pairs(self.free)]
+        out[:, rows, :] = ran
+        return out
 
     def force(self, gains: np.ndarray) -> np.ndarray:
         """``(variants, samples)``: the force alone (:func:`value_step`; the same numbers as :meth:`forces`'s first
