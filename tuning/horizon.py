@@ -14,8 +14,8 @@ one loop step, first and second order: :func:`sensitivity_step`), so one pass ov
 gives the objective, the overshoots and their gradients and Hessians (:class:`Horizon`, handed
 to CasADi as a callback with its Jacobians, :class:`TimeDomain`). Where only the values are asked
 for (IPOPT's line search trying a step, a start being scored) the loop runs without its
-derivatives (:func:`value_step`, the same expressions: the same force to the last bit, at a
-twentieth of the work); a point whose derivatives are then asked for runs again with them. Where a
+derivatives (:func:`value_step`, the same expressions: the same force to the last bit, in about a
+tenth of the time); a point whose derivatives are then asked for runs again with them. Where a
 C compiler works both steps run as C, compiled once and cached (:mod:`piezopreload.core.native`);
 elsewhere (``engine="plain"``) CasADi's virtual machine evaluates them: the same numbers, so the
 same iterates.
@@ -157,7 +157,8 @@ class Horizon:
     ``engine`` ``"compiled"`` runs :func:`sensitivity_step` and :func:`value_step` as C (each a
     :class:`~piezopreload.core.native.StepRunner`, built once and cached); ``"plain"`` evaluates the same functions in
     CasADi's virtual machine. :meth:`values` runs the loop without its derivatives, :meth:`evaluate` with them; the
-    last evaluation of each is kept: IPOPT asks for values, Jacobians and Hessians at one point.
+    last evaluation of each is kept: IPOPT asks for values, Jacobians and Hessians at one point. ``free`` names (by
+    index into the gains) those the tuning varies (None: all five); the derivatives by the others are not run.
     """
 
     def __init__(self, loop: LoopModel, variants: list[Plant], rows: np.ndarray, tail: np.ndarray,
