@@ -42,7 +42,7 @@ import numpy as np
 
 from piezopreload.core.errors import InputError, InternalError
 
-__all__ = ["ENGINE_ENV", "FLAGS", "prelude", "NativeBuildError", "cache_dir", "compiler", "engine",
+__all__ = ["ENGINE_ENV", "FLAGS", "FLAGS_LARGE", "prelude", "NativeBuildError", "cache_dir", "compiler", "engine",
            "enabled", "generate", "build", "build_from", "load", "library", "StepRunner", "step_runner",
            "build_stats", "reset_failures"]
 
@@ -52,6 +52,9 @@ ENGINE_ENV = "PIEZOPRELOAD_ENGINE"
 #: as numpy does; calls inside the library bound locally, so the compiler inlines CasADi's helpers
 FLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off", "-fno-semantic-interposition", "-fno-math-errno")
 
+#: for a large unit (a step with its second derivatives): -O1 compiles in about half -O2's time
+#: and runs as fast on it
+FLAGS_LARGE = ("-O1",) + FLAGS[1:]
 
 #: put before CasADi's code: max and min of two numbers as comparisons (libm's fmax and fmin are
 #: calls the compiler does not inline, and they are most of a step's operations; the values are

@@ -174,10 +174,9 @@ class Horizon:
         self.runner: native.StepRunner | None = None
         self.value_runner: native.StepRunner | None = None
         if engine == "compiled":
-            # -O2: on the step with its second derivatives it runs some 15 % faster than -O1, the same numbers
             suffix = "" if len(self.free) == N_GAINS else "_" + "".join(str(i) for i in self.free)
             self.runner = native.step_runner(("tuning", loop, self.free), lambda: self.fn,
-                                             "pp_tuning_sensitivity" + suffix)
+                                             "pp_tuning_sensitivity" + suffix, native.FLAGS_LARGE)
             self.value_runner = native.step_runner(("tuning value", loop), lambda: self.fn_value, "pp_tuning_value")
         self._key: bytes | None = None
         self._value: dict[str, np.ndarray] = {}
