@@ -155,6 +155,35 @@ def test_a_held_gain_is_left_out_of_the_derivatives_and_changes_none_of_the_othe
         np.testing.assert_array_equal(mine, value, err_msg=key)
 
 
+def test_the_plain_engine_builds_its_run_over_the_horizon_once(study, feedforward):
+    """Without a C compiler the horizon runs in CasADi's virtual machine: the step over the horizon (``mapaccum``, a
+    third of a derivative run to build) is built once per step and horizon, not at every run."""
+    spec = pid.TuningSpec(step=Reference.step(25.0, 50.0, 0.02, 0.2),
+                          trajectory=Reference.staircase(25.0, [50.0, 40.0], 0.1, t_start_s=0.02),
+                          variants={"gain": 0.1})
+    h = pid._build_problem(study.plant, feedforward.inverse(), spec, "plain").horizon
+    built = []
+
+    class Counted:
+        def __init__(self, fn):
+            self.fn = fn
+
+        def __getattr__(self, name):
+            return getattr(self.fn, name)
+
+        def mapaccum(self, n):
+            built.append(self.fn.name())
+            return self.fn.mapaccum(n)
+
+    h.fn, h.fn_value = Counted(h.fn), Counted(h.fn_value)
+    g = np.array([1.6, 0.06, 0.004, 0.02, 0.4])
+    first = h.forces(g)
+    for gains in (g, 1.1 * g):
+        h.forces(gains), h.force(gains)
+    assert sorted(built) == sorted([h.fn.name(), h.fn_value.name()]), built
+    np.testing.assert_array_equal(h.forces(g), first)
+
+
 def test_smooth_clip_is_the_clip_away_from_its_corners():
     x = np.linspace(-3.0, 3.0, 601)
     X = ca.SX.sym("x")

@@ -182,6 +182,7 @@ class Horizon:
         self._value: dict[str, np.ndarray] = {}
         self._values_key: bytes | None = None
         self._values: dict[str, np.ndarray] = {}
+        self._rolls: dict[str, ca.Function] = {}  # the plain engine's steps over the horizon
 
     def _params(self, gains: np.ndarray) -> np.ndarray:
         return np.hstack([self.plants, np.tile(np.concatenate([gains, self.tail]), (self.n_variants, 1))])
@@ -194,7 +195,9 @@ class Horizon:
         if runner is not None:
             out, _ = runner(params, x0, [r, ff, restart], self.n_variants)
             return out
-        roll = fn.mapaccum(self.n)
+        if fn.name() not in self._rolls:  # built once: building the derivative step's takes a third of a run
+            self._rolls[fn.name()] = fn.mapaccum(self.n)
+        roll = self._rolls[fn.name()]
         return np.array([np.asarray(roll(x0, params[v], r[None, :], ff[None, :], restart[None, :])[1], float)
                          .reshape(-1, self.n) for v in range(self.n_variants)])
 
