@@ -96,6 +96,94 @@ def test_the_tuning_horizon_derivatives_are_the_loops(study, feedforward):
                                        err_msg=f"d2 {key}/dg dg{i}")
 
 
+@pytest.mark.parametrize("engine", ["compiled", "plain"])
+def test_the_values_alone_run_the_loop_without_its_derivatives_and_are_the_same_numbers(study, feedforward, engine,
+                                                                                     monkeypatch):
+    """A point whose values alone IPOPT asks for (a line-search trial, a start scored) runs the loop without its
+    derivatives (``value_step``): its force, objective and overshoots are the derivative run's to the last bit (the
+    same expression), and the derivative run is made only where a Jacobian or a Hessian is asked for."""
+    if engine == "compiled" and not native.enabled():
+        pytest.skip("no C compiler here")
+    spec = pid.TuningSpec(step=Reference.step(25.0, 50.0, 0.02, 0.2),
+                          trajectory=Reference.staircase(25.0, [50.0, 40.0], 0.1, t_start_s=0.02),
+                          variants={"gain": 0.1})
+    prob = pid._build_problem(study.plant, feedforward.inverse(), spec, engine)
+    h, time_domain = prob.horizon, prob.callbacks[0]
+    with_derivatives = []
+    forces = h.forces
+    monkeypatch.setattr(h, "forces", lambda g: with_derivatives.append(np.array(g)) or forces(g))
+    g = np.array([1.6, 0.06, 0.004, 0.02, 0.4])
+    objective, overshoot = (np.asarray(x, float).ravel() for x in time_domain(ca.DM(g)))
+    assert with_derivatives == [], "a value alone ran the loop with its derivatives"
+    full = h.evaluate(g)
+    assert len(with_derivatives) == 1
+    np.testing.assert_array_equal(objective, [np.sum(full["objective"])], err_msg="objective")
+    np.testing.assert_array_equal(overshoot, full["overshoot"], err_msg="overshoot per variant")
+    np.testing.assert_array_equal(h.force(g), forces(g)[:, 0, :], err_msg="force")
+    time_domain(ca.DM(g))  # the values of a point evaluated with its derivatives: nothing runs again
+    time_domain.jacobian()(ca.DM(g), 0.0, np.zeros(len(prob.variants)))
+    assert len(with_derivatives) == 1, "the same point ran again"
+
+
+@pytest.mark.parametrize("held", [{"filter_s": 0.02}, {"filter_s": 0.0}], ids=["Tf held", "a PI"])
+def test_a_held_gain_is_left_out_of_the_derivatives_and_changes_none_of_the_others(study, feedforward, held):
+    """Where the tuning holds a gain (a schedule's entry holds the robust set's Tf; a PI has no Td and Tf), the horizon
+    carries no derivatives by it (15 or 10 columns instead of 21) and every force, first and second derivative it does
+    carry is the whole run's to the last bit; those by the held gains are not run and read 0."""
+    engine = "compiled" if native.enabled() else "plain"
+    short = dict(step=Reference.step(25.0, 50.0, 0.02, 0.2),
+                 trajectory=Reference.staircase(25.0, [50.0, 40.0], 0.1, t_start_s=0.02), variants={"gain": 0.1})
+    whole = pid._build_problem(study.plant, feedforward.inverse(), pid.TuningSpec(**short), engine).horizon
+    part = pid._build_problem(study.plant, feedforward.inverse(), pid.TuningSpec(**short, **held), engine).horizon
+    free = (0, 1, 2, 4) if held["filter_s"] > 0 else (0, 1, 4)
+    assert whole.free == (0, 1, 2, 3, 4) and part.free == free
+    pairs = [(i, j) for i, j in horizon.PAIRS if i in free and j in free]
+    assert part.size_x == whole.size_x // 21 * (1 + len(free) + len(pairs))
+    g = np.array([1.6, 0.06, 0.004 if held["filter_s"] > 0 else 0.0, held["filter_s"], 0.4])
+    a, b = whole.forces(g), part.forces(g)
+    carried = [0] + [1 + i for i in free] + [1 + horizon.N_GAINS + horizon.PAIRS.index(ij) for ij in pairs]
+    np.testing.assert_array_equal(b[:, carried], a[:, carried], err_msg="a carried row differs")
+    assert not np.any(np.delete(b, carried, axis=1)), "a held gain's derivative was run"
+    for key, value in whole.evaluate(g).items():
+        if key.endswith("_g"):
+            value = value[:, list(free)]
+        elif key.endswith("_h"):
+            value = value[:, list(free)][:, :, list(free)]
+        mine = part.evaluate(g)[key]
+        mine = mine[:, list(free)] if key.endswith("_g") else mine[:, list(free)][:, :, list(free)] if key.endswith(
+            "_h") else mine
+        np.testing.assert_array_equal(mine, value, err_msg=key)
+
+
+def test_the_plain_engine_builds_its_run_over_the_horizon_once(study, feedforward):
+    """Without a C compiler the horizon runs in CasADi's virtual machine: the step over the horizon (``mapaccum``, a
+    third of a derivative run to build) is built once per step and horizon, not at every run."""
+    spec = pid.TuningSpec(step=Reference.step(25.0, 50.0, 0.02, 0.2),
+                          trajectory=Reference.staircase(25.0, [50.0, 40.0], 0.1, t_start_s=0.02),
+                          variants={"gain": 0.1})
+    h = pid._build_problem(study.plant, feedforward.inverse(), spec, "plain").horizon
+    built = []
+
+    class Counted:
+        def __init__(self, fn):
+            self.fn = fn
+
+        def __getattr__(self, name):
+            return getattr(self.fn, name)
+
+        def mapaccum(self, n):
+            built.append(self.fn.name())
+            return self.fn.mapaccum(n)
+
+    h.fn, h.fn_value = Counted(h.fn), Counted(h.fn_value)
+    g = np.array([1.6, 0.06, 0.004, 0.02, 0.4])
+    first = h.forces(g)
+    for gains in (g, 1.1 * g):
+        h.forces(gains), h.force(gains)
+    assert sorted(built) == sorted([h.fn.name(), h.fn_value.name()]), built
+    np.testing.assert_array_equal(h.forces(g), first)
+
+
 def test_smooth_clip_is_the_clip_away_from_its_corners():
     x = np.linspace(-3.0, 3.0, 601)
     X = ca.SX.sym("x")

@@ -12,10 +12,13 @@ shooting) on every plant variant.
 The derivatives by the gains are carried along the simulation (forward sensitivities of the
 one loop step, first and second order: :func:`sensitivity_step`), so one pass over the horizon
 gives the objective, the overshoots and their gradients and Hessians (:class:`Horizon`, handed
-to CasADi as a callback with its Jacobians, :class:`TimeDomain`). Where a C compiler works that
-step runs as C, compiled once and cached (:mod:`piezopreload.core.native`); elsewhere
-(``engine="plain"``) CasADi's virtual machine evaluates it: the same numbers, so the same
-iterates.
+to CasADi as a callback with its Jacobians, :class:`TimeDomain`). Where only the values are asked
+for (IPOPT's line search trying a step, a start being scored) the loop runs without its
+derivatives (:func:`value_step`, the same expressions: the same force to the last bit, in about a
+tenth of the time); a point whose derivatives are then asked for runs again with them. Where a
+C compiler works both steps run as C, compiled once and cached (:mod:`piezopreload.core.native`);
+elsewhere (``engine="plain"``) CasADi's virtual machine evaluates them: the same numbers, so the
+same iterates.
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ from piezopreload.models.loop import LOOP_OUTPUTS, LoopModel
 from piezopreload.models.ops import CASADI
 
 __all__ = ["TUNING_SMOOTHING", "tuning_loop", "feedforward_sequence", "loop_rows", "ROWS", "N_GAINS",
-           "sensitivity_step", "Horizon", "TimeDomain"]
+           "sensitivity_step", "value_step", "Horizon", "TimeDomain"]
 
 #: how round the tuning model's corners are (see :class:`~piezopreload.models.actuator.PlantModel`):
 #: the slew limit's over 1/50 of the limit, the Bouc-Wen direction switch over 1 mV
@@ -78,12 +81,41 @@ PAIRS = [(i, j) for i in range(N_GAINS) for j in range(i, N_GAINS)]
 ROWS = ("r", "ff", "weight", "sign", "restart")
 
 
-def sensitivity_step(loop: LoopModel) -> ca.Function:
+def _sample(loop: LoopModel) -> tuple[Any, Any, Any, Any, Any, Any]:
+    """One sample of the tuning loop over CasADi symbols: ``(x, p, r, ff, restart, out)``, ``out`` the next state
+    and the force (the loop restarted first where ``restart`` is 1); the one expression both steps below run."""
+    x, p = ca.SX.sym("x", loop.state.size), ca.SX.sym("p", loop.params.size)
+    r, ff, restart = ca.SX.sym("r"), ca.SX.sym("ff"), ca.SX.sym("restart")
+    x_from = ca.if_else(restart > 0.5, loop.start(CASADI, p, r, ff), x)
+    x_next, y = loop.step(CASADI, p, x_from, r, 0.0, ff)
+    return x, p, r, ff, restart, ca.vertcat(x_next, y[LOOP_OUTPUTS.index("force_N")])
+
+
+def value_step(loop: LoopModel) -> ca.Function:
+    """One sample of the tuning loop without derivatives: ``(x, p, r, ff, restart) -> (x_next, force)``.
+
+    The same expression as :func:`sensitivity_step`'s state and force (:func:`_sample`), so the same
+    numbers to the last bit, for the evaluations that need no derivatives: a trial point of IPOPT's
+    line search, a start being scored.
+    """
+    nx = loop.state.size
+    x, p, r, ff, restart, out = _sample(loop)
+    return ca.Function("pp_tuning_value_step", [x, p, r, ff, restart], [out[:nx], out[nx]],
+                       ["x", "p", "r", "ff", "restart"], ["x_next", "force_N"])
+
+
+def _pairs(free: Sequence[int]) -> list[tuple[int, int]]:
+    """The pairs ``i <= j`` of the gains ``free`` (indices into the gains), in :data:`PAIRS`' order."""
+    return [(i, j) for i, j in PAIRS if i in free and j in free]
+
+
+def sensitivity_step(loop: LoopModel, free: Sequence[int] = tuple(range(N_GAINS))) -> ca.Function:
     """One sample of the tuning loop with its derivatives by the gains carried along.
 
     ``(xa, p, r, ff, restart) -> (xa_next, out)``: ``xa`` holds the loop's state ``x``, its
     first derivatives ``S = dx/dg`` (by the gains ``g = (Kc, Ti, Td, Tf, b)``, the first five
-    controller parameters) and its second derivatives ``T`` (one column per pair ``i <= j``);
+    controller parameters; by those of them ``free`` names, by index, where the tuning holds the
+    others) and its second derivatives ``T`` (one column per pair ``i <= j`` of them);
     ``p`` the loop's parameters; ``out`` the force, its gradient and its second derivatives.
     Where ``restart`` is 1 the loop first starts afresh (the rig at rest at 0 V, the controller
     bumpless at 0 V with the reference and feedforward of this sample: :meth:`LoopModel.start`),
@@ -92,22 +124,24 @@ def sensitivity_step(loop: LoopModel) -> ca.Function:
     Forward sensitivities, by CasADi's directional derivatives of the one loop step: with
     ``w = (x, g)`` and directions ``d_i = (S_i, e_i)``, ``S_i+ = F' d_i`` and
     ``T_ij+ = d_j' F'' d_i + F_x T_ij``. Five gains make this one small function that a C loop
-    runs over the horizon: the whole NLP's derivatives in one pass, exact.
+    runs over the horizon: the whole NLP's derivatives in one pass, exact. Each direction is its
+    own expression, so a held gain left out changes none of the others' numbers; four gains carry
+    15 columns instead of 21, three 10.
     """
+    free = tuple(int(i) for i in free)
+    if not free or list(free) != sorted(set(free)) or not set(free) <= set(range(N_GAINS)):
+        raise ValueError(f"free must name gains by increasing index in 0..{N_GAINS - 1}, got {free!r}")
+    pairs = _pairs(free)
     nx, n_plant = loop.state.size, loop.plant.params.size
-    x, p = ca.SX.sym("x", nx), ca.SX.sym("p", loop.params.size)
-    r, ff, restart = ca.SX.sym("r"), ca.SX.sym("ff"), ca.SX.sym("restart")
+    x, p, r, ff, restart, out = _sample(loop)
     gains = p[n_plant:n_plant + N_GAINS]
-    x_from = ca.if_else(restart > 0.5, loop.start(CASADI, p, r, ff), x)
-    x_next, y = loop.step(CASADI, p, x_from, r, 0.0, ff)
-    out = ca.vertcat(x_next, y[LOOP_OUTPUTS.index("force_N")])
-    S, T = ca.SX.sym("S", nx, N_GAINS), ca.SX.sym("T", nx, len(PAIRS))
+    S, T = ca.SX.sym("S", nx, len(free)), ca.SX.sym("T", nx, len(pairs))
     w = ca.vertcat(x, gains)
-    directions = ca.vertcat(S, ca.DM.eye(N_GAINS))
+    directions = ca.vertcat(S, ca.DM.eye(N_GAINS)[:, list(free)])
     first = ca.jtimes(out, w, directions)
-    along = [ca.jtimes(out, w, directions[:, i]) for i in range(N_GAINS)]
-    second = ca.horzcat(*[ca.jtimes(along[i], w, directions[:, j]) + ca.jtimes(out, x, T[:, k])
-                          for k, (i, j) in enumerate(PAIRS)])
+    along = [ca.jtimes(out, w, directions[:, a]) for a in range(len(free))]
+    second = ca.horzcat(*[ca.jtimes(along[free.index(i)], w, directions[:, free.index(j)]) + ca.jtimes(out, x, T[:, k])
+                          for k, (i, j) in enumerate(pairs)])
     xa = ca.vertcat(x, ca.vec(S), ca.vec(T))
     xa_next = ca.vertcat(out[:nx], ca.vec(first[:nx, :]), ca.vec(second[:nx, :]))
     result = ca.vertcat(out[nx], first[nx, :].T, second[nx, :].T)
@@ -120,38 +154,100 @@ class Horizon:
     second derivatives by the gains, and what the NLP takes from them: the objective and the
     step's overshoot (a smooth maximum) per variant, with their gradients and Hessians.
 
-    ``engine`` ``"compiled"`` runs :func:`sensitivity_step` as C (a :class:`~piezopreload.core.native.StepRunner`,
-    built once and cached); ``"plain"`` evaluates the same function in CasADi's virtual machine.
-    The last evaluation is kept: IPOPT asks for values, Jacobians and Hessians at one point.
+    ``engine`` ``"compiled"`` runs :func:`sensitivity_step` and :func:`value_step` as C (each a
+    :class:`~piezopreload.core.native.StepRunner`, built once and cached); ``"plain"`` evaluates the same functions in
+    CasADi's virtual machine. :meth:`values` runs the loop without its derivatives, :meth:`evaluate` with them; the
+    last evaluation of each is kept: IPOPT asks for values, Jacobians and Hessians at one point. ``free`` names (by
+    index into the gains) those the tuning varies (None: all five); the derivatives by the others are not run.
     """
 
     def __init__(self, loop: LoopModel, variants: list[Plant], rows: np.ndarray, tail: np.ndarray,
-                 engine: str) -> None:
+                 engine: str, free: Sequence[int] | None = None) -> None:
         self.loop, self.rows, self.tail = loop, rows, tail  # tail: the controller's parameters after the gains
         self.plants = np.array([loop.plant.parameters(v) for v in variants])
         self.n_variants, self.n = len(variants), rows.shape[1]
-        self.fn = sensitivity_step(loop)
+        self.free = tuple(range(N_GAINS)) if free is None else tuple(int(i) for i in free)
+        self.fn = sensitivity_step(loop, self.free)
+        self.fn_value = value_step(loop)
         self.size_x = int(self.fn.numel_in(0))
         self.engine = engine
         self.runner: native.StepRunner | None = None
+        self.value_runner: native.StepRunner | None = None
         if engine == "compiled":
-            self.runner = native.step_runner(("tuning", loop), lambda: self.fn, "pp_tuning_sensitivity",
-                                             native.FLAGS_LARGE)
+            suffix = "" if len(self.free) == N_GAINS else "_" + "".join(str(i) for i in self.free)
+            self.runner = native.step_runner(("tuning", loop, self.free), lambda: self.fn,
+                                             "pp_tuning_sensitivity" + suffix, native.FLAGS_LARGE)
+            self.value_runner = native.step_runner(("tuning value", loop), lambda: self.fn_value, "pp_tuning_value")
         self._key: bytes | None = None
         self._value: dict[str, np.ndarray] = {}
+        self._values_key: bytes | None = None
+        self._values: dict[str, np.ndarray] = {}
+        self._rolls: dict[str, ca.Function] = {}  # the plain engine's steps over the horizon
+
+    def _params(self, gains: np.ndarray) -> np.ndarray:
+        return np.hstack([self.plants, np.tile(np.concatenate([gains, self.tail]), (self.n_variants, 1))])
+
+    def _run(self, fn: ca.Function, runner: native.StepRunner | None, gains: np.ndarray) -> np.ndarray:
+        """``fn``'s outputs ``(variants, outputs, samples)`` over the horizon, each variant from rest."""
+        params = self._params(gains)
+        r, ff, restart = (self.rows[ROWS.index(k)] for k in ("r", "ff", "restart"))
+        x0 = np.zeros(int(fn.numel_in(0)))
+        if runner is not None:
+            out, _ = runner(params, x0, [r, ff, restart], self.n_variants)
+            return out
+        if fn.name() not in self._rolls:  # built once: building the derivative step's takes a third of a run
+            self._rolls[fn.name()] = fn.mapaccum(self.n)
+        roll = self._rolls[fn.name()]
+        return np.array([np.asarray(roll(x0, params[v], r[None, :], ff[None, :], restart[None, :])[1], float)
+                         .reshape(-1, self.n) for v in range(self.n_variants)])
 
     def forces(self, gains: np.ndarray) -> np.ndarray:
-        """``(variants, 1 + 5 + 15, samples)``: the force, its gradient and its second derivatives."""
-        params = np.hstack([self.plants, np.tile(np.concatenate([gains, self.tail]), (self.n_variants, 1))])
-        r, ff, restart = (self.rows[ROWS.index(k)] for k in ("r", "ff", "restart"))
-        if self.runner is not None:
-            out, _ = self.runner(params, np.zeros(self.size_x), [r, ff, restart], self.n_variants)
-            return out
-        roll = self.fn.mapaccum(self.n)
-        return np.array([np.asarray(roll(np.zeros(self.size_x), params[v], r[None, :], ff[None, :],
-                                         restart[None, :])[1], float) for v in range(self.n_variants)])
+        """``(variants, 1 + 5 + 15, samples)``: the force, its gradient and its second derivatives (in :data:`PAIRS`'
+        order); those by a gain the tuning holds (not in ``free``) are not run and hold 0."""
+        ran = self._run(self.fn, self.runner, np.asarray(gains, float))
+        if len(self.free) == N_GAINS:
+            return ran
+        out = np.zeros((self.n_variants, 1 + N_GAINS + len(PAIRS), self.n))
+        rows = [0] + [1 + i for i in self.free] + [1 + N_GAINS + PAIRS.index(pair) for pair in _pairs(self.free)]
+        out[:, rows, :] = ran
+        return out
+
+    def force(self, gains: np.ndarray) -> np.ndarray:
+        """``(variants, samples)``: the force alone (:func:`value_step`; the same numbers as :meth:`forces`'s first
+        row)."""
+        return self._run(self.fn_value, self.value_runner, np.asarray(gains, float))[:, 0, :]
+
+    def _reduced(self, y: np.ndarray) -> dict[str, np.ndarray]:
+        """What the NLP reads from the force ``y`` ``(variants, samples)``: the objective and the step's overshoot per
+        variant, and the weights their derivatives are made of."""
+        r, weight, sign = (self.rows[ROWS.index(k)] for k in ("r", "weight", "sign"))
+        # the objective: sum_k w_k phi(r_k - y_k), phi(e) = sqrt(e^2 + 1e-4)
+        e = r - y
+        phi = np.sqrt(e * e + 1e-4)
+        # the step's overshoot: a Kreisselmeier-Steinhauser maximum of sign (y - r); samples before
+        # the first change (sign 0) drop out
+        o = sign * (y - r) + (np.abs(sign) - 1.0) * 1e3
+        m = np.max(o, axis=-1, keepdims=True)
+        ex = np.exp(_RHO_OVERSHOOT * (o - m))
+        total = np.sum(ex, axis=-1, keepdims=True)
+        return {"objective": np.sum(weight * phi, axis=-1), "overshoot": m[:, 0] + np.log(total[:, 0]) / _RHO_OVERSHOOT,
+                "e": e, "phi": phi, "pi": ex / total}
+
+    def values(self, gains: Any) -> dict[str, np.ndarray]:
+        """The objective and the step's overshoot per variant at ``gains``, without their derivatives (from the last
+        :meth:`evaluate` where that was at the same gains): the same numbers as :meth:`evaluate`'s."""
+        gains = np.asarray(gains, float).ravel()
+        key = gains.tobytes()
+        if key == self._key:
+            return self._value
+        if key != self._values_key:
+            reduced = self._reduced(self.force(gains))
+            self._values_key = key
+            self._values = {"objective": reduced["objective"], "overshoot": reduced["overshoot"]}
+        return self._values
 
     def evaluate(self, gains: Any) -> dict[str, np.ndarray]:
+        """The objective and the step's overshoot per variant at ``gains`` with their gradients and Hessians."""
         gains = np.asarray(gains, float).ravel()
         key = gains.tobytes()
         if key == self._key:
@@ -161,31 +257,21 @@ class Horizon:
         d2 = np.zeros((self.n_variants, N_GAINS, N_GAINS, self.n))
         for k, (i, j) in enumerate(PAIRS):
             d2[:, i, j] = d2[:, j, i] = y_all[:, 1 + N_GAINS + k, :]
-        r, weight, sign = (self.rows[ROWS.index(k)] for k in ("r", "weight", "sign"))
-        # the objective: sum_k w_k phi(r_k - y_k), phi(e) = sqrt(e^2 + 1e-4)
-        e = r - y
-        phi = np.sqrt(e * e + 1e-4)
+        weight, sign = (self.rows[ROWS.index(k)] for k in ("weight", "sign"))
+        reduced = self._reduced(y)
+        e, phi, pi = reduced["e"], reduced["phi"], reduced["pi"]
         d1, dd = e / phi, 1e-4 / phi**3  # phi' and phi''
-        obj = np.sum(weight * phi, axis=-1)
         w1, w2 = weight * d1, weight * dd  # (variants, samples)
         obj_g = -np.matmul(dy, w1[:, :, None])[..., 0]
         obj_h = np.matmul(dy * w2[:, None, :], dy.transpose(0, 2, 1)) - np.matmul(d2, w1[:, None, :, None])[..., 0]
-        # the step's overshoot: a Kreisselmeier-Steinhauser maximum of sign (y - r); samples before
-        # the first change (sign 0) drop out
-        o = sign * (y - r) + (np.abs(sign) - 1.0) * 1e3
-        m = np.max(o, axis=-1, keepdims=True)
-        ex = np.exp(_RHO_OVERSHOOT * (o - m))
-        total = np.sum(ex, axis=-1, keepdims=True)
-        ks = m[:, 0] + np.log(total[:, 0]) / _RHO_OVERSHOOT
-        pi = ex / total
         s_dy = sign[None, None, :] * dy
         ks_g = np.matmul(s_dy, pi[:, :, None])[..., 0]
         ks_h = (np.matmul(d2, (pi * sign)[:, None, :, None])[..., 0]
                 + _RHO_OVERSHOOT * (np.matmul(s_dy * pi[:, None, :], s_dy.transpose(0, 2, 1))
                                     - ks_g[:, :, None] * ks_g[:, None, :]))
         self._key = key
-        self._value = {"objective": obj, "objective_g": obj_g, "objective_h": obj_h,
-                       "overshoot": ks, "overshoot_g": ks_g, "overshoot_h": ks_h}
+        self._value = {"objective": reduced["objective"], "objective_g": obj_g, "objective_h": obj_h,
+                       "overshoot": reduced["overshoot"], "overshoot_g": ks_g, "overshoot_h": ks_h}
         return self._value
 
 
@@ -222,9 +308,10 @@ class TimeDomain(ca.Callback):
         return ca.Sparsity.dense(rows, N_GAINS) if i % 3 == 0 else ca.Sparsity(rows, shape[0] * shape[1])
 
     def eval(self, arg: Sequence[Any]) -> list[Any]:
-        v = self.h.evaluate(arg[0])
-        if self.order == 0:
+        if self.order == 0:  # values only: no derivatives run unless asked for (:meth:`Horizon.values`)
+            v = self.h.values(arg[0])
             return [np.sum(v["objective"]), v["overshoot"]]
+        v = self.h.evaluate(arg[0])
         if self.order == 1:
             return [np.sum(v["objective_g"], axis=0)[None, :], v["overshoot_g"]]
         # d vec(jac)/d gains: row i the objective's; row v + nv i the overshoot of variant v's

@@ -353,6 +353,10 @@ def _variable_names(spec: TuningSpec) -> list[str]:
             + (["b"] if spec.tune_setpoint_weight else []))
 
 
+#: the decision variables in the order of the gains the tuning horizon is differentiated by (its ``N_GAINS``)
+_GAIN_ORDER = ("Kc", "Ti", "Td", "Tf", "b")
+
+
 def _horizon(params: Plant, feedforward: InverseModel | None, spec: TuningSpec, variants: list[Plant],
              engine: str) -> Horizon:
     """The step, then the trajectory, on one horizon: the loop restarts at each one's first sample (the
@@ -366,7 +370,9 @@ def _horizon(params: Plant, feedforward: InverseModel | None, spec: TuningSpec, 
         if name != "step":
             rows["sign"] = np.zeros_like(rows["r"])
         parts.append(np.vstack([rows[k] for k in ROWS]))
-    return Horizon(tuning_loop(params), variants, np.hstack(parts), np.array([spec.u_min_V, spec.u_max_V, dt]), engine)
+    free = [i for i, name in enumerate(_GAIN_ORDER) if name in _variable_names(spec)]  # the held gains' not run
+    return Horizon(tuning_loop(params), variants, np.hstack(parts), np.array([spec.u_min_V, spec.u_max_V, dt]), engine,
+                   free)
 
 
 def _ms_blocks(d: Any, gains4: list[Any], slopes: list[tuple[float, float]], n_omega: int,
