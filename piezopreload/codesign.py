@@ -564,17 +564,17 @@ def choose_ff_lead(study: StudySpec, cand: Candidate) -> Candidate:
     Candidate
         ``cand`` with ``ff_lead_s`` chosen and ``ff_leads_tried`` (each lead tried with its tracking RMS, N).
     """
-    if cand.least_plan is None:
-        cand = replace(cand, least_plan=planned_schedule(study, cand.point))
+    plan = cand.least_plan if cand.least_plan is not None else planned_schedule(study, cand.point)
     if cand.feedforward is None:
         cand = replace(cand, feedforward=identify(study, Solved(study, cand.point)))
+    cand = replace(cand, least_plan=plan)
     dt = float(_plant(study, cand.point).sample_period_s)
     top = int(math.floor(FF_LEAD_MAX_S / dt + 1e-9))
     tried: dict[int, float] = {}
 
     def rms(k: int) -> float:
         if k not in tried:
-            run = along_schedule(study, cand, cand.least_plan, 1, k * dt)  # type: ignore[arg-type]
+            run = along_schedule(study, cand, plan, 1, k * dt)
             tried[k] = float(run.evaluation.numbers.tracking_rms_N)
         return tried[k]
 
