@@ -300,7 +300,7 @@ def _responses_record():
     runs = tuple(ResponseRun(g, c, ref, f"responses/{g}_{c}_{ref}.csv", settling_s=None if g == "study" else 0.05,
                              overshoot_N=1.5, tracking_rms_N=2.0)
                  for g in ("study", "tuned") for c in ("pid", "ff+pid") for ref in ("step", "trajectory"))
-    return ResponsesRecord(runs, 1.5, "measured", 7, (ReproductionRow("ff+pid", "settling_s", 0.06, None, 0.05),),
+    return ResponsesRecord(runs, 1.5, "measured_N", 7, (ReproductionRow("ff+pid", "settling_s", 0.06, None, 0.05),),
                            (CreepRow("tuned", True, "modified+creep", "step", 0.05, 1.5, 2.0, 1.0),), {"seed": 7})
 
 

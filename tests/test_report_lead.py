@@ -20,6 +20,7 @@ from piezopreload.artifacts.requirements import Requirement, least_margin, own_c
 from piezopreload.artifacts.sensitivity import SensitivityRecord, SensitivityRow
 from piezopreload.core.quantities import RESOLUTION, number, quantity
 from piezopreload.core.stages import StageOutcome
+from piezopreload.models.thermal import ThermalMounting
 from piezopreload.outcome import Headline, StudyResult
 from piezopreload.reports.document import Report, fmt, q
 from piezopreload.reports.inputs import ReportStudy
@@ -189,7 +190,7 @@ def test_a_missed_growth_names_its_heat_in_the_verdict():
                          "[thermal] thermal_growth_max_um")
     case = SimpleNamespace(heat_mean_W=50.04, preload_mean_N=1070.2, bearing_heat_mean_W=46.1,
                            temperature_rise_max_K=9.71)
-    thermal = SimpleNamespace(shift_h=8.0, schedule=case, mounting="pretensioned", pretension_K=3.0,
+    thermal = SimpleNamespace(shift_h=8.0, schedule=case, mounting=ThermalMounting.PRETENSIONED, pretension_K=3.0,
                               constant=SimpleNamespace(heat_mean_W=107.5, preload_mean_N=1697.1))
     artifacts = SimpleNamespace(requirements=lambda: (growth,),
                                 system=SimpleNamespace(thermal=thermal, sensitivity=None))
