@@ -20,7 +20,8 @@ from __future__ import annotations
 import math
 from typing import Any, ClassVar
 
-from piezopreload.core.records import Record, SavedArtifact, entry, record
+from piezopreload.artifacts.requirements import SENSES, Sense
+from piezopreload.core.records import Record, SavedArtifact, as_members, entry, record
 
 __all__ = ["FrontPoint", "RequirementRow", "CodesignRecord", "KIND", "FRONT_RTOL", "nondominated"]
 
@@ -66,11 +67,16 @@ class RequirementRow(Record):
 
     requirement: str = entry("The requirement, in words.")
     unit: str = entry("Its unit (empty: a ratio).")
-    kind: str = entry("``min`` (at least the limit) or ``max`` (at most).", choices=("min", "max"))
+    kind: Sense = entry("``min`` (at least the limit) or ``max`` (at most).")
     sequential: float = entry("The sequential answer's figure.")
     codesigned: float = entry("The co-designed answer's figure.")
     limit: float | None = entry("Its limit (null: none; the figure is shown, not judged).", default=None,
                                 required=True)
+
+    def __post_init__(self) -> None:
+        as_members(self)
+        if not isinstance(self.kind, Sense):
+            raise ValueError(f"RequirementRow.kind must be one of {', '.join(SENSES)}, got {self.kind!r}")
 
     def met(self, which: str) -> bool | None:
         """Whether ``which`` (``sequential`` or ``codesigned``) meets the limit (None: no limit).
@@ -88,7 +94,7 @@ class RequirementRow(Record):
         if self.limit is None:
             return None
         x = float(getattr(self, which))
-        return x >= self.limit if self.kind == "min" else x <= self.limit
+        return self.kind.meets(x, self.limit)
 
 
 def _dominates(a: FrontPoint, b: FrontPoint, rtol: float) -> bool:

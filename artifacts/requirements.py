@@ -19,19 +19,77 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Iterable
+from enum import StrEnum
 from typing import Any, ClassVar
 
 from piezopreload.core.errors import ArtifactError
 from piezopreload.core.quantities import number
-from piezopreload.core.records import Record, entry, record
+from piezopreload.core.records import Record, as_members, entry, record
 
-__all__ = ["Requirement", "AtBound", "OffBounds", "BASES", "EXIT_REQUIREMENT_MISSED", "requirements_from_dict",
-           "missed", "least_margin", "own_constraints", "unaccepted"]
+__all__ = ["Sense", "SENSES", "Requirement", "AtBound", "OffBounds", "BASES", "EXIT_REQUIREMENT_MISSED",
+           "requirements_from_dict", "missed", "least_margin", "own_constraints", "unaccepted"]
 
 #: the exit code of a study that ran but missed a requirement (0 done, 1 internal, 2 bad input, 3 rig stopped)
 EXIT_REQUIREMENT_MISSED = 4
 
-_SENSES = ("min", "max")
+class Sense(StrEnum):
+    """Which side of its limit a requirement's value must lie: at least the limit (``min``), or at most (``max``)."""
+
+    AT_LEAST = "min"
+    AT_MOST = "max"
+
+    @property
+    def words(self) -> str:
+        """``at least`` or ``at most``, as a verdict says it."""
+        return "at least" if self is Sense.AT_LEAST else "at most"
+
+    @property
+    def symbol(self) -> str:
+        """``>=`` or ``<=``."""
+        return ">=" if self is Sense.AT_LEAST else "<="
+
+    @property
+    def sign(self) -> str:
+        """``≥`` or ``≤``, as a table prints it."""
+        return "≥" if self is Sense.AT_LEAST else "≤"
+
+    def margin(self, value: float, limit: float) -> float:
+        """How far ``value`` lies inside ``limit``, in their unit: >= 0 met, < 0 missed by that much.
+
+        Parameters
+        ----------
+        value : float
+            What was achieved.
+        limit : float
+            The required bound.
+
+        Returns
+        -------
+        float
+            ``value - limit`` at least the limit, ``limit - value`` at most.
+        """
+        return value - limit if self is Sense.AT_LEAST else limit - value
+
+    def meets(self, value: float, limit: float) -> bool:
+        """Whether ``value`` lies on the required side of ``limit`` (the limit itself included).
+
+        Parameters
+        ----------
+        value : float
+            What was achieved.
+        limit : float
+            The required bound.
+
+        Returns
+        -------
+        bool
+            The verdict: its :meth:`margin` is zero or more.
+        """
+        return bool(self.margin(value, limit) >= 0.0)
+
+
+#: the senses, in their order
+SENSES = tuple(Sense)
 
 
 
@@ -74,7 +132,7 @@ class Requirement(Record):
     value: float = entry("What the run achieved (the worst case over the run), in ``unit``.")
     limit: float = entry("The required bound, in ``unit``.")
     unit: str = entry('The unit of ``value`` and ``limit`` ("N/um").')
-    sense: str = entry("``min``: the value must be at least the limit; ``max``: at most.", choices=_SENSES)
+    sense: Sense = entry("``min``: the value must be at least the limit; ``max``: at most.")
     source: str = entry('Where the limit is set ("[schedule] stiffness_min_N_per_um").', default="")
     key: str = entry("A short name a user gives to accept a missed requirement (``validation.overshoot_max_N@2000N``); "
                      "where not given, the source's table and key (``schedule.stiffness_min_N_per_um``), else the "
@@ -90,8 +148,9 @@ class Requirement(Record):
             match = re.match(r"\[([\w.]+)\]\s+(\w+)", self.source)
             object.__setattr__(self, "key", f"{match.group(1)}.{match.group(2)}" if match
                                else re.sub(r"\W+", "_", self.name).strip("_"))
-        if self.sense not in _SENSES:
-            raise ValueError(f"Requirement.sense must be one of {', '.join(_SENSES)}, got {self.sense!r}")
+        as_members(self)
+        if not isinstance(self.sense, Sense):
+            raise ValueError(f"Requirement.sense must be one of {', '.join(SENSES)}, got {self.sense!r}")
         for label in ("value", "limit"):
             if not math.isfinite(getattr(self, label)):
                 raise ValueError(f"Requirement '{self.name}': {label} must be finite, got {getattr(self, label)!r}")
@@ -99,7 +158,7 @@ class Requirement(Record):
     @property
     def margin(self) -> float:
         """How far the value is inside the limit, in its unit: >= 0 met, < 0 missed by that much."""
-        return self.value - self.limit if self.sense == "min" else self.limit - self.value
+        return self.sense.margin(self.value, self.limit)
 
     @property
     def margin_pct(self) -> float | None:
@@ -128,7 +187,7 @@ class Requirement(Record):
             ``NAME: VALUE UNIT against at least|at most LIMIT UNIT (SOURCE), met with M UNIT to spare (P %)``, or
             ``missed by M UNIT`` where the margin is negative.
         """
-        bound = "at least" if self.sense == "min" else "at most"
+        bound = self.sense.words
         where = f" ({self.source})" if self.source and source else ""
         u = self.unit
         head = f"{self.name}: {number(self.value, u)} {u} against {bound} {number(self.limit, u)} {u}{where}"
@@ -146,7 +205,7 @@ class Requirement(Record):
             The achieved value, ``>=`` or ``<=`` by :attr:`sense`, and the limit, each with its unit.
         """
         u = self.unit
-        return f"{number(self.value, u)} {u} {'>=' if self.sense == 'min' else '<='} {number(self.limit, u)} {u}"
+        return f"{number(self.value, u)} {u} {self.sense.symbol} {number(self.limit, u)} {u}"
 
     def line(self, label: str = "", width: int = 0) -> str:
         """One line of a table of verdicts: ``met``/``MISSED``, the margin as a share of the limit, the figures

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from piezopreload.artifacts.requirements import Requirement
+from piezopreload.artifacts.requirements import Requirement, Sense
 from piezopreload.core.records import Checked, Record, SavedArtifact, entry, record
 from piezopreload.models.closedloop import PAPER_BAND_N
 from piezopreload.models.metrics import Signal
@@ -241,8 +241,8 @@ class ValidationResult(SavedArtifact):
             limit = float(getattr(self.criteria, key))
             if value is None:  # never settled, or no finite value: a miss by more than any number
                 value = 1e9 * max(abs(limit), 1.0)
-            out.append(Requirement(f"{name} over {self.n_plants} Monte Carlo plants", float(value), limit, unit, "max",
-                                   f"[validation] {key}"))
+            out.append(Requirement(f"{name} over {self.n_plants} Monte Carlo plants", float(value), limit, unit,
+                                   Sense.AT_MOST, f"[validation] {key}"))
         return tuple(out)
 
     def failed_plants(self, shown: int = 3) -> str:

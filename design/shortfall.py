@@ -29,6 +29,7 @@ import casadi as ca
 import numpy as np
 
 from piezopreload.artifacts.design import CONSTRAINT_WORDS, case_words
+from piezopreload.artifacts.requirements import Sense
 from piezopreload.models.ballscrew import LIFT_OFF_RATIO
 
 if TYPE_CHECKING:  # the NLP's type only: design/preload.py calls this module when it finds no design
@@ -44,28 +45,28 @@ def _case(spec: DesignSpec, j: int) -> str:
 
 
 #: each requirement a study sets (its words and key: :data:`~piezopreload.artifacts.design.CONSTRAINT_WORDS`): its
-#: unit; its sense, "min" for at least, "max" for at most; its value and its limit at a design, from the design's
+#: unit; its sense (at least or at most the limit); its value and its limit at a design, from the design's
 #: expressions and a case index
-REQUIREMENTS: dict[str, tuple[str, str, Reading]] = {
-    "stiffness_min": ("N/um", "min", lambda s, e, j: (min(e.rigidity), s.stiffness_min_N_per_um)),
-    "life": ("h", "min", lambda s, e, j: (math.exp(e.log_L), s.life_min_h)),
-    "preload_limit": ("N", "max", lambda s, e, j: (e.F_hi, s.preload_fraction_max * e.c_dyn)),
+REQUIREMENTS: dict[str, tuple[str, Sense, Reading]] = {
+    "stiffness_min": ("N/um", Sense.AT_LEAST, lambda s, e, j: (min(e.rigidity), s.stiffness_min_N_per_um)),
+    "life": ("h", Sense.AT_LEAST, lambda s, e, j: (math.exp(e.log_L), s.life_min_h)),
+    "preload_limit": ("N", Sense.AT_MOST, lambda s, e, j: (e.F_hi, s.preload_fraction_max * e.c_dyn)),
     # the largest load without lift-off at the highest preload, 2^1.5 F_hi / lift_off_margin
-    "lift_off_max_load": ("N", "min", lambda s, e, j: (LIFT_OFF_RATIO * e.F_hi / s.lift_off_margin,
+    "lift_off_max_load": ("N", Sense.AT_LEAST, lambda s, e, j: (LIFT_OFF_RATIO * e.F_hi / s.lift_off_margin,
                                                        s.axial_load_max_N)),
     # the load the bolts alone carry without lift-off, 2^1.5 F_i / lift_off_margin
-    "lift_off_failsafe": ("N", "min", lambda s, e, j: (LIFT_OFF_RATIO * e.F_i / s.lift_off_margin,
+    "lift_off_failsafe": ("N", Sense.AT_LEAST, lambda s, e, j: (LIFT_OFF_RATIO * e.F_i / s.lift_off_margin,
                                                        s.failsafe_load_N)),
-    "contact_pressure_screw": ("MPa", "max", lambda s, e, j: (e.p_screw, s.contact_pressure_max_MPa)),
-    "contact_pressure_nut": ("MPa", "max", lambda s, e, j: (e.p_nut, s.contact_pressure_max_MPa)),
-    "drag_torque": ("N m", "max", lambda s, e, j: (e.drag_hi, s.drag_torque_max_Nm)),
-    "stack_stroke": ("um", "max", lambda s, e, j: (e.stroke, s.actuator.stroke_um)),
-    "stack_force": ("N", "max", lambda s, e, j: (e.F_hi - e.F_i, s.actuator.blocked_force_N)),
-    "ball_lead": ("mm", "max", lambda s, e, j: (e.D_w, s.ball_lead_ratio_max * s.lead_mm)),
-    "nut_length": ("mm", "max", lambda s, e, j: (e.turns * s.lead_mm, s.nut_length_max_mm)),
-    "lift_off_case": ("N", "min", lambda s, e, j: (LIFT_OFF_RATIO * e.F_case[j] / s.lift_off_margin,
+    "contact_pressure_screw": ("MPa", Sense.AT_MOST, lambda s, e, j: (e.p_screw, s.contact_pressure_max_MPa)),
+    "contact_pressure_nut": ("MPa", Sense.AT_MOST, lambda s, e, j: (e.p_nut, s.contact_pressure_max_MPa)),
+    "drag_torque": ("N m", Sense.AT_MOST, lambda s, e, j: (e.drag_hi, s.drag_torque_max_Nm)),
+    "stack_stroke": ("um", Sense.AT_MOST, lambda s, e, j: (e.stroke, s.actuator.stroke_um)),
+    "stack_force": ("N", Sense.AT_MOST, lambda s, e, j: (e.F_hi - e.F_i, s.actuator.blocked_force_N)),
+    "ball_lead": ("mm", Sense.AT_MOST, lambda s, e, j: (e.D_w, s.ball_lead_ratio_max * s.lead_mm)),
+    "nut_length": ("mm", Sense.AT_MOST, lambda s, e, j: (e.turns * s.lead_mm, s.nut_length_max_mm)),
+    "lift_off_case": ("N", Sense.AT_LEAST, lambda s, e, j: (LIFT_OFF_RATIO * e.F_case[j] / s.lift_off_margin,
                                                    abs(s.duty[j].axial_load_N))),
-    "frequency_case": ("Hz", "min", lambda s, e, j: (e.freq[j], s.frequency_min_Hz)),
+    "frequency_case": ("Hz", Sense.AT_LEAST, lambda s, e, j: (e.freq[j], s.frequency_min_Hz)),
 }
 
 
@@ -120,7 +121,7 @@ class Shortfall:
     reading: str
     reached: float
     required: float
-    sense: str
+    sense: Sense
     short_by: float
     units: str
     turns: int | None
@@ -134,9 +135,9 @@ def _reading(nlp: DesignNLP, group: str, y: np.ndarray, turns: tuple[int, int] |
     spec, e = nlp.spec, nlp.evaluate(y)
     cases = range(len(spec.duty)) if group.endswith("_case") else (0,)
     values = [(*read(spec, e, j), j) for j in cases]
-    reached, required, j = min(values, key=lambda v: (v[0] - v[1]) if sense == "min" else (v[1] - v[0]))
+    reached, required, j = min(values, key=lambda v: sense.margin(v[0], v[1]))
     x = nlp.to_physical(y)
-    short = required - reached if sense == "min" else reached - required
+    short = -sense.margin(reached, required)
     return Shortfall(constraint=group, requirement=what.format(cases=_case(spec, j)), key=key,
                      reading=_READINGS.get(group, "reaches"), reached=float(reached), required=float(required),
                      sense=sense, short_by=float(short), units=unit, turns=int(round(x[3])) if turns else None,
@@ -193,6 +194,6 @@ def shortfall_message(misses: list[Shortfall]) -> str:
     for m in misses:
         design = "" if m.turns is None else f" ({m.turns} turns of {m.balls_per_turn} balls per turn)"
         parts.append(f"{m.requirement}, set by {m.key}: the closest design{design} {m.reading} "
-                     f"{_number(m.reached)} {m.units} against {'at least' if m.sense == 'min' else 'at most'} "
+                     f"{_number(m.reached)} {m.units} against {m.sense.words} "
                      f"{_number(m.required)} {m.units}, {_number(m.short_by)} {m.units} short")
     return "; ".join(parts)

@@ -63,7 +63,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezopreload.artifacts.plant import DesignedPlant
-from piezopreload.artifacts.requirements import AtBound, OffBounds, Requirement
+from piezopreload.artifacts.requirements import AtBound, OffBounds, Requirement, Sense
 from piezopreload.artifacts.schedule import LIFT_OFF_KEY, RIGIDITY_KEY, PreloadSchedule, ScheduleSpec
 from piezopreload.artifacts.sensitivity import SensitivityRecord
 from piezopreload.artifacts.summaries import SystemSummary
@@ -229,7 +229,7 @@ def frame_under(frame: _Frame, screw: BallScrew, spec: ScheduleSpec) -> _Frame:
     return dc_replace(frame, **_mechanics(screw, spec, frame.planned, frame.achieved, frame.load))
 
 
-def _verdict(name: str, value: float, limit: float, unit: str, sense: str, source: str, key: str) -> Requirement:
+def _verdict(name: str, value: float, limit: float, unit: str, sense: Sense, source: str, key: str) -> Requirement:
     """A requirement, its value within :data:`ROUND_OFF` of the limit taken as the limit (met with nothing to spare)."""
     value = limit if abs(value - limit) <= ROUND_OFF * abs(limit) else value
     return Requirement(name, float(value), float(limit), unit, sense, source, key)
@@ -249,16 +249,16 @@ def requirements_of(frame: _Frame, schedule: PreloadSchedule,
     ratio = np.where(c, frame.rigidity / frame.required, np.inf)
     k = int(np.argmin(ratio))
     by_deflection = frame.required[k] > spec.stiffness_min_N_per_um
-    out = [_verdict(RIGIDITY_VERDICT, frame.rigidity[k], frame.required[k], "N/um", "min",
+    out = [_verdict(RIGIDITY_VERDICT, frame.rigidity[k], frame.required[k], "N/um", Sense.AT_LEAST,
                     "[schedule] deflection_max_um (|F_a| / deflection_max_um)" if by_deflection
                     else "[schedule] stiffness_min_N_per_um", RIGIDITY_KEY)]
     if math.isfinite(spec.deflection_max_um):
         out.append(_verdict("nut axial deflection while cutting", float(np.max(np.abs(frame.deflection[c]))),
-                            spec.deflection_max_um, "um", "max", "[schedule] deflection_max_um",
+                            spec.deflection_max_um, "um", Sense.AT_MOST, "[schedule] deflection_max_um",
                             "schedule.deflection_max_um"))
     lift = np.where(c, frame.achieved / np.maximum(frame.lift_bound, 1e-9), np.inf)
     j = int(np.argmin(lift))
-    out.append(_verdict(LIFT_OFF_BOUND_VERDICT, frame.achieved[j], frame.lift_bound[j], "N", "min",
+    out.append(_verdict(LIFT_OFF_BOUND_VERDICT, frame.achieved[j], frame.lift_bound[j], "N", Sense.AT_LEAST,
                         "[schedule] lift_off_margin (lift_off_margin |F_a| / 2^(3/2))", LIFT_OFF_KEY))
     return tuple(dc_replace(r, name=r.name + OWN_CONSTRAINT, basis="design") if r.key in own else r for r in out)
 
@@ -778,6 +778,6 @@ def margin_basis(run: SystemRun, design: DesignSpec,
         lift_off_margin_catalogue_pct=100.0 * (LIFT_OFF_RATIO * preload / load - 1.0))
     over = "on the nominal plant" if scatter is None else f"the worst of {ratios.shape[0]} Monte Carlo plants"
     requirement = dc_replace(
-        _verdict(f"lift-off load by the nut law against the cutting load, {over}", lift, load, "N", "min",
+        _verdict(f"lift-off load by the nut law against the cutting load, {over}", lift, load, "N", Sense.AT_LEAST,
                  f"physics: {LIFT_OFF_LAW}; no safety factor", "schedule.lift_off_physical"), basis="physics")
     return basis, requirement

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from piezopreload.artifacts.requirements import Requirement
+from piezopreload.artifacts.requirements import Requirement, Sense
 from piezopreload.artifacts.thermal import PreloadCase, PreloadDrift, ThermalCase, ThermalRecord
 from piezopreload.core.errors import InputError
 from piezopreload.design.system import SystemRun
@@ -436,8 +436,8 @@ def _limits(table: ThermalTable, growth_max_um: float, positioning_error_max_um:
              "positioning error over the shift (deflection, growth, tracking)", "[thermal] positioning_error_max_um")):
         if limit is None:
             continue
-        out.append(Requirement(name if value <= limit or not cause else f"{name} ({cause})", value, limit, "um", "max",
-                               source))
+        out.append(Requirement(name if value <= limit or not cause else f"{name} ({cause})", value, limit, "um",
+                               Sense.AT_MOST, source))
     return tuple(out)
 
 

@@ -74,6 +74,7 @@ import numpy as np
 from piezopreload.artifacts.codesign import FRONT_RTOL, CodesignRecord, FrontPoint, RequirementRow
 from piezopreload.artifacts.design import DesignPoint
 from piezopreload.artifacts.plant import DesignedPlant
+from piezopreload.artifacts.requirements import Requirement, Sense
 from piezopreload.artifacts.schedule import PreloadSchedule
 from piezopreload.artifacts.validation import Criteria, ValidationResult
 from piezopreload.core.errors import InfeasibleError, InputError
@@ -254,9 +255,9 @@ class Candidate:
         The stacks' peak command along the schedule.
     cycle_passes : int
         The schedule's margin passes the run took (1: the schedule met its requirements as planned).
-    cycle_requirements : tuple of (str, float, float, str, str)
-        The schedule's requirements judged on the achieved preload while cutting, each ``(name, value, limit, unit,
-        sense)`` (:func:`~piezopreload.design.system.requirements_of`).
+    cycle_requirements : tuple of Requirement
+        The schedule's requirements judged on the achieved preload while cutting
+        (:func:`~piezopreload.design.system.requirements_of`).
     loop_feasible : bool or None
         Whether the controller meets the study's step and staircase limits (None: not judged along the cycle yet,
         ``feasible`` says it); ``feasible`` is this and the schedule's requirements met along the cycle.
@@ -302,7 +303,7 @@ class Candidate:
     cycle_tracking_rms_N: float = math.nan
     cycle_peak_voltage_V: float = math.nan
     cycle_passes: int = 0
-    cycle_requirements: tuple[tuple[str, float, float, str, str], ...] = ()
+    cycle_requirements: tuple[Requirement, ...] = ()
     loop_feasible: bool | None = None
     loop_why: str = ""
     cycle_why: str = ""
@@ -358,9 +359,9 @@ class Candidate:
                                                        "meets": c.feasible} for c in self.shapes]},
                 "cycle": {"tracking_rms_N": _finite(self.cycle_tracking_rms_N),
                           "peak_voltage_V": _finite(self.cycle_peak_voltage_V), "margin_passes": self.cycle_passes,
-                          "requirements": [{"requirement": n, "value": v, "limit": lim, "unit": u, "sense": sense,
-                                            "met": _met(v, lim, sense)}
-                                           for n, v, lim, u, sense in self.cycle_requirements]},
+                          "requirements": [{"requirement": r.name, "value": r.value, "limit": r.limit,
+                                            "unit": r.unit, "sense": r.sense, "met": r.met}
+                                           for r in self.cycle_requirements]},
                 "schedule": None if self.gains.schedule is None else {
                     "levels_N": list(self.gains.schedule.levels_N), "Kc_V_per_N": list(self.gains.schedule.Kc),
                     "Ti_s": list(self.gains.schedule.Ti_s), "Td_s": list(self.gains.schedule.Td_s),
@@ -375,11 +376,6 @@ class Candidate:
 
 def _finite(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
-
-
-def _met(value: float, limit: float, sense: str) -> bool:
-    """A requirement's verdict as the system stage judges it (``Requirement.met``: its margin >= 0)."""
-    return bool(value >= limit if sense == "min" else value <= limit)
 
 
 @dataclass(frozen=True)
@@ -618,7 +614,7 @@ def with_headroom(study: StudySpec, cand: Candidate, headroom: float, lead_s: fl
     loop_why = cand.why if cand.loop_feasible is None else cand.loop_why
     run = along_schedule(study, cand, plan, None if headroom == 1.0 and lead_s == 0.0 else 1)
     ev, final = run.evaluation, run.schedule
-    missed = [f"{r.name} {r.value:.4g} {r.unit} against {'at least' if r.sense == 'min' else 'at most'} "
+    missed = [f"{r.name} {r.value:.4g} {r.unit} against {r.sense.words} "
               f"{r.limit:.4g} {r.unit}" for r in ev.requirements if not r.met]
     cycle_why = (f"along the preload schedule (after {len(run.passes)} margin passes) the achieved preload misses "
                  + "; ".join(missed)) if missed else ""
@@ -627,8 +623,7 @@ def with_headroom(study: StudySpec, cand: Candidate, headroom: float, lead_s: fl
                    schedule_stiffness_margin_N_per_um=float(np.min(final.rigidity_N_per_um - final.required_N_per_um)),
                    cycle_tracking_rms_N=float(ev.numbers.tracking_rms_N),
                    cycle_peak_voltage_V=float(ev.numbers.peak_voltage_V), cycle_passes=len(run.passes),
-                   cycle_requirements=tuple((r.name, float(r.value), float(r.limit), r.unit, r.sense)
-                                            for r in ev.requirements),
+                   cycle_requirements=tuple(ev.requirements),
                    loop_feasible=bool(loop_ok), loop_why=loop_why, cycle_why=cycle_why,
                    feasible=bool(loop_ok) and not (missed and binding),
                    why="; ".join(w for w in (loop_why, cycle_why if binding else "") if w))
@@ -636,8 +631,7 @@ def with_headroom(study: StudySpec, cand: Candidate, headroom: float, lead_s: fl
 
 def _slack(cand: Candidate) -> float:
     """The least margin of the schedule's requirements along the cycle, each over its limit (>= 0: all met)."""
-    return min((v / lim - 1.0 if sense == "min" else 1.0 - v / lim)
-               for _, v, lim, _, sense in cand.cycle_requirements if lim > 0)
+    return min(r.sense.margin(r.value, r.limit) / r.limit for r in cand.cycle_requirements if r.limit > 0)
 
 
 def _least_headroom(study: StudySpec, cand: Candidate, lead_s: float) -> Candidate | None:
@@ -991,52 +985,54 @@ class CodesignResult:
         lim = self.limits
         rows: list[dict[str, Any]] = [
             {"requirement": "least rigidity over the duty", "unit": "N/um", "limit": lim.get("stiffness_min_N_per_um"),
-             "kind": "min", "sequential": a.point.stiffness_N_per_um, "codesigned": b.point.stiffness_N_per_um},
+             "kind": Sense.AT_LEAST, "sequential": a.point.stiffness_N_per_um,
+             "codesigned": b.point.stiffness_N_per_um},
             {"requirement": "lift-off load at the bolts' preload", "unit": "N", "limit": lim.get("lift_off_min_N"),
-             "kind": "min", "sequential": a.lift_off_N, "codesigned": b.lift_off_N},
-            {"requirement": "rating life", "unit": "h", "limit": lim.get("life_min_h"), "kind": "min",
+             "kind": Sense.AT_LEAST, "sequential": a.lift_off_N, "codesigned": b.lift_off_N},
+            {"requirement": "rating life", "unit": "h", "limit": lim.get("life_min_h"), "kind": Sense.AT_LEAST,
              "sequential": a.point.life_h, "codesigned": b.point.life_h},
-            {"requirement": "Ms over the tuning's variants", "unit": "", "limit": lim.get("ms_max"), "kind": "max",
+            {"requirement": "Ms over the tuning's variants", "unit": "", "limit": lim.get("ms_max"),
+             "kind": Sense.AT_MOST,
              "sequential": a.ms, "codesigned": b.ms},
             {"requirement": "nominal tracking RMS, whole range", "unit": "N", "limit": lim.get("tracking_rms_max_N"),
-             "kind": "max", "sequential": a.tracking_rms_N, "codesigned": b.tracking_rms_N},
+             "kind": Sense.AT_MOST, "sequential": a.tracking_rms_N, "codesigned": b.tracking_rms_N},
             {"requirement": "nominal tracking RMS along the preload schedule", "unit": "N", "limit": None,
-             "kind": "max", "sequential": a.cycle_tracking_rms_N, "codesigned": b.cycle_tracking_rms_N},
+             "kind": Sense.AT_MOST, "sequential": a.cycle_tracking_rms_N, "codesigned": b.cycle_tracking_rms_N},
             # what the schedule's headroom buys: rigidity above the cycle's requirement (the planned schedule's
             # least margin; 0 is the requirement met exactly)
             {"requirement": "preload schedule's least rigidity over the cycle's requirement", "unit": "N/um",
-             "limit": 0.0, "kind": "min", "sequential": a.schedule_stiffness_margin_N_per_um,
+             "limit": 0.0, "kind": Sense.AT_LEAST, "sequential": a.schedule_stiffness_margin_N_per_um,
              "codesigned": b.schedule_stiffness_margin_N_per_um},
         ]
         # the schedule's requirements on the achieved preload while cutting, judged along the cycle: each as the
         # achieved over the required (the sample each is judged at, and so its limit, is each run's own)
-        theirs = {name: value / bound for name, value, bound, _, _ in b.cycle_requirements if bound > 0}
-        for name, value, bound, _, sense in a.cycle_requirements:
-            if name in theirs and bound > 0:
-                rows.append({"requirement": f"along the preload schedule: {name}, achieved over required",
-                             "unit": "", "limit": 1.0, "kind": sense, "sequential": value / bound,
-                             "codesigned": theirs[name]})
+        theirs = {r.name: r.value / r.limit for r in b.cycle_requirements if r.limit > 0}
+        for r in a.cycle_requirements:
+            if r.name in theirs and r.limit > 0:
+                rows.append({"requirement": f"along the preload schedule: {r.name}, achieved over required",
+                             "unit": "", "limit": 1.0, "kind": r.sense, "sequential": r.value / r.limit,
+                             "codesigned": theirs[r.name]})
         if not math.isnan(a.growth_um):
             # the design's estimate over the duty cycle (the stiffness:growth front's y); the study's limit
             # (thermal_growth_max_um) is judged by the system stage along the controlled schedule, not here
             rows.append({"requirement": "thermal growth over the shift, duty-cycle estimate", "unit": "um",
-                         "limit": None, "kind": "max", "sequential": a.growth_um, "codesigned": b.growth_um})
+                         "limit": None, "kind": Sense.AT_MOST, "sequential": a.growth_um, "codesigned": b.growth_um})
         vs, vc = self.validation_sequential, self.validation_codesigned
         if vs is not None and vc is not None:
             for metric, unit, limit in (("settling_s", "s", vs.criteria.settling_max_s),
                                         ("overshoot_N", "N", vs.criteria.overshoot_max_N),
                                         ("tracking_rms_N", "N", vs.criteria.tracking_rms_max_N),
                                         ("peak_voltage_V", "V", vs.criteria.peak_voltage_max_V)):
-                rows.append({"requirement": f"Monte Carlo worst {metric}", "unit": unit, "limit": limit, "kind": "max",
+                rows.append({"requirement": f"Monte Carlo worst {metric}", "unit": unit, "limit": limit,
+                             "kind": Sense.AT_MOST,
                              "sequential": float(getattr(vs.worst, metric)),
                              "codesigned": float(getattr(vc.worst, metric))})
             rows.append({"requirement": f"Monte Carlo ({vs.n_plants} plants) passed", "unit": "", "limit": None,
                          "kind": "verdict", "sequential": bool(vs.passed), "codesigned": bool(vc.passed)})
         for row in rows:
-            if row["kind"] in ("min", "max") and row["limit"] is not None:
+            if isinstance(row["kind"], Sense) and row["limit"] is not None:
                 for which in ("sequential", "codesigned"):
-                    ok = row[which] >= row["limit"] if row["kind"] == "min" else row[which] <= row["limit"]
-                    row[f"{which}_met"] = bool(ok)
+                    row[f"{which}_met"] = row["kind"].meets(row[which], row["limit"])
         return rows
 
     def to_dict(self) -> dict[str, Any]:
@@ -1549,7 +1545,7 @@ def codesign_record(study: StudySpec, result: CodesignResult, fronts: tuple[tupl
     """
     rows = []
     for row in result.requirements():
-        if row["kind"] not in ("min", "max"):
+        if not isinstance(row["kind"], Sense):  # the Monte Carlo's verdict row
             continue
         a, b = row["sequential"], row["codesigned"]
         if not (math.isfinite(a) and math.isfinite(b)):

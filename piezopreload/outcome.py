@@ -296,7 +296,7 @@ class StudyResult:
         stages = "".join(f"<tr><td>{s.stage}</td><td>{f'ran in {s.seconds:.1f} s' if s.ran else s.status}</td></tr>"
                          for s in self.stages)
         reqs = "".join(f"<tr><td>{html.escape(r.name)}</td><td>{number(r.value, r.unit)} {r.unit}</td>"
-                       f"<td>{'&ge;' if r.sense == 'min' else '&le;'} {number(r.limit, r.unit)} {r.unit}</td>"
+                       f"<td>{r.sense.sign} {number(r.limit, r.unit)} {r.unit}</td>"
                        f"<td>{'' if r.margin_pct is None else number(r.margin_pct, '%') + ' %'}</td>"
                        f"<td>{'met' if r.met else '<b>missed</b>'}</td></tr>" for r in self.requirements)
         return (f"<p><b>Study {html.escape(self.study.name)}</b>: {html.escape(self.verdict())}; outputs in "

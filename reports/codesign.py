@@ -95,7 +95,7 @@ def codesign_section(r: CodesignRecord) -> Part:
         paragraphs.append(f"Both answers ran through the same {r.plants} Monte Carlo plants: the sequential answer "
                           f"{verdict[r.passed_sequential]}, the co-designed one {verdict[r.passed_codesigned]}.")
     rows = tuple((row.requirement + (f" ({row.unit})" if row.unit else ""),
-                  "-" if row.limit is None else ("at least " if row.kind == "min" else "at most ") + fmt(row.limit, 4),
+                  "-" if row.limit is None else f"{row.kind.words} {fmt(row.limit, 4)}",
                   _cell(row.sequential, row.unit) + _verdict(row.met("sequential")),
                   _cell(row.codesigned, row.unit) + _verdict(row.met("codesigned")))
                  for row in r.requirements)

@@ -155,7 +155,7 @@ def requirements_section(a: Artifacts) -> Part | None:
     checked = a.requirements()
     if not checked:
         return None
-    rows = tuple((r.name, q(r.value, r.unit), f"{'at least' if r.sense == 'min' else 'at most'} "
+    rows = tuple((r.name, q(r.value, r.unit), f"{r.sense.words} "
                   f"{q(r.limit, r.unit)}", q(r.margin, r.unit),
                   "" if r.margin_pct is None else q(r.margin_pct, "%"), "met" if r.met else "missed", r.source)
                  for r in checked)

@@ -551,3 +551,49 @@ def test_a_served_rigs_pushes_are_records_that_write_the_keys_the_summary_had():
                                                                    "reason": "no such user"}
     with pytest.raises(ValueError, match="'operator' is not a field"):
         PushTaken.of("ops", {**identity, "operator": "x"}, accepted=True)  # never dropped silently
+
+
+# --------------------------------------------------------------------------------------
+# a requirement's sense: one enum, its words and its verdict defined once
+# --------------------------------------------------------------------------------------
+def _sense_literals(root: Path) -> list[str]:
+    """Comparisons with the literal ``"min"`` or ``"max"`` of an expression that names a sense or a kind
+    (``r.sense == "min"``, ``row["kind"] in ("min", "max")``) in the package's modules (the floors at the root, the
+    front door's own modules beside their links)."""
+    floors = [p for d in ("artifacts", "core", "design", "models", "reports", "rig", "tuning")
+              for p in (root / d).rglob("*.py")]
+    paths = floors + sorted((root / "piezopreload").glob("*.py")) + sorted((root / "piezopreload" / "cli").glob("*.py"))
+    found = []
+    for path in paths:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(node, ast.Compare):
+                continue
+            literal = any(isinstance(c, ast.Constant) and c.value in ("min", "max") for c in ast.walk(node))
+            text = ast.unparse(node)
+            if literal and ("sense" in text or "kind" in text):
+                found.append(f"{path.relative_to(root)}:{node.lineno}: {text}")
+    return found
+
+
+def test_a_requirements_sense_is_an_enum_that_words_and_judges_it_once():
+    from piezopreload.artifacts.codesign import RequirementRow
+    from piezopreload.artifacts.requirements import Requirement, Sense
+
+    r = Requirement("rigidity while cutting", 761.0, 1000.0, "N/um", "min", "[schedule] stiffness_min_N_per_um")
+    assert r.sense is Sense.AT_LEAST and r.to_dict()["sense"] == "min"
+    assert Requirement.from_dict(r.to_dict()) == r and Requirement.from_dict(r.to_dict()).sense is Sense.AT_LEAST
+    assert (r.margin, r.met) == (-239.0, False) and " against at least 1,000 N/um" in r.sentence()
+    deflection = Requirement("nut axial deflection while cutting", 4.0, 5.0, "um", Sense.AT_MOST)
+    assert (deflection.margin, deflection.met, deflection.figures()) == (1.0, True, "4 um <= 5 um")
+    with pytest.raises(ValueError, match="sense must be one of min, max, got 'least'"):
+        Requirement("x", 1.0, 1.0, "N", "least")
+    row = RequirementRow.from_dict({"requirement": "rating life", "unit": "h", "kind": "min", "sequential": 20000.0,
+                                    "codesigned": 41350.0, "limit": 20000.0})
+    assert row.kind is Sense.AT_LEAST and row.to_dict()["kind"] == "min" and row.met("sequential") is True
+    assert Sense.AT_MOST.meets(5.0, 5.0) and not Sense.AT_MOST.meets(5.0 + 1e-12, 5.0)
+
+
+def test_no_module_compares_a_sense_with_its_string():
+    """Which side of its limit a requirement lies on is read from ``Sense`` (its words, its margin, its verdict),
+    not by comparing a field with "min" or "max" (there were 16 such comparisons in 8 modules)."""
+    assert _sense_literals(ROOT) == []

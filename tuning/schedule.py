@@ -63,7 +63,7 @@ from typing import Any
 
 import numpy as np
 
-from piezopreload.artifacts.requirements import Requirement
+from piezopreload.artifacts.requirements import Requirement, Sense
 from piezopreload.artifacts.tuning import (
     CHOICES,
     LEVEL_FIGURES,
@@ -177,8 +177,8 @@ def level_requirements(schedule: GainScheduleRecord) -> tuple[Requirement, ...]:
             limit = schedule.limits[metric]
             value = 1e9 * max(abs(limit), 1.0) if value is None else float(value)  # never settled: missed by far
             out.append(Requirement(f"{words} at the {level.level_N:,.0f} N level over {schedule.plants} "
-                                   f"Monte Carlo plants ({schedule.choice})", value, float(limit), unit, "max",
-                                   f"[validation] {key}", f"validation.{key}@{level.level_N:g}N"))
+                                   f"Monte Carlo plants ({schedule.choice})", value, float(limit), unit,
+                                   Sense.AT_MOST, f"[validation] {key}", f"validation.{key}@{level.level_N:g}N"))
     return tuple(out)
 
 
