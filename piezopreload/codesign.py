@@ -984,7 +984,9 @@ class CodesignResult:
         a, b = self.sequential, self.codesigned
         lim = self.limits
         rows: list[dict[str, Any]] = [
-            {"requirement": "least rigidity over the duty", "unit": "N/um", "limit": lim.get("stiffness_min_N_per_um"),
+            # the design's own floor (0, the default, is none: the schedule's rigidity is judged along the cycle)
+            {"requirement": "least rigidity over the duty", "unit": "N/um",
+             "limit": lim.get("stiffness_min_N_per_um") or None,
              "kind": Sense.AT_LEAST, "sequential": a.point.stiffness_N_per_um,
              "codesigned": b.point.stiffness_N_per_um},
             {"requirement": "lift-off load at the bolts' preload", "unit": "N", "limit": lim.get("lift_off_min_N"),

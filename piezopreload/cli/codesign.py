@@ -94,7 +94,8 @@ def _print_codesign(r: CodesignResult) -> None:
     print(f"  {'term':10s} {'sequential':>12s} {'co-designed':>12s}  unit")
     for row in r.bought():
         print(f"  {row['term']:10s} {row['sequential']:12.4g} {row['codesigned']:12.4g}  {row['unit']}")
-    print(f"  {'requirement':34s} {'limit':>9s} {'sequential':>11s} {'co-designed':>11s}")
+    # the figures first, the requirement's words last: the words run long, the columns stay aligned
+    print(f"  {'limit':>9s} {'sequential':>11s} {'co-designed':>11s}  requirement")
     for row in r.requirements():
-        print(f"  {row['requirement'] + (' (' + row['unit'] + ')' if row['unit'] else ''):34s} "
-              f"{_fmt(row['limit']):>9s} {_fmt(row.get('sequential')):>11s} {_fmt(row.get('codesigned')):>11s}")
+        print(f"  {_fmt(row['limit']):>9s} {_fmt(row.get('sequential')):>11s} {_fmt(row.get('codesigned')):>11s}  "
+              f"{row['requirement'] + (' (' + row['unit'] + ')' if row['unit'] else '')}")
