@@ -20,8 +20,8 @@ from __future__ import annotations
 import math
 from typing import Any, ClassVar
 
-from piezopreload.artifacts.requirements import SENSES, Sense
-from piezopreload.core.records import Record, SavedArtifact, as_members, entry, record
+from piezopreload.artifacts.requirements import Sense
+from piezopreload.core.records import Record, SavedArtifact, entry, hold_members, record
 
 __all__ = ["FrontPoint", "RequirementRow", "CodesignRecord", "KIND", "FRONT_RTOL", "nondominated"]
 
@@ -74,9 +74,7 @@ class RequirementRow(Record):
                                 required=True)
 
     def __post_init__(self) -> None:
-        as_members(self)
-        if not isinstance(self.kind, Sense):
-            raise ValueError(f"RequirementRow.kind must be one of {', '.join(SENSES)}, got {self.kind!r}")
+        hold_members(self)
 
     def met(self, which: str) -> bool | None:
         """Whether ``which`` (``sequential`` or ``codesigned``) meets the limit (None: no limit).

@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from piezopreload.core.errors import InputError
-from piezopreload.core.records import Artifact, Raw, as_members, entry, record
+from piezopreload.core.records import Artifact, Raw, entry, hold_members, record
 from piezopreload.models.closedloop import Reference
 
 __all__ = ["LearnedSignal", "LearningMethod", "reference_sha256", "KIND"]
@@ -73,7 +73,7 @@ class LearnedSignal(Artifact):
     content_sha256: str | None = entry("Set by :meth:`load` and :meth:`save`.", default=None)
 
     def __post_init__(self) -> None:
-        as_members(self)
+        hold_members(self, InputError)
         self._check_fields()
         n = self._samples()
         for name in ("ff_extra_V", "setpoint_N"):
@@ -98,8 +98,6 @@ class LearnedSignal(Artifact):
             raise InputError(f"LearnedSignal.iteration must be a whole number >= 0, got {self.iteration!r}.")
         if not (np.isfinite(self.preview_s) and self.preview_s >= 0):
             raise InputError(f"LearnedSignal.preview_s must be finite and >= 0, got {self.preview_s!r}.")
-        if not isinstance(self.method, LearningMethod):
-            raise InputError(f"LearnedSignal.method must be one of {', '.join(LearningMethod)}, got {self.method!r}.")
 
     def _samples(self) -> int:
         """The reference's samples at the signal's period (refused beyond 1e8, before anything is sized by it)."""

@@ -18,7 +18,7 @@ from typing import Any, ClassVar
 
 from piezopreload.artifacts.learned import LearningMethod
 from piezopreload.core.errors import ArtifactError
-from piezopreload.core.records import Raw, Record, SavedArtifact, as_members, entry, record
+from piezopreload.core.records import Raw, Record, SavedArtifact, entry, hold_members, record
 
 __all__ = ["KIND", "TrialRecord", "PassRecord", "LearningRecord"]
 
@@ -111,9 +111,7 @@ class PassRecord(Record):
                                                     default=None)
 
     def __post_init__(self) -> None:
-        as_members(self)
-        if not isinstance(self.method, LearningMethod):
-            raise ValueError(f"method must be one of {', '.join(LearningMethod)}, got {self.method!r}")
+        hold_members(self)
         if len(self.history) != self.trials + 1:
             raise ArtifactError(f"pass {self.pass_number}: {len(self.history)} trials recorded for {self.trials} "
                                 "learning trials after trial 0")

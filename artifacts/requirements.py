@@ -24,9 +24,9 @@ from typing import Any, ClassVar
 
 from piezopreload.core.errors import ArtifactError
 from piezopreload.core.quantities import number
-from piezopreload.core.records import Record, as_members, entry, record
+from piezopreload.core.records import Record, entry, hold_members, record
 
-__all__ = ["Sense", "SENSES", "Requirement", "AtBound", "OffBounds", "BASES", "EXIT_REQUIREMENT_MISSED",
+__all__ = ["Sense", "Requirement", "AtBound", "OffBounds", "BASES", "EXIT_REQUIREMENT_MISSED",
            "requirements_from_dict", "missed", "least_margin", "own_constraints", "unaccepted"]
 
 #: the exit code of a study that ran but missed a requirement (0 done, 1 internal, 2 bad input, 3 rig stopped)
@@ -88,12 +88,6 @@ class Sense(StrEnum):
         return bool(self.margin(value, limit) >= 0.0)
 
 
-#: the senses, in their order
-SENSES = tuple(Sense)
-
-
-
-
 #: what a requirement rests on: ``design`` the design's own constraint (the design is built to sit on it: its margin
 #: is the loop's error, not physics), ``physics`` what the physics grants
 BASES = ("design", "physics")
@@ -148,9 +142,7 @@ class Requirement(Record):
             match = re.match(r"\[([\w.]+)\]\s+(\w+)", self.source)
             object.__setattr__(self, "key", f"{match.group(1)}.{match.group(2)}" if match
                                else re.sub(r"\W+", "_", self.name).strip("_"))
-        as_members(self)
-        if not isinstance(self.sense, Sense):
-            raise ValueError(f"Requirement.sense must be one of {', '.join(SENSES)}, got {self.sense!r}")
+        hold_members(self)
         for label in ("value", "limit"):
             if not math.isfinite(getattr(self, label)):
                 raise ValueError(f"Requirement '{self.name}': {label} must be finite, got {getattr(self, label)!r}")

@@ -12,7 +12,7 @@ from __future__ import annotations
 from typing import Any, ClassVar
 
 from piezopreload.core.errors import ArtifactError
-from piezopreload.core.records import Record, SavedArtifact, as_members, entry, record
+from piezopreload.core.records import Record, SavedArtifact, entry, hold_members, record
 from piezopreload.models.metrics import Signal
 
 __all__ = ["ResponseRun", "ReproductionRow", "CreepRow", "ResponsesRecord", "RESPONSE_FIGURES"]
@@ -93,9 +93,7 @@ class ResponsesRecord(SavedArtifact):
     inputs: dict[str, Any] = entry("The inputs' hashes.", default={}, required=True)
 
     def __post_init__(self) -> None:
-        as_members(self)
-        if not isinstance(self.signal, Signal):
-            raise ValueError(f"signal must be one of {', '.join(Signal)}, got {self.signal!r}")
+        hold_members(self)
 
     def run(self, gains: str, controller: str, reference: str) -> ResponseRun:
         """The run of ``gains`` with ``controller`` on ``reference``.

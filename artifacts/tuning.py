@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 from piezopreload.artifacts.gainset import GainSet, GainsTable, schedule_from_dict
 from piezopreload.core.quantities import number
-from piezopreload.core.records import Record, SavedArtifact, as_members, entry, load_one_of, record
+from piezopreload.core.records import Record, SavedArtifact, entry, hold_members, load_one_of, record
 from piezopreload.models.controller import GainSchedule, PIDGains
 
 if TYPE_CHECKING:
@@ -299,9 +299,7 @@ class GainScheduleRecord(Record):
     seconds: float = entry("The time it took.", unit="s")
 
     def __post_init__(self) -> None:
-        as_members(self)
-        if not isinstance(self.choice, ScheduleChoice):
-            raise ValueError(f"choice must be one of {', '.join(CHOICES)}, got {self.choice!r}")
+        hold_members(self)
 
     @property
     def chosen_set(self) -> str:

@@ -72,8 +72,8 @@ from piezopreload.core.artifacts import ArtifactKind, field_message, read_artifa
 from piezopreload.core.errors import ArtifactError, InputError
 
 __all__ = ["Entry", "entry", "record", "Record", "Artifact", "SavedArtifact", "Raw", "load_one_of", "object_without",
-           "kind_of", "Checked", "checked", "check_entries", "as_members", "read_table", "Invalid", "MANY",
-           "table_values", "TableOf",
+           "kind_of", "Checked", "checked", "check_entries", "as_members", "hold_members", "read_table", "Invalid",
+           "MANY", "table_values", "TableOf",
            "UnitKey",
            "takes"]
 
@@ -1171,6 +1171,29 @@ def as_members(obj: Any) -> None:
             member = _member(spec.record, value)
             if member is not None and member is not value:
                 object.__setattr__(obj, spec.name, member)
+
+
+def hold_members(obj: Any, error: type[Exception] = ValueError) -> None:
+    """:func:`as_members`, then refuse an enum field whose value names no member of its enum (None passes where the
+    field is optional): the one check a record made in code runs on its enum fields.
+
+    Parameters
+    ----------
+    obj : dataclass
+        The object, as made (frozen: set in place, as its ``__post_init__`` may).
+    error : type of Exception
+        What to raise (``ValueError``, or the record's own input error).
+
+    Raises
+    ------
+    Exception
+        ``error``: ``Owner.field must be one of A, B, got VALUE``.
+    """
+    as_members(obj)
+    for spec in _specs(type(obj)):
+        value = getattr(obj, spec.name)
+        if spec.kind == "enum" and not isinstance(value, spec.record) and not (value is None and spec.optional):
+            raise error(f"{type(obj).__name__}.{spec.name} must be one of {', '.join(spec.record)}, got {value!r}")
 
 
 def check_entries(obj: Any) -> None:
